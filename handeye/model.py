@@ -1,0 +1,69 @@
+"""The one hand-eye model that serves both mounting modes.
+
+Both modes are ``T_cam_board_i = A · M_i · B`` with a known robot motion ``M_i`` and two constant
+unknowns ``A`` and ``B``:
+
+============  ===================  ==================  ==================
+mode          A                    M_i                 B
+============  ===================  ==================  ==================
+eye_in_hand   T_cam_end = inv(X)   T_end_base_i        T_base_board
+eye_to_hand   T_cam_base = inv(X)  T_base_end_i        T_end_board
+============  ===================  ==================  ==================
+
+where X is the reported unknown (``T_end_cam`` or ``T_base_cam``). The two adapters below are
+the only place where the modes differ.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import ConfigError
+from .geometry import inv_T
+from .types import MODES
+
+
+@dataclass(frozen=True)
+class MountingMode:
+    name: str
+    x_name: str  # name of the hand-eye unknown in results
+    board_name: str  # name of the constant board transform
+    fixed_frame: str  # frame the camera is rigid to
+    board_frame: str  # frame the board is rigid to
+
+    def M_from_T_base_end(self, T_base_end: np.ndarray) -> np.ndarray:
+        """Robot motion M_i for (N,4,4) or (4,4) reported poses ``T_base_end``."""
+        return inv_T(T_base_end) if self.name == "eye_in_hand" else np.asarray(T_base_end, float)
+
+    def T_base_end_from_M(self, M: np.ndarray) -> np.ndarray:
+        return inv_T(M) if self.name == "eye_in_hand" else np.asarray(M, float)
+
+    @staticmethod
+    def A_from_X(T_x: np.ndarray) -> np.ndarray:
+        return inv_T(T_x)
+
+    @staticmethod
+    def X_from_A(A: np.ndarray) -> np.ndarray:
+        return inv_T(A)
+
+    def predict_T_cam_board(self, T_x: np.ndarray, T_board: np.ndarray, T_base_end: np.ndarray) -> np.ndarray:
+        """``T_cam_board`` for each robot pose (N,4,4) under a hand-eye solution."""
+        return inv_T(T_x) @ self.M_from_T_base_end(T_base_end) @ T_board
+
+    def T_base_cam(self, T_x: np.ndarray, T_base_end: np.ndarray) -> np.ndarray:
+        """Camera in the base frame at a robot pose (eye-to-hand: constant)."""
+        return T_base_end @ T_x if self.name == "eye_in_hand" else np.asarray(T_x, float)
+
+
+EYE_IN_HAND = MountingMode("eye_in_hand", "T_end_cam", "T_base_board", "end", "base")
+EYE_TO_HAND = MountingMode("eye_to_hand", "T_base_cam", "T_end_board", "base", "end")
+
+
+def mounting(mode: str) -> MountingMode:
+    if mode == "eye_in_hand":
+        return EYE_IN_HAND
+    if mode == "eye_to_hand":
+        return EYE_TO_HAND
+    raise ConfigError("unknown mounting mode", expected=" | ".join(MODES), received=repr(mode),
+                      hint="use --mode eye_in_hand or --mode eye_to_hand")
