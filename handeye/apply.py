@@ -1,0 +1,57 @@
+"""Using a hand-eye result: points and poses seen by the camera, expressed in the robot base.
+
+Eye-in-hand: ``p_base = T_base_end @ T_end_cam @ p_cam`` (needs the end pose at capture time).
+Eye-to-hand: ``p_base = T_base_cam @ p_cam`` (the end pose is not needed).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import ConfigError, InputError
+from .geometry import is_rotation, transform_points
+from .types import MODES
+
+
+def T_base_cam_from_result(mode: str, T_x: np.ndarray, T_base_end: np.ndarray | None = None) -> np.ndarray:
+    """Camera pose in the base frame for a result ``T_x`` (T_end_cam or T_base_cam)."""
+    if mode == "eye_in_hand":
+        if T_base_end is None:
+            raise ConfigError("eye-in-hand needs the robot's end pose at the time the camera saw the point",
+                              hint="pass --end-pose x y z rx ry rz (metres, radians, R = Rz·Ry·Rx)")
+        return np.asarray(T_base_end, float) @ np.asarray(T_x, float)
+    if mode == "eye_to_hand":
+        return np.asarray(T_x, float)
+    raise ConfigError("unknown mode", expected=" | ".join(MODES), received=repr(mode))
+
+
+def points_cam_to_base(p_cam: np.ndarray, *, mode: str, T_x: np.ndarray,
+                       T_base_end: np.ndarray | None = None) -> np.ndarray:
+    """Points (N,3) or (3,) in the camera frame (metres) -> robot base frame (metres)."""
+    p = np.asarray(p_cam, float)
+    if p.shape[-1] != 3 or not np.all(np.isfinite(p)):
+        raise InputError("points must be finite x, y, z in metres", received=str(p.tolist())[:60])
+    return transform_points(T_base_cam_from_result(mode, T_x, T_base_end), p)
+
+
+def pose_cam_to_base(T_cam_obj: np.ndarray, *, mode: str, T_x: np.ndarray,
+                     T_base_end: np.ndarray | None = None) -> np.ndarray:
+    """An object pose seen by the camera, ``T_cam_obj``, as ``T_base_obj``."""
+    T = np.asarray(T_cam_obj, float)
+    if T.shape != (4, 4) or not is_rotation(T[:3, :3], tol=1e-6):
+        raise InputError("object pose must be a 4x4 rigid transform")
+    return T_base_cam_from_result(mode, T_x, T_base_end) @ T
+
+
+def result_transform(result: dict) -> tuple[str, np.ndarray]:
+    """(mode, T_x) from a loaded result.json, with checks."""
+    mode = result.get("mode")
+    if result.get("status", "ok") != "ok":
+        raise InputError(f"the result is a failed calibration ({result.get('failure_reason', '')[:120]})",
+                         hint="calibrate again and apply a successful result")
+    key = {"eye_in_hand": "T_end_cam", "eye_to_hand": "T_base_cam"}.get(mode)
+    if key is None or key not in result:
+        raise InputError("result.json has no hand-eye transform", expected="mode and T_end_cam or T_base_cam")
+    T = np.asarray(result[key], float)
+    if T.shape != (4, 4) or not is_rotation(T[:3, :3], tol=1e-6):
+        raise InputError(f"{key} in result.json is not a 4x4 rigid transform")
+    return mode, T

@@ -1,0 +1,102 @@
+"""Writing outputs: atomic files and self-describing provenance."""
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .errors import InputError
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` so that readers see the old file or the whole new one, never half."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+    return path
+
+
+def atomic_write_text(path: str | Path, text: str) -> Path:
+    return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer, np.bool_)):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def to_json(obj) -> str:
+    return json.dumps(obj, indent=2, default=_json_default, allow_nan=True)
+
+
+def write_json(path: str | Path, obj) -> Path:
+    return atomic_write_text(path, to_json(obj) + "\n")
+
+
+def read_json(path: str | Path) -> dict:
+    path = Path(path)
+    if path.is_dir():
+        path = path / "result.json"
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError("file not found", path=path, hint="run handeye calibrate first or pass the result folder") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(f"not valid JSON ({e})", path=path) from None
+
+
+def hash_files(paths) -> str:
+    """SHA-256 over the bytes of the given files (in the given order) and their names."""
+    h = hashlib.sha256()
+    for p in paths:
+        p = Path(p)
+        h.update(p.name.encode())
+        if p.exists():
+            with open(p, "rb") as f:
+                for chunk in iter(lambda: f.read(1 << 20), b""):
+                    h.update(chunk)
+    return h.hexdigest()
+
+
+def provenance(*, inputs_sha256: str | None = None, extra: dict | None = None) -> dict:
+    d = {
+        "handeye_version": __version__,
+        "command_line": " ".join([Path(sys.argv[0]).name] + sys.argv[1:]) if sys.argv else "",
+        "time_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "python": sys.version.split()[0],
+    }
+    try:
+        import cv2
+
+        d["opencv"] = cv2.__version__
+    except ImportError:  # pragma: no cover
+        pass
+    if inputs_sha256:
+        d["inputs_sha256"] = inputs_sha256
+    if extra:
+        d.update(extra)
+    return d
