@@ -1,0 +1,1 @@
+"""Reprojection factors (pure numpy residuals + thin GTSAM wrappers)."""

@@ -1,0 +1,112 @@
+"""Thin GTSAM wrappers around :mod:`.reprojection`: one ``CustomFactor`` per view, not per corner.
+
+Variables (GTSAM keys chosen by the caller):
+
+* ``key_x``      Pose3  ``T_x`` (``T_end_cam`` eye-in-hand, ``T_base_cam`` eye-to-hand)
+* ``key_board``  Pose3  ``T_board`` (``T_base_board`` eye-in-hand, ``T_end_board`` eye-to-hand)
+* ``key_robot``  Pose3  the true robot pose ``T_base_end`` of this view, or None to hold the
+  reported pose fixed
+* ``key_intrinsics``  Vector of the *free* intrinsics, in the order of ``INTRINSIC_NAMES`` with the
+  fixed ones left out; None holds all nine fixed. (GTSAM's Cal3DS2 has no k3, so the intrinsics are
+  a plain vector.)
+
+The pixel noise is an isotropic Gaussian of ``sigma_px`` per coordinate; an optional per-corner
+robust loss (Huber or Cauchy, threshold ``loss_k`` in sigmas) is applied inside the view factor,
+see :func:`.reprojection.corner_robust_scales`.
+"""
+from __future__ import annotations
+
+from typing import Optional, Sequence
+
+import gtsam
+import numpy as np
+
+from .reprojection import MODE_INVERTS_ROBOT, chain_residual, corner_robust_scales
+
+
+def view_reprojection_factor(*, mode: str, key_x: int, key_board: int, key_robot: Optional[int],
+                             key_intrinsics: Optional[int], object_points: np.ndarray, image_points: np.ndarray,
+                             sigma_px: float, intrinsics_vec: np.ndarray, free_intrinsics: Sequence[int] = (),
+                             T_base_end: Optional[np.ndarray] = None, loss: str = "none",
+                             loss_k: float = 3.0) -> gtsam.CustomFactor:
+    """A ``CustomFactor`` for all corners of one view.
+
+    ``intrinsics_vec`` (9,) holds the values of the fixed intrinsics (and the start of the free
+    ones, which the variable overrides); ``free_intrinsics`` lists the indices the variable holds.
+    ``T_base_end`` is required when ``key_robot`` is None (robot pose taken as exact).
+    """
+    invert_robot = MODE_INVERTS_ROBOT[mode]
+    obj = np.ascontiguousarray(object_points, dtype=float)  # shape (N, 3)
+    img = np.ascontiguousarray(image_points, dtype=float)  # shape (N, 2)
+    n2 = 2 * obj.shape[0]
+    free = np.asarray(free_intrinsics, dtype=int)
+    if key_intrinsics is not None and free.size == 0:
+        raise ValueError("key_intrinsics given but no free intrinsics")
+    base_k = np.array(intrinsics_vec, dtype=float)
+    if key_robot is None:
+        if T_base_end is None:
+            raise ValueError("T_base_end is required when the robot pose is not a variable")
+        T_robot_fixed = np.array(T_base_end, dtype=float)
+
+    keys = [key_x, key_board]
+    if key_robot is not None:
+        keys.append(key_robot)
+    if key_intrinsics is not None:
+        keys.append(key_intrinsics)
+    # Jacobian buffers, Fortran order for Eigen; GTSAM copies them after the callback returns.
+    H_x = np.zeros((n2, 6), order="F")
+    H_b = np.zeros((n2, 6), order="F")
+    H_r = np.zeros((n2, 6), order="F")
+    H_k = np.zeros((n2, free.size), order="F")
+    k_work = base_k.copy()
+
+    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H) -> np.ndarray:
+        T_x = v.atPose3(key_x).matrix()
+        T_board = v.atPose3(key_board).matrix()
+        T_robot = v.atPose3(key_robot).matrix() if key_robot is not None else T_robot_fixed
+        if key_intrinsics is not None:
+            k_work[free] = v.atVector(key_intrinsics)
+        want = H is not None
+        r, J_x, J_r, J_b, J_k = chain_residual(T_x=T_x, T_base_end=T_robot, T_board=T_board,
+                                               invert_robot=invert_robot, intrinsics_vec=k_work,
+                                               object_points=obj, image_points=img, jacobians=want)
+        cost_scale, irls_scale = corner_robust_scales(r, sigma_px=sigma_px, loss=loss, k=loss_k)
+        if not want:
+            if loss == "none":
+                return r
+            return r * np.repeat(cost_scale, 2)
+        w = np.repeat(irls_scale, 2)[:, None] if loss != "none" else None
+        blocks = [(H_x, J_x), (H_b, J_b)]
+        if key_robot is not None:
+            blocks.append((H_r, J_r))
+        if key_intrinsics is not None:
+            blocks.append((H_k, J_k[:, free]))
+        for i, (buf, J) in enumerate(blocks):
+            if w is None:
+                buf[...] = J
+            else:
+                np.multiply(J, w, out=buf)
+            H[i] = buf
+        return r if w is None else r * w[:, 0]
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(n2, float(sigma_px)), keys, error_func)
+
+
+def robot_pose_prior(*, key_robot: int, T_base_end_reported: np.ndarray, sigma_rot_rad: float,
+                     sigma_trans_m: float, robust_k: Optional[float] = None) -> gtsam.NonlinearFactor:
+    """Prior tying the true robot pose variable to the reported one (GTSAM's PriorFactorPose3).
+
+    The error is ``Log(inv(reported) · T_base_end)``: rotation (rad) then translation (m), both in
+    the end frame. ``robust_k`` wraps it in a Huber loss on the whitened 6-vector norm.
+    """
+    sig = np.array([sigma_rot_rad] * 3 + [sigma_trans_m] * 3, dtype=float)
+    noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
+    if robust_k is not None:
+        noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
+    return gtsam.PriorFactorPose3(key_robot, gtsam.Pose3(np.asarray(T_base_end_reported, float)), noise)
+
+
+def intrinsics_prior(*, key_intrinsics: int, prior_values: np.ndarray, sigmas: np.ndarray) -> gtsam.NonlinearFactor:
+    """Gaussian prior on the free-intrinsics vector (same order and length as the variable)."""
+    return gtsam.PriorFactorVector(key_intrinsics, np.asarray(prior_values, float),
+                                   gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, float)))
