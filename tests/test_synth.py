@@ -1,0 +1,173 @@
+"""Tests for handeye.synth: synthetic sessions with known ground truth."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from handeye import synth
+from handeye.errors import ConfigError, DegenerateMotionError
+from handeye.geometry import inv_T, is_rotation, rotation_angle_rad
+from handeye.model import mounting
+from handeye.types import ChessboardSpec
+
+MODES = ("eye_in_hand", "eye_to_hand")
+
+
+# ---------------------------------------------------------------- setup and view poses
+
+@pytest.mark.parametrize("mode", MODES)
+def test_sample_setup_is_plausible(mode):
+    rng = np.random.default_rng(1)
+    s = synth.sample_setup(mode=mode, rng=rng)
+    assert s["x_name"] == mounting(mode).x_name and s["board_name"] == mounting(mode).board_name
+    T_x, T_board = s["T_x"], s["T_board"]
+    assert is_rotation(T_x[:3, :3]) and is_rotation(T_board[:3, :3])
+    if mode == "eye_in_hand":
+        offset = np.linalg.norm(T_x[:3, 3])
+        assert 0.05 <= offset <= 0.10, f"camera offset on the flange {offset:.3f} m"
+        tilt_deg = np.degrees(np.arccos(T_x[2, 2]))  # optical axis vs flange z
+        assert tilt_deg <= 10.0 + 1e-9, f"optical axis {tilt_deg:.1f} deg from flange z"
+    else:
+        cam_dist = np.linalg.norm(T_x[:3, 3] - np.array([0.5, 0.0, 0.25]))
+        assert 0.7 <= cam_dist <= 1.8, f"fixed camera {cam_dist:.2f} m from the workspace"
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_view_poses_show_whole_board_and_span_three_axes(mode):
+    rng = np.random.default_rng(2)
+    s = synth.sample_setup(mode=mode, rng=rng)
+    T_base_end = synth.sample_view_poses(mode=mode, n_views=12, rng=rng, T_x=s["T_x"], T_board=s["T_board"],
+                                         target=synth.DEFAULT_TARGET, intrinsics=synth.DEFAULT_INTRINSICS)
+    assert T_base_end.shape == (12, 4, 4)
+    T_cam_board = mounting(mode).predict_T_cam_board(s["T_x"], s["T_board"], T_base_end)
+    for T in T_cam_board:
+        assert synth.board_in_image(synth.DEFAULT_TARGET, synth.DEFAULT_INTRINSICS, T)
+    assert synth.rotation_spread_deg(T_cam_board) >= 5.0
+    # rolls about the optical axis cover a wide range (stratified over +-80 deg)
+    roll_deg = np.degrees(np.arctan2(T_cam_board[:, 1, 0], T_cam_board[:, 0, 0]))
+    assert np.ptp(roll_deg) > 90.0, f"roll range {np.ptp(roll_deg):.0f} deg"
+
+
+def test_view_poses_without_roll_or_tilt_are_degenerate():
+    rng = np.random.default_rng(3)
+    s = synth.sample_setup(mode="eye_in_hand", rng=rng)
+    with pytest.raises(DegenerateMotionError):
+        synth.sample_view_poses(mode="eye_in_hand", n_views=8, rng=rng, T_x=s["T_x"], T_board=s["T_board"],
+                                tilt_deg=(0.0, 0.0), roll_deg=0.0, aim_deg=3.0)
+
+
+def test_view_poses_reject_bad_options():
+    rng = np.random.default_rng(0)
+    s = synth.sample_setup(mode="eye_in_hand", rng=rng)
+    with pytest.raises(ConfigError):
+        synth.sample_view_poses(mode="eye_on_hand", n_views=5, rng=rng, T_x=s["T_x"], T_board=s["T_board"])
+    with pytest.raises(ConfigError):
+        synth.sample_view_poses(mode="eye_in_hand", n_views=5, rng=rng, T_x=s["T_x"], T_board=s["T_board"],
+                                distance_m=(0.9, 0.3))
+    with pytest.raises(ConfigError):  # a 0.36 m pattern cannot fill 0.1 m of view
+        synth.sample_view_poses(mode="eye_in_hand", n_views=2, rng=rng, T_x=s["T_x"], T_board=s["T_board"],
+                                distance_m=(0.1, 0.12), max_tries=50)
+
+
+def test_default_intrinsics_scale_with_height():
+    k = synth.default_intrinsics()
+    assert (k.width, k.height) == (1280, 720) and abs(k.fx - 910.5) < 1e-9
+    small = synth.default_intrinsics(640, 360)
+    assert abs(small.fx - k.fx / 2) < 1e-9 and abs(small.cx - (319.5 + 1.6)) < 1e-9
+    with pytest.raises(ConfigError):
+        synth.default_intrinsics(8, 8)
+
+
+# ---------------------------------------------------------------- corner-level sessions
+
+@pytest.mark.parametrize("mode", MODES)
+def test_noiseless_corners_reproject_exactly_through_truth(mode):
+    s = synth.make_corner_session(mode=mode, n_views=8, seed=4, noise_px=0.0)
+    assert s.view_ids == tuple(str(k) for k in range(1, 9))
+    T_cam_board = mounting(mode).predict_T_cam_board(s.T_x_true, s.T_board_true, s.T_base_end_true)
+    obj = s.target.object_points()
+    for k, vid in enumerate(s.view_ids):
+        uv = synth.pixel_from_board_point(T_cam_board[k], obj[s.corner_ids[k]], s.intrinsics)
+        assert np.max(np.abs(uv - s.image_points[k])) < 1e-9, f"view {vid}"
+    # no robot noise -> reported == true
+    np.testing.assert_array_equal(s.T_base_end_reported, s.T_base_end_true)
+    assert len(s.detections()) == 8
+
+
+def test_pixel_noise_matches_sigma_and_keeps_geometry():
+    clean = synth.make_corner_session(n_views=10, seed=5, noise_px=0.0)
+    noisy = synth.make_corner_session(n_views=10, seed=5, noise_px=0.5)
+    np.testing.assert_array_equal(clean.T_base_end_true, noisy.T_base_end_true)  # noise never moves geometry
+    d = np.concatenate([a - b for a, b in zip(noisy.image_points, clean.image_points)]).ravel()
+    n = d.size  # 10 views * 88 corners * 2
+    assert abs(d.std() - 0.5) < 0.5 * 5 / np.sqrt(2 * n), f"pixel noise std {d.std():.4f}"
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_robot_noise_statistics_match_sigma(mode):
+    sigma_mm, sigma_deg = 1.0, 0.2
+    s = synth.make_corner_session(mode=mode, n_views=60, seed=6, noise_px=0.0, robot_noise=(sigma_mm, sigma_deg))
+    dT = inv_T(s.T_base_end_true) @ s.T_base_end_reported  # end-frame perturbation
+    t_mm = 1e3 * dT[:, :3, 3].ravel()
+    rv_deg = np.degrees(np.array([_rotvec(R) for R in dT[:, :3, :3]])).ravel()
+    n = t_mm.size  # 180 samples; std of the sample std is sigma/sqrt(2n)
+    tol = 5.0 / np.sqrt(2 * n)
+    assert abs(t_mm.std() / sigma_mm - 1) < tol, f"translation std {t_mm.std():.3f} mm"
+    assert abs(rv_deg.std() / sigma_deg - 1) < tol, f"rotation std {rv_deg.std():.4f} deg"
+    assert abs(t_mm.mean()) < 5 * sigma_mm / np.sqrt(n)
+    assert abs(rv_deg.mean()) < 5 * sigma_deg / np.sqrt(n)
+    # the corners still follow the *true* poses
+    T_cam_board = s.T_cam_board_true
+    uv = synth.pixel_from_board_point(T_cam_board[0], s.target.object_points(), s.intrinsics)
+    assert np.max(np.abs(uv - s.image_points[0])) < 1e-9
+
+
+def _rotvec(R):
+    from scipy.spatial.transform import Rotation
+    return Rotation.from_matrix(R).as_rotvec()
+
+
+def test_outliers_get_gross_errors_in_range():
+    s = synth.make_corner_session(n_views=12, seed=7, noise_px=0.0, outlier_views=3)
+    assert len(s.outlier_view_ids) == 3
+    for vid in s.view_ids:
+        k = s.index(vid)
+        dT = inv_T(s.T_base_end_true[k]) @ s.T_base_end_reported[k]
+        t_mm = 1e3 * np.linalg.norm(dT[:3, 3])
+        ang_deg = np.degrees(rotation_angle_rad(dT[:3, :3]))
+        if vid in s.outlier_view_ids:
+            assert 5.0 <= t_mm <= 30.0 and 2.0 <= ang_deg <= 10.0, (vid, t_mm, ang_deg)
+        else:
+            assert t_mm < 1e-9 and ang_deg < 1e-9
+    explicit = synth.make_corner_session(n_views=6, seed=7, outlier_views=["2", "5"])
+    assert explicit.outlier_view_ids == ("2", "5")
+
+
+def test_hidden_views_have_no_corners_and_board_out_of_view():
+    s = synth.make_corner_session(mode="eye_to_hand", n_views=6, seed=8, hidden_views=["3"])
+    k = s.index("3")
+    assert s.hidden_view_ids == ("3",) and len(s.corner_ids[k]) == 0 and s.image_points[k].shape == (0, 2)
+    assert synth.board_out_of_image(s.target, s.intrinsics, s.T_cam_board_true[k])
+    assert "3" not in [d.view_id for d in s.detections()]
+
+
+def test_corner_session_rejects_bad_ids_and_levels():
+    with pytest.raises(ConfigError):
+        synth.make_corner_session(n_views=4, hidden_views=["5"])
+    with pytest.raises(ConfigError):
+        synth.make_corner_session(n_views=4, hidden_views=["2"], outlier_views=["2"])
+    with pytest.raises(ConfigError):
+        synth.make_corner_session(n_views=4, outlier_views=5)
+    with pytest.raises(ConfigError):
+        synth.make_corner_session(n_views=4, noise_px=-1.0)
+    with pytest.raises(ConfigError):
+        synth.make_corner_session(mode="hand_in_eye", n_views=4)
+
+
+def test_corner_session_is_frozen_and_deterministic():
+    a = synth.make_corner_session(n_views=5, seed=9, target=ChessboardSpec(9, 6, 0.025))
+    b = synth.make_corner_session(n_views=5, seed=9, target=ChessboardSpec(9, 6, 0.025))
+    np.testing.assert_array_equal(a.T_base_end_true, b.T_base_end_true)
+    np.testing.assert_array_equal(a.image_points[2], b.image_points[2])
+    with pytest.raises(ValueError):
+        a.image_points[0][0, 0] = 1.0
