@@ -1,0 +1,232 @@
+"""Intel RealSense colour camera, live (``realsense``) or from a recording (``bag:FILE``).
+
+pyrealsense2 is imported only when one of these backends is used; a missing package or a missing
+libusb gives a one-line HardwareError that says what to install.
+
+Distortion models (librealsense ``rsutil.h``, ``rs2_project_point_to_pixel``): ``brown_conrady``
+is OpenCV's (k1, k2, p1, p2, k3) exactly. ``modified_brown_conrady`` and ``inverse_brown_conrady``
+(the D400 colour sensor's model) apply the tangential terms after the radial scaling; with p1 = p2
+= 0 that is OpenCV's model exactly, otherwise it is close but not equal and is recorded as
+``approximate`` (the intrinsics are written with ``use: initial``, so they are refined anyway).
+Other models (fisheye) are not representable and are recorded without distortion. The original
+model name and coefficients are always recorded.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..errors import ConfigError, HardwareError
+from ..types import Intrinsics
+from .camera import Camera
+
+log = logging.getLogger(__name__)
+
+
+def import_pyrealsense2():
+    """``pyrealsense2`` or a HardwareError naming what to install."""
+    try:
+        import pyrealsense2 as rs  # noqa: PLC0415 (lazy on purpose: optional hardware dependency)
+    except ImportError as e:
+        text = str(e)
+        if "libusb" in text:
+            raise HardwareError(f"pyrealsense2 is installed but cannot load libusb ({text})",
+                                hint="install it: apt-get install libusb-1.0-0 (Debian/Ubuntu)") from None
+        raise HardwareError(f"pyrealsense2 is not available ({text})",
+                            hint="pip install pyrealsense2 (x86-64 Linux/Windows wheels), or build librealsense "
+                                 "with its Python bindings") from None
+    return rs
+
+
+def opencv5_from_realsense(model: str, coeffs) -> tuple[tuple, str]:
+    """(k1, k2, p1, p2, k3) for OpenCV and how exact that is: "exact" | "approximate" | "not representable"."""
+    name = str(model).lower().replace(" ", "_").replace("distortion.", "")
+    c = [float(x) for x in list(coeffs)[:5]] + [0.0] * max(0, 5 - len(list(coeffs)))
+    if name in ("none",):
+        return (0.0,) * 5, "exact"
+    if name == "brown_conrady":
+        return tuple(c), "exact"
+    if name in ("inverse_brown_conrady", "modified_brown_conrady"):
+        return tuple(c), ("exact" if c[2] == 0.0 and c[3] == 0.0 else "approximate")
+    return (0.0,) * 5, "not representable"
+
+
+def intrinsics_from_realsense(*, fx: float, fy: float, ppx: float, ppy: float, width: int, height: int,
+                              model: str, coeffs) -> tuple[Intrinsics, dict]:
+    """Intrinsics in handeye's OpenCV form plus a record of the original RealSense values."""
+    dist, exactness = opencv5_from_realsense(model, coeffs)
+    if exactness != "exact":
+        log.warning("RealSense distortion model %s maps to OpenCV's %s; the intrinsics are only a starting value",
+                    model, exactness)
+    intr = Intrinsics(float(fx), float(fy), float(ppx), float(ppy), dist, int(width), int(height))
+    source = {"kind": "factory (RealSense)", "original_model": str(model).replace("distortion.", ""),
+              "original_coeffs": [float(x) for x in coeffs], "mapping_to_opencv5": exactness}
+    return intr, source
+
+
+def _bgr_from_frame(rs, frame) -> np.ndarray:
+    fmt = frame.get_profile().format()
+    data = np.asanyarray(frame.get_data())
+    if fmt == rs.format.bgr8:
+        return np.ascontiguousarray(data).copy()
+    if fmt == rs.format.rgb8:
+        return cv2.cvtColor(data, cv2.COLOR_RGB2BGR)
+    if fmt == rs.format.bgra8:
+        return cv2.cvtColor(data, cv2.COLOR_BGRA2BGR)
+    if fmt == rs.format.rgba8:
+        return cv2.cvtColor(data, cv2.COLOR_RGBA2BGR)
+    if fmt == rs.format.yuyv:
+        return cv2.cvtColor(data.reshape(frame.get_height(), frame.get_width(), 2), cv2.COLOR_YUV2BGR_YUYV)
+    if fmt == rs.format.y8:
+        return np.ascontiguousarray(data).copy()
+    raise HardwareError(f"unsupported RealSense colour format {fmt}", expected="bgr8, rgb8, bgra8, rgba8, yuyv or y8")
+
+
+def _frame_info(rs, frame) -> dict:
+    return {"frame_number": int(frame.get_frame_number()), "device_timestamp_ms": float(frame.get_timestamp()),
+            "timestamp_domain": str(frame.get_frame_timestamp_domain()).replace("timestamp_domain.", "")}
+
+
+class _RealSenseBase(Camera):
+    def __init__(self):
+        self._rs = import_pyrealsense2()
+        self._pipe = None
+        self._intr: Intrinsics | None = None
+        self._intr_source: dict = {}
+        self._device_info: dict = {}
+
+    def _read_profile(self, profile) -> None:
+        rs = self._rs
+        vsp = profile.get_stream(rs.stream.color).as_video_stream_profile()
+        ii = vsp.get_intrinsics()
+        self._intr, self._intr_source = intrinsics_from_realsense(
+            fx=ii.fx, fy=ii.fy, ppx=ii.ppx, ppy=ii.ppy, width=ii.width, height=ii.height, model=str(ii.model),
+            coeffs=ii.coeffs)
+        dev = profile.get_device()
+        info = {}
+        for key in ("name", "serial_number", "firmware_version", "product_line"):
+            field = getattr(rs.camera_info, key)
+            if dev.supports(field):
+                info[key] = dev.get_info(field)
+        info["stream"] = f"colour {ii.width}x{ii.height} {vsp.format()} @ {vsp.fps()} fps"
+        self._device_info = info
+        self._intr_source["device"] = {k: v for k, v in info.items() if k in ("name", "serial_number")}
+
+    def intrinsics(self) -> Intrinsics | None:
+        return self._intr
+
+    def intrinsics_source(self) -> dict:
+        return dict(self._intr_source)
+
+    def describe(self) -> dict:
+        return {"backend": self.name, **self._device_info}
+
+    def close(self) -> None:
+        if self._pipe is not None:
+            try:
+                self._pipe.stop()
+            except RuntimeError:
+                pass
+            self._pipe = None
+
+
+class RealSenseCamera(_RealSenseBase):
+    """A live RealSense camera's colour stream at ``width`` x ``height``, ``fps``."""
+
+    def __init__(self, *, width: int = 1280, height: int = 720, fps: int = 30, serial: str | None = None,
+                 settle_frames: int = 30, timeout_s: float = 5.0):
+        super().__init__()
+        rs = self._rs
+        self.name = "realsense"
+        self.timeout_ms = int(timeout_s * 1000)
+        try:
+            devices = rs.context().query_devices()
+            n_dev = len(devices)
+        except RuntimeError as e:
+            raise HardwareError(f"cannot enumerate RealSense devices ({e})",
+                                hint="check USB permissions (udev rules) and that libusb is installed") from None
+        if n_dev == 0:
+            raise HardwareError("no RealSense camera found", hint="plug it into a USB3 port and check the cable")
+        cfg = rs.config()
+        if serial:
+            cfg.enable_device(str(serial))
+        cfg.enable_stream(rs.stream.color, int(width), int(height), rs.format.bgr8, int(fps))
+        self._pipe = rs.pipeline()
+        try:
+            profile = self._pipe.start(cfg)
+        except RuntimeError as e:
+            self._pipe = None
+            raise HardwareError(f"the RealSense camera cannot stream colour {width}x{height} at {fps} fps ({e})",
+                                hint="pick a supported mode, e.g. --resolution 1280x720 --fps 30") from None
+        self._read_profile(profile)
+        self.name = f"realsense {self._device_info.get('name', '')} #{self._device_info.get('serial_number', '?')}"
+        # Auto exposure and white balance need a moment after the stream starts.
+        for _ in range(int(settle_frames)):
+            self._wait()
+
+    def _wait(self):
+        try:
+            return self._pipe.wait_for_frames(self.timeout_ms)
+        except RuntimeError as e:
+            raise HardwareError(f"no frame from the RealSense camera within {self.timeout_ms / 1000:g} s ({e})",
+                                hint="the camera may be unplugged or on a USB2 port; reconnect it") from None
+
+    def grab(self) -> tuple[np.ndarray, float]:
+        if self._pipe is None:
+            raise HardwareError("the RealSense camera is closed")
+        # Frames queued before this call may predate the robot's stillness check: drop them.
+        for _ in range(16):
+            if not self._pipe.poll_for_frames():
+                break
+        fs = self._wait()
+        t = time.time()
+        color = fs.get_color_frame()
+        if not color:
+            raise HardwareError("the RealSense camera delivered a frame set without colour",
+                                hint="reconnect the camera")
+        self.last_frame_info = _frame_info(self._rs, color)
+        return _bgr_from_frame(self._rs, color), t
+
+
+class BagCamera(_RealSenseBase):
+    """Frames from a RealSense recording (``.bag``, or ``.db3`` written by librealsense >= 2.56), one per grab."""
+
+    def __init__(self, path: str | Path, *, timeout_s: float = 2.0):
+        super().__init__()
+        rs = self._rs
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise ConfigError("RealSense recording not found", path=self.path, hint="give --camera bag:FILE")
+        self.name = f"realsense recording {self.path.name}"
+        self.timeout_ms = int(timeout_s * 1000)
+        self.n_frames = 0
+        cfg = rs.config()
+        try:
+            cfg.enable_device_from_file(str(self.path), repeat_playback=False)
+            cfg.enable_stream(rs.stream.color)
+            self._pipe = rs.pipeline()
+            profile = self._pipe.start(cfg)
+        except RuntimeError as e:
+            self._pipe = None
+            raise HardwareError(f"cannot play the RealSense recording ({e})", path=self.path,
+                                hint="it needs a colour stream; check the file with realsense-viewer") from None
+        profile.get_device().as_playback().set_real_time(False)  # every frame, in order
+        self._read_profile(profile)
+
+    def grab(self) -> tuple[np.ndarray, float]:
+        if self._pipe is None:
+            raise HardwareError("the recording is closed", path=self.path)
+        ok, fs = self._pipe.try_wait_for_frames(self.timeout_ms)
+        if not ok:
+            raise HardwareError(f"the recording has no more colour frames (after {self.n_frames})", path=self.path,
+                                hint="record a longer sequence or capture fewer views")
+        color = fs.get_color_frame()
+        if not color:
+            raise HardwareError("the recording delivered a frame set without colour", path=self.path)
+        self.n_frames += 1
+        self.last_frame_info = _frame_info(self._rs, color)
+        return _bgr_from_frame(self._rs, color), time.time()

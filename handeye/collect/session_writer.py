@@ -1,0 +1,163 @@
+"""Writes a native handeye session (docs/session_format.md) so that a crash never corrupts it.
+
+Layout written:
+
+    OUT/session.yaml          header: mode, target, pose_format, intrinsics, how it was collected
+    OUT/images/<id>.png       the camera frame exactly as grabbed (never a preview)
+    OUT/views/<id>.yaml       one record per capture: id, image, pose, t_image, t_pose, robot_state
+    OUT/ground_truth.json     simulated backends only
+
+Every file is written to a temporary ``.<name>.tmp`` in the same folder, flushed, fsync'ed and
+renamed over its final name (``os.replace`` is atomic on POSIX and Windows), then the folder is
+fsync'ed. The image is written before its record, so a record that exists always has its image;
+a kill at any moment loses at most the capture in flight (an orphan image or a ``.tmp`` file,
+both ignored by the loader).
+
+Poses are written as ``T_base_end`` 4x4 matrices in metres (``pose_format: {rotation: matrix,
+translation_unit: m}``): no angle convention to get wrong, full float precision.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import logging
+import os
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+from .. import __version__
+from ..errors import HardwareError, InputError
+from ..types import Intrinsics, TargetSpec
+
+log = logging.getLogger(__name__)
+
+SESSION_VERSION = 1
+POSE_FORMAT = {"rotation": "matrix", "translation_unit": "m"}
+RECORDS_DIR = "views"
+IMAGES_DIR = "images"
+
+
+def _fsync_dir(folder: Path) -> None:
+    if os.name != "posix":
+        return
+    fd = os.open(str(folder), os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically: a reader sees the old file, or the whole new one."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    _fsync_dir(path.parent)
+
+
+def _plain(obj):
+    """YAML/JSON-friendly copy: numpy scalars and arrays become Python numbers and lists."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _plain(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def dump_yaml(data: dict) -> bytes:
+    return yaml.safe_dump(_plain(data), sort_keys=False, default_flow_style=None, width=120).encode("utf-8")
+
+
+def intrinsics_header(intr: Intrinsics, *, use: str = "initial", source: dict | None = None) -> dict:
+    """The ``intrinsics:`` block of session.yaml (dist as a list k1, k2, p1, p2, k3)."""
+    block = {"model": "opencv5", "fx": float(intr.fx), "fy": float(intr.fy), "cx": float(intr.cx),
+             "cy": float(intr.cy), "dist": [float(x) for x in intr.dist], "image_size": [intr.width, intr.height],
+             "use": use}
+    if source:
+        block["source"] = _plain(source)
+    return block
+
+
+class SessionWriter:
+    """Creates ``out_dir`` with its header, then writes one capture at a time."""
+
+    def __init__(self, out_dir: str | Path, *, mode: str, target: TargetSpec, intrinsics: Intrinsics | None = None,
+                 intrinsics_source: dict | None = None, collected: dict | None = None):
+        self.out = Path(out_dir)
+        if (self.out / "session.yaml").exists() or (self.out.exists() and any(self.out.iterdir())):
+            raise InputError("output folder is not empty", path=self.out,
+                             hint="collect into a new folder; an existing session is never overwritten")
+        try:
+            (self.out / IMAGES_DIR).mkdir(parents=True, exist_ok=True)
+            (self.out / RECORDS_DIR).mkdir(exist_ok=True)
+        except OSError as e:
+            raise InputError(f"cannot create the session folder ({e.strerror})", path=self.out) from None
+        self.mode = mode
+        self.target = target
+        self.n_written = 0
+        header = {
+            "handeye_session": SESSION_VERSION,
+            "mode": mode,
+            "target": target.to_dict(),
+            "pose_format": dict(POSE_FORMAT),
+            "pose_meaning": "T_base_end: pose of the end (flange/tool) in the robot base frame, 4x4, metres",
+        }
+        if intrinsics is not None:
+            header["intrinsics"] = intrinsics_header(intrinsics, use="initial", source=intrinsics_source)
+        header["view_records"] = RECORDS_DIR
+        header["collected"] = {
+            "handeye_version": __version__,
+            "command_line": " ".join(sys.argv),
+            "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            **(collected or {}),
+        }
+        self._write(self.out / "session.yaml", dump_yaml(header))
+
+    def _write(self, path: Path, data: bytes) -> None:
+        try:
+            atomic_write_bytes(path, data)
+        except OSError as e:
+            raise HardwareError(f"cannot write {path.name} ({e.strerror})", path=path,
+                                hint="check free disk space; the views already saved are intact") from None
+
+    def write_view(self, view_id: str, image: np.ndarray, T_base_end: np.ndarray, *, t_image: float,
+                   t_pose: float, robot_state: dict | None = None, extra: dict | None = None) -> Path:
+        """Write ``images/<id>.png`` then ``views/<id>.yaml``; returns the record path."""
+        vid = str(view_id)
+        rec_path = self.out / RECORDS_DIR / f"{vid}.yaml"
+        if rec_path.exists():
+            raise InputError(f"view {vid} already exists", path=rec_path, hint="view ids must be unique")
+        T = np.asarray(T_base_end, float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise ValueError(f"T_base_end must be a finite 4x4 matrix, got shape {T.shape}")
+        ok, png = cv2.imencode(".png", image)
+        if not ok:
+            raise HardwareError(f"view {vid}: the camera frame could not be encoded as PNG",
+                                received=f"array {image.shape} {image.dtype}")
+        img_rel = f"{IMAGES_DIR}/{vid}.png"
+        self._write(self.out / img_rel, png.tobytes())
+        record = {"id": vid, "image": img_rel, "pose": T.tolist(), "t_image": float(t_image),
+                  "t_pose": float(t_pose), "robot_state": robot_state or {}}
+        if extra:
+            record.update(extra)
+        self._write(rec_path, dump_yaml(record))
+        self.n_written += 1
+        return rec_path
+
+    def write_ground_truth(self, truth: dict) -> None:
+        """``ground_truth.json`` for simulated sessions (rewritten atomically as it grows)."""
+        self._write(self.out / "ground_truth.json", json.dumps(_plain(truth), indent=1).encode("utf-8"))
