@@ -1,0 +1,1 @@
+"""YAML presets shipped with handeye (installed as ``handeye.configs``); see handeye/config.py."""

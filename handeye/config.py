@@ -1,0 +1,44 @@
+"""Presets shipped in ``configs/`` (installed as ``handeye.configs``) and site overrides."""
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+import yaml
+
+from .errors import ConfigError, InputError
+
+
+def load_preset(name: str) -> dict:
+    """A shipped preset by name (``calibration``, ``qa``...), found inside the installed package."""
+    try:
+        text = resources.files("handeye.configs").joinpath(f"{name}.yaml").read_text(encoding="utf-8")
+    except (FileNotFoundError, ModuleNotFoundError):
+        raise ConfigError(f"no shipped preset named {name!r}", hint="reinstall handeye") from None
+    return yaml.safe_load(text) or {}
+
+
+def merge(base: dict, override: dict, *, source: str = "override") -> dict:
+    """Deep-merge ``override`` into a copy of ``base``; unknown keys are an error naming the key."""
+    out = dict(base)
+    for k, v in override.items():
+        if k not in base:
+            raise ConfigError(f"unknown setting {k!r}", path=source, expected=", ".join(sorted(base)))
+        out[k] = merge(base[k], v, source=source) if isinstance(base[k], dict) and isinstance(v, dict) else v
+    return out
+
+
+def load_with_override(name: str, override_path: str | Path | None) -> dict:
+    cfg = load_preset(name)
+    if override_path is None:
+        return cfg
+    p = Path(override_path)
+    try:
+        data = yaml.safe_load(p.read_text(encoding="utf-8")) or {}
+    except FileNotFoundError:
+        raise InputError("config file not found", path=p) from None
+    except yaml.YAMLError:
+        raise InputError("not valid YAML", path=p) from None
+    if not isinstance(data, dict):
+        raise ConfigError("expected a mapping at the top level", path=p)
+    return merge(cfg, data, source=str(p))

@@ -1,0 +1,105 @@
+"""Importers for other tools' session layouts: each writes a native ``session.yaml`` that points at
+the original images (nothing is copied) and states the pose format those tools use.
+
+- ``visp``: ViSP's hand-eye data (``*_image-N.png``, ``*_pose_rPe_N.yaml`` = metres + θu radians,
+  ``chessboard-data.txt``, optional ``*camera.xml``).
+- ``ical``: ROS-Industrial industrial_calibration (``cal_data.yaml`` + ``poses/N.yaml`` with
+  x, y, z, qx, qy, qz, qw; ``static_camera`` decides the mode).
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import yaml
+
+from .errors import InputError
+from .output import atomic_write_text
+
+
+def _load(path: Path):
+    try:
+        return yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as e:
+        raise InputError(f"cannot read ({e.__class__.__name__})", path=path) from None
+
+
+def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool = False) -> Path:
+    src, out = Path(src).resolve(), Path(out)
+    imgs = {int(m.group(1)): f for f in src.glob("*_image-*.png") if (m := re.search(r"-(\d+)\.png$", f.name))}
+    poses = {int(m.group(1)): f for f in src.glob("*_pose_rPe_*.yaml") if (m := re.search(r"_(\d+)\.yaml$", f.name))}
+    if not imgs:
+        raise InputError("no ViSP images (*_image-N.png)", path=src)
+    txt = (src / "chessboard-data.txt").read_text() if (src / "chessboard-data.txt").exists() else ""
+    m = re.search(r"(\d+)\s*x\s*(\d+)", txt)
+    s = re.search(r"square size:\s*([0-9.eE+-]+)", txt)
+    if not (m and s):
+        raise InputError("chessboard-data.txt missing or unreadable", path=src / "chessboard-data.txt",
+                         expected="'9 x 6' and 'square size: 0.0236 m'")
+    views = []
+    for k in sorted(imgs):
+        if k not in poses:
+            raise InputError(f"image {imgs[k].name} has no pose file", path=src)
+        data = _load(poses[k])["data"]
+        views.append({"id": str(k), "image": str(imgs[k]), "pose": [float(v[0]) for v in data]})
+    doc = {"handeye_session": 1, "mode": "eye_in_hand",
+           "target": {"type": "chessboard", "inner_corners": [int(m.group(1)), int(m.group(2))],
+                      "square_m": float(s.group(1))},
+           "pose_format": {"rotation": "rotvec", "angle_unit": "rad", "translation_unit": "m"},
+           "source": {"importer": "visp", "path": str(src)}, "views": views}
+    cam = next(iter(src.glob("*camera*.xml")), None)
+    if use_given_intrinsics and cam is not None:
+        t = cam.read_text()
+        vals = {k: float(re.search(rf"<{k}>\s*([0-9.eE+-]+)", t).group(1)) for k in ("px", "py", "u0", "v0")}
+        import cv2
+
+        h, w = cv2.imread(str(imgs[min(imgs)]), cv2.IMREAD_GRAYSCALE).shape
+        doc["intrinsics"] = {"model": "opencv5", "fx": vals["px"], "fy": vals["py"], "cx": vals["u0"],
+                             "cy": vals["v0"], "dist": [0, 0, 0, 0, 0], "image_size": [w, h], "use": "fixed"}
+    return _write(out, doc)
+
+
+def import_ical(src: str | Path, out: str | Path, *, image_dir: str | None = None) -> Path:
+    src, out = Path(src).resolve(), Path(out)
+    cal = _load(src / "cal_data.yaml")
+    if not isinstance(cal, dict) or "data" not in cal:
+        raise InputError("cal_data.yaml has no data list", path=src / "cal_data.yaml")
+    views = []
+    for k, entry in enumerate(cal["data"]):
+        img = src / entry["image"]
+        if image_dir is not None or not img.exists():
+            alt = src / (image_dir or "images_gray") / Path(entry["image"]).name
+            img = alt if alt.exists() else img
+        p = _load(src / entry["pose"])
+        views.append({"id": Path(entry["image"]).stem, "image": str(img),
+                      "pose": [p["x"], p["y"], p["z"], p["qw"], p["qx"], p["qy"], p["qz"]]})
+    tgt = cal.get("target_finder", {})
+    if tgt.get("type", "").lower().startswith("charuco") or "CharucoGrid" in str(tgt):
+        target = {"type": "charuco", "squares": [int(tgt["cols"]), int(tgt["rows"])],
+                  "square_m": float(tgt["chessboard_dim"]), "marker_m": float(tgt["aruco_marker_dim"]),
+                  "dictionary": _aruco_name(int(tgt.get("dictionary", 10)))}
+    else:
+        raise InputError("only ChArUco targets of industrial_calibration are supported",
+                         path=src / "cal_data.yaml", received=str(tgt.get("type")))
+    mode = "eye_to_hand" if cal.get("static_camera", False) else "eye_in_hand"
+    doc = {"handeye_session": 1, "mode": mode, "target": target,
+           "pose_format": {"rotation": "quaternion", "quaternion_order": "wxyz", "translation_unit": "m"},
+           "source": {"importer": "ical", "path": str(src)}, "views": views}
+    return _write(out, doc)
+
+
+_ARUCO = {0: "DICT_4X4_50", 1: "DICT_4X4_100", 2: "DICT_4X4_250", 3: "DICT_4X4_1000", 4: "DICT_5X5_50",
+          5: "DICT_5X5_100", 6: "DICT_5X5_250", 7: "DICT_5X5_1000", 8: "DICT_6X6_50", 9: "DICT_6X6_100",
+          10: "DICT_6X6_250", 11: "DICT_6X6_1000", 12: "DICT_7X7_50", 13: "DICT_7X7_100", 14: "DICT_7X7_250",
+          15: "DICT_7X7_1000", 16: "DICT_ARUCO_ORIGINAL"}
+
+
+def _aruco_name(code: int) -> str:
+    return _ARUCO.get(code, "DICT_6X6_250")
+
+
+def _write(out: Path, doc: dict) -> Path:
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "session.yaml"
+    atomic_write_text(path, yaml.safe_dump(doc, sort_keys=False))
+    return path

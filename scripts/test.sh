@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# Install everything the test suite needs on a fresh machine (system packages, handeye with its
+# test extras) and run the whole suite on all cores. CI (.ci/run) calls exactly this.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
+  need=""
+  ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || need="$need libusb-1.0-0"   # pyrealsense2 imports it
+  command -v chromium >/dev/null 2>&1 || need="$need chromium"                    # report rendering tests
+  if [ -n "$need" ]; then
+    apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $need >/dev/null
+  fi
+fi
+python3 -m pip install -q --disable-pip-version-check -e '.[test]'
+exec python3 -m pytest -n "${HANDEYE_TEST_WORKERS:-2}" "$@"

@@ -1,0 +1,107 @@
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from handeye.conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values, pose_forms, pose_values_from_T
+from handeye.errors import ConfigError
+from handeye.geometry import inv_T, make_T, mean_T, pose_error, quat_wxyz_from_R
+
+
+def Rx(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def Ry(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+def Rz(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+def test_vendor_euler_is_Rz_Ry_Rx_written_out():
+    rx, ry, rz = 0.3, -0.7, 2.1
+    T = T_from_pose_values([0.1, -0.2, 0.3, rx, ry, rz], VENDOR_POSE_FORMAT)
+    np.testing.assert_allclose(T[:3, :3], Rz(rz) @ Ry(ry) @ Rx(rx), atol=1e-12)
+    np.testing.assert_allclose(T[:3, 3], [0.1, -0.2, 0.3])
+
+
+def test_vendor_euler_differs_from_the_other_order():
+    T = T_from_pose_values([0, 0, 0, 0.3, -0.7, 2.1], VENDOR_POSE_FORMAT)
+    assert not np.allclose(T[:3, :3], Rx(0.3) @ Ry(-0.7) @ Rz(2.1), atol=1e-3)
+
+
+FORMATS = [
+    PoseFormat(),
+    PoseFormat(euler_order="zyx", euler_kind="intrinsic", angle_unit="deg", translation_unit="mm"),
+    PoseFormat(euler_order="zyz", euler_kind="extrinsic"),
+    PoseFormat(rotation="quaternion", quaternion_order="wxyz"),
+    PoseFormat(rotation="quaternion", quaternion_order="xyzw", translation_unit="mm"),
+    PoseFormat(rotation="rotvec"),
+    PoseFormat(rotation="rotvec", angle_unit="deg"),
+    PoseFormat(rotation="matrix", translation_unit="mm"),
+]
+
+
+@pytest.mark.parametrize("fmt", FORMATS, ids=lambda f: f.describe())
+def test_every_pose_format_round_trips(fmt):
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        T = make_T(Rotation.random(random_state=rng.integers(1 << 31)).as_matrix(), rng.uniform(-0.8, 0.8, 3))
+        back = T_from_pose_values(pose_values_from_T(T, fmt), fmt.validated())
+        r, t = pose_error(back, T)
+        assert r < 1e-9 and t < 1e-9, (fmt, r, t)
+
+
+def test_intrinsic_zyx_equals_extrinsic_xyz_reversed():
+    a = [0.2, -0.4, 1.0]
+    T1 = T_from_pose_values([0, 0, 0, *a], PoseFormat(euler_order="xyz", euler_kind="extrinsic"))
+    T2 = T_from_pose_values([0, 0, 0, *a[::-1]], PoseFormat(euler_order="zyx", euler_kind="intrinsic"))
+    np.testing.assert_allclose(T1, T2, atol=1e-12)
+
+
+def test_quaternion_orders_differ_and_are_checked():
+    q_wxyz = quat_wxyz_from_R(Rx(0.5))
+    T = T_from_pose_values([0, 0, 0, *q_wxyz], PoseFormat(rotation="quaternion", quaternion_order="wxyz"))
+    np.testing.assert_allclose(T[:3, :3], Rx(0.5), atol=1e-12)
+    with pytest.raises(ValueError, match="norm"):
+        T_from_pose_values([0, 0, 0, 1, 1, 0, 0], PoseFormat(rotation="quaternion"))
+
+
+def test_bad_values_raise():
+    with pytest.raises(ValueError, match="NaN"):
+        T_from_pose_values([0, 0, np.nan, 0, 0, 0], VENDOR_POSE_FORMAT)
+    with pytest.raises(ValueError, match="expected 6"):
+        T_from_pose_values([0, 0, 0, 0, 0], VENDOR_POSE_FORMAT)
+    M = np.eye(4)
+    M[0, 0] = 2
+    with pytest.raises(ValueError, match="not a rotation"):
+        T_from_pose_values(M.reshape(-1), PoseFormat(rotation="matrix"))
+
+
+@pytest.mark.parametrize("field,value", [("rotation", "euler2"), ("euler_order", "xxy"), ("angle_unit", "grad"),
+                                         ("quaternion_order", "wzyx"), ("translation_unit", "cm"),
+                                         ("euler_kind", "both")])
+def test_pose_format_validation_names_the_field(field, value):
+    with pytest.raises(ConfigError, match=field):
+        PoseFormat(**{field: value}).validated()
+
+
+def test_pose_forms_are_consistent():
+    T = T_from_pose_values([0.1, 0.2, 0.3, 0.4, -0.5, 0.6], VENDOR_POSE_FORMAT)
+    f = pose_forms(T)
+    assert np.allclose(f["translation_mm"], [100, 200, 300])
+    back = T_from_pose_values([float(x) for x in f["vendor_pose_line"].split(",")], VENDOR_POSE_FORMAT)
+    assert pose_error(back, T)[0] < 1e-4
+    w, x, y, z = f["quaternion_wxyz"]
+    assert w >= 0 and abs(w * w + x * x + y * y + z * z - 1) < 1e-12
+
+
+def test_inverse_and_mean():
+    rng = np.random.default_rng(0)
+    T = make_T(Rotation.random(random_state=3).as_matrix(), rng.normal(size=3))
+    np.testing.assert_allclose(inv_T(T) @ T, np.eye(4), atol=1e-12)
+    np.testing.assert_allclose(mean_T(np.stack([T, T, T])), T, atol=1e-12)
