@@ -82,6 +82,27 @@ def _add_apply(sub):
     p.set_defaults(func=cmd_apply)
 
 
+def _add_import(sub):
+    p = sub.add_parser("import", help="write a session.yaml for another tool's data folder (ViSP, industrial_calibration)",
+                       description="Writes OUT/session.yaml pointing at the original images; nothing is copied.")
+    p.add_argument("kind", choices=["visp", "ical"], help="visp: ViSP hand-eye data; ical: ROS-I industrial_calibration")
+    p.add_argument("src", type=Path, help="the other tool's data folder")
+    p.add_argument("out", type=Path, help="folder for session.yaml")
+    p.add_argument("--given-intrinsics", action="store_true", help="use the intrinsics shipped with the data (fixed)")
+    p.set_defaults(func=cmd_import)
+
+
+def cmd_import(args) -> int:
+    from .importers import import_ical, import_visp
+
+    if args.kind == "visp":
+        path = import_visp(args.src, args.out, use_given_intrinsics=args.given_intrinsics)
+    else:
+        path = import_ical(args.src, args.out)
+    print(f"session: {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="handeye", description="Robot hand-eye calibration with honest uncertainty.")
     p.add_argument("--version", action="version", version=f"handeye {__version__}")
@@ -94,6 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_simulate(sub)
     _add_demo(sub)
     _add_apply(sub)
+    _add_import(sub)
     for extra in _EXTRA_COMMANDS:
         extra(sub)
     return p

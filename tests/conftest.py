@@ -11,11 +11,17 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("HANDEYE_SHARED_DATA", REPO.parent / "shared" / "data"))
 
 
-def shared_dataset(name: str) -> Path:
+def _shared_dataset(name: str) -> Path:
     path = SHARED_DATA / name
     if not path.is_dir():
         pytest.skip(f"real dataset {name} not available ({path} missing)")
     return path
+
+
+@pytest.fixture(scope="session")
+def shared_dataset():
+    """``shared_dataset(name)`` -> path of ../shared/data/<name>, or skip the test when absent."""
+    return _shared_dataset
 
 
 @pytest.fixture(autouse=True)

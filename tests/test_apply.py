@@ -1,0 +1,86 @@
+"""Applying a result: camera points and poses into the robot base, checked against ground truth."""
+import json
+
+import numpy as np
+import pytest
+
+from handeye.apply import points_cam_to_base, pose_cam_to_base, result_transform
+from handeye.cli import main
+from handeye.conventions import VENDOR_POSE_FORMAT, pose_values_from_T
+from handeye.errors import ConfigError, InputError
+from handeye.geometry import transform_points
+from handeye.synth import make_corner_session
+
+
+def truth_points(cs, k):
+    p_board = cs.target.object_points()[[0, 17, 50]]
+    p_cam = transform_points(cs.T_cam_board_true[k], p_board)
+    if cs.mode == "eye_in_hand":
+        p_base = transform_points(cs.T_board_true, p_board)  # board fixed in base
+    else:
+        p_base = transform_points(cs.T_base_end_true[k] @ cs.T_board_true, p_board)
+    return p_cam, p_base
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_points_and_poses_reach_the_base_frame(mode):
+    cs = make_corner_session(mode=mode, n_views=5, seed=4, noise_px=0.0)
+    for k in range(cs.n_views):
+        p_cam, p_base = truth_points(cs, k)
+        got = points_cam_to_base(p_cam, mode=mode, T_x=cs.T_x_true, T_base_end=cs.T_base_end_true[k])
+        np.testing.assert_allclose(got, p_base, atol=1e-12)
+        T_base_board = pose_cam_to_base(cs.T_cam_board_true[k], mode=mode, T_x=cs.T_x_true,
+                                        T_base_end=cs.T_base_end_true[k])
+        expect = cs.T_board_true if mode == "eye_in_hand" else cs.T_base_end_true[k] @ cs.T_board_true
+        np.testing.assert_allclose(T_base_board, expect, atol=1e-12)
+
+
+def test_eye_in_hand_needs_the_end_pose():
+    cs = make_corner_session(mode="eye_in_hand", n_views=4, seed=0, noise_px=0.0)
+    with pytest.raises(ConfigError, match="--end-pose"):
+        points_cam_to_base([0, 0, 0.5], mode="eye_in_hand", T_x=cs.T_x_true)
+
+
+def _write_result(tmp_path, cs):
+    res = {"status": "ok", "mode": cs.mode, cs.x_name: cs.T_x_true.tolist()}
+    p = tmp_path / "result.json"
+    p.write_text(json.dumps(res))
+    return p
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_cli_apply_point(tmp_path, capsys, mode):
+    cs = make_corner_session(mode=mode, n_views=3, seed=2, noise_px=0.0)
+    res = _write_result(tmp_path, cs)
+    p_cam, p_base = truth_points(cs, 1)
+    end = pose_values_from_T(cs.T_base_end_true[1], VENDOR_POSE_FORMAT)
+    args = ["apply", str(res), "--point", *map(str, p_cam[0])]
+    if mode == "eye_in_hand":
+        args += ["--end-pose", *(f"{v:.12f}" for v in end)]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    got = [float(x) for x in out.splitlines()[0].split(":")[1].split()]
+    np.testing.assert_allclose(got, p_base[0], atol=2e-6)
+
+
+def test_cli_apply_pose_in_millimetres(tmp_path, capsys):
+    cs = make_corner_session(mode="eye_to_hand", n_views=3, seed=2, noise_px=0.0)
+    res = _write_result(tmp_path, cs)
+    v = pose_values_from_T(cs.T_cam_board_true[0], VENDOR_POSE_FORMAT)
+    v[:3] *= 1000
+    assert main(["apply", str(tmp_path), "--pose", *(f"{x:.12f}" for x in v), "--mm"]) == 0
+    out = capsys.readouterr().out
+    line = [l for l in out.splitlines() if l.startswith("x,y,z")][0]
+    got = np.array([float(x) for x in line.split(":")[1].split(",")])
+    expect = pose_values_from_T(cs.T_base_end_true[0] @ cs.T_board_true, VENDOR_POSE_FORMAT)
+    np.testing.assert_allclose(got[:3], expect[:3], atol=2e-6)
+
+
+def test_apply_refuses_failed_results(tmp_path, capsys):
+    p = tmp_path / "result.json"
+    p.write_text(json.dumps({"status": "failed", "failure_reason": "degenerate", "mode": "eye_in_hand"}))
+    with pytest.raises(InputError, match="failed calibration"):
+        result_transform(json.loads(p.read_text()))
+    assert main(["apply", str(p), "--point", "0", "0", "1"]) != 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "failed calibration" in err
