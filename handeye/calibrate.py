@@ -223,6 +223,39 @@ def session_inputs(session: Session) -> list[Path]:
     return files
 
 
+def observations_dict(run: CalibrationRun) -> dict:
+    """Per used view: detected corners and their residuals under the final solution (observations.json).
+
+    ``residual_chain_px`` predicts the board through the reported robot pose and the hand-eye result
+    (what the robot will experience); ``residual_pnp_px`` through the view's own board pose (what the
+    camera alone explains).
+    """
+    from .seed import project
+
+    s = run.session
+    obj = s.target.object_points()
+    mode = mounting(s.mode)
+    views = {}
+    intr = run.intrinsics
+    for vid, det in run.detections.items():
+        bp = run.board_poses.get(vid)
+        ids = bp.corner_ids if bp is not None else det.corner_ids
+        v = {"corner_ids": ids.tolist(), "image_points_px": det.image_points.tolist(),
+             "sharpness": det.sharpness, "image": str(s.view(vid).image_path)}
+        if bp is not None and intr is not None:
+            v["T_cam_board_pnp"] = bp.T_cam_board.tolist()
+            v["residual_pnp_px"] = (det.image_points - project(obj[ids], bp.T_cam_board, intr)).tolist()
+            if run.T_x is not None:
+                C = mode.predict_T_cam_board(run.T_x, run.T_board, s.view(vid).T_base_end)
+                v["T_cam_board_chain"] = C.tolist()
+                v["residual_chain_px"] = (det.image_points - project(obj[ids], C, intr)).tolist()
+        v["T_base_end_reported"] = s.view(vid).T_base_end.tolist()
+        views[vid] = v
+    return {"handeye_observations": 1, "mode": s.mode, "target": s.target.to_dict(),
+            "object_points_m": obj.tolist(),
+            "image_size": list(intr.image_size) if intr is not None else None, "views": views}
+
+
 def result_dict(run: CalibrationRun) -> dict:
     """Everything result.json holds. A failed run has ``status: failed`` and no result matrix."""
     s = run.session

@@ -146,7 +146,7 @@ _EXTRA_COMMANDS = [_report_command, _collect_command]
 
 # ------------------------------------------------------------------------------ commands
 def cmd_calibrate(args) -> int:
-    from .calibrate import CalibrateOptions, result_dict, run_calibration
+    from .calibrate import CalibrateOptions, observations_dict, result_dict, run_calibration
     from .output import write_json
     from .session import load_session
 
@@ -167,6 +167,7 @@ def cmd_calibrate(args) -> int:
     if run.status != "ok" and result_path.exists():
         # keep the last good result next to the failed one instead of replacing it silently
         result_path.replace(out / "result.previous.json")
+    write_json(out / "observations.json", observations_dict(run))
     write_json(result_path, res)
     report_paths = []
     if not args.no_report:
