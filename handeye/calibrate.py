@@ -42,7 +42,23 @@ class CalibrateOptions:
     refine: bool = True
     fix_k3: bool = False
     workers: Optional[int] = None
+    min_corners: int = 6
+    min_rotation_deg: float = 10.0
+    min_axis_spread_deg: float = 5.0
     refine_options: dict = field(default_factory=dict)
+
+    @staticmethod
+    def from_config(cfg: dict, **overrides) -> "CalibrateOptions":
+        """Options from a calibration preset (configs/calibration.yaml) plus explicit overrides."""
+        kw = {"method": cfg.get("method", "tsai"), "refine": bool(cfg.get("refine", True)),
+              "fix_k3": bool(cfg.get("fix_k3", False)), "min_corners": int(cfg.get("min_corners", 6)),
+              "min_rotation_deg": float(cfg.get("motion", {}).get("min_rotation_deg", 10.0)),
+              "min_axis_spread_deg": float(cfg.get("motion", {}).get("min_axis_spread_deg", 5.0)),
+              "refine_options": dict(cfg.get("refine_options", {}))}
+        ro = overrides.pop("refine_options", None) or {}
+        kw["refine_options"].update(ro)
+        kw.update({k: v for k, v in overrides.items() if v is not None})
+        return CalibrateOptions(**kw)
 
 
 @dataclass(frozen=True)
@@ -92,7 +108,8 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
         raise CalibrationError(f"unknown method {opts.method!r}", expected=" | ".join(METHODS))
     t0 = time.perf_counter()
     progress(f"detecting the target in {len(s.views)} images")
-    det = detect_views([(v.view_id, v.image_path) for v in s.views], s.target, workers=opts.workers)
+    det = detect_views([(v.view_id, v.image_path) for v in s.views], s.target, workers=opts.workers,
+                       min_corners=opts.min_corners)
     outcomes: dict[str, ViewOutcome] = {}
     for v in s.views:
         d = det[v.view_id]
@@ -136,7 +153,8 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     C = np.stack([poses[v].T_cam_board for v in ids])
     Ms = np.stack([M[v] for v in ids])
     # --- motion
-    mq = motion_quality(Ms, frame=mode.fixed_frame)
+    mq = motion_quality(Ms, frame=mode.fixed_frame, min_rotation_deg=opts.min_rotation_deg,
+                        min_axis_spread_deg=opts.min_axis_spread_deg)
     state.update(motion=mq)
     if mq.status != "ok":
         raise DegenerateMotionError(mq.reason, path=s.path)

@@ -27,7 +27,8 @@ def _add_calibrate(sub):
     p.add_argument("session", help="session folder (poses.txt + N.jpg + config.yaml, or session.yaml)")
     p.add_argument("--mode", choices=["eye_in_hand", "eye_to_hand"],
                    help="mounting mode (overrides the session's own; default: the session's, else eye_in_hand)")
-    p.add_argument("--method", default="tsai", choices=METHODS, help="closed-form seed method (default: tsai)")
+    p.add_argument("--method", choices=METHODS, help="closed-form seed method (default: tsai, from the preset)")
+    p.add_argument("--config", type=Path, help="site YAML overriding configs/calibration.yaml (same keys)")
     p.add_argument("--out", type=Path, help="output folder (default: reports/<session folder name>)")
     p.add_argument("--no-refine", action="store_true", help="stop at the closed-form seed")
     p.add_argument("--fix-k3", action="store_true", help="hold the k3 distortion coefficient at 0")
@@ -147,21 +148,33 @@ _EXTRA_COMMANDS = [_report_command, _collect_command]
 # ------------------------------------------------------------------------------ commands
 def cmd_calibrate(args) -> int:
     from .calibrate import CalibrateOptions, observations_dict, result_dict, run_calibration
+    from .config import load_with_override
     from .output import write_json
     from .session import load_session
 
-    session = load_session(args.session, mode=args.mode)
+    out = args.out or Path("reports") / Path(args.session).resolve().name
+    cfg = load_with_override("calibration", getattr(args, "config", None))
     ro = {}
     if args.robot_noise:
         ro["robot_noise"] = args.robot_noise
     if args.robot_sigma:
         ro["robot_sigma_mm"], ro["robot_sigma_deg"] = args.robot_sigma
-    opts = CalibrateOptions(method=args.method, refine=not args.no_refine, fix_k3=args.fix_k3,
-                            workers=args.workers, refine_options=ro)
-    out = args.out or Path("reports") / Path(session.path).resolve().name
+    opts = CalibrateOptions.from_config(cfg, method=args.method, refine=False if args.no_refine else None,
+                                        fix_k3=True if args.fix_k3 else None, workers=args.workers,
+                                        refine_options=ro)
+    try:
+        session = load_session(args.session, mode=args.mode)
+    except HandeyeError as e:
+        if not (Path(args.session).exists()):
+            raise
+        # the session exists but cannot be read: still leave a result and a report that say why
+        res = failed_load_result(args.session, e, args.mode)
+        _write_failed(out, res, args)
+        raise
     log.info("session %s: %d views, %s, %s", session.path, len(session.views), session.mode, session.format)
     run = run_calibration(session, opts, progress=lambda s: log.info("%s", s))
     res = result_dict(run)
+    _add_diagnostics(res, run)
     out.mkdir(parents=True, exist_ok=True)
     result_path = out / "result.json"
     if run.status != "ok" and result_path.exists():
@@ -177,6 +190,43 @@ def cmd_calibrate(args) -> int:
         print(f"handeye: calibration failed: {run.failure_reason}", file=sys.stderr)
         return run.exit_code or 1
     return 0
+
+
+def failed_load_result(session_path, err: HandeyeError, mode) -> dict:
+    from .output import provenance
+
+    return {"handeye_result": 1, "status": "failed", "failure_reason": str(err), "error_type": type(err).__name__,
+            "mode": mode or "unknown", "method": None, "refined": False, "views": [],
+            "n_views": {"total": 0, "used": 0},
+            "session": {"path": str(Path(session_path).resolve()), "format": "unreadable"},
+            "provenance": provenance()}
+
+
+def _write_failed(out: Path, res: dict, args) -> None:
+    from .output import write_json
+
+    try:
+        from .diagnose import diagnose_session_error
+
+        res["diagnostics"] = diagnose_session_error(Path(args.session), res["failure_reason"])
+    except ImportError:
+        pass
+    out.mkdir(parents=True, exist_ok=True)
+    result_path = out / "result.json"
+    if result_path.exists():
+        result_path.replace(out / "result.previous.json")
+    write_json(result_path, res)
+    if not args.no_report:
+        for p in _write_reports(None, res, out):
+            print(f"report: {p}")
+
+
+def _add_diagnostics(res: dict, run) -> None:
+    try:
+        from .diagnose import diagnose_run
+    except ImportError:
+        return
+    res["diagnostics"] = diagnose_run(run)
 
 
 def _write_reports(run, res, out: Path) -> list[Path]:

@@ -114,7 +114,7 @@ def sharpness(gray: np.ndarray, pts: np.ndarray) -> float:
     return float(cv2.Laplacian(roi, cv2.CV_64F).var())
 
 
-def detect_image(view_id: str, path: Path, target: TargetSpec) -> Detection | str:
+def detect_image(view_id: str, path: Path, target: TargetSpec, *, min_corners: int = MIN_CORNERS) -> Detection | str:
     """Detect the target in one image file: a Detection or a reason string."""
     t0 = time.perf_counter()
     gray = read_gray(path)
@@ -125,13 +125,14 @@ def detect_image(view_id: str, path: Path, target: TargetSpec) -> Detection | st
     if isinstance(out, str):
         return out
     ids, pts = out
-    if len(ids) < MIN_CORNERS:
-        return f"only {len(ids)} corners detected (need at least {MIN_CORNERS})"
+    if len(ids) < min_corners:
+        return f"only {len(ids)} corners detected (need at least {min_corners})"
     return Detection(view_id=view_id, corner_ids=ids, image_points=pts, image_size=(gray.shape[1], gray.shape[0]),
                      sharpness=sharpness(gray, pts), seconds=time.perf_counter() - t0)
 
 
 def detect_views(items: Sequence[tuple[str, Path]], target: TargetSpec, *, workers: int | None = None,
+                 min_corners: int = MIN_CORNERS,
                  progress: Callable[[int, int], None] | None = None) -> dict[str, Detection | str]:
     """Detect the target in every (view_id, image_path); results keyed by view id.
 
@@ -142,7 +143,7 @@ def detect_views(items: Sequence[tuple[str, Path]], target: TargetSpec, *, worke
 
     def job(item):
         vid, path = item
-        return vid, detect_image(vid, path, target)
+        return vid, detect_image(vid, path, target, min_corners=min_corners)
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
         for k, (vid, res) in enumerate(pool.map(job, items), start=1):

@@ -175,7 +175,8 @@ class MotionQuality:
     reason: str
 
 
-def motion_quality(M: np.ndarray, *, frame: str) -> MotionQuality:
+def motion_quality(M: np.ndarray, *, frame: str, min_rotation_deg: float = MIN_ROTATION_DEG,
+                   min_axis_spread_deg: float = MIN_AXIS_SPREAD_DEG) -> MotionQuality:
     """Rotation coverage of the robot motions ``M`` (N,4,4) for the hand-eye problem.
 
     The relative motions ``M_i M_j^-1`` must include rotations about at least two different axes.
@@ -198,11 +199,11 @@ def motion_quality(M: np.ndarray, *, frame: str) -> MotionQuality:
     main = evecs[:, 2]
     spread = float(np.degrees(np.arctan2(np.sqrt(max(evals[1], 0)), np.sqrt(max(evals[2], 1e-30)))))
     weak = evecs[:, :2].T
-    if max_deg < MIN_ROTATION_DEG:
+    if max_deg < min_rotation_deg:
         return MotionQuality(n, max_deg, spread, main, weak, "degenerate",
                              f"the robot rotates at most {max_deg:.1f} deg between views; add views tilted by "
                              f"20-45 deg about two different axes of the {frame} frame")
-    if spread < MIN_AXIS_SPREAD_DEG:
+    if spread < min_axis_spread_deg:
         return MotionQuality(n, max_deg, spread, main, weak, "degenerate",
                              f"all rotations are about one axis ({_fmt_axis(main)} in the {frame} frame, spread "
                              f"{spread:.1f} deg); add views rotated 20-45 deg about {_fmt_axis(weak[1])} and "
