@@ -1,0 +1,235 @@
+"""``handeye collect OUT --mode M --camera C --robot R [--auto]``: argument parsing and wiring.
+
+The main CLI registers this with ``add_collect_arguments(parser)`` and ``run_collect(args)``.
+Device and user errors are raised as HandeyeError (the CLI prints them on one line).
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError, HandeyeError
+from ..model import mounting
+from ..types import MODES, CharucoSpec, ChessboardSpec, TargetSpec
+
+log = logging.getLogger(__name__)
+
+DEFAULT_TARGET = "chessboard:11x8:0.03"
+
+
+def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = ("Collect a calibration session (native format, one atomic record per view) from a "
+                          "camera and a robot arm, or their simulators.")
+    parser.add_argument("out", type=Path, metavar="OUT", help="new (or empty) folder for the session")
+    parser.add_argument("--mode", required=True, choices=MODES, help="camera on the arm (eye_in_hand) or fixed")
+    parser.add_argument("--camera", required=True, metavar="CAMERA",
+                        help="realsense | bag:FILE (a RealSense recording) | sim")
+    parser.add_argument("--robot", required=True, metavar="ROBOT",
+                        help="realman:IP[:PORT] (JSON over TCP, port 8080 by default) | sim")
+    parser.add_argument("--auto", action="store_true",
+                        help="move the arm through an automatic plan (default: interactive, s = capture, q = quit)")
+    parser.add_argument("--views", type=int, default=8,
+                        help="--auto: planned views after the start view and 3 probe views (default 8)")
+    parser.add_argument("--yes", action="store_true", help="--auto: do not ask before moving a real arm")
+    parser.add_argument("--target", default=DEFAULT_TARGET,
+                        help="chessboard:COLSxROWS:SQUARE_M (inner corners) or "
+                             "charuco:SQXxSQY:SQUARE_M:MARKER_M[:DICT] (default %(default)s)")
+    g = parser.add_argument_group("camera")
+    g.add_argument("--resolution", default="1280x720", help="colour stream WIDTHxHEIGHT (default %(default)s)")
+    g.add_argument("--fps", type=int, default=30, help="RealSense frame rate (default %(default)s)")
+    g.add_argument("--serial", help="RealSense serial number when several are connected")
+    g.add_argument("--settle-frames", type=int, default=30,
+                   help="RealSense frames skipped at start while auto exposure settles (default %(default)s)")
+    g.add_argument("--preview", dest="preview", action="store_true", default=None,
+                   help="interactive: force the preview window")
+    g.add_argument("--no-preview", dest="preview", action="store_false", help="interactive: terminal prompt only")
+    g = parser.add_argument_group("robot")
+    g.add_argument("--speed", type=float, default=0.2, metavar="FRACTION",
+                   help="--auto: motion speed as a fraction of the arm's maximum (default %(default)s)")
+    g.add_argument("--max-speed", type=float, default=0.3, metavar="FRACTION",
+                   help="RealMan: hard cap on any motion's speed fraction (default %(default)s)")
+    g.add_argument("--realman-motion", choices=("movej_p", "movel"), default="movej_p",
+                   help="RealMan motion command (default %(default)s: joint-space path to the pose)")
+    g.add_argument("--work-frame", default="Base", help="RealMan work frame poses are read in (default %(default)s)")
+    g.add_argument("--timeout", type=float, default=2.0, metavar="S",
+                   help="RealMan: seconds to wait for an answer (default %(default)s)")
+    g = parser.add_argument_group("capture checks")
+    g.add_argument("--min-sharpness", type=float, default=30.0,
+                   help="variance of the Laplacian around the target (default %(default)s)")
+    g.add_argument("--still-tol", nargs=2, type=float, metavar=("MM", "DEG"), default=(0.2, 0.1),
+                   help="two pose reads around a frame must agree within this (default 0.2 mm 0.1 deg)")
+    g = parser.add_argument_group("automatic plan")
+    g.add_argument("--plan-pixel-noise", type=float, default=0.3, metavar="PX",
+                   help="corner noise assumed when predicting the uncertainty (default %(default)s px)")
+    g.add_argument("--plan-robot-noise", nargs=2, type=float, metavar=("MM", "DEG"), default=(0.1, 0.03),
+                   help="robot pose noise per axis assumed when predicting (default 0.1 mm 0.03 deg)")
+    g.add_argument("--min-axis-rotation", type=float, default=30.0, metavar="DEG",
+                   help="rotate the end at least this much about each of its axes (default %(default)s)")
+    g.add_argument("--max-travel", type=float, default=500.0, metavar="MM",
+                   help="keep the end within this distance of the start pose (default %(default)s)")
+    g.add_argument("--probe-deg", type=float, default=6.0,
+                   help="size of the three probe rotations before planning (default %(default)s)")
+    g = parser.add_argument_group("simulation (--camera sim / --robot sim)")
+    g.add_argument("--seed", type=int, help="random seed of the simulated rig and noise (default: random)")
+    g.add_argument("--sim-pose-noise", nargs=2, type=float, metavar=("MM", "DEG"), default=(0.1, 0.02),
+                   help="simulated arm: per-axis error of the reported pose (default 0.1 mm 0.02 deg)")
+    g.add_argument("--sim-image-noise", type=float, default=2.0, metavar="GREY",
+                   help="simulated camera: Gaussian noise in grey levels (default %(default)s)")
+    g.add_argument("--sim-blur", type=float, default=0.0, metavar="PX", help="simulated camera: blur sigma")
+    g.add_argument("--sim-supersample", type=int, default=2,
+                   help="simulated camera: anti-aliasing samples per pixel and axis (default %(default)s)")
+
+
+def parse_target_spec(text: str) -> TargetSpec:
+    """``chessboard:11x8:0.03`` or ``charuco:7x5:0.04:0.03[:DICT_6X6_250]``."""
+    s = text.strip()
+    m = re.fullmatch(r"chessboard:(\d+)x(\d+):([0-9.eE+-]+)", s)
+    if m:
+        cols, rows, sq = int(m.group(1)), int(m.group(2)), float(m.group(3))
+        if cols < 2 or rows < 2 or not 1e-3 <= sq <= 0.5:
+            raise ConfigError("invalid --target", expected="inner corners >= 2 and the square in metres (e.g. 0.03)",
+                              received=text)
+        return ChessboardSpec(max(cols, rows), min(cols, rows), sq)
+    m = re.fullmatch(r"charuco:(\d+)x(\d+):([0-9.eE+-]+):([0-9.eE+-]+)(?::(\w+))?", s)
+    if m:
+        sx, sy, sq, mk = int(m.group(1)), int(m.group(2)), float(m.group(3)), float(m.group(4))
+        dictionary = m.group(5) or "DICT_6X6_250"
+        import cv2
+
+        if sx < 2 or sy < 2 or not 0 < mk < sq <= 0.5 or not hasattr(cv2.aruco, dictionary):
+            raise ConfigError("invalid --target", expected="squares >= 2, 0 < marker < square (metres), a known "
+                              "ArUco dictionary", received=text)
+        return CharucoSpec(sx, sy, sq, mk, dictionary)
+    raise ConfigError("invalid --target", expected="chessboard:COLSxROWS:SQUARE_M or "
+                      "charuco:SQXxSQY:SQUARE_M:MARKER_M[:DICT]", received=repr(text),
+                      hint=f"e.g. --target {DEFAULT_TARGET} (11x8 inner corners, 30 mm squares)")
+
+
+def _resolution(text: str) -> tuple[int, int]:
+    m = re.fullmatch(r"(\d+)x(\d+)", text.strip())
+    if not m:
+        raise ConfigError("invalid --resolution", expected="WIDTHxHEIGHT, e.g. 1280x720", received=repr(text))
+    return int(m.group(1)), int(m.group(2))
+
+
+def _confirm_on_terminal(text: str) -> bool:
+    if not sys.stdin or not sys.stdin.isatty():
+        raise ConfigError("a real arm is about to move and there is no terminal to confirm it",
+                          hint="run interactively, or pass --yes once you have checked the workspace is clear")
+    print(text + " [y/N] ", end="", file=sys.stderr, flush=True)
+    return sys.stdin.readline().strip().lower() in ("y", "yes")
+
+
+def run_collect(args: argparse.Namespace) -> int:
+    from .collector import CaptureChecks, Collector
+    from .plan import PlanConfig
+    from .session_writer import SessionWriter
+
+    target = parse_target_spec(args.target)
+    if isinstance(target, ChessboardSpec) and len(target.symmetries()) > 1:
+        log.warning("a %dx%d chessboard looks the same turned by 180 deg; prefer cols + rows odd (e.g. 11x8)",
+                    target.cols, target.rows)
+    width, height = _resolution(args.resolution)
+    if args.auto and args.views < 1:
+        raise ConfigError("--views must be at least 1", received=str(args.views))
+    for name in ("speed", "max_speed"):
+        v = getattr(args, name)
+        if not 0 < v <= 1:
+            raise ConfigError(f"invalid --{name.replace('_', '-')}", expected="0 < fraction <= 1", received=str(v))
+    rng = np.random.default_rng(args.seed)
+    robot = camera = None
+    try:
+        robot, rig = _open_robot(args, target=target, width=width, height=height, rng=rng)
+        camera = _open_camera(args, robot=robot, width=width, height=height, rng=rng)
+        intr = camera.intrinsics()
+        writer = SessionWriter(args.out, mode=args.mode, target=target, intrinsics=intr,
+                               intrinsics_source=camera.intrinsics_source(),
+                               collected={"robot": robot.describe(), "camera": camera.describe(),
+                                          "capture": "auto" if args.auto else "interactive",
+                                          "seed": args.seed})
+        truth_cb = None
+        if rig is not None:
+            truth = rig.truth()
+            truth["robot_pose_noise"] = robot.describe()
+            truth["views"] = {}
+            writer.write_ground_truth(truth)
+
+            def truth_cb(view_id: str) -> None:
+                truth["views"][view_id] = {"T_base_end_true": robot.T_true.tolist(),
+                                           "T_base_end_reported": robot.T_reported.tolist()}
+                writer.write_ground_truth(truth)
+
+        checks = CaptureChecks(still_tol_mm=args.still_tol[0], still_tol_deg=args.still_tol[1],
+                               min_sharpness=args.min_sharpness)
+        collector = Collector(robot=robot, camera=camera, writer=writer, target=target, mode=args.mode,
+                              checks=checks, truth=truth_cb)
+        log.info("collecting a %s session into %s (camera: %s, robot: %s)", args.mode, args.out, camera.name,
+                 robot.name)
+        if args.auto:
+            cfg = PlanConfig(pixel_noise_px=args.plan_pixel_noise, robot_noise_mm=args.plan_robot_noise[0],
+                             robot_noise_deg=args.plan_robot_noise[1], min_axis_rotation_deg=args.min_axis_rotation,
+                             max_travel_m=args.max_travel / 1000.0)
+            confirm = (lambda text: True) if (args.yes or not robot.is_real) else _confirm_on_terminal
+            collector.run_auto(n_views=args.views, speed_fraction=args.speed, plan_config=cfg, confirm=confirm,
+                               probe_deg=args.probe_deg)
+        else:
+            collector.run_interactive(preview=args.preview)
+    finally:
+        for dev in (camera, robot):
+            if dev is not None:
+                try:
+                    dev.close()
+                except (HandeyeError, OSError, RuntimeError) as e:
+                    log.warning("closing %s: %s", getattr(dev, "name", "device"), e)
+    n, r = len(collector.kept), len(collector.rejected)
+    print(f"session: {args.out} ({n} views kept, {r} captures rejected)")
+    if rig is not None:
+        print(f"ground truth: {Path(args.out) / 'ground_truth.json'} ({mounting(args.mode).x_name})")
+    return 0 if n else 1
+
+
+def _open_robot(args, *, target: TargetSpec, width: int, height: int, rng: np.random.Generator):
+    spec = args.robot.strip()
+    if spec == "sim":
+        from .. import synth
+        from .sim import SimRig, SimRobot
+
+        rig = SimRig.sample(mode=args.mode, rng=rng, target=target,
+                            intrinsics=synth.default_intrinsics(width, height))
+        return SimRobot(rig, pose_noise_mm=args.sim_pose_noise[0], pose_noise_deg=args.sim_pose_noise[1],
+                        rng=rng), rig
+    if spec == "realman" or spec.startswith("realman:"):
+        from .realman import RealmanArm, parse_robot_address
+
+        host, port = parse_robot_address(spec[len("realman:"):] if ":" in spec else "")
+        arm = RealmanArm(host, port, timeout_s=args.timeout, motion=args.realman_motion,
+                         max_speed_fraction=args.max_speed, work_frame=args.work_frame or None)
+        return arm, None
+    raise ConfigError("unknown --robot", expected="realman:IP[:PORT] or sim", received=repr(args.robot))
+
+
+def _open_camera(args, *, robot, width: int, height: int, rng: np.random.Generator):
+    spec = args.camera.strip()
+    if spec == "sim":
+        from .sim import SimCamera, SimRobot
+
+        if not isinstance(robot, SimRobot):
+            raise ConfigError("--camera sim renders what the simulated arm sees", expected="--robot sim",
+                              received=repr(args.robot))
+        return SimCamera(robot, supersample=args.sim_supersample, blur_sigma_px=args.sim_blur,
+                         noise_sigma=args.sim_image_noise, rng=rng)
+    if spec == "realsense":
+        from .realsense import RealSenseCamera
+
+        return RealSenseCamera(width=width, height=height, fps=args.fps, serial=args.serial,
+                               settle_frames=args.settle_frames)
+    if spec.startswith("bag:"):
+        from .realsense import BagCamera
+
+        return BagCamera(spec[4:])
+    raise ConfigError("unknown --camera", expected="realsense, bag:FILE or sim", received=repr(args.camera))

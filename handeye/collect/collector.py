@@ -1,0 +1,332 @@
+"""The capture loop: check each capture, keep the good ones, say why the others were rejected.
+
+A capture reads the robot pose, grabs a fresh frame, reads the pose again, and is kept only when
+the two reads agree (the arm was still while the frame was taken), the arm reports no error, the
+target is detected and the image is sharp around it. Kept captures are written at once by the
+:class:`~handeye.collect.session_writer.SessionWriter`; a device fault stops the loop with a
+one-line HardwareError and leaves everything already saved intact.
+
+Modes: interactive (key ``s`` captures, ``q`` quits; a preview window where a display and an
+OpenCV GUI exist, a terminal prompt otherwise) and automatic (:meth:`Collector.run_auto`: probe
+moves, a first rough hand-eye, then the planned views of :mod:`handeye.collect.plan`).
+"""
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Optional, TextIO
+
+import cv2
+import numpy as np
+
+from ..detect import MIN_CORNERS, detect_charuco, detect_chessboard, sharpness
+from ..errors import DetectionError, HardwareError
+from ..geometry import rotation_angle_rad
+from ..model import mounting
+from ..seed import solve_closed_form, solve_pnp
+from ..types import ChessboardSpec, Intrinsics, TargetSpec
+from . import plan as planning
+from .camera import Camera
+from .robot import PoseReading, Robot, poses_agree
+from .session_writer import SessionWriter
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class CaptureChecks:
+    """Acceptance thresholds for one capture."""
+
+    still_tol_mm: float = 0.2  # the two pose reads around the frame agree within this
+    still_tol_deg: float = 0.1
+    min_sharpness: float = 30.0  # variance of the Laplacian inside the target's bounding box
+    settle_timeout_s: float = 5.0  # after a motion, wait at most this long for the arm to be still
+    settle_interval_s: float = 0.15
+
+
+@dataclass(frozen=True)
+class Capture:
+    """Outcome of one capture attempt."""
+
+    kept: bool
+    reason: str = ""  # why it was rejected
+    view_id: Optional[str] = None
+    pose: Optional[PoseReading] = None
+    corner_ids: Optional[np.ndarray] = None
+    image_points: Optional[np.ndarray] = None
+    sharpness: float = float("nan")
+    T_cam_board: Optional[np.ndarray] = None  # from PnP with the camera's intrinsics, when known
+
+
+def detect_target(gray: np.ndarray, target: TargetSpec) -> tuple[np.ndarray, np.ndarray] | str:
+    """(corner_ids, image_points) or the reason the target was not found."""
+    out = detect_chessboard(gray, target) if isinstance(target, ChessboardSpec) else detect_charuco(gray, target)
+    if isinstance(out, str):
+        return out
+    ids, pts = out
+    if len(ids) < MIN_CORNERS:
+        return f"only {len(ids)} corners detected (need at least {MIN_CORNERS})"
+    return ids, pts
+
+
+def board_pose(target: TargetSpec, intrinsics: Intrinsics, corner_ids: np.ndarray, image_points: np.ndarray, *,
+               reference: Optional[np.ndarray] = None) -> np.ndarray:
+    """``T_cam_board`` by PnP; for a symmetric board, the corner ordering closest to ``reference``."""
+    obj = target.object_points()
+    best, best_d = None, np.inf
+    for perm in target.symmetries():
+        T, _ = solve_pnp(obj[perm[corner_ids]], image_points, intrinsics)
+        d = 0.0 if reference is None else float(rotation_angle_rad(reference[:3, :3].T @ T[:3, :3]))
+        if d < best_d:
+            best, best_d = T, d
+        if reference is None:
+            break
+    return best
+
+
+def gui_available() -> bool:
+    """A display exists and this OpenCV build has a GUI backend (opencv-python-headless has none)."""
+    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        return False
+    info = cv2.getBuildInformation()
+    gui = [ln for ln in info.splitlines() if ln.strip().startswith("GUI:")]
+    if gui and gui[0].split(":", 1)[1].strip().upper() in ("NONE", ""):
+        return False
+    try:
+        cv2.namedWindow("handeye-probe", cv2.WINDOW_AUTOSIZE)
+        cv2.destroyWindow("handeye-probe")
+    except cv2.error:
+        return False
+    return True
+
+
+def _gray(image: np.ndarray) -> np.ndarray:
+    return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+
+
+class Collector:
+    """Captures views from ``robot`` and ``camera`` into ``writer``."""
+
+    def __init__(self, *, robot: Robot, camera: Camera, writer: SessionWriter, target: TargetSpec, mode: str,
+                 checks: CaptureChecks = CaptureChecks(), truth: Optional[Callable[[str], None]] = None):
+        self.robot = robot
+        self.camera = camera
+        self.writer = writer
+        self.target = target
+        self.mode = mode
+        self.checks = checks
+        self.intrinsics = camera.intrinsics()
+        self._on_kept_truth = truth  # simulated backends: record the true pose of a kept view
+        self.kept: list[Capture] = []
+        self.rejected: list[Capture] = []
+        self._next_id = 1
+
+    # -- one capture ---------------------------------------------------------------------------
+    def capture(self, *, reference_T_cam_board: Optional[np.ndarray] = None) -> Capture:
+        """Take one capture; keep and write it if every check passes."""
+        c = self.checks
+        first = self.robot.read_pose()
+        image, t_image = self.camera.grab()
+        second = self.robot.read_pose()
+        still, rot_deg, trans_mm = poses_agree(first.T_base_end, second.T_base_end, tol_mm=c.still_tol_mm,
+                                               tol_deg=c.still_tol_deg)
+        if not still:
+            return self._reject(f"the arm moved while the frame was taken ({trans_mm:.2f} mm, {rot_deg:.3f} deg "
+                                f"between the pose reads; tolerance {c.still_tol_mm} mm, {c.still_tol_deg} deg)")
+        errors = first.errors or second.errors
+        if errors:
+            from .realman import describe_error_codes
+
+            return self._reject(f"the arm reports {describe_error_codes(errors)}")
+        gray = _gray(image)
+        found = detect_target(gray, self.target)
+        if isinstance(found, str):
+            return self._reject(f"target not detected: {found}")
+        ids, pts = found
+        sharp = sharpness(gray, pts)
+        if not sharp >= c.min_sharpness:
+            return self._reject(f"image not sharp (variance of the Laplacian {sharp:.1f} < {c.min_sharpness:g}); "
+                                "check focus, lighting and that nothing moves")
+        T_cb = None
+        if self.intrinsics is not None:
+            T_cb = board_pose(self.target, self.intrinsics, ids, pts, reference=reference_T_cam_board)
+        vid = str(self._next_id)
+        state = dict(first.state)
+        extra = {"checks": {"pose_reads_dt_s": round(second.t_pose - first.t_pose, 4),
+                            "pose_reads_diff_mm": round(trans_mm, 4), "pose_reads_diff_deg": round(rot_deg, 5),
+                            "sharpness": round(float(sharp), 2), "n_corners": int(len(ids))}}
+        if self.camera.last_frame_info:
+            extra["camera_frame"] = dict(self.camera.last_frame_info)
+        self.writer.write_view(vid, image, first.T_base_end, t_image=t_image, t_pose=first.t_pose,
+                               robot_state=state, extra=extra)
+        self._next_id += 1
+        cap = Capture(True, "", vid, first, ids, pts, float(sharp), T_cb)
+        self.kept.append(cap)
+        if self._on_kept_truth is not None:
+            self._on_kept_truth(vid)
+        log.info("view %s kept: %d corners, sharpness %.0f", vid, len(ids), sharp)
+        return cap
+
+    def _reject(self, reason: str) -> Capture:
+        cap = Capture(False, reason)
+        self.rejected.append(cap)
+        log.warning("capture rejected: %s", reason)
+        return cap
+
+    def wait_still(self) -> bool:
+        """After a motion: wait until two pose reads agree (or the settle timeout passes)."""
+        c = self.checks
+        t_end = time.monotonic() + c.settle_timeout_s
+        while True:
+            if self.robot.is_still(interval_s=c.settle_interval_s if self.robot.is_real else 0.0,
+                                   tol_mm=c.still_tol_mm, tol_deg=c.still_tol_deg):
+                return True
+            if time.monotonic() > t_end:
+                return False
+
+    # -- interactive ---------------------------------------------------------------------------
+    def run_interactive(self, *, preview: Optional[bool] = None, stdin: Optional[TextIO] = None,
+                        max_views: Optional[int] = None) -> int:
+        """Capture on ``s``, quit on ``q``; returns the number of views kept."""
+        use_gui = gui_available() if preview is None else preview
+        if use_gui:
+            return self._run_preview(max_views=max_views)
+        stream = sys.stdin if stdin is None else stdin
+        guided = hasattr(self.robot, "simulate_hand_guiding")
+        print("Move the arm so the camera sees the whole board, then press s + Enter to capture; "
+              "q + Enter (or end of input) quits.", file=sys.stderr)
+        first = True
+        while max_views is None or len(self.kept) < max_views:
+            print(f"[{len(self.kept)} views] s = capture, q = quit > ", end="", file=sys.stderr, flush=True)
+            line = stream.readline()
+            if not line:
+                break
+            key = line.strip().lower()
+            if key in ("q", "quit", "exit"):
+                break
+            if key not in ("s", ""):
+                print("  keys: s (capture), q (quit)", file=sys.stderr)
+                continue
+            if guided and not first:
+                self.robot.simulate_hand_guiding()
+            first = False
+            cap = self.capture()
+            print(f"  view {cap.view_id} saved" if cap.kept else f"  rejected: {cap.reason}", file=sys.stderr)
+        return len(self.kept)
+
+    def _run_preview(self, *, max_views: Optional[int]) -> int:
+        win = "handeye collect: s = capture, q = quit"
+        cv2.namedWindow(win, cv2.WINDOW_NORMAL)
+        message = "s: capture   q: quit"
+        guided = hasattr(self.robot, "simulate_hand_guiding")
+        try:
+            while max_views is None or len(self.kept) < max_views:
+                image, _ = self.camera.grab()
+                shown = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+                scale = min(1.0, 960.0 / shown.shape[1])
+                small = cv2.resize(shown, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+                if isinstance(self.target, ChessboardSpec):
+                    ok, corners = cv2.findChessboardCorners(_gray(small), (self.target.cols, self.target.rows),
+                                                            flags=cv2.CALIB_CB_FAST_CHECK)
+                    if ok:
+                        cv2.drawChessboardCorners(small, (self.target.cols, self.target.rows), corners, ok)
+                cv2.putText(small, f"{len(self.kept)} views | {message}", (10, 25), cv2.FONT_HERSHEY_SIMPLEX, 0.6,
+                            (0, 255, 255), 2)
+                cv2.imshow(win, small)
+                key = cv2.waitKey(30) & 0xFF
+                if key in (ord("q"), 27):
+                    break
+                if key == ord("s"):
+                    if guided and self.kept:
+                        self.robot.simulate_hand_guiding()
+                    cap = self.capture()
+                    message = f"view {cap.view_id} saved" if cap.kept else f"rejected: {cap.reason[:70]}"
+        finally:
+            cv2.destroyWindow(win)
+        return len(self.kept)
+
+    # -- automatic -----------------------------------------------------------------------------
+    def run_auto(self, *, n_views: int, speed_fraction: float, plan_config: planning.PlanConfig = planning.PlanConfig(),
+                 confirm: Callable[[str], bool] = lambda text: True, probe_deg: float = 6.0) -> planning.Plan:
+        """Probe, plan and capture ``n_views`` planned views (plus the start and probe views)."""
+        if self.intrinsics is None:
+            raise HardwareError("automatic mode needs the camera's intrinsics to plan, and this camera has none",
+                                hint="use interactive mode, or a camera that reports factory intrinsics")
+        mount = mounting(self.mode)
+        start = self.capture()
+        if not start.kept:
+            raise DetectionError(f"automatic mode starts from a view of the board, and the first capture failed: "
+                                 f"{start.reason}", hint="move the arm so the camera sees the whole board, "
+                                 "roughly face on, then start again")
+        T0, C0 = start.pose.T_base_end, start.T_cam_board
+        probes = planning.probe_poses(T0, probe_deg=probe_deg)
+        if self.robot.is_real and not confirm(
+                f"The arm will make {len(probes)} small probe moves ({probe_deg:g} deg about the end's own x, y and "
+                f"z axes) at {100 * speed_fraction:.0f}% speed. Continue?"):
+            log.warning("stopped before moving the arm")
+            return planning.Plan((), float("nan"), float("nan"), np.zeros(3), "cancelled", "not confirmed")
+        for T in probes:
+            self.robot.move_to(T, speed_fraction=speed_fraction)
+            self._capture_after_move(reference=C0)
+        views = [c for c in self.kept if c.T_cam_board is not None]
+        if len(views) < 3:
+            raise DetectionError(f"only {len(views)} of the start and probe views show the board; a first "
+                                 "hand-eye estimate needs 3", hint="start from a pose where the board is in the "
+                                 "middle of the image, or lower --probe-deg")
+        M = mount.M_from_T_base_end(np.stack([c.pose.T_base_end for c in views]))
+        C = np.stack([c.T_cam_board for c in views])
+        rough = solve_closed_form(mount, C, M, method="park")
+        if rough.status != "ok":
+            raise DetectionError(f"the first hand-eye estimate failed ({rough.failure_reason})",
+                                 hint="check the board size given with --target")
+        log.info("first estimate from %d views; planning %d views (predicted 1-sigma of %s, total over 3 axes):",
+                 len(views), n_views, mount.x_name)
+
+        def on_step(pv: planning.PlannedView) -> None:
+            log.info("  plan %2d: sigma %.3f deg, %.2f mm  (%s)", pv.index, pv.sigma_rot_deg, pv.sigma_trans_mm,
+                     pv.candidate.label)
+
+        plan = planning.make_plan(mode=self.mode, T_x=rough.T_x, T_board=rough.T_board, T_base_end_start=T0,
+                                  T_cam_board_start=C0, T_base_end_done=[c.pose.T_base_end for c in views],
+                                  target=self.target, intrinsics=self.intrinsics, n_views=n_views,
+                                  config=plan_config, pose_ok=getattr(self.robot, "pose_ok", None), on_step=on_step)
+        if plan.status != "ok":
+            log.warning("plan: %s", plan.failure_reason)
+        if not plan.views:
+            return plan
+        travel = max(np.linalg.norm(pv.candidate.T_base_end[:3, 3] - T0[:3, 3]) for pv in plan.views)
+        turn = max(np.linalg.norm(pv.candidate.end_rotvec_deg) for pv in plan.views)
+        if self.robot.is_real and not confirm(
+                f"The plan moves the arm to {len(plan.views)} poses up to {1000 * travel:.0f} mm and {turn:.0f} deg "
+                f"from the start pose, at {100 * speed_fraction:.0f}% speed. Continue?"):
+            log.warning("stopped before the planned moves")
+            return plan
+        done = [c.pose.T_base_end for c in views]
+        for pv in plan.views:
+            self.robot.move_to(pv.candidate.T_base_end, speed_fraction=speed_fraction)
+            cap = self._capture_after_move(reference=pv.candidate.T_cam_board)
+            if cap.kept:
+                done.append(cap.pose.T_base_end)
+                info = planning.information_of_views(mode=self.mode, T_x=rough.T_x, T_board=rough.T_board,
+                                                     T_base_end=done, target=self.target,
+                                                     intrinsics=self.intrinsics, config=plan_config)
+                sr, st = planning.predicted_sigma(info)
+                log.info("planned view %d/%d captured as view %s: predicted sigma %.3f deg, %.2f mm",
+                         pv.index, len(plan.views), cap.view_id, sr, st)
+            else:
+                log.warning("planned view %d/%d skipped: %s", pv.index, len(plan.views), cap.reason)
+        return plan
+
+    def _capture_after_move(self, *, reference: Optional[np.ndarray]) -> Capture:
+        cap = None
+        for attempt in range(2):
+            if not self.wait_still():
+                cap = self._reject("the arm did not settle after the motion")
+                continue
+            cap = self.capture(reference_T_cam_board=reference)
+            if cap.kept or "moved while" not in cap.reason:
+                return cap
+        return cap

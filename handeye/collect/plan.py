@@ -1,0 +1,307 @@
+"""Automatic pose plan: few views, chosen to make the hand-eye result as certain as possible.
+
+Everything here is pure math on the one model ``T_cam_board_i = inv(T_x) · M_i · T_board``
+(:mod:`handeye.model`), for both mounting modes.
+
+Candidate views orbit the board: starting from the current view ``T_cam_board_0``, the camera is
+rotated about the board centre (tilts about the camera's x and y axes, a roll about its optical
+axis, and a change of distance), so the board stays in the middle of the image. Each candidate is
+mapped to a robot pose through the current estimate of the hand-eye transform, and kept if the
+whole pattern stays in the image, the board is not seen too obliquely and the arm does not travel
+or turn too far.
+
+Choice (greedy D-optimal design): the uncertainty of a plan is predicted from the Fisher
+information of its views under a corner reprojection model. Per view, with the 12 unknowns
+``theta = (xi_x, xi_board)`` (right perturbations ``T_x · Exp(xi)``, tangent order (rotation,
+translation)) and the robot-pose error ``xi_m`` (``T_base_end · Exp(xi_m)``, covariance ``S_m``
+from the assumed robot noise), the corners' covariance is ``sigma_px^2 I + J_m S_m J_m^T`` and the
+view contributes ``J_theta^T (sigma_px^2 I + J_m S_m J_m^T)^-1 J_theta`` (Jacobians by central
+differences). Each step adds the candidate that most reduces ``log det`` of the marginal covariance
+of ``T_x``. The rotations of the end relative to the start pose must reach at least
+``min_axis_rotation_deg`` about each of the end frame's three axes; when the remaining slots are
+needed for that, only candidates that add a missing axis are eligible.
+
+Predicted sigma is reported as the root of the trace of the marginal covariance: the total 1-sigma
+error over the three axes, in degrees for the rotation and millimetres for the translation.
+"""
+from __future__ import annotations
+
+import itertools
+import logging
+from dataclasses import dataclass, field
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..errors import ConfigError
+from ..geometry import T_from_rotvec, inv_T, make_T, rotation_angle_rad
+from ..model import mounting
+from ..synth import board_in_image, distort_normalized, pattern_bounds
+from ..types import Intrinsics, TargetSpec
+
+log = logging.getLogger(__name__)
+
+_H = 1e-6  # finite-difference step (rad, m)
+
+
+@dataclass(frozen=True)
+class PlanConfig:
+    """Assumptions and limits of the planner (units in the names)."""
+
+    pixel_noise_px: float = 0.3  # corner noise assumed for the prediction
+    robot_noise_mm: float = 0.1  # per-axis robot pose noise assumed (end frame)
+    robot_noise_deg: float = 0.03
+    min_axis_rotation_deg: float = 30.0  # the plan rotates the end at least this much about x, y and z
+    tilt_deg: tuple = (-40.0, -32.0, -20.0, 0.0, 20.0, 32.0, 40.0)  # camera tilts about the board centre (x and y)
+    roll_deg: tuple = (-45.0, -20.0, 0.0, 20.0, 45.0)  # camera roll about its optical axis
+    distance_scales: tuple = (0.7, 0.85, 1.0, 1.15)
+    max_view_angle_deg: float = 60.0  # board normal vs optical axis
+    max_end_rotation_deg: float = 70.0  # from the start pose
+    max_travel_m: float = 0.5  # end translation from the start pose
+    margin_px: Optional[float] = None  # pattern-to-border margin (default: synth's)
+    min_separation_deg: float = 5.0  # planned views differ from each other by at least this
+
+
+@dataclass(frozen=True)
+class Candidate:
+    T_base_end: np.ndarray  # (4, 4) robot pose to command
+    T_cam_board: np.ndarray  # (4, 4) predicted board pose in the camera
+    end_rotvec_deg: np.ndarray  # (3,) end rotation from the start pose, in the start end frame
+    info: np.ndarray  # (12, 12) Fisher information of (xi_x, xi_board)
+    label: str
+
+
+@dataclass(frozen=True)
+class PlannedView:
+    index: int  # 1-based order of execution
+    candidate: Candidate
+    sigma_rot_deg: float  # predicted for the views so far, this one included
+    sigma_trans_mm: float
+
+
+@dataclass(frozen=True)
+class Plan:
+    views: tuple  # tuple[PlannedView, ...]
+    start_sigma_rot_deg: float
+    start_sigma_trans_mm: float
+    axis_rotation_deg: np.ndarray  # (3,) largest |end rotation| about x, y, z over start + plan
+    status: str = "ok"
+    failure_reason: str = ""
+
+
+# ------------------------------------------------------------------------------ projection
+def pixel_from_cam_points(p_cam: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
+    """OpenCV 5-coefficient projection of (..., N, 3) camera points -> (..., N, 2) pixels."""
+    z = p_cam[..., 2]
+    x, y = p_cam[..., 0] / z, p_cam[..., 1] / z
+    xd, yd = distort_normalized(x, y, intrinsics.dist)
+    return np.stack([intrinsics.fx * xd + intrinsics.cx, intrinsics.fy * yd + intrinsics.cy], axis=-1)
+
+
+def _perturbations(T: np.ndarray) -> np.ndarray:
+    """(13, 4, 4): T, then T·Exp(+h e_k) and T·Exp(-h e_k) for k = 0..5 (interleaved +/-)."""
+    out = [T]
+    for k in range(6):
+        for s in (1.0, -1.0):
+            xi = np.zeros(6)
+            xi[k] = s * _H
+            out.append(T @ T_from_rotvec(xi[:3], xi[3:]))
+    return np.stack(out)
+
+
+def view_information(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_end: np.ndarray,
+                     object_points: np.ndarray, intrinsics: Intrinsics, pixel_noise_px: float,
+                     robot_noise_mm: float, robot_noise_deg: float) -> np.ndarray:
+    """Fisher information (12, 12) of one view about (xi_x, xi_board), robot noise marginalised."""
+    mount = mounting(mode)
+    Px, Pb, Pe = _perturbations(T_x), _perturbations(T_board), _perturbations(T_base_end)
+    # 36 perturbed chains: 12 for T_x, 12 for T_board, 12 for T_base_end
+    X = np.concatenate([Px[1:], np.broadcast_to(T_x, (24, 4, 4))])
+    B = np.concatenate([np.broadcast_to(T_board, (12, 4, 4)), Pb[1:], np.broadcast_to(T_board, (12, 4, 4))])
+    E = np.concatenate([np.broadcast_to(T_base_end, (24, 4, 4)), Pe[1:]])
+    C = mount.predict_T_cam_board(X, B, E)  # (36, 4, 4)
+    p_cam = np.einsum("kij,nj->kni", C[:, :3, :3], object_points) + C[:, None, :3, 3]
+    uv = pixel_from_cam_points(p_cam, intrinsics).reshape(18, 2, -1)  # (18 params, +/-, 2N)
+    J = ((uv[:, 0] - uv[:, 1]) / (2 * _H)).T  # (2N, 18)
+    J_th, J_m = J[:, :12], J[:, 12:]
+    s2 = float(pixel_noise_px) ** 2
+    sm = np.array([np.radians(robot_noise_deg)] * 3 + [robot_noise_mm * 1e-3] * 3) ** 2
+    if np.all(sm == 0):
+        return J_th.T @ J_th / s2
+    # (s2 I + J_m S J_m^T)^-1 by Woodbury: (1/s2)(I - J_m (s2 S^-1 + J_m^T J_m)^-1 J_m^T)
+    inner = np.diag(s2 / np.maximum(sm, 1e-30)) + J_m.T @ J_m
+    A = J_th.T @ J_m
+    return (J_th.T @ J_th - A @ np.linalg.solve(inner, A.T)) / s2
+
+
+def _prior() -> np.ndarray:
+    return np.eye(12)  # 1 rad / 1 m prior sigma: keeps the matrix invertible, negligible otherwise
+
+
+def predicted_sigma(info: np.ndarray) -> tuple[float, float]:
+    """(sigma_rot_deg, sigma_trans_mm) of ``T_x``: root of the trace of its marginal covariance."""
+    cov = np.linalg.inv(info + _prior())[:6, :6]
+    return float(np.degrees(np.sqrt(max(np.trace(cov[:3, :3]), 0.0)))), float(
+        1e3 * np.sqrt(max(np.trace(cov[3:, 3:]), 0.0)))
+
+
+def _logdet_x(info: np.ndarray) -> float:
+    cov = np.linalg.inv(info + _prior())[:6, :6]
+    sign, ld = np.linalg.slogdet(cov)
+    return float(ld) if sign > 0 else float("inf")
+
+
+# ------------------------------------------------------------------------------ candidates
+def board_center(target: TargetSpec) -> np.ndarray:
+    x0, x1, y0, y1 = pattern_bounds(target)
+    return np.array([(x0 + x1) / 2.0, (y0 + y1) / 2.0, 0.0])
+
+
+def orbit_T_cam_board(T_cam_board_0: np.ndarray, *, center_board: np.ndarray, rotvec_cam: np.ndarray,
+                      distance_scale: float = 1.0) -> np.ndarray:
+    """The camera of ``T_cam_board_0`` turned by ``rotvec_cam`` (its own axes) about the board centre.
+
+    The board centre keeps its direction in the camera; its distance is scaled by ``distance_scale``.
+    """
+    T_board_cam0 = inv_T(T_cam_board_0)
+    R0, o0 = T_board_cam0[:3, :3], T_board_cam0[:3, 3]
+    Q = Rotation.from_rotvec(np.asarray(rotvec_cam, float)).as_matrix()
+    G = R0 @ Q @ R0.T  # the same rotation expressed in the board frame
+    o = center_board + distance_scale * (G @ (o0 - center_board))
+    return inv_T(make_T(R0 @ Q, o))
+
+
+def end_rotvec_deg(T_base_end_start: np.ndarray, T_base_end: np.ndarray) -> np.ndarray:
+    """Rotation of the end from the start pose, as a rotation vector in the start end frame (deg)."""
+    R = T_base_end_start[:3, :3].T @ T_base_end[:3, :3]
+    return np.degrees(Rotation.from_matrix(R).as_rotvec())
+
+
+def candidate_views(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_end_start: np.ndarray,
+                    T_cam_board_start: np.ndarray, target: TargetSpec, intrinsics: Intrinsics,
+                    config: PlanConfig = PlanConfig(),
+                    pose_ok: Optional[Callable[[np.ndarray], bool]] = None) -> list[Candidate]:
+    """Feasible orbit views around the start view, with their Fisher information."""
+    mount = mounting(mode)
+    obj = target.object_points()
+    c = board_center(target)
+    out = []
+    for ax, ay, roll, s in itertools.product(config.tilt_deg, config.tilt_deg, config.roll_deg,
+                                             config.distance_scales):
+        if ax == ay == roll == 0 and s == 1.0:
+            continue  # the start view itself
+        # tilt about x then y, then roll about the optical axis
+        Q = Rotation.from_rotvec(np.radians([0, 0, roll])) * Rotation.from_rotvec(np.radians([0, ay, 0])) \
+            * Rotation.from_rotvec(np.radians([ax, 0, 0]))
+        C = orbit_T_cam_board(T_cam_board_start, center_board=c, rotvec_cam=Q.as_rotvec(), distance_scale=s)
+        view_angle = np.degrees(np.arccos(np.clip(abs(C[2, 2]), 0.0, 1.0)))
+        if view_angle > config.max_view_angle_deg:
+            continue
+        if not board_in_image(target, intrinsics, C, margin_px=config.margin_px):
+            continue
+        T_be = mount.T_base_end_from_M(T_x @ C @ inv_T(T_board))
+        rv = end_rotvec_deg(T_base_end_start, T_be)
+        if np.linalg.norm(rv) > config.max_end_rotation_deg:
+            continue
+        if np.linalg.norm(T_be[:3, 3] - T_base_end_start[:3, 3]) > config.max_travel_m:
+            continue
+        if pose_ok is not None and not pose_ok(T_be):
+            continue
+        info = view_information(mode=mode, T_x=T_x, T_board=T_board, T_base_end=T_be, object_points=obj,
+                                intrinsics=intrinsics, pixel_noise_px=config.pixel_noise_px,
+                                robot_noise_mm=config.robot_noise_mm, robot_noise_deg=config.robot_noise_deg)
+        out.append(Candidate(T_be, C, rv, info, f"tilt x {ax:+.0f} y {ay:+.0f} roll {roll:+.0f} dist x{s:.2f}"))
+    return out
+
+
+# ------------------------------------------------------------------------------ greedy choice
+def greedy_plan(candidates: Sequence[Candidate], *, n_views: int, info_start: np.ndarray,
+                rotvec_done_deg: Sequence[np.ndarray] = (), config: PlanConfig = PlanConfig(),
+                on_step: Optional[Callable[[PlannedView], None]] = None) -> Plan:
+    """Pick ``n_views`` candidates greedily (D-optimal for ``T_x``), meeting the rotation coverage."""
+    if n_views < 1:
+        raise ConfigError("the plan needs at least one view", expected="n_views >= 1", received=str(n_views))
+    info = np.array(info_start, float)
+    s0 = predicted_sigma(info)
+    cover = np.zeros(3)
+    for rv in rotvec_done_deg:
+        cover = np.maximum(cover, np.abs(rv))
+    pool = list(range(len(candidates)))
+    chosen: list[PlannedView] = []
+    need = config.min_axis_rotation_deg
+    for step in range(n_views):
+        if not pool:
+            break
+        missing = cover < need
+        slots_left = n_views - step
+        eligible = pool
+        if missing.any() and slots_left <= int(missing.sum()):
+            eligible = [i for i in pool if np.any(np.abs(candidates[i].end_rotvec_deg)[missing] >= need)] or pool
+        scores = [_logdet_x(info + candidates[i].info) for i in eligible]
+        best = eligible[int(np.argmin(scores))]
+        cand = candidates[best]
+        info = info + cand.info
+        cover = np.maximum(cover, np.abs(cand.end_rotvec_deg))
+        sr, st = predicted_sigma(info)
+        pv = PlannedView(step + 1, cand, sr, st)
+        chosen.append(pv)
+        if on_step is not None:
+            on_step(pv)
+        pool = [i for i in pool if i != best and _separation_deg(candidates[i], cand) >= config.min_separation_deg]
+    status, reason = "ok", ""
+    if len(chosen) < n_views:
+        status, reason = "short", f"only {len(chosen)} feasible views for the {n_views} asked"
+    lacking = [a for a, v in zip("xyz", cover) if v < need]
+    if lacking:
+        status = "short"
+        reason = (reason + "; " if reason else "") + (
+            f"end rotation about {', '.join(lacking)} stays below {need:g} deg within the limits "
+            f"(max {', '.join(f'{v:.0f}' for v in cover)} deg about x, y, z)")
+    return Plan(tuple(chosen), s0[0], s0[1], cover, status, reason)
+
+
+def _separation_deg(a: Candidate, b: Candidate) -> float:
+    R = a.T_cam_board[:3, :3].T @ b.T_cam_board[:3, :3]
+    d_rot = float(np.degrees(rotation_angle_rad(R)))
+    d_dist = abs(np.linalg.norm(a.T_cam_board[:3, 3]) - np.linalg.norm(b.T_cam_board[:3, 3]))
+    return d_rot + 100.0 * d_dist  # 1 cm of distance counts like 1 degree
+
+
+def make_plan(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_end_start: np.ndarray,
+              T_cam_board_start: np.ndarray, T_base_end_done: Sequence[np.ndarray], target: TargetSpec,
+              intrinsics: Intrinsics, n_views: int, config: PlanConfig = PlanConfig(),
+              pose_ok: Optional[Callable[[np.ndarray], bool]] = None,
+              on_step: Optional[Callable[[PlannedView], None]] = None) -> Plan:
+    """Plan ``n_views`` more views around the start view, given the views already captured.
+
+    ``T_x``/``T_board`` are the current (rough) estimates; ``T_base_end_done`` the poses of the
+    views already captured (their information counts, so the plan complements them).
+    """
+    info0 = information_of_views(mode=mode, T_x=T_x, T_board=T_board, T_base_end=T_base_end_done, target=target,
+                                 intrinsics=intrinsics, config=config)
+    cands = candidate_views(mode=mode, T_x=T_x, T_board=T_board, T_base_end_start=T_base_end_start,
+                            T_cam_board_start=T_cam_board_start, target=target, intrinsics=intrinsics,
+                            config=config, pose_ok=pose_ok)
+    log.info("planning: %d feasible candidate views around the start pose", len(cands))
+    done_rv = [end_rotvec_deg(T_base_end_start, T) for T in T_base_end_done]
+    return greedy_plan(cands, n_views=n_views, info_start=info0, rotvec_done_deg=done_rv, config=config,
+                       on_step=on_step)
+
+
+def information_of_views(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_end: Sequence[np.ndarray],
+                         target: TargetSpec, intrinsics: Intrinsics, config: PlanConfig = PlanConfig()) -> np.ndarray:
+    """Summed Fisher information (12, 12) of views at the given robot poses."""
+    obj = target.object_points()
+    info = np.zeros((12, 12))
+    for T in T_base_end:
+        info += view_information(mode=mode, T_x=T_x, T_board=T_board, T_base_end=T, object_points=obj,
+                                 intrinsics=intrinsics, pixel_noise_px=config.pixel_noise_px,
+                                 robot_noise_mm=config.robot_noise_mm, robot_noise_deg=config.robot_noise_deg)
+    return info
+
+
+def probe_poses(T_base_end_start: np.ndarray, *, probe_deg: float = 6.0) -> list[np.ndarray]:
+    """Small rotations of the end about its own x, y and z axes (for a first rough hand-eye)."""
+    a = np.radians(probe_deg)
+    return [T_base_end_start @ make_T(Rotation.from_rotvec(a * e).as_matrix(), np.zeros(3)) for e in np.eye(3)]

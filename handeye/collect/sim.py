@@ -1,0 +1,150 @@
+"""Simulated arm and camera that know the ground truth, for dry runs and tests.
+
+The simulated arm keeps a *true* pose and a *reported* pose. Moving to ``T_cmd`` reports exactly
+``T_cmd`` (as a controller reports what it believes) while the flange really sits at
+``T_true = T_cmd @ inv(dT)``, i.e. ``reported = true @ dT`` with ``dT`` a fresh small transform in
+the end frame per motion (the robot-noise convention of :mod:`handeye.synth`). The simulated camera
+renders the board from the *true* pose through :func:`handeye.synth_render.render_view`, so a
+calibration from the reported poses meets the same errors a real one does.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from .. import synth
+from ..errors import ConfigError
+from ..geometry import inv_T
+from ..model import mounting
+from ..types import Intrinsics, TargetSpec
+from .camera import Camera
+from .robot import PoseReading, Robot
+
+log = logging.getLogger(__name__)
+
+
+def _render_view():
+    try:
+        from ..synth import render_view  # type: ignore[attr-defined]
+    except ImportError:
+        from ..synth_render import render_view
+    return render_view
+
+
+@dataclass(frozen=True)
+class SimRig:
+    """Ground truth of a simulated set-up: the hand-eye and board transforms, camera and start pose."""
+
+    mode: str
+    T_x: np.ndarray  # T_end_cam (eye_in_hand) or T_base_cam (eye_to_hand)
+    T_board: np.ndarray  # T_base_board (eye_in_hand) or T_end_board (eye_to_hand)
+    target: TargetSpec
+    intrinsics: Intrinsics
+    T_base_end_start: np.ndarray  # a pose where the camera sees the whole board, roughly face on
+
+    @staticmethod
+    def sample(*, mode: str, rng: np.random.Generator, target: TargetSpec = synth.DEFAULT_TARGET,
+               intrinsics: Optional[Intrinsics] = None) -> "SimRig":
+        intrinsics = synth.DEFAULT_INTRINSICS if intrinsics is None else intrinsics
+        setup = synth.sample_setup(mode=mode, rng=rng, target=target)
+        T0 = synth.sample_view_poses(mode=mode, n_views=1, rng=rng, T_x=setup["T_x"], T_board=setup["T_board"],
+                                     target=target, intrinsics=intrinsics, tilt_deg=(0.0, 8.0), roll_deg=10.0,
+                                     aim_deg=2.0)[0]
+        return SimRig(mode, setup["T_x"], setup["T_board"], target, intrinsics, T0)
+
+    def truth(self) -> dict:
+        m = mounting(self.mode)
+        return {"mode": self.mode, m.x_name: self.T_x.tolist(), m.board_name: self.T_board.tolist(),
+                "intrinsics": self.intrinsics.to_dict(), "target": self.target.to_dict(),
+                "convention": "T_a_b maps points of frame b into frame a (p_a = T_a_b @ p_b); metres"}
+
+
+class SimRobot(Robot):
+    """A simulated arm with pose noise (per axis, end frame) between reported and true poses."""
+
+    is_real = False
+
+    def __init__(self, rig: SimRig, *, pose_noise_mm: float = 0.1, pose_noise_deg: float = 0.02,
+                 rng: Optional[np.random.Generator] = None, reach_m: tuple = (0.15, 1.3)):
+        if pose_noise_mm < 0 or pose_noise_deg < 0:
+            raise ConfigError("negative simulated pose noise", expected=">= 0",
+                              received=f"{pose_noise_mm} mm, {pose_noise_deg} deg")
+        self.rig = rig
+        self.name = "sim"
+        self.pose_noise_mm, self.pose_noise_deg = float(pose_noise_mm), float(pose_noise_deg)
+        self.rng = np.random.default_rng() if rng is None else rng
+        self.reach_m = reach_m
+        self.n_moves = 0
+        self._set(rig.T_base_end_start)
+
+    def _set(self, T_cmd: np.ndarray) -> None:
+        dT = synth.perturb_T_base_end(np.eye(4), rng=self.rng, sigma_mm=self.pose_noise_mm,
+                                      sigma_deg=self.pose_noise_deg)[0]
+        self.T_reported = np.array(T_cmd, float)
+        self.T_true = self.T_reported @ inv_T(dT)
+
+    def describe(self) -> dict:
+        return {"backend": "sim", "pose_noise_mm": self.pose_noise_mm, "pose_noise_deg": self.pose_noise_deg,
+                "noise_convention": "reported = true @ dT, dT per motion in the end frame, per-axis sigma"}
+
+    def read_pose(self) -> PoseReading:
+        return PoseReading(self.T_reported.copy(), time.time(), {"errors": [], "backend": "sim"})
+
+    def move_to(self, T_base_end: np.ndarray, *, speed_fraction: float) -> None:
+        if not 0 < speed_fraction <= 1:
+            raise ConfigError("invalid speed fraction", expected="0 < value <= 1", received=repr(speed_fraction))
+        self._set(T_base_end)
+        self.n_moves += 1
+
+    def pose_ok(self, T_base_end: np.ndarray) -> bool:
+        """Within reach and above the table (used by the planner)."""
+        p = T_base_end[:3, 3]
+        return self.reach_m[0] <= float(np.linalg.norm(p)) <= self.reach_m[1] and p[2] > 0.05
+
+    def T_cam_board_true(self) -> np.ndarray:
+        return mounting(self.rig.mode).predict_T_cam_board(self.rig.T_x, self.rig.T_board, self.T_true)
+
+    def simulate_hand_guiding(self) -> None:
+        """Interactive sessions: a simulated operator drags the arm to a new pose showing the board."""
+        r = self.rig
+        T = synth.sample_view_poses(mode=r.mode, n_views=1, rng=self.rng, T_x=r.T_x, T_board=r.T_board,
+                                    target=r.target, intrinsics=r.intrinsics)[0]
+        self._set(T)
+        self.n_moves += 1
+
+
+class SimCamera(Camera):
+    """Renders the board as the simulated arm's true pose shows it (8-bit grey, like a mono frame)."""
+
+    def __init__(self, robot: SimRobot, *, supersample: int = 2, blur_sigma_px: float = 0.0,
+                 noise_sigma: float = 2.0, rng: Optional[np.random.Generator] = None):
+        self.robot = robot
+        self.name = "sim"
+        self.supersample = int(supersample)
+        self.blur_sigma_px = float(blur_sigma_px)
+        self.noise_sigma = float(noise_sigma)
+        self.rng = np.random.default_rng() if rng is None else rng
+        self._render = _render_view()
+        self.n_frames = 0
+
+    def intrinsics(self) -> Intrinsics:
+        return self.robot.rig.intrinsics
+
+    def intrinsics_source(self) -> dict:
+        return {"kind": "simulated camera (exact)"}
+
+    def describe(self) -> dict:
+        return {"backend": "sim", "supersample": self.supersample, "blur_sigma_px": self.blur_sigma_px,
+                "noise_sigma_grey": self.noise_sigma}
+
+    def grab(self) -> tuple[np.ndarray, float]:
+        r = self.robot.rig
+        img = self._render(r.target, r.intrinsics, self.robot.T_cam_board_true(), supersample=self.supersample,
+                           blur_sigma_px=self.blur_sigma_px, noise_sigma=self.noise_sigma, rng=self.rng)
+        self.n_frames += 1
+        self.last_frame_info = {"frame_number": self.n_frames}
+        return img, time.time()
