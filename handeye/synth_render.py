@@ -1,0 +1,333 @@
+"""Render synthetic target images through exactly OpenCV's lens model.
+
+For each output pixel, ``supersample`` x ``supersample`` sub-pixel samples are mapped to
+undistorted normalized coordinates by inverting OpenCV's 5-coefficient distortion (Newton
+iterations in float64 from an interpolated ``cv2.undistortPointsIter`` start, checked to
+round-trip to < 1e-6 px; cached per intrinsics), intersected with the board plane through the
+inverse homography, and looked up (nearest texel, exact for a chessboard whose squares are texels)
+in the board texture. The samples of a pixel are box-averaged (``cv2.resize`` INTER_AREA), so the
+grey level of a pixel is the board colour averaged over its area: an anti-aliased image whose
+geometry is that of ``cv2.projectPoints``.
+
+Pixel convention (OpenCV's): pixel (u, v) has its centre at integer coordinates; the image spans
+[-0.5, W-0.5] x [-0.5, H-0.5]. Sub-sample k of s sits at ``u + (k + 0.5) / s - 0.5``.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from typing import Optional, Union
+
+import cv2
+import numpy as np
+
+from .errors import ConfigError
+from .synth import distort_normalized, pattern_bounds
+from .types import ChessboardSpec, CharucoSpec, Intrinsics, TargetSpec
+
+log = logging.getLogger(__name__)
+
+#: Grey levels of the printed board as a camera typically sees them (not 0/255: paper and ink).
+BLACK_LEVEL = 30.0
+WHITE_LEVEL = 225.0
+BACKGROUND_LEVEL = 128.0
+
+_ROUNDTRIP_TOL_PX = 1e-6
+_CHUNK_OUTPUT_ROWS = 32
+_N_THREADS = 2
+
+_grid_lock = threading.Lock()
+_grid_cache: dict = {}  # key -> (Hs, Ws, 2) float32 undistorted normalized coordinates
+_GRID_CACHE_MAX = 2
+_bg_cache: dict = {}
+_tex_cache: dict = {}
+
+
+def _intrinsics_key(intrinsics: Intrinsics) -> tuple:
+    return (float(intrinsics.fx), float(intrinsics.fy), float(intrinsics.cx), float(intrinsics.cy),
+            tuple(float(d) for d in intrinsics.dist), int(intrinsics.width), int(intrinsics.height))
+
+
+def _sample_coords(n: int, s: int) -> np.ndarray:
+    """Sub-pixel sample positions along one axis of ``n`` pixels, ``s`` samples per pixel."""
+    return (np.arange(n * s, dtype=float) + 0.5) / s - 0.5
+
+
+def _newton_undistort(x: np.ndarray, y: np.ndarray, xt: np.ndarray, yt: np.ndarray, dist, *,
+                      iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """Solve distort(x, y) = (xt, yt) by Newton steps from (x, y); all float64 arrays."""
+    k1, k2, p1, p2, k3 = (float(v) for v in dist)
+    for _ in range(iterations):
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r2
+        xy = x * y
+        ex = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x) - xt
+        ey = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy - yt
+        a = radial + 2.0 * x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x  # d xd / dx
+        b = 2.0 * xy * dradial + 2.0 * p1 * x + 2.0 * p2 * y  # d xd / dy = d yd / dx
+        c = radial + 2.0 * y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x  # d yd / dy
+        det = a * c - b * b
+        x = x - (c * ex - b * ey) / det
+        y = y - (a * ey - b * ex) / det
+    return x, y
+
+
+def _build_grid(intrinsics: Intrinsics, s: int) -> np.ndarray:
+    W, H = intrinsics.width, intrinsics.height
+    fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    dist = intrinsics.dist
+    # Exact inverse on a coarse grid (every g px, one cell beyond the image), interpolated as a start.
+    g = 2.0
+    cu = np.arange(-g, W - 1 + 2 * g, g)
+    cv_ = np.arange(-g, H - 1 + 2 * g, g)
+    CU, CV = np.meshgrid(cu, cv_)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15)
+    coarse = cv2.undistortPointsIter(np.stack([CU, CV], -1).reshape(-1, 1, 2), intrinsics.K, intrinsics.dist_array,
+                                     None, None, crit).reshape(len(cv_), len(cu), 2).astype(np.float32)
+    us, vs = _sample_coords(W, s), _sample_coords(H, s)
+    grid = np.empty((H * s, W * s, 2), np.float32)
+    map_u = np.ascontiguousarray(np.broadcast_to(((us + g) / g).astype(np.float32), (s * _CHUNK_OUTPUT_ROWS, W * s)))
+    xt = ((us - cx) / fx)[None, :]
+
+    def work(r0: int) -> float:
+        r1 = min(H * s, r0 + s * _CHUNK_OUTPUT_ROWS)
+        map_v = np.ascontiguousarray(np.broadcast_to(((vs[r0:r1] + g) / g).astype(np.float32)[:, None],
+                                                     (r1 - r0, W * s)))
+        start = cv2.remap(coarse, map_u[: r1 - r0], map_v, cv2.INTER_LINEAR)
+        yt = ((vs[r0:r1] - cy) / fy)[:, None]
+        x, y = _newton_undistort(start[..., 0].astype(float), start[..., 1].astype(float), xt, yt, dist,
+                                 iterations=1)
+        xd, yd = distort_normalized(x, y, dist)
+        res_px = max(float(np.max(np.abs(xd - xt))) * fx, float(np.max(np.abs(yd - yt))) * fy)
+        if res_px > _ROUNDTRIP_TOL_PX:  # strong distortion near the border: polish further
+            x, y = _newton_undistort(x, y, xt, yt, dist, iterations=4)
+            xd, yd = distort_normalized(x, y, dist)
+            res_px = max(float(np.max(np.abs(xd - xt))) * fx, float(np.max(np.abs(yd - yt))) * fy)
+        # Independent check of the float64 solution through cv2.projectPoints (every 97th sample).
+        sub_x, sub_y = x.ravel()[::97], y.ravel()[::97]
+        uv, _ = cv2.projectPoints(np.stack([sub_x, sub_y, np.ones_like(sub_x)], 1), np.zeros(3), np.zeros(3),
+                                  intrinsics.K, intrinsics.dist_array)
+        want = np.stack([np.broadcast_to(us[None, :], x.shape).ravel()[::97],
+                         np.broadcast_to(vs[r0:r1, None], x.shape).ravel()[::97]], 1)
+        res_px = max(res_px, float(np.max(np.abs(uv.reshape(-1, 2) - want))))
+        grid[r0:r1, :, 0] = x
+        grid[r0:r1, :, 1] = y
+        return res_px
+
+    with ThreadPoolExecutor(_N_THREADS) as pool:
+        worst_px = max(pool.map(work, range(0, H * s, s * _CHUNK_OUTPUT_ROWS)))
+    if worst_px > _ROUNDTRIP_TOL_PX or not np.all(np.isfinite(grid)):
+        raise ConfigError("cannot invert the lens distortion for rendering",
+                           expected=f"round trip < {_ROUNDTRIP_TOL_PX} px", received=f"{worst_px:.2e} px",
+                           hint="use milder distortion coefficients")
+    log.debug("undistortion grid %dx%d (x%d): worst float64 round trip %.1e px", W, H, s, worst_px)
+    return grid
+
+
+def undistorted_sample_grid(intrinsics: Intrinsics, *, supersample: int = 4) -> np.ndarray:
+    """Undistorted normalized coordinates (H*s, W*s, 2) float32 of every sub-pixel sample.
+
+    Cached per (intrinsics, supersample); the array is read-only. Solved in float64 to a round
+    trip below 1e-6 px through OpenCV's model, then stored as float32 (rounding <= ~5e-5 px).
+    """
+    s = int(supersample)
+    if s < 1 or s > 16:
+        raise ConfigError("invalid supersample", expected="1..16 samples per pixel axis", received=str(supersample))
+    if intrinsics.width <= 0 or intrinsics.height <= 0:
+        raise ConfigError("intrinsics without an image size", expected="width and height > 0",
+                          received=f"{intrinsics.width}x{intrinsics.height}")
+    key = _intrinsics_key(intrinsics) + (s,)
+    with _grid_lock:
+        grid = _grid_cache.get(key)
+        if grid is None:
+            grid = _build_grid(intrinsics, s)
+            grid.setflags(write=False)
+            while len(_grid_cache) >= _GRID_CACHE_MAX:
+                _grid_cache.pop(next(iter(_grid_cache)))
+            _grid_cache[key] = grid
+    return grid
+
+
+def roundtrip_error_px(intrinsics: Intrinsics, *, supersample: int = 4, stride: int = 997) -> float:
+    """Max |cv2.projectPoints(undistorted sample) - sample pixel| over a strided subset, in px.
+
+    Measures the cached float32 grid (so it includes the float32 storage rounding).
+    """
+    s = int(supersample)
+    grid = undistorted_sample_grid(intrinsics, supersample=s)
+    W = intrinsics.width * s
+    idx = np.arange(0, grid.shape[0] * grid.shape[1], int(stride))
+    rows, cols = np.divmod(idx, W)
+    xy = grid.reshape(-1, 2)[idx].astype(float)
+    uv, _ = cv2.projectPoints(np.c_[xy, np.ones(len(xy))], np.zeros(3), np.zeros(3), intrinsics.K,
+                              intrinsics.dist_array)
+    truth = np.stack([_sample_coords(intrinsics.width, s)[cols], _sample_coords(intrinsics.height, s)[rows]], 1)
+    return float(np.max(np.abs(uv.reshape(-1, 2) - truth)))
+
+
+# --------------------------------------------------------------------------------------------
+# Textures
+# --------------------------------------------------------------------------------------------
+
+def board_texture(target: TargetSpec, *, margin_squares: int = 1, black: float = BLACK_LEVEL,
+                  white: float = WHITE_LEVEL, charuco_px_per_square: int = 120) -> tuple[np.ndarray, float]:
+    """(texture (h, w, 2) float32 = (grey level, 1), texels per square) of the board with its white border.
+
+    Texel (i, j) covers board x in [x0 + i, x0 + i + 1) / p squares (x0 = left edge of the white
+    border), likewise for y. A chessboard uses one texel per square (exact squares); the
+    pattern's top-left square is black. ChArUco uses OpenCV's ``CharucoBoard.generateImage``.
+    """
+    m = int(margin_squares)
+    if m < 1:
+        raise ConfigError("white border too small", expected="margin_squares >= 1", received=str(margin_squares))
+    key = (target, m, float(black), float(white), int(charuco_px_per_square))
+    if key in _tex_cache:
+        return _tex_cache[key]
+    if isinstance(target, ChessboardSpec):
+        p = 1
+        ny, nx = target.rows + 1 + 2 * m, target.cols + 1 + 2 * m
+        jj, ii = np.indices((ny, nx)) - m
+        inside = (ii >= 0) & (ii <= target.cols) & (jj >= 0) & (jj <= target.rows)
+        dark = inside & ((ii + jj) % 2 == 0)
+        grey = np.where(dark, black, white).astype(np.float32)
+    elif isinstance(target, CharucoSpec):
+        p = int(charuco_px_per_square)
+        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, target.dictionary))
+        board = cv2.aruco.CharucoBoard((target.squares_x, target.squares_y), target.square_m, target.marker_m,
+                                       dictionary)
+        board.setLegacyPattern(bool(target.legacy_pattern))
+        size = ((target.squares_x + 2 * m) * p, (target.squares_y + 2 * m) * p)
+        img = board.generateImage(size, marginSize=m * p, borderBits=1)
+        grey = (black + (white - black) * (img.astype(np.float32) / 255.0)).astype(np.float32)
+    else:
+        raise ConfigError("unknown target type", expected="ChessboardSpec | CharucoSpec",
+                          received=type(target).__name__)
+    tex = np.dstack([grey, np.ones_like(grey)])
+    tex.setflags(write=False)
+    _tex_cache[key] = (tex, float(p))
+    return tex, float(p)
+
+
+def textured_background(width: int, height: int, *, level: float = BACKGROUND_LEVEL) -> np.ndarray:
+    """A fixed mid-grey textured background (H, W) float32: soft blotches plus fine grain."""
+    key = (int(width), int(height), float(level))
+    if key not in _bg_cache:
+        rng = np.random.default_rng(20240611)
+        coarse = rng.normal(0.0, 1.0, (max(2, height // 48), max(2, width // 48))).astype(np.float32)
+        soft = cv2.resize(coarse, (width, height), interpolation=cv2.INTER_CUBIC)
+        soft = cv2.GaussianBlur(soft, (0, 0), 12.0)
+        soft *= 18.0 / max(float(soft.std()), 1e-6)
+        grain = cv2.GaussianBlur(rng.normal(0.0, 6.0, (height, width)).astype(np.float32), (0, 0), 0.8)
+        bg = np.clip(level + soft + grain, 40.0, 215.0).astype(np.float32)
+        bg.setflags(write=False)
+        _bg_cache[key] = bg
+    return _bg_cache[key]
+
+
+def _background(background, width: int, height: int) -> np.ndarray:
+    if isinstance(background, str):
+        if background == "textured":
+            return textured_background(width, height)
+        if background == "flat":
+            return np.full((height, width), BACKGROUND_LEVEL, np.float32)
+        raise ConfigError("unknown background", expected="'textured' | 'flat' | grey level | image",
+                          received=repr(background))
+    if np.isscalar(background):
+        return np.full((height, width), float(background), np.float32)
+    bg = np.asarray(background)
+    if bg.ndim == 3:
+        bg = cv2.cvtColor(bg.astype(np.uint8), cv2.COLOR_BGR2GRAY)
+    if bg.shape != (height, width):
+        raise ConfigError("background image has the wrong size", expected=f"{height}x{width}",
+                          received="x".join(map(str, bg.shape)))
+    return bg.astype(np.float32)
+
+
+# --------------------------------------------------------------------------------------------
+# Rendering
+# --------------------------------------------------------------------------------------------
+
+def _texture_from_normalized(target: TargetSpec, T_cam_board: np.ndarray, *, margin_squares: int,
+                             texels_per_square: float) -> tuple[np.ndarray, np.ndarray]:
+    """(H_tex (3,3), w_row (3,)): texel coords ~ H_tex @ (x, y, 1); ``w_row @ (x, y, 1)`` = 1/depth."""
+    T = np.asarray(T_cam_board, float)
+    H_cam_board = np.column_stack([T[:3, 0], T[:3, 1], T[:3, 3]])  # (X, Y, 1) -> z (x, y, 1)
+    H_board_cam = np.linalg.inv(H_cam_board)  # (x, y, 1) -> (X, Y, 1) / z
+    x0, _, y0, _ = pattern_bounds(target, margin_squares=margin_squares)
+    k = texels_per_square / target.square_m
+    A = np.array([[k, 0.0, -x0 * k - 0.5], [0.0, k, -y0 * k - 0.5], [0.0, 0.0, 1.0]])
+    return A @ H_board_cam, H_board_cam[2]
+
+
+def render_accumulate(target: TargetSpec, intrinsics: Intrinsics, T_cam_board: np.ndarray, *, supersample: int = 4,
+                      margin_squares: int = 1, black: float = BLACK_LEVEL,
+                      white: float = WHITE_LEVEL) -> tuple[np.ndarray, np.ndarray]:
+    """(board grey premultiplied by coverage, coverage) per output pixel, both (H, W) float32.
+
+    Coverage is the fraction of a pixel's samples that hit the board (white border included).
+    """
+    T_cam_board = np.asarray(T_cam_board, float)
+    if T_cam_board.shape != (4, 4) or not np.all(np.isfinite(T_cam_board)):
+        raise ConfigError("invalid T_cam_board", expected="a finite 4x4 transform", received=str(T_cam_board.shape))
+    s = int(supersample)
+    grid = undistorted_sample_grid(intrinsics, supersample=s)
+    tex, p = board_texture(target, margin_squares=margin_squares, black=black, white=white)
+    H_tex, w_row = _texture_from_normalized(target, T_cam_board, margin_squares=margin_squares, texels_per_square=p)
+    W, H = intrinsics.width, intrinsics.height
+    # 1/depth is linear in (x, y): its minimum over the grid's bounding box decides whether any
+    # sample ray meets the plane behind the camera or near the horizon (then mask per sample).
+    xmin, xmax = float(grid[..., 0].min()), float(grid[..., 0].max())
+    ymin, ymax = float(grid[..., 1].min()), float(grid[..., 1].max())
+    corners = np.array([[xmin, ymin, 1], [xmin, ymax, 1], [xmax, ymin, 1], [xmax, ymax, 1]])
+    min_inv_depth = 1e-3  # rays meeting the plane beyond 1 km (or behind) see no board
+    need_mask = bool(np.min(corners @ w_row) <= min_inv_depth)
+    acc = np.empty((H, W, 2), np.float32)
+    rows_per_chunk = s * _CHUNK_OUTPUT_ROWS
+
+    def work(r0: int) -> None:
+        r1 = min(H * s, r0 + rows_per_chunk)
+        g = grid[r0:r1]
+        m = cv2.perspectiveTransform(g.reshape(-1, 1, 2), H_tex).reshape(r1 - r0, W * s, 2)
+        if need_mask:
+            inv_depth = g[..., 0] * w_row[0] + g[..., 1] * w_row[1] + w_row[2]
+            m[inv_depth <= min_inv_depth] = -1e6
+        samples = cv2.remap(tex, m, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0))
+        acc[r0 // s: r1 // s] = cv2.resize(samples, (W, (r1 - r0) // s), interpolation=cv2.INTER_AREA)
+
+    with ThreadPoolExecutor(_N_THREADS) as pool:
+        list(pool.map(work, range(0, H * s, rows_per_chunk)))
+    return acc[..., 0], acc[..., 1]
+
+
+def render_view(target: TargetSpec, intrinsics: Intrinsics, T_cam_board: np.ndarray, *, supersample: int = 4,
+                blur_sigma_px: float = 0.0, noise_sigma: float = 0.0, rng: Optional[np.random.Generator] = None,
+                background: Union[str, float, np.ndarray] = "textured", channels: int = 1,
+                margin_squares: int = 1, black: float = BLACK_LEVEL, white: float = WHITE_LEVEL) -> np.ndarray:
+    """An 8-bit image (H, W) (``channels=1``) or BGR (H, W, 3) of the target seen from ``T_cam_board``.
+
+    Anti-aliased with ``supersample``\\ :sup:`2` samples per pixel through OpenCV's lens model, the
+    board (pattern plus ``margin_squares`` of white border) over ``background`` ("textured" mid
+    grey, "flat", a grey level or an (H, W) image), then an optional Gaussian blur
+    (``blur_sigma_px``) and Gaussian noise of ``noise_sigma`` grey levels (needs ``rng``).
+    """
+    if channels not in (1, 3):
+        raise ConfigError("invalid channels", expected="1 (grey) or 3 (BGR)", received=str(channels))
+    if blur_sigma_px < 0 or noise_sigma < 0:
+        raise ConfigError("negative blur or noise", expected=">= 0",
+                          received=f"blur_sigma_px={blur_sigma_px}, noise_sigma={noise_sigma}")
+    if noise_sigma > 0 and rng is None:
+        raise ConfigError("image noise needs a random generator", expected="rng=np.random.default_rng(seed)",
+                          received="rng=None")
+    W, H = intrinsics.width, intrinsics.height
+    bg = _background(background, W, H)
+    board, cover = render_accumulate(target, intrinsics, T_cam_board, supersample=supersample,
+                                     margin_squares=margin_squares, black=black, white=white)
+    img = board + (1.0 - cover) * bg
+    if blur_sigma_px > 0:
+        img = cv2.GaussianBlur(img, (0, 0), float(blur_sigma_px))
+    if noise_sigma > 0:
+        img = img + rng.normal(0.0, float(noise_sigma), img.shape).astype(np.float32)
+    out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    return cv2.cvtColor(out, cv2.COLOR_GRAY2BGR) if channels == 3 else out
