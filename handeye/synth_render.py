@@ -78,14 +78,14 @@ def _build_grid(intrinsics: Intrinsics, s: int) -> np.ndarray:
     W, H = intrinsics.width, intrinsics.height
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
     dist = intrinsics.dist
-    # Exact inverse on a coarse grid (every g px, one cell beyond the image), interpolated as a start.
+    # Converged inverse on a coarse grid (every g px, one cell beyond the image), interpolated as the
+    # start of one Newton step per sample.
     g = 2.0
-    cu = np.arange(-g, W - 1 + 2 * g, g)
-    cv_ = np.arange(-g, H - 1 + 2 * g, g)
-    CU, CV = np.meshgrid(cu, cv_)
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15)
-    coarse = cv2.undistortPointsIter(np.stack([CU, CV], -1).reshape(-1, 1, 2), intrinsics.K, intrinsics.dist_array,
-                                     None, None, crit).reshape(len(cv_), len(cu), 2).astype(np.float32)
+    cxt = ((np.arange(-g, W - 1 + 2 * g, g) - cx) / fx)[None, :]
+    cyt = ((np.arange(-g, H - 1 + 2 * g, g) - cy) / fy)[:, None]
+    cxt, cyt = np.broadcast_arrays(cxt, cyt)
+    x, y = _newton_undistort(cxt.copy(), cyt.copy(), cxt, cyt, dist, iterations=12)
+    coarse = np.stack([x, y], axis=-1).astype(np.float32)
     us, vs = _sample_coords(W, s), _sample_coords(H, s)
     grid = np.empty((H * s, W * s, 2), np.float32)
     map_u = np.ascontiguousarray(np.broadcast_to(((us + g) / g).astype(np.float32), (s * _CHUNK_OUTPUT_ROWS, W * s)))

@@ -1,12 +1,16 @@
 """Tests for handeye.synth: synthetic sessions with known ground truth."""
 from __future__ import annotations
 
+import json
+
 import cv2
 import numpy as np
 import pytest
+import yaml
 from scipy.spatial.transform import Rotation
 
 from handeye import synth, synth_render
+from handeye.conventions import VENDOR_POSE_FORMAT, T_from_pose_values
 from handeye.errors import ConfigError, DegenerateMotionError
 from handeye.geometry import inv_T, is_rotation, rotation_angle_rad
 from handeye.model import mounting
@@ -259,3 +263,55 @@ def test_render_view_blur_noise_and_bad_options():
         synth_render.render_view(s.target, SMALL, T, channels=2)
     with pytest.raises(ConfigError):
         synth_render.render_view(s.target, SMALL, T, background="sky")
+
+
+# ---------------------------------------------------------------- vendor-layout writer
+
+def test_vendor_session_files_poses_and_hidden_views(tmp_path):
+    out = synth.write_vendor_session(tmp_path / "s", mode="eye_to_hand", n_views=4, seed=13, image_noise=1.0,
+                                     blur_sigma_px=0.3, robot_noise=(1.0, 0.1), hidden_views=["2"], outlier_views=1,
+                                     intrinsics=SMALL)
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["1.jpg", "2.jpg", "3.jpg", "4.jpg", "config.yaml", "ground_truth.json", "poses.txt"], names
+    cfg = yaml.safe_load((out / "config.yaml").read_text())
+    assert cfg == {"checkerboard_args": {"XX": 11, "YY": 8, "L": 0.03}, "mode": "eye_to_hand"}
+    truth = json.loads((out / "ground_truth.json").read_text())
+    assert truth["mode"] == "eye_to_hand" and truth["seed"] == 13
+    assert truth["hidden_view_ids"] == ["2"] and truth["views"]["2"]["hidden"]
+    assert len(truth["outlier_view_ids"]) == 1 and truth["views"][truth["outlier_view_ids"][0]]["outlier"]
+    assert np.asarray(truth["T_base_cam"]).shape == (4, 4) and np.asarray(truth["T_end_board"]).shape == (4, 4)
+    assert truth["intrinsics"] == SMALL.to_dict()
+
+    # poses.txt line k -> k.jpg, parses back to the reported poses (%.9f: <= 5e-10 per value, so
+    # <= 1.5e-9 per matrix entry from three rounded angles)
+    lines = (out / "poses.txt").read_text().splitlines()
+    assert len(lines) == 4
+    same = synth.make_corner_session(mode="eye_to_hand", n_views=4, seed=13, robot_noise=(1.0, 0.1),
+                                     hidden_views=["2"], outlier_views=1, intrinsics=SMALL)
+    for k, line in enumerate(lines, start=1):
+        T_file = T_from_pose_values([float(v) for v in line.split(",")], VENDOR_POSE_FORMAT)
+        T_rep = np.asarray(truth["views"][str(k)]["T_base_end_reported"])
+        assert np.max(np.abs(T_file[:3, 3] - T_rep[:3, 3])) <= 5e-10 + 1e-15
+        assert np.max(np.abs(T_file - T_rep)) < 1.5e-9
+        np.testing.assert_array_equal(T_rep, same.T_base_end_reported[k - 1])  # same geometry as corner level
+
+    # the hidden view has no detectable board; the others do
+    for vid in ("1", "2", "3", "4"):
+        img = cv2.imread(str(out / f"{vid}.jpg"), cv2.IMREAD_GRAYSCALE)
+        assert img.shape == (360, 640)
+        found = _detect_chessboard(img, synth.DEFAULT_TARGET)
+        assert (found is None) == (vid == "2"), f"view {vid}"
+
+
+def test_vendor_session_refuses_to_overwrite_and_bad_options(tmp_path):
+    kw = dict(n_views=3, seed=14, intrinsics=SMALL, image_format="png")
+    out = synth.write_vendor_session(tmp_path, **kw)
+    assert (out / "3.png").exists()
+    with pytest.raises(ConfigError):
+        synth.write_vendor_session(tmp_path, **kw)
+    synth.write_vendor_session(tmp_path, overwrite=True, **kw)
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary files left
+    with pytest.raises(ConfigError):
+        synth.write_vendor_session(tmp_path / "x", target=CharucoSpec(5, 4, 0.04, 0.03), n_views=3)
+    with pytest.raises(ConfigError):
+        synth.write_vendor_session(tmp_path / "y", image_format="tiff", n_views=3)
