@@ -69,7 +69,7 @@ def _fit_errors(mode, T_x, T_b, Ts, *, noise_px, robot_mm, robot_deg, trials, se
             B = T_b @ T_from_rotvec(th[6:9], th[9:12])
             return np.concatenate([L @ (proj(X, B, E) - o).ravel() for L, E, o in zip(Ls, reported, obs)])
 
-        out.append(least_squares(res, np.zeros(12), x_scale=1e-3).x[:6])
+        out.append(least_squares(res, np.zeros(12), method="lm", x_scale=1e-3).x[:6])
     return np.array(out)
 
 
@@ -82,13 +82,13 @@ def test_predicted_sigma_matches_monte_carlo(mode, robot):
     plan = P.make_plan(mode=mode, T_x=T_x, T_board=T_b, T_base_end_start=T0, T_cam_board_start=C0,
                        T_base_end_done=[T0], target=TARGET, intrinsics=INTR, n_views=4, config=cfg)
     Ts = [T0] + [pv.candidate.T_base_end for pv in plan.views]
-    err = _fit_errors(mode, T_x, T_b, Ts, noise_px=0.5, robot_mm=robot[0], robot_deg=robot[1], trials=30,
+    err = _fit_errors(mode, T_x, T_b, Ts, noise_px=0.5, robot_mm=robot[0], robot_deg=robot[1], trials=20,
                       seed=7, whiten=True)
     rot_deg = np.degrees(np.sqrt(np.mean(np.sum(err[:, :3] ** 2, axis=1))))
     trans_mm = 1e3 * np.sqrt(np.mean(np.sum(err[:, 3:] ** 2, axis=1)))
     pv = plan.views[-1]
     print(f"predicted {pv.sigma_rot_deg:.4f} deg {pv.sigma_trans_mm:.3f} mm, Monte Carlo {rot_deg:.4f} deg {trans_mm:.3f} mm")
-    # 30 trials: the root-mean-square of a 3-d error is within ~+-25 % of its expectation
+    # 20 trials: the root-mean-square of a 3-d error scatters by ~10 % around its expectation
     assert rot_deg == pytest.approx(pv.sigma_rot_deg, rel=0.35)
     assert trans_mm == pytest.approx(pv.sigma_trans_mm, rel=0.35)
 
@@ -144,8 +144,8 @@ def test_information_is_symmetric_and_rank_limited_for_one_view():
 
 def test_probe_poses_are_small_rotations_about_end_axes():
     T0 = synth.perturb_T_base_end(np.eye(4), rng=np.random.default_rng(0), sigma_mm=100, sigma_deg=30)[0]
-    for k, T in enumerate(P.probe_poses(T0, probe_deg=6.0)):
-        d = inv_T(T0) @ T
-        np.testing.assert_allclose(d[:3, 3], 0.0, atol=1e-12)
-        rv_deg = P.end_rotvec_deg(T0, T)
-        assert np.argmax(np.abs(rv_deg)) == k and rv_deg[k] == pytest.approx(6.0)
+    for k, pair in enumerate(P.probe_poses(T0, probe_deg=6.0)):
+        for angle, T in zip((6.0, -6.0, 3.0, -3.0), pair):
+            np.testing.assert_allclose((inv_T(T0) @ T)[:3, 3], 0.0, atol=1e-12)
+            rv_deg = P.end_rotvec_deg(T0, T)
+            assert np.argmax(np.abs(rv_deg)) == k and rv_deg[k] == pytest.approx(angle)

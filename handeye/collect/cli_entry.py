@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, HandeyeError
+from ..errors import ConfigError, HandeyeError, InputError
 from ..model import mounting
 from ..types import MODES, CharucoSpec, ChessboardSpec, TargetSpec
 
@@ -141,6 +141,13 @@ def run_collect(args: argparse.Namespace) -> int:
         v = getattr(args, name)
         if not 0 < v <= 1:
             raise ConfigError(f"invalid --{name.replace('_', '-')}", expected="0 < fraction <= 1", received=str(v))
+    if args.camera.strip() == "sim" and args.robot.strip() != "sim":
+        raise ConfigError("--camera sim renders what the simulated arm sees", expected="--robot sim",
+                          received=repr(args.robot))
+    out = Path(args.out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise InputError("output folder is not empty", path=out,
+                         hint="collect into a new folder; an existing session is never overwritten")
     rng = np.random.default_rng(args.seed)
     robot = camera = None
     try:
@@ -216,11 +223,8 @@ def _open_robot(args, *, target: TargetSpec, width: int, height: int, rng: np.ra
 def _open_camera(args, *, robot, width: int, height: int, rng: np.random.Generator):
     spec = args.camera.strip()
     if spec == "sim":
-        from .sim import SimCamera, SimRobot
+        from .sim import SimCamera
 
-        if not isinstance(robot, SimRobot):
-            raise ConfigError("--camera sim renders what the simulated arm sees", expected="--robot sim",
-                              received=repr(args.robot))
         return SimCamera(robot, supersample=args.sim_supersample, blur_sigma_px=args.sim_blur,
                          noise_sigma=args.sim_image_noise, rng=rng)
     if spec == "realsense":

@@ -265,12 +265,16 @@ class Collector:
         probes = planning.probe_poses(T0, probe_deg=probe_deg)
         if self.robot.is_real and not confirm(
                 f"The arm will make {len(probes)} small probe moves ({probe_deg:g} deg about the end's own x, y and "
-                f"z axes) at {100 * speed_fraction:.0f}% speed. Continue?"):
+                f"z axes; other directions or half the angle where the board leaves the image) at {100 * speed_fraction:.0f}% speed. Continue?"):
             log.warning("stopped before moving the arm")
             return planning.Plan((), float("nan"), float("nan"), np.zeros(3), "cancelled", "not confirmed")
-        for T in probes:
-            self.robot.move_to(T, speed_fraction=speed_fraction)
-            self._capture_after_move(reference=C0)
+        for axis, tries in zip("xyz", probes):
+            for T in tries:
+                self.robot.move_to(T, speed_fraction=speed_fraction)
+                cap = self._capture_after_move(reference=C0)
+                if cap.kept or not cap.reason.startswith("target not detected"):
+                    break
+                log.info("the probe about the end's %s axis lost the board; trying another direction or angle", axis)
         views = [c for c in self.kept if c.T_cam_board is not None]
         if len(views) < 3:
             raise DetectionError(f"only {len(views)} of the start and probe views show the board; a first "

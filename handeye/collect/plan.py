@@ -35,7 +35,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import ConfigError
-from ..geometry import T_from_rotvec, inv_T, make_T, rotation_angle_rad
+from ..geometry import T_from_rotvec, inv_T, make_T
 from ..model import mounting
 from ..synth import board_in_image, distort_normalized, pattern_bounds
 from ..types import Intrinsics, TargetSpec
@@ -55,7 +55,7 @@ class PlanConfig:
     min_axis_rotation_deg: float = 30.0  # the plan rotates the end at least this much about x, y and z
     tilt_deg: tuple = (-40.0, -32.0, -20.0, 0.0, 20.0, 32.0, 40.0)  # camera tilts about the board centre (x and y)
     roll_deg: tuple = (-45.0, -20.0, 0.0, 20.0, 45.0)  # camera roll about its optical axis
-    distance_scales: tuple = (0.7, 0.85, 1.0, 1.15)
+    distance_scales: tuple = (0.7, 0.85, 1.0, 1.15, 1.3)
     max_view_angle_deg: float = 60.0  # board normal vs optical axis
     max_end_rotation_deg: float = 70.0  # from the start pose
     max_travel_m: float = 0.5  # end translation from the start pose
@@ -99,15 +99,22 @@ def pixel_from_cam_points(p_cam: np.ndarray, intrinsics: Intrinsics) -> np.ndarr
     return np.stack([intrinsics.fx * xd + intrinsics.cx, intrinsics.fy * yd + intrinsics.cy], axis=-1)
 
 
-def _perturbations(T: np.ndarray) -> np.ndarray:
-    """(13, 4, 4): T, then T·Exp(+h e_k) and T·Exp(-h e_k) for k = 0..5 (interleaved +/-)."""
-    out = [T]
+def _deltas() -> np.ndarray:
+    out = []
     for k in range(6):
-        for s in (1.0, -1.0):
+        for sgn in (1.0, -1.0):
             xi = np.zeros(6)
-            xi[k] = s * _H
-            out.append(T @ T_from_rotvec(xi[:3], xi[3:]))
+            xi[k] = sgn * _H
+            out.append(T_from_rotvec(xi[:3], xi[3:]))
     return np.stack(out)
+
+
+_DELTAS = _deltas()  # (12, 4, 4): Exp(+h e_k), Exp(-h e_k) for k = 0..5
+
+
+def _perturbations(T: np.ndarray) -> np.ndarray:
+    """(12, 4, 4): T·Exp(+h e_k) and T·Exp(-h e_k) for k = 0..5 (interleaved +/-)."""
+    return np.asarray(T, float) @ _DELTAS
 
 
 def view_information(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_end: np.ndarray,
@@ -117,9 +124,9 @@ def view_information(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_
     mount = mounting(mode)
     Px, Pb, Pe = _perturbations(T_x), _perturbations(T_board), _perturbations(T_base_end)
     # 36 perturbed chains: 12 for T_x, 12 for T_board, 12 for T_base_end
-    X = np.concatenate([Px[1:], np.broadcast_to(T_x, (24, 4, 4))])
-    B = np.concatenate([np.broadcast_to(T_board, (12, 4, 4)), Pb[1:], np.broadcast_to(T_board, (12, 4, 4))])
-    E = np.concatenate([np.broadcast_to(T_base_end, (24, 4, 4)), Pe[1:]])
+    X = np.concatenate([Px, np.broadcast_to(T_x, (24, 4, 4))])
+    B = np.concatenate([np.broadcast_to(T_board, (12, 4, 4)), Pb, np.broadcast_to(T_board, (12, 4, 4))])
+    E = np.concatenate([np.broadcast_to(T_base_end, (24, 4, 4)), Pe])
     C = mount.predict_T_cam_board(X, B, E)  # (36, 4, 4)
     p_cam = np.einsum("kij,nj->kni", C[:, :3, :3], object_points) + C[:, None, :3, 3]
     uv = pixel_from_cam_points(p_cam, intrinsics).reshape(18, 2, -1)  # (18 params, +/-, 2N)
@@ -186,32 +193,39 @@ def candidate_views(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_e
     mount = mounting(mode)
     obj = target.object_points()
     c = board_center(target)
+    grid = [g for g in itertools.product(config.tilt_deg, config.tilt_deg, config.roll_deg, config.distance_scales)
+            if not (g[0] == g[1] == g[2] == 0 and g[3] == 1.0)]  # all but the start view itself
+    ax, ay, roll, scale = (np.array(v, float) for v in zip(*grid))
+    zeros = np.zeros_like(ax)
+    # tilt about the camera's x, then its y, then roll about the optical axis
+    Q = (Rotation.from_rotvec(np.radians(np.stack([zeros, zeros, roll], 1)))
+         * Rotation.from_rotvec(np.radians(np.stack([zeros, ay, zeros], 1)))
+         * Rotation.from_rotvec(np.radians(np.stack([ax, zeros, zeros], 1)))).as_matrix()  # (K, 3, 3)
+    T_board_cam0 = inv_T(T_cam_board_start)
+    R0, o0 = T_board_cam0[:3, :3], T_board_cam0[:3, 3]
+    R_board_cam = R0 @ Q  # (K, 3, 3); the same turn about the board centre: G = R0 Q R0^T
+    o = c + scale[:, None] * np.einsum("kij,j->ki", R_board_cam @ R0.T, o0 - c)
+    T_board_cam = np.tile(np.eye(4), (len(grid), 1, 1))
+    T_board_cam[:, :3, :3], T_board_cam[:, :3, 3] = R_board_cam, o
+    C = inv_T(T_board_cam)  # (K, 4, 4) candidate T_cam_board
+    view_angle = np.degrees(np.arccos(np.clip(np.abs(C[:, 2, 2]), 0.0, 1.0)))
+    T_be = mount.T_base_end_from_M(T_x @ C @ inv_T(T_board))
+    R_rel = np.einsum("ji,kjl->kil", T_base_end_start[:3, :3], T_be[:, :3, :3])
+    rv_deg = np.degrees(Rotation.from_matrix(R_rel).as_rotvec())
+    travel = np.linalg.norm(T_be[:, :3, 3] - T_base_end_start[:3, 3], axis=1)
+    keep = ((view_angle <= config.max_view_angle_deg) & (np.linalg.norm(rv_deg, axis=1) <= config.max_end_rotation_deg)
+            & (travel <= config.max_travel_m))
     out = []
-    for ax, ay, roll, s in itertools.product(config.tilt_deg, config.tilt_deg, config.roll_deg,
-                                             config.distance_scales):
-        if ax == ay == roll == 0 and s == 1.0:
-            continue  # the start view itself
-        # tilt about x then y, then roll about the optical axis
-        Q = Rotation.from_rotvec(np.radians([0, 0, roll])) * Rotation.from_rotvec(np.radians([0, ay, 0])) \
-            * Rotation.from_rotvec(np.radians([ax, 0, 0]))
-        C = orbit_T_cam_board(T_cam_board_start, center_board=c, rotvec_cam=Q.as_rotvec(), distance_scale=s)
-        view_angle = np.degrees(np.arccos(np.clip(abs(C[2, 2]), 0.0, 1.0)))
-        if view_angle > config.max_view_angle_deg:
+    for k in np.flatnonzero(keep):
+        if not board_in_image(target, intrinsics, C[k], margin_px=config.margin_px):
             continue
-        if not board_in_image(target, intrinsics, C, margin_px=config.margin_px):
+        if pose_ok is not None and not pose_ok(T_be[k]):
             continue
-        T_be = mount.T_base_end_from_M(T_x @ C @ inv_T(T_board))
-        rv = end_rotvec_deg(T_base_end_start, T_be)
-        if np.linalg.norm(rv) > config.max_end_rotation_deg:
-            continue
-        if np.linalg.norm(T_be[:3, 3] - T_base_end_start[:3, 3]) > config.max_travel_m:
-            continue
-        if pose_ok is not None and not pose_ok(T_be):
-            continue
-        info = view_information(mode=mode, T_x=T_x, T_board=T_board, T_base_end=T_be, object_points=obj,
+        info = view_information(mode=mode, T_x=T_x, T_board=T_board, T_base_end=T_be[k], object_points=obj,
                                 intrinsics=intrinsics, pixel_noise_px=config.pixel_noise_px,
                                 robot_noise_mm=config.robot_noise_mm, robot_noise_deg=config.robot_noise_deg)
-        out.append(Candidate(T_be, C, rv, info, f"tilt x {ax:+.0f} y {ay:+.0f} roll {roll:+.0f} dist x{s:.2f}"))
+        out.append(Candidate(T_be[k], C[k], rv_deg[k], info,
+                             f"tilt x {ax[k]:+.0f} y {ay[k]:+.0f} roll {roll[k]:+.0f} dist x{scale[k]:.2f}"))
     return out
 
 
@@ -248,7 +262,8 @@ def greedy_plan(candidates: Sequence[Candidate], *, n_views: int, info_start: np
         chosen.append(pv)
         if on_step is not None:
             on_step(pv)
-        pool = [i for i in pool if i != best and _separation_deg(candidates[i], cand) >= config.min_separation_deg]
+        pool = [i for i, sep in zip(pool, _separation_deg(candidates, pool, cand))
+                if i != best and sep >= config.min_separation_deg]
     status, reason = "ok", ""
     if len(chosen) < n_views:
         status, reason = "short", f"only {len(chosen)} feasible views for the {n_views} asked"
@@ -261,11 +276,15 @@ def greedy_plan(candidates: Sequence[Candidate], *, n_views: int, info_start: np
     return Plan(tuple(chosen), s0[0], s0[1], cover, status, reason)
 
 
-def _separation_deg(a: Candidate, b: Candidate) -> float:
-    R = a.T_cam_board[:3, :3].T @ b.T_cam_board[:3, :3]
-    d_rot = float(np.degrees(rotation_angle_rad(R)))
-    d_dist = abs(np.linalg.norm(a.T_cam_board[:3, 3]) - np.linalg.norm(b.T_cam_board[:3, 3]))
-    return d_rot + 100.0 * d_dist  # 1 cm of distance counts like 1 degree
+def _separation_deg(candidates: Sequence[Candidate], idx: Sequence[int], ref: Candidate) -> np.ndarray:
+    """How different each candidate view is from ``ref``: rotation (deg) + 1 deg per cm of distance."""
+    if not idx:
+        return np.zeros(0)
+    C = np.stack([candidates[i].T_cam_board for i in idx])
+    cos = (np.einsum("nij,ij->n", C[:, :3, :3], ref.T_cam_board[:3, :3]) - 1.0) / 2.0
+    d_rot = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    d_dist = np.abs(np.linalg.norm(C[:, :3, 3], axis=1) - np.linalg.norm(ref.T_cam_board[:3, 3]))
+    return d_rot + 100.0 * d_dist
 
 
 def make_plan(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_end_start: np.ndarray,
@@ -301,7 +320,14 @@ def information_of_views(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_b
     return info
 
 
-def probe_poses(T_base_end_start: np.ndarray, *, probe_deg: float = 6.0) -> list[np.ndarray]:
-    """Small rotations of the end about its own x, y and z axes (for a first rough hand-eye)."""
-    a = np.radians(probe_deg)
-    return [T_base_end_start @ make_T(Rotation.from_rotvec(a * e).as_matrix(), np.zeros(3)) for e in np.eye(3)]
+def probe_poses(T_base_end_start: np.ndarray, *, probe_deg: float = 6.0) -> list[tuple[np.ndarray, ...]]:
+    """Small rotations of the end about its own x, y and z axes (for a first rough hand-eye).
+
+    Per axis, the poses to try in order until one shows the board: +probe_deg, -probe_deg, and
+    half those angles.
+    """
+    out = []
+    for e in np.eye(3):
+        out.append(tuple(T_base_end_start @ make_T(Rotation.from_rotvec(np.radians(a) * e).as_matrix(), np.zeros(3))
+                         for a in (probe_deg, -probe_deg, probe_deg / 2, -probe_deg / 2)))
+    return out

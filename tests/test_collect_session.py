@@ -1,0 +1,255 @@
+"""Collected sessions: simulated collections against their ground truth, crash safety, the real-arm path."""
+from __future__ import annotations
+
+import io
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import argparse
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from handeye import synth
+from handeye.collect import session_writer as sw
+from handeye.collect.camera import Camera
+from handeye.collect.cli_entry import add_collect_arguments, parse_target_spec, run_collect
+from handeye.collect.collector import CaptureChecks, Collector, detect_target
+from handeye.collect.emulator import RealmanEmulator
+from handeye.collect.realman import RealmanArm
+from handeye.collect.sim import SimCamera, SimRig, SimRobot, _render_view
+from handeye.errors import ConfigError, InputError
+from handeye.model import mounting
+from handeye.types import ChessboardSpec
+
+REPO = Path(__file__).resolve().parents[1]
+FAST = ["--resolution", "640x360", "--sim-supersample", "2"]
+
+
+def _args(argv):
+    p = argparse.ArgumentParser()
+    add_collect_arguments(p)
+    return p.parse_args([str(a) for a in argv])
+
+
+def _records(out: Path) -> dict:
+    """Every view record parsed with PyYAML, checked to have its image."""
+    recs = {}
+    for f in sorted((out / "views").iterdir()):
+        if f.name.startswith(".") or f.suffix != ".yaml":
+            continue
+        r = yaml.safe_load(f.read_text())
+        for key in ("id", "image", "pose", "t_image", "t_pose", "robot_state"):
+            assert key in r, f"{f}: missing {key}"
+        img = cv2.imread(str(out / r["image"]), cv2.IMREAD_UNCHANGED)
+        assert img is not None, f"{f}: image {r['image']} missing or unreadable"
+        recs[str(r["id"])] = r
+    return recs
+
+
+def _load(out: Path):
+    from handeye.session import load_session
+
+    return load_session(out)
+
+
+# ------------------------------------------------------------------------------ simulated collection
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_simulated_auto_collection_agrees_with_ground_truth(tmp_path, mode):
+    out = tmp_path / "s"
+    rc = run_collect(_args([out, "--mode", mode, "--camera", "sim", "--robot", "sim", "--auto", "--views", "6",
+                            "--seed", "11", *FAST]))
+    assert rc == 0
+    truth = json.loads((out / "ground_truth.json").read_text())
+    mount = mounting(mode)
+    assert truth["mode"] == mode and mount.x_name in truth and mount.board_name in truth
+    T_x, T_b = np.asarray(truth[mount.x_name]), np.asarray(truth[mount.board_name])
+    header = yaml.safe_load((out / "session.yaml").read_text())
+    assert header["pose_format"] == {"rotation": "matrix", "translation_unit": "m"}
+    assert header["intrinsics"]["use"] == "initial" and header["view_records"] == "views"
+    assert truth["intrinsics"]["fx"] == header["intrinsics"]["fx"]
+    recs = _records(out)
+    assert len(recs) == 10  # start + 3 probes + 6 planned
+    target = ChessboardSpec(11, 8, 0.03)
+    intr = synth.default_intrinsics(640, 360)
+    obj = target.object_points()
+    for vid, r in recs.items():
+        gt = truth["views"][vid]
+        T_rep = np.asarray(r["pose"], float)
+        np.testing.assert_allclose(T_rep, np.asarray(gt["T_base_end_reported"]), atol=1e-12)
+        gray = cv2.imread(str(out / r["image"]), cv2.IMREAD_GRAYSCALE)
+        ids, pts = detect_target(gray, target)
+        # the image shows the board where the truth (true robot pose) puts it ...
+        C_true = mount.predict_T_cam_board(T_x, T_b, np.asarray(gt["T_base_end_true"]))
+        uv = synth.pixel_from_board_point(C_true, obj[ids], intr)
+        rms_true = np.sqrt(np.mean(np.sum((uv - pts) ** 2, axis=1)))
+        assert rms_true < 0.25, f"view {vid}: corners {rms_true:.3f} px from the truth"
+        # ... and the reported pose is off only by the simulated robot noise (0.1 mm, 0.02 deg per axis)
+        uv_rep = synth.pixel_from_board_point(mount.predict_T_cam_board(T_x, T_b, T_rep), obj[ids], intr)
+        assert np.sqrt(np.mean(np.sum((uv_rep - pts) ** 2, axis=1))) < 2.0
+    session = _load(out)
+    assert session.format == "native" and session.mode == mode
+    assert sorted(v.view_id for v in session.views) == sorted(recs)
+    assert session.intrinsics is not None and session.intrinsics.width == 640
+
+
+def test_simulated_interactive_collection_from_a_terminal(tmp_path, monkeypatch):
+    out = tmp_path / "i"
+    monkeypatch.setattr(sys, "stdin", io.StringIO("s\n\nhelp\ns\nq\ns\n"))
+    rc = run_collect(_args([out, "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim", "--seed", "2",
+                            "--no-preview", *FAST]))
+    assert rc == 0
+    assert sorted(_records(out)) == ["1", "2", "3"]  # 'help' is not a key, input stops at 'q'
+
+
+def test_blurred_frames_are_rejected_with_the_reason(tmp_path, caplog):
+    rig = SimRig.sample(mode="eye_in_hand", rng=np.random.default_rng(0), intrinsics=synth.default_intrinsics(640, 360))
+    robot = SimRobot(rig, rng=np.random.default_rng(1))
+    camera = SimCamera(robot, blur_sigma_px=2.5, rng=np.random.default_rng(2))
+    writer = sw.SessionWriter(tmp_path / "b", mode="eye_in_hand", target=rig.target, intrinsics=rig.intrinsics)
+    col = Collector(robot=robot, camera=camera, writer=writer, target=rig.target, mode="eye_in_hand",
+                    checks=CaptureChecks(min_sharpness=1e4))
+    cap = col.capture()
+    assert not cap.kept and "not sharp" in cap.reason
+    assert list((tmp_path / "b" / "views").iterdir()) == []
+
+
+def test_collect_argument_errors(tmp_path):
+    with pytest.raises(ConfigError, match="simulated arm"):
+        run_collect(_args([tmp_path / "x", "--mode", "eye_in_hand", "--camera", "sim", "--robot", "realman:127.0.0.1"]))
+    with pytest.raises(ConfigError, match="address"):
+        run_collect(_args([tmp_path / "x", "--mode", "eye_in_hand", "--camera", "realsense", "--robot", "realman"]))
+    with pytest.raises(ConfigError, match="--target"):
+        parse_target_spec("chessboard:11x8:30")  # millimetres instead of metres
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "x.txt").write_text("x")
+    with pytest.raises(InputError, match="not empty"):
+        run_collect(_args([tmp_path / "full", "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim", *FAST]))
+
+
+# ------------------------------------------------------------------------------ crash safety
+def test_crash_between_image_and_record_leaves_a_readable_session(tmp_path, monkeypatch):
+    out = tmp_path / "c"
+    real_write = sw.atomic_write_bytes
+    calls = {"records": 0}
+
+    def flaky(path, data):
+        if Path(path).parent.name == "views":
+            calls["records"] += 1
+            if calls["records"] == 3:
+                raise KeyboardInterrupt  # the process dies after the image, before the record
+        real_write(path, data)
+
+    monkeypatch.setattr(sw, "atomic_write_bytes", flaky)
+    with pytest.raises(KeyboardInterrupt):
+        run_collect(_args([out, "--mode", "eye_to_hand", "--camera", "sim", "--robot", "sim", "--auto",
+                           "--views", "4", "--seed", "5", *FAST]))
+    recs = _records(out)
+    assert sorted(recs) == ["1", "2"]
+    assert (out / "images" / "3.png").exists()  # the orphan image of the capture in flight
+    assert [v.view_id for v in _load(out).views] == ["1", "2"]
+
+
+_KILL_IN_RENAME = textwrap.dedent("""
+    import os, signal, sys
+    real = os.replace
+    n = {"records": 0}
+    def replace(src, dst):
+        if os.path.basename(os.path.dirname(str(dst))) == "views":
+            n["records"] += 1
+            if n["records"] == 3:
+                os.kill(os.getpid(), signal.SIGKILL)  # record written to its temp file, not yet renamed
+        return real(src, dst)
+    os.replace = replace
+    from handeye.collect.__main__ import main
+    sys.exit(main(sys.argv[1:]))
+""")
+
+
+def _env():
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def test_sigkill_while_a_record_is_renamed(tmp_path):
+    out = tmp_path / "k"
+    proc = subprocess.run([sys.executable, "-c", _KILL_IN_RENAME, str(out), "--mode", "eye_in_hand", "--camera",
+                           "sim", "--robot", "sim", "--auto", "--views", "4", "--seed", "3", *FAST],
+                          env=_env(), capture_output=True, timeout=300)
+    assert proc.returncode == -signal.SIGKILL
+    assert (out / "views" / ".3.yaml.tmp").exists()  # the record in flight stayed a temp file
+    recs = _records(out)
+    assert sorted(recs) == ["1", "2"]
+    assert len(_load(out).views) == 2
+
+
+def test_sigkill_at_an_arbitrary_moment(tmp_path):
+    out = tmp_path / "r"
+    proc = subprocess.Popen([sys.executable, "-m", "handeye.collect", str(out), "--mode", "eye_in_hand",
+                             "--camera", "sim", "--robot", "sim", "--auto", "--views", "30", "--seed", "4",
+                             "--sim-supersample", "4", "--resolution", "640x360"],
+                            env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and proc.poll() is None:
+            views = out / "views"
+            if views.is_dir() and sum(f.suffix == ".yaml" for f in views.iterdir()) >= 5:
+                break
+            time.sleep(0.02)
+        assert proc.poll() is None, "the collection ended before it could be killed"
+        time.sleep(0.137)  # somewhere inside the next capture
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+    recs = _records(out)
+    assert len(recs) >= 5
+    session = _load(out)
+    assert sorted(v.view_id for v in session.views) == sorted(recs)
+
+
+# ------------------------------------------------------------------------------ real-arm path on the emulator
+class _EmulatorCamera(Camera):
+    """Renders the board from the emulated RealMan arm's pose (the emulator plays a perfect arm)."""
+
+    def __init__(self, emu: RealmanEmulator, rig: SimRig):
+        self.emu, self.rig, self.name = emu, rig, "emulator camera"
+        self._render = _render_view()
+
+    def intrinsics(self):
+        return self.rig.intrinsics
+
+    def grab(self):
+        C = mounting(self.rig.mode).predict_T_cam_board(self.rig.T_x, self.rig.T_board, self.emu.T_base_end)
+        return self._render(self.rig.target, self.rig.intrinsics, C, supersample=2), time.time()
+
+
+@pytest.mark.parametrize("confirmed", [True, False])
+def test_auto_collection_drives_the_realman_client(tmp_path, confirmed):
+    rig = SimRig.sample(mode="eye_in_hand", rng=np.random.default_rng(8),
+                        intrinsics=synth.default_intrinsics(640, 360))
+    asked = []
+    with RealmanEmulator(T_base_end=rig.T_base_end_start, lifetime_s=120) as emu:
+        arm = RealmanArm(*emu.address, timeout_s=1.0, max_speed_fraction=0.5)
+        camera = _EmulatorCamera(emu, rig)
+        writer = sw.SessionWriter(tmp_path / "e", mode=rig.mode, target=rig.target, intrinsics=rig.intrinsics)
+        col = Collector(robot=arm, camera=camera, writer=writer, target=rig.target, mode=rig.mode,
+                        checks=CaptureChecks(settle_interval_s=0.01))
+        col.run_auto(n_views=3, speed_fraction=0.2, confirm=lambda text: asked.append(text) or confirmed)
+        arm.close()
+    moves = [c for c in emu.received if c["command"] == "movej_p"]
+    if not confirmed:
+        assert len(asked) == 1 and moves == [] and sorted(_records(tmp_path / "e")) == ["1"]
+        return
+    assert len(asked) == 2 and len(moves) >= 6 and all(c["v"] == 20 for c in moves)
+    recs = _records(tmp_path / "e")
+    assert len(recs) == 7
+    assert all(r["robot_state"]["work_frame"] == "Base" and r["robot_state"]["errors"] == [] for r in recs.values())
