@@ -34,92 +34,105 @@ INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 MODE_INVERTS_ROBOT = {"eye_in_hand": True, "eye_to_hand": False}
 
 
+def _project(intrinsics_vec, p_cam: np.ndarray, jacobians: bool):
+    """Pixels (N,2) and, when asked, the Jacobians laid out transposed for speed:
+    ``Jp_T`` (3, 2N) = (d uv / d p_cam)^T and ``Jk_T`` (9, 2N) = (d uv / d intrinsics)^T, with the
+    2N columns interleaved (u0, v0, u1, v1, ...)."""
+    fx, fy, cx, cy, k1, k2, p1, p2, k3 = (float(v) for v in intrinsics_vec)
+    n = p_cam.shape[0]
+    iz = 1.0 / p_cam[:, 2]
+    x = p_cam[:, 0] * iz
+    y = p_cam[:, 1] * iz
+    xx, yy, xy = x * x, y * y, x * y
+    r2 = xx + yy
+    r4 = r2 * r2
+    r6 = r4 * r2
+    radial = 1.0 + k1 * r2 + k2 * r4 + k3 * r6
+    a_x = r2 + 2.0 * xx  # d xd / d p2
+    a_y = r2 + 2.0 * yy  # d yd / d p1
+    xd = x * radial + 2.0 * p1 * xy + p2 * a_x
+    yd = y * radial + p1 * a_y + 2.0 * p2 * xy
+    uv = np.empty((n, 2))
+    uv[:, 0] = fx * xd + cx
+    uv[:, 1] = fy * yd + cy
+    if not jacobians:
+        return uv, None, None
+
+    c = 2.0 * (k1 + 2.0 * k2 * r2 + 3.0 * k3 * r4)  # 2 d radial / d r2
+    cross = c * xy + 2.0 * (p1 * x + p2 * y)  # d xd / d y = d yd / d x
+    Jp = np.empty((3, n, 2))  # [component of p_cam, corner, u|v]
+    Jp[0, :, 0] = fx * (radial + c * xx + 2.0 * p1 * y + 6.0 * p2 * x) * iz
+    Jp[1, :, 0] = fx * cross * iz
+    Jp[0, :, 1] = fy * cross * iz
+    Jp[1, :, 1] = fy * (radial + c * yy + 6.0 * p1 * y + 2.0 * p2 * x) * iz
+    Jp[2] = -(Jp[0] * x[:, None] + Jp[1] * y[:, None])  # d(x, y)/dZ = -(x, y)/Z
+    Jk = np.zeros((9, n, 2))
+    Jk[0, :, 0] = xd
+    Jk[1, :, 1] = yd
+    Jk[2, :, 0] = 1.0
+    Jk[3, :, 1] = 1.0
+    fxx, fyy = fx * x, fy * y
+    Jk[4, :, 0] = fxx * r2
+    Jk[4, :, 1] = fyy * r2
+    Jk[5, :, 0] = fxx * r4
+    Jk[5, :, 1] = fyy * r4
+    Jk[8, :, 0] = fxx * r6
+    Jk[8, :, 1] = fyy * r6
+    Jk[6, :, 0] = (2.0 * fx) * xy
+    Jk[6, :, 1] = fy * a_y
+    Jk[7, :, 0] = fx * a_x
+    Jk[7, :, 1] = (2.0 * fy) * xy
+    return uv, Jp.reshape(3, 2 * n), Jk.reshape(9, 2 * n)
+
+
 def pixels_from_cam_points(intrinsics_vec: np.ndarray, p_cam: np.ndarray, *, jacobians: bool = True):
     """Project camera-frame points (N,3) with OpenCV's 5-coefficient model.
 
     Returns ``(uv, J_uv_p, J_uv_intr)``: pixels (N,2), d uv / d p_cam (N,2,3) and
     d uv / d intrinsics (N,2,9); the Jacobians are None when ``jacobians`` is False.
     """
-    fx, fy, cx, cy, k1, k2, p1, p2, k3 = np.asarray(intrinsics_vec, float)
-    X, Y, Z = p_cam[:, 0], p_cam[:, 1], p_cam[:, 2]
-    iz = 1.0 / Z
-    x, y = X * iz, Y * iz
-    xx, yy, xy = x * x, y * y, x * y
-    r2 = xx + yy
-    r4 = r2 * r2
-    r6 = r4 * r2
-    radial = 1.0 + k1 * r2 + k2 * r4 + k3 * r6
-    xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * xx)
-    yd = y * radial + p1 * (r2 + 2.0 * yy) + 2.0 * p2 * xy
-    uv = np.empty((p_cam.shape[0], 2))
-    uv[:, 0] = fx * xd + cx
-    uv[:, 1] = fy * yd + cy
+    p_cam = np.asarray(p_cam, float)
+    uv, Jp_T, Jk_T = _project(intrinsics_vec, p_cam, jacobians)
     if not jacobians:
         return uv, None, None
-
     n = p_cam.shape[0]
-    c = 2.0 * (k1 + 2.0 * k2 * r2 + 3.0 * k3 * r4)  # d radial / d r2, times 2
-    dxd_dx = radial + c * xx + 2.0 * p1 * y + 6.0 * p2 * x
-    dxd_dy = c * xy + 2.0 * p1 * x + 2.0 * p2 * y
-    dyd_dy = radial + c * yy + 6.0 * p1 * y + 2.0 * p2 * x
-    # d(x, y)/d(X, Y, Z) = [[1/Z, 0, -x/Z], [0, 1/Z, -y/Z]]
-    J_p = np.empty((n, 2, 3))
-    a, b, d = fx * dxd_dx * iz, fx * dxd_dy * iz, fy * dxd_dy * iz
-    e = fy * dyd_dy * iz
-    J_p[:, 0, 0] = a
-    J_p[:, 0, 1] = b
-    J_p[:, 0, 2] = -(a * x + b * y)
-    J_p[:, 1, 0] = d
-    J_p[:, 1, 1] = e
-    J_p[:, 1, 2] = -(d * x + e * y)
-
-    J_k = np.zeros((n, 2, 9))
-    J_k[:, 0, 0] = xd
-    J_k[:, 1, 1] = yd
-    J_k[:, 0, 2] = 1.0
-    J_k[:, 1, 3] = 1.0
-    J_k[:, 0, 4] = fx * x * r2
-    J_k[:, 1, 4] = fy * y * r2
-    J_k[:, 0, 5] = fx * x * r4
-    J_k[:, 1, 5] = fy * y * r4
-    J_k[:, 0, 6] = fx * 2.0 * xy
-    J_k[:, 1, 6] = fy * (r2 + 2.0 * yy)
-    J_k[:, 0, 7] = fx * (r2 + 2.0 * xx)
-    J_k[:, 1, 7] = fy * 2.0 * xy
-    J_k[:, 0, 8] = fx * x * r6
-    J_k[:, 1, 8] = fy * y * r6
-    return uv, J_p, J_k
+    return uv, Jp_T.reshape(3, n, 2).transpose(1, 2, 0), Jk_T.reshape(9, n, 2).transpose(1, 2, 0)
 
 
-def _pose_jac(G: np.ndarray, q: np.ndarray, *, inverted: bool) -> np.ndarray:
-    """Stack (N,2,6) from G = d uv/d(point after the perturbed transform, in its own frame) (N,2,3).
+def _pose_jacobians_T(G: np.ndarray, Q: np.ndarray, sign: np.ndarray) -> np.ndarray:
+    """Pose Jacobians of k transforms at once, transposed: (k, 6, 2N).
 
-    Non-inverted: ``G · [-[q]x, I]``  (row a: a^T (-[q]x) = (q x a)^T);
-    inverted:     ``G · [[q]x, -I]``  (row a: a^T [q]x = (a x q)^T).
+    ``G`` (k, 3, 2N): (d uv / d point)^T, the point taken just after the perturbed transform in the
+    transform's own frame; ``Q`` (k, 3, 2N): that point (repeated for u and v); ``sign`` (k,):
+    +1 for a transform used as is (``d/dxi = [-[q]x, I]``), -1 for one used inverted
+    (``[[q]x, -I]``). Row a of G gives rotation part ``sign · (q x a)`` and translation ``sign · a``.
     """
-    J = np.empty(G.shape[:2] + (6,))
-    qb = q[:, None, :]
-    if inverted:
-        J[..., :3] = np.cross(G, qb)
-        J[..., 3:] = -G
-    else:
-        J[..., :3] = np.cross(qb, G)
-        J[..., 3:] = G
+    J = np.empty((G.shape[0], 6, G.shape[2]))
+    s = sign[:, None]
+    J[:, 0] = s * (Q[:, 1] * G[:, 2] - Q[:, 2] * G[:, 1])
+    J[:, 1] = s * (Q[:, 2] * G[:, 0] - Q[:, 0] * G[:, 2])
+    J[:, 2] = s * (Q[:, 0] * G[:, 1] - Q[:, 1] * G[:, 0])
+    J[:, 3:] = s[:, None] * G
     return J
+
+
+_SIGN_ALL = {True: np.array([-1.0, -1.0, 1.0]), False: np.array([-1.0, 1.0, 1.0])}  # (T_x, robot, board)
+_SIGN_ROBOT = {True: np.array([-1.0]), False: np.array([1.0])}
 
 
 def chain_residual(*, T_x: np.ndarray, T_base_end: np.ndarray, T_board: np.ndarray, invert_robot: bool,
                    intrinsics_vec: np.ndarray, object_points: np.ndarray, image_points: np.ndarray,
-                   jacobians: bool = True):
+                   jacobians: bool = True, robot_only: bool = False):
     """Reprojection residual of one view through ``inv(T_x) · M · T_board``.
 
     ``M = inv(T_base_end)`` when ``invert_robot`` (eye-in-hand) else ``T_base_end`` (eye-to-hand).
     object_points (N,3) in the board frame, image_points (N,2) measured pixels.
 
     Returns ``(residual, J_x, J_robot, J_board, J_intr)``: residual (2N,) = predicted - measured and
-    Jacobians (2N,6), (2N,6), (2N,6), (2N,9) w.r.t. right perturbations of ``T_x``, ``T_base_end``
-    and ``T_board`` (GTSAM Pose3 tangent) and the 9 intrinsics; the Jacobians are None when
-    ``jacobians`` is False.
+    Jacobians (2N,6), (2N,6), (2N,6), (2N,9) (Fortran-ordered) w.r.t. right perturbations of
+    ``T_x``, ``T_base_end`` and ``T_board`` (GTSAM Pose3 tangent) and the 9 intrinsics; the Jacobians
+    are None when ``jacobians`` is False. ``robot_only`` computes only ``J_robot`` (the others are
+    None), for fitting one view's pose with everything else held.
     """
     R_x, t_x = T_x[:3, :3], T_x[:3, 3]
     R_A, t_A = R_x.T, -R_x.T @ t_x  # A = inv(T_x) = T_cam_<fixed>
@@ -132,20 +145,22 @@ def chain_residual(*, T_x: np.ndarray, T_base_end: np.ndarray, T_board: np.ndarr
     q_b = object_points @ R_B.T + t_B  # shape (N, 3): corners in the frame B maps into
     q_m = q_b @ R_M.T + t_M  # shape (N, 3): corners in the frame A maps from
     p_c = q_m @ R_A.T + t_A  # shape (N, 3): corners in the camera frame
-    uv, J_p, J_k = pixels_from_cam_points(intrinsics_vec, p_c, jacobians=jacobians)
+    uv, Jp_T, Jk_T = _project(intrinsics_vec, p_c, jacobians)
     residual = (uv - image_points).reshape(-1)
     if not jacobians:
         return residual, None, None, None, None
 
-    n2 = residual.size
-    J_x = _pose_jac(J_p, p_c, inverted=True)  # A = inv(T_x)
-    G_A = J_p @ R_A  # shape (N, 2, 3)
-    if invert_robot:  # M = inv(T_base_end): perturbation sits after A
-        J_r = _pose_jac(G_A, q_m, inverted=True)
-    else:  # M = T_base_end: perturbation sits after A · M
-        J_r = _pose_jac(G_A @ R_M, q_b, inverted=False)
-    J_b = _pose_jac(G_A @ (R_M @ R_B), object_points, inverted=False)
-    return residual, J_x.reshape(n2, 6), J_r.reshape(n2, 6), J_b.reshape(n2, 6), J_k.reshape(n2, 9)
+    G_A = R_A.T @ Jp_T  # (J_p · R_A)^T, shape (3, 2N)
+    # the point just after the robot perturbation: q_m if M = inv(T_base_end), else q_b (after A·M)
+    G_r, q_r = (G_A, q_m) if invert_robot else (R_M.T @ G_A, q_b)
+    if robot_only:
+        J = _pose_jacobians_T(G_r[None], np.repeat(q_r.T, 2, axis=1)[None], _SIGN_ROBOT[invert_robot])
+        return residual, None, J[0].T, None, None
+    G_b = (R_M @ R_B).T @ G_A
+    G = np.stack([Jp_T, G_r, G_b])  # shape (3, 3, 2N)
+    Q = np.repeat(np.stack([p_c.T, q_r.T, object_points.T]), 2, axis=2)  # shape (3, 3, 2N)
+    J = _pose_jacobians_T(G, Q, _SIGN_ALL[invert_robot])
+    return residual, J[0].T, J[1].T, J[2].T, Jk_T.T
 
 
 def eye_in_hand_residual(*, T_end_cam, T_base_end, T_base_board, intrinsics_vec, object_points, image_points,
