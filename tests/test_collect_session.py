@@ -253,3 +253,24 @@ def test_auto_collection_drives_the_realman_client(tmp_path, confirmed):
     recs = _records(tmp_path / "e")
     assert len(recs) == 7
     assert all(r["robot_state"]["work_frame"] == "Base" and r["robot_state"]["errors"] == [] for r in recs.values())
+
+
+def test_camera_unplugged_mid_session_keeps_what_was_saved(tmp_path):
+    from handeye.errors import HardwareError
+
+    rig = SimRig.sample(mode="eye_to_hand", rng=np.random.default_rng(6), intrinsics=synth.default_intrinsics(640, 360))
+    robot = SimRobot(rig, rng=np.random.default_rng(7))
+
+    class Unplugged(SimCamera):
+        def grab(self):
+            if self.n_frames == 3:
+                raise HardwareError("no frame from the RealSense camera within 5 s", hint="reconnect the camera")
+            return super().grab()
+
+    writer = sw.SessionWriter(tmp_path / "u", mode=rig.mode, target=rig.target, intrinsics=rig.intrinsics)
+    col = Collector(robot=robot, camera=Unplugged(robot, rng=np.random.default_rng(8)), writer=writer,
+                    target=rig.target, mode=rig.mode)
+    with pytest.raises(HardwareError, match="reconnect the camera"):
+        col.run_auto(n_views=4, speed_fraction=0.2)
+    assert sorted(_records(tmp_path / "u")) == ["1", "2", "3"]
+    assert len(_load(tmp_path / "u").views) == 3

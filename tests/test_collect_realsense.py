@@ -1,0 +1,205 @@
+"""RealSense backends: distortion mapping, and playback of a recording made from synthetic frames.
+
+The recording is written with the SDK's own software device and recorder (no camera needed), then
+played back through ``rs.config.enable_device_from_file`` exactly as ``--camera bag:FILE`` does.
+"""
+from __future__ import annotations
+
+import argparse
+import builtins
+import io
+import sys
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from handeye import synth
+from handeye.collect.realsense import intrinsics_from_realsense, opencv5_from_realsense
+from handeye.errors import HardwareError
+
+W, H = 640, 360
+
+
+# ------------------------------------------------------------------------------ distortion mapping
+def _rs_project(xy: np.ndarray, model: str, c) -> np.ndarray:
+    """librealsense's rs2_project_point_to_pixel distortion step (rsutil.h), on normalized points."""
+    x, y = xy[:, 0], xy[:, 1]
+    r2 = x * x + y * y
+    f = 1 + c[0] * r2 + c[1] * r2 ** 2 + c[4] * r2 ** 3
+    if model == "brown_conrady":
+        xf, yf = x * f, y * f
+        return np.stack([xf + 2 * c[2] * x * y + c[3] * (r2 + 2 * x * x),
+                         yf + 2 * c[3] * x * y + c[2] * (r2 + 2 * y * y)], 1)
+    x, y = x * f, y * f  # modified / inverse Brown-Conrady: tangential terms after the radial scaling
+    return np.stack([x + 2 * c[2] * x * y + c[3] * (r2 + 2 * x * x), y + 2 * c[3] * x * y + c[2] * (r2 + 2 * y * y)], 1)
+
+
+def _cv_project(xy: np.ndarray, dist) -> np.ndarray:
+    pts = np.concatenate([xy, np.ones((len(xy), 1))], 1)
+    uv, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), np.eye(3), np.asarray(dist, float))
+    return uv.reshape(-1, 2)
+
+
+@pytest.mark.parametrize("model, coeffs, exactness", [
+    ("brown_conrady", [0.1, -0.2, 0.003, -0.002, 0.05], "exact"),
+    ("inverse_brown_conrady", [0.1, -0.2, 0.0, 0.0, 0.05], "exact"),
+    ("distortion.modified_brown_conrady", [0.1, -0.2, 0.003, -0.002, 0.05], "approximate"),
+    ("inverse_brown_conrady", [0, 0, 0, 0, 0], "exact"),
+    ("kannala_brandt4", [0.1, 0.01, 0, 0, 0], "not representable"),
+])
+def test_realsense_distortion_maps_to_opencv(model, coeffs, exactness):
+    dist, how = opencv5_from_realsense(model, coeffs)
+    assert how == exactness
+    if how == "not representable":
+        assert dist == (0.0,) * 5
+        return
+    xy = np.random.default_rng(0).uniform(-0.6, 0.6, (200, 2))
+    gap = np.abs(_rs_project(xy, model.replace("distortion.", ""), coeffs) - _cv_project(xy, dist)).max()
+    if how == "exact":
+        assert gap < 1e-9
+    else:
+        assert 0 < gap < 1e-3  # close, but not OpenCV's model: recorded as approximate
+
+
+def test_factory_intrinsics_record_the_original_model():
+    intr, source = intrinsics_from_realsense(fx=615.0, fy=614.5, ppx=322.1, ppy=241.7, width=640, height=480,
+                                             model="distortion.inverse_brown_conrady", coeffs=[0, 0, 0, 0, 0])
+    assert (intr.fx, intr.cy, intr.width, intr.dist) == (615.0, 241.7, 640, (0.0,) * 5)
+    assert source["original_model"] == "inverse_brown_conrady" and source["mapping_to_opencv5"] == "exact"
+
+
+def test_missing_libusb_is_one_clear_line(monkeypatch):
+    real_import = builtins.__import__
+
+    def fake(name, *a, **k):
+        if name == "pyrealsense2":
+            raise ImportError("libusb-1.0.so.0: cannot open shared object file: No such file or directory")
+        return real_import(name, *a, **k)
+
+    monkeypatch.delitem(sys.modules, "pyrealsense2", raising=False)
+    monkeypatch.setattr(builtins, "__import__", fake)
+    from handeye.collect.realsense import import_pyrealsense2
+
+    with pytest.raises(HardwareError, match="apt-get install libusb-1.0-0"):
+        import_pyrealsense2()
+
+
+# ------------------------------------------------------------------------------ SDK playback
+def _rs():
+    try:
+        import pyrealsense2 as rs
+    except ImportError as e:
+        pytest.skip(f"pyrealsense2 cannot be imported here ({e}); the playback path is untested")
+    return rs
+
+
+def _record(rs, folder, frames, *, fx=455.0, fy=454.5, ppx=321.1, ppy=180.4, model=None, coeffs=(0, 0, 0, 0, 0)):
+    """Write ``frames`` (BGR) through a software device into a recording; returns its path."""
+    model = rs.distortion.inverse_brown_conrady if model is None else model
+    last_error = None
+    for ext in (".db3", ".bag"):  # librealsense >= 2.56 records rosbag2 (.db3), older versions ROS1 .bag
+        path = folder / f"synthetic{ext}"
+        sd = rs.software_device()
+        sd.register_info(rs.camera_info.name, "Intel RealSense D435 (software device)")
+        sd.register_info(rs.camera_info.serial_number, "000000000000")
+        sensor = sd.add_sensor("RGB Camera")
+        intr = rs.intrinsics()
+        intr.width, intr.height, intr.fx, intr.fy, intr.ppx, intr.ppy = W, H, fx, fy, ppx, ppy
+        intr.model, intr.coeffs = model, list(coeffs)
+        vs = rs.video_stream()
+        vs.type, vs.index, vs.uid, vs.width, vs.height, vs.fps, vs.bpp = rs.stream.color, 0, 0, W, H, 30, 3
+        vs.fmt, vs.intrinsics = rs.format.bgr8, intr
+        profile = sensor.add_video_stream(vs).as_video_stream_profile()
+        try:
+            recorder = rs.recorder(str(path), sd)
+        except RuntimeError as e:
+            last_error = e
+            continue
+        queue = rs.frame_queue(len(frames) + 2)
+        sensor.open(profile)
+        sensor.start(queue)
+        for i, img in enumerate(frames):
+            f = rs.software_video_frame()
+            f.pixels, f.bpp, f.stride = np.ascontiguousarray(img), 3, W * 3
+            f.timestamp, f.domain, f.frame_number, f.profile = 1000.0 + 33.3 * i, rs.timestamp_domain.system_time, i, profile
+            sensor.on_video_frame(f)
+        sensor.stop()
+        sensor.close()
+        recorder.pause()
+        del recorder, sd
+        return path
+    pytest.skip(f"this pyrealsense2 cannot record a software device ({last_error}); the playback path is untested")
+
+
+def _board_frames(n):
+    from handeye.collect.sim import SimRig, _render_view
+
+    rig = SimRig.sample(mode="eye_in_hand", rng=np.random.default_rng(1), intrinsics=synth.default_intrinsics(W, H))
+    rng = np.random.default_rng(2)
+    render = _render_view()
+    Ts = synth.sample_view_poses(mode="eye_in_hand", n_views=n, rng=rng, T_x=rig.T_x, T_board=rig.T_board,
+                                 target=rig.target, intrinsics=rig.intrinsics)
+    from handeye.model import mounting
+
+    C = mounting("eye_in_hand").predict_T_cam_board(rig.T_x, rig.T_board, Ts)
+    return [render(rig.target, rig.intrinsics, c, supersample=2, channels=3) for c in C]
+
+
+def test_recording_plays_back_frame_by_frame(tmp_path):
+    rs = _rs()
+    frames = [np.full((H, W, 3), v, np.uint8) for v in (10, 60, 110)]
+    frames[1][100:120, 200:260] = (0, 0, 255)  # colour order must survive: red in BGR
+    path = _record(rs, tmp_path, frames, coeffs=(0.1, -0.2, 0.001, 0.002, 0.05))
+    from handeye.collect.realsense import BagCamera
+
+    cam = BagCamera(path)
+    try:
+        intr = cam.intrinsics()
+        assert (intr.width, intr.height) == (W, H)
+        assert intr.fx == pytest.approx(455.0) and intr.cy == pytest.approx(180.4, abs=1e-4)
+        src = cam.intrinsics_source()
+        assert src["original_model"] == "inverse_brown_conrady" and src["mapping_to_opencv5"] == "approximate"
+        got = [cam.grab()[0] for _ in frames]
+        for a, b in zip(got, frames):
+            np.testing.assert_array_equal(a, b)
+        assert cam.last_frame_info["frame_number"] == 2
+        with pytest.raises(HardwareError, match="no more colour frames"):
+            cam.grab()
+    finally:
+        cam.close()
+
+
+def test_collect_from_a_recording(tmp_path, monkeypatch):
+    rs = _rs()
+    path = _record(rs, tmp_path, _board_frames(3))
+    from handeye.collect.cli_entry import add_collect_arguments, run_collect
+
+    p = argparse.ArgumentParser()
+    add_collect_arguments(p)
+    out = tmp_path / "session"
+    args = p.parse_args([str(out), "--mode", "eye_in_hand", "--camera", f"bag:{path}", "--robot", "sim",
+                         "--no-preview", "--seed", "0"])
+    monkeypatch.setattr(sys, "stdin", io.StringIO("s\ns\ns\nq\n"))
+    assert run_collect(args) == 0
+    header = yaml.safe_load((out / "session.yaml").read_text())
+    assert header["intrinsics"]["fx"] == pytest.approx(455.0) and header["intrinsics"]["use"] == "initial"
+    assert header["intrinsics"]["source"]["original_model"] == "inverse_brown_conrady"
+    assert header["collected"]["camera"]["name"] == "Intel RealSense D435 (software device)"
+    recs = sorted((out / "views").glob("*.yaml"))
+    assert [r.stem for r in recs] == ["1", "2", "3"]
+    for r in recs:
+        rec = yaml.safe_load(r.read_text())
+        assert rec["camera_frame"]["frame_number"] == int(rec["id"]) - 1
+        assert cv2.imread(str(out / rec["image"])).shape == (H, W, 3)
+
+
+def test_live_camera_absent_is_a_hardware_error():
+    rs = _rs()
+    if len(rs.context().query_devices()) > 0:
+        pytest.skip("a RealSense camera is connected; this test checks the message without one")
+    from handeye.collect.realsense import RealSenseCamera
+
+    with pytest.raises(HardwareError, match="no RealSense camera found"):
+        RealSenseCamera()
