@@ -1,0 +1,154 @@
+"""Image-level diagnostics: blur, exposure, partial boards and coverage of the image by corners.
+
+Pure functions on an 8-bit grey image and the detected corners of one view (no I/O except the
+image reader used by :func:`image_checks`). Blur is measured as the width of the board's own edges:
+across the edge between two neighbouring corners a step of contrast ``D`` blurred by a Gaussian of
+``sigma`` has a largest slope ``D / (sigma sqrt(2 pi))``, so ``sigma = D / (sqrt(2 pi) max|dI/ds|)``.
+A sharp, anti-aliased image gives about 0.5 px (pixel area and sampling); a blur adds in quadrature.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import map_coordinates
+
+SQRT_2PI = float(np.sqrt(2.0 * np.pi))
+#: edge width (Gaussian sigma, px) of a sharp image: pixel integration plus the profile's sampling
+SHARP_EDGE_SIGMA_PX = 0.55
+SATURATED_LEVEL = 250
+
+
+def neighbour_pairs(object_points: np.ndarray, corner_ids: np.ndarray, square_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (into ``corner_ids``) of corners one square apart along the board's x or y axis."""
+    P = np.asarray(object_points, float)[np.asarray(corner_ids)]
+    key = {tuple(np.round(p[:2] / square_m).astype(int)): k for k, p in enumerate(P)}
+    a, b = [], []
+    for k, p in enumerate(P):
+        x, y = np.round(p[:2] / square_m).astype(int)
+        for dx, dy in ((1, 0), (0, 1)):
+            j = key.get((x + dx, y + dy))
+            if j is not None:
+                a.append(k)
+                b.append(j)
+    return np.asarray(a, int), np.asarray(b, int)
+
+
+def edge_profiles(gray: np.ndarray, p0: np.ndarray, p1: np.ndarray, *, half_width: float, step_px: float = 0.25
+                  ) -> np.ndarray:
+    """Grey-level profiles (K, S) across the edge through the middle of each corner pair (p0, p1: (K,2))."""
+    m = 0.5 * (p0 + p1)
+    e = p1 - p0
+    L = np.linalg.norm(e, axis=1, keepdims=True)
+    nrm = np.stack([-e[:, 1], e[:, 0]], axis=1) / np.maximum(L, 1e-9)
+    s = np.arange(-half_width, half_width + 1e-9, step_px)
+    pts = m[:, None, :] + s[None, :, None] * nrm[:, None, :]  # (K,S,2) x,y
+    img = np.asarray(gray, np.float32)
+    vals = map_coordinates(img, [pts[..., 1].ravel(), pts[..., 0].ravel()], order=1, mode="nearest")
+    return vals.reshape(len(m), len(s))
+
+
+def edge_sigma_px(profiles: np.ndarray, *, step_px: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+    """(edge width sigma in px, contrast in grey levels) per profile."""
+    P = np.asarray(profiles, float)
+    S = P.shape[1]
+    q = max(2, S // 7)
+    contrast = np.abs(P[:, -q:].mean(axis=1) - P[:, :q].mean(axis=1))
+    # central difference over 1 px (4 samples) tames the noise
+    h = int(round(1.0 / step_px))
+    g = np.abs(P[:, 2 * h:] - P[:, :-2 * h]) / (2 * h * step_px)
+    gmax = g.max(axis=1) if g.shape[1] else np.zeros(len(P))
+    sigma = contrast / (SQRT_2PI * np.maximum(gmax, 1e-9))
+    # the 1-px central difference itself widens a step by a box of 2 px (sigma^2 += 1/3)
+    sigma = np.sqrt(np.maximum(sigma ** 2 - 1.0 / 3.0, 0.0))
+    return sigma, contrast
+
+
+def view_blur(gray: np.ndarray, image_points: np.ndarray, corner_ids: np.ndarray, object_points: np.ndarray,
+              square_m: float, *, charuco: bool = False) -> dict:
+    """Edge width of one view: ``{"edge_sigma_px", "blur_sigma_px", "contrast", "n_edges"}``.
+
+    Per direction of the board (x and y) the median over its edges; the larger of the two is reported,
+    so motion blur along one direction shows. ``blur_sigma_px`` removes the sharp-image width.
+    """
+    a, b = neighbour_pairs(object_points, corner_ids, square_m)
+    if len(a) < 4:
+        return {"edge_sigma_px": float("nan"), "blur_sigma_px": float("nan"), "contrast": float("nan"), "n_edges": 0}
+    pts = np.asarray(image_points, float)
+    p0, p1 = pts[a], pts[b]
+    spacing = np.linalg.norm(p1 - p0, axis=1)
+    frac = 0.2 if charuco else 0.33
+    meds = []
+    contrasts = []
+    obj = np.asarray(object_points, float)[np.asarray(corner_ids)]
+    along_x = np.abs(obj[b, 0] - obj[a, 0]) > 0.5 * square_m
+    for sel in (along_x, ~along_x):
+        sel = sel & (spacing * frac >= 3.0)
+        if sel.sum() < 2:
+            continue
+        hw = float(np.median(spacing[sel]) * frac)
+        prof = edge_profiles(gray, p0[sel], p1[sel], half_width=hw)
+        sig, con = edge_sigma_px(prof)
+        good = con > 0.3 * np.median(con)
+        if good.sum() >= 2:
+            meds.append(float(np.median(sig[good])))
+            contrasts.append(float(np.median(con[good])))
+    if not meds:
+        return {"edge_sigma_px": float("nan"), "blur_sigma_px": float("nan"), "contrast": float("nan"), "n_edges": 0}
+    e = max(meds)
+    return {"edge_sigma_px": e, "blur_sigma_px": float(np.sqrt(max(e ** 2 - SHARP_EDGE_SIGMA_PX ** 2, 0.0))),
+            "contrast": float(np.median(contrasts)), "n_edges": int(len(a)),
+            "square_px": float(np.median(spacing))}
+
+
+def board_mask(shape: tuple, image_points: np.ndarray, *, grow: float = 0.0) -> np.ndarray:
+    """Boolean mask of the convex hull of the corners (optionally grown by ``grow`` x its size)."""
+    import cv2
+
+    pts = np.asarray(image_points, float)
+    c = pts.mean(axis=0)
+    pts = c + (pts - c) * (1.0 + grow)
+    hull = cv2.convexHull(np.round(pts).astype(np.int32).reshape(-1, 1, 2))
+    m = np.zeros(shape[:2], np.uint8)
+    cv2.fillConvexPoly(m, hull, 1)
+    return m.astype(bool)
+
+
+def view_exposure(gray: np.ndarray, image_points: np.ndarray) -> dict:
+    """Saturated share and grey levels (5th/95th percentile) inside the board's hull."""
+    m = board_mask(gray.shape, image_points)
+    v = np.asarray(gray)[m]
+    if v.size == 0:
+        return {"saturated_share": float("nan"), "p5": float("nan"), "p95": float("nan")}
+    return {"saturated_share": float(np.mean(v >= SATURATED_LEVEL)), "p5": float(np.percentile(v, 5)),
+            "p95": float(np.percentile(v, 95))}
+
+
+def coverage(points: np.ndarray, width: int, height: int, *, nx: int = 8, ny: int = 6) -> dict:
+    """How the corners of all views cover the image: share of an nx x ny grid of cells that hold at least
+    one corner, share of the border cells, and the occupancy grid (rows top to bottom)."""
+    pts = np.asarray(points, float).reshape(-1, 2)
+    occ = np.zeros((ny, nx), bool)
+    if len(pts):
+        cx = np.clip((pts[:, 0] / max(width, 1) * nx).astype(int), 0, nx - 1)
+        cy = np.clip((pts[:, 1] / max(height, 1) * ny).astype(int), 0, ny - 1)
+        occ[cy, cx] = True
+    border = occ.copy()
+    border[1:-1, 1:-1] = False
+    n_border = 2 * nx + 2 * ny - 4
+    return {"cell_share": float(occ.mean()), "border_share": float(border.sum()) / n_border,
+            "grid": occ.astype(int).tolist(), "grid_size": [nx, ny]}
+
+
+def uncovered_regions(grid: np.ndarray) -> list[str]:
+    """Names of the image regions (corners and edges of a 3x3 split) that hold no corner at all."""
+    g = np.asarray(grid, bool)
+    ny, nx = g.shape
+    ys = np.array_split(np.arange(ny), 3)
+    xs = np.array_split(np.arange(nx), 3)
+    names = [["top-left", "top", "top-right"], ["left", "centre", "right"],
+             ["bottom-left", "bottom", "bottom-right"]]
+    out = []
+    for r in range(3):
+        for c in range(3):
+            if not g[np.ix_(ys[r], xs[c])].any():
+                out.append(names[r][c])
+    return out
