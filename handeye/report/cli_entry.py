@@ -1,0 +1,42 @@
+"""``handeye report RESULT_DIR [--qa FILE]``: (re)build report.html and report.md from a result folder."""
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+from ..errors import InputError
+
+log = logging.getLogger(__name__)
+
+
+def add_report_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = ("Rebuild report.html (self-contained) and report.md (+ report_files/) from a folder "
+                          "written by handeye calibrate (result.json, observations.json); the session images "
+                          "are read for the thumbnails when they are still where they were.")
+    parser.add_argument("result_dir", type=Path, help="folder holding result.json (or the result.json itself)")
+    parser.add_argument("--qa", type=Path, metavar="FILE",
+                        help="site QA thresholds (YAML) overriding the shipped configs/qa.yaml")
+    parser.add_argument("--out", type=Path, metavar="DIR", help="write the reports here (default: RESULT_DIR)")
+    parser.add_argument("--format", choices=["all", "html", "md"], default="all", help="which report(s) to write")
+
+
+def run_report(args) -> int:
+    from ..output import read_json
+    from . import write_reports
+
+    src = Path(args.result_dir)
+    result_dir = src.parent if src.is_file() else src
+    if not (result_dir / "result.json").exists():
+        raise InputError("no result.json in this folder", path=result_dir,
+                         hint="pass the folder written by handeye calibrate --out")
+    res = read_json(result_dir / "result.json")
+    out = Path(args.out) if getattr(args, "out", None) else result_dir
+    fmt = getattr(args, "format", "all")
+    formats = ("html", "md") if fmt == "all" else (fmt,)
+    paths = write_reports(None, res, out, qa=getattr(args, "qa", None), formats=formats, strict=True,
+                          source_dir=result_dir)
+
+    for p in paths:
+        print(f"report: {p}")
+    return 0

@@ -1,0 +1,241 @@
+"""PASS / WARN / FAIL against the QA thresholds of ``configs/qa.yaml`` (site-overridable).
+
+:func:`evaluate` takes plain numbers (``metrics``) and returns a :class:`Verdict`; every check that
+does not pass says why, with the number, and what to do about it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Optional
+
+from ..config import load_preset, load_with_override
+from ..errors import ConfigError
+
+STATUS_ORDER = {"pass": 0, "info": 1, "warn": 2, "fail": 3}
+VERDICT_TEXT = {"pass": "PASS", "warn": "WARN", "fail": "FAIL", "info": "PASS"}
+
+
+@dataclass(frozen=True)
+class Check:
+    key: str
+    title: str
+    status: str  # pass | warn | fail | info
+    value: Optional[float]
+    value_text: str
+    limit_text: str
+    why: str = ""  # set when the check does not pass
+    action: str = ""
+    source: str = ""  # where the number comes from
+    short: str = ""  # a few words for the headline when the check does not pass
+
+
+@dataclass(frozen=True)
+class Verdict:
+    status: str  # pass | warn | fail
+    headline: str
+    checks: tuple = ()  # Check
+    findings: tuple = ()  # diagnostics findings that count (dicts)
+    thresholds_source: str = "configs/qa.yaml (shipped)"
+    counts: dict = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        return VERDICT_TEXT[self.status]
+
+
+def load_qa(path: str | Path | None = None) -> dict:
+    """Shipped QA thresholds, deep-merged with a site file when given; validated once."""
+    cfg = load_with_override("qa", path) if path is not None else load_preset("qa")
+    src = str(path) if path is not None else "configs/qa.yaml"
+    if cfg.get("missing_value", "warn") not in STATUS_ORDER:
+        raise ConfigError("missing_value must be one of pass | info | warn | fail", path=src,
+                          received=repr(cfg.get("missing_value")))
+    wd = cfg.get("working_distance_m")
+    if wd is not None and not (isinstance(wd, (int, float)) and wd > 0):
+        raise ConfigError("working_distance_m must be a positive number of metres or null", path=src,
+                          received=repr(wd))
+    for name, lim in (cfg.get("checks") or {}).items():
+        if not isinstance(lim, dict):
+            raise ConfigError(f"checks.{name} must be a mapping of limits", path=src, received=repr(lim))
+        for k, v in lim.items():
+            if k not in ("warn_above", "fail_above", "warn_below", "fail_below"):
+                raise ConfigError(f"checks.{name}: unknown limit {k!r}", path=src,
+                                  expected="warn_above, fail_above, warn_below, fail_below")
+            if v is not None and not isinstance(v, (int, float)):
+                raise ConfigError(f"checks.{name}.{k} must be a number or null", path=src, received=repr(v))
+    return cfg
+
+
+# ------------------------------------------------------------------------------ check texts
+_SPEC = {
+    # key: (title, unit, format, why(value, limit, ctx), action(ctx))
+    "reprojection_rms_px": (
+        "Reprojection RMS", "px", "{:.3f}",
+        lambda v, lim, c: f"detected corners sit {v:.2f} px RMS from where the model puts them ({c.get('rms_source', '')}); "
+                          f"the limit is {lim:g} px, so the camera model or the corner detections do not fit the images",
+        lambda c: "check focus and motion blur, that the board is flat and its square size is right, and that the lens "
+                  "did not move; recalibrate the intrinsics with views that reach the image corners"),
+    "predicted_error_mm": (
+        "Predicted position error", "mm", "{:.2f}",
+        lambda v, lim, c: f"a point {c.get('wd_m', float('nan')):.2f} m in front of the camera is placed with "
+                          f"{v:.2f} mm RMS 3-D error (1 sigma), above the limit of {lim:g} mm",
+        lambda c: "add views with larger rotations (20-45 deg) about different axes, hold the board near the working "
+                  "distance, make sure the robot is at rest when each image is taken; the error shrinks about "
+                  "with 1/sqrt(number of views)"),
+    "sigma_trans_mm": (
+        "Translation uncertainty (largest axis, 1 sigma)", "mm", "{:.3f}",
+        lambda v, lim, c: f"the hand-eye translation is known to {v:.2f} mm (1 sigma, {c.get('sigma_t_axis', '')}), "
+                          f"the limit is {lim:g} mm",
+        lambda c: "add views that rotate the camera about axes perpendicular to the weak direction and vary the "
+                  "distance to the board; check the robot's repeatability"),
+    "sigma_rot_deg": (
+        "Rotation uncertainty (largest axis, 1 sigma)", "deg", "{:.3f}",
+        lambda v, lim, c: f"the hand-eye rotation is known to {v:.3f} deg (1 sigma, about camera {c.get('sigma_r_axis', '')}), "
+                          f"the limit is {lim:g} deg",
+        lambda c: "add views with larger rotations between them and views where the board fills more of the image"),
+    "max_rotation_deg": (
+        "Largest rotation between views", "deg", "{:.1f}",
+        lambda v, lim, c: f"the robot turns at most {v:.1f} deg between two views (limit {lim:g} deg); small rotations "
+                          "leave the hand-eye translation poorly determined",
+        lambda c: "add views tilted 20-45 deg (or more) against each other about two different axes"),
+    "axis_spread_deg": (
+        "Spread of rotation axes", "deg", "{:.1f}",
+        lambda v, lim, c: f"the rotations between views are mostly about one axis ({c.get('main_axis', '?')} in the "
+                          f"{c.get('axis_frame', '')} frame); spread {v:.1f} deg, limit {lim:g} deg",
+        lambda c: f"add views rotated 20-45 deg about {c.get('weak_axes', 'the other two axes')} "
+                  f"of the {c.get('axis_frame', '')} frame"),
+    "dropped_share": (
+        "Views dropped or flagged", "", "{:.0%}",
+        lambda v, lim, c: f"{c.get('n_bad', '?')} of {c.get('n_total', '?')} views were dropped or flagged "
+                          f"({v:.0%}, limit {lim:.0%}): {c.get('bad_reasons', '')}",
+        lambda c: "read the reasons in the per-view table; fix the cause (board partly outside the image, blur, robot "
+                  "still moving, poses and images out of step) and retake those views"),
+    "used_views": (
+        "Views used", "", "{:.0f}",
+        lambda v, lim, c: f"only {v:.0f} views constrain the hand-eye transform (limit {lim:g})",
+        lambda c: "collect 15-25 views with the board fully visible and varied orientations"),
+    "image_coverage": (
+        "Image area reached by corners", "", "{:.0%}",
+        lambda v, lim, c: f"detected corners reach {v:.0%} of the image (limit {lim:.0%}); the lens distortion is "
+                          "then only known where the board was",
+        lambda c: "add views with the board near the image edges and corners"),
+}
+
+
+def _fmt_limit(lim: dict, fmt: str, unit: str) -> str:
+    def f(x):
+        return fmt.format(x) + (f" {unit}" if unit else "")
+
+    parts = []
+    if lim.get("warn_above") is not None:
+        parts.append(f"warn > {f(lim['warn_above'])}")
+    if lim.get("fail_above") is not None:
+        parts.append(f"fail > {f(lim['fail_above'])}")
+    if lim.get("warn_below") is not None:
+        parts.append(f"warn < {f(lim['warn_below'])}")
+    if lim.get("fail_below") is not None:
+        parts.append(f"fail < {f(lim['fail_below'])}")
+    return ", ".join(parts) if parts else "not checked"
+
+
+def _level(value: float, lim: dict) -> tuple[str, Optional[float]]:
+    fa, wa, fb, wb = (lim.get(k) for k in ("fail_above", "warn_above", "fail_below", "warn_below"))
+    if fa is not None and value > fa:
+        return "fail", fa
+    if fb is not None and value < fb:
+        return "fail", fb
+    if wa is not None and value > wa:
+        return "warn", wa
+    if wb is not None and value < wb:
+        return "warn", wb
+    return "pass", None
+
+
+def evaluate(metrics: dict, cfg: dict, *, context: dict | None = None, failure: dict | None = None,
+             findings: list | None = None, thresholds_source: str = "configs/qa.yaml (shipped)") -> Verdict:
+    """Verdict from ``metrics`` (check key -> number or None), thresholds ``cfg`` (see configs/qa.yaml).
+
+    ``failure``: ``{"problem": ..., "action": ...}`` when the calibration itself failed (always FAIL).
+    ``findings``: diagnostics findings (dicts with severity fail|warn|info) that count when
+    ``cfg["include_diagnostics"]``. Checks that cannot be evaluated for the same reason are merged.
+    """
+    ctx = context or {}
+    checks: list[Check] = []
+    if failure:
+        checks.append(Check("calibration", "Calibration", "fail", None, "failed", "must succeed",
+                            why=failure.get("problem", failure.get("reason", "")), action=failure.get("action", ""),
+                            short="the calibration failed"))
+    missing_status = cfg.get("missing_value", "warn")
+    missing: dict[str, list] = {}  # why -> keys not evaluated for that reason
+    for key, lim in (cfg.get("checks") or {}).items():
+        if key not in _SPEC or (key not in metrics and not failure):
+            continue
+        if all(lim.get(k) is None for k in ("warn_above", "fail_above", "warn_below", "fail_below")):
+            continue
+        title, unit, fmt, why_f, act_f = _SPEC[key]
+        limit_text = _fmt_limit(lim, fmt, unit)
+        v = metrics.get(key)
+        if v is None:
+            if not failure:  # a failed run only shows the checks that have a number
+                missing.setdefault(ctx.get(f"{key}_missing", "not available for this run"), []).append(
+                    (key, title, limit_text))
+            continue
+        status, hit = _level(float(v), lim)
+        val_text = fmt.format(v) + (f" {unit}" if unit else "")
+        why = act = short = ""
+        if status != "pass":
+            why, act = why_f(float(v), hit, ctx), act_f(ctx)
+            rel = ">" if hit == lim.get("warn_above") or hit == lim.get("fail_above") else "<"
+            short = f"{title.split(' (')[0].lower()} {val_text} {rel} {fmt.format(hit)}{' ' + unit if unit else ''}"
+        checks.append(Check(key, title, status, float(v), val_text, limit_text, why=why, action=act,
+                            source=ctx.get(f"{key}_source", ""), short=short))
+    for why, items in missing.items():
+        keys = [k for k, _, _ in items]
+        titles = [t.split(" (")[0] for _, t, _ in items]
+        title = _join([titles[0]] + [t[:1].lower() + t[1:] for t in titles[1:]])
+        act = ctx.get(f"{keys[0]}_missing_action", "")
+        quiet = missing_status == "pass"
+        checks.append(Check("+".join(keys), title, missing_status, None, "n/a",
+                            "; ".join(lt for _, _, lt in items), why="" if quiet else why,
+                            action="" if quiet else act, short=f"{title[:1].lower() + title[1:]} not available"))
+    counted = []
+    if cfg.get("include_diagnostics", True):
+        counted = [f for f in (findings or []) if str(f.get("severity", "")).lower() in ("fail", "warn")]
+    worst = max([STATUS_ORDER[c.status] for c in checks]
+                + [STATUS_ORDER[str(f["severity"]).lower()] for f in counted] + [0])
+    status = {0: "pass", 1: "pass", 2: "warn", 3: "fail"}[worst]
+    checks = [replace(c, why=_cap(c.why), action=_cap(c.action)) for c in checks]
+    counts = {s: sum(c.status == s for c in checks) for s in ("pass", "warn", "fail", "info")}
+    counts["findings_fail"] = sum(str(f["severity"]).lower() == "fail" for f in counted)
+    counts["findings_warn"] = sum(str(f["severity"]).lower() == "warn" for f in counted)
+    return Verdict(status, _headline(status, checks, counted, ctx, failure), tuple(checks), tuple(counted),
+                   thresholds_source, counts)
+
+
+def _cap(s: str) -> str:
+    s = (s or "").strip().rstrip(".")
+    return s[:1].upper() + s[1:]
+
+
+def _headline(status: str, checks: list, findings: list, ctx: dict, failure: dict | None) -> str:
+    if failure:
+        return "The session could not be calibrated. " + (failure.get("short") or "")
+    items = [c.short for c in checks if c.status == status and c.short]
+    items += [str(f.get("title", f.get("code", ""))).rstrip(".")[:1].lower() + str(f.get("title", "")).rstrip(".")[1:]
+              for f in findings if str(f.get("severity")).lower() == status]
+    name = ctx.get("x_name", "The hand-eye transform")
+    pe = ctx.get("predicted_text")
+    tail = f" Predicted position error {pe}." if pe and not any(i.startswith("predicted") for i in items) else ""
+    if status == "pass":
+        return f"{name} meets every QA threshold.{tail}"
+    if status == "warn":
+        return f"{name} passes with warnings: {_join(items)}.{tail}"
+    return f"{name} fails QA: {_join(items)}.{tail}"
+
+
+def _join(items: list) -> str:
+    items = [i for i in items if i]
+    if len(items) <= 2:
+        return " and ".join(items)
+    return ", ".join(items[:-1]) + " and " + items[-1]

@@ -1,0 +1,111 @@
+"""Render the report context (:mod:`handeye.report.build`) to one self-contained HTML file and to
+Markdown with its figures as PNG files beside it. Templates ship in ``handeye/templates``.
+"""
+from __future__ import annotations
+
+import base64
+import math
+import re
+from importlib import resources
+from pathlib import Path
+
+import jinja2
+
+from .. import __version__
+
+FILES_DIR = "report_files"
+
+
+def _env(*, html: bool) -> jinja2.Environment:
+    root = resources.files("handeye").joinpath("templates")
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(root)), autoescape=html,
+                             undefined=jinja2.StrictUndefined,
+                             trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True)
+    env.filters["num"] = num
+    env.filters["pct"] = pct
+    env.filters["sgn"] = lambda x, d=3: num(x, d, signed=True)
+    env.filters["mdcell"] = mdcell
+    env.filters["status_label"] = lambda s: {"pass": "PASS", "warn": "WARN", "fail": "FAIL", "info": "INFO"}.get(s, s)
+    env.globals["version"] = __version__
+    return env
+
+
+def num(x, digits: int = 2, *, signed: bool = False) -> str:
+    """A number for people: fixed digits, an em dash for missing values (ASCII minus: numbers get copied)."""
+    if x is None or isinstance(x, str):
+        return "—" if x is None else x
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return str(x)
+    if not math.isfinite(v):
+        return "—"
+    s = f"{v:+.{digits}f}" if signed else f"{v:.{digits}f}"
+    if s.lstrip("+-").strip("0.") == "":  # -0.000 -> 0.000
+        s = s.replace("-", "+" if signed else "")
+    return s
+
+
+def pct(x, digits: int = 0) -> str:
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return "—"
+    return "—" if not math.isfinite(v) else f"{100 * v:.{digits}f} %"
+
+
+def mdcell(x) -> str:
+    """Text safe inside a Markdown table cell."""
+    return str(x).replace("|", "\\|").replace("\n", " ")
+
+
+def data_uri(png: bytes) -> str:
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def safe_name(s: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", str(s))
+
+
+def render_html(ctx: dict) -> str:
+    images = {p.key: data_uri(p.png) for p in ctx["plots"]}
+    thumbs = {vid: data_uri(png) for vid, png in ctx["thumbs"].items()}
+    return _env(html=True).get_template("report.html.j2").render(**ctx, images=images, thumb_src=thumbs)
+
+
+def render_markdown(ctx: dict) -> tuple[str, dict[str, bytes]]:
+    """Markdown text and the files it links (relative path -> PNG bytes)."""
+    files: dict[str, bytes] = {}
+    images, thumbs = {}, {}
+    for p in ctx["plots"]:
+        rel = f"{FILES_DIR}/{safe_name(p.key)}.png"
+        files[rel] = p.png
+        images[p.key] = rel
+    for vid, png in ctx["thumbs"].items():
+        rel = f"{FILES_DIR}/view_{safe_name(vid)}.png"
+        files[rel] = png
+        thumbs[vid] = rel
+    text = _env(html=False).get_template("report.md.j2").render(**ctx, images=images, thumb_src=thumbs)
+    text = re.sub(r"\n{3,}", "\n\n", text)
+    return text, files
+
+
+def write_files(out_dir: Path, html: str | None, md: tuple[str, dict] | None) -> list[Path]:
+    from ..output import atomic_write_bytes, atomic_write_text
+
+    written = []
+    if md is not None:
+        text, files = md
+        fdir = out_dir / FILES_DIR
+        fdir.mkdir(parents=True, exist_ok=True)
+        keep = {Path(rel).name for rel in files}
+        for old in fdir.glob("*.png"):  # stale figures of an earlier report in this folder
+            if old.name not in keep:
+                old.unlink()
+        for rel, data in files.items():
+            atomic_write_bytes(out_dir / rel, data)
+    if html is not None:
+        written.append(atomic_write_text(out_dir / "report.html", html))
+    if md is not None:
+        written.append(atomic_write_text(out_dir / "report.md", md[0]))
+    return written
