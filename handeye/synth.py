@@ -273,7 +273,8 @@ def sample_setup(*, mode: str, rng: np.random.Generator, target: TargetSpec = DE
     eye_in_hand: camera on the flange (``T_end_cam``: 5-10 cm offset, optical axis within 10 deg
     of the flange z, any rotation about it) and a board lying face-up on the table 0.5-0.7 m in
     front of the base (``T_base_board``; board z points down, into the table).
-    eye_to_hand: a fixed camera 1.0-1.5 m from the workspace centre, looking at it from 25-65 deg
+    eye_to_hand: a fixed camera 1.0-1.5 m from the workspace centre (down to 0.6-0.9 m for
+    patterns smaller than 0.36 m, so the board can be shown close up), looking at it from 25-65 deg
     elevation with the image's up roughly up (``T_base_cam``), and a board held by the gripper
     2-5 cm in front of the flange with its printed face along the flange z (``T_end_board``).
 
@@ -299,7 +300,9 @@ def sample_setup(*, mode: str, rng: np.random.Generator, target: TargetSpec = DE
         T_board = make_T(R_base_board, center_base - R_base_board @ c_board)
     else:
         work = np.array([rng.uniform(0.4, 0.6), rng.uniform(-0.1, 0.1), rng.uniform(0.15, 0.35)])
-        dist = rng.uniform(1.0, 1.5)
+        # 1.0-1.5 m; closer for boards smaller than the default, which must come near the camera
+        board_scale = default_distance_m(target)[1] / 0.9
+        dist = rng.uniform(1.0, 1.5) * float(np.clip(board_scale, 0.6, 1.0))
         az = np.radians(rng.uniform(-100.0, 100.0))
         el = np.radians(rng.uniform(25.0, 65.0))
         cam = work + dist * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
@@ -388,6 +391,7 @@ def sample_view_poses(*, mode: str, n_views: int, rng: np.random.Generator, T_x:
     d_lo, d_hi = default_distance_m(target) if distance_m is None else (float(distance_m[0]), float(distance_m[1]))
     if not 0.0 < d_lo <= d_hi:
         raise ConfigError("invalid distance range", expected="0 < min <= max metres", received=f"({d_lo}, {d_hi})")
+    margin_px = default_margin_px(intrinsics) if margin_px is None else float(margin_px)
     t_lo, t_hi = np.radians(tilt_deg[0]), np.radians(tilt_deg[1])
     roll = np.radians(roll_deg)
     aim = np.radians(aim_deg)
@@ -418,7 +422,7 @@ def sample_view_poses(*, mode: str, n_views: int, rng: np.random.Generator, T_x:
                 break
             else:
                 raise ConfigError("cannot place the board in the image", expected=(
-                    f"a view at {d_lo:.2f}-{d_hi:.2f} m showing the whole pattern with {margin_px} px margin"),
+                    f"a view at {d_lo:.2f}-{d_hi:.2f} m showing the whole pattern with {margin_px:.0f} px margin"),
                     received=f"{max_tries} rejected samples",
                     hint="increase distance_m, reduce tilt_deg/roll_deg or use a smaller target")
         if n_views < 3 or rotation_spread_deg(T_cb) >= min_spread_deg:

@@ -32,6 +32,7 @@ log = logging.getLogger(__name__)
 BLACK_LEVEL = 30.0
 WHITE_LEVEL = 225.0
 BACKGROUND_LEVEL = 128.0
+BOARD_BACK_LEVEL = 150.0  # the unprinted back of the board
 
 _ROUNDTRIP_TOL_PX = 1e-6
 _CHUNK_OUTPUT_ROWS = 32
@@ -267,6 +268,7 @@ def render_accumulate(target: TargetSpec, intrinsics: Intrinsics, T_cam_board: n
     """(board grey premultiplied by coverage, coverage) per output pixel, both (H, W) float32.
 
     Coverage is the fraction of a pixel's samples that hit the board (white border included).
+    The board is one-sided: seen from behind (camera on the board's +z side) it is a blank plate.
     """
     T_cam_board = np.asarray(T_cam_board, float)
     if T_cam_board.shape != (4, 4) or not np.all(np.isfinite(T_cam_board)):
@@ -274,6 +276,9 @@ def render_accumulate(target: TargetSpec, intrinsics: Intrinsics, T_cam_board: n
     s = int(supersample)
     grid = undistorted_sample_grid(intrinsics, supersample=s)
     tex, p = board_texture(target, margin_squares=margin_squares, black=black, white=white)
+    cam_in_board = -T_cam_board[:3, :3].T @ T_cam_board[:3, 3]
+    if cam_in_board[2] > 0.0:  # camera behind the board (printed side faces board -z): blank plate
+        tex = np.dstack([np.full(tex.shape[:2], BOARD_BACK_LEVEL, np.float32), tex[..., 1]])
     H_tex, w_row = _texture_from_normalized(target, T_cam_board, margin_squares=margin_squares, texels_per_square=p)
     W, H = intrinsics.width, intrinsics.height
     # 1/depth is linear in (x, y): its minimum over the grid's bounding box decides whether any
