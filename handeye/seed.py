@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from .errors import CalibrationError, DegenerateMotionError, DetectionError
-from .geometry import inv_T, make_T, mean_T, rotation_angle_rad, screw_invariants
+from .geometry import inv_T, is_rotation, make_T, mean_T, rotation_angle_rad, screw_invariants
 from .model import MountingMode
 from .types import Detection, HandEyeEstimate, Intrinsics, TargetSpec
 
@@ -243,6 +243,10 @@ def solve_closed_form(mode: MountingMode, C: np.ndarray, M: np.ndarray, *, metho
         X = inv_T(A)
     if not (np.all(np.isfinite(X)) and np.all(np.isfinite(B))):
         return HandEyeEstimate(mode.name, method, np.eye(4), np.eye(4), "failed", "solver returned non-finite values")
+    if not (is_rotation(X[:3, :3], tol=1e-4) and is_rotation(B[:3, :3], tol=1e-4)):
+        # e.g. Andreff/Li on inconsistent data can return a reflection: not a usable result
+        return HandEyeEstimate(mode.name, method, np.eye(4), np.eye(4), "failed",
+                               "solver returned a matrix that is not a rotation (data inconsistent with the model)")
     return HandEyeEstimate(mode.name, method, X, B)
 
 
