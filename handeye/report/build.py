@@ -49,8 +49,9 @@ class Thumb:
 def build_context(res: dict, obs: Optional[dict], *, qa_cfg: dict, qa_source: str,
                   image_paths: dict[str, Path], make_plots: bool = True) -> dict[str, Any]:
     res = res or {}
-    obs = obs or {}
-    mode = res.get("mode") if res.get("mode") in X_NAMES else "eye_in_hand"
+    obs = _matching_observations(res, obs or {})
+    mode_known = res.get("mode") in X_NAMES
+    mode = res.get("mode") if mode_known else "eye_in_hand"
     x_name, b_name, parent, board_parent = X_NAMES[mode]
     ok = res.get("status") == "ok"
     ref = res.get("refinement") if isinstance(res.get("refinement"), dict) else {}
@@ -71,7 +72,8 @@ def build_context(res: dict, obs: Optional[dict], *, qa_cfg: dict, qa_source: st
         wd = _median_board_distance(fits, board_centre)
 
     ctx: dict[str, Any] = {"x_name": x_name, "board_name": b_name, "parent": parent, "mode": mode,
-                           "mode_text": MODE_TEXT[mode], "ok": ok, "refined": bool(ref)}
+                           "mode_text": MODE_TEXT[mode] if mode_known else "Mounting mode unknown",
+                           "ok": ok, "refined": bool(ref)}
     ctx["meta"] = _meta(res, obs, mode)
     views = _view_rows(res, ref, fits, board_centre, diag, image_paths)
     ctx["views"] = views
@@ -95,8 +97,8 @@ def build_context(res: dict, obs: Optional[dict], *, qa_cfg: dict, qa_source: st
 
     # --- metrics and verdict
     metrics, mctx = _metrics(res, ref, fits, views, unc, pred, wd, obs, mode, parent)
-    failure = _failure(res) if not ok else None
     findings = _findings(diag)
+    failure = _failure(res, findings, has_views=bool(views)) if not ok else None
     mctx.update(x_name=x_name)
     if pred is not None:
         mctx["predicted_text"] = f"{pred['rms_mm']:.2f} mm (1 σ) at {wd:.2f} m"
@@ -117,6 +119,19 @@ def build_context(res: dict, obs: Optional[dict], *, qa_cfg: dict, qa_source: st
     return ctx
 
 
+def _matching_observations(res: dict, obs: dict) -> dict:
+    """observations.json restricted to the views of this result (a stale file from an earlier run of
+    another session in the same folder must not leak into the report)."""
+    if not obs:
+        return {}
+    ids = {str(v.get("id")) for v in res.get("views") or []}
+    if not ids or (obs.get("mode") and res.get("mode") and obs.get("mode") != res.get("mode")):
+        return {}
+    out = dict(obs)
+    out["views"] = {k: v for k, v in (obs.get("views") or {}).items() if str(k) in ids}
+    return out
+
+
 def _num(x) -> float:
     try:
         return float(x)
@@ -133,7 +148,7 @@ def _median_board_distance(fits, centre) -> float:
 # ------------------------------------------------------------------------------ meta
 def _target_text(t: dict | None) -> str:
     if not t:
-        return "unknown target"
+        return ""
     kind = t.get("type") or t.get("kind")
     sq = t.get("square_m")
     if kind == "chessboard":
@@ -203,7 +218,7 @@ def _view_rows(res, ref, fits, centre, diag, image_paths) -> list[dict]:
             sev = "info" if o.get("kind") == "corners" else ("warn" if o.get("kind") == "robot_pose" else "fail")
             flags.append({"severity": sev, "text": text})
         for f in finding_by_view.get(vid, []):
-            flags.append({"severity": str(f.get("severity", "info")).lower(), "text": f.get("title", f.get("code", ""))})
+            flags.append({"severity": str(f.get("severity", "info")).lower(), "text": _finding_for_view(f, vid)})
         rms = fit.rms_px if fit else _num(pv.get("rms_px", v.get("pnp_rms_px")))
         mx = fit.max_px if fit else _num(pv.get("max_px"))
         chain = fit.chain_rms_px if fit else float("nan")
@@ -225,6 +240,17 @@ def _view_rows(res, ref, fits, centre, diag, image_paths) -> list[dict]:
                      "robot_maha": maha, "robot_src": rc_src, "flags": flags,
                      "sharpness": None})
     return rows
+
+
+def _finding_for_view(f: dict, vid: str) -> str:
+    """The part of a finding's evidence about one view ("view 3: ..."), else its title."""
+    title = str(f.get("title", f.get("code", "")))
+    for part in re.split(r";\s+", str(f.get("evidence", ""))):
+        m = re.match(rf"^views?\s+{re.escape(vid)}\s*:\s*(.+)$", part.strip())
+        if m:
+            code = str(f.get("code", "")).replace("_", " ")
+            return f"{code}: {m.group(1)}" if code else m.group(1)
+    return title
 
 
 # ------------------------------------------------------------------------------ result
@@ -478,7 +504,7 @@ def _sentence(s: str) -> str:
     return (s[:1].upper() + s[1:]).rstrip(".") + "." if s else s
 
 
-def _failure(res: dict) -> dict:
+def _failure(res: dict, findings: list, *, has_views: bool) -> dict:
     reason = res.get("failure_reason") or "the calibration failed (no reason recorded)"
     problem, _, hint = reason.partition(" -> ")
     path_free = problem
@@ -488,8 +514,13 @@ def _failure(res: dict) -> dict:
     for key, text in _FAILURE_TIPS:
         if key in reason and text not in actions:
             actions.append(text)
+    for f in findings:  # the diagnostics name the mistake more precisely than the error can
+        if f["severity"] == "fail" and f["action"] and _sentence(f["action"]) not in actions:
+            actions.append(_sentence(f["action"]))
     if not actions:
         actions.append("Read the per-view table for what was found in each image, fix the cause and re-run "
+                       "handeye calibrate." if has_views else
+                       "Fix what the message names (docs/session_format.md describes the session files) and re-run "
                        "handeye calibrate.")
     return {"reason": reason, "problem": _sentence(path_free), "short": _sentence(path_free),
             "action": "", "actions": actions}
@@ -510,32 +541,64 @@ def _findings(diag: dict) -> list[dict]:
     return out
 
 
+def _col_title(key: str) -> str:
+    """``held_out_rms_px`` -> ``Held out rms [px]``."""
+    k = str(key)
+    unit = ""
+    for suf in ("px", "mm", "deg", "m", "rad"):
+        if k.endswith("_" + suf):
+            k, unit = k[: -len(suf) - 1], f" [{suf}]"
+            break
+    k = k.replace("_", " ").replace("rms", "RMS")
+    return k[:1].upper() + k[1:] + unit
+
+
 def _cross_validation(cv) -> Optional[dict]:
-    """Tolerant rendering of the diagnostics' cross-validation block: a summary line, scalar items and tables."""
+    """The diagnostics' held-out validation: summary, spread against prediction, per-view table.
+
+    Known keys (jackknife_sigma_*, predicted_sigma_*, per_view) get a dedicated layout; anything
+    else is shown generically (scalars as items, lists of dicts as tables)."""
     if not isinstance(cv, dict) or not cv:
         return None
-    summary = cv.get("summary") or cv.get("verdict") or cv.get("conclusion") or ""
-    items, tables = [], []
+    summary = str(cv.get("summary") or cv.get("conclusion") or "")
+    out = {"summary": summary, "items": [], "tables": [], "not_run": summary.startswith("not run"),
+           "spread": None, "verdict": cv.get("verdict", "")}
+    used = {"summary", "conclusion", "verdict"}
+    if "jackknife_sigma_rot_deg" in cv or "jackknife_sigma_trans_mm" in cv:
+        rows = [("Held-out spread (jackknife, 1 σ)", cv.get("jackknife_sigma_rot_deg"), cv.get("jackknife_sigma_trans_mm"))]
+        if cv.get("predicted_sigma_rot_deg") is not None:
+            rows.append(("Predicted by the covariance (1 σ)", cv.get("predicted_sigma_rot_deg"),
+                         cv.get("predicted_sigma_trans_mm")))
+        out["spread"] = {"rows": [{"name": n, "rot": list(r or [None] * 3), "trans": list(t or [None] * 3)}
+                                  for n, r, t in rows],
+                         "ratio_rot": cv.get("ratio_rot"), "ratio_trans": cv.get("ratio_trans"),
+                         "axes": cv.get("axes", "")}
+        used |= {"jackknife_sigma_rot_deg", "jackknife_sigma_trans_mm", "predicted_sigma_rot_deg",
+                 "predicted_sigma_trans_mm", "ratio_rot", "ratio_trans", "axes"}
+    labels = {"method": "Refit", "scheme": "Scheme", "n_views": "Views", "n_folds": "Folds",
+              "folds_solved": "Folds solved", "held_out_rms_px_median": "Held-out RMS, median [px]"}
     for k, v in cv.items():
-        if k in ("summary", "verdict", "conclusion"):
+        if k in used:
             continue
+        name = labels.get(k, k.replace("_", " "))
         if isinstance(v, (int, float, str, bool)) or v is None:
-            items.append({"name": k.replace("_", " "), "value": v})
+            out["items"].append({"name": name, "value": v})
         elif isinstance(v, list) and v and all(isinstance(r, dict) for r in v):
             cols = list(dict.fromkeys(c for r in v for c in r if not isinstance(r[c], (list, dict))))
-            tables.append({"name": k.replace("_", " "), "cols": cols, "rows": [[r.get(c) for c in cols] for r in v]})
+            out["tables"].append({"name": name, "cols": [_col_title(c) for c in cols],
+                                  "rows": [[r.get(c) for c in cols] for r in v]})
         elif isinstance(v, list) and v and all(isinstance(x, (int, float)) for x in v) and len(v) <= 6:
-            items.append({"name": k.replace("_", " "), "value": ", ".join(f"{x:.4g}" for x in v)})
+            out["items"].append({"name": name, "value": ", ".join(f"{x:.4g}" for x in v)})
         elif isinstance(v, dict):
-            flat = {kk: vv for kk, vv in v.items() if isinstance(vv, (int, float, str, bool))}
-            for kk, vv in flat.items():
-                items.append({"name": f"{k} {kk}".replace("_", " "), "value": vv})
-    return {"summary": summary, "items": items, "tables": tables}
+            for kk, vv in v.items():
+                if isinstance(vv, (int, float, str, bool)):
+                    out["items"].append({"name": f"{name} {kk}".replace("_", " "), "value": vv})
+    return out
 
 
 # ------------------------------------------------------------------------------ KPIs
 def _kpis(metrics, pred, wd, views, verdict: Verdict, ok: bool) -> list[dict]:
-    status = {c.key: c.status for c in verdict.checks}
+    status = {k: c.status for c in verdict.checks for k in c.key.split("+")}
     out = []
     if pred is not None:
         out.append({"label": f"Predicted error at {wd:.2f} m", "value": f"{pred['rms_mm']:.2f} mm",
@@ -548,8 +611,9 @@ def _kpis(metrics, pred, wd, views, verdict: Verdict, ok: bool) -> list[dict]:
         out.append({"label": "Reprojection RMS", "value": f"{v:.2f} px", "sub": "detected vs predicted corners",
                     "status": status.get("reprojection_rms_px", "")})
     n_used = sum(x["status"] == "used" for x in views)
-    out.append({"label": "Views used", "value": f"{n_used} / {len(views)}",
-                "sub": f"{len(views) - n_used} dropped or flagged", "status": status.get("used_views", "")})
+    if views:
+        out.append({"label": "Views used", "value": f"{n_used} / {len(views)}",
+                    "sub": f"{len(views) - n_used} dropped or flagged", "status": status.get("used_views", "")})
     mr, sp = metrics.get("max_rotation_deg"), metrics.get("axis_spread_deg")
     if mr is not None:
         out.append({"label": "Rotation coverage", "value": f"{mr:.0f}°",
