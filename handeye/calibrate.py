@@ -198,25 +198,21 @@ def _refine(s, opts, seed, intr, obj, poses, dets, T_base_end):
 
 
 def _final_outcomes(outcomes, chain, refined):
+    """Outcomes after the solve: residuals through the robot chain, and the refinement's decisions."""
     out = dict(outcomes)
-    flagged = {}
-    per_view = {}
-    if refined is not None:
-        for o in getattr(refined, "outliers", ()):
-            vid = o["view_id"] if isinstance(o, dict) else getattr(o, "view_id")
-            if not (o.get("corner_ids") if isinstance(o, dict) else getattr(o, "corner_ids", None)):
-                flagged[vid] = o
-        per_view = getattr(refined, "per_view", {}) or {}
     for vid, (rms, mx) in chain.items():
-        o = out[vid]
-        if vid in per_view:
-            pv = per_view[vid]
-            rms, mx = pv.get("rms_px", rms), pv.get("max_px", mx)
-        o = replace(o, max_px=mx)
-        if vid in flagged:
-            f = flagged[vid]
-            reason = f.get("reason", "flagged as outlier") if isinstance(f, dict) else str(f)
-            o = replace(o, used=False, reason=f"outlier: {reason}")
+        out[vid] = replace(out[vid], max_px=mx)
+    if refined is None:
+        return out
+    flags: dict[str, list] = {}
+    for o in refined.outliers:
+        flags.setdefault(o.view_id, []).append(o)
+    for vid, pv in refined.per_view.items():
+        o = replace(out[vid], max_px=pv.get("max_px"), flags=tuple(f.reason for f in flags.get(vid, ())))
+        if pv.get("status", "used") != "used":  # removed, or robot_excluded (corners kept for intrinsics)
+            view_level = [f for f in flags.get(vid, ()) if not f.corner_ids]
+            why = view_level[0].reason if view_level else "excluded by the refinement"
+            o = replace(o, used=False, reason=f"outlier: {why}")
         out[vid] = o
     return out
 
@@ -318,7 +314,8 @@ def result_dict(run: CalibrationRun) -> dict:
         d["intrinsics"] = dict(run.intrinsics.to_dict(), source=run.intrinsics_source,
                                calibrate_camera_rms_px=run.intrinsics_rms_px)
     d["views"] = [{"id": o.view_id, "image": o.image, "used": o.used, "reason": o.reason, "n_corners": o.n_corners,
-                   "pnp_rms_px": o.rms_px, "chain_max_px": o.max_px, "orientation": o.orientation}
+                   "pnp_rms_px": o.rms_px, "chain_max_px": o.max_px, "orientation": o.orientation,
+                   "flags": list(o.flags)}
                   for o in run.outcomes]
     d["n_views"] = {"total": len(run.outcomes), "used": sum(o.used for o in run.outcomes)}
     if run.motion is not None:

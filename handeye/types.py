@@ -197,6 +197,7 @@ class ViewOutcome:
     rms_px: Optional[float] = None
     max_px: Optional[float] = None
     orientation: int = 0  # index into target.symmetries() chosen for this view
+    flags: tuple = ()  # reasons of outlier decisions (corner- or view-level)
 
 
 @dataclass(frozen=True)
