@@ -351,8 +351,6 @@ class RealmanArm(Robot):
                     log.warning("%s: %s; reconnecting and asking again (%d/%d)", self._where(), last,
                                 attempt + 1, retries)
                     time.sleep(min(0.2 * (attempt + 1), 1.0))
-            except HardwareError:
-                raise
         raise HardwareError(f"the {self._where()} did not answer {what!r} ({last}) after {retries + 1} attempts",
                             hint="check the network link and that no other program holds the arm's JSON port")
 
@@ -384,7 +382,8 @@ class RealmanArm(Robot):
 
     # -- Robot ---------------------------------------------------------------------------------
     def read_pose(self) -> PoseReading:
-        for attempt in range(self.read_retries + 1):
+        last = ""
+        for _attempt in range(self.read_retries + 1):
             reply = self._request({"command": "get_current_arm_state"},
                                   lambda m: m.get("state") == "current_arm_state" or "arm_state" in m,
                                   retries=self.read_retries)
