@@ -540,7 +540,7 @@ def _camera_only_pose(pb: _Problem, i: int, P_init: np.ndarray, *, max_iters: in
         except np.linalg.LinAlgError:
             return fail
         P = gtsam.Pose3(P).retract(step).matrix()
-        if np.abs(step).max() < 1e-9:  # rad, m: far below any pose precision; one more evaluation at P
+        if np.abs(step).max() < 1e-8:  # rad, m: far below any pose precision; one more evaluation at P
             max_iters = it + 1
     e = np.linalg.norm(r.reshape(-1, 2), axis=1)
     inl = np.repeat(e <= pb.o.corner_outlier_sigmas * pb.sigma_px, 2)
@@ -553,6 +553,14 @@ def _camera_only_pose(pb: _Problem, i: int, P_init: np.ndarray, *, max_iters: in
         return _ViewCheck(P, fail.cov_cam, e, fail.delta, False)
     delta = gtsam.Pose3.Logmap(gtsam.Pose3(inv_T(pb.reported[i]) @ P))
     return _ViewCheck(P, cov, e, delta, bool(np.all(np.isfinite(cov))))
+
+
+def _joint_check(pb: _Problem, i: int, cov: np.ndarray) -> _ViewCheck:
+    """View i as the last Gaussian solve has it (its robot pose a variable of that solve)."""
+    P = pb.P[i]
+    e = np.linalg.norm(pb.view_residual(i), axis=1)
+    delta = gtsam.Pose3.Logmap(gtsam.Pose3(inv_T(pb.reported[i]) @ P))
+    return _ViewCheck(P.copy(), cov, e, delta, True)
 
 
 def _robot_mahalanobis(checks: Sequence[_ViewCheck], sigma_rot: float, sigma_trans: float) -> np.ndarray:
@@ -594,7 +602,8 @@ class _Decision:
     masks: tuple  # tuple of bool arrays
     outliers: tuple
     checks: tuple  # per view _ViewCheck
-    mahalanobis: np.ndarray  # per view robot-pose disagreement
+    mahalanobis: np.ndarray  # (n,) squared Mahalanobis distance of each view's robot-pose disagreement
+    disagreement: np.ndarray  # (n, 6) reported robot pose vs the other data (Log, rotation first)
 
     def key(self):
         return self.status, tuple(m.tobytes() for m in self.masks)
@@ -606,23 +615,56 @@ def _robot_test_sigmas(pb: _Problem) -> tuple[float, float]:
     return np.radians(pb.o.robot_sigma_deg), pb.o.robot_sigma_mm / 1000.0  # "none": configured tolerance
 
 
-def _decide(pb: _Problem, *, robust_robot_sigma: bool) -> _Decision:
+def _robot_tests(pb: _Problem, checks: Sequence[_ViewCheck], S_pp: Optional[dict]):
+    """Per view: squared Mahalanobis distance between the reported robot pose and what the other data
+    imply, and that disagreement (6,) (Log, rotation first).
+
+    With the covariances of a Gaussian solve (``S_pp``, marginal covariance of each robot-pose
+    variable): for a view whose prior is in the solve, the normalised prior residual (Baarda's
+    test: e^T (R - Sigma_P)^-1 e, disagreement R (R - Sigma_P)^-1 e, both the leave-one-out
+    values); for a view whose prior was excluded, Log(inv(reported) · P) against R + Sigma_P.
+    Otherwise (robust phase, views not in the solve) the camera-only pose against its own
+    covariance plus R, which ignores the uncertainty of T_x, T_board and the intrinsics."""
+    s_rot, s_trans = _robot_test_sigmas(pb)
+    R = np.diag([s_rot ** 2] * 3 + [s_trans ** 2] * 3)
+    maha = np.full(pb.n, np.nan)
+    disagree = np.full((pb.n, 6), np.nan)
+    for i, ch in enumerate(checks):
+        Sp = None if S_pp is None else S_pp.get(i)
+        if Sp is not None and pb.status[i] in ("used", "robot_excluded") and pb.has_robot_var(i):
+            e = gtsam.Pose3.Logmap(gtsam.Pose3(inv_T(pb.reported[i]) @ pb.P[i]))
+            try:
+                if pb.status[i] == "used":
+                    C = R - Sp
+                    np.linalg.cholesky(C)
+                    Ce = np.linalg.solve(C, e)
+                    maha[i], disagree[i] = float(e @ Ce), R @ Ce
+                else:
+                    maha[i], disagree[i] = float(e @ np.linalg.solve(R + Sp, e)), e
+                continue
+            except np.linalg.LinAlgError:  # fall back to the camera-only comparison
+                ch = _camera_only_pose(pb, i, pb.P[i])
+        if ch.ok:
+            maha[i] = float(_robot_mahalanobis([ch], s_rot, s_trans)[0])
+            disagree[i] = ch.delta
+    return maha, disagree
+
+
+def _decide(pb: _Problem, *, robust_robot_sigma: bool, S_pp: Optional[dict] = None) -> _Decision:
     """Outlier decisions for every view against the current solution (see the module docstring).
 
     ``robust_robot_sigma``: first set the robot sigmas from the camera-only poses by the robust
-    (median) estimator, for decisions made before the data are clean."""
+    (median) estimator, for decisions made before the data are clean. ``S_pp``: robot-pose
+    covariances of the last Gaussian solve, for the exact robot-pose tests."""
     o = pb.o
     t_corner = o.corner_outlier_sigmas
     t_view = chi2.ppf(1.0 - o.view_outlier_p, 6)
-    checks = [_camera_only_pose(pb, i, pb.P[i]) for i in range(pb.n)]
+    checks = [_joint_check(pb, i, S_pp[i]) if S_pp is not None and i in S_pp else _camera_only_pose(pb, i, pb.P[i])
+              for i in range(pb.n)]
     if robust_robot_sigma:
         _robust_robot_sigmas(pb, [checks[i] for i in pb.prior_views()])
-    s_rot, s_trans = _robot_test_sigmas(pb)
     status, masks, outliers = [], [], []
-    maha = np.full(pb.n, np.nan)
-    good = [i for i in range(pb.n) if checks[i].ok]
-    if good:
-        maha[good] = _robot_mahalanobis([checks[i] for i in good], s_rot, s_trans)
+    maha, disagree = _robot_tests(pb, checks, S_pp)
     for i, vid in enumerate(pb.ids):
         ch = checks[i]
         n_all = len(ch.resid_px)
@@ -657,8 +699,8 @@ def _decide(pb: _Problem, *, robust_robot_sigma: bool) -> _Decision:
                                     f"(max {ch.resid_px[bad].max():.2f} px, sigma {pb.sigma_px:.3f} px)",
                                     corner_ids=ids, size={"residual_px": ch.resid_px[bad]}))
         if maha[i] > t_view:
-            rot_deg = float(np.degrees(np.linalg.norm(ch.delta[:3])))
-            trans_mm = float(1000.0 * np.linalg.norm(ch.delta[3:]))
+            rot_deg = float(np.degrees(np.linalg.norm(disagree[i, :3])))
+            trans_mm = float(1000.0 * np.linalg.norm(disagree[i, 3:]))
             status.append("robot_excluded")
             outliers.append(Outlier(vid, "robot_pose", f"view {vid}: reported robot pose disagrees with the camera by "
                                     f"{rot_deg:.3f} deg / {trans_mm:.2f} mm (Mahalanobis {np.sqrt(maha[i]):.1f}, "
@@ -668,7 +710,7 @@ def _decide(pb: _Problem, *, robust_robot_sigma: bool) -> _Decision:
                                           "threshold": float(np.sqrt(t_view))}))
         else:
             status.append("used")
-    return _Decision(tuple(status), tuple(masks), tuple(outliers), tuple(checks), maha)
+    return _Decision(tuple(status), tuple(masks), tuple(outliers), tuple(checks), maha, disagree)
 
 
 def _apply(pb: _Problem, dec: _Decision) -> None:
@@ -827,8 +869,9 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
         dec = None
         if options.outlier_loop:
             seen_keys = []
+            S_pp = None
             for rnd in range(options.max_outlier_rounds):
-                dec = _decide(pb, robust_robot_sigma=rnd == 0)
+                dec = _decide(pb, robust_robot_sigma=rnd == 0, S_pp=S_pp)
                 if seen_keys and dec.key() == seen_keys[-1]:
                     break
                 if dec.key() in seen_keys:
@@ -848,7 +891,7 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
                 S_cc, S_pp = _solve_with_vce(pb)
             else:
                 log.warning("outlier decisions did not settle in %d rounds", options.max_outlier_rounds)
-                dec = _decide(pb, robust_robot_sigma=False)
+                dec = _decide(pb, robust_robot_sigma=False, S_pp=S_pp)
         else:
             _robust_robot_sigmas(pb, [_camera_only_pose(pb, i, pb.P[i]) for i in pb.prior_views()])
             g, values, rk = pb.solve(robust=options.loss != "none")
@@ -899,8 +942,8 @@ def _result(pb, mm, status, reason, S_cc, S_pp, dec, rms_before, T_x0, T_board0,
         sel = e[used] if used.any() else e
         d["rms_px"] = float(np.sqrt(np.mean(sel ** 2))) if sel.size else float("nan")
         d["max_px"] = float(sel.max()) if sel.size else float("nan")
-        if dec is not None and dec.checks[i].ok:
-            dl = dec.checks[i].delta
+        if dec is not None and np.isfinite(dec.mahalanobis[i]):
+            dl = dec.disagreement[i]
             d["robot_vs_camera_rot_deg"] = float(np.degrees(np.linalg.norm(dl[:3])))
             d["robot_vs_camera_trans_mm"] = float(1000.0 * np.linalg.norm(dl[3:]))
             d["robot_vs_camera_mahalanobis"] = float(np.sqrt(dec.mahalanobis[i]))
