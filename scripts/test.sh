@@ -13,4 +13,4 @@ if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
   fi
 fi
 python3 -m pip install -q --disable-pip-version-check -e '.[test]'
-exec python3 -m pytest -n "${HANDEYE_TEST_WORKERS:-2}" "$@"
+exec python3 -m pytest -p no:benchmark -n "${HANDEYE_TEST_WORKERS:-2}" "$@"
