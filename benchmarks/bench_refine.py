@@ -130,18 +130,21 @@ def rms(rows, key):
 def summarize(label, mode, rows):
     crb_rot, crb_trans = rms(rows, "crb_rot"), rms(rows, "crb_trans")
     rot, trans = rms(rows, "rot"), rms(rows, "trans")
-    print(f"{label:<13} {mode:<12} n={len(rows):3d}  refined {rot:.4f} deg {trans:.4f} mm | CRB {crb_rot:.4f} deg "
-          f"{crb_trans:.4f} mm | ratio {rot / crb_rot:.2f} {trans / crb_trans:.2f} | Tsai {rms(rows, 'tsai_rot'):.4f} deg "
-          f"{rms(rows, 'tsai_trans'):.4f} mm | reported {rms(rows, 'pred_rot'):.4f} deg {rms(rows, 'pred_trans'):.4f} mm"
-          f" | coverage95 {np.mean([r['covered'] for r in rows]) * 100:.0f}% | sigma_px {np.mean([r['sigma_px'] for r in rows]):.3f}"
-          f" robot {np.mean([r['robot_mm'] for r in rows]):.3f} mm {np.mean([r['robot_deg'] for r in rows]):.4f} deg"
-          f" | refine wall {np.median([r['secs'] for r in rows]):.2f} s median, {max(r['secs'] for r in rows):.2f} s max"
-          f" (cpu {np.median([r['cpu'] for r in rows]):.2f} s median)"
-          f" | failed {sum(not r['ok'] for r in rows)}")
-    both = np.mean([r["true_out"] <= r["flagged"] for r in rows]) if rows[0]["true_out"] else float("nan")
+    mean = lambda key: float(np.mean([r[key] for r in rows]))  # noqa: E731
+    print(f"{label} {mode}, {len(rows)} sessions ({sum(not r['ok'] for r in rows)} failed)")
+    print(f"  RMS error    refined {rot:.4f} deg {trans:.4f} mm | CRB {crb_rot:.4f} deg {crb_trans:.4f} mm | "
+          f"ratio {rot / crb_rot:.2f} {trans / crb_trans:.2f} | Tsai {rms(rows, 'tsai_rot'):.4f} deg "
+          f"{rms(rows, 'tsai_trans'):.4f} mm")
+    print(f"  uncertainty  reported RMS {rms(rows, 'pred_rot'):.4f} deg {rms(rows, 'pred_trans'):.4f} mm | truth "
+          f"inside the 95 % ellipsoid in {mean('covered') * 100:.0f} % | sigma_px {mean('sigma_px'):.3f} | "
+          f"robot sigma {mean('robot_mm'):.3f} mm {mean('robot_deg'):.4f} deg")
+    if rows[0]["true_out"]:
+        both = np.mean([r["true_out"] <= r["flagged"] for r in rows]) * 100
+        print(f"  outliers     both wrong robot poses flagged in {both:.0f} % of sessions")
     false = sum(len(r["flagged"] - r["true_out"]) for r in rows)
-    print(f"{'':<13} {'':<12} outliers: true ones all flagged in {both * 100:.0f}% of sessions; "
-          f"false view flags {false} in {len(rows)} sessions")
+    print(f"  false flags  {false} views in {len(rows)} sessions")
+    print(f"  time         refine {np.median([r['secs'] for r in rows]):.2f} s wall median "
+          f"({max(r['secs'] for r in rows):.2f} max), {np.median([r['cpu'] for r in rows]):.2f} s cpu median")
     return dict(rot_ratio=rot / crb_rot, trans_ratio=trans / crb_trans)
 
 

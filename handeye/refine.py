@@ -188,7 +188,7 @@ class RefineResult:
     sigma_px: float
     robot_sigma_mm: float
     robot_sigma_deg: float
-    robot_sigma_resolved: dict  # {"rot": bool, "trans": bool}
+    robot_sigma_resolved: dict  # {"rot": bool, "trans": bool}; False: below what the camera resolves (an upper value)
     rms_px_before: float
     rms_px_after: float
     per_view: dict  # view_id -> dict(rms_px, max_px, n_corners, n_used, status, robot disagreement)
@@ -315,6 +315,7 @@ class _Problem:
         self.obj = [np.asarray(object_points, float)[np.asarray(v.corner_ids, int)] for v in self.views]
         self.img = [np.asarray(v.image_points, float).reshape(-1, 2) for v in self.views]
         self.reported = np.stack([np.asarray(v.T_base_end, float) for v in self.views])  # (n, 4, 4)
+        self.board_centre = np.asarray(object_points, float).mean(axis=0)
         self.width, self.height = intrinsics.width, intrinsics.height
         self.k = intrinsics.as_vector().astype(float)
         self.k_given = self.k.copy()
@@ -845,13 +846,18 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
                   T_x0=T_x0, T_board0=T_board0, options=options)
     e_before = np.concatenate([pb.view_residual(i, pb.reported[i]) for i in range(pb.n)])
     rms_before = float(np.sqrt(np.mean(np.sum(e_before ** 2, axis=1))))
-    for i in range(pb.n):  # views that cannot even start
+    sparse = []  # views that cannot even start (the outlier loop re-examines them with reasons)
+    for i, vid in enumerate(pb.ids):
         if len(pb.obj[i]) < options.min_corners:
             pb.status[i] = "removed"
+            sparse.append(Outlier(vid, "too_few_corners", f"view {vid}: {len(pb.obj[i])} corners, need "
+                                  f"{options.min_corners}", size={"n_usable": len(pb.obj[i]),
+                                                                  "n_corners": len(pb.obj[i])}))
 
     def failed(reason: str) -> RefineResult:
         log.warning("refinement failed: %s", reason)
-        return _result(pb, mm, "failed", reason, None, None, None, rms_before, T_x0, T_board0, intrinsics, t0)
+        return _result(pb, mm, "failed", reason, None, None, None, rms_before, T_x0, T_board0, intrinsics, t0,
+                       sparse)
 
     try:
         # start: sigmas from each view's own fit at the seed
@@ -900,10 +906,11 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
         return failed(f"the information matrix is singular ({err}); the views do not constrain all unknowns")
     except RuntimeError as err:  # GTSAM raises RuntimeError (e.g. indeterminant linear system)
         return failed(f"GTSAM: {err}")
-    return _result(pb, mm, "ok", "", S_cc, S_pp, dec, rms_before, T_x0, T_board0, intrinsics, t0)
+    return _result(pb, mm, "ok", "", S_cc, S_pp, dec, rms_before, T_x0, T_board0, intrinsics, t0, sparse)
 
 
-def _result(pb, mm, status, reason, S_cc, S_pp, dec, rms_before, T_x0, T_board0, intrinsics0, t0) -> RefineResult:
+def _result(pb, mm, status, reason, S_cc, S_pp, dec, rms_before, T_x0, T_board0, intrinsics0, t0,
+            sparse=()) -> RefineResult:
     nan6 = np.full((6, 6), np.nan)
     if S_cc is not None:
         cov = 0.5 * (S_cc[:6, :6] + S_cc[:6, :6].T)
@@ -919,7 +926,7 @@ def _result(pb, mm, status, reason, S_cc, S_pp, dec, rms_before, T_x0, T_board0,
         for j, fi in enumerate(pb.free):
             intr_sigma[INTRINSIC_NAMES[fi]] = float(np.sqrt(S_cc[12 + j, 12 + j]))
     # working distance: median distance of the board centre along the optical axis
-    centre = pb.obj[0].mean(axis=0) if pb.n else np.zeros(3)
+    centre = pb.board_centre
     depths = []
     for i in pb.active():
         M = inv_T(pb.robot_pose(i)) if pb.invert else pb.robot_pose(i)
@@ -965,7 +972,7 @@ def _result(pb, mm, status, reason, S_cc, S_pp, dec, rms_before, T_x0, T_board0,
         working_distance_m=wd, predicted_error_mm=float(1000.0 * np.sqrt(np.trace(cov_p))),
         predicted_error_axes_mm=1000.0 * np.sqrt(np.diag(cov_p)), sigma_px=float(pb.sigma_px),
         robot_sigma_mm=float(robot_sigma_mm), robot_sigma_deg=robot_sigma_deg,
-        robot_sigma_resolved=dict(pb.resolved) if pb.o.robot_noise == "estimate" else {"rot": False, "trans": False},
+        robot_sigma_resolved=dict(pb.resolved) if pb.o.robot_noise == "estimate" else {},
         rms_px_before=rms_before, rms_px_after=rms_after, per_view=per_view,
-        outliers=tuple(dec.outliers) if dec is not None else (), iterations=int(pb.iterations),
+        outliers=tuple(dec.outliers) if dec is not None else tuple(sparse), iterations=int(pb.iterations),
         seconds=time.perf_counter() - t0, options=pb.o)

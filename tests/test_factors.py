@@ -67,8 +67,8 @@ def test_mode_adapters_are_the_generic_chain():
         M = np.linalg.inv(T_robot) if mode == "eye_in_hand" else T_robot
         T_cam_board = np.linalg.inv(T_x) @ M @ T_board
         rvec, _ = cv2.Rodrigues(T_cam_board[:3, :3])
-        uv_cv, _ = cv2.projectPoints(obj, rvec, T_cam_board[:3, 3], np.array([[K9[0], 0, K9[2]], [0, K9[1], K9[3]], [0, 0, 1]]),
-                                     K9[4:])
+        K = np.array([[K9[0], 0, K9[2]], [0, K9[1], K9[3]], [0, 0, 1]])
+        uv_cv, _ = cv2.projectPoints(obj, rvec, T_cam_board[:3, 3], K, K9[4:])
         np.testing.assert_allclose(a[0], (uv_cv.reshape(-1, 2) - img).reshape(-1), atol=1e-9,
                                    err_msg=f"{mode}: projection differs from cv2.projectPoints (k3 != 0)")
 
@@ -117,7 +117,7 @@ def test_projection_matches_gtsam_pinhole_cal3ds2_with_k3_zero():
         vv.insert(key_x, gtsam.Pose3(T_base_cam))
         vv.insert(landmark_key, p)
         total += g.error(vv)
-    assert f.error(values) == pytest.approx(total, rel=1e-9), "view factor error differs from GTSAM's projection factors"
+    assert f.error(values) == pytest.approx(total, rel=1e-9), "view factor error differs from GTSAM's factors"
 
 
 def test_custom_factor_linearization_equals_whitened_numpy_jacobians():
