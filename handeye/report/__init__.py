@@ -25,18 +25,18 @@ __all__ = ["write_reports", "build_report_context", "load_qa", "evaluate", "Verd
 
 
 def write_reports(run, res: dict, out_dir, *, qa: str | Path | None = None, formats=("html", "md"),
-                  strict: bool = False, source_dir=None) -> list[Path]:
+                  strict: bool = False, source_dir=None, plots: bool = True) -> list[Path]:
     """Write ``out_dir/report.html`` and ``out_dir/report.md`` (figures in ``out_dir/report_files``).
 
     ``run``: the :class:`handeye.calibrate.CalibrationRun` or None; ``res``: result.json's content;
     ``qa``: a site QA file overriding ``configs/qa.yaml``; ``source_dir``: where observations.json is
-    (default ``out_dir``). Returns the paths written. With
+    (default ``out_dir``); ``plots=False`` leaves the figures out (faster). Returns the paths written. With
     ``strict=False`` (the calibrate command) an unexpected error is logged and no report is written,
     since result.json is complete without it; user errors (a bad QA file) always raise.
     """
     out_dir = Path(out_dir)
     try:
-        ctx = build_report_context(run, res, Path(source_dir) if source_dir else out_dir, qa=qa)
+        ctx = build_report_context(run, res, Path(source_dir) if source_dir else out_dir, qa=qa, make_plots=plots)
         html = render_html(ctx) if "html" in formats else None
         md = render_markdown(ctx) if "md" in formats else None
         return write_files(out_dir, html, md)

@@ -451,7 +451,7 @@ def _metrics(res, ref, fits, views, unc, pred, wd, obs, mode, parent):
     c["n_bad"], c["n_total"] = len(bad), n_total
     reasons: dict[str, list] = {}
     for v in bad:
-        reasons.setdefault(v["flags"][0]["text"] if v["flags"] else v["status"], []).append(v["id"])
+        reasons.setdefault(_brief(v["flags"][0]["text"]) if v["flags"] else v["status"], []).append(v["id"])
     if len(reasons) > 3:  # many distinct texts: group them by their wording without the numbers
         grouped: dict[str, list] = {}
         for r, ids in reasons.items():
@@ -471,6 +471,11 @@ def _metrics(res, ref, fits, views, unc, pred, wd, obs, mode, parent):
         m["image_coverage"] = None
         c["image_coverage_missing"] = "no detected corners"
     return m, c
+
+
+def _brief(r: str) -> str:
+    """The first clause of a reason: no parenthesised numbers, nothing after a semicolon."""
+    return re.split(r"\s\(|;\s", r, maxsplit=1)[0]
 
 
 def _short_reason(r: str) -> str:

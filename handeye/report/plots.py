@@ -122,7 +122,19 @@ def per_view_bars(ids: Sequence[str], camera_rms: Sequence[float], chain_rms: Se
     if np.any(np.isfinite(ch)):
         ax.bar(x + w / 2, np.nan_to_num(ch), w, color=SKY, label="through the robot RMS", edgecolor=edge,
                linewidth=1.2)
-    top = np.nanmax(np.concatenate([cam, ch, [0.1]]))
+    allv = np.concatenate([cam, ch])
+    allv = allv[np.isfinite(allv)]
+    top = float(np.max(allv)) if len(allv) else 0.1
+    typical = float(np.quantile(allv, 0.75)) if len(allv) else 0.1
+    cap = max(4.0 * typical, (fail_px or 0.0) * 1.3, (warn_px or 0.0) * 1.3, 0.1)
+    clipped = top > 1.05 * cap
+    if clipped:  # one gross outlier must not flatten every other bar: cut the axis, print the value
+        top = cap
+        for xi, c, h in zip(x, cam, ch):
+            for off, val in ((-w / 2, c), (w / 2, h)):
+                if np.isfinite(val) and val > cap:
+                    ax.text(xi + off, cap * 0.97, f"{val:.0f} px ↑" if val >= 10 else f"{val:.1f} px ↑",
+                            ha="center", va="top", fontsize=7, color="white", fontweight="bold", rotation=90)
     for xi, s, c in zip(x, status, cam):
         if s == "dropped" and not np.isfinite(c):
             ax.text(xi, top * 0.04, "dropped", rotation=90, ha="center", va="bottom", fontsize=7, color=RED)
@@ -136,8 +148,8 @@ def per_view_bars(ids: Sequence[str], camera_rms: Sequence[float], chain_rms: Se
     ax.set_xlabel("view id")
     ax.set_ylabel("RMS [px]")
     ax.grid(axis="x", visible=False)
-    ax.legend(loc="upper left", ncol=4)
-    ax.set_ylim(0, top * 1.25)
+    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=4, borderaxespad=0.2)
+    ax.set_ylim(0, top * (1.0 if clipped else 1.1))
     return _png(fig)
 
 
@@ -374,12 +386,17 @@ def translation_uncertainty(cov_t_mm2: Optional[np.ndarray], methods: Sequence[t
     planes = [(0, 1), (0, 2), (1, 2)]
     lab = "xyz"
     off = np.array([m[1] for m in methods]) if methods else np.zeros((0, 3))
-    lim = 0.0
-    if cov_t_mm2 is not None:
-        lim = 2.3 * float(np.sqrt(np.max(np.diag(cov_t_mm2))))
-    if len(off):
-        lim = max(lim, 1.15 * float(np.max(np.abs(off))))
+    if cov_t_mm2 is not None:  # the view is the uncertainty; methods beyond it are marked at the border
+        lim = 3.5 * float(np.sqrt(np.max(np.diag(cov_t_mm2))))
+        if len(off):
+            near = np.max(np.abs(off), axis=1)
+            near = near[near <= 4.0 * lim]
+            if len(near):
+                lim = max(lim, 1.15 * float(near.max()))
+    else:
+        lim = 1.15 * float(np.max(np.abs(off))) if len(off) else 1.0
     lim = lim or 1.0
+    n_out = int(np.sum(np.max(np.abs(off), axis=1) > lim)) if len(off) else 0
     markers = "osD^v<>ph*"
     for k, (i, j) in enumerate(planes):
         ax = axs[k]
@@ -392,8 +409,13 @@ def translation_uncertainty(cov_t_mm2: Optional[np.ndarray], methods: Sequence[t
                 ax.plot(E[:, 0], E[:, 1], color=NAVY, lw=1.0, ls=ls, label=f"{ks:g} σ" if k == 0 else None)
         ax.plot([0], [0], marker="+", color=INK, ms=9, mew=1.5, ls="none", label="result" if k == 0 else None)
         for n, (name, o) in enumerate(methods):
-            ax.plot(o[i], o[j], marker=markers[n % len(markers)], ms=4.5, ls="none", color=f"C{n % 10}",
-                    label=name if k == 0 else None, alpha=0.9)
+            px, py = o[i], o[j]
+            outside = max(abs(px), abs(py)) > lim
+            if outside:  # pin to the border along its direction, hollow marker
+                f = 0.97 * lim / max(abs(px), abs(py))
+                px, py = px * f, py * f
+            ax.plot(px, py, marker=markers[n % len(markers)], ms=4.5, ls="none", color=f"C{n % 10}",
+                    mfc="none" if outside else f"C{n % 10}", label=name if k == 0 else None, alpha=0.9)
         ax.set_xlim(-lim, lim)
         ax.set_ylim(-lim, lim)
         ax.set_aspect("equal")
@@ -401,6 +423,7 @@ def translation_uncertainty(cov_t_mm2: Optional[np.ndarray], methods: Sequence[t
         ax.set_ylabel(f"Δ{lab[j]} [mm]")
     handles, labels = axs[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside right center", fontsize=7.5)
-    fig.suptitle(f"Translation of {x_name} ({frame} frame), offsets from the result", fontsize=9.5,
+    note = f"; hollow: {n_out} beyond the range, at the border" if n_out else ""
+    fig.suptitle(f"Translation of {x_name} ({frame} frame), offsets from the result{note}", fontsize=9.5,
                  fontweight="bold", x=0.01, ha="left", color=INK)
     return _png(fig)

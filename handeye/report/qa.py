@@ -229,6 +229,8 @@ def _headline(status: str, checks: list, findings: list, ctx: dict, failure: dic
     tail = f" Predicted position error {pe}." if pe and not any(i.startswith("predicted") for i in items) else ""
     if status == "pass":
         return f"{name} meets every QA threshold.{tail}"
+    if len(items) > 3:
+        items = items[:3] + [f"{len(items) - 3} more"]
     if status == "warn":
         return f"{name} passes with warnings: {_join(items)}.{tail}"
     return f"{name} fails QA: {_join(items)}.{tail}"

@@ -86,8 +86,23 @@ def render_markdown(ctx: dict) -> tuple[str, dict[str, bytes]]:
         files[rel] = png
         thumbs[vid] = rel
     text = _env(html=False).get_template("report.md.j2").render(**ctx, images=images, thumb_src=thumbs)
-    text = re.sub(r"\n{3,}", "\n\n", text)
-    return text, files
+    return _tidy_markdown(text), files
+
+
+def _tidy_markdown(text: str) -> str:
+    """Blank lines around every table (template control blocks eat them) and no runs of blank lines."""
+    out: list[str] = []
+    in_code = False
+    for line in text.splitlines():
+        if line.startswith("```"):
+            in_code = not in_code
+        is_row = not in_code and line.startswith("|")
+        prev = out[-1] if out else ""
+        if not in_code and line.strip() and prev.strip() and (is_row != prev.startswith("|")) \
+                and not prev.startswith("```"):
+            out.append("")
+        out.append(line)
+    return re.sub(r"\n{3,}", "\n\n", "\n".join(out)).strip() + "\n"
 
 
 def write_files(out_dir: Path, html: str | None, md: tuple[str, dict] | None) -> list[Path]:
