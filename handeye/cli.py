@@ -19,7 +19,7 @@ log = logging.getLogger("handeye")
 
 
 def _add_calibrate(sub):
-    from .seed import METHODS
+    from .types import METHOD_NAMES as METHODS
 
     p = sub.add_parser("calibrate", help="calibrate a session folder (vendor layout or session.yaml)",
                        description="Detect the target, calibrate the camera, seed with an OpenCV closed-form "

@@ -28,7 +28,7 @@ import numpy as np
 from .errors import CalibrationError, DegenerateMotionError, DetectionError
 from .geometry import inv_T, is_rotation, make_T, mean_T, rotation_angle_rad, screw_invariants
 from .model import MountingMode
-from .types import Detection, HandEyeEstimate, Intrinsics, TargetSpec
+from .types import METHOD_NAMES, Detection, HandEyeEstimate, Intrinsics, TargetSpec
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +43,8 @@ ROBOT_WORLD_METHODS = {
     "shah": cv2.CALIB_ROBOT_WORLD_HAND_EYE_SHAH,
     "li": cv2.CALIB_ROBOT_WORLD_HAND_EYE_LI,
 }
-METHODS = tuple(HAND_EYE_METHODS) + tuple(ROBOT_WORLD_METHODS)
+METHODS = METHOD_NAMES
+assert METHODS == tuple(HAND_EYE_METHODS) + tuple(ROBOT_WORLD_METHODS), "method tables out of step"
 
 #: smallest useful relative rotation between two views, and smallest spread of rotation axes
 MIN_ROTATION_DEG = 10.0

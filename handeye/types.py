@@ -11,6 +11,8 @@ from typing import Optional, Union
 import numpy as np
 
 MODES = ("eye_in_hand", "eye_to_hand")
+#: OpenCV's closed-form solvers by handeye name (hand-eye AX=XB ones, then robot-world AX=ZB ones)
+METHOD_NAMES = ("tsai", "park", "horaud", "andreff", "daniilidis", "shah", "li")
 
 
 @dataclass(frozen=True)
