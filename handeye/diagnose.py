@@ -60,8 +60,8 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from .conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values, pose_values_from_T
-from .diagnose_math import (all_pairs, implied_boards, jackknife_sigmas, pair_invariants, per_view_scores,
-                            pose_differences,
+from .diagnose_math import (RAYLEIGH_MEDIAN, all_pairs, implied_boards, jackknife_sigmas, log6, pair_invariants,
+                            per_view_scores, pnp_covariance, pose_differences, propagate, robust_noise_sigma,
                             robust_mean_T, solve_A_from_pairs, summarize_invariants)
 from .geometry import inv_T
 from .model import mounting
@@ -299,10 +299,39 @@ def alternative_formats(fmt: PoseFormat) -> list[tuple[PoseFormat, tuple]]:
 
 
 def _read_all(raw: RawPoses, fmt: PoseFormat, ids: Sequence[str]) -> Optional[np.ndarray]:
+    """``T_base_end`` (N,4,4) of the views ``ids`` read with ``fmt`` (None if any pose does not parse).
+
+    Vectorised for Euler angles and rotation vectors (same conversion as
+    :func:`handeye.conventions.T_from_pose_values`, which handles the other forms)."""
     try:
-        return np.stack([T_from_pose_values(raw.values[v], fmt) for v in ids])
-    except (ValueError, KeyError):
+        V = np.stack([np.asarray(raw.values[v], float).reshape(-1) for v in ids])
+    except (KeyError, ValueError):
         return None
+    if V.shape[1] != fmt.n_values or not np.all(np.isfinite(V)):
+        return None
+    if fmt.rotation in ("euler", "rotvec"):
+        scale = 1e-3 if fmt.translation_unit == "mm" else 1.0
+        if fmt.rotation == "euler":
+            seq = fmt.euler_order.lower() if fmt.euler_kind == "extrinsic" else fmt.euler_order.upper()
+            R = Rotation.from_euler(seq, V[:, 3:6], degrees=fmt.angle_unit == "deg").as_matrix()
+        else:
+            rv = np.radians(V[:, 3:6]) if fmt.angle_unit == "deg" else V[:, 3:6]
+            R = Rotation.from_rotvec(rv).as_matrix()
+        T = np.zeros((len(V), 4, 4))
+        T[:, :3, :3] = R
+        T[:, :3, 3] = V[:, :3] * scale
+        T[:, 3, 3] = 1.0
+        return T
+    try:
+        return np.stack([T_from_pose_values(V[k], fmt) for k in range(len(V))])
+    except ValueError:
+        return None
+
+
+def _pair_angles_deg(R: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """Rotation angle of R_i R_j^T for the pairs (fast, from the trace)."""
+    tr = np.einsum("pab,pab->p", R[i], R[j])  # trace(R_i R_j^T)
+    return np.degrees(np.arccos(np.clip(0.5 * (tr - 1.0), -1.0, 1.0)))
 
 
 # ------------------------------------------------------------------------------ model fits
@@ -345,6 +374,8 @@ def _fit(C: np.ndarray, M: np.ndarray, *, labels: Optional[np.ndarray] = None,
                       for g in groups])
         rot, trans = pose_differences(B[gi], Bs)
         d = np.hypot(rot / COST_DEG, trans / COST_MM)
+        if float(np.median(d[use0])) > 10.0 * READING_BAD_COST:
+            break  # hopeless: refitting without wild views cannot rescue this model
         new_use = use0 & (d <= max(3.0 * float(np.median(d[use0])), 0.05))
         if rnd == 2 or np.array_equal(new_use, use) or new_use.sum() < max(3, 0.5 * use0.sum()):
             break
@@ -374,10 +405,25 @@ class _Obs:
     T: np.ndarray  # (N,4,4) reported T_base_end as loaded
     raw: RawPoses
     times: dict  # view id -> (t_image, t_pose) where recorded
+    corners: tuple = ()  # per view (object_points (K,3), image_points (K,2)) for the PnP covariances
+    intr: object = None
+    target: object = None
 
     @property
     def n(self) -> int:
         return len(self.ids)
+
+    def pnp_covariances(self) -> Optional[np.ndarray]:
+        """(N,6,6) covariance of each view's board pose (left perturbation, camera frame), with the pixel
+        noise taken robustly from all PnP residuals; None without corners."""
+        from .seed import project
+
+        if not self.corners or self.intr is None:
+            return None
+        res = [np.linalg.norm(project(o, C, self.intr) - im, axis=1) for (o, im), C in zip(self.corners, self.C)]
+        sigma_px = max(float(np.median(np.concatenate(res))) / RAYLEIGH_MEDIAN, 0.02)
+        return np.stack([pnp_covariance(o, im, C, self.intr.K, self.intr.dist_array, sigma_px)
+                         for (o, im), C in zip(self.corners, self.C)])
 
     def M(self, T: Optional[np.ndarray] = None, *, invert: bool = False) -> np.ndarray:
         M = mounting(self.mode).M_from_T_base_end(self.T if T is None else T)
@@ -392,7 +438,10 @@ def _obs_from_run(run) -> Optional[_Obs]:
     C = np.stack([run.board_poses[v].T_cam_board for v in ids])
     T = np.stack([s.view(v).T_base_end for v in ids])
     times = {v.view_id: (v.t_image, v.t_pose) for v in s.views if v.t_image is not None and v.t_pose is not None}
-    return _Obs(s.mode, tuple(ids), C, T, _raw_for_session(s), times)
+    obj = s.target.object_points()
+    corners = tuple((obj[run.board_poses[v].corner_ids], run.detections[v].image_points) for v in ids) \
+        if run.detections and all(v in run.detections for v in ids) else ()
+    return _Obs(s.mode, tuple(ids), C, T, _raw_for_session(s), times, corners, run.intrinsics, s.target)
 
 
 # ------------------------------------------------------------------------------ readings of the poses
@@ -428,6 +477,8 @@ def evaluate_readings(obs: _Obs, *, max_rotations: int = 16) -> list:
     # stage 1: rotation readings by the rotation-angle invariant (independent of translation units,
     # of inversion and of the mounting mode)
     rot_score: dict = {}
+    pi, pj = all_pairs(obs.n)
+    ang_c = _pair_angles_deg(obs.C[:, :3, :3], pi, pj)
     for fmt, _ in alts:
         key = replace(fmt, translation_unit=fmt0.translation_unit)
         if key in rot_score:
@@ -436,8 +487,7 @@ def evaluate_readings(obs: _Obs, *, max_rotations: int = 16) -> list:
         if T is None:
             rot_score[key] = np.inf
             continue
-        inv = pair_invariants(obs.C, obs.M(T))
-        rot_score[key] = float(np.median(inv["angle_res_deg"]))
+        rot_score[key] = float(np.median(np.abs(_pair_angles_deg(obs.M(T)[:, :3, :3], pi, pj) - ang_c)))
     # keep every rotation reading that ties with the best: readings of the form R' = U R^T V (some Euler
     # misreadings) keep all pair angles, and only the full fit tells them apart
     ranked = sorted(rot_score, key=rot_score.get)
@@ -451,13 +501,13 @@ def evaluate_readings(obs: _Obs, *, max_rotations: int = 16) -> list:
         T = _read_all(obs.raw, fmt, obs.ids)
         if T is None:
             continue
+        s = summarize_invariants(pair_invariants(obs.C, obs.M(T)))  # the same for inverted motions
         for invert in (False, True):
             M = obs.M(T, invert=invert)
             try:
                 fit = _fit(obs.C, M)
             except np.linalg.LinAlgError:
                 continue
-            s = summarize_invariants(pair_invariants(obs.C, M))
             out.append(_Reading(fmt, changes, invert, fit, s["median_angle_res_deg"], s["median_pitch_res_mm"]))
     out.sort(key=lambda r: (r.fit.cost, len(r.codes)))
     return out
@@ -534,8 +584,15 @@ def reading_findings(obs: _Obs, readings: list, *, session_kind: str = "native")
             scale = _pitch_scale(obs, fmt0, best.fmt)
             title = (f"Robot translations are in millimetres but were read as metres" if best.fmt.translation_unit == "mm"
                      else "Robot translations are in metres but were read as millimetres")
-            e = ev + (f"; the camera's screw pitches are {scale:.3g} x the robot's as given" if scale else "")
-            out.append(Finding("translation_units", "fail", title, e, fix_fmt, details=details))
+            if scale:
+                e = ev + (f"; as given, the robot moves {1 / scale:.4g} x farther along its rotation axes than the "
+                          f"camera saw" if abs(scale) < 1 else
+                          f"; as given, the camera saw {scale:.4g} x more motion along the rotation axes than the "
+                          f"robot reports")
+            else:
+                e = ev
+            out.append(Finding("translation_units", "fail", title, e, fix_fmt,
+                               details=dict(details, camera_over_robot_pitch=scale)))
         elif code == "angle_units":
             title = ("Robot angles are in degrees but were read as radians" if best.fmt.angle_unit == "deg"
                      else "Robot angles are in radians but were read as degrees")
@@ -677,15 +734,39 @@ def view_disagreements(mode: str, fit: _Fit, C: np.ndarray, T: np.ndarray) -> tu
     return pose_differences(T, mm.T_base_end_from_M(M_star))
 
 
-def _robust_flags(rot: np.ndarray, trans: np.ndarray, inliers: np.ndarray) -> tuple[np.ndarray, dict]:
-    """Views whose disagreement is beyond the robust spread of the inliers (chi-square(6) at p)."""
-    s_rot = max(float(np.median(rot[inliers])) / CHI3_MEDIAN, SCALE_FLOOR_DEG)
-    s_trans = max(float(np.median(trans[inliers])) / CHI3_MEDIAN, SCALE_FLOOR_MM)
-    d2 = (rot / s_rot) ** 2 + (trans / s_trans) ** 2
+def robot_pose_test(obs: _Obs, fit: _Fit, T: np.ndarray, *, inliers: np.ndarray,
+                    covs: Optional[np.ndarray] = None) -> dict:
+    """Per-view test of the reported robot pose against the one the camera implies.
+
+    The disagreement ``e_i = Log(inv(T_reported) T_implied)`` (end frame) is compared with its covariance:
+    the view's PnP covariance propagated to the implied pose, plus isotropic robot noise (rotation and
+    translation) estimated robustly from the inlier views (median Mahalanobis = chi-square median).
+    Without corners, the covariance is the robust isotropic spread of the inliers alone.
+    Returns rot_deg, trans_mm, distance (sigmas), flags, threshold and the noise levels.
+    """
+    mm = mounting(obs.mode)
+    gi = np.searchsorted(np.unique(fit.labels), fit.labels)
+    A_inv = inv_T(fit.A)
+    B_inv = inv_T(fit.B[gi])
+    T_star = mm.T_base_end_from_M(A_inv @ obs.C @ B_inv)
+    e = log6(inv_T(T) @ T_star)  # (N,6)
+    rot = np.degrees(np.linalg.norm(e[:, :3], axis=1))
+    trans = 1e3 * np.linalg.norm(e[:, 3:], axis=1)
+    if covs is not None:
+        P = np.stack([propagate(lambda C, k=k: mm.T_base_end_from_M(A_inv @ C @ B_inv[k]), obs.C[k], covs[k])
+                      for k in range(obs.n)])
+    else:
+        P = np.zeros((obs.n, 6, 6))
+    use = inliers if inliers.sum() >= 3 else np.ones(obs.n, bool)
+    s_rot = robust_noise_sigma(e[use, :3], P[use][:, :3, :3], floor=np.radians(SCALE_FLOOR_DEG))
+    s_tr = robust_noise_sigma(e[use, 3:], P[use][:, 3:, 3:], floor=SCALE_FLOOR_MM / 1e3)
+    Ct = P + np.diag([s_rot ** 2] * 3 + [s_tr ** 2] * 3)
+    d2 = np.einsum("ni,ni->n", e, np.linalg.solve(Ct, e[..., None])[..., 0])
     thr = float(chi2.ppf(1.0 - VIEW_OUTLIER_P, 6))
     flags = (d2 > thr) & ((rot > VIEW_OUTLIER_MIN_DEG) | (trans > VIEW_OUTLIER_MIN_MM))
-    return flags, {"sigma_deg": s_rot, "sigma_mm": s_trans, "threshold_sigmas": float(np.sqrt(thr)),
-                   "distance_sigmas": np.sqrt(d2)}
+    return {"rot_deg": rot, "trans_mm": trans, "distance": np.sqrt(d2), "flags": flags,
+            "threshold_sigmas": float(np.sqrt(thr)), "robot_sigma_deg": float(np.degrees(s_rot)),
+            "robot_sigma_mm": float(1e3 * s_tr), "with_camera_covariance": covs is not None}
 
 
 def _split_fits(obs: _Obs, M: np.ndarray):
@@ -745,18 +826,41 @@ def board_moved_findings(obs: _Obs, M: np.ndarray) -> tuple[list, Optional[_Fit]
     return [fnd], f
 
 
+def _board_turns(target) -> list:
+    """Board-frame transforms (name, F) for a detector's corner numbering turned by 180 (or 90) degrees:
+    the true ``T_cam_board`` is ``C @ F`` when the corners were numbered from the other end."""
+    from .types import ChessboardSpec
+
+    if not isinstance(target, ChessboardSpec):
+        return []
+    L = target.square_m
+    c = np.array([(target.cols - 1) * L / 2.0, (target.rows - 1) * L / 2.0, 0.0])
+    turns = [("180 deg", np.pi)] + ([("90 deg", np.pi / 2), ("-90 deg", -np.pi / 2)] if target.cols == target.rows
+                                    else [])
+    out = []
+    for name, a in turns:
+        R = Rotation.from_rotvec([0.0, 0.0, a]).as_matrix()
+        F = np.eye(4)
+        F[:3, :3] = R
+        F[:3, 3] = c - R @ c
+        out.append((name, F))
+    return out
+
+
 def robot_pose_findings(obs: _Obs, M: np.ndarray, fit: _Fit, *, refined=None, exclude: Sequence[str] = (),
                         fmt: Optional[PoseFormat] = None) -> list:
     """Views whose reported robot pose disagrees with the camera (and swapped pairs among them)."""
-    rot, trans = view_disagreements(obs.mode, fit, obs.C, obs.T)
     d = np.hypot(fit.board_rot_deg / COST_DEG, fit.board_trans_mm / COST_MM)
     inliers = d <= max(3.0 * float(np.median(d)), 0.05)
     if inliers.sum() < 3:
         inliers = np.ones(obs.n, bool)
-    flags, stats = _robust_flags(rot, trans, inliers)
+    covs = obs.pnp_covariances()
+    test = robot_pose_test(obs, fit, obs.T, inliers=inliers, covs=covs)
+    rot, trans, flags = test["rot_deg"], test["trans_mm"], test["flags"]
     idx = {v: k for k, v in enumerate(obs.ids)}
     ref_flags = {}
-    if refined is not None and getattr(refined, "status", "") == "ok":
+    if (refined is not None and getattr(refined, "status", "") == "ok"
+            and getattr(getattr(refined, "options", None), "outlier_loop", True)):
         for o in getattr(refined, "outliers", ()):
             if getattr(o, "kind", "") == "robot_pose":
                 ref_flags[o.view_id] = o
@@ -764,10 +868,33 @@ def robot_pose_findings(obs: _Obs, M: np.ndarray, fit: _Fit, *, refined=None, ex
         source = "the refinement's robot-pose test (Mahalanobis distance with the estimated robot and pixel noise)"
     else:
         flagged = [v for v, f in zip(obs.ids, flags) if f]
-        source = (f"a robust fit without the wild views: distance beyond {stats['threshold_sigmas']:.1f} sigma of "
-                  f"the others' spread ({stats['sigma_deg']:.3f} deg, {stats['sigma_mm']:.2f} mm per view)")
+        source = (f"a robust fit without the wild views: beyond {test['threshold_sigmas']:.1f} sigma of each view's "
+                  f"camera uncertainty plus robot noise ({test['robot_sigma_deg']:.3f} deg, "
+                  f"{test['robot_sigma_mm']:.2f} mm per axis, estimated from the other views)")
     flagged = [v for v in flagged if v not in set(exclude)]
     out = []
+    # a detector that numbered the corners from the other end (the board turned by 180 or 90 degrees)
+    flipped = {}
+    for v in flagged:
+        for name, F in _board_turns(obs.target):
+            C2 = obs.C.copy()
+            C2[idx[v]] = obs.C[idx[v]] @ F
+            t2 = robot_pose_test(replace(obs, C=C2), fit, obs.T, inliers=inliers, covs=covs)
+            if not t2["flags"][idx[v]] and t2["rot_deg"][idx[v]] < 0.5 * rot[idx[v]]:
+                flipped[v] = (name, float(t2["rot_deg"][idx[v]]), float(t2["trans_mm"][idx[v]]))
+                break
+    if flipped:
+        vs = list(flipped)
+        out.append(Finding(
+            "corner_order_flipped", "warn",
+            f"The corners were numbered from the other end of the board in {len(vs)} view(s): {_ids_text(vs)}",
+            "; ".join(f"view {v}: camera and robot disagree by {rot[idx[v]]:.1f} deg / {trans[idx[v]]:.0f} mm, with the "
+                      f"board turned by {flipped[v][0]} they agree to {flipped[v][1]:.2f} deg / {flipped[v][2]:.1f} mm"
+                      for v in vs),
+            "the detector cannot tell this board's orientation in these views; use a ChArUco board (or a chessboard "
+            "with a mark) or leave these views out; the robot poses are fine",
+            view_ids=tuple(vs), details={"turns": {v: flipped[v][0] for v in vs}}))
+    flagged = [v for v in flagged if v not in flipped]
     # two views whose poses were swapped
     swapped = set()
     if fmt is not None and 2 <= len(flagged) <= 8:
@@ -777,8 +904,8 @@ def robot_pose_findings(obs: _Obs, M: np.ndarray, fit: _Fit, *, refined=None, ex
                     continue
                 T_sw = obs.T.copy()
                 T_sw[[idx[a], idx[b]]] = obs.T[[idx[b], idx[a]]]
-                r2, t2 = view_disagreements(obs.mode, fit, obs.C, T_sw)
-                f2, _ = _robust_flags(r2, t2, inliers)
+                t_sw = robot_pose_test(obs, fit, T_sw, inliers=inliers, covs=covs)
+                r2, t2, f2 = t_sw["rot_deg"], t_sw["trans_mm"], t_sw["flags"]
                 if not f2[idx[a]] and not f2[idx[b]]:
                     swapped |= {a, b}
                     out.append(Finding(
@@ -794,7 +921,7 @@ def robot_pose_findings(obs: _Obs, M: np.ndarray, fit: _Fit, *, refined=None, ex
         parts = []
         for v in rest:
             k = idx[v]
-            txt = f"view {v}: {rot[k]:.2f} deg / {trans[k]:.1f} mm"
+            txt = f"view {v}: {rot[k]:.2f} deg / {trans[k]:.1f} mm ({test['distance'][k]:.0f} sigma)"
             if v in ref_flags and getattr(ref_flags[v], "size", None):
                 sz = ref_flags[v].size
                 txt += f" (refinement: {sz.get('rot_deg', float('nan')):.2f} deg / {sz.get('trans_mm', float('nan')):.1f} mm"
@@ -842,12 +969,9 @@ def motion_findings(mode: str, M: np.ndarray, *, A: Optional[np.ndarray] = None)
     mq = motion_quality(M, frame=mm.fixed_frame)
     frame = mm.fixed_frame
     weak = mq.weak_axes  # (2,3): the least-rotated directions, weakest first
-    cam_txt = ""
+    add = "add views rotated 20-45 deg about " + _rotations_to_add(M, frame)
     if A is not None:
-        cam = [A[:3, :3] @ a for a in weak[::-1]]
-        cam_txt = f" (in the camera frame: {_axis_text(cam[0], 'camera')} and {_axis_text(cam[1], 'camera')})"
-    add = (f"add views rotated 20-45 deg about {_axis_text(weak[1], frame)} and {_axis_text(weak[0], frame)}"
-           f"{cam_txt}")
+        add += " (in the camera frame: about " + _rotations_to_add(M, "camera", R=A[:3, :3]) + ")"
     details = {"max_rotation_deg": mq.max_rotation_deg, "axis_spread_deg": mq.axis_spread_deg,
                "main_axis": mq.main_axis, "weak_axes": weak, "frame": frame}
     ev = (f"largest rotation between two views {mq.max_rotation_deg:.1f} deg, rotation axes spread "
@@ -867,9 +991,49 @@ def motion_findings(mode: str, M: np.ndarray, *, A: Optional[np.ndarray] = None)
     return out
 
 
+def _rotations_to_add(M: np.ndarray, frame: str, *, R: Optional[np.ndarray] = None) -> str:
+    """The axes the relative robot rotations lack, in words (``R`` maps them into another frame).
+
+    When the two least-rotated directions are about equally weak (all rotations about one axis), any
+    two axes across the main axis will do: name the frame's axes closest to that plane."""
+    n = len(M)
+    i, j = all_pairs(n)
+    rv = Rotation.from_matrix((M[i] @ inv_T(M[j]))[:, :3, :3]).as_rotvec()
+    ang = np.linalg.norm(rv, axis=1)
+    W = rv * np.minimum(ang, np.pi / 2)[:, None] / np.maximum(ang, 1e-12)[:, None]
+    ev, V = np.linalg.eigh(W.T @ W)  # ascending
+    if R is not None:
+        V = R @ V
+    weak1, weak2, main = V[:, 0], V[:, 1], V[:, 2]
+    if ev[1] < 4.0 * max(ev[0], 1e-12 * max(ev[2], 1e-12)):  # a weak plane: rotations about one axis only
+        k = int(np.argmax(np.abs(main)))
+        if abs(main[k]) > 0.9:
+            a, b = [name for m, name in enumerate("xyz") if m != k]
+            return f"the {frame} {a} axis and the {frame} {b} axis (across the {frame} {'xyz'[k]} axis, the only one used)"
+        return (f"two axes across {_axis_text(main, frame)} (the only one used), e.g. {_axis_text(weak1, frame)} and "
+                f"{_axis_text(weak2, frame)}")
+    return f"{_axis_text(weak1, frame)}"
+
+
 # ------------------------------------------------------------------------------ detection outcomes
+def _image_r2_max(intr) -> float:
+    """Largest squared undistorted normalized radius inside the image (the lens model's valid range)."""
+    import cv2
+
+    W, H = intr.width, intr.height
+    t = np.linspace(0.0, 1.0, 17)
+    border = np.concatenate([np.c_[t * (W - 1), np.zeros_like(t)], np.c_[t * (W - 1), np.full_like(t, H - 1)],
+                             np.c_[np.zeros_like(t), t * (H - 1)], np.c_[np.full_like(t, W - 1), t * (H - 1)]])
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
+    xy = cv2.undistortPointsIter(border.reshape(-1, 1, 2), intr.K, intr.dist_array, None, None, crit).reshape(-1, 2)
+    return float(np.max(np.sum(xy ** 2, axis=1)))
+
+
 def _board_visibility(target, intr, T_cam_board: np.ndarray) -> float:
-    """Share (0..1) of the board's corners that project inside the image, in front of the camera."""
+    """Share (0..1) of the board's corners that project inside the image, in front of the camera.
+
+    Points beyond the image's undistorted radius do not count even if the distortion polynomial folds
+    them back into the image."""
     from .seed import project
 
     obj = target.object_points()
@@ -877,12 +1041,11 @@ def _board_visibility(target, intr, T_cam_board: np.ndarray) -> float:
     front = p_cam[:, 2] > 0.02
     if not front.any():
         return 0.0
+    x = p_cam[front, :2] / p_cam[front, 2:3]
+    in_lens = np.sum(x ** 2, axis=1) <= 1.02 * _image_r2_max(intr)
     uv = project(obj[front], T_cam_board, intr)
     inside = (uv[:, 0] >= 0) & (uv[:, 0] <= intr.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= intr.height - 1)
-    # far outside the lens model's valid range the projection can fold back; require plausible rays
-    x = p_cam[front, :2] / p_cam[front, 2:3]
-    inside &= np.all(np.abs(x) < 2.0, axis=1)
-    return float(inside.sum()) / len(obj)
+    return float((inside & in_lens).sum()) / len(obj)
 
 
 def detection_findings(run, *, A: Optional[np.ndarray] = None, B: Optional[np.ndarray] = None) -> list:
@@ -1347,13 +1510,10 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
         per_view = pl.get("per_view", {})
         fit = pl["fit"]
         if not global_fault and run.T_x is not None and run.T_board is not None and run.status == "ok":
-            mm = mounting(s.mode)
-            predict = (inv_T(run.T_x), run.T_board, mm.M_from_T_base_end)
+            predict = (inv_T(run.T_x), run.T_board, False)
         elif pl["fit"] is not None:
-            fmt_inv = global_fault and any(f.code in ("poses_inverted", "mode_swapped") for f in pl["findings"])
-            mm = mounting(s.mode)
-            predict = (fit.A, fit.B[0], (lambda T, _m=mm: inv_T(_m.M_from_T_base_end(T))) if fmt_inv
-                       else mm.M_from_T_base_end)
+            inverted = global_fault and any(f.code in ("poses_inverted", "mode_swapped") for f in pl["findings"])
+            predict = (fit.A, fit.B[0], inverted)
     else:
         per_view = {}
         n = len(run.board_poses or {})
@@ -1386,20 +1546,14 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
 
 
 def _detection_with_prediction(run, predict) -> list:
-    """detection_findings with the board predicted through the best model available."""
+    """detection_findings with the board predicted through the best model available:
+    ``predict = (A, B, inverted)``; ``inverted`` when the robot motions fit only inverted."""
     if predict is None or run.intrinsics is None:
         return detection_findings(run)
-    A, B, M_of = predict
-
-    class _P:  # adapter: A, B and the motion of a reported pose
-        pass
-
-    s = run.session
-    mm = mounting(s.mode)
-    # detection_findings predicts with the mode's motion; pass A, B so that A @ M(T) @ B is the prediction
-    if M_of is mm.M_from_T_base_end:
+    A, B, inverted = predict
+    if not inverted:
         return detection_findings(run, A=A, B=B)
-    # inverted motions: predict with a session view list whose poses are inverted for the prediction
+    s = run.session
     inv_session = replace(s, views=tuple(replace(v, T_base_end=inv_T(v.T_base_end)) for v in s.views))
     return detection_findings(replace(run, session=inv_session), A=A, B=B)
 
@@ -1516,7 +1670,9 @@ def _observe(target, mode, raw: RawPoses, images_by_id: dict, intr_given):
         M = {v: mm.M_from_T_base_end(T_for_order[k]) for k, v in enumerate(ids)}
         bp = board_poses([dets[v] for v in ids], target, intr, M)
         C = np.stack([bp[v].T_cam_board for v in ids])
-        return _Obs(mode, tuple(ids), C, T, raw, {})
+        obj = target.object_points()
+        corners = tuple((obj[bp[v].corner_ids], dets[v].image_points) for v in ids)
+        return _Obs(mode, tuple(ids), C, T, raw, {}, corners, intr, target)
 
     obs = make_obs(T)
     if len(target.symmetries()) > 1:

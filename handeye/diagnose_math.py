@@ -160,3 +160,71 @@ def jackknife_sigmas(deltas: np.ndarray, n_total: int, n_left_out: int) -> np.nd
 
 __all__ = ["pair_invariants", "summarize_invariants", "per_view_scores", "score_matrix", "solve_A_from_pairs",
            "implied_boards", "robust_mean_T", "pose_differences", "jackknife_sigmas", "all_pairs"]
+
+
+# ------------------------------------------------------------------------------ per-view covariances
+RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))  # median of |e| / sigma for a 2-D Gaussian
+
+
+def log6(T: np.ndarray) -> np.ndarray:
+    """(rotation vector [rad], translation [m]) of (…,4,4) transforms, shape (…,6)."""
+    T = np.asarray(T, float)
+    rv = Rotation.from_matrix(T[..., :3, :3].reshape(-1, 3, 3)).as_rotvec().reshape(T.shape[:-2] + (3,))
+    return np.concatenate([rv, T[..., :3, 3]], axis=-1)
+
+
+def pnp_covariance(object_points: np.ndarray, image_points: np.ndarray, T_cam_board: np.ndarray, K: np.ndarray,
+                   dist: np.ndarray, sigma_px: float) -> np.ndarray:
+    """Covariance (6,6) of a view's board pose, parametrised as a left perturbation
+    ``T_cam_board_true = Exp(xi) T_cam_board`` with ``xi = (omega, v)`` in the camera frame."""
+    import cv2
+
+    obj = np.asarray(object_points, float).reshape(-1, 3)
+    R, t = T_cam_board[:3, :3], T_cam_board[:3, 3]
+    p_cam = obj @ R.T + t
+    _, J = cv2.projectPoints(p_cam.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, dist)
+    # d(pixel)/d(omega, v) for points moved by Exp(xi): d p = -[p]x omega + v; projectPoints at rvec=0 gives
+    # the Jacobian w.r.t. its own rvec (= omega) and tvec (= v) directly
+    Jp = J[:, :6]
+    H = Jp.T @ Jp
+    try:
+        return sigma_px ** 2 * np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return np.full((6, 6), np.inf)
+
+
+def propagate(f, T0: np.ndarray, cov_left: np.ndarray, *, h: float = 1e-6) -> np.ndarray:
+    """Covariance (6,6) of ``log6(inv(f(T0)) f(Exp(xi) T0))`` for ``xi ~ N(0, cov_left)`` (numeric Jacobian)."""
+    y0 = f(T0)
+    y0i = inv_T(y0)
+    J = np.empty((6, 6))
+    for k in range(6):
+        xi = np.zeros(6)
+        xi[k] = h
+        E = make_T(Rotation.from_rotvec(xi[:3]).as_matrix(), xi[3:])
+        J[:, k] = log6(y0i @ f(E @ T0)) / h
+    return J @ cov_left @ J.T
+
+
+def robust_noise_sigma(d: np.ndarray, C: np.ndarray, *, floor: float) -> float:
+    """Sigma s with median_i d_i^T (C_i + s^2 I)^-1 d_i = chi2(dim) median: the extra isotropic noise that
+    makes typical views' disagreements ``d`` (N,k) consistent with their covariances ``C`` (N,k,k)."""
+    from scipy.stats import chi2 as _chi2
+
+    k = d.shape[1]
+    target = _chi2.ppf(0.5, k)
+
+    def med(s):
+        Cs = C + s * s * np.eye(k)
+        return np.median(np.einsum("ni,ni->n", d, np.linalg.solve(Cs, d[..., None])[..., 0]))
+
+    if med(floor) <= target:
+        return floor
+    lo, hi = np.log(floor), np.log(10.0)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if med(np.exp(mid)) > target:
+            lo = mid
+        else:
+            hi = mid
+    return float(np.exp(0.5 * (lo + hi)))
