@@ -356,6 +356,12 @@ def test_site_thresholds_change_the_verdict(synthetic, tmp_path):
     c = next(c for c in v.checks if c.key == "predicted_error_mm")
     assert c.status == "fail" and "0.002" in c.why and c.action
     assert "predicted position error" in v.headline and str(strict) in v.thresholds_source
+    # the working distance of the site moves the predicted error (error grows with distance)
+    far = tmp_path / "far.yaml"
+    far.write_text("working_distance_m: 3.0\n")
+    pred_near = build_report_context(None, res, out, make_plots=False)["result"]["pred"]["rms_mm"]
+    ctx_far = build_report_context(None, res, out, qa=far, make_plots=False)
+    assert ctx_far["result"]["working_distance_m"] == 3.0 and ctx_far["result"]["pred"]["rms_mm"] > pred_near
     lenient = tmp_path / "lenient.yaml"
     from handeye.report import load_qa
 

@@ -218,7 +218,10 @@ def _view_rows(res, ref, fits, centre, diag, image_paths) -> list[dict]:
             sev = "info" if o.get("kind") == "corners" else ("warn" if o.get("kind") == "robot_pose" else "fail")
             flags.append({"severity": sev, "text": text})
         for f in finding_by_view.get(vid, []):
-            flags.append({"severity": str(f.get("severity", "info")).lower(), "text": _finding_for_view(f, vid)})
+            text, part = _finding_for_view(f, vid)
+            if part and any(part in g["text"] or g["text"] in part for g in flags):
+                continue  # the same fact already stated (e.g. the reason the view was dropped)
+            flags.append({"severity": str(f.get("severity", "info")).lower(), "text": text})
         rms = fit.rms_px if fit else _num(pv.get("rms_px", v.get("pnp_rms_px")))
         mx = fit.max_px if fit else _num(pv.get("max_px"))
         chain = fit.chain_rms_px if fit else float("nan")
@@ -242,15 +245,15 @@ def _view_rows(res, ref, fits, centre, diag, image_paths) -> list[dict]:
     return rows
 
 
-def _finding_for_view(f: dict, vid: str) -> str:
-    """The part of a finding's evidence about one view ("view 3: ..."), else its title."""
+def _finding_for_view(f: dict, vid: str) -> tuple[str, str]:
+    """(flag text, the evidence about this view or "") from a finding ("view 3: ..." parts), else its title."""
     title = str(f.get("title", f.get("code", "")))
     for part in re.split(r";\s+", str(f.get("evidence", ""))):
         m = re.match(rf"^views?\s+{re.escape(vid)}\s*:\s*(.+)$", part.strip())
         if m:
             code = str(f.get("code", "")).replace("_", " ")
-            return f"{code}: {m.group(1)}" if code else m.group(1)
-    return title
+            return (f"{code}: {m.group(1)}" if code else m.group(1)), m.group(1)
+    return title, ""
 
 
 # ------------------------------------------------------------------------------ result
@@ -504,6 +507,12 @@ _FAILURE_TIPS = [  # (text in the reason, a tip that complements the error's own
 ]
 
 
+def _similar(a: str, b: str) -> bool:
+    """Two pieces of advice that share most of their words."""
+    wa, wb = (set(re.findall(r"[a-z]{4,}", x.lower())) for x in (a, b))
+    return bool(wa and wb) and len(wa & wb) / min(len(wa), len(wb)) > 0.5
+
+
 def _sentence(s: str) -> str:
     s = s.strip()
     return (s[:1].upper() + s[1:]).rstrip(".") + "." if s else s
@@ -516,12 +525,18 @@ def _failure(res: dict, findings: list, *, has_views: bool) -> dict:
     if ": " in problem and (problem.startswith("/") or problem[1:3] == ":\\"):
         path_free = problem.split(": ", 1)[1]
     actions = [_sentence(hint)] if hint else []
-    for key, text in _FAILURE_TIPS:
-        if key in reason and text not in actions:
+
+    def add(text: str) -> None:
+        if text and not any(_similar(text, a) for a in actions):
             actions.append(text)
+
     for f in findings:  # the diagnostics name the mistake more precisely than the error can
-        if f["severity"] == "fail" and f["action"] and _sentence(f["action"]) not in actions:
-            actions.append(_sentence(f["action"]))
+        if f["severity"] == "fail" and f["action"]:
+            add(_sentence(f["action"]))
+    if len(actions) < 2:
+        for key, text in _FAILURE_TIPS:
+            if key in reason:
+                add(text)
     if not actions:
         actions.append("Read the per-view table for what was found in each image, fix the cause and re-run "
                        "handeye calibrate." if has_views else
@@ -540,7 +555,7 @@ def _findings(diag: dict) -> list[dict]:
         sev = str(f.get("severity", "info")).lower()
         sev = sev if sev in SEVERITY_ORDER else "info"
         out.append({"code": f.get("code", ""), "severity": sev, "title": f.get("title", f.get("code", "finding")),
-                    "evidence": f.get("evidence", ""), "action": f.get("action", ""),
+                    "evidence": _cap1(f.get("evidence", "")), "action": _cap1(f.get("action", "")),
                     "view_ids": [str(v) for v in (f.get("view_ids") or [])]})
     out.sort(key=lambda f: SEVERITY_ORDER[f["severity"]])
     return out
@@ -556,6 +571,11 @@ def _col_title(key: str) -> str:
             break
     k = k.replace("_", " ").replace("rms", "RMS")
     return k[:1].upper() + k[1:] + unit
+
+
+def _cap1(s) -> str:
+    s = str(s or "")
+    return s[:1].upper() + s[1:]
 
 
 def _cross_validation(cv) -> Optional[dict]:
@@ -652,6 +672,11 @@ def _provenance(res, qa_cfg, qa_source) -> dict:
     secs = res.get("seconds") or {}
     if secs.get("total"):
         rows.append({"name": "Run time", "value": ", ".join(f"{k} {v:.1f} s" for k, v in secs.items()), "mono": False})
+    import sys
+
+    report_cmd = " ".join([Path(sys.argv[0]).name] + sys.argv[1:]) if sys.argv and sys.argv[0] else ""
+    if report_cmd and report_cmd != (res.get("provenance") or {}).get("command_line") and "pytest" not in report_cmd:
+        rows.append({"name": "Report command line", "value": report_cmd, "mono": True})
     rows.append({"name": "Report generated (UTC)", "value": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
                  "mono": False})
     rows.append({"name": "QA thresholds", "value": qa_source, "mono": True})

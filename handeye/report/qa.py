@@ -79,19 +79,19 @@ _SPEC = {
     "predicted_error_mm": (
         "Predicted position error", "mm", "{:.2f}",
         lambda v, lim, c: f"a point {c.get('wd_m', float('nan')):.2f} m in front of the camera is placed with "
-                          f"{v:.2f} mm RMS 3-D error (1 sigma), above the limit of {lim:g} mm",
+                          f"{v:.2f} mm RMS 3-D error (1 σ), above the limit of {lim:g} mm",
         lambda c: "add views with larger rotations (20-45 deg) about different axes, hold the board near the working "
                   "distance, make sure the robot is at rest when each image is taken; the error shrinks about "
                   "with 1/sqrt(number of views)"),
     "sigma_trans_mm": (
-        "Translation uncertainty (largest axis, 1 sigma)", "mm", "{:.3f}",
-        lambda v, lim, c: f"the hand-eye translation is known to {v:.2f} mm (1 sigma, {c.get('sigma_t_axis', '')}), "
+        "Translation uncertainty (largest axis, 1 σ)", "mm", "{:.3f}",
+        lambda v, lim, c: f"the hand-eye translation is known to {v:.2f} mm (1 σ, {c.get('sigma_t_axis', '')}), "
                           f"the limit is {lim:g} mm",
         lambda c: "add views that rotate the camera about axes perpendicular to the weak direction and vary the "
                   "distance to the board; check the robot's repeatability"),
     "sigma_rot_deg": (
-        "Rotation uncertainty (largest axis, 1 sigma)", "deg", "{:.3f}",
-        lambda v, lim, c: f"the hand-eye rotation is known to {v:.3f} deg (1 sigma, about camera {c.get('sigma_r_axis', '')}), "
+        "Rotation uncertainty (largest axis, 1 σ)", "deg", "{:.3f}",
+        lambda v, lim, c: f"the hand-eye rotation is known to {v:.3f} deg (1 σ, about camera {c.get('sigma_r_axis', '')}), "
                           f"the limit is {lim:g} deg",
         lambda c: "add views with larger rotations between them and views where the board fills more of the image"),
     "max_rotation_deg": (
