@@ -26,16 +26,21 @@ Noise estimation
 ----------------
 ``sigma_px`` and the robot sigmas (rotation, translation) are three variance components. On the
 cleaned data they are estimated by iterated variance-component estimation (Helmert / Förstner):
-solve with the current sigmas, then for each group ``g`` set ``sigma_g^2 = e_g^T e_g / r_g`` where
-``e_g`` are the group's residuals and ``r_g = n_g - tr(W_g J_g Sigma J_g^T)`` its redundancy,
-taken from the marginal covariances of the robot-pose variables (their information has an arrow
-structure, inverted exactly by a Schur complement); the pixel group gets the remaining redundancy.
-This is the REML fixed point: for Gaussian data it converges to unbiased sigmas. When a robot group's
-redundancy falls below 3 % of its count, the camera cannot resolve that robot noise; its sigma is
-frozen (an upper bound) and reported as unresolved. Before the data are clean, the sigmas come from
-robust statistics instead: ``sigma_px`` from the median corner residual, and each robot sigma from
-the value that makes the median per-view Mahalanobis distance between the reported robot pose and
-the pose the camera alone implies equal to the chi-square median.
+for each group ``g``, ``sigma_g^2 = e_g^T e_g / r_g`` with ``e_g`` the group's residuals and
+``r_g = n_g - tr(W_g J_g Sigma J_g^T)`` its redundancy, taken from the marginal covariances of the
+robot-pose variables (the information has an arrow structure, inverted exactly by a Schur
+complement); the pixel group gets the remaining redundancy. This is the REML fixed point: for
+Gaussian data it converges to unbiased sigmas. The fixed-point iteration runs in numpy on one
+linearisation (unit-sigma pixel information from GTSAM plus the priors), then GTSAM re-solves with
+the new sigmas and the iteration repeats on the new linearisation until the sigmas change by less
+than 1 %. The robot sigmas start from the larger of the robust estimate and the configured value,
+so that a robot noise the camera cannot see is approached from above. When a robot group's
+redundancy falls below 3 % of its count, the camera can no longer resolve that robot noise: its
+sigma stays where it is (the robot is effectively exact at that level) and is reported with
+``robot_sigma_resolved = False``. Before the data are clean, the sigmas come from robust statistics
+instead: ``sigma_px`` from the median corner residual, and each robot sigma from the value that
+makes the median per-view Mahalanobis distance between the reported robot pose and the pose the
+camera alone implies equal to the chi-square median.
 
 Outliers
 --------
@@ -44,15 +49,20 @@ Outliers
 2. Decisions (``outlier_loop``), made for every view against the current solution, each with a
    reason and the size of the disagreement:
 
-   * for each view the pose that its corners alone imply is fitted (robust Gauss-Newton with
-     ``T_x``, ``T_board`` and intrinsics held); corners further than ``corner_outlier_sigmas``
-     from it are flagged (``reprojection``);
+   * corners further than ``corner_outlier_sigmas`` from their prediction are flagged
+     (``corners``): against the last Gaussian solve for views in it, otherwise against the pose that
+     the view's corners alone imply (robust Gauss-Newton with ``T_x``, ``T_board`` and intrinsics
+     held);
    * a view keeping fewer than ``min_corners`` corners is dropped (``too_few_corners``); a view
      with more than half of its corners flagged is dropped (``reprojection``);
-   * the reported robot pose is compared with the camera-implied one: Mahalanobis distance with
-     the camera-only covariance plus the robot noise, against the chi-square(6) quantile at
-     ``1 - view_outlier_p``. A disagreeing view loses its robot prior (``robot_pose``) but keeps its
-     corners, which still inform the intrinsics.
+   * the reported robot pose is compared with what the rest of the data implies: after a Gaussian
+     solve, by the normalised residual of its prior (Baarda's data snooping; for a view already
+     excluded, its free pose against the robot noise plus that pose's covariance), which accounts
+     for the uncertainty of everything else; in the first round (robust solve) by the pose its
+     corners alone imply, with that pose's covariance plus the robot noise. The squared Mahalanobis
+     distance is tested against the chi-square(6) quantile at ``1 - view_outlier_p``. A disagreeing
+     view loses its robot prior (``robot_pose``) but keeps its corners, which still inform the
+     intrinsics.
 
    The flagged data are excluded, the problem is re-solved without robust losses and with
    variance-component estimation, and the decisions are made again from scratch against the clean
@@ -660,7 +670,10 @@ def _decide(pb: _Problem, *, robust_robot_sigma: bool, S_pp: Optional[dict] = No
     o = pb.o
     t_corner = o.corner_outlier_sigmas
     t_view = chi2.ppf(1.0 - o.view_outlier_p, 6)
-    checks = [_joint_check(pb, i, S_pp[i]) if S_pp is not None and i in S_pp else _camera_only_pose(pb, i, pb.P[i])
+    checks = [_joint_check(pb, i, S_pp[i]) if S_pp is not None and i in S_pp
+              else _camera_only_pose(pb, i, pb.P[i]) if len(pb.obj[i]) >= o.min_corners
+              else _ViewCheck(pb.P[i], np.full((6, 6), np.nan), np.full(len(pb.obj[i]), np.inf), np.full(6, np.nan),
+                              False)
               for i in range(pb.n)]
     if robust_robot_sigma:
         _robust_robot_sigmas(pb, [checks[i] for i in pb.prior_views()])
@@ -671,13 +684,13 @@ def _decide(pb: _Problem, *, robust_robot_sigma: bool, S_pp: Optional[dict] = No
         n_all = len(ch.resid_px)
         bad = ~(ch.resid_px <= t_corner * pb.sigma_px)
         n_good = int((~bad).sum())
-        if not ch.ok:
+        if not ch.ok and n_all >= o.min_corners:
             status.append("removed")
             masks.append(np.ones(n_all, bool))
             outliers.append(Outlier(vid, "reprojection", f"view {vid}: its corners alone do not determine a pose "
                                     f"({n_all} corners)", size={"n_corners": n_all}))
             continue
-        if n_good < o.min_corners:
+        if n_good < o.min_corners or not ch.ok:
             status.append("removed")
             masks.append(np.ones(n_all, bool))
             outliers.append(Outlier(vid, "too_few_corners", f"view {vid}: {n_good} usable corners of {n_all}, "

@@ -113,6 +113,7 @@ def test_corner_outliers_bad_views_and_sparse_views_get_reasons():
     pts[2][[5, 40, 77]] += np.array([12.0, -9.0])  # three bad corners in view "3"
     pts[6] = pts[6][np.random.default_rng(0).permutation(len(pts[6]))]  # view "7": corners mis-ordered
     ids[9], pts[9] = ids[9][:5], pts[9][:5]  # view "10": only 5 corners
+    ids[11], pts[11] = ids[11][:0], pts[11][:0]  # view "12": none (the board was not seen)
     views = [RefineView(vid, i, p, s.T_base_end_reported[k]) for k, (vid, i, p) in enumerate(zip(s.view_ids, ids, pts))]
     r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, views=views)
     assert r.status == "ok"
@@ -121,7 +122,7 @@ def test_corner_outliers_bad_views_and_sparse_views_get_reasons():
         by_kind.setdefault(o.kind, []).append(o)
     assert [(o.view_id, o.corner_ids) for o in by_kind["corners"]] == [("3", (5, 40, 77))]
     assert [o.view_id for o in by_kind["reprojection"]] == ["7"]
-    assert [o.view_id for o in by_kind["too_few_corners"]] == ["10"]
+    assert [o.view_id for o in by_kind["too_few_corners"]] == ["10", "12"]
     assert "robot_pose" not in by_kind
     assert r.per_view["7"]["status"] == "removed" and r.per_view["10"]["status"] == "removed"
     assert r.per_view["3"]["n_used"] == r.per_view["3"]["n_corners"] - 3
