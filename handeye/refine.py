@@ -94,7 +94,7 @@ from handeye.factors.reprojection import (INTRINSIC_NAMES, LOSSES, MODE_INVERTS_
                                           corner_robust_scales)
 
 from .errors import ConfigError, InputError
-from .geometry import inv_T, is_rotation, skew
+from .geometry import inv_T, is_rotation, make_T, project_to_rotation, skew
 from .model import mounting
 from .types import Intrinsics
 
@@ -303,12 +303,13 @@ def _check_options(o: RefineOptions) -> None:
 
 
 def _check_T(T, what: str) -> np.ndarray:
+    """A rigid 4x4 transform, its rotation re-orthonormalised (inputs rounded to a few decimals)."""
     T = np.asarray(T, dtype=float)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not is_rotation(T[:3, :3], tol=1e-5) \
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not is_rotation(T[:3, :3], tol=1e-3) \
             or not np.allclose(T[3], [0, 0, 0, 1]):
         raise InputError(f"{what} is not a rigid 4x4 transform", expected="(4,4) with a rotation block and "
                          "last row 0 0 0 1", received=f"shape {T.shape}", hint="check the seed / pose conversion")
-    return T
+    return make_T(project_to_rotation(T[:3, :3]), T[:3, 3])
 
 
 # ------------------------------------------------------------------------------ internal state
@@ -324,7 +325,7 @@ class _Problem:
         self.ids = [v.view_id for v in self.views]
         self.obj = [np.asarray(object_points, float)[np.asarray(v.corner_ids, int)] for v in self.views]
         self.img = [np.asarray(v.image_points, float).reshape(-1, 2) for v in self.views]
-        self.reported = np.stack([np.asarray(v.T_base_end, float) for v in self.views])  # (n, 4, 4)
+        self.reported = np.stack([_check_T(v.T_base_end, f"view {v.view_id} T_base_end") for v in self.views])
         self.board_centre = np.asarray(object_points, float).mean(axis=0)
         self.width, self.height = intrinsics.width, intrinsics.height
         self.k = intrinsics.as_vector().astype(float)
@@ -338,8 +339,9 @@ class _Problem:
             if options.intrinsics_prior_sigma is not None:
                 sig = np.asarray(options.intrinsics_prior_sigma, float)
             else:  # a loose factory prior: 2 % on focal lengths and principal point, 0.05 / 0.002 on distortion
-                sig = np.array([0.02 * self.k[0], 0.02 * self.k[1], 0.02 * max(self.width, 1),
-                                0.02 * max(self.height, 1), 0.05, 0.05, 0.002, 0.002, 0.05])
+                w = self.width if self.width > 0 else 2.0 * self.k[2]
+                h = self.height if self.height > 0 else 2.0 * self.k[3]
+                sig = np.array([0.02 * self.k[0], 0.02 * self.k[1], 0.02 * w, 0.02 * h, 0.05, 0.05, 0.002, 0.002, 0.05])
             self.prior_sig = sig[self.free]
         self.robot_var = options.robot_noise != "none"
         self.T_x = T_x0.copy()
