@@ -244,7 +244,7 @@ def observations_dict(run: CalibrationRun) -> dict:
     (what the robot will experience); ``residual_pnp_px`` through the view's own board pose (what the
     camera alone explains).
     """
-    from .seed import project
+    from .seed import project, solve_pnp
 
     s = run.session
     obj = s.target.object_points()
@@ -257,8 +257,10 @@ def observations_dict(run: CalibrationRun) -> dict:
         v = {"corner_ids": ids.tolist(), "image_points_px": det.image_points.tolist(),
              "sharpness": det.sharpness, "image": str(s.view(vid).image_path)}
         if bp is not None and intr is not None:
-            v["T_cam_board_pnp"] = bp.T_cam_board.tolist()
-            v["residual_pnp_px"] = (det.image_points - project(obj[ids], bp.T_cam_board, intr)).tolist()
+            # the view's own pose under the final intrinsics (bp was fitted with the seed's intrinsics)
+            T_pnp = solve_pnp(obj[ids], det.image_points, intr)[0]
+            v["T_cam_board_pnp"] = T_pnp.tolist()
+            v["residual_pnp_px"] = (det.image_points - project(obj[ids], T_pnp, intr)).tolist()
             if run.T_x is not None:
                 C = mode.predict_T_cam_board(run.T_x, run.T_board, s.view(vid).T_base_end)
                 v["T_cam_board_chain"] = C.tolist()
