@@ -61,7 +61,7 @@ from scipy.stats import chi2
 
 from .conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values, pose_values_from_T
 from .diagnose_math import (RAYLEIGH_MEDIAN, all_pairs, implied_boards, jackknife_sigmas, log6, pair_invariants,
-                            per_view_scores, pnp_covariance, pose_differences, propagate, robust_noise_sigma,
+                            camera_pose_covariances, pose_differences, propagate, robust_noise_sigma,
                             robust_mean_T, solve_A_from_pairs, summarize_invariants)
 from .geometry import inv_T
 from .model import mounting
@@ -408,6 +408,7 @@ class _Obs:
     corners: tuple = ()  # per view (object_points (K,3), image_points (K,2)) for the PnP covariances
     intr: object = None
     target: object = None
+    intrinsics_estimated: bool = True  # intrinsics come from these corners (their uncertainty counts)
 
     @property
     def n(self) -> int:
@@ -422,8 +423,8 @@ class _Obs:
             return None
         res = [np.linalg.norm(project(o, C, self.intr) - im, axis=1) for (o, im), C in zip(self.corners, self.C)]
         sigma_px = max(float(np.median(np.concatenate(res))) / RAYLEIGH_MEDIAN, 0.02)
-        return np.stack([pnp_covariance(o, im, C, self.intr.K, self.intr.dist_array, sigma_px)
-                         for (o, im), C in zip(self.corners, self.C)])
+        return camera_pose_covariances(self.corners, self.C, self.intr.K, self.intr.dist_array, sigma_px,
+                                       intrinsics_estimated=self.intrinsics_estimated)
 
     def M(self, T: Optional[np.ndarray] = None, *, invert: bool = False) -> np.ndarray:
         M = mounting(self.mode).M_from_T_base_end(self.T if T is None else T)
@@ -441,7 +442,8 @@ def _obs_from_run(run) -> Optional[_Obs]:
     obj = s.target.object_points()
     corners = tuple((obj[run.board_poses[v].corner_ids], run.detections[v].image_points) for v in ids) \
         if run.detections and all(v in run.detections for v in ids) else ()
-    return _Obs(s.mode, tuple(ids), C, T, _raw_for_session(s), times, corners, run.intrinsics, s.target)
+    estimated = not (s.intrinsics is not None and s.intrinsics_prior == "fixed")
+    return _Obs(s.mode, tuple(ids), C, T, _raw_for_session(s), times, corners, run.intrinsics, s.target, estimated)
 
 
 # ------------------------------------------------------------------------------ readings of the poses
@@ -582,7 +584,7 @@ def reading_findings(obs: _Obs, readings: list, *, session_kind: str = "native")
     for code in best.changes:
         if code == "translation_units":
             scale = _pitch_scale(obs, fmt0, best.fmt)
-            title = (f"Robot translations are in millimetres but were read as metres" if best.fmt.translation_unit == "mm"
+            title = ("Robot translations are in millimetres but were read as metres" if best.fmt.translation_unit == "mm"
                      else "Robot translations are in metres but were read as millimetres")
             if scale:
                 e = ev + (f"; as given, the robot moves {1 / scale:.4g} x farther along its rotation axes than the "
@@ -895,27 +897,50 @@ def robot_pose_findings(obs: _Obs, M: np.ndarray, fit: _Fit, *, refined=None, ex
             "with a mark) or leave these views out; the robot poses are fine",
             view_ids=tuple(vs), details={"turns": {v: flipped[v][0] for v in vs}}))
     flagged = [v for v in flagged if v not in flipped]
-    # two views whose poses were swapped
+    # poses that belong to another view: two detected views swapped, or an image carrying the pose recorded
+    # for a view whose image was not usable
     swapped = set()
-    if fmt is not None and 2 <= len(flagged) <= 8:
-        for a_i, a in enumerate(flagged):
-            for b in flagged[a_i + 1:]:
-                if a in swapped or b in swapped:
+    if fmt is not None and 1 <= len(flagged) <= 8:
+        all_keys = [k for k in obs.raw.order if k in obs.raw.values]
+        T_all = _read_all(obs.raw, fmt, all_keys)
+        for a in flagged:
+            if a in swapped or T_all is None:
+                continue
+            fits = []
+            for key, T_k in zip(all_keys, T_all):
+                if key == a:
                     continue
+                T_try = obs.T.copy()
+                T_try[idx[a]] = T_k
+                t_try = robot_pose_test(obs, fit, T_try, inliers=inliers, covs=covs)
+                if not t_try["flags"][idx[a]] and t_try["distance"][idx[a]] < 0.5 * test["distance"][idx[a]]:
+                    fits.append((key, float(t_try["rot_deg"][idx[a]]), float(t_try["trans_mm"][idx[a]])))
+            if len(fits) != 1:
+                continue
+            b, r_b, t_b = fits[0]
+            if b in idx and b in flagged and b not in swapped:
                 T_sw = obs.T.copy()
                 T_sw[[idx[a], idx[b]]] = obs.T[[idx[b], idx[a]]]
                 t_sw = robot_pose_test(obs, fit, T_sw, inliers=inliers, covs=covs)
-                r2, t2, f2 = t_sw["rot_deg"], t_sw["trans_mm"], t_sw["flags"]
-                if not f2[idx[a]] and not f2[idx[b]]:
-                    swapped |= {a, b}
-                    out.append(Finding(
-                        "pairs_shifted", "fail", f"The robot poses of views {a} and {b} are swapped",
-                        f"view {a} disagrees with its own pose by {rot[idx[a]]:.2f} deg / {trans[idx[a]]:.1f} mm and "
-                        f"view {b} by {rot[idx[b]]:.2f} deg / {trans[idx[b]]:.1f} mm; with each other's pose they "
-                        f"agree ({r2[idx[a]]:.3f} deg / {t2[idx[a]]:.2f} mm and {r2[idx[b]]:.3f} deg / "
-                        f"{t2[idx[b]]:.2f} mm)",
-                        "swap the two pose entries (and pair images and poses by view id when recording)",
-                        view_ids=(a, b), details={"swapped": [a, b]}))
+                if t_sw["flags"][idx[b]]:
+                    continue
+                swapped |= {a, b}
+                out.append(Finding(
+                    "pairs_shifted", "fail", f"The robot poses of views {a} and {b} are swapped",
+                    f"view {a} disagrees with its own pose by {rot[idx[a]]:.2f} deg / {trans[idx[a]]:.1f} mm and "
+                    f"view {b} by {rot[idx[b]]:.2f} deg / {trans[idx[b]]:.1f} mm; with each other's pose they "
+                    f"agree ({t_sw['rot_deg'][idx[a]]:.3f} deg / {t_sw['trans_mm'][idx[a]]:.2f} mm and "
+                    f"{t_sw['rot_deg'][idx[b]]:.3f} deg / {t_sw['trans_mm'][idx[b]]:.2f} mm)",
+                    "swap the two pose entries (and pair images and poses by view id when recording)",
+                    view_ids=(a, b), details={"swapped": [a, b]}))
+            elif b not in idx:
+                swapped.add(a)
+                out.append(Finding(
+                    "pairs_shifted", "fail", f"View {a}'s image carries the robot pose recorded for view {b}",
+                    f"view {a} disagrees with its own pose by {rot[idx[a]]:.2f} deg / {trans[idx[a]]:.1f} mm but agrees "
+                    f"with the pose of view {b} ({r_b:.3f} deg / {t_b:.2f} mm), whose image was not used",
+                    f"swap the pose entries of views {a} and {b} (and pair images and poses by view id when "
+                    "recording)", view_ids=(a, b), details={"swapped": [a, b]}))
     rest = [v for v in flagged if v not in swapped]
     if rest:
         parts = []
@@ -1142,7 +1167,6 @@ def distortion_findings(run) -> list:
     effect = float(np.sqrt(max(rms_pin ** 2 - rms_full ** 2, 0.0)))
     # how far the fitted lens moves the detected corners, and how radial the pinhole fit's residuals are
     shifts, radial_e, tot_e = [], 0.0, 0.0
-    c = np.array([fit.cx, fit.cy])
     for o, im, r, t in zip(objs, imgs, rv, tv):
         p_pin = cv2.projectPoints(o, r, t, K_pin, np.zeros(5))[0].reshape(-1, 2)
         res = im.reshape(-1, 2) - p_pin
@@ -1338,7 +1362,7 @@ def cross_validate(run) -> dict:
     intr = run.intrinsics
     estimates = []
     if ref is not None:
-        from .refine import RefineOptions, RefineView, refine
+        from .refine import RefineView, refine
 
         flagged = {}
         for o in getattr(ref, "outliers", ()):
@@ -1580,14 +1604,16 @@ def diagnose_session_error(path, error, *, mode: Optional[str] = None, images: b
         return _jsonable(base)
     target, sess_mode, raw, images_by_id, intr_given = sess
     try:
-        obs, intr, n_det, n_img = _observe(target, sess_mode, raw, images_by_id, intr_given)
+        obs, n_det, n_img = _observe(target, sess_mode, raw, images_by_id, intr_given)
     except Exception as e:  # noqa: BLE001
         log.debug("lenient observation failed: %s", e)
-        obs, intr, n_det, n_img = None, None, 0, len(images_by_id)
+        obs, n_det, n_img = None, 0, len(images_by_id)
     if obs is None:
+        few = n_det < MIN_VIEWS_FAIL
         base["findings"] = [_finding_dict(Finding(
-            "target_not_found" if n_det < MIN_VIEWS_FAIL else "session_unreadable", "fail",
-            f"The session could not be read, and the board was found in only {n_det} of {n_img} images",
+            "target_not_found" if few else "session_unreadable", "fail",
+            f"The session could not be read, and the board was found in only {n_det} of {n_img} images" if few
+            else "The session could not be read, and its robot poses could not be compared with the images",
             err, "fix what the message names; check the board size (inner corners) in the session"))]
         return _jsonable(base)
     pl = _pose_level(obs, session_kind="vendor" if raw.fmt is VENDOR_POSE_FORMAT else "native")
@@ -1640,7 +1666,7 @@ def _lenient_session(path: Path, *, mode: Optional[str]):
 
 
 def _observe(target, mode, raw: RawPoses, images_by_id: dict, intr_given):
-    """Detections, intrinsics and board poses of a leniently read session: (_Obs | None, intrinsics, n_found, n_images)."""
+    """Detections, intrinsics and board poses of a leniently read session: (_Obs | None, n_found, n_images)."""
     from .detect import detect_views
     from .seed import board_poses, calibrate_intrinsics
     from .types import Detection
@@ -1649,7 +1675,7 @@ def _observe(target, mode, raw: RawPoses, images_by_id: dict, intr_given):
     det = detect_views(items, target)
     dets = {v: d for v, d in det.items() if isinstance(d, Detection)}
     if len(dets) < MIN_VIEWS_FAIL:
-        return None, None, len(dets), len(items)
+        return None, len(dets), len(items)
     intr = intr_given
     if intr is None:
         intr, _ = calibrate_intrinsics(list(dets.values()), target.object_points())
@@ -1663,7 +1689,7 @@ def _observe(target, mode, raw: RawPoses, images_by_id: dict, intr_given):
             if T is not None:
                 break
     if T is None:
-        return None, intr, len(dets), len(items)
+        return None, len(dets), len(items)
     mm = mounting(mode)
 
     def make_obs(T_for_order):
@@ -1672,7 +1698,7 @@ def _observe(target, mode, raw: RawPoses, images_by_id: dict, intr_given):
         C = np.stack([bp[v].T_cam_board for v in ids])
         obj = target.object_points()
         corners = tuple((obj[bp[v].corner_ids], dets[v].image_points) for v in ids)
-        return _Obs(mode, tuple(ids), C, T, raw, {}, corners, intr, target)
+        return _Obs(mode, tuple(ids), C, T, raw, {}, corners, intr, target, intr_given is None)
 
     obs = make_obs(T)
     if len(target.symmetries()) > 1:
@@ -1683,4 +1709,4 @@ def _observe(target, mode, raw: RawPoses, images_by_id: dict, intr_given):
             if T_best is not None:
                 T_order = inv_T(T_best) if best.invert else T_best
                 obs = replace(make_obs(T_order), T=T)
-    return obs, intr, len(dets), len(items)
+    return obs, len(dets), len(items)

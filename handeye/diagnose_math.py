@@ -228,3 +228,48 @@ def robust_noise_sigma(d: np.ndarray, C: np.ndarray, *, floor: float) -> float:
         else:
             hi = mid
     return float(np.exp(0.5 * (lo + hi)))
+
+
+def camera_pose_covariances(corners, T_cam_board: np.ndarray, K: np.ndarray, dist: np.ndarray, sigma_px: float, *,
+                            intrinsics_estimated: bool) -> np.ndarray:
+    """Marginal covariance (N,6,6) of each view's board pose from the camera alone (left perturbation,
+    camera frame), including the uncertainty of intrinsics estimated from the same corners.
+
+    ``corners``: per view (object_points (K,3), image_points (K,2)). With ``intrinsics_estimated`` the
+    normal matrix of all poses and the 9 intrinsics (fx, fy, cx, cy, k1, k2, p1, p2, k3) is inverted
+    by a Schur complement on the intrinsics; otherwise each view's own PnP information is inverted.
+    """
+    import cv2
+
+    n = len(corners)
+    Hpp, HKp = [], []
+    HKK = np.zeros((9, 9))
+    for (obj, _), T in zip(corners, T_cam_board):
+        p_cam = np.asarray(obj, float).reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
+        _, J = cv2.projectPoints(p_cam.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, dist)
+        Jp, JK = J[:, :6], J[:, 6:15]
+        Hpp.append(Jp.T @ Jp)
+        HKp.append(JK.T @ Jp)
+        HKK += JK.T @ JK
+    Hpp_inv = []
+    for H in Hpp:
+        try:
+            Hpp_inv.append(np.linalg.inv(H))
+        except np.linalg.LinAlgError:
+            Hpp_inv.append(np.full((6, 6), np.inf))
+    if not intrinsics_estimated:
+        return sigma_px ** 2 * np.stack(Hpp_inv)
+    S = HKK - sum(HKp[i] @ Hpp_inv[i] @ HKp[i].T for i in range(n) if np.all(np.isfinite(Hpp_inv[i])))
+    # a weak prior (50 px on fx..cy, 1 on each distortion coefficient) keeps unobservable ones finite;
+    # H is information times sigma_px^2, so a prior sigma s adds sigma_px^2 / s^2
+    prior = np.array([50.0] * 4 + [1.0] * 5)
+    S = S + np.diag(sigma_px ** 2 / prior ** 2)
+    try:
+        SKK = np.linalg.inv(S)
+    except np.linalg.LinAlgError:
+        SKK = np.linalg.pinv(S)
+    out = np.empty((n, 6, 6))
+    for i in range(n):
+        G = Hpp_inv[i] @ HKp[i].T  # (6,9)
+        out[i] = Hpp_inv[i] + G @ SKK @ G.T
+    return sigma_px ** 2 * out
