@@ -15,13 +15,18 @@ from pathlib import Path
 from typing import Optional
 
 from ..errors import HandeyeError, InputError
-from .build import build_context
-from .qa import Verdict, evaluate, load_qa
-from .render import render_html, render_markdown, write_files
 
 log = logging.getLogger(__name__)
 
 __all__ = ["write_reports", "build_report_context", "load_qa", "evaluate", "Verdict"]
+
+
+def __getattr__(name):  # matplotlib and jinja2 load only when a report is built, not with the CLI
+    if name in ("load_qa", "evaluate", "Verdict"):
+        from . import qa
+
+        return getattr(qa, name)
+    raise AttributeError(name)
 
 
 def write_reports(run, res: dict, out_dir, *, qa: str | Path | None = None, formats=("html", "md"),
@@ -34,6 +39,8 @@ def write_reports(run, res: dict, out_dir, *, qa: str | Path | None = None, form
     ``strict=False`` (the calibrate command) an unexpected error is logged and no report is written,
     since result.json is complete without it; user errors (a bad QA file) always raise.
     """
+    from .render import render_html, render_markdown, write_files
+
     out_dir = Path(out_dir)
     try:
         ctx = build_report_context(run, res, Path(source_dir) if source_dir else out_dir, qa=qa, make_plots=plots)
@@ -52,6 +59,9 @@ def write_reports(run, res: dict, out_dir, *, qa: str | Path | None = None, form
 
 def build_report_context(run, res: dict, result_dir: Path, *, qa: str | Path | None = None,
                          make_plots: bool = True) -> dict:
+    from .build import build_context
+    from .qa import load_qa
+
     cfg = load_qa(qa)
     source = f"{qa} (site override of configs/qa.yaml)" if qa is not None else "configs/qa.yaml (shipped)"
     obs = _observations(run, result_dir)
