@@ -1073,6 +1073,33 @@ def _board_visibility(target, intr, T_cam_board: np.ndarray) -> float:
     return float((inside & in_lens).sum()) / len(obj)
 
 
+def _why_not_found(run, vid: str, C_pred: np.ndarray) -> str:
+    """Look where the board should be in an image whose target was not found: blur, exposure."""
+    from .detect import read_gray
+    from .diagnose_images import view_blur, view_exposure
+    from .errors import HandeyeError
+    from .seed import project
+
+    s = run.session
+    try:
+        gray = read_gray(s.view(vid).image_path)
+    except (HandeyeError, KeyError, OSError):
+        return " (image unreadable)"
+    obj = s.target.object_points()
+    uv = project(obj, C_pred, run.intrinsics)
+    ids = np.arange(len(obj))
+    b = view_blur(gray, uv, ids, obj, s.target.square_m, charuco=s.target.kind == "charuco")
+    e = view_exposure(gray, uv)
+    why = []
+    if np.isfinite(b["blur_sigma_px"]) and b["blur_sigma_px"] > BLUR_WARN_PX:
+        why.append(f"the image is blurred there (edges about {b['blur_sigma_px']:.1f} px)")
+    if e["saturated_share"] > OVEREXPOSED_WARN_SHARE:
+        why.append(f"{100 * e['saturated_share']:.0f}% of that region is saturated")
+    if np.isfinite(b.get("contrast", np.nan)) and b["contrast"] < 20:
+        why.append(f"there is little contrast there ({b['contrast']:.0f} grey levels)")
+    return (": " + ", ".join(why)) if why else " (blur, exposure, glare or something in front of it?)"
+
+
 def detection_findings(run, *, A: Optional[np.ndarray] = None, B: Optional[np.ndarray] = None) -> list:
     """Dropped views (target not found, too few corners) with where the board would have been."""
     s = run.session
@@ -1086,21 +1113,28 @@ def detection_findings(run, *, A: Optional[np.ndarray] = None, B: Optional[np.nd
     can_predict = A is not None and B is not None and intr is not None and intr.width > 0
     few = [o for o in not_found if "corners" in str(o.reason) and "only" in str(o.reason)]
     missing = [o for o in not_found if o not in few]
+    notes, cut = {}, {}
+    for o in missing:
+        note = f"view {o.view_id}: {o.reason}"
+        try:
+            T = s.view(o.view_id).T_base_end
+        except KeyError:
+            T = None
+        if can_predict and T is not None:
+            C_pred = A @ mm.M_from_T_base_end(T) @ B
+            vis = _board_visibility(s.target, intr, C_pred)
+            if 0.0 < vis < 0.999:
+                cut[o.view_id] = f"view {o.view_id}: not found; at this robot pose only {100 * vis:.0f}% of the " \
+                                 "board's corners are in the image"
+                continue
+            if vis == 0.0:
+                note += " - at this robot pose the board is outside the image"
+            else:
+                note += " - at this robot pose the whole board should be in the image" + _why_not_found(run, o.view_id,
+                                                                                                      C_pred)
+        notes[o.view_id] = note
+    missing = [o for o in missing if o.view_id in notes]
     if missing:
-        notes = []
-        for o in missing:
-            note = f"view {o.view_id}: {o.reason}"
-            try:
-                T = s.view(o.view_id).T_base_end
-            except KeyError:
-                T = None
-            if can_predict and T is not None:
-                vis = _board_visibility(s.target, intr, A @ mm.M_from_T_base_end(T) @ B)
-                note += (" - at this robot pose the board is outside the image" if vis == 0.0 else
-                         f" - at this robot pose only {100 * vis:.0f}% of the board is in the image" if vis < 0.999
-                         else " - at this robot pose the whole board should be in the image (blur, exposure, glare "
-                              "or something in front of it?)")
-            notes.append(note)
         share = len(missing) / max(n_total, 1)
         failed = n_found < MIN_VIEWS_FAIL
         sev = "fail" if failed else ("warn" if share > 0.3 else "info")
@@ -1109,9 +1143,9 @@ def detection_findings(run, *, A: Optional[np.ndarray] = None, B: Optional[np.nd
         action = ("check the board size in the session (inner corners, not squares), lighting and focus, and that "
                   "the whole board is in every image" if failed or share > 0.3 else
                   "nothing to do if few; otherwise keep the whole board in the image at every robot pose")
-        out.append(Finding("target_not_found", sev, title, "; ".join(notes), action,
+        out.append(Finding("target_not_found", sev, title, "; ".join(notes[o.view_id] for o in missing), action,
                            view_ids=tuple(o.view_id for o in missing)))
-    partial = [(o.view_id, str(o.reason)) for o in few]
+    partial = [(o.view_id, str(o.reason)) for o in few] + [(v, t.split(": ", 1)[1]) for v, t in cut.items()]
     n_board = s.target.n_corners
     for vid, det in (run.detections or {}).items():
         if s.target.kind == "charuco" and len(det.corner_ids) < PARTIAL_SHARE * n_board:

@@ -417,26 +417,72 @@ def test_cross_validation_without_refinement_reports_the_spread(tmp_path, monkey
 
 
 # ------------------------------------------------------------------------------ rendered images
-def _render(tmp_path, name, **kw):
-    return write_vendor_session(tmp_path / name, mode="eye_in_hand", n_views=8, seed=22,
+def _render(root, name, **kw):
+    return write_vendor_session(root / name, mode="eye_in_hand", n_views=8, seed=22,
                                 intrinsics=default_intrinsics(640, 360), supersample=2, image_noise=1.0, **kw)
 
 
-def test_rendered_sessions_blur_and_hidden_board(tmp_path):
-    sharp = run_calibration(load_session(_render(tmp_path, "sharp")), CalibrateOptions(refine=False))
-    d = diagnose_run(sharp, cross_validation=False)
-    assert not _codes(d), d["findings"]
-    assert all(m["blur_sigma_px"] < 0.8 for m in d["images"].values())
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    return _render(tmp_path_factory.mktemp("rendered"), "sharp")
 
-    blurred = run_calibration(load_session(_render(tmp_path, "blur", blur_sigma_px=3.0)),
-                              CalibrateOptions(refine=False))
-    d = diagnose_run(blurred, cross_validation=False)
+
+def _calibrate(folder):
+    run = run_calibration(load_session(folder), CalibrateOptions(refine=False))
+    d = diagnose_run(run, cross_validation=False)
+    json.dumps(d)
+    return run, d
+
+
+def test_rendered_clean_session_has_no_findings(rendered):
+    _, d = _calibrate(rendered)
+    assert not _codes(d), d["findings"]
+    assert all(m["blur_sigma_px"] < 0.8 and m["saturated_share"] == 0 for m in d["images"].values())
+
+
+def test_rendered_blur(tmp_path):
+    _, d = _calibrate(_render(tmp_path, "blur", blur_sigma_px=3.0))
     f = _one(d, "blurred")
     assert len(f["view_ids"]) >= 6 and f["severity"] == "warn"
 
-    hidden = run_calibration(load_session(_render(tmp_path, "hidden", hidden_views=["3"])),
-                             CalibrateOptions(refine=False))
-    d = diagnose_run(hidden, cross_validation=False)
+
+def test_rendered_hidden_board(tmp_path):
+    _, d = _calibrate(_render(tmp_path, "hidden", hidden_views=["3"]))
     f = _one(d, "target_not_found")
     assert f["view_ids"] == ["3"] and "outside the image" in f["evidence"]
-    assert "blurred" not in _codes(d)
+    assert not _codes(d) - {"target_not_found"}
+
+
+def test_rendered_partly_visible_and_overexposed(rendered, tmp_path):
+    import shutil
+
+    import cv2
+    from handeye.synth_render import render_view
+
+    folder = tmp_path / "s"
+    shutil.copytree(rendered, folder)
+    gt = json.loads((folder / "ground_truth.json").read_text())
+    X, B = np.array(gt["T_end_cam"]), np.array(gt["T_base_board"])
+    intr = default_intrinsics(640, 360)
+    # view 4: the camera turned so that the board's centre sits on the image's right edge
+    C = np.array(gt["views"]["4"]["T_cam_board_true"])
+    c = np.mean(ChessboardSpec(11, 8, 0.03).object_points(), axis=0)
+    p = C[:3, :3] @ c + C[:3, 3]
+    turn = T_from_rotvec([0.0, -(np.arctan2(320.0, intr.fx) - np.arctan2(p[0], p[2])), 0.0], [0.0, 0.0, 0.0])
+    C2 = turn @ C
+    img = render_view(ChessboardSpec(11, 8, 0.03), intr, C2, supersample=2, noise_sigma=1.0,
+                      rng=np.random.default_rng(0))
+    cv2.imwrite(str(folder / "4.jpg"), img)
+    lines = (folder / "poses.txt").read_text().split("\n")
+    lines[3] = ",".join(f"{x:.9f}" for x in pose_values_from_T(B @ inv_T(C2) @ inv_T(X), VENDOR_POSE_FORMAT))
+    (folder / "poses.txt").write_text("\n".join(lines))
+    # views 6 and 7: exposure doubled
+    for k in (6, 7):
+        im = cv2.imread(str(folder / f"{k}.jpg"))
+        cv2.imwrite(str(folder / f"{k}.jpg"), cv2.convertScaleAbs(im, alpha=2.0, beta=40))
+    _, d = _calibrate(folder)
+    f = _one(d, "partial_target")
+    assert f["view_ids"] == ["4"] and "% of the board" in f["evidence"]
+    f = _one(d, "overexposed")
+    assert f["severity"] == "warn" and set(f["view_ids"]) == {"6", "7"}
+    assert not _codes(d) - {"partial_target", "overexposed"}
