@@ -70,12 +70,14 @@ def view_reprojection_factor(*, mode: str, key_x: int, key_board: int, key_robot
         r, J_x, J_r, J_b, J_k = chain_residual(T_x=T_x, T_base_end=T_robot, T_board=T_board,
                                                invert_robot=invert_robot, intrinsics_vec=k_work,
                                                object_points=obj, image_points=img, jacobians=want)
-        cost_scale, irls_scale = corner_robust_scales(r, sigma_px=sigma_px, loss=loss, k=loss_k)
-        if not want:
-            if loss == "none":
-                return r
-            return r * np.repeat(cost_scale, 2)
-        w = np.repeat(irls_scale, 2)[:, None] if loss != "none" else None
+        w = None
+        if loss != "none":
+            cost_scale, irls_scale = corner_robust_scales(r, sigma_px=sigma_px, loss=loss, k=loss_k)
+            if not want:
+                return r * np.repeat(cost_scale, 2)
+            w = np.repeat(irls_scale, 2)[:, None]
+        elif not want:
+            return r
         blocks = [(H_x, J_x), (H_b, J_b)]
         if key_robot is not None:
             blocks.append((H_r, J_r))
