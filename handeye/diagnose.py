@@ -94,6 +94,8 @@ MOTION_WARN_SPREAD_DEG = 10.0
 VIEW_OUTLIER_P = 1e-4
 VIEW_OUTLIER_MIN_DEG = 0.3
 VIEW_OUTLIER_MIN_MM = 3.0
+#: ... and a flagged view's rotation or translation disagreement is this many times the others' median
+VIEW_OUTLIER_RATIO = 3.0
 #: robust scales never below these (noise-free synthetic data)
 SCALE_FLOOR_DEG = 0.02
 SCALE_FLOOR_MM = 0.2
@@ -765,8 +767,12 @@ def robot_pose_test(obs: _Obs, fit: _Fit, T: np.ndarray, *, inliers: np.ndarray,
     Ct = P + np.diag([s_rot ** 2] * 3 + [s_tr ** 2] * 3)
     d2 = np.einsum("ni,ni->n", e, np.linalg.solve(Ct, e[..., None])[..., 0])
     thr = float(chi2.ppf(1.0 - VIEW_OUTLIER_P, 6))
-    flags = (d2 > thr) & ((rot > VIEW_OUTLIER_MIN_DEG) | (trans > VIEW_OUTLIER_MIN_MM))
-    return {"rot_deg": rot, "trans_mm": trans, "distance": np.sqrt(d2), "flags": flags,
+    # and the disagreement must stand out from the others' in size (the covariance model is approximate)
+    med_rot = max(float(np.median(rot[use])), SCALE_FLOOR_DEG)
+    med_tr = max(float(np.median(trans[use])), SCALE_FLOOR_MM)
+    ratio = np.maximum(rot / med_rot, trans / med_tr)
+    flags = (d2 > thr) & (ratio > VIEW_OUTLIER_RATIO) & ((rot > VIEW_OUTLIER_MIN_DEG) | (trans > VIEW_OUTLIER_MIN_MM))
+    return {"rot_deg": rot, "trans_mm": trans, "distance": np.sqrt(d2), "flags": flags, "size_ratio": ratio,
             "threshold_sigmas": float(np.sqrt(thr)), "robot_sigma_deg": float(np.degrees(s_rot)),
             "robot_sigma_mm": float(1e3 * s_tr), "with_camera_covariance": covs is not None}
 
