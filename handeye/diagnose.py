@@ -1563,11 +1563,25 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
     s = run.session
     findings: list = []
     result: dict = {"version": 1}
-    obs = _obs_from_run(run)
+    problems: list = []
+
+    def guard(name, fn, *args, default=None, **kw):
+        """Run one stage; an unexpected error becomes a note instead of breaking result.json."""
+        try:
+            return fn(*args, **kw)
+        except Exception as e:  # noqa: BLE001 - diagnostics must never stop a calibration from being written
+            log.warning("diagnostics stage %s failed: %s", name, e)
+            log.debug("diagnostics stage %s failed", name, exc_info=True)
+            problems.append(f"{name}: {type(e).__name__}: {e}")
+            return default
+
+    obs = guard("observations", _obs_from_run, run)
     predict = None
     global_fault = False
-    if obs is not None:
-        pl = _pose_level(obs, refined=run.refined, session_kind=s.format)
+    per_view: dict = {}
+    pl = guard("pose checks", _pose_level, obs, refined=run.refined, session_kind=s.format) if obs is not None \
+        else None
+    if pl is not None:
         findings += pl["findings"]
         global_fault = pl["global_fault"]
         result["readings"] = pl["readings"]
@@ -1575,24 +1589,23 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
         fit = pl["fit"]
         if not global_fault and run.T_x is not None and run.T_board is not None and run.status == "ok":
             predict = (inv_T(run.T_x), run.T_board, False)
-        elif pl["fit"] is not None:
+        elif fit is not None:
             inverted = global_fault and any(f.code in ("poses_inverted", "mode_swapped") for f in pl["findings"])
             predict = (fit.A, fit.B[0], inverted)
-    else:
-        per_view = {}
+    elif obs is None:
         n = len(run.board_poses or {})
         if n < MIN_VIEWS_FAIL and (run.detections or run.outcomes):
-            findings += motion_findings(s.mode, np.zeros((n, 4, 4)) + np.eye(4))
-    findings += _detection_with_prediction(run, predict)
-    findings += distortion_findings(run)
-    metrics = image_metrics(run) if images else {}
-    findings += image_findings(run, metrics)
-    findings += coverage_findings(run)
+            findings += guard("motion", motion_findings, s.mode, np.zeros((n, 4, 4)) + np.eye(4), default=[])
+    findings += guard("detection", _detection_with_prediction, run, predict, default=[])
+    findings += guard("intrinsics", distortion_findings, run, default=[])
+    metrics = guard("images", image_metrics, run, default={}) if images else {}
+    findings += guard("images", image_findings, run, metrics, default=[])
+    findings += guard("coverage", coverage_findings, run, default=[])
     if metrics:
         result["images"] = {v: {k: (round(float(x), 4) if isinstance(x, (float, np.floating)) else x)
                                 for k, x in m.items()} for v, m in metrics.items()}
     if cross_validation and not global_fault and run.status == "ok":
-        cv = cross_validate(run)
+        cv = guard("cross-validation", cross_validate, run, default=None) or {"summary": "not run: it failed"}
     else:
         cv = {"summary": "not run: " + ("the robot poses do not match the images as read" if global_fault
                                         else "no hand-eye result" if run.status != "ok" else "disabled")}
@@ -1604,6 +1617,9 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
                                 f"{cv.get('ratio_rot')}x, translation {cv.get('ratio_trans')}x)",
                                 "use the cross-validation spread as the uncertainty; look for robot pose errors "
                                 "(estimate robot noise: --robot-noise estimate), a moving board or timing problems"))
+    if problems:
+        findings.append(Finding("diagnostics_incomplete", "info", "Some diagnostics could not run",
+                                "; ".join(problems), "report this with the session if it persists"))
     result["per_view"] = _jsonable(per_view)
     result["findings"] = [_finding_dict(f) for f in _sorted(findings)]
     return _jsonable(result)

@@ -440,6 +440,28 @@ def test_rendered_clean_session_has_no_findings(rendered):
     assert all(m["blur_sigma_px"] < 0.8 and m["saturated_share"] == 0 for m in d["images"].values())
 
 
+def test_wrong_board_size_finds_no_target(rendered, tmp_path):
+    import shutil
+
+    folder = tmp_path / "s"
+    shutil.copytree(rendered, folder)
+    cfg = yaml.safe_load((folder / "config.yaml").read_text())
+    cfg["checkerboard_args"]["XX"] = 12  # the board has 11 x 8 inner corners
+    (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
+    run, d = _calibrate(folder)
+    assert run.status == "failed"
+    f = _one(d, "target_not_found")
+    assert f["severity"] == "fail" and len(f["view_ids"]) == 8 and "board size" in f["action"]
+
+
+def test_an_unreadable_session_is_said_so(tmp_path):
+    (tmp_path / "poses.txt").write_text("not numbers\n")
+    d = diagnose_session_error(tmp_path, "poses.txt:1: malformed pose line")
+    json.dumps(d)
+    assert [f["code"] for f in d["findings"]] == ["session_unreadable"]
+    assert "malformed" in d["findings"][0]["evidence"]
+
+
 def test_rendered_blur(tmp_path):
     _, d = _calibrate(_render(tmp_path, "blur", blur_sigma_px=3.0))
     f = _one(d, "blurred")
