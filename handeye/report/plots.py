@@ -59,7 +59,8 @@ def _fig(w: float, h: float) -> Figure:
 def _png(fig: Figure) -> bytes:
     buf = io.BytesIO()
     with matplotlib.rc_context(_RC):
-        fig.savefig(buf, format="png", dpi=DPI, facecolor="white")
+        # fast zlib level: the PNGs are embedded once, encoding time matters more than bytes
+        fig.savefig(buf, format="png", dpi=DPI, facecolor="white", pil_kwargs={"compress_level": 1})
     return buf.getvalue()
 
 
