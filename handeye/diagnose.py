@@ -95,13 +95,16 @@ VIEW_OUTLIER_P = 1e-4
 VIEW_OUTLIER_MIN_DEG = 0.3
 VIEW_OUTLIER_MIN_MM = 3.0
 #: ... and a flagged view's rotation or translation disagreement is this many times the others' median
+#: (times 1 + 2.5 / n_views: 3.9 with 8 views, 3.3 with 25)
 VIEW_OUTLIER_RATIO = 3.0
 #: robust scales never below these (noise-free synthetic data)
 SCALE_FLOOR_DEG = 0.02
 SCALE_FLOOR_MM = 0.2
 #: board move: the split must explain the data this much better, and the step must be this large
 STEP_MIN_SEGMENT = 3
-STEP_GAIN = 3.0
+STEP_P = 1e-3  # family-wise false-alarm probability of the step test over all splits (>= 9 views)
+STEP_GAIN = 3.0  # fewer views: the split must explain the views this much better
+STEP_MIN_GAIN = 1.3
 STEP_MIN_DEG = 0.5
 STEP_MIN_MM = 3.0
 #: ChArUco views with fewer than this share of the board's corners are called partial
@@ -771,14 +774,50 @@ def robot_pose_test(obs: _Obs, fit: _Fit, T: np.ndarray, *, inliers: np.ndarray,
     med_rot = max(float(np.median(rot[use])), SCALE_FLOOR_DEG)
     med_tr = max(float(np.median(trans[use])), SCALE_FLOOR_MM)
     ratio = np.maximum(rot / med_rot, trans / med_tr)
-    flags = (d2 > thr) & (ratio > VIEW_OUTLIER_RATIO) & ((rot > VIEW_OUTLIER_MIN_DEG) | (trans > VIEW_OUTLIER_MIN_MM))
+    ratio_thr = VIEW_OUTLIER_RATIO * (1.0 + 2.5 / max(int(use.sum()), 1))  # medians of few views are noisy
+    flags = (d2 > thr) & (ratio > ratio_thr) & ((rot > VIEW_OUTLIER_MIN_DEG) | (trans > VIEW_OUTLIER_MIN_MM))
     return {"rot_deg": rot, "trans_mm": trans, "distance": np.sqrt(d2), "flags": flags, "size_ratio": ratio,
             "threshold_sigmas": float(np.sqrt(thr)), "robot_sigma_deg": float(np.degrees(s_rot)),
             "robot_sigma_mm": float(1e3 * s_tr), "with_camera_covariance": covs is not None}
 
 
+def _board_deviations(fit: _Fit, C: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """(N,6) implied board of each view against the first group's board: rotation vector [deg], translation
+    difference [mm] along the board's parent frame."""
+    Bs = implied_boards(fit.A, C, M)
+    B0 = fit.B[0]
+    rv = Rotation.from_matrix(np.swapaxes(B0[:3, :3], 0, 1) @ Bs[:, :3, :3]).as_rotvec()
+    return np.concatenate([np.degrees(rv), 1e3 * (Bs[:, :3, 3] - B0[:3, 3])], axis=1)
+
+
+def _step_test(v: np.ndarray, labels: np.ndarray, use: np.ndarray) -> tuple[float, float]:
+    """Hotelling's two-sample test of equal mean board in the two segments: (T^2, p-value).
+
+    The pooled within-segment covariance of the implied boards (6-D) is the noise; the p-value is
+    from ``T^2 (nu - 5) / (6 nu) ~ F(6, nu - 5)``, ``nu = n0 + n1 - 2``."""
+    from scipy.stats import f as f_dist
+
+    a, b = v[(labels == 0) & use], v[(labels == 1) & use]
+    n0, n1 = len(a), len(b)
+    nu = n0 + n1 - 2
+    if n0 < 2 or n1 < 2 or nu < 7:
+        return 0.0, 1.0
+    S = ((a - a.mean(0)).T @ (a - a.mean(0)) + (b - b.mean(0)).T @ (b - b.mean(0))) / nu
+    S += np.diag(np.maximum(np.diag(S), 1e-12)) * 1e-6
+    d = a.mean(0) - b.mean(0)
+    try:
+        t2 = float(n0 * n1 / (n0 + n1) * d @ np.linalg.solve(S, d))
+    except np.linalg.LinAlgError:
+        return 0.0, 1.0
+    F = t2 * (nu - 5) / (6 * nu)
+    return t2, float(f_dist.sf(F, 6, nu - 5))
+
+
 def _split_fits(obs: _Obs, M: np.ndarray):
-    """Best two-segment split of the view sequence (one board per segment), or None."""
+    """Best two-segment split of the view sequence (one board per segment), or None.
+
+    Returns (single fit, its score, (split score, k, split fit, p-value)); the score is the sum of the
+    views' capped board deviations (small is good)."""
     n = obs.n
     if n < 2 * STEP_MIN_SEGMENT:
         return None
@@ -793,12 +832,15 @@ def _split_fits(obs: _Obs, M: np.ndarray):
         except np.linalg.LinAlgError:
             continue
         d = np.hypot(f.board_rot_deg / COST_DEG, f.board_trans_mm / COST_MM)
+        use = d <= max(3.0 * float(np.median(d)), 0.05)
+        _, p = _step_test(_board_deviations(f, obs.C, M), labels, use)
         score = float(np.sum(np.minimum(d, cap)))
-        if best is None or score < best[0]:
-            best = (score, k, f)
+        key = (p, score)
+        if best is None or key < best[0]:
+            best = (key, (score, k, f, p))
     if best is None:
         return None
-    return single, float(np.sum(np.minimum(d1, cap))), best
+    return single, float(np.sum(np.minimum(d1, cap))), best[1]
 
 
 def board_moved_findings(obs: _Obs, M: np.ndarray) -> tuple[list, Optional[_Fit]]:
@@ -806,12 +848,14 @@ def board_moved_findings(obs: _Obs, M: np.ndarray) -> tuple[list, Optional[_Fit]
     r = _split_fits(obs, M)
     if r is None:
         return [], None
-    single, s1, (s2, k, f) = r
+    single, s1, (s2, k, f, p) = r
     step_rot, step_mm = (float(x[0]) for x in pose_differences(f.B[0], f.B[1]))
     within_rot = float(np.median(f.board_rot_deg))
     within_mm = float(np.median(f.board_trans_mm))
-    big = (step_rot > max(STEP_MIN_DEG, 5 * within_rot)) or (step_mm > max(STEP_MIN_MM, 5 * within_mm))
-    if not (s1 > STEP_GAIN * s2 and big):
+    big = (step_rot > max(STEP_MIN_DEG, 3 * within_rot)) or (step_mm > max(STEP_MIN_MM, 3 * within_mm))
+    n_splits = obs.n - 2 * STEP_MIN_SEGMENT + 1
+    significant = p < STEP_P / n_splits if p < 1.0 else s1 > STEP_GAIN * s2
+    if not (significant and big and s1 > STEP_MIN_GAIN * s2):
         return [], None
     mode = obs.mode
     before, after = obs.ids[:k], obs.ids[k:]
@@ -826,11 +870,12 @@ def board_moved_findings(obs: _Obs, M: np.ndarray) -> tuple[list, Optional[_Fit]
     ev = (f"views {before[0]}..{before[-1]} and {after[0]}..{after[-1]} each fit one board "
           f"(median scatter {within_rot:.3f} deg / {within_mm:.2f} mm) but the two boards differ by "
           f"{step_rot:.2f} deg / {step_mm:.1f} mm; one board for all views leaves "
-          f"{single.median_rot_deg:.2f} deg / {single.median_trans_mm:.1f} mm (median), and the split explains the "
-          f"views {s1 / max(s2, 1e-9):.1f}x better")
+          f"{single.median_rot_deg:.2f} deg / {single.median_trans_mm:.1f} mm (median); the split explains the "
+          f"views {s1 / max(s2, 1e-9):.1f}x better" + (f" (two-sample test of the boards: p = {p:.1e})" if p < 1.0
+                                                       else ""))
     fnd = Finding("board_moved", "fail", code_title, ev, action, view_ids=tuple(minority),
                   details={"split_after_view": obs.ids[k - 1], "step_deg": step_rot, "step_mm": step_mm,
-                           "within_deg": within_rot, "within_mm": within_mm})
+                           "within_deg": within_rot, "within_mm": within_mm, "p_value": p})
     return [fnd], f
 
 

@@ -1,0 +1,116 @@
+"""False alarms on clean sessions and sensitivity to injected faults of handeye.diagnose.
+
+Corner-level synthetic sessions (both modes, several seeds, robot noise levels and view counts) are
+written in the vendor layout with empty images; detection is replaced by the synthetic corners, so
+loading, re-reading the raw poses and calibration run as for real data. Prints, per setting, how many
+clean sessions got a fail/warn finding, and how often a robot-pose error or a board move of a given
+size was named.
+
+    python benchmarks/bench_diagnose.py [--seeds 6] [--quick]
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+import handeye.calibrate as calibrate_mod
+from handeye.calibrate import CalibrateOptions, run_calibration
+from handeye.conventions import VENDOR_POSE_FORMAT, pose_values_from_T
+from handeye.diagnose import diagnose_run
+from handeye.geometry import T_from_rotvec, inv_T
+from handeye.model import mounting
+from handeye.session import load_session
+from handeye.synth import make_corner_session
+
+
+def _write_vendor(folder: Path, cs, T) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    for k in range(1, cs.n_views + 1):
+        (folder / f"{k}.jpg").write_bytes(b"")
+    (folder / "poses.txt").write_text(
+        "\n".join(",".join(f"{x:.9f}" for x in pose_values_from_T(t, VENDOR_POSE_FORMAT)) for t in T) + "\n")
+    (folder / "config.yaml").write_text(yaml.safe_dump(
+        {"checkerboard_args": {"XX": cs.target.cols, "YY": cs.target.rows, "L": cs.target.square_m}, "mode": cs.mode}))
+    return folder
+
+
+def _diagnose(folder: Path, cs) -> dict:
+    dets = {d.view_id: d for d in cs.detections()}
+    orig = calibrate_mod.detect_views
+    calibrate_mod.detect_views = lambda items, target, **kw: {v: dets.get(v, "not found") for v, _ in items}
+    try:
+        run = run_calibration(load_session(folder), CalibrateOptions(refine=False))
+    finally:
+        calibrate_mod.detect_views = orig
+    return diagnose_run(run, images=False, cross_validation=False)
+
+
+def clean(seeds: range, root: Path) -> None:
+    bad = collections.Counter()
+    n = 0
+    t0 = time.perf_counter()
+    for mode in ("eye_in_hand", "eye_to_hand"):
+        for seed in seeds:
+            for rn, px in (((0.0, 0.0), 0.3), ((0.3, 0.05), 0.3), ((1.0, 0.1), 0.5), ((2.0, 0.3), 1.0)):
+                for nv in (8, 15, 25):
+                    cs = make_corner_session(mode=mode, n_views=nv, seed=seed, robot_noise=rn, noise_px=px)
+                    d = _diagnose(_write_vendor(root / "clean", cs, cs.T_base_end_reported), cs)
+                    n += 1
+                    for f in d["findings"]:
+                        if f["severity"] in ("fail", "warn"):
+                            bad[(f["code"], rn, nv)] += 1
+    print(f"clean sessions: {n} ({time.perf_counter() - t0:.0f} s), with a fail/warn finding: "
+          f"{sum(bad.values())}")
+    for k, v in sorted(bad.items(), key=str):
+        print(f"  {k}: {v}")
+
+
+def sensitivity(seeds: range, root: Path) -> None:
+    hits = collections.defaultdict(list)
+    for mode in ("eye_in_hand", "eye_to_hand"):
+        mm = mounting(mode)
+        for seed in seeds:
+            for rn in ((0.3, 0.05), (1.0, 0.1)):
+                cs = make_corner_session(mode=mode, n_views=15, seed=seed, robot_noise=rn)
+                rng = np.random.default_rng(seed)
+                u, w = (x / np.linalg.norm(x) for x in rng.normal(size=(2, 3)))
+                for mm_size, deg_size in ((1.5, 0.15), (3.0, 0.3), (5.0, 0.5), (10.0, 1.0)):
+                    dT = T_from_rotvec(np.radians(deg_size) * w, 1e-3 * mm_size * u)
+                    T = cs.T_base_end_reported.copy()
+                    T[6] = T[6] @ dT
+                    d = _diagnose(_write_vendor(root / "s", cs, T), cs)
+                    hits[("robot pose error, view 7", rn, mm_size, deg_size)].append(any(
+                        f["code"] == "robot_pose_disagrees" and "7" in f["view_ids"] for f in d["findings"]))
+                    T = cs.T_base_end_reported.copy()
+                    B = cs.T_board_true
+                    for k in range(10, 15):
+                        T[k] = mm.T_base_end_from_M(mm.M_from_T_base_end(T[k]) @ B @ dT @ inv_T(B))
+                    d = _diagnose(_write_vendor(root / "s", cs, T), cs)
+                    hits[("board moved after view 10", rn, mm_size, deg_size)].append(any(
+                        f["code"] == "board_moved" for f in d["findings"]))
+    print("sensitivity (15 views; robot noise per axis mm/deg; fault size mm/deg): named / sessions")
+    for (what, rn, a, b), v in sorted(hits.items(), key=str):
+        print(f"  {what:28s} noise {rn[0]:.1f} mm/{rn[1]:.2f} deg  fault {a:4.1f} mm/{b:.2f} deg: {sum(v)}/{len(v)}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=6)
+    ap.add_argument("--quick", action="store_true", help="2 seeds")
+    a = ap.parse_args(argv)
+    seeds = range(2 if a.quick else a.seeds)
+    with tempfile.TemporaryDirectory() as tmp:
+        clean(seeds, Path(tmp))
+        sensitivity(seeds, Path(tmp))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
