@@ -7,41 +7,30 @@ that look like millimetres or degrees): it re-reads the raw pose values in every
 says which reading fits the images.
 
 Each :class:`Finding` has a stable ``code``, a ``severity`` (fail | warn | info), a one-line
-``title``, the ``evidence`` (numbers) and an ``action``. The detectors and what they use:
+``title``, the ``evidence`` (numbers) and an ``action``; docs/diagnostics.md lists every code with
+its evidence, thresholds and measured false-alarm rate. In short:
 
-=======================  ==========================================================================
-code                     evidence
-=======================  ==========================================================================
-translation_units,       every plausible re-reading of the raw pose values (m/mm, rad/deg, 24 Euler
-angle_units,             conventions, quaternion orders) x {as given, inverted}: the board scatter
-euler_order,             left after solving ``C_i = A M_i B`` (Park & Martin on all view pairs), and
-quaternion_order,        for rotation readings the rotation-angle invariant of every view pair
-poses_inverted,          (:mod:`handeye.diagnose_math`). Inverted poses and a swapped mounting mode
-mode_swapped             give the same numbers; they are told apart by which reading of the solution
-                         is physically plausible (camera near the flange and board far, or reverse).
-pairs_shifted            image k paired with pose k+s for |s| <= 5 (same scatter), and a full shuffle
-                         (views matched by their sorted pair-rotation-angle signatures), or two views
-                         whose poses are swapped.
-board_moved              a step in the board transform implied by each view: the split of the view
-                         sequence into two parts, each fitting one board, that explains the data
-                         far better than one board.
-robot_pose_disagrees     the refinement's robot-pose outlier decisions when there was a refinement,
-                         else a robust fit (views that break the pair invariants left out) and each
-                         view's disagreement between reported and camera-implied robot pose
-                         (mm / deg, end frame) against the robust spread of the others.
-weak_motion,             relative rotations of the robot motions (largest angle, spread of axes)
-too_few_views            and the number of usable views; the axes to add rotations about.
-target_not_found,        dropped views and their reasons; where the board would have been (predicted
-partial_target           through the robot pose and the result); ChArUco views with few corners.
-blurred, overexposed,    the images: edge width across the board's squares, saturated share of the
-corners_bunched          board, share of the image covered by corners (:mod:`handeye.diagnose_images`).
-zero_distortion_given    given intrinsics without distortion vs a calibrateCamera fit of the same
-                         corners (RMS drop, displacement of the image corners, radial residuals).
-=======================  ==========================================================================
+* pose readings (translation_units, angle_units, euler_order, quaternion_order, poses_inverted,
+  mode_swapped): every plausible re-reading of the raw pose values is scored by the board scatter left
+  after solving ``C_i = A M_i B`` (Park & Martin on all view pairs, robust) and the pairs' rotation-angle
+  invariant; inverted poses and a swapped mode give the same numbers and are told apart by which
+  physical reading of the solution is plausible;
+* pairing (pairs_shifted): image k with pose k+s (|s| <= 5), a full shuffle (views matched by their
+  sorted pair-angle signatures) and poses that belong to another (possibly undetected) view;
+* board_moved: the best split of the view sequence into two boards, Hotelling's two-sample test of the
+  implied boards;
+* robot_pose_disagrees / corner_order_flipped: the refinement's robot-pose decisions when it made them,
+  else a robust per-view test (camera-only pose covariance including the intrinsics' uncertainty plus
+  robustly estimated robot noise, and a size gate); a view that fits after renumbering its corners is
+  a detector flip, not a robot error;
+* weak_motion, too_few_views; target_not_found, partial_target (where the board would have been, from
+  the robot pose); blurred, overexposed (edge width and saturation measured on the images);
+  corners_bunched (image coverage); zero_distortion_given, intrinsics_mismatch (given intrinsics
+  against calibrateCamera on the same corners); uncertainty_underestimated (cross-validation).
 
-Cross-validation: leave-one-out (k-fold above 20 views) of the hand-eye result, refitted with the
-refinement (a single solve per fold with the noise levels of the full run) when the run was refined,
-else with the closed-form method; the jackknife spread is compared with the refinement's sigmas.
+Cross-validation: leave-one-out (10-fold above 20 views) of the hand-eye result, refitted with the
+refinement (one solve per fold, noise held at the full run's levels) when the run was refined, else
+with the closed-form method; the jackknife spread is compared with the refinement's sigmas.
 
 All functions are pure (no printing, no writing); images are only read.
 """
