@@ -32,6 +32,8 @@ from handeye.synth import make_corner_session
 
 def _write_vendor(folder: Path, cs, T) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
+    for old in folder.glob("*.jpg"):  # a previous, larger session's images
+        old.unlink()
     for k in range(1, cs.n_views + 1):
         (folder / f"{k}.jpg").write_bytes(b"")
     (folder / "poses.txt").write_text(
