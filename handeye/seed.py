@@ -161,7 +161,24 @@ def _resolve_orientation(cands, M) -> dict[str, int]:
         c = sum(cost[i, lab[i], j, lab[j]] for i in range(n) for j in range(n) if i != j)
         if c < best_cost:
             best, best_cost = lab.copy(), c
-    return {v: int(best[i]) for i, v in enumerate(vids)}
+    return {v: int(lab) for v, lab in zip(vids, _majority_frame(best, k))}
+
+
+def _majority_frame(labels: np.ndarray, k: int) -> np.ndarray:
+    """Re-express consistent orientation labels so that the detector's own order is the majority.
+
+    Turning every view by the same symmetry is a change of the board frame only; choose the one
+    that keeps most views as detected (so an asymmetric board keeps OpenCV's origin). Labels index
+    ``ChessboardSpec.symmetries()``: turns of 0, 180, 90, 270 degrees.
+    """
+    turns = np.array([0, 2, 1, 3])[:k] if k in (2, 4) else None
+    if turns is None:
+        return labels
+    q = turns[labels]
+    shift = np.bincount(q, minlength=4).argmax()
+    q = (q - shift) % 4
+    back = {t: i for i, t in enumerate(turns)}
+    return np.array([back[t] for t in q])
 
 
 # ------------------------------------------------------------------------------ motion checks
@@ -233,6 +250,8 @@ def solve_closed_form(mode: MountingMode, C: np.ndarray, M: np.ndarray, *, metho
         R, t = cv2.calibrateHandEye(list(G[:, :3, :3]), list(G[:, :3, 3]), list(C[:, :3, :3]), list(C[:, :3, 3]),
                                     method=HAND_EYE_METHODS[method])
         X = make_T(R, t.reshape(3))  # "cam2gripper" = inv(A)
+        if not np.all(np.isfinite(X)):
+            return HandEyeEstimate(mode.name, method, np.eye(4), np.eye(4), "failed", "solver returned non-finite values")
         A = inv_T(X)
         B = mean_T(inv_T(A @ M) @ C)
     else:
@@ -278,8 +297,9 @@ def all_methods(mode: MountingMode, C: np.ndarray, M: np.ndarray) -> dict[str, H
     for m in METHODS:
         try:
             out[m] = solve_closed_form(mode, C, M, method=m)
-        except cv2.error as e:  # one method failing must not stop the others
-            out[m] = HandEyeEstimate(mode.name, m, np.eye(4), np.eye(4), "failed", str(e).splitlines()[-1][:200])
+        except (cv2.error, np.linalg.LinAlgError, ValueError) as e:  # one method failing must not stop the others
+            msg = (str(e).strip().splitlines() or [type(e).__name__])[-1][:200]
+            out[m] = HandEyeEstimate(mode.name, m, np.eye(4), np.eye(4), "failed", msg)
     return out
 
 

@@ -39,18 +39,18 @@ class ChessboardSpec:
         """Corner-id permutations under which a detector cannot tell the board's orientation.
 
         Each entry ``perm`` maps a detected corner index to the id it may really have. The identity
-        is always first. With (cols+1) x (rows+1) squares, a 180-degree turn maps the colour
-        pattern onto itself when cols + rows is even; a square grid adds the 90-degree turns.
+        is always first, then the 180-degree turn, then (square grids) the 90 and 270-degree turns.
+        The corner grid is always symmetric under a half turn; the colours make the half turn
+        distinguishable only when cols + rows is odd, and even then OpenCV's detector sometimes
+        numbers a blurred board from the other end, so the half turn is always a candidate.
         """
         n = self.n_corners
         ident = np.arange(n)
-        out = [ident]
-        if (self.cols + self.rows) % 2 == 0:
-            out.append(ident[::-1].copy())
-            if self.cols == self.rows:
-                grid = ident.reshape(self.rows, self.cols)
-                out.append(np.rot90(grid, 1).reshape(-1).copy())
-                out.append(np.rot90(grid, 3).reshape(-1).copy())
+        out = [ident, ident[::-1].copy()]
+        if self.cols == self.rows:
+            grid = ident.reshape(self.rows, self.cols)
+            out.append(np.rot90(grid, 1).reshape(-1).copy())
+            out.append(np.rot90(grid, 3).reshape(-1).copy())
         return out
 
     def to_dict(self) -> dict:

@@ -393,7 +393,9 @@ def test_cross_validation_matches_the_covariance_on_clean_data(tmp_path, monkeyp
     _, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch,
                      refine=True, cv=True)
     cv = d["cross_validation"]
-    assert cv["scheme"] == "leave-one-out" and cv["folds_solved"] == cs.n_views
+    from handeye.diagnose import CV_FOLDS_REFINED
+
+    assert cv["scheme"] == f"{CV_FOLDS_REFINED}-fold (interleaved)" and cv["folds_solved"] == CV_FOLDS_REFINED
     assert cv["verdict"] == "consistent" and 0.5 < cv["ratio_trans"] < 2.0
     assert len(cv["per_view"]) == cs.n_views and not _codes(d)
 

@@ -709,14 +709,10 @@ def _plots(res, obs, ref, fits, views, T_x, T_board, unc, metrics, mctx, qa_cfg,
     flagged = {v["id"] for v in views if v["status"] != "used"}
     lim = (qa_cfg.get("checks") or {})
 
+    jobs: list = []
+
     def attempt(key, title, caption, fn):
-        try:
-            png = fn()
-        except Exception as e:  # a plot that cannot be drawn must not cost the whole report
-            log.warning("report: plot %s skipped: %s", key, e)
-            return
-        if png:
-            out.append(Plot(key, title, caption, png))
+        jobs.append((key, title, caption, fn))
 
     # residual histogram
     cam = [fits[v].residual_px for v in fits if v in used]
@@ -805,7 +801,42 @@ def _plots(res, obs, ref, fits, views, T_x, T_board, unc, metrics, mctx, qa_cfg,
                     "the robot poses as exact and weigh views unevenly, so they scatter more than the refined "
                     "result; one method far from all others points at weak motion or a bad pose.",
                     lambda: plots.translation_uncertainty(cov_t, meth, frame=parent, x_name=x_name))
+    for (key, title, caption, _), (png, err) in zip(jobs, _draw_all([j[3] for j in jobs])):
+        if err:  # a plot that cannot be drawn must not cost the whole report
+            log.warning("report: plot %s skipped: %s", key, err)
+        elif png:
+            out.append(Plot(key, title, caption, png))
     return out
+
+
+_PLOT_JOBS: list = []  # read by forked workers (closures need no pickling)
+
+
+def _draw_one(k: int):
+    try:
+        return _PLOT_JOBS[k](), ""
+    except Exception as e:  # noqa: BLE001 - reported per plot by the caller
+        return None, f"{type(e).__name__}: {e}"
+
+
+def _draw_all(fns: list) -> list:
+    """Draw the plots, on all cores where the platform can fork (matplotlib is single-threaded)."""
+    import multiprocessing as mp
+    import os
+    from concurrent.futures import ProcessPoolExecutor
+
+    _PLOT_JOBS[:] = fns
+    try:
+        workers = min(len(fns), os.cpu_count() or 1)
+        if workers > 1 and "fork" in mp.get_all_start_methods():
+            try:
+                with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as ex:
+                    return list(ex.map(_draw_one, range(len(fns))))
+            except (OSError, RuntimeError) as e:  # e.g. no fork allowed: draw here instead
+                log.debug("report: parallel plotting unavailable (%s)", e)
+        return [_draw_one(k) for k in range(len(fns))]
+    finally:
+        _PLOT_JOBS.clear()
 
 
 def _board_outline(obs) -> np.ndarray:
@@ -831,19 +862,23 @@ def _thumbs(views, fits, ref, image_paths, *, width_px: int = 240) -> dict[str, 
         p = image_paths.get(v["id"])
         if p is None or not Path(p).exists():
             continue
-        img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+        img, factor = None, 1
+        for flag, factor in ((cv2.IMREAD_REDUCED_COLOR_4, 4), (cv2.IMREAD_REDUCED_COLOR_2, 2), (cv2.IMREAD_COLOR, 1)):
+            img = cv2.imread(str(p), flag)  # JPEG decodes at 1/4 or 1/2 size several times faster
+            if img is None or img.shape[1] >= width_px:
+                break
         if img is None:
             continue
         h, w = img.shape[:2]
-        s = width_px / w
-        small = cv2.resize(img, (width_px, max(1, int(round(h * s)))), interpolation=cv2.INTER_AREA)
+        s = width_px / (w * factor)  # full-resolution pixels -> thumbnail pixels
+        small = cv2.resize(img, (width_px, max(1, int(round(h * factor * s)))), interpolation=cv2.INTER_AREA)
         fit = fits.get(v["id"])
         if fit is not None:
             bad = flagged_corners.get(v["id"], set())
             for cid, (u, vv) in zip(fit.corner_ids, fit.image_points_px):
                 color = (40, 40, 220) if int(cid) in bad else (60, 190, 60)
                 cv2.circle(small, (int(round(u * s)), int(round(vv * s))), 2, color, -1, lineType=cv2.LINE_AA)
-        ok, buf = cv2.imencode(".png", small, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+        ok, buf = cv2.imencode(".png", small, [cv2.IMWRITE_PNG_COMPRESSION, 3])
         if ok:
             out[v["id"]] = buf.tobytes()
     return out

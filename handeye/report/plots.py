@@ -26,7 +26,7 @@ AMBER = "#d99a2b"
 RED = "#c0392b"
 GREEN = "#2e8b57"
 ORANGE = "#e07b39"
-DPI = 130
+DPI = 100
 
 _RC = {
     "font.family": "DejaVu Sans",
