@@ -191,6 +191,8 @@ def _refine(s, opts, seed, intr, obj, poses, dets, T_base_end):
 
     views = [RefineView(vid, poses[vid].corner_ids, dets[vid].image_points, T_base_end[vid]) for vid in poses]
     ro = dict(opts.refine_options)
+    if opts.fix_k3:
+        ro["fix"] = tuple(sorted(set(ro.get("fix", ())) | {"k3"}))
     if s.intrinsics is not None and s.intrinsics_prior in ("fixed", "prior"):
         ro.setdefault("intrinsics", s.intrinsics_prior)
     return refine(mode=s.mode, object_points=obj, views=views, intrinsics=intr, T_x0=seed.T_x,
@@ -225,6 +227,8 @@ def _target_text(s: Session) -> str:
     t = s.target
     if t.kind == "chessboard":
         return f"chessboard {t.cols}x{t.rows} inner corners, {t.square_m * 1000:g} mm"
+    if t.kind == "circlegrid":
+        return f"circle grid {t.cols}x{t.rows} dots, {t.spacing_m * 1000:g} mm spacing"
     return f"ChArUco {t.squares_x}x{t.squares_y} squares"
 
 

@@ -32,6 +32,8 @@ def _add_calibrate(sub):
     p.add_argument("--out", type=Path, help="output folder (default: reports/<session folder name>)")
     p.add_argument("--no-refine", action="store_true", help="stop at the closed-form seed")
     p.add_argument("--fix-k3", action="store_true", help="hold the k3 distortion coefficient at 0")
+    p.add_argument("--fix", nargs="+", metavar="NAME", choices=["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"],
+                   help="intrinsics held at their starting values in the refinement (e.g. --fix p1 p2 k3)")
     p.add_argument("--robot-noise", choices=["estimate", "fixed", "none"], default=None,
                    help="robot pose noise model in the refinement (default: estimate)")
     p.add_argument("--robot-sigma", nargs=2, type=float, metavar=("MM", "DEG"),
@@ -159,6 +161,8 @@ def cmd_calibrate(args) -> int:
         ro["robot_noise"] = args.robot_noise
     if args.robot_sigma:
         ro["robot_sigma_mm"], ro["robot_sigma_deg"] = args.robot_sigma
+    if getattr(args, "fix", None):
+        ro["fix"] = tuple(args.fix)
     opts = CalibrateOptions.from_config(cfg, method=args.method, refine=False if args.no_refine else None,
                                         fix_k3=True if args.fix_k3 else None, workers=args.workers,
                                         refine_options=ro)
@@ -305,9 +309,7 @@ def cmd_demo(args) -> int:
                                   blur=0.5, robot_noise=(0.0, 0.0), hidden=[str(max(2, args.views // 2))],
                                   outliers=[])
     cmd_simulate(args_sim)
-    args_cal = argparse.Namespace(session=session_dir, mode=None, method="tsai", out=args.out / "result",
-                                  no_refine=False, fix_k3=False, robot_noise=None, robot_sigma=None, workers=None,
-                                  no_report=False)
+    args_cal = build_parser().parse_args(["calibrate", str(session_dir), "--out", str(args.out / "result")])
     rc = cmd_calibrate(args_cal)
     if rc == 0:
         truth = json.loads((session_dir / "ground_truth.json").read_text())

@@ -106,3 +106,23 @@ def test_unknown_config_key_is_named(rendered, tmp_path, capsys):
     p.write_text(yaml.safe_dump({"methd": "park"}))
     assert main(["calibrate", str(session), "--config", str(p)]) == 2
     assert "unknown setting 'methd'" in capsys.readouterr().err
+
+
+def test_demo_command_reports_its_error_against_the_truth(tmp_path, capsys):
+    assert main(["-q", "demo", "--out", str(tmp_path / "demo"), "--views", "8", "--mode", "eye_to_hand"]) == 0
+    out = capsys.readouterr().out
+    line = [l for l in out.splitlines() if l.startswith("error against the ground truth")][0]
+    t_mm, r_deg = float(line.split(":")[1].split("mm")[0]), float(line.split(",")[1].split("deg")[0])
+    assert t_mm < 1.0 and r_deg < 0.1
+    assert (tmp_path / "demo" / "result" / "report.html").exists()
+    assert "T_base_cam" in out
+
+
+def test_fixed_intrinsics_stay_fixed(rendered, tmp_path):
+    _, session = rendered
+    rc, res = _calibrate(session, tmp_path / "out", "--fix", "p1", "p2", "k3")
+    assert rc == 0
+    ref = res["refinement"]
+    assert set(ref["intrinsics_sigma"]) == {"fx", "fy", "cx", "cy", "k1", "k2"}
+    seed_d = ref["seed"]["intrinsics"]["dist"]
+    assert all(ref["intrinsics"]["dist"][k] == seed_d[k] for k in ("p1", "p2", "k3"))
