@@ -40,12 +40,14 @@ class ChessboardSpec:
 
         Each entry ``perm`` maps a detected corner index to the id it may really have. The identity
         is always first, then the 180-degree turn, then (square grids) the 90 and 270-degree turns.
-        The corner grid is always symmetric under a half turn; the colours make the half turn
-        distinguishable only when cols + rows is odd, and even then OpenCV's detector sometimes
-        numbers a blurred board from the other end, so the half turn is always a candidate.
+        With (cols+1) x (rows+1) squares, a half turn maps the colour pattern onto itself when
+        cols + rows is even. (On an asymmetric board the colours decide; a detector that numbers
+        such a board from the other end is corrected in detection, see detect.normalize_chessboard_order.)
         """
         n = self.n_corners
         ident = np.arange(n)
+        if (self.cols + self.rows) % 2 == 1:
+            return [ident]
         out = [ident, ident[::-1].copy()]
         if self.cols == self.rows:
             grid = ident.reshape(self.rows, self.cols)
@@ -87,7 +89,66 @@ class CharucoSpec:
                 "legacy_pattern": self.legacy_pattern}
 
 
-TargetSpec = Union[ChessboardSpec, CharucoSpec]
+@dataclass(frozen=True)
+class CircleGridSpec:
+    """Grid of ``cols`` x ``rows`` dots (cols = dots per row), centre spacing in metres.
+
+    Symmetric grid: dot id ``r * cols + c`` sits at board point ``(c * spacing_m, r * spacing_m, 0)``.
+    Asymmetric grid (OpenCV's layout, rows staggered): at ``((2 * c + r % 2) * spacing_m, r * spacing_m, 0)``.
+    The board frame is OpenCV's: z points into the board (away from a camera that sees its front).
+    ``origin_dot``: one corner dot is larger (ROS-Industrial's "modified circle grid"); the detector then
+    numbers the grid from that dot (id 0). Seen from the front with the dot at the bottom left, x runs
+    up from the dot and y to the right (ROS-Industrial's own frame has z out of the page instead).
+    """
+
+    cols: int
+    rows: int
+    spacing_m: float
+    asymmetric: bool = False
+    origin_dot: bool = False
+    kind: str = "circlegrid"
+
+    @property
+    def n_corners(self) -> int:
+        return self.cols * self.rows
+
+    @property
+    def square_m(self) -> float:
+        """Grid pitch (distance between neighbouring rows), for code that sizes things by the square."""
+        return self.spacing_m
+
+    def object_points(self) -> np.ndarray:  # shape (cols*rows, 3)
+        r, c = np.divmod(np.arange(self.n_corners), self.cols)
+        x = (2 * c + r % 2) if self.asymmetric else c
+        return np.stack([x * self.spacing_m, r * self.spacing_m, np.zeros(self.n_corners)], axis=1).astype(float)
+
+    def symmetries(self) -> list[np.ndarray]:
+        """Dot-id permutations under which the grid looks the same (see ``ChessboardSpec.symmetries``).
+
+        The detector already orders every view as seen from the board's front (no mirror orderings),
+        so only in-plane turns remain: symmetric grid: identity, half turn, and for a square grid the
+        90 and 270-degree turns (in that order); an asymmetric grid is unique unless it has an even
+        number of rows (then the half turn). With ``origin_dot`` the detector puts the big dot at id 0
+        when it can tell it apart; the turns stay candidates so a view where it cannot is resolved by
+        the robot motion.
+        """
+        n = self.n_corners
+        ident = np.arange(n)
+        if self.asymmetric:
+            return [ident, ident[::-1].copy()] if self.rows % 2 == 0 else [ident]
+        out = [ident, ident[::-1].copy()]
+        if self.cols == self.rows:
+            grid = ident.reshape(self.rows, self.cols)
+            out.append(np.rot90(grid, 1).reshape(-1).copy())
+            out.append(np.rot90(grid, 3).reshape(-1).copy())
+        return out
+
+    def to_dict(self) -> dict:
+        return {"type": "circlegrid", "grid": [self.cols, self.rows], "spacing_m": self.spacing_m,
+                "asymmetric": self.asymmetric, "origin_dot": self.origin_dot}
+
+
+TargetSpec = Union[ChessboardSpec, CharucoSpec, CircleGridSpec]
 
 DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")
 
@@ -184,6 +245,7 @@ class Detection:
     image_points: np.ndarray  # (N, 2) float64 pixels
     image_size: tuple  # (width, height)
     sharpness: float = float("nan")  # variance of the Laplacian around the target
+    order_cue: float = float("nan")  # chessboard: grey of the first inner square minus the last one
     seconds: float = 0.0
 
 
