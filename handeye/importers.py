@@ -4,7 +4,9 @@ the original images (nothing is copied) and states the pose format those tools u
 - ``visp``: ViSP's hand-eye data (``*_image-N.png``, ``*_pose_rPe_N.yaml`` = metres + θu radians,
   ``chessboard-data.txt``, optional ``*camera.xml``).
 - ``ical``: ROS-Industrial industrial_calibration (``cal_data.yaml`` + ``poses/N.yaml`` with
-  x, y, z, qx, qy, qz, qw; ``static_camera`` decides the mode).
+  x, y, z, qx, qy, qz, qw; ``static_camera`` decides the mode). Target finders: ChArUco
+  (``CharucoGridTargetFinder``) and circle grids (``ModifiedCircleGridTargetFinder``: symmetric
+  grid, ``spacing`` between dot centres, one double-size origin dot).
 """
 from __future__ import annotations
 
@@ -78,9 +80,15 @@ def import_ical(src: str | Path, out: str | Path, *, image_dir: str | None = Non
         target = {"type": "charuco", "squares": [int(tgt["cols"]), int(tgt["rows"])],
                   "square_m": float(tgt["chessboard_dim"]), "marker_m": float(tgt["aruco_marker_dim"]),
                   "dictionary": _aruco_name(int(tgt.get("dictionary", 10)))}
+    elif "circlegrid" in str(tgt.get("type", "")).lower():
+        # ModifiedCircleGridTargetFinder: symmetric grid with one double-size origin dot
+        target = {"type": "circlegrid", "grid": [int(tgt["cols"]), int(tgt["rows"])],
+                  "spacing_m": float(tgt["spacing"]), "asymmetric": False,
+                  "origin_dot": str(tgt.get("type", "")).lower().startswith("modified")}
     else:
-        raise InputError("only ChArUco targets of industrial_calibration are supported",
-                         path=src / "cal_data.yaml", received=str(tgt.get("type")))
+        raise InputError("unsupported industrial_calibration target finder", path=src / "cal_data.yaml",
+                         expected="CharucoGridTargetFinder | ModifiedCircleGridTargetFinder",
+                         received=str(tgt.get("type")))
     mode = "eye_to_hand" if cal.get("static_camera", False) else "eye_in_hand"
     doc = {"handeye_session": 1, "mode": mode, "target": target,
            "pose_format": {"rotation": "quaternion", "quaternion_order": "wxyz", "translation_unit": "m"},

@@ -15,7 +15,7 @@ import yaml
 
 from .conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values
 from .errors import ConfigError, InputError
-from .types import MODES, CharucoSpec, ChessboardSpec, Intrinsics, Session, View
+from .types import MODES, CharucoSpec, ChessboardSpec, CircleGridSpec, Intrinsics, Session, View
 
 log = logging.getLogger(__name__)
 
@@ -295,7 +295,27 @@ def parse_target(t, *, path: Path):
             raise ConfigError("unknown ArUco dictionary", path=path, expected="e.g. DICT_6X6_250",
                               received=repr(dictionary))
         return CharucoSpec(sx, sy, square, marker, dictionary, bool(t.get("legacy_pattern", False)))
-    raise ConfigError("unknown target type", path=path, expected="chessboard | charuco", received=repr(kind))
+    if kind == "circlegrid":
+        g = t.get("grid")
+        if not (isinstance(g, (list, tuple)) and len(g) == 2):
+            raise ConfigError("target.grid must be [cols, rows] (dots per row, dots per column)", path=path,
+                              received=repr(g))
+        cols = _positive_number(g[0], path=path, field="target.grid[0]", integer=True, minimum=1)
+        rows = _positive_number(g[1], path=path, field="target.grid[1]", integer=True, minimum=1)
+        spacing = _square_size_m(t.get("spacing_m"), path=path, field="target.spacing_m")
+        flags = {}
+        for name in ("asymmetric", "origin_dot"):
+            v = t.get(name, False)
+            if not isinstance(v, bool):
+                raise ConfigError(f"invalid target.{name}", path=path, expected="true | false", received=repr(v))
+            flags[name] = v
+        if flags["asymmetric"] and flags["origin_dot"]:
+            raise ConfigError("target.origin_dot is for symmetric grids only", path=path,
+                              received="asymmetric: true, origin_dot: true",
+                              hint="an asymmetric grid needs no origin dot; set one of them to false")
+        return CircleGridSpec(cols, rows, spacing, **flags)
+    raise ConfigError("unknown target type", path=path, expected="chessboard | charuco | circlegrid",
+                      received=repr(kind))
 
 
 def _parse_intrinsics(d, *, path: Path):
