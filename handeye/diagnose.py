@@ -53,6 +53,7 @@ from .diagnose_math import (RAYLEIGH_MEDIAN, all_pairs, implied_boards, jackknif
                             camera_pose_covariances, pose_differences, propagate, robust_noise_sigma,
                             robust_mean_T, solve_A_from_pairs, summarize_invariants)
 from .geometry import inv_T
+from .output import plain
 from .model import mounting
 
 log = logging.getLogger(__name__)
@@ -124,18 +125,7 @@ def _finding_dict(f: Finding) -> dict:
 
 
 def _jsonable(o):
-    if isinstance(o, dict):
-        return {str(k): _jsonable(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_jsonable(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return _jsonable(o.tolist())
-    if isinstance(o, (np.floating, float)):
-        v = float(o)
-        return v if np.isfinite(v) else None
-    if isinstance(o, (np.integer, np.bool_)):
-        return o.item()
-    return o
+    return plain(o, nan_to_none=True)
 
 
 def _id_key(vid: str):

@@ -44,6 +44,24 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     return atomic_write_bytes(path, text.encode("utf-8"))
 
 
+def plain(obj, *, nan_to_none: bool = False):
+    """JSON/YAML-friendly copy: numpy arrays and scalars become Python lists and numbers, paths
+    strings, mapping keys strings; with ``nan_to_none`` non-finite floats become None (strict JSON)."""
+    if isinstance(obj, dict):
+        return {str(k): plain(v, nan_to_none=nan_to_none) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [plain(v, nan_to_none=nan_to_none) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return plain(obj.tolist(), nan_to_none=nan_to_none)
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    if nan_to_none and isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj
+
+
 def _json_default(o):
     if isinstance(o, np.ndarray):
         return o.tolist()

@@ -31,6 +31,7 @@ import yaml
 
 from .. import __version__
 from ..errors import HardwareError, InputError
+from ..output import plain
 from ..types import Intrinsics, TargetSpec
 
 log = logging.getLogger(__name__)
@@ -63,23 +64,8 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     _fsync_dir(path.parent)
 
 
-def _plain(obj):
-    """YAML/JSON-friendly copy: numpy scalars and arrays become Python numbers and lists."""
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _plain(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
-
-
 def dump_yaml(data: dict) -> bytes:
-    return yaml.safe_dump(_plain(data), sort_keys=False, default_flow_style=None, width=120).encode("utf-8")
+    return yaml.safe_dump(plain(data), sort_keys=False, default_flow_style=None, width=120).encode("utf-8")
 
 
 def intrinsics_header(intr: Intrinsics, *, use: str = "initial", source: dict | None = None) -> dict:
@@ -88,7 +74,7 @@ def intrinsics_header(intr: Intrinsics, *, use: str = "initial", source: dict | 
              "cy": float(intr.cy), "dist": [float(x) for x in intr.dist], "image_size": [intr.width, intr.height],
              "use": use}
     if source:
-        block["source"] = _plain(source)
+        block["source"] = plain(source)
     return block
 
 
@@ -160,4 +146,4 @@ class SessionWriter:
 
     def write_ground_truth(self, truth: dict) -> None:
         """``ground_truth.json`` for simulated sessions (rewritten atomically as it grows)."""
-        self._write(self.out / "ground_truth.json", json.dumps(_plain(truth), indent=1).encode("utf-8"))
+        self._write(self.out / "ground_truth.json", json.dumps(plain(truth), indent=1).encode("utf-8"))

@@ -79,18 +79,10 @@ def _observations(run, out_dir: Path) -> Optional[dict]:
     if run is not None:
         from ..calibrate import observations_dict
 
-        return json.loads(json.dumps(observations_dict(run), default=_plain))
+        from ..output import plain
+
+        return plain(observations_dict(run))
     return None
-
-
-def _plain(o):
-    import numpy as np
-
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating, np.integer, np.bool_)):
-        return o.item()
-    return str(o)
 
 
 def _image_paths(run, res: dict, obs: Optional[dict]) -> dict[str, Path]:

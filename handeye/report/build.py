@@ -18,6 +18,7 @@ import numpy as np
 from .. import __version__
 from ..conventions import pose_forms, vendor_euler_from_R
 from ..geometry import pose_error
+from ..output import plain
 from . import analysis as A
 from . import plots
 from .qa import Verdict, evaluate
@@ -687,18 +688,8 @@ def _provenance(res, qa_cfg, qa_source) -> dict:
     if ref_opts:
         config["refinement options"] = ref_opts
     config["QA thresholds"] = qa_cfg
-    return {"rows": rows, "config_yaml": yaml.safe_dump(_plain(config), sort_keys=False, default_flow_style=None,
+    return {"rows": rows, "config_yaml": yaml.safe_dump(plain(config), sort_keys=False, default_flow_style=None,
                                                         width=100).strip()}
-
-
-def _plain(o):
-    if isinstance(o, dict):
-        return {str(k): _plain(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_plain(v) for v in o]
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    return o
 
 
 # ------------------------------------------------------------------------------ plots
