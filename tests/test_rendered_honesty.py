@@ -1,0 +1,79 @@
+"""Honesty of the reported uncertainty on rendered images (the whole pipeline, as `handeye calibrate` runs it).
+
+A handful of small rendered sessions (640x480, both modes, with and without image noise, blur and
+robot noise, one hidden view each, one with a wrong robot pose): the 6-dof error of the hand-eye
+transform against the truth, normalised by the reported covariance (``d2 = xi^T C^-1 xi``, ``xi`` in
+the parametrisation of ``RefineResult.cov_x_6x6``), must look like a chi-square(6) draw: the median
+of the sessions' d2 between the chi-square(6) 1 % and 95 % quantiles (an honest covariance puts the
+median of five draws outside that band with probability < 0.1 %; the seeds are fixed, so the test is
+deterministic). Clean sessions get no outlier flags; a wrong robot pose is flagged.
+Figures over many sessions: benchmarks/bench_rendered.py.
+"""
+import json
+from concurrent.futures import ThreadPoolExecutor
+
+import gtsam
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from handeye.calibrate import CalibrateOptions, run_calibration
+from handeye.geometry import inv_T
+from handeye.session import load_session
+from handeye.synth import default_intrinsics, write_vendor_session
+
+SMALL = default_intrinsics(640, 480)
+# (mode, views, seed, image noise [grey levels], blur [px], robot noise (mm, deg), outlier views)
+CASES = [
+    ("eye_in_hand", 12, 101, 0.0, 0.0, (0.0, 0.0), 0),
+    ("eye_to_hand", 13, 102, 2.0, 0.5, (0.0, 0.0), 0),
+    ("eye_in_hand", 14, 103, 3.5, 0.9, (0.2, 0.05), 0),
+    ("eye_to_hand", 12, 104, 1.0, 0.3, (0.5, 0.1), 0),
+    ("eye_in_hand", 13, 105, 1.5, 0.6, (0.2, 0.05), 1),
+]
+
+
+def _run(case, root):
+    mode, n, seed, noise, blur, robot, n_out = case
+    out = root / f"s{seed}"
+    write_vendor_session(out, mode=mode, n_views=n, seed=seed, image_noise=noise, blur_sigma_px=blur,
+                         robot_noise=robot, hidden_views=(str(n // 2),), outlier_views=n_out, intrinsics=SMALL,
+                         workers=1)
+    truth = json.loads((out / "ground_truth.json").read_text())
+    run = run_calibration(load_session(out), CalibrateOptions(workers=1))
+    return case, truth, run
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("honesty")
+    with ThreadPoolExecutor(2) as pool:
+        return list(pool.map(lambda c: _run(c, root), CASES))
+
+
+def _d2(run, truth) -> float:
+    r = run.refined
+    xi = gtsam.Pose3.Logmap(gtsam.Pose3(inv_T(r.T_x) @ np.asarray(truth[r.x_name])))  # T_true = T_est · Exp(xi)
+    return float(xi @ np.linalg.solve(r.cov_x_6x6, xi))
+
+
+def test_rendered_sessions_calibrate_and_drop_the_hidden_view(runs):
+    for case, truth, run in runs:
+        assert run.status == "ok", (case, run.failure_reason)
+        hidden = truth["hidden_view_ids"][0]
+        assert hidden not in run.used_ids, case
+
+
+def test_normalised_error_on_rendered_images_is_chi_square_like(runs):
+    d2 = np.array([_d2(run, truth) for _, truth, run in runs])
+    med = float(np.median(d2))
+    assert chi2.ppf(0.01, 6) < med < chi2.ppf(0.95, 6), f"median d2 {med:.2f} of {np.round(d2, 2)}"
+    assert d2.max() < 4.0 * chi2.ppf(0.999, 6), f"an error far outside the reported ellipsoid: {np.round(d2, 2)}"
+
+
+def test_clean_rendered_sessions_get_no_flags_and_wrong_poses_are_flagged(runs):
+    for case, truth, run in runs:
+        flagged = {o.view_id for o in run.refined.outliers if o.kind != "corners"}
+        corners = [o for o in run.refined.outliers if o.kind == "corners"]
+        assert flagged == set(truth["outlier_view_ids"]), (case, [str(o) for o in run.refined.outliers])
+        assert not corners, (case, [str(o) for o in corners])
