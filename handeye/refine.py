@@ -69,6 +69,14 @@ Outliers
    solution, so a flagged view or corner that fits it is re-admitted. This repeats until the set
    is stable (or ``max_outlier_rounds``).
 
+Start
+-----
+The given seed, unless a closed-form solution (every OpenCV method on every view's PnP pose and the
+reported robot poses) explains more of the views: the start is the candidate with the lowest median
+over the views of the view's median corner residual through its reported robot pose. One closed-form
+method can be tens of degrees off when a robot pose is wrong, where another is within a degree;
+the local solves below cannot recover from such a start.
+
 Solver
 ------
 Levenberg-Marquardt with diagonal (Marquardt) damping, ``lambda · diag(H)``. GTSAM's default damping
@@ -95,6 +103,7 @@ import time
 from dataclasses import asdict, dataclass, field, replace
 from typing import Optional, Sequence
 
+import cv2
 import gtsam
 import numpy as np
 from scipy.stats import chi2
@@ -103,7 +112,7 @@ from handeye.factors.gtsam_factors import intrinsics_prior, robot_pose_prior, vi
 from handeye.factors.reprojection import (INTRINSIC_NAMES, LOSSES, MODE_INVERTS_ROBOT, chain_residual,
                                           corner_robust_scales)
 
-from .errors import ConfigError, InputError
+from .errors import ConfigError, HandeyeError, InputError
 from .geometry import inv_T, is_rotation, make_T, project_to_rotation, skew
 from .model import mounting
 from .types import Intrinsics
@@ -846,6 +855,51 @@ def _solve_with_vce(pb: _Problem, *, max_outer: int = 5):
     return pb.covariances(g, values, rk)
 
 
+# ------------------------------------------------------------------------------ start
+def _seed_score(pb: _Problem, T_x: np.ndarray, T_board: np.ndarray) -> float:
+    """Median over the views of each view's median corner residual (px) through the reported robot
+    pose: a start that half the views agree with scores low, whatever the other views do."""
+    per_view = []
+    for i in range(pb.n):
+        if len(pb.obj[i]) < pb.o.min_corners:
+            continue
+        r = chain_residual(T_x=T_x, T_base_end=pb.reported[i], T_board=T_board, invert_robot=pb.invert,
+                           intrinsics_vec=pb.k, object_points=pb.obj[i], image_points=pb.img[i],
+                           jacobians=False)[0].reshape(-1, 2)
+        e = np.linalg.norm(r, axis=1)
+        per_view.append(float(np.median(e)) if np.all(np.isfinite(e)) else np.inf)
+    return float(np.median(per_view)) if per_view else np.inf
+
+
+def _best_start(pb: _Problem, mm, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """The given seed, or the closed-form solution (every OpenCV method on every view's PnP pose)
+    with the lowest robust score (:func:`_seed_score`) when that is lower. One closed-form method
+    can be far off when some robot poses are wrong (Tsai 120 deg off on a 12-view session with one
+    wrong pose, where Park was within 1 deg), and the local solves cannot recover from such a start."""
+    from .seed import all_methods, solve_pnp  # OpenCV's closed forms; imported here to keep refine light
+
+    best = (pb.T_x, pb.T_board)
+    best_score = _seed_score(pb, *best)
+    idx = [i for i in range(pb.n) if len(pb.obj[i]) >= max(pb.o.min_corners, 6)]
+    if len(idx) < 3:
+        return best
+    K = Intrinsics.from_vector(pb.k, intrinsics.width, intrinsics.height)
+    try:
+        C = np.stack([solve_pnp(pb.obj[i], pb.img[i], K)[0] for i in idx])
+    except (HandeyeError, cv2.error, np.linalg.LinAlgError):
+        return best
+    M = mm.M_from_T_base_end(pb.reported[idx])
+    for name, est in all_methods(mm, C, M).items():
+        if est.status != "ok" or not (np.all(np.isfinite(est.T_x)) and np.all(np.isfinite(est.T_board))):
+            continue
+        score = _seed_score(pb, est.T_x, est.T_board)
+        if score < best_score:
+            log.info("starting the refinement from the %s closed form (median view residual %.3g px; given seed "
+                     "%.3g px)", name, score, _seed_score(pb, pb.T_x, pb.T_board))
+            best, best_score = (_check_T(est.T_x, f"{name} {mm.x_name}"), _check_T(est.T_board, name)), score
+    return best
+
+
 # ------------------------------------------------------------------------------ refine
 def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView], intrinsics: Intrinsics,
            T_x0: np.ndarray, T_board0: np.ndarray, options: RefineOptions = RefineOptions()) -> RefineResult:
@@ -879,6 +933,7 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
 
     pb = _Problem(mode=mode, object_points=object_points, views=views, intrinsics=intrinsics,
                   T_x0=T_x0, T_board0=T_board0, options=options)
+    pb.T_x, pb.T_board = _best_start(pb, mm, intrinsics)
     e_before = np.concatenate([pb.view_residual(i, pb.reported[i]) for i in range(pb.n)])
     rms_before = float(np.sqrt(np.mean(np.sum(e_before ** 2, axis=1))))
     sparse = []  # views that cannot even start (the outlier loop re-examines them with reasons)
