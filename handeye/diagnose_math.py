@@ -22,6 +22,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .geometry import inv_T, make_T, mean_T, project_to_rotation
+from .stats import robust_noise_sigma  # noqa: F401 - part of this module's API
 
 #: pairs whose relative rotation is outside this range (deg) give no usable screw pitch: the axis is
 #: ill-defined for small angles and flips sign near 180 degrees
@@ -204,30 +205,6 @@ def propagate(f, T0: np.ndarray, cov_left: np.ndarray, *, h: float = 1e-6) -> np
         E = make_T(Rotation.from_rotvec(xi[:3]).as_matrix(), xi[3:])
         J[:, k] = log6(y0i @ f(E @ T0)) / h
     return J @ cov_left @ J.T
-
-
-def robust_noise_sigma(d: np.ndarray, C: np.ndarray, *, floor: float) -> float:
-    """Sigma s with median_i d_i^T (C_i + s^2 I)^-1 d_i = chi2(dim) median: the extra isotropic noise that
-    makes typical views' disagreements ``d`` (N,k) consistent with their covariances ``C`` (N,k,k)."""
-    from scipy.stats import chi2 as _chi2
-
-    k = d.shape[1]
-    target = _chi2.ppf(0.5, k)
-
-    def med(s):
-        Cs = C + s * s * np.eye(k)
-        return np.median(np.einsum("ni,ni->n", d, np.linalg.solve(Cs, d[..., None])[..., 0]))
-
-    if med(floor) <= target:
-        return floor
-    lo, hi = np.log(floor), np.log(10.0)
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        if med(np.exp(mid)) > target:
-            lo = mid
-        else:
-            hi = mid
-    return float(np.exp(0.5 * (lo + hi)))
 
 
 def camera_pose_covariances(corners, T_cam_board: np.ndarray, K: np.ndarray, dist: np.ndarray, sigma_px: float, *,

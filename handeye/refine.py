@@ -115,6 +115,7 @@ from handeye.factors.reprojection import (INTRINSIC_NAMES, LOSSES, MODE_INVERTS_
 from .errors import ConfigError, HandeyeError, InputError
 from .geometry import inv_T, is_rotation, make_T, project_to_rotation, skew
 from .model import mounting
+from .stats import robust_noise_sigma
 from .types import Intrinsics
 
 log = logging.getLogger(__name__)
@@ -613,24 +614,8 @@ def _robot_mahalanobis(checks: Sequence[_ViewCheck], sigma_rot: float, sigma_tra
 
 def _robust_robot_sigma(checks: Sequence[_ViewCheck], part: slice, floor: float) -> float:
     """Sigma s with median_i d_i^T (C_i + s^2 I)^-1 d_i = chi2(3) median, over the views' 3-D part."""
-    d = np.stack([c.delta[part] for c in checks])
-    C = np.stack([c.cov_cam[part, part] for c in checks])
-    target = chi2.ppf(0.5, 3)
-
-    def med(s):
-        Cs = C + s * s * np.eye(3)
-        return np.median(np.einsum("ni,ni->n", d, np.linalg.solve(Cs, d[..., None])[..., 0]))
-
-    if med(floor) <= target:
-        return floor
-    lo, hi = np.log(floor), np.log(10.0)
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        if med(np.exp(mid)) > target:
-            lo = mid
-        else:
-            hi = mid
-    return float(np.exp(0.5 * (lo + hi)))
+    return robust_noise_sigma(np.stack([c.delta[part] for c in checks]),
+                              np.stack([c.cov_cam[part, part] for c in checks]), floor=floor)
 
 
 def _robust_sigma_px(pb: _Problem) -> float:
