@@ -15,6 +15,16 @@ MODES = ("eye_in_hand", "eye_to_hand")
 METHOD_NAMES = ("tsai", "park", "horaud", "andreff", "daniilidis", "shah", "li")
 
 
+def grid_turns(cols: int, rows: int) -> list[np.ndarray]:
+    """Row-major id permutations of a cols x rows grid under turns of 0, 180 (and, square, 90, 270) degrees."""
+    ident = np.arange(cols * rows)
+    out = [ident, ident[::-1].copy()]
+    if cols == rows:
+        grid = ident.reshape(rows, cols)
+        out += [np.rot90(grid, 1).reshape(-1).copy(), np.rot90(grid, 3).reshape(-1).copy()]
+    return out
+
+
 @dataclass(frozen=True)
 class ChessboardSpec:
     """Chessboard with ``cols`` x ``rows`` inner corners (cols along the long side), square in metres.
@@ -44,16 +54,9 @@ class ChessboardSpec:
         cols + rows is even. (On an asymmetric board the colours decide; a detector that numbers
         such a board from the other end is corrected in detection, see detect.normalize_chessboard_order.)
         """
-        n = self.n_corners
-        ident = np.arange(n)
         if (self.cols + self.rows) % 2 == 1:
-            return [ident]
-        out = [ident, ident[::-1].copy()]
-        if self.cols == self.rows:
-            grid = ident.reshape(self.rows, self.cols)
-            out.append(np.rot90(grid, 1).reshape(-1).copy())
-            out.append(np.rot90(grid, 3).reshape(-1).copy())
-        return out
+            return [np.arange(self.n_corners)]
+        return grid_turns(self.cols, self.rows)
 
     def to_dict(self) -> dict:
         return {"type": "chessboard", "inner_corners": [self.cols, self.rows], "square_m": self.square_m}
@@ -132,16 +135,10 @@ class CircleGridSpec:
         when it can tell it apart; the turns stay candidates so a view where it cannot is resolved by
         the robot motion.
         """
-        n = self.n_corners
-        ident = np.arange(n)
         if self.asymmetric:
+            ident = np.arange(self.n_corners)
             return [ident, ident[::-1].copy()] if self.rows % 2 == 0 else [ident]
-        out = [ident, ident[::-1].copy()]
-        if self.cols == self.rows:
-            grid = ident.reshape(self.rows, self.cols)
-            out.append(np.rot90(grid, 1).reshape(-1).copy())
-            out.append(np.rot90(grid, 3).reshape(-1).copy())
-        return out
+        return grid_turns(self.cols, self.rows)
 
     def to_dict(self) -> dict:
         return {"type": "circlegrid", "grid": [self.cols, self.rows], "spacing_m": self.spacing_m,
