@@ -125,20 +125,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _report_command(sub):
-    try:
-        from .report.cli_entry import add_report_arguments, run_report
-    except ImportError:
-        return
+    from .report.cli_entry import add_report_arguments, run_report
+
     p = sub.add_parser("report", help="(re)build report.html and report.md from a result folder")
     add_report_arguments(p)
     p.set_defaults(func=run_report)
 
 
 def _collect_command(sub):
-    try:
-        from .collect.cli_entry import add_collect_arguments, run_collect
-    except ImportError:
-        return
+    from .collect.cli_entry import add_collect_arguments, run_collect
+
     p = sub.add_parser("collect", help="collect a session with a camera and a robot (or their simulators)")
     add_collect_arguments(p)
     p.set_defaults(func=run_collect)
@@ -209,12 +205,9 @@ def failed_load_result(session_path, err: HandeyeError, mode) -> dict:
 def _write_failed(out: Path, res: dict, args) -> None:
     from .output import write_json
 
-    try:
-        from .diagnose import diagnose_session_error
+    from .diagnose import diagnose_session_error
 
-        res["diagnostics"] = diagnose_session_error(Path(args.session), res["failure_reason"])
-    except ImportError:
-        pass
+    res["diagnostics"] = diagnose_session_error(Path(args.session), res["failure_reason"], mode=args.mode)
     out.mkdir(parents=True, exist_ok=True)
     result_path = out / "result.json"
     if result_path.exists():
@@ -226,18 +219,14 @@ def _write_failed(out: Path, res: dict, args) -> None:
 
 
 def _add_diagnostics(res: dict, run) -> None:
-    try:
-        from .diagnose import diagnose_run
-    except ImportError:
-        return
+    from .diagnose import diagnose_run
+
     res["diagnostics"] = diagnose_run(run)
 
 
 def _write_reports(run, res, out: Path) -> list[Path]:
-    try:
-        from .report import write_reports
-    except ImportError:
-        return []
+    from .report import write_reports
+
     return write_reports(run, res, out)
 
 
