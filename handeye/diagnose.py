@@ -1445,7 +1445,7 @@ def cross_validate(run) -> dict:
         robot = "fixed" if o0.robot_noise == "estimate" else o0.robot_noise
         opts = replace(o0, robot_noise=robot, robot_sigma_mm=max(ref.robot_sigma_mm, 1e-6) if robot == "fixed"
                        else o0.robot_sigma_mm, robot_sigma_deg=max(ref.robot_sigma_deg, 1e-6) if robot == "fixed"
-                       else o0.robot_sigma_deg, outlier_loop=False, loss="none")
+                       else o0.robot_sigma_deg, outlier_loop=False, loss="none", closed_form_starts=False)
         method = (f"refinement refitted per fold (one solve, noise held at the full run's "
                   f"{ref.robot_sigma_mm:.3f} mm / {ref.robot_sigma_deg:.4f} deg robot, {ref.sigma_px:.3f} px)")
         for f in folds:

@@ -177,6 +177,7 @@ class RefineOptions:
     min_robot_disagreement_deg: float = 0.1
     min_corners: int = 8
     max_outlier_rounds: int = 6
+    closed_form_starts: bool = True  # also try every OpenCV closed form as the start (off: trust T_x0)
     max_vce_iterations: int = 20
 
 
@@ -918,7 +919,8 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
 
     pb = _Problem(mode=mode, object_points=object_points, views=views, intrinsics=intrinsics,
                   T_x0=T_x0, T_board0=T_board0, options=options)
-    pb.T_x, pb.T_board = _best_start(pb, mm, intrinsics)
+    if options.closed_form_starts:
+        pb.T_x, pb.T_board = _best_start(pb, mm, intrinsics)
     e_before = np.concatenate([pb.view_residual(i, pb.reported[i]) for i in range(pb.n)])
     rms_before = float(np.sqrt(np.mean(np.sum(e_before ** 2, axis=1))))
     sparse = []  # views that cannot even start (the outlier loop re-examines them with reasons)
