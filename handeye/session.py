@@ -265,24 +265,25 @@ def _opt_float(v):
     return None if v is None else float(v)
 
 
+def _int_pair(t: dict, key: str, meaning: str, *, path: Path, minimum: int) -> tuple[int, int]:
+    """``target.<key>``: two integers > minimum, with a message naming the field."""
+    v = t.get(key)
+    if not (isinstance(v, (list, tuple)) and len(v) == 2):
+        raise ConfigError(f"target.{key} must be {meaning}", path=path, received=repr(v))
+    return tuple(_positive_number(v[k], path=path, field=f"target.{key}[{k}]", integer=True, minimum=minimum)
+                 for k in range(2))
+
+
 def parse_target(t, *, path: Path):
     if not isinstance(t, dict) or "type" not in t:
         raise ConfigError("target is missing or has no type", path=path,
                           expected="target: {type: chessboard, inner_corners: [11, 8], square_m: 0.03}")
     kind = t["type"]
     if kind == "chessboard":
-        ic = t.get("inner_corners")
-        if not (isinstance(ic, (list, tuple)) and len(ic) == 2):
-            raise ConfigError("target.inner_corners must be [cols, rows]", path=path, received=repr(ic))
-        cols = _positive_number(ic[0], path=path, field="target.inner_corners[0]", integer=True, minimum=1)
-        rows = _positive_number(ic[1], path=path, field="target.inner_corners[1]", integer=True, minimum=1)
+        cols, rows = _int_pair(t, "inner_corners", "[cols, rows]", path=path, minimum=1)
         return ChessboardSpec(cols, rows, _square_size_m(t.get("square_m"), path=path, field="target.square_m"))
     if kind == "charuco":
-        sq = t.get("squares")
-        if not (isinstance(sq, (list, tuple)) and len(sq) == 2):
-            raise ConfigError("target.squares must be [squares_x, squares_y]", path=path, received=repr(sq))
-        sx = _positive_number(sq[0], path=path, field="target.squares[0]", integer=True, minimum=2)
-        sy = _positive_number(sq[1], path=path, field="target.squares[1]", integer=True, minimum=2)
+        sx, sy = _int_pair(t, "squares", "[squares_x, squares_y]", path=path, minimum=2)
         square = _square_size_m(t.get("square_m"), path=path, field="target.square_m")
         marker = _positive_number(t.get("marker_m"), path=path, field="target.marker_m")
         if marker >= square:
@@ -296,12 +297,7 @@ def parse_target(t, *, path: Path):
                               received=repr(dictionary))
         return CharucoSpec(sx, sy, square, marker, dictionary, bool(t.get("legacy_pattern", False)))
     if kind == "circlegrid":
-        g = t.get("grid")
-        if not (isinstance(g, (list, tuple)) and len(g) == 2):
-            raise ConfigError("target.grid must be [cols, rows] (dots per row, dots per column)", path=path,
-                              received=repr(g))
-        cols = _positive_number(g[0], path=path, field="target.grid[0]", integer=True, minimum=1)
-        rows = _positive_number(g[1], path=path, field="target.grid[1]", integer=True, minimum=1)
+        cols, rows = _int_pair(t, "grid", "[cols, rows] (dots per row, dots per column)", path=path, minimum=1)
         spacing = _square_size_m(t.get("spacing_m"), path=path, field="target.spacing_m")
         flags = {}
         for name in ("asymmetric", "origin_dot"):
