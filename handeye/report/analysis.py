@@ -29,27 +29,25 @@ def finite(x) -> bool:
         return False
 
 
-def as_T(x) -> Optional[np.ndarray]:
-    """A 4x4 float array from nested lists, or None when absent or not a finite 4x4."""
+def _finite_array(x, shape: tuple) -> Optional[np.ndarray]:
+    """A float array of ``shape`` from nested lists, or None when absent, malformed or not finite."""
     if x is None:
         return None
     try:
-        T = np.asarray(x, float)
+        a = np.asarray(x, float)
     except (TypeError, ValueError):
         return None
-    return T if T.shape == (4, 4) and np.all(np.isfinite(T)) else None
+    return a if a.shape == shape and np.all(np.isfinite(a)) else None
+
+
+def as_T(x) -> Optional[np.ndarray]:
+    """A 4x4 float array from nested lists, or None when absent or not a finite 4x4."""
+    return _finite_array(x, (4, 4))
 
 
 def as_cov6(x) -> Optional[np.ndarray]:
-    if x is None:
-        return None
-    try:
-        C = np.asarray(x, float)
-    except (TypeError, ValueError):
-        return None
-    if C.shape != (6, 6) or not np.all(np.isfinite(C)):
-        return None
-    return 0.5 * (C + C.T)
+    C = _finite_array(x, (6, 6))
+    return None if C is None else 0.5 * (C + C.T)
 
 
 def intrinsics_arrays(intr: dict | None):
