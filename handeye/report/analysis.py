@@ -206,10 +206,10 @@ def rms_norm(r) -> float:
 
 
 def camera_only_fits(obs: dict, intrinsics: dict | None) -> dict[str, ViewFit]:
-    """Refit each view's board pose from its corners with the final intrinsics (OpenCV PnP, LM).
+    """Each view's board pose from its corners alone, and the residuals of that fit.
 
-    observations.json's own ``residual_pnp_px`` may come from a pose fitted with the seed
-    intrinsics; refitting keeps the camera-only residuals consistent with the intrinsics reported.
+    observations.json already holds them under the final intrinsics (``T_cam_board_pnp``,
+    ``residual_pnp_px``); a view without them (e.g. a hand-edited file) is fitted here (OpenCV PnP).
     """
     import cv2
 
@@ -228,15 +228,12 @@ def camera_only_fits(obs: dict, intrinsics: dict | None) -> dict[str, ViewFit]:
         chain = np.asarray(chain, float).reshape(-1, 2) if chain is not None else None
         resid = np.asarray(v.get("residual_pnp_px") or np.full((len(ids), 2), np.nan), float).reshape(-1, 2)
         T_fit = T0
-        if arrs is not None and len(ids) >= 4 and obj_all.size and ids.max(initial=-1) < len(obj_all):
+        have_fit = T0 is not None and len(resid) == len(ids) and np.all(np.isfinite(resid))
+        if (not have_fit and arrs is not None and len(ids) >= 4 and obj_all.size
+                and ids.max(initial=-1) < len(obj_all)):
             K, dist, _ = arrs
             P = obj_all[ids]
-            if T0 is not None:
-                rvec0 = cv2.Rodrigues(T0[:3, :3])[0]
-                ok, rvec, tvec = cv2.solvePnP(P, uv, K, dist, rvec=rvec0.copy(), tvec=T0[:3, 3].reshape(3, 1).copy(),
-                                              useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)
-            else:
-                ok, rvec, tvec = cv2.solvePnP(P, uv, K, dist, flags=cv2.SOLVEPNP_ITERATIVE)
+            ok, rvec, tvec = cv2.solvePnP(P, uv, K, dist, flags=cv2.SOLVEPNP_ITERATIVE)
             if ok:
                 T_fit = make_T(cv2.Rodrigues(rvec)[0], tvec.ravel())
                 proj = cv2.projectPoints(P, rvec, tvec, K, dist)[0].reshape(-1, 2)
