@@ -23,7 +23,7 @@ from .model import MountingMode, mounting
 from .output import hash_files, provenance
 from .seed import (METHODS, all_methods, board_poses, calibrate_intrinsics, chain_residuals, consistency,
                    motion_quality)
-from .types import Detection, HandEyeEstimate, Intrinsics, Session, ViewOutcome
+from .types import Detection, HandEyeEstimate, Intrinsics, Session, ViewOutcome, view_id_key
 
 log = logging.getLogger(__name__)
 
@@ -121,7 +121,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
         outcomes[vid] = ViewOutcome(vid, f"{vid}.jpg", False, f"image file missing (pose line {line} not used)")
 
     def ordered():
-        return tuple(outcomes[k] for k in sorted(outcomes, key=_id_key))
+        return tuple(outcomes[k] for k in sorted(outcomes, key=view_id_key))
 
     dets = {vid: d for vid, d in det.items() if isinstance(d, Detection)}
     seconds = {"detect": time.perf_counter() - t0}
@@ -217,10 +217,6 @@ def _final_outcomes(outcomes, chain, refined):
             o = replace(o, used=False, reason=f"outlier: {why}")
         out[vid] = o
     return out
-
-
-def _id_key(vid: str):
-    return (0, int(vid), "") if vid.isdigit() else (1, 0, vid)
 
 
 def _target_text(s: Session) -> str:

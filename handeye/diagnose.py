@@ -55,6 +55,7 @@ from .diagnose_math import (RAYLEIGH_MEDIAN, all_pairs, implied_boards, jackknif
 from .geometry import inv_T
 from .output import plain
 from .model import mounting
+from .types import view_id_key
 
 log = logging.getLogger(__name__)
 
@@ -126,10 +127,6 @@ def _finding_dict(f: Finding) -> dict:
 
 def _jsonable(o):
     return plain(o, nan_to_none=True)
-
-
-def _id_key(vid: str):
-    return (0, int(vid), "") if str(vid).isdigit() else (1, 0, str(vid))
 
 
 def _ids_text(ids: Sequence[str], limit: int = 12) -> str:
@@ -219,7 +216,7 @@ def _raw_native(path: Path) -> Optional[RawPoses]:
     for e in entries:
         if isinstance(e, dict) and "id" in e and "pose" in e:
             values[str(e["id"])] = np.asarray(e["pose"], float).reshape(-1)
-    order = tuple(sorted(values, key=_id_key))
+    order = tuple(sorted(values, key=view_id_key))
     return RawPoses(fmt, values, order, str(path)) if values else None
 
 
@@ -227,7 +224,7 @@ def _fallback_raw(session) -> RawPoses:
     """Raw values regenerated from the loaded poses (when the files cannot be re-read)."""
     fmt = VENDOR_POSE_FORMAT
     values = {v.view_id: pose_values_from_T(v.T_base_end, fmt) for v in session.views}
-    return RawPoses(fmt, values, tuple(sorted(values, key=_id_key)), "loaded poses")
+    return RawPoses(fmt, values, tuple(sorted(values, key=view_id_key)), "loaded poses")
 
 
 def _raw_for_session(session) -> RawPoses:
@@ -1755,7 +1752,7 @@ def _observe(target, mode, raw: RawPoses, images_by_id: dict, intr_given):
     from .seed import board_poses, calibrate_intrinsics
     from .types import Detection
 
-    items = [(v, images_by_id[v]) for v in sorted(images_by_id, key=_id_key) if v in raw.values]
+    items = [(v, images_by_id[v]) for v in sorted(images_by_id, key=view_id_key) if v in raw.values]
     det = detect_views(items, target)
     dets = {v: d for v, d in det.items() if isinstance(d, Detection)}
     if len(dets) < MIN_VIEWS_FAIL:
@@ -1763,7 +1760,7 @@ def _observe(target, mode, raw: RawPoses, images_by_id: dict, intr_given):
     intr = intr_given
     if intr is None:
         intr, _ = calibrate_intrinsics(list(dets.values()), target.object_points())
-    ids = [v for v in sorted(dets, key=_id_key)]
+    ids = [v for v in sorted(dets, key=view_id_key)]
     # a reading that parses, for ordering symmetric boards (re-done below with the best reading)
     fmt = raw.fmt
     T = _read_all(raw, fmt, ids)

@@ -15,7 +15,7 @@ import yaml
 
 from .conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values
 from .errors import ConfigError, InputError
-from .types import MODES, CharucoSpec, ChessboardSpec, CircleGridSpec, Intrinsics, Session, View
+from .types import MODES, CharucoSpec, ChessboardSpec, CircleGridSpec, Intrinsics, Session, View, view_id_key
 
 log = logging.getLogger(__name__)
 
@@ -251,14 +251,10 @@ def load_native_session(path: str | Path, *, mode: str | None = None) -> Session
             raise InputError(f"view {vid}: image file missing", path=img, hint="restore the image or remove the view")
         views.append(View(view_id=vid, image_path=img, T_base_end=T,
                           t_image=_opt_float(e.get("t_image")), t_pose=_opt_float(e.get("t_pose"))))
-    views.sort(key=_view_sort_key)
+    views.sort(key=lambda v: view_id_key(v.view_id))
     return Session(path=folder, format="native", mode=sess_mode, target=target, views=tuple(views),
                    intrinsics=intr, intrinsics_prior=intr_use, pose_format=fmt.describe(),
                    meta={k: v for k, v in d.items() if k not in ("views",)})
-
-
-def _view_sort_key(v: View):
-    return (0, int(v.view_id), "") if v.view_id.isdigit() else (1, 0, v.view_id)
 
 
 def _opt_float(v):

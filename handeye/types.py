@@ -11,6 +11,12 @@ from typing import Optional, Union
 import numpy as np
 
 MODES = ("eye_in_hand", "eye_to_hand")
+
+
+def view_id_key(view_id) -> tuple:
+    """Sort key for view ids: numeric ids in numeric order ("2" before "10"), then the others by name."""
+    vid = str(view_id)
+    return (0, int(vid), "") if vid.isdigit() else (1, 0, vid)
 #: OpenCV's closed-form solvers by handeye name (hand-eye AX=XB ones, then robot-world AX=ZB ones)
 METHOD_NAMES = ("tsai", "park", "horaud", "andreff", "daniilidis", "shah", "li")
 

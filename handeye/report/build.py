@@ -19,6 +19,7 @@ from .. import __version__
 from ..conventions import pose_forms, vendor_euler_from_R
 from ..geometry import pose_error
 from ..output import plain
+from ..types import view_id_key
 from . import analysis as A
 from . import plots
 from .qa import Verdict, evaluate
@@ -425,7 +426,7 @@ def _metrics(res, ref, fits, views, unc, pred, wd, obs, mode, parent):
         c[f"{k}_missing_action"] = "run handeye calibrate without --no-refine to get the uncertainty"
     # motion
     Ts = []
-    for vid in sorted(used_ids, key=_id_key):
+    for vid in sorted(used_ids, key=view_id_key):
         T = A.as_T(((obs.get("views") or {}).get(vid) or {}).get("T_base_end_reported"))
         if T is not None:
             Ts.append(T)
@@ -487,10 +488,6 @@ def _short_reason(r: str) -> str:
     r = re.sub(r"^outlier: view \S+: ", "outlier: ", r)
     r = re.sub(r"\d+(\.\d+)?", "#", r)
     return r.split(";")[0].split(" (")[0]
-
-
-def _id_key(vid: str):
-    return (0, int(vid), "") if str(vid).isdigit() else (1, 0, str(vid))
 
 
 # ------------------------------------------------------------------------------ failure
