@@ -20,7 +20,7 @@ import numpy as np
 from handeye import synth
 from handeye.collect import plan as P
 from handeye.collect.sim import SimRig
-from handeye.model import mounting
+from handeye.mounting import mounting
 
 
 def main(argv=None) -> int:

@@ -24,8 +24,8 @@ import handeye.calibrate as calibrate_mod
 from handeye.calibrate import CalibrateOptions, run_calibration
 from handeye.conventions import VENDOR_POSE_FORMAT, pose_values_from_T
 from handeye.diagnose import diagnose_run
-from handeye.geometry import T_from_rotvec, inv_T
-from handeye.model import mounting
+from handeye.frames import T_from_rotvec, inv_T
+from handeye.mounting import mounting
 from handeye.session import load_session
 from handeye.synth import make_corner_session
 

@@ -15,7 +15,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from handeye.calibrate import CalibrateOptions, run_calibration
-from handeye.geometry import T_from_rotvec, make_T, pose_error
+from handeye.frames import T_from_rotvec, make_T, pose_error
 from handeye.importers import import_ical, import_visp
 from handeye.session import load_session
 

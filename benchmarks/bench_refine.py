@@ -26,9 +26,9 @@ import gtsam
 import numpy as np
 from scipy.stats import chi2
 
-from handeye.factors.reprojection import MODE_INVERTS_ROBOT, chain_residual
-from handeye.geometry import inv_T
-from handeye.model import mounting
+from handeye.factors.reprojection import chain_residual
+from handeye.frames import inv_T
+from handeye.mounting import mounting
 from handeye.refine import RefineOptions, RefineView, refine
 from handeye.seed import calibrate_intrinsics, solve_closed_form, solve_pnp
 from handeye.synth import make_corner_session
@@ -60,7 +60,7 @@ def crb_x(s, *, sigma_px: float, robot_sigma_mm: float, robot_sigma_deg: float, 
 
     Unknowns: T_x, T_board, the 9 intrinsics and, when the robot has noise, each view's true robot
     pose with its prior; views in ``exclude`` contribute their corners only (robot pose free)."""
-    invert = MODE_INVERTS_ROBOT[s.mode]
+    invert = mounting(s.mode).inverts_robot
     obj_all = s.target.object_points()
     k = s.intrinsics.as_vector()
     robot_var = robot_sigma_mm > 0 or robot_sigma_deg > 0

@@ -63,7 +63,7 @@ def session_config(k: int) -> dict:
 
 def _xi_error(T_est, T_true):
     """xi with T_true = T_est · Exp(xi) (GTSAM Pose3 tangent: rotation, translation; frame of X)."""
-    from handeye.geometry import inv_T
+    from handeye.frames import inv_T
     return gtsam.Pose3.Logmap(gtsam.Pose3(inv_T(T_est) @ T_true))
 
 

@@ -21,7 +21,9 @@ from typing import Optional, Sequence
 import gtsam
 import numpy as np
 
-from .reprojection import MODE_INVERTS_ROBOT, chain_residual, corner_robust_scales
+from handeye.mounting import mounting
+
+from .reprojection import chain_residual, corner_robust_scales
 
 
 def view_reprojection_factor(*, mode: str, key_x: int, key_board: int, key_robot: Optional[int],
@@ -35,7 +37,7 @@ def view_reprojection_factor(*, mode: str, key_x: int, key_board: int, key_robot
     ones, which the variable overrides); ``free_intrinsics`` lists the indices the variable holds.
     ``T_base_end`` is required when ``key_robot`` is None (robot pose taken as exact).
     """
-    invert_robot = MODE_INVERTS_ROBOT[mode]
+    invert_robot = mounting(mode).inverts_robot
     obj = np.ascontiguousarray(object_points, dtype=float)  # shape (N, 3)
     img = np.ascontiguousarray(image_points, dtype=float)  # shape (N, 2)
     n2 = 2 * obj.shape[0]

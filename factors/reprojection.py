@@ -1,7 +1,7 @@
 """Reprojection residual of board corners through the hand-eye chain, with analytic Jacobians.
 
 Pure numpy, vectorised over all corners of one view. Both mounting modes are the one chain of
-:mod:`handeye.model`::
+:mod:`handeye.mounting`::
 
     T_cam_board_i = A · M_i · B,      A = inv(T_x)
 
@@ -30,73 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
-MODE_INVERTS_ROBOT = {"eye_in_hand": True, "eye_to_hand": False}
-
-
-def _project(intrinsics_vec, p_cam: np.ndarray, jacobians: bool):
-    """Pixels (N,2) and, when asked, the Jacobians laid out transposed for speed:
-    ``Jp_T`` (3, 2N) = (d uv / d p_cam)^T and ``Jk_T`` (9, 2N) = (d uv / d intrinsics)^T, with the
-    2N columns interleaved (u0, v0, u1, v1, ...)."""
-    fx, fy, cx, cy, k1, k2, p1, p2, k3 = (float(v) for v in intrinsics_vec)
-    n = p_cam.shape[0]
-    iz = 1.0 / p_cam[:, 2]
-    x = p_cam[:, 0] * iz
-    y = p_cam[:, 1] * iz
-    xx, yy, xy = x * x, y * y, x * y
-    r2 = xx + yy
-    r4 = r2 * r2
-    r6 = r4 * r2
-    radial = 1.0 + k1 * r2 + k2 * r4 + k3 * r6
-    a_x = r2 + 2.0 * xx  # d xd / d p2
-    a_y = r2 + 2.0 * yy  # d yd / d p1
-    xd = x * radial + 2.0 * p1 * xy + p2 * a_x
-    yd = y * radial + p1 * a_y + 2.0 * p2 * xy
-    uv = np.empty((n, 2))
-    uv[:, 0] = fx * xd + cx
-    uv[:, 1] = fy * yd + cy
-    if not jacobians:
-        return uv, None, None
-
-    c = 2.0 * (k1 + 2.0 * k2 * r2 + 3.0 * k3 * r4)  # 2 d radial / d r2
-    cross = c * xy + 2.0 * (p1 * x + p2 * y)  # d xd / d y = d yd / d x
-    Jp = np.empty((3, n, 2))  # [component of p_cam, corner, u|v]
-    Jp[0, :, 0] = fx * (radial + c * xx + 2.0 * p1 * y + 6.0 * p2 * x) * iz
-    Jp[1, :, 0] = fx * cross * iz
-    Jp[0, :, 1] = fy * cross * iz
-    Jp[1, :, 1] = fy * (radial + c * yy + 6.0 * p1 * y + 2.0 * p2 * x) * iz
-    Jp[2] = -(Jp[0] * x[:, None] + Jp[1] * y[:, None])  # d(x, y)/dZ = -(x, y)/Z
-    Jk = np.zeros((9, n, 2))
-    Jk[0, :, 0] = xd
-    Jk[1, :, 1] = yd
-    Jk[2, :, 0] = 1.0
-    Jk[3, :, 1] = 1.0
-    fxx, fyy = fx * x, fy * y
-    Jk[4, :, 0] = fxx * r2
-    Jk[4, :, 1] = fyy * r2
-    Jk[5, :, 0] = fxx * r4
-    Jk[5, :, 1] = fyy * r4
-    Jk[8, :, 0] = fxx * r6
-    Jk[8, :, 1] = fyy * r6
-    Jk[6, :, 0] = (2.0 * fx) * xy
-    Jk[6, :, 1] = fy * a_y
-    Jk[7, :, 0] = fx * a_x
-    Jk[7, :, 1] = (2.0 * fy) * xy
-    return uv, Jp.reshape(3, 2 * n), Jk.reshape(9, 2 * n)
-
-
-def pixels_from_cam_points(intrinsics_vec: np.ndarray, p_cam: np.ndarray, *, jacobians: bool = True):
-    """Project camera-frame points (N,3) with OpenCV's 5-coefficient model.
-
-    Returns ``(uv, J_uv_p, J_uv_intr)``: pixels (N,2), d uv / d p_cam (N,2,3) and
-    d uv / d intrinsics (N,2,9); the Jacobians are None when ``jacobians`` is False.
-    """
-    p_cam = np.asarray(p_cam, float)
-    uv, Jp_T, Jk_T = _project(intrinsics_vec, p_cam, jacobians)
-    if not jacobians:
-        return uv, None, None
-    n = p_cam.shape[0]
-    return uv, Jp_T.reshape(3, n, 2).transpose(1, 2, 0), Jk_T.reshape(9, n, 2).transpose(1, 2, 0)
+from handeye.camera import INTRINSIC_NAMES, pixels_from_cam_points, project_opencv5  # noqa: F401 - part of this API
 
 
 def _pose_jacobians_T(G: np.ndarray, Q: np.ndarray, sign: np.ndarray) -> np.ndarray:
@@ -145,7 +79,7 @@ def chain_residual(*, T_x: np.ndarray, T_base_end: np.ndarray, T_board: np.ndarr
     q_b = object_points @ R_B.T + t_B  # shape (N, 3): corners in the frame B maps into
     q_m = q_b @ R_M.T + t_M  # shape (N, 3): corners in the frame A maps from
     p_c = q_m @ R_A.T + t_A  # shape (N, 3): corners in the camera frame
-    uv, Jp_T, Jk_T = _project(intrinsics_vec, p_c, jacobians)
+    uv, Jp_T, Jk_T = project_opencv5(intrinsics_vec, p_c, jacobians)
     residual = (uv - image_points).reshape(-1)
     if not jacobians:
         return residual, None, None, None, None

@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import ConfigError, InputError
-from .geometry import is_rotation, transform_points
-from .types import MODES
+from .frames import is_rotation, transform_points
+from .mounting import MODES
 
 
 def T_base_cam_from_result(mode: str, T_x: np.ndarray, T_base_end: np.ndarray | None = None) -> np.ndarray:

@@ -18,12 +18,13 @@ import numpy as np
 from .conventions import pose_forms
 from .detect import detect_views
 from .errors import CalibrationError, DegenerateMotionError, DetectionError, HandeyeError
-from .geometry import pose_error
-from .model import MountingMode, mounting
+from .frames import pose_error
+from .mounting import MountingMode, mounting
 from .output import hash_files, provenance
 from .seed import (METHODS, all_methods, board_poses, calibrate_intrinsics, chain_residuals, consistency,
                    motion_quality)
-from .types import Detection, HandEyeEstimate, Intrinsics, Session, ViewOutcome, view_id_key
+from .records import Detection, HandEyeEstimate, Session, ViewOutcome, view_id_key
+from .camera import Intrinsics
 
 log = logging.getLogger(__name__)
 

@@ -19,7 +19,7 @@ log = logging.getLogger("handeye")
 
 
 def _add_calibrate(sub):
-    from .types import METHOD_NAMES as METHODS
+    from .records import METHOD_NAMES as METHODS
 
     p = sub.add_parser("calibrate", help="calibrate a session folder (vendor layout or session.yaml)",
                        description="Detect the target, calibrate the camera, seed with an OpenCV closed-form "
@@ -231,7 +231,7 @@ def _write_reports(run, res, out: Path) -> list[Path]:
 
 
 def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
-    from .model import mounting
+    from .mounting import mounting
 
     lines = []
     mode = res["mode"]
@@ -289,8 +289,8 @@ def cmd_simulate(args) -> int:
 def cmd_demo(args) -> int:
     import json
 
-    from .geometry import pose_error
-    from .model import mounting
+    from .frames import pose_error
+    from .mounting import mounting
 
     session_dir = args.out / "session"
     log.info("rendering a synthetic %s session with %d views into %s", args.mode, args.views, session_dir)

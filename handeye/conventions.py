@@ -12,7 +12,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .errors import ConfigError
-from .geometry import is_rotation, make_T
+from .frames import is_rotation, make_T
 
 ROTATION_KINDS = ("euler", "quaternion", "rotvec", "matrix")
 _AXES = set("xyz")

@@ -18,7 +18,8 @@ import cv2
 import numpy as np
 
 from .errors import InputError
-from .types import CharucoSpec, ChessboardSpec, CircleGridSpec, Detection, TargetSpec
+from .targets import CharucoSpec, ChessboardSpec, CircleGridSpec, TargetSpec
+from .records import Detection
 
 log = logging.getLogger(__name__)
 

@@ -52,10 +52,10 @@ from .conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values, pos
 from .diagnose_math import (RAYLEIGH_MEDIAN, all_pairs, implied_boards, jackknife_sigmas, log6, pair_invariants,
                             camera_pose_covariances, pose_differences, propagate, robust_noise_sigma,
                             robust_mean_T, solve_A_from_pairs, summarize_invariants)
-from .geometry import inv_T
+from .frames import inv_T
 from .output import plain
-from .model import mounting
-from .types import view_id_key
+from .mounting import mounting
+from .records import view_id_key
 
 log = logging.getLogger(__name__)
 
@@ -858,7 +858,7 @@ def board_moved_findings(obs: _Obs, M: np.ndarray) -> tuple[list, Optional[_Fit]
 def _board_turns(target) -> list:
     """Board-frame transforms (name, F) for a detector's corner numbering turned by 180 (or 90) degrees:
     the true ``T_cam_board`` is ``C @ F`` when the corners were numbered from the other end."""
-    from .types import ChessboardSpec
+    from .targets import ChessboardSpec
 
     if not isinstance(target, ChessboardSpec):
         return []
@@ -1718,7 +1718,7 @@ def _lenient_session(path: Path, *, mode: Optional[str]):
     import yaml
 
     from .session import IMAGE_EXTS, _parse_intrinsics, parse_target
-    from .types import ChessboardSpec
+    from .targets import ChessboardSpec
 
     p = path
     if p.is_file():
@@ -1750,7 +1750,7 @@ def _observe(target, mode, raw: RawPoses, images_by_id: dict, intr_given):
     """Detections, intrinsics and board poses of a leniently read session: (_Obs | None, n_found, n_images)."""
     from .detect import detect_views
     from .seed import board_poses, calibrate_intrinsics
-    from .types import Detection
+    from .records import Detection
 
     items = [(v, images_by_id[v]) for v in sorted(images_by_id, key=view_id_key) if v in raw.values]
     det = detect_views(items, target)

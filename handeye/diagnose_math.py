@@ -1,7 +1,7 @@
 """Pure math behind the dataset diagnostics (:mod:`handeye.diagnose`).
 
 Everything here works on the one model ``C_i = A · M_i · B`` (``C_i = T_cam_board_i`` from PnP,
-``M_i`` the robot motion of :mod:`handeye.model`). Two facts carry most diagnostics:
+``M_i`` the robot motion of :mod:`handeye.mounting`). Two facts carry most diagnostics:
 
 * For any pair of views, ``C_i C_j^-1 = A (M_i M_j^-1) A^-1``: the camera's relative motion is the
   robot's relative motion seen through the unknown ``A``. Its rotation angle and its screw pitch
@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .geometry import inv_T, make_T, mean_T, project_to_rotation
+from .frames import inv_T, make_T, mean_T, project_to_rotation
 from .stats import robust_noise_sigma  # noqa: F401 - part of this module's API
 
 #: pairs whose relative rotation is outside this range (deg) give no usable screw pitch: the axis is

@@ -7,7 +7,7 @@ Jacobians live in :mod:`handeye.factors.reprojection` (pure numpy), the factor w
 
 Model
 -----
-Both mounting modes are ``T_cam_board_i = inv(T_x) · M_i · T_board`` (see :mod:`handeye.model`).
+Both mounting modes are ``T_cam_board_i = inv(T_x) · M_i · T_board`` (see :mod:`handeye.mounting`).
 Variables:
 
 * ``T_x``   (Pose3): ``T_end_cam`` (eye-in-hand) or ``T_base_cam`` (eye-to-hand);
@@ -109,14 +109,14 @@ import numpy as np
 from scipy.stats import chi2
 
 from handeye.factors.gtsam_factors import intrinsics_prior, robot_pose_prior, view_reprojection_factor
-from handeye.factors.reprojection import (INTRINSIC_NAMES, LOSSES, MODE_INVERTS_ROBOT, chain_residual,
+from handeye.factors.reprojection import (INTRINSIC_NAMES, LOSSES, chain_residual,
                                           corner_robust_scales)
 
 from .errors import ConfigError, HandeyeError, InputError
-from .geometry import inv_T, is_rotation, make_T, project_to_rotation, skew
-from .model import mounting
+from .frames import inv_T, is_rotation, make_T, project_to_rotation, skew
+from .mounting import mounting
 from .stats import robust_noise_sigma
-from .types import Intrinsics
+from .camera import Intrinsics
 
 log = logging.getLogger(__name__)
 
@@ -348,7 +348,7 @@ class _Problem:
 
     def __init__(self, *, mode, object_points, views, intrinsics, T_x0, T_board0, options):
         self.mode = mode
-        self.invert = MODE_INVERTS_ROBOT[mode]
+        self.invert = mounting(mode).inverts_robot
         self.o = options
         self.views = list(views)
         self.n = len(self.views)

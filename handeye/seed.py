@@ -26,9 +26,11 @@ import cv2
 import numpy as np
 
 from .errors import CalibrationError, DegenerateMotionError, DetectionError
-from .geometry import inv_T, is_rotation, make_T, mean_T, rotation_angle_rad, screw_invariants
-from .model import MountingMode
-from .types import METHOD_NAMES, Detection, HandEyeEstimate, Intrinsics, TargetSpec
+from .frames import inv_T, is_rotation, make_T, mean_T, rotation_angle_rad, screw_invariants
+from .mounting import MountingMode
+from .records import METHOD_NAMES, Detection, HandEyeEstimate
+from .camera import Intrinsics
+from .targets import TargetSpec
 
 log = logging.getLogger(__name__)
 

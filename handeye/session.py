@@ -15,7 +15,10 @@ import yaml
 
 from .conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values
 from .errors import ConfigError, InputError
-from .types import MODES, CharucoSpec, ChessboardSpec, CircleGridSpec, Intrinsics, Session, View, view_id_key
+from .mounting import MODES
+from .targets import CharucoSpec, ChessboardSpec, CircleGridSpec
+from .camera import Intrinsics
+from .records import Session, View, view_id_key
 
 log = logging.getLogger(__name__)
 

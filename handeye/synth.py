@@ -7,7 +7,7 @@ Two levels, sharing one geometry for a given seed:
 * :func:`write_vendor_session` -- the same session rendered to images (see
   :mod:`handeye.synth_render`) and written in the vendor layout with a ``ground_truth.json``.
 
-Geometry goes through the one model in :mod:`handeye.model`:
+Geometry goes through the one model in :mod:`handeye.mounting`:
 ``T_cam_board_i = inv(T_x) · M_i · T_board`` (``mounting(mode).predict_T_cam_board``).
 
 Randomness: one ``seed`` feeds independent streams (``np.random.SeedSequence(seed).spawn``) for
@@ -34,10 +34,13 @@ from scipy.spatial.transform import Rotation
 
 from .conventions import VENDOR_POSE_FORMAT, pose_values_from_T
 from .errors import ConfigError, DegenerateMotionError
-from .geometry import inv_T, make_T, T_from_rotvec, transform_points
-from .model import mounting
+from .frames import inv_T, make_T, T_from_rotvec, transform_points
+from .mounting import mounting
 from .output import atomic_write_bytes, atomic_write_text, provenance, to_json
-from .types import MODES, ChessboardSpec, CharucoSpec, Detection, Intrinsics, TargetSpec
+from .mounting import MODES
+from .targets import ChessboardSpec, CharucoSpec, TargetSpec
+from .records import Detection
+from .camera import Intrinsics
 
 log = logging.getLogger(__name__)
 
@@ -280,7 +283,7 @@ def sample_setup(*, mode: str, rng: np.random.Generator, target: TargetSpec = DE
 
     Base frame: x forward, z up, origin on the table top. Returns
     ``{"mode", "x_name", "board_name", "T_x", "T_board"}`` where ``T_x``/``T_board`` are the
-    transforms named by ``x_name``/``board_name`` (as in :class:`handeye.types.HandEyeEstimate`).
+    transforms named by ``x_name``/``board_name`` (as in :class:`handeye.records.HandEyeEstimate`).
     """
     _check_mode(mode)
     mount = mounting(mode)
@@ -549,7 +552,7 @@ class CornerSession:
         return mounting(self.mode).predict_T_cam_board(self.T_x_true, self.T_board_true, self.T_base_end_true)
 
     def detections(self) -> tuple:
-        """:class:`handeye.types.Detection` per visible view (hidden views have none)."""
+        """:class:`handeye.records.Detection` per visible view (hidden views have none)."""
         size = (self.intrinsics.width, self.intrinsics.height)
         return tuple(Detection(view_id=vid, corner_ids=ids, image_points=pts, image_size=size)
                      for vid, ids, pts in zip(self.view_ids, self.corner_ids, self.image_points) if len(ids))

@@ -24,7 +24,8 @@ import numpy as np
 
 from .errors import ConfigError
 from .synth import distort_normalized, pattern_bounds
-from .types import ChessboardSpec, CharucoSpec, Intrinsics, TargetSpec
+from .targets import ChessboardSpec, CharucoSpec, TargetSpec
+from .camera import Intrinsics
 
 log = logging.getLogger(__name__)
 

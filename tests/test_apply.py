@@ -8,7 +8,7 @@ from handeye.apply import points_cam_to_base, pose_cam_to_base, result_transform
 from handeye.cli import main
 from handeye.conventions import VENDOR_POSE_FORMAT, pose_values_from_T
 from handeye.errors import ConfigError, InputError
-from handeye.geometry import transform_points
+from handeye.frames import transform_points
 from handeye.synth import make_corner_session
 
 

@@ -8,7 +8,7 @@ import pytest
 from handeye.detect import detect_circlegrid
 from handeye.errors import ConfigError
 from handeye.session import parse_target
-from handeye.types import CircleGridSpec
+from handeye.targets import CircleGridSpec
 
 # drawn board: dot (c, r) at texture pixel (MARGIN + PITCH*c, MARGIN + PITCH*r); x right, y down = front view
 PITCH, MARGIN, RADIUS = 36, 70, 9
@@ -84,7 +84,7 @@ def test_symmetries_are_proper_in_plane_motions(spec, n_sym):
 
 
 def test_symmetries_match_chessboard_order_for_square_grids():
-    from handeye.types import ChessboardSpec
+    from handeye.targets import ChessboardSpec
 
     for a, b in zip(CircleGridSpec(6, 6, 0.02).symmetries(), ChessboardSpec(6, 6, 0.02).symmetries()):
         assert np.array_equal(a, b)  # seed._majority_frame relies on the order 0, 180, 90, 270 degrees

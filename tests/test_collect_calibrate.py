@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from handeye.cli import main
-from handeye.geometry import pose_error
+from handeye.frames import pose_error
 
 
 @pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])

@@ -8,8 +8,8 @@ from scipy.optimize import least_squares
 from handeye import synth
 from handeye.collect import plan as P
 from handeye.errors import ConfigError
-from handeye.geometry import T_from_rotvec, inv_T, rotation_angle_rad
-from handeye.model import mounting
+from handeye.frames import T_from_rotvec, inv_T, rotation_angle_rad
+from handeye.mounting import mounting
 
 INTR = synth.default_intrinsics(640, 360)
 TARGET = synth.DEFAULT_TARGET

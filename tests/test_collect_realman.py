@@ -12,7 +12,7 @@ from handeye.collect.emulator import RealmanEmulator
 from handeye.collect.realman import (JsonStreamDecoder, RealmanArm, T_base_end_from_realman_pose,
                                      parse_robot_address, realman_error_codes, realman_pose_from_T)
 from handeye.errors import ConfigError, HardwareError
-from handeye.geometry import make_T, pose_error
+from handeye.frames import make_T, pose_error
 
 
 # ------------------------------------------------------------------------------ framing

@@ -141,7 +141,7 @@ def _board_frames(n):
     render = _render_view()
     Ts = synth.sample_view_poses(mode="eye_in_hand", n_views=n, rng=rng, T_x=rig.T_x, T_board=rig.T_board,
                                  target=rig.target, intrinsics=rig.intrinsics)
-    from handeye.model import mounting
+    from handeye.mounting import mounting
 
     C = mounting("eye_in_hand").predict_T_cam_board(rig.T_x, rig.T_board, Ts)
     return [render(rig.target, rig.intrinsics, c, supersample=2, channels=3) for c in C]

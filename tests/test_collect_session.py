@@ -26,8 +26,8 @@ from handeye.collect.emulator import RealmanEmulator
 from handeye.collect.realman import RealmanArm
 from handeye.collect.sim import SimCamera, SimRig, SimRobot, _render_view
 from handeye.errors import ConfigError, InputError
-from handeye.model import mounting
-from handeye.types import ChessboardSpec
+from handeye.mounting import mounting
+from handeye.targets import ChessboardSpec
 
 REPO = Path(__file__).resolve().parents[1]
 FAST = ["--resolution", "640x360", "--sim-supersample", "2"]

@@ -4,7 +4,7 @@ from scipy.spatial.transform import Rotation
 
 from handeye.conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values, pose_forms, pose_values_from_T
 from handeye.errors import ConfigError
-from handeye.geometry import inv_T, make_T, mean_T, pose_error, quat_wxyz_from_R
+from handeye.frames import inv_T, make_T, mean_T, pose_error, quat_wxyz_from_R
 
 
 def Rx(a):

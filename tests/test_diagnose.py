@@ -21,11 +21,11 @@ from handeye.diagnose import (Finding, alternative_formats, diagnose_run, diagno
 from handeye.diagnose_images import coverage, edge_profiles, edge_sigma_px
 from handeye.diagnose_math import jackknife_sigmas, pair_invariants, solve_A_from_pairs
 from handeye.errors import InputError
-from handeye.geometry import T_from_rotvec, inv_T, pose_error
-from handeye.model import mounting
+from handeye.frames import T_from_rotvec, inv_T, pose_error
+from handeye.mounting import mounting
 from handeye.session import load_session
 from handeye.synth import default_intrinsics, make_corner_session, write_vendor_session
-from handeye.types import ChessboardSpec
+from handeye.targets import ChessboardSpec
 
 FAULT_CODES = {"translation_units", "angle_units", "euler_order", "quaternion_order", "mode_swapped",
                "poses_inverted", "pairs_shifted", "robot_pose_disagrees", "board_moved", "weak_motion",
@@ -214,7 +214,7 @@ def _all_methods_tolerating_nan(monkeypatch):
         try:
             return orig(mode, C, M, method=method)
         except np.linalg.LinAlgError as e:
-            from handeye.types import HandEyeEstimate
+            from handeye.records import HandEyeEstimate
             return HandEyeEstimate(mode.name, method, np.eye(4), np.eye(4), "failed", str(e))
     monkeypatch.setattr(seed_mod, "solve_closed_form", solve)
 

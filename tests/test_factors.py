@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from gtsam.utils.numerical_derivative import numericalDerivative11
 
+from handeye.errors import ConfigError
 from handeye.factors.gtsam_factors import robot_pose_prior, view_reprojection_factor
 from handeye.factors.reprojection import (chain_residual, corner_robust_scales, eye_in_hand_residual,
                                           eye_to_hand_residual, pixels_from_cam_points)
@@ -196,6 +197,6 @@ def test_factor_rejects_missing_robot_pose_and_unknown_loss():
                                  object_points=obj, image_points=img, sigma_px=1.0, intrinsics_vec=K9)
     with pytest.raises(ValueError, match="unknown loss"):
         corner_robust_scales(np.zeros(6), sigma_px=1.0, loss="tukey", k=3.0)
-    with pytest.raises(KeyError):
+    with pytest.raises(ConfigError, match="unknown mounting mode"):
         view_reprojection_factor(mode="hand_in_eye", key_x=0, key_board=1, key_robot=2, key_intrinsics=None,
                                  object_points=obj, image_points=img, sigma_px=1.0, intrinsics_vec=K9)

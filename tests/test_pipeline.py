@@ -6,7 +6,7 @@ import pytest
 import yaml
 
 from handeye.cli import main
-from handeye.geometry import pose_error
+from handeye.frames import pose_error
 from handeye.synth import default_intrinsics, write_vendor_session
 
 SMALL = dict(intrinsics=default_intrinsics(640, 480), supersample=3)

@@ -6,7 +6,7 @@ import pytest
 
 from handeye.calibrate import CalibrateOptions, run_calibration
 from handeye.cli import main
-from handeye.geometry import T_from_rotvec, make_T, pose_error
+from handeye.frames import T_from_rotvec, make_T, pose_error
 from handeye.importers import import_ical, import_visp
 from handeye.session import load_session
 from scipy.spatial.transform import Rotation
@@ -110,7 +110,7 @@ def kinect_run(kinect_session):
 
 
 def test_kinect_circlegrid_imports_as_eye_in_hand(kinect_session):
-    from handeye.types import CircleGridSpec
+    from handeye.targets import CircleGridSpec
 
     s = load_session(kinect_session)
     assert s.mode == "eye_in_hand" and len(s.views) == 15
@@ -160,9 +160,9 @@ def test_kinect_circlegrid_refined_agrees_with_the_closed_forms(kinect_run):
 
 def test_kinect_motion_resolves_scrambled_circle_grid_orders(kinect_run):
     # the fallback when the big dot cannot be told apart: each view's numbering turned at random
-    from handeye.model import mounting
+    from handeye.mounting import mounting
     from handeye.seed import board_poses
-    from handeye.types import Detection
+    from handeye.records import Detection
 
     run = kinect_run
     s = run.session

@@ -10,10 +10,10 @@ import pytest
 from scipy.stats import chi2
 
 from handeye.errors import ConfigError, InputError
-from handeye.geometry import inv_T
+from handeye.frames import inv_T
 from handeye.refine import RefineOptions, RefineView, refine
 from handeye.synth import make_corner_session
-from handeye.types import Intrinsics
+from handeye.camera import Intrinsics
 
 
 def _views(s, image_points=None):

@@ -18,7 +18,7 @@ import pytest
 from scipy.stats import chi2
 
 from handeye.calibrate import CalibrateOptions, run_calibration
-from handeye.geometry import inv_T
+from handeye.frames import inv_T
 from handeye.session import load_session
 from handeye.synth import default_intrinsics, write_vendor_session
 

@@ -279,7 +279,7 @@ def test_euler_sigma_propagation_matches_sampling():
     from scipy.spatial.transform import Rotation
 
     from handeye.conventions import vendor_euler_from_R
-    from handeye.geometry import make_T
+    from handeye.frames import make_T
     from handeye.report.analysis import form_sigmas
 
     rng = np.random.default_rng(3)

@@ -3,11 +3,12 @@ import numpy as np
 import pytest
 
 from handeye.errors import DegenerateMotionError
-from handeye.geometry import T_from_rotvec, inv_T, pose_error
-from handeye.model import mounting
+from handeye.frames import T_from_rotvec, inv_T, pose_error
+from handeye.mounting import mounting
 from handeye.seed import METHODS, board_poses, motion_quality, solve_closed_form
 from handeye.synth import make_corner_session
-from handeye.types import ChessboardSpec, Detection
+from handeye.targets import ChessboardSpec
+from handeye.records import Detection
 
 
 def seed_inputs(cs, *, target=None):

@@ -6,7 +6,7 @@ import yaml
 from handeye.conventions import VENDOR_POSE_FORMAT, PoseFormat, pose_values_from_T
 from handeye.detect import read_gray
 from handeye.errors import ConfigError, InputError
-from handeye.geometry import T_from_rotvec
+from handeye.frames import T_from_rotvec
 from handeye.session import load_session
 
 POSES = [T_from_rotvec([0.1 * k, -0.2, 0.3], [0.3, 0.05 * k, 0.4]) for k in range(1, 5)]

@@ -12,9 +12,9 @@ from scipy.spatial.transform import Rotation
 from handeye import synth, synth_render
 from handeye.conventions import VENDOR_POSE_FORMAT, T_from_pose_values
 from handeye.errors import ConfigError, DegenerateMotionError
-from handeye.geometry import inv_T, is_rotation, rotation_angle_rad
-from handeye.model import mounting
-from handeye.types import CharucoSpec, ChessboardSpec
+from handeye.frames import inv_T, is_rotation, rotation_angle_rad
+from handeye.mounting import mounting
+from handeye.targets import CharucoSpec, ChessboardSpec
 
 MODES = ("eye_in_hand", "eye_to_hand")
 

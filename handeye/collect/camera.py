@@ -10,7 +10,7 @@ import abc
 
 import numpy as np
 
-from ..types import Intrinsics
+from ..camera import Intrinsics
 
 
 class Camera(abc.ABC):

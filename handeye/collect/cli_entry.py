@@ -14,8 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, HandeyeError, InputError
-from ..model import mounting
-from ..types import MODES, CharucoSpec, ChessboardSpec, TargetSpec
+from ..mounting import mounting
+from ..mounting import MODES
+from ..targets import CharucoSpec, ChessboardSpec, TargetSpec
 
 log = logging.getLogger(__name__)
 

@@ -24,10 +24,11 @@ import numpy as np
 
 from ..detect import MIN_CORNERS, detect_charuco, detect_chessboard, sharpness
 from ..errors import DetectionError, HardwareError
-from ..geometry import rotation_angle_rad
-from ..model import mounting
+from ..frames import rotation_angle_rad
+from ..mounting import mounting
 from ..seed import solve_closed_form, solve_pnp
-from ..types import ChessboardSpec, Intrinsics, TargetSpec
+from ..targets import ChessboardSpec, TargetSpec
+from ..camera import Intrinsics
 from . import plan as planning
 from .camera import Camera
 from .robot import PoseReading, Robot, poses_agree

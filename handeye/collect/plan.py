@@ -1,7 +1,7 @@
 """Automatic pose plan: few views, chosen to make the hand-eye result as certain as possible.
 
 Everything here is pure math on the one model ``T_cam_board_i = inv(T_x) · M_i · T_board``
-(:mod:`handeye.model`), for both mounting modes.
+(:mod:`handeye.mounting`), for both mounting modes.
 
 Candidate views orbit the board: starting from the current view ``T_cam_board_0``, the camera is
 rotated about the board centre (tilts about the camera's x and y axes, a roll about its optical
@@ -35,10 +35,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import ConfigError
-from ..geometry import T_from_rotvec, inv_T, make_T
-from ..model import mounting
+from ..frames import T_from_rotvec, inv_T, make_T
+from ..mounting import mounting
 from ..synth import board_in_image, distort_normalized, pattern_bounds
-from ..types import Intrinsics, TargetSpec
+from ..camera import Intrinsics
+from ..targets import TargetSpec
 
 log = logging.getLogger(__name__)
 

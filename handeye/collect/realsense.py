@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from ..errors import ConfigError, HardwareError
-from ..types import Intrinsics
+from ..camera import Intrinsics
 from .camera import Camera
 
 log = logging.getLogger(__name__)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry import pose_error
+from ..frames import pose_error
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,8 @@ import yaml
 from .. import __version__
 from ..errors import HardwareError, InputError
 from ..output import plain
-from ..types import Intrinsics, TargetSpec
+from ..camera import Intrinsics
+from ..targets import TargetSpec
 
 log = logging.getLogger(__name__)
 

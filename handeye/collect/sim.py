@@ -18,9 +18,10 @@ import numpy as np
 
 from .. import synth
 from ..errors import ConfigError
-from ..geometry import inv_T
-from ..model import mounting
-from ..types import Intrinsics, TargetSpec
+from ..frames import inv_T
+from ..mounting import mounting
+from ..camera import Intrinsics
+from ..targets import TargetSpec
 from .camera import Camera
 from .robot import PoseReading, Robot
 

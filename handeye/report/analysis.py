@@ -16,7 +16,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..conventions import vendor_euler_from_R
-from ..geometry import inv_T, make_T
+from ..frames import inv_T, make_T
 
 Z95 = 1.959963984540054  # two-sided 95 % quantile of the standard normal
 

@@ -17,9 +17,9 @@ import numpy as np
 
 from .. import __version__
 from ..conventions import pose_forms, vendor_euler_from_R
-from ..geometry import pose_error
+from ..frames import pose_error
 from ..output import plain
-from ..types import view_id_key
+from ..records import view_id_key
 from . import analysis as A
 from . import plots
 from .qa import Verdict, evaluate

@@ -20,8 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import ConfigError
-from .geometry import inv_T
-from .types import MODES
+from .frames import inv_T
+
+MODES = ("eye_in_hand", "eye_to_hand")
 
 
 @dataclass(frozen=True)
@@ -31,13 +32,14 @@ class MountingMode:
     board_name: str  # name of the constant board transform
     fixed_frame: str  # frame the camera is rigid to
     board_frame: str  # frame the board is rigid to
+    inverts_robot: bool  # M_i = inv(T_base_end_i) (eye-in-hand) rather than T_base_end_i
 
     def M_from_T_base_end(self, T_base_end: np.ndarray) -> np.ndarray:
         """Robot motion M_i for (N,4,4) or (4,4) reported poses ``T_base_end``."""
-        return inv_T(T_base_end) if self.name == "eye_in_hand" else np.asarray(T_base_end, float)
+        return inv_T(T_base_end) if self.inverts_robot else np.asarray(T_base_end, float)
 
     def T_base_end_from_M(self, M: np.ndarray) -> np.ndarray:
-        return inv_T(M) if self.name == "eye_in_hand" else np.asarray(M, float)
+        return inv_T(M) if self.inverts_robot else np.asarray(M, float)
 
     @staticmethod
     def A_from_X(T_x: np.ndarray) -> np.ndarray:
@@ -53,11 +55,11 @@ class MountingMode:
 
     def T_base_cam(self, T_x: np.ndarray, T_base_end: np.ndarray) -> np.ndarray:
         """Camera in the base frame at a robot pose (eye-to-hand: constant)."""
-        return T_base_end @ T_x if self.name == "eye_in_hand" else np.asarray(T_x, float)
+        return T_base_end @ T_x if self.inverts_robot else np.asarray(T_x, float)
 
 
-EYE_IN_HAND = MountingMode("eye_in_hand", "T_end_cam", "T_base_board", "end", "base")
-EYE_TO_HAND = MountingMode("eye_to_hand", "T_base_cam", "T_end_board", "base", "end")
+EYE_IN_HAND = MountingMode("eye_in_hand", "T_end_cam", "T_base_board", "end", "base", inverts_robot=True)
+EYE_TO_HAND = MountingMode("eye_to_hand", "T_base_cam", "T_end_board", "base", "end", inverts_robot=False)
 
 
 def mounting(mode: str) -> MountingMode:

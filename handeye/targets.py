@@ -1,24 +1,15 @@
-"""Frozen dataclasses for the data that flows through handeye.
+"""Calibration targets: chessboard, ChArUco and circle-grid specs, their corner numbering and symmetries.
 
-Views are identified by ``view_id`` (a string such as "7" for ``7.jpg``), never by list position.
+Each spec is a frozen dataclass with ``object_points()`` (the board-frame corner positions, metres,
+in OpenCV's numbering), ``symmetries()`` (the corner permutations a detector cannot tell apart),
+``to_dict()`` (the session/result form) and ``describe()`` (one line for messages).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Optional, Union
+from dataclasses import dataclass
+from typing import Union
 
 import numpy as np
-
-MODES = ("eye_in_hand", "eye_to_hand")
-
-
-def view_id_key(view_id) -> tuple:
-    """Sort key for view ids: numeric ids in numeric order ("2" before "10"), then the others by name."""
-    vid = str(view_id)
-    return (0, int(vid), "") if vid.isdigit() else (1, 0, vid)
-#: OpenCV's closed-form solvers by handeye name (hand-eye AX=XB ones, then robot-world AX=ZB ones)
-METHOD_NAMES = ("tsai", "park", "horaud", "andreff", "daniilidis", "shah", "li")
 
 
 def grid_turns(cols: int, rows: int) -> list[np.ndarray]:
@@ -152,128 +143,3 @@ class CircleGridSpec:
 
 
 TargetSpec = Union[ChessboardSpec, CharucoSpec, CircleGridSpec]
-
-DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")
-
-
-@dataclass(frozen=True)
-class Intrinsics:
-    """Pinhole camera with OpenCV's 5-coefficient distortion (k1, k2, p1, p2, k3)."""
-
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    dist: tuple = (0.0, 0.0, 0.0, 0.0, 0.0)
-    width: int = 0
-    height: int = 0
-    model: str = "opencv5"
-
-    @property
-    def K(self) -> np.ndarray:
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    @property
-    def dist_array(self) -> np.ndarray:
-        return np.asarray(self.dist, dtype=float)
-
-    @property
-    def image_size(self) -> tuple[int, int]:
-        return (self.width, self.height)
-
-    def as_vector(self) -> np.ndarray:
-        """(fx, fy, cx, cy, k1, k2, p1, p2, k3)."""
-        return np.concatenate([[self.fx, self.fy, self.cx, self.cy], self.dist_array])
-
-    @staticmethod
-    def from_vector(v, width: int, height: int) -> "Intrinsics":
-        v = np.asarray(v, float)
-        return Intrinsics(float(v[0]), float(v[1]), float(v[2]), float(v[3]), tuple(float(x) for x in v[4:9]),
-                          int(width), int(height))
-
-    @staticmethod
-    def from_K(K, dist, width: int, height: int) -> "Intrinsics":
-        d = np.zeros(5)
-        dd = np.asarray(dist, float).reshape(-1)[:5]
-        d[: dd.size] = dd
-        return Intrinsics(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
-                          tuple(float(x) for x in d), int(width), int(height))
-
-    def to_dict(self) -> dict:
-        return {"model": self.model, "fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,
-                "dist": dict(zip(DIST_NAMES, map(float, self.dist))),
-                "dist_order": "k1, k2, p1, p2, k3 (OpenCV)",
-                "image_size": [self.width, self.height]}
-
-
-@dataclass(frozen=True)
-class View:
-    """One capture: an image and the reported robot pose ``T_base_end`` (metres)."""
-
-    view_id: str
-    image_path: Path
-    T_base_end: np.ndarray  # (4, 4)
-    source_line: Optional[int] = None  # line in poses.txt, for messages
-    t_image: Optional[float] = None
-    t_pose: Optional[float] = None
-
-
-@dataclass(frozen=True)
-class Session:
-    """A calibration session as read from disk, converted to handeye conventions."""
-
-    path: Path
-    format: str  # "vendor" | "native"
-    mode: str
-    target: TargetSpec
-    views: tuple  # tuple[View, ...]
-    intrinsics: Optional[Intrinsics] = None
-    intrinsics_prior: str = "estimate"  # estimate | fixed | prior
-    pose_format: str = ""
-    meta: dict = field(default_factory=dict)
-
-    def view(self, view_id: str) -> View:
-        for v in self.views:
-            if v.view_id == view_id:
-                return v
-        raise KeyError(view_id)
-
-
-@dataclass(frozen=True)
-class Detection:
-    """Target corners found in one view. ``corner_ids`` index ``target.object_points()``."""
-
-    view_id: str
-    corner_ids: np.ndarray  # (N,) int
-    image_points: np.ndarray  # (N, 2) float64 pixels
-    image_size: tuple  # (width, height)
-    sharpness: float = float("nan")  # variance of the Laplacian around the target
-    order_cue: float = float("nan")  # chessboard: grey of the first inner square minus the last one
-    seconds: float = 0.0
-
-
-@dataclass(frozen=True)
-class ViewOutcome:
-    """What happened to one view: used or dropped, and why."""
-
-    view_id: str
-    image: str
-    used: bool
-    reason: str = ""
-    n_corners: int = 0
-    rms_px: Optional[float] = None
-    max_px: Optional[float] = None
-    orientation: int = 0  # index into target.symmetries() chosen for this view
-    flags: tuple = ()  # reasons of outlier decisions (corner- or view-level)
-
-
-@dataclass(frozen=True)
-class HandEyeEstimate:
-    """A hand-eye solution in the generic form ``T_cam_board_i = A · M_i · B``, named per mode."""
-
-    mode: str
-    method: str
-    T_x: np.ndarray  # T_end_cam (eye-in-hand) or T_base_cam (eye-to-hand)
-    T_board: np.ndarray  # T_base_board (eye-in-hand) or T_end_board (eye-to-hand)
-    status: str = "ok"
-    failure_reason: str = ""

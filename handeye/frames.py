@@ -1,10 +1,19 @@
-"""Pure rigid-body math on 4x4 transforms ``T_a_b`` (maps points of frame b into frame a).
+"""Rigid-body math on 4x4 transforms ``T_a_b`` (maps points of frame b into frame a): THE SE(3) module.
 
 No I/O, no printing, inputs are never mutated. Rotations inside the package are 3x3 matrices,
 rotation vectors (``rotvec``, radians) or quaternions; quaternions are always ``wxyz`` here
 (conversion to other orders happens only in :mod:`handeye.conventions`).
+
+Tangent convention (the only one in handeye, GTSAM's Pose3): ``xi = (omega [rad], v [m])``,
+rotation first, **right** perturbation ``T_true = T · Exp(xi)``. Every covariance of a pose that
+handeye computes, stores or reads is in this tangent. :func:`se3_exp` / :func:`se3_log` are the
+exact maps (not first-order approximations), :func:`se3_adjoint` moves a tangent vector between
+frames (``T · Exp(xi) = Exp(Ad_T xi) · T``), :func:`tangent_jacobian` differentiates any function of
+a pose in this convention.
 """
 from __future__ import annotations
+
+from typing import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -115,3 +124,68 @@ def screw_invariants(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     axis = rv / np.maximum(ang, 1e-12)[:, None]
     pitch = np.einsum("ni,ni->n", axis, T[:, :3, 3])
     return ang, pitch
+
+
+# ------------------------------------------------------------------------------ SE(3) tangent
+def _so3_left_jacobian(omega: np.ndarray) -> np.ndarray:
+    """Left Jacobian of SO(3) at ``omega`` (..., 3) -> (..., 3, 3), exact with a series near 0."""
+    omega = np.asarray(omega, float)
+    th = np.linalg.norm(omega, axis=-1)[..., None, None]
+    W = skew(omega)
+    W2 = W @ W
+    small = th < 1e-5
+    ths = np.where(small, 1.0, th)
+    a = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
+    b = np.where(small, 1.0 / 6.0 - th**2 / 120.0, (ths - np.sin(ths)) / ths**3)
+    return np.eye(3) + a * W + b * W2
+
+
+def se3_exp(xi: np.ndarray) -> np.ndarray:
+    """Exp of a tangent vector ``xi = (omega, v)`` (6,) or (N,6) -> (4,4) or (N,4,4) (GTSAM's Pose3.Expmap)."""
+    xi = np.asarray(xi, float)
+    R = Rotation.from_rotvec(xi[..., :3].reshape(-1, 3)).as_matrix().reshape(xi.shape[:-1] + (3, 3))
+    t = np.einsum("...ij,...j->...i", _so3_left_jacobian(xi[..., :3]), xi[..., 3:])
+    T = np.zeros(xi.shape[:-1] + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def se3_log(T: np.ndarray) -> np.ndarray:
+    """Log of a rigid transform (4,4) or (N,4,4) -> ``(omega, v)`` (6,) or (N,6); inverse of :func:`se3_exp`."""
+    T = np.asarray(T, float)
+    omega = Rotation.from_matrix(T[..., :3, :3].reshape(-1, 3, 3)).as_rotvec().reshape(T.shape[:-2] + (3,))
+    v = np.linalg.solve(_so3_left_jacobian(omega), T[..., :3, 3][..., None])[..., 0]
+    return np.concatenate([omega, v], axis=-1)
+
+
+def se3_adjoint(T: np.ndarray) -> np.ndarray:
+    """Adjoint (6,6) of ``T`` in the (rotation, translation) order: ``T · Exp(xi) · inv(T) = Exp(Ad_T xi)``."""
+    T = np.asarray(T, float)
+    R, t = T[:3, :3], T[:3, 3]
+    Ad = np.zeros((6, 6))
+    Ad[:3, :3] = R
+    Ad[3:, 3:] = R
+    Ad[3:, :3] = skew(t) @ R
+    return Ad
+
+
+def tangent_difference(T_a: np.ndarray, T_b: np.ndarray) -> np.ndarray:
+    """``xi`` with ``T_b = T_a · Exp(xi)``: the right-tangent difference of (4,4) or stacked (N,4,4) poses."""
+    return se3_log(inv_T(T_a) @ np.asarray(T_b, float))
+
+
+def tangent_jacobian(f: Callable[[np.ndarray], np.ndarray], T: np.ndarray, *, h: float = 1e-6) -> np.ndarray:
+    """Numeric Jacobian (m,6) of ``f(T · Exp(xi))`` at ``xi = 0`` (central differences, right tangent).
+
+    ``f`` maps a (4,4) transform to a vector (m,). Used to propagate a pose covariance ``S`` to any
+    derived quantity as ``J S J^T``.
+    """
+    T = np.asarray(T, float)
+    cols = []
+    for k in range(6):
+        e = np.zeros(6)
+        e[k] = h
+        cols.append((np.asarray(f(T @ se3_exp(e)), float) - np.asarray(f(T @ se3_exp(-e)), float)) / (2.0 * h))
+    return np.stack(cols, axis=-1)
