@@ -17,9 +17,9 @@ import time
 
 import numpy as np
 
-from handeye import synth
+from handeye.sim import synth
 from handeye.collect import plan as P
-from handeye.collect.sim import SimRig
+from handeye.sim.devices import SimRig
 from handeye.mounting import mounting
 
 

@@ -20,14 +20,14 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-import handeye.calibrate as calibrate_mod
-from handeye.calibrate import CalibrateOptions, run_calibration
+import handeye.pipeline as calibrate_mod
+from handeye.pipeline import CalibrateOptions, run_calibration
 from handeye.conventions import VENDOR_POSE_FORMAT, pose_values_from_T
 from handeye.diagnose import diagnose_run
 from handeye.frames import T_from_rotvec, inv_T
 from handeye.mounting import mounting
 from handeye.session import load_session
-from handeye.synth import make_corner_session
+from handeye.sim.synth import make_corner_session
 
 
 def _write_vendor(folder: Path, cs, T) -> Path:

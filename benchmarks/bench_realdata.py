@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from handeye.calibrate import CalibrateOptions, run_calibration
+from handeye.pipeline import CalibrateOptions, run_calibration
 from handeye.frames import T_from_rotvec, make_T, pose_error
-from handeye.importers import import_ical, import_visp
+from handeye.session.importers import import_ical, import_visp
 from handeye.session import load_session
 
 REFS = {

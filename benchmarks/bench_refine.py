@@ -30,8 +30,8 @@ from handeye.factors.reprojection import chain_residual
 from handeye.frames import inv_T
 from handeye.mounting import mounting
 from handeye.refine import RefineOptions, RefineView, refine
-from handeye.seed import calibrate_intrinsics, solve_closed_form, solve_pnp
-from handeye.synth import make_corner_session
+from handeye.initial import calibrate_intrinsics, solve_closed_form, solve_pnp
+from handeye.sim.synth import make_corner_session
 
 MODES = ("eye_in_hand", "eye_to_hand")
 NOISE_PX = 0.3

@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from handeye import synth, synth_render
+from handeye.sim import render as synth_render, synth
 
 
 def main() -> None:

@@ -69,7 +69,7 @@ def _xi_error(T_est, T_true):
 
 def _corner_errors(run, truth, target, intrinsics_true):
     """Detected minus true corner positions per used view: {vid: (N,2)}."""
-    from handeye.synth import pixel_from_board_point
+    from handeye.sim.synth import pixel_from_board_point
     obj = target.object_points()
     out = {}
     for vid, d in run.detections.items():
@@ -106,9 +106,9 @@ def run_one(k: int, keep: str | None = None) -> dict:
 
 def _run_one(k: int, keep: str | None = None, cfg: dict | None = None) -> dict:
     from bench_refine import crb_x
-    from handeye.calibrate import CalibrateOptions, run_calibration
+    from handeye.pipeline import CalibrateOptions, run_calibration
     from handeye.session import load_session
-    from handeye.synth import default_intrinsics, make_corner_session, write_vendor_session
+    from handeye.sim.synth import default_intrinsics, make_corner_session, write_vendor_session
     cfg = session_config(k) if cfg is None else cfg
     intr = default_intrinsics(640, 480) if cfg["small"] else None
     tmp = Path(keep) / f"s{k:03d}" if keep else Path(tempfile.mkdtemp(prefix="bench_rendered_"))

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from handeye import synth
+from handeye.sim import synth
 from handeye.collect import plan as P
 from handeye.errors import ConfigError
 from handeye.frames import T_from_rotvec, inv_T, rotation_angle_rad

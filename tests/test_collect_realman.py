@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from handeye.collect.emulator import RealmanEmulator
+from handeye.sim.realman_emulator import RealmanEmulator
 from handeye.collect.realman import (JsonStreamDecoder, RealmanArm, T_base_end_from_realman_pose,
                                      parse_robot_address, realman_error_codes, realman_pose_from_T)
 from handeye.errors import ConfigError, HardwareError

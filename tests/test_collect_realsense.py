@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
-from handeye import synth
+from handeye.sim import synth
 from handeye.collect.realsense import intrinsics_from_realsense, opencv5_from_realsense
 from handeye.errors import HardwareError
 
@@ -134,7 +134,7 @@ def _record(rs, folder, frames, *, fx=455.0, fy=454.5, ppx=321.1, ppy=180.4, mod
 
 
 def _board_frames(n):
-    from handeye.collect.sim import SimRig, _render_view
+    from handeye.sim.devices import SimRig, _render_view
 
     rig = SimRig.sample(mode="eye_in_hand", rng=np.random.default_rng(1), intrinsics=synth.default_intrinsics(W, H))
     rng = np.random.default_rng(2)
@@ -174,7 +174,7 @@ def test_recording_plays_back_frame_by_frame(tmp_path):
 def test_collect_from_a_recording(tmp_path, monkeypatch):
     rs = _rs()
     path = _record(rs, tmp_path, _board_frames(3))
-    from handeye.collect.cli_entry import add_collect_arguments, run_collect
+    from handeye.cli.collect import add_collect_arguments, run_collect
 
     p = argparse.ArgumentParser()
     add_collect_arguments(p)

@@ -17,14 +17,14 @@ import numpy as np
 import pytest
 import yaml
 
-from handeye import synth
+from handeye.sim import synth
 from handeye.collect import session_writer as sw
 from handeye.collect.camera import Camera
-from handeye.collect.cli_entry import add_collect_arguments, parse_target_spec, run_collect
+from handeye.cli.collect import add_collect_arguments, parse_target_spec, run_collect
 from handeye.collect.collector import CaptureChecks, Collector, detect_target
-from handeye.collect.emulator import RealmanEmulator
+from handeye.sim.realman_emulator import RealmanEmulator
 from handeye.collect.realman import RealmanArm
-from handeye.collect.sim import SimCamera, SimRig, SimRobot, _render_view
+from handeye.sim.devices import SimCamera, SimRig, SimRobot, _render_view
 from handeye.errors import ConfigError, InputError
 from handeye.mounting import mounting
 from handeye.targets import ChessboardSpec

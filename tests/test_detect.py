@@ -5,8 +5,8 @@ import pytest
 from handeye.detect import detect_chessboard, detect_views, normalize_chessboard_order, order_cue
 from handeye.errors import InputError
 from handeye.mounting import mounting
-from handeye.synth import default_intrinsics, make_corner_session, pixel_from_board_point
-from handeye.synth_render import render_view
+from handeye.sim.synth import default_intrinsics, make_corner_session, pixel_from_board_point
+from handeye.sim.render import render_view
 from handeye.targets import ChessboardSpec
 from handeye.records import Detection
 

@@ -12,19 +12,19 @@ import numpy as np
 import pytest
 import yaml
 
-import handeye.calibrate as calibrate_mod
+import handeye.pipeline as calibrate_mod
 import handeye.detect as detect_mod
-from handeye.calibrate import CalibrateOptions, run_calibration
+from handeye.pipeline import CalibrateOptions, run_calibration
 from handeye.conventions import VENDOR_POSE_FORMAT, PoseFormat, pose_values_from_T
 from handeye.diagnose import (Finding, alternative_formats, diagnose_run, diagnose_session_error,
                               read_raw_poses)
-from handeye.diagnose_images import coverage, edge_profiles, edge_sigma_px
-from handeye.diagnose_math import jackknife_sigmas, pair_invariants, solve_A_from_pairs
+from handeye.diagnose.imaging import coverage, edge_profiles, edge_sigma_px
+from handeye.diagnose.geometry import jackknife_sigmas, pair_invariants, solve_A_from_pairs
 from handeye.errors import InputError
 from handeye.frames import T_from_rotvec, inv_T, pose_error
 from handeye.mounting import mounting
 from handeye.session import load_session
-from handeye.synth import default_intrinsics, make_corner_session, write_vendor_session
+from handeye.sim.synth import default_intrinsics, make_corner_session, write_vendor_session
 from handeye.targets import ChessboardSpec
 
 FAULT_CODES = {"translation_units", "angle_units", "euler_order", "quaternion_order", "mode_swapped",
@@ -206,7 +206,7 @@ def test_metres_read_as_millimetres(tmp_path, monkeypatch):
 def _all_methods_tolerating_nan(monkeypatch):
     """seed.all_methods lets numpy's LinAlgError escape when a robot-world method returns NaN on garbage
     poses (reported to the lead); until that is fixed, record such a method as failed, as for cv2.error."""
-    import handeye.seed as seed_mod
+    import handeye.initial as seed_mod
 
     orig = seed_mod.solve_closed_form
 
@@ -481,7 +481,7 @@ def test_rendered_partly_visible_and_overexposed(rendered, tmp_path):
     import shutil
 
     import cv2
-    from handeye.synth_render import render_view
+    from handeye.sim.render import render_view
 
     folder = tmp_path / "s"
     shutil.copytree(rendered, folder)

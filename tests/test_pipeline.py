@@ -7,7 +7,7 @@ import yaml
 
 from handeye.cli import main
 from handeye.frames import pose_error
-from handeye.synth import default_intrinsics, write_vendor_session
+from handeye.sim.synth import default_intrinsics, write_vendor_session
 
 SMALL = dict(intrinsics=default_intrinsics(640, 480), supersample=3)
 

@@ -4,10 +4,10 @@ import json
 import numpy as np
 import pytest
 
-from handeye.calibrate import CalibrateOptions, run_calibration
+from handeye.pipeline import CalibrateOptions, run_calibration
 from handeye.cli import main
 from handeye.frames import T_from_rotvec, make_T, pose_error
-from handeye.importers import import_ical, import_visp
+from handeye.session.importers import import_ical, import_visp
 from handeye.session import load_session
 from scipy.spatial.transform import Rotation
 
@@ -161,7 +161,7 @@ def test_kinect_circlegrid_refined_agrees_with_the_closed_forms(kinect_run):
 def test_kinect_motion_resolves_scrambled_circle_grid_orders(kinect_run):
     # the fallback when the big dot cannot be told apart: each view's numbering turned at random
     from handeye.mounting import mounting
-    from handeye.seed import board_poses
+    from handeye.initial import board_poses
     from handeye.records import Detection
 
     run = kinect_run

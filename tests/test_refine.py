@@ -12,7 +12,7 @@ from scipy.stats import chi2
 from handeye.errors import ConfigError, InputError
 from handeye.frames import inv_T
 from handeye.refine import RefineOptions, RefineView, refine
-from handeye.synth import make_corner_session
+from handeye.sim.synth import make_corner_session
 from handeye.camera import Intrinsics
 
 

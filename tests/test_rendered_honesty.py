@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from handeye.calibrate import CalibrateOptions, run_calibration
+from handeye.pipeline import CalibrateOptions, run_calibration
 from handeye.frames import inv_T
 from handeye.session import load_session
-from handeye.synth import default_intrinsics, write_vendor_session
+from handeye.sim.synth import default_intrinsics, write_vendor_session
 
 SMALL = default_intrinsics(640, 480)
 # (mode, views, seed, image noise [grey levels], blur [px], robot noise (mm, deg), outlier views)

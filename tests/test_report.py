@@ -21,10 +21,10 @@ import numpy as np
 import pytest
 import yaml
 
-from handeye.calibrate import CalibrateOptions, observations_dict, result_dict, run_calibration
+from handeye.pipeline import CalibrateOptions, observations_dict, result_dict, run_calibration
 from handeye.output import write_json
 from handeye.session import load_session
-from handeye.synth import default_intrinsics, write_vendor_session
+from handeye.sim.synth import default_intrinsics, write_vendor_session
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
 needs_chromium = pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (scripts/test.sh installs it)")
@@ -413,7 +413,7 @@ def test_report_command_rebuilds_from_the_folder(synthetic, tmp_path, capsys):
 @pytest.mark.realdata
 @pytest.mark.skipif(not REAL.exists(), reason="needs ../shared/data/ical-mako-charuco-eye-to-hand")
 def test_clean_real_dataset_is_not_reported_as_failed(tmp_path):
-    from handeye.importers import import_ical
+    from handeye.session.importers import import_ical
     from handeye.report import write_reports
 
     session = import_ical(REAL, tmp_path / "session")

@@ -9,7 +9,7 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from handeye import synth, synth_render
+from handeye.sim import render as synth_render, synth
 from handeye.conventions import VENDOR_POSE_FORMAT, T_from_pose_values
 from handeye.errors import ConfigError, DegenerateMotionError
 from handeye.frames import inv_T, is_rotation, rotation_angle_rad

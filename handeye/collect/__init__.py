@@ -3,5 +3,5 @@
 Backends (robot: RealMan JSON over TCP, simulated; camera: RealSense live, RealSense recording,
 simulated) sit behind two small interfaces (:mod:`.robot`, :mod:`.camera`). The capture loop is in
 :mod:`.collector`, the automatic pose plan in :mod:`.plan`, the crash-safe writer in
-:mod:`.session_writer`, and the command-line glue in :mod:`.cli_entry`.
+:mod:`.session_writer`, the command-line glue is :mod:`handeye.cli.collect`.
 """

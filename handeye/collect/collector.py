@@ -26,7 +26,7 @@ from ..detect import MIN_CORNERS, detect_charuco, detect_chessboard, sharpness
 from ..errors import DetectionError, HardwareError
 from ..frames import rotation_angle_rad
 from ..mounting import mounting
-from ..seed import solve_closed_form, solve_pnp
+from ..initial import solve_closed_form, solve_pnp
 from ..targets import ChessboardSpec, TargetSpec
 from ..camera import Intrinsics
 from . import plan as planning

@@ -37,7 +37,7 @@ from scipy.spatial.transform import Rotation
 from ..errors import ConfigError
 from ..frames import T_from_rotvec, inv_T, make_T
 from ..mounting import mounting
-from ..synth import board_in_image, distort_normalized, pattern_bounds
+from ..sim.synth import board_in_image, distort_normalized, pattern_bounds
 from ..camera import Intrinsics
 from ..targets import TargetSpec
 

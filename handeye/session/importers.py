@@ -15,8 +15,8 @@ from pathlib import Path
 
 import yaml
 
-from .errors import InputError
-from .output import atomic_write_text
+from ..errors import InputError
+from ..output import atomic_write_text
 
 
 def _load(path: Path):

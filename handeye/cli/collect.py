@@ -127,9 +127,9 @@ def _confirm_on_terminal(text: str) -> bool:
 
 
 def run_collect(args: argparse.Namespace) -> int:
-    from .collector import CaptureChecks, Collector
-    from .plan import PlanConfig
-    from .session_writer import SessionWriter
+    from ..collect.collector import CaptureChecks, Collector
+    from ..collect.plan import PlanConfig
+    from ..collect.session_writer import SessionWriter
 
     target = parse_target_spec(args.target)
     if isinstance(target, ChessboardSpec) and len(target.symmetries()) > 1:
@@ -204,15 +204,15 @@ def run_collect(args: argparse.Namespace) -> int:
 def _open_robot(args, *, target: TargetSpec, width: int, height: int, rng: np.random.Generator):
     spec = args.robot.strip()
     if spec == "sim":
-        from .. import synth
-        from .sim import SimRig, SimRobot
+        from ..sim import synth
+        from ..sim.devices import SimRig, SimRobot
 
         rig = SimRig.sample(mode=args.mode, rng=rng, target=target,
                             intrinsics=synth.default_intrinsics(width, height))
         return SimRobot(rig, pose_noise_mm=args.sim_pose_noise[0], pose_noise_deg=args.sim_pose_noise[1],
                         rng=rng), rig
     if spec == "realman" or spec.startswith("realman:"):
-        from .realman import RealmanArm, parse_robot_address
+        from ..collect.realman import RealmanArm, parse_robot_address
 
         host, port = parse_robot_address(spec[len("realman:"):] if ":" in spec else "")
         arm = RealmanArm(host, port, timeout_s=args.timeout, motion=args.realman_motion,
@@ -224,17 +224,17 @@ def _open_robot(args, *, target: TargetSpec, width: int, height: int, rng: np.ra
 def _open_camera(args, *, robot, width: int, height: int, rng: np.random.Generator):
     spec = args.camera.strip()
     if spec == "sim":
-        from .sim import SimCamera
+        from ..sim.devices import SimCamera
 
         return SimCamera(robot, supersample=args.sim_supersample, blur_sigma_px=args.sim_blur,
                          noise_sigma=args.sim_image_noise, rng=rng)
     if spec == "realsense":
-        from .realsense import RealSenseCamera
+        from ..collect.realsense import RealSenseCamera
 
         return RealSenseCamera(width=width, height=height, fps=args.fps, serial=args.serial,
                                settle_frames=args.settle_frames)
     if spec.startswith("bag:"):
-        from .realsense import BagCamera
+        from ..collect.realsense import BagCamera
 
         return BagCamera(spec[4:])
     raise ConfigError("unknown --camera", expected="realsense, bag:FILE or sim", received=repr(args.camera))

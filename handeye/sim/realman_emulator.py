@@ -20,7 +20,7 @@ from collections import deque
 
 import numpy as np
 
-from .realman import JsonStreamDecoder, T_base_end_from_realman_pose, realman_pose_from_T
+from ..collect.realman import JsonStreamDecoder, T_base_end_from_realman_pose, realman_pose_from_T
 
 log = logging.getLogger(__name__)
 

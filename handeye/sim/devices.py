@@ -16,23 +16,23 @@ from typing import Optional
 
 import numpy as np
 
-from .. import synth
+from . import synth
 from ..errors import ConfigError
 from ..frames import inv_T
 from ..mounting import mounting
 from ..camera import Intrinsics
 from ..targets import TargetSpec
-from .camera import Camera
-from .robot import PoseReading, Robot
+from ..collect.camera import Camera
+from ..collect.robot import PoseReading, Robot
 
 log = logging.getLogger(__name__)
 
 
 def _render_view():
     try:
-        from ..synth import render_view  # type: ignore[attr-defined]
+        from .synth import render_view  # type: ignore[attr-defined]
     except ImportError:
-        from ..synth_render import render_view
+        from .render import render_view
     return render_view
 
 

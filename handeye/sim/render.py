@@ -22,10 +22,10 @@ from typing import Optional, Union
 import cv2
 import numpy as np
 
-from .errors import ConfigError
+from ..errors import ConfigError
 from .synth import distort_normalized, pattern_bounds
-from .targets import ChessboardSpec, CharucoSpec, TargetSpec
-from .camera import Intrinsics
+from ..targets import ChessboardSpec, CharucoSpec, TargetSpec
+from ..camera import Intrinsics
 
 log = logging.getLogger(__name__)
 

@@ -32,15 +32,15 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from .conventions import VENDOR_POSE_FORMAT, pose_values_from_T
-from .errors import ConfigError, DegenerateMotionError
-from .frames import inv_T, make_T, T_from_rotvec, transform_points
-from .mounting import mounting
-from .output import atomic_write_bytes, atomic_write_text, provenance, to_json
-from .mounting import MODES
-from .targets import ChessboardSpec, CharucoSpec, TargetSpec
-from .records import Detection
-from .camera import Intrinsics
+from ..conventions import VENDOR_POSE_FORMAT, pose_values_from_T
+from ..errors import ConfigError, DegenerateMotionError
+from ..frames import inv_T, make_T, T_from_rotvec, transform_points
+from ..mounting import mounting
+from ..output import atomic_write_bytes, atomic_write_text, provenance, to_json
+from ..mounting import MODES
+from ..targets import ChessboardSpec, CharucoSpec, TargetSpec
+from ..records import Detection
+from ..camera import Intrinsics
 
 log = logging.getLogger(__name__)
 
@@ -695,7 +695,7 @@ def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 2
     ``hidden_views``: ids whose robot pose turns the camera away from the board (detection must
     fail there); ``outlier_views``: count or ids given a gross robot pose error.
     """
-    from . import synth_render  # imported here: synth_render builds on this module
+    from . import render as synth_render  # imported here: the renderer builds on this module
 
     if not isinstance(target, ChessboardSpec):
         raise ConfigError("the vendor layout describes chessboards only", expected="a ChessboardSpec target",
@@ -776,7 +776,7 @@ def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 2
             "jpeg_quality": int(jpeg_quality) if fmt == "jpg" else None,
         },
         "seed": int(seed),
-        "provenance": provenance(extra={"generator": "handeye.synth.write_vendor_session"}),
+        "provenance": provenance(extra={"generator": "handeye.sim.synth.write_vendor_session"}),
     }
     atomic_write_text(out / "ground_truth.json", to_json(truth) + "\n")
     log.info("wrote synthetic %s session with %d views to %s", mode, session.n_views, out)

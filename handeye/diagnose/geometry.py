@@ -21,8 +21,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .frames import inv_T, make_T, mean_T, project_to_rotation
-from .stats import robust_noise_sigma  # noqa: F401 - part of this module's API
+from ..frames import inv_T, make_T, mean_T, project_to_rotation
+from ..stats import robust_noise_sigma  # noqa: F401 - part of this module's API
 
 #: pairs whose relative rotation is outside this range (deg) give no usable screw pitch: the axis is
 #: ill-defined for small angles and flips sign near 180 degrees

@@ -23,7 +23,7 @@ def add_report_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_report(args) -> int:
     from ..output import read_json
-    from . import write_reports
+    from ..report import write_reports
 
     src = Path(args.result_dir)
     result_dir = src.parent if src.is_file() else src

@@ -25,12 +25,12 @@ from typing import Mapping, Sequence
 import cv2
 import numpy as np
 
-from .errors import CalibrationError, DegenerateMotionError, DetectionError
-from .frames import inv_T, is_rotation, make_T, mean_T, rotation_angle_rad, screw_invariants
-from .mounting import MountingMode
-from .records import METHOD_NAMES, Detection, HandEyeEstimate
-from .camera import Intrinsics
-from .targets import TargetSpec
+from ..errors import CalibrationError, DegenerateMotionError, DetectionError
+from ..frames import inv_T, is_rotation, make_T, mean_T, rotation_angle_rad, screw_invariants
+from ..mounting import MountingMode
+from ..records import METHOD_NAMES, Detection, HandEyeEstimate
+from ..camera import Intrinsics
+from ..targets import TargetSpec
 
 log = logging.getLogger(__name__)
 

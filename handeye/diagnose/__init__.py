@@ -48,14 +48,14 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from .conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values, pose_values_from_T
-from .diagnose_math import (RAYLEIGH_MEDIAN, all_pairs, implied_boards, jackknife_sigmas, log6, pair_invariants,
+from ..conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values, pose_values_from_T
+from .geometry import (RAYLEIGH_MEDIAN, all_pairs, implied_boards, jackknife_sigmas, log6, pair_invariants,
                             camera_pose_covariances, pose_differences, propagate, robust_noise_sigma,
                             robust_mean_T, solve_A_from_pairs, summarize_invariants)
-from .frames import inv_T
-from .output import plain
-from .mounting import mounting
-from .records import view_id_key
+from ..frames import inv_T
+from ..output import plain
+from ..mounting import mounting
+from ..records import view_id_key
 
 log = logging.getLogger(__name__)
 
@@ -398,7 +398,7 @@ class _Obs:
     def pnp_covariances(self) -> Optional[np.ndarray]:
         """(N,6,6) covariance of each view's board pose (left perturbation, camera frame), with the pixel
         noise taken robustly from all PnP residuals; None without corners."""
-        from .seed import project
+        from ..initial import project
 
         if not self.corners or self.intr is None:
             return None
@@ -858,7 +858,7 @@ def board_moved_findings(obs: _Obs, M: np.ndarray) -> tuple[list, Optional[_Fit]
 def _board_turns(target) -> list:
     """Board-frame transforms (name, F) for a detector's corner numbering turned by 180 (or 90) degrees:
     the true ``T_cam_board`` is ``C @ F`` when the corners were numbered from the other end."""
-    from .targets import ChessboardSpec
+    from ..targets import ChessboardSpec
 
     if not isinstance(target, ChessboardSpec):
         return []
@@ -1001,7 +1001,7 @@ def robot_pose_findings(obs: _Obs, M: np.ndarray, fit: _Fit, *, refined=None, ex
 # ------------------------------------------------------------------------------ motion and view count
 def motion_findings(mode: str, M: np.ndarray, *, A: Optional[np.ndarray] = None) -> list:
     """Weak or degenerate robot motion (small rotations, one rotation axis), too few views."""
-    from .seed import motion_quality
+    from ..initial import motion_quality
 
     n = len(M)
     out = []
@@ -1086,7 +1086,7 @@ def _board_visibility(target, intr, T_cam_board: np.ndarray) -> float:
 
     Points beyond the image's undistorted radius do not count even if the distortion polynomial folds
     them back into the image."""
-    from .seed import project
+    from ..initial import project
 
     obj = target.object_points()
     p_cam = obj @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
@@ -1102,10 +1102,10 @@ def _board_visibility(target, intr, T_cam_board: np.ndarray) -> float:
 
 def _why_not_found(run, vid: str, C_pred: np.ndarray) -> str:
     """Look where the board should be in an image whose target was not found: blur, exposure."""
-    from .detect import read_gray
-    from .diagnose_images import view_blur, view_exposure
-    from .errors import HandeyeError
-    from .seed import project
+    from ..detect import read_gray
+    from .imaging import view_blur, view_exposure
+    from ..errors import HandeyeError
+    from ..initial import project
 
     s = run.session
     try:
@@ -1198,7 +1198,7 @@ def distortion_findings(run) -> list:
     """Given intrinsics without distortion (or that do not fit) against calibrateCamera on the same corners."""
     import cv2
 
-    from .seed import calibrate_intrinsics
+    from ..initial import calibrate_intrinsics
 
     s = run.session
     given = s.intrinsics
@@ -1284,9 +1284,9 @@ COVERAGE_WARN_SHARE = 0.3
 
 def image_metrics(run, *, max_views: int = 200) -> dict:
     """Per used view: blur and exposure measured on the image; unreadable images are skipped."""
-    from .detect import read_gray
-    from .diagnose_images import view_blur, view_exposure
-    from .errors import HandeyeError
+    from ..detect import read_gray
+    from .imaging import view_blur, view_exposure
+    from ..errors import HandeyeError
 
     s = run.session
     obj = s.target.object_points()
@@ -1347,7 +1347,7 @@ SHARP_BLUR_FLOOR = 0.3
 
 
 def coverage_findings(run) -> list:
-    from .diagnose_images import coverage, uncovered_regions
+    from .imaging import coverage, uncovered_regions
 
     dets = list((run.detections or {}).values())
     if not dets:
@@ -1408,7 +1408,7 @@ def _folds(n: int, *, refined: bool) -> list:
 
 def cross_validate(run) -> dict:
     """Leave-one-out / k-fold cross-validation of the hand-eye result (see the module docstring)."""
-    from .seed import project, solve_closed_form
+    from ..initial import project, solve_closed_form
 
     if run.T_x is None or not run.board_poses:
         return {"summary": "not run: no hand-eye result"}
@@ -1427,7 +1427,7 @@ def cross_validate(run) -> dict:
     intr = run.intrinsics
     estimates = []
     if ref is not None:
-        from .refine import RefineView, refine
+        from ..refine import RefineView, refine
 
         flagged = {}
         for o in getattr(ref, "outliers", ()):
@@ -1717,8 +1717,8 @@ def _lenient_session(path: Path, *, mode: Optional[str]):
     """(target, mode, raw poses, {view id: image path}, given intrinsics or None) without unit checks."""
     import yaml
 
-    from .session import IMAGE_EXTS, _parse_intrinsics, parse_target
-    from .targets import ChessboardSpec
+    from ..session import IMAGE_EXTS, _parse_intrinsics, parse_target
+    from ..targets import ChessboardSpec
 
     p = path
     if p.is_file():
@@ -1748,9 +1748,9 @@ def _lenient_session(path: Path, *, mode: Optional[str]):
 
 def _observe(target, mode, raw: RawPoses, images_by_id: dict, intr_given):
     """Detections, intrinsics and board poses of a leniently read session: (_Obs | None, n_found, n_images)."""
-    from .detect import detect_views
-    from .seed import board_poses, calibrate_intrinsics
-    from .records import Detection
+    from ..detect import detect_views
+    from ..initial import board_poses, calibrate_intrinsics
+    from ..records import Detection
 
     items = [(v, images_by_id[v]) for v in sorted(images_by_id, key=view_id_key) if v in raw.values]
     det = detect_views(items, target)

@@ -17,9 +17,9 @@ from typing import Callable, Sequence
 import cv2
 import numpy as np
 
-from .errors import InputError
-from .targets import CharucoSpec, ChessboardSpec, CircleGridSpec, TargetSpec
-from .records import Detection
+from ..errors import InputError
+from ..targets import CharucoSpec, ChessboardSpec, CircleGridSpec, TargetSpec
+from ..records import Detection
 
 log = logging.getLogger(__name__)
 

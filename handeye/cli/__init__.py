@@ -12,14 +12,14 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
-from .errors import ConfigError, HandeyeError
+from .. import __version__
+from ..errors import ConfigError, HandeyeError
 
 log = logging.getLogger("handeye")
 
 
 def _add_calibrate(sub):
-    from .records import METHOD_NAMES as METHODS
+    from ..records import METHOD_NAMES as METHODS
 
     p = sub.add_parser("calibrate", help="calibrate a session folder (vendor layout or session.yaml)",
                        description="Detect the target, calibrate the camera, seed with an OpenCV closed-form "
@@ -96,7 +96,7 @@ def _add_import(sub):
 
 
 def cmd_import(args) -> int:
-    from .importers import import_ical, import_visp
+    from ..session.importers import import_ical, import_visp
 
     if args.kind == "visp":
         path = import_visp(args.src, args.out, use_given_intrinsics=args.given_intrinsics)
@@ -125,7 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _report_command(sub):
-    from .report.cli_entry import add_report_arguments, run_report
+    from .report import add_report_arguments, run_report
 
     p = sub.add_parser("report", help="(re)build report.html and report.md from a result folder")
     add_report_arguments(p)
@@ -133,7 +133,7 @@ def _report_command(sub):
 
 
 def _collect_command(sub):
-    from .collect.cli_entry import add_collect_arguments, run_collect
+    from .collect import add_collect_arguments, run_collect
 
     p = sub.add_parser("collect", help="collect a session with a camera and a robot (or their simulators)")
     add_collect_arguments(p)
@@ -145,10 +145,10 @@ _EXTRA_COMMANDS = [_report_command, _collect_command]
 
 # ------------------------------------------------------------------------------ commands
 def cmd_calibrate(args) -> int:
-    from .calibrate import CalibrateOptions, observations_dict, result_dict, run_calibration
-    from .config import load_with_override
-    from .output import write_json
-    from .session import load_session
+    from ..pipeline import CalibrateOptions, observations_dict, result_dict, run_calibration
+    from ..config import load_with_override
+    from ..output import write_json
+    from ..session import load_session
 
     out = args.out or Path("reports") / Path(args.session).resolve().name
     cfg = load_with_override("calibration", getattr(args, "config", None))
@@ -193,7 +193,7 @@ def cmd_calibrate(args) -> int:
 
 
 def failed_load_result(session_path, err: HandeyeError, mode) -> dict:
-    from .output import provenance
+    from ..output import provenance
 
     return {"handeye_result": 1, "status": "failed", "failure_reason": str(err), "error_type": type(err).__name__,
             "mode": mode or "unknown", "method": None, "refined": False, "views": [],
@@ -203,9 +203,9 @@ def failed_load_result(session_path, err: HandeyeError, mode) -> dict:
 
 
 def _write_failed(out: Path, res: dict, args) -> None:
-    from .output import write_json
+    from ..output import write_json
 
-    from .diagnose import diagnose_session_error
+    from ..diagnose import diagnose_session_error
 
     res["diagnostics"] = diagnose_session_error(Path(args.session), res["failure_reason"], mode=args.mode)
     out.mkdir(parents=True, exist_ok=True)
@@ -219,19 +219,19 @@ def _write_failed(out: Path, res: dict, args) -> None:
 
 
 def _add_diagnostics(res: dict, run) -> None:
-    from .diagnose import diagnose_run
+    from ..diagnose import diagnose_run
 
     res["diagnostics"] = diagnose_run(run)
 
 
 def _write_reports(run, res, out: Path) -> list[Path]:
-    from .report import write_reports
+    from ..report import write_reports
 
     return write_reports(run, res, out)
 
 
 def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
-    from .mounting import mounting
+    from ..mounting import mounting
 
     lines = []
     mode = res["mode"]
@@ -273,7 +273,7 @@ def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
 
 
 def cmd_simulate(args) -> int:
-    from .synth import write_vendor_session
+    from ..sim.synth import write_vendor_session
 
     if args.views < 3:
         raise ConfigError("--views must be at least 3", received=str(args.views))
@@ -289,8 +289,8 @@ def cmd_simulate(args) -> int:
 def cmd_demo(args) -> int:
     import json
 
-    from .frames import pose_error
-    from .mounting import mounting
+    from ..frames import pose_error
+    from ..mounting import mounting
 
     session_dir = args.out / "session"
     log.info("rendering a synthetic %s session with %d views into %s", args.mode, args.views, session_dir)
@@ -310,9 +310,9 @@ def cmd_demo(args) -> int:
 
 
 def cmd_apply(args) -> int:
-    from .apply import points_cam_to_base, pose_cam_to_base, result_transform
-    from .conventions import VENDOR_POSE_FORMAT, T_from_pose_values, pose_forms
-    from .output import read_json
+    from ..apply import points_cam_to_base, pose_cam_to_base, result_transform
+    from ..conventions import VENDOR_POSE_FORMAT, T_from_pose_values, pose_forms
+    from ..output import read_json
 
     mode, T_x = result_transform(read_json(args.result))
     scale = 1e-3 if args.mm else 1.0

@@ -21,7 +21,7 @@ from .errors import CalibrationError, DegenerateMotionError, DetectionError, Han
 from .frames import pose_error
 from .mounting import MountingMode, mounting
 from .output import hash_files, provenance
-from .seed import (METHODS, all_methods, board_poses, calibrate_intrinsics, chain_residuals, consistency,
+from .initial import (METHODS, all_methods, board_poses, calibrate_intrinsics, chain_residuals, consistency,
                    motion_quality)
 from .records import Detection, HandEyeEstimate, Session, ViewOutcome, view_id_key
 from .camera import Intrinsics
@@ -245,7 +245,7 @@ def observations_dict(run: CalibrationRun) -> dict:
     (what the robot will experience); ``residual_pnp_px`` through the view's own board pose (what the
     camera alone explains).
     """
-    from .seed import project, solve_pnp
+    from .initial import project, solve_pnp
 
     s = run.session
     obj = s.target.object_points()

@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values
-from .errors import ConfigError, InputError
-from .mounting import MODES
-from .targets import CharucoSpec, ChessboardSpec, CircleGridSpec
-from .camera import Intrinsics
-from .records import Session, View, view_id_key
+from ..conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values
+from ..errors import ConfigError, InputError
+from ..mounting import MODES
+from ..targets import CharucoSpec, ChessboardSpec, CircleGridSpec
+from ..camera import Intrinsics
+from ..records import Session, View, view_id_key
 
 log = logging.getLogger(__name__)
 

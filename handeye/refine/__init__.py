@@ -112,11 +112,11 @@ from handeye.factors.gtsam_factors import intrinsics_prior, robot_pose_prior, vi
 from handeye.factors.reprojection import (INTRINSIC_NAMES, LOSSES, chain_residual,
                                           corner_robust_scales)
 
-from .errors import ConfigError, HandeyeError, InputError
-from .frames import inv_T, is_rotation, make_T, project_to_rotation, skew
-from .mounting import mounting
-from .stats import robust_noise_sigma
-from .camera import Intrinsics
+from ..errors import ConfigError, HandeyeError, InputError
+from ..frames import inv_T, is_rotation, make_T, project_to_rotation, skew
+from ..mounting import mounting
+from ..stats import robust_noise_sigma
+from ..camera import Intrinsics
 
 log = logging.getLogger(__name__)
 
@@ -862,7 +862,7 @@ def _best_start(pb: _Problem, mm, intrinsics: Intrinsics) -> tuple[np.ndarray, n
     with the lowest robust score (:func:`_seed_score`) when that is lower. One closed-form method
     can be far off when some robot poses are wrong (Tsai 120 deg off on a 12-view session with one
     wrong pose, where Park was within 1 deg), and the local solves cannot recover from such a start."""
-    from .seed import all_methods, solve_pnp  # OpenCV's closed forms; imported here to keep refine light
+    from ..initial import all_methods, solve_pnp  # OpenCV's closed forms; imported here to keep refine light
 
     best = (pb.T_x, pb.T_board)
     best_score = _seed_score(pb, *best)
