@@ -1,6 +1,8 @@
 """Presets shipped in ``configs/`` (installed as ``handeye.configs``) and site overrides."""
 from __future__ import annotations
 
+import copy
+import functools
 from importlib import resources
 from pathlib import Path
 
@@ -10,7 +12,15 @@ from .errors import ConfigError, InputError
 
 
 def load_preset(name: str) -> dict:
-    """A shipped preset by name (``calibration``, ``qa``...), found inside the installed package."""
+    """A shipped preset by name (``calibration``, ``qa``...), found inside the installed package.
+
+    Returns a fresh copy each call (callers may change it); the file is parsed once per process.
+    """
+    return copy.deepcopy(_parsed_preset(name))
+
+
+@functools.lru_cache(maxsize=None)
+def _parsed_preset(name: str) -> dict:
     try:
         text = resources.files("handeye.configs").joinpath(f"{name}.yaml").read_text(encoding="utf-8")
     except (FileNotFoundError, ModuleNotFoundError):
