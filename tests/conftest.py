@@ -1,5 +1,9 @@
-"""Shared test fixtures. Real datasets live in ../shared/data (never copied into the repo);
-tests that need them skip cleanly when that folder is absent."""
+"""Shared test fixtures. Real datasets live in ../shared/data (never copied into the repo).
+
+Tests that need them skip cleanly when that folder is absent, except under CI (``CI=true``), where a
+missing dataset is a failure: CI always has ../shared beside the clone, so a skip there would hide
+that the real-data tests never ran.
+"""
 from __future__ import annotations
 
 import os
@@ -11,17 +15,25 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("HANDEYE_SHARED_DATA", REPO.parent / "shared" / "data"))
 
 
-def _shared_dataset(name: str) -> Path:
+def in_ci() -> bool:
+    return os.environ.get("CI", "").strip().lower() in ("1", "true", "yes")
+
+
+def require_dataset(name: str) -> Path:
+    """Path of ../shared/data/<name>; skip when it is absent, fail when it is absent under CI."""
     path = SHARED_DATA / name
     if not path.is_dir():
-        pytest.skip(f"real dataset {name} not available ({path} missing)")
+        msg = f"real dataset {name} not available ({path} missing)"
+        if in_ci():
+            pytest.fail(msg + "; CI must run the real-data tests", pytrace=False)
+        pytest.skip(msg)
     return path
 
 
 @pytest.fixture(scope="session")
 def shared_dataset():
     """``shared_dataset(name)`` -> path of ../shared/data/<name>, or skip the test when absent."""
-    return _shared_dataset
+    return require_dataset
 
 
 @pytest.fixture(autouse=True)
