@@ -33,6 +33,18 @@ class MountingMode:
     fixed_frame: str  # frame the camera is rigid to
     board_frame: str  # frame the board is rigid to
     inverts_robot: bool  # M_i = inv(T_base_end_i) (eye-in-hand) rather than T_base_end_i
+    camera_location: str  # words for messages: where the camera is
+    board_location: str  # words for messages: where the board is
+
+    @property
+    def camera_moves(self) -> bool:
+        """True when the camera rides on the robot (eye-in-hand): its base pose changes with every view."""
+        return self.inverts_robot
+
+    @property
+    def other(self) -> "MountingMode":
+        """The other mounting mode (for "the mode looks swapped" checks)."""
+        return EYE_TO_HAND if self is EYE_IN_HAND else EYE_IN_HAND
 
     def M_from_T_base_end(self, T_base_end: np.ndarray) -> np.ndarray:
         """Robot motion M_i for (N,4,4) or (4,4) reported poses ``T_base_end``."""
@@ -53,13 +65,27 @@ class MountingMode:
         """``T_cam_board`` for each robot pose (N,4,4) under a hand-eye solution."""
         return inv_T(T_x) @ self.M_from_T_base_end(T_base_end) @ T_board
 
-    def T_base_cam(self, T_x: np.ndarray, T_base_end: np.ndarray) -> np.ndarray:
-        """Camera in the base frame at a robot pose (eye-to-hand: constant)."""
-        return T_base_end @ T_x if self.inverts_robot else np.asarray(T_x, float)
+    def T_base_cam(self, T_x: np.ndarray, T_base_end: np.ndarray | None) -> np.ndarray:
+        """Camera in the base frame at robot pose(s) ``T_base_end`` (4,4)/(N,4,4) (eye-to-hand: constant,
+        the pose may be None). Eye-in-hand without a robot pose is a :class:`ConfigError`."""
+        if not self.inverts_robot:
+            return np.asarray(T_x, float)
+        if T_base_end is None:
+            raise ConfigError("eye-in-hand needs the robot's end pose at the time the camera saw the point",
+                              hint="pass --end-pose x y z rx ry rz (metres, radians, R = Rz·Ry·Rx)")
+        return np.asarray(T_base_end, float) @ np.asarray(T_x, float)
+
+    def T_base_board(self, T_board: np.ndarray, T_base_end: np.ndarray) -> np.ndarray:
+        """Board in the base frame at robot pose(s) ``T_base_end`` (eye-in-hand: constant)."""
+        if self.inverts_robot:
+            return np.asarray(T_board, float)
+        return np.asarray(T_base_end, float) @ np.asarray(T_board, float)
 
 
-EYE_IN_HAND = MountingMode("eye_in_hand", "T_end_cam", "T_base_board", "end", "base", inverts_robot=True)
-EYE_TO_HAND = MountingMode("eye_to_hand", "T_base_cam", "T_end_board", "base", "end", inverts_robot=False)
+EYE_IN_HAND = MountingMode("eye_in_hand", "T_end_cam", "T_base_board", "end", "base", inverts_robot=True,
+                          camera_location="on the robot's flange", board_location="on the table")
+EYE_TO_HAND = MountingMode("eye_to_hand", "T_base_cam", "T_end_board", "base", "end", inverts_robot=False,
+                          camera_location="beside the robot", board_location="in the gripper")
 
 
 def mounting(mode: str) -> MountingMode:
