@@ -7,7 +7,7 @@ import pytest
 
 from handeye.detect import detect_circlegrid
 from handeye.errors import ConfigError
-from handeye.session import parse_target
+from handeye.session.target_spec import parse_target
 from handeye.targets import CircleGridSpec
 
 # drawn board: dot (c, r) at texture pixel (MARGIN + PITCH*c, MARGIN + PITCH*r); x right, y down = front view

@@ -37,7 +37,6 @@ All functions are pure (no printing, no writing); images are only read.
 from __future__ import annotations
 
 import logging
-import re
 from dataclasses import asdict, dataclass, field, replace
 from itertools import product
 from pathlib import Path
@@ -48,7 +47,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from ..conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values, pose_values_from_T
+from ..conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values
 from .geometry import (RAYLEIGH_MEDIAN, all_pairs, implied_boards, jackknife_sigmas, log6, pair_invariants,
                             camera_pose_covariances, pose_differences, propagate, robust_noise_sigma,
                             robust_mean_T, solve_A_from_pairs, summarize_invariants)
@@ -56,6 +55,7 @@ from ..frames import inv_T
 from ..output import plain
 from ..mounting import mounting
 from ..records import view_id_key
+from ..session.raw import RawPoses, raw_poses_of, read_session_lenient
 
 log = logging.getLogger(__name__)
 
@@ -143,102 +143,6 @@ def _axis_text(a: np.ndarray, frame: str) -> str:
     if abs(a[k]) > 0.9:
         return f"the {frame} {name} axis {vec}"
     return f"{vec} in the {frame} frame"
-
-
-# ------------------------------------------------------------------------------ raw poses
-@dataclass(frozen=True)
-class RawPoses:
-    """The robot pose numbers exactly as written in the session, before any reading.
-
-    ``values``: view id -> numbers; ``order``: view ids in file order (the sequence in which
-    images and poses are paired); ``fmt``: the format the session states.
-    """
-
-    fmt: PoseFormat
-    values: dict
-    order: tuple
-    source: str
-
-
-def read_raw_poses(path: str | Path) -> Optional[RawPoses]:
-    """Raw pose values of a vendor (poses.txt) or native (session.yaml) session; None if unreadable.
-
-    No plausibility checks: this is what the diagnostics re-read in other units and conventions.
-    """
-    p = Path(path)
-    try:
-        if p.is_file():
-            p = p if p.name.endswith((".yaml", ".yml")) else p.parent
-        if p.is_dir() and (p / "session.yaml").exists():
-            p = p / "session.yaml"
-        if p.is_file():
-            return _raw_native(p)
-        if (p / "poses.txt").exists():
-            return _raw_vendor(p / "poses.txt")
-    except (OSError, ValueError, TypeError, KeyError) as e:
-        log.debug("raw poses of %s unreadable: %s", path, e)
-    return None
-
-
-def _raw_vendor(poses_path: Path) -> Optional[RawPoses]:
-    values, order = {}, []
-    k = 0
-    for line in poses_path.read_text(encoding="utf-8", errors="replace").splitlines():
-        s = line.strip()
-        if not s or s.startswith("#"):
-            continue
-        k += 1
-        try:
-            v = np.array([float(f) for f in re.split(r"[,\s]+", s) if f])
-        except ValueError:
-            return None
-        values[str(k)] = v
-        order.append(str(k))
-    return RawPoses(VENDOR_POSE_FORMAT, values, tuple(order), str(poses_path)) if values else None
-
-
-def _raw_native(path: Path) -> Optional[RawPoses]:
-    import yaml
-
-    d = yaml.safe_load(path.read_text(encoding="utf-8"))
-    if not isinstance(d, dict):
-        return None
-    fd = d.get("pose_format") or {}
-    fmt = PoseFormat(**{k: (str(v).lower() if isinstance(v, str) else v) for k, v in fd.items()
-                        if k in PoseFormat.__dataclass_fields__}).validated(source=str(path))
-    entries = list(d.get("views") or [])
-    rec = d.get("view_records")
-    if rec and (path.parent / str(rec)).is_dir():
-        for f in sorted((path.parent / str(rec)).iterdir()):
-            if f.suffix in (".yaml", ".yml") and not f.name.startswith("."):
-                entries.append(yaml.safe_load(f.read_text(encoding="utf-8")))
-    values = {}
-    for e in entries:
-        if isinstance(e, dict) and "id" in e and "pose" in e:
-            values[str(e["id"])] = np.asarray(e["pose"], float).reshape(-1)
-    order = tuple(sorted(values, key=view_id_key))
-    return RawPoses(fmt, values, order, str(path)) if values else None
-
-
-def _fallback_raw(session) -> RawPoses:
-    """Raw values regenerated from the loaded poses (when the files cannot be re-read)."""
-    fmt = VENDOR_POSE_FORMAT
-    values = {v.view_id: pose_values_from_T(v.T_base_end, fmt) for v in session.views}
-    return RawPoses(fmt, values, tuple(sorted(values, key=view_id_key)), "loaded poses")
-
-
-def _raw_for_session(session) -> RawPoses:
-    raw = read_raw_poses(session.path) if session.format in ("vendor", "native") else None
-    if raw is not None:
-        # the file must still say what the session holds (same views, same poses under its format)
-        try:
-            same = all(v.view_id in raw.values and np.allclose(
-                T_from_pose_values(raw.values[v.view_id], raw.fmt), v.T_base_end, atol=1e-9) for v in session.views)
-        except ValueError:
-            same = False
-        if same:
-            return raw
-    return _fallback_raw(session)
 
 
 # ------------------------------------------------------------------------------ readings
@@ -424,7 +328,7 @@ def _obs_from_run(run) -> Optional[_Obs]:
     corners = tuple((obj[run.board_poses[v].corner_ids], run.detections[v].image_points) for v in ids) \
         if run.detections and all(v in run.detections for v in ids) else ()
     estimated = not (s.intrinsics is not None and s.intrinsics_prior == "fixed")
-    return _Obs(s.mode, tuple(ids), C, T, _raw_for_session(s), times, corners, run.intrinsics, s.target, estimated)
+    return _Obs(s.mode, tuple(ids), C, T, raw_poses_of(s), times, corners, run.intrinsics, s.target, estimated)
 
 
 # ------------------------------------------------------------------------------ readings of the poses
@@ -1675,7 +1579,7 @@ def diagnose_session_error(path, error, *, mode: Optional[str] = None, images: b
     base = {"version": 1, "load_error": err, "findings": [], "cross_validation": {"summary": "not run: the session "
                                                                                              "did not load"}}
     try:
-        sess = _lenient_session(Path(path), mode=mode)
+        sess = read_session_lenient(Path(path), mode=mode)
     except Exception as e:  # noqa: BLE001 - whatever is wrong, say it rather than crash the failure path
         log.debug("lenient read failed: %s", e)
         sess = None
@@ -1683,7 +1587,8 @@ def diagnose_session_error(path, error, *, mode: Optional[str] = None, images: b
         base["findings"] = [_finding_dict(Finding("session_unreadable", "fail", "The session could not be read",
                                                   err, "fix what the message names (see docs/session_format.md)"))]
         return _jsonable(base)
-    target, sess_mode, raw, images_by_id, intr_given = sess
+    target, sess_mode, raw, images_by_id, intr_given = (sess.target, sess.mode, sess.raw, sess.images_by_id,
+                                                       sess.intrinsics)
     try:
         obs, n_det, n_img = _observe(target, sess_mode, raw, images_by_id, intr_given)
     except Exception as e:  # noqa: BLE001
@@ -1711,39 +1616,6 @@ def diagnose_session_error(path, error, *, mode: Optional[str] = None, images: b
     base["readings"] = pl["readings"]
     base["n_views"] = {"images": n_img, "board_found": n_det}
     return _jsonable(base)
-
-
-def _lenient_session(path: Path, *, mode: Optional[str]):
-    """(target, mode, raw poses, {view id: image path}, given intrinsics or None) without unit checks."""
-    import yaml
-
-    from ..session import IMAGE_EXTS, _parse_intrinsics, parse_target
-    from ..targets import ChessboardSpec
-
-    p = path
-    if p.is_file():
-        p = p if p.name.endswith((".yaml", ".yml")) else p.parent
-    if p.is_dir() and (p / "session.yaml").exists():
-        p = p / "session.yaml"
-    raw = read_raw_poses(p)
-    if raw is None:
-        return None
-    if p.is_file():  # native
-        d = yaml.safe_load(p.read_text(encoding="utf-8"))
-        target = parse_target(d.get("target"), path=p)
-        m = mode or d.get("mode") or "eye_in_hand"
-        imgs = {}
-        for e in list(d.get("views") or []):
-            if isinstance(e, dict) and "id" in e and "image" in e and (p.parent / str(e["image"])).exists():
-                imgs[str(e["id"])] = p.parent / str(e["image"])
-        intr, use = _parse_intrinsics(d.get("intrinsics"), path=p)
-        return target, m, raw, imgs, intr if use in ("fixed", "prior") else None
-    cfg = yaml.safe_load((p / "config.yaml").read_text(encoding="utf-8")) or {}
-    cb = cfg["checkerboard_args"]
-    target = ChessboardSpec(int(cb["XX"]), int(cb["YY"]), float(cb["L"]))
-    m = mode or cfg.get("mode") or "eye_in_hand"
-    imgs = {f.stem: f for f in p.iterdir() if f.suffix.lower() in IMAGE_EXTS and f.stem.isdigit()}
-    return target, m, raw, imgs, None
 
 
 def _observe(target, mode, raw: RawPoses, images_by_id: dict, intr_given):

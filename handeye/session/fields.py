@@ -1,0 +1,115 @@
+"""Reading and validating the fields of session files: YAML documents, numbers, lengths, the mode and
+the plausibility of robot positions and angles. Every message names the file, the field, what was
+expected and what was received.
+
+The plausibility limits are in ``configs/detection.yaml`` (``session:``).
+"""
+from __future__ import annotations
+
+import functools
+import math
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..config import load_preset
+from ..errors import ConfigError, InputError
+from ..mounting import MODES
+
+
+@functools.lru_cache(maxsize=None)
+def _limits() -> dict:
+    return load_preset("detection")["session"]
+
+
+def read_yaml(path: Path) -> dict:
+    """The top-level mapping of a YAML file (empty file: ``{}``); InputError naming the file and line."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise InputError(f"cannot read file ({e.strerror})", path=path) from None
+    except UnicodeDecodeError:
+        raise InputError("file is not UTF-8 text", path=path) from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        line = getattr(getattr(e, "problem_mark", None), "line", None)
+        raise InputError("not valid YAML", path=path, line=None if line is None else line + 1,
+                         hint="fix the syntax of this file") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise InputError("expected a mapping at the top level", path=path, received=type(data).__name__)
+    return data
+
+
+def check_mode(mode, *, path: Path, field: str = "mode") -> str:
+    if mode not in MODES:
+        raise ConfigError(f"invalid {field}", path=path, expected=" | ".join(MODES), received=repr(mode))
+    return mode
+
+
+def positive_number(value, *, path: Path, field: str, integer: bool = False, minimum: float = 0.0):
+    """``value`` as a finite number > ``minimum`` (an int when ``integer``); ConfigError naming ``field``."""
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if ok and integer:
+        ok = float(value).is_integer()
+    if not ok or value <= minimum:
+        kind = "an integer" if integer else "a number"
+        raise ConfigError(f"invalid {field}", path=path, expected=f"{kind} > {minimum:g}", received=repr(value),
+                          hint="fix the value in this file")
+    return int(value) if integer else float(value)
+
+
+def length_m(value, *, path: Path, field: str, strict: bool = True) -> float:
+    """A board length (square size, dot spacing) in metres; ``strict`` also rejects millimetre-sized values."""
+    L = positive_number(value, path=path, field=field)
+    if not strict:
+        return L
+    lim = _limits()
+    if L > lim["max_board_length_m"]:
+        raise ConfigError(f"{field} looks like millimetres", path=path, expected="the square size in metres (e.g. 0.03)",
+                          received=repr(value), hint=f"write {L / 1000:g} if the squares are {L:g} mm")
+    if L < lim["min_board_length_m"]:
+        raise ConfigError(f"{field} is implausibly small", path=path, expected="the square size in metres (e.g. 0.03)",
+                          received=repr(value))
+    return L
+
+
+def check_translation_units(T_base_end: np.ndarray, *, path: Path, line: int | None, unit: str) -> None:
+    """A robot position farther from the base than an arm reaches means the unit is wrong."""
+    dist = float(np.linalg.norm(T_base_end[:3, 3]))
+    reach = _limits()["max_reach_m"]
+    if dist > reach:
+        hint = ("the translation looks like millimetres; convert to metres" if unit == "m"
+                else "check translation_unit")
+        raise InputError(f"robot position {dist:.1f} m from the base is not plausible", path=path, line=line,
+                         expected=f"metres (an arm reaches < {reach:g} m)", hint=hint)
+
+
+def check_angle_units(angles_rad, *, path: Path, line: int | None) -> None:
+    """Angles stated in radians larger than a full turn are degrees."""
+    a = np.abs(np.asarray(angles_rad, float))
+    if np.any(a > _limits()["max_angle_rad"]):
+        raise InputError(f"rotation angle {a.max():.1f} is larger than 2*pi", path=path, line=line,
+                         expected="radians", hint="the angles look like degrees; convert them to radians")
+
+
+def locate_session(path: str | Path) -> tuple[str, Path]:
+    """("native", session.yaml) or ("vendor", folder) for a session folder, session.yaml or poses.txt."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError("session not found", path=p, hint="pass the folder that holds the images and poses")
+    if p.is_file():
+        if p.name.endswith((".yaml", ".yml")):
+            return "native", p
+        if p.name == "poses.txt":
+            return "vendor", p.parent
+        raise InputError("not a session file", path=p, expected="a folder, session.yaml or poses.txt")
+    if (p / "session.yaml").exists():
+        return "native", p / "session.yaml"
+    if (p / "poses.txt").exists():
+        return "vendor", p
+    raise InputError("no session.yaml or poses.txt in the folder", path=p,
+                     hint="a vendor session needs poses.txt, N.jpg and config.yaml; see docs/session_format.md")

@@ -1,0 +1,122 @@
+"""Sessions read leniently, for the diagnostics: the robot pose numbers exactly as written (before
+any unit or convention is applied) and what is needed to look at the images.
+
+The same parsers as the strict loaders (:mod:`.vendor`, :mod:`.native`) read the files; only the
+plausibility checks (units of poses and board lengths) are skipped, so a session written in
+millimetres or degrees can still be re-read every plausible way.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from ..camera import Intrinsics
+from ..conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values, pose_values_from_T
+from ..errors import HandeyeError
+from ..records import Session, view_id_key
+from ..targets import TargetSpec
+from .fields import check_mode, locate_session
+from .native import read_native_document
+from .vendor import numbered_images, read_pose_lines, read_vendor_config
+
+log = logging.getLogger(__name__)
+
+#: what a session file can throw at a lenient reader (the files are user input)
+_UNREADABLE = (HandeyeError, OSError, ValueError, TypeError, KeyError)
+
+
+@dataclass(frozen=True)
+class RawPoses:
+    """The robot pose numbers exactly as written in the session, before any reading.
+
+    ``values``: view id -> numbers; ``order``: view ids in file order (the sequence in which
+    images and poses are paired); ``fmt``: the format the session states; ``source``: the file.
+    """
+
+    fmt: PoseFormat
+    values: dict
+    order: tuple
+    source: str
+
+
+@dataclass(frozen=True)
+class LenientSession:
+    """A session read without unit checks: target, mode, raw poses, images by view id, and the given
+    intrinsics when the session says to use them (fixed or prior), else None."""
+
+    target: TargetSpec
+    mode: str
+    raw: RawPoses
+    images_by_id: dict
+    intrinsics: Optional[Intrinsics]
+
+
+def read_raw_poses(path: str | Path) -> Optional[RawPoses]:
+    """Raw pose values of a vendor (poses.txt) or native (session.yaml) session; None if unreadable.
+
+    No plausibility checks: this is what the diagnostics re-read in other units and conventions.
+    """
+    try:
+        kind, p = locate_session(path)
+        return _raw_native(p) if kind == "native" else _raw_vendor(p)
+    except _UNREADABLE as e:
+        log.debug("raw poses of %s unreadable: %s", path, e)
+    return None
+
+
+def _raw_vendor(folder: Path) -> RawPoses:
+    lines = read_pose_lines(folder / "poses.txt")
+    values = {str(pl.index): pl.values for pl in lines}
+    return RawPoses(VENDOR_POSE_FORMAT, values, tuple(values), str(folder / "poses.txt"))
+
+
+def _raw_native(path: Path) -> RawPoses:
+    doc = read_native_document(path)
+    values = {str(e.data["id"]): np.asarray(e.data["pose"], float).reshape(-1) for e in doc.entries}
+    return RawPoses(doc.pose_format, values, tuple(sorted(values, key=view_id_key)), str(path))
+
+
+def raw_poses_of(session: Session) -> RawPoses:
+    """The raw pose numbers behind a loaded session: re-read from its file when the file still holds
+    the same views and poses, else regenerated from the loaded poses in the vendor format."""
+    raw = read_raw_poses(session.path) if session.format in ("vendor", "native") else None
+    if raw is not None:
+        try:
+            same = all(v.view_id in raw.values and np.allclose(
+                T_from_pose_values(raw.values[v.view_id], raw.fmt), v.T_base_end, atol=1e-9) for v in session.views)
+        except ValueError:
+            same = False
+        if same:
+            return raw
+    fmt = VENDOR_POSE_FORMAT
+    values = {v.view_id: pose_values_from_T(v.T_base_end, fmt) for v in session.views}
+    return RawPoses(fmt, values, tuple(sorted(values, key=view_id_key)), "loaded poses")
+
+
+def read_session_lenient(path: str | Path, *, mode: Optional[str] = None) -> Optional[LenientSession]:
+    """The session at ``path`` without unit checks, or None when even that cannot be read.
+
+    ``mode`` overrides the mode the session states (default eye_in_hand when it states none).
+    """
+    try:
+        kind, p = locate_session(path)
+        if kind == "native":
+            doc = read_native_document(p)
+            raw = _raw_native(p)
+            images = {str(e.data["id"]): p.parent / str(e.data["image"]) for e in doc.entries}
+            images = {v: f for v, f in images.items() if f.exists()}
+            intr = doc.intrinsics if doc.intrinsics_use in ("fixed", "prior") else None
+            return LenientSession(doc.target, check_mode(mode or doc.mode or "eye_in_hand", path=p), raw,
+                                  images, intr)
+        target, cfg_mode, _ = read_vendor_config(p, strict=False)
+        raw = _raw_vendor(p)
+        images = {str(k): f for k, f in numbered_images(p).items()}
+        return LenientSession(target, check_mode(mode or cfg_mode or "eye_in_hand", path=p / "config.yaml"), raw,
+                              images, None)
+    except _UNREADABLE as e:
+        log.debug("session %s unreadable even leniently: %s", path, e)
+        return None

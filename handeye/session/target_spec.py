@@ -1,0 +1,73 @@
+"""The ``target:`` section of a session file -> a target spec (chessboard, ChArUco, circle grid)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import ConfigError
+from ..targets import CharucoSpec, ChessboardSpec, CircleGridSpec, TargetSpec
+from .fields import length_m, positive_number
+
+TARGET_TYPES = ("chessboard", "charuco", "circlegrid")
+
+
+def _int_pair(t: dict, key: str, meaning: str, *, path: Path, minimum: int) -> tuple[int, int]:
+    """``target.<key>``: two integers > minimum, with a message naming the field."""
+    v = t.get(key)
+    if not (isinstance(v, (list, tuple)) and len(v) == 2):
+        raise ConfigError(f"target.{key} must be {meaning}", path=path, received=repr(v))
+    return tuple(positive_number(v[k], path=path, field=f"target.{key}[{k}]", integer=True, minimum=minimum)
+                 for k in range(2))
+
+
+def _flag(t: dict, name: str, *, path: Path) -> bool:
+    v = t.get(name, False)
+    if not isinstance(v, bool):
+        raise ConfigError(f"invalid target.{name}", path=path, expected="true | false", received=repr(v))
+    return v
+
+
+def _chessboard(t: dict, path: Path) -> ChessboardSpec:
+    cols, rows = _int_pair(t, "inner_corners", "[cols, rows]", path=path, minimum=1)
+    return ChessboardSpec(cols, rows, length_m(t.get("square_m"), path=path, field="target.square_m"))
+
+
+def _charuco(t: dict, path: Path) -> CharucoSpec:
+    sx, sy = _int_pair(t, "squares", "[squares_x, squares_y]", path=path, minimum=2)
+    square = length_m(t.get("square_m"), path=path, field="target.square_m")
+    marker = positive_number(t.get("marker_m"), path=path, field="target.marker_m")
+    if marker >= square:
+        raise ConfigError("target.marker_m must be smaller than square_m", path=path,
+                          received=f"marker {marker} >= square {square}")
+    dictionary = str(t.get("dictionary", "DICT_6X6_250"))
+    import cv2
+
+    if not hasattr(cv2.aruco, dictionary):
+        raise ConfigError("unknown ArUco dictionary", path=path, expected="e.g. DICT_6X6_250",
+                          received=repr(dictionary))
+    return CharucoSpec(sx, sy, square, marker, dictionary, bool(t.get("legacy_pattern", False)))
+
+
+def _circlegrid(t: dict, path: Path) -> CircleGridSpec:
+    cols, rows = _int_pair(t, "grid", "[cols, rows] (dots per row, dots per column)", path=path, minimum=1)
+    spacing = length_m(t.get("spacing_m"), path=path, field="target.spacing_m")
+    asymmetric, origin_dot = _flag(t, "asymmetric", path=path), _flag(t, "origin_dot", path=path)
+    if asymmetric and origin_dot:
+        raise ConfigError("target.origin_dot is for symmetric grids only", path=path,
+                          received="asymmetric: true, origin_dot: true",
+                          hint="an asymmetric grid needs no origin dot; set one of them to false")
+    return CircleGridSpec(cols, rows, spacing, asymmetric=asymmetric, origin_dot=origin_dot)
+
+
+_PARSERS = {"chessboard": _chessboard, "charuco": _charuco, "circlegrid": _circlegrid}
+
+
+def parse_target(t, *, path: Path) -> TargetSpec:
+    """The spec a session's ``target:`` mapping describes; ConfigError naming the field otherwise."""
+    if not isinstance(t, dict) or "type" not in t:
+        raise ConfigError("target is missing or has no type", path=path,
+                          expected="target: {type: chessboard, inner_corners: [11, 8], square_m: 0.03}")
+    parser = _PARSERS.get(t["type"])
+    if parser is None:
+        raise ConfigError("unknown target type", path=path, expected=" | ".join(TARGET_TYPES),
+                          received=repr(t["type"]))
+    return parser(t, path)

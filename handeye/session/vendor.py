@@ -1,0 +1,139 @@
+"""The vendor session folder as it is: ``config.yaml`` (board), ``poses.txt`` (one pose line per image,
+``x,y,z,rx,ry,rz`` in metres and radians) and numbered images ``1.jpg, 2.jpg, ...`` (line k <-> image k).
+
+:func:`read_pose_lines`, :func:`read_vendor_config` and :func:`numbered_images` are the only parsers of
+these files; the strict loader (:func:`load_vendor_session`) and the lenient reader of the diagnostics
+(:mod:`handeye.session.raw`) both use them.
+"""
+from __future__ import annotations
+
+import logging
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..conventions import VENDOR_POSE_FORMAT, T_from_pose_values
+from ..errors import ConfigError, InputError
+from ..records import Session, View
+from ..targets import ChessboardSpec
+from .fields import (check_angle_units, check_mode, check_translation_units, length_m, positive_number,
+                     read_yaml)
+
+log = logging.getLogger(__name__)
+
+IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
+_NUMBERED = re.compile(r"^(\d+)$")
+_POSE_EXPECTED = "x,y,z,rx,ry,rz (metres, radians)"
+
+
+@dataclass(frozen=True)
+class PoseLine:
+    """One pose line of poses.txt: its 1-based number among the pose lines (= its image number), the
+    line number in the file and the numbers as written."""
+
+    index: int
+    lineno: int
+    values: np.ndarray  # (n,) as written, no unit conversion
+
+
+def read_pose_lines(poses_path: Path) -> list[PoseLine]:
+    """The pose lines of poses.txt (blank lines and ``#`` comments skipped); InputError on a line that is
+    not numbers. Counts and units are not checked here."""
+    try:
+        raw_lines = poses_path.read_text(encoding="utf-8", errors="strict").splitlines()
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"cannot read poses.txt ({e})", path=poses_path) from None
+    out: list[PoseLine] = []
+    for lineno, line in enumerate(raw_lines, start=1):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        try:
+            values = np.array([float(f) for f in re.split(r"[,\s]+", s) if f])
+        except ValueError:
+            raise InputError("malformed pose line", path=poses_path, line=lineno,
+                             expected=_POSE_EXPECTED, received=repr(s[:80])) from None
+        out.append(PoseLine(len(out) + 1, lineno, values))
+    if not out:
+        raise InputError("poses.txt has no pose lines", path=poses_path, expected="one line x,y,z,rx,ry,rz per image")
+    return out
+
+
+def read_vendor_config(folder: Path, *, strict: bool = True) -> tuple[ChessboardSpec, str | None, dict]:
+    """(board, mode stated in config.yaml or None, the whole config) from ``folder/config.yaml``.
+
+    ``strict=False`` skips the plausibility of the square size (the lenient reader re-reads sessions
+    written in the wrong units).
+    """
+    cfg_path = folder / "config.yaml"
+    if not cfg_path.exists():
+        raise InputError("config.yaml is missing", path=cfg_path,
+                         hint="add config.yaml with checkerboard_args: {XX: 11, YY: 8, L: 0.03}")
+    cfg = read_yaml(cfg_path)
+    cb = cfg.get("checkerboard_args")
+    if not isinstance(cb, dict):
+        raise ConfigError("checkerboard_args is missing or not a mapping", path=cfg_path,
+                          expected="checkerboard_args: {XX: 11, YY: 8, L: 0.03}", received=repr(cb))
+    for key in ("XX", "YY", "L"):
+        if key not in cb:
+            raise ConfigError(f"checkerboard_args.{key} is missing", path=cfg_path,
+                              expected="XX (inner corners, long side), YY (short side), L (square, metres)")
+    xx = positive_number(cb["XX"], path=cfg_path, field="checkerboard_args.XX", integer=True, minimum=1)
+    yy = positive_number(cb["YY"], path=cfg_path, field="checkerboard_args.YY", integer=True, minimum=1)
+    L = length_m(cb["L"], path=cfg_path, field="checkerboard_args.L", strict=strict)
+    return ChessboardSpec(cols=xx, rows=yy, square_m=L), cfg.get("mode"), cfg
+
+
+def numbered_images(folder: Path) -> dict[int, Path]:
+    """Image number -> file of the numbered images (``7.jpg`` is view 7) in ``folder``."""
+    found: dict[int, Path] = {}
+    for f in folder.iterdir():
+        if f.suffix.lower() in IMAGE_EXTS and _NUMBERED.match(f.stem):
+            k = int(f.stem)
+            if k in found:
+                raise InputError(f"two images for view {k}: {found[k].name} and {f.name}", path=folder,
+                                 hint="keep one image per number")
+            if k < 1:
+                raise InputError("image numbering starts at 1", path=f, hint="rename 0.jpg to 1.jpg etc.")
+            found[k] = f
+    if not found:
+        raise InputError("no numbered images (1.jpg, 2.jpg, ...) in the folder", path=folder)
+    return found
+
+
+def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Session:
+    """The vendor folder, validated: units checked, every image paired with its pose line."""
+    folder = Path(folder)
+    target, cfg_mode, cfg = read_vendor_config(folder)
+    sess_mode = check_mode(mode if mode is not None else (cfg_mode or "eye_in_hand"), path=folder / "config.yaml")
+
+    poses_path = folder / "poses.txt"
+    poses: list[tuple[int, np.ndarray]] = []  # (line number, T)
+    for pl in read_pose_lines(poses_path):
+        try:
+            T = T_from_pose_values(pl.values, VENDOR_POSE_FORMAT)
+        except ValueError as e:
+            raise InputError(f"bad pose: {e}", path=poses_path, line=pl.lineno, expected=_POSE_EXPECTED) from None
+        check_translation_units(T, path=poses_path, line=pl.lineno, unit="m")
+        check_angle_units(pl.values[3:], path=poses_path, line=pl.lineno)
+        poses.append((pl.lineno, T))
+
+    images = numbered_images(folder)
+    n_pose = len(poses)
+    missing = [k for k in images if k > n_pose]
+    if missing:
+        raise InputError(f"{len(images)} images but {n_pose} pose lines: image {images[missing[0]].name} has no pose line",
+                         path=poses_path, hint="line k of poses.txt belongs to k.jpg; add the missing poses or remove the extra images")
+    # Gaps are allowed: a pose line whose image was deleted stays in the session as a dropped view.
+    without_image = [k for k in range(1, n_pose + 1) if k not in images]
+    if without_image:
+        log.warning("%s: pose lines without an image (views dropped): %s", poses_path, without_image)
+    views = []
+    for k in sorted(images):
+        lineno, T = poses[k - 1]
+        views.append(View(view_id=str(k), image_path=images[k], T_base_end=T, source_line=lineno))
+    return Session(path=folder, format="vendor", mode=sess_mode, target=target, views=tuple(views),
+                   pose_format=VENDOR_POSE_FORMAT.describe(),
+                   meta={"config": cfg, "missing_images": {str(k): poses[k - 1][0] for k in without_image}})
