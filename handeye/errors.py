@@ -1,8 +1,13 @@
-"""One exception family for the package.
+"""One exception family for the package, with structured fields.
 
-Every message says what went wrong, what was expected and what to try; where a file is involved
-the message starts with the file (and line). The CLI prints ``str(err)`` on one line and exits
-with ``err.exit_code``.
+Every error says what went wrong (``what``), where (``path``, ``line``), what was expected and what was
+received, and what to try (``hint``). ``str(err)`` joins them into one line for a person; ``err.code``
+is a stable machine name and ``err.to_dict()`` the record that result.json stores under ``"error"``,
+so that reports and tools key on the code, never on the message text. The CLI prints ``str(err)`` and
+exits with ``err.exit_code``.
+
+Codes are the class's ``code`` unless a raise site names a more precise one with ``code=``; the ones
+raised by the calibration pipeline are listed in :data:`PIPELINE_CODES`.
 """
 from __future__ import annotations
 
@@ -13,15 +18,19 @@ class HandeyeError(Exception):
     """Base of all handeye errors. ``str()`` is a single line meant for a user."""
 
     exit_code = 2
+    code = "error"
 
     def __init__(self, what: str, *, path: str | Path | None = None, line: int | None = None,
-                 expected: str | None = None, received: str | None = None, hint: str | None = None):
+                 expected: str | None = None, received: str | None = None, hint: str | None = None,
+                 code: str | None = None):
         self.what = what
         self.path = None if path is None else str(path)
         self.line = line
         self.expected = expected
         self.received = received
         self.hint = hint
+        if code is not None:
+            self.code = code  # instance attribute: the class default stays as it is
         super().__init__(self._format())
 
     def _format(self) -> str:
@@ -38,34 +47,69 @@ class HandeyeError(Exception):
             msg += f" -> {self.hint}"
         return " ".join(msg.split())  # always one line
 
+    def at(self, path: str | Path, line: int | None = None) -> "HandeyeError":
+        """The same error located in ``path`` (a new exception of the same class and code)."""
+        return type(self)(self.what, path=path, line=line if line is not None else self.line, expected=self.expected,
+                          received=self.received, hint=self.hint, code=self.code)
+
+    def to_dict(self) -> dict:
+        """The structured record (JSON-ready): code, what, file, line, expected, got, fix, exit_code,
+        plus ``type`` (the class name) and ``message`` (``str(self)``)."""
+        return {"code": self.code, "type": type(self).__name__, "what": self.what, "file": self.path,
+                "line": self.line, "expected": self.expected, "got": self.received, "fix": self.hint,
+                "exit_code": self.exit_code, "message": str(self)}
+
 
 class InputError(HandeyeError):
     """A session, config or pose file is missing, unreadable or inconsistent."""
 
+    code = "input_error"
+
 
 class ConfigError(InputError):
     """A configuration value is impossible or of the wrong type."""
+
+    code = "config_error"
 
 
 class DetectionError(HandeyeError):
     """The calibration target could not be found in enough views."""
 
     exit_code = 3
+    code = "detection_failed"
 
 
 class DegenerateMotionError(HandeyeError):
     """The robot motion does not constrain the hand-eye transform."""
 
     exit_code = 4
+    code = "degenerate_motion"
 
 
 class CalibrationError(HandeyeError):
     """A solver failed or produced an unusable result."""
 
     exit_code = 5
+    code = "calibration_failed"
 
 
 class HardwareError(HandeyeError):
     """A camera or robot could not be reached or answered wrongly."""
 
     exit_code = 6
+    code = "hardware_error"
+
+
+#: codes the calibration pipeline raises (beyond the class defaults), for advice keyed on them
+PIPELINE_CODES = {
+    "target_not_found": "the target was found in fewer than 3 images",
+    "too_few_views": "fewer than 3 views with a detected target and a robot pose",
+    "motion_small_rotation": "the robot barely rotates between views",
+    "motion_one_axis": "all relative rotations are about one axis",
+    "intrinsics_size_mismatch": "the given intrinsics are for another image size",
+    "unknown_method": "the closed-form method name is not known",
+    "closed_form_failed": "the chosen closed-form solver failed",
+    "refinement_failed": "the joint refinement failed",
+    "camera_calibration_failed": "calibrateCamera returned an unusable camera",
+    "pnp_failed": "a view's board pose could not be solved",
+}

@@ -21,7 +21,8 @@ import numpy as np
 import pytest
 import yaml
 
-from handeye.pipeline import CalibrateOptions, observations_dict, result_dict, run_calibration
+from handeye.pipeline import CalibrateOptions, run_calibration
+from handeye.results import observations_dict, result_dict
 from handeye.output import write_json
 from handeye.session import load_session
 from handeye.sim.synth import default_intrinsics, write_vendor_session

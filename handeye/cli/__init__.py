@@ -145,7 +145,8 @@ _EXTRA_COMMANDS = [_report_command, _collect_command]
 
 # ------------------------------------------------------------------------------ commands
 def cmd_calibrate(args) -> int:
-    from ..pipeline import CalibrateOptions, observations_dict, result_dict, run_calibration
+    from ..pipeline import CalibrateOptions, run_calibration
+    from ..results import failed_load_result, observations_dict, result_dict
     from ..config import load_with_override
     from ..output import write_json
     from ..session import load_session
@@ -190,16 +191,6 @@ def cmd_calibrate(args) -> int:
         print(f"handeye: calibration failed: {run.failure_reason}", file=sys.stderr)
         return run.exit_code or 1
     return 0
-
-
-def failed_load_result(session_path, err: HandeyeError, mode) -> dict:
-    from ..output import provenance
-
-    return {"handeye_result": 1, "status": "failed", "failure_reason": str(err), "error_type": type(err).__name__,
-            "mode": mode or "unknown", "method": None, "refined": False, "views": [],
-            "n_views": {"total": 0, "used": 0},
-            "session": {"path": str(Path(session_path).resolve()), "format": "unreadable"},
-            "provenance": provenance()}
 
 
 def _write_failed(out: Path, res: dict, args) -> None:

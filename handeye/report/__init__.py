@@ -77,7 +77,7 @@ def _observations(run, out_dir: Path) -> Optional[dict]:
         except (json.JSONDecodeError, UnicodeDecodeError) as e:
             raise InputError(f"not valid JSON ({e})", path=p, hint="re-run handeye calibrate") from None
     if run is not None:
-        from ..pipeline import observations_dict
+        from ..results import observations_dict
 
         from ..output import plain
 

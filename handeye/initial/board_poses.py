@@ -1,0 +1,121 @@
+"""Per-view board poses ``T_cam_board`` (solvePnP) and the corner ordering of symmetric boards."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import cv2
+import numpy as np
+
+from ..camera import Intrinsics, pixels_from_board_points
+from ..errors import CalibrationError
+from ..frames import inv_T, make_T, screw_invariants
+from ..records import Detection
+from ..targets import TargetSpec
+
+
+def solve_pnp(object_points: np.ndarray, image_points: np.ndarray, intr: Intrinsics) -> tuple[np.ndarray, float]:
+    """``T_cam_board`` from one view's corners, refined (Levenberg-Marquardt): (T, rms_px).
+
+    ``object_points`` (N,3) board frame, metres; ``image_points`` (N,2) pixels, in the same order.
+    """
+    obj = object_points.astype(np.float64).reshape(-1, 1, 3)
+    img = image_points.astype(np.float64).reshape(-1, 1, 2)
+    ok, rvec, tvec = cv2.solvePnP(obj, img, intr.K, intr.dist_array, flags=cv2.SOLVEPNP_IPPE)
+    if not ok:
+        ok, rvec, tvec = cv2.solvePnP(obj, img, intr.K, intr.dist_array, flags=cv2.SOLVEPNP_ITERATIVE)
+    if not ok:
+        raise CalibrationError("solvePnP failed for a view", code="pnp_failed")
+    rvec, tvec = cv2.solvePnPRefineLM(obj, img, intr.K, intr.dist_array, rvec, tvec)
+    T = make_T(cv2.Rodrigues(rvec)[0], tvec.reshape(3))
+    return T, reprojection_rms(object_points, image_points, T, intr)
+
+
+def reprojection_rms(object_points: np.ndarray, image_points: np.ndarray, T_cam_board: np.ndarray,
+                     intr: Intrinsics) -> float:
+    """RMS (px) of the corner residuals of one view under ``T_cam_board``."""
+    r = pixels_from_board_points(T_cam_board, object_points, intr) - image_points
+    return float(np.sqrt(np.mean(np.sum(r ** 2, axis=1))))
+
+
+@dataclass(frozen=True)
+class BoardPose:
+    view_id: str
+    T_cam_board: np.ndarray
+    rms_px: float
+    orientation: int  # index into target.symmetries()
+    corner_ids: np.ndarray  # ids after resolving the orientation
+
+
+def board_poses(detections: Sequence[Detection], target: TargetSpec, intr: Intrinsics,
+                M: Mapping[str, np.ndarray]) -> dict[str, BoardPose]:
+    """Per-view ``T_cam_board``, with the corner ordering of symmetric boards made consistent.
+
+    A symmetric board's detector ordering may be turned by 180 (or 90) degrees in some views. For
+    each view every admissible ordering is solved; then the combination is chosen whose camera
+    motions agree with the robot motions ``M`` (rotation angle and screw pitch of each relative
+    motion are invariant under the unknown transforms).
+    """
+    obj = target.object_points()
+    syms = target.symmetries()
+    cands: dict[str, list[tuple[np.ndarray, float, np.ndarray]]] = {}
+    for d in detections:
+        cands[d.view_id] = []
+        for perm in syms:
+            ids = perm[d.corner_ids]
+            T, rms = solve_pnp(obj[ids], d.image_points, intr)
+            cands[d.view_id].append((T, rms, ids))
+    labels = {vid: 0 for vid in cands}
+    if len(syms) > 1 and len(cands) >= 2:
+        labels = _resolve_orientation(cands, M)
+    return {vid: BoardPose(vid, cands[vid][c][0], cands[vid][c][1], c, cands[vid][c][2]) for vid, c in labels.items()}
+
+
+def _resolve_orientation(cands, M) -> dict[str, int]:
+    vids = list(cands)
+    n = len(vids)
+    k = len(cands[vids[0]])
+    Ms = np.stack([M[v] for v in vids])
+    # robot relative-motion invariants for all pairs
+    rel_M = Ms[:, None] @ inv_T(Ms)[None, :]  # (n,n,4,4) M_i M_j^-1
+    ang_M, pitch_M = screw_invariants(rel_M.reshape(-1, 4, 4))
+    Cs = np.stack([[c[0] for c in cands[v]] for v in vids])  # (n,k,4,4)
+    # cost[i,a,j,b]: disagreement when view i uses ordering a and view j ordering b
+    rel_C = Cs[:, :, None, None] @ inv_T(Cs)[None, None]  # (n,k,n,k,4,4)
+    ang_C, pitch_C = screw_invariants(rel_C.reshape(-1, 4, 4))
+    ang_C = ang_C.reshape(n, k, n, k)
+    pitch_C = pitch_C.reshape(n, k, n, k)
+    am = ang_M.reshape(n, 1, n, 1)
+    pm = pitch_M.reshape(n, 1, n, 1)
+    # pitch's sign follows the axis direction, which is defined consistently by the rotation vector;
+    # 0.1 m of pitch weighs like 1 rad of angle
+    cost = np.abs(ang_C - am) + np.abs(pitch_C - pm) / 0.1
+    best, best_cost = None, np.inf
+    for r in range(n):
+        lab = np.argmin(cost[:, :, r, 0], axis=1)
+        lab[r] = 0
+        for _ in range(3):  # a few rounds of iterated conditional modes
+            for i in range(n):
+                tot = [sum(cost[i, a, j, lab[j]] for j in range(n) if j != i) for a in range(k)]
+                lab[i] = int(np.argmin(tot))
+        c = sum(cost[i, lab[i], j, lab[j]] for i in range(n) for j in range(n) if i != j)
+        if c < best_cost:
+            best, best_cost = lab.copy(), c
+    return {v: int(lab) for v, lab in zip(vids, _majority_frame(best, k))}
+
+
+def _majority_frame(labels: np.ndarray, k: int) -> np.ndarray:
+    """Re-express consistent orientation labels so that the detector's own order is the majority.
+
+    Turning every view by the same symmetry is a change of the board frame only; choose the one
+    that keeps most views as detected (so an asymmetric board keeps OpenCV's origin). Labels index
+    ``ChessboardSpec.symmetries()``: turns of 0, 180, 90, 270 degrees.
+    """
+    turns = np.array([0, 2, 1, 3])[:k] if k in (2, 4) else None
+    if turns is None:
+        return labels
+    q = turns[labels]
+    shift = np.bincount(q, minlength=4).argmax()
+    q = (q - shift) % 4
+    back = {t: i for i, t in enumerate(turns)}
+    return np.array([back[t] for t in q])

@@ -1,0 +1,163 @@
+"""What a calibration leaves behind: result.json and observations.json.
+
+Both are plain JSON written atomically (:mod:`handeye.output`) and read back by everything that comes
+after a calibration (the report, ``handeye apply``, tools). A failed run still has a result.json:
+``status: failed``, ``failure_reason`` (one line for a person) and ``error`` (the structured record of
+:meth:`handeye.errors.HandeyeError.to_dict`, keyed by a stable ``code``).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+
+from .camera import pixels_from_board_points
+from .conventions import pose_forms
+from .errors import HandeyeError
+from .frames import pose_error
+from .mounting import mounting
+from .output import hash_files, provenance
+from .records import Session
+
+RESULT_VERSION = 1
+OBSERVATIONS_VERSION = 1
+
+FRAME_DOC = {
+    "T_end_cam": "pose of the camera (optical frame: x right, y down, z forward) in the end/flange frame; "
+                 "p_end = T_end_cam @ p_cam",
+    "T_base_cam": "pose of the camera (optical frame) in the robot base frame; p_base = T_base_cam @ p_cam",
+    "T_base_board": "pose of the calibration board in the robot base frame; p_base = T_base_board @ p_board",
+    "T_end_board": "pose of the calibration board in the end/flange frame; p_end = T_end_board @ p_board",
+}
+
+
+def session_inputs(session: Session) -> list[Path]:
+    """The files a session's result depends on (images, poses and config), for the inputs hash."""
+    files = [v.image_path for v in session.views]
+    for name in ("poses.txt", "config.yaml", "session.yaml"):
+        if (session.path / name).exists():
+            files.append(session.path / name)
+    return files
+
+
+def observations_dict(run) -> dict:
+    """Per used view: detected corners and their residuals under the final solution (observations.json).
+
+    ``residual_chain_px`` predicts the board through the reported robot pose and the hand-eye result
+    (what the robot will experience); ``residual_pnp_px`` through the view's own board pose (what the
+    camera alone explains). ``thumbnail`` names the view's image in ``thumbnails/`` when one was written.
+    """
+    from .initial import solve_pnp
+
+    s = run.session
+    obj = s.target.object_points()
+    mode = mounting(s.mode)
+    views = {}
+    intr = run.intrinsics
+    for vid, det in run.detections.items():
+        bp = run.board_poses.get(vid)
+        ids = bp.corner_ids if bp is not None else det.corner_ids
+        v = {"corner_ids": ids.tolist(), "image_points_px": det.image_points.tolist(),
+             "sharpness": det.sharpness, "image": str(s.view(vid).image_path)}
+        for key in ("blur", "exposure"):
+            if getattr(det, key, None) is not None:
+                v[key] = getattr(det, key)
+        if bp is not None and intr is not None:
+            # the view's own pose under the final intrinsics (bp was fitted with the initial intrinsics)
+            T_pnp = solve_pnp(obj[ids], det.image_points, intr)[0]
+            v["T_cam_board_pnp"] = T_pnp.tolist()
+            v["residual_pnp_px"] = (det.image_points - pixels_from_board_points(T_pnp, obj[ids], intr)).tolist()
+            if run.T_x is not None:
+                C = mode.predict_T_cam_board(run.T_x, run.T_board, s.view(vid).T_base_end)
+                v["T_cam_board_chain"] = C.tolist()
+                v["residual_chain_px"] = (det.image_points - pixels_from_board_points(C, obj[ids], intr)).tolist()
+        v["T_base_end_reported"] = s.view(vid).T_base_end.tolist()
+        views[vid] = v
+    return {"handeye_observations": OBSERVATIONS_VERSION, "mode": s.mode, "target": s.target.to_dict(),
+            "object_points_m": obj.tolist(),
+            "image_size": list(intr.image_size) if intr is not None else None, "views": views}
+
+
+def result_dict(run) -> dict:
+    """Everything result.json holds. A failed run has ``status: failed``, the error and no result matrix."""
+    s = run.session
+    mode = mounting(s.mode)
+    d: dict[str, Any] = {
+        "handeye_result": RESULT_VERSION,
+        "status": run.status,
+        "failure_reason": run.failure_reason,
+        "mode": s.mode,
+        "method": run.options.method,
+        "refined": run.refined is not None,
+    }
+    if run.error is not None:
+        d["error"] = run.error.to_dict()
+    if run.status == "ok":
+        d[mode.x_name] = run.T_x.tolist()
+        d[mode.board_name] = run.T_board.tolist()
+        d["frames"] = {mode.x_name: FRAME_DOC[mode.x_name], mode.board_name: FRAME_DOC[mode.board_name],
+                       "units": "metres; angles in radians unless the key says _deg"}
+        d["hand_eye"] = dict(name=mode.x_name, **pose_forms(run.T_x))
+        d["board"] = dict(name=mode.board_name, **pose_forms(run.T_board))
+    if run.start is not None:
+        d["seed"] = {"method": run.start.method, mode.x_name: run.start.T_x.tolist(),
+                     mode.board_name: run.start.T_board.tolist()}
+    if run.closed_forms:
+        d["closed_form"] = _closed_forms_dict(run, mode)
+    if run.intrinsics is not None:
+        d["intrinsics"] = dict(run.intrinsics.to_dict(), source=run.intrinsics_source,
+                               calibrate_camera_rms_px=run.intrinsics_rms_px)
+    d["views"] = [{"id": o.view_id, "image": o.image, "used": o.used, "reason": o.reason, "n_corners": o.n_corners,
+                   "pnp_rms_px": o.rms_px, "chain_max_px": o.max_px, "orientation": o.orientation,
+                   "flags": list(o.flags)}
+                  for o in run.outcomes]
+    d["n_views"] = {"total": len(run.outcomes), "used": sum(o.used for o in run.outcomes)}
+    if run.motion is not None:
+        m = run.motion
+        d["motion"] = {"n_views": m.n_views, "max_rotation_deg": m.max_rotation_deg,
+                       "axis_spread_deg": m.axis_spread_deg, "status": m.status, "reason": m.reason,
+                       "min_rotation_deg": m.min_rotation_deg, "min_axis_spread_deg": m.min_axis_spread_deg}
+    if run.refined is not None and hasattr(run.refined, "to_dict"):
+        d["refinement"] = run.refined.to_dict()
+    d["target"] = s.target.to_dict()
+    d["session"] = {"path": str(s.path), "format": s.format, "pose_format": s.pose_format,
+                    "intrinsics_given": s.intrinsics is not None}
+    d["seconds"] = dict(run.seconds)
+    d["provenance"] = provenance(inputs_sha256=hash_files(session_inputs(s)),
+                                 extra={"options": {"method": run.options.method, "refine": run.options.refine,
+                                                    "fix_k3": run.options.fix_k3,
+                                                    **run.options.refine_options}})
+    return d
+
+
+def _closed_forms_dict(run, mode) -> dict:
+    from .initial import consistency
+
+    s = run.session
+    C = np.stack([bp.T_cam_board for bp in run.board_poses.values()])
+    Ms = np.stack([mode.M_from_T_base_end(s.view(v).T_base_end) for v in run.board_poses])
+    cf = {}
+    for m, est in run.closed_forms.items():
+        e = {"status": est.status}
+        if est.status == "ok":
+            dt, dr = consistency(est, mode, C, Ms)
+            e.update({mode.x_name: est.T_x.tolist(), "translation_mm": (est.T_x[:3, 3] * 1e3).tolist(),
+                      "rotvec_deg": pose_forms(est.T_x)["rotvec_deg"],
+                      "board_consistency_mm": dt, "board_consistency_deg": dr})
+            if run.T_x is not None:
+                r, t = pose_error(est.T_x, run.T_x)
+                e["diff_to_result_deg"], e["diff_to_result_mm"] = r, t
+        else:
+            e["failure_reason"] = est.failure_reason
+        cf[m] = e
+    return cf
+
+
+def failed_load_result(session_path, err: HandeyeError, mode: Optional[str]) -> dict:
+    """result.json for a session that could not be read at all."""
+    return {"handeye_result": RESULT_VERSION, "status": "failed", "failure_reason": str(err),
+            "error": err.to_dict(), "mode": mode or "unknown", "method": None, "refined": False, "views": [],
+            "n_views": {"total": 0, "used": 0},
+            "session": {"path": str(Path(session_path).resolve()), "format": "unreadable"},
+            "provenance": provenance()}
