@@ -22,16 +22,15 @@ import argparse
 import sys
 import time
 
-import gtsam
 import numpy as np
 from scipy.stats import chi2
 
 from handeye.factors.reprojection import chain_residual
-from handeye.frames import inv_T
+from handeye.frames import tangent_difference
 from handeye.mounting import mounting
 from handeye.refine import RefineOptions, RefineView, refine
 from handeye.initial import calibrate_intrinsics, solve_closed_form, solve_pnp
-from handeye.sim.synth import make_corner_session
+from handeye.sim.corners import make_corner_session
 
 MODES = ("eye_in_hand", "eye_to_hand")
 NOISE_PX = 0.3
@@ -91,7 +90,7 @@ def crb_x(s, *, sigma_px: float, robot_sigma_mm: float, robot_sigma_deg: float, 
 
 def x_error(T_est, T_true):
     """(rot_deg, trans_mm, xi) with xi = Log(inv(T_est) T_true) in GTSAM's tangent."""
-    xi = gtsam.Pose3.Logmap(gtsam.Pose3(inv_T(T_est) @ T_true))
+    xi = tangent_difference(T_est, T_true)
     return float(np.degrees(np.linalg.norm(xi[:3]))), float(1000 * np.linalg.norm(T_est[:3, 3] - T_true[:3, 3])), xi
 
 
@@ -151,13 +150,13 @@ def summarize(label, mode, rows):
 
 def time_solves(mode, n_views, repeats=3):
     """Seconds of one Gauss-Newton/LM solve (robot pose variables, no robust loss) from the Tsai seed."""
-    from handeye.refine import _Problem  # internal: times exactly one graph solve, nothing around it
+    from handeye.refine.problem import Problem  # times exactly one graph solve, nothing around it
 
     s = make_corner_session(mode=mode, n_views=n_views, seed=1, noise_px=NOISE_PX, robot_noise=ROBOT_NOISE)
     intr, est = tsai_seed(s)
     times, cpus = [], []
     for _ in range(repeats):
-        pb = _Problem(mode=mode, object_points=s.target.object_points(), views=refine_views(s), intrinsics=intr,
+        pb = Problem(mode=mode, object_points=s.target.object_points(), views=refine_views(s), intrinsics=intr,
                       T_x0=est.T_x, T_board0=est.T_board, options=RefineOptions())
         pb.sigma_px = NOISE_PX
         t0, c0 = time.perf_counter(), time.process_time()

@@ -35,7 +35,6 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from types import SimpleNamespace
 
-import gtsam
 import numpy as np
 from scipy.stats import chi2
 
@@ -63,18 +62,18 @@ def session_config(k: int) -> dict:
 
 def _xi_error(T_est, T_true):
     """xi with T_true = T_est · Exp(xi) (GTSAM Pose3 tangent: rotation, translation; frame of X)."""
-    from handeye.frames import inv_T
-    return gtsam.Pose3.Logmap(gtsam.Pose3(inv_T(T_est) @ T_true))
+    from handeye.frames import tangent_difference
+    return tangent_difference(T_est, T_true)
 
 
 def _corner_errors(run, truth, target, intrinsics_true):
     """Detected minus true corner positions per used view: {vid: (N,2)}."""
-    from handeye.sim.synth import pixel_from_board_point
+    from handeye.camera import pixels_from_board_points
     obj = target.object_points()
     out = {}
     for vid, d in run.detections.items():
         T = np.asarray(truth["views"][vid]["T_cam_board_true"])
-        uv = pixel_from_board_point(T, obj[d.corner_ids], intrinsics_true)
+        uv = pixels_from_board_points(T, obj[d.corner_ids], intrinsics_true)
         out[vid] = np.asarray(d.image_points) - uv
     return out
 
@@ -108,7 +107,9 @@ def _run_one(k: int, keep: str | None = None, cfg: dict | None = None) -> dict:
     from bench_refine import crb_x
     from handeye.pipeline import CalibrateOptions, run_calibration
     from handeye.session import load_session
-    from handeye.sim.synth import default_intrinsics, make_corner_session, write_vendor_session
+    from handeye.sim.corners import make_corner_session
+    from handeye.sim.scenarios import default_intrinsics
+    from handeye.sim.vendor import write_vendor_session
     cfg = session_config(k) if cfg is None else cfg
     intr = default_intrinsics(640, 480) if cfg["small"] else None
     tmp = Path(keep) / f"s{k:03d}" if keep else Path(tempfile.mkdtemp(prefix="bench_rendered_"))

@@ -1,16 +1,17 @@
-"""Small robust statistics shared by the refinement and the diagnostics (pure numpy/scipy)."""
+"""Small robust statistics shared by the refinement and the diagnostics (pure numpy/scipy.special)."""
 from __future__ import annotations
 
 import numpy as np
+from scipy.special import chdtri
+
+RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))  # median of |e| / sigma for a 2-D Gaussian
 
 
 def robust_noise_sigma(d: np.ndarray, C: np.ndarray, *, floor: float) -> float:
     """Sigma s with median_i d_i^T (C_i + s^2 I)^-1 d_i = chi2(dim) median: the extra isotropic noise that
     makes typical views' disagreements ``d`` (N,k) consistent with their covariances ``C`` (N,k,k)."""
-    from scipy.stats import chi2 as _chi2  # scipy.stats is slow to import; only here
-
     k = d.shape[1]
-    target = _chi2.ppf(0.5, k)
+    target = float(chdtri(k, 0.5))  # the chi-square(k) median
 
     def med(s):
         Cs = C + s * s * np.eye(k)

@@ -12,15 +12,15 @@ Figures over many sessions: benchmarks/bench_rendered.py.
 import json
 from concurrent.futures import ThreadPoolExecutor
 
-import gtsam
 import numpy as np
 import pytest
 from scipy.stats import chi2
 
 from handeye.pipeline import CalibrateOptions, run_calibration
-from handeye.frames import inv_T
+from handeye.frames import tangent_difference
 from handeye.session import load_session
-from handeye.sim.synth import default_intrinsics, write_vendor_session
+from handeye.sim.scenarios import default_intrinsics
+from handeye.sim.vendor import write_vendor_session
 
 SMALL = default_intrinsics(640, 480)
 # (mode, views, seed, image noise [grey levels], blur [px], robot noise (mm, deg), outlier views)
@@ -53,7 +53,7 @@ def runs(tmp_path_factory):
 
 def _d2(run, truth) -> float:
     r = run.refined
-    xi = gtsam.Pose3.Logmap(gtsam.Pose3(inv_T(r.T_x) @ np.asarray(truth[r.x_name])))  # T_true = T_est · Exp(xi)
+    xi = tangent_difference(r.T_x, np.asarray(truth[r.x_name]))  # T_true = T_est · Exp(xi)
     return float(xi @ np.linalg.solve(r.cov_x_6x6, xi))
 
 

@@ -5,12 +5,24 @@ the data predict; the refinement and the diagnostics (for runs without a refinem
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import logging
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Optional, Sequence
 
 import numpy as np
 from scipy.special import chdtrc, chdtri
 
-from ..config import load_preset
+from handeye.factors.reprojection import chain_residual, corner_robust_scales
+
+from ..frames import se3_exp, tangent_difference
+from ..output import plain
+from .noise import robust_robot_sigmas, solve_with_vce
+from .options import RefineOptions, refine_preset
+
+if TYPE_CHECKING:
+    from .problem import Problem
+
+log = logging.getLogger(__name__)
 
 ROBOT_POSE_DOF = 6
 
@@ -25,9 +37,14 @@ class RobotPoseGates:
 
     @staticmethod
     def from_config(cfg: dict | None = None) -> "RobotPoseGates":
-        c = (cfg if cfg is not None else load_preset("refine"))["outliers"]["robot_pose"]
+        c = (cfg if cfg is not None else refine_preset())["outliers"]["robot_pose"]
         return RobotPoseGates(alpha=float(c["alpha"]), min_rot_deg=float(c["min_rot_deg"]),
                               min_trans_mm=float(c["min_trans_mm"]))
+
+    @staticmethod
+    def from_options(o: RefineOptions) -> "RobotPoseGates":
+        return RobotPoseGates(alpha=o.view_outlier_p, min_rot_deg=o.min_robot_disagreement_deg,
+                              min_trans_mm=o.min_robot_disagreement_mm)
 
     @property
     def threshold(self) -> float:
@@ -95,3 +112,248 @@ def robot_pose_test(disagreement: np.ndarray, covariance: np.ndarray, *, robot_s
     flagged = ok & (np.nan_to_num(p, nan=1.0) < g.alpha) & large
     return RobotPoseTest(statistic=stat, p_value=p, flagged=flagged, rot_deg=rot_deg, trans_mm=trans_mm,
                          threshold=g.threshold, gates=g)
+
+
+# ------------------------------------------------------------------------------ the refinement's decisions
+@dataclass(frozen=True)
+class Outlier:
+    """One explicit outlier decision."""
+
+    view_id: str
+    kind: str  # corners | reprojection | too_few_corners | robot_pose
+    reason: str  # one line for people
+    corner_ids: tuple = ()  # flagged corners (kind "corners"), else empty: the decision covers the view
+    size: dict = field(default_factory=dict)  # size of the disagreement, names with units
+
+    def __str__(self) -> str:
+        return self.reason
+
+    def to_dict(self) -> dict:
+        return {"view_id": self.view_id, "kind": self.kind, "reason": self.reason,
+                "corner_ids": [int(c) for c in self.corner_ids], "size": plain(self.size)}
+
+
+@dataclass(frozen=True)
+class ViewCheck:
+    """One view against the current solution."""
+
+    P_cam: np.ndarray  # (4,4) robot pose implied by the camera (alone, or in the last Gaussian solve)
+    cov_cam: np.ndarray  # (6,6) its covariance (right tangent)
+    resid_px: np.ndarray  # (N,) corner residual norms at P_cam
+    delta: np.ndarray  # (6,) tangent_difference(reported, P_cam)
+    ok: bool
+
+
+def _failed_check(P: np.ndarray, n_corners: int) -> ViewCheck:
+    return ViewCheck(P, np.full((6, 6), np.nan), np.full(n_corners, np.inf), np.full(6, np.nan), False)
+
+
+def camera_only_pose(pb: "Problem", i: int, P_init: np.ndarray, *, max_iters: int = 10) -> ViewCheck:
+    """Robust Gauss-Newton for view i's robot pose from its corners alone (T_x, T_board, K held)."""
+    P = P_init.copy()
+    obj, img = pb.obj[i], pb.img[i]
+    fail = _failed_check(P, len(obj))
+    for it in range(max_iters + 1):
+        r, _, J_r, _, _ = chain_residual(T_x=pb.T_x, T_base_end=P, T_board=pb.T_board, invert_robot=pb.invert,
+                                         intrinsics_vec=pb.k, object_points=obj, image_points=img, robot_only=True)
+        if not np.all(np.isfinite(r)):
+            return fail
+        if it == max_iters:
+            break
+        _, w = corner_robust_scales(r, sigma_px=pb.sigma_px, loss="huber", k=pb.o.loss_k)
+        Jw = J_r * np.repeat(w * w, 2)[:, None]
+        try:
+            step = -np.linalg.solve(Jw.T @ J_r, Jw.T @ r)
+        except np.linalg.LinAlgError:
+            return fail
+        P = P @ se3_exp(step)
+        if np.abs(step).max() < 1e-8:  # rad, m: far below any pose precision; one more evaluation at P
+            max_iters = it + 1
+    e = np.linalg.norm(r.reshape(-1, 2), axis=1)
+    inl = np.repeat(e <= pb.o.corner_outlier_sigmas * pb.sigma_px, 2)
+    J = J_r[inl]
+    if J.shape[0] < 6:
+        return ViewCheck(P, fail.cov_cam, e, fail.delta, False)
+    try:
+        cov = pb.sigma_px ** 2 * np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return ViewCheck(P, fail.cov_cam, e, fail.delta, False)
+    return ViewCheck(P, cov, e, tangent_difference(pb.reported[i], P), bool(np.all(np.isfinite(cov))))
+
+
+def joint_check(pb: "Problem", i: int, cov: np.ndarray) -> ViewCheck:
+    """View i as the last Gaussian solve has it (its robot pose a variable of that solve)."""
+    P = pb.P[i]
+    e = np.linalg.norm(pb.view_residual(i), axis=1)
+    return ViewCheck(P.copy(), cov, e, tangent_difference(pb.reported[i], P), True)
+
+
+@dataclass(frozen=True)
+class Decision:
+    status: tuple  # per view: used | robot_excluded | removed
+    masks: tuple  # per view: bool array of the corners kept
+    outliers: tuple  # Outlier, ...
+    checks: tuple  # per view ViewCheck
+    robot_test: RobotPoseTest  # the robot-pose test of every view
+
+    def key(self):
+        return self.status, tuple(m.tobytes() for m in self.masks)
+
+
+def _robot_test_sigmas(pb: "Problem") -> tuple[float, float]:
+    if pb.o.robot_noise == "estimate" or pb.robot_var:
+        return pb.sigma_rot, pb.sigma_trans
+    return np.radians(pb.o.robot_sigma_deg), pb.o.robot_sigma_mm / 1000.0  # "none": configured tolerance
+
+
+def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]) -> RobotPoseTest:
+    """:func:`robot_pose_test` of every view's reported robot pose against what the other data imply.
+
+    With the covariances of a Gaussian solve (``S_pp``, marginal covariance of each robot-pose
+    variable): for a view whose prior is in the solve, the leave-one-out prediction from the prior
+    residual ``e`` (Baarda's data snooping): disagreement ``R (R - S_P)^-1 e`` with covariance
+    ``R (R - S_P)^-1 R - R`` (so the statistic is ``e^T (R - S_P)^-1 e``); for a view whose prior
+    was excluded, its free pose ``P`` with covariance ``S_P``. Otherwise (robust phase, views not
+    in the solve) the camera-only pose with its own covariance, which ignores the uncertainty of
+    ``T_x``, ``T_board`` and the intrinsics."""
+    s_rot, s_trans = _robot_test_sigmas(pb)
+    R = np.diag([s_rot ** 2] * 3 + [s_trans ** 2] * 3)
+    d = np.full((pb.n, 6), np.nan)
+    C = np.full((pb.n, 6, 6), np.nan)
+    for i, ch in enumerate(checks):
+        Sp = None if S_pp is None else S_pp.get(i)
+        if Sp is not None and pb.status[i] in ("used", "robot_excluded") and pb.has_robot_var(i):
+            e = tangent_difference(pb.reported[i], pb.P[i])
+            try:
+                if pb.status[i] == "used":
+                    np.linalg.cholesky(R - Sp)
+                    C_inv_R = np.linalg.solve(R - Sp, R)
+                    d[i], C[i] = C_inv_R.T @ e, R @ C_inv_R - R
+                else:
+                    d[i], C[i] = e, Sp
+                continue
+            except np.linalg.LinAlgError:  # fall back to the camera-only comparison
+                ch = camera_only_pose(pb, i, pb.P[i])
+        if ch.ok:
+            d[i], C[i] = ch.delta, ch.cov_cam
+    return robot_pose_test(d, C, robot_sigma_rot_rad=s_rot, robot_sigma_trans_m=s_trans,
+                           gates=RobotPoseGates.from_options(pb.o))
+
+
+def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = None) -> Decision:
+    """Outlier decisions for every view against the current solution, each with a reason and the size
+    of the disagreement:
+
+    * corners further than ``corner_outlier_sigmas`` from their prediction are flagged
+      (``corners``): against the last Gaussian solve for views in it, otherwise against the pose
+      that the view's corners alone imply (robust Gauss-Newton with ``T_x``, ``T_board`` and the
+      intrinsics held);
+    * a view keeping fewer than ``min_corners`` corners is dropped (``too_few_corners``); a view
+      with more than ``outliers.reprojection_share`` of its corners flagged is dropped
+      (``reprojection``);
+    * the reported robot pose is tested by :func:`robot_tests`; a disagreeing view loses its robot
+      prior (``robot_pose``) but keeps its corners, which still inform the intrinsics.
+
+    ``robust_robot_sigma``: first set the robot sigmas from the camera-only poses by the robust
+    (median) estimator, for decisions made before the data are clean. ``S_pp``: robot-pose
+    covariances of the last Gaussian solve, for the exact robot-pose tests."""
+    o = pb.o
+    t_corner = o.corner_outlier_sigmas
+    share = float(refine_preset()["outliers"]["reprojection_share"])
+    checks = [joint_check(pb, i, S_pp[i]) if S_pp is not None and i in S_pp
+              else camera_only_pose(pb, i, pb.P[i]) if len(pb.obj[i]) >= o.min_corners
+              else _failed_check(pb.P[i], len(pb.obj[i]))
+              for i in range(pb.n)]
+    if robust_robot_sigma:
+        robust_robot_sigmas(pb, [checks[i] for i in pb.prior_views()])
+    test = robot_tests(pb, checks, S_pp)
+    status, masks, outliers = [], [], []
+    for i, vid in enumerate(pb.ids):
+        ch = checks[i]
+        n_all = len(ch.resid_px)
+        bad = ~(ch.resid_px <= max(t_corner * pb.sigma_px, o.min_corner_outlier_px))
+        n_good = int((~bad).sum())
+        if not ch.ok and n_all >= o.min_corners:
+            status.append("removed")
+            masks.append(np.ones(n_all, bool))
+            outliers.append(Outlier(vid, "reprojection", f"view {vid}: its corners alone do not determine a pose "
+                                    f"({n_all} corners)", size={"n_corners": n_all}))
+            continue
+        if n_good < o.min_corners or not ch.ok:
+            status.append("removed")
+            masks.append(np.ones(n_all, bool))
+            outliers.append(Outlier(vid, "too_few_corners", f"view {vid}: {n_good} usable corners of {n_all}, "
+                                    f"need {o.min_corners}", size={"n_usable": n_good, "n_corners": n_all}))
+            continue
+        if bad.mean() > share:
+            rms = float(np.sqrt(np.mean(ch.resid_px ** 2)))
+            status.append("removed")
+            masks.append(np.ones(n_all, bool))
+            outliers.append(Outlier(vid, "reprojection", f"view {vid}: {int(bad.sum())} of {n_all} corners beyond "
+                                    f"{t_corner:g} sigma even with the pose fitted to this view alone "
+                                    f"(rms {rms:.2f} px, sigma {pb.sigma_px:.3f} px)",
+                                    size={"rms_px": rms, "max_px": float(ch.resid_px.max()),
+                                          "n_flagged": int(bad.sum())}))
+            continue
+        masks.append(~bad)
+        if bad.any():
+            ids = tuple(int(c) for c in np.asarray(pb.views[i].corner_ids)[bad])
+            outliers.append(Outlier(vid, "corners", f"view {vid}: {len(ids)} corner(s) beyond {t_corner:g} sigma "
+                                    f"(max {ch.resid_px[bad].max():.2f} px, sigma {pb.sigma_px:.3f} px)",
+                                    corner_ids=ids, size={"residual_px": ch.resid_px[bad]}))
+        if test.flagged[i]:
+            rot_deg, trans_mm, dist = float(test.rot_deg[i]), float(test.trans_mm[i]), float(test.distance[i])
+            thr = float(np.sqrt(test.threshold))
+            status.append("robot_excluded")
+            outliers.append(Outlier(vid, "robot_pose", f"view {vid}: reported robot pose disagrees with the camera by "
+                                    f"{rot_deg:.3f} deg / {trans_mm:.2f} mm (Mahalanobis {dist:.1f}, "
+                                    f"threshold {thr:.1f}); its corners still serve the intrinsics",
+                                    size={"rot_deg": rot_deg, "trans_mm": trans_mm, "mahalanobis": dist,
+                                          "p_value": float(test.p_value[i]), "threshold": thr}))
+        else:
+            status.append("used")
+    return Decision(tuple(status), tuple(masks), tuple(outliers), tuple(checks), test)
+
+
+def apply_decision(pb: "Problem", dec: Decision) -> None:
+    pb.status = list(dec.status)
+    pb.mask = [m.copy() for m in dec.masks]
+    for i, ch in enumerate(dec.checks):  # start excluded / re-admitted poses from the camera's pose
+        if ch.ok and dec.status[i] != "used":
+            pb.P[i] = ch.P_cam
+
+
+class TooFewRobotPoses(Exception):
+    """Fewer than 3 views keep a robot pose that agrees with the camera."""
+
+
+def outlier_loop(pb: "Problem"):
+    """Decide, exclude, re-solve (Gaussian, with variance-component estimation) and decide again from
+    scratch against the clean solution, so that a flagged view or corner that fits it is re-admitted,
+    until the set is stable (or ``max_outlier_rounds``). Returns (Decision, Sigma_core, {view:
+    Sigma_robot}); raises TooFewRobotPoses."""
+    o = pb.o
+    seen_keys = []
+    S_pp = None
+    for rnd in range(o.max_outlier_rounds):
+        dec = decide(pb, robust_robot_sigma=rnd == 0, S_pp=S_pp)
+        if seen_keys and dec.key() == seen_keys[-1]:
+            return dec, S_cc, S_pp
+        if dec.key() in seen_keys:
+            log.warning("outlier decisions oscillate; keeping the previous set")
+            return dec, S_cc, S_pp
+        seen_keys.append(dec.key())
+        apply_decision(pb, dec)
+        n_robot = len(pb.prior_views()) + (0 if pb.robot_var else len([i for i in pb.active()
+                                                                         if pb.status[i] == "used"]))
+        if n_robot < 3:
+            raise TooFewRobotPoses(f"only {len(pb.prior_views())} views left whose robot pose agrees with the "
+                                   "camera; need 3")
+        if rnd == 0 and o.robot_noise == "estimate":
+            # VCE approaches a small robot sigma from above; a robust estimate at the floor
+            # would freeze it there before the data have spoken
+            pb.sigma_rot = max(pb.sigma_rot, np.radians(o.robot_sigma_deg))
+            pb.sigma_trans = max(pb.sigma_trans, o.robot_sigma_mm / 1000.0)
+        S_cc, S_pp = solve_with_vce(pb)
+    log.warning("outlier decisions did not settle in %d rounds", o.max_outlier_rounds)
+    return decide(pb, robust_robot_sigma=False, S_pp=S_pp), S_cc, S_pp

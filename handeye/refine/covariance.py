@@ -1,0 +1,100 @@
+"""Covariance algebra of the refinement (pure numpy): the arrow-shaped information matrix and the
+forms derived from the hand-eye covariance.
+
+The information of the refinement has an arrow structure: a dense core (``T_x``, ``T_board``, the
+free intrinsics; ``c`` unknowns) and one 6x6 block per robot-pose variable that couples only with
+the core. A Schur complement on the core inverts it exactly in O(n) instead of O(n^3).
+
+Pose covariances are in the one tangent of :mod:`handeye.frames` (rotation first, right
+perturbation): ``T_x,true = T_x · Exp(xi)``, ``xi = (omega [rad], v [m])`` along the child frame of
+``T_x`` (the camera).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from ..frames import skew
+
+N_POSES = 12  # T_x and T_board: the first 12 unknowns of the core, before the free intrinsics
+COV_PARAMETRISATION = (
+    "GTSAM Pose3 tangent, right perturbation: T_x_true = T_x · Exp(xi), xi = (omega_x, omega_y, omega_z [rad], "
+    "v_x, v_y, v_z [m]), rotation first; omega and v along the axes of the camera frame (child frame of T_x)")
+
+
+def arrow_blocks(H: np.ndarray, c: int, n: int):
+    """(Hcc (c,c), Hcp (n,c,6), Hpp (n,6,6)) of a dense information matrix in arrow order."""
+    Hcp = H[:c, c:].reshape(c, n, 6).transpose(1, 0, 2)
+    blocks = H[c:, c:].reshape(n, 6, n, 6)
+    ar = np.arange(n)
+    return H[:c, :c], Hcp, blocks[ar, :, ar, :]
+
+
+def arrow_inverse(H: np.ndarray, c: int, n: int):
+    """Diagonal blocks of inv(H) for an information matrix with a dense core of size c followed by
+    n 6x6 blocks that couple only with the core: (Sigma_core (c,c), Sigma_blocks (n,6,6))."""
+    S_cc, S_pp, _ = arrow_solve(*arrow_blocks(H, c, n))
+    return S_cc, S_pp
+
+
+def arrow_solve(Hcc: np.ndarray, Hcp: np.ndarray, Hpp: np.ndarray, rhs: Optional[np.ndarray] = None):
+    """Schur-complement inverse of the arrow-shaped information [[Hcc, Hcp^T...], [Hcp_i^T, Hpp_i]].
+
+    Returns (Sigma_core, Sigma_blocks (n,6,6), solution of H x = rhs or None). Raises LinAlgError
+    when H is not positive definite (some unknown is not constrained)."""
+    n = Hpp.shape[0]
+    if n == 0:
+        L = np.linalg.cholesky(Hcc)
+        Li = np.linalg.inv(L)
+        S_cc = Li.T @ Li
+        return S_cc, np.zeros((0, 6, 6)), None if rhs is None else S_cc @ rhs
+    np.linalg.cholesky(Hpp)  # raises LinAlgError when a robot pose is unconstrained
+    Q = np.linalg.inv(Hpp)
+    HQ = Hcp @ Q  # shape (n, c, 6)
+    S = Hcc - np.einsum("nci,ndi->cd", HQ, Hcp)
+    L = np.linalg.cholesky(0.5 * (S + S.T))
+    Li = np.linalg.inv(L)
+    S_cc = Li.T @ Li
+    S_pp = Q + np.einsum("nci,cd,ndj->nij", HQ, S_cc, HQ)
+    if rhs is None:
+        return S_cc, S_pp, None
+    c = Hcc.shape[0]
+    b_c, b_p = rhs[:c], rhs[c:].reshape(n, 6)
+    x_c = S_cc @ (b_c - np.einsum("nci,ni->c", HQ, b_p))
+    x_p = np.einsum("nij,nj->ni", Q, b_p - np.einsum("nci,c->ni", Hcp, x_c))
+    return S_cc, S_pp, np.concatenate([x_c, x_p.reshape(-1)])
+
+
+@dataclass(frozen=True)
+class HandEyeUncertainty:
+    """Forms derived from the 6x6 covariance of ``T_x`` (see :func:`hand_eye_uncertainty`)."""
+
+    cov_x_6x6: np.ndarray  # symmetrised covariance, COV_PARAMETRISATION
+    sigma_rot_deg: np.ndarray  # (3,) about the camera axes
+    sigma_trans_mm: np.ndarray  # (3,) translation vector of T_x along the parent frame's axes
+    correlation_6x6: np.ndarray
+    predicted_error_mm: float  # RMS 3-D error of a point on the optical axis at the working distance
+    predicted_error_axes_mm: np.ndarray  # (3,) per parent-frame axis
+
+
+def hand_eye_uncertainty(cov_x: Optional[np.ndarray], T_x: np.ndarray, working_distance_m: float) -> HandEyeUncertainty:
+    """Sigmas, correlations and the predicted error at the working distance from ``cov_x`` (6,6)
+    (None: all NaN).
+
+    The translation sigmas are those of ``T_x``'s translation vector in the parent frame
+    (``R · cov_v · R^T``); the predicted error is the RMS (sqrt of the covariance trace) of the
+    point ``(0, 0, working_distance_m)`` of the camera frame mapped into the parent frame by
+    ``T_x``, to first order: ``d p / d xi = R · [-[p]x, I]``."""
+    cov = np.full((6, 6), np.nan) if cov_x is None else 0.5 * (cov_x + cov_x.T)
+    sd = np.sqrt(np.diag(cov))
+    R = T_x[:3, :3]
+    p_cam = np.array([0.0, 0.0, working_distance_m])
+    J = R @ np.hstack([-skew(p_cam), np.eye(3)])  # d(point in parent frame)/d xi
+    cov_p = J @ cov @ J.T
+    return HandEyeUncertainty(
+        cov_x_6x6=cov, sigma_rot_deg=np.degrees(sd[:3]),
+        sigma_trans_mm=1000.0 * np.sqrt(np.diag(R @ cov[3:, 3:] @ R.T)),
+        correlation_6x6=cov / np.outer(sd, sd), predicted_error_mm=float(1000.0 * np.sqrt(np.trace(cov_p))),
+        predicted_error_axes_mm=1000.0 * np.sqrt(np.diag(cov_p)))

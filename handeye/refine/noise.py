@@ -1,0 +1,150 @@
+"""Noise levels of the refinement: the pixel sigma and the robot's rotation and translation sigmas.
+
+They are three variance components. On the cleaned data they are estimated by iterated
+variance-component estimation (Helmert / Förstner): for each group ``g``,
+``sigma_g^2 = e_g^T e_g / r_g`` with ``e_g`` the group's residuals and
+``r_g = n_g - tr(W_g J_g Sigma J_g^T)`` its redundancy, taken from the marginal covariances of the
+robot-pose variables (the arrow-shaped information is inverted exactly by a Schur complement, see
+:mod:`.covariance`); the pixel group gets the remaining redundancy. This is the REML fixed point:
+for Gaussian data it converges to unbiased sigmas. The fixed-point iteration runs in numpy on one
+linearisation (unit-sigma pixel information from the problem plus the priors), then the problem is
+re-solved with the new sigmas and the iteration repeats on the new linearisation until the sigmas
+change by less than ``noise.outer_tol``. The robot sigmas start from the larger of the robust
+estimate and the configured value, so that a robot noise the camera cannot see is approached from
+above. When a robot group's redundancy falls below ``noise.unresolved_redundancy_share`` of its
+count, the camera can no longer resolve that robot noise: its sigma stays where it is (the robot is
+effectively exact at that level) and is reported with ``robot_sigma_resolved = False``.
+
+Before the data are clean, the sigmas come from robust statistics instead: ``sigma_px`` from the
+median corner residual, and each robot sigma from the value that makes the median per-view
+Mahalanobis distance between the reported robot pose and the pose the camera alone implies equal to
+the chi-square median (:func:`handeye.stats.robust_noise_sigma`).
+
+Pure numpy: the problem (:class:`.problem.Problem`) is passed in.
+"""
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING, Sequence
+
+import numpy as np
+
+from ..stats import RAYLEIGH_MEDIAN, robust_noise_sigma
+from .covariance import N_POSES, arrow_solve
+from .options import refine_preset
+
+if TYPE_CHECKING:
+    from .outliers import ViewCheck
+    from .problem import PixelLinearisation, Problem
+
+log = logging.getLogger(__name__)
+
+
+def _cfg() -> dict:
+    return refine_preset()["noise"]
+
+
+def robust_sigma_px(pb: "Problem") -> float:
+    """Pixel sigma from the median corner residual of the used corners (Rayleigh median)."""
+    return sigma_px_from_residuals(np.linalg.norm(pb.used_corner_residuals(), axis=1))
+
+
+def sigma_px_from_residuals(e: np.ndarray) -> float:
+    """Pixel sigma from corner residual norms ``e`` (N,) by their median (Rayleigh median)."""
+    return max(float(np.median(e)) / RAYLEIGH_MEDIAN, float(_cfg()["sigma_px_floor"]))
+
+
+def robust_robot_sigmas(pb: "Problem", checks: Sequence["ViewCheck"]) -> None:
+    """Robot sigmas from camera-only poses by the robust median estimator (robot_noise="estimate")."""
+    checks = [c for c in checks if c.ok]
+    if pb.o.robot_noise != "estimate" or len(checks) < 3:
+        return
+    d = np.stack([c.delta for c in checks])
+    C = np.stack([c.cov_cam for c in checks])
+    cfg = _cfg()
+    pb.sigma_rot = robust_noise_sigma(d[:, :3], C[:, :3, :3], floor=float(cfg["robot_sigma_rot_floor_rad"]))
+    pb.sigma_trans = robust_noise_sigma(d[:, 3:], C[:, 3:, 3:], floor=float(cfg["robot_sigma_trans_floor_m"]))
+
+
+def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> float:
+    """Iterate variance-component estimation on one fixed linearisation (pure numpy, cheap).
+
+    For sigmas s the linear least-squares step dx, the group residual sums e_g^T e_g and the
+    redundancies r_g = n_g - tr(W_g J_g Sigma J_g^T) follow from the unit-sigma pixel information,
+    the robot priors (Jacobian I on their pose block) and the intrinsics prior; then
+    s_g^2 = e_g^T e_g / r_g. Updates pb's sigmas in place; returns the relative change."""
+    cfg = _cfg()
+    floors = (float(cfg["sigma_px_floor"]), float(cfg["robot_sigma_rot_floor_rad"]),
+              float(cfg["robot_sigma_trans_floor_m"]))
+    share, tol = float(cfg["unresolved_redundancy_share"]), float(cfg["inner_tol"])
+    c, n = lin.c, lin.Hpp.shape[0]
+    D = c + 6 * n
+    estimate_robot = pb.o.robot_noise == "estimate"
+    pri = lin.prior
+    n_pri = int(pri.sum())
+    HK = np.zeros(c)
+    gK = np.zeros(c)
+    if pb.prior_sig is not None:
+        nk = pb.free.size
+        HK[N_POSES:N_POSES + nk] = 1.0 / pb.prior_sig ** 2
+        gK[N_POSES:N_POSES + nk] = (pb.k[pb.free] - pb.k_given[pb.free]) / pb.prior_sig ** 2
+    s = np.array([pb.sigma_px, pb.sigma_rot, pb.sigma_trans])
+    start = s.copy()
+    eye6 = np.eye(6)
+    for _ in range(int(cfg["max_inner"])):
+        s_px, s_rot, s_trans = s
+        w_px = 1.0 / s_px ** 2
+        w_rob = np.array([1.0 / s_rot ** 2] * 3 + [1.0 / s_trans ** 2] * 3)
+        Wp = pri[:, None] * w_rob[None, :]  # shape (n, 6): prior weights per robot block
+        Hpp = lin.Hpp * w_px + Wp[:, :, None] * eye6
+        grad = lin.g * w_px
+        grad[:c] += gK
+        grad[c:] += (Wp * lin.xi).reshape(-1)
+        S_cc, S_pp, dx = arrow_solve(lin.Hcc * w_px + np.diag(HK), lin.Hcp * w_px, Hpp, -grad)
+        dc, dp = dx[:c], dx[c:].reshape(n, 6)
+        Hdx_c = lin.Hcc @ dc + np.einsum("nci,ni->c", lin.Hcp, dp)
+        Hdx_p = np.einsum("nci,c->ni", lin.Hcp, dc) + np.einsum("nij,nj->ni", lin.Hpp, dp)
+        e_px2 = lin.rr + 2.0 * dx @ lin.g + dc @ Hdx_c + np.sum(dp * Hdx_p)
+        absorbed = float(np.sum(HK * np.diag(S_cc)))
+        new = s.copy()
+        if n_pri:
+            e_rob = (lin.xi + dp)[pri]
+            d_pp = np.diagonal(S_pp[pri], axis1=1, axis2=2)  # shape (n_pri, 6)
+            tr_rot = float(np.sum(d_pp[:, :3])) / s_rot ** 2
+            tr_trans = float(np.sum(d_pp[:, 3:])) / s_trans ** 2
+            absorbed += tr_rot + tr_trans
+            if estimate_robot:
+                for g, (part, tr) in enumerate(((slice(0, 3), tr_rot), (slice(3, 6), tr_trans))):
+                    name = ("rot", "trans")[g]
+                    r_g = 3 * n_pri - tr
+                    if not pb.resolved[name]:
+                        continue
+                    if r_g < share * 3 * n_pri:
+                        pb.resolved[name] = False  # the camera cannot resolve this robot noise: freeze
+                        continue
+                    new[1 + g] = max(float(np.sqrt(np.sum(e_rob[:, part] ** 2) / r_g)), floors[1 + g])
+        r_px = lin.n_obs - D + absorbed
+        if r_px > 0.5:
+            new[0] = max(float(np.sqrt(max(e_px2, 0.0) / r_px)), floors[0])
+        change = float(np.max(np.abs(new / s - 1.0)))
+        s = new
+        if change < tol:
+            break
+    pb.sigma_px, pb.sigma_rot, pb.sigma_trans = (float(x) for x in s)
+    return float(np.max(np.abs(s / start - 1.0)))
+
+
+def solve_with_vce(pb: "Problem"):
+    """Gaussian solves alternating with variance-component estimation on each linearisation until
+    the sigmas settle. Returns (Sigma_core, {view index: Sigma_robot}) at the final sigmas."""
+    cfg = _cfg()
+    pb.resolved = {"rot": True, "trans": True}  # a new set of views may resolve what the last did not
+    for _ in range(int(cfg["max_outer"])):
+        pb.solve(robust=False)
+        change = vce_on_linearisation(pb, pb.pixel_linearisation())
+        log.debug("VCE: sigma_px %.4f, robot %.5f deg %.5f mm (change %.3g)", pb.sigma_px,
+                  np.degrees(pb.sigma_rot), 1000 * pb.sigma_trans, change)
+        if change < float(cfg["outer_tol"]):
+            break
+    g, values, rk = pb.solve(robust=False)
+    return pb.covariances(g, values, rk)

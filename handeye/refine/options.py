@@ -1,0 +1,137 @@
+"""Inputs of the refinement: its options (defaults from configs/refine.yaml), one view, and their
+validation (done once, at the boundary, with messages that name the field)."""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from handeye.factors.reprojection import LOSSES
+
+from ..camera import INTRINSIC_NAMES
+from ..config import load_preset
+from ..errors import ConfigError, InputError
+from ..frames import is_rotation, make_T, project_to_rotation
+
+INTRINSICS_MODES = ("estimate", "fixed", "prior")
+ROBOT_NOISE_MODES = ("estimate", "fixed", "none")
+
+
+@functools.lru_cache(maxsize=None)
+def refine_preset() -> dict:
+    """configs/refine.yaml, parsed once (callers must not change it)."""
+    return load_preset("refine")
+
+
+def _from_preset(*path: str):
+    def get():
+        v = refine_preset()
+        for k in path:
+            v = v[k]
+        return v
+    return field(default_factory=get)
+
+
+@dataclass(frozen=True)
+class RefineView:
+    """One view for the refinement: detected corners and the reported robot pose."""
+
+    view_id: str
+    corner_ids: np.ndarray  # (N,) int, index object_points
+    image_points: np.ndarray  # (N, 2) pixels
+    T_base_end: np.ndarray  # (4, 4) reported robot pose, metres
+
+
+@dataclass(frozen=True)
+class RefineOptions:
+    """What to estimate and how to decide outliers; thresholds default to configs/refine.yaml."""
+
+    intrinsics: str = "estimate"  # estimate | fixed | prior
+    intrinsics_prior_sigma: Optional[tuple] = None  # 9 sigmas (fx, fy, cx, cy [px], k1, k2, p1, p2, k3)
+    fix: tuple = ()  # names of intrinsics held at their given values, e.g. ("k3", "p1", "p2")
+    robot_noise: str = "estimate"  # estimate | fixed | none
+    robot_sigma_mm: float = _from_preset("robot_prior", "sigma_mm")  # start value (estimate) or the value (fixed)
+    robot_sigma_deg: float = _from_preset("robot_prior", "sigma_deg")
+    loss: str = _from_preset("robust", "loss")  # robust loss of the guard solves: huber | cauchy | none
+    outlier_loop: bool = True
+    working_distance_m: Optional[float] = None  # default: median board distance
+    max_iterations: int = _from_preset("solver", "max_iterations")  # per Levenberg-Marquardt solve
+    loss_k: float = _from_preset("robust", "loss_k")  # robust threshold, in sigmas
+    corner_outlier_sigmas: float = _from_preset("outliers", "corner", "sigmas")  # |e| / sigma_px flagged beyond
+    view_outlier_p: float = _from_preset("outliers", "robot_pose", "alpha")  # false alarms per view, robot-pose test
+    min_corner_outlier_px: float = _from_preset("outliers", "corner", "min_px")
+    min_robot_disagreement_mm: float = _from_preset("outliers", "robot_pose", "min_trans_mm")
+    min_robot_disagreement_deg: float = _from_preset("outliers", "robot_pose", "min_rot_deg")
+    min_corners: int = _from_preset("outliers", "min_corners")
+    max_outlier_rounds: int = _from_preset("outliers", "max_rounds")
+
+
+def check_options(o: RefineOptions) -> None:
+    def bad(field_name, expected, got):
+        raise ConfigError(f"refine option {field_name} is invalid", expected=expected, received=repr(got),
+                          hint=f"fix refine.{field_name} in the config or the command line")
+
+    if o.intrinsics not in INTRINSICS_MODES:
+        bad("intrinsics", " | ".join(INTRINSICS_MODES), o.intrinsics)
+    if o.robot_noise not in ROBOT_NOISE_MODES:
+        bad("robot_noise", " | ".join(ROBOT_NOISE_MODES), o.robot_noise)
+    if o.loss not in LOSSES:
+        bad("loss", " | ".join(LOSSES), o.loss)
+    unknown = [n for n in o.fix if n not in INTRINSIC_NAMES]
+    if unknown:
+        bad("fix", "names among " + ", ".join(INTRINSIC_NAMES), tuple(o.fix))
+    if o.intrinsics_prior_sigma is not None:
+        s = np.asarray(o.intrinsics_prior_sigma, float).reshape(-1)
+        if s.size != 9 or not np.all(s > 0):
+            bad("intrinsics_prior_sigma", "9 positive sigmas (fx, fy, cx, cy, k1, k2, p1, p2, k3)",
+                o.intrinsics_prior_sigma)
+    for name in ("robot_sigma_mm", "robot_sigma_deg", "loss_k", "corner_outlier_sigmas"):
+        v = getattr(o, name)
+        if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+            bad(name, "a positive number", v)
+    if not (0.0 < o.view_outlier_p < 0.5):
+        bad("view_outlier_p", "a probability in (0, 0.5)", o.view_outlier_p)
+    for name in ("min_corner_outlier_px", "min_robot_disagreement_mm", "min_robot_disagreement_deg"):
+        if not getattr(o, name) >= 0:
+            bad(name, "a number >= 0", getattr(o, name))
+    if o.working_distance_m is not None and not (o.working_distance_m > 0):
+        bad("working_distance_m", "a positive distance in metres or null", o.working_distance_m)
+    for name in ("max_iterations", "min_corners", "max_outlier_rounds"):
+        v = getattr(o, name)
+        if not (isinstance(v, (int, np.integer)) and v >= 1):
+            bad(name, "a positive integer", v)
+
+
+def check_T(T, what: str) -> np.ndarray:
+    """A rigid 4x4 transform, its rotation re-orthonormalised (inputs rounded to a few decimals)."""
+    T = np.asarray(T, dtype=float)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not is_rotation(T[:3, :3], tol=1e-3) \
+            or not np.allclose(T[3], [0, 0, 0, 1]):
+        raise InputError(f"{what} is not a rigid 4x4 transform", expected="(4,4) with a rotation block and "
+                         "last row 0 0 0 1", received=f"shape {T.shape}", hint="check the seed / pose conversion")
+    return make_T(project_to_rotation(T[:3, :3]), T[:3, 3])
+
+
+def check_inputs(object_points, views) -> np.ndarray:
+    """Validate the board points (N,3) and the views (unique ids, matching lengths, rigid poses);
+    returns the board points as float."""
+    object_points = np.asarray(object_points, float)
+    if object_points.ndim != 2 or object_points.shape[1] != 3:
+        raise InputError("object_points must be (N, 3)", received=f"shape {object_points.shape}")
+    seen = set()
+    for v in views:
+        if v.view_id in seen:
+            raise InputError("duplicate view id in the refinement", received=repr(v.view_id),
+                             hint="views are linked by id; give each view a unique id")
+        seen.add(v.view_id)
+        n = len(np.asarray(v.corner_ids))
+        if np.asarray(v.image_points).reshape(-1, 2).shape[0] != n:
+            raise InputError(f"view {v.view_id}: corner_ids and image_points differ in length",
+                             expected=f"{n} image points", received=str(np.asarray(v.image_points).shape))
+        check_T(v.T_base_end, f"view {v.view_id} T_base_end")
+    if len(views) < 3:
+        raise InputError("the refinement needs at least 3 views", received=f"{len(views)} views",
+                         hint="capture more views with the board visible")
+    return object_points

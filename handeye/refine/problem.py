@@ -1,0 +1,230 @@
+"""The refinement problem in GTSAM: the ONLY module of handeye that builds factor graphs and
+``gtsam.Values``.
+
+Variables (keys below): ``T_x`` (Pose3), ``T_board`` (Pose3), the free intrinsics (one Vector) and,
+per view with a robot-pose variable, the true robot pose ``T_base_end_i`` (Pose3). Factors: one
+reprojection ``CustomFactor`` per view (:mod:`handeye.factors.gtsam_factors`), a prior per robot pose
+tying it to the reported one, and optionally a prior on the intrinsics.
+
+Solver: Levenberg-Marquardt with diagonal (Marquardt) damping, ``lambda · diag(H)``. GTSAM's
+default damping ``lambda · I`` is not scale-free: on rendered images ``sigma_px`` is ~0.03 px, so
+the information of the poses is ~1e10 and the largest default lambda (1e5) cannot shorten a
+Gauss-Newton step that overshoots; LM then stops at once, far from the optimum (seen on a 12-view
+session with two wrong robot poses). Damping proportional to the diagonal shrinks the step whatever
+the units and noise levels.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import gtsam
+import numpy as np
+
+from handeye.factors.gtsam_factors import intrinsics_prior, robot_pose_prior, view_reprojection_factor
+from handeye.factors.reprojection import INTRINSIC_NAMES, chain_residual
+
+from ..camera import Intrinsics
+from ..frames import tangent_difference
+from ..mounting import mounting
+from .covariance import N_POSES, arrow_blocks, arrow_inverse
+from .options import RefineOptions, RefineView, check_T, refine_preset
+
+KEY_X = gtsam.symbol("x", 0)
+KEY_BOARD = gtsam.symbol("b", 0)
+KEY_INTRINSICS = gtsam.symbol("k", 0)
+
+
+def key_robot(i: int) -> int:
+    return gtsam.symbol("p", i)
+
+
+@dataclass(frozen=True)
+class PixelLinearisation:
+    """Reprojection part of a linearisation with unit pixel sigma: information blocks (core c, then n
+    robot blocks), gradient g = J^T r, r^T r and the count of observations; plus the robot prior
+    residuals xi (n,6) (rows without a prior flagged False in ``prior``)."""
+
+    Hcc: np.ndarray
+    Hcp: np.ndarray  # shape (n, c, 6)
+    Hpp: np.ndarray  # shape (n, 6, 6)
+    g: np.ndarray  # shape (c + 6n,)
+    rr: float
+    n_obs: int
+    prior: np.ndarray
+    xi: np.ndarray
+    c: int
+
+
+class Problem:
+    """Mutable solver state for one refine() call (results are copied out of it).
+
+    Per view: ``status`` (used | robot_excluded | removed), a corner ``mask``, the reported robot
+    pose and the current estimate ``P`` of the true one. The noise levels (``sigma_px``,
+    ``sigma_rot`` [rad], ``sigma_trans`` [m]) are the noise models of the next solve."""
+
+    def __init__(self, *, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
+                 intrinsics: Intrinsics, T_x0: np.ndarray, T_board0: np.ndarray, options: RefineOptions):
+        self.mode = mode
+        self.mounting = mounting(mode)
+        self.invert = self.mounting.inverts_robot
+        self.o = options
+        self.views = list(views)
+        self.n = len(self.views)
+        self.ids = [v.view_id for v in self.views]
+        self.obj = [np.asarray(object_points, float)[np.asarray(v.corner_ids, int)] for v in self.views]
+        self.img = [np.asarray(v.image_points, float).reshape(-1, 2) for v in self.views]
+        self.reported = np.stack([check_T(v.T_base_end, f"view {v.view_id} T_base_end") for v in self.views])
+        self.board_centre = np.asarray(object_points, float).mean(axis=0)
+        self.width, self.height = intrinsics.width, intrinsics.height
+        self.k = intrinsics.as_vector().astype(float)
+        self.k_given = self.k.copy()
+        if options.intrinsics == "fixed":
+            self.free = np.zeros(0, int)
+        else:
+            self.free = np.array([i for i, n in enumerate(INTRINSIC_NAMES) if n not in options.fix], int)
+        self.prior_sig = None
+        if options.intrinsics == "prior" and self.free.size:
+            if options.intrinsics_prior_sigma is not None:
+                sig = np.asarray(options.intrinsics_prior_sigma, float)
+            else:
+                p = refine_preset()["intrinsics_prior"]
+                w = self.width if self.width > 0 else 2.0 * self.k[2]
+                h = self.height if self.height > 0 else 2.0 * self.k[3]
+                sig = np.r_[p["focal_share"] * self.k[0], p["focal_share"] * self.k[1], p["centre_share"] * w,
+                            p["centre_share"] * h, np.asarray(p["distortion"], float)]
+            self.prior_sig = sig[self.free]
+        self.robot_var = options.robot_noise != "none"
+        self.robot_prior_k = float(refine_preset()["robust"]["robot_prior_k"])
+        self.T_x = T_x0.copy()
+        self.T_board = T_board0.copy()
+        self.P = self.reported.copy()  # current estimate of the true robot poses
+        self.sigma_px = 1.0
+        self.sigma_rot = np.radians(options.robot_sigma_deg)
+        self.sigma_trans = options.robot_sigma_mm / 1000.0
+        self.resolved = {"rot": True, "trans": True}
+        self.status = ["used"] * self.n
+        self.mask = [np.ones(len(o), bool) for o in self.obj]
+        self.iterations = 0
+
+    # -- views
+    def active(self) -> list[int]:
+        return [i for i in range(self.n) if self.status[i] != "removed"]
+
+    def has_robot_var(self, i: int) -> bool:
+        return self.robot_var or self.status[i] == "robot_excluded"
+
+    def prior_views(self) -> list[int]:
+        return [i for i in self.active() if self.robot_var and self.status[i] == "used"]
+
+    def robot_pose(self, i: int) -> np.ndarray:
+        return self.P[i] if self.has_robot_var(i) else self.reported[i]
+
+    @property
+    def n_core(self) -> int:
+        return N_POSES + self.free.size
+
+    # -- residuals (numpy)
+    def view_residual(self, i: int, T_robot: Optional[np.ndarray] = None, T_x: Optional[np.ndarray] = None,
+                      T_board: Optional[np.ndarray] = None) -> np.ndarray:
+        """Residuals (N,2) of all corners of view i at the current solution (or the given poses)."""
+        r = chain_residual(T_x=self.T_x if T_x is None else T_x,
+                           T_base_end=self.robot_pose(i) if T_robot is None else T_robot,
+                           T_board=self.T_board if T_board is None else T_board, invert_robot=self.invert,
+                           intrinsics_vec=self.k, object_points=self.obj[i], image_points=self.img[i],
+                           jacobians=False)[0]
+        return r.reshape(-1, 2)
+
+    def used_corner_residuals(self) -> np.ndarray:
+        return np.concatenate([self.view_residual(i)[self.mask[i]] for i in self.active()])
+
+    def robot_residuals(self, idx: Sequence[int]) -> np.ndarray:
+        """Log(inv(reported) · P) for views idx: (len, 6), rotation first."""
+        if not len(idx):
+            return np.zeros((0, 6))
+        idx = list(idx)
+        return tangent_difference(self.reported[idx], self.P[idx])
+
+    # -- graph
+    def build(self, *, robust: bool, pixel_only: bool = False):
+        """Graph and Values of the current problem; ``pixel_only`` keeps only the reprojection factors,
+        with unit pixel sigma (for the variance-component estimation)."""
+        g = gtsam.NonlinearFactorGraph()
+        v = gtsam.Values()
+        v.insert(KEY_X, gtsam.Pose3(self.T_x))
+        v.insert(KEY_BOARD, gtsam.Pose3(self.T_board))
+        key_k = KEY_INTRINSICS if self.free.size else None
+        if key_k is not None:
+            v.insert(key_k, self.k[self.free].copy())
+        robot_keys = {}
+        for i in self.active():
+            key_r = None
+            if self.has_robot_var(i):
+                key_r = key_robot(i)
+                v.insert(key_r, gtsam.Pose3(self.P[i]))
+                robot_keys[i] = key_r
+            m = self.mask[i]
+            g.add(view_reprojection_factor(
+                mode=self.mode, key_x=KEY_X, key_board=KEY_BOARD, key_robot=key_r, key_intrinsics=key_k,
+                object_points=self.obj[i][m], image_points=self.img[i][m],
+                sigma_px=1.0 if pixel_only else self.sigma_px,
+                intrinsics_vec=self.k, free_intrinsics=self.free, T_base_end=self.reported[i],
+                loss=self.o.loss if robust else "none", loss_k=self.o.loss_k))
+            if key_r is not None and self.status[i] == "used" and not pixel_only:
+                g.add(robot_pose_prior(key_robot=key_r, T_base_end_reported=self.reported[i],
+                                       sigma_rot_rad=self.sigma_rot, sigma_trans_m=self.sigma_trans,
+                                       robust_k=self.robot_prior_k if robust and self.o.loss != "none" else None))
+        if self.prior_sig is not None and not pixel_only:
+            g.add(intrinsics_prior(key_intrinsics=KEY_INTRINSICS, prior_values=self.k_given[self.free],
+                                   sigmas=self.prior_sig))
+        return g, v, robot_keys
+
+    def solve(self, *, robust: bool):
+        """One Levenberg-Marquardt solve of the current problem; updates the estimates in place."""
+        g, v, robot_keys = self.build(robust=robust)
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(self.o.max_iterations)
+        params.setRelativeErrorTol(float(refine_preset()["solver"]["relative_error_tol"]))
+        params.setAbsoluteErrorTol(0.0)
+        params.setErrorTol(0.0)
+        params.setDiagonalDamping(True)  # scale-free damping (see the module docstring)
+        opt = gtsam.LevenbergMarquardtOptimizer(g, v, params)
+        res = opt.optimize()
+        self.iterations += opt.iterations()
+        self.T_x = res.atPose3(KEY_X).matrix()
+        self.T_board = res.atPose3(KEY_BOARD).matrix()
+        if self.free.size:
+            self.k = self.k.copy()
+            self.k[self.free] = res.atVector(KEY_INTRINSICS)
+        for i, key in robot_keys.items():
+            self.P[i] = res.atPose3(key).matrix()
+        return g, res, robot_keys
+
+    # -- information
+    def _ordering(self, robot_keys):
+        ordering = gtsam.Ordering()
+        keys = [KEY_X, KEY_BOARD] + ([KEY_INTRINSICS] if self.free.size else [])
+        for k in keys + [robot_keys[i] for i in sorted(robot_keys)]:
+            ordering.push_back(k)
+        return ordering
+
+    def covariances(self, g, values, robot_keys):
+        """Marginal covariances (core block, {view index: 6x6 robot block}) from the information matrix
+        of graph ``g`` at ``values`` (arrow order: T_x, T_board, intrinsics, robot poses)."""
+        H, _ = g.linearize(values).hessian(self._ordering(robot_keys))
+        idx_p = sorted(robot_keys)
+        S_cc, S_pp = arrow_inverse(H, self.n_core, len(idx_p))
+        return S_cc, dict(zip(idx_p, S_pp))
+
+    def pixel_linearisation(self) -> PixelLinearisation:
+        """Unit-sigma information of the reprojection factors alone at the current estimate."""
+        g, v, robot_keys = self.build(robust=False, pixel_only=True)
+        H, eta = g.linearize(v).hessian(self._ordering(robot_keys))
+        idx_p = sorted(robot_keys)
+        c = self.n_core
+        e = self.used_corner_residuals()
+        prior = np.array([self.robot_var and self.status[i] == "used" for i in idx_p], bool)
+        Hcc, Hcp, Hpp = arrow_blocks(H, c, len(idx_p))
+        return PixelLinearisation(Hcc=Hcc, Hcp=Hcp, Hpp=Hpp, g=-np.asarray(eta).reshape(-1),
+                                  rr=float(np.sum(e * e)), n_obs=int(e.size), prior=prior,
+                                  xi=self.robot_residuals(idx_p), c=c)

@@ -1,0 +1,149 @@
+"""refine(): joint maximum-likelihood refinement of the hand-eye transform, the board, the intrinsics
+and the true robot poses, with noise estimation, outlier decisions and the covariance.
+
+Model
+-----
+Both mounting modes are ``T_cam_board_i = inv(T_x) · M_i · T_board`` (see :mod:`handeye.mounting`).
+Unknowns: ``T_x`` (``T_end_cam`` eye-in-hand, ``T_base_cam`` eye-to-hand); ``T_board``
+(``T_base_board`` / ``T_end_board``); the free subset of the intrinsics
+``(fx, fy, cx, cy, k1, k2, p1, p2, k3)`` (``options.fix`` names the fixed ones;
+``intrinsics="fixed"`` fixes all; ``"prior"`` adds a Gaussian prior around the given ones); per
+view, the true robot pose ``T_base_end_i``, tied to the reported pose by a prior
+``Log(inv(T_reported) · T_base_end_i) ~ N(0, diag(s_rot^2 I3, s_trans^2 I3))`` (end frame, rotation
+first); ``robot_noise="none"`` holds the reported poses exact instead. Every corner gives
+``project(K, T_cam_board_i · p) - uv ~ N(0, sigma_px^2 I2)``.
+
+Stages
+------
+1. Start: the given ``T_x0`` / ``T_board0``, or, among ``starts`` (the pipeline's closed-form
+   solutions), the one with the lowest median over the views of the view's median corner residual
+   through its reported robot pose: one closed-form method can be tens of degrees off when a robot
+   pose is wrong (Tsai 120 deg off with one wrong pose in 12 views, where Park was within 1 deg) and
+   the local solves below cannot recover from such a start.
+2. Guard: noise levels from each view's own fit, then two solves with robust losses (per corner,
+   and Huber on each robot prior), the pixel sigma from the median residual in between.
+3. Outlier loop (:mod:`.outliers`): decisions against the current solution, Gaussian re-solves
+   with variance-component estimation (:mod:`.noise`), until the decisions are stable.
+4. Covariance (:mod:`.covariance`) from the information of the final Gaussian linearisation, in
+   which the estimated sigmas are the noise models.
+
+The graph itself is built and solved in :mod:`.problem` (the only GTSAM user).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import replace
+from typing import Mapping, Optional, Sequence
+
+import numpy as np
+
+from ..camera import Intrinsics
+from ..mounting import mounting
+from ..records import HandEyeEstimate
+from .noise import robust_robot_sigmas, robust_sigma_px, sigma_px_from_residuals
+from .options import RefineOptions, RefineView, check_inputs, check_options, check_T
+from .outliers import Outlier, TooFewRobotPoses, camera_only_pose, outlier_loop
+from .problem import Problem
+from .result import RefineResult, build_result
+
+log = logging.getLogger(__name__)
+
+
+def seed_score(pb: Problem, T_x: np.ndarray, T_board: np.ndarray) -> float:
+    """Median over the views of each view's median corner residual (px) through the reported robot
+    pose: a start that half the views agree with scores low, whatever the other views do."""
+    per_view = []
+    for i in range(pb.n):
+        if len(pb.obj[i]) < pb.o.min_corners:
+            continue
+        e = np.linalg.norm(pb.view_residual(i, pb.reported[i], T_x, T_board), axis=1)
+        per_view.append(float(np.median(e)) if np.all(np.isfinite(e)) else np.inf)
+    return float(np.median(per_view)) if per_view else np.inf
+
+
+def best_start(pb: Problem, starts: Mapping[str, HandEyeEstimate]) -> tuple[np.ndarray, np.ndarray, str]:
+    """The given start, or the candidate among ``starts`` with the lowest :func:`seed_score` when
+    that is lower. Candidates that failed or are not finite are skipped."""
+    best, best_score, best_name = (pb.T_x, pb.T_board), seed_score(pb, pb.T_x, pb.T_board), "given"
+    given_score = best_score
+    for name, est in starts.items():
+        if est.status != "ok" or not (np.all(np.isfinite(est.T_x)) and np.all(np.isfinite(est.T_board))):
+            continue
+        score = seed_score(pb, est.T_x, est.T_board)
+        if score < best_score:
+            best = (check_T(est.T_x, f"{name} {pb.mounting.x_name}"), check_T(est.T_board, name))
+            best_score, best_name = score, name
+    if best_name != "given":
+        log.info("starting the refinement from the %s closed form (median view residual %.3g px; given start "
+                 "%.3g px)", best_name, best_score, given_score)
+    return best[0], best[1], best_name
+
+
+def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView], intrinsics: Intrinsics,
+           T_x0: np.ndarray, T_board0: np.ndarray, options: RefineOptions = RefineOptions(),
+           starts: Optional[Mapping[str, HandEyeEstimate]] = None) -> RefineResult:
+    """Refine hand-eye, board, intrinsics and robot poses jointly; see the module docstring.
+
+    ``starts``: other candidate starts (method name -> closed-form estimate, e.g. the pipeline's
+    ``run.seeds``); the refinement starts from the one its views agree with best. None: start from
+    ``T_x0`` / ``T_board0``.
+
+    Raises ConfigError / InputError for invalid options or inputs; a solve that fails returns a
+    result with ``status="failed"`` and a ``failure_reason``.
+    """
+    t0 = time.perf_counter()
+    mm = mounting(mode)
+    check_options(options)
+    T_x0 = check_T(T_x0, f"seed {mm.x_name}")
+    T_board0 = check_T(T_board0, f"seed {mm.board_name}")
+    pb = Problem(mode=mode, object_points=check_inputs(object_points, views), views=views, intrinsics=intrinsics,
+                 T_x0=T_x0, T_board0=T_board0, options=options)
+    start_method = "given"
+    if starts:
+        pb.T_x, pb.T_board, start_method = best_start(pb, starts)
+    e_before = np.concatenate([pb.view_residual(i, pb.reported[i]) for i in range(pb.n)])
+    rms_before = float(np.sqrt(np.mean(np.sum(e_before ** 2, axis=1))))
+    sparse = []  # views that cannot even start (the outlier loop re-examines them with reasons)
+    for i, vid in enumerate(pb.ids):
+        if len(pb.obj[i]) < options.min_corners:
+            pb.status[i] = "removed"
+            sparse.append(Outlier(vid, "too_few_corners", f"view {vid}: {len(pb.obj[i])} corners, need "
+                                  f"{options.min_corners}", size={"n_usable": len(pb.obj[i]),
+                                                                  "n_corners": len(pb.obj[i])}))
+
+    def result(status, reason, S_cc=None, dec=None) -> RefineResult:
+        return build_result(pb, status=status, reason=reason, S_cc=S_cc, dec=dec, rms_before=rms_before,
+                            T_x0=T_x0, T_board0=T_board0, intrinsics0=intrinsics, t0=t0,
+                            outliers=dec.outliers if dec is not None else tuple(sparse), start_method=start_method)
+
+    def failed(reason: str) -> RefineResult:
+        log.warning("refinement failed: %s", reason)
+        return result("failed", reason)
+
+    try:
+        # start: sigmas from each view's own fit at the start
+        pb.sigma_px = 1.0
+        checks0 = [camera_only_pose(pb, i, pb.P[i]) for i in pb.active()]
+        e0 = np.concatenate([c.resid_px for c in checks0 if c.ok]) if checks0 else np.zeros(0)
+        if e0.size:
+            pb.sigma_px = sigma_px_from_residuals(e0)
+            checks0 = [replace(c, cov_cam=c.cov_cam * pb.sigma_px ** 2) for c in checks0]  # were for sigma 1 px
+        robust_robot_sigmas(pb, checks0)
+        # guard: robust solves, pixel sigma from the median residual in between
+        for _ in range(2):
+            pb.solve(robust=options.loss != "none")
+            pb.sigma_px = robust_sigma_px(pb)
+        if options.outlier_loop:
+            dec, S_cc, _ = outlier_loop(pb)
+            return result("ok", "", S_cc, dec)
+        robust_robot_sigmas(pb, [camera_only_pose(pb, i, pb.P[i]) for i in pb.prior_views()])
+        g, values, rk = pb.solve(robust=options.loss != "none")
+        S_cc, _ = pb.covariances(g, values, rk)
+        return result("ok", "", S_cc)
+    except TooFewRobotPoses as err:
+        return failed(str(err))
+    except np.linalg.LinAlgError as err:
+        return failed(f"the information matrix is singular ({err}); the views do not constrain all unknowns")
+    except RuntimeError as err:  # GTSAM raises RuntimeError (e.g. indeterminant linear system)
+        return failed(f"GTSAM: {err}")

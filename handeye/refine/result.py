@@ -1,0 +1,163 @@
+"""The refinement's result: what it found, how sure it is, and every outlier decision with its reason."""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING, Optional
+
+import numpy as np
+
+from ..camera import INTRINSIC_NAMES, Intrinsics
+from ..mounting import mounting
+from ..output import plain
+from .covariance import COV_PARAMETRISATION, N_POSES, hand_eye_uncertainty
+from .options import RefineOptions
+
+if TYPE_CHECKING:
+    from .outliers import Decision
+    from .problem import Problem
+
+
+@dataclass(frozen=True)
+class RefineResult:
+    status: str  # "ok" | "failed"
+    failure_reason: str
+    mode: str
+    x_name: str
+    board_name: str
+    T_x: np.ndarray
+    T_board: np.ndarray
+    intrinsics: Intrinsics
+    T_x_seed: np.ndarray
+    T_board_seed: np.ndarray
+    intrinsics_seed: Intrinsics
+    robot_poses: dict  # view_id -> refined T_base_end (4,4)
+    cov_x_6x6: np.ndarray
+    cov_parametrisation: str
+    sigma_rot_deg: np.ndarray  # (3,) about the camera axes
+    sigma_trans_mm: np.ndarray  # (3,) translation of T_x along the parent frame's axes
+    correlation_6x6: np.ndarray
+    intrinsics_sigma: dict  # name -> sigma of the free intrinsics
+    working_distance_m: float
+    predicted_error_mm: float  # RMS 3-D error of a point on the optical axis at the working distance
+    predicted_error_axes_mm: np.ndarray  # (3,) per parent-frame axis
+    sigma_px: float
+    robot_sigma_mm: float
+    robot_sigma_deg: float
+    robot_sigma_resolved: dict  # {"rot": bool, "trans": bool}; False: below what the camera resolves (an upper value)
+    rms_px_before: float
+    rms_px_after: float
+    per_view: dict  # view_id -> dict(rms_px, max_px, n_corners, n_used, status, robot disagreement)
+    outliers: tuple  # tuple[Outlier, ...]
+    iterations: int
+    seconds: float
+    start_method: str = "given"  # the start the refinement used: "given" (T_x0, T_board0) or a closed form
+    options: RefineOptions = RefineOptions()
+
+    @property
+    def used_view_ids(self) -> list:
+        return [v for v, d in self.per_view.items() if d["status"] == "used"]
+
+    def to_dict(self) -> dict:
+        """JSON-ready content for result.json (nested lists, names with units)."""
+        parent = mounting(self.mode).fixed_frame
+        return plain({
+            "status": self.status,
+            "failure_reason": self.failure_reason,
+            "mode": self.mode,
+            "x_name": self.x_name,
+            self.x_name: self.T_x,
+            "board_name": self.board_name,
+            self.board_name: self.T_board,
+            "intrinsics": self.intrinsics.to_dict(),
+            "intrinsics_sigma": self.intrinsics_sigma,
+            "seed": {self.x_name: self.T_x_seed, self.board_name: self.T_board_seed,
+                     "intrinsics": self.intrinsics_seed.to_dict()},
+            "start_method": self.start_method,
+            "cov_x_6x6": self.cov_x_6x6,
+            "cov_parametrisation": self.cov_parametrisation,
+            "correlation_6x6": self.correlation_6x6,
+            "sigma_rot_deg": self.sigma_rot_deg,
+            "sigma_rot_axes": "camera frame (right perturbation)",
+            "sigma_trans_mm": self.sigma_trans_mm,
+            "sigma_trans_axes": f"{parent} frame (translation vector of {self.x_name})",
+            "working_distance_m": self.working_distance_m,
+            "predicted_error_mm": self.predicted_error_mm,
+            "predicted_error_definition": ("RMS 3-D error (sqrt of the covariance trace) of a point on the optical "
+                                           f"axis at working_distance_m, mapped into the {parent} frame by "
+                                           f"{self.x_name}"),
+            "predicted_error_axes_mm": self.predicted_error_axes_mm,
+            "sigma_px": self.sigma_px,
+            "robot_sigma_mm": self.robot_sigma_mm,
+            "robot_sigma_deg": self.robot_sigma_deg,
+            "robot_sigma_resolved": self.robot_sigma_resolved,
+            "robot_noise_model": self.options.robot_noise,
+            "rms_px_before": self.rms_px_before,
+            "rms_px_after": self.rms_px_after,
+            "per_view": self.per_view,
+            "outliers": [o.to_dict() for o in self.outliers],
+            "robot_poses_refined_T_base_end": self.robot_poses,
+            "iterations": self.iterations,
+            "seconds": self.seconds,
+            "options": asdict(self.options),
+        })
+
+
+def _working_distance(pb: "Problem") -> float:
+    """The configured working distance, else the median depth of the board centre over the views."""
+    if pb.o.working_distance_m is not None:
+        return float(pb.o.working_distance_m)
+    depths = []
+    for i in pb.active():
+        T_cb = pb.mounting.predict_T_cam_board(pb.T_x, pb.T_board, pb.robot_pose(i))
+        depths.append((T_cb[:3, :3] @ pb.board_centre + T_cb[:3, 3])[2])
+    return float(np.median(depths)) if depths else float("nan")
+
+
+def _per_view(pb: "Problem", dec: Optional["Decision"]) -> dict:
+    per_view = {}
+    for i, vid in enumerate(pb.ids):
+        e = np.linalg.norm(pb.view_residual(i), axis=1)
+        st = pb.status[i]
+        used = pb.mask[i] if st != "removed" else np.zeros(len(e), bool)
+        d = {"status": st, "n_corners": int(len(e)), "n_used": int(used.sum())}
+        if st == "removed" and dec is not None and dec.checks[i].ok:
+            e = dec.checks[i].resid_px  # a dropped view: residuals against its own best pose
+        sel = e[used] if used.any() else e
+        d["rms_px"] = float(np.sqrt(np.mean(sel ** 2))) if sel.size else float("nan")
+        d["max_px"] = float(sel.max()) if sel.size else float("nan")
+        if dec is not None and np.isfinite(dec.robot_test.statistic[i]):
+            d["robot_vs_camera_rot_deg"] = float(dec.robot_test.rot_deg[i])
+            d["robot_vs_camera_trans_mm"] = float(dec.robot_test.trans_mm[i])
+            d["robot_vs_camera_mahalanobis"] = float(dec.robot_test.distance[i])
+        per_view[vid] = d
+    return per_view
+
+
+def build_result(pb: "Problem", *, status: str, reason: str, S_cc: Optional[np.ndarray], dec: Optional["Decision"],
+                 rms_before: float, T_x0: np.ndarray, T_board0: np.ndarray, intrinsics0: Intrinsics, t0: float,
+                 outliers: tuple, start_method: str) -> RefineResult:
+    """The result from the final state of the problem and the core covariance ``S_cc`` (None: failed)."""
+    wd = _working_distance(pb)
+    unc = hand_eye_uncertainty(None if S_cc is None else S_cc[:6, :6], pb.T_x, wd)
+    intr_sigma = {} if S_cc is None else {INTRINSIC_NAMES[fi]: float(np.sqrt(S_cc[N_POSES + j, N_POSES + j]))
+                                          for j, fi in enumerate(pb.free)}
+    rms_after = float("nan")
+    if pb.active():
+        rms_after = float(np.sqrt(np.mean(np.sum(pb.used_corner_residuals() ** 2, axis=1))))
+    return RefineResult(
+        status=status, failure_reason=reason, mode=pb.mode, x_name=pb.mounting.x_name,
+        board_name=pb.mounting.board_name, T_x=pb.T_x.copy(), T_board=pb.T_board.copy(),
+        intrinsics=Intrinsics.from_vector(pb.k, pb.width, pb.height), T_x_seed=T_x0.copy(),
+        T_board_seed=T_board0.copy(), intrinsics_seed=intrinsics0,
+        robot_poses={vid: pb.robot_pose(i).copy() for i, vid in enumerate(pb.ids)},
+        cov_x_6x6=unc.cov_x_6x6, cov_parametrisation=COV_PARAMETRISATION, sigma_rot_deg=unc.sigma_rot_deg,
+        sigma_trans_mm=unc.sigma_trans_mm, correlation_6x6=unc.correlation_6x6, intrinsics_sigma=intr_sigma,
+        working_distance_m=wd, predicted_error_mm=unc.predicted_error_mm,
+        predicted_error_axes_mm=unc.predicted_error_axes_mm, sigma_px=float(pb.sigma_px),
+        robot_sigma_mm=float(1000.0 * pb.sigma_trans) if pb.robot_var else 0.0,
+        robot_sigma_deg=float(np.degrees(pb.sigma_rot)) if pb.robot_var else 0.0,
+        robot_sigma_resolved=dict(pb.resolved) if pb.o.robot_noise == "estimate" else {},
+        rms_px_before=rms_before, rms_px_after=rms_after, per_view=_per_view(pb, dec),
+        outliers=tuple(outliers), iterations=int(pb.iterations), seconds=time.perf_counter() - t0,
+        start_method=start_method, options=pb.o)
