@@ -284,7 +284,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     if opts.refine:
         progress("joint refinement (GTSAM)")
         t2 = time.perf_counter()
-        refined = refine_stage(s, opts, start, intr, poses, dets, T_base_end)
+        refined = refine_stage(s, opts, start, intr, poses, dets, T_base_end, closed_forms=closed)
         seconds["refine"] = time.perf_counter() - t2
         if refined.status != "ok":
             raise CalibrationError(f"refinement failed: {refined.failure_reason}",
@@ -297,7 +297,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
 
 
 def refine_stage(s: Session, opts: CalibrateOptions, start: HandEyeEstimate, intr: Intrinsics, poses: dict,
-                 dets: dict, T_base_end: dict):
+                 dets: dict, T_base_end: dict, closed_forms: Optional[dict] = None):
     """The joint refinement from the chosen closed form."""
     from .refine import RefineOptions, RefineView, refine
 
@@ -308,7 +308,7 @@ def refine_stage(s: Session, opts: CalibrateOptions, start: HandEyeEstimate, int
     if s.intrinsics is not None and s.intrinsics_prior in ("fixed", "prior"):
         ro.setdefault("intrinsics", s.intrinsics_prior)
     return refine(mode=s.mode, object_points=s.target.object_points(), views=views, intrinsics=intr,
-                  T_x0=start.T_x, T_board0=start.T_board, options=RefineOptions(**ro))
+                  T_x0=start.T_x, T_board0=start.T_board, options=RefineOptions(**ro), starts=closed_forms)
 
 
 def _final_outcomes(outcomes, chain, refined):
