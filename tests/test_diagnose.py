@@ -24,7 +24,9 @@ from handeye.errors import InputError
 from handeye.frames import T_from_rotvec, inv_T, pose_error
 from handeye.mounting import mounting
 from handeye.session import load_session
-from handeye.sim.synth import default_intrinsics, make_corner_session, write_vendor_session
+from handeye.sim.corners import make_corner_session
+from handeye.sim.scenarios import default_intrinsics
+from handeye.sim.vendor import write_vendor_session
 from handeye.targets import ChessboardSpec
 
 FAULT_CODES = {"translation_units", "angle_units", "euler_order", "quaternion_order", "mode_swapped",

@@ -21,8 +21,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..frames import inv_T, make_T, mean_T, project_to_rotation
-from ..stats import robust_noise_sigma  # noqa: F401 - part of this module's API
+from ..camera import pixels_from_cam_points
+from ..frames import inv_T, make_T, mean_T, project_to_rotation, rotation_angle_rad, screw_invariants, skew
 
 #: pairs whose relative rotation is outside this range (deg) give no usable screw pitch: the axis is
 #: ill-defined for small angles and flips sign near 180 degrees
@@ -48,14 +48,8 @@ def pair_invariants(C: np.ndarray, M: np.ndarray, *, pairs: tuple | None = None)
     C = np.asarray(C, float)
     M = np.asarray(M, float)
     i, j = all_pairs(len(C)) if pairs is None else (np.asarray(pairs[0]), np.asarray(pairs[1]))
-    rc = C[i] @ inv_T(C[j])
-    rm = M[i] @ inv_T(M[j])
-    rv_c = Rotation.from_matrix(rc[:, :3, :3]).as_rotvec()
-    rv_m = Rotation.from_matrix(rm[:, :3, :3]).as_rotvec()
-    a_c = np.linalg.norm(rv_c, axis=1)
-    a_m = np.linalg.norm(rv_m, axis=1)
-    p_c = np.einsum("ni,ni->n", rv_c / np.maximum(a_c, 1e-12)[:, None], rc[:, :3, 3])
-    p_m = np.einsum("ni,ni->n", rv_m / np.maximum(a_m, 1e-12)[:, None], rm[:, :3, 3])
+    a_c, p_c = screw_invariants(C[i] @ inv_T(C[j]))
+    a_m, p_m = screw_invariants(M[i] @ inv_T(M[j]))
     ang_res = np.degrees(np.abs(a_c - a_m))
     lo, hi = np.radians(PITCH_ANGLE_RANGE_DEG)
     ok = (a_m > lo) & (a_m < hi) & (a_c > lo) & (a_c < hi)
@@ -74,25 +68,6 @@ def summarize_invariants(inv: dict) -> dict:
             "median_angle_res_deg": float(np.median(inv["angle_res_deg"])) if len(inv["score"]) else float("nan"),
             "median_pitch_res_mm": float(np.median(pr)) if pr.size else float("nan"),
             "median_score": float(np.median(inv["score"])) if len(inv["score"]) else float("nan")}
-
-
-def per_view_scores(inv: dict, n: int) -> np.ndarray:
-    """Median pair score of each view with all others (N,). A wrong view stands out; an outlier
-    among the others barely moves a median."""
-    out = np.full(n, np.nan)
-    for k in range(n):
-        sel = (inv["i"] == k) | (inv["j"] == k)
-        if sel.any():
-            out[k] = float(np.median(inv["score"][sel]))
-    return out
-
-
-def score_matrix(inv: dict, n: int) -> np.ndarray:
-    """Symmetric (N,N) matrix of pair scores (NaN on the diagonal)."""
-    S = np.full((n, n), np.nan)
-    S[inv["i"], inv["j"]] = inv["score"]
-    S[inv["j"], inv["i"]] = inv["score"]
-    return S
 
 
 def solve_A_from_pairs(C: np.ndarray, M: np.ndarray, pairs: tuple) -> np.ndarray:
@@ -136,8 +111,8 @@ def robust_mean_T(Ts: np.ndarray) -> np.ndarray:
 
 
 def rotation_angles_deg(R: np.ndarray) -> np.ndarray:
-    return np.degrees(np.linalg.norm(Rotation.from_matrix(np.asarray(R, float).reshape(-1, 3, 3)).as_rotvec(),
-                                     axis=1))
+    """Geodesic angles (N,) in degrees of rotations (N,3,3)."""
+    return np.degrees(rotation_angle_rad(np.asarray(R, float).reshape(-1, 3, 3)))
 
 
 def pose_differences(T_a: np.ndarray, T_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -159,72 +134,38 @@ def jackknife_sigmas(deltas: np.ndarray, n_total: int, n_left_out: int) -> np.nd
     return np.sqrt((n_total - d) / (d * K) * np.sum(dev ** 2, axis=0))
 
 
-__all__ = ["pair_invariants", "summarize_invariants", "per_view_scores", "score_matrix", "solve_A_from_pairs",
-           "implied_boards", "robust_mean_T", "pose_differences", "jackknife_sigmas", "all_pairs"]
-
-
 # ------------------------------------------------------------------------------ per-view covariances
 RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))  # median of |e| / sigma for a 2-D Gaussian
 
 
-def log6(T: np.ndarray) -> np.ndarray:
-    """(rotation vector [rad], translation [m]) of (…,4,4) transforms, shape (…,6)."""
-    T = np.asarray(T, float)
-    rv = Rotation.from_matrix(T[..., :3, :3].reshape(-1, 3, 3)).as_rotvec().reshape(T.shape[:-2] + (3,))
-    return np.concatenate([rv, T[..., :3, 3]], axis=-1)
-
-
-def pnp_covariance(object_points: np.ndarray, image_points: np.ndarray, T_cam_board: np.ndarray, K: np.ndarray,
-                   dist: np.ndarray, sigma_px: float) -> np.ndarray:
-    """Covariance (6,6) of a view's board pose, parametrised as a left perturbation
-    ``T_cam_board_true = Exp(xi) T_cam_board`` with ``xi = (omega, v)`` in the camera frame."""
-    import cv2
-
-    obj = np.asarray(object_points, float).reshape(-1, 3)
+def _pose_and_intrinsics_jacobians(p_board: np.ndarray, T_cam_board: np.ndarray, intrinsics_vec: np.ndarray):
+    """d pixels / d xi (2K,6) for ``T_cam_board · Exp(xi)`` (right tangent, board frame) and
+    d pixels / d intrinsics (2K,9) at board points ``p_board`` (K,3)."""
+    p = np.asarray(p_board, float).reshape(-1, 3)
     R, t = T_cam_board[:3, :3], T_cam_board[:3, 3]
-    p_cam = obj @ R.T + t
-    _, J = cv2.projectPoints(p_cam.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, dist)
-    # d(pixel)/d(omega, v) for points moved by Exp(xi): d p = -[p]x omega + v; projectPoints at rvec=0 gives
-    # the Jacobian w.r.t. its own rvec (= omega) and tvec (= v) directly
-    Jp = J[:, :6]
-    H = Jp.T @ Jp
-    try:
-        return sigma_px ** 2 * np.linalg.inv(H)
-    except np.linalg.LinAlgError:
-        return np.full((6, 6), np.inf)
+    _, J_uv_p, J_uv_k = pixels_from_cam_points(intrinsics_vec, p @ R.T + t)  # (K,2,3), (K,2,9)
+    # p_cam(xi) = R (p + omega x p + v) + t to first order: d p_cam / d xi = R [-[p]x | I]
+    D = np.concatenate([-skew(p), np.broadcast_to(np.eye(3), (len(p), 3, 3))], axis=2)  # (K,3,6)
+    J_xi = np.einsum("kab,bc,kcd->kad", J_uv_p, R, D)
+    return J_xi.reshape(-1, 6), J_uv_k.reshape(-1, 9)
 
 
-def propagate(f, T0: np.ndarray, cov_left: np.ndarray, *, h: float = 1e-6) -> np.ndarray:
-    """Covariance (6,6) of ``log6(inv(f(T0)) f(Exp(xi) T0))`` for ``xi ~ N(0, cov_left)`` (numeric Jacobian)."""
-    y0 = f(T0)
-    y0i = inv_T(y0)
-    J = np.empty((6, 6))
-    for k in range(6):
-        xi = np.zeros(6)
-        xi[k] = h
-        E = make_T(Rotation.from_rotvec(xi[:3]).as_matrix(), xi[3:])
-        J[:, k] = log6(y0i @ f(E @ T0)) / h
-    return J @ cov_left @ J.T
-
-
-def camera_pose_covariances(corners, T_cam_board: np.ndarray, K: np.ndarray, dist: np.ndarray, sigma_px: float, *,
+def camera_pose_covariances(corners, T_cam_board: np.ndarray, intrinsics_vec: np.ndarray, sigma_px: float, *,
                             intrinsics_estimated: bool) -> np.ndarray:
-    """Marginal covariance (N,6,6) of each view's board pose from the camera alone (left perturbation,
-    camera frame), including the uncertainty of intrinsics estimated from the same corners.
+    """Marginal covariance (N,6,6) of each view's board pose from the camera alone, in the right tangent
+    of :mod:`handeye.frames` (``T_cam_board_true = T_cam_board · Exp(xi)``, xi in the board frame),
+    including the uncertainty of intrinsics estimated from the same corners.
 
-    ``corners``: per view (object_points (K,3), image_points (K,2)). With ``intrinsics_estimated`` the
-    normal matrix of all poses and the 9 intrinsics (fx, fy, cx, cy, k1, k2, p1, p2, k3) is inverted
-    by a Schur complement on the intrinsics; otherwise each view's own PnP information is inverted.
+    ``corners``: per view (object_points (K,3), image_points (K,2)); ``intrinsics_vec`` the 9 values
+    (fx, fy, cx, cy, k1, k2, p1, p2, k3). With ``intrinsics_estimated`` the normal matrix of all poses
+    and the intrinsics is inverted by a Schur complement on the intrinsics; otherwise each view's own
+    PnP information is inverted.
     """
-    import cv2
-
     n = len(corners)
     Hpp, HKp = [], []
     HKK = np.zeros((9, 9))
     for (obj, _), T in zip(corners, T_cam_board):
-        p_cam = np.asarray(obj, float).reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
-        _, J = cv2.projectPoints(p_cam.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, dist)
-        Jp, JK = J[:, :6], J[:, 6:15]
+        Jp, JK = _pose_and_intrinsics_jacobians(obj, T, intrinsics_vec)
         Hpp.append(Jp.T @ Jp)
         HKp.append(JK.T @ Jp)
         HKK += JK.T @ JK

@@ -1,0 +1,197 @@
+"""Cross-validation of the hand-eye result by held-out views.
+
+Leave-one-out (interleaved k-fold above a view count, configs/diagnostics.yaml ``cross_validation``).
+When the run was refined, each fold is ONE Gaussian solve of the refinement problem
+(:class:`handeye.refine.problem.Problem`) started from the full solution, with the full run's noise
+levels (pixel and robot sigmas) and outlier decisions (flagged corners and views left out) held: the
+fold measures how the estimate moves without its views, not how noise estimation and outlier
+decisions would redo themselves. Without a refinement each fold is the run's closed-form method.
+The delete-d jackknife spread of the folds is compared with the refinement's sigmas.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import replace
+
+import numpy as np
+
+from ..camera import Intrinsics, pixels_from_board_points
+from ..frames import rotvec_from_R
+from ..mounting import mounting
+from .geometry import jackknife_sigmas
+from .thresholds import thresholds
+
+log = logging.getLogger(__name__)
+
+
+def x_delta(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(rot about the camera axes [deg] (3), translation along the parent axes [mm] (3)) of T vs T_ref,
+    in the parametrisation of the refinement's sigmas (T = T_ref Exp(omega), t - t_ref)."""
+    om = rotvec_from_R(T_ref[:3, :3].T @ T[:3, :3])
+    return np.concatenate([np.degrees(om), 1e3 * (T[:3, 3] - T_ref[:3, 3])])
+
+
+def _refined(run):
+    ref = run.refined
+    return ref if (ref is not None and getattr(ref, "status", "") == "ok") else None
+
+
+def cv_view_ids(run) -> list:
+    """Views that take part: with a board pose, and used by the refinement when it ran."""
+    ids = [v.view_id for v in run.session.views if v.view_id in (run.board_poses or {})]
+    ref = _refined(run)
+    if ref is not None:
+        pv = getattr(ref, "per_view", {}) or {}
+        ids = [v for v in ids if pv.get(v, {}).get("status", "used") == "used"]
+    return ids
+
+
+def folds(n: int, *, refined: bool) -> list:
+    t = thresholds().cross_validation
+    loo_max, k = (t.loo_max_views_refined, t.folds_refined) if refined else (t.loo_max_views, t.folds)
+    if n <= loo_max:
+        return [np.array([i]) for i in range(n)]
+    return [np.arange(f, n, k) for f in range(k)]
+
+
+def _refined_folds(run, ref, ids, fold_list, T_rep):
+    """(estimates per fold: (T_x, T_board, intrinsics) or None, method text): one solve per fold."""
+    from ..refine import RefineView
+    from ..refine.problem import Problem
+
+    s = run.session
+    obj = s.target.object_points()
+    flagged: dict = {}
+    for o in getattr(ref, "outliers", ()):
+        if getattr(o, "corner_ids", ()):
+            flagged.setdefault(o.view_id, set()).update(int(c) for c in o.corner_ids)
+    views = []
+    for v in ids:
+        cid = np.asarray(run.board_poses[v].corner_ids)
+        keep = np.array([int(c) not in flagged.get(v, ()) for c in cid], bool)
+        views.append(RefineView(v, cid[keep], run.detections[v].image_points[keep], T_rep[v]))
+    o0 = ref.options
+    robot = "none" if o0.robot_noise == "none" else "fixed"
+    opts = replace(o0, robot_noise=robot, robot_sigma_mm=max(ref.robot_sigma_mm, 1e-6),
+                   robot_sigma_deg=max(ref.robot_sigma_deg, 1e-6), outlier_loop=False, loss="none")
+    refined_robot = getattr(ref, "robot_poses", {}) or {}
+    estimates = []
+    for f in fold_list:
+        out = set(f.tolist())
+        train = [views[k] for k in range(len(views)) if k not in out]
+        try:
+            pb = Problem(mode=s.mode, object_points=obj, views=train, intrinsics=ref.intrinsics, T_x0=ref.T_x,
+                         T_board0=ref.T_board, options=opts)
+            pb.sigma_px = float(ref.sigma_px)  # held at the full run's noise levels
+            for i, v in enumerate(pb.ids):
+                if v in refined_robot:
+                    pb.P[i] = np.asarray(refined_robot[v], float)
+            pb.solve(robust=False)
+        except (RuntimeError, np.linalg.LinAlgError) as e:  # a fold GTSAM cannot solve is reported, not fatal
+            log.info("cross-validation fold %s not solved: %s", [ids[k] for k in f], e)
+            estimates.append(None)
+            continue
+        estimates.append((pb.T_x, pb.T_board, Intrinsics.from_vector(pb.k, pb.width, pb.height)))
+    method = (f"refinement refitted per fold (one solve from the full solution, noise held at the full run's "
+              f"{ref.robot_sigma_mm:.3f} mm / {ref.robot_sigma_deg:.4f} deg robot, {ref.sigma_px:.3f} px)")
+    return estimates, method
+
+
+def _closed_form_folds(run, ids, fold_list, T_rep):
+    from ..errors import HandeyeError
+    from ..initial import solve_closed_form
+
+    mm = mounting(run.session.mode)
+    C = np.stack([run.board_poses[v].T_cam_board for v in ids])
+    M = mm.M_from_T_base_end(np.stack([T_rep[v] for v in ids]))
+    meth = run.options.method
+    estimates = []
+    for f in fold_list:
+        keep = np.ones(len(ids), bool)
+        keep[f] = False
+        try:
+            e = solve_closed_form(mm, C[keep], M[keep], method=meth)
+        except (HandeyeError, np.linalg.LinAlgError) as ex:  # a degenerate fold is reported, not fatal
+            log.info("cross-validation fold not solved: %s", ex)
+            e = None
+        estimates.append(None if e is None or e.status != "ok" else (e.T_x, e.T_board, run.intrinsics))
+    return estimates, f"closed-form {meth} refitted per fold"
+
+
+def cross_validate(run) -> dict:
+    """Leave-one-out / k-fold cross-validation of the hand-eye result (see the module docstring)."""
+    if run.T_x is None or not run.board_poses:
+        return {"summary": "not run: no hand-eye result"}
+    t = thresholds().cross_validation
+    s = run.session
+    mm = mounting(s.mode)
+    ids = cv_view_ids(run)
+    n = len(ids)
+    if n < t.min_views:
+        return {"summary": f"not run: {n} usable views (needs {t.min_views})", "n_views": n}
+    ref = _refined(run)
+    fold_list = folds(n, refined=ref is not None)
+    T_rep = {v: s.view(v).T_base_end for v in ids}
+    if ref is not None:
+        estimates, method = _refined_folds(run, ref, ids, fold_list, T_rep)
+        T_full, B_full, intr_full = ref.T_x, ref.T_board, ref.intrinsics
+    else:
+        estimates, method = _closed_form_folds(run, ids, fold_list, T_rep)
+        T_full, B_full, intr_full = run.T_x, run.T_board, run.intrinsics
+    ok = [k for k, e in enumerate(estimates) if e is not None]
+    if len(ok) < max(3, len(fold_list) // 2):
+        return {"summary": f"not run: only {len(ok)} of {len(fold_list)} folds could be solved", "method": method}
+    deltas = np.stack([x_delta(T_full, estimates[k][0]) for k in ok])
+    d = int(round(np.mean([len(fold_list[k]) for k in ok])))
+    jk = jackknife_sigmas(deltas, n, d)
+    obj = s.target.object_points()
+    rows, held_px = [], []
+    for row, k in enumerate(ok):
+        T_x, T_b, intr_k = estimates[k]
+        for i in fold_list[k]:
+            v = ids[i]
+            bp = run.board_poses[v]
+            img = run.detections[v].image_points
+            r = np.linalg.norm(pixels_from_board_points(mm.predict_T_cam_board(T_x, T_b, T_rep[v]), obj[bp.corner_ids],
+                                                        intr_k) - img, axis=1)
+            r_in = np.linalg.norm(pixels_from_board_points(mm.predict_T_cam_board(T_full, B_full, T_rep[v]),
+                                                           obj[bp.corner_ids], intr_full) - img, axis=1)
+            dx = deltas[row]
+            rows.append({"view": v, "held_out_rms_px": round(float(np.sqrt(np.mean(r ** 2))), 3),
+                         "in_sample_rms_px": round(float(np.sqrt(np.mean(r_in ** 2))), 3),
+                         "x_shift_deg": round(float(np.linalg.norm(dx[:3])), 4),
+                         "x_shift_mm": round(float(np.linalg.norm(dx[3:])), 3)})
+            held_px.append(float(np.sqrt(np.mean(r ** 2))))
+    out = {"method": method, "scheme": "leave-one-out" if d == 1 else f"{len(fold_list)}-fold (interleaved)",
+           "n_views": n, "n_folds": len(fold_list), "folds_solved": len(ok),
+           "jackknife_sigma_rot_deg": [round(float(x), 5) for x in jk[:3]],
+           "jackknife_sigma_trans_mm": [round(float(x), 4) for x in jk[3:]],
+           "axes": f"rotation about the camera axes, translation of {mm.x_name} along the {mm.fixed_frame} axes",
+           "held_out_rms_px_median": round(float(np.median(held_px)), 3), "per_view": rows}
+    if ref is None:
+        out["verdict"] = "no_prediction"
+        out["summary"] = (f"the closed-form result moves by {float(np.sqrt(np.sum(jk[3:] ** 2))):.2f} mm / "
+                          f"{float(np.sqrt(np.sum(jk[:3] ** 2))):.3f} deg (jackknife 1 sigma); no covariance to "
+                          "compare with (refinement not run)")
+        return out
+    pr, pt = np.asarray(ref.sigma_rot_deg, float), np.asarray(ref.sigma_trans_mm, float)
+    out["predicted_sigma_rot_deg"] = [round(float(x), 5) for x in pr]
+    out["predicted_sigma_trans_mm"] = [round(float(x), 4) for x in pt]
+    rr = float(np.sqrt(np.mean(jk[:3] ** 2)) / max(np.sqrt(np.mean(pr ** 2)), 1e-12))
+    rt = float(np.sqrt(np.mean(jk[3:] ** 2)) / max(np.sqrt(np.mean(pt ** 2)), 1e-12))
+    out["ratio_rot"], out["ratio_trans"] = round(rr, 3), round(rt, 3)
+    if max(rr, rt) > t.ratio_high:
+        out["verdict"] = "spread_exceeds_prediction"
+        out["summary"] = (f"the result moves {max(rr, rt):.1f}x more between folds than its covariance predicts "
+                          f"(rotation {rr:.2f}x, translation {rt:.2f}x): the model misses an error source (robot "
+                          "pose errors larger than modelled, a moved board, timing, or wrong intrinsics); "
+                          "trust the spread, not the covariance")
+    elif max(rr, rt) < t.ratio_low:
+        out["verdict"] = "spread_below_prediction"
+        out["summary"] = (f"the result moves less between folds than predicted (rotation {rr:.2f}x, translation "
+                          f"{rt:.2f}x): the covariance is conservative")
+    else:
+        out["verdict"] = "consistent"
+        out["summary"] = (f"the spread between folds matches the predicted uncertainty (rotation {rr:.2f}x, "
+                          f"translation {rt:.2f}x of the predicted sigma)")
+    return out

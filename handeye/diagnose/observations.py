@@ -1,0 +1,72 @@
+"""What the pose-level checks work on: the views with a board pose, in session order, with the robot
+pose numbers as written (:class:`PoseObservations`), built from a calibration run or from a leniently
+read session."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from ..camera import pixels_from_board_points
+from ..frames import inv_T
+from ..mounting import mounting
+from ..session.raw import RawPoses, raw_poses_of
+from .geometry import RAYLEIGH_MEDIAN, camera_pose_covariances
+from .thresholds import thresholds
+
+
+@dataclass(frozen=True)
+class PoseObservations:
+    mode: str
+    ids: tuple
+    C: np.ndarray  # (N,4,4) T_cam_board from PnP
+    T: np.ndarray  # (N,4,4) reported T_base_end as loaded
+    raw: RawPoses
+    times: dict  # view id -> (t_image, t_pose) where recorded
+    corners: tuple = ()  # per view (object_points (K,3), image_points (K,2)) for the PnP covariances
+    intrinsics: object = None
+    target: object = None
+    intrinsics_estimated: bool = True  # intrinsics come from these corners (their uncertainty counts)
+
+    @property
+    def n(self) -> int:
+        return len(self.ids)
+
+    @property
+    def mounting(self):
+        return mounting(self.mode)
+
+    def pnp_covariances(self) -> Optional[np.ndarray]:
+        """(N,6,6) covariance of each view's board pose (right tangent of :mod:`handeye.frames`), with the
+        pixel noise taken robustly from all PnP residuals; None without corners."""
+        if not self.corners or self.intrinsics is None:
+            return None
+        res = [np.linalg.norm(pixels_from_board_points(C, o, self.intrinsics) - im, axis=1)
+               for (o, im), C in zip(self.corners, self.C)]
+        sigma_px = max(float(np.median(np.concatenate(res))) / RAYLEIGH_MEDIAN,
+                       thresholds().robot_pose.pixel_sigma_floor_px)
+        return camera_pose_covariances(self.corners, self.C, self.intrinsics.as_vector(), sigma_px,
+                                       intrinsics_estimated=self.intrinsics_estimated)
+
+    def M(self, T: Optional[np.ndarray] = None, *, invert: bool = False) -> np.ndarray:
+        """Robot motions of the mode for poses ``T`` (default: as loaded); ``invert``: of the inverted poses."""
+        M = self.mounting.M_from_T_base_end(self.T if T is None else T)
+        return inv_T(M) if invert else M
+
+
+def observations_from_run(run) -> Optional[PoseObservations]:
+    """The run's views with a board pose (None below the minimum view count)."""
+    s = run.session
+    ids = [v.view_id for v in s.views if v.view_id in (run.board_poses or {})]
+    if len(ids) < thresholds().views.min_fail:
+        return None
+    C = np.stack([run.board_poses[v].T_cam_board for v in ids])
+    T = np.stack([s.view(v).T_base_end for v in ids])
+    times = {v.view_id: (v.t_image, v.t_pose) for v in s.views if v.t_image is not None and v.t_pose is not None}
+    obj = s.target.object_points()
+    corners = tuple((obj[run.board_poses[v].corner_ids], run.detections[v].image_points) for v in ids) \
+        if run.detections and all(v in run.detections for v in ids) else ()
+    estimated = not (s.intrinsics is not None and s.intrinsics_prior == "fixed")
+    return PoseObservations(s.mode, tuple(ids), C, T, raw_poses_of(s), times, corners, run.intrinsics, s.target,
+                            estimated)

@@ -1,0 +1,168 @@
+"""Pairing of images and robot poses: shifted by a few lines, shuffled, or single poses that belong to
+another view (two detected views swapped, or an image carrying an undetected view's pose).
+
+All report the code ``pairs_shifted``.
+"""
+from __future__ import annotations
+
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..conventions import PoseFormat
+from .consistency import RobotPoseCheck
+from .findings import Finding
+from .fits import fit_boards
+from .observations import PoseObservations
+from .readings import is_clearly_better, pair_angles_deg, read_poses
+from .thresholds import thresholds
+
+
+def _shifted(obs: PoseObservations, fmt: PoseFormat, shift: int) -> tuple[np.ndarray, Optional[np.ndarray]]:
+    """(views kept (bool N), T (K,4,4)) when the image at sequence position p takes the pose at p+shift."""
+    order = obs.raw.order
+    pos = {v: k for k, v in enumerate(order)}
+    keep = np.array([v in pos and 0 <= pos[v] + shift < len(order) for v in obs.ids])
+    keys = [order[pos[v] + shift] for v, k in zip(obs.ids, keep) if k]
+    return keep, read_poses(obs.raw, fmt, keys)
+
+
+def _assignment_by_signature(obs: PoseObservations, fmt: PoseFormat, invert: bool) -> Optional[dict]:
+    """Match images to poses by their sorted pair-rotation-angle signatures (a shuffled poses file).
+
+    Returns view id -> pose key, or None. Angles of relative motions do not depend on A or B, so the
+    sorted list of a view's angles to all others identifies its pose up to noise."""
+    from scipy.optimize import linear_sum_assignment
+
+    order = list(obs.raw.order)
+    T_all = read_poses(obs.raw, fmt, order)
+    if T_all is None or obs.n < 5:
+        return None
+    M_all = obs.M(T_all, invert=invert)
+
+    def angles(R):  # (K,K) rotation angle of R_a R_b^T
+        i, j = np.meshgrid(np.arange(len(R)), np.arange(len(R)), indexing="ij")
+        return pair_angles_deg(R, i.ravel(), j.ravel()).reshape(len(R), len(R))
+
+    A_c, A_m = angles(obs.C[:, :3, :3]), angles(M_all[:, :3, :3])
+    sig_c = [np.sort(np.delete(A_c[i], i)) for i in range(obs.n)]
+    sig_m = [np.sort(np.delete(A_m[p], p)) for p in range(len(order))]
+    cost = np.empty((obs.n, len(order)))
+    for i in range(obs.n):
+        for p in range(len(order)):
+            # every camera angle must appear among the pose's angles (poses may have more views)
+            d = np.abs(sig_c[i][:, None] - sig_m[p][None, :]).min(axis=1)
+            cost[i, p] = float(np.mean(d))
+    r, c = linear_sum_assignment(cost)
+    return {obs.ids[i]: order[p] for i, p in zip(r, c)}
+
+
+def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = False, given_cost: float) -> list:
+    """Images and poses out of step (shift by +-1..max_shift) or shuffled."""
+    th = thresholds()
+    if given_cost <= th.readings.bad_cost:
+        return []
+    kmax = min(th.pairing.max_shift, max(1, len(obs.raw.order) // 3))
+    best = None
+    for s in range(-kmax, kmax + 1):
+        if s == 0:
+            continue
+        keep, T = _shifted(obs, fmt, s)
+        if T is None or keep.sum() < max(4, int(np.ceil(th.pairing.min_shift_share * obs.n))):
+            continue
+        try:
+            fit = fit_boards(obs.C[keep], obs.M(T, invert=invert))
+        except np.linalg.LinAlgError:
+            continue
+        if best is None or fit.cost < best[1].cost:
+            best = (s, fit, keep)
+    if best is not None and is_clearly_better(best[1].cost, given_cost):
+        s, fit, keep = best
+        direction = f"+{s}" if s > 0 else str(s)
+        kind_hint = (f"the first {s} pose line(s) belong to no image: delete them" if s > 0 else
+                     f"the pose(s) of the first {-s} image(s) are missing: pose line 1 holds image {1 - s}'s pose")
+        return [Finding(
+            "pairs_shifted", "fail", f"Images and robot poses are out of step by {abs(s)}: image k belongs to pose "
+                                     f"k{direction}",
+            f"pairing image k with pose k{direction}: board scatter {fit.median_rot_deg:.3f} deg / "
+            f"{fit.median_trans_mm:.2f} mm (median over {int(keep.sum())} views) against "
+            f"{given_cost:.1f} (cost) as paired now",
+            f"re-pair the poses with the images ({kind_hint}); capture poses and images together, by view id",
+            details={"shift": s, "views_compared": int(keep.sum()), "board_scatter_deg": fit.median_rot_deg,
+                     "board_scatter_mm": fit.median_trans_mm})]
+    # a shuffle: match by signature, then check the matched pairing with a full fit
+    assign = _assignment_by_signature(obs, fmt, invert)
+    if assign is None:
+        return []
+    moved = [v for v in obs.ids if assign[v] != v]
+    T = read_poses(obs.raw, fmt, [assign[v] for v in obs.ids])
+    if T is None or len(moved) < 2:
+        return []
+    fit = fit_boards(obs.C, obs.M(T, invert=invert))
+    if is_clearly_better(fit.cost, given_cost):
+        pairs = ", ".join(f"image {v} <- pose {assign[v]}" for v in moved[:10])
+        return [Finding(
+            "pairs_shifted", "fail", f"Images and robot poses are shuffled: {len(moved)} of {obs.n} images carry "
+                                     "another view's pose",
+            f"matched by the rotation angles between views: {pairs}{' ...' if len(moved) > 10 else ''}; with this "
+            f"pairing the board scatters by {fit.median_rot_deg:.3f} deg / {fit.median_trans_mm:.2f} mm (median) "
+            f"against a cost of {given_cost:.1f} as paired now",
+            "re-pair images and poses by view id (the recording lost the order); re-capture if unsure",
+            view_ids=tuple(moved), details={"assignment": {v: assign[v] for v in moved},
+                                            "board_scatter_deg": fit.median_rot_deg,
+                                            "board_scatter_mm": fit.median_trans_mm})]
+    return []
+
+
+def swapped_pose_findings(obs: PoseObservations, check: RobotPoseCheck, flagged: Sequence[str],
+                          fmt: PoseFormat) -> tuple[list, set]:
+    """Flagged views whose image fits exactly one other recorded pose: (findings, the views explained).
+
+    Each flagged view's camera-implied pose is tested against every recorded pose at once (one
+    vectorised call of the robot-pose test per flagged view: linear in the view count)."""
+    if not 1 <= len(flagged) <= thresholds().pairing.max_swap_candidates:
+        return [], set()
+    idx = {v: k for k, v in enumerate(obs.ids)}
+    keys = [k for k in obs.raw.order if k in obs.raw.values]
+    T_all = read_poses(obs.raw, fmt, keys)
+    if T_all is None:
+        return [], set()
+    t = check.test
+    rot, trans = t.rot_deg, t.trans_mm
+    flagged_set = set(flagged)
+    swapped: set = set()
+    out = []
+    for a in flagged:
+        if a in swapped:
+            continue
+        ka = idx[a]
+        t_all = check.test_poses(ka, T_all)
+        fits = [(key, float(t_all.rot_deg[p]), float(t_all.trans_mm[p])) for p, key in enumerate(keys)
+                if key != a and not t_all.flagged[p] and t_all.distance[p] < 0.5 * t.distance[ka]]
+        if len(fits) != 1:
+            continue
+        b, r_b, t_b = fits[0]
+        if b in idx and b in flagged_set and b not in swapped:
+            kb = idx[b]
+            t_ab = check.test_poses(ka, obs.T[kb])  # view a's image with b's pose
+            t_ba = check.test_poses(kb, obs.T[ka])
+            if t_ba.flagged[0]:
+                continue
+            swapped |= {a, b}
+            out.append(Finding(
+                "pairs_shifted", "fail", f"The robot poses of views {a} and {b} are swapped",
+                f"view {a} disagrees with its own pose by {rot[ka]:.2f} deg / {trans[ka]:.1f} mm and "
+                f"view {b} by {rot[kb]:.2f} deg / {trans[kb]:.1f} mm; with each other's pose they "
+                f"agree ({t_ab.rot_deg[0]:.3f} deg / {t_ab.trans_mm[0]:.2f} mm and "
+                f"{t_ba.rot_deg[0]:.3f} deg / {t_ba.trans_mm[0]:.2f} mm)",
+                "swap the two pose entries (and pair images and poses by view id when recording)",
+                view_ids=(a, b), details={"swapped": [a, b]}))
+        elif b not in idx:
+            swapped.add(a)
+            out.append(Finding(
+                "pairs_shifted", "fail", f"View {a}'s image carries the robot pose recorded for view {b}",
+                f"view {a} disagrees with its own pose by {rot[ka]:.2f} deg / {trans[ka]:.1f} mm but agrees "
+                f"with the pose of view {b} ({r_b:.3f} deg / {t_b:.2f} mm), whose image was not used",
+                f"swap the pose entries of views {a} and {b} (and pair images and poses by view id when "
+                "recording)", view_ids=(a, b), details={"swapped": [a, b]}))
+    return out, swapped

@@ -1,0 +1,312 @@
+"""Pose-format forensics: which reading of the raw robot pose numbers fits the images.
+
+Every plausible re-reading of the numbers as written (translation units m/mm, angle units rad/deg,
+24 Euler conventions, quaternion orders) x {as given, inverted} is scored by the board scatter left
+after solving ``C_i = A M_i B`` (:mod:`.fits`). Rotation readings are first screened by the pair
+rotation-angle invariant, which does not depend on translation units, inversion or the mode. Inverted
+poses and a swapped mounting mode give the same numbers; they are told apart by which physical reading
+of the solution is plausible (camera near the flange or beside the robot).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from itertools import product
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..conventions import PoseFormat, T_from_pose_values
+from ..frames import inv_T, screw_invariants
+from ..mounting import mounting
+from ..session.raw import RawPoses
+from .findings import Finding
+from .fits import BoardFit, fit_boards
+from .geometry import all_pairs, pair_invariants, summarize_invariants
+from .observations import PoseObservations
+from .thresholds import thresholds
+
+EULER_ORDERS = ("xyz", "xzy", "yxz", "yzx", "zxy", "zyx", "xyx", "xzx", "yxy", "yzy", "zxz", "zyz")
+#: the codes of a global fault in how the poses were read or paired (the other checks then stop)
+READING_CODES = ("translation_units", "angle_units", "euler_order", "quaternion_order", "poses_inverted",
+                 "mode_swapped")
+
+
+def alternative_formats(fmt: PoseFormat) -> list[tuple[PoseFormat, tuple]]:
+    """Every plausible reading of numbers written for ``fmt``: (format, changed aspects).
+
+    Aspects: translation_units (m/mm), angle_units (rad/deg), euler_order (24 Euler conventions),
+    quaternion_order (wxyz/xyzw). The first entry is ``fmt`` itself with no changes.
+    """
+    rot_variants: list[tuple[dict, tuple]] = [({}, ())]
+    if fmt.rotation in ("euler", "rotvec"):
+        other = "deg" if fmt.angle_unit == "rad" else "rad"
+        rot_variants.append(({"angle_unit": other}, ("angle_units",)))
+    if fmt.rotation == "euler":
+        more = []
+        for order, kind in product(EULER_ORDERS, ("extrinsic", "intrinsic")):
+            if (order, kind) == (fmt.euler_order, fmt.euler_kind):
+                continue
+            for ch, codes in rot_variants[:2]:
+                more.append((dict(ch, euler_order=order, euler_kind=kind), codes + ("euler_order",)))
+        rot_variants += more
+    if fmt.rotation == "quaternion":
+        other = "xyzw" if fmt.quaternion_order == "wxyz" else "wxyz"
+        rot_variants.append(({"quaternion_order": other}, ("quaternion_order",)))
+    other_t = "mm" if fmt.translation_unit == "m" else "m"
+    out = []
+    for (ch, codes), t_alt in product(rot_variants, (False, True)):
+        ch2 = dict(ch, translation_unit=other_t) if t_alt else ch
+        out.append((replace(fmt, **ch2), (("translation_units",) if t_alt else ()) + codes))
+    out.sort(key=lambda fc: len(fc[1]))
+    return out
+
+
+def read_poses(raw: RawPoses, fmt: PoseFormat, ids: Sequence[str]) -> Optional[np.ndarray]:
+    """``T_base_end`` (N,4,4) of the views ``ids`` read with ``fmt`` (None if any pose does not parse).
+
+    Vectorised for Euler angles and rotation vectors (same conversion as
+    :func:`handeye.conventions.T_from_pose_values`, which handles the other forms)."""
+    from scipy.spatial.transform import Rotation
+
+    try:
+        V = np.stack([np.asarray(raw.values[v], float).reshape(-1) for v in ids])
+    except (KeyError, ValueError):
+        return None
+    if V.shape[1] != fmt.n_values or not np.all(np.isfinite(V)):
+        return None
+    if fmt.rotation in ("euler", "rotvec"):
+        scale = 1e-3 if fmt.translation_unit == "mm" else 1.0
+        if fmt.rotation == "euler":
+            seq = fmt.euler_order.lower() if fmt.euler_kind == "extrinsic" else fmt.euler_order.upper()
+            R = Rotation.from_euler(seq, V[:, 3:6], degrees=fmt.angle_unit == "deg").as_matrix()
+        else:
+            rv = np.radians(V[:, 3:6]) if fmt.angle_unit == "deg" else V[:, 3:6]
+            R = Rotation.from_rotvec(rv).as_matrix()
+        T = np.zeros((len(V), 4, 4))
+        T[:, :3, :3] = R
+        T[:, :3, 3] = V[:, :3] * scale
+        T[:, 3, 3] = 1.0
+        return T
+    try:
+        return np.stack([T_from_pose_values(V[k], fmt) for k in range(len(V))])
+    except ValueError:
+        return None
+
+
+def pair_angles_deg(R: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """Rotation angle of R_i R_j^T for the pairs (fast, from the trace)."""
+    tr = np.einsum("pab,pab->p", R[i], R[j])  # trace(R_i R_j^T)
+    return np.degrees(np.arccos(np.clip(0.5 * (tr - 1.0), -1.0, 1.0)))
+
+
+@dataclass(frozen=True)
+class Reading:
+    fmt: PoseFormat
+    changes: tuple  # aspects changed w.r.t. the stated format
+    invert: bool
+    fit: BoardFit
+    angle_res_deg: float  # median rotation-angle invariant residual over pairs
+    pitch_res_mm: float
+
+    @property
+    def codes(self) -> tuple:
+        return self.changes + (("inverse",) if self.invert else ())
+
+    def describe(self) -> str:
+        return self.fmt.describe() + (", inverted" if self.invert else "")
+
+    def row(self) -> dict:
+        return {"reading": self.describe(), "changes": ", ".join(self.codes) or "as given",
+                "board_scatter_deg": round(self.fit.median_rot_deg, 4),
+                "board_scatter_mm": round(self.fit.median_trans_mm, 3),
+                "pair_angle_residual_deg": round(self.angle_res_deg, 4),
+                "pair_pitch_residual_mm": round(self.pitch_res_mm, 3) if np.isfinite(self.pitch_res_mm) else None,
+                "cost": round(self.fit.cost, 3)}
+
+
+def evaluate_readings(obs: PoseObservations) -> list[Reading]:
+    """All plausible readings of the raw poses, best first (see :func:`alternative_formats`)."""
+    fmt0 = obs.raw.fmt
+    alts = alternative_formats(fmt0)
+    # stage 1: rotation readings by the rotation-angle invariant (independent of translation units,
+    # of inversion and of the mounting mode)
+    rot_score: dict = {}
+    pi, pj = all_pairs(obs.n)
+    ang_c = pair_angles_deg(obs.C[:, :3, :3], pi, pj)
+    for fmt, _ in alts:
+        key = replace(fmt, translation_unit=fmt0.translation_unit)
+        if key in rot_score:
+            continue
+        T = read_poses(obs.raw, key, obs.ids)
+        if T is None:
+            rot_score[key] = np.inf
+            continue
+        rot_score[key] = float(np.median(np.abs(pair_angles_deg(obs.M(T)[:, :3, :3], pi, pj) - ang_c)))
+    # keep every rotation reading that ties with the best: readings of the form R' = U R^T V (some Euler
+    # misreadings) keep all pair angles, and only the full fit tells them apart
+    ranked = sorted(rot_score, key=rot_score.get)
+    best = rot_score[ranked[0]]
+    keep = {k for k in ranked[:thresholds().readings.max_rotation_readings]
+            if rot_score[k] <= max(2.0 * best, best + 0.1)}
+    keep |= set(ranked[:2]) | {replace(fmt0)}
+    out = []
+    for fmt, changes in alts:
+        if replace(fmt, translation_unit=fmt0.translation_unit) not in keep:
+            continue
+        T = read_poses(obs.raw, fmt, obs.ids)
+        if T is None:
+            continue
+        s = summarize_invariants(pair_invariants(obs.C, obs.M(T)))  # the same for inverted motions
+        for invert in (False, True):
+            try:
+                fit = fit_boards(obs.C, obs.M(T, invert=invert))
+            except np.linalg.LinAlgError:
+                continue
+            out.append(Reading(fmt, changes, invert, fit, s["median_angle_res_deg"], s["median_pitch_res_mm"]))
+    out.sort(key=lambda r: (r.fit.cost, len(r.codes)))
+    return out
+
+
+def given_reading(readings: Sequence[Reading]) -> Optional[Reading]:
+    return next((r for r in readings if not r.changes and not r.invert), None)
+
+
+def is_clearly_better(cost: float, than_cost: float) -> bool:
+    """A fit of ``cost`` explains the data and is ``ratio`` times better than one of ``than_cost``."""
+    t = thresholds().readings
+    return cost < t.good_cost and cost * t.ratio < than_cost
+
+
+def reading_is_wrong(given: Reading, best: Reading) -> bool:
+    return given.fit.cost > thresholds().readings.bad_cost and is_clearly_better(best.fit.cost, given.fit.cost)
+
+
+def format_snippet(fmt: PoseFormat) -> str:
+    """The session.yaml line that states ``fmt``."""
+    if fmt.rotation == "euler":
+        return (f"pose_format: {{rotation: euler, euler_order: {fmt.euler_order}, euler_kind: {fmt.euler_kind}, "
+                f"angle_unit: {fmt.angle_unit}, translation_unit: {fmt.translation_unit}}}")
+    if fmt.rotation == "quaternion":
+        return (f"pose_format: {{rotation: quaternion, quaternion_order: {fmt.quaternion_order}, "
+                f"translation_unit: {fmt.translation_unit}}}")
+    if fmt.rotation == "rotvec":
+        return f"pose_format: {{rotation: rotvec, angle_unit: {fmt.angle_unit}, translation_unit: {fmt.translation_unit}}}"
+    return f"pose_format: {{rotation: matrix, translation_unit: {fmt.translation_unit}}}"
+
+
+def pitch_scale(obs: PoseObservations, fmt_read: PoseFormat, fmt_true: PoseFormat) -> Optional[float]:
+    """Median ratio camera pitch / robot pitch under a reading (how far off the translation scale is)."""
+    T = read_poses(obs.raw, replace(fmt_read, **{k: getattr(fmt_true, k) for k in
+                                                 ("rotation", "euler_order", "euler_kind", "angle_unit",
+                                                  "quaternion_order")}), obs.ids)
+    if T is None:
+        return None
+    M = obs.M(T)
+    i, j = all_pairs(obs.n)
+    _, pc = screw_invariants(obs.C[i] @ inv_T(obs.C[j]))
+    a, pm = screw_invariants(M[i] @ inv_T(M[j]))
+    ok = (a > np.radians(12)) & (a < np.radians(165)) & (np.abs(pm) > 1e-9)
+    if ok.sum() < 3:
+        return None
+    big = ok & (np.abs(pc) > np.quantile(np.abs(pc[ok]), 0.5))
+    return float(np.median(pc[big] / pm[big])) if big.sum() >= 2 else None
+
+
+def inverse_reading_kind(mode: str, fit: BoardFit) -> str:
+    """For a fit with inverted robot motions: "poses_inverted" or "mode_swapped", by which reading puts
+    the camera near the flange (eye-in-hand-like: |t_X| < |t_board|) or beside the robot."""
+    t_x = float(np.linalg.norm(inv_T(fit.A)[:3, 3]))
+    t_b = float(np.linalg.norm(fit.B[0][:3, 3]))
+    looks_like_camera_on_robot = t_x < t_b
+    return "poses_inverted" if looks_like_camera_on_robot == mounting(mode).camera_moves else "mode_swapped"
+
+
+def reading_findings(obs: PoseObservations, readings: Sequence[Reading], *, session_kind: str = "native") -> list:
+    """Findings for a wrong reading of the poses (units, Euler convention, inversion, mode)."""
+    given = given_reading(readings)
+    if given is None or not readings:
+        return []
+    best = readings[0]
+    if best is given or not reading_is_wrong(given, best):
+        return []
+    fmt0 = obs.raw.fmt
+    rivals = [r for r in readings[1:] if r.fit.cost < 1.5 * best.fit.cost and r.codes != best.codes][:3]
+    ev = (f"as given ({given.describe()}): the board implied by each view scatters by {given.fit.median_rot_deg:.2f} deg"
+          f" / {given.fit.median_trans_mm:.1f} mm (median), robot and camera rotation angles differ by "
+          f"{given.angle_res_deg:.2f} deg (median over {obs.n * (obs.n - 1) // 2} view pairs); read as "
+          f"{best.describe()}: {best.fit.median_rot_deg:.3f} deg / {best.fit.median_trans_mm:.2f} mm, "
+          f"{best.angle_res_deg:.3f} deg")
+    if rivals:
+        ev += "; about as good: " + "; ".join(f"{r.describe()} ({r.fit.median_rot_deg:.3f} deg / "
+                                              f"{r.fit.median_trans_mm:.2f} mm)" for r in rivals)
+    details = {"given": given.row(), "best": best.row(), "rivals": [r.row() for r in rivals]}
+    fix_fmt = ("convert the poses file to the vendor format (x, y, z in metres; rx, ry, rz in radians, "
+               f"R = Rz·Ry·Rx) or describe it in a session.yaml with {format_snippet(best.fmt)}"
+               if session_kind == "vendor" else f"state the format in session.yaml: {format_snippet(best.fmt)}")
+    out = []
+    for code in best.changes:
+        if code == "translation_units":
+            scale = pitch_scale(obs, fmt0, best.fmt)
+            title = ("Robot translations are in millimetres but were read as metres" if best.fmt.translation_unit == "mm"
+                     else "Robot translations are in metres but were read as millimetres")
+            if scale:
+                e = ev + (f"; as given, the robot moves {1 / scale:.4g} x farther along its rotation axes than the "
+                          f"camera saw" if abs(scale) < 1 else
+                          f"; as given, the camera saw {scale:.4g} x more motion along the rotation axes than the "
+                          f"robot reports")
+            else:
+                e = ev
+            out.append(Finding("translation_units", "fail", title, e, fix_fmt,
+                               details=dict(details, camera_over_robot_pitch=scale)))
+        elif code == "angle_units":
+            title = ("Robot angles are in degrees but were read as radians" if best.fmt.angle_unit == "deg"
+                     else "Robot angles are in radians but were read as degrees")
+            out.append(Finding("angle_units", "fail", title, ev, fix_fmt, details=details))
+        elif code == "euler_order":
+            title = (f"Robot angles follow another Euler convention: {best.fmt.euler_kind} {best.fmt.euler_order} "
+                     f"(read as {fmt0.euler_kind} {fmt0.euler_order})")
+            out.append(Finding("euler_order", "fail", title, ev, fix_fmt, details=details))
+        elif code == "quaternion_order":
+            title = f"Quaternions are written {best.fmt.quaternion_order}, read as {fmt0.quaternion_order}"
+            out.append(Finding("quaternion_order", "fail", title, ev, fix_fmt, details=details))
+    if best.invert:
+        out.append(_inverse_finding(obs, best, ev, details))
+    return out
+
+
+def _inverse_finding(obs: PoseObservations, best: Reading, ev: str, details: dict) -> Finding:
+    kind = inverse_reading_kind(obs.mode, best.fit)
+    mode = mounting(obs.mode)
+    other = mode.other
+    fits_as = mode if kind == "poses_inverted" else other
+    t_x = 1e3 * float(np.linalg.norm(inv_T(best.fit.A)[:3, 3]))
+    t_b = 1e3 * float(np.linalg.norm(best.fit.B[0][:3, 3]))
+    e = ev + (f"; with the inverted motions the camera sits {t_x:.0f} mm from the {fits_as.fixed_frame} origin and "
+              f"the board {t_b:.0f} mm from the {fits_as.board_frame} origin")
+    if kind == "poses_inverted":
+        return Finding("poses_inverted", "fail",
+                       "Robot poses are inverted (the pose of the base in the flange, T_end_base, "
+                       "instead of the flange in the base)",
+                       e + f" (calibrating as {other.name} would fit equally, but puts the camera implausibly)",
+                       "write each robot pose as the flange in the base frame (T_base_end), i.e. invert "
+                       "them, or export the other pose from the robot controller", details=details)
+    return Finding("mode_swapped", "fail",
+                   f"The data are {other.name.replace('_', '-')} but were calibrated as {mode.name.replace('_', '-')}",
+                   e + " (inverted robot poses would fit equally, but put the camera implausibly)",
+                   f"calibrate with --mode {other.name} (or set mode: {other.name} in the session)", details=details)
+
+
+def reading_in_use(obs: PoseObservations, readings: Sequence[Reading], findings: Sequence[Finding]):
+    """(robot motions M (N,4,4), fit) of the reading the other checks should use: the best reading when
+    the given one was found wrong, else the given one."""
+    if findings:
+        best = readings[0]
+        T = read_poses(obs.raw, best.fmt, obs.ids)
+        return obs.M(T, invert=best.invert), best.fit
+    given = given_reading(readings)
+    M = obs.M()
+    return M, (given.fit if given is not None else fit_boards(obs.C, M))
+
+
+__all__ = ["EULER_ORDERS", "READING_CODES", "Reading", "alternative_formats", "read_poses", "evaluate_readings",
+           "given_reading", "reading_is_wrong", "reading_findings", "reading_in_use"]
