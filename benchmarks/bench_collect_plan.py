@@ -4,7 +4,7 @@ For several simulated rigs (both mounting modes) this prints the predicted 1-sig
 transform (root of the trace of its marginal covariance, from the Fisher information used by the
 planner, i.e. the Cramer-Rao bound of an estimator that models pixel and robot noise) for
   * the automatic plan: start view + 3 probe views + N planned views,
-  * K views drawn like a careful operator places them (handeye.synth.sample_view_poses: 15-40 deg
+  * K views drawn like a careful operator places them (handeye.sim.scenarios.sample_view_poses: 15-40 deg
     tilts in all directions, rolls up to 80 deg, 0.35-0.9 m), median over draws.
 
     python benchmarks/bench_collect_plan.py [--planned 8] [--random 8 15 20] [--seeds 5]
@@ -17,10 +17,10 @@ import time
 
 import numpy as np
 
-from handeye.sim import synth
 from handeye.collect import plan as P
-from handeye.sim.devices import SimRig
 from handeye.mounting import mounting
+from handeye.sim.devices import SimRig
+from handeye.sim.scenarios import default_intrinsics, sample_view_poses
 
 
 def main(argv=None) -> int:
@@ -30,7 +30,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--draws", type=int, default=10, help="random view sets per rig")
     a = ap.parse_args(argv)
-    intr = synth.default_intrinsics(1280, 720)
+    intr = default_intrinsics(1280, 720)
     cfg = P.PlanConfig()
     print(f"assumed noise: {cfg.pixel_noise_px} px corners, robot {cfg.robot_noise_mm} mm / {cfg.robot_noise_deg} deg "
           "per axis; sigma = root of the trace over 3 axes")
@@ -53,8 +53,8 @@ def main(argv=None) -> int:
             for k in a.random:
                 sr, st = [], []
                 for _ in range(a.draws):
-                    Ts = synth.sample_view_poses(mode=mode, n_views=k, rng=rng, T_x=rig.T_x, T_board=rig.T_board,
-                                                 target=rig.target, intrinsics=intr)
+                    Ts = sample_view_poses(mode=mode, n_views=k, rng=rng, T_x=rig.T_x, T_board=rig.T_board,
+                                           target=rig.target, intrinsics=intr)
                     info = P.information_of_views(mode=mode, T_x=rig.T_x, T_board=rig.T_board, T_base_end=Ts,
                                                   target=rig.target, intrinsics=intr, config=cfg)
                     r, s = P.predicted_sigma(info)

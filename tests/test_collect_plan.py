@@ -5,20 +5,22 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from handeye.sim import synth
+from handeye.camera import pixels_from_board_points
 from handeye.collect import plan as P
+from handeye.collect.visibility import board_center, board_in_image
 from handeye.errors import ConfigError
-from handeye.frames import T_from_rotvec, inv_T, rotation_angle_rad
+from handeye.frames import inv_T, rotation_angle_rad, se3_exp
 from handeye.mounting import mounting
+from handeye.sim import scenarios
 
-INTR = synth.default_intrinsics(640, 360)
-TARGET = synth.DEFAULT_TARGET
+INTR = scenarios.default_intrinsics(640, 360)
+TARGET = scenarios.DEFAULT_TARGET
 
 
 def _rig(mode, seed):
     rng = np.random.default_rng(seed)
-    setup = synth.sample_setup(mode=mode, rng=rng, target=TARGET)
-    T0 = synth.sample_view_poses(mode=mode, n_views=1, rng=rng, T_x=setup["T_x"], T_board=setup["T_board"],
+    setup = scenarios.sample_setup(mode=mode, rng=rng, target=TARGET)
+    T0 = scenarios.sample_view_poses(mode=mode, n_views=1, rng=rng, T_x=setup["T_x"], T_board=setup["T_board"],
                                  target=TARGET, intrinsics=INTR, tilt_deg=(0.0, 8.0), roll_deg=10.0)[0]
     return setup["T_x"], setup["T_board"], T0
 
@@ -26,7 +28,7 @@ def _rig(mode, seed):
 def test_orbit_keeps_the_board_centre_on_the_optical_ray():
     T_x, T_b, T0 = _rig("eye_in_hand", 0)
     C0 = mounting("eye_in_hand").predict_T_cam_board(T_x, T_b, T0)
-    c = P.board_center(TARGET)
+    c = board_center(TARGET)
     C = P.orbit_T_cam_board(C0, center_board=c, rotvec_cam=np.radians([30, -20, 10]), distance_scale=0.8)
     p0, p = C0[:3, :3] @ c + C0[:3, 3], C[:3, :3] @ c + C[:3, 3]
     np.testing.assert_allclose(p / np.linalg.norm(p), p0 / np.linalg.norm(p0), atol=1e-12)
@@ -41,8 +43,7 @@ def _fit_errors(mode, T_x, T_b, Ts, *, noise_px, robot_mm, robot_deg, trials, se
     obj = TARGET.object_points()
 
     def proj(X, B, E):
-        C = mount.predict_T_cam_board(X, B, E)
-        return P.pixel_from_cam_points(obj @ C[:3, :3].T + C[:3, 3], INTR)
+        return pixels_from_board_points(mount.predict_T_cam_board(X, B, E), obj, INTR)
 
     Ls = []
     for E in Ts:  # per-view whitening from the pixel and robot-pose noise
@@ -50,8 +51,8 @@ def _fit_errors(mode, T_x, T_b, Ts, *, noise_px, robot_mm, robot_deg, trials, se
         for k in range(6):
             xi = np.zeros(6)
             xi[k] = 1e-6
-            up = proj(T_x, T_b, E @ T_from_rotvec(xi[:3], xi[3:]))
-            dn = proj(T_x, T_b, E @ T_from_rotvec(-xi[:3], -xi[3:]))
+            up = proj(T_x, T_b, E @ se3_exp(xi))
+            dn = proj(T_x, T_b, E @ se3_exp(-xi))
             J.append(((up - dn) / 2e-6).ravel())
         Jm = np.array(J).T
         S = np.diag([np.radians(robot_deg) ** 2] * 3 + [(robot_mm * 1e-3) ** 2] * 3)
@@ -61,12 +62,12 @@ def _fit_errors(mode, T_x, T_b, Ts, *, noise_px, robot_mm, robot_deg, trials, se
     clean = [proj(T_x, T_b, E) for E in Ts]
     out = []
     for _ in range(trials):
-        reported = [synth.perturb_T_base_end(E, rng=rng, sigma_mm=robot_mm, sigma_deg=robot_deg)[0] for E in Ts]
+        reported = [scenarios.perturb_T_base_end(E, rng=rng, sigma_mm=robot_mm, sigma_deg=robot_deg)[0] for E in Ts]
         obs = [o + rng.normal(0.0, noise_px, o.shape) for o in clean]
 
         def res(th):
-            X = T_x @ T_from_rotvec(th[:3], th[3:6])
-            B = T_b @ T_from_rotvec(th[6:9], th[9:12])
+            X = T_x @ se3_exp(th[:6])
+            B = T_b @ se3_exp(th[6:])
             return np.concatenate([L @ (proj(X, B, E) - o).ravel() for L, E, o in zip(Ls, reported, obs)])
 
         out.append(least_squares(res, np.zeros(12), method="lm", x_scale=1e-3).x[:6])
@@ -108,7 +109,7 @@ def test_greedy_plan_rotates_about_all_three_axes_and_shrinks_sigma(mode):
     for pv in plan.views:  # every planned view shows the whole board, through the model
         C = mounting(mode).predict_T_cam_board(T_x, T_b, pv.candidate.T_base_end)
         np.testing.assert_allclose(C, pv.candidate.T_cam_board, atol=1e-9)
-        assert synth.board_in_image(TARGET, INTR, C)
+        assert board_in_image(TARGET, INTR, C)
         assert np.linalg.norm(pv.candidate.T_base_end[:3, 3] - T0[:3, 3]) <= P.PlanConfig().max_travel_m
 
 
@@ -143,9 +144,64 @@ def test_information_is_symmetric_and_rank_limited_for_one_view():
 
 
 def test_probe_poses_are_small_rotations_about_end_axes():
-    T0 = synth.perturb_T_base_end(np.eye(4), rng=np.random.default_rng(0), sigma_mm=100, sigma_deg=30)[0]
+    T0 = scenarios.perturb_T_base_end(np.eye(4), rng=np.random.default_rng(0), sigma_mm=100, sigma_deg=30)[0]
     for k, pair in enumerate(P.probe_poses(T0, probe_deg=6.0)):
         for angle, T in zip((6.0, -6.0, 3.0, -3.0), pair):
             np.testing.assert_allclose((inv_T(T0) @ T)[:3, 3], 0.0, atol=1e-12)
             rv_deg = P.end_rotvec_deg(T0, T)
             assert np.argmax(np.abs(rv_deg)) == k and rv_deg[k] == pytest.approx(angle)
+
+
+def test_plan_defaults_come_from_the_collect_preset():
+    from handeye.config import load_preset
+
+    preset = load_preset("collect")["plan"]
+    cfg = P.PlanConfig()
+    assert (cfg.pixel_noise_px, cfg.robot_noise_mm, cfg.robot_noise_deg) == (
+        preset["pixel_noise_px"], preset["robot_noise_mm"], preset["robot_noise_deg"])
+    assert cfg.tilt_deg == tuple(preset["tilt_deg"]) and cfg.max_travel_m == preset["max_travel_m"]
+    preset["max_travel_m"] = 0.25
+    assert P.PlanConfig.from_config({"plan": preset}).max_travel_m == 0.25
+
+
+def _cv2_outline_inside(target, intr, T_cam_board, margin_px):
+    """Oracle for board_in_image: the outline through cv2.projectPoints, in the image with the margin."""
+    import cv2
+    from scipy.spatial.transform import Rotation
+
+    from handeye.collect.visibility import _outline_points
+
+    pts = _outline_points(target)
+    if np.any((pts @ T_cam_board[:3, :3].T + T_cam_board[:3, 3])[:, 2] <= 0.05):
+        return False
+    uv, _ = cv2.projectPoints(pts, Rotation.from_matrix(T_cam_board[:3, :3]).as_rotvec(), T_cam_board[:3, 3].copy(),
+                              intr.K, intr.dist_array)
+    u, v = uv.reshape(-1, 2).T
+    return bool(np.all((u >= margin_px - 0.5) & (u <= intr.width - 0.5 - margin_px)
+                       & (v >= margin_px - 0.5) & (v <= intr.height - 0.5 - margin_px)))
+
+
+def test_board_in_image_agrees_with_cv2_on_views_near_the_border():
+    T_x, T_b, T0 = _rig("eye_in_hand", 5)
+    C0 = mounting("eye_in_hand").predict_T_cam_board(T_x, T_b, T0)
+    rng = np.random.default_rng(3)
+    verdicts = []
+    for _ in range(300):  # orbits of up to 45 deg and shifts of the board: about half leave the image
+        C = P.orbit_T_cam_board(C0, center_board=board_center(TARGET), rotvec_cam=np.radians(rng.uniform(-45, 45, 3)),
+                                distance_scale=rng.uniform(0.5, 1.2))
+        C[:3, 3] += rng.uniform(-0.08, 0.08, 3) * [1, 1, 0]
+        got = board_in_image(TARGET, INTR, C, margin_px=8.0)
+        assert got == _cv2_outline_inside(TARGET, INTR, C, 8.0)
+        verdicts.append(got)
+    assert 0.2 < np.mean(verdicts) < 0.8  # both answers were exercised
+
+
+def test_circle_grid_pattern_bounds_hold_every_dot_with_a_spacing_to_spare():
+    from handeye.collect.visibility import pattern_bounds
+    from handeye.targets import CircleGridSpec
+
+    for grid in (CircleGridSpec(4, 11, 0.02, asymmetric=True), CircleGridSpec(7, 5, 0.03)):
+        x0, x1, y0, y1 = pattern_bounds(grid)
+        p = grid.object_points()
+        assert np.isclose(p[:, 0].min() - x0, grid.spacing_m) and np.isclose(x1 - p[:, 0].max(), grid.spacing_m)
+        assert np.isclose(p[:, 1].min() - y0, grid.spacing_m) and np.isclose(y1 - p[:, 1].max(), grid.spacing_m)

@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 import yaml
 
-from handeye.sim import synth
 from handeye.collect.realsense import intrinsics_from_realsense, opencv5_from_realsense
 from handeye.errors import HardwareError
 
@@ -134,17 +133,17 @@ def _record(rs, folder, frames, *, fx=455.0, fy=454.5, ppx=321.1, ppy=180.4, mod
 
 
 def _board_frames(n):
-    from handeye.sim.devices import SimRig, _render_view
-
-    rig = SimRig.sample(mode="eye_in_hand", rng=np.random.default_rng(1), intrinsics=synth.default_intrinsics(W, H))
-    rng = np.random.default_rng(2)
-    render = _render_view()
-    Ts = synth.sample_view_poses(mode="eye_in_hand", n_views=n, rng=rng, T_x=rig.T_x, T_board=rig.T_board,
-                                 target=rig.target, intrinsics=rig.intrinsics)
     from handeye.mounting import mounting
+    from handeye.sim.devices import SimRig
+    from handeye.sim.render import render_view
+    from handeye.sim.scenarios import default_intrinsics, sample_view_poses
 
+    rig = SimRig.sample(mode="eye_in_hand", rng=np.random.default_rng(1), intrinsics=default_intrinsics(W, H))
+    rng = np.random.default_rng(2)
+    Ts = sample_view_poses(mode="eye_in_hand", n_views=n, rng=rng, T_x=rig.T_x, T_board=rig.T_board,
+                           target=rig.target, intrinsics=rig.intrinsics)
     C = mounting("eye_in_hand").predict_T_cam_board(rig.T_x, rig.T_board, Ts)
-    return [render(rig.target, rig.intrinsics, c, supersample=2, channels=3) for c in C]
+    return [render_view(rig.target, rig.intrinsics, c, supersample=2, channels=3) for c in C]
 
 
 def test_recording_plays_back_frame_by_frame(tmp_path):

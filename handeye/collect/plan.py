@@ -16,7 +16,8 @@ information of its views under a corner reprojection model. Per view, with the 1
 translation)) and the robot-pose error ``xi_m`` (``T_base_end · Exp(xi_m)``, covariance ``S_m``
 from the assumed robot noise), the corners' covariance is ``sigma_px^2 I + J_m S_m J_m^T`` and the
 view contributes ``J_theta^T (sigma_px^2 I + J_m S_m J_m^T)^-1 J_theta`` (Jacobians by central
-differences). Each step adds the candidate that most reduces ``log det`` of the marginal covariance
+differences of THE projection, :func:`handeye.camera.pixels_from_cam_points`, over right perturbations
+``T · Exp(±h e_k)`` with :func:`handeye.frames.se3_exp`). Each step adds the candidate that most reduces ``log det`` of the marginal covariance
 of ``T_x``. The rotations of the end relative to the start pose must reach at least
 ``min_axis_rotation_deg`` about each of the end frame's three axes; when the remaining slots are
 needed for that, only candidates that add a missing axis are eligible.
@@ -34,34 +35,44 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..camera import Intrinsics, pixels_from_cam_points
+from ..config import load_preset
 from ..errors import ConfigError
-from ..frames import T_from_rotvec, inv_T, make_T
+from ..frames import T_from_rotvec, inv_T, make_T, rotvec_from_R, se3_exp
 from ..mounting import mounting
-from ..sim.synth import board_in_image, distort_normalized, pattern_bounds
-from ..camera import Intrinsics
 from ..targets import TargetSpec
+from .visibility import board_center, board_in_image
 
 log = logging.getLogger(__name__)
 
 _H = 1e-6  # finite-difference step (rad, m)
 
 
+_PLAN = load_preset("collect")["plan"]  # the defaults below; configs/collect.yaml says where each comes from
+
+
 @dataclass(frozen=True)
 class PlanConfig:
-    """Assumptions and limits of the planner (units in the names)."""
+    """Assumptions and limits of the planner (units in the names; defaults: configs/collect.yaml ``plan:``)."""
 
-    pixel_noise_px: float = 0.3  # corner noise assumed for the prediction
-    robot_noise_mm: float = 0.1  # per-axis robot pose noise assumed (end frame)
-    robot_noise_deg: float = 0.03
-    min_axis_rotation_deg: float = 30.0  # the plan rotates the end at least this much about x, y and z
-    tilt_deg: tuple = (-40.0, -32.0, -20.0, 0.0, 20.0, 32.0, 40.0)  # camera tilts about the board centre (x and y)
-    roll_deg: tuple = (-45.0, -20.0, 0.0, 20.0, 45.0)  # camera roll about its optical axis
-    distance_scales: tuple = (0.7, 0.85, 1.0, 1.15, 1.3)
-    max_view_angle_deg: float = 60.0  # board normal vs optical axis
-    max_end_rotation_deg: float = 70.0  # from the start pose
-    max_travel_m: float = 0.5  # end translation from the start pose
-    margin_px: Optional[float] = None  # pattern-to-border margin (default: synth's)
-    min_separation_deg: float = 5.0  # planned views differ from each other by at least this
+    pixel_noise_px: float = float(_PLAN["pixel_noise_px"])  # corner noise assumed for the prediction
+    robot_noise_mm: float = float(_PLAN["robot_noise_mm"])  # per-axis robot pose noise assumed (end frame)
+    robot_noise_deg: float = float(_PLAN["robot_noise_deg"])
+    min_axis_rotation_deg: float = float(_PLAN["min_axis_rotation_deg"])  # rotate the end this much about x, y, z
+    tilt_deg: tuple = tuple(_PLAN["tilt_deg"])  # camera tilts about the board centre (x and y)
+    roll_deg: tuple = tuple(_PLAN["roll_deg"])  # camera roll about its optical axis
+    distance_scales: tuple = tuple(_PLAN["distance_scales"])
+    max_view_angle_deg: float = float(_PLAN["max_view_angle_deg"])  # board normal vs optical axis
+    max_end_rotation_deg: float = float(_PLAN["max_end_rotation_deg"])  # from the start pose
+    max_travel_m: float = float(_PLAN["max_travel_m"])  # end translation from the start pose
+    margin_px: Optional[float] = _PLAN["margin_px"]  # pattern-to-border margin (None: visibility's default)
+    min_separation_deg: float = float(_PLAN["min_separation_deg"])  # planned views differ at least this much
+
+    @staticmethod
+    def from_config(cfg: dict) -> "PlanConfig":
+        """From a ``collect`` preset (``load_preset("collect")``, possibly merged with a site file)."""
+        p = cfg["plan"]
+        return PlanConfig(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in p.items()})
 
 
 @dataclass(frozen=True)
@@ -91,26 +102,9 @@ class Plan:
     failure_reason: str = ""
 
 
-# ------------------------------------------------------------------------------ projection
-def pixel_from_cam_points(p_cam: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
-    """OpenCV 5-coefficient projection of (..., N, 3) camera points -> (..., N, 2) pixels."""
-    z = p_cam[..., 2]
-    x, y = p_cam[..., 0] / z, p_cam[..., 1] / z
-    xd, yd = distort_normalized(x, y, intrinsics.dist)
-    return np.stack([intrinsics.fx * xd + intrinsics.cx, intrinsics.fy * yd + intrinsics.cy], axis=-1)
-
-
-def _deltas() -> np.ndarray:
-    out = []
-    for k in range(6):
-        for sgn in (1.0, -1.0):
-            xi = np.zeros(6)
-            xi[k] = sgn * _H
-            out.append(T_from_rotvec(xi[:3], xi[3:]))
-    return np.stack(out)
-
-
-_DELTAS = _deltas()  # (12, 4, 4): Exp(+h e_k), Exp(-h e_k) for k = 0..5
+# ------------------------------------------------------------------------------ information
+#: (12, 4, 4): Exp(+h e_k), Exp(-h e_k) for k = 0..5 (tangent order: rotation, translation)
+_DELTAS = se3_exp(np.kron(np.eye(6), [[1.0], [-1.0]]) * _H)
 
 
 def _perturbations(T: np.ndarray) -> np.ndarray:
@@ -129,8 +123,9 @@ def view_information(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_
     B = np.concatenate([np.broadcast_to(T_board, (12, 4, 4)), Pb, np.broadcast_to(T_board, (12, 4, 4))])
     E = np.concatenate([np.broadcast_to(T_base_end, (24, 4, 4)), Pe])
     C = mount.predict_T_cam_board(X, B, E)  # (36, 4, 4)
-    p_cam = np.einsum("kij,nj->kni", C[:, :3, :3], object_points) + C[:, None, :3, 3]
-    uv = pixel_from_cam_points(p_cam, intrinsics).reshape(18, 2, -1)  # (18 params, +/-, 2N)
+    p_cam = np.einsum("kij,nj->kni", C[:, :3, :3], object_points) + C[:, None, :3, 3]  # shape (36, N, 3)
+    uv = pixels_from_cam_points(intrinsics.as_vector(), p_cam.reshape(-1, 3), jacobians=False)[0]
+    uv = uv.reshape(18, 2, -1)  # (18 params, +/-, 2N)
     J = ((uv[:, 0] - uv[:, 1]) / (2 * _H)).T  # (2N, 18)
     J_th, J_m = J[:, :12], J[:, 12:]
     s2 = float(pixel_noise_px) ** 2
@@ -161,11 +156,6 @@ def _logdet_x(info: np.ndarray) -> float:
 
 
 # ------------------------------------------------------------------------------ candidates
-def board_center(target: TargetSpec) -> np.ndarray:
-    x0, x1, y0, y1 = pattern_bounds(target)
-    return np.array([(x0 + x1) / 2.0, (y0 + y1) / 2.0, 0.0])
-
-
 def orbit_T_cam_board(T_cam_board_0: np.ndarray, *, center_board: np.ndarray, rotvec_cam: np.ndarray,
                       distance_scale: float = 1.0) -> np.ndarray:
     """The camera of ``T_cam_board_0`` turned by ``rotvec_cam`` (its own axes) about the board centre.
@@ -182,8 +172,7 @@ def orbit_T_cam_board(T_cam_board_0: np.ndarray, *, center_board: np.ndarray, ro
 
 def end_rotvec_deg(T_base_end_start: np.ndarray, T_base_end: np.ndarray) -> np.ndarray:
     """Rotation of the end from the start pose, as a rotation vector in the start end frame (deg)."""
-    R = T_base_end_start[:3, :3].T @ T_base_end[:3, :3]
-    return np.degrees(Rotation.from_matrix(R).as_rotvec())
+    return np.degrees(rotvec_from_R(T_base_end_start[:3, :3].T @ T_base_end[:3, :3]))
 
 
 def candidate_views(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_end_start: np.ndarray,
@@ -212,7 +201,7 @@ def candidate_views(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_e
     view_angle = np.degrees(np.arccos(np.clip(np.abs(C[:, 2, 2]), 0.0, 1.0)))
     T_be = mount.T_base_end_from_M(T_x @ C @ inv_T(T_board))
     R_rel = np.einsum("ji,kjl->kil", T_base_end_start[:3, :3], T_be[:, :3, :3])
-    rv_deg = np.degrees(Rotation.from_matrix(R_rel).as_rotvec())
+    rv_deg = np.degrees(rotvec_from_R(R_rel))
     travel = np.linalg.norm(T_be[:, :3, 3] - T_base_end_start[:3, 3], axis=1)
     keep = ((view_angle <= config.max_view_angle_deg) & (np.linalg.norm(rv_deg, axis=1) <= config.max_end_rotation_deg)
             & (travel <= config.max_travel_m))
@@ -329,6 +318,6 @@ def probe_poses(T_base_end_start: np.ndarray, *, probe_deg: float = 6.0) -> list
     """
     out = []
     for e in np.eye(3):
-        out.append(tuple(T_base_end_start @ make_T(Rotation.from_rotvec(np.radians(a) * e).as_matrix(), np.zeros(3))
+        out.append(tuple(T_base_end_start @ T_from_rotvec(np.radians(a) * e, np.zeros(3))
                          for a in (probe_deg, -probe_deg, probe_deg / 2, -probe_deg / 2)))
     return out

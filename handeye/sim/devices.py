@@ -3,8 +3,8 @@
 The simulated arm keeps a *true* pose and a *reported* pose. Moving to ``T_cmd`` reports exactly
 ``T_cmd`` (as a controller reports what it believes) while the flange really sits at
 ``T_true = T_cmd @ inv(dT)``, i.e. ``reported = true @ dT`` with ``dT`` a fresh small transform in
-the end frame per motion (the robot-noise convention of :mod:`handeye.synth`). The simulated camera
-renders the board from the *true* pose through :func:`handeye.synth_render.render_view`, so a
+the end frame per motion (the robot-noise convention of :mod:`handeye.sim.scenarios`). The simulated
+camera renders the board from the *true* pose through :func:`handeye.sim.render.render_view`, so a
 calibration from the reported poses meets the same errors a real one does.
 """
 from __future__ import annotations
@@ -16,24 +16,17 @@ from typing import Optional
 
 import numpy as np
 
-from . import synth
+from ..camera import Intrinsics
+from ..collect.camera import Camera
+from ..collect.robot import PoseReading, Robot
 from ..errors import ConfigError
 from ..frames import inv_T
 from ..mounting import mounting
-from ..camera import Intrinsics
 from ..targets import TargetSpec
-from ..collect.camera import Camera
-from ..collect.robot import PoseReading, Robot
+from .render import render_view
+from .scenarios import DEFAULT_INTRINSICS, DEFAULT_TARGET, perturb_T_base_end, sample_setup, sample_view_poses
 
 log = logging.getLogger(__name__)
-
-
-def _render_view():
-    try:
-        from .synth import render_view  # type: ignore[attr-defined]
-    except ImportError:
-        from .render import render_view
-    return render_view
 
 
 @dataclass(frozen=True)
@@ -48,13 +41,13 @@ class SimRig:
     T_base_end_start: np.ndarray  # a pose where the camera sees the whole board, roughly face on
 
     @staticmethod
-    def sample(*, mode: str, rng: np.random.Generator, target: TargetSpec = synth.DEFAULT_TARGET,
+    def sample(*, mode: str, rng: np.random.Generator, target: TargetSpec = DEFAULT_TARGET,
                intrinsics: Optional[Intrinsics] = None) -> "SimRig":
-        intrinsics = synth.DEFAULT_INTRINSICS if intrinsics is None else intrinsics
-        setup = synth.sample_setup(mode=mode, rng=rng, target=target)
-        T0 = synth.sample_view_poses(mode=mode, n_views=1, rng=rng, T_x=setup["T_x"], T_board=setup["T_board"],
-                                     target=target, intrinsics=intrinsics, tilt_deg=(0.0, 8.0), roll_deg=10.0,
-                                     aim_deg=2.0)[0]
+        intrinsics = DEFAULT_INTRINSICS if intrinsics is None else intrinsics
+        setup = sample_setup(mode=mode, rng=rng, target=target)
+        T0 = sample_view_poses(mode=mode, n_views=1, rng=rng, T_x=setup["T_x"], T_board=setup["T_board"],
+                               target=target, intrinsics=intrinsics, tilt_deg=(0.0, 8.0), roll_deg=10.0,
+                               aim_deg=2.0)[0]
         return SimRig(mode, setup["T_x"], setup["T_board"], target, intrinsics, T0)
 
     def truth(self) -> dict:
@@ -83,7 +76,7 @@ class SimRobot(Robot):
         self._set(rig.T_base_end_start)
 
     def _set(self, T_cmd: np.ndarray) -> None:
-        dT = synth.perturb_T_base_end(np.eye(4), rng=self.rng, sigma_mm=self.pose_noise_mm,
+        dT = perturb_T_base_end(np.eye(4), rng=self.rng, sigma_mm=self.pose_noise_mm,
                                       sigma_deg=self.pose_noise_deg)[0]
         self.T_reported = np.array(T_cmd, float)
         self.T_true = self.T_reported @ inv_T(dT)
@@ -112,8 +105,8 @@ class SimRobot(Robot):
     def simulate_hand_guiding(self) -> None:
         """Interactive sessions: a simulated operator drags the arm to a new pose showing the board."""
         r = self.rig
-        T = synth.sample_view_poses(mode=r.mode, n_views=1, rng=self.rng, T_x=r.T_x, T_board=r.T_board,
-                                    target=r.target, intrinsics=r.intrinsics)[0]
+        T = sample_view_poses(mode=r.mode, n_views=1, rng=self.rng, T_x=r.T_x, T_board=r.T_board,
+                              target=r.target, intrinsics=r.intrinsics)[0]
         self._set(T)
         self.n_moves += 1
 
@@ -129,7 +122,6 @@ class SimCamera(Camera):
         self.blur_sigma_px = float(blur_sigma_px)
         self.noise_sigma = float(noise_sigma)
         self.rng = np.random.default_rng() if rng is None else rng
-        self._render = _render_view()
         self.n_frames = 0
 
     def intrinsics(self) -> Intrinsics:
@@ -144,7 +136,7 @@ class SimCamera(Camera):
 
     def grab(self) -> tuple[np.ndarray, float]:
         r = self.robot.rig
-        img = self._render(r.target, r.intrinsics, self.robot.T_cam_board_true(), supersample=self.supersample,
+        img = render_view(r.target, r.intrinsics, self.robot.T_cam_board_true(), supersample=self.supersample,
                            blur_sigma_px=self.blur_sigma_px, noise_sigma=self.noise_sigma, rng=self.rng)
         self.n_frames += 1
         self.last_frame_info = {"frame_number": self.n_frames}

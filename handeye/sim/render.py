@@ -22,10 +22,10 @@ from typing import Optional, Union
 import cv2
 import numpy as np
 
+from ..camera import Intrinsics, pixels_from_cam_points
+from ..collect.visibility import pattern_bounds
 from ..errors import ConfigError
-from .synth import distort_normalized, pattern_bounds
 from ..targets import ChessboardSpec, CharucoSpec, TargetSpec
-from ..camera import Intrinsics
 
 log = logging.getLogger(__name__)
 
@@ -76,6 +76,15 @@ def _newton_undistort(x: np.ndarray, y: np.ndarray, xt: np.ndarray, yt: np.ndarr
     return x, y
 
 
+def _roundtrip_px(intrinsics: Intrinsics, x: np.ndarray, y: np.ndarray, u: np.ndarray, v: np.ndarray) -> float:
+    """Largest |projection of the normalized points (x, y) - their pixels (u, v)|, in px (THE projection)."""
+    x, y = np.broadcast_arrays(x, y)
+    p_cam = np.stack([x.ravel(), y.ravel(), np.ones(x.size)], axis=1)
+    uv = pixels_from_cam_points(intrinsics.as_vector(), p_cam, jacobians=False)[0]
+    u, v = np.broadcast_to(u, x.shape).ravel(), np.broadcast_to(v, x.shape).ravel()
+    return float(max(np.max(np.abs(uv[:, 0] - u)), np.max(np.abs(uv[:, 1] - v))))
+
+
 def _build_grid(intrinsics: Intrinsics, s: int) -> np.ndarray:
     W, H = intrinsics.width, intrinsics.height
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
@@ -101,12 +110,11 @@ def _build_grid(intrinsics: Intrinsics, s: int) -> np.ndarray:
         yt = ((vs[r0:r1] - cy) / fy)[:, None]
         x, y = _newton_undistort(start[..., 0].astype(float), start[..., 1].astype(float), xt, yt, dist,
                                  iterations=1)
-        xd, yd = distort_normalized(x, y, dist)
-        res_px = max(float(np.max(np.abs(xd - xt))) * fx, float(np.max(np.abs(yd - yt))) * fy)
+        u_px, v_px = us[None, :], vs[r0:r1, None]
+        res_px = _roundtrip_px(intrinsics, x, y, u_px, v_px)
         if res_px > _ROUNDTRIP_TOL_PX:  # strong distortion near the border: polish further
             x, y = _newton_undistort(x, y, xt, yt, dist, iterations=4)
-            xd, yd = distort_normalized(x, y, dist)
-            res_px = max(float(np.max(np.abs(xd - xt))) * fx, float(np.max(np.abs(yd - yt))) * fy)
+            res_px = _roundtrip_px(intrinsics, x, y, u_px, v_px)
         # Independent check of the float64 solution through cv2.projectPoints (every 97th sample).
         sub_x, sub_y = x.ravel()[::97], y.ravel()[::97]
         uv, _ = cv2.projectPoints(np.stack([sub_x, sub_y, np.ones_like(sub_x)], 1), np.zeros(3), np.zeros(3),

@@ -1,0 +1,180 @@
+"""Corner-level synthetic sessions: projected corners with known ground truth, no images.
+
+:func:`make_corner_session` samples a rig and view poses (:mod:`handeye.sim.scenarios`), projects
+the target's corners through the truth with THE projection
+(:func:`handeye.camera.pixels_from_board_points`), adds optional pixel noise, robot pose noise and
+gross robot-pose outliers, and returns a frozen :class:`CornerSession`. The same seed and options
+give the geometry that :func:`handeye.sim.vendor.write_vendor_session` renders to images.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional, Sequence, Union
+
+import numpy as np
+
+from ..camera import Intrinsics, pixels_from_board_points
+from ..errors import ConfigError
+from ..mounting import mounting
+from ..records import Detection
+from ..targets import TargetSpec
+from .scenarios import (DEFAULT_INTRINSICS, DEFAULT_TARGET, outlier_offset, perturb_T_base_end, random_streams,
+                        sample_hidden_view_pose, sample_setup, sample_view_poses)
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, copy=True)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class CornerSession:
+    """A synthetic session at corner level, with its ground truth.
+
+    Per view (same order as ``view_ids``; look views up by id with :meth:`index`):
+    ``corner_ids`` (n,) ints into ``target.object_points()``, ``image_points`` (n,2) noisy pixels
+    (empty for hidden views), ``T_base_end_true`` / ``T_base_end_reported`` (N,4,4).
+    ``T_x_true`` is ``T_end_cam`` (eye_in_hand) or ``T_base_cam`` (eye_to_hand); ``T_board_true``
+    is ``T_base_board`` or ``T_end_board`` (see ``x_name``/``board_name``).
+    Reported = true @ dT (end frame) with robot noise ``robot_noise`` = (sigma_mm, sigma_deg) per
+    axis, plus a gross error on ``outlier_view_ids``.
+    """
+
+    mode: str
+    target: TargetSpec
+    intrinsics: Intrinsics
+    T_x_true: np.ndarray
+    T_board_true: np.ndarray
+    view_ids: tuple
+    corner_ids: tuple
+    image_points: tuple
+    T_base_end_true: np.ndarray
+    T_base_end_reported: np.ndarray
+    outlier_view_ids: tuple = ()
+    hidden_view_ids: tuple = ()
+    noise_px: float = 0.0
+    robot_noise: tuple = (0.0, 0.0)
+    seed: int = 0
+
+    @property
+    def x_name(self) -> str:
+        return mounting(self.mode).x_name
+
+    @property
+    def board_name(self) -> str:
+        return mounting(self.mode).board_name
+
+    @property
+    def n_views(self) -> int:
+        return len(self.view_ids)
+
+    def index(self, view_id: str) -> int:
+        try:
+            return self.view_ids.index(str(view_id))
+        except ValueError:
+            raise KeyError(view_id) from None
+
+    @property
+    def T_cam_board_true(self) -> np.ndarray:  # (N, 4, 4)
+        return mounting(self.mode).predict_T_cam_board(self.T_x_true, self.T_board_true, self.T_base_end_true)
+
+    def detections(self) -> tuple:
+        """:class:`handeye.records.Detection` per visible view (hidden views have none)."""
+        size = (self.intrinsics.width, self.intrinsics.height)
+        return tuple(Detection(view_id=vid, corner_ids=ids, image_points=pts, image_size=size)
+                     for vid, ids, pts in zip(self.view_ids, self.corner_ids, self.image_points) if len(ids))
+
+
+def _resolve_view_ids(n_views: int, ids, what: str) -> tuple:
+    valid = {str(k) for k in range(1, n_views + 1)}
+    out = tuple(str(v) for v in ids)
+    bad = [v for v in out if v not in valid]
+    if bad:
+        raise ConfigError(f"unknown view ids in {what}", expected=f"ids among 1..{n_views}", received=repr(bad))
+    if len(set(out)) != len(out):
+        raise ConfigError(f"duplicate view ids in {what}", expected="each id once", received=repr(list(out)))
+    return tuple(sorted(out, key=int))
+
+
+def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: int = 0,
+                        target: TargetSpec = DEFAULT_TARGET, intrinsics: Optional[Intrinsics] = None,
+                        noise_px: float = 0.3, robot_noise: tuple[float, float] = (0.0, 0.0),
+                        outlier_views: Union[int, Sequence[str]] = 0, hidden_views: Sequence[str] = (),
+                        outlier_trans_mm: tuple[float, float] = (5.0, 30.0),
+                        outlier_rot_deg: tuple[float, float] = (2.0, 10.0), **view_options) -> CornerSession:
+    """A corner-level synthetic session with ground truth (see module docstring for seeding).
+
+    ``noise_px``: Gaussian sigma (px, per coordinate) added to the projected corners.
+    ``robot_noise``: (sigma_mm, sigma_deg) per axis on the reported ``T_base_end`` (end frame).
+    ``outlier_views``: a count (ids drawn at random among visible views) or explicit ids; those
+    views' reported pose gets an extra gross error (``outlier_trans_mm``, ``outlier_rot_deg``).
+    ``hidden_views``: ids whose robot pose turns the camera away (no corners, detection fails).
+    ``view_options`` go to :func:`sample_view_poses` (distance_m, tilt_deg, roll_deg, ...).
+    All corners are projected with :func:`handeye.camera.pixels_from_board_points` through
+    ``mounting(mode).predict_T_cam_board(T_x_true, T_board_true, T_base_end_true)``.
+    """
+    mounting(mode)  # an unknown mode is a ConfigError
+    intrinsics = DEFAULT_INTRINSICS if intrinsics is None else intrinsics
+    n_views = int(n_views)
+    if noise_px < 0 or robot_noise[0] < 0 or robot_noise[1] < 0:
+        raise ConfigError("negative noise level", expected="noise_px, robot_noise >= 0",
+                          received=f"noise_px={noise_px}, robot_noise={tuple(robot_noise)}")
+    view_ids = tuple(str(k) for k in range(1, n_views + 1))
+    hidden = _resolve_view_ids(n_views, hidden_views, "hidden_views")
+    rngs = random_streams(seed)
+    visible = [v for v in view_ids if v not in hidden]
+    if isinstance(outlier_views, (int, np.integer)):
+        if not 0 <= int(outlier_views) <= len(visible):
+            raise ConfigError("too many outlier views", expected=f"0..{len(visible)} (visible views)",
+                              received=str(outlier_views))
+        picked = rngs["outliers"].choice(len(visible), size=int(outlier_views), replace=False)
+        outliers = tuple(sorted((visible[i] for i in picked), key=int))
+    else:
+        outliers = _resolve_view_ids(n_views, outlier_views, "outlier_views")
+        if set(outliers) & set(hidden):
+            raise ConfigError("a view cannot be both hidden and an outlier", expected="disjoint id sets",
+                              received=repr(sorted(set(outliers) & set(hidden), key=int)))
+
+    geo = rngs["geometry"]
+    setup = sample_setup(mode=mode, rng=geo, target=target)
+    T_x, T_board = setup["T_x"], setup["T_board"]
+    T_vis = sample_view_poses(mode=mode, n_views=len(visible), rng=geo, T_x=T_x, T_board=T_board, target=target,
+                              intrinsics=intrinsics, **view_options)
+    T_true = np.empty((n_views, 4, 4))
+    it = iter(T_vis)
+    hid_rng = rngs["hidden"]
+    for k, vid in enumerate(view_ids):
+        if vid in hidden:
+            T_true[k] = sample_hidden_view_pose(mode=mode, rng=hid_rng, T_x=T_x, T_board=T_board, target=target,
+                                                intrinsics=intrinsics)
+        else:
+            T_true[k] = next(it)
+
+    T_rep = perturb_T_base_end(T_true, rng=rngs["robot_noise"], sigma_mm=float(robot_noise[0]),
+                               sigma_deg=float(robot_noise[1]))
+    out_rng = rngs["outliers"]
+    for vid in outliers:
+        k = view_ids.index(vid)
+        T_rep[k] = T_rep[k] @ outlier_offset(out_rng, trans_mm=outlier_trans_mm, rot_deg=outlier_rot_deg)
+
+    T_cam_board = mounting(mode).predict_T_cam_board(T_x, T_board, T_true)
+    obj = target.object_points()
+    all_ids = np.arange(target.n_corners)
+    px_rng = rngs["pixel_noise"]
+    ids_out, pts_out = [], []
+    for k, vid in enumerate(view_ids):
+        if vid in hidden:
+            ids_out.append(_frozen(np.zeros(0, dtype=int)))
+            pts_out.append(_frozen(np.zeros((0, 2))))
+            continue
+        uv = pixels_from_board_points(T_cam_board[k], obj, intrinsics)
+        uv = uv + px_rng.normal(0.0, float(noise_px), size=uv.shape) if noise_px > 0 else uv
+        ids_out.append(_frozen(all_ids))
+        pts_out.append(_frozen(uv))
+    return CornerSession(mode=mode, target=target, intrinsics=intrinsics, T_x_true=_frozen(T_x),
+                         T_board_true=_frozen(T_board), view_ids=view_ids, corner_ids=tuple(ids_out),
+                         image_points=tuple(pts_out), T_base_end_true=_frozen(T_true),
+                         T_base_end_reported=_frozen(T_rep), outlier_view_ids=outliers, hidden_view_ids=hidden,
+                         noise_px=float(noise_px), robot_noise=(float(robot_noise[0]), float(robot_noise[1])),
+                         seed=int(seed))
+

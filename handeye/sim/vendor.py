@@ -1,0 +1,152 @@
+"""A rendered synthetic session on disk in the vendor layout, with ``ground_truth.json``.
+
+:func:`write_vendor_session` renders the geometry of :func:`handeye.sim.corners.make_corner_session`
+(same seed, same options) with :mod:`handeye.sim.render` and writes ``1.jpg .. N.jpg``,
+``poses.txt``, ``config.yaml`` and ``ground_truth.json``, each atomically.
+"""
+from __future__ import annotations
+
+import logging
+import re
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Optional, Sequence, Union
+
+import cv2
+import yaml
+
+from ..camera import Intrinsics
+from ..conventions import VENDOR_POSE_FORMAT, pose_values_from_T
+from ..errors import ConfigError
+from ..mounting import mounting
+from ..output import atomic_write_bytes, atomic_write_text, provenance, to_json
+from ..targets import ChessboardSpec
+from . import render
+from .corners import make_corner_session
+from .scenarios import DEFAULT_INTRINSICS, DEFAULT_TARGET, random_streams
+
+log = logging.getLogger(__name__)
+
+_VENDOR_FILE_RE = r"^\d+\.(jpg|png)$"
+
+
+def _clear_previous_session(out: Path, *, overwrite: bool) -> None:
+    names = [p.name for p in out.iterdir()] if out.exists() else []
+    ours = [n for n in names if re.match(_VENDOR_FILE_RE, n) or n in ("poses.txt", "config.yaml",
+                                                                        "ground_truth.json")]
+    if not ours:
+        return
+    if not overwrite:
+        raise ConfigError("output folder already holds a session", path=out,
+                          expected="an empty or new folder", received=f"{len(ours)} session files (e.g. {ours[0]})",
+                          hint="choose another folder or pass overwrite=True")
+    for n in ours:
+        (out / n).unlink()
+
+
+def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 20, seed: int = 0,
+                         image_noise: float = 0.0, blur_sigma_px: float = 0.0,
+                         robot_noise: tuple[float, float] = (0.0, 0.0), hidden_views: Sequence[str] = (),
+                         outlier_views: Union[int, Sequence[str]] = 0, image_format: str = "jpg",
+                         target: ChessboardSpec = DEFAULT_TARGET, intrinsics: Optional[Intrinsics] = None,
+                         supersample: int = 4, jpeg_quality: int = 95, overwrite: bool = False,
+                         workers: int = 2, **view_options) -> Path:
+    """Render a synthetic session in the vendor layout and return its folder.
+
+    Writes ``1.jpg .. N.jpg`` (or ``.png``; BGR, JPEG quality ``jpeg_quality``), ``poses.txt``
+    (line k = reported ``T_base_end`` of k.jpg as ``x,y,z,rx,ry,rz``, metres and radians,
+    R = Rz·Ry·Rx, ``%.9f``), ``config.yaml`` (``checkerboard_args: {XX, YY, L}`` and ``mode``) and
+    ``ground_truth.json`` (true hand-eye and board under their frame names, intrinsics, per-view
+    true/reported robot poses, true ``T_cam_board``, hidden/outlier flags, noise settings, seed).
+    Every file is written atomically (temporary name in the folder, then ``os.replace``).
+
+    The geometry is that of ``make_corner_session(mode=..., n_views=..., seed=..., ...)`` with the
+    same arguments, so corner-level and image-level experiments share their ground truth.
+    ``image_noise``: Gaussian noise sigma in grey levels; ``blur_sigma_px``: Gaussian blur;
+    ``hidden_views``: ids whose robot pose turns the camera away from the board (detection must
+    fail there); ``outlier_views``: count or ids given a gross robot pose error.
+    """
+    if not isinstance(target, ChessboardSpec):
+        raise ConfigError("the vendor layout describes chessboards only", expected="a ChessboardSpec target",
+                          received=type(target).__name__, hint="render ChArUco boards with handeye.sim.render.render_view")
+    fmt = str(image_format).lower().lstrip(".")
+    if fmt == "jpeg":
+        fmt = "jpg"
+    if fmt not in ("jpg", "png"):
+        raise ConfigError("unsupported image format", expected="jpg | png", received=repr(image_format))
+    if image_noise < 0 or blur_sigma_px < 0:
+        raise ConfigError("negative image noise or blur", expected=">= 0",
+                          received=f"image_noise={image_noise}, blur_sigma_px={blur_sigma_px}")
+    intrinsics = DEFAULT_INTRINSICS if intrinsics is None else intrinsics
+    session = make_corner_session(mode=mode, n_views=n_views, seed=seed, target=target, intrinsics=intrinsics,
+                                  noise_px=0.0, robot_noise=robot_noise, outlier_views=outlier_views,
+                                  hidden_views=hidden_views, **view_options)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    _clear_previous_session(out, overwrite=overwrite)
+
+    T_cam_board = session.T_cam_board_true
+    view_rngs = random_streams(seed)["image_noise"].spawn(session.n_views)
+    encode_params = [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)] if fmt == "jpg" else []
+    render.undistorted_sample_grid(intrinsics, supersample=supersample)  # build the cache once
+
+    def render_one(k: int) -> str:
+        img = render.render_view(target, intrinsics, T_cam_board[k], supersample=supersample,
+                                       blur_sigma_px=blur_sigma_px, noise_sigma=image_noise, rng=view_rngs[k],
+                                       channels=3)
+        ok, buf = cv2.imencode("." + fmt, img, encode_params)
+        if not ok:  # pragma: no cover - cv2 always encodes jpg/png
+            raise ConfigError("image encoding failed", expected=f"a .{fmt} image", received="cv2.imencode False")
+        name = f"{session.view_ids[k]}.{fmt}"
+        atomic_write_bytes(out / name, buf.tobytes())
+        log.debug("rendered %s", name)
+        return name
+
+    with ThreadPoolExecutor(max(1, int(workers))) as pool:
+        names = list(pool.map(render_one, range(session.n_views)))
+
+    lines = [",".join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT))
+             for T in session.T_base_end_reported]
+    atomic_write_text(out / "poses.txt", "\n".join(lines) + "\n")
+    config = {"checkerboard_args": {"XX": int(target.cols), "YY": int(target.rows), "L": float(target.square_m)},
+              "mode": mode}
+    atomic_write_text(out / "config.yaml", yaml.safe_dump(config, sort_keys=False))
+
+    mount = mounting(mode)
+    views = {}
+    for k, vid in enumerate(session.view_ids):
+        views[vid] = {"image": names[k], "T_base_end_true": session.T_base_end_true[k].tolist(),
+                      "T_base_end_reported": session.T_base_end_reported[k].tolist(),
+                      "T_cam_board_true": T_cam_board[k].tolist(), "hidden": vid in session.hidden_view_ids,
+                      "outlier": vid in session.outlier_view_ids}
+    truth = {
+        "handeye_synthetic_ground_truth": 1,
+        "mode": mode,
+        "frames": ("T_a_b maps points of frame b into frame a (p_a = T_a_b @ p_b), metres; cam is the optical "
+                   "frame (x right, y down, z forward); T_cam_board_i = inv(" + mount.x_name + ") . M_i . "
+                   + mount.board_name),
+        mount.x_name: session.T_x_true.tolist(),
+        mount.board_name: session.T_board_true.tolist(),
+        "target": target.to_dict(),
+        "intrinsics": intrinsics.to_dict(),
+        "views": views,
+        "hidden_view_ids": list(session.hidden_view_ids),
+        "outlier_view_ids": list(session.outlier_view_ids),
+        "noise": {
+            "image_noise_grey_levels": float(image_noise),
+            "blur_sigma_px": float(blur_sigma_px),
+            "robot_noise_mm": float(session.robot_noise[0]),
+            "robot_noise_deg": float(session.robot_noise[1]),
+            "robot_noise_convention": ("T_base_end_reported = T_base_end_true @ dT, dT in the end frame: "
+                                       "per-axis Gaussian rotation vector (deg) and translation (mm)"),
+            "outlier_trans_mm": list(view_options.get("outlier_trans_mm", (5.0, 30.0))),
+            "outlier_rot_deg": list(view_options.get("outlier_rot_deg", (2.0, 10.0))),
+            "render_supersample": int(supersample),
+            "jpeg_quality": int(jpeg_quality) if fmt == "jpg" else None,
+        },
+        "seed": int(seed),
+        "provenance": provenance(extra={"generator": "handeye.sim.vendor.write_vendor_session"}),
+    }
+    atomic_write_text(out / "ground_truth.json", to_json(truth) + "\n")
+    log.info("wrote synthetic %s session with %d views to %s", mode, session.n_views, out)
+    return out
