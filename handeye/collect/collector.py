@@ -22,13 +22,14 @@ from typing import Callable, Optional, TextIO
 import cv2
 import numpy as np
 
-from ..detect import MIN_CORNERS, detect_charuco, detect_chessboard, sharpness
+from ..detect import detect_gray, sharpness
 from ..errors import DetectionError, HardwareError
 from ..frames import rotation_angle_rad
 from ..mounting import mounting
 from ..initial import solve_closed_form, solve_pnp
 from ..targets import ChessboardSpec, TargetSpec
 from ..camera import Intrinsics
+from ..config import load_preset
 from . import plan as planning
 from .camera import Camera
 from .robot import PoseReading, Robot, poses_agree
@@ -37,15 +38,23 @@ from .session_writer import SessionWriter
 log = logging.getLogger(__name__)
 
 
+_CAPTURE = load_preset("collect")["capture"]  # the defaults below; configs/collect.yaml says where each comes from
+
+
 @dataclass(frozen=True)
 class CaptureChecks:
-    """Acceptance thresholds for one capture."""
+    """Acceptance thresholds for one capture (defaults: configs/collect.yaml ``capture:``)."""
 
-    still_tol_mm: float = 0.2  # the two pose reads around the frame agree within this
-    still_tol_deg: float = 0.1
-    min_sharpness: float = 30.0  # variance of the Laplacian inside the target's bounding box
-    settle_timeout_s: float = 5.0  # after a motion, wait at most this long for the arm to be still
-    settle_interval_s: float = 0.15
+    still_tol_mm: float = float(_CAPTURE["still_tol_mm"])  # the two pose reads around the frame agree within this
+    still_tol_deg: float = float(_CAPTURE["still_tol_deg"])
+    min_sharpness: float = float(_CAPTURE["min_sharpness"])  # variance of the Laplacian inside the target's box
+    settle_timeout_s: float = float(_CAPTURE["settle_timeout_s"])  # after a motion, wait at most this long
+    settle_interval_s: float = float(_CAPTURE["settle_interval_s"])  # between the two reads of the stillness check
+
+    @staticmethod
+    def from_config(cfg: dict) -> "CaptureChecks":
+        """From a ``collect`` preset (``load_preset("collect")``, possibly merged with a site file)."""
+        return CaptureChecks(**{k: float(v) for k, v in cfg["capture"].items()})
 
 
 @dataclass(frozen=True)
@@ -60,17 +69,6 @@ class Capture:
     image_points: Optional[np.ndarray] = None
     sharpness: float = float("nan")
     T_cam_board: Optional[np.ndarray] = None  # from PnP with the camera's intrinsics, when known
-
-
-def detect_target(gray: np.ndarray, target: TargetSpec) -> tuple[np.ndarray, np.ndarray] | str:
-    """(corner_ids, image_points) or the reason the target was not found."""
-    out = detect_chessboard(gray, target) if isinstance(target, ChessboardSpec) else detect_charuco(gray, target)
-    if isinstance(out, str):
-        return out
-    ids, pts = out
-    if len(ids) < MIN_CORNERS:
-        return f"only {len(ids)} corners detected (need at least {MIN_CORNERS})"
-    return ids, pts
 
 
 def board_pose(target: TargetSpec, intrinsics: Intrinsics, corner_ids: np.ndarray, image_points: np.ndarray, *,
@@ -143,7 +141,7 @@ class Collector:
 
             return self._reject(f"the arm reports {describe_error_codes(errors)}")
         gray = _gray(image)
-        found = detect_target(gray, self.target)
+        found = detect_gray(gray, self.target)
         if isinstance(found, str):
             return self._reject(f"target not detected: {found}")
         ids, pts = found

@@ -7,9 +7,9 @@ Layout written:
     OUT/views/<id>.yaml       one record per capture: id, image, pose, t_image, t_pose, robot_state
     OUT/ground_truth.json     simulated backends only
 
-Every file is written to a temporary ``.<name>.tmp`` in the same folder, flushed, fsync'ed and
-renamed over its final name (``os.replace`` is atomic on POSIX and Windows), then the folder is
-fsync'ed. The image is written before its record, so a record that exists always has its image;
+Every file is written by :func:`handeye.output.atomic_write_bytes` (a temporary ``.<name>.*.tmp`` in
+the same folder, flushed, fsync'ed and renamed over its final name; ``os.replace`` is atomic on POSIX
+and Windows), then the folder is fsync'ed so the rename itself survives a power loss. The image is written before its record, so a record that exists always has its image;
 a kill at any moment loses at most the capture in flight (an orphan image or a ``.tmp`` file,
 both ignored by the loader).
 
@@ -31,7 +31,7 @@ import yaml
 
 from .. import __version__
 from ..errors import HardwareError, InputError
-from ..output import plain
+from ..output import atomic_write_bytes, plain
 from ..camera import Intrinsics
 from ..targets import TargetSpec
 
@@ -53,16 +53,11 @@ def _fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically: a reader sees the old file, or the whole new one."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    _fsync_dir(path.parent)
+def write_durably(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (a reader sees the old file or the whole new one), then
+    fsync the folder so that the new name is on disk too."""
+    atomic_write_bytes(path, data)
+    _fsync_dir(Path(path).parent)
 
 
 def dump_yaml(data: dict) -> bytes:
@@ -116,7 +111,7 @@ class SessionWriter:
 
     def _write(self, path: Path, data: bytes) -> None:
         try:
-            atomic_write_bytes(path, data)
+            write_durably(path, data)
         except OSError as e:
             raise HardwareError(f"cannot write {path.name} ({e.strerror})", path=path,
                                 hint="check free disk space; the views already saved are intact") from None
