@@ -5,7 +5,9 @@ import pytest
 from handeye.detect import detect_chessboard, detect_views, normalize_chessboard_order, order_cue
 from handeye.errors import InputError
 from handeye.mounting import mounting
-from handeye.sim.synth import default_intrinsics, make_corner_session, pixel_from_board_point
+from handeye.camera import pixels_from_board_points
+from handeye.sim.corners import make_corner_session
+from handeye.sim.scenarios import default_intrinsics
 from handeye.sim.render import render_view
 from handeye.targets import ChessboardSpec
 from handeye.records import Detection
@@ -23,7 +25,7 @@ def test_rendered_corners_are_found_to_about_a_tenth_of_a_pixel(views):
     cs, imgs = views
     for T, img in zip(cs.T_cam_board_true, imgs):
         ids, pts = detect_chessboard(img, cs.target)
-        truth = pixel_from_board_point(T, cs.target.object_points()[ids], INTR)
+        truth = pixels_from_board_points(T, cs.target.object_points()[ids], INTR)
         # measured 0.04-0.10 px RMS on 640x480 renders (cornerSubPix on anti-aliased edges)
         assert np.sqrt(np.mean(np.sum((pts - truth) ** 2, axis=1))) < 0.15
 
@@ -40,7 +42,7 @@ def test_board_numbered_from_the_other_end_is_turned_back(views):
     assert np.sign(dets["2"].order_cue) != np.sign(dets["0"].order_cue)
     fixed = normalize_chessboard_order(dets, cs.target)
     for k, T in enumerate(cs.T_cam_board_true):
-        truth = pixel_from_board_point(T, cs.target.object_points(), INTR)
+        truth = pixels_from_board_points(T, cs.target.object_points(), INTR)
         assert np.max(np.abs(fixed[str(k)].image_points - truth)) < 0.5
 
 
