@@ -1,27 +1,31 @@
 """Accuracy reports: ``report.html`` (one self-contained file) and ``report.md`` (+ ``report_files/``).
 
-The report is built from what the result folder holds (result.json, observations.json) and the
-session images, so ``handeye report RESULT_DIR`` rebuilds it without re-running the calibration;
-a run object, when given, only helps to find the images.
+Built from a result folder alone (result.json, observations.json, thumbnails/), so that
+``handeye report RESULT_DIR`` rebuilds it anywhere without the session or a re-run:
 
     from handeye.report import write_reports
-    paths = write_reports(None, result_dict, "reports/cell3")
+    paths = write_reports("reports/cell3")
+
+Modules: :mod:`.folder` reads the folder; :mod:`.context` computes what the templates show, with
+:mod:`.observations` (per-view arrays), :mod:`.uncertainty` (every form's sigma), :mod:`.metrics`
+(the numbers QA judges), :mod:`.qa` (the verdict against configs/qa.yaml), :mod:`.advice` (what to do,
+keyed on error and finding codes) and :mod:`.figures` / :mod:`.plots` (what is drawn / the drawing);
+:mod:`.render` turns the context into HTML and Markdown. matplotlib and jinja2 load only when a
+report is written.
 """
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
-from typing import Optional
 
-from ..errors import HandeyeError, InputError
+from ..errors import HandeyeError
 
 log = logging.getLogger(__name__)
 
 __all__ = ["write_reports", "build_report_context", "load_qa", "evaluate", "Verdict"]
 
 
-def __getattr__(name):  # matplotlib and jinja2 load only when a report is built, not with the CLI
+def __getattr__(name):  # the QA module loads the config machinery only when asked for
     if name in ("load_qa", "evaluate", "Verdict"):
         from . import qa
 
@@ -29,84 +33,49 @@ def __getattr__(name):  # matplotlib and jinja2 load only when a report is built
     raise AttributeError(name)
 
 
-def write_reports(run, res: dict, out_dir, *, qa: str | Path | None = None, formats=("html", "md"),
-                  strict: bool = False, source_dir=None, plots: bool = True) -> list[Path]:
-    """Write ``out_dir/report.html`` and ``out_dir/report.md`` (figures in ``out_dir/report_files``).
+def write_reports(result_dir: str | Path, *, qa: str | Path | None = None, out_dir: str | Path | None = None,
+                  formats=("html", "md"), strict: bool = False, plots: bool = True) -> list[Path]:
+    """Write ``report.html`` and ``report.md`` (figures in ``report_files/``) for a result folder.
 
-    ``run``: the :class:`handeye.calibrate.CalibrationRun` or None; ``res``: result.json's content;
-    ``qa``: a site QA file overriding ``configs/qa.yaml``; ``source_dir``: where observations.json is
-    (default ``out_dir``); ``plots=False`` leaves the figures out (faster). Returns the paths written. With
-    ``strict=False`` (the calibrate command) an unexpected error is logged and no report is written,
-    since result.json is complete without it; user errors (a bad QA file) always raise.
+    ``result_dir``: the folder written by ``handeye calibrate`` (result.json, observations.json,
+    thumbnails/); ``qa``: a site QA file overriding ``configs/qa.yaml``; ``out_dir``: where to write
+    (default ``result_dir``); ``plots=False`` leaves the figures out. Returns the paths written.
+    With ``strict=False`` (the calibrate command) an unexpected error is logged and no report is
+    written, since result.json is complete without it; user errors (a bad QA file, no result.json)
+    always raise.
     """
-    from .render import render_html, render_markdown, write_files
+    from .folder import read_result_folder
 
-    out_dir = Path(out_dir)
+    folder = read_result_folder(result_dir)
+    out = Path(out_dir) if out_dir is not None else folder.path
     try:
-        ctx = build_report_context(run, res, Path(source_dir) if source_dir else out_dir, qa=qa, make_plots=plots)
+        from .render import render_html, render_markdown, write_files
+
+        ctx = _context(folder, qa=qa, make_plots=plots)
         html = render_html(ctx) if "html" in formats else None
         md = render_markdown(ctx) if "md" in formats else None
-        return write_files(out_dir, html, md)
+        return write_files(out, html, md)
     except HandeyeError:
         raise
     except Exception as e:  # noqa: BLE001 - the calibration result must survive a report bug
         if strict:
             raise
         log.error("handeye: the report could not be written (%s: %s); result.json is complete. "
-                  "Rebuild it with: handeye --debug report %s", type(e).__name__, e, out_dir)
+                  "Rebuild it with: handeye --debug report %s", type(e).__name__, e, folder.path)
         return []
 
 
-def build_report_context(run, res: dict, result_dir: Path, *, qa: str | Path | None = None,
-                         make_plots: bool = True) -> dict:
-    from .build import build_context
+def build_report_context(result_dir: str | Path, *, qa: str | Path | None = None, make_plots: bool = True) -> dict:
+    """The template context of a result folder (what the report shows, as plain values)."""
+    from .folder import read_result_folder
+
+    return _context(read_result_folder(result_dir), qa=qa, make_plots=make_plots)
+
+
+def _context(folder, *, qa, make_plots: bool) -> dict:
+    from .context import build_context
     from .qa import load_qa
 
     cfg = load_qa(qa)
     source = f"{qa} (site override of configs/qa.yaml)" if qa is not None else "configs/qa.yaml (shipped)"
-    obs = _observations(run, result_dir)
-    images = _image_paths(run, res, obs)
-    return build_context(res, obs, qa_cfg=cfg, qa_source=source, image_paths=images, make_plots=make_plots)
-
-
-def _observations(run, out_dir: Path) -> Optional[dict]:
-    p = Path(out_dir) / "observations.json"
-    if p.exists():
-        try:
-            return json.loads(p.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise InputError(f"not valid JSON ({e})", path=p, hint="re-run handeye calibrate") from None
-    if run is not None:
-        from ..results import observations_dict
-
-        from ..output import plain
-
-        return plain(observations_dict(run))
-    return None
-
-
-def _image_paths(run, res: dict, obs: Optional[dict]) -> dict[str, Path]:
-    """view id -> image file, from the run, observations.json, or by reloading the session."""
-    paths: dict[str, Path] = {}
-    if run is not None:
-        for v in run.session.views:
-            paths[str(v.view_id)] = Path(v.image_path)
-    for vid, v in ((obs or {}).get("views") or {}).items():
-        if v.get("image"):
-            paths.setdefault(str(vid), Path(v["image"]))
-    want = [str(v.get("id")) for v in res.get("views") or [] if str(v.get("id")) not in paths]
-    sess = (res.get("session") or {}).get("path")
-    if want and sess:
-        try:
-            from ..session import load_session
-
-            s = load_session(sess)
-            for v in s.views:
-                paths.setdefault(str(v.view_id), Path(v.image_path))
-        except (HandeyeError, OSError, ValueError) as e:
-            log.debug("report: session %s not reloadable for thumbnails: %s", sess, e)
-        for v in res.get("views") or []:
-            vid = str(v.get("id"))
-            if vid not in paths and v.get("image") and (Path(sess) / v["image"]).exists():
-                paths[vid] = Path(sess) / v["image"]
-    return paths
+    return build_context(folder, qa_cfg=cfg, qa_source=source, make_plots=make_plots)

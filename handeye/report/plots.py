@@ -1,20 +1,19 @@
-"""The report's figures (matplotlib, Agg, no pyplot state): each function returns PNG bytes.
+"""The report's figures: each function draws one figure from plain numpy arrays and returns PNG bytes.
 
-Inputs are plain numpy arrays prepared by :mod:`handeye.report.build`; nothing here reads files.
+matplotlib is imported when the first figure is drawn (never with the CLI or the pipeline). Drawing
+is kept light, because it is most of a report's cost: an Agg canvas without pyplot state, fixed
+margins instead of a layout engine, one collection per kind of line instead of one artist per line,
+2-D projections instead of mplot3d, and 8-bit palette PNGs. Nothing here reads files.
 """
 from __future__ import annotations
 
+import contextlib
 import io
 from typing import Optional, Sequence
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg", force=False)
-import numpy as np  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-from matplotlib.patches import Polygon, Rectangle  # noqa: E402
-
-from .analysis import ellipse_points  # noqa: E402
+from .uncertainty import ellipse_points
 
 INK = "#1d2733"
 MUTED = "#6b7686"
@@ -24,9 +23,10 @@ TEAL = "#2a9d8f"
 SKY = "#8fb8de"
 AMBER = "#d99a2b"
 RED = "#c0392b"
-GREEN = "#2e8b57"
 ORANGE = "#e07b39"
+AXIS_RGB = ("#d62728", "#2ca02c", "#1f77b4")  # x, y, z
 DPI = 100
+WIDTH_IN = 8.6
 
 _RC = {
     "font.family": "DejaVu Sans",
@@ -47,73 +47,109 @@ _RC = {
     "legend.fontsize": 7.8,
     "axes.spines.top": False,
     "axes.spines.right": False,
+    "path.simplify": True,
 }
 
 
-def _fig(w: float, h: float) -> Figure:
+@contextlib.contextmanager
+def style():
+    """The report's matplotlib style, for a whole batch of figures (one rc context, not one per call)."""
+    import matplotlib
+
     with matplotlib.rc_context(_RC):
-        fig = Figure(figsize=(w, h), dpi=DPI, layout="constrained")
+        yield
+
+
+def _fig(h: float, *, left=0.07, right=0.98, bottom=0.15, top=0.88, wspace=0.25):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(WIDTH_IN, h), dpi=DPI)
+    FigureCanvasAgg(fig)
+    fig.subplots_adjust(left=left, right=right, bottom=bottom, top=top, wspace=wspace)
     return fig
 
 
-def _png(fig: Figure) -> bytes:
+def _png(fig) -> bytes:
+    """Render once and encode as an adaptive-palette PNG (a third of the bytes of RGB, same look)."""
+    from PIL import Image
+
+    fig.canvas.draw()
+    rgb = np.asarray(fig.canvas.buffer_rgba())[:, :, :3]
+    img = Image.fromarray(np.ascontiguousarray(rgb)).quantize(colors=128, method=Image.Quantize.FASTOCTREE,
+                                                              dither=Image.Dither.NONE)
     buf = io.BytesIO()
-    with matplotlib.rc_context(_RC):
-        # fast zlib level: the PNGs are embedded once, encoding time matters more than bytes
-        fig.savefig(buf, format="png", dpi=DPI, facecolor="white", pil_kwargs={"compress_level": 1})
+    img.save(buf, format="png", compress_level=6)
     return buf.getvalue()
 
 
-def _styled(fn):
-    def wrapper(*a, **k):
-        with matplotlib.rc_context(_RC):
-            return fn(*a, **k)
+def _lines(ax, segments, **kw):
+    """Many line segments / polylines as one artist."""
+    from matplotlib.collections import LineCollection
 
-    wrapper.__name__ = fn.__name__
-    wrapper.__doc__ = fn.__doc__
-    return wrapper
+    if len(segments):
+        ax.add_collection(LineCollection(segments, **kw))
+
+
+def _hull(pts: np.ndarray) -> np.ndarray:
+    """Convex hull (monotone chain) of 2-D points, counter-clockwise, without repeating the first."""
+    p = [tuple(q) for q in np.unique(np.asarray(pts, float), axis=0).tolist()]
+    if len(p) < 3:
+        return np.asarray(p, float).reshape(-1, 2)
+
+    def half(points):
+        out: list = []
+        for x, y in points:
+            while len(out) >= 2 and ((out[-1][0] - out[-2][0]) * (y - out[-2][1])
+                                     - (out[-1][1] - out[-2][1]) * (x - out[-2][0])) <= 0:
+                out.pop()
+            out.append((x, y))
+        return out
+
+    lower, upper = half(p), half(p[::-1])
+    return np.array(lower[:-1] + upper[:-1], float)
 
 
 # ------------------------------------------------------------------------------ residuals
-@_styled
 def residual_histogram(camera_px: np.ndarray, chain_px: Optional[np.ndarray], *, sigma_px: float,
                        sigma_source: str) -> bytes:
-    """Histogram of corner residual lengths against the Rayleigh law of a 2-D Gaussian with ``sigma_px``."""
-    fig = _fig(8.6, 3.0)
-    axs = fig.subplots(1, 2)
-    panels = [(axs[0], camera_px, "Camera fit (each view's own board pose)", NAVY)]
-    panels.append((axs[1], chain_px, "Through the robot (reported pose and result)", TEAL))
-    for ax, r, title, color in panels:
-        ax.set_title(title)
-        if r is None or not len(r):
-            ax.text(0.5, 0.5, "not available", ha="center", va="center", transform=ax.transAxes, color=MUTED)
-            ax.set_xticks([])
-            ax.set_yticks([])
-            continue
-        e = np.linalg.norm(np.asarray(r, float).reshape(-1, 2), axis=1)
-        hi = max(float(np.quantile(e, 0.995)), 4.0 * sigma_px if np.isfinite(sigma_px) else 0.0, 1e-6)
-        bins = np.linspace(0.0, hi, 40)
-        ax.hist(np.clip(e, 0, hi), bins=bins, density=True, color=color, alpha=0.75, edgecolor="white",
-                linewidth=0.4, label=f"{len(e)} corners, RMS {np.sqrt(np.mean(e ** 2)):.2f} px")
-        if np.isfinite(sigma_px) and sigma_px > 0:
-            x = np.linspace(0.0, hi, 300)
-            pdf = x / sigma_px ** 2 * np.exp(-0.5 * (x / sigma_px) ** 2)
-            ax.plot(x, pdf, color=ORANGE, lw=1.6, label=f"expected (σ = {sigma_px:.2f} px/axis, {sigma_source})")
-        ax.set_xlabel("residual length [px]")
-        ax.set_ylabel("density")
-        ax.set_xlim(0, hi)
-        ax.set_ylim(0, ax.get_ylim()[1] * 1.32)
-        ax.legend(loc="upper right", frameon=True, facecolor="white", edgecolor="none", framealpha=0.9)
+    """Corner residual lengths (camera fit, and through the robot) against the Rayleigh law of a 2-D
+    Gaussian with ``sigma_px`` per axis."""
+    fig = _fig(2.9, left=0.07, bottom=0.16, top=0.9)
+    ax = fig.add_subplot()
+    e = np.linalg.norm(np.asarray(camera_px, float).reshape(-1, 2), axis=1)
+    e = e[np.isfinite(e)]
+    ec = None if chain_px is None else np.linalg.norm(np.asarray(chain_px, float).reshape(-1, 2), axis=1)
+    ec = ec[np.isfinite(ec)] if ec is not None else None
+    both = np.concatenate([e, ec]) if ec is not None and len(ec) else e
+    hi = max(float(np.quantile(both, 0.995)) if len(both) else 0.0,
+             4.0 * sigma_px if np.isfinite(sigma_px) else 0.0, 1e-6)
+    bins = np.linspace(0.0, hi, 40)
+    if len(e):
+        ax.hist(np.clip(e, 0, hi), bins=bins, density=True, color=NAVY, alpha=0.7,
+                label=f"camera fit: {len(e)} corners, RMS {np.sqrt(np.mean(e ** 2)):.3f} px")
+    if ec is not None and len(ec):
+        ax.hist(np.clip(ec, 0, hi), bins=bins, density=True, histtype="step", color=TEAL, lw=1.6,
+                label=f"through the robot: RMS {np.sqrt(np.mean(ec ** 2)):.3f} px")
+    if np.isfinite(sigma_px) and sigma_px > 0:
+        x = np.linspace(0.0, hi, 200)
+        ax.plot(x, x / sigma_px ** 2 * np.exp(-0.5 * (x / sigma_px) ** 2), color=ORANGE, lw=1.6,
+                label=f"expected (σ = {sigma_px:.3f} px/axis, {sigma_source})")
+    ax.set_title("Corner residual lengths")
+    ax.set_xlabel("residual length [px]")
+    ax.set_ylabel("density")
+    ax.set_xlim(0, hi)
+    ax.set_ylim(0, ax.get_ylim()[1] * 1.3)
+    ax.legend(loc="upper right")
     return _png(fig)
 
 
-@_styled
 def per_view_bars(ids: Sequence[str], camera_rms: Sequence[float], chain_rms: Sequence[float],
                   status: Sequence[str], *, warn_px: Optional[float], fail_px: Optional[float]) -> bytes:
     """Per-view RMS: camera fit and through the robot; dropped views marked, QA limits drawn."""
     n = len(ids)
-    fig = _fig(8.6, 2.9)
-    ax = fig.subplots()
+    fig = _fig(2.8, bottom=0.2 if n > 24 else 0.16, top=0.84)
+    ax = fig.add_subplot()
     x = np.arange(n)
     cam = np.array([v if v is not None and np.isfinite(v) else np.nan for v in camera_rms], float)
     ch = np.array([v if v is not None and np.isfinite(v) else np.nan for v in chain_rms], float)
@@ -139,7 +175,7 @@ def per_view_bars(ids: Sequence[str], camera_rms: Sequence[float], chain_rms: Se
     for xi, s, c in zip(x, status, cam):
         if s == "dropped" and not np.isfinite(c):
             ax.text(xi, top * 0.04, "dropped", rotation=90, ha="center", va="bottom", fontsize=7, color=RED)
-    if warn_px is not None:
+    if warn_px is not None and warn_px < top * 1.3:
         ax.axhline(warn_px, color=AMBER, lw=1.0, ls="--", label=f"QA warn {warn_px:g} px")
     if fail_px is not None and fail_px < top * 1.3:
         ax.axhline(fail_px, color=RED, lw=1.0, ls="--", label=f"QA fail {fail_px:g} px")
@@ -154,59 +190,7 @@ def per_view_bars(ids: Sequence[str], camera_rms: Sequence[float], chain_rms: Se
     return _png(fig)
 
 
-@_styled
-def image_coverage(width: int, height: int, views: Sequence[tuple], counts: np.ndarray, *,
-                   coverage_share: float) -> bytes:
-    """Left: which parts of the image the corners reach (cell counts, each view's outline).
-    Right: camera-fit residual vectors, magnified. ``views``: (id, points (N,2), residuals (N,2), flagged)."""
-    aspect = height / max(width, 1)
-    fig = _fig(8.6, 8.6 / 2 * aspect + 0.45)
-    axs = fig.subplots(1, 2)
-    ax = axs[0]
-    ax.set_title(f"Corner coverage: {coverage_share:.0%} of the image")
-    cmap = matplotlib.colors.LinearSegmentedColormap.from_list("cov", ["#ffffff", "#cfe0f1", "#5b8fc4", NAVY])
-    masked = np.ma.masked_where(counts == 0, counts)
-    ax.imshow(masked, extent=(0, width, height, 0), cmap=cmap, interpolation="nearest", aspect="equal",
-              vmin=0, vmax=max(1, counts.max()), alpha=0.9)
-    from scipy.spatial import ConvexHull, QhullError
-
-    for vid, pts, _, flagged in views:
-        if len(pts) >= 3:
-            try:
-                hull = ConvexHull(pts)
-            except (QhullError, ValueError):
-                continue
-            ax.add_patch(Polygon(pts[hull.vertices], closed=True, fill=False, lw=0.7,
-                                 ec=RED if flagged else MUTED, alpha=0.8))
-    ax2 = axs[1]
-    allr = np.concatenate([r for _, _, r, _ in views]) if views else np.zeros((0, 2))
-    ref = float(np.quantile(np.linalg.norm(allr, axis=1), 0.9)) if len(allr) else 1.0
-    gain = _nice_gain(0.045 * width / max(ref, 1e-9))
-    ax2.set_title(f"Camera-fit residuals, magnified {gain:g}×")
-    colors = matplotlib.colormaps["tab20"]
-    for k, (vid, pts, r, flagged) in enumerate(views):
-        if not len(pts):
-            continue
-        ax2.quiver(pts[:, 0], pts[:, 1], r[:, 0] * gain, r[:, 1] * gain, angles="xy", scale_units="xy", scale=1,
-                   color=RED if flagged else colors(k % 20), width=0.0028, headwidth=3, headlength=3.5)
-    # scale arrow: 1 px
-    sx, sy = 0.06 * width, 0.94 * height
-    one = _nice_gain(ref) if ref > 0 else 1.0
-    ax2.annotate("", xy=(sx + one * gain, sy), xytext=(sx, sy),
-                 arrowprops=dict(arrowstyle="-|>", color=INK, lw=1.2))
-    ax2.text(sx, sy - 0.025 * height, f"{one:g} px", fontsize=7.5, color=INK)
-    for a in (ax, ax2):
-        a.add_patch(Rectangle((0, 0), width, height, fill=False, ec="#9aa5b4", lw=1.0))
-        a.set_xlim(-0.02 * width, 1.02 * width)
-        a.set_ylim(1.02 * height, -0.02 * height)
-        a.set_aspect("equal")
-        a.set_xlabel("u [px]")
-        a.grid(False)
-    ax.set_ylabel("v [px]")
-    return _png(fig)
-
-
-def _nice_gain(x: float) -> float:
+def _nice(x: float) -> float:
     if not np.isfinite(x) or x <= 0:
         return 1.0
     e = 10 ** np.floor(np.log10(x))
@@ -216,156 +200,178 @@ def _nice_gain(x: float) -> float:
     return float(10 * e)
 
 
+def image_coverage(width: int, height: int, views: Sequence[tuple], counts: np.ndarray, *,
+                   coverage_share: float) -> bytes:
+    """Left: which parts of the image the corners reach (cell counts, each view's outline).
+    Right: camera-fit residual vectors, magnified. ``views``: (id, points (N,2), residuals (N,2), flagged)."""
+    from matplotlib.colors import LinearSegmentedColormap
+
+    aspect = height / max(width, 1)
+    fig = _fig(WIDTH_IN / 2 * aspect + 0.6, left=0.07, right=0.99, bottom=0.1, top=0.92, wspace=0.12)
+    ax, ax2 = fig.subplots(1, 2)
+    ax.set_title(f"Corner coverage: {coverage_share:.0%} of the image")
+    cmap = LinearSegmentedColormap.from_list("cov", ["#ffffff", "#cfe0f1", "#5b8fc4", NAVY])
+    ax.imshow(np.ma.masked_where(counts == 0, counts), extent=(0, width, height, 0), cmap=cmap,
+              interpolation="nearest", aspect="equal", vmin=0, vmax=max(1, counts.max()), alpha=0.9)
+    for flagged in (False, True):
+        hulls = [_hull(pts) for _, pts, _, f in views if f == flagged and len(pts) >= 3]
+        _lines(ax, [np.vstack([h, h[:1]]) for h in hulls if len(h) >= 3], colors=RED if flagged else MUTED,
+               linewidths=0.7, alpha=0.8)
+    ok = [(p, r, f) for _, p, r, f in views if len(p) and np.all(np.isfinite(r))]
+    allr = np.concatenate([r for _, r, _ in ok]) if ok else np.zeros((0, 2))
+    ref = float(np.quantile(np.linalg.norm(allr, axis=1), 0.9)) if len(allr) else 1.0
+    gain = _nice(0.045 * width / max(ref, 1e-9))
+    ax2.set_title(f"Camera-fit residuals, magnified {gain:g}×")
+    for flagged, color in ((False, NAVY), (True, RED)):
+        seg = [np.stack([p, p + gain * r], axis=1) for p, r, f in ok if f == flagged]
+        if seg:
+            seg = np.concatenate(seg)
+            _lines(ax2, seg, colors=color, linewidths=0.8, alpha=0.85)
+            ax2.plot(seg[:, 0, 0], seg[:, 0, 1], ",", color=color)
+    sx, sy = 0.06 * width, 0.94 * height
+    one = _nice(ref) if ref > 0 else 1.0
+    ax2.plot([sx, sx + one * gain], [sy, sy], color=INK, lw=1.6)
+    ax2.text(sx, sy - 0.025 * height, f"{one:g} px", fontsize=7.5, color=INK)
+    for a in (ax, ax2):
+        a.plot([0, width, width, 0, 0], [0, 0, height, height, 0], color="#9aa5b4", lw=1.0)
+        a.set_xlim(-0.02 * width, 1.02 * width)
+        a.set_ylim(1.02 * height, -0.02 * height)
+        a.set_aspect("equal")
+        a.set_xlabel("u [px]")
+        a.grid(False)
+    ax.set_ylabel("v [px]")
+    return _png(fig)
+
+
 # ------------------------------------------------------------------------------ geometry
-def _triad(ax, T, L, *, lw=1.2, alpha=1.0):
-    o = T[:3, 3]
-    for k, c in enumerate(("#d62728", "#2ca02c", "#1f77b4")):
-        e = o + L * T[:3, k]
-        ax.plot([o[0], e[0]], [o[1], e[1]], [o[2], e[2]], color=c, lw=lw, alpha=alpha)
+_CAM_CORNERS = np.array([[-0.6, -0.45, 1.0], [0.6, -0.45, 1.0], [0.6, 0.45, 1.0], [-0.6, 0.45, 1.0]])
 
 
-def _frustum(ax, T, L, color, *, lw=0.9, alpha=0.9):
-    corners = np.array([[-0.6, -0.45, 1.0], [0.6, -0.45, 1.0], [0.6, 0.45, 1.0], [-0.6, 0.45, 1.0]]) * L
-    P = corners @ T[:3, :3].T + T[:3, 3]
-    o = T[:3, 3]
-    for p in P:
-        ax.plot([o[0], p[0]], [o[1], p[1]], [o[2], p[2]], color=color, lw=lw, alpha=alpha)
-    loop = np.vstack([P, P[:1]])
-    ax.plot(loop[:, 0], loop[:, 1], loop[:, 2], color=color, lw=lw, alpha=alpha)
+def _view_matrix(elev_deg: float, azim_deg: float) -> np.ndarray:
+    """(2, 3) orthographic projection onto the screen of a camera at the given elevation and azimuth."""
+    e, a = np.radians(elev_deg), np.radians(azim_deg)
+    right = np.array([-np.sin(a), np.cos(a), 0.0])
+    up = np.array([-np.sin(e) * np.cos(a), -np.sin(e) * np.sin(a), np.cos(e)])
+    return np.stack([right, up])
 
 
-def _frustum_points(T, L) -> np.ndarray:
-    """Outline of a camera pyramid as one polyline (M, 3) for 2-D projections."""
-    c = np.array([[-0.6, -0.45, 1.0], [0.6, -0.45, 1.0], [0.6, 0.45, 1.0], [-0.6, 0.45, 1.0]]) * L
-    P = c @ T[:3, :3].T + T[:3, 3]
+def poses_3d(*, T_base_cams: np.ndarray, T_base_ends: np.ndarray, T_base_boards: np.ndarray,
+             board_outline: np.ndarray, flagged: Sequence[bool], camera_moves: bool) -> bytes:
+    """Robot base, end poses, cameras and board(s) in the base frame: an oblique and a top view
+    (orthographic projections drawn in 2-D). ``camera_moves``: a camera per pose (eye-in-hand), else a
+    board per pose."""
+    from matplotlib.collections import PolyCollection
+
+    flagged = np.asarray(flagged, bool)
+    pts = np.concatenate([T_base_cams[:, :3, 3], T_base_ends[:, :3, 3], T_base_boards[:, :3, 3], np.zeros((1, 3))])
+    L = 0.07 * (float(np.max(np.ptp(pts, axis=0))) or 1.0)
+    fig = _fig(3.9, left=0.02, right=0.99, bottom=0.12, top=0.92, wspace=0.08)
+    views = [("Oblique view (elevation 24°, azimuth −58°)", _view_matrix(24, -58), False),
+             ("Top view (base x–y)", np.array([[1.0, 0, 0], [0, 1.0, 0]]), True)]
+    for k, (title, P, labelled) in enumerate(views):
+        ax = fig.add_subplot(1, 2, k + 1)
+        ax.set_title(title)
+
+        def proj(p):
+            return np.asarray(p, float) @ P.T
+
+        # robot end triads (as reported) and the base
+        for a, color in enumerate(AXIS_RGB):
+            o = T_base_ends[:, :3, 3]
+            seg = np.stack([proj(o), proj(o + 0.6 * L * T_base_ends[:, :3, a])], axis=1)
+            _lines(ax, seg, colors=color, linewidths=0.8, alpha=0.7)
+            _lines(ax, [np.stack([proj(np.zeros(3)), proj(1.6 * L * np.eye(3)[a])])], colors=color, linewidths=2.0)
+        ax.text(*proj(np.zeros(3)), " base", fontsize=7.5, color=INK, va="top")
+        # the moving part at every pose, the fixed one once
+        for bad in (False, True):
+            sel = np.flatnonzero(flagged == bad)
+            if camera_moves:
+                _lines(ax, [proj(_frustum(T_base_cams[i], 0.9 * L)) for i in sel], colors=RED if bad else NAVY,
+                       linewidths=0.8)
+            else:
+                polys = [proj(transform(T_base_boards[i], board_outline)) for i in sel]
+                if polys:
+                    ax.add_collection(PolyCollection(polys, facecolors=RED if bad else ORANGE, alpha=0.3,
+                                                     edgecolors="none"))
+            # dotted link from the flange to what it carries
+            carried = T_base_cams if camera_moves else T_base_boards
+            _lines(ax, [proj(np.stack([T_base_ends[i, :3, 3], carried[i, :3, 3]])) for i in sel],
+                   colors=RED if bad else MUTED, linewidths=0.5, linestyles=":", alpha=0.6)
+        if camera_moves:
+            B = proj(transform(T_base_boards[0], board_outline))
+            ax.fill(B[:, 0], B[:, 1], color=ORANGE, alpha=0.5, lw=0)
+            ax.text(*B.mean(axis=0), " board", fontsize=7.5, color=ORANGE)
+        else:
+            F = proj(_frustum(T_base_cams[0], 1.4 * L))
+            ax.plot(F[:, 0], F[:, 1], color=NAVY, lw=1.3)
+            ax.text(*F[0], " camera", fontsize=7.5, color=NAVY)
+        Q = proj(pts)
+        ax.update_datalim(np.vstack([Q.min(axis=0) - L, Q.max(axis=0) + L]))
+        ax.autoscale_view()
+        ax.set_aspect("equal", adjustable="datalim")
+        if labelled:
+            ax.set_xlabel("x [m]")
+            ax.set_ylabel("y [m]")
+            ax.plot([], [], color=MUTED, label="robot end (flange), x y z")
+            ax.plot([], [], color=NAVY, label="camera")
+            ax.fill([], [], color=ORANGE, alpha=0.4, label="board")
+            if flagged.any():
+                ax.plot([], [], color=RED, label="dropped or flagged view")
+            ax.legend(loc="best", fontsize=7)
+        else:
+            ax.set_xticks([])
+            ax.set_yticks([])
+            ax.grid(False)
+    return _png(fig)
+
+
+def transform(T: np.ndarray, p: np.ndarray) -> np.ndarray:
+    return np.asarray(p, float) @ T[:3, :3].T + T[:3, 3]
+
+
+def _frustum(T: np.ndarray, L: float) -> np.ndarray:
+    """Outline of a camera pyramid as one polyline (11, 3)."""
+    P = transform(T, _CAM_CORNERS * L)
     o = T[:3, 3]
     return np.array([o, P[0], P[1], o, P[2], P[3], o, P[0], P[3], P[2], P[1]])
 
 
-def _board(ax, T, outline_board, color, *, alpha=0.35):
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-
-    P = outline_board @ T[:3, :3].T + T[:3, 3]
-    ax.add_collection3d(Poly3DCollection([P], facecolor=color, edgecolor=color, alpha=alpha, linewidths=0.8))
-
-
-@_styled
-def poses_3d(*, T_base_cams: np.ndarray, T_base_ends: np.ndarray, T_base_boards: np.ndarray,
-             board_outline: np.ndarray, flagged: Sequence[bool], mode: str) -> bytes:
-    """Robot base, end poses, cameras and board(s) in the base frame (two viewpoints)."""
-    import mpl_toolkits.mplot3d  # noqa: F401  (registers the 3d projection)
-
-    pts = np.concatenate([T_base_cams[:, :3, 3], T_base_ends[:, :3, 3], T_base_boards[:, :3, 3], np.zeros((1, 3))])
-    span = float(np.max(np.ptp(pts, axis=0))) or 1.0
-    L = 0.07 * span
-    fig = _fig(8.6, 4.0)
-    ax = fig.add_subplot(1, 2, 1, projection="3d", proj_type="ortho")
-    ax.set_title("Perspective", loc="left")
-    _triad(ax, np.eye(4), 1.6 * L, lw=2.0)
-    ax.text(0, 0, -0.6 * L, "base", fontsize=7.5, color=INK)
-    for i in range(len(T_base_ends)):
-        c = RED if flagged[i] else MUTED
-        _triad(ax, T_base_ends[i], 0.6 * L, lw=0.8, alpha=0.7)
-        if mode == "eye_in_hand":
-            _frustum(ax, T_base_cams[i], 0.9 * L, RED if flagged[i] else NAVY)
-        else:
-            _board(ax, T_base_boards[i], board_outline, RED if flagged[i] else ORANGE, alpha=0.3)
-        e, o = T_base_ends[i][:3, 3], (T_base_cams[i] if mode == "eye_in_hand" else T_base_boards[i])[:3, 3]
-        ax.plot([e[0], o[0]], [e[1], o[1]], [e[2], o[2]], color=c, lw=0.5, alpha=0.6, ls=":")
-    if mode == "eye_in_hand":
-        _board(ax, T_base_boards[0], board_outline, ORANGE, alpha=0.55)
-        ax.text(*T_base_boards[0][:3, 3], " board", fontsize=7.5, color=ORANGE)
-    else:
-        _frustum(ax, T_base_cams[0], 1.4 * L, NAVY, lw=1.4)
-        ax.text(*T_base_cams[0][:3, 3], " camera", fontsize=7.5, color=NAVY)
-    lo, hi = pts.min(axis=0) - L, pts.max(axis=0) + L
-    c, r = (lo + hi) / 2, float(np.max(hi - lo)) / 2
-    ax.set_xlim(c[0] - r, c[0] + r)
-    ax.set_ylim(c[1] - r, c[1] + r)
-    ax.set_zlim(c[2] - r, c[2] + r)
-    ax.set_box_aspect((1, 1, 1))
-    ax.view_init(elev=24, azim=-58)
-    ax.set_xlabel("x [m]", labelpad=-2)
-    ax.set_ylabel("y [m]", labelpad=-2)
-    ax.set_zlabel("z [m]", labelpad=-2)
-    ax.tick_params(labelsize=6.5, pad=0)
-    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
-        axis.pane.set_facecolor("#f6f8fb")
-        axis.pane.set_edgecolor(GRID)
-    # top view, true 2-D
-    a2 = fig.add_subplot(1, 2, 2)
-    a2.set_title("Top view (base x–y)")
-    a2.plot([0, 1.6 * L], [0, 0], color="#d62728", lw=2.0)
-    a2.plot([0, 0], [0, 1.6 * L], color="#2ca02c", lw=2.0)
-    a2.text(0.15 * L, -0.5 * L, "base", fontsize=7.5, color=INK)
-    for i in range(len(T_base_ends)):
-        e = T_base_ends[i][:3, 3]
-        a2.plot(e[0], e[1], "o", ms=3, color=RED if flagged[i] else MUTED, alpha=0.8)
-        if mode == "eye_in_hand":
-            P = _frustum_points(T_base_cams[i], 0.9 * L)
-            a2.plot(P[:, 0], P[:, 1], color=RED if flagged[i] else NAVY, lw=0.8, alpha=0.9)
-        else:
-            B = board_outline @ T_base_boards[i][:3, :3].T + T_base_boards[i][:3, 3]
-            a2.fill(B[:, 0], B[:, 1], color=RED if flagged[i] else ORANGE, alpha=0.25, lw=0.8)
-    if mode == "eye_in_hand":
-        B = board_outline @ T_base_boards[0][:3, :3].T + T_base_boards[0][:3, 3]
-        a2.fill(B[:, 0], B[:, 1], color=ORANGE, alpha=0.5, lw=0.8)
-    else:
-        P = _frustum_points(T_base_cams[0], 1.4 * L)
-        a2.plot(P[:, 0], P[:, 1], color=NAVY, lw=1.3)
-        a2.text(T_base_cams[0][0, 3], T_base_cams[0][1, 3], " camera", fontsize=7.5, color=NAVY)
-    a2.plot([], [], "o", ms=3, color=MUTED, label="robot end (flange)")
-    a2.plot([], [], color=NAVY, label="camera")
-    a2.fill([], [], color=ORANGE, alpha=0.4, label="board")
-    a2.legend(loc="best", fontsize=7)
-    a2.set_aspect("equal", adjustable="datalim")
-    a2.set_xlabel("x [m]")
-    a2.set_ylabel("y [m]")
-    return _png(fig)
-
-
-@_styled
 def rotation_coverage(rotvecs: np.ndarray, *, frame: str, warn_deg: Optional[float],
                       fail_deg: Optional[float]) -> bytes:
     """Axes of the pairwise robot rotations on an equal-area disk (hemisphere, sign folded) and their angles."""
     rv = np.asarray(rotvecs, float).reshape(-1, 3)
     ang = np.linalg.norm(rv, axis=1)
-    fig = _fig(8.6, 3.5)
-    gs = fig.add_gridspec(1, 2, width_ratios=[1.0, 1.35])
+    fig = _fig(3.3, left=0.02, right=0.98, bottom=0.14, top=0.9, wspace=0.15)
+    gs = fig.add_gridspec(1, 2, width_ratios=[1.0, 1.5])
     ax = fig.add_subplot(gs[0])
     ax.set_title(f"Rotation axes ({frame} frame)")
     keep = ang > np.radians(2.0)
     a = rv[keep] / ang[keep, None] if keep.any() else np.zeros((0, 3))
     a = np.where(a[:, 2:3] < 0, -a, a)  # fold to the upper hemisphere (axis and -axis are one line)
-    # Lambert azimuthal equal-area projection of the upper hemisphere onto the unit disk
-    rr = np.sqrt(np.clip(1.0 - a[:, 2], 0.0, None))
+    rr = np.sqrt(np.clip(1.0 - a[:, 2], 0.0, None))  # Lambert azimuthal equal-area projection
     phi = np.arctan2(a[:, 1], a[:, 0])
-    x, y = rr * np.cos(phi), rr * np.sin(phi)
-    t = np.linspace(0, 2 * np.pi, 200)
-    for r0, lab in ((np.sqrt(1 - np.cos(np.radians(30))), "30°"), (np.sqrt(1 - np.cos(np.radians(60))), "60°"),
-                    (1.0, "90°")):
-        ax.plot(r0 * np.cos(t), r0 * np.sin(t), color=GRID if r0 < 1 else "#b9c1cc", lw=0.8)
+    t = np.linspace(0, 2 * np.pi, 120)
+    rings = [(np.sqrt(1 - np.cos(np.radians(d))), f"{d}°") for d in (30, 60, 90)]
+    _lines(ax, [np.stack([r0 * np.cos(t), r0 * np.sin(t)], axis=1) for r0, _ in rings] + [
+        np.array([[-1, 0], [1, 0]]), np.array([[0, -1], [0, 1]])], colors=GRID, linewidths=0.8)
+    for r0, lab in rings:
         ax.text(r0 * np.cos(np.radians(75)), r0 * np.sin(np.radians(75)), lab, fontsize=6.5, color=MUTED)
-    ax.plot([-1, 1], [0, 0], color=GRID, lw=0.8)
-    ax.plot([0, 0], [-1, 1], color=GRID, lw=0.8)
-    sc = ax.scatter(x, y, c=np.degrees(ang[keep]), cmap="viridis", s=12, vmin=0,
-                    vmax=max(90.0, float(np.degrees(ang.max())) if len(ang) else 90.0), edgecolor="none")
+    vmax = max(90.0, float(np.degrees(ang.max())) if len(ang) else 90.0)
+    ax.scatter(rr * np.cos(phi), rr * np.sin(phi), c=np.degrees(ang[keep]), cmap="viridis", s=10, vmin=0,
+               vmax=vmax, edgecolor="none")
     ax.text(1.04, 0, "+x", fontsize=7.5, va="center")
     ax.text(0, 1.05, "+y", fontsize=7.5, ha="center")
-    ax.text(0.03, 0.03, "z", fontsize=7.5, color=MUTED)
-    ax.text(0.0, -1.13, "rings: tilt of the axis from +z", fontsize=6.8, color=MUTED, ha="center")
+    ax.text(0.0, -1.15, f"rings: tilt from +z · colour: angle 0–{vmax:.0f}° (viridis)", fontsize=6.8,
+            color=MUTED, ha="center")
     ax.set_xlim(-1.15, 1.15)
-    ax.set_ylim(-1.15, 1.15)
+    ax.set_ylim(-1.2, 1.15)
     ax.set_aspect("equal")
     ax.axis("off")
-    cb = fig.colorbar(sc, ax=ax, shrink=0.75, pad=0.02)
-    cb.set_label("rotation [deg]", fontsize=7.5)
-    cb.ax.tick_params(labelsize=7)
     ax2 = fig.add_subplot(gs[1])
     ax2.set_title(f"Rotation between view pairs ({len(ang)} pairs)")
     if len(ang):
         ax2.hist(np.degrees(ang), bins=np.linspace(0, max(180.0, np.degrees(ang.max())), 37), color=NAVY,
-                 alpha=0.8, edgecolor="white", linewidth=0.4)
+                 alpha=0.8)
     if fail_deg is not None:
         ax2.axvline(fail_deg, color=RED, ls="--", lw=1.0, label=f"QA fail < {fail_deg:g}° (largest)")
     if warn_deg is not None:
@@ -377,14 +383,12 @@ def rotation_coverage(rotvecs: np.ndarray, *, frame: str, warn_deg: Optional[flo
     return _png(fig)
 
 
-@_styled
 def translation_uncertainty(cov_t_mm2: Optional[np.ndarray], methods: Sequence[tuple], *, frame: str,
                             x_name: str) -> bytes:
     """1- and 2-sigma ellipses of the translation (three planes of ``frame``), with the closed-form methods
     as points relative to the result. ``methods``: (name, offset_mm (3,))."""
-    fig = _fig(8.6, 3.0)
+    fig = _fig(3.0, left=0.07, right=0.8, bottom=0.16, top=0.84, wspace=0.45)
     axs = fig.subplots(1, 3)
-    planes = [(0, 1), (0, 2), (1, 2)]
     lab = "xyz"
     off = np.array([m[1] for m in methods]) if methods else np.zeros((0, 3))
     if cov_t_mm2 is not None:  # the view is the uncertainty; methods beyond it are marked at the border
@@ -399,13 +403,13 @@ def translation_uncertainty(cov_t_mm2: Optional[np.ndarray], methods: Sequence[t
     lim = lim or 1.0
     n_out = int(np.sum(np.max(np.abs(off), axis=1) > lim)) if len(off) else 0
     markers = "osD^v<>ph*"
-    for k, (i, j) in enumerate(planes):
+    for k, (i, j) in enumerate([(0, 1), (0, 2), (1, 2)]):
         ax = axs[k]
         ax.set_title(f"{lab[i]}–{lab[j]} plane")
         if cov_t_mm2 is not None:
             C = cov_t_mm2[np.ix_([i, j], [i, j])]
             for ks, ls, a in ((1.0, "-", 0.22), (2.0, "--", 0.08)):
-                E = ellipse_points(C, k_sigma=ks)
+                E = ellipse_points(C, k_sigma=ks, n=72)
                 ax.fill(E[:, 0], E[:, 1], color=NAVY, alpha=a, lw=0)
                 ax.plot(E[:, 0], E[:, 1], color=NAVY, lw=1.0, ls=ls, label=f"{ks:g} σ" if k == 0 else None)
         ax.plot([0], [0], marker="+", color=INK, ms=9, mew=1.5, ls="none", label="result" if k == 0 else None)
@@ -423,7 +427,7 @@ def translation_uncertainty(cov_t_mm2: Optional[np.ndarray], methods: Sequence[t
         ax.set_xlabel(f"Δ{lab[i]} [mm]")
         ax.set_ylabel(f"Δ{lab[j]} [mm]")
     handles, labels = axs[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside right center", fontsize=7.5)
+    fig.legend(handles, labels, loc="center left", bbox_to_anchor=(0.81, 0.5), fontsize=7.5)
     note = f"; hollow: {n_out} beyond the range, at the border" if n_out else ""
     fig.suptitle(f"Translation of {x_name} ({frame} frame), offsets from the result{note}", fontsize=9.5,
                  fontweight="bold", x=0.01, ha="left", color=INK)

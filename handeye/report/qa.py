@@ -101,10 +101,9 @@ _SPEC = {
         lambda c: "add views tilted 20-45 deg (or more) against each other about two different axes"),
     "axis_spread_deg": (
         "Spread of rotation axes", "deg", "{:.1f}",
-        lambda v, lim, c: f"the rotations between views are mostly about one axis ({c.get('main_axis', '?')} in the "
-                          f"{c.get('axis_frame', '')} frame); spread {v:.1f} deg, limit {lim:g} deg",
-        lambda c: f"add views rotated 20-45 deg about {c.get('weak_axes', 'the other two axes')} "
-                  f"of the {c.get('axis_frame', '')} frame"),
+        lambda v, lim, c: f"the rotations between views are mostly about one axis ({c.get('main_axis', '?')}); "
+                          f"spread {v:.1f} deg, limit {lim:g} deg",
+        lambda c: f"add views rotated 20-45 deg about {c.get('weak_axes', 'the other two axes')}"),
     "dropped_share": (
         "Views dropped or flagged", "", "{:.0%}",
         lambda v, lim, c: f"{c.get('n_bad', '?')} of {c.get('n_total', '?')} views were dropped or flagged "

@@ -1,10 +1,13 @@
-"""Render the report context (:mod:`handeye.report.build`) to one self-contained HTML file and to
-Markdown with its figures as PNG files beside it. Templates ship in ``handeye/templates``.
+"""Render the report context (:mod:`handeye.report.context`) to one self-contained HTML file (figures
+and thumbnails inlined as data URIs) and to Markdown with its figures and thumbnails as files in
+``report_files/``. Templates ship in ``handeye/templates``.
 """
 from __future__ import annotations
 
 import base64
+import functools
 import math
+import os
 import re
 from importlib import resources
 from pathlib import Path
@@ -16,10 +19,23 @@ from .. import __version__
 FILES_DIR = "report_files"
 
 
+def _bytecode_cache() -> jinja2.BytecodeCache | None:
+    """Compiled templates kept between runs (keyed on the template source, like ``__pycache__``):
+    compiling them costs more than the rest of the rendering. None when no cache folder is writable."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    folder = Path(base) / "handeye" / f"templates-{__version__}"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    return jinja2.FileSystemBytecodeCache(str(folder)) if os.access(folder, os.W_OK) else None
+
+
+@functools.lru_cache(maxsize=2)
 def _env(*, html: bool) -> jinja2.Environment:
     root = resources.files("handeye").joinpath("templates")
     env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(root)), autoescape=html,
-                             undefined=jinja2.StrictUndefined,
+                             undefined=jinja2.StrictUndefined, bytecode_cache=_bytecode_cache(),
                              trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True)
     env.filters["num"] = num
     env.filters["pct"] = pct
@@ -59,8 +75,8 @@ def mdcell(x) -> str:
     return str(x).replace("|", "\\|").replace("\n", " ")
 
 
-def data_uri(png: bytes) -> str:
-    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+def data_uri(data: bytes, mime: str = "image/png") -> str:
+    return f"data:{mime};base64," + base64.b64encode(data).decode("ascii")
 
 
 def safe_name(s: str) -> str:
@@ -69,7 +85,7 @@ def safe_name(s: str) -> str:
 
 def render_html(ctx: dict) -> str:
     images = {p.key: data_uri(p.png) for p in ctx["plots"]}
-    thumbs = {vid: data_uri(png) for vid, png in ctx["thumbs"].items()}
+    thumbs = {vid: data_uri(jpg, "image/jpeg") for vid, jpg in ctx["thumbs"].items()}
     return _env(html=True).get_template("report.html.j2").render(**ctx, images=images, thumb_src=thumbs)
 
 
@@ -81,9 +97,9 @@ def render_markdown(ctx: dict) -> tuple[str, dict[str, bytes]]:
         rel = f"{FILES_DIR}/{safe_name(p.key)}.png"
         files[rel] = p.png
         images[p.key] = rel
-    for vid, png in ctx["thumbs"].items():
-        rel = f"{FILES_DIR}/view_{safe_name(vid)}.png"
-        files[rel] = png
+    for vid, jpg in ctx["thumbs"].items():
+        rel = f"{FILES_DIR}/view_{safe_name(vid)}.jpg"
+        files[rel] = jpg
         thumbs[vid] = rel
     text = _env(html=False).get_template("report.md.j2").render(**ctx, images=images, thumb_src=thumbs)
     return _tidy_markdown(text), files
@@ -114,7 +130,7 @@ def write_files(out_dir: Path, html: str | None, md: tuple[str, dict] | None) ->
         fdir = out_dir / FILES_DIR
         fdir.mkdir(parents=True, exist_ok=True)
         keep = {Path(rel).name for rel in files}
-        for old in fdir.glob("*.png"):  # stale figures of an earlier report in this folder
+        for old in [*fdir.glob("*.png"), *fdir.glob("*.jpg")]:  # stale files of an earlier report here
             if old.name not in keep:
                 old.unlink()
         for rel, data in files.items():

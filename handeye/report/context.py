@@ -1,0 +1,504 @@
+"""Everything the templates show, computed from a result folder (plain values, no HTML here).
+
+Every key of result.json is optional except ``status`` and ``mode``: partial results (failed runs,
+``--no-refine``, results written before the refinement or diagnostics existed) still build.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import re
+import sys
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+
+from .. import __version__
+from ..conventions import pose_forms, vendor_euler_from_R
+from ..errors import ConfigError
+from ..frames import pose_error, quat_wxyz_from_R
+from ..mounting import EYE_IN_HAND, MODES, mounting
+from ..output import plain
+from .advice import failure_advice, untrusted_metrics
+from .folder import ResultFolder
+from .metrics import qa_metrics
+from .observations import (as_cov6, as_T, board_disagreement, finite, median_board_distance_m, view_fits)
+from .qa import STATUS_ORDER, Verdict, evaluate
+from .uncertainty import Z95, form_sigmas, predicted_point_error
+
+MODE_TEXT = {"eye_in_hand": "Eye-in-hand (camera on the robot flange)",
+             "eye_to_hand": "Eye-to-hand (camera fixed, board in the gripper)"}
+SEVERITY_ORDER = {"fail": 0, "warn": 1, "info": 2}
+#: what a refinement outlier of each kind means for its view (the reason text itself is shown as is)
+OUTLIER_KIND_TEXT = {"robot_pose": "robot pose disagrees with the camera", "reprojection": "corners do not fit",
+                     "too_few_corners": "too few usable corners", "corners": "outlier corners"}
+
+
+def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_plots: bool = True) -> dict[str, Any]:
+    res, obs = folder.result or {}, folder.observations or {}
+    mode_known = res.get("mode") in MODES
+    try:
+        mm_adapter = mounting(res.get("mode") if mode_known else EYE_IN_HAND.name)
+    except ConfigError:  # pragma: no cover - MODES and mounting() agree
+        mm_adapter = EYE_IN_HAND
+    x_name, b_name = mm_adapter.x_name, mm_adapter.board_name
+    parent, board_parent = mm_adapter.fixed_frame, mm_adapter.board_frame
+    ok = res.get("status") == "ok"
+    ref = res.get("refinement") if isinstance(res.get("refinement"), dict) else {}
+    if ref and ref.get("status") not in (None, "ok"):
+        ref = {}
+    diag = res.get("diagnostics") if isinstance(res.get("diagnostics"), dict) else {}
+    T_x = as_T(res.get(x_name)) if ok else None
+    T_board = as_T(res.get(b_name)) if ok else None
+    cov = as_cov6(ref.get("cov_x_6x6")) if ref else None
+    intr = res.get("intrinsics") or ref.get("intrinsics")
+    obj = np.asarray(obs.get("object_points_m") or [], float).reshape(-1, 3)
+    board_centre = obj.mean(axis=0) if len(obj) else np.zeros(3)
+    fits = view_fits(obs)
+    image_size = (intr or {}).get("image_size") or obs.get("image_size")
+
+    wd_cfg = qa_cfg.get("working_distance_m")
+    wd = float(wd_cfg) if wd_cfg is not None else _num(ref.get("working_distance_m"))
+    if not finite(wd):
+        wd = median_board_distance_m(fits, board_centre)
+
+    ctx: dict[str, Any] = {"x_name": x_name, "board_name": b_name, "parent": parent, "mode": mm_adapter.name,
+                           "mode_text": MODE_TEXT[mm_adapter.name] if mode_known else "Mounting mode unknown",
+                           "ok": ok, "refined": bool(ref)}
+    ctx["meta"] = _meta(res, obs)
+    findings = _findings(diag)
+    views = _view_rows(res, ref, fits, board_centre, findings, folder, image_size)
+    ctx["views"] = views
+    ctx["n_used"] = sum(v["status"] == "used" for v in views)
+    ctx["n_total"] = len(views)
+
+    # --- result forms and uncertainty
+    unc = form_sigmas(T_x, cov) if T_x is not None and cov is not None else None
+    pred = (predicted_point_error(T_x, cov, working_distance_m=wd)
+            if T_x is not None and cov is not None and finite(wd) else None)
+    ctx["result"] = (_result_block(res, T_x, T_board, unc, pred, wd, x_name, b_name, parent, board_parent)
+                     if T_x is not None else None)
+    ctx["uncertainty"] = _uncertainty_block(ref, unc, parent) if unc is not None else None
+    ctx["methods"] = _methods(res, T_x, x_name)
+    ctx["intrinsics"] = _intrinsics_rows(intr, ref.get("intrinsics_sigma") if ref else None, res)
+    ctx["noise"] = _noise(ref)
+
+    # --- metrics and verdict
+    metrics, notes = qa_metrics(res, ref, fits, views, unc, pred, wd, image_size, mm_adapter)
+    failure = failure_advice(res, findings, has_views=bool(views)) if not ok else None
+    notes["x_name"] = x_name
+    if pred is not None:
+        notes["predicted_text"] = f"{pred['rms_mm']:.2f} mm (1 σ) at {wd:.2f} m"
+    verdict = evaluate(metrics, qa_cfg, context=notes, failure=failure, findings=findings,
+                       thresholds_source=qa_source)
+    untrusted = untrusted_metrics(findings)
+    ctx["verdict"] = verdict
+    ctx["untrusted"] = untrusted
+    ctx["failure"] = failure
+    ctx["findings"] = findings
+    ctx["cross_validation"] = _cross_validation(diag.get("cross_validation"))
+    ctx["kpis"] = _kpis(metrics, pred, wd, views, verdict, ok, untrusted)
+    ctx["motion"] = res.get("motion")
+    ctx["provenance"] = _provenance(res, qa_cfg, qa_source)
+    ctx["plots"] = []
+    if make_plots:
+        from .figures import report_figures
+
+        ctx["plots"] = report_figures(res=res, obs=obs, ref=ref, fits=fits, views=views, T_x=T_x, T_board=T_board,
+                                      unc=unc, metrics=metrics, notes=notes, qa_cfg=qa_cfg, mounting=mm_adapter,
+                                      image_size=image_size)
+    ctx["thumbs"] = {v["id"]: folder.thumbnails[v["id"]] for v in views if v["id"] in folder.thumbnails}
+    for v in views:
+        v["has_thumb"] = v["id"] in ctx["thumbs"]
+    return ctx
+
+
+def _num(x) -> float:
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+# ------------------------------------------------------------------------------ meta
+def _target_text(t: dict | None) -> str:
+    if not t:
+        return ""
+    kind = t.get("type") or t.get("kind")
+    sq = t.get("square_m")
+    if kind == "chessboard":
+        ic = t.get("inner_corners") or [t.get("cols"), t.get("rows")]
+        return f"chessboard, {ic[0]}×{ic[1]} inner corners, {sq * 1e3:g} mm squares" if sq else "chessboard"
+    if kind == "charuco":
+        s = t.get("squares") or ["?", "?"]
+        m = t.get("marker_m")
+        extra = f", markers {m * 1e3:g} mm" if m else ""
+        return f"ChArUco {s[0]}×{s[1]} squares of {sq * 1e3:g} mm{extra}, {t.get('dictionary', '')}".rstrip(", ")
+    return str(kind or "")
+
+
+def _meta(res: dict, obs: dict) -> dict:
+    prov = res.get("provenance") or {}
+    sess = res.get("session") or {}
+    path = sess.get("path") or ""
+    nv = res.get("n_views") or {}
+    size = (res.get("intrinsics") or {}).get("image_size") or obs.get("image_size")
+    return {
+        "session_name": Path(path).name if path else "session",
+        "session_path": path,
+        "session_format": sess.get("format", ""),
+        "pose_format": sess.get("pose_format", ""),
+        "target": _target_text(res.get("target") or obs.get("target")),
+        "calibrated_utc": prov.get("time_utc", ""),
+        "generated_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "method": res.get("method", ""),
+        "refined": bool(res.get("refined")),
+        "n_total": nv.get("total", len(res.get("views") or [])),
+        "n_used": nv.get("used"),
+        "image_size": f"{size[0]}×{size[1]} px" if size else "",
+        "handeye_version": prov.get("handeye_version", ""),
+        "report_version": __version__,
+        "status": res.get("status", "unknown"),
+    }
+
+
+# ------------------------------------------------------------------------------ views
+def _strip_view_prefix(text: str) -> str:
+    """``view 7: reported robot pose ...`` -> ``reported robot pose ...`` (the row already names the view)."""
+    return re.sub(r"^(outlier: )?view \S+: ", r"\1", str(text or ""))
+
+
+def _view_rows(res, ref, fits, centre, findings, folder: ResultFolder, image_size) -> list[dict]:
+    per_view = (ref or {}).get("per_view") or {}
+    outl: dict[str, list] = {}
+    for o in (ref or {}).get("outliers") or []:
+        outl.setdefault(str(o.get("view_id")), []).append(o)
+    finding_by_view: dict[str, list] = {}
+    for f in findings:
+        for vid in f["view_ids"]:
+            finding_by_view.setdefault(vid, []).append(f)
+    flagged_corners: dict[str, set] = {}
+    for o in (ref or {}).get("outliers") or []:
+        if o.get("corner_ids"):
+            flagged_corners.setdefault(str(o.get("view_id")), set()).update(int(c) for c in o["corner_ids"])
+    rows = []
+    for v in res.get("views") or []:
+        vid = str(v.get("id"))
+        fit = fits.get(vid)
+        pv = per_view.get(vid, {})
+        kinds = [str(o.get("kind", "")) for o in outl.get(vid, [])]
+        flags: list[dict] = []
+        if not v.get("used", False):
+            status = "flagged" if kinds or vid in per_view else "dropped"
+            kind = next((OUTLIER_KIND_TEXT.get(k, k) for k in kinds if k), "")
+            reason_kind = kind or ("target not found" if fit is None else "not used")
+            flags.append({"severity": "fail", "text": _strip_view_prefix(v.get("reason") or "not used")})
+        elif pv.get("status") == "robot_excluded":
+            status, reason_kind = "flagged", OUTLIER_KIND_TEXT["robot_pose"]
+        else:
+            status, reason_kind = "used", ""
+        for o in outl.get(vid, []):
+            text = _strip_view_prefix(o.get("reason", ""))
+            if any(text in f["text"] for f in flags):
+                continue
+            kind = o.get("kind")
+            sev = "info" if kind == "corners" else ("warn" if kind == "robot_pose" else "fail")
+            flags.append({"severity": sev, "text": text})
+        for f in finding_by_view.get(vid, []):
+            flags.append({"severity": f["severity"], "text": f["title"] + (f" ({f['code']})" if f["code"] else "")})
+        rms = fit.rms_px if fit else _num(pv.get("rms_px", v.get("pnp_rms_px")))
+        mx = fit.max_px if fit else _num(pv.get("max_px"))
+        chain = fit.chain_rms_px if fit else float("nan")
+        if "robot_vs_camera_trans_mm" in pv:
+            rc_mm, rc_deg = _num(pv.get("robot_vs_camera_trans_mm")), _num(pv.get("robot_vs_camera_rot_deg"))
+            maha = _num(pv.get("robot_vs_camera_mahalanobis"))
+        elif fit is not None:
+            rc_deg, rc_mm = board_disagreement(fit, centre)
+            maha = float("nan")
+        else:
+            rc_deg = rc_mm = maha = float("nan")
+        corners = []
+        if fit is not None and image_size:
+            bad = flagged_corners.get(vid, set())
+            corners = [(round(float(u), 1), round(float(w), 1), int(c) in bad)
+                       for c, (u, w) in zip(fit.corner_ids, fit.image_points_px)]
+        rows.append({"id": vid, "image": v.get("image") or "", "status": status, "reason_kind": reason_kind,
+                     "n_corners": v.get("n_corners") or (len(fit.corner_ids) if fit else 0),
+                     "rms_px": rms, "max_px": mx, "chain_rms_px": chain, "robot_mm": rc_mm, "robot_deg": rc_deg,
+                     "robot_maha": maha, "flags": flags, "corners": corners,
+                     "image_size": list(image_size) if image_size else None})
+    return rows
+
+
+# ------------------------------------------------------------------------------ result
+def matrix_text(T: np.ndarray) -> str:
+    """A 4x4 as aligned plain text (ASCII minus, so that it can be copied)."""
+    return "\n".join("   ".join(f"{x:+.6f}" for x in row) for row in np.asarray(T, float))
+
+
+def _result_block(res, T_x, T_board, unc, pred, wd, x_name, b_name, parent, board_parent) -> dict:
+    f = pose_forms(T_x)
+    q = quat_wxyz_from_R(T_x[:3, :3])
+    rows = []
+
+    def add(group, comp, unit, val, sig, digits):
+        lo = hi = None
+        if sig is not None and np.isfinite(sig):
+            lo, hi = val - Z95 * sig, val + Z95 * sig
+        rows.append({"group": group, "comp": comp, "unit": unit, "value": val, "sigma": sig, "lo": lo, "hi": hi,
+                     "digits": digits})
+
+    t = T_x[:3, 3] * 1e3
+    for k, c in enumerate("xyz"):
+        add(f"Translation ({parent} frame)", c, "mm", t[k], unc["translation_mm"][k] if unc else None, 2)
+    for k, c in enumerate("wxyz"):
+        add("Quaternion (w, x, y, z)", c, "", q[k], unc["quaternion_wxyz"][k] if unc else None, 6)
+    rv = np.asarray(f["rotvec_deg"], float)
+    for k, c in enumerate("xyz"):
+        add("Rotation vector (axis × angle)", c, "deg", rv[k], unc["rotvec_deg"][k] if unc else None, 3)
+    eu = np.asarray(f["euler_vendor_deg"], float)
+    for k, c in enumerate(("rx", "ry", "rz")):
+        add("Euler, R = Rz·Ry·Rx (extrinsic x-y-z)", c, "deg", eu[k], unc["euler_vendor_deg"][k] if unc else None, 3)
+    out = {
+        "name": x_name,
+        "meaning": (res.get("frames") or {}).get(x_name, ""),
+        "equation": f"p_{parent} = {x_name} · p_cam",
+        "child": "cam", "parent": parent,
+        "matrix_text": matrix_text(T_x),
+        "translation_mm": t.tolist(),
+        "quaternion_wxyz": q.tolist(),
+        "euler_deg": eu.tolist(),
+        "rows": rows,
+        "rotvec_rad": list(map(float, f["rotvec_rad"])),
+        "vendor_line": f["vendor_pose_line"],
+        "quaternion_xyzw": [q[1], q[2], q[3], q[0]],
+        "pred": pred,
+        "working_distance_m": wd,
+        "has_sigma": unc is not None,
+    }
+    if T_board is not None:
+        bf = pose_forms(T_board)
+        out["board"] = {"name": b_name, "meaning": (res.get("frames") or {}).get(b_name, ""),
+                        "equation": f"p_{board_parent} = {b_name} · p_board",
+                        "matrix_text": matrix_text(T_board), "translation_mm": bf["translation_mm"],
+                        "euler_deg": bf["euler_vendor_deg"], "vendor_line": bf["vendor_pose_line"]}
+    return out
+
+
+def _uncertainty_block(ref, unc, parent) -> dict:
+    corr = ref.get("correlation_6x6")
+    return {"sigma_trans_mm": list(unc["translation_mm"]), "sigma_rot_deg": list(unc["rot_cam_deg"]),
+            "trans_axes": ref.get("sigma_trans_axes", f"{parent} frame"),
+            "rot_axes": ref.get("sigma_rot_axes", "camera frame"),
+            "parametrisation": ref.get("cov_parametrisation", ""),
+            "corr": np.asarray(corr, float).tolist() if corr is not None else None,
+            "corr_names": ["ωx", "ωy", "ωz", "vx", "vy", "vz"]}
+
+
+def _methods(res, T_x, x_name) -> list[dict]:
+    rows = []
+    for m, e in (res.get("closed_form") or {}).items():
+        T = as_T(e.get(x_name))
+        row = {"name": m, "status": e.get("status", "?"), "reason": e.get("failure_reason", ""),
+               "is_seed": m == res.get("method"), "is_result": False, "cons_mm": None, "cons_deg": None}
+        if T is not None:
+            row["t_mm"] = (T[:3, 3] * 1e3).tolist()
+            row["euler_deg"] = np.degrees(vendor_euler_from_R(T[:3, :3])).tolist()
+            if T_x is not None:
+                row["d_deg"], row["d_mm"] = pose_error(T, T_x)
+                row["offset_mm"] = ((T[:3, 3] - T_x[:3, 3]) * 1e3).tolist()
+            row["cons_mm"], row["cons_deg"] = e.get("board_consistency_mm"), e.get("board_consistency_deg")
+        rows.append(row)
+    if T_x is not None and res.get("refined"):
+        rows.append({"name": "joint refinement (result)", "status": "ok", "reason": "", "is_result": True,
+                     "is_seed": False, "cons_mm": None, "cons_deg": None,
+                     "t_mm": (T_x[:3, 3] * 1e3).tolist(),
+                     "euler_deg": np.degrees(vendor_euler_from_R(T_x[:3, :3])).tolist(),
+                     "d_deg": 0.0, "d_mm": 0.0, "offset_mm": [0.0, 0.0, 0.0]})
+    elif T_x is not None:
+        for r in rows:
+            if r.get("is_seed"):
+                r["is_result"] = True
+    return rows
+
+
+def _intrinsics_rows(intr, sig, res) -> Optional[dict]:
+    if not intr:
+        return None
+    sig = sig or {}
+    rows = []
+    for k, unit in (("fx", "px"), ("fy", "px"), ("cx", "px"), ("cy", "px")):
+        if k in intr:
+            rows.append({"name": k, "unit": unit, "value": intr[k], "sigma": sig.get(k)})
+    d = intr.get("dist") or {}
+    if isinstance(d, dict):
+        for k in ("k1", "k2", "p1", "p2", "k3"):
+            if k in d:
+                rows.append({"name": k, "unit": "", "value": d[k], "sigma": sig.get(k)})
+    given = res.get("intrinsics") or {}
+    return {"rows": rows, "source": given.get("source", ""), "rms": given.get("calibrate_camera_rms_px"),
+            "size": intr.get("image_size"), "refined": bool(sig)}
+
+
+def _noise(ref) -> Optional[dict]:
+    if not ref:
+        return None
+    resolved = ref.get("robot_sigma_resolved") or {}
+    return {"sigma_px": ref.get("sigma_px"), "robot_mm": ref.get("robot_sigma_mm"),
+            "robot_deg": ref.get("robot_sigma_deg"), "resolved_rot": resolved.get("rot"),
+            "resolved_trans": resolved.get("trans"), "model": ref.get("robot_noise_model", ""),
+            "rms_before": ref.get("rms_px_before"), "rms_after": ref.get("rms_px_after"),
+            "iterations": ref.get("iterations")}
+
+
+# ------------------------------------------------------------------------------ diagnostics
+def _cap1(s) -> str:
+    s = str(s or "")
+    return s[:1].upper() + s[1:]
+
+
+def _findings(diag: dict) -> list[dict]:
+    out = []
+    for f in (diag or {}).get("findings") or []:
+        if not isinstance(f, dict):
+            continue
+        sev = str(f.get("severity", "info")).lower()
+        sev = sev if sev in SEVERITY_ORDER else "info"
+        out.append({"code": str(f.get("code") or ""), "severity": sev,
+                    "title": str(f.get("title") or f.get("code") or "finding"),
+                    "evidence": _cap1(f.get("evidence", "")), "action": _cap1(f.get("action", "")),
+                    "view_ids": [str(v) for v in (f.get("view_ids") or [])]})
+    out.sort(key=lambda f: SEVERITY_ORDER[f["severity"]])
+    return out
+
+
+def _col_title(key: str) -> str:
+    """``held_out_rms_px`` -> ``Held out RMS [px]``."""
+    k, unit = str(key), ""
+    for suf in ("px", "mm", "deg", "m", "rad"):
+        if k.endswith("_" + suf):
+            k, unit = k[: -len(suf) - 1], f" [{suf}]"
+            break
+    k = k.replace("_", " ").replace("rms", "RMS")
+    return k[:1].upper() + k[1:] + unit
+
+
+def _cross_validation(cv) -> Optional[dict]:
+    """The diagnostics' held-out validation: summary, spread against prediction, per-view table.
+
+    Known keys (jackknife_sigma_*, predicted_sigma_*, per_view) get a dedicated layout; anything
+    else is shown generically (scalars as items, lists of dicts as tables)."""
+    if not isinstance(cv, dict) or not cv:
+        return None
+    summary = str(cv.get("summary") or cv.get("conclusion") or "")
+    ran = bool(cv.get("verdict")) or "jackknife_sigma_rot_deg" in cv
+    out = {"summary": summary, "items": [], "tables": [], "not_run": not ran, "spread": None,
+           "verdict": cv.get("verdict", "")}
+    used = {"summary", "conclusion", "verdict", "status"}
+    if "jackknife_sigma_rot_deg" in cv or "jackknife_sigma_trans_mm" in cv:
+        rows = [("Held-out spread (jackknife, 1 σ)", cv.get("jackknife_sigma_rot_deg"),
+                 cv.get("jackknife_sigma_trans_mm"))]
+        if cv.get("predicted_sigma_rot_deg") is not None:
+            rows.append(("Predicted by the covariance (1 σ)", cv.get("predicted_sigma_rot_deg"),
+                         cv.get("predicted_sigma_trans_mm")))
+        out["spread"] = {"rows": [{"name": n, "rot": list(r or [None] * 3), "trans": list(t or [None] * 3)}
+                                  for n, r, t in rows],
+                         "ratio_rot": cv.get("ratio_rot"), "ratio_trans": cv.get("ratio_trans"),
+                         "axes": cv.get("axes", "")}
+        used |= {"jackknife_sigma_rot_deg", "jackknife_sigma_trans_mm", "predicted_sigma_rot_deg",
+                 "predicted_sigma_trans_mm", "ratio_rot", "ratio_trans", "axes"}
+    labels = {"method": "Refit", "scheme": "Scheme", "n_views": "Views", "n_folds": "Folds",
+              "folds_solved": "Folds solved", "held_out_rms_px_median": "Held-out RMS, median [px]"}
+    for k, v in cv.items():
+        if k in used:
+            continue
+        name = labels.get(k, k.replace("_", " "))
+        if isinstance(v, (int, float, str, bool)) or v is None:
+            out["items"].append({"name": name, "value": v})
+        elif isinstance(v, list) and v and all(isinstance(r, dict) for r in v):
+            cols = list(dict.fromkeys(c for r in v for c in r if not isinstance(r[c], (list, dict))))
+            out["tables"].append({"name": name, "cols": [_col_title(c) for c in cols],
+                                  "rows": [[r.get(c) for c in cols] for r in v]})
+        elif isinstance(v, list) and v and all(isinstance(x, (int, float)) for x in v) and len(v) <= 6:
+            out["items"].append({"name": name, "value": ", ".join(f"{x:.4g}" for x in v)})
+        elif isinstance(v, dict):
+            for kk, vv in v.items():
+                if isinstance(vv, (int, float, str, bool)):
+                    out["items"].append({"name": f"{name} {kk}".replace("_", " "), "value": vv})
+    return out
+
+
+# ------------------------------------------------------------------------------ KPIs
+def _kpis(metrics, pred, wd, views, verdict: Verdict, ok: bool, untrusted: dict[str, str]) -> list[dict]:
+    """The headline cards. A card whose number a finding says is not to be trusted is shown as such,
+    never green."""
+    status = {k: c.status for c in verdict.checks for k in c.key.split("+")}
+
+    def card(label, value, sub, keys):
+        st = max((status.get(k, "pass") for k in keys), key=lambda s: STATUS_ORDER.get(s, 0)) if keys else ""
+        doubt = next((untrusted[k] for k in keys if k in untrusted), None)
+        if doubt and value != "n/a":
+            return {"label": label, "value": value, "sub": f"not to be trusted: {doubt}", "status": "untrusted"}
+        return {"label": label, "value": value, "sub": sub, "status": st}
+
+    out = []
+    if pred is not None:
+        out.append(card(f"Predicted error at {wd:.2f} m", f"{pred['rms_mm']:.2f} mm",
+                        f"1 σ RMS 3-D · 95 %: {pred['r95_mm']:.2f} mm", ["predicted_error_mm"]))
+    elif ok:
+        out.append(card("Predicted error", "n/a", "no covariance (--no-refine)", ["predicted_error_mm"]))
+    v = metrics.get("reprojection_rms_px")
+    if v is not None:
+        out.append(card("Reprojection RMS", f"{v:.2f} px", "detected vs predicted corners", ["reprojection_rms_px"]))
+    n_used = sum(x["status"] == "used" for x in views)
+    if views:
+        out.append(card("Views used", f"{n_used} / {len(views)}", f"{len(views) - n_used} dropped or flagged",
+                        ["used_views"]))
+    mr, sp = metrics.get("max_rotation_deg"), metrics.get("axis_spread_deg")
+    if mr is not None:
+        out.append(card("Rotation coverage", f"{mr:.0f}°",
+                        f"largest rotation; axis spread {sp:.0f}°" if sp is not None else "largest rotation",
+                        ["max_rotation_deg", "axis_spread_deg"]))
+    return out
+
+
+# ------------------------------------------------------------------------------ provenance
+def _provenance(res, qa_cfg, qa_source) -> dict:
+    import yaml
+
+    prov = dict(res.get("provenance") or {})
+    options = prov.pop("options", None)
+    rows = []
+    labels = {"handeye_version": "handeye version", "command_line": "Command line", "time_utc": "Calibrated (UTC)",
+              "inputs_sha256": "Input hash (SHA-256 of images and pose files)", "python": "Python",
+              "opencv": "OpenCV"}
+    for k in labels:
+        if k in prov:
+            rows.append({"name": labels[k], "value": prov.pop(k), "mono": k in ("command_line", "inputs_sha256")})
+    for k, v in prov.items():
+        if isinstance(v, (str, int, float)):
+            rows.append({"name": k.replace("_", " "), "value": v, "mono": False})
+    sess = res.get("session") or {}
+    if sess.get("path"):
+        rows.append({"name": "Session", "value": f"{sess.get('path')} ({sess.get('format', '')})", "mono": True})
+    if sess.get("pose_format"):
+        rows.append({"name": "Pose format", "value": sess["pose_format"], "mono": False})
+    secs = res.get("seconds") or {}
+    if secs.get("total"):
+        rows.append({"name": "Run time", "value": ", ".join(f"{k} {v:.2f} s" for k, v in secs.items()
+                                                             if isinstance(v, (int, float))), "mono": False})
+    report_cmd = " ".join([Path(sys.argv[0]).name] + sys.argv[1:]) if sys.argv and sys.argv[0] else ""
+    if report_cmd and report_cmd != (res.get("provenance") or {}).get("command_line") and "pytest" not in report_cmd:
+        rows.append({"name": "Report command line", "value": report_cmd, "mono": True})
+    rows.append({"name": "Report generated (UTC)",
+                 "value": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"), "mono": False})
+    rows.append({"name": "QA thresholds", "value": qa_source, "mono": True})
+    config = {}
+    if options:
+        config["calibration options"] = options
+    ref_opts = (res.get("refinement") or {}).get("options") if isinstance(res.get("refinement"), dict) else None
+    if ref_opts:
+        config["refinement options"] = ref_opts
+    config["QA thresholds"] = qa_cfg
+    return {"rows": rows, "config_yaml": yaml.safe_dump(plain(config), sort_keys=False, default_flow_style=None,
+                                                        width=100).strip()}
