@@ -21,7 +21,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--mode", default="eye_in_hand")
     args = ap.parse_args()
-    from handeye.sim.synth import write_vendor_session
+    from handeye.sim.vendor import write_vendor_session
 
     with tempfile.TemporaryDirectory() as tmp:
         sess = write_vendor_session(Path(tmp) / "s", mode=args.mode, n_views=args.views, seed=7,

@@ -2,26 +2,20 @@
 
 Eye-in-hand: ``p_base = T_base_end @ T_end_cam @ p_cam`` (needs the end pose at capture time).
 Eye-to-hand: ``p_base = T_base_cam @ p_cam`` (the end pose is not needed).
+The difference lives in :meth:`handeye.mounting.MountingMode.T_base_cam`.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .errors import ConfigError, InputError
+from .errors import InputError
 from .frames import is_rotation, transform_points
-from .mounting import MODES
+from .mounting import MODES, mounting
 
 
 def T_base_cam_from_result(mode: str, T_x: np.ndarray, T_base_end: np.ndarray | None = None) -> np.ndarray:
     """Camera pose in the base frame for a result ``T_x`` (T_end_cam or T_base_cam)."""
-    if mode == "eye_in_hand":
-        if T_base_end is None:
-            raise ConfigError("eye-in-hand needs the robot's end pose at the time the camera saw the point",
-                              hint="pass --end-pose x y z rx ry rz (metres, radians, R = Rz·Ry·Rx)")
-        return np.asarray(T_base_end, float) @ np.asarray(T_x, float)
-    if mode == "eye_to_hand":
-        return np.asarray(T_x, float)
-    raise ConfigError("unknown mode", expected=" | ".join(MODES), received=repr(mode))
+    return mounting(mode).T_base_cam(T_x, T_base_end)
 
 
 def points_cam_to_base(p_cam: np.ndarray, *, mode: str, T_x: np.ndarray,
@@ -46,11 +40,13 @@ def result_transform(result: dict) -> tuple[str, np.ndarray]:
     """(mode, T_x) from a loaded result.json, with checks."""
     mode = result.get("mode")
     if result.get("status", "ok") != "ok":
-        raise InputError(f"the result is a failed calibration ({result.get('failure_reason', '')[:120]})",
-                         hint="calibrate again and apply a successful result")
-    key = {"eye_in_hand": "T_end_cam", "eye_to_hand": "T_base_cam"}.get(mode)
-    if key is None or key not in result:
-        raise InputError("result.json has no hand-eye transform", expected="mode and T_end_cam or T_base_cam")
+        raise InputError(f"the result is a failed calibration ({str(result.get('failure_reason', ''))[:120]})",
+                         hint="calibrate again and apply a successful result", code="failed_result")
+    if mode not in MODES:
+        raise InputError("result.json has no valid mounting mode", expected=" | ".join(MODES), received=repr(mode))
+    key = mounting(mode).x_name
+    if key not in result:
+        raise InputError(f"result.json has no hand-eye transform {key}", expected=f"mode {mode} and {key}")
     T = np.asarray(result[key], float)
     if T.shape != (4, 4) or not is_rotation(T[:3, :3], tol=1e-6):
         raise InputError(f"{key} in result.json is not a 4x4 rigid transform")

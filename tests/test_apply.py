@@ -9,7 +9,7 @@ from handeye.cli import main
 from handeye.conventions import VENDOR_POSE_FORMAT, pose_values_from_T
 from handeye.errors import ConfigError, InputError
 from handeye.frames import transform_points
-from handeye.sim.synth import make_corner_session
+from handeye.sim.corners import make_corner_session
 
 
 def truth_points(cs, k):

@@ -6,7 +6,7 @@ from handeye.errors import DegenerateMotionError
 from handeye.frames import T_from_rotvec, inv_T, pose_error
 from handeye.mounting import mounting
 from handeye.initial import METHODS, board_poses, motion_quality, solve_closed_form
-from handeye.sim.synth import make_corner_session
+from handeye.sim.corners import make_corner_session
 from handeye.targets import ChessboardSpec
 from handeye.records import Detection
 

@@ -1,6 +1,7 @@
 """``handeye collect OUT --mode M --camera C --robot R [--auto]``: argument parsing and wiring.
 
-The main CLI registers this with ``add_collect_arguments(parser)`` and ``run_collect(args)``.
+The main CLI registers this with :func:`add_parser`; ``add_collect_arguments(parser)`` and
+``run_collect(args)`` serve other entry points and tests.
 Device and user errors are raised as HandeyeError (the CLI prints them on one line).
 """
 from __future__ import annotations
@@ -21,6 +22,12 @@ from ..targets import CharucoSpec, ChessboardSpec, TargetSpec
 log = logging.getLogger(__name__)
 
 DEFAULT_TARGET = "chessboard:11x8:0.03"
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("collect", help="collect a session with a camera and a robot (or their simulators)")
+    add_collect_arguments(p)
+    p.set_defaults(func=run_collect)
 
 
 def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
@@ -204,11 +211,11 @@ def run_collect(args: argparse.Namespace) -> int:
 def _open_robot(args, *, target: TargetSpec, width: int, height: int, rng: np.random.Generator):
     spec = args.robot.strip()
     if spec == "sim":
-        from ..sim import synth
+        from ..sim.scenarios import default_intrinsics
         from ..sim.devices import SimRig, SimRobot
 
         rig = SimRig.sample(mode=args.mode, rng=rng, target=target,
-                            intrinsics=synth.default_intrinsics(width, height))
+                            intrinsics=default_intrinsics(width, height))
         return SimRobot(rig, pose_noise_mm=args.sim_pose_noise[0], pose_noise_deg=args.sim_pose_noise[1],
                         rng=rng), rig
     if spec == "realman" or spec.startswith("realman:"):

@@ -10,10 +10,16 @@ from ..errors import InputError
 log = logging.getLogger(__name__)
 
 
+def add_parser(sub) -> None:
+    p = sub.add_parser("report", help="(re)build report.html and report.md from a result folder")
+    add_report_arguments(p)
+    p.set_defaults(func=run_report)
+
+
 def add_report_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = ("Rebuild report.html (self-contained) and report.md (+ report_files/) from a folder "
-                          "written by handeye calibrate (result.json, observations.json); the session images "
-                          "are read for the thumbnails when they are still where they were.")
+                          "written by handeye calibrate (result.json, observations.json, thumbnails/); the "
+                          "session itself is not read.")
     parser.add_argument("result_dir", type=Path, help="folder holding result.json (or the result.json itself)")
     parser.add_argument("--qa", type=Path, metavar="FILE",
                         help="site QA thresholds (YAML) overriding the shipped configs/qa.yaml")
@@ -22,7 +28,6 @@ def add_report_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run_report(args) -> int:
-    from ..output import read_json
     from ..report import write_reports
 
     src = Path(args.result_dir)
@@ -30,12 +35,10 @@ def run_report(args) -> int:
     if not (result_dir / "result.json").exists():
         raise InputError("no result.json in this folder", path=result_dir,
                          hint="pass the folder written by handeye calibrate --out")
-    res = read_json(result_dir / "result.json")
     out = Path(args.out) if getattr(args, "out", None) else result_dir
     fmt = getattr(args, "format", "all")
     formats = ("html", "md") if fmt == "all" else (fmt,)
-    paths = write_reports(None, res, out, qa=getattr(args, "qa", None), formats=formats, strict=True,
-                          source_dir=result_dir)
+    paths = write_reports(result_dir, qa=getattr(args, "qa", None), out_dir=out, formats=formats, strict=True)
 
     for p in paths:
         print(f"report: {p}")

@@ -1,0 +1,53 @@
+"""``handeye apply RESULT --point X Y Z | --pose ...``: camera observations in the robot base frame."""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("apply", help="map a point or pose seen by the camera into the robot base frame",
+                       description="Eye-in-hand needs the end pose at capture time (--end-pose); "
+                                   "eye-to-hand does not.")
+    p.add_argument("result", type=Path, help="result.json or the folder holding it")
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--point", nargs=3, type=float, metavar=("X", "Y", "Z"), help="point in the camera frame, metres")
+    g.add_argument("--pose", nargs=6, type=float, metavar=("X", "Y", "Z", "RX", "RY", "RZ"),
+                   help="object pose in the camera frame: metres, radians, R = Rz·Ry·Rx")
+    p.add_argument("--end-pose", nargs=6, type=float, metavar=("X", "Y", "Z", "RX", "RY", "RZ"),
+                   help="robot end pose in the base frame (vendor convention: metres, radians, R = Rz·Ry·Rx)")
+    p.add_argument("--mm", action="store_true", help="--point/--pose/--end-pose translations are in millimetres")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from ..apply import points_cam_to_base, pose_cam_to_base, result_transform
+    from ..conventions import VENDOR_POSE_FORMAT, T_from_pose_values, pose_forms
+    from ..errors import ConfigError
+    from ..output import read_json
+
+    mode, T_x = result_transform(read_json(args.result))
+    scale = 1e-3 if args.mm else 1.0
+
+    def pose_arg(values, flag):
+        v = np.asarray(values, float)
+        v[:3] *= scale
+        try:
+            return T_from_pose_values(v, VENDOR_POSE_FORMAT)
+        except ValueError as e:
+            raise ConfigError(f"{flag}: {e}") from None
+
+    T_base_end = None if args.end_pose is None else pose_arg(args.end_pose, "--end-pose")
+    if args.point is not None:
+        p = np.asarray(args.point, float) * scale
+        pb = points_cam_to_base(p, mode=mode, T_x=T_x, T_base_end=T_base_end)
+        print(f"p_base [m]: {pb[0]:.6f} {pb[1]:.6f} {pb[2]:.6f}")
+        print(f"p_base [mm]: {pb[0] * 1e3:.3f} {pb[1] * 1e3:.3f} {pb[2] * 1e3:.3f}")
+    else:
+        T = pose_cam_to_base(pose_arg(args.pose, "--pose"), mode=mode, T_x=T_x, T_base_end=T_base_end)
+        print("T_base_obj:")
+        for row in T:
+            print("  [" + " ".join(f"{x:+.6f}" for x in row) + "]")
+        print(f"x,y,z,rx,ry,rz (m, rad; R = Rz·Ry·Rx): {pose_forms(T)['vendor_pose_line']}")
+    return 0

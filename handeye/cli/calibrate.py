@@ -1,0 +1,121 @@
+"""``handeye calibrate SESSION``: the whole workflow on one session folder, and its summary."""
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def add_parser(sub) -> None:
+    from ..mounting import MODES
+    from ..records import METHOD_NAMES
+
+    p = sub.add_parser("calibrate", help="calibrate a session folder (vendor layout or session.yaml)",
+                       description="Detect the target, calibrate the camera, start from an OpenCV closed-form "
+                                   "solution and refine jointly; writes DIR/result.json, observations.json, "
+                                   "thumbnails/ and the reports.")
+    p.add_argument("session", help="session folder (poses.txt + N.jpg + config.yaml, or session.yaml)")
+    p.add_argument("--mode", choices=MODES,
+                   help="mounting mode (overrides the session's own; default: the session's, else eye_in_hand)")
+    p.add_argument("--method", choices=METHOD_NAMES,
+                   help="closed-form method the refinement starts from (default: tsai, from the preset)")
+    p.add_argument("--config", type=Path, help="site YAML overriding configs/calibration.yaml (same keys)")
+    p.add_argument("--out", type=Path, help="output folder (default: reports/<session folder name>)")
+    p.add_argument("--no-refine", action="store_true", help="stop at the closed-form solution")
+    p.add_argument("--fix-k3", action="store_true", help="hold the k3 distortion coefficient at 0")
+    p.add_argument("--fix", nargs="+", metavar="NAME", choices=["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"],
+                   help="intrinsics held at their starting values in the refinement (e.g. --fix p1 p2 k3)")
+    p.add_argument("--robot-noise", choices=["estimate", "fixed", "none"], default=None,
+                   help="robot pose noise model in the refinement (default: estimate)")
+    p.add_argument("--robot-sigma", nargs=2, type=float, metavar=("MM", "DEG"),
+                   help="robot pose sigma: start value (estimate) or the value (fixed)")
+    p.add_argument("--workers", type=int, help="threads for corner detection (default: all cores)")
+    p.add_argument("--qa", type=Path, metavar="FILE", help="site QA thresholds for the report (overrides configs/qa.yaml)")
+    p.add_argument("--no-report", action="store_true", help="write result.json, observations.json and thumbnails only")
+    p.set_defaults(func=run)
+
+
+def options_from_args(args):
+    """CalibrateOptions from the preset, the site --config and the command-line flags."""
+    from ..config import load_with_override
+    from ..pipeline import CalibrateOptions
+
+    cfg = load_with_override("calibration", getattr(args, "config", None))
+    ro = {}
+    if getattr(args, "robot_noise", None):
+        ro["robot_noise"] = args.robot_noise
+    if getattr(args, "robot_sigma", None):
+        ro["robot_sigma_mm"], ro["robot_sigma_deg"] = args.robot_sigma
+    if getattr(args, "fix", None):
+        ro["fix"] = tuple(args.fix)
+    return CalibrateOptions.from_config(cfg, method=args.method, refine=False if args.no_refine else None,
+                                        fix_k3=True if args.fix_k3 else None, workers=args.workers,
+                                        refine_options=ro)
+
+
+def run(args) -> int:
+    from ..workflow import calibrate_session
+
+    out = args.out or Path("reports") / Path(args.session).resolve().name
+    opts = options_from_args(args)
+    wr = calibrate_session(args.session, options=opts, out_dir=out, report=not args.no_report,
+                           qa=getattr(args, "qa", None), mode=args.mode, progress=lambda s: log.info("%s", s))
+    if wr.run is None:  # the session could not be read: result.json and the report say why
+        for p in wr.report_paths:
+            print(f"report: {p}")
+        raise wr.error
+    print(format_summary(wr.result, wr.result_path, wr.report_paths))
+    if wr.status != "ok":
+        if getattr(args, "debug", False):
+            raise wr.error
+        print(f"handeye: calibration failed: {wr.result['failure_reason']}", file=sys.stderr)
+        return wr.exit_code or 1
+    return 0
+
+
+def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
+    """The lines ``handeye calibrate`` prints on stdout: views used, the transform and its uncertainty."""
+    import numpy as np
+
+    from .. import __version__
+    from ..mounting import mounting
+
+    lines = []
+    mode = res["mode"]
+    used, total = res["n_views"]["used"], res["n_views"]["total"]
+    lines.append(f"handeye {__version__}: {mode}, {used}/{total} views used, method {res['method']}"
+                 + (" + joint refinement" if res.get("refined") else " (closed form only)"))
+    for v in res["views"]:
+        if not v["used"]:
+            lines.append(f"  view {v['id']} ({v['image']}) dropped: {v['reason']}")
+    if res["status"] == "ok":
+        name = mounting(mode).x_name
+        he = res["hand_eye"]
+        T = np.asarray(res[name])
+        lines.append(f"{name} (p_{name.split('_')[1]} = {name} @ p_cam):")
+        for row in T:
+            lines.append("  [" + " ".join(f"{x:+.6f}" for x in row) + "]")
+        t = he["translation_mm"]
+        lines.append(f"  translation [mm]: {t[0]:+.2f} {t[1]:+.2f} {t[2]:+.2f}")
+        q = he["quaternion_wxyz"]
+        lines.append(f"  quaternion (w, x, y, z): {q[0]:+.6f} {q[1]:+.6f} {q[2]:+.6f} {q[3]:+.6f}")
+        e = he["euler_vendor_deg"]
+        lines.append(f"  vendor x,y,z,rx,ry,rz (m, rad; R = Rz·Ry·Rx): {he['vendor_pose_line']}"
+                     f"  [deg: {e[0]:+.3f} {e[1]:+.3f} {e[2]:+.3f}]")
+        ref = res.get("refinement") or {}
+        sig = ref.get("sigma_trans_mm")
+        if sig is not None:
+            sr = ref.get("sigma_rot_deg")
+            lines.append("  1-sigma: translation [mm] " + " ".join(f"{x:.3f}" for x in sig)
+                         + ", rotation [deg] " + " ".join(f"{x:.3f}" for x in sr))
+        if ref.get("predicted_error_mm") is not None:
+            lines.append(f"  predicted position error at {ref.get('working_distance_m', float('nan')):.2f} m: "
+                         f"{ref['predicted_error_mm']:.2f} mm (1 sigma)")
+    else:
+        lines.append(f"FAILED: {res['failure_reason']}")
+    lines.append(f"result: {result_path}")
+    for p in report_paths:
+        lines.append(f"report: {p}")
+    return "\n".join(lines)

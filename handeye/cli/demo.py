@@ -1,0 +1,47 @@
+"""``handeye demo``: simulate a rendered session, calibrate it and compare with the ground truth."""
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def add_parser(sub) -> None:
+    from ..mounting import MODES
+
+    p = sub.add_parser("demo", help="simulate a rendered session and calibrate it (the README's first command)")
+    p.add_argument("--out", type=Path, default=Path("reports/demo"), help="folder for the session and results")
+    p.add_argument("--mode", choices=MODES, default="eye_in_hand")
+    p.add_argument("--views", type=int, default=20)
+    p.add_argument("--seed", type=int, default=0, help="random seed of the simulated session")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import json
+
+    import numpy as np
+
+    from ..frames import pose_error
+    from ..mounting import mounting
+    from . import build_parser, calibrate, simulate
+
+    session_dir = args.out / "session"
+    log.info("rendering a synthetic %s session with %d views into %s", args.mode, args.views, session_dir)
+    # a realistic session: image noise, a little blur, and one view without the board
+    sim_args = argparse.Namespace(out=session_dir, mode=args.mode, views=args.views, seed=args.seed, noise_px=2.0,
+                                  blur=0.5, robot_noise=(0.0, 0.0), hidden=[str(max(2, args.views // 2))],
+                                  outliers=[])
+    simulate.run(sim_args)
+    cal_args = build_parser().parse_args(["calibrate", str(session_dir), "--out", str(args.out / "result")])
+    cal_args.debug = getattr(args, "debug", False)
+    rc = calibrate.run(cal_args)
+    if rc == 0:
+        truth = json.loads((session_dir / "ground_truth.json").read_text())
+        res = json.loads((args.out / "result" / "result.json").read_text())
+        name = mounting(args.mode).x_name
+        r, t = pose_error(np.asarray(res[name]), np.asarray(truth[name]))
+        print(f"error against the ground truth: {t:.3f} mm, {r:.4f} deg")
+    return rc

@@ -1,0 +1,39 @@
+"""``handeye simulate OUT``: a rendered synthetic session in the vendor layout, with its ground truth."""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def add_parser(sub) -> None:
+    from ..mounting import MODES
+
+    p = sub.add_parser("simulate", help="write a synthetic session with rendered images and ground truth",
+                       description="Render a synthetic session in the vendor layout (N.jpg, poses.txt, "
+                                   "config.yaml) plus ground_truth.json.")
+    p.add_argument("out", type=Path, help="output folder (created)")
+    p.add_argument("--mode", choices=MODES, default="eye_in_hand")
+    p.add_argument("--views", type=int, default=20)
+    p.add_argument("--seed", type=int, default=0, help="random seed of the scene, poses and noise")
+    p.add_argument("--noise-px", type=float, default=0.0,
+                   help="Gaussian image noise in grey levels added to the rendered images (default 0)")
+    p.add_argument("--blur", type=float, default=0.0, help="Gaussian blur sigma in pixels")
+    p.add_argument("--robot-noise", nargs=2, type=float, metavar=("MM", "DEG"), default=(0.0, 0.0),
+                   help="per-axis robot pose noise added to the reported poses")
+    p.add_argument("--hidden", nargs="*", default=[], metavar="ID", help="views rendered without the board")
+    p.add_argument("--outliers", nargs="*", default=[], metavar="ID", help="views given a wrong robot pose")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..errors import ConfigError
+    from ..sim.vendor import write_vendor_session
+
+    if args.views < 3:
+        raise ConfigError("--views must be at least 3", received=str(args.views))
+    path = write_vendor_session(args.out, mode=args.mode, n_views=args.views, seed=args.seed,
+                                image_noise=args.noise_px, blur_sigma_px=args.blur,
+                                robot_noise=tuple(args.robot_noise), hidden_views=tuple(args.hidden),
+                                outlier_views=tuple(args.outliers))
+    print(f"synthetic {args.mode} session with {args.views} rendered views: {path}")
+    print(f"ground truth: {Path(path) / 'ground_truth.json'}")
+    return 0

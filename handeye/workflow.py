@@ -1,0 +1,173 @@
+"""The product workflow, once: load -> calibrate -> diagnose -> write -> report.
+
+:func:`calibrate_session` is what ``handeye calibrate`` does, and what tests and benchmarks call to
+exercise the same path. It writes into ``out_dir``:
+
+- ``result.json``: the result (or the failure with its structured ``error``), diagnostics, and
+  ``seconds`` for every stage (load, detect, intrinsics, board_poses, closed_form, refine, diagnose,
+  write, report, total);
+- ``observations.json``: per-view corners and residuals;
+- ``thumbnails/<view_id>.jpg``: small images of every view (when detection made them);
+- ``report.html`` / ``report.md``, built from the folder alone (unless ``report=False``).
+
+A session that cannot be calibrated still gets a result.json and a report saying why; the last
+successful result.json is then kept as ``result.previous.json``. A session folder that does not
+exist raises (there is nothing to report on).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Optional
+
+from .errors import HandeyeError
+from .output import atomic_write_bytes, write_json
+from .pipeline import CalibrateOptions, CalibrationRun, run_calibration
+
+log = logging.getLogger(__name__)
+
+THUMBNAIL_DIR = "thumbnails"
+
+
+@dataclass(frozen=True)
+class WorkflowResult:
+    """What :func:`calibrate_session` did: the result as written, where, and the run behind it."""
+
+    status: str  # ok | failed
+    out_dir: Path
+    result_path: Path
+    result: dict  # result.json's content
+    run: Optional[CalibrationRun] = None  # None when the session could not be read
+    error: Optional[HandeyeError] = None
+    report_paths: tuple = ()
+    seconds: dict = field(default_factory=dict)
+
+    @property
+    def exit_code(self) -> int:
+        return 0 if self.error is None else self.error.exit_code
+
+
+def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOptions(), out_dir,
+                      report: bool = True, qa=None, mode: Optional[str] = None,
+                      progress: Callable[[str], None] | None = None, diagnostics: bool = True) -> WorkflowResult:
+    """Calibrate the session folder ``session_path`` and write its results into ``out_dir``.
+
+    ``mode`` overrides the session's mounting mode; ``qa`` is a site QA file for the report;
+    ``progress`` receives one line per stage; ``diagnostics=False`` skips the diagnostics (faster,
+    for benchmarks of the solver path only; the report then has no findings).
+    """
+    from .session import load_session
+
+    progress = progress or (lambda s: None)
+    out_dir = Path(out_dir)
+    t0 = time.perf_counter()
+    try:
+        session = load_session(session_path, mode=mode)
+    except HandeyeError as e:
+        if not Path(session_path).exists():
+            raise
+        # the session exists but cannot be read: still leave a result and a report that say why
+        return _failed_load(session_path, e, mode=mode, out_dir=out_dir, report=report, qa=qa, t0=t0,
+                            diagnostics=diagnostics)
+    t_load = time.perf_counter() - t0
+    log.info("session %s: %d views, %s, %s", session.path, len(session.views), session.mode, session.format)
+    run = run_calibration(session, options, progress=progress)
+    from .results import observations_dict, result_dict
+
+    res = result_dict(run)
+    seconds = {"load": t_load, **run.seconds}
+    if diagnostics:
+        progress("diagnostics")
+        t1 = time.perf_counter()
+        from .diagnose import diagnose_run
+
+        res["diagnostics"] = diagnose_run(run)
+        seconds["diagnose"] = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    _keep_previous(out_dir, failed=run.status != "ok")
+    write_thumbnails(out_dir, {**run.failures, **run.detections})
+    write_json(out_dir / "observations.json", observations_dict(run))
+    res["seconds"] = seconds
+    result_path = write_json(out_dir / "result.json", res)
+    seconds["write"] = time.perf_counter() - t2
+    paths = ()
+    if report:
+        progress("reports")
+        t3 = time.perf_counter()
+        paths = tuple(_write_reports(out_dir, res, run, qa))
+        seconds["report"] = time.perf_counter() - t3
+    seconds["total"] = time.perf_counter() - t0
+    res["seconds"] = seconds
+    write_json(result_path, res)  # again, now that every stage's time is known
+    return WorkflowResult(run.status, out_dir, result_path, res, run, run.error, paths, seconds)
+
+
+def _failed_load(session_path, err: HandeyeError, *, mode, out_dir: Path, report: bool, qa, t0: float,
+                 diagnostics: bool) -> WorkflowResult:
+    from .results import failed_load_result
+
+    res = failed_load_result(session_path, err, mode)
+    seconds = {"load": time.perf_counter() - t0}
+    if diagnostics:
+        t1 = time.perf_counter()
+        from .diagnose import diagnose_session_error
+
+        res["diagnostics"] = diagnose_session_error(Path(session_path), res["failure_reason"], mode=mode)
+        seconds["diagnose"] = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    _keep_previous(out_dir, failed=True)
+    stale = out_dir / "observations.json"
+    if stale.exists():  # observations of an earlier run must not be read as this run's
+        stale.unlink()
+    res["seconds"] = seconds
+    result_path = write_json(out_dir / "result.json", res)
+    seconds["write"] = time.perf_counter() - t2
+    paths = ()
+    if report:
+        t3 = time.perf_counter()
+        paths = tuple(_write_reports(out_dir, res, None, qa))
+        seconds["report"] = time.perf_counter() - t3
+    seconds["total"] = time.perf_counter() - t0
+    res["seconds"] = seconds
+    write_json(result_path, res)
+    return WorkflowResult("failed", out_dir, result_path, res, None, err, paths, seconds)
+
+
+def _keep_previous(out_dir: Path, *, failed: bool) -> None:
+    """Before a failed run's result.json replaces a successful one, keep that as result.previous.json."""
+    current = out_dir / "result.json"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if not failed or not current.exists():
+        return
+    try:
+        was_ok = json.loads(current.read_text(encoding="utf-8")).get("status") == "ok"
+    except (OSError, ValueError):
+        was_ok = False
+    if was_ok:
+        current.replace(out_dir / "result.previous.json")
+
+
+def write_thumbnails(out_dir: Path, per_view: dict) -> list[Path]:
+    """``thumbnails/<view_id>.jpg`` from the JPEG bytes detection made (``thumbnail_jpeg`` on a
+    detection or a detection failure); thumbnails of views not in this run are removed."""
+    folder = Path(out_dir) / THUMBNAIL_DIR
+    written = []
+    for vid, rec in per_view.items():
+        data = getattr(rec, "thumbnail_jpeg", None)
+        if data:
+            written.append(atomic_write_bytes(folder / f"{vid}.jpg", bytes(data)))
+    if folder.is_dir():
+        keep = {p.name for p in written}
+        for p in folder.glob("*.jpg"):
+            if p.name not in keep:
+                p.unlink()
+    return written
+
+
+def _write_reports(out_dir: Path, res: dict, run, qa) -> list[Path]:
+    from .report import write_reports
+
+    return write_reports(out_dir, qa=qa)

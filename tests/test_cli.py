@@ -1,0 +1,187 @@
+"""The ``handeye`` command line: each command's basic path, the error mapping and the start-up imports.
+
+The workflow's numbers are tested in test_pipeline.py; here the commands must pass the flags through,
+print what the README promises and map errors to one line and an exit code.
+"""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import yaml
+
+from handeye.cli import main
+from handeye.conventions import VENDOR_POSE_FORMAT, pose_values_from_T
+from handeye.errors import InputError
+from handeye.frames import pose_error, rotvec_from_R, transform_points
+from handeye.session import load_session
+from handeye.sim.corners import make_corner_session
+from handeye.sim.scenarios import default_intrinsics
+from handeye.sim.vendor import write_vendor_session
+
+SMALL = dict(intrinsics=default_intrinsics(640, 480), supersample=3)
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cli") / "session"
+    write_vendor_session(out, mode="eye_to_hand", n_views=8, seed=5, image_noise=1.0, **SMALL)
+    return out
+
+
+@pytest.fixture(scope="module")
+def calibrated(session, tmp_path_factory):
+    """`handeye calibrate` with the closed form only, no report: (out dir, stdout)."""
+    out = tmp_path_factory.mktemp("cal") / "out"
+    cap = subprocess.run([sys.executable, "-m", "handeye.cli", "-q", "calibrate", str(session), "--out", str(out),
+                          "--no-report", "--no-refine", "--method", "park"], capture_output=True, text=True)
+    assert cap.returncode == 0, cap.stderr
+    assert cap.stderr == ""  # -q: nothing on stderr for a good run
+    return out, cap.stdout
+
+
+def test_calibrate_prints_the_matrix_it_wrote(calibrated):
+    out, stdout = calibrated
+    res = json.loads((out / "result.json").read_text())
+    assert res["method"] == "park" and res["refined"] is False and res["status"] == "ok"
+    lines = stdout.splitlines()
+    k = lines.index("T_base_cam (p_base = T_base_cam @ p_cam):")
+    printed = np.array([[float(x) for x in line.strip(" []").split()] for line in lines[k + 1:k + 5]])
+    np.testing.assert_allclose(printed, np.asarray(res["T_base_cam"]), atol=5e-7)  # printed with 6 decimals
+    assert lines[-1] == f"result: {out / 'result.json'}"
+    assert not (out / "report.html").exists()
+
+
+def test_calibrate_flags_reach_the_options(session, tmp_path):
+    out = tmp_path / "out"
+    site = tmp_path / "site.yaml"
+    site.write_text(yaml.safe_dump({"refine_options": {"robot_sigma_mm": 0.5}}))
+    rc = main(["-q", "calibrate", str(session), "--out", str(out), "--no-report", "--fix", "p1", "p2",
+               "--robot-noise", "fixed", "--robot-sigma", "0.3", "0.04", "--config", str(site), "--workers", "1"])
+    assert rc == 0
+    opts = json.loads((out / "result.json").read_text())["provenance"]["options"]
+    # the flag wins over the site file, which wins over the preset
+    assert opts["robot_noise"] == "fixed" and opts["robot_sigma_mm"] == 0.3 and opts["robot_sigma_deg"] == 0.04
+    assert tuple(opts["fix"]) == ("p1", "p2")
+
+
+def test_calibrate_failure_is_one_line_with_the_exit_code_of_its_error(session, tmp_path, capsys):
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    for f in session.iterdir():
+        (bad / f.name).symlink_to(f)
+    (bad / "config.yaml").unlink()
+    (bad / "config.yaml").write_text(yaml.safe_dump({"checkerboard_args": {"XX": 9, "YY": 6, "L": 0.03}}))
+    rc = main(["-q", "calibrate", str(bad), "--out", str(tmp_path / "out"), "--no-report"])
+    assert rc == 3  # DetectionError
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "found in only 0 of 8 images" in err[0] and "9x6" in err[0]
+    assert json.loads((tmp_path / "out" / "result.json").read_text())["error"]["code"] == "target_not_found"
+
+
+def test_unknown_config_key_is_named(session, tmp_path, capsys):
+    p = tmp_path / "site.yaml"
+    p.write_text(yaml.safe_dump({"methd": "park"}))
+    assert main(["calibrate", str(session), "--config", str(p), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "unknown setting 'methd'" in err
+
+
+def test_debug_keeps_the_traceback(tmp_path):
+    with pytest.raises(InputError):
+        main(["--debug", "-q", "calibrate", str(tmp_path / "missing"), "--out", str(tmp_path / "o")])
+    assert main(["-q", "calibrate", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]) == 2
+
+
+def test_simulate_writes_the_session_it_promises(tmp_path, capsys):
+    out = tmp_path / "sim"
+    assert main(["-q", "simulate", str(out), "--views", "3", "--seed", "3", "--hidden", "2", "--mode", "eye_in_hand"]) == 0
+    assert capsys.readouterr().out.splitlines()[0] == f"synthetic eye_in_hand session with 3 rendered views: {out}"
+    s = load_session(out)
+    assert [v.view_id for v in s.views] == ["1", "2", "3"] and s.mode == "eye_in_hand"
+    truth = json.loads((out / "ground_truth.json").read_text())
+    assert truth["mode"] == "eye_in_hand" and np.asarray(truth["T_end_cam"]).shape == (4, 4)
+    assert main(["simulate", str(tmp_path / "few"), "--views", "2"]) == 2
+    assert "--views must be at least 3" in capsys.readouterr().err
+
+
+def test_demo_reports_its_error_against_the_truth(tmp_path, capsys):
+    assert main(["-q", "demo", "--out", str(tmp_path / "demo"), "--views", "8", "--mode", "eye_to_hand"]) == 0
+    out = capsys.readouterr().out
+    line = [l for l in out.splitlines() if l.startswith("error against the ground truth")][0]
+    t_mm, r_deg = float(line.split(":")[1].split("mm")[0]), float(line.split(",")[1].split("deg")[0])
+    res = json.loads((tmp_path / "demo" / "result" / "result.json").read_text())
+    truth = json.loads((tmp_path / "demo" / "session" / "ground_truth.json").read_text())
+    r, t = pose_error(np.asarray(res["T_base_cam"]), np.asarray(truth["T_base_cam"]))
+    assert abs(t_mm - t) < 1e-3 and abs(r_deg - r) < 1e-4  # the printed error is the real one
+    # 8 rendered views with 2 grey levels of noise and blur: refined sigmas ~0.1 mm, 0.03 deg
+    assert t_mm < 5 * np.linalg.norm(res["refinement"]["sigma_trans_mm"]) + 0.05
+    assert (tmp_path / "demo" / "result" / "report.html").exists()
+    assert "T_base_cam" in out
+
+
+def test_apply_maps_a_camera_point_into_the_base(tmp_path, capsys):
+    cs = make_corner_session(mode="eye_in_hand", n_views=3, seed=2, noise_px=0.0)
+    (tmp_path / "result.json").write_text(json.dumps({"status": "ok", "mode": cs.mode,
+                                                       cs.x_name: cs.T_x_true.tolist()}))
+    p_board = cs.target.object_points()[7]
+    p_cam = transform_points(cs.T_cam_board_true[1], p_board)
+    end = pose_values_from_T(cs.T_base_end_true[1], VENDOR_POSE_FORMAT)
+    assert main(["apply", str(tmp_path), "--point", *(f"{x * 1e3:.9f}" for x in p_cam), "--mm",
+                 "--end-pose", *(f"{v * (1e3 if k < 3 else 1):.9f}" for k, v in enumerate(end))]) == 0
+    got = [float(x) for x in capsys.readouterr().out.splitlines()[0].split(":")[1].split()]
+    np.testing.assert_allclose(got, transform_points(cs.T_board_true, p_board), atol=2e-6)  # board fixed in base
+    assert main(["apply", str(tmp_path), "--point", "0", "0", "1"]) == 2  # eye-in-hand needs --end-pose
+    assert "--end-pose" in capsys.readouterr().err
+
+
+def test_import_visp_writes_a_session_with_the_same_poses(tmp_path, capsys):
+    cs = make_corner_session(mode="eye_in_hand", n_views=3, seed=1, noise_px=0.0)
+    src = tmp_path / "visp"
+    src.mkdir()
+    (src / "chessboard-data.txt").write_text("9 x 6\nsquare size: 0.0236 m\n")
+    for k, T in enumerate(cs.T_base_end_true, start=1):
+        (src / f"img_image-{k}.png").write_bytes(b"")  # the importer only points at the images
+        data = [[float(v)] for v in (*T[:3, 3], *rotvec_from_R(T[:3, :3]))]
+        (src / f"img_pose_rPe_{k}.yaml").write_text(yaml.safe_dump({"rows": 6, "cols": 1, "data": data}))
+    assert main(["import", "visp", str(src), str(tmp_path / "out")]) == 0
+    assert capsys.readouterr().out.strip() == f"session: {tmp_path / 'out' / 'session.yaml'}"
+    s = load_session(tmp_path / "out")
+    assert s.target.cols == 9 and s.target.rows == 6 and abs(s.target.square_m - 0.0236) < 1e-12
+    for v, T in zip(s.views, cs.T_base_end_true):
+        np.testing.assert_allclose(v.T_base_end, T, atol=1e-12)
+
+
+def test_report_rebuilds_the_markdown_from_the_result_folder(calibrated, tmp_path, capsys):
+    out, _ = calibrated
+    dest = tmp_path / "rep"
+    assert main(["-q", "report", str(out), "--out", str(dest), "--format", "md"]) == 0
+    assert capsys.readouterr().out.strip() == f"report: {dest / 'report.md'}"
+    md = (dest / "report.md").read_text()
+    res = json.loads((out / "result.json").read_text())
+    assert f"{res['hand_eye']['translation_mm'][0]:+.2f}"[1:] in md  # the result's numbers, not a template
+    assert not (dest / "report.html").exists()
+    assert main(["report", str(tmp_path / "empty")]) == 2
+
+
+def test_collect_with_simulators_writes_a_session_that_loads(tmp_path, capsys):
+    out = tmp_path / "col"
+    assert main(["-q", "collect", str(out), "--mode", "eye_to_hand", "--camera", "sim", "--robot", "sim", "--auto",
+                 "--views", "3", "--seed", "4", "--sim-supersample", "1"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    n_kept = int(first.split("(")[1].split()[0])
+    s = load_session(out)
+    assert len(s.views) == n_kept >= 6  # start + 3 probes + 3 planned, minus rejected captures
+    assert main(["collect", str(out), "--mode", "eye_to_hand", "--camera", "sim", "--robot", "sim"]) == 2
+    assert "not empty" in capsys.readouterr().err
+
+
+def test_help_does_not_load_the_heavy_libraries():
+    code = ("import sys; from handeye.cli import build_parser; build_parser(); "
+            "print(sorted(m for m in ('scipy.stats', 'matplotlib', 'gtsam', 'jinja2', 'cv2') if m in sys.modules))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert loaded == "[]"
+    for command in ("calibrate", "simulate", "demo", "apply", "import", "report", "collect"):
+        cap = subprocess.run([sys.executable, "-m", "handeye.cli", command, "--help"], capture_output=True, text=True)
+        assert cap.returncode == 0 and cap.stdout.startswith(f"usage: handeye {command}"), (command, cap.stderr)
