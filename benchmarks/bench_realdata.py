@@ -1,6 +1,7 @@
 """Refined results on the real datasets in ../shared/data (issue 3): the hand-eye transform, its
 predicted uncertainty, the estimated pixel and robot noise, outliers, and the agreement with the
-references in each SOURCE.md and with OpenCV's closed-form methods. Prints figures; asserts nothing.
+references in each SOURCE.md and with OpenCV's closed-form methods, and the time of the whole workflow
+(load, calibrate, diagnose, write; no report) per stage. Prints figures; asserts nothing.
 
     python benchmarks/bench_realdata.py [--data ../shared/data]
 """
@@ -14,10 +15,11 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from handeye.pipeline import CalibrateOptions, run_calibration
+from handeye.config import load_preset
 from handeye.frames import T_from_rotvec, make_T, pose_error
+from handeye.pipeline import CalibrateOptions
 from handeye.session.importers import import_ical, import_visp
-from handeye.session import load_session
+from handeye.workflow import calibrate_session
 
 REFS = {
     # ViSP's documented eMc (SOURCE.md)
@@ -49,9 +51,12 @@ def main() -> None:
             for label, imp in variants:
                 path = imp(Path(tmp) / f"{name}-{len(label)}")
                 t0 = time.perf_counter()
-                run = run_calibration(load_session(path), CalibrateOptions())
+                wr = calibrate_session(path.parent, options=CalibrateOptions.from_config(load_preset("calibration")),
+                                       out_dir=Path(tmp) / f"out-{name}-{len(label)}", report=False)
                 dt = time.perf_counter() - t0
-                print(f"\n{name} ({run.session.mode}), {label}: {run.status} {run.failure_reason}  [{dt:.1f} s]")
+                run = wr.run
+                print(f"\n{name} ({run.session.mode}), {label}: {run.status} {run.failure_reason}  [{dt:.1f} s: "
+                      + ", ".join(f"{k} {v:.2f}" for k, v in wr.seconds.items()) + "]")
                 if run.status != "ok":
                     continue
                 r = run.refined
@@ -64,9 +69,9 @@ def main() -> None:
                       + (", ".join(f"{o.view_id} ({o.kind})" for o in r.outliers) or "none"))
                 rd, td = pose_error(run.T_x, T_ref)
                 print(f"  vs {ref_name}: {td:.2f} mm, {rd:.3f} deg")
-                cf = {m: pose_error(e.T_x, run.T_x) for m, e in run.seeds.items() if e.status == "ok"}
+                cf = {m: pose_error(e.T_x, run.T_x) for m, e in run.closed_forms.items() if e.status == "ok"}
                 print("  closed forms vs refined: " + ", ".join(f"{m} {t:.1f} mm/{a:.2f} deg" for m, (a, t) in cf.items()))
-                ref_cf = {m: pose_error(e.T_x, T_ref) for m, e in run.seeds.items() if e.status == "ok"}
+                ref_cf = {m: pose_error(e.T_x, T_ref) for m, e in run.closed_forms.items() if e.status == "ok"}
                 print(f"  closed forms vs {ref_name}: " + ", ".join(f"{m} {t:.1f} mm/{a:.2f} deg"
                                                                for m, (a, t) in ref_cf.items()))
 

@@ -97,7 +97,7 @@ def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOpti
     if report:
         progress("reports")
         t3 = time.perf_counter()
-        paths = tuple(_write_reports(out_dir, res, run, qa))
+        paths = tuple(_write_reports(out_dir, qa))
         seconds["report"] = time.perf_counter() - t3
     seconds["total"] = time.perf_counter() - t0
     res["seconds"] = seconds
@@ -128,7 +128,7 @@ def _failed_load(session_path, err: HandeyeError, *, mode, out_dir: Path, report
     paths = ()
     if report:
         t3 = time.perf_counter()
-        paths = tuple(_write_reports(out_dir, res, None, qa))
+        paths = tuple(_write_reports(out_dir, qa))
         seconds["report"] = time.perf_counter() - t3
     seconds["total"] = time.perf_counter() - t0
     res["seconds"] = seconds
@@ -167,7 +167,9 @@ def write_thumbnails(out_dir: Path, per_view: dict) -> list[Path]:
     return written
 
 
-def _write_reports(out_dir: Path, res: dict, run, qa) -> list[Path]:
+def _write_reports(out_dir: Path, qa) -> list[Path]:
+    """report.html and report.md from the result folder alone (a report bug is logged, never fatal:
+    result.json is complete without it)."""
     from .report import write_reports
 
     return write_reports(out_dir, qa=qa)

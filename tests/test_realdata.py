@@ -1,4 +1,4 @@
-"""Real datasets recorded by others (../shared/data; skipped when absent)."""
+"""Real datasets recorded by others (../shared/data; skipped when absent, a failure in CI: see conftest)."""
 import json
 
 import numpy as np
@@ -36,8 +36,13 @@ def test_visp_closed_form_matches_the_reference(visp_session):
     run = run_calibration(load_session(visp_session), CalibrateOptions(refine=False))
     assert run.status == "ok", run.failure_reason
     assert len(run.used_ids) == 8
-    for m in ("tsai", "park", "horaud", "daniilidis"):
-        r, t = pose_error(run.seeds[m].T_x, VISP_REF)
+    # ViSP's reference is a closed form on the same images and intrinsics: Park reproduces it (measured
+    # 0.014 deg, 0.02 mm; the rest is the two PnP implementations)
+    r, t = pose_error(run.closed_forms["park"].T_x, VISP_REF)
+    assert r < 0.05 and t < 0.1, (r, t)
+    # the other methods scatter about it as the refined 1-sigma (1.3-2.5 mm, 0.12-0.22 deg per axis) allows
+    for m in ("tsai", "horaud", "daniilidis"):
+        r, t = pose_error(run.closed_forms[m].T_x, VISP_REF)
         assert r < 0.5 and t < 3.0, (m, r, t)
 
 
@@ -47,7 +52,7 @@ def test_ical_charuco_eye_to_hand_matches_source(ical_session):
     dropped = {o.view_id: o.reason for o in run.outcomes if not o.used}
     assert list(dropped) == ["2"] and "4 corners" in dropped["2"]  # SOURCE.md: view 2 has 4 corners
     for m in ("tsai", "park", "horaud", "daniilidis"):
-        r, t = pose_error(run.seeds[m].T_x, ICAL_PARK)
+        r, t = pose_error(run.closed_forms[m].T_x, ICAL_PARK)
         assert r < 0.3 and t < 3.5, (m, r, t)  # SOURCE.md: methods agree within 3.5 mm / 0.1 deg
 
 
@@ -135,12 +140,12 @@ def test_kinect_circlegrid_closed_forms_match_source(kinect_run):
     run = kinect_run
     for m, (t_mm, rv_deg) in KINECT_SOURCE.items():
         ref = T_from_rotvec(np.radians(rv_deg), np.array(t_mm) / 1e3)
-        r, t = pose_error(run.seeds[m].T_x, ref)
+        r, t = pose_error(run.closed_forms[m].T_x, ref)
         assert r < 0.6 and t < 20.0, (m, r, t)
-        dt = np.abs(run.seeds[m].T_x[:3, 3] * 1e3 - t_mm)
+        dt = np.abs(run.closed_forms[m].T_x[:3, 3] * 1e3 - t_mm)
         assert dt[0] < 5.0 and dt[1] < 10.0, (m, dt)  # tx, ty within a few mm
     # and they agree with one another as in SOURCE.md (spread ~4 mm there without Andreff)
-    T = np.stack([run.seeds[m].T_x[:3, 3] * 1e3 for m in KINECT_SOURCE])
+    T = np.stack([run.closed_forms[m].T_x[:3, 3] * 1e3 for m in KINECT_SOURCE])
     assert np.ptp(T, axis=0).max() < 15.0, np.ptp(T, axis=0)
 
 
@@ -148,8 +153,8 @@ def test_kinect_circlegrid_refined_agrees_with_the_closed_forms(kinect_run):
     run = kinect_run
     ref = run.refined
     assert ref is not None and run.T_x is not None
-    errs = np.array([pose_error(run.seeds[m].T_x, run.T_x) for m in ("tsai", "park", "horaud", "daniilidis")])
-    T = np.stack([run.seeds[m].T_x[:3, 3] for m in ("tsai", "park", "horaud", "daniilidis")]) * 1e3
+    errs = np.array([pose_error(run.closed_forms[m].T_x, run.T_x) for m in ("tsai", "park", "horaud", "daniilidis")])
+    T = np.stack([run.closed_forms[m].T_x[:3, 3] for m in ("tsai", "park", "horaud", "daniilidis")]) * 1e3
     spread_mm = max(np.linalg.norm(a - b) for a in T for b in T)
     assert errs[:, 1].max() < spread_mm, (errs, spread_mm)  # within the methods' spread (13.6 mm)
     assert errs[:, 0].max() < 1.0, errs  # rotation: methods agree to 0.4 deg, refined 0.5-0.8 deg from them

@@ -39,7 +39,6 @@ def run_report(args) -> int:
     fmt = getattr(args, "format", "all")
     formats = ("html", "md") if fmt == "all" else (fmt,)
     paths = write_reports(result_dir, qa=getattr(args, "qa", None), out_dir=out, formats=formats, strict=True)
-
     for p in paths:
         print(f"report: {p}")
     return 0
