@@ -69,6 +69,25 @@ class Detection:
     sharpness: float = float("nan")  # variance of the Laplacian around the target
     order_cue: float = float("nan")  # chessboard: grey of the first inner square minus the last one
     seconds: float = 0.0
+    # measured on the decoded image during detection (handeye.detect.quality), so later stages never
+    # decode it again: edge blur {"edge_sigma_px", "blur_sigma_px", "contrast", "n_edges", "square_px"},
+    # exposure inside the board's hull {"saturated_share", "p5", "p95"}, and a small grey JPEG
+    blur: Optional[dict] = None
+    exposure: Optional[dict] = None
+    thumbnail_jpeg: Optional[bytes] = None
+
+
+@dataclass(frozen=True)
+class DetectionFailure:
+    """A view whose target was not found: why, and what was measured on its image anyway
+    (exposure over the whole image {"saturated_share", "p5", "p95"}, a small grey JPEG)."""
+
+    view_id: str
+    reason: str
+    thumbnail_jpeg: Optional[bytes] = None
+    exposure: Optional[dict] = None
+    image_size: Optional[tuple] = None  # (width, height)
+    seconds: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from handeye.detect import detect_circlegrid
+from handeye.detect.circlegrid import detect_circlegrid
 from handeye.errors import ConfigError
 from handeye.session.target_spec import parse_target
 from handeye.targets import CircleGridSpec

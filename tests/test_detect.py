@@ -1,16 +1,23 @@
-"""Detection on rendered images: corner accuracy, failed views, and the corner order of asymmetric boards."""
+"""Detection on rendered images: corner accuracy, the one dispatcher, failed views with their reason,
+the image measures taken during detection (blur, exposure, thumbnail) and the corner order of
+asymmetric boards."""
+import cv2
 import numpy as np
 import pytest
+from scipy.ndimage import map_coordinates
 
-from handeye.detect import detect_chessboard, detect_views, normalize_chessboard_order, order_cue
-from handeye.errors import InputError
-from handeye.mounting import mounting
 from handeye.camera import pixels_from_board_points
+from handeye.detect import detect_gray, detect_image, detect_views, read_gray
+from handeye.detect.chessboard import detect_chessboard, normalize_chessboard_order, order_cue
+from handeye.detect.options import default_options
+from handeye.detect.quality import (board_mask, edge_profiles, image_exposure, neighbour_pairs, thumbnail_jpeg,
+                                    view_blur, view_exposure)
+from handeye.errors import ConfigError, InputError
+from handeye.records import Detection, DetectionFailure
 from handeye.sim.corners import make_corner_session
-from handeye.sim.scenarios import default_intrinsics
 from handeye.sim.render import render_view
-from handeye.targets import ChessboardSpec
-from handeye.records import Detection
+from handeye.sim.scenarios import default_intrinsics
+from handeye.targets import CharucoSpec, ChessboardSpec
 
 INTR = default_intrinsics(640, 480)
 
@@ -21,13 +28,36 @@ def views():
     return cs, [render_view(cs.target, INTR, T, supersample=3) for T in cs.T_cam_board_true]
 
 
+def _rms(a, b):
+    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
+
+
 def test_rendered_corners_are_found_to_about_a_tenth_of_a_pixel(views):
     cs, imgs = views
     for T, img in zip(cs.T_cam_board_true, imgs):
         ids, pts = detect_chessboard(img, cs.target)
         truth = pixels_from_board_points(T, cs.target.object_points()[ids], INTR)
         # measured 0.04-0.10 px RMS on 640x480 renders (cornerSubPix on anti-aliased edges)
-        assert np.sqrt(np.mean(np.sum((pts - truth) ** 2, axis=1))) < 0.15
+        assert _rms(pts, truth) < 0.15
+
+
+def test_one_dispatcher_for_every_target_kind(views):
+    cs, imgs = views
+    ids, pts = detect_gray(imgs[0], cs.target)
+    assert np.array_equal(ids, np.arange(cs.target.n_corners))
+    assert _rms(pts, pixels_from_board_points(cs.T_cam_board_true[0], cs.target.object_points(), INTR)) < 0.15
+    # ChArUco goes to the ChArUco detector: ids from the markers, corners at their true pixels
+    ch = CharucoSpec(7, 5, 0.04, 0.03)
+    T = cs.T_cam_board_true[0].copy()
+    img = render_view(ch, INTR, T, supersample=3)
+    ids, pts = detect_gray(img, ch)
+    assert len(ids) >= 0.8 * ch.n_corners and np.all(np.diff(ids) > 0)
+    assert _rms(pts, pixels_from_board_points(T, ch.object_points()[ids], INTR)) < 0.15
+    # a view with fewer corners than asked for is a reason, not a detection
+    out = detect_gray(imgs[0], cs.target, min_corners=cs.target.n_corners + 1)
+    assert out == f"only {cs.target.n_corners} corners detected (need at least {cs.target.n_corners + 1})"
+    with pytest.raises(ConfigError, match="no detector"):
+        detect_gray(imgs[0], object())
 
 
 def test_board_numbered_from_the_other_end_is_turned_back(views):
@@ -54,9 +84,7 @@ def test_symmetric_boards_are_left_to_the_motion_check():
     assert normalize_chessboard_order(d, sym) is d
 
 
-def test_detect_views_keeps_ids_and_reasons(tmp_path, views):
-    import cv2
-
+def test_detect_views_keeps_ids_reasons_and_measures(tmp_path, views):
     cs, imgs = views
     items = []
     for k, img in enumerate(imgs):
@@ -64,8 +92,123 @@ def test_detect_views_keeps_ids_and_reasons(tmp_path, views):
         cv2.imwrite(str(p), img if k != 1 else np.full_like(img, 128))
         items.append((str(k + 1), p))
     res = detect_views(items, cs.target)
-    assert isinstance(res["2"], str) and "not found" in res["2"]
-    assert all(isinstance(res[v], Detection) and res[v].view_id == v for v in ("1", "3", "4"))
+    fail = res["2"]
+    assert isinstance(fail, DetectionFailure) and fail.view_id == "2"
+    assert fail.reason == "chessboard 11x8 not found" and fail.image_size == (640, 480)
+    # a uniform grey image: every pixel 128, none saturated
+    assert fail.exposure == {"saturated_share": 0.0, "p5": 128.0, "p95": 128.0}
+    thumb = cv2.imdecode(np.frombuffer(fail.thumbnail_jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
+    assert thumb.shape == (180, 240) and abs(float(thumb.mean()) - 128) < 1.0
+    for v in ("1", "3", "4"):
+        d = res[v]
+        assert isinstance(d, Detection) and d.view_id == v and d.image_size == (640, 480)
+        gray = read_gray(items[int(v) - 1][1])
+        # the measures equal what the measuring functions give on the same image and corners
+        assert d.exposure == view_exposure(gray, d.image_points)
+        assert d.blur == view_blur(gray, d.image_points, d.corner_ids, cs.target.object_points(), cs.target.square_m)
+        assert d.thumbnail_jpeg == thumbnail_jpeg(gray)
     (tmp_path / "5.png").write_bytes(b"garbage")
     with pytest.raises(InputError, match="5.png"):
         detect_views(items + [("5", tmp_path / "5.png")], cs.target)
+
+
+def test_images_of_different_sizes_are_refused(tmp_path, views):
+    cs, imgs = views
+    cv2.imwrite(str(tmp_path / "1.png"), imgs[0])
+    cv2.imwrite(str(tmp_path / "2.png"), cv2.resize(imgs[1], (320, 240)))
+    with pytest.raises(InputError, match="different sizes"):
+        detect_views([("1", tmp_path / "1.png"), ("2", tmp_path / "2.png")], cs.target)
+
+
+def test_jpeg_is_read_as_its_luma_like_the_colour_image(tmp_path, views):
+    cs, imgs = views
+    rng = np.random.default_rng(3)
+    bgr = cv2.cvtColor(imgs[0], cv2.COLOR_GRAY2BGR).astype(np.int16)
+    bgr[..., 0] += rng.integers(-40, 40, bgr.shape[:2], dtype=np.int16)  # a colour cast that varies per pixel
+    bgr = np.clip(bgr, 0, 255).astype(np.uint8)
+    p = tmp_path / "c.jpg"
+    cv2.imwrite(str(p), bgr, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    reference = cv2.cvtColor(cv2.imread(str(p), cv2.IMREAD_COLOR), cv2.COLOR_BGR2GRAY)
+    g = read_gray(p)
+    # libjpeg's luma vs. BT.601 grey of the decoded colours: the same weights, rounding differs by 1-2 levels
+    assert g.shape == reference.shape and np.abs(g.astype(int) - reference).max() <= 2
+    p16 = tmp_path / "deep.png"
+    cv2.imwrite(str(p16), (imgs[0].astype(np.uint16) * 64 + 1000))
+    g16 = read_gray(p16)  # 16-bit images are scaled to their own range
+    assert g16.dtype == np.uint8 and g16.min() == 0 and g16.max() == 255
+
+
+# ------------------------------------------------------------------------------ image measures
+def test_edge_width_measures_the_rendered_blur(views):
+    """The blur estimate against the Gaussian blur the renderer applied (sharp width removed)."""
+    cs, _ = views
+    T = cs.T_cam_board_true[0]
+    obj = cs.target.object_points()
+    truth = pixels_from_board_points(T, obj, INTR)
+    ids = np.arange(len(obj))
+    for sigma in (1.0, 2.0):
+        img = render_view(cs.target, INTR, T, supersample=3, blur_sigma_px=sigma)
+        b = view_blur(img, truth, ids, obj, cs.target.square_m)
+        # measured within 0.03 px at 1 and 2 px on these views (profiles span +-0.33 square, ~3 sigma);
+        # wider blurs are truncated by the profile (-0.2 px at 3 px) and are not asked for here
+        assert abs(b["blur_sigma_px"] - sigma) < 0.05, b
+        assert b["n_edges"] == 157  # 10 x 8 edges along x + 11 x 7 along y
+    sharp = view_blur(render_view(cs.target, INTR, T, supersample=3), truth, ids, obj, cs.target.square_m)
+    # a sharp render is as wide as the sharp-image width in configs/detection.yaml (measured 0.57-0.60 px)
+    assert abs(sharp["edge_sigma_px"] - default_options().sharp_edge_sigma_px) < 0.1
+
+
+def test_neighbour_pairs_on_a_partial_board():
+    spec = ChessboardSpec(4, 3, 0.02)
+    obj = spec.object_points()
+    ids = np.array([0, 1, 2, 5, 6, 11])  # row 0: 0 1 2; row 1: 5 6; row 2: 11
+    a, b = neighbour_pairs(obj, ids, spec.square_m)
+    pairs = {(int(ids[i]), int(ids[j])) for i, j in zip(a, b)}
+    assert pairs == {(0, 1), (1, 2), (1, 5), (2, 6), (5, 6)}
+
+
+def test_edge_profiles_are_bilinear_samples_with_the_border_repeated():
+    rng = np.random.default_rng(1)
+    g = rng.integers(0, 256, (40, 60)).astype(np.uint8)
+    p0 = rng.uniform(-6, 66, (50, 2))
+    p1 = p0 + rng.normal(0, 5, (50, 2))
+    prof = edge_profiles(g, p0, p1, half_width=4.0)
+    m, e = 0.5 * (p0 + p1), p1 - p0
+    n = np.stack([-e[:, 1], e[:, 0]], 1) / np.linalg.norm(e, axis=1, keepdims=True)
+    s = np.arange(-4.0, 4.0 + 1e-9, 0.25)
+    pts = m[:, None] + s[None, :, None] * n[:, None]
+    ref = map_coordinates(g.astype(float), [pts[..., 1].ravel(), pts[..., 0].ravel()], order=1, mode="nearest")
+    assert np.abs(prof - ref.reshape(prof.shape)).max() < 1e-9
+
+
+def test_exposure_is_the_share_and_percentiles_of_the_board_pixels():
+    rng = np.random.default_rng(2)
+    g = rng.integers(0, 256, (120, 160)).astype(np.uint8)
+    g[40:60, 50:90] = 255
+    pts = np.array([[30.3, 20.2], [140.8, 35.1], [120.4, 100.9], [20.1, 90.5]])
+    v = g[board_mask(g.shape, pts)]
+    want = {"saturated_share": float(np.mean(v >= default_options().saturated_grey)),
+            "p5": float(np.percentile(v, 5)), "p95": float(np.percentile(v, 95))}
+    got = view_exposure(g, pts)
+    assert got == pytest.approx(want, abs=1e-12) and got["saturated_share"] > 0.07
+    whole = image_exposure(g)
+    assert whole == pytest.approx({"saturated_share": float(np.mean(g >= 250)), "p5": float(np.percentile(g, 5)),
+                                   "p95": float(np.percentile(g, 95))}, abs=1e-12)
+    off = view_exposure(g, np.array([[-50.0, -50.0], [-10.0, -50.0], [-30.0, -10.0]]))  # hull outside the image
+    assert all(np.isnan(x) for x in off.values())
+
+
+def test_detect_image_on_a_rendered_1280x720_jpeg(tmp_path, views):
+    cs, _ = views
+    intr = default_intrinsics(1280, 720)
+    T = cs.T_cam_board_true[1]
+    p = tmp_path / "1.jpg"
+    cv2.imwrite(str(p), render_view(cs.target, intr, T, supersample=2), [cv2.IMWRITE_JPEG_QUALITY, 95])
+    d = detect_image("1", p, cs.target)
+    assert isinstance(d, Detection) and d.image_size == (1280, 720)
+    # half-size search, full-size sub-pixel refinement: as accurate as at 640x480
+    assert _rms(d.image_points, pixels_from_board_points(T, cs.target.object_points(), intr)) < 0.15
+    thumb = cv2.imdecode(np.frombuffer(d.thumbnail_jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
+    assert thumb.shape == (135, 240)
+    # rendered without blur: the edges are as wide as a sharp image's, and nothing is saturated
+    assert d.blur["blur_sigma_px"] < 0.5 and d.exposure["saturated_share"] == 0.0

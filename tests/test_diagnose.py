@@ -18,7 +18,8 @@ from handeye.pipeline import CalibrateOptions, run_calibration
 from handeye.conventions import VENDOR_POSE_FORMAT, PoseFormat, pose_values_from_T
 from handeye.diagnose import Finding, alternative_formats, diagnose_run, diagnose_session_error
 from handeye.session.raw import read_raw_poses
-from handeye.diagnose.imaging import coverage, edge_profiles, edge_sigma_px
+from handeye.detect.quality import edge_profiles, edge_sigma_px
+from handeye.diagnose.imaging import coverage
 from handeye.diagnose.geometry import jackknife_sigmas, pair_invariants, solve_A_from_pairs
 from handeye.errors import InputError
 from handeye.frames import T_from_rotvec, inv_T, pose_error

@@ -47,7 +47,7 @@ def _why_not_found(run, vid: str, C_pred: np.ndarray) -> str:
     """Look where the board should be in an image whose target was not found: blur, exposure."""
     from ..detect import read_gray
     from ..errors import HandeyeError
-    from .imaging import view_blur, view_exposure
+    from ..detect.quality import view_blur, view_exposure
 
     s = run.session
     try:

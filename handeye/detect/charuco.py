@@ -1,0 +1,34 @@
+"""ChArUco boards: corner ids from the markers (partial views allowed), sub-pixel corners."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..targets import CharucoSpec
+from .options import DetectionOptions, default_options
+
+
+def charuco_board(spec: CharucoSpec):
+    """OpenCV's board object for ``spec``."""
+    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, spec.dictionary))
+    board = cv2.aruco.CharucoBoard((spec.squares_x, spec.squares_y), spec.square_m, spec.marker_m, dictionary)
+    if spec.legacy_pattern:
+        board.setLegacyPattern(True)
+    return board
+
+
+def detect_charuco(gray: np.ndarray, spec: CharucoSpec, *, options: DetectionOptions | None = None
+                   ) -> tuple[np.ndarray, np.ndarray] | str:
+    """(corner ids sorted, image points (N,2)) or a reason string."""
+    o = options or default_options()
+    detector = cv2.aruco.CharucoDetector(charuco_board(spec))
+    ch_corners, ch_ids, marker_corners, marker_ids = detector.detectBoard(gray)
+    if ch_ids is None or len(ch_ids) == 0:
+        n_markers = 0 if marker_ids is None else len(marker_ids)
+        return f"ChArUco board not found ({n_markers} markers seen)"
+    ids = ch_ids.reshape(-1).astype(int)
+    pts = ch_corners.reshape(-1, 2).astype(np.float32)
+    win = o.charuco_subpix_window_px
+    pts = cv2.cornerSubPix(gray, pts.reshape(-1, 1, 2), (win, win), (-1, -1), o.subpix_criteria).reshape(-1, 2)
+    order = np.argsort(ids)
+    return ids[order], pts[order].astype(np.float64)
