@@ -53,7 +53,8 @@ def write_reports(result_dir: str | Path, *, qa: str | Path | None = None, out_d
 
         ctx = _context(folder, qa=qa, make_plots=plots)
         html = render_html(ctx) if "html" in formats else None
-        md = render_markdown(ctx) if "md" in formats else None
+        beside = out.resolve() == folder.path.resolve()
+        md = render_markdown(ctx, thumbnails_beside=beside) if "md" in formats else None
         return write_files(out, html, md)
     except HandeyeError:
         raise

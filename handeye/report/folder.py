@@ -51,7 +51,7 @@ def read_result_folder(path: str | Path) -> ResultFolder:
     if tdir.is_dir():
         for vid in ids:
             p = tdir / f"{vid}.jpg"
-            if p.is_file():
+            if p.parent == tdir and p.is_file():  # a view id never reaches outside the folder
                 thumbs[vid] = p.read_bytes()
     return ResultFolder(path, res, obs, thumbs)
 

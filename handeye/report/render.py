@@ -11,10 +11,12 @@ import os
 import re
 from importlib import resources
 from pathlib import Path
+from urllib.parse import quote
 
 import jinja2
 
 from .. import __version__
+from .folder import THUMBNAILS_DIR
 
 FILES_DIR = "report_files"
 
@@ -89,8 +91,9 @@ def render_html(ctx: dict) -> str:
     return _env(html=True).get_template("report.html.j2").render(**ctx, images=images, thumb_src=thumbs)
 
 
-def render_markdown(ctx: dict) -> tuple[str, dict[str, bytes]]:
-    """Markdown text and the files it links (relative path -> PNG bytes)."""
+def render_markdown(ctx: dict, *, thumbnails_beside: bool = False) -> tuple[str, dict[str, bytes]]:
+    """Markdown text and the files it links (relative path -> bytes). ``thumbnails_beside``: the
+    Markdown is written into the result folder, whose ``thumbnails/`` it links instead of copying."""
     files: dict[str, bytes] = {}
     images, thumbs = {}, {}
     for p in ctx["plots"]:
@@ -98,9 +101,12 @@ def render_markdown(ctx: dict) -> tuple[str, dict[str, bytes]]:
         files[rel] = p.png
         images[p.key] = rel
     for vid, jpg in ctx["thumbs"].items():
-        rel = f"{FILES_DIR}/view_{safe_name(vid)}.jpg"
-        files[rel] = jpg
-        thumbs[vid] = rel
+        if thumbnails_beside:  # the report sits in the result folder: link its thumbnails, no copies
+            thumbs[vid] = f"{THUMBNAILS_DIR}/{quote(str(vid))}.jpg"
+        else:
+            rel = f"{FILES_DIR}/view_{safe_name(vid)}.jpg"
+            files[rel] = jpg
+            thumbs[vid] = rel
     text = _env(html=False).get_template("report.md.j2").render(**ctx, images=images, thumb_src=thumbs)
     return _tidy_markdown(text), files
 
