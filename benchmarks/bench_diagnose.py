@@ -1,12 +1,16 @@
-"""False alarms on clean sessions and sensitivity to injected faults of handeye.diagnose.
+"""False alarms on clean sessions, sensitivity to injected faults, and the cost of handeye.diagnose.
 
 Corner-level synthetic sessions (both modes, several seeds, robot noise levels and view counts) are
 written in the vendor layout with empty images; detection is replaced by the synthetic corners, so
 loading, re-reading the raw poses and calibration run as for real data. Prints, per setting, how many
-clean sessions got a fail/warn finding, and how often a robot-pose error or a board move of a given
-size was named.
+clean sessions got a fail/warn finding or a crashed diagnostics stage (both count as failures), and
+how often a robot-pose error or a board move of a given size was named. ``--timing`` renders a
+20-view 1280x720 session (handeye.sim.vendor.write_vendor_session) and prints the median time of
+diagnose_run without and with cross-validation.
 
-    python benchmarks/bench_diagnose.py [--seeds 6] [--quick]
+    python benchmarks/bench_diagnose.py [--seeds 6] [--quick] [--timing] [--no-accuracy]
+
+Exit status 1 when any clean session got a fail/warn finding or any stage crashed.
 """
 from __future__ import annotations
 
@@ -27,7 +31,7 @@ from handeye.diagnose import diagnose_run
 from handeye.frames import T_from_rotvec, inv_T
 from handeye.mounting import mounting
 from handeye.session import load_session
-from handeye.sim.synth import make_corner_session
+from handeye.sim.corners import make_corner_session
 
 
 def _write_vendor(folder: Path, cs, T) -> Path:
@@ -54,7 +58,15 @@ def _diagnose(folder: Path, cs) -> dict:
     return diagnose_run(run, images=False, cross_validation=False)
 
 
-def clean(seeds: range, root: Path) -> None:
+CRASHED = collections.Counter()  # (stage, error) -> sessions, over every diagnose_run of the benchmark
+
+
+def _count_crashes(d: dict) -> None:
+    for stage, err in d.get("stage_errors", {}).items():
+        CRASHED[(stage, err)] += 1
+
+
+def clean(seeds: range, root: Path) -> int:
     bad = collections.Counter()
     n = 0
     t0 = time.perf_counter()
@@ -64,6 +76,7 @@ def clean(seeds: range, root: Path) -> None:
                 for nv in (8, 15, 25):
                     cs = make_corner_session(mode=mode, n_views=nv, seed=seed, robot_noise=rn, noise_px=px)
                     d = _diagnose(_write_vendor(root / "clean", cs, cs.T_base_end_reported), cs)
+                    _count_crashes(d)
                     n += 1
                     for f in d["findings"]:
                         if f["severity"] in ("fail", "warn"):
@@ -72,6 +85,7 @@ def clean(seeds: range, root: Path) -> None:
           f"{sum(bad.values())}")
     for k, v in sorted(bad.items(), key=str):
         print(f"  {k}: {v}")
+    return sum(bad.values())
 
 
 def sensitivity(seeds: range, root: Path) -> None:
@@ -88,6 +102,7 @@ def sensitivity(seeds: range, root: Path) -> None:
                     T = cs.T_base_end_reported.copy()
                     T[6] = T[6] @ dT
                     d = _diagnose(_write_vendor(root / "s", cs, T), cs)
+                    _count_crashes(d)
                     hits[("robot pose error, view 7", rn, mm_size, deg_size)].append(any(
                         f["code"] == "robot_pose_disagrees" and "7" in f["view_ids"] for f in d["findings"]))
                     T = cs.T_base_end_reported.copy()
@@ -95,6 +110,7 @@ def sensitivity(seeds: range, root: Path) -> None:
                     for k in range(10, 15):
                         T[k] = mm.T_base_end_from_M(mm.M_from_T_base_end(T[k]) @ B @ dT @ inv_T(B))
                     d = _diagnose(_write_vendor(root / "s", cs, T), cs)
+                    _count_crashes(d)
                     hits[("board moved after view 10", rn, mm_size, deg_size)].append(any(
                         f["code"] == "board_moved" for f in d["findings"]))
     print("sensitivity (15 views; robot noise per axis mm/deg; fault size mm/deg): named / sessions")
@@ -102,16 +118,50 @@ def sensitivity(seeds: range, root: Path) -> None:
         print(f"  {what:28s} noise {rn[0]:.1f} mm/{rn[1]:.2f} deg  fault {a:4.1f} mm/{b:.2f} deg: {sum(v)}/{len(v)}")
 
 
+def timing(root: Path, *, repeats: int = 5) -> None:
+    """Median wall time of diagnose_run on a rendered 20-view 1280x720 session (refined run)."""
+    from handeye.sim.vendor import write_vendor_session
+
+    folder = write_vendor_session(root / "rendered20", mode="eye_in_hand", n_views=20, seed=5, image_noise=1.0,
+                                  robot_noise=(0.3, 0.05), overwrite=True)
+    run = run_calibration(load_session(folder), CalibrateOptions(refine=True))
+    print(f"timing: rendered 20-view 1280x720 session, run {run.status}, {repeats} repeats (median, min)")
+    for label, kw in (("diagnostics without cross-validation", {"cross_validation": False}),
+                      ("cross-validation alone", None),
+                      ("diagnostics with cross-validation", {"cross_validation": True})):
+        ts = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            if kw is None:
+                from handeye.diagnose.crossval import cross_validate
+                cross_validate(run)
+            else:
+                d = diagnose_run(run, **kw)
+                _count_crashes(d)
+            ts.append(time.perf_counter() - t0)
+        print(f"  {label:40s} {np.median(ts):.3f} s  (min {min(ts):.3f} s)")
+    print(f"  findings: {[f['code'] for f in d['findings']]}; stages: {d['stages']}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=6)
     ap.add_argument("--quick", action="store_true", help="2 seeds")
+    ap.add_argument("--timing", action="store_true", help="time diagnose_run on a rendered 20-view session")
+    ap.add_argument("--no-accuracy", action="store_true", help="skip the false-alarm and sensitivity runs")
     a = ap.parse_args(argv)
     seeds = range(2 if a.quick else a.seeds)
+    false_alarms = 0
     with tempfile.TemporaryDirectory() as tmp:
-        clean(seeds, Path(tmp))
-        sensitivity(seeds, Path(tmp))
-    return 0
+        if not a.no_accuracy:
+            false_alarms = clean(seeds, Path(tmp))
+            sensitivity(seeds, Path(tmp))
+        if a.timing:
+            timing(Path(tmp))
+    print(f"crashed diagnostics stages: {sum(CRASHED.values())}")
+    for (stage, err), k in sorted(CRASHED.items()):
+        print(f"  {stage}: {err} ({k} runs)")
+    return 1 if false_alarms or CRASHED else 0
 
 
 if __name__ == "__main__":

@@ -80,8 +80,8 @@ def _refined_folds(run, ref, ids, fold_list, T_rep):
         out = set(f.tolist())
         train = [views[k] for k in range(len(views)) if k not in out]
         try:
-            pb = Problem(mode=s.mode, object_points=obj, views=train, intrinsics=ref.intrinsics, T_x0=ref.T_x,
-                         T_board0=ref.T_board, options=opts)
+            pb = Problem(mode=s.mode, object_points=obj, views=train, reported=np.stack([v.T_base_end for v in train]),
+                         intrinsics=ref.intrinsics, T_x0=ref.T_x, T_board0=ref.T_board, options=opts)
             pb.sigma_px = float(ref.sigma_px)  # held at the full run's noise levels
             for i, v in enumerate(pb.ids):
                 if v in refined_robot:

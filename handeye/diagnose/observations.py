@@ -37,9 +37,10 @@ class PoseObservations:
     def mounting(self):
         return mounting(self.mode)
 
-    def pnp_covariances(self) -> Optional[np.ndarray]:
+    def pnp_covariances(self, *, with_intrinsics: bool = True) -> Optional[np.ndarray]:
         """(N,6,6) covariance of each view's board pose (right tangent of :mod:`handeye.frames`), with the
-        pixel noise taken robustly from all PnP residuals; None without corners."""
+        pixel noise taken robustly from all PnP residuals; None without corners. ``with_intrinsics``: add
+        the uncertainty of intrinsics estimated from the same corners (when they were)."""
         if not self.corners or self.intrinsics is None:
             return None
         res = [np.linalg.norm(pixels_from_board_points(C, o, self.intrinsics) - im, axis=1)
@@ -47,7 +48,7 @@ class PoseObservations:
         sigma_px = max(float(np.median(np.concatenate(res))) / RAYLEIGH_MEDIAN,
                        thresholds().robot_pose.pixel_sigma_floor_px)
         return camera_pose_covariances(self.corners, self.C, self.intrinsics.as_vector(), sigma_px,
-                                       intrinsics_estimated=self.intrinsics_estimated)
+                                       intrinsics_estimated=with_intrinsics and self.intrinsics_estimated)
 
     def M(self, T: Optional[np.ndarray] = None, *, invert: bool = False) -> np.ndarray:
         """Robot motions of the mode for poses ``T`` (default: as loaded); ``invert``: of the inverted poses."""
@@ -68,5 +69,8 @@ def observations_from_run(run) -> Optional[PoseObservations]:
     corners = tuple((obj[run.board_poses[v].corner_ids], run.detections[v].image_points) for v in ids) \
         if run.detections and all(v in run.detections for v in ids) else ()
     estimated = not (s.intrinsics is not None and s.intrinsics_prior == "fixed")
-    return PoseObservations(s.mode, tuple(ids), C, T, raw_poses_of(s), times, corners, run.intrinsics, s.target,
-                            estimated)
+    # the intrinsics the board poses were solved with (a refinement replaces run.intrinsics by its own)
+    refined = run.refined if (run.refined is not None and getattr(run.refined, "status", "") == "ok") else None
+    intrinsics = getattr(refined, "intrinsics_seed", None) if refined is not None else run.intrinsics
+    return PoseObservations(s.mode, tuple(ids), C, T, raw_poses_of(s), times, corners, intrinsics or run.intrinsics,
+                            s.target, estimated)
