@@ -29,7 +29,7 @@ from handeye.factors.reprojection import chain_residual
 from handeye.frames import tangent_difference
 from handeye.mounting import mounting
 from handeye.refine import RefineOptions, RefineView, refine
-from handeye.initial import calibrate_intrinsics, solve_closed_form, solve_pnp
+from handeye.initial import all_methods, calibrate_intrinsics, solve_pnp
 from handeye.sim.corners import make_corner_session
 
 MODES = ("eye_in_hand", "eye_to_hand")
@@ -38,15 +38,16 @@ ROBOT_NOISE = (0.2, 0.05)  # mm, deg
 CHI2_95_6 = chi2.ppf(0.95, 6)
 
 
-def tsai_seed(s):
-    """calibrateCamera intrinsics, per-view solvePnP, calibrateHandEye (Tsai) on the reported poses."""
+def closed_forms(s):
+    """As the pipeline: calibrateCamera intrinsics, per-view solvePnP, every calibrateHandEye method on the
+    reported poses; returns (intrinsics, {method: HandEyeEstimate}) (Tsai is the start, the others candidates)."""
     mm = mounting(s.mode)
     obj = s.target.object_points()
     dets = s.detections()
     intr, _ = calibrate_intrinsics(dets, obj)
     C = np.stack([solve_pnp(obj[d.corner_ids], d.image_points, intr)[0] for d in dets])
     M = mm.M_from_T_base_end(np.stack([s.T_base_end_reported[s.index(d.view_id)] for d in dets]))
-    return intr, solve_closed_form(mm, C, M, method="tsai")
+    return intr, all_methods(mm, C, M)
 
 
 def refine_views(s):
@@ -99,10 +100,11 @@ def run_scenario(mode, seeds, *, robot_noise=(0.0, 0.0), outliers=0, label=""):
     for seed in seeds:
         s = make_corner_session(mode=mode, n_views=20, seed=seed, noise_px=NOISE_PX, robot_noise=robot_noise,
                                 outlier_views=outliers)
-        intr, est = tsai_seed(s)
+        intr, closed = closed_forms(s)
+        est = closed["tsai"]
         t0, c0 = time.perf_counter(), time.process_time()
         r = refine(mode=mode, object_points=s.target.object_points(), views=refine_views(s), intrinsics=intr,
-                   T_x0=est.T_x, T_board0=est.T_board, options=RefineOptions())
+                   T_x0=est.T_x, T_board0=est.T_board, options=RefineOptions(), starts=closed)
         secs, cpu = time.perf_counter() - t0, time.process_time() - c0
         rot, trans, xi = x_error(r.T_x, s.T_x_true)
         t_rot, t_trans, _ = x_error(est.T_x, s.T_x_true)
@@ -153,7 +155,8 @@ def time_solves(mode, n_views, repeats=3):
     from handeye.refine.problem import Problem  # times exactly one graph solve, nothing around it
 
     s = make_corner_session(mode=mode, n_views=n_views, seed=1, noise_px=NOISE_PX, robot_noise=ROBOT_NOISE)
-    intr, est = tsai_seed(s)
+    intr, closed = closed_forms(s)
+    est = closed["tsai"]
     times, cpus = [], []
     for _ in range(repeats):
         pb = Problem(mode=mode, object_points=s.target.object_points(), views=refine_views(s), intrinsics=intr,
@@ -165,7 +168,7 @@ def time_solves(mode, n_views, repeats=3):
         cpus.append(time.process_time() - c0)
     t0, c0 = time.perf_counter(), time.process_time()
     r = refine(mode=mode, object_points=s.target.object_points(), views=refine_views(s), intrinsics=intr,
-               T_x0=est.T_x, T_board0=est.T_board)
+               T_x0=est.T_x, T_board0=est.T_board, starts=closed)
     full, full_cpu = time.perf_counter() - t0, time.process_time() - c0
     return min(times), min(cpus), full, full_cpu, pb.iterations, r.status
 

@@ -97,6 +97,49 @@ def chain_residual(*, T_x: np.ndarray, T_base_end: np.ndarray, T_board: np.ndarr
     return residual, J[0].T, J[1].T, J[2].T, Jk_T.T
 
 
+def stacked_chain_residual(*, T_x: np.ndarray, T_base_end: np.ndarray, T_board: np.ndarray, invert_robot: bool,
+                           intrinsics_vec: np.ndarray, object_points: np.ndarray, image_points: np.ndarray,
+                           view_index: np.ndarray, robot_jacobian: bool = False):
+    """:func:`chain_residual` of many views at once, for the numpy parts of the refinement (no GTSAM).
+
+    The corners of all views are stacked: ``object_points`` (M,3), ``image_points`` (M,2) and
+    ``view_index`` (M,) the view of each corner, an index into ``T_base_end`` (n,4,4) (one robot
+    pose per view); ``T_x`` and ``T_board`` are shared. Returns ``(residual (M,2), J_robot)``:
+    ``predicted - measured`` per corner and, with ``robot_jacobian``, d residual / d xi (M,2,6) for
+    a right perturbation of the corner's own robot pose (rotation first), else None.
+    """
+    T_base_end = np.asarray(T_base_end, float)
+    R_x, t_x = T_x[:3, :3], T_x[:3, 3]
+    R_A, t_A = R_x.T, -R_x.T @ t_x
+    R_r, t_r = T_base_end[:, :3, :3], T_base_end[:, :3, 3]
+    if invert_robot:
+        R_M = np.swapaxes(R_r, 1, 2)
+        t_M = -np.einsum("nij,nj->ni", R_M, t_r)
+    else:
+        R_M, t_M = R_r, t_r
+    R_M, t_M = R_M[view_index], t_M[view_index]  # shape (M, 3, 3), (M, 3)
+    q_b = object_points @ T_board[:3, :3].T + T_board[:3, 3]  # shape (M, 3)
+    q_m = np.einsum("mij,mj->mi", R_M, q_b) + t_M
+    p_c = q_m @ R_A.T + t_A
+    uv, Jp_T, _ = project_opencv5(intrinsics_vec, p_c, robot_jacobian)
+    residual = uv - image_points
+    if not robot_jacobian:
+        return residual, None
+    m = p_c.shape[0]
+    G = (R_A.T @ Jp_T).reshape(3, m, 2)  # (d uv / d q_m)^T: [component, corner, u|v]
+    if invert_robot:  # the point just after the perturbed (inverted) robot pose: q_m
+        q, sign = q_m.T[:, :, None], -1.0
+    else:  # T_base_end used as is: the point before it, q_b, and G through R_M
+        G = np.einsum("mji,jmc->imc", R_M, G)
+        q, sign = q_b.T[:, :, None], 1.0
+    J = np.empty((m, 2, 6))
+    J[:, :, 0] = sign * (q[1] * G[2] - q[2] * G[1])
+    J[:, :, 1] = sign * (q[2] * G[0] - q[0] * G[2])
+    J[:, :, 2] = sign * (q[0] * G[1] - q[1] * G[0])
+    J[:, :, 3:] = sign * np.moveaxis(G, 0, -1)
+    return residual, J
+
+
 def eye_in_hand_residual(*, T_end_cam, T_base_end, T_base_board, intrinsics_vec, object_points, image_points,
                          jacobians: bool = True):
     """pixel = project(K, inv(T_base_end · T_end_cam) · T_base_board · p); see :func:`chain_residual`."""

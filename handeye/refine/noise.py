@@ -25,6 +25,7 @@ Pure numpy: the problem (:class:`.problem.Problem`) is passed in.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
@@ -66,13 +67,24 @@ def robust_robot_sigmas(pb: "Problem", checks: Sequence["ViewCheck"]) -> None:
     pb.sigma_trans = robust_noise_sigma(d[:, 3:], C[:, 3:, 3:], floor=float(cfg["robot_sigma_trans_floor_m"]))
 
 
-def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> float:
+@dataclass(frozen=True)
+class VarianceComponents:
+    """Outcome of :func:`vce_on_linearisation`: the relative change of the sigmas over the call, and,
+    at the final sigmas, the linear least-squares step and the marginal covariances (core, robot blocks)."""
+
+    change: float
+    dx: np.ndarray  # (c + 6n,) in the order of the linearisation
+    S_cc: np.ndarray
+    S_pp: np.ndarray  # (n, 6, 6)
+
+
+def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceComponents:
     """Iterate variance-component estimation on one fixed linearisation (pure numpy, cheap).
 
     For sigmas s the linear least-squares step dx, the group residual sums e_g^T e_g and the
     redundancies r_g = n_g - tr(W_g J_g Sigma J_g^T) follow from the unit-sigma pixel information,
     the robot priors (Jacobian I on their pose block) and the intrinsics prior; then
-    s_g^2 = e_g^T e_g / r_g. Updates pb's sigmas in place; returns the relative change."""
+    s_g^2 = e_g^T e_g / r_g. Updates pb's sigmas in place."""
     cfg = _cfg()
     floors = (float(cfg["sigma_px_floor"]), float(cfg["robot_sigma_rot_floor_rad"]),
               float(cfg["robot_sigma_trans_floor_m"]))
@@ -91,6 +103,7 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> float:
     s = np.array([pb.sigma_px, pb.sigma_rot, pb.sigma_trans])
     start = s.copy()
     eye6 = np.eye(6)
+    history = [np.log(s)]  # log-sigma iterates since the last extrapolation
     for _ in range(int(cfg["max_inner"])):
         s_px, s_rot, s_trans = s
         w_px = 1.0 / s_px ** 2
@@ -130,21 +143,49 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> float:
         s = new
         if change < tol:
             break
+        history.append(np.log(s))
+        if len(history) == 3:
+            s = np.maximum(_aitken(*history), floors)
+            history = [np.log(s)]
     pb.sigma_px, pb.sigma_rot, pb.sigma_trans = (float(x) for x in s)
-    return float(np.max(np.abs(s / start - 1.0)))
+    return VarianceComponents(float(np.max(np.abs(s / start - 1.0))), dx, S_cc, S_pp)
+
+
+def _aitken(x0: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """Aitken's extrapolation of three successive log-sigma iterates, per component, where they converge
+    linearly and monotonically (ratio of successive steps in (0, 0.95)); returns sigmas.
+
+    The fixed-point iteration converges linearly, slowly (ratio ~0.93) when a robot sigma heads for
+    a level the camera barely resolves: 80 iterations on a clean 200-view session. Extrapolating
+    every third iterate lands near the fixed point; the plain iterations that follow it decide
+    convergence, so the fixed point and the tolerance are those of the plain iteration."""
+    d1, d2 = x1 - x0, x2 - x1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho = np.where(d1 != 0.0, d2 / d1, 0.0)
+    ok = (rho > 0.0) & (rho < 0.95)
+    x = x2.copy()
+    x[ok] += d2[ok] * rho[ok] / (1.0 - rho[ok])
+    return np.exp(x)
 
 
 def solve_with_vce(pb: "Problem"):
     """Gaussian solves alternating with variance-component estimation on each linearisation until
-    the sigmas settle. Returns (Sigma_core, {view index: Sigma_robot}) at the final sigmas."""
+    the sigmas settle. Returns (Sigma_core, {view index: Sigma_robot}) at the final sigmas.
+
+    Once a solve's sigmas are within ``noise.outer_tol`` of the estimate on its linearisation, that
+    solve is at the optimum of a problem whose weights differ by less than that: the Gauss-Newton
+    step at the final sigmas (computed by the estimation anyway) finishes it, and the estimation's
+    covariances are those of the final linearisation, so no further solve is needed."""
     cfg = _cfg()
     pb.resolved = {"rot": True, "trans": True}  # a new set of views may resolve what the last did not
     for _ in range(int(cfg["max_outer"])):
         pb.solve(robust=False)
-        change = vce_on_linearisation(pb, pb.pixel_linearisation())
+        lin = pb.pixel_linearisation()
+        vce = vce_on_linearisation(pb, lin)
         log.debug("VCE: sigma_px %.4f, robot %.5f deg %.5f mm (change %.3g)", pb.sigma_px,
-                  np.degrees(pb.sigma_rot), 1000 * pb.sigma_trans, change)
-        if change < float(cfg["outer_tol"]):
-            break
-    g, values, rk = pb.solve(robust=False)
+                  np.degrees(pb.sigma_rot), 1000 * pb.sigma_trans, vce.change)
+        if vce.change < float(cfg["outer_tol"]):
+            pb.apply_step(lin.robot_views, vce.dx)
+            return vce.S_cc, dict(zip(lin.robot_views, vce.S_pp))
+    g, values, rk = pb.solve(robust=False)  # not settled: a last solve at the last sigmas
     return pb.covariances(g, values, rk)

@@ -13,7 +13,6 @@ from handeye.factors.reprojection import LOSSES
 from ..camera import INTRINSIC_NAMES
 from ..config import load_preset
 from ..errors import ConfigError, InputError
-from ..frames import is_rotation, make_T, project_to_rotation
 
 INTRINSICS_MODES = ("estimate", "fixed", "prior")
 ROBOT_NOISE_MODES = ("estimate", "fixed", "none")
@@ -106,17 +105,40 @@ def check_options(o: RefineOptions) -> None:
 
 def check_T(T, what: str) -> np.ndarray:
     """A rigid 4x4 transform, its rotation re-orthonormalised (inputs rounded to a few decimals)."""
-    T = np.asarray(T, dtype=float)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not is_rotation(T[:3, :3], tol=1e-3) \
-            or not np.allclose(T[3], [0, 0, 0, 1]):
-        raise InputError(f"{what} is not a rigid 4x4 transform", expected="(4,4) with a rotation block and "
-                         "last row 0 0 0 1", received=f"shape {T.shape}", hint="check the seed / pose conversion")
-    return make_T(project_to_rotation(T[:3, :3]), T[:3, 3])
+    return check_T_stack(np.asarray(T, dtype=float)[None], [what])[0] if np.shape(T) == (4, 4) else \
+        _not_rigid(what, np.shape(T))
 
 
-def check_inputs(object_points, views) -> np.ndarray:
+def _not_rigid(what: str, shape) -> None:
+    raise InputError(f"{what} is not a rigid 4x4 transform", expected="(4,4) with a rotation block and "
+                     "last row 0 0 0 1", received=f"shape {shape}", hint="check the seed / pose conversion")
+
+
+def check_T_stack(Ts: np.ndarray, whats) -> np.ndarray:
+    """:func:`check_T` of (n,4,4) transforms at once; ``whats`` names each one for the message."""
+    Ts = np.asarray(Ts, dtype=float)
+    R = Ts[:, :3, :3]
+    finite = np.all(np.isfinite(Ts), axis=(1, 2))
+    R0 = np.where(finite[:, None, None], R, np.eye(3))
+    # a rotation to 1e-3 (is_rotation's test), and the last row 0 0 0 1
+    ortho = np.all(np.abs(np.swapaxes(R0, 1, 2) @ R0 - np.eye(3)) <= 1e-3, axis=(1, 2))
+    proper = np.abs(np.linalg.det(R0) - 1.0) < 1e-3
+    last = np.all(np.isclose(Ts[:, 3], [0.0, 0.0, 0.0, 1.0]), axis=1)
+    bad = ~(finite & ortho & proper & last)
+    if bad.any():
+        _not_rigid(list(whats)[int(np.flatnonzero(bad)[0])], Ts.shape[1:])
+    U, _, Vt = np.linalg.svd(R)  # nearest rotations
+    D = np.ones((len(Ts), 3))
+    D[:, 2] = np.linalg.det(U @ Vt)
+    out = Ts.copy()
+    out[:, :3, :3] = (U * D[:, None, :]) @ Vt
+    out[:, 3] = [0.0, 0.0, 0.0, 1.0]
+    return out
+
+
+def check_inputs(object_points, views) -> tuple[np.ndarray, np.ndarray]:
     """Validate the board points (N,3) and the views (unique ids, matching lengths, rigid poses);
-    returns the board points as float."""
+    returns the board points as float and the reported robot poses (n,4,4), re-orthonormalised."""
     object_points = np.asarray(object_points, float)
     if object_points.ndim != 2 or object_points.shape[1] != 3:
         raise InputError("object_points must be (N, 3)", received=f"shape {object_points.shape}")
@@ -130,8 +152,11 @@ def check_inputs(object_points, views) -> np.ndarray:
         if np.asarray(v.image_points).reshape(-1, 2).shape[0] != n:
             raise InputError(f"view {v.view_id}: corner_ids and image_points differ in length",
                              expected=f"{n} image points", received=str(np.asarray(v.image_points).shape))
-        check_T(v.T_base_end, f"view {v.view_id} T_base_end")
+        if np.shape(v.T_base_end) != (4, 4):
+            _not_rigid(f"view {v.view_id} T_base_end", np.shape(v.T_base_end))
     if len(views) < 3:
         raise InputError("the refinement needs at least 3 views", received=f"{len(views)} views",
                          hint="capture more views with the board visible")
-    return object_points
+    reported = check_T_stack(np.stack([np.asarray(v.T_base_end, float) for v in views]),
+                             [f"view {v.view_id} T_base_end" for v in views])
+    return object_points, reported

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Optional, Sequence
 import numpy as np
 from scipy.special import chdtrc, chdtri
 
-from handeye.factors.reprojection import chain_residual, corner_robust_scales
+from handeye.factors.reprojection import corner_robust_scales, stacked_chain_residual
 
 from ..frames import se3_exp, tangent_difference
 from ..output import plain
@@ -148,44 +148,81 @@ def _failed_check(P: np.ndarray, n_corners: int) -> ViewCheck:
     return ViewCheck(P, np.full((6, 6), np.nan), np.full(n_corners, np.inf), np.full(6, np.nan), False)
 
 
-def camera_only_pose(pb: "Problem", i: int, P_init: np.ndarray, *, max_iters: int = 10) -> ViewCheck:
-    """Robust Gauss-Newton for view i's robot pose from its corners alone (T_x, T_board, K held)."""
-    P = P_init.copy()
-    obj, img = pb.obj[i], pb.img[i]
-    fail = _failed_check(P, len(obj))
+def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10) -> dict:
+    """Robust Gauss-Newton (Huber, ``loss_k``) for the robot pose of each view in ``idx`` from its corners
+    alone (``T_x``, ``T_board`` and the intrinsics held), all views at once, starting from the current
+    estimates ``pb.P``. The covariance is ``sigma_px^2 (J^T J)^-1`` over the corners within
+    ``corner_outlier_sigmas``. Returns {view index: ViewCheck}."""
+    empty = {int(i): _failed_check(pb.P[i].copy(), 0) for i in idx if pb.offsets[i + 1] == pb.offsets[i]}
+    idx = np.asarray([i for i in idx if i not in empty], int)
+    if idx.size == 0:
+        return empty
+    sel = np.concatenate([np.arange(pb.offsets[i], pb.offsets[i + 1]) for i in idx])
+    counts = pb.offsets[idx + 1] - pb.offsets[idx]
+    local = np.repeat(np.arange(idx.size), counts)  # shape (M,): position in idx of each corner's view
+    starts = np.r_[0, np.cumsum(counts)[:-1]]
+    obj, img = pb.obj_all[sel], pb.img_all[sel]
+    P = pb.P[idx].copy()
+    alive = counts > 0
     for it in range(max_iters + 1):
-        r, _, J_r, _, _ = chain_residual(T_x=pb.T_x, T_base_end=P, T_board=pb.T_board, invert_robot=pb.invert,
-                                         intrinsics_vec=pb.k, object_points=obj, image_points=img, robot_only=True)
-        if not np.all(np.isfinite(r)):
-            return fail
+        r, J = stacked_chain_residual(T_x=pb.T_x, T_base_end=P, T_board=pb.T_board, invert_robot=pb.invert,
+                                      intrinsics_vec=pb.k, object_points=obj, image_points=img, view_index=local,
+                                      robot_jacobian=True)
+        finite = np.all(np.isfinite(r), axis=1) & np.all(np.isfinite(J), axis=(1, 2))
+        alive &= np.logical_and.reduceat(finite, starts)
         if it == max_iters:
             break
-        _, w = corner_robust_scales(r, sigma_px=pb.sigma_px, loss="huber", k=pb.o.loss_k)
-        Jw = J_r * np.repeat(w * w, 2)[:, None]
-        try:
-            step = -np.linalg.solve(Jw.T @ J_r, Jw.T @ r)
-        except np.linalg.LinAlgError:
-            return fail
+        ok_rows = alive[local]
+        r0 = np.where(ok_rows[:, None], r, 0.0)
+        J0 = np.where(ok_rows[:, None, None], J, 0.0)
+        _, w = corner_robust_scales(r0.reshape(-1), sigma_px=pb.sigma_px, loss="huber", k=pb.o.loss_k)
+        w2 = w * w
+        H = np.add.reduceat(np.einsum("mci,mcj,m->mij", J0, J0, w2), starts, axis=0)
+        g = np.add.reduceat(np.einsum("mci,mc,m->mi", J0, r0, w2), starts, axis=0)
+        H[~alive] = np.eye(6)
+        step = np.zeros((idx.size, 6))
+        for k in np.flatnonzero(alive):  # 6x6 solves; a singular one fails that view alone
+            try:
+                step[k] = -np.linalg.solve(H[k], g[k])
+            except np.linalg.LinAlgError:
+                alive[k] = False
         P = P @ se3_exp(step)
         if np.abs(step).max() < 1e-8:  # rad, m: far below any pose precision; one more evaluation at P
             max_iters = it + 1
-    e = np.linalg.norm(r.reshape(-1, 2), axis=1)
-    inl = np.repeat(e <= pb.o.corner_outlier_sigmas * pb.sigma_px, 2)
-    J = J_r[inl]
-    if J.shape[0] < 6:
-        return ViewCheck(P, fail.cov_cam, e, fail.delta, False)
-    try:
-        cov = pb.sigma_px ** 2 * np.linalg.inv(J.T @ J)
-    except np.linalg.LinAlgError:
-        return ViewCheck(P, fail.cov_cam, e, fail.delta, False)
-    return ViewCheck(P, cov, e, tangent_difference(pb.reported[i], P), bool(np.all(np.isfinite(cov))))
+    e = np.linalg.norm(r, axis=1)
+    inl = (e <= pb.o.corner_outlier_sigmas * pb.sigma_px) & alive[local]
+    Jin = np.where(inl[:, None, None], J, 0.0)
+    H = np.add.reduceat(np.einsum("mci,mcj->mij", Jin, Jin), starts, axis=0)
+    n_inl = np.add.reduceat(inl.astype(int), starts)
+    delta = tangent_difference(pb.reported[idx], P)
+    out = empty
+    for k, i in enumerate(idx):
+        e_k = e[starts[k]:starts[k] + counts[k]]
+        if not alive[k]:
+            out[int(i)] = _failed_check(P[k], int(counts[k]))
+            continue
+        cov = None
+        if 2 * n_inl[k] >= 6:
+            try:
+                cov = pb.sigma_px ** 2 * np.linalg.inv(H[k])
+            except np.linalg.LinAlgError:
+                cov = None
+        if cov is None or not np.all(np.isfinite(cov)):
+            out[int(i)] = ViewCheck(P[k], np.full((6, 6), np.nan), e_k, np.full(6, np.nan), False)
+        else:
+            out[int(i)] = ViewCheck(P[k], cov, e_k, delta[k], True)
+    return out
 
 
-def joint_check(pb: "Problem", i: int, cov: np.ndarray) -> ViewCheck:
-    """View i as the last Gaussian solve has it (its robot pose a variable of that solve)."""
-    P = pb.P[i]
-    e = np.linalg.norm(pb.view_residual(i), axis=1)
-    return ViewCheck(P.copy(), cov, e, tangent_difference(pb.reported[i], P), True)
+def joint_checks(pb: "Problem", S_pp: dict) -> dict:
+    """The views of the last Gaussian solve as it has them (their robot poses variables of that solve),
+    with the marginal covariance of each robot pose. Returns {view index: ViewCheck}."""
+    idx = sorted(S_pp)
+    if not idx:
+        return {}
+    e = pb.per_view(np.linalg.norm(pb.corner_residuals(), axis=1))
+    delta = tangent_difference(pb.reported[idx], pb.P[idx])
+    return {i: ViewCheck(pb.P[i].copy(), S_pp[i], e[i], delta[k], True) for k, i in enumerate(idx)}
 
 
 @dataclass(frozen=True)
@@ -220,10 +257,11 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
     R = np.diag([s_rot ** 2] * 3 + [s_trans ** 2] * 3)
     d = np.full((pb.n, 6), np.nan)
     C = np.full((pb.n, 6, 6), np.nan)
+    e_all = tangent_difference(pb.reported, pb.P)  # shape (n, 6): prior residuals
     for i, ch in enumerate(checks):
         Sp = None if S_pp is None else S_pp.get(i)
         if Sp is not None and pb.status[i] in ("used", "robot_excluded") and pb.has_robot_var(i):
-            e = tangent_difference(pb.reported[i], pb.P[i])
+            e = e_all[i]
             try:
                 if pb.status[i] == "used":
                     np.linalg.cholesky(R - Sp)
@@ -233,7 +271,7 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
                     d[i], C[i] = e, Sp
                 continue
             except np.linalg.LinAlgError:  # fall back to the camera-only comparison
-                ch = camera_only_pose(pb, i, pb.P[i])
+                ch = camera_only_poses(pb, [i])[i]
         if ch.ok:
             d[i], C[i] = ch.delta, ch.cov_cam
     return robot_pose_test(d, C, robot_sigma_rot_rad=s_rot, robot_sigma_trans_m=s_trans,
@@ -260,10 +298,10 @@ def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = No
     o = pb.o
     t_corner = o.corner_outlier_sigmas
     share = float(refine_preset()["outliers"]["reprojection_share"])
-    checks = [joint_check(pb, i, S_pp[i]) if S_pp is not None and i in S_pp
-              else camera_only_pose(pb, i, pb.P[i]) if len(pb.obj[i]) >= o.min_corners
-              else _failed_check(pb.P[i], len(pb.obj[i]))
-              for i in range(pb.n)]
+    by_view = joint_checks(pb, S_pp) if S_pp is not None else {}
+    by_view.update(camera_only_poses(pb, [i for i in range(pb.n)
+                                          if i not in by_view and len(pb.obj[i]) >= o.min_corners]))
+    checks = [by_view.get(i) or _failed_check(pb.P[i], len(pb.obj[i])) for i in range(pb.n)]
     if robust_robot_sigma:
         robust_robot_sigmas(pb, [checks[i] for i in pb.prior_views()])
     test = robot_tests(pb, checks, S_pp)

@@ -22,13 +22,13 @@ import gtsam
 import numpy as np
 
 from handeye.factors.gtsam_factors import intrinsics_prior, robot_pose_prior, view_reprojection_factor
-from handeye.factors.reprojection import INTRINSIC_NAMES, chain_residual
+from handeye.factors.reprojection import INTRINSIC_NAMES, stacked_chain_residual
 
 from ..camera import Intrinsics
-from ..frames import tangent_difference
+from ..frames import se3_exp, tangent_difference
 from ..mounting import mounting
 from .covariance import N_POSES, arrow_blocks, arrow_inverse
-from .options import RefineOptions, RefineView, check_T, refine_preset
+from .options import RefineOptions, RefineView, refine_preset
 
 KEY_X = gtsam.symbol("x", 0)
 KEY_BOARD = gtsam.symbol("b", 0)
@@ -54,6 +54,7 @@ class PixelLinearisation:
     prior: np.ndarray
     xi: np.ndarray
     c: int
+    robot_views: tuple  # view index of each robot block, in order
 
 
 class Problem:
@@ -63,8 +64,9 @@ class Problem:
     pose and the current estimate ``P`` of the true one. The noise levels (``sigma_px``,
     ``sigma_rot`` [rad], ``sigma_trans`` [m]) are the noise models of the next solve."""
 
-    def __init__(self, *, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
+    def __init__(self, *, mode: str, object_points: np.ndarray, views: Sequence[RefineView], reported: np.ndarray,
                  intrinsics: Intrinsics, T_x0: np.ndarray, T_board0: np.ndarray, options: RefineOptions):
+        """``reported`` (n,4,4): the views' reported robot poses, checked (:func:`.options.check_inputs`)."""
         self.mode = mode
         self.mounting = mounting(mode)
         self.invert = self.mounting.inverts_robot
@@ -74,7 +76,13 @@ class Problem:
         self.ids = [v.view_id for v in self.views]
         self.obj = [np.asarray(object_points, float)[np.asarray(v.corner_ids, int)] for v in self.views]
         self.img = [np.asarray(v.image_points, float).reshape(-1, 2) for v in self.views]
-        self.reported = np.stack([check_T(v.T_base_end, f"view {v.view_id} T_base_end") for v in self.views])
+        self.reported = np.array(reported, float)
+        # all corners stacked in view order, for the numpy evaluations of every view at once
+        counts = np.array([len(o) for o in self.obj], int)
+        self.offsets = np.r_[0, np.cumsum(counts)]
+        self.view_of = np.repeat(np.arange(self.n), counts)  # shape (M,): the view of each corner
+        self.obj_all = np.concatenate(self.obj) if self.n else np.zeros((0, 3))
+        self.img_all = np.concatenate(self.img) if self.n else np.zeros((0, 2))
         self.board_centre = np.asarray(object_points, float).mean(axis=0)
         self.width, self.height = intrinsics.width, intrinsics.height
         self.k = intrinsics.as_vector().astype(float)
@@ -120,23 +128,34 @@ class Problem:
     def robot_pose(self, i: int) -> np.ndarray:
         return self.P[i] if self.has_robot_var(i) else self.reported[i]
 
+    def robot_poses(self) -> np.ndarray:
+        """(n,4,4) the robot pose each view's corners are seen through now."""
+        return np.stack([self.robot_pose(i) for i in range(self.n)])
+
     @property
     def n_core(self) -> int:
         return N_POSES + self.free.size
 
-    # -- residuals (numpy)
-    def view_residual(self, i: int, T_robot: Optional[np.ndarray] = None, T_x: Optional[np.ndarray] = None,
-                      T_board: Optional[np.ndarray] = None) -> np.ndarray:
-        """Residuals (N,2) of all corners of view i at the current solution (or the given poses)."""
-        r = chain_residual(T_x=self.T_x if T_x is None else T_x,
-                           T_base_end=self.robot_pose(i) if T_robot is None else T_robot,
-                           T_board=self.T_board if T_board is None else T_board, invert_robot=self.invert,
-                           intrinsics_vec=self.k, object_points=self.obj[i], image_points=self.img[i],
-                           jacobians=False)[0]
-        return r.reshape(-1, 2)
+    # -- residuals (numpy, every view at once)
+    def corner_residuals(self, *, T_robots: Optional[np.ndarray] = None, T_x: Optional[np.ndarray] = None,
+                         T_board: Optional[np.ndarray] = None) -> np.ndarray:
+        """Residuals (M,2) of every corner of every view, stacked in view order (split them with
+        :meth:`per_view`), at the current solution or the given poses (T_robots (n,4,4))."""
+        return stacked_chain_residual(
+            T_x=self.T_x if T_x is None else T_x, T_base_end=self.robot_poses() if T_robots is None else T_robots,
+            T_board=self.T_board if T_board is None else T_board, invert_robot=self.invert, intrinsics_vec=self.k,
+            object_points=self.obj_all, image_points=self.img_all, view_index=self.view_of)[0]
+
+    def per_view(self, a: np.ndarray) -> list[np.ndarray]:
+        """A stacked per-corner array (M, ...) split into the views' parts."""
+        return np.split(a, self.offsets[1:-1])
 
     def used_corner_residuals(self) -> np.ndarray:
-        return np.concatenate([self.view_residual(i)[self.mask[i]] for i in self.active()])
+        """Residuals (K,2) of the corners in use (active views, corners not flagged)."""
+        used = np.zeros(self.n, bool)
+        used[self.active()] = True
+        keep = np.concatenate(self.mask) & used[self.view_of]
+        return self.corner_residuals()[keep]
 
     def robot_residuals(self, idx: Sequence[int]) -> np.ndarray:
         """Log(inv(reported) · P) for views idx: (len, 6), rotation first."""
@@ -227,4 +246,17 @@ class Problem:
         Hcc, Hcp, Hpp = arrow_blocks(H, c, len(idx_p))
         return PixelLinearisation(Hcc=Hcc, Hcp=Hcp, Hpp=Hpp, g=-np.asarray(eta).reshape(-1),
                                   rr=float(np.sum(e * e)), n_obs=int(e.size), prior=prior,
-                                  xi=self.robot_residuals(idx_p), c=c)
+                                  xi=self.robot_residuals(idx_p), c=c, robot_views=tuple(idx_p))
+
+    def apply_step(self, robot_views: Sequence[int], dx: np.ndarray) -> None:
+        """Move the estimates by a step ``dx`` in the order of :meth:`pixel_linearisation` (T_x, T_board,
+        free intrinsics, then one 6-vector per view of ``robot_views``), poses by right perturbation."""
+        c = self.n_core
+        self.T_x = self.T_x @ se3_exp(dx[0:6])
+        self.T_board = self.T_board @ se3_exp(dx[6:12])
+        if self.free.size:
+            self.k = self.k.copy()
+            self.k[self.free] += dx[N_POSES:c]
+        if len(robot_views):
+            idx = list(robot_views)
+            self.P[idx] = self.P[idx] @ se3_exp(dx[c:].reshape(-1, 6))

@@ -43,7 +43,7 @@ from ..mounting import mounting
 from ..records import HandEyeEstimate
 from .noise import robust_robot_sigmas, robust_sigma_px, sigma_px_from_residuals
 from .options import RefineOptions, RefineView, check_inputs, check_options, check_T
-from .outliers import Outlier, TooFewRobotPoses, camera_only_pose, outlier_loop
+from .outliers import Outlier, TooFewRobotPoses, camera_only_poses, outlier_loop
 from .problem import Problem
 from .result import RefineResult, build_result
 
@@ -53,13 +53,20 @@ log = logging.getLogger(__name__)
 def seed_score(pb: Problem, T_x: np.ndarray, T_board: np.ndarray) -> float:
     """Median over the views of each view's median corner residual (px) through the reported robot
     pose: a start that half the views agree with scores low, whatever the other views do."""
-    per_view = []
-    for i in range(pb.n):
-        if len(pb.obj[i]) < pb.o.min_corners:
-            continue
-        e = np.linalg.norm(pb.view_residual(i, pb.reported[i], T_x, T_board), axis=1)
-        per_view.append(float(np.median(e)) if np.all(np.isfinite(e)) else np.inf)
-    return float(np.median(per_view)) if per_view else np.inf
+    e = np.linalg.norm(pb.corner_residuals(T_robots=pb.reported, T_x=T_x, T_board=T_board), axis=1)
+    e = np.where(np.isfinite(e), e, np.inf)
+    counts = np.diff(pb.offsets)
+    keep = counts >= pb.o.min_corners
+    if not keep.any():
+        return np.inf
+    # per-view medians at once: rows padded with inf, sorted, the middle one(s) of each row's own count
+    padded = np.full((pb.n, counts.max()), np.inf)
+    padded[pb.view_of, np.arange(e.size) - pb.offsets[pb.view_of]] = e
+    padded.sort(axis=1)
+    c = counts[keep]
+    rows = padded[keep]
+    med = 0.5 * (rows[np.arange(c.size), (c - 1) // 2] + rows[np.arange(c.size), c // 2])
+    return float(np.median(med))
 
 
 def best_start(pb: Problem, starts: Mapping[str, HandEyeEstimate]) -> tuple[np.ndarray, np.ndarray, str]:
@@ -97,12 +104,13 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
     check_options(options)
     T_x0 = check_T(T_x0, f"seed {mm.x_name}")
     T_board0 = check_T(T_board0, f"seed {mm.board_name}")
-    pb = Problem(mode=mode, object_points=check_inputs(object_points, views), views=views, intrinsics=intrinsics,
+    object_points, reported = check_inputs(object_points, views)
+    pb = Problem(mode=mode, object_points=object_points, views=views, reported=reported, intrinsics=intrinsics,
                  T_x0=T_x0, T_board0=T_board0, options=options)
     start_method = "given"
     if starts:
         pb.T_x, pb.T_board, start_method = best_start(pb, starts)
-    e_before = np.concatenate([pb.view_residual(i, pb.reported[i]) for i in range(pb.n)])
+    e_before = pb.corner_residuals(T_robots=pb.reported)
     rms_before = float(np.sqrt(np.mean(np.sum(e_before ** 2, axis=1))))
     sparse = []  # views that cannot even start (the outlier loop re-examines them with reasons)
     for i, vid in enumerate(pb.ids):
@@ -124,7 +132,7 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
     try:
         # start: sigmas from each view's own fit at the start
         pb.sigma_px = 1.0
-        checks0 = [camera_only_pose(pb, i, pb.P[i]) for i in pb.active()]
+        checks0 = list(camera_only_poses(pb, pb.active()).values())
         e0 = np.concatenate([c.resid_px for c in checks0 if c.ok]) if checks0 else np.zeros(0)
         if e0.size:
             pb.sigma_px = sigma_px_from_residuals(e0)
@@ -137,7 +145,7 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
         if options.outlier_loop:
             dec, S_cc, _ = outlier_loop(pb)
             return result("ok", "", S_cc, dec)
-        robust_robot_sigmas(pb, [camera_only_pose(pb, i, pb.P[i]) for i in pb.prior_views()])
+        robust_robot_sigmas(pb, list(camera_only_poses(pb, pb.prior_views()).values()))
         g, values, rk = pb.solve(robust=options.loss != "none")
         S_cc, _ = pb.covariances(g, values, rk)
         return result("ok", "", S_cc)

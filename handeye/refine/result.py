@@ -116,8 +116,9 @@ def _working_distance(pb: "Problem") -> float:
 
 def _per_view(pb: "Problem", dec: Optional["Decision"]) -> dict:
     per_view = {}
+    e_all = pb.per_view(np.linalg.norm(pb.corner_residuals(), axis=1))
     for i, vid in enumerate(pb.ids):
-        e = np.linalg.norm(pb.view_residual(i), axis=1)
+        e = e_all[i]
         st = pb.status[i]
         used = pb.mask[i] if st != "removed" else np.zeros(len(e), bool)
         d = {"status": st, "n_corners": int(len(e)), "n_used": int(used.sum())}
