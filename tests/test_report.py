@@ -432,6 +432,15 @@ def test_site_thresholds_change_the_verdict_to_known_values(synthetic, tmp_path)
     # rotation part, so 3 m gives more than the refinement's own working distance
     ctx = _verdict(out, "working_distance_m: 3.0\n", tmp_path)
     assert ctx["result"]["working_distance_m"] == 3.0 and ctx["result"]["pred"]["rms_mm"] > pe
+    # the coverage grid of the site: one cell is reached by any corner (coverage 1), and a grid as fine
+    # as the pixels is reached only where corners are (at most corners / pixels)
+    cov = {}
+    for cells in (1, int(res["intrinsics"]["image_size"][0])):
+        v = _verdict(out, f"coverage_grid_cells_x: {cells}\n", tmp_path)["verdict"]
+        cov[cells] = next(c.value for c in v.checks if c.key == "image_coverage")
+    n_corners = sum(v["n_corners"] for v in res["views"] if v["used"])
+    w, h = res["intrinsics"]["image_size"]
+    assert cov[1] == 1.0 and 0 < cov[w] <= n_corners / (w * h)
 
 
 def test_evaluate_levels_and_missing_values():
@@ -477,6 +486,9 @@ def test_bad_site_qa_file_is_a_one_line_error(synthetic, tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("checks:\n  reprojection_rms_px: {warn_over: 1}\n")
     with pytest.raises(ConfigError, match="warn_over"):
+        load_qa(bad)
+    bad.write_text("coverage_grid_cells_x: 0\n")
+    with pytest.raises(ConfigError, match="coverage_grid_cells_x"):
         load_qa(bad)
     bad.write_text("no_such_setting: 1\n")
     with pytest.raises(ConfigError, match="no_such_setting"):

@@ -15,7 +15,6 @@ import numpy as np
 
 from .. import __version__
 from ..conventions import pose_forms, vendor_euler_from_R
-from ..errors import ConfigError
 from ..frames import pose_error, quat_wxyz_from_R
 from ..mounting import EYE_IN_HAND, MODES, mounting
 from ..output import plain
@@ -37,12 +36,9 @@ OUTLIER_KIND_TEXT = {"robot_pose": "robot pose disagrees with the camera", "repr
 def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_plots: bool = True) -> dict[str, Any]:
     res, obs = folder.result or {}, folder.observations or {}
     mode_known = res.get("mode") in MODES
-    try:
-        mm_adapter = mounting(res.get("mode") if mode_known else EYE_IN_HAND.name)
-    except ConfigError:  # pragma: no cover - MODES and mounting() agree
-        mm_adapter = EYE_IN_HAND
-    x_name, b_name = mm_adapter.x_name, mm_adapter.board_name
-    parent, board_parent = mm_adapter.fixed_frame, mm_adapter.board_frame
+    mount = mounting(res["mode"]) if mode_known else EYE_IN_HAND  # an unknown mode is shown as such
+    x_name, b_name = mount.x_name, mount.board_name
+    parent, board_parent = mount.fixed_frame, mount.board_frame
     ok = res.get("status") == "ok"
     ref = res.get("refinement") if isinstance(res.get("refinement"), dict) else {}
     if ref and ref.get("status") not in (None, "ok"):
@@ -62,8 +58,8 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     if not finite(wd):
         wd = median_board_distance_m(fits, board_centre)
 
-    ctx: dict[str, Any] = {"x_name": x_name, "board_name": b_name, "parent": parent, "mode": mm_adapter.name,
-                           "mode_text": MODE_TEXT[mm_adapter.name] if mode_known else "Mounting mode unknown",
+    ctx: dict[str, Any] = {"x_name": x_name, "board_name": b_name, "parent": parent, "mode": mount.name,
+                           "mode_text": MODE_TEXT[mount.name] if mode_known else "Mounting mode unknown",
                            "ok": ok, "refined": bool(ref)}
     ctx["meta"] = _meta(res, obs)
     findings = _findings(diag)
@@ -84,7 +80,8 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     ctx["noise"] = _noise(ref)
 
     # --- metrics and verdict
-    metrics, notes = qa_metrics(res, ref, fits, views, unc, pred, wd, image_size, mm_adapter)
+    metrics, notes = qa_metrics(res, ref, fits, views, unc, pred, wd, image_size, mount,
+                                coverage_cells_x=int(qa_cfg.get("coverage_grid_cells_x", 16)))
     failure = failure_advice(res, findings, has_views=bool(views)) if not ok else None
     notes["x_name"] = x_name
     if pred is not None:
@@ -105,7 +102,7 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
         from .figures import report_figures
 
         ctx["plots"] = report_figures(res=res, obs=obs, ref=ref, fits=fits, views=views, T_x=T_x, T_board=T_board,
-                                      unc=unc, metrics=metrics, notes=notes, qa_cfg=qa_cfg, mounting=mm_adapter,
+                                      unc=unc, metrics=metrics, notes=notes, qa_cfg=qa_cfg, mounting=mount,
                                       image_size=image_size)
     ctx["thumbs"] = {v["id"]: folder.thumbnails[v["id"]] for v in views if v["id"] in folder.thumbnails}
     for v in views:

@@ -17,7 +17,8 @@ from .observations import ViewFit, coverage_counts, finite, relative_rotvecs, rm
 
 
 def qa_metrics(res: dict, ref: dict, fits: dict[str, ViewFit], views: list[dict], unc: Optional[dict],
-               pred: Optional[dict], wd: float, image_size, mounting: MountingMode) -> tuple[dict, dict]:
+               pred: Optional[dict], wd: float, image_size, mounting: MountingMode, *,
+               coverage_cells_x: int = 16) -> tuple[dict, dict]:
     m: dict[str, Optional[float]] = {}
     c: dict[str, Any] = {}
     used_ids = {v["id"] for v in views if v["status"] == "used"}
@@ -80,7 +81,8 @@ def qa_metrics(res: dict, ref: dict, fits: dict[str, ViewFit], views: list[dict]
     # coverage
     pts = [fits[v].image_points_px for v in fits if v in used_ids or not used_ids]
     if image_size and pts:
-        counts = coverage_counts(np.concatenate(pts), width=int(image_size[0]), height=int(image_size[1]))
+        counts = coverage_counts(np.concatenate(pts), width=int(image_size[0]), height=int(image_size[1]),
+                                 cells_x=coverage_cells_x)
         m["image_coverage"] = float((counts > 0).mean())
         c["coverage_counts"] = counts
     else:

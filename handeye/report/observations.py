@@ -109,8 +109,9 @@ def median_board_distance_m(fits: dict[str, ViewFit], board_centre_m: np.ndarray
     return float(np.median(d)) if d else float("nan")
 
 
-def coverage_counts(points_px: np.ndarray, *, width: int, height: int, cells_x: int = 16) -> np.ndarray:
-    """Corner counts in a grid of square-ish cells over the image (rows, cols)."""
+def coverage_counts(points_px: np.ndarray, *, width: int, height: int, cells_x: int) -> np.ndarray:
+    """Corner counts in a grid of square-ish cells over the image (rows, cols); ``cells_x`` across the
+    width (configs/qa.yaml ``coverage_grid_cells_x``), rows in proportion."""
     cells_y = max(1, int(round(cells_x * height / max(width, 1))))
     pts = np.asarray(points_px, float).reshape(-1, 2)
     counts = np.zeros((cells_y, cells_x), int)

@@ -55,6 +55,10 @@ def load_qa(path: str | Path | None = None) -> dict:
     if wd is not None and not (isinstance(wd, (int, float)) and wd > 0):
         raise ConfigError("working_distance_m must be a positive number of metres or null", path=src,
                           received=repr(wd))
+    cells = cfg.get("coverage_grid_cells_x", 16)
+    if not (isinstance(cells, int) and not isinstance(cells, bool) and cells >= 1):
+        raise ConfigError("coverage_grid_cells_x must be a positive whole number of cells", path=src,
+                          received=repr(cells))
     for name, lim in (cfg.get("checks") or {}).items():
         if not isinstance(lim, dict):
             raise ConfigError(f"checks.{name} must be a mapping of limits", path=src, received=repr(lim))
