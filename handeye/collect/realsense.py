@@ -14,7 +14,10 @@ model name and coefficients are always recorded.
 from __future__ import annotations
 
 import logging
+import queue
+import threading
 import time
+import weakref
 from pathlib import Path
 
 import cv2
@@ -100,13 +103,16 @@ class _RealSenseBase(Camera):
         self._device_info: dict = {}
 
     def _read_profile(self, profile) -> None:
+        """Intrinsics and device description from a started pipeline's profile."""
+        self._read_stream(profile.get_stream(self._rs.stream.color).as_video_stream_profile(), profile.get_device())
+
+    def _read_stream(self, vsp, dev) -> None:
+        """Intrinsics (OpenCV form plus the original model) and device description of a colour stream."""
         rs = self._rs
-        vsp = profile.get_stream(rs.stream.color).as_video_stream_profile()
         ii = vsp.get_intrinsics()
         self._intr, self._intr_source = intrinsics_from_realsense(
             fx=ii.fx, fy=ii.fy, ppx=ii.ppx, ppy=ii.ppy, width=ii.width, height=ii.height, model=str(ii.model),
             coeffs=ii.coeffs)
-        dev = profile.get_device()
         info = {}
         for key in ("name", "serial_number", "firmware_version", "product_line"):
             field = getattr(rs.camera_info, key)
@@ -193,7 +199,17 @@ class RealSenseCamera(_RealSenseBase):
 
 
 class BagCamera(_RealSenseBase):
-    """Frames from a RealSense recording (``.bag``, or ``.db3`` written by librealsense >= 2.56), one per grab."""
+    """Frames from a RealSense recording (``.bag``, or ``.db3`` written by librealsense >= 2.56), one per grab,
+    every frame in recorded order.
+
+    The recording is played through its playback device's colour sensor, not a pipeline: the device
+    is switched to non-real-time playback *before* it starts, and each frame is handed over through a
+    small blocking queue, so the player waits for the reader and no frame is ever dropped. (A pipeline
+    starts playing in real time the moment it starts; a reader that is late by one frame interval
+    before it can switch real time off - a loaded machine - loses the first frames.)
+    """
+
+    _QUEUE_FRAMES = 2  # frames decoded ahead of the reader (bounded memory; the player waits)
 
     def __init__(self, path: str | Path, *, timeout_s: float = 2.0):
         super().__init__()
@@ -202,31 +218,93 @@ class BagCamera(_RealSenseBase):
         if not self.path.is_file():
             raise ConfigError("RealSense recording not found", path=self.path, hint="give --camera bag:FILE")
         self.name = f"realsense recording {self.path.name}"
-        self.timeout_ms = int(timeout_s * 1000)
+        self.timeout_s = float(timeout_s)
         self.n_frames = 0
-        cfg = rs.config()
+        self._frames: queue.Queue = queue.Queue(maxsize=self._QUEUE_FRAMES)
+        self._closing = threading.Event()
+        self._delivered = threading.Event()  # the player has handed over at least one frame
+        self._sensor = None
+        self._playback = None
+        self._player: list = []  # [sensor, playback] once started, released by close
+        # a camera left open is closed before the interpreter exits (a player thread blocked in a
+        # Python callback during interpreter shutdown aborts the process)
+        self._finalizer = weakref.finalize(self, _stop_player, self._closing, self._player)
         try:
-            cfg.enable_device_from_file(str(self.path), repeat_playback=False)
-            cfg.enable_stream(rs.stream.color)
-            self._pipe = rs.pipeline()
-            profile = self._pipe.start(cfg)
+            self._playback = rs.context().load_device(str(self.path)).as_playback()
+            self._playback.set_real_time(False)  # before anything plays: every frame, in order
+            sensor, vsp = self._colour_stream()
+            self._read_stream(vsp, self._playback)
+            sensor.open(vsp)
+            self._sensor = sensor
+            self._player[:] = [sensor, self._playback]
+            sensor.start(self._on_frame)
         except RuntimeError as e:
-            self._pipe = None
+            self.close()
             raise HardwareError(f"cannot play the RealSense recording ({e})", path=self.path,
                                 hint="it needs a colour stream; check the file with realsense-viewer") from None
-        profile.get_device().as_playback().set_real_time(False)  # every frame, in order
-        self._read_profile(profile)
+
+    def _colour_stream(self):
+        rs = self._rs
+        for sensor in self._playback.query_sensors():
+            for p in sensor.get_stream_profiles():
+                if p.stream_type() == rs.stream.color:
+                    return sensor, p.as_video_stream_profile()
+        raise HardwareError("the recording has no colour stream", path=self.path,
+                            hint="record the colour stream (realsense-viewer: RGB camera on)")
+
+    def _ended(self) -> bool:
+        """The player has played the whole recording (it stops after handing over its last frame)."""
+        return self._delivered.is_set() and self._playback.current_status() == self._rs.playback_status.stopped
+
+    def _on_frame(self, frame) -> None:
+        """Player thread: convert the frame and wait for room in the queue (the player waits with it)."""
+        try:
+            item = (_bgr_from_frame(self._rs, frame), _frame_info(self._rs, frame))
+        except HardwareError as e:  # raised to the reader by the next grab
+            item = e
+        while not self._closing.is_set():
+            try:
+                self._frames.put(item, timeout=0.05)
+                self._delivered.set()
+                return
+            except queue.Full:
+                continue
 
     def grab(self) -> tuple[np.ndarray, float]:
-        if self._pipe is None:
+        if self._sensor is None:
             raise HardwareError("the recording is closed", path=self.path)
-        ok, fs = self._pipe.try_wait_for_frames(self.timeout_ms)
-        if not ok:
-            raise HardwareError(f"the recording has no more colour frames (after {self.n_frames})", path=self.path,
-                                hint="record a longer sequence or capture fewer views")
-        color = fs.get_color_frame()
-        if not color:
-            raise HardwareError("the recording delivered a frame set without colour", path=self.path)
+        deadline = time.monotonic() + self.timeout_s
+        while True:
+            try:
+                item = self._frames.get(timeout=0.02)
+                break
+            except queue.Empty:
+                # the player puts its last frame before it reports the end, so an empty queue after
+                # the end means no frame is left
+                if (self._ended() and self._frames.empty()) or time.monotonic() > deadline:
+                    raise HardwareError(f"the recording has no more colour frames (after {self.n_frames})",
+                                        path=self.path, hint="record a longer sequence or capture fewer views") from None
+        if isinstance(item, HardwareError):
+            raise item
+        image, info = item
         self.n_frames += 1
-        self.last_frame_info = _frame_info(self._rs, color)
-        return _bgr_from_frame(self._rs, color), time.time()
+        self.last_frame_info = info
+        return image, time.time()
+
+    def close(self) -> None:
+        """Stop the player and release the recording."""
+        self._sensor = self._playback = None
+        self._finalizer()
+
+
+def _stop_player(closing: threading.Event, player: list) -> None:
+    """Let a waiting frame callback return, stop and close the sensor, drop the playback device."""
+    closing.set()
+    if player:
+        sensor = player[0]
+        for step in (sensor.stop, sensor.close):
+            try:
+                step()
+            except RuntimeError:
+                pass
+    player.clear()
