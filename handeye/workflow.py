@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import logging
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -89,20 +90,31 @@ def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOpti
     t2 = time.perf_counter()
     _keep_previous(out_dir, failed=run.status != "ok")
     write_thumbnails(out_dir, {**run.failures, **run.detections})
-    write_json(out_dir / "observations.json", observations_dict(run))
-    res["seconds"] = seconds
-    result_path = write_json(out_dir / "result.json", res)
-    seconds["write"] = time.perf_counter() - t2
+    write_json(out_dir / "observations.json", observations_dict(run), indent=None)  # large, read by programs
+    return _finish(out_dir, res, seconds, report=report, qa=qa, t0=t0, t_write=t2, run=run, error=run.error,
+                   progress=progress)
+
+
+def _finish(out_dir: Path, res: dict, seconds: dict, *, report: bool, qa, t0: float, t_write: float, run,
+            error, progress) -> WorkflowResult:
+    """Write result.json, then the reports from the folder; result.json ends with every stage's time."""
+    result_path = out_dir / "result.json"
     paths = ()
     if report:
+        seconds["write"] = time.perf_counter() - t_write
+        res["seconds"] = dict(seconds)
+        write_json(result_path, res)  # the report is built from the folder: result.json first
         progress("reports")
         t3 = time.perf_counter()
         paths = tuple(_write_reports(out_dir, qa))
         seconds["report"] = time.perf_counter() - t3
+    else:
+        seconds["write"] = time.perf_counter() - t_write
     seconds["total"] = time.perf_counter() - t0
     res["seconds"] = seconds
-    write_json(result_path, res)  # again, now that every stage's time is known
-    return WorkflowResult(run.status, out_dir, result_path, res, run, run.error, paths, seconds)
+    write_json(result_path, res)
+    status = "ok" if error is None else "failed"
+    return WorkflowResult(status, out_dir, result_path, res, run, error, paths, seconds)
 
 
 def _failed_load(session_path, err: HandeyeError, *, mode, out_dir: Path, report: bool, qa, t0: float,
@@ -119,21 +131,13 @@ def _failed_load(session_path, err: HandeyeError, *, mode, out_dir: Path, report
         seconds["diagnose"] = time.perf_counter() - t1
     t2 = time.perf_counter()
     _keep_previous(out_dir, failed=True)
-    stale = out_dir / "observations.json"
-    if stale.exists():  # observations of an earlier run must not be read as this run's
-        stale.unlink()
-    res["seconds"] = seconds
-    result_path = write_json(out_dir / "result.json", res)
-    seconds["write"] = time.perf_counter() - t2
-    paths = ()
-    if report:
-        t3 = time.perf_counter()
-        paths = tuple(_write_reports(out_dir, qa))
-        seconds["report"] = time.perf_counter() - t3
-    seconds["total"] = time.perf_counter() - t0
-    res["seconds"] = seconds
-    write_json(result_path, res)
-    return WorkflowResult("failed", out_dir, result_path, res, None, err, paths, seconds)
+    for stale in (out_dir / "observations.json", out_dir / THUMBNAIL_DIR):  # an earlier run's, not this one's
+        if stale.is_dir():
+            shutil.rmtree(stale)
+        elif stale.exists():
+            stale.unlink()
+    return _finish(out_dir, res, seconds, report=report, qa=qa, t0=t0, t_write=t2, run=None, error=err,
+                   progress=lambda s: None)
 
 
 def _keep_previous(out_dir: Path, *, failed: bool) -> None:
@@ -158,7 +162,7 @@ def write_thumbnails(out_dir: Path, per_view: dict) -> list[Path]:
     for vid, rec in per_view.items():
         data = getattr(rec, "thumbnail_jpeg", None)
         if data:
-            written.append(atomic_write_bytes(folder / f"{vid}.jpg", bytes(data)))
+            written.append(atomic_write_bytes(folder / f"{vid}.jpg", bytes(data), durable=False))
     if folder.is_dir():
         keep = {p.name for p in written}
         for p in folder.glob("*.jpg"):

@@ -86,6 +86,13 @@ def test_result_folder_holds_the_outputs_and_seconds_cover_every_stage(refined):
     assert [p.name for p in wr.report_paths] == ["report.html", "report.md"]
     assert all(p.exists() and p.parent == out for p in wr.report_paths)
     assert len(res["provenance"]["inputs_sha256"]) == 64
+    # a thumbnail of every view, the hidden one too (the report shows why it was dropped); 640x480 -> ~240 px
+    thumbs = sorted(p.stem for p in (out / "thumbnails").glob("*.jpg"))
+    assert thumbs == sorted(str(k) for k in range(1, 13))
+    import cv2
+
+    h, w = cv2.imread(str(out / "thumbnails" / "6.jpg"), cv2.IMREAD_GRAYSCALE).shape
+    assert w == 240 and h == 180
     assert res["frames"][mounting(mode).x_name].startswith("pose of the camera")
     # the closed forms: all seven ran; on these clean views each agrees with the result to ~0.5 deg
     cf = res["closed_form"]
