@@ -520,6 +520,40 @@ def test_report_command_rebuilds_from_the_folder_alone(synthetic, tmp_path, caps
     assert _images_decode((dest / "report.html").read_text(encoding="utf-8"))["jpeg"] == n
 
 
+def test_matplotlib_and_jinja_load_only_when_a_report_is_written(synthetic):
+    """The calibrate command and a report without figures do not pay for matplotlib (or jinja2 for a context)."""
+    import sys
+
+    code = ("import sys; from handeye.report import build_report_context; import handeye.cli; "
+            "build_report_context(sys.argv[1], make_plots=False); "
+            "print(','.join(m for m in ('matplotlib', 'jinja2', 'PIL') if m in sys.modules))")
+    p = subprocess.run([sys.executable, "-c", code, str(synthetic["out"])], capture_output=True, text=True, check=True)
+    assert p.stdout.strip() == "", p.stdout
+
+
+def test_pose_figure_draws_both_mounting_modes():
+    """The pose figure for a moving camera (eye-in-hand) and a moving board (eye-to-hand), flagged views
+    included: a PNG of the figure's size (8.6 x 3.9 in at 100 dpi)."""
+    import cv2
+
+    from handeye.frames import T_from_rotvec
+    from handeye.report import plots
+
+    rng = np.random.default_rng(1)
+    T_be = np.stack([T_from_rotvec(rng.normal(size=3) * 0.3, [0.4, 0.1 * k, 0.5]) for k in range(6)])
+    T_x = T_from_rotvec([0.1, 0.2, 0.3], [0.01, 0.02, 0.05])
+    outline = np.array([[0, 0, 0], [0.2, 0, 0], [0.2, 0.15, 0], [0, 0.15, 0]], float)
+    flagged = [False, True, False, False, False, False]
+    with plots.style():
+        for moves in (True, False):
+            cams = T_be @ T_x if moves else np.repeat(T_x[None], 6, axis=0)
+            boards = np.repeat(T_x[None], 6, axis=0) if moves else T_be @ T_x
+            png = plots.poses_3d(T_base_cams=cams, T_base_ends=T_be, T_base_boards=boards, board_outline=outline,
+                                 flagged=flagged, camera_moves=moves)
+            img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+            assert img.shape == (390, 860, 3) and float(img.std()) > 10
+
+
 @pytest.mark.realdata
 def test_clean_real_dataset_is_not_reported_as_failed(tmp_path, shared_dataset):
     from handeye.session.importers import import_ical

@@ -25,8 +25,6 @@ from .observations import (as_cov6, as_T, board_disagreement, finite, median_boa
 from .qa import STATUS_ORDER, Verdict, evaluate
 from .uncertainty import Z95, form_sigmas, predicted_point_error
 
-MODE_TEXT = {"eye_in_hand": "Eye-in-hand (camera on the robot flange)",
-             "eye_to_hand": "Eye-to-hand (camera fixed, board in the gripper)"}
 SEVERITY_ORDER = {"fail": 0, "warn": 1, "info": 2}
 #: what a refinement outlier of each kind means for its view (the reason text itself is shown as is)
 OUTLIER_KIND_TEXT = {"robot_pose": "robot pose disagrees with the camera", "reprojection": "corners do not fit",
@@ -59,7 +57,7 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
         wd = median_board_distance_m(fits, board_centre)
 
     ctx: dict[str, Any] = {"x_name": x_name, "board_name": b_name, "parent": parent, "mode": mount.name,
-                           "mode_text": MODE_TEXT[mount.name] if mode_known else "Mounting mode unknown",
+                           "mode_text": _mode_text(mount) if mode_known else "Mounting mode unknown",
                            "ok": ok, "refined": bool(ref)}
     ctx["meta"] = _meta(res, obs)
     findings = _findings(diag)
@@ -108,6 +106,12 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     for v in views:
         v["has_thumb"] = v["id"] in ctx["thumbs"]
     return ctx
+
+
+def _mode_text(mount) -> str:
+    """``Eye-in-hand (camera on the robot's flange, board on the table)``."""
+    return (f"{mount.name.replace('_', '-').capitalize()} (camera {mount.camera_location}, "
+            f"board {mount.board_location})")
 
 
 def _num(x) -> float:
