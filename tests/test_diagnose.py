@@ -391,7 +391,7 @@ def test_board_moved_between_views(tmp_path, monkeypatch, mode):
 
 
 def test_one_rotation_axis_says_which_rotations_to_add(tmp_path, monkeypatch):
-    cs = _session("eye_in_hand", 16, tilt_deg=(0.0, 0.0), aim_deg=0.0, min_spread_deg=0.0)
+    cs = _session("eye_in_hand", 16, tilt_deg=(0.0, 0.0), aim_deg=0.0, min_axis_spread_deg=0.0)
     run, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch)
     assert run.status == "failed"
     assert _codes(d) == {"weak_motion"}

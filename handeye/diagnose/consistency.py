@@ -43,13 +43,15 @@ def view_disagreements(mode: str, fit: BoardFit, C: np.ndarray, T: np.ndarray) -
     return pose_differences(T, implied_robot_poses(mode, fit, C))
 
 
-def _implied_pose_covariance(mode: str, fit: BoardFit, k: int, C_k: np.ndarray, cov_C: np.ndarray) -> np.ndarray:
-    """Covariance (6,6) of view k's implied robot pose (right tangent) from its board pose's (right tangent)."""
+def _implied_pose_covariances(mode: str, fit: BoardFit, idx: np.ndarray, C: np.ndarray, cov_C: np.ndarray) -> np.ndarray:
+    """Covariances (K,6,6) of the implied robot poses (right tangent) of views ``idx`` with board poses ``C``
+    (K,4,4) from the board poses' covariances ``cov_C`` (K,6,6, right tangent): ``J S J^T`` with the
+    Jacobian of the implied pose taken numerically for all views at once (central differences)."""
     mm = mounting(mode)
-    A_inv, B_inv = inv_T(fit.A), inv_T(fit.B[fit.group_index()[k]])
-    T0 = mm.T_base_end_from_M(A_inv @ C_k @ B_inv)
-    J = tangent_jacobian(lambda C: tangent_difference(T0, mm.T_base_end_from_M(A_inv @ C @ B_inv)), C_k)
-    return J @ cov_C @ J.T
+    A_inv, B_inv = inv_T(fit.A), inv_T(fit.B[fit.group_index()[idx]])
+    T0 = mm.T_base_end_from_M(A_inv @ C @ B_inv)
+    J = tangent_jacobian(lambda Cs: tangent_difference(T0, mm.T_base_end_from_M(A_inv @ Cs @ B_inv)), C)  # (K,6,6)
+    return J @ cov_C @ np.swapaxes(J, 1, 2)
 
 
 @dataclass(frozen=True)
@@ -74,8 +76,8 @@ class RobotPoseCheck:
             T_star, P = self.T_implied[k], self.cov_implied[k]
         else:
             T_star = implied_robot_poses(self.mode, self.fit, C_k[None])[0]
-            P = (_implied_pose_covariance(self.mode, self.fit, k, C_k, cov_C_k) if cov_C_k is not None
-                 else np.zeros((6, 6)))
+            P = (_implied_pose_covariances(self.mode, self.fit, np.array([k]), C_k[None], cov_C_k[None])[0]
+                 if cov_C_k is not None else np.zeros((6, 6)))
         T_rep = np.asarray(T_reported, float).reshape(-1, 4, 4)
         d = tangent_difference(T_rep, np.broadcast_to(T_star, T_rep.shape))
         return robot_pose_test(d, np.broadcast_to(P, (len(T_rep), 6, 6)), robot_sigma_rot_rad=self.sigma_rot_rad,
@@ -94,7 +96,7 @@ def robot_pose_check(obs: PoseObservations, fit: BoardFit, *, covs: Optional[np.
     T_star = implied_robot_poses(obs.mode, fit, obs.C)
     e = tangent_difference(obs.T, T_star)  # (N,6)
     if covs is not None:
-        P = np.stack([_implied_pose_covariance(obs.mode, fit, k, obs.C[k], covs[k]) for k in range(obs.n)])
+        P = _implied_pose_covariances(obs.mode, fit, np.arange(obs.n), obs.C, covs)
     else:
         P = np.zeros((obs.n, 6, 6))
     use = fit.inliers()

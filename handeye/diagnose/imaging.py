@@ -1,11 +1,6 @@
-"""Image-level diagnostics: blur, exposure and coverage of the image by corners.
-
-The pixel measures (edge width, saturation) are pure functions on an 8-bit grey image and the
-detected corners of one view; the findings (blurred, overexposed, corners_bunched) are at the end. Blur is measured as the width of the board's own edges:
-across the edge between two neighbouring corners a step of contrast ``D`` blurred by a Gaussian of
-``sigma`` has a largest slope ``D / (sigma sqrt(2 pi))``, so ``sigma = D / (sqrt(2 pi) max|dI/ds|)``.
-A sharp, anti-aliased image gives about 0.5 px (pixel area and sampling); a blur adds in quadrature.
-"""
+"""Image-level findings: blurred, overexposed (from the blur and exposure measures that detection took on
+the image it decoded, :mod:`handeye.detect.quality`) and corners_bunched (coverage of the image by the
+corners of all views)."""
 from __future__ import annotations
 
 import numpy as np
