@@ -67,12 +67,9 @@ def plain(obj, *, nan_to_none: bool = False):
 
 
 def _json_default(o):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating, np.integer, np.bool_)):
-        return o.item()
-    if isinstance(o, Path):
-        return str(o)
+    """json's hook for what it cannot encode: the one converter, :func:`plain`."""
+    if isinstance(o, (np.ndarray, np.generic, Path)):
+        return plain(o)
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
