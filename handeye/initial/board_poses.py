@@ -90,15 +90,16 @@ def _resolve_orientation(cands, M) -> dict[str, int]:
     # pitch's sign follows the axis direction, which is defined consistently by the rotation vector;
     # 0.1 m of pitch weighs like 1 rad of angle
     cost = np.abs(ang_C - am) + np.abs(pitch_C - pm) / 0.1
+    cost[np.arange(n), :, np.arange(n), :] = 0.0  # a view is not compared with itself
+    idx = np.arange(n)
     best, best_cost = None, np.inf
     for r in range(n):
         lab = np.argmin(cost[:, :, r, 0], axis=1)
         lab[r] = 0
-        for _ in range(3):  # a few rounds of iterated conditional modes
+        for _ in range(3):  # a few rounds of iterated conditional modes (views updated one at a time)
             for i in range(n):
-                tot = [sum(cost[i, a, j, lab[j]] for j in range(n) if j != i) for a in range(k)]
-                lab[i] = int(np.argmin(tot))
-        c = sum(cost[i, lab[i], j, lab[j]] for i in range(n) for j in range(n) if i != j)
+                lab[i] = int(np.argmin(cost[i][:, idx, lab].sum(axis=1)))  # (k,): ordering a of view i vs all j
+        c = cost[idx[:, None], lab[:, None], idx[None, :], lab[None, :]].sum()
         if c < best_cost:
             best, best_cost = lab.copy(), c
     return {v: int(lab) for v, lab in zip(vids, _majority_frame(best, k))}
