@@ -61,6 +61,8 @@ class RobotPoseTest:
     flagged: np.ndarray  # (n,) bool
     rot_deg: np.ndarray  # (n,) |omega| of the disagreement
     trans_mm: np.ndarray  # (n,) |v| of the disagreement
+    sigma_rot_deg: np.ndarray  # (n,) sqrt(trace) of the rotation block of C + R: the RMS size of a correct pose's |omega|
+    sigma_trans_mm: np.ndarray  # (n,) the same for the translation
     threshold: float  # chi-square(6) quantile at 1 - alpha
     gates: RobotPoseGates
 
@@ -102,16 +104,18 @@ def robot_pose_test(disagreement: np.ndarray, covariance: np.ndarray, *, robot_s
     R = np.diag([robot_sigma_rot_rad ** 2] * 3 + [robot_sigma_trans_m ** 2] * 3)
     ok = np.all(np.isfinite(d), axis=1) & np.all(np.isfinite(C), axis=(1, 2))
     stat = np.full(d.shape[0], np.nan)
+    Ct = C + R
     if ok.any():
-        Ct = C[ok] + R
-        stat[ok] = np.einsum("ni,ni->n", d[ok], np.linalg.solve(Ct, d[ok][..., None])[..., 0])
+        stat[ok] = np.einsum("ni,ni->n", d[ok], np.linalg.solve(Ct[ok], d[ok][..., None])[..., 0])
+    diag = np.diagonal(Ct, axis1=1, axis2=2)
     p = np.where(ok, chdtrc(ROBOT_POSE_DOF, np.where(ok, stat, 0.0)), np.nan)
     rot_deg = np.degrees(np.linalg.norm(d[:, :3], axis=1))
     trans_mm = 1000.0 * np.linalg.norm(d[:, 3:], axis=1)
     large = (rot_deg > g.min_rot_deg) | (trans_mm > g.min_trans_mm)
     flagged = ok & (np.nan_to_num(p, nan=1.0) < g.alpha) & large
     return RobotPoseTest(statistic=stat, p_value=p, flagged=flagged, rot_deg=rot_deg, trans_mm=trans_mm,
-                         threshold=g.threshold, gates=g)
+                         sigma_rot_deg=np.degrees(np.sqrt(diag[:, :3].sum(axis=1))),
+                         sigma_trans_mm=1000.0 * np.sqrt(diag[:, 3:].sum(axis=1)), threshold=g.threshold, gates=g)
 
 
 # ------------------------------------------------------------------------------ the refinement's decisions
@@ -243,14 +247,28 @@ def _robot_test_sigmas(pb: "Problem") -> tuple[float, float]:
     return np.radians(pb.o.robot_sigma_deg), pb.o.robot_sigma_mm / 1000.0  # "none": configured tolerance
 
 
+def leave_one_out(e: np.ndarray, R: np.ndarray, S_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The prediction of a robot pose without its own prior, from a solve that had the prior.
+
+    ``e`` (6,): the prior's residual ``tangent_difference(T_reported, P)`` at the solution ``P``;
+    ``R`` (6,6): the prior's covariance (robot noise); ``S_p`` (6,6): the marginal covariance of ``P``
+    in that solve. For the linearised problem, ``S_p^-1 = S_loo^-1 + R^-1`` and
+    ``e = (R - S_p) R^-1 d`` with ``d`` the leave-one-out disagreement, so
+    ``d = R (R - S_p)^-1 e`` and ``S_loo = R (R - S_p)^-1 R - R``; ``d^T (S_loo + R)^-1 d`` is then
+    ``e^T (R - S_p)^-1 e``, Baarda's normalised residual. Raises LinAlgError when ``R - S_p`` is not
+    positive definite (the solve did not weigh the prior as ``R`` says)."""
+    np.linalg.cholesky(R - S_p)
+    C_inv_R = np.linalg.solve(R - S_p, R)
+    return C_inv_R.T @ e, R @ C_inv_R - R
+
+
 def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]) -> RobotPoseTest:
     """:func:`robot_pose_test` of every view's reported robot pose against what the other data imply.
 
     With the covariances of a Gaussian solve (``S_pp``, marginal covariance of each robot-pose
     variable): for a view whose prior is in the solve, the leave-one-out prediction from the prior
-    residual ``e`` (Baarda's data snooping): disagreement ``R (R - S_P)^-1 e`` with covariance
-    ``R (R - S_P)^-1 R - R`` (so the statistic is ``e^T (R - S_P)^-1 e``); for a view whose prior
-    was excluded, its free pose ``P`` with covariance ``S_P``. Otherwise (robust phase, views not
+    residual (:func:`leave_one_out`, Baarda's data snooping); for a view whose prior was excluded,
+    its free pose ``P`` with covariance ``S_P``. Otherwise (robust phase, views not
     in the solve) the camera-only pose with its own covariance, which ignores the uncertainty of
     ``T_x``, ``T_board`` and the intrinsics."""
     s_rot, s_trans = _robot_test_sigmas(pb)
@@ -264,9 +282,7 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
             e = e_all[i]
             try:
                 if pb.status[i] == "used":
-                    np.linalg.cholesky(R - Sp)
-                    C_inv_R = np.linalg.solve(R - Sp, R)
-                    d[i], C[i] = C_inv_R.T @ e, R @ C_inv_R - R
+                    d[i], C[i] = leave_one_out(e, R, Sp)
                 else:
                     d[i], C[i] = e, Sp
                 continue
@@ -347,7 +363,9 @@ def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = No
                                     f"{rot_deg:.3f} deg / {trans_mm:.2f} mm (Mahalanobis {dist:.1f}, "
                                     f"threshold {thr:.1f}); its corners still serve the intrinsics",
                                     size={"rot_deg": rot_deg, "trans_mm": trans_mm, "mahalanobis": dist,
-                                          "p_value": float(test.p_value[i]), "threshold": thr}))
+                                          "p_value": float(test.p_value[i]), "threshold": thr,
+                                          "sigma_rot_deg": float(test.sigma_rot_deg[i]),
+                                          "sigma_trans_mm": float(test.sigma_trans_mm[i])}))
         else:
             status.append("used")
     return Decision(tuple(status), tuple(masks), tuple(outliers), tuple(checks), test)
