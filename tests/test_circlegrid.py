@@ -5,6 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
+from handeye.detect import detect_gray
 from handeye.detect.circlegrid import detect_circlegrid
 from handeye.errors import ConfigError
 from handeye.session.target_spec import parse_target
@@ -12,6 +13,9 @@ from handeye.targets import CircleGridSpec
 
 # drawn board: dot (c, r) at texture pixel (MARGIN + PITCH*c, MARGIN + PITCH*r); x right, y down = front view
 PITCH, MARGIN, RADIUS = 36, 70, 9
+# dot centres within this of the drawn ones (px): measured up to 0.088 px on these views, a systematic
+# offset (a disk's blob centroid under perspective is not its projected centre), not noise
+DOT_TOL_PX = 0.15
 
 
 def _texture(cols: int, rows: int, *, origin_dot: bool, distractor: bool) -> np.ndarray:
@@ -110,7 +114,7 @@ def test_detects_drawn_grid_with_origin_dot_despite_a_larger_distractor():
     ids, pts = detect_circlegrid(img, CircleGridSpec(10, 10, 0.0254, origin_dot=True))
     assert np.array_equal(ids, np.arange(100))
     err = np.linalg.norm(pts - exp, axis=1)
-    assert err.max() < 0.25, f"dot centres off by up to {err.max():.2f} px"
+    assert err.max() < DOT_TOL_PX, f"dot centres off by up to {err.max():.2f} px"
 
 
 @pytest.mark.parametrize("turn", [cv2.ROTATE_90_CLOCKWISE, cv2.ROTATE_180, cv2.ROTATE_90_COUNTERCLOCKWISE])
@@ -122,7 +126,7 @@ def test_origin_dot_fixes_the_order_in_turned_images(turn):
     exp_t = {cv2.ROTATE_90_CLOCKWISE: np.stack([h - 1 - y, x], 1), cv2.ROTATE_180: np.stack([w - 1 - x, h - 1 - y], 1),
              cv2.ROTATE_90_COUNTERCLOCKWISE: np.stack([y, w - 1 - x], 1)}[turn]
     _, pts = detect_circlegrid(turned, CircleGridSpec(10, 10, 0.0254, origin_dot=True))
-    assert np.linalg.norm(pts - exp_t, axis=1).max() < 0.25
+    assert np.linalg.norm(pts - exp_t, axis=1).max() < DOT_TOL_PX
 
 
 def test_mirrored_image_is_numbered_as_seen_from_the_front():
@@ -132,9 +136,9 @@ def test_mirrored_image_is_numbered_as_seen_from_the_front():
     _, pts = detect_circlegrid(mirrored, CircleGridSpec(10, 10, 0.0254, origin_dot=True))
     assert _cross(pts, 10, 10) > 0, "ordering must have the handedness of a front view"
     exp_m = np.stack([w - 1 - exp[:, 0], exp[:, 1]], 1)
-    assert np.linalg.norm(pts[0] - exp_m[0]) < 0.25, "id 0 must be the big dot"
+    assert np.linalg.norm(pts[0] - exp_m[0]) < DOT_TOL_PX, "id 0 must be the big dot"
     # front handedness from the big dot: the detected x axis runs along the drawn y axis
-    assert np.linalg.norm(pts.reshape(10, 10, 2) - exp_m.reshape(10, 10, 2).transpose(1, 0, 2), axis=2).max() < 0.25
+    assert np.linalg.norm(pts.reshape(10, 10, 2) - exp_m.reshape(10, 10, 2).transpose(1, 0, 2), axis=2).max() < DOT_TOL_PX
 
 
 def test_plain_grid_order_is_a_turn_of_the_true_order():
@@ -146,7 +150,15 @@ def test_plain_grid_order_is_a_turn_of_the_true_order():
         if e is not None:
             # some symmetry maps the detected order onto the true one
             errs = [np.linalg.norm(pts[np.argsort(p)] - e, axis=1).max() for p in spec.symmetries()]
-            assert min(errs) < 0.25, errs
+            assert min(errs) < DOT_TOL_PX, errs
+
+
+def test_the_dispatcher_sends_circle_grids_to_the_circle_detector():
+    img, _, exp = _view()
+    spec = CircleGridSpec(10, 10, 0.0254, origin_dot=True)
+    ids, pts = detect_gray(img, spec)
+    assert np.array_equal(ids, np.arange(100)) and np.linalg.norm(pts - exp, axis=1).max() < DOT_TOL_PX
+    assert detect_gray(img, CircleGridSpec(12, 9, 0.02)) == "circle grid 12x9 not found"
 
 
 def test_reports_a_reason_when_the_grid_is_absent():

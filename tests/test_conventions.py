@@ -95,13 +95,25 @@ def test_pose_forms_are_consistent():
     f = pose_forms(T)
     assert np.allclose(f["translation_mm"], [100, 200, 300])
     back = T_from_pose_values([float(x) for x in f["vendor_pose_line"].split(",")], VENDOR_POSE_FORMAT)
-    assert pose_error(back, T)[0] < 1e-4
+    r_deg, t_mm = pose_error(back, T)
+    assert r_deg < 1e-4 and t_mm < 1e-3  # the line is printed to 1e-6 (m, rad): <= 5.7e-5 deg, 5e-4 mm
     w, x, y, z = f["quaternion_wxyz"]
     assert w >= 0 and abs(w * w + x * x + y * y + z * z - 1) < 1e-12
+    R_q = Rotation.from_quat([x, y, z, w]).as_matrix()
+    np.testing.assert_allclose(R_q, T[:3, :3], atol=1e-12)
+    np.testing.assert_allclose(Rotation.from_rotvec(f["rotvec_rad"]).as_matrix(), T[:3, :3], atol=1e-12)
+    np.testing.assert_allclose(np.degrees(f["rotvec_rad"]), f["rotvec_deg"], atol=1e-12)
 
 
 def test_inverse_and_mean():
     rng = np.random.default_rng(0)
     T = make_T(Rotation.random(random_state=3).as_matrix(), rng.normal(size=3))
     np.testing.assert_allclose(inv_T(T) @ T, np.eye(4), atol=1e-12)
-    np.testing.assert_allclose(mean_T(np.stack([T, T, T])), T, atol=1e-12)
+    # rotations R·Exp(±w) and translations t ± dt (0.37 rad, 5.4 cm each way) average back to T,
+    # and to neither of them
+    Rd = Rotation.from_rotvec([0.3, -0.1, 0.2]).as_matrix()
+    dt = np.array([0.05, 0.0, -0.02])
+    pair = np.stack([make_T(T[:3, :3] @ Rd, T[:3, 3] + dt), make_T(T[:3, :3] @ Rd.T, T[:3, 3] - dt)])
+    m = mean_T(pair)
+    np.testing.assert_allclose(m, T, atol=1e-12)
+    assert min(pose_error(m, P)[0] for P in pair) > 10.0  # degrees away from each member

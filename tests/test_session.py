@@ -3,11 +3,12 @@ import numpy as np
 import pytest
 import yaml
 
-from handeye.conventions import VENDOR_POSE_FORMAT, PoseFormat, pose_values_from_T
+from handeye.conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values, pose_values_from_T
 from handeye.detect import read_gray
 from handeye.errors import ConfigError, InputError
 from handeye.frames import T_from_rotvec
 from handeye.session import load_session
+from handeye.session.raw import raw_poses_of, read_raw_poses, read_session_lenient
 
 POSES = [T_from_rotvec([0.1 * k, -0.2, 0.3], [0.3, 0.05 * k, 0.4]) for k in range(1, 5)]
 
@@ -151,12 +152,20 @@ def test_native_given_intrinsics(tmp_path):
     ({"pose_format": {"rotation": "quaternion", "quaternion_order": "qxyz"}}, "quaternion_order"),
     ({"pose_format": {"rotation": "euler", "scale": 2}}, "unknown pose_format field 'scale'"),
     ({"intrinsics": {"fx": -1, "fy": 1, "cx": 1, "cy": 1, "image_size": [10, 10]}}, "intrinsics.fx"),
-    ({"intrinsics": {"fx": 1, "fy": 1, "cx": 1, "cy": 1, "dist": [0, "a"], "image_size": [10, 10]}}, "could not|dist"),
+    ({"intrinsics": {"fx": 1, "fy": 1, "cx": 1, "cy": 1, "dist": [0, "a", 0, 0], "image_size": [10, 10]}},
+     "intrinsics.dist must be 4 or 5 finite numbers"),
+    ({"intrinsics": {"fx": 1, "fy": 1, "cx": 1, "cy": 1, "dist": [0, 0, 0], "image_size": [10, 10]}},
+     "intrinsics.dist must be 4 or 5 finite numbers"),
+    ({"intrinsics": {"fx": 1, "fy": 1, "cx": 1, "cy": 1, "image_size": [10, 10], "use": "maybe"}}, "intrinsics.use"),
+    ({"target": {"type": "charuco", "squares": [5, 7], "square_m": 0.036, "marker_m": 0.018,
+                 "dictionary": "DICT_9X9_1"}}, "unknown ArUco dictionary"),
+    ({"views": "all of them"}, "views must be a list"),
     ({"handeye_session": 7}, "version"),
 ])
 def test_native_bad_config(tmp_path, extra, match):
-    with pytest.raises((ConfigError, InputError, ValueError), match=match):
+    with pytest.raises(ConfigError, match=match) as e:
         load_session(native(tmp_path, extra=extra))
+    assert "\n" not in str(e.value) and "session.yaml" in str(e.value)
 
 
 def test_native_rotation_matrix_that_is_not_a_rotation(tmp_path):
@@ -197,3 +206,90 @@ def test_missing_session(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(InputError, match="no session.yaml or poses.txt"):
         load_session(tmp_path / "empty")
+
+
+# ------------------------------------------------------------------------------ the lenient reading
+def _vendor_lines(scale_t=1.0, degrees=False):
+    out = []
+    for T in POSES:
+        v = pose_values_from_T(T, VENDOR_POSE_FORMAT)
+        v[:3] *= scale_t
+        if degrees:
+            v[3:] = np.degrees(v[3:])
+        out.append(",".join(f"{x:.9f}" for x in v))
+    return out
+
+
+def test_raw_poses_are_the_numbers_as_written(tmp_path):
+    d = vendor(tmp_path, lines=["# x,y,z,rx,ry,rz", *_vendor_lines(scale_t=1000.0)])
+    with pytest.raises(InputError, match="millimetres"):
+        load_session(d)  # the strict reading refuses millimetres ...
+    raw = read_raw_poses(d)  # ... the raw reading keeps them, numbered by pose line (comments skipped)
+    assert raw.fmt == VENDOR_POSE_FORMAT and raw.order == ("1", "2", "3", "4")
+    for k, T in enumerate(POSES, start=1):
+        np.testing.assert_allclose(raw.values[str(k)][:3], T[:3, 3] * 1000.0, atol=1e-6)
+    from_file = read_raw_poses(d / "poses.txt")  # the poses.txt path names the same session
+    assert from_file.order == raw.order and all(np.array_equal(from_file.values[k], raw.values[k]) for k in raw.order)
+    assert read_raw_poses(tmp_path / "nothing") is None
+
+
+def test_lenient_and_strict_readings_agree_on_a_clean_session(tmp_path):
+    for folder in (vendor(tmp_path), native(tmp_path)):
+        s = load_session(folder)
+        lenient = read_session_lenient(folder)
+        assert lenient.target == s.target and lenient.mode == s.mode
+        assert lenient.images_by_id == {v.view_id: v.image_path for v in s.views}
+        for v in s.views:  # the raw numbers read in the stated format are the loaded poses
+            np.testing.assert_allclose(T_from_pose_values(lenient.raw.values[v.view_id], lenient.raw.fmt),
+                                       v.T_base_end, atol=1e-12)
+        assert raw_poses_of(s).source == lenient.raw.source  # still the file's numbers
+
+
+def test_lenient_reading_of_a_session_written_in_degrees(tmp_path):
+    d = vendor(tmp_path, lines=_vendor_lines(degrees=True),
+               config={"checkerboard_args": {"XX": 11, "YY": 8, "L": 0.03}, "mode": "eye_to_hand"})
+    (d / "2.jpg").unlink()
+    with pytest.raises(InputError, match="degrees"):
+        load_session(d)
+    lenient = read_session_lenient(d, mode=None)
+    assert lenient.mode == "eye_to_hand" and read_session_lenient(d, mode="eye_in_hand").mode == "eye_in_hand"
+    assert sorted(lenient.images_by_id) == ["1", "3", "4"] and sorted(lenient.raw.values) == ["1", "2", "3", "4"]
+    np.testing.assert_allclose(np.radians(lenient.raw.values["3"][3:]),
+                               pose_values_from_T(POSES[2], VENDOR_POSE_FORMAT)[3:], atol=1e-9)
+    assert lenient.intrinsics is None
+
+
+def test_lenient_native_keeps_given_intrinsics_and_view_records(tmp_path):
+    intr = {"model": "opencv5", "fx": 900.0, "fy": 901.0, "cx": 640.0, "cy": 360.0, "image_size": [1280, 720],
+            "use": "fixed"}
+    d = native(tmp_path, views=[], extra={"view_records": "views", "intrinsics": intr, "mode": None})
+    (d / "views").mkdir()
+    fmt = PoseFormat(rotation="quaternion", quaternion_order="xyzw", translation_unit="mm")
+    for k, T in enumerate(POSES, start=1):
+        (d / f"img{k}.png").write_bytes(b"x")
+        (d / "views" / f"{k:04d}.yaml").write_text(yaml.safe_dump(
+            {"id": str(k), "image": f"img{k}.png", "pose": pose_values_from_T(T, fmt).tolist()}))
+    with pytest.raises(ConfigError, match="invalid mode"):
+        load_session(d)  # the strict reading needs a mode
+    lenient = read_session_lenient(d)
+    assert lenient.mode == "eye_in_hand" and lenient.intrinsics.fx == 900.0
+    assert sorted(lenient.images_by_id) == ["1", "2", "3", "4"] and lenient.raw.order == ("1", "2", "3", "4")
+
+
+def test_raw_poses_of_a_session_whose_file_changed_are_the_loaded_poses(tmp_path):
+    d = vendor(tmp_path)
+    s = load_session(d)
+    lines = _vendor_lines()
+    lines[1] = "0.5,0.5,0.5,0,0,0"  # the file no longer says what was loaded
+    (d / "poses.txt").write_text("\n".join(lines) + "\n")
+    raw = raw_poses_of(s)
+    assert raw.source == "loaded poses" and raw.fmt == VENDOR_POSE_FORMAT
+    for v in s.views:
+        np.testing.assert_allclose(T_from_pose_values(raw.values[v.view_id], raw.fmt), v.T_base_end, atol=1e-12)
+
+
+def test_unreadable_sessions_read_leniently_are_none(tmp_path):
+    d = vendor(tmp_path, lines=["not numbers"])
+    assert read_session_lenient(d) is None and read_raw_poses(d) is None
+    (d / "poses.txt").unlink()
+    assert read_session_lenient(d) is None

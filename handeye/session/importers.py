@@ -17,13 +17,7 @@ import yaml
 
 from ..errors import InputError
 from ..output import atomic_write_text
-
-
-def _load(path: Path):
-    try:
-        return yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as e:
-        raise InputError(f"cannot read ({e.__class__.__name__})", path=path) from None
+from .fields import read_yaml
 
 
 def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool = False) -> Path:
@@ -42,7 +36,7 @@ def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool 
     for k in sorted(imgs):
         if k not in poses:
             raise InputError(f"image {imgs[k].name} has no pose file", path=src)
-        data = _load(poses[k])["data"]
+        data = read_yaml(poses[k])["data"]
         views.append({"id": str(k), "image": str(imgs[k]), "pose": [float(v[0]) for v in data]})
     doc = {"handeye_session": 1, "mode": "eye_in_hand",
            "target": {"type": "chessboard", "inner_corners": [int(m.group(1)), int(m.group(2))],
@@ -63,7 +57,7 @@ def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool 
 
 def import_ical(src: str | Path, out: str | Path, *, image_dir: str | None = None) -> Path:
     src, out = Path(src).resolve(), Path(out)
-    cal = _load(src / "cal_data.yaml")
+    cal = read_yaml(src / "cal_data.yaml")
     if not isinstance(cal, dict) or "data" not in cal:
         raise InputError("cal_data.yaml has no data list", path=src / "cal_data.yaml")
     views = []
@@ -72,7 +66,7 @@ def import_ical(src: str | Path, out: str | Path, *, image_dir: str | None = Non
         if image_dir is not None or not img.exists():
             alt = src / (image_dir or "images_gray") / Path(entry["image"]).name
             img = alt if alt.exists() else img
-        p = _load(src / entry["pose"])
+        p = read_yaml(src / entry["pose"])
         views.append({"id": Path(entry["image"]).stem, "image": str(img),
                       "pose": [p["x"], p["y"], p["z"], p["qw"], p["qx"], p["qy"], p["qz"]]})
     tgt = cal.get("target_finder", {})

@@ -104,7 +104,10 @@ def parse_intrinsics(d, *, path: Path) -> tuple[Optional[Intrinsics], str]:
                           received=repr(model))
     vals = {k: positive_number(d.get(k), path=path, field=f"intrinsics.{k}") for k in ("fx", "fy", "cx", "cy")}
     dist = d.get("dist", [0, 0, 0, 0, 0]) if model == "opencv5" else [0, 0, 0, 0, 0]
-    dist = np.asarray(dist, dtype=float).reshape(-1)
+    try:
+        dist = np.asarray(dist, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        dist = np.array([np.nan])
     if dist.size not in (4, 5) or not np.all(np.isfinite(dist)):
         raise ConfigError("intrinsics.dist must be 4 or 5 finite numbers (k1, k2, p1, p2[, k3])", path=path,
                           received=repr(d.get("dist")))

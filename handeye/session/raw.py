@@ -21,7 +21,7 @@ from ..records import Session, view_id_key
 from ..targets import TargetSpec
 from .fields import check_mode, locate_session
 from .native import read_native_document
-from .vendor import numbered_images, read_pose_lines, read_vendor_config
+from .vendor import VENDOR_DEFAULT_MODE, numbered_images, read_pose_lines, read_vendor_config
 
 log = logging.getLogger(__name__)
 
@@ -100,7 +100,8 @@ def raw_poses_of(session: Session) -> RawPoses:
 def read_session_lenient(path: str | Path, *, mode: Optional[str] = None) -> Optional[LenientSession]:
     """The session at ``path`` without unit checks, or None when even that cannot be read.
 
-    ``mode`` overrides the mode the session states (default eye_in_hand when it states none).
+    ``mode`` overrides the mode the session states; a session that states none is read in the vendor's
+    default mode (the strict native loader requires one).
     """
     try:
         kind, p = locate_session(path)
@@ -110,12 +111,12 @@ def read_session_lenient(path: str | Path, *, mode: Optional[str] = None) -> Opt
             images = {str(e.data["id"]): p.parent / str(e.data["image"]) for e in doc.entries}
             images = {v: f for v, f in images.items() if f.exists()}
             intr = doc.intrinsics if doc.intrinsics_use in ("fixed", "prior") else None
-            return LenientSession(doc.target, check_mode(mode or doc.mode or "eye_in_hand", path=p), raw,
+            return LenientSession(doc.target, check_mode(mode or doc.mode or VENDOR_DEFAULT_MODE, path=p), raw,
                                   images, intr)
         target, cfg_mode, _ = read_vendor_config(p, strict=False)
         raw = _raw_vendor(p)
         images = {str(k): f for k, f in numbered_images(p).items()}
-        return LenientSession(target, check_mode(mode or cfg_mode or "eye_in_hand", path=p / "config.yaml"), raw,
+        return LenientSession(target, check_mode(mode or cfg_mode or VENDOR_DEFAULT_MODE, path=p / "config.yaml"), raw,
                               images, None)
     except _UNREADABLE as e:
         log.debug("session %s unreadable even leniently: %s", path, e)

@@ -26,6 +26,8 @@ log = logging.getLogger(__name__)
 IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 _NUMBERED = re.compile(r"^(\d+)$")
 _POSE_EXPECTED = "x,y,z,rx,ry,rz (metres, radians)"
+#: the mode of a vendor session whose config.yaml states none (the vendor's rig is eye-in-hand)
+VENDOR_DEFAULT_MODE = "eye_in_hand"
 
 
 @dataclass(frozen=True)
@@ -107,7 +109,7 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
     """The vendor folder, validated: units checked, every image paired with its pose line."""
     folder = Path(folder)
     target, cfg_mode, cfg = read_vendor_config(folder)
-    sess_mode = check_mode(mode if mode is not None else (cfg_mode or "eye_in_hand"), path=folder / "config.yaml")
+    sess_mode = check_mode(mode if mode is not None else (cfg_mode or VENDOR_DEFAULT_MODE), path=folder / "config.yaml")
 
     poses_path = folder / "poses.txt"
     poses: list[tuple[int, np.ndarray]] = []  # (line number, T)
