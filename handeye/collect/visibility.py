@@ -13,12 +13,13 @@ import cv2
 import numpy as np
 
 from ..camera import Intrinsics, pixels_from_cam_points
+from ..config import load_preset
 from ..errors import ConfigError
 from ..frames import transform_points
 from ..targets import CharucoSpec, ChessboardSpec, CircleGridSpec, TargetSpec
 
-#: Every point of the board outline must lie this far (m) in front of the camera to count as visible.
-_MIN_DEPTH_M = 0.05
+#: Margins and depth limit of a visible board (configs/collect.yaml ``visibility:``, with their origin).
+_LIMITS = load_preset("collect")["visibility"]
 
 
 def pattern_bounds(target: TargetSpec, *, margin_squares: float = 0.0) -> tuple[float, float, float, float]:
@@ -67,8 +68,9 @@ def _board_grid_points(target: TargetSpec, *, margin_squares: float, step_m: flo
 
 
 def default_margin_px(intrinsics: Intrinsics) -> float:
-    """Margin kept between the pattern and the image border: 1.5 % of the width, at least 8 px."""
-    return max(8.0, 0.015 * intrinsics.width)
+    """Margin kept between the pattern and the image border (configs/collect.yaml ``visibility:``:
+    1.5 % of the width, at least 8 px)."""
+    return max(float(_LIMITS["min_margin_px"]), float(_LIMITS["margin_share_of_width"]) * intrinsics.width)
 
 
 def image_normalized_extent(intrinsics: Intrinsics) -> dict:
@@ -119,7 +121,7 @@ def board_in_image(target: TargetSpec, intrinsics: Intrinsics, T_cam_board: np.n
     margin = default_margin_px(intrinsics) if margin_px is None else float(margin_px)
     ext = image_normalized_extent(intrinsics)
     p_cam = transform_points(T_cam_board, _outline_points(target))  # shape (4n, 3)
-    if np.any(p_cam[:, 2] <= _MIN_DEPTH_M):
+    if np.any(p_cam[:, 2] <= float(_LIMITS["min_depth_m"])):
         return False
     r2 = (p_cam[:, 0] ** 2 + p_cam[:, 1] ** 2) / p_cam[:, 2] ** 2
     if np.any(r2 > ext["r2_max"]):
