@@ -2,7 +2,8 @@
 
 Each spec is a frozen dataclass with ``object_points()`` (the board-frame corner positions, metres,
 in OpenCV's numbering), ``symmetries()`` (the corner permutations a detector cannot tell apart),
-``to_dict()`` (the session/result form) and ``describe()`` (one line for messages).
+``to_dict()`` (the session/result form; :func:`handeye.session.target_spec.parse_target` reads it
+back with validation) and ``describe()`` (one line for messages).
 """
 from __future__ import annotations
 
@@ -49,7 +50,7 @@ class ChessboardSpec:
         is always first, then the 180-degree turn, then (square grids) the 90 and 270-degree turns.
         With (cols+1) x (rows+1) squares, a half turn maps the colour pattern onto itself when
         cols + rows is even. (On an asymmetric board the colours decide; a detector that numbers
-        such a board from the other end is corrected in detection, see detect.normalize_chessboard_order.)
+        such a board from the other end is corrected in detection, see handeye.detect.chessboard.normalize_chessboard_order.)
         """
         if (self.cols + self.rows) % 2 == 1:
             return [np.arange(self.n_corners)]
@@ -57,6 +58,9 @@ class ChessboardSpec:
 
     def to_dict(self) -> dict:
         return {"type": "chessboard", "inner_corners": [self.cols, self.rows], "square_m": self.square_m}
+
+    def describe(self) -> str:
+        return f"chessboard {self.cols}x{self.rows} inner corners, {self.square_m * 1000:g} mm"
 
 
 @dataclass(frozen=True)
@@ -87,6 +91,10 @@ class CharucoSpec:
         return {"type": "charuco", "squares": [self.squares_x, self.squares_y], "square_m": self.square_m,
                 "marker_m": self.marker_m, "dictionary": self.dictionary,
                 "legacy_pattern": self.legacy_pattern}
+
+    def describe(self) -> str:
+        return (f"ChArUco {self.squares_x}x{self.squares_y} squares, {self.square_m * 1000:g} mm squares, "
+                f"{self.marker_m * 1000:g} mm markers, {self.dictionary}")
 
 
 @dataclass(frozen=True)
@@ -140,6 +148,11 @@ class CircleGridSpec:
     def to_dict(self) -> dict:
         return {"type": "circlegrid", "grid": [self.cols, self.rows], "spacing_m": self.spacing_m,
                 "asymmetric": self.asymmetric, "origin_dot": self.origin_dot}
+
+    def describe(self) -> str:
+        layout = "asymmetric " if self.asymmetric else ""
+        dot = ", origin dot" if self.origin_dot else ""
+        return f"{layout}circle grid {self.cols}x{self.rows} dots, {self.spacing_m * 1000:g} mm spacing{dot}"
 
 
 TargetSpec = Union[ChessboardSpec, CharucoSpec, CircleGridSpec]

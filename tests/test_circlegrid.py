@@ -91,7 +91,7 @@ def test_symmetries_match_chessboard_order_for_square_grids():
     from handeye.targets import ChessboardSpec
 
     for a, b in zip(CircleGridSpec(6, 6, 0.02).symmetries(), ChessboardSpec(6, 6, 0.02).symmetries()):
-        assert np.array_equal(a, b)  # seed._majority_frame relies on the order 0, 180, 90, 270 degrees
+        assert np.array_equal(a, b)  # initial.board_poses._majority_frame relies on the order 0, 180, 90, 270 degrees
 
 
 def test_parse_target_round_trip_and_errors():

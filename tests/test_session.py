@@ -1,4 +1,6 @@
 """Reading the vendor folder and the native session.yaml, and every bad input's one-line error."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 import yaml
@@ -9,6 +11,8 @@ from handeye.errors import ConfigError, InputError
 from handeye.frames import T_from_rotvec
 from handeye.session import load_session
 from handeye.session.raw import raw_poses_of, read_raw_poses, read_session_lenient
+from handeye.session.target_spec import parse_target
+from handeye.targets import CharucoSpec, ChessboardSpec, CircleGridSpec
 
 POSES = [T_from_rotvec([0.1 * k, -0.2, 0.3], [0.3, 0.05 * k, 0.4]) for k in range(1, 5)]
 
@@ -293,3 +297,14 @@ def test_unreadable_sessions_read_leniently_are_none(tmp_path):
     assert read_session_lenient(d) is None and read_raw_poses(d) is None
     (d / "poses.txt").unlink()
     assert read_session_lenient(d) is None
+
+
+@pytest.mark.parametrize("spec, text", [
+    (ChessboardSpec(11, 8, 0.03), "chessboard 11x8 inner corners, 30 mm"),
+    (CharucoSpec(5, 7, 0.036195, 0.018256, "DICT_6X6_250", True),
+     "ChArUco 5x7 squares, 36.195 mm squares, 18.256 mm markers, DICT_6X6_250"),
+    (CircleGridSpec(10, 10, 0.0254, origin_dot=True), "circle grid 10x10 dots, 25.4 mm spacing, origin dot"),
+])
+def test_target_specs_read_back_what_they_write(spec, text):
+    assert parse_target(spec.to_dict(), path=Path("session.yaml")) == spec
+    assert spec.describe() == text
