@@ -8,25 +8,27 @@ import cv2
 import numpy as np
 
 from ..targets import CircleGridSpec
-from .options import DetectionOptions, default_options
+from .options import CircleBlobOptions, DetectionOptions, default_options
 
 log = logging.getLogger(__name__)
 
 
-def circle_blob_detector(image_size: tuple[int, int]) -> "cv2.SimpleBlobDetector":
-    """Dark round blobs, as industrial_calibration's circle finder is configured (thresholds 20-220 in 10s,
-    seen at 3+ thresholds, convex, area 25-5000 px² at 640x480, the upper bound scaled with the image)."""
+def circle_blob_detector(image_size: tuple[int, int], options: CircleBlobOptions | None = None
+                         ) -> "cv2.SimpleBlobDetector":
+    """Dark round blobs, set up as industrial_calibration's circle finder (configs/detection.yaml
+    ``circle_blobs``); the largest blob area grows with the image area beyond 640x480."""
+    o = options or default_options().circle_blobs
     w, h = image_size
     p = cv2.SimpleBlobDetector_Params()
-    p.minThreshold, p.maxThreshold, p.thresholdStep = 20, 220, 10
-    p.minRepeatability = 3
-    p.minDistBetweenBlobs = 5
+    p.minThreshold, p.maxThreshold, p.thresholdStep = o.min_threshold, o.max_threshold, o.threshold_step
+    p.minRepeatability = o.min_repeatability
+    p.minDistBetweenBlobs = o.min_dist_px
     p.filterByColor, p.blobColor = True, 0
-    p.filterByArea, p.minArea = True, 25.0
-    p.maxArea = 5000.0 * max(1.0, (w * h) / (640 * 480))
+    p.filterByArea, p.minArea = True, o.min_area_px2
+    p.maxArea = o.max_area_px2_at_640x480 * max(1.0, (w * h) / (640 * 480))
     p.filterByCircularity = False
     p.filterByInertia = False
-    p.filterByConvexity, p.minConvexity = True, 0.95
+    p.filterByConvexity, p.minConvexity = True, o.min_convexity
     return cv2.SimpleBlobDetector_create(p)
 
 
@@ -42,7 +44,7 @@ def detect_circlegrid(gray: np.ndarray, spec: CircleGridSpec, *, options: Detect
     """
     o = options or default_options()
     h, w = gray.shape
-    blobs = circle_blob_detector((w, h))
+    blobs = circle_blob_detector((w, h), o.circle_blobs)
     flags = cv2.CALIB_CB_ASYMMETRIC_GRID if spec.asymmetric else cv2.CALIB_CB_SYMMETRIC_GRID
     found, centers = cv2.findCirclesGrid(gray, (spec.cols, spec.rows), flags=flags | cv2.CALIB_CB_CLUSTERING,
                                          blobDetector=blobs)

@@ -12,6 +12,20 @@ from ..errors import ConfigError
 
 
 @dataclass(frozen=True)
+class CircleBlobOptions:
+    """cv2.SimpleBlobDetector settings for circle-grid dots (see configs/detection.yaml)."""
+
+    min_threshold: float
+    max_threshold: float
+    threshold_step: float
+    min_repeatability: int
+    min_dist_px: float
+    min_area_px2: float
+    max_area_px2_at_640x480: float
+    min_convexity: float
+
+
+@dataclass(frozen=True)
 class DetectionOptions:
     min_corners: int  # fewest corners a view needs
     half_size_above_px: int  # chessboards are searched at half size in larger images
@@ -23,6 +37,7 @@ class DetectionOptions:
     subpix_eps_px: float
     order_cue_min_grey: float  # grey-level difference that decides a chessboard's corner order
     origin_dot_ratio: float  # circle grids: size ratio of the origin dot to the others
+    circle_blobs: CircleBlobOptions
     sharp_edge_sigma_px: float  # edge width of a sharp image
     saturated_grey: int  # grey level counted as saturated
     thumbnail_width_px: int
@@ -30,17 +45,25 @@ class DetectionOptions:
 
     @classmethod
     def from_config(cls, cfg: dict) -> "DetectionOptions":
-        names = {f.name for f in fields(cls)}
-        unknown, missing = set(cfg) - names, names - set(cfg)
-        if unknown or missing:
-            raise ConfigError("detection settings do not match", path="configs/detection.yaml",
-                              expected=", ".join(sorted(names)),
-                              received=f"unknown {sorted(unknown)}, missing {sorted(missing)}")
-        return cls(**cfg)
+        """From the ``detection:`` mapping; a missing or unknown key is a ConfigError naming it."""
+        _check_keys(cls, cfg, "detection")
+        _check_keys(CircleBlobOptions, cfg["circle_blobs"], "detection.circle_blobs")
+        return cls(**dict(cfg, circle_blobs=CircleBlobOptions(**cfg["circle_blobs"])))
 
     @property
     def subpix_criteria(self) -> tuple:
         return (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, self.subpix_max_iter, self.subpix_eps_px)
+
+
+def _check_keys(cls, cfg, section: str) -> None:
+    names = {f.name for f in fields(cls)}
+    if not isinstance(cfg, dict):
+        raise ConfigError(f"{section} must be a mapping", path="configs/detection.yaml", received=repr(cfg))
+    unknown, missing = set(cfg) - names, names - set(cfg)
+    if unknown or missing:
+        raise ConfigError(f"{section} settings do not match", path="configs/detection.yaml",
+                          expected=", ".join(sorted(names)),
+                          received=f"unknown {sorted(unknown)}, missing {sorted(missing)}")
 
 
 @functools.lru_cache(maxsize=None)
