@@ -283,7 +283,8 @@ class BagCamera(_RealSenseBase):
                 # the end means no frame is left
                 if (self._ended() and self._frames.empty()) or time.monotonic() > deadline:
                     raise HardwareError(f"the recording has no more colour frames (after {self.n_frames})",
-                                        path=self.path, hint="record a longer sequence or capture fewer views") from None
+                                        path=self.path,
+                                        hint="record a longer sequence or capture fewer views") from None
         if isinstance(item, HardwareError):
             raise item
         image, info = item

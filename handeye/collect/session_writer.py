@@ -8,10 +8,11 @@ Layout written:
     OUT/ground_truth.json     simulated backends only
 
 Every file is written by :func:`handeye.output.atomic_write_bytes` (a temporary ``.<name>.*.tmp`` in
-the same folder, flushed, fsync'ed and renamed over its final name; ``os.replace`` is atomic on POSIX
-and Windows), then the folder is fsync'ed so the rename itself survives a power loss. The image is written before its record, so a record that exists always has its image;
-a kill at any moment loses at most the capture in flight (an orphan image or a ``.tmp`` file,
-both ignored by the loader).
+the same folder, flushed, fsync'ed and renamed over its final name; ``os.replace`` is atomic on
+POSIX and Windows), then the folder is fsync'ed so the rename itself survives a power loss. The
+image is written before its record, so a record that exists always has its image; a kill at any
+moment loses at most the capture in flight (an orphan image or a ``.tmp`` file, both ignored by the
+loader).
 
 Poses are written as ``T_base_end`` 4x4 matrices in metres (``pose_format: {rotation: matrix,
 translation_unit: m}``): no angle convention to get wrong, full float precision.

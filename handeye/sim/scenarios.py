@@ -173,7 +173,8 @@ def _T_cam_board_from_view(target: TargetSpec, *, distance_m: float, tilt_rad: f
     return inv_T(make_T(R_board_cam, o_board))
 
 
-def _T_base_end_from_T_cam_board(mode: str, T_x: np.ndarray, T_board: np.ndarray, T_cam_board: np.ndarray) -> np.ndarray:
+def _T_base_end_from_T_cam_board(mode: str, T_x: np.ndarray, T_board: np.ndarray,
+                                 T_cam_board: np.ndarray) -> np.ndarray:
     """Invert the model: T_cam_board = inv(T_x) · M · T_board  ->  M  ->  T_base_end."""
     mount = mounting(mode)
     M = T_x @ T_cam_board @ inv_T(T_board)

@@ -68,7 +68,8 @@ def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 2
     """
     if not isinstance(target, ChessboardSpec):
         raise ConfigError("the vendor layout describes chessboards only", expected="a ChessboardSpec target",
-                          received=type(target).__name__, hint="render ChArUco boards with handeye.sim.render.render_view")
+                          received=type(target).__name__,
+                          hint="render ChArUco boards with handeye.sim.render.render_view")
     fmt = str(image_format).lower().lstrip(".")
     if fmt == "jpeg":
         fmt = "jpg"
