@@ -86,6 +86,31 @@ def _png(fig) -> bytes:
     return buf.getvalue()
 
 
+@contextlib.contextmanager
+def _no_grid():
+    """Axes created inside have no grid (switching it off afterwards touches every tick again)."""
+    import matplotlib
+
+    was = matplotlib.rcParams["axes.grid"]
+    matplotlib.rcParams["axes.grid"] = False
+    try:
+        yield
+    finally:
+        matplotlib.rcParams["axes.grid"] = was
+
+
+def _bars(ax, x: np.ndarray, height: np.ndarray, width: float, *, color, edgecolors, label: str) -> None:
+    """Bars as one collection (``ax.bar`` makes an artist per bar)."""
+    from matplotlib.collections import PolyCollection
+
+    x0, x1 = x - width / 2, x + width / 2
+    h = np.nan_to_num(np.asarray(height, float))
+    verts = np.stack([np.stack([x0, np.zeros_like(h)], 1), np.stack([x0, h], 1), np.stack([x1, h], 1),
+                      np.stack([x1, np.zeros_like(h)], 1)], axis=1)
+    ax.add_collection(PolyCollection(verts, facecolors=color, edgecolors=edgecolors, linewidths=1.2, label=label))
+    ax.update_datalim([(float(x0.min()), 0.0), (float(x1.max()), float(h.max(initial=0.0)))])
+
+
 def _few_ticks(*axes, n: int = 5) -> None:
     """At most ``n`` ticks per axis: every tick is several artists, and ticks are most of a figure's cost."""
     from matplotlib.ticker import MaxNLocator
@@ -138,7 +163,7 @@ def residual_histogram(camera_px: np.ndarray, chain_px: Optional[np.ndarray], *,
              4.0 * sigma_px if np.isfinite(sigma_px) else 0.0, 1e-6)
     bins = np.linspace(0.0, hi, 40)
     if len(e):
-        ax.hist(np.clip(e, 0, hi), bins=bins, density=True, color=NAVY, alpha=0.7,
+        ax.hist(np.clip(e, 0, hi), bins=bins, density=True, histtype="stepfilled", color=NAVY, alpha=0.7,
                 label=f"camera fit: {len(e)} corners, RMS {np.sqrt(np.mean(e ** 2)):.3f} px")
     if ec is not None and len(ec):
         ax.hist(np.clip(ec, 0, hi), bins=bins, density=True, histtype="step", color=TEAL, lw=1.6,
@@ -163,15 +188,14 @@ def per_view_bars(ids: Sequence[str], camera_rms: Sequence[float], chain_rms: Se
     n = len(ids)
     fig = _fig(2.8, bottom=0.2 if n > 24 else 0.16, top=0.84)
     ax = fig.add_subplot()
-    x = np.arange(n)
+    x = np.arange(n, dtype=float)
     cam = np.array([v if v is not None and np.isfinite(v) else np.nan for v in camera_rms], float)
     ch = np.array([v if v is not None and np.isfinite(v) else np.nan for v in chain_rms], float)
     w = 0.38
     edge = [RED if s in ("flagged", "dropped") else "none" for s in status]
-    ax.bar(x - w / 2, np.nan_to_num(cam), w, color=NAVY, label="camera fit RMS", edgecolor=edge, linewidth=1.2)
+    _bars(ax, x - w / 2, cam, w, color=NAVY, edgecolors=edge, label="camera fit RMS")
     if np.any(np.isfinite(ch)):
-        ax.bar(x + w / 2, np.nan_to_num(ch), w, color=SKY, label="through the robot RMS", edgecolor=edge,
-               linewidth=1.2)
+        _bars(ax, x + w / 2, ch, w, color=SKY, edgecolors=edge, label="through the robot RMS")
     allv = np.concatenate([cam, ch])
     allv = allv[np.isfinite(allv)]
     top = float(np.max(allv)) if len(allv) else 0.1
@@ -197,7 +221,7 @@ def per_view_bars(ids: Sequence[str], camera_rms: Sequence[float], chain_rms: Se
     ax.set_xlim(-0.7, n - 0.3)
     ax.set_xlabel("view id")
     ax.set_ylabel("RMS [px]")
-    ax.grid(axis="x", visible=False)
+    ax.xaxis.grid(False)
     ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=4, borderaxespad=0.2)
     ax.set_ylim(0, top * (1.0 if clipped else 1.1))
     return _png(fig)
@@ -221,7 +245,8 @@ def image_coverage(width: int, height: int, views: Sequence[tuple], counts: np.n
 
     aspect = height / max(width, 1)
     fig = _fig(WIDTH_IN / 2 * aspect + 0.6, left=0.07, right=0.99, bottom=0.1, top=0.92, wspace=0.12)
-    ax, ax2 = fig.subplots(1, 2)
+    with _no_grid():
+        ax, ax2 = fig.subplots(1, 2)
     ax.set_title(f"Corner coverage: {coverage_share:.0%} of the image")
     cmap = LinearSegmentedColormap.from_list("cov", ["#ffffff", "#cfe0f1", "#5b8fc4", NAVY])
     ax.imshow(np.ma.masked_where(counts == 0, counts), extent=(0, width, height, 0), cmap=cmap,
@@ -250,7 +275,6 @@ def image_coverage(width: int, height: int, views: Sequence[tuple], counts: np.n
         a.set_ylim(1.02 * height, -0.02 * height)
         a.set_aspect("equal")
         a.set_xlabel("u [px]")
-        a.grid(False)
     _few_ticks(ax, ax2)
     ax.set_ylabel("v [px]")
     return _png(fig)
@@ -282,7 +306,11 @@ def poses_3d(*, T_base_cams: np.ndarray, T_base_ends: np.ndarray, T_base_boards:
     views = [("Oblique view (elevation 24°, azimuth −58°)", _view_matrix(24, -58), False),
              ("Top view (base x–y)", np.array([[1.0, 0, 0], [0, 1.0, 0]]), True)]
     for k, (title, P, labelled) in enumerate(views):
-        ax = fig.add_subplot(1, 2, k + 1)
+        if labelled:
+            ax = fig.add_subplot(1, 2, k + 1)
+        else:
+            with _no_grid():
+                ax = fig.add_subplot(1, 2, k + 1)
         ax.set_title(title)
 
         def proj(p):
@@ -335,7 +363,6 @@ def poses_3d(*, T_base_cams: np.ndarray, T_base_ends: np.ndarray, T_base_boards:
         else:
             ax.set_xticks([])
             ax.set_yticks([])
-            ax.grid(False)
     return _png(fig)
 
 
@@ -385,6 +412,7 @@ def rotation_coverage(rotvecs: np.ndarray, *, frame: str, warn_deg: Optional[flo
     ax2.set_title(f"Rotation between view pairs ({len(ang)} pairs)")
     if len(ang):
         ax2.hist(np.degrees(ang), bins=np.linspace(0, max(180.0, np.degrees(ang.max())), 37), color=NAVY,
+                 histtype="stepfilled",
                  alpha=0.8)
     if fail_deg is not None:
         ax2.axvline(fail_deg, color=RED, ls="--", lw=1.0, label=f"QA fail < {fail_deg:g}° (largest)")
@@ -402,7 +430,7 @@ def translation_uncertainty(cov_t_mm2: Optional[np.ndarray], methods: Sequence[t
                             x_name: str) -> bytes:
     """1- and 2-sigma ellipses of the translation (three planes of ``frame``), with the closed-form methods
     as points relative to the result. ``methods``: (name, offset_mm (3,))."""
-    fig = _fig(3.0, left=0.07, right=0.8, bottom=0.16, top=0.84, wspace=0.45)
+    fig = _fig(3.0, left=0.095, right=0.8, bottom=0.16, top=0.84, wspace=0.5)
     axs = fig.subplots(1, 3)
     lab = "xyz"
     off = np.array([m[1] for m in methods]) if methods else np.zeros((0, 3))
@@ -441,7 +469,7 @@ def translation_uncertainty(cov_t_mm2: Optional[np.ndarray], methods: Sequence[t
         ax.set_aspect("equal")
         ax.set_xlabel(f"Δ{lab[i]} [mm]")
         ax.set_ylabel(f"Δ{lab[j]} [mm]")
-        _few_ticks(ax, n=4)
+        _few_ticks(ax, n=3)
     handles, labels = axs[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="center left", bbox_to_anchor=(0.81, 0.5), fontsize=7.5)
     note = f"; hollow: {n_out} beyond the range, at the border" if n_out else ""
