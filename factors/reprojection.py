@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from handeye.camera import INTRINSIC_NAMES, pixels_from_cam_points, project_opencv5  # noqa: F401 - part of this API
+from handeye.camera import project_opencv5
 
 
 def _pose_jacobians_T(G: np.ndarray, Q: np.ndarray, sign: np.ndarray) -> np.ndarray:

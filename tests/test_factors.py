@@ -8,10 +8,12 @@ import numpy as np
 import pytest
 from gtsam.utils.numerical_derivative import numericalDerivative11
 
+from handeye.camera import pixels_from_cam_points
 from handeye.errors import ConfigError
 from handeye.factors.gtsam_factors import robot_pose_prior, view_reprojection_factor
 from handeye.factors.reprojection import (chain_residual, corner_robust_scales, eye_in_hand_residual,
-                                          eye_to_hand_residual, pixels_from_cam_points)
+                                          eye_to_hand_residual, stacked_chain_residual)
+from handeye.mounting import mounting
 
 K9 = np.array([910.0, 905.0, 641.0, 362.0, -0.21, 0.09, 0.0012, -0.0008, 0.03])
 
@@ -26,7 +28,7 @@ def _chain_setup(rng, mode: str):
     T_cam_board = gtsam.Pose3(gtsam.Rot3.Expmap([np.pi, 0.0, 0.0]).compose(gtsam.Rot3.Expmap(rng.normal(size=3) * 0.3)),
                               np.array([-0.05, -0.04, 0.6]) + rng.normal(size=3) * 0.02).matrix()
     M = T_x @ T_cam_board @ np.linalg.inv(T_board)  # T_cam_board = inv(T_x) M T_board
-    T_base_end = np.linalg.inv(M) if mode == "eye_in_hand" else M
+    T_base_end = mounting(mode).T_base_end_from_M(M)
     obj = np.c_[rng.uniform(0.0, 0.1, (7, 2)), np.zeros(7)]  # shape (7, 3)
     img = rng.uniform(0.0, 720.0, (7, 2))
     return T_x, T_board, T_base_end, obj, img
@@ -36,7 +38,7 @@ def _chain_setup(rng, mode: str):
 def test_pose_jacobians_match_numerical_derivative_on_manifold(mode):
     rng = np.random.default_rng(1)
     T_x, T_board, T_robot, obj, img = _chain_setup(rng, mode)
-    inv = mode == "eye_in_hand"
+    inv = mounting(mode).inverts_robot
 
     def res(Tx, Tr, Tb, k=K9):
         return chain_residual(T_x=Tx, T_base_end=Tr, T_board=Tb, invert_robot=inv, intrinsics_vec=k,
@@ -53,6 +55,38 @@ def test_pose_jacobians_match_numerical_derivative_on_manifold(mode):
         assert np.abs(J - num).max() <= 1e-6 * scale, f"{mode} Jacobian w.r.t. {name} differs from numerical"
 
 
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_stacked_residual_of_many_views_equals_the_per_view_chain(mode):
+    """The numpy evaluation of every view at once (residuals and robot-pose Jacobians) is chain_residual
+    view by view, to rounding; its robot Jacobian also matches a numerical derivative on the manifold."""
+    rng = np.random.default_rng(7)
+    inv = mounting(mode).inverts_robot
+    T_x, T_board, _, obj, img = _chain_setup(rng, mode)
+    setups = [_chain_setup(np.random.default_rng(20 + k), mode) for k in range(3)]
+    # same T_x and board for all views: robot poses that put the board in front of the camera for each
+    robots = np.stack([mounting(mode).T_base_end_from_M(T_x @ np.linalg.inv(Tx_k) @ mounting(mode).M_from_T_base_end(Tr_k)
+                                                         @ Tb_k @ np.linalg.inv(T_board))
+                       for Tx_k, Tb_k, Tr_k, _, _ in setups])
+    counts = [7, 5, 6]
+    objs = [np.c_[rng.uniform(0.0, 0.1, (c, 2)), np.zeros(c)] for c in counts]
+    imgs = [rng.uniform(0.0, 720.0, (c, 2)) for c in counts]
+    vi = np.repeat(np.arange(3), counts)
+    r, J = stacked_chain_residual(T_x=T_x, T_base_end=robots, T_board=T_board, invert_robot=inv, intrinsics_vec=K9,
+                                  object_points=np.concatenate(objs), image_points=np.concatenate(imgs), view_index=vi,
+                                  robot_jacobian=True)
+    for k in range(3):
+        r_k, _, J_r, _, _ = chain_residual(T_x=T_x, T_base_end=robots[k], T_board=T_board, invert_robot=inv,
+                                           intrinsics_vec=K9, object_points=objs[k], image_points=imgs[k])
+        scale = np.abs(J_r).max()
+        np.testing.assert_allclose(r[vi == k].reshape(-1), r_k, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(J[vi == k].reshape(-1, 6), J_r, rtol=0, atol=1e-12 * scale)
+    num = numericalDerivative11(lambda P: stacked_chain_residual(
+        T_x=T_x, T_base_end=np.stack([robots[0], robots[1], P.matrix()]), T_board=T_board, invert_robot=inv,
+        intrinsics_vec=K9, object_points=np.concatenate(objs), image_points=np.concatenate(imgs),
+        view_index=vi)[0][vi == 2].reshape(-1), gtsam.Pose3(robots[2]), delta=1e-6)
+    assert np.abs(J[vi == 2].reshape(-1, 6) - num).max() <= 1e-6 * np.abs(num).max()
+
+
 def test_mode_adapters_are_the_generic_chain():
     rng = np.random.default_rng(2)
     for mode, fn, names in (("eye_in_hand", eye_in_hand_residual, ("T_end_cam", "T_base_board")),
@@ -60,12 +94,12 @@ def test_mode_adapters_are_the_generic_chain():
         T_x, T_board, T_robot, obj, img = _chain_setup(rng, mode)
         a = fn(**{names[0]: T_x, names[1]: T_board}, T_base_end=T_robot, intrinsics_vec=K9,
                object_points=obj, image_points=img)
-        b = chain_residual(T_x=T_x, T_base_end=T_robot, T_board=T_board, invert_robot=mode == "eye_in_hand",
+        b = chain_residual(T_x=T_x, T_base_end=T_robot, T_board=T_board, invert_robot=mounting(mode).inverts_robot,
                            intrinsics_vec=K9, object_points=obj, image_points=img)
         for x, y in zip(a, b):
             np.testing.assert_array_equal(x, y, err_msg=f"{mode} adapter differs from chain_residual")
         # the pixel prediction equals projecting inv(T_x) M T_board p with OpenCV
-        M = np.linalg.inv(T_robot) if mode == "eye_in_hand" else T_robot
+        M = mounting(mode).M_from_T_base_end(T_robot)
         T_cam_board = np.linalg.inv(T_x) @ M @ T_board
         rvec, _ = cv2.Rodrigues(T_cam_board[:3, :3])
         K = np.array([[K9[0], 0, K9[2]], [0, K9[1], K9[3]], [0, 0, 1]])

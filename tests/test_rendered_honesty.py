@@ -3,11 +3,14 @@
 A handful of small rendered sessions (640x480, both modes, with and without image noise, blur and
 robot noise, one hidden view each, one with a wrong robot pose): the 6-dof error of the hand-eye
 transform against the truth, normalised by the reported covariance (``d2 = xi^T C^-1 xi``, ``xi`` in
-the parametrisation of ``RefineResult.cov_x_6x6``), must look like a chi-square(6) draw: the median
-of the sessions' d2 between the chi-square(6) 1 % and 95 % quantiles (an honest covariance puts the
-median of five draws outside that band with probability < 0.1 %; the seeds are fixed, so the test is
-deterministic). Clean sessions get no outlier flags; a wrong robot pose is flagged.
-Figures over many sessions: benchmarks/bench_rendered.py.
+the parametrisation of ``RefineResult.cov_x_6x6``), must look like chi-square(6) draws: their sum
+within the two-sided 0.1 % band of chi-square(30), and none beyond the 1 - 0.001/5 quantile of
+chi-square(6) (the seeds are fixed, so the test is deterministic). Five sessions can reject a
+covariance that is grossly wrong (4x in variance), not one that is 2x off: that power comes from the
+corner-level Monte Carlo in tests/test_refine.py and, on rendered images, from
+benchmarks/bench_rendered.py (coverage and d2 over 40 sessions). Clean sessions get no outlier flags
+(the flagging floors come from the detector's measured accuracy, configs/refine.yaml); a wrong robot
+pose is flagged.
 """
 import json
 from concurrent.futures import ThreadPoolExecutor
@@ -66,9 +69,9 @@ def test_rendered_sessions_calibrate_and_drop_the_hidden_view(runs):
 
 def test_normalised_error_on_rendered_images_is_chi_square_like(runs):
     d2 = np.array([_d2(run, truth) for _, truth, run in runs])
-    med = float(np.median(d2))
-    assert chi2.ppf(0.01, 6) < med < chi2.ppf(0.95, 6), f"median d2 {med:.2f} of {np.round(d2, 2)}"
-    assert d2.max() < 4.0 * chi2.ppf(0.999, 6), f"an error far outside the reported ellipsoid: {np.round(d2, 2)}"
+    n = len(d2)
+    assert chi2.ppf(0.0005, 6 * n) < d2.sum() < chi2.ppf(0.9995, 6 * n), f"sum of d2 {d2.sum():.1f}: {np.round(d2, 2)}"
+    assert d2.max() < chi2.ppf(1.0 - 0.001 / n, 6), f"an error far outside the reported ellipsoid: {np.round(d2, 2)}"
 
 
 def test_clean_rendered_sessions_get_no_flags_and_wrong_poses_are_flagged(runs):

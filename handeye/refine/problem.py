@@ -22,9 +22,9 @@ import gtsam
 import numpy as np
 
 from handeye.factors.gtsam_factors import intrinsics_prior, robot_pose_prior, view_reprojection_factor
-from handeye.factors.reprojection import INTRINSIC_NAMES, stacked_chain_residual
+from handeye.factors.reprojection import stacked_chain_residual
 
-from ..camera import Intrinsics
+from ..camera import INTRINSIC_NAMES, Intrinsics
 from ..frames import se3_exp, tangent_difference
 from ..mounting import mounting
 from .covariance import N_POSES, arrow_blocks, arrow_inverse
