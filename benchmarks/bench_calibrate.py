@@ -1,6 +1,6 @@
 """Wall time of a whole `handeye calibrate` on a rendered 20-view 1280x720 session, with and without
 the reports, with the per-stage `seconds` result.json records, and the start-up cost of the command.
-Targets (issue 8, 2 cores): under 3 s without reports, under 5 s with both reports.
+Targets on 2 cores: under 3 s without reports, under 5 s with both reports.
 Prints figures; asserts nothing.
 
     python benchmarks/bench_calibrate.py [--views 20] [--repeat 3] [--mode eye_in_hand]

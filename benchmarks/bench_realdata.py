@@ -1,4 +1,4 @@
-"""Refined results on the real datasets in ../shared/data (issue 3): the hand-eye transform, its
+"""Refined results on the real datasets in ../shared/data: the hand-eye transform, its
 predicted uncertainty, the estimated pixel and robot noise, outliers, and the agreement with the
 references in each SOURCE.md and with OpenCV's closed-form methods, and the time of the whole workflow
 (load, calibrate, diagnose, write; no report) per stage. Prints figures; asserts nothing.

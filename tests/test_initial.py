@@ -61,7 +61,7 @@ def test_noisy_closed_form_error_scales_with_the_pixel_noise(mode):
     # the same noise draws scaled by 3: an error that comes from the noise triples (to first order);
     # a bias (wrong convention, wrong pairing) would not
     np.testing.assert_allclose(hi / lo, 3.0, rtol=0.1)
-    # per pixel of noise, 20 views: measured 0.075-0.105 deg/px and 1.2-1.45 mm/px (issue 3's ~1 mm at 0.3 px)
+    # per pixel of noise, 20 views: measured 0.075-0.105 deg/px and 1.2-1.45 mm/px
     assert hi[0] < 0.15 * 0.3 and hi[1] < 2.0 * 0.3, hi
 
 
