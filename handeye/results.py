@@ -46,7 +46,8 @@ def observations_dict(run) -> dict:
 
     ``residual_chain_px`` predicts the board through the reported robot pose and the hand-eye result
     (what the robot will experience); ``residual_pnp_px`` through the view's own board pose (what the
-    camera alone explains). ``thumbnail`` names the view's image in ``thumbnails/`` when one was written.
+    camera alone explains). ``failed_views`` holds the views without the target: the reason and the
+    image's exposure. Thumbnails of all views are in ``thumbnails/<view_id>.jpg``.
     """
     from .initial import solve_pnp
 
@@ -74,9 +75,16 @@ def observations_dict(run) -> dict:
                 v["residual_chain_px"] = (det.image_points - pixels_from_board_points(C, obj[ids], intr)).tolist()
         v["T_base_end_reported"] = s.view(vid).T_base_end.tolist()
         views[vid] = v
+    failed = {}  # views without the target: why, and what detection measured of the image
+    for vid, f in getattr(run, "failures", {}).items():
+        failed[vid] = {"reason": f if isinstance(f, str) else getattr(f, "reason", str(f)),
+                       "image": str(s.view(vid).image_path)}
+        if getattr(f, "exposure", None) is not None:
+            failed[vid]["exposure"] = f.exposure
     return {"handeye_observations": OBSERVATIONS_VERSION, "mode": s.mode, "target": s.target.to_dict(),
             "object_points_m": obj.tolist(),
-            "image_size": list(intr.image_size) if intr is not None else None, "views": views}
+            "image_size": list(intr.image_size) if intr is not None else None, "views": views,
+            "failed_views": failed}
 
 
 def result_dict(run) -> dict:

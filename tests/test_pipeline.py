@@ -74,6 +74,8 @@ def test_hidden_view_is_dropped_with_its_pose_and_every_other_view_is_used(refin
     assert max(v["chain_max_px"] for v in views.values() if v["used"]) < 1.0
     obs = json.loads((out / "observations.json").read_text())
     assert sorted(obs["views"]) == sorted(k for k, v in views.items() if v["used"])
+    assert list(obs["failed_views"]) == ["6"] and obs["failed_views"]["6"]["reason"] == views["6"]["reason"]
+    assert 0 <= obs["failed_views"]["6"]["exposure"]["p5"] <= obs["failed_views"]["6"]["exposure"]["p95"] <= 255
     assert wr.result["n_views"] == {"total": 12, "used": 11}
 
 
