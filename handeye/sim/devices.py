@@ -24,7 +24,8 @@ from ..frames import inv_T
 from ..mounting import mounting
 from ..targets import TargetSpec
 from .render import render_view
-from .scenarios import DEFAULT_INTRINSICS, DEFAULT_TARGET, perturb_T_base_end, sample_setup, sample_view_poses
+from .scenarios import (REACH_M, DEFAULT_INTRINSICS, DEFAULT_TARGET, perturb_T_base_end, plausible_robot_pose,
+                        sample_setup, sample_view_poses)
 
 log = logging.getLogger(__name__)
 
@@ -63,7 +64,7 @@ class SimRobot(Robot):
     is_real = False
 
     def __init__(self, rig: SimRig, *, pose_noise_mm: float = 0.1, pose_noise_deg: float = 0.02,
-                 rng: Optional[np.random.Generator] = None, reach_m: tuple = (0.15, 1.3)):
+                 rng: Optional[np.random.Generator] = None, reach_m: tuple = REACH_M):
         if pose_noise_mm < 0 or pose_noise_deg < 0:
             raise ConfigError("negative simulated pose noise", expected=">= 0",
                               received=f"{pose_noise_mm} mm, {pose_noise_deg} deg")
@@ -96,8 +97,7 @@ class SimRobot(Robot):
 
     def pose_ok(self, T_base_end: np.ndarray) -> bool:
         """Within reach and above the table (used by the planner)."""
-        p = T_base_end[:3, 3]
-        return self.reach_m[0] <= float(np.linalg.norm(p)) <= self.reach_m[1] and p[2] > 0.05
+        return plausible_robot_pose(T_base_end, self.reach_m)
 
     def T_cam_board_true(self) -> np.ndarray:
         return mounting(self.rig.mode).predict_T_cam_board(self.rig.T_x, self.rig.T_board, self.T_true)

@@ -181,17 +181,23 @@ def _T_base_end_from_T_cam_board(mode: str, T_x: np.ndarray, T_board: np.ndarray
     return mount.T_base_end_from_M(M)
 
 
-def _plausible_robot_pose(T_base_end: np.ndarray, reach_m: tuple[float, float]) -> bool:
+#: The simulated arm's reach: flange distance from the base origin (m), and its lowest height above the table.
+REACH_M = (0.15, 1.3)
+MIN_FLANGE_HEIGHT_M = 0.05
+
+
+def plausible_robot_pose(T_base_end: np.ndarray, reach_m: tuple[float, float] = REACH_M) -> bool:
+    """The flange within ``reach_m`` of the base origin and above the table."""
     p = T_base_end[:3, 3]
     r = float(np.linalg.norm(p))
-    return reach_m[0] <= r <= reach_m[1] and p[2] > 0.05
+    return reach_m[0] <= r <= reach_m[1] and p[2] > MIN_FLANGE_HEIGHT_M
 
 
 def sample_view_poses(*, mode: str, n_views: int, rng: np.random.Generator, T_x: np.ndarray, T_board: np.ndarray,
                       target: TargetSpec = DEFAULT_TARGET, intrinsics: Optional[Intrinsics] = None,
                       distance_m: Optional[tuple[float, float]] = None, tilt_deg: tuple[float, float] = (15.0, 40.0),
                       roll_deg: float = 80.0, aim_deg: float = 6.0, margin_px: Optional[float] = None,
-                      reach_m: tuple[float, float] = (0.15, 1.3), min_axis_spread_deg: Optional[float] = None,
+                      reach_m: tuple[float, float] = REACH_M, min_axis_spread_deg: Optional[float] = None,
                       max_tries: int = 3000) -> np.ndarray:
     """(N,4,4) robot poses ``T_base_end`` that show the board the way users are told to.
 
@@ -238,7 +244,7 @@ def sample_view_poses(*, mode: str, n_views: int, rng: np.random.Generator, T_x:
                 if not board_in_image(target, intrinsics, T_cam_board, margin_px=margin_px):
                     continue
                 T_base_end = _T_base_end_from_T_cam_board(mode, T_x, T_board, T_cam_board)
-                if not _plausible_robot_pose(T_base_end, reach_m):
+                if not plausible_robot_pose(T_base_end, reach_m):
                     continue
                 out[k] = T_base_end
                 break
@@ -262,7 +268,7 @@ def sample_view_poses(*, mode: str, n_views: int, rng: np.random.Generator, T_x:
 
 def sample_hidden_view_pose(*, mode: str, rng: np.random.Generator, T_x: np.ndarray, T_board: np.ndarray,
                             target: TargetSpec = DEFAULT_TARGET, intrinsics: Optional[Intrinsics] = None,
-                            reach_m: tuple[float, float] = (0.15, 1.3), max_tries: int = 3000) -> np.ndarray:
+                            reach_m: tuple[float, float] = REACH_M, max_tries: int = 3000) -> np.ndarray:
     """A robot pose ``T_base_end`` (4,4) at which no part of the board is in the image.
 
     A view of the board (distance up to twice the normal range) whose camera is then turned
@@ -283,7 +289,7 @@ def sample_hidden_view_pose(*, mode: str, rng: np.random.Generator, T_x: np.ndar
         if not board_out_of_image(target, intrinsics, T_cam_board):
             continue
         T_base_end = _T_base_end_from_T_cam_board(mode, T_x, T_board, T_cam_board)
-        if _plausible_robot_pose(T_base_end, reach_m):
+        if plausible_robot_pose(T_base_end, reach_m):
             return T_base_end
     raise ConfigError("cannot sample a pose that hides the board", expected="a reachable pose looking away",
                       received=f"{max_tries} rejected samples", hint="widen reach_m")
