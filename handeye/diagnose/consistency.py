@@ -5,7 +5,7 @@ with what the camera saw, corners numbered from the other end, and the robot's m
   the implied boards;
 * robot_pose_disagrees: the refinement's robot-pose decisions when it made them; otherwise the one
   robot-pose test (:func:`handeye.refine.outliers.robot_pose_test`) of each reported pose against the
-  pose the camera implies, with the camera-only covariance (PnP and intrinsics, propagated in the right
+  pose the camera implies, with the camera-only covariance (PnP, propagated in the right
   tangent of :mod:`handeye.frames`) and robot noise estimated robustly from the other views;
 * corner_order_flipped: a flagged view that agrees once its board is turned by 180 (or 90) degrees;
 * weak_motion, too_few_views: :func:`handeye.initial.motion.motion_quality` with the warn levels of
