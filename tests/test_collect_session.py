@@ -94,8 +94,9 @@ def test_simulated_auto_collection_agrees_with_ground_truth(tmp_path, mode):
         C_true = mount.predict_T_cam_board(T_x, T_b, np.asarray(gt["T_base_end_true"]))
         uv = pixels_from_board_points(C_true, obj[ids], intr)
         rms_true = np.sqrt(np.mean(np.sum((uv - pts) ** 2, axis=1)))
-        # rendered corners: 0.04-0.09 px rms at 640x360 (test_synth), plus 2 grey levels of image noise
-        assert rms_true < 0.25, f"view {vid}: corners {rms_true:.3f} px from the truth"
+        # detected corners of a 640x360 render (supersample 2, 2 grey levels of noise) against the truth:
+        # measured 0.06-0.23 px rms per view with this seed (noise-free renders: 0.04-0.09 px, test_synth)
+        assert rms_true < 0.3, f"view {vid}: corners {rms_true:.3f} px from the truth"
         # ... and the reported pose is off only by the simulated robot noise: per axis 0.1 mm and
         # 0.02 deg in the end frame (the --sim-pose-noise default); 4.9 sigma bounds 60 draws with a
         # false alarm of 6e-5 in all
