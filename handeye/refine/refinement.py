@@ -21,7 +21,8 @@ Stages
    pose is wrong (Tsai 120 deg off with one wrong pose in 12 views, where Park was within 1 deg) and
    the local solves below cannot recover from such a start.
 2. Guard: noise levels from each view's own fit, then two solves with robust losses (per corner,
-   and Huber on each robot prior), the pixel sigma from the median residual in between.
+   and Huber on each robot prior), the pixel sigma from the median residual in between (one
+   Gaussian solve with ``loss="none"``).
 3. Outlier loop (:mod:`.outliers`): decisions against the current solution, Gaussian re-solves
    with variance-component estimation (:mod:`.noise`), until the decisions are stable.
 4. Covariance (:mod:`.covariance`) from the information of the final Gaussian linearisation, in
@@ -138,8 +139,9 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
             pb.sigma_px = sigma_px_from_residuals(e0)
             checks0 = [replace(c, cov_cam=c.cov_cam * pb.sigma_px ** 2) for c in checks0]  # were for sigma 1 px
         robust_robot_sigmas(pb, checks0)
-        # guard: robust solves, pixel sigma from the median residual in between
-        for _ in range(2):
+        # guard: robust solves, pixel sigma from the median residual in between (without a robust loss one
+        # Gaussian solve gives the residuals the pixel sigma is estimated from)
+        for _ in range(2 if options.loss != "none" else 1):
             pb.solve(robust=options.loss != "none")
             pb.sigma_px = robust_sigma_px(pb)
         if options.outlier_loop:
