@@ -38,7 +38,7 @@ class CalibrateOptions:
     refine: bool = True
     fix_k3: bool = False
     workers: Optional[int] = None
-    min_corners: int = 6
+    min_corners: Optional[int] = None  # None: configs/detection.yaml detection.min_corners
     min_rotation_deg: Optional[float] = None  # None: configs/calibration.yaml motion.min_rotation_deg
     min_axis_spread_deg: Optional[float] = None  # None: configs/calibration.yaml motion.min_axis_spread_deg
     refine_options: dict = field(default_factory=dict)
@@ -49,7 +49,8 @@ class CalibrateOptions:
         (an override of None keeps the preset's value)."""
         motion = cfg.get("motion") or {}
         kw = {"method": cfg.get("method", "tsai"), "refine": bool(cfg.get("refine", True)),
-              "fix_k3": bool(cfg.get("fix_k3", False)), "min_corners": int(cfg.get("min_corners", 6)),
+              "fix_k3": bool(cfg.get("fix_k3", False)),
+              "min_corners": None if cfg.get("min_corners") is None else int(cfg["min_corners"]),
               "min_rotation_deg": _float_or_none(motion.get("min_rotation_deg")),
               "min_axis_spread_deg": _float_or_none(motion.get("min_axis_spread_deg")),
               "refine_options": dict(cfg.get("refine_options") or {})}

@@ -185,3 +185,11 @@ def test_help_does_not_load_the_heavy_libraries():
     for command in ("calibrate", "simulate", "demo", "apply", "import", "report", "collect"):
         cap = subprocess.run([sys.executable, "-m", "handeye.cli", command, "--help"], capture_output=True, text=True)
         assert cap.returncode == 0 and cap.stdout.startswith(f"usage: handeye {command}"), (command, cap.stderr)
+
+
+def test_site_min_corners_overrides_the_detection_preset(session, tmp_path, capsys):
+    site = tmp_path / "site.yaml"
+    site.write_text(yaml.safe_dump({"min_corners": 89}))  # the 11x8 board has 88 corners
+    assert main(["-q", "calibrate", str(session), "--config", str(site), "--out", str(tmp_path / "o"),
+                 "--no-report"]) == 3
+    assert "found in only 0 of 8 images" in capsys.readouterr().err
