@@ -83,9 +83,12 @@ def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session
         given_cost = given.fit.cost if given is not None else float("inf")
         rf = stages.run("readings", reading_findings, obs, readings, session_kind=session_kind, default=[])
     out["findings"] += rf
-    M, fit = reading_in_use(obs, readings, rf)
+    M, fit = stages.run("readings", reading_in_use, obs, readings, rf, default=(obs.M(), None))
     out["global_fault"] = bool(rf)
-    if rf:
+    if fit is None:
+        for name in ("pairing", "board_moved", "robot_poses"):
+            stages.skip(name, "no fit of the poses as read")
+    elif rf:
         for name in ("pairing", "board_moved", "robot_poses"):
             stages.skip(name, "the robot poses do not match the images as read")
     else:
@@ -104,7 +107,7 @@ def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session
             if found is not None:
                 out["findings"] += found[0]
                 out["per_view"] = found[1]
-    out["findings"] += stages.run("motion", motion_findings, obs.mode, M, A=fit.A, default=[])
+    out["findings"] += stages.run("motion", motion_findings, obs.mode, M, A=None if fit is None else fit.A, default=[])
     out["fit"], out["M"] = fit, M
     return out
 
