@@ -156,6 +156,7 @@ def summarize(label, mode, rows):
 
 def time_solves(mode, n_views, repeats=3):
     """Seconds of one Gauss-Newton/LM solve (robot pose variables, no robust loss) from the Tsai seed."""
+    from handeye.refine.options import check_inputs
     from handeye.refine.problem import Problem  # times exactly one graph solve, nothing around it
 
     s = make_corner_session(mode=mode, n_views=n_views, seed=1, noise_px=NOISE_PX, robot_noise=ROBOT_NOISE)
@@ -163,8 +164,9 @@ def time_solves(mode, n_views, repeats=3):
     est = closed["tsai"]
     times, cpus = [], []
     for _ in range(repeats):
-        pb = Problem(mode=mode, object_points=s.target.object_points(), views=refine_views(s), intrinsics=intr,
-                      T_x0=est.T_x, T_board0=est.T_board, options=RefineOptions())
+        obj, reported = check_inputs(s.target.object_points(), refine_views(s))
+        pb = Problem(mode=mode, object_points=obj, views=refine_views(s), reported=reported, intrinsics=intr,
+                     T_x0=est.T_x, T_board0=est.T_board, options=RefineOptions())
         pb.sigma_px = NOISE_PX
         t0, c0 = time.perf_counter(), time.process_time()
         pb.solve(robust=False)
