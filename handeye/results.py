@@ -76,9 +76,9 @@ def observations_dict(run) -> dict:
         v["T_base_end_reported"] = s.view(vid).T_base_end.tolist()
         views[vid] = v
     failed = {}  # views without the target: why, and what detection measured of the image
-    for vid, f in getattr(run, "failures", {}).items():
-        failed[vid] = {"reason": f if isinstance(f, str) else getattr(f, "reason", str(f)),
-                       "image": str(s.view(vid).image_path)}
+    reasons = {o.view_id: o.reason for o in run.outcomes}
+    for vid, f in run.failures.items():
+        failed[vid] = {"reason": reasons.get(vid, ""), "image": str(s.view(vid).image_path)}
         if getattr(f, "exposure", None) is not None:
             failed[vid]["exposure"] = f.exposure
     return {"handeye_observations": OBSERVATIONS_VERSION, "mode": s.mode, "target": s.target.to_dict(),
