@@ -25,7 +25,7 @@ from ..refine.outliers import RobotPoseTest, robot_pose_test
 from ..stats import robust_noise_sigma
 from .findings import Finding, ids_text
 from .fits import BoardFit, fit_boards
-from .geometry import implied_boards, pose_differences
+from .geometry import implied_boards, pair_motions, pose_differences
 from .observations import PoseObservations
 from .thresholds import thresholds
 
@@ -256,14 +256,15 @@ def _split_fits(obs: PoseObservations, M: np.ndarray):
     n, seg = obs.n, th.board_moved.min_segment
     if n < 2 * seg:
         return None
-    single = fit_boards(obs.C, M)
+    motions = pair_motions(obs.C, M)  # shared by every split
+    single = fit_boards(obs.C, M, motions=motions)
     d1 = single.view_costs()
     cap = 10.0 * max(float(np.median(d1)), 0.05)
     best = None
     for k in range(seg, n - seg + 1):
         labels = (np.arange(n) >= k).astype(int)
         try:
-            f = fit_boards(obs.C, M, labels=labels)
+            f = fit_boards(obs.C, M, labels=labels, motions=motions)
         except np.linalg.LinAlgError:
             continue
         d = f.view_costs()

@@ -11,7 +11,7 @@ from typing import Optional
 
 import numpy as np
 
-from .geometry import all_pairs, implied_boards, pose_differences, robust_mean_T, solve_A_from_pairs
+from .geometry import PairMotions, implied_boards, pair_motions, pose_differences, robust_mean_T, solve_A
 from .thresholds import thresholds
 
 
@@ -46,19 +46,23 @@ class BoardFit:
 
 
 def fit_boards(C: np.ndarray, M: np.ndarray, *, labels: Optional[np.ndarray] = None,
-               use: Optional[np.ndarray] = None, robust: bool = True) -> BoardFit:
+               use: Optional[np.ndarray] = None, robust: bool = True,
+               motions: Optional[PairMotions] = None) -> BoardFit:
     """Park & Martin on all pairs within a group (among views in ``use``), one board per group.
 
     ``C`` (N,4,4) board poses ``T_cam_board``, ``M`` (N,4,4) robot motions. ``robust``: refit twice
     without the views whose implied board is more than 3x the median deviation away, so a minority of
-    wrong views does not tilt the fit of the others. Raises LinAlgError for a degenerate set.
+    wrong views does not tilt the fit of the others. ``motions``: the pairs' relative motions of these
+    ``C`` and ``M`` when the caller fits them several times (default: computed here). Raises LinAlgError for
+    a degenerate set.
     """
     th = thresholds()
     n = len(C)
     labels = np.zeros(n, int) if labels is None else np.asarray(labels)
     use0 = np.ones(n, bool) if use is None else np.asarray(use, bool)
     use = use0.copy()
-    i, j = all_pairs(n)
+    motions = pair_motions(C, M) if motions is None else motions
+    i, j = motions.i, motions.j
     groups = np.unique(labels)
     gi = np.searchsorted(groups, labels)
     same_group = labels[i] == labels[j]
@@ -68,7 +72,7 @@ def fit_boards(C: np.ndarray, M: np.ndarray, *, labels: Optional[np.ndarray] = N
             if rnd == 0:
                 raise np.linalg.LinAlgError(f"only {int(sel.sum())} view pairs to fit (needs 3)")
             break
-        A = solve_A_from_pairs(C, M, (i[sel], j[sel]))
+        A = solve_A(motions, sel)
         Bs = implied_boards(A, C, M)
         B = np.stack([robust_mean_T(Bs[(labels == g) & use] if ((labels == g) & use).sum() else Bs[labels == g])
                       for g in groups])

@@ -18,6 +18,8 @@ No I/O, no printing, inputs never mutated.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -70,17 +72,36 @@ def summarize_invariants(inv: dict) -> dict:
             "median_score": float(np.median(inv["score"])) if len(inv["score"]) else float("nan")}
 
 
-def solve_A_from_pairs(C: np.ndarray, M: np.ndarray, pairs: tuple) -> np.ndarray:
-    """``A`` (4,4) of ``C_i C_j^-1 = A M_i M_j^-1 A^-1`` from the given pairs (Park & Martin).
+@dataclass(frozen=True)
+class PairMotions:
+    """Relative motions of view pairs, computed once and shared by every fit on the same ``C`` and ``M``:
+    pair indices ``i, j`` (P,), ``rc = C_i C_j^-1`` and ``rm = M_i M_j^-1`` (P,4,4), and their rotation
+    vectors ``alpha``, ``beta`` (P,3)."""
 
-    Rotation: the relative rotation vectors satisfy ``alpha = R_A beta`` (Kabsch). Translation:
-    ``(R_Cij - I) t_A = R_A t_Mij - t_Cij`` in least squares.
-    """
-    i, j = np.asarray(pairs[0]), np.asarray(pairs[1])
+    i: np.ndarray
+    j: np.ndarray
+    rc: np.ndarray
+    rm: np.ndarray
+    alpha: np.ndarray
+    beta: np.ndarray
+
+
+def pair_motions(C: np.ndarray, M: np.ndarray, pairs: tuple | None = None) -> PairMotions:
+    """The relative motions of the given pairs (default: all pairs i < j)."""
+    i, j = all_pairs(len(C)) if pairs is None else (np.asarray(pairs[0]), np.asarray(pairs[1]))
     rc = C[i] @ inv_T(C[j])
     rm = M[i] @ inv_T(M[j])
-    alpha = Rotation.from_matrix(rc[:, :3, :3]).as_rotvec()  # (P,3)
-    beta = Rotation.from_matrix(rm[:, :3, :3]).as_rotvec()
+    return PairMotions(i, j, rc, rm, Rotation.from_matrix(rc[:, :3, :3]).as_rotvec(),
+                       Rotation.from_matrix(rm[:, :3, :3]).as_rotvec())
+
+
+def solve_A(motions: PairMotions, sel: np.ndarray | None = None) -> np.ndarray:
+    """``A`` (4,4) of ``C_i C_j^-1 = A M_i M_j^-1 A^-1`` from the pairs ``sel`` (bool (P,)) of ``motions``
+    (Park & Martin). Rotation: the relative rotation vectors satisfy ``alpha = R_A beta`` (Kabsch).
+    Translation: ``(R_Cij - I) t_A = R_A t_Mij - t_Cij`` in least squares."""
+    m = motions
+    sel = np.ones(len(m.i), bool) if sel is None else np.asarray(sel, bool)
+    alpha, beta, rc, rm = m.alpha[sel], m.beta[sel], m.rc[sel], m.rm[sel]
     H = beta.T @ alpha  # sum beta alpha^T
     U, _, Vt = np.linalg.svd(H)
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
@@ -89,6 +110,11 @@ def solve_A_from_pairs(C: np.ndarray, M: np.ndarray, pairs: tuple) -> np.ndarray
     rhs = (np.einsum("ij,pj->pi", R_A, rm[:, :3, 3]) - rc[:, :3, 3]).reshape(-1)
     t_A, *_ = np.linalg.lstsq(lhs, rhs, rcond=None)
     return make_T(R_A, t_A)
+
+
+def solve_A_from_pairs(C: np.ndarray, M: np.ndarray, pairs: tuple) -> np.ndarray:
+    """``A`` (4,4) from the given pairs of views (see :func:`solve_A`)."""
+    return solve_A(pair_motions(C, M, pairs))
 
 
 def implied_boards(A: np.ndarray, C: np.ndarray, M: np.ndarray) -> np.ndarray:
