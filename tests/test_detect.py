@@ -212,3 +212,15 @@ def test_detect_image_on_a_rendered_1280x720_jpeg(tmp_path, views):
     assert thumb.shape == (135, 240)
     # rendered without blur: the edges are as wide as a sharp image's, and nothing is saturated
     assert d.blur["blur_sigma_px"] < 0.5 and d.exposure["saturated_share"] == 0.0
+
+
+def test_detection_settings_name_a_missing_or_unknown_key():
+    from handeye.config import load_preset
+    from handeye.detect.options import DetectionOptions
+
+    cfg = load_preset("detection")["detection"]
+    assert DetectionOptions.from_config(cfg) == default_options()
+    with pytest.raises(ConfigError, match="min_corners"):
+        DetectionOptions.from_config({k: v for k, v in cfg.items() if k != "min_corners"})
+    with pytest.raises(ConfigError, match="blob_colour"):
+        DetectionOptions.from_config(dict(cfg, circle_blobs=dict(cfg["circle_blobs"], blob_colour=0)))
