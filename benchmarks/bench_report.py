@@ -7,7 +7,8 @@ Without ``--result`` a session is rendered and calibrated first (``handeye simul
 ``handeye calibrate --no-report``). Each figure is measured in a fresh interpreter:
 
 * ``in the workflow``: ``write_reports`` where ``handeye calibrate`` calls it (the pipeline, the
-  diagnostics and OpenCV already imported): wall and CPU time, with and without the figures;
+  diagnostics and OpenCV already imported): wall and CPU time (with worker processes, if any),
+  with and without the figures;
 * ``handeye report``: the whole command in a new process (interpreter start and every import);
 * ``per figure``: CPU time of each figure, drawn a second time (imports and caches warm).
 
@@ -28,19 +29,28 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 
 _IN_WORKFLOW = r"""
-import json, sys, time
-import handeye.workflow, handeye.diagnose, handeye.pipeline, cv2  # what the calibrate command has loaded
+import json, os, sys, time
+import handeye.diagnose, handeye.pipeline, cv2  # what the calibrate command has loaded before its report
 from handeye.report import write_reports
+
+def cpu():  # this process and its children (an older report drew in worker processes)
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
 out, plots = sys.argv[1], sys.argv[2] == "1"
+t, c = time.perf_counter(), cpu()
 try:
-    t, c = time.perf_counter(), time.process_time()
     write_reports(out, strict=True, plots=plots)
 except TypeError:  # an older report API: write_reports(run, res, out_dir)
     from handeye.output import read_json
     res = read_json(out)
-    t, c = time.perf_counter(), time.process_time()
+    t, c = time.perf_counter(), cpu()
     write_reports(None, res, out, strict=True, plots=plots)
-print(json.dumps({"wall": time.perf_counter() - t, "cpu": time.process_time() - c}))
+import pathlib
+files = pathlib.Path(out, "report_files")
+print(json.dumps({"wall": time.perf_counter() - t, "cpu": cpu() - c,
+                  "figures": len(list(files.glob("*.png"))) - len(list(files.glob("view_*.png"))),
+                  "code": sys.modules["handeye.report"].__file__}))
 """
 
 _PER_FIGURE = r"""
@@ -64,16 +74,18 @@ print(json.dumps(times))
 
 
 def _run(code: str, *args, env=None) -> dict:
+    # run outside the checkout: ``python -c`` puts the working folder first on sys.path
     p = subprocess.run([sys.executable, "-c", code, *map(str, args)], check=True, capture_output=True, text=True,
-                       env=env)
+                       env=env, cwd=tempfile.gettempdir())
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
 def _best(label: str, runs: list[dict]) -> None:
     walls = [r["wall"] for r in runs]
     cpus = [r["cpu"] for r in runs]
-    print(f"  {label:42s} wall {min(walls):5.2f} s, cpu {min(cpus):5.2f} s (best of {len(runs)}; wall all: "
-          + ", ".join(f"{w:.2f}" for w in walls) + ")")
+    print(f"  {label:46s} wall {min(walls):5.2f} s, cpu {min(cpus):5.2f} s, {runs[-1]['figures']} figures "
+          f"[{Path(runs[-1]['code']).parents[2]}] "
+          f"(best of {len(runs)}; wall all: " + ", ".join(f"{w:.2f}" for w in walls) + ")")
 
 
 def _checkout(ref: str, into: Path) -> dict:
@@ -127,7 +139,7 @@ def main() -> None:
                     p = subprocess.run([sys.executable, "-c", code, str(out)], check=True, capture_output=True,
                                        text=True)
                     walls.append(float(p.stdout.strip()))
-                print(f"  {'handeye report (new process, all imports)':42s} wall {min(walls):5.2f} s (best of "
+                print(f"  {'handeye report (new process, all imports)':46s} wall {min(walls):5.2f} s (best of "
                       f"{len(walls)}; all: " + ", ".join(f"{w:.2f}" for w in walls) + ")")
                 figs = _run(_PER_FIGURE, out)
                 print("  per figure (cpu, warm): " + ", ".join(f"{k} {v[0]:.2f} s / {v[1] // 1024} KB"
