@@ -36,9 +36,9 @@ _JPEG_MAGIC = b"\xff\xd8\xff"
 def read_gray(path: Path) -> np.ndarray:
     """Read an image as 8-bit grayscale; one-line InputError when missing or corrupt.
 
-    JPEGs are decoded straight to their luma channel (2.2 ms instead of 5.5 ms for a 1280x720 view,
-    within 1-2 grey levels of converting the decoded colours); other formats keep their bit depth
-    until they are scaled to 8 bits.
+    JPEGs are decoded straight to their luma channel (about 2 ms CPU for a 1280x720 view against
+    3-5.6 ms for the colours and a conversion, benchmarks/bench_detect.py; within 1-2 grey levels of
+    the converted colours); other formats keep their bit depth until they are scaled to 8 bits.
     """
     path = Path(path)
     if not path.exists():
