@@ -228,14 +228,16 @@ def summarize(rows: list, label: str = "all") -> None:
           f"| rot-only d2 median {np.median([r['d2_rot'] for r in ok]):.2f} (chi2(3) {chi2.ppf(0.5, 3):.2f}), "
           f"trans-only {np.median([r['d2_trans'] for r in ok]):.2f}")
     print(f"  detector       corner error {np.mean([r['det_sigma_px'] for r in ok]):.3f} px/coord (estimated sigma_px "
-          f"{np.mean([r['sigma_px'] for r in ok]):.3f}), per-view mean error {np.mean([r['view_bias_px'] for r in ok]):.3f}"
+          f"{np.mean([r['sigma_px'] for r in ok]):.3f}), per-view mean error "
+          f"{np.mean([r['view_bias_px'] for r in ok]):.3f}"
           f" px, similarity share {np.mean([r['sim_share'] for r in ok]):.2f}")
     ca = np.concatenate([r["corner_abs_px"] for r in ok])
     pe = np.concatenate([r["camera_pose_err"] for r in ok])
     print(f"  detector       |corner error| over {ca.size} corners: median {np.median(ca):.3f} px, 99.9 % "
           f"{np.quantile(ca, 0.999):.3f} px, max {ca.max():.3f} px | robot pose implied by one view's corners (true "
           f"intrinsics, T_x, board) vs the true pose over {len(pe)} views: median {np.median(pe[:, 0]):.4f} deg "
-          f"{np.median(pe[:, 1]):.3f} mm, 99 % {np.quantile(pe[:, 0], 0.99):.4f} deg {np.quantile(pe[:, 1], 0.99):.3f} mm, "
+          f"{np.median(pe[:, 1]):.3f} mm, 99 % {np.quantile(pe[:, 0], 0.99):.4f} deg "
+          f"{np.quantile(pe[:, 1], 0.99):.3f} mm, "
           f"max {pe[:, 0].max():.4f} deg {pe[:, 1].max():.3f} mm")
     with_out = [r for r in ok if r["true_out"]]
     n_true = sum(len(r["true_out"]) for r in ok)
@@ -245,7 +247,8 @@ def summarize(rows: list, label: str = "all") -> None:
           f"false view flags {false} in {len(ok)} sessions ({sum(bool(r['flagged'] - r['true_out']) for r in ok)} "
           f"sessions); corner flags {sum(r['corner_flags'] for r in ok)}")
     print(f"  time           calibrate {np.median([r['secs'] for r in rows]):.1f} s median, "
-          f"{max(r['secs'] for r in rows):.1f} s max; render {np.median([r['render_secs'] for r in rows]):.1f} s median")
+          f"{max(r['secs'] for r in rows):.1f} s max; render "
+          f"{np.median([r['render_secs'] for r in rows]):.1f} s median")
 
 
 def main(argv=None) -> int:

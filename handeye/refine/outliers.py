@@ -61,7 +61,7 @@ class RobotPoseTest:
     flagged: np.ndarray  # (n,) bool
     rot_deg: np.ndarray  # (n,) |omega| of the disagreement
     trans_mm: np.ndarray  # (n,) |v| of the disagreement
-    sigma_rot_deg: np.ndarray  # (n,) sqrt(trace) of the rotation block of C + R: the RMS size of a correct pose's |omega|
+    sigma_rot_deg: np.ndarray  # (n,) sqrt(trace) of the rotation block of C + R: RMS |omega| of a correct pose
     sigma_trans_mm: np.ndarray  # (n,) the same for the translation
     threshold: float  # chi-square(6) quantile at 1 - alpha
     gates: RobotPoseGates
