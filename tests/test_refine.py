@@ -318,3 +318,18 @@ def test_starts_choose_the_closed_form_the_views_agree_with():
     r = refine(mode=s.mode, object_points=s.target.object_points(), views=_views(s), intrinsics=s.intrinsics,
                T_x0=s.T_x_true, T_board0=s.T_board_true, starts={"park": good})
     assert r.start_method == "given"
+
+
+def test_aitken_step_lands_on_the_fixed_point_of_a_linear_iteration():
+    """The noise estimation's extrapolation: for x_{k+1} = a + rho (x_k - a) (log-sigmas) it returns exp(a)
+    exactly, per component; a component that oscillates or has stopped is left at its last iterate."""
+    from handeye.refine.noise import _aitken
+
+    a, rho = np.log([0.3, 1e-4, 2e-5]), np.array([0.93, 0.5, -0.4])
+    x0 = np.log([1.0, 1e-3, 1e-4])
+    x1 = a + rho * (x0 - a)
+    x2 = a + rho * (x1 - a)
+    out = np.log(_aitken(x0, x1, x2))
+    np.testing.assert_allclose(out[:2], a[:2], rtol=1e-12)
+    assert out[2] == x2[2], "an oscillating component must not be extrapolated"
+    np.testing.assert_array_equal(_aitken(x0, x0, x0), np.exp(x0))
