@@ -476,6 +476,19 @@ def test_a_failing_finding_fails_the_verdict_and_its_numbers_are_not_shown_green
     assert cards["Rotation coverage"]["status"] == "untrusted"
     assert cards["Views used"]["status"] != "untrusted"  # the finding says nothing about the view count
     assert all(k["status"] != "pass" for k in ctx["kpis"] if k["label"].startswith(("Predicted", "Rotation")))
+    # in the checks table too: the numbers it distrusts are not "passed"
+    status = {c.key: c.status for c in ctx["verdict"].checks}
+    assert status["predicted_error_mm"] == "untrusted" and status["max_rotation_deg"] == "untrusted"
+    res["diagnostics"]["findings"] = []
+    before = {c.key: c.status for c in build_report_context(_folder(tmp_path, res, obs), make_plots=False)
+              ["verdict"].checks}
+    from handeye.report.advice import UNTRUSTED_METRICS
+
+    distrusted = set(UNTRUSTED_METRICS["translation_units"])
+    assert {k: v for k, v in status.items() if k not in distrusted} == {
+        k: v for k, v in before.items() if k not in distrusted}  # the other checks are as they were
+    assert {status[k] for k in distrusted if before[k] == "pass"} == {"untrusted"}
+    assert ctx["verdict"].counts["pass"] == sum(s == "pass" for s in status.values())
 
 
 def test_bad_site_qa_file_is_a_one_line_error(synthetic, tmp_path):

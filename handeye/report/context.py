@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import re
+from dataclasses import replace
 import sys
 from pathlib import Path
 from typing import Any, Optional
@@ -87,6 +88,7 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     verdict = evaluate(metrics, qa_cfg, context=notes, failure=failure, findings=findings,
                        thresholds_source=qa_source)
     untrusted = untrusted_metrics(findings)
+    verdict = _distrust(verdict, untrusted)
     ctx["verdict"] = verdict
     ctx["untrusted"] = untrusted
     ctx["failure"] = failure
@@ -430,6 +432,19 @@ def _cross_validation(cv) -> Optional[dict]:
 
 
 # ------------------------------------------------------------------------------ KPIs
+def _distrust(verdict: Verdict, untrusted: dict[str, str]) -> Verdict:
+    """Checks that pass on a number a finding says is wrong are shown as untrusted, not as passed (the
+    finding itself already counts towards the verdict)."""
+    if not untrusted:
+        return verdict
+    checks = tuple(replace(c, status="untrusted", why=f"Not to be trusted: {untrusted[c.key]}",
+                           action="Fix what that finding names and re-run handeye calibrate")
+                   if c.status == "pass" and c.key in untrusted else c for c in verdict.checks)
+    counts = dict(verdict.counts, **{s: sum(c.status == s for c in checks) for s in ("pass", "untrusted")})
+    return replace(verdict, checks=checks, counts=counts)
+
+
+
 def _kpis(metrics, pred, wd, views, verdict: Verdict, ok: bool, untrusted: dict[str, str]) -> list[dict]:
     """The headline cards. A card whose number a finding says is not to be trusted is shown as such,
     never green."""

@@ -221,15 +221,21 @@ def _cap(s: str) -> str:
     return s[:1].upper() + s[1:]
 
 
+def _lower1(s: str) -> str:
+    return s[:1].lower() + s[1:]
+
+
 def _headline(status: str, checks: list, findings: list, ctx: dict, failure: dict | None) -> str:
     if failure:
         return "The session could not be calibrated. " + (failure.get("short") or "")
-    items = [c.short for c in checks if c.status == status and c.short]
-    items += [str(f.get("title", f.get("code", ""))).rstrip(".")[:1].lower() + str(f.get("title", "")).rstrip(".")[1:]
-              for f in findings if str(f.get("severity")).lower() == status]
+    named = [c for c in checks if c.status == status and c.short]
+    items = [c.short for c in named]
+    items += [_lower1(str(f.get("title") or f.get("code") or "").rstrip(".")) for f in findings
+              if str(f.get("severity")).lower() == status]
     name = ctx.get("x_name", "The hand-eye transform")
     pe = ctx.get("predicted_text")
-    tail = f" Predicted position error {pe}." if pe and not any(i.startswith("predicted") for i in items) else ""
+    said = any(c.key == "predicted_error_mm" for c in named)  # the headline names it already
+    tail = f" Predicted position error {pe}." if pe and not said else ""
     if status == "pass":
         return f"{name} meets every QA threshold.{tail}"
     if len(items) > 3:

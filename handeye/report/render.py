@@ -43,7 +43,8 @@ def _env(*, html: bool) -> jinja2.Environment:
     env.filters["pct"] = pct
     env.filters["sgn"] = lambda x, d=3: num(x, d, signed=True)
     env.filters["mdcell"] = mdcell
-    env.filters["status_label"] = lambda s: {"pass": "PASS", "warn": "WARN", "fail": "FAIL", "info": "INFO"}.get(s, s)
+    env.filters["status_label"] = lambda s: {"pass": "PASS", "warn": "WARN", "fail": "FAIL", "info": "INFO",
+                                                      "untrusted": "UNTRUSTED"}.get(s, s)
     env.globals["version"] = __version__
     return env
 
