@@ -308,3 +308,53 @@ def test_unreadable_sessions_read_leniently_are_none(tmp_path):
 def test_target_specs_read_back_what_they_write(spec, text):
     assert parse_target(spec.to_dict(), path=Path("session.yaml")) == spec
     assert spec.describe() == text
+
+
+# ------------------------------------------------------------------------------ importers
+def test_visp_import_reads_metres_and_theta_u(tmp_path):
+    from scipy.spatial.transform import Rotation
+
+    from handeye.session.importers import import_visp
+
+    src = tmp_path / "visp"
+    src.mkdir()
+    (src / "chessboard-data.txt").write_text("Chessboard: 9 x 6\nsquare size: 0.0236 m\n")
+    for k, T in enumerate(POSES, start=1):
+        (src / f"franka_image-{k}.png").write_bytes(b"x")
+        values = [*T[:3, 3], *Rotation.from_matrix(T[:3, :3]).as_rotvec()]
+        (src / f"franka_pose_rPe_{k}.yaml").write_text(
+            "rows: 6\ncols: 1\ndata:\n" + "".join(f"  - [{float(v)!r}]\n" for v in values))
+    s = load_session(import_visp(src, tmp_path / "out"))
+    assert s.target == ChessboardSpec(9, 6, 0.0236) and s.mode == "eye_in_hand"
+    assert [v.view_id for v in s.views] == ["1", "2", "3", "4"]
+    for v, T in zip(s.views, POSES):
+        np.testing.assert_allclose(v.T_base_end, T, atol=1e-12)
+        assert v.image_path == src / f"franka_image-{v.view_id}.png"
+
+
+def test_ical_import_reads_xyzw_quaternions_and_the_static_camera(tmp_path):
+    from handeye.frames import quat_wxyz_from_R
+    from handeye.session.importers import import_ical
+
+    src = tmp_path / "ical"
+    (src / "images").mkdir(parents=True)
+    (src / "poses").mkdir()
+    data = []
+    for k, T in enumerate(POSES):
+        (src / "images" / f"{k}.png").write_bytes(b"x")
+        w, x, y, z = quat_wxyz_from_R(T[:3, :3])
+        (src / "poses" / f"{k}.yaml").write_text(yaml.safe_dump(
+            {"x": float(T[0, 3]), "y": float(T[1, 3]), "z": float(T[2, 3]),
+             "qx": float(x), "qy": float(y), "qz": float(z), "qw": float(w)}))
+        data.append({"image": f"images/{k}.png", "pose": f"poses/{k}.yaml"})
+    (src / "cal_data.yaml").write_text(yaml.safe_dump({
+        "static_camera": True, "data": data,
+        "target_finder": {"type": "CharucoGridTargetFinder", "cols": 5, "rows": 7, "chessboard_dim": 0.036195,
+                          "aruco_marker_dim": 0.018256, "dictionary": 10}}))
+    s = load_session(import_ical(src, tmp_path / "out"))
+    assert s.mode == "eye_to_hand" and s.target == CharucoSpec(5, 7, 0.036195, 0.018256, "DICT_6X6_250")
+    for v, T in zip(s.views, POSES):
+        np.testing.assert_allclose(v.T_base_end, T, atol=1e-12)
+    (src / "cal_data.yaml").write_text(yaml.safe_dump({"data": data, "target_finder": {"type": "DotFinder"}}))
+    with pytest.raises(InputError, match="unsupported industrial_calibration target finder"):
+        import_ical(src, tmp_path / "out2")
