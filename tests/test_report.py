@@ -471,6 +471,7 @@ def test_a_failing_finding_fails_the_verdict_and_its_numbers_are_not_shown_green
                                        "evidence": "...", "action": "set translation_unit: mm", "view_ids": []}]
     ctx = build_report_context(_folder(tmp_path, res, obs), make_plots=False)
     assert ctx["verdict"].status == "fail" and "millimetres" in ctx["verdict"].headline
+    assert "Predicted position error" not in ctx["verdict"].headline  # a distrusted number is not headlined
     cards = {k["label"].split(" at ")[0]: k for k in ctx["kpis"]}
     assert cards["Predicted error"]["status"] == "untrusted"
     assert cards["Rotation coverage"]["status"] == "untrusted"

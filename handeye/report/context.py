@@ -83,11 +83,11 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
                                 coverage_cells_x=int(qa_cfg.get("coverage_grid_cells_x", 16)))
     failure = failure_advice(res, findings, has_views=bool(views)) if not ok else None
     notes["x_name"] = x_name
-    if pred is not None:
+    untrusted = untrusted_metrics(findings)
+    if pred is not None and "predicted_error_mm" not in untrusted:  # the headline repeats it
         notes["predicted_text"] = f"{pred['rms_mm']:.2f} mm (1 σ) at {wd:.2f} m"
     verdict = evaluate(metrics, qa_cfg, context=notes, failure=failure, findings=findings,
                        thresholds_source=qa_source)
-    untrusted = untrusted_metrics(findings)
     verdict = _distrust(verdict, untrusted)
     ctx["verdict"] = verdict
     ctx["untrusted"] = untrusted
