@@ -18,7 +18,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..frames import inv_T, rotvec_from_R, se3_adjoint, tangent_difference, tangent_jacobian
+from ..frames import inv_T, make_T, rotvec_from_R, se3_adjoint, tangent_difference, tangent_jacobian
 from ..initial.motion import axis_text, motion_quality, rotations_to_add
 from ..mounting import mounting
 from ..refine.outliers import RobotPoseTest, robot_pose_test
@@ -126,24 +126,26 @@ def flagged_views(obs: PoseObservations, check: RobotPoseCheck, *, refined=None)
 
 
 def board_turns(target) -> list:
-    """Board-frame transforms (name, F) for a detector's corner numbering turned by 180 (or 90) degrees:
-    the true ``T_cam_board`` is ``C @ F`` when the corners were numbered from the other end."""
-    from ..targets import ChessboardSpec
-
-    if not isinstance(target, ChessboardSpec):
-        return []
-    from ..frames import T_from_rotvec
-
-    L = target.square_m
-    c = np.array([(target.cols - 1) * L / 2.0, (target.rows - 1) * L / 2.0, 0.0])
-    turns = [("180 deg", np.pi)] + ([("90 deg", np.pi / 2), ("-90 deg", -np.pi / 2)] if target.cols == target.rows
-                                    else [])
+    """Board-frame transforms (name, F) for each way a detector can number a symmetric board's corners
+    (:meth:`TargetSpec.symmetries`, identity left out): the true ``T_cam_board`` is ``C @ F`` when the
+    corners were numbered that way. ``F`` is the rigid motion of the board plane that takes each corner to
+    the one it was confused with (a turn about the board's normal)."""
+    obj = target.object_points()
     out = []
-    for name, a in turns:
-        F = T_from_rotvec([0.0, 0.0, a], [0.0, 0.0, 0.0])
-        F[:3, 3] = c - F[:3, :3] @ c
-        out.append((name, F))
+    for perm in target.symmetries()[1:]:
+        G = _rigid_motion(obj, obj[perm])  # obj[perm[k]] = G obj[k]
+        angle = np.degrees(rotvec_from_R(G[:3, :3]))[2]
+        out.append((f"{angle:.0f} deg", inv_T(G)))
     return out
+
+
+def _rigid_motion(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The rigid transform (4,4) taking points p (N,3) onto q (N,3) in least squares (Kabsch)."""
+    pc, qc = p.mean(axis=0), q.mean(axis=0)
+    U, _, Vt = np.linalg.svd((p - pc).T @ (q - qc))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return make_T(R, qc - R @ pc)
 
 
 def corner_flip_findings(obs: PoseObservations, check: RobotPoseCheck, flagged: Sequence[str],
