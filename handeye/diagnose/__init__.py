@@ -172,6 +172,8 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
             stages.skip(name, f"fewer than {thresholds().views.min_fail} views with a board pose")
         if stages.status.get("observations") == "ok" and (run.detections or run.outcomes):
             findings += stages.run("motion", view_count_findings, len(run.board_poses or {}), default=[])
+        else:
+            stages.skip("motion", "no views to count")
     global_fault = bool(pose and pose["global_fault"])
     predict = _prediction(run, pose)
     if predict is None or run.intrinsics is None:
