@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import datetime as _dt
 import re
-from dataclasses import replace
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Optional
 
@@ -22,7 +22,7 @@ from ..output import plain
 from .advice import failure_advice, untrusted_metrics
 from .folder import ResultFolder
 from .metrics import qa_metrics
-from .observations import (as_cov6, as_T, board_disagreement, finite, median_board_distance_m, view_fits)
+from .observations import as_cov6, as_T, board_disagreement, finite, median_board_distance_m, view_fits
 from .qa import STATUS_ORDER, Verdict, evaluate
 from .uncertainty import Z95, form_sigmas, predicted_point_error
 
@@ -62,7 +62,7 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
                            "ok": ok, "refined": bool(ref)}
     ctx["meta"] = _meta(res, obs)
     findings = _findings(diag)
-    views = _view_rows(res, ref, fits, board_centre, findings, folder, image_size)
+    views = _view_rows(res, ref, fits, board_centre, findings, image_size)
     ctx["views"] = views
     ctx["n_used"] = sum(v["status"] == "used" for v in views)
     ctx["n_total"] = len(views)
@@ -171,7 +171,7 @@ def _strip_view_prefix(text: str) -> str:
     return re.sub(r"^(outlier: )?view \S+: ", r"\1", str(text or ""))
 
 
-def _view_rows(res, ref, fits, centre, findings, folder: ResultFolder, image_size) -> list[dict]:
+def _view_rows(res, ref, fits, centre, findings, image_size) -> list[dict]:
     per_view = (ref or {}).get("per_view") or {}
     outl: dict[str, list] = {}
     for o in (ref or {}).get("outliers") or []:
