@@ -205,3 +205,24 @@ def test_circle_grid_pattern_bounds_hold_every_dot_with_a_spacing_to_spare():
         p = grid.object_points()
         assert np.isclose(p[:, 0].min() - x0, grid.spacing_m) and np.isclose(x1 - p[:, 0].max(), grid.spacing_m)
         assert np.isclose(p[:, 1].min() - y0, grid.spacing_m) and np.isclose(y1 - p[:, 1].max(), grid.spacing_m)
+
+
+def test_view_information_board_block_matches_the_analytic_projection_jacobian():
+    """No robot noise: the T_board block of a view's information is J^T J / sigma^2 with J from the
+    projection's own Jacobian (camera.pixels_from_cam_points) and the right perturbation
+    p_cam = R_cam_board (p_board + omega x p_board + v) + t."""
+    from handeye.camera import pixels_from_cam_points
+    from handeye.frames import skew
+
+    mode = "eye_to_hand"
+    T_x, T_b, T0 = _rig(mode, 2)
+    info = P.view_information(mode=mode, T_x=T_x, T_board=T_b, T_base_end=T0, object_points=TARGET.object_points(),
+                              intrinsics=INTR, pixel_noise_px=0.5, robot_noise_mm=0.0, robot_noise_deg=0.0)
+    C = mounting(mode).predict_T_cam_board(T_x, T_b, T0)
+    p_b = TARGET.object_points()
+    _, J_uv_p, _ = pixels_from_cam_points(INTR.as_vector(), p_b @ C[:3, :3].T + C[:3, 3])  # (N, 2, 3)
+    J_p_xi = np.concatenate([-C[:3, :3] @ skew(p_b), np.broadcast_to(C[:3, :3], (len(p_b), 3, 3))], axis=2)
+    J = (J_uv_p @ J_p_xi).reshape(-1, 6)  # (2N, 6)
+    expected = J.T @ J / 0.5 ** 2
+    # central differences with h = 1e-6 on pixel values ~1e2-1e3: relative error ~1e-6
+    np.testing.assert_allclose(info[6:, 6:], expected, rtol=1e-5, atol=1e-5 * np.abs(expected).max())
