@@ -24,6 +24,10 @@ ERROR_ADVICE = {
     "camera_calibration_failed": "Give the camera intrinsics in the session, or add views that reach the image "
                                  "corners at different distances and tilts.",
     "pnp_failed": "Check the board description (inner corners, square size) against the thumbnails.",
+}
+
+#: advice for the error classes' default codes: only when nothing more precise is known
+FALLBACK_ADVICE = {
     "input_error": "Fix what the message names (docs/session_format.md describes the session files) and re-run "
                    "handeye calibrate.",
     "config_error": "Fix the setting the message names and re-run handeye calibrate.",
@@ -67,7 +71,8 @@ def error_record(res: dict) -> dict:
 
 def failure_advice(res: dict, findings: list[dict], *, has_views: bool) -> dict:
     """Why a run failed and what to change: the error's own fix, the actions of the diagnostics' fail
-    findings (they name the mistake more precisely than the error can), then the advice for the code."""
+    findings (they name the mistake more precisely than the error can), then the advice for the code;
+    generic advice only when none of these says anything."""
     err = error_record(res)
     parts = [str(err["what"])]
     if err.get("expected"):
@@ -86,9 +91,10 @@ def failure_advice(res: dict, findings: list[dict], *, has_views: bool) -> dict:
     for f in findings:
         if f["severity"] == "fail":
             add(f.get("action"))
-    add(ERROR_ADVICE.get(str(err.get("code") or ""), ""))
+    code = str(err.get("code") or "")
+    add(ERROR_ADVICE.get(code, ""))
     if not actions:
-        add(GENERIC_WITH_VIEWS if has_views else GENERIC_WITHOUT_VIEWS)
+        add(FALLBACK_ADVICE.get(code) or (GENERIC_WITH_VIEWS if has_views else GENERIC_WITHOUT_VIEWS))
     where = err.get("file") or ""
     if where and err.get("line") is not None:
         where = f"{where}:{err['line']}"
