@@ -64,7 +64,7 @@ def test_cli_calibrates_a_real_session(ical_session, tmp_path, capsys):
     assert "view 2 (2.png) dropped" in capsys.readouterr().out
 
 
-def test_visp_default_pipeline_within_the_issue_tolerance(visp_session, tmp_path):
+def test_visp_own_intrinsics_refined_agrees_with_the_reference(visp_session, tmp_path):
     # own intrinsics from 8 views + joint refinement with estimated robot noise
     s = load_session(visp_session)
     from dataclasses import replace
@@ -73,6 +73,8 @@ def test_visp_default_pipeline_within_the_issue_tolerance(visp_session, tmp_path
     run = run_calibration(s, CalibrateOptions())
     assert run.status == "ok", run.failure_reason
     r, t = pose_error(run.T_x, VISP_REF)
+    # the reference is itself an estimate from these 8 views (ViSP reports 5.4 mm board scatter); the
+    # refined 1-sigma is 1.4-2.6 mm and 0.13-0.21 deg per axis: about one sigma apart
     assert r < 0.5 and t < 3.0, (r, t)
     ref = run.refined
     # ViSP reports 5.4 mm / 0.46 deg board scatter: the robot's own error must be found, not assumed away
@@ -92,7 +94,9 @@ def test_ical_refined_agrees_with_the_closed_forms(ical_session):
     r, t = pose_error(run.T_x, ICAL_PARK)
     assert r < 0.3 and t < 3.5, (r, t)
     sig = np.asarray(run.refined.sigma_trans_mm)
-    assert np.all(sig > 0.05) and np.all(sig < 5.0)  # millimetre-level, as the method spread says
+    # measured 0.40-0.69 mm per axis (pixel noise 0.37 px, robot 0.5 mm / 0.05 deg estimated): a
+    # covariance twice too small or too large leaves this band
+    assert np.all(sig > 0.2) and np.all(sig < 1.4), sig
 
 
 # industrial_calibration circle-grid set (SOURCE.md): X = T_tool_cam from OpenCV's closed forms with the
@@ -159,7 +163,9 @@ def test_kinect_circlegrid_refined_agrees_with_the_closed_forms(kinect_run):
     assert errs[:, 1].max() < spread_mm, (errs, spread_mm)  # within the methods' spread (13.6 mm)
     assert errs[:, 0].max() < 1.0, errs  # rotation: methods agree to 0.4 deg, refined 0.5-0.8 deg from them
     sig = np.asarray(ref.sigma_trans_mm)
-    assert np.all(sig < 15.0) and ref.sigma_px < 0.5
+    # measured 5.4-8.0 mm per axis (robot noise ~7 mm estimated) and 0.13 px: a covariance or a pixel
+    # noise twice too small or too large leaves these bands
+    assert np.all(sig > 2.5) and np.all(sig < 16.0) and 0.065 < ref.sigma_px < 0.26, (sig, ref.sigma_px)
     assert len(run.used_ids) >= 12
 
 
