@@ -4,8 +4,9 @@
 exercise the same path. It writes into ``out_dir``:
 
 - ``result.json``: the result (or the failure with its structured ``error``), diagnostics, and
-  ``seconds`` for every stage (load, detect, intrinsics, board_poses, closed_form, refine, diagnose,
-  write, report, total);
+  ``seconds`` for every stage: load, detect, intrinsics, board_poses, closed_form, refine (the
+  pipeline's stages; ``calibrate`` is all of them together), diagnose, write, report, and ``total``
+  from the start of the load to the end of the report (start-up and imports are not in it);
 - ``observations.json``: per-view corners and residuals;
 - ``thumbnails/<view_id>.jpg``: small images of every view (when detection made them);
 - ``report.html`` / ``report.md``, built from the folder alone (unless ``report=False``).
