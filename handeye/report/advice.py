@@ -49,6 +49,8 @@ UNTRUSTED_METRICS = {
     "uncertainty_underestimated": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
 }
 
+MAX_ACTIONS = 3  # a short list is read; the findings section below has every finding's action
+
 GENERIC_WITH_VIEWS = ("Read the per-view table for what was found in each image, fix the cause and re-run "
                       "handeye calibrate.")
 GENERIC_WITHOUT_VIEWS = ("Fix what the message names (docs/session_format.md describes the session files) and "
@@ -70,9 +72,9 @@ def error_record(res: dict) -> dict:
 
 
 def failure_advice(res: dict, findings: list[dict], *, has_views: bool) -> dict:
-    """Why a run failed and what to change: the error's own fix, the actions of the diagnostics' fail
-    findings (they name the mistake more precisely than the error can), then the advice for the code;
-    generic advice only when none of these says anything."""
+    """Why a run failed and what to change: the error's own fix, the advice for its code, then the
+    actions of the diagnostics' fail findings (up to :data:`MAX_ACTIONS` in all); generic advice only
+    when none of these says anything."""
     err = error_record(res)
     parts = [str(err["what"])]
     if err.get("expected"):
@@ -87,12 +89,12 @@ def failure_advice(res: dict, findings: list[dict], *, has_views: bool) -> dict:
         if text and text not in actions:
             actions.append(text)
 
-    add(err.get("fix"))
-    for f in findings:
-        if f["severity"] == "fail":
-            add(f.get("action"))
     code = str(err.get("code") or "")
+    add(err.get("fix"))
     add(ERROR_ADVICE.get(code, ""))
+    for f in findings:
+        if f["severity"] == "fail" and len(actions) < MAX_ACTIONS:
+            add(f.get("action"))
     if not actions:
         add(FALLBACK_ADVICE.get(code) or (GENERIC_WITH_VIEWS if has_views else GENERIC_WITHOUT_VIEWS))
     where = err.get("file") or ""
