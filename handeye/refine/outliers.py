@@ -391,16 +391,17 @@ def outlier_loop(pb: "Problem"):
     o = pb.o
     seen_keys = []
     S_pp = None
-    applied = None  # the decision the current solution was solved with
     for rnd in range(o.max_outlier_rounds):
         dec = decide(pb, robust_robot_sigma=rnd == 0, S_pp=S_pp)
         if seen_keys and dec.key() == seen_keys[-1]:
             return dec, S_cc, S_pp
         if dec.key() in seen_keys:
-            log.warning("outlier decisions oscillate; keeping the previous set")
-            return applied, S_cc, S_pp
+            # two sets alternate (a borderline view): settle on the latest decision, solved with it
+            log.warning("outlier decisions oscillate; solving once more with the latest set")
+            apply_decision(pb, dec)
+            S_cc, S_pp = solve_with_vce(pb)
+            return dec, S_cc, S_pp
         seen_keys.append(dec.key())
-        applied = dec
         apply_decision(pb, dec)
         n_robot = len(pb.prior_views()) + (0 if pb.robot_var else len([i for i in pb.active()
                                                                          if pb.status[i] == "used"]))
