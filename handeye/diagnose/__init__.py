@@ -115,12 +115,11 @@ def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session
 def _robot_pose_stage(obs: PoseObservations, fit, *, refined=None, exclude=()) -> tuple[list, dict]:
     """(findings, per-view numbers): robot poses that disagree, explained by a corner flip or a swap where
     one fits."""
-    # PnP only: the intrinsics' error is common to all views and the fitted A, B absorb most of it (with it,
-    # the marginal covariance is large along directions the disagreements do not take, and the robust robot
-    # noise estimate stays at its floor: 4 false alarms in 48 clean sessions of bench_diagnose --quick)
     covs = obs.pnp_covariances(with_intrinsics=False)
     check = robot_pose_check(obs, fit, covs=covs)
-    flagged, ref_flags, source = flagged_views(obs, check, refined=refined)
+    check_k = robot_pose_check(obs, fit, covs=obs.pnp_covariances()) if obs.intrinsics_estimated and covs is not None \
+        else None
+    flagged, ref_flags, source = flagged_views(obs, check, refined=refined, check_with_intrinsics=check_k)
     flagged = [v for v in flagged if v not in set(exclude)]
     out, flipped = corner_flip_findings(obs, check, flagged, covs)
     flagged = [v for v in flagged if v not in flipped]

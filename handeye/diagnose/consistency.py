@@ -106,11 +106,15 @@ def robot_pose_check(obs: PoseObservations, fit: BoardFit, *, covs: Optional[np.
     return RobotPoseCheck(obs.mode, fit, T_star, P, use, s_rot, s_tr, test, covs is not None)
 
 
-def flagged_views(obs: PoseObservations, check: RobotPoseCheck, *, refined=None) -> tuple[list, dict, str]:
+def flagged_views(obs: PoseObservations, check: RobotPoseCheck, *, refined=None,
+                  check_with_intrinsics: Optional[RobotPoseCheck] = None) -> tuple[list, dict, str]:
     """(flagged view ids, the refinement's robot-pose outliers by view, where the decision came from).
 
     A refinement that ran its outlier loop decided already: its decisions are used. Otherwise the
-    diagnostics' own run of the one test decides."""
+    diagnostics' own run of the one test decides: ``check`` with the PnP-only covariances and, when the
+    intrinsics were estimated from the same corners, ``check_with_intrinsics`` with their uncertainty
+    added. The truth lies between the two (the fitted A, B absorb the part of the intrinsics' error common
+    to all views, but not all of it), so a view is flagged only when both tests flag it."""
     if (refined is not None and getattr(refined, "status", "") == "ok"
             and getattr(getattr(refined, "options", None), "outlier_loop", True)):
         ref = {o.view_id: o for o in getattr(refined, "outliers", ()) if getattr(o, "kind", "") == "robot_pose"}
@@ -118,11 +122,13 @@ def flagged_views(obs: PoseObservations, check: RobotPoseCheck, *, refined=None)
                 "the refinement's robot-pose test (Mahalanobis distance with the estimated robot and pixel noise)")
     t = check.test
     g = t.gates
+    flags = t.flagged & (check_with_intrinsics.test.flagged if check_with_intrinsics is not None else True)
     src = (f"the robot-pose test without the wild views: chi-square(6) beyond {np.sqrt(t.threshold):.1f} sigma "
            f"(p < {g.alpha:g}) of each view's camera uncertainty plus robot noise "
            f"({np.degrees(check.sigma_rot_rad):.3f} deg, {1e3 * check.sigma_trans_m:.2f} mm per axis, estimated from "
-           f"the other views), and larger than {g.min_rot_deg:g} deg or {g.min_trans_mm:g} mm")
-    return [v for v, f in zip(obs.ids, t.flagged) if f], {}, src
+           f"the other views), with and without the intrinsics' uncertainty, and larger than {g.min_rot_deg:g} deg "
+           f"or {g.min_trans_mm:g} mm")
+    return [v for v, f in zip(obs.ids, flags) if f], {}, src
 
 
 def board_turns(target) -> list:
