@@ -53,7 +53,7 @@ class CalibrateOptions:
               "min_corners": None if cfg.get("min_corners") is None else int(cfg["min_corners"]),
               "min_rotation_deg": _float_or_none(motion.get("min_rotation_deg")),
               "min_axis_spread_deg": _float_or_none(motion.get("min_axis_spread_deg")),
-              "refine_options": dict(cfg.get("refine_options") or {})}
+              "refine_options": {k: v for k, v in (cfg.get("refine_options") or {}).items() if v is not None}}
         ro = overrides.pop("refine_options", None) or {}
         kw["refine_options"].update(ro)
         kw.update({k: v for k, v in overrides.items() if v is not None})
