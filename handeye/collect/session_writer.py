@@ -20,7 +20,6 @@ translation_unit: m}``): no angle convention to get wrong, full float precision.
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import logging
 import os
 import sys
@@ -32,7 +31,7 @@ import yaml
 
 from .. import __version__
 from ..errors import HardwareError, InputError
-from ..output import atomic_write_bytes, plain
+from ..output import atomic_write_bytes, plain, to_json
 from ..camera import Intrinsics
 from ..targets import TargetSpec
 
@@ -143,4 +142,4 @@ class SessionWriter:
 
     def write_ground_truth(self, truth: dict) -> None:
         """``ground_truth.json`` for simulated sessions (rewritten atomically as it grows)."""
-        self._write(self.out / "ground_truth.json", json.dumps(plain(truth), indent=1).encode("utf-8"))
+        self._write(self.out / "ground_truth.json", to_json(truth, indent=1).encode("utf-8"))
