@@ -64,7 +64,8 @@ def main() -> None:
         print(f"{'handeye --help':32s} wall "
               f"{_fmt([_wall([py, '-m', 'handeye.cli', '--help']) for _ in range(args.repeat)])}")
         imports = "import handeye.cli, handeye.workflow, handeye.session, handeye.refine, handeye.diagnose"
-        print(f"{'imports of the calibrate path':32s} wall {_fmt([_wall([py, '-c', imports]) for _ in range(args.repeat)])}")
+        walls = [_wall([py, "-c", imports]) for _ in range(args.repeat)]
+        print(f"{'imports of the calibrate path':32s} wall {_fmt(walls)}")
         for label, extra in (("calibrate --no-report", ["--no-report"]), ("calibrate (both reports)", [])):
             walls = []
             for k in range(args.repeat):

@@ -27,7 +27,8 @@ REFS = {
         [0.001783530, 0.009173748, 1.581782359], [0.0577152, -0.0339249, -0.0422769])),
     # PARK on the staged grayscale images (SOURCE.md)
     "ical-mako-charuco-eye-to-hand": ("PARK in SOURCE.md", make_T(
-        Rotation.from_rotvec(np.radians([8.01, 98.53, -146.56])).as_matrix(), np.array([-18.30, 1264.28, 289.60]) / 1e3)),
+        Rotation.from_rotvec(np.radians([8.01, 98.53, -146.56])).as_matrix(),
+        np.array([-18.30, 1264.28, 289.60]) / 1e3)),
     # TSAI with SOURCE.md's own intrinsics (no ground truth exists for this set)
     "ical-kinect-circlegrid-eye-in-hand": ("TSAI in SOURCE.md", make_T(
         Rotation.from_rotvec(np.radians([1.32, -0.91, -89.86])).as_matrix(), np.array([-86.16, 38.86, 77.24]) / 1e3)),
@@ -47,7 +48,8 @@ def main() -> None:
             variants = [("own intrinsics", lambda o: (import_visp(src, o) if name.startswith("visp")
                                                       else import_ical(src, o)))]
             if name.startswith("visp"):
-                variants.append(("factory intrinsics (fixed)", lambda o: import_visp(src, o, use_given_intrinsics=True)))
+                variants.append(("factory intrinsics (fixed)",
+                                 lambda o: import_visp(src, o, use_given_intrinsics=True)))
             for label, imp in variants:
                 path = imp(Path(tmp) / f"{name}-{len(label)}")
                 t0 = time.perf_counter()
@@ -61,16 +63,19 @@ def main() -> None:
                     continue
                 r = run.refined
                 rv = np.degrees(Rotation.from_matrix(run.T_x[:3, :3]).as_rotvec())
-                print(f"  refined {r.x_name}: t = {np.round(run.T_x[:3, 3] * 1e3, 2)} mm, rotvec = {np.round(rv, 3)} deg")
+                print(f"  refined {r.x_name}: t = {np.round(run.T_x[:3, 3] * 1e3, 2)} mm, "
+                      f"rotvec = {np.round(rv, 3)} deg")
                 print(f"  1-sigma: {np.round(r.sigma_trans_mm, 2)} mm, {np.round(r.sigma_rot_deg, 3)} deg; "
                       f"predicted error {r.predicted_error_mm:.2f} mm at {r.working_distance_m:.2f} m")
-                print(f"  noise: pixel {r.sigma_px:.3f} px, robot {r.robot_sigma_mm:.2f} mm / {r.robot_sigma_deg:.3f} deg"
+                print(f"  noise: pixel {r.sigma_px:.3f} px, robot {r.robot_sigma_mm:.2f} mm / "
+                      f"{r.robot_sigma_deg:.3f} deg"
                       f"; views used {len(run.used_ids)}/{len(run.outcomes)}; outliers: "
                       + (", ".join(f"{o.view_id} ({o.kind})" for o in r.outliers) or "none"))
                 rd, td = pose_error(run.T_x, T_ref)
                 print(f"  vs {ref_name}: {td:.2f} mm, {rd:.3f} deg")
                 cf = {m: pose_error(e.T_x, run.T_x) for m, e in run.closed_forms.items() if e.status == "ok"}
-                print("  closed forms vs refined: " + ", ".join(f"{m} {t:.1f} mm/{a:.2f} deg" for m, (a, t) in cf.items()))
+                print("  closed forms vs refined: "
+                      + ", ".join(f"{m} {t:.1f} mm/{a:.2f} deg" for m, (a, t) in cf.items()))
                 ref_cf = {m: pose_error(e.T_x, T_ref) for m, e in run.closed_forms.items() if e.status == "ok"}
                 print(f"  closed forms vs {ref_name}: " + ", ".join(f"{m} {t:.1f} mm/{a:.2f} deg"
                                                                for m, (a, t) in ref_cf.items()))

@@ -93,7 +93,8 @@ def read_json(path: str | Path) -> dict:
     try:
         return json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise InputError("file not found", path=path, hint="run handeye calibrate first or pass the result folder") from None
+        raise InputError("file not found", path=path,
+                         hint="run handeye calibrate first or pass the result folder") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise InputError(f"not valid JSON ({e})", path=path) from None
 

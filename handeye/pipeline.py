@@ -276,7 +276,8 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     state.update(closed_forms=closed)
     if start.status != "ok":
         raise CalibrationError(f"the {opts.method} solver failed: {start.failure_reason}",
-                               hint="try another --method (e.g. park) or check the robot poses", code="closed_form_failed")
+                               hint="try another --method (e.g. park) or check the robot poses",
+                               code="closed_form_failed")
     state.update(start=start, T_x=start.T_x, T_board=start.T_board)
     T_base_end = {vid: s.view(vid).T_base_end for vid in ids}
     chain = chain_residuals(start, mode, s.target.object_points(), poses, dets, T_base_end, intr)
@@ -289,7 +290,8 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
         seconds["refine"] = time.perf_counter() - t2
         if refined.status != "ok":
             raise CalibrationError(f"refinement failed: {refined.failure_reason}",
-                                   hint="rerun with --no-refine to get the closed-form result", code="refinement_failed")
+                                   hint="rerun with --no-refine to get the closed-form result",
+                                   code="refinement_failed")
         state.update(refined=refined, T_x=refined.T_x, T_board=refined.T_board, intrinsics=refined.intrinsics)
     outcomes = _final_outcomes(outcomes, chain, refined)
     state["outcomes"] = ordered()

@@ -65,7 +65,7 @@ def test_cli_apply_point(tmp_path, capsys, mode):
 
 def test_cli_apply_pose_in_millimetres(tmp_path, capsys):
     cs = make_corner_session(mode="eye_to_hand", n_views=3, seed=2, noise_px=0.0)
-    res = _write_result(tmp_path, cs)
+    _write_result(tmp_path, cs)
     v = pose_values_from_T(cs.T_cam_board_true[0], VENDOR_POSE_FORMAT)
     v[:3] *= 1000
     assert main(["apply", str(tmp_path), "--pose", *(f"{x:.12f}" for x in v), "--mm"]) == 0
@@ -73,7 +73,7 @@ def test_cli_apply_pose_in_millimetres(tmp_path, capsys):
     line = [l for l in out.splitlines() if l.startswith("x,y,z")][0]
     got = np.array([float(x) for x in line.split(":")[1].split(",")])
     expect = pose_values_from_T(cs.T_base_end_true[0] @ cs.T_board_true, VENDOR_POSE_FORMAT)
-    np.testing.assert_allclose(got[:3], expect[:3], atol=2e-6)
+    np.testing.assert_allclose(got, expect, atol=2e-6)  # printed with 6 decimals (m, rad)
 
 
 def test_apply_refuses_failed_results(tmp_path, capsys):

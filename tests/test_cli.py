@@ -96,7 +96,8 @@ def test_debug_keeps_the_traceback(tmp_path):
 
 def test_simulate_writes_the_session_it_promises(tmp_path, capsys):
     out = tmp_path / "sim"
-    assert main(["-q", "simulate", str(out), "--views", "3", "--seed", "3", "--hidden", "2", "--mode", "eye_in_hand"]) == 0
+    assert main(["-q", "simulate", str(out), "--views", "3", "--seed", "3", "--hidden", "2",
+                 "--mode", "eye_in_hand"]) == 0
     assert capsys.readouterr().out.splitlines()[0] == f"synthetic eye_in_hand session with 3 rendered views: {out}"
     s = load_session(out)
     assert [v.view_id for v in s.views] == ["1", "2", "3"] and s.mode == "eye_in_hand"

@@ -166,7 +166,8 @@ def test_intrinsics_from_noiseless_corners_and_too_few_views():
 def test_motion_thresholds_come_from_the_calibration_preset():
     m = load_preset("calibration")["motion"]
     t = default_thresholds()
-    assert (t.min_rotation_deg, t.min_axis_spread_deg) == (m["min_rotation_deg"], m["min_axis_spread_deg"]) == (10.0, 5.0)
+    assert (t.min_rotation_deg, t.min_axis_spread_deg) == (m["min_rotation_deg"], m["min_axis_spread_deg"])
+    assert (t.min_rotation_deg, t.min_axis_spread_deg) == (10.0, 5.0)
     M = np.stack([T_from_rotvec(np.radians([0, 0, a]), [0, 0, 0]) for a in (0, 4, 8)])  # 8 deg about z only
     mq = motion_quality(M, frame="end")
     assert mq.code == "motion_small_rotation" and abs(mq.max_rotation_deg - 8.0) < 1e-9

@@ -32,7 +32,8 @@ def add_parser(sub) -> None:
     p.add_argument("--robot-sigma", nargs=2, type=float, metavar=("MM", "DEG"),
                    help="robot pose sigma: start value (estimate) or the value (fixed)")
     p.add_argument("--workers", type=int, help="threads for corner detection (default: all cores)")
-    p.add_argument("--qa", type=Path, metavar="FILE", help="site QA thresholds for the report (overrides configs/qa.yaml)")
+    p.add_argument("--qa", type=Path, metavar="FILE",
+                   help="site QA thresholds for the report (overrides configs/qa.yaml)")
     p.add_argument("--no-report", action="store_true", help="write result.json, observations.json and thumbnails only")
     p.set_defaults(func=run)
 

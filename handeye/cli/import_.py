@@ -5,9 +5,11 @@ from pathlib import Path
 
 
 def add_parser(sub) -> None:
-    p = sub.add_parser("import", help="write a session.yaml for another tool's data folder (ViSP, industrial_calibration)",
+    p = sub.add_parser("import",
+                       help="write a session.yaml for another tool's data folder (ViSP, industrial_calibration)",
                        description="Writes OUT/session.yaml pointing at the original images; nothing is copied.")
-    p.add_argument("kind", choices=["visp", "ical"], help="visp: ViSP hand-eye data; ical: ROS-I industrial_calibration")
+    p.add_argument("kind", choices=["visp", "ical"],
+                   help="visp: ViSP hand-eye data; ical: ROS-I industrial_calibration")
     p.add_argument("src", type=Path, help="the other tool's data folder")
     p.add_argument("out", type=Path, help="folder for session.yaml")
     p.add_argument("--given-intrinsics", action="store_true", help="use the intrinsics shipped with the data (fixed)")

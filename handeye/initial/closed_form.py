@@ -61,7 +61,8 @@ def solve_closed_form(mode: MountingMode, C: np.ndarray, M: np.ndarray, *, metho
                                     method=HAND_EYE_METHODS[method])
         X = make_T(R, t.reshape(3))  # "cam2gripper" = inv(A)
         if not np.all(np.isfinite(X)):
-            return HandEyeEstimate(mode.name, method, np.eye(4), np.eye(4), "failed", "solver returned non-finite values")
+            return HandEyeEstimate(mode.name, method, np.eye(4), np.eye(4), "failed",
+                                   "solver returned non-finite values")
         A = inv_T(X)
         B = mean_T(inv_T(A @ M) @ C)
     else:
