@@ -16,7 +16,6 @@ from __future__ import annotations
 from typing import Callable
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 
 def make_T(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -41,23 +40,7 @@ def inv_T(T: np.ndarray) -> np.ndarray:
 
 
 def T_from_rotvec(rotvec: np.ndarray, t: np.ndarray) -> np.ndarray:
-    return make_T(Rotation.from_rotvec(np.asarray(rotvec, float)).as_matrix(), t)
-
-
-def rotvec_from_R(R: np.ndarray) -> np.ndarray:
-    return Rotation.from_matrix(np.asarray(R, float)).as_rotvec()
-
-
-def quat_wxyz_from_R(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) with w >= 0."""
-    q = Rotation.from_matrix(np.asarray(R, float)).as_quat()  # scipy: x, y, z, w
-    q = np.array([q[3], q[0], q[1], q[2]])
-    return q if q[0] >= 0 else -q
-
-
-def R_from_quat_wxyz(q: np.ndarray) -> np.ndarray:
-    q = np.asarray(q, float)
-    return Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()
+    return make_T(R_from_rotvec(rotvec), t)
 
 
 def transform_points(T_a_b: np.ndarray, p_b: np.ndarray) -> np.ndarray:
@@ -69,7 +52,7 @@ def transform_points(T_a_b: np.ndarray, p_b: np.ndarray) -> np.ndarray:
 def rotation_angle_rad(R: np.ndarray) -> np.ndarray:
     """Geodesic rotation angle of R (3,3) or (N,3,3), in radians, robust near 0 and pi."""
     R = np.asarray(R, float)
-    return np.linalg.norm(Rotation.from_matrix(R).as_rotvec(), axis=-1)
+    return np.linalg.norm(rotvec_from_R(R), axis=-1)
 
 
 def rot_err_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
@@ -119,11 +102,65 @@ def screw_invariants(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     robot motion that caused it without knowing the hand-eye transform.
     """
     T = np.asarray(T, float).reshape(-1, 4, 4)
-    rv = Rotation.from_matrix(T[:, :3, :3]).as_rotvec()
+    rv = rotvec_from_R(T[:, :3, :3])
     ang = np.linalg.norm(rv, axis=1)
     axis = rv / np.maximum(ang, 1e-12)[:, None]
     pitch = np.einsum("ni,ni->n", axis, T[:, :3, 3])
     return ang, pitch
+
+
+# ------------------------------------------------------------------------------ rotation forms
+# Pure numpy (no scipy.spatial at import time: the CLI's start-up stays light); vectorised over
+# leading axes; robust near 0 and pi (quaternions by Shepperd's method).
+def quat_wxyz_from_R(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion(s) (w, x, y, z) with w >= 0 of rotation(s) (3,3) or (...,3,3)."""
+    R = np.asarray(R, float)
+    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    cand = np.stack([1.0 + m00 + m11 + m22, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22,
+                     1.0 - m00 - m11 + m22], axis=-1)
+    k = np.argmax(cand, axis=-1)
+    s = 2.0 * np.sqrt(np.maximum(np.take_along_axis(cand, k[..., None], -1)[..., 0], 1e-300))
+    d21, d02, d10 = R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]
+    s01, s02, s12 = R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1]
+    q = np.stack([
+        np.select([k == 0, k == 1, k == 2], [s / 4, d21 / s, d02 / s], d10 / s),
+        np.select([k == 0, k == 1, k == 2], [d21 / s, s / 4, s01 / s], s02 / s),
+        np.select([k == 0, k == 1, k == 2], [d02 / s, s01 / s, s / 4], s12 / s),
+        np.select([k == 0, k == 1, k == 2], [d10 / s, s02 / s, s12 / s], s / 4)], axis=-1)
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def R_from_quat_wxyz(q: np.ndarray) -> np.ndarray:
+    """Rotation(s) (...,3,3) of quaternion(s) (w, x, y, z) (normalised here)."""
+    q = np.asarray(q, float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
+
+
+def R_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
+    """Rotation(s) (...,3,3) of rotation vector(s) (...,3) in radians (Rodrigues)."""
+    rotvec = np.asarray(rotvec, float)
+    th = np.linalg.norm(rotvec, axis=-1)[..., None, None]
+    W = skew(rotvec)
+    small = th < 1e-5
+    ths = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 - th**2 / 6.0, np.sin(ths) / ths)
+    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
+    return np.eye(3) + a * W + b * (W @ W)
+
+
+def rotvec_from_R(R: np.ndarray) -> np.ndarray:
+    """Rotation vector(s) (...,3), angle in [0, pi], of rotation(s) (...,3,3)."""
+    q = quat_wxyz_from_R(R)
+    n = np.linalg.norm(q[..., 1:], axis=-1)
+    angle = 2.0 * np.arctan2(n, q[..., 0])
+    scale = np.where(n < 1e-12, 2.0, angle / np.maximum(n, 1e-300))  # 2·v for tiny angles
+    return q[..., 1:] * scale[..., None]
 
 
 # ------------------------------------------------------------------------------ SE(3) tangent
@@ -143,7 +180,7 @@ def _so3_left_jacobian(omega: np.ndarray) -> np.ndarray:
 def se3_exp(xi: np.ndarray) -> np.ndarray:
     """Exp of a tangent vector ``xi = (omega, v)`` (6,) or (N,6) -> (4,4) or (N,4,4) (GTSAM's Pose3.Expmap)."""
     xi = np.asarray(xi, float)
-    R = Rotation.from_rotvec(xi[..., :3].reshape(-1, 3)).as_matrix().reshape(xi.shape[:-1] + (3, 3))
+    R = R_from_rotvec(xi[..., :3])
     t = np.einsum("...ij,...j->...i", _so3_left_jacobian(xi[..., :3]), xi[..., 3:])
     T = np.zeros(xi.shape[:-1] + (4, 4))
     T[..., :3, :3] = R
@@ -155,7 +192,7 @@ def se3_exp(xi: np.ndarray) -> np.ndarray:
 def se3_log(T: np.ndarray) -> np.ndarray:
     """Log of a rigid transform (4,4) or (N,4,4) -> ``(omega, v)`` (6,) or (N,6); inverse of :func:`se3_exp`."""
     T = np.asarray(T, float)
-    omega = Rotation.from_matrix(T[..., :3, :3].reshape(-1, 3, 3)).as_rotvec().reshape(T.shape[:-2] + (3,))
+    omega = rotvec_from_R(T[..., :3, :3])
     v = np.linalg.solve(_so3_left_jacobian(omega), T[..., :3, 3][..., None])[..., 0]
     return np.concatenate([omega, v], axis=-1)
 
