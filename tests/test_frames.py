@@ -95,3 +95,23 @@ def test_not_a_rotation_is_refused():
     assert not is_rotation(np.diag([1.0, 1.0, -1.0]))  # a reflection
     assert not is_rotation(np.full((3, 3), np.nan))
     assert not is_rotation(np.eye(4))
+
+
+def test_rotation_forms_agree_with_scipy_including_near_pi_and_zero():
+    from scipy.spatial.transform import Rotation
+
+    from handeye.frames import R_from_quat_wxyz, R_from_rotvec, quat_wxyz_from_R, rotvec_from_R
+
+    rv = np.concatenate([Rotation.random(300, random_state=2).as_rotvec(),
+                         [[np.pi - 1e-7, 0, 0], [0, 1e-12, 0], [0, 0, 0], [0.3, 0.2, 2.5]]])
+    R = Rotation.from_rotvec(rv).as_matrix()
+    np.testing.assert_allclose(R_from_rotvec(rv), R, atol=1e-14)
+    np.testing.assert_allclose(R_from_rotvec(rotvec_from_R(R)), R, atol=1e-12)
+    away = np.linalg.norm(rv, axis=1) < np.pi - 1e-3  # at pi the sign of the axis is a choice
+    np.testing.assert_allclose(rotvec_from_R(R)[away], rv[away], atol=1e-12)
+    q = quat_wxyz_from_R(R)
+    assert np.all(q[:, 0] >= 0)
+    np.testing.assert_allclose(R_from_quat_wxyz(q), R, atol=1e-14)
+    q_ref = Rotation.from_matrix(R).as_quat()[:, [3, 0, 1, 2]]
+    q_ref *= np.where(q_ref[:, :1] < 0, -1, 1)
+    np.testing.assert_allclose(np.abs(np.sum(q * q_ref, axis=1)), 1.0, atol=1e-12)
