@@ -34,12 +34,11 @@ from dataclasses import dataclass
 from typing import Callable, Optional, Sequence
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..camera import Intrinsics, pixels_from_cam_points
 from ..config import load_preset
 from ..errors import ConfigError
-from ..frames import T_from_rotvec, inv_T, make_T, rotvec_from_R, se3_exp
+from ..frames import R_from_rotvec, T_from_rotvec, inv_T, make_T, rotvec_from_R, se3_exp
 from ..mounting import mounting
 from ..targets import TargetSpec
 from .visibility import board_center, board_in_image
@@ -165,7 +164,7 @@ def orbit_T_cam_board(T_cam_board_0: np.ndarray, *, center_board: np.ndarray, ro
     """
     T_board_cam0 = inv_T(T_cam_board_0)
     R0, o0 = T_board_cam0[:3, :3], T_board_cam0[:3, 3]
-    Q = Rotation.from_rotvec(np.asarray(rotvec_cam, float)).as_matrix()
+    Q = R_from_rotvec(np.asarray(rotvec_cam, float))
     G = R0 @ Q @ R0.T  # the same rotation expressed in the board frame
     o = center_board + distance_scale * (G @ (o0 - center_board))
     return inv_T(make_T(R0 @ Q, o))
@@ -189,9 +188,9 @@ def candidate_views(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_e
     ax, ay, roll, scale = (np.array(v, float) for v in zip(*grid))
     zeros = np.zeros_like(ax)
     # tilt about the camera's x, then its y, then roll about the optical axis
-    Q = (Rotation.from_rotvec(np.radians(np.stack([zeros, zeros, roll], 1)))
-         * Rotation.from_rotvec(np.radians(np.stack([zeros, ay, zeros], 1)))
-         * Rotation.from_rotvec(np.radians(np.stack([ax, zeros, zeros], 1)))).as_matrix()  # (K, 3, 3)
+    Q = (R_from_rotvec(np.radians(np.stack([zeros, zeros, roll], 1)))
+         @ R_from_rotvec(np.radians(np.stack([zeros, ay, zeros], 1)))
+         @ R_from_rotvec(np.radians(np.stack([ax, zeros, zeros], 1))))  # (K, 3, 3)
     T_board_cam0 = inv_T(T_cam_board_start)
     R0, o0 = T_board_cam0[:3, :3], T_board_cam0[:3, 3]
     R_board_cam = R0 @ Q  # (K, 3, 3); the same turn about the board centre: G = R0 Q R0^T

@@ -20,12 +20,11 @@ from __future__ import annotations
 from typing import Optional, Sequence
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..camera import Intrinsics
 from ..collect.visibility import board_center, board_in_image, board_out_of_image, default_margin_px, pattern_bounds
 from ..errors import ConfigError, DegenerateMotionError
-from ..frames import inv_T, make_T, T_from_rotvec
+from ..frames import R_from_rotvec, T_from_rotvec, inv_T, make_T
 from ..initial.motion import motion_quality
 from ..mounting import mounting
 from ..targets import ChessboardSpec, TargetSpec
@@ -79,18 +78,18 @@ DEFAULT_INTRINSICS = default_intrinsics()
 # --------------------------------------------------------------------------------------------
 
 def _Rz(a: float) -> np.ndarray:
-    return Rotation.from_rotvec([0.0, 0.0, a]).as_matrix()
+    return R_from_rotvec([0.0, 0.0, a])
 
 
 def _Rx(a: float) -> np.ndarray:
-    return Rotation.from_rotvec([a, 0.0, 0.0]).as_matrix()
+    return R_from_rotvec([a, 0.0, 0.0])
 
 
 def _small_tilt(rng: np.random.Generator, max_deg: float) -> np.ndarray:
     """Rotation about a random in-plane (x/y) axis by up to ``max_deg``."""
     phi = rng.uniform(0.0, 2 * np.pi)
     ang = np.radians(rng.uniform(0.0, max_deg))
-    return Rotation.from_rotvec(ang * np.array([np.cos(phi), np.sin(phi), 0.0])).as_matrix()
+    return R_from_rotvec(ang * np.array([np.cos(phi), np.sin(phi), 0.0]))
 
 
 def _camera_on_flange(rng: np.random.Generator, c_board: np.ndarray, target: TargetSpec) -> tuple:
@@ -166,10 +165,10 @@ def _T_cam_board_from_view(target: TargetSpec, *, distance_m: float, tilt_rad: f
                            roll_rad: float, aim_x_rad: float, aim_y_rad: float) -> np.ndarray:
     """Camera aimed at the board centre from ``distance_m``, tilted and rolled, then panned slightly."""
     c = board_center(target)
-    R_tilt = Rotation.from_rotvec(tilt_rad * np.array([np.cos(tilt_dir_rad), np.sin(tilt_dir_rad), 0.0])).as_matrix()
+    R_tilt = R_from_rotvec(tilt_rad * np.array([np.cos(tilt_dir_rad), np.sin(tilt_dir_rad), 0.0]))
     R_board_cam = R_tilt @ _Rz(roll_rad)  # roll about the optical axis
     o_board = c - distance_m * R_board_cam[:, 2]
-    R_board_cam = R_board_cam @ Rotation.from_rotvec([aim_x_rad, aim_y_rad, 0.0]).as_matrix()
+    R_board_cam = R_board_cam @ R_from_rotvec([aim_x_rad, aim_y_rad, 0.0])
     return inv_T(make_T(R_board_cam, o_board))
 
 
@@ -285,7 +284,7 @@ def sample_hidden_view_pose(*, mode: str, rng: np.random.Generator, T_x: np.ndar
             aim_x_rad=0.0, aim_y_rad=0.0)
         phi = rng.uniform(0.0, 2 * np.pi)
         turn = np.radians(rng.uniform(40.0, 100.0)) * np.array([np.cos(phi), np.sin(phi), 0.0])
-        T_cam_board = make_T(Rotation.from_rotvec(turn).as_matrix(), np.zeros(3)) @ T_cam_board
+        T_cam_board = make_T(R_from_rotvec(turn), np.zeros(3)) @ T_cam_board
         if not board_out_of_image(target, intrinsics, T_cam_board):
             continue
         T_base_end = _T_base_end_from_T_cam_board(mode, T_x, T_board, T_cam_board)
