@@ -247,6 +247,7 @@ def test_millimetres_read_as_metres_is_named_on_the_failed_load(tmp_path, monkey
     _patch(monkeypatch, cs)
     d = diagnose_session_error(folder, e.value)
     json.dumps(d)
+    assert d["crashed_stages"] == 0 and d["stages"]["observations"] == "ok", d["stage_errors"]
     f = _one(d, "translation_units")
     assert f["severity"] == "fail" and "millimetres" in f["title"]
     assert d["readings"][0]["reading"].startswith("x,y,z [mm]")
@@ -279,6 +280,7 @@ def test_degrees_in_a_vendor_file_are_named_on_the_failed_load(tmp_path, monkeyp
         load_session(folder)
     _patch(monkeypatch, cs)
     d = diagnose_session_error(folder, str(e.value))
+    assert d["crashed_stages"] == 0 and d["stages"]["observations"] == "ok", d["stage_errors"]
     assert {f["code"] for f in d["findings"] if f["severity"] == "fail"} == {"angle_units"}
 
 
