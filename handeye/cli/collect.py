@@ -7,6 +7,7 @@ Device and user errors are raised as HandeyeError (the CLI prints them on one li
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import logging
 import re
 import sys
@@ -67,19 +68,19 @@ def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--timeout", type=float, default=2.0, metavar="S",
                    help="RealMan: seconds to wait for an answer (default %(default)s)")
     g = parser.add_argument_group("capture checks")
-    g.add_argument("--min-sharpness", type=float, default=30.0,
-                   help="variance of the Laplacian around the target (default %(default)s)")
-    g.add_argument("--still-tol", nargs=2, type=float, metavar=("MM", "DEG"), default=(0.2, 0.1),
-                   help="two pose reads around a frame must agree within this (default 0.2 mm 0.1 deg)")
+    g.add_argument("--min-sharpness", type=float, default=None,
+                   help="variance of the Laplacian around the target (default: configs/collect.yaml capture)")
+    g.add_argument("--still-tol", nargs=2, type=float, metavar=("MM", "DEG"), default=None,
+                   help="two pose reads around a frame must agree within this (default: configs/collect.yaml capture)")
     g = parser.add_argument_group("automatic plan")
-    g.add_argument("--plan-pixel-noise", type=float, default=0.3, metavar="PX",
-                   help="corner noise assumed when predicting the uncertainty (default %(default)s px)")
-    g.add_argument("--plan-robot-noise", nargs=2, type=float, metavar=("MM", "DEG"), default=(0.1, 0.03),
-                   help="robot pose noise per axis assumed when predicting (default 0.1 mm 0.03 deg)")
-    g.add_argument("--min-axis-rotation", type=float, default=30.0, metavar="DEG",
-                   help="rotate the end at least this much about each of its axes (default %(default)s)")
-    g.add_argument("--max-travel", type=float, default=500.0, metavar="MM",
-                   help="keep the end within this distance of the start pose (default %(default)s)")
+    g.add_argument("--plan-pixel-noise", type=float, default=None, metavar="PX",
+                   help="corner noise assumed when predicting the uncertainty (default: configs/collect.yaml plan)")
+    g.add_argument("--plan-robot-noise", nargs=2, type=float, metavar=("MM", "DEG"), default=None,
+                   help="robot pose noise per axis assumed when predicting (default: configs/collect.yaml plan)")
+    g.add_argument("--min-axis-rotation", type=float, default=None, metavar="DEG",
+                   help="rotate the end at least this much about each of its axes (default: configs/collect.yaml)")
+    g.add_argument("--max-travel", type=float, default=None, metavar="MM",
+                   help="keep the end within this distance of the start pose (default: configs/collect.yaml)")
     g.add_argument("--probe-deg", type=float, default=6.0,
                    help="size of the three probe rotations before planning (default %(default)s)")
     g = parser.add_argument_group("simulation (--camera sim / --robot sim)")
@@ -179,16 +180,18 @@ def run_collect(args: argparse.Namespace) -> int:
                                            "T_base_end_reported": robot.T_reported.tolist()}
                 writer.write_ground_truth(truth)
 
-        checks = CaptureChecks(still_tol_mm=args.still_tol[0], still_tol_deg=args.still_tol[1],
-                               min_sharpness=args.min_sharpness)
+        checks = _given(CaptureChecks(), still_tol_mm=args.still_tol and args.still_tol[0],
+                        still_tol_deg=args.still_tol and args.still_tol[1], min_sharpness=args.min_sharpness)
         collector = Collector(robot=robot, camera=camera, writer=writer, target=target, mode=args.mode,
                               checks=checks, truth=truth_cb)
         log.info("collecting a %s session into %s (camera: %s, robot: %s)", args.mode, args.out, camera.name,
                  robot.name)
         if args.auto:
-            cfg = PlanConfig(pixel_noise_px=args.plan_pixel_noise, robot_noise_mm=args.plan_robot_noise[0],
-                             robot_noise_deg=args.plan_robot_noise[1], min_axis_rotation_deg=args.min_axis_rotation,
-                             max_travel_m=args.max_travel / 1000.0)
+            cfg = _given(PlanConfig(), pixel_noise_px=args.plan_pixel_noise,
+                         robot_noise_mm=args.plan_robot_noise and args.plan_robot_noise[0],
+                         robot_noise_deg=args.plan_robot_noise and args.plan_robot_noise[1],
+                         min_axis_rotation_deg=args.min_axis_rotation,
+                         max_travel_m=None if args.max_travel is None else args.max_travel / 1000.0)
             confirm = (lambda text: True) if (args.yes or not robot.is_real) else _confirm_on_terminal
             collector.run_auto(n_views=args.views, speed_fraction=args.speed, plan_config=cfg, confirm=confirm,
                                probe_deg=args.probe_deg)
@@ -245,3 +248,8 @@ def _open_camera(args, *, robot, width: int, height: int, rng: np.random.Generat
 
         return BagCamera(spec[4:])
     raise ConfigError("unknown --camera", expected="realsense, bag:FILE or sim", received=repr(args.camera))
+
+
+def _given(defaults, **options):
+    """``defaults`` (a frozen dataclass from configs/collect.yaml) with the options given on the command line."""
+    return replace(defaults, **{k: float(v) for k, v in options.items() if v is not None})
