@@ -123,12 +123,26 @@ def flagged_views(obs: PoseObservations, check: RobotPoseCheck, *, refined=None,
     t = check.test
     g = t.gates
     flags = t.flagged & (check_with_intrinsics.test.flagged if check_with_intrinsics is not None else True)
+    flags &= standing_out(check)
     src = (f"the robot-pose test without the wild views: chi-square(6) beyond {np.sqrt(t.threshold):.1f} sigma "
            f"(p < {g.alpha:g}) of each view's camera uncertainty plus robot noise "
            f"({np.degrees(check.sigma_rot_rad):.3f} deg, {1e3 * check.sigma_trans_m:.2f} mm per axis, estimated from "
-           f"the other views), with and without the intrinsics' uncertainty, and larger than {g.min_rot_deg:g} deg "
-           f"or {g.min_trans_mm:g} mm")
+           f"the other views), with and without the intrinsics' uncertainty, larger than {g.min_rot_deg:g} deg "
+           f"or {g.min_trans_mm:g} mm, and {thresholds().robot_pose.size_ratio:g} x (1 + 2.5 / n) the other views' "
+           "median disagreement")
     return [v for v, f in zip(obs.ids, flags) if f], {}, src
+
+
+def standing_out(check: RobotPoseCheck) -> np.ndarray:
+    """(N,) views whose disagreement (rotation or translation) exceeds ``size_ratio x (1 + 2.5 / n)`` times the
+    inlier views' median: the noise model of a run without refinement is estimated from the same few views,
+    so a flagged view must also stand out from them (medians of few views are noisy, hence 1 + 2.5 / n)."""
+    th = thresholds().robot_pose
+    t, use = check.test, check.inliers
+    med_rot = max(float(np.median(t.rot_deg[use])), th.noise_floor_deg)
+    med_tr = max(float(np.median(t.trans_mm[use])), th.noise_floor_mm)
+    ratio = np.maximum(t.rot_deg / med_rot, t.trans_mm / med_tr)
+    return ratio > th.size_ratio * (1.0 + 2.5 / max(int(use.sum()), 1))
 
 
 def board_turns(target) -> list:

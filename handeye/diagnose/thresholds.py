@@ -71,6 +71,7 @@ class RobotPose:
     noise_floor_mm: float
     pixel_sigma_floor_px: float
     flip_agreement_ratio: float
+    size_ratio: float
 
 
 @dataclass(frozen=True)
