@@ -20,7 +20,9 @@ def add_parser(sub) -> None:
     p.add_argument("--mode", choices=MODES,
                    help="mounting mode (overrides the session's own; default: the session's, else eye_in_hand)")
     p.add_argument("--method", choices=METHOD_NAMES,
-                   help="closed-form method the refinement starts from (default: tsai, from the preset)")
+                   help="closed-form method reported as the seed (the result with --no-refine); the refinement "
+                        "starts from it unless another closed form explains the views better (default: tsai, "
+                        "from the preset)")
     p.add_argument("--config", type=Path, help="site YAML overriding configs/calibration.yaml (same keys)")
     p.add_argument("--out", type=Path, help="output folder (default: reports/<session folder name>)")
     p.add_argument("--no-refine", action="store_true", help="stop at the closed-form solution")
