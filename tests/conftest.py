@@ -40,3 +40,21 @@ def shared_dataset():
 def _no_stray_outputs(monkeypatch, tmp_path):
     # commands that default to ./reports write into the test's own folder
     monkeypatch.chdir(tmp_path)
+
+
+def _session_with_board(session: Path, dest: Path, *, cols: int, rows: int, square_m: float = 0.03) -> Path:
+    """A vendor session at ``dest`` that links ``session``'s images and poses but states another board."""
+    import yaml
+
+    dest.mkdir()
+    for f in session.iterdir():
+        (dest / f.name).symlink_to(f)
+    (dest / "config.yaml").unlink()
+    (dest / "config.yaml").write_text(yaml.safe_dump({"checkerboard_args": {"XX": cols, "YY": rows, "L": square_m}}))
+    return dest
+
+
+@pytest.fixture(scope="session")
+def session_with_board():
+    """``session_with_board(session, dest, cols=, rows=)``: the session's views under another stated board."""
+    return _session_with_board

@@ -66,13 +66,8 @@ def test_calibrate_flags_reach_the_options(session, tmp_path):
     assert tuple(opts["fix"]) == ("p1", "p2")
 
 
-def test_calibrate_failure_is_one_line_with_the_exit_code_of_its_error(session, tmp_path, capsys):
-    bad = tmp_path / "bad"
-    bad.mkdir()
-    for f in session.iterdir():
-        (bad / f.name).symlink_to(f)
-    (bad / "config.yaml").unlink()
-    (bad / "config.yaml").write_text(yaml.safe_dump({"checkerboard_args": {"XX": 9, "YY": 6, "L": 0.03}}))
+def test_calibrate_failure_is_one_line_with_the_exit_code_of_its_error(session, tmp_path, capsys, session_with_board):
+    bad = session_with_board(session, tmp_path / "bad", cols=9, rows=6)
     rc = main(["-q", "calibrate", str(bad), "--out", str(tmp_path / "out"), "--no-report"])
     assert rc == 3  # DetectionError
     err = capsys.readouterr().err.strip().splitlines()

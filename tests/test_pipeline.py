@@ -4,7 +4,6 @@ import json
 
 import numpy as np
 import pytest
-import yaml
 
 from handeye.config import load_preset
 from handeye.errors import InputError
@@ -139,14 +138,9 @@ def test_wrong_mode_is_visible_in_the_residuals(rendered, tmp_path):
                                               "closed_form_failed")
 
 
-def test_board_size_mismatch_fails_with_a_structured_error_and_no_matrix(rendered, tmp_path):
+def test_board_size_mismatch_fails_with_a_structured_error_and_no_matrix(rendered, tmp_path, session_with_board):
     _, session = rendered
-    bad = tmp_path / "bad"
-    bad.mkdir()
-    for f in session.iterdir():
-        (bad / f.name).symlink_to(f)
-    (bad / "config.yaml").unlink()
-    (bad / "config.yaml").write_text(yaml.safe_dump({"checkerboard_args": {"XX": 9, "YY": 6, "L": 0.03}}))
+    bad = session_with_board(session, tmp_path / "bad", cols=9, rows=6)
     wr = calibrate_session(bad, options=_opts(refine=False), out_dir=tmp_path / "out", report=True)
     res = json.loads((tmp_path / "out" / "result.json").read_text())
     assert wr.status == "failed" and wr.exit_code == 3

@@ -129,14 +129,19 @@ def test_native_session_converts_poses_once(tmp_path):
     assert s.view("v2").t_image == 12.0
 
 
-def test_native_view_records_folder(tmp_path):
-    d = native(tmp_path, views=[], extra={"view_records": "views"})
-    (d / "views").mkdir()
+def _write_view_records(folder):
+    """One record file per view (quaternion xyzw, millimetres), as handeye collect writes them."""
+    folder.mkdir()
     fmt = PoseFormat(rotation="quaternion", quaternion_order="xyzw", translation_unit="mm")
     for k, T in enumerate(POSES, start=1):
-        (d / f"img{k}.png").write_bytes(b"x")
-        (d / "views" / f"{k:04d}.yaml").write_text(yaml.safe_dump(
+        (folder.parent / f"img{k}.png").write_bytes(b"x")
+        (folder / f"{k:04d}.yaml").write_text(yaml.safe_dump(
             {"id": str(k), "image": f"img{k}.png", "pose": pose_values_from_T(T, fmt).tolist()}))
+
+
+def test_native_view_records_folder(tmp_path):
+    d = native(tmp_path, views=[], extra={"view_records": "views"})
+    _write_view_records(d / "views")
     (d / "views" / ".0005.yaml.tmp").write_text("partial: [")  # a record still being written is ignored
     s = load_session(d)
     assert [v.view_id for v in s.views] == ["1", "2", "3", "4"]
@@ -267,12 +272,7 @@ def test_lenient_native_keeps_given_intrinsics_and_view_records(tmp_path):
     intr = {"model": "opencv5", "fx": 900.0, "fy": 901.0, "cx": 640.0, "cy": 360.0, "image_size": [1280, 720],
             "use": "fixed"}
     d = native(tmp_path, views=[], extra={"view_records": "views", "intrinsics": intr, "mode": None})
-    (d / "views").mkdir()
-    fmt = PoseFormat(rotation="quaternion", quaternion_order="xyzw", translation_unit="mm")
-    for k, T in enumerate(POSES, start=1):
-        (d / f"img{k}.png").write_bytes(b"x")
-        (d / "views" / f"{k:04d}.yaml").write_text(yaml.safe_dump(
-            {"id": str(k), "image": f"img{k}.png", "pose": pose_values_from_T(T, fmt).tolist()}))
+    _write_view_records(d / "views")
     with pytest.raises(ConfigError, match="invalid mode"):
         load_session(d)  # the strict reading needs a mode
     lenient = read_session_lenient(d)
