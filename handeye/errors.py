@@ -6,6 +6,10 @@ is a stable machine name and ``err.to_dict()`` the record that result.json store
 so that reports and tools key on the code, never on the message text. The CLI prints ``str(err)`` and
 exits with ``err.exit_code``.
 
+This module is the one source of the exit codes: every class carries its ``exit_code``, the verdict of a
+run that computed a matrix maps to one through :func:`verdict_exit_code`, and :data:`EXIT_CODES` is the
+table that ``handeye --help`` and the README show (a test keeps the README's table equal to it).
+
 Codes are the class's ``code`` unless a raise site names a more precise one with ``code=``; the ones
 raised by the calibration pipeline are listed in :data:`PIPELINE_CODES`.
 """
@@ -93,6 +97,26 @@ class CalibrationError(HandeyeError):
     code = "calibration_failed"
 
 
+class SessionRefused(HandeyeError):
+    """The data contradict themselves so that no result can be trusted (images and poses shuffled or
+    shifted, a stated mounting mode the data contradict): no matrix is given, the findings say why.
+
+    Raised (or set as a run's error) by the stage that decides it, or by the workflow for a diagnostics
+    finding that refuses the run (see :mod:`handeye.workflow`); ``code`` names the reason more precisely
+    when the raise site knows it (e.g. the finding's code)."""
+
+    exit_code = 8
+    code = "session_refused"
+
+
+class QAFailed(HandeyeError):
+    """A matrix was computed, but the verdict is FAIL: a QA check or a diagnostics finding says it is
+    not fit for use. result.json and the reports are written; the CLI exits with this class's code."""
+
+    exit_code = 7
+    code = "qa_failed"
+
+
 class HardwareError(HandeyeError):
     """A camera or robot could not be reached or answered wrongly."""
 
@@ -113,3 +137,37 @@ PIPELINE_CODES = {
     "camera_calibration_failed": "calibrateCamera returned an unusable camera",
     "pnp_failed": "a view's board pose could not be solved",
 }
+
+
+#: what each value of result.json's ``verdict`` means; PASS and WARN exit 0, FAIL with
+#: :class:`QAFailed`'s code, REFUSED with :class:`SessionRefused`'s
+VERDICTS = {
+    "PASS": "every QA check passes and the diagnostics found nothing to warn about",
+    "WARN": "the result is usable; a QA check or a finding warns (the CLI prints each with its fix)",
+    "FAIL": "a matrix was computed but a QA check or a finding says it is not fit for use",
+    "REFUSED": "a finding makes any result untrustworthy; no matrix is given",
+}
+
+#: exit codes of ``handeye`` (code, meaning), the table ``--help`` and the README show
+EXIT_CODES = (
+    (0, "PASS or WARN: the result is written (warnings and their fixes are printed)"),
+    (1, "an unexpected internal error (a bug: please report it with the traceback of --debug)"),
+    (InputError.exit_code, "unusable input: a session, pose, config or QA file, or a command-line option"),
+    (DetectionError.exit_code, "the target was not found in enough views (or not with the stated size)"),
+    (DegenerateMotionError.exit_code, "the robot motion does not determine the hand-eye transform"),
+    (CalibrationError.exit_code, "a solver failed"),
+    (HardwareError.exit_code, "a camera or robot could not be reached or answered wrongly (collect)"),
+    (QAFailed.exit_code, "FAIL: a matrix was computed but QA or a finding fails it; result and reports written"),
+    (SessionRefused.exit_code, "REFUSED: a finding makes the result untrustworthy; no matrix, the finding says why"),
+    (130, "interrupted (Ctrl-C)"),
+)
+
+
+def verdict_exit_code(verdict: str | None) -> int:
+    """The exit code of a finished run from its verdict (PASS | WARN | FAIL | REFUSED)."""
+    return {"FAIL": QAFailed.exit_code, "REFUSED": SessionRefused.exit_code}.get(str(verdict or "").upper(), 0)
+
+
+def exit_codes_text(indent: str = "  ") -> str:
+    """:data:`EXIT_CODES` as lines for a ``--help`` epilog."""
+    return "exit codes:\n" + "\n".join(f"{indent}{code:>3}  {meaning}" for code, meaning in EXIT_CODES)
