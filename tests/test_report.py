@@ -495,6 +495,95 @@ def test_a_failing_finding_fails_the_verdict_and_its_numbers_are_not_shown_green
     assert ctx["verdict"].counts["pass"] == sum(s == "pass" for s in status.values())
 
 
+def _with_stages(res: dict, *, findings=None, crashed=None, skipped=None) -> dict:
+    """``res`` with its diagnostics' stage record replaced: every stage ok, except ``crashed``
+    ({name: error}) and ``skipped`` ({name: why}), as handeye.diagnose.findings.Stages writes it."""
+    res = json.loads(json.dumps(res))
+    d = res["diagnostics"]
+    crashed, skipped = crashed or {}, skipped or {}
+    d["stages"] = {n: ("crashed" if n in crashed else "skipped" if n in skipped else "ok") for n in d["stages"]}
+    d["stage_errors"], d["stages_skipped"], d["crashed_stages"] = dict(crashed), dict(skipped), len(crashed)
+    if findings is not None:
+        d["findings"] = findings
+    return res
+
+
+def _reports(folder: Path) -> tuple[str, str]:
+    """(report.md, the visible text of report.html) written from ``folder`` without figures."""
+    from handeye.report import write_reports
+
+    write_reports(folder, strict=True, plots=False)
+    html = (folder / "report.html").read_text(encoding="utf-8")
+    text = html_lib.unescape(re.sub(r"<[^>]+>", " ", html.split("<body>")[1]))
+    return (folder / "report.md").read_text(encoding="utf-8"), " ".join(text.split())
+
+
+def test_a_crashed_diagnostics_stage_is_shown_and_counts_in_the_verdict(synthetic, tmp_path):
+    """A stage that crashed is named with its error, the report never says the dataset has nothing
+    wrong, and the verdict is at least WARN (configs/qa.yaml crashed_stage), even with the
+    diagnostics' findings switched off and every other check passing."""
+    from handeye.report import build_report_context, load_qa
+
+    res = json.loads((synthetic["out"] / "result.json").read_text())
+    obs = json.loads((synthetic["out"] / "observations.json").read_text())
+    assert res["diagnostics"]["crashed_stages"] == 0 and res["diagnostics"]["stages"]["images"] == "ok"
+    shipped = load_qa()["checks"]
+    off = yaml.safe_dump({"include_diagnostics": False,
+                          "checks": {k: {lim: None for lim in shipped[k]} for k in shipped}})
+    error = "ValueError: operands could not be broadcast together with shapes (3,) (4,)"
+
+    clean = _folder(tmp_path / "clean", _with_stages(res, findings=[]), obs)
+    crashed = _folder(tmp_path / "crashed", _with_stages(res, findings=[], crashed={"images": error}), obs)
+    assert _verdict(clean, off, tmp_path)["verdict"].status == "pass"  # the control: nothing else counts
+    v = _verdict(crashed, off, tmp_path)["verdict"]
+    assert v.status == "warn" and [(c.key, c.status, c.value) for c in v.checks] == [
+        ("diagnostics_stages", "warn", 1.0)]
+    assert "diagnostics stage images crashed" in v.headline and error in v.checks[0].why
+    v = _verdict(crashed, off + "crashed_stage: fail\n", tmp_path)["verdict"]
+    assert v.status == "fail" and v.checks[0].status == "fail"
+    ctx = build_report_context(crashed, make_plots=False)
+    assert ctx["stages"]["crashed"] == [{"name": "images", "checks": "image blur and exposure", "error": error}]
+    assert ctx["verdict"].status in ("warn", "fail")  # shipped thresholds: never PASS with a crash
+
+    md, html = _reports(crashed)
+    for text in (md, html):
+        assert "nothing wrong" not in text
+        assert "1 diagnostics stage crashed: its checks did not run" in text
+        assert "No findings from the checks that ran, but 1 stage crashed" in text
+        assert text.count(error) >= 2  # in the crash notice, the checks table and the list of checks not run
+    assert "- **CRASHED** `images`: image blur and exposure — `" + error + "`" in md
+    assert "CRASHED images : image blur and exposure — " + error in html
+
+    # two crashed stages with a finding left: both named, the finding still shown
+    two = _with_stages(res, crashed={"images": error, "coverage": "KeyError: 'n_corners'"})
+    md, html = _reports(_folder(tmp_path / "two", two, obs))
+    assert "2 diagnostics stages crashed: their checks did not run" in md and "KeyError: 'n_corners'" in html
+    assert "nothing wrong" not in md and "nothing wrong" not in html
+
+
+def test_diagnostics_that_did_not_all_run_never_claim_nothing_wrong(synthetic, tmp_path):
+    """No findings: "nothing wrong" only when every stage ran; a skipped stage is named with why."""
+    res = json.loads((synthetic["out"] / "result.json").read_text())
+    obs = json.loads((synthetic["out"] / "observations.json").read_text())
+    n = len(res["diagnostics"]["stages"])
+    md, html = _reports(_folder(tmp_path / "clean", _with_stages(res, findings=[]), obs))
+    claim = f"The diagnostics found nothing wrong with this dataset (all {n} stages ran)."
+    assert claim in md and claim in html and "did not run" not in md
+    skipped = _with_stages(res, findings=[], skipped={"cross_validation": "not asked for"})
+    md, html = _reports(_folder(tmp_path / "skipped", skipped, obs))
+    assert "nothing wrong with this dataset (" not in md and "nothing wrong with this dataset (" not in html
+    assert "The checks that ran found nothing wrong with this dataset; some checks did not run" in md
+    assert "- **SKIPPED** `cross_validation`: validation on held-out views — not asked for" in md
+    assert "SKIPPED cross_validation : validation on held-out views — not asked for" in html
+    # a result written before the stages were recorded does not claim that everything ran
+    old = json.loads(json.dumps(res))
+    for k in ("stages", "stage_errors", "stages_skipped", "crashed_stages"):
+        old["diagnostics"].pop(k)
+    old["diagnostics"]["findings"] = []
+    md, _ = _reports(_folder(tmp_path / "old", old, obs))
+    assert "nothing wrong" not in md and "does not record which of their checks ran" in md
+
+
 def test_bad_site_qa_file_is_a_one_line_error(synthetic, tmp_path):
     from handeye.cli import main
     from handeye.errors import ConfigError
@@ -506,6 +595,9 @@ def test_bad_site_qa_file_is_a_one_line_error(synthetic, tmp_path):
         load_qa(bad)
     bad.write_text("coverage_grid_cells_x: 0\n")
     with pytest.raises(ConfigError, match="coverage_grid_cells_x"):
+        load_qa(bad)
+    bad.write_text("crashed_stage: info\n")  # a crashed stage never counts as less than warn
+    with pytest.raises(ConfigError, match="crashed_stage"):
         load_qa(bad)
     bad.write_text("no_such_setting: 1\n")
     with pytest.raises(ConfigError, match="no_such_setting"):

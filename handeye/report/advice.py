@@ -49,6 +49,23 @@ UNTRUSTED_METRICS = {
     "uncertainty_underestimated": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
 }
 
+#: diagnostics stage name (handeye.diagnose, ``diagnostics["stages"]``) -> what that stage checks, for the
+#: report's list of checks that crashed or did not run; an unknown stage is shown by its name alone
+STAGE_CHECKS = {
+    "observations": "gathering the detections and robot poses the other checks use",
+    "lenient_read": "reading a session that did not load",
+    "readings": "how the robot poses are read: units, Euler order, quaternion order, inversion, mounting mode",
+    "pairing": "whether images and robot poses are paired in step",
+    "board_moved": "whether the board moved during the collection",
+    "robot_poses": "robot poses that disagree with what the camera saw",
+    "motion": "rotation and view coverage of the robot motion",
+    "detection": "corner detections that do not fit",
+    "intrinsics": "the lens model and its distortion",
+    "images": "image blur and exposure",
+    "coverage": "how much of the image the corners reach",
+    "cross_validation": "validation on held-out views",
+}
+
 MAX_ACTIONS = 3  # a short list is read; the findings section below has every finding's action
 
 GENERIC_WITH_VIEWS = ("Read the per-view table for what was found in each image, fix the cause and re-run "

@@ -19,7 +19,7 @@ from ..conventions import pose_forms, vendor_euler_from_R
 from ..frames import pose_error, quat_wxyz_from_R
 from ..mounting import EYE_IN_HAND, MODES, mounting
 from ..output import plain
-from .advice import failure_advice, untrusted_metrics
+from .advice import STAGE_CHECKS, failure_advice, untrusted_metrics
 from .folder import ResultFolder
 from .metrics import qa_metrics
 from .observations import as_cov6, as_T, board_disagreement, finite, median_board_distance_m, view_fits
@@ -62,6 +62,7 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
                            "ok": ok, "refined": bool(ref)}
     ctx["meta"] = _meta(res, obs)
     findings = _findings(diag)
+    stages = _stages(diag)
     views = _view_rows(res, ref, fits, board_centre, findings, image_size)
     ctx["views"] = views
     ctx["n_used"] = sum(v["status"] == "used" for v in views)
@@ -87,12 +88,13 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     if pred is not None and "predicted_error_mm" not in untrusted:  # the headline repeats it
         notes["predicted_text"] = f"{pred['rms_mm']:.2f} mm (1 σ) at {wd:.2f} m"
     verdict = evaluate(metrics, qa_cfg, context=notes, failure=failure, findings=findings,
-                       thresholds_source=qa_source)
+                       crashed_stages=stages["crashed"], thresholds_source=qa_source)
     verdict = _distrust(verdict, untrusted)
     ctx["verdict"] = verdict
     ctx["untrusted"] = untrusted
     ctx["failure"] = failure
     ctx["findings"] = findings
+    ctx["stages"] = stages
     ctx["cross_validation"] = _cross_validation(diag.get("cross_validation"))
     ctx["kpis"] = _kpis(metrics, pred, wd, views, verdict, ok, untrusted)
     ctx["motion"] = res.get("motion")
@@ -373,6 +375,37 @@ def _findings(diag: dict) -> list[dict]:
                     "view_ids": [str(v) for v in (f.get("view_ids") or [])]})
     out.sort(key=lambda f: SEVERITY_ORDER[f["severity"]])
     return out
+
+
+def _stages(diag: dict) -> dict:
+    """How each diagnostics stage ended (``diagnostics["stages"]``, ``["stage_errors"]``,
+    ``["stages_skipped"]``, ``["crashed_stages"]``; see handeye/diagnose/findings.py):
+
+    ``{"crashed": [{name, checks, error}], "skipped": [{name, checks, why}], "n_ok": int, "known": bool,
+    "clean": bool}``. ``clean`` only when the stage record exists and every stage ran; a result
+    written before stages were recorded is not ``known``, and its report does not claim that
+    everything ran."""
+    diag = diag or {}
+    status = diag.get("stages") if isinstance(diag.get("stages"), dict) else {}
+    errors = diag.get("stage_errors") if isinstance(diag.get("stage_errors"), dict) else {}
+    skipped = diag.get("stages_skipped") if isinstance(diag.get("stages_skipped"), dict) else {}
+    crashed_names = [n for n, st in status.items() if st == "crashed"]
+    crashed_names += [n for n in errors if n not in crashed_names]  # an error always means a crash
+    try:
+        n_crashed = max(int(diag.get("crashed_stages") or 0), len(crashed_names))
+    except (TypeError, ValueError):
+        n_crashed = len(crashed_names)
+    crashed = [{"name": str(n), "checks": STAGE_CHECKS.get(str(n), ""),
+                "error": str(errors.get(n) or "no error message recorded")} for n in crashed_names]
+    crashed += [{"name": "(unnamed)", "checks": "", "error": "counted as crashed without a name"}
+                for _ in range(n_crashed - len(crashed))]
+    skipped_names = [n for n, st in status.items() if st == "skipped"]
+    skipped_names += [n for n in skipped if n not in skipped_names and n not in crashed_names]
+    skipped_rows = [{"name": str(n), "checks": STAGE_CHECKS.get(str(n), ""),
+                     "why": str(skipped.get(n) or "no reason recorded")} for n in skipped_names]
+    known = bool(status) or "crashed_stages" in diag
+    return {"crashed": crashed, "skipped": skipped_rows, "n_ok": sum(st == "ok" for st in status.values()),
+            "known": known, "clean": known and not crashed and not skipped_rows}
 
 
 def _col_title(key: str) -> str:

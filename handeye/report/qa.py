@@ -14,6 +14,8 @@ from ..errors import ConfigError
 
 STATUS_ORDER = {"pass": 0, "info": 1, "warn": 2, "fail": 3}
 VERDICT_TEXT = {"pass": "PASS", "warn": "WARN", "fail": "FAIL", "info": "PASS"}
+#: what a crashed diagnostics stage may count as (configs/qa.yaml ``crashed_stage``): never less than warn
+CRASHED_STAGE_STATUSES = ("warn", "fail")
 
 
 @dataclass(frozen=True)
@@ -48,6 +50,9 @@ def load_qa(path: str | Path | None = None) -> dict:
     """Shipped QA thresholds, deep-merged with a site file when given; validated once."""
     cfg = load_with_override("qa", path) if path is not None else load_preset("qa")
     src = str(path) if path is not None else "configs/qa.yaml"
+    if cfg.get("crashed_stage", "warn") not in CRASHED_STAGE_STATUSES:
+        raise ConfigError("crashed_stage must be warn or fail (a crashed check never passes)", path=src,
+                          expected=" | ".join(CRASHED_STAGE_STATUSES), received=repr(cfg.get("crashed_stage")))
     if cfg.get("missing_value", "warn") not in STATUS_ORDER:
         raise ConfigError("missing_value must be one of pass | info | warn | fail", path=src,
                           received=repr(cfg.get("missing_value")))
@@ -156,12 +161,15 @@ def _level(value: float, lim: dict) -> tuple[str, Optional[float]]:
 
 
 def evaluate(metrics: dict, cfg: dict, *, context: dict | None = None, failure: dict | None = None,
-             findings: list | None = None, thresholds_source: str = "configs/qa.yaml (shipped)") -> Verdict:
+             findings: list | None = None, crashed_stages: list | None = None,
+             thresholds_source: str = "configs/qa.yaml (shipped)") -> Verdict:
     """Verdict from ``metrics`` (check key -> number or None), thresholds ``cfg`` (see configs/qa.yaml).
 
     ``failure``: ``{"problem": ..., "action": ...}`` when the calibration itself failed (always FAIL).
     ``findings``: diagnostics findings (dicts with severity fail|warn|info) that count when
-    ``cfg["include_diagnostics"]``. Checks that cannot be evaluated for the same reason are merged.
+    ``cfg["include_diagnostics"]``. ``crashed_stages``: diagnostics stages that crashed (dicts with
+    ``name``, ``checks`` (what the stage looks at) and ``error``); they count as ``cfg["crashed_stage"]``
+    (warn or fail) in one check. Checks that cannot be evaluated for the same reason are merged.
     """
     ctx = context or {}
     checks: list[Check] = []
@@ -169,6 +177,8 @@ def evaluate(metrics: dict, cfg: dict, *, context: dict | None = None, failure: 
         checks.append(Check("calibration", "Calibration", "fail", None, "failed", "must succeed",
                             why=failure.get("problem", failure.get("reason", "")), action=failure.get("action", ""),
                             short="the calibration failed"))
+    if crashed_stages:
+        checks.append(_crashed_check(crashed_stages, cfg.get("crashed_stage", "warn")))
     missing_status = cfg.get("missing_value", "warn")
     missing: dict[str, list] = {}  # why -> keys not evaluated for that reason
     for key, lim in (cfg.get("checks") or {}).items():
@@ -214,6 +224,22 @@ def evaluate(metrics: dict, cfg: dict, *, context: dict | None = None, failure: 
     counts["findings_warn"] = sum(str(f["severity"]).lower() == "warn" for f in counted)
     return Verdict(status, _headline(status, checks, counted, ctx, failure), tuple(checks), tuple(counted),
                    thresholds_source, counts)
+
+
+def _crashed_check(crashed: list, status: str) -> Check:
+    """One check for every diagnostics stage that crashed: which, its error and what did not run."""
+    names = [str(c["name"]) for c in crashed]
+    n = len(names)
+    why = "; ".join(f"the {c['name']} stage ({c['checks']}) crashed with {c['error']}" if c.get("checks")
+                    else f"the {c['name']} stage crashed with {c['error']}" for c in crashed)
+    why += (", so its checks did not run" if n == 1 else ", so their checks did not run") + \
+        " and the dataset was not fully examined"
+    action = ("rebuild the result with handeye --debug calibrate to see the traceback and report it as a bug; "
+              "until then, check by hand what the crashed stage looks at")
+    short = (f"diagnostics stage {names[0]} crashed" if n == 1
+             else f"diagnostics stages {_join(names)} crashed")
+    return Check("diagnostics_stages", "Diagnostics stages", status, float(n), f"{n} crashed", "every stage must run",
+                 why=why, action=action, short=short)
 
 
 def _cap(s: str) -> str:
