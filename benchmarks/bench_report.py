@@ -1,20 +1,24 @@
 """Time to write both reports (report.html + report.md) from a result folder of a rendered 20-view
-1280x720 session (issue 8 target: about 1 s on 2 cores). Prints figures; asserts nothing.
+1280x720 session (issue 8 target: about 1 s on 2 cores), and the start-up of the command line.
+Prints figures; asserts nothing.
 
     python benchmarks/bench_report.py [--result DIR] [--views 20] [--repeat 3] [--ref COMMIT]
 
-Without ``--result`` a session is rendered and calibrated first (``handeye simulate`` and
-``handeye calibrate --no-report``). Each figure is measured in a fresh interpreter:
+Without ``--result`` a session is rendered and calibrated first (``handeye simulate --noise-px 2``
+and ``handeye calibrate --no-report``). Each figure is measured in a fresh interpreter:
 
 * ``in the workflow``: ``write_reports`` where ``handeye calibrate`` calls it (the pipeline, the
   diagnostics and OpenCV already imported): wall and CPU time (with worker processes, if any),
   with and without the figures;
-* ``handeye report``: the whole command in a new process (interpreter start and every import);
+* ``handeye report DIR``: the whole command in a new process (interpreter start and every import);
+* ``handeye --help`` and ``handeye report --help``: wall time in a new process, and
+  ``python -X importtime -m handeye.cli report --help``: the summed import time, the modules
+  imported, ``handeye.cli``'s own cumulative import time and which heavy libraries were loaded;
 * ``per figure``: CPU time of each figure, drawn a second time (imports and caches warm).
 
-``--ref COMMIT`` measures the report code of an earlier commit on the same folder (``git archive``
-into a temporary folder; the old API ``write_reports(run, res, out)`` is used when the new one does
-not exist), for a before/after comparison.
+``--ref COMMIT`` measures the code of an earlier commit on the same folder (``git archive`` into a
+temporary folder; the old API ``write_reports(run, res, out)`` is used when the new one does not
+exist), for a before/after comparison.
 """
 from __future__ import annotations
 
@@ -88,6 +92,44 @@ def _best(label: str, runs: list[dict]) -> None:
           f"(best of {len(runs)}; wall all: " + ", ".join(f"{w:.2f}" for w in walls) + ")")
 
 
+HEAVY = ("numpy", "scipy", "cv2", "matplotlib", "jinja2", "yaml", "gtsam")
+
+
+def _importtime(env=None) -> dict:
+    """``python -X importtime -m handeye.cli report --help``: summed self times, module count,
+    handeye.cli's cumulative time and the heavy libraries imported."""
+    p = subprocess.run([sys.executable, "-X", "importtime", "-m", "handeye.cli", "report", "--help"],
+                       capture_output=True, text=True, env=env, cwd=tempfile.gettempdir(), check=True)
+    total_us, names, cli_us = 0, [], None
+    for line in p.stderr.splitlines():
+        if not line.startswith("import time:") or "self [us]" in line:
+            continue
+        self_us, cum_us, name = (x.strip() for x in line[len("import time:"):].split("|"))
+        total_us += int(self_us)
+        names.append(name)
+        if name == "handeye.cli":
+            cli_us = int(cum_us)
+    return {"total_ms": total_us / 1e3, "modules": len(names), "cli_ms": (cli_us or 0) / 1e3,
+            "heavy": [m for m in HEAVY if m in names]}
+
+
+def _wall(argv: list, env=None, repeat: int = 3) -> list[float]:
+    """Wall times of ``python -m handeye.cli ARGV`` in a new process, measured by a parent process."""
+    code = ("import subprocess, sys, time; t = time.perf_counter(); subprocess.run([sys.executable, '-m', "
+            "'handeye.cli'] + sys.argv[1:], check=True, stdout=subprocess.DEVNULL); print(time.perf_counter() - t)")
+    out = []
+    for _ in range(repeat):
+        p = subprocess.run([sys.executable, "-c", code, *map(str, argv)], check=True, capture_output=True, text=True,
+                           env=env, cwd=tempfile.gettempdir())
+        out.append(float(p.stdout.strip()))
+    return out
+
+
+def _print_wall(label: str, walls: list[float]) -> None:
+    print(f"  {label:46s} wall {min(walls):5.2f} s (best of {len(walls)}; all: "
+          + ", ".join(f"{w:.2f}" for w in walls) + ")")
+
+
 def _checkout(ref: str, into: Path) -> dict:
     """``handeye`` of commit ``ref`` importable from ``into`` (configs/ and factors/ as in the install)."""
     into.mkdir(parents=True)
@@ -105,14 +147,14 @@ def main() -> None:
     ap.add_argument("--result", type=Path, help="an existing result folder (default: render and calibrate one)")
     ap.add_argument("--views", type=int, default=20)
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--ref", help="also measure the report code of this commit (e.g. 807d4c2)")
+    ap.add_argument("--ref", help="also measure the code of this commit (e.g. 807d4c2)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         if args.result is None:
             sess, out = tmp / "s", tmp / "r"
             subprocess.run([sys.executable, "-m", "handeye.cli", "-q", "simulate", str(sess), "--views",
-                            str(args.views)], check=True, stdout=subprocess.DEVNULL)
+                            str(args.views), "--noise-px", "2"], check=True, stdout=subprocess.DEVNULL)
             subprocess.run([sys.executable, "-m", "handeye.cli", "-q", "calibrate", str(sess), "--out", str(out),
                             "--no-report"], check=True, stdout=subprocess.DEVNULL)
         else:
@@ -130,17 +172,16 @@ def main() -> None:
             _best("both reports, in the workflow", [_run(_IN_WORKFLOW, out, 1, env=env) for _ in range(args.repeat)])
             _best("both reports without figures, in the workflow",
                   [_run(_IN_WORKFLOW, out, 0, env=env) for _ in range(args.repeat)])
+            # the command line in a new process: the report command on the same folder for every
+            # checkout, and the start-up of --help (the parser alone)
+            _print_wall("handeye report DIR (new process, all imports)", _wall(["-q", "report", out], env, args.repeat))
+            _print_wall("handeye --help (new process)", _wall(["--help"], env, args.repeat))
+            _print_wall("handeye report --help (new process)", _wall(["report", "--help"], env, args.repeat))
+            imp = min((_importtime(env) for _ in range(args.repeat)), key=lambda r: r["total_ms"])
+            print(f"  {'-X importtime -m handeye.cli report --help':46s} {imp['total_ms']:6.1f} ms summed over "
+                  f"{imp['modules']} modules (best of {args.repeat}), handeye.cli cumulative {imp['cli_ms']:.1f} ms; "
+                  f"heavy libraries imported: {', '.join(imp['heavy']) or 'none'}")
             if env is None:
-                walls = []
-                for _ in range(args.repeat):
-                    code = ("import subprocess, sys, time; t = time.perf_counter(); subprocess.run([sys.executable, "
-                            "'-m', 'handeye.cli', '-q', 'report', sys.argv[1]], check=True, "
-                            "stdout=subprocess.DEVNULL); print(time.perf_counter() - t)")
-                    p = subprocess.run([sys.executable, "-c", code, str(out)], check=True, capture_output=True,
-                                       text=True)
-                    walls.append(float(p.stdout.strip()))
-                print(f"  {'handeye report (new process, all imports)':46s} wall {min(walls):5.2f} s (best of "
-                      f"{len(walls)}; all: " + ", ".join(f"{w:.2f}" for w in walls) + ")")
                 figs = _run(_PER_FIGURE, out)
                 print("  per figure (cpu, warm): " + ", ".join(f"{k} {v[0]:.2f} s / {v[1] // 1024} KB"
                                                               for k, v in figs.items()))

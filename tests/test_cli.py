@@ -3,7 +3,10 @@
 The workflow's numbers are tested in test_pipeline.py; here the commands must pass the flags through,
 print what the README promises and map errors to one line and an exit code.
 """
+import ast
 import json
+import os
+import re
 import subprocess
 import sys
 
@@ -173,14 +176,32 @@ def test_collect_with_simulators_writes_a_session_that_loads(tmp_path, capsys):
     assert "not empty" in capsys.readouterr().err
 
 
-def test_help_does_not_load_the_heavy_libraries():
-    code = ("import sys; from handeye.cli import build_parser; build_parser(); "
-            "print(sorted(m for m in ('scipy.stats', 'matplotlib', 'gtsam', 'jinja2', 'cv2') if m in sys.modules))")
-    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
-    assert loaded == "[]"
-    for command in ("calibrate", "simulate", "demo", "apply", "import", "report", "collect"):
+def _loaded_by(argv: list) -> list:
+    """Command modules and libraries (numpy and heavier) imported by ``handeye ARGV`` in a new process."""
+    code = ("import sys; from handeye.cli import main\ntry: main(sys.argv[1:])\nexcept SystemExit: pass\n"
+            "print(sorted(m for m in sys.modules if m.startswith('handeye.cli.') "
+            "or m in ('numpy', 'scipy', 'matplotlib', 'gtsam', 'jinja2', 'cv2')))")
+    p = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, check=True)
+    return ast.literal_eval(p.stdout.strip().splitlines()[-1])
+
+
+def test_help_loads_only_the_chosen_command():
+    """``handeye --help`` lists every command without importing one; ``handeye CMD --help`` imports
+    that command's module alone, and the report's help no numerical library."""
+    assert _loaded_by(["--help"]) == []
+    assert _loaded_by(["report", "--help"]) == ["handeye.cli.report"]
+    assert _loaded_by(["import", "--help"]) == ["handeye.cli.import_"]
+    env = dict(os.environ, COLUMNS="200")  # one line per command
+    top = subprocess.run([sys.executable, "-m", "handeye.cli", "--help"], capture_output=True, text=True, check=True,
+                         env=env).stdout.splitlines()
+    k = top.index("  COMMAND")
+    listed = [line.split()[0] for line in top[k + 1:top.index("", k)]]
+    assert listed == ["calibrate", "simulate", "demo", "apply", "import", "report", "collect"]
+    assert "    report       (re)build report.html and report.md from a result folder" in top
+    for command in listed:
         cap = subprocess.run([sys.executable, "-m", "handeye.cli", command, "--help"], capture_output=True, text=True)
         assert cap.returncode == 0 and cap.stdout.startswith(f"usage: handeye {command}"), (command, cap.stderr)
+        assert re.search(r"^  +--(?!help)", cap.stdout, re.M), command  # the module's own options are there
 
 
 def test_site_min_corners_overrides_the_detection_preset(session, tmp_path, capsys):

@@ -12,37 +12,72 @@ report          :mod:`.report`
 collect         :mod:`.collect`
 ==============  ====================================================================
 
+Command modules load lazily: :data:`COMMANDS` holds each command's module name and the one line
+``handeye --help`` shows, and only the chosen command's module is imported (its
+``add_arguments(parser)`` fills in the command's description and arguments when the command is
+parsed). So ``handeye --help`` imports no command module and ``handeye report DIR`` only the
+report's. Command modules also import their heavy dependencies inside ``run``.
+
 Progress and log lines go to stderr, results to stdout and files. A user mistake ends in one line
 on stderr and a non-zero exit code (:attr:`handeye.errors.HandeyeError.exit_code`), never a
-traceback (``--debug`` shows it). Command modules import their heavy dependencies inside ``run``,
-so that ``handeye --help`` stays quick.
+traceback (``--debug`` shows it).
 """
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import sys
 
 from .. import __version__
 from ..errors import HandeyeError
-from . import apply, calibrate, collect, demo, import_, report, simulate
 
 log = logging.getLogger("handeye")
 
-#: command modules in the order ``handeye --help`` lists them; each has ``add_parser(subparsers)``
-COMMANDS = (calibrate, simulate, demo, apply, import_, report, collect)
+#: command -> (module in handeye.cli, the line ``handeye --help`` shows), in the order it lists them.
+#: Each module has ``add_arguments(parser)`` (description, arguments and ``func``).
+COMMANDS = {
+    "calibrate": ("calibrate", "calibrate a session folder (vendor layout or session.yaml)"),
+    "simulate": ("simulate", "write a synthetic session with rendered images and ground truth"),
+    "demo": ("demo", "simulate a rendered session and calibrate it (the README's first command)"),
+    "apply": ("apply", "map a point or pose seen by the camera into the robot base frame"),
+    "import": ("import_", "write a session.yaml for another tool's data folder (ViSP, industrial_calibration)"),
+    "report": ("report", "(re)build report.html and report.md from a result folder"),
+    "collect": ("collect", "collect a session with a camera and a robot (or their simulators)"),
+}
+
+
+class _LazyCommands(argparse._SubParsersAction):
+    """The sub-command action: a command's module is imported, and its arguments added to its
+    (until then empty) parser, only when that command is parsed."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        name = values[0] if values else None
+        if name in COMMANDS:
+            add_command_arguments(self._name_parser_map[name], name)
+        super().__call__(parser, namespace, values, option_string)
+
+
+def add_command_arguments(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser:
+    """Import command ``name``'s module and let it fill ``parser`` (once)."""
+    if not getattr(parser, "_handeye_loaded", False):
+        module = importlib.import_module(f"{__name__}.{COMMANDS[name][0]}")
+        module.add_arguments(parser)
+        parser._handeye_loaded = True
+    return parser
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``handeye`` parser; every command is listed, and loaded when it is parsed."""
     p = argparse.ArgumentParser(prog="handeye", description="Robot hand-eye calibration with honest uncertainty.")
     p.add_argument("--version", action="version", version=f"handeye {__version__}")
     p.add_argument("-v", "--verbose", action="store_true", help="more progress detail on stderr")
     p.add_argument("-q", "--quiet", action="store_true", help="only errors on stderr")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
-    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", action=_LazyCommands)
     sub.required = True
-    for command in COMMANDS:
-        command.add_parser(sub)
+    for name, (_, help_text) in COMMANDS.items():
+        sub.add_parser(name, help=help_text)
     return p
 
 

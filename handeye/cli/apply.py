@@ -4,10 +4,9 @@ from __future__ import annotations
 from pathlib import Path
 
 
-def add_parser(sub) -> None:
-    p = sub.add_parser("apply", help="map a point or pose seen by the camera into the robot base frame",
-                       description="Eye-in-hand needs the end pose at capture time (--end-pose); "
-                                   "eye-to-hand does not.")
+def add_arguments(p) -> None:
+    """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
+    p.description = "Eye-in-hand needs the end pose at capture time (--end-pose); eye-to-hand does not."
     p.add_argument("result", type=Path, help="result.json or the folder holding it")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--point", nargs=3, type=float, metavar=("X", "Y", "Z"), help="point in the camera frame, metres")

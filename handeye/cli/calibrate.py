@@ -8,14 +8,13 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 
-def add_parser(sub) -> None:
+def add_arguments(p) -> None:
+    """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
     from ..mounting import MODES
     from ..records import METHOD_NAMES
 
-    p = sub.add_parser("calibrate", help="calibrate a session folder (vendor layout or session.yaml)",
-                       description="Detect the target, calibrate the camera, start from an OpenCV closed-form "
-                                   "solution and refine jointly; writes DIR/result.json, observations.json, "
-                                   "thumbnails/ and the reports.")
+    p.description = ("Detect the target, calibrate the camera, start from an OpenCV closed-form solution and "
+                     "refine jointly; writes DIR/result.json, observations.json, thumbnails/ and the reports.")
     p.add_argument("session", help="session folder (poses.txt + N.jpg + config.yaml, or session.yaml)")
     p.add_argument("--mode", choices=MODES,
                    help="mounting mode (overrides the session's own; default: the session's, else eye_in_hand)")

@@ -1,7 +1,7 @@
 """``handeye collect OUT --mode M --camera C --robot R [--auto]``: argument parsing and wiring.
 
-The main CLI registers this with :func:`add_parser`; ``add_collect_arguments(parser)`` and
-``run_collect(args)`` serve other entry points and tests.
+The main CLI loads this module only for ``handeye collect`` and calls :func:`add_arguments`;
+``add_collect_arguments(parser)`` and ``run_collect(args)`` serve other entry points and tests.
 Device and user errors are raised as HandeyeError (the CLI prints them on one line).
 """
 from __future__ import annotations
@@ -25,10 +25,10 @@ log = logging.getLogger(__name__)
 DEFAULT_TARGET = "chessboard:11x8:0.03"
 
 
-def add_parser(sub) -> None:
-    p = sub.add_parser("collect", help="collect a session with a camera and a robot (or their simulators)")
-    add_collect_arguments(p)
-    p.set_defaults(func=run_collect)
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
+    add_collect_arguments(parser)
+    parser.set_defaults(func=run_collect)
 
 
 def add_collect_arguments(parser: argparse.ArgumentParser) -> None:

@@ -8,10 +8,10 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 
-def add_parser(sub) -> None:
+def add_arguments(p) -> None:
+    """The command's arguments (its one-line help is in handeye.cli.COMMANDS)."""
     from ..mounting import MODES
 
-    p = sub.add_parser("demo", help="simulate a rendered session and calibrate it (the README's first command)")
     p.add_argument("--out", type=Path, default=Path("reports/demo"), help="folder for the session and results")
     p.add_argument("--mode", choices=MODES, default="eye_in_hand")
     p.add_argument("--views", type=int, default=20)

@@ -4,10 +4,9 @@ from __future__ import annotations
 from pathlib import Path
 
 
-def add_parser(sub) -> None:
-    p = sub.add_parser("import",
-                       help="write a session.yaml for another tool's data folder (ViSP, industrial_calibration)",
-                       description="Writes OUT/session.yaml pointing at the original images; nothing is copied.")
+def add_arguments(p) -> None:
+    """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
+    p.description = "Writes OUT/session.yaml pointing at the original images; nothing is copied."
     p.add_argument("kind", choices=["visp", "ical"],
                    help="visp: ViSP hand-eye data; ical: ROS-I industrial_calibration")
     p.add_argument("src", type=Path, help="the other tool's data folder")

@@ -10,10 +10,10 @@ from ..errors import InputError
 log = logging.getLogger(__name__)
 
 
-def add_parser(sub) -> None:
-    p = sub.add_parser("report", help="(re)build report.html and report.md from a result folder")
-    add_report_arguments(p)
-    p.set_defaults(func=run_report)
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
+    add_report_arguments(parser)
+    parser.set_defaults(func=run_report)
 
 
 def add_report_arguments(parser: argparse.ArgumentParser) -> None:

@@ -4,12 +4,12 @@ from __future__ import annotations
 from pathlib import Path
 
 
-def add_parser(sub) -> None:
+def add_arguments(p) -> None:
+    """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
     from ..mounting import MODES
 
-    p = sub.add_parser("simulate", help="write a synthetic session with rendered images and ground truth",
-                       description="Render a synthetic session in the vendor layout (N.jpg, poses.txt, "
-                                   "config.yaml) plus ground_truth.json.")
+    p.description = ("Render a synthetic session in the vendor layout (N.jpg, poses.txt, config.yaml) plus "
+                     "ground_truth.json.")
     p.add_argument("out", type=Path, help="output folder (created)")
     p.add_argument("--mode", choices=MODES, default="eye_in_hand")
     p.add_argument("--views", type=int, default=20)
