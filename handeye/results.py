@@ -4,6 +4,21 @@ Both are plain JSON written atomically (:mod:`handeye.output`) and read back by 
 after a calibration (the report, ``handeye apply``, tools). A failed run still has a result.json:
 ``status: failed``, ``failure_reason`` (one line for a person) and ``error`` (the structured record of
 :meth:`handeye.errors.HandeyeError.to_dict`, keyed by a stable ``code``).
+
+``status`` says only whether a matrix was computed (``ok``: the hand-eye and board matrices are in
+the file) or not (``failed``). Whether to use it is the ``verdict`` (:func:`verdict_fields`):
+
+- ``verdict``: PASS | WARN | FAIL | REFUSED (:data:`handeye.errors.VERDICTS`); ``verdict_headline``
+  one line for a person;
+- ``qa``: ``{"source", "status", "counts", "checks": [{key, title, status, value, value_text,
+  limit_text, limits, why, action, source, short}]}``, the QA checks as the report shows them
+  (``status`` pass | info | warn | fail, or ``untrusted`` for a passing number a finding doubts);
+- ``findings``: the diagnostics' findings, worst first, as ``{code, severity, title, evidence,
+  action, view_ids}`` (the full records with their numbers stay in ``diagnostics.findings``);
+- ``mode_source``: how the mounting mode was chosen (``stated`` in the session, ``flag`` from
+  ``--mode``, ``detected`` from the data, ``default`` when neither states it and the data do not
+  decide; null when not recorded) and ``mode_evidence`` (the mode test's numbers and ``summary``
+  line, when it ran).
 """
 from __future__ import annotations
 
@@ -14,7 +29,7 @@ import numpy as np
 
 from .camera import pixels_from_board_points
 from .conventions import pose_forms
-from .errors import HandeyeError
+from .errors import HandeyeError, SessionRefused
 from .frames import pose_error
 from .mounting import mounting
 from .output import hash_files, provenance
@@ -87,18 +102,36 @@ def observations_dict(run) -> dict:
             "failed_views": failed}
 
 
-def result_dict(run) -> dict:
-    """Everything result.json holds. A failed run has ``status: failed``, the error and no result matrix."""
+def mode_source(run, mode_flag: Optional[str] = None) -> tuple[Optional[str], Optional[dict]]:
+    """(``mode_source``, ``mode_evidence``): how the mounting mode was chosen (``stated`` | ``flag`` |
+    ``detected`` | ``default``) as the run's ``mode_decision`` (or its session) records it, and the
+    evidence of the mode test (a dict with its ``summary`` line) when it ran; ``flag`` when the mode
+    came from ``--mode`` and nothing else is recorded."""
+    decision = getattr(run, "mode_decision", None) or {}
+    src = decision.get("mode_source") or getattr(run.session, "mode_source", None)
+    if mode_flag is not None and src in (None, "stated"):
+        src = "flag"
+    ev = decision.get("evidence")
+    return (None if src is None else str(src)), (ev if isinstance(ev, dict) else None)
+
+
+def result_dict(run, *, mode_flag: Optional[str] = None) -> dict:
+    """Everything result.json holds but the verdict (:func:`verdict_fields`). A failed run has
+    ``status: failed``, the error and no result matrix. ``mode_flag``: the ``--mode`` given, if any."""
     s = run.session
     mode = mounting(s.mode)
+    src, evidence = mode_source(run, mode_flag)
     d: dict[str, Any] = {
         "handeye_result": RESULT_VERSION,
         "status": run.status,
         "failure_reason": run.failure_reason,
         "mode": s.mode,
+        "mode_source": src,
         "method": run.options.method,
         "refined": run.refined is not None,
     }
+    if evidence is not None:
+        d["mode_evidence"] = evidence
     if run.error is not None:
         d["error"] = run.error.to_dict()
     if run.status == "ok":
@@ -165,7 +198,52 @@ def _closed_forms_dict(run, mode) -> dict:
 def failed_load_result(session_path, err: HandeyeError, mode: Optional[str]) -> dict:
     """result.json for a session that could not be read at all."""
     return {"handeye_result": RESULT_VERSION, "status": "failed", "failure_reason": str(err),
-            "error": err.to_dict(), "mode": mode or "unknown", "method": None, "refined": False, "views": [],
+            "error": err.to_dict(), "mode": mode or "unknown", "mode_source": "flag" if mode else None,
+            "method": None, "refined": False, "views": [],
             "n_views": {"total": 0, "used": 0},
             "session": {"path": str(Path(session_path).resolve()), "format": "unreadable"},
             "provenance": provenance()}
+
+
+#: the keys of a finding in result.json's ``findings``
+FINDING_KEYS = ("code", "severity", "title", "evidence", "action", "view_ids")
+_SEVERITY_RANK = {"fail": 0, "warn": 1, "info": 2}
+
+
+def verdict_fields(verdict, res: dict, error: Optional[HandeyeError], *, qa_cfg: Optional[dict] = None) -> dict:
+    """``verdict``, ``verdict_headline``, ``qa`` and ``findings`` for result.json.
+
+    ``verdict``: the report's :class:`handeye.report.qa.Verdict` of this result folder, or None when it
+    could not be evaluated (the verdict then rests on the findings: FAIL on a fail finding, else WARN,
+    since the QA checks did not run). A run with an error is FAIL (REFUSED for a
+    :class:`~handeye.errors.SessionRefused`) whatever the checks say: there is no matrix to use.
+    ``qa_cfg``: the QA thresholds the verdict used (for each check's ``limits``).
+    """
+    raw = ((res.get("diagnostics") or {}).get("findings")) or []
+    findings = [{k: (list(f.get(k) or []) if k == "view_ids" else f.get(k)) for k in FINDING_KEYS}
+                for f in raw if isinstance(f, dict)]
+    findings.sort(key=lambda f: _SEVERITY_RANK.get(str(f["severity"]).lower(), 3))
+    if verdict is not None:
+        label, headline = verdict.label, verdict.headline
+        qa = {"source": verdict.thresholds_source, "status": verdict.status, "counts": dict(verdict.counts),
+              "checks": [_check_dict(c, (qa_cfg or {}).get("checks") or {}) for c in verdict.checks]}
+    else:
+        worst = min((_SEVERITY_RANK.get(str(f["severity"]).lower(), 3) for f in findings), default=3)
+        label = "FAIL" if worst == 0 else "WARN"
+        headline = "The QA checks could not be evaluated; the verdict rests on the diagnostics' findings."
+        qa = {"source": None, "status": None, "counts": {}, "checks": [], "error": "the QA checks crashed"}
+    if error is not None:
+        label = "REFUSED" if isinstance(error, SessionRefused) else "FAIL"
+        if label == "REFUSED":
+            headline = f"{error.what[:1].upper()}{error.what[1:]}; no result is given."
+    return {"verdict": label, "verdict_headline": headline, "qa": qa, "findings": findings}
+
+
+def _check_dict(c, limits_cfg: dict) -> dict:
+    """A QA check (:class:`handeye.report.qa.Check`) for result.json, with its limits as numbers
+    (``limits``: check key -> {warn_above, fail_above, warn_below, fail_below}, from the QA file)."""
+    limits = {k: {n: v for n, v in limits_cfg[k].items() if v is not None}
+              for k in c.key.split("+") if isinstance(limits_cfg.get(k), dict)}
+    return {"key": c.key, "title": c.title, "status": c.status, "value": c.value, "value_text": c.value_text,
+            "limit_text": c.limit_text, "limits": limits, "why": c.why, "action": c.action, "source": c.source,
+            "short": c.short}

@@ -1,12 +1,13 @@
-"""The product workflow, once: load -> calibrate -> diagnose -> write -> report.
+"""The product workflow, once: load -> calibrate -> diagnose -> write -> verdict -> report.
 
 :func:`calibrate_session` is what ``handeye calibrate`` does, and what tests and benchmarks call to
 exercise the same path. It writes into ``out_dir``:
 
-- ``result.json``: the result (or the failure with its structured ``error``), diagnostics, and
-  ``seconds`` for every stage: load, detect, intrinsics, board_poses, closed_form, refine (the
-  pipeline's stages; ``calibrate`` is all of them together), diagnose, write, report, and ``total``
-  from the start of the load to the end of the report (start-up and imports are not in it);
+- ``result.json``: the result (or the failure with its structured ``error``), the verdict,
+  diagnostics, and ``seconds`` for every stage: load, detect, intrinsics, board_poses, closed_form,
+  refine (the pipeline's stages; ``calibrate`` is all of them together), diagnose, write, verdict,
+  report, and ``total`` from the start of the load to the end of the report (start-up and imports
+  are not in it);
 - ``observations.json``: per-view corners and residuals;
 - ``thumbnails/<view_id>.jpg``: small images of every view (when detection made them);
 - ``report.html`` / ``report.md``, built from the folder alone (unless ``report=False``).
@@ -14,6 +15,24 @@ exercise the same path. It writes into ``out_dir``:
 A session that cannot be calibrated still gets a result.json and a report saying why; the last
 successful result.json is then kept as ``result.previous.json``. A session folder that does not
 exist raises (there is nothing to report on).
+
+The verdict belongs to the run: result.json's ``verdict`` is the report's own verdict (the QA checks
+of ``configs/qa.yaml``, or the site ``qa`` file, and the diagnostics' findings, evaluated by
+:func:`handeye.report.build_report_context` from the folder just written, without figures), stored
+with ``qa`` (every check with its value and limits) and ``findings``. ``status`` only says whether a
+matrix was computed (``ok``) or not (``failed``); ``verdict`` says whether to use it:
+
+- ``PASS`` / ``WARN``: a matrix, fit for use (the warnings say what to improve); exit code 0;
+- ``FAIL``: a matrix that a QA check or a finding says is not fit for use (``status: ok``), or no
+  matrix because the calibration failed (``status: failed``, with its ``error``);
+- ``REFUSED``: no matrix, because the data contradict themselves (``status: failed``, ``error`` a
+  :class:`~handeye.errors.SessionRefused`). A run is refused when the pipeline sets a
+  ``SessionRefused`` as its error, or when a diagnostics finding carries ``refuses: true`` (at the
+  top of the finding's dict or in its ``details``): its matrix, seed and closed forms are then
+  dropped and the finding is the error's reason (``error.code`` is the finding's code).
+
+:attr:`WorkflowResult.exit_code` follows :mod:`handeye.errors`: the error's code when there is one,
+else the verdict's (:func:`handeye.errors.verdict_exit_code`).
 """
 from __future__ import annotations
 
@@ -21,11 +40,11 @@ import json
 import logging
 import shutil
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Optional
 
-from .errors import HandeyeError
+from .errors import HandeyeError, SessionRefused, verdict_exit_code
 from .output import atomic_write_bytes, write_json
 from .pipeline import CalibrateOptions, CalibrationRun, run_calibration
 
@@ -48,8 +67,13 @@ class WorkflowResult:
     seconds: dict = field(default_factory=dict)
 
     @property
+    def verdict(self) -> str:
+        """PASS | WARN | FAIL | REFUSED (result.json's ``verdict``)."""
+        return self.result.get("verdict", "FAIL")
+
+    @property
     def exit_code(self) -> int:
-        return 0 if self.error is None else self.error.exit_code
+        return self.error.exit_code if self.error is not None else verdict_exit_code(self.verdict)
 
 
 def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOptions(), out_dir,
@@ -57,15 +81,18 @@ def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOpti
                       progress: Callable[[str], None] | None = None, diagnostics: bool = True) -> WorkflowResult:
     """Calibrate the session folder ``session_path`` and write its results into ``out_dir``.
 
-    ``mode`` overrides the session's mounting mode; ``qa`` is a site QA file for the report;
-    ``progress`` receives one line per stage; ``diagnostics=False`` skips the diagnostics (faster,
-    for benchmarks of the solver path only; the report then has no findings).
+    ``mode`` overrides the session's mounting mode; ``qa`` is a site QA file for the verdict and the
+    report (read first: a bad QA file raises before any work); ``progress`` receives one line per
+    stage; ``diagnostics=False`` skips the diagnostics (faster, for benchmarks of the solver path only;
+    the verdict then rests on the QA checks alone and the report has no findings).
     """
+    from .report.qa import load_qa
     from .session import load_session
 
     progress = progress or (lambda s: None)
     out_dir = Path(out_dir)
     t0 = time.perf_counter()
+    load_qa(qa)  # a bad site QA file is unusable input: say so before the calibration, not after it
     try:
         session = load_session(session_path, mode=mode)
     except HandeyeError as e:
@@ -79,15 +106,21 @@ def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOpti
     run = run_calibration(session, options, progress=progress)
     from .results import observations_dict, result_dict
 
-    res = result_dict(run)
     seconds = {"load": t_load, **run.seconds}
+    diag = None
     if diagnostics:
         progress("diagnostics")
         t1 = time.perf_counter()
         from .diagnose import diagnose_run
 
-        res["diagnostics"] = diagnose_run(run)
+        diag = diagnose_run(run)
         seconds["diagnose"] = time.perf_counter() - t1
+    refusal = refusing_finding(diag)
+    if refusal is not None and run.error is None:
+        run = _refused(run, refusal)
+    res = result_dict(run, mode_flag=mode)
+    if diag is not None:
+        res["diagnostics"] = diag
     t2 = time.perf_counter()
     _keep_previous(out_dir, failed=run.status != "ok")
     write_thumbnails(out_dir, {**run.failures, **run.detections})
@@ -96,21 +129,48 @@ def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOpti
                    progress=progress)
 
 
+def refusing_finding(diagnostics: Optional[dict]) -> Optional[dict]:
+    """The first diagnostics finding that refuses the run (``refuses: true`` in the finding or its
+    ``details``), or None."""
+    for f in (diagnostics or {}).get("findings") or []:
+        if isinstance(f, dict) and (f.get("refuses") is True or (f.get("details") or {}).get("refuses") is True):
+            return f
+    return None
+
+
+def _refused(run: CalibrationRun, finding: dict) -> CalibrationRun:
+    """The run without any matrix, its error the refusing finding."""
+    what = f"the session was refused: {str(finding.get('title') or finding.get('code')).rstrip('.')}"
+    if finding.get("evidence"):
+        what += f" ({str(finding['evidence']).rstrip('.')})"
+    err = SessionRefused(what, hint=finding.get("action") or None, code=str(finding.get("code") or "session_refused"))
+    log.info("refused: %s", err)
+    return replace(run, status="failed", error=err, T_x=None, T_board=None, start=None, closed_forms={},
+                   refined=None)
+
+
 def _finish(out_dir: Path, res: dict, seconds: dict, *, report: bool, qa, t0: float, t_write: float, run,
             error, progress) -> WorkflowResult:
-    """Write result.json, then the reports from the folder; result.json ends with every stage's time."""
+    """Write result.json, judge the folder (verdict, QA checks, findings) into it, then the reports;
+    result.json ends with every stage's time."""
+    from .report.qa import load_qa
+    from .results import verdict_fields
+
     result_path = out_dir / "result.json"
     paths = ()
+    seconds["write"] = time.perf_counter() - t_write
+    res["seconds"] = dict(seconds)
+    write_json(result_path, res)  # the verdict is judged from the folder, as the report is
+    t_v = time.perf_counter()
+    res.update(verdict_fields(_judge(out_dir, qa), res, error, qa_cfg=load_qa(qa)))
+    seconds["verdict"] = time.perf_counter() - t_v
     if report:
-        seconds["write"] = time.perf_counter() - t_write
         res["seconds"] = dict(seconds)
         write_json(result_path, res)  # the report is built from the folder: result.json first
         progress("reports")
         t3 = time.perf_counter()
         paths = tuple(_write_reports(out_dir, qa))
         seconds["report"] = time.perf_counter() - t3
-    else:
-        seconds["write"] = time.perf_counter() - t_write
     seconds["total"] = time.perf_counter() - t0
     res["seconds"] = seconds
     write_json(result_path, res)
@@ -139,6 +199,22 @@ def _failed_load(session_path, err: HandeyeError, *, mode, out_dir: Path, report
             stale.unlink()
     return _finish(out_dir, res, seconds, report=report, qa=qa, t0=t0, t_write=t2, run=None, error=err,
                    progress=lambda s: None)
+
+
+def _judge(out_dir: Path, qa):
+    """The report's verdict of the result folder (:class:`handeye.report.qa.Verdict`), or None when
+    judging crashed (a report bug: logged; :func:`handeye.results.verdict_fields` then judges from
+    the findings alone)."""
+    from .report import build_report_context
+
+    try:
+        return build_report_context(out_dir, qa=qa, make_plots=False)["verdict"]
+    except HandeyeError:
+        raise
+    except Exception as e:  # noqa: BLE001 - the result must survive a bug in the judging
+        log.error("handeye: the QA checks could not be evaluated (%s: %s); the verdict rests on the findings. "
+                  "Rebuild the report with: handeye --debug report %s", type(e).__name__, e, out_dir)
+        return None
 
 
 def _keep_previous(out_dir: Path, *, failed: bool) -> None:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from handeye.config import load_preset
-from handeye.errors import InputError
+from handeye.errors import ConfigError, InputError, SessionRefused, verdict_exit_code
 from handeye.frames import pose_error, tangent_difference
 from handeye.mounting import mounting
 from handeye.pipeline import CalibrateOptions
@@ -19,7 +19,7 @@ SMALL = dict(intrinsics=default_intrinsics(640, 480), supersample=3)
 #: single error through with probability 0.999; one 2x too small (d2 x4) fails this session (d2 ~8-15)
 CHI2_6_999 = 22.458
 STAGES = ("load", "detect", "intrinsics", "board_poses", "closed_form", "refine", "calibrate", "diagnose", "write",
-          "report", "total")
+          "verdict", "report", "total")
 
 
 @pytest.fixture(scope="module", params=["eye_in_hand", "eye_to_hand"])
@@ -103,6 +103,61 @@ def test_result_folder_holds_the_outputs_and_seconds_cover_every_stage(refined):
     assert max(cf[m]["diff_to_result_deg"] for m in ok) < 0.5 and max(cf[m]["diff_to_result_mm"] for m in ok) < 5.0
 
 
+def test_the_verdict_is_the_reports_and_result_json_carries_its_checks_and_findings(refined):
+    _, _, out, wr = refined
+    from handeye.report import build_report_context
+
+    res = json.loads((out / "result.json").read_text())
+    verdict = build_report_context(out, make_plots=False)["verdict"]
+    assert res["verdict"] == verdict.label == wr.verdict and res["verdict_headline"] == verdict.headline
+    assert wr.exit_code == verdict_exit_code(res["verdict"]) == 0 and res["status"] == "ok"
+    checks = {c["key"]: c for c in res["qa"]["checks"]}
+    assert [c.key for c in verdict.checks] == list(checks)
+    rms = checks["reprojection_rms_px"]
+    assert rms["limits"] == {"reprojection_rms_px": {"warn_above": 0.8, "fail_above": 1.5}}  # configs/qa.yaml
+    assert rms["status"] == "pass" and rms["value"] < 0.8
+    diag = res["diagnostics"]["findings"]
+    assert [f["code"] for f in res["findings"]] == [f["code"] for f in diag]
+    assert all(set(f) == {"code", "severity", "title", "evidence", "action", "view_ids"} for f in res["findings"])
+    assert res["mode_source"] == "stated"
+
+
+def test_a_refusing_finding_drops_the_matrix_and_is_the_reason(rendered, tmp_path, monkeypatch):
+    """The workflow's contract with the diagnostics: a finding with ``refuses: true`` refuses the run."""
+    import handeye.diagnose as diagnose
+
+    real = diagnose.diagnose_run
+
+    def with_a_refusal(run, **kw):
+        d = real(run, **kw)
+        d["findings"].insert(0, {"code": "pairs_shuffled", "severity": "fail", "title": "Images carry other poses",
+                                 "evidence": "9 of 12 images", "action": "re-pair them by view id",
+                                 "view_ids": ["1", "2"], "details": {"refuses": True}})
+        return d
+
+    monkeypatch.setattr(diagnose, "diagnose_run", with_a_refusal)
+    mode, session = rendered
+    wr = _run(session, tmp_path / "out", refine=False)
+    res = json.loads((tmp_path / "out" / "result.json").read_text())
+    mm = mounting(mode)
+    assert wr.status == "failed" and res["status"] == "failed" and res["verdict"] == "REFUSED"
+    assert wr.exit_code == SessionRefused.exit_code and res["error"]["type"] == "SessionRefused"
+    assert res["error"]["code"] == "pairs_shuffled" and res["error"]["fix"] == "re-pair them by view id"
+    assert "Images carry other poses" in res["failure_reason"] and "9 of 12 images" in res["failure_reason"]
+    assert not {mm.x_name, mm.board_name, "closed_form", "seed", "refinement", "hand_eye"} & set(res)
+    obs = json.loads((tmp_path / "out" / "observations.json").read_text())
+    assert not any("residual_chain_px" in v for v in obs["views"].values())  # nothing predicted from a refused X
+    assert res["findings"][0]["code"] == "pairs_shuffled"
+
+
+def test_a_bad_qa_file_is_refused_before_any_work(tmp_path):
+    bad = tmp_path / "qa.yaml"
+    bad.write_text("checks:\n  reprojection_rms_px: {warn_over: 1}\n")
+    with pytest.raises(ConfigError, match="warn_over") as e:  # before the session is even looked for
+        calibrate_session(tmp_path / "no session", options=_opts(), out_dir=tmp_path / "out", qa=bad)
+    assert e.value.exit_code == 2 and not (tmp_path / "out").exists()
+
+
 def test_clean_session_has_no_crashed_diagnostic_stage_and_no_failure(refined):
     _, _, _, wr = refined
     diag = wr.result["diagnostics"]
@@ -126,16 +181,16 @@ def test_closed_form_alone_is_within_ten_refined_sigmas(rendered, tmp_path):
     assert rb < 0.1 and tb < 0.5, (rb, tb)
 
 
-def test_wrong_mode_is_visible_in_the_residuals(rendered, tmp_path):
+def test_a_mode_the_data_contradict_is_refused_without_a_matrix(rendered, tmp_path):
     mode, session = rendered
+    wrong = mounting(mode).other
     wr = calibrate_session(session, options=_opts(refine=False), out_dir=tmp_path / "out", report=False,
-                           mode=mounting(mode).other.name)
-    # either the wrong model cannot be solved at all, or its residuals show it (right model: < 1 px)
-    if wr.status == "ok":
-        assert max(v["chain_max_px"] for v in wr.result["views"] if v["used"]) > 20
-    else:
-        assert wr.result["error"]["code"] in ("degenerate_motion", "motion_small_rotation", "motion_one_axis",
-                                              "closed_form_failed")
+                           mode=wrong.name)
+    res = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert res["error"]["code"] == "mode_swapped" and res["status"] == "failed"
+    assert res["verdict"] == "REFUSED" and wr.exit_code == SessionRefused.exit_code
+    assert not {wrong.x_name, wrong.board_name, "closed_form", "seed"} & set(res)  # no matrix at all
+    assert res["mode_source"] == "flag"
 
 
 def test_board_size_mismatch_fails_with_a_structured_error_and_no_matrix(rendered, tmp_path, session_with_board):
