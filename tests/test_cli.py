@@ -7,8 +7,10 @@ import ast
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,8 +18,9 @@ import yaml
 
 from handeye.cli import main
 from handeye.conventions import VENDOR_POSE_FORMAT, pose_values_from_T
-from handeye.errors import InputError
-from handeye.frames import pose_error, rotvec_from_R, transform_points
+from handeye.errors import EXIT_CODES, InputError, QAFailed, SessionRefused
+from handeye.frames import T_from_rotvec, inv_T, pose_error, rotvec_from_R, transform_points
+from handeye.mounting import mounting
 from handeye.session import load_session
 from handeye.sim.corners import make_corner_session
 from handeye.sim.scenarios import default_intrinsics
@@ -210,3 +213,140 @@ def test_site_min_corners_overrides_the_detection_preset(session, tmp_path, caps
     assert main(["-q", "calibrate", str(session), "--config", str(site), "--out", str(tmp_path / "o"),
                  "--no-report"]) == 3
     assert "found in only 0 of 8 images" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------ verdict and exit codes
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory):
+    """10 rendered eye-in-hand views that pass every QA check, in a vendor folder whose config.yaml states
+    no mode (vendor folders without one must just work: the data decide it)."""
+    out = tmp_path_factory.mktemp("clean") / "session"
+    write_vendor_session(out, mode="eye_in_hand", n_views=10, seed=5, image_noise=1.0, **SMALL)
+    cfg = yaml.safe_load((out / "config.yaml").read_text())
+    del cfg["mode"]
+    (out / "config.yaml").write_text(yaml.safe_dump(cfg))
+    return out
+
+
+def _variant(clean, dst, T_base_end) -> Path:
+    """The clean session with its mode stated and poses.txt rewritten with ``T_base_end`` (line k = image k)."""
+    shutil.copytree(clean, dst)
+    cfg = yaml.safe_load((dst / "config.yaml").read_text())
+    (dst / "config.yaml").write_text(yaml.safe_dump(dict(cfg, mode="eye_in_hand")))
+    lines = [",".join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)) for T in T_base_end]
+    (dst / "poses.txt").write_text("\n".join(lines) + "\n")
+    return dst
+
+
+def _reported(session) -> np.ndarray:
+    return np.stack([v.T_base_end for v in load_session(session).views])  # (N, 4, 4), image order
+
+
+def _calibrate(session, out, capsys, *extra):
+    """`handeye -q calibrate` in this process: (exit code, stdout lines, stderr lines, result.json)."""
+    rc = main(["-q", "calibrate", str(session), "--out", str(out), *extra])
+    cap = capsys.readouterr()
+    res = json.loads((out / "result.json").read_text()) if (out / "result.json").exists() else None
+    return rc, cap.out.splitlines(), cap.err.splitlines(), res
+
+
+def _verdict_block(lines):
+    """The verdict line and the lines of its checks and findings."""
+    k = next(i for i, line in enumerate(lines) if line.startswith("verdict: "))
+    items = []
+    for line in lines[k + 1:]:
+        if not line.startswith(("  FAIL ", "  WARN ")):
+            break
+        items.append(line)
+    return lines[k], items
+
+
+def test_a_clean_session_passes_exits_0_and_says_which_mode_the_data_chose(clean, tmp_path, capsys):
+    rc, out, err, res = _calibrate(clean, tmp_path / "o", capsys, "--no-report")
+    assert rc == 0 and err == []
+    assert res["status"] == "ok" and res["verdict"] == "PASS" and res["findings"] == [] or \
+        all(f["severity"] == "info" for f in res["findings"])
+    assert res["mode"] == "eye_in_hand" and res["mode_source"] == "detected"
+    mode_line = [line for line in out if line.startswith("mode: ")]
+    assert mode_line == [f"mode: eye_in_hand, detected from the data (the session states none): "
+                         f"{res['mode_evidence']['summary']}"]
+    verdict, items = _verdict_block(out)
+    assert verdict == f"verdict: PASS - {res['verdict_headline']}" and items == []
+    assert out.index(verdict) > out.index("T_end_cam (p_end = T_end_cam @ p_cam):")  # after the result block
+    assert all(c["status"] == "pass" for c in res["qa"]["checks"])
+
+
+@pytest.mark.parametrize("level", ["warn", "fail"])
+def test_a_site_qa_file_makes_the_same_run_warn_or_fail(clean, tmp_path, capsys, level):
+    site = tmp_path / "qa.yaml"  # the rendered corners fit to ~0.05 px: a 0.01 px limit is crossed
+    site.write_text(yaml.safe_dump({"checks": {"reprojection_rms_px": {f"{level}_above": 0.01}}}))
+    extra = ["--qa", str(site)] + (["--no-report"] if level == "warn" else [])
+    rc, out, err, res = _calibrate(clean, tmp_path / "o", capsys, *extra)
+    assert res["status"] == "ok" and "T_end_cam" in res  # a matrix either way: status says only that
+    assert res["verdict"] == level.upper()
+    check = next(c for c in res["qa"]["checks"] if c["key"] == "reprojection_rms_px")
+    assert check["status"] == level and check["limits"]["reprojection_rms_px"][f"{level}_above"] == 0.01
+    verdict, items = _verdict_block(out)
+    assert verdict.startswith(f"verdict: {level.upper()} - ")
+    assert items == [f"  {level.upper()} {check['short']} -> fix: {check['action'][:1].lower()}"
+                     f"{check['action'][1:].rstrip('.')}"]
+    if level == "warn":
+        assert rc == 0 and err == []
+    else:  # FAIL: its own exit code, and the result and the reports are still written
+        assert rc == QAFailed.exit_code == 7
+        assert err == [f"handeye: verdict FAIL: {res['verdict_headline']}"]
+        assert (tmp_path / "o" / "report.html").exists() and (tmp_path / "o" / "report.md").exists()
+        assert out[-2:] == [f"report: {tmp_path / 'o' / 'report.html'}", f"report: {tmp_path / 'o' / 'report.md'}"]
+
+
+def test_a_board_that_slipped_fails_with_the_finding_and_its_fix(clean, tmp_path, capsys):
+    mm = mounting("eye_in_hand")
+    T = _reported(clean)
+    B = np.asarray(json.loads((clean / "ground_truth.json").read_text())[mm.board_name])
+    move = T_from_rotvec(np.radians([0.0, 0.0, 1.0]), [0.008, 0.004, 0.0])  # 9 mm and 1 deg from view 7 on
+    for k in range(6, len(T)):
+        T[k] = mm.T_base_end_from_M(mm.M_from_T_base_end(T[k]) @ B @ move @ inv_T(B))
+    rc, out, err, res = _calibrate(_variant(clean, tmp_path / "moved", T), tmp_path / "o", capsys, "--no-report")
+    assert rc == QAFailed.exit_code and res["status"] == "ok" and res["verdict"] == "FAIL"
+    f = next(f for f in res["findings"] if f["code"] == "board_moved")
+    verdict, items = _verdict_block(out)
+    assert verdict.startswith("verdict: FAIL - ") and "board" in verdict
+    assert items[0] == f"  FAIL board_moved: {f['title'].rstrip('.')} -> fix: {f['action'].rstrip('.')}"
+    assert all(" -> fix: " in line for line in items)
+    assert len(err) == 1 and err[0].startswith("handeye: verdict FAIL: ")
+
+
+def test_shuffled_pairs_are_refused_without_a_matrix(clean, tmp_path, capsys):
+    T = _reported(clean)[np.random.default_rng(3).permutation(10)]
+    rc, out, err, res = _calibrate(_variant(clean, tmp_path / "shuffled", T), tmp_path / "o", capsys, "--no-report")
+    assert rc == SessionRefused.exit_code == 8
+    assert res["status"] == "failed" and res["verdict"] == "REFUSED" and res["error"]["code"] == "pairs_shuffled"
+    assert "T_end_cam" not in res and "hand_eye" not in res
+    verdict, items = _verdict_block(out)
+    assert verdict.startswith("verdict: REFUSED - ") and verdict.endswith(f"-> fix: {res['error']['fix']}")
+    assert any(line.startswith("  FAIL pairs_") for line in items)
+    assert not any(line.startswith("  [") for line in out)  # no matrix printed
+    assert len(err) == 1 and err[0].startswith("handeye: refused: ")
+
+
+def test_a_malformed_poses_file_is_unusable_input(clean, tmp_path, capsys):
+    bad = _variant(clean, tmp_path / "bad", _reported(clean))
+    lines = (bad / "poses.txt").read_text().splitlines()
+    lines[2] = "0.1,0.2,abc,0,0,0"
+    (bad / "poses.txt").write_text("\n".join(lines) + "\n")
+    rc, out, err, res = _calibrate(bad, tmp_path / "o", capsys, "--no-report")
+    assert rc == InputError.exit_code == 2
+    assert len(err) == 1 and err[0].startswith("handeye: error: ") and "poses.txt:3" in err[0]
+    assert res["status"] == "failed" and res["verdict"] == "FAIL" and res["error"]["exit_code"] == 2
+
+
+def test_the_exit_codes_of_the_readme_are_those_of_the_code_and_of_help():
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    rows = re.findall(r"^\| (\d+) \| (.+) \|$", readme, flags=re.M)
+    assert [(int(c), m) for c, m in rows] == list(EXIT_CODES)
+    assert len({c for c, _ in EXIT_CODES}) == len(EXIT_CODES)  # every code means one thing
+    for argv in (["--help"], ["calibrate", "--help"]):
+        cap = subprocess.run([sys.executable, "-m", "handeye.cli", *argv], capture_output=True, text=True)
+        assert cap.returncode == 0
+        for code, meaning in EXIT_CODES:
+            assert re.search(rf"^\s+{code}\s+{re.escape(meaning)}$", cap.stdout, flags=re.M), (argv, code)

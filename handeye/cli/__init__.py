@@ -20,7 +20,9 @@ report's. Command modules also import their heavy dependencies inside ``run``.
 
 Progress and log lines go to stderr, results to stdout and files. A user mistake ends in one line
 on stderr and a non-zero exit code (:attr:`handeye.errors.HandeyeError.exit_code`), never a
-traceback (``--debug`` shows it).
+traceback (``--debug`` shows it). The exit codes (:data:`handeye.errors.EXIT_CODES`, the epilog of
+``handeye --help`` and ``handeye calibrate --help``): 0 PASS or WARN, 7 FAIL, 8 REFUSED, 2 unusable
+input, 3-6 detection, motion, solver and hardware failures.
 """
 from __future__ import annotations
 
@@ -30,7 +32,7 @@ import logging
 import sys
 
 from .. import __version__
-from ..errors import HandeyeError
+from ..errors import HandeyeError, exit_codes_text
 
 log = logging.getLogger("handeye")
 
@@ -69,7 +71,8 @@ def add_command_arguments(parser: argparse.ArgumentParser, name: str) -> argpars
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``handeye`` parser; every command is listed, and loaded when it is parsed."""
-    p = argparse.ArgumentParser(prog="handeye", description="Robot hand-eye calibration with honest uncertainty.")
+    p = argparse.ArgumentParser(prog="handeye", description="Robot hand-eye calibration with honest uncertainty.",
+                                epilog=exit_codes_text(), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"handeye {__version__}")
     p.add_argument("-v", "--verbose", action="store_true", help="more progress detail on stderr")
     p.add_argument("-q", "--quiet", action="store_true", help="only errors on stderr")

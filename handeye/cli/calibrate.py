@@ -1,6 +1,12 @@
-"""``handeye calibrate SESSION``: the whole workflow on one session folder, and its summary."""
+"""``handeye calibrate SESSION``: the whole workflow on one session folder, its summary and verdict.
+
+stdout: the views used, the result block (matrix, forms, 1-sigma), then the verdict line and every
+warning or failing QA check and finding with its fix (:mod:`.verdict`), then the files written. The
+exit code is the error's, or the verdict's (:data:`handeye.errors.EXIT_CODES`).
+"""
 from __future__ import annotations
 
+import argparse
 import logging
 import sys
 from pathlib import Path
@@ -10,11 +16,16 @@ log = logging.getLogger(__name__)
 
 def add_arguments(p) -> None:
     """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
+    from ..errors import exit_codes_text
     from ..mounting import MODES
     from ..records import METHOD_NAMES
 
     p.description = ("Detect the target, calibrate the camera, start from an OpenCV closed-form solution and "
-                     "refine jointly; writes DIR/result.json, observations.json, thumbnails/ and the reports.")
+                     "refine jointly; writes DIR/result.json, observations.json, thumbnails/ and the reports. "
+                     "Prints the result, then the verdict (PASS / WARN / FAIL / REFUSED) and every warning or "
+                     "failure with its fix.")
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.epilog = exit_codes_text()
     p.add_argument("session", help="session folder (poses.txt + N.jpg + config.yaml, or session.yaml)")
     p.add_argument("--mode", choices=MODES,
                    help="mounting mode (overrides the session's own; default: the session's, else eye_in_hand)")
@@ -34,7 +45,7 @@ def add_arguments(p) -> None:
                    help="robot pose sigma: start value (estimate) or the value (fixed)")
     p.add_argument("--workers", type=int, help="threads for corner detection (default: all cores)")
     p.add_argument("--qa", type=Path, metavar="FILE",
-                   help="site QA thresholds for the report (overrides configs/qa.yaml)")
+                   help="site QA thresholds for the verdict and the report (overrides configs/qa.yaml)")
     p.add_argument("--no-report", action="store_true", help="write result.json, observations.json and thumbnails only")
     p.set_defaults(func=run)
 
@@ -65,6 +76,10 @@ def run(args) -> int:
     wr = calibrate_session(args.session, options=opts, out_dir=out, report=not args.no_report,
                            qa=getattr(args, "qa", None), mode=args.mode, progress=lambda s: log.info("%s", s))
     if wr.run is None:  # the session could not be read: result.json and the report say why
+        from .verdict import finding_lines
+
+        for line in finding_lines(wr.result, skip=("session_unreadable",)):  # what else the diagnostics saw
+            print(line)
         for p in wr.report_paths:
             print(f"report: {p}")
         raise wr.error
@@ -72,23 +87,29 @@ def run(args) -> int:
     if wr.status != "ok":
         if getattr(args, "debug", False):
             raise wr.error
-        print(f"handeye: calibration failed: {wr.result['failure_reason']}", file=sys.stderr)
+        what = "refused" if wr.verdict == "REFUSED" else "calibration failed"
+        print(f"handeye: {what}: {wr.result['failure_reason']}", file=sys.stderr)
         return wr.exit_code or 1
-    return 0
+    if wr.exit_code:
+        print(f"handeye: verdict {wr.verdict}: {wr.result.get('verdict_headline', '')}", file=sys.stderr)
+    return wr.exit_code
 
 
 def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
-    """The lines ``handeye calibrate`` prints on stdout: views used, the transform and its uncertainty."""
+    """The lines ``handeye calibrate`` prints on stdout: views used (and the mode, when the data chose
+    it), the transform and its uncertainty, the verdict with every warning and failure, the files."""
     import numpy as np
 
     from .. import __version__
     from ..mounting import mounting
+    from .verdict import mode_lines, verdict_lines
 
     lines = []
     mode = res["mode"]
     used, total = res["n_views"]["used"], res["n_views"]["total"]
     lines.append(f"handeye {__version__}: {mode}, {used}/{total} views used, method {res['method']}"
                  + (" + joint refinement" if res.get("refined") else " (closed form only)"))
+    lines += mode_lines(res)
     for v in res["views"]:
         if not v["used"]:
             lines.append(f"  view {v['id']} ({v['image']}) dropped: {v['reason']}")
@@ -115,8 +136,9 @@ def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
         if ref.get("predicted_error_mm") is not None:
             lines.append(f"  predicted position error at {ref.get('working_distance_m', float('nan')):.2f} m: "
                          f"{ref['predicted_error_mm']:.2f} mm (1 sigma)")
-    else:
+    elif "verdict" not in res:
         lines.append(f"FAILED: {res['failure_reason']}")
+    lines += verdict_lines(res)
     lines.append(f"result: {result_path}")
     for p in report_paths:
         lines.append(f"report: {p}")
