@@ -2,6 +2,9 @@
 accuracy against the ground truth, and the cornerSubPix stopping rule of configs/detection.yaml.
 
 Usage: python benchmarks/bench_detect.py [--views 20] [--rounds 7] [--session DIR] [--real DIR ...]
+The last lines time the refusal of a wrong board size: the session's images under a config.yaml that
+states 9x6 inner corners (the board has 11x8), through detect_views and through the whole
+calibration (handeye.workflow.calibrate_session without the reports), with the message it gives.
 --real (e.g. ../shared/data/ur3-eyetohand-cam1, a 9x7 chessboard) also compares the cornerSubPix
 stopping rules on real images: how far the shipped rule leaves the corners from the 50 / 1e-4 rule.
 Renders a session (handeye.sim.vendor.write_vendor_session, view 5 hidden so one view takes the
@@ -133,8 +136,42 @@ def main() -> None:
                 print(f"  cornerSubPix max_iter {it} eps {eps:g}: {best:.2f} ms CPU per view, "
                       f"error RMS {np.sqrt(np.mean(e ** 2)):.4f} px, max {e.max():.4f} px")
 
+        _wrong_size(Path(folder), Path(tmp), args.rounds)
+
     for folder in args.real:
         _real_subpix(folder, tuple(args.real_board))
+
+
+def _wrong_size(folder: Path, tmp: Path, rounds: int) -> None:
+    """Time the refusal of a session whose config.yaml states 9x6 inner corners for an 11x8 board."""
+    import yaml
+
+    from handeye.pipeline import CalibrateOptions
+    from handeye.workflow import calibrate_session
+
+    bad = tmp / "wrong-size"
+    bad.mkdir()
+    for f in folder.iterdir():
+        if f.name != "config.yaml":
+            (bad / f.name).symlink_to(f.resolve())
+    cfg = yaml.safe_load((folder / "config.yaml").read_text())
+    cfg["checkerboard_args"].update(XX=9, YY=6)
+    (bad / "config.yaml").write_text(yaml.safe_dump(cfg))
+    s = load_session(bad)
+    items = [(v.view_id, v.image_path) for v in s.views]
+    walls, cpus = [], []
+    for _ in range(rounds):
+        t0, c0 = time.perf_counter(), time.process_time()
+        res = detect_views(items, s.target)
+        walls.append(time.perf_counter() - t0)
+        cpus.append(time.process_time() - c0)
+    searched = sum(not str(getattr(d, "reason", "")).startswith("not searched") for d in res.values())
+    print(f"  wrong board size (9x6 stated, 11x8 board), {len(items)} images: detect_views {min(walls):.3f} s wall "
+          f"(min of {rounds}), median {np.median(walls):.3f} s, CPU {min(cpus):.3f} s; {searched} images looked at")
+    t0 = time.perf_counter()
+    wr = calibrate_session(bad, options=CalibrateOptions(refine=False), out_dir=tmp / "wrong-size-out", report=False)
+    print(f"  wrong board size, whole calibration without reports: {time.perf_counter() - t0:.2f} s wall, "
+          f"exit code {wr.exit_code}: {wr.result['error']['message']}")
 
 
 def _real_subpix(folder: Path, size: tuple) -> None:

@@ -35,6 +35,7 @@ class View:
     source_line: Optional[int] = None  # line in poses.txt, for messages
     t_image: Optional[float] = None
     t_pose: Optional[float] = None
+    joint_angles: Optional[tuple] = None  # the arm's joint angles at this view (radians), when recorded
 
 
 @dataclass(frozen=True)
@@ -50,6 +51,7 @@ class Session:
     intrinsics_prior: str = "estimate"  # estimate | fixed | prior
     pose_format: str = ""
     meta: dict = field(default_factory=dict)
+    mode_source: str = "stated"  # stated (in the session) | flag (--mode) | default (none: decided from the data)
 
     def view(self, view_id: str) -> View:
         for v in self.views:
@@ -88,6 +90,9 @@ class DetectionFailure:
     exposure: Optional[dict] = None
     image_size: Optional[tuple] = None  # (width, height)
     seconds: float = 0.0
+    # chessboards: the inner-corner sizes (cols, rows) seen in this image when the stated size was not
+    # found (handeye.detect.board_size); None when the image was not checked
+    seen_sizes: Optional[tuple] = None
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,8 @@ import pytest
 from scipy.ndimage import map_coordinates
 
 from handeye.camera import pixels_from_board_points
-from handeye.detect import detect_gray, detect_image, detect_views, read_gray
+from handeye.detect import (board_size_verdict, detect_gray, detect_image, detect_views, read_gray, size_survey,
+                           visible_grid_sizes)
 from handeye.detect.chessboard import detect_chessboard, normalize_chessboard_order, order_cue
 from handeye.detect.options import default_options
 from handeye.detect.quality import (board_mask, edge_profiles, image_exposure, neighbour_pairs, thumbnail_jpeg,
@@ -224,3 +225,70 @@ def test_detection_settings_name_a_missing_or_unknown_key():
         DetectionOptions.from_config({k: v for k, v in cfg.items() if k != "min_corners"})
     with pytest.raises(ConfigError, match="blob_colour"):
         DetectionOptions.from_config(dict(cfg, circle_blobs=dict(cfg["circle_blobs"], blob_colour=0)))
+
+
+# --- board size: which sizes the images show when the stated one is not found
+
+def test_visible_grid_sizes_counts_the_inner_corners_whatever_size_is_stated(views):
+    cs, imgs = views
+    for img in imgs:
+        assert visible_grid_sizes(img) == ((11, 8),)  # the rendered board: 11 x 8 inner corners
+    assert visible_grid_sizes(np.full_like(imgs[0], 128)) == ()
+    # turned a quarter: the same size (a detector cannot tell the board's orientation)
+    assert visible_grid_sizes(np.ascontiguousarray(np.rot90(imgs[0]))) == ((11, 8),)
+
+
+def test_board_size_verdict_needs_the_stated_size_absent_and_another_in_most_views():
+    assert board_size_verdict((9, 6), {"1": ((11, 8),), "2": ((11, 8),), "3": ((11, 8),)}) == (11, 8)
+    assert board_size_verdict((6, 9), {"1": ((11, 8),), "2": (), "3": ((11, 8),)}) == (11, 8)  # one bad view
+    assert board_size_verdict((9, 6), {"1": ((11, 8),), "2": ((9, 6),), "3": ((11, 8),)}) is None  # stated seen
+    assert board_size_verdict((9, 6), {"1": ((11, 8),), "2": ((11, 5),), "3": ()}) is None  # no size in 2 of 3
+    assert board_size_verdict((9, 6), {"1": (), "2": (), "3": ()}) is None
+    assert board_size_verdict((9, 6), {"1": ((11, 8),)}) is None  # one view is not enough
+
+
+def _write(tmp_path, imgs):
+    items = []
+    for k, img in enumerate(imgs):
+        p = tmp_path / f"{k + 1}.png"
+        cv2.imwrite(str(p), img)
+        items.append((str(k + 1), p))
+    return items
+
+
+def test_a_wrong_board_size_stops_after_the_first_views_and_names_the_size_seen(tmp_path, views):
+    cs, imgs = views
+    items = _write(tmp_path, imgs + imgs[:2])  # 6 views of an 11 x 8 board
+    res = detect_views(items, ChessboardSpec(9, 6, 0.03))
+    assert list(res) == [v for v, _ in items] and all(isinstance(d, DetectionFailure) for d in res.values())
+    for v in ("1", "2", "3"):  # the probe (configs/detection.yaml size_probe_views: 3)
+        assert res[v].seen_sizes == ((11, 8),)
+        assert res[v].reason == "chessboard 9x6 not found; the detector sees 11x8 inner corners"
+    for v in ("4", "5", "6"):
+        assert res[v].seen_sizes is None and res[v].reason.startswith("not searched: no 9x6 chessboard")
+        assert res[v].thumbnail_jpeg and res[v].image_size == (640, 480)
+    survey = size_survey(res, (9, 6))
+    assert survey.likely_size == (11, 8) and survey.counts == {(11, 8): 3}
+    assert survey.text() == "no 9x6 chessboard; 11x8 inner corners seen in 3 of 3 checked views"
+    assert "checkerboard_args XX: 11, YY: 8" in survey.fix() and "not 9x6" in survey.fix()
+    # the stated size is found: no survey, every view detected
+    res = detect_views(items, cs.target)
+    assert all(isinstance(d, Detection) for d in res.values()) and size_survey(res, (11, 8)) is None
+
+
+def test_a_wrong_board_size_is_refused_with_the_size_the_images_show(tmp_path, views):
+    from handeye.pipeline import observe
+
+    _, imgs = views
+    obs = observe(target=ChessboardSpec(12, 8, 0.03), items=_write(tmp_path, imgs))
+    assert obs.error.code == "target_not_found" and obs.error.exit_code == 3
+    assert "found in only 0 of 4 images: no 12x8 chessboard; 11x8 inner corners seen in 3 of 3" in obs.error.what
+    assert "the board has 11x8 inner corners, not 12x8" in obs.error.hint
+
+
+def test_when_the_first_views_show_no_other_size_every_view_is_searched(tmp_path, views):
+    cs, imgs = views
+    blank = np.full_like(imgs[0], 128)
+    res = detect_views(_write(tmp_path, [blank, blank] + imgs), cs.target)
+    assert [isinstance(d, Detection) for d in res.values()] == [False, False, True, True, True, True]
+    assert res["1"].reason == "chessboard 11x8 not found"

@@ -6,10 +6,13 @@ the same decoded image.
 a :class:`~handeye.records.Detection` (corners, sharpness, blur, exposure, thumbnail) or a
 :class:`~handeye.records.DetectionFailure` (reason, exposure, thumbnail), each with its view id, so the
 caller drops a failed view *together with its pose*. :func:`detect_views` does a whole session in
-parallel threads (OpenCV releases the GIL). Thresholds are in configs/detection.yaml.
+parallel threads (OpenCV releases the GIL); for a chessboard it first looks at a few views, and when
+they show another board size (:mod:`.board_size`) it stops there instead of running the slow search
+on every image. Thresholds are in configs/detection.yaml.
 """
 from __future__ import annotations
 
+import logging
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -22,11 +25,14 @@ import numpy as np
 from ..errors import ConfigError, InputError
 from ..records import Detection, DetectionFailure
 from ..targets import TargetSpec
+from .board_size import SizeSurvey, board_size_verdict, normal_size, size_survey, size_text, visible_grid_sizes
 from .charuco import detect_charuco
 from .chessboard import detect_chessboard, normalize_chessboard_order, order_cue
 from .circlegrid import detect_circlegrid
 from .options import DetectionOptions, default_options
 from .quality import image_exposure, sharpness, thumbnail_jpeg, view_blur, view_exposure
+
+log = logging.getLogger(__name__)
 
 #: the detector of each target kind (``TargetSpec.kind``)
 DETECTORS = {"chessboard": detect_chessboard, "charuco": detect_charuco, "circlegrid": detect_circlegrid}
@@ -83,12 +89,10 @@ def detect_image(view_id: str, path: Path, target: TargetSpec, *, min_corners: i
     t0 = time.perf_counter()
     gray = read_gray(path)
     size = (gray.shape[1], gray.shape[0])
-    thumb = thumbnail_jpeg(gray, width_px=o.thumbnail_width_px, quality=o.thumbnail_jpeg_quality)
     out = detect_gray(gray, target, min_corners=min_corners, options=o)
     if isinstance(out, str):
-        return DetectionFailure(view_id=view_id, reason=out, thumbnail_jpeg=thumb,
-                                exposure=image_exposure(gray, saturated_grey=o.saturated_grey), image_size=size,
-                                seconds=time.perf_counter() - t0)
+        return _failure(view_id, gray, out, o, t0)
+    thumb = thumbnail_jpeg(gray, width_px=o.thumbnail_width_px, quality=o.thumbnail_jpeg_quality)
     ids, pts = out
     cue = order_cue(gray, pts, target.cols, target.rows) if target.kind == "chessboard" else float("nan")
     blur = view_blur(gray, pts, ids, target.object_points(), target.square_m, charuco=target.kind == "charuco",
@@ -116,7 +120,14 @@ def detect_views(items: Sequence[tuple[str, Path]], target: TargetSpec, *, worke
         return vid, detect_image(vid, path, target, min_corners=min_corners, options=o)
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        for k, (vid, res) in enumerate(pool.map(job, items), start=1):
+        todo = list(items)
+        if target.kind == "chessboard":
+            refused = _wrong_board_size(items, target, pool, o)
+            if refused is not None:
+                results, todo = refused, []
+                if progress:
+                    progress(len(items), len(items))
+        for k, (vid, res) in enumerate(pool.map(job, todo), start=1):
             results[vid] = res
             if progress:
                 progress(k, len(items))
@@ -127,3 +138,54 @@ def detect_views(items: Sequence[tuple[str, Path]], target: TargetSpec, *, worke
         raise InputError(f"images have different sizes {sorted(sizes)}", path=Path(items[0][1]).parent,
                          hint="all views of a session must come from one camera at one resolution")
     return results
+
+
+def _wrong_board_size(items, target, pool, o: DetectionOptions) -> dict | None:
+    """Failures for every view when the first views show another chessboard size than ``target``'s;
+    None (search every view as usual) when one of them shows the stated size or they do not clearly
+    show another one. The first view is looked at alone (a session with the right size pays for that
+    one look, 50-100 ms), the others of the probe together. Checked views keep the sizes seen
+    (``seen_sizes``); the others are decoded only for their thumbnail and exposure, and say they were
+    not searched."""
+    probe = list(items[: o.size_probe_views])
+    if len(probe) < 2:
+        return None
+    stated = normal_size(target.cols, target.rows)
+    said = f"{target.cols}x{target.rows}"
+
+    def look(item):
+        vid, path = item
+        t0 = time.perf_counter()
+        gray = read_gray(path)
+        seen = visible_grid_sizes(gray, max_side_px=o.size_survey_max_side_px)
+        why = f"chessboard {said} not found" + (
+            f"; the detector sees {', '.join(size_text(s) for s in seen)} inner corners" if seen else "")
+        return vid, _failure(vid, gray, why, o, t0, seen_sizes=seen)
+
+    looked = dict([look(probe[0])])
+    if stated in looked[probe[0][0]].seen_sizes:
+        return None
+    looked.update(pool.map(look, probe[1:]))
+    likely = board_size_verdict(stated, {v: f.seen_sizes for v, f in looked.items()})
+    if likely is None:
+        return None
+    log.info("chessboard %s in none of the first %d views, which show %s: the other views are not searched",
+             said, len(probe), size_text(likely))
+    why = f"not searched: no {said} chessboard in the first {len(probe)} views, which show {size_text(likely)}"
+
+    def skip(item):
+        vid, path = item
+        t0 = time.perf_counter()
+        return vid, _failure(vid, read_gray(path), why, o, t0)
+
+    out = dict(looked)
+    out.update(pool.map(skip, [it for it in items if it[0] not in looked]))
+    return {vid: out[vid] for vid, _ in items}
+
+
+def _failure(vid: str, gray: np.ndarray, reason: str, o: DetectionOptions, t0: float, **kw) -> DetectionFailure:
+    return DetectionFailure(view_id=vid, reason=reason,
+                            thumbnail_jpeg=thumbnail_jpeg(gray, width_px=o.thumbnail_width_px,
+                                                          quality=o.thumbnail_jpeg_quality),
+                            exposure=image_exposure(gray, saturated_grey=o.saturated_grey),
+                            image_size=(gray.shape[1], gray.shape[0]), seconds=time.perf_counter() - t0, **kw)

@@ -28,26 +28,33 @@ def subpix_window(corners: np.ndarray, cols: int, rows: int, options: DetectionO
     return int(np.clip(spacing * o.subpix_window_factor, o.subpix_window_min_px, o.subpix_window_max_px))
 
 
-def detect_chessboard(gray: np.ndarray, spec: ChessboardSpec, *, options: DetectionOptions | None = None
-                      ) -> tuple[np.ndarray, np.ndarray] | str:
-    """(corner_ids, image_points (N,2)) or a reason string."""
+def find_chessboard_fast(gray: np.ndarray, spec: ChessboardSpec, *, options: DetectionOptions | None = None):
+    """(corners (N,1,2) as found, scale of the image they were found in) by the fast search, or None.
+
+    Detect on a reduced image when large: several times faster, and FAST_CHECK rejects an image without
+    a board in milliseconds. Views this misses go to the slow search (:func:`detect_chessboard`)."""
     o = options or default_options()
     size = (spec.cols, spec.rows)
     h, w = gray.shape
-    # Detect on a reduced image when large: several times faster, and FAST_CHECK rejects an
-    # image without a board in milliseconds. Corners are then refined on the full image.
-    scale = 1.0
-    small = gray
-    if max(h, w) > o.half_size_above_px:
-        scale = 0.5
-        small = cv2.resize(gray, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
-    found, corners = cv2.findChessboardCorners(small, size, flags=flags)
-    if not found and scale != 1.0:
-        scale = 1.0
-        found, corners = cv2.findChessboardCorners(gray, size, flags=flags)
-    if not found:
-        found, corners = cv2.findChessboardCornersSB(gray, size, flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
+    if max(h, w) > o.half_size_above_px:
+        small = cv2.resize(gray, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+        found, corners = cv2.findChessboardCorners(small, size, flags=flags)
+        if found:
+            return corners, 0.5
+    found, corners = cv2.findChessboardCorners(gray, size, flags=flags)
+    return (corners, 1.0) if found else None
+
+
+def detect_chessboard(gray: np.ndarray, spec: ChessboardSpec, *, options: DetectionOptions | None = None
+                      ) -> tuple[np.ndarray, np.ndarray] | str:
+    """(corner_ids, image_points (N,2)) or a reason string. Corners are refined on the full image."""
+    o = options or default_options()
+    fast = find_chessboard_fast(gray, spec, options=o)
+    if fast is not None:
+        corners, scale = fast
+    else:
+        found, corners = cv2.findChessboardCornersSB(gray, (spec.cols, spec.rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
         if not found:
             return f"chessboard {spec.cols}x{spec.rows} not found"
         scale = 1.0

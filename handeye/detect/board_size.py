@@ -1,0 +1,115 @@
+"""Which chessboard sizes the images show, so a wrongly stated board size is named within seconds.
+
+:func:`visible_grid_sizes` counts the inner corners of the chessboard a detector sees in one image,
+whatever size the session states (``cv2.findChessboardCornersSB`` with ``CALIB_CB_LARGER`` from a 3x3
+seed returns the whole grid it can follow), on a reduced copy of the image (25-80 ms at 640x360).
+:func:`board_size_verdict` decides from a few views that the stated size is absent while another is
+present; :class:`SizeSurvey` words it. Sizes are ``(cols, rows)`` inner corners with cols >= rows:
+OpenCV finds an 11x8 pattern as 8x11 too, so orientation does not matter.
+"""
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass
+from typing import Mapping, Optional
+
+import cv2
+import numpy as np
+
+Size = tuple  # (cols, rows) inner corners, cols >= rows
+
+
+def normal_size(cols: int, rows: int) -> Size:
+    """``(cols, rows)`` with the longer side first (the orientation a detector cannot tell)."""
+    return (max(int(cols), int(rows)), min(int(cols), int(rows)))
+
+
+def size_text(size: Size) -> str:
+    return f"{size[0]}x{size[1]}"
+
+
+def visible_grid_sizes(gray: np.ndarray, *, max_side_px: int = 800, full_size_retry: bool = False) -> tuple:
+    """Inner-corner sizes ``((cols, rows), ...)`` of the chessboards seen in an 8-bit grey image
+    (at most one: the largest grid the detector follows); ``()`` when none.
+
+    The image is reduced so its longer side is at most ``max_side_px``; ``full_size_retry`` searches
+    the full image too when the reduced one shows nothing (small boards; 150-300 ms at 1280x720).
+    """
+    h, w = gray.shape[:2]
+    scales = [min(1.0, max_side_px / max(h, w))]
+    if full_size_retry and scales[0] < 1.0:
+        scales.append(1.0)
+    for s in scales:
+        img = gray if s == 1.0 else cv2.resize(gray, (round(w * s), round(h * s)), interpolation=cv2.INTER_AREA)
+        found, _, meta = cv2.findChessboardCornersSBWithMeta(
+            img, (3, 3), flags=cv2.CALIB_CB_LARGER | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        if found and meta is not None and meta.ndim == 2:
+            rows, cols = meta.shape
+            return (normal_size(cols, rows),)
+    return ()
+
+
+def board_size_verdict(stated: Size, seen: Mapping[str, tuple], *, min_share: float = 2 / 3) -> Optional[Size]:
+    """The size the views show instead of ``stated``, or None when they do not show that clearly.
+
+    ``seen``: view id -> sizes seen in that view (:func:`visible_grid_sizes`), over views where the
+    stated size was not found. Clear means: the stated size is seen in none of them, and one other size
+    in at least ``min_share`` of them and in at least 2 (ties: the larger grid).
+    """
+    stated = normal_size(*stated)
+    if not seen or any(stated in sizes for sizes in seen.values()):
+        return None
+    counts = Counter(s for sizes in seen.values() for s in set(sizes))
+    if not counts:
+        return None
+    best, n = max(counts.items(), key=lambda kv: (kv[1], kv[0][0] * kv[0][1]))
+    need = max(2, math.ceil(min_share * len(seen) - 1e-9))
+    return best if n >= need else None
+
+
+@dataclass(frozen=True)
+class SizeSurvey:
+    """The chessboard sizes seen in the views checked when the stated size was not found."""
+
+    stated: Size  # (cols, rows) as the session states it
+    seen: dict  # view id -> tuple of sizes seen there
+    n_images: int  # images in the session
+
+    @property
+    def counts(self) -> dict:
+        """size -> number of checked views showing it, most frequent first."""
+        c = Counter(s for sizes in self.seen.values() for s in set(sizes))
+        return dict(sorted(c.items(), key=lambda kv: (-kv[1], -kv[0][0] * kv[0][1])))
+
+    @property
+    def likely_size(self) -> Optional[Size]:
+        """The size the views show instead of the stated one (:func:`board_size_verdict`), or None."""
+        return board_size_verdict(self.stated, self.seen)
+
+    def text(self) -> str:
+        """e.g. "no 9x6 chessboard; 11x8 inner corners seen in 3 of 3 checked views"."""
+        n = len(self.seen)
+        seen = ", ".join(f"{size_text(s)} inner corners seen in {k} of {n} checked views"
+                         for s, k in self.counts.items())
+        return (f"no {self.stated[0]}x{self.stated[1]} chessboard; "
+                + (seen or f"no chessboard seen in {n} checked views"))
+
+    def fix(self) -> str:
+        """What to change in the session files."""
+        size = self.likely_size
+        if size is None:
+            return (f"count the inner corners (where four squares meet) and state them; the session says "
+                    f"{self.stated[0]}x{self.stated[1]}")
+        c, r = size
+        return (f"the board has {c}x{r} inner corners, not {self.stated[0]}x{self.stated[1]}: fix config.yaml "
+                f"checkerboard_args XX: {c}, YY: {r} (or session.yaml target.inner_corners: [{c}, {r}])")
+
+
+def size_survey(results: Mapping[str, object], stated: Size) -> Optional[SizeSurvey]:
+    """The survey recorded on the failures of :func:`handeye.detect.detect_views` (their ``seen_sizes``),
+    or None when no view was checked."""
+    seen = {vid: tuple(r.seen_sizes) for vid, r in results.items() if getattr(r, "seen_sizes", None) is not None}
+    if not seen:
+        return None
+    return SizeSurvey(stated=tuple(stated), seen=seen, n_images=len(results))
