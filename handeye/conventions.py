@@ -96,7 +96,10 @@ def T_from_pose_values(values, fmt: PoseFormat, *, rot_tol: float = 1e-4) -> np.
     if fmt.rotation == "matrix":
         T = v.reshape(4, 4).copy()
         if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
-            raise ValueError(f"last row of the 4x4 matrix must be 0 0 0 1, got {T[3].tolist()}")
+            transposed = np.allclose(T[:, 3], [0, 0, 0, 1], atol=1e-9)
+            raise ValueError(f"last row of the 4x4 matrix must be 0 0 0 1, got {T[3].tolist()}"
+                             + (" (the matrix looks transposed: write it row by row, translation in the last "
+                                "column)" if transposed else ""))
         if not is_rotation(T[:3, :3], tol=rot_tol):
             raise ValueError("the 3x3 block is not a rotation (R^T R != I or det != 1)")
         T[:3, 3] *= scale

@@ -198,7 +198,14 @@ def test_native_duplicate_ids_and_missing_image(tmp_path):
     doc["views"][1]["id"] = "v2"
     doc["views"][1]["image"] = "gone.png"
     (d / "session.yaml").write_text(yaml.safe_dump(doc))
-    with pytest.raises(InputError, match="gone.png: view v2: image file missing"):
+    # a pose without its image is dropped with it and listed, as in the vendor layout
+    s = load_session(d)
+    assert [v.view_id for v in s.views] == ["v1", "v3", "v4"]
+    assert s.meta["missing_images"] == {"v2": None} and s.meta["missing_image_files"] == {"v2": str(d / "gone.png")}
+    for v in doc["views"]:
+        v["image"] = "gone.png"
+    (d / "session.yaml").write_text(yaml.safe_dump(doc))
+    with pytest.raises(InputError, match="gone.png: none of the 4 views' images exists"):
         load_session(d)
 
 
@@ -273,8 +280,9 @@ def test_lenient_native_keeps_given_intrinsics_and_view_records(tmp_path):
             "use": "fixed"}
     d = native(tmp_path, views=[], extra={"view_records": "views", "intrinsics": intr, "mode": None})
     _write_view_records(d / "views")
-    with pytest.raises(ConfigError, match="invalid mode"):
-        load_session(d)  # the strict reading needs a mode
+    s = load_session(d)  # no mode stated: read as eye-in-hand until the data decide (mode_source "default")
+    assert s.mode == "eye_in_hand" and s.mode_source == "default"
+    assert load_session(d, mode="eye_to_hand").mode_source == "flag"
     lenient = read_session_lenient(d)
     assert lenient.mode == "eye_in_hand" and lenient.intrinsics.fx == 900.0
     assert sorted(lenient.images_by_id) == ["1", "2", "3", "4"] and lenient.raw.order == ("1", "2", "3", "4")
@@ -358,3 +366,176 @@ def test_ical_import_reads_xyzw_quaternions_and_the_static_camera(tmp_path):
     (src / "cal_data.yaml").write_text(yaml.safe_dump({"data": data, "target_finder": {"type": "DotFinder"}}))
     with pytest.raises(InputError, match="unsupported industrial_calibration target finder"):
         import_ical(src, tmp_path / "out2")
+
+
+# ------------------------------------------------------------------------------ the native format's rules
+def _native_text(tmp_path, views_yaml: str, *, fmt: str = "{rotation: matrix}", extra: str = "", images=("a",)):
+    """session.yaml written as text (so ids are exactly as a user types them), with images ``a.png`` ..."""
+    d = tmp_path / "nt"
+    d.mkdir(exist_ok=True)
+    for name in images:
+        (d / f"{name}.png").write_bytes(b"x")
+    (d / "session.yaml").write_text(
+        "handeye_session: 1\nmode: eye_in_hand\ntarget: {type: chessboard, inner_corners: [11, 8], square_m: 0.03}\n"
+        f"pose_format: {fmt}\n{extra}views:\n{views_yaml}")
+    return d
+
+
+_ROWS = [[0.0, -1.0, 0.0, 0.1], [1.0, 0.0, 0.0, 0.2], [0.0, 0.0, 1.0, 0.3], [0.0, 0.0, 0.0, 1.0]]
+
+
+def test_view_ids_are_kept_as_written(tmp_path):
+    flat = str(sum(_ROWS, []))
+    d = _native_text(tmp_path, f"  - {{id: 010, image: a.png, pose: {flat}}}\n"
+                               f"  - {{id: 7, image: b.png, pose: {flat}}}\n"
+                               f"  - {{id: '10', image: c.png, pose: {flat}}}\n", images="abc")
+    # YAML 1.1 reads an unquoted 010 as the octal number 8: the id stays "010", never "8"
+    assert [v.view_id for v in load_session(d).views] == ["7", "010", "10"]
+    for bad, got in (("~", "None"), ("[1, 2]", "['1', '2']"), ("''", "''")):
+        d = _native_text(tmp_path, f"  - {{id: {bad}, image: a.png, pose: {flat}}}\n")
+        with pytest.raises(ConfigError, match="invalid view id") as e:
+            load_session(d)
+        assert e.value.received in (got, repr(None), "[1, 2]")
+
+
+def test_a_4x4_pose_is_nested_rows_or_16_numbers_row_by_row(tmp_path):
+    nested = _native_text(tmp_path, f"  - {{id: a, image: a.png, pose: {_ROWS}}}\n")
+    T = load_session(nested).views[0].T_base_end
+    np.testing.assert_array_equal(T, np.array(_ROWS))
+    flat = _native_text(tmp_path, f"  - {{id: a, image: a.png, pose: {sum(_ROWS, [])}}}\n")
+    np.testing.assert_array_equal(load_session(flat).views[0].T_base_end, T)
+    with pytest.raises(InputError, match="looks transposed: write it row by row"):  # column-major
+        load_session(_native_text(tmp_path, f"  - {{id: a, image: a.png, pose: {np.array(_ROWS).T.tolist()}}}\n"))
+    with pytest.raises(InputError, match="a nested pose must be a 4x4 matrix"):  # 3 x 4: not a 4x4
+        load_session(_native_text(tmp_path, f"  - {{id: a, image: a.png, pose: {_ROWS[:3]}}}\n"))
+    with pytest.raises(InputError, match="a nested pose must be a 4x4 matrix .* with pose_format.rotation: matrix"):
+        load_session(_native_text(tmp_path, "  - {id: a, image: a.png, pose: [[0, 0, 0], [0, 0, 0]]}\n",
+                                  fmt="{rotation: euler}"))
+
+
+def test_a_pose_file_holds_a_4x4_or_one_pose_line_in_the_session_format(tmp_path):
+    d = _native_text(tmp_path, "  - {id: a, image: a.png, pose_file: 000_pose.csv}\n")
+    (d / "000_pose.csv").write_text("# T_base_end\n" + "\n".join(",".join(map(str, r)) for r in _ROWS) + "\n")
+    s = load_session(d)
+    np.testing.assert_array_equal(s.views[0].T_base_end, np.array(_ROWS))
+    assert read_raw_poses(d).values["a"].tolist() == sum(_ROWS, [])  # the lenient reader reads it the same way
+    vendor_line = pose_values_from_T(POSES[0], VENDOR_POSE_FORMAT)
+    d = _native_text(tmp_path, "  - {id: a, image: a.png, pose_file: 000_pose.csv}\n",
+                     fmt="{rotation: euler, euler_order: xyz, euler_kind: extrinsic, angle_unit: rad}")
+    with pytest.raises(ConfigError, match="holds a 4x4 matrix but pose_format.rotation is euler"):
+        load_session(d)
+    (d / "000_pose.csv").write_text(" ".join(f"{v:.12f}" for v in vendor_line) + "\n")
+    np.testing.assert_allclose(load_session(d).views[0].T_base_end, POSES[0], atol=1e-9)
+    (d / "000_pose.csv").write_text("1 2 3\n4 5 6\n")
+    with pytest.raises(InputError, match="neither one pose line nor a 4x4 matrix"):
+        load_session(d)
+    for views, match in (
+            ("  - {id: a, image: a.png, pose_file: gone.csv}\n", "gone.csv: view a: pose file missing"),
+            ("  - {id: a, image: a.png, pose_file: ../x.csv}\n", "view a: pose file '../x.csv' is outside"),
+            ("  - {id: a, image: a.png, pose_file: p.csv, pose: [1, 2, 3, 4, 5, 6]}\n", "either pose or pose_file"),
+            ("  - {id: a, image: a.png}\n", "either pose or pose_file; expected .* got neither")):
+        with pytest.raises(InputError, match=match):
+            load_session(_native_text(tmp_path, views))
+
+
+def test_pose_format_must_state_the_rotation_kind(tmp_path):
+    d = _native_text(tmp_path, "  - {id: a, image: a.png, pose: [0, 0, 0, 0, 0, 0]}\n", fmt="{angle_unit: rad}")
+    with pytest.raises(ConfigError, match="pose_format.rotation is missing"):
+        load_session(d)
+    (d / "session.yaml").write_text((d / "session.yaml").read_text().replace("pose_format: {angle_unit: rad}\n", ""))
+    with pytest.raises(ConfigError, match="pose_format is missing.* the vendor's x,y,z,rx,ry,rz lines are"):
+        load_session(d)
+    # the fields the rotation kind does not state take the documented defaults
+    d = _native_text(tmp_path, "  - {id: a, image: a.png, pose: [0.1, 0.2, 0.3, 0.1, 0.2, 0.3]}\n",
+                     fmt="{rotation: euler}")
+    assert load_session(d).pose_format == VENDOR_POSE_FORMAT.describe()
+
+
+def test_image_paths_stay_inside_the_session_folder_unless_allowed(tmp_path):
+    outside = tmp_path / "elsewhere"
+    outside.mkdir()
+    (outside / "e.png").write_bytes(b"x")
+    pose = str(sum(_ROWS, []))
+    for written in ("../elsewhere/e.png", str(outside / "e.png")):
+        d = _native_text(tmp_path, f"  - {{id: a, image: '{written}', pose: {pose}}}\n")
+        with pytest.raises(InputError, match="view a: image .* is outside the session folder.* image_folder"):
+            load_session(d)
+        assert load_session(d, allow_outside=True).views[0].image_path == outside / "e.png"
+    # image_folder: images kept elsewhere on purpose; paths relative to it and inside it
+    d = _native_text(tmp_path, f"  - {{id: a, image: e.png, pose: {pose}}}\n", extra=f"image_folder: {outside}\n")
+    assert load_session(d).views[0].image_path == outside / "e.png"
+    d = _native_text(tmp_path, f"  - {{id: a, image: ../nt/a.png, pose: {pose}}}\n", extra=f"image_folder: {outside}\n")
+    with pytest.raises(InputError, match="outside"):
+        load_session(d)
+    # a symbolic link placed in the folder is the user's choice: followed, not refused
+    d = _native_text(tmp_path, f"  - {{id: a, image: link.png, pose: {pose}}}\n")
+    (d / "link.png").symlink_to(outside / "e.png")
+    assert load_session(d).views[0].image_path == d / "link.png"
+
+
+@pytest.mark.parametrize("intr,match", [
+    ({"distortion_model": "rational_polynomial"}, "unsupported intrinsics.distortion_model.*8 coefficients"),
+    ({"distortion_model": "equidistant"}, "unsupported intrinsics.distortion_model.*fisheye"),
+    ({"dist": [0.1, 0.01, 0, 0, 0.001, 0, 0, 0]}, "8 coefficients: ROS's rational_polynomial"),
+])
+def test_ros_camera_info_distortion_other_than_plumb_bob_is_refused(tmp_path, intr, match):
+    base = {"fx": 900.0, "fy": 900.0, "cx": 640.0, "cy": 360.0, "image_size": [1280, 720]}
+    with pytest.raises(ConfigError, match=match):
+        load_session(native(tmp_path, extra={"intrinsics": {**base, **intr}}))
+
+
+def test_ros_camera_info_plumb_bob_d_is_dist_in_the_same_order(tmp_path):
+    D = [0.11, -0.22, 0.001, -0.002, 0.05]  # CameraInfo D for distortion_model plumb_bob: k1, k2, t1 (p1), t2 (p2), k3
+    intr = {"fx": 900.0, "fy": 900.0, "cx": 640.0, "cy": 360.0, "image_size": [1280, 720],
+            "distortion_model": "plumb_bob", "dist": D}
+    s = load_session(native(tmp_path, extra={"intrinsics": intr}))
+    assert list(s.intrinsics.dist) == D
+
+
+def test_factory_prior_sigmas_in_the_doc_are_the_refinement_preset():
+    import re
+
+    from handeye.config import load_preset
+
+    p = load_preset("refine")["intrinsics_prior"]
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "session_format.md").read_text()
+    m = re.search(r"`use: prior` assumes .*?fx, fy: ([0-9.]+) %.*?cx, cy: ([0-9.]+) % of the image width, height"
+                  r".*?k1, k2: ([0-9.]+).*?p1, p2: ([0-9.]+).*?k3: ([0-9.]+)", doc, re.S)
+    assert m, "docs/session_format.md states the factory prior's sigmas"
+    assert float(m.group(1)) / 100 == p["focal_share"] and float(m.group(2)) / 100 == p["centre_share"]
+    d = p["distortion"]
+    assert [float(m.group(k)) for k in (3, 4, 5)] == [d[0], d[2], d[4]] and d[0] == d[1] and d[2] == d[3]
+
+
+def test_joint_angles_are_read_per_view(tmp_path):
+    pose = str(sum(_ROWS, []))
+    d = _native_text(tmp_path, f"  - {{id: a, image: a.png, pose: {pose}, joints: [0.1, -1.2, 1.5, 0, 1.57, 3.1]}}\n"
+                               f"  - {{id: b, image: b.png, pose: {pose}}}\n", images="ab")
+    s = load_session(d)
+    assert s.view("a").joint_angles == (0.1, -1.2, 1.5, 0.0, 1.57, 3.1) and s.view("b").joint_angles is None
+    for joints, match in (("[0, 90, 45]", "view a: joint angle 90.0 is larger than 2\\*pi.* degrees"),
+                          ("[0, x]", "joints must be a list"),
+                          ("3", "joints must be a list")):
+        d = _native_text(tmp_path, f"  - {{id: a, image: a.png, pose: {pose}, joints: {joints}}}\n")
+        with pytest.raises(InputError, match=match):
+            load_session(d)
+
+
+def test_visp_import_names_an_unsupported_target_and_the_layout_it_reads(tmp_path):
+    from handeye.session.importers import VISP_LAYOUT, import_visp
+
+    src = tmp_path / "visp"
+    src.mkdir()
+    (src / "apriltag-data.txt").write_text("Apriltag\nTAG_36h11\nsize: 0.048 m\n")
+    (src / "image-1.png").write_bytes(b"x")
+    with pytest.raises(InputError, match=r"unsupported ViSP target 'apriltag' \(apriltag-data.txt\)") as e:
+        import_visp(src, tmp_path / "out")
+    assert "chessboard" in str(e.value) and "missing" not in str(e.value)
+    (src / "apriltag-data.txt").unlink()
+    with pytest.raises(InputError, match="chessboard-data.txt missing or unreadable.* reads ViSP's eye-in-hand"):
+        import_visp(src, tmp_path / "out")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(InputError, match="no ViSP images") as e:
+        import_visp(empty, tmp_path / "out")
+    assert VISP_LAYOUT in str(e.value)

@@ -20,10 +20,14 @@ from .native import load_native_session
 from .vendor import load_vendor_session
 
 
-def load_session(path: str | Path, *, mode: str | None = None) -> Session:
+def load_session(path: str | Path, *, mode: str | None = None, allow_outside: bool = False) -> Session:
     """Load a session folder (native ``session.yaml`` or vendor ``poses.txt``), or a session.yaml path.
 
-    ``mode`` overrides the mode stated in the session (the CLI's ``--mode``).
+    ``mode`` overrides the mode stated in the session (the CLI's ``--mode``). ``allow_outside`` lets a
+    native session's image and pose-file paths leave the session folder (and its ``image_folder``);
+    by default such a path is an InputError. A vendor session's images are always its folder's.
     """
     kind, p = locate_session(path)
-    return load_native_session(p, mode=mode) if kind == "native" else load_vendor_session(p, mode=mode)
+    if kind == "native":
+        return load_native_session(p, mode=mode, allow_outside=allow_outside)
+    return load_vendor_session(p, mode=mode)

@@ -23,8 +23,23 @@ def _limits() -> dict:
     return load_preset("detection")["session"]
 
 
-def read_yaml(path: Path) -> dict:
-    """The top-level mapping of a YAML file (empty file: ``{}``); InputError naming the file and line."""
+class IdTextLoader(yaml.SafeLoader):
+    """YAML's safe loader, except that the value of every ``id:`` key is kept as the text written: an
+    unquoted ``010`` stays "010" (YAML 1.1 reads it as the octal number 8), ``7`` is "7", ``1.50``
+    is "1.50". A null id stays None (the loader refuses it)."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            for k, v in node.value:
+                if (isinstance(k, yaml.ScalarNode) and k.value == "id" and isinstance(v, yaml.ScalarNode)
+                        and v.tag != "tag:yaml.org,2002:null"):
+                    v.tag = "tag:yaml.org,2002:str"
+        return super().construct_mapping(node, deep=deep)
+
+
+def read_yaml(path: Path, *, loader=yaml.SafeLoader) -> dict:
+    """The top-level mapping of a YAML file (empty file: ``{}``); InputError naming the file and line.
+    ``loader``: :class:`IdTextLoader` for session files (view ids kept as written)."""
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as e:
@@ -32,7 +47,7 @@ def read_yaml(path: Path) -> dict:
     except UnicodeDecodeError:
         raise InputError("file is not UTF-8 text", path=path) from None
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=loader)
     except yaml.YAMLError as e:
         line = getattr(getattr(e, "problem_mark", None), "line", None)
         raise InputError("not valid YAML", path=path, line=None if line is None else line + 1,

@@ -1,12 +1,17 @@
 """handeye's native ``session.yaml``: target, mode, pose format, optional intrinsics, and views
-(``views:`` inline and/or one YAML record per view in ``view_records/``), each with id, image and pose.
+(``views:`` inline and/or one YAML record per view in ``view_records/``), each with id, image and pose
+(``pose:`` inline or ``pose_file:``), optionally the arm's joint angles (``joints:``).
 
 :func:`read_native_document` is the only parser of this file; the strict loader
 (:func:`load_native_session`) and the lenient reader of the diagnostics (:mod:`handeye.session.raw`)
-both use it.
+both use it, and :func:`view_pose_values` / :func:`view_image_path` are the only readers of a view's
+pose and image path. The rules are in docs/session_format.md.
 """
 from __future__ import annotations
 
+import logging
+import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -18,10 +23,18 @@ from ..conventions import PoseFormat, T_from_pose_values
 from ..errors import ConfigError, InputError
 from ..records import Session, View, view_id_key
 from ..targets import TargetSpec
-from .fields import check_mode, check_translation_units, positive_number, read_yaml
+from .fields import IdTextLoader, check_angle_units, check_mode, check_translation_units, positive_number, read_yaml
 from .target_spec import parse_target
 
+log = logging.getLogger(__name__)
+
 INTRINSICS_USES = ("fixed", "prior", "initial")
+#: ROS CameraInfo ``distortion_model`` names: plumb_bob is OpenCV's 5-coefficient model (D = k1, k2, p1,
+#: p2, k3 in that order); the others are different models, which handeye does not have
+DISTORTION_MODELS = ("plumb_bob",)
+_OTHER_DISTORTION = {"rational_polynomial": "8 coefficients k1, k2, p1, p2, k3, k4, k5, k6",
+                     "equidistant": "the fisheye model, 4 coefficients k1..k4",
+                     "fisheye": "the fisheye model, 4 coefficients k1..k4"}
 
 
 @dataclass(frozen=True)
@@ -35,7 +48,8 @@ class ViewEntry:
 @dataclass(frozen=True)
 class NativeDocument:
     """A parsed session.yaml: the stated mode (None when absent), target, pose format, intrinsics
-    (with their use: estimate | fixed | prior) and the view entries, not yet converted to poses."""
+    (with their use: estimate | fixed | prior), the folder images are relative to, and the view
+    entries (ids checked, not yet converted to poses)."""
 
     path: Path
     data: dict
@@ -45,18 +59,24 @@ class NativeDocument:
     intrinsics: Optional[Intrinsics]
     intrinsics_use: str
     entries: tuple  # tuple[ViewEntry, ...]
+    image_folder: Optional[Path] = None  # ``image_folder:`` (resolved); None: the session folder
 
 
 def read_native_document(path: Path) -> NativeDocument:
     """Parse session.yaml and its view records; ConfigError/InputError naming the field otherwise."""
     path = Path(path)
-    d = read_yaml(path)
+    d = read_yaml(path, loader=IdTextLoader)
     version = d.get("handeye_session", 1)
     if version != 1:
         raise ConfigError("unsupported handeye_session version", path=path, expected="1", received=repr(version))
     target = parse_target(d.get("target"), path=path)
     fmt = _parse_pose_format(d.get("pose_format"), path=path)
     intr, intr_use = parse_intrinsics(d.get("intrinsics"), path=path)
+    image_folder = d.get("image_folder")
+    if image_folder is not None:
+        if not isinstance(image_folder, str) or not image_folder:
+            raise ConfigError("image_folder must be a folder path", path=path, received=repr(image_folder))
+        image_folder = Path(os.path.normpath(path.parent / image_folder))
     inline = d.get("views") or []
     if not isinstance(inline, list):
         raise ConfigError("views must be a list", path=path, received=type(inline).__name__)
@@ -66,30 +86,160 @@ def read_native_document(path: Path) -> NativeDocument:
         for f in sorted((path.parent / str(rec_dir)).iterdir()):
             if f.name.startswith(".") or f.suffix not in (".yaml", ".yml"):
                 continue
-            entries.append(ViewEntry(read_yaml(f), f))
+            entries.append(ViewEntry(read_yaml(f, loader=IdTextLoader), f))
     if not entries:
         raise InputError("the session has no views", path=path, hint="add a views: list or records in view_records/")
     for e in entries:
         if not isinstance(e.data, dict):
             raise ConfigError("each view must be a mapping with id, image, pose", path=e.source,
                               received=repr(e.data)[:60])
-        for key in ("id", "image", "pose"):
+        for key in ("id", "image"):
             if key not in e.data:
                 raise ConfigError(f"view is missing {key!r}", path=e.source, received=repr(e.data)[:80],
-                                  expected="id, image, pose")
-    return NativeDocument(path, d, d.get("mode"), target, fmt, intr, intr_use, tuple(entries))
+                                  expected="id, image, pose (or pose_file)")
+        vid = e.data["id"]
+        if not isinstance(vid, str) or not vid.strip():
+            raise ConfigError("invalid view id", path=e.source, expected="a non-empty text such as \"7\" or \"010\"",
+                              received=repr(vid))
+        if ("pose" in e.data) == ("pose_file" in e.data):
+            raise ConfigError(f"view {vid}: give either pose or pose_file", path=e.source,
+                              received="both" if "pose" in e.data else "neither",
+                              expected="pose: [numbers in pose_format] or pose_file: FILE")
+    return NativeDocument(path, d, d.get("mode"), target, fmt, intr, intr_use, tuple(entries), image_folder)
 
 
 def _parse_pose_format(fmt_d, *, path: Path) -> PoseFormat:
-    fmt_d = fmt_d or {}
+    if fmt_d is None:
+        raise ConfigError("pose_format is missing", path=path,
+                          expected="pose_format: {rotation: euler | quaternion | rotvec | matrix, ...}",
+                          hint="state how the poses are written; the vendor's x,y,z,rx,ry,rz lines are "
+                               "pose_format: {rotation: euler, euler_order: xyz, euler_kind: extrinsic, "
+                               "angle_unit: rad, translation_unit: m}")
     if not isinstance(fmt_d, dict):
         raise ConfigError("pose_format must be a mapping", path=path, received=repr(fmt_d))
     unknown = set(fmt_d) - set(PoseFormat.__dataclass_fields__)
     if unknown:
         raise ConfigError(f"unknown pose_format field {sorted(unknown)[0]!r}", path=path,
                           expected=", ".join(f for f in PoseFormat.__dataclass_fields__))
+    if "rotation" not in fmt_d:
+        raise ConfigError("pose_format.rotation is missing", path=path,
+                          expected="euler | quaternion | rotvec | matrix")
     return PoseFormat(**{k: (str(v).lower() if isinstance(v, str) else v) for k, v in fmt_d.items()}).validated(
         source=str(path))
+
+
+_NUMBER_SEP = re.compile(r"[,;\s]+")
+
+
+def _read_pose_file(f: Path, *, vid: str) -> list:
+    """The rows of numbers in a pose file (``#`` comments and blank lines skipped)."""
+    try:
+        text = f.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"view {vid}: cannot read the pose file ({getattr(e, 'strerror', None) or e})",
+                         path=f) from None
+    rows = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        s = line.split("#", 1)[0].strip()
+        if not s:
+            continue
+        try:
+            rows.append([float(x) for x in _NUMBER_SEP.split(s) if x])
+        except ValueError:
+            raise InputError(f"view {vid}: pose file line is not numbers", path=f, line=lineno,
+                             received=repr(s[:60])) from None
+    return rows
+
+
+def view_pose_values(e: ViewEntry, fmt: PoseFormat, *, folder: Path, allow_outside: bool = False) -> np.ndarray:
+    """The pose numbers of one view as written (flat, row-major for a matrix), from ``pose:`` or
+    ``pose_file:``; InputError/ConfigError naming the view and file when their shape does not fit ``fmt``.
+
+    A matrix is a nested 4x4 list (rows) or 16 numbers row by row; a pose file (relative to ``folder``,
+    the image folder) holds a 4x4 matrix as 4 lines of 4 numbers or one pose as one line of numbers,
+    both read in ``fmt``.
+    """
+    vid = e.data["id"]
+    if "pose_file" in e.data:
+        written = e.data["pose_file"]
+        if not isinstance(written, str) or not written:
+            raise ConfigError(f"view {vid}: pose_file must be a file name", path=e.source, received=repr(written))
+        f = inside_folder(folder, written, vid=vid, what="pose file", source=e.source, allow_outside=allow_outside)
+        if not f.exists():
+            raise InputError(f"view {vid}: pose file missing", path=f, hint="restore the file or remove the view")
+        rows = _read_pose_file(f, vid=vid)
+        shape = [len(r) for r in rows]
+        if shape == [4, 4, 4, 4]:
+            if fmt.rotation != "matrix":
+                raise ConfigError(f"view {vid}: the pose file holds a 4x4 matrix but pose_format.rotation is "
+                                  f"{fmt.rotation}", path=f, hint="set pose_format: {rotation: matrix} (all views "
+                                                                  "of a session share one pose format)")
+            return np.asarray(rows, float).reshape(-1)
+        if len(rows) == 1:
+            return np.asarray(rows[0], float)
+        raise InputError(f"view {vid}: pose file is neither one pose line nor a 4x4 matrix", path=f,
+                         expected="4 lines of 4 numbers, or one line such as x,y,z,rx,ry,rz",
+                         received=f"{len(rows)} lines of {shape} numbers")
+    pose = e.data["pose"]
+    if not isinstance(pose, list) or not pose:
+        raise InputError(f"view {vid}: pose must be a list of numbers", path=e.source, received=repr(pose)[:60],
+                         expected=fmt.describe())
+    if any(isinstance(r, list) for r in pose):
+        if fmt.rotation != "matrix" or len(pose) != 4 or any(not isinstance(r, list) or len(r) != 4 for r in pose):
+            raise InputError(f"view {vid}: a nested pose must be a 4x4 matrix (4 rows of 4) with "
+                             "pose_format.rotation: matrix", path=e.source, received=repr(pose)[:80],
+                             expected=fmt.describe())
+    try:
+        return np.asarray(pose, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise InputError(f"view {vid}: pose must be numbers", path=e.source, received=repr(pose)[:80],
+                         expected=fmt.describe()) from None
+
+
+def inside_folder(folder: Path, written: str, *, vid: str, what: str, source: Path,
+                  allow_outside: bool = False) -> Path:
+    """``folder / written`` with ``..`` resolved (symbolic links are not followed: a link placed in the
+    folder is the user's choice); InputError when it leaves ``folder`` unless ``allow_outside``."""
+    p = Path(os.path.normpath(Path(folder) / str(written)))
+    base = Path(os.path.normpath(folder))
+    if not allow_outside and base != p and base not in p.parents:
+        raise InputError(f"view {vid}: {what} {written!r} is outside the session folder", path=source,
+                         expected=f"a path inside {base}",
+                         hint="copy the files into the session folder, or state image_folder: FOLDER in "
+                              "session.yaml for images kept elsewhere (their paths are then relative to it)")
+    return p
+
+
+def files_folder(doc: NativeDocument) -> Path:
+    """The folder a view's image and pose file are relative to: ``image_folder`` or the session folder."""
+    return doc.image_folder or doc.path.parent
+
+
+def view_image_path(doc: NativeDocument, e: ViewEntry, *, allow_outside: bool = False) -> Path:
+    """The image of a view, relative to :func:`files_folder` and inside it (unless ``allow_outside``)."""
+    return inside_folder(files_folder(doc), e.data["image"], vid=e.data["id"], what="image", source=e.source,
+                         allow_outside=allow_outside)
+
+
+def view_joint_angles(e: ViewEntry) -> Optional[tuple]:
+    """The optional ``joints:`` list of a view (radians) as a tuple of floats."""
+    q = e.data.get("joints")
+    if q is None:
+        return None
+    vid = e.data["id"]
+    try:
+        arr = np.asarray(q, dtype=float)
+    except (TypeError, ValueError):
+        arr = np.array([np.nan])
+    if not isinstance(q, list) or arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)):
+        raise InputError(f"view {vid}: joints must be a list of joint angles", path=e.source,
+                         expected="radians, one number per joint", received=repr(q)[:80])
+    try:
+        check_angle_units(arr, path=e.source, line=None)
+    except InputError as err:
+        raise InputError(f"view {vid}: joint angle {np.abs(arr).max():.1f} is larger than 2*pi", path=e.source,
+                         expected=err.expected, hint=err.hint) from None
+    return tuple(float(x) for x in arr)
 
 
 def parse_intrinsics(d, *, path: Path) -> tuple[Optional[Intrinsics], str]:
@@ -102,12 +252,23 @@ def parse_intrinsics(d, *, path: Path) -> tuple[Optional[Intrinsics], str]:
     if model not in ("opencv5", "pinhole"):
         raise ConfigError("unsupported intrinsics model", path=path, expected="opencv5 (k1,k2,p1,p2,k3) | pinhole",
                           received=repr(model))
+    dm = d.get("distortion_model", "plumb_bob")
+    if dm not in DISTORTION_MODELS:
+        raise ConfigError("unsupported intrinsics.distortion_model", path=path,
+                          expected="plumb_bob (ROS CameraInfo's name for OpenCV's k1, k2, p1, p2, k3)",
+                          received=repr(dm) + (f" ({_OTHER_DISTORTION[dm]})" if dm in _OTHER_DISTORTION else ""),
+                          hint="handeye's camera model is OpenCV's 5-coefficient one; calibrate without "
+                               "intrinsics (remove the section) to estimate it")
     vals = {k: positive_number(d.get(k), path=path, field=f"intrinsics.{k}") for k in ("fx", "fy", "cx", "cy")}
     dist = d.get("dist", [0, 0, 0, 0, 0]) if model == "opencv5" else [0, 0, 0, 0, 0]
     try:
         dist = np.asarray(dist, dtype=float).reshape(-1)
     except (TypeError, ValueError):
         dist = np.array([np.nan])
+    if dist.size == 8 and np.all(np.isfinite(dist)):
+        raise ConfigError("intrinsics.dist has 8 coefficients: ROS's rational_polynomial model, which handeye does "
+                          "not have", path=path, expected="4 or 5 numbers k1, k2, p1, p2[, k3] (plumb_bob)",
+                          received=repr(d.get("dist")))
     if dist.size not in (4, 5) or not np.all(np.isfinite(dist)):
         raise ConfigError("intrinsics.dist must be 4 or 5 finite numbers (k1, k2, p1, p2[, k3])", path=path,
                           received=repr(d.get("dist")))
@@ -123,33 +284,52 @@ def parse_intrinsics(d, *, path: Path) -> tuple[Optional[Intrinsics], str]:
     return Intrinsics.from_K(K, dist, w, h), {"initial": "estimate"}.get(use, use)
 
 
-def load_native_session(path: str | Path, *, mode: str | None = None) -> Session:
-    """session.yaml, validated: poses converted to ``T_base_end`` (metres) and unit-checked, images present."""
+def load_native_session(path: str | Path, *, mode: str | None = None, allow_outside: bool = False) -> Session:
+    """session.yaml, validated: poses converted to ``T_base_end`` (metres) and unit-checked.
+
+    A view whose image file is missing is dropped with its pose (a warning, and ``missing_images`` /
+    ``missing_image_files`` in the session's metadata), like a vendor pose line without its image; a
+    session without any of its images is an error. ``allow_outside`` lets image and pose-file paths
+    leave the session folder (by default they must stay inside it, or inside ``image_folder``).
+    """
     path = Path(path)
     doc = read_native_document(path)
-    sess_mode = check_mode(mode if mode is not None else doc.mode, path=path)
+    source = "flag" if mode is not None else ("stated" if doc.mode is not None else "default")
+    sess_mode = check_mode(mode if mode is not None else (doc.mode or "eye_in_hand"), path=path)
     fmt = doc.pose_format
     views = []
+    missing: dict[str, Path] = {}
     seen: set[str] = set()
     for e in doc.entries:
-        vid = str(e.data["id"])
+        vid = e.data["id"]
         if vid in seen:
             raise ConfigError(f"duplicate view id {vid!r}", path=e.source, hint="give every view its own id")
         seen.add(vid)
+        values = view_pose_values(e, fmt, folder=files_folder(doc), allow_outside=allow_outside)
         try:
-            T = T_from_pose_values(np.asarray(e.data["pose"], dtype=float), fmt)
+            T = T_from_pose_values(values, fmt)
         except (ValueError, TypeError) as err:
             raise InputError(f"view {vid}: bad pose: {err}", path=e.source, expected=fmt.describe()) from None
         check_translation_units(T, path=e.source, line=None, unit=fmt.translation_unit)
-        img = path.parent / str(e.data["image"])
+        img = view_image_path(doc, e, allow_outside=allow_outside)
+        joints = view_joint_angles(e)
         if not img.exists():
-            raise InputError(f"view {vid}: image file missing", path=img, hint="restore the image or remove the view")
-        views.append(View(view_id=vid, image_path=img, T_base_end=T,
-                          t_image=_opt_float(e.data.get("t_image")), t_pose=_opt_float(e.data.get("t_pose"))))
+            missing[vid] = img
+            continue
+        views.append(View(view_id=vid, image_path=img, T_base_end=T, t_image=_opt_float(e.data.get("t_image")),
+                          t_pose=_opt_float(e.data.get("t_pose")), joint_angles=joints))
+    if not views:
+        first = next(iter(missing.values()))
+        raise InputError(f"none of the {len(missing)} views' images exists", path=first,
+                         hint="image paths are relative to the session folder (or image_folder); check them")
+    if missing:
+        log.warning("%s: views without their image file (dropped with their poses): %s", path, sorted(missing))
     views.sort(key=lambda v: view_id_key(v.view_id))
+    meta = {k: v for k, v in doc.data.items() if k not in ("views",)}
+    meta.update(missing_images={v: None for v in missing}, missing_image_files={v: str(f) for v, f in missing.items()})
     return Session(path=path.parent, format="native", mode=sess_mode, target=doc.target, views=tuple(views),
                    intrinsics=doc.intrinsics, intrinsics_prior=doc.intrinsics_use, pose_format=fmt.describe(),
-                   meta={k: v for k, v in doc.data.items() if k not in ("views",)})
+                   mode_source=source, meta=meta)
 
 
 def _opt_float(v):

@@ -20,7 +20,7 @@ from ..errors import HandeyeError
 from ..records import Session, view_id_key
 from ..targets import TargetSpec
 from .fields import check_mode, locate_session
-from .native import read_native_document
+from .native import files_folder, read_native_document, view_image_path, view_pose_values
 from .vendor import VENDOR_DEFAULT_MODE, numbered_images, read_pose_lines, read_vendor_config
 
 log = logging.getLogger(__name__)
@@ -76,7 +76,7 @@ def _raw_vendor(folder: Path) -> RawPoses:
 
 def _raw_native(path: Path) -> RawPoses:
     doc = read_native_document(path)
-    values = {str(e.data["id"]): np.asarray(e.data["pose"], float).reshape(-1) for e in doc.entries}
+    values = {e.data["id"]: view_pose_values(e, doc.pose_format, folder=files_folder(doc)) for e in doc.entries}
     return RawPoses(doc.pose_format, values, tuple(sorted(values, key=view_id_key)), str(path))
 
 
@@ -108,7 +108,12 @@ def read_session_lenient(path: str | Path, *, mode: Optional[str] = None) -> Opt
         if kind == "native":
             doc = read_native_document(p)
             raw = _raw_native(p)
-            images = {str(e.data["id"]): p.parent / str(e.data["image"]) for e in doc.entries}
+            images = {}
+            for e in doc.entries:
+                try:
+                    images[e.data["id"]] = view_image_path(doc, e)
+                except HandeyeError:  # outside the session folder: not read here either
+                    continue
             images = {v: f for v, f in images.items() if f.exists()}
             intr = doc.intrinsics if doc.intrinsics_use in ("fixed", "prior") else None
             return LenientSession(doc.target, check_mode(mode or doc.mode or VENDOR_DEFAULT_MODE, path=p), raw,

@@ -138,4 +138,5 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
         views.append(View(view_id=str(k), image_path=images[k], T_base_end=T, source_line=lineno))
     return Session(path=folder, format="vendor", mode=sess_mode, target=target, views=tuple(views),
                    pose_format=VENDOR_POSE_FORMAT.describe(),
+                   mode_source="flag" if mode is not None else ("stated" if cfg_mode else "default"),
                    meta={"config": cfg, "missing_images": {str(k): poses[k - 1][0] for k in without_image}})
