@@ -292,3 +292,13 @@ def test_when_the_first_views_show_no_other_size_every_view_is_searched(tmp_path
     res = detect_views(_write(tmp_path, [blank, blank] + imgs), cs.target)
     assert [isinstance(d, Detection) for d in res.values()] == [False, False, True, True, True, True]
     assert res["1"].reason == "chessboard 11x8 not found"
+
+
+def test_sizes_are_named_after_a_full_search_the_probe_could_not_cut_short(tmp_path, views):
+    _, imgs = views
+    blank = np.full_like(imgs[0], 128)
+    res = detect_views(_write(tmp_path, [blank, blank] + imgs[:3]), ChessboardSpec(9, 6, 0.03))
+    assert all(isinstance(d, DetectionFailure) for d in res.values())
+    assert not any(d.reason.startswith("not searched") for d in res.values())  # the probe saw one 11x8 only
+    survey = size_survey(res, (9, 6))
+    assert len(survey.seen) == 3 and survey.likely_size == (11, 8)  # views picked across the session

@@ -16,6 +16,7 @@ import logging
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -108,8 +109,12 @@ def detect_views(items: Sequence[tuple[str, Path]], target: TargetSpec, *, worke
                  progress: Callable[[int, int], None] | None = None) -> dict[str, Detection | DetectionFailure]:
     """Detect the target in every (view_id, image_path); results keyed by view id.
 
-    Unreadable images raise InputError (naming the file) after all workers finish; images of
-    different sizes raise InputError too (one camera at one resolution per session).
+    Chessboards: when the first views show another board size, the others are not searched
+    (:func:`_wrong_board_size`); when the stated board is missing from most views after a full search,
+    a few of them are checked for the sizes they show. Either way the checked failures keep those
+    sizes (``DetectionFailure.seen_sizes``; :func:`size_survey` words them). Unreadable images raise
+    InputError (naming the file) after all workers finish; images of different sizes raise InputError
+    too (one camera at one resolution per session).
     """
     o = options or default_options()
     workers = workers or min(len(items), os.cpu_count() or 1) or 1
@@ -131,6 +136,8 @@ def detect_views(items: Sequence[tuple[str, Path]], target: TargetSpec, *, worke
             results[vid] = res
             if progress:
                 progress(k, len(items))
+        if target.kind == "chessboard" and todo:
+            results = _sizes_of_failures(results, dict(items), pool, o)
     if target.kind == "chessboard":
         results = normalize_chessboard_order(results, target, options=o)
     sizes = {d.image_size for d in results.values() if d.image_size is not None}
@@ -181,6 +188,24 @@ def _wrong_board_size(items, target, pool, o: DetectionOptions) -> dict | None:
     out = dict(looked)
     out.update(pool.map(skip, [it for it in items if it[0] not in looked]))
     return {vid: out[vid] for vid, _ in items}
+
+
+def _sizes_of_failures(results: dict, paths: dict, pool, o: DetectionOptions) -> dict:
+    """When the stated chessboard was not found in most views (the probe could not tell why), the
+    board sizes seen in a few of the failed views (``seen_sizes``), so the message can name them."""
+    failed = [v for v, d in results.items() if isinstance(d, DetectionFailure) and d.seen_sizes is None]
+    if len(failed) * 2 <= len(results):
+        return results
+    pick = [failed[i] for i in sorted(set(np.linspace(0, len(failed) - 1, o.size_probe_views).round().astype(int)))]
+
+    def look(vid):
+        return vid, visible_grid_sizes(read_gray(paths[vid]), max_side_px=o.size_survey_max_side_px,
+                                       full_size_retry=True)
+
+    out = dict(results)
+    for vid, seen in pool.map(look, pick):
+        out[vid] = replace(results[vid], seen_sizes=seen)
+    return out
 
 
 def _failure(vid: str, gray: np.ndarray, reason: str, o: DetectionOptions, t0: float, **kw) -> DetectionFailure:
