@@ -136,6 +136,9 @@ PIPELINE_CODES = {
     "refinement_failed": "the joint refinement failed",
     "camera_calibration_failed": "calibrateCamera returned an unusable camera",
     "pnp_failed": "a view's board pose could not be solved",
+    "mode_swapped": "the stated mounting mode contradicts the data (the other mode fits clearly better)",
+    "pairs_shifted": "images and robot poses are out of step by a constant shift (refused; see --shift-poses)",
+    "pairs_shuffled": "images carry other views' robot poses (refused)",
 }
 
 

@@ -14,13 +14,14 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any, Callable, Mapping, Optional, Sequence
 
 import numpy as np
 
 from .camera import Intrinsics
-from .detect import detect_views
-from .errors import CalibrationError, DegenerateMotionError, DetectionError, HandeyeError
+from .detect import detect_views, size_survey
+from .errors import CalibrationError, DegenerateMotionError, DetectionError, HandeyeError, SessionRefused
 from .initial import METHODS, all_methods, board_poses, calibrate_intrinsics, chain_residuals, motion_quality
 from .mounting import MountingMode, mounting
 from .records import Detection, HandEyeEstimate, Session, ViewOutcome, view_id_key
@@ -42,6 +43,7 @@ class CalibrateOptions:
     min_rotation_deg: Optional[float] = None  # None: configs/calibration.yaml motion.min_rotation_deg
     min_axis_spread_deg: Optional[float] = None  # None: configs/calibration.yaml motion.min_axis_spread_deg
     refine_options: dict = field(default_factory=dict)
+    shift_poses: int = 0  # pair image k with the pose written for image k + shift_poses (a known constant shift)
 
     @staticmethod
     def from_config(cfg: dict, **overrides) -> "CalibrateOptions":
@@ -126,6 +128,11 @@ def observe(*, target: TargetSpec, items: Sequence[tuple[str, Any]], intrinsics:
     seconds["detect"] = time.perf_counter() - t0
     obs = Observation(target, outcomes, dets, failures, seconds=seconds)
     if len(dets) < MIN_VIEWS:
+        survey = size_survey(det, (target.cols, target.rows)) if target.kind == "chessboard" else None
+        if survey is not None and survey.likely_size is not None:  # the images show another board size
+            return replace(obs, error=DetectionError(
+                f"the target was found in only {len(dets)} of {len(items)} images: {survey.text()}",
+                hint=survey.fix(), code="target_not_found"))
         return replace(obs, error=DetectionError(
             f"the target was found in only {len(dets)} of {len(items)} images; at least {MIN_VIEWS} are needed",
             hint=f"check the board size in the session ({target_text(target)}) and that the whole board is visible "
@@ -207,6 +214,8 @@ class CalibrationRun:
     T_x: Optional[np.ndarray] = None
     T_board: Optional[np.ndarray] = None
     seconds: dict = field(default_factory=dict)
+    # how the mounting mode was chosen: {"mode", "mode_source": stated | flag | detected | default, "evidence"}
+    mode_decision: dict = field(default_factory=dict)
 
     @property
     def failure_reason(self) -> str:
@@ -233,7 +242,8 @@ def run_calibration(session: Session, options: CalibrateOptions = CalibrateOptio
     try:
         return _run(session, options, state, progress or (lambda s: None))
     except HandeyeError as e:
-        return CalibrationRun(session=session, options=options, status="failed", error=e, **state)
+        s = state.pop("session", session)
+        return CalibrationRun(session=s, options=options, status="failed", error=e, **state)
 
 
 def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> CalibrationRun:
@@ -241,13 +251,23 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     if opts.method not in METHODS:
         raise CalibrationError(f"unknown method {opts.method!r}", expected=" | ".join(METHODS), code="unknown_method")
     t0 = time.perf_counter()
+    unpaired: list = []
+    if opts.shift_poses:
+        s, unpaired = shift_poses(s, int(opts.shift_poses))
+        state["session"] = s
     given = s.intrinsics if (s.intrinsics is not None and s.intrinsics_prior in ("fixed", "prior")) else None
+    # the corner ordering of symmetric boards compares pair invariants, which are the same in both modes
     M_all = {v.view_id: mode.M_from_T_base_end(v.T_base_end) for v in s.views}
     obs = observe(target=s.target, items=[(v.view_id, v.image_path) for v in s.views], intrinsics=given,
                   intrinsics_prior=s.intrinsics_prior, M_by_id=M_all, options=opts, progress=progress)
     outcomes = dict(obs.outcomes)
-    for vid, line in s.meta.get("missing_images", {}).items():
-        outcomes[vid] = ViewOutcome(vid, f"{vid}.jpg", False, f"image file missing (pose line {line} not used)")
+    for vid, line in s.meta.get("missing_images", {}).items():  # poses whose image is missing (the loader)
+        name = Path(s.meta.get("missing_image_files", {}).get(vid, f"{vid}.jpg")).name
+        where = f"pose line {line}" if line is not None else "its pose"
+        outcomes[vid] = ViewOutcome(vid, name, False, f"image file missing ({where} not used)")
+    for v in unpaired:
+        outcomes[v.view_id] = ViewOutcome(v.view_id, getattr(v.image_path, "name", str(v.image_path)), False,
+                                          f"no pose line after --shift-poses {opts.shift_poses}")
 
     def ordered():
         return tuple(outcomes[k] for k in sorted(outcomes, key=view_id_key))
@@ -256,9 +276,14 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     state.update(outcomes=ordered(), detections=obs.detections, failures=obs.failures, seconds=seconds,
                  intrinsics=obs.intrinsics, intrinsics_source=obs.intrinsics_source,
                  intrinsics_rms_px=obs.intrinsics_rms_px, board_poses=obs.board_poses)
+    state["mode_decision"] = {"mode": s.mode, "mode_source": _stated_source(s)}
     if obs.error is not None:
         raise obs.error if obs.error.path is not None else obs.error.at(s.path)
     poses, dets, intr = obs.board_poses, obs.detections, obs.intrinsics
+    s = _mode_gate(s, obs, state, progress)
+    mode = mounting(s.mode)
+    M_all = {v.view_id: mode.M_from_T_base_end(v.T_base_end) for v in s.views}
+    _pairing_gate(s, obs, M_all)
     ids = list(poses)
     C = np.stack([poses[v].T_cam_board for v in ids])
     Ms = np.stack([M_all[v] for v in ids])
@@ -296,7 +321,109 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     outcomes = _final_outcomes(outcomes, chain, refined)
     state["outcomes"] = ordered()
     seconds["calibrate"] = time.perf_counter() - t0
+    state.pop("session", None)
     return CalibrationRun(session=s, options=opts, **state)
+
+
+# ------------------------------------------------------------------------------ pose forensics gates
+def _stated_source(s: Session) -> str:
+    """stated | flag | default: where the session's mode came from (the loader records it)."""
+    return getattr(s, "mode_source", "stated") or "stated"
+
+
+def _mode_gate(s: Session, obs: Observation, state: dict, progress) -> Session:
+    """Decide the mode from the data when the session states none; refuse a stated mode the data contradict.
+
+    Records ``state["mode_decision"]`` = {"mode", "mode_source", "evidence"} and, when the mode was
+    detected, a session in that mode (``state["session"]``)."""
+    from .diagnose.mode import mode_evidence
+
+    source = _stated_source(s)
+    ids = [v for v in sorted(obs.board_poses, key=view_id_key)]
+    decision = {"mode": s.mode, "mode_source": source}
+    state["mode_decision"] = decision
+    if len(ids) < 4:
+        return s
+    C = np.stack([obs.board_poses[v].T_cam_board for v in ids])
+    T = np.stack([s.view(v).T_base_end for v in ids])
+    ev = mode_evidence(C, T)
+    decision["evidence"] = ev.to_dict()
+    if source == "default":
+        if ev.decided is not None:
+            progress(f"mode: {ev.decided}, detected from the data (the session states none): {ev.summary()}")
+            decision.update(mode=ev.decided, mode_source="detected")
+            s = replace(s, mode=ev.decided)
+            state["session"] = s
+        else:
+            log.warning("the session states no mounting mode and the data do not decide it; calibrating as %s "
+                        "(the default): %s", s.mode, ev.summary())
+            progress(f"mode: {s.mode} (the default; the data do not decide it: {ev.summary()})")
+        return s
+    if ev.decided is not None and ev.decided != s.mode:
+        stated = "--mode" if source == "flag" else "the session"
+        raise SessionRefused(
+            f"the data are {ev.decided} but {stated} says {s.mode}: {ev.summary()}",
+            expected=f"robot and camera motions that fit {s.mode}", received=f"they fit {ev.decided}",
+            hint=f"calibrate with --mode {ev.decided} (or set mode: {ev.decided} in the session); if the camera "
+                 f"really is {s.mode.replace('_', '-')}, the robot poses may be inverted (T_end_base)",
+            code="mode_swapped")
+    return s
+
+
+def _pairing_gate(s: Session, obs: Observation, M_all: dict) -> None:
+    """Refuse a session whose images and robot poses are shifted or shuffled (no result from wrong pairs)."""
+    from .diagnose.fits import fit_boards
+    from .diagnose.observations import PoseObservations, candidates_of
+    from .diagnose.pairing import pairing_findings
+    from .diagnose.thresholds import thresholds
+    from .session.raw import raw_poses_of
+
+    ids = [v.view_id for v in s.views if v.view_id in obs.board_poses]
+    if len(ids) < 5:
+        return
+    C = np.stack([obs.board_poses[v].T_cam_board for v in ids])
+    try:
+        fit = fit_boards(C, np.stack([M_all[v] for v in ids]))
+    except np.linalg.LinAlgError:
+        return
+    if fit.cost <= thresholds().readings.bad_cost:
+        return
+    T = np.stack([s.view(v).T_base_end for v in ids])
+    po = PoseObservations(s.mode, tuple(ids), C, T, raw_poses_of(s), {},
+                          C_candidates=candidates_of(obs.board_poses, ids))
+    found = pairing_findings(po, po.raw.fmt, given_cost=fit.cost)
+    if not found:
+        return
+    f = found[0]
+    shift = f.details.get("shift")
+    if shift is not None:
+        raise SessionRefused(
+            f"{f.title}: {f.evidence}", expected="image k paired with pose line k",
+            received=f"image k fits pose k{shift:+d}",
+            hint=f"fix the pairing, or apply the shift with --shift-poses {shift} (image k takes pose line k{shift:+d})",
+            code="pairs_shifted")
+    raise SessionRefused(f"{f.title}: {f.evidence}", expected="each image paired with its own robot pose",
+                           received="poses that belong to other images", hint=f.action, code="pairs_shuffled")
+
+
+def shift_poses(s: Session, shift: int) -> tuple[Session, list]:
+    """The session with image k paired with the pose written for image k + ``shift`` (in the order the poses
+    are written): (session, views left without a pose)."""
+    from .conventions import T_from_pose_values
+    from .session.raw import raw_poses_of
+
+    raw = raw_poses_of(s)
+    pos = {v: k for k, v in enumerate(raw.order)}
+    views, unpaired = [], []
+    for v in s.views:
+        p = pos.get(v.view_id, -1) + shift
+        if v.view_id not in pos or not 0 <= p < len(raw.order):
+            unpaired.append(v)
+            continue
+        T = T_from_pose_values(np.asarray(raw.values[raw.order[p]], float), raw.fmt)
+        views.append(replace(v, T_base_end=T, source_line=None))
+    meta = dict(s.meta, shift_poses=shift)
+    return replace(s, views=tuple(views), meta=meta), unpaired
 
 
 def refine_stage(s: Session, opts: CalibrateOptions, start: HandEyeEstimate, intr: Intrinsics, poses: dict,

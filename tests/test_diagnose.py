@@ -37,7 +37,7 @@ FAULT_CODES = {"translation_units", "angle_units", "euler_order", "quaternion_or
                "zero_distortion_given", "corner_order_flipped", "uncertainty_underestimated", "intrinsics_mismatch"}
 
 
-CLEAN_STAGES = {s: "ok" for s in ("observations", "readings", "pairing", "board_moved", "robot_poses", "motion",
+CLEAN_STAGES = {s: "ok" for s in ("observations", "readings", "pairing", "scale", "board_moved", "robot_poses", "motion",
                                    "detection", "intrinsics", "images", "coverage", "cross_validation")}
 
 
@@ -132,7 +132,12 @@ def test_pair_invariants_ignore_the_unknowns_and_park_martin_recovers_A():
 def test_jackknife_of_a_mean_matches_the_standard_error():
     x = np.random.default_rng(1).normal(size=(50, 1))
     loo = np.array([[np.delete(x, k).mean()] for k in range(50)])
-    assert jackknife_sigmas(loo - x.mean(), 50, 1)[0] == pytest.approx(x.std(ddof=1) / np.sqrt(50), rel=1e-9)
+    assert jackknife_sigmas(loo - x.mean())[0] == pytest.approx(x.std(ddof=1) / np.sqrt(50), rel=1e-9)
+    # 10 interleaved folds of 5: the grouped jackknife is the standard error of the 10 group means
+    groups = [np.arange(f, 50, 10) for f in range(10)]
+    held = np.array([[np.delete(x, g).mean()] for g in groups])
+    means = np.array([x[g].mean() for g in groups])
+    assert jackknife_sigmas(held - x.mean())[0] == pytest.approx(means.std(ddof=1) / np.sqrt(10), rel=1e-9)
 
 
 def test_alternative_formats_cover_units_and_conventions():
@@ -563,3 +568,155 @@ def test_rendered_partly_visible_and_overexposed(rendered, tmp_path):
     f = _one(d, "overexposed")
     assert f["severity"] == "warn" and set(f["view_ids"]) == {"6", "7"}
     assert not _codes(d) - {"partial_target", "overexposed"}
+
+
+# ------------------------------------------------------------------------------ scale, readings with orderings, mode, refusals
+def _write_vendor_cfg(folder: Path, cs, values, **cfg_changes) -> Path:
+    """A vendor folder whose config.yaml is changed (square size ``L``, ``mode``: None drops it)."""
+    _write_vendor(folder, cs, values)
+    cfg = yaml.safe_load((folder / "config.yaml").read_text())
+    for k, v in cfg_changes.items():
+        if k == "L":
+            cfg["checkerboard_args"]["L"] = v
+        elif v is None:
+            cfg.pop(k, None)
+        else:
+            cfg[k] = v
+    (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
+    return folder
+
+
+def _turned(cs, view_indices, turn=1):
+    """The session as a detector that numbers a symmetric board from the opposite corner in some views."""
+    from dataclasses import replace
+
+    perm = cs.target.symmetries()[turn]
+    pts = [p[perm] if k in set(view_indices) else p for k, p in enumerate(cs.image_points)]
+    return replace(cs, image_points=tuple(pts))
+
+
+def test_scale_in_closed_form_is_exact_without_noise_and_tested_against_one():
+    from handeye.diagnose.scale import estimate_scale, is_scale_wrong, rescaled
+
+    cs = _session("eye_to_hand", 40, robot_noise=(0.0, 0.0), n_views=10)
+    mm = mounting(cs.mode)
+    C, M = cs.T_cam_board_true, mm.M_from_T_base_end(cs.T_base_end_true)
+    est = estimate_scale(C, M)
+    assert abs(est.k - 1.0) < 1e-8 and est.sigma < 1e-8
+    est = estimate_scale(rescaled(C, 1 / 1.2), M)  # squares stated 1.2x too large: camera translations / 1.2
+    assert abs(est.k - 1.2) < 1e-8 and is_scale_wrong(est)
+    assert estimate_scale(C[:3], M[:3]) is None  # fewer than 4 views: no estimate
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+@pytest.mark.parametrize("factor", [1.2, 0.9])
+def test_wrong_square_size_is_named_with_the_measured_size(tmp_path, monkeypatch, mode, factor):
+    cs = _session(mode, 41, robot_noise=(1.0, 0.1), n_views=15)
+    stated = cs.target.square_m * factor
+    run, d = _diagnose(_write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), L=stated), cs,
+                       monkeypatch)
+    assert _codes(d) == {"square_size"}  # named alone: not as robot noise, a moved board or outlier views
+    f = _one(d, "square_size")
+    assert f["severity"] == "fail"
+    truth_mm = 1e3 * cs.target.square_m
+    assert abs(f["details"]["measured_mm"] / truth_mm - 1) < 0.02, f["details"]
+    assert f"look like {f['details']['measured_mm']:.1f} mm, not {1e3 * stated:g} mm" in f["title"]
+    assert d["stages"]["robot_poses"] == "skipped" and d["cross_validation"]["summary"].startswith("not run")
+
+
+def test_a_right_square_size_is_not_flagged_and_its_estimate_is_reported(tmp_path, monkeypatch):
+    cs = _session("eye_in_hand", 42, robot_noise=(2.0, 0.3), n_views=8)
+    _, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch)
+    assert "square_size" not in _codes(d, severities=("fail", "warn", "info"))
+    sc = d["scale"]
+    assert abs(sc["scale"] - 1) < 4 * sc["sigma"] + 1e-3 and sc["p_value"] > thresholds().scale.p_value
+
+
+@pytest.mark.parametrize("board", [(7, 5), (8, 6), (6, 6)])
+def test_wrong_euler_kind_on_a_symmetric_board_is_named_despite_turned_views(tmp_path, monkeypatch, board):
+    # the documented real case: an odd x odd board, 19 views, 10 of them numbered from the opposite corner,
+    # angles written intrinsic xyz and read as the vendor's extrinsic xyz
+    cs = _session("eye_in_hand", 43, n_views=19, target=ChessboardSpec(*board, 0.03))
+    cs = _turned(cs, range(0, 19, 2)[:10])
+    truth = PoseFormat(euler_order="xyz", euler_kind="intrinsic", angle_unit="rad", translation_unit="m")
+    run, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported, truth)), cs, monkeypatch)
+    assert _codes(d) == {"euler_order"}
+    f = _one(d, "euler_order")
+    assert "intrinsic xyz" in f["title"]
+    assert f["details"]["best"]["changes"] == "euler_order" and f["details"]["cost_ratio"] > 5
+
+
+def test_clean_symmetric_board_with_turned_views_gets_no_finding(tmp_path, monkeypatch):
+    cs = _turned(_session("eye_to_hand", 44, n_views=15, target=ChessboardSpec(7, 5, 0.03)), range(0, 15, 2))
+    run, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch)
+    assert run.status == "ok" and not _codes(d), d["findings"]
+    assert d["readings"][0]["changes"] == "as given"
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_the_mode_is_detected_when_the_session_states_none(tmp_path, monkeypatch, mode):
+    cs = _session(mode, 45, robot_noise=(1.0, 0.1))
+    run, d = _diagnose(_write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), mode=None), cs,
+                       monkeypatch)
+    assert run.status == "ok" and run.session.mode == mode
+    assert run.mode_decision["mode"] == mode and run.mode_decision["mode_source"] == "detected"
+    assert run.mode_decision["evidence"]["ratio"] > thresholds().mode.ratio
+    assert d["mode"]["mode_source"] == "detected" and not _codes(d)
+
+
+def test_a_stated_mode_is_kept_and_says_so(tmp_path, monkeypatch):
+    cs = _session("eye_to_hand", 46)
+    run, _ = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch)
+    assert run.mode_decision["mode_source"] == "stated" and run.mode_decision["evidence"]["decided"] == "eye_to_hand"
+    run, _ = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch,
+                       mode="eye_to_hand")
+    assert run.mode_decision["mode_source"] == "flag"
+
+
+def test_a_native_session_without_mode_is_detected(tmp_path, monkeypatch):
+    cs = _session("eye_to_hand", 47)
+    path = _write_native(tmp_path / "s", cs, VENDOR_POSE_FORMAT, _vals(cs.T_base_end_reported))
+    doc = yaml.safe_load(path.read_text())
+    doc.pop("mode")
+    path.write_text(yaml.safe_dump(doc))
+    run, _ = _diagnose(path, cs, monkeypatch)
+    assert run.status == "ok" and run.session.mode == "eye_to_hand" and run.mode_decision["mode_source"] == "detected"
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_a_stated_mode_the_data_contradict_is_refused_with_the_finding(tmp_path, monkeypatch, mode):
+    cs = _session(mode, 48)
+    other = mounting(mode).other.name
+    run, d = _diagnose(_write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), mode=other), cs,
+                       monkeypatch)
+    assert run.status == "failed" and run.error.code == "mode_swapped" and run.T_x is None
+    assert f"--mode {mode}" in run.error.hint
+    assert d["findings"][0]["code"] == "mode_swapped"
+
+
+@pytest.mark.parametrize("shift", [1, 2])
+def test_shifted_pairs_are_refused_and_the_offered_flag_applies_the_shift(tmp_path, monkeypatch, shift):
+    from dataclasses import replace
+
+    full = _session("eye_to_hand", 49, n_views=14)
+    cs = replace(full, view_ids=full.view_ids[:12], corner_ids=full.corner_ids[:12], image_points=full.image_points[:12])
+    # the vendor script's failure: line k of poses.txt holds the pose of image k + shift
+    folder = _write_vendor(tmp_path / "s", cs, _vals(full.T_base_end_reported[shift:shift + 12]))
+    run, d = _diagnose(folder, cs, monkeypatch)
+    assert run.status == "failed" and run.error.code == "pairs_shifted" and run.T_x is None
+    assert f"--shift-poses {-shift}" in run.error.hint
+    run, d = _diagnose(folder, cs, monkeypatch, shift_poses=-shift)
+    assert run.status == "ok" and not _codes(d), d["findings"]
+    dropped = [o.view_id for o in run.outcomes if not o.used]
+    assert dropped == [str(k) for k in range(1, shift + 1)]
+    rot, trans = pose_error(run.T_x, cs.T_x_true)
+    assert rot < 0.5 and trans < 5.0
+
+
+def test_shuffled_pairs_are_refused(tmp_path, monkeypatch):
+    cs = _session("eye_in_hand", 50, n_views=15)
+    v = _vals(cs.T_base_end_reported)
+    perm = np.random.default_rng(5).permutation(cs.n_views)
+    run, d = _diagnose(_write_vendor(tmp_path / "s", cs, [v[p] for p in perm]), cs, monkeypatch)
+    assert run.status == "failed" and run.error.code == "pairs_shuffled" and run.T_x is None
+    assert "shuffled" in _one(d, "pairs_shifted")["title"]

@@ -47,6 +47,8 @@ def add_arguments(p) -> None:
     p.add_argument("--qa", type=Path, metavar="FILE",
                    help="site QA thresholds for the verdict and the report (overrides configs/qa.yaml)")
     p.add_argument("--no-report", action="store_true", help="write result.json, observations.json and thumbnails only")
+    p.add_argument("--shift-poses", type=int, default=0, metavar="N",
+                   help="pair image k with pose line k+N (the constant shift a refused run names)")
     p.set_defaults(func=run)
 
 
@@ -65,6 +67,7 @@ def options_from_args(args):
         ro["fix"] = tuple(args.fix)
     return CalibrateOptions.from_config(cfg, method=args.method, refine=False if args.no_refine else None,
                                         fix_k3=True if args.fix_k3 else None, workers=args.workers,
+                                        shift_poses=getattr(args, "shift_poses", 0) or None,
                                         refine_options=ro)
 
 

@@ -47,8 +47,9 @@ from .detection import detection_findings
 from .findings import SEVERITIES, Finding, Stages, worst_first
 from .imaging import coverage_findings, image_findings, image_metrics
 from .intrinsics import distortion_findings
-from .observations import PoseObservations, observations_from_run
+from .observations import PoseObservations, candidates_of, observations_from_run
 from .pairing import pairing_findings, swapped_pose_findings
+from .scale import scale_findings
 from .readings import (READING_CODES, alternative_formats, evaluate_readings, given_reading, read_poses,
                        reading_findings, reading_in_use)
 from .thresholds import thresholds
@@ -58,7 +59,7 @@ log = logging.getLogger(__name__)
 __all__ = ["diagnose_run", "diagnose_session_error", "Finding", "SEVERITIES", "alternative_formats"]
 
 #: findings that say the robot poses as a whole do not match the images as read or paired
-GLOBAL_FAULT_CODES = READING_CODES + ("pairs_shifted",)
+GLOBAL_FAULT_CODES = READING_CODES + ("pairs_shifted", "square_size")
 
 
 def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session_kind: str = "native") -> dict:
@@ -66,10 +67,11 @@ def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session
 
     Returns ``{"findings", "readings", "global_fault", "per_view", "fit", "M"}`` (fit/M None when the
     readings crashed)."""
-    out: dict = {"findings": [], "readings": [], "global_fault": False, "per_view": {}, "fit": None, "M": None}
+    out: dict = {"findings": [], "readings": [], "global_fault": False, "per_view": {}, "fit": None, "M": None,
+                 "scale": None}
     readings = stages.run("readings", evaluate_readings, obs)
     if readings is None:
-        for name in ("pairing", "board_moved", "robot_poses"):
+        for name in ("pairing", "scale", "board_moved", "robot_poses"):
             stages.skip(name, "the readings stage crashed")
         out["findings"] += stages.run("motion", motion_findings, obs.mode, obs.M(), default=[])
         return out
@@ -86,30 +88,50 @@ def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session
     M, fit = stages.run("readings", reading_in_use, obs, readings, rf, default=(obs.M(), None))
     out["global_fault"] = bool(rf)
     if fit is None:
-        for name in ("pairing", "board_moved", "robot_poses"):
+        for name in ("pairing", "scale", "board_moved", "robot_poses"):
             stages.skip(name, "no fit of the poses as read")
     elif rf:
-        for name in ("pairing", "board_moved", "robot_poses"):
+        for name in ("pairing", "scale", "board_moved", "robot_poses"):
             stages.skip(name, "the robot poses do not match the images as read")
     else:
         pf = stages.run("pairing", pairing_findings, obs, obs.raw.fmt, given_cost=given_cost, default=[])
         out["findings"] += pf
         out["global_fault"] = bool(pf)
         if pf:
-            for name in ("board_moved", "robot_poses"):
+            for name in ("scale", "board_moved", "robot_poses"):
                 stages.skip(name, "images and robot poses are paired wrongly")
         else:
-            bm, segfit = stages.run("board_moved", board_moved_findings, obs, M, default=([], None))
-            out["findings"] += bm
-            fit = segfit or fit
-            found = stages.run("robot_poses", _robot_pose_stage, obs, fit, refined=refined,
-                               exclude=bm[0].view_ids if bm else (), default=None)
-            if found is not None:
-                out["findings"] += found[0]
-                out["per_view"] = found[1]
+            if _motion_ok(obs, M):
+                sf, est = stages.run("scale", scale_findings, obs, fit, M, default=([], None))
+            else:
+                sf, est = [], None
+                stages.skip("scale", "the robot motion does not determine the scale (see the motion findings)")
+            out["findings"] += sf
+            out["scale"] = None if est is None else {"scale": est.k, "sigma": est.sigma, "n_views": est.n_views,
+                                                     "p_value": est.p_value()}
+            if sf:
+                out["global_fault"] = True
+                for name in ("board_moved", "robot_poses"):
+                    stages.skip(name, "the board's scale does not match the robot's (square size)")
+            else:
+                bm, segfit = stages.run("board_moved", board_moved_findings, obs, M, default=([], None))
+                out["findings"] += bm
+                fit = segfit or fit
+                found = stages.run("robot_poses", _robot_pose_stage, obs, fit, refined=refined,
+                                   exclude=bm[0].view_ids if bm else (), default=None)
+                if found is not None:
+                    out["findings"] += found[0]
+                    out["per_view"] = found[1]
     out["findings"] += stages.run("motion", motion_findings, obs.mode, M, A=None if fit is None else fit.A, default=[])
     out["fit"], out["M"] = fit, M
     return out
+
+
+def _motion_ok(obs: PoseObservations, M: np.ndarray) -> bool:
+    """The motion passes the degeneracy gates (a scale needs rotations about two axes)."""
+    from ..initial import motion_quality
+
+    return motion_quality(M, frame=obs.mounting.fixed_frame).status == "ok"
 
 
 def _robot_pose_stage(obs: PoseObservations, fit, *, refined=None, exclude=()) -> tuple[list, dict]:
@@ -166,6 +188,7 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
         pose = _pose_checks(stages, obs, refined=run.refined, session_kind=s.format)
         findings += pose["findings"]
         result["readings"] = pose["readings"]
+        result["scale"] = pose["scale"]
     else:
         for name in ("readings", "pairing", "board_moved", "robot_poses"):
             stages.skip(name, f"fewer than {thresholds().views.min_fail} views with a board pose")
@@ -207,6 +230,14 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
                                 "use the cross-validation spread as the uncertainty; look for robot pose errors "
                                 "(estimate robot noise: --robot-noise estimate), a moving board or timing problems"))
     result["per_view"] = pose["per_view"] if pose else {}
+    decision = getattr(run, "mode_decision", None)
+    if decision:
+        result["mode"] = decision
+        if decision.get("mode_source") == "default":
+            findings.append(Finding("mode_undecided", "warn",
+                                    f"The session states no mounting mode and the data do not decide it: calibrated "
+                                    f"as {decision['mode']} (the default)", decision.get("evidence", {}).get(
+                                        "summary", ""), "state the mode (--mode or mode: in the session)"))
     result["findings"] = [f.to_dict() for f in worst_first(findings)]
     result.update(stages.to_dict())
     return plain(result, nan_to_none=True)
@@ -244,7 +275,7 @@ def _observe_lenient(sess) -> tuple[Optional[PoseObservations], int, int]:
         C = np.stack([poses[v].T_cam_board for v in ids])
         corners = tuple((obj[poses[v].corner_ids], seen.detections[v].image_points) for v in ids)
         return PoseObservations(sess.mode, tuple(ids), C, T, raw, {}, corners, seen.intrinsics, target,
-                                sess.intrinsics is None)
+                                sess.intrinsics is None, candidates_of(poses, ids))
 
     obs = observations(seen.board_poses)
     if len(target.symmetries()) > 1:

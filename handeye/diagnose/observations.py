@@ -28,6 +28,7 @@ class PoseObservations:
     intrinsics: object = None
     target: object = None
     intrinsics_estimated: bool = True  # intrinsics come from these corners (their uncertainty counts)
+    C_candidates: Optional[np.ndarray] = None  # (N,k,4,4) symmetric boards: T_cam_board under every ordering
 
     @property
     def n(self) -> int:
@@ -73,4 +74,12 @@ def observations_from_run(run) -> Optional[PoseObservations]:
     refined = run.refined if (run.refined is not None and getattr(run.refined, "status", "") == "ok") else None
     intrinsics = getattr(refined, "intrinsics_seed", None) if refined is not None else run.intrinsics
     return PoseObservations(s.mode, tuple(ids), C, T, raw_poses_of(s), times, corners, intrinsics or run.intrinsics,
-                            s.target, estimated)
+                            s.target, estimated, candidates_of(run.board_poses, ids))
+
+
+def candidates_of(board_poses: dict, ids) -> Optional[np.ndarray]:
+    """(N,k,4,4) board poses under every ordering of a symmetric board, or None (asymmetric board)."""
+    cands = [getattr(board_poses[v], "candidates", ()) for v in ids]
+    if not cands or any(len(c) < 2 for c in cands) or len({len(c) for c in cands}) != 1:
+        return None
+    return np.stack([np.stack(c) for c in cands])

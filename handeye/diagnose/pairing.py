@@ -27,6 +27,19 @@ def _shifted(obs: PoseObservations, fmt: PoseFormat, shift: int) -> tuple[np.nda
     return keep, read_poses(obs.raw, fmt, keys)
 
 
+def _ordered_for(obs: PoseObservations, keep: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """Board poses of the views ``keep`` with a symmetric board's corner ordering resolved against the robot
+    motions ``M`` of this pairing (its own best ordering: a wrong pairing cannot hide behind turned views,
+    and a right one is not spoiled by the ordering the wrong pairing chose)."""
+    if obs.C_candidates is None:
+        return obs.C[keep]
+    from ..initial.board_poses import candidate_invariants, orientation_labels
+
+    cands = obs.C_candidates[keep]
+    lab = orientation_labels(candidate_invariants(cands), M)
+    return cands[np.arange(len(cands)), lab]
+
+
 def _assignment_by_signature(obs: PoseObservations, fmt: PoseFormat, invert: bool) -> Optional[dict]:
     """Match images to poses by their sorted pair-rotation-angle signatures (a shuffled poses file).
 
@@ -70,8 +83,9 @@ def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = F
         keep, T = _shifted(obs, fmt, s)
         if T is None or keep.sum() < max(4, int(np.ceil(th.pairing.min_shift_share * obs.n))):
             continue
+        M = obs.M(T, invert=invert)
         try:
-            fit = fit_boards(obs.C[keep], obs.M(T, invert=invert))
+            fit = fit_boards(_ordered_for(obs, keep, M), M)
         except np.linalg.LinAlgError:
             continue
         if best is None or fit.cost < best[1].cost:

@@ -19,7 +19,7 @@ from ..conventions import PoseFormat, T_from_pose_values
 from ..frames import inv_T, screw_invariants
 from ..mounting import mounting
 from ..session.raw import RawPoses
-from .findings import Finding
+from .findings import Finding, ids_text
 from .fits import BoardFit, fit_boards
 from .geometry import all_pairs, pair_invariants, summarize_invariants
 from .observations import PoseObservations
@@ -107,6 +107,7 @@ class Reading:
     fit: BoardFit
     angle_res_deg: float  # median rotation-angle invariant residual over pairs
     pitch_res_mm: float
+    labels: Optional[np.ndarray] = None  # symmetric boards: each view's corner ordering under this reading
 
     @property
     def codes(self) -> tuple:
@@ -125,14 +126,23 @@ class Reading:
 
 
 def evaluate_readings(obs: PoseObservations) -> list[Reading]:
-    """All plausible readings of the raw poses, best first (see :func:`alternative_formats`)."""
+    """All plausible readings of the raw poses, best first (see :func:`alternative_formats`).
+
+    On a symmetric board (``obs.C_candidates``) each rotation reading is scored with its own best corner
+    ordering (:func:`handeye.initial.board_poses.orientation_labels`), so a misread pose cannot hide behind
+    views turned by 180 (or 90) degrees to agree with it: readings and orderings are resolved together."""
+    from ..initial.board_poses import candidate_invariants, orientation_labels
+
     fmt0 = obs.raw.fmt
     alts = alternative_formats(fmt0)
+    joint = obs.C_candidates is not None
+    inv_c = candidate_invariants(obs.C_candidates) if joint else None
     # stage 1: rotation readings by the rotation-angle invariant (independent of translation units,
-    # of inversion and of the mounting mode)
+    # of inversion and of the mounting mode), each with its own ordering of a symmetric board's views
     rot_score: dict = {}
+    ordered: dict = {}  # rotation key -> (C (N,4,4), orientation labels or None)
     pi, pj = all_pairs(obs.n)
-    ang_c = pair_angles_deg(obs.C[:, :3, :3], pi, pj)
+    ang_c0 = pair_angles_deg(obs.C[:, :3, :3], pi, pj)
     for fmt, _ in alts:
         key = replace(fmt, translation_unit=fmt0.translation_unit)
         if key in rot_score:
@@ -141,7 +151,16 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
         if T is None:
             rot_score[key] = np.inf
             continue
-        rot_score[key] = float(np.median(np.abs(pair_angles_deg(obs.M(T)[:, :3, :3], pi, pj) - ang_c)))
+        M = obs.M(T)
+        if joint:
+            lab = orientation_labels(inv_c, M)
+            C = obs.C_candidates[np.arange(obs.n), lab]
+            ordered[key] = (C, lab)
+            ang_c = pair_angles_deg(C[:, :3, :3], pi, pj)
+        else:
+            ordered[key] = (obs.C, None)
+            ang_c = ang_c0
+        rot_score[key] = float(np.median(np.abs(pair_angles_deg(M[:, :3, :3], pi, pj) - ang_c)))
     # keep every rotation reading that ties with the best: readings of the form R' = U R^T V (some Euler
     # misreadings) keep all pair angles, and only the full fit tells them apart
     ranked = sorted(rot_score, key=rot_score.get)
@@ -151,20 +170,30 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
     keep |= set(ranked[:2]) | {replace(fmt0)}
     out = []
     for fmt, changes in alts:
-        if replace(fmt, translation_unit=fmt0.translation_unit) not in keep:
+        key = replace(fmt, translation_unit=fmt0.translation_unit)
+        if key not in keep or key not in ordered:
             continue
         T = read_poses(obs.raw, fmt, obs.ids)
         if T is None:
             continue
-        s = summarize_invariants(pair_invariants(obs.C, obs.M(T)))  # the same for inverted motions
+        C, lab = ordered[key]
+        s = summarize_invariants(pair_invariants(C, obs.M(T)))  # the same for inverted motions
         for invert in (False, True):
             try:
-                fit = fit_boards(obs.C, obs.M(T, invert=invert))
+                fit = fit_boards(C, obs.M(T, invert=invert))
             except np.linalg.LinAlgError:
                 continue
-            out.append(Reading(fmt, changes, invert, fit, s["median_angle_res_deg"], s["median_pitch_res_mm"]))
+            out.append(Reading(fmt, changes, invert, fit, s["median_angle_res_deg"], s["median_pitch_res_mm"],
+                               labels=lab))
     out.sort(key=lambda r: (r.fit.cost, len(r.codes)))
     return out
+
+
+def turned_views(obs: PoseObservations, given: Reading, best: Reading) -> list:
+    """Ids of the views whose corner ordering differs between two readings (symmetric boards)."""
+    if given.labels is None or best.labels is None:
+        return []
+    return [v for v, a, b in zip(obs.ids, given.labels, best.labels) if a != b]
 
 
 def given_reading(readings: Sequence[Reading]) -> Optional[Reading]:
@@ -239,7 +268,14 @@ def reading_findings(obs: PoseObservations, readings: Sequence[Reading], *, sess
     if rivals:
         ev += "; about as good: " + "; ".join(f"{r.describe()} ({r.fit.median_rot_deg:.3f} deg / "
                                               f"{r.fit.median_trans_mm:.2f} mm)" for r in rivals)
-    details = {"given": given.row(), "best": best.row(), "rivals": [r.row() for r in rivals]}
+    turned = turned_views(obs, given, best)
+    if turned:
+        ev += (f"; on this symmetric board the corner order of {len(turned)} of {obs.n} views depends on the "
+               f"reading (views {ids_text(turned)}): as given they were turned to agree with the misread motion, "
+               f"so each reading was scored with its own best ordering")
+    details = {"given": given.row(), "best": best.row(), "rivals": [r.row() for r in rivals],
+               "views_reordered": [str(v) for v in turned],
+               "cost_ratio": (given.fit.cost / best.fit.cost) if best.fit.cost > 0 else None}
     fix_fmt = ("convert the poses file to the vendor format (x, y, z in metres; rx, ry, rz in radians, "
                f"R = Rz·Ry·Rx) or describe it in a session.yaml with {format_snippet(best.fmt)}"
                if session_kind == "vendor" else f"state the format in session.yaml: {format_snippet(best.fmt)}")

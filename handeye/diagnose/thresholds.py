@@ -52,6 +52,18 @@ class Pairing:
 
 
 @dataclass(frozen=True)
+class Scale:
+    p_value: float
+    min_rel: float
+
+
+@dataclass(frozen=True)
+class Mode:
+    ratio: float
+    good_cost: float
+
+
+@dataclass(frozen=True)
 class Views:
     min_fail: int
     min_warn: int
@@ -139,6 +151,8 @@ class Thresholds:
     intrinsics: IntrinsicsChecks
     images: Images
     cross_validation: CrossValidation
+    scale: Scale
+    mode: Mode
 
     @staticmethod
     def from_config(cfg: dict) -> "Thresholds":
@@ -159,7 +173,7 @@ class _Sec:
 
 _SECTIONS = tuple(_Sec(f.name, c) for f, c in zip(
     fields(Thresholds), (Readings, Pairing, Views, Motion, RobotPose, BoardMoved, Detection, IntrinsicsChecks,
-                         Images, CrossValidation)))
+                         Images, CrossValidation, Scale, Mode)))
 
 
 @functools.lru_cache(maxsize=1)

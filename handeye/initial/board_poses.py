@@ -45,6 +45,7 @@ class BoardPose:
     rms_px: float
     orientation: int  # index into target.symmetries()
     corner_ids: np.ndarray  # ids after resolving the orientation
+    candidates: tuple = ()  # symmetric boards: T_cam_board under every admissible ordering (index = orientation)
 
 
 def board_poses(detections: Sequence[Detection], target: TargetSpec, intr: Intrinsics,
@@ -67,24 +68,33 @@ def board_poses(detections: Sequence[Detection], target: TargetSpec, intr: Intri
             cands[d.view_id].append((T, rms, ids))
     labels = {vid: 0 for vid in cands}
     if len(syms) > 1 and len(cands) >= 2:
-        labels = _resolve_orientation(cands, M)
-    return {vid: BoardPose(vid, cands[vid][c][0], cands[vid][c][1], c, cands[vid][c][2]) for vid, c in labels.items()}
+        vids = list(cands)
+        Cs = np.stack([[c[0] for c in cands[v]] for v in vids])  # (n,k,4,4)
+        labels = dict(zip(vids, orientation_labels(candidate_invariants(Cs), np.stack([M[v] for v in vids]))))
+    many = len(syms) > 1
+    return {vid: BoardPose(vid, cands[vid][c][0], cands[vid][c][1], c, cands[vid][c][2],
+                           tuple(t[0] for t in cands[vid]) if many else ()) for vid, c in labels.items()}
 
 
-def _resolve_orientation(cands, M) -> dict[str, int]:
-    vids = list(cands)
-    n = len(vids)
-    k = len(cands[vids[0]])
-    Ms = np.stack([M[v] for v in vids])
+def candidate_invariants(Cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Screw invariants (angle, pitch), each (n,k,n,k), of the camera pair motions for every ordering of
+    each view: ``Cs`` (n,k,4,4) is ``T_cam_board`` of view i under ordering a."""
+    n, k = Cs.shape[:2]
+    rel_C = Cs[:, :, None, None] @ inv_T(Cs)[None, None]  # (n,k,n,k,4,4)
+    ang_C, pitch_C = screw_invariants(rel_C.reshape(-1, 4, 4))
+    return ang_C.reshape(n, k, n, k), pitch_C.reshape(n, k, n, k)
+
+
+def orientation_labels(inv_C: tuple[np.ndarray, np.ndarray], Ms: np.ndarray) -> np.ndarray:
+    """The ordering (index into the target's symmetries) of each view whose camera motions agree best with
+    the robot motions ``Ms`` (n,4,4); ``inv_C`` from :func:`candidate_invariants`. The detector's own
+    order is kept for the majority (turning every view alike only changes the board frame)."""
+    ang_C, pitch_C = inv_C
+    n, k = ang_C.shape[:2]
     # robot relative-motion invariants for all pairs
     rel_M = Ms[:, None] @ inv_T(Ms)[None, :]  # (n,n,4,4) M_i M_j^-1
     ang_M, pitch_M = screw_invariants(rel_M.reshape(-1, 4, 4))
-    Cs = np.stack([[c[0] for c in cands[v]] for v in vids])  # (n,k,4,4)
     # cost[i,a,j,b]: disagreement when view i uses ordering a and view j ordering b
-    rel_C = Cs[:, :, None, None] @ inv_T(Cs)[None, None]  # (n,k,n,k,4,4)
-    ang_C, pitch_C = screw_invariants(rel_C.reshape(-1, 4, 4))
-    ang_C = ang_C.reshape(n, k, n, k)
-    pitch_C = pitch_C.reshape(n, k, n, k)
     am = ang_M.reshape(n, 1, n, 1)
     pm = pitch_M.reshape(n, 1, n, 1)
     # pitch's sign follows the axis direction, which is defined consistently by the rotation vector;
@@ -102,7 +112,7 @@ def _resolve_orientation(cands, M) -> dict[str, int]:
         c = cost[idx[:, None], lab[:, None], idx[None, :], lab[None, :]].sum()
         if c < best_cost:
             best, best_cost = lab.copy(), c
-    return {v: int(lab) for v, lab in zip(vids, _majority_frame(best, k))}
+    return _majority_frame(best, k).astype(int)
 
 
 def _majority_frame(labels: np.ndarray, k: int) -> np.ndarray:

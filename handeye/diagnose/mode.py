@@ -1,0 +1,91 @@
+"""The mounting mode from the data: both models ``C_i = A · M_i · B`` fitted, each with its own board scale.
+
+Eye-in-hand uses ``M_i = inv(T_base_end_i)``, eye-to-hand ``M_i = T_base_end_i``. Pair invariants (rotation
+angle, screw pitch) are the same for both, so only the full fit tells them apart: the rotation axes of
+the camera's pair motions must map onto the robot's by one rotation. Each model is fitted after
+rescaling the camera translations by that model's scale estimate (:mod:`.scale`), so a wrong square
+size does not make the mode undecided. A mode is decided only when its model fits (cost below
+``mode.good_cost``), the other fits ``mode.ratio`` times worse, and the solution is physically plausible
+(a camera on the flange is closer to the flange than the board is to the base; a camera beside the
+robot farther from the base than the board from the flange). Otherwise the mode is undecided.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from ..frames import inv_T
+from ..mounting import MODES, mounting
+from .fits import fit_boards
+from .scale import estimate_scale, rescaled
+from .thresholds import thresholds
+
+__all__ = ["ModeEvidence", "mode_evidence"]
+
+
+@dataclass(frozen=True)
+class ModeEvidence:
+    costs: dict  # mode -> cost of its fit (inf when it could not be fitted)
+    scatter: dict  # mode -> (median board scatter deg, mm)
+    plausible: dict  # mode -> the solution puts the camera where the mode says
+    best: str
+    decided: Optional[str]  # the mode the data show, or None (undecided)
+
+    @property
+    def ratio(self) -> float:
+        other = mounting(self.best).other.name
+        c_best, c_other = self.costs[self.best], self.costs[other]
+        return float(c_other / c_best) if c_best > 0 else float("inf")
+
+    def summary(self) -> str:
+        parts = []
+        for m in MODES:
+            d, mm = self.scatter.get(m, (float("nan"), float("nan")))
+            parts.append(f"{m}: board scatter {d:.2f} deg / {mm:.1f} mm (cost {self.costs[m]:.2f})")
+        txt = "; ".join(parts)
+        if self.decided is None:
+            return txt + f"; undecided (ratio {self.ratio:.1f}, needs {thresholds().mode.ratio:g}" + \
+                (", and a plausible camera position" if not self.plausible.get(self.best, False) else "") + ")"
+        return txt + f"; {self.decided} fits {self.ratio:.1f} x better"
+
+    def to_dict(self) -> dict:
+        return {"costs": {m: _finite(c) for m, c in self.costs.items()},
+                "board_scatter": {m: [_finite(a), _finite(b)] for m, (a, b) in self.scatter.items()},
+                "plausible": dict(self.plausible), "best": self.best, "decided": self.decided,
+                "ratio": _finite(self.ratio), "summary": self.summary()}
+
+
+def _finite(x):
+    x = float(x)
+    return round(x, 4) if np.isfinite(x) else None
+
+
+def _camera_on_robot(fit) -> bool:
+    t_x = float(np.linalg.norm(inv_T(fit.A)[:3, 3]))
+    t_b = float(np.linalg.norm(fit.B[0][:3, 3]))
+    return t_x < t_b
+
+
+def mode_evidence(C: np.ndarray, T_base_end: np.ndarray) -> ModeEvidence:
+    """Both mounting models fitted to board poses ``C`` (N,4,4) and robot poses ``T_base_end`` (N,4,4)."""
+    t = thresholds().mode
+    costs, scatter, plausible = {}, {}, {}
+    for m in MODES:
+        mm = mounting(m)
+        M = mm.M_from_T_base_end(T_base_end)
+        try:
+            fit0 = fit_boards(C, M)
+            est = estimate_scale(C, M, use=fit0.inliers())
+            fit = fit_boards(rescaled(C, est.k), M) if est is not None and np.isfinite(est.k) and est.k > 0 else fit0
+        except np.linalg.LinAlgError:
+            costs[m], scatter[m], plausible[m] = float("inf"), (float("nan"), float("nan")), False
+            continue
+        costs[m] = fit.cost
+        scatter[m] = (fit.median_rot_deg, fit.median_trans_mm)
+        plausible[m] = _camera_on_robot(fit) == mm.camera_moves
+    best = min(MODES, key=lambda m: costs[m])
+    other = mounting(best).other.name
+    clear = costs[best] < t.good_cost and costs[other] > t.ratio * costs[best] and plausible[best]
+    return ModeEvidence(costs, scatter, plausible, best, best if clear else None)
