@@ -6,7 +6,7 @@ the data predict; the refinement and the diagnostics (for runs without a refinem
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Optional, Sequence
 
 import numpy as np
@@ -146,10 +146,31 @@ class ViewCheck:
     resid_px: np.ndarray  # (N,) corner residual norms at P_cam
     delta: np.ndarray  # (6,) tangent_difference(reported, P_cam)
     ok: bool
+    # the view's own corner variance over sigma_px^2, at least 1 (:func:`view_variance_factor`)
+    variance_factor: float = 1.0
 
 
 def _failed_check(P: np.ndarray, n_corners: int) -> ViewCheck:
     return ViewCheck(P, np.full((6, 6), np.nan), np.full(n_corners, np.inf), np.full(6, np.nan), False)
+
+
+def view_variance_factor(resid_px: np.ndarray, *, sigma_px: float, n_params: int = 6) -> float:
+    """How much noisier one view's corners are than the run's pixel sigma: ``max(1, s^2 / sigma_px^2)``
+    with ``s^2 = sum |e|^2 / (2 N - n_params)`` over the view's N inlier corner residuals ``resid_px``
+    (norms, px) against the pose fitted to that view alone (``n_params`` = 6 pose unknowns).
+
+    The detector's corner error is not one iid Gaussian over the run: it differs between views
+    (perspective, distance and blur change the corner's edges), and within a view it is correlated.
+    The pose of a view whose corners scatter k times more than sigma_px is about k times less certain
+    than ``sigma_px^2 (J^T J)^-1`` says; the test of its robot pose must use that view's own level,
+    measured where the robot pose plays no part (the view's own fit), so that a wrong robot pose
+    cannot hide behind it. Never below 1: a view is not held to a tighter standard than the run."""
+    e = np.asarray(resid_px, float)
+    e = e[np.isfinite(e)]
+    dof = 2 * e.size - n_params
+    if dof <= 0 or not sigma_px > 0:
+        return 1.0
+    return max(1.0, float(np.sum(e * e)) / dof / sigma_px ** 2)
 
 
 def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10) -> dict:
@@ -214,7 +235,8 @@ def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10)
         if cov is None or not np.all(np.isfinite(cov)):
             out[int(i)] = ViewCheck(P[k], np.full((6, 6), np.nan), e_k, np.full(6, np.nan), False)
         else:
-            out[int(i)] = ViewCheck(P[k], cov, e_k, delta[k], True)
+            f = view_variance_factor(e_k[inl[starts[k]:starts[k] + counts[k]]], sigma_px=pb.sigma_px)
+            out[int(i)] = ViewCheck(P[k], cov, e_k, delta[k], True, f)
     return out
 
 
@@ -262,34 +284,51 @@ def leave_one_out(e: np.ndarray, R: np.ndarray, S_p: np.ndarray) -> tuple[np.nda
     return C_inv_R.T @ e, R @ C_inv_R - R
 
 
+def prior_share(R: np.ndarray, S_p: np.ndarray) -> float:
+    """Smallest eigenvalue of ``R^-1/2 (R - S_p) R^-1/2``: the share of a robot pose's information that
+    comes from the camera (1: the camera alone fixes it; 0: its prior alone does). :func:`leave_one_out`
+    divides by it, so where it is tiny (a robot sigma near its floor, as on a simulated exact robot) the
+    leave-one-out prediction is the rounding error of ``R - S_p`` blown up."""
+    w = 1.0 / np.sqrt(np.diag(R))
+    return float(np.linalg.eigvalsh((R - S_p) * np.outer(w, w))[0])
+
+
 def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]) -> RobotPoseTest:
     """:func:`robot_pose_test` of every view's reported robot pose against what the other data imply.
 
     With the covariances of a Gaussian solve (``S_pp``, marginal covariance of each robot-pose
     variable): for a view whose prior is in the solve, the leave-one-out prediction from the prior
     residual (:func:`leave_one_out`, Baarda's data snooping); for a view whose prior was excluded,
-    its free pose ``P`` with covariance ``S_P``. Otherwise (robust phase, views not
-    in the solve) the camera-only pose with its own covariance, which ignores the uncertainty of
-    ``T_x``, ``T_board`` and the intrinsics."""
+    its free pose ``P`` with covariance ``S_P``. Otherwise (robust phase, views not in the solve, or a
+    view whose prior carries almost all the information about its pose, :func:`prior_share` below
+    ``outliers.robot_pose.loo_min_camera_share``) the camera-only pose with its own covariance, which
+    ignores the uncertainty of ``T_x``, ``T_board`` and the intrinsics (a share of about 1 / n views).
+    Each view's camera-side covariance is scaled by its own corner variance
+    (:func:`view_variance_factor`)."""
     s_rot, s_trans = _robot_test_sigmas(pb)
     R = np.diag([s_rot ** 2] * 3 + [s_trans ** 2] * 3)
+    loo_min = float(refine_preset()["outliers"]["robot_pose"]["loo_min_camera_share"])
     d = np.full((pb.n, 6), np.nan)
     C = np.full((pb.n, 6, 6), np.nan)
     e_all = tangent_difference(pb.reported, pb.P)  # shape (n, 6): prior residuals
     for i, ch in enumerate(checks):
         Sp = None if S_pp is None else S_pp.get(i)
+        f = ch.variance_factor  # the view's own corner variance (camera side only; see view_variance_factor)
         if Sp is not None and pb.status[i] in ("used", "robot_excluded") and pb.has_robot_var(i):
             e = e_all[i]
             try:
+                if pb.status[i] == "used" and prior_share(R, Sp) < loo_min:
+                    raise np.linalg.LinAlgError("the prior dominates: no reliable leave-one-out prediction")
                 if pb.status[i] == "used":
                     d[i], C[i] = leave_one_out(e, R, Sp)
                 else:
                     d[i], C[i] = e, Sp
+                C[i] *= f
                 continue
             except np.linalg.LinAlgError:  # fall back to the camera-only comparison
                 ch = camera_only_poses(pb, [i])[i]
         if ch.ok:
-            d[i], C[i] = ch.delta, ch.cov_cam
+            d[i], C[i] = ch.delta, ch.cov_cam * ch.variance_factor
     return robot_pose_test(d, C, robot_sigma_rot_rad=s_rot, robot_sigma_trans_m=s_trans,
                            gates=RobotPoseGates.from_options(pb.o))
 
@@ -314,9 +353,13 @@ def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = No
     o = pb.o
     t_corner = o.corner_outlier_sigmas
     share = float(refine_preset()["outliers"]["reprojection_share"])
+    # every view's own fit: the checks of views outside the last Gaussian solve, and the variance
+    # factor of every view's camera side (measured without its robot pose)
+    own = camera_only_poses(pb, [i for i in range(pb.n) if len(pb.obj[i]) >= o.min_corners])
     by_view = joint_checks(pb, S_pp) if S_pp is not None else {}
-    by_view.update(camera_only_poses(pb, [i for i in range(pb.n)
-                                          if i not in by_view and len(pb.obj[i]) >= o.min_corners]))
+    by_view = {i: replace(ch, variance_factor=own[i].variance_factor if i in own else 1.0)
+               for i, ch in by_view.items()}
+    by_view.update({i: ch for i, ch in own.items() if i not in by_view})
     checks = [by_view.get(i) or _failed_check(pb.P[i], len(pb.obj[i])) for i in range(pb.n)]
     if robust_robot_sigma:
         robust_robot_sigmas(pb, [checks[i] for i in pb.prior_views()])
