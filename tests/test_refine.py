@@ -14,8 +14,8 @@ from handeye.errors import ConfigError, InputError
 from handeye.factors.reprojection import chain_residual
 from handeye.frames import se3_exp, skew, tangent_difference
 from handeye.mounting import mounting
-from handeye.refine import RefineOptions, RefineView, refine
-from handeye.refine.outliers import RobotPoseGates, leave_one_out, robot_pose_test
+from handeye.refine import RefineOptions, RefineView, refine, refit
+from handeye.refine.outliers import RobotPoseGates, leave_one_out, robot_pose_test, view_variance_factor
 from handeye.sim.corners import make_corner_session
 
 
@@ -333,3 +333,37 @@ def test_aitken_step_lands_on_the_fixed_point_of_a_linear_iteration():
     np.testing.assert_allclose(out[:2], a[:2], rtol=1e-12)
     assert out[2] == x2[2], "an oscillating component must not be extrapolated"
     np.testing.assert_array_equal(_aitken(x0, x0, x0), np.exp(x0))
+
+
+def test_view_variance_factor_is_the_views_own_corner_variance_never_below_one():
+    rng = np.random.default_rng(5)
+    sigma = 0.1
+    # 2-D Gaussian corners of sd 3 sigma per axis: |e|^2 sums to 2 N (3 sigma)^2, over 2 N - 6 dof
+    e = np.linalg.norm(rng.normal(scale=3 * sigma, size=(4000, 2)), axis=1)
+    f = view_variance_factor(e, sigma_px=sigma)
+    assert f == pytest.approx(9.0 * 8000 / 7994, rel=0.05)  # relative sd of the estimate: sqrt(2 / 8000)
+    assert view_variance_factor(0.5 * e, sigma_px=sigma) == pytest.approx(2.25 * 8000 / 7994, rel=0.05)
+    assert view_variance_factor(0.1 * e, sigma_px=sigma) == 1.0  # quieter than the run: held to the run's level
+    assert view_variance_factor(e[:3], sigma_px=sigma) == 1.0  # no redundancy (6 equations, 6 unknowns)
+
+
+def test_refit_on_all_views_stays_and_on_a_subset_moves_within_its_sigma():
+    s = make_corner_session(mode="eye_to_hand", n_views=14, seed=9, noise_px=0.3, outlier_views=1)
+    r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics)
+    assert r.status == "ok"
+    obj = s.target.object_points()
+    used = [v for v in _views(s) if r.per_view[v.view_id]["status"] != "removed"]
+    # all views, decisions held: the full solution is the optimum, so the one solve stays there
+    # (within a small fraction of the reported sigma; the solver's tolerance is relative 1e-6 of the cost)
+    full = refit(r, object_points=obj, views=used)
+    assert full.status == "ok" and full.view_ids == tuple(v.view_id for v in used)
+    xi = tangent_difference(r.T_x, full.T_x)
+    assert xi @ np.linalg.solve(r.cov_x_6x6, xi) < 1e-3
+    # one view left out: the estimate moves by about one view's share of the information, well within
+    # 3 sigma of the full result (chi-square(6) 0.999 quantile)
+    fold = refit(r, object_points=obj, views=used[1:])
+    xi = tangent_difference(r.T_x, fold.T_x)
+    assert 0 < xi @ np.linalg.solve(r.cov_x_6x6, xi) < chi2.ppf(0.999, 6)
+    assert fold.intrinsics.fx != r.intrinsics.fx  # the intrinsics are re-estimated too
+    with pytest.raises(InputError, match="cannot be refitted"):
+        refit(r, object_points=obj, views=[RefineView("99", np.arange(4), np.zeros((4, 2)), np.eye(4))] + used)

@@ -1,0 +1,94 @@
+"""refit(): the refinement's solution on a subset of its views, with the full run's noise levels and
+outlier decisions held (one cross-validation fold).
+
+A fold must measure how the estimate moves without some views, not how noise estimation and outlier
+decisions would redo themselves on fewer data. So a refit is ONE Gaussian solve of the refinement's
+model, started from the full solution, with:
+
+* the pixel sigma and the robot sigmas of the full run (``robot_noise`` "estimate" is held "fixed" at
+  the estimated values; "none" stays "none");
+* the full run's outlier decisions: corners flagged there are left out, a view whose robot pose was
+  excluded keeps its corners without a robot prior, and a view the run dropped cannot be refitted;
+* the refined robot poses of the full run as the start of each view's robot pose.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, replace
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..camera import Intrinsics
+from ..errors import InputError
+from .options import RefineView, check_inputs
+from .result import RefineResult
+
+log = logging.getLogger(__name__)
+
+# robot sigmas of a held noise model are at least this [mm, deg]: a frozen sigma of 0 would make the
+# prior a hard constraint (GTSAM treats sigmas below ~1e-9 as such); numerical, far below any robot
+ROBOT_SIGMA_MIN_MM = 1e-6
+ROBOT_SIGMA_MIN_DEG = 1e-6
+
+
+@dataclass(frozen=True)
+class Refit:
+    """Outcome of :func:`refit`."""
+
+    status: str  # ok | failed
+    failure_reason: str
+    T_x: Optional[np.ndarray]  # (4,4) the result's transform (T_end_cam / T_base_cam), None when failed
+    T_board: Optional[np.ndarray]  # (4,4) (T_base_board / T_end_board)
+    intrinsics: Optional[Intrinsics]
+    view_ids: tuple  # the views of the solve
+
+
+def refit(result: RefineResult, *, object_points: np.ndarray, views: Sequence[RefineView]) -> Refit:
+    """Solve the refinement of ``result`` again on ``views`` alone (a subset of its views), holding its
+    noise levels and outlier decisions (see the module docstring).
+
+    ``object_points`` (N,3): the board points the views' ``corner_ids`` index (the same as for
+    :func:`handeye.refine.refine`). Raises InputError for a view the full run did not have or dropped,
+    or for fewer than 3 views; a solve that fails returns ``status="failed"`` with the reason.
+    """
+    from .problem import Problem  # GTSAM on first use
+
+    if result.status != "ok":
+        raise InputError("refit needs a successful refinement", received=f"status {result.status!r}",
+                         hint="refit only results with status 'ok'")
+    flagged: dict = {}
+    for o in result.outliers:
+        if o.kind == "corners":
+            flagged.setdefault(o.view_id, set()).update(int(c) for c in o.corner_ids)
+    kept = []
+    for v in views:
+        st = result.per_view.get(v.view_id, {}).get("status")
+        if st not in ("used", "robot_excluded"):
+            raise InputError(f"view {v.view_id} cannot be refitted", expected="a view the refinement used",
+                             received="not in the refinement" if st is None else f"status {st!r}",
+                             hint="refit a subset of result.per_view's used views")
+        cid = np.asarray(v.corner_ids, int)
+        keep = np.array([int(c) not in flagged.get(v.view_id, ()) for c in cid], bool)
+        kept.append(RefineView(v.view_id, cid[keep], np.asarray(v.image_points, float).reshape(-1, 2)[keep],
+                               v.T_base_end))
+    object_points, reported = check_inputs(object_points, kept)
+    o0 = result.options
+    opts = replace(o0, robot_noise="none" if o0.robot_noise == "none" else "fixed",
+                   robot_sigma_mm=max(result.robot_sigma_mm, ROBOT_SIGMA_MIN_MM),
+                   robot_sigma_deg=max(result.robot_sigma_deg, ROBOT_SIGMA_MIN_DEG), outlier_loop=False, loss="none")
+    ids = tuple(v.view_id for v in kept)
+    try:
+        pb = Problem(mode=result.mode, object_points=object_points, views=kept, reported=reported,
+                     intrinsics=result.intrinsics, T_x0=result.T_x, T_board0=result.T_board, options=opts)
+        pb.sigma_px = float(result.sigma_px)
+        for i, vid in enumerate(ids):
+            if result.per_view[vid]["status"] == "robot_excluded":
+                pb.status[i] = "robot_excluded"
+            if vid in result.robot_poses:
+                pb.P[i] = np.asarray(result.robot_poses[vid], float)
+        pb.solve(robust=False)
+    except (RuntimeError, np.linalg.LinAlgError) as e:  # GTSAM raises RuntimeError (indeterminant system)
+        log.info("refit on views %s not solved: %s", list(ids), e)
+        return Refit("failed", str(e), None, None, None, ids)
+    return Refit("ok", "", pb.T_x.copy(), pb.T_board.copy(), Intrinsics.from_vector(pb.k, pb.width, pb.height), ids)
