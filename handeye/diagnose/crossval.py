@@ -1,9 +1,9 @@
 """Cross-validation of the hand-eye result by held-out views.
 
 Leave-one-out (interleaved k-fold above a view count, configs/diagnostics.yaml ``cross_validation``).
-When the run was refined, each fold is ONE Gaussian solve of the refinement problem
-(:class:`handeye.refine.problem.Problem`) started from the full solution, with the full run's noise
-levels (pixel and robot sigmas) and outlier decisions (flagged corners and views left out) held: the
+When the run was refined, each fold is ONE Gaussian solve of the refinement (:func:`handeye.refine.refit`)
+started from the full solution, with the full run's noise levels (pixel and robot sigmas) and outlier
+decisions (flagged corners and views left out) held: the
 fold measures how the estimate moves without its views, not how noise estimation and outlier
 decisions would redo themselves. Without a refinement each fold is the run's closed-form method.
 The delete-d jackknife spread of the folds is compared with the refinement's sigmas.
@@ -11,11 +11,10 @@ The delete-d jackknife spread of the folds is compared with the refinement's sig
 from __future__ import annotations
 
 import logging
-from dataclasses import replace
 
 import numpy as np
 
-from ..camera import Intrinsics, pixels_from_board_points
+from ..camera import pixels_from_board_points
 from ..frames import rotvec_from_R
 from ..mounting import mounting
 from .geometry import jackknife_sigmas
@@ -55,43 +54,17 @@ def folds(n: int, *, refined: bool) -> list:
 
 
 def _refined_folds(run, ref, ids, fold_list, T_rep):
-    """(estimates per fold: (T_x, T_board, intrinsics) or None, method text): one solve per fold."""
-    from ..refine import RefineView
-    from ..refine.problem import Problem
+    """(estimates per fold: (T_x, T_board, intrinsics) or None, method text): one solve per fold
+    (:func:`handeye.refine.refit`: the full run's noise levels and outlier decisions held)."""
+    from ..refine import RefineView, refit
 
-    s = run.session
-    obj = s.target.object_points()
-    flagged: dict = {}
-    for o in getattr(ref, "outliers", ()):
-        if getattr(o, "corner_ids", ()):
-            flagged.setdefault(o.view_id, set()).update(int(c) for c in o.corner_ids)
-    views = []
-    for v in ids:
-        cid = np.asarray(run.board_poses[v].corner_ids)
-        keep = np.array([int(c) not in flagged.get(v, ()) for c in cid], bool)
-        views.append(RefineView(v, cid[keep], run.detections[v].image_points[keep], T_rep[v]))
-    o0 = ref.options
-    robot = "none" if o0.robot_noise == "none" else "fixed"
-    opts = replace(o0, robot_noise=robot, robot_sigma_mm=max(ref.robot_sigma_mm, 1e-6),
-                   robot_sigma_deg=max(ref.robot_sigma_deg, 1e-6), outlier_loop=False, loss="none")
-    refined_robot = getattr(ref, "robot_poses", {}) or {}
+    obj = run.session.target.object_points()
+    views = [RefineView(v, run.board_poses[v].corner_ids, run.detections[v].image_points, T_rep[v]) for v in ids]
     estimates = []
     for f in fold_list:
         out = set(f.tolist())
-        train = [views[k] for k in range(len(views)) if k not in out]
-        try:
-            pb = Problem(mode=s.mode, object_points=obj, views=train, reported=np.stack([v.T_base_end for v in train]),
-                         intrinsics=ref.intrinsics, T_x0=ref.T_x, T_board0=ref.T_board, options=opts)
-            pb.sigma_px = float(ref.sigma_px)  # held at the full run's noise levels
-            for i, v in enumerate(pb.ids):
-                if v in refined_robot:
-                    pb.P[i] = np.asarray(refined_robot[v], float)
-            pb.solve(robust=False)
-        except (RuntimeError, np.linalg.LinAlgError) as e:  # a fold GTSAM cannot solve is reported, not fatal
-            log.info("cross-validation fold %s not solved: %s", [ids[k] for k in f], e)
-            estimates.append(None)
-            continue
-        estimates.append((pb.T_x, pb.T_board, Intrinsics.from_vector(pb.k, pb.width, pb.height)))
+        fit = refit(ref, object_points=obj, views=[views[k] for k in range(len(views)) if k not in out])
+        estimates.append((fit.T_x, fit.T_board, fit.intrinsics) if fit.status == "ok" else None)
     method = (f"refinement refitted per fold (one solve from the full solution, noise held at the full run's "
               f"{ref.robot_sigma_mm:.3f} mm / {ref.robot_sigma_deg:.4f} deg robot, {ref.sigma_px:.3f} px)")
     return estimates, method
@@ -143,7 +116,7 @@ def cross_validate(run) -> dict:
         return {"summary": f"not run: only {len(ok)} of {len(fold_list)} folds could be solved", "method": method}
     deltas = np.stack([x_delta(T_full, estimates[k][0]) for k in ok])
     d = int(round(np.mean([len(fold_list[k]) for k in ok])))
-    jk = jackknife_sigmas(deltas, n, d)
+    jk = jackknife_sigmas(deltas)
     obj = s.target.object_points()
     rows, held_px = [], []
     for row, k in enumerate(ok):

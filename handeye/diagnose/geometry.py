@@ -147,17 +147,19 @@ def pose_differences(T_a: np.ndarray, T_b: np.ndarray) -> tuple[np.ndarray, np.n
     return rotation_angles_deg(d[..., :3, :3]), 1e3 * np.linalg.norm(d[..., :3, 3].reshape(-1, 3), axis=1)
 
 
-def jackknife_sigmas(deltas: np.ndarray, n_total: int, n_left_out: int) -> np.ndarray:
-    """Delete-d jackknife standard deviation of each column of ``deltas`` (K folds, D params).
+def jackknife_sigmas(deltas: np.ndarray) -> np.ndarray:
+    """Grouped jackknife standard deviation of each column of ``deltas`` (K folds, D params).
 
-    ``deltas`` are the fold estimates minus the full estimate (or any common reference); the
-    variance estimate is ``(n - d) / (d K) sum_k (theta_k - mean)^2``.
+    ``deltas`` are the estimates of K folds that partition the views (each fold leaves one group
+    out; leave-one-out is K = n groups of one), minus the full estimate or any common reference:
+    ``var = (K - 1) / K sum_k (theta_k - mean)^2``. (The delete-d form ``(n - d) / (d K)`` is for K
+    = all C(n, d) subsets; with a rounded d for unequal groups it overstated the sigma by 13 % on
+    20 views in 8 folds.)
     """
     x = np.asarray(deltas, float)
     K = x.shape[0]
-    d = max(int(n_left_out), 1)
     dev = x - x.mean(axis=0)
-    return np.sqrt((n_total - d) / (d * K) * np.sum(dev ** 2, axis=0))
+    return np.sqrt((K - 1) / K * np.sum(dev ** 2, axis=0))
 
 
 # ------------------------------------------------------------------------------ per-view covariances
