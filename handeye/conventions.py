@@ -9,10 +9,16 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .errors import ConfigError
 from .frames import is_rotation, make_T
+
+
+def _Rotation():
+    """scipy's Rotation, imported on first use (Euler sequences of every order live only at this boundary)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation
 
 ROTATION_KINDS = ("euler", "quaternion", "rotvec", "matrix")
 _AXES = set("xyz")
@@ -107,16 +113,16 @@ def T_from_pose_values(values, fmt: PoseFormat, *, rot_tol: float = 1e-4) -> np.
     t = v[:3] * scale
     r = v[3:]
     if fmt.rotation == "euler":
-        R = Rotation.from_euler(_scipy_euler_seq(fmt), r, degrees=fmt.angle_unit == "deg").as_matrix()
+        R = _Rotation().from_euler(_scipy_euler_seq(fmt), r, degrees=fmt.angle_unit == "deg").as_matrix()
     elif fmt.rotation == "rotvec":
         rv = np.radians(r) if fmt.angle_unit == "deg" else r
-        R = Rotation.from_rotvec(rv).as_matrix()
+        R = _Rotation().from_rotvec(rv).as_matrix()
     else:
         q = r if fmt.quaternion_order == "xyzw" else r[[1, 2, 3, 0]]
         n = np.linalg.norm(q)
         if abs(n - 1.0) > 1e-3:
             raise ValueError(f"quaternion norm is {n:.6f}, expected 1 (check the quaternion order)")
-        R = Rotation.from_quat(q / n).as_matrix()
+        R = _Rotation().from_quat(q / n).as_matrix()
     return make_T(R, t)
 
 
@@ -129,7 +135,7 @@ def pose_values_from_T(T_base_end: np.ndarray, fmt: PoseFormat) -> np.ndarray:
         out = T.copy()
         out[:3, 3] = t
         return out.reshape(-1)
-    rot = Rotation.from_matrix(T[:3, :3])
+    rot = _Rotation().from_matrix(T[:3, :3])
     if fmt.rotation == "euler":
         r = rot.as_euler(_scipy_euler_seq(fmt), degrees=fmt.angle_unit == "deg")
     elif fmt.rotation == "rotvec":
@@ -144,13 +150,13 @@ def pose_values_from_T(T_base_end: np.ndarray, fmt: PoseFormat) -> np.ndarray:
 
 def vendor_euler_from_R(R: np.ndarray) -> np.ndarray:
     """(rx, ry, rz) radians with R = Rz(rz)·Ry(ry)·Rx(rx), the vendor's convention."""
-    return Rotation.from_matrix(np.asarray(R, float)).as_euler("xyz")
+    return _Rotation().from_matrix(np.asarray(R, float)).as_euler("xyz")
 
 
 def pose_forms(T_a_b: np.ndarray) -> dict:
     """A transform in every form a robot programmer asks for (used by result.json and reports)."""
     T = np.asarray(T_a_b, float)
-    rot = Rotation.from_matrix(T[:3, :3])
+    rot = _Rotation().from_matrix(T[:3, :3])
     q = rot.as_quat()
     q = q if q[3] >= 0 else -q
     rv = rot.as_rotvec()
