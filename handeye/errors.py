@@ -151,6 +151,9 @@ VERDICTS = {
     "REFUSED": "a finding makes any result untrustworthy; no matrix is given",
 }
 
+#: exit code of ``handeye`` after Ctrl-C (128 + SIGINT, as shells report it)
+INTERRUPTED_EXIT_CODE = 130
+
 #: exit codes of ``handeye`` (code, meaning), the table ``--help`` and the README show
 EXIT_CODES = (
     (0, "PASS or WARN: the result is written (warnings and their fixes are printed)"),
@@ -162,7 +165,7 @@ EXIT_CODES = (
     (HardwareError.exit_code, "a camera or robot could not be reached or answered wrongly (collect)"),
     (QAFailed.exit_code, "FAIL: a matrix was computed but QA or a finding fails it; result and reports written"),
     (SessionRefused.exit_code, "REFUSED: a finding makes the result untrustworthy; no matrix, the finding says why"),
-    (130, "interrupted (Ctrl-C)"),
+    (INTERRUPTED_EXIT_CODE, "interrupted (Ctrl-C)"),
 )
 
 

@@ -350,3 +350,16 @@ def test_the_exit_codes_of_the_readme_are_those_of_the_code_and_of_help():
         assert cap.returncode == 0
         for code, meaning in EXIT_CODES:
             assert re.search(rf"^\s+{code}\s+{re.escape(meaning)}$", cap.stdout, flags=re.M), (argv, code)
+
+
+def test_the_mode_line_says_when_the_data_chose_or_could_not_choose():
+    from handeye.cli.verdict import mode_lines, verdict_lines
+
+    ev = {"summary": "eye_to_hand fits 40.0 x better"}
+    assert mode_lines({"mode": "eye_to_hand", "mode_source": "detected", "mode_evidence": ev}) == [
+        "mode: eye_to_hand, detected from the data (the session states none): eye_to_hand fits 40.0 x better"]
+    line, = mode_lines({"mode": "eye_in_hand", "mode_source": "default", "mode_evidence": {"summary": "undecided"}})
+    assert line.startswith("mode: eye_in_hand, the default") and "--mode" in line
+    assert mode_lines({"mode": "eye_in_hand", "mode_source": "stated"}) == []
+    assert mode_lines({"mode": "eye_in_hand", "mode_source": "flag"}) == []
+    assert verdict_lines({"status": "ok"}) == []  # a result.json from before verdicts: nothing invented

@@ -32,7 +32,7 @@ import logging
 import sys
 
 from .. import __version__
-from ..errors import HandeyeError, exit_codes_text
+from ..errors import INTERRUPTED_EXIT_CODE, HandeyeError, exit_codes_text
 
 log = logging.getLogger("handeye")
 
@@ -99,7 +99,7 @@ def main(argv=None) -> int:
         return e.exit_code
     except KeyboardInterrupt:
         print("handeye: interrupted", file=sys.stderr)
-        return 130
+        return INTERRUPTED_EXIT_CODE
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -110,8 +110,9 @@ def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
     lines = []
     mode = res["mode"]
     used, total = res["n_views"]["used"], res["n_views"]["total"]
-    lines.append(f"handeye {__version__}: {mode}, {used}/{total} views used, method {res['method']}"
-                 + (" + joint refinement" if res.get("refined") else " (closed form only)"))
+    how = (f", method {res['method']}" + (" + joint refinement" if res.get("refined") else " (closed form only)")
+           if res["status"] == "ok" else ", no result")
+    lines.append(f"handeye {__version__}: {mode}, {used}/{total} views used{how}")
     lines += mode_lines(res)
     for v in res["views"]:
         if not v["used"]:
