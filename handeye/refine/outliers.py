@@ -154,10 +154,18 @@ def _failed_check(P: np.ndarray, n_corners: int) -> ViewCheck:
     return ViewCheck(P, np.full((6, 6), np.nan), np.full(n_corners, np.inf), np.full(6, np.nan), False)
 
 
+def own_fit_variance(resid_px: np.ndarray, *, n_params: int = 6) -> float:
+    """``s^2 = sum |e|^2 / (2 N - n_params)`` [px^2] of a view's N corner residual norms ``resid_px`` against
+    the pose fitted to that view alone (``n_params`` = 6 pose unknowns); NaN without redundancy."""
+    e = np.asarray(resid_px, float)
+    e = e[np.isfinite(e)]
+    dof = 2 * e.size - n_params
+    return float(np.sum(e * e)) / dof if dof > 0 else float("nan")
+
+
 def view_variance_factor(resid_px: np.ndarray, *, sigma_px: float, n_params: int = 6) -> float:
     """How much noisier one view's corners are than the run's pixel sigma: ``max(1, s^2 / sigma_px^2)``
-    with ``s^2 = sum |e|^2 / (2 N - n_params)`` over the view's N inlier corner residuals ``resid_px``
-    (norms, px) against the pose fitted to that view alone (``n_params`` = 6 pose unknowns).
+    with ``s^2`` the view's own-fit variance (:func:`own_fit_variance`) over its inlier corner residuals.
 
     The detector's corner error is not one iid Gaussian over the run: it differs between views
     (perspective, distance and blur change the corner's edges), and within a view it is correlated.
@@ -165,12 +173,11 @@ def view_variance_factor(resid_px: np.ndarray, *, sigma_px: float, n_params: int
     than ``sigma_px^2 (J^T J)^-1`` says; the test of its robot pose must use that view's own level,
     measured where the robot pose plays no part (the view's own fit), so that a wrong robot pose
     cannot hide behind it. Never below 1: a view is not held to a tighter standard than the run."""
-    e = np.asarray(resid_px, float)
-    e = e[np.isfinite(e)]
-    dof = 2 * e.size - n_params
-    if dof <= 0 or not sigma_px > 0:
-        return 1.0
-    return max(1.0, float(np.sum(e * e)) / dof / sigma_px ** 2)
+    return _factor(own_fit_variance(resid_px, n_params=n_params), sigma_px)
+
+
+def _factor(s2: float, sigma_px: float) -> float:
+    return max(1.0, s2 / sigma_px ** 2) if np.isfinite(s2) and sigma_px > 0 else 1.0
 
 
 def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10) -> dict:
@@ -235,8 +242,9 @@ def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10)
         if cov is None or not np.all(np.isfinite(cov)):
             out[int(i)] = ViewCheck(P[k], np.full((6, 6), np.nan), e_k, np.full(6, np.nan), False)
         else:
-            f = view_variance_factor(e_k[inl[starts[k]:starts[k] + counts[k]]], sigma_px=pb.sigma_px)
-            out[int(i)] = ViewCheck(P[k], cov, e_k, delta[k], True, f)
+            s2 = own_fit_variance(e_k[inl[starts[k]:starts[k] + counts[k]]])
+            pb.own_fit_var[int(i)] = s2
+            out[int(i)] = ViewCheck(P[k], cov, e_k, delta[k], True, _factor(s2, pb.sigma_px))
     return out
 
 
@@ -311,6 +319,7 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
     d = np.full((pb.n, 6), np.nan)
     C = np.full((pb.n, 6, 6), np.nan)
     e_all = tangent_difference(pb.reported, pb.P)  # shape (n, 6): prior residuals
+    own = []  # views compared with their own fit
     for i, ch in enumerate(checks):
         Sp = None if S_pp is None else S_pp.get(i)
         f = ch.variance_factor  # the view's own corner variance (camera side only; see view_variance_factor)
@@ -326,7 +335,11 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
                 C[i] *= f
                 continue
             except np.linalg.LinAlgError:  # fall back to the camera-only comparison
-                ch = camera_only_poses(pb, [i])[i]
+                own.append(i)
+                continue
+        if ch.ok:
+            d[i], C[i] = ch.delta, ch.cov_cam * ch.variance_factor
+    for i, ch in camera_only_poses(pb, own).items() if own else ():  # all fall-backs in one batch
         if ch.ok:
             d[i], C[i] = ch.delta, ch.cov_cam * ch.variance_factor
     return robot_pose_test(d, C, robot_sigma_rot_rad=s_rot, robot_sigma_trans_m=s_trans,
@@ -353,11 +366,14 @@ def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = No
     o = pb.o
     t_corner = o.corner_outlier_sigmas
     share = float(refine_preset()["outliers"]["reprojection_share"])
-    # every view's own fit: the checks of views outside the last Gaussian solve, and the variance
-    # factor of every view's camera side (measured without its robot pose)
-    own = camera_only_poses(pb, [i for i in range(pb.n) if len(pb.obj[i]) >= o.min_corners])
+    # views outside the last Gaussian solve: their own fit; views in it: the variance factor of their
+    # camera side from their own fit (measured without the robot pose; its residual variance hardly
+    # moves between rounds, so a view's first own fit serves, divided by the current sigma_px^2)
     by_view = joint_checks(pb, S_pp) if S_pp is not None else {}
-    by_view = {i: replace(ch, variance_factor=own[i].variance_factor if i in own else 1.0)
+    need = [i for i in range(pb.n) if len(pb.obj[i]) >= o.min_corners
+            and (i not in by_view or i not in pb.own_fit_var)]
+    own = camera_only_poses(pb, need)
+    by_view = {i: replace(ch, variance_factor=_factor(pb.own_fit_var.get(i, np.nan), pb.sigma_px))
                for i, ch in by_view.items()}
     by_view.update({i: ch for i, ch in own.items() if i not in by_view})
     checks = [by_view.get(i) or _failed_check(pb.P[i], len(pb.obj[i])) for i in range(pb.n)]

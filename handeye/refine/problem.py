@@ -114,6 +114,9 @@ class Problem:
         self.status = ["used"] * self.n
         self.mask = [np.ones(len(o), bool) for o in self.obj]
         self.iterations = 0
+        # per view: its corners' residual variance in its own fit [px^2] (outliers.view_variance_factor);
+        # filled by outliers.camera_only_poses, which does not depend on the robot pose
+        self.own_fit_var: dict = {}
 
     # -- views
     def active(self) -> list[int]:
