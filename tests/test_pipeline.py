@@ -150,6 +150,21 @@ def test_a_refusing_finding_drops_the_matrix_and_is_the_reason(rendered, tmp_pat
     assert res["findings"][0]["code"] == "pairs_shuffled"
 
 
+def test_a_crash_while_judging_never_passes_and_keeps_the_result(rendered, tmp_path, monkeypatch, caplog):
+    import handeye.report as report
+
+    def crash(*a, **kw):
+        raise RuntimeError("a bug in the QA metrics")
+
+    monkeypatch.setattr(report, "build_report_context", crash)
+    mode, session = rendered
+    wr = _run(session, tmp_path / "out", refine=False)
+    res = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert res["status"] == "ok" and mounting(mode).x_name in res  # the matrix survives
+    assert res["verdict"] in ("WARN", "FAIL") and res["qa"]["checks"] == [] and "crashed" in res["qa"]["error"]
+    assert "could not be evaluated" in res["verdict_headline"] and "a bug in the QA metrics" in caplog.text
+
+
 def test_a_bad_qa_file_is_refused_before_any_work(tmp_path):
     bad = tmp_path / "qa.yaml"
     bad.write_text("checks:\n  reprojection_rms_px: {warn_over: 1}\n")
