@@ -1,0 +1,294 @@
+"""Forward kinematics of a serial arm from a Denavit-Hartenberg table, with its Jacobians (pure numpy).
+
+A :class:`DHChain` holds one row per revolute joint, ``(a, alpha, d, theta_offset)`` in metres and
+radians, and the convention that reads it:
+
+* ``standard`` (distal DH, Universal Robots' tables):
+  ``T_{i-1,i} = Rz(q_i + theta_offset_i) · Tz(d_i) · Tx(a_i) · Rx(alpha_i)``;
+* ``modified`` (Craig's proximal DH, RealMan's tables), where row i holds ``a_{i-1}, alpha_{i-1}``:
+  ``T_{i-1,i} = Rx(alpha_{i-1}) · Tx(a_{i-1}) · Rz(q_i + theta_offset_i) · Tz(d_i)``.
+
+``T_base_end = T_{0,1} · ... · T_{n-1,n}``: the base is the DH frame 0, the end is the last DH
+frame (the flange). Joint angles ``q`` are what the arm's encoders report (radians); the DH angle
+is ``q + theta_offset``.
+
+Jacobians use THE tangent convention of :mod:`handeye.frames` (GTSAM's Pose3: ``xi = (omega, v)``,
+right perturbation): ``T_base_end(q + dq) ≈ T_base_end(q) · Exp(J_q · dq)``, and likewise for the
+DH parameters, flattened row by row as ``(a_1, alpha_1, d_1, theta_offset_1, a_2, ...)``.
+Every DH parameter moves the chain by a unit screw (about or along z or x) at one point of the
+product, so each column is that screw carried to the end frame by the adjoint of the rest of the
+chain; the tests check them against central differences.
+
+Shipped presets (``configs/robots/<name>.yaml``, table units mm and deg, each citing its source):
+``rm65`` (RealMan RM65-B, modified DH) and ``ur5e`` (Universal Robots UR5e, standard DH);
+:func:`load_arm` reads them or any file of the same form.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Optional, Sequence, Union
+
+import numpy as np
+
+from .errors import ConfigError
+from .frames import inv_T, se3_adjoint, tangent_difference
+
+CONVENTIONS = ("standard", "modified")
+PARAMETER_NAMES = ("a", "alpha", "d", "theta_offset")
+PRESETS = ("rm65", "ur5e")
+
+# unit screws (omega, v) of the four elementary motions
+_SCREW = {"rz": np.array([0, 0, 1, 0, 0, 0.0]), "tz": np.array([0, 0, 0, 0, 0, 1.0]),
+          "tx": np.array([0, 0, 0, 1, 0, 0.0]), "rx": np.array([1, 0, 0, 0, 0, 0.0])}
+# the elementary motions of one link in product order, as (kind, column in the row (a, alpha, d, theta_offset))
+_ORDER = {"standard": (("rz", 3), ("tz", 2), ("tx", 0), ("rx", 1)),
+          "modified": (("rx", 1), ("tx", 0), ("rz", 3), ("tz", 2))}
+
+
+def _elementary(kind: str, value: float) -> np.ndarray:
+    T = np.eye(4)
+    if kind in ("rz", "rx"):
+        c, s = np.cos(value), np.sin(value)
+        if kind == "rz":
+            T[:2, :2] = [[c, -s], [s, c]]
+        else:
+            T[1:3, 1:3] = [[c, -s], [s, c]]
+    elif kind == "tz":
+        T[2, 3] = value
+    else:
+        T[0, 3] = value
+    return T
+
+
+@dataclass(frozen=True)
+class DHChain:
+    """A serial arm of revolute joints: ``dh`` (n, 4) rows ``(a [m], alpha [rad], d [m], theta_offset [rad])``.
+
+    ``joint_limits_rad`` (n, 2) bounds the encoder angles ``q`` (None: unbounded).
+    """
+
+    name: str
+    convention: str
+    dh: np.ndarray  # shape (n, 4)
+    joint_limits_rad: Optional[np.ndarray] = None  # shape (n, 2)
+
+    def __post_init__(self):
+        if self.convention not in CONVENTIONS:
+            raise ConfigError(f"unknown DH convention of {self.name!r}", expected=" | ".join(CONVENTIONS),
+                              received=repr(self.convention))
+        dh = np.array(self.dh, float)
+        if dh.ndim != 2 or dh.shape[1] != 4 or not np.all(np.isfinite(dh)) or len(dh) < 1:
+            raise ConfigError(f"invalid DH table of {self.name!r}", expected="n rows (a, alpha, d, theta_offset)",
+                              received=f"array of shape {dh.shape}")
+        dh.setflags(write=False)
+        object.__setattr__(self, "dh", dh)
+        if self.joint_limits_rad is not None:
+            lim = np.array(self.joint_limits_rad, float)
+            if lim.shape != (len(dh), 2) or np.any(lim[:, 0] >= lim[:, 1]):
+                raise ConfigError(f"invalid joint limits of {self.name!r}", expected=f"({len(dh)}, 2) low < high",
+                                  received=repr(lim.tolist()))
+            lim.setflags(write=False)
+            object.__setattr__(self, "joint_limits_rad", lim)
+
+    @property
+    def n_joints(self) -> int:
+        return int(self.dh.shape[0])
+
+    @property
+    def reach_m(self) -> float:
+        """Upper bound of the flange's distance from the first joint's axis point: sum of |a| and of |d| after joint 1."""
+        d = self.dh[:, 2].copy()
+        d[0] = 0.0
+        return float(np.sum(np.abs(self.dh[:, 0])) + np.sum(np.abs(d)))
+
+    def with_dh(self, dh: np.ndarray, *, name: Optional[str] = None) -> "DHChain":
+        """The same arm with another DH table (e.g. a perturbed one)."""
+        return replace(self, dh=np.asarray(dh, float), name=self.name if name is None else name)
+
+    def within_limits(self, joints: np.ndarray) -> bool:
+        if self.joint_limits_rad is None:
+            return True
+        q = np.asarray(joints, float)
+        return bool(np.all(q >= self.joint_limits_rad[:, 0]) and np.all(q <= self.joint_limits_rad[:, 1]))
+
+    # ---------------------------------------------------------------------------------------
+    def _factors(self, joints: np.ndarray) -> list:
+        """[(kind, T)] of the 4n elementary motions in product order."""
+        q = np.asarray(joints, float).reshape(-1)
+        if q.shape != (self.n_joints,):
+            raise ValueError(f"{self.name}: expected {self.n_joints} joint angles, got {q.shape[0]}")
+        out = []
+        for i in range(self.n_joints):
+            row = self.dh[i].copy()
+            row[3] += q[i]
+            for kind, col in _ORDER[self.convention]:
+                out.append((kind, _elementary(kind, row[col])))
+        return out
+
+    def T_base_end(self, joints: np.ndarray) -> np.ndarray:
+        """Flange pose (4,4) for joint angles (n,), or (N,4,4) for (N,n)."""
+        q = np.asarray(joints, float)
+        if q.ndim == 2:
+            return np.stack([self.T_base_end(qi) for qi in q]) if len(q) else np.zeros((0, 4, 4))
+        T = np.eye(4)
+        for _, F in self._factors(q):
+            T = T @ F
+        return T
+
+    def _screw_columns(self, joints: np.ndarray, *, only_kind: Optional[str] = None) -> np.ndarray:
+        """(6, 4n) body-frame columns of every elementary motion, in product order (zeros for the
+        motions of another kind than ``only_kind`` when it is given)."""
+        factors = self._factors(joints)
+        cols = np.zeros((6, len(factors)))
+        suffix = np.eye(4)  # product of the factors after k
+        for k in range(len(factors) - 1, -1, -1):
+            kind, F = factors[k]
+            if only_kind is None or kind == only_kind:
+                cols[:, k] = se3_adjoint(inv_T(suffix)) @ _SCREW[kind]
+            suffix = F @ suffix
+        return cols
+
+    def jacobian_joints(self, joints: np.ndarray) -> np.ndarray:
+        """(6, n): ``T_base_end(q + dq) ≈ T_base_end(q) · Exp(J dq)`` (right tangent, (omega, v))."""
+        cols = self._screw_columns(joints, only_kind="rz")
+        k_rz = [k for k, (kind, _) in enumerate(_ORDER[self.convention]) if kind == "rz"][0]
+        return cols[:, k_rz::4].copy()
+
+    def jacobian_dh(self, joints: np.ndarray) -> np.ndarray:
+        """(6, 4n): the same for the DH parameters, columns ``(a_1, alpha_1, d_1, theta_offset_1, a_2, ...)``."""
+        cols = self._screw_columns(joints)
+        out = np.empty_like(cols)
+        for i in range(self.n_joints):
+            for j, (_, col) in enumerate(_ORDER[self.convention]):
+                out[:, 4 * i + col] = cols[:, 4 * i + j]
+        return out
+
+
+def T_base_end(chain: DHChain, joints: np.ndarray) -> np.ndarray:
+    """``chain.T_base_end(joints)``: the flange pose of ``chain`` at ``joints`` (radians)."""
+    return chain.T_base_end(joints)
+
+
+# ---------------------------------------------------------------------------------------------
+# Inverse kinematics (numeric; for the simulator and for checks, not for motion planning)
+# ---------------------------------------------------------------------------------------------
+
+def _wrap(q: np.ndarray) -> np.ndarray:
+    return (np.asarray(q, float) + np.pi) % (2 * np.pi) - np.pi
+
+
+def solve_ik(chain: DHChain, T_base_end_target: np.ndarray, *, seeds: Sequence[np.ndarray],
+             damping: float = 1e-3, max_iterations: int = 100) -> Optional[np.ndarray]:
+    """Joint angles (n,) whose flange pose is ``T_base_end_target``, within the joint limits, or None.
+
+    Damped least squares (Levenberg-Marquardt on the right tangent of the pose) from each of
+    ``seeds`` in turn; the first solution whose pose error is below ~1e-9 (rad and m) and whose
+    angles (wrapped to (-pi, pi]) lie within the limits is returned.
+    """
+    T_target = np.asarray(T_base_end_target, float)
+    for q0 in seeds:
+        q = np.array(q0, float)
+        lam = damping
+        err = tangent_difference(chain.T_base_end(q), T_target)
+        cost = float(err @ err)
+        for it in range(max_iterations):
+            if cost < 1e-18:
+                break
+            if it == 12 and cost > 1e-6:  # far (> ~1 mm or 0.06 deg) after 12 steps: try the next start
+                break
+            J = chain.jacobian_joints(q)
+            dq = J.T @ np.linalg.solve(J @ J.T + lam * np.eye(6), err)
+            q_new = q + dq
+            err_new = tangent_difference(chain.T_base_end(q_new), T_target)
+            cost_new = float(err_new @ err_new)
+            if cost_new < cost:
+                q, err, cost = q_new, err_new, cost_new
+                lam = max(lam * 0.1, 1e-12)
+            else:
+                lam *= 10.0
+                if lam > 1e6:
+                    break
+        if cost > 1e-18:
+            continue
+        qw = _wrap(q)
+        if chain.within_limits(qw):
+            return qw
+    return None
+
+
+def default_ik_seeds(chain: DHChain, T_base_end_target: np.ndarray) -> list:
+    """A few deterministic starting configurations: joint 1 turned towards the target, shoulder,
+    elbow and wrist in several bends."""
+    p = np.asarray(T_base_end_target, float)[:3, 3]
+    base = float(np.arctan2(p[1], p[0]))
+    seeds = []
+    for b in (base, base + np.pi):
+        for s2 in (-0.6, 0.6):
+            for s3 in (-1.2, 1.2):
+                for s5 in (-0.8, 0.8):
+                    q = np.zeros(chain.n_joints)
+                    q[0] = b
+                    if chain.n_joints >= 3:
+                        q[1], q[2] = s2, s3
+                    if chain.n_joints >= 5:
+                        q[4] = s5
+                    seeds.append(_wrap(q))
+    return seeds
+
+
+# ---------------------------------------------------------------------------------------------
+# Presets
+# ---------------------------------------------------------------------------------------------
+
+_LENGTH = {"m": 1.0, "mm": 1e-3}
+_ANGLE = {"rad": 1.0, "deg": np.pi / 180.0}
+
+
+def chain_from_dict(data: dict, *, source: str = "DH table") -> DHChain:
+    """A :class:`DHChain` from the preset form (``name``, ``convention``, ``length_unit``, ``angle_unit``,
+    ``links: [{a, alpha, d, theta_offset, limits}]``)."""
+    if not isinstance(data, dict):
+        raise ConfigError("a DH table must be a mapping", path=source, expected="name, convention, links",
+                          received=type(data).__name__)
+    lu, au = data.get("length_unit", "m"), data.get("angle_unit", "rad")
+    if lu not in _LENGTH or au not in _ANGLE:
+        raise ConfigError("unknown unit in DH table", path=source, expected="length_unit m|mm, angle_unit rad|deg",
+                          received=f"{lu!r}, {au!r}")
+    links = data.get("links")
+    if not isinstance(links, list) or not links:
+        raise ConfigError("DH table without links", path=source, expected="links: a list of rows",
+                          received=repr(links))
+    rows, limits = [], []
+    for i, link in enumerate(links, start=1):
+        missing = [k for k in PARAMETER_NAMES if not isinstance(link, dict) or k not in link]
+        if missing:
+            raise ConfigError(f"DH row {i} lacks {', '.join(missing)}", path=source,
+                              expected="a, alpha, d, theta_offset", received=repr(link))
+        try:
+            rows.append([float(link["a"]) * _LENGTH[lu], float(link["alpha"]) * _ANGLE[au],
+                         float(link["d"]) * _LENGTH[lu], float(link["theta_offset"]) * _ANGLE[au]])
+            lim = link.get("limits")
+            limits.append(None if lim is None else [float(lim[0]) * _ANGLE[au], float(lim[1]) * _ANGLE[au]])
+        except (TypeError, ValueError, IndexError):
+            raise ConfigError(f"DH row {i} is not numeric", path=source, expected="numbers",
+                              received=repr(link)) from None
+    lim = None if any(x is None for x in limits) else np.array(limits)
+    return DHChain(name=str(data.get("name", source)), convention=str(data.get("convention", "")),
+                   dh=np.array(rows), joint_limits_rad=lim)
+
+
+def load_arm(name_or_path: Union[str, Path]) -> DHChain:
+    """A shipped preset (``rm65``, ``ur5e``) or a YAML file of the same form."""
+    import yaml
+
+    from .config import load_preset
+
+    key = str(name_or_path)
+    if key in PRESETS:
+        return chain_from_dict(load_preset(f"robots/{key}"), source=f"configs/robots/{key}.yaml")
+    path = Path(key)
+    if not path.is_file():
+        raise ConfigError("unknown robot model", expected=f"a preset ({', '.join(PRESETS)}) or a DH YAML file",
+                          received=repr(key))
+    return chain_from_dict(yaml.safe_load(path.read_text(encoding="utf-8")), source=str(path))

@@ -1,0 +1,122 @@
+"""Forward kinematics from DH tables: the shipped presets against their manufacturers' reference poses,
+the Jacobians against central differences, inverse kinematics, and the loader's errors."""
+import numpy as np
+import pytest
+
+from handeye.errors import ConfigError
+from handeye.frames import se3_exp, tangent_difference
+from handeye.kinematics import DHChain, PRESETS, chain_from_dict, default_ik_seeds, load_arm, solve_ik
+
+
+def test_rm65_zero_configuration_stands_straight_up():
+    # RealMan's MDH page: at zero joint angles the RM65 is upright; the flange sits d1 + a3 + d4 + d6 above the
+    # base (240.5 + 256 + 210 + 144 mm for the RM65-B) with its z axis up, and a3 + d4 + d6 = 610 mm is the
+    # published working radius.
+    arm = load_arm("rm65")
+    T = arm.T_base_end(np.zeros(6))
+    np.testing.assert_allclose(T[:3, 3], [0.0, 0.0, 0.8505], atol=1e-12)
+    np.testing.assert_allclose(T[:3, 2], [0.0, 0.0, 1.0], atol=1e-12)
+    assert arm.convention == "modified"
+    assert arm.dh[2, 0] + arm.dh[3, 2] + arm.dh[5, 2] == pytest.approx(0.610)
+
+
+def test_ur5e_zero_configuration_lies_along_minus_x():
+    # Universal Robots' DH page: at zero the arm is stretched horizontally along -x; the flange is at
+    # (a2 + a3, -(d4 + d6), d1 - d5) with its z axis along -y.
+    arm = load_arm("ur5e")
+    T = arm.T_base_end(np.zeros(6))
+    np.testing.assert_allclose(T[:3, 3], [-0.8172, -0.2329, 0.0628], atol=1e-12)
+    np.testing.assert_allclose(T[:3, 2], [0.0, -1.0, 0.0], atol=1e-12)
+    assert arm.convention == "standard"
+
+
+def test_a_quarter_turn_of_joint_1_turns_the_flange_about_the_base_z():
+    for name in PRESETS:
+        arm = load_arm(name)
+        q = np.array([0.3, -0.4, 0.5, 0.2, 0.6, -0.1])
+        T0 = arm.T_base_end(q)
+        T1 = arm.T_base_end(q + [np.pi / 2, 0, 0, 0, 0, 0])
+        Rz = np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1.0]])
+        np.testing.assert_allclose(T1[:3, 3], Rz @ T0[:3, 3], atol=1e-12)
+        np.testing.assert_allclose(T1[:3, :3], Rz @ T0[:3, :3], atol=1e-12)
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_jacobians_match_central_differences(name):
+    arm = load_arm(name)
+    rng = np.random.default_rng(3)
+    h = 1e-6
+    for _ in range(3):
+        q = rng.uniform(-1.5, 1.5, 6)
+        T = arm.T_base_end(q)
+        J_q = arm.jacobian_joints(q)
+        for j in range(6):
+            e = np.zeros(6)
+            e[j] = h
+            num = (tangent_difference(T, arm.T_base_end(q + e)) - tangent_difference(T, arm.T_base_end(q - e))) / (2 * h)
+            np.testing.assert_allclose(J_q[:, j], num, atol=1e-8)
+        J_dh = arm.jacobian_dh(q)
+        assert J_dh.shape == (6, 24)
+        for j in range(24):
+            dh_p, dh_m = arm.dh.copy(), arm.dh.copy()
+            dh_p.flat[j] += h
+            dh_m.flat[j] -= h
+            num = (tangent_difference(T, arm.with_dh(dh_p).T_base_end(q))
+                   - tangent_difference(T, arm.with_dh(dh_m).T_base_end(q))) / (2 * h)
+            np.testing.assert_allclose(J_dh[:, j], num, atol=1e-8)
+
+
+def test_joint_jacobian_is_the_theta_offset_columns_and_predicts_a_small_motion():
+    arm = load_arm("rm65")
+    q = np.array([0.2, -0.3, 0.9, 0.1, -0.7, 0.4])
+    J_q, J_dh = arm.jacobian_joints(q), arm.jacobian_dh(q)
+    np.testing.assert_allclose(J_q, J_dh[:, 3::4], atol=1e-15)
+    dq = np.radians([0.01, -0.02, 0.03, 0.01, 0.02, -0.01])
+    predicted = arm.T_base_end(q) @ se3_exp(J_q @ dq)
+    # first order: the rest is of order |dq|^2 ~ 3e-7
+    np.testing.assert_allclose(predicted, arm.T_base_end(q + dq), atol=1e-6)
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_inverse_kinematics_reaches_the_pose_within_the_limits(name):
+    arm = load_arm(name)
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        q = rng.uniform(-1.0, 1.0, 6)
+        T = arm.T_base_end(q)
+        sol = solve_ik(arm, T, seeds=default_ik_seeds(arm, T))
+        assert sol is not None
+        assert arm.within_limits(sol)
+        np.testing.assert_allclose(arm.T_base_end(sol), T, atol=1e-9)
+
+
+def test_inverse_kinematics_refuses_a_pose_out_of_reach():
+    arm = load_arm("rm65")
+    T = np.eye(4)
+    T[:3, 3] = [1.5, 0.0, 0.3]
+    assert solve_ik(arm, T, seeds=default_ik_seeds(arm, T)) is None
+
+
+def test_stacked_joint_angles_give_stacked_poses():
+    arm = load_arm("ur5e")
+    q = np.random.default_rng(1).uniform(-1, 1, (4, 6))
+    T = arm.T_base_end(q)
+    assert T.shape == (4, 4, 4)
+    np.testing.assert_allclose(T[2], arm.T_base_end(q[2]), atol=0)
+
+
+def test_bad_tables_are_refused_with_the_field_named():
+    good = {"name": "x", "convention": "standard", "links": [{"a": 0, "alpha": 0, "d": 0.1, "theta_offset": 0}]}
+    assert chain_from_dict(good).n_joints == 1
+    with pytest.raises(ConfigError, match="convention"):
+        chain_from_dict(dict(good, convention="craig"))
+    with pytest.raises(ConfigError, match="lacks alpha"):
+        chain_from_dict(dict(good, links=[{"a": 0, "d": 0, "theta_offset": 0}]))
+    with pytest.raises(ConfigError, match="unit"):
+        chain_from_dict(dict(good, length_unit="inch"))
+    with pytest.raises(ConfigError, match="unknown robot model"):
+        load_arm("no_such_arm")
+    with pytest.raises(ConfigError, match="joint limits"):
+        DHChain("x", "standard", np.zeros((1, 4)), joint_limits_rad=np.array([[1.0, -1.0]]))
+    with pytest.raises(ValueError, match="6 joint angles"):
+        load_arm("rm65").T_base_end(np.zeros(5))
