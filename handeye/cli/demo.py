@@ -1,7 +1,6 @@
 """``handeye demo``: simulate a rendered session, calibrate it and compare with the ground truth."""
 from __future__ import annotations
 
-import argparse
 import logging
 from pathlib import Path
 
@@ -31,9 +30,10 @@ def run(args) -> int:
     session_dir = args.out / "session"
     log.info("rendering a synthetic %s session with %d views into %s", args.mode, args.views, session_dir)
     # a realistic session: image noise, a little blur, and one view without the board
-    sim_args = argparse.Namespace(out=session_dir, mode=args.mode, views=args.views, seed=args.seed, noise_px=2.0,
-                                  blur=0.5, robot_noise=(0.0, 0.0), hidden=[str(max(2, args.views // 2))],
-                                  outliers=[])
+    # parsed like the command line, so that every other simulate option keeps its default
+    sim_args = build_parser().parse_args(["simulate", str(session_dir), "--mode", args.mode, "--views", str(args.views),
+                                          "--seed", str(args.seed), "--noise-px", "2.0", "--blur", "0.5",
+                                          "--hidden", str(max(2, args.views // 2))])
     simulate.run(sim_args)
     cal_args = build_parser().parse_args(["calibrate", str(session_dir), "--out", str(args.out / "result")])
     cal_args.debug = getattr(args, "debug", False)
