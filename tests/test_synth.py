@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from handeye.collect.visibility import board_in_image, board_out_of_image
 from handeye.conventions import VENDOR_POSE_FORMAT, T_from_pose_values
 from handeye.errors import ConfigError, DegenerateMotionError
-from handeye.frames import inv_T, is_rotation, rotation_angle_rad
+from handeye.frames import inv_T, is_rotation, rotation_angle_rad, tangent_difference
 from handeye.mounting import mounting
 from handeye.initial.motion import motion_quality
 from handeye.sim import render, scenarios
@@ -347,3 +347,86 @@ def test_vendor_session_refuses_to_overwrite_and_bad_options(tmp_path):
         write_vendor_session(tmp_path / "x", target=CharucoSpec(5, 4, 0.04, 0.03), n_views=3)
     with pytest.raises(ConfigError):
         write_vendor_session(tmp_path / "y", image_format="tiff", n_views=3)
+
+
+# ---------------------------------------------------------------- kinematic robot error
+
+def test_kinematic_session_poses_are_the_two_arms_forward_kinematics():
+    from handeye.kinematics import load_arm
+
+    s = make_corner_session(mode="eye_in_hand", n_views=8, seed=2, robot_error="kinematic")
+    m = s.robot_model
+    assert s.robot_error == "kinematic" and m["arm"] == "rm65"
+    nominal, true = load_arm("rm65"), load_arm("rm65").with_dh(np.array(m["dh_true"]))
+    assert s.joints_true.shape == s.joints_encoder.shape == (8, 6)
+    # the flange is where the TRUE arm puts it; the arm reports the NOMINAL model of its encoder readings
+    np.testing.assert_allclose(true.T_base_end(s.joints_true), s.T_base_end_true, atol=1e-9)
+    np.testing.assert_allclose(nominal.T_base_end(s.joints_encoder), s.T_base_end_reported, atol=1e-12)
+    # every DH error within the ranges drawn from: lengths 0.1-0.5 mm, angles 0.01-0.05 deg
+    err = np.abs(np.array(m["dh_error_mm_deg"]))
+    assert np.all(err[:, [0, 2]] >= 0.1 - 1e-9) and np.all(err[:, [0, 2]] <= 0.5 + 1e-9)
+    assert np.all(err[:, [1, 3]] >= 0.01 - 1e-12) and np.all(err[:, [1, 3]] <= 0.05 + 1e-12)
+    for q in s.joints_true:
+        assert nominal.within_limits(q)
+
+
+def test_kinematic_error_is_the_dh_jacobian_times_the_dh_error():
+    """Without encoder noise, reported-vs-true of every view is J_dh(q) · (dh_nominal - dh_true) to first
+    order: one shared 24-vector explains all views (correlated), unlike iid noise."""
+    from handeye.kinematics import load_arm
+
+    s = make_corner_session(mode="eye_in_hand", n_views=10, seed=4, robot_error="kinematic", encoder_sigma_deg=0.0)
+    np.testing.assert_allclose(s.joints_encoder, s.joints_true, atol=0)
+    nominal = load_arm("rm65")
+    delta = nominal.dh - np.array(s.robot_model["dh_true"])  # (6, 4), |.| <= 0.5 mm / 0.05 deg
+    xi = tangent_difference(s.T_base_end_true, s.T_base_end_reported)  # (N, 6)
+    pred = np.stack([nominal.jacobian_dh(q) @ delta.reshape(-1) for q in s.joints_true])
+    # second-order remainder: |delta|^2 times lever arms below 1 m, i.e. below ~1e-6 (1 um, 1e-4 deg)
+    np.testing.assert_allclose(xi, pred, atol=2e-6)
+    assert 0.1 < np.sqrt(np.mean(np.sum(xi[:, 3:] ** 2, axis=1))) * 1e3 < 3.0  # mm: the size the ranges give
+    # correlated across views: the base-frame position errors point the same way (mean pairwise cosine)
+    def mean_cosine(sess):
+        d = sess.T_base_end_reported[:, :3, 3] - sess.T_base_end_true[:, :3, 3]
+        u = d / np.linalg.norm(d, axis=1, keepdims=True)
+        n = len(u)
+        return (np.sum(u @ u.T) - n) / (n * (n - 1))
+    iid = make_corner_session(mode="eye_in_hand", n_views=10, seed=4, robot_noise=(0.5, 0.05))
+    assert mean_cosine(s) > 0.5
+    assert abs(mean_cosine(iid)) < 0.3
+
+
+def test_encoder_noise_has_its_sigma():
+    s = make_corner_session(mode="eye_to_hand", n_views=20, seed=1, robot_error="kinematic", encoder_sigma_deg=0.02)
+    e = np.degrees(s.joints_encoder - s.joints_true)  # 120 draws of N(0, 0.02 deg)
+    assert 0.015 < np.std(e) < 0.025 and abs(np.mean(e)) < 0.006
+
+
+def test_kinematic_sessions_are_reproducible_by_seed():
+    a = make_corner_session(mode="eye_in_hand", n_views=5, seed=9, robot_error="kinematic", arm="ur5e")
+    b = make_corner_session(mode="eye_in_hand", n_views=5, seed=9, robot_error="kinematic", arm="ur5e")
+    c = make_corner_session(mode="eye_in_hand", n_views=5, seed=10, robot_error="kinematic", arm="ur5e")
+    np.testing.assert_array_equal(a.T_base_end_reported, b.T_base_end_reported)
+    np.testing.assert_array_equal(a.joints_encoder, b.joints_encoder)
+    assert a.robot_model == b.robot_model and a.robot_model["arm"] == "ur5e"
+    assert not np.allclose(a.robot_model["dh_true"], c.robot_model["dh_true"])
+
+
+def test_none_model_reports_the_truth_and_bad_model_options_are_refused():
+    s = make_corner_session(mode="eye_in_hand", n_views=4, seed=0, robot_error="none")
+    np.testing.assert_array_equal(s.T_base_end_reported, s.T_base_end_true)
+    assert s.joints_encoder is None
+    with pytest.raises(ConfigError, match="robot error model"):
+        make_corner_session(n_views=4, robot_error="gaussian")
+    with pytest.raises(ConfigError, match="iid model"):
+        make_corner_session(n_views=4, robot_error="kinematic", robot_noise=(0.1, 0.0))
+    with pytest.raises(ConfigError, match="encoder"):
+        make_corner_session(n_views=4, robot_error="kinematic", encoder_sigma_deg=-1.0)
+
+
+def test_vendor_session_records_the_kinematic_model_and_joints(tmp_path):
+    out = write_vendor_session(tmp_path / "s", n_views=3, seed=0, robot_error="kinematic", supersample=1)
+    truth = json.loads((out / "ground_truth.json").read_text())
+    assert truth["robot_error"]["model"] == "kinematic" and len(truth["robot_error"]["dh_true"]) == 6
+    assert len(truth["views"]["1"]["joints_encoder"]) == 6
+    iid = write_vendor_session(tmp_path / "t", n_views=3, seed=0, supersample=1)
+    assert json.loads((iid / "ground_truth.json").read_text())["robot_error"] == {"model": "iid"}

@@ -18,8 +18,10 @@ from ..errors import ConfigError
 from ..mounting import mounting
 from ..records import Detection
 from ..targets import TargetSpec
-from .scenarios import (DEFAULT_INTRINSICS, DEFAULT_TARGET, outlier_offset, perturb_T_base_end, random_streams,
-                        sample_hidden_view_pose, sample_setup, sample_view_poses)
+from .robot_error import (DEFAULT_ARM, DH_ANGLE_ERROR_DEG, DH_LENGTH_ERROR_MM, ENCODER_SIGMA_DEG, check_model_name,
+                          joints_for_poses, make_kinematic_error, reachable, report_poses, workspace_scale)
+from .scenarios import (DEFAULT_INTRINSICS, DEFAULT_TARGET, default_distance_m, outlier_offset, perturb_T_base_end,
+                        random_streams, sample_hidden_view_pose, sample_setup, sample_view_poses)
 
 def _frozen(a: np.ndarray) -> np.ndarray:
     a = np.array(a, copy=True)
@@ -36,8 +38,11 @@ class CornerSession:
     (empty for hidden views), ``T_base_end_true`` / ``T_base_end_reported`` (N,4,4).
     ``T_x_true`` is ``T_end_cam`` (eye_in_hand) or ``T_base_cam`` (eye_to_hand); ``T_board_true``
     is ``T_base_board`` or ``T_end_board`` (see ``x_name``/``board_name``).
-    Reported = true @ dT (end frame) with robot noise ``robot_noise`` = (sigma_mm, sigma_deg) per
-    axis, plus a gross error on ``outlier_view_ids``.
+    ``robot_error`` names the model between true and reported poses (:mod:`handeye.sim.robot_error`):
+    ``iid``: reported = true @ dT (end frame) with ``robot_noise`` = (sigma_mm, sigma_deg) per axis;
+    ``none``; ``kinematic``: reported = the nominal arm's forward kinematics of the encoder readings
+    ``joints_encoder`` (N, 6), the true arm (``robot_model``, a JSON-ready description) being at
+    ``joints_true``. A gross error is added on ``outlier_view_ids`` in every model.
     """
 
     mode: str
@@ -55,6 +60,10 @@ class CornerSession:
     noise_px: float = 0.0
     robot_noise: tuple = (0.0, 0.0)
     seed: int = 0
+    robot_error: str = "iid"
+    joints_true: Optional[np.ndarray] = None  # (N, n) radians, kinematic model only
+    joints_encoder: Optional[np.ndarray] = None  # (N, n) radians: what the arm reports
+    robot_model: Optional[dict] = None
 
     @property
     def x_name(self) -> str:
@@ -101,7 +110,11 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
                         noise_px: float = 0.3, robot_noise: tuple[float, float] = (0.0, 0.0),
                         outlier_views: Union[int, Sequence[str]] = 0, hidden_views: Sequence[str] = (),
                         outlier_trans_mm: tuple[float, float] = (5.0, 30.0),
-                        outlier_rot_deg: tuple[float, float] = (2.0, 10.0), **view_options) -> CornerSession:
+                        outlier_rot_deg: tuple[float, float] = (2.0, 10.0), robot_error: str = "iid",
+                        arm: str = DEFAULT_ARM, encoder_sigma_deg: float = ENCODER_SIGMA_DEG,
+                        dh_length_error_mm: tuple[float, float] = DH_LENGTH_ERROR_MM,
+                        dh_angle_error_deg: tuple[float, float] = DH_ANGLE_ERROR_DEG,
+                        **view_options) -> CornerSession:
     """A corner-level synthetic session with ground truth (see module docstring for seeding).
 
     ``noise_px``: Gaussian sigma (px, per coordinate) added to the projected corners.
@@ -109,6 +122,13 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
     ``outlier_views``: a count (ids drawn at random among visible views) or explicit ids; those
     views' reported pose gets an extra gross error (``outlier_trans_mm``, ``outlier_rot_deg``).
     ``hidden_views``: ids whose robot pose turns the camera away (no corners, detection fails).
+    ``robot_error``: ``iid`` (the ``robot_noise`` above), ``none`` or ``kinematic``: the arm ``arm``
+    (a preset of :mod:`handeye.kinematics`) with DH errors drawn from ``dh_length_error_mm`` /
+    ``dh_angle_error_deg`` and encoder noise ``encoder_sigma_deg`` per joint
+    (:mod:`handeye.sim.robot_error`); the rig is shrunk to the arm's reach
+    (:func:`handeye.sim.robot_error.workspace_scale`), the camera-to-board distances with it, and only
+    poses the true arm reaches within its joint limits are drawn. So a kinematic session's geometry
+    differs from the iid session of the same seed; its robot model comes from its own random stream.
     ``view_options`` go to :func:`sample_view_poses` (distance_m, tilt_deg, roll_deg, ...).
     All corners are projected with :func:`handeye.camera.pixels_from_board_points` through
     ``mounting(mode).predict_T_cam_board(T_x_true, T_board_true, T_base_end_true)``.
@@ -119,6 +139,10 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
     if noise_px < 0 or robot_noise[0] < 0 or robot_noise[1] < 0:
         raise ConfigError("negative noise level", expected="noise_px, robot_noise >= 0",
                           received=f"noise_px={noise_px}, robot_noise={tuple(robot_noise)}")
+    check_model_name(robot_error)
+    if robot_error != "iid" and (robot_noise[0] > 0 or robot_noise[1] > 0):
+        raise ConfigError(f"robot_noise is the iid model's; robot_error is {robot_error!r}",
+                          expected="robot_noise (0, 0) or robot_error 'iid'", received=str(tuple(robot_noise)))
     view_ids = tuple(str(k) for k in range(1, n_views + 1))
     hidden = _resolve_view_ids(n_views, hidden_views, "hidden_views")
     rngs = random_streams(seed)
@@ -136,22 +160,36 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
                               received=repr(sorted(set(outliers) & set(hidden), key=int)))
 
     geo = rngs["geometry"]
-    setup = sample_setup(mode=mode, rng=geo, target=target)
+    kin, pose_ok, scale = None, None, 1.0
+    if robot_error == "kinematic":
+        kin = make_kinematic_error(rng=rngs["robot_model"], arm=arm, length_error_mm=dh_length_error_mm,
+                                   angle_error_deg=dh_angle_error_deg, encoder_sigma_deg=encoder_sigma_deg)
+        scale = workspace_scale(arm)
+        pose_ok = lambda T: reachable(kin, T) is not None  # noqa: E731
+        if "distance_m" not in view_options and mounting(mode).fixed_frame == "end":  # camera on the arm
+            d_lo, d_hi = default_distance_m(target)
+            view_options = dict(view_options, distance_m=(d_lo, max(1.5 * d_lo, d_hi * scale)))
+    setup = sample_setup(mode=mode, rng=geo, target=target, workspace_scale=scale)
     T_x, T_board = setup["T_x"], setup["T_board"]
     T_vis = sample_view_poses(mode=mode, n_views=len(visible), rng=geo, T_x=T_x, T_board=T_board, target=target,
-                              intrinsics=intrinsics, **view_options)
+                              intrinsics=intrinsics, pose_ok=pose_ok, **view_options)
     T_true = np.empty((n_views, 4, 4))
     it = iter(T_vis)
     hid_rng = rngs["hidden"]
     for k, vid in enumerate(view_ids):
         if vid in hidden:
             T_true[k] = sample_hidden_view_pose(mode=mode, rng=hid_rng, T_x=T_x, T_board=T_board, target=target,
-                                                intrinsics=intrinsics)
+                                                intrinsics=intrinsics, pose_ok=pose_ok)
         else:
             T_true[k] = next(it)
 
-    T_rep = perturb_T_base_end(T_true, rng=rngs["robot_noise"], sigma_mm=float(robot_noise[0]),
-                               sigma_deg=float(robot_noise[1]))
+    q_true = q_enc = None
+    if kin is not None:
+        q_true = joints_for_poses(kin, T_true)
+        q_enc, T_rep = report_poses(kin, q_true, rng=rngs["robot_noise"])
+    else:
+        T_rep = perturb_T_base_end(T_true, rng=rngs["robot_noise"], sigma_mm=float(robot_noise[0]),
+                                   sigma_deg=float(robot_noise[1]))
     out_rng = rngs["outliers"]
     for vid in outliers:
         k = view_ids.index(vid)
@@ -176,5 +214,8 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
                          image_points=tuple(pts_out), T_base_end_true=_frozen(T_true),
                          T_base_end_reported=_frozen(T_rep), outlier_view_ids=outliers, hidden_view_ids=hidden,
                          noise_px=float(noise_px), robot_noise=(float(robot_noise[0]), float(robot_noise[1])),
-                         seed=int(seed))
+                         seed=int(seed), robot_error=robot_error,
+                         joints_true=None if q_true is None else _frozen(q_true),
+                         joints_encoder=None if q_enc is None else _frozen(q_enc),
+                         robot_model=None if kin is None else kin.describe())
 

@@ -19,13 +19,15 @@ import numpy as np
 from ..camera import Intrinsics
 from ..collect.camera import Camera
 from ..collect.robot import PoseReading, Robot
-from ..errors import ConfigError
+from ..errors import ConfigError, HardwareError
+from ..kinematics import default_ik_seeds, solve_ik
 from ..frames import inv_T
 from ..mounting import mounting
 from ..targets import TargetSpec
 from .render import render_view
-from .scenarios import (REACH_M, DEFAULT_INTRINSICS, DEFAULT_TARGET, perturb_T_base_end, plausible_robot_pose,
-                        sample_setup, sample_view_poses)
+from .robot_error import KinematicRobotError, reachable, workspace_scale
+from .scenarios import (REACH_M, DEFAULT_INTRINSICS, DEFAULT_TARGET, default_distance_m, perturb_T_base_end,
+                        plausible_robot_pose, sample_setup, sample_view_poses)
 
 log = logging.getLogger(__name__)
 
@@ -43,12 +45,20 @@ class SimRig:
 
     @staticmethod
     def sample(*, mode: str, rng: np.random.Generator, target: TargetSpec = DEFAULT_TARGET,
-               intrinsics: Optional[Intrinsics] = None) -> "SimRig":
+               intrinsics: Optional[Intrinsics] = None, kinematic: Optional[KinematicRobotError] = None) -> "SimRig":
+        """A rig; with ``kinematic`` one sized for that arm whose start pose the arm reaches."""
         intrinsics = DEFAULT_INTRINSICS if intrinsics is None else intrinsics
-        setup = sample_setup(mode=mode, rng=rng, target=target)
+        scale, pose_ok, extra = 1.0, None, {}
+        if kinematic is not None:
+            scale = workspace_scale(kinematic.arm)
+            pose_ok = lambda T: reachable(kinematic, T) is not None  # noqa: E731
+            if mounting(mode).fixed_frame == "end":
+                d_lo, d_hi = default_distance_m(target)
+                extra["distance_m"] = (d_lo, max(1.5 * d_lo, d_hi * scale))
+        setup = sample_setup(mode=mode, rng=rng, target=target, workspace_scale=scale)
         T0 = sample_view_poses(mode=mode, n_views=1, rng=rng, T_x=setup["T_x"], T_board=setup["T_board"],
                                target=target, intrinsics=intrinsics, tilt_deg=(0.0, 8.0), roll_deg=10.0,
-                               aim_deg=2.0)[0]
+                               aim_deg=2.0, pose_ok=pose_ok, **extra)[0]
         return SimRig(mode, setup["T_x"], setup["T_board"], target, intrinsics, T0)
 
     def truth(self) -> dict:
@@ -59,12 +69,21 @@ class SimRig:
 
 
 class SimRobot(Robot):
-    """A simulated arm with pose noise (per axis, end frame) between reported and true poses."""
+    """A simulated arm with pose noise between reported and true poses.
+
+    Without ``kinematic``: per-axis noise in the end frame (``pose_noise_mm``, ``pose_noise_deg``).
+    With a :class:`handeye.sim.robot_error.KinematicRobotError`: the controller solves the commanded
+    pose on the nominal arm and drives until its encoders read those angles, so it reports the
+    commanded pose and those joint angles (``PoseReading.joints``), while the true joints differ by
+    the encoder noise and the flange sits where the TRUE arm puts them. Poses the arm cannot reach
+    are refused like a real controller refuses them (HardwareError).
+    """
 
     is_real = False
 
     def __init__(self, rig: SimRig, *, pose_noise_mm: float = 0.1, pose_noise_deg: float = 0.02,
-                 rng: Optional[np.random.Generator] = None, reach_m: tuple = REACH_M):
+                 rng: Optional[np.random.Generator] = None, reach_m: tuple = REACH_M,
+                 kinematic: Optional[KinematicRobotError] = None):
         if pose_noise_mm < 0 or pose_noise_deg < 0:
             raise ConfigError("negative simulated pose noise", expected=">= 0",
                               received=f"{pose_noise_mm} mm, {pose_noise_deg} deg")
@@ -73,21 +92,37 @@ class SimRobot(Robot):
         self.pose_noise_mm, self.pose_noise_deg = float(pose_noise_mm), float(pose_noise_deg)
         self.rng = np.random.default_rng() if rng is None else rng
         self.reach_m = reach_m
+        self.kinematic = kinematic
+        self.joints = None
         self.n_moves = 0
         self._set(rig.T_base_end_start)
 
     def _set(self, T_cmd: np.ndarray) -> None:
+        if self.kinematic is not None:
+            k = self.kinematic
+            q_enc = solve_ik(k.nominal, T_cmd, seeds=default_ik_seeds(k.nominal, T_cmd))
+            if q_enc is None:
+                raise HardwareError("the simulated arm cannot reach the commanded pose",
+                                    received=f"flange at {np.round(np.asarray(T_cmd)[:3, 3], 3).tolist()} m",
+                                    hint="plan poses within the arm's reach")
+            q_true = q_enc - self.rng.normal(0.0, k.encoder_sigma_rad, size=q_enc.shape)
+            self.joints = tuple(float(v) for v in q_enc)
+            self.T_reported = k.nominal.T_base_end(q_enc)
+            self.T_true = k.true.T_base_end(q_true)
+            return
         dT = perturb_T_base_end(np.eye(4), rng=self.rng, sigma_mm=self.pose_noise_mm,
                                       sigma_deg=self.pose_noise_deg)[0]
         self.T_reported = np.array(T_cmd, float)
         self.T_true = self.T_reported @ inv_T(dT)
 
     def describe(self) -> dict:
+        if self.kinematic is not None:
+            return {"backend": "sim", "robot_error": self.kinematic.describe()}
         return {"backend": "sim", "pose_noise_mm": self.pose_noise_mm, "pose_noise_deg": self.pose_noise_deg,
                 "noise_convention": "reported = true @ dT, dT per motion in the end frame, per-axis sigma"}
 
     def read_pose(self) -> PoseReading:
-        return PoseReading(self.T_reported.copy(), time.time(), {"errors": [], "backend": "sim"})
+        return PoseReading(self.T_reported.copy(), time.time(), {"errors": [], "backend": "sim"}, self.joints)
 
     def move_to(self, T_base_end: np.ndarray, *, speed_fraction: float) -> None:
         if not 0 < speed_fraction <= 1:
@@ -97,6 +132,8 @@ class SimRobot(Robot):
 
     def pose_ok(self, T_base_end: np.ndarray) -> bool:
         """Within reach and above the table (used by the planner)."""
+        if self.kinematic is not None and reachable(self.kinematic, T_base_end) is None:
+            return False
         return plausible_robot_pose(T_base_end, self.reach_m)
 
     def T_cam_board_true(self) -> np.ndarray:
@@ -105,8 +142,9 @@ class SimRobot(Robot):
     def simulate_hand_guiding(self) -> None:
         """Interactive sessions: a simulated operator drags the arm to a new pose showing the board."""
         r = self.rig
+        pose_ok = None if self.kinematic is None else self.pose_ok
         T = sample_view_poses(mode=r.mode, n_views=1, rng=self.rng, T_x=r.T_x, T_board=r.T_board,
-                              target=r.target, intrinsics=r.intrinsics)[0]
+                              target=r.target, intrinsics=r.intrinsics, pose_ok=pose_ok)[0]
         self._set(T)
         self.n_moves += 1
 

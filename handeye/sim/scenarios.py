@@ -17,7 +17,7 @@ translation with sigma_mm per axis).
 """
 from __future__ import annotations
 
-from typing import Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 
@@ -33,7 +33,7 @@ DEFAULT_TARGET = ChessboardSpec(11, 8, 0.03)
 
 #: Streams spawned from one seed (index into SeedSequence(seed).spawn(len(STREAMS))). Append new
 #: streams at the end: the existing ones (and so every seeded session) stay as they are.
-STREAMS = ("geometry", "pixel_noise", "robot_noise", "outliers", "image_noise", "hidden")
+STREAMS = ("geometry", "pixel_noise", "robot_noise", "outliers", "image_noise", "hidden", "robot_model")
 
 
 def random_streams(seed: int) -> dict:
@@ -92,7 +92,8 @@ def _small_tilt(rng: np.random.Generator, max_deg: float) -> np.ndarray:
     return R_from_rotvec(ang * np.array([np.cos(phi), np.sin(phi), 0.0]))
 
 
-def _camera_on_flange(rng: np.random.Generator, c_board: np.ndarray, target: TargetSpec) -> tuple:
+def _camera_on_flange(rng: np.random.Generator, c_board: np.ndarray, target: TargetSpec,
+                      scale: float = 1.0) -> tuple:
     """(T_end_cam, T_base_board): camera on the flange, board lying face-up on the table."""
     while True:
         radial = rng.uniform(0.04, 0.08)
@@ -103,18 +104,19 @@ def _camera_on_flange(rng: np.random.Generator, c_board: np.ndarray, target: Tar
     t_end_cam = np.array([radial * np.cos(az), radial * np.sin(az), axial])
     R_end_cam = _Rz(rng.uniform(-np.pi, np.pi)) @ _small_tilt(rng, 10.0)
     T_x = make_T(R_end_cam, t_end_cam)
-    center_base = np.array([rng.uniform(0.5, 0.7), rng.uniform(-0.15, 0.15), rng.uniform(0.0, 0.02)])
+    center_base = np.array([rng.uniform(0.5, 0.7) * scale, rng.uniform(-0.15, 0.15) * scale, rng.uniform(0.0, 0.02)])
     R_base_board = _Rz(rng.uniform(-np.pi, np.pi)) @ _Rx(np.pi) @ _small_tilt(rng, 2.0)
     T_board = make_T(R_base_board, center_base - R_base_board @ c_board)
     return T_x, T_board
 
 
-def _camera_beside_robot(rng: np.random.Generator, c_board: np.ndarray, target: TargetSpec) -> tuple:
+def _camera_beside_robot(rng: np.random.Generator, c_board: np.ndarray, target: TargetSpec,
+                         scale: float = 1.0) -> tuple:
     """(T_base_cam, T_end_board): a fixed camera looking at the workspace, board in the gripper."""
-    work = np.array([rng.uniform(0.4, 0.6), rng.uniform(-0.1, 0.1), rng.uniform(0.15, 0.35)])
+    work = np.array([rng.uniform(0.4, 0.6), rng.uniform(-0.1, 0.1), rng.uniform(0.15, 0.35)]) * scale
     # 1.0-1.5 m; closer for boards smaller than the default, which must come near the camera
     board_scale = default_distance_m(target)[1] / 0.9
-    dist = rng.uniform(1.0, 1.5) * float(np.clip(board_scale, 0.6, 1.0))
+    dist = rng.uniform(1.0, 1.5) * float(np.clip(board_scale, 0.6, 1.0)) * scale
     az = np.radians(rng.uniform(-100.0, 100.0))
     el = np.radians(rng.uniform(25.0, 65.0))
     cam = work + dist * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
@@ -134,7 +136,8 @@ def _camera_beside_robot(rng: np.random.Generator, c_board: np.ndarray, target: 
 _RIG_BY_CAMERA_FRAME = {"end": _camera_on_flange, "base": _camera_beside_robot}
 
 
-def sample_setup(*, mode: str, rng: np.random.Generator, target: TargetSpec = DEFAULT_TARGET) -> dict:
+def sample_setup(*, mode: str, rng: np.random.Generator, target: TargetSpec = DEFAULT_TARGET,
+                 workspace_scale: float = 1.0) -> dict:
     """A plausible ground-truth rig for ``mode``.
 
     eye_in_hand: camera on the flange (``T_end_cam``: 5-10 cm offset, optical axis within 10 deg
@@ -145,12 +148,22 @@ def sample_setup(*, mode: str, rng: np.random.Generator, target: TargetSpec = DE
     elevation with the image's up roughly up (``T_base_cam``), and a board held by the gripper
     2-5 cm in front of the flange with its printed face along the flange z (``T_end_board``).
 
+    ``workspace_scale`` < 1 shrinks the rig for a smaller arm (:func:`handeye.sim.robot_error.workspace_scale`):
+    the board (eye_in_hand) or workspace centre (eye_to_hand) positions scale with it, the fixed
+    camera's distance too.
+
     Base frame: x forward, z up, origin on the table top. Returns
     ``{"mode", "x_name", "board_name", "T_x", "T_board"}`` where ``T_x``/``T_board`` are the
     transforms named by ``x_name``/``board_name`` (as in :class:`handeye.records.HandEyeEstimate`).
     """
     mount = mounting(mode)
-    T_x, T_board = _RIG_BY_CAMERA_FRAME[mount.fixed_frame](rng, board_center(target), target)
+    if not 0.1 <= float(workspace_scale) <= 1.0:
+        raise ConfigError("invalid workspace scale", expected="0.1 <= scale <= 1", received=str(workspace_scale))
+    if float(workspace_scale) == 1.0:  # the seeded geometry of every existing session stays as it was
+        T_x, T_board = _RIG_BY_CAMERA_FRAME[mount.fixed_frame](rng, board_center(target), target)
+    else:
+        T_x, T_board = _RIG_BY_CAMERA_FRAME[mount.fixed_frame](rng, board_center(target), target,
+                                                               float(workspace_scale))
     return {"mode": mode, "x_name": mount.x_name, "board_name": mount.board_name, "T_x": T_x, "T_board": T_board}
 
 
@@ -197,7 +210,7 @@ def sample_view_poses(*, mode: str, n_views: int, rng: np.random.Generator, T_x:
                       distance_m: Optional[tuple[float, float]] = None, tilt_deg: tuple[float, float] = (15.0, 40.0),
                       roll_deg: float = 80.0, aim_deg: float = 6.0, margin_px: Optional[float] = None,
                       reach_m: tuple[float, float] = REACH_M, min_axis_spread_deg: Optional[float] = None,
-                      max_tries: int = 3000) -> np.ndarray:
+                      max_tries: int = 3000, pose_ok: Optional[Callable[[np.ndarray], bool]] = None) -> np.ndarray:
     """(N,4,4) robot poses ``T_base_end`` that show the board the way users are told to.
 
     Per view: camera-to-board-centre distance in ``distance_m`` (default
@@ -208,7 +221,8 @@ def sample_view_poses(*, mode: str, n_views: int, rng: np.random.Generator, T_x:
     the whole pattern is in the image with ``margin_px`` and the flange is within ``reach_m`` of
     the base origin and above the table. With 3 or more views the robot motions must pass the
     calibration's own degeneracy gates (:func:`handeye.initial.motion.motion_quality`; None takes
-    ``min_axis_spread_deg`` from configs/calibration.yaml), else the set is redrawn.
+    ``min_axis_spread_deg`` from configs/calibration.yaml), else the set is redrawn. ``pose_ok``
+    (optional) is one more test of each ``T_base_end``, e.g. that a kinematic arm reaches it.
     """
     mount = mounting(mode)
     intrinsics = DEFAULT_INTRINSICS if intrinsics is None else intrinsics
@@ -245,6 +259,8 @@ def sample_view_poses(*, mode: str, n_views: int, rng: np.random.Generator, T_x:
                 T_base_end = _T_base_end_from_T_cam_board(mode, T_x, T_board, T_cam_board)
                 if not plausible_robot_pose(T_base_end, reach_m):
                     continue
+                if pose_ok is not None and not pose_ok(T_base_end):
+                    continue
                 out[k] = T_base_end
                 break
             else:
@@ -267,7 +283,8 @@ def sample_view_poses(*, mode: str, n_views: int, rng: np.random.Generator, T_x:
 
 def sample_hidden_view_pose(*, mode: str, rng: np.random.Generator, T_x: np.ndarray, T_board: np.ndarray,
                             target: TargetSpec = DEFAULT_TARGET, intrinsics: Optional[Intrinsics] = None,
-                            reach_m: tuple[float, float] = REACH_M, max_tries: int = 3000) -> np.ndarray:
+                            reach_m: tuple[float, float] = REACH_M, max_tries: int = 3000,
+                            pose_ok: Optional[Callable[[np.ndarray], bool]] = None) -> np.ndarray:
     """A robot pose ``T_base_end`` (4,4) at which no part of the board is in the image.
 
     A view of the board (distance up to twice the normal range) whose camera is then turned
@@ -288,7 +305,7 @@ def sample_hidden_view_pose(*, mode: str, rng: np.random.Generator, T_x: np.ndar
         if not board_out_of_image(target, intrinsics, T_cam_board):
             continue
         T_base_end = _T_base_end_from_T_cam_board(mode, T_x, T_board, T_cam_board)
-        if plausible_robot_pose(T_base_end, reach_m):
+        if plausible_robot_pose(T_base_end, reach_m) and (pose_ok is None or pose_ok(T_base_end)):
             return T_base_end
     raise ConfigError("cannot sample a pose that hides the board", expected="a reachable pose looking away",
                       received=f"{max_tries} rejected samples", hint="widen reach_m")

@@ -50,7 +50,7 @@ def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 2
                          outlier_views: Union[int, Sequence[str]] = 0, image_format: str = "jpg",
                          target: ChessboardSpec = DEFAULT_TARGET, intrinsics: Optional[Intrinsics] = None,
                          supersample: int = 4, jpeg_quality: int = 95, overwrite: bool = False,
-                         workers: int = 2, **view_options) -> Path:
+                         workers: int = 2, robot_error: str = "iid", arm: str = "rm65", **view_options) -> Path:
     """Render a synthetic session in the vendor layout and return its folder.
 
     Writes ``1.jpg .. N.jpg`` (or ``.png``; BGR, JPEG quality ``jpeg_quality``), ``poses.txt``
@@ -64,7 +64,10 @@ def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 2
     same arguments, so corner-level and image-level experiments share their ground truth.
     ``image_noise``: Gaussian noise sigma in grey levels; ``blur_sigma_px``: Gaussian blur;
     ``hidden_views``: ids whose robot pose turns the camera away from the board (detection must
-    fail there); ``outlier_views``: count or ids given a gross robot pose error.
+    fail there); ``outlier_views``: count or ids given a gross robot pose error; ``robot_error``
+    (``iid`` | ``kinematic`` | ``none``) and ``arm``: the robot error model of
+    :mod:`handeye.sim.robot_error` (kinematic: ground_truth.json also holds the true and nominal DH
+    tables and each view's true and encoder joint angles; the vendor layout has no place for joints).
     """
     if not isinstance(target, ChessboardSpec):
         raise ConfigError("the vendor layout describes chessboards only", expected="a ChessboardSpec target",
@@ -81,7 +84,7 @@ def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 2
     intrinsics = DEFAULT_INTRINSICS if intrinsics is None else intrinsics
     session = make_corner_session(mode=mode, n_views=n_views, seed=seed, target=target, intrinsics=intrinsics,
                                   noise_px=0.0, robot_noise=robot_noise, outlier_views=outlier_views,
-                                  hidden_views=hidden_views, **view_options)
+                                  hidden_views=hidden_views, robot_error=robot_error, arm=arm, **view_options)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     _clear_previous_session(out, overwrite=overwrite)
@@ -120,6 +123,9 @@ def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 2
                       "T_base_end_reported": session.T_base_end_reported[k].tolist(),
                       "T_cam_board_true": T_cam_board[k].tolist(), "hidden": vid in session.hidden_view_ids,
                       "outlier": vid in session.outlier_view_ids}
+        if session.joints_encoder is not None:
+            views[vid]["joints_encoder"] = session.joints_encoder[k].tolist()
+            views[vid]["joints_true"] = session.joints_true[k].tolist()
     truth = {
         "handeye_synthetic_ground_truth": 1,
         "mode": mode,
@@ -145,6 +151,7 @@ def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 2
             "render_supersample": int(supersample),
             "jpeg_quality": int(jpeg_quality) if fmt == "jpg" else None,
         },
+        "robot_error": session.robot_model if session.robot_model is not None else {"model": session.robot_error},
         "seed": int(seed),
         "provenance": provenance(extra={"generator": "handeye.sim.vendor.write_vendor_session"}),
     }
