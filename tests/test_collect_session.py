@@ -288,3 +288,29 @@ def test_camera_unplugged_mid_session_keeps_what_was_saved(tmp_path):
         col.run_auto(n_views=4, speed_fraction=0.2)
     assert sorted(_records(tmp_path / "u")) == ["1", "2", "3"]
     assert len(_load(tmp_path / "u").views) == 3
+
+
+def test_a_kinematic_simulated_arm_records_its_joint_angles(tmp_path):
+    from handeye.sim.robot_error import make_kinematic_error
+
+    kin = make_kinematic_error(rng=np.random.default_rng(4))
+    rig = SimRig.sample(mode="eye_in_hand", rng=np.random.default_rng(0), intrinsics=default_intrinsics(640, 360),
+                        kinematic=kin)
+    robot = SimRobot(rig, rng=np.random.default_rng(1), kinematic=kin)
+    writer = sw.SessionWriter(tmp_path / "k", mode="eye_in_hand", target=rig.target, intrinsics=rig.intrinsics)
+    cap = Collector(robot=robot, camera=SimCamera(robot, rng=np.random.default_rng(3)), writer=writer,
+                    target=rig.target, mode="eye_in_hand").capture()
+    assert cap.kept, cap.reason
+    rec = yaml.safe_load((tmp_path / "k" / "views" / f"{cap.view_id}.yaml").read_text())
+    joints = np.array(rec["joints"])
+    assert joints.shape == (6,)
+    # the reported pose is the nominal model of the recorded encoder angles; the flange is off by the DH errors
+    np.testing.assert_allclose(kin.nominal.T_base_end(joints), np.array(rec["pose"]), atol=1e-9)
+    off_mm = 1e3 * np.linalg.norm(robot.T_true[:3, 3] - robot.T_reported[:3, 3])
+    assert 0.05 < off_mm < 5.0
+    from handeye.errors import HardwareError
+
+    with pytest.raises(HardwareError, match="cannot reach"):
+        far = np.eye(4)
+        far[:3, 3] = [2.0, 0.0, 0.5]
+        robot.move_to(far, speed_fraction=0.5)

@@ -159,6 +159,8 @@ class Collector:
                             "sharpness": round(float(sharp), 2), "n_corners": int(len(ids))}}
         if self.camera.last_frame_info:
             extra["camera_frame"] = dict(self.camera.last_frame_info)
+        if first.joints is not None:
+            extra["joints"] = [float(v) for v in first.joints]  # radians, the encoder readings with this pose
         self.writer.write_view(vid, image, first.T_base_end, t_image=t_image, t_pose=first.t_pose,
                                robot_state=state, extra=extra)
         self._next_id += 1

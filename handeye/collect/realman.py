@@ -410,9 +410,12 @@ class RealmanArm(Robot):
         errors = realman_error_codes(st.get("err", st.get("arm_err")))
         state = {"raw_pose": [v for v in pose], "pose_units": "0.001 mm, 0.001 rad (x,y,z,rx,ry,rz; R=Rz@Ry@Rx)",
                  "errors": errors, "work_frame": self.work_frame, "tool_frame": self.tool_frame}
+        joints = None
         if isinstance(st.get("joint"), list):
             state["joint_mdeg"] = list(st["joint"])
-        return PoseReading(T, t, state)
+            if st["joint"] and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in st["joint"]):
+                joints = tuple(float(np.radians(v / 1000.0)) for v in st["joint"])  # 0.001 deg -> rad
+        return PoseReading(T, t, state, joints)
 
     def stop(self) -> bool:
         """Best-effort trajectory stop on a fresh connection; True when the arm confirmed."""

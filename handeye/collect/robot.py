@@ -9,6 +9,7 @@ from __future__ import annotations
 import abc
 import time
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 
@@ -20,12 +21,15 @@ class PoseReading:
     """One pose read: ``T_base_end`` (metres), the UNIX time it was read, and the backend's state.
 
     ``state`` is YAML-friendly (numbers, strings, lists): raw values as the robot sent them, error
-    codes under ``errors`` (list of ints, empty when healthy), tool/work frame names.
+    codes under ``errors`` (list of ints, empty when healthy), tool/work frame names. ``joints``: the
+    joint angles (radians, encoder readings) when the arm reports them, else None; the session
+    writer records them as the view's ``joints``.
     """
 
     T_base_end: np.ndarray  # (4, 4)
     t_pose: float
     state: dict = field(default_factory=dict)
+    joints: Optional[tuple] = None
 
     @property
     def errors(self) -> list:

@@ -4,7 +4,8 @@ Layout written:
 
     OUT/session.yaml          header: mode, target, pose_format, intrinsics, how it was collected
     OUT/images/<id>.png       the camera frame exactly as grabbed (never a preview)
-    OUT/views/<id>.yaml       one record per capture: id, image, pose, t_image, t_pose, robot_state
+    OUT/views/<id>.yaml       one record per capture: id, image, pose, t_image, t_pose, robot_state,
+                              joints (joint angles in radians, when the arm reports them)
     OUT/ground_truth.json     simulated backends only
 
 Every file is written by :func:`handeye.output.atomic_write_bytes` (a temporary ``.<name>.*.tmp`` in
