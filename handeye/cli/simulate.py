@@ -19,6 +19,10 @@ def add_arguments(p) -> None:
     p.add_argument("--blur", type=float, default=0.0, help="Gaussian blur sigma in pixels")
     p.add_argument("--robot-noise", nargs=2, type=float, metavar=("MM", "DEG"), default=(0.0, 0.0),
                    help="per-axis robot pose noise added to the reported poses")
+    p.add_argument("--robot-error", choices=("iid", "kinematic", "none"), default="iid",
+                   help="robot error model: iid (--robot-noise per pose), kinematic (a 6-axis arm with DH errors and "
+                        "encoder noise, handeye.sim.robot_error) or none")
+    p.add_argument("--arm", default="rm65", help="kinematic arm preset (rm65, ur5e) or DH YAML file")
     p.add_argument("--hidden", nargs="*", default=[], metavar="ID", help="views rendered without the board")
     p.add_argument("--outliers", nargs="*", default=[], metavar="ID", help="views given a wrong robot pose")
     p.set_defaults(func=run)
@@ -33,7 +37,7 @@ def run(args) -> int:
     path = write_vendor_session(args.out, mode=args.mode, n_views=args.views, seed=args.seed,
                                 image_noise=args.noise_px, blur_sigma_px=args.blur,
                                 robot_noise=tuple(args.robot_noise), hidden_views=tuple(args.hidden),
-                                outlier_views=tuple(args.outliers))
+                                outlier_views=tuple(args.outliers), robot_error=args.robot_error, arm=args.arm)
     print(f"synthetic {args.mode} session with {args.views} rendered views: {path}")
     print(f"ground truth: {Path(path) / 'ground_truth.json'}")
     return 0
