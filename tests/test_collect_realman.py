@@ -207,3 +207,17 @@ def test_silent_motion_times_out_and_stops_the_arm():
 def test_emulator_rejects_unknown_fault():
     with pytest.raises(ValueError):
         RealmanEmulator(faults=["explode"])
+
+
+def test_joint_angles_are_read_in_radians_and_match_the_pose():
+    from handeye.kinematics import load_arm
+
+    arm = load_arm("rm65")
+    q = np.radians([10.0, -20.0, 70.0, 5.0, 40.0, -30.0])
+    with RealmanEmulator(T_base_end=arm.T_base_end(q)) as emu:
+        with _arm(emu) as robot:
+            r = robot.read_pose()
+    assert r.state["joint_mdeg"] and len(r.joints) == 6
+    # the controller's 0.001 deg joints and its 0.001 mm pose describe the same flange pose
+    rot_deg, trans_mm = pose_error(arm.T_base_end(np.array(r.joints)), r.T_base_end)
+    assert trans_mm < 0.01 and rot_deg < 0.001

@@ -158,11 +158,28 @@ class RealmanEmulator:
             return False
         return True
 
+    def _joint_units(self) -> list | None:
+        """The RM65-B's joint angles (0.001 deg) at the current pose (nominal DH, cached per pose), or None
+        when the arm cannot reach it (then the state has no ``joint`` field)."""
+        key = tuple(self.pose_units)
+        if getattr(self, "_joints_for", (None,))[0] != key:
+            from ..collect.realman import T_base_end_from_realman_pose
+            from ..kinematics import default_ik_seeds, load_arm, solve_ik
+
+            arm = load_arm("rm65")
+            T = T_base_end_from_realman_pose(list(key))
+            q = solve_ik(arm, T, seeds=default_ik_seeds(arm, T))
+            self._joints_for = (key, None if q is None else [int(round(v)) for v in np.degrees(q) * 1000.0])
+        return self._joints_for[1]
+
     def _arm_state(self) -> dict:
         err = {"list": self.errors or [0], "int": self.errors[0] if self.errors else 0,
                "dict": {"err_len": len(self.errors), "err": self.errors}}[self.err_format]
-        return {"state": "current_arm_state",
-                "arm_state": {"joint": [0, 10000, 20000, 0, 30000, 0], "pose": list(self.pose_units), "err": err}}
+        state = {"pose": list(self.pose_units), "err": err}
+        joints = self._joint_units()
+        if joints is not None:
+            state = {"joint": joints, **state}
+        return {"state": "current_arm_state", "arm_state": state}
 
     def _answer(self, conn: socket.socket, cmd: dict) -> bool:
         name = cmd.get("command")
