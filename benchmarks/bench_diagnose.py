@@ -28,12 +28,15 @@ import yaml
 
 import handeye.pipeline as calibrate_mod
 from handeye.pipeline import CalibrateOptions, run_calibration
-from handeye.conventions import VENDOR_POSE_FORMAT, pose_values_from_T
+from dataclasses import replace
+
+from handeye.conventions import VENDOR_POSE_FORMAT, PoseFormat, pose_values_from_T
 from handeye.diagnose import diagnose_run
 from handeye.frames import T_from_rotvec, inv_T
 from handeye.mounting import mounting
 from handeye.session import load_session
 from handeye.sim.corners import make_corner_session
+from handeye.targets import CharucoSpec, ChessboardSpec
 
 
 def _write_vendor(folder: Path, cs, T) -> Path:
@@ -50,14 +53,7 @@ def _write_vendor(folder: Path, cs, T) -> Path:
 
 
 def _diagnose(folder: Path, cs) -> dict:
-    dets = {d.view_id: d for d in cs.detections()}
-    orig = calibrate_mod.detect_views
-    calibrate_mod.detect_views = lambda items, target, **kw: {v: dets.get(v, "not found") for v, _ in items}
-    try:
-        run = run_calibration(load_session(folder), CalibrateOptions(refine=False))
-    finally:
-        calibrate_mod.detect_views = orig
-    return diagnose_run(run, images=False, cross_validation=False)
+    return _run_and_diagnose(folder, cs)[1]
 
 
 CRASHED = collections.Counter()  # (stage, error) -> sessions, over every diagnose_run of the benchmark
@@ -70,6 +66,7 @@ def _count_crashes(d: dict) -> None:
 
 def clean(seeds: range, root: Path) -> int:
     bad = collections.Counter()
+    modes = collections.Counter()  # the mode the data decide (the session states it): right, wrong, undecided
     n = 0
     t0 = time.perf_counter()
     for mode in ("eye_in_hand", "eye_to_hand"):
@@ -80,11 +77,15 @@ def clean(seeds: range, root: Path) -> int:
                     d = _diagnose(_write_vendor(root / "clean", cs, cs.T_base_end_reported), cs)
                     _count_crashes(d)
                     n += 1
+                    decided = ((d.get("mode") or {}).get("evidence") or {}).get("decided")
+                    modes[decided == mode if decided else "undecided"] += 1
                     for f in d["findings"]:
                         if f["severity"] in ("fail", "warn"):
                             bad[(f["code"], rn, nv)] += 1
     print(f"clean sessions: {n} ({time.perf_counter() - t0:.0f} s), with a fail/warn finding: "
-          f"{sum(bad.values())}")
+          f"{sum(bad.values())}; mode from the data: right {modes[True]}, wrong {modes[False]}, undecided "
+          f"{modes['undecided']}")
+    bad[("wrong mode detection", None, None)] += modes[False]
     for k, v in sorted(bad.items(), key=str):
         print(f"  {k}: {v}")
     return sum(bad.values())
@@ -240,9 +241,200 @@ def realdata(data: Path, root: Path) -> int:
             cv = d.get("cross_validation", {})
             cvt = (f"; cross-validation {cv['verdict']} (rotation {cv.get('ratio_rot')}x, translation "
                    f"{cv.get('ratio_trans')}x)" if "verdict" in cv else "")
+            sc = d.get("scale") or {}
+            if sc.get("scale") is not None:
+                cvt += f"; scale {sc['scale']:.4f} +- {sc['sigma']:.4f}"
             print(f"  {label:32s} {how:14s} {'named' if named else 'MISSED'}: {codes}{cvt} "
                   f"[{time.perf_counter() - t0:.1f} s]")
     return missed
+
+
+# ------------------------------------------------------------------------------ forensics (issue: name the mistake)
+FORENSIC_TARGETS = {"chessboard 11x8": ChessboardSpec(11, 8, 0.03), "chessboard 7x5 (odd x odd)": ChessboardSpec(7, 5, 0.025),
+                    "chessboard 8x6 (even x even)": ChessboardSpec(8, 6, 0.03), "chessboard 6x6 (square)": ChessboardSpec(6, 6, 0.03),
+                    "charuco 9x7": CharucoSpec(9, 7, 0.03, 0.022)}
+SYMMETRIC = ("chessboard 7x5 (odd x odd)", "chessboard 8x6 (even x even)", "chessboard 6x6 (square)")
+#: fault -> (expected code, targets it runs on)
+FAULTS = {
+    "square size +10 %": ("square_size", ("chessboard 11x8", "charuco 9x7")),
+    "square size -10 %": ("square_size", ("chessboard 11x8", "charuco 9x7")),
+    "square size +20 %": ("square_size", ("chessboard 11x8", "charuco 9x7")),
+    "square size -20 %": ("square_size", ("chessboard 11x8", "charuco 9x7")),
+    "Euler kind (intrinsic xyz read as extrinsic)": ("euler_order", SYMMETRIC + ("charuco 9x7",)),
+    "Euler order (zyx read as xyz)": ("euler_order", SYMMETRIC + ("charuco 9x7",)),
+    "mode omitted": ("mode detected", ("chessboard 11x8", "chessboard 7x5 (odd x odd)", "charuco 9x7")),
+    "mode swapped": ("mode_swapped", ("chessboard 11x8", "chessboard 7x5 (odd x odd)", "charuco 9x7")),
+    "shift by 1 line": ("pairs_shifted", ("chessboard 11x8", "chessboard 8x6 (even x even)", "charuco 9x7")),
+    "shift by 2 lines": ("pairs_shifted", ("chessboard 11x8", "chessboard 8x6 (even x even)", "charuco 9x7")),
+}
+
+
+def _write_session(folder: Path, cs, T, *, square_m=None, mode="same", fmt=VENDOR_POSE_FORMAT) -> Path:
+    """Vendor layout for chessboards, session.yaml for ChArUco; ``mode`` "same" (the truth), None (omitted)
+    or a mode name; ``square_m`` the stated square size; poses written with ``fmt``, read as the vendor's."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for old in list(folder.glob("*.jpg")) + list(folder.glob("*.png")) + list(folder.glob("*.yaml")):
+        old.unlink()
+    t = cs.target
+    stated_mode = cs.mode if mode == "same" else mode
+    vals = [pose_values_from_T(x, fmt) for x in T]
+    if t.kind == "chessboard":
+        for k in range(1, cs.n_views + 1):
+            (folder / f"{k}.jpg").write_bytes(b"")
+        (folder / "poses.txt").write_text("\n".join(",".join(f"{x:.9f}" for x in v) for v in vals) + "\n")
+        cfg = {"checkerboard_args": {"XX": t.cols, "YY": t.rows, "L": square_m or t.square_m}}
+        if stated_mode:
+            cfg["mode"] = stated_mode
+        (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
+        return folder
+    views = []
+    for k, v in enumerate(vals):
+        vid = str(k + 1)
+        if k < cs.n_views:
+            (folder / f"{vid}.png").write_bytes(b"")
+        views.append({"id": vid, "image": f"{vid}.png", "pose": [float(x) for x in v]})
+    target = dict(t.to_dict(), square_m=square_m or t.square_m)
+    doc = {"handeye_session": 1, "target": target, "views": views[:cs.n_views],
+           "pose_format": {k: getattr(VENDOR_POSE_FORMAT, k) for k in PoseFormat.__dataclass_fields__}}
+    if stated_mode:
+        doc["mode"] = stated_mode
+    (folder / "poses.txt").unlink(missing_ok=True)
+    (folder / "session.yaml").write_text(yaml.safe_dump(doc))
+    return folder / "session.yaml"
+
+
+def _turn_some_views(cs, rng):
+    """A detector that numbers a symmetric board from another corner in about half of the views."""
+    syms = cs.target.symmetries()
+    if len(syms) < 2:
+        return cs
+    pts = list(cs.image_points)
+    for k in rng.choice(cs.n_views, cs.n_views // 2, replace=False):
+        pts[k] = pts[k][syms[1 + rng.integers(len(syms) - 1)]]
+    return replace(cs, image_points=tuple(pts))
+
+
+def _run_case(args) -> dict:
+    """One session: clean or with one fault injected; what the run and the diagnostics said."""
+    fault, tname, mode, seed, root = args
+    folder = Path(root) / f"{fault}-{tname}-{mode}-{seed}".replace(" ", "_").replace("%", "pc")
+    target = FORENSIC_TARGETS[tname]
+    rng = np.random.default_rng(1000 + seed)
+    rn = [(0.3, 0.05), (1.0, 0.1), (2.0, 0.3)][seed % 3]
+    nv = (12, 15, 20)[seed % 3]
+    extra = 2 if fault.startswith("shift") else 0
+    cs_all = make_corner_session(mode=mode, n_views=nv + extra, seed=seed, robot_noise=rn, noise_px=0.3 + 0.2 * (seed % 3),
+                                 target=target)
+    cs = replace(cs_all, view_ids=cs_all.view_ids[:nv], corner_ids=cs_all.corner_ids[:nv],
+                 image_points=cs_all.image_points[:nv])
+    cs = _turn_some_views(cs, rng)
+    T = cs_all.T_base_end_reported[:nv]
+    kw: dict = {}
+    shift = 0
+    if fault.startswith("square size"):
+        f = 1.0 + float(fault.split()[2]) / 100.0
+        kw["square_m"] = target.square_m * f
+    elif fault.startswith("Euler kind"):
+        kw["fmt"] = replace(VENDOR_POSE_FORMAT, euler_kind="intrinsic")
+    elif fault.startswith("Euler order"):
+        kw["fmt"] = replace(VENDOR_POSE_FORMAT, euler_order="zyx")
+    elif fault == "mode omitted":
+        kw["mode"] = None
+    elif fault == "mode swapped":
+        kw["mode"] = mounting(mode).other.name
+    elif fault.startswith("shift"):
+        shift = int(fault.split()[2])
+        T = cs_all.T_base_end_reported[shift:shift + nv]  # image k carries the pose of image k + shift
+    path = _write_session(folder, cs, T, **kw)
+    run, d = _run_and_diagnose(path, cs)
+    codes = {f["code"] for f in d["findings"] if f["severity"] in ("fail", "warn")}
+    err = run.error.code if run.error is not None else None
+    out = {"fault": fault, "target": tname, "mode": mode, "status": run.status, "error": err, "codes": sorted(codes),
+           "crashed": dict(d.get("stage_errors", {})), "decision": dict(run.mode_decision)}
+    ev = (run.mode_decision.get("evidence") or {})
+    out["detected"] = ev.get("decided")
+    if fault == "clean":
+        out["named"] = run.status == "ok" and not codes
+    elif fault.startswith("square size"):
+        f = next((x for x in d["findings"] if x["code"] == "square_size"), None)
+        out["named"] = f is not None and abs(f["details"]["measured_mm"] / (1e3 * target.square_m) - 1) < 0.02
+        out["measured_mm"] = None if f is None else f["details"]["measured_mm"]
+    elif fault.startswith("Euler"):
+        out["named"] = "euler_order" in codes and not (codes - {"euler_order", "weak_motion"})
+    elif fault == "mode omitted":
+        out["named"] = run.status == "ok" and run.mode_decision.get("mode_source") == "detected" and \
+            run.session.mode == mode and not codes
+    elif fault == "mode swapped":
+        out["named"] = err == "mode_swapped"
+    elif fault.startswith("shift"):
+        out["named"] = err == "pairs_shifted" and f"--shift-poses {-shift}" in (run.error.hint or "")
+        if out["named"]:  # the offered flag must give a clean run
+            run2, d2 = _run_and_diagnose(path, cs, shift_poses=-shift)
+            out["named"] = run2.status == "ok" and not {f["code"] for f in d2["findings"]
+                                                        if f["severity"] in ("fail", "warn")}
+    return out
+
+
+def _run_and_diagnose(path: Path, cs, **opts):
+    dets = {d.view_id: d for d in cs.detections()}
+    orig = calibrate_mod.detect_views
+    calibrate_mod.detect_views = lambda items, target, **kw: {v: dets.get(v, "not found") for v, _ in items}
+    try:
+        run = run_calibration(load_session(path), CalibrateOptions(refine=False, **opts))
+    finally:
+        calibrate_mod.detect_views = orig
+    return run, diagnose_run(run, images=False, cross_validation=False)
+
+
+def forensics(n_seeds: int, root: Path, *, workers: int = 2, n_clean: int = 0) -> int:
+    """Every fault of FAULTS on about n_seeds sessions (both modes, its targets), and n_clean clean sessions
+    (default 5 x n_seeds) of the same kind (every target, both modes, symmetric boards with turned views).
+
+    Returns the number of failures: a fault not named with its code, a clean session with a fail/warn
+    finding or a refusal, a wrong mode detection, a crashed stage."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    cases = []
+    n_clean = n_clean or 5 * n_seeds
+    for fault, (_, targets) in FAULTS.items():
+        per = max(1, -(-n_seeds // (2 * len(targets))))  # sessions per target and mode
+        for tname in targets:
+            for mode in ("eye_in_hand", "eye_to_hand"):
+                for seed in range(per):
+                    cases.append((fault, tname, mode, seed, str(root)))
+    for tname in FORENSIC_TARGETS:
+        for mode in ("eye_in_hand", "eye_to_hand"):
+            for seed in range(max(1, n_clean // (2 * len(FORENSIC_TARGETS)))):
+                cases.append(("clean", tname, mode, seed, str(root)))
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=workers) as ex:
+        rows = list(ex.map(_run_case, cases, chunksize=4))
+    bad = 0
+    print(f"forensics: {len(rows)} corner-level sessions ({time.perf_counter() - t0:.0f} s, {workers} workers)")
+    print(f"  {'fault':46s} {'expected':15s} named / sessions   (per target)")
+    for fault in ["clean"] + list(FAULTS):
+        rs = [r for r in rows if r["fault"] == fault]
+        ok = sum(r["named"] for r in rs)
+        bad += len(rs) - ok
+        per_t = ", ".join(f"{t.split(' (')[0]} {sum(r['named'] for r in rs if r['target'] == t)}/"
+                          f"{sum(1 for r in rs if r['target'] == t)}" for t in dict.fromkeys(r["target"] for r in rs))
+        exp = "no fail/warn" if fault == "clean" else FAULTS[fault][0]
+        print(f"  {fault:46s} {exp:15s} {ok:4d} / {len(rs):4d}   ({per_t})")
+        for r in [r for r in rs if not r["named"]][:3]:
+            print(f"      missed: {r['target']}, {r['mode']}: status {r['status']}, error {r['error']}, codes {r['codes']}, "
+                  f"measured {r.get('measured_mm')}")
+    wrong = [r for r in rows if r["detected"] is not None and r["detected"] != r["mode"]
+             and not r["fault"].startswith(("Euler", "shift", "mode swapped"))]
+    decided_clean = [r for r in rows if r["fault"] == "clean"]
+    print(f"  mode evidence on clean sessions: decided right {sum(r['detected'] == r['mode'] for r in decided_clean)}"
+          f" / {len(decided_clean)}, undecided {sum(r['detected'] is None for r in decided_clean)}, wrong "
+          f"{sum(r['detected'] not in (None, r['mode']) for r in decided_clean)}; wrong detections (any session "
+          f"whose poses are read right): {len(wrong)}")
+    crashed = [r for r in rows if r["crashed"]]
+    print(f"  sessions with a crashed diagnostics stage: {len(crashed)}")
+    for r in crashed[:3]:
+        print(f"      {r['fault']}, {r['target']}: {r['crashed']}")
+    return bad + len(wrong) + len(crashed)
 
 
 def main(argv=None) -> int:
@@ -254,12 +446,17 @@ def main(argv=None) -> int:
     ap.add_argument("--realdata", action="store_true", help="real datasets, as recorded and with injected faults")
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
     ap.add_argument("--no-accuracy", action="store_true", help="skip the false-alarm and sensitivity runs")
+    ap.add_argument("--forensics", type=int, metavar="N", default=None,
+                    help="the injected-fault table: N sessions per fault (>= 50 for the full figures; --quick: 8)")
+    ap.add_argument("--workers", type=int, default=2, help="processes for --forensics")
     a = ap.parse_args(argv)
     seeds = range(2 if a.quick else a.seeds)
     false_alarms = 0
     with tempfile.TemporaryDirectory() as tmp:
+        if a.forensics is not None or a.quick:
+            false_alarms += forensics(8 if a.forensics is None else a.forensics, Path(tmp), workers=a.workers)
         if not a.no_accuracy:
-            false_alarms = clean(seeds, Path(tmp))
+            false_alarms += clean(seeds, Path(tmp))
             sensitivity(seeds, Path(tmp))
         if a.timing:
             timing(Path(tmp))

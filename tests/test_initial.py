@@ -144,6 +144,26 @@ def test_square_board_resolves_quarter_turns():
     assert r < 1e-6 and t < 1e-3, (r, t)  # every turn undone: the untouched views' solution
 
 
+def test_every_ordering_is_kept_so_another_reading_of_the_poses_can_choose_its_own():
+    from handeye.initial.board_poses import candidate_invariants, orientation_labels
+
+    sym = ChessboardSpec(7, 5, 0.03)  # odd x odd: 180-degree symmetric
+    cs = make_corner_session(mode="eye_in_hand", n_views=12, seed=6, noise_px=0.1, target=sym)
+    flipped = [Detection(d.view_id, d.corner_ids, d.image_points[::-1].copy(), d.image_size) if k % 3 == 1
+               else d for k, d in enumerate(cs.detections())]
+    m, C, M, poses = closed_form_inputs(cs, detections=flipped, target=sym)
+    ids = [d.view_id for d in flipped]
+    Cs = np.stack([np.stack(poses[v].candidates) for v in ids])  # (n, 2, 4, 4)
+    assert Cs.shape == (12, 2, 4, 4)
+    for v in ids:  # the chosen ordering's pose is the candidate of that index
+        np.testing.assert_allclose(poses[v].candidates[poses[v].orientation], poses[v].T_cam_board)
+    lab = orientation_labels(candidate_invariants(Cs), M)
+    assert list(lab) == [int(k % 3 == 1) for k in range(12)]  # the detector's order kept for the majority
+    # an asymmetric board keeps no candidates
+    m, C, M, poses = closed_form_inputs(make_corner_session(mode="eye_in_hand", n_views=5, seed=6, noise_px=0.1))
+    assert all(p.candidates == () for p in poses.values())
+
+
 # ------------------------------------------------------------------------------ intrinsics
 def test_intrinsics_from_noiseless_corners_and_too_few_views():
     cs = make_corner_session(mode="eye_in_hand", n_views=10, seed=8, noise_px=0.0)

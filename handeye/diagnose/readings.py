@@ -264,7 +264,8 @@ def reading_findings(obs: PoseObservations, readings: Sequence[Reading], *, sess
           f" / {given.fit.median_trans_mm:.1f} mm (median), robot and camera rotation angles differ by "
           f"{given.angle_res_deg:.2f} deg (median over {obs.n * (obs.n - 1) // 2} view pairs); read as "
           f"{best.describe()}: {best.fit.median_rot_deg:.3f} deg / {best.fit.median_trans_mm:.2f} mm, "
-          f"{best.angle_res_deg:.3f} deg")
+          f"{best.angle_res_deg:.3f} deg (cost {best.fit.cost:.2f} against {given.fit.cost:.1f} as given: "
+          f"{given.fit.cost / max(best.fit.cost, 1e-9):.0f} x better)")
     if rivals:
         ev += "; about as good: " + "; ".join(f"{r.describe()} ({r.fit.median_rot_deg:.3f} deg / "
                                               f"{r.fit.median_trans_mm:.2f} mm)" for r in rivals)
