@@ -10,7 +10,8 @@ of ``C_i = A · M_i · B`` stays linear::
 so ``k`` comes in closed form with ``t_A``; its sigma is the jackknife over views (pairs share views:
 the residual-based sigma of all pairs together would be far too small). ``k`` is named when it differs
 from 1 both statistically (a two-sided t test at ``scale.p_value``) and practically (by more than
-``scale.min_rel``), see configs/diagnostics.yaml.
+``scale.min_rel``), and when rescaling the squares by ``k`` shrinks the board scatter by
+``scale.min_scatter_gain`` (the scale explains the data), see configs/diagnostics.yaml.
 """
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ from typing import Optional
 import numpy as np
 
 from .findings import Finding
+from .fits import fit_boards
 from .geometry import all_pairs, pair_motions, solve_A
 from .thresholds import thresholds
 
@@ -102,6 +104,12 @@ def scale_findings(obs, fit, M: np.ndarray) -> tuple[list, Optional[ScaleEstimat
     est = estimate_scale(obs.C, M, use=fit.inliers() if fit is not None else None)
     if not is_scale_wrong(est):
         return [], est
+    # the scale must explain the data: with the squares rescaled the board scatter must shrink
+    as_stated = fit if fit is not None else fit_boards(obs.C, M)
+    rescaled_fit = fit_boards(rescaled(obs.C, est.k), M)
+    gain = as_stated.median_trans_mm / max(rescaled_fit.median_trans_mm, 1e-9)
+    if gain < thresholds().scale.min_scatter_gain:
+        return [], est
     what, L = stated_length_m(obs.target)
     true_mm, sig_mm = 1e3 * L * est.k, 1e3 * L * est.sigma
     noun = "dot spacing" if what == "dot spacing" else "squares"
@@ -110,11 +118,13 @@ def scale_findings(obs, fit, M: np.ndarray) -> tuple[list, Optional[ScaleEstimat
     field = "spacing_m" if noun == "dot spacing" else "square_m"
     ev = (f"the camera's motions are {est.k:.4f} ± {est.sigma:.4f} x the robot's once both are compared in one "
           f"frame (closed form over all view pairs of {est.n_views} views, jackknife sigma; 1 is "
-          f"{est.z:.0f} sigma away, p = {est.p_value():.1e}): {noun} of {true_mm:.2f} ± {sig_mm:.2f} mm")
+          f"{est.z:.0f} sigma away, p = {est.p_value():.1e}): {noun} of {true_mm:.2f} ± {sig_mm:.2f} mm; with "
+          f"that size the board implied by each view scatters by {rescaled_fit.median_trans_mm:.2f} mm instead of "
+          f"{as_stated.median_trans_mm:.2f} mm (median)")
     action = (f"measure the printed {noun} with a caliper and state that size (vendor config.yaml: L: "
               f"{L * est.k:.4f}; session.yaml: target.{field}: {L * est.k:.4f}); a printer's 'fit to page' "
               f"shrinks boards by a few per cent")
     return [Finding("square_size", "fail", title, ev, action,
                     details={"scale": est.k, "scale_sigma": est.sigma, "n_views": est.n_views,
                              "stated_mm": 1e3 * L, "measured_mm": true_mm, "measured_sigma_mm": sig_mm,
-                             "p_value": est.p_value()})], est
+                             "p_value": est.p_value(), "scatter_gain": gain})], est

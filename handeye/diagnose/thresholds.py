@@ -55,6 +55,7 @@ class Pairing:
 class Scale:
     p_value: float
     min_rel: float
+    min_scatter_gain: float
 
 
 @dataclass(frozen=True)
