@@ -267,6 +267,7 @@ FAULTS = {
     "mode swapped": ("mode_swapped", ("chessboard 11x8", "chessboard 7x5 (odd x odd)", "charuco 9x7")),
     "shift by 1 line": ("pairs_shifted", ("chessboard 11x8", "chessboard 8x6 (even x even)", "charuco 9x7")),
     "shift by 2 lines": ("pairs_shifted", ("chessboard 11x8", "chessboard 8x6 (even x even)", "charuco 9x7")),
+    "pairs shuffled": ("pairs_shuffled", ("chessboard 11x8", "chessboard 7x5 (odd x odd)", "charuco 9x7")),
 }
 
 
@@ -346,6 +347,8 @@ def _run_case(args) -> dict:
     elif fault.startswith("shift"):
         shift = int(fault.split()[2])
         T = cs_all.T_base_end_reported[shift:shift + nv]  # image k carries the pose of image k + shift
+    if fault == "pairs shuffled":
+        T = T[rng.permutation(nv)]
     path = _write_session(folder, cs, T, **kw)
     run, d = _run_and_diagnose(path, cs)
     codes = {f["code"] for f in d["findings"] if f["severity"] in ("fail", "warn")}
@@ -367,6 +370,8 @@ def _run_case(args) -> dict:
             run.session.mode == mode and not codes
     elif fault == "mode swapped":
         out["named"] = err == "mode_swapped"
+    elif fault == "pairs shuffled":
+        out["named"] = err == "pairs_shuffled"
     elif fault.startswith("shift"):
         out["named"] = err == "pairs_shifted" and f"--shift-poses {-shift}" in (run.error.hint or "")
         if out["named"]:  # the offered flag must give a clean run
@@ -429,7 +434,7 @@ def forensics(n_seeds: int, root: Path, *, workers: int = 2, n_clean: int = 0, o
             print(f"      missed: {r['target']}, {r['mode']}: status {r['status']}, error {r['error']}, codes {r['codes']}, "
                   f"measured {r.get('measured_mm')}")
     wrong = [r for r in rows if r["detected"] is not None and r["detected"] != r["mode"]
-             and not r["fault"].startswith(("Euler", "shift", "mode swapped"))]
+             and not r["fault"].startswith(("Euler", "shift", "mode swapped", "pairs"))]
     decided_clean = [r for r in rows if r["fault"] == "clean"]
     print(f"  mode evidence on clean sessions: decided right {sum(r['detected'] == r['mode'] for r in decided_clean)}"
           f" / {len(decided_clean)}, undecided {sum(r['detected'] is None for r in decided_clean)}, wrong "

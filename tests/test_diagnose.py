@@ -34,7 +34,8 @@ from handeye.targets import ChessboardSpec
 FAULT_CODES = {"translation_units", "angle_units", "euler_order", "quaternion_order", "mode_swapped",
                "poses_inverted", "pairs_shifted", "robot_pose_disagrees", "board_moved", "weak_motion",
                "too_few_views", "target_not_found", "blurred", "overexposed", "partial_target", "corners_bunched",
-               "zero_distortion_given", "corner_order_flipped", "uncertainty_underestimated", "intrinsics_mismatch"}
+               "zero_distortion_given", "corner_order_flipped", "uncertainty_underestimated", "intrinsics_mismatch",
+               "square_size", "poses_do_not_fit", "mode_undecided"}
 
 
 CLEAN_STAGES = {s: "ok" for s in ("observations", "readings", "pairing", "scale", "board_moved", "robot_poses", "motion",
@@ -720,3 +721,19 @@ def test_shuffled_pairs_are_refused(tmp_path, monkeypatch):
     run, d = _diagnose(_write_vendor(tmp_path / "s", cs, [v[p] for p in perm]), cs, monkeypatch)
     assert run.status == "failed" and run.error.code == "pairs_shuffled" and run.T_x is None
     assert "shuffled" in _one(d, "pairs_shifted")["title"]
+
+
+def test_shuffled_pairs_on_a_symmetric_board_with_turned_views_are_refused(tmp_path, monkeypatch):
+    cs = _turned(_session("eye_in_hand", 51, n_views=15, target=ChessboardSpec(7, 5, 0.025)), range(1, 15, 2))
+    v = _vals(cs.T_base_end_reported)
+    perm = np.random.default_rng(8).permutation(cs.n_views)
+    run, d = _diagnose(_write_vendor(tmp_path / "s", cs, [v[p] for p in perm]), cs, monkeypatch)
+    assert run.status == "failed" and run.error.code == "pairs_shuffled"
+
+
+def test_poses_that_fit_no_explanation_are_never_a_quiet_pass(tmp_path, monkeypatch):
+    cs = _session("eye_to_hand", 52, n_views=12)
+    other = _session("eye_to_hand", 53, n_views=12)  # another rig's poses: no reading or pairing fits
+    run, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(other.T_base_end_reported)), cs, monkeypatch)
+    assert "fail" in {f["severity"] for f in d["findings"]}
+    assert _codes(d) & {"poses_do_not_fit", "pairs_shifted", "mode_swapped", "poses_inverted", "euler_order"}

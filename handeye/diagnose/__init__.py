@@ -122,9 +122,24 @@ def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session
                 if found is not None:
                     out["findings"] += found[0]
                     out["per_view"] = found[1]
+    if given_cost > thresholds().readings.bad_cost and not any(f.severity in ("fail", "warn") for f in out["findings"]) \
+            and _motion_ok(obs, M):  # (a degenerate motion does not determine the fit: the motion finding says so)
+        out["findings"].append(_unexplained(obs, given))
+        out["global_fault"] = True
     out["findings"] += stages.run("motion", motion_findings, obs.mode, M, A=None if fit is None else fit.A, default=[])
     out["fit"], out["M"] = fit, M
     return out
+
+
+def _unexplained(obs: PoseObservations, given) -> Finding:
+    """The poses as read do not fit the images and no check found why: never a quiet pass."""
+    sc = "" if given is None else (f": the board implied by each view scatters by {given.fit.median_rot_deg:.2f} deg / "
+                                   f"{given.fit.median_trans_mm:.1f} mm (median over {obs.n} views)")
+    return Finding("poses_do_not_fit", "fail",
+                   "The robot poses do not fit the images as read, and no single cause was found",
+                   f"no reading of the pose numbers, pairing, scale, board move or single view explains it{sc}",
+                   "check that every image is paired with the pose recorded at that moment, the pose format, the "
+                   "mounting mode and the board; re-capture if unsure")
 
 
 def _motion_ok(obs: PoseObservations, M: np.ndarray) -> bool:

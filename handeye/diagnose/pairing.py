@@ -5,6 +5,7 @@ All report the code ``pairs_shifted``.
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Optional, Sequence
 
 import numpy as np
@@ -108,11 +109,22 @@ def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = F
     assign = _assignment_by_signature(obs, fmt, invert)
     if assign is None:
         return []
-    moved = [v for v in obs.ids if assign[v] != v]
     T = read_poses(obs.raw, fmt, [assign[v] for v in obs.ids])
+    C = obs.C
+    everything = np.ones(obs.n, bool)
+    for _ in range(2 if obs.C_candidates is not None and T is not None else 0):
+        # a symmetric board's ordering was chosen for the wrong pairing: re-order for this one and match again
+        C = _ordered_for(obs, everything, obs.M(T, invert=invert))
+        again = _assignment_by_signature(replace(obs, C=C), fmt, invert)
+        T_again = None if again is None else read_poses(obs.raw, fmt, [again[v] for v in obs.ids])
+        if T_again is None or again == assign:
+            break
+        assign, T = again, T_again
+        C = _ordered_for(obs, everything, obs.M(T, invert=invert))
+    moved = [v for v in obs.ids if assign[v] != v]
     if T is None or len(moved) < 2:
         return []
-    fit = fit_boards(obs.C, obs.M(T, invert=invert))
+    fit = fit_boards(C, obs.M(T, invert=invert))
     if is_clearly_better(fit.cost, given_cost):
         pairs = ", ".join(f"image {v} <- pose {assign[v]}" for v in moved[:10])
         return [Finding(
