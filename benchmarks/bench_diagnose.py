@@ -95,7 +95,7 @@ def clean(seeds: range, root: Path) -> int:
 def sensitivity(seeds: range, root: Path) -> None:
     hits = collections.defaultdict(list)
     for mode in ("eye_in_hand", "eye_to_hand"):
-        mm = mounting(mode)
+        mount = mounting(mode)
         for seed in seeds:
             for rn in ((0.3, 0.05), (1.0, 0.1)):
                 cs = make_corner_session(mode=mode, n_views=15, seed=seed, robot_noise=rn)
@@ -112,7 +112,7 @@ def sensitivity(seeds: range, root: Path) -> None:
                     T = cs.T_base_end_reported.copy()
                     B = cs.T_board_true
                     for k in range(10, 15):
-                        T[k] = mm.T_base_end_from_M(mm.M_from_T_base_end(T[k]) @ B @ dT @ inv_T(B))
+                        T[k] = mount.T_base_end_from_M(mount.M_from_T_base_end(T[k]) @ B @ dT @ inv_T(B))
                     d = _diagnose(_write_vendor(root / "s", cs, T), cs)
                     _count_crashes(d)
                     hits[("board moved after view 10", rn, mm_size, deg_size)].append(any(

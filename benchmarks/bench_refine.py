@@ -45,13 +45,13 @@ CHI2_95_6 = chi2.ppf(0.95, 6)
 def closed_forms(s):
     """As the pipeline: calibrateCamera intrinsics, per-view solvePnP, every calibrateHandEye method on the
     reported poses; returns (intrinsics, {method: HandEyeEstimate}) (Tsai is the start, the others candidates)."""
-    mm = mounting(s.mode)
+    mount = mounting(s.mode)
     obj = s.target.object_points()
     dets = s.detections()
     intr, _ = calibrate_intrinsics(dets, obj)
     C = np.stack([solve_pnp(obj[d.corner_ids], d.image_points, intr)[0] for d in dets])
-    M = mm.M_from_T_base_end(np.stack([s.T_base_end_reported[s.index(d.view_id)] for d in dets]))
-    return intr, all_methods(mm, C, M)
+    M = mount.M_from_T_base_end(np.stack([s.T_base_end_reported[s.index(d.view_id)] for d in dets]))
+    return intr, all_methods(mount, C, M)
 
 
 def refine_views(s):

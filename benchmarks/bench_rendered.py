@@ -86,13 +86,13 @@ def _camera_pose_errors(run, truth, target, intrinsics_true, mode):
     from handeye.initial import solve_pnp
     from handeye.mounting import mounting
 
-    mm = mounting(mode)
-    T_x, T_b = np.asarray(truth[mm.x_name]), np.asarray(truth[mm.board_name])
+    mount = mounting(mode)
+    T_x, T_b = np.asarray(truth[mount.x_name]), np.asarray(truth[mount.board_name])
     obj = target.object_points()
     out = []
     for vid, d in run.detections.items():
         C, _ = solve_pnp(obj[d.corner_ids], np.asarray(d.image_points), intrinsics_true)
-        implied = mm.T_base_end_from_M(T_x @ C @ np.linalg.inv(T_b))
+        implied = mount.T_base_end_from_M(T_x @ C @ np.linalg.inv(T_b))
         xi = tangent_difference(np.asarray(truth["views"][vid]["T_base_end_true"]), implied)
         out.append((float(np.degrees(np.linalg.norm(xi[:3]))), float(1000 * np.linalg.norm(xi[3:]))))
     return np.array(out).reshape(-1, 2)

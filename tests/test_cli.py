@@ -300,12 +300,12 @@ def test_a_site_qa_file_makes_the_same_run_warn_or_fail(clean, tmp_path, capsys,
 
 
 def test_a_board_that_slipped_fails_with_the_finding_and_its_fix(clean, tmp_path, capsys):
-    mm = mounting("eye_in_hand")
+    mount = mounting("eye_in_hand")
     T = _reported(clean)
-    B = np.asarray(json.loads((clean / "ground_truth.json").read_text())[mm.board_name])
+    B = np.asarray(json.loads((clean / "ground_truth.json").read_text())[mount.board_name])
     move = T_from_rotvec(np.radians([0.0, 0.0, 1.0]), [0.008, 0.004, 0.0])  # 9 mm and 1 deg from view 7 on
     for k in range(6, len(T)):
-        T[k] = mm.T_base_end_from_M(mm.M_from_T_base_end(T[k]) @ B @ move @ inv_T(B))
+        T[k] = mount.T_base_end_from_M(mount.M_from_T_base_end(T[k]) @ B @ move @ inv_T(B))
     rc, out, err, res = _calibrate(_variant(clean, tmp_path / "moved", T), tmp_path / "o", capsys, "--no-report")
     assert rc == QAFailed.exit_code and res["status"] == "ok" and res["verdict"] == "FAIL"
     f = next(f for f in res["findings"] if f["code"] == "board_moved")

@@ -381,12 +381,12 @@ def test_outlier_views_agree_with_the_refinement(tmp_path, monkeypatch):
 @pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
 def test_board_moved_between_views(tmp_path, monkeypatch, mode):
     cs = _session(mode, 15)
-    mm = mounting(mode)
+    mount = mounting(mode)
     T = cs.T_base_end_reported.copy()
     move = T_from_rotvec(np.radians([0.0, 0.0, 1.0]), [0.008, 0.004, 0.0])
     B = cs.T_board_true
     for k in range(8, cs.n_views):  # the camera saw the board moved by `move` from view 9 on
-        T[k] = mm.T_base_end_from_M(mm.M_from_T_base_end(T[k]) @ B @ move @ inv_T(B))
+        T[k] = mount.T_base_end_from_M(mount.M_from_T_base_end(T[k]) @ B @ move @ inv_T(B))
     _, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(T)), cs, monkeypatch)
     assert _codes(d) == {"board_moved"}
     f = _one(d, "board_moved")
@@ -600,8 +600,8 @@ def test_scale_in_closed_form_is_exact_without_noise_and_tested_against_one():
     from handeye.diagnose.scale import estimate_scale, is_scale_wrong, rescaled
 
     cs = _session("eye_to_hand", 40, robot_noise=(0.0, 0.0), n_views=10)
-    mm = mounting(cs.mode)
-    C, M = cs.T_cam_board_true, mm.M_from_T_base_end(cs.T_base_end_true)
+    mount = mounting(cs.mode)
+    C, M = cs.T_cam_board_true, mount.M_from_T_base_end(cs.T_base_end_true)
     est = estimate_scale(C, M)
     assert abs(est.k - 1.0) < 1e-8 and est.sigma < 1e-8
     est = estimate_scale(rescaled(C, 1 / 1.2), M)  # squares stated 1.2x too large: camera translations / 1.2

@@ -64,8 +64,8 @@ def test_stacked_residual_of_many_views_equals_the_per_view_chain(mode):
     T_x, T_board, _, obj, img = _chain_setup(rng, mode)
     setups = [_chain_setup(np.random.default_rng(20 + k), mode) for k in range(3)]
     # same T_x and board for all views: robot poses that put the board in front of the camera for each
-    mm = mounting(mode)
-    robots = np.stack([mm.T_base_end_from_M(T_x @ np.linalg.inv(Tx_k) @ mm.M_from_T_base_end(Tr_k) @ Tb_k
+    mount = mounting(mode)
+    robots = np.stack([mount.T_base_end_from_M(T_x @ np.linalg.inv(Tx_k) @ mount.M_from_T_base_end(Tr_k) @ Tb_k
                                             @ np.linalg.inv(T_board)) for Tx_k, Tb_k, Tr_k, _, _ in setups])
     counts = [7, 5, 6]
     objs = [np.c_[rng.uniform(0.0, 0.1, (c, 2)), np.zeros(c)] for c in counts]

@@ -50,14 +50,14 @@ def test_refined_result_agrees_with_the_truth_within_its_reported_covariance(ref
     truth = json.loads((session / "ground_truth.json").read_text())
     res = json.loads((out / "result.json").read_text())
     assert wr.status == "ok" and wr.exit_code == 0 and res == json.loads(json.dumps(wr.result))
-    mm = mounting(mode)
+    mount = mounting(mode)
     ref = res["refinement"]
     # the covariance's convention (right tangent): T_true = T_x · Exp(xi)
-    xi = tangent_difference(np.asarray(res[mm.x_name]), np.asarray(truth[mm.x_name]))
+    xi = tangent_difference(np.asarray(res[mount.x_name]), np.asarray(truth[mount.x_name]))
     d2 = float(xi @ np.linalg.solve(np.asarray(ref["cov_x_6x6"]), xi))
     assert d2 < CHI2_6_999, (d2, xi)
     # and the error is small in absolute terms: rendered corners are good to ~0.05 px here
-    r, t = pose_error(np.asarray(res[mm.x_name]), np.asarray(truth[mm.x_name]))
+    r, t = pose_error(np.asarray(res[mount.x_name]), np.asarray(truth[mount.x_name]))
     assert t < 5 * np.linalg.norm(ref["sigma_trans_mm"]) and r < 5 * np.linalg.norm(ref["sigma_rot_deg"]), (r, t)
     fx_sigma = ref["intrinsics_sigma"]["fx"]
     assert abs(res["intrinsics"]["fx"] - truth["intrinsics"]["fx"]) < 5 * fx_sigma  # 5 reported sigmas
@@ -139,12 +139,12 @@ def test_a_refusing_finding_drops_the_matrix_and_is_the_reason(rendered, tmp_pat
     mode, session = rendered
     wr = _run(session, tmp_path / "out", refine=False)
     res = json.loads((tmp_path / "out" / "result.json").read_text())
-    mm = mounting(mode)
+    mount = mounting(mode)
     assert wr.status == "failed" and res["status"] == "failed" and res["verdict"] == "REFUSED"
     assert wr.exit_code == SessionRefused.exit_code and res["error"]["type"] == "SessionRefused"
     assert res["error"]["code"] == "pairs_shuffled" and res["error"]["fix"] == "re-pair them by view id"
     assert "Images carry other poses" in res["failure_reason"] and "9 of 12 images" in res["failure_reason"]
-    assert not {mm.x_name, mm.board_name, "closed_form", "seed", "refinement", "hand_eye"} & set(res)
+    assert not {mount.x_name, mount.board_name, "closed_form", "seed", "refinement", "hand_eye"} & set(res)
     obs = json.loads((tmp_path / "out" / "observations.json").read_text())
     assert not any("residual_chain_px" in v for v in obs["views"].values())  # nothing predicted from a refused X
     assert res["findings"][0]["code"] == "pairs_shuffled"
@@ -187,12 +187,12 @@ def test_closed_form_alone_is_within_ten_refined_sigmas(rendered, tmp_path):
     wr = _run(session, tmp_path / "out", refine=False)
     res = wr.result
     assert wr.status == "ok" and not res["refined"] and "refinement" not in res
-    mm = mounting(mode)
-    r, t = pose_error(np.asarray(res[mm.x_name]), np.asarray(truth[mm.x_name]))
+    mount = mounting(mode)
+    r, t = pose_error(np.asarray(res[mount.x_name]), np.asarray(truth[mount.x_name]))
     # the closed form ignores the noise model; the refined sigmas on this session are ~0.02 deg and
     # ~0.05-0.1 mm per axis, the closed form measured 0.02-0.08 deg and 0.1-0.4 mm: 10 refined sigmas
     assert r < 0.2 and t < 1.0, (r, t)
-    rb, tb = pose_error(np.asarray(res[mm.board_name]), np.asarray(truth[mm.board_name]))
+    rb, tb = pose_error(np.asarray(res[mount.board_name]), np.asarray(truth[mount.board_name]))
     assert rb < 0.1 and tb < 0.5, (rb, tb)
 
 

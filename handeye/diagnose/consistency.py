@@ -47,10 +47,10 @@ def _implied_pose_covariances(mode: str, fit: BoardFit, idx: np.ndarray, C: np.n
     """Covariances (K,6,6) of the implied robot poses (right tangent) of views ``idx`` with board poses ``C``
     (K,4,4) from the board poses' covariances ``cov_C`` (K,6,6, right tangent): ``J S J^T`` with the
     Jacobian of the implied pose taken numerically for all views at once (central differences)."""
-    mm = mounting(mode)
+    mount = mounting(mode)
     A_inv, B_inv = inv_T(fit.A), inv_T(fit.B[fit.group_index()[idx]])
-    T0 = mm.T_base_end_from_M(A_inv @ C @ B_inv)
-    J = tangent_jacobian(lambda Cs: tangent_difference(T0, mm.T_base_end_from_M(A_inv @ Cs @ B_inv)), C)  # (K,6,6)
+    T0 = mount.T_base_end_from_M(A_inv @ C @ B_inv)
+    J = tangent_jacobian(lambda Cs: tangent_difference(T0, mount.T_base_end_from_M(A_inv @ Cs @ B_inv)), C)  # (K,6,6)
     return J @ cov_C @ np.swapaxes(J, 1, 2)
 
 

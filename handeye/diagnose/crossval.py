@@ -74,16 +74,16 @@ def _closed_form_folds(run, ids, fold_list, T_rep):
     from ..errors import HandeyeError
     from ..initial import solve_closed_form
 
-    mm = mounting(run.session.mode)
+    mount = mounting(run.session.mode)
     C = np.stack([run.board_poses[v].T_cam_board for v in ids])
-    M = mm.M_from_T_base_end(np.stack([T_rep[v] for v in ids]))
+    M = mount.M_from_T_base_end(np.stack([T_rep[v] for v in ids]))
     meth = run.options.method
     estimates = []
     for f in fold_list:
         keep = np.ones(len(ids), bool)
         keep[f] = False
         try:
-            e = solve_closed_form(mm, C[keep], M[keep], method=meth)
+            e = solve_closed_form(mount, C[keep], M[keep], method=meth)
         except (HandeyeError, np.linalg.LinAlgError) as ex:  # a degenerate fold is reported, not fatal
             log.info("cross-validation fold not solved: %s", ex)
             e = None
@@ -97,7 +97,7 @@ def cross_validate(run) -> dict:
         return {"summary": "not run: no hand-eye result"}
     t = thresholds().cross_validation
     s = run.session
-    mm = mounting(s.mode)
+    mount = mounting(s.mode)
     ids = cv_view_ids(run)
     n = len(ids)
     if n < t.min_views:
@@ -125,9 +125,9 @@ def cross_validate(run) -> dict:
             v = ids[i]
             bp = run.board_poses[v]
             img = run.detections[v].image_points
-            r = np.linalg.norm(pixels_from_board_points(mm.predict_T_cam_board(T_x, T_b, T_rep[v]), obj[bp.corner_ids],
+            r = np.linalg.norm(pixels_from_board_points(mount.predict_T_cam_board(T_x, T_b, T_rep[v]), obj[bp.corner_ids],
                                                         intr_k) - img, axis=1)
-            r_in = np.linalg.norm(pixels_from_board_points(mm.predict_T_cam_board(T_full, B_full, T_rep[v]),
+            r_in = np.linalg.norm(pixels_from_board_points(mount.predict_T_cam_board(T_full, B_full, T_rep[v]),
                                                            obj[bp.corner_ids], intr_full) - img, axis=1)
             dx = deltas[row]
             rows.append({"view": v, "held_out_rms_px": round(float(np.sqrt(np.mean(r ** 2))), 3),
@@ -139,7 +139,7 @@ def cross_validate(run) -> dict:
            "n_views": n, "n_folds": len(fold_list), "folds_solved": len(ok),
            "jackknife_sigma_rot_deg": [round(float(x), 5) for x in jk[:3]],
            "jackknife_sigma_trans_mm": [round(float(x), 4) for x in jk[3:]],
-           "axes": f"rotation about the camera axes, translation of {mm.x_name} along the {mm.fixed_frame} axes",
+           "axes": f"rotation about the camera axes, translation of {mount.x_name} along the {mount.fixed_frame} axes",
            "held_out_rms_px_median": round(float(np.median(held_px)), 3), "per_view": rows}
     if ref is None:
         out["verdict"] = "no_prediction"

@@ -78,7 +78,7 @@ def detection_findings(run, *, A: Optional[np.ndarray] = None, B: Optional[np.nd
     from ..frames import inv_T
 
     s = run.session
-    mm = mounting(s.mode)
+    mount = mounting(s.mode)
     th = thresholds()
     dropped = [o for o in run.outcomes if not o.used and not str(o.reason).startswith("outlier")]
     not_found = [o for o in dropped if o.view_id not in (run.detections or {})]
@@ -97,7 +97,7 @@ def detection_findings(run, *, A: Optional[np.ndarray] = None, B: Optional[np.nd
         except KeyError:
             T = None
         if can_predict and T is not None:
-            C_pred = A @ mm.M_from_T_base_end(inv_T(T) if invert_poses else T) @ B
+            C_pred = A @ mount.M_from_T_base_end(inv_T(T) if invert_poses else T) @ B
             vis = board_visibility(s.target, intr, C_pred)
             if 0.0 < vis < 0.999:
                 cut[o.view_id] = f"not found; at this robot pose only {100 * vis:.0f}% of the board's corners are " \

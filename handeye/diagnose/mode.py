@@ -73,8 +73,8 @@ def mode_evidence(C: np.ndarray, T_base_end: np.ndarray) -> ModeEvidence:
     t = thresholds().mode
     costs, scatter, plausible = {}, {}, {}
     for m in MODES:
-        mm = mounting(m)
-        M = mm.M_from_T_base_end(T_base_end)
+        mount = mounting(m)
+        M = mount.M_from_T_base_end(T_base_end)
         try:
             fit0 = fit_boards(C, M)
             est = estimate_scale(C, M, use=fit0.inliers())
@@ -84,7 +84,7 @@ def mode_evidence(C: np.ndarray, T_base_end: np.ndarray) -> ModeEvidence:
             continue
         costs[m] = fit.cost
         scatter[m] = (fit.median_rot_deg, fit.median_trans_mm)
-        plausible[m] = _camera_on_robot(fit) == mm.camera_moves
+        plausible[m] = _camera_on_robot(fit) == mount.camera_moves
     best = min(MODES, key=lambda m: costs[m])
     other = mounting(best).other.name
     clear = costs[best] < t.good_cost and costs[other] > t.ratio * costs[best] and plausible[best]

@@ -101,10 +101,10 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
     result with ``status="failed"`` and a ``failure_reason``.
     """
     t0 = time.perf_counter()
-    mm = mounting(mode)
+    mount = mounting(mode)
     check_options(options)
-    T_x0 = check_T(T_x0, f"seed {mm.x_name}")
-    T_board0 = check_T(T_board0, f"seed {mm.board_name}")
+    T_x0 = check_T(T_x0, f"seed {mount.x_name}")
+    T_board0 = check_T(T_board0, f"seed {mount.board_name}")
     object_points, reported = check_inputs(object_points, views)
     pb = Problem(mode=mode, object_points=object_points, views=views, reported=reported, intrinsics=intrinsics,
                  T_x0=T_x0, T_board0=T_board0, options=options)
