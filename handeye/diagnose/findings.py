@@ -66,7 +66,9 @@ class Stages:
         try:
             out = fn(*args, **kw)
         except Exception as e:  # noqa: BLE001 - a crashed stage is recorded and reported, never hidden
-            log.error("diagnostics stage %r crashed: %s: %s", name, type(e).__name__, e, exc_info=True)
+            # one line for the user; the traceback for developers (handeye --verbose / --debug)
+            log.warning("diagnostics stage %r crashed (%s: %s); its checks did not run", name, type(e).__name__, e)
+            log.debug("traceback of the crashed diagnostics stage %r", name, exc_info=True)
             self.status[name] = "crashed"
             self.errors[name] = f"{type(e).__name__}: {e}"
             return default
