@@ -1,5 +1,5 @@
 """Time to write both reports (report.html + report.md) from a result folder of a rendered 20-view
-1280x720 session (issue 8 target: about 1 s on 2 cores), and the start-up of the command line.
+1280x720 session (target: about 1 s on 2 cores), and the start-up of the command line.
 Prints figures; asserts nothing.
 
     python benchmarks/bench_report.py [--result DIR] [--views 20] [--repeat 3] [--ref COMMIT]

@@ -10,7 +10,7 @@ Tsai's the start, all as candidates) and refined with :func:`handeye.refine.refi
 Printed per mode and model: RMS rotation (deg) and translation (mm) error of X of the refinement and
 of each closed form (the best one by RMS translation named), the RMS reported 1-sigma, and the share
 of sessions whose truth lies inside the reported 95 % ellipsoid (``cov_x_6x6``, chi-square 6 dof;
-the target of issue 9 is 90-98 %).
+an honest covariance covers the truth in 90-98 %).
 
 Figures (2026-12-01, 20 views, RMS over sessions; kinematic = RM65-B, seeds 0-69 as two runs:
 ``--seeds 30`` and ``--seeds 40 --first-seed 30``; iid and none: ``--seeds 100 --models iid none``):
@@ -26,8 +26,8 @@ Figures (2026-12-01, 20 views, RMS over sessions; kinematic = RM65-B, seeds 0-69
 
 Under kinematic errors the per-view iid robot prior fits (estimated robot sigma ~0.3-0.4 mm, 0.03 deg)
 yet the reported covariance is several times too small (median squared Mahalanobis 32-34 eye-in-hand,
-18-26 eye-to-hand, against 5.3), and the refinement is no better than the best closed form: the
-measurement issue 9 asks to fix.
+18-26 eye-to-hand, against 5.3), and the refinement is no better than the best closed form: a robot error
+model that the refinement does not yet have.
 
 Usage: python benchmarks/bench_robot_error.py --seeds 100 [--models kinematic iid none] [--modes ...]
 [--arm rm65|ur5e] [--jobs 2]. Progress on stderr, figures on stdout.
