@@ -675,3 +675,160 @@ def test_clean_real_dataset_is_not_reported_as_failed(tmp_path, shared_dataset):
     assert wf.status == "ok" and "## Verdict: **FAIL**" not in md
     assert "| **2** |" in md and "dropped" in md  # the one view with too few corners
     _markdown_ok(tmp_path / "out" / "report.md")
+
+
+# ------------------------------------------------------------------------------ the banner's root cause
+ROOT_CAUSE_FINDINGS = [
+    ({"code": "mode_swapped", "severity": "fail", "title": "The data are eye-to-hand but were calibrated as "
+      "eye-in-hand", "action": "calibrate with --mode eye_to_hand"},
+     "Mode swapped: the data are eye-to-hand but were calibrated as eye-in-hand. "),
+    ({"code": "board_moved", "severity": "fail", "title": "The board slipped in the gripper after view 6",
+      "action": "clamp the board", "details": {"split_after_view": "6"}},
+     "The board slipped in the gripper after view 6. "),
+    ({"code": "square_size", "severity": "fail", "title": "The board's squares look like 30.0 mm, not 25 mm",
+      "action": "measure the squares", "details": {"measured_mm": 30.04, "stated_mm": 25.0}},
+     "Squares look like 30.0 mm, not 25 mm. "),
+    ({"code": "pairs_shifted", "severity": "fail", "title": "Images and robot poses are out of step by 1: image "
+      "k belongs to pose k+1", "action": "re-pair the poses", "details": {"shift": 1}},
+     "Pairs shifted by one line: images and robot poses are out of step by 1: image k belongs to pose k+1. "),
+]
+
+
+@pytest.mark.parametrize("finding, lead", ROOT_CAUSE_FINDINGS, ids=[f["code"] for f, _ in ROOT_CAUSE_FINDINGS])
+def test_the_banner_leads_with_the_root_cause_of_a_failing_finding(synthetic, tmp_path, finding, lead):
+    res = json.loads((synthetic["out"] / "result.json").read_text())
+    obs = json.loads((synthetic["out"] / "observations.json").read_text())
+    other = {"code": "blurred", "severity": "fail", "title": "Blurred images: 2 view(s)", "action": "refocus"}
+    res["diagnostics"]["findings"] = [other, dict(finding, evidence="...", view_ids=[])]
+    folder = _folder(tmp_path, res, obs)
+    from handeye.report import build_report_context
+
+    ctx = build_report_context(folder, make_plots=False)
+    assert ctx["verdict"].status == "fail" and ctx["verdict_label"] == "FAIL"
+    assert ctx["verdict"].headline.startswith(lead), ctx["verdict"].headline
+    assert "blurred images: 2 view(s)" in ctx["verdict"].headline  # the other finding still named, after it
+    assert ctx["verdict"].headline.lower().count(finding["title"].lower()) <= 1  # the cause is not named twice
+    assert ctx["verdict"].headline.count(" fails QA: blurred images: 2 view(s).") == 1
+    md, _ = _reports(folder)
+    assert f"> **FAIL** — {lead}" in md
+
+
+def test_a_warning_does_not_lead_a_failed_banner(synthetic, tmp_path):
+    from handeye.report import build_report_context
+
+    res = json.loads((synthetic["out"] / "result.json").read_text())
+    res["diagnostics"]["findings"] = [
+        {"code": "mode_undecided", "severity": "warn", "title": "The session states no mounting mode", "action": ""},
+        {"code": "blurred", "severity": "fail", "title": "Blurred images: 2 view(s)", "action": "refocus"}]
+    ctx = build_report_context(_folder(tmp_path / "f", res), make_plots=False)
+    assert ctx["verdict"].headline.startswith("T_end_cam fails QA: blurred images")
+    res["diagnostics"]["findings"] = res["diagnostics"]["findings"][:1]
+    ctx = build_report_context(_folder(tmp_path / "w", res), make_plots=False)
+    assert ctx["verdict"].status == "warn"
+    assert ctx["verdict"].headline.startswith(
+        "Mounting mode not decided: the session states no mounting mode. T_end_cam passes")
+
+
+REFUSALS = [
+    ("mode_swapped", "the data are eye_to_hand but --mode says eye_in_hand: fits 12x better",
+     "calibrate with --mode eye_to_hand (or set mode: eye_to_hand in the session)",
+     "Mode swapped: the data are eye_to_hand but --mode says eye_in_hand: fits 12x better. Fix: calibrate with "
+     "--mode eye_to_hand (or set mode: eye_to_hand in the session). No result is given."),
+    ("pairs_shifted", "Images and robot poses are out of step by 2: image k belongs to pose k+2: ...",
+     "fix the pairing, or apply the shift with --shift-poses 2 (image k takes pose line k+2)",
+     "Pairs shifted by 2 lines: images and robot poses are out of step by 2: image k belongs to pose k+2. Fix: "
+     "fix the pairing, or apply the shift with --shift-poses 2 (image k takes pose line k+2). No result is given."),
+    ("pairs_shuffled", "Images and robot poses are shuffled: 6 of 12 images carry another view's pose: ...",
+     "re-pair images and poses by view id", "Pairs shuffled: images and robot poses are shuffled: 6 of 12 images "
+     "carry another view's pose. Fix: re-pair images and poses by view id. No result is given."),
+]
+
+
+@pytest.mark.parametrize("code, what, fix, headline", REFUSALS, ids=[r[0] for r in REFUSALS])
+def test_a_refused_run_leads_with_its_cause_and_fix(tmp_path, code, what, fix, headline):
+    from handeye.report import build_report_context
+
+    findings = []
+    if code == "pairs_shifted":
+        findings = [{"code": "pairs_shifted", "severity": "fail", "title": "Images and robot poses are out of step "
+                     "by 2: image k belongs to pose k+2", "action": "re-pair", "details": {"shift": 2}}]
+    if code == "pairs_shuffled":
+        findings = [{"code": "pairs_shifted", "severity": "fail", "title": "Images and robot poses are shuffled: "
+                     "6 of 12 images carry another view's pose", "action": "re-pair", "details": {}}]
+    res = {"status": "failed", "verdict": "REFUSED", "mode": "eye_in_hand", "views": [], "failure_reason": what,
+           "diagnostics": {"findings": findings},
+           "error": {"code": code, "type": "SessionRefused", "what": what, "file": None, "line": None,
+                     "expected": None, "got": None, "fix": fix}}
+    folder = _folder(tmp_path, res)
+    ctx = build_report_context(folder, make_plots=False)
+    assert ctx["verdict_label"] == "REFUSED" and ctx["verdict"].headline == headline
+    md, text = _reports(folder)
+    assert f"> **REFUSED** — {headline}" in md and "REFUSED" in text.split("Verdict")[1][:200]
+
+
+def test_a_failed_run_without_a_known_cause_keeps_its_headline(failed):
+    from handeye.report import build_report_context
+
+    ctx = build_report_context(failed["out"], make_plots=False)
+    assert ctx["root_cause"] is None and ctx["verdict_label"] == "FAIL"
+    assert ctx["verdict"].headline.startswith("The session could not be calibrated. ")
+
+
+# ------------------------------------------------------------------------------ advice for the new codes
+def test_advice_for_the_new_finding_and_refusal_codes(tmp_path):
+    from handeye.report import build_report_context
+    from handeye.report.advice import ERROR_ADVICE, FINDING_ADVICE, finding_advice
+
+    assert "caliper" in FINDING_ADVICE["square_size"] and "metres" in FINDING_ADVICE["square_size"]
+    assert "paired" in FINDING_ADVICE["poses_do_not_fit"] and "mounting mode" in FINDING_ADVICE["poses_do_not_fit"]
+    assert "--mode" in FINDING_ADVICE["mode_undecided"]
+    assert "--mode" in ERROR_ADVICE["mode_swapped"] and "eye_to_hand" in ERROR_ADVICE["mode_swapped"]
+    assert "--shift-poses N" in ERROR_ADVICE["pairs_shifted"]
+    assert "view id" in ERROR_ADVICE["pairs_shuffled"]
+    assert all(FINDING_ADVICE[c] == ERROR_ADVICE[c] for c in ("mode_swapped", "pairs_shifted", "pairs_shuffled"))
+    # keyed on the code, never on the text: a title that reads like another finding gets its code's advice
+    f = {"code": "square_size", "title": "The mounting mode is not decided", "action": ""}
+    assert finding_advice(f) == FINDING_ADVICE["square_size"]
+    assert finding_advice({"code": "blurred", "title": "squares look like 30 mm"}) == ""
+    for code in ("mode_swapped", "pairs_shifted", "pairs_shuffled"):
+        res = {"status": "failed", "mode": "eye_in_hand", "views": [], "failure_reason": "x",
+               "error": {"code": code, "type": "SessionRefused", "what": "refused", "fix": None}}
+        f = build_report_context(_folder(tmp_path / code, res), make_plots=False)["failure"]
+        assert ERROR_ADVICE[code] in f["actions"]
+
+
+def test_the_findings_section_shows_the_advice_of_the_code(synthetic, tmp_path):
+    from handeye.report.advice import FINDING_ADVICE
+
+    res = json.loads((synthetic["out"] / "result.json").read_text())
+    res["diagnostics"]["findings"] = [{"code": "poses_do_not_fit", "severity": "fail", "title": "The robot poses "
+                                       "do not fit the images as read", "evidence": "...", "action": "check",
+                                       "view_ids": []}]
+    md, text = _reports(_folder(tmp_path, res))
+    assert f"Check: {FINDING_ADVICE['poses_do_not_fit']}" in md
+    assert f"Check: {FINDING_ADVICE['poses_do_not_fit']}" in text
+
+
+# ------------------------------------------------------------------------------ flagged views
+def test_views_with_flagged_corners_count_once_as_flagged(synthetic, tmp_path):
+    from handeye.report import build_report_context
+
+    res = json.loads((synthetic["out"] / "result.json").read_text())
+    obs = json.loads((synthetic["out"] / "observations.json").read_text())
+    res["refinement"]["outliers"] = []
+    for v in res["views"]:
+        v["flags"] = []
+    base = build_report_context(_folder(tmp_path / "a", res, obs), make_plots=False)
+    n_base = sum(v["flagged"] for v in base["views"])
+    assert n_base == sum(v["status"] != "used" for v in base["views"])
+    clean = [v for v in res["views"] if v["used"]][:2]
+    clean[0]["flags"] = ["corners 3, 7: reprojection 4.1 px > 3.0 px"]
+    clean[1]["flags"] = ["corner 2: reprojection 5.0 px", "corner 9: reprojection 3.5 px"]  # still one view
+    ctx = build_report_context(_folder(tmp_path / "b", res, obs), make_plots=False)
+    rows = {v["id"]: v for v in ctx["views"]}
+    assert rows[str(clean[0]["id"])]["flagged"] and rows[str(clean[0]["id"])]["status"] == "used"
+    assert sum(v["flagged"] for v in ctx["views"]) == n_base + 2
+    card = next(k for k in ctx["kpis"] if k["label"] == "Views used")
+    assert card["sub"] == f"{n_base + 2} dropped or flagged"
+    share = next(c for c in ctx["verdict"].checks if c.key == "dropped_share")
+    assert share.value == pytest.approx((n_base + 2) / len(ctx["views"]))

@@ -24,7 +24,47 @@ ERROR_ADVICE = {
     "camera_calibration_failed": "Give the camera intrinsics in the session, or add views that reach the image "
                                  "corners at different distances and tilts.",
     "pnp_failed": "Check the board description (inner corners, square size) against the thumbnails.",
+    "mode_swapped": "Check where the camera is mounted: on the flange it is eye_in_hand, on a stand eye_to_hand; "
+                    "state that mode with --mode or mode: in the session.",
+    "pairs_shifted": "Check whether the pose file has an extra or a missing line at the start; if the shift is "
+                     "certain, re-run with --shift-poses N (image k takes pose line k + N), else re-capture images "
+                     "and poses together, by view id.",
+    "pairs_shuffled": "Re-pair images and poses by view id (the recording lost their order); re-capture if unsure.",
+    "session_refused": "Read the finding that refused the run below; fix its cause and re-run handeye calibrate.",
 }
+
+#: finding code -> what to check (the findings' own ``action`` comes first; this adds what a person checks)
+FINDING_ADVICE = {
+    "square_size": "Measure a printed square with a caliper and state that size in metres; a printer's 'fit to "
+                   "page' shrinks a board by a few per cent.",
+    "poses_do_not_fit": "Check that each image is paired with the pose recorded at that moment, the pose format "
+                        "(units, Euler order), the mounting mode and that the board stayed put; re-capture if "
+                        "unsure.",
+    "mode_undecided": "State the mounting mode (--mode eye_in_hand or eye_to_hand, or mode: in the session); the "
+                      "data did not decide it, so the default was used.",
+    "mode_swapped": ERROR_ADVICE["mode_swapped"],
+    "pairs_shifted": ERROR_ADVICE["pairs_shifted"],
+    "pairs_shuffled": ERROR_ADVICE["pairs_shuffled"],
+}
+
+#: code -> a few words naming the root cause, for the start of the report's banner; a finding code not
+#: here (e.g. board_moved) is named by its own title, which says it already
+ROOT_CAUSE_LABELS = {
+    "mode_swapped": "Mode swapped",
+    "poses_inverted": "Robot poses inverted",
+    "translation_units": "Robot translations in the wrong unit",
+    "angle_units": "Robot angles in the wrong unit",
+    "euler_order": "Wrong Euler angle order",
+    "quaternion_order": "Wrong quaternion order",
+    "pairs_shuffled": "Pairs shuffled",
+    "poses_do_not_fit": "Robot poses do not fit the images",
+    "mode_undecided": "Mounting mode not decided",
+}
+
+#: codes whose fail or warn finding (or refusal) explains the verdict: the banner leads with the first found
+ROOT_CAUSE_CODES = ("mode_swapped", "poses_inverted", "pairs_shifted", "pairs_shuffled", "translation_units",
+                    "angle_units", "euler_order", "quaternion_order", "square_size", "board_moved",
+                    "poses_do_not_fit", "mode_undecided")
 
 #: advice for the error classes' default codes: only when nothing more precise is known
 FALLBACK_ADVICE = {
@@ -121,6 +161,11 @@ def failure_advice(res: dict, findings: list[dict], *, has_views: bool) -> dict:
             "actions": actions}
 
 
+def finding_advice(f: dict) -> str:
+    """What to check for a finding, by its code, beyond its own action ("" when nothing more is known)."""
+    return _sentence(FINDING_ADVICE.get(str(f.get("code") or ""), ""))
+
+
 def untrusted_metrics(findings: list[dict]) -> dict[str, str]:
     """metric key -> the title of the (fail or warn) finding that makes its value untrustworthy."""
     out: dict[str, str] = {}
@@ -130,3 +175,64 @@ def untrusted_metrics(findings: list[dict]) -> dict[str, str]:
         for key in UNTRUSTED_METRICS.get(f.get("code", ""), ()):
             out.setdefault(key, f.get("title") or f.get("code"))
     return out
+
+
+def _shift_label(shift) -> str:
+    """``Pairs shifted by one line`` for a shift of +-1, ``by 2 lines`` for +-2."""
+    try:
+        n = abs(int(shift))
+    except (TypeError, ValueError):
+        return "Pairs shifted"
+    return "Pairs shifted by one line" if n == 1 else f"Pairs shifted by {n} lines"
+
+
+def _cause_of_finding(f: dict) -> str:
+    """The root cause a finding names: its label and title (``Mode swapped: the data are ...``)."""
+    code, title = str(f.get("code") or ""), str(f.get("title") or "").rstrip(".")
+    details = f.get("details") if isinstance(f.get("details"), dict) else {}
+    if code == "square_size" and details.get("measured_mm") is not None and details.get("stated_mm") is not None:
+        label = f"Squares look like {float(details['measured_mm']):.1f} mm, not {float(details['stated_mm']):g} mm"
+        return label
+    if code == "pairs_shifted":
+        label = _shift_label(details["shift"]) if "shift" in details else ROOT_CAUSE_LABELS["pairs_shuffled"]
+    else:
+        label = ROOT_CAUSE_LABELS.get(code, "")
+    if not label:
+        return _sentence(title).rstrip(".")
+    return f"{label}: {title[:1].lower() + title[1:]}" if title else label
+
+
+def root_cause(res: dict, findings: list[dict]) -> dict | None:
+    """The root cause that explains the verdict, for the start of the banner, or None.
+
+    A failed run whose error code names a cause (a refusal: mode_swapped, pairs_shifted, pairs_shuffled, or a
+    refusing finding's code) gives ``{"code", "text", "fix", "refused": True}`` with the error's own fix; else
+    the first fail, then warn finding with a code of :data:`ROOT_CAUSE_CODES` gives ``{"code", "text", "fix",
+    "refused": False}`` with its action. Keyed on codes, never on message text."""
+    err = res.get("error") if isinstance(res.get("error"), dict) else {}
+    code = str(err.get("code") or "")
+    refused = res.get("verdict") == "REFUSED" or err.get("type") == "SessionRefused"
+    if res.get("status") != "ok" and (refused or code in ROOT_CAUSE_CODES):
+        same = [f for f in findings if f.get("code") == code
+                or (code == "pairs_shuffled" and f.get("code") == "pairs_shifted")]
+        if same:
+            text = _cause_of_finding(same[0])
+            if code == "pairs_shuffled" and not text.startswith(ROOT_CAUSE_LABELS["pairs_shuffled"]):
+                text = ROOT_CAUSE_LABELS["pairs_shuffled"]
+        elif code == "pairs_shifted":
+            text = _shift_label(None)
+        else:
+            label = ROOT_CAUSE_LABELS.get(code, "")
+            what = str(err.get("what") or "").rstrip(".")
+            text = f"{label}: {what[:1].lower() + what[1:]}" if label and what else (label or _sentence(what))
+        fix = err.get("fix") or ERROR_ADVICE.get(code) or (same[0].get("action") if same else "")
+        if text:
+            return {"code": code, "text": text.rstrip("."), "fix": _sentence(fix).rstrip("."), "refused": refused,
+                    "severity": "fail"}
+    for severity in ("fail", "warn"):
+        for f in findings:
+            if f.get("severity") == severity and f.get("code") in ROOT_CAUSE_CODES:
+                return {"code": f["code"], "text": _cause_of_finding(f), "severity": severity,
+                        "fix": _sentence(f.get("action") or FINDING_ADVICE.get(f["code"], "")).rstrip("."),
+                        "refused": False}
+    return None

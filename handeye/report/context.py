@@ -19,7 +19,7 @@ from ..conventions import pose_forms, vendor_euler_from_R
 from ..frames import pose_error, quat_wxyz_from_R
 from ..mounting import EYE_IN_HAND, MODES, mounting
 from ..output import plain
-from .advice import STAGE_CHECKS, failure_advice, untrusted_metrics
+from .advice import STAGE_CHECKS, failure_advice, finding_advice, root_cause, untrusted_metrics
 from .folder import ResultFolder
 from .metrics import qa_metrics
 from .observations import as_cov6, as_T, board_disagreement, finite, median_board_distance_m, view_fits
@@ -84,6 +84,9 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
                                 coverage_cells_x=int(qa_cfg.get("coverage_grid_cells_x", 16)))
     failure = failure_advice(res, findings, has_views=bool(views)) if not ok else None
     notes["x_name"] = x_name
+    cause = root_cause(res, findings)
+    if cause:
+        notes["root_cause"] = cause
     untrusted = untrusted_metrics(findings)
     if pred is not None and "predicted_error_mm" not in untrusted:  # the headline repeats it
         notes["predicted_text"] = f"{pred['rms_mm']:.2f} mm (1 σ) at {wd:.2f} m"
@@ -93,6 +96,8 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     ctx["verdict"] = verdict
     ctx["untrusted"] = untrusted
     ctx["failure"] = failure
+    ctx["root_cause"] = cause
+    ctx["verdict_label"] = "REFUSED" if cause and cause["refused"] else verdict.label
     ctx["findings"] = findings
     ctx["stages"] = stages
     ctx["cross_validation"] = _cross_validation(diag.get("cross_validation"))
@@ -200,6 +205,8 @@ def _view_rows(res, ref, fits, centre, findings, image_size) -> list[dict]:
             flags.append({"severity": "fail", "text": _strip_view_prefix(v.get("reason") or "not used")})
         elif pv.get("status") == "robot_excluded":
             status, reason_kind = "flagged", OUTLIER_KIND_TEXT["robot_pose"]
+        elif v.get("flags") or outl.get(vid):  # used, with flagged corners
+            status, reason_kind = "used", OUTLIER_KIND_TEXT["corners"]
         else:
             status, reason_kind = "used", ""
         for o in outl.get(vid, []):
@@ -227,7 +234,10 @@ def _view_rows(res, ref, fits, centre, findings, image_size) -> list[dict]:
             bad = flagged_corners.get(vid, set())
             corners = [(round(float(u), 1), round(float(w), 1), int(c) in bad)
                        for c, (u, w) in zip(fit.corner_ids, fit.image_points_px)]
+        # flagged: counted once in the dropped/flagged share, whether dropped, excluded or with flagged corners
+        flagged = status != "used" or bool(v.get("flags")) or vid in outl
         rows.append({"id": vid, "image": v.get("image") or "", "status": status, "reason_kind": reason_kind,
+                     "flagged": flagged,
                      "n_corners": v.get("n_corners") or (len(fit.corner_ids) if fit else 0),
                      "rms_px": rms, "max_px": mx, "chain_rms_px": chain, "robot_mm": rc_mm, "robot_deg": rc_deg,
                      "robot_maha": maha, "flags": flags, "corners": corners,
@@ -372,7 +382,9 @@ def _findings(diag: dict) -> list[dict]:
         out.append({"code": str(f.get("code") or ""), "severity": sev,
                     "title": str(f.get("title") or f.get("code") or "finding"),
                     "evidence": _cap1(f.get("evidence", "")), "action": _cap1(f.get("action", "")),
-                    "view_ids": [str(v) for v in (f.get("view_ids") or [])]})
+                    "view_ids": [str(v) for v in (f.get("view_ids") or [])],
+                    "details": f.get("details") if isinstance(f.get("details"), dict) else {},
+                    "advice": finding_advice(f)})
     out.sort(key=lambda f: SEVERITY_ORDER[f["severity"]])
     return out
 
@@ -501,7 +513,8 @@ def _kpis(metrics, pred, wd, views, verdict: Verdict, ok: bool, untrusted: dict[
         out.append(card("Reprojection RMS", f"{v:.2f} px", "detected vs predicted corners", ["reprojection_rms_px"]))
     n_used = sum(x["status"] == "used" for x in views)
     if views:
-        out.append(card("Views used", f"{n_used} / {len(views)}", f"{len(views) - n_used} dropped or flagged",
+        n_flagged = sum(bool(x.get("flagged")) for x in views)
+        out.append(card("Views used", f"{n_used} / {len(views)}", f"{n_flagged} dropped or flagged",
                         ["used_views"]))
     mr, sp = metrics.get("max_rotation_deg"), metrics.get("axis_spread_deg")
     if mr is not None:

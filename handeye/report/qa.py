@@ -252,12 +252,20 @@ def _lower1(s: str) -> str:
 
 
 def _headline(status: str, checks: list, findings: list, ctx: dict, failure: dict | None) -> str:
+    cause = ctx.get("root_cause")  # {"code", "text", "fix", "refused"} (report.advice.root_cause)
     if failure:
+        if cause:
+            fix = f" Fix: {_lower1(cause['fix'])}." if cause.get("fix") else ""
+            end = " No result is given." if cause.get("refused") else " The session could not be calibrated."
+            return f"{cause['text']}.{fix}{end}"
         return "The session could not be calibrated. " + (failure.get("short") or "")
+    if cause and cause.get("severity") != status:
+        cause = None  # a warning does not explain a failed verdict
     named = [c for c in checks if c.status == status and c.short]
     items = [c.short for c in named]
     items += [_lower1(str(f.get("title") or f.get("code") or "").rstrip(".")) for f in findings
-              if str(f.get("severity")).lower() == status]
+              if str(f.get("severity")).lower() == status and not (cause and f.get("code") == cause["code"])]
+    lead = f"{cause['text']}. " if cause and status != "pass" else ""
     name = ctx.get("x_name", "The hand-eye transform")
     pe = ctx.get("predicted_text")
     said = any(c.key == "predicted_error_mm" for c in named)  # the headline names it already
@@ -267,8 +275,8 @@ def _headline(status: str, checks: list, findings: list, ctx: dict, failure: dic
     if len(items) > 3:
         items = items[:3] + [f"{len(items) - 3} more"]
     if status == "warn":
-        return f"{name} passes with warnings: {_join(items)}.{tail}"
-    return f"{name} fails QA: {_join(items)}.{tail}"
+        return f"{lead}{name} passes with warnings{': ' + _join(items) if items else ''}.{tail}"
+    return f"{lead}{name} fails QA{': ' + _join(items) if items else ''}.{tail}"
 
 
 def _join(items: list) -> str:
