@@ -52,3 +52,22 @@ def load_with_override(name: str, override_path: str | Path | None) -> dict:
     if not isinstance(data, dict):
         raise ConfigError("expected a mapping at the top level", path=p)
     return merge(cfg, data, source=str(p))
+
+
+def check_section(cls, section, *, name: str, source: str) -> dict:
+    """``section`` of a preset as a mapping whose keys are exactly the fields of the dataclass ``cls``.
+
+    Missing, unknown or non-mapping sections are a :class:`ConfigError` naming the section, the keys
+    expected and the keys found (``source``: the preset file, for the message).
+    """
+    from dataclasses import fields
+
+    if not isinstance(section, dict):
+        raise ConfigError(f"section {name!r} must be a mapping", path=source, received=repr(section))
+    names = {f.name for f in fields(cls)}
+    unknown, missing = set(section) - names, names - set(section)
+    if unknown or missing:
+        raise ConfigError(f"section {name!r} does not match its settings", path=source,
+                          expected=", ".join(sorted(names)),
+                          received=f"unknown {sorted(unknown)}, missing {sorted(missing)}")
+    return section

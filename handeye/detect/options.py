@@ -3,12 +3,11 @@ and origin."""
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import cv2
 
-from ..config import load_preset
-from ..errors import ConfigError
+from ..config import check_section, load_preset
 
 
 @dataclass(frozen=True)
@@ -48,24 +47,14 @@ class DetectionOptions:
     @classmethod
     def from_config(cls, cfg: dict) -> "DetectionOptions":
         """From the ``detection:`` mapping; a missing or unknown key is a ConfigError naming it."""
-        _check_keys(cls, cfg, "detection")
-        _check_keys(CircleBlobOptions, cfg["circle_blobs"], "detection.circle_blobs")
+        check_section(cls, cfg, name="detection", source="configs/detection.yaml")
+        check_section(CircleBlobOptions, cfg["circle_blobs"], name="detection.circle_blobs",
+                      source="configs/detection.yaml")
         return cls(**dict(cfg, circle_blobs=CircleBlobOptions(**cfg["circle_blobs"])))
 
     @property
     def subpix_criteria(self) -> tuple:
         return (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, self.subpix_max_iter, self.subpix_eps_px)
-
-
-def _check_keys(cls, cfg, section: str) -> None:
-    names = {f.name for f in fields(cls)}
-    if not isinstance(cfg, dict):
-        raise ConfigError(f"{section} must be a mapping", path="configs/detection.yaml", received=repr(cfg))
-    unknown, missing = set(cfg) - names, names - set(cfg)
-    if unknown or missing:
-        raise ConfigError(f"{section} settings do not match", path="configs/detection.yaml",
-                          expected=", ".join(sorted(names)),
-                          received=f"unknown {sorted(unknown)}, missing {sorted(missing)}")
 
 
 @functools.lru_cache(maxsize=None)

@@ -8,22 +8,12 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass, fields
 
-from ..config import load_preset
+from ..config import check_section, load_preset
 from ..errors import ConfigError
 
 
 def _section(cls, cfg: dict, name: str):
-    d = cfg.get(name)
-    if not isinstance(d, dict):
-        raise ConfigError(f"diagnostics preset: section {name!r} missing", expected="a mapping",
-                          received=repr(d))
-    names = {f.name for f in fields(cls)}
-    unknown = set(d) - names
-    missing = names - set(d)
-    if unknown or missing:
-        raise ConfigError(f"diagnostics preset: section {name!r} does not match the thresholds",
-                          expected=", ".join(sorted(names)),
-                          received=f"unknown {sorted(unknown)}, missing {sorted(missing)}")
+    d = check_section(cls, cfg.get(name), name=name, source="configs/diagnostics.yaml")
     out = {}
     for f in fields(cls):
         try:
