@@ -306,6 +306,6 @@ def _stop_player(closing: threading.Event, player: list) -> None:
         for step in (sensor.stop, sensor.close):
             try:
                 step()
-            except RuntimeError:
+            except RuntimeError:  # pyrealsense2 raises when the sensor is already stopped or closed
                 pass
     player.clear()
