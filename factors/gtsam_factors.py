@@ -114,3 +114,13 @@ def intrinsics_prior(*, key_intrinsics: int, prior_values: np.ndarray, sigmas: n
     """Gaussian prior on the free-intrinsics vector (same order and length as the variable)."""
     return gtsam.PriorFactorVector(key_intrinsics, np.asarray(prior_values, float),
                                    gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, float)))
+
+
+def gaussian_prior(*, key: int, mean: np.ndarray, cov: np.ndarray) -> gtsam.NonlinearFactor:
+    """Gaussian prior with a full covariance on a Pose3 (``mean`` (4,4); ``cov`` (6,6) in its right
+    tangent, rotation first: error ``Log(inv(mean) · T)``) or on a Vector (``mean`` (k,), ``cov`` (k,k))."""
+    mean = np.asarray(mean, float)
+    noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, float))
+    if mean.shape == (4, 4):
+        return gtsam.PriorFactorPose3(key, gtsam.Pose3(mean), noise)
+    return gtsam.PriorFactorVector(key, mean, noise)

@@ -15,6 +15,7 @@ from handeye.factors.reprojection import chain_residual
 from handeye.frames import se3_exp, skew, tangent_difference
 from handeye.mounting import mounting
 from handeye.refine import RefineOptions, RefineView, refine, refit
+from handeye.refine.options import Prior
 from handeye.refine.outliers import RobotPoseGates, leave_one_out, robot_pose_test, view_variance_factor
 from handeye.sim.corners import make_corner_session
 
@@ -205,6 +206,37 @@ def test_intrinsics_options_fixed_subset_and_prior():
         assert r.status == "ok"
         if robot_noise == "fixed":
             assert (r.robot_sigma_mm, r.robot_sigma_deg) == (0.2, 0.05)
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_prior_on_x_tight_pins_it_loose_changes_nothing(mode):
+    s = make_corner_session(mode=mode, n_views=10, seed=12, noise_px=0.3)
+    free = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics)
+    assert free.status == "ok"
+    # a tight prior 0.3 deg / 3 mm off the truth (about 10-100 sigma of the data): X sits on it, its
+    # covariance is the prior's
+    T_p = s.T_x_true @ se3_exp(np.r_[np.radians(0.3) * np.array([0.6, 0.0, 0.8]), 0.003, -0.001, 0.0])
+    cov_tight = np.diag([1e-7 ** 2] * 3 + [1e-7 ** 2] * 3)
+    r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, prior=Prior(T_p, cov_tight))
+    assert r.status == "ok", r.failure_reason
+    assert np.abs(_xi_err(r.T_x, T_p)).max() < 1e-6, f"{mode}: tight prior did not pin X: {_xi_err(r.T_x, T_p)}"
+    np.testing.assert_allclose(np.sqrt(np.diag(r.cov_x_6x6)), 1e-7, rtol=0.01)
+    # a loose prior (1 rad, 1 m) at the same place: X moves by less than 1 % of its sigma
+    r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, prior=Prior(T_p, np.eye(6)))
+    xi = _xi_err(r.T_x, free.T_x)
+    assert np.all(np.abs(xi) < 0.01 * np.sqrt(np.diag(free.cov_x_6x6))), f"{mode}: loose prior moved X by {xi}"
+    np.testing.assert_allclose(r.cov_x_6x6, free.cov_x_6x6, rtol=0.01, atol=1e-3 * np.abs(free.cov_x_6x6).max())
+    # intrinsics prior: tight on fx, fy, cx, cy 5 px away, loose elsewhere
+    k_p = s.intrinsics.as_vector() + np.r_[5.0, -5.0, 5.0, -5.0, [0.0] * 5]
+    cov_k = np.diag(np.r_[[1e-4 ** 2] * 4, [1.0] * 5])
+    r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics,
+                prior=Prior(s.T_x_true, np.eye(6), Intrinsics.from_vector(k_p, s.intrinsics.width,
+                                                                            s.intrinsics.height), cov_k))
+    np.testing.assert_allclose(r.intrinsics.as_vector()[:4], k_p[:4], atol=1e-3)
+    with pytest.raises(ConfigError, match="prior.cov_x"):
+        _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, prior=Prior(T_p, -np.eye(6)))
+    with pytest.raises(ConfigError, match="prior.cov_intrinsics"):
+        _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, prior=Prior(T_p, np.eye(6), s.intrinsics, None))
 
 
 def test_to_dict_is_json_ready_and_names_frames():

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from ..stats import RAYLEIGH_MEDIAN, robust_noise_sigma
-from .covariance import N_POSES, arrow_solve
+from .covariance import arrow_solve
 from .options import refine_preset
 
 if TYPE_CHECKING:
@@ -83,7 +83,7 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
 
     For sigmas s the linear least-squares step dx, the group residual sums e_g^T e_g and the
     redundancies r_g = n_g - tr(W_g J_g Sigma J_g^T) follow from the unit-sigma pixel information,
-    the robot priors (Jacobian I on their pose block) and the intrinsics prior; then
+    the robot priors (Jacobian I on their pose block) and the priors on the core (:meth:`.problem.Problem.core_prior`); then
     s_g^2 = e_g^T e_g / r_g. Updates pb's sigmas in place."""
     cfg = _cfg()
     floors = (float(cfg["sigma_px_floor"]), float(cfg["robot_sigma_rot_floor_rad"]),
@@ -94,12 +94,7 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
     estimate_robot = pb.o.robot_noise == "estimate"
     pri = lin.prior
     n_pri = int(pri.sum())
-    HK = np.zeros(c)
-    gK = np.zeros(c)
-    if pb.prior_sig is not None:
-        nk = pb.free.size
-        HK[N_POSES:N_POSES + nk] = 1.0 / pb.prior_sig ** 2
-        gK[N_POSES:N_POSES + nk] = (pb.k[pb.free] - pb.k_given[pb.free]) / pb.prior_sig ** 2
+    HK, gK = pb.core_prior()  # priors on the core unknowns (intrinsics, options.prior)
     s = np.array([pb.sigma_px, pb.sigma_rot, pb.sigma_trans])
     start = s.copy()
     eye6 = np.eye(6)
@@ -113,12 +108,12 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
         grad = lin.g * w_px
         grad[:c] += gK
         grad[c:] += (Wp * lin.xi).reshape(-1)
-        S_cc, S_pp, dx = arrow_solve(lin.Hcc * w_px + np.diag(HK), lin.Hcp * w_px, Hpp, -grad)
+        S_cc, S_pp, dx = arrow_solve(lin.Hcc * w_px + HK, lin.Hcp * w_px, Hpp, -grad)
         dc, dp = dx[:c], dx[c:].reshape(n, 6)
         Hdx_c = lin.Hcc @ dc + np.einsum("nci,ni->c", lin.Hcp, dp)
         Hdx_p = np.einsum("nci,c->ni", lin.Hcp, dc) + np.einsum("nij,nj->ni", lin.Hpp, dp)
         e_px2 = lin.rr + 2.0 * dx @ lin.g + dc @ Hdx_c + np.sum(dp * Hdx_p)
-        absorbed = float(np.sum(HK * np.diag(S_cc)))
+        absorbed = float(np.sum(HK * S_cc))  # tr(H_prior Sigma_core)
         new = s.copy()
         if n_pri:
             e_rob = (lin.xi + dp)[pri]

@@ -10,7 +10,7 @@ import numpy as np
 
 from handeye.factors.reprojection import LOSSES
 
-from ..camera import INTRINSIC_NAMES
+from ..camera import INTRINSIC_NAMES, Intrinsics
 from ..config import load_preset
 from ..errors import ConfigError, InputError
 
@@ -43,6 +43,24 @@ class RefineView:
     T_base_end: np.ndarray  # (4, 4) reported robot pose, metres
 
 
+@dataclass(frozen=True, eq=False)
+class Prior:
+    """Gaussian prior knowledge of the hand-eye transform (and optionally the intrinsics), e.g. an
+    earlier calibration of the same rig.
+
+    ``T_x`` (4,4): the prior's ``T_end_cam`` (eye-in-hand) / ``T_base_cam`` (eye-to-hand); ``cov_x``
+    (6,6): its covariance in the GTSAM right tangent of ``T_x`` (``T_x_true = T_x · Exp(xi)``,
+    ``xi = (omega [rad], v [m])``, the parametrisation of ``RefineResult.cov_x_6x6``).
+    ``intrinsics`` / ``cov_intrinsics`` (9,9) in the order of ``INTRINSIC_NAMES``: a prior on the
+    free intrinsics (only their rows and columns are used); it adds to ``intrinsics="prior"``'s
+    factory prior when both are given."""
+
+    T_x: np.ndarray
+    cov_x: np.ndarray
+    intrinsics: Optional[Intrinsics] = None
+    cov_intrinsics: Optional[np.ndarray] = None
+
+
 @dataclass(frozen=True)
 class RefineOptions:
     """What to estimate and how to decide outliers; thresholds default to configs/refine.yaml."""
@@ -65,6 +83,7 @@ class RefineOptions:
     min_robot_disagreement_deg: float = _from_preset("outliers", "robot_pose", "min_rot_deg")
     min_corners: int = _from_preset("outliers", "min_corners")
     max_outlier_rounds: int = _from_preset("outliers", "max_rounds")
+    prior: Optional[Prior] = None  # Gaussian prior on T_x (and the free intrinsics), e.g. an earlier calibration
 
 
 def check_options(o: RefineOptions) -> None:
@@ -101,6 +120,35 @@ def check_options(o: RefineOptions) -> None:
         v = getattr(o, name)
         if not (isinstance(v, (int, np.integer)) and v >= 1):
             bad(name, "a positive integer", v)
+    if o.prior is not None:
+        check_prior(o.prior, bad)
+
+
+def _is_covariance(C, n: int) -> bool:
+    C = np.asarray(C, float) if C is not None else np.zeros(0)
+    if C.shape != (n, n) or not np.all(np.isfinite(C)) or not np.allclose(C, C.T, rtol=1e-8, atol=0.0):
+        return False
+    try:
+        np.linalg.cholesky(0.5 * (C + C.T))
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+def check_prior(p: "Prior", bad) -> None:
+    """A prior's shapes and covariances (symmetric positive definite); ``bad(field, expected, got)`` raises."""
+    if not isinstance(p, Prior):
+        bad("prior", "a handeye.refine.options.Prior", type(p).__name__)
+    if np.shape(p.T_x) != (4, 4):
+        bad("prior.T_x", "a rigid 4x4 transform", np.shape(p.T_x))
+    if not _is_covariance(p.cov_x, 6):
+        bad("prior.cov_x", "a symmetric positive definite 6x6 covariance (rad^2, m^2)", np.shape(p.cov_x))
+    if (p.intrinsics is None) != (p.cov_intrinsics is None):
+        bad("prior.cov_intrinsics", "intrinsics and cov_intrinsics both given or both None",
+            "only one of them")
+    if p.cov_intrinsics is not None and not _is_covariance(p.cov_intrinsics, len(INTRINSIC_NAMES)):
+        bad("prior.cov_intrinsics", "a symmetric positive definite 9x9 covariance in the order "
+            + ", ".join(INTRINSIC_NAMES), np.shape(p.cov_intrinsics))
 
 
 def check_T(T, what: str) -> np.ndarray:

@@ -21,14 +21,15 @@ from typing import Optional, Sequence
 import gtsam
 import numpy as np
 
-from handeye.factors.gtsam_factors import intrinsics_prior, robot_pose_prior, view_reprojection_factor
+from handeye.factors.gtsam_factors import (gaussian_prior, intrinsics_prior, robot_pose_prior,
+                                           view_reprojection_factor)
 from handeye.factors.reprojection import stacked_chain_residual
 
 from ..camera import INTRINSIC_NAMES, Intrinsics
-from ..frames import se3_exp, tangent_difference
+from ..frames import se3_exp, tangent_difference, tangent_jacobian
 from ..mounting import mounting
 from .covariance import N_POSES, arrow_blocks, arrow_inverse
-from .options import RefineOptions, RefineView, refine_preset
+from .options import RefineOptions, RefineView, check_T, refine_preset
 
 KEY_X = gtsam.symbol("x", 0)
 KEY_BOARD = gtsam.symbol("b", 0)
@@ -102,6 +103,15 @@ class Problem:
                 sig = np.r_[p["focal_share"] * self.k[0], p["focal_share"] * self.k[1], p["centre_share"] * w,
                             p["centre_share"] * h, np.asarray(p["distortion"], float)]
             self.prior_sig = sig[self.free]
+        # options.prior: Gaussian priors on T_x and on the free intrinsics (e.g. an earlier calibration)
+        self.prior_x = None  # (T_x of the prior (4,4), its covariance (6,6))
+        self.prior_k = None  # (mean (nk,), covariance (nk, nk)) of the free intrinsics
+        if options.prior is not None:
+            p = options.prior
+            self.prior_x = (check_T(p.T_x, "prior T_x"), np.asarray(p.cov_x, float))
+            if p.intrinsics is not None and self.free.size:
+                self.prior_k = (p.intrinsics.as_vector()[self.free].astype(float),
+                                np.asarray(p.cov_intrinsics, float)[np.ix_(self.free, self.free)])
         self.robot_var = options.robot_noise != "none"
         self.robot_prior_k = float(refine_preset()["robust"]["robot_prior_k"])
         self.T_x = T_x0.copy()
@@ -199,6 +209,10 @@ class Problem:
         if self.prior_sig is not None and not pixel_only:
             g.add(intrinsics_prior(key_intrinsics=KEY_INTRINSICS, prior_values=self.k_given[self.free],
                                    sigmas=self.prior_sig))
+        if self.prior_x is not None and not pixel_only:
+            g.add(gaussian_prior(key=KEY_X, mean=self.prior_x[0], cov=self.prior_x[1]))
+        if self.prior_k is not None and not pixel_only:
+            g.add(gaussian_prior(key=KEY_INTRINSICS, mean=self.prior_k[0], cov=self.prior_k[1]))
         return g, v, robot_keys
 
     def solve(self, *, robust: bool):
@@ -221,6 +235,30 @@ class Problem:
         for i, key in robot_keys.items():
             self.P[i] = res.atPose3(key).matrix()
         return g, res, robot_keys
+
+    def core_prior(self) -> tuple[np.ndarray, np.ndarray]:
+        """Information (c,c) and gradient J^T W r (c,) at the current estimate of the priors on the core
+        unknowns (the intrinsics prior of ``intrinsics="prior"`` and ``options.prior``), in the core
+        order of :meth:`pixel_linearisation`; the same terms as the graph's prior factors."""
+        c = self.n_core
+        H, g = np.zeros((c, c)), np.zeros(c)
+        ks = slice(N_POSES, N_POSES + self.free.size)
+        if self.prior_sig is not None:
+            W = np.diag(1.0 / self.prior_sig ** 2)
+            H[ks, ks] += W
+            g[ks] += W @ (self.k[self.free] - self.k_given[self.free])
+        if self.prior_k is not None:
+            W = np.linalg.inv(self.prior_k[1])
+            H[ks, ks] += W
+            g[ks] += W @ (self.k[self.free] - self.prior_k[0])
+        if self.prior_x is not None:
+            T_p, cov = self.prior_x
+            r = tangent_difference(T_p, self.T_x)
+            J = tangent_jacobian(lambda T: tangent_difference(T_p, T), self.T_x)
+            JW = J.T @ np.linalg.inv(cov)
+            H[:6, :6] += JW @ J
+            g[:6] += JW @ r
+        return H, g
 
     # -- information
     def _ordering(self, robot_keys):
