@@ -76,6 +76,13 @@ class ConfigError(InputError):
     code = "config_error"
 
 
+class OutputError(InputError):
+    """An output folder or file cannot be used: it is a file, lies under a file, is not writable, is
+    in use by another run, or the disk refused the write. Checked before the work starts where it can be."""
+
+    code = "output_unusable"
+
+
 class DetectionError(HandeyeError):
     """The calibration target could not be found in enough views."""
 
@@ -154,17 +161,22 @@ VERDICTS = {
 #: exit code of ``handeye`` after Ctrl-C (128 + SIGINT, as shells report it)
 INTERRUPTED_EXIT_CODE = 130
 
+#: exit code of ``handeye verify`` / ``handeye compare`` when the calibration changed beyond its uncertainty
+DRIFTED_EXIT_CODE = 9
+
 #: exit codes of ``handeye`` (code, meaning), the table ``--help`` and the README show
 EXIT_CODES = (
     (0, "PASS or WARN: the result is written (warnings and their fixes are printed)"),
     (1, "an unexpected internal error (a bug: please report it with the traceback of --debug)"),
-    (InputError.exit_code, "unusable input: a session, pose, config or QA file, or a command-line option"),
+    (InputError.exit_code, "unusable input: a session, pose, config or QA file, a command-line option, or an "
+                           "output folder that cannot be written or is in use"),
     (DetectionError.exit_code, "the target was not found in enough views (or not with the stated size)"),
     (DegenerateMotionError.exit_code, "the robot motion does not determine the hand-eye transform"),
     (CalibrationError.exit_code, "a solver failed"),
     (HardwareError.exit_code, "a camera or robot could not be reached or answered wrongly (collect)"),
     (QAFailed.exit_code, "FAIL: a matrix was computed but QA or a finding fails it; result and reports written"),
     (SessionRefused.exit_code, "REFUSED: a finding makes the result untrustworthy; no matrix, the finding says why"),
+    (DRIFTED_EXIT_CODE, "DRIFTED (verify, compare): the calibration changed beyond its uncertainty"),
     (INTERRUPTED_EXIT_CODE, "interrupted (Ctrl-C)"),
 )
 

@@ -114,6 +114,7 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
                         arm: str = DEFAULT_ARM, encoder_sigma_deg: float = ENCODER_SIGMA_DEG,
                         dh_length_error_mm: tuple[float, float] = DH_LENGTH_ERROR_MM,
                         dh_angle_error_deg: tuple[float, float] = DH_ANGLE_ERROR_DEG,
+                        rig: Optional[tuple] = None, robot_model_seed: Optional[int] = None,
                         **view_options) -> CornerSession:
     """A corner-level synthetic session with ground truth (see module docstring for seeding).
 
@@ -130,6 +131,9 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
     poses the true arm reaches within its joint limits are drawn. So a kinematic session's geometry
     differs from the iid session of the same seed; its robot model comes from its own random stream.
     ``view_options`` go to :func:`sample_view_poses` (distance_m, tilt_deg, roll_deg, ...).
+    ``rig``: ``(T_x, T_board)`` to use instead of the seed's rig (a later session of one installed rig,
+    e.g. with the camera bumped); ``robot_model_seed``: draw the kinematic arm from this seed's stream
+    instead of ``seed``'s (the same arm in a later session).
     All corners are projected with :func:`handeye.camera.pixels_from_board_points` through
     ``mounting(mode).predict_T_cam_board(T_x_true, T_board_true, T_base_end_true)``.
     """
@@ -162,7 +166,8 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
     geo = rngs["geometry"]
     kin, pose_ok, scale = None, None, 1.0
     if robot_error == "kinematic":
-        kin = make_kinematic_error(rng=rngs["robot_model"], arm=arm, length_error_mm=dh_length_error_mm,
+        model_rng = rngs["robot_model"] if robot_model_seed is None else random_streams(robot_model_seed)["robot_model"]
+        kin = make_kinematic_error(rng=model_rng, arm=arm, length_error_mm=dh_length_error_mm,
                                    angle_error_deg=dh_angle_error_deg, encoder_sigma_deg=encoder_sigma_deg)
         scale = workspace_scale(arm)
         pose_ok = lambda T: reachable(kin, T) is not None  # noqa: E731
@@ -171,6 +176,8 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
             view_options = dict(view_options, distance_m=(d_lo, max(1.5 * d_lo, d_hi * scale)))
     setup = sample_setup(mode=mode, rng=geo, target=target, workspace_scale=scale)
     T_x, T_board = setup["T_x"], setup["T_board"]
+    if rig is not None:
+        T_x, T_board = np.asarray(rig[0], float), np.asarray(rig[1], float)
     T_vis = sample_view_poses(mode=mode, n_views=len(visible), rng=geo, T_x=T_x, T_board=T_board, target=target,
                               intrinsics=intrinsics, pose_ok=pose_ok, **view_options)
     T_true = np.empty((n_views, 4, 4))

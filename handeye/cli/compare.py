@@ -1,0 +1,49 @@
+"""``handeye compare RESULT_A RESULT_B``: the difference between two calibrations of one rig.
+
+stdout: per axis the difference of X (mm, deg) with the sigma of the difference, the squared
+Mahalanobis distance under the sum of the two covariances and its p-value, the same for the
+intrinsics; ``--json`` prints :meth:`handeye.recal.compare.Comparison.to_dict` instead. Results
+that do not describe one quantity (mode, frames, board, camera resolution) are refused in one line
+(exit 2); a difference beyond the uncertainty exits with the DRIFTED code
+(:data:`handeye.errors.EXIT_CODES`).
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_arguments(p) -> None:
+    """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
+    from ..errors import exit_codes_text
+
+    p.description = ("Compare two calibrations of one rig: B - A of the hand-eye transform per axis (mm, deg), "
+                     "the squared Mahalanobis distance under the sum of both covariances (the ones each "
+                     "result's verdict uses) with its p-value, and the same for fx, fy, cx, cy. Refuses results "
+                     "of different modes, frames, boards or camera resolutions.")
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.epilog = exit_codes_text()
+    p.add_argument("result_a", type=Path, help="the earlier result folder (or its result.json)")
+    p.add_argument("result_b", type=Path, help="the later result folder (or its result.json)")
+    p.add_argument("--alpha", type=float, default=None, help="level of the test (default 0.05)")
+    p.add_argument("--json", action="store_true", help="print the comparison as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..errors import DRIFTED_EXIT_CODE, InputError
+    from ..output import to_json
+    from ..recal.compare import ALPHA, compare_results, comparison_lines
+
+    alpha = ALPHA if args.alpha is None else float(args.alpha)
+    if not 0.0 < alpha < 1.0:
+        raise InputError("--alpha must be a probability", expected="0 < alpha < 1", received=str(args.alpha))
+    c = compare_results(args.result_a, args.result_b, alpha=alpha)
+    if not c.comparable:
+        raise InputError(f"the two results are not comparable: {c.reason}", code="not_comparable",
+                         hint="compare calibrations of one rig (same mode, board and camera resolution)")
+    if args.json:
+        print(to_json(c.to_dict()))
+    else:
+        print("\n".join(comparison_lines(c)))
+    return DRIFTED_EXIT_CODE if c.drifted else 0

@@ -1,0 +1,185 @@
+"""The difference between two calibrations of one rig, and whether it exceeds their uncertainty.
+
+``xi = Log(inv(X_a) · X_b)`` (handeye's one tangent: rotation first, along the camera axes of ``X_a``)
+is tested against ``S = S_a + Ad · S_b · Ad^T`` (``Ad`` the adjoint of ``inv(X_a) · X_b``, which moves
+``X_b``'s right-tangent covariance into ``X_a``'s): ``d2 = xi^T S^-1 xi`` is chi-square with 6 degrees
+of freedom when both results calibrate the same unchanged rig with independent data, so
+``p = P(chi2_6 > d2)``; ``drifted`` when ``p < alpha``. The intrinsics (fx, fy, cx, cy) are tested
+the same way with the sum of their variances (result.json stores their sigmas, not their
+correlations: a diagonal test, chi-square with as many degrees of freedom as intrinsics with a sigma).
+
+Two results are comparable only when they describe the same quantity: the same mounting mode (and so
+the same frame of X), the same target and the same image size. Otherwise :func:`compare_results`
+returns ``comparable=False`` with ``reason`` naming the difference.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+from scipy import stats
+
+from ..frames import inv_T, rotvec_from_R, se3_adjoint, tangent_difference
+from ..output import plain
+from .loaded import LoadedResult, ResultLike, load_result
+
+ALPHA = 0.05  # the test's level: a false alarm rate of 5 % on an unchanged rig
+INTRINSICS_COMPARED = ("fx", "fy", "cx", "cy")
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """``X_b`` against ``X_a``. Translations: ``t_b - t_a`` along the parent frame's axes (mm);
+    rotations: ``rotvec(R_a^T R_b)`` about the camera axes of ``X_a`` (deg); ``xi``: the tangent
+    difference the test uses; ``intrinsics``: per name ``{a, b, diff, sigma, z}`` and ``mahalanobis2``,
+    ``dof``, ``p_value``, ``drifted`` (absent when neither result has intrinsics sigmas)."""
+
+    comparable: bool
+    reason: str
+    frame: str
+    d_trans_mm: np.ndarray  # (3,)
+    d_rot_deg: np.ndarray  # (3,)
+    trans_mm: float
+    rot_deg: float
+    mahalanobis2: float
+    p_value: float
+    drifted: bool
+    intrinsics: dict = field(default_factory=dict)
+    alpha: float = ALPHA
+    xi: np.ndarray = field(default_factory=lambda: np.full(6, np.nan))  # (6,) rad, m
+    sigma_trans_mm: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))  # (3,) of the difference
+    sigma_rot_deg: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))  # (3,) of the difference
+    sources: tuple = ()  # the two result paths
+    cov_sources: tuple = ()  # which covariance each result contributed
+
+    def to_dict(self) -> dict:
+        return plain({
+            "comparable": self.comparable, "reason": self.reason, "frame": self.frame,
+            "d_trans_mm": self.d_trans_mm, "d_rot_deg": self.d_rot_deg, "trans_mm": self.trans_mm,
+            "rot_deg": self.rot_deg, "sigma_trans_mm": self.sigma_trans_mm, "sigma_rot_deg": self.sigma_rot_deg,
+            "mahalanobis2": self.mahalanobis2, "dof": 6, "p_value": self.p_value, "alpha": self.alpha,
+            "drifted": self.drifted, "intrinsics": self.intrinsics, "xi_rad_m": self.xi,
+            "xi_definition": "Log(inv(X_a) X_b): rotation (rad) then translation (m), along the camera axes of X_a",
+            "d_trans_definition": "t_b - t_a along the parent frame's axes (mm)",
+            "d_rot_definition": "rotation vector of R_a^T R_b about the camera axes of X_a (deg)",
+            "results": list(self.sources), "covariances": list(self.cov_sources)}, nan_to_none=True)
+
+
+def not_comparable(reason: str, frame: str = "", *, alpha: float = ALPHA, sources: tuple = ()) -> Comparison:
+    nan3 = np.full(3, np.nan)
+    return Comparison(comparable=False, reason=reason, frame=frame, d_trans_mm=nan3, d_rot_deg=nan3,
+                      trans_mm=float("nan"), rot_deg=float("nan"), mahalanobis2=float("nan"),
+                      p_value=float("nan"), drifted=False, alpha=alpha, sources=sources)
+
+
+def why_not_comparable(a: LoadedResult, b: LoadedResult) -> str:
+    """'' when the two results describe one quantity, else one line naming the first difference."""
+    for r, name in ((a, "A"), (b, "B")):
+        if not r.ok:
+            return f"result {name} has no hand-eye matrix (status {r.status})"
+    if a.mode != b.mode:
+        return f"mounting modes differ: A is {a.mode}, B is {b.mode}"
+    if a.x_name != b.x_name:
+        return f"frames differ: A gives {a.x_name}, B gives {b.x_name}"
+    if a.target != b.target:
+        return f"boards differ: A used {_target_text(a.target)}, B used {_target_text(b.target)}"
+    if a.image_size and b.image_size and a.image_size != b.image_size:
+        return (f"camera resolutions differ: A is {a.image_size[0]}x{a.image_size[1]}, "
+                f"B is {b.image_size[0]}x{b.image_size[1]}")
+    for r, name in ((a, "A"), (b, "B")):
+        if r.cov_x is None:
+            return f"result {name} has no covariance of {r.x_name} (calibrated without the refinement)"
+    return ""
+
+
+def _target_text(t) -> str:
+    if not isinstance(t, dict):
+        return "an unknown board"
+    return " ".join(f"{k}={v}" for k, v in t.items() if k in ("type", "inner_corners", "squares", "grid", "square_m",
+                                                               "marker_m", "spacing_m", "dictionary")) or str(t)[:60]
+
+
+def x_difference(T_a: np.ndarray, cov_a: np.ndarray, T_b: np.ndarray, cov_b: np.ndarray) -> dict:
+    """The tangent difference ``xi`` (6,), its covariance ``S`` (6,6) (``cov_b`` moved into ``T_a``'s
+    tangent), ``d2 = xi^T S^-1 xi`` and the derived per-axis forms (see the module docstring)."""
+    xi = tangent_difference(T_a, T_b)
+    Ad = se3_adjoint(inv_T(T_a) @ T_b)
+    S = np.asarray(cov_a, float) + Ad @ np.asarray(cov_b, float) @ Ad.T
+    S = 0.5 * (S + S.T)
+    d2 = float(xi @ np.linalg.solve(S, xi))
+    R_a = T_a[:3, :3]
+    # translation t_b - t_a = R_a · (J v) ~ R_a v to first order: its covariance R_a S_vv R_a^T
+    cov_t = R_a @ S[3:, 3:] @ R_a.T
+    return {"xi": xi, "S": S, "d2": d2,
+            "d_trans_mm": 1000.0 * (T_b[:3, 3] - T_a[:3, 3]),
+            "d_rot_deg": np.degrees(rotvec_from_R(R_a.T @ T_b[:3, :3])),
+            "sigma_trans_mm": 1000.0 * np.sqrt(np.diag(cov_t)), "sigma_rot_deg": np.degrees(np.sqrt(np.diag(S[:3, :3])))}
+
+
+def intrinsics_difference(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) -> dict:
+    """Per intrinsic (fx, fy, cx, cy) ``{a, b, diff, sigma, z}`` and the diagonal chi-square test over
+    those with a sigma; {} when either result has no intrinsics."""
+    if a.intrinsics is None or b.intrinsics is None:
+        return {}
+    out, d2, dof = {}, 0.0, 0
+    for name in INTRINSICS_COMPARED:
+        va, vb = float(getattr(a.intrinsics, name)), float(getattr(b.intrinsics, name))
+        var = a.intrinsics_sigma.get(name, 0.0) ** 2 + b.intrinsics_sigma.get(name, 0.0) ** 2
+        sd = float(np.sqrt(var))
+        z = (vb - va) / sd if sd > 0 else float("nan")
+        out[name] = {"a": va, "b": vb, "diff": vb - va, "sigma": sd, "z": z}
+        if sd > 0:
+            d2 += z * z
+            dof += 1
+    if dof:
+        p = float(stats.chi2.sf(d2, dof))
+        out.update(mahalanobis2=d2, dof=dof, p_value=p, drifted=bool(p < alpha),
+                   test="diagonal: result.json stores the intrinsics' sigmas, not their correlations")
+    return out
+
+
+def compare_loaded(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) -> Comparison:
+    """:func:`compare_results` of two loaded results."""
+    sources = (a.source, b.source)
+    reason = why_not_comparable(a, b)
+    if reason:
+        return not_comparable(reason, a.x_name if a.x_name == b.x_name else "", alpha=alpha, sources=sources)
+    d = x_difference(a.T_x, a.cov_x, b.T_x, b.cov_x)
+    p = float(stats.chi2.sf(d["d2"], 6))
+    return Comparison(comparable=True, reason="", frame=a.x_name, d_trans_mm=d["d_trans_mm"],
+                      d_rot_deg=d["d_rot_deg"], trans_mm=float(np.linalg.norm(d["d_trans_mm"])),
+                      rot_deg=float(np.linalg.norm(d["d_rot_deg"])), mahalanobis2=d["d2"], p_value=p,
+                      drifted=bool(p < alpha), intrinsics=intrinsics_difference(a, b, alpha=alpha), alpha=alpha,
+                      xi=d["xi"], sigma_trans_mm=d["sigma_trans_mm"], sigma_rot_deg=d["sigma_rot_deg"],
+                      sources=sources, cov_sources=(a.cov_source, b.cov_source))
+
+
+def compare_results(a: ResultLike, b: ResultLike, *, alpha: float = ALPHA) -> Comparison:
+    """Compare result ``b`` with result ``a`` (each a result folder, a result.json path or the loaded
+    dict). Unreadable files raise :class:`~handeye.errors.InputError`; results that do not describe one
+    quantity give ``comparable=False`` and the ``reason``."""
+    return compare_loaded(load_result(a), load_result(b), alpha=alpha)
+
+
+def comparison_lines(c: Comparison) -> list[str]:
+    """A short table of a comparison for a terminal."""
+    if not c.comparable:
+        return [f"not comparable: {c.reason}"]
+    ax = "xyz"
+    lines = [f"{c.frame}: B - A", f"  {'axis':<6}{'d [mm]':>10}{'sigma':>9}   {'d [deg]':>10}{'sigma':>9}"]
+    for k in range(3):
+        lines.append(f"  {ax[k]:<6}{c.d_trans_mm[k]:>10.3f}{c.sigma_trans_mm[k]:>9.3f}   "
+                     f"{c.d_rot_deg[k]:>10.4f}{c.sigma_rot_deg[k]:>9.4f}")
+    lines.append(f"  {'norm':<6}{c.trans_mm:>10.3f}{'':>9}   {c.rot_deg:>10.4f}")
+    lines.append(f"  Mahalanobis^2 {c.mahalanobis2:.2f} (6 dof), p = {c.p_value:.3g}: "
+                 + ("DRIFTED" if c.drifted else "same within the uncertainty") + f" at {c.alpha:g}")
+    it = c.intrinsics
+    if it:
+        lines.append("intrinsics: " + ", ".join(
+            f"{n} {it[n]['diff']:+.2f} px" + (f" (z {it[n]['z']:+.1f})" if np.isfinite(it[n]['z']) else "")
+            for n in INTRINSICS_COMPARED if n in it))
+        if "p_value" in it:
+            lines.append(f"  Mahalanobis^2 {it['mahalanobis2']:.2f} ({it['dof']} dof), p = {it['p_value']:.3g}: "
+                         + ("CHANGED" if it["drifted"] else "same within the uncertainty"))
+    return lines

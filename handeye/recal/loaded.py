@@ -1,0 +1,141 @@
+"""What a result.json says about the hand-eye transform X, the intrinsics and their covariances.
+
+The covariance of X is the one the result's verdict uses: ``refinement.cov_x_6x6_verdict`` when
+present, else ``refinement.cov_x_6x6`` (the model's); its parametrisation must be handeye's one tangent
+(:data:`handeye.refine.covariance.COV_PARAMETRISATION`: right perturbation, rotation first, radians and
+metres, along the camera axes). The same for the intrinsics (``intrinsics_sigma_verdict`` when present,
+else ``intrinsics_sigma``; sigmas of the free intrinsics only: a fixed or given intrinsic has sigma 0).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional, Union
+
+import numpy as np
+
+from ..camera import INTRINSIC_NAMES, Intrinsics
+from ..errors import InputError
+from ..output import read_json
+
+ResultLike = Union[str, Path, dict]
+
+
+@dataclass(frozen=True)
+class LoadedResult:
+    """The parts of a result.json that recalibration needs (``source``: the path, or "<dict>")."""
+
+    source: str
+    status: str
+    mode: str
+    x_name: str
+    board_name: Optional[str]
+    T_x: Optional[np.ndarray]  # (4,4)
+    T_board: Optional[np.ndarray]  # (4,4)
+    cov_x: Optional[np.ndarray]  # (6,6) right tangent of T_x, rotation first
+    cov_source: str  # "cov_x_6x6_verdict" | "cov_x_6x6" | "none"
+    intrinsics: Optional[Intrinsics]
+    intrinsics_sigma: dict  # name -> sigma (only free intrinsics; fixed ones absent)
+    intrinsics_source: Optional[str]  # "estimated" | "given" | ... as result.json says
+    target: Optional[dict]
+    image_size: Optional[tuple]
+    sigma_px: Optional[float]
+    robot_sigma_mm: Optional[float]
+    robot_sigma_deg: Optional[float]
+    raw: dict = field(repr=False, default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok" and self.T_x is not None
+
+
+def _matrix(v, shape) -> Optional[np.ndarray]:
+    if v is None:
+        return None
+    try:
+        a = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    return a if a.shape == shape and np.all(np.isfinite(a)) else None
+
+
+def _intrinsics(d: Optional[dict]) -> Optional[Intrinsics]:
+    if not isinstance(d, dict) or not all(k in d for k in ("fx", "fy", "cx", "cy")):
+        return None
+    dist = d.get("dist") or {}
+    dist_vals = tuple(float(dist.get(k, 0.0)) for k in INTRINSIC_NAMES[4:]) if isinstance(dist, dict) \
+        else tuple(float(x) for x in list(dist)[:5])
+    w, h = (d.get("image_size") or [0, 0])[:2]
+    return Intrinsics(float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]), dist_vals, int(w), int(h))
+
+
+def load_result(result: ResultLike) -> LoadedResult:
+    """Read a result folder, a result.json path or an already loaded dict. Unreadable files raise
+    :class:`~handeye.errors.InputError`; a failed result loads with ``status != "ok"``."""
+    if isinstance(result, dict):
+        d, source = result, "<dict>"
+    else:
+        p = Path(result)
+        d = read_json(p)
+        source = str(p / "result.json" if p.is_dir() else p)
+        if not isinstance(d, dict) or "handeye_result" not in d:
+            raise InputError("not a handeye result.json", path=source, expected="a file written by handeye calibrate",
+                             hint="pass the result folder of handeye calibrate or its result.json")
+    he = d.get("hand_eye") or {}
+    mode = str(d.get("mode") or "unknown")
+    x_name = str(he.get("name") or ("T_end_cam" if mode == "eye_in_hand" else "T_base_cam"))
+    board_name = (d.get("board") or {}).get("name")
+    ref = d.get("refinement") or {}
+    cov, cov_source = None, "none"
+    for key in ("cov_x_6x6_verdict", "cov_x_6x6"):
+        c = _matrix(ref.get(key), (6, 6))
+        if c is not None:
+            cov, cov_source = 0.5 * (c + c.T), key
+            break
+    if cov is not None:
+        _check_parametrisation(ref.get("cov_parametrisation"), source)
+    sig = ref.get("intrinsics_sigma_verdict") or ref.get("intrinsics_sigma") or {}
+    intr_d = d.get("intrinsics")
+    size = tuple(int(v) for v in (intr_d or {}).get("image_size") or ()) or None
+    return LoadedResult(
+        source=source, status=str(d.get("status")), mode=mode, x_name=x_name, board_name=board_name,
+        T_x=_matrix(d.get(x_name), (4, 4)), T_board=_matrix(d.get(board_name), (4, 4)) if board_name else None,
+        cov_x=cov, cov_source=cov_source, intrinsics=_intrinsics(intr_d),
+        intrinsics_sigma={str(k): float(v) for k, v in sig.items() if v is not None and np.isfinite(float(v))},
+        intrinsics_source=(intr_d or {}).get("source"), target=d.get("target"), image_size=size,
+        sigma_px=_float(ref.get("sigma_px")), robot_sigma_mm=_float(ref.get("robot_sigma_mm")),
+        robot_sigma_deg=_float(ref.get("robot_sigma_deg")), raw=d)
+
+
+def _float(v) -> Optional[float]:
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return None
+    return f if np.isfinite(f) else None
+
+
+def _check_parametrisation(text, source: str) -> None:
+    """The covariance must be in handeye's one tangent (right perturbation, rotation first)."""
+    t = str(text or "")
+    if t and not ("right perturbation" in t and "rotation first" in t):
+        raise InputError("the covariance of X is in an unknown parametrisation", path=source,
+                         expected="right perturbation, rotation first (GTSAM Pose3 tangent)", received=t[:80],
+                         hint="recompute the result with this version of handeye calibrate")
+
+
+def result_from_refinement(refined, *, target) -> dict:
+    """The parts of result.json that :func:`load_result` reads, from a
+    :class:`~handeye.refine.RefineResult` and the target spec: for programs (and the benchmarks)
+    that refine without writing a result folder."""
+    from ..output import plain
+
+    ok = refined.status == "ok"
+    d = {"handeye_result": 1, "status": refined.status, "mode": refined.mode,
+         "hand_eye": {"name": refined.x_name}, "board": {"name": refined.board_name},
+         "intrinsics": dict(refined.intrinsics.to_dict(), source="refined"),
+         "refinement": refined.to_dict(), "target": target.to_dict()}
+    if ok:
+        d[refined.x_name] = refined.T_x
+        d[refined.board_name] = refined.T_board
+    return plain(d)
