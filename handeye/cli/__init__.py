@@ -89,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    level = logging.WARNING if args.quiet else (logging.DEBUG if args.verbose else logging.INFO)
+    level = logging.WARNING if args.quiet else (logging.DEBUG if args.verbose or args.debug else logging.INFO)
     logging.basicConfig(level=level, format="%(message)s", stream=sys.stderr)
     logging.getLogger("matplotlib").setLevel(logging.WARNING)
     try:
@@ -102,6 +102,20 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("handeye: interrupted", file=sys.stderr)
         return INTERRUPTED_EXIT_CODE
+    except OSError as e:  # the file system refused (disk full, permissions, a file vanished): name the file
+        if args.debug:
+            raise
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"handeye: error: {where}{e.strerror or e} -> free space, fix the permissions or choose another "
+              "output folder; the previous result files are unchanged", file=sys.stderr)
+        return HandeyeError.exit_code
+    except Exception as e:  # noqa: BLE001 - a bug: one line, the traceback with --debug
+        if args.debug:
+            raise
+        msg = " ".join(f"{type(e).__name__}: {e}".split())[:300]
+        print(f"handeye: internal error ({msg}); this is a bug -> rerun with --debug and report the traceback",
+              file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

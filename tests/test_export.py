@@ -1,0 +1,236 @@
+"""Exports round-trip: each file is read back by the tool that reads it (URDF by yourdfpy, xacro by
+xacro, YAML by PyYAML, the launch files executed with stand-ins for ROS 2's launch classes and their
+arguments parsed as static_transform_publisher does) and the transform recomposed equals result.json's
+to 1e-9. The body-frame export is the optical one times the fixed rotation."""
+from __future__ import annotations
+
+import json
+import sys
+import types
+
+import numpy as np
+import pytest
+import yaml
+
+from handeye.cli import main
+from handeye.errors import InputError
+from handeye.export import FORMATS, export_result
+from handeye.export.frames import R_OPTICAL_BODY, T_OPTICAL_BODY, quat_xyzw_from_R
+from handeye.frames import R_from_quat_wxyz, make_T, se3_exp
+from handeye.output import write_json
+
+TOL = 1e-9
+
+
+def _rpy_to_R(r, p, y):
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def _T_xyzw(t, q_xyzw):
+    x, y, z, w = q_xyzw
+    return make_T(R_from_quat_wxyz(np.array([w, x, y, z], float)), np.asarray(t, float))
+
+
+def _result(folder, mode, *, seed=0, verdict="PASS", status="ok"):
+    rng = np.random.default_rng(seed)
+    T = se3_exp(np.concatenate([rng.uniform(-2, 2, 3), rng.uniform(-0.3, 0.3, 3)]))
+    A = rng.normal(size=(6, 6)) * 1e-4
+    cov = A @ A.T
+    name = "T_end_cam" if mode == "eye_in_hand" else "T_base_cam"
+    d = {"handeye_result": 1, "status": status, "mode": mode, "hand_eye": {"name": name},
+         "verdict": verdict, "verdict_headline": "test", "failure_reason": None if status == "ok" else "no views",
+         "refinement": {"cov_x_6x6": cov.tolist(), "cov_parametrisation":
+                        "GTSAM Pose3 tangent, right perturbation: T_x_true = T_x · Exp(xi), rotation first"}}
+    if status == "ok":
+        d[name] = T.tolist()
+    folder.mkdir(parents=True, exist_ok=True)
+    write_json(folder / "result.json", d)
+    return T, cov
+
+
+def _launch_transform(path):
+    """Run the launch file's generate_launch_description with stand-ins for launch / launch_ros and
+    read static_transform_publisher's arguments (--x .. --qw or --roll --pitch --yaw, frames)."""
+    nodes = []
+
+    class Node:
+        def __init__(self, **kw):
+            nodes.append(kw)
+
+    launch = types.ModuleType("launch")
+    launch.LaunchDescription = lambda entities: list(entities)
+    launch_ros = types.ModuleType("launch_ros")
+    actions = types.ModuleType("launch_ros.actions")
+    actions.Node = Node
+    launch_ros.actions = actions
+    saved = {k: sys.modules.get(k) for k in ("launch", "launch_ros", "launch_ros.actions")}
+    sys.modules.update({"launch": launch, "launch_ros": launch_ros, "launch_ros.actions": actions})
+    try:
+        ns = {}
+        exec(compile(path.read_text(), str(path), "exec"), ns)
+        ns["generate_launch_description"]()
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                sys.modules.pop(k, None)
+            else:
+                sys.modules[k] = v
+    (node,) = nodes
+    assert node["package"] == "tf2_ros" and node["executable"] == "static_transform_publisher"
+    a = node["arguments"]
+    opts = {a[i]: a[i + 1] for i in range(0, len(a), 2)}
+    t = [float(opts[k]) for k in ("--x", "--y", "--z")]
+    if "--qx" in opts:
+        T = _T_xyzw(t, [float(opts[k]) for k in ("--qx", "--qy", "--qz", "--qw")])
+    else:
+        T = make_T(_rpy_to_R(*[float(opts[k]) for k in ("--roll", "--pitch", "--yaw")]), np.array(t))
+    return opts["--frame-id"], opts["--child-frame-id"], T
+
+
+def _tf_yaml_transform(path):
+    d = yaml.safe_load(path.read_text())
+    (tr,) = d["transforms"]
+    t, q = tr["transform"]["translation"], tr["transform"]["rotation"]
+    return tr["header"]["frame_id"], tr["child_frame_id"], _T_xyzw([t["x"], t["y"], t["z"]],
+                                                                   [q["x"], q["y"], q["z"], q["w"]])
+
+
+def _urdf_transform(path):
+    import yourdfpy
+
+    robot = yourdfpy.URDF.load(str(path), load_meshes=False, build_scene_graph=False)
+    (joint,) = robot.robot.joints
+    assert joint.type == "fixed"
+    return joint.parent, joint.child, np.asarray(joint.origin, float)
+
+
+def _xacro_transform(path, tmp_path):
+    import xacro
+
+    wrapper = tmp_path / "robot.urdf.xacro"
+    wrapper.write_text(f'<?xml version="1.0"?>\n<robot xmlns:xacro="http://www.ros.org/wiki/xacro" name="r">\n'
+                       f'  <xacro:include filename="{path}"/>\n  <link name="tool0"/>\n'
+                       f'  <link name="camera_color_optical_frame"/>\n  <xacro:handeye_camera_joint/>\n</robot>\n')
+    doc = xacro.process_file(str(wrapper))
+    out = tmp_path / "expanded.urdf"
+    out.write_text(doc.toxml())
+    return _urdf_transform(out)
+
+
+def _calib_transform(path):
+    d = yaml.safe_load(path.read_text())
+    p, t, q = d["parameters"], d["transform"]["translation"], d["transform"]["rotation"]
+    parent = p["robot_effector_frame"] if p["calibration_type"] == "eye_in_hand" else p["robot_base_frame"]
+    return parent, p["tracking_base_frame"], _T_xyzw([t["x"], t["y"], t["z"]], [q["x"], q["y"], q["z"], q["w"]])
+
+
+def _plain_transform(d):
+    T = np.asarray(d["matrix"], float)
+    T_q = _T_xyzw(d["translation_m"], d["quaternion_xyzw"])
+    w, x, y, z = d["quaternion_wxyz"]
+    assert np.allclose([x, y, z, w], d["quaternion_xyzw"], atol=0)
+    T_rpy = make_T(_rpy_to_R(*d["rpy_rad"]), np.asarray(d["translation_m"]))
+    assert np.max(np.abs(T_q - T)) < TOL and np.max(np.abs(T_rpy - T)) < TOL
+    return d["parent_frame"], d["child_frame"], T
+
+
+def _read_all(paths, fmt, tmp_path):
+    """(parent, child, T) of every file a format wrote."""
+    if fmt == "ros2":
+        return [_launch_transform(paths[0]), _tf_yaml_transform(paths[1])]
+    if fmt == "urdf":
+        return [_urdf_transform(paths[0]), _xacro_transform(paths[1], tmp_path)]
+    if fmt == "moveit":
+        return [_launch_transform(paths[0])]
+    if fmt == "easy_handeye2":
+        return [_calib_transform(paths[0])]
+    if fmt == "yaml":
+        return [_plain_transform(yaml.safe_load(paths[0].read_text()))]
+    return [_plain_transform(json.loads(paths[0].read_text()))]
+
+
+@pytest.mark.parametrize("fmt", list(FORMATS))
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_export_round_trips_through_its_reader(tmp_path, fmt, mode):
+    T, _ = _result(tmp_path / "res", mode, seed=3 if mode == "eye_in_hand" else 4)
+    paths = export_result(tmp_path / "res", fmt)
+    assert [p.parent for p in paths] == [tmp_path / "res"] * len(FORMATS[fmt][0])
+    parent = "tool0" if mode == "eye_in_hand" else "base_link"
+    for got_parent, got_child, T_got in _read_all(paths, fmt, tmp_path):
+        assert (got_parent, got_child) == (parent, "camera_color_optical_frame")
+        assert np.max(np.abs(T_got - T)) < TOL, (fmt, T_got - T)
+
+
+@pytest.mark.parametrize("fmt", ["ros2", "urdf", "easy_handeye2", "yaml"])
+def test_body_frame_export_is_the_optical_one_times_the_fixed_rotation(tmp_path, fmt):
+    T, _ = _result(tmp_path / "res", "eye_in_hand", seed=5)
+    paths = export_result(tmp_path / "res", fmt, camera_frame="body", child="cam_body" if fmt != "urdf" else None,
+                          out=tmp_path / "body" / "cam")
+    child = "cam_body" if fmt != "urdf" else "camera_color_frame"
+    if fmt == "urdf":
+        got = [_urdf_transform(paths[0])]
+    else:
+        got = _read_all(paths, fmt, tmp_path)
+    for _, got_child, T_body in got:
+        assert got_child == child
+        assert np.max(np.abs(T_body - T @ T_OPTICAL_BODY)) < TOL
+    # REP 103 body axes: x forward = optical z, y left = -optical x, z up = -optical y
+    assert np.array_equal(R_OPTICAL_BODY @ [1, 0, 0], [0, 0, 1])
+    assert np.array_equal(R_OPTICAL_BODY @ [0, 1, 0], [-1, 0, 0])
+    assert np.array_equal(R_OPTICAL_BODY @ [0, 0, 1], [0, -1, 0])
+    # the RealSense driver's camera_color_frame -> camera_color_optical_frame rotation, x y z w
+    assert np.allclose(quat_xyzw_from_R(R_OPTICAL_BODY.T), [-0.5, 0.5, -0.5, 0.5], atol=1e-15)
+
+
+def test_sigmas_follow_the_covariance_and_the_camera_frame(tmp_path):
+    T, cov = _result(tmp_path / "res", "eye_in_hand", seed=6)
+    opt = yaml.safe_load(export_result(tmp_path / "res", "yaml", out=tmp_path / "o.yaml")[0].read_text())
+    body = yaml.safe_load(export_result(tmp_path / "res", "yaml", out=tmp_path / "b.yaml",
+                                        camera_frame="body")[0].read_text())
+    R = T[:3, :3]
+    sig_t_mm = np.sqrt(np.diag(R @ cov[3:, 3:] @ R.T)) * 1e3  # translation of T moves by R v (first order)
+    assert np.allclose(opt["sigma"]["translation_mm"], sig_t_mm, rtol=1e-4)
+    assert np.allclose(body["sigma"]["translation_mm"], sig_t_mm, rtol=1e-4)  # same origin, same parent axes
+    assert np.allclose(opt["sigma"]["rotation_child_axes_deg"], np.degrees(np.sqrt(np.diag(cov[:3, :3]))))
+    # body axes: the rotation perturbation is the optical one seen in the body frame
+    Rb = R_OPTICAL_BODY.T
+    assert np.allclose(np.asarray(body["cov_6x6"])[:3, :3], Rb @ cov[:3, :3] @ Rb.T, atol=1e-18)
+    assert opt["sigma"]["source"] == "cov_x_6x6"
+
+
+@pytest.mark.parametrize("verdict", ["FAIL", "REFUSED"])
+def test_unusable_verdict_is_refused_unless_forced(tmp_path, verdict, capsys):
+    T, _ = _result(tmp_path / "res", "eye_in_hand", verdict=verdict)
+    with pytest.raises(InputError) as e:
+        export_result(tmp_path / "res", "yaml")
+    assert e.value.code == "result_not_usable" and verdict in str(e.value)
+    assert main(["export", str(tmp_path / "res"), "--to", "ros2"]) == InputError.exit_code
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"verdict is {verdict}" in err and "--force" in err
+    assert not (tmp_path / "res" / "hand_eye.launch.py").exists()
+    (p,) = export_result(tmp_path / "res", "json", force=True)
+    assert np.max(np.abs(np.asarray(json.loads(p.read_text())["matrix"]) - T)) < TOL
+
+
+def test_failed_result_is_refused_even_forced(tmp_path, capsys):
+    _result(tmp_path / "res", "eye_in_hand", status="failed", verdict="FAIL")
+    assert main(["export", str(tmp_path / "res"), "--to", "urdf", "--force"]) == InputError.exit_code
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "no usable transform (no views)" in err
+
+
+def test_cli_names_frames_and_out_file(tmp_path, capsys):
+    T, _ = _result(tmp_path / "res", "eye_to_hand", seed=8)
+    assert main(["export", str(tmp_path / "res" / "result.json"), "--to", "ros2", "--parent", "world",
+                 "--child", "cam_optical", "--out", str(tmp_path / "ros" / "cam.launch.py")]) == 0
+    out = capsys.readouterr().out.split()
+    assert out == ["ros2:", str(tmp_path / "ros" / "cam.launch.py"), "ros2:",
+                   str(tmp_path / "ros" / "cam.tf_static.yaml")]
+    parent, child, T_got = _launch_transform(tmp_path / "ros" / "cam.launch.py")
+    assert (parent, child) == ("world", "cam_optical") and np.max(np.abs(T_got - T)) < TOL
+    text = (tmp_path / "ros" / "cam.launch.py").read_text()
+    assert "optical frame (x right, y down, z forward" in text and "quaternion x y z w" in text
