@@ -49,6 +49,11 @@ def add_arguments(p) -> None:
     p.add_argument("--no-report", action="store_true", help="write result.json, observations.json and thumbnails only")
     p.add_argument("--shift-poses", type=int, default=0, metavar="N",
                    help="pair image k with pose line k+N (the constant shift a refused run names)")
+    from ..export import FORMATS as EXPORT_FORMATS
+
+    p.add_argument("--export", choices=list(EXPORT_FORMATS), metavar="FORMAT",
+                   help="also write the result for robot software next to result.json: "
+                        + ", ".join(EXPORT_FORMATS) + " (as handeye export; not for a FAIL or REFUSED verdict)")
     p.set_defaults(func=run)
 
 
@@ -93,6 +98,15 @@ def run(args) -> int:
         what = "refused" if wr.verdict == "REFUSED" else "calibration failed"
         print(f"handeye: {what}: {wr.result['failure_reason']}", file=sys.stderr)
         return wr.exit_code or 1
+    if getattr(args, "export", None):  # handeye export RESULT --to FORMAT, next to the result
+        from ..errors import HandeyeError
+        from ..export import export_result
+
+        try:
+            for path in export_result(wr.out_dir, args.export):
+                print(f"{args.export}: {path}")
+        except HandeyeError as e:
+            print(f"handeye: not exported: {e}", file=sys.stderr)
     if wr.exit_code:
         print(f"handeye: verdict {wr.verdict}: {wr.result.get('verdict_headline', '')}", file=sys.stderr)
     return wr.exit_code
