@@ -44,6 +44,7 @@ class CalibrateOptions:
     min_axis_spread_deg: Optional[float] = None  # None: configs/calibration.yaml motion.min_axis_spread_deg
     refine_options: dict = field(default_factory=dict)
     shift_poses: int = 0  # pair image k with the pose written for image k + shift_poses (a known constant shift)
+    validate: bool = True  # refit without some views for the validated and verdict covariances (refined runs)
 
     @staticmethod
     def from_config(cfg: dict, **overrides) -> "CalibrateOptions":
@@ -190,7 +191,9 @@ def target_text(t: TargetSpec) -> str:
         return f"chessboard {t.cols}x{t.rows} inner corners, {t.square_m * 1000:g} mm"
     if t.kind == "circlegrid":
         return f"circle grid {t.cols}x{t.rows} dots, {t.spacing_m * 1000:g} mm spacing"
-    return f"ChArUco {t.squares_x}x{t.squares_y} squares"
+    if t.kind == "charuco":
+        return f"ChArUco {t.squares_x}x{t.squares_y} squares"
+    return t.describe()
 
 
 # ------------------------------------------------------------------------------ the run
@@ -211,6 +214,7 @@ class CalibrationRun:
     closed_forms: dict = field(default_factory=dict)  # method -> HandEyeEstimate
     start: Optional[HandEyeEstimate] = None  # the chosen closed form the refinement starts from
     refined: Any = None  # handeye.refine.RefineResult when refined
+    validation: Any = None  # handeye.refine.validation.Validation when refined and validated
     T_x: Optional[np.ndarray] = None
     T_board: Optional[np.ndarray] = None
     seconds: dict = field(default_factory=dict)
@@ -318,6 +322,11 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
                                    hint="rerun with --no-refine to get the closed-form result",
                                    code="refinement_failed")
         state.update(refined=refined, T_x=refined.T_x, T_board=refined.T_board, intrinsics=refined.intrinsics)
+        if opts.validate:
+            progress("validation: refits without some views")
+            t3 = time.perf_counter()
+            state["validation"] = validate_stage(s, refined, poses, dets, T_base_end)
+            seconds["validate"] = time.perf_counter() - t3
     outcomes = _final_outcomes(outcomes, chain, refined)
     state["outcomes"] = ordered()
     seconds["calibrate"] = time.perf_counter() - t0
@@ -439,6 +448,22 @@ def refine_stage(s: Session, opts: CalibrateOptions, start: HandEyeEstimate, int
         ro.setdefault("intrinsics", s.intrinsics_prior)
     return refine(mode=s.mode, object_points=s.target.object_points(), views=views, intrinsics=intr,
                   T_x0=start.T_x, T_board0=start.T_board, options=RefineOptions(**ro), starts=closed_forms)
+
+
+def validate_stage(s: Session, refined, poses: dict, dets: dict, T_base_end: dict):
+    """The validated and verdict covariances of the refined result (:func:`handeye.refine.validation.validate`):
+    refits without some views, from the refinement's own views."""
+    from .refine import RefineView
+    from .refine.validation import validate
+
+    from .refine.validation import Validation
+
+    views = [RefineView(vid, poses[vid].corner_ids, dets[vid].image_points, T_base_end[vid]) for vid in poses]
+    try:
+        return validate(refined, object_points=s.target.object_points(), views=views)
+    except (HandeyeError, RuntimeError, np.linalg.LinAlgError) as e:  # the result stands on its model covariance
+        log.warning("validation not run: %s", e)
+        return Validation("not_run", f"{type(e).__name__}: {e}")
 
 
 def _final_outcomes(outcomes, chain, refined):

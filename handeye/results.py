@@ -30,9 +30,9 @@ import numpy as np
 from .camera import pixels_from_board_points
 from .conventions import pose_forms
 from .errors import HandeyeError, SessionRefused
-from .frames import pose_error
+from .frames import pose_error, tangent_difference
 from .mounting import mounting
-from .output import hash_files, provenance
+from .output import hash_files, plain, provenance
 from .records import Session
 
 RESULT_VERSION = 1
@@ -161,6 +161,8 @@ def result_dict(run, *, mode_flag: Optional[str] = None) -> dict:
                        "min_rotation_deg": m.min_rotation_deg, "min_axis_spread_deg": m.min_axis_spread_deg}
     if run.refined is not None and hasattr(run.refined, "to_dict"):
         d["refinement"] = run.refined.to_dict()
+        if run.refined.status == "ok":
+            d["refinement"].update(validation_fields(run.refined, getattr(run, "validation", None)))
     d["target"] = s.target.to_dict()
     d["session"] = {"path": str(s.path), "format": s.format, "pose_format": s.pose_format,
                     "intrinsics_given": s.intrinsics is not None}
@@ -179,6 +181,7 @@ def _closed_forms_dict(run, mode) -> dict:
     C = np.stack([bp.T_cam_board for bp in run.board_poses.values()])
     Ms = np.stack([mode.M_from_T_base_end(s.view(v).T_base_end) for v in run.board_poses])
     cf = {}
+    cov = verdict_cov_x(run)
     for m, est in run.closed_forms.items():
         e = {"status": est.status}
         if est.status == "ok":
@@ -189,10 +192,101 @@ def _closed_forms_dict(run, mode) -> dict:
             if run.T_x is not None:
                 r, t = pose_error(est.T_x, run.T_x)
                 e["diff_to_result_deg"], e["diff_to_result_mm"] = r, t
+                if cov is not None:
+                    e["diff_to_result_sigma"] = _sigma_distance(run.T_x, est.T_x, cov)
         else:
             e["failure_reason"] = est.failure_reason
         cf[m] = e
     return cf
+
+
+def verdict_cov_x(run) -> Optional[np.ndarray]:
+    """The verdict covariance (6,6) of the run's T_x: the validated verdict when the run was validated,
+    else the refinement's model covariance; None without a refinement."""
+    ref = run.refined
+    if ref is None or getattr(ref, "status", "") != "ok":
+        return None
+    val = getattr(run, "validation", None)
+    if val is not None and val.status == "ok":
+        return val.x.cov_verdict
+    return np.asarray(ref.cov_x_6x6, float)
+
+
+def _sigma_distance(T_ref: np.ndarray, T: np.ndarray, cov: np.ndarray) -> Optional[float]:
+    """sqrt(xi^T cov^-1 xi) of T against T_ref (xi = Log(T_ref^-1 T), the tangent of ``cov``)."""
+    from .refine.validation import mahalanobis2
+
+    m2 = mahalanobis2(tangent_difference(T_ref, T), cov)
+    return float(np.sqrt(m2)) if np.isfinite(m2) else None
+
+
+def validation_fields(ref, val) -> dict:
+    """The validated and verdict uncertainty for result.json's ``refinement`` block.
+
+    ``cov_x_6x6`` and ``intrinsics_sigma`` stay the model's. Added: ``cov_x_6x6_validated`` and
+    ``cov_x_6x6_verdict`` (same parametrisation), ``sigma_source`` (model | validated | model+validated:
+    which covariance the verdict takes; ``model`` also when validation did not run) and ``sigma_rule``;
+    ``sigma_rot_deg``, ``sigma_trans_mm``, ``correlation_6x6``, ``predicted_error_mm`` and
+    ``predicted_error_axes_mm`` become the verdict's, the model's kept as ``*_model``; for the free
+    intrinsics ``intrinsics_sigma_validated``, ``intrinsics_sigma_verdict`` and ``cov_intrinsics_verdict``
+    (rows in ``intrinsics_cov_names``); ``validation``: the fold scheme, the spread over the model's
+    sigma, and the odd and even halves refitted (their T_x, intrinsics, and offset from the result).
+    """
+    from .refine.covariance import hand_eye_uncertainty
+    from .refine.validation import SIGMA_RULE, mahalanobis2
+
+    out: dict[str, Any] = {"sigma_rule": SIGMA_RULE}
+    model = hand_eye_uncertainty(np.asarray(ref.cov_x_6x6, float), ref.T_x, ref.working_distance_m)
+    for k in ("sigma_rot_deg", "sigma_trans_mm", "correlation_6x6", "predicted_error_mm", "predicted_error_axes_mm"):
+        out[f"{k}_model"] = getattr(model, k)
+    if val is None or val.status != "ok":
+        out.update(sigma_source="model", intrinsics_sigma_verdict=dict(ref.intrinsics_sigma),
+                   validation={"status": "not_run", "summary": "not run" if val is None else val.summary()})
+        return plain(out)
+    verdict = hand_eye_uncertainty(val.x.cov_verdict, ref.T_x, ref.working_distance_m)
+    validated = hand_eye_uncertainty(val.x.cov_validated, ref.T_x, ref.working_distance_m)
+    out.update(cov_x_6x6_validated=val.x.cov_validated, cov_x_6x6_verdict=val.x.cov_verdict,
+               sigma_source=val.x.source, sigma_rot_deg_validated=validated.sigma_rot_deg,
+               sigma_trans_mm_validated=validated.sigma_trans_mm)
+    for k in ("sigma_rot_deg", "sigma_trans_mm", "correlation_6x6", "predicted_error_mm", "predicted_error_axes_mm"):
+        out[k] = getattr(verdict, k)
+    kb = val.intrinsics
+    if kb is not None:
+        out["intrinsics_cov_names"] = list(kb.names)
+        out["cov_intrinsics_verdict"] = kb.cov_verdict
+        out["intrinsics_sigma_validated"] = dict(zip(kb.names, np.sqrt(np.diag(kb.cov_validated))))
+        out["intrinsics_sigma_verdict"] = dict(zip(kb.names, np.sqrt(np.diag(kb.cov_verdict))))
+        out["intrinsics_sigma_source"] = kb.source
+    else:
+        out["intrinsics_sigma_verdict"] = dict(ref.intrinsics_sigma)
+    K = len(val.folds)
+    block = {"status": "ok", "summary": val.summary(), "scheme": val.scheme, "n_views": len(val.view_ids),
+             "n_folds": K, "folds_solved": val.n_solved,
+             "spread_over_model_sigma_max": float(np.sqrt(max(val.x.eig.max(), 0.0))),
+             "spread_over_model_sigma_rms": float(np.sqrt(max(val.x.scale, 0.0))),
+             "generalised_eigenvalues": val.x.eig, "shrinkage": val.x.shrinkage}
+    if kb is not None:
+        block["intrinsics_spread_over_model_sigma_max"] = float(np.sqrt(max(kb.eig.max(), 0.0)))
+    halves = {}
+    for name, fit in val.halves.items():
+        h = {"view_ids": list(fit.view_ids), "status": fit.status}
+        if fit.status == "ok":
+            r, t = pose_error(fit.T_x, ref.T_x)
+            h.update({ref.x_name: fit.T_x, "intrinsics": fit.intrinsics.to_dict(), "diff_to_result_deg": r,
+                      "diff_to_result_mm": t,
+                      # result vs a half of its views: cov(half - full) = cov(half) - cov(full) ~ cov(full)
+                      "diff_to_result_sigma": _sigma_distance(ref.T_x, fit.T_x, val.x.cov_verdict)})
+        halves[name] = h
+    if all(h.get("status") == "ok" for h in halves.values()) and len(halves) == 2:
+        a, b = val.halves["odd"], val.halves["even"]
+        # independent halves, each with about twice the full covariance: the difference has ~4x
+        m2 = mahalanobis2(tangent_difference(a.T_x, b.T_x), 4.0 * val.x.cov_verdict)
+        r, t = pose_error(a.T_x, b.T_x)
+        halves["odd_vs_even"] = {"diff_deg": r, "diff_mm": t, "mahalanobis2": m2,
+                                 "covariance": "4x the verdict covariance (each half has about twice it)"}
+    block["halves"] = halves
+    out["validation"] = block
+    return plain(out)
 
 
 def failed_load_result(session_path, err: HandeyeError, mode: Optional[str]) -> dict:

@@ -237,11 +237,16 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
         cv = {"summary": "not run: " + why}
     result["cross_validation"] = cv
     if cv.get("verdict") == "spread_exceeds_prediction":
+        # info when the verdict covariance (the printed sigmas) already covers the spread: a finding with its size
+        covered = bool(cv.get("covered_by_verdict"))
         findings.append(Finding("uncertainty_underestimated",
-                                "warn" if cv.get("n_views", 0) >= thresholds().views.recommended else "info",
-                                "The result varies more between held-out folds than its uncertainty says",
+                                "info" if covered or cv.get("n_views", 0) < thresholds().views.recommended else "warn",
+                                "The model covariance is too small: the result varies more between held-out folds "
+                                "than it predicts" + ("; the verdict uses the validated covariance" if covered else ""),
                                 cv["summary"] + f" (jackknife over {cv.get('n_folds')} folds: rotation "
-                                f"{cv.get('ratio_rot')}x, translation {cv.get('ratio_trans')}x)",
+                                f"{cv.get('ratio_rot')}x, translation {cv.get('ratio_trans')}x the model's sigma)",
+                                "look for robot pose errors the model does not have (a kinematic robot model when "
+                                "joint angles exist), a moving board or timing problems" if covered else
                                 "use the cross-validation spread as the uncertainty; look for robot pose errors "
                                 "(estimate robot noise: --robot-noise estimate), a moving board or timing problems"))
     result["per_view"] = pose["per_view"] if pose else {}

@@ -1,0 +1,216 @@
+"""The validated covariance of a refined result: how much ``T_x`` and the intrinsics move between refits
+without some of the views, and the verdict covariance that the printed sigmas and the verdict use.
+
+The refinement's own (model) covariance is right only when its noise model is: iid pixel noise and
+iid robot-pose errors of the estimated size. Real rigs break that (pose-dependent kinematic errors,
+correlated detector errors within a view), and the model covariance then says the answer is more
+certain than the data allow. Resampling the views measures the scatter directly:
+
+* **Folds.** Leave-one-out up to ``validation.loo_max_views`` used views, interleaved k-fold above
+  (``validation.folds``; ``configs/diagnostics.yaml``). Each fold is ONE Gaussian solve of the
+  refinement without its views (:func:`handeye.refine.refit`: the full run's noise levels and outlier
+  decisions held), so it measures how the estimate moves, not how noise estimation would redo itself.
+* **Jackknife covariance** of the fold estimates (grouped delete-d jackknife, K folds that partition
+  the views): ``S = (K - 1) / K · sum_k (theta_k - mean)(theta_k - mean)^T``, ``theta`` the right-tangent
+  difference of ``T_x`` to the full solution (the parametrisation of ``cov_x_6x6``) or the free
+  intrinsics. A view whose error the robot-pose variables absorbed moves ``T_x`` only as much as it
+  informs it, so views made consistent that way add nothing to the validated certainty.
+* **Shrinkage.** With K folds, S has only K - 1 degrees of freedom in 6 (or 9) dimensions: its
+  eigenvalues scatter widely even when the model is right (Marchenko-Pastur). S is whitened by the
+  model covariance M and shrunk (Ledoit & Wolf 2004, intensity estimated from the folds themselves)
+  toward ``s · I``, ``s = tr(M^-1 S) / p`` (the model's shape at the scale the folds show, a
+  well-determined number); back in the original space that is the **validated covariance** V.
+* **Verdict covariance**, the rule: ``C = L U max(Lambda, 1) U^T L^T`` with ``M = L L^T`` and
+  ``L^-1 V L^-T = U Lambda U^T`` (generalised eigenvalues of V against M). Along every direction u,
+  ``u^T C u >= max(u^T M u, u^T V u)``: the verdict is never smaller than either covariance, and
+  equals M where the folds scatter less than the model predicts.
+
+The same folds serve the cross-validation of the diagnostics (:mod:`handeye.diagnose.crossval`), so
+the views are solved once. The two halves of the used views (odd and even positions in view order) are
+refitted too, for the report's offsets of the result from each half.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..camera import INTRINSIC_NAMES
+from ..config import load_preset
+from ..frames import tangent_difference
+from .options import RefineView
+from .result import RefineResult
+
+log = logging.getLogger(__name__)
+
+SIGMA_RULE = ("verdict covariance = generalised-eigenvalue maximum of the model and the validated covariance: "
+              "C = L U max(Lambda, 1) U^T L^T with model M = L L^T and L^-1 V L^-T = U Lambda U^T, so that "
+              "u^T C u >= max(u^T M u, u^T V u) along every direction u")
+
+
+def settings() -> dict:
+    """``validation:`` of configs/diagnostics.yaml (fold scheme, minimum views, ratio test level)."""
+    return load_preset("diagnostics")["validation"]
+
+
+# ------------------------------------------------------------------------------ pure math
+def fold_indices(n: int, *, loo_max_views: int, folds: int) -> list:
+    """Index arrays of the held-out views of each fold: one view each up to ``loo_max_views`` views,
+    else ``folds`` interleaved groups (view k in fold k mod folds)."""
+    if n <= loo_max_views:
+        return [np.array([i]) for i in range(n)]
+    return [np.arange(f, n, folds) for f in range(folds)]
+
+
+def jackknife_covariance(thetas: np.ndarray) -> np.ndarray:
+    """Grouped jackknife covariance (D,D) of K fold estimates ``thetas`` (K,D) of folds that partition
+    the units: ``(K - 1) / K · sum_k (theta_k - mean)(theta_k - mean)^T``."""
+    x = np.asarray(thetas, float)
+    K = x.shape[0]
+    dev = x - x.mean(axis=0)
+    return (K - 1) / K * dev.T @ dev
+
+
+def shrunk_jackknife(thetas: np.ndarray, cov_model: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """(validated covariance (D,D), shrinkage intensity in [0, 1], scale s): the jackknife covariance of
+    ``thetas`` (K,D), whitened by ``cov_model``, shrunk toward ``s · I`` with the Ledoit-Wolf intensity
+    estimated from the K folds, and mapped back. ``s = tr(M^-1 S) / D``: the spread over the model's
+    prediction, averaged over the D directions."""
+    x = np.asarray(thetas, float)
+    K, D = x.shape
+    L = np.linalg.cholesky(0.5 * (cov_model + cov_model.T))
+    y = np.sqrt(K - 1.0) * np.linalg.solve(L, (x - x.mean(axis=0)).T).T  # shape (K, D): S_w = y^T y / K
+    S = y.T @ y / K
+    s = float(np.trace(S) / D)
+    d2 = float(np.sum((S - s * np.eye(D)) ** 2))
+    b2 = float(np.mean([np.sum((np.outer(v, v) - S) ** 2) for v in y]) / K)
+    rho = 1.0 if d2 <= 0.0 else min(b2, d2) / d2
+    W = rho * s * np.eye(D) + (1.0 - rho) * S
+    return L @ W @ L.T, rho, s
+
+
+def generalised_max(cov_model: np.ndarray, cov_other: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(C, generalised eigenvalues of ``cov_other`` against ``cov_model`` (D,), ascending): the smallest
+    covariance of the form ``L U diag(c) U^T L^T`` with ``u^T C u >= max(u^T M u, u^T V u)`` along
+    every direction (:data:`SIGMA_RULE`)."""
+    M = 0.5 * (cov_model + cov_model.T)
+    L = np.linalg.cholesky(M)
+    W = np.linalg.solve(L, np.linalg.solve(L, 0.5 * (cov_other + cov_other.T)).T)
+    lam, U = np.linalg.eigh(0.5 * (W + W.T))
+    C = L @ (U * np.maximum(lam, 1.0)) @ U.T @ L.T
+    return 0.5 * (C + C.T), lam
+
+
+def mahalanobis2(delta: np.ndarray, cov: np.ndarray) -> float:
+    """``delta^T cov^-1 delta`` (NaN when cov is singular)."""
+    try:
+        return float(delta @ np.linalg.solve(cov, delta))
+    except np.linalg.LinAlgError:
+        return float("nan")
+
+
+# ------------------------------------------------------------------------------ the stage
+@dataclass(frozen=True)
+class Block:
+    """One parameter block (``x``: T_x in the tangent of cov_x_6x6; ``intrinsics``: the free ones)."""
+
+    names: tuple
+    cov_model: np.ndarray
+    cov_validated: np.ndarray
+    cov_verdict: np.ndarray
+    eig: np.ndarray  # generalised eigenvalues of the validated against the model covariance, ascending
+    shrinkage: float
+    scale: float  # tr(M^-1 S) / D: the folds' spread over the model's, averaged over the directions
+
+    @property
+    def source(self) -> str:
+        """model | validated | model+validated: which covariance the verdict takes in which directions."""
+        above = self.eig > 1.0
+        return "model" if not above.any() else "validated" if above.all() else "model+validated"
+
+
+@dataclass(frozen=True)
+class Validation:
+    """Outcome of :func:`validate`. ``status`` ok | not_run (``reason`` says why)."""
+
+    status: str
+    reason: str = ""
+    scheme: str = ""
+    view_ids: tuple = ()  # the used views, in view order
+    folds: tuple = ()  # per fold, the held-out view ids
+    refits: tuple = ()  # per fold, the Refit (status ok or failed)
+    x: Optional[Block] = None
+    intrinsics: Optional[Block] = None
+    halves: dict = field(default_factory=dict)  # "odd" | "even" -> Refit
+
+    @property
+    def n_solved(self) -> int:
+        return sum(r.status == "ok" for r in self.refits)
+
+    def summary(self) -> str:
+        if self.status != "ok":
+            return f"not run: {self.reason}"
+        r = np.sqrt(max(float(self.x.eig.max()), 0.0))
+        return (f"{self.scheme}, {self.n_solved}/{len(self.folds)} folds: the held-out spread is up to {r:.2f}x the "
+                f"model's sigma; the verdict uses the {self.x.source} covariance")
+
+
+def validate(result: RefineResult, *, object_points: np.ndarray, views: Sequence[RefineView],
+             halves: bool = True) -> Validation:
+    """Validated and verdict covariances of ``result`` (see the module docstring) from refits on
+    ``views`` (the refinement's views; those it did not use are left out of the folds, robot-excluded
+    views stay in every fold). ``halves``: also refit the odd and even halves of the used views."""
+    from .refitting import refit
+
+    cfg = settings()
+    if result.status != "ok":
+        return Validation("not_run", "the refinement did not succeed")
+    pv = result.per_view
+    used = [v for v in views if pv.get(v.view_id, {}).get("status") == "used"]
+    kept = [v for v in views if pv.get(v.view_id, {}).get("status") == "robot_excluded"]
+    n = len(used)
+    ids = tuple(v.view_id for v in used)
+    if n < int(cfg["min_views"]):
+        return Validation("not_run", f"{n} used views (needs {cfg['min_views']})", view_ids=ids)
+    fold_list = fold_indices(n, loo_max_views=int(cfg["loo_max_views"]), folds=int(cfg["folds"]))
+    scheme = "leave-one-out" if len(fold_list) == n else f"{len(fold_list)}-fold (interleaved)"
+    refits = []
+    for f in fold_list:
+        out = set(f.tolist())
+        refits.append(refit(result, object_points=object_points,
+                            views=[v for k, v in enumerate(used) if k not in out] + kept))
+    folds = tuple(tuple(ids[i] for i in f) for f in fold_list)
+    half = {}
+    if halves:
+        for name, start in (("odd", 0), ("even", 1)):
+            sub = used[start::2]
+            if len(sub) >= 3:
+                half[name] = refit(result, object_points=object_points, views=sub + kept)
+    ok = [r for r in refits if r.status == "ok"]
+    base = dict(scheme=scheme, view_ids=ids, folds=folds, refits=tuple(refits), halves=half)
+    if len(ok) < max(3, len(fold_list) // 2 + 1):
+        return Validation("not_run", f"only {len(ok)} of {len(fold_list)} folds could be solved", **base)
+    try:
+        xb = _block(("rx", "ry", "rz", "tx", "ty", "tz"), result.cov_x_6x6,
+                    np.stack([tangent_difference(result.T_x, r.T_x) for r in ok]))
+        names = tuple(k for k in INTRINSIC_NAMES if k in result.intrinsics_sigma)
+        kb = None
+        if names:
+            idx = [INTRINSIC_NAMES.index(k) for k in names]
+            k0 = result.intrinsics.as_vector()[idx]
+            sig = np.array([result.intrinsics_sigma[k] for k in names], float)
+            kb = _block(names, np.diag(sig ** 2), np.stack([r.intrinsics.as_vector()[idx] - k0 for r in ok]))
+    except np.linalg.LinAlgError as e:  # a model covariance that is not positive definite
+        return Validation("not_run", f"covariance not positive definite ({e})", **base)
+    return Validation("ok", "", x=xb, intrinsics=kb, **base)
+
+
+def _block(names: tuple, cov_model: np.ndarray, thetas: np.ndarray) -> Block:
+    M = np.asarray(cov_model, float)
+    if not np.all(np.isfinite(M)):
+        raise np.linalg.LinAlgError("the model covariance is not finite")
+    V, rho, s = shrunk_jackknife(thetas, M)
+    C, lam = generalised_max(M, V)
+    return Block(names, M, V, C, lam, rho, s)
