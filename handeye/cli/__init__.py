@@ -46,8 +46,10 @@ COMMANDS = {
     "import": ("import_", "write a session.yaml for another tool's data folder (ViSP, industrial_calibration)"),
     "report": ("report", "(re)build report.html and report.md from a result folder"),
     "collect": ("collect", "collect a session with a camera and a robot (or their simulators)"),
+    "batch": ("batch", "calibrate every session under a folder on Dask, resumable, and write the fleet index"),
     "export": ("export", "write a result for ROS 2, URDF, MoveIt, easy_handeye2, YAML or JSON"),
     "compare": ("compare", "compare two calibrations of one rig: difference, Mahalanobis distance, p-value"),
+    "verify": ("verify", "check a short session against an installed calibration (still valid / drifted)"),
 }
 
 

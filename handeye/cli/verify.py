@@ -1,0 +1,118 @@
+"""``handeye verify SESSION --against RESULT``: is an installed calibration still valid?
+
+A short session (3-8 views, the board anywhere) is tested against the installed hand-eye transform
+(and intrinsics, unless the session brings its own) without re-solving it
+(:mod:`handeye.recal.verify`). stdout: the verdict line (still valid / DRIFTED) with the test
+statistic and p-value, the estimated change per axis with 1-sigma, what moved, the files written
+(verify.json, verify.html, verify.md). Exit 0 when still valid, 9 (DRIFTED) when drifted.
+
+``handeye verify --plan --against RESULT [--drift-mm 1 --drift-deg 0.1]``: how many views, and which
+robot poses, detect that drift with 95 % power (:mod:`handeye.recal.plan`); nothing is captured.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(p) -> None:
+    """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
+    from ..errors import exit_codes_text
+    from ..mounting import MODES
+
+    p.description = ("Check a short session (3-8 views; the board may be anywhere) against an installed calibration "
+                     "without re-solving it: a score test of X = X_installed under the installed covariance plus the "
+                     "new views' noise, its p-value, the estimated change of X with 1-sigma, what moved (camera "
+                     "mount, board, robot), and the verdict 'still valid' or 'drifted' (exit code 9). Writes "
+                     "verify.json, verify.html and verify.md. With --plan: the views and robot poses that detect a "
+                     "drift of --drift-mm / --drift-deg with 95 % power.")
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.epilog = exit_codes_text()
+    p.add_argument("session", nargs="?", help="the verification session folder (not with --plan)")
+    p.add_argument("--against", required=True, type=Path, metavar="RESULT",
+                   help="the installed calibration: a result folder or its result.json")
+    p.add_argument("--out", type=Path, help="output folder (default: reports/<session folder>-<hash>-verify)")
+    p.add_argument("--mode", choices=MODES, help="mounting mode of the session (default: the installed result's)")
+    p.add_argument("--alpha", type=float, help="level of the test (default 0.05, configs/recal.yaml)")
+    p.add_argument("--no-report", action="store_true", help="write verify.json only")
+    p.add_argument("--json", action="store_true", help="print verify.json's content instead of the summary")
+    p.add_argument("--plan", action="store_true", help="plan a verification instead of running one")
+    p.add_argument("--drift-mm", type=float, help="with --plan: translation drift to detect (default 1 mm)")
+    p.add_argument("--drift-deg", type=float, help="with --plan: rotation drift to detect (default 0.1 deg)")
+    p.add_argument("--power", type=float, help="with --plan: detection probability wanted (default 0.95)")
+    p.set_defaults(func=run)
+
+
+def _check_probability(name: str, v) -> None:
+    from ..errors import InputError
+
+    if v is not None and not 0.0 < float(v) < 1.0:
+        raise InputError(f"{name} must be a probability", expected="a number between 0 and 1", received=str(v))
+
+
+def run(args) -> int:
+    from ..errors import InputError
+
+    _check_probability("--alpha", args.alpha)
+    _check_probability("--power", args.power)
+    if args.plan:
+        if args.session:
+            raise InputError("--plan takes no session", received=str(args.session),
+                             hint="handeye verify --plan --against RESULT")
+        return run_plan(args)
+    if not args.session:
+        raise InputError("no session to verify", hint="handeye verify SESSION --against RESULT (or --plan)")
+    for name in ("drift_mm", "drift_deg", "power"):
+        if getattr(args, name) is not None:
+            raise InputError(f"--{name.replace('_', '-')} only applies with --plan")
+    return run_verify(args)
+
+
+def run_verify(args) -> int:
+    from ..errors import DRIFTED_EXIT_CODE
+    from ..output import to_json, write_json
+    from ..recal.report import write_verify_reports
+    from ..recal.verify import VerifyOptions, verify_dict, verify_session
+    from .calibrate import default_out_dir
+
+    opts = VerifyOptions.from_config(alpha=args.alpha)
+    sv = verify_session(args.session, args.against, options=opts, mode=args.mode, progress=log.info)
+    out = Path(args.out) if args.out else default_out_dir(args.session).with_name(
+        default_out_dir(args.session).name + "-verify")
+    d = verify_dict(sv)
+    files = [write_json(out / "verify.json", d)]
+    if not args.no_report:
+        files += write_verify_reports(out)
+    if args.json:
+        print(to_json(d))
+    else:
+        print("\n".join(verification_lines(d)))
+        for f in files:
+            print(f"written: {f}")
+    return DRIFTED_EXIT_CODE if sv.verification.drifted else 0
+
+
+def verification_lines(d: dict) -> list[str]:
+    """The summary a person reads: verdict, test, change per axis, what moved."""
+    t, c = d["test"], d["change"]
+    lines = [d["headline"],
+             f"estimated change of {d['frame']} (new - installed; +- 1 sigma, the installed uncertainty included):"]
+    for k, ax in enumerate("xyz"):
+        lines.append(f"  {ax}: {c['d_trans_mm'][k]:+8.3f} +- {c['sigma_trans_mm'][k]:.3f} mm   "
+                     f"{c['d_rot_deg'][k]:+8.4f} +- {c['sigma_rot_deg'][k]:.4f} deg")
+    lines.append(f"test: statistic {t['statistic']:.2f}, {t['dof']} dof, p = {t['p_value']:.3g} (alpha {t['alpha']:g}); "
+                 f"{d['n_views']} views")
+    lines += [f"- {s}" for s in d["what_moved"]]
+    return lines
+
+
+def run_plan(args) -> int:
+    from ..recal.plan import plan_lines, plan_verification
+
+    p = plan_verification(args.against, drift_mm=args.drift_mm, drift_deg=args.drift_deg, power=args.power,
+                          alpha=args.alpha)
+    print("\n".join(plan_lines(p)))
+    return 0

@@ -1,0 +1,34 @@
+"""verify.html and verify.md from verify.json alone, in the calibration report's style (its
+stylesheet and number filters, :mod:`handeye.report.render`)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..output import atomic_write_text, read_json
+
+
+def verify_context(v: dict) -> dict:
+    drifted = bool(v.get("drifted"))
+    mode = v.get("mode", "")
+    return {"v": v, "label": "DRIFTED" if drifted else "STILL VALID", "status": "fail" if drifted else "pass",
+            "session_name": Path(str((v.get("session") or {}).get("path", "session"))).name,
+            "mode_text": {"eye_in_hand": "Eye-in-hand (camera on the robot)",
+                          "eye_to_hand": "Eye-to-hand (camera fixed, board on the robot)"}.get(mode, mode),
+            "checked_utc": str((v.get("provenance") or {}).get("time_utc", "")).replace("T", " ").replace(
+                "+00:00", " UTC")}
+
+
+def write_verify_reports(out_dir, *, formats=("html", "md")) -> list[Path]:
+    """Render verify.html / verify.md in ``out_dir`` from its verify.json."""
+    from ..report.render import _env, _tidy_markdown
+
+    out_dir = Path(out_dir)
+    ctx = verify_context(read_json(out_dir / "verify.json"))
+    written = []
+    if "html" in formats:
+        written.append(atomic_write_text(out_dir / "verify.html",
+                                         _env(html=True).get_template("verify.html.j2").render(**ctx)))
+    if "md" in formats:
+        written.append(atomic_write_text(out_dir / "verify.md",
+                                         _tidy_markdown(_env(html=False).get_template("verify.md.j2").render(**ctx))))
+    return written

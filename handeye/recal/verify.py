@@ -1,0 +1,425 @@
+"""Verify an installed calibration with a few new views, without re-solving it.
+
+Model. The installed result gives ``X0`` with covariance ``S0`` (the one its verdict uses) and the
+intrinsics with their sigmas. The new views are refined (:func:`handeye.refine.refine`, the same
+graph, outlier decisions and noise estimation as a calibration) with the installed intrinsics as a
+Gaussian prior (:class:`handeye.refine.options.Prior`; the session's own intrinsics are held
+instead when it brings them), X free (the prior hook's X term is vague: 1 rad, 1 m), the board pose
+a free nuisance unknown, each robot pose tied to its reading with the installed robot noise and the
+pixel noise estimated from the new corners. X is left free so that a drifted X does not make the
+robot-pose outlier test reject good views. The refinement gives what the new views alone say about
+X: ``X_new`` with covariance ``S_new``.
+
+Test of ``H0: X = X0`` (nothing moved; ``X0`` is off by its own error ``~ N(0, S0)``):
+``d = Log(X0^-1 X_new)`` has covariance ``S = S0 + Ad S_new Ad^T`` under H0 (``Ad`` moves ``S_new`` into
+``X0``'s tangent, as :mod:`handeye.recal.compare` does). Whitened by ``S0 = L L^T``
+(``D = L^-1 Ad S_new Ad^T L^-T`` with eigenpairs ``(D_k, v_k)``, ``u = L^-1 d``):
+``T = sum_k (v_k . u)^2 / (1 + D_k)`` over the directions the new views constrain (their share of the
+combined information ``lambda_k = 1 / (1 + D_k) >= min_variance_share``), chi-square with that many
+degrees of freedom: the Wald (equivalently, in the linear-Gaussian model, the score) test of
+``X = X0`` with the installed covariance plus the new measurement noise. ``p = P(chi2 > T)``;
+"drifted" when ``p < alpha``.
+
+Estimated change: ``d`` with covariance ``S``, i.e. the new views' uncertainty plus the installed
+one: its error against the true change. The posterior that combines the two (what
+``calibrate --prior`` would give) is ``X0 · Exp(L (I + D)^-1 u)`` with covariance ``L D (I + D)^-1 L^T``.
+
+What moved, when it can be told: X (the camera mount; eye-to-hand also a moved robot base), the
+board (its pose against the installed one, beyond its scatter over the new views), the robot (views
+whose robot pose the refinement's robot-pose test rejects), the intrinsics (their update).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+from scipy import stats
+
+from ..camera import INTRINSIC_NAMES, Intrinsics
+from ..config import load_preset
+from ..errors import CalibrationError, InputError
+from ..frames import inv_T, mean_T, pose_error, se3_exp, tangent_difference
+from ..mounting import mounting
+from ..output import plain
+from .loaded import LoadedResult
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class VerifyOptions:
+    """Settings of a verification (defaults: configs/recal.yaml)."""
+
+    alpha: float = 0.05
+    min_variance_share: float = 1e-3
+    board_sigmas: float = 3.0
+    board_min_mm: float = 0.5
+    board_min_deg: float = 0.05
+
+    @staticmethod
+    def from_config(cfg: Optional[dict] = None, **overrides) -> "VerifyOptions":
+        cfg = load_preset("recal") if cfg is None else cfg
+        kw = dict(alpha=float(cfg["test"]["alpha"]), min_variance_share=float(cfg["test"]["min_variance_share"]),
+                  board_sigmas=float(cfg["board"]["sigmas"]), board_min_mm=float(cfg["board"]["min_mm"]),
+                  board_min_deg=float(cfg["board"]["min_deg"]))
+        kw.update({k: v for k, v in overrides.items() if v is not None})
+        return VerifyOptions(**kw)
+
+
+# ------------------------------------------------------------------------------ the test (pure math)
+@dataclass(frozen=True)
+class DriftTest:
+    """The test of ``X = X0`` and the change (see the module docstring); tangents in ``X0``'s."""
+
+    statistic: float
+    dof: int
+    p_value: float
+    change_xi: np.ndarray  # (6,) rad, m: Log(X0^-1 X_new), as the new views alone estimate it
+    change_cov: np.ndarray  # (6,6): S0 + Ad S_new Ad^T, the error of change_xi against the true change
+    posterior_xi: np.ndarray  # (6,): the installed and the new estimate combined, Log(X0^-1 X_post)
+    posterior_cov: np.ndarray  # (6,6)
+    variance_share: np.ndarray  # (6,) lambda_k = 1 / (1 + D_k), descending
+
+
+#: the prior hook's term on X when the new views alone should decide it: 1 rad, 1 m (vague)
+VAGUE_COV_X = np.eye(6)
+
+
+def drift_test(*, cov_installed: np.ndarray, T_x_installed: np.ndarray, T_x_new: np.ndarray, cov_new: np.ndarray,
+               min_variance_share: float = 1e-3) -> DriftTest:
+    """The Wald test of ``X_new`` (covariance ``cov_new`` in its right tangent) against the installed
+    ``X0`` (``cov_installed``), counting only the directions the new estimate constrains."""
+    from .compare import x_difference
+
+    diff = x_difference(T_x_installed, cov_installed, T_x_new, cov_new)
+    d, S = diff["xi"], diff["S"]
+    S0 = 0.5 * (cov_installed + cov_installed.T)
+    L = np.linalg.cholesky(S0)
+    Li = np.linalg.inv(L)
+    u = Li @ d
+    Dw = Li @ (S - S0) @ Li.T
+    Dk, V = np.linalg.eigh(0.5 * (Dw + Dw.T))
+    Dk = np.maximum(Dk, 0.0)
+    lam = 1.0 / (1.0 + Dk)
+    order = np.argsort(lam)[::-1]
+    lam, Dk, V = lam[order], Dk[order], V[:, order]
+    keep = lam >= float(min_variance_share)
+    proj = V.T @ u
+    T = float(np.sum(proj[keep] ** 2 * lam[keep]))
+    dof = int(keep.sum())
+    p = float(stats.chi2.sf(T, dof)) if dof else 1.0
+    post_xi = L @ (V @ (proj * lam))
+    post_cov = L @ (V * (Dk * lam)) @ V.T @ L.T
+    return DriftTest(statistic=T, dof=dof, p_value=p, change_xi=d, change_cov=S, posterior_xi=post_xi,
+                     posterior_cov=post_cov, variance_share=lam)
+
+
+def change_in_result_frame(T_x0: np.ndarray, xi: np.ndarray, cov: np.ndarray) -> dict:
+    """A tangent change of ``X0`` as the result shows X: translation (mm) along the parent frame's
+    axes, rotation (deg) about the camera axes, with 1-sigma of each (first order)."""
+    R = T_x0[:3, :3]
+    cov_t = R @ cov[3:, 3:] @ R.T
+    d_t = 1000.0 * (R @ xi[3:])
+    d_r = np.degrees(xi[:3])
+    return {"d_trans_mm": d_t, "sigma_trans_mm": 1000.0 * np.sqrt(np.maximum(np.diag(cov_t), 0.0)),
+            "d_rot_deg": d_r, "sigma_rot_deg": np.degrees(np.sqrt(np.maximum(np.diag(cov[:3, :3]), 0.0))),
+            "trans_mm": float(np.linalg.norm(d_t)), "rot_deg": float(np.linalg.norm(d_r))}
+
+
+# ------------------------------------------------------------------------------ the verification
+@dataclass(frozen=True)
+class Verification:
+    """The outcome of :func:`verify_views` (``to_dict`` is verify.json's body)."""
+
+    verdict: str  # "still valid" | "drifted"
+    headline: str
+    mode: str
+    frame: str
+    test: DriftTest
+    alpha: float
+    change: dict  # change_in_result_frame of test.change_xi
+    T_x_installed: np.ndarray
+    T_x_posterior: np.ndarray
+    cov_x_posterior: np.ndarray
+    board: dict  # installed vs new board pose, moved: bool
+    robot: dict  # views whose robot pose disagrees with the camera
+    intrinsics: dict  # source (installed | session) and the update per name
+    what_moved: tuple  # lines for people
+    views: dict  # view_id -> {status, rms_px, ...}
+    n_views: int
+    sigma_px: float
+    cov_source: str
+    seconds: float
+    refined: object = field(default=None, repr=False)
+
+    @property
+    def drifted(self) -> bool:
+        return self.verdict == "drifted"
+
+    def to_dict(self) -> dict:
+        t = self.test
+        return plain({
+            "verdict": self.verdict, "headline": self.headline, "drifted": self.drifted, "mode": self.mode,
+            "frame": self.frame,
+            "test": {"kind": "score test of X = X_installed: installed covariance plus the new views' noise",
+                     "statistic": t.statistic, "dof": t.dof, "p_value": t.p_value, "alpha": self.alpha,
+                     "variance_share": t.variance_share, "covariance_used": self.cov_source},
+            "change": dict(self.change, xi_rad_m=t.change_xi, cov_6x6=t.change_cov,
+                           definition=("Log(X_installed^-1 X_new) as the new views alone estimate it; sigma: the "
+                                       "new views' uncertainty plus the installed one; translation along the "
+                                       "parent frame's axes, rotation about the camera axes")),
+            "installed": {self.frame: self.T_x_installed},
+            "posterior": {self.frame: self.T_x_posterior, "cov_x_6x6": self.cov_x_posterior},
+            "board": self.board, "robot": self.robot, "intrinsics": self.intrinsics,
+            "what_moved": list(self.what_moved), "views": self.views, "n_views": self.n_views,
+            "sigma_px": self.sigma_px, "seconds": self.seconds}, nan_to_none=True)
+
+
+def installed_prior(installed: LoadedResult, *, session_intrinsics: bool, cov_x: Optional[np.ndarray] = None):
+    """(Prior or None, names of intrinsics to hold) from the installed result: X with ``cov_x``
+    (default: the installed covariance) and, unless the session brings its own intrinsics, the
+    installed intrinsics with their sigmas (those without a sigma are held at the installed value)."""
+    from ..refine.options import Prior
+
+    if installed.cov_x is None:
+        raise InputError("the installed result has no covariance of X", path=installed.source,
+                         hint="use a result calibrated with the refinement (without --no-refine)")
+    cov = installed.cov_x if cov_x is None else cov_x
+    if session_intrinsics or installed.intrinsics is None:
+        return Prior(T_x=installed.T_x, cov_x=cov), ()
+    sig = np.array([installed.intrinsics_sigma.get(n, 0.0) for n in INTRINSIC_NAMES])
+    fixed = tuple(n for n, s in zip(INTRINSIC_NAMES, sig) if not s > 0)
+    cov_k = np.diag(np.where(sig > 0, sig, 1.0) ** 2)
+    return Prior(T_x=installed.T_x, cov_x=cov, intrinsics=installed.intrinsics, cov_intrinsics=cov_k), fixed
+
+
+def board_from_views(mode: str, T_x: np.ndarray, T_base_end: np.ndarray, T_cam_board: np.ndarray) -> np.ndarray:
+    """Per view (n,4,4) the board transform that ``T_x`` and the view imply: ``B_i = M_i^-1 X C_i``."""
+    m = mounting(mode)
+    return inv_T(m.M_from_T_base_end(T_base_end)) @ T_x @ T_cam_board
+
+
+def verify_views(installed: LoadedResult, *, views: Sequence, object_points: np.ndarray,
+                 intrinsics: Optional[Intrinsics] = None, options: VerifyOptions = VerifyOptions()) -> Verification:
+    """Test the installed calibration on ``views`` (:class:`handeye.refine.RefineView`, corners in the
+    board's order). ``intrinsics``: the session's own (held fixed); None uses the installed ones with
+    their sigmas as a prior."""
+    from ..initial import solve_pnp
+    from ..refine import RefineOptions, refine
+
+    t0 = time.perf_counter()
+    if not installed.ok:
+        raise InputError(f"the installed result has no hand-eye matrix (status {installed.status})",
+                         path=installed.source, hint="verify against a result with status ok")
+    if len(views) < 3:
+        raise InputError("a verification needs at least 3 views with the target", received=f"{len(views)} views",
+                         hint="capture 3-8 views with the whole board visible and the robot turned between them")
+    mode, X0 = installed.mode, installed.T_x
+    session_intr = intrinsics is not None
+    intr = intrinsics if session_intr else installed.intrinsics
+    if intr is None:
+        raise InputError("no intrinsics: the installed result has none and the session gives none",
+                         path=installed.source)
+    prior, fixed = installed_prior(installed, session_intrinsics=session_intr, cov_x=VAGUE_COV_X)
+    C = np.stack([solve_pnp(object_points[v.corner_ids], v.image_points, intr)[0] for v in views])
+    E = np.stack([np.asarray(v.T_base_end, float) for v in views])
+    B_views = board_from_views(mode, X0, E, C)
+    B0 = mean_T(B_views)
+    rs_mm, rs_deg = installed.robot_sigma_mm or 0.0, installed.robot_sigma_deg or 0.0
+    ro = RefineOptions(intrinsics="fixed" if session_intr else "estimate", fix=fixed,
+                       robot_noise="fixed" if (rs_mm > 0 and rs_deg > 0) else "none",
+                       robot_sigma_mm=rs_mm if rs_mm > 0 else 0.1, robot_sigma_deg=rs_deg if rs_deg > 0 else 0.01,
+                       prior=prior)
+    r = refine(mode=mode, object_points=object_points, views=list(views), intrinsics=intr, T_x0=X0, T_board0=B0,
+               options=ro)
+    if r.status != "ok":
+        raise CalibrationError(f"the verification solve failed: {r.failure_reason}", code="refinement_failed",
+                               hint="capture views with the whole board visible and the robot turned between them")
+    test = drift_test(cov_installed=installed.cov_x, T_x_installed=X0, T_x_new=r.T_x, cov_new=r.cov_x_6x6,
+                      min_variance_share=options.min_variance_share)
+    drifted = test.p_value < options.alpha
+    change = change_in_result_frame(X0, test.change_xi, test.change_cov)
+    board = _board_change(installed, r, mode, E, C, options, change)
+    robot = _robot_disagreement(r)
+    intr_d = _intrinsics_update(installed, r, session_intr)
+    moved = what_moved(mode=mode, frame=installed.x_name, drifted=drifted, change=change, board=board, robot=robot,
+                       intrinsics=intr_d, dof=test.dof)
+    verdict = "drifted" if drifted else "still valid"
+    headline = (f"{installed.x_name} {'DRIFTED' if drifted else 'still valid'}: test statistic {test.statistic:.2f} "
+                f"({test.dof} dof), p = {test.p_value:.3g} at alpha {options.alpha:g}; estimated change "
+                f"{change['trans_mm']:.2f} mm, {change['rot_deg']:.3f} deg")
+    views_d = {vid: {k: d.get(k) for k in ("status", "rms_px", "max_px", "n_corners", "n_used",
+                                           "robot_vs_camera_trans_mm", "robot_vs_camera_rot_deg")}
+               for vid, d in r.per_view.items()}
+    return Verification(verdict=verdict, headline=headline, mode=mode, frame=installed.x_name, test=test,
+                        alpha=options.alpha, change=change, T_x_installed=X0,
+                        T_x_posterior=X0 @ se3_exp(test.posterior_xi), cov_x_posterior=test.posterior_cov,
+                        board=board, robot=robot, intrinsics=intr_d,
+                        what_moved=moved, views=views_d, n_views=len(r.used_view_ids), sigma_px=r.sigma_px,
+                        cov_source=installed.cov_source, seconds=time.perf_counter() - t0, refined=r)
+
+
+def _board_change(installed: LoadedResult, r, mode: str, E: np.ndarray, C: np.ndarray, o: VerifyOptions,
+                  change: dict) -> dict:
+    """The new board pose against the installed one. Its sigma: the scatter of the per-view board
+    poses through the new X (the mean's standard error) and, in quadrature, the sigma of the change
+    of X (the board is found through X, so an error of X moves it as much, to first order)."""
+    m = mounting(mode)
+    d = {"name": m.board_name, "installed": installed.T_board, "new": r.T_board}
+    if installed.T_board is None:
+        return dict(d, moved=False, known=False)
+    rot_deg, trans_mm = pose_error(r.T_board, installed.T_board)
+    B = board_from_views(mode, r.T_x, E, C)
+    xi = tangent_difference(r.T_board, B)  # (n, 6) per-view scatter about the estimate
+    n = len(B)
+    se_rot = float(np.degrees(np.sqrt(np.sum(np.var(xi[:, :3], axis=0, ddof=1)) / n))) if n > 1 else float("inf")
+    t_views = B[:, :3, 3]
+    se_t = float(1000.0 * np.sqrt(np.sum(np.var(t_views, axis=0, ddof=1)) / n)) if n > 1 else float("inf")
+    se_t = float(np.hypot(se_t, np.linalg.norm(change["sigma_trans_mm"])))
+    se_rot = float(np.hypot(se_rot, np.linalg.norm(change["sigma_rot_deg"])))
+    moved = bool((trans_mm > max(o.board_sigmas * se_t, o.board_min_mm))
+                 or (rot_deg > max(o.board_sigmas * se_rot, o.board_min_deg)))
+    return dict(d, known=True, trans_mm=trans_mm, rot_deg=rot_deg, sigma_trans_mm=se_t, sigma_rot_deg=se_rot,
+                moved=moved, frame=m.board_frame)
+
+
+def _robot_disagreement(r) -> dict:
+    bad = [o for o in r.outliers if o.kind == "robot_pose"]
+    return {"views": [o.view_id for o in bad], "reasons": [o.reason for o in bad],
+            "robot_sigma_mm": r.robot_sigma_mm, "robot_sigma_deg": r.robot_sigma_deg}
+
+
+def _intrinsics_update(installed: LoadedResult, r, session_intr: bool) -> dict:
+    if session_intr or installed.intrinsics is None:
+        return {"source": "session" if session_intr else "none"}
+    d = {"source": "installed (prior)"}
+    new = r.intrinsics
+    for n in ("fx", "fy", "cx", "cy"):
+        s = installed.intrinsics_sigma.get(n, 0.0)
+        diff = float(getattr(new, n) - getattr(installed.intrinsics, n))
+        d[n] = {"installed": float(getattr(installed.intrinsics, n)), "new": float(getattr(new, n)), "diff": diff,
+                "sigma_installed": s, "z": diff / s if s > 0 else float("nan")}
+    return d
+
+
+def what_moved(*, mode: str, frame: str, drifted: bool, change: dict, board: dict, robot: dict, intrinsics: dict,
+               dof: int) -> tuple:
+    """Lines for people: which part of the rig the evidence points at."""
+    m = mounting(mode)
+    lines = []
+    size = f"{change['trans_mm']:.2f} mm, {change['rot_deg']:.3f} deg"
+    if drifted:
+        if m.camera_moves:
+            lines.append(f"the camera moved on the flange ({frame} changed by {size}): the camera mount")
+        else:
+            lines.append(f"the camera moved against the robot base ({frame} changed by {size}): the camera "
+                         "mount, or the robot base itself (the two cannot be told apart)")
+    if board.get("moved"):
+        where = "on the table (in the base frame)" if m.board_frame == "base" else "on the flange"
+        lines.append(f"the board moved {where} by {board['trans_mm']:.2f} mm, {board['rot_deg']:.3f} deg "
+                     f"(its pose is re-estimated; {frame} does not depend on it)")
+    if robot.get("views"):
+        lines.append(f"the robot poses of views {', '.join(robot['views'])} disagree with the camera (a collision, "
+                     "a changed tool frame or a robot fault); those views were not used")
+    zs = {n: v["z"] for n, v in intrinsics.items() if isinstance(v, dict) and np.isfinite(v.get("z", np.nan))}
+    big = [n for n, z in zs.items() if abs(z) > 3.0]
+    if big:
+        lines.append(f"the camera intrinsics moved ({', '.join(big)} beyond 3 installed sigmas): refocused or "
+                     "zoomed? a full recalibration is advised")
+    if dof < 6:
+        lines.append(f"the views constrain only {dof} of the 6 directions of {frame}: turn the robot about more "
+                     "axes between views")
+    if not lines:
+        lines.append("nothing moved beyond the uncertainty")
+    return tuple(lines)
+
+
+# ------------------------------------------------------------------------------ a session folder
+@dataclass(frozen=True)
+class SessionVerification:
+    """:func:`verify_session`'s outcome: the verification and what the session gave it."""
+
+    verification: Verification
+    session_path: str
+    installed_source: str
+    outcomes: tuple  # ViewOutcome per view of the session (detected or why not)
+    target_text: str
+    image_size: tuple
+    intrinsics_source: str
+    seconds: dict
+
+
+def session_for_installed(session_path, installed: LoadedResult, *, mode: Optional[str] = None):
+    """The session, read in the installed result's mounting mode; refuses a session of another mode
+    or board (one line naming the difference)."""
+    from ..session import load_session
+
+    s = load_session(session_path, mode=mode)
+    if s.mode_source == "default" and mode is None:  # the session does not say: the installed mode
+        from dataclasses import replace
+
+        s = replace(s, mode=installed.mode, mode_source="flag")
+    if s.mode != installed.mode:
+        raise InputError(f"the session is {s.mode} but the installed calibration is {installed.mode}",
+                         path=s.path, code="not_comparable", hint="verify against a result of this rig's mounting mode")
+    if installed.target is not None and s.target.to_dict() != installed.target:
+        raise InputError(f"the session's board ({s.target.describe()}) is not the installed calibration's",
+                         path=s.path, expected=str(installed.target), code="not_comparable",
+                         hint="verify with the board the rig was calibrated with")
+    return s
+
+
+def verify_session(session_path, against, *, options: VerifyOptions = VerifyOptions(), mode: Optional[str] = None,
+                   progress=None) -> SessionVerification:
+    """Detect the target in a short session (:func:`handeye.pipeline.observe`) and test the installed
+    calibration ``against`` (a result folder, result.json or loaded dict) on it (:func:`verify_views`)."""
+    from ..pipeline import CalibrateOptions, observe, target_text
+    from ..refine import RefineView
+    from .loaded import load_result
+
+    t0 = time.perf_counter()
+    installed = against if isinstance(against, LoadedResult) else load_result(against)
+    if not installed.ok:
+        raise InputError(f"the installed result has no hand-eye matrix (status {installed.status})",
+                         path=installed.source, hint="verify against a result with status ok")
+    s = session_for_installed(session_path, installed, mode=mode)
+    m = mounting(s.mode)
+    own = s.intrinsics if (s.intrinsics is not None and s.intrinsics_prior in ("fixed", "prior")) else None
+    intr = own if own is not None else installed.intrinsics
+    M_all = {v.view_id: m.M_from_T_base_end(v.T_base_end) for v in s.views}
+    obs = observe(target=s.target, items=[(v.view_id, v.image_path) for v in s.views], intrinsics=intr,
+                  intrinsics_prior="fixed", M_by_id=M_all, options=CalibrateOptions(),
+                  intrinsics_source="session" if own is not None else "installed", progress=progress)
+    if obs.error is not None:
+        raise obs.error if obs.error.path is not None else obs.error.at(s.path)
+    size = next(iter(obs.detections.values())).image_size
+    if installed.image_size and tuple(size) != tuple(installed.image_size):
+        raise InputError(f"the session's images are {size[0]}x{size[1]} but the installed calibration's are "
+                         f"{installed.image_size[0]}x{installed.image_size[1]}", path=s.path, code="not_comparable",
+                         hint="capture at the calibrated resolution")
+    t1 = time.perf_counter()
+    views = [RefineView(vid, bp.corner_ids, obs.detections[vid].image_points, s.view(vid).T_base_end)
+             for vid, bp in obs.board_poses.items()]
+    v = verify_views(installed, views=views, object_points=s.target.object_points(), intrinsics=own, options=options)
+    seconds = dict(obs.seconds, verify=time.perf_counter() - t1, total=time.perf_counter() - t0)
+    return SessionVerification(verification=v, session_path=str(s.path), installed_source=installed.source,
+                               outcomes=obs.ordered_outcomes(), target_text=target_text(s.target),
+                               image_size=tuple(size), intrinsics_source=obs.intrinsics_source, seconds=seconds)
+
+
+def verify_dict(sv: SessionVerification) -> dict:
+    """verify.json: the verification with its inputs and provenance."""
+    from ..output import provenance
+
+    d = sv.verification.to_dict()
+    d = {"handeye_verify": 1, **d, "session": {"path": sv.session_path, "target": sv.target_text,
+                                                "image_size": list(sv.image_size),
+                                                "intrinsics": sv.intrinsics_source},
+         "against": sv.installed_source,
+         "view_outcomes": [{"id": o.view_id, "image": o.image, "detected": o.used, "reason": o.reason,
+                            "n_corners": o.n_corners} for o in sv.outcomes],
+         "seconds_by_stage": sv.seconds, "provenance": provenance()}
+    return plain(d, nan_to_none=True)
