@@ -34,21 +34,48 @@ def merge(base: dict, override: dict, *, source: str = "override") -> dict:
     for k, v in override.items():
         if k not in base:
             raise ConfigError(f"unknown setting {k!r}", path=source, expected=", ".join(sorted(base)))
+        _check_type(k, base[k], v, source=source)
         out[k] = merge(base[k], v, source=source) if isinstance(base[k], dict) and isinstance(v, dict) else v
     return out
+
+
+def _type_name(v) -> str:
+    if isinstance(v, bool):
+        return "true | false"
+    if isinstance(v, (int, float)):
+        return "a number"
+    return {dict: "a mapping", list: "a list", str: "a text"}.get(type(v), type(v).__name__)
+
+
+def _check_type(key, base_value, value, *, source: str) -> None:
+    """An override must have the preset value's type (numbers are interchangeable; a null in the preset
+    accepts anything)."""
+    if base_value is None:
+        return
+    ok = {bool: lambda x: isinstance(x, bool),
+          dict: lambda x: isinstance(x, dict),
+          list: lambda x: isinstance(x, list),
+          str: lambda x: isinstance(x, str)}.get(type(base_value))
+    if ok is None and isinstance(base_value, (int, float)):
+        ok = lambda x: isinstance(x, (int, float)) and not isinstance(x, bool)  # noqa: E731
+    if ok is not None and (value is None or not ok(value)):
+        raise ConfigError(f"setting {key!r} has the wrong type", path=source, expected=_type_name(base_value),
+                          received=repr(value)[:60], hint=f"write {key} like the shipped preset does")
 
 
 def load_with_override(name: str, override_path: str | Path | None) -> dict:
     cfg = load_preset(name)
     if override_path is None:
         return cfg
+    from .output import read_text
+
     p = Path(override_path)
     try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8")) or {}
-    except FileNotFoundError:
-        raise InputError("config file not found", path=p) from None
-    except yaml.YAMLError:
-        raise InputError("not valid YAML", path=p) from None
+        data = yaml.safe_load(read_text(p, what="config file")) or {}
+    except yaml.YAMLError as e:
+        line = getattr(getattr(e, "problem_mark", None), "line", None)
+        raise InputError("not valid YAML", path=p, line=None if line is None else line + 1,
+                         hint="fix the syntax of this file") from None
     if not isinstance(data, dict):
         raise ConfigError("expected a mapping at the top level", path=p)
     return merge(cfg, data, source=str(p))

@@ -1,4 +1,6 @@
-"""Writing outputs: atomic files and self-describing provenance."""
+"""Writing outputs: atomic files, output folders checked before the work, one run at a time per folder
+(a lock file with the holder's pid), self-describing provenance; and the one reader of text input
+files (BOM and common encodings handled, the others named)."""
 from __future__ import annotations
 
 import datetime as _dt
@@ -12,11 +14,17 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .errors import InputError
+from .errors import InputError, OutputError
 
 
 _UMASK = os.umask(0)
 os.umask(_UMASK)
+
+#: suffix of the temporary files :func:`atomic_write_bytes` renames into place (``.NAME.XXXX.tmp``);
+#: a killed run may leave one, the next run in the folder removes it (:func:`remove_stray_temps`)
+TEMP_SUFFIX = ".tmp"
+#: the lock file of a folder a run is writing into (:class:`FolderLock`)
+LOCK_NAME = ".handeye.lock"
 
 
 def atomic_write_bytes(path: str | Path, data: bytes, *, durable: bool = True) -> Path:
@@ -26,7 +34,7 @@ def atomic_write_bytes(path: str | Path, data: bytes, *, durable: bool = True) -
     disk sync per file): on for results and sessions, off for derived files such as thumbnails."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=TEMP_SUFFIX, dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
@@ -130,3 +138,211 @@ def provenance(*, inputs_sha256: str | None = None, extra: dict | None = None) -
     if extra:
         d.update(extra)
     return d
+
+
+def remove_stray_temps(folder: str | Path, *, subfolders: tuple = ("thumbnails", "report_files")) -> list[Path]:
+    """Remove the temporary files a killed writer left in ``folder`` (and its output subfolders):
+    the hidden ``.NAME.XXXX.tmp`` files of :func:`atomic_write_bytes`. Call it holding the folder's lock."""
+    removed = []
+    for d in (Path(folder), *(Path(folder) / s for s in subfolders)):
+        if not d.is_dir():
+            continue
+        for p in d.glob(".*" + TEMP_SUFFIX):
+            try:
+                p.unlink()
+                removed.append(p)
+            except OSError:
+                pass
+    return removed
+
+
+def _first_existing(path: Path) -> Path:
+    p = path
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return p
+
+
+def check_out_dir(path: str | Path, *, option: str = "--out") -> Path:
+    """``path`` as an output folder that can be created and written, checked before any work: not a
+    file, not under a file, writable (a probe file is created and removed). OutputError naming the
+    folder and ``option`` otherwise. Creates the folder."""
+    path = Path(path)
+    hint = f"pass another folder with {option}"
+    if path.exists() and not path.is_dir():
+        raise OutputError(f"{option} is a file, not a folder", path=path, expected="a folder (or a new name)",
+                          received="a file" if path.is_file() else "not a regular folder", hint=hint)
+    anchor = _first_existing(path)
+    if not anchor.is_dir():
+        raise OutputError(f"{option} lies under a file", path=path, expected="a folder path",
+                          received=f"{anchor} is a file", hint=hint)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".handeye-probe.", suffix=TEMP_SUFFIX, dir=path)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise OutputError(f"{option} cannot be written ({e.strerror or e})", path=path,
+                          expected="a writable folder", hint=hint + ", or fix its permissions") from None
+    return path
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's live process
+        return True
+    return True
+
+
+class FolderLock:
+    """One writer per output folder: ``FOLDER/.handeye.lock`` holds the pid of the run writing there.
+
+    A second run into the folder is refused (OutputError naming the holder's pid) while that pid lives;
+    a lock whose pid is gone (the run was killed) is stale and taken over. Used as a context manager."""
+
+    def __init__(self, folder: str | Path, *, option: str = "--out"):
+        self.path = Path(folder) / LOCK_NAME
+        self.option = option
+        self._held = False
+
+    def acquire(self) -> "FolderLock":
+        for _ in range(3):
+            try:
+                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                holder = self._holder()
+                if holder is not None and holder != os.getpid() and _pid_alive(holder):
+                    raise OutputError(f"{self.option} is in use by another handeye run (pid {holder})",
+                                      path=self.path.parent, expected="one run per output folder",
+                                      hint=f"wait for pid {holder} to finish, or pass another folder with "
+                                           f"{self.option}") from None
+                try:  # stale: its run was killed (or the file is empty or damaged)
+                    self.path.unlink()
+                except FileNotFoundError:
+                    pass
+                continue
+            except OSError as e:
+                raise OutputError(f"{self.option} cannot be locked ({e.strerror or e})", path=self.path.parent,
+                                  hint=f"pass another folder with {self.option}") from None
+            with os.fdopen(fd, "w") as f:
+                f.write(f"{os.getpid()}\n")
+            self._held = True
+            return self
+        raise OutputError(f"{self.option} is being locked by other runs at the same time", path=self.path.parent,
+                          hint="run one calibration per output folder")
+
+    def _holder(self):
+        try:
+            return int(self.path.read_text().split()[0])
+        except (OSError, ValueError, IndexError):
+            return None
+
+    def release(self) -> None:
+        if self._held:
+            self._held = False
+            if self._holder() == os.getpid():
+                try:
+                    self.path.unlink()
+                except FileNotFoundError:
+                    pass
+
+    def __enter__(self):
+        return self.acquire()
+
+    def __exit__(self, *exc):
+        self.release()
+
+
+def file_sha256(path: str | Path) -> str:
+    """SHA-256 of one file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def inputs_record(paths, *, base: str | Path | None = None) -> list[dict]:
+    """Every input file read, once each in the given order: ``{"path", "sha256", "bytes"}`` (paths
+    relative to ``base`` when inside it) for result.json's ``provenance.inputs``."""
+    out, seen = [], set()
+    for p in paths:
+        p = Path(p)
+        key = os.path.abspath(p)
+        if key in seen or not p.is_file():
+            continue
+        seen.add(key)
+        name = str(p)
+        if base is not None:
+            try:
+                name = str(Path(key).relative_to(os.path.abspath(base)))
+            except ValueError:
+                pass
+        out.append({"path": name, "sha256": file_sha256(p), "bytes": p.stat().st_size})
+    return out
+
+
+def decode_text(data: bytes, *, path: str | Path, what: str = "text file") -> str:
+    """Bytes of a text input file as str: UTF-8 (a BOM is dropped), UTF-16 with a BOM, or Latin-1 when
+    the bytes are not UTF-8 (a warning names the file); UTF-16 without a BOM is an InputError naming it."""
+    import codecs
+    import logging
+
+    if data.startswith(codecs.BOM_UTF8):
+        data = data[len(codecs.BOM_UTF8):]
+    elif data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+        try:
+            return data.decode("utf-16")
+        except UnicodeDecodeError:
+            raise InputError(f"{what} starts like UTF-16 but does not decode", path=path,
+                             hint="save it as UTF-8 text") from None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        pass
+    if data.count(b"\x00") > len(data) // 4:
+        raise InputError(f"{what} is UTF-16 without a byte-order mark (or binary)", path=path,
+                         expected="UTF-8 text", hint="save it as UTF-8 text")
+    logging.getLogger(__name__).warning("%s: not UTF-8; read as Latin-1 (save it as UTF-8 to silence this)", path)
+    return data.decode("latin-1")
+
+
+def read_text(path: str | Path, *, what: str = "text file", max_bytes: int = 64 << 20) -> str:
+    """The text of an input file (see :func:`decode_text`); InputError naming the file when it is missing,
+    not a regular file (a folder, a device, a pipe: never opened), unreadable or larger than ``max_bytes``."""
+    import stat
+
+    path = Path(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise InputError(f"{what} not found", path=path) from None
+    except OSError as e:
+        raise InputError(f"cannot read {what} ({e.strerror})", path=path) from None
+    if not stat.S_ISREG(st.st_mode):
+        raise InputError(f"{what} is not a regular file", path=path, received=file_kind(st.st_mode),
+                         expected="a text file")
+    if st.st_size > max_bytes:
+        raise InputError(f"{what} is too large for a text input", path=path,
+                         received=f"{st.st_size} bytes", expected=f"at most {max_bytes} bytes")
+    try:
+        with open(path, "rb") as f:
+            data = f.read(max_bytes + 1)
+    except OSError as e:
+        raise InputError(f"cannot read {what} ({e.strerror})", path=path) from None
+    return decode_text(data, path=path, what=what)
+
+
+def file_kind(mode: int) -> str:
+    """What a stat mode is, for messages: a folder, a character device, a named pipe, ..."""
+    import stat
+
+    for test, name in ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a named pipe"),
+                       (stat.S_ISSOCK, "a socket"), (stat.S_ISREG, "a regular file")):
+        if test(mode):
+            return name
+    return "not a regular file"

@@ -13,8 +13,21 @@ exercise the same path. It writes into ``out_dir``:
 - ``report.html`` / ``report.md``, built from the folder alone (unless ``report=False``).
 
 A session that cannot be calibrated still gets a result.json and a report saying why; the last
-successful result.json is then kept as ``result.previous.json``. A session folder that does not
-exist raises (there is nothing to report on).
+successful result.json is then kept as ``result.previous.json``, and the last result whose verdict
+was PASS or WARN as ``result.last-good.json`` (it survives any number of failed runs). A session
+folder that does not exist raises (there is nothing to report on).
+
+One run at a time per folder, and one run in the folder: ``out_dir`` is checked before any work (not
+a file, not under a file, writable) and locked (``.handeye.lock`` with the run's pid; a second run is
+refused while that pid lives, a killed run's lock is stale and taken over). The temporary files a
+killed run left are removed, the reports of the previous result are removed before the new result
+is written (a report never describes another result than result.json's), and result.json,
+observations.json and the reports carry the same ``run_id``. result.json is written last among the
+run's data files, atomically: a run killed at any point leaves the previous result.json or the new one.
+Every file the run read is in result.json's ``provenance.inputs`` with its SHA-256.
+
+A crash inside the diagnostics (an optional stage) is reported as such (one error line; the
+traceback with ``--debug``): the result is written without them and says so in ``stage_errors``.
 
 The verdict belongs to the run: result.json's ``verdict`` is the report's own verdict (the QA checks
 of ``configs/qa.yaml``, or the site ``qa`` file, and the diagnostics' findings, evaluated by
@@ -40,17 +53,21 @@ import json
 import logging
 import shutil
 import time
+import uuid
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Optional
 
 from .errors import HandeyeError, SessionRefused, verdict_exit_code
-from .output import atomic_write_bytes, write_json
+from .output import FolderLock, atomic_write_bytes, check_out_dir, inputs_record, remove_stray_temps, write_json
 from .pipeline import CalibrateOptions, CalibrationRun, run_calibration
 
 log = logging.getLogger(__name__)
 
 THUMBNAIL_DIR = "thumbnails"
+LAST_GOOD_NAME = "result.last-good.json"
+#: the files of a result folder's reports (removed before a new result is written)
+REPORT_NAMES = ("report.html", "report.md")
 
 
 @dataclass(frozen=True)
@@ -78,55 +95,91 @@ class WorkflowResult:
 
 def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOptions(), out_dir,
                       report: bool = True, qa=None, mode: Optional[str] = None,
-                      progress: Callable[[str], None] | None = None, diagnostics: bool = True) -> WorkflowResult:
+                      progress: Callable[[str], None] | None = None, diagnostics: bool = True,
+                      allow_outside: bool = False, site_files=()) -> WorkflowResult:
     """Calibrate the session folder ``session_path`` and write its results into ``out_dir``.
 
     ``mode`` overrides the session's mounting mode; ``qa`` is a site QA file for the verdict and the
     report (read first: a bad QA file raises before any work); ``progress`` receives one line per
     stage; ``diagnostics=False`` skips the diagnostics (faster, for benchmarks of the solver path only;
-    the verdict then rests on the QA checks alone and the report has no findings).
+    the verdict then rests on the QA checks alone and the report has no findings); ``allow_outside`` lets
+    a native session's image and pose-file paths leave its folder; ``site_files`` (the site config and QA
+    files) are recorded with the session's files in ``provenance.inputs``.
     """
     from .report.qa import load_qa
     from .session import load_session
 
     progress = progress or (lambda s: None)
-    out_dir = Path(out_dir)
     t0 = time.perf_counter()
     load_qa(qa)  # a bad site QA file is unusable input: say so before the calibration, not after it
+    if not Path(session_path).exists():
+        load_session(session_path, mode=mode, allow_outside=allow_outside)  # raises: nothing to report on
+    out_dir = check_out_dir(out_dir)
+    with FolderLock(out_dir):
+        remove_stray_temps(out_dir)
+        return _calibrate_locked(session_path, options=options, out_dir=out_dir, report=report, qa=qa, mode=mode,
+                                 progress=progress, diagnostics=diagnostics, allow_outside=allow_outside, t0=t0,
+                                 site_files=site_files)
+
+
+def _calibrate_locked(session_path, *, options, out_dir: Path, report: bool, qa, mode, progress, diagnostics: bool,
+                      allow_outside: bool, t0: float, site_files) -> WorkflowResult:
+    from .session import load_session
+
+    run_id = uuid.uuid4().hex
     try:
-        session = load_session(session_path, mode=mode)
+        session = load_session(session_path, mode=mode, allow_outside=allow_outside)
     except HandeyeError as e:
-        if not Path(session_path).exists():
-            raise
         # the session exists but cannot be read: still leave a result and a report that say why
         return _failed_load(session_path, e, mode=mode, out_dir=out_dir, report=report, qa=qa, t0=t0,
-                            diagnostics=diagnostics)
+                            diagnostics=diagnostics, run_id=run_id)
     t_load = time.perf_counter() - t0
     log.info("session %s: %d views, %s, %s", session.path, len(session.views), session.mode, session.format)
     run = run_calibration(session, options, progress=progress)
     from .results import observations_dict, result_dict
 
     seconds = {"load": t_load, **run.seconds}
-    diag = None
+    diag, stage_errors = None, {}
     if diagnostics:
         progress("diagnostics")
         t1 = time.perf_counter()
         from .diagnose import diagnose_run
 
-        diag = diagnose_run(run)
+        diag = optional_stage("diagnostics", diagnose_run, run, errors=stage_errors)
         seconds["diagnose"] = time.perf_counter() - t1
     refusal = refusing_finding(diag)
     if refusal is not None and run.error is None:
         run = _refused(run, refusal)
     res = result_dict(run, mode_flag=mode)
+    res["run_id"] = run_id
     if diag is not None:
         res["diagnostics"] = diag
+    if stage_errors:
+        res["stage_errors"] = stage_errors
+    files = [*(session.meta.get("files_read") or [v.image_path for v in session.views]), *site_files]
+    res.setdefault("provenance", {})["inputs"] = inputs_record([f for f in files if f], base=session.path)
     t2 = time.perf_counter()
     _keep_previous(out_dir, failed=run.status != "ok")
     write_thumbnails(out_dir, {**run.failures, **run.detections})
-    write_json(out_dir / "observations.json", observations_dict(run), indent=None)  # large, read by programs
+    write_json(out_dir / "observations.json", {**observations_dict(run), "run_id": run_id}, indent=None)
     return _finish(out_dir, res, seconds, report=report, qa=qa, t0=t0, t_write=t2, run=run, error=run.error,
                    progress=progress)
+
+
+def optional_stage(name: str, fn, *args, errors: dict, **kwargs):
+    """``fn(*args, **kwargs)``, or None when it crashes: an optional stage (diagnostics, report) never
+    takes the result down. The crash is one error line naming the stage (its traceback at debug level,
+    i.e. with ``--debug``) and ``errors[name]`` says what it was, for result.json's ``stage_errors``."""
+    try:
+        return fn(*args, **kwargs)
+    except HandeyeError:
+        raise
+    except Exception as e:  # noqa: BLE001 - an optional stage must not lose the result
+        log.error("handeye: the %s stage crashed (%s: %s); the result is written without it. "
+                  "Rerun with --debug for the traceback and report it", name, type(e).__name__, e)
+        log.debug("%s stage traceback", name, exc_info=True)
+        errors[name] = f"{type(e).__name__}: {e}"
+        return None
 
 
 def refusing_finding(diagnostics: Optional[dict]) -> Optional[dict]:
@@ -160,6 +213,9 @@ def _finish(out_dir: Path, res: dict, seconds: dict, *, report: bool, qa, t0: fl
     paths = ()
     seconds["write"] = time.perf_counter() - t_write
     res["seconds"] = dict(seconds)
+    for name in REPORT_NAMES:  # the previous result's reports must not sit beside this result
+        (out_dir / name).unlink(missing_ok=True)
+    shutil.rmtree(out_dir / "report_files", ignore_errors=True)
     write_json(result_path, res)  # the verdict is judged from the folder, as the report is
     t_v = time.perf_counter()
     res.update(verdict_fields(_judge(out_dir, qa), res, error, qa_cfg=load_qa(qa)))
@@ -174,21 +230,30 @@ def _finish(out_dir: Path, res: dict, seconds: dict, *, report: bool, qa, t0: fl
     seconds["total"] = time.perf_counter() - t0
     res["seconds"] = seconds
     write_json(result_path, res)
+    if error is None and res.get("verdict") in ("PASS", "WARN"):
+        write_json(out_dir / LAST_GOOD_NAME, res)
     status = "ok" if error is None else "failed"
     return WorkflowResult(status, out_dir, result_path, res, run, error, paths, seconds)
 
 
 def _failed_load(session_path, err: HandeyeError, *, mode, out_dir: Path, report: bool, qa, t0: float,
-                 diagnostics: bool) -> WorkflowResult:
+                 diagnostics: bool, run_id: str) -> WorkflowResult:
     from .results import failed_load_result
 
     res = failed_load_result(session_path, err, mode)
+    res["run_id"] = run_id
     seconds = {"load": time.perf_counter() - t0}
     if diagnostics:
         t1 = time.perf_counter()
         from .diagnose import diagnose_session_error
 
-        res["diagnostics"] = diagnose_session_error(Path(session_path), res["failure_reason"], mode=mode)
+        stage_errors = {}
+        diag = optional_stage("diagnostics", diagnose_session_error, Path(session_path), res["failure_reason"],
+                              mode=mode, errors=stage_errors)
+        if diag is not None:
+            res["diagnostics"] = diag
+        if stage_errors:
+            res["stage_errors"] = stage_errors
         seconds["diagnose"] = time.perf_counter() - t1
     t2 = time.perf_counter()
     _keep_previous(out_dir, failed=True)
@@ -218,17 +283,19 @@ def _judge(out_dir: Path, qa):
 
 
 def _keep_previous(out_dir: Path, *, failed: bool) -> None:
-    """Before a failed run's result.json replaces a successful one, keep that as result.previous.json."""
+    """Before a failed run's result.json replaces a successful one, keep a copy as result.previous.json
+    (a copy, written atomically: result.json stays in place until the new one replaces it)."""
     current = out_dir / "result.json"
     out_dir.mkdir(parents=True, exist_ok=True)
     if not failed or not current.exists():
         return
     try:
-        was_ok = json.loads(current.read_text(encoding="utf-8")).get("status") == "ok"
+        data = current.read_bytes()
+        was_ok = json.loads(data.decode("utf-8")).get("status") == "ok"
     except (OSError, ValueError):
         was_ok = False
     if was_ok:
-        current.replace(out_dir / "result.previous.json")
+        atomic_write_bytes(out_dir / "result.previous.json", data)
 
 
 def write_thumbnails(out_dir: Path, per_view: dict) -> list[Path]:

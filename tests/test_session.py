@@ -58,7 +58,7 @@ def test_vendor_mode_key_and_override(tmp_path):
 @pytest.mark.parametrize("case,match", [
     ("more_images", "5 images but 4 pose lines"),
     ("malformed", r"poses.txt:2: malformed pose line"),
-    ("nan", r"poses.txt:3: bad pose: pose contains NaN"),
+    ("nan", r"poses.txt:3: pose line holds a value that is not a usable number.*got nan"),
     ("short", r"poses.txt:1: bad pose: expected 6 numbers"),
     ("mm", r"poses.txt:1: .*millimetres"),
     ("degrees", r"poses.txt:1: .*degrees"),

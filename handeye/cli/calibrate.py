@@ -34,21 +34,25 @@ def add_arguments(p) -> None:
                         "starts from it unless another closed form explains the views better (default: tsai, "
                         "from the preset)")
     p.add_argument("--config", type=Path, help="site YAML overriding configs/calibration.yaml (same keys)")
-    p.add_argument("--out", type=Path, help="output folder (default: reports/<session folder name>)")
+    p.add_argument("--out", type=Path,
+                   help="output folder (default: reports/<session folder name>-<8 hex digits of its full path>); "
+                        "checked before the work starts and locked while the run writes into it")
     p.add_argument("--no-refine", action="store_true", help="stop at the closed-form solution")
     p.add_argument("--fix-k3", action="store_true", help="hold the k3 distortion coefficient at 0")
     p.add_argument("--fix", nargs="+", metavar="NAME", choices=["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"],
                    help="intrinsics held at their starting values in the refinement (e.g. --fix p1 p2 k3)")
     p.add_argument("--robot-noise", choices=["estimate", "fixed", "none"], default=None,
                    help="robot pose noise model in the refinement (default: estimate)")
-    p.add_argument("--robot-sigma", nargs=2, type=float, metavar=("MM", "DEG"),
+    p.add_argument("--robot-sigma", nargs=2, type=positive_float, metavar=("MM", "DEG"),
                    help="robot pose sigma: start value (estimate) or the value (fixed)")
-    p.add_argument("--workers", type=int, help="threads for corner detection (default: all cores)")
+    p.add_argument("--workers", type=positive_int, help="threads for corner detection (default: all cores)")
     p.add_argument("--qa", type=Path, metavar="FILE",
                    help="site QA thresholds for the verdict and the report (overrides configs/qa.yaml)")
     p.add_argument("--no-report", action="store_true", help="write result.json, observations.json and thumbnails only")
     p.add_argument("--shift-poses", type=int, default=0, metavar="N",
                    help="pair image k with pose line k+N (the constant shift a refused run names)")
+    p.add_argument("--allow-outside", action="store_true",
+                   help="let session.yaml's image and pose-file paths leave the session folder (refused by default)")
     from ..export import FORMATS as EXPORT_FORMATS
 
     p.add_argument("--export", choices=list(EXPORT_FORMATS), metavar="FORMAT",
@@ -57,12 +61,79 @@ def add_arguments(p) -> None:
     p.set_defaults(func=run)
 
 
+def positive_int(text: str) -> int:
+    """argparse type: a whole number >= 1 (``--workers``)."""
+    try:
+        v = int(text)
+    except ValueError:
+        v = 0
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
+    return v
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0 (sigmas)."""
+    import math
+
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return v
+
+
+def default_out_dir(session) -> Path:
+    """``reports/<session folder name>-<8 hex digits of the SHA-1 of its absolute path>``: two sessions
+    of the same folder name (a/session, b/session) never share an output folder."""
+    import hashlib
+
+    p = Path(session).resolve()
+    folder = p.parent if p.is_file() else p
+    return Path("reports") / f"{folder.name}-{hashlib.sha1(str(folder).encode()).hexdigest()[:8]}"
+
+
+#: site config keys of configs/calibration.yaml whose values the preset leaves open (null) -> check
+_SITE_CHECKS = {
+    "min_corners": ("a whole number >= 4, or null", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 4),
+    "refine_options.robot_noise": ("estimate | fixed | none", lambda v: v in ("estimate", "fixed", "none")),
+    "refine_options.robot_sigma_mm": ("a number > 0 (mm)", lambda v: _pos(v)),
+    "refine_options.robot_sigma_deg": ("a number > 0 (degrees)", lambda v: _pos(v)),
+    "refine_options.loss": ("huber | cauchy | none", lambda v: v in ("huber", "cauchy", "none")),
+    "refine_options.outlier_loop": ("true | false", lambda v: isinstance(v, bool)),
+}
+
+
+def _pos(v) -> bool:
+    import math
+
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+
+
+def check_site_config(cfg: dict, *, source) -> dict:
+    """The calibration settings whose preset value is null (any type merges over it) checked by type and
+    range; ConfigError naming the setting and the file."""
+    from ..errors import ConfigError
+
+    for key, (expected, ok) in _SITE_CHECKS.items():
+        v = cfg
+        for part in key.split("."):
+            v = v.get(part) if isinstance(v, dict) else None
+        if v is not None and not ok(v):
+            raise ConfigError(f"invalid setting {key}", path=source, expected=expected, received=repr(v)[:60],
+                              hint="fix the value in this file")
+    return cfg
+
+
 def options_from_args(args):
     """CalibrateOptions from the preset, the site --config and the command-line flags."""
     from ..config import load_with_override
     from ..pipeline import CalibrateOptions
 
-    cfg = load_with_override("calibration", getattr(args, "config", None))
+    cfg = check_site_config(load_with_override("calibration", getattr(args, "config", None)),
+                            source=getattr(args, "config", None) or "configs/calibration.yaml")
     ro = {}
     if getattr(args, "robot_noise", None):
         ro["robot_noise"] = args.robot_noise
@@ -79,10 +150,12 @@ def options_from_args(args):
 def run(args) -> int:
     from ..workflow import calibrate_session
 
-    out = args.out or Path("reports") / Path(args.session).resolve().name
+    out = args.out or default_out_dir(args.session)
     opts = options_from_args(args)
+    site = [f for f in (getattr(args, "config", None), getattr(args, "qa", None)) if f]
     wr = calibrate_session(args.session, options=opts, out_dir=out, report=not args.no_report,
-                           qa=getattr(args, "qa", None), mode=args.mode, progress=lambda s: log.info("%s", s))
+                           qa=getattr(args, "qa", None), mode=args.mode, progress=lambda s: log.info("%s", s),
+                           allow_outside=getattr(args, "allow_outside", False), site_files=site)
     if wr.run is None:  # the session could not be read: result.json and the report say why
         from .verdict import finding_lines
 

@@ -16,6 +16,7 @@ import yaml
 from ..config import load_preset
 from ..errors import ConfigError, InputError
 from ..mounting import MODES
+from ..output import file_kind, read_text
 
 
 @functools.lru_cache(maxsize=None)
@@ -40,12 +41,7 @@ class IdTextLoader(yaml.SafeLoader):
 def read_yaml(path: Path, *, loader=yaml.SafeLoader) -> dict:
     """The top-level mapping of a YAML file (empty file: ``{}``); InputError naming the file and line.
     ``loader``: :class:`IdTextLoader` for session files (view ids kept as written)."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as e:
-        raise InputError(f"cannot read file ({e.strerror})", path=path) from None
-    except UnicodeDecodeError:
-        raise InputError("file is not UTF-8 text", path=path) from None
+    text = read_text(path, what="YAML file")
     try:
         data = yaml.load(text, Loader=loader)
     except yaml.YAMLError as e:
@@ -57,6 +53,40 @@ def read_yaml(path: Path, *, loader=yaml.SafeLoader) -> dict:
     if not isinstance(data, dict):
         raise InputError("expected a mapping at the top level", path=path, received=type(data).__name__)
     return data
+
+
+def check_input_file(path: Path, *, what: str, source: Path | None = None, vid: str | None = None) -> Path:
+    """``path`` as an input file that may be opened: a regular file (a folder, a device such as
+    /dev/zero or a named pipe is never opened) that can be read; InputError naming the view and file."""
+    import os
+    import stat
+
+    prefix = f"view {vid}: " if vid is not None else ""
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        raise InputError(f"{prefix}cannot read {what} ({e.strerror})", path=path) from None
+    if not stat.S_ISREG(st.st_mode):
+        raise InputError(f"{prefix}{what} is not a regular file", path=path, received=file_kind(st.st_mode),
+                         expected="an image file", hint="point the view at its image file, or remove the view")
+    try:
+        with open(path, "rb"):
+            pass
+    except OSError as e:
+        raise InputError(f"{prefix}cannot read {what} ({e.strerror})", path=path,
+                         hint="fix the file's permissions") from None
+    return path
+
+
+def check_finite(values, *, path: Path, line: int | None, what: str) -> None:
+    """Numbers read from a file must be finite and of a size a pose can have (|x| < 1e6): NaN, inf and
+    1e308 are refused at load, naming the file and line."""
+    a = np.asarray(values, dtype=float)
+    if not np.all(np.isfinite(a)) or np.any(np.abs(a) > 1e6):
+        bad = a[~np.isfinite(a) | (np.abs(np.nan_to_num(a, nan=np.inf)) > 1e6)][0]
+        raise InputError(f"{what} holds a value that is not a usable number", path=path, line=line,
+                         expected="finite numbers (|x| < 1e6)", received=repr(float(bad)),
+                         hint="fix or remove this pose")
 
 
 def check_mode(mode, *, path: Path, field: str = "mode") -> str:

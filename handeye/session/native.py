@@ -23,7 +23,9 @@ from ..conventions import PoseFormat, T_from_pose_values
 from ..errors import ConfigError, InputError
 from ..records import Session, View, view_id_key
 from ..targets import TargetSpec
-from .fields import IdTextLoader, check_angle_units, check_mode, check_translation_units, positive_number, read_yaml
+from ..output import read_text
+from .fields import (IdTextLoader, check_angle_units, check_finite, check_input_file, check_mode,
+                     check_translation_units, positive_number, read_yaml)
 from .target_spec import parse_target
 
 log = logging.getLogger(__name__)
@@ -82,9 +84,14 @@ def read_native_document(path: Path) -> NativeDocument:
         raise ConfigError("views must be a list", path=path, received=type(inline).__name__)
     entries = [ViewEntry(e, path) for e in inline]
     rec_dir = d.get("view_records")
-    if rec_dir and (path.parent / str(rec_dir)).is_dir():
-        for f in sorted((path.parent / str(rec_dir)).iterdir()):
-            if f.name.startswith(".") or f.suffix not in (".yaml", ".yml"):
+    if rec_dir is not None and not (isinstance(rec_dir, str) and rec_dir):
+        raise ConfigError("view_records must be a folder name", path=path, received=repr(rec_dir)[:60],
+                          expected="a folder inside the session folder, e.g. view_records")
+    if rec_dir:
+        rec_dir = inside_folder(path.parent, rec_dir, vid="records", what="folder view_records", source=path)
+    if rec_dir and rec_dir.is_dir():
+        for f in sorted(rec_dir.iterdir()):
+            if f.name.startswith(".") or f.suffix not in (".yaml", ".yml") or not f.is_file():
                 continue
             entries.append(ViewEntry(read_yaml(f, loader=IdTextLoader), f))
     if not entries:
@@ -133,11 +140,7 @@ _NUMBER_SEP = re.compile(r"[,;\s]+")
 
 def _read_pose_file(f: Path, *, vid: str) -> list:
     """The rows of numbers in a pose file (``#`` comments and blank lines skipped)."""
-    try:
-        text = f.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"view {vid}: cannot read the pose file ({getattr(e, 'strerror', None) or e})",
-                         path=f) from None
+    text = read_text(f, what=f"view {vid}: pose file")
     rows = []
     for lineno, line in enumerate(text.splitlines(), start=1):
         s = line.split("#", 1)[0].strip()
@@ -174,8 +177,10 @@ def view_pose_values(e: ViewEntry, fmt: PoseFormat, *, folder: Path, allow_outsi
                 raise ConfigError(f"view {vid}: the pose file holds a 4x4 matrix but pose_format.rotation is "
                                   f"{fmt.rotation}", path=f, hint="set pose_format: {rotation: matrix} (all views "
                                                                   "of a session share one pose format)")
+            check_finite(rows, path=f, line=None, what=f"view {vid}: pose file")
             return np.asarray(rows, float).reshape(-1)
         if len(rows) == 1:
+            check_finite(rows[0], path=f, line=None, what=f"view {vid}: pose file")
             return np.asarray(rows[0], float)
         raise InputError(f"view {vid}: pose file is neither one pose line nor a 4x4 matrix", path=f,
                          expected="4 lines of 4 numbers, or one line such as x,y,z,rx,ry,rz",
@@ -189,11 +194,16 @@ def view_pose_values(e: ViewEntry, fmt: PoseFormat, *, folder: Path, allow_outsi
             raise InputError(f"view {vid}: a nested pose must be a 4x4 matrix (4 rows of 4) with "
                              "pose_format.rotation: matrix", path=e.source, received=repr(pose)[:80],
                              expected=fmt.describe())
+    if any(isinstance(x, (bool, str)) for x in (sum(pose, []) if isinstance(pose[0], list) else pose)):
+        raise InputError(f"view {vid}: pose must be numbers", path=e.source, received=repr(pose)[:80],
+                         expected=fmt.describe())
     try:
-        return np.asarray(pose, dtype=float).reshape(-1)
+        values = np.asarray(pose, dtype=float).reshape(-1)
     except (TypeError, ValueError):
         raise InputError(f"view {vid}: pose must be numbers", path=e.source, received=repr(pose)[:80],
                          expected=fmt.describe()) from None
+    check_finite(values, path=e.source, line=None, what=f"view {vid}: pose")
+    return values
 
 
 def inside_folder(folder: Path, written: str, *, vid: str, what: str, source: Path,
@@ -300,6 +310,7 @@ def load_native_session(path: str | Path, *, mode: str | None = None, allow_outs
     views = []
     missing: dict[str, Path] = {}
     seen: set[str] = set()
+    files_read = [path, *(e.source for e in doc.entries if e.source != path)]
     for e in doc.entries:
         vid = e.data["id"]
         if vid in seen:
@@ -313,11 +324,15 @@ def load_native_session(path: str | Path, *, mode: str | None = None, allow_outs
         check_translation_units(T, path=e.source, line=None, unit=fmt.translation_unit)
         img = view_image_path(doc, e, allow_outside=allow_outside)
         joints = view_joint_angles(e)
-        if not img.exists():
+        t_image, t_pose = (_opt_time(e, k) for k in ("t_image", "t_pose"))
+        if "pose_file" in e.data:
+            files_read.append(files_folder(doc) / str(e.data["pose_file"]))
+        if not os.path.lexists(img):
             missing[vid] = img
             continue
-        views.append(View(view_id=vid, image_path=img, T_base_end=T, t_image=_opt_float(e.data.get("t_image")),
-                          t_pose=_opt_float(e.data.get("t_pose")), joint_angles=joints))
+        files_read.append(check_input_file(img, what="image", vid=vid))
+        views.append(View(view_id=vid, image_path=img, T_base_end=T, t_image=t_image, t_pose=t_pose,
+                          joint_angles=joints))
     if not views:
         first = next(iter(missing.values()))
         raise InputError(f"none of the {len(missing)} views' images exists", path=first,
@@ -326,11 +341,20 @@ def load_native_session(path: str | Path, *, mode: str | None = None, allow_outs
         log.warning("%s: views without their image file (dropped with their poses): %s", path, sorted(missing))
     views.sort(key=lambda v: view_id_key(v.view_id))
     meta = {k: v for k, v in doc.data.items() if k not in ("views",)}
-    meta.update(missing_images={v: None for v in missing}, missing_image_files={v: str(f) for v, f in missing.items()})
+    meta.update(missing_images={v: None for v in missing}, missing_image_files={v: str(f) for v, f in missing.items()},
+                files_read=files_read)
     return Session(path=path.parent, format="native", mode=sess_mode, target=doc.target, views=tuple(views),
                    intrinsics=doc.intrinsics, intrinsics_prior=doc.intrinsics_use, pose_format=fmt.describe(),
                    mode_source=source, meta=meta)
 
 
-def _opt_float(v):
-    return None if v is None else float(v)
+def _opt_time(e: ViewEntry, key: str):
+    """A view's optional time stamp (``t_image``, ``t_pose``): seconds as a finite number."""
+    v = e.data.get(key)
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+        raise ConfigError(f"view {e.data['id']}: invalid {key}", path=e.source,
+                          expected="a time stamp in seconds (a number)", received=repr(v)[:60],
+                          hint=f"write {key} as seconds, e.g. 1712345678.25, or remove it")
+    return float(v)

@@ -114,13 +114,13 @@ def read_session_lenient(path: str | Path, *, mode: Optional[str] = None) -> Opt
                     images[e.data["id"]] = view_image_path(doc, e)
                 except HandeyeError:  # outside the session folder: not read here either
                     continue
-            images = {v: f for v, f in images.items() if f.exists()}
+            images = {v: f for v, f in images.items() if f.is_file()}  # never a folder, device or pipe
             intr = doc.intrinsics if doc.intrinsics_use in ("fixed", "prior") else None
             return LenientSession(doc.target, check_mode(mode or doc.mode or VENDOR_DEFAULT_MODE, path=p), raw,
                                   images, intr)
         target, cfg_mode, _ = read_vendor_config(p, strict=False)
         raw = _raw_vendor(p)
-        images = {str(k): f for k, f in numbered_images(p).items()}
+        images = {str(k): f for k, f in numbered_images(p).items() if f.is_file()}
         return LenientSession(target, check_mode(mode or cfg_mode or VENDOR_DEFAULT_MODE, path=p / "config.yaml"), raw,
                               images, None)
     except _UNREADABLE as e:

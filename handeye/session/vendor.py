@@ -18,8 +18,9 @@ from ..conventions import VENDOR_POSE_FORMAT, T_from_pose_values
 from ..errors import ConfigError, InputError
 from ..records import Session, View
 from ..targets import ChessboardSpec
-from .fields import (check_angle_units, check_mode, check_translation_units, length_m, positive_number,
-                     read_yaml)
+from ..output import read_text
+from .fields import (check_angle_units, check_finite, check_input_file, check_mode, check_translation_units,
+                     length_m, positive_number, read_yaml)
 
 log = logging.getLogger(__name__)
 
@@ -43,10 +44,7 @@ class PoseLine:
 def read_pose_lines(poses_path: Path) -> list[PoseLine]:
     """The pose lines of poses.txt (blank lines and ``#`` comments skipped); InputError on a line that is
     not numbers. Counts and units are not checked here."""
-    try:
-        raw_lines = poses_path.read_text(encoding="utf-8", errors="strict").splitlines()
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"cannot read poses.txt ({e})", path=poses_path) from None
+    raw_lines = read_text(poses_path, what="poses.txt").splitlines()
     out: list[PoseLine] = []
     for lineno, line in enumerate(raw_lines, start=1):
         s = line.strip()
@@ -57,6 +55,7 @@ def read_pose_lines(poses_path: Path) -> list[PoseLine]:
         except ValueError:
             raise InputError("malformed pose line", path=poses_path, line=lineno,
                              expected=_POSE_EXPECTED, received=repr(s[:80])) from None
+        check_finite(values, path=poses_path, line=lineno, what="pose line")
         out.append(PoseLine(len(out) + 1, lineno, values))
     if not out:
         raise InputError("poses.txt has no pose lines", path=poses_path, expected="one line x,y,z,rx,ry,rz per image")
@@ -135,8 +134,10 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
     views = []
     for k in sorted(images):
         lineno, T = poses[k - 1]
+        check_input_file(images[k], what="image", vid=str(k))
         views.append(View(view_id=str(k), image_path=images[k], T_base_end=T, source_line=lineno))
     return Session(path=folder, format="vendor", mode=sess_mode, target=target, views=tuple(views),
                    pose_format=VENDOR_POSE_FORMAT.describe(),
                    mode_source="flag" if mode is not None else ("stated" if cfg_mode else "default"),
-                   meta={"config": cfg, "missing_images": {str(k): poses[k - 1][0] for k in without_image}})
+                   meta={"config": cfg, "missing_images": {str(k): poses[k - 1][0] for k in without_image},
+                         "files_read": [folder / "config.yaml", poses_path, *(images[k] for k in sorted(images))]})
