@@ -1,0 +1,67 @@
+"""``python -m handeye.batch.child SPEC_JSON``: one session of a batch, in its own process.
+
+Runs :func:`handeye.workflow.calibrate_session` with the ``handeye calibrate`` options of the spec
+(:func:`handeye.cli.calibrate.options_from_args`: the single command's results, bit for bit) and
+prints one JSON line on stdout: ``outcome`` (``done``, or ``error`` when the workflow raised),
+``status``, ``verdict``, ``reason``, ``exit_code``. Log lines go to stderr (the task keeps them in
+``batch.log``). The process ends itself when its parent (the Dask worker) is gone, so a killed
+worker leaves no session running behind it.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sys
+import threading
+import time
+
+#: seconds between two looks at the parent process
+PARENT_POLL_S = 0.5
+
+
+def _exit_with_parent() -> None:
+    parent = os.getppid()
+
+    def watch():
+        while True:
+            time.sleep(PARENT_POLL_S)
+            if os.getppid() != parent:
+                os._exit(70)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
+def run(spec: dict) -> dict:
+    from ..cli.calibrate import options_from_args
+    from ..errors import HandeyeError
+    from ..workflow import calibrate_session
+    from .run import calibrate_namespace
+
+    cal = spec["calibrate"]
+    args = calibrate_namespace(cal)
+    try:
+        wr = calibrate_session(spec["session"], options=options_from_args(args), out_dir=spec["out_dir"],
+                               report=not cal.get("no_report"), qa=cal.get("qa"), mode=cal.get("mode"),
+                               progress=lambda s: logging.getLogger(__name__).info("%s", s))
+    except HandeyeError as e:
+        return {"outcome": "error", "status": "failed", "verdict": "ERROR", "reason": str(e), "exit_code": e.exit_code}
+    reason = wr.result.get("failure_reason") or ("" if wr.verdict in ("PASS", "WARN")
+                                                 else wr.result.get("verdict_headline", ""))
+    return {"outcome": "done", "status": wr.status, "verdict": wr.verdict, "reason": reason,
+            "exit_code": wr.exit_code}
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    _exit_with_parent()
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", stream=sys.stderr)
+    logging.getLogger("matplotlib").setLevel(logging.WARNING)
+    reply = run(json.loads(argv[0]))
+    sys.stdout.write(json.dumps(reply) + "\n")
+    sys.stdout.flush()
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

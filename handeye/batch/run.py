@@ -1,0 +1,331 @@
+"""Run a batch of sessions on Dask: one task per session, resumable, isolated.
+
+Each session is one Dask task (:func:`run_session`). The task runs ``handeye.workflow.calibrate_session``
+(the single ``handeye calibrate`` command's workflow, :mod:`handeye.batch.child`) in a child process,
+so that a session that hangs is killed at the time limit and one that crashes the interpreter takes
+only its child with it; the task records what happened in ``OUT/<install>/<session>/batch.json``
+(and the child's log lines in ``batch.log``). A worker that dies (killed, out of memory, its machine
+gone) loses its running task: the scheduler gives it to another worker (up to Dask's
+``distributed.scheduler.allowed-failures`` times), after which the session is recorded as ``lost``.
+
+Resuming: a session is skipped when its ``batch.json`` records a finished run (``outcome: done``) with
+the same key, and its result.json's ``provenance.inputs_sha256`` and ``provenance.options`` are the
+key's. The key (:func:`session_key`) is the hash result.json records (the session's images, poses and
+config), the calibration options as result.json records them, and what else changes the outputs: the
+mounting mode flag, the pose shift, whether reports are written, and the SHA-256 of the site QA and
+calibration files. A session whose load fails is keyed on all its files instead. Timed-out, crashed
+and lost sessions run again on the next batch; ``force`` redoes everything.
+
+The workers must see ROOT and OUT at the same paths as the client (a shared filesystem; see the
+README). Nothing here imports the calibration: the task and the client stay light.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Optional
+
+from ..errors import QAFailed
+from ..output import hash_files, write_json
+from .discover import SessionJob
+
+log = logging.getLogger(__name__)
+
+#: the batch's record of a session, beside its result.json
+RECORD_NAME = "batch.json"
+#: the session child's stderr (its progress and log lines)
+LOG_NAME = "batch.log"
+#: default time limit of one session (seconds)
+DEFAULT_TIMEOUT_S = 900.0
+#: outcomes of a session in the batch: ``done`` (the workflow finished; result.json says the rest),
+#: ``timeout``, ``crashed`` (the child died without a result), ``error`` (the workflow raised),
+#: ``lost`` (its workers kept dying)
+OUTCOMES = ("done", "timeout", "crashed", "error", "lost")
+#: verdicts that count as failed in the progress bar and the exit code (ERROR: no result of this run)
+FAILED_VERDICTS = ("FAIL", "REFUSED", "ERROR")
+
+
+@dataclass(frozen=True)
+class BatchSummary:
+    """What a batch did: one record per session (``batch.json``'s content, plus ``skipped``)."""
+
+    records: tuple
+    seconds: float
+    index_paths: tuple = ()
+
+    @property
+    def counts(self) -> Counter:
+        """done / failed / skipped (failed: verdict FAIL or REFUSED, or no result of this run)."""
+        return Counter(record_state(r) for r in self.records)
+
+    @property
+    def verdicts(self) -> Counter:
+        return Counter(r.get("verdict") or "ERROR" for r in self.records)
+
+    @property
+    def exit_code(self) -> int:
+        """0 when every session (run or skipped) is PASS or WARN, else :class:`QAFailed`'s code."""
+        return QAFailed.exit_code if any(self.verdicts[v] for v in FAILED_VERDICTS) else 0
+
+    def line(self) -> str:
+        """The one-line summary."""
+        c, v = self.counts, self.verdicts
+        verdicts = ", ".join(f"{v[k]} {k}" for k in ("PASS", "WARN", "FAIL", "REFUSED", "ERROR") if v[k])
+        return (f"{len(self.records)} sessions: {c['done']} done, {c['failed']} failed, {c['skipped']} skipped "
+                f"({verdicts or 'none'}) in {self.seconds:.0f} s")
+
+
+def record_state(rec: dict) -> str:
+    """done | failed | skipped for the progress bar."""
+    if rec.get("skipped"):
+        return "skipped"
+    return "failed" if (rec.get("verdict") or "ERROR") in FAILED_VERDICTS else "done"
+
+
+# ------------------------------------------------------------------------------------------ keys
+def _canonical(obj):
+    """JSON round trip: tuples become lists, keys strings, as result.json stores them."""
+    return json.loads(json.dumps(obj, sort_keys=True, default=str))
+
+
+def calibrate_namespace(calibrate: dict):
+    """The ``handeye calibrate`` arguments of one batch session: ``calibrate`` (its flags by their
+    argparse names) with one detection thread (the batch runs sessions side by side)."""
+    import argparse
+
+    return argparse.Namespace(**{**calibrate, "workers": 1})
+
+
+def provenance_options(calibrate: dict) -> dict:
+    """The calibration options as result.json's ``provenance.options`` records them, for the
+    command-line options ``calibrate`` (the ``handeye calibrate`` flags by their argparse names)."""
+    from ..cli.calibrate import options_from_args
+
+    o = options_from_args(calibrate_namespace(calibrate))
+    return _canonical({"method": o.method, "refine": o.refine, "fix_k3": o.fix_k3, **o.refine_options})
+
+
+def _file_sha(path) -> Optional[str]:
+    return None if path is None else hash_files([Path(path)])
+
+
+def inputs_sha256(job: SessionJob, mode: Optional[str]) -> tuple[str, str]:
+    """(hash, what it covers): result.json's input hash (the loaded session's images, poses and
+    config), or, for a session that does not load, the hash of every file in its folder."""
+    from ..errors import HandeyeError
+    from ..results import session_inputs
+    from ..session import load_session
+
+    try:
+        return hash_files(session_inputs(load_session(job.path, mode=mode))), "session"
+    except HandeyeError:
+        files = sorted(p for p in job.path.rglob("*") if p.is_file())
+        return hash_files(files), "folder"
+
+
+def session_key(job: SessionJob, calibrate: dict, options: dict) -> dict:
+    """What a session's outputs depend on (module docstring); ``options`` from :func:`provenance_options`."""
+    h, covers = inputs_sha256(job, calibrate.get("mode"))
+    return _canonical({"inputs_sha256": h, "inputs": covers, "options": options, "mode": calibrate.get("mode"),
+                       "shift_poses": calibrate.get("shift_poses") or 0, "report": not calibrate.get("no_report"),
+                       "qa_sha256": _file_sha(calibrate.get("qa")), "config_sha256": _file_sha(calibrate.get("config"))})
+
+
+def read_json(path: Path) -> Optional[dict]:
+    try:
+        d = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return d if isinstance(d, dict) else None
+
+
+def current_record(out_dir: Path, key: dict) -> Optional[dict]:
+    """The session's batch record when its last run finished with the same key and its result.json
+    still records that key's inputs and options (so the run can be skipped), else None."""
+    rec = read_json(out_dir / RECORD_NAME)
+    if rec is None or rec.get("key") != key or rec.get("outcome") != "done":
+        return None
+    res = read_json(out_dir / "result.json")
+    if res is None:
+        return None
+    prov = res.get("provenance") or {}
+    if key["inputs"] == "session" and prov.get("inputs_sha256") != key["inputs_sha256"]:
+        return None
+    if "options" in prov and _canonical(prov["options"]) != key["options"]:
+        return None
+    return rec
+
+
+# ------------------------------------------------------------------------------------------ task
+def run_session(spec: dict) -> dict:
+    """The Dask task of one session: run the workflow in a child process with a time limit, write
+    and return the session's batch record. ``spec``: session, out_dir, install, name, time_utc,
+    time_source, key, calibrate (the command-line options), timeout_s."""
+    out = Path(spec["out_dir"])
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    rec = {k: spec[k] for k in ("session", "install", "name", "time_utc", "time_source", "key")}
+    rec.update(worker=f"{socket.gethostname()}:{os.getpid()}", started_utc=_now())
+    cmd = [sys.executable, "-m", "handeye.batch.child", json.dumps(spec)]
+    with open(out / LOG_NAME, "wb") as log_file:
+        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log_file,
+                                start_new_session=True)
+        try:
+            stdout, _ = proc.communicate(timeout=float(spec["timeout_s"]))
+        except subprocess.TimeoutExpired:
+            _kill_group(proc)
+            proc.communicate()
+            rec.update(outcome="timeout", verdict="ERROR",
+                       reason=f"no result within the time limit of {float(spec['timeout_s']):g} s; the session was killed")
+            return _finish_record(out, rec, t0)
+    lines = stdout.decode("utf-8", "replace").strip().splitlines()
+    reply = None
+    if lines:
+        try:
+            reply = json.loads(lines[-1])
+        except ValueError:
+            reply = None
+    if not isinstance(reply, dict):
+        how = (f"killed by signal {-proc.returncode}" if proc.returncode < 0 else f"exit code {proc.returncode}")
+        rec.update(outcome="crashed", verdict="ERROR",
+                   reason=f"the session's process ended without a result ({how}): {_last_line(out / LOG_NAME)}")
+    else:
+        rec.update(reply)
+    return _finish_record(out, rec, t0)
+
+
+def _finish_record(out: Path, rec: dict, t0: float) -> dict:
+    rec["seconds"] = time.perf_counter() - t0
+    rec["finished_utc"] = _now()
+    write_json(out / RECORD_NAME, rec)
+    return rec
+
+
+def _kill_group(proc: subprocess.Popen) -> None:
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        proc.kill()
+
+
+def _last_line(path: Path) -> str:
+    try:
+        lines = [ln for ln in path.read_text(encoding="utf-8", errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        return "no log"
+    return lines[-1].strip()[:300] if lines else "no log lines"
+
+
+def _now() -> str:
+    import datetime as _dt
+
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+# ------------------------------------------------------------------------------------------ batch
+@dataclass
+class BatchPlan:
+    """The sessions to run (their task specs) and the skipped ones (their current records)."""
+
+    specs: list = field(default_factory=list)
+    skipped: list = field(default_factory=list)
+
+
+def plan_batch(jobs: list[SessionJob], out: Path, *, calibrate: dict, timeout_s: float = DEFAULT_TIMEOUT_S,
+               force: bool = False) -> BatchPlan:
+    """Decide per session whether it runs (a task spec) or is skipped (its record, ``skipped: true``)."""
+    options = provenance_options(calibrate)
+    plan = BatchPlan()
+    for job in jobs:
+        out_dir = Path(out) / job.install / job.name
+        key = session_key(job, calibrate, options)
+        rec = None if force else current_record(out_dir, key)
+        if rec is not None:
+            plan.skipped.append({**rec, "skipped": True})
+            continue
+        plan.specs.append({"session": str(job.path), "out_dir": str(out_dir), "install": job.install,
+                           "name": job.name, "time_utc": job.time_utc, "time_source": job.time_source,
+                           "key": key, "calibrate": _canonical(calibrate), "timeout_s": float(timeout_s)})
+    return plan
+
+
+def open_client(scheduler: Optional[str] = None, n_workers: Optional[int] = None):
+    """A Dask client: of the cluster at ``scheduler`` (``tcp://HOST:8786``), or of an embedded
+    LocalCluster of ``n_workers`` single-threaded worker processes (default: the CPU count).
+    Close it with ``client.close()`` (and the cluster with ``client.cluster.close()``)."""
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        return Client(scheduler, timeout="30s")
+    n = int(n_workers or os.cpu_count() or 1)
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                           dashboard_address=":0", scheduler_kwargs={"dashboard": False})  # no fixed port taken
+    return Client(cluster)
+
+
+def run_batch(jobs: list[SessionJob], out, *, calibrate: dict, scheduler: Optional[str] = None,
+              n_workers: Optional[int] = None, timeout_s: float = DEFAULT_TIMEOUT_S, force: bool = False,
+              progress: Optional[Callable[[dict], None]] = None, on_plan: Optional[Callable[[int, int], None]] = None,
+              ) -> BatchSummary:
+    """Run ``jobs`` on Dask into ``out`` and return the records of every session (run and skipped).
+
+    ``calibrate``: the ``handeye calibrate`` options by their argparse names (method, no_refine,
+    fix_k3, fix, robot_noise, robot_sigma, config, mode, qa, no_report, shift_poses; paths absolute).
+    ``progress`` gets each session's record as it finishes (skipped ones first); ``on_plan`` gets
+    (sessions to run, sessions skipped) before the first task starts.
+    """
+    from dask.distributed import as_completed
+
+    t0 = time.perf_counter()
+    out = Path(out)
+    plan = plan_batch(jobs, out, calibrate=calibrate, timeout_s=timeout_s, force=force)
+    progress = progress or (lambda rec: None)
+    if on_plan is not None:
+        on_plan(len(plan.specs), len(plan.skipped))
+    records = []
+    for rec in plan.skipped:
+        records.append(rec)
+        progress(rec)
+    if plan.specs:
+        client = open_client(scheduler, n_workers)
+        try:
+            futures = client.map(run_session, plan.specs, pure=False, retries=1)
+            spec_of = {f.key: s for f, s in zip(futures, plan.specs)}
+            for fut in as_completed(futures):
+                rec = _collect(fut, spec_of[fut.key])
+                records.append(rec)
+                progress(rec)
+        finally:
+            cluster = None if scheduler else client.cluster
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    records.sort(key=lambda r: (r["install"], r.get("time_utc") or "", r["name"]))
+    return BatchSummary(tuple(records), time.perf_counter() - t0)
+
+
+def _collect(fut, spec: dict) -> dict:
+    """A finished future's record; a task that raised or whose workers kept dying is recorded here."""
+    try:
+        return fut.result()
+    except Exception as e:  # noqa: BLE001 - any task failure is one session's, recorded; the batch goes on
+        from distributed import KilledWorker
+
+        lost = isinstance(e, KilledWorker)
+        rec = {k: spec[k] for k in ("session", "install", "name", "time_utc", "time_source", "key")}
+        rec.update(outcome="lost" if lost else "error", verdict="ERROR", finished_utc=_now(),
+                   reason=(f"the workers running it died ({e})" if lost else f"the task failed: {type(e).__name__}: {e}"))
+        try:
+            write_json(Path(spec["out_dir"]) / RECORD_NAME, rec)
+        except OSError as w:
+            log.warning("%s: could not record the failure (%s)", spec["out_dir"], w)
+        return rec

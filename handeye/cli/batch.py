@@ -1,0 +1,125 @@
+"""``handeye batch ROOT --out OUT``: every session under ROOT, one Dask task each, then the fleet index.
+
+stderr: a progress bar (sessions done / failed / skipped) and, per failed session, one line with
+the reason; stdout: the one-line summary and the index's paths. Exit code 0 when every session
+(run now or skipped as unchanged) is PASS or WARN, else 7 (:class:`handeye.errors.QAFailed`'s code).
+``--index-only OUT`` rebuilds the index from the result folders in OUT.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+#: handeye calibrate's arguments that the batch sets itself (the session, its output folder, threads)
+_NOT_FROM_CALIBRATE = ("help", "session", "out", "workers")
+
+
+def add_arguments(p) -> None:
+    """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
+    from ..batch.run import DEFAULT_TIMEOUT_S
+    from .calibrate import add_arguments as add_calibrate_arguments
+
+    p.description = ("Calibrate every session under ROOT (folders with session.yaml or poses.txt), one Dask task "
+                     "per session, into OUT/<install>/<session>/ (the same files as handeye calibrate), then "
+                     "write the fleet index OUT/index.html, index.md and fleet.csv. The install of a session is "
+                     "session.yaml's 'install:' key, else the first folder under ROOT (ROOT/<install>/<session>/). "
+                     "Sessions whose inputs and options have not changed since their last result are skipped.")
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.epilog = ("exit codes: 0 every session PASS or WARN; 7 a session FAIL, REFUSED or without a result "
+                "(timeout, crash, lost worker); 2 unusable input")
+    p.add_argument("root", type=Path, help="folder holding the sessions (with --index-only: the output folder)")
+    p.add_argument("--out", type=Path, help="output folder (required unless --index-only)")
+    p.add_argument("--workers", type=int, metavar="N",
+                   help="worker processes of the embedded Dask cluster (default: the CPU count)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="use the Dask cluster of this scheduler (tcp://HOST:8786) instead of an embedded one; "
+                        "its workers must see ROOT and OUT at the same paths")
+    p.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT_S, metavar="S",
+                   help=f"time limit of one session in seconds (default {DEFAULT_TIMEOUT_S:g})")
+    p.add_argument("--force", action="store_true", help="run every session, changed or not")
+    p.add_argument("--index-only", action="store_true", help="only rebuild the index of the output folder ROOT")
+    tmp = argparse.ArgumentParser(add_help=False)
+    add_calibrate_arguments(tmp)
+    group = p.add_argument_group("calibration options (as handeye calibrate)")
+    for action in tmp._actions:
+        if action.dest not in _NOT_FROM_CALIBRATE:
+            group._add_action(action)
+    p.set_defaults(func=run, calibrate_dests=[a.dest for a in tmp._actions if a.dest not in _NOT_FROM_CALIBRATE])
+
+
+def calibrate_options(args) -> dict:
+    """The ``handeye calibrate`` options of the batch, by argparse name, paths absolute."""
+    return {d: (str(Path(v).resolve()) if isinstance(v, Path) else v)
+            for d, v in ((d, getattr(args, d)) for d in args.calibrate_dests)}
+
+
+def run(args) -> int:
+    from ..batch.index import write_index
+    from ..errors import InputError
+
+    if args.index_only:
+        if not args.root.is_dir():
+            raise InputError("output folder not found", path=args.root, hint="pass the --out folder of a batch")
+        for p in write_index(args.root):
+            print(f"index: {p}")
+        return 0
+    if args.out is None:
+        raise InputError("--out is required", hint="handeye batch ROOT --out OUT")
+    if args.workers is not None and args.workers < 1:
+        raise InputError("--workers must be at least 1", received=str(args.workers))
+    if args.timeout <= 0:
+        raise InputError("--timeout must be a positive number of seconds", received=str(args.timeout))
+    from ..batch.discover import discover
+    from ..batch.run import run_batch
+    from ..report.qa import load_qa
+
+    if not getattr(args, "verbose", False):  # Dask's INFO lines, in this process and the workers it starts
+        os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
+    load_qa(args.qa)  # a bad site QA file stops the batch before any session runs
+    jobs = discover(args.root)
+    if not jobs:
+        raise InputError("no sessions found", path=args.root,
+                         expected="folders with session.yaml or poses.txt (ROOT/<install>/<session>/)")
+    bar = _Progress(len(jobs), quiet=getattr(args, "quiet", False))
+    try:
+        summary = run_batch(jobs, args.out.resolve(), calibrate=calibrate_options(args), scheduler=args.scheduler,
+                            n_workers=args.workers, timeout_s=args.timeout, force=args.force, progress=bar.update)
+    finally:
+        bar.close()
+    paths = write_index(args.out)
+    print(summary.line())
+    for p in paths:
+        print(f"index: {p}")
+    return summary.exit_code
+
+
+class _Progress:
+    """tqdm on stderr: sessions finished, with done / failed / skipped; a line per failed session."""
+
+    def __init__(self, total: int, *, quiet: bool):
+        from collections import Counter
+
+        from tqdm import tqdm
+
+        self.counts = Counter()
+        self.bar = tqdm(total=total, unit="session", file=sys.stderr, disable=quiet, dynamic_ncols=True)
+
+    def update(self, rec: dict) -> None:
+        from ..batch.run import record_state
+
+        state = record_state(rec)
+        self.counts[state] += 1
+        if state == "failed":
+            self.bar.write(f"{rec['install']}/{rec['name']}: {rec.get('verdict')} ({rec.get('outcome')}): "
+                           f"{rec.get('reason') or ''}", file=sys.stderr)
+        self.bar.set_postfix_str(f"done {self.counts['done']} · failed {self.counts['failed']} · "
+                                 f"skipped {self.counts['skipped']}", refresh=False)
+        self.bar.update(1)
+
+    def close(self) -> None:
+        self.bar.close()
