@@ -91,6 +91,17 @@ def _launch_transform(path):
     return opts["--frame-id"], opts["--child-frame-id"], T
 
 
+def _ros1_launch_transform(path):
+    """ROS 1 static_transform_publisher's args: x y z qx qy qz qw frame_id child_frame_id."""
+    import xml.etree.ElementTree as ET
+
+    (node,) = ET.parse(path).getroot().findall("node")
+    assert (node.get("pkg"), node.get("type")) == ("tf2_ros", "static_transform_publisher")
+    a = node.get("args").split()
+    assert len(a) == 9
+    return a[7], a[8], _T_xyzw([float(v) for v in a[:3]], [float(v) for v in a[3:7]])
+
+
 def _tf_yaml_transform(path):
     d = yaml.safe_load(path.read_text())
     (tr,) = d["transforms"]
@@ -145,7 +156,7 @@ def _read_all(paths, fmt, tmp_path):
     if fmt == "urdf":
         return [_urdf_transform(paths[0]), _xacro_transform(paths[1], tmp_path)]
     if fmt == "moveit":
-        return [_launch_transform(paths[0])]
+        return [_launch_transform(paths[0]), _ros1_launch_transform(paths[1])]
     if fmt == "easy_handeye2":
         return [_calib_transform(paths[0])]
     if fmt == "yaml":
@@ -234,3 +245,5 @@ def test_cli_names_frames_and_out_file(tmp_path, capsys):
     assert (parent, child) == ("world", "cam_optical") and np.max(np.abs(T_got - T)) < TOL
     text = (tmp_path / "ros" / "cam.launch.py").read_text()
     assert "optical frame (x right, y down, z forward" in text and "quaternion x y z w" in text
+    assert main(["export", str(tmp_path / "res"), "--to", "urdf", "--child", "my cam"]) == InputError.exit_code
+    assert "--child 'my cam' is not a TF frame name" in capsys.readouterr().err

@@ -106,9 +106,10 @@ def _tf_msg(ts, t, parent, child, T, ros1):
     return g["tf2_msgs/msg/TFMessage"](transforms=[tr])
 
 
-def write_bag(vendor: Path, path: Path, *, ros1: bool, stops: bool = True) -> None:
+def write_bag(vendor: Path, path: Path, *, ros1: bool, stops: bool = True, storage: str = "mcap") -> None:
     """A bag of the rendered vendor session: /tf (base_link -> link_6 at 100 Hz), /tf_static
-    (link_6 -> tool0), /camera/color/image_raw (+ /compressed for ROS 1), /camera/color/camera_info."""
+    (link_6 -> tool0), /camera/color/image_raw (+ /compressed for ROS 1), /camera/color/camera_info;
+    a ROS 2 bag in ``storage`` (mcap | sqlite3)."""
     gt = read_json(vendor / "ground_truth.json")
     poses = _vendor_poses(vendor)
     times, Ts, still = _timeline(poses, stops=stops)
@@ -163,7 +164,7 @@ def write_bag(vendor: Path, path: Path, *, ros1: bool, stops: bool = True) -> No
     else:
         from rosbags.rosbag2 import StoragePlugin, Writer
 
-        writer = Writer(path, version=8, storage_plugin=StoragePlugin.MCAP)
+        writer = Writer(path, version=8, storage_plugin=StoragePlugin[storage.upper()])
     with writer:
         conns = {}
         for t, topic, msgtype, msg in msgs:
@@ -241,7 +242,7 @@ def test_calibrate_export_shortcut_writes_next_to_the_result(reference):
 
 def test_bag_without_still_periods_is_one_clear_error(rendered, capsys):
     root, vendor = rendered
-    write_bag(vendor, root / "moving", ros1=False, stops=False)
+    write_bag(vendor, root / "moving", ros1=False, stops=False, storage="sqlite3")
     code = main(["import", "rosbag", str(root / "moving"), "--image-topic", "/camera/color/image_raw", "--base",
                  "base_link", "--end", "tool0", "--target", str(vendor / "config.yaml"), "--out", str(root / "sm")])
     err = capsys.readouterr().err.strip()

@@ -21,7 +21,7 @@ from .frames import CAMERA_FRAMES, DEFAULT_FRAMES, ExportTransform, camera_trans
 FORMATS = {
     "ros2": ((".launch.py", ".tf_static.yaml"), "ROS 2 launch file (static_transform_publisher) + tf2 YAML"),
     "urdf": ((".urdf", ".urdf.xacro"), "URDF fixed joint + xacro macro"),
-    "moveit": ((".moveit.launch.py",), "MoveIt 2 Calibration's camera pose launch file"),
+    "moveit": ((".moveit.launch.py", ".moveit.launch"), "MoveIt 2 and MoveIt (ROS 1) Calibration's camera pose launch files"),
     "easy_handeye2": ((".calib",), "easy_handeye2's saved calibration"),
     "yaml": ((".yaml",), "frames, matrix, quaternion, rpy, sigmas"),
     "json": ((".json",), "frames, matrix, quaternion, rpy, sigmas"),
@@ -53,6 +53,10 @@ def export_transform(result, *, parent: Optional[str] = None, child: Optional[st
                          hint="fix the calibration (see its report), or pass --force to export it anyway")
     if camera_frame not in CAMERA_FRAMES:
         raise InputError(f"unknown camera frame {camera_frame!r}", expected=" | ".join(CAMERA_FRAMES))
+    for flag, name in (("--parent", parent), ("--child", child)):
+        if name is not None and (not name.strip() or any(c.isspace() or c in "<>\"'&" for c in name)):
+            raise InputError(f"{flag} {name!r} is not a TF frame name", expected="a name without spaces or quotes, "
+                             "e.g. tool0 or camera_color_optical_frame")
     T, cov = camera_transform(r.T_x, r.cov_x, camera_frame)
     return ExportTransform(
         parent=parent or DEFAULT_FRAMES[r.mode if r.mode in DEFAULT_FRAMES else "eye_in_hand"],
@@ -87,7 +91,7 @@ def render(fmt: str, e: ExportTransform, paths: list[Path], *, base_frame: Optio
     if fmt == "urdf":
         return [w.urdf(e), w.xacro(e)]
     if fmt == "moveit":
-        return [w.ros2_launch(e, moveit_layout=True)]
+        return [w.ros2_launch(e, moveit_layout=True), w.moveit1_launch(e)]
     if fmt == "easy_handeye2":
         eye_in_hand = e.mode == "eye_in_hand"
         base = base_frame or (DEFAULT_FRAMES["eye_to_hand"] if eye_in_hand else e.parent)

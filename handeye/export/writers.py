@@ -13,7 +13,8 @@ format                    files
                           tf2_msgs/TFMessage, as ``ros2 topic echo /tf_static`` prints it)
 ``urdf``                  ``NAME.urdf`` (the two links and a fixed joint, origin xyz rpy) and
                           ``NAME.urdf.xacro`` (a macro ``handeye_camera_joint`` with parent and child params)
-``moveit``                ``NAME.launch.py`` in the layout MoveIt 2 Calibration saves its camera pose in
+``moveit``                ``NAME.moveit.launch.py`` and ``NAME.moveit.launch``: the launch files MoveIt 2 and
+                          MoveIt (ROS 1) Calibration save the camera pose in
 ``easy_handeye2``         ``NAME.calib``: easy_handeye2's saved calibration (parameters + transform)
 ``yaml`` / ``json``       frames, matrix, translation, quaternion (xyzw and wxyz), rpy, sigmas, covariance
 ========================  ==================================================================================
@@ -107,6 +108,25 @@ def ros2_launch(e: ExportTransform, *, moveit_layout: bool = False) -> str:
         "        ),",
         "    ]",
         "    return LaunchDescription(nodes)",
+        ""])
+
+
+def moveit1_launch(e: ExportTransform) -> str:
+    """The ROS 1 launch file MoveIt Calibration saves ("Save camera pose"): static_transform_publisher
+    with ``args="x y z qx qy qz qw frame_id child_frame_id"``. Its comment's rpy is URDF's fixed-axis
+    roll-pitch-yaw (MoveIt's own comment writes Eigen's eulerAngles(0, 1, 2), moving axes, under that name)."""
+    from xml.sax.saxutils import quoteattr
+
+    t, q = e.translation_m, e.quat_xyzw
+    xyz, rpy = " ".join(num(v) for v in t), " ".join(num(v) for v in e.rpy_rad)
+    args = f"{xyz}   {' '.join(num(v) for v in q)} {e.parent} {e.child}"
+    return "\n".join([
+        "<launch>",
+        "  " + _xml_comment(e).replace("\n", "\n  "),
+        f'  <!-- xyz="{xyz}" rpy="{rpy}" ({RPY_TEXT}) -->',
+        '  <node pkg="tf2_ros" type="static_transform_publisher" name="camera_link_broadcaster"',
+        f"      args={quoteattr(args)} />",
+        "</launch>",
         ""])
 
 
