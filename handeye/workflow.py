@@ -96,7 +96,7 @@ class WorkflowResult:
 def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOptions(), out_dir,
                       report: bool = True, qa=None, mode: Optional[str] = None,
                       progress: Callable[[str], None] | None = None, diagnostics: bool = True,
-                      allow_outside: bool = False, site_files=()) -> WorkflowResult:
+                      allow_outside: bool = False, site_files=(), prior=None) -> WorkflowResult:
     """Calibrate the session folder ``session_path`` and write its results into ``out_dir``.
 
     ``mode`` overrides the session's mounting mode; ``qa`` is a site QA file for the verdict and the
@@ -104,7 +104,9 @@ def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOpti
     stage; ``diagnostics=False`` skips the diagnostics (faster, for benchmarks of the solver path only;
     the verdict then rests on the QA checks alone and the report has no findings); ``allow_outside`` lets
     a native session's image and pose-file paths leave its folder; ``site_files`` (the site config and QA
-    files) are recorded with the session's files in ``provenance.inputs``.
+    files) are recorded with the session's files in ``provenance.inputs``. ``prior``: an earlier result of
+    the rig (folder, result.json or dict) whose X and intrinsics enter the refinement as priors
+    (:func:`handeye.recal.prior.calibrate_with_prior`); result.json's ``prior`` block says what it did.
     """
     from .report.qa import load_qa
     from .session import load_session
@@ -119,11 +121,11 @@ def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOpti
         remove_stray_temps(out_dir)
         return _calibrate_locked(session_path, options=options, out_dir=out_dir, report=report, qa=qa, mode=mode,
                                  progress=progress, diagnostics=diagnostics, allow_outside=allow_outside, t0=t0,
-                                 site_files=site_files)
+                                 site_files=site_files, prior=prior)
 
 
 def _calibrate_locked(session_path, *, options, out_dir: Path, report: bool, qa, mode, progress, diagnostics: bool,
-                      allow_outside: bool, t0: float, site_files) -> WorkflowResult:
+                      allow_outside: bool, t0: float, site_files, prior=None) -> WorkflowResult:
     from .session import load_session
 
     run_id = uuid.uuid4().hex
@@ -135,7 +137,13 @@ def _calibrate_locked(session_path, *, options, out_dir: Path, report: bool, qa,
                             diagnostics=diagnostics, run_id=run_id)
     t_load = time.perf_counter() - t0
     log.info("session %s: %d views, %s, %s", session.path, len(session.views), session.mode, session.format)
-    run = run_calibration(session, options, progress=progress)
+    prior_record = None
+    if prior is not None:  # an earlier result as the prior of X and the intrinsics (handeye.recal.prior)
+        from .recal.prior import calibrate_with_prior
+
+        run, prior_record = calibrate_with_prior(session, options, prior, progress=progress)
+    else:
+        run = run_calibration(session, options, progress=progress)
     from .results import observations_dict, result_dict
 
     seconds = {"load": t_load, **run.seconds}
@@ -151,7 +159,10 @@ def _calibrate_locked(session_path, *, options, out_dir: Path, report: bool, qa,
     if refusal is not None and run.error is None:
         run = _refused(run, refusal)
     res = result_dict(run, mode_flag=mode)
+    if prior_record is not None:
+        res["prior"] = prior_record
     res["run_id"] = run_id
+    res.setdefault("provenance", {})["run_id"] = run_id  # the reports show it: one run id in the folder
     if diag is not None:
         res["diagnostics"] = diag
     if stage_errors:
@@ -242,6 +253,7 @@ def _failed_load(session_path, err: HandeyeError, *, mode, out_dir: Path, report
 
     res = failed_load_result(session_path, err, mode)
     res["run_id"] = run_id
+    res.setdefault("provenance", {})["run_id"] = run_id
     seconds = {"load": time.perf_counter() - t0}
     if diagnostics:
         t1 = time.perf_counter()

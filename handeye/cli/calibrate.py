@@ -51,6 +51,10 @@ def add_arguments(p) -> None:
     p.add_argument("--no-report", action="store_true", help="write result.json, observations.json and thumbnails only")
     p.add_argument("--shift-poses", type=int, default=0, metavar="N",
                    help="pair image k with pose line k+N (the constant shift a refused run names)")
+    p.add_argument("--prior", type=Path, metavar="RESULT",
+                   help="an earlier result of this rig: its X and intrinsics enter as priors with their covariances "
+                        "(a few new views update it); result.json's prior block says whether the data contradict it "
+                        "(then the session is calibrated without the prior on X, and the drift is printed)")
     p.add_argument("--allow-outside", action="store_true",
                    help="let session.yaml's image and pose-file paths leave the session folder (refused by default)")
     from ..export import FORMATS as EXPORT_FORMATS
@@ -155,7 +159,8 @@ def run(args) -> int:
     site = [f for f in (getattr(args, "config", None), getattr(args, "qa", None)) if f]
     wr = calibrate_session(args.session, options=opts, out_dir=out, report=not args.no_report,
                            qa=getattr(args, "qa", None), mode=args.mode, progress=lambda s: log.info("%s", s),
-                           allow_outside=getattr(args, "allow_outside", False), site_files=site)
+                           allow_outside=getattr(args, "allow_outside", False), site_files=site,
+                           prior=getattr(args, "prior", None))
     if wr.run is None:  # the session could not be read: result.json and the report say why
         from .verdict import finding_lines
 
@@ -165,6 +170,8 @@ def run(args) -> int:
             print(f"report: {p}")
         raise wr.error
     print(format_summary(wr.result, wr.result_path, wr.report_paths))
+    if (wr.result.get("prior") or {}).get("summary"):  # --prior: what the earlier result became
+        print(f"prior: {wr.result['prior']['summary']}")
     if wr.status != "ok":
         if getattr(args, "debug", False):
             raise wr.error
