@@ -254,3 +254,28 @@ def test_bag_without_still_periods_is_one_clear_error(rendered, capsys):
                  "base", "--end", "tool0", "--target", str(vendor / "config.yaml"), "--out", str(root / "sm")])
     err = capsys.readouterr().err.strip()
     assert code == InputError.exit_code and "frame 'base' is not in the bag's TF" in err and "base_link" in err
+
+
+def test_still_periods_are_found_under_tf_jitter():
+    """Stops of 1 s, 1.5 s and 1.5 s between moves at 50 mm/s and 5 deg/s, the TF jittering by
+    0.01 mm and 0.001 deg per sample (an arm at rest): three periods, each within a speed window of the
+    true stop, with the shipped thresholds."""
+    from handeye.session.rosbag import Stillness, still_periods
+
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 6.0, 0.01)
+    moves = [(1.0, 2.0), (3.5, 4.5)]
+    s = np.zeros_like(t)  # path parameter: metres along x, and 100 deg/m of turn about z
+    for a, b in moves:
+        s += 0.05 * np.clip(t - a, 0.0, b - a)
+    Ts = []
+    for si in s:
+        xi = np.concatenate([[0.0, 0.0, np.radians(100.0 * si)], [si, 0.0, 0.0]])
+        jitter = np.concatenate([rng.normal(0, np.radians(0.001), 3), rng.normal(0, 1e-5, 3)])
+        Ts.append(se3_exp(xi) @ se3_exp(jitter))
+    periods = still_periods(t, np.array(Ts), Stillness.from_preset())
+    truth = [(0.0, 1.0), (2.0, 3.5), (4.5, t[-1])]
+    assert len(periods) == 3
+    half = Stillness.from_preset().speed_window_s / 2 + 0.011
+    for (a, b), (ta, tb) in zip(periods, truth):
+        assert abs(a - ta) <= half and abs(b - tb) <= half, (a, b, ta, tb)

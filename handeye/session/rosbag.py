@@ -130,6 +130,20 @@ def _stamp(msg) -> float:
     return float(s.sec) + 1e-9 * float(s.nanosec)
 
 
+def _raw_header_stamp(raw: bytes, *, ros2: bool) -> float:
+    """The header stamp of a serialized message that starts with a std_msgs/Header (Image,
+    CompressedImage), read from its first bytes: ROS 2 CDR (4-byte encapsulation, then int32 sec,
+    uint32 nanosec; byte 1 says the byte order), ROS 1 (uint32 seq, uint32 secs, uint32 nsecs, little endian)."""
+    b = memoryview(raw)
+    if ros2:
+        order = "<" if b[1] == 1 else ">"
+        sec = int(np.frombuffer(b[4:8], dtype=f"{order}i4")[0])
+        nsec = int(np.frombuffer(b[8:12], dtype=f"{order}u4")[0])
+    else:
+        sec, nsec = (int(v) for v in np.frombuffer(b[4:12], dtype=np.dtype("<u4")))
+    return sec + 1e-9 * nsec
+
+
 def _chain(edges: dict, base: str, end: str, *, bag: Path) -> list[tuple[tuple[str, str], bool]]:
     """The edges from ``base`` to ``end``: ((parent, child), forward) in order (forward False: inverted)."""
     nbrs: dict[str, list] = {}
@@ -308,7 +322,7 @@ def import_rosbag(bag: str | Path, out: str | Path, *, image_topic: str, base_fr
                              hint="record /tf and /tf_static with the images")
         samples: dict = {}
         img_stamps, info = [], None
-        wanted = tf_conns + [img_conn] + ([conns[camera_info_topic]] if camera_info_topic else [])
+        wanted = tf_conns + ([conns[camera_info_topic]] if camera_info_topic else [])
         for conn, t_bag, raw in reader.messages(connections=wanted):
             msg = reader.deserialize(raw, conn.msgtype)
             kind = conn.msgtype.split("/")[-1]
@@ -321,10 +335,10 @@ def import_rosbag(bag: str | Path, out: str | Path, *, image_topic: str, base_fr
                     s[0].append(_stamp(tr) or t_bag * 1e-9)
                     s[1].append((tt.x, tt.y, tt.z))
                     s[2].append((r.w, r.x, r.y, r.z))
-            elif conn.topic == image_topic:
-                img_stamps.append((_stamp(msg) or t_bag * 1e-9, t_bag))
             elif info is None:
                 info = msg
+        for conn, t_bag, raw in reader.messages(connections=[img_conn]):  # the stamps only, not the pixels
+            img_stamps.append((_raw_header_stamp(raw, ros2=reader.is2) or t_bag * 1e-9, t_bag))
         edges = {}
         for key, (tt, xyz, q, static) in samples.items():
             order = np.argsort(tt, kind="stable")
