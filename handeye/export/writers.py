@@ -54,10 +54,10 @@ def header_lines(e: ExportTransform) -> list[str]:
     else:
         lines.append("1-sigma: not available (the result has no covariance)")
     lines.append(f"from {e.source}, verdict {e.verdict}")
-    if e.camera_frame == "body" and e.child == DEFAULT_FRAMES["camera_body"]:
-        lines.append("the RealSense driver publishes camera_link -> camera_color_frame -> camera_color_optical_frame "
-                     "itself; a frame has one parent in tf2, so with the driver running publish "
-                     f"{e.parent} -> camera_link = this transform @ inv(T_camera_link_camera_color_frame)")
+    if e.child in (DEFAULT_FRAMES["camera_optical"], DEFAULT_FRAMES["camera_body"]):
+        lines.append(f"the RealSense driver publishes camera_link -> camera_color_frame -> camera_color_optical_frame "
+                     f"itself and a frame has one parent in tf2: with the driver running publish {e.parent} -> "
+                     f"camera_link = this transform @ inv(T_camera_link_{e.child}) (from the driver's /tf_static)")
     return lines
 
 
