@@ -45,7 +45,9 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     diag = res.get("diagnostics") if isinstance(res.get("diagnostics"), dict) else {}
     T_x = as_T(res.get(x_name)) if ok else None
     T_board = as_T(res.get(b_name)) if ok else None
-    cov = as_cov6(ref.get("cov_x_6x6")) if ref else None
+    # the verdict covariance (validated) when the result has one, else the model's
+    cov = (as_cov6(ref.get("cov_x_6x6_verdict")) if ref.get("cov_x_6x6_verdict") is not None
+           else as_cov6(ref.get("cov_x_6x6"))) if ref else None
     intr = res.get("intrinsics") or ref.get("intrinsics")
     obj = np.asarray(obs.get("object_points_m") or [], float).reshape(-1, 3)
     board_centre = obj.mean(axis=0) if len(obj) else np.zeros(3)
@@ -76,8 +78,11 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
                      if T_x is not None else None)
     ctx["uncertainty"] = _uncertainty_block(ref, unc, parent) if unc is not None else None
     ctx["methods"] = _methods(res, T_x, x_name)
-    ctx["intrinsics"] = _intrinsics_rows(intr, ref.get("intrinsics_sigma") if ref else None, res)
+    ctx["offsets"] = _offsets(res, ref, T_x, cov, x_name)
+    ctx["intrinsics"] = _intrinsics_rows(intr, (ref.get("intrinsics_sigma_verdict") or ref.get("intrinsics_sigma"))
+                                         if ref else None, res, model_sigma=ref.get("intrinsics_sigma") if ref else None)
     ctx["noise"] = _noise(ref)
+    ctx["robot_model"] = _robot_model(ref)
 
     # --- metrics and verdict
     metrics, notes = qa_metrics(res, ref, fits, views, unc, pred, wd, image_size, mount,
@@ -300,9 +305,31 @@ def _result_block(res, T_x, T_board, unc, pred, wd, x_name, b_name, parent, boar
     return out
 
 
+SIGMA_SOURCE_TEXT = {
+    "validated": "the validated covariance (the spread of the result over refits without some views), which "
+                 "exceeds the model's in every direction",
+    "model+validated": "the larger of the model's and the validated covariance (the spread over refits without "
+                       "some views) in each direction",
+    "model": "the refinement's model covariance (the refits without some views spread no more than it predicts)",
+}
+
+
 def _uncertainty_block(ref, unc, parent) -> dict:
     corr = ref.get("correlation_6x6")
-    return {"sigma_trans_mm": list(unc["translation_mm"]), "sigma_rot_deg": list(unc["rot_cam_deg"]),
+    src = ref.get("sigma_source")
+    val = ref.get("validation") if isinstance(ref.get("validation"), dict) else {}
+    rows = []
+    for label, r, t in (("model (refinement)", ref.get("sigma_rot_deg_model"), ref.get("sigma_trans_mm_model")),
+                        ("validated (refits without some views)", ref.get("sigma_rot_deg_validated"),
+                         ref.get("sigma_trans_mm_validated"))):
+        if r is not None and t is not None:
+            rows.append({"name": label, "rot": list(r), "trans": list(t)})
+    text = (SIGMA_SOURCE_TEXT.get(src, SIGMA_SOURCE_TEXT["model"]) if val.get("status") == "ok"
+            else "the refinement's model covariance (not validated" + (f": {val['summary']})" if val.get("summary")
+                                                                       else ")"))
+    return {"source": src, "source_text": text,
+            "rule": ref.get("sigma_rule", ""), "other_rows": rows, "validation_summary": val.get("summary"),
+            "sigma_trans_mm": list(unc["translation_mm"]), "sigma_rot_deg": list(unc["rot_cam_deg"]),
             "trans_axes": ref.get("sigma_trans_axes", f"{parent} frame"),
             "rot_axes": ref.get("sigma_rot_axes", "camera frame"),
             "parametrisation": ref.get("cov_parametrisation", ""),
@@ -337,22 +364,103 @@ def _methods(res, T_x, x_name) -> list[dict]:
     return rows
 
 
-def _intrinsics_rows(intr, sig, res) -> Optional[dict]:
+def _intrinsics_rows(intr, sig, res, *, model_sigma=None) -> Optional[dict]:
+    """The intrinsics with their (verdict) sigma ``sig`` and the model's ``model_sigma`` beside it."""
     if not intr:
         return None
     sig = sig or {}
+    model_sigma = model_sigma or {}
     rows = []
     for k, unit in (("fx", "px"), ("fy", "px"), ("cx", "px"), ("cy", "px")):
         if k in intr:
-            rows.append({"name": k, "unit": unit, "value": intr[k], "sigma": sig.get(k)})
+            rows.append({"name": k, "unit": unit, "value": intr[k], "sigma": sig.get(k),
+                         "sigma_model": model_sigma.get(k)})
     d = intr.get("dist") or {}
     if isinstance(d, dict):
         for k in ("k1", "k2", "p1", "p2", "k3"):
             if k in d:
-                rows.append({"name": k, "unit": "", "value": d[k], "sigma": sig.get(k)})
+                rows.append({"name": k, "unit": "", "value": d[k], "sigma": sig.get(k), "sigma_model": model_sigma.get(k)})
     given = res.get("intrinsics") or {}
+    ref = res.get("refinement") if isinstance(res.get("refinement"), dict) else {}
     return {"rows": rows, "source": given.get("source", ""), "rms": given.get("calibrate_camera_rms_px"),
-            "size": intr.get("image_size"), "refined": bool(sig)}
+            "size": intr.get("image_size"), "refined": bool(sig),
+            "sigma_source": ref.get("intrinsics_sigma_source") if ref.get("intrinsics_sigma_verdict") else None,
+            "sigma_source_text": SIGMA_SOURCE_TEXT.get(ref.get("intrinsics_sigma_source"), "")}
+
+
+def _offsets(res, ref, T_x, cov, x_name) -> Optional[dict]:
+    """Where the result lies against each closed form and each half of the views (refitted alone), in mm,
+    degrees and verdict sigmas, with the sentences that explain a departure."""
+    from scipy.stats import chi2
+
+    from ..config import load_preset
+    from .uncertainty import offset_explanation, sigma_distance
+
+    if T_x is None or cov is None or not ref:
+        return None
+    alpha = float(load_preset("diagnostics")["validation"]["offset_alpha"])
+    limit = float(np.sqrt(chi2.ppf(1.0 - alpha, 6)))
+    rows = []
+    for m, e in (res.get("closed_form") or {}).items():
+        T = as_T(e.get(x_name))
+        if T is not None:
+            rows.append({"name": m, "kind": "closed_form", "T": T})
+    val = ref.get("validation") if isinstance(ref.get("validation"), dict) else {}
+    halves = val.get("halves") or {}
+    for h in ("odd", "even"):
+        T = as_T((halves.get(h) or {}).get(x_name))
+        if T is not None:
+            rows.append({"name": f"{h} views ({len(halves[h].get('view_ids') or [])}) refitted alone", "kind": "half",
+                         "T": T})
+    if not rows:
+        return None
+    for r in rows:
+        T = r.pop("T")
+        r["d_deg"], r["d_mm"] = pose_error(T, T_x)
+        r["offset_mm"] = ((T[:3, 3] - T_x[:3, 3]) * 1e3).tolist()
+        r["sigma"] = sigma_distance(T_x, T, cov)
+        r["far"] = bool(r["sigma"] > limit)
+    split = (halves.get("odd_vs_even") or {}).get("mahalanobis2")
+    model = ref.get("robot_model") if isinstance(ref.get("robot_model"), dict) else {}
+    text = offset_explanation(rows, limit_sigma=limit, halves_m2=None if split is None else float(split),
+                              halves_m2_limit=float(chi2.ppf(1.0 - alpha, 6)), robot_mm=_num(ref.get("robot_sigma_mm")),
+                              robot_deg=_num(ref.get("robot_sigma_deg")),
+                              robot_model=str(model.get("kind") or ref.get("robot_noise_model") or ""))
+    return {"rows": rows, "limit_sigma": limit, "explanation": text, "halves_split_m2": split,
+            "sigma_source": ref.get("sigma_source") or "model"}
+
+
+def _plain_text(v) -> str:
+    """A parameter of the robot model as one short line (numbers to 4 significant digits)."""
+    if isinstance(v, bool) or v is None:
+        return str(v)
+    if isinstance(v, (int, float)):
+        return f"{v:.4g}"
+    if isinstance(v, (list, tuple)):
+        if len(v) > 8 and all(isinstance(x, (int, float)) for x in v):
+            return f"{len(v)} values, largest magnitude {max(abs(float(x)) for x in v):.4g}"
+        return ", ".join(_plain_text(x) for x in v)
+    if isinstance(v, dict):
+        return "; ".join(f"{a}: {_plain_text(b)}" for a, b in v.items())
+    return str(v)
+
+
+def _robot_model(ref) -> Optional[dict]:
+    """The refinement's robot error model (``refinement.robot_model``: kind and its parameters), else the
+    robot noise model's name with its estimated sigmas."""
+    if not ref:
+        return None
+    rm = ref.get("robot_model")
+    if isinstance(rm, dict) and rm:
+        items = []
+        for k, v in rm.items():
+            if k == "kind":
+                continue
+            items.append({"name": str(k).replace("_", " "), "value": _plain_text(v)})
+        return {"kind": str(rm.get("kind", "?")), "items": items}
+    return {"kind": str(ref.get("robot_noise_model") or "iid"),
+            "items": [{"name": "robot sigma", "value": f"{_num(ref.get('robot_sigma_mm')):.3f} mm / "
+                                                       f"{_num(ref.get('robot_sigma_deg')):.4f} deg per view"}]}
 
 
 def _noise(ref) -> Optional[dict]:
