@@ -299,13 +299,13 @@ def decode_text(data: bytes, *, path: str | Path, what: str = "text file") -> st
         except UnicodeDecodeError:
             raise InputError(f"{what} starts like UTF-16 but does not decode", path=path,
                              hint="save it as UTF-8 text") from None
+    if data.count(b"\x00") > len(data) // 4:  # text never holds NULs; UTF-16 of ASCII is half NULs
+        raise InputError(f"{what} is UTF-16 without a byte-order mark (or binary)", path=path,
+                         expected="UTF-8 text", hint="save it as UTF-8 text")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError:
         pass
-    if data.count(b"\x00") > len(data) // 4:
-        raise InputError(f"{what} is UTF-16 without a byte-order mark (or binary)", path=path,
-                         expected="UTF-8 text", hint="save it as UTF-8 text")
     logging.getLogger(__name__).warning("%s: not UTF-8; read as Latin-1 (save it as UTF-8 to silence this)", path)
     return data.decode("latin-1")
 

@@ -14,6 +14,7 @@ def add_arguments(p) -> None:
     p.add_argument("src", type=Path, help="the other tool's data folder, or the bag (ROS 1 .bag, ROS 2 bag folder)")
     p.add_argument("out", type=Path, nargs="?", help="folder for session.yaml (rosbag: or --out)")
     p.add_argument("--given-intrinsics", action="store_true", help="use the intrinsics shipped with the data (fixed)")
+    p.add_argument("--force", action="store_true", help="visp, ical: replace the session.yaml of an existing session in OUT")
     add_rosbag_arguments(p.add_argument_group("rosbag"))
     p.set_defaults(func=run)
 
@@ -49,9 +50,9 @@ def run(args) -> int:
 
         raise InputError(f"handeye import {args.kind} needs OUT, the folder for session.yaml")
     if args.kind == "visp":
-        path = import_visp(args.src, args.out, use_given_intrinsics=args.given_intrinsics)
+        path = import_visp(args.src, args.out, use_given_intrinsics=args.given_intrinsics, force=args.force)
     else:
-        path = import_ical(args.src, args.out)
+        path = import_ical(args.src, args.out, force=args.force)
     print(f"session: {path}")
     return 0
 

@@ -5,7 +5,8 @@ import argparse
 import logging
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import HandeyeError, InputError
+from ..output import FolderLock, check_out_dir, remove_stray_temps
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +39,21 @@ def run_report(args) -> int:
     out = Path(args.out) if getattr(args, "out", None) else result_dir
     fmt = getattr(args, "format", "all")
     formats = ("html", "md") if fmt == "all" else (fmt,)
-    paths = write_reports(result_dir, qa=getattr(args, "qa", None), out_dir=out, formats=formats, strict=True)
+    out = check_out_dir(out, option="--out" if getattr(args, "out", None) else "RESULT_DIR")
+    with FolderLock(out, option="the result folder"):
+        remove_stray_temps(out)
+        try:
+            paths = write_reports(result_dir, qa=getattr(args, "qa", None), out_dir=out, formats=formats,
+                                  strict=True)
+        except HandeyeError:
+            raise
+        except Exception as e:  # noqa: BLE001 - result.json passed its checks; the rest of it may still be damaged
+            if getattr(args, "debug", False):
+                raise
+            raise InputError(f"the report could not be built from this result.json ({type(e).__name__}: "
+                             f"{str(e)[:80]})", path=result_dir / "result.json",
+                             hint="re-run handeye calibrate into this folder; if the file is intact, rerun with "
+                                  "--debug and report the traceback") from None
     for p in paths:
         print(f"report: {p}")
     return 0

@@ -33,12 +33,32 @@ def _bytecode_cache() -> jinja2.BytecodeCache | None:
     return jinja2.FileSystemBytecodeCache(str(folder)) if os.access(folder, os.W_OK) else None
 
 
+_MD_TAG = re.compile(r"<(?=[A-Za-z/!?])")  # what starts raw HTML (a tag, comment, declaration) or an autolink
+_MD_LINK = re.compile(r"\]\s*([(\[])")  # ](url) and ][ref]: the second half of a link or image
+
+
+def md_text(x) -> str:
+    """Text safe in Markdown rendered to HTML (python-markdown, GitHub): no raw HTML can start (``<``
+    before a letter, ``/``, ``!`` or ``?`` becomes ``&lt;``) and no link or image can form (``](`` and
+    ``][`` are broken with a backslash); ``8 < 10`` and ``[mm]`` stay as written. Every value a
+    Markdown template prints passes through it (the environment's ``finalize``)."""
+    if x is None or isinstance(x, (bool, int, float)):
+        return x
+    s = str(x)
+    if "<" in s:
+        s = _MD_TAG.sub("&lt;", s)
+    if "]" in s:
+        s = _MD_LINK.sub(lambda m: "]\\" + m.group(1), s)
+    return s
+
+
 @functools.lru_cache(maxsize=2)
 def _env(*, html: bool) -> jinja2.Environment:
     root = resources.files("handeye").joinpath("templates")
     env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(root)), autoescape=html,
                              undefined=jinja2.StrictUndefined, bytecode_cache=_bytecode_cache(),
-                             trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True)
+                             trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True,
+                             finalize=None if html else md_text)
     env.filters["num"] = num
     env.filters["pct"] = pct
     env.filters["sgn"] = lambda x, d=3: num(x, d, signed=True)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..errors import InputError
 from ..records import Session
 from .fields import locate_session
 from .native import load_native_session
@@ -29,5 +30,35 @@ def load_session(path: str | Path, *, mode: str | None = None, allow_outside: bo
     """
     kind, p = locate_session(path)
     if kind == "native":
-        return load_native_session(p, mode=mode, allow_outside=allow_outside)
-    return load_vendor_session(p, mode=mode)
+        session = load_native_session(p, mode=mode, allow_outside=allow_outside)
+    else:
+        session = load_vendor_session(p, mode=mode)
+    check_image_sizes(session)
+    return session
+
+
+def check_image_sizes(session: Session) -> None:
+    """All views' images of one size, read from the file headers (nothing is decoded): an image of
+    another size than the others is an InputError naming its view. Files whose header cannot be read
+    are left to detection (it drops them with the reason)."""
+    from collections import Counter
+
+    from PIL import Image, UnidentifiedImageError
+
+    sizes = {}
+    for v in session.views:
+        try:
+            with Image.open(v.image_path) as im:
+                sizes[v.view_id] = tuple(im.size)
+        except (OSError, UnidentifiedImageError, ValueError, Image.DecompressionBombError):
+            continue
+    if len(set(sizes.values())) <= 1:
+        return
+    common, n_common = Counter(sizes.values()).most_common(1)[0]
+    odd = [vid for vid, s in sizes.items() if s != common]
+    vid = odd[0]
+    w, h = sizes[vid]
+    raise InputError(f"view {vid}: image is {w}x{h}, the other {n_common} views' are {common[0]}x{common[1]}"
+                     + (f" ({len(odd)} views differ: {', '.join(odd[:5])})" if len(odd) > 1 else ""),
+                     path=session.view(vid).image_path, expected=f"{common[0]}x{common[1]} (one camera, one resolution)",
+                     hint="remove the view or replace its image by one from the same camera")

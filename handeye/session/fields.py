@@ -55,6 +55,21 @@ def read_yaml(path: Path, *, loader=yaml.SafeLoader) -> dict:
     return data
 
 
+@functools.lru_cache(maxsize=None)
+def input_limits() -> dict:
+    """``configs/input_limits.yaml``: the sizes an input file may state."""
+    return load_preset("input_limits")
+
+
+def check_target_points(n_points: int, *, path: Path, field: str) -> None:
+    """A target with more points than :func:`input_limits` allows is refused before allocating them."""
+    limit = input_limits()["max_target_points"]
+    if n_points > limit:
+        raise ConfigError(f"{field} describes a target of {n_points} points", path=path,
+                          expected=f"at most {limit} points (configs/input_limits.yaml)",
+                          hint="check the board size (inner corners, not millimetres)")
+
+
 def check_input_file(path: Path, *, what: str, source: Path | None = None, vid: str | None = None) -> Path:
     """``path`` as an input file that may be opened: a regular file (a folder, a device such as
     /dev/zero or a named pipe is never opened) that can be read; InputError naming the view and file."""

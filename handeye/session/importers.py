@@ -17,8 +17,30 @@ from pathlib import Path
 import yaml
 
 from ..errors import InputError
-from ..output import atomic_write_text
+from ..output import atomic_write_text, read_text
 from .fields import read_yaml
+
+#: what the importers write; an existing one is replaced only when asked (``force=True``, ``--force``)
+SESSION_FILE = "session.yaml"
+
+
+def _number(v, *, path: Path, field: str) -> float:
+    """A finite number read from another tool's file; InputError naming the file and field."""
+    import math
+
+    try:
+        x = float(v) if not isinstance(v, bool) else float("nan")
+    except (TypeError, ValueError):
+        x = float("nan")
+    if not math.isfinite(x):
+        raise InputError(f"{field} is not a number", path=path, received=repr(v)[:60], expected="a finite number")
+    return x
+
+
+def _mapping(v, *, path: Path, field: str, expected: str) -> dict:
+    if not isinstance(v, dict):
+        raise InputError(f"{field} must be a mapping", path=path, received=repr(v)[:60], expected=expected)
+    return v
 
 
 #: what ``handeye import visp`` reads, for its help and its messages
@@ -38,9 +60,11 @@ def _visp_other_target(src: Path) -> str | None:
     return None
 
 
-def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool = False) -> Path:
-    """``out/session.yaml`` for a ViSP data folder of the layout :data:`VISP_LAYOUT`."""
+def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool = False, force: bool = False) -> Path:
+    """``out/session.yaml`` for a ViSP data folder of the layout :data:`VISP_LAYOUT` (an existing session
+    in ``out`` is refused unless ``force``)."""
     src, out = Path(src).resolve(), Path(out)
+    _check_out(out, force=force)
     if not src.is_dir():
         raise InputError("not a folder", path=src, expected=VISP_LAYOUT)
     other = _visp_other_target(src)
@@ -55,7 +79,7 @@ def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool 
     poses = {int(m.group(1)): f for f in src.iterdir() if (m := _VISP_POSE.match(f.name))}
     if not imgs:
         raise InputError("no ViSP images ([PREFIX_]image-N.png) in the folder", path=src, expected=VISP_LAYOUT)
-    txt = (src / "chessboard-data.txt").read_text() if (src / "chessboard-data.txt").exists() else ""
+    txt = read_text(src / "chessboard-data.txt", what="chessboard-data.txt") if (src / "chessboard-data.txt").exists() else ""
     m = re.search(r"(\d+)\s*x\s*(\d+)", txt)
     s = re.search(r"square size:\s*([0-9.eE+-]+)", txt)
     if not (m and s):
@@ -67,9 +91,11 @@ def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool 
             raise InputError(f"image {imgs[k].name} has no pose file", path=src,
                              expected=f"pose_rPe_{k}.yaml (or with the images' prefix)")
         data = read_yaml(poses[k]).get("data")
-        if not (isinstance(data, list) and len(data) == 6):
-            raise InputError("not a ViSP vpPoseVector (data: 6 rows)", path=poses[k], received=repr(data)[:60])
-        views.append({"id": str(k), "image": imgs[k].name, "pose": [float(v[0]) for v in data]})
+        if not (isinstance(data, list) and len(data) == 6 and all(isinstance(v, list) and len(v) == 1 for v in data)):
+            raise InputError("not a ViSP vpPoseVector (data: 6 rows of one number)", path=poses[k],
+                             received=repr(data)[:60], expected="data: [[tx], [ty], [tz], [tux], [tuy], [tuz]]")
+        views.append({"id": str(k), "image": imgs[k].name,
+                      "pose": [_number(v[0], path=poses[k], field=f"data[{i}]") for i, v in enumerate(data)]})
     doc = {"handeye_session": 1, "mode": "eye_in_hand",
            "target": {"type": "chessboard", "inner_corners": [int(m.group(1)), int(m.group(2))],
                       "square_m": float(s.group(1))},
@@ -77,40 +103,72 @@ def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool 
            "image_folder": str(src), "source": {"importer": "visp", "path": str(src)}, "views": views}
     cam = next(iter(src.glob("*camera*.xml")), None)
     if use_given_intrinsics and cam is not None:
-        t = cam.read_text()
-        vals = {k: float(re.search(rf"<{k}>\s*([0-9.eE+-]+)", t).group(1)) for k in ("px", "py", "u0", "v0")}
+        t = read_text(cam, what="camera file")
+        found = {k: re.search(rf"<{k}>\s*([0-9.eE+-]+)", t) for k in ("px", "py", "u0", "v0")}
+        if not all(found.values()):
+            raise InputError("camera file without px, py, u0, v0", path=cam,
+                             expected="ViSP's camera XML with <px>, <py>, <u0>, <v0>",
+                             hint="remove --given-intrinsics to estimate the intrinsics")
+        vals = {k: _number(m.group(1), path=cam, field=k) for k, m in found.items()}
         import cv2
 
-        h, w = cv2.imread(str(imgs[min(imgs)]), cv2.IMREAD_GRAYSCALE).shape
+        first = cv2.imread(str(imgs[min(imgs)]), cv2.IMREAD_GRAYSCALE) if imgs[min(imgs)].is_file() else None
+        if first is None:
+            raise InputError("cannot read the image for the image size", path=imgs[min(imgs)])
+        h, w = first.shape
         doc["intrinsics"] = {"model": "opencv5", "fx": vals["px"], "fy": vals["py"], "cx": vals["u0"],
                              "cy": vals["v0"], "dist": [0, 0, 0, 0, 0], "image_size": [w, h], "use": "fixed"}
     return _write(out, doc)
 
 
-def import_ical(src: str | Path, out: str | Path, *, image_dir: str | None = None) -> Path:
+def import_ical(src: str | Path, out: str | Path, *, image_dir: str | None = None, force: bool = False) -> Path:
+    """``out/session.yaml`` for an industrial_calibration data folder (an existing session in ``out`` is
+    refused unless ``force``); every field is checked and named when missing or of the wrong type."""
     src, out = Path(src).resolve(), Path(out)
-    cal = read_yaml(src / "cal_data.yaml")
-    if not isinstance(cal, dict) or "data" not in cal:
-        raise InputError("cal_data.yaml has no data list", path=src / "cal_data.yaml")
+    _check_out(out, force=force)
+    cal_path = src / "cal_data.yaml"
+    cal = read_yaml(cal_path)
+    data = cal.get("data")
+    if not isinstance(data, list) or not data:
+        raise InputError("cal_data.yaml has no data list", path=cal_path,
+                         expected="data: [{image: FILE, pose: FILE}, ...]", received=repr(data)[:60])
     views = []
-    for k, entry in enumerate(cal["data"]):
+    for k, entry in enumerate(data):
+        if not (isinstance(entry, dict) and isinstance(entry.get("image"), str) and isinstance(entry.get("pose"), str)):
+            raise InputError(f"data[{k}] must name an image and a pose file", path=cal_path,
+                             expected="{image: FILE, pose: FILE}", received=repr(entry)[:60])
         img = src / entry["image"]
         if image_dir is not None or not img.exists():
             alt = src / (image_dir or "images_gray") / Path(entry["image"]).name
             img = alt if alt.exists() else img
-        p = read_yaml(src / entry["pose"])
+        pose_path = src / entry["pose"]
+        p = read_yaml(pose_path)
         views.append({"id": Path(entry["image"]).stem, "image": os.path.relpath(img, src),
-                      "pose": [p["x"], p["y"], p["z"], p["qw"], p["qx"], p["qy"], p["qz"]]})
-    tgt = cal.get("target_finder", {})
-    if tgt.get("type", "").lower().startswith("charuco") or "CharucoGrid" in str(tgt):
-        target = {"type": "charuco", "squares": [int(tgt["cols"]), int(tgt["rows"])],
-                  "square_m": float(tgt["chessboard_dim"]), "marker_m": float(tgt["aruco_marker_dim"]),
-                  "dictionary": _aruco_name(int(tgt.get("dictionary", 10)))}
-    elif "circlegrid" in str(tgt.get("type", "")).lower():
+                      "pose": [_number(p.get(c), path=pose_path, field=c) for c in ("x", "y", "z", "qw", "qx", "qy", "qz")]})
+    tgt = _mapping(cal.get("target_finder", {}), path=cal_path, field="target_finder",
+                   expected="{type: CharucoGridTargetFinder | ModifiedCircleGridTargetFinder, ...}")
+    kind = str(tgt.get("type", ""))
+
+    def num(key):
+        return _number(tgt.get(key), path=cal_path, field=f"target_finder.{key}")
+
+    def count(key):
+        v = num(key)
+        if not (v.is_integer() and 1 <= v <= 1000):
+            raise InputError(f"target_finder.{key} is not a grid size", path=cal_path, received=repr(tgt.get(key)),
+                             expected="a whole number 1..1000")
+        return int(v)
+
+    if kind.lower().startswith("charuco") or "CharucoGrid" in str(tgt):
+        target = {"type": "charuco", "squares": [count("cols"), count("rows")],
+                  "square_m": num("chessboard_dim"), "marker_m": num("aruco_marker_dim"),
+                  "dictionary": _aruco_name(int(_number(tgt.get("dictionary", 10), path=cal_path,
+                                                        field="target_finder.dictionary")))}
+    elif "circlegrid" in kind.lower():
         # ModifiedCircleGridTargetFinder: symmetric grid with one double-size origin dot
-        target = {"type": "circlegrid", "grid": [int(tgt["cols"]), int(tgt["rows"])],
-                  "spacing_m": float(tgt["spacing"]), "asymmetric": False,
-                  "origin_dot": str(tgt.get("type", "")).lower().startswith("modified")}
+        target = {"type": "circlegrid", "grid": [count("cols"), count("rows")],
+                  "spacing_m": num("spacing"), "asymmetric": False,
+                  "origin_dot": kind.lower().startswith("modified")}
     else:
         raise InputError("unsupported industrial_calibration target finder", path=src / "cal_data.yaml",
                          expected="CharucoGridTargetFinder | ModifiedCircleGridTargetFinder",
@@ -132,8 +190,25 @@ def _aruco_name(code: int) -> str:
     return _ARUCO.get(code, "DICT_6X6_250")
 
 
+def _check_out(out: Path, *, force: bool) -> None:
+    """The importer's output folder: a new or empty folder, or one whose session is to be replaced
+    (``force``); a collected session (view_records/) or a vendor session is never overwritten silently."""
+    from ..errors import OutputError
+    from ..output import check_out_dir
+
+    if out.exists() and not out.is_dir():
+        check_out_dir(out, option="OUT")
+    if out.is_dir() and not force:
+        held = [n for n in (SESSION_FILE, "poses.txt", "view_records") if (out / n).exists()]
+        if held:
+            raise OutputError("OUT already holds a session", path=out, received=held[0],
+                              expected="a new or empty folder",
+                              hint="choose another folder, or pass --force to replace its session.yaml")
+    check_out_dir(out, option="OUT")
+
+
 def _write(out: Path, doc: dict) -> Path:
     out.mkdir(parents=True, exist_ok=True)
-    path = out / "session.yaml"
+    path = out / SESSION_FILE
     atomic_write_text(path, yaml.safe_dump(doc, sort_keys=False))
     return path

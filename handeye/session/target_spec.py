@@ -5,7 +5,7 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from ..targets import CharucoSpec, ChessboardSpec, CircleGridSpec, TargetSpec
-from .fields import length_m, positive_number
+from .fields import check_target_points, length_m, positive_number
 
 TARGET_TYPES = ("chessboard", "charuco", "circlegrid")
 
@@ -15,8 +15,10 @@ def _int_pair(t: dict, key: str, meaning: str, *, path: Path, minimum: int) -> t
     v = t.get(key)
     if not (isinstance(v, (list, tuple)) and len(v) == 2):
         raise ConfigError(f"target.{key} must be {meaning}", path=path, received=repr(v))
-    return tuple(positive_number(v[k], path=path, field=f"target.{key}[{k}]", integer=True, minimum=minimum)
+    pair = tuple(positive_number(v[k], path=path, field=f"target.{key}[{k}]", integer=True, minimum=minimum)
                  for k in range(2))
+    check_target_points(pair[0] * pair[1], path=path, field=f"target.{key}")
+    return pair
 
 
 def _flag(t: dict, name: str, *, path: Path) -> bool:

@@ -19,8 +19,8 @@ from ..errors import ConfigError, InputError
 from ..records import Session, View
 from ..targets import ChessboardSpec
 from ..output import read_text
-from .fields import (check_angle_units, check_finite, check_input_file, check_mode, check_translation_units,
-                     length_m, positive_number, read_yaml)
+from .fields import (check_angle_units, check_finite, check_input_file, check_mode, check_target_points,
+                     check_translation_units, length_m, positive_number, read_yaml)
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +83,7 @@ def read_vendor_config(folder: Path, *, strict: bool = True) -> tuple[Chessboard
                               expected="XX (inner corners, long side), YY (short side), L (square, metres)")
     xx = positive_number(cb["XX"], path=cfg_path, field="checkerboard_args.XX", integer=True, minimum=1)
     yy = positive_number(cb["YY"], path=cfg_path, field="checkerboard_args.YY", integer=True, minimum=1)
+    check_target_points(xx * yy, path=cfg_path, field="checkerboard_args XX x YY")
     L = length_m(cb["L"], path=cfg_path, field="checkerboard_args.L", strict=strict)
     return ChessboardSpec(cols=xx, rows=yy, square_m=L), cfg.get("mode"), cfg
 
