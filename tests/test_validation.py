@@ -1,0 +1,145 @@
+"""The validated covariance (handeye.refine.validation): the jackknife and its scaling, the verdict rule,
+the refits on simulated sessions (clean: the model holds and the verdict stays near it; a robot error the
+model does not have: the verdict widens to cover the truth), and the fields result.json carries."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from handeye.diagnose.crossval import ratio_limits
+from handeye.frames import tangent_difference
+from handeye.refine import RefineOptions, RefineView, refine
+from handeye.refine.validation import (Validation, fold_indices, generalised_max, jackknife_covariance, mahalanobis2,
+                                       settings, shrunk_jackknife, validate)
+from handeye.results import validation_fields
+from handeye.sim.corners import make_corner_session
+
+CHI2_6_999 = chi2.ppf(0.999, 6)
+
+
+def _spd(rng, d, scale=1.0):
+    A = rng.normal(size=(d, d))
+    return scale * (A @ A.T + d * np.eye(d))
+
+
+def _min_eig(A):
+    return float(np.linalg.eigvalsh(0.5 * (A + A.T)).min())
+
+
+# ------------------------------------------------------------------------------ pure math
+def test_leave_one_out_jackknife_of_a_mean_is_its_sample_covariance_over_n():
+    x = np.random.default_rng(1).normal(size=(9, 3))
+    loo = np.stack([np.delete(x, k, axis=0).mean(axis=0) for k in range(len(x))])
+    assert np.allclose(jackknife_covariance(loo), np.cov(x.T) / len(x), atol=1e-12)
+
+
+def test_folds_are_leave_one_out_up_to_the_limit_then_interleaved_groups():
+    assert [f.tolist() for f in fold_indices(4, loo_max_views=5, folds=3)] == [[0], [1], [2], [3]]
+    f = fold_indices(10, loo_max_views=5, folds=3)
+    assert [g.tolist() for g in f] == [[0, 3, 6, 9], [1, 4, 7], [2, 5, 8]]
+    assert sorted(np.concatenate(f).tolist()) == list(range(10))
+
+
+def test_verdict_covariance_is_never_smaller_than_either_in_any_direction():
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        M, V = _spd(rng, 6), _spd(rng, 6, scale=rng.uniform(0.2, 5.0))
+        C, lam = generalised_max(M, V)
+        scale = np.abs(C).max()
+        assert _min_eig(C - M) > -1e-9 * scale and _min_eig(C - V) > -1e-9 * scale
+        assert np.all(np.diff(lam) >= 0)
+    M = _spd(rng, 6)
+    assert np.allclose(generalised_max(M, 4.0 * M)[0], 4.0 * M)  # validated larger everywhere: it is the verdict
+    assert np.allclose(generalised_max(M, 0.5 * M)[0], M)  # smaller everywhere: the model stands
+    with pytest.raises(np.linalg.LinAlgError):
+        generalised_max(np.zeros((6, 6)), M)  # a model covariance that is not positive definite
+
+
+def test_shrinkage_keeps_the_average_spread_over_the_model():
+    rng = np.random.default_rng(3)
+    M = _spd(rng, 6)
+    thetas = rng.multivariate_normal(np.zeros(6), 3.0 * M, size=12)
+    S = jackknife_covariance(thetas)
+    V, rho, s = shrunk_jackknife(thetas, M)
+    Mi = np.linalg.inv(M)
+    assert 0.0 <= rho <= 1.0
+    assert np.trace(Mi @ V) == pytest.approx(np.trace(Mi @ S), rel=1e-10) == pytest.approx(6 * s, rel=1e-10)
+    assert np.isnan(mahalanobis2(np.ones(6), np.zeros((6, 6))))  # a singular covariance: no distance
+
+
+# ------------------------------------------------------------------------------ refits on simulated sessions
+def _views(s):
+    return [RefineView(vid, ids, p, s.T_base_end_reported[k])
+            for k, (vid, ids, p) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points))]
+
+
+def _refined(s, **opts):
+    views = _views(s)
+    r = refine(mode=s.mode, object_points=s.target.object_points(), views=views, intrinsics=s.intrinsics,
+               T_x0=s.T_x_true, T_board0=s.T_board_true, options=RefineOptions(**opts))
+    assert r.status == "ok", r.failure_reason
+    return r, views
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_on_clean_data_the_folds_agree_with_the_model_and_the_verdict_covers_the_truth(mode):
+    s = make_corner_session(mode=mode, n_views=16, seed=31, noise_px=0.3, robot_noise=(0.3, 0.03))
+    r, views = _refined(s)
+    v = validate(r, object_points=s.target.object_points(), views=views)
+    assert v.status == "ok" and v.n_solved == len(v.folds) == settings()["folds"]
+    lo, hi = ratio_limits(len(v.folds))
+    # the folds' spread over the model's, averaged over the 6 directions, is sampling noise (K - 1 dof each)
+    assert lo ** 2 < v.x.scale < hi ** 2, v.x.scale
+    M, C = r.cov_x_6x6, v.x.cov_verdict
+    assert _min_eig(C - M) > -1e-9 * np.abs(C).max() and _min_eig(C - v.x.cov_validated) > -1e-9 * np.abs(C).max()
+    # the verdict stays near the model: at most the sampling range wider in any direction
+    assert np.sqrt(v.x.eig.max()) < hi, v.x.eig
+    assert mahalanobis2(tangent_difference(r.T_x, s.T_x_true), C) < CHI2_6_999
+    # the halves: each a refit of half the views
+    assert set(v.halves) == {"odd", "even"} and all(h.status == "ok" for h in v.halves.values())
+    assert v.halves["odd"].view_ids[:2] == (s.view_ids[0], s.view_ids[2])
+
+
+def test_an_unmodelled_robot_error_widens_the_verdict_until_it_covers_the_truth():
+    # robot poses 1 mm / 0.1 deg off per view, refined as if they were exact to 0.02 mm / 0.002 deg: the model's
+    # covariance is far too small; the views disagree, and the refits show it
+    s = make_corner_session(mode="eye_to_hand", n_views=20, seed=32, noise_px=0.3, robot_noise=(1.0, 0.1))
+    r, views = _refined(s, robot_noise="fixed", robot_sigma_mm=0.02, robot_sigma_deg=0.002, outlier_loop=False)
+    v = validate(r, object_points=s.target.object_points(), views=views)
+    assert v.status == "ok" and v.x.source == "validated"
+    xi = tangent_difference(r.T_x, s.T_x_true)
+    assert mahalanobis2(xi, r.cov_x_6x6) > chi2.ppf(0.999, 6)  # the model's ellipsoid misses the truth
+    assert mahalanobis2(xi, v.x.cov_verdict) < CHI2_6_999  # the verdict's holds it
+    assert np.sqrt(v.x.scale) > ratio_limits(len(v.folds))[1]
+
+
+def test_too_few_views_are_not_validated_and_the_model_stands():
+    s = make_corner_session(mode="eye_in_hand", n_views=5, seed=33, noise_px=0.3)
+    r, views = _refined(s)
+    v = validate(r, object_points=s.target.object_points(), views=views)
+    assert v.status == "not_run" and "5 used views" in v.reason
+    f = validation_fields(r, v)
+    assert f["sigma_source"] == "model" and "cov_x_6x6_verdict" not in f
+    assert f["validation"]["status"] == "not_run"
+
+
+def test_result_json_carries_the_model_the_validated_and_the_verdict_uncertainty():
+    s = make_corner_session(mode="eye_in_hand", n_views=14, seed=34, noise_px=0.3, robot_noise=(0.5, 0.05))
+    r, views = _refined(s)
+    v = validate(r, object_points=s.target.object_points(), views=views)
+    f = validation_fields(r, v)
+    C = np.asarray(f["cov_x_6x6_verdict"])
+    assert np.allclose(C, v.x.cov_verdict) and np.allclose(f["cov_x_6x6_validated"], v.x.cov_validated)
+    assert f["sigma_source"] == v.x.source and "generalised-eigenvalue maximum" in f["sigma_rule"]
+    # the printed sigmas are the verdict's; the model's are kept beside them
+    assert np.allclose(np.degrees(np.sqrt(np.diag(C)[:3])), f["sigma_rot_deg"])
+    assert np.allclose(f["sigma_rot_deg_model"], r.sigma_rot_deg) and np.allclose(f["sigma_trans_mm_model"],
+                                                                                    r.sigma_trans_mm)
+    assert all(f["sigma_trans_mm"][k] >= f["sigma_trans_mm_model"][k] - 1e-12 for k in range(3))
+    names = f["intrinsics_cov_names"]
+    assert names == list(r.intrinsics_sigma) and set(f["intrinsics_sigma_verdict"]) == set(names)
+    assert all(f["intrinsics_sigma_verdict"][k] >= r.intrinsics_sigma[k] * (1 - 1e-9) for k in names)
+    h = f["validation"]["halves"]
+    assert h["odd"]["status"] == "ok" and h["odd_vs_even"]["mahalanobis2"] < CHI2_6_999
+    assert isinstance(v, Validation) and f["validation"]["n_folds"] == len(v.folds)
