@@ -108,6 +108,9 @@ def read_native_document(path: Path) -> NativeDocument:
         if not isinstance(vid, str) or not vid.strip():
             raise ConfigError("invalid view id", path=e.source, expected="a non-empty text such as \"7\" or \"010\"",
                               received=repr(vid))
+        if not isinstance(e.data["image"], str) or not e.data["image"].strip():
+            raise ConfigError(f"view {vid}: image must be a file name", path=e.source, received=repr(e.data["image"])[:60],
+                              expected="a path relative to the session folder, e.g. images/7.png")
         if ("pose" in e.data) == ("pose_file" in e.data):
             raise ConfigError(f"view {vid}: give either pose or pose_file", path=e.source,
                               received="both" if "pose" in e.data else "neither",
