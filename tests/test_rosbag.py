@@ -279,3 +279,29 @@ def test_still_periods_are_found_under_tf_jitter():
     half = Stillness.from_preset().speed_window_s / 2 + 0.011
     for (a, b), (ta, tb) in zip(periods, truth):
         assert abs(a - ta) <= half and abs(b - tb) <= half, (a, b, ta, tb)
+
+
+@pytest.mark.parametrize("encoding", ["rgb8", "bgr8", "mono8", "mono16", "bgra8"])
+def test_raw_images_are_written_as_lossless_png(encoding):
+    """sensor_msgs/Image with row padding (step > width * channels) in each encoding read: the PNG holds
+    the same pixels (BGR for colour, 16 bit for mono16); an unknown encoding is one clear error."""
+    from types import SimpleNamespace
+
+    from handeye.session.rosbag import _image_file
+
+    rng = np.random.default_rng(1)
+    h, w = 5, 7
+    ch = {"rgb8": 3, "bgr8": 3, "mono8": 1, "mono16": 1, "bgra8": 4}[encoding]
+    dtype = np.uint16 if encoding == "mono16" else np.uint8
+    img = rng.integers(0, 60000 if dtype == np.uint16 else 255, size=(h, w, ch)).astype(dtype)
+    pad = 3 * ch  # extra items per row
+    rows = np.zeros((h, w * ch + pad), dtype)
+    rows[:, : w * ch] = img.reshape(h, -1)
+    msg = SimpleNamespace(encoding=encoding, height=h, width=w, step=rows.shape[1] * rows.itemsize,
+                          is_bigendian=0, data=rows.tobytes())
+    data, ext = _image_file(msg, "sensor_msgs/msg/Image")
+    got = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    want = {"rgb8": img[..., ::-1], "bgr8": img, "mono8": img[..., 0], "mono16": img[..., 0], "bgra8": img[..., :3]}
+    assert ext == ".png" and got.dtype == dtype and np.array_equal(got, want[encoding])
+    with pytest.raises(InputError, match="image encoding 'yuv422' is not read"):
+        _image_file(SimpleNamespace(**{**vars(msg), "encoding": "yuv422"}), "sensor_msgs/msg/Image")
