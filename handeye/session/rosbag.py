@@ -286,6 +286,75 @@ def _open_reader(bag: Path):
     return reader
 
 
+def _connections(reader, bag: Path, image_topic: str, camera_info_topic: Optional[str]):
+    """(image connection, CameraInfo connection or None, TF connections); a missing topic is named with
+    the ones the bag has."""
+    conns = {c.topic: c for c in reader.connections}
+    kinds = {t: c.msgtype.split("/")[-1] for t, c in conns.items()}
+    if kinds.get(image_topic) not in ("Image", "CompressedImage"):
+        images = sorted(t for t, k in kinds.items() if k in ("Image", "CompressedImage"))
+        raise InputError(f"no image topic {image_topic!r} in the bag", path=bag,
+                         expected="one of " + (", ".join(images) or "(no image topics)"))
+    if camera_info_topic is None:
+        guess = image_topic.rsplit("/", 1)[0] + "/camera_info"
+        camera_info_topic = guess if kinds.get(guess) == "CameraInfo" else None
+    elif kinds.get(camera_info_topic) != "CameraInfo":
+        raise InputError(f"no camera info topic {camera_info_topic!r} in the bag", path=bag,
+                         expected="one of " + (", ".join(sorted(t for t, k in kinds.items() if k == "CameraInfo"))
+                                               or "(no CameraInfo topics)"))
+    tf_conns = [c for c in reader.connections if kinds[c.topic] == "TFMessage"]
+    if not tf_conns:
+        raise InputError("the bag has no TF (tf2_msgs/TFMessage) topic", path=bag,
+                         hint="record /tf and /tf_static with the images")
+    return conns[image_topic], (conns[camera_info_topic] if camera_info_topic else None), tf_conns
+
+
+def _read_tf(reader, tf_conns, info_conn) -> tuple[dict, object]:
+    """({(parent, child): _Edge}, the first CameraInfo or None) in one pass over those topics."""
+    samples: dict = {}
+    info = None
+    for conn, t_bag, raw in reader.messages(connections=tf_conns + ([info_conn] if info_conn else [])):
+        msg = reader.deserialize(raw, conn.msgtype)
+        if conn is info_conn:
+            info = msg if info is None else info
+            continue
+        static = conn.topic.endswith("tf_static")
+        for tr in msg.transforms:
+            s = samples.setdefault((_frame(tr.header.frame_id), _frame(tr.child_frame_id)), ([], [], [], static))
+            tt, r = tr.transform.translation, tr.transform.rotation
+            s[0].append(_stamp(tr) or t_bag * 1e-9)
+            s[1].append((tt.x, tt.y, tt.z))
+            s[2].append((r.w, r.x, r.y, r.z))
+    edges = {}
+    for key, (tt, xyz, q, static) in samples.items():
+        order = np.argsort(tt, kind="stable")
+        edges[key] = _Edge(np.asarray(tt)[order], np.asarray(xyz, float)[order], np.asarray(q, float)[order], static)
+    return edges, info
+
+
+def pick_images(periods, stamps: np.ndarray, *, margin_s: float) -> tuple[list[tuple[int, float, float]], int]:
+    """One image per still period: (index into ``stamps``, period start, end) of the image nearest the
+    period's middle among those at least ``margin_s`` inside it, and how many periods had none."""
+    picked, without = [], 0
+    for a, b in periods:
+        inside = np.flatnonzero((stamps >= a + margin_s) & (stamps <= b - margin_s))
+        if inside.size == 0:
+            without += 1
+            continue
+        picked.append((int(inside[np.argmin(np.abs(stamps[inside] - 0.5 * (a + b)))]), a, b))
+    return picked, without
+
+
+def _pose_at(edges, chain, times: np.ndarray, T_all: np.ndarray, t_img: float, a: float, b: float):
+    """(T_base_end at ``t_img``, ms to the nearest TF sample, mm and deg the pose moved over [a, b])."""
+    T = _compose(edges, chain, np.array([t_img]))[0]
+    near = times[np.clip(np.searchsorted(times, t_img), 1, len(times) - 1) - np.array([1, 0])]
+    Tp = T_all[(times >= a) & (times <= b)]
+    mm = float(np.max(np.linalg.norm(Tp[:, :3, 3] - T[:3, 3], axis=-1)) * 1e3)
+    deg = float(np.degrees(np.max(rotation_angle_rad(np.einsum("ji,njk->nik", T[:3, :3], Tp[:, :3, :3])))))
+    return T, float(np.min(np.abs(near - t_img)) * 1e3), mm, deg
+
+
 def import_rosbag(bag: str | Path, out: str | Path, *, image_topic: str, base_frame: str, end_frame: str,
                   target: dict, camera_info_topic: Optional[str] = None, mode: Optional[str] = None,
                   stillness: Optional[Stillness] = None, intrinsics_use: str = "prior") -> RosbagImport:
@@ -303,47 +372,8 @@ def import_rosbag(bag: str | Path, out: str | Path, *, image_topic: str, base_fr
     parse_target(target, path=Path("--target"))  # a wrong target is said now, not after the import
     reader = _open_reader(bag)
     try:
-        conns = {c.topic: c for c in reader.connections}
-        img_conn = conns.get(image_topic)
-        if img_conn is None or not img_conn.msgtype.split("/")[-1] in ("Image", "CompressedImage"):
-            images = sorted(t for t, c in conns.items() if c.msgtype.split("/")[-1] in ("Image", "CompressedImage"))
-            raise InputError(f"no image topic {image_topic!r} in the bag", path=bag,
-                             expected="one of " + (", ".join(images) or "(no image topics)"))
-        if camera_info_topic is None:
-            guess = image_topic.rsplit("/", 1)[0] + "/camera_info"
-            camera_info_topic = guess if guess in conns else None
-        elif camera_info_topic not in conns:
-            raise InputError(f"no camera info topic {camera_info_topic!r} in the bag", path=bag,
-                             expected="one of " + ", ".join(sorted(t for t, c in conns.items()
-                                                                   if c.msgtype.endswith("CameraInfo"))))
-        tf_conns = [c for c in reader.connections if c.msgtype.split("/")[-1] == "TFMessage"]
-        if not tf_conns:
-            raise InputError("the bag has no TF (tf2_msgs/TFMessage) topic", path=bag,
-                             hint="record /tf and /tf_static with the images")
-        samples: dict = {}
-        img_stamps, info = [], None
-        wanted = tf_conns + ([conns[camera_info_topic]] if camera_info_topic else [])
-        for conn, t_bag, raw in reader.messages(connections=wanted):
-            msg = reader.deserialize(raw, conn.msgtype)
-            kind = conn.msgtype.split("/")[-1]
-            if kind == "TFMessage":
-                static = conn.topic.endswith("tf_static")
-                for tr in msg.transforms:
-                    key = (_frame(tr.header.frame_id), _frame(tr.child_frame_id))
-                    s = samples.setdefault(key, ([], [], [], static))
-                    tt, r = tr.transform.translation, tr.transform.rotation
-                    s[0].append(_stamp(tr) or t_bag * 1e-9)
-                    s[1].append((tt.x, tt.y, tt.z))
-                    s[2].append((r.w, r.x, r.y, r.z))
-            elif info is None:
-                info = msg
-        for conn, t_bag, raw in reader.messages(connections=[img_conn]):  # the stamps only, not the pixels
-            img_stamps.append((_raw_header_stamp(raw, ros2=reader.is2) or t_bag * 1e-9, t_bag))
-        edges = {}
-        for key, (tt, xyz, q, static) in samples.items():
-            order = np.argsort(tt, kind="stable")
-            edges[key] = _Edge(np.asarray(tt)[order], np.asarray(xyz, float)[order], np.asarray(q, float)[order],
-                               static)
+        img_conn, info_conn, tf_conns = _connections(reader, bag, image_topic, camera_info_topic)
+        edges, info = _read_tf(reader, tf_conns, info_conn)
         chain = _chain(edges, _frame(base_frame), _frame(end_frame), bag=bag)
         dyn = [edges[e].t for e, _ in chain if not edges[e].static]
         if not dyn:
@@ -352,48 +382,35 @@ def import_rosbag(bag: str | Path, out: str | Path, *, image_topic: str, base_fr
         times = np.unique(np.concatenate(dyn))
         T_all = _compose(edges, chain, times)
         periods = still_periods(times, T_all, st)
-        what = (f"{base_frame} -> {end_frame} never stood still for {st.min_still_s:g} s (speed under "
-                f"{st.still_trans_mm_s:g} mm/s and {st.still_rot_deg_s:g} deg/s over {st.speed_window_s:g} s)")
         if not periods:
-            raise InputError(f"no still periods in the bag: {what}", path=bag, code="no_still_periods",
-                             hint="check --base/--end, or loosen --still-trans-mm-s / --still-rot-deg-s / "
-                                  "--min-still-s if the arm's TF jitters at rest")
-        stamps = np.array([s for s, _ in img_stamps]) if img_stamps else np.zeros(0)
-        picked, without = [], 0
-        for a, b in periods:
-            lo, hi = a + st.margin_s, b - st.margin_s
-            inside = np.flatnonzero((stamps >= lo) & (stamps <= hi))
-            if inside.size == 0:
-                without += 1
-                continue
-            k = inside[np.argmin(np.abs(stamps[inside] - 0.5 * (a + b)))]
-            picked.append((int(k), a, b))
+            raise InputError(
+                f"no still periods in the bag: {base_frame} -> {end_frame} never stood still for {st.min_still_s:g} s "
+                f"(speed under {st.still_trans_mm_s:g} mm/s and {st.still_rot_deg_s:g} deg/s over "
+                f"{st.speed_window_s:g} s)", path=bag, code="no_still_periods",
+                hint="check --base/--end, or loosen --still-trans-mm-s / --still-rot-deg-s / --min-still-s if the "
+                     "arm's TF jitters at rest")
+        img_stamps = [(_raw_header_stamp(raw, ros2=reader.is2) or t_bag * 1e-9, t_bag)  # stamps only, no pixels
+                      for _, t_bag, raw in reader.messages(connections=[img_conn])]
+        stamps = np.array([s for s, _ in img_stamps], float)
+        picked, without = pick_images(periods, stamps, margin_s=st.margin_s)
         if not picked:
             raise InputError(f"no image inside any of the {len(periods)} still periods (margin {st.margin_s:g} s)",
-                             path=bag, code="no_still_periods",
+                             path=bag, code="no_images_at_rest",
                              hint=f"check that {image_topic} was recorded while the robot stood still, and the clocks")
-        want_bag_times = {img_stamps[k][1]: k for k, _, _ in picked}
+        wanted = {img_stamps[k][1]: k for k, _, _ in picked}
         files: dict[int, tuple[bytes, str]] = {}
         for conn, t_bag, raw in reader.messages(connections=[img_conn]):
-            k = want_bag_times.get(t_bag)
+            k = wanted.get(t_bag)
             if k is not None and k not in files:
                 files[k] = _image_file(reader.deserialize(raw, conn.msgtype), conn.msgtype)
     finally:
         reader.close()
 
     views, report_views = [], []
-    max_off, max_mm, max_deg = 0.0, 0.0, 0.0
     width = max(3, len(str(len(picked))))
     for n, (k, a, b) in enumerate(picked, start=1):
         t_img = float(stamps[k])
-        T = _compose(edges, chain, np.array([t_img]))[0]
-        near = times[np.clip(np.searchsorted(times, t_img), 1, len(times) - 1) - np.array([1, 0])]
-        off_ms = float(np.min(np.abs(near - t_img)) * 1e3)
-        in_period = (times >= a) & (times <= b)
-        Tp = T_all[in_period]
-        mm = float(np.max(np.linalg.norm(Tp[:, :3, 3] - T[:3, 3], axis=-1)) * 1e3)
-        deg = float(np.degrees(np.max(rotation_angle_rad(np.einsum("ji,njk->nik", T[:3, :3], Tp[:, :3, :3])))))
-        max_off, max_mm, max_deg = max(max_off, off_ms), max(max_mm, mm), max(max_deg, deg)
+        T, off_ms, mm, deg = _pose_at(edges, chain, times, T_all, t_img, a, b)
         vid = str(n).zfill(width)
         data, ext = files[k]
         rel = f"images/{vid}{ext}"
@@ -405,14 +422,12 @@ def import_rosbag(bag: str | Path, out: str | Path, *, image_topic: str, base_fr
     intr, intr_text = (None, "none (no CameraInfo topic); estimated from the images")
     if info is not None:
         intr, intr_text = _intrinsics(info, use=intrinsics_use)
-    doc = {"handeye_session": 1}
-    if mode:
-        doc["mode"] = mode
-    doc.update({"target": target, "pose_format": {"rotation": "matrix", "translation_unit": "m"}})
-    if intr is not None:
-        doc["intrinsics"] = intr
+    doc = {"handeye_session": 1, **({"mode": mode} if mode else {}), "target": target,
+           "pose_format": {"rotation": "matrix", "translation_unit": "m"}, **({"intrinsics": intr} if intr else {})}
+    max_off = max(v["offset_ms"] for v in report_views)
     doc["source"] = {"importer": "rosbag", "path": str(bag.resolve()), "image_topic": image_topic,
-                     "camera_info_topic": camera_info_topic, "base_frame": base_frame, "end_frame": end_frame,
+                     "camera_info_topic": info_conn.topic if info_conn else None, "base_frame": base_frame,
+                     "end_frame": end_frame,
                      "tf_chain": [f"{p} -> {c}" if fwd else f"inverse of {p} -> {c}" for (p, c), fwd in chain],
                      "stillness": {f.name: getattr(st, f.name) for f in fields(st)},
                      "still_periods": len(periods), "periods_without_image": without,
@@ -420,7 +435,9 @@ def import_rosbag(bag: str | Path, out: str | Path, *, image_topic: str, base_fr
     doc["views"] = views
     path = atomic_write_text(out / "session.yaml", yaml.safe_dump(doc, sort_keys=False))
     log.info("rosbag %s: %d still periods, %d views", bag, len(periods), len(views))
-    return RosbagImport(path, len(views), len(periods), without, max_off, max_mm, max_deg, intr_text, report_views)
+    return RosbagImport(path, len(views), len(periods), without, max_off,
+                        max(v["motion_mm"] for v in report_views), max(v["motion_deg"] for v in report_views),
+                        intr_text, report_views)
 
 
 def read_target_file(path: Path) -> tuple[dict, Optional[str]]:
