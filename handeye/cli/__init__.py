@@ -10,6 +10,7 @@ apply           :mod:`.apply`
 import          :mod:`.import_`
 report          :mod:`.report`
 collect         :mod:`.collect`
+export          :mod:`.export` (through :func:`handeye.export.export_result`)
 ==============  ====================================================================
 
 Command modules load lazily: :data:`COMMANDS` holds each command's module name and the one line
