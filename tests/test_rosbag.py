@@ -305,3 +305,17 @@ def test_raw_images_are_written_as_lossless_png(encoding):
     assert ext == ".png" and got.dtype == dtype and np.array_equal(got, want[encoding])
     with pytest.raises(InputError, match="image encoding 'yuv422' is not read"):
         _image_file(SimpleNamespace(**{**vars(msg), "encoding": "yuv422"}), "sensor_msgs/msg/Image")
+
+
+def test_import_mode_choices_are_the_mounting_modes():
+    """``handeye import --help`` stays free of numpy, so its --mode choices are written out: they must
+    be handeye.mounting.MODES."""
+    import argparse
+
+    from handeye.cli import import_
+    from handeye.mounting import MODES
+
+    p = argparse.ArgumentParser()
+    import_.add_arguments(p)
+    (mode,) = [a for a in p._actions if "--mode" in a.option_strings]
+    assert tuple(mode.choices) == tuple(MODES)

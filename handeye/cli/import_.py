@@ -21,8 +21,6 @@ def add_arguments(p) -> None:
 
 def add_rosbag_arguments(g) -> None:
     """The options of ``handeye import rosbag`` (stillness defaults: configs/rosbag.yaml)."""
-    from ..mounting import MODES
-
     g.add_argument("--image-topic", metavar="T", help="sensor_msgs/Image or CompressedImage topic")
     g.add_argument("--camera-info", metavar="T", help="sensor_msgs/CameraInfo topic (default: camera_info "
                                                       "beside the image topic, when recorded)")
@@ -30,7 +28,8 @@ def add_rosbag_arguments(g) -> None:
     g.add_argument("--end", metavar="FRAME", help="flange / tool frame in TF (e.g. tool0)")
     g.add_argument("--target", type=Path, metavar="FILE",
                    help="the board: a YAML with a session.yaml target: mapping, or a vendor config.yaml")
-    g.add_argument("--mode", choices=MODES, help="mounting mode (default: decided from the data)")
+    g.add_argument("--mode", choices=("eye_in_hand", "eye_to_hand"),  # handeye.mounting.MODES (numpy-free help)
+                   help="mounting mode (default: decided from the data)")
     g.add_argument("--out", dest="out_opt", type=Path, metavar="DEST", help="session folder (default: BAG_session)")
     g.add_argument("--intrinsics-use", choices=["fixed", "prior", "initial"], default="prior",
                    help="how the CameraInfo intrinsics are used (default prior)")
