@@ -199,7 +199,10 @@ def test_help_loads_only_the_chosen_command():
                          env=env).stdout.splitlines()
     k = top.index("  COMMAND")
     listed = [line.split()[0] for line in top[k + 1:top.index("", k)]]
-    assert listed == ["calibrate", "simulate", "demo", "apply", "import", "report", "collect"]
+    from handeye.cli import COMMANDS
+
+    assert listed[:7] == ["calibrate", "simulate", "demo", "apply", "import", "report", "collect"]
+    assert listed == list(COMMANDS)  # and every command added after them
     assert "    report       (re)build report.html and report.md from a result folder" in top
     for command in listed:
         cap = subprocess.run([sys.executable, "-m", "handeye.cli", command, "--help"], capture_output=True, text=True)
