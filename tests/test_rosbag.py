@@ -259,7 +259,7 @@ def test_bag_without_still_periods_is_one_clear_error(rendered, capsys):
 def test_still_periods_are_found_under_tf_jitter():
     """Stops of 1 s, 1.5 s and 1.5 s between moves at 50 mm/s and 5 deg/s, the TF jittering by
     0.01 mm and 0.001 deg per sample (an arm at rest): three periods, each within a speed window of the
-    true stop, with the shipped thresholds."""
+    true stop, with the shipped thresholds; also from a 10 Hz TF (fewer samples than the window)."""
     from handeye.session.rosbag import Stillness, still_periods
 
     rng = np.random.default_rng(4)
@@ -273,12 +273,13 @@ def test_still_periods_are_found_under_tf_jitter():
         xi = np.concatenate([[0.0, 0.0, np.radians(100.0 * si)], [si, 0.0, 0.0]])
         jitter = np.concatenate([rng.normal(0, np.radians(0.001), 3), rng.normal(0, 1e-5, 3)])
         Ts.append(se3_exp(xi) @ se3_exp(jitter))
-    periods = still_periods(t, np.array(Ts), Stillness.from_preset())
-    truth = [(0.0, 1.0), (2.0, 3.5), (4.5, t[-1])]
-    assert len(periods) == 3
-    half = Stillness.from_preset().speed_window_s / 2 + 0.011
-    for (a, b), (ta, tb) in zip(periods, truth):
-        assert abs(a - ta) <= half and abs(b - tb) <= half, (a, b, ta, tb)
+    st = Stillness.from_preset()
+    for step, slack in ((1, st.speed_window_s / 2 + 0.011), (10, 0.1 + 0.011)):  # 100 Hz; 10 Hz: one sample apart
+        periods = still_periods(t[::step], np.array(Ts)[::step], st)
+        truth = [(0.0, 1.0), (2.0, 3.5), (4.5, t[::step][-1])]
+        assert len(periods) == 3, (step, periods)
+        for (a, b), (ta, tb) in zip(periods, truth):
+            assert abs(a - ta) <= slack and abs(b - tb) <= slack, (step, a, b, ta, tb)
 
 
 @pytest.mark.parametrize("encoding", ["rgb8", "bgr8", "mono8", "mono16", "bgra8"])

@@ -191,8 +191,10 @@ def still_periods(times: np.ndarray, T_base_end: np.ndarray, st: Stillness) -> l
     if n < 2:
         return []
     half = 0.5 * st.speed_window_s
+    idx = np.arange(n)
     lo = np.searchsorted(times, times - half, side="left")
     hi = np.clip(np.searchsorted(times, times + half, side="right") - 1, 0, n - 1)
+    lo, hi = np.minimum(lo, np.maximum(idx - 1, 0)), np.maximum(hi, np.minimum(idx + 1, n - 1))  # a slow TF
     dt = times[hi] - times[lo]
     ok_dt = dt > 0
     d_mm = np.linalg.norm(T_base_end[hi, :3, 3] - T_base_end[lo, :3, 3], axis=-1) * 1e3
