@@ -245,5 +245,8 @@ def test_cli_names_frames_and_out_file(tmp_path, capsys):
     assert (parent, child) == ("world", "cam_optical") and np.max(np.abs(T_got - T)) < TOL
     text = (tmp_path / "ros" / "cam.launch.py").read_text()
     assert "optical frame (x right, y down, z forward" in text and "quaternion x y z w" in text
+    (tmp_path / "urdf").mkdir()
+    assert main(["export", str(tmp_path / "res"), "--to", "urdf", "--out", str(tmp_path / "urdf")]) == 0
+    assert sorted(p.name for p in (tmp_path / "urdf").iterdir()) == ["hand_eye.urdf", "hand_eye.urdf.xacro"]
     assert main(["export", str(tmp_path / "res"), "--to", "urdf", "--child", "my cam"]) == InputError.exit_code
     assert "--child 'my cam' is not a TF frame name" in capsys.readouterr().err

@@ -37,7 +37,8 @@ def add_arguments(p) -> None:
     p.add_argument("--effector-frame", metavar="FRAME", help="easy_handeye2 only: robot_effector_frame of an "
                                                            "eye_to_hand calibration (default tool0)")
     p.add_argument("--out", type=Path, metavar="FILE",
-                   help="file to write (companions share its name); default RESULT/hand_eye.<format's suffix>")
+                   help="file to write (companions share its name) or an existing folder; "
+                        "default RESULT/hand_eye.<format suffix>")
     p.add_argument("--force", action="store_true", help="export a result whose verdict is FAIL")
     p.set_defaults(func=run)
 

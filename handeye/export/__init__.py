@@ -66,12 +66,12 @@ def export_transform(result, *, parent: Optional[str] = None, child: Optional[st
 
 def export_paths(fmt: str, out: Optional[Path], result_dir: Path) -> list[Path]:
     """The files format ``fmt`` writes: ``out`` names the first (its companions share its base name),
-    default ``result_dir/hand_eye<suffix>``."""
+    or the folder for them; default ``result_dir/hand_eye<suffix>``."""
     if fmt not in FORMATS:
         raise InputError(f"unknown export format {fmt!r}", expected=" | ".join(FORMATS))
     suffixes = FORMATS[fmt][0]
-    if out is None:
-        base = result_dir / DEFAULT_BASENAME
+    if out is None or Path(out).is_dir():
+        base = (result_dir if out is None else Path(out)) / DEFAULT_BASENAME
     else:
         out = Path(out)
         name = out.name
