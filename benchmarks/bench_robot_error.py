@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -58,7 +59,7 @@ def one_session(args: tuple) -> dict:
     from handeye.refine import RefineOptions, refine
     from handeye.sim.corners import make_corner_session
 
-    mode, model, seed, arm = args
+    mode, model, seed, arm, robot_model = args
     t0 = time.perf_counter()
     kw = dict(robot_error=model, arm=arm) if model != "iid" else dict(robot_error="iid", robot_noise=IID_ROBOT_NOISE)
     try:
@@ -68,8 +69,13 @@ def one_session(args: tuple) -> dict:
     t_sim = time.perf_counter() - t0
     intr, closed = closed_forms(s)
     est = closed["tsai"]
-    r = refine(mode=mode, object_points=s.target.object_points(), views=refine_views(s), intrinsics=intr,
-               T_x0=est.T_x, T_board0=est.T_board, options=RefineOptions(), starts=closed)
+    views = refine_views(s)
+    ro = RefineOptions()
+    if s.joints_encoder is not None:  # the session records joint angles and names its arm
+        views = [replace(v, joint_angles=s.joints_encoder[k]) for k, v in enumerate(views)]
+        ro = RefineOptions(arm=arm, robot_model=robot_model)
+    r = refine(mode=mode, object_points=s.target.object_points(), views=views, intrinsics=intr,
+               T_x0=est.T_x, T_board0=est.T_board, options=ro, starts=closed)
     rot, trans, xi = x_error(r.T_x, s.T_x_true)
     cf = {m: x_error(e.T_x, s.T_x_true)[:2] for m, e in closed.items() if e.status != "failed"}
     ok = r.status == "ok"
@@ -82,6 +88,7 @@ def one_session(args: tuple) -> dict:
                 robot_rot_deg=float(np.sqrt(np.mean(robot[:, 0] ** 2))),
                 robot_trans_mm=float(np.sqrt(np.mean(robot[:, 1] ** 2))),
                 est_robot_mm=r.robot_sigma_mm, est_robot_deg=r.robot_sigma_deg,
+                kind=r.robot_model.get("kind", "?"), enc_deg=r.robot_model.get("encoder_sigma_deg", np.nan),
                 secs_sim=t_sim, secs=time.perf_counter() - t0)
 
 
@@ -103,7 +110,9 @@ def summarize(mode: str, model: str, rows: list) -> None:
           for m in methods}
     best = min(cf, key=lambda m: cf[m][1])
     cover = np.mean([r["maha2"] <= CHI2_95_6 for r in rows]) * 100
-    print(f"{model:<9} {mode:<11} {len(rows):3d} sessions ({sum(not r['ok'] for r in rows)} failed) | robot error "
+    kinds = sorted({r["kind"] for r in rows})
+    print(f"{model:<9} {mode:<11} {len(rows):3d} sessions ({sum(not r['ok'] for r in rows)} failed), refinement's "
+          f"robot model {'/'.join(kinds)} | robot error "
           f"RMS {rms(r['robot_trans_mm'] for r in rows):.3f} mm {rms(r['robot_rot_deg'] for r in rows):.4f} deg")
     print(f"    refined   RMS {rms(r['rot'] for r in rows):.4f} deg {rms(r['trans'] for r in rows):.3f} mm | best "
           f"closed form ({best}) {cf[best][0]:.4f} deg {cf[best][1]:.3f} mm | ratio refined/best "
@@ -112,7 +121,8 @@ def summarize(mode: str, model: str, rows: list) -> None:
     print(f"    reported  RMS 1-sigma {rms(r['pred_rot'] for r in rows):.4f} deg {rms(r['pred_trans'] for r in rows):.3f}"
           f" mm | truth inside the 95 % ellipsoid in {cover:.0f} % | median squared Mahalanobis "
           f"{np.median([r['maha2'] for r in rows]):.1f} (chi2(6) median 5.3) | estimated robot sigma "
-          f"{np.mean([r['est_robot_mm'] for r in rows]):.3f} mm {np.mean([r['est_robot_deg'] for r in rows]):.4f} deg")
+          f"{np.mean([r['est_robot_mm'] for r in rows]):.3f} mm {np.mean([r['est_robot_deg'] for r in rows]):.4f} deg"
+          + (f" (encoder {np.nanmean([r['enc_deg'] for r in rows]):.4f} deg)" if "kinematic" in kinds else ""))
     print("    closed forms " + ", ".join(f"{m} {cf[m][0]:.3f} deg {cf[m][1]:.2f} mm" for m in methods))
     print(f"    time      simulate {np.median([r['secs_sim'] for r in rows]):.1f} s, total "
           f"{np.median([r['secs'] for r in rows]):.1f} s per session (median)")
@@ -126,11 +136,13 @@ def main(argv=None) -> int:
     ap.add_argument("--models", nargs="+", default=["kinematic"], choices=MODELS)
     ap.add_argument("--arm", default="rm65")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--robot-model", default="auto", choices=("auto", "iid", "kinematic", "joint_space"),
+                    help="the refinement's robot error model for sessions with joint angles (auto: kinematic)")
     args = ap.parse_args(argv)
     print(f"# bench_robot_error: {args.seeds} seeds per mode and model; 20 views, 11x8 board, 1280x720, {NOISE_PX} px;"
           f" kinematic arm {args.arm}; iid {IID_ROBOT_NOISE[0]} mm / {IID_ROBOT_NOISE[1]} deg per axis")
     print(f"# command: python {' '.join(sys.argv)}")
-    tasks = [(mode, model, seed, args.arm) for model in args.models for mode in args.modes
+    tasks = [(mode, model, seed, args.arm, args.robot_model) for model in args.models for mode in args.modes
              for seed in range(args.first_seed, args.first_seed + args.seeds)]
     rows = []
     with ProcessPoolExecutor(max(1, args.jobs)) as pool:

@@ -124,3 +124,30 @@ def gaussian_prior(*, key: int, mean: np.ndarray, cov: np.ndarray) -> gtsam.Nonl
     if mean.shape == (4, 4):
         return gtsam.PriorFactorPose3(key, gtsam.Pose3(mean), noise)
     return gtsam.PriorFactorVector(key, mean, noise)
+
+
+def kinematic_robot_prior(*, key_robot: int, key_dh: Optional[int], T_base_end_reported: np.ndarray,
+                          J_dh: np.ndarray, cov: np.ndarray, robust_k: Optional[float] = None) -> gtsam.NonlinearFactor:
+    """Prior of the kinematic robot error model (:mod:`handeye.refine.robot_model`) tying the true robot
+    pose to the reported one and the arm's DH offsets: error ``Log(inv(reported) · T_base_end) - J_dh · delta``
+    (6,) (rotation then translation, end frame) ~ N(0, ``cov``), with ``delta`` the Vector at ``key_dh``
+    (m,). ``key_dh`` None: no DH offsets (the joint-space model), a PriorFactorPose3 with covariance
+    ``cov``. ``robust_k`` wraps it in a Huber loss on the whitened 6-vector norm."""
+    noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, float))
+    if robust_k is not None:
+        noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
+    if key_dh is None:
+        return gtsam.PriorFactorPose3(key_robot, gtsam.Pose3(np.asarray(T_base_end_reported, float)), noise)
+    reported_inv = gtsam.Pose3(np.asarray(T_base_end_reported, float)).inverse()
+    J = np.asarray(J_dh, float)
+    H_dh = np.asfortranarray(-J)
+
+    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H) -> np.ndarray:
+        D = reported_inv.compose(v.atPose3(key_robot))
+        r = gtsam.Pose3.Logmap(D) - J @ v.atVector(key_dh)
+        if H is not None:
+            H[0] = np.asfortranarray(gtsam.Pose3.LogmapDerivative(D))
+            H[1] = H_dh
+        return r
+
+    return gtsam.CustomFactor(noise, [key_robot, key_dh], error_func)

@@ -65,13 +65,16 @@ def _elementary(kind: str, value: float) -> np.ndarray:
 class DHChain:
     """A serial arm of revolute joints: ``dh`` (n, 4) rows ``(a [m], alpha [rad], d [m], theta_offset [rad])``.
 
-    ``joint_limits_rad`` (n, 2) bounds the encoder angles ``q`` (None: unbounded).
+    ``joint_limits_rad`` (n, 2) bounds the encoder angles ``q`` (None: unbounded). ``error_prior``:
+    how far the real arm may be from this table, ``(length sigma [m], angle sigma [rad], encoder sigma
+    [rad])`` per DH parameter and joint (the preset's ``error_prior``; None: not stated).
     """
 
     name: str
     convention: str
     dh: np.ndarray  # shape (n, 4)
     joint_limits_rad: Optional[np.ndarray] = None  # shape (n, 2)
+    error_prior: Optional[tuple] = None  # (length sigma m, angle sigma rad, encoder sigma rad)
 
     def __post_init__(self):
         if self.convention not in CONVENTIONS:
@@ -126,14 +129,34 @@ class DHChain:
                 out.append((kind, _elementary(kind, row[col])))
         return out
 
+    def _links(self, joints: np.ndarray) -> np.ndarray:
+        """(n,4,4) link transforms T_{i-1,i} in closed form (the product of each row's four factors)."""
+        q = np.asarray(joints, float).reshape(-1)
+        if q.shape != (self.n_joints,):
+            raise ValueError(f"{self.name}: expected {self.n_joints} joint angles, got {q.shape[0]}")
+        a, al, d = self.dh[:, 0], self.dh[:, 1], self.dh[:, 2]
+        th = self.dh[:, 3] + q
+        ct, st, ca, sa = np.cos(th), np.sin(th), np.cos(al), np.sin(al)
+        T = np.zeros((self.n_joints, 4, 4))
+        T[:, 3, 3] = 1.0
+        if self.convention == "standard":  # Rz(theta) Tz(d) Tx(a) Rx(alpha)
+            T[:, 0] = np.stack([ct, -st * ca, st * sa, a * ct], axis=1)
+            T[:, 1] = np.stack([st, ct * ca, -ct * sa, a * st], axis=1)
+            T[:, 2, 1:] = np.stack([sa, ca, d], axis=1)
+        else:  # Rx(alpha) Tx(a) Rz(theta) Tz(d)
+            T[:, 0] = np.stack([ct, -st, np.zeros_like(ct), a], axis=1)
+            T[:, 1] = np.stack([st * ca, ct * ca, -sa, -sa * d], axis=1)
+            T[:, 2] = np.stack([st * sa, ct * sa, ca, ca * d], axis=1)
+        return T
+
     def T_base_end(self, joints: np.ndarray) -> np.ndarray:
         """Flange pose (4,4) for joint angles (n,), or (N,4,4) for (N,n)."""
         q = np.asarray(joints, float)
         if q.ndim == 2:
             return np.stack([self.T_base_end(qi) for qi in q]) if len(q) else np.zeros((0, 4, 4))
         T = np.eye(4)
-        for _, F in self._factors(q):
-            T = T @ F
+        for L in self._links(q):
+            T = T @ L
         return T
 
     def _screw_columns(self, joints: np.ndarray, *, only_kind: Optional[str] = None) -> np.ndarray:
@@ -150,10 +173,20 @@ class DHChain:
         return cols
 
     def jacobian_joints(self, joints: np.ndarray) -> np.ndarray:
-        """(6, n): ``T_base_end(q + dq) ≈ T_base_end(q) · Exp(J dq)`` (right tangent, (omega, v))."""
-        cols = self._screw_columns(joints, only_kind="rz")
-        k_rz = [k for k, (kind, _) in enumerate(_ORDER[self.convention]) if kind == "rz"][0]
-        return cols[:, k_rz::4].copy()
+        """(6, n): ``T_base_end(q + dq) ≈ T_base_end(q) · Exp(J dq)`` (right tangent, (omega, v)).
+
+        Joint i turns about the z axis of the frame before its link (standard) or after it (modified; the
+        Tz(d) that follows moves along that axis): the unit twist ``(z, p x z)`` in the base frame,
+        carried to the end frame by ``Ad(inv(T_base_end))``."""
+        links = self._links(joints)
+        frames = np.empty((self.n_joints + 1, 4, 4))
+        frames[0] = np.eye(4)
+        for i, L in enumerate(links):
+            frames[i + 1] = frames[i] @ L
+        axes = frames[:-1] if self.convention == "standard" else frames[1:]
+        z, p = axes[:, :3, 2], axes[:, :3, 3]
+        twists = np.concatenate([z, np.cross(p, z)], axis=1).T  # shape (6, n), base frame
+        return se3_adjoint(inv_T(frames[-1])) @ twists
 
     def jacobian_dh(self, joints: np.ndarray) -> np.ndarray:
         """(6, 4n): the same for the DH parameters, columns ``(a_1, alpha_1, d_1, theta_offset_1, a_2, ...)``."""
@@ -275,19 +308,37 @@ def chain_from_dict(data: dict, *, source: str = "DH table") -> DHChain:
                               received=repr(link)) from None
     lim = None if any(x is None for x in limits) else np.array(limits)
     return DHChain(name=str(data.get("name", source)), convention=str(data.get("convention", "")),
-                   dh=np.array(rows), joint_limits_rad=lim)
+                   dh=np.array(rows), joint_limits_rad=lim, error_prior=_error_prior(data.get("error_prior"), source))
 
 
-def load_arm(name_or_path: Union[str, Path]) -> DHChain:
-    """A shipped preset (``rm65``, ``ur5e``) or a YAML file of the same form."""
+def _error_prior(d, source: str) -> Optional[tuple]:
+    """``error_prior: {dh_length_sigma_mm, dh_angle_sigma_deg, encoder_sigma_deg}`` in SI, or None."""
+    if d is None:
+        return None
+    keys = ("dh_length_sigma_mm", "dh_angle_sigma_deg", "encoder_sigma_deg")
+    try:
+        vals = [float(d[k]) for k in keys]
+    except (TypeError, KeyError, ValueError):
+        raise ConfigError("invalid error_prior of the DH table", path=source, expected=", ".join(keys) + " (numbers)",
+                          received=repr(d)[:80]) from None
+    if not all(np.isfinite(v) and v > 0 for v in vals):
+        raise ConfigError("error_prior sigmas must be positive", path=source, received=repr(vals))
+    return (vals[0] * 1e-3, float(np.radians(vals[1])), float(np.radians(vals[2])))
+
+
+def load_arm(name_or_path: Union[str, Path, dict], *, folder: Optional[Path] = None) -> DHChain:
+    """A shipped preset (``rm65``, ``ur5e``), a YAML file of the same form (relative paths from ``folder``
+    when given, e.g. a session's ``robot:``), or the table itself as a mapping."""
     import yaml
 
     from .config import load_preset
 
+    if isinstance(name_or_path, dict):
+        return chain_from_dict(name_or_path, source="robot (DH table)")
     key = str(name_or_path)
     if key in PRESETS:
         return chain_from_dict(load_preset(f"robots/{key}"), source=f"configs/robots/{key}.yaml")
-    path = Path(key)
+    path = Path(key) if folder is None or Path(key).is_absolute() else Path(folder) / key
     if not path.is_file():
         raise ConfigError("unknown robot model", expected=f"a preset ({', '.join(PRESETS)}) or a DH YAML file",
                           received=repr(key))

@@ -440,14 +440,26 @@ def refine_stage(s: Session, opts: CalibrateOptions, start: HandEyeEstimate, int
     """The joint refinement from the chosen closed form."""
     from .refine import RefineOptions, RefineView, refine
 
-    views = [RefineView(vid, poses[vid].corner_ids, dets[vid].image_points, T_base_end[vid]) for vid in poses]
+    views = [RefineView(vid, poses[vid].corner_ids, dets[vid].image_points, T_base_end[vid],
+                        _joint_angles(s, vid)) for vid in poses]
     ro = dict(opts.refine_options)
+    if ro.get("arm") is None and s.meta.get("robot") is not None:  # session.yaml robot: a preset, DH file or table
+        from .kinematics import load_arm
+
+        ro["arm"] = load_arm(s.meta["robot"], folder=s.path)
     if opts.fix_k3:
         ro["fix"] = tuple(sorted(set(ro.get("fix", ())) | {"k3"}))
     if s.intrinsics is not None and s.intrinsics_prior in ("fixed", "prior"):
         ro.setdefault("intrinsics", s.intrinsics_prior)
     return refine(mode=s.mode, object_points=s.target.object_points(), views=views, intrinsics=intr,
                   T_x0=start.T_x, T_board0=start.T_board, options=RefineOptions(**ro), starts=closed_forms)
+
+
+def _joint_angles(s: Session, vid: str):
+    try:
+        return s.view(vid).joint_angles
+    except KeyError:
+        return None
 
 
 def validate_stage(s: Session, refined, poses: dict, dets: dict, T_base_end: dict):

@@ -7,14 +7,16 @@ from scipy.special import chdtri
 RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))  # median of |e| / sigma for a 2-D Gaussian
 
 
-def robust_noise_sigma(d: np.ndarray, C: np.ndarray, *, floor: float) -> float:
-    """Sigma s with median_i d_i^T (C_i + s^2 I)^-1 d_i = chi2(dim) median: the extra isotropic noise that
-    makes typical views' disagreements ``d`` (N,k) consistent with their covariances ``C`` (N,k,k)."""
+def robust_noise_sigma(d: np.ndarray, C: np.ndarray, *, floor: float, shape: np.ndarray | None = None) -> float:
+    """Sigma s with median_i d_i^T (C_i + s^2 B_i)^-1 d_i = chi2(dim) median: the extra noise that makes
+    typical views' disagreements ``d`` (N,k) consistent with their covariances ``C`` (N,k,k); ``shape``
+    B (N,k,k) is its covariance at s = 1 (None: isotropic, I)."""
     k = d.shape[1]
     target = float(chdtri(k, 0.5))  # the chi-square(k) median
+    B = np.eye(k) if shape is None else np.asarray(shape, float)
 
     def med(s):
-        Cs = C + s * s * np.eye(k)
+        Cs = C + s * s * B
         return np.median(np.einsum("ni,ni->n", d, np.linalg.solve(Cs, d[..., None])[..., 0]))
 
     if med(floor) <= target:

@@ -39,17 +39,20 @@ def arrow_inverse(H: np.ndarray, c: int, n: int):
     return S_cc, S_pp
 
 
-def arrow_solve(Hcc: np.ndarray, Hcp: np.ndarray, Hpp: np.ndarray, rhs: Optional[np.ndarray] = None):
+def arrow_solve(Hcc: np.ndarray, Hcp: np.ndarray, Hpp: np.ndarray, rhs: Optional[np.ndarray] = None, *,
+                cross: bool = False):
     """Schur-complement inverse of the arrow-shaped information [[Hcc, Hcp^T...], [Hcp_i^T, Hpp_i]].
 
-    Returns (Sigma_core, Sigma_blocks (n,6,6), solution of H x = rhs or None). Raises LinAlgError
+    Returns (Sigma_core, Sigma_blocks (n,6,6), solution of H x = rhs or None), and with ``cross`` also
+    the core-block cross covariances (n,c,6) ``-Sigma_core Hcp_i Hpp_i^-1``. Raises LinAlgError
     when H is not positive definite (some unknown is not constrained)."""
     n = Hpp.shape[0]
     if n == 0:
         L = np.linalg.cholesky(Hcc)
         Li = np.linalg.inv(L)
         S_cc = Li.T @ Li
-        return S_cc, np.zeros((0, 6, 6)), None if rhs is None else S_cc @ rhs
+        out = (S_cc, np.zeros((0, 6, 6)), None if rhs is None else S_cc @ rhs)
+        return out + (np.zeros((0, Hcc.shape[0], 6)),) if cross else out
     np.linalg.cholesky(Hpp)  # raises LinAlgError when a robot pose is unconstrained
     Q = np.linalg.inv(Hpp)
     HQ = Hcp @ Q  # shape (n, c, 6)
@@ -58,13 +61,29 @@ def arrow_solve(Hcc: np.ndarray, Hcp: np.ndarray, Hpp: np.ndarray, rhs: Optional
     Li = np.linalg.inv(L)
     S_cc = Li.T @ Li
     S_pp = Q + np.einsum("nci,cd,ndj->nij", HQ, S_cc, HQ)
-    if rhs is None:
-        return S_cc, S_pp, None
-    c = Hcc.shape[0]
-    b_c, b_p = rhs[:c], rhs[c:].reshape(n, 6)
-    x_c = S_cc @ (b_c - np.einsum("nci,ni->c", HQ, b_p))
-    x_p = np.einsum("nij,nj->ni", Q, b_p - np.einsum("nci,c->ni", Hcp, x_c))
-    return S_cc, S_pp, np.concatenate([x_c, x_p.reshape(-1)])
+    x = None
+    if rhs is not None:
+        c = Hcc.shape[0]
+        b_c, b_p = rhs[:c], rhs[c:].reshape(n, 6)
+        x_c = S_cc @ (b_c - np.einsum("nci,ni->c", HQ, b_p))
+        x_p = np.einsum("nij,nj->ni", Q, b_p - np.einsum("nci,c->ni", Hcp, x_c))
+        x = np.concatenate([x_c, x_p.reshape(-1)])
+    if cross:
+        return S_cc, S_pp, x, -np.einsum("cd,ndi->nci", S_cc, HQ)
+    return S_cc, S_pp, x
+
+
+def robot_residual_covariances(S_cc: np.ndarray, S_pp: np.ndarray, S_cp: np.ndarray, J_dh: np.ndarray,
+                               dh: slice) -> np.ndarray:
+    """(n,6,6) covariance of each robot prior residual ``u_i = p_i - J_dh,i · delta`` (p_i: the robot-pose
+    block, delta: the DH offsets at ``dh`` in the core) from the marginals of :func:`arrow_solve`
+    (``S_cp`` its cross covariances). Without DH offsets (m = 0) it is ``S_pp``."""
+    if J_dh.shape[-1] == 0 or len(S_pp) == 0:
+        return np.array(S_pp, float).reshape(-1, 6, 6)
+    S_dp = S_cp[:, dh, :]  # shape (n, m, 6)
+    S_dd = S_cc[dh, dh]
+    JS = np.einsum("nim,nmj->nij", J_dh, S_dp)
+    return S_pp - JS - np.swapaxes(JS, 1, 2) + np.einsum("nim,mk,njk->nij", J_dh, S_dd, J_dh)
 
 
 @dataclass(frozen=True)

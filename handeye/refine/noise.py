@@ -26,12 +26,12 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
 from ..stats import RAYLEIGH_MEDIAN, robust_noise_sigma
-from .covariance import arrow_solve
+from .covariance import arrow_solve, robot_residual_covariances
 from .options import refine_preset
 
 if TYPE_CHECKING:
@@ -55,14 +55,22 @@ def sigma_px_from_residuals(e: np.ndarray) -> float:
     return max(float(np.median(e)) / RAYLEIGH_MEDIAN, float(_cfg()["sigma_px_floor"]))
 
 
-def robust_robot_sigmas(pb: "Problem", checks: Sequence["ViewCheck"]) -> None:
-    """Robot sigmas from camera-only poses by the robust median estimator (robot_noise="estimate")."""
-    checks = [c for c in checks if c.ok]
-    if pb.o.robot_noise != "estimate" or len(checks) < 3:
+def robust_robot_sigmas(pb: "Problem", checks: Mapping[int, "ViewCheck"]) -> None:
+    """Robot sigmas from camera-only poses (``checks``: view index -> its check) by the robust median
+    estimator (robot_noise="estimate"). Kinematic models: the encoder sigma, with each view's
+    disagreement less the current DH offsets' share and their covariance added to the camera's."""
+    idx = [i for i, c in checks.items() if c.ok]
+    if pb.o.robot_noise != "estimate" or len(idx) < 3:
         return
-    d = np.stack([c.delta for c in checks])
-    C = np.stack([c.cov_cam for c in checks])
+    d = np.stack([checks[i].delta for i in idx])
+    C = np.stack([checks[i].cov_cam for i in idx])
     cfg = _cfg()
+    if pb.kin is not None:
+        J = pb.J_dh(idx)
+        d = d - np.einsum("nij,j->ni", J, pb.dh)
+        C = C + np.einsum("nim,mk,njk->nij", J, pb.S_dd, J)
+        pb.sigma_q = robust_noise_sigma(d, C, floor=float(cfg["robot_sigma_rot_floor_rad"]), shape=pb.kin.B[idx])
+        return
     pb.sigma_rot = robust_noise_sigma(d[:, :3], C[:, :3, :3], floor=float(cfg["robot_sigma_rot_floor_rad"]))
     pb.sigma_trans = robust_noise_sigma(d[:, 3:], C[:, 3:, 3:], floor=float(cfg["robot_sigma_trans_floor_m"]))
 
@@ -70,7 +78,8 @@ def robust_robot_sigmas(pb: "Problem", checks: Sequence["ViewCheck"]) -> None:
 @dataclass(frozen=True)
 class VarianceComponents:
     """Outcome of :func:`vce_on_linearisation`: the relative change of the sigmas over the call, and,
-    at the final sigmas, the linear least-squares step and the marginal covariances (core, robot blocks)."""
+    at the final sigmas, the linear least-squares step and the marginal covariances (core, and per
+    robot block the covariance of its prior residual, :func:`.covariance.robot_residual_covariances`)."""
 
     change: float
     dx: np.ndarray  # (c + 6n,) in the order of the linearisation
@@ -81,34 +90,46 @@ class VarianceComponents:
 def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceComponents:
     """Iterate variance-component estimation on one fixed linearisation (pure numpy, cheap).
 
-    For sigmas s the linear least-squares step dx, the group residual sums e_g^T e_g and the
-    redundancies r_g = n_g - tr(W_g J_g Sigma J_g^T) follow from the unit-sigma pixel information,
-    the robot priors (Jacobian I on their pose block) and the priors on the core (:meth:`.problem.Problem.core_prior`); then
-    s_g^2 = e_g^T e_g / r_g. Updates pb's sigmas in place."""
+    For sigmas s the linear least-squares step dx, the group residual sums e_g^T W_g e_g and the
+    redundancies r_g = n_g - tr(W_g S_u) follow from the unit-sigma pixel information, the robot
+    priors (residual ``u_i = p_i - J_dh,i · delta``: Jacobian I on the pose block and -J_dh,i on the
+    DH offsets, information ``sum_g W_g,i / s_g^2``, :meth:`.problem.Problem.robot_group_weights`)
+    and the priors on the core (:meth:`.problem.Problem.core_prior`); then s_g^2 = e_g^T W_g e_g / r_g.
+    The groups are the iid model's rotation and translation or the kinematic models' encoder noise.
+    Updates pb's sigmas in place."""
     cfg = _cfg()
-    floors = (float(cfg["sigma_px_floor"]), float(cfg["robot_sigma_rot_floor_rad"]),
-              float(cfg["robot_sigma_trans_floor_m"]))
+    groups = pb.robot_groups
+    floors = np.array([float(cfg["sigma_px_floor"])] + [
+        float(cfg["robot_sigma_trans_floor_m"] if g == "trans" else cfg["robot_sigma_rot_floor_rad"]) for g in groups])
     share, tol = float(cfg["unresolved_redundancy_share"]), float(cfg["inner_tol"])
     c, n = lin.c, lin.Hpp.shape[0]
     D = c + 6 * n
     estimate_robot = pb.o.robot_noise == "estimate"
     pri = lin.prior
     n_pri = int(pri.sum())
-    HK, gK = pb.core_prior()  # priors on the core unknowns (intrinsics, options.prior)
-    s = np.array([pb.sigma_px, pb.sigma_rot, pb.sigma_trans])
+    W0 = [w * pri[:, None, None] for w in pb.robot_group_weights(lin.robot_views)]  # per group (n,6,6)
+    counts = pb.robot_group_counts()
+    J = lin.J_dh  # shape (n, 6, m)
+    dh = pb.dh_slice
+    HK, gK = pb.core_prior()  # priors on the core unknowns (intrinsics, DH offsets, options.prior)
+    s = np.r_[pb.sigma_px, pb.robot_sigmas]
     start = s.copy()
-    eye6 = np.eye(6)
     history = [np.log(s)]  # log-sigma iterates since the last extrapolation
     for _ in range(int(cfg["max_inner"])):
-        s_px, s_rot, s_trans = s
-        w_px = 1.0 / s_px ** 2
-        w_rob = np.array([1.0 / s_rot ** 2] * 3 + [1.0 / s_trans ** 2] * 3)
-        Wp = pri[:, None] * w_rob[None, :]  # shape (n, 6): prior weights per robot block
-        Hpp = lin.Hpp * w_px + Wp[:, :, None] * eye6
+        w_px = 1.0 / s[0] ** 2
+        W = sum(w / sg ** 2 for w, sg in zip(W0, s[1:]))  # shape (n, 6, 6): robot prior information
+        Wr = np.einsum("nij,nj->ni", W, lin.xi)
+        Hcc = lin.Hcc * w_px + HK
+        Hcp = lin.Hcp * w_px
         grad = lin.g * w_px
         grad[:c] += gK
-        grad[c:] += (Wp * lin.xi).reshape(-1)
-        S_cc, S_pp, dx = arrow_solve(lin.Hcc * w_px + HK, lin.Hcp * w_px, Hpp, -grad)
+        grad[c:] += Wr.reshape(-1)
+        if J.shape[-1]:
+            JW = np.einsum("nim,nij->nmj", J, W)  # shape (n, m, 6)
+            Hcc[dh, dh] += np.einsum("nmj,njk->mk", JW, J)
+            Hcp[:, dh, :] -= JW
+            grad[dh] -= np.einsum("nmj,nj->m", JW, lin.xi)
+        S_cc, S_pp, dx, S_cp = arrow_solve(Hcc, Hcp, lin.Hpp * w_px + W, -grad, cross=True)
         dc, dp = dx[:c], dx[c:].reshape(n, 6)
         Hdx_c = lin.Hcc @ dc + np.einsum("nci,ni->c", lin.Hcp, dp)
         Hdx_p = np.einsum("nci,c->ni", lin.Hcp, dc) + np.einsum("nij,nj->ni", lin.Hpp, dp)
@@ -116,21 +137,19 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
         absorbed = float(np.sum(HK * S_cc))  # tr(H_prior Sigma_core)
         new = s.copy()
         if n_pri:
-            e_rob = (lin.xi + dp)[pri]
-            d_pp = np.diagonal(S_pp[pri], axis1=1, axis2=2)  # shape (n_pri, 6)
-            tr_rot = float(np.sum(d_pp[:, :3])) / s_rot ** 2
-            tr_trans = float(np.sum(d_pp[:, 3:])) / s_trans ** 2
-            absorbed += tr_rot + tr_trans
-            if estimate_robot:
-                for g, (part, tr) in enumerate(((slice(0, 3), tr_rot), (slice(3, 6), tr_trans))):
-                    name = ("rot", "trans")[g]
-                    r_g = 3 * n_pri - tr
-                    if not pb.resolved[name]:
-                        continue
-                    if r_g < share * 3 * n_pri:
-                        pb.resolved[name] = False  # the camera cannot resolve this robot noise: freeze
-                        continue
-                    new[1 + g] = max(float(np.sqrt(np.sum(e_rob[:, part] ** 2) / r_g)), floors[1 + g])
+            e_rob = lin.xi + dp - np.einsum("nim,m->ni", J, dc[dh])  # prior residuals after the step
+            S_u = robot_residual_covariances(S_cc, S_pp, S_cp, J, dh)
+            for g, name in enumerate(groups):
+                tr = float(np.einsum("nij,nji->", W0[g], S_u)) / s[1 + g] ** 2
+                absorbed += tr
+                if not estimate_robot or not pb.resolved[name]:
+                    continue
+                r_g = counts[g] * n_pri - tr
+                if r_g < share * counts[g] * n_pri:
+                    pb.resolved[name] = False  # the camera cannot resolve this robot noise: freeze
+                    continue
+                e2 = float(np.einsum("ni,nij,nj->", e_rob, W0[g], e_rob))
+                new[1 + g] = max(float(np.sqrt(max(e2, 0.0) / r_g)), floors[1 + g])
         r_px = lin.n_obs - D + absorbed
         if r_px > 0.5:
             new[0] = max(float(np.sqrt(max(e_px2, 0.0) / r_px)), floors[0])
@@ -142,8 +161,12 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
         if len(history) == 3:
             s = np.maximum(_aitken(*history), floors)
             history = [np.log(s)]
-    pb.sigma_px, pb.sigma_rot, pb.sigma_trans = (float(x) for x in s)
-    return VarianceComponents(float(np.max(np.abs(s / start - 1.0))), dx, S_cc, S_pp)
+    pb.sigma_px = float(s[0])
+    pb.robot_sigmas = s[1:]
+    S_u = robot_residual_covariances(S_cc, S_pp, S_cp, J, dh)
+    if pb.m_dh:
+        pb.S_dd = S_cc[dh, dh].copy()
+    return VarianceComponents(float(np.max(np.abs(s / start - 1.0))), dx, S_cc, S_u)
 
 
 def _aitken(x0: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
@@ -172,7 +195,7 @@ def solve_with_vce(pb: "Problem"):
     step at the final sigmas (computed by the estimation anyway) finishes it, and the estimation's
     covariances are those of the final linearisation, so no further solve is needed."""
     cfg = _cfg()
-    pb.resolved = {"rot": True, "trans": True}  # a new set of views may resolve what the last did not
+    pb.resolved = {g: True for g in pb.robot_groups}  # a new set of views may resolve what the last did not
     for _ in range(int(cfg["max_outer"])):
         pb.solve(robust=False)
         lin = pb.pixel_linearisation()

@@ -16,6 +16,7 @@ from ..errors import ConfigError, InputError
 
 INTRINSICS_MODES = ("estimate", "fixed", "prior")
 ROBOT_NOISE_MODES = ("estimate", "fixed", "none")
+ROBOT_MODELS = ("auto", "iid", "kinematic", "joint_space")  # handeye.refine.robot_model
 
 
 @functools.lru_cache(maxsize=None)
@@ -41,6 +42,7 @@ class RefineView:
     corner_ids: np.ndarray  # (N,) int, index object_points
     image_points: np.ndarray  # (N, 2) pixels
     T_base_end: np.ndarray  # (4, 4) reported robot pose, metres
+    joint_angles: Optional[np.ndarray] = None  # (n_joints,) the arm's joint readings (radians), when recorded
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,6 +73,13 @@ class RefineOptions:
     robot_noise: str = "estimate"  # estimate | fixed | none
     robot_sigma_mm: float = _from_preset("robot_prior", "sigma_mm")  # start value (estimate) or the value (fixed)
     robot_sigma_deg: float = _from_preset("robot_prior", "sigma_deg")
+    # robot error model (handeye.refine.robot_model): auto | iid | kinematic | joint_space; auto is kinematic
+    # when ``arm`` is named (joint angles from the views, else by inverse kinematics), else iid
+    robot_model: str = "auto"
+    arm: Optional[object] = None  # the arm's kinematic model: a preset name (rm65, ur5e), a DH YAML path or a DHChain
+    dh_sigma_mm: Optional[float] = None  # prior sigma of each DH length offset (None: the arm's error_prior)
+    dh_sigma_deg: Optional[float] = None  # ... of each DH angle offset
+    encoder_sigma_deg: Optional[float] = None  # encoder noise per joint: start (estimate) or value (fixed)
     loss: str = _from_preset("robust", "loss")  # robust loss of the guard solves: huber | cauchy | none
     outlier_loop: bool = True
     working_distance_m: Optional[float] = None  # default: median board distance
@@ -95,6 +104,12 @@ def check_options(o: RefineOptions) -> None:
         bad("intrinsics", " | ".join(INTRINSICS_MODES), o.intrinsics)
     if o.robot_noise not in ROBOT_NOISE_MODES:
         bad("robot_noise", " | ".join(ROBOT_NOISE_MODES), o.robot_noise)
+    if o.robot_model not in ROBOT_MODELS:
+        bad("robot_model", " | ".join(ROBOT_MODELS), o.robot_model)
+    for name in ("dh_sigma_mm", "dh_sigma_deg", "encoder_sigma_deg"):
+        v = getattr(o, name)
+        if v is not None and not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+            bad(name, "a positive number or null", v)
     if o.loss not in LOSSES:
         bad("loss", " | ".join(LOSSES), o.loss)
     unknown = [n for n in o.fix if n not in INTRINSIC_NAMES]

@@ -72,8 +72,9 @@ class RobotPoseTest:
         return np.sqrt(self.statistic)
 
 
-def robot_pose_test(disagreement: np.ndarray, covariance: np.ndarray, *, robot_sigma_rot_rad: float,
-                    robot_sigma_trans_m: float, gates: RobotPoseGates | None = None) -> RobotPoseTest:
+def robot_pose_test(disagreement: np.ndarray, covariance: np.ndarray, *, robot_sigma_rot_rad: float = 0.0,
+                    robot_sigma_trans_m: float = 0.0, gates: RobotPoseGates | None = None,
+                    robot_covariance: Optional[np.ndarray] = None) -> RobotPoseTest:
     """Test each view's reported robot pose against the pose the rest of the data predict.
 
     Inputs, for n views:
@@ -87,7 +88,8 @@ def robot_pose_test(disagreement: np.ndarray, covariance: np.ndarray, *, robot_s
     * ``covariance`` (n, 6, 6): the covariance of that prediction in the same tangent (camera
       noise propagated through the chain; zero when unknown);
     * ``robot_sigma_rot_rad`` / ``robot_sigma_trans_m``: the robot's own noise per axis (isotropic,
-      the same tangent), estimated or configured.
+      the same tangent), estimated or configured; or ``robot_covariance`` (n, 6, 6), each view's own
+      (the kinematic robot error models, :mod:`.robot_model`), which replaces them.
 
     The check: under "the reported pose is right up to robot noise", ``d_i ~ N(0, C_i + R)`` with
     ``R = diag(s_rot^2 I3, s_trans^2 I3)``, so ``statistic_i = d_i^T (C_i + R)^-1 d_i`` is
@@ -102,6 +104,8 @@ def robot_pose_test(disagreement: np.ndarray, covariance: np.ndarray, *, robot_s
     if C.shape[0] != d.shape[0]:
         raise ValueError(f"disagreement has {d.shape[0]} rows but covariance {C.shape[0]}")
     R = np.diag([robot_sigma_rot_rad ** 2] * 3 + [robot_sigma_trans_m ** 2] * 3)
+    if robot_covariance is not None:
+        R = np.asarray(robot_covariance, float).reshape(-1, 6, 6)
     ok = np.all(np.isfinite(d), axis=1) & np.all(np.isfinite(C), axis=(1, 2))
     stat = np.full(d.shape[0], np.nan)
     Ct = C + R
@@ -271,10 +275,13 @@ class Decision:
         return self.status, tuple(m.tobytes() for m in self.masks)
 
 
-def _robot_test_sigmas(pb: "Problem") -> tuple[float, float]:
-    if pb.o.robot_noise == "estimate" or pb.robot_var:
-        return pb.sigma_rot, pb.sigma_trans
-    return np.radians(pb.o.robot_sigma_deg), pb.o.robot_sigma_mm / 1000.0  # "none": configured tolerance
+def _robot_test_cov(pb: "Problem") -> np.ndarray:
+    """(n,6,6) each view's robot noise covariance for the test: the model's, or for robot_noise "none"
+    the configured iid tolerance."""
+    if pb.robot_var:
+        return pb.robot_cov(range(pb.n))
+    R = np.diag([np.radians(pb.o.robot_sigma_deg) ** 2] * 3 + [(pb.o.robot_sigma_mm / 1000.0) ** 2] * 3)
+    return np.broadcast_to(R, (pb.n, 6, 6)).copy()
 
 
 def leave_one_out(e: np.ndarray, R: np.ndarray, S_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -304,25 +311,33 @@ def prior_share(R: np.ndarray, S_p: np.ndarray) -> float:
 def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]) -> RobotPoseTest:
     """:func:`robot_pose_test` of every view's reported robot pose against what the other data imply.
 
-    With the covariances of a Gaussian solve (``S_pp``, marginal covariance of each robot-pose
-    variable): for a view whose prior is in the solve, the leave-one-out prediction from the prior
+    Each view's robot noise covariance R_i is its model's (:meth:`.problem.Problem.robot_cov`). With
+    the covariances of a Gaussian solve (``S_pp``: the covariance of each robot-pose variable's prior
+    residual, which for the kinematic model includes the DH offsets' share): for a view whose prior is in the solve, the leave-one-out prediction from the prior
     residual (:func:`leave_one_out`, Baarda's data snooping); for a view whose prior was excluded,
     its free pose ``P`` with covariance ``S_P``. Otherwise (robust phase, views not in the solve, or a
     view whose prior carries almost all the information about its pose, :func:`prior_share` below
     ``outliers.robot_pose.loo_min_camera_share``) the camera-only pose with its own covariance, which
     ignores the uncertainty of ``T_x``, ``T_board`` and the intrinsics (a share of about 1 / n views).
     Each view's camera-side covariance is scaled by its own corner variance
-    (:func:`view_variance_factor`)."""
-    s_rot, s_trans = _robot_test_sigmas(pb)
-    R = np.diag([s_rot ** 2] * 3 + [s_trans ** 2] * 3)
+    (:func:`view_variance_factor`). Under the kinematic model the camera-only comparison is made with
+    the current DH offsets taken off the disagreement and their covariance added to the camera's."""
+    R_all = _robot_test_cov(pb)
     loo_min = float(refine_preset()["outliers"]["robot_pose"]["loo_min_camera_share"])
     d = np.full((pb.n, 6), np.nan)
     C = np.full((pb.n, 6, 6), np.nan)
-    e_all = tangent_difference(pb.reported, pb.P)  # shape (n, 6): prior residuals
+    e_all = pb.prior_residuals(range(pb.n))  # shape (n, 6): prior residuals
+    J_all = pb.J_dh(range(pb.n))  # shape (n, 6, m)
+    dh_cov = np.einsum("nim,mk,njk->nij", J_all, pb.S_dd, J_all)  # the DH offsets' share of each pose
+
+    def camera_side(i, ch):
+        return ch.delta - J_all[i] @ pb.dh, ch.cov_cam * ch.variance_factor + dh_cov[i]
+
     own = []  # views compared with their own fit
     for i, ch in enumerate(checks):
         Sp = None if S_pp is None else S_pp.get(i)
         f = ch.variance_factor  # the view's own corner variance (camera side only; see view_variance_factor)
+        R = R_all[i]
         if Sp is not None and pb.status[i] in ("used", "robot_excluded") and pb.has_robot_var(i):
             e = e_all[i]
             try:
@@ -338,12 +353,11 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
                 own.append(i)
                 continue
         if ch.ok:
-            d[i], C[i] = ch.delta, ch.cov_cam * ch.variance_factor
+            d[i], C[i] = camera_side(i, ch)
     for i, ch in camera_only_poses(pb, own).items() if own else ():  # all fall-backs in one batch
         if ch.ok:
-            d[i], C[i] = ch.delta, ch.cov_cam * ch.variance_factor
-    return robot_pose_test(d, C, robot_sigma_rot_rad=s_rot, robot_sigma_trans_m=s_trans,
-                           gates=RobotPoseGates.from_options(pb.o))
+            d[i], C[i] = camera_side(i, ch)
+    return robot_pose_test(d, C, robot_covariance=R_all, gates=RobotPoseGates.from_options(pb.o))
 
 
 def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = None) -> Decision:
@@ -378,7 +392,7 @@ def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = No
     by_view.update({i: ch for i, ch in own.items() if i not in by_view})
     checks = [by_view.get(i) or _failed_check(pb.P[i], len(pb.obj[i])) for i in range(pb.n)]
     if robust_robot_sigma:
-        robust_robot_sigmas(pb, [checks[i] for i in pb.prior_views()])
+        robust_robot_sigmas(pb, {i: checks[i] for i in pb.prior_views()})
     test = robot_tests(pb, checks, S_pp)
     status, masks, outliers = [], [], []
     for i, vid in enumerate(pb.ids):
@@ -470,8 +484,11 @@ def outlier_loop(pb: "Problem"):
         if rnd == 0 and o.robot_noise == "estimate":
             # VCE approaches a small robot sigma from above; a robust estimate at the floor
             # would freeze it there before the data have spoken
-            pb.sigma_rot = max(pb.sigma_rot, np.radians(o.robot_sigma_deg))
-            pb.sigma_trans = max(pb.sigma_trans, o.robot_sigma_mm / 1000.0)
+            if pb.kin is not None:
+                pb.sigma_q = max(pb.sigma_q, pb.kin.encoder_sigma_rad)
+            else:
+                pb.sigma_rot = max(pb.sigma_rot, np.radians(o.robot_sigma_deg))
+                pb.sigma_trans = max(pb.sigma_trans, o.robot_sigma_mm / 1000.0)
         S_cc, S_pp = solve_with_vce(pb)
     log.warning("outlier decisions did not settle in %d rounds", o.max_outlier_rounds)
     return decide(pb, robust_robot_sigma=False, S_pp=S_pp), S_cc, S_pp

@@ -21,19 +21,21 @@ from typing import Optional, Sequence
 import gtsam
 import numpy as np
 
-from handeye.factors.gtsam_factors import (gaussian_prior, intrinsics_prior, robot_pose_prior,
-                                           view_reprojection_factor)
+from handeye.factors.gtsam_factors import (gaussian_prior, intrinsics_prior, kinematic_robot_prior,
+                                           robot_pose_prior, view_reprojection_factor)
 from handeye.factors.reprojection import stacked_chain_residual
 
 from ..camera import INTRINSIC_NAMES, Intrinsics
 from ..frames import se3_exp, tangent_difference, tangent_jacobian
 from ..mounting import mounting
-from .covariance import N_POSES, arrow_blocks, arrow_inverse
+from .covariance import N_POSES, arrow_blocks, arrow_solve, robot_residual_covariances
 from .options import RefineOptions, RefineView, check_T, refine_preset
+from .robot_model import build_kinematic_model, resolve_kind
 
 KEY_X = gtsam.symbol("x", 0)
 KEY_BOARD = gtsam.symbol("b", 0)
 KEY_INTRINSICS = gtsam.symbol("k", 0)
+KEY_DH = gtsam.symbol("d", 0)
 
 
 def key_robot(i: int) -> int:
@@ -44,7 +46,8 @@ def key_robot(i: int) -> int:
 class PixelLinearisation:
     """Reprojection part of a linearisation with unit pixel sigma: information blocks (core c, then n
     robot blocks), gradient g = J^T r, r^T r and the count of observations; plus the robot prior
-    residuals xi (n,6) (rows without a prior flagged False in ``prior``)."""
+    residuals xi (n,6) (:meth:`Problem.prior_residuals`; rows without a prior flagged False in
+    ``prior``) and their Jacobians in the DH offsets ``J_dh`` (n,6,m), the core's last m unknowns."""
 
     Hcc: np.ndarray
     Hcp: np.ndarray  # shape (n, c, 6)
@@ -56,6 +59,7 @@ class PixelLinearisation:
     xi: np.ndarray
     c: int
     robot_views: tuple  # view index of each robot block, in order
+    J_dh: np.ndarray  # shape (n, 6, m)
 
 
 class Problem:
@@ -63,7 +67,10 @@ class Problem:
 
     Per view: ``status`` (used | robot_excluded | removed), a corner ``mask``, the reported robot
     pose and the current estimate ``P`` of the true one. The noise levels (``sigma_px``,
-    ``sigma_rot`` [rad], ``sigma_trans`` [m]) are the noise models of the next solve."""
+    ``sigma_rot`` [rad], ``sigma_trans`` [m] of the iid robot model, ``sigma_q`` [rad] of the
+    kinematic one) are the noise models of the next solve. The robot error model
+    (:mod:`.robot_model`) is ``kind``; the kinematic one adds the DH offsets ``dh`` (m,) to the core,
+    after the free intrinsics, with ``S_dd`` their latest marginal covariance (at first their prior)."""
 
     def __init__(self, *, mode: str, object_points: np.ndarray, views: Sequence[RefineView], reported: np.ndarray,
                  intrinsics: Intrinsics, T_x0: np.ndarray, T_board0: np.ndarray, options: RefineOptions):
@@ -113,6 +120,13 @@ class Problem:
                 self.prior_k = (p.intrinsics.as_vector()[self.free].astype(float),
                                 np.asarray(p.cov_intrinsics, float)[np.ix_(self.free, self.free)])
         self.robot_var = options.robot_noise != "none"
+        self.kind = resolve_kind(options, self.views)
+        self.kin = (build_kinematic_model(options, self.kind, self.views, self.reported)
+                    if self.kind in ("kinematic", "joint_space") else None)
+        self.m_dh = self.kin.m if self.kin is not None else 0
+        self.dh = np.zeros(self.m_dh)
+        self.S_dd = np.diag(self.kin.dh_sigma ** 2) if self.m_dh else np.zeros((0, 0))
+        self.sigma_q = self.kin.encoder_sigma_rad if self.kin is not None else 0.0
         self.robot_prior_k = float(refine_preset()["robust"]["robot_prior_k"])
         self.T_x = T_x0.copy()
         self.T_board = T_board0.copy()
@@ -120,7 +134,7 @@ class Problem:
         self.sigma_px = 1.0
         self.sigma_rot = np.radians(options.robot_sigma_deg)
         self.sigma_trans = options.robot_sigma_mm / 1000.0
-        self.resolved = {"rot": True, "trans": True}
+        self.resolved = {g: True for g in self.robot_groups}
         self.status = ["used"] * self.n
         self.mask = [np.ones(len(o), bool) for o in self.obj]
         self.iterations = 0
@@ -147,7 +161,61 @@ class Problem:
 
     @property
     def n_core(self) -> int:
-        return N_POSES + self.free.size
+        return N_POSES + self.free.size + self.m_dh
+
+    @property
+    def dh_slice(self) -> slice:
+        """The DH offsets' place in the core."""
+        return slice(N_POSES + self.free.size, self.n_core)
+
+    # -- robot error model (handeye.refine.robot_model)
+    @property
+    def robot_groups(self) -> tuple:
+        """Names of the robot noise's variance components: the iid model's rotation and translation, or
+        the encoder noise of the kinematic ones."""
+        return ("joint",) if self.kin is not None else ("rot", "trans")
+
+    @property
+    def robot_sigmas(self) -> np.ndarray:
+        return np.array([self.sigma_q] if self.kin is not None else [self.sigma_rot, self.sigma_trans], float)
+
+    @robot_sigmas.setter
+    def robot_sigmas(self, s) -> None:
+        if self.kin is not None:
+            self.sigma_q = float(s[0])
+        else:
+            self.sigma_rot, self.sigma_trans = float(s[0]), float(s[1])
+
+    def robot_group_weights(self, idx: Sequence[int]) -> list:
+        """Per group, the weights (len(idx),6,6) of a view's prior residual at unit group sigma: the prior's
+        information is sum_g W_g / s_g^2."""
+        idx = list(idx)
+        if self.kin is not None:
+            return [np.linalg.inv(self.kin.B[idx])]
+        rot, trans = np.diag([1.0] * 3 + [0.0] * 3), np.diag([0.0] * 3 + [1.0] * 3)
+        return [np.broadcast_to(rot, (len(idx), 6, 6)), np.broadcast_to(trans, (len(idx), 6, 6))]
+
+    def robot_group_counts(self) -> tuple:
+        """Equations per view of each group (the redundancy of the variance-component estimation)."""
+        return (6,) if self.kin is not None else (3, 3)
+
+    def robot_cov(self, idx: Sequence[int]) -> np.ndarray:
+        """(len(idx),6,6): the covariance of each view's robot prior residual at the current sigmas."""
+        idx = list(idx)
+        if self.kin is not None:
+            return self.sigma_q ** 2 * self.kin.B[idx]
+        return np.broadcast_to(np.diag([self.sigma_rot ** 2] * 3 + [self.sigma_trans ** 2] * 3),
+                               (len(idx), 6, 6)).copy()
+
+    def J_dh(self, idx: Sequence[int]) -> np.ndarray:
+        """(len(idx),6,m): d(true robot pose, right tangent of the reported one) / d(DH offsets)."""
+        if not self.m_dh:
+            return np.zeros((len(list(idx)), 6, 0))
+        return self.kin.J_dh[list(idx)]
+
+    def prior_residuals(self, idx: Sequence[int]) -> np.ndarray:
+        """(len(idx),6): each view's robot prior residual ``Log(inv(reported) · P) - J_dh · dh``."""
+        return self.robot_residuals(idx) - np.einsum("nij,j->ni", self.J_dh(idx), self.dh)
 
     # -- residuals (numpy, every view at once)
     def corner_residuals(self, *, T_robots: Optional[np.ndarray] = None, T_x: Optional[np.ndarray] = None,
@@ -188,6 +256,9 @@ class Problem:
         key_k = KEY_INTRINSICS if self.free.size else None
         if key_k is not None:
             v.insert(key_k, self.k[self.free].copy())
+        key_dh = KEY_DH if self.m_dh and not pixel_only else None
+        if key_dh is not None:
+            v.insert(key_dh, self.dh.copy())
         robot_keys = {}
         for i in self.active():
             key_r = None
@@ -203,9 +274,16 @@ class Problem:
                 intrinsics_vec=self.k, free_intrinsics=self.free, T_base_end=self.reported[i],
                 loss=self.o.loss if robust else "none", loss_k=self.o.loss_k))
             if key_r is not None and self.status[i] == "used" and not pixel_only:
-                g.add(robot_pose_prior(key_robot=key_r, T_base_end_reported=self.reported[i],
-                                       sigma_rot_rad=self.sigma_rot, sigma_trans_m=self.sigma_trans,
-                                       robust_k=self.robot_prior_k if robust and self.o.loss != "none" else None))
+                robust_k = self.robot_prior_k if robust and self.o.loss != "none" else None
+                if self.kin is None:
+                    g.add(robot_pose_prior(key_robot=key_r, T_base_end_reported=self.reported[i],
+                                           sigma_rot_rad=self.sigma_rot, sigma_trans_m=self.sigma_trans,
+                                           robust_k=robust_k))
+                else:
+                    g.add(kinematic_robot_prior(key_robot=key_r, key_dh=key_dh, T_base_end_reported=self.reported[i],
+                                                J_dh=self.kin.J_dh[i], cov=self.robot_cov([i])[0], robust_k=robust_k))
+        if key_dh is not None:
+            g.add(intrinsics_prior(key_intrinsics=key_dh, prior_values=np.zeros(self.m_dh), sigmas=self.kin.dh_sigma))
         if self.prior_sig is not None and not pixel_only:
             g.add(intrinsics_prior(key_intrinsics=KEY_INTRINSICS, prior_values=self.k_given[self.free],
                                    sigmas=self.prior_sig))
@@ -232,6 +310,8 @@ class Problem:
         if self.free.size:
             self.k = self.k.copy()
             self.k[self.free] = res.atVector(KEY_INTRINSICS)
+        if self.m_dh:
+            self.dh = np.asarray(res.atVector(KEY_DH), float).copy()
         for i, key in robot_keys.items():
             self.P[i] = res.atPose3(key).matrix()
         return g, res, robot_keys
@@ -251,6 +331,10 @@ class Problem:
             W = np.linalg.inv(self.prior_k[1])
             H[ks, ks] += W
             g[ks] += W @ (self.k[self.free] - self.prior_k[0])
+        if self.m_dh:
+            W = np.diag(1.0 / self.kin.dh_sigma ** 2)
+            H[self.dh_slice, self.dh_slice] += W
+            g[self.dh_slice] += W @ self.dh
         if self.prior_x is not None:
             T_p, cov = self.prior_x
             r = tangent_difference(T_p, self.T_x)
@@ -261,43 +345,58 @@ class Problem:
         return H, g
 
     # -- information
-    def _ordering(self, robot_keys):
+    def _ordering(self, robot_keys, *, with_dh: bool = True):
         ordering = gtsam.Ordering()
         keys = [KEY_X, KEY_BOARD] + ([KEY_INTRINSICS] if self.free.size else [])
+        keys += [KEY_DH] if self.m_dh and with_dh else []
         for k in keys + [robot_keys[i] for i in sorted(robot_keys)]:
             ordering.push_back(k)
         return ordering
 
     def covariances(self, g, values, robot_keys):
-        """Marginal covariances (core block, {view index: 6x6 robot block}) from the information matrix
-        of graph ``g`` at ``values`` (arrow order: T_x, T_board, intrinsics, robot poses)."""
+        """Marginal covariances (core block, {view index: 6x6 covariance of its robot prior residual})
+        from the information matrix of graph ``g`` at ``values`` (arrow order: T_x, T_board, intrinsics,
+        DH offsets, robot poses); see :func:`.covariance.robot_residual_covariances`."""
         H, _ = g.linearize(values).hessian(self._ordering(robot_keys))
         idx_p = sorted(robot_keys)
-        S_cc, S_pp = arrow_inverse(H, self.n_core, len(idx_p))
-        return S_cc, dict(zip(idx_p, S_pp))
+        Hcc, Hcp, Hpp = arrow_blocks(H, self.n_core, len(idx_p))
+        S_cc, S_pp, _, S_cp = arrow_solve(Hcc, Hcp, Hpp, cross=True)
+        S_u = robot_residual_covariances(S_cc, S_pp, S_cp, self.J_dh(idx_p), self.dh_slice)
+        if self.m_dh:
+            self.S_dd = S_cc[self.dh_slice, self.dh_slice].copy()
+        return S_cc, dict(zip(idx_p, S_u))
 
     def pixel_linearisation(self) -> PixelLinearisation:
         """Unit-sigma information of the reprojection factors alone at the current estimate."""
         g, v, robot_keys = self.build(robust=False, pixel_only=True)
-        H, eta = g.linearize(v).hessian(self._ordering(robot_keys))
+        H, eta = g.linearize(v).hessian(self._ordering(robot_keys, with_dh=False))
         idx_p = sorted(robot_keys)
         c = self.n_core
+        c_pix = c - self.m_dh  # the reprojections do not involve the DH offsets: zero rows for them
         e = self.used_corner_residuals()
         prior = np.array([self.robot_var and self.status[i] == "used" for i in idx_p], bool)
-        Hcc, Hcp, Hpp = arrow_blocks(H, c, len(idx_p))
-        return PixelLinearisation(Hcc=Hcc, Hcp=Hcp, Hpp=Hpp, g=-np.asarray(eta).reshape(-1),
-                                  rr=float(np.sum(e * e)), n_obs=int(e.size), prior=prior,
-                                  xi=self.robot_residuals(idx_p), c=c, robot_views=tuple(idx_p))
+        Hcc0, Hcp0, Hpp = arrow_blocks(H, c_pix, len(idx_p))
+        Hcc = np.zeros((c, c))
+        Hcc[:c_pix, :c_pix] = Hcc0
+        Hcp = np.zeros((len(idx_p), c, 6))
+        Hcp[:, :c_pix] = Hcp0
+        g0 = -np.asarray(eta).reshape(-1)
+        grad = np.concatenate([g0[:c_pix], np.zeros(self.m_dh), g0[c_pix:]])
+        return PixelLinearisation(Hcc=Hcc, Hcp=Hcp, Hpp=Hpp, g=grad, rr=float(np.sum(e * e)), n_obs=int(e.size),
+                                  prior=prior, xi=self.prior_residuals(idx_p), c=c, robot_views=tuple(idx_p),
+                                  J_dh=self.J_dh(idx_p))
 
     def apply_step(self, robot_views: Sequence[int], dx: np.ndarray) -> None:
         """Move the estimates by a step ``dx`` in the order of :meth:`pixel_linearisation` (T_x, T_board,
-        free intrinsics, then one 6-vector per view of ``robot_views``), poses by right perturbation."""
+        free intrinsics, DH offsets, then one 6-vector per view of ``robot_views``), poses by right perturbation."""
         c = self.n_core
         self.T_x = self.T_x @ se3_exp(dx[0:6])
         self.T_board = self.T_board @ se3_exp(dx[6:12])
         if self.free.size:
             self.k = self.k.copy()
-            self.k[self.free] += dx[N_POSES:c]
+            self.k[self.free] += dx[N_POSES:N_POSES + self.free.size]
+        if self.m_dh:
+            self.dh = self.dh + dx[self.dh_slice]
         if len(robot_views):
             idx = list(robot_views)
             self.P[idx] = self.P[idx] @ se3_exp(dx[c:].reshape(-1, 6))

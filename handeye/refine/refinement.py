@@ -106,6 +106,8 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
     T_x0 = check_T(T_x0, f"seed {mount.x_name}")
     T_board0 = check_T(T_board0, f"seed {mount.board_name}")
     object_points, reported = check_inputs(object_points, views)
+    if len(object_points) < options.min_corners:  # a target with fewer corners (one marker: 4) must show them all
+        options = replace(options, min_corners=len(object_points))
     pb = Problem(mode=mode, object_points=object_points, views=views, reported=reported, intrinsics=intrinsics,
                  T_x0=T_x0, T_board0=T_board0, options=options)
     start_method = "given"
@@ -133,11 +135,11 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
     try:
         # start: sigmas from each view's own fit at the start
         pb.sigma_px = 1.0
-        checks0 = list(camera_only_poses(pb, pb.active()).values())
-        e0 = np.concatenate([c.resid_px for c in checks0 if c.ok]) if checks0 else np.zeros(0)
+        checks0 = camera_only_poses(pb, pb.active())
+        e0 = np.concatenate([c.resid_px for c in checks0.values() if c.ok]) if checks0 else np.zeros(0)
         if e0.size:
             pb.sigma_px = sigma_px_from_residuals(e0)
-            checks0 = [replace(c, cov_cam=c.cov_cam * pb.sigma_px ** 2) for c in checks0]  # were for sigma 1 px
+            checks0 = {i: replace(c, cov_cam=c.cov_cam * pb.sigma_px ** 2) for i, c in checks0.items()}  # were for 1 px
         robust_robot_sigmas(pb, checks0)
         # guard: robust solves, pixel sigma from the median residual in between (without a robust loss one
         # Gaussian solve gives the residuals the pixel sigma is estimated from)
@@ -147,7 +149,7 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
         if options.outlier_loop:
             dec, S_cc, _ = outlier_loop(pb)
             return result("ok", "", S_cc, dec)
-        robust_robot_sigmas(pb, list(camera_only_poses(pb, pb.prior_views()).values()))
+        robust_robot_sigmas(pb, camera_only_poses(pb, pb.prior_views()))
         g, values, rk = pb.solve(robust=options.loss != "none")
         S_cc, _ = pb.covariances(g, values, rk)
         return result("ok", "", S_cc)

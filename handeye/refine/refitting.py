@@ -6,7 +6,7 @@ decisions would redo themselves on fewer data. So a refit is ONE Gaussian solve 
 model, started from the full solution, with:
 
 * the pixel sigma and the robot sigmas of the full run (``robot_noise`` "estimate" is held "fixed" at
-  the estimated values; "none" stays "none");
+  the estimated values, the encoder sigma of a kinematic robot model too; "none" stays "none");
 * the full run's outlier decisions: corners flagged there are left out, a view whose robot pose was
   excluded keeps its corners without a robot prior, and a view the run dropped cannot be refitted;
 * the refined robot poses of the full run as the start of each view's robot pose.
@@ -62,6 +62,7 @@ def refit(result: RefineResult, *, object_points: np.ndarray, views: Sequence[Re
         if o.kind == "corners":
             flagged.setdefault(o.view_id, set()).update(int(c) for c in o.corner_ids)
     kept = []
+    joints = result.robot_model.get("joint_angles_rad") or {}  # a kinematic model's joint angles per view
     for v in views:
         st = result.per_view.get(v.view_id, {}).get("status")
         if st not in ("used", "robot_excluded"):
@@ -71,12 +72,14 @@ def refit(result: RefineResult, *, object_points: np.ndarray, views: Sequence[Re
         cid = np.asarray(v.corner_ids, int)
         keep = np.array([int(c) not in flagged.get(v.view_id, ()) for c in cid], bool)
         kept.append(RefineView(v.view_id, cid[keep], np.asarray(v.image_points, float).reshape(-1, 2)[keep],
-                               v.T_base_end))
+                               v.T_base_end, v.joint_angles if v.joint_angles is not None else joints.get(v.view_id)))
     object_points, reported = check_inputs(object_points, kept)
     o0 = result.options
     opts = replace(o0, robot_noise="none" if o0.robot_noise == "none" else "fixed",
                    robot_sigma_mm=max(result.robot_sigma_mm, ROBOT_SIGMA_MIN_MM),
                    robot_sigma_deg=max(result.robot_sigma_deg, ROBOT_SIGMA_MIN_DEG), outlier_loop=False, loss="none")
+    if result.robot_model.get("encoder_sigma_deg"):  # the kinematic models' estimated encoder noise, held
+        opts = replace(opts, encoder_sigma_deg=max(float(result.robot_model["encoder_sigma_deg"]), ROBOT_SIGMA_MIN_DEG))
     ids = tuple(v.view_id for v in kept)
     try:
         pb = Problem(mode=result.mode, object_points=object_points, views=kept, reported=reported,

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING, Optional
 
 import numpy as np
@@ -12,6 +12,7 @@ from ..mounting import mounting
 from ..output import plain
 from .covariance import COV_PARAMETRISATION, N_POSES, hand_eye_uncertainty
 from .options import RefineOptions
+from .robot_model import describe_dh
 
 if TYPE_CHECKING:
     from .outliers import Decision
@@ -53,6 +54,9 @@ class RefineResult:
     seconds: float
     start_method: str = "given"  # the start the refinement used: "given" (T_x0, T_board0) or a closed form
     options: RefineOptions = RefineOptions()
+    # the robot error model (handeye.refine.robot_model): kind none | iid | joint_space | kinematic, its
+    # parameters, and what was estimated (:func:`robot_model_dict`)
+    robot_model: dict = field(default_factory=dict)
 
     @property
     def used_view_ids(self) -> list:
@@ -92,6 +96,7 @@ class RefineResult:
             "robot_sigma_deg": self.robot_sigma_deg,
             "robot_sigma_resolved": self.robot_sigma_resolved,
             "robot_noise_model": self.options.robot_noise,
+            "robot_model": self.robot_model,
             "rms_px_before": self.rms_px_before,
             "rms_px_after": self.rms_px_after,
             "per_view": self.per_view,
@@ -99,8 +104,66 @@ class RefineResult:
             "robot_poses_refined_T_base_end": self.robot_poses,
             "iterations": self.iterations,
             "seconds": self.seconds,
-            "options": asdict(self.options),
+            "options": _options_dict(self.options),
         })
+
+
+def _options_dict(o: RefineOptions) -> dict:
+    d = asdict(o)
+    if o.arm is not None and not isinstance(o.arm, str):  # a DHChain: its name (the table is in robot_model)
+        d["arm"] = getattr(o.arm, "name", str(o.arm))
+    return d
+
+
+def robot_model_dict(pb: "Problem", S_cc: Optional[np.ndarray]) -> dict:
+    """JSON-ready description of the robot error model of a solved problem (``S_cc``: its core covariance,
+    None when it failed): kind, parameters and what was estimated."""
+    estimated = pb.o.robot_noise == "estimate"
+    if pb.kind == "none":
+        return {"kind": "none", "description": "reported robot poses taken as exact"}
+    if pb.kin is None:
+        return {"kind": "iid", "description": "independent Gaussian error per view and axis, end frame",
+                "sigma_mm": 1000.0 * pb.sigma_trans, "sigma_deg": float(np.degrees(pb.sigma_rot)),
+                "estimated": ["sigma_mm", "sigma_deg"] if estimated else [],
+                "resolved": dict(pb.resolved) if estimated else {}}
+    km = pb.kin
+    d = {"kind": km.kind, "arm": km.arm.name, "dh_convention": km.arm.convention,
+         "description": ("true pose = reported · Exp(J_dh · dh_offset + J_q · encoder_error): shared DH offsets "
+                         "(estimated with T_x where the views resolve them, held by their prior otherwise) and "
+                         "encoder noise per joint and view" if km.kind == "kinematic" else
+                         "true pose = reported · Exp(J_q · encoder_error): encoder noise per joint and view"),
+         "encoder_sigma_deg": float(np.degrees(pb.sigma_q)),
+         "encoder_sigma_resolved": bool(pb.resolved.get("joint", True)) if estimated else None,
+         "joint_angles": ("recorded" if all(s == "recorded" for s in km.joints_source) else
+                          "inverse kinematics of the reported poses" if all(s != "recorded" for s in km.joints_source)
+                          else "recorded, inverse kinematics for views without them"),
+         "joint_angles_rad": {vid: km.joints[i] for i, vid in enumerate(pb.ids)},
+         "tool_offset_T_flange_reported": km.T_tool, "tool_offset_spread_deg_mm": list(km.tool_spread),
+         "estimated": (["dh_offset"] if km.m else []) + (["encoder_sigma_deg"] if estimated else [])}
+    if km.m:
+        S_dd = pb.S_dd if S_cc is None else S_cc[pb.dh_slice, pb.dh_slice]
+        d.update(describe_dh(km, pb.dh, S_dd))
+    return d
+
+
+def _equivalent_robot_sigmas(pb: "Problem") -> tuple[float, float]:
+    """(mm, deg): the robot sigma per axis, or for the kinematic models the RMS per axis of each view's
+    encoder-noise covariance over the views."""
+    if not pb.robot_var:
+        return 0.0, 0.0
+    if pb.kin is None:
+        return 1000.0 * pb.sigma_trans, float(np.degrees(pb.sigma_rot))
+    d = np.diagonal(pb.robot_cov(range(pb.n)), axis1=1, axis2=2)
+    return 1000.0 * float(np.sqrt(np.mean(d[:, 3:]))), float(np.degrees(np.sqrt(np.mean(d[:, :3]))))
+
+
+def _resolved(pb: "Problem") -> dict:
+    if pb.o.robot_noise != "estimate":
+        return {}
+    if pb.kin is None:
+        return dict(pb.resolved)
+    j = bool(pb.resolved.get("joint", True))
+    return {"rot": j, "trans": j, "joint": j}
 
 
 def _working_distance(pb: "Problem") -> float:
@@ -156,9 +219,8 @@ def build_result(pb: "Problem", *, status: str, reason: str, S_cc: Optional[np.n
         sigma_trans_mm=unc.sigma_trans_mm, correlation_6x6=unc.correlation_6x6, intrinsics_sigma=intr_sigma,
         working_distance_m=wd, predicted_error_mm=unc.predicted_error_mm,
         predicted_error_axes_mm=unc.predicted_error_axes_mm, sigma_px=float(pb.sigma_px),
-        robot_sigma_mm=float(1000.0 * pb.sigma_trans) if pb.robot_var else 0.0,
-        robot_sigma_deg=float(np.degrees(pb.sigma_rot)) if pb.robot_var else 0.0,
-        robot_sigma_resolved=dict(pb.resolved) if pb.o.robot_noise == "estimate" else {},
+        robot_sigma_mm=_equivalent_robot_sigmas(pb)[0], robot_sigma_deg=_equivalent_robot_sigmas(pb)[1],
+        robot_sigma_resolved=_resolved(pb),
         rms_px_before=rms_before, rms_px_after=rms_after, per_view=_per_view(pb, dec),
         outliers=tuple(outliers), iterations=int(pb.iterations), seconds=time.perf_counter() - t0,
-        start_method=start_method, options=pb.o)
+        start_method=start_method, options=pb.o, robot_model=robot_model_dict(pb, S_cc))

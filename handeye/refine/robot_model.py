@@ -1,0 +1,170 @@
+"""The refinement's robot error models (pure numpy): which error the reported robot poses carry, and
+the per-view matrices the problem, the noise estimation and the outlier test build from it.
+
+Every model is written in one tangent: the true flange pose of view i is
+``T_base_end_true_i = T_reported_i · Exp(u_i)`` (:mod:`handeye.frames`: rotation first, right
+perturbation, along the end-frame axes), and the refinement's robot-pose variable ``P_i`` is that
+true pose. Kinds (``RobotModel.kind``):
+
+* ``none``: ``u_i = 0`` (the reported poses are exact; ``robot_noise="none"``);
+* ``iid``: ``u_i ~ N(0, diag(s_rot^2 I3, s_trans^2 I3))``, independent per view;
+* ``kinematic``: the arm's published DH table (:mod:`handeye.kinematics`) is off by shared offsets
+  ``delta`` (one per DH parameter, ``(a, alpha, d, theta_offset)`` per joint) and each joint reading by
+  encoder noise ``e_i``: ``u_i = J_dh,i · delta + J_q,i · e_i`` to first order (the DH and joint
+  Jacobians at the view's joint angles, carried through a constant tool offset, see below), with
+  ``delta ~ N(0, diag(sigma_dh^2))`` (the arm's ``error_prior``) and ``e_i ~ N(0, s_q^2 I)``. So the
+  per-view prior of ``P_i`` is ``u_i - J_dh,i · delta ~ N(0, s_q^2 B_i)``, ``B_i = J_q,i J_q,i^T``
+  (+ a tiny ridge), and ``delta`` is an unknown of the core shared by every view: estimated jointly
+  with ``T_x`` where the views resolve it, and held by its prior where they do not (a flange-length
+  error is absorbed into ``T_x`` eye-in-hand; a base error into ``T_x`` eye-to-hand), so that its
+  prior's share reaches the covariance of ``T_x`` through the marginal;
+* ``joint_space``: the same without ``delta`` (encoder noise only).
+
+Joint angles come from the session (``RefineView.joint_angles``) or, for views without them, from the
+inverse kinematics of the reported pose (the solution closest to the previous view's). The reported
+pose may be the tool's rather than the flange's: ``T_reported = FK(q) · T_tool`` with a constant
+``T_tool`` (the mean of ``inv(FK(q_i)) · T_reported_i``); the Jacobians are carried to the reported
+frame by ``Ad(inv(T_tool))``. A spread of ``T_tool`` over the views beyond
+``robot_model.tool_spread_mm`` / ``tool_spread_deg`` (configs/refine.yaml) means the table is not the
+one the controller computes with: a ConfigError.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..errors import ConfigError, InputError
+from ..frames import inv_T, mean_T, se3_adjoint, tangent_difference
+from ..kinematics import PARAMETER_NAMES, DHChain, default_ik_seeds, load_arm, solve_ik
+from .options import RefineOptions, RefineView, refine_preset
+
+LENGTH_PARAMETERS = (0, 2)  # a, d in a DH row (a, alpha, d, theta_offset); the others are angles
+
+
+@dataclass(frozen=True)
+class KinematicRobotModel:
+    """The per-view matrices of the ``kinematic`` / ``joint_space`` models for n views of an arm with
+    m DH parameters (m = 0 for ``joint_space``)."""
+
+    kind: str  # kinematic | joint_space
+    arm: DHChain
+    joints: np.ndarray  # (n, n_joints) radians
+    joints_source: tuple  # per view: "recorded" | "inverse_kinematics"
+    J_dh: np.ndarray  # (n, 6, m): d u_i / d delta
+    B: np.ndarray  # (n, 6, 6): J_q J_q^T + ridge, u_i's covariance per unit encoder variance
+    dh_sigma: np.ndarray  # (m,) prior sigma of each DH offset (m, rad)
+    encoder_sigma_rad: float  # start value (estimate) or value (fixed) of the encoder noise
+    T_tool: np.ndarray  # (4,4) reported frame in the flange frame (identity: the flange)
+    tool_spread: tuple  # (rot deg, trans mm): largest departure of a view's tool offset from T_tool
+
+    @property
+    def m(self) -> int:
+        return int(self.J_dh.shape[2])
+
+    def parameter_names(self) -> list:
+        return [f"{p}_{j + 1}" for j in range(self.arm.n_joints) for p in PARAMETER_NAMES][:self.m]
+
+
+def _arm(o: RefineOptions) -> Optional[DHChain]:
+    if o.arm is None:
+        return None
+    return o.arm if isinstance(o.arm, DHChain) else load_arm(o.arm)
+
+
+def resolve_kind(o: RefineOptions, views: Sequence[RefineView]) -> str:
+    """none | iid | kinematic | joint_space: the model of ``o.robot_model`` for these views. ``auto``
+    is ``kinematic`` when an arm is named (views without joint angles get them by inverse kinematics),
+    else ``iid``."""
+    if o.robot_noise == "none":
+        return "none"
+    if o.robot_model == "auto":
+        return "kinematic" if o.arm is not None else "iid"
+    if o.robot_model in ("kinematic", "joint_space") and o.arm is None:
+        raise ConfigError(f"robot_model {o.robot_model} needs the arm's kinematic model",
+                          expected="refine option arm: a preset (rm65, ur5e) or a DH table file", received="none",
+                          hint="name the arm (session.yaml robot: rm65) or use robot_model iid")
+    return o.robot_model
+
+
+def _joints(arm: DHChain, views: Sequence[RefineView], reported: np.ndarray) -> tuple[np.ndarray, tuple]:
+    out, source = [], []
+    prev = None
+    for v, T in zip(views, reported):
+        if v.joint_angles is not None:
+            q = np.asarray(v.joint_angles, float).reshape(-1)
+            if q.shape != (arm.n_joints,):
+                raise InputError(f"view {v.view_id}: {q.size} joint angles for the {arm.n_joints}-joint {arm.name}",
+                                 expected=f"{arm.n_joints} joint angles (radians)", received=str(q.size),
+                                 hint="name the arm the session was recorded with")
+            out.append(q)
+            source.append("recorded")
+            continue
+        seeds = ([prev] if prev is not None else []) + default_ik_seeds(arm, T)
+        q = solve_ik(arm, T, seeds=seeds)
+        if q is None:
+            raise InputError(f"view {v.view_id}: the {arm.name} cannot reach the reported pose",
+                             expected="a pose within the arm's reach and joint limits",
+                             received=f"flange at {np.round(T[:3, 3], 3).tolist()} m",
+                             hint="check the arm named for the session, or use robot_model iid")
+        out.append(q)
+        source.append("inverse_kinematics")
+        prev = q
+    return np.array(out), tuple(source)
+
+
+def build_kinematic_model(o: RefineOptions, kind: str, views: Sequence[RefineView],
+                          reported: np.ndarray) -> KinematicRobotModel:
+    """The matrices of the ``kinematic`` or ``joint_space`` model at the views' joint angles."""
+    arm = _arm(o)
+    cfg = refine_preset()["robot_model"]
+    prior = arm.error_prior or (float(cfg["dh_length_sigma_mm"]) * 1e-3, float(np.radians(cfg["dh_angle_sigma_deg"])),
+                                float(np.radians(cfg["encoder_sigma_deg"])))
+    length_sigma = prior[0] if o.dh_sigma_mm is None else o.dh_sigma_mm * 1e-3
+    angle_sigma = prior[1] if o.dh_sigma_deg is None else float(np.radians(o.dh_sigma_deg))
+    encoder_sigma = prior[2] if o.encoder_sigma_deg is None else float(np.radians(o.encoder_sigma_deg))
+    q, source = _joints(arm, views, reported)
+    FK = arm.T_base_end(q).reshape(-1, 4, 4)
+    tools = inv_T(FK) @ reported  # shape (n, 4, 4): reported frame in the flange frame, per view
+    T_tool = mean_T(tools)
+    spread = tangent_difference(T_tool, tools)
+    rot_deg = float(np.degrees(np.max(np.linalg.norm(spread[:, :3], axis=1))))
+    trans_mm = float(1e3 * np.max(np.linalg.norm(spread[:, 3:], axis=1)))
+    if rot_deg > float(cfg["tool_spread_deg"]) or trans_mm > float(cfg["tool_spread_mm"]):
+        raise ConfigError(f"the joint angles do not give the reported poses through the {arm.name}'s table",
+                          expected=f"one constant tool offset within {cfg['tool_spread_mm']} mm / "
+                                   f"{cfg['tool_spread_deg']} deg over the views",
+                          received=f"offsets spread by {trans_mm:.2f} mm / {rot_deg:.3f} deg",
+                          hint="name the arm the session was recorded with, or use robot_model iid")
+    Ad = se3_adjoint(inv_T(T_tool))
+    n = len(views)
+    with_dh = kind == "kinematic"
+    m = 4 * arm.n_joints if with_dh else 0
+    J_dh = np.zeros((n, 6, m))
+    B = np.zeros((n, 6, 6))
+    ridge = float(cfg["encoder_ridge"])
+    for i in range(n):
+        Jq = Ad @ arm.jacobian_joints(q[i])
+        B[i] = Jq @ Jq.T + ridge * np.eye(6)
+        if with_dh:
+            J_dh[i] = Ad @ arm.jacobian_dh(q[i])
+    sig = np.tile([length_sigma, angle_sigma, length_sigma, angle_sigma], arm.n_joints)[:m]
+    return KinematicRobotModel(kind=kind, arm=arm, joints=q, joints_source=source, J_dh=J_dh, B=B, dh_sigma=sig,
+                               encoder_sigma_rad=encoder_sigma, T_tool=T_tool, tool_spread=(rot_deg, trans_mm))
+
+
+def describe_dh(km: KinematicRobotModel, delta: np.ndarray, S_dd: np.ndarray) -> dict:
+    """JSON-ready estimate of the DH offsets: per joint (a mm, alpha deg, d mm, theta_offset deg), their
+    sigmas, and the share of each offset's prior variance the data removed (0: held by the prior alone,
+    1: fixed by the data)."""
+    if km.m == 0:
+        return {}
+    scale = np.tile([1e3, np.degrees(1.0), 1e3, np.degrees(1.0)], km.arm.n_joints)
+    sd = np.sqrt(np.clip(np.diag(S_dd), 0.0, None))
+    share = 1.0 - np.clip(sd ** 2 / km.dh_sigma ** 2, 0.0, 1.0)
+    shape = (km.arm.n_joints, 4)
+    return {"dh_columns": ["a_mm", "alpha_deg", "d_mm", "theta_offset_deg"],
+            "dh_offset": (delta * scale).reshape(shape), "dh_offset_sigma": (sd * scale).reshape(shape),
+            "dh_resolved_share": share.reshape(shape),
+            "dh_prior_sigma": {"length_mm": float(km.dh_sigma[0] * 1e3), "angle_deg": float(np.degrees(km.dh_sigma[1]))}}

@@ -1,0 +1,144 @@
+"""The refinement's kinematic robot error model: the factor against numerical derivatives, recovery of a
+known joint-offset error, the DH prior's share in the covariance of X where the views cannot resolve
+it, joint angles by inverse kinematics and through a tool offset, and the errors of bad input."""
+from __future__ import annotations
+
+import json
+
+import gtsam
+import numpy as np
+import pytest
+from gtsam.utils.numerical_derivative import numericalDerivative21, numericalDerivative22
+from scipy.stats import chi2
+
+from handeye.errors import ConfigError
+from handeye.factors.gtsam_factors import kinematic_robot_prior
+from handeye.frames import se3_exp, tangent_difference
+from handeye.kinematics import load_arm, solve_ik
+from handeye.refine import RefineOptions, RefineView, refine
+from handeye.sim.corners import make_corner_session
+
+ARM = load_arm("rm65")
+THETA_3 = 4 * 2 + 3  # index of theta_offset_3 among the DH offsets (a, alpha, d, theta_offset per joint)
+
+
+def _views(s, joints, T_reported=None):
+    T = s.T_base_end_reported if T_reported is None else T_reported
+    return [RefineView(vid, ids, pts, T[k], None if joints is None else joints[k])
+            for k, (vid, ids, pts) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points))]
+
+
+def _refine(s, views, **opts):
+    return refine(mode=s.mode, object_points=s.target.object_points(), views=views, intrinsics=s.intrinsics,
+                  T_x0=s.T_x_true, T_board0=s.T_board_true, options=RefineOptions(**opts))
+
+
+def _m2(r, s):
+    xi = tangent_difference(r.T_x, s.T_x_true)
+    return float(xi @ np.linalg.solve(r.cov_x_6x6, xi))
+
+
+def _exact_arm_session(mode, seed, *, n_views=15, noise_px=0.1):
+    """A session of the nominal RM65-B with exact encoders: reported = true, joint angles recorded."""
+    return make_corner_session(mode=mode, n_views=n_views, seed=seed, noise_px=noise_px, robot_error="kinematic",
+                               dh_length_error_mm=(0.0, 0.0), dh_angle_error_deg=(0.0, 0.0), encoder_sigma_deg=0.0)
+
+
+def test_kinematic_prior_factor_jacobians_match_numerical_derivatives():
+    rng = np.random.default_rng(3)
+    T_rep = se3_exp(rng.normal(size=6) * 0.5)
+    P = gtsam.Pose3(T_rep @ se3_exp(rng.normal(size=6) * 1e-2))
+    J = rng.normal(size=(6, 24)) * 0.3
+    dh = rng.normal(size=24) * 1e-3
+    f = kinematic_robot_prior(key_robot=1, key_dh=2, T_base_end_reported=T_rep, J_dh=J, cov=np.eye(6))
+    v = gtsam.Values()
+    v.insert(1, P)
+    v.insert(2, dh)
+    lin = f.linearize(v)
+    A, b = lin.jacobian()
+    def err(p, d):
+        return tangent_difference(T_rep, p.matrix()) - J @ d
+    np.testing.assert_allclose(-b, err(P, dh), atol=1e-12)
+    np.testing.assert_allclose(A[:, :6], numericalDerivative21(err, P, dh), atol=1e-7)
+    np.testing.assert_allclose(A[:, 6:], numericalDerivative22(err, P, dh), atol=1e-7)
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_a_known_joint_offset_error_is_recovered(mode):
+    """Joint 3's encoder reads 0.1 deg short: the true arm is the nominal one with theta_offset_3 off by
+    +0.1 deg. The kinematic model finds that offset within its sigma and keeps X within its ellipsoid;
+    the iid model, blind to the structure, is further off."""
+    s = _exact_arm_session(mode, seed=4)
+    off = np.radians(0.1)
+    q_rep = np.array(s.joints_true) - off * np.eye(6)[2]
+    T_rep = ARM.T_base_end(q_rep)
+    r = _refine(s, _views(s, q_rep, T_rep), arm="rm65")
+    assert r.status == "ok", r.failure_reason
+    assert r.robot_model["kind"] == "kinematic" and r.robot_model["joint_angles"] == "recorded"
+    est = np.asarray(r.robot_model["dh_offset"])[2, 3]  # joint 3, theta_offset, deg
+    sd = np.asarray(r.robot_model["dh_offset_sigma"])[2, 3]
+    assert sd < 0.02, f"{mode}: theta_offset_3 not resolved (sigma {sd:.4f} deg)"
+    assert abs(est - 0.1) < 4 * sd, f"{mode}: theta_offset_3 {est:.4f} +- {sd:.4f} deg, truth 0.1"
+    assert _m2(r, s) < chi2.ppf(0.999, 6)
+    iid = _refine(s, _views(s, None, T_rep), robot_model="iid")
+    err = lambda res: np.linalg.norm(tangent_difference(res.T_x, s.T_x_true)[3:])  # noqa: E731
+    assert err(r) < err(iid), f"{mode}: kinematic {err(r) * 1e3:.3f} mm vs iid {err(iid) * 1e3:.3f} mm"
+
+
+def test_an_unresolved_flange_length_error_is_in_the_covariance_of_x():
+    """Eye-in-hand, a flange-length error (d_6) moves the flange along its z exactly as X's translation
+    does: no view can tell them apart, so X's translation sigma along the flange z must keep the DH
+    prior's 0.3 mm instead of claiming the camera's precision; and the truth lies in the ellipsoid."""
+    s = _exact_arm_session("eye_in_hand", seed=2, noise_px=0.05)
+    true_arm = ARM.with_dh(ARM.dh + 0.0003 * np.outer(np.eye(6)[5], [0, 0, 1, 0]))  # d_6 + 0.3 mm
+    # the flange is at the session's true poses, reached by the true arm; the controller reports the
+    # nominal arm's pose at those joint angles
+    q = np.stack([solve_ik(true_arm, T, seeds=[q0]) for T, q0 in zip(s.T_base_end_true, s.joints_true)])
+    T_rep = ARM.T_base_end(q)
+    r = _refine(s, _views(s, q, T_rep), arm="rm65")
+    kin_sd = r.robot_model["dh_offset_sigma"][5][2]
+    assert kin_sd == pytest.approx(0.3, rel=0.05), f"d_6 should stay at its prior, sigma {kin_sd} mm"
+    assert r.sigma_trans_mm[2] >= 0.29, f"X's translation along the flange z claims {r.sigma_trans_mm[2]:.3f} mm"
+    assert _m2(r, s) < chi2.ppf(0.999, 6)
+    no_model = _refine(s, _views(s, None, T_rep), robot_noise="none")
+    assert no_model.sigma_trans_mm[2] < 0.1, "without the model the error is hidden behind a small sigma"
+
+
+def test_joint_angles_by_inverse_kinematics_and_through_a_tool_offset():
+    s = make_corner_session(mode="eye_to_hand", n_views=10, seed=1, noise_px=0.2, robot_error="kinematic")
+    q = np.asarray(s.joints_encoder)
+    base = _refine(s, _views(s, q), arm="rm65")
+    ik = _refine(s, _views(s, None), arm="rm65")  # vendor session: joints from the reported poses
+    assert ik.robot_model["joint_angles"] == "inverse kinematics of the reported poses"
+    assert _m2(ik, s) < chi2.ppf(0.999, 6)  # the arm's configuration may differ from the recorded one
+    # a tool frame 0.1 m out on the flange z: reported poses are the tool's, the model carries it
+    T_tool = se3_exp(np.r_[0.0, 0.0, 0.3, 0.0, 0.0, 0.1])
+    tool_views = [RefineView(v.view_id, v.corner_ids, v.image_points, v.T_base_end @ T_tool, v.joint_angles)
+                  for v in _views(s, q)]
+    tooled = refine(mode=s.mode, object_points=s.target.object_points(), views=tool_views, intrinsics=s.intrinsics,
+                    T_x0=s.T_x_true, T_board0=np.linalg.inv(T_tool) @ s.T_board_true,
+                    options=RefineOptions(arm="rm65"))
+    np.testing.assert_allclose(tangent_difference(tooled.T_x, base.T_x), 0.0, atol=1e-6)
+    np.testing.assert_allclose(tooled.robot_model["tool_offset_T_flange_reported"], T_tool, atol=1e-9)
+    assert np.allclose(tooled.cov_x_6x6, base.cov_x_6x6, rtol=1e-3, atol=1e-12)
+    d = json.loads(json.dumps(base.to_dict()))
+    assert d["robot_model"]["kind"] == "kinematic" and len(d["robot_model"]["dh_offset"]) == 6
+
+
+def test_model_choice_and_bad_input():
+    s = make_corner_session(mode="eye_in_hand", n_views=6, seed=0, noise_px=0.3, robot_error="kinematic")
+    q = np.asarray(s.joints_encoder)
+    assert _refine(s, _views(s, q)).robot_model["kind"] == "iid"  # no arm named: the iid model
+    assert _refine(s, _views(s, q), robot_noise="none").robot_model["kind"] == "none"
+    js = _refine(s, _views(s, q), arm="rm65", robot_model="joint_space")
+    assert js.robot_model["kind"] == "joint_space" and "dh_offset" not in js.robot_model
+    with pytest.raises(ConfigError, match="robot_model kinematic needs"):
+        _refine(s, _views(s, q), robot_model="kinematic")
+    with pytest.raises(ConfigError, match="robot_model"):
+        _refine(s, _views(s, q), robot_model="dh")
+    with pytest.raises(ConfigError, match="unknown robot model"):
+        _refine(s, _views(s, q), arm="kuka")
+    bad = q.copy()
+    bad[3, 1] += np.radians(1.0)  # one view's joints do not give its reported pose
+    with pytest.raises(ConfigError, match="joint angles do not give the reported poses"):
+        _refine(s, _views(s, bad), arm="rm65")
