@@ -45,6 +45,10 @@ def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--views", type=int, default=8,
                         help="--auto: planned views after the start view and 3 probe views (default 8)")
     parser.add_argument("--yes", action="store_true", help="--auto: do not ask before moving a real arm")
+    parser.add_argument("--verify-against", type=Path, metavar="RESULT",
+                        help="capture a verification session of this installed calibration (its mode, board and, "
+                             "with --auto, a plan that detects a 1 mm / 0.1 deg drift) and run handeye verify on it "
+                             "at the end (OUT/verify/; exit code 9 when drifted)")
     parser.add_argument("--target", default=DEFAULT_TARGET,
                         help="chessboard:COLSxROWS:SQUARE_M (inner corners) or "
                              "charuco:SQXxSQY:SQUARE_M:MARKER_M[:DICT] (default %(default)s)")
@@ -90,6 +94,9 @@ def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--sim-image-noise", type=float, default=2.0, metavar="GREY",
                    help="simulated camera: Gaussian noise in grey levels (default %(default)s)")
     g.add_argument("--sim-blur", type=float, default=0.0, metavar="PX", help="simulated camera: blur sigma")
+    g.add_argument("--sim-bump", nargs=2, type=float, metavar=("MM", "DEG"), default=None,
+                   help="with --verify-against: the simulated rig is the installed one with the camera moved by "
+                        "this much (random directions)")
     g.add_argument("--sim-supersample", type=int, default=2,
                    help="simulated camera: anti-aliasing samples per pixel and axis (default %(default)s)")
 
@@ -139,7 +146,8 @@ def run_collect(args: argparse.Namespace) -> int:
     from ..collect.plan import PlanConfig
     from ..collect.session_writer import SessionWriter
 
-    target = parse_target_spec(args.target)
+    installed = _installed(args)  # --verify-against: the installed calibration fixes the mode and the board
+    target = parse_target_spec(args.target) if installed is None else _installed_target(installed)
     if isinstance(target, ChessboardSpec) and len(target.symmetries()) > 1:
         log.warning("a %dx%d chessboard looks the same turned by 180 deg; prefer cols + rows odd (e.g. 11x8)",
                     target.cols, target.rows)
@@ -160,7 +168,7 @@ def run_collect(args: argparse.Namespace) -> int:
     rng = np.random.default_rng(args.seed)
     robot = camera = None
     try:
-        robot, rig = _open_robot(args, target=target, width=width, height=height, rng=rng)
+        robot, rig = _open_robot(args, target=target, width=width, height=height, rng=rng, installed=installed)
         camera = _open_camera(args, robot=robot, width=width, height=height, rng=rng)
         intr = camera.intrinsics()
         writer = SessionWriter(args.out, mode=args.mode, target=target, intrinsics=intr,
@@ -186,7 +194,12 @@ def run_collect(args: argparse.Namespace) -> int:
                               checks=checks, truth=truth_cb)
         log.info("collecting a %s session into %s (camera: %s, robot: %s)", args.mode, args.out, camera.name,
                  robot.name)
-        if args.auto:
+        if args.auto and installed is not None:
+            from ..recal.capture import capture_verification
+
+            confirm = (lambda text: True) if (args.yes or not robot.is_real) else _confirm_on_terminal
+            capture_verification(collector, installed, n_views=args.views, speed_fraction=args.speed, confirm=confirm)
+        elif args.auto:
             cfg = _given(PlanConfig(), pixel_noise_px=args.plan_pixel_noise,
                          robot_noise_mm=args.plan_robot_noise and args.plan_robot_noise[0],
                          robot_noise_deg=args.plan_robot_noise and args.plan_robot_noise[1],
@@ -208,17 +221,63 @@ def run_collect(args: argparse.Namespace) -> int:
     print(f"session: {args.out} ({n} views kept, {r} captures rejected)")
     if rig is not None:
         print(f"ground truth: {Path(args.out) / 'ground_truth.json'} ({mounting(args.mode).x_name})")
+    if installed is not None and n:
+        return _verify_collected(Path(args.out), installed)
     return 0 if n else 1
 
 
-def _open_robot(args, *, target: TargetSpec, width: int, height: int, rng: np.random.Generator):
+def _installed(args):
+    """The installed calibration of --verify-against (None without it); its mode must be --mode."""
+    if getattr(args, "verify_against", None) is None:
+        if getattr(args, "sim_bump", None):
+            raise ConfigError("--sim-bump moves the installed camera", expected="--verify-against RESULT")
+        return None
+    from ..recal.loaded import load_result
+
+    installed = load_result(args.verify_against)
+    if not installed.ok:
+        raise InputError(f"the installed result has no hand-eye matrix (status {installed.status})",
+                         path=installed.source)
+    if installed.mode != args.mode:
+        raise ConfigError(f"--mode {args.mode} but the installed calibration is {installed.mode}",
+                          path=installed.source, hint=f"collect with --mode {installed.mode}")
+    return installed
+
+
+def _installed_target(installed) -> TargetSpec:
+    from ..session.target_spec import parse_target
+
+    return parse_target(installed.target, path=Path(installed.source))
+
+
+def _verify_collected(out: Path, installed) -> int:
+    """handeye verify on the collected session against the installed calibration: OUT/verify/."""
+    from ..errors import DRIFTED_EXIT_CODE
+    from ..output import write_json
+    from ..recal.report import write_verify_reports
+    from ..recal.verify import verify_dict, verify_session
+    from .verify import verification_lines
+
+    sv = verify_session(out, installed)
+    d = verify_dict(sv)
+    files = [write_json(out / "verify" / "verify.json", d), *write_verify_reports(out / "verify")]
+    print("\n".join(verification_lines(d)))
+    for f in files:
+        print(f"written: {f}")
+    return DRIFTED_EXIT_CODE if sv.verification.drifted else 0
+
+
+def _open_robot(args, *, target: TargetSpec, width: int, height: int, rng: np.random.Generator, installed=None):
     spec = args.robot.strip()
     if spec == "sim":
         from ..sim.scenarios import default_intrinsics
         from ..sim.devices import SimRig, SimRobot
 
-        rig = SimRig.sample(mode=args.mode, rng=rng, target=target,
-                            intrinsics=default_intrinsics(width, height))
+        if installed is not None:  # the simulator stands in for the installed rig (its camera bumped on request)
+            rig = _installed_rig(installed, target=target, bump=getattr(args, "sim_bump", None), rng=rng)
+        else:
+            rig = SimRig.sample(mode=args.mode, rng=rng, target=target,
+                                intrinsics=default_intrinsics(width, height))
         return SimRobot(rig, pose_noise_mm=args.sim_pose_noise[0], pose_noise_deg=args.sim_pose_noise[1],
                         rng=rng), rig
     if spec == "realman" or spec.startswith("realman:"):
@@ -253,3 +312,21 @@ def _open_camera(args, *, robot, width: int, height: int, rng: np.random.Generat
 def _given(defaults, **options):
     """``defaults`` (a frozen dataclass from configs/collect.yaml) with the options given on the command line."""
     return replace(defaults, **{k: float(v) for k, v in options.items() if v is not None})
+
+
+def _installed_rig(installed, *, target: TargetSpec, bump, rng: np.random.Generator):
+    """A simulated rig that is the installed calibration (X, board, intrinsics), started at its first
+    view's pose; ``bump`` (mm, deg): the camera moved by that much in random directions."""
+    from ..frames import se3_exp
+    from ..recal.plan import installed_poses
+    from ..sim.devices import SimRig
+
+    T_x = installed.T_x
+    if bump:
+        w, u = rng.normal(size=3), rng.normal(size=3)
+        T_x = T_x @ se3_exp(np.r_[np.radians(bump[1]) * w / np.linalg.norm(w), 1e-3 * bump[0] * u / np.linalg.norm(u)])
+    poses = installed_poses(installed)
+    if not poses or installed.T_board is None or installed.intrinsics is None:
+        raise InputError("the installed result has no robot poses, board or intrinsics to simulate its rig",
+                         path=installed.source)
+    return SimRig(installed.mode, T_x, installed.T_board, target, installed.intrinsics, poses[0])

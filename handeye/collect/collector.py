@@ -325,6 +325,12 @@ class Collector:
                 log.warning("planned view %d/%d skipped: %s", pv.index, len(plan.views), cap.reason)
         return plan
 
+    def capture_at(self, T_base_end: np.ndarray, *, speed_fraction: float,
+                   reference: Optional[np.ndarray] = None) -> Capture:
+        """Move to ``T_base_end``, wait until the arm is still and capture (a planned view)."""
+        self.robot.move_to(T_base_end, speed_fraction=speed_fraction)
+        return self._capture_after_move(reference=reference)
+
     def _capture_after_move(self, *, reference: Optional[np.ndarray]) -> Capture:
         cap = None
         for attempt in range(2):

@@ -1,0 +1,287 @@
+"""Benchmark of recalibration: verify's power, false alarms and change estimate; compare's p-values;
+calibrate --prior after a bump; verify's time on rendered images.
+
+Simulated installs (corner level, :func:`handeye.sim.corners.make_corner_session`: 11x8 board,
+1280x720, 0.3 px corners), both mounting modes, robot errors iid (0.2 mm / 0.05 deg per axis) or from
+the kinematic model (RM65-B, :mod:`handeye.sim.robot_error`; the verification sees the same arm). An
+install is a 20-view session refined as the pipeline does (OpenCV seeds, :func:`handeye.refine.refine`);
+a verification is a 6-view session of the same rig (new view poses and noise), undisturbed or with the
+camera bumped by 1 mm and 0.1 deg in random directions, checked by
+:func:`handeye.recal.verify.verify_views`. Printed per mode and robot model:
+
+- power: share of bumped verifications called drifted (goal >= 95 %);
+- false alarms: share of undisturbed ones called drifted at alpha 5 % (goal <= 6 %);
+- change within 2 sigma: among detections, the true bump inside the estimate's 2-sigma region
+  (squared Mahalanobis under the change covariance <= chi2_6 at 95.45 %, the 6-D analogue of 2 sigma;
+  goal >= 90 %);
+- the median 1-sigma of the change (the installed uncertainty plus the 6 views', norm over the axes);
+- power 2x: the same bump doubled (2 mm / 0.2 deg).
+
+compare (``--compare N``): two independent 20-view calibrations of one rig, iid robot errors; the KS
+test of the p-values against uniform (goal: not rejected at 1 %) and the share of 2 mm bumps flagged
+(goal 100 %).
+
+--prior (``--prior N``): 5 new views after a 1 mm / 0.1 deg bump, refined with the install as the prior
+(the decision of :mod:`handeye.recal.prior`: the score test, and without the prior on X when the data
+contradict it), against a fresh 20-view calibration of the bumped rig: RMS error of X against the truth
+(goal: no worse), and without a bump the share of runs that report a contradiction (nominal 5 %).
+
+Timing (``--timing``): verify_session on a rendered 6-view session at 1280x720 (detection included,
+rendering not), median of 3.
+
+Usage: python benchmarks/bench_recal.py --trials 300 --compare 200 --prior 100 --timing --jobs 2
+(quick look: --trials 10 --compare 10 --prior 5). Progress on stderr, figures on stdout.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_refine import closed_forms, refine_views  # noqa: E402  (one copy of the pipeline's seeding)
+
+MODES = ("eye_in_hand", "eye_to_hand")
+MODELS = ("iid", "kinematic")
+NOISE_PX = 0.3
+IID = (0.2, 0.05)  # mm, deg per axis
+BUMP_MM, BUMP_DEG = 1.0, 0.1
+CHI2_2SIGMA_6 = stats.chi2.ppf(stats.chi2.cdf(4.0, 1), 6)  # the 6-D region with the mass of +-2 sigma
+
+
+def session(*, mode, model, seed, n_views, rig=None, model_seed=None):
+    from handeye.sim.corners import make_corner_session
+
+    kw = dict(robot_error="iid", robot_noise=IID) if model == "iid" else dict(robot_error=model)
+    return make_corner_session(mode=mode, n_views=n_views, seed=seed, noise_px=NOISE_PX, rig=rig,
+                               robot_model_seed=model_seed, **kw)
+
+
+def calibrate(s, options=None):
+    from handeye.refine import RefineOptions, refine
+
+    intr, closed = closed_forms(s)
+    est = closed["tsai"]
+    return refine(mode=s.mode, object_points=s.target.object_points(), views=refine_views(s), intrinsics=intr,
+                  T_x0=est.T_x, T_board0=est.T_board, options=options or RefineOptions(), starts=closed)
+
+
+def install(mode, model, seed):
+    from handeye.recal.loaded import load_result, result_from_refinement
+
+    s = session(mode=mode, model=model, seed=seed, n_views=20)
+    r = calibrate(s)
+    return s, r, load_result(result_from_refinement(r, target=s.target))
+
+
+def random_bump(rng, mm=BUMP_MM, deg=BUMP_DEG) -> np.ndarray:
+    w, u = rng.normal(size=3), rng.normal(size=3)
+    return np.r_[np.radians(deg) * w / np.linalg.norm(w), 1e-3 * mm * u / np.linalg.norm(u)]
+
+
+def verify_trial(args) -> dict:
+    from handeye.errors import HandeyeError
+    from handeye.frames import se3_exp
+    from handeye.recal.verify import verify_views
+
+    mode, model, seed = args
+    try:
+        s, r, inst = install(mode, model, seed)
+        if r.status != "ok":
+            return dict(mode=mode, model=model, seed=seed, skipped=f"install: {r.failure_reason}")
+        bump = random_bump(np.random.default_rng(seed + 7919))
+        out = dict(mode=mode, model=model, seed=seed)
+        for name, xi in (("still", np.zeros(6)), ("bumped", bump), ("bumped2", 2.0 * bump)):
+            sv = session(mode=mode, model=model, seed=seed + 100000, n_views=6,
+                         rig=(s.T_x_true @ se3_exp(xi), s.T_board_true), model_seed=seed)
+            t0 = time.perf_counter()
+            v = verify_views(inst, views=refine_views(sv), object_points=sv.target.object_points())
+            e = v.test.change_xi - xi
+            out[name] = dict(drifted=v.drifted, p=v.test.p_value, dof=v.test.dof, secs=time.perf_counter() - t0,
+                             within=float(e @ np.linalg.solve(v.test.change_cov, e)) <= CHI2_2SIGMA_6,
+                             sig_mm=float(np.linalg.norm(v.change["sigma_trans_mm"])),
+                             sig_deg=float(np.linalg.norm(v.change["sigma_rot_deg"])))
+        return out
+    except HandeyeError as e:
+        return dict(mode=mode, model=model, seed=seed, skipped=str(e)[:100])
+
+
+def compare_trial(args) -> dict:
+    from handeye.frames import se3_exp
+    from handeye.recal.compare import compare_loaded
+    from handeye.recal.loaded import load_result, result_from_refinement
+
+    mode, seed = args
+    s, r, a = install(mode, "iid", seed)
+    sb = session(mode=mode, model="iid", seed=seed + 200000, n_views=20, rig=(s.T_x_true, s.T_board_true))
+    b = load_result(result_from_refinement(calibrate(sb), target=sb.target))
+    u = np.random.default_rng(seed).normal(size=3)
+    bump = np.r_[0, 0, 0, 2e-3 * u / np.linalg.norm(u)]
+    sc = session(mode=mode, model="iid", seed=seed + 300000, n_views=20,
+                 rig=(s.T_x_true @ se3_exp(bump), s.T_board_true))
+    c = load_result(result_from_refinement(calibrate(sc), target=sc.target))
+    return dict(mode=mode, seed=seed, p=compare_loaded(a, b).p_value, bumped=compare_loaded(a, c).drifted,
+                p_intr=compare_loaded(a, b).intrinsics.get("p_value", np.nan))
+
+
+def prior_trial(args) -> dict:
+    from handeye.frames import pose_error, se3_exp, tangent_difference
+    from handeye.recal.prior import update_test
+    from handeye.recal.verify import installed_prior
+    from handeye.refine import RefineOptions
+
+    mode, seed = args
+    s, r, inst = install(mode, "iid", seed)
+    out = dict(mode=mode, seed=seed)
+    for name, xi in (("still", np.zeros(6)), ("bumped", random_bump(np.random.default_rng(seed + 31)))):
+        rig = (s.T_x_true @ se3_exp(xi), s.T_board_true)
+        new = session(mode=mode, model="iid", seed=seed + 400000, n_views=5, rig=rig)
+        prior, fixed = installed_prior(inst, session_intrinsics=False)
+        rp = calibrate(new, RefineOptions(prior=prior, fix=fixed))
+        contradicted = True
+        if rp.status == "ok":
+            t = update_test(cov_prior=inst.cov_x, update_xi=tangent_difference(inst.T_x, rp.T_x), cov_post=rp.cov_x_6x6)
+            contradicted = t.p_value < 0.05
+        kept = rp
+        if contradicted:  # as calibrate --prior: again without the prior on X, the intrinsics prior kept
+            from dataclasses import replace
+
+            kept = calibrate(new, RefineOptions(prior=replace(prior, cov_x=np.eye(6)), fix=fixed))
+        fresh = calibrate(session(mode=mode, model="iid", seed=seed + 500000, n_views=20, rig=rig))
+        out[name] = dict(contradicted=contradicted, err_mm=pose_error(kept.T_x, rig[0])[1],
+                         err_deg=pose_error(kept.T_x, rig[0])[0], fresh_mm=pose_error(fresh.T_x, rig[0])[1],
+                         fresh_deg=pose_error(fresh.T_x, rig[0])[0],
+                         installed_mm=pose_error(inst.T_x, rig[0])[1])
+    return out
+
+
+def rms(v) -> float:
+    v = np.asarray(list(v), float)
+    return float(np.sqrt(np.mean(v ** 2))) if v.size else float("nan")
+
+
+def run_pool(fn, tasks, jobs):
+    out = []
+    t0 = time.perf_counter()
+    if jobs > 1:
+        with ProcessPoolExecutor(jobs) as ex:
+            for k, r in enumerate(ex.map(fn, tasks, chunksize=2)):
+                out.append(r)
+                if (k + 1) % 20 == 0:
+                    print(f"  {k + 1}/{len(tasks)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+    else:
+        for k, t in enumerate(tasks):
+            out.append(fn(t))
+            if (k + 1) % 20 == 0:
+                print(f"  {k + 1}/{len(tasks)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+    return out
+
+
+def report_verify(rows) -> None:
+    print(f"verify: 6 views against a 20-view install, camera bumped {BUMP_MM:g} mm / {BUMP_DEG:g} deg; alpha 5 %")
+    print(f"  {'model':<10}{'mode':<12}{'trials':>7}{'power':>8}{'false al.':>10}{'in 2 sig':>9}"
+          f"{'sigma mm':>10}{'sigma deg':>10}{'time s':>8}{'power 2x':>9}")
+    for model in MODELS:
+        for mode in MODES:
+            rs = [r for r in rows if r["mode"] == mode and r["model"] == model]
+            ok = [r for r in rs if "skipped" not in r]
+            if not rs:
+                continue
+            det = [r["bumped"] for r in ok if r["bumped"]["drifted"]]
+            print(f"  {model:<10}{mode:<12}{len(ok):>7}{100 * np.mean([r['bumped']['drifted'] for r in ok]):>7.1f}%"
+                  f"{100 * np.mean([r['still']['drifted'] for r in ok]):>9.1f}%"
+                  f"{100 * np.mean([d['within'] for d in det]) if det else float('nan'):>8.1f}%"
+                  f"{np.median([r['still']['sig_mm'] for r in ok]):>10.2f}"
+                  f"{np.median([r['still']['sig_deg'] for r in ok]):>10.3f}"
+                  f"{np.median([r['still']['secs'] for r in ok]):>8.2f}"
+                  f"{100 * np.mean([r['bumped2']['drifted'] for r in ok]):>8.1f}%"
+                  + (f"  ({len(rs) - len(ok)} skipped: {[r for r in rs if 'skipped' in r][0]['skipped'][:60]})"
+                     if len(ok) < len(rs) else ""))
+
+
+def report_compare(rows) -> None:
+    for mode in MODES:
+        rs = [r for r in rows if r["mode"] == mode]
+        if not rs:
+            continue
+        p = np.array([r["p"] for r in rs])
+        ks = stats.kstest(p, "uniform")
+        pi = np.array([r["p_intr"] for r in rs])
+        ksi = stats.kstest(pi[np.isfinite(pi)], "uniform")
+        print(f"compare {mode}: {len(rs)} pairs of 20-view calibrations of one rig: KS of the p-values against "
+              f"uniform D = {ks.statistic:.3f}, p = {ks.pvalue:.3f} ({'not rejected' if ks.pvalue > 0.01 else 'REJECTED'}"
+              f" at 1 %); drifted at 5 %: {100 * np.mean(p < 0.05):.1f} %; 2 mm bump flagged in "
+              f"{100 * np.mean([r['bumped'] for r in rs]):.1f} %; intrinsics KS p = {ksi.pvalue:.3f}")
+
+
+def report_prior(rows) -> None:
+    for mode in MODES:
+        rs = [r for r in rows if r["mode"] == mode]
+        if not rs:
+            continue
+        b, s = [r["bumped"] for r in rs], [r["still"] for r in rs]
+        print(f"--prior {mode}: {len(rs)} installs; 5 new views after a {BUMP_MM:g} mm / {BUMP_DEG:g} deg bump: RMS "
+              f"error {rms(x['err_mm'] for x in b):.3f} mm {rms(x['err_deg'] for x in b):.4f} deg (contradiction "
+              f"reported in {100 * np.mean([x['contradicted'] for x in b]):.0f} %) vs fresh 20 views "
+              f"{rms(x['fresh_mm'] for x in b):.3f} mm {rms(x['fresh_deg'] for x in b):.4f} deg (the install: "
+              f"{rms(x['installed_mm'] for x in b):.3f} mm); no bump: {rms(x['err_mm'] for x in s):.3f} mm "
+              f"{rms(x['err_deg'] for x in s):.4f} deg vs fresh {rms(x['fresh_mm'] for x in s):.3f} mm, contradiction "
+              f"reported in {100 * np.mean([x['contradicted'] for x in s]):.1f} % (nominal 5 %)")
+
+
+def timing() -> None:
+    import tempfile
+
+    from handeye.recal.loaded import load_result, result_from_refinement
+    from handeye.recal.verify import verify_session
+    from handeye.sim.vendor import write_vendor_session
+
+    s, r, inst = install("eye_in_hand", "iid", 1)
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = write_vendor_session(Path(tmp) / "verify", n_views=6, seed=11, robot_noise=IID, image_noise=2.0,
+                                      rig=(s.T_x_true, s.T_board_true))
+        raw = result_from_refinement(r, target=s.target)
+        secs = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            sv = verify_session(folder, raw)
+            secs.append(time.perf_counter() - t0)
+    print(f"verify timing: 6 rendered views at 1280x720, detection included: median {np.median(secs):.2f} s "
+          f"(runs {', '.join(f'{x:.2f}' for x in secs)}; stages {', '.join(f'{k} {v:.2f}' for k, v in sv.seconds.items())})")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--trials", type=int, default=10, help="verify trials per mode and robot model")
+    ap.add_argument("--compare", type=int, default=0, help="compare pairs per mode")
+    ap.add_argument("--prior", type=int, default=0, help="--prior trials per mode")
+    ap.add_argument("--timing", action="store_true")
+    ap.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS)
+    ap.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
+    ap.add_argument("--first-seed", type=int, default=0)
+    ap.add_argument("--jobs", type=int, default=2)
+    a = ap.parse_args()
+    seeds = range(a.first_seed, a.first_seed + a.trials)
+    if a.trials:
+        tasks = [(mode, model, s) for model in a.models for mode in a.modes for s in seeds]
+        print(f"verify: {len(tasks)} trials", file=sys.stderr)
+        report_verify(run_pool(verify_trial, tasks, a.jobs))
+    if a.compare:
+        tasks = [(mode, a.first_seed + s) for mode in a.modes for s in range(a.compare)]
+        print(f"compare: {len(tasks)} pairs", file=sys.stderr)
+        report_compare(run_pool(compare_trial, tasks, a.jobs))
+    if a.prior:
+        tasks = [(mode, a.first_seed + s) for mode in a.modes for s in range(a.prior)]
+        print(f"prior: {len(tasks)} trials", file=sys.stderr)
+        report_prior(run_pool(prior_trial, tasks, a.jobs))
+    if a.timing:
+        timing()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,226 @@
+"""How many views, and which robot poses, a verification needs to detect a drift.
+
+From the installed calibration alone (its X and board, intrinsics, pixel and robot noise, covariance
+``S0``), the information a verification view brings about X is predicted with the collector's planner
+(:func:`handeye.collect.plan.view_information`: corner reprojection, robot noise marginalised; the board
+a nuisance shared by the views, marginalised by inverting the summed 12x12 information). A set of views
+with X-covariance ``S_new`` makes verify's test statistic (:mod:`handeye.recal.verify`) non-central
+chi-square with 6 degrees of freedom and non-centrality ``delta^T (S0 + S_new)^-1 delta`` for a drift
+``delta``; its power at level ``alpha`` is ``P(ncx2(6, nc) > chi2_6(1 - alpha))``. A drift is a translation
+of ``drift_mm`` and a rotation of ``drift_deg`` in any directions: the power reported is the worst over
+the six axis combinations and ``n_directions`` seeded random ones.
+
+Candidate poses: the installed calibration's own robot poses (they showed the board) and the
+planner's orbit views around each of them (:func:`handeye.collect.plan.candidate_views`). Views are
+added greedily, each the one that raises the worst-case non-centrality most, until the power reaches
+the goal or ``max_views``. Even infinitely many views leave ``S0``: the power of a perfect verification,
+``P(ncx2(6, min delta^T S0^-1 delta) > ...)``, is the ceiling, and when it is below the goal the plan
+says so and gives the smallest drift the installed calibration can tell at that power.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import numpy as np
+from scipy import stats
+
+from ..config import load_preset
+from ..conventions import VENDOR_POSE_FORMAT, pose_values_from_T
+from ..errors import ConfigError, InputError
+from ..mounting import mounting
+from ..output import plain
+from ..session.target_spec import parse_target
+from .loaded import LoadedResult, ResultLike, load_result
+
+log = logging.getLogger(__name__)
+
+_FLOOR_INFO = 1e-6  # information (1/rad^2, 1/m^2) added so that an empty set of views inverts
+
+
+@dataclass(frozen=True)
+class VerifyPlan:
+    """The plan: the chosen poses in order, the worst-case power after each, the ceiling."""
+
+    frame: str
+    drift_mm: float
+    drift_deg: float
+    power_goal: float
+    alpha: float
+    poses: tuple  # (n,4,4) T_base_end to visit, in order
+    labels: tuple  # where each pose comes from
+    power_by_views: tuple  # worst-case power with the first k poses, k = 1..n
+    n_views: Optional[int]  # views that reach the goal (None: not within max_views)
+    ceiling_power: float  # with perfect verification views: only the installed uncertainty left
+    min_drift_scale: float  # the drift, scaled by this, is detected at the goal power with the planned views
+    sigma_px: float
+    robot_sigma_mm: float
+    robot_sigma_deg: float
+    candidate_index: tuple = ()  # index of each chosen pose among the candidates
+
+    def to_dict(self) -> dict:
+        return plain({"frame": self.frame, "drift_mm": self.drift_mm, "drift_deg": self.drift_deg,
+                      "power_goal": self.power_goal, "alpha": self.alpha, "n_views": self.n_views,
+                      "power_by_views": self.power_by_views, "ceiling_power": self.ceiling_power,
+                      "detectable_drift_mm": self.drift_mm * self.min_drift_scale,
+                      "detectable_drift_deg": self.drift_deg * self.min_drift_scale,
+                      "poses_T_base_end": self.poses, "labels": self.labels,
+                      "poses_vendor": [pose_values_from_T(T, VENDOR_POSE_FORMAT) for T in self.poses],
+                      "poses_vendor_format": "x,y,z [m], rx,ry,rz [rad], R = Rz·Ry·Rx",
+                      "noise": {"sigma_px": self.sigma_px, "robot_sigma_mm": self.robot_sigma_mm,
+                                "robot_sigma_deg": self.robot_sigma_deg}}, nan_to_none=True)
+
+
+def drift_directions(*, drift_mm: float, drift_deg: float, n_random: int, seed: int = 0) -> np.ndarray:
+    """(K, 6) drifts in the tangent (rad, m): a rotation of ``drift_deg`` and a translation of ``drift_mm``,
+    along the axis pairs and ``n_random`` seeded random direction pairs (both signs count the same)."""
+    rng = np.random.default_rng(seed)
+    eye = np.eye(3)
+    w = [eye[i] for i in range(3) for _ in range(3)] + list(_unit(rng.normal(size=(n_random, 3))))
+    u = [eye[j] for _ in range(3) for j in range(3)] + list(_unit(rng.normal(size=(n_random, 3))))
+    return np.hstack([np.radians(drift_deg) * np.array(w), 1e-3 * drift_mm * np.array(u)])
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def worst_noncentrality(cov_change: np.ndarray, drifts: np.ndarray) -> float:
+    """min over the drifts (K,6) of ``delta^T cov_change^-1 delta``."""
+    P = np.linalg.inv(0.5 * (cov_change + cov_change.T))
+    return float(np.min(np.einsum("ki,ij,kj->k", drifts, P, drifts)))
+
+
+def test_power(nc: float, *, alpha: float, dof: int = 6) -> float:
+    """Probability that the chi-square test at ``alpha`` rejects under non-centrality ``nc``."""
+    return float(stats.ncx2.sf(stats.chi2.isf(alpha, dof), dof, max(nc, 1e-12)))
+
+
+def x_covariance(info: np.ndarray) -> np.ndarray:
+    """Covariance (6,6) of X from the summed information (12,12) of (X, board), the board marginalised."""
+    return np.linalg.inv(info + _FLOOR_INFO * np.eye(12))[:6, :6]
+
+
+def installed_poses(installed: LoadedResult) -> list[np.ndarray]:
+    """The robot poses of the installed calibration's views (refined), in view order."""
+    poses = (installed.raw.get("refinement") or {}).get("robot_poses_refined_T_base_end") or {}
+    return [np.asarray(T, float) for T in poses.values()]
+
+
+def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, drift_deg: Optional[float] = None,
+                      power: Optional[float] = None, alpha: Optional[float] = None,
+                      max_views: Optional[int] = None, candidates: Optional[Sequence[np.ndarray]] = None,
+                      cfg: Optional[dict] = None) -> VerifyPlan:
+    """The verification plan for the installed result ``against`` (see the module docstring).
+    ``candidates``: robot poses to choose from (default: the installed views' poses and orbits around them)."""
+    from ..collect.plan import PlanConfig, candidate_views, view_information
+
+    cfg = load_preset("recal") if cfg is None else cfg
+    pc = cfg["plan"]
+    drift_mm = float(pc["drift_mm"] if drift_mm is None else drift_mm)
+    drift_deg = float(pc["drift_deg"] if drift_deg is None else drift_deg)
+    goal = float(pc["power"] if power is None else power)
+    alpha = float(cfg["test"]["alpha"] if alpha is None else alpha)
+    max_views = int(pc["max_views"] if max_views is None else max_views)
+    if not (drift_mm >= 0 and drift_deg >= 0 and drift_mm + drift_deg > 0):
+        raise InputError("the drift to detect must be positive", expected="--drift-mm >= 0, --drift-deg >= 0, not both 0",
+                         received=f"{drift_mm} mm, {drift_deg} deg")
+    installed = against if isinstance(against, LoadedResult) else load_result(against)
+    if not installed.ok or installed.cov_x is None or installed.T_board is None or installed.intrinsics is None:
+        raise InputError("the installed result lacks X, its covariance, the board or the intrinsics",
+                         path=installed.source, hint="plan against a refined result with status ok")
+    target = parse_target(installed.target, path=installed.source)
+    obj = target.object_points()
+    mode, T_x, T_board = installed.mode, installed.T_x, installed.T_board
+    sigma_px = installed.sigma_px or 0.3
+    rs_mm, rs_deg = installed.robot_sigma_mm or 0.0, installed.robot_sigma_deg or 0.0
+    drifts = drift_directions(drift_mm=drift_mm, drift_deg=drift_deg, n_random=int(pc["n_directions"]))
+
+    def info_of(T):
+        return view_information(mode=mode, T_x=T_x, T_board=T_board, T_base_end=T, object_points=obj,
+                                intrinsics=installed.intrinsics, pixel_noise_px=sigma_px, robot_noise_mm=rs_mm,
+                                robot_noise_deg=rs_deg)
+
+    if candidates is not None:
+        cands = [(np.asarray(T, float), f"given pose {k + 1}") for k, T in enumerate(candidates)]
+    else:
+        base = installed_poses(installed)
+        cands = [(T, f"installed view pose {k + 1}") for k, T in enumerate(base)]
+        m = mounting(mode)
+        config = PlanConfig(pixel_noise_px=sigma_px, robot_noise_mm=rs_mm, robot_noise_deg=rs_deg)
+        for k, T0 in enumerate(base[:int(pc["orbit_views"])]):  # orbits around a few installed views
+            C0 = m.predict_T_cam_board(T_x, T_board, T0)
+            try:
+                orbit = candidate_views(mode=mode, T_x=T_x, T_board=T_board, T_base_end_start=T0, T_cam_board_start=C0,
+                                        target=target, intrinsics=installed.intrinsics, config=config)
+            except ConfigError as e:  # e.g. a distortion the visibility test cannot invert: the installed poses only
+                log.warning("no orbit candidates (%s); planning from the installed poses", e)
+                break
+            cands += [(c.T_base_end, f"orbit of installed view {k + 1}: {c.label}") for c in orbit]
+    if not cands:
+        raise InputError("no candidate robot poses to plan from", path=installed.source,
+                         hint="the result holds no refined robot poses; give candidate poses")
+    infos = [info_of(T) for T, _ in cands]
+    S0 = installed.cov_x
+    ceiling = test_power(worst_noncentrality(S0, drifts), alpha=alpha)
+    info = np.zeros((12, 12))
+    chosen, powers, n_goal = [], [], None
+    pool = list(range(len(cands)))
+    nc = 0.0
+    for step in range(max_views):
+        scores = [worst_noncentrality(S0 + x_covariance(info + infos[i]), drifts) for i in pool]
+        best = pool[int(np.argmax(scores))]
+        nc = max(scores)
+        info = info + infos[best]
+        chosen.append(best)
+        pool.remove(best)
+        powers.append(test_power(nc, alpha=alpha))
+        if n_goal is None and step >= 2 and powers[-1] >= goal:
+            n_goal = step + 1
+            break
+        if not pool:
+            break
+    nc_goal = _noncentrality_for_power(goal, alpha=alpha)
+    scale = float(np.sqrt(nc_goal / nc)) if nc > 0 else float("inf")
+    return VerifyPlan(frame=installed.x_name, drift_mm=drift_mm, drift_deg=drift_deg, power_goal=goal, alpha=alpha,
+                      poses=tuple(cands[i][0] for i in chosen), labels=tuple(cands[i][1] for i in chosen),
+                      power_by_views=tuple(powers), n_views=n_goal, ceiling_power=ceiling, min_drift_scale=scale,
+                      sigma_px=sigma_px, robot_sigma_mm=rs_mm, robot_sigma_deg=rs_deg, candidate_index=tuple(chosen))
+
+
+def _noncentrality_for_power(goal: float, *, alpha: float, dof: int = 6) -> float:
+    """The non-centrality at which the test at ``alpha`` has power ``goal`` (bisection)."""
+    lo, hi = 0.0, 1.0
+    while test_power(hi, alpha=alpha, dof=dof) < goal:
+        hi *= 2.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if test_power(mid, alpha=alpha, dof=dof) < goal else (lo, mid)
+    return hi
+
+
+def plan_lines(p: VerifyPlan) -> list[str]:
+    """The plan for a person: the answer, the poses, the power after each view, the ceiling."""
+    goal = f"{100 * p.power_goal:.0f} %"
+    drift = f"{p.drift_mm:g} mm / {p.drift_deg:g} deg"
+    if p.n_views is not None:
+        head = f"{p.n_views} views detect a drift of {drift} of {p.frame} with {goal} power (worst direction)"
+    else:
+        head = (f"no plan of up to {len(p.poses)} views reaches {goal} power for a drift of {drift} of {p.frame} "
+                f"(best {100 * p.power_by_views[-1]:.0f} %)")
+    lines = [head]
+    if p.ceiling_power < p.power_goal:
+        lines.append(f"the installed calibration's own uncertainty limits the power to {100 * p.ceiling_power:.0f} % "
+                     f"for this drift even with perfect views: recalibrate with more views to verify at {drift}")
+    lines.append(f"with these views the drift detected with {goal} power is {p.drift_mm * p.min_drift_scale:.2f} mm / "
+                 f"{p.drift_deg * p.min_drift_scale:.3f} deg")
+    lines.append(f"assumed noise (installed): {p.sigma_px:.2f} px corners, robot {p.robot_sigma_mm:.3f} mm / "
+                 f"{p.robot_sigma_deg:.4f} deg")
+    lines.append("poses T_base_end to visit (x, y, z [mm]; rx, ry, rz [deg], R = Rz·Ry·Rx), power after the view:")
+    for k, (T, label, pw) in enumerate(zip(p.poses, p.labels, p.power_by_views)):
+        v = pose_values_from_T(T, VENDOR_POSE_FORMAT)
+        lines.append(f"  {k + 1:2d}: {1000 * v[0]:8.1f} {1000 * v[1]:8.1f} {1000 * v[2]:8.1f}  "
+                     f"{np.degrees(v[3]):7.2f} {np.degrees(v[4]):7.2f} {np.degrees(v[5]):7.2f}   "
+                     f"{100 * pw:5.1f} %  ({label})")
+    return lines
