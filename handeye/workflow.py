@@ -317,6 +317,9 @@ def write_thumbnails(out_dir: Path, per_view: dict) -> list[Path]:
     written = []
     for vid, rec in per_view.items():
         data = getattr(rec, "thumbnail_jpeg", None)
+        if data and (folder / f"{vid}.jpg").parent != folder:  # an id that is not one file name stays inside
+            log.warning("view %r: no thumbnail (the id is not a file name)", vid)
+            continue
         if data:
             written.append(atomic_write_bytes(folder / f"{vid}.jpg", bytes(data), durable=False))
     if folder.is_dir():

@@ -19,13 +19,17 @@ from .. import __version__
 from .folder import THUMBNAILS_DIR
 
 FILES_DIR = "report_files"
+#: revision of the escaping compiled into the templates (a new value invalidates cached bytecode)
+_ESCAPING_REVISION = "md-escape-1"
 
 
 def _bytecode_cache() -> jinja2.BytecodeCache | None:
     """Compiled templates kept between runs (keyed on the template source, like ``__pycache__``):
     compiling them costs more than the rest of the rendering. None when no cache folder is writable."""
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    folder = Path(base) / "handeye" / f"templates-{__version__}"
+    # the compiled code depends on the environment's finalize (Markdown escaping), which the cache's key
+    # (the template source) does not see: the folder name carries its revision
+    folder = Path(base) / "handeye" / f"templates-{__version__}-{_ESCAPING_REVISION}"
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError:

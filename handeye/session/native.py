@@ -108,6 +108,9 @@ def read_native_document(path: Path) -> NativeDocument:
         if not isinstance(vid, str) or not vid.strip():
             raise ConfigError("invalid view id", path=e.source, expected="a non-empty text such as \"7\" or \"010\"",
                               received=repr(vid))
+        if _ID_FORBIDDEN.search(vid) or vid in (".", ".."):
+            raise ConfigError("invalid view id", path=e.source, received=repr(vid)[:60],
+                              expected="a text without /, \\ or control characters (it names the view's files)")
         if not isinstance(e.data["image"], str) or not e.data["image"].strip():
             raise ConfigError(f"view {vid}: image must be a file name", path=e.source, received=repr(e.data["image"])[:60],
                               expected="a path relative to the session folder, e.g. images/7.png")
@@ -138,6 +141,8 @@ def _parse_pose_format(fmt_d, *, path: Path) -> PoseFormat:
         source=str(path))
 
 
+#: characters a view id may not hold: it names files (thumbnails/<id>.jpg) and must stay one name
+_ID_FORBIDDEN = re.compile(r"[/\\\x00-\x1f\x7f]")
 _NUMBER_SEP = re.compile(r"[,;\s]+")
 
 

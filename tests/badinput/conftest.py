@@ -3,7 +3,7 @@ code of :data:`handeye.errors.EXIT_CODES` and that the one error line names the 
 view or option). Cases are tables (one row each, ``pytest.param(..., id=...)``); each test file is one
 class of input, counted by ``scripts/count_badinput.py``.
 
-Sessions are tiny (5 rendered 400x300 views, made once per test process). A session that cannot be
+Sessions are tiny (6 rendered 400x300 views, made once per test process). A session that cannot be
 read still gets a result.json from the diagnostics of the failed load; those diagnostics are tested
 elsewhere, so here (``fast_failed_load``) they return at once.
 """
@@ -16,12 +16,12 @@ import pytest
 
 from handeye.cli import main
 
-N_VIEWS = 5
+N_VIEWS = 6
 
 
 @pytest.fixture(scope="session")
 def tiny_vendor(tmp_path_factory) -> Path:
-    """A rendered vendor session: 1.jpg..5.jpg (400x300), poses.txt, config.yaml (eye-in-hand)."""
+    """A rendered vendor session: 1.jpg..6.jpg (400x300), poses.txt, config.yaml (eye-in-hand)."""
     from handeye.sim.scenarios import default_intrinsics
     from handeye.sim.vendor import write_vendor_session
 
@@ -101,3 +101,17 @@ def assert_names(err: str, *culprits: str) -> None:
 @pytest.fixture(scope="session")
 def names():
     return assert_names
+
+
+@pytest.fixture(scope="session")
+def good_result(tiny_vendor, tmp_path_factory) -> Path:
+    """A result folder of tiny_vendor with a usable verdict (PASS or WARN), its reports and
+    result.last-good.json. Copy it before changing it."""
+    import json
+
+    out = tmp_path_factory.mktemp("badinput") / "good"
+    rc = main(["-q", "calibrate", str(tiny_vendor), "--out", str(out), "--no-refine", "--workers", "1"])
+    res = json.loads((out / "result.json").read_text())
+    assert rc == 0 and res["verdict"] in ("PASS", "WARN"), res.get("verdict_headline")
+    assert (out / "result.last-good.json").exists() and (out / "report.md").exists()
+    return out

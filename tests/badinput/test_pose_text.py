@@ -66,9 +66,9 @@ CASES = [
     pytest.param(_encode("utf-16-le"), 2, ["poses.txt", "UTF-16"], id="utf16_without_bom"),
     pytest.param(lambda t: ("# Genauigkeit \xb10.1 mm\n" + t).encode("latin-1"), 0, [], id="latin1_comment_is_read"),
     pytest.param(lambda t: b"\xff\xd8\xff\xe0" + bytes(range(256)) * 4, 2, ["poses.txt"], id="binary_jpeg_bytes"),
-    pytest.param(lambda t: t + "0.5,0.1,0.4,0.1,0.2\x00,0.3\n", 2, ["poses.txt:6"], id="nul_byte"),
-    pytest.param(lambda t: t + "[0.5, 0.1, 0.4, 0.1, 0.2, 0.3]\n", 2, ["poses.txt:6", "malformed"], id="json_list"),
-    pytest.param(lambda t: t + "x=0.5 y=0.1 z=0.4\n", 2, ["poses.txt:6", "malformed"], id="key_value"),
+    pytest.param(lambda t: t + "0.5,0.1,0.4,0.1,0.2\x00,0.3\n", 2, ["poses.txt:7"], id="nul_byte"),
+    pytest.param(lambda t: t + "[0.5, 0.1, 0.4, 0.1, 0.2, 0.3]\n", 2, ["poses.txt:7", "malformed"], id="json_list"),
+    pytest.param(lambda t: t + "x=0.5 y=0.1 z=0.4\n", 2, ["poses.txt:7", "malformed"], id="key_value"),
     pytest.param(lambda t: "x,y,z,rx,ry,rz\n" + t, 2, ["poses.txt:1", "malformed"], id="header_line"),
     pytest.param(lambda t: t + "0.5,0.1,0.4,0.1,0.2,0.3\n" * 3, 0, [], id="extra_lines_are_dropped_views"),
 ]
@@ -81,7 +81,7 @@ def test_pose_text(edit, code, culprits, tiny_vendor, copy_session, run_cli, nam
     (s / "poses.txt").write_bytes(new if isinstance(new, bytes) else new.encode("utf-8"))
     rc, err = run_cli("calibrate", s, "--out", tmp_path / "out", "--no-report", "--no-refine")
     if code == 0:
-        assert rc in (0, 7), err  # read: the verdict of 5 views may be FAIL, never an input error
+        assert rc in (0, 7), err  # read: the verdict of 6 views may be FAIL, never an input error
     else:
         assert rc == code, err
         names(err, *culprits)
@@ -99,8 +99,8 @@ def test_poses_txt_is_a_folder(tiny_vendor, copy_session, run_cli, names, fast_f
 @settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
 @given(line=st.text(alphabet=st.sampled_from(list("0123456789.,-+eE naif#\t;x")), min_size=1, max_size=40))
 def test_any_garbage_line_is_one_line_naming_its_line(line, tiny_vendor, tmp_path_factory):
-    """Property: a 6th pose line of any text is read (the view is dropped: no image) or refused with one
-    line naming poses.txt:6; never a traceback."""
+    """Property: a 7th pose line of any text is read (the view is dropped: no image) or refused with one
+    line naming poses.txt:7; never a traceback."""
     from handeye.errors import InputError
     from handeye.session import load_session
 
@@ -114,6 +114,6 @@ def test_any_garbage_line_is_one_line_naming_its_line(line, tiny_vendor, tmp_pat
     except InputError as e:
         msg = str(e)
         assert "\n" not in msg and "poses.txt" in msg
-        assert "poses.txt:6" in msg or "poses.txt:" not in msg
+        assert "poses.txt:7" in msg or "poses.txt:" not in msg
     else:
-        assert len(session.views) == 5
+        assert len(session.views) == 6

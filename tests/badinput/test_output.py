@@ -1,0 +1,172 @@
+"""Bad input, class "output folders": --out (calibrate, report) that is a file, lies under a file, is
+read-only or not writable, or whose disk fills up; checked before the work starts, exit code 2 naming
+the folder. And the folder's history: the last good result survives failed runs, no report describes
+another result, two sessions of one folder name never share the default folder."""
+from __future__ import annotations
+
+import errno
+import json
+import os
+import subprocess
+
+import pytest
+
+
+def _file(tmp):
+    (tmp / "f").write_text("x")
+    return tmp / "f"
+
+
+def _under_file(tmp):
+    return _file(tmp) / "sub" / "out"
+
+
+def _link_to_file(tmp):
+    (tmp / "l").symlink_to(_file(tmp))
+    return tmp / "l"
+
+
+def _fifo(tmp):
+    os.mkfifo(tmp / "p")
+    return tmp / "p"
+
+
+# (make the --out path, culprits)
+OUT_CASES = [
+    pytest.param(_file, ["--out is a file"], id="is_a_file"),
+    pytest.param(_under_file, ["--out lies under a file"], id="under_a_file"),
+    pytest.param(_link_to_file, ["--out is a file"], id="link_to_a_file"),
+    pytest.param(_fifo, ["--out is a file", "not a regular folder"], id="named_pipe"),
+    pytest.param(lambda tmp: __import__("pathlib").Path("/dev/null"), ["--out is a file"], id="dev_null"),
+    pytest.param(lambda tmp: __import__("pathlib").Path("/proc/self/handeye-out"), ["--out cannot be written"],
+                 id="proc"),
+    pytest.param(lambda tmp: __import__("pathlib").Path("/sys/kernel/handeye-out"), ["--out cannot be written"],
+                 id="sysfs"),
+]
+
+
+@pytest.mark.parametrize("make, culprits", OUT_CASES)
+def test_calibrate_out(make, culprits, tiny_vendor, run_cli, names, tmp_path, monkeypatch):
+    import handeye.session
+
+    out = make(tmp_path)
+    loaded = []
+    monkeypatch.setattr(handeye.session, "load_native_session", lambda *a, **k: loaded.append(1))
+    monkeypatch.setattr(handeye.session, "load_vendor_session", lambda *a, **k: loaded.append(1))
+    rc, err = run_cli("calibrate", tiny_vendor, "--out", out, "--no-report")
+    assert rc == 2, err
+    names(err, str(out), *culprits)
+    assert not loaded  # refused before the session was read
+
+
+@pytest.mark.parametrize("make, culprits", OUT_CASES[:4])
+def test_report_out(make, culprits, good_result, run_cli, names, tmp_path):
+    out = make(tmp_path)
+    rc, err = run_cli("report", good_result, "--out", out)
+    assert rc == 2, err
+    names(err, *culprits)
+
+
+@pytest.fixture
+def read_only_folder(tmp_path):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(ro)], capture_output=True).returncode:
+        pytest.skip("cannot mount a read-only tmpfs here")
+    try:
+        yield ro
+    finally:
+        subprocess.run(["umount", str(ro)], capture_output=True)
+
+
+def test_read_only_out(read_only_folder, tiny_vendor, run_cli, names):
+    rc, err = run_cli("calibrate", tiny_vendor, "--out", read_only_folder / "out", "--no-report")
+    assert rc == 2
+    names(err, "--out cannot be written", "Read-only file system")
+
+
+def test_read_only_out_folder_itself(read_only_folder, tiny_vendor, run_cli, names):
+    rc, err = run_cli("calibrate", tiny_vendor, "--out", read_only_folder, "--no-report")
+    assert rc == 2
+    names(err, "--out cannot be written", str(read_only_folder))
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes everywhere")
+def test_not_writable_out(tiny_vendor, run_cli, names, tmp_path):
+    (tmp_path / "locked").mkdir(mode=0o555)
+    rc, err = run_cli("calibrate", tiny_vendor, "--out", tmp_path / "locked" / "out", "--no-report")
+    assert rc == 2
+    names(err, "--out cannot be written")
+
+
+@pytest.mark.parametrize("target", ["result.json", "observations.json"])
+def test_disk_full_keeps_the_previous_result(target, good_result, tiny_vendor, run_cli, names, tmp_path,
+                                             monkeypatch):
+    import shutil
+
+    import handeye.output
+
+    out = tmp_path / "out"
+    shutil.copytree(good_result, out)
+    before = (out / "result.json").read_bytes()
+    real = handeye.output.os.fsync
+
+    def full(fd):
+        if os.path.basename(os.readlink(f"/proc/self/fd/{fd}")).startswith("." + target):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(fd)
+
+    monkeypatch.setattr(handeye.output.os, "fsync", full)
+    rc, err = run_cli("calibrate", tiny_vendor, "--out", out, "--no-report", "--no-refine")
+    assert rc == 2, err
+    names(err, "No space left on device")
+    assert (out / "result.json").read_bytes() == before or target == "observations.json" and \
+        json.loads((out / "result.json").read_text())["run_id"]
+    json.loads((out / "result.last-good.json").read_text())
+    assert not list(out.glob(".*.tmp")) and not (out / ".handeye.lock").exists()
+
+
+def test_failed_runs_keep_the_last_good_result(good_result, tiny_vendor, copy_session, run_cli, fast_failed_load,
+                                               tmp_path):
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(good_result, out)
+    good = json.loads((out / "result.json").read_text())
+    bad = copy_session(tiny_vendor, "bad")
+    (bad / "poses.txt").write_text("1,2,3\n")
+    for _ in range(3):
+        rc, _ = run_cli("calibrate", bad, "--out", out, "--no-report")
+        assert rc == 2
+    assert json.loads((out / "result.json").read_text())["status"] == "failed"
+    last = json.loads((out / "result.last-good.json").read_text())
+    assert last["run_id"] == good["run_id"] and last["verdict"] in ("PASS", "WARN")
+    assert json.loads((out / "result.previous.json").read_text())["run_id"] == good["run_id"]
+
+
+def test_no_report_removes_the_report_of_the_previous_result(good_result, tiny_vendor, run_cli, tmp_path):
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(good_result, out)
+    assert (out / "report.md").exists()
+    rc, err = run_cli("calibrate", tiny_vendor, "--out", out, "--no-report", "--no-refine")
+    assert rc == 0, err
+    assert not (out / "report.md").exists() and not (out / "report.html").exists()
+    res, obs = (json.loads((out / n).read_text()) for n in ("result.json", "observations.json"))
+    assert res["run_id"] == obs["run_id"] == res["provenance"]["run_id"]
+
+
+def test_default_out_is_unique_per_session_path(tiny_vendor, run_cli, fast_failed_load, tmp_path, monkeypatch):
+    import shutil
+
+    for d in ("a", "b"):
+        shutil.copytree(tiny_vendor, tmp_path / d / "session")
+        (tmp_path / d / "session" / "poses.txt").write_text("1,2\n")  # fails fast at load
+    monkeypatch.chdir(tmp_path)
+    for d in ("a", "b"):
+        run_cli("calibrate", tmp_path / d / "session", "--no-report")
+    outs = sorted(p.name for p in (tmp_path / "reports").iterdir())
+    assert len(outs) == 2 and all(o.startswith("session-") for o in outs)
+    paths = {json.loads((tmp_path / "reports" / o / "result.json").read_text())["session"]["path"] for o in outs}
+    assert paths == {str(tmp_path / "a" / "session"), str(tmp_path / "b" / "session")}
