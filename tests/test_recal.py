@@ -107,3 +107,195 @@ def test_compare_cli_exit_codes_and_json(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "mounting modes differ" in err[0]
     assert DRIFTED_EXIT_CODE in dict(EXIT_CODES)
+
+
+# ------------------------------------------------------------------------------ the tests' math
+def _spd(rng, scale):
+    A = rng.normal(size=(6, 6))
+    return scale * (A @ A.T + 6 * np.eye(6))
+
+
+def test_drift_test_is_the_wald_statistic_and_drops_unconstrained_directions():
+    from handeye.recal.verify import drift_test
+
+    rng = np.random.default_rng(1)
+    S0, S_new = _spd(rng, 1e-7), _spd(rng, 3e-7)
+    xi = 1e-3 * rng.normal(size=6)
+    T0 = se3_exp(np.array([0.3, -0.1, 0.2, 0.05, 0.0, 0.1]))
+    t = drift_test(cov_installed=S0, T_x_installed=T0, T_x_new=T0 @ se3_exp(xi), cov_new=S_new)
+    Ad = se3_adjoint(se3_exp(xi))
+    assert t.dof == 6
+    assert t.statistic == pytest.approx(xi @ np.linalg.solve(S0 + Ad @ S_new @ Ad.T, xi), rel=1e-9)
+    assert t.p_value == pytest.approx(stats.chi2.sf(t.statistic, 6), rel=1e-9)
+    # the posterior combines both: its covariance is (S0^-1 + S_new'^-1)^-1 (S_new' = Ad S_new Ad^T)
+    S_new_t = Ad @ S_new @ Ad.T
+    assert t.posterior_cov == pytest.approx(np.linalg.inv(np.linalg.inv(S0) + np.linalg.inv(S_new_t)), rel=1e-6)
+    # a direction the new views do not see (huge variance) leaves the test
+    S_blind = S_new + 1e6 * np.outer(np.eye(6)[2], np.eye(6)[2])
+    t5 = drift_test(cov_installed=S0, T_x_installed=T0, T_x_new=T0 @ se3_exp(xi), cov_new=S_blind)
+    assert t5.dof == 5 and t5.statistic < t.statistic + 1e-9
+
+
+def test_prior_update_test_equals_the_wald_test_in_the_linear_model():
+    from handeye.recal.prior import update_test
+
+    rng = np.random.default_rng(2)
+    S0, S_data = _spd(rng, 1e-7), _spd(rng, 2e-7)
+    d = 1e-3 * rng.normal(size=6)  # what the data alone say, in the prior's tangent
+    S_post = np.linalg.inv(np.linalg.inv(S0) + np.linalg.inv(S_data))
+    update = S_post @ np.linalg.solve(S_data, d)  # the posterior's update of the prior mean
+    t = update_test(cov_prior=S0, update_xi=update, cov_post=S_post)
+    assert t.dof == 6
+    assert t.statistic == pytest.approx(d @ np.linalg.solve(S0 + S_data, d), rel=1e-6)
+
+
+# ------------------------------------------------------------------------------ verify on simulated rigs
+SMALL = dict(width=640, height=360)
+
+
+@pytest.fixture(scope="module")
+def install():
+    """A 15-view corner-level install (640x360, 0.3 px, robot 0.2 mm / 0.05 deg) and its result dict."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from bench_refine import closed_forms, refine_views
+
+    from handeye.recal.loaded import result_from_refinement
+    from handeye.refine import refine
+    from handeye.sim.corners import make_corner_session
+    from handeye.sim.scenarios import default_intrinsics
+
+    s = make_corner_session(n_views=15, seed=5, noise_px=0.3, robot_noise=(0.2, 0.05),
+                            intrinsics=default_intrinsics(**SMALL))
+    intr, cf = closed_forms(s)
+    r = refine(mode=s.mode, object_points=s.target.object_points(), views=refine_views(s), intrinsics=intr,
+               T_x0=cf["tsai"].T_x, T_board0=cf["tsai"].T_board, starts=cf)
+    assert r.status == "ok"
+    return s, result_from_refinement(r, target=s.target)
+
+
+def _verification(s, xi, *, seed, n_views=6):
+    from handeye.sim.corners import make_corner_session
+
+    return make_corner_session(n_views=n_views, seed=seed, noise_px=0.3, robot_noise=(0.2, 0.05),
+                               intrinsics=s.intrinsics, rig=(s.T_x_true @ se3_exp(xi), s.T_board_true))
+
+
+def _views(s):
+    from handeye.refine import RefineView
+
+    return [RefineView(v, i, p, s.T_base_end_reported[k])
+            for k, (v, i, p) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points))]
+
+
+def test_verify_still_valid_on_the_same_rig_and_drifted_after_a_bump(install):
+    from handeye.recal.verify import verify_views
+
+    s, res = install
+    inst = load_result(res)
+    same = verify_views(inst, views=_views(_verification(s, np.zeros(6), seed=101)),
+                        object_points=s.target.object_points())
+    assert same.verdict == "still valid" and same.test.dof == 6 and same.test.p_value > 0.05
+    assert same.what_moved == ("nothing moved beyond the uncertainty",)
+    bump = np.array([np.radians(0.5), 0.0, 0.0, 0.0, 5e-3, 0.0])  # 0.5 deg, 5 mm along the camera's y
+    moved = verify_views(inst, views=_views(_verification(s, bump, seed=102)), object_points=s.target.object_points())
+    assert moved.drifted and moved.test.p_value < 1e-6
+    e = moved.test.change_xi - bump  # the estimated change within its 3-D 3-sigma region of the truth
+    assert e[3:] @ np.linalg.solve(moved.test.change_cov[3:, 3:], e[3:]) < stats.chi2.ppf(0.997, 3)
+    assert moved.change["trans_mm"] == pytest.approx(5.0, abs=4 * np.linalg.norm(moved.change["sigma_trans_mm"]))
+    assert "camera moved on the flange" in moved.what_moved[0]
+    d = moved.to_dict()
+    assert d["verdict"] == "drifted" and d["test"]["dof"] == 6 and d["frame"] == "T_end_cam"
+
+
+def test_verify_refuses_too_few_views_and_a_result_without_covariance(install):
+    from handeye.recal.verify import verify_views
+
+    s, res = install
+    v = _verification(s, np.zeros(6), seed=103, n_views=3)
+    with pytest.raises(InputError, match="at least 3 views"):
+        verify_views(load_result(res), views=_views(v)[:2], object_points=s.target.object_points())
+    bare = json.loads(json.dumps(res))
+    del bare["refinement"]["cov_x_6x6"]
+    with pytest.raises(InputError, match="no covariance"):
+        verify_views(load_result(bare), views=_views(v), object_points=s.target.object_points())
+
+
+def test_plan_power_grows_with_views_and_is_bounded_by_the_installed_uncertainty(install):
+    from handeye.recal.plan import installed_poses, plan_verification, plan_lines
+
+    s, res = install
+    inst = load_result(res)
+    p = plan_verification(inst, candidates=installed_poses(inst), max_views=8)
+    assert p.power_by_views[0] == pytest.approx(0.05, abs=1e-3)  # one view says nothing about X: the test's level
+    assert all(b >= a - 1e-9 for a, b in zip(p.power_by_views, p.power_by_views[1:]))
+    assert p.power_by_views[-1] <= p.ceiling_power + 1e-9
+    big = plan_verification(inst, candidates=installed_poses(inst), drift_mm=10.0, drift_deg=1.0, max_views=8)
+    assert big.n_views is not None and 3 <= big.n_views <= 8 and big.power_by_views[-1] >= 0.95
+    assert "views detect a drift of 10 mm / 1 deg" in plan_lines(big)[0]
+    with pytest.raises(InputError, match="positive"):
+        plan_verification(inst, drift_mm=0.0, drift_deg=0.0)
+
+
+# ------------------------------------------------------------------------------ the commands on rendered images
+@pytest.fixture(scope="module")
+def rendered(install, tmp_path_factory):
+    """The install's result.json and three rendered 4-view sessions of its rig: unchanged, camera bumped
+    by 5 mm / 0.5 deg, and the unchanged rig stated as eye-to-hand."""
+    from handeye.sim.vendor import write_vendor_session
+
+    s, res = install
+    root = tmp_path_factory.mktemp("recal")
+    (root / "installed").mkdir()
+    (root / "installed" / "result.json").write_text(json.dumps(res))
+    out = {"installed": root / "installed"}
+    bump = np.array([np.radians(0.5), 0.0, 0.0, 0.0, 5e-3, 0.0])
+    for name, xi in (("same", np.zeros(6)), ("bumped", bump)):
+        out[name] = write_vendor_session(root / name, n_views=4, seed=200, robot_noise=(0.2, 0.05), image_noise=2.0,
+                                         intrinsics=s.intrinsics, supersample=2, rig=(s.T_x_true @ se3_exp(xi),
+                                                                                     s.T_board_true))
+    return out
+
+
+def test_verify_cli_writes_reports_and_exits_9_when_drifted(rendered, tmp_path, capsys):
+    rc = main(["verify", str(rendered["same"]), "--against", str(rendered["installed"]), "--out", str(tmp_path / "a")])
+    out = capsys.readouterr().out
+    assert rc == 0 and "still valid" in out
+    d = json.loads((tmp_path / "a" / "verify.json").read_text())
+    assert d["verdict"] == "still valid" and d["n_views"] == 4 and d["session"]["intrinsics"] == "installed"
+    html = (tmp_path / "a" / "verify.html").read_text()
+    md = (tmp_path / "a" / "verify.md").read_text()
+    assert "STILL VALID" in html and "## What moved" in md and d["headline"] in md
+    rc = main(["verify", str(rendered["bumped"]), "--against", str(rendered["installed"]), "--out", str(tmp_path / "b")])
+    assert rc == DRIFTED_EXIT_CODE and "DRIFTED" in capsys.readouterr().out
+    assert json.loads((tmp_path / "b" / "verify.json").read_text())["drifted"] is True
+    rc = main(["verify", str(rendered["same"]), "--against", str(rendered["installed"]), "--mode", "eye_to_hand"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "eye_to_hand" in err[0]
+    assert main(["verify", "--plan", "--against", str(rendered["installed"]), "--drift-mm", "0", "--drift-deg", "0"]) == 2
+
+
+def test_calibrate_with_prior_reports_the_update_or_the_contradiction(rendered, tmp_path, capsys):
+    for name, contradicted in (("same", False), ("bumped", True)):
+        main(["-q", "calibrate", str(rendered[name]), "--prior", str(rendered["installed"]), "--out",
+              str(tmp_path / name), "--no-report"])
+        res = json.loads((tmp_path / name / "result.json").read_text())
+        p = res["prior"]
+        assert p["contradicted"] is contradicted and p["frame"] == "T_end_cam"
+        assert "prior:" in capsys.readouterr().out
+        if contradicted:
+            assert p["used"].startswith("no prior on X") and p["drift"]["trans_mm"] > 2.0
+        else:
+            assert p["used"] == "prior" and p["test"]["dof"] == 6 and p["test"]["p_value"] > 0.05
+
+
+def test_collect_verify_against_refuses_another_mode_in_one_line(rendered, tmp_path, capsys):
+    rc = main(["collect", str(tmp_path / "c"), "--mode", "eye_to_hand", "--camera", "sim", "--robot", "sim",
+               "--verify-against", str(rendered["installed"])])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "installed calibration is eye_in_hand" in err[0]
+    rc = main(["collect", str(tmp_path / "d"), "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim",
+               "--sim-bump", "1", "0.1"])
+    assert rc == 2 and "--verify-against" in capsys.readouterr().err
