@@ -18,13 +18,15 @@ PITCH, MARGIN, RADIUS = 36, 70, 9
 DOT_TOL_PX = 0.15
 
 
-def _texture(cols: int, rows: int, *, origin_dot: bool, distractor: bool) -> np.ndarray:
+def _texture(cols: int, rows: int, *, origin_dot: bool, distractor: bool, moved: dict | None = None) -> np.ndarray:
+    """``moved``: {(c, r): (dx, dy)} dots drawn that many texture px off the grid."""
     w, h = 2 * MARGIN + PITCH * (cols - 1), 2 * MARGIN + PITCH * (rows - 1)
     tex = np.full((h * 8, w * 8), 235, np.uint8)  # drawn 8x larger, then reduced: anti-aliased edges
     for r in range(rows):
         for c in range(cols):
             rad = 2 * RADIUS if (origin_dot and r == c == 0) else RADIUS
-            _disk(tex, MARGIN + PITCH * c, MARGIN + PITCH * r, rad)
+            dx, dy = (moved or {}).get((c, r), (0, 0))
+            _disk(tex, MARGIN + PITCH * c + dx, MARGIN + PITCH * r + dy, rad)
     if distractor:  # a larger dark disk outside the grid, like the printed legend on the ROS-I board
         _disk(tex, w - 28, 28, 24)
     return cv2.resize(tex, (w, h), interpolation=cv2.INTER_AREA)
@@ -36,9 +38,9 @@ def _disk(tex8, x, y, radius):
     cv2.circle(tex8, (16 * x + 7, 16 * y + 7), 16 * radius, 25, -1, shift=1)
 
 
-def _view(cols=10, rows=10, *, origin_dot=True, distractor=True):
+def _view(cols=10, rows=10, *, origin_dot=True, distractor=True, moved=None):
     """(image, H, expected (n,2)): the board under a mild perspective; expected[r*cols+c] is dot (c, r)."""
-    tex = _texture(cols, rows, origin_dot=origin_dot, distractor=distractor)
+    tex = _texture(cols, rows, origin_dot=origin_dot, distractor=distractor, moved=moved)
     h, w = tex.shape
     src = np.float32([[0, 0], [w, 0], [w, h], [0, h]])
     dst = np.float32([[150, 70], [520, 95], [560, 430], [110, 400]])
@@ -165,3 +167,15 @@ def test_reports_a_reason_when_the_grid_is_absent():
     img, _, _ = _view()
     out = detect_circlegrid(img, CircleGridSpec(12, 9, 0.02))
     assert isinstance(out, str) and "not found" in out
+
+
+def test_a_grid_with_a_dot_off_its_place_fails_the_geometric_check():
+    spec = CircleGridSpec(10, 10, 0.02, origin_dot=True)
+    img, _, exp = _view()
+    ids, pts = detect_circlegrid(img, spec)  # the regular grid passes
+    assert np.max(np.linalg.norm(pts - exp[ids], axis=1)) < DOT_TOL_PX
+    # dot (4, 5) drawn 6 px (a sixth of the pitch) off: still found as a grid, refused by the check
+    img, _, _ = _view(moved={(4, 5): (6, 0)})
+    out = detect_circlegrid(img, spec)
+    assert isinstance(out, str) and out.startswith("circle grid dots fail the geometric check: dot ")
+    assert "px from where its neighbours put it (limit " in out

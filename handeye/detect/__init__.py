@@ -30,6 +30,7 @@ from .board_size import SizeSurvey, board_size_verdict, normal_size, size_survey
 from .charuco import detect_charuco
 from .chessboard import detect_chessboard, normalize_chessboard_order, order_cue
 from .circlegrid import detect_circlegrid
+from .geometry import TimeBudget
 from .options import DetectionOptions, default_options
 from .quality import image_exposure, sharpness, thumbnail_jpeg, view_blur, view_exposure
 
@@ -37,6 +38,8 @@ log = logging.getLogger(__name__)
 
 #: the detector of each target kind (``TargetSpec.kind``)
 DETECTORS = {"chessboard": detect_chessboard, "charuco": detect_charuco, "circlegrid": detect_circlegrid}
+#: detectors with slower fallback searches, which take the image's time budget (``budget=``)
+_BUDGETED = (detect_chessboard, detect_circlegrid)
 _JPEG_MAGIC = b"\xff\xd8\xff"
 
 
@@ -66,15 +69,19 @@ def read_gray(path: Path) -> np.ndarray:
 
 
 def detect_gray(gray: np.ndarray, target: TargetSpec, *, min_corners: int | None = None,
-                options: DetectionOptions | None = None) -> tuple[np.ndarray, np.ndarray] | str:
+                options: DetectionOptions | None = None, budget: TimeBudget | None = None
+                ) -> tuple[np.ndarray, np.ndarray] | str:
     """(corner ids, image points (N,2) px) of ``target`` in an 8-bit grey image, or the reason it was
-    not found. Fewer than ``min_corners`` corners (default: configs/detection.yaml) counts as not found."""
+    not found. Fewer than ``min_corners`` corners (default: configs/detection.yaml) counts as not found.
+    ``budget``: the time left for this image (default: ``time_budget_s`` from now); detectors with slower
+    searches skip them once it is spent (the reason then says "detection timed out")."""
     o = options or default_options()
     need = o.min_corners if min_corners is None else min_corners
     detector = DETECTORS.get(getattr(target, "kind", None))
     if detector is None:
         raise ConfigError("no detector for this target", expected=" | ".join(DETECTORS), received=repr(target))
-    out = detector(gray, target, options=o)
+    kw = {"budget": budget or TimeBudget(o.time_budget_s)} if detector in _BUDGETED else {}
+    out = detector(gray, target, options=o, **kw)
     if isinstance(out, str):
         return out
     ids, pts = out
@@ -88,9 +95,10 @@ def detect_image(view_id: str, path: Path, target: TargetSpec, *, min_corners: i
     """Detect the target in one image file and measure the image while it is decoded."""
     o = options or default_options()
     t0 = time.perf_counter()
+    budget = TimeBudget(o.time_budget_s, start=t0)
     gray = read_gray(path)
     size = (gray.shape[1], gray.shape[0])
-    out = detect_gray(gray, target, min_corners=min_corners, options=o)
+    out = detect_gray(gray, target, min_corners=min_corners, options=o, budget=budget)
     if isinstance(out, str):
         return _failure(view_id, gray, out, o, t0)
     thumb = thumbnail_jpeg(gray, width_px=o.thumbnail_width_px, quality=o.thumbnail_jpeg_quality)
@@ -200,7 +208,7 @@ def _sizes_of_failures(results: dict, paths: dict, pool, o: DetectionOptions) ->
 
     def look(vid):
         return vid, visible_grid_sizes(read_gray(paths[vid]), max_side_px=o.size_survey_max_side_px,
-                                       full_size_retry=True)
+                                       full_size_retry=True, retry_max_megapixels=o.search_max_megapixels)
 
     out = dict(results)
     for vid, seen in pool.map(look, pick):

@@ -29,17 +29,21 @@ def size_text(size: Size) -> str:
     return f"{size[0]}x{size[1]}"
 
 
-def visible_grid_sizes(gray: np.ndarray, *, max_side_px: int = 800, full_size_retry: bool = False) -> tuple:
+def visible_grid_sizes(gray: np.ndarray, *, max_side_px: int = 800, full_size_retry: bool = False,
+                       retry_max_megapixels: float = 1.0) -> tuple:
     """Inner-corner sizes ``((cols, rows), ...)`` of the chessboards seen in an 8-bit grey image
     (at most one: the largest grid the detector follows); ``()`` when none.
 
     The image is reduced so its longer side is at most ``max_side_px``; ``full_size_retry`` searches
-    the full image too when the reduced one shows nothing (small boards; 150-300 ms at 1280x720).
+    the full image too when the reduced one shows nothing (small boards; 150-300 ms at 1280x720), or
+    a copy reduced to ``retry_max_megapixels`` when the image is larger (the search's time grows with
+    the area: configs/detection.yaml ``search_max_megapixels``).
     """
     h, w = gray.shape[:2]
     scales = [min(1.0, max_side_px / max(h, w))]
-    if full_size_retry and scales[0] < 1.0:
-        scales.append(1.0)
+    retry = min(1.0, float(np.sqrt(retry_max_megapixels * 1e6 / (w * h))))
+    if full_size_retry and scales[0] < retry:
+        scales.append(retry)
     for s in scales:
         img = gray if s == 1.0 else cv2.resize(gray, (round(w * s), round(h * s)), interpolation=cv2.INTER_AREA)
         found, _, meta = cv2.findChessboardCornersSBWithMeta(

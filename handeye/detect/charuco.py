@@ -1,11 +1,16 @@
 """ChArUco boards: corner ids from the markers (partial views allowed), sub-pixel corners."""
 from __future__ import annotations
 
+import logging
+
 import cv2
 import numpy as np
 
 from ..targets import CharucoSpec
+from .geometry import check_corners
 from .options import DetectionOptions, default_options
+
+log = logging.getLogger(__name__)
 
 
 def charuco_board(spec: CharucoSpec):
@@ -31,4 +36,23 @@ def detect_charuco(gray: np.ndarray, spec: CharucoSpec, *, options: DetectionOpt
     win = o.charuco_subpix_window_px
     pts = cv2.cornerSubPix(gray, pts.reshape(-1, 1, 2), (win, win), (-1, -1), o.subpix_criteria).reshape(-1, 2)
     order = np.argsort(ids)
-    return ids[order], pts[order].astype(np.float64)
+    ids, pts = ids[order], pts[order].astype(np.float64)
+    keep = off_grid_corners_removed(spec.object_points()[ids, :2], pts, o)
+    if not keep.all():
+        log.info("ChArUco corners %s dropped: off the homography of their neighbours (geometric check)",
+                 ids[~keep].tolist())
+    return ids[keep], pts[keep]
+
+
+def off_grid_corners_removed(board_xy: np.ndarray, pts: np.ndarray, options: DetectionOptions) -> np.ndarray:
+    """Mask (N,) of the corners kept after the geometric check (:func:`.geometry.grid_check`): the corner
+    farthest over its limit is removed, and the check repeated without it (one wrong corner also moves
+    its neighbours' predictions), until all pass."""
+    keep = np.ones(len(pts), bool)
+    while keep.sum() > 0:
+        idx = np.flatnonzero(keep)
+        check = check_corners(board_xy[idx], pts[idx], options)
+        if check.passed:
+            break
+        keep[idx[check.worst]] = False
+    return keep

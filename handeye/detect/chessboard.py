@@ -1,5 +1,7 @@
-"""Chessboards: corners by OpenCV (at half size in large images, then sub-pixel on the full image) and
-the corner order of boards whose colours tell their orientation."""
+"""Chessboards: corners by OpenCV's searches (at half size first in large images, on a reduced copy in
+very large ones), refined on the full image in windows set from the square size, checked against the
+board's own geometry (re-detected by the accurate search when they fail), and the corner order of boards
+whose colours tell their orientation."""
 from __future__ import annotations
 
 import logging
@@ -10,58 +12,129 @@ import numpy as np
 
 from ..records import Detection
 from ..targets import ChessboardSpec
+from .geometry import TimeBudget, apply_homography, board_homography, check_corners, search_copy, square_px
 from .options import DetectionOptions, default_options
 
 log = logging.getLogger(__name__)
 
 
-def subpix_window(corners: np.ndarray, cols: int, rows: int, options: DetectionOptions) -> int:
-    """cornerSubPix half window (px): a share of the smallest corner spacing, so it stays in one square."""
-    grid = corners.reshape(rows, cols, 2)
-    d = []
-    if cols > 1:
-        d.append(np.linalg.norm(np.diff(grid, axis=1), axis=2).min())
-    if rows > 1:
-        d.append(np.linalg.norm(np.diff(grid, axis=0), axis=2).min())
-    spacing = min(d) if d else 10.0
+_CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
+_ACCURATE_FLAGS = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_NORMALIZE_IMAGE
+
+
+def board_squares(spec: ChessboardSpec) -> np.ndarray:
+    """Board-plane position of every inner corner in squares, shape (N, 2)."""
+    return spec.object_points()[:, :2] / spec.square_m
+
+
+def subpix_windows(board_xy: np.ndarray, pts: np.ndarray, options: DetectionOptions
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """(start points (N,2), cornerSubPix half window of each corner (N,) px) for coarse corners ``pts``.
+
+    The board homography is fitted robustly to the coarse corners (:func:`.geometry.board_homography`);
+    the window is ``subpix_window_factor`` x the square's size in px at each corner, clipped to
+    [min, max] px; a coarse corner farther than ``coarse_outlier_squares`` from the homography's
+    prediction starts from the prediction."""
     o = options
-    return int(np.clip(spacing * o.subpix_window_factor, o.subpix_window_min_px, o.subpix_window_max_px))
+    H = board_homography(board_xy, pts)
+    if H is None:
+        return pts, np.full(len(pts), o.subpix_window_min_px)
+    sq = square_px(H, board_xy, 1.0)
+    pred = apply_homography(H, board_xy)
+    off = np.linalg.norm(pts - pred, axis=1) > o.coarse_outlier_squares * sq
+    if off.any():
+        log.debug("%d coarse corners off the board homography restart from it", int(off.sum()))
+    start = np.where(off[:, None], pred, pts)
+    win = np.clip(np.floor(o.subpix_window_factor * sq), o.subpix_window_min_px, o.subpix_window_max_px).astype(int)
+    return start, win
 
 
-def find_chessboard_fast(gray: np.ndarray, spec: ChessboardSpec, *, options: DetectionOptions | None = None):
-    """(corners (N,1,2) as found, scale of the image they were found in) by the fast search, or None.
+def refine_corners(gray: np.ndarray, pts: np.ndarray, win: np.ndarray, options: DetectionOptions) -> np.ndarray:
+    """cornerSubPix of every corner with its own half window (corners of one window size together)."""
+    out = np.asarray(pts, np.float32).reshape(-1, 2).copy()
+    for w in np.unique(win):
+        k = np.flatnonzero(win == w)
+        out[k] = cv2.cornerSubPix(gray, out[k].reshape(-1, 1, 2), (int(w), int(w)), (-1, -1),
+                                  options.subpix_criteria).reshape(-1, 2)
+    return out.astype(np.float64)
 
-    Detect on a reduced image when large: several times faster, and FAST_CHECK rejects an image without
-    a board in milliseconds. Views this misses go to the slow search (:func:`detect_chessboard`)."""
+
+def refine_chessboard(gray: np.ndarray, search: np.ndarray, scale: np.ndarray, coarse: np.ndarray,
+                      spec: ChessboardSpec, options: DetectionOptions) -> np.ndarray:
+    """Full-resolution corners (N,2) from ``coarse`` corners found in ``search`` (``gray`` reduced by
+    ``scale``, per axis), with windows from the square size; on a reduced search image the corners are first
+    refined there, so the full-size windows only correct what the reduction lost."""
+    bxy = board_squares(spec)
+    start, win = subpix_windows(bxy, np.asarray(coarse, float).reshape(-1, 2), options)
+    if np.any(scale != 1.0):
+        start = (refine_corners(search, start, win, options) + 0.5) / scale - 0.5  # pixel centres at integers
+        start, win = subpix_windows(bxy, start, options)
+    return refine_corners(gray, start, win, options)
+
+
+def find_chessboard_fast(gray: np.ndarray, spec: ChessboardSpec, *, options: DetectionOptions | None = None,
+                         budget: TimeBudget | None = None) -> np.ndarray | None:
+    """Corners (N,2) in ``gray``'s pixels as the fast search finds them (not refined), or None.
+
+    Detect on a half-size image first when large: several times faster, and FAST_CHECK rejects an image
+    without a board in milliseconds. The full-size search follows unless ``budget`` is spent."""
     o = options or default_options()
     size = (spec.cols, spec.rows)
     h, w = gray.shape
-    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
     if max(h, w) > o.half_size_above_px:
         small = cv2.resize(gray, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
-        found, corners = cv2.findChessboardCorners(small, size, flags=flags)
+        found, corners = cv2.findChessboardCorners(small, size, flags=_CLASSIC_FLAGS)
         if found:
-            return corners, 0.5
-    found, corners = cv2.findChessboardCorners(gray, size, flags=flags)
-    return (corners, 1.0) if found else None
+            return (corners.reshape(-1, 2) + 0.5) * np.array([w / (w // 2), h / (h // 2)]) - 0.5
+        if budget is not None and budget.spent():
+            return None
+    found, corners = cv2.findChessboardCorners(gray, size, flags=_CLASSIC_FLAGS)
+    return corners.reshape(-1, 2).astype(np.float64) if found else None
 
 
-def detect_chessboard(gray: np.ndarray, spec: ChessboardSpec, *, options: DetectionOptions | None = None
-                      ) -> tuple[np.ndarray, np.ndarray] | str:
-    """(corner_ids, image_points (N,2)) or a reason string. Corners are refined on the full image."""
+def detect_chessboard(gray: np.ndarray, spec: ChessboardSpec, *, options: DetectionOptions | None = None,
+                      budget: TimeBudget | None = None) -> tuple[np.ndarray, np.ndarray] | str:
+    """(corner_ids, image points (N,2)) or a reason string.
+
+    The searches run on the image, or on a reduced copy above ``search_max_megapixels``
+    (:func:`.geometry.search_copy`); the corners found are refined on the full image with windows
+    from the square size (:func:`refine_chessboard`) and must pass the geometric check
+    (:func:`.geometry.grid_check`). Corners that fail it are searched again by ``findChessboardCornersSB`` with
+    EXHAUSTIVE | ACCURACY; corners that fail it again drop the view with the reason. ``budget`` (default:
+    ``time_budget_s``) skips the slower searches once spent: the view is dropped as timed out."""
     o = options or default_options()
-    fast = find_chessboard_fast(gray, spec, options=o)
-    if fast is not None:
-        corners, scale = fast
-    else:
-        found, corners = cv2.findChessboardCornersSB(gray, (spec.cols, spec.rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
+    budget = budget or TimeBudget(o.time_budget_s)
+    size = (spec.cols, spec.rows)
+    search, scale = search_copy(gray, max_megapixels=o.search_max_megapixels)
+    where = "" if np.all(scale == 1.0) else (f" (searched at {search.shape[1]}x{search.shape[0]}: the image is above "
+                                     f"{o.search_max_megapixels:g} MP)")
+    coarse = find_chessboard_fast(search, spec, options=o, budget=budget)
+    if coarse is None:
+        if budget.spent():
+            return budget.timed_out("the full-size chessboard searches") + where
+        found, corners = cv2.findChessboardCornersSB(search, size, flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
         if not found:
-            return f"chessboard {spec.cols}x{spec.rows} not found"
-        scale = 1.0
-    pts = corners.reshape(-1, 2).astype(np.float32) / scale
-    win = subpix_window(pts, spec.cols, spec.rows, o)
-    pts = cv2.cornerSubPix(gray, pts.reshape(-1, 1, 2), (win, win), (-1, -1), o.subpix_criteria).reshape(-1, 2)
-    return np.arange(spec.n_corners), pts.astype(np.float64)
+            return f"chessboard {spec.cols}x{spec.rows} not found{where}"
+        coarse = corners.reshape(-1, 2)
+    bxy = board_squares(spec)
+    pts = refine_chessboard(gray, search, scale, coarse, spec, o)
+    check = check_corners(bxy, pts, o)
+    if check.passed:
+        return np.arange(spec.n_corners), pts
+    log.info("chessboard corners fail the geometric check (%s): searched again by the accurate detector", check.text())
+    if budget.spent():
+        return budget.timed_out(f"the accurate search after the geometric check failed ({check.text()})") + where
+    found, corners = cv2.findChessboardCornersSB(search, size, flags=_ACCURATE_FLAGS)
+    if not found:
+        return (f"chessboard corners fail the geometric check ({check.text()}) and the accurate detector finds "
+                f"no board{where}")
+    pts = corners.reshape(-1, 2).astype(np.float64)
+    if np.any(scale != 1.0):
+        pts = refine_chessboard(gray, search, scale, pts, spec, o)
+    again = check_corners(bxy, pts, o)
+    if not again.passed:
+        return f"chessboard corners fail the geometric check, also from the accurate detector: {again.text()}{where}"
+    return np.arange(spec.n_corners), pts
 
 
 def order_cue(gray: np.ndarray, pts: np.ndarray, cols: int, rows: int) -> float:

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from ..targets import CircleGridSpec
+from .geometry import TimeBudget, check_corners
 from .options import CircleBlobOptions, DetectionOptions, default_options
 
 log = logging.getLogger(__name__)
@@ -32,8 +33,8 @@ def circle_blob_detector(image_size: tuple[int, int], options: CircleBlobOptions
     return cv2.SimpleBlobDetector_create(p)
 
 
-def detect_circlegrid(gray: np.ndarray, spec: CircleGridSpec, *, options: DetectionOptions | None = None
-                      ) -> tuple[np.ndarray, np.ndarray] | str:
+def detect_circlegrid(gray: np.ndarray, spec: CircleGridSpec, *, options: DetectionOptions | None = None,
+                      budget: TimeBudget | None = None) -> tuple[np.ndarray, np.ndarray] | str:
     """(dot ids, image points (N,2)) of a circle grid, or a reason string.
 
     ``cv2.findCirclesGrid`` (CLUSTERING) on dark blobs. A symmetric grid's order is made to look
@@ -41,18 +42,26 @@ def detect_circlegrid(gray: np.ndarray, spec: CircleGridSpec, *, options: Detect
     handedness as the object points), so only in-plane turns remain; with ``spec.origin_dot`` the
     grid is turned so the corner dot that is clearly larger than the others gets id 0. Only the
     four corner dots are compared: elsewhere in the image (printed legends) there can be larger blobs.
+    The second search (without clustering) is skipped once ``budget`` is spent; a grid with a dot off
+    the homography of its neighbours (:func:`.geometry.grid_check`) is dropped.
     """
     o = options or default_options()
+    budget = budget or TimeBudget(o.time_budget_s)
     h, w = gray.shape
     blobs = circle_blob_detector((w, h), o.circle_blobs)
     flags = cv2.CALIB_CB_ASYMMETRIC_GRID if spec.asymmetric else cv2.CALIB_CB_SYMMETRIC_GRID
     found, centers = cv2.findCirclesGrid(gray, (spec.cols, spec.rows), flags=flags | cv2.CALIB_CB_CLUSTERING,
                                          blobDetector=blobs)
     if not found:
+        if budget.spent():
+            return budget.timed_out("the circle-grid search without clustering")
         found, centers = cv2.findCirclesGrid(gray, (spec.cols, spec.rows), flags=flags, blobDetector=blobs)
     if not found or centers is None or len(centers) != spec.n_corners:
         return f"circle grid {spec.cols}x{spec.rows} not found"
     pts = centers.reshape(-1, 2).astype(np.float64)
+    check = check_corners(spec.object_points()[:, :2], pts, o)
+    if not check.passed:
+        return f"circle grid dots fail the geometric check: {check.text('dot')} (in the order found)"
     if spec.asymmetric:
         return np.arange(spec.n_corners), pts
     grid = pts.reshape(spec.rows, spec.cols, 2)

@@ -28,9 +28,15 @@ class CircleBlobOptions:
 class DetectionOptions:
     min_corners: int  # fewest corners a view needs
     half_size_above_px: int  # chessboards are searched at half size in larger images
-    subpix_window_factor: float  # cornerSubPix half window = factor x corner spacing ...
+    search_max_megapixels: float  # larger images are searched on a copy reduced to this area
+    time_budget_s: float  # wall-clock time of one image's detection after which slower searches are skipped
+    subpix_window_factor: float  # cornerSubPix half window = factor x the square's size in px ...
     subpix_window_min_px: int  # ... clipped to [min, max] px
     subpix_window_max_px: int
+    coarse_outlier_squares: float  # a coarse corner this far (squares) from the board homography restarts there
+    grid_check_radius_steps: float  # the geometric check predicts a corner from neighbours this near (grid steps)
+    grid_check_max_px: float  # ... and drops or re-detects a view with a corner farther than this from it ...
+    grid_check_max_share: float  # ... plus this share of the square's size in px
     charuco_subpix_window_px: int
     subpix_max_iter: int
     subpix_eps_px: float

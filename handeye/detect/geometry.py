@@ -1,0 +1,182 @@
+"""The board's own geometry applied to detected corners: a homography of the board plane, the size of
+a square in pixels from it, the geometric check of a view's corners, the reduced copy of a large image
+that the searches run on, and the time budget of one image's detection.
+
+The check (:func:`grid_check`) predicts every corner from its neighbours on the board (those within
+``radius`` grid steps) through the homography they fit, and measures how far the detected corner lies
+from that prediction. A neighbourhood of a few squares is small enough for lens distortion to stay far
+below a pixel, so a corner placed on the wrong saddle point or pulled off by a wrong neighbour stands out
+by pixels while well-placed corners stay at their noise.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+def _homographies(src: np.ndarray, dst: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Least-squares homographies of a stack of point sets, shape (B, 3, 3): the linear (DLT) fit with
+    h33 = 1 on coordinates normalised to mean 0 and RMS sqrt(2) (where h33 stays far from 0).
+
+    src, dst: shape (B, K, 2); mask (B, K) selects the points of each set."""
+    w = mask[..., None].astype(float)
+    sn, Ts = _normalise_masked(src, mask)
+    dn, Td = _normalise_masked(dst, mask)
+    x, y = sn[..., 0], sn[..., 1]
+    u, v = dn[..., 0], dn[..., 1]
+    one, zero = np.ones_like(x), np.zeros_like(x)
+    r1 = np.stack([x, y, one, zero, zero, zero, -u * x, -u * y], axis=2)
+    r2 = np.stack([zero, zero, zero, x, y, one, -v * x, -v * y], axis=2)
+    A = np.concatenate([r1, r2], axis=1) * np.concatenate([w, w], axis=1)  # shape (B, 2K, 8)
+    b = np.concatenate([u, v], axis=1) * np.concatenate([w, w], axis=1)[..., 0]  # shape (B, 2K)
+    At = A.transpose(0, 2, 1)
+    h = np.linalg.solve(At @ A, (At @ b[..., None]))[..., 0]  # shape (B, 8)
+    Hn = np.concatenate([h, np.ones((len(h), 1))], axis=1).reshape(-1, 3, 3)
+    return np.linalg.inv(Td) @ Hn @ Ts
+
+
+def _normalise_masked(pts: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    m = mask[..., None].astype(float)
+    n = np.maximum(m.sum(axis=1, keepdims=True), 1.0)
+    c = (pts * m).sum(axis=1, keepdims=True) / n
+    rms = np.sqrt(((np.sum((pts - c) ** 2, axis=2, keepdims=True)) * m).sum(axis=1, keepdims=True) / n)
+    s = np.sqrt(2.0) / np.maximum(rms, 1e-12)  # shape (B, 1, 1)
+    T = np.zeros((len(pts), 3, 3))
+    T[:, 0, 0] = T[:, 1, 1] = s[:, 0, 0]
+    T[:, :2, 2] = -s[:, 0] * c[:, 0]
+    T[:, 2, 2] = 1.0
+    return (pts - c) * s * m, T
+
+
+def apply_homography(H: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Points ``xy`` (N, 2) mapped by ``H`` (3, 3), or each by its own ``H`` (N, 3, 3)."""
+    p = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
+    q = (H @ p[..., None])[..., 0] if H.ndim == 3 else p @ H.T
+    return q[:, :2] / q[:, 2:3]
+
+
+@dataclass(frozen=True)
+class GridCheck:
+    """The geometric check of one view's corners (:func:`grid_check`)."""
+
+    residual_px: np.ndarray  # (N,) distance of each corner from its neighbours' prediction; NaN: not checked
+    limit_px: np.ndarray  # (N,) the largest distance allowed there
+    worst: int  # index of the corner farthest over (or nearest to) its limit; -1 when none was checked
+
+    @property
+    def passed(self) -> bool:
+        return self.worst < 0 or bool(self.residual_px[self.worst] <= self.limit_px[self.worst])
+
+    def text(self, what: str = "corner") -> str:
+        """e.g. "corner 13 lies 3.0 px from where its neighbours put it (limit 1.8 px)"."""
+        k = self.worst
+        return (f"{what} {k} lies {self.residual_px[k]:.1f} px from where its neighbours put it "
+                f"(limit {self.limit_px[k]:.1f} px, configs/detection.yaml grid_check_max_px and _share)")
+
+
+def grid_check(board_xy: np.ndarray, image_xy: np.ndarray, *, radius_steps: float, max_px: float,
+               max_share: float, min_neighbours: int = 6) -> GridCheck:
+    """Each detected corner against the homography of its board neighbours.
+
+    board_xy: (N, 2) board-plane positions of the detected corners (any unit); image_xy: (N, 2) px.
+    Neighbours: the other detected corners within ``radius_steps`` grid steps on the board. A corner
+    may lie ``max_px + max_share x`` (the size of one grid step there, px) from its prediction: the
+    first term for the corner noise, the second for lens distortion, which bends the neighbourhood in
+    proportion to its size in the image. Corners with fewer than ``min_neighbours`` neighbours, or
+    neighbours all on one line, are not checked (NaN)."""
+    board_xy = np.asarray(board_xy, float)
+    image_xy = np.asarray(image_xy, float)
+    n = len(board_xy)
+    res, limit = np.full(n, np.nan), np.full(n, np.inf)
+    if n >= min_neighbours + 1:
+        d = np.linalg.norm(board_xy[:, None, :] - board_xy[None, :, :], axis=2)  # shape (N, N)
+        step = float(np.min(d + np.diag(np.full(n, np.inf))))
+        near = (d / step <= radius_steps) & ~np.eye(n, dtype=bool)
+        k = int(near.sum(axis=1).max())
+        order = np.argsort(~near, axis=1, kind="stable")[:, :k]  # neighbours first, shape (N, k)
+        mask = np.take_along_axis(near, order, axis=1)
+        src, dst = board_xy[order], image_xy[order]  # shape (N, k, 2)
+        ok = mask.sum(axis=1) >= min_neighbours
+        # neighbours on one line fit no homography: need spread across both board directions
+        c = (src * mask[..., None]).sum(axis=1) / np.maximum(mask.sum(axis=1), 1)[:, None]
+        dev = (src - c[:, None]) * mask[..., None]
+        ok &= np.linalg.eigvalsh(dev.transpose(0, 2, 1) @ dev)[:, 0] > 1e-6 * step ** 2
+        if ok.any():
+            H = _homographies(src[ok], dst[ok], mask[ok])
+            res[ok] = np.linalg.norm(apply_homography(H, board_xy[ok]) - image_xy[ok], axis=1)
+            limit[ok] = max_px + max_share * _step_px(H, board_xy[ok], step)
+    ratio = res / limit
+    worst = int(np.nanargmax(ratio)) if np.isfinite(ratio).any() else -1
+    return GridCheck(residual_px=res, limit_px=limit, worst=worst)
+
+
+def check_corners(board_xy: np.ndarray, image_xy: np.ndarray, options) -> GridCheck:
+    """:func:`grid_check` with the settings of ``options`` (a :class:`.options.DetectionOptions`)."""
+    return grid_check(board_xy, image_xy, radius_steps=options.grid_check_radius_steps,
+                      max_px=options.grid_check_max_px, max_share=options.grid_check_max_share)
+
+
+def _step_px(H: np.ndarray, board_xy: np.ndarray, step: float) -> np.ndarray:
+    """Shortest image length (px) of one grid step at each board point under its own (N, 3, 3) or a
+    common (3, 3) homography: the smallest singular value of the Jacobian there, shape (N,)."""
+    Hs = np.broadcast_to(H, (len(board_xy), 3, 3))
+    p = (Hs @ np.concatenate([board_xy, np.ones((len(board_xy), 1))], axis=1)[..., None])[..., 0]  # (N, 3)
+    w = p[:, 2]
+    # d(u, v)/d(x, y) of (H p)[:2] / (H p)[2]
+    J = (Hs[:, :2, :2] * w[:, None, None] - p[:, :2, None] * Hs[:, 2:3, :2]) / (w ** 2)[:, None, None]
+    return np.linalg.svd(J, compute_uv=False)[:, -1] * step
+
+
+def board_homography(board_xy: np.ndarray, image_xy: np.ndarray) -> np.ndarray | None:
+    """Homography board plane -> image fitted robustly (least median of squares: up to half of the
+    corners may be wrong), or None when it cannot be fitted."""
+    if len(board_xy) < 4:
+        return None
+    H, _ = cv2.findHomography(np.asarray(board_xy, np.float64), np.asarray(image_xy, np.float64), cv2.LMEDS)
+    return H
+
+
+def square_px(H: np.ndarray, board_xy: np.ndarray, step: float) -> np.ndarray:
+    """Size in px of a grid step at each board point under ``H``: the shortest image length of one step
+    in any direction, shape (N,)."""
+    return _step_px(H, board_xy, step)
+
+
+def search_copy(gray: np.ndarray, *, max_megapixels: float) -> tuple[np.ndarray, np.ndarray]:
+    """(the image the searches run on, its scale (x, y)): the image itself, or, above ``max_megapixels``,
+    a copy reduced to that area (the searches' time grows faster than the area; the corners are refined
+    on the full image afterwards)."""
+    h, w = gray.shape[:2]
+    mp = w * h / 1e6
+    if mp <= max_megapixels:
+        return gray, np.ones(2)
+    scale = float(np.sqrt(max_megapixels / mp))
+    size = (max(1, int(w * scale)), max(1, int(h * scale)))
+    log.info("image %dx%d (%.1f MP) is above the %.g MP search limit: searched at %dx%d, refined at full size",
+             w, h, mp, max_megapixels, *size)
+    return cv2.resize(gray, size, interpolation=cv2.INTER_AREA), np.array([size[0] / w, size[1] / h])
+
+
+@dataclass
+class TimeBudget:
+    """Wall-clock time one image's detection may take before its slower searches are skipped."""
+
+    seconds: float
+    start: float = field(default_factory=time.perf_counter)
+
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.start
+
+    def spent(self) -> bool:
+        return self.elapsed() >= self.seconds
+
+    def timed_out(self, skipped: str) -> str:
+        """The reason of a view dropped because the budget was spent before ``skipped`` could run."""
+        return (f"detection timed out: {self.elapsed():.1f} s spent of the {self.seconds:g} s budget "
+                f"(configs/detection.yaml time_budget_s), {skipped} skipped")
