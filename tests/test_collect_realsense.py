@@ -124,6 +124,7 @@ def _record(rs, folder, frames, *, fx=455.0, fy=454.5, ppx=321.1, ppy=180.4, mod
             f.pixels, f.bpp, f.stride = np.ascontiguousarray(img), 3, W * 3
             f.timestamp, f.domain, f.frame_number, f.profile = 1000.0 + 33.3 * i, rs.timestamp_domain.system_time, i, profile
             sensor.on_video_frame(f)
+            queue.wait_for_frame(10_000)  # through the sensor (and the recorder) before the next one and the stop
         sensor.stop()
         sensor.close()
         recorder.pause()
@@ -195,6 +196,39 @@ def test_a_late_reader_gets_every_frame_in_order(tmp_path):
         cam.close()
     with pytest.raises(HardwareError, match="closed"):
         cam.grab()
+
+
+def test_a_slow_player_is_never_read_as_the_end(tmp_path, monkeypatch):
+    """The end of a recording is the player's word, not a timeout: a player slower than the wait (a loaded
+    machine) delivers every frame, and a stall says so instead of "no more colour frames (after 2)"."""
+    rs = _rs()
+    frames = [np.full((H, W, 3), v, np.uint8) for v in (10, 60, 110)]
+    path = _record(rs, tmp_path, frames)
+    import time
+
+    import handeye.collect.realsense as realsense
+
+    convert = realsense._bgr_from_frame
+
+    def slow(rs_, frame):  # each frame takes 0.3 s to hand over
+        time.sleep(0.3)
+        return convert(rs_, frame)
+
+    monkeypatch.setattr(realsense, "_bgr_from_frame", slow)
+    cam = realsense.BagCamera(path, timeout_s=5.0)
+    try:
+        got = [int(cam.grab()[0][0, 0, 0]) for _ in frames]
+        assert got == [10, 60, 110]
+        with pytest.raises(HardwareError, match=r"no more colour frames \(after 3\)"):
+            cam.grab()
+    finally:
+        cam.close()
+    cam = realsense.BagCamera(path, timeout_s=0.05)  # shorter than one frame's hand-over
+    try:
+        with pytest.raises(HardwareError, match=r"stalled.*after 0 frames"):
+            cam.grab()
+    finally:
+        cam.close()
 
 
 def test_collect_from_a_recording(tmp_path, monkeypatch):

@@ -207,11 +207,16 @@ class BagCamera(_RealSenseBase):
     small blocking queue, so the player waits for the reader and no frame is ever dropped. (A pipeline
     starts playing in real time the moment it starts; a reader that is late by one frame interval
     before it can switch real time off - a loaded machine - loses the first frames.)
+
+    The end of the recording is what the player says (its status turns to stopped once it has handed
+    over its last frame), never a timeout: on a loaded machine the next frame may take seconds, and a
+    short wait that was read as "no more frames" cut recordings short. ``timeout_s`` only bounds a
+    player that stalls (a distinct error).
     """
 
     _QUEUE_FRAMES = 2  # frames decoded ahead of the reader (bounded memory; the player waits)
 
-    def __init__(self, path: str | Path, *, timeout_s: float = 2.0):
+    def __init__(self, path: str | Path, *, timeout_s: float = 60.0):
         super().__init__()
         rs = self._rs
         self.path = Path(path)
@@ -222,7 +227,8 @@ class BagCamera(_RealSenseBase):
         self.n_frames = 0
         self._frames: queue.Queue = queue.Queue(maxsize=self._QUEUE_FRAMES)
         self._closing = threading.Event()
-        self._delivered = threading.Event()  # the player has handed over at least one frame
+        self._played = threading.Event()  # the player has reported that it plays
+        self._stopped = threading.Event()  # ... and then that it stopped: the whole recording was handed over
         self._sensor = None
         self._playback = None
         self._player: list = []  # [sensor, playback] once started, released by close
@@ -237,6 +243,7 @@ class BagCamera(_RealSenseBase):
             sensor.open(vsp)
             self._sensor = sensor
             self._player[:] = [sensor, self._playback]
+            self._playback.set_status_changed_callback(_status_recorder(rs, self._played, self._stopped))
             sensor.start(self._on_frame)
         except RuntimeError as e:
             self.close()
@@ -253,8 +260,8 @@ class BagCamera(_RealSenseBase):
                             hint="record the colour stream (realsense-viewer: RGB camera on)")
 
     def _ended(self) -> bool:
-        """The player has played the whole recording (it stops after handing over its last frame)."""
-        return self._delivered.is_set() and self._playback.current_status() == self._rs.playback_status.stopped
+        """The player has played the whole recording (it reports stopped after handing over its last frame)."""
+        return self._stopped.is_set()
 
     def _on_frame(self, frame) -> None:
         """Player thread: convert the frame and wait for room in the queue (the player waits with it)."""
@@ -265,7 +272,6 @@ class BagCamera(_RealSenseBase):
         while not self._closing.is_set():
             try:
                 self._frames.put(item, timeout=0.05)
-                self._delivered.set()
                 return
             except queue.Full:
                 continue
@@ -281,10 +287,15 @@ class BagCamera(_RealSenseBase):
             except queue.Empty:
                 # the player puts its last frame before it reports the end, so an empty queue after
                 # the end means no frame is left
-                if (self._ended() and self._frames.empty()) or time.monotonic() > deadline:
+                if self._ended() and self._frames.empty():
                     raise HardwareError(f"the recording has no more colour frames (after {self.n_frames})",
                                         path=self.path,
                                         hint="record a longer sequence or capture fewer views") from None
+                if time.monotonic() > deadline:
+                    raise HardwareError(f"the recording's player stalled: no colour frame within {self.timeout_s:g} s "
+                                        f"and no end of the recording (after {self.n_frames} frames)", path=self.path,
+                                        hint="check the file with realsense-viewer; on a very busy machine pass a "
+                                             "longer timeout") from None
         if isinstance(item, HardwareError):
             raise item
         image, info = item
@@ -296,6 +307,17 @@ class BagCamera(_RealSenseBase):
         """Stop the player and release the recording."""
         self._sensor = self._playback = None
         self._finalizer()
+
+
+def _status_recorder(rs, played: threading.Event, stopped: threading.Event):
+    """The player's status callback: sets ``played`` when it plays and ``stopped`` when it stops after that
+    (a closure, not a method: the player must not keep the camera alive)."""
+    def on_status(status) -> None:
+        if status == rs.playback_status.playing:
+            played.set()
+        elif status == rs.playback_status.stopped and played.is_set():
+            stopped.set()
+    return on_status
 
 
 def _stop_player(closing: threading.Event, player: list) -> None:
