@@ -302,3 +302,145 @@ def test_sizes_are_named_after_a_full_search_the_probe_could_not_cut_short(tmp_p
     assert not any(d.reason.startswith("not searched") for d in res.values())  # the probe saw one 11x8 only
     survey = size_survey(res, (9, 6))
     assert len(survey.seen) == 3 and survey.likely_size == (11, 8)  # views picked across the session
+
+
+# --- corners right the first time: full-size refinement, the geometric check, bounded detection
+
+INTR_HD = default_intrinsics(1280, 720)
+
+
+@pytest.fixture(scope="module")
+def hd_views():
+    """(spec, image, true pixels of every corner): rendered 1280x720 views of the default board and of a
+    board of few large squares (the low-texture case)."""
+    out = []
+    for spec in (ChessboardSpec(11, 8, 0.03), ChessboardSpec(5, 4, 0.06)):
+        cs = make_corner_session(n_views=2, seed=3, noise_px=0.0, intrinsics=INTR_HD, target=spec)
+        for T in cs.T_cam_board_true:
+            out.append((spec, render_view(spec, INTR_HD, T, supersample=4),
+                        pixels_from_board_points(T, spec.object_points(), INTR_HD)))
+    return out
+
+
+def _err_px(pts, truth):
+    """Distance of each corner from the truth, in the board's numbering or the reversed one (the detector
+    may number a board from either end; detect_views settles that later)."""
+    return min((np.linalg.norm(p - truth, axis=1) for p in (pts, pts[::-1])), key=np.max)
+
+
+def test_corners_at_1280x720_lie_within_a_twentieth_of_a_pixel_of_the_truth(hd_views):
+    errs = []
+    for spec, img, truth in hd_views:
+        ids, pts = detect_chessboard(img, spec)
+        assert np.array_equal(ids, np.arange(spec.n_corners))
+        errs.append(_err_px(pts, truth))
+    err = np.concatenate(errs)
+    # noiseless renders: what is left is cornerSubPix on anti-aliased edges (benchmarks/bench_detect.py:
+    # 0.047 px RMS, 0.19 px max over 20 views of each board)
+    assert np.sqrt(np.mean(err ** 2)) < 0.05 and err.max() < 0.5
+
+
+def test_coarse_corners_off_by_a_third_of_a_square_are_refined_back(hd_views, monkeypatch):
+    import handeye.detect.chessboard as chessboard
+
+    spec, img, truth = hd_views[0]
+    wrong = truth.copy()
+    wrong[[14, 15, 40]] += [[12.0, 0.0], [0.0, -10.0], [-8.0, 9.0]]  # as seen from a half-size search
+    monkeypatch.setattr(chessboard, "find_chessboard_fast", lambda *a, **k: wrong)
+    ids, pts = detect_chessboard(img, spec)
+    # the windows come from the square size (not from the wrong spacing), the wrong corners restart
+    # from the board homography: all back at the truth
+    assert _err_px(pts, truth).max() < 0.3
+
+
+def test_the_geometric_check_names_the_corner_off_its_neighbours(hd_views):
+    from handeye.detect.geometry import check_corners
+
+    spec, _, truth = hd_views[0]
+    board_xy, o = spec.object_points()[:, :2], default_options()
+    good = check_corners(board_xy, truth, o)
+    # true corners: only the lens distortion across 5x5 corners is left (0.28 px at most, measured)
+    assert good.passed and np.nanmax(good.residual_px) < 0.5
+    bad = truth.copy()
+    bad[30] += [4.0, -2.0]
+    check = check_corners(board_xy, bad, o)
+    assert not check.passed and check.worst == 30
+    assert abs(check.residual_px[30] - np.hypot(4.0, 2.0)) < 0.5
+    assert check.text().startswith("corner 30 lies 4.") and "from where its neighbours put it (limit" in check.text()
+    # too few neighbours (a line of corners) is not checked rather than failed
+    line = check_corners(board_xy[:11], bad[:11], o)
+    assert line.passed and np.all(np.isnan(line.residual_px))
+
+
+def _corrupt_first_refinement(monkeypatch):
+    import handeye.detect.chessboard as chessboard
+
+    refine = chessboard.refine_chessboard
+
+    def corrupted(*a, **k):
+        pts = refine(*a, **k).copy()
+        pts[30] += [5.0, 0.0]
+        return pts
+
+    monkeypatch.setattr(chessboard, "refine_chessboard", corrupted)
+    return chessboard
+
+
+def test_corners_that_fail_the_check_are_found_again_by_the_accurate_detector(hd_views, monkeypatch, caplog):
+    spec, img, truth = hd_views[0]
+    chessboard = _corrupt_first_refinement(monkeypatch)
+    with caplog.at_level("INFO", logger="handeye.detect.chessboard"):
+        ids, pts = detect_chessboard(img, spec)
+    assert "fail the geometric check (corner 30 lies 5.0 px" in caplog.text
+    # findChessboardCornersSB (EXHAUSTIVE | ACCURACY) on the full image: measured 0.02-0.1 px on these views
+    assert _err_px(pts, truth).max() < 0.3
+    # the accurate detector finds nothing either: the view is dropped with both reasons
+    monkeypatch.setattr(chessboard.cv2, "findChessboardCornersSB", lambda *a, **k: (False, None))
+    out = detect_chessboard(img, spec)
+    assert out.startswith("chessboard corners fail the geometric check (corner 30 lies 5.0 px")
+    assert out.endswith("and the accurate detector finds no board")
+
+
+def test_a_spent_time_budget_drops_the_view_as_timed_out(tmp_path, hd_views, monkeypatch):
+    from dataclasses import replace
+
+    spec, img, _ = hd_views[0]
+    tiny = replace(default_options(), time_budget_s=1e-9)
+    blank = tmp_path / "blank.png"
+    cv2.imwrite(str(blank), np.full_like(img, 128))
+    d = detect_image("1", blank, spec, options=tiny)
+    # the half-size search ran; the full-size and SB searches were skipped
+    assert isinstance(d, DetectionFailure) and d.reason.startswith("detection timed out: ")
+    assert d.reason.endswith("s budget (configs/detection.yaml time_budget_s), the full-size chessboard searches skipped")
+    with_board = tmp_path / "board.png"
+    cv2.imwrite(str(with_board), img)
+    assert isinstance(detect_image("2", with_board, spec, options=tiny), Detection)  # found by the first search
+    _corrupt_first_refinement(monkeypatch)
+    d = detect_image("2", with_board, spec, options=tiny)
+    assert d.reason.startswith("detection timed out: ")
+    assert "the accurate search after the geometric check failed (corner 30 lies 5.0 px" in d.reason
+
+
+def test_images_above_the_size_limit_are_searched_reduced_and_refined_at_full_size(hd_views, caplog):
+    from dataclasses import replace
+
+    spec, img, truth = hd_views[1]
+    small_limit = replace(default_options(), search_max_megapixels=0.3)  # 1280x720 is 0.92 MP
+    with caplog.at_level("INFO", logger="handeye.detect.geometry"):
+        ids, pts = detect_chessboard(img, spec, options=small_limit)
+    assert "image 1280x720 (0.9 MP) is above the 0.3 MP search limit: searched at 730x410" in caplog.text
+    assert _err_px(pts, truth).max() < 0.3  # the full-size refinement, not the reduced copy, places them
+    out = detect_chessboard(np.full_like(img, 128), spec, options=small_limit)
+    assert out == "chessboard 11x8 not found (searched at 730x410: the image is above 0.3 MP)"
+
+
+def test_charuco_corners_off_their_neighbours_are_dropped_alone(views):
+    from handeye.detect.charuco import off_grid_corners_removed
+
+    cs, _ = views
+    ch = CharucoSpec(9, 7, 0.04, 0.03)
+    pts = pixels_from_board_points(cs.T_cam_board_true[0], ch.object_points(), INTR)
+    assert off_grid_corners_removed(ch.object_points()[:, :2], pts, default_options()).all()
+    pts[20] += [0.0, 6.0]
+    keep = off_grid_corners_removed(ch.object_points()[:, :2], pts, default_options())
+    assert np.flatnonzero(~keep).tolist() == [20]
