@@ -20,11 +20,13 @@ from typing import Optional
 import numpy as np
 from scipy import stats
 
+from ..config import load_preset
 from ..frames import inv_T, rotvec_from_R, se3_adjoint, tangent_difference
 from ..output import plain
 from .loaded import LoadedResult, ResultLike, load_result
 
-ALPHA = 0.05  # the test's level: a false alarm rate of 5 % on an unchanged rig
+#: the test's level (configs/recal.yaml test.alpha): an unchanged rig is called drifted this often
+ALPHA = float(load_preset("recal")["test"]["alpha"])
 INTRINSICS_COMPARED = ("fx", "fy", "cx", "cy")
 
 

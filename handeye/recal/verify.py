@@ -49,18 +49,23 @@ from .loaded import LoadedResult
 log = logging.getLogger(__name__)
 
 
+def _from_preset(section: str, key: str):
+    return field(default_factory=lambda: float(load_preset("recal")[section][key]))
+
+
 @dataclass(frozen=True)
 class VerifyOptions:
-    """Settings of a verification (defaults: configs/recal.yaml)."""
+    """Settings of a verification (defaults: configs/recal.yaml, where each is explained)."""
 
-    alpha: float = 0.05
-    min_variance_share: float = 1e-3
-    board_sigmas: float = 3.0
-    board_min_mm: float = 0.5
-    board_min_deg: float = 0.05
+    alpha: float = _from_preset("test", "alpha")
+    min_variance_share: float = _from_preset("test", "min_variance_share")
+    board_sigmas: float = _from_preset("board", "sigmas")
+    board_min_mm: float = _from_preset("board", "min_mm")
+    board_min_deg: float = _from_preset("board", "min_deg")
 
     @staticmethod
     def from_config(cfg: Optional[dict] = None, **overrides) -> "VerifyOptions":
+        """From a ``recal`` preset (default: the shipped one), with the overrides that are not None."""
         cfg = load_preset("recal") if cfg is None else cfg
         kw = dict(alpha=float(cfg["test"]["alpha"]), min_variance_share=float(cfg["test"]["min_variance_share"]),
                   board_sigmas=float(cfg["board"]["sigmas"]), board_min_mm=float(cfg["board"]["min_mm"]),
@@ -164,7 +169,7 @@ class Verification:
         return plain({
             "verdict": self.verdict, "headline": self.headline, "drifted": self.drifted, "mode": self.mode,
             "frame": self.frame,
-            "test": {"kind": "score test of X = X_installed: installed covariance plus the new views' noise",
+            "test": {"kind": "Wald test of X = X_installed under the installed covariance plus the new views' noise",
                      "statistic": t.statistic, "dof": t.dof, "p_value": t.p_value, "alpha": self.alpha,
                      "variance_share": t.variance_share, "covariance_used": self.cov_source},
             "change": dict(self.change, xi_rad_m=t.change_xi, cov_6x6=t.change_cov,
