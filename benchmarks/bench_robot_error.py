@@ -35,6 +35,7 @@ Usage: python benchmarks/bench_robot_error.py --seeds 100 [--models kinematic ii
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from dataclasses import replace
@@ -83,6 +84,7 @@ def one_session(args: tuple) -> dict:
     from handeye.frames import pose_error
     robot = np.array([pose_error(a, b) for a, b in zip(s.T_base_end_reported, s.T_base_end_true)])
     return dict(mode=mode, model=model, seed=seed, ok=ok, rot=rot, trans=trans, cf=cf, maha2=maha2,
+                pred_trans_axes_mm=[float(x) for x in r.sigma_trans_mm],
                 pred_rot=float(np.sqrt(np.sum(r.sigma_rot_deg ** 2))),
                 pred_trans=float(np.sqrt(np.trace(r.cov_x_6x6[3:, 3:])) * 1000),
                 robot_rot_deg=float(np.sqrt(np.mean(robot[:, 0] ** 2))),
@@ -136,6 +138,8 @@ def main(argv=None) -> int:
     ap.add_argument("--models", nargs="+", default=["kinematic"], choices=MODELS)
     ap.add_argument("--arm", default="rm65")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--jsonl", type=Path, help="append each session's row to this file as it finishes")
+    ap.add_argument("--summarize", type=Path, nargs="+", help="print the table of rows saved with --jsonl, run nothing")
     ap.add_argument("--robot-model", default="auto", choices=("auto", "iid", "kinematic", "joint_space"),
                     help="the refinement's robot error model for sessions with joint angles (auto: kinematic)")
     args = ap.parse_args(argv)
@@ -145,15 +149,21 @@ def main(argv=None) -> int:
     tasks = [(mode, model, seed, args.arm, args.robot_model) for model in args.models for mode in args.modes
              for seed in range(args.first_seed, args.first_seed + args.seeds)]
     rows = []
+    if args.summarize:
+        rows = [json.loads(line) for f in args.summarize for line in f.read_text().splitlines() if line.strip()]
+        tasks = []
     with ProcessPoolExecutor(max(1, args.jobs)) as pool:
         for r in pool.map(one_session, tasks):
             rows.append(r)
+            if args.jsonl:
+                with open(args.jsonl, "a") as f:
+                    f.write(json.dumps(r) + "\n")
             if "skipped" in r:
                 print(f"  {r['model']} {r['mode']} seed {r['seed']}: not simulated: {r['skipped']}", file=sys.stderr)
                 continue
             print(f"  {r['model']} {r['mode']} seed {r['seed']}: {r['rot']:.4f} deg {r['trans']:.3f} mm, "
                   f"maha2 {r['maha2']:.1f}, {r['secs']:.1f} s", file=sys.stderr, flush=True)
-    for model in args.models:
+    for model in args.models if not args.summarize else [m for m in MODELS if any(r["model"] == m for r in rows)]:
         for mode in args.modes:
             summarize(mode, model, rows)
     sys.stdout.flush()
