@@ -68,7 +68,9 @@ def test_compare_prefers_the_verdict_covariance():
         r["refinement"]["cov_x_6x6_verdict"] = wide.tolist()
     c = compare_results(a, b)
     assert c.cov_sources == ("cov_x_6x6_verdict", "cov_x_6x6_verdict")
-    assert c.mahalanobis2 == pytest.approx(1.0 / 8.0, rel=1e-6) and not c.drifted
+    assert c.mahalanobis2 == pytest.approx(1.0 / 8.0, rel=1e-6) and not c.drifted and c.note == ""
+    b["prior"] = {"used": "prior", "source": "a/result.json"}  # B updated from A: not independent
+    assert "not independent" in compare_results(a, b).note
 
 
 @pytest.mark.parametrize("change, words", [

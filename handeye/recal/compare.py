@@ -54,6 +54,7 @@ class Comparison:
     sigma_rot_deg: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))  # (3,) of the difference
     sources: tuple = ()  # the two result paths
     cov_sources: tuple = ()  # which covariance each result contributed
+    note: str = ""  # e.g. a result updated from the other with --prior: the test assumes independent results
 
     def to_dict(self) -> dict:
         return plain({
@@ -65,7 +66,8 @@ class Comparison:
             "xi_definition": "Log(inv(X_a) X_b): rotation (rad) then translation (m), along the camera axes of X_a",
             "d_trans_definition": "t_b - t_a along the parent frame's axes (mm)",
             "d_rot_definition": "rotation vector of R_a^T R_b about the camera axes of X_a (deg)",
-            "results": list(self.sources), "covariances": list(self.cov_sources)}, nan_to_none=True)
+            "results": list(self.sources), "covariances": list(self.cov_sources), "note": self.note},
+            nan_to_none=True)
 
 
 def not_comparable(reason: str, frame: str = "", *, alpha: float = ALPHA, sources: tuple = ()) -> Comparison:
@@ -154,7 +156,18 @@ def compare_loaded(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) ->
                       rot_deg=float(np.linalg.norm(d["d_rot_deg"])), mahalanobis2=d["d2"], p_value=p,
                       drifted=bool(p < alpha), intrinsics=intrinsics_difference(a, b, alpha=alpha), alpha=alpha,
                       xi=d["xi"], sigma_trans_mm=d["sigma_trans_mm"], sigma_rot_deg=d["sigma_rot_deg"],
-                      sources=sources, cov_sources=(a.cov_source, b.cov_source))
+                      sources=sources, cov_sources=(a.cov_source, b.cov_source), note=_dependence_note(a, b))
+
+
+def _dependence_note(a: LoadedResult, b: LoadedResult) -> str:
+    """A warning when a result was calibrated with an earlier one as its prior (the two are then not
+    independent, and the test's p-value is too large)."""
+    for r, name in ((a, "A"), (b, "B")):
+        prior = r.raw.get("prior") or {}
+        if prior.get("used") == "prior":
+            return (f"result {name} was calibrated with {prior.get('source')} as its prior: the two are not "
+                    "independent and the p-value is too large")
+    return ""
 
 
 def compare_results(a: ResultLike, b: ResultLike, *, alpha: float = ALPHA) -> Comparison:
@@ -176,6 +189,8 @@ def comparison_lines(c: Comparison) -> list[str]:
     lines.append(f"  {'norm':<6}{c.trans_mm:>10.3f}{'':>9}   {c.rot_deg:>10.4f}")
     lines.append(f"  Mahalanobis^2 {c.mahalanobis2:.2f} (6 dof), p = {c.p_value:.3g}: "
                  + ("DRIFTED" if c.drifted else "same within the uncertainty") + f" at {c.alpha:g}")
+    if c.note:
+        lines.append(f"  note: {c.note}")
     it = c.intrinsics
     if it:
         lines.append("intrinsics: " + ", ".join(
