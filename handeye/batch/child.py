@@ -3,7 +3,7 @@
 Runs :func:`handeye.workflow.calibrate_session` with the ``handeye calibrate`` options of the spec
 (:func:`handeye.cli.calibrate.options_from_args`: the single command's results, bit for bit) and
 prints one JSON line on stdout: ``outcome`` (``done``, or ``error`` when the workflow raised),
-``status``, ``verdict``, ``reason``, ``exit_code``. Log lines go to stderr (the task keeps them in
+``status``, ``verdict``, ``reason``, ``exit_code`` and ``peak_rss_mb`` (the process's peak memory). Log lines go to stderr (the task keeps them in
 ``batch.log``). The process ends itself when its parent (the Dask worker) is gone, so a killed
 worker leaves no session running behind it.
 """
@@ -52,12 +52,23 @@ def run(spec: dict) -> dict:
             "exit_code": wr.exit_code}
 
 
+def _peak_rss_mb():
+    """This process's peak resident memory in MiB (None where the platform does not say)."""
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not on Windows
+        return None
+    kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+    return round(kib / 1024.0, 1)
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     _exit_with_parent()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", stream=sys.stderr)
     logging.getLogger("matplotlib").setLevel(logging.WARNING)
     reply = run(json.loads(argv[0]))
+    reply["peak_rss_mb"] = _peak_rss_mb()
     sys.stdout.write(json.dumps(reply) + "\n")
     sys.stdout.flush()
     return 0

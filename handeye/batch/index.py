@@ -265,7 +265,7 @@ def _env(*, html: bool):
                              undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True,
                              keep_trailing_newline=True)
     env.filters["num"] = num
-    env.filters["mdcell"] = mdcell
+    env.filters["mdcell"] = lambda x: mdcell(x).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
     env.filters["pill"] = lambda v: {"PASS": "pass", "WARN": "warn"}.get(str(v), "fail")
     return env
 

@@ -50,6 +50,9 @@ DEFAULT_TIMEOUT_S = 900.0
 #: ``timeout``, ``crashed`` (the child died without a result), ``error`` (the workflow raised),
 #: ``lost`` (its workers kept dying)
 OUTCOMES = ("done", "timeout", "crashed", "error", "lost")
+#: the environment of a session's process: one thread for the linear algebra (a worker runs one
+#: session on one core), the same on every worker, so a session's numbers do not depend on where it ran
+SESSION_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 #: verdicts that count as failed in the progress bar and the exit code (ERROR: no result of this run)
 FAILED_VERDICTS = ("FAIL", "REFUSED", "ERROR")
 
@@ -176,9 +179,10 @@ def run_session(spec: dict) -> dict:
     rec = {k: spec[k] for k in ("session", "install", "name", "time_utc", "time_source", "key")}
     rec.update(worker=f"{socket.gethostname()}:{os.getpid()}", started_utc=_now())
     cmd = [sys.executable, "-m", "handeye.batch.child", json.dumps(spec)]
+    env = {**os.environ, **SESSION_ENV}
     with open(out / LOG_NAME, "wb") as log_file:
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log_file,
-                                start_new_session=True)
+                                start_new_session=True, env=env)
         try:
             stdout, _ = proc.communicate(timeout=float(spec["timeout_s"]))
         except subprocess.TimeoutExpired:

@@ -1,0 +1,288 @@
+"""handeye batch: a fleet of simulated installs on a real Dask cluster (a scheduler and two workers as
+separate processes on 127.0.0.1), a worker killed mid-batch, a resumed rerun, the embedded cluster,
+the fleet index against the simulated truth; discovery, the time limit, escaping and bad input.
+
+The fleet (handeye.sim.fleet): 4 installs x 3 dated sessions of 8 rendered views; cell-02's camera is
+bumped (1.5 deg, 3 mm) before its third session, cell-03's second session has a pose line with five
+numbers (it does not load), cell-04's second session has its poses shuffled (REFUSED) and its third a
+worn robot (4 mm / 1 deg pose noise: the result fails QA on its uncertainty).
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from handeye.frames import pose_error
+
+BUMP = ((0.9, -0.9, 0.6), (2.0, -1.5, 1.5))  # rotvec deg, t mm, in the camera frame
+FAULTS = {"bumps": {(1, 2): BUMP}, "broken": ((2, 1),), "shuffled": ((3, 1),), "noisy": ((3, 2),)}
+EXPECTED_VERDICT = {"broken": {"FAIL"}, "shuffled": {"REFUSED"}, "noisy": {"FAIL"}}
+BATCH_TIMEOUT_S = 900  # a hung test ends; no timing is asserted
+
+
+def _handeye(*args, **kw) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "handeye.cli", *map(str, args)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, **kw)
+
+
+def _finish(proc: subprocess.Popen) -> tuple[int, str, str]:
+    out, err = proc.communicate(timeout=BATCH_TIMEOUT_S)
+    return proc.returncode, out, err
+
+
+def _records(out: Path) -> dict:
+    return {f"{p.parent.parent.name}/{p.parent.name}": json.loads(p.read_text()) for p in out.glob("*/*/batch.json")}
+
+
+def _results(out: Path) -> dict:
+    return {f"{p.parent.parent.name}/{p.parent.name}": json.loads(p.read_text()) for p in out.glob("*/*/result.json")}
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory):
+    from handeye.sim.fleet import write_fleet
+
+    root = tmp_path_factory.mktemp("fleet") / "root"
+    manifest = write_fleet(root, **FAULTS)
+    return root, {f"{s['install']}/{s['session']}": s for s in manifest["sessions"]}
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    """A Dask scheduler and two single-threaded workers, each its own process, on ephemeral ports."""
+    d = tmp_path_factory.mktemp("dask")
+    sched_file = d / "scheduler.json"
+    env = dict(os.environ, DASK_LOGGING__DISTRIBUTED="warning")
+    procs = [subprocess.Popen(["dask", "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                               "--dashboard-address", ":0", "--scheduler-file", str(sched_file)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, cwd=d)]
+    try:
+        for _ in range(600):
+            if sched_file.exists() and sched_file.stat().st_size:
+                break
+            time.sleep(0.1)
+        address = json.loads(sched_file.read_text())["address"]
+        for k in range(2):
+            procs.append(subprocess.Popen(["dask", "worker", "--scheduler-file", str(sched_file), "--nthreads", "1",
+                                           "--no-nanny", "--host", "127.0.0.1", "--no-dashboard", "--name", f"w{k}"],
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, cwd=d))
+        from dask.distributed import Client
+
+        with Client(address, timeout="60s") as c:
+            c.wait_for_workers(2, timeout=120)
+        yield address, procs[1:]
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+            p.wait()
+
+
+@pytest.fixture(scope="module")
+def cluster_batch(fleet, cluster, tmp_path_factory):
+    """The batch on the cluster, with worker w0 killed once it is busy; then the same batch again."""
+    root, _ = fleet
+    address, workers = cluster
+    out = tmp_path_factory.mktemp("cluster") / "out"
+    proc = _handeye("batch", root, "--out", out, "--scheduler", address, "--no-report", "--timeout", 600)
+    killed_during_batch = False
+    deadline = time.monotonic() + BATCH_TIMEOUT_S
+    while proc.poll() is None and time.monotonic() < deadline:
+        pids = {r.get("worker", "").rsplit(":", 1)[-1] for r in _records(out).values()} if out.exists() else set()
+        if str(workers[0].pid) in pids:  # w0 has finished a session and is on its next one
+            workers[0].send_signal(signal.SIGKILL)
+            workers[0].wait()
+            killed_during_batch = proc.poll() is None
+            break
+        time.sleep(0.2)
+    first = _finish(proc)
+    records_first = _records(out)
+    second = _finish(_handeye("batch", root, "--out", out, "--scheduler", address, "--no-report"))
+    return {"out": out, "first": first, "second": second, "records_first": records_first,
+            "killed_during_batch": killed_during_batch, "w0": workers[0].pid, "w1": workers[1].pid}
+
+
+def test_cluster_batch_gets_every_result_despite_a_killed_worker(fleet, cluster_batch):
+    _, truth = fleet
+    rc, stdout, stderr = cluster_batch["first"]
+    assert cluster_batch["killed_during_batch"], "worker w0 should have been killed while the batch ran"
+    assert rc == 7, f"a FAIL and a REFUSED session exit with QAFailed's code: {stdout}\n{stderr[-2000:]}"
+    recs = cluster_batch["records_first"]
+    assert set(recs) == set(truth), "every session has its batch record"
+    assert all(r["outcome"] == "done" for r in recs.values()), {k: r.get("reason") for k, r in recs.items()}
+    pids = [r["worker"].rsplit(":", 1)[-1] for r in recs.values()]
+    assert str(cluster_batch["w1"]) in pids, "the surviving worker ran sessions"
+    assert "12 sessions: " in stdout and "0 skipped" in stdout, stdout
+
+
+def test_every_result_matches_the_simulated_truth(fleet, cluster_batch):
+    _, truth = fleet
+    results = _results(cluster_batch["out"])
+    assert set(results) == set(truth)
+    for key, s in truth.items():
+        res = results[key]
+        if s["fault"] in EXPECTED_VERDICT:
+            assert res["verdict"] in EXPECTED_VERDICT[s["fault"]], (key, res["verdict"], res.get("verdict_headline"))
+            if s["fault"] == "broken":
+                assert res["status"] == "failed" and "5" in res["failure_reason"], res["failure_reason"]
+            continue
+        assert res["verdict"] in ("PASS", "WARN"), (key, res["verdict"], res.get("verdict_headline"))
+        T = np.asarray(res["T_end_cam"])
+        rot_err_deg, trans_err_mm = pose_error(T, np.asarray(s["T_end_cam"]))
+        ref = res["refinement"]
+        # within 4 sigma of the reported uncertainty (the norm of the per-axis 1-sigma)
+        assert trans_err_mm < 4 * np.linalg.norm(ref["sigma_trans_mm"]), (key, trans_err_mm, ref["sigma_trans_mm"])
+        assert rot_err_deg < 4 * np.linalg.norm(ref["sigma_rot_deg"]), (key, rot_err_deg, ref["sigma_rot_deg"])
+
+
+def test_index_rows_and_drift_match_the_truth(fleet, cluster_batch):
+    from handeye.batch.index import read_fleet_csv
+
+    _, truth = fleet
+    out = cluster_batch["out"]
+    rows = {f"{r['install']}/{r['session']}": r for r in read_fleet_csv(out / "fleet.csv")}
+    results = _results(out)
+    assert set(rows) == set(truth)
+    for key, r in rows.items():
+        res = results[key]
+        assert r["verdict"] == res["verdict"] and r["mode"] == res["mode"]
+        assert r["time_utc"].startswith(key.split("/")[1]), "the session time comes from the folder's date"
+        assert r["findings"] == [f["code"] for f in res["findings"]]
+        if res["status"] != "ok":
+            assert r["tx_mm"] is None
+            continue
+        assert r["mode"] == "eye_in_hand" and r["x_name"] == "T_end_cam"
+        t_true_mm = np.asarray(truth[key]["T_end_cam"])[:3, 3] * 1e3
+        sig = np.array([r["sigma_tx_mm"], r["sigma_ty_mm"], r["sigma_tz_mm"]])
+        t_row = np.array([r["tx_mm"], r["ty_mm"], r["tz_mm"]])
+        np.testing.assert_allclose(t_row, res["hand_eye"]["translation_mm"], rtol=0, atol=1e-9)
+        if truth[key]["fault"] is None or truth[key]["fault"] == "bumped":
+            assert np.all(np.abs(t_row - t_true_mm) < 5 * sig + 1e-3), (key, t_row - t_true_mm, sig)
+            assert r["reprojection_rms_px"] < 0.5
+    html = (out / "index.html").read_text()
+    md = (out / "index.md").read_text()
+    for inst in ("cell-01", "cell-02", "cell-03", "cell-04"):
+        assert f'id="install-{inst}"' in html and f"### {inst}:" in md
+    assert html.count('src="data:image/png;base64,') == 4, "one embedded trend plot per install"
+    # drift: cell-02's bump is found, the size of the simulated bump within 4 sigma; the others are small
+    from handeye.batch.index import fleet_rows, install_summaries
+
+    inst = {i["install"]: i for i in install_summaries(out, fleet_rows(out), plots=False)}
+    drifts = {(d["from"], d["to"]): d for d in inst["cell-02"]["drifts"]}
+    s1, s2 = sorted(k.split("/")[1] for k in truth if k.startswith("cell-02"))[1:]
+    bump = drifts[(s1, s2)]
+    T1, T2 = (np.asarray(truth[f"cell-02/{s}"]["T_end_cam"]) for s in (s1, s2))
+    rot_true_deg, trans_true_mm = pose_error(T2, T1)
+    assert bump["drifted"] and bump["p_value"] < 1e-6
+    assert abs(bump["rot_deg"] - rot_true_deg) < 0.2 and abs(bump["trans_mm"] - trans_true_mm) < 1.0, bump
+    assert [i for i in inst if inst[i]["n_drifted"]] == ["cell-02"]
+    for d in inst["cell-01"]["drifts"]:
+        assert d["comparable"] and d["trans_mm"] < 1.5 and d["rot_deg"] < 0.2, d
+    assert inst["cell-04"]["latest_verdict"] == "FAIL" and inst["cell-03"]["latest_verdict"] in ("PASS", "WARN")
+    assert "cell-04" in html.split('id="installs"')[0], "cell-04 is listed as failing"
+
+
+def test_rerun_skips_every_session(cluster_batch):
+    rc, stdout, _ = cluster_batch["second"]
+    assert rc == 7, stdout
+    assert "12 sessions: 0 done, 0 failed, 12 skipped" in stdout, stdout
+    again = _records(cluster_batch["out"])
+    assert {k: r["finished_utc"] for k, r in again.items()} == \
+        {k: r["finished_utc"] for k, r in cluster_batch["records_first"].items()}, "no session ran again"
+
+
+def test_embedded_cluster_gives_identical_results(fleet, cluster_batch, tmp_path):
+    root, _ = fleet
+    out = tmp_path / "out"
+    rc, stdout, stderr = _finish(_handeye("batch", root, "--out", out, "--workers", "2", "--no-report"))
+    assert rc == 7, stdout + stderr[-2000:]
+    a, b = _results(cluster_batch["out"]), _results(out)
+    assert set(a) == set(b)
+    for key in a:
+        assert a[key]["verdict"] == b[key]["verdict"], key
+        assert a[key]["provenance"].get("inputs_sha256") == b[key]["provenance"].get("inputs_sha256")
+        assert [f["code"] for f in a[key]["findings"]] == [f["code"] for f in b[key]["findings"]], key
+        if a[key]["status"] == "ok":  # the same numbers, to rounding (one BLAS thread per session on both)
+            np.testing.assert_allclose(a[key]["T_end_cam"], b[key]["T_end_cam"], rtol=0, atol=1e-12, err_msg=key)
+            np.testing.assert_allclose(a[key]["refinement"]["sigma_trans_mm"], b[key]["refinement"]["sigma_trans_mm"],
+                                       rtol=1e-9, err_msg=key)
+    ca, cb = ((o / "fleet.csv").read_text().splitlines() for o in (cluster_batch["out"], out))
+    assert [r.split(",")[:8] for r in ca] == [r.split(",")[:8] for r in cb], "the same fleet table"
+
+
+# ------------------------------------------------------------------------------------------ smaller
+def test_a_session_past_its_time_limit_is_recorded_and_runs_again(fleet, tmp_path):
+    root, _ = fleet
+    one = tmp_path / "root" / "cell-09"
+    shutil.copytree(root / "cell-01" / "2026-01-05", one / "2026-01-05")
+    out = tmp_path / "out"
+    rc, stdout, stderr = _finish(_handeye("batch", one.parent, "--out", out, "--workers", "1", "--timeout", "0.5"))
+    assert rc == 7, stdout + stderr[-2000:]
+    rec = json.loads((out / "cell-09" / "2026-01-05" / "batch.json").read_text())
+    assert rec["outcome"] == "timeout" and rec["verdict"] == "ERROR" and "0.5 s" in rec["reason"]
+    assert "1 failed" in stdout and "time limit" in stderr
+    from handeye.batch.discover import discover
+    from handeye.batch.run import plan_batch
+    from handeye.cli import build_parser
+    from handeye.cli.batch import calibrate_options
+
+    args = build_parser().parse_args(["batch", str(one.parent), "--out", str(out)])
+    plan = plan_batch(discover(one.parent), out, calibrate=calibrate_options(args))
+    assert len(plan.specs) == 1 and not plan.skipped, "a timed-out session runs again"
+    row = (out / "fleet.csv").read_text().splitlines()[1]
+    assert row.startswith("cell-09,2026-01-05,") and ",ERROR,timeout," in row
+
+
+def test_discover_groups_by_install_key_and_layout(tmp_path):
+    from handeye.batch.discover import discover
+
+    def vendor(p):
+        p.mkdir(parents=True)
+        (p / "poses.txt").write_text("0,0,0,0,0,0\n")
+
+    vendor(tmp_path / "cell-a" / "20260301_1430")
+    vendor(tmp_path / "cell-a" / "2026" / "x")
+    vendor(tmp_path / "loose")
+    (tmp_path / "cell-a" / "2026" / "x" / "images").mkdir()
+    (tmp_path / "cell-a" / "2026" / "x" / "images" / "poses.txt").write_text("")  # inside a session: not one
+    native = tmp_path / "misc" / "run 1"
+    native.mkdir(parents=True)
+    (native / "session.yaml").write_text("handeye_session: 1\ninstall: '../cell <b>'\ntime: 2026-02-03T04:05:06Z\n")
+    jobs = {j.key: j for j in discover(tmp_path)}
+    assert set(jobs) == {"cell-a/20260301_1430", "cell-a/2026/x", "default/loose", ".._cell__b_/run_1"}
+    assert jobs["cell-a/20260301_1430"].time_utc == "2026-03-01T14:30:00+00:00"
+    assert jobs["cell-a/20260301_1430"].time_source == "folder name"
+    assert jobs[".._cell__b_/run_1"].time_utc == "2026-02-03T04:05:06+00:00"
+    assert jobs[".._cell__b_/run_1"].layout == "native" and jobs["default/loose"].layout == "vendor"
+
+
+def test_index_escapes_names(tmp_path):
+    from handeye.batch.index import write_index
+
+    folder = tmp_path / "<img src=x onerror=alert(1)>" / "s&1"
+    folder.mkdir(parents=True)
+    (folder / "batch.json").write_text(json.dumps({"outcome": "timeout", "reason": "<script>alert(2)</script>"}))
+    write_index(tmp_path)
+    for name in ("index.html", "index.md"):
+        text = (tmp_path / name).read_text()
+        assert "<img src=x" not in text and "&lt;img src=x onerror=alert(1)&gt;" in text, name
+        assert "<script>" not in text and "&lt;script&gt;alert(2)&lt;/script&gt;" in text and "s&amp;1" in text, name
+    assert "1 ERROR" in (tmp_path / "index.md").read_text()
+
+
+def test_bad_input_is_one_line(tmp_path):
+    rc, out, err = _finish(_handeye("batch", tmp_path / "missing", "--out", tmp_path / "o"))
+    assert rc == 2 and err.strip().count("\n") == 0 and "batch root not found" in err, err
+    rc, out, err = _finish(_handeye("batch", tmp_path))
+    assert rc == 2 and "--out is required" in err, err
+    rc, out, err = _finish(_handeye("batch", tmp_path, "--out", tmp_path / "o"))
+    assert rc == 2 and "no sessions found" in err, err
