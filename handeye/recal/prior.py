@@ -96,6 +96,9 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
     from ..pipeline import run_calibration
 
     progress = progress or (lambda s: None)
+    if not options.refine:
+        raise InputError("--prior enters the joint refinement", expected="a calibration with the refinement",
+                         received="--no-refine", hint="drop --no-refine or --prior")
     o = verify_options or VerifyOptions.from_config()
     installed = prior if isinstance(prior, LoadedResult) else load_result(prior)
     check_prior_fits(installed, session)
