@@ -229,8 +229,10 @@ def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
         sig = ref.get("sigma_trans_mm")
         if sig is not None:
             sr = ref.get("sigma_rot_deg")
+            src = ref.get("sigma_source")  # which covariance the verdict sigmas are (result.json's refinement block)
             lines.append("  1-sigma: translation [mm] " + " ".join(f"{x:.3f}" for x in sig)
-                         + ", rotation [deg] " + " ".join(f"{x:.3f}" for x in sr))
+                         + ", rotation [deg] " + " ".join(f"{x:.3f}" for x in sr)
+                         + (f" (verdict covariance: {src})" if src else ""))
         if ref.get("predicted_error_mm") is not None:
             lines.append(f"  predicted position error at {ref.get('working_distance_m', float('nan')):.2f} m: "
                          f"{ref['predicted_error_mm']:.2f} mm (1 sigma)")
