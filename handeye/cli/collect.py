@@ -32,6 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
+    from .calibrate import positive_float, positive_int
+
     parser.description = ("Collect a calibration session (native format, one atomic record per view) from a "
                           "camera and a robot arm, or their simulators.")
     parser.add_argument("out", type=Path, metavar="OUT", help="new (or empty) folder for the session")
@@ -54,7 +56,7 @@ def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
                              "charuco:SQXxSQY:SQUARE_M:MARKER_M[:DICT] (default %(default)s)")
     g = parser.add_argument_group("camera")
     g.add_argument("--resolution", default="1280x720", help="colour stream WIDTHxHEIGHT (default %(default)s)")
-    g.add_argument("--fps", type=int, default=30, help="RealSense frame rate (default %(default)s)")
+    g.add_argument("--fps", type=positive_int, default=30, help="RealSense frame rate (default %(default)s)")
     g.add_argument("--serial", help="RealSense serial number when several are connected")
     g.add_argument("--settle-frames", type=int, default=30,
                    help="RealSense frames skipped at start while auto exposure settles (default %(default)s)")
@@ -69,23 +71,23 @@ def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--realman-motion", choices=("movej_p", "movel"), default="movej_p",
                    help="RealMan motion command (default %(default)s: joint-space path to the pose)")
     g.add_argument("--work-frame", default="Base", help="RealMan work frame poses are read in (default %(default)s)")
-    g.add_argument("--timeout", type=float, default=2.0, metavar="S",
+    g.add_argument("--timeout", type=positive_float, default=2.0, metavar="S",
                    help="RealMan: seconds to wait for an answer (default %(default)s)")
     g = parser.add_argument_group("capture checks")
-    g.add_argument("--min-sharpness", type=float, default=None,
+    g.add_argument("--min-sharpness", type=positive_float, default=None,
                    help="variance of the Laplacian around the target (default: configs/collect.yaml capture)")
-    g.add_argument("--still-tol", nargs=2, type=float, metavar=("MM", "DEG"), default=None,
+    g.add_argument("--still-tol", nargs=2, type=positive_float, metavar=("MM", "DEG"), default=None,
                    help="two pose reads around a frame must agree within this (default: configs/collect.yaml capture)")
     g = parser.add_argument_group("automatic plan")
-    g.add_argument("--plan-pixel-noise", type=float, default=None, metavar="PX",
+    g.add_argument("--plan-pixel-noise", type=positive_float, default=None, metavar="PX",
                    help="corner noise assumed when predicting the uncertainty (default: configs/collect.yaml plan)")
-    g.add_argument("--plan-robot-noise", nargs=2, type=float, metavar=("MM", "DEG"), default=None,
+    g.add_argument("--plan-robot-noise", nargs=2, type=positive_float, metavar=("MM", "DEG"), default=None,
                    help="robot pose noise per axis assumed when predicting (default: configs/collect.yaml plan)")
-    g.add_argument("--min-axis-rotation", type=float, default=None, metavar="DEG",
+    g.add_argument("--min-axis-rotation", type=positive_float, default=None, metavar="DEG",
                    help="rotate the end at least this much about each of its axes (default: configs/collect.yaml)")
-    g.add_argument("--max-travel", type=float, default=None, metavar="MM",
+    g.add_argument("--max-travel", type=positive_float, default=None, metavar="MM",
                    help="keep the end within this distance of the start pose (default: configs/collect.yaml)")
-    g.add_argument("--probe-deg", type=float, default=6.0,
+    g.add_argument("--probe-deg", type=positive_float, default=6.0,
                    help="size of the three probe rotations before planning (default %(default)s)")
     g = parser.add_argument_group("simulation (--camera sim / --robot sim)")
     g.add_argument("--seed", type=int, help="random seed of the simulated rig and noise (default: random)")
@@ -130,7 +132,10 @@ def _resolution(text: str) -> tuple[int, int]:
     m = re.fullmatch(r"(\d+)x(\d+)", text.strip())
     if not m:
         raise ConfigError("invalid --resolution", expected="WIDTHxHEIGHT, e.g. 1280x720", received=repr(text))
-    return int(m.group(1)), int(m.group(2))
+    w, h = int(m.group(1)), int(m.group(2))
+    if not (16 <= w <= 16384 and 16 <= h <= 16384):
+        raise ConfigError("invalid --resolution", expected="16..16384 pixels per side", received=repr(text))
+    return w, h
 
 
 def _confirm_on_terminal(text: str) -> bool:
@@ -165,6 +170,9 @@ def run_collect(args: argparse.Namespace) -> int:
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise InputError("output folder is not empty", path=out,
                          hint="collect into a new folder; an existing session is never overwritten")
+    from ..output import check_out_dir
+
+    check_out_dir(out, option="OUT")  # not under a file, writable: before any device is opened
     rng = np.random.default_rng(args.seed)
     robot = camera = None
     try:

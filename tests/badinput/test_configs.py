@@ -145,3 +145,28 @@ def test_command_line(argv, option, tiny_vendor, run_cli, names, tmp_path):
     assert rc == 2
     names(err, option)
     assert not (tmp_path / "out").exists()
+
+
+COLLECT = [
+    pytest.param(["--speed", "2"], "--speed", id="speed_above_one"),
+    pytest.param(["--speed", "nan"], "--speed", id="speed_nan"),
+    pytest.param(["--max-speed", "0"], "--max-speed", id="max_speed_zero"),
+    pytest.param(["--resolution", "big"], "--resolution", id="resolution_text"),
+    pytest.param(["--resolution", "0x0"], "--resolution", id="resolution_zero"),
+    pytest.param(["--resolution", "100000x100000"], "--resolution", id="resolution_huge"),
+    pytest.param(["--fps", "-30"], "--fps", id="fps_negative"),
+    pytest.param(["--timeout", "-1"], "--timeout", id="timeout_negative"),
+    pytest.param(["--still-tol", "0.1", "inf"], "--still-tol", id="still_tol_inf"),
+    pytest.param(["--plan-pixel-noise", "0"], "--plan-pixel-noise", id="plan_noise_zero"),
+    pytest.param(["--auto", "--views", "0"], "--views", id="views_zero"),
+    pytest.param(["--target", "hexboard 3x3"], "target", id="target_unknown"),
+]
+
+
+@pytest.mark.parametrize("argv, option", COLLECT)
+def test_collect_options(argv, option, run_cli, names, tmp_path):
+    rc, err = run_cli("collect", tmp_path / "new", "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim",
+                      "--seed", "1", *argv)
+    assert rc == 2, err
+    names(err, option)
+    assert not (tmp_path / "new").exists()  # refused before anything was written

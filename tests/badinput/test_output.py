@@ -170,3 +170,28 @@ def test_default_out_is_unique_per_session_path(tiny_vendor, run_cli, fast_faile
     assert len(outs) == 2 and all(o.startswith("session-") for o in outs)
     paths = {json.loads((tmp_path / "reports" / o / "result.json").read_text())["session"]["path"] for o in outs}
     assert paths == {str(tmp_path / "a" / "session"), str(tmp_path / "b" / "session")}
+
+
+def _existing_session(tmp):
+    (tmp / "s").mkdir()
+    (tmp / "s" / "session.yaml").write_text("handeye_session: 1\n")
+    return tmp / "s"
+
+
+COLLECT_OUT = [
+    pytest.param(lambda tmp: _file(tmp), ["output folder is not empty"], id="is_a_file"),
+    pytest.param(lambda tmp: _under_file(tmp), ["OUT lies under a file"], id="under_a_file"),
+    pytest.param(lambda tmp: _existing_session(tmp), ["output folder is not empty", "never overwritten"],
+                 id="existing_session"),
+    pytest.param(lambda tmp: __import__("pathlib").Path("/proc/self/handeye-out"), ["OUT cannot be written"],
+                 id="proc"),
+]
+
+
+@pytest.mark.parametrize("make, culprits", COLLECT_OUT)
+def test_collect_out(make, culprits, run_cli, names, tmp_path):
+    out = make(tmp_path)
+    rc, err = run_cli("collect", out, "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim", "--auto",
+                      "--views", "3", "--seed", "1")
+    assert rc == 2, err
+    names(err, str(out), *culprits)
