@@ -4,15 +4,30 @@ from __future__ import annotations
 from pathlib import Path
 
 
+def finite_float(text: str) -> float:
+    """argparse type: a finite number (no nan, inf or overflow)."""
+    import argparse
+    import math
+
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return v
+
+
 def add_arguments(p) -> None:
     """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
     p.description = "Eye-in-hand needs the end pose at capture time (--end-pose); eye-to-hand does not."
     p.add_argument("result", type=Path, help="result.json or the folder holding it")
     g = p.add_mutually_exclusive_group(required=True)
-    g.add_argument("--point", nargs=3, type=float, metavar=("X", "Y", "Z"), help="point in the camera frame, metres")
-    g.add_argument("--pose", nargs=6, type=float, metavar=("X", "Y", "Z", "RX", "RY", "RZ"),
+    g.add_argument("--point", nargs=3, type=finite_float, metavar=("X", "Y", "Z"),
+                   help="point in the camera frame, metres")
+    g.add_argument("--pose", nargs=6, type=finite_float, metavar=("X", "Y", "Z", "RX", "RY", "RZ"),
                    help="object pose in the camera frame: metres, radians, R = Rz·Ry·Rx")
-    p.add_argument("--end-pose", nargs=6, type=float, metavar=("X", "Y", "Z", "RX", "RY", "RZ"),
+    p.add_argument("--end-pose", nargs=6, type=finite_float, metavar=("X", "Y", "Z", "RX", "RY", "RZ"),
                    help="robot end pose in the base frame (vendor convention: metres, radians, R = Rz·Ry·Rx)")
     p.add_argument("--mm", action="store_true", help="--point/--pose/--end-pose translations are in millimetres")
     p.set_defaults(func=run)
@@ -26,7 +41,14 @@ def run(args) -> int:
     from ..errors import ConfigError
     from ..output import read_json
 
-    mode, T_x = result_transform(read_json(args.result))
+    from ..errors import InputError
+    from ..report.folder import check_result
+
+    path = Path(args.result) / "result.json" if Path(args.result).is_dir() else Path(args.result)
+    res = read_json(path)
+    if not isinstance(res, dict):
+        raise InputError("not a JSON object", path=path, hint="pass the result.json written by handeye calibrate")
+    mode, T_x = result_transform(check_result(res, path=path))
     scale = 1e-3 if args.mm else 1.0
 
     def pose_arg(values, flag):

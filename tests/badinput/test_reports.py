@@ -194,3 +194,40 @@ def test_hostile_names_run_no_script_in_chromium(which, hostile_result, tmp_path
     p = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
     assert p.returncode == 0, p.stderr[-1000:]
     assert "<body" in p.stdout and "data-pwned" not in p.stdout.split("<body", 1)[1].split(">", 1)[0]
+
+
+APPLY = [
+    pytest.param(lambda b: b[:40], ["result.json", "not valid JSON"], id="truncated"),
+    pytest.param(lambda b: b"[]", ["result.json", "not a JSON object"], id="a_list"),
+    pytest.param(_set("status", "failed"), ["failed calibration"], id="failed_result"),
+    pytest.param(lambda r: r.update({_matrix(r): [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}),
+                 ["not a 4x4 rigid transform"], id="not_rigid"),
+    pytest.param(lambda r: r.update({_matrix(r): "identity"}), ["result.json", "4x4"], id="matrix_text"),
+]
+
+
+@pytest.mark.parametrize("damage, culprits", APPLY)
+def test_apply_on_a_damaged_result(damage, culprits, good_result, run_cli, names, tmp_path):
+    p = tmp_path / "result.json"
+    shutil.copy(good_result / "result.json", p)
+    try:
+        new = damage(p.read_bytes())
+    except (TypeError, AttributeError):  # a damage of the parsed dict
+        res = json.loads(p.read_text())
+        damage(res)
+        new = json.dumps(res).encode()
+    p.write_bytes(new)
+    rc, err = run_cli("apply", p, "--point", "0", "0", "0.5", "--end-pose", "0.5", "0", "0.4", "0", "0", "0")
+    assert rc == 2, err
+    names(err, *culprits)
+
+
+@pytest.mark.parametrize("argv, option", [
+    pytest.param(["--point", "nan", "0", "0.5"], "--point", id="point_nan"),
+    pytest.param(["--point", "1e999", "0", "0.5"], "--point", id="point_overflow"),
+    pytest.param(["--pose", "0", "0", "0.5", "0", "0"], "--pose", id="pose_five"),
+])
+def test_apply_numbers(argv, option, good_result, run_cli, names):
+    rc, err = run_cli("apply", good_result, *argv)
+    assert rc == 2, err
+    names(err, option)
