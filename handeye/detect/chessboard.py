@@ -31,17 +31,20 @@ def subpix_windows(board_xy: np.ndarray, pts: np.ndarray, options: DetectionOpti
                    ) -> tuple[np.ndarray, np.ndarray]:
     """(start points (N,2), cornerSubPix half window of each corner (N,) px) for coarse corners ``pts``.
 
-    The board homography is fitted robustly to the coarse corners (:func:`.geometry.board_homography`);
-    the window is ``subpix_window_factor`` x the square's size in px at each corner, clipped to
-    [min, max] px; a coarse corner farther than ``coarse_outlier_squares`` from the homography's
-    prediction starts from the prediction."""
+    The board homography is fitted to the coarse corners (:func:`.geometry.board_homography`; robustly
+    when a least-squares fit leaves a corner off); the window is ``subpix_window_factor`` x the square's
+    size in px at each corner, clipped to [min, max] px; a coarse corner farther than
+    ``coarse_outlier_squares`` from the homography's prediction starts from the prediction."""
     o = options
-    H = board_homography(board_xy, pts)
-    if H is None:
-        return pts, np.full(len(pts), o.subpix_window_min_px)
-    sq = square_px(H, board_xy, 1.0)
-    pred = apply_homography(H, board_xy)
-    off = np.linalg.norm(pts - pred, axis=1) > o.coarse_outlier_squares * sq
+    for robust in (False, True):
+        H = board_homography(board_xy, pts, robust=robust)
+        if H is None:
+            return pts, np.full(len(pts), o.subpix_window_min_px)
+        sq = square_px(H, board_xy, 1.0)
+        pred = apply_homography(H, board_xy)
+        off = np.linalg.norm(pts - pred, axis=1) > o.coarse_outlier_squares * sq
+        if not off.any():
+            break
     if off.any():
         log.debug("%d coarse corners off the board homography restart from it", int(off.sum()))
     start = np.where(off[:, None], pred, pts)

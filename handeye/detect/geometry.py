@@ -10,6 +10,7 @@ by pixels while well-placed corners stay at their noise.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from dataclasses import dataclass, field
@@ -20,38 +21,77 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 
-def _homographies(src: np.ndarray, dst: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Least-squares homographies of a stack of point sets, shape (B, 3, 3): the linear (DLT) fit with
-    h33 = 1 on coordinates normalised to mean 0 and RMS sqrt(2) (where h33 stays far from 0).
+def _homographies(nb: "_Neighbourhoods", dst: np.ndarray) -> np.ndarray:
+    """Least-squares homographies board -> image of every neighbourhood, shape (M, 3, 3): the linear (DLT)
+    fit with h33 = 1 on coordinates normalised to mean 0 and RMS sqrt(2) (where h33 stays far from 0).
 
-    src, dst: shape (B, K, 2); mask (B, K) selects the points of each set."""
-    w = mask[..., None].astype(float)
-    sn, Ts = _normalise_masked(src, mask)
-    dn, Td = _normalise_masked(dst, mask)
-    x, y = sn[..., 0], sn[..., 1]
+    dst: image points of the neighbours, shape (M, k, 2) (rows outside ``nb.mask`` are ignored)."""
+    dn, Td = _normalise_masked(dst, nb.mask)
+    x, y, one, w = nb.x, nb.y, nb.mask, nb.mask
     u, v = dn[..., 0], dn[..., 1]
-    one, zero = np.ones_like(x), np.zeros_like(x)
+    zero = np.zeros_like(x)
     r1 = np.stack([x, y, one, zero, zero, zero, -u * x, -u * y], axis=2)
     r2 = np.stack([zero, zero, zero, x, y, one, -v * x, -v * y], axis=2)
-    A = np.concatenate([r1, r2], axis=1) * np.concatenate([w, w], axis=1)  # shape (B, 2K, 8)
-    b = np.concatenate([u, v], axis=1) * np.concatenate([w, w], axis=1)[..., 0]  # shape (B, 2K)
+    A = np.concatenate([r1, r2], axis=1)  # shape (M, 2k, 8), zero rows outside the mask
+    b = np.concatenate([u * w, v * w], axis=1)  # shape (M, 2k)
     At = A.transpose(0, 2, 1)
-    h = np.linalg.solve(At @ A, (At @ b[..., None]))[..., 0]  # shape (B, 8)
+    h = np.linalg.solve(At @ A, (At @ b[..., None]))[..., 0]  # shape (M, 8)
     Hn = np.concatenate([h, np.ones((len(h), 1))], axis=1).reshape(-1, 3, 3)
-    return np.linalg.inv(Td) @ Hn @ Ts
+    return np.linalg.inv(Td) @ Hn @ nb.Ts
 
 
 def _normalise_masked(pts: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    m = mask[..., None].astype(float)
+    """(points of each set moved to mean 0 and scaled to RMS sqrt(2), zero outside ``mask``; the (M, 3, 3)
+    transforms); pts shape (M, k, 2), mask (M, k) of 0/1."""
+    m = mask[..., None]
     n = np.maximum(m.sum(axis=1, keepdims=True), 1.0)
     c = (pts * m).sum(axis=1, keepdims=True) / n
     rms = np.sqrt(((np.sum((pts - c) ** 2, axis=2, keepdims=True)) * m).sum(axis=1, keepdims=True) / n)
-    s = np.sqrt(2.0) / np.maximum(rms, 1e-12)  # shape (B, 1, 1)
+    s = np.sqrt(2.0) / np.maximum(rms, 1e-12)  # shape (M, 1, 1)
     T = np.zeros((len(pts), 3, 3))
     T[:, 0, 0] = T[:, 1, 1] = s[:, 0, 0]
     T[:, :2, 2] = -s[:, 0] * c[:, 0]
     T[:, 2, 2] = 1.0
     return (pts - c) * s * m, T
+
+
+@dataclass(frozen=True)
+class _Neighbourhoods:
+    """The board neighbours of every checkable corner, and what of their fit depends on the board alone."""
+
+    step: float  # grid step (smallest distance between two board points)
+    idx: np.ndarray  # (M,) the corners checked
+    order: np.ndarray  # (M, k) their neighbours' indices (first mask.sum() of each row are neighbours)
+    mask: np.ndarray  # (M, k) 1.0 for a neighbour, 0.0 for padding
+    x: np.ndarray  # (M, k) normalised board coordinates of the neighbours (0 outside the mask)
+    y: np.ndarray
+    Ts: np.ndarray  # (M, 3, 3) their normalising transforms
+
+
+@functools.lru_cache(maxsize=32)
+def _neighbourhoods_cached(key: bytes, n: int, radius_steps: float, min_neighbours: int) -> _Neighbourhoods:
+    board_xy = np.frombuffer(key, dtype=float).reshape(n, 2)
+    d = np.linalg.norm(board_xy[:, None, :] - board_xy[None, :, :], axis=2)  # shape (N, N)
+    step = float(np.min(d + np.diag(np.full(n, np.inf))))
+    near = (d / step <= radius_steps) & ~np.eye(n, dtype=bool)
+    k = max(int(near.sum(axis=1).max()), 1)
+    order = np.argsort(~near, axis=1, kind="stable")[:, :k]  # neighbours first, shape (N, k)
+    mask = np.take_along_axis(near, order, axis=1).astype(float)
+    src = board_xy[order]  # shape (N, k, 2)
+    ok = mask.sum(axis=1) >= min_neighbours
+    # neighbours on one line fit no homography: need spread across both board directions
+    c = (src * mask[..., None]).sum(axis=1) / np.maximum(mask.sum(axis=1), 1)[:, None]
+    dev = (src - c[:, None]) * mask[..., None]
+    ok &= np.linalg.eigvalsh(dev.transpose(0, 2, 1) @ dev)[:, 0] > 1e-6 * step ** 2
+    sn, Ts = _normalise_masked(src[ok], mask[ok])
+    return _Neighbourhoods(step=step, idx=np.flatnonzero(ok), order=order[ok], mask=mask[ok], x=sn[..., 0],
+                           y=sn[..., 1], Ts=Ts)
+
+
+def _neighbourhoods(board_xy: np.ndarray, radius_steps: float, min_neighbours: int) -> _Neighbourhoods:
+    """:class:`_Neighbourhoods` of a board layout (cached: a session's views share their layout)."""
+    b = np.ascontiguousarray(board_xy, dtype=float)
+    return _neighbourhoods_cached(b.tobytes(), len(b), float(radius_steps), int(min_neighbours))
 
 
 def apply_homography(H: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -95,22 +135,11 @@ def grid_check(board_xy: np.ndarray, image_xy: np.ndarray, *, radius_steps: floa
     n = len(board_xy)
     res, limit = np.full(n, np.nan), np.full(n, np.inf)
     if n >= min_neighbours + 1:
-        d = np.linalg.norm(board_xy[:, None, :] - board_xy[None, :, :], axis=2)  # shape (N, N)
-        step = float(np.min(d + np.diag(np.full(n, np.inf))))
-        near = (d / step <= radius_steps) & ~np.eye(n, dtype=bool)
-        k = int(near.sum(axis=1).max())
-        order = np.argsort(~near, axis=1, kind="stable")[:, :k]  # neighbours first, shape (N, k)
-        mask = np.take_along_axis(near, order, axis=1)
-        src, dst = board_xy[order], image_xy[order]  # shape (N, k, 2)
-        ok = mask.sum(axis=1) >= min_neighbours
-        # neighbours on one line fit no homography: need spread across both board directions
-        c = (src * mask[..., None]).sum(axis=1) / np.maximum(mask.sum(axis=1), 1)[:, None]
-        dev = (src - c[:, None]) * mask[..., None]
-        ok &= np.linalg.eigvalsh(dev.transpose(0, 2, 1) @ dev)[:, 0] > 1e-6 * step ** 2
-        if ok.any():
-            H = _homographies(src[ok], dst[ok], mask[ok])
-            res[ok] = np.linalg.norm(apply_homography(H, board_xy[ok]) - image_xy[ok], axis=1)
-            limit[ok] = max_px + max_share * _step_px(H, board_xy[ok], step)
+        nb = _neighbourhoods(board_xy, radius_steps, min_neighbours)
+        if len(nb.idx):
+            H = _homographies(nb, image_xy[nb.order])
+            res[nb.idx] = np.linalg.norm(apply_homography(H, board_xy[nb.idx]) - image_xy[nb.idx], axis=1)
+            limit[nb.idx] = max_px + max_share * _step_px(H, board_xy[nb.idx], nb.step)
     ratio = res / limit
     worst = int(np.nanargmax(ratio)) if np.isfinite(ratio).any() else -1
     return GridCheck(residual_px=res, limit_px=limit, worst=worst)
@@ -130,15 +159,20 @@ def _step_px(H: np.ndarray, board_xy: np.ndarray, step: float) -> np.ndarray:
     w = p[:, 2]
     # d(u, v)/d(x, y) of (H p)[:2] / (H p)[2]
     J = (Hs[:, :2, :2] * w[:, None, None] - p[:, :2, None] * Hs[:, 2:3, :2]) / (w ** 2)[:, None, None]
-    return np.linalg.svd(J, compute_uv=False)[:, -1] * step
+    # smallest singular value of a 2x2 matrix: sqrt of the smaller eigenvalue of J^T J
+    a, b, c = (J ** 2).sum(axis=1)[:, 0], (J[:, :, 0] * J[:, :, 1]).sum(axis=1), (J ** 2).sum(axis=1)[:, 1]
+    lo = 0.5 * (a + c) - np.sqrt(0.25 * (a - c) ** 2 + b ** 2)
+    return np.sqrt(np.maximum(lo, 0.0)) * step
 
 
-def board_homography(board_xy: np.ndarray, image_xy: np.ndarray) -> np.ndarray | None:
-    """Homography board plane -> image fitted robustly (least median of squares: up to half of the
-    corners may be wrong), or None when it cannot be fitted."""
+def board_homography(board_xy: np.ndarray, image_xy: np.ndarray, *, robust: bool = True) -> np.ndarray | None:
+    """Homography board plane -> image, or None when it cannot be fitted. ``robust``: least median of
+    squares (up to half of the corners may be wrong); otherwise least squares (faster, for corners
+    that are all right)."""
     if len(board_xy) < 4:
         return None
-    H, _ = cv2.findHomography(np.asarray(board_xy, np.float64), np.asarray(image_xy, np.float64), cv2.LMEDS)
+    H, _ = cv2.findHomography(np.asarray(board_xy, np.float64), np.asarray(image_xy, np.float64),
+                              cv2.LMEDS if robust else 0)
     return H
 
 
