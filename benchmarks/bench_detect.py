@@ -2,9 +2,17 @@
 accuracy against the ground truth, and the cornerSubPix stopping rule of configs/detection.yaml.
 
 Usage: python benchmarks/bench_detect.py [--views 20] [--rounds 7] [--session DIR] [--real DIR ...]
-The last lines time the refusal of a wrong board size: the session's images under a config.yaml that
-states 9x6 inner corners (the board has 11x8), through detect_views and through the whole
-calibration (handeye.workflow.calibrate_session without the reports), with the message it gives.
+                                         [--shared DIR | --no-shared] [--big W H]
+Then: the refusal of a wrong board size (the session's images under a config.yaml that states 9x6 inner
+corners for the 11x8 board) through detect_views and through the whole calibration
+(handeye.workflow.calibrate_session without the reports), with the message it gives; the corner error
+and time on rendered 1280x720 views of a board of few large squares (5x4 inner corners of 60 mm, the
+low-texture case); an 8000x6000 noise image (--big) alone and in a session of three views of that size
+(the bounded detection: searched on a copy reduced to configs/detection.yaml search_max_megapixels);
+a view without the board under a 1 ms time budget (dropped as timed out). On the real sets of
+../shared/data (--shared): the chessboard sets' corners against findChessboardCornersSB (EXHAUSTIVE |
+ACCURACY) where both detect, and the geometric check's worst corner (px and share of its limit) on every
+set, ChArUco and circle grid included (the figures behind grid_check_max_px).
 --real (e.g. ../shared/data/ur3-eyetohand-cam1, a 9x7 chessboard) also compares the cornerSubPix
 stopping rules on real images: how far the shipped rule leaves the corners from the 50 / 1e-4 rule.
 Renders a session (handeye.sim.vendor.write_vendor_session, view 5 hidden so one view takes the
@@ -20,17 +28,20 @@ import argparse
 import json
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from handeye.camera import Intrinsics, pixels_from_board_points
-from handeye.detect import DetectionFailure, detect_gray, detect_image, detect_views, read_gray
-from handeye.detect.chessboard import subpix_window
+from handeye.detect import Detection, DetectionFailure, detect_gray, detect_image, detect_views, read_gray
+from handeye.detect.chessboard import board_squares, refine_corners, subpix_windows
+from handeye.detect.geometry import check_corners
 from handeye.detect.options import default_options
 from handeye.detect.quality import sharpness, thumbnail_jpeg, view_blur, view_exposure
 from handeye.session import load_session
+from handeye.targets import ChessboardSpec
 
 
 def _best(f, items, rounds):
@@ -66,6 +77,10 @@ def main() -> None:
     ap.add_argument("--session", type=Path, default=None)
     ap.add_argument("--real", type=Path, nargs="*", default=[], help="folders of real 9x7 chessboard images")
     ap.add_argument("--real-board", type=int, nargs=2, default=(9, 7))
+    ap.add_argument("--shared", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data",
+                    help="folder of the real datasets (the chessboard sets are compared with the accurate SB search)")
+    ap.add_argument("--no-shared", action="store_true", help="skip the real datasets")
+    ap.add_argument("--big", type=int, nargs=2, default=(8000, 6000), help="size of the noise image, px")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.session
@@ -122,24 +137,31 @@ def main() -> None:
                 ok, c = cv2.findChessboardCorners(small, (target.cols, target.rows), flags=cv2.CALIB_CB_ADAPTIVE_THRESH
                                                   | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK)
                 if ok:
-                    p0 = (c.reshape(-1, 2) * 2).astype(np.float32)
-                    starts.append((vid, g, p0, subpix_window(p0, target.cols, target.rows, o)))
+                    p0, win = subpix_windows(board_squares(target), (c.reshape(-1, 2) + 0.5) * 2 - 0.5, o)
+                    starts.append((vid, g, p0.astype(np.float32), win))
             for it, eps in ((50, 1e-4), (o.subpix_max_iter, o.subpix_eps_px)):
-                crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, it, eps)
+                rule = replace(o, subpix_max_iter=it, subpix_eps_px=eps)
                 best, out = 1e9, None
                 for _ in range(args.rounds):
                     c0 = time.process_time()
-                    out = [cv2.cornerSubPix(g, p.reshape(-1, 1, 2).copy(), (win, win), (-1, -1), crit).reshape(-1, 2)
-                           for _, g, p, win in starts]
+                    out = [refine_corners(g, p, win, rule) for _, g, p, win in starts]
                     best = min(best, (time.process_time() - c0) / len(starts) * 1e3)
                 e = np.concatenate([np.linalg.norm(p - truth[vid], axis=1) for p, (vid, *_) in zip(out, starts)])
                 print(f"  cornerSubPix max_iter {it} eps {eps:g}: {best:.2f} ms CPU per view, "
                       f"error RMS {np.sqrt(np.mean(e ** 2)):.4f} px, max {e.max():.4f} px")
 
         _wrong_size(Path(folder), Path(tmp), args.rounds)
+        _low_texture(args.views, args.rounds)
+        _big_noise_image(Path(folder), Path(tmp), args.big)
+        _timed_out(items, target, failed)
 
     for folder in args.real:
         _real_subpix(folder, tuple(args.real_board))
+    if not args.no_shared:
+        for name, size in SHARED_CHESSBOARDS.items():
+            if (args.shared / name).is_dir():
+                _against_accurate_sb(args.shared / name, size)
+        _ical_checks(args.shared)
 
 
 def _wrong_size(folder: Path, tmp: Path, rounds: int) -> None:
@@ -174,6 +196,137 @@ def _wrong_size(folder: Path, tmp: Path, rounds: int) -> None:
           f"exit code {wr.exit_code}: {wr.result['error']['message']}")
 
 
+#: the real chessboard sets of ../shared/data and their inner corners (cols, rows), from each SOURCE.md
+SHARED_CHESSBOARDS = {"ur3-eyetohand-cam1": (9, 7), "ur3-eyetohand-cam2": (9, 7), "visp-franka-eye-in-hand": (9, 6)}
+#: a board with few, large squares (the low-texture case): 5x4 inner corners of 60 mm
+LOW_TEXTURE = ChessboardSpec(5, 4, 0.06)
+
+
+def _low_texture(n_views: int, rounds: int) -> None:
+    """Corner error against the rendered truth and time per image on 1280x720 views of LOW_TEXTURE."""
+    from handeye.sim.corners import make_corner_session
+    from handeye.sim.render import render_view
+    from handeye.sim.scenarios import default_intrinsics
+
+    intr = default_intrinsics(1280, 720)
+    cs = make_corner_session(n_views=n_views, seed=0, noise_px=0.0, intrinsics=intr, target=LOW_TEXTURE)
+    imgs = [(render_view(LOW_TEXTURE, intr, T, supersample=4), T) for T in cs.T_cam_board_true]
+    found = [(img, T, detect_gray(img, LOW_TEXTURE)) for img, T in imgs]
+    err = np.concatenate([np.linalg.norm(d[1] - pixels_from_board_points(T, LOW_TEXTURE.object_points()[d[0]], intr),
+                                         axis=1) for _, T, d in found if not isinstance(d, str)])
+    w, c = _best(lambda img, T, d: detect_gray(img, LOW_TEXTURE), found, rounds)
+    n = sum(not isinstance(d, str) for *_, d in found)
+    print(f"  low-texture board ({LOW_TEXTURE.describe()}), {n}/{len(found)} of 1280x720 views found: corner error "
+          f"RMS {np.sqrt(np.mean(err ** 2)):.4f} px, max {err.max():.4f} px; detect_gray {w:.2f} ms wall, "
+          f"{c:.2f} ms CPU")
+
+
+def _big_noise_image(folder: Path, tmp: Path, size: tuple) -> None:
+    """A noise image of ``size`` (8000x6000): its detection alone, and a session of three views of that size
+    (the noise image, then views 2 and 3 of the rendered session enlarged and padded to it), calibrated
+    without reports (too few views: refused after detection)."""
+    from handeye.pipeline import CalibrateOptions
+    from handeye.workflow import calibrate_session
+
+    w, h = size
+    big = tmp / "big-noise"
+    big.mkdir()
+    (big / "config.yaml").write_text((folder / "config.yaml").read_text())
+    (big / "poses.txt").write_text("".join((folder / "poses.txt").read_text().splitlines(keepends=True)[:3]))
+    noise = np.random.default_rng(0).integers(0, 256, (h, w), dtype=np.uint8)
+    cv2.imwrite(str(big / "1.jpg"), noise, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    for k in (2, 3):
+        g = read_gray(folder / f"{k}.jpg")
+        s = min(w / g.shape[1], h / g.shape[0])
+        g = cv2.resize(g, (round(g.shape[1] * s), round(g.shape[0] * s)), interpolation=cv2.INTER_LINEAR)
+        canvas = np.full((h, w), 128, np.uint8)
+        canvas[: g.shape[0], : g.shape[1]] = g
+        cv2.imwrite(str(big / f"{k}.jpg"), canvas, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    s = load_session(big)
+    t0 = time.perf_counter()
+    d = detect_image("1", big / "1.jpg", s.target)
+    print(f"  {w}x{h} noise image: detect_image {time.perf_counter() - t0:.2f} s wall: {d.reason}")
+    t0 = time.perf_counter()
+    d = detect_image("2", big / "2.jpg", s.target)
+    print(f"  {w}x{h} view with the board: detect_image {time.perf_counter() - t0:.2f} s wall, "
+          + (f"{len(d.corner_ids)} corners" if isinstance(d, Detection) else d.reason))
+    t0 = time.perf_counter()
+    wr = calibrate_session(big, options=CalibrateOptions(refine=False), out_dir=tmp / "big-noise-out", report=False)
+    err = (wr.result.get("error") or {}).get("message", "")
+    print(f"  session of these three {w}x{h} views, whole calibration without reports: "
+          f"{time.perf_counter() - t0:.2f} s wall, exit code {wr.exit_code}" + (f": {err}" if err else ""))
+
+
+def _timed_out(items, target, failed) -> None:
+    """A view without the board under a budget of 1 ms: dropped as timed out after the first search."""
+    o = replace(default_options(), time_budget_s=1e-3)
+    for vid, path in items:
+        if vid in failed:
+            t0 = time.perf_counter()
+            d = detect_image(vid, path, target, options=o)
+            print(f"  view {vid} (no board) with time_budget_s 0.001: {(time.perf_counter() - t0) * 1e3:.0f} ms wall: "
+                  f"{d.reason}")
+            return
+
+
+def _against_accurate_sb(folder: Path, size: tuple) -> None:
+    """Corners of detect_gray against findChessboardCornersSB (EXHAUSTIVE | ACCURACY) where both detect
+    (SB may number the board from the other end: the nearer numbering is compared), and the time of each."""
+    spec = ChessboardSpec(size[0], size[1], 1.0)
+    d_max, n_both, n_img, ours_s, sb_s, checks = [], 0, 0, 0.0, 0.0, []
+    for p in sorted(q for q in folder.rglob("*") if q.suffix.lower() in (".png", ".jpg", ".jpeg")):
+        g = read_gray(p)
+        n_img += 1
+        c0 = time.process_time()
+        out = detect_gray(g, spec)
+        c1 = time.process_time()
+        ok, ref = cv2.findChessboardCornersSB(g, size, flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
+                                              | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        sb_s += time.process_time() - c1
+        ours_s += c1 - c0
+        if isinstance(out, str) or not ok:
+            continue
+        checks.append(check_corners(board_squares(spec)[out[0]], out[1], default_options()))
+        ref = ref.reshape(-1, 2)
+        d = min((np.linalg.norm(out[1] - r, axis=1) for r in (ref, ref[::-1])), key=np.max)
+        d_max.append(d)
+        n_both += 1
+    d = np.concatenate(d_max) if d_max else np.zeros(1)
+    print(f"  {folder.name}: {n_both} of {n_img} images detected by both; corners from the accurate SB: "
+          f"RMS {np.sqrt(np.mean(d ** 2)):.3f} px, max {d.max():.3f} px, {int((d > 1).sum())} over 1 px; "
+          f"detect_gray {ours_s / n_img * 1e3:.1f} ms CPU per image (SB accurate {sb_s / n_img * 1e3:.0f} ms)")
+    _print_checks(folder.name, checks)
+
+
+def _print_checks(name: str, checks) -> None:
+    """The geometric check's worst corner over a set's views: px, and the largest share of its limit."""
+    res = [np.nanmax(c.residual_px) for c in checks if c.worst >= 0]
+    share = [np.nanmax(c.residual_px / c.limit_px) for c in checks if c.worst >= 0]
+    if res:
+        print(f"  {name}: geometric check over {len(res)} views: worst corner {max(res):.2f} px from its neighbours' "
+              f"homography (median view {np.median(res):.2f} px), at most {max(share):.2f} of its limit")
+
+
+def _ical_checks(shared: Path) -> None:
+    """The geometric check on the ical ChArUco and circle-grid sets (corners as detected before the check
+    drops any)."""
+    from handeye.session.importers import import_ical
+
+    loose = replace(default_options(), grid_check_max_px=1e9)
+    for name, kw in (("ical-mako-charuco-eye-to-hand", {"image_dir": "images_gray"}),
+                     ("ical-kinect-circlegrid-eye-in-hand", {})):
+        if not (shared / name).is_dir():
+            continue
+        with tempfile.TemporaryDirectory() as tmp:
+            s = load_session(import_ical(shared / name, Path(tmp) / "s", **kw))
+            checks = []
+            for v in s.views:
+                out = detect_gray(read_gray(v.image_path), s.target, options=loose)
+                if not isinstance(out, str):
+                    checks.append(check_corners(s.target.object_points()[out[0], :2], out[1], default_options()))
+        _print_checks(name, checks)
+
+
 def _real_subpix(folder: Path, size: tuple) -> None:
     o = default_options()
     data = []
@@ -182,13 +335,13 @@ def _real_subpix(folder: Path, size: tuple) -> None:
         ok, c = cv2.findChessboardCorners(g, size, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
                                           | cv2.CALIB_CB_FAST_CHECK)
         if ok:
-            p0 = c.reshape(-1, 2).astype(np.float32)
-            data.append((g, p0, subpix_window(p0, size[0], size[1], o)))
+            p0, win = subpix_windows(board_squares(ChessboardSpec(size[0], size[1], 1.0)), c.reshape(-1, 2), o)
+            data.append((g, p0.astype(np.float32), win))
     ref = None
     for it, eps in ((50, 1e-4), (o.subpix_max_iter, o.subpix_eps_px)):
-        crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, it, eps)
+        rule = replace(o, subpix_max_iter=it, subpix_eps_px=eps)
         c0 = time.process_time()
-        out = [cv2.cornerSubPix(g, p.reshape(-1, 1, 2).copy(), (w, w), (-1, -1), crit).reshape(-1, 2) for g, p, w in data]
+        out = [refine_corners(g, p, w, rule) for g, p, w in data]
         ms = (time.process_time() - c0) / max(len(data), 1) * 1e3
         ref = out if ref is None else ref
         d = np.concatenate([np.linalg.norm(a - b, axis=1) for a, b in zip(out, ref)]) if data else np.zeros(1)
