@@ -4,6 +4,7 @@ it, joint angles by inverse kinematics and through a tool offset, and the errors
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import gtsam
 import numpy as np
@@ -142,3 +143,24 @@ def test_model_choice_and_bad_input():
     bad[3, 1] += np.radians(1.0)  # one view's joints do not give its reported pose
     with pytest.raises(ConfigError, match="joint angles do not give the reported poses"):
         _refine(s, _views(s, bad), arm="rm65")
+
+
+def test_the_pipeline_uses_the_arm_a_session_names(tmp_path):
+    """session.yaml ``robot: rm65`` and the views' joint angles reach the refinement (refine_stage)."""
+    from types import SimpleNamespace
+
+    from handeye.pipeline import CalibrateOptions, refine_stage
+    from handeye.records import HandEyeEstimate, Session, View
+
+    s = make_corner_session(mode="eye_in_hand", n_views=6, seed=0, noise_px=0.3, robot_error="kinematic")
+    views = tuple(View(vid, tmp_path / f"{vid}.png", s.T_base_end_reported[k], joint_angles=tuple(s.joints_encoder[k]))
+                  for k, vid in enumerate(s.view_ids))
+    sess = Session(path=tmp_path, format="native", mode=s.mode, target=s.target, views=views, meta={"robot": "rm65"})
+    poses = {vid: SimpleNamespace(corner_ids=s.corner_ids[k]) for k, vid in enumerate(s.view_ids)}
+    dets = {vid: SimpleNamespace(image_points=s.image_points[k]) for k, vid in enumerate(s.view_ids)}
+    T = {vid: s.T_base_end_reported[k] for k, vid in enumerate(s.view_ids)}
+    start = HandEyeEstimate(mode=s.mode, method="tsai", T_x=s.T_x_true, T_board=s.T_board_true)
+    r = refine_stage(sess, CalibrateOptions(), start, s.intrinsics, poses, dets, T)
+    assert r.robot_model["kind"] == "kinematic" and r.robot_model["joint_angles"] == "recorded"
+    with pytest.raises(ConfigError, match="unknown robot model"):
+        refine_stage(replace(sess, meta={"robot": "kuka"}), CalibrateOptions(), start, s.intrinsics, poses, dets, T)
