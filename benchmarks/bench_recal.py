@@ -29,8 +29,11 @@ contradict it), against a fresh 20-view calibration of the bumped rig: RMS error
 Timing (``--timing``): verify_session on a rendered 6-view session at 1280x720 (detection included,
 rendering not), median of 3.
 
-Usage: python benchmarks/bench_recal.py --trials 300 --compare 200 --prior 100 --timing --jobs 2
-(quick look: --trials 10 --compare 10 --prior 5). Progress on stderr, figures on stdout.
+``--validated``: the installs carry the validation stage's verdict covariance (leave-one-out refits,
+:mod:`handeye.refine.validation`), as ``handeye calibrate`` writes it and verify reads it.
+
+Usage: python benchmarks/bench_recal.py --trials 150 --compare 100 --prior 25 --timing --jobs 2
+(per mode; quick look: --trials 5 --compare 5 --prior 2). Progress on stderr, figures on stdout.
 """
 from __future__ import annotations
 
@@ -71,12 +74,20 @@ def calibrate(s, options=None):
                   T_x0=est.T_x, T_board0=est.T_board, options=options or RefineOptions(), starts=closed)
 
 
-def install(mode, model, seed):
+VALIDATED = False  # --validated: installs carry the verdict covariance of the validation stage, as calibrate's
+
+
+def install(mode, model, seed, validated=None):
     from handeye.recal.loaded import load_result, result_from_refinement
 
     s = session(mode=mode, model=model, seed=seed, n_views=20)
     r = calibrate(s)
-    return s, r, load_result(result_from_refinement(r, target=s.target))
+    val = None
+    if (VALIDATED if validated is None else validated) and r.status == "ok":
+        from handeye.refine.validation import validate
+
+        val = validate(r, object_points=s.target.object_points(), views=refine_views(s), halves=False)
+    return s, r, load_result(result_from_refinement(r, target=s.target, validation=val))
 
 
 def random_bump(rng, mm=BUMP_MM, deg=BUMP_DEG) -> np.ndarray:
@@ -89,13 +100,13 @@ def verify_trial(args) -> dict:
     from handeye.frames import se3_exp
     from handeye.recal.verify import verify_views
 
-    mode, model, seed = args
+    mode, model, seed, validated = args
     try:
-        s, r, inst = install(mode, model, seed)
+        s, r, inst = install(mode, model, seed, validated)
         if r.status != "ok":
             return dict(mode=mode, model=model, seed=seed, skipped=f"install: {r.failure_reason}")
         bump = random_bump(np.random.default_rng(seed + 7919))
-        out = dict(mode=mode, model=model, seed=seed)
+        out = dict(mode=mode, model=model, seed=seed, cov=inst.cov_source)
         for name, xi in (("still", np.zeros(6)), ("bumped", bump), ("bumped2", 2.0 * bump)):
             sv = session(mode=mode, model=model, seed=seed + 100000, n_views=6,
                          rig=(s.T_x_true @ se3_exp(xi), s.T_board_true), model_seed=seed)
@@ -183,7 +194,8 @@ def run_pool(fn, tasks, jobs):
 
 
 def report_verify(rows) -> None:
-    print(f"verify: 6 views against a 20-view install, camera bumped {BUMP_MM:g} mm / {BUMP_DEG:g} deg; alpha 5 %")
+    print(f"verify: 6 views against a 20-view install, camera bumped {BUMP_MM:g} mm / {BUMP_DEG:g} deg; alpha 5 %; "
+          f"installed covariance: {rows[0]['cov'] if rows and 'cov' in rows[0] else 'cov_x_6x6'}")
     print(f"  {'model':<10}{'mode':<12}{'trials':>7}{'power':>8}{'false al.':>10}{'in 2 sig':>9}"
           f"{'sigma mm':>10}{'sigma deg':>10}{'time s':>8}{'power 2x':>9}")
     for model in MODELS:
@@ -265,10 +277,12 @@ def main() -> None:
     ap.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--validated", action="store_true",
+                    help="verify trials: installs with the validation stage's verdict covariance (as calibrate writes)")
     a = ap.parse_args()
     seeds = range(a.first_seed, a.first_seed + a.trials)
     if a.trials:
-        tasks = [(mode, model, s) for model in a.models for mode in a.modes for s in seeds]
+        tasks = [(mode, model, s, a.validated) for model in a.models for mode in a.modes for s in seeds]
         print(f"verify: {len(tasks)} trials", file=sys.stderr)
         report_verify(run_pool(verify_trial, tasks, a.jobs))
     if a.compare:

@@ -124,17 +124,24 @@ def _check_parametrisation(text, source: str) -> None:
                          hint="recompute the result with this version of handeye calibrate")
 
 
-def result_from_refinement(refined, *, target) -> dict:
+def result_from_refinement(refined, *, target, validation=None) -> dict:
     """The parts of result.json that :func:`load_result` reads, from a
     :class:`~handeye.refine.RefineResult` and the target spec: for programs (and the benchmarks)
-    that refine without writing a result folder."""
+    that refine without writing a result folder. ``validation``
+    (:func:`handeye.refine.validation.validate` of ``refined``) adds the verdict covariances as
+    result.json has them (:func:`handeye.results.validation_fields`)."""
     from ..output import plain
 
     ok = refined.status == "ok"
+    ref = refined.to_dict()
+    if validation is not None:
+        from ..results import validation_fields
+
+        ref.update(validation_fields(refined, validation))
     d = {"handeye_result": 1, "status": refined.status, "mode": refined.mode,
          "hand_eye": {"name": refined.x_name}, "board": {"name": refined.board_name},
          "intrinsics": dict(refined.intrinsics.to_dict(), source="refined"),
-         "refinement": refined.to_dict(), "target": target.to_dict()}
+         "refinement": ref, "target": target.to_dict()}
     if ok:
         d[refined.x_name] = refined.T_x
         d[refined.board_name] = refined.T_board
