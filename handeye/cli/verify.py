@@ -114,5 +114,10 @@ def run_plan(args) -> int:
 
     p = plan_verification(args.against, drift_mm=args.drift_mm, drift_deg=args.drift_deg, power=args.power,
                           alpha=args.alpha)
-    print("\n".join(plan_lines(p)))
+    if args.json:
+        from ..output import to_json
+
+        print(to_json(p.to_dict()))
+    else:
+        print("\n".join(plan_lines(p)))
     return 0
