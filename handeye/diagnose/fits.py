@@ -11,7 +11,7 @@ from typing import Optional
 
 import numpy as np
 
-from .geometry import PairMotions, implied_boards, pair_motions, pose_differences, robust_mean_T, solve_A
+from .geometry import A_from_sums, PairMotions, implied_boards, pair_motions, pose_differences, robust_mean_T
 from .thresholds import thresholds
 
 
@@ -67,12 +67,12 @@ def fit_boards(C: np.ndarray, M: np.ndarray, *, labels: Optional[np.ndarray] = N
     gi = np.searchsorted(groups, labels)
     same_group = labels[i] == labels[j]
     for rnd in range(3 if robust else 1):
-        sel = same_group & use[i] & use[j]
-        if sel.sum() < 3:
+        n_sel = int(np.count_nonzero(same_group & use[i] & use[j]))
+        if n_sel < 3:
             if rnd == 0:
-                raise np.linalg.LinAlgError(f"only {int(sel.sum())} view pairs to fit (needs 3)")
+                raise np.linalg.LinAlgError(f"only {n_sel} view pairs to fit (needs 3)")
             break
-        A = solve_A(motions, sel)
+        A = A_from_sums(motions.group_sums(labels, use))
         Bs = implied_boards(A, C, M)
         B = np.stack([robust_mean_T(Bs[(labels == g) & use] if ((labels == g) & use).sum() else Bs[labels == g])
                       for g in groups])

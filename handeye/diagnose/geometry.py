@@ -19,12 +19,11 @@ No I/O, no printing, inputs never mutated.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-
 from ..camera import pixels_from_cam_points
-from ..frames import inv_T, make_T, mean_T, project_to_rotation, rotation_angle_rad, screw_invariants, skew
+from ..frames import inv_T, make_T, mean_T, project_to_rotation, rotvec_from_R, screw_invariants, skew
 
 #: pairs whose relative rotation is outside this range (deg) give no usable screw pitch: the axis is
 #: ill-defined for small angles and flips sign near 180 degrees
@@ -85,31 +84,113 @@ class PairMotions:
     alpha: np.ndarray
     beta: np.ndarray
 
+    @cached_property
+    def terms(self) -> np.ndarray:
+        """(P, 61) each pair's terms of the linear solves, so that a fit on any set of pairs only sums rows
+        (:meth:`sums`) instead of solving over 3 equations per pair: ``beta alpha^T`` (9, Kabsch),
+        ``W^T W`` (16) and ``W[a,:] t_M[b]`` (36) with ``W = [R_C - I | t_C]`` (3,4), the design of
+        ``(R_C - I) t_A + k t_C = R_A t_M`` (Park & Martin's translation with k = 1 moved to the right, and
+        the scale of :mod:`.scale`)."""
+        Wt = np.swapaxes(self.rc[:, :3, :], 1, 2).copy()  # (P,4,3): W^T
+        Wt[:, [0, 1, 2], [0, 1, 2]] -= 1.0
+        out = np.empty((len(Wt), 61))
+        out[:, :9] = (self.beta[:, :, None] * self.alpha[:, None, :]).reshape(-1, 9)
+        out[:, 9:25] = (Wt @ np.swapaxes(Wt, 1, 2)).reshape(-1, 16)
+        out[:, 25:] = (Wt[:, :, :, None] * self.rm[:, None, None, :3, 3]).reshape(-1, 36)
+        return out
+
+    def sums(self, sel: np.ndarray | None = None) -> np.ndarray:
+        """(61,) the :attr:`terms` summed over the pairs ``sel`` (bool (P,), default all)."""
+        return self._total if sel is None else np.asarray(sel, float) @ self.terms
+
+    @cached_property
+    def _total(self) -> np.ndarray:
+        return self.terms.sum(axis=0)
+
+    @cached_property
+    def _per_view(self) -> tuple[np.ndarray, np.ndarray]:
+        """(n+1, 61) twice: sums of the pairs with ``j < k`` and of those with ``i >= k``, for every k."""
+        n = int(self.j.max()) + 1
+        by_i, by_j = np.zeros((n, self.terms.shape[1])), np.zeros((n, self.terms.shape[1]))
+        np.add.at(by_i, self.i, self.terms)
+        np.add.at(by_j, self.j, self.terms)
+        zero = np.zeros((1, self.terms.shape[1]))
+        return (np.concatenate([zero, np.cumsum(by_j, axis=0)]),
+                np.concatenate([np.cumsum(by_i[::-1], axis=0)[::-1], zero]))
+
+    @cached_property
+    def _pair_index(self) -> np.ndarray:
+        """(n, n) index of the pair of views (a, b) in either order (-1 on the diagonal)."""
+        n = int(self.j.max()) + 1
+        idx = np.full((n, n), -1)
+        idx[self.i, self.j] = idx[self.j, self.i] = np.arange(len(self.i))
+        return idx
+
+    def group_sums(self, labels: np.ndarray, use: np.ndarray) -> np.ndarray:
+        """(61,) the :attr:`terms` summed over the pairs of views in one group (same ``labels``) that are both
+        in ``use`` (bool (n,)), for motions of all pairs i < j. Equal to ``sums(same_group & use[i] & use[j])``
+        but cheap for what the fits ask most: one group or a split of the sequence in two (from running sums)
+        with a few views left out (the pairs they are in subtracted)."""
+        labels, use = np.asarray(labels), np.asarray(use, bool)
+        n = len(labels)
+        same = labels[self.i] == labels[self.j]
+        out_views = np.flatnonzero(~use)
+        if 4 * len(out_views) > n or 2 * len(self.i) != n * (n - 1):  # many left out, or not all pairs
+            return self.sums(same & use[self.i] & use[self.j])
+        k = int(np.searchsorted(labels, labels[-1]))  # first view of the last group
+        if labels[0] == labels[-1]:
+            base = self._total
+        elif np.array_equal(labels, (np.arange(n) >= k).astype(labels.dtype) * (labels[-1] - labels[0]) + labels[0]):
+            lo, hi = self._per_view
+            base = lo[k] + hi[k]
+        else:
+            return self.sums(same & use[self.i] & use[self.j])
+        if not len(out_views):
+            return base
+        rows = self._pair_index[out_views].ravel()
+        rows = np.unique(rows[rows >= 0])
+        return base - self.terms[rows[same[rows]]].sum(axis=0)
+
 
 def pair_motions(C: np.ndarray, M: np.ndarray, pairs: tuple | None = None) -> PairMotions:
     """The relative motions of the given pairs (default: all pairs i < j)."""
     i, j = all_pairs(len(C)) if pairs is None else (np.asarray(pairs[0]), np.asarray(pairs[1]))
-    rc = C[i] @ inv_T(C[j])
-    rm = M[i] @ inv_T(M[j])
-    return PairMotions(i, j, rc, rm, Rotation.from_matrix(rc[:, :3, :3]).as_rotvec(),
-                       Rotation.from_matrix(rm[:, :3, :3]).as_rotvec())
+    rc = C[i] @ inv_T(C)[j]
+    rm = M[i] @ inv_T(M)[j]
+    return PairMotions(i, j, rc, rm, rotvec_from_R(rc[:, :3, :3]), rotvec_from_R(rm[:, :3, :3]))
+
+
+def rotation_from_sums(sums: np.ndarray) -> np.ndarray:
+    """``R_A`` (3,3) with ``alpha = R_A beta`` (Kabsch) from summed pair terms (:meth:`PairMotions.sums`)."""
+    U, _, Vt = np.linalg.svd(sums[:9].reshape(3, 3))  # sum beta alpha^T
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    return Vt.T @ D @ U.T
+
+
+def solve_from_sums(sums: np.ndarray, R_A: np.ndarray, *, scale: bool) -> np.ndarray:
+    """Least squares of ``(R_C - I) t_A + k t_C = R_A t_M`` over the pairs summed in ``sums``, through its
+    normal equations: ``(t_A, k)`` (4,) with ``scale``, else ``t_A`` (3,) with k = 1."""
+    N = sums[9:25].reshape(4, 4)
+    b = np.einsum("kab,ab->k", sums[25:61].reshape(4, 3, 3), R_A)
+    if not scale:
+        N, b = N[:3, :3], b[:3] - N[:3, 3]
+    d = np.sqrt(np.maximum(np.diag(N), 1e-300))  # Jacobi scaling: the columns' units differ (m vs none)
+    sol, *_ = np.linalg.lstsq(N / np.outer(d, d), b / d, rcond=None)
+    return sol / d
 
 
 def solve_A(motions: PairMotions, sel: np.ndarray | None = None) -> np.ndarray:
     """``A`` (4,4) of ``C_i C_j^-1 = A M_i M_j^-1 A^-1`` from the pairs ``sel`` (bool (P,)) of ``motions``
     (Park & Martin). Rotation: the relative rotation vectors satisfy ``alpha = R_A beta`` (Kabsch).
-    Translation: ``(R_Cij - I) t_A = R_A t_Mij - t_Cij`` in least squares."""
-    m = motions
-    sel = np.ones(len(m.i), bool) if sel is None else np.asarray(sel, bool)
-    alpha, beta, rc, rm = m.alpha[sel], m.beta[sel], m.rc[sel], m.rm[sel]
-    H = beta.T @ alpha  # sum beta alpha^T
-    U, _, Vt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R_A = Vt.T @ D @ U.T
-    lhs = (rc[:, :3, :3] - np.eye(3)).reshape(-1, 3)
-    rhs = (np.einsum("ij,pj->pi", R_A, rm[:, :3, 3]) - rc[:, :3, 3]).reshape(-1)
-    t_A, *_ = np.linalg.lstsq(lhs, rhs, rcond=None)
-    return make_T(R_A, t_A)
+    Translation: ``(R_Cij - I) t_A = R_A t_Mij - t_Cij`` in least squares (normal equations of the summed
+    pair terms: the cost of a fit is one weighted sum over the pairs)."""
+    return A_from_sums(motions.sums(sel))
+
+
+def A_from_sums(sums: np.ndarray) -> np.ndarray:
+    """``A`` (4,4) of :func:`solve_A` from the pair terms summed over the chosen pairs."""
+    R_A = rotation_from_sums(sums)
+    return make_T(R_A, solve_from_sums(sums, R_A, scale=False))
 
 
 def solve_A_from_pairs(C: np.ndarray, M: np.ndarray, pairs: tuple) -> np.ndarray:
@@ -138,7 +219,11 @@ def robust_mean_T(Ts: np.ndarray) -> np.ndarray:
 
 def rotation_angles_deg(R: np.ndarray) -> np.ndarray:
     """Geodesic angles (N,) in degrees of rotations (N,3,3)."""
-    return np.degrees(rotation_angle_rad(np.asarray(R, float).reshape(-1, 3, 3)))
+    R = np.asarray(R, float).reshape(-1, 3, 3)
+    # atan2(2 sin, 2 cos): accurate near 0 and pi like the quaternion route of frames.rotation_angle_rad, and
+    # without its branches (the fits call this for every view, many times)
+    sin2 = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
+    return np.degrees(np.arctan2(np.linalg.norm(sin2, axis=1), np.einsum("nii->n", R) - 1.0))
 
 
 def pose_differences(T_a: np.ndarray, T_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
