@@ -164,3 +164,25 @@ def test_the_pipeline_uses_the_arm_a_session_names(tmp_path):
     assert r.robot_model["kind"] == "kinematic" and r.robot_model["joint_angles"] == "recorded"
     with pytest.raises(ConfigError, match="unknown robot model"):
         refine_stage(replace(sess, meta={"robot": "kuka"}), CalibrateOptions(), start, s.intrinsics, poses, dets, T)
+
+
+def test_a_simulated_kinematic_session_names_its_arm_and_records_joint_angles(tmp_path):
+    import yaml
+
+    from handeye.session.native import read_native_document, view_joint_angles
+    from handeye.sim.robot_error import write_native_session
+
+    truth = {"mode": "eye_to_hand", "target": {"type": "chessboard", "inner_corners": [11, 8], "square_m": 0.03},
+             "robot_error": {"model": "kinematic", "arm": "rm65"},
+             "views": {"1": {"image": "1.jpg", "joints_encoder": [0.1, -0.4, 1.2, 0.0, 1.0, 0.2]},
+                       "2": {"image": "2.jpg", "joints_encoder": [0.2, -0.3, 1.1, 0.1, 0.9, 0.3]}}}
+    (tmp_path / "ground_truth.json").write_text(json.dumps(truth))
+    (tmp_path / "poses.txt").write_text("0.4,0.0,0.3,3.1,0.0,0.1\n0.5,0.1,0.3,3.0,0.1,0.0\n")
+    doc = read_native_document(write_native_session(tmp_path))
+    assert doc.data["robot"] == "rm65" and doc.mode == "eye_to_hand"
+    assert [view_joint_angles(e) for e in doc.entries] == [tuple(v["joints_encoder"]) for v in truth["views"].values()]
+    assert yaml.safe_load((tmp_path / "session.yaml").read_text())["views"][1]["pose"] == [0.5, 0.1, 0.3, 3.0, 0.1, 0.0]
+    truth["robot_error"] = {"model": "iid"}
+    (tmp_path / "ground_truth.json").write_text(json.dumps(truth))
+    with pytest.raises(ConfigError, match="not a kinematic simulated session"):
+        write_native_session(tmp_path)

@@ -39,5 +39,9 @@ def run(args) -> int:
                                 robot_noise=tuple(args.robot_noise), hidden_views=tuple(args.hidden),
                                 outlier_views=tuple(args.outliers), robot_error=args.robot_error, arm=args.arm)
     print(f"synthetic {args.mode} session with {args.views} rendered views: {path}")
+    if args.robot_error == "kinematic" and (Path(path) / "poses.txt").exists():
+        from ..sim.robot_error import write_native_session
+
+        print(f"session with joint angles and robot: {args.arm}: {write_native_session(path)}")
     print(f"ground truth: {Path(path) / 'ground_truth.json'}")
     return 0

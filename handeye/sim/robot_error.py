@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Optional
 
 import numpy as np
@@ -160,3 +161,32 @@ def report_poses(error: KinematicRobotError, joints_true: np.ndarray, *,
     q = np.asarray(joints_true, float).reshape(-1, error.nominal.n_joints)
     q_enc = q + rng.normal(0.0, error.encoder_sigma_rad, size=q.shape)
     return q_enc, error.nominal.T_base_end(q_enc).reshape(-1, 4, 4)
+
+
+def write_native_session(folder: Path) -> Path:
+    """``session.yaml`` in a simulated kinematic vendor folder (:func:`handeye.sim.vendor.write_vendor_session`
+    with ``robot_error="kinematic"``): the same images and reported poses (poses.txt's numbers), each view's
+    encoder joint angles (``joints:``) and ``robot:`` naming the arm, so that the refinement uses the
+    kinematic robot error model (a session.yaml is read before poses.txt). Returns its path."""
+    import json
+
+    import yaml
+
+    from ..output import atomic_write_text
+    from ..kinematics import PRESETS
+
+    folder = Path(folder)
+    truth = json.loads((folder / "ground_truth.json").read_text(encoding="utf-8"))
+    model = truth.get("robot_error") or {}
+    if model.get("model") != "kinematic":
+        raise ConfigError("not a kinematic simulated session", path=folder / "ground_truth.json",
+                          expected="robot_error model kinematic", received=repr(model.get("model")))
+    lines = [ln for ln in (folder / "poses.txt").read_text(encoding="utf-8").splitlines() if ln.strip()]
+    arm = str(model["arm"])
+    views = [{"id": vid, "image": v["image"], "pose": [float(x) for x in lines[k].split(",")],
+              "joints": [float(x) for x in v["joints_encoder"]]}
+             for k, (vid, v) in enumerate(truth["views"].items())]
+    doc = {"handeye_session": 1, "mode": truth["mode"],
+           "robot": arm if arm in PRESETS else str(Path(arm).resolve()),
+           "target": truth["target"], "pose_format": {"rotation": "euler"}, "views": views}
+    return atomic_write_text(folder / "session.yaml", yaml.safe_dump(doc, sort_keys=False))
