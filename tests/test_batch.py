@@ -211,12 +211,31 @@ def test_embedded_cluster_gives_identical_results(fleet, cluster_batch, tmp_path
         assert a[key]["verdict"] == b[key]["verdict"], key
         assert a[key]["provenance"].get("inputs_sha256") == b[key]["provenance"].get("inputs_sha256")
         assert [f["code"] for f in a[key]["findings"]] == [f["code"] for f in b[key]["findings"]], key
-        if a[key]["status"] == "ok":  # the same numbers, to rounding (one BLAS thread per session on both)
-            np.testing.assert_allclose(a[key]["T_end_cam"], b[key]["T_end_cam"], rtol=0, atol=1e-12, err_msg=key)
+        if a[key]["status"] == "ok":  # the same numbers to rounding (threaded sums in OpenCV and GTSAM change
+            # the last digits; the worn-robot session amplifies them to ~1e-11): 1e-9 of a metre, far below sigma
+            np.testing.assert_allclose(a[key]["T_end_cam"], b[key]["T_end_cam"], rtol=0, atol=1e-9, err_msg=key)
             np.testing.assert_allclose(a[key]["refinement"]["sigma_trans_mm"], b[key]["refinement"]["sigma_trans_mm"],
-                                       rtol=1e-9, err_msg=key)
+                                       rtol=1e-6, err_msg=key)
     ca, cb = ((o / "fleet.csv").read_text().splitlines() for o in (cluster_batch["out"], out))
     assert [r.split(",")[:8] for r in ca] == [r.split(",")[:8] for r in cb], "the same fleet table"
+
+
+def test_uploaded_session_gives_the_same_result(fleet, cluster_batch, tmp_path):
+    """--upload: the worker calibrates a copy sent with the task; the outputs come back under OUT."""
+    root, truth = fleet
+    key = next(k for k, s in truth.items() if s["fault"] == "bumped")
+    shutil.copytree(root / key, tmp_path / "root" / key)
+    out = tmp_path / "out"
+    rc, stdout, stderr = _finish(_handeye("batch", tmp_path / "root", "--out", out, "--workers", "1", "--upload",
+                                          "--no-report"))
+    assert rc == 0, stdout + stderr[-2000:]
+    a, b = _results(cluster_batch["out"])[key], _results(out)[key]
+    assert a["verdict"] == b["verdict"] and a["provenance"]["inputs_sha256"] == b["provenance"]["inputs_sha256"]
+    np.testing.assert_allclose(a["T_end_cam"], b["T_end_cam"], rtol=0, atol=1e-9)
+    rec = json.loads((out / key / "batch.json").read_text())
+    assert rec["session"] == str((tmp_path / "root" / key).resolve()) and rec["outcome"] == "done"
+    assert b["session"]["path"] != rec["session"], "result.json names the worker's temporary copy"
+    assert (out / key / "observations.json").exists() and (out / key / "batch.log").exists()
 
 
 # ------------------------------------------------------------------------------------------ smaller
@@ -251,18 +270,20 @@ def test_discover_groups_by_install_key_and_layout(tmp_path):
 
     vendor(tmp_path / "cell-a" / "20260301_1430")
     vendor(tmp_path / "cell-a" / "2026" / "x")
-    vendor(tmp_path / "loose")
+    vendor(tmp_path / "loose")  # directly in ROOT: ROOT's name is its install
     (tmp_path / "cell-a" / "2026" / "x" / "images").mkdir()
     (tmp_path / "cell-a" / "2026" / "x" / "images" / "poses.txt").write_text("")  # inside a session: not one
     native = tmp_path / "misc" / "run 1"
     native.mkdir(parents=True)
     (native / "session.yaml").write_text("handeye_session: 1\ninstall: '../cell <b>'\ntime: 2026-02-03T04:05:06Z\n")
     jobs = {j.key: j for j in discover(tmp_path)}
-    assert set(jobs) == {"cell-a/20260301_1430", "cell-a/2026/x", "default/loose", ".._cell__b_/run_1"}
+    top = tmp_path.name
+    assert set(jobs) == {"cell-a/20260301_1430", "cell-a/2026/x", f"{top}/loose", ".._cell__b_/run_1"}
     assert jobs["cell-a/20260301_1430"].time_utc == "2026-03-01T14:30:00+00:00"
     assert jobs["cell-a/20260301_1430"].time_source == "folder name"
     assert jobs[".._cell__b_/run_1"].time_utc == "2026-02-03T04:05:06+00:00"
-    assert jobs[".._cell__b_/run_1"].layout == "native" and jobs["default/loose"].layout == "vendor"
+    assert jobs[".._cell__b_/run_1"].layout == "native" and jobs[f"{top}/loose"].layout == "vendor"
+    assert [j.key for j in discover(tmp_path / "loose")] == ["default/loose"], "ROOT itself a session"
 
 
 def test_index_escapes_names(tmp_path):

@@ -7,7 +7,9 @@ search does not descend into a session folder. Each session belongs to one insta
 2. else the first folder under the root: ``ROOT/<install>/<session>/`` (deeper sessions keep their
    whole path below the install as their name: ``ROOT/cell-07/2026/03-01`` is install ``cell-07``,
    session ``2026/03-01``);
-3. else (a session directly in ROOT, or ROOT itself) the install ``default``.
+3. else, for a session directly in ROOT (``ROOT/<session>/``), ROOT's own folder name: ROOT is then
+   one install's folder;
+4. else (ROOT is itself a session) the install ``default``.
 
 The session's time orders an install's sessions for the drift and the trend: ``time:`` in
 ``session.yaml`` (ISO 8601), else the earliest ``t_image`` of its inline views, else a date in its
@@ -31,7 +33,7 @@ from ..errors import InputError
 
 log = logging.getLogger(__name__)
 
-#: the install of sessions that name none and sit directly in the root
+#: the install of a root that is itself a session (and names no install)
 DEFAULT_INSTALL = "default"
 
 _DATE_RE = re.compile(r"(?<!\d)(\d{4})-?(\d{2})-?(\d{2})(?:[T_ -]?(\d{2}):?(\d{2})(?::?(\d{2}))?)?(?!\d)")
@@ -92,6 +94,8 @@ def discover(root) -> list[SessionJob]:
             name = "/".join(safe_component(p) for p in rel[1:]) if len(rel) > 1 else safe_component(folder.name)
         elif len(rel) >= 2:
             install, name = safe_component(rel[0]), "/".join(safe_component(p) for p in rel[1:])
+        elif len(rel) == 1:
+            install, name = safe_component(root.resolve().name), safe_component(rel[0])
         else:
             install, name = DEFAULT_INSTALL, safe_component(folder.resolve().name)
         base, k = name, 2

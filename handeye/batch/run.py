@@ -16,11 +16,16 @@ mounting mode flag, the pose shift, whether reports are written, and the SHA-256
 calibration files. A session whose load fails is keyed on all its files instead. Timed-out, crashed
 and lost sessions run again on the next batch; ``force`` redoes everything.
 
-The workers must see ROOT and OUT at the same paths as the client (a shared filesystem; see the
-README). Nothing here imports the calibration: the task and the client stay light.
+Data reach the workers in one of two ways (see the README): through a shared filesystem (the
+workers read ROOT and write OUT at the client's paths; the default), or uploaded (``upload``: the
+client reads each session's files and sends them with its task; the worker calibrates a temporary
+copy and returns the output folder's files, which the client writes under OUT; result.json's
+``session.path`` is then the worker's temporary copy, batch.json's ``session`` the original). Nothing
+here imports the calibration: the task and the client stay light.
 """
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import os
@@ -35,7 +40,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from ..errors import QAFailed
-from ..output import hash_files, write_json
+from ..output import atomic_write_bytes, hash_files, write_json
 from .discover import SessionJob
 
 log = logging.getLogger(__name__)
@@ -53,6 +58,8 @@ OUTCOMES = ("done", "timeout", "crashed", "error", "lost")
 #: the environment of a session's process: one thread for the linear algebra (a worker runs one
 #: session on one core), the same on every worker, so a session's numbers do not depend on where it ran
 SESSION_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+#: tasks submitted per worker thread at once (more are submitted as these finish)
+IN_FLIGHT_PER_THREAD = 2
 #: verdicts that count as failed in the progress bar and the exit code (ERROR: no result of this run)
 FAILED_VERDICTS = ("FAIL", "REFUSED", "ERROR")
 
@@ -172,12 +179,28 @@ def current_record(out_dir: Path, key: dict) -> Optional[dict]:
 def run_session(spec: dict) -> dict:
     """The Dask task of one session: run the workflow in a child process with a time limit, write
     and return the session's batch record. ``spec``: session, out_dir, install, name, time_utc,
-    time_source, key, calibrate (the command-line options), timeout_s."""
-    out = Path(spec["out_dir"])
+    time_source, key, calibrate (the command-line options), timeout_s, and ``files`` (relative path
+    -> bytes) when the client uploads the session: it is then written to a temporary folder on the
+    worker, calibrated there, and the output folder comes back as ``files`` in the record."""
+    if spec.get("files") is None:
+        return _run_child(spec, Path(spec["out_dir"]))
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="handeye-batch-") as tmp:
+        session = Path(tmp) / "session"
+        write_tree(session, spec["files"])
+        out = Path(tmp) / "out"
+        rec = _run_child({**spec, "files": None, "session": str(session), "out_dir": str(out)}, out,
+                         session_path=spec["session"])
+        return {**rec, "files": read_tree(out)}
+
+
+def _run_child(spec: dict, out: Path, *, session_path: Optional[str] = None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     rec = {k: spec[k] for k in ("session", "install", "name", "time_utc", "time_source", "key")}
-    rec.update(worker=f"{socket.gethostname()}:{os.getpid()}", started_utc=_now())
+    rec.update(session=session_path or spec["session"], worker=f"{socket.gethostname()}:{os.getpid()}",
+               started_utc=_now())
     cmd = [sys.executable, "-m", "handeye.batch.child", json.dumps(spec)]
     env = {**os.environ, **SESSION_ENV}
     with open(out / LOG_NAME, "wb") as log_file:
@@ -205,6 +228,28 @@ def run_session(spec: dict) -> dict:
     else:
         rec.update(reply)
     return _finish_record(out, rec, t0)
+
+
+def read_tree(folder: Path) -> dict:
+    """Every file under ``folder``: relative POSIX path -> bytes."""
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(Path(folder).rglob("*")) if p.is_file()}
+
+
+def write_tree(folder: Path, files: dict, *, keep_prefix: str = "result.") -> None:
+    """Write ``files`` (from :func:`read_tree`) under ``folder``; files already there that are not in
+    ``files`` are removed, except those whose name starts with ``keep_prefix`` (earlier results the
+    workflow keeps: result.previous.json, result.last-good.json)."""
+    folder = Path(folder)
+    for rel in files:
+        if Path(rel).is_absolute() or ".." in Path(rel).parts:
+            raise ValueError(f"unsafe path in an uploaded folder: {rel!r}")
+    if folder.is_dir():
+        for p in folder.rglob("*"):
+            rel = p.relative_to(folder).as_posix()
+            if p.is_file() and rel not in files and not p.name.startswith(keep_prefix):
+                p.unlink()
+    for rel, data in files.items():
+        atomic_write_bytes(folder / rel, data, durable=False)
 
 
 def _finish_record(out: Path, rec: dict, t0: float) -> dict:
@@ -278,14 +323,16 @@ def open_client(scheduler: Optional[str] = None, n_workers: Optional[int] = None
 
 def run_batch(jobs: list[SessionJob], out, *, calibrate: dict, scheduler: Optional[str] = None,
               n_workers: Optional[int] = None, timeout_s: float = DEFAULT_TIMEOUT_S, force: bool = False,
-              progress: Optional[Callable[[dict], None]] = None, on_plan: Optional[Callable[[int, int], None]] = None,
-              ) -> BatchSummary:
+              upload: bool = False, progress: Optional[Callable[[dict], None]] = None) -> BatchSummary:
     """Run ``jobs`` on Dask into ``out`` and return the records of every session (run and skipped).
 
     ``calibrate``: the ``handeye calibrate`` options by their argparse names (method, no_refine,
     fix_k3, fix, robot_noise, robot_sigma, config, mode, qa, no_report, shift_poses; paths absolute).
-    ``progress`` gets each session's record as it finishes (skipped ones first); ``on_plan`` gets
-    (sessions to run, sessions skipped) before the first task starts.
+    ``upload``: send each session's files to the worker and its outputs back (workers without the
+    client's filesystem); else the workers read ROOT and write OUT at the client's paths. Tasks are
+    submitted as workers free up (at most :data:`IN_FLIGHT_PER_THREAD` per worker thread at once),
+    so uploaded sessions are read only shortly before they run. ``progress`` gets each session's
+    record as it finishes (skipped ones first).
     """
     from dask.distributed import as_completed
 
@@ -293,8 +340,6 @@ def run_batch(jobs: list[SessionJob], out, *, calibrate: dict, scheduler: Option
     out = Path(out)
     plan = plan_batch(jobs, out, calibrate=calibrate, timeout_s=timeout_s, force=force)
     progress = progress or (lambda rec: None)
-    if on_plan is not None:
-        on_plan(len(plan.specs), len(plan.skipped))
     records = []
     for rec in plan.skipped:
         records.append(rec)
@@ -302,12 +347,29 @@ def run_batch(jobs: list[SessionJob], out, *, calibrate: dict, scheduler: Option
     if plan.specs:
         client = open_client(scheduler, n_workers)
         try:
-            futures = client.map(run_session, plan.specs, pure=False, retries=1)
-            spec_of = {f.key: s for f, s in zip(futures, plan.specs)}
-            for fut in as_completed(futures):
-                rec = _collect(fut, spec_of[fut.key])
+            limit = max(2, IN_FLIGHT_PER_THREAD * sum(client.nthreads().values()))
+            pending, spec_of, running = iter(plan.specs), {}, as_completed()
+
+            def submit(spec: dict) -> None:
+                task = {**spec, "files": read_tree(Path(spec["session"]))} if upload else spec
+                fut = client.submit(run_session, task, pure=False, retries=1)
+                spec_of[fut.key] = spec
+                running.add(fut)
+
+            for spec in itertools.islice(pending, limit):
+                submit(spec)
+            for fut in running:
+                spec = spec_of.pop(fut.key)
+                rec = _collect(fut, spec)
+                files = rec.pop("files", None)
+                if files is not None:
+                    write_tree(Path(spec["out_dir"]), files)
+                fut.release()
                 records.append(rec)
                 progress(rec)
+                nxt = next(pending, None)
+                if nxt is not None:
+                    submit(nxt)
         finally:
             cluster = None if scheduler else client.cluster
             client.close()

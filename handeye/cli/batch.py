@@ -39,6 +39,9 @@ def add_arguments(p) -> None:
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="use the Dask cluster of this scheduler (tcp://HOST:8786) instead of an embedded one; "
                         "its workers must see ROOT and OUT at the same paths")
+    p.add_argument("--upload", action="store_true",
+                   help="send each session's files to the workers and their results back (workers that do not "
+                        "share the client's filesystem); default: workers read ROOT and write OUT themselves")
     p.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT_S, metavar="S",
                    help=f"time limit of one session in seconds (default {DEFAULT_TIMEOUT_S:g})")
     p.add_argument("--force", action="store_true", help="run every session, changed or not")
@@ -88,7 +91,8 @@ def run(args) -> int:
     bar = _Progress(len(jobs), quiet=getattr(args, "quiet", False))
     try:
         summary = run_batch(jobs, args.out.resolve(), calibrate=calibrate_options(args), scheduler=args.scheduler,
-                            n_workers=args.workers, timeout_s=args.timeout, force=args.force, progress=bar.update)
+                            n_workers=args.workers, timeout_s=args.timeout, force=args.force, upload=args.upload,
+                            progress=bar.update)
     finally:
         bar.close()
     paths = write_index(args.out)
