@@ -140,9 +140,19 @@ def test_model_choice_and_bad_input():
     with pytest.raises(ConfigError, match="unknown robot model"):
         _refine(s, _views(s, q), arm="kuka")
     bad = q.copy()
-    bad[3, 1] += np.radians(1.0)  # one view's joints do not give its reported pose
+    bad[:4, 1] += np.radians(1.0)  # most views' joints do not give their reported poses: not this arm's table
     with pytest.raises(ConfigError, match="joint angles do not give the reported poses"):
         _refine(s, _views(s, bad), arm="rm65")
+
+
+def test_a_wrong_robot_pose_is_flagged_under_the_kinematic_model():
+    s = make_corner_session(mode="eye_in_hand", n_views=12, seed=7, noise_px=0.3, robot_error="kinematic",
+                            outlier_views=1)
+    r = _refine(s, _views(s, np.asarray(s.joints_encoder)), arm="rm65")
+    assert r.robot_model["joints_disagree_view_ids"] == list(s.outlier_view_ids)
+    flagged = [o.view_id for o in r.outliers if o.kind == "robot_pose"]
+    assert flagged == list(s.outlier_view_ids), f"flagged {flagged}, wrong pose {s.outlier_view_ids}"
+    assert _m2(r, s) < chi2.ppf(0.999, 6)
 
 
 def test_the_pipeline_uses_the_arm_a_session_names(tmp_path):

@@ -139,6 +139,7 @@ def robot_model_dict(pb: "Problem", S_cc: Optional[np.ndarray]) -> dict:
                           else "recorded, inverse kinematics for views without them"),
          "joint_angles_rad": {vid: km.joints[i] for i, vid in enumerate(pb.ids)},
          "tool_offset_T_flange_reported": km.T_tool, "tool_offset_spread_deg_mm": list(km.tool_spread),
+         "joints_disagree_view_ids": list(km.joints_disagree),
          "estimated": (["dh_offset"] if km.m else []) + (["encoder_sigma_deg"] if estimated else [])}
     if km.m:
         S_dd = pb.S_dd if S_cc is None else S_cc[pb.dh_slice, pb.dh_slice]
