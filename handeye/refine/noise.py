@@ -1,6 +1,8 @@
-"""Noise levels of the refinement: the pixel sigma and the robot's rotation and translation sigmas.
+"""Noise levels of the refinement: the pixel sigma and the robot's rotation and translation sigmas
+(the iid robot model), or the pixel sigma and the encoder sigma (the kinematic robot models of
+:mod:`.robot_model`, whose per-view prior covariance is the encoder sigma squared times J_q J_q^T).
 
-They are three variance components. On the cleaned data they are estimated by iterated
+They are three (two) variance components. On the cleaned data they are estimated by iterated
 variance-component estimation (Helmert / Förstner): for each group ``g``,
 ``sigma_g^2 = e_g^T e_g / r_g`` with ``e_g`` the group's residuals and
 ``r_g = n_g - tr(W_g J_g Sigma J_g^T)`` its redundancy, taken from the marginal covariances of the

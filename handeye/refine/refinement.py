@@ -10,7 +10,11 @@ Unknowns: ``T_x`` (``T_end_cam`` eye-in-hand, ``T_base_cam`` eye-to-hand); ``T_b
 ``intrinsics="fixed"`` fixes all; ``"prior"`` adds a Gaussian prior around the given ones); per
 view, the true robot pose ``T_base_end_i``, tied to the reported pose by a prior
 ``Log(inv(T_reported) · T_base_end_i) ~ N(0, diag(s_rot^2 I3, s_trans^2 I3))`` (end frame, rotation
-first); ``robot_noise="none"`` holds the reported poses exact instead. Every corner gives
+first); ``robot_noise="none"`` holds the reported poses exact instead. With an arm named
+(``options.arm``) the prior is the kinematic one of :mod:`.robot_model` instead: the DH offsets of the
+arm, shared by all views, join the unknowns with their own prior, and each view's prior covariance is
+its encoder noise through the joint Jacobian. ``options.prior`` adds Gaussian priors on ``T_x`` and the
+free intrinsics (an earlier calibration). Every corner gives
 ``project(K, T_cam_board_i · p) - uv ~ N(0, sigma_px^2 I2)``.
 
 Stages
