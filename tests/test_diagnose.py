@@ -602,6 +602,45 @@ def _turned(cs, view_indices, turn=1):
     return replace(cs, image_points=tuple(pts))
 
 
+def test_pair_fits_from_summed_terms_equal_the_direct_solves():
+    """A fit sums each pair's terms (computed once) over its pairs: the same A as Park & Martin solved over
+    3 rows per pair, for one group, a split of the sequence, other groupings and views left out; the scale
+    jackknife's left-out sums equal a solve without that view."""
+    from handeye.diagnose.geometry import A_from_sums, all_pairs, pair_motions
+    from handeye.diagnose.scale import _k_from_sums, estimate_scale
+
+    cs = _session("eye_in_hand", 41, robot_noise=(0.3, 0.05), n_views=14)
+    C, M = cs.T_cam_board_true, mounting(cs.mode).M_from_T_base_end(cs.T_base_end_reported)
+    motions = pair_motions(C, M)
+    i, j = motions.i, motions.j
+
+    def direct_A(sel):  # Park & Martin over the selected pairs, in least squares over all their rows
+        a, b, rc, rm = motions.alpha[sel], motions.beta[sel], motions.rc[sel], motions.rm[sel]
+        U, _, Vt = np.linalg.svd(b.T @ a)
+        R = Vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))]) @ U.T
+        t, *_ = np.linalg.lstsq((rc[:, :3, :3] - np.eye(3)).reshape(-1, 3),
+                                (np.einsum("ij,pj->pi", R, rm[:, :3, 3]) - rc[:, :3, 3]).reshape(-1), rcond=None)
+        return R, t
+
+    n = len(C)
+    rng = np.random.default_rng(3)
+    for labels in (np.zeros(n, int), (np.arange(n) >= 6).astype(int), np.repeat([0, 1, 2], [5, 5, 4]),
+                   rng.integers(0, 2, n)):
+        for out in ((), (3,), (0, 9), tuple(range(5))):
+            use = np.ones(n, bool)
+            use[list(out)] = False
+            A = A_from_sums(motions.group_sums(labels, use))
+            R, t = direct_A((labels[i] == labels[j]) & use[i] & use[j])
+            assert np.abs(A[:3, :3] - R).max() < 1e-12 and np.abs(A[:3, 3] - t).max() < 1e-11, (labels, out)
+    est = estimate_scale(C, M)
+    keep = np.arange(n) != 4
+    k_without_4 = _k_from_sums(pair_motions(C[keep], M[keep]).sums())
+    total = motions.sums()
+    mine = (i == 4) | (j == 4)
+    assert abs(_k_from_sums(total - motions.sums(mine)) - k_without_4) < 1e-12
+    assert len(all_pairs(n)[0]) == len(i) and np.isfinite(est.sigma) and est.sigma > 0
+
+
 def test_scale_in_closed_form_is_exact_without_noise_and_tested_against_one():
     from handeye.diagnose.scale import estimate_scale, is_scale_wrong, rescaled
 
