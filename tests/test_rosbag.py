@@ -320,3 +320,20 @@ def test_import_mode_choices_are_the_mounting_modes():
     import_.add_arguments(p)
     (mode,) = [a for a in p._actions if "--mode" in a.option_strings]
     assert tuple(mode.choices) == tuple(MODES)
+
+
+def test_calibrate_export_shortcut_skips_a_failed_verdict(reference, tmp_path, monkeypatch, capsys):
+    """A run whose verdict is FAIL keeps its exit code and result, and is not exported (one line says why)."""
+    import handeye.workflow as workflow
+    from handeye.output import write_json
+    from handeye.workflow import WorkflowResult
+
+    res = read_json(reference[1])
+    res.update(verdict="FAIL", verdict_headline="a QA check fails")
+    write_json(tmp_path / "result.json", res)
+    wr = WorkflowResult("ok", tmp_path, tmp_path / "result.json", res, run=object())
+    monkeypatch.setattr(workflow, "calibrate_session", lambda *a, **k: wr)
+    assert main(["calibrate", "whatever", "--out", str(tmp_path), "--export", "urdf"]) == 7
+    err = capsys.readouterr().err
+    assert "handeye: not exported:" in err and "verdict is FAIL" in err
+    assert not list(tmp_path.glob("hand_eye*"))
