@@ -179,3 +179,18 @@ def test_a_grid_with_a_dot_off_its_place_fails_the_geometric_check():
     out = detect_circlegrid(img, spec)
     assert isinstance(out, str) and out.startswith("circle grid dots fail the geometric check: dot ")
     assert "px from where its neighbours put it (limit " in out
+
+
+def test_a_grid_in_an_image_above_the_size_limit_is_searched_on_a_reduced_copy():
+    from dataclasses import replace
+
+    from handeye.detect.options import default_options
+
+    spec = CircleGridSpec(10, 10, 0.02, origin_dot=True)
+    img, _, exp = _view()
+    small_limit = replace(default_options(), search_max_megapixels_charuco_circles=0.2)  # 640x480 is 0.31 MP
+    ids, pts = detect_circlegrid(img, spec, options=small_limit)
+    # centres found on the 0.8x copy and scaled back: measured 0.079 px at most, 0.084 at full size
+    assert np.array_equal(ids, np.arange(100)) and np.max(np.linalg.norm(pts - exp, axis=1)) < 0.2
+    out = detect_circlegrid(np.full_like(img, 200), spec, options=small_limit)
+    assert out == "circle grid 10x10 not found (searched at 516x387: the image is above 0.2 MP)"

@@ -328,16 +328,17 @@ def _err_px(pts, truth):
     return min((np.linalg.norm(p - truth, axis=1) for p in (pts, pts[::-1])), key=np.max)
 
 
-def test_corners_at_1280x720_lie_within_a_twentieth_of_a_pixel_of_the_truth(hd_views):
+def test_corners_at_1280x720_lie_within_about_a_twentieth_of_a_pixel_of_the_truth(hd_views):
     errs = []
     for spec, img, truth in hd_views:
         ids, pts = detect_chessboard(img, spec)
         assert np.array_equal(ids, np.arange(spec.n_corners))
         errs.append(_err_px(pts, truth))
     err = np.concatenate(errs)
-    # noiseless renders: what is left is cornerSubPix on anti-aliased edges (benchmarks/bench_detect.py:
-    # 0.047 px RMS, 0.19 px max over 20 views of each board)
-    assert np.sqrt(np.mean(err ** 2)) < 0.05 and err.max() < 0.5
+    # noiseless renders: what is left is cornerSubPix on edges anti-aliased with 4x4 samples per pixel
+    # (measured 0.045 px RMS, 0.12 px max on these four views; benchmarks/bench_detect.py: 0.048 px and
+    # 0.052 px RMS over 20 views of each board, 0.044 px at 8x8 samples)
+    assert np.sqrt(np.mean(err ** 2)) < 0.06 and err.max() < 0.5
 
 
 def test_coarse_corners_off_by_a_third_of_a_square_are_refined_back(hd_views, monkeypatch):
@@ -411,7 +412,7 @@ def test_a_spent_time_budget_drops_the_view_as_timed_out(tmp_path, hd_views, mon
     d = detect_image("1", blank, spec, options=tiny)
     # the half-size search ran; the full-size and SB searches were skipped
     assert isinstance(d, DetectionFailure) and d.reason.startswith("detection timed out: ")
-    assert d.reason.endswith("s budget (configs/detection.yaml time_budget_s), the full-size chessboard searches skipped")
+    assert d.reason.endswith("(configs/detection.yaml time_budget_s), the full-size chessboard searches skipped")
     with_board = tmp_path / "board.png"
     cv2.imwrite(str(with_board), img)
     assert isinstance(detect_image("2", with_board, spec, options=tiny), Detection)  # found by the first search
@@ -444,3 +445,19 @@ def test_charuco_corners_off_their_neighbours_are_dropped_alone(views):
     pts[20] += [0.0, 6.0]
     keep = off_grid_corners_removed(ch.object_points()[:, :2], pts, default_options())
     assert np.flatnonzero(~keep).tolist() == [20]
+
+
+def test_charuco_views_above_the_size_limit_are_searched_reduced_and_refined_at_full_size(views):
+    from dataclasses import replace
+
+    cs, _ = views
+    ch = CharucoSpec(7, 5, 0.04, 0.03)
+    T = cs.T_cam_board_true[0]
+    img = render_view(ch, INTR, T, supersample=3)
+    small_limit = replace(default_options(), search_max_megapixels_charuco_circles=0.2)  # 640x480 is 0.31 MP
+    ids, pts = detect_gray(img, ch, options=small_limit)
+    assert len(ids) >= 0.8 * ch.n_corners
+    # as accurate as the full-size search (test_one_dispatcher_for_every_target_kind: < 0.15 px RMS)
+    assert _rms(pts, pixels_from_board_points(T, ch.object_points()[ids], INTR)) < 0.15
+    out = detect_gray(np.full_like(img, 128), ch, options=small_limit)
+    assert out == "ChArUco board not found (0 markers seen, searched at 516x387)"

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 
 from ..targets import CharucoSpec
-from .geometry import check_corners
+from .geometry import check_corners, search_copy
 from .options import DetectionOptions, default_options
 
 log = logging.getLogger(__name__)
@@ -24,17 +24,28 @@ def charuco_board(spec: CharucoSpec):
 
 def detect_charuco(gray: np.ndarray, spec: CharucoSpec, *, options: DetectionOptions | None = None
                    ) -> tuple[np.ndarray, np.ndarray] | str:
-    """(corner ids sorted, image points (N,2)) or a reason string."""
+    """(corner ids sorted, image points (N,2)) or a reason string.
+
+    Images above ``search_max_megapixels_charuco_circles`` are searched on a reduced copy (the marker
+    search's time grows with the area); the corners are refined there and again on the full image in a
+    window of the same extent on the board. Corners that fail the geometric check are dropped
+    (:func:`off_grid_corners_removed`)."""
     o = options or default_options()
+    search, scale = search_copy(gray, max_megapixels=o.search_max_megapixels_charuco_circles)
     detector = cv2.aruco.CharucoDetector(charuco_board(spec))
-    ch_corners, ch_ids, marker_corners, marker_ids = detector.detectBoard(gray)
+    ch_corners, ch_ids, marker_corners, marker_ids = detector.detectBoard(search)
     if ch_ids is None or len(ch_ids) == 0:
         n_markers = 0 if marker_ids is None else len(marker_ids)
-        return f"ChArUco board not found ({n_markers} markers seen)"
+        where = "" if np.all(scale == 1.0) else f", searched at {search.shape[1]}x{search.shape[0]}"
+        return f"ChArUco board not found ({n_markers} markers seen{where})"
     ids = ch_ids.reshape(-1).astype(int)
-    pts = ch_corners.reshape(-1, 2).astype(np.float32)
     win = o.charuco_subpix_window_px
-    pts = cv2.cornerSubPix(gray, pts.reshape(-1, 1, 2), (win, win), (-1, -1), o.subpix_criteria).reshape(-1, 2)
+    pts = cv2.cornerSubPix(search, ch_corners.reshape(-1, 1, 2).astype(np.float32), (win, win), (-1, -1),
+                           o.subpix_criteria).reshape(-1, 2)
+    if np.any(scale != 1.0):
+        full = int(round(win / float(scale.min())))  # the same extent on the board as ``win`` on the copy
+        pts = ((pts + 0.5) / scale - 0.5).astype(np.float32)
+        pts = cv2.cornerSubPix(gray, pts.reshape(-1, 1, 2), (full, full), (-1, -1), o.subpix_criteria).reshape(-1, 2)
     order = np.argsort(ids)
     ids, pts = ids[order], pts[order].astype(np.float64)
     keep = off_grid_corners_removed(spec.object_points()[ids, :2], pts, o)

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from ..targets import CircleGridSpec
-from .geometry import TimeBudget, check_corners
+from .geometry import TimeBudget, check_corners, search_copy
 from .options import CircleBlobOptions, DetectionOptions, default_options
 
 log = logging.getLogger(__name__)
@@ -35,6 +35,24 @@ def circle_blob_detector(image_size: tuple[int, int], options: CircleBlobOptions
 
 def detect_circlegrid(gray: np.ndarray, spec: CircleGridSpec, *, options: DetectionOptions | None = None,
                       budget: TimeBudget | None = None) -> tuple[np.ndarray, np.ndarray] | str:
+    """(dot ids, image points (N,2)) of a circle grid, or a reason string (:func:`find_circlegrid`).
+
+    Images above ``search_max_megapixels_charuco_circles`` are searched on a reduced copy (the blob
+    search's time grows with the area) and the dot centres scaled back to the full image."""
+    o = options or default_options()
+    search, scale = search_copy(gray, max_megapixels=o.search_max_megapixels_charuco_circles)
+    out = find_circlegrid(search, spec, options=o, budget=budget)
+    if np.all(scale == 1.0):
+        return out
+    if isinstance(out, str):
+        return (f"{out} (searched at {search.shape[1]}x{search.shape[0]}: the image is above "
+                f"{o.search_max_megapixels_charuco_circles:g} MP)")
+    ids, pts = out
+    return ids, (pts + 0.5) / scale - 0.5  # pixel centres at integers in both images
+
+
+def find_circlegrid(gray: np.ndarray, spec: CircleGridSpec, *, options: DetectionOptions | None = None,
+                    budget: TimeBudget | None = None) -> tuple[np.ndarray, np.ndarray] | str:
     """(dot ids, image points (N,2)) of a circle grid, or a reason string.
 
     ``cv2.findCirclesGrid`` (CLUSTERING) on dark blobs. A symmetric grid's order is made to look

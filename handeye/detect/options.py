@@ -28,7 +28,8 @@ class CircleBlobOptions:
 class DetectionOptions:
     min_corners: int  # fewest corners a view needs
     half_size_above_px: int  # chessboards are searched at half size in larger images
-    search_max_megapixels: float  # larger images are searched on a copy reduced to this area
+    search_max_megapixels: float  # larger images are searched on a copy reduced to this area (chessboards) ...
+    search_max_megapixels_charuco_circles: float  # ... and this one (ChArUco, circle grids)
     time_budget_s: float  # wall-clock time of one image's detection after which slower searches are skipped
     subpix_window_factor: float  # cornerSubPix half window = factor x the square's size in px ...
     subpix_window_min_px: int  # ... clipped to [min, max] px
