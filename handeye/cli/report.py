@@ -6,7 +6,6 @@ import logging
 from pathlib import Path
 
 from ..errors import HandeyeError, InputError
-from ..output import FolderLock, check_out_dir, remove_stray_temps
 
 log = logging.getLogger(__name__)
 
@@ -29,6 +28,7 @@ def add_report_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run_report(args) -> int:
+    from ..output import FolderLock, check_out_dir, remove_stray_temps
     from ..report import write_reports
 
     src = Path(args.result_dir)

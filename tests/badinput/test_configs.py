@@ -66,6 +66,7 @@ def test_vendor_config_encodings_are_read(text, tiny_vendor, copy_session, run_c
 # (--config text or bytes, culprits)
 SITE_CONFIG = [
     pytest.param("motion: 5\n", ["site.yaml", "'motion'", "a mapping"], id="motion_number"),
+    pytest.param("motion: null\n", ["site.yaml", "'motion'", "a mapping"], id="motion_null"),
     pytest.param("min_corners: abc\n", ["site.yaml", "min_corners", "'abc'"], id="min_corners_text"),
     pytest.param("min_corners: 2\n", ["site.yaml", "min_corners"], id="min_corners_too_few"),
     pytest.param("min_corners: 4.5\n", ["site.yaml", "min_corners"], id="min_corners_fraction"),
