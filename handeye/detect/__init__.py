@@ -95,7 +95,7 @@ def detect_image(view_id: str, path: Path, target: TargetSpec, *, min_corners: i
     """Detect the target in one image file and measure the image while it is decoded."""
     o = options or default_options()
     t0 = time.perf_counter()
-    budget = TimeBudget(o.time_budget_s, start=t0)
+    budget = TimeBudget(o.time_budget_s)
     gray = read_gray(path)
     size = (gray.shape[1], gray.shape[0])
     out = detect_gray(gray, target, min_corners=min_corners, options=o, budget=budget)

@@ -199,18 +199,20 @@ def search_copy(gray: np.ndarray, *, max_megapixels: float) -> tuple[np.ndarray,
 
 @dataclass
 class TimeBudget:
-    """Wall-clock time one image's detection may take before its slower searches are skipped."""
+    """Time one image's detection may take before its slower searches are skipped: CPU time of the
+    thread that detects it (from the creation of the budget), so that one image gives the same outcome
+    on an idle and on a loaded machine (wall-clock time there also counts the other threads' work)."""
 
     seconds: float
-    start: float = field(default_factory=time.perf_counter)
+    start: float = field(default_factory=time.thread_time)
 
     def elapsed(self) -> float:
-        return time.perf_counter() - self.start
+        return time.thread_time() - self.start
 
     def spent(self) -> bool:
         return self.elapsed() >= self.seconds
 
     def timed_out(self, skipped: str) -> str:
         """The reason of a view dropped because the budget was spent before ``skipped`` could run."""
-        return (f"detection timed out: {self.elapsed():.1f} s spent of the {self.seconds:g} s budget "
+        return (f"detection timed out: {self.elapsed():.3g} s of CPU time spent of the {self.seconds:g} s budget "
                 f"(configs/detection.yaml time_budget_s), {skipped} skipped")
