@@ -1,4 +1,5 @@
-"""Calibration targets: chessboard, ChArUco and circle-grid specs, their corner numbering and symmetries.
+"""Calibration targets: chessboard, ChArUco, circle-grid, single-marker and AprilGrid specs, their corner
+numbering and symmetries.
 
 Each spec is a frozen dataclass with ``object_points()`` (the board-frame corner positions, metres,
 in OpenCV's numbering), ``symmetries()`` (the corner permutations a detector cannot tell apart),
@@ -155,4 +156,107 @@ class CircleGridSpec:
         return f"{layout}circle grid {self.cols}x{self.rows} dots, {self.spacing_m * 1000:g} mm spacing{dot}"
 
 
-TargetSpec = Union[ChessboardSpec, CharucoSpec, CircleGridSpec]
+#: the corners of one square marker in its own frame, as a detector returns them (cv2.aruco's order):
+#: top-left, top-right, bottom-right, bottom-left of the printed marker, x to the right, y down the
+#: print (z into the board, as for every target here), in units of the marker's side
+MARKER_CORNERS = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+@dataclass(frozen=True)
+class MarkerSpec:
+    """One square fiducial marker (ArUco or AprilTag through cv2.aruco's dictionaries), ``size_m`` the side of
+    its black square (AprilTag's "tag size"). Corner ids 0-3: top-left, top-right, bottom-right, bottom-left
+    (:data:`MARKER_CORNERS`); the board frame's origin is the top-left corner.
+
+    Four coplanar points fix the pose only up to the planar ambiguity (two poses that explain the corners
+    almost equally well when the marker is small or seen head-on); :attr:`pose_ambiguous` tells the board-pose
+    step to keep both solutions and let the robot motion choose (:mod:`handeye.initial.board_poses`).
+    """
+
+    size_m: float
+    dictionary: str = "DICT_APRILTAG_36h11"
+    marker_id: int = 0
+    kind: str = "marker"
+    pose_ambiguous: bool = True
+
+    @property
+    def n_corners(self) -> int:
+        return 4
+
+    @property
+    def square_m(self) -> float:
+        """The length that sets the target's scale (the marker side), for code that sizes things by it."""
+        return self.size_m
+
+    def object_points(self) -> np.ndarray:  # shape (4, 3)
+        return MARKER_CORNERS * self.size_m
+
+    def symmetries(self) -> list[np.ndarray]:
+        return [np.arange(4)]  # the marker's code fixes its orientation
+
+    def to_dict(self) -> dict:
+        return {"type": "marker", "size_m": self.size_m, "dictionary": self.dictionary, "marker_id": self.marker_id}
+
+    def describe(self) -> str:
+        return f"marker {self.dictionary} id {self.marker_id}, {self.size_m * 1000:g} mm"
+
+
+@dataclass(frozen=True)
+class AprilGridSpec:
+    """Kalibr's AprilGrid: ``cols`` x ``rows`` tags of side ``size_m``, ``spacing`` (a ratio of the tag side)
+    between neighbouring tags, small black squares in the gaps at the tags' corners.
+
+    Tag ids as Kalibr numbers them: ``first_id`` at the bottom left of the print, increasing along a row to
+    the right, then row by row upwards. Frame (handeye's, as for every target): x to the right and y down
+    the print, z into the board, origin at the top-left corner of the top-left tag. Corner id
+    ``4 * k + c`` is corner c (:data:`MARKER_CORNERS` order) of the k-th tag (tag id ``first_id + k``).
+    """
+
+    cols: int
+    rows: int
+    size_m: float
+    spacing: float = 0.3
+    dictionary: str = "DICT_APRILTAG_36h11"
+    first_id: int = 0
+    kind: str = "aprilgrid"
+    pose_ambiguous: bool = False
+
+    @property
+    def n_tags(self) -> int:
+        return self.cols * self.rows
+
+    @property
+    def n_corners(self) -> int:
+        return 4 * self.n_tags
+
+    @property
+    def square_m(self) -> float:
+        return self.size_m
+
+    @property
+    def pitch_m(self) -> float:
+        """Distance between the top-left corners of neighbouring tags."""
+        return self.size_m * (1.0 + self.spacing)
+
+    def tag_origins(self) -> np.ndarray:
+        """(n_tags, 3): top-left corner of each tag, in tag order."""
+        k = np.arange(self.n_tags)
+        row_up, col = np.divmod(k, self.cols)
+        return np.stack([col * self.pitch_m, (self.rows - 1 - row_up) * self.pitch_m, np.zeros(self.n_tags)], axis=1)
+
+    def object_points(self) -> np.ndarray:  # shape (4 * n_tags, 3)
+        return (self.tag_origins()[:, None, :] + MARKER_CORNERS[None] * self.size_m).reshape(-1, 3)
+
+    def symmetries(self) -> list[np.ndarray]:
+        return [np.arange(self.n_corners)]  # tag ids fix the orientation
+
+    def to_dict(self) -> dict:
+        return {"type": "aprilgrid", "tags": [self.cols, self.rows], "size_m": self.size_m, "spacing": self.spacing,
+                "dictionary": self.dictionary, "first_id": self.first_id}
+
+    def describe(self) -> str:
+        return (f"AprilGrid {self.cols}x{self.rows} tags, {self.size_m * 1000:g} mm, spacing {self.spacing:g}, "
+                f"{self.dictionary}")
+
+
+TargetSpec = Union[ChessboardSpec, CharucoSpec, CircleGridSpec, MarkerSpec, AprilGridSpec]

@@ -18,7 +18,7 @@ from handeye.initial.motion import motion_quality
 from handeye.sim import render, scenarios
 from handeye.sim.corners import make_corner_session
 from handeye.sim.vendor import write_vendor_session
-from handeye.targets import CharucoSpec, ChessboardSpec
+from handeye.targets import CharucoSpec, ChessboardSpec, CircleGridSpec
 
 MODES = ("eye_in_hand", "eye_to_hand")
 
@@ -343,8 +343,8 @@ def test_vendor_session_refuses_to_overwrite_and_bad_options(tmp_path):
         write_vendor_session(tmp_path, **kw)
     write_vendor_session(tmp_path, overwrite=True, **kw)
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary files left
-    with pytest.raises(ConfigError):
-        write_vendor_session(tmp_path / "x", target=CharucoSpec(5, 4, 0.04, 0.03), n_views=3)
+    with pytest.raises(ConfigError, match="unknown target type"):  # no renderer for circle grids
+        write_vendor_session(tmp_path / "x", target=CircleGridSpec(5, 4, 0.04), n_views=3)
     with pytest.raises(ConfigError):
         write_vendor_session(tmp_path / "y", image_format="tiff", n_views=3)
 
@@ -430,3 +430,16 @@ def test_vendor_session_records_the_kinematic_model_and_joints(tmp_path):
     assert len(truth["views"]["1"]["joints_encoder"]) == 6
     iid = write_vendor_session(tmp_path / "t", n_views=3, seed=0, supersample=1)
     assert json.loads((iid / "ground_truth.json").read_text())["robot_error"] == {"model": "iid"}
+
+
+def test_charuco_session_is_written_as_a_native_session_that_loads(tmp_path):
+    from handeye.session import load_session
+
+    target = CharucoSpec(7, 5, 0.05, 0.037, "DICT_4X4_50")
+    folder = write_vendor_session(tmp_path / "c", n_views=3, target=target, intrinsics=SMALL, mode="eye_to_hand")
+    assert not (folder / "poses.txt").exists() and not (folder / "config.yaml").exists()
+    s = load_session(folder)
+    truth = json.loads((folder / "ground_truth.json").read_text())
+    assert s.target == target and s.mode == "eye_to_hand" and [v.view_id for v in s.views] == ["1", "2", "3"]
+    for v in s.views:  # the poses read back are the reported ones (9 decimals written)
+        assert np.allclose(v.T_base_end, truth["views"][v.view_id]["T_base_end_reported"], atol=1e-8)

@@ -3,16 +3,36 @@ from __future__ import annotations
 
 from pathlib import Path
 
+#: ``--target``: the simulated targets (the chessboard is the vendor layout's; the others get a session.yaml)
+TARGETS = {
+    "chessboard": "chessboard 11x8 inner corners, 30 mm squares (vendor layout)",
+    "charuco": "ChArUco 9x7 squares of 30 mm, 22 mm DICT_5X5_100 markers",
+    "marker": "one AprilTag 36h11 (id 0) of 48 mm",
+    "aprilgrid": "Kalibr AprilGrid 6x6 tags 36h11 of 25 mm, spacing 0.3",
+}
+
+
+def sim_target(name: str):
+    """The target spec of a ``--target`` name (:data:`TARGETS`)."""
+    from ..sim.scenarios import DEFAULT_TARGET
+    from ..targets import AprilGridSpec, CharucoSpec, MarkerSpec
+
+    return {"chessboard": DEFAULT_TARGET, "charuco": CharucoSpec(9, 7, 0.03, 0.022, "DICT_5X5_100"),
+            "marker": MarkerSpec(0.048), "aprilgrid": AprilGridSpec(6, 6, 0.025, 0.3)}[name]
+
 
 def add_arguments(p) -> None:
     """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
     from ..mounting import MODES
 
     p.description = ("Render a synthetic session in the vendor layout (N.jpg, poses.txt, config.yaml) plus "
-                     "ground_truth.json.")
+                     "ground_truth.json; targets other than the chessboard get a session.yaml instead of "
+                     "poses.txt and config.yaml.")
     p.add_argument("out", type=Path, help="output folder (created)")
     p.add_argument("--mode", choices=MODES, default="eye_in_hand")
     p.add_argument("--views", type=int, default=20)
+    p.add_argument("--target", choices=tuple(TARGETS), default="chessboard",
+                   help="; ".join(f"{k}: {v}" for k, v in TARGETS.items()))
     p.add_argument("--seed", type=int, default=0, help="random seed of the scene, poses and noise")
     p.add_argument("--noise-px", type=float, default=0.0,
                    help="Gaussian image noise in grey levels added to the rendered images (default 0)")
@@ -37,7 +57,8 @@ def run(args) -> int:
     path = write_vendor_session(args.out, mode=args.mode, n_views=args.views, seed=args.seed,
                                 image_noise=args.noise_px, blur_sigma_px=args.blur,
                                 robot_noise=tuple(args.robot_noise), hidden_views=tuple(args.hidden),
-                                outlier_views=tuple(args.outliers), robot_error=args.robot_error, arm=args.arm)
+                                outlier_views=tuple(args.outliers), robot_error=args.robot_error, arm=args.arm,
+                                target=sim_target(args.target))
     print(f"synthetic {args.mode} session with {args.views} rendered views: {path}")
     if args.robot_error == "kinematic" and (Path(path) / "poses.txt").exists():
         from ..sim.robot_error import write_native_session

@@ -16,7 +16,7 @@ from ..camera import Intrinsics, pixels_from_cam_points
 from ..config import load_preset
 from ..errors import ConfigError
 from ..frames import transform_points
-from ..targets import CharucoSpec, ChessboardSpec, CircleGridSpec, TargetSpec
+from ..targets import AprilGridSpec, CharucoSpec, ChessboardSpec, CircleGridSpec, MarkerSpec, TargetSpec
 
 #: Margins and depth limit of a visible board (configs/collect.yaml ``visibility:``, with their origin).
 _LIMITS = load_preset("collect")["visibility"]
@@ -29,6 +29,7 @@ def pattern_bounds(target: TargetSpec, *, margin_squares: float = 0.0) -> tuple[
     Chessboard: corner 0 is at (0,0), so the squares span [-L, cols*L] x [-L, rows*L].
     ChArUco: OpenCV's board spans [0, squares_x*L] x [0, squares_y*L].
     Circle grid: the dot centres plus one spacing on every side (room for the dots themselves).
+    Marker: its black square, [0, size]^2. AprilGrid: the tags and the black squares in the gaps around them.
     """
     L = target.square_m
     m = margin_squares * L
@@ -36,11 +37,16 @@ def pattern_bounds(target: TargetSpec, *, margin_squares: float = 0.0) -> tuple[
         return (-L - m, target.cols * L + m, -L - m, target.rows * L + m)
     if isinstance(target, CharucoSpec):
         return (-m, target.squares_x * L + m, -m, target.squares_y * L + m)
+    if isinstance(target, MarkerSpec):
+        return (-m, L + m, -m, L + m)
+    if isinstance(target, AprilGridSpec):
+        gap = target.spacing * L  # Kalibr's black squares sit in the gaps at every tag corner, the outer ones too
+        return (-gap - m, target.cols * target.pitch_m + m, -gap - m, target.rows * target.pitch_m + m)
     if isinstance(target, CircleGridSpec):
         p = target.object_points()
         return (float(p[:, 0].min()) - L - m, float(p[:, 0].max()) + L + m,
                 float(p[:, 1].min()) - L - m, float(p[:, 1].max()) + L + m)
-    raise ConfigError("unknown target type", expected="ChessboardSpec | CharucoSpec | CircleGridSpec",
+    raise ConfigError("unknown target type", expected="a chessboard, ChArUco, circle grid, marker or AprilGrid spec",
                       received=type(target).__name__)
 
 

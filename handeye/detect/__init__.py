@@ -31,13 +31,15 @@ from .charuco import detect_charuco
 from .chessboard import detect_chessboard, normalize_chessboard_order, order_cue
 from .circlegrid import detect_circlegrid
 from .geometry import TimeBudget
+from .markers import detect_markers
 from .options import DetectionOptions, default_options
 from .quality import image_exposure, sharpness, thumbnail_jpeg, view_blur, view_exposure
 
 log = logging.getLogger(__name__)
 
 #: the detector of each target kind (``TargetSpec.kind``)
-DETECTORS = {"chessboard": detect_chessboard, "charuco": detect_charuco, "circlegrid": detect_circlegrid}
+DETECTORS = {"chessboard": detect_chessboard, "charuco": detect_charuco, "circlegrid": detect_circlegrid,
+             "marker": detect_markers, "aprilgrid": detect_markers}
 #: detectors with slower fallback searches, which take the image's time budget (``budget=``)
 _BUDGETED = (detect_chessboard, detect_circlegrid)
 _JPEG_MAGIC = b"\xff\xd8\xff"
@@ -77,6 +79,7 @@ def detect_gray(gray: np.ndarray, target: TargetSpec, *, min_corners: int | None
     searches skip them once it is spent (the reason then says "detection timed out")."""
     o = options or default_options()
     need = o.min_corners if min_corners is None else min_corners
+    need = min(need, target.n_corners)  # a target with fewer corners (one marker: 4) must show them all
     detector = DETECTORS.get(getattr(target, "kind", None))
     if detector is None:
         raise ConfigError("no detector for this target", expected=" | ".join(DETECTORS), received=repr(target))

@@ -35,6 +35,12 @@ class PoseObservations:
         return len(self.ids)
 
     @property
+    def candidates_are_turns(self) -> bool:
+        """``C_candidates`` are turns of a symmetric board (False: the two poses of a single marker's planar
+        ambiguity), for :func:`handeye.initial.board_poses.orientation_labels`."""
+        return not getattr(self.target, "pose_ambiguous", False)
+
+    @property
     def mounting(self):
         return mounting(self.mode)
 

@@ -37,7 +37,7 @@ def _ordered_for(obs: PoseObservations, keep: np.ndarray, M: np.ndarray) -> np.n
     from ..initial.board_poses import candidate_invariants, orientation_labels
 
     cands = obs.C_candidates[keep]
-    lab = orientation_labels(candidate_invariants(cands), M)
+    lab = orientation_labels(candidate_invariants(cands), M, turns=obs.candidates_are_turns)
     return cands[np.arange(len(cands)), lab]
 
 

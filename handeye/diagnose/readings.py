@@ -153,7 +153,7 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
             continue
         M = obs.M(T)
         if joint:
-            lab = orientation_labels(inv_c, M)
+            lab = orientation_labels(inv_c, M, turns=obs.candidates_are_turns)
             C = obs.C_candidates[np.arange(obs.n), lab]
             ordered[key] = (C, lab)
             ang_c = pair_angles_deg(C[:, :3, :3], pi, pj)

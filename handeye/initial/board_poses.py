@@ -9,7 +9,7 @@ import numpy as np
 
 from ..camera import Intrinsics, pixels_from_board_points
 from ..errors import CalibrationError
-from ..frames import inv_T, make_T, screw_invariants
+from ..frames import inv_T, make_T, project_to_rotation, rotation_angle_rad, rotvec_from_R, screw_invariants
 from ..records import Detection
 from ..targets import TargetSpec
 
@@ -56,24 +56,104 @@ def board_poses(detections: Sequence[Detection], target: TargetSpec, intr: Intri
     each view every admissible ordering is solved; then the combination is chosen whose camera
     motions agree with the robot motions ``M`` (rotation angle and screw pitch of each relative
     motion are invariant under the unknown transforms).
+
+    A target whose pose is ambiguous (``pose_ambiguous``: one square marker) keeps both poses of the
+    planar ambiguity (:func:`planar_pose_pair`, the better-fitting first) as its candidates, and the robot
+    motions choose between them the same way; ``orientation`` is then the index of the chosen pose.
     """
     obj = target.object_points()
     syms = target.symmetries()
+    ambiguous = bool(getattr(target, "pose_ambiguous", False))
     cands: dict[str, list[tuple[np.ndarray, float, np.ndarray]]] = {}
     for d in detections:
+        if ambiguous:
+            cands[d.view_id] = [(T, rms, d.corner_ids) for T, rms in planar_pose_pair(obj[d.corner_ids],
+                                                                                      d.image_points, intr)]
+            continue
         cands[d.view_id] = []
         for perm in syms:
             ids = perm[d.corner_ids]
             T, rms = solve_pnp(obj[ids], d.image_points, intr)
             cands[d.view_id].append((T, rms, ids))
     labels = {vid: 0 for vid in cands}
-    if len(syms) > 1 and len(cands) >= 2:
+    many = len(syms) > 1 or ambiguous
+    if many and len(cands) >= 2:
         vids = list(cands)
         Cs = np.stack([[c[0] for c in cands[v]] for v in vids])  # (n,k,4,4)
-        labels = dict(zip(vids, orientation_labels(candidate_invariants(Cs), np.stack([M[v] for v in vids]))))
-    many = len(syms) > 1
+        Ms = np.stack([M[v] for v in vids])
+        lab = orientation_labels(candidate_invariants(Cs), Ms, turns=not ambiguous)
+        labels = dict(zip(vids, rotation_consistent_labels(Cs, Ms, lab) if ambiguous else lab))
     return {vid: BoardPose(vid, cands[vid][c][0], cands[vid][c][1], c, cands[vid][c][2],
                            tuple(t[0] for t in cands[vid]) if many else ()) for vid, c in labels.items()}
+
+
+def planar_pose_pair(object_points: np.ndarray, image_points: np.ndarray, intr: Intrinsics) -> list:
+    """Both poses ``[(T_cam_board, rms_px), ...]`` of the planar ambiguity (IPPE's two solutions, each refined
+    with Levenberg-Marquardt), the smaller reprojection error first; one entry when IPPE gives one."""
+    obj = object_points.astype(np.float64).reshape(-1, 1, 3)
+    img = image_points.astype(np.float64).reshape(-1, 1, 2)
+    n, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, img, intr.K, intr.dist_array, flags=cv2.SOLVEPNP_IPPE)
+    if not n:
+        return [solve_pnp(object_points, image_points, intr)]
+    out = []
+    for rvec, tvec in zip(rvecs, tvecs):
+        rvec, tvec = cv2.solvePnPRefineLM(obj, img, intr.K, intr.dist_array, rvec, tvec)
+        T = make_T(cv2.Rodrigues(rvec)[0], tvec.reshape(3))
+        out.append((T, reprojection_rms(object_points, image_points, T, intr)))
+    out.sort(key=lambda c: c[1])
+    return out if len(out) == 2 else out + out  # always two candidates, so every view has the same count
+
+
+def rotation_consistent_labels(Cs: np.ndarray, Ms: np.ndarray, labels: np.ndarray, *, rounds: int = 5,
+                               max_triples: int = 300) -> np.ndarray:
+    """Candidate labels chosen by the rotations of the model ``C_i = A M_i B`` itself (hypothesise and verify).
+
+    The pair invariants of :func:`orientation_labels` compare one number per pair and drown in the pose noise of
+    a small marker (the screw pitch especially); a flipped planar pose is 10-40 degrees off the rotation the model
+    predicts while the noise is a degree or two. Hypotheses: three views with a choice of candidates each give the
+    rotation of A (their pair rotation axes map by R_A, Park and Martin) and of B (chordal mean); every view then
+    takes its candidate nearest to the predicted ``R_A R_Mi R_B`` and the hypothesis scores the sum of those angles,
+    each capped at 10 degrees so that a wrong robot pose counts as one bad view. The best hypothesis (the start
+    ``labels`` is one) is refined with all views until its labels are stable. ``Cs`` (n,k,4,4), ``Ms`` (n,4,4)."""
+    n, k = Cs.shape[:2]
+    R_M, R_Cs = Ms[:, :3, :3], Cs[..., :3, :3]
+    cap = np.radians(10.0)
+
+    def model(lab, views):
+        """(R_A, R_B) from the views ``views`` with labels ``lab`` (per view of ``views``)."""
+        R_C = R_Cs[views, lab]
+        p, q = np.triu_indices(len(views), 1)
+        a = rotvec_from_R(R_M[views][p] @ np.transpose(R_M[views][q], (0, 2, 1)))
+        b = rotvec_from_R(R_C[p] @ np.transpose(R_C[q], (0, 2, 1)))
+        U, _, Vt = np.linalg.svd(b.T @ a)
+        R_A = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+        R_B = project_to_rotation(np.einsum("nba,nbc->ac", R_A @ R_M[views], R_C))
+        return R_A, R_B
+
+    def verify(R_A, R_B):
+        pred = R_A @ R_M @ R_B
+        ang = rotation_angle_rad(np.einsum("nba,nkbc->nkac", pred, R_Cs))  # (n,k): pred^T C
+        return np.argmin(ang, axis=1), float(np.minimum(ang.min(axis=1), cap).sum())
+
+    best_lab, best_score = verify(*model(np.asarray(labels, int), np.arange(n)))
+    rng = np.random.default_rng(0)
+    triples = np.array([t for t in np.ndindex(n, n, n) if t[0] < t[1] < t[2]]) if n <= 14 else \
+        np.sort(np.array([rng.choice(n, 3, replace=False) for _ in range(max_triples)]), axis=1)
+    if len(triples) > max_triples:
+        triples = triples[rng.choice(len(triples), max_triples, replace=False)]
+    combos = np.array(list(np.ndindex(k, k, k)))
+    for t in triples:
+        for c in combos:
+            lab, score = verify(*model(c, t))
+            if score < best_score:
+                best_lab, best_score = lab, score
+    lab = best_lab
+    for _ in range(rounds):
+        new, _score = verify(*model(lab, np.arange(n)))
+        if np.array_equal(new, lab):
+            break
+        lab = new
+    return lab
 
 
 def candidate_invariants(Cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -85,10 +165,12 @@ def candidate_invariants(Cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return ang_C.reshape(n, k, n, k), pitch_C.reshape(n, k, n, k)
 
 
-def orientation_labels(inv_C: tuple[np.ndarray, np.ndarray], Ms: np.ndarray) -> np.ndarray:
-    """The ordering (index into the target's symmetries) of each view whose camera motions agree best with
-    the robot motions ``Ms`` (n,4,4); ``inv_C`` from :func:`candidate_invariants`. The detector's own
-    order is kept for the majority (turning every view alike only changes the board frame)."""
+def orientation_labels(inv_C: tuple[np.ndarray, np.ndarray], Ms: np.ndarray, *, turns: bool = True) -> np.ndarray:
+    """The candidate (index into the target's symmetries) of each view whose camera motions agree best with
+    the robot motions ``Ms`` (n,4,4); ``inv_C`` from :func:`candidate_invariants`. With ``turns`` (the
+    candidates are turns of a symmetric board) the detector's own order is kept for the majority (turning
+    every view alike only changes the board frame); without (the two poses of a planar ambiguity) the
+    labels are kept as they are."""
     ang_C, pitch_C = inv_C
     n, k = ang_C.shape[:2]
     # robot relative-motion invariants for all pairs
@@ -112,7 +194,7 @@ def orientation_labels(inv_C: tuple[np.ndarray, np.ndarray], Ms: np.ndarray) -> 
         c = cost[idx[:, None], lab[:, None], idx[None, :], lab[None, :]].sum()
         if c < best_cost:
             best, best_cost = lab.copy(), c
-    return _majority_frame(best, k).astype(int)
+    return (_majority_frame(best, k) if turns else best).astype(int)
 
 
 def _majority_frame(labels: np.ndarray, k: int) -> np.ndarray:

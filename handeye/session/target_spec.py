@@ -1,13 +1,14 @@
-"""The ``target:`` section of a session file -> a target spec (chessboard, ChArUco, circle grid)."""
+"""The ``target:`` section of a session file -> a target spec (chessboard, ChArUco, circle grid, one
+marker, AprilGrid)."""
 from __future__ import annotations
 
 from pathlib import Path
 
 from ..errors import ConfigError
-from ..targets import CharucoSpec, ChessboardSpec, CircleGridSpec, TargetSpec
+from ..targets import AprilGridSpec, CharucoSpec, ChessboardSpec, CircleGridSpec, MarkerSpec, TargetSpec
 from .fields import check_target_points, length_m, positive_number
 
-TARGET_TYPES = ("chessboard", "charuco", "circlegrid")
+TARGET_TYPES = ("chessboard", "charuco", "circlegrid", "marker", "aprilgrid")
 
 
 def _int_pair(t: dict, key: str, meaning: str, *, path: Path, minimum: int) -> tuple[int, int]:
@@ -40,13 +41,47 @@ def _charuco(t: dict, path: Path) -> CharucoSpec:
     if marker >= square:
         raise ConfigError("target.marker_m must be smaller than square_m", path=path,
                           received=f"marker {marker} >= square {square}")
-    dictionary = str(t.get("dictionary", "DICT_6X6_250"))
+    dictionary = _dictionary(t, "DICT_6X6_250", path=path)
+    return CharucoSpec(sx, sy, square, marker, dictionary, bool(t.get("legacy_pattern", False)))
+
+
+def _dictionary(t: dict, default: str, *, path: Path) -> str:
+    """``target.dictionary``: one of cv2.aruco's predefined dictionaries (AprilTag families included, e.g.
+    DICT_APRILTAG_36h11)."""
+    dictionary = str(t.get("dictionary", default))
     import cv2
 
-    if not hasattr(cv2.aruco, dictionary):
-        raise ConfigError("unknown ArUco dictionary", path=path, expected="e.g. DICT_6X6_250",
+    if not (dictionary.startswith("DICT_") and hasattr(cv2.aruco, dictionary)):
+        raise ConfigError("unknown ArUco dictionary", path=path, expected="e.g. DICT_6X6_250 or DICT_APRILTAG_36h11",
                           received=repr(dictionary))
-    return CharucoSpec(sx, sy, square, marker, dictionary, bool(t.get("legacy_pattern", False)))
+    return dictionary
+
+
+def _marker_id(t: dict, key: str, dictionary: str, *, path: Path, count: int = 1) -> int:
+    """``target.<key>``: a marker id of ``dictionary`` (``count`` consecutive ids must exist)."""
+    import cv2
+
+    v = positive_number(t.get(key, 0), path=path, field=f"target.{key}", integer=True, minimum=-1)
+    size = len(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)).bytesList)
+    if v + count > size:
+        raise ConfigError(f"target.{key} is beyond the dictionary", path=path,
+                          expected=f"ids 0..{size - 1} of {dictionary}", received=f"{v}..{v + count - 1}")
+    return int(v)
+
+
+def _marker(t: dict, path: Path) -> MarkerSpec:
+    size = length_m(t.get("size_m"), path=path, field="target.size_m")
+    dictionary = _dictionary(t, "DICT_APRILTAG_36h11", path=path)
+    return MarkerSpec(size, dictionary, _marker_id(t, "marker_id", dictionary, path=path))
+
+
+def _aprilgrid(t: dict, path: Path) -> AprilGridSpec:
+    cols, rows = _int_pair(t, "tags", "[cols, rows] (tags per row, rows of tags)", path=path, minimum=1)
+    size = length_m(t.get("size_m"), path=path, field="target.size_m")
+    spacing = positive_number(t.get("spacing", 0.3), path=path, field="target.spacing")
+    dictionary = _dictionary(t, "DICT_APRILTAG_36h11", path=path)
+    first = _marker_id(t, "first_id", dictionary, path=path, count=cols * rows)
+    return AprilGridSpec(cols, rows, size, spacing, dictionary, first)
 
 
 def _circlegrid(t: dict, path: Path) -> CircleGridSpec:
@@ -60,7 +95,8 @@ def _circlegrid(t: dict, path: Path) -> CircleGridSpec:
     return CircleGridSpec(cols, rows, spacing, asymmetric=asymmetric, origin_dot=origin_dot)
 
 
-_PARSERS = {"chessboard": _chessboard, "charuco": _charuco, "circlegrid": _circlegrid}
+_PARSERS = {"chessboard": _chessboard, "charuco": _charuco, "circlegrid": _circlegrid, "marker": _marker,
+            "aprilgrid": _aprilgrid}
 
 
 def parse_target(t, *, path: Path) -> TargetSpec:
@@ -68,7 +104,7 @@ def parse_target(t, *, path: Path) -> TargetSpec:
     if not isinstance(t, dict) or "type" not in t:
         raise ConfigError("target is missing or has no type", path=path,
                           expected="target: {type: chessboard, inner_corners: [11, 8], square_m: 0.03}")
-    parser = _PARSERS.get(t["type"])
+    parser = _PARSERS.get(t["type"]) if isinstance(t["type"], str) else None
     if parser is None:
         raise ConfigError("unknown target type", path=path, expected=" | ".join(TARGET_TYPES),
                           received=repr(t["type"]))

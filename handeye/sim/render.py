@@ -25,7 +25,7 @@ import numpy as np
 from ..camera import Intrinsics, pixels_from_cam_points
 from ..collect.visibility import pattern_bounds
 from ..errors import ConfigError
-from ..targets import ChessboardSpec, CharucoSpec, TargetSpec
+from ..targets import AprilGridSpec, ChessboardSpec, CharucoSpec, MarkerSpec, TargetSpec
 
 log = logging.getLogger(__name__)
 
@@ -211,13 +211,51 @@ def board_texture(target: TargetSpec, *, margin_squares: int = 1, black: float =
         size = ((target.squares_x + 2 * m) * p, (target.squares_y + 2 * m) * p)
         img = board.generateImage(size, marginSize=m * p, borderBits=1)
         grey = (black + (white - black) * (img.astype(np.float32) / 255.0)).astype(np.float32)
+    elif isinstance(target, (MarkerSpec, AprilGridSpec)):
+        p, grey = _marker_texture(target, m, black, white, int(charuco_px_per_square))
     else:
-        raise ConfigError("unknown target type", expected="ChessboardSpec | CharucoSpec",
+        raise ConfigError("unknown target type", expected="a chessboard, ChArUco, marker or AprilGrid spec",
                           received=type(target).__name__)
     tex = np.dstack([grey, np.ones_like(grey)])
     tex.setflags(write=False)
     _tex_cache[key] = (tex, float(p))
     return tex, float(p)
+
+
+def _marker_texture(target, m: int, black: float, white: float, p_min: int) -> tuple[int, np.ndarray]:
+    """(texels per tag side, grey texture) of one marker or an AprilGrid with ``m`` tag sides of white border.
+
+    Markers come from cv2.aruco's ``generateImageMarker`` (one black border cell, the code inside). The
+    texel count per tag side is chosen so that every tag corner and gap square falls on a texel edge
+    (exact corners, as for a chessboard's squares)."""
+    spacing = getattr(target, "spacing", 0.0)
+    p = next((q for q in range(max(p_min, 8), 8 * max(p_min, 8) + 1)
+              if q % 8 == 0 and abs(q * spacing - round(q * spacing)) < 1e-6), None)
+    if p is None:
+        raise ConfigError("AprilGrid spacing cannot be rendered exactly", expected="a spacing with few decimals (e.g. 0.3)",
+                          received=repr(spacing))
+    x0, x1, y0, y1 = pattern_bounds(target, margin_squares=m)
+    per_m = p / target.size_m
+    grey = np.full((int(round((y1 - y0) * per_m)), int(round((x1 - x0) * per_m))), white, np.float32)
+    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, target.dictionary))
+
+    def at(x: float, y: float) -> tuple[int, int]:
+        return int(round((y - y0) * per_m)), int(round((x - x0) * per_m))
+
+    if isinstance(target, MarkerSpec):
+        ids, origins = [target.marker_id], [np.zeros(3)]
+    else:
+        ids, origins = target.first_id + np.arange(target.n_tags), target.tag_origins()
+        g = int(round(spacing * p))
+        for c in range(target.cols + 1):
+            for r in range(target.rows + 1):
+                i, j = at(c * target.pitch_m, r * target.pitch_m)
+                grey[i - g:i, j - g:j] = black
+    for tag, o in zip(ids, origins):
+        img = cv2.aruco.generateImageMarker(dictionary, int(tag), p, borderBits=1)
+        i, j = at(o[0], o[1])
+        grey[i:i + p, j:j + p] = black + (white - black) * (img.astype(np.float32) / 255.0)
+    return p, grey
 
 
 def textured_background(width: int, height: int, *, level: float = BACKGROUND_LEVEL) -> np.ndarray:

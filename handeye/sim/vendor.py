@@ -2,7 +2,9 @@
 
 :func:`write_vendor_session` renders the geometry of :func:`handeye.sim.corners.make_corner_session`
 (same seed, same options) with :mod:`handeye.sim.render` and writes ``1.jpg .. N.jpg``,
-``poses.txt``, ``config.yaml`` and ``ground_truth.json``, each atomically.
+``poses.txt``, ``config.yaml`` and ``ground_truth.json``, each atomically. Targets the vendor layout cannot
+describe (ChArUco, circle grids, markers) get a native ``session.yaml`` with the same views and poses instead
+of ``poses.txt`` and ``config.yaml``.
 """
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ import cv2
 import yaml
 
 from ..camera import Intrinsics
+from ..collect.session_writer import intrinsics_header
 from ..conventions import VENDOR_POSE_FORMAT, pose_values_from_T
 from ..errors import ConfigError
 from ..mounting import mounting
@@ -32,7 +35,7 @@ _VENDOR_FILE_RE = r"^\d+\.(jpg|png)$"
 
 def _clear_previous_session(out: Path, *, overwrite: bool) -> None:
     names = [p.name for p in out.iterdir()] if out.exists() else []
-    ours = [n for n in names if re.match(_VENDOR_FILE_RE, n) or n in ("poses.txt", "config.yaml",
+    ours = [n for n in names if re.match(_VENDOR_FILE_RE, n) or n in ("poses.txt", "config.yaml", "session.yaml",
                                                                         "ground_truth.json")]
     if not ours:
         return
@@ -51,7 +54,8 @@ def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 2
                          target: ChessboardSpec = DEFAULT_TARGET, intrinsics: Optional[Intrinsics] = None,
                          supersample: int = 4, jpeg_quality: int = 95, overwrite: bool = False,
                          workers: int = 2, robot_error: str = "iid", arm: str = "rm65", **view_options) -> Path:
-    """Render a synthetic session in the vendor layout and return its folder.
+    """Render a synthetic session in the vendor layout (or, for a target other than a chessboard, as a native
+    session.yaml with the same poses) and return its folder.
 
     Writes ``1.jpg .. N.jpg`` (or ``.png``; BGR, JPEG quality ``jpeg_quality``), ``poses.txt``
     (line k = reported ``T_base_end`` of k.jpg as ``x,y,z,rx,ry,rz``, metres and radians,
@@ -69,10 +73,6 @@ def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 2
     :mod:`handeye.sim.robot_error` (kinematic: ground_truth.json also holds the true and nominal DH
     tables and each view's true and encoder joint angles; the vendor layout has no place for joints).
     """
-    if not isinstance(target, ChessboardSpec):
-        raise ConfigError("the vendor layout describes chessboards only", expected="a ChessboardSpec target",
-                          received=type(target).__name__,
-                          hint="render ChArUco boards with handeye.sim.render.render_view")
     fmt = str(image_format).lower().lstrip(".")
     if fmt == "jpeg":
         fmt = "jpg"
@@ -109,12 +109,22 @@ def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 2
     with ThreadPoolExecutor(max(1, int(workers))) as pool:
         names = list(pool.map(render_one, range(session.n_views)))
 
-    lines = [",".join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT))
-             for T in session.T_base_end_reported]
-    atomic_write_text(out / "poses.txt", "\n".join(lines) + "\n")
-    config = {"checkerboard_args": {"XX": int(target.cols), "YY": int(target.rows), "L": float(target.square_m)},
-              "mode": mode}
-    atomic_write_text(out / "config.yaml", yaml.safe_dump(config, sort_keys=False))
+    values = [[round(float(v), 9) for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)]
+              for T in session.T_base_end_reported]
+    if isinstance(target, ChessboardSpec):
+        lines = [",".join(f"{v:.9f}" for v in vals) for vals in values]
+        atomic_write_text(out / "poses.txt", "\n".join(lines) + "\n")
+        config = {"checkerboard_args": {"XX": int(target.cols), "YY": int(target.rows), "L": float(target.square_m)},
+                  "mode": mode}
+        atomic_write_text(out / "config.yaml", yaml.safe_dump(config, sort_keys=False))
+    else:  # the vendor layout has no place for other targets: the native session file, same poses
+        doc = {"handeye_session": 1, "mode": mode, "target": target.to_dict(), "pose_format": {"rotation": "euler"},
+               "views": [{"id": vid, "image": names[k], "pose": values[k]} for k, vid in enumerate(session.view_ids)]}
+        if getattr(target, "pose_ambiguous", False):
+            # four corners a view cannot calibrate a camera: a single-marker session states its intrinsics, as a
+            # user of one tag does (the camera's factory values)
+            doc["intrinsics"] = intrinsics_header(intrinsics, use="fixed")
+        atomic_write_text(out / "session.yaml", yaml.safe_dump(doc, sort_keys=False))
 
     mount = mounting(mode)
     views = {}
