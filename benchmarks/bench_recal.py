@@ -176,20 +176,34 @@ def rms(v) -> float:
     return float(np.sqrt(np.mean(v ** 2))) if v.size else float("nan")
 
 
-def run_pool(fn, tasks, jobs):
+def run_pool(fn, tasks, jobs, jsonl=None):
+    """Results of ``fn`` over ``tasks``; with ``jsonl`` each is also appended to that file as it comes
+    (a long run can be reported from the file with --from-jsonl)."""
+    import json
+
     out = []
     t0 = time.perf_counter()
+    sink = open(jsonl, "a", encoding="utf-8") if jsonl else None
+
+    def keep(r):
+        out.append(r)
+        if sink is not None:
+            sink.write(json.dumps(r, default=float) + "\n")
+            sink.flush()
+
     if jobs > 1:
         with ProcessPoolExecutor(jobs) as ex:
-            for k, r in enumerate(ex.map(fn, tasks, chunksize=2)):
-                out.append(r)
+            for k, r in enumerate(ex.map(fn, tasks, chunksize=1)):
+                keep(r)
                 if (k + 1) % 20 == 0:
                     print(f"  {k + 1}/{len(tasks)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     else:
         for k, t in enumerate(tasks):
-            out.append(fn(t))
+            keep(fn(t))
             if (k + 1) % 20 == 0:
                 print(f"  {k + 1}/{len(tasks)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+    if sink is not None:
+        sink.close()
     return out
 
 
@@ -279,20 +293,34 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--validated", action="store_true",
                     help="verify trials: installs with the validation stage's verdict covariance (as calibrate writes)")
+    ap.add_argument("--jsonl", help="append every trial's outcome to this file as it comes")
+    ap.add_argument("--from-jsonl", nargs="+", help="only report the trials in these files (verify, compare, prior)")
     a = ap.parse_args()
+    if a.from_jsonl:
+        import json
+
+        rows = [json.loads(line) for f in a.from_jsonl for line in open(f, encoding="utf-8") if line.strip()]
+        for key, report in (("still", report_verify), ("p", report_compare)):
+            sel = [r for r in rows if key in r or ("skipped" in r and key == "still")]
+            if sel:
+                report(sel)
+        sel = [r for r in rows if isinstance(r.get("still"), dict) and "err_mm" in r["still"]]
+        if sel:
+            report_prior(sel)
+        return
     seeds = range(a.first_seed, a.first_seed + a.trials)
     if a.trials:
         tasks = [(mode, model, s, a.validated) for model in a.models for mode in a.modes for s in seeds]
         print(f"verify: {len(tasks)} trials", file=sys.stderr)
-        report_verify(run_pool(verify_trial, tasks, a.jobs))
+        report_verify(run_pool(verify_trial, tasks, a.jobs, a.jsonl))
     if a.compare:
         tasks = [(mode, a.first_seed + s) for mode in a.modes for s in range(a.compare)]
         print(f"compare: {len(tasks)} pairs", file=sys.stderr)
-        report_compare(run_pool(compare_trial, tasks, a.jobs))
+        report_compare(run_pool(compare_trial, tasks, a.jobs, a.jsonl))
     if a.prior:
         tasks = [(mode, a.first_seed + s) for mode in a.modes for s in range(a.prior)]
         print(f"prior: {len(tasks)} trials", file=sys.stderr)
-        report_prior(run_pool(prior_trial, tasks, a.jobs))
+        report_prior(run_pool(prior_trial, tasks, a.jobs, a.jsonl))
     if a.timing:
         timing()
 
