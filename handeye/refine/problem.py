@@ -400,3 +400,34 @@ class Problem:
         if len(robot_views):
             idx = list(robot_views)
             self.P[idx] = self.P[idx] @ se3_exp(dx[c:].reshape(-1, 6))
+
+
+# ------------------------------------------------------------------------------ pose-only views
+def solve_pose_graph(*, M: np.ndarray, T_cam_board: np.ndarray, sigmas: np.ndarray, T_x0: np.ndarray,
+                     T_board0: np.ndarray, robust_k: Optional[float] = None, prior_x=None,
+                     max_iterations: int = 100) -> tuple[np.ndarray, np.ndarray, int]:
+    """Levenberg-Marquardt on ``T_x`` and ``T_board`` from measured camera -> target poses (pose-only
+    views, :mod:`handeye.factors.pose`): ``M`` (n,4,4) the views' robot motions, ``T_cam_board`` (n,4,4)
+    the tracker's poses, ``sigmas`` (n,2) each view's (rotation [rad], translation [m]) noise;
+    ``prior_x`` (T_x (4,4), covariance (6,6)) an optional Gaussian prior on ``T_x``. Returns
+    (T_x, T_board, iterations)."""
+    from handeye.factors.pose import pose_factor
+
+    g = gtsam.NonlinearFactorGraph()
+    v = gtsam.Values()
+    v.insert(KEY_X, gtsam.Pose3(np.asarray(T_x0, float)))
+    v.insert(KEY_BOARD, gtsam.Pose3(np.asarray(T_board0, float)))
+    for Mi, Ci, si in zip(M, T_cam_board, sigmas):
+        g.add(pose_factor(key_x=KEY_X, key_board=KEY_BOARD, M=Mi, T_cam_board_measured=Ci,
+                          sigma_rot_rad=float(si[0]), sigma_trans_m=float(si[1]), robust_k=robust_k))
+    if prior_x is not None:
+        g.add(gaussian_prior(key=KEY_X, mean=prior_x[0], cov=prior_x[1]))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(int(max_iterations))
+    params.setRelativeErrorTol(float(refine_preset()["solver"]["relative_error_tol"]))
+    params.setAbsoluteErrorTol(0.0)
+    params.setErrorTol(0.0)
+    params.setDiagonalDamping(True)
+    opt = gtsam.LevenbergMarquardtOptimizer(g, v, params)
+    res = opt.optimize()
+    return res.atPose3(KEY_X).matrix(), res.atPose3(KEY_BOARD).matrix(), int(opt.iterations())

@@ -1,0 +1,69 @@
+"""Pose factors: a measured camera -> target pose ``T_cam_board`` (from an external tracker) against the
+one the hand-eye chain predicts, ``T_cam_board_i = inv(T_x) · M_i · T_board`` (:mod:`handeye.mounting`).
+
+Residual (6,), GTSAM's Pose3 tangent (rotation [rad] first, then translation [m], right perturbation):
+``r_i = Log(inv(T_cam_board_measured_i) · T_cam_board_predicted_i)``, i.e. the predicted pose is the
+measured one times ``Exp(r_i)``. A tracker whose measured pose is the true one times ``Exp(n)``,
+``n ~ N(0, diag(s_rot^2 I3, s_trans^2 I3))``, gives ``r_i = -n`` at the truth; for isotropic noise the
+frame of ``n`` (board or camera axes) does not matter.
+
+The residual math and its Jacobians are pure numpy (:func:`pose_residual`); :func:`pose_factor` is
+the thin ``CustomFactor`` wrapper the refinement's graph uses.
+"""
+from __future__ import annotations
+
+from typing import Optional
+
+import gtsam
+import numpy as np
+
+from handeye.frames import inv_T, se3_adjoint, se3_exp, se3_log
+
+
+def se3_right_jacobian_inverse(xi: np.ndarray, *, h: float = 1e-7) -> np.ndarray:
+    """(6,6) ``d Log(Exp(xi) · Exp(d)) / d d`` at ``d = 0`` (the inverse right Jacobian of SE(3)),
+    by central differences of the exact Log; near ``xi = 0`` it is the identity plus O(|xi|)."""
+    T = se3_exp(xi)
+    J = np.empty((6, 6))
+    for k in range(6):
+        e = np.zeros(6)
+        e[k] = h
+        J[:, k] = (se3_log(T @ se3_exp(e)) - se3_log(T @ se3_exp(-e))) / (2.0 * h)
+    return J
+
+
+def pose_residual(*, T_x: np.ndarray, M: np.ndarray, T_board: np.ndarray, T_cam_board_measured: np.ndarray,
+                  jacobians: bool = True):
+    """Residual (6,) of one measured pose and, with ``jacobians``, its Jacobians (6,6) in the right
+    tangents of ``T_x`` and ``T_board``: (r, J_x, J_board) (Jacobians None without ``jacobians``).
+
+    ``M`` is the view's robot motion (``inv(T_base_end)`` eye-in-hand, ``T_base_end`` eye-to-hand).
+    ``T_x · Exp(xi)`` moves the prediction to ``Exp(-xi) · C = C · Exp(-Ad(inv(C)) xi)``;
+    ``T_board · Exp(eta)`` to ``C · Exp(eta)``."""
+    C = inv_T(T_x) @ M @ T_board
+    r = se3_log(inv_T(T_cam_board_measured) @ C)
+    if not jacobians:
+        return r, None, None
+    Jr_inv = se3_right_jacobian_inverse(r)
+    return r, -Jr_inv @ se3_adjoint(inv_T(C)), Jr_inv
+
+
+def pose_factor(*, key_x: int, key_board: int, M: np.ndarray, T_cam_board_measured: np.ndarray,
+                sigma_rot_rad: float, sigma_trans_m: float, robust_k: Optional[float] = None) -> gtsam.CustomFactor:
+    """A ``CustomFactor`` on (``T_x``, ``T_board``) for one measured ``T_cam_board`` with the tracker's
+    isotropic noise; ``robust_k`` wraps it in a Huber loss at that many sigmas (on the whitened 6-vector)."""
+    M = np.array(M, float)
+    C_meas = np.array(T_cam_board_measured, float)
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma_rot_rad] * 3, [sigma_trans_m] * 3])
+    if robust_k is not None:
+        noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
+
+    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H) -> np.ndarray:
+        r, J_x, J_b = pose_residual(T_x=v.atPose3(key_x).matrix(), M=M, T_board=v.atPose3(key_board).matrix(),
+                                    T_cam_board_measured=C_meas, jacobians=H is not None)
+        if H is not None:
+            H[0] = np.asfortranarray(J_x)
+            H[1] = np.asfortranarray(J_b)
+        return r
+
+    return gtsam.CustomFactor(noise, [key_x, key_board], error_func)
