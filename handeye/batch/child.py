@@ -16,6 +16,8 @@ import sys
 import threading
 import time
 
+log = logging.getLogger(__name__)
+
 #: seconds between two looks at the parent process
 PARENT_POLL_S = 0.5
 
@@ -40,16 +42,25 @@ def run(spec: dict) -> dict:
 
     cal = spec["calibrate"]
     args = calibrate_namespace(cal)
-    try:
+    try:  # as handeye calibrate runs it (handeye.cli.calibrate.run)
         wr = calibrate_session(spec["session"], options=options_from_args(args), out_dir=spec["out_dir"],
                                report=not cal.get("no_report"), qa=cal.get("qa"), mode=cal.get("mode"),
-                               progress=lambda s: logging.getLogger(__name__).info("%s", s))
+                               progress=lambda s: log.info("%s", s), allow_outside=bool(cal.get("allow_outside")),
+                               site_files=[f for f in (cal.get("config"), cal.get("qa")) if f], prior=cal.get("prior"))
     except HandeyeError as e:
         return {"outcome": "error", "status": "failed", "verdict": "ERROR", "reason": str(e), "exit_code": e.exit_code}
     reason = wr.result.get("failure_reason") or ("" if wr.verdict in ("PASS", "WARN")
                                                  else wr.result.get("verdict_headline", ""))
-    return {"outcome": "done", "status": wr.status, "verdict": wr.verdict, "reason": reason,
-            "exit_code": wr.exit_code}
+    reply = {"outcome": "done", "status": wr.status, "verdict": wr.verdict, "reason": reason,
+             "exit_code": wr.exit_code}
+    if cal.get("export") and wr.status == "ok":  # calibrate --export: next to the result, when usable
+        from ..export import export_result
+
+        try:
+            reply["exported"] = [str(p) for p in export_result(wr.out_dir, cal["export"])]
+        except HandeyeError as e:
+            reply["export_error"] = str(e)
+    return reply
 
 
 def _peak_rss_mb():

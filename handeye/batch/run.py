@@ -12,8 +12,8 @@ Resuming: a session is skipped when its ``batch.json`` records a finished run (`
 the same key, and its result.json's ``provenance.inputs_sha256`` and ``provenance.options`` are the
 key's. The key (:func:`session_key`) is the hash result.json records (the session's images, poses and
 config), the calibration options as result.json records them, and what else changes the outputs: the
-mounting mode flag, the pose shift, whether reports are written, and the SHA-256 of the site QA and
-calibration files. A session whose load fails is keyed on all its files instead. Timed-out, crashed
+mounting mode flag, the pose shift, whether reports are written, the export format, and the SHA-256
+of the site QA and calibration files and of the prior result. A session whose load fails is keyed on all its files instead. Timed-out, crashed
 and lost sessions run again on the next batch; ``force`` redoes everything.
 
 Data reach the workers in one of two ways (see the README): through a shared filesystem (the
@@ -125,7 +125,11 @@ def provenance_options(calibrate: dict) -> dict:
 
 
 def _file_sha(path) -> Optional[str]:
-    return None if path is None else hash_files([Path(path)])
+    """SHA-256 of a file (a result folder: its result.json), None for no path."""
+    if path is None:
+        return None
+    p = Path(path)
+    return hash_files([p / "result.json" if p.is_dir() else p])
 
 
 def inputs_sha256(job: SessionJob, mode: Optional[str]) -> tuple[str, str]:
@@ -147,7 +151,9 @@ def session_key(job: SessionJob, calibrate: dict, options: dict) -> dict:
     h, covers = inputs_sha256(job, calibrate.get("mode"))
     return _canonical({"inputs_sha256": h, "inputs": covers, "options": options, "mode": calibrate.get("mode"),
                        "shift_poses": calibrate.get("shift_poses") or 0, "report": not calibrate.get("no_report"),
-                       "qa_sha256": _file_sha(calibrate.get("qa")), "config_sha256": _file_sha(calibrate.get("config"))})
+                       "qa_sha256": _file_sha(calibrate.get("qa")), "config_sha256": _file_sha(calibrate.get("config")),
+                       "prior_sha256": _file_sha(calibrate.get("prior")), "export": calibrate.get("export"),
+                       "allow_outside": bool(calibrate.get("allow_outside"))})
 
 
 def read_json(path: Path) -> Optional[dict]:

@@ -38,7 +38,7 @@ def add_arguments(p) -> None:
                    help="worker processes of the embedded Dask cluster (default: the CPU count)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="use the Dask cluster of this scheduler (tcp://HOST:8786) instead of an embedded one; "
-                        "its workers must see ROOT and OUT at the same paths")
+                        "its workers must see ROOT and OUT at the same paths, unless --upload")
     p.add_argument("--upload", action="store_true",
                    help="send each session's files to the workers and their results back (workers that do not "
                         "share the client's filesystem); default: workers read ROOT and write OUT themselves")
