@@ -1,4 +1,5 @@
 """Reading the vendor folder and the native session.yaml, and every bad input's one-line error."""
+import json
 from pathlib import Path
 
 import numpy as np
@@ -526,16 +527,55 @@ def test_visp_import_names_an_unsupported_target_and_the_layout_it_reads(tmp_pat
 
     src = tmp_path / "visp"
     src.mkdir()
-    (src / "apriltag-data.txt").write_text("Apriltag\nTAG_36h11\nsize: 0.048 m\n")
     (src / "image-1.png").write_bytes(b"x")
-    with pytest.raises(InputError, match=r"unsupported ViSP target 'apriltag' \(apriltag-data.txt\)") as e:
+    (src / "circles-data.txt").write_text("circle grid\n")
+    with pytest.raises(InputError, match=r"unsupported ViSP target 'circles' \(circles-data.txt\)") as e:
         import_visp(src, tmp_path / "out")
-    assert "chessboard" in str(e.value) and "missing" not in str(e.value)
-    (src / "apriltag-data.txt").unlink()
-    with pytest.raises(InputError, match="chessboard-data.txt missing or unreadable.* reads ViSP's eye-in-hand"):
+    assert "apriltag-data.txt" in str(e.value) and "missing" not in str(e.value)
+    (src / "circles-data.txt").unlink()
+    with pytest.raises(InputError, match="no ViSP target description"):
+        import_visp(src, tmp_path / "out")
+    (src / "apriltag-data.txt").write_text("36h11 Apriltag\nsize: 0.048 m\n")
+    with pytest.raises(InputError, match="no image shows exactly one 36h11 tag"):  # the image is not one
+        import_visp(src, tmp_path / "out")
+    (src / "apriltag-data.txt").write_text("Apriltag\nsize: 0.048 m\n")
+    with pytest.raises(InputError, match="apriltag-data.txt unreadable"):
         import_visp(src, tmp_path / "out")
     empty = tmp_path / "empty"
     empty.mkdir()
+    (empty / "chessboard-data.txt").write_text("9 x 6\nsquare size: 0.0236 m\n")
     with pytest.raises(InputError, match="no ViSP images") as e:
         import_visp(empty, tmp_path / "out")
     assert VISP_LAYOUT in str(e.value)
+
+
+def test_visp_apriltag_layout_imports_as_a_single_marker_with_its_id(tmp_path):
+    """ViSP's eye-to-hand AprilTag layout (apriltag-data.txt, franka_image-N.png, franka_pose_rPe_N.yaml) from a
+    rendered single-tag session: the tag id is read from the images, the poses are the reported ones."""
+    import cv2
+
+    from handeye.camera import Intrinsics
+    from handeye.frames import rotvec_from_R
+    from handeye.session import load_session
+    from handeye.session.importers import import_visp
+    from handeye.sim.vendor import write_vendor_session
+    from handeye.targets import MarkerSpec
+
+    small = Intrinsics(fx=460.0, fy=460.0, cx=319.5, cy=239.5, dist=(0.0,) * 5, width=640, height=480)
+    sim = write_vendor_session(tmp_path / "sim", mode="eye_to_hand", n_views=4, seed=2, intrinsics=small,
+                               target=MarkerSpec(0.048, marker_id=17))
+    truth = json.loads((sim / "ground_truth.json").read_text())
+    src = tmp_path / "visp"
+    src.mkdir()
+    (src / "apriltag-data.txt").write_text("36h11 Ariltag\nsize: 0.048 m\n")  # ViSP's own text, typo included
+    for vid, v in truth["views"].items():
+        cv2.imwrite(str(src / f"franka_image-{vid}.png"), cv2.imread(str(sim / v["image"])))
+        T = np.array(v["T_base_end_reported"])
+        data = list(T[:3, 3]) + list(rotvec_from_R(T[:3, :3]))
+        (src / f"franka_pose_rPe_{vid}.yaml").write_text("rows: 6\ncols: 1\ndata:\n" +
+                                                         "".join(f"  - [{float(x)!r}]\n" for x in data))
+    path = import_visp(src, tmp_path / "out")
+    s = load_session(path)
+    assert s.target == MarkerSpec(0.048, "DICT_APRILTAG_36h11", 17)
+    for v in s.views:
+        assert np.allclose(v.T_base_end, truth["views"][v.view_id]["T_base_end_reported"], atol=1e-9)

@@ -8,7 +8,10 @@ from pathlib import Path
 
 def add_arguments(p) -> None:
     """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
-    p.description = "Writes OUT/session.yaml pointing at the original images; nothing is copied."
+    from ..session.importers import VISP_LAYOUT
+
+    p.description = ("Writes OUT/session.yaml pointing at the original images; nothing is copied. visp reads "
+                     + VISP_LAYOUT + ".")
     p.add_argument("kind", choices=["visp", "ical", "rosbag"],
                    help="visp: ViSP hand-eye data; ical: ROS-I industrial_calibration; rosbag: a ROS 1 or ROS 2 bag")
     p.add_argument("src", type=Path, help="the other tool's data folder, or the bag (ROS 1 .bag, ROS 2 bag folder)")
@@ -50,6 +53,9 @@ def run(args) -> int:
         raise InputError(f"handeye import {args.kind} needs OUT, the folder for session.yaml")
     if args.kind == "visp":
         path = import_visp(args.src, args.out, use_given_intrinsics=args.given_intrinsics, force=args.force)
+        from ..session.native import read_native_document
+
+        print(f"ViSP layout: {read_native_document(path).target.describe()}")
     else:
         path = import_ical(args.src, args.out, force=args.force)
     print(f"session: {path}")

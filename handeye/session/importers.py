@@ -1,8 +1,8 @@
 """Importers for other tools' session layouts: each writes a native ``session.yaml`` whose
 ``image_folder`` is the original folder (nothing is copied) and states the pose format those tools use.
 
-- ``visp``: the layout :data:`VISP_LAYOUT` describes (ViSP's eye-in-hand chessboard data); other ViSP
-  targets (AprilTag's ``apriltag-data.txt``, ...) are refused by name.
+- ``visp``: the layout :data:`VISP_LAYOUT` describes (ViSP's chessboard and single-AprilTag data); other
+  ViSP target descriptions are refused by name.
 - ``ical``: ROS-Industrial industrial_calibration (``cal_data.yaml`` + ``poses/N.yaml`` with
   x, y, z, qx, qy, qz, qw; ``static_camera`` decides the mode). Target finders: ChArUco
   (``CharucoGridTargetFinder``) and circle grids (``ModifiedCircleGridTargetFinder``: symmetric
@@ -44,47 +44,94 @@ def _mapping(v, *, path: Path, field: str, expected: str) -> dict:
 
 
 #: what ``handeye import visp`` reads, for its help and its messages
-VISP_LAYOUT = ("ViSP's eye-in-hand chessboard data (apps/calibration/hand-eye/data-eye-in-hand): images "
-               "[PREFIX_]image-N.png, robot poses [PREFIX_]pose_rPe_N.yaml or pose_fPe_N.yaml (vpPoseVector: "
-               "metres + theta-u radians, the end in the base frame), chessboard-data.txt ('9 x 6' inner corners, "
-               "'square size: 0.0236 m'), optional *camera.xml")
+VISP_LAYOUT = ("ViSP's hand-eye data folders (apps/calibration/hand-eye/data-eye-in-hand and data-eye-to-hand): "
+               "images [PREFIX_]image-N.png, robot poses [PREFIX_]pose_rPe_N.yaml or pose_fPe_N.yaml (vpPoseVector: "
+               "metres + theta-u radians, the end in the base frame), and the target: chessboard-data.txt ('9 x 6' "
+               "inner corners, 'square size: 0.0236 m') or apriltag-data.txt ('36h11' family, 'size: 0.048 m', one "
+               "tag per image); optional *camera.xml")
 _VISP_IMAGE = re.compile(r"^(?:.*_)?image-(\d+)\.png$")
 _VISP_POSE = re.compile(r"^(?:.*_)?pose_[rf]Pe_(\d+)\.yaml$")
+#: AprilTag families of ViSP's vpDetectorAprilTag that cv2.aruco also has
+_VISP_TAG_FAMILIES = {"36h11": "DICT_APRILTAG_36h11", "25h9": "DICT_APRILTAG_25h9", "16h5": "DICT_APRILTAG_16h5",
+                      "36h10": "DICT_APRILTAG_36h10"}
 
 
 def _visp_other_target(src: Path) -> str | None:
-    """The name of a ViSP target description that is not a chessboard's (e.g. apriltag-data.txt)."""
+    """The name of a ViSP target description handeye does not read (neither chessboard nor AprilTag data)."""
     for f in sorted(src.glob("*-data.txt")):
-        if f.name != "chessboard-data.txt":
+        if f.name not in ("chessboard-data.txt", "apriltag-data.txt"):
             return f.name
     return None
 
 
+def _visp_chessboard(src: Path) -> dict:
+    f = src / "chessboard-data.txt"
+    txt = read_text(f, what="chessboard-data.txt")
+    m = re.search(r"(\d+)\s*x\s*(\d+)", txt)
+    s = re.search(r"square size:\s*([0-9.eE+-]+)", txt)
+    if not (m and s):
+        raise InputError("chessboard-data.txt unreadable", path=f, expected="'9 x 6' and 'square size: 0.0236 m'",
+                         hint=f"handeye reads {VISP_LAYOUT}")
+    return {"type": "chessboard", "inner_corners": [int(m.group(1)), int(m.group(2))], "square_m": float(s.group(1))}
+
+
+def _visp_apriltag(src: Path, images: list) -> dict:
+    """The single-marker target of ViSP's AprilTag data: family and size from apriltag-data.txt, the tag id from the
+    first image that shows exactly one tag of that family (ViSP's tool assumes one tag per image)."""
+    import cv2
+
+    f = src / "apriltag-data.txt"
+    txt = read_text(f, what="apriltag-data.txt")
+    fam = re.search(r"\b(\d+h\d+)\b", txt)
+    size = re.search(r"size:\s*([0-9.eE+-]+)", txt)
+    if not (fam and size):
+        raise InputError("apriltag-data.txt unreadable", path=f, expected="a family such as '36h11' and 'size: 0.048 m'",
+                         hint=f"handeye reads {VISP_LAYOUT}")
+    if fam.group(1) not in _VISP_TAG_FAMILIES:
+        raise InputError(f"unsupported AprilTag family {fam.group(1)!r}", path=f,
+                         expected=" | ".join(_VISP_TAG_FAMILIES))
+    dictionary = _VISP_TAG_FAMILIES[fam.group(1)]
+    detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)))
+    for img in images:
+        gray = cv2.imread(str(img), cv2.IMREAD_GRAYSCALE) if img.is_file() else None
+        if gray is None:
+            continue
+        _corners, ids, _ = detector.detectMarkers(gray)
+        if ids is not None and len(ids) == 1:
+            return {"type": "marker", "size_m": _number(size.group(1), path=f, field="size"), "dictionary": dictionary,
+                    "marker_id": int(ids[0][0])}
+    raise InputError(f"no image shows exactly one {fam.group(1)} tag", path=src,
+                     expected="one AprilTag in view, as ViSP's visp-compute-apriltag-poses assumes",
+                     hint="check the family in apriltag-data.txt")
+
+
 def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool = False, force: bool = False) -> Path:
     """``out/session.yaml`` for a ViSP data folder of the layout :data:`VISP_LAYOUT` (an existing session
-    in ``out`` is refused unless ``force``)."""
+    in ``out`` is refused unless ``force``). The target is the chessboard of chessboard-data.txt or the single
+    AprilTag of apriltag-data.txt (``source.layout`` in session.yaml says which); the mode is left to the data
+    (ViSP's folders hold both mounting modes with the same files)."""
     src, out = Path(src).resolve(), Path(out)
     _check_out(out, force=force)
     if not src.is_dir():
         raise InputError("not a folder", path=src, expected=VISP_LAYOUT)
-    other = _visp_other_target(src)
-    if other is not None and not (src / "chessboard-data.txt").exists():
-        kind = other[: -len("-data.txt")]
-        raise InputError(f"unsupported ViSP target {kind!r} ({other})", path=src / other,
-                         expected="a chessboard (chessboard-data.txt)",
-                         hint=f"handeye reads ViSP's chessboard data only; write session.yaml by hand for a "
-                              "target handeye supports (chessboard, charuco, circlegrid), see "
-                              "docs/session_format.md")
     imgs = {int(m.group(1)): f for f in src.iterdir() if (m := _VISP_IMAGE.match(f.name))}
     poses = {int(m.group(1)): f for f in src.iterdir() if (m := _VISP_POSE.match(f.name))}
+    if (src / "chessboard-data.txt").exists():
+        layout, target = "chessboard", None
+    elif (src / "apriltag-data.txt").exists():
+        layout, target = "apriltag", None
+    else:
+        other = _visp_other_target(src)
+        if other is not None:
+            kind = other[: -len("-data.txt")]
+            raise InputError(f"unsupported ViSP target {kind!r} ({other})", path=src / other,
+                             expected="chessboard-data.txt or apriltag-data.txt",
+                             hint="write session.yaml by hand for a target handeye supports, see docs/session_format.md")
+        raise InputError("no ViSP target description (chessboard-data.txt or apriltag-data.txt)", path=src,
+                         expected=VISP_LAYOUT)
     if not imgs:
         raise InputError("no ViSP images ([PREFIX_]image-N.png) in the folder", path=src, expected=VISP_LAYOUT)
-    txt = read_text(src / "chessboard-data.txt", what="chessboard-data.txt") if (src / "chessboard-data.txt").exists() else ""
-    m = re.search(r"(\d+)\s*x\s*(\d+)", txt)
-    s = re.search(r"square size:\s*([0-9.eE+-]+)", txt)
-    if not (m and s):
-        raise InputError("chessboard-data.txt missing or unreadable", path=src / "chessboard-data.txt",
-                         expected="'9 x 6' and 'square size: 0.0236 m'", hint=f"handeye reads {VISP_LAYOUT}")
+    target = _visp_chessboard(src) if layout == "chessboard" else _visp_apriltag(src, [imgs[k] for k in sorted(imgs)])
     views = []
     for k in sorted(imgs):
         if k not in poses:
@@ -96,11 +143,10 @@ def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool 
                              received=repr(data)[:60], expected="data: [[tx], [ty], [tz], [tux], [tuy], [tuz]]")
         views.append({"id": str(k), "image": imgs[k].name,
                       "pose": [_number(v[0], path=poses[k], field=f"data[{i}]") for i, v in enumerate(data)]})
-    doc = {"handeye_session": 1, "mode": "eye_in_hand",
-           "target": {"type": "chessboard", "inner_corners": [int(m.group(1)), int(m.group(2))],
-                      "square_m": float(s.group(1))},
+    doc = {"handeye_session": 1, "target": target,
            "pose_format": {"rotation": "rotvec", "angle_unit": "rad", "translation_unit": "m"},
-           "image_folder": str(src), "source": {"importer": "visp", "path": str(src)}, "views": views}
+           "image_folder": str(src), "source": {"importer": "visp", "layout": layout, "path": str(src)},
+           "views": views}
     cam = next(iter(src.glob("*camera*.xml")), None)
     if use_given_intrinsics and cam is not None:
         t = read_text(cam, what="camera file")
