@@ -1,0 +1,305 @@
+"""Refinement of pose-only views: the camera -> target pose of each view comes from an external tracker
+(a marker tracker, easy_handeye2 samples, a pose list) instead of detected corners.
+
+Model
+-----
+``T_cam_board_measured_i = inv(T_x) · M_i · T_board · Exp(-n_i)`` with the tracker's noise
+``n_i ~ N(0, diag(s_rot^2 I3, s_trans^2 I3))`` (:mod:`handeye.factors.pose`). Unknowns: ``T_x`` and
+``T_board``; the robot poses are taken as reported, so robot noise shows up as tracker noise (the
+two are not separable from poses alone). The tracker's sigmas are the session's stated
+``tracker_sigma`` (held), or estimated: first robustly (median residual), then by the same
+variance-component estimation as the pixel sigma of image sessions (Helmert: ``s_g^2 = e_g^T e_g / r_g``
+with the redundancy ``r_g = n_g - tr(W_g J Sigma J^T)``), with rotation and translation as the two
+groups.
+
+Stages: the best start among the closed forms (lowest median residual), a Huber solve, then the
+outlier loop: every view's reported pose pair is tested by THE robot-pose test
+(:func:`.outliers.robot_pose_test`) on ``T_cam_board``, with Baarda's leave-one-out prediction for views
+in the solve (:func:`.outliers.leave_one_out`) and the plain prediction for views left out, until
+the set of views is stable. The covariance is the inverse information of the final Gaussian solve.
+The graph is built and solved in :mod:`.problem` (:func:`.problem.solve_pose_graph`).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field, replace
+from typing import Mapping, Optional, Sequence
+
+import numpy as np
+from scipy.special import chdtri
+
+from handeye.factors.pose import pose_residual
+
+from ..mounting import mounting
+from ..records import HandEyeEstimate
+from .covariance import COV_PARAMETRISATION, hand_eye_uncertainty
+from .options import RefineOptions, check_T, refine_preset
+from .outliers import Outlier, RobotPoseGates, leave_one_out, robot_pose_test
+from .problem import solve_pose_graph
+from .result import RefineResult
+
+log = logging.getLogger(__name__)
+
+#: median of |x| for x ~ N(0, s^2 I3), in units of s
+_NORM3_MEDIAN = float(np.sqrt(chdtri(3, 0.5)))
+
+
+@dataclass(frozen=True)
+class PoseView:
+    """One pose-only view: the tracker's ``T_cam_board`` and the reported robot pose ``T_base_end``."""
+
+    view_id: str
+    T_cam_board: np.ndarray  # (4, 4)
+    T_base_end: np.ndarray  # (4, 4)
+
+
+class _NoIntrinsics:
+    """Stands in for the intrinsics of a pose-only result when it is written (there is no camera model)."""
+
+    def to_dict(self):
+        return None
+
+
+@dataclass(frozen=True)
+class PoseRefineResult(RefineResult):
+    """A :class:`.result.RefineResult` of pose-only views: no intrinsics and no pixels (``intrinsics`` is
+    None, the pixel figures NaN); the tracker's noise instead."""
+
+    tracker_sigma_deg: float = float("nan")
+    tracker_sigma_mm: float = float("nan")
+    tracker_sigma_source: str = ""  # stated | estimated
+    tracker_sigma_resolved: dict = field(default_factory=dict)
+    cov_board_6x6: Optional[np.ndarray] = None
+
+    def to_dict(self) -> dict:
+        d = RefineResult.to_dict(replace(self, intrinsics=_NoIntrinsics(), intrinsics_seed=_NoIntrinsics()))
+        d["observations"] = "poses"
+        d["tracker_noise"] = {"sigma_deg": self.tracker_sigma_deg, "sigma_mm": self.tracker_sigma_mm,
+                              "source": self.tracker_sigma_source, "resolved": dict(self.tracker_sigma_resolved),
+                              "model": "T_cam_board_measured = T_cam_board_true · Exp(n), n ~ N(0, diag(sigma_rad^2 I3,"
+                                       " sigma_m^2 I3)); robot poses taken as reported (their noise is part of it)"}
+        if self.cov_board_6x6 is not None:
+            d["cov_board_6x6"] = self.cov_board_6x6.tolist()
+        return d
+
+
+@dataclass
+class _State:
+    M: np.ndarray  # shape (n, 4, 4)
+    C: np.ndarray  # shape (n, 4, 4)
+    T_x: np.ndarray
+    T_board: np.ndarray
+    sigma: np.ndarray  # (2,) rotation [rad], translation [m]
+    keep: np.ndarray  # (n,) bool
+    iterations: int = 0
+
+    def residuals(self, T_x=None, T_board=None, *, jacobians: bool = False):
+        """(r (n,6), J (n,6,12) or None) of every view at the current (or given) solution."""
+        T_x = self.T_x if T_x is None else T_x
+        T_board = self.T_board if T_board is None else T_board
+        out = [pose_residual(T_x=T_x, M=M, T_board=T_board, T_cam_board_measured=C, jacobians=jacobians)
+               for M, C in zip(self.M, self.C)]
+        r = np.stack([o[0] for o in out])
+        J = np.stack([np.hstack([o[1], o[2]]) for o in out]) if jacobians else None
+        return r, J
+
+    def W(self) -> np.ndarray:
+        return np.diag(np.r_[[self.sigma[0] ** -2] * 3, [self.sigma[1] ** -2] * 3])
+
+
+def _robust_sigmas(r: np.ndarray, floors: np.ndarray) -> np.ndarray:
+    """(rotation, translation) sigmas from the median residual norms (3-D isotropic Gaussian)."""
+    med = np.array([np.median(np.linalg.norm(r[:, :3], axis=1)), np.median(np.linalg.norm(r[:, 3:], axis=1))])
+    return np.maximum(med / _NORM3_MEDIAN, floors)
+
+
+def _score(st: _State, T_x, T_board) -> float:
+    """Median over the views of the rotation and translation residuals in units of the start sigmas."""
+    r, _ = st.residuals(T_x, T_board)
+    return float(np.median(np.linalg.norm(r[:, :3], axis=1) / st.sigma[0] + np.linalg.norm(r[:, 3:], axis=1) / st.sigma[1]))
+
+
+def _information(st: _State, J: np.ndarray, prior_x) -> np.ndarray:
+    H = np.einsum("nki,kl,nlj->ij", J[st.keep], st.W(), J[st.keep])
+    if prior_x is not None:
+        H[:6, :6] += np.linalg.inv(prior_x[1])
+    return H
+
+
+def _solve(st: _State, *, robust_k, prior_x, max_iterations) -> None:
+    k = np.flatnonzero(st.keep)
+    sig = np.broadcast_to(st.sigma, (k.size, 2))
+    st.T_x, st.T_board, it = solve_pose_graph(M=st.M[k], T_cam_board=st.C[k], sigmas=sig, T_x0=st.T_x,
+                                              T_board0=st.T_board, robust_k=robust_k, prior_x=prior_x,
+                                              max_iterations=max_iterations)
+    st.iterations += it
+
+
+def _solve_with_vce(st: _State, *, estimate: bool, prior_x, max_iterations, floors) -> tuple:
+    """Gaussian solves alternating with variance-component estimation (rotation, translation) until the
+    sigmas settle; returns (Sigma (12,12), r, J, resolved) at the final solution."""
+    cfg = refine_preset()["noise"]
+    share = float(cfg["unresolved_redundancy_share"])
+    resolved = {"rot": True, "trans": True}
+    for _ in range(int(cfg["max_outer"]) + 10):
+        _solve(st, robust_k=None, prior_x=prior_x, max_iterations=max_iterations)
+        r, J = st.residuals(jacobians=True)
+        S = np.linalg.inv(_information(st, J, prior_x))
+        if not estimate:
+            return S, r, J, {}
+        n_k = int(st.keep.sum())
+        JSJ = np.einsum("nij,jk,nlk->nil", J[st.keep], S, J[st.keep])  # shape (n_k, 6, 6)
+        new = st.sigma.copy()
+        for g, sl in enumerate((slice(0, 3), slice(3, 6))):
+            tr = float(np.trace(JSJ[:, sl, sl], axis1=1, axis2=2).sum()) / st.sigma[g] ** 2
+            red = 3 * n_k - tr
+            if red < share * 3 * n_k:
+                resolved[("rot", "trans")[g]] = False
+                continue
+            e2 = float(np.sum(r[st.keep][:, sl] ** 2))
+            new[g] = max(np.sqrt(e2 / red), floors[g])
+        change = float(np.max(np.abs(new / st.sigma - 1.0)))
+        st.sigma = new
+        if change < float(cfg["outer_tol"]):
+            _solve(st, robust_k=None, prior_x=prior_x, max_iterations=max_iterations)
+            r, J = st.residuals(jacobians=True)
+            return np.linalg.inv(_information(st, J, prior_x)), r, J, resolved
+    log.warning("the tracker's noise estimate did not settle")
+    return S, r, J, resolved
+
+
+def _tests(st: _State, S: np.ndarray, r: np.ndarray, J: np.ndarray, gates: RobotPoseGates):
+    """THE robot-pose test of every view on ``T_cam_board``: leave-one-out for views in the solve."""
+    R = np.linalg.inv(st.W())
+    d = np.full((len(r), 6), np.nan)
+    C = np.full((len(r), 6, 6), np.nan)
+    for i in range(len(r)):
+        S_p = J[i] @ S @ J[i].T  # covariance of the predicted pose
+        if st.keep[i]:
+            try:
+                d[i], C[i] = leave_one_out(r[i], R, S_p)
+            except np.linalg.LinAlgError:  # the view alone fixes the solution: no prediction without it
+                continue
+        else:
+            d[i], C[i] = r[i], S_p
+    return robot_pose_test(d, C, robot_covariance=np.broadcast_to(R, (len(r), 6, 6)), gates=gates)
+
+
+def refine_poses(*, mode: str, views: Sequence[PoseView], T_x0: np.ndarray, T_board0: np.ndarray,
+                 tracker_sigma: Optional[tuple] = None, options: RefineOptions = RefineOptions(),
+                 starts: Optional[Mapping[str, HandEyeEstimate]] = None) -> PoseRefineResult:
+    """Refine ``T_x`` and ``T_board`` from pose-only views; see the module docstring.
+
+    ``tracker_sigma``: (rotation [rad], translation [m]) of the tracker, held; None: estimated.
+    ``starts``: the closed forms (method -> estimate); the refinement starts from the one the views
+    agree with best. A solve that fails returns ``status="failed"`` with the reason."""
+    t0 = time.perf_counter()
+    mount = mounting(mode)
+    T_x0 = check_T(T_x0, f"seed {mount.x_name}")
+    T_board0 = check_T(T_board0, f"seed {mount.board_name}")
+    ids = [v.view_id for v in views]
+    M = np.stack([mount.M_from_T_base_end(check_T(v.T_base_end, f"view {v.view_id} T_base_end")) for v in views])
+    C = np.stack([check_T(v.T_cam_board, f"view {v.view_id} T_cam_board") for v in views])
+    cfg = refine_preset()["noise"]
+    floors = np.array([float(cfg["robot_sigma_rot_floor_rad"]), float(cfg["robot_sigma_trans_floor_m"])])
+    estimate = tracker_sigma is None
+    st = _State(M, C, T_x0.copy(), T_board0.copy(), np.ones(2), np.ones(len(views), bool))
+    prior_x = None if options.prior is None else (check_T(options.prior.T_x, "prior T_x"),
+                                                  np.asarray(options.prior.cov_x, float))
+    st.sigma = _robust_sigmas(st.residuals()[0], floors) if estimate else np.asarray(tracker_sigma, float)
+    start_method = "given"
+    if starts:
+        best = _score(st, st.T_x, st.T_board)
+        for name, est in starts.items():
+            if est.status != "ok" or not (np.all(np.isfinite(est.T_x)) and np.all(np.isfinite(est.T_board))):
+                continue
+            s = _score(st, est.T_x, est.T_board)
+            if s < best:
+                best, start_method, st.T_x, st.T_board = s, name, est.T_x.copy(), est.T_board.copy()
+    T_x_seed, T_board_seed = st.T_x.copy(), st.T_board.copy()
+    gates = RobotPoseGates.from_options(options)
+    it_max = options.max_iterations
+    dec_keep, test, S, r, J, resolved = None, None, None, None, None, {}
+    try:
+        if estimate:
+            st.sigma = _robust_sigmas(st.residuals()[0], floors)
+        if options.loss != "none":
+            _solve(st, robust_k=options.loss_k, prior_x=prior_x, max_iterations=it_max)
+            if estimate:
+                st.sigma = _robust_sigmas(st.residuals()[0], floors)
+        # the first decision against the robust solution, then from scratch against each clean one
+        r, J = st.residuals(jacobians=True)
+        S = np.linalg.inv(_information(st, J, prior_x))
+        # the robust solve down-weighted the outliers: each view against that solution, as if left out
+        test = _tests(replace(st, keep=np.zeros(len(views), bool)), S, r, J, gates)
+        seen = []
+        for _ in range(options.max_outlier_rounds):
+            keep = ~test.flagged
+            if keep.sum() < 3:
+                raise np.linalg.LinAlgError(f"only {int(keep.sum())} views agree with the others; need 3")
+            if seen and np.array_equal(keep, seen[-1]):
+                break
+            if any(np.array_equal(keep, k) for k in seen):
+                log.warning("outlier decisions oscillate; keeping the latest set")
+                st.keep = keep
+                S, r, J, resolved = _solve_with_vce(st, estimate=estimate, prior_x=prior_x, max_iterations=it_max,
+                                                    floors=floors)
+                test = _tests(st, S, r, J, gates)
+                break
+            seen.append(keep)
+            st.keep = keep
+            S, r, J, resolved = _solve_with_vce(st, estimate=estimate, prior_x=prior_x, max_iterations=it_max,
+                                                floors=floors)
+            test = _tests(st, S, r, J, gates)
+        dec_keep = st.keep.copy()
+        status, reason = "ok", ""
+    except np.linalg.LinAlgError as err:
+        status, reason = "failed", f"the views do not constrain the hand-eye transform ({err})"
+    except RuntimeError as err:  # GTSAM raises RuntimeError (e.g. indeterminant linear system)
+        status, reason = "failed", f"GTSAM: {err}"
+    if status != "ok":
+        log.warning("pose-only refinement failed: %s", reason)
+    depth = float(np.median(C[:, 2, 3]))
+    wd = float(options.working_distance_m) if options.working_distance_m is not None else depth
+    S_x = None if status != "ok" else S[:6, :6]
+    unc = hand_eye_uncertainty(S_x, st.T_x, wd)
+    per_view, outliers = {}, []
+    for i, vid in enumerate(ids):
+        pv = {"status": "used" if dec_keep is not None and dec_keep[i] else "removed", "n_corners": 0, "n_used": 0,
+              "rms_px": float("nan"), "max_px": float("nan")}
+        if r is not None:
+            pv["pose_residual_rot_deg"] = float(np.degrees(np.linalg.norm(r[i, :3])))
+            pv["pose_residual_trans_mm"] = float(1000.0 * np.linalg.norm(r[i, 3:]))
+        if test is not None and np.isfinite(test.statistic[i]):
+            pv["robot_vs_camera_rot_deg"] = float(test.rot_deg[i])
+            pv["robot_vs_camera_trans_mm"] = float(test.trans_mm[i])
+            pv["robot_vs_camera_mahalanobis"] = float(test.distance[i])
+            if test.flagged[i]:
+                rot, tr, dist = float(test.rot_deg[i]), float(test.trans_mm[i]), float(test.distance[i])
+                thr = float(np.sqrt(test.threshold))
+                outliers.append(Outlier(vid, "robot_pose", f"view {vid}: the reported robot pose and the tracker's "
+                                        f"target pose disagree with the other views by {rot:.3f} deg / {tr:.2f} mm "
+                                        f"(Mahalanobis {dist:.1f}, threshold {thr:.1f}); view left out",
+                                        size={"rot_deg": rot, "trans_mm": tr, "mahalanobis": dist,
+                                              "p_value": float(test.p_value[i]), "threshold": thr,
+                                              "sigma_rot_deg": float(test.sigma_rot_deg[i]),
+                                              "sigma_trans_mm": float(test.sigma_trans_mm[i])}))
+        per_view[vid] = pv
+    nan = float("nan")
+    return PoseRefineResult(
+        status=status, failure_reason=reason, mode=mode, x_name=mount.x_name, board_name=mount.board_name,
+        T_x=st.T_x.copy(), T_board=st.T_board.copy(), intrinsics=None, T_x_seed=T_x_seed, T_board_seed=T_board_seed,
+        intrinsics_seed=None, robot_poses={vid: np.asarray(v.T_base_end, float).copy() for vid, v in zip(ids, views)},
+        cov_x_6x6=unc.cov_x_6x6, cov_parametrisation=COV_PARAMETRISATION, sigma_rot_deg=unc.sigma_rot_deg,
+        sigma_trans_mm=unc.sigma_trans_mm, correlation_6x6=unc.correlation_6x6, intrinsics_sigma={},
+        working_distance_m=wd, predicted_error_mm=unc.predicted_error_mm,
+        predicted_error_axes_mm=unc.predicted_error_axes_mm, sigma_px=nan, robot_sigma_mm=0.0, robot_sigma_deg=0.0,
+        robot_sigma_resolved={}, rms_px_before=nan, rms_px_after=nan, per_view=per_view, outliers=tuple(outliers),
+        iterations=st.iterations, seconds=time.perf_counter() - t0, start_method=start_method,
+        options=replace(options, robot_noise="none"),
+        robot_model={"kind": "none", "description": "reported robot poses taken as exact (pose-only views: the robot's "
+                                                    "noise is part of the tracker's)"},
+        tracker_sigma_deg=float(np.degrees(st.sigma[0])), tracker_sigma_mm=float(1000.0 * st.sigma[1]),
+        tracker_sigma_source="estimated" if estimate else "stated", tracker_sigma_resolved=resolved,
+        cov_board_6x6=None if status != "ok" else S[6:, 6:].copy())
