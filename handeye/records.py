@@ -36,6 +36,8 @@ class View:
     t_image: Optional[float] = None
     t_pose: Optional[float] = None
     joint_angles: Optional[tuple] = None  # the arm's joint angles at this view (radians), when recorded
+    # pose-only views: the camera -> target pose measured by an external tracker (image_path is None)
+    T_cam_board: Optional[np.ndarray] = None  # (4, 4)
 
 
 @dataclass(frozen=True)

@@ -260,3 +260,35 @@ class AprilGridSpec:
 
 
 TargetSpec = Union[ChessboardSpec, CharucoSpec, CircleGridSpec, MarkerSpec, AprilGridSpec]
+
+
+@dataclass(frozen=True)
+class TrackedTargetSpec:
+    """The target of a pose-only session: a frame whose pose an external tracker reports (no points are
+    detected). ``object_points`` are its origin and the tips of its x and y axes at ``axis_m``, for
+    drawings and for code that sizes things by the target."""
+
+    name: str = ""
+    axis_m: float = 0.1
+    kind: str = "tracked"
+    pose_ambiguous: bool = False
+
+    @property
+    def n_corners(self) -> int:
+        return 3
+
+    @property
+    def square_m(self) -> float:
+        return self.axis_m
+
+    def object_points(self) -> np.ndarray:  # shape (3, 3)
+        return np.array([[0.0, 0.0, 0.0], [self.axis_m, 0.0, 0.0], [0.0, self.axis_m, 0.0]])
+
+    def symmetries(self) -> list[np.ndarray]:
+        return [np.arange(3)]
+
+    def to_dict(self) -> dict:
+        return {"type": "tracked", "name": self.name}
+
+    def describe(self) -> str:
+        return f"tracked target {self.name}".rstrip() + " (poses from an external tracker)"

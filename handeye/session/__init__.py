@@ -47,6 +47,8 @@ def check_image_sizes(session: Session) -> None:
 
     sizes = {}
     for v in session.views:
+        if v.image_path is None:  # a pose-only view (its target pose comes from a tracker)
+            continue
         try:
             with Image.open(v.image_path) as im:
                 sizes[v.view_id] = tuple(im.size)

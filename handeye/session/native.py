@@ -22,7 +22,7 @@ from ..camera import Intrinsics
 from ..conventions import PoseFormat, T_from_pose_values
 from ..errors import ConfigError, InputError
 from ..records import Session, View, view_id_key
-from ..targets import TargetSpec
+from ..targets import TargetSpec, TrackedTargetSpec
 from ..output import read_text
 from .fields import (IdTextLoader, check_angle_units, check_finite, check_input_file, check_mode,
                      check_translation_units, positive_number, read_yaml)
@@ -62,6 +62,10 @@ class NativeDocument:
     intrinsics_use: str
     entries: tuple  # tuple[ViewEntry, ...]
     image_folder: Optional[Path] = None  # ``image_folder:`` (resolved); None: the session folder
+    # pose-only sessions (views with ``target_pose:``): how the target poses are written, and the
+    # tracker's noise (rotation [rad], translation [m]) when stated
+    target_pose_format: Optional[PoseFormat] = None
+    tracker_sigma: Optional[tuple] = None
 
 
 def read_native_document(path: Path) -> NativeDocument:
@@ -71,7 +75,7 @@ def read_native_document(path: Path) -> NativeDocument:
     version = d.get("handeye_session", 1)
     if version != 1:
         raise ConfigError("unsupported handeye_session version", path=path, expected="1", received=repr(version))
-    target = parse_target(d.get("target"), path=path)
+    target = parse_target(d.get("target"), path=path) if not _pose_only(d) or d.get("target") else TrackedTargetSpec()
     fmt = _parse_pose_format(d.get("pose_format"), path=path)
     intr, intr_use = parse_intrinsics(d.get("intrinsics"), path=path)
     image_folder = d.get("image_folder")
@@ -100,7 +104,7 @@ def read_native_document(path: Path) -> NativeDocument:
         if not isinstance(e.data, dict):
             raise ConfigError("each view must be a mapping with id, image, pose", path=e.source,
                               received=repr(e.data)[:60])
-        for key in ("id", "image"):
+        for key in ("id",) if "target_pose" in e.data else ("id", "image"):
             if key not in e.data:
                 raise ConfigError(f"view is missing {key!r}", path=e.source, received=repr(e.data)[:80],
                                   expected="id, image, pose (or pose_file)")
@@ -111,14 +115,63 @@ def read_native_document(path: Path) -> NativeDocument:
         if _ID_FORBIDDEN.search(vid) or vid in (".", ".."):
             raise ConfigError("invalid view id", path=e.source, received=repr(vid)[:60],
                               expected="a text without /, \\ or control characters (it names the view's files)")
-        if not isinstance(e.data["image"], str) or not e.data["image"].strip():
+        if "target_pose" in e.data:
+            pass  # a pose-only view: no image (target_pose is read by view_target_pose)
+        elif not isinstance(e.data["image"], str) or not e.data["image"].strip():
             raise ConfigError(f"view {vid}: image must be a file name", path=e.source, received=repr(e.data["image"])[:60],
                               expected="a path relative to the session folder, e.g. images/7.png")
         if ("pose" in e.data) == ("pose_file" in e.data):
             raise ConfigError(f"view {vid}: give either pose or pose_file", path=e.source,
                               received="both" if "pose" in e.data else "neither",
                               expected="pose: [numbers in pose_format] or pose_file: FILE")
-    return NativeDocument(path, d, d.get("mode"), target, fmt, intr, intr_use, tuple(entries), image_folder)
+    po = _pose_only_fields(d, entries, path=path)
+    return NativeDocument(path, d, d.get("mode"), target, fmt, intr, intr_use, tuple(entries), image_folder, *po)
+
+
+def _pose_only(d: dict) -> bool:
+    """Whether session.yaml's inline views carry target poses (a pose-only session needs no target:)."""
+    views = d.get("views")
+    return isinstance(views, list) and bool(views) and all(isinstance(v, dict) and "target_pose" in v for v in views)
+
+
+def _pose_only_fields(d: dict, entries: list, *, path: Path) -> tuple:
+    """(target_pose_format, tracker_sigma) of a pose-only session ((None, None) for an image session);
+    ConfigError when image and target-pose views are mixed or a field is malformed."""
+    with_pose = [e for e in entries if "target_pose" in e.data]
+    if not with_pose:
+        return None, None
+    if len(with_pose) != len(entries):
+        e = next(e for e in entries if "target_pose" not in e.data)
+        raise ConfigError(f"view {e.data['id']}: a session's views are either all images or all target poses",
+                          path=e.source, received="image views and target_pose views mixed",
+                          hint="split the session, or give every view a target_pose")
+    tfmt = d.get("target_pose_format")
+    tfmt = (_parse_pose_format(tfmt, path=path) if tfmt is not None
+            else PoseFormat(rotation="matrix").validated(source=str(path)))
+    sig = d.get("tracker_sigma")
+    if sig is None:
+        return tfmt, None
+    if not isinstance(sig, dict) or set(sig) != {"mm", "deg"}:
+        raise ConfigError("tracker_sigma must be {mm: NUMBER, deg: NUMBER}", path=path, received=repr(sig)[:60],
+                          expected="the tracker's noise per axis, e.g. tracker_sigma: {mm: 0.5, deg: 0.2}")
+    mm = positive_number(sig["mm"], path=path, field="tracker_sigma.mm")
+    deg = positive_number(sig["deg"], path=path, field="tracker_sigma.deg")
+    return tfmt, (float(np.radians(deg)), float(mm) / 1000.0)
+
+
+def view_target_pose(doc: NativeDocument, e: ViewEntry) -> np.ndarray:
+    """A pose-only view's ``target_pose``: ``T_cam_board`` (metres) read in ``target_pose_format`` (4x4 by
+    default), checked like a robot pose."""
+    vid = e.data["id"]
+    fmt = doc.target_pose_format
+    values = view_pose_values(ViewEntry({"id": vid, "pose": e.data["target_pose"]}, e.source), fmt,
+                              folder=files_folder(doc))
+    try:
+        T = T_from_pose_values(values, fmt)
+    except (ValueError, TypeError) as err:
+        raise InputError(f"view {vid}: bad target_pose: {err}", path=e.source, expected=fmt.describe()) from None
+    check_translation_units(T, path=e.source, line=None, unit=fmt.translation_unit)
+    return T
 
 
 def _parse_pose_format(fmt_d, *, path: Path) -> PoseFormat:
@@ -330,11 +383,15 @@ def load_native_session(path: str | Path, *, mode: str | None = None, allow_outs
         except (ValueError, TypeError) as err:
             raise InputError(f"view {vid}: bad pose: {err}", path=e.source, expected=fmt.describe()) from None
         check_translation_units(T, path=e.source, line=None, unit=fmt.translation_unit)
-        img = view_image_path(doc, e, allow_outside=allow_outside)
         joints = view_joint_angles(e)
         t_image, t_pose = (_opt_time(e, k) for k in ("t_image", "t_pose"))
         if "pose_file" in e.data:
             files_read.append(files_folder(doc) / str(e.data["pose_file"]))
+        if doc.target_pose_format is not None:  # a pose-only view: the tracker's T_cam_board, no image
+            views.append(View(view_id=vid, image_path=None, T_base_end=T, t_image=t_image, t_pose=t_pose,
+                              joint_angles=joints, T_cam_board=view_target_pose(doc, e)))
+            continue
+        img = view_image_path(doc, e, allow_outside=allow_outside)
         if not os.path.lexists(img):
             missing[vid] = img
             continue
@@ -351,6 +408,8 @@ def load_native_session(path: str | Path, *, mode: str | None = None, allow_outs
     meta = {k: v for k, v in doc.data.items() if k not in ("views",)}
     meta.update(missing_images={v: None for v in missing}, missing_image_files={v: str(f) for v, f in missing.items()},
                 files_read=files_read)
+    if doc.target_pose_format is not None:
+        meta.update(pose_only=True, tracker_sigma=doc.tracker_sigma, target_pose_format=doc.target_pose_format.describe())
     return Session(path=path.parent, format="native", mode=sess_mode, target=doc.target, views=tuple(views),
                    intrinsics=doc.intrinsics, intrinsics_prior=doc.intrinsics_use, pose_format=fmt.describe(),
                    mode_source=source, meta=meta)
