@@ -49,7 +49,7 @@ FRAME_DOC = {
 
 def session_inputs(session: Session) -> list[Path]:
     """The files a session's result depends on (images, poses and config), for the inputs hash."""
-    files = [v.image_path for v in session.views]
+    files = [v.image_path for v in session.views if v.image_path is not None]  # pose-only views have none
     for name in ("poses.txt", "config.yaml", "session.yaml"):
         if (session.path / name).exists():
             files.append(session.path / name)
