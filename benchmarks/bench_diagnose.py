@@ -189,7 +189,7 @@ def _real_faults(T: np.ndarray, fmt):
         out.append(("degrees written, radians stated", {"angle_units"}, T, replace(fmt, angle_unit="deg"), False))
     sw = T.copy()
     sw[[1, len(T) - 2]] = T[[len(T) - 2, 1]]
-    out.append(("two poses swapped", {"pairs_shifted"}, sw, None, False))
+    out.append(("two poses swapped", {"pairs_shuffled"}, sw, None, False))
     one = T.copy()
     one[len(T) // 2] = T[len(T) // 2] @ T_from_rotvec(np.radians(0.5) * w, 0.005 * w)
     out.append(("one pose off by 5 mm / 0.5 deg", {"robot_pose_disagrees"}, one, None, False, len(T) // 2))

@@ -32,7 +32,7 @@ from handeye.sim.vendor import write_vendor_session
 from handeye.targets import ChessboardSpec
 
 FAULT_CODES = {"translation_units", "angle_units", "euler_order", "quaternion_order", "mode_swapped",
-               "poses_inverted", "pairs_shifted", "robot_pose_disagrees", "board_moved", "weak_motion",
+               "poses_inverted", "pairs_shifted", "pairs_shuffled", "robot_pose_disagrees", "board_moved", "weak_motion",
                "too_few_views", "target_not_found", "blurred", "overexposed", "partial_target", "corners_bunched",
                "zero_distortion_given", "corner_order_flipped", "uncertainty_underestimated", "intrinsics_mismatch",
                "square_size", "poses_do_not_fit", "mode_undecided"}
@@ -335,7 +335,7 @@ def test_pairs_shuffled(tmp_path, monkeypatch):
     v = _vals(cs.T_base_end_reported)
     perm = np.random.default_rng(3).permutation(cs.n_views)
     _, d = _diagnose(_write_vendor(tmp_path / "s", cs, [v[p] for p in perm]), cs, monkeypatch)
-    f = _one(d, "pairs_shifted")
+    f = _one(d, "pairs_shuffled")
     assert "shuffled" in f["title"]
     truth = {cs.view_ids[k]: cs.view_ids[p] for k, p in enumerate(np.argsort(perm))}
     assert {k: v for k, v in f["details"]["assignment"].items()} == {k: v for k, v in truth.items() if k != v}
@@ -346,8 +346,8 @@ def test_two_swapped_poses(tmp_path, monkeypatch):
     v = _vals(cs.T_base_end_reported)
     v[2], v[8] = v[8], v[2]
     _, d = _diagnose(_write_vendor(tmp_path / "s", cs, v), cs, monkeypatch)
-    assert _codes(d) == {"pairs_shifted"}
-    assert set(_one(d, "pairs_shifted")["view_ids"]) == {"3", "9"}
+    assert _codes(d) == {"pairs_shuffled"}
+    assert set(_one(d, "pairs_shuffled")["view_ids"]) == {"3", "9"}
 
 
 # ------------------------------------------------------------------------------ per view and sequence
@@ -765,7 +765,7 @@ def test_shuffled_pairs_are_refused(tmp_path, monkeypatch):
     perm = np.random.default_rng(5).permutation(cs.n_views)
     run, d = _diagnose(_write_vendor(tmp_path / "s", cs, [v[p] for p in perm]), cs, monkeypatch)
     assert run.status == "failed" and run.error.code == "pairs_shuffled" and run.T_x is None
-    assert "shuffled" in _one(d, "pairs_shifted")["title"]
+    assert "shuffled" in _one(d, "pairs_shuffled")["title"]
 
 
 def test_shuffled_pairs_on_a_symmetric_board_with_turned_views_are_refused(tmp_path, monkeypatch):
@@ -781,4 +781,5 @@ def test_poses_that_fit_no_explanation_are_never_a_quiet_pass(tmp_path, monkeypa
     other = _session("eye_to_hand", 53, n_views=12)  # another rig's poses: no reading or pairing fits
     run, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(other.T_base_end_reported)), cs, monkeypatch)
     assert "fail" in {f["severity"] for f in d["findings"]}
-    assert _codes(d) & {"poses_do_not_fit", "pairs_shifted", "mode_swapped", "poses_inverted", "euler_order"}
+    assert _codes(d) & {"poses_do_not_fit", "pairs_shifted", "pairs_shuffled", "mode_swapped", "poses_inverted",
+                        "euler_order"}

@@ -59,7 +59,7 @@ log = logging.getLogger(__name__)
 __all__ = ["diagnose_run", "diagnose_session_error", "Finding", "SEVERITIES", "alternative_formats"]
 
 #: findings that say the robot poses as a whole do not match the images as read or paired
-GLOBAL_FAULT_CODES = READING_CODES + ("pairs_shifted", "square_size")
+GLOBAL_FAULT_CODES = READING_CODES + ("pairs_shifted", "pairs_shuffled", "square_size")
 
 
 def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session_kind: str = "native") -> dict:
@@ -228,11 +228,13 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
     else:
         stages.skip("images", "not asked for")
     findings += stages.run("coverage", coverage_findings, run, default=[])
-    if cross_validation and not global_fault and run.status == "ok":
+    pose_only = bool(s.meta.get("pose_only"))  # the refits re-detect nothing: they need corners
+    if cross_validation and not global_fault and run.status == "ok" and not pose_only:
         cv = stages.run("cross_validation", cross_validate, run, default=None) or {"summary": "not run: it crashed"}
     else:
         why = ("the robot poses do not match the images as read" if global_fault
-               else "no hand-eye result" if run.status != "ok" else "not asked for")
+               else "no hand-eye result" if run.status != "ok"
+               else "a pose-only session (no corners to refit)" if pose_only else "not asked for")
         stages.skip("cross_validation", why)
         cv = {"summary": "not run: " + why}
     result["cross_validation"] = cv

@@ -1,7 +1,8 @@
 """Pairing of images and robot poses: shifted by a few lines, shuffled, or single poses that belong to
 another view (two detected views swapped, or an image carrying an undetected view's pose).
 
-All report the code ``pairs_shifted``.
+A constant shift reports the code ``pairs_shifted`` (with the shift); a shuffle, swapped poses and an image
+carrying another view's pose report ``pairs_shuffled``.
 """
 from __future__ import annotations
 
@@ -128,7 +129,7 @@ def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = F
     if is_clearly_better(fit.cost, given_cost):
         pairs = ", ".join(f"image {v} <- pose {assign[v]}" for v in moved[:10])
         return [Finding(
-            "pairs_shifted", "fail", f"Images and robot poses are shuffled: {len(moved)} of {obs.n} images carry "
+            "pairs_shuffled", "fail", f"Images and robot poses are shuffled: {len(moved)} of {obs.n} images carry "
                                      "another view's pose",
             f"matched by the rotation angles between views: {pairs}{' ...' if len(moved) > 10 else ''}; with this "
             f"pairing the board scatters by {fit.median_rot_deg:.3f} deg / {fit.median_trans_mm:.2f} mm (median) "
@@ -176,7 +177,7 @@ def swapped_pose_findings(obs: PoseObservations, check: RobotPoseCheck, flagged:
                 continue
             swapped |= {a, b}
             out.append(Finding(
-                "pairs_shifted", "fail", f"The robot poses of views {a} and {b} are swapped",
+                "pairs_shuffled", "fail", f"The robot poses of views {a} and {b} are swapped",
                 f"view {a} disagrees with its own pose by {rot[ka]:.2f} deg / {trans[ka]:.1f} mm and "
                 f"view {b} by {rot[kb]:.2f} deg / {trans[kb]:.1f} mm; with each other's pose they "
                 f"agree ({t_ab.rot_deg[0]:.3f} deg / {t_ab.trans_mm[0]:.2f} mm and "
@@ -186,7 +187,7 @@ def swapped_pose_findings(obs: PoseObservations, check: RobotPoseCheck, flagged:
         elif b not in idx:
             swapped.add(a)
             out.append(Finding(
-                "pairs_shifted", "fail", f"View {a}'s image carries the robot pose recorded for view {b}",
+                "pairs_shuffled", "fail", f"View {a}'s image carries the robot pose recorded for view {b}",
                 f"view {a} disagrees with its own pose by {rot[ka]:.2f} deg / {trans[ka]:.1f} mm but agrees "
                 f"with the pose of view {b} ({r_b:.3f} deg / {t_b:.2f} mm), whose image was not used",
                 f"swap the pose entries of views {a} and {b} (and pair images and poses by view id when "
