@@ -88,4 +88,7 @@ def qa_metrics(res: dict, ref: dict, fits: dict[str, ViewFit], views: list[dict]
     else:
         m["image_coverage"] = None
         c["image_coverage_missing"] = "no detected corners"
+    if ref and ref.get("observations") == "poses":  # a pose-only session: no corners, no pixel checks
+        for k in ("reprojection_rms_px", "image_coverage"):
+            m.pop(k, None)
     return m, c
