@@ -129,9 +129,10 @@ def read_native_document(path: Path) -> NativeDocument:
 
 
 def _pose_only(d: dict) -> bool:
-    """Whether session.yaml's inline views carry target poses (a pose-only session needs no target:)."""
+    """Whether session.yaml's inline views carry target poses (a pose-only session needs no target:; one that
+    mixes them with image views is refused by :func:`_pose_only_fields`)."""
     views = d.get("views")
-    return isinstance(views, list) and bool(views) and all(isinstance(v, dict) and "target_pose" in v for v in views)
+    return isinstance(views, list) and any(isinstance(v, dict) and "target_pose" in v for v in views)
 
 
 def _pose_only_fields(d: dict, entries: list, *, path: Path) -> tuple:

@@ -1,0 +1,149 @@
+"""Pose-only sessions: the pose factor, the refinement on tracker poses, session.yaml's target_pose views
+and the workflow on them."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from handeye.errors import ConfigError, HandeyeError
+from handeye.factors.pose import pose_residual, se3_right_jacobian_inverse
+from handeye.frames import pose_error, se3_exp, se3_log, tangent_jacobian
+from handeye.initial import all_methods
+from handeye.mounting import mounting
+from handeye.refine.poseonly import PoseView, refine_poses
+from handeye.session import load_session
+from handeye.sim.poses import make_tracker_session
+
+
+def _refine(ts, **kw):
+    m = mounting(ts.mode)
+    Ms = np.stack([m.M_from_T_base_end(T) for T in ts.T_base_end])
+    cf = all_methods(m, ts.T_cam_board, Ms)
+    views = [PoseView(v, ts.T_cam_board[k], ts.T_base_end[k]) for k, v in enumerate(ts.view_ids)]
+    return refine_poses(mode=ts.mode, views=views, T_x0=cf["tsai"].T_x, T_board0=cf["tsai"].T_board, starts=cf, **kw)
+
+
+# ------------------------------------------------------------------------------ the factor
+def test_right_jacobian_inverse_matches_numeric():
+    rng = np.random.default_rng(0)
+    for scale in (1e-3, 0.05, 0.2):
+        xi = rng.standard_normal(6) * scale
+        J = tangent_jacobian(se3_log, se3_exp(xi))
+        assert np.abs(J - se3_right_jacobian_inverse(xi)).max() < 1e-7, scale
+
+
+def test_pose_residual_jacobians_match_numeric():
+    rng = np.random.default_rng(1)
+    T_x, M, T_b = (se3_exp(rng.standard_normal(6) * 0.5) for _ in range(3))
+    C = np.linalg.inv(T_x) @ M @ T_b @ se3_exp(rng.standard_normal(6) * 0.02)
+    r, J_x, J_b = pose_residual(T_x=T_x, M=M, T_board=T_b, T_cam_board_measured=C)
+    num_x = tangent_jacobian(lambda T: pose_residual(T_x=T, M=M, T_board=T_b, T_cam_board_measured=C,
+                                                     jacobians=False)[0], T_x)
+    num_b = tangent_jacobian(lambda T: pose_residual(T_x=T_x, M=M, T_board=T, T_cam_board_measured=C,
+                                                     jacobians=False)[0], T_b)
+    assert np.abs(J_x - num_x).max() < 1e-6
+    assert np.abs(J_b - num_b).max() < 1e-6
+    assert np.linalg.norm(r) > 0.01  # the test is not at a zero residual
+
+
+# ------------------------------------------------------------------------------ the refinement
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_noiseless_tracker_session_recovers_the_truth(mode):
+    ts = make_tracker_session(mode=mode, n_views=10, seed=4, sigma_mm=0.0, sigma_deg=0.0)
+    res = _refine(ts, tracker_sigma=(np.radians(0.2), 0.0005))
+    rot_deg, trans_mm = pose_error(res.T_x, ts.truth.T_x_true)
+    assert res.status == "ok" and not res.outliers
+    assert rot_deg < 1e-6 and trans_mm < 1e-6
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_noisy_tracker_session_flags_outliers_within_its_sigma(mode):
+    ts = make_tracker_session(mode=mode, n_views=20, seed=11, sigma_mm=0.5, sigma_deg=0.2, outlier_views=2)
+    res = _refine(ts)  # the tracker's noise estimated
+    assert res.status == "ok"
+    assert sorted(o.view_id for o in res.outliers) == sorted(ts.truth.outlier_view_ids)
+    assert all(res.per_view[v]["status"] == "removed" for v in ts.truth.outlier_view_ids)
+    assert res.tracker_sigma_source == "estimated"
+    # 18 views, 54 equations per group: the estimated sigma is within ~4 standard errors (1/sqrt(2*42))
+    assert abs(res.tracker_sigma_mm / 0.5 - 1) < 0.45 and abs(res.tracker_sigma_deg / 0.2 - 1) < 0.45
+    # the error of T_x in its own covariance: chi-square(6), below its 99.9 % quantile (22.5)
+    xi = se3_log(np.linalg.inv(res.T_x) @ ts.truth.T_x_true)
+    assert xi @ np.linalg.solve(res.cov_x_6x6, xi) < 22.5
+
+
+def test_stated_tracker_sigma_is_held():
+    ts = make_tracker_session(n_views=12, seed=5, sigma_mm=0.5, sigma_deg=0.2)
+    res = _refine(ts, tracker_sigma=(np.radians(0.3), 0.001))
+    assert res.tracker_sigma_source == "stated"
+    assert res.tracker_sigma_mm == pytest.approx(1.0) and res.tracker_sigma_deg == pytest.approx(0.3)
+    d = res.to_dict()
+    assert d["intrinsics"] is None and d["tracker_noise"]["source"] == "stated"
+
+
+def test_too_few_views_fail_with_a_reason():
+    ts = make_tracker_session(n_views=3, seed=5)
+    views = [PoseView(v, ts.T_cam_board[k], ts.T_base_end[k]) for k, v in enumerate(ts.view_ids)][:2]
+    res = refine_poses(mode=ts.mode, views=views, T_x0=ts.truth.T_x_true, T_board0=ts.truth.T_board_true)
+    assert res.status == "failed" and "need 3" in res.failure_reason
+
+
+# ------------------------------------------------------------------------------ session.yaml
+def test_session_yaml_target_pose_views_load(tmp_path):
+    ts = make_tracker_session(n_views=6, seed=1)
+    ts.write(tmp_path)
+    s = load_session(tmp_path)
+    assert s.meta["pose_only"] and s.target.kind == "tracked"
+    assert s.meta["tracker_sigma"] == pytest.approx((np.radians(0.2), 0.0005))
+    for k, v in enumerate(s.views):
+        assert v.image_path is None
+        assert np.allclose(v.T_cam_board, ts.T_cam_board[k], atol=1e-12)
+
+
+def test_target_pose_format_is_applied(tmp_path):
+    T = se3_exp(np.array([0.1, -0.2, 0.3, 0.05, 0.02, 0.6]))
+    from handeye.conventions import PoseFormat, pose_values_from_T
+
+    fmt = PoseFormat(rotation="quaternion", quaternion_order="xyzw", translation_unit="mm")
+    vals = pose_values_from_T(T, fmt).tolist()
+    d = {"handeye_session": 1, "pose_format": {"rotation": "matrix"},
+         "target_pose_format": {"rotation": "quaternion", "quaternion_order": "xyzw", "translation_unit": "mm"},
+         "views": [{"id": "1", "pose": np.eye(4).tolist(), "target_pose": vals}]}
+    (tmp_path / "session.yaml").write_text(yaml.safe_dump(d))
+    s = load_session(tmp_path)
+    assert np.allclose(s.views[0].T_cam_board, T, atol=1e-9)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d["views"].append({"id": "9", "image": "9.png", "pose": np.eye(4).tolist()}), "all images or all"),
+    (lambda d: d.update(tracker_sigma={"mm": 0.5}), "tracker_sigma"),
+    (lambda d: d.update(tracker_sigma={"mm": -1, "deg": 0.2}), "tracker_sigma.mm"),
+    (lambda d: d["views"][0].update(target_pose=[1, 2, 3]), "view 1"),
+])
+def test_bad_pose_only_sessions_are_one_line_errors(tmp_path, change, message):
+    ts = make_tracker_session(n_views=4, seed=1)
+    ts.write(tmp_path)
+    d = yaml.safe_load((tmp_path / "session.yaml").read_text())
+    change(d)
+    (tmp_path / "session.yaml").write_text(yaml.safe_dump(d))
+    with pytest.raises(HandeyeError) as e:
+        load_session(tmp_path)
+    assert message in str(e.value)
+
+
+# ------------------------------------------------------------------------------ the workflow
+def test_workflow_calibrates_a_pose_only_session(tmp_path):
+    from handeye.workflow import calibrate_session
+
+    ts = make_tracker_session(mode="eye_to_hand", n_views=16, seed=2, outlier_views=1)
+    ts.write(tmp_path / "s", state_sigma=False)
+    calibrate_session(tmp_path / "s", out_dir=tmp_path / "out")
+    d = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert d["status"] == "ok" and d["refinement"]["observations"] == "poses"
+    assert [o["view_id"] for o in d["refinement"]["outliers"]] == list(ts.truth.outlier_view_ids)
+    rot_deg, trans_mm = pose_error(np.array(d["T_base_cam"]), ts.truth.T_x_true)
+    assert trans_mm < 5 * max(d["refinement"]["sigma_trans_mm"]) and rot_deg < 5 * max(d["refinement"]["sigma_rot_deg"])
+    assert d["diagnostics"]["stages"]["cross_validation"] == "skipped"
+    assert (tmp_path / "out" / "report.html").exists() and (tmp_path / "out" / "report.md").exists()
