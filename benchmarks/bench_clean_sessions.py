@@ -11,7 +11,9 @@ so every one of these is a false alarm:
 * a view dropped by the refinement (kinds ``reprojection`` / ``too_few_corners``) or not detected.
 
 Flagged single corners are counted too, for information (a corner far off its prediction may be a real
-detector error). Prints one line per session with a false alarm and the counts per setting.
+detector error), and so are the sessions whose model covariance the cross-validation finds too small
+(``uncertainty_underestimated``, info when the verdict covariance covers the spread) and those whose
+verdict covariance takes the validated one in some direction. Prints one line per session with a false alarm and the counts per setting.
 
     python benchmarks/bench_clean_sessions.py [--seeds 30] [--first 0] [--cache DIR] [--workers 2]
 
@@ -54,8 +56,8 @@ def run_one(cfg: dict, cache: str) -> dict:
                              image_noise=cfg["image_noise"], overwrite=True, workers=1)
     with tempfile.TemporaryDirectory() as out:
         res = calibrate_session(folder, out_dir=out, report=False).result
-    findings = [f for f in (res.get("diagnostics") or {}).get("findings", [])
-                if f.get("severity") in ("fail", "warn")]
+    all_findings = (res.get("diagnostics") or {}).get("findings", [])
+    findings = [f for f in all_findings if f.get("severity") in ("fail", "warn")]
     ref = res.get("refinement") or {}
     outliers = ref.get("outliers", [])
     flagged = {o["view_id"] for o in outliers if o["kind"] != "corners"}
@@ -66,6 +68,9 @@ def run_one(cfg: dict, cache: str) -> dict:
             "view": [o["view_id"] for o in outliers if o["kind"] in ("reprojection", "too_few_corners")],
             "corners": sum(len(o["corner_ids"]) for o in outliers if o["kind"] == "corners"),
             "not_used": not_used,
+            # the model covariance too small for the folds' spread: a finding of size (info) when the verdict covers it
+            "model_underestimated": any(f.get("code") == "uncertainty_underestimated" for f in all_findings),
+            "sigma_source": ref.get("sigma_source"),
             "robot_max_mahalanobis": max([d.get("robot_vs_camera_mahalanobis", 0.0)
                                           for d in ref.get("per_view", {}).values()] or [0.0])}
 
@@ -95,19 +100,24 @@ def main() -> int:
             c["robot-pose flag"] += bool(r["robot"])
             c["view flag"] += bool(r["view"] or r["not_used"])
             c["corner flags"] += r["corners"]
+            c["model underestimated"] += r["model_underestimated"]
+            c["verdict validated"] += r["sigma_source"] in ("validated", "model+validated")
             c["max_mahalanobis_x100"] = max(c["max_mahalanobis_x100"], int(100 * r["robot_max_mahalanobis"]))
             if r["status"] != "ok" or r["findings"] or r["robot"] or r["view"] or r["not_used"]:
                 print(f"{r['name']}: status {r['status']} findings {r['findings']} robot {r['robot']} "
                       f"view {r['view']} not used {r['not_used']}", flush=True)
             print(f"[{k + 1}/{len(cfgs)}] {r['name']}", file=sys.stderr, flush=True)
     total = collections.Counter()
-    print(f"{'setting':22s} sessions failed fail/warn robot-pose view corners max-robot-Mahalanobis")
+    print(f"{'setting':22s} sessions failed fail/warn robot-pose view corners max-robot-Mahalanobis "
+          "model-underestimated(info) verdict-validated")
     for key, c in sorted(counts.items()):
         print(f"{key:22s} {c['sessions']:8d} {c['failed']:6d} {c['fail/warn finding']:9d} {c['robot-pose flag']:10d} "
-              f"{c['view flag']:4d} {c['corner flags']:7d} {c['max_mahalanobis_x100'] / 100:.2f}")
+              f"{c['view flag']:4d} {c['corner flags']:7d} {c['max_mahalanobis_x100'] / 100:21.2f} "
+              f"{c['model underestimated']:26d} {c['verdict validated']:17d}")
         total.update({k: v for k, v in c.items() if k != "max_mahalanobis_x100"})
     print(f"{'all':22s} {total['sessions']:8d} {total['failed']:6d} {total['fail/warn finding']:9d} "
-          f"{total['robot-pose flag']:10d} {total['view flag']:4d} {total['corner flags']:7d}")
+          f"{total['robot-pose flag']:10d} {total['view flag']:4d} {total['corner flags']:7d} {'':21s} "
+          f"{total['model underestimated']:26d} {total['verdict validated']:17d}")
     bad = total["failed"] + total["fail/warn finding"] + total["robot-pose flag"] + total["view flag"]
     return 1 if bad else 0
 
