@@ -145,3 +145,48 @@ def test_view_record_that_is_not_a_mapping(tiny_native, copy_session, run_cli, n
     rc, err = run_cli("calibrate", s, "--out", tmp_path / "out", "--no-report")
     assert rc == 2
     names(err, "006.yaml", "mapping")
+
+
+_VALUES = __import__("hypothesis.strategies", fromlist=["x"])
+_FIELDS = [("view", "t_image"), ("view", "t_pose"), ("view", "pose"), ("view", "joints"), ("view", "id"),
+           ("view", "image"), ("top", "mode"), ("top", "pose_format"), ("top", "intrinsics"), ("top", "target"),
+           ("top", "image_folder"), ("top", "view_records"), ("top", "views"), ("target", "inner_corners"),
+           ("target", "square_m"), ("target", "type"), ("pose_format", "rotation"), ("pose_format", "angle_unit"),
+           ("pose_format", "euler_order"), ("intrinsics", "fx"), ("intrinsics", "dist"), ("intrinsics", "image_size"),
+           ("intrinsics", "use")]
+
+
+def _yaml_values():
+    st = _VALUES
+    scalar = st.one_of(st.none(), st.booleans(), st.integers(-10**12, 10**12), st.floats(allow_nan=True),
+                       st.text(max_size=12), st.sampled_from(["1e308", ".nan", "010", "eye_in_hand", "-1"]))
+    return st.recursive(scalar, lambda inner: st.one_of(st.lists(inner, max_size=6),
+                                                        st.dictionaries(st.text(max_size=6), inner, max_size=3)),
+                        max_leaves=12)
+
+
+@__import__("hypothesis").settings(max_examples=150, deadline=None,
+                                   suppress_health_check=list(__import__("hypothesis").HealthCheck))
+@__import__("hypothesis").given(field=_VALUES.sampled_from(_FIELDS), value=_yaml_values())
+def test_any_value_in_any_field_loads_or_is_one_named_line(field, value, tiny_native, tmp_path_factory):
+    """Property: session.yaml with any YAML value in one of its fields loads, or raises one HandeyeError
+    line naming session.yaml; never another exception."""
+    from handeye.errors import HandeyeError
+    from handeye.session import load_session
+
+    s = tmp_path_factory.mktemp("fuzz")
+    for f in tiny_native.iterdir():
+        (s / f.name).symlink_to(f)
+    doc = yaml.safe_load((tiny_native / "session.yaml").read_text())
+    doc["intrinsics"] = {"fx": 400.0, "fy": 400.0, "cx": 200.0, "cy": 150.0, "dist": [0, 0, 0, 0, 0],
+                         "image_size": [400, 300], "use": "initial"}
+    where, key = field
+    holder = {"top": doc, "view": doc["views"][1], "target": doc["target"], "pose_format": doc["pose_format"],
+              "intrinsics": doc["intrinsics"]}[where]
+    holder[key] = value
+    (s / "session.yaml").unlink()
+    (s / "session.yaml").write_text(yaml.safe_dump(doc))
+    try:
+        load_session(s)
+    except HandeyeError as e:
+        assert "\n" not in str(e) and str(e)
