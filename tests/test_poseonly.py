@@ -147,3 +147,59 @@ def test_workflow_calibrates_a_pose_only_session(tmp_path):
     assert trans_mm < 5 * max(d["refinement"]["sigma_trans_mm"]) and rot_deg < 5 * max(d["refinement"]["sigma_rot_deg"])
     assert d["diagnostics"]["stages"]["cross_validation"] == "skipped"
     assert (tmp_path / "out" / "report.html").exists() and (tmp_path / "out" / "report.md").exists()
+
+
+# ------------------------------------------------------------------------------ easy_handeye2 samples
+def _samples_file(path, ts, calibration_type):
+    """An easy_handeye2 .samples file of a tracker session (robot: T_base_end eye-in-hand, T_end_base eye-on-base)."""
+    from handeye.frames import quat_wxyz_from_R
+
+    def tf(T):
+        q = quat_wxyz_from_R(T[:3, :3])
+        return {"translation": dict(zip("xyz", map(float, T[:3, 3]))),
+                "rotation": {"x": float(q[1]), "y": float(q[2]), "z": float(q[3]), "w": float(q[0])}}
+
+    robot = ts.T_base_end if calibration_type == "eye_in_hand" else np.linalg.inv(ts.T_base_end)
+    d = {"parameters": {"name": "demo", "calibration_type": calibration_type, "robot_base_frame": "base_link",
+                        "robot_effector_frame": "tool0", "tracking_base_frame": "camera_color_optical_frame",
+                        "tracking_marker_frame": "marker"},
+         "samples": [{"robot": tf(R), "tracking": tf(C)} for R, C in zip(robot, ts.T_cam_board)]}
+    path.write_text(yaml.safe_dump(d, sort_keys=False))
+    return path
+
+
+@pytest.mark.parametrize("ctype, mode", [("eye_in_hand", "eye_in_hand"), ("eye_on_base", "eye_to_hand")])
+def test_easy_handeye2_samples_import_to_a_pose_only_session(tmp_path, ctype, mode):
+    from handeye.cli import main
+
+    ts = make_tracker_session(mode=mode, n_views=5, seed=3)
+    src = _samples_file(tmp_path / "demo.samples", ts, ctype)
+    assert main(["-q", "import", "easy_handeye2", str(src), "--out", str(tmp_path / "s"),
+                 "--tracker-sigma", "0.5", "0.2"]) == 0
+    s = load_session(tmp_path / "s")
+    assert s.mode == mode and s.meta["pose_only"]
+    assert s.meta["tracker_sigma"] == pytest.approx((np.radians(0.2), 0.0005))
+    for k, v in enumerate(s.views):
+        assert v.view_id == str(k + 1)
+        assert np.allclose(v.T_base_end, ts.T_base_end[k], atol=1e-9)
+        assert np.allclose(v.T_cam_board, ts.T_cam_board[k], atol=1e-9)
+
+
+@pytest.mark.parametrize("edit, mode, message", [
+    (lambda d: d["parameters"].update(calibration_type=""), None, "--mode"),
+    (lambda d: None, "eye_to_hand", "--mode eye_to_hand but the samples are eye_in_hand"),
+    (lambda d: d["samples"][1]["tracking"]["rotation"].update(w=3.0), None, "sample 1 tracking"),
+    (lambda d: d["samples"][0].pop("robot"), None, "sample 0"),
+    (lambda d: d.pop("samples"), None, "no samples list"),
+])
+def test_bad_easy_handeye2_samples_are_one_line_errors(tmp_path, edit, mode, message):
+    from handeye.session.easy_handeye2 import import_easy_handeye2
+
+    ts = make_tracker_session(n_views=4, seed=3)
+    src = _samples_file(tmp_path / "x.samples", ts, "eye_in_hand")
+    d = yaml.safe_load(src.read_text())
+    edit(d)
+    src.write_text(yaml.safe_dump(d))
+    with pytest.raises(HandeyeError) as e:
+        import_easy_handeye2(src, tmp_path / "s", mode=mode)
+    assert message in str(e.value)

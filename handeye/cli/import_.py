@@ -12,13 +12,17 @@ def add_arguments(p) -> None:
 
     p.description = ("Writes OUT/session.yaml pointing at the original images; nothing is copied. visp reads "
                      + VISP_LAYOUT + ".")
-    p.add_argument("kind", choices=["visp", "ical", "rosbag"],
-                   help="visp: ViSP hand-eye data; ical: ROS-I industrial_calibration; rosbag: a ROS 1 or ROS 2 bag")
+    p.add_argument("kind", choices=["visp", "ical", "rosbag", "easy_handeye2"],
+                   help="visp: ViSP hand-eye data; ical: ROS-I industrial_calibration; rosbag: a ROS 1 or ROS 2 bag; "
+                        "easy_handeye2: its saved samples (.samples), as a pose-only session")
     p.add_argument("src", type=Path, help="the other tool's data folder, or the bag (ROS 1 .bag, ROS 2 bag folder)")
     p.add_argument("out", type=Path, nargs="?", help="folder for session.yaml (rosbag: or --out)")
     p.add_argument("--given-intrinsics", action="store_true", help="use the intrinsics shipped with the data (fixed)")
     p.add_argument("--force", action="store_true", help="visp, ical: replace the session.yaml of an existing session in OUT")
     add_rosbag_arguments(p.add_argument_group("rosbag"))
+    g = p.add_argument_group("easy_handeye2")
+    g.add_argument("--tracker-sigma", nargs=2, type=float, metavar=("MM", "DEG"),
+                   help="the tracker's noise per axis (default: estimated at calibration)")
     p.set_defaults(func=run)
 
 
@@ -47,6 +51,8 @@ def run(args) -> int:
 
     if args.kind == "rosbag":
         return run_rosbag(args)
+    if args.kind == "easy_handeye2":
+        return run_easy_handeye2(args)
     if args.out is None:
         from ..errors import InputError
 
@@ -59,6 +65,16 @@ def run(args) -> int:
     else:
         path = import_ical(args.src, args.out, force=args.force)
     print(f"session: {path}")
+    return 0
+
+
+def run_easy_handeye2(args) -> int:
+    """``handeye import easy_handeye2 SAMPLES [--out DEST] [--mode M] [--tracker-sigma MM DEG]``."""
+    from ..session.easy_handeye2 import import_easy_handeye2
+
+    out = args.out_opt or args.out or Path(args.src.name.split(".")[0] + "_session")
+    path = import_easy_handeye2(args.src, out, mode=args.mode, tracker_sigma=args.tracker_sigma, force=args.force)
+    print(f"session: {path} (pose-only: target poses from the tracker)")
     return 0
 
 

@@ -97,7 +97,7 @@ def is_scale_wrong(est: Optional[ScaleEstimate]) -> bool:
 def scale_findings(obs, fit, M: np.ndarray) -> tuple[list, Optional[ScaleEstimate]]:
     """(findings, the estimate) of the board scale against the robot's, on the fit's inlier views."""
     est = estimate_scale(obs.C, M, use=fit.inliers() if fit is not None else None)
-    if not is_scale_wrong(est):
+    if not is_scale_wrong(est) or getattr(obs.target, "kind", "") == "tracked":  # pose-only: no printed length
         return [], est
     # the scale must explain the data: with the squares rescaled the board scatter must shrink
     as_stated = fit if fit is not None else fit_boards(obs.C, M)

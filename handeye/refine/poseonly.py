@@ -260,7 +260,7 @@ def refine_poses(*, mode: str, views: Sequence[PoseView], T_x0: np.ndarray, T_bo
         status, reason = "failed", f"GTSAM: {err}"
     if status != "ok":
         log.warning("pose-only refinement failed: %s", reason)
-    depth = float(np.median(C[:, 2, 3]))
+    depth = float(np.median(np.linalg.norm(C[:, :3, 3], axis=1)))  # the tracker's frame need not look along z
     wd = float(options.working_distance_m) if options.working_distance_m is not None else depth
     S_x = None if status != "ok" else S[:6, :6]
     unc = hand_eye_uncertainty(S_x, st.T_x, wd)
