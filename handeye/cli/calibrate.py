@@ -99,8 +99,10 @@ def default_out_dir(session) -> Path:
     return Path("reports") / f"{folder.name}-{hashlib.sha1(str(folder).encode()).hexdigest()[:8]}"
 
 
-#: site config keys of configs/calibration.yaml whose values the preset leaves open (null) -> check
+#: site config keys of configs/calibration.yaml checked beyond their type (null presets, ranges) -> check
 _SITE_CHECKS = {
+    "motion.min_rotation_deg": ("a number of degrees >= 0", lambda v: _pos(v) or v == 0),
+    "motion.min_axis_spread_deg": ("a number of degrees >= 0", lambda v: _pos(v) or v == 0),
     "min_corners": ("a whole number >= 4, or null", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 4),
     "refine_options.robot_noise": ("estimate | fixed | none", lambda v: v in ("estimate", "fixed", "none")),
     "refine_options.robot_sigma_mm": ("a number > 0 (mm)", lambda v: _pos(v)),
@@ -117,8 +119,8 @@ def _pos(v) -> bool:
 
 
 def check_site_config(cfg: dict, *, source) -> dict:
-    """The calibration settings whose preset value is null (any type merges over it) checked by type and
-    range; ConfigError naming the setting and the file."""
+    """The calibration settings whose preset value is null (any type merges over it) checked by type, and
+    the motion gates by range; ConfigError naming the setting and the file."""
     from ..errors import ConfigError
 
     for key, (expected, ok) in _SITE_CHECKS.items():
