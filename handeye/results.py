@@ -328,8 +328,12 @@ def verdict_fields(verdict, res: dict, error: Optional[HandeyeError], *, qa_cfg:
         qa = {"source": None, "status": None, "counts": {}, "checks": [], "error": "the QA checks crashed"}
     if error is not None:
         label = "REFUSED" if isinstance(error, SessionRefused) else "FAIL"
-        if label == "REFUSED":
-            headline = f"{error.what[:1].upper()}{error.what[1:]}; no result is given."
+        if label == "REFUSED":  # led by the root cause's name, as the report's banner is
+            from .report.advice import ROOT_CAUSE_LABELS
+
+            cause = ROOT_CAUSE_LABELS.get(str(getattr(error, "code", "") or ""))
+            what = f"{error.what[:1].lower()}{error.what[1:]}" if cause else f"{error.what[:1].upper()}{error.what[1:]}"
+            headline = f"{cause}: {what}; no result is given." if cause else f"{what}; no result is given."
     return {"verdict": label, "verdict_headline": headline, "qa": qa, "findings": findings}
 
 

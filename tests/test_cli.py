@@ -148,7 +148,8 @@ def test_import_visp_writes_a_session_with_the_same_poses(tmp_path, capsys):
         data = [[float(v)] for v in (*T[:3, 3], *rotvec_from_R(T[:3, :3]))]
         (src / f"img_pose_rPe_{k}.yaml").write_text(yaml.safe_dump({"rows": 6, "cols": 1, "data": data}))
     assert main(["import", "visp", str(src), str(tmp_path / "out")]) == 0
-    assert capsys.readouterr().out.strip() == f"session: {tmp_path / 'out' / 'session.yaml'}"
+    assert capsys.readouterr().out.strip().splitlines() == ["ViSP layout: chessboard 9x6 inner corners, 23.6 mm",
+                                                            f"session: {tmp_path / 'out' / 'session.yaml'}"]
     s = load_session(tmp_path / "out")
     assert s.target.cols == 9 and s.target.rows == 6 and abs(s.target.square_m - 0.0236) < 1e-12
     for v, T in zip(s.views, cs.T_base_end_true):

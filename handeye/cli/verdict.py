@@ -31,12 +31,13 @@ def verdict_lines(res: dict) -> list[str]:
     head = res.get("verdict_headline") or ""
     if res.get("status") != "ok":  # no matrix: say why, and what to do, from the error
         err = res.get("error") or {}
-        head = str(err.get("what") or res.get("failure_reason") or head).rstrip(".")
-        head = ("no result: " if verdict != "REFUSED" else "") + head
+        if verdict != "REFUSED" or not head:  # a refusal's headline names its root cause, as the report does
+            head = "no result: " + str(err.get("what") or res.get("failure_reason") or head).rstrip(".")
         if err.get("fix"):
-            head += f" -> fix: {err['fix']}"
+            head = head.rstrip(".") + f" -> fix: {err['fix']}"
     lines = ["verdict: " + " ".join(f"{verdict} - {head}".split()) if head else f"verdict: {verdict}"]
-    return lines + _item_lines(res, checks=True)
+    # without a result the QA checks judge nothing: only the findings (the refusal's evidence) follow
+    return lines + _item_lines(res, checks=res.get("status") == "ok")
 
 
 def finding_lines(res: dict, *, skip=()) -> list[str]:
