@@ -64,15 +64,22 @@ def _visp_other_target(src: Path) -> str | None:
     return None
 
 
+def _visp_description(src: Path, name: str, patterns: dict, expected: str) -> tuple[Path, dict]:
+    """(file, {key: regex match}) of the target description ``name`` in ``src``; InputError when one is missing."""
+    f = src / name
+    txt = read_text(f, what=name)
+    found = {k: re.search(p, txt) for k, p in patterns.items()}
+    if not all(found.values()):
+        raise InputError(f"{name} unreadable", path=f, expected=expected, hint=f"handeye reads {VISP_LAYOUT}")
+    return f, found
+
+
 def _visp_chessboard(src: Path) -> dict:
-    f = src / "chessboard-data.txt"
-    txt = read_text(f, what="chessboard-data.txt")
-    m = re.search(r"(\d+)\s*x\s*(\d+)", txt)
-    s = re.search(r"square size:\s*([0-9.eE+-]+)", txt)
-    if not (m and s):
-        raise InputError("chessboard-data.txt unreadable", path=f, expected="'9 x 6' and 'square size: 0.0236 m'",
-                         hint=f"handeye reads {VISP_LAYOUT}")
-    return {"type": "chessboard", "inner_corners": [int(m.group(1)), int(m.group(2))], "square_m": float(s.group(1))}
+    _f, m = _visp_description(src, "chessboard-data.txt", {"size": r"(\d+)\s*x\s*(\d+)",
+                                                            "square": r"square size:\s*([0-9.eE+-]+)"},
+                              "'9 x 6' and 'square size: 0.0236 m'")
+    return {"type": "chessboard", "inner_corners": [int(m["size"].group(1)), int(m["size"].group(2))],
+            "square_m": float(m["square"].group(1))}
 
 
 def _visp_apriltag(src: Path, images: list) -> dict:
@@ -80,13 +87,9 @@ def _visp_apriltag(src: Path, images: list) -> dict:
     first image that shows exactly one tag of that family (ViSP's tool assumes one tag per image)."""
     import cv2
 
-    f = src / "apriltag-data.txt"
-    txt = read_text(f, what="apriltag-data.txt")
-    fam = re.search(r"\b(\d+h\d+)\b", txt)
-    size = re.search(r"size:\s*([0-9.eE+-]+)", txt)
-    if not (fam and size):
-        raise InputError("apriltag-data.txt unreadable", path=f, expected="a family such as '36h11' and 'size: 0.048 m'",
-                         hint=f"handeye reads {VISP_LAYOUT}")
+    f, m = _visp_description(src, "apriltag-data.txt", {"family": r"\b(\d+h\d+)\b", "size": r"size:\s*([0-9.eE+-]+)"},
+                             "a family such as '36h11' and 'size: 0.048 m'")
+    fam, size = m["family"], m["size"]
     if fam.group(1) not in _VISP_TAG_FAMILIES:
         raise InputError(f"unsupported AprilTag family {fam.group(1)!r}", path=f,
                          expected=" | ".join(_VISP_TAG_FAMILIES))
