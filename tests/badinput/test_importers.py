@@ -37,15 +37,6 @@ VISP = [
 ]
 
 
-@pytest.mark.parametrize("kw, culprits", VISP)
-def test_visp(kw, culprits, run_cli, names, tmp_path):
-    src = _visp(tmp_path / "visp", **kw)
-    rc, err = run_cli("import", "visp", src, tmp_path / "out")
-    assert rc == 2, err
-    names(err, *culprits)
-    assert not (tmp_path / "out" / "session.yaml").exists()
-
-
 def test_visp_missing_pose_file(run_cli, names, tmp_path):
     src = _visp(tmp_path / "visp")
     (src / "pose_rPe_2.yaml").unlink()
@@ -98,12 +89,18 @@ ICAL = [
 ]
 
 
-@pytest.mark.parametrize("kw, culprits", ICAL)
-def test_ical(kw, culprits, run_cli, names, tmp_path):
-    src = _ical(tmp_path / "ical", **kw)
-    rc, err = run_cli("import", "ical", src, tmp_path / "out")
+MAKERS = {"visp": _visp, "ical": _ical}
+
+
+@pytest.mark.parametrize("kind, kw, culprits",
+                         [pytest.param("visp", *p.values, id=f"visp-{p.id}") for p in VISP]
+                         + [pytest.param("ical", *p.values, id=f"ical-{p.id}") for p in ICAL])
+def test_malformed_source(kind, kw, culprits, run_cli, names, tmp_path):
+    src = MAKERS[kind](tmp_path / kind, **kw)
+    rc, err = run_cli("import", kind, src, tmp_path / "out")
     assert rc == 2, err
     names(err, *culprits)
+    assert not (tmp_path / "out" / "session.yaml").exists()
 
 
 def test_ical_without_cal_data(run_cli, names, tmp_path):

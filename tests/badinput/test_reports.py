@@ -21,6 +21,17 @@ def _set(key, value):
     return f
 
 
+def damage_file(p: Path, damage) -> None:
+    """Apply ``damage`` to result.json: a function of its bytes, or one that changes the parsed dict."""
+    try:
+        new = damage(p.read_bytes())
+    except (TypeError, AttributeError):  # a damage of the parsed dict
+        res = json.loads(p.read_text())
+        damage(res)
+        new = json.dumps(res).encode()
+    p.write_bytes(new)
+
+
 def _matrix(res):
     name = "T_end_cam" if res["mode"] == "eye_in_hand" else "T_base_cam"
     return name
@@ -62,14 +73,7 @@ DAMAGE = [
 def test_damaged_result(damage, culprits, good_result, run_cli, names, tmp_path):
     out = tmp_path / "out"
     shutil.copytree(good_result, out)
-    p = out / "result.json"
-    try:
-        new = damage(p.read_bytes())
-    except (TypeError, AttributeError):  # a damage of the parsed dict
-        res = json.loads(p.read_text())
-        damage(res)
-        new = json.dumps(res).encode()
-    p.write_bytes(new)
+    damage_file(out / "result.json", damage)
     rc, err = run_cli("report", out)
     assert rc == 2, err
     names(err, *culprits)
@@ -210,13 +214,7 @@ APPLY = [
 def test_apply_on_a_damaged_result(damage, culprits, good_result, run_cli, names, tmp_path):
     p = tmp_path / "result.json"
     shutil.copy(good_result / "result.json", p)
-    try:
-        new = damage(p.read_bytes())
-    except (TypeError, AttributeError):  # a damage of the parsed dict
-        res = json.loads(p.read_text())
-        damage(res)
-        new = json.dumps(res).encode()
-    p.write_bytes(new)
+    damage_file(p, damage)
     rc, err = run_cli("apply", p, "--point", "0", "0", "0.5", "--end-pose", "0.5", "0", "0.4", "0", "0", "0")
     assert rc == 2, err
     names(err, *culprits)
