@@ -293,23 +293,8 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     ids = list(poses)
     C = np.stack([poses[v].T_cam_board for v in ids])
     Ms = np.stack([M_all[v] for v in ids])
-    # --- motion
-    mq = motion_quality(Ms, frame=mode.fixed_frame, min_rotation_deg=opts.min_rotation_deg,
-                        min_axis_spread_deg=opts.min_axis_spread_deg)
-    state.update(motion=mq)
-    if mq.status != "ok":
-        raise DegenerateMotionError(mq.reason, path=s.path, code=mq.code or None)
-    # --- closed forms
     t1 = time.perf_counter()
-    progress(f"closed-form hand-eye ({', '.join(METHODS)})")
-    closed = all_methods(mode, C, Ms)
-    start = closed[opts.method]
-    state.update(closed_forms=closed)
-    if start.status != "ok":
-        raise CalibrationError(f"the {opts.method} solver failed: {start.failure_reason}",
-                               hint="try another --method (e.g. park) or check the robot poses",
-                               code="closed_form_failed")
-    state.update(start=start, T_x=start.T_x, T_board=start.T_board)
+    closed, start = _closed_forms(s, opts, mode, C, Ms, state, progress)
     T_base_end = {vid: s.view(vid).T_base_end for vid in ids}
     chain = chain_residuals(start, mode, s.target.object_points(), poses, dets, T_base_end, intr)
     seconds["closed_form"] = time.perf_counter() - t1
@@ -336,6 +321,27 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     return CalibrationRun(session=s, options=opts, **state)
 
 
+def _closed_forms(s: Session, opts: CalibrateOptions, mode: MountingMode, C: np.ndarray, Ms: np.ndarray,
+                  state: dict, progress) -> tuple[dict, HandEyeEstimate]:
+    """The motion check and the closed forms from board poses ``C`` and robot motions ``Ms`` (n,4,4):
+    (every method's estimate, the chosen one); raises when the motion is degenerate or the method fails."""
+    mq = motion_quality(Ms, frame=mode.fixed_frame, min_rotation_deg=opts.min_rotation_deg,
+                        min_axis_spread_deg=opts.min_axis_spread_deg)
+    state.update(motion=mq)
+    if mq.status != "ok":
+        raise DegenerateMotionError(mq.reason, path=s.path, code=mq.code or None)
+    progress(f"closed-form hand-eye ({', '.join(METHODS)})")
+    closed = all_methods(mode, C, Ms)
+    start = closed[opts.method]
+    state.update(closed_forms=closed)
+    if start.status != "ok":
+        raise CalibrationError(f"the {opts.method} solver failed: {start.failure_reason}",
+                               hint="try another --method (e.g. park) or check the robot poses",
+                               code="closed_form_failed")
+    state.update(start=start, T_x=start.T_x, T_board=start.T_board)
+    return closed, start
+
+
 def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) -> CalibrationRun:
     """The stages of a pose-only session: each view's ``T_cam_board`` is the tracker's (no detection,
     intrinsics or board poses to solve); the mode gate, the motion check and the closed forms as for
@@ -358,21 +364,8 @@ def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) ->
     ids = sorted(poses, key=view_id_key)
     C = np.stack([poses[v].T_cam_board for v in ids])
     Ms = np.stack([mode.M_from_T_base_end(s.view(v).T_base_end) for v in ids])
-    mq = motion_quality(Ms, frame=mode.fixed_frame, min_rotation_deg=opts.min_rotation_deg,
-                        min_axis_spread_deg=opts.min_axis_spread_deg)
-    state.update(motion=mq)
-    if mq.status != "ok":
-        raise DegenerateMotionError(mq.reason, path=s.path, code=mq.code or None)
     t1 = time.perf_counter()
-    progress(f"closed-form hand-eye ({', '.join(METHODS)})")
-    closed = all_methods(mode, C, Ms)
-    start = closed[opts.method]
-    state.update(closed_forms=closed)
-    if start.status != "ok":
-        raise CalibrationError(f"the {opts.method} solver failed: {start.failure_reason}",
-                               hint="try another --method (e.g. park) or check the robot poses",
-                               code="closed_form_failed")
-    state.update(start=start, T_x=start.T_x, T_board=start.T_board)
+    closed, start = _closed_forms(s, opts, mode, C, Ms, state, progress)
     seconds["closed_form"] = time.perf_counter() - t1
     refined = None
     if opts.refine:
