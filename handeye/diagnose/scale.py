@@ -39,10 +39,11 @@ class ScaleEstimate:
         return abs(self.k - 1.0) / self.sigma if self.sigma > 0 else float("inf")
 
     def p_value(self) -> float:
-        """Two-sided p-value of k = 1 (Student t with n - 1 degrees of freedom)."""
-        from scipy.stats import t
+        """Two-sided p-value of k = 1 (Student t with n - 1 degrees of freedom; scipy.special's distribution
+        function, what scipy.stats.t.sf evaluates, without importing scipy.stats: seconds of start-up)."""
+        from scipy.special import stdtr
 
-        return float(2.0 * t.sf(self.z, max(self.n_views - 1, 1)))
+        return float(2.0 * stdtr(max(self.n_views - 1, 1), -self.z))
 
 
 def _k_from_sums(sums: np.ndarray) -> float:
