@@ -300,8 +300,8 @@ def main() -> None:
         import json
 
         rows = [json.loads(line) for f in a.from_jsonl for line in open(f, encoding="utf-8") if line.strip()]
-        for key, report in (("still", report_verify), ("p", report_compare)):
-            sel = [r for r in rows if key in r or ("skipped" in r and key == "still")]
+        for sel, report in (([r for r in rows if "model" in r], report_verify),
+                            ([r for r in rows if "p" in r and "model" not in r], report_compare)):
             if sel:
                 report(sel)
         sel = [r for r in rows if isinstance(r.get("still"), dict) and "err_mm" in r["still"]]
