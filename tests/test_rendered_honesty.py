@@ -76,6 +76,21 @@ def test_normalised_error_on_rendered_images_is_chi_square_like(runs):
     assert d2.max() < chi2.ppf(1.0 - 0.001 / n, 6), f"an error far outside the reported ellipsoid: {np.round(d2, 2)}"
 
 
+def test_the_verdict_covariance_covers_at_least_what_the_model_does_and_is_not_grossly_wider(runs):
+    # the verdict covariance (handeye.refine.validation) is never smaller than the model's in any direction, so
+    # each normalised error can only shrink; on these sessions the model is right, so the verdict must still
+    # look like chi-square(6) draws from below (not 4x too wide in variance: the sum above chi2(6n)'s 0.05 %)
+    d2m, d2v = [], []
+    for case, truth, run in runs:
+        assert run.validation is not None and run.validation.status == "ok", case
+        xi = tangent_difference(run.T_x, np.asarray(truth[run.refined.x_name]))
+        d2m.append(float(xi @ np.linalg.solve(run.refined.cov_x_6x6, xi)))
+        d2v.append(float(xi @ np.linalg.solve(run.validation.x.cov_verdict, xi)))
+    d2m, d2v = np.array(d2m), np.array(d2v)
+    assert np.all(d2v <= d2m * (1 + 1e-9)), (d2v, d2m)
+    assert d2v.sum() > chi2.ppf(0.0005, 6 * len(d2v)), f"verdict far too wide: {np.round(d2v, 2)} (model {np.round(d2m, 2)})"
+
+
 def test_clean_rendered_sessions_get_no_flags_and_wrong_poses_are_flagged(runs):
     for case, truth, run in runs:
         flagged = {o.view_id for o in run.refined.outliers if o.kind != "corners"}
