@@ -78,11 +78,12 @@ def detect_gray(gray: np.ndarray, target: TargetSpec, *, min_corners: int | None
     ``budget``: the time left for this image (default: ``time_budget_s`` from now); detectors with slower
     searches skip them once it is spent (the reason then says "detection timed out")."""
     o = options or default_options()
-    need = o.min_corners if min_corners is None else min_corners
-    need = min(need, target.n_corners)  # a target with fewer corners (one marker: 4) must show them all
     detector = DETECTORS.get(getattr(target, "kind", None))
     if detector is None:
         raise ConfigError("no detector for this target", expected=" | ".join(DETECTORS), received=repr(target))
+    # the preset's floor is capped at the target's corners (one marker has 4: it must show them all); a
+    # floor asked for explicitly is kept
+    need = min(o.min_corners, target.n_corners) if min_corners is None else min_corners
     kw = {"budget": budget or TimeBudget(o.time_budget_s)} if detector in _BUDGETED else {}
     out = detector(gray, target, options=o, **kw)
     if isinstance(out, str):
