@@ -225,9 +225,14 @@ def test_uploaded_session_gives_the_same_result(fleet, cluster_batch, tmp_path):
     root, truth = fleet
     key = next(k for k, s in truth.items() if s["fault"] == "bumped")
     shutil.copytree(root / key, tmp_path / "root" / key)
+    from importlib.resources import files
+
+    site_qa = tmp_path / "site" / "qa.yaml"  # the shipped thresholds as a site file: it goes with the task
+    site_qa.parent.mkdir()
+    site_qa.write_text(files("handeye.configs").joinpath("qa.yaml").read_text(encoding="utf-8"))
     out = tmp_path / "out"
     rc, stdout, stderr = _finish(_handeye("batch", tmp_path / "root", "--out", out, "--workers", "1", "--upload",
-                                          "--no-report"))
+                                          "--no-report", "--qa", site_qa))
     assert rc == 0, stdout + stderr[-2000:]
     a, b = _results(cluster_batch["out"])[key], _results(out)[key]
     assert a["verdict"] == b["verdict"] and a["provenance"]["inputs_sha256"] == b["provenance"]["inputs_sha256"]
@@ -235,6 +240,7 @@ def test_uploaded_session_gives_the_same_result(fleet, cluster_batch, tmp_path):
     rec = json.loads((out / key / "batch.json").read_text())
     assert rec["session"] == str((tmp_path / "root" / key).resolve()) and rec["outcome"] == "done"
     assert b["session"]["path"] != rec["session"], "result.json names the worker's temporary copy"
+    assert rec["key"]["qa_sha256"] and b["qa"]["source"] != str(site_qa), "the worker read its copy of the QA file"
     assert (out / key / "observations.json").exists() and (out / key / "batch.log").exists()
 
 

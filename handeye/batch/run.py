@@ -13,15 +13,17 @@ the same key, and its result.json's ``provenance.inputs_sha256`` and ``provenanc
 key's. The key (:func:`session_key`) is the hash result.json records (the session's images, poses and
 config), the calibration options as result.json records them, and what else changes the outputs: the
 mounting mode flag, the pose shift, whether reports are written, the export format, and the SHA-256
-of the site QA and calibration files and of the prior result. A session whose load fails is keyed on all its files instead. Timed-out, crashed
-and lost sessions run again on the next batch; ``force`` redoes everything.
+of the site QA and calibration files and of the prior result. A session whose load fails is keyed
+on all its files instead. Timed-out, crashed and lost sessions run again on the next batch; ``force``
+redoes everything.
 
 Data reach the workers in one of two ways (see the README): through a shared filesystem (the
 workers read ROOT and write OUT at the client's paths; the default), or uploaded (``upload``: the
 client reads each session's files and sends them with its task; the worker calibrates a temporary
-copy and returns the output folder's files, which the client writes under OUT; result.json's
-``session.path`` is then the worker's temporary copy, batch.json's ``session`` the original). Nothing
-here imports the calibration: the task and the client stay light.
+copy and returns the output folder's files, which the client writes under OUT; the site QA,
+calibration and prior files go with each task too; result.json's ``session.path`` is then the
+worker's temporary copy, batch.json's ``session`` the original). Nothing here imports the
+calibration: the task and the client stay light.
 """
 from __future__ import annotations
 
@@ -132,7 +134,7 @@ def _file_sha(path) -> Optional[str]:
     return hash_files([p / "result.json" if p.is_dir() else p])
 
 
-def inputs_sha256(job: SessionJob, mode: Optional[str]) -> tuple[str, str]:
+def inputs_sha256(job: SessionJob, mode: Optional[str], *, allow_outside: bool = False) -> tuple[str, str]:
     """(hash, what it covers): result.json's input hash (the loaded session's images, poses and
     config), or, for a session that does not load, the hash of every file in its folder."""
     from ..errors import HandeyeError
@@ -140,7 +142,7 @@ def inputs_sha256(job: SessionJob, mode: Optional[str]) -> tuple[str, str]:
     from ..session import load_session
 
     try:
-        return hash_files(session_inputs(load_session(job.path, mode=mode))), "session"
+        return hash_files(session_inputs(load_session(job.path, mode=mode, allow_outside=allow_outside))), "session"
     except HandeyeError:
         files = sorted(p for p in job.path.rglob("*") if p.is_file())
         return hash_files(files), "folder"
@@ -148,7 +150,7 @@ def inputs_sha256(job: SessionJob, mode: Optional[str]) -> tuple[str, str]:
 
 def session_key(job: SessionJob, calibrate: dict, options: dict) -> dict:
     """What a session's outputs depend on (module docstring); ``options`` from :func:`provenance_options`."""
-    h, covers = inputs_sha256(job, calibrate.get("mode"))
+    h, covers = inputs_sha256(job, calibrate.get("mode"), allow_outside=bool(calibrate.get("allow_outside")))
     return _canonical({"inputs_sha256": h, "inputs": covers, "options": options, "mode": calibrate.get("mode"),
                        "shift_poses": calibrate.get("shift_poses") or 0, "report": not calibrate.get("no_report"),
                        "qa_sha256": _file_sha(calibrate.get("qa")), "config_sha256": _file_sha(calibrate.get("config")),
@@ -195,9 +197,12 @@ def run_session(spec: dict) -> dict:
     with tempfile.TemporaryDirectory(prefix="handeye-batch-") as tmp:
         session = Path(tmp) / "session"
         write_tree(session, spec["files"])
+        calibrate = dict(spec["calibrate"])
+        for name, (base, data) in (spec.get("site_files") or {}).items():  # --qa, --config, --prior
+            calibrate[name] = str(atomic_write_bytes(Path(tmp) / f"site_{name}" / base, data, durable=False))
         out = Path(tmp) / "out"
-        rec = _run_child({**spec, "files": None, "session": str(session), "out_dir": str(out)}, out,
-                         session_path=spec["session"])
+        rec = _run_child({**spec, "files": None, "site_files": None, "session": str(session), "out_dir": str(out),
+                          "calibrate": calibrate}, out, session_path=spec["session"])
         return {**rec, "files": read_tree(out)}
 
 
@@ -217,8 +222,9 @@ def _run_child(spec: dict, out: Path, *, session_path: Optional[str] = None) -> 
         except subprocess.TimeoutExpired:
             _kill_group(proc)
             proc.communicate()
+            limit = float(spec["timeout_s"])
             rec.update(outcome="timeout", verdict="ERROR",
-                       reason=f"no result within the time limit of {float(spec['timeout_s']):g} s; the session was killed")
+                       reason=f"no result within the time limit of {limit:g} s; the session was killed")
             return _finish_record(out, rec, t0)
     lines = stdout.decode("utf-8", "replace").strip().splitlines()
     reply = None
@@ -234,6 +240,21 @@ def _run_child(spec: dict, out: Path, *, session_path: Optional[str] = None) -> 
     else:
         rec.update(reply)
     return _finish_record(out, rec, t0)
+
+
+#: the ``handeye calibrate`` options that name a file, uploaded with each task by ``upload``
+SITE_FILE_OPTIONS = ("qa", "config", "prior")
+
+
+def site_files(calibrate: dict) -> dict:
+    """option -> (file name, bytes) of the files the options name (a result folder: its result.json)."""
+    files = {}
+    for name in SITE_FILE_OPTIONS:
+        if calibrate.get(name):
+            p = Path(calibrate[name])
+            p = p / "result.json" if p.is_dir() else p
+            files[name] = (p.name, p.read_bytes())
+    return files
 
 
 def read_tree(folder: Path) -> dict:
@@ -355,9 +376,10 @@ def run_batch(jobs: list[SessionJob], out, *, calibrate: dict, scheduler: Option
         try:
             limit = max(2, IN_FLIGHT_PER_THREAD * sum(client.nthreads().values()))
             pending, spec_of, running = iter(plan.specs), {}, as_completed()
+            site = site_files(calibrate) if upload else None
 
             def submit(spec: dict) -> None:
-                task = {**spec, "files": read_tree(Path(spec["session"]))} if upload else spec
+                task = {**spec, "files": read_tree(Path(spec["session"])), "site_files": site} if upload else spec
                 fut = client.submit(run_session, task, pure=False, retries=1)
                 spec_of[fut.key] = spec
                 running.add(fut)
@@ -395,7 +417,8 @@ def _collect(fut, spec: dict) -> dict:
         lost = isinstance(e, KilledWorker)
         rec = {k: spec[k] for k in ("session", "install", "name", "time_utc", "time_source", "key")}
         rec.update(outcome="lost" if lost else "error", verdict="ERROR", finished_utc=_now(),
-                   reason=(f"the workers running it died ({e})" if lost else f"the task failed: {type(e).__name__}: {e}"))
+                   reason=(f"the workers running it died ({e})" if lost
+                           else f"the task failed: {type(e).__name__}: {e}"))
         try:
             write_json(Path(spec["out_dir"]) / RECORD_NAME, rec)
         except OSError as w:

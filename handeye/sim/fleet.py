@@ -39,7 +39,8 @@ def write_fleet(root, *, n_installs: int = 4, sessions_per_install: int = 3, n_v
                 image_size: tuple[int, int] = (640, 360), n_view_sets: int = 3, seed: int = 0,
                 robot_noise: tuple[float, float] = (0.1, 0.02), bumps: Optional[dict] = None,
                 broken: tuple = (), shuffled: tuple = (), noisy: tuple = (),
-                noisy_robot: tuple[float, float] = (4.0, 1.0), start: str = "2026-01-05", days_between: int = 30) -> dict:
+                noisy_robot: tuple[float, float] = (4.0, 1.0), start: str = "2026-01-05",
+                days_between: int = 30) -> dict:
     """Write the fleet under ``root`` (see the module docstring) and return its manifest:
     ``{"sessions": [{"install", "session", "path", "T_end_cam", "T_base_board", "fault"}]}``.
     ``bumps``: {(install index, session index): (rotvec_deg, t_mm)}; ``broken`` / ``shuffled`` /
