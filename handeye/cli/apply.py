@@ -41,14 +41,19 @@ def run(args) -> int:
     from ..errors import ConfigError
     from ..output import read_json
 
-    from ..errors import InputError
-    from ..report.folder import check_result
+    from ..errors import HandeyeError, InputError
 
     path = Path(args.result) / "result.json" if Path(args.result).is_dir() else Path(args.result)
     res = read_json(path)
     if not isinstance(res, dict):
         raise InputError("not a JSON object", path=path, hint="pass the result.json written by handeye calibrate")
-    mode, T_x = result_transform(check_result(res, path=path))
+    try:
+        mode, T_x = result_transform(res)
+    except HandeyeError as e:
+        raise e.at(path) from None
+    except (TypeError, ValueError) as e:  # a damaged matrix
+        raise InputError(f"the hand-eye transform is damaged ({e})", path=path, expected="a 4x4 matrix of numbers",
+                         hint="re-run handeye calibrate") from None
     scale = 1e-3 if args.mm else 1.0
 
     def pose_arg(values, flag):

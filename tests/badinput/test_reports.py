@@ -207,6 +207,8 @@ APPLY = [
     pytest.param(lambda r: r.update({_matrix(r): [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}),
                  ["not a 4x4 rigid transform"], id="not_rigid"),
     pytest.param(lambda r: r.update({_matrix(r): "identity"}), ["result.json", "4x4"], id="matrix_text"),
+    pytest.param(lambda r: r.update({_matrix(r): [[1, 0, 0, 0]] * 3 + [[0, 0, "x", 1]]}), ["result.json", "4x4"],
+                 id="matrix_letter"),
 ]
 
 
