@@ -38,6 +38,7 @@ Usage: python benchmarks/bench_recal.py --trials 150 --compare 100 --prior 25 --
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -277,8 +278,10 @@ def timing() -> None:
             t0 = time.perf_counter()
             sv = verify_session(folder, raw)
             secs.append(time.perf_counter() - t0)
-    print(f"verify timing: 6 rendered views at 1280x720, detection included: median {np.median(secs):.2f} s "
-          f"(runs {', '.join(f'{x:.2f}' for x in secs)}; stages {', '.join(f'{k} {v:.2f}' for k, v in sv.seconds.items())})")
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"verify timing: 6 rendered views at 1280x720, detection included: median {np.median(secs):.2f} s wall, "
+          f"at load average {load:.1f} on {os.cpu_count()} cores (runs {', '.join(f'{x:.2f}' for x in secs)}; "
+          f"stages {', '.join(f'{k} {v:.2f}' for k, v in sv.seconds.items())})")
 
 
 def main() -> None:
