@@ -227,6 +227,8 @@ class BagCamera(_RealSenseBase):
         self.n_frames = 0
         self._frames: queue.Queue = queue.Queue(maxsize=self._QUEUE_FRAMES)
         self._closing = threading.Event()
+        self._idle = threading.Event()  # no frame callback is running (close waits for a running one)
+        self._idle.set()
         self._played = threading.Event()  # the player has reported that it plays
         self._stopped = threading.Event()  # ... and then that it stopped: the whole recording was handed over
         self._sensor = None
@@ -234,7 +236,7 @@ class BagCamera(_RealSenseBase):
         self._player: list = []  # [sensor, playback] once started, released by close
         # a camera left open is closed before the interpreter exits (a player thread blocked in a
         # Python callback during interpreter shutdown aborts the process)
-        self._finalizer = weakref.finalize(self, _stop_player, self._closing, self._player)
+        self._finalizer = weakref.finalize(self, _stop_player, self._closing, self._idle, self._player)
         try:
             self._playback = rs.context().load_device(str(self.path)).as_playback()
             self._playback.set_real_time(False)  # before anything plays: every frame, in order
@@ -264,17 +266,25 @@ class BagCamera(_RealSenseBase):
         return self._stopped.is_set()
 
     def _on_frame(self, frame) -> None:
-        """Player thread: convert the frame and wait for room in the queue (the player waits with it)."""
+        """Player thread: convert the frame and wait for room in the queue (the player waits with it).
+        Marked busy while it runs: stopping the sensor under a running callback crashed librealsense (a
+        segmentation fault when a reader gave up on a slow player and closed it)."""
+        self._idle.clear()
         try:
-            item = (_bgr_from_frame(self._rs, frame), _frame_info(self._rs, frame))
-        except HardwareError as e:  # raised to the reader by the next grab
-            item = e
-        while not self._closing.is_set():
-            try:
-                self._frames.put(item, timeout=0.05)
+            if self._closing.is_set():
                 return
-            except queue.Full:
-                continue
+            try:
+                item = (_bgr_from_frame(self._rs, frame), _frame_info(self._rs, frame))
+            except HardwareError as e:  # raised to the reader by the next grab
+                item = e
+            while not self._closing.is_set():
+                try:
+                    self._frames.put(item, timeout=0.05)
+                    return
+                except queue.Full:
+                    continue
+        finally:
+            self._idle.set()
 
     def grab(self) -> tuple[np.ndarray, float]:
         if self._sensor is None:
@@ -320,9 +330,16 @@ def _status_recorder(rs, played: threading.Event, stopped: threading.Event):
     return on_status
 
 
-def _stop_player(closing: threading.Event, player: list) -> None:
-    """Let a waiting frame callback return, stop and close the sensor, drop the playback device."""
+#: longest wait for a running frame callback to return before the sensor is stopped anyway [s] (a conversion
+#: takes milliseconds; the bound only keeps a wedged callback from blocking close forever)
+_CALLBACK_WAIT_S = 10.0
+
+
+def _stop_player(closing: threading.Event, idle: threading.Event, player: list) -> None:
+    """Let a waiting frame callback return (and wait for a running one), stop and close the sensor, drop the
+    playback device."""
     closing.set()
+    idle.wait(_CALLBACK_WAIT_S)
     if player:
         sensor = player[0]
         for step in (sensor.stop, sensor.close):
