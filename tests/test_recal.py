@@ -270,13 +270,15 @@ def test_verify_cli_writes_reports_and_exits_9_when_drifted(rendered, tmp_path, 
     html = (tmp_path / "a" / "verify.html").read_text()
     md = (tmp_path / "a" / "verify.md").read_text()
     assert "STILL VALID" in html and "## What moved" in md and d["headline"] in md
-    rc = main(["verify", str(rendered["bumped"]), "--against", str(rendered["installed"]), "--out", str(tmp_path / "b")])
+    rc = main(["verify", str(rendered["bumped"]), "--against", str(rendered["installed"]),
+               "--out", str(tmp_path / "b")])
     assert rc == DRIFTED_EXIT_CODE and "DRIFTED" in capsys.readouterr().out
     assert json.loads((tmp_path / "b" / "verify.json").read_text())["drifted"] is True
     rc = main(["verify", str(rendered["same"]), "--against", str(rendered["installed"]), "--mode", "eye_to_hand"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "eye_to_hand" in err[0]
-    assert main(["verify", "--plan", "--against", str(rendered["installed"]), "--drift-mm", "0", "--drift-deg", "0"]) == 2
+    assert main(["verify", "--plan", "--against", str(rendered["installed"]),
+                 "--drift-mm", "0", "--drift-deg", "0"]) == 2
 
 
 def test_calibrate_with_prior_reports_the_update_or_the_contradiction(rendered, tmp_path, capsys):

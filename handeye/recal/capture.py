@@ -11,7 +11,6 @@ import logging
 from dataclasses import replace
 from typing import Callable
 
-import numpy as np
 
 from ..errors import DetectionError
 from .loaded import LoadedResult

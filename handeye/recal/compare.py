@@ -15,7 +15,6 @@ returns ``comparable=False`` with ``reason`` naming the difference.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
 
 import numpy as np
 from scipy import stats
@@ -118,7 +117,8 @@ def x_difference(T_a: np.ndarray, cov_a: np.ndarray, T_b: np.ndarray, cov_b: np.
     return {"xi": xi, "S": S, "d2": d2,
             "d_trans_mm": 1000.0 * (T_b[:3, 3] - T_a[:3, 3]),
             "d_rot_deg": np.degrees(rotvec_from_R(R_a.T @ T_b[:3, :3])),
-            "sigma_trans_mm": 1000.0 * np.sqrt(np.diag(cov_t)), "sigma_rot_deg": np.degrees(np.sqrt(np.diag(S[:3, :3])))}
+            "sigma_trans_mm": 1000.0 * np.sqrt(np.diag(cov_t)),
+            "sigma_rot_deg": np.degrees(np.sqrt(np.diag(S[:3, :3])))}
 
 
 def intrinsics_difference(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) -> dict:

@@ -124,7 +124,8 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
     alpha = float(cfg["test"]["alpha"] if alpha is None else alpha)
     max_views = int(pc["max_views"] if max_views is None else max_views)
     if not (drift_mm >= 0 and drift_deg >= 0 and drift_mm + drift_deg > 0):
-        raise InputError("the drift to detect must be positive", expected="--drift-mm >= 0, --drift-deg >= 0, not both 0",
+        raise InputError("the drift to detect must be positive",
+                         expected="--drift-mm >= 0, --drift-deg >= 0, not both 0",
                          received=f"{drift_mm} mm, {drift_deg} deg")
     installed = against if isinstance(against, LoadedResult) else load_result(against)
     if not installed.ok or installed.cov_x is None or installed.T_board is None or installed.intrinsics is None:

@@ -129,7 +129,8 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
     if not contradicted:
         rec["used"] = "prior"
         rec["summary"] = (f"the prior {installed.x_name} was updated by {rec['update']['trans_mm']:.2f} mm, "
-                          f"{rec['update']['rot_deg']:.3f} deg; the data agree with it (p = {rec['test']['p_value']:.3g})")
+                          f"{rec['update']['rot_deg']:.3f} deg; the data agree with it "
+                          f"(p = {rec['test']['p_value']:.3g})")
         log.info("prior: %s", rec["summary"])
         return _described(run), plain(rec, nan_to_none=True)
     progress("the data contradict the prior: calibrating without it")
