@@ -8,10 +8,9 @@ from pathlib import Path
 
 def add_arguments(p) -> None:
     """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
-    from ..session.importers import VISP_LAYOUT
-
-    p.description = ("Writes OUT/session.yaml pointing at the original images; nothing is copied. visp reads "
-                     + VISP_LAYOUT + ".")
+    p.description = ("Writes OUT/session.yaml pointing at the original images; nothing is copied. visp reads ViSP's "
+                     "hand-eye data folders (images [PREFIX_]image-N.png, robot poses [PREFIX_]pose_rPe_N.yaml, and "
+                     "chessboard-data.txt or apriltag-data.txt; docs/session_format.md).")
     p.add_argument("kind", choices=["visp", "ical", "rosbag", "easy_handeye2"],
                    help="visp: ViSP hand-eye data; ical: ROS-I industrial_calibration; rosbag: a ROS 1 or ROS 2 bag; "
                         "easy_handeye2: its saved samples (.samples), as a pose-only session")
