@@ -24,7 +24,8 @@ def mode_lines(res: dict) -> list[str]:
 
 def verdict_lines(res: dict) -> list[str]:
     """``verdict: PASS|WARN|FAIL|REFUSED - headline``, then every failing or warning check and finding,
-    worst first: ``  FAIL <what> -> fix: <what to do>``."""
+    worst first, a finding (a cause) before a QA check (an effect) of the same severity:
+    ``  FAIL <what> -> fix: <what to do>``."""
     verdict = res.get("verdict")
     if verdict is None:  # a result.json written before verdicts were stored
         return []
@@ -46,20 +47,20 @@ def finding_lines(res: dict, *, skip=()) -> list[str]:
 
 
 def _item_lines(res: dict, *, checks: bool, skip=()) -> list[str]:
-    items = []
+    items = []  # (severity, 0 for a finding / 1 for a QA check, text, fix): findings name causes, checks effects
     for c in ((res.get("qa") or {}).get("checks") or []) if checks else []:
         st = str(c.get("status", "")).lower()
         if st in _RANK and c.get("key") != "calibration":  # the failed calibration is the line above
             what = c.get("short") or c.get("title") or c.get("key")
-            items.append((st, f"{what} ({c.get('why')})" if c.get("why") and not c.get("short") else what,
+            items.append((st, 1, f"{what} ({c.get('why')})" if c.get("why") and not c.get("short") else what,
                           c.get("action")))
     for f in res.get("findings") or []:
         st = str(f.get("severity", "")).lower()
         if st in _RANK and f.get("code") not in skip:
-            items.append((st, f"{f.get('code')}: {str(f.get('title') or '').rstrip('.')}", f.get("action")))
-    items.sort(key=lambda it: _RANK[it[0]])
+            items.append((st, 0, f"{f.get('code')}: {str(f.get('title') or '').rstrip('.')}", f.get("action")))
+    items.sort(key=lambda it: (_RANK[it[0]], it[1]))  # worst first; a finding (the cause) before a check
     lines = []
-    for st, what, fix in items:
+    for st, _kind, what, fix in items:
         line = f"{st.upper()} {what}" + (f" -> fix: {_lower1(str(fix).rstrip('.'))}" if fix else "")
         lines.append("  " + " ".join(line.split()))  # always one line
     return lines
