@@ -136,37 +136,56 @@ def _solve(st: _State, *, robust_k, prior_x, max_iterations) -> None:
     st.iterations += it
 
 
-def _solve_with_vce(st: _State, *, estimate: bool, prior_x, max_iterations, floors) -> tuple:
-    """Gaussian solves alternating with variance-component estimation (rotation, translation) until the
-    sigmas settle; returns (Sigma (12,12), r, J, resolved) at the final solution."""
+def _vce_on_linearisation(st: _State, r: np.ndarray, J: np.ndarray, prior_x, floors, resolved: dict) -> float:
+    """Variance-component estimation (rotation, translation) iterated on one linearisation (``r`` (n,6),
+    ``J`` (n,6,12) at the last solve): for sigmas s the weighted least-squares step, its residuals ``e_g``
+    and the redundancies ``r_g = n_g - tr(W_g J Sigma J^T)`` give ``s_g^2 = e_g^T e_g / r_g``, until the
+    sigmas change by less than ``noise.inner_tol``. Updates ``st.sigma`` and ``resolved``; returns the
+    relative change of the sigmas."""
     cfg = refine_preset()["noise"]
-    share = float(cfg["unresolved_redundancy_share"])
-    resolved = {"rot": True, "trans": True}
-    for _ in range(int(cfg["max_outer"]) + 10):
-        _solve(st, robust_k=None, prior_x=prior_x, max_iterations=max_iterations)
-        r, J = st.residuals(jacobians=True)
+    share, tol = float(cfg["unresolved_redundancy_share"]), float(cfg["inner_tol"])
+    rk, Jk = r[st.keep], J[st.keep]
+    n_k = rk.shape[0]
+    start = st.sigma.copy()
+    for _ in range(int(cfg["max_inner"])):
+        W = st.W()
         S = np.linalg.inv(_information(st, J, prior_x))
-        if not estimate:
-            return S, r, J, {}
-        n_k = int(st.keep.sum())
-        JSJ = np.einsum("nij,jk,nlk->nil", J[st.keep], S, J[st.keep])  # shape (n_k, 6, 6)
+        dx = -S @ np.einsum("nki,kl,nl->i", Jk, W, rk)
+        e = rk + np.einsum("nki,i->nk", Jk, dx)  # residuals after the step
+        JSJ = np.einsum("nij,jk,nlk->nil", Jk, S, Jk)  # shape (n_k, 6, 6)
         new = st.sigma.copy()
-        for g, sl in enumerate((slice(0, 3), slice(3, 6))):
-            tr = float(np.trace(JSJ[:, sl, sl], axis1=1, axis2=2).sum()) / st.sigma[g] ** 2
-            red = 3 * n_k - tr
+        for g, name in enumerate(("rot", "trans")):
+            sl = slice(3 * g, 3 * g + 3)
+            red = 3 * n_k - float(np.trace(JSJ[:, sl, sl], axis1=1, axis2=2).sum()) / st.sigma[g] ** 2
             if red < share * 3 * n_k:
-                resolved[("rot", "trans")[g]] = False
+                resolved[name] = False  # the data cannot resolve this group: its sigma stays
                 continue
-            e2 = float(np.sum(r[st.keep][:, sl] ** 2))
-            new[g] = max(np.sqrt(e2 / red), floors[g])
+            new[g] = max(float(np.sqrt(np.sum(e[:, sl] ** 2) / red)), floors[g])
         change = float(np.max(np.abs(new / st.sigma - 1.0)))
         st.sigma = new
-        if change < float(cfg["outer_tol"]):
-            _solve(st, robust_k=None, prior_x=prior_x, max_iterations=max_iterations)
-            r, J = st.residuals(jacobians=True)
-            return np.linalg.inv(_information(st, J, prior_x)), r, J, resolved
-    log.warning("the tracker's noise estimate did not settle")
-    return S, r, J, resolved
+        if change < tol:
+            break
+    return float(np.max(np.abs(st.sigma / start - 1.0)))
+
+
+def _solve_with_vce(st: _State, *, estimate: bool, prior_x, max_iterations, floors) -> tuple:
+    """Gaussian solves alternating with variance-component estimation on each linearisation
+    (:func:`_vce_on_linearisation`) until a solve's sigmas are within ``noise.outer_tol`` of the estimate
+    on its linearisation (as :func:`.noise.solve_with_vce` does for the pixel and robot sigmas); returns
+    (Sigma (12,12), r, J, resolved) at the final solution."""
+    cfg = refine_preset()["noise"]
+    resolved = {"rot": True, "trans": True}
+    for _ in range(int(cfg["max_outer"]) if estimate else 0):  # a stated sigma: one solve below
+        _solve(st, robust_k=None, prior_x=prior_x, max_iterations=max_iterations)
+        r, J = st.residuals(jacobians=True)
+        if _vce_on_linearisation(st, r, J, prior_x, floors, resolved) < float(cfg["outer_tol"]):
+            break
+    else:
+        if estimate:
+            log.warning("the tracker's noise estimate did not settle in %d solves", int(cfg["max_outer"]))
+    _solve(st, robust_k=None, prior_x=prior_x, max_iterations=max_iterations)  # at the final sigmas
+    r, J = st.residuals(jacobians=True)
+    return np.linalg.inv(_information(st, J, prior_x)), r, J, resolved if estimate else {}
 
 
 def _tests(st: _State, S: np.ndarray, r: np.ndarray, J: np.ndarray, gates: RobotPoseGates):
