@@ -97,7 +97,7 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
         notes["predicted_text"] = f"{pred['rms_mm']:.2f} mm (1 σ) at {wd:.2f} m"
     verdict = evaluate(metrics, qa_cfg, context=notes, failure=failure, findings=findings,
                        crashed_stages=stages["crashed"], thresholds_source=qa_source)
-    verdict = _distrust(verdict, untrusted)
+    verdict = _distrust(verdict, untrusted, fail_finding=any(f["severity"] == "fail" for f in findings))
     ctx["verdict"] = verdict
     ctx["untrusted"] = untrusted
     ctx["failure"] = failure
@@ -585,15 +585,20 @@ def _cross_validation(cv) -> Optional[dict]:
 
 
 # ------------------------------------------------------------------------------ KPIs
-def _distrust(verdict: Verdict, untrusted: dict[str, str]) -> Verdict:
-    """Checks that pass on a number a finding says is wrong are shown as untrusted, not as passed (the
-    finding itself already counts towards the verdict)."""
+def _distrust(verdict: Verdict, untrusted: dict[str, str], *, fail_finding: bool = False) -> Verdict:
+    """Checks on a number a finding says is wrong are shown as untrusted, not as passed or failed: the
+    finding is the cause and counts towards the verdict itself (the label stays as judged), e.g. a board
+    that moved inflates the validated sigmas past their limit, and the report leads with the move. A warn or
+    fail check is marked so only when a fail finding already makes the verdict FAIL (``fail_finding``)."""
     if not untrusted:
         return verdict
     checks = tuple(replace(c, status="untrusted", why=f"Not to be trusted: {untrusted[c.key]}",
                            action="Fix what that finding names and re-run handeye calibrate")
-                   if c.status == "pass" and c.key in untrusted else c for c in verdict.checks)
-    counts = dict(verdict.counts, **{s: sum(c.status == s for c in checks) for s in ("pass", "untrusted")})
+                   if c.key in untrusted and (c.status == "pass" or (fail_finding and c.status in ("info", "warn", "fail")))
+                   else c
+                   for c in verdict.checks)
+    counts = dict(verdict.counts, **{s: sum(c.status == s for c in checks)
+                                     for s in ("pass", "info", "warn", "fail", "untrusted")})
     return replace(verdict, checks=checks, counts=counts)
 
 
