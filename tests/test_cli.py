@@ -254,6 +254,20 @@ def _calibrate(session, out, capsys, *extra):
     return rc, cap.out.splitlines(), cap.err.splitlines(), res
 
 
+def test_robot_names_the_arm_whose_kinematic_error_the_refinement_models(clean, tmp_path, capsys):
+    """A vendor folder (no joint angles) of a simulated RM65 with DH errors: --robot rm65 gets the joint angles by
+    inverse kinematics and models the robot error in them; an unknown arm is one error line before any work."""
+    kin = write_vendor_session(tmp_path / "kin", mode="eye_in_hand", n_views=8, seed=4, robot_error="kinematic",
+                               arm="rm65", **SMALL)
+    assert not (kin / "session.yaml").exists()  # the vendor layout alone: no joint angles, no robot named
+    rc, out, err, res = _calibrate(kin, tmp_path / "o", capsys, "--no-report", "--robot", "rm65")
+    assert res["status"] == "ok" and rc in (0, QAFailed.exit_code)
+    model = res["refinement"]["robot_model"]
+    assert model["kind"] == "kinematic" and "RM65" in model["arm"]
+    rc, out, err, res = _calibrate(clean, tmp_path / "bad", capsys, "--robot", "no-such-arm")
+    assert rc == 2 and res is None and len(err) == 1 and "no-such-arm" in err[0]
+
+
 def _verdict_block(lines):
     """The verdict line and the lines of its checks and findings."""
     k = next(i for i, line in enumerate(lines) if line.startswith("verdict: "))

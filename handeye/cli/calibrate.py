@@ -45,6 +45,10 @@ def add_arguments(p) -> None:
                    help="robot pose noise model in the refinement (default: estimate)")
     p.add_argument("--robot-sigma", nargs=2, type=positive_float, metavar=("MM", "DEG"),
                    help="robot pose sigma: start value (estimate) or the value (fixed)")
+    p.add_argument("--robot", metavar="ARM",
+                   help="the arm's kinematic model (rm65, ur5e or a DH YAML file): the refinement models the robot's "
+                        "error as DH offsets plus encoder noise (joint angles from the session, else by inverse "
+                        "kinematics of the poses); default: the session's robot: key, else an iid pose error")
     p.add_argument("--workers", type=positive_int, help="threads for corner detection (default: all cores)")
     p.add_argument("--qa", type=Path, metavar="FILE",
                    help="site QA thresholds for the verdict and the report (overrides configs/qa.yaml)")
@@ -147,6 +151,11 @@ def options_from_args(args):
         ro["robot_sigma_mm"], ro["robot_sigma_deg"] = args.robot_sigma
     if getattr(args, "fix", None):
         ro["fix"] = tuple(args.fix)
+    if getattr(args, "robot", None):
+        from ..kinematics import load_arm
+
+        load_arm(args.robot)  # a wrong name or file is one error line before any work
+        ro["arm"] = str(Path(args.robot).resolve()) if Path(args.robot).is_file() else args.robot
     return CalibrateOptions.from_config(cfg, method=args.method, refine=False if args.no_refine else None,
                                         fix_k3=True if args.fix_k3 else None, workers=args.workers,
                                         shift_poses=getattr(args, "shift_poses", 0) or None,
