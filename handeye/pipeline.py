@@ -533,6 +533,9 @@ def validate_stage(s: Session, refined, poses: dict, dets: dict, T_base_end: dic
     except (HandeyeError, RuntimeError, np.linalg.LinAlgError) as e:  # the result stands on its model covariance
         log.warning("validation not run: %s", e)
         return Validation("not_run", f"{type(e).__name__}: {e}")
+    except Exception as e:  # noqa: BLE001 - a bug in the validation must not lose the refined result
+        log.error("validation crashed (%s: %s); the sigmas are the model's", type(e).__name__, e, exc_info=True)
+        return Validation("not_run", f"crashed: {type(e).__name__}: {e}")
 
 
 def _final_outcomes(outcomes, chain, refined):
