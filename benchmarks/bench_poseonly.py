@@ -14,6 +14,13 @@ otherwise. The refinement (:func:`handeye.refine.poseonly.refine_poses`) estimat
 * outliers: sessions with both wrong views flagged, and clean views flagged in all sessions.
 
     python benchmarks/bench_poseonly.py [--sessions 100] [--stated]
+
+Measured (loaded 2-core machine): 300 sessions per mode, sigma estimated: error / CRB 1.009 (eye-in-hand)
+and 1.013 (eye-to-hand), coverage 91.0 % and 92.0 %, both wrong views flagged in 300/300, 1 and 0 of 5400
+clean views flagged; 100 sessions per mode, sigma stated: error / CRB 1.003 and 1.006, coverage 94 % and
+95 %. With an estimated sigma the chi-square(6) quantile is a little small: the error's Mahalanobis
+distance under an estimated covariance is about 6 F(6, r) (r ~ 50 per group here), whose 95 % point
+the chi-square quantile reaches at ~93 %.
 """
 from __future__ import annotations
 
