@@ -429,16 +429,9 @@ def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = No
                                     f"(max {ch.resid_px[bad].max():.2f} px, sigma {pb.sigma_px:.3f} px)",
                                     corner_ids=ids, size={"residual_px": ch.resid_px[bad]}))
         if test.flagged[i]:
-            rot_deg, trans_mm, dist = float(test.rot_deg[i]), float(test.trans_mm[i]), float(test.distance[i])
-            thr = float(np.sqrt(test.threshold))
             status.append("robot_excluded")
-            outliers.append(Outlier(vid, "robot_pose", f"view {vid}: reported robot pose disagrees with the camera by "
-                                    f"{rot_deg:.3f} deg / {trans_mm:.2f} mm (Mahalanobis {dist:.1f}, "
-                                    f"threshold {thr:.1f}); its corners still serve the intrinsics",
-                                    size={"rot_deg": rot_deg, "trans_mm": trans_mm, "mahalanobis": dist,
-                                          "p_value": float(test.p_value[i]), "threshold": thr,
-                                          "sigma_rot_deg": float(test.sigma_rot_deg[i]),
-                                          "sigma_trans_mm": float(test.sigma_trans_mm[i])}))
+            outliers.append(robot_pose_outlier(vid, test, i, "reported robot pose disagrees with the camera",
+                                               "its corners still serve the intrinsics"))
         else:
             status.append("used")
     return Decision(tuple(status), tuple(masks), tuple(outliers), tuple(checks), test)
@@ -492,3 +485,15 @@ def outlier_loop(pb: "Problem"):
         S_cc, S_pp = solve_with_vce(pb)
     log.warning("outlier decisions did not settle in %d rounds", o.max_outlier_rounds)
     return decide(pb, robust_robot_sigma=False, S_pp=S_pp), S_cc, S_pp
+
+
+def robot_pose_outlier(vid: str, test, i: int, what: str, consequence: str) -> Outlier:
+    """The ``robot_pose`` outlier of view ``vid`` (index ``i`` of the robot-pose ``test``): its disagreement in
+    degrees, mm and Mahalanobis distance against the threshold, with what happens to the view."""
+    rot_deg, trans_mm, dist = float(test.rot_deg[i]), float(test.trans_mm[i]), float(test.distance[i])
+    thr = float(np.sqrt(test.threshold))
+    return Outlier(vid, "robot_pose", f"view {vid}: {what} by {rot_deg:.3f} deg / {trans_mm:.2f} mm (Mahalanobis "
+                   f"{dist:.1f}, threshold {thr:.1f}); {consequence}",
+                   size={"rot_deg": rot_deg, "trans_mm": trans_mm, "mahalanobis": dist,
+                         "p_value": float(test.p_value[i]), "threshold": thr,
+                         "sigma_rot_deg": float(test.sigma_rot_deg[i]), "sigma_trans_mm": float(test.sigma_trans_mm[i])})

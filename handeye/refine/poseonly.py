@@ -35,7 +35,7 @@ from ..mounting import mounting
 from ..records import HandEyeEstimate
 from .covariance import COV_PARAMETRISATION, hand_eye_uncertainty
 from .options import RefineOptions, check_T, refine_preset
-from .outliers import Outlier, RobotPoseGates, leave_one_out, robot_pose_test
+from .outliers import RobotPoseGates, leave_one_out, robot_pose_outlier, robot_pose_test
 from .problem import solve_pose_graph
 from .result import RefineResult
 
@@ -295,15 +295,8 @@ def refine_poses(*, mode: str, views: Sequence[PoseView], T_x0: np.ndarray, T_bo
             pv["robot_vs_camera_trans_mm"] = float(test.trans_mm[i])
             pv["robot_vs_camera_mahalanobis"] = float(test.distance[i])
             if test.flagged[i]:
-                rot, tr, dist = float(test.rot_deg[i]), float(test.trans_mm[i]), float(test.distance[i])
-                thr = float(np.sqrt(test.threshold))
-                outliers.append(Outlier(vid, "robot_pose", f"view {vid}: the reported robot pose and the tracker's "
-                                        f"target pose disagree with the other views by {rot:.3f} deg / {tr:.2f} mm "
-                                        f"(Mahalanobis {dist:.1f}, threshold {thr:.1f}); view left out",
-                                        size={"rot_deg": rot, "trans_mm": tr, "mahalanobis": dist,
-                                              "p_value": float(test.p_value[i]), "threshold": thr,
-                                              "sigma_rot_deg": float(test.sigma_rot_deg[i]),
-                                              "sigma_trans_mm": float(test.sigma_trans_mm[i])}))
+                outliers.append(robot_pose_outlier(vid, test, i, "the reported robot pose and the tracker's target "
+                                                   "pose disagree with the other views", "view left out"))
         per_view[vid] = pv
     nan = float("nan")
     return PoseRefineResult(
