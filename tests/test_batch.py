@@ -313,3 +313,45 @@ def test_bad_input_is_one_line(tmp_path):
     assert rc == 2 and "--out is required" in err, err
     rc, out, err = _finish(_handeye("batch", tmp_path, "--out", tmp_path / "o"))
     assert rc == 2 and "no sessions found" in err, err
+
+
+def _as_check(vendor: Path, dst: Path, against: Path) -> Path:
+    """A vendor session copied as a session.yaml that declares it checks the installed result ``against``."""
+    import yaml
+
+    shutil.copytree(vendor, dst)
+    cfg = yaml.safe_load((dst / "config.yaml").read_text())["checkerboard_args"]
+    lines = [ln for ln in (dst / "poses.txt").read_text().splitlines() if ln.strip()]
+    views = [{"id": str(k), "image": f"{k}.jpg", "pose": [float(x) for x in ln.split(",")]}
+             for k, ln in enumerate(lines, start=1) if (dst / f"{k}.jpg").exists()]
+    doc = {"handeye_session": 1, "mode": "eye_in_hand", "verify_against": os.path.relpath(against, dst),
+           "target": {"type": "chessboard", "inner_corners": [cfg["XX"], cfg["YY"]], "square_m": cfg["L"]},
+           "pose_format": {"rotation": "euler"}, "views": views}
+    for name in ("poses.txt", "config.yaml"):
+        (dst / name).unlink()
+    (dst / "session.yaml").write_text(yaml.safe_dump(doc))
+    return dst
+
+
+def test_a_session_that_declares_a_check_is_verified_against_its_installed_result(fleet, cluster_batch, tmp_path):
+    """verify_against: in session.yaml makes the batch run handeye verify: cell-02's bumped session checked against
+    its first calibration is DRIFTED, a session checked against its own calibration is VALID; both rows in the
+    index; a rerun skips both."""
+    root, truth = fleet
+    done = cluster_batch["out"]
+    first, bumped = sorted(k for k in truth if k.startswith("cell-02/"))[0], \
+        next(k for k, s in truth.items() if s["fault"] == "bumped")
+    checks = tmp_path / "checks"
+    _as_check(Path(truth[first]["path"]), checks / "cell-02" / "same-check", done / first)
+    _as_check(Path(truth[bumped]["path"]), checks / "cell-02" / "bumped-check", done / first)
+    out = tmp_path / "out"
+    rc, stdout, stderr = _finish(_handeye("batch", checks, "--out", out, "--workers", "1", "--no-report"))
+    assert rc == 7, stdout + stderr[-2000:]  # a drift counts as a failing session
+    rec = _records(out)
+    assert rec["cell-02/same-check"]["verdict"] == "VALID" and rec["cell-02/bumped-check"]["verdict"] == "DRIFTED"
+    v = json.loads((out / "cell-02" / "bumped-check" / "verify.json").read_text())
+    assert v["drifted"] and v["test"]["p_value"] < 1e-3
+    rows = {r.split(",")[1]: r.split(",") for r in (out / "fleet.csv").read_text().splitlines()[1:]}
+    assert rows["bumped-check"][5] == "DRIFTED" and rows["same-check"][5] == "VALID"
+    rc, stdout, stderr = _finish(_handeye("batch", checks, "--out", out, "--workers", "1", "--no-report"))
+    assert "2 skipped" in stdout + stderr, stdout + stderr[-2000:]

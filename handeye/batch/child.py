@@ -41,6 +41,8 @@ def run(spec: dict) -> dict:
     from .run import calibrate_namespace
 
     cal = spec["calibrate"]
+    if spec.get("verify_against"):
+        return run_verify(spec)
     args = calibrate_namespace(cal)
     try:  # as handeye calibrate runs it (handeye.cli.calibrate.run)
         wr = calibrate_session(spec["session"], options=options_from_args(args), out_dir=spec["out_dir"],
@@ -61,6 +63,31 @@ def run(spec: dict) -> dict:
         except HandeyeError as e:
             reply["export_error"] = str(e)
     return reply
+
+
+def run_verify(spec: dict) -> dict:
+    """A verification session (``verify_against`` in its session.yaml), as ``handeye verify`` runs it: verify.json
+    and its reports in the session's output folder; verdict VALID or DRIFTED."""
+    from pathlib import Path
+
+    from ..errors import DRIFTED_EXIT_CODE, HandeyeError
+    from ..output import write_json
+    from ..recal.report import write_verify_reports
+    from ..recal.verify import VerifyOptions, verify_dict, verify_session
+    from .run import VERIFY_VERDICTS
+
+    cal, out = spec["calibrate"], Path(spec["out_dir"])
+    try:
+        sv = verify_session(spec["session"], spec["verify_against"], options=VerifyOptions.from_config(),
+                            mode=cal.get("mode"), progress=lambda s: log.info("%s", s))
+        write_json(out / "verify.json", verify_dict(sv))
+        if not cal.get("no_report"):
+            write_verify_reports(out)
+    except HandeyeError as e:
+        return {"outcome": "error", "status": "failed", "verdict": "ERROR", "reason": str(e), "exit_code": e.exit_code}
+    v = sv.verification
+    return {"outcome": "done", "status": "ok", "verdict": VERIFY_VERDICTS[v.verdict],
+            "reason": "" if not v.drifted else v.headline, "exit_code": DRIFTED_EXIT_CODE if v.drifted else 0}
 
 
 def _peak_rss_mb():

@@ -16,6 +16,10 @@ The session's time orders an install's sessions for the drift and the trend: ``t
 folder name (``2026-03-01``, ``20260301`` with an optional ``_1430`` / ``T14:30``), else the newest
 modification time of its files. ``time_source`` says which.
 
+A session whose ``session.yaml`` says ``verify_against: PATH`` (an installed result folder or its result.json,
+relative to the session folder) is a check of that installed calibration: the batch runs ``handeye verify`` on it
+(:func:`handeye.batch.child.run_verify`) instead of a calibration.
+
 Install and session names become folder names under OUT: characters other than letters, digits,
 ``.``, ``_`` and ``-`` are replaced by ``_`` (a name made only of dots is refused), and two sessions
 that would land in one folder get ``~2``, ``~3`` appended.
@@ -50,6 +54,7 @@ class SessionJob:
     time_utc: str | None
     time_source: str
     layout: str  # native | vendor
+    verify_against: str | None = None  # session.yaml verify_against: the installed result this session checks
 
     @property
     def key(self) -> str:
@@ -103,8 +108,14 @@ def discover(root) -> list[SessionJob]:
             name, k = f"{base}~{k}", k + 1
         taken.add((install, name))
         t, src = session_time(folder, meta)
+        against = meta.get("verify_against")
+        if against not in (None, ""):
+            if not isinstance(against, str):
+                raise InputError("verify_against must be a path", path=folder / "session.yaml", received=repr(against),
+                                 expected="the installed result folder or its result.json (relative to the session)")
+            against = str((folder / against).resolve())
         jobs.append(SessionJob(path=folder.resolve(), install=install, name=name, time_utc=t, time_source=src,
-                               layout=layout))
+                               layout=layout, verify_against=against or None))
     jobs.sort(key=lambda j: (j.install, j.time_utc or "", j.name))
     log.info("%d sessions in %d installs under %s", len(jobs), len({j.install for j in jobs}), root)
     return jobs

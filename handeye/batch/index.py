@@ -42,7 +42,7 @@ COLUMNS = ("install", "session", "time_utc", "time_source", "mode", "verdict", "
            "sigma_tx_mm", "sigma_ty_mm", "sigma_tz_mm", "sigma_rx_deg", "sigma_ry_deg", "sigma_rz_deg",
            "sigma_source", "reprojection_rms_px", "findings", "reason", "result_dir", "report")
 #: verdicts of an install that put it on the failing list
-FAILING = ("FAIL", "REFUSED", "ERROR")
+FAILING = ("FAIL", "REFUSED", "ERROR", "DRIFTED")
 #: how many findings codes the fleet summary lists
 TOP_FINDINGS = 10
 FILES_DIR = "index_files"
@@ -53,7 +53,7 @@ def session_folders(out: Path) -> list[Path]:
     """Every folder under ``out`` with a result.json or a batch record, sorted."""
     found = []
     for folder, dirs, files in os.walk(out):
-        if "result.json" in files or RECORD_NAME in files:
+        if "result.json" in files or "verify.json" in files or RECORD_NAME in files:
             found.append(Path(folder))
             dirs[:] = []
         else:
@@ -71,6 +71,17 @@ def session_row(out: Path, folder: Path) -> dict:
                session=rec.get("name") or ("/".join(rel[1:]) if len(rel) > 1 else folder.name),
                time_utc=rec.get("time_utc"), time_source=rec.get("time_source"),
                result_dir="/".join(rel), outcome=rec.get("outcome"), reason=rec.get("reason") or "", findings=[])
+    ver = read_json(folder / "verify.json") if res is None else None
+    if ver is not None and (not rec or rec.get("outcome") == "done"):  # a verification session (handeye verify)
+        from .run import VERIFY_VERDICTS
+
+        row.update(mode=ver.get("mode"), x_name=ver.get("frame"), outcome=row["outcome"] or "done",
+                   verdict=VERIFY_VERDICTS.get(str(ver.get("verdict")), "ERROR"),
+                   time_utc=row["time_utc"] or (ver.get("provenance") or {}).get("time_utc"),
+                   reason=row["reason"] or ("" if ver.get("verdict") == "still valid" else str(ver.get("headline"))))
+        if (folder / "verify.html").exists():
+            row["report"] = "/".join(rel) + "/verify.html"
+        return row
     if rec and rec.get("outcome") != "done" or res is None:
         row.update(verdict="ERROR", reason=row["reason"] or "no result.json")
         return row

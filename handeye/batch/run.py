@@ -63,7 +63,9 @@ SESSION_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THR
 #: tasks submitted per worker thread at once (more are submitted as these finish)
 IN_FLIGHT_PER_THREAD = 2
 #: verdicts that count as failed in the progress bar and the exit code (ERROR: no result of this run)
-FAILED_VERDICTS = ("FAIL", "REFUSED", "ERROR")
+FAILED_VERDICTS = ("FAIL", "REFUSED", "ERROR", "DRIFTED")
+#: the verdicts of a verification session (handeye verify), as batch records them
+VERIFY_VERDICTS = {"still valid": "VALID", "drifted": "DRIFTED"}
 
 
 @dataclass(frozen=True)
@@ -91,7 +93,8 @@ class BatchSummary:
     def line(self) -> str:
         """The one-line summary."""
         c, v = self.counts, self.verdicts
-        verdicts = ", ".join(f"{v[k]} {k}" for k in ("PASS", "WARN", "FAIL", "REFUSED", "ERROR") if v[k])
+        verdicts = ", ".join(f"{v[k]} {k}" for k in ("PASS", "WARN", "VALID", "FAIL", "REFUSED", "DRIFTED", "ERROR")
+                             if v[k])
         return (f"{len(self.records)} sessions: {c['done']} done, {c['failed']} failed, {c['skipped']} skipped "
                 f"({verdicts or 'none'}) in {self.seconds:.0f} s")
 
@@ -151,6 +154,11 @@ def inputs_sha256(job: SessionJob, mode: Optional[str], *, allow_outside: bool =
 def session_key(job: SessionJob, calibrate: dict, options: dict) -> dict:
     """What a session's outputs depend on (module docstring); ``options`` from :func:`provenance_options`."""
     h, covers = inputs_sha256(job, calibrate.get("mode"), allow_outside=bool(calibrate.get("allow_outside")))
+    if job.verify_against:  # a verification: its session and the installed result it is checked against
+        against = Path(job.verify_against)
+        return _canonical({"inputs_sha256": h, "inputs": covers, "verify_against": str(against),
+                           "against_sha256": _file_sha(against / "result.json" if against.is_dir() else against),
+                           "mode": calibrate.get("mode"), "report": not calibrate.get("no_report")})
     return _canonical({"inputs_sha256": h, "inputs": covers, "options": options, "mode": calibrate.get("mode"),
                        "shift_poses": calibrate.get("shift_poses") or 0, "report": not calibrate.get("no_report"),
                        "qa_sha256": _file_sha(calibrate.get("qa")), "config_sha256": _file_sha(calibrate.get("config")),
@@ -172,6 +180,8 @@ def current_record(out_dir: Path, key: dict) -> Optional[dict]:
     rec = read_json(out_dir / RECORD_NAME)
     if rec is None or rec.get("key") != key or rec.get("outcome") != "done":
         return None
+    if key.get("verify_against"):  # the key holds the session's and the installed result's hashes
+        return rec if read_json(out_dir / "verify.json") is not None else None
     res = read_json(out_dir / "result.json")
     if res is None:
         return None
@@ -330,7 +340,8 @@ def plan_batch(jobs: list[SessionJob], out: Path, *, calibrate: dict, timeout_s:
             continue
         plan.specs.append({"session": str(job.path), "out_dir": str(out_dir), "install": job.install,
                            "name": job.name, "time_utc": job.time_utc, "time_source": job.time_source,
-                           "key": key, "calibrate": _canonical(calibrate), "timeout_s": float(timeout_s)})
+                           "key": key, "calibrate": _canonical(calibrate), "timeout_s": float(timeout_s),
+                           "verify_against": job.verify_against})
     return plan
 
 
