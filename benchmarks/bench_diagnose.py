@@ -64,16 +64,21 @@ def _count_crashes(d: dict) -> None:
         CRASHED[(stage, err)] += 1
 
 
-def clean(seeds: range, root: Path) -> int:
+def clean(seeds: range, root: Path, *, kinematic: bool = False) -> int:
+    """Clean corner-level sessions (iid robot noise at four levels, or with ``kinematic`` the RM65 arm with DH
+    errors and encoder noise of handeye.sim.robot_error, its poses given without the arm as a vendor folder does)."""
     bad = collections.Counter()
     modes = collections.Counter()  # the mode the data decide (the session states it): right, wrong, undecided
     n = 0
     t0 = time.perf_counter()
     for mode in ("eye_in_hand", "eye_to_hand"):
         for seed in seeds:
-            for rn, px in (((0.0, 0.0), 0.3), ((0.3, 0.05), 0.3), ((1.0, 0.1), 0.5), ((2.0, 0.3), 1.0)):
+            levels = (("kinematic", 0.3),) if kinematic else \
+                (((0.0, 0.0), 0.3), ((0.3, 0.05), 0.3), ((1.0, 0.1), 0.5), ((2.0, 0.3), 1.0))
+            for rn, px in levels:
                 for nv in (8, 15, 25):
-                    cs = make_corner_session(mode=mode, n_views=nv, seed=seed, robot_noise=rn, noise_px=px)
+                    robot = dict(robot_error="kinematic", arm="rm65") if rn == "kinematic" else dict(robot_noise=rn)
+                    cs = make_corner_session(mode=mode, n_views=nv, seed=seed, noise_px=px, **robot)
                     d = _diagnose(_write_vendor(root / "clean", cs, cs.T_base_end_reported), cs)
                     _count_crashes(d)
                     n += 1
@@ -451,6 +456,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=6)
     ap.add_argument("--quick", action="store_true", help="2 seeds")
+    ap.add_argument("--kinematic", action="store_true",
+                    help="the clean sessions with the kinematic robot error model instead of iid noise levels")
     ap.add_argument("--timing", action="store_true", help="time diagnose_run on a rendered 20-view session")
     ap.add_argument("--scaling", action="store_true", help="CPU time against the view count (20, 60, 120)")
     ap.add_argument("--realdata", action="store_true", help="real datasets, as recorded and with injected faults")
@@ -469,7 +476,7 @@ def main(argv=None) -> int:
             false_alarms += forensics(8 if a.forensics is None else a.forensics, Path(tmp), workers=a.workers,
                                       only=a.only)
         if not a.no_accuracy:
-            false_alarms += clean(seeds, Path(tmp))
+            false_alarms += clean(seeds, Path(tmp), kinematic=a.kinematic)
             sensitivity(seeds, Path(tmp))
         if a.timing:
             timing(Path(tmp))
