@@ -126,8 +126,6 @@ class CrossValidation:
     loo_max_views_refined: int
     folds_refined: int
     min_views: int
-    ratio_high: float
-    ratio_low: float
 
 
 @dataclass(frozen=True)
