@@ -1,6 +1,7 @@
 """Per-view board poses ``T_cam_board`` (solvePnP) and the corner ordering of symmetric boards."""
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
@@ -137,7 +138,7 @@ def rotation_consistent_labels(Cs: np.ndarray, Ms: np.ndarray, labels: np.ndarra
 
     best_lab, best_score = verify(*model(np.asarray(labels, int), np.arange(n)))
     rng = np.random.default_rng(0)
-    triples = np.array([t for t in np.ndindex(n, n, n) if t[0] < t[1] < t[2]]) if n <= 14 else \
+    triples = np.array(list(itertools.combinations(range(n), 3))) if n <= 14 else \
         np.sort(np.array([rng.choice(n, 3, replace=False) for _ in range(max_triples)]), axis=1)
     if len(triples) > max_triples:
         triples = triples[rng.choice(len(triples), max_triples, replace=False)]
