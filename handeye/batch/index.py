@@ -32,7 +32,7 @@ from typing import Optional
 import numpy as np
 
 from ..output import atomic_write_bytes, atomic_write_text
-from .run import LOG_NAME, RECORD_NAME, read_json
+from .run import FAILED_VERDICTS, LOG_NAME, RECORD_NAME, read_json
 
 log = logging.getLogger(__name__)
 
@@ -41,8 +41,6 @@ COLUMNS = ("install", "session", "time_utc", "time_source", "mode", "verdict", "
            "tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg", "rz_deg",
            "sigma_tx_mm", "sigma_ty_mm", "sigma_tz_mm", "sigma_rx_deg", "sigma_ry_deg", "sigma_rz_deg",
            "sigma_source", "reprojection_rms_px", "findings", "reason", "result_dir", "report")
-#: verdicts of an install that put it on the failing list
-FAILING = ("FAIL", "REFUSED", "ERROR", "DRIFTED")
 #: how many findings codes the fleet summary lists
 TOP_FINDINGS = 10
 FILES_DIR = "index_files"
@@ -223,7 +221,7 @@ def fleet_summary(rows: list[dict], installs: list[dict]) -> dict:
     codes = Counter(c for r in rows for c in set(r["findings"]))
     return {"n_sessions": len(rows), "n_installs": len(installs),
             "verdicts": Counter(r["verdict"] for r in rows),
-            "failing": [i for i in installs if i["latest_verdict"] in FAILING],
+            "failing": [i for i in installs if i["latest_verdict"] in FAILED_VERDICTS],
             "drifting": [i for i in installs if i["n_drifted"]],
             "top_findings": codes.most_common(TOP_FINDINGS)}
 

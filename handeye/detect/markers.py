@@ -24,11 +24,17 @@ def _detector(dictionary: str) -> cv2.aruco.ArucoDetector:
     return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)), params)
 
 
+@lru_cache(maxsize=1)
+def _settings() -> dict:
+    """configs/detection.yaml's ``markers`` section (read once per process)."""
+    return load_preset("detection")["markers"]
+
+
 def subpix_half_window_px(corners: np.ndarray, spec, *, share: float, lo: int, hi: int) -> int:
     """Half window for cornerSubPix on the markers ``corners`` (m,4,2): ``share`` x the smallest of the border
     cell and (AprilGrid) the gap between tags, in px on the smallest marker, clipped to [lo, hi]."""
     side_px = float(np.min(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).mean(axis=1)))
-    bits = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, spec.dictionary)).markerSize
+    bits = _detector(spec.dictionary).getDictionary().markerSize
     feature = side_px / (bits + 2)
     if isinstance(spec, AprilGridSpec):
         feature = min(feature, spec.spacing * side_px)
@@ -67,7 +73,7 @@ def detect_markers(gray: np.ndarray, spec: MarkerSpec | AprilGridSpec, *, option
             f"none of the target's marker ids among those seen ({others})"
         return f"{spec.describe()}: {why}"
     cid = np.concatenate(out_ids)
-    cfg = load_preset("detection")["markers"]
+    cfg = _settings()
     win = subpix_half_window_px(np.stack(out_pts), spec, share=float(cfg["subpix_window_share"]),
                                 lo=int(cfg["subpix_window_min_px"]), hi=int(cfg["subpix_window_max_px"]))
     pts = np.concatenate(out_pts).astype(np.float32).reshape(-1, 1, 2)

@@ -134,9 +134,8 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
         log.info("prior: %s", rec["summary"])
         return _described(run), plain(rec, nan_to_none=True)
     progress("the data contradict the prior: calibrating without it")
-    s_n, opts_n = _with_prior(session, options, installed)
-    opts_n = replace(opts_n, refine_options={k: v for k, v in opts_n.refine_options.items() if k != "prior"})
-    run_n = run_calibration(s_n, opts_n, progress=progress)
+    opts_n = replace(opts_p, refine_options={k: v for k, v in opts_p.refine_options.items() if k != "prior"})
+    run_n = run_calibration(s_p, opts_n, progress=progress)
     rec["used"] = "no prior on X (the new views alone; the prior's intrinsics kept)"
     if run_n.status == "ok" and run_n.refined is not None:
         d = x_difference(installed.T_x, installed.cov_x, run_n.T_x, run_n.refined.cov_x_6x6)

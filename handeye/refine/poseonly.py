@@ -199,6 +199,7 @@ def _tests(st: _State, S: np.ndarray, r: np.ndarray, J: np.ndarray, gates: Robot
             try:
                 d[i], C[i] = leave_one_out(r[i], R, S_p)
             except np.linalg.LinAlgError:  # the view alone fixes the solution: no prediction without it
+                log.debug("view %d: no leave-one-out prediction (the view alone fixes the solution); not tested", i)
                 continue
         else:
             d[i], C[i] = r[i], S_p
@@ -259,18 +260,16 @@ def refine_poses(*, mode: str, views: Sequence[PoseView], T_x0: np.ndarray, T_bo
                 raise np.linalg.LinAlgError(f"only {int(keep.sum())} views agree with the others; need 3")
             if seen and np.array_equal(keep, seen[-1]):
                 break
-            if any(np.array_equal(keep, k) for k in seen):
+            oscillates = any(np.array_equal(keep, k) for k in seen)
+            if oscillates:
                 log.warning("outlier decisions oscillate; keeping the latest set")
-                st.keep = keep
-                S, r, J, resolved = _solve_with_vce(st, estimate=estimate, prior_x=prior_x, max_iterations=it_max,
-                                                    floors=floors)
-                test = _tests(st, S, r, J, gates)
-                break
             seen.append(keep)
             st.keep = keep
             S, r, J, resolved = _solve_with_vce(st, estimate=estimate, prior_x=prior_x, max_iterations=it_max,
                                                 floors=floors)
             test = _tests(st, S, r, J, gates)
+            if oscillates:
+                break
         dec_keep = st.keep.copy()
         status, reason = "ok", ""
     except np.linalg.LinAlgError as err:

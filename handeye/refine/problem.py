@@ -38,6 +38,18 @@ KEY_INTRINSICS = gtsam.symbol("k", 0)
 KEY_DH = gtsam.symbol("d", 0)
 
 
+def lm_params(max_iterations: int) -> "gtsam.LevenbergMarquardtParams":
+    """The solver settings of every solve: at most ``max_iterations``, the preset's relative tolerance, and
+    scale-free diagonal damping (see the module docstring)."""
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(int(max_iterations))
+    params.setRelativeErrorTol(float(refine_preset()["solver"]["relative_error_tol"]))
+    params.setAbsoluteErrorTol(0.0)
+    params.setErrorTol(0.0)
+    params.setDiagonalDamping(True)
+    return params
+
+
 def key_robot(i: int) -> int:
     return gtsam.symbol("p", i)
 
@@ -296,13 +308,7 @@ class Problem:
     def solve(self, *, robust: bool):
         """One Levenberg-Marquardt solve of the current problem; updates the estimates in place."""
         g, v, robot_keys = self.build(robust=robust)
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(self.o.max_iterations)
-        params.setRelativeErrorTol(float(refine_preset()["solver"]["relative_error_tol"]))
-        params.setAbsoluteErrorTol(0.0)
-        params.setErrorTol(0.0)
-        params.setDiagonalDamping(True)  # scale-free damping (see the module docstring)
-        opt = gtsam.LevenbergMarquardtOptimizer(g, v, params)
+        opt = gtsam.LevenbergMarquardtOptimizer(g, v, lm_params(self.o.max_iterations))
         res = opt.optimize()
         self.iterations += opt.iterations()
         self.T_x = res.atPose3(KEY_X).matrix()
@@ -422,12 +428,6 @@ def solve_pose_graph(*, M: np.ndarray, T_cam_board: np.ndarray, sigmas: np.ndarr
                           sigma_rot_rad=float(si[0]), sigma_trans_m=float(si[1]), robust_k=robust_k))
     if prior_x is not None:
         g.add(gaussian_prior(key=KEY_X, mean=prior_x[0], cov=prior_x[1]))
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(int(max_iterations))
-    params.setRelativeErrorTol(float(refine_preset()["solver"]["relative_error_tol"]))
-    params.setAbsoluteErrorTol(0.0)
-    params.setErrorTol(0.0)
-    params.setDiagonalDamping(True)
-    opt = gtsam.LevenbergMarquardtOptimizer(g, v, params)
+    opt = gtsam.LevenbergMarquardtOptimizer(g, v, lm_params(max_iterations))
     res = opt.optimize()
     return res.atPose3(KEY_X).matrix(), res.atPose3(KEY_BOARD).matrix(), int(opt.iterations())

@@ -207,6 +207,7 @@ def build_result(pb: "Problem", *, status: str, reason: str, S_cc: Optional[np.n
     unc = hand_eye_uncertainty(None if S_cc is None else S_cc[:6, :6], pb.T_x, wd)
     intr_sigma = {} if S_cc is None else {INTRINSIC_NAMES[fi]: float(np.sqrt(S_cc[N_POSES + j, N_POSES + j]))
                                           for j, fi in enumerate(pb.free)}
+    robot_sigma_mm, robot_sigma_deg = _equivalent_robot_sigmas(pb)
     rms_after = float("nan")
     if pb.active():
         rms_after = float(np.sqrt(np.mean(np.sum(pb.used_corner_residuals() ** 2, axis=1))))
@@ -220,7 +221,7 @@ def build_result(pb: "Problem", *, status: str, reason: str, S_cc: Optional[np.n
         sigma_trans_mm=unc.sigma_trans_mm, correlation_6x6=unc.correlation_6x6, intrinsics_sigma=intr_sigma,
         working_distance_m=wd, predicted_error_mm=unc.predicted_error_mm,
         predicted_error_axes_mm=unc.predicted_error_axes_mm, sigma_px=float(pb.sigma_px),
-        robot_sigma_mm=_equivalent_robot_sigmas(pb)[0], robot_sigma_deg=_equivalent_robot_sigmas(pb)[1],
+        robot_sigma_mm=robot_sigma_mm, robot_sigma_deg=robot_sigma_deg,
         robot_sigma_resolved=_resolved(pb),
         rms_px_before=rms_before, rms_px_after=rms_after, per_view=_per_view(pb, dec),
         outliers=tuple(outliers), iterations=int(pb.iterations), seconds=time.perf_counter() - t0,

@@ -132,9 +132,8 @@ class SimRobot(Robot):
 
     def pose_ok(self, T_base_end: np.ndarray) -> bool:
         """Within reach and above the table (used by the planner)."""
-        if self.kinematic is not None and reachable(self.kinematic, T_base_end) is None:
-            return False
-        return plausible_robot_pose(T_base_end, self.reach_m)
+        return plausible_robot_pose(T_base_end, self.reach_m) and (
+            self.kinematic is None or reachable(self.kinematic, T_base_end) is not None)  # the cheap test first
 
     def T_cam_board_true(self) -> np.ndarray:
         return mounting(self.rig.mode).predict_T_cam_board(self.rig.T_x, self.rig.T_board, self.T_true)
