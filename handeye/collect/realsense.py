@@ -339,7 +339,8 @@ def _stop_player(closing: threading.Event, idle: threading.Event, player: list) 
     """Let a waiting frame callback return (and wait for a running one), stop and close the sensor, drop the
     playback device."""
     closing.set()
-    idle.wait(_CALLBACK_WAIT_S)
+    if not idle.wait(_CALLBACK_WAIT_S):
+        log.warning("a frame callback still runs after %g s; stopping the player anyway", _CALLBACK_WAIT_S)
     if player:
         sensor = player[0]
         for step in (sensor.stop, sensor.close):
