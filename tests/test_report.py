@@ -753,7 +753,7 @@ def test_a_refused_run_leads_with_its_cause_and_fix(tmp_path, code, what, fix, h
         findings = [{"code": "pairs_shifted", "severity": "fail", "title": "Images and robot poses are out of step "
                      "by 2: image k belongs to pose k+2", "action": "re-pair", "details": {"shift": 2}}]
     if code == "pairs_shuffled":
-        findings = [{"code": "pairs_shifted", "severity": "fail", "title": "Images and robot poses are shuffled: "
+        findings = [{"code": "pairs_shuffled", "severity": "fail", "title": "Images and robot poses are shuffled: "
                      "6 of 12 images carry another view's pose", "action": "re-pair", "details": {}}]
     res = {"status": "failed", "verdict": "REFUSED", "mode": "eye_in_hand", "views": [], "failure_reason": what,
            "diagnostics": {"findings": findings},
