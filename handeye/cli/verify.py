@@ -80,8 +80,8 @@ def run_verify(args) -> int:
 
     opts = VerifyOptions.from_config(alpha=args.alpha)
     sv = verify_session(args.session, args.against, options=opts, mode=args.mode, progress=log.info)
-    out = Path(args.out) if args.out else default_out_dir(args.session).with_name(
-        default_out_dir(args.session).name + "-verify")
+    calibrate_out = default_out_dir(args.session)
+    out = Path(args.out) if args.out else calibrate_out.with_name(calibrate_out.name + "-verify")
     d = verify_dict(sv)
     files = [write_json(out / "verify.json", d)]
     if not args.no_report:
