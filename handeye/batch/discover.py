@@ -128,7 +128,10 @@ def _session_yaml(folder: Path) -> dict:
 
     try:
         d = yaml.safe_load((folder / "session.yaml").read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+        # its install, time and verify_against are lost: grouped by its path, run as a calibration, which names
+        # the file's fault in its own record
+        log.warning("%s: not read for the batch (%s); grouped by its folder", folder / "session.yaml", e)
         return {}
     return d if isinstance(d, dict) else {}
 
