@@ -21,7 +21,8 @@ chain; the tests check them against central differences.
 
 Shipped presets (``configs/robots/<name>.yaml``, table units mm and deg, each citing its source):
 ``rm65`` (RealMan RM65-B, modified DH) and ``ur5e`` (Universal Robots UR5e, standard DH);
-:func:`load_arm` reads them or any file of the same form.
+:func:`load_arm` reads them, a file of the same form, or the JSON form other tools write (``robot_name``,
+``dh_convention``, ``units: {length, angle}``, ``joints: [...]``).
 """
 from __future__ import annotations
 
@@ -316,22 +317,61 @@ def default_ik_seeds(chain: DHChain, T_base_end_target: np.ndarray) -> list:
 
 _LENGTH = {"m": 1.0, "mm": 1e-3}
 _ANGLE = {"rad": 1.0, "deg": np.pi / 180.0}
+# spellings of the units other tools write in their tables (``units: {length: metres, angle: degrees}``)
+_UNIT_NAMES = {"meter": "m", "meters": "m", "metre": "m", "metres": "m", "millimeter": "mm", "millimeters": "mm",
+               "millimetre": "mm", "millimetres": "mm", "radian": "rad", "radians": "rad", "degree": "deg",
+               "degrees": "deg"}
+
+
+def _field(data: dict, names: tuple, source: str, default=None):
+    """The value of the one key of ``names`` (synonyms of one field) that ``data`` holds, else ``default``."""
+    given = [k for k in names if k in data]
+    if len(given) > 1:
+        raise ConfigError(f"DH table states both {given[0]} and {given[1]}", path=source,
+                          expected=f"one of {', '.join(names)}", received=", ".join(given))
+    return data[given[0]] if given else default
+
+
+def _units(data: dict, source: str) -> tuple:
+    """(length unit, angle unit) of a table: ``length_unit`` / ``angle_unit``, or a ``units: {length, angle}`` block."""
+    block = data.get("units")
+    if block is not None and ("length_unit" in data or "angle_unit" in data):
+        raise ConfigError("DH table states its units twice", path=source,
+                          expected="units: {length, angle} or length_unit / angle_unit", received="both")
+    if block is not None and not isinstance(block, dict):
+        raise ConfigError("DH table units must be a mapping", path=source, expected="units: {length: m, angle: rad}",
+                          received=repr(block)[:60])
+    lu, au = (block.get("length", "m"), block.get("angle", "rad")) if block is not None else (
+        data.get("length_unit", "m"), data.get("angle_unit", "rad"))
+    lu, au = (_UNIT_NAMES.get(str(u).lower(), str(u).lower()) for u in (lu, au))
+    if lu not in _LENGTH or au not in _ANGLE:
+        raise ConfigError("unknown unit in DH table", path=source, expected="length m|mm, angle rad|deg",
+                          received=f"{lu!r}, {au!r}")
+    return lu, au
 
 
 def chain_from_dict(data: dict, *, source: str = "DH table") -> DHChain:
-    """A :class:`DHChain` from the preset form (``name``, ``convention``, ``length_unit``, ``angle_unit``,
-    ``links: [{a, alpha, d, theta_offset, limits}]``)."""
+    """A :class:`DHChain` from a table in either form:
+
+    * the presets' (``name``, ``convention``, ``length_unit``, ``angle_unit``,
+      ``links: [{a, alpha, d, theta_offset, limits}]``, ``error_prior``);
+    * the JSON form other tools write (``robot_name``, ``dh_convention``, ``units: {length, angle}``,
+      ``joints: [{a, alpha, d, theta_offset}]``, optionally ``degrees_of_freedom``).
+
+    Units m | mm and rad | deg (or their spelled-out names); the keys of the two forms may be mixed,
+    but one field stated twice is an error."""
     if not isinstance(data, dict):
         raise ConfigError("a DH table must be a mapping", path=source, expected="name, convention, links",
                           received=type(data).__name__)
-    lu, au = data.get("length_unit", "m"), data.get("angle_unit", "rad")
-    if lu not in _LENGTH or au not in _ANGLE:
-        raise ConfigError("unknown unit in DH table", path=source, expected="length_unit m|mm, angle_unit rad|deg",
-                          received=f"{lu!r}, {au!r}")
-    links = data.get("links")
+    lu, au = _units(data, source)
+    links = _field(data, ("links", "joints"), source)
     if not isinstance(links, list) or not links:
-        raise ConfigError("DH table without links", path=source, expected="links: a list of rows",
-                          received=repr(links))
+        raise ConfigError("DH table without links", path=source, expected="links (or joints): a list of rows",
+                          received=repr(links)[:80])
+    dof = data.get("degrees_of_freedom")
+    if dof is not None and dof != len(links):
+        raise ConfigError("DH table rows do not match its degrees_of_freedom", path=source,
+                          expected=f"{dof} rows", received=f"{len(links)} rows")
     rows, limits = [], []
     for i, link in enumerate(links, start=1):
         missing = [k for k in PARAMETER_NAMES if not isinstance(link, dict) or k not in link]
@@ -347,7 +387,8 @@ def chain_from_dict(data: dict, *, source: str = "DH table") -> DHChain:
             raise ConfigError(f"DH row {i} is not numeric", path=source, expected="numbers",
                               received=repr(link)) from None
     lim = None if any(x is None for x in limits) else np.array(limits)
-    return DHChain(name=str(data.get("name", source)), convention=str(data.get("convention", "")),
+    name = _field(data, ("name", "robot_name"), source, default=source)
+    return DHChain(name=str(name), convention=str(_field(data, ("convention", "dh_convention"), source, default="")),
                    dh=np.array(rows), joint_limits_rad=lim, error_prior=_error_prior(data.get("error_prior"), source))
 
 
@@ -367,8 +408,12 @@ def _error_prior(d, source: str) -> Optional[tuple]:
 
 
 def load_arm(name_or_path: Union[str, Path, dict], *, folder: Optional[Path] = None) -> DHChain:
-    """A shipped preset (``rm65``, ``ur5e``), a YAML file of the same form (relative paths from ``folder``
-    when given, e.g. a session's ``robot:``), or the table itself as a mapping."""
+    """A shipped preset (``rm65``, ``ur5e``), a DH table file in either form of :func:`chain_from_dict`
+    (``.json`` read as JSON, anything else as YAML; relative paths from ``folder`` when given, e.g. a
+    session's ``robot:``), or the table itself as a mapping. A file that cannot be read or parsed is a
+    ConfigError naming it."""
+    import json
+
     import yaml
 
     from .config import load_preset
@@ -380,6 +425,16 @@ def load_arm(name_or_path: Union[str, Path, dict], *, folder: Optional[Path] = N
         return chain_from_dict(load_preset(f"robots/{key}"), source=f"configs/robots/{key}.yaml")
     path = Path(key) if folder is None or Path(key).is_absolute() else Path(folder) / key
     if not path.is_file():
-        raise ConfigError("unknown robot model", expected=f"a preset ({', '.join(PRESETS)}) or a DH YAML file",
-                          received=repr(key))
-    return chain_from_dict(yaml.safe_load(path.read_text(encoding="utf-8")), source=str(path))
+        raise ConfigError("unknown robot model", expected=f"a preset ({', '.join(PRESETS)}) or a DH table file "
+                          "(YAML or JSON)", received=repr(key))
+    is_json = path.suffix.lower() == ".json"
+    try:
+        text = path.read_text(encoding="utf-8")
+        data = json.loads(text) if is_json else yaml.safe_load(text)
+    except (OSError, UnicodeDecodeError, ValueError, yaml.YAMLError) as e:  # json's errors are ValueErrors
+        mark = getattr(e, "problem_mark", None)  # YAML's (0-based)
+        line = e.lineno if isinstance(e, json.JSONDecodeError) else None if mark is None else mark.line + 1
+        raise ConfigError("cannot read the DH table", path=path, line=line,
+                          expected="a JSON file" if is_json else "a YAML file",
+                          received=f"{type(e).__name__}: {str(e).splitlines()[0][:80]}") from None
+    return chain_from_dict(data, source=str(path))

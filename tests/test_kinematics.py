@@ -120,3 +120,51 @@ def test_bad_tables_are_refused_with_the_field_named():
         DHChain("x", "standard", np.zeros((1, 4)), joint_limits_rad=np.array([[1.0, -1.0]]))
     with pytest.raises(ValueError, match="6 joint angles"):
         load_arm("rm65").T_base_end(np.zeros(5))
+
+
+# the JSON form other tools write (here: Universal Robots' UR3e table as the UR3 data set's author stated it)
+UR3E_JSON = {"robot_name": "UR3e", "dh_convention": "standard", "degrees_of_freedom": 6,
+             "units": {"length": "m", "angle": "rad"},
+             "joints": [{"joint_id": f"J{i + 1}", "a": a, "alpha": al, "d": d, "theta_offset": 0.0}
+                        for i, (a, al, d) in enumerate([(0.0, np.pi / 2, 0.15185), (-0.24355, 0.0, 0.0),
+                                                        (-0.2132, 0.0, 0.0), (0.0, np.pi / 2, 0.13105),
+                                                        (0.0, -np.pi / 2, 0.08535), (0.0, 0.0, 0.0921)])]}
+
+
+def test_a_json_table_with_a_units_block_reads_as_the_same_table_in_mm_and_deg(tmp_path):
+    import json
+
+    (tmp_path / "ur3e.json").write_text(json.dumps(UR3E_JSON))
+    arm = load_arm("ur3e.json", folder=tmp_path)  # relative to the folder, as a session's robot: is
+    assert arm.name == "UR3e" and arm.convention == "standard" and arm.n_joints == 6
+    mm_deg = dict(UR3E_JSON, units={"length": "millimetres", "angle": "degrees"},
+                  joints=[dict(j, a=1e3 * j["a"], d=1e3 * j["d"], alpha=np.degrees(j["alpha"])) for j in UR3E_JSON["joints"]])
+    np.testing.assert_allclose(chain_from_dict(mm_deg).dh, arm.dh, atol=1e-12)
+    # the UR3e at zero joint angles lies along -x like the UR5e: flange at (a2 + a3, -(d4 + d6), d1 - d5)
+    np.testing.assert_allclose(arm.T_base_end(np.zeros(6))[:3, 3], [-0.45675, -0.22315, 0.0665], atol=1e-9)
+
+
+def test_unreadable_json_tables_are_one_config_error_naming_the_file(tmp_path):
+    import json
+
+    bad = tmp_path / "arm.json"
+    bad.write_text('{"dh_convention": "standard", "joints": [1, ]}')
+    with pytest.raises(ConfigError, match="cannot read the DH table") as e:
+        load_arm(bad)
+    assert e.value.path == str(bad) and e.value.line == 1 and "JSONDecodeError" in str(e.value)
+    for change, match in ((dict(units={"length": "inch", "angle": "rad"}), "unit"),
+                          (dict(units="m"), "units must be a mapping"),
+                          (dict(degrees_of_freedom=7), "degrees_of_freedom"),
+                          (dict(links=UR3E_JSON["joints"]), "both links and joints"),
+                          (dict(length_unit="m"), "units twice"),
+                          (dict(name="x"), "both name and robot_name")):
+        bad.write_text(json.dumps(dict(UR3E_JSON, **change)))
+        with pytest.raises(ConfigError, match=match):
+            load_arm(bad)
+    with pytest.raises(ConfigError, match="unknown robot model"):
+        load_arm(tmp_path / "missing.json")
+    bad_yaml = tmp_path / "arm.yaml"
+    bad_yaml.write_text("name: x\nlinks: [{a: 0\n")
+    with pytest.raises(ConfigError, match="cannot read the DH table") as e:
+        load_arm(bad_yaml)
+    assert e.value.line is not None and "expected a YAML file" in str(e.value)
