@@ -255,6 +255,8 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     if opts.method not in METHODS:
         raise CalibrationError(f"unknown method {opts.method!r}", expected=" | ".join(METHODS), code="unknown_method")
     t0 = time.perf_counter()
+    if opts.refine:
+        session_arm(s, opts)  # the arm session.yaml names is read before any work: a wrong table is one error line
     if s.meta.get("pose_only"):  # target poses from a tracker: no detection, no intrinsics
         return _run_pose_only(s, opts, state, progress)
     unpaired: list = []
@@ -500,16 +502,24 @@ def refine_stage(s: Session, opts: CalibrateOptions, start: HandEyeEstimate, int
     views = [RefineView(vid, poses[vid].corner_ids, dets[vid].image_points, T_base_end[vid],
                         _joint_angles(s, vid)) for vid in poses]
     ro = dict(opts.refine_options)
-    if ro.get("arm") is None and s.meta.get("robot") is not None:  # session.yaml robot: a preset, DH file or table
-        from .kinematics import load_arm
-
-        ro["arm"] = load_arm(s.meta["robot"], folder=s.path)
+    if ro.get("arm") is None:
+        ro["arm"] = session_arm(s, opts)
     if opts.fix_k3:
         ro["fix"] = tuple(sorted(set(ro.get("fix", ())) | {"k3"}))
     if s.intrinsics is not None and s.intrinsics_prior in ("fixed", "prior"):
         ro.setdefault("intrinsics", s.intrinsics_prior)
     return refine(mode=s.mode, object_points=s.target.object_points(), views=views, intrinsics=intr,
                   T_x0=start.T_x, T_board0=start.T_board, options=RefineOptions(**ro), starts=closed_forms)
+
+
+def session_arm(s: Session, opts: CalibrateOptions):
+    """The arm session.yaml's ``robot:`` names (a preset, a DH table file relative to the session, or an
+    inline table; :func:`handeye.kinematics.load_arm`) when the options name none, else None."""
+    if opts.refine_options.get("arm") is not None or s.meta.get("robot") is None:
+        return None
+    from .kinematics import load_arm
+
+    return load_arm(s.meta["robot"], folder=s.path)
 
 
 def _joint_angles(s: Session, vid: str):
