@@ -57,6 +57,9 @@ class RefineResult:
     # the robot error model (handeye.refine.robot_model): kind none | iid | joint_space | kinematic, its
     # parameters, and what was estimated (:func:`robot_model_dict`)
     robot_model: dict = field(default_factory=dict)
+    # marginal covariance (6,6) of T_board (T_base_board / T_end_board) in the parametrisation of
+    # cov_x_6x6 (right tangent, rotation first); None when the refinement failed
+    cov_board_6x6: Optional[np.ndarray] = None
 
     @property
     def used_view_ids(self) -> list:
@@ -80,6 +83,7 @@ class RefineResult:
             "start_method": self.start_method,
             "cov_x_6x6": self.cov_x_6x6,
             "cov_parametrisation": self.cov_parametrisation,
+            "cov_board_6x6": self.cov_board_6x6,
             "correlation_6x6": self.correlation_6x6,
             "sigma_rot_deg": self.sigma_rot_deg,
             "sigma_rot_axes": "camera frame (right perturbation)",
@@ -225,4 +229,5 @@ def build_result(pb: "Problem", *, status: str, reason: str, S_cc: Optional[np.n
         robot_sigma_resolved=_resolved(pb),
         rms_px_before=rms_before, rms_px_after=rms_after, per_view=_per_view(pb, dec),
         outliers=tuple(outliers), iterations=int(pb.iterations), seconds=time.perf_counter() - t0,
-        start_method=start_method, options=pb.o, robot_model=robot_model_dict(pb, S_cc))
+        start_method=start_method, options=pb.o, robot_model=robot_model_dict(pb, S_cc),
+        cov_board_6x6=None if S_cc is None else 0.5 * (S_cc[6:N_POSES, 6:N_POSES] + S_cc[6:N_POSES, 6:N_POSES].T))
