@@ -133,23 +133,73 @@ def random_bump(rng, mm=BUMP_MM, deg=BUMP_DEG) -> np.ndarray:
     return np.r_[np.radians(deg) * w / np.linalg.norm(w), 1e-3 * mm * u / np.linalg.norm(u)]
 
 
+def views_at(poses, *, mode, model, rig, seed, model_seed, target, intrinsics):
+    """RefineViews of a rig ``(T_x, T_board)`` seen from the robot poses ``poses`` (N,4,4; the flange goes
+    there): corners with NOISE_PX, those outside the image or behind the camera dropped; robot readings with
+    the iid errors or read through the kinematic model's arm (the one of ``model_seed``, as the install's);
+    poses the true arm cannot reach are skipped."""
+    from handeye.camera import pixels_from_board_points
+    from handeye.mounting import mounting
+    from handeye.refine import RefineView
+    from handeye.sim.scenarios import perturb_T_base_end, random_streams
+
+    rng = np.random.default_rng(seed)
+    T_true = np.asarray(poses, float).reshape(-1, 4, 4)
+    q_enc = None
+    if model == "kinematic":
+        from handeye.sim.robot_error import make_kinematic_error, reachable, report_poses
+
+        kin = make_kinematic_error(rng=random_streams(model_seed)["robot_model"])
+        q = [reachable(kin, T) for T in T_true]
+        T_true = np.array([T for T, qk in zip(T_true, q) if qk is not None]).reshape(-1, 4, 4)
+        q_enc, T_rep = report_poses(kin, np.array([qk for qk in q if qk is not None]), rng=rng)
+    else:
+        T_rep = perturb_T_base_end(T_true, rng=rng, sigma_mm=IID[0], sigma_deg=IID[1])
+    C = mounting(mode).predict_T_cam_board(rig[0], rig[1], T_true)
+    obj = target.object_points()
+    views = []
+    for k in range(len(T_true)):
+        z = obj @ C[k, :3, :3].T[:, 2] + C[k, 2, 3]
+        uv = pixels_from_board_points(C[k], obj, intrinsics) + rng.normal(0.0, NOISE_PX, size=(len(obj), 2))
+        ok = (z > 0) & np.all((uv >= 0) & (uv < [intrinsics.width, intrinsics.height]), axis=1)
+        if ok.sum() >= 12:
+            views.append(RefineView(str(k + 1), np.flatnonzero(ok), uv[ok], T_rep[k],
+                                    None if q_enc is None else q_enc[k]))
+    return views
+
+
+def planned_poses(inst, n_views: int, model: str) -> np.ndarray:
+    """The poses ``handeye verify --plan`` proposes against ``inst``, ``n_views`` of them (the plan's goal set
+    unreachable so that it does not stop early); kinematic: twice as many, the unreachable ones are skipped."""
+    from handeye.recal.plan import plan_verification
+
+    p = plan_verification(inst, max_views=n_views if model == "iid" else 2 * n_views, power=1.0 - 1e-12)
+    return np.array(p.poses)
+
+
 def verify_trial(args) -> dict:
     from handeye.errors import HandeyeError
     from handeye.frames import se3_exp
     from handeye.recal.verify import verify_views
 
-    mode, model, seed, validated = args
+    mode, model, seed, validated, poses = args
     try:
         s, r, inst = install(mode, model, seed, validated)
         if r.status != "ok":
             return dict(mode=mode, model=model, seed=seed, skipped=f"install: {r.failure_reason}")
         bump = random_bump(np.random.default_rng(seed + 7919))
-        out = dict(mode=mode, model=model, seed=seed, cov=inst.cov_source)
+        out = dict(mode=mode, model=model, seed=seed, cov=inst.cov_source, poses=poses)
+        planned = planned_poses(inst, 6, model) if poses == "planned" else None
         for name, xi in (("still", np.zeros(6)), ("bumped", bump), ("bumped2", 2.0 * bump)):
-            sv = session(mode=mode, model=model, seed=seed + 100000, n_views=6,
-                         rig=(s.T_x_true @ se3_exp(xi), s.T_board_true), model_seed=seed)
+            rig = (s.T_x_true @ se3_exp(xi), s.T_board_true)
+            if planned is None:
+                views = refine_views(session(mode=mode, model=model, seed=seed + 100000, n_views=6, rig=rig,
+                                             model_seed=seed))
+            else:
+                views = views_at(planned, mode=mode, model=model, rig=rig, seed=seed + 100000, model_seed=seed,
+                                 target=s.target, intrinsics=s.intrinsics)[:6]
             t0 = time.perf_counter()
-            v = verify_views(inst, views=refine_views(sv), object_points=sv.target.object_points())
+            v = verify_views(inst, views=views, object_points=s.target.object_points())
             e = v.test.change_xi - xi
             out[name] = dict(drifted=v.drifted, p=v.test.p_value, dof=v.test.dof, secs=time.perf_counter() - t0,
                              within=float(e @ np.linalg.solve(v.test.change_cov, e)) <= CHI2_2SIGMA_6,
@@ -334,6 +384,8 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--validated", action="store_true",
                     help="verify trials: installs with the validation stage's verdict covariance (as calibrate writes)")
+    ap.add_argument("--poses", choices=("planned", "random"), default="planned",
+                    help="verify trials: the 6 views at the poses verify --plan proposes (default) or at random poses")
     ap.add_argument("--jsonl", help="append every trial's outcome to this file as it comes")
     ap.add_argument("--from-jsonl", nargs="+", help="only report the trials in these files (verify, compare, prior)")
     a = ap.parse_args()
@@ -351,7 +403,7 @@ def main() -> None:
         return
     seeds = range(a.first_seed, a.first_seed + a.trials)
     if a.trials:
-        tasks = [(mode, model, s, a.validated) for model in a.models for mode in a.modes for s in seeds]
+        tasks = [(mode, model, s, a.validated, a.poses) for model in a.models for mode in a.modes for s in seeds]
         print(f"verify: {len(tasks)} trials", file=sys.stderr)
         report_verify(run_pool(verify_trial, tasks, a.jobs, a.jsonl))
     if a.compare:

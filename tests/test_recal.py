@@ -282,17 +282,29 @@ def test_verify_cli_writes_reports_and_exits_9_when_drifted(rendered, tmp_path, 
 
 
 def test_calibrate_with_prior_reports_the_update_or_the_contradiction(rendered, tmp_path, capsys):
+    installed = json.loads((rendered["installed"] / "result.json").read_text())
     for name, contradicted in (("same", False), ("bumped", True)):
         main(["-q", "calibrate", str(rendered[name]), "--prior", str(rendered["installed"]), "--out",
-              str(tmp_path / name), "--no-report"])
+              str(tmp_path / name)])
         res = json.loads((tmp_path / name / "result.json").read_text())
         p = res["prior"]
         assert p["contradicted"] is contradicted and p["frame"] == "T_end_cam"
         assert "prior:" in capsys.readouterr().out
+        # a bump moves the camera, not its lens: the prior's intrinsics stay either way
+        assert p["intrinsics"] == "the prior's, with its sigmas"
+        assert abs(res["intrinsics"]["fx"] - installed["intrinsics"]["fx"]) < \
+            5 * installed["refinement"]["intrinsics_sigma"]["fx"]
         if contradicted:
             assert p["used"].startswith("no prior on X") and p["drift"]["trans_mm"] > 2.0
         else:
             assert p["used"] == "prior" and p["test"]["dof"] == 6 and p["test"]["p_value"] > 0.05
+            assert len(p["update"]["sigma_trans_mm"]) == 3 and all(s >= 0 for s in p["update"]["sigma_trans_mm"])
+        md = (tmp_path / name / "report.md").read_text()
+        html = (tmp_path / name / "report.html").read_text()
+        label = "CONTRADICTED" if contradicted else "PRIOR HOLDS"
+        assert "## Prior: an earlier calibration" in md and label in md and p["summary"] in md
+        assert 'id="prior"' in html and label in html
+        assert ("Drift: the new views alone" in md) is contradicted and "Update of the prior" in md
 
 
 def test_collect_verify_against_refuses_another_mode_in_one_line(rendered, tmp_path, capsys):

@@ -260,19 +260,10 @@ def _installed_target(installed) -> TargetSpec:
 
 def _verify_collected(out: Path, installed) -> int:
     """handeye verify on the collected session against the installed calibration: OUT/verify/."""
-    from ..errors import DRIFTED_EXIT_CODE
-    from ..output import write_json
-    from ..recal.report import write_verify_reports
-    from ..recal.verify import verify_dict, verify_session
-    from .verify import verification_lines
+    from ..recal.verify import verify_session
+    from .verify import finish_verification
 
-    sv = verify_session(out, installed)
-    d = verify_dict(sv)
-    files = [write_json(out / "verify" / "verify.json", d), *write_verify_reports(out / "verify")]
-    print("\n".join(verification_lines(d)))
-    for f in files:
-        print(f"written: {f}")
-    return DRIFTED_EXIT_CODE if sv.verification.drifted else 0
+    return finish_verification(verify_session(out, installed), out / "verify")
 
 
 def _open_robot(args, *, target: TargetSpec, width: int, height: int, rng: np.random.Generator, installed=None):

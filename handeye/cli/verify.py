@@ -72,21 +72,25 @@ def run(args) -> int:
 
 
 def run_verify(args) -> int:
-    from ..errors import DRIFTED_EXIT_CODE
-    from ..output import to_json, write_json
-    from ..recal.report import write_verify_reports
-    from ..recal.verify import VerifyOptions, verify_dict, verify_session
+    from ..recal.verify import VerifyOptions, verify_session
     from .calibrate import default_out_dir
 
     opts = VerifyOptions.from_config(alpha=args.alpha)
     sv = verify_session(args.session, args.against, options=opts, mode=args.mode, progress=log.info)
     calibrate_out = default_out_dir(args.session)
     out = Path(args.out) if args.out else calibrate_out.with_name(calibrate_out.name + "-verify")
-    d = verify_dict(sv)
-    files = [write_json(out / "verify.json", d)]
-    if not args.no_report:
-        files += write_verify_reports(out)
-    if args.json:
+    return finish_verification(sv, out, reports=not args.no_report, as_json=args.json)
+
+
+def finish_verification(sv, out: Path, *, reports: bool = True, as_json: bool = False) -> int:
+    """Write verify.json (and its reports) to ``out``, print the summary (or the JSON) and the files written;
+    the exit code: DRIFTED when drifted, else 0."""
+    from ..errors import DRIFTED_EXIT_CODE
+    from ..output import to_json
+    from ..recal.report import write_verification
+
+    d, files = write_verification(sv, out, reports=reports)
+    if as_json:
         print(to_json(d))
     else:
         print("\n".join(verification_lines(d)))

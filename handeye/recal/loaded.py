@@ -124,6 +124,28 @@ def _check_parametrisation(text, source: str) -> None:
                          hint="recompute the result with this version of handeye calibrate")
 
 
+#: the prior hook's term on X when the new views alone should decide it: 1 rad, 1 m (vague)
+VAGUE_COV_X = np.eye(6)
+
+
+def installed_prior(installed: LoadedResult, *, session_intrinsics: bool, cov_x: Optional[np.ndarray] = None):
+    """(Prior or None, names of intrinsics to hold) from the installed result: X with ``cov_x``
+    (default: the installed covariance) and, unless the session brings its own intrinsics, the
+    installed intrinsics with their sigmas (those without a sigma are held at the installed value)."""
+    from ..refine.options import Prior
+
+    if installed.cov_x is None:
+        raise InputError("the installed result has no covariance of X", path=installed.source,
+                         hint="use a result calibrated with the refinement (without --no-refine)")
+    cov = installed.cov_x if cov_x is None else cov_x
+    if session_intrinsics or installed.intrinsics is None:
+        return Prior(T_x=installed.T_x, cov_x=cov), ()
+    sig = np.array([installed.intrinsics_sigma.get(n, 0.0) for n in INTRINSIC_NAMES])
+    fixed = tuple(n for n, s in zip(INTRINSIC_NAMES, sig) if not s > 0)
+    cov_k = np.diag(np.where(sig > 0, sig, 1.0) ** 2)
+    return Prior(T_x=installed.T_x, cov_x=cov, intrinsics=installed.intrinsics, cov_intrinsics=cov_k), fixed
+
+
 def result_from_refinement(refined, *, target, validation=None) -> dict:
     """The parts of result.json that :func:`load_result` reads, from a
     :class:`~handeye.refine.RefineResult` and the target spec: for programs (and the benchmarks)

@@ -1,18 +1,21 @@
 """An earlier result as the prior of a new calibration (``handeye calibrate SESSION --prior RESULT``).
 
 The earlier ``X0`` (covariance ``S0``, the one its verdict uses) enters the refinement as a Gaussian
-prior through :class:`handeye.refine.options.Prior`; the earlier intrinsics are the session's given
-intrinsics with their sigmas as the refinement's intrinsics prior (``intrinsics: prior``; those without
-a sigma are held), unless the session brings its own. A few new views then update the calibration
-instead of replacing it.
+prior through :class:`handeye.refine.options.Prior`, and so do the earlier intrinsics with their sigmas
+(the session starts from them; those without a sigma are held), unless the session brings its own:
+one recipe with ``handeye verify``, :func:`handeye.recal.loaded.installed_prior`. A few new views then
+update the calibration instead of replacing it.
 
 Whether the data contradict the prior: the update ``u = L^-1 Log(X0^-1 X_post)`` (``S0 = L L^T``) has
 covariance ``M = I - L^-1 S_post L^-T`` when the prior is right (a linear Gaussian update), so
 ``T = sum_k (v_k . u)^2 / m_k`` over the eigenpairs ``(m_k, v_k)`` of ``M`` with ``m_k >= min_variance_share``
 is chi-square with that many degrees of freedom (the score test of ``X = X0``; the same statistic as
 ``handeye verify``'s Wald test in the linear model). When ``p < alpha`` (or the solve with the prior
-fails), the prior is not used silently: the session is calibrated again without the prior on X and
-the result says so, with the drift (the new estimate against ``X0``, :mod:`handeye.recal.compare`).
+fails), the prior is not used silently: the session is calibrated again without the prior on X (a vague
+term, :data:`handeye.recal.loaded.VAGUE_COV_X`: the data say its mean is wrong, and no inflation of
+``S0`` fitted to one drift would be better founded) but with the intrinsics prior (a bump moves the
+camera, not its lens), and the result says so, with the drift (the new estimate against ``X0``,
+:mod:`handeye.recal.compare`).
 """
 from __future__ import annotations
 
@@ -23,11 +26,10 @@ from typing import Optional
 import numpy as np
 from scipy import stats
 
-from ..camera import INTRINSIC_NAMES
 from ..errors import InputError
 from ..output import plain
 from .compare import x_difference
-from .loaded import LoadedResult, ResultLike, load_result
+from .loaded import VAGUE_COV_X, LoadedResult, ResultLike, installed_prior, load_result
 from .verify import VerifyOptions, change_in_result_frame
 
 log = logging.getLogger(__name__)
@@ -71,16 +73,15 @@ def check_prior_fits(installed: LoadedResult, session) -> None:
                          path=installed.source, code="not_comparable", hint="use a result of this board as --prior")
 
 
-def _with_prior(session, options, installed: LoadedResult):
-    """(session, options) with the earlier X (and intrinsics, unless the session has its own) as priors."""
-    from ..refine.options import Prior
-
-    ro = dict(options.refine_options, prior=Prior(T_x=installed.T_x, cov_x=installed.cov_x))
+def _with_prior(session, options, installed: LoadedResult, *, cov_x=None):
+    """(session, options) with the earlier X (covariance ``cov_x``, default its own) and, unless the session
+    has its own intrinsics, the earlier intrinsics as priors (:func:`handeye.recal.loaded.installed_prior`:
+    the session starts from them, the refinement estimates them under their prior)."""
     own = session.intrinsics is not None and session.intrinsics_prior in ("fixed", "prior")
-    if not own and installed.intrinsics is not None:
-        sig = [installed.intrinsics_sigma.get(n, 0.0) for n in INTRINSIC_NAMES]
-        held = tuple(n for n, s in zip(INTRINSIC_NAMES, sig) if not s > 0)
-        ro["intrinsics_prior_sigma"] = tuple(s if s > 0 else 1.0 for s in sig)
+    prior, held = installed_prior(installed, session_intrinsics=own, cov_x=cov_x)
+    ro = dict(options.refine_options, prior=prior)
+    if prior.intrinsics is not None:
+        ro["intrinsics"] = "estimate"  # the prior's intrinsics term, and no factory prior on top of it
         ro["fix"] = tuple(sorted(set(ro.get("fix", ())) | set(held)))
         session = replace(session, intrinsics=installed.intrinsics, intrinsics_prior="prior")
     return session, replace(options, refine_options=ro)
@@ -110,14 +111,16 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
            "sigma_trans_mm": 1000.0 * np.sqrt(np.diag(installed.T_x[:3, :3] @ installed.cov_x[3:, 3:]
                                                       @ installed.T_x[:3, :3].T)),
            "sigma_rot_deg": np.degrees(np.sqrt(np.diag(installed.cov_x[:3, :3]))),
-           "intrinsics": "the session's own" if opts_p.refine_options.get("intrinsics_prior_sigma") is None
+           "intrinsics": "the session's own" if opts_p.refine_options["prior"].intrinsics is None
            else "the prior's, with its sigmas", "alpha": o.alpha}
     contradicted, why = False, ""
     if run.status == "ok" and run.refined is not None:
         t = update_test(cov_prior=installed.cov_x, update_xi=_log_update(installed.T_x, run.T_x),
                         cov_post=run.refined.cov_x_6x6, min_variance_share=o.min_variance_share)
-        upd = change_in_result_frame(installed.T_x, t.update_xi, run.refined.cov_x_6x6)
-        rec["update"] = {k: upd[k] for k in ("d_trans_mm", "d_rot_deg", "trans_mm", "rot_deg")}
+        spread = installed.cov_x - run.refined.cov_x_6x6  # the update's covariance when the prior is right
+        upd = change_in_result_frame(installed.T_x, t.update_xi, 0.5 * (spread + spread.T))
+        rec["update"] = dict(upd, sigma_meaning="1-sigma of the update when the prior is right (prior minus "
+                                                "posterior covariance)")
         rec["test"] = {"kind": "score test of X = X_prior: the update against its spread when the prior is right",
                        "statistic": t.statistic, "dof": t.dof, "p_value": t.p_value}
         contradicted = t.p_value < o.alpha
@@ -134,8 +137,8 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
         log.info("prior: %s", rec["summary"])
         return _described(run), plain(rec, nan_to_none=True)
     progress("the data contradict the prior: calibrating without it")
-    opts_n = replace(opts_p, refine_options={k: v for k, v in opts_p.refine_options.items() if k != "prior"})
-    run_n = run_calibration(s_p, opts_n, progress=progress)
+    s_n, opts_n = _with_prior(session, options, installed, cov_x=VAGUE_COV_X)  # the intrinsics prior stays
+    run_n = run_calibration(s_n, opts_n, progress=progress)
     rec["used"] = "no prior on X (the new views alone; the prior's intrinsics kept)"
     if run_n.status == "ok" and run_n.refined is not None:
         d = x_difference(installed.T_x, installed.cov_x, run_n.T_x, run_n.refined.cov_x_6x6)

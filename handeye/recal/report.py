@@ -18,6 +18,19 @@ def verify_context(v: dict) -> dict:
                 "+00:00", " UTC")}
 
 
+def write_verification(sv, out_dir, *, reports: bool = True) -> tuple[dict, list[Path]]:
+    """verify.json of a :class:`~handeye.recal.verify.SessionVerification` in ``out_dir`` and, with
+    ``reports``, verify.html and verify.md from it: (verify.json's content, the files written)."""
+    from ..output import write_json
+    from .verify import verify_dict
+
+    d = verify_dict(sv)
+    files = [write_json(Path(out_dir) / "verify.json", d)]
+    if reports:
+        files += write_verify_reports(out_dir)
+    return d, files
+
+
 def write_verify_reports(out_dir, *, formats=("html", "md")) -> list[Path]:
     """Render verify.html / verify.md in ``out_dir`` from its verify.json."""
     from ..report.render import _env, _tidy_markdown

@@ -38,13 +38,13 @@ from typing import Optional, Sequence
 import numpy as np
 from scipy import stats
 
-from ..camera import INTRINSIC_NAMES, Intrinsics
+from ..camera import Intrinsics
 from ..config import load_preset
 from ..errors import CalibrationError, InputError
 from ..frames import inv_T, mean_T, pose_error, se3_exp, tangent_difference
 from ..mounting import mounting
 from ..output import plain
-from .loaded import LoadedResult
+from .loaded import VAGUE_COV_X, LoadedResult, installed_prior
 
 log = logging.getLogger(__name__)
 
@@ -87,10 +87,6 @@ class DriftTest:
     posterior_xi: np.ndarray  # (6,): the installed and the new estimate combined, Log(X0^-1 X_post)
     posterior_cov: np.ndarray  # (6,6)
     variance_share: np.ndarray  # (6,) lambda_k = 1 / (1 + D_k), descending
-
-
-#: the prior hook's term on X when the new views alone should decide it: 1 rad, 1 m (vague)
-VAGUE_COV_X = np.eye(6)
 
 
 def drift_test(*, cov_installed: np.ndarray, T_x_installed: np.ndarray, T_x_new: np.ndarray, cov_new: np.ndarray,
@@ -181,24 +177,6 @@ class Verification:
             "board": self.board, "robot": self.robot, "intrinsics": self.intrinsics,
             "what_moved": list(self.what_moved), "views": self.views, "n_views": self.n_views,
             "sigma_px": self.sigma_px, "seconds": self.seconds}, nan_to_none=True)
-
-
-def installed_prior(installed: LoadedResult, *, session_intrinsics: bool, cov_x: Optional[np.ndarray] = None):
-    """(Prior or None, names of intrinsics to hold) from the installed result: X with ``cov_x``
-    (default: the installed covariance) and, unless the session brings its own intrinsics, the
-    installed intrinsics with their sigmas (those without a sigma are held at the installed value)."""
-    from ..refine.options import Prior
-
-    if installed.cov_x is None:
-        raise InputError("the installed result has no covariance of X", path=installed.source,
-                         hint="use a result calibrated with the refinement (without --no-refine)")
-    cov = installed.cov_x if cov_x is None else cov_x
-    if session_intrinsics or installed.intrinsics is None:
-        return Prior(T_x=installed.T_x, cov_x=cov), ()
-    sig = np.array([installed.intrinsics_sigma.get(n, 0.0) for n in INTRINSIC_NAMES])
-    fixed = tuple(n for n, s in zip(INTRINSIC_NAMES, sig) if not s > 0)
-    cov_k = np.diag(np.where(sig > 0, sig, 1.0) ** 2)
-    return Prior(T_x=installed.T_x, cov_x=cov, intrinsics=installed.intrinsics, cov_intrinsics=cov_k), fixed
 
 
 def board_from_views(mode: str, T_x: np.ndarray, T_base_end: np.ndarray, T_cam_board: np.ndarray) -> np.ndarray:

@@ -78,6 +78,7 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
                      if T_x is not None else None)
     ctx["uncertainty"] = _uncertainty_block(ref, unc, parent) if unc is not None else None
     ctx["methods"] = _methods(res, T_x, x_name)
+    ctx["prior"] = _prior_block(res, x_name)
     ctx["offsets"] = _offsets(res, ref, T_x, cov, x_name)
     ctx["intrinsics"] = _intrinsics_rows(intr, (ref.get("intrinsics_sigma_verdict") or ref.get("intrinsics_sigma"))
                                          if ref else None, res, model_sigma=ref.get("intrinsics_sigma") if ref else None)
@@ -303,6 +304,34 @@ def _result_block(res, T_x, T_board, unc, pred, wd, x_name, b_name, parent, boar
                         "matrix_text": matrix_text(T_board), "translation_mm": bf["translation_mm"],
                         "euler_deg": bf["euler_vendor_deg"], "vendor_line": bf["vendor_pose_line"]}
     return out
+
+
+def _change_rows(d: dict) -> list[dict]:
+    """Per axis a change of X with its 1-sigma (a ``prior`` block's update or drift)."""
+    keys = ("d_trans_mm", "sigma_trans_mm", "d_rot_deg", "sigma_rot_deg")
+    vals = [np.asarray(d.get(k) if d.get(k) is not None else [np.nan] * 3, float).reshape(-1)[:3] for k in keys]
+    return [{"axis": ax, **{k: float(v[i]) for k, v in zip(keys, vals)}} for i, ax in enumerate("xyz")]
+
+
+def _prior_block(res, x_name) -> Optional[dict]:
+    """A ``calibrate --prior`` run (result.json's ``prior``): the earlier result used as the prior (source, X,
+    sigmas), the update the new views made to it, whether they contradict it and which the result is."""
+    p = res.get("prior")
+    if not isinstance(p, dict):
+        return None
+    T0 = as_T(p.get(p.get("frame") or x_name))
+    f = pose_forms(T0) if T0 is not None else None
+    test, upd, drift = p.get("test") or {}, p.get("update") or {}, p.get("drift") or {}
+    return {"source": p.get("source", ""), "frame": p.get("frame") or x_name,
+            "covariance_used": p.get("covariance_used", ""), "intrinsics": p.get("intrinsics", ""),
+            "translation_mm": f["translation_mm"] if f else None, "euler_deg": f["euler_vendor_deg"] if f else None,
+            "vendor_line": f["vendor_pose_line"] if f else "",
+            "sigma_trans_mm": p.get("sigma_trans_mm"), "sigma_rot_deg": p.get("sigma_rot_deg"),
+            "update_rows": _change_rows(upd) if upd else None, "update_trans_mm": upd.get("trans_mm"),
+            "update_rot_deg": upd.get("rot_deg"), "test": test or None, "alpha": p.get("alpha"),
+            "contradicted": bool(p.get("contradicted")), "used": p.get("used", ""), "summary": p.get("summary", ""),
+            "drift_rows": _change_rows(drift) if drift else None, "drift_trans_mm": drift.get("trans_mm"),
+            "drift_rot_deg": drift.get("rot_deg"), "drift_p": drift.get("p_value")}
 
 
 SIGMA_SOURCE_TEXT = {
