@@ -6,8 +6,8 @@ exercise the same path. It writes into ``out_dir``:
 - ``result.json``: the result (or the failure with its structured ``error``), the verdict,
   diagnostics, and ``seconds`` for every stage: load, detect, intrinsics, board_poses, closed_form,
   refine (the pipeline's stages; ``calibrate`` is all of them together), diagnose, write, verdict,
-  report, and ``total`` from the start of the load to the end of the report (start-up and imports
-  are not in it);
+  report (the reports built and rendered; their files are written after result.json), and ``total``
+  from the start of the load to the end of the report (start-up and imports are not in it);
 - ``observations.json``: per-view corners and residuals;
 - ``thumbnails/<view_id>.jpg``: small images of every view (when detection made them);
 - ``report.html`` / ``report.md``, built from the folder alone (unless ``report=False``).
@@ -22,17 +22,19 @@ a file, not under a file, writable) and locked (``.handeye.lock`` with the run's
 refused while that pid lives, a killed run's lock is stale and taken over). The temporary files a
 killed run left are removed, the reports of the previous result are removed before the new result
 is written (a report never describes another result than result.json's), and result.json,
-observations.json and the reports carry the same ``run_id``. result.json is written last among the
-run's data files, atomically: a run killed at any point leaves the previous result.json or the new one.
+observations.json and the reports carry the same ``run_id``. result.json is written once, last among
+the run's data files and before the reports, atomically: a run killed at any point leaves the previous
+result.json or the new one.
 Every file the run read is in result.json's ``provenance.inputs`` with its SHA-256.
 
 A crash inside the diagnostics (an optional stage) is reported as such (one error line; the
 traceback with ``--debug``): the result is written without them and says so in ``stage_errors``.
 
 The verdict belongs to the run: result.json's ``verdict`` is the report's own verdict (the QA checks
-of ``configs/qa.yaml``, or the site ``qa`` file, and the diagnostics' findings, evaluated by
-:func:`handeye.report.build_report_context` from the folder just written, without figures), stored
-with ``qa`` (every check with its value and limits) and ``findings``. ``status`` only says whether a
+of ``configs/qa.yaml``, or the site ``qa`` file, loaded once, and the diagnostics' findings, evaluated
+by :func:`handeye.report.build_report_context` from the folder's contents as they are written, without
+figures; the reports are rendered from that same context), stored with ``qa`` (every check with its
+value and limits) and ``findings``. ``status`` only says whether a
 matrix was computed (``ok``) or not (``failed``); ``verdict`` says whether to use it:
 
 - ``PASS`` / ``WARN``: a matrix, fit for use (the warnings say what to improve); exit code 0;
@@ -59,7 +61,8 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from .errors import HandeyeError, SessionRefused, verdict_exit_code
-from .output import FolderLock, atomic_write_bytes, check_out_dir, inputs_record, remove_stray_temps, write_json
+from .output import (FolderLock, atomic_write_bytes, atomic_write_text, check_out_dir, inputs_record,
+                     remove_stray_temps, to_json, write_json)
 from .pipeline import CalibrateOptions, CalibrationRun, run_calibration
 
 log = logging.getLogger(__name__)
@@ -113,19 +116,20 @@ def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOpti
 
     progress = progress or (lambda s: None)
     t0 = time.perf_counter()
-    load_qa(qa)  # a bad site QA file is unusable input: say so before the calibration, not after it
+    qa_cfg = load_qa(qa)  # a bad site QA file is unusable input: say so before the calibration, not after it
     if not Path(session_path).exists():
         load_session(session_path, mode=mode, allow_outside=allow_outside)  # raises: nothing to report on
     out_dir = check_out_dir(out_dir)
     with FolderLock(out_dir):
         remove_stray_temps(out_dir)
-        return _calibrate_locked(session_path, options=options, out_dir=out_dir, report=report, qa=qa, mode=mode,
-                                 progress=progress, diagnostics=diagnostics, allow_outside=allow_outside, t0=t0,
-                                 site_files=site_files, prior=prior)
+        return _calibrate_locked(session_path, options=options, out_dir=out_dir, report=report, qa=(qa, qa_cfg),
+                                 mode=mode, progress=progress, diagnostics=diagnostics, allow_outside=allow_outside,
+                                 t0=t0, site_files=site_files, prior=prior)
 
 
-def _calibrate_locked(session_path, *, options, out_dir: Path, report: bool, qa, mode, progress, diagnostics: bool,
-                      allow_outside: bool, t0: float, site_files, prior=None) -> WorkflowResult:
+def _calibrate_locked(session_path, *, options, out_dir: Path, report: bool, qa: tuple, mode, progress,
+                      diagnostics: bool, allow_outside: bool, t0: float, site_files, prior=None) -> WorkflowResult:
+    """``qa``: (the site QA file or None, its thresholds as loaded)."""
     from .session import load_session
 
     run_id = uuid.uuid4().hex
@@ -172,9 +176,10 @@ def _calibrate_locked(session_path, *, options, out_dir: Path, report: bool, qa,
     t2 = time.perf_counter()
     _keep_previous(out_dir, failed=run.status != "ok")
     write_thumbnails(out_dir, {**run.failures, **run.detections})
-    write_json(out_dir / "observations.json", {**observations_dict(run), "run_id": run_id}, indent=None)
-    return _finish(out_dir, res, seconds, report=report, qa=qa, t0=t0, t_write=t2, run=run, error=run.error,
-                   progress=progress)
+    obs_text = to_json({**observations_dict(run), "run_id": run_id}, indent=None)
+    atomic_write_text(out_dir / "observations.json", obs_text + "\n")
+    return _finish(out_dir, res, json.loads(obs_text), seconds, report=report, qa=qa, t0=t0, t_write=t2, run=run,
+                   error=run.error, progress=progress)
 
 
 def optional_stage(name: str, fn, *args, errors: dict, **kwargs):
@@ -213,13 +218,17 @@ def _refused(run: CalibrationRun, finding: dict) -> CalibrationRun:
                    refined=None)
 
 
-def _finish(out_dir: Path, res: dict, seconds: dict, *, report: bool, qa, t0: float, t_write: float, run,
-            error, progress) -> WorkflowResult:
-    """Write result.json, judge the folder (verdict, QA checks, findings) into it, then the reports;
-    result.json ends with every stage's time."""
-    from .report.qa import load_qa
+def _finish(out_dir: Path, res: dict, observations: Optional[dict], seconds: dict, *, report: bool, qa: tuple,
+            t0: float, t_write: float, run, error, progress) -> WorkflowResult:
+    """Judge the result (verdict, QA checks, findings) as the report does, from the folder's contents
+    (``res`` and ``observations`` as written or about to be, the thumbnails on disk), render the
+    reports from that one context, then write result.json once, atomically, ending with every stage's
+    time, and the reports beside it."""
+    from .output import to_json
+    from .report.folder import result_folder
     from .results import verdict_fields
 
+    qa_path, qa_cfg = qa
     result_path = out_dir / "result.json"
     paths = ()
     seconds["write"] = time.perf_counter() - t_write
@@ -227,27 +236,30 @@ def _finish(out_dir: Path, res: dict, seconds: dict, *, report: bool, qa, t0: fl
     for name in REPORT_NAMES:  # the previous result's reports must not sit beside this result
         (out_dir / name).unlink(missing_ok=True)
     shutil.rmtree(out_dir / "report_files", ignore_errors=True)
-    write_json(result_path, res)  # the verdict is judged from the folder, as the report is
     t_v = time.perf_counter()
-    res.update(verdict_fields(_judge(out_dir, qa), res, error, qa_cfg=load_qa(qa)))
+    # the folder as a reader sees it: result.json's content through the JSON it is written as
+    folder = result_folder(out_dir, json.loads(to_json(res)), observations)
+    ctx = _judge(folder, qa_path, qa_cfg)
+    res.update(verdict_fields(None if ctx is None else ctx["verdict"], res, error, qa_cfg=qa_cfg))
     seconds["verdict"] = time.perf_counter() - t_v
-    if report:
-        res["seconds"] = dict(seconds)
-        write_json(result_path, res)  # the report is built from the folder: result.json first
+    rendered = None
+    if report and ctx is not None:
         progress("reports")
         t3 = time.perf_counter()
-        paths = tuple(_write_reports(out_dir, qa))
+        rendered = _render_reports(ctx, folder)
         seconds["report"] = time.perf_counter() - t3
     seconds["total"] = time.perf_counter() - t0
     res["seconds"] = seconds
-    write_json(result_path, res)
+    write_json(result_path, res)  # once, and before the reports: a report never describes another result
+    if rendered is not None:
+        paths = tuple(_write_reports(out_dir, rendered))
     if error is None and res.get("verdict") in ("PASS", "WARN"):
         write_json(out_dir / LAST_GOOD_NAME, res)
     status = "ok" if error is None else "failed"
     return WorkflowResult(status, out_dir, result_path, res, run, error, paths, seconds)
 
 
-def _failed_load(session_path, err: HandeyeError, *, mode, out_dir: Path, report: bool, qa, t0: float,
+def _failed_load(session_path, err: HandeyeError, *, mode, out_dir: Path, report: bool, qa: tuple, t0: float,
                  diagnostics: bool, run_id: str) -> WorkflowResult:
     from .results import failed_load_result
 
@@ -274,23 +286,23 @@ def _failed_load(session_path, err: HandeyeError, *, mode, out_dir: Path, report
             shutil.rmtree(stale)
         elif stale.exists():
             stale.unlink()
-    return _finish(out_dir, res, seconds, report=report, qa=qa, t0=t0, t_write=t2, run=None, error=err,
+    return _finish(out_dir, res, None, seconds, report=report, qa=qa, t0=t0, t_write=t2, run=None, error=err,
                    progress=lambda s: None)
 
 
-def _judge(out_dir: Path, qa):
-    """The report's verdict of the result folder (:class:`handeye.report.qa.Verdict`), or None when
-    judging crashed (a report bug: logged; :func:`handeye.results.verdict_fields` then judges from
-    the findings alone)."""
+def _judge(folder, qa, qa_cfg: dict) -> Optional[dict]:
+    """The report's context of the result folder (its ``verdict``: :class:`handeye.report.qa.Verdict`),
+    without figures, or None when building it crashed (a report bug: logged;
+    :func:`handeye.results.verdict_fields` then judges from the findings alone, and no report is written)."""
     from .report import build_report_context
 
     try:
-        return build_report_context(out_dir, qa=qa, make_plots=False)["verdict"]
+        return build_report_context(folder, qa=qa, qa_cfg=qa_cfg, make_plots=False)
     except HandeyeError:
         raise
     except Exception as e:  # noqa: BLE001 - the result must survive a bug in the judging
         log.error("handeye: the QA checks could not be evaluated (%s: %s); the verdict rests on the findings. "
-                  "Rebuild the report with: handeye --debug report %s", type(e).__name__, e, out_dir)
+                  "Rebuild the report with: handeye --debug report %s", type(e).__name__, e, folder.path)
         return None
 
 
@@ -330,9 +342,28 @@ def write_thumbnails(out_dir: Path, per_view: dict) -> list[Path]:
     return written
 
 
-def _write_reports(out_dir: Path, qa) -> list[Path]:
-    """report.html and report.md from the result folder alone (a report bug is logged, never fatal:
-    result.json is complete without it)."""
-    from .report import write_reports
+def _render_reports(ctx: dict, folder) -> Optional[tuple]:
+    """report.html and report.md of the judged context, with its figures, in memory; None when that
+    crashed (a report bug is logged, never fatal: result.json is complete without it)."""
+    from .report import render_reports, report_crashed
+    from .report.context import add_figures
 
-    return write_reports(out_dir, qa=qa)
+    try:
+        return render_reports(add_figures(ctx), folder, out_dir=folder.path)
+    except HandeyeError:
+        raise
+    except Exception as e:  # noqa: BLE001 - the calibration result must survive a report bug
+        report_crashed(e, folder.path)
+        return None
+
+
+def _write_reports(out_dir: Path, rendered: tuple) -> list[Path]:
+    """The rendered reports into ``out_dir`` (a failed write is logged: result.json is complete)."""
+    from .report import report_crashed
+    from .report.render import write_files
+
+    try:
+        return write_files(out_dir, *rendered)
+    except Exception as e:  # noqa: BLE001 - the calibration result must survive a report that cannot be written
+        report_crashed(e, out_dir)
+        return []

@@ -49,34 +49,54 @@ def write_reports(result_dir: str | Path, *, qa: str | Path | None = None, out_d
     folder = read_result_folder(result_dir)
     out = Path(out_dir) if out_dir is not None else folder.path
     try:
-        from .render import render_html, render_markdown, write_files
+        from .render import write_files
 
         ctx = _context(folder, qa=qa, make_plots=plots)
-        html = render_html(ctx) if "html" in formats else None
-        beside = out.resolve() == folder.path.resolve()
-        md = render_markdown(ctx, thumbnails_beside=beside) if "md" in formats else None
-        return write_files(out, html, md)
+        return write_files(out, *render_reports(ctx, folder, out_dir=out, formats=formats))
     except HandeyeError:
         raise
     except Exception as e:  # noqa: BLE001 - the calibration result must survive a report bug
         if strict:
             raise
-        log.error("handeye: the report could not be written (%s: %s); result.json is complete. "
-                  "Rebuild it with: handeye --debug report %s", type(e).__name__, e, folder.path)
+        report_crashed(e, folder.path)
         return []
 
 
-def build_report_context(result_dir: str | Path, *, qa: str | Path | None = None, make_plots: bool = True) -> dict:
-    """The template context of a result folder (what the report shows, as plain values)."""
-    from .folder import read_result_folder
+def render_reports(ctx: dict, folder, *, out_dir: str | Path, formats=("html", "md")) -> tuple:
+    """(html text or None, (Markdown text, its files) or None): the reports of the context ``ctx`` of
+    ``folder`` (a :class:`~handeye.report.folder.ResultFolder`) rendered in memory, for
+    :func:`handeye.report.render.write_files` into ``out_dir``. A context built without figures is
+    rendered without them (:func:`handeye.report.context.add_figures` adds them)."""
+    from .render import render_html, render_markdown
 
-    return _context(read_result_folder(result_dir), qa=qa, make_plots=make_plots)
+    html = render_html(ctx) if "html" in formats else None
+    beside = Path(out_dir).resolve() == folder.path.resolve()
+    md = render_markdown(ctx, thumbnails_beside=beside) if "md" in formats else None
+    return html, md
 
 
-def _context(folder, *, qa, make_plots: bool) -> dict:
+def report_crashed(e: Exception, result_dir: Path) -> None:
+    """The one error line of a report that could not be built (a bug: result.json is complete without it)."""
+    log.error("handeye: the report could not be written (%s: %s); result.json is complete. "
+              "Rebuild it with: handeye --debug report %s", type(e).__name__, e, result_dir)
+
+
+def build_report_context(result_dir, *, qa: str | Path | None = None, qa_cfg: dict | None = None,
+                         make_plots: bool = True) -> dict:
+    """The template context of a result folder (what the report shows, as plain values).
+
+    ``result_dir``: a folder (read here) or a :class:`~handeye.report.folder.ResultFolder` already read;
+    ``qa_cfg``: the QA thresholds of ``qa`` when already loaded (:func:`handeye.report.qa.load_qa`)."""
+    from .folder import ResultFolder, read_result_folder
+
+    folder = result_dir if isinstance(result_dir, ResultFolder) else read_result_folder(result_dir)
+    return _context(folder, qa=qa, qa_cfg=qa_cfg, make_plots=make_plots)
+
+
+def _context(folder, *, qa, make_plots: bool, qa_cfg: dict | None = None) -> dict:
     from .context import build_context
     from .qa import load_qa
 
-    cfg = load_qa(qa)
+    cfg = load_qa(qa) if qa_cfg is None else qa_cfg
     source = f"{qa} (site override of configs/qa.yaml)" if qa is not None else "configs/qa.yaml (shipped)"
     return build_context(folder, qa_cfg=cfg, qa_source=source, make_plots=make_plots)

@@ -111,15 +111,23 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     ctx["motion"] = res.get("motion")
     ctx["provenance"] = _provenance(res, qa_cfg, qa_source)
     ctx["plots"] = []
+    ctx["figure_inputs"] = dict(res=res, obs=obs, ref=ref, fits=fits, views=views, T_x=T_x, T_board=T_board,
+                                unc=unc, metrics=metrics, notes=notes, qa_cfg=qa_cfg, mounting=mount,
+                                image_size=image_size)
     if make_plots:
-        from .figures import report_figures
-
-        ctx["plots"] = report_figures(res=res, obs=obs, ref=ref, fits=fits, views=views, T_x=T_x, T_board=T_board,
-                                      unc=unc, metrics=metrics, notes=notes, qa_cfg=qa_cfg, mounting=mount,
-                                      image_size=image_size)
+        add_figures(ctx)
     ctx["thumbs"] = {v["id"]: folder.thumbnails[v["id"]] for v in views if v["id"] in folder.thumbnails}
     for v in views:
         v["has_thumb"] = v["id"] in ctx["thumbs"]
+    return ctx
+
+
+def add_figures(ctx: dict) -> dict:
+    """The report's figures (``ctx["plots"]``) for a context built without them: the context is built
+    once, judged, and drawn only when a report is written."""
+    from .figures import report_figures
+
+    ctx["plots"] = report_figures(**ctx["figure_inputs"])
     return ctx
 
 

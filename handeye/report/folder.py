@@ -52,7 +52,19 @@ def read_result_folder(path: str | Path) -> ResultFolder:
                          hint="pass the folder written by handeye calibrate --out")
     res = check_result(_read_json(res_path), path=res_path)
     obs_path = path / "observations.json"
-    obs = _matching_observations(res, _read_json(obs_path)) if obs_path.is_file() else {}
+    return _assemble(path, res, _read_json(obs_path) if obs_path.is_file() else None)
+
+
+def result_folder(path: str | Path, result: dict, observations: dict | None = None) -> ResultFolder:
+    """The result folder ``path`` with result.json's and observations.json's contents given (as just
+    written there: nothing is read again but the thumbnails), checked as :func:`read_result_folder`
+    checks them."""
+    path = Path(path)
+    return _assemble(path, check_result(result, path=path / "result.json"), observations)
+
+
+def _assemble(path: Path, res: dict, obs: dict | None) -> ResultFolder:
+    obs = _matching_observations(res, obs) if obs is not None else {}
     ids = {str(v.get("id")) for v in res.get("views") or []}
     thumbs = {}
     tdir = path / THUMBNAILS_DIR

@@ -126,6 +126,54 @@ def test_disk_full_keeps_the_previous_result(target, good_result, tiny_vendor, r
     assert not list(out.glob(".*.tmp")) and not (out / ".handeye.lock").exists()
 
 
+@pytest.mark.parametrize("failing", [False, True], ids=["good", "failing"])
+def test_a_run_writes_result_json_once_and_judges_and_reports_from_one_context(failing, good_result, tiny_vendor,
+                                                                               copy_session, run_cli, tmp_path,
+                                                                               monkeypatch):
+    """One build of the report context (the verdict and the reports), one load of the QA thresholds,
+    one atomic write of result.json, then its reports, which carry its run id and verdict."""
+    import shutil
+
+    import handeye.report.context
+    import handeye.report.qa
+
+    out = tmp_path / "out"
+    shutil.copytree(good_result, out)
+    session = tiny_vendor
+    if failing:
+        session = copy_session(tiny_vendor, "bad")
+        (session / "poses.txt").write_text("1,2,3\n")
+    calls = {"replace": [], "load_qa": 0, "build_context": 0}
+    real_replace, real_load_qa, real_build = os.replace, handeye.report.qa.load_qa, handeye.report.context.build_context
+
+    def replace(src, dst):
+        calls["replace"].append(os.path.basename(str(dst)))
+        return real_replace(src, dst)
+
+    def load_qa(*a, **k):
+        calls["load_qa"] += 1
+        return real_load_qa(*a, **k)
+
+    def build_context(*a, **k):
+        calls["build_context"] += 1
+        return real_build(*a, **k)
+
+    monkeypatch.setattr(os, "replace", replace)
+    monkeypatch.setattr(handeye.report.qa, "load_qa", load_qa)
+    monkeypatch.setattr(handeye.report.context, "build_context", build_context)
+    rc, err = run_cli("calibrate", session, "--out", out, "--no-refine", "--workers", "1")
+    assert rc == (2 if failing else 0), err
+    written = calls["replace"]
+    assert written.count("result.json") == 1 and calls["load_qa"] == 1 and calls["build_context"] == 1, calls
+    assert written.count("observations.json") == (0 if failing else 1)
+    assert written.index("result.json") < written.index("report.html") < written.index("report.md")
+    res = json.loads((out / "result.json").read_text())
+    assert res["verdict"] == ("FAIL" if failing else json.loads((out / "result.last-good.json").read_text())["verdict"])
+    for name in ("report.html", "report.md"):
+        text = (out / name).read_text()
+        assert res["run_id"] in text and res["verdict"] in text, name
+
+
 def test_failed_runs_keep_the_last_good_result(good_result, tiny_vendor, copy_session, run_cli, fast_failed_load,
                                                tmp_path):
     import shutil
