@@ -220,6 +220,8 @@ class CalibrationRun:
     seconds: dict = field(default_factory=dict)
     # how the mounting mode was chosen: {"mode", "mode_source": stated | flag | detected | default, "evidence"}
     mode_decision: dict = field(default_factory=dict)
+    # the pairing gate's search (handeye.diagnose.pairing.PairingSearch), when it searched: the diagnostics reuse it
+    pairing: Any = None
 
     @property
     def failure_reason(self) -> str:
@@ -291,7 +293,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     s = _mode_gate(s, obs, state, progress)
     mode = mounting(s.mode)
     M_all = {v.view_id: mode.M_from_T_base_end(v.T_base_end) for v in s.views}
-    _pairing_gate(s, obs, M_all)
+    _pairing_gate(s, obs, M_all, state)
     ids = list(poses)
     C = np.stack([poses[v].T_cam_board for v in ids])
     Ms = np.stack([M_all[v] for v in ids])
@@ -438,11 +440,12 @@ def _mode_gate(s: Session, obs: Observation, state: dict, progress) -> Session:
     return s
 
 
-def _pairing_gate(s: Session, obs: Observation, M_all: dict) -> None:
-    """Refuse a session whose images and robot poses are shifted or shuffled (no result from wrong pairs)."""
+def _pairing_gate(s: Session, obs: Observation, M_all: dict, state: dict) -> None:
+    """Refuse a session whose images and robot poses are shifted or shuffled (no result from wrong pairs).
+    The search it made is the run's ``pairing`` (the diagnostics decide on it without searching again)."""
     from .diagnose.fits import fit_boards
     from .diagnose.observations import PoseObservations, candidates_of
-    from .diagnose.pairing import pairing_findings
+    from .diagnose.pairing import PairingSearch, pairing_findings
     from .diagnose.thresholds import thresholds
     from .session.raw import raw_poses_of
 
@@ -459,7 +462,8 @@ def _pairing_gate(s: Session, obs: Observation, M_all: dict) -> None:
     T = np.stack([s.view(v).T_base_end for v in ids])
     po = PoseObservations(s.mode, tuple(ids), C, T, raw_poses_of(s), {},
                           C_candidates=candidates_of(obs.board_poses, ids))
-    found = pairing_findings(po, po.raw.fmt, given_cost=fit.cost)
+    search = state["pairing"] = PairingSearch(po, po.raw.fmt)
+    found = pairing_findings(po, po.raw.fmt, given_cost=fit.cost, search=search)
     if not found:
         return
     f = found[0]

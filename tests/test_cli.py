@@ -334,9 +334,23 @@ def test_a_board_that_slipped_fails_with_the_finding_and_its_fix(clean, tmp_path
     assert len(err) == 1 and err[0].startswith("handeye: verdict FAIL: ")
 
 
-def test_shuffled_pairs_are_refused_without_a_matrix(clean, tmp_path, capsys):
+def test_shuffled_pairs_are_refused_without_a_matrix(clean, tmp_path, capsys, monkeypatch):
+    """... and the pairing is searched once: the pipeline's gate searches, the diagnostics decide on its search."""
+    from handeye.diagnose.pairing import PairingSearch
+
+    searched = {"shift": 0, "shuffle": 0}
+    for part in searched:
+        real = getattr(PairingSearch, f"_search_{part}")
+
+        def counted(self, _real=real, _part=part):
+            searched[_part] += 1
+            return _real(self)
+
+        monkeypatch.setattr(PairingSearch, f"_search_{part}", counted)
     T = _reported(clean)[np.random.default_rng(3).permutation(10)]
     rc, out, err, res = _calibrate(_variant(clean, tmp_path / "shuffled", T), tmp_path / "o", capsys, "--no-report")
+    assert searched == {"shift": 1, "shuffle": 1}
+    assert res["diagnostics"]["stages"]["pairing"] == "ok"
     assert rc == SessionRefused.exit_code == 8
     assert res["status"] == "failed" and res["verdict"] == "REFUSED" and res["error"]["code"] == "pairs_shuffled"
     assert "T_end_cam" not in res and "hand_eye" not in res

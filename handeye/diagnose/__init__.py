@@ -62,8 +62,10 @@ __all__ = ["diagnose_run", "diagnose_session_error", "Finding", "SEVERITIES", "a
 GLOBAL_FAULT_CODES = READING_CODES + ("pairs_shifted", "pairs_shuffled", "square_size")
 
 
-def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session_kind: str = "native") -> dict:
-    """Readings, pairing, board move, per-view disagreement and motion on one set of observations.
+def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session_kind: str = "native",
+                 pairing=None) -> dict:
+    """Readings, pairing, board move, per-view disagreement and motion on one set of observations
+    (``pairing``: the pairing search the calibration already made, :class:`.pairing.PairingSearch`).
 
     Returns ``{"findings", "readings", "global_fault", "per_view", "fit", "M"}`` (fit/M None when the
     readings crashed)."""
@@ -94,7 +96,8 @@ def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session
         for name in ("pairing", "scale", "board_moved", "robot_poses"):
             stages.skip(name, "the robot poses do not match the images as read")
     else:
-        pf = stages.run("pairing", pairing_findings, obs, obs.raw.fmt, given_cost=given_cost, default=[])
+        pf = stages.run("pairing", pairing_findings, obs, obs.raw.fmt, given_cost=given_cost, search=pairing,
+                        default=[])
         out["findings"] += pf
         out["global_fault"] = bool(pf)
         if pf:
@@ -200,7 +203,8 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
     obs = stages.run("observations", observations_from_run, run)
     pose = None
     if obs is not None:
-        pose = _pose_checks(stages, obs, refined=run.refined, session_kind=s.format)
+        pose = _pose_checks(stages, obs, refined=run.refined, session_kind=s.format,
+                            pairing=getattr(run, "pairing", None))
         findings += pose["findings"]
         result["readings"] = pose["readings"]
         result["scale"] = pose["scale"]

@@ -72,26 +72,108 @@ def _assignment_by_signature(obs: PoseObservations, fmt: PoseFormat, invert: boo
     return {obs.ids[i]: order[p] for i, p in zip(r, c)}
 
 
-def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = False, given_cost: float) -> list:
-    """Images and poses out of step (shift by +-1..max_shift) or shuffled."""
+def _same_values(a: dict, b: dict) -> bool:
+    """The same pose numbers for the same views (numbers that do not parse are never the same)."""
+    if a.keys() != b.keys():
+        return False
+    try:
+        return all(np.array_equal(np.asarray(a[k], float), np.asarray(b[k], float)) for k in a)
+    except (TypeError, ValueError):
+        return False
+
+
+class PairingSearch:
+    """The search for the pairing of images and poses that fits better than the given one, on one set of
+    observations: the best constant shift, and the match of a shuffle by rotation-angle signatures. Each
+    part is computed the first time it is asked for and kept, so the pipeline's pairing gate and the
+    diagnostics search once (:attr:`handeye.pipeline.CalibrationRun.pairing`); the decision, which depends
+    on the cost of the pairing as given, is :func:`pairing_findings`'."""
+
+    def __init__(self, obs: PoseObservations, fmt: PoseFormat, *, invert: bool = False):
+        self.obs, self.fmt, self.invert = obs, fmt, bool(invert)
+        self._shift = self._shuffle = None
+        self._searched = set()
+
+    def matches(self, obs: PoseObservations, fmt: PoseFormat, *, invert: bool = False) -> bool:
+        """Whether this search is the one of ``obs`` read with ``fmt`` (the same views, board poses, pose
+        numbers and file order: everything the search reads)."""
+        a, b = self.obs, obs
+        if a is b:
+            return self.fmt == fmt and self.invert == bool(invert)
+        same_cands = (a.C_candidates is None and b.C_candidates is None) or (
+            a.C_candidates is not None and b.C_candidates is not None and np.array_equal(a.C_candidates, b.C_candidates))
+        return (self.fmt == fmt and self.invert == bool(invert) and a.mode == b.mode and tuple(a.ids) == tuple(b.ids)
+                and np.array_equal(a.C, b.C) and same_cands and a.candidates_are_turns == b.candidates_are_turns
+                and tuple(a.raw.order) == tuple(b.raw.order) and _same_values(a.raw.values, b.raw.values))
+
+    def best_shift(self) -> Optional[tuple]:
+        """(shift, fit, views kept) of the constant shift by +-1..max_shift whose boards fit best, or None."""
+        if "shift" not in self._searched:
+            self._shift = self._search_shift()
+            self._searched.add("shift")
+        return self._shift
+
+    def shuffle(self) -> Optional[tuple]:
+        """(view id -> pose key, T (N,4,4), C (N,4,4), fit) of the shuffle matched by signature, or None when
+        no match moves two or more views."""
+        if "shuffle" not in self._searched:
+            self._shuffle = self._search_shuffle()
+            self._searched.add("shuffle")
+        return self._shuffle
+
+    def _search_shift(self) -> Optional[tuple]:
+        obs, fmt, invert = self.obs, self.fmt, self.invert
+        th = thresholds()
+        kmax = min(th.pairing.max_shift, max(1, len(obs.raw.order) // 3))
+        best = None
+        for s in range(-kmax, kmax + 1):
+            if s == 0:
+                continue
+            keep, T = _shifted(obs, fmt, s)
+            if T is None or keep.sum() < max(4, int(np.ceil(th.pairing.min_shift_share * obs.n))):
+                continue
+            M = obs.M(T, invert=invert)
+            try:
+                fit = fit_boards(_ordered_for(obs, keep, M), M)
+            except np.linalg.LinAlgError:
+                continue
+            if best is None or fit.cost < best[1].cost:
+                best = (s, fit, keep)
+        return best
+
+    def _search_shuffle(self) -> Optional[tuple]:
+        obs, fmt, invert = self.obs, self.fmt, self.invert
+        assign = _assignment_by_signature(obs, fmt, invert)
+        if assign is None:
+            return None
+        T = read_poses(obs.raw, fmt, [assign[v] for v in obs.ids])
+        C = obs.C
+        everything = np.ones(obs.n, bool)
+        for _ in range(2 if obs.C_candidates is not None and T is not None else 0):
+            # a symmetric board's ordering was chosen for the wrong pairing: re-order for this one and match again
+            C = _ordered_for(obs, everything, obs.M(T, invert=invert))
+            again = _assignment_by_signature(replace(obs, C=C), fmt, invert)
+            T_again = None if again is None else read_poses(obs.raw, fmt, [again[v] for v in obs.ids])
+            if T_again is None or again == assign:
+                break
+            assign, T = again, T_again
+            C = _ordered_for(obs, everything, obs.M(T, invert=invert))
+        moved = [v for v in obs.ids if assign[v] != v]
+        if T is None or len(moved) < 2:
+            return None
+        return assign, T, C, fit_boards(C, obs.M(T, invert=invert))
+
+
+def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = False, given_cost: float,
+                     search: Optional[PairingSearch] = None) -> list:
+    """Images and poses out of step (shift by +-1..max_shift) or shuffled. ``search``: the search already
+    made on these observations (used when it :meth:`~PairingSearch.matches` them, else searched here)."""
     th = thresholds()
     if given_cost <= th.readings.bad_cost:
         return []
-    kmax = min(th.pairing.max_shift, max(1, len(obs.raw.order) // 3))
-    best = None
-    for s in range(-kmax, kmax + 1):
-        if s == 0:
-            continue
-        keep, T = _shifted(obs, fmt, s)
-        if T is None or keep.sum() < max(4, int(np.ceil(th.pairing.min_shift_share * obs.n))):
-            continue
-        M = obs.M(T, invert=invert)
-        try:
-            fit = fit_boards(_ordered_for(obs, keep, M), M)
-        except np.linalg.LinAlgError:
-            continue
-        if best is None or fit.cost < best[1].cost:
-            best = (s, fit, keep)
+    if search is None or not search.matches(obs, fmt, invert=invert):
+        search = PairingSearch(obs, fmt, invert=invert)
+    best = search.best_shift()
     if best is not None and is_clearly_better(best[1].cost, given_cost):
         s, fit, keep = best
         direction = f"+{s}" if s > 0 else str(s)
@@ -107,25 +189,11 @@ def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = F
             details={"shift": s, "views_compared": int(keep.sum()), "board_scatter_deg": fit.median_rot_deg,
                      "board_scatter_mm": fit.median_trans_mm})]
     # a shuffle: match by signature, then check the matched pairing with a full fit
-    assign = _assignment_by_signature(obs, fmt, invert)
-    if assign is None:
+    found = search.shuffle()
+    if found is None:
         return []
-    T = read_poses(obs.raw, fmt, [assign[v] for v in obs.ids])
-    C = obs.C
-    everything = np.ones(obs.n, bool)
-    for _ in range(2 if obs.C_candidates is not None and T is not None else 0):
-        # a symmetric board's ordering was chosen for the wrong pairing: re-order for this one and match again
-        C = _ordered_for(obs, everything, obs.M(T, invert=invert))
-        again = _assignment_by_signature(replace(obs, C=C), fmt, invert)
-        T_again = None if again is None else read_poses(obs.raw, fmt, [again[v] for v in obs.ids])
-        if T_again is None or again == assign:
-            break
-        assign, T = again, T_again
-        C = _ordered_for(obs, everything, obs.M(T, invert=invert))
+    assign, T, C, fit = found
     moved = [v for v in obs.ids if assign[v] != v]
-    if T is None or len(moved) < 2:
-        return []
-    fit = fit_boards(C, obs.M(T, invert=invert))
     if is_clearly_better(fit.cost, given_cost):
         pairs = ", ".join(f"image {v} <- pose {assign[v]}" for v in moved[:10])
         return [Finding(
