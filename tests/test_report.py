@@ -277,6 +277,32 @@ def test_report_numbers_agree_with_the_refinement(synthetic):
     assert radius95_mm(np.eye(3) * 4.0) == pytest.approx(2.0 * np.sqrt(chi2.ppf(0.95, 3)), rel=0.012)
 
 
+def test_offsets_and_methods_show_the_differences_result_json_stores(synthetic, tmp_path):
+    """The closed forms' and the halves' differences to the result are result.json's (diff_to_result_deg, _mm,
+    _sigma), not recomputed: a stored value changed in the file is the value shown; one not stored is NaN."""
+    import copy
+
+    from handeye.report import build_report_context
+
+    res = copy.deepcopy(synthetic["res"])
+    cf = {m: e for m, e in res["closed_form"].items() if e["status"] == "ok"}
+    halves = res["refinement"]["validation"]["halves"]
+    first = next(iter(cf))
+    for k, e in enumerate([*cf.values(), halves["odd"], halves["even"]]):
+        e.update(diff_to_result_deg=10.0 + k, diff_to_result_mm=20.0 + k, diff_to_result_sigma=30.0 + k)
+    del cf[first]["diff_to_result_sigma"]
+    ctx = build_report_context(_folder(tmp_path / "r", res, None), make_plots=False)
+    rows = {r["name"]: r for r in ctx["offsets"]["rows"]}
+    for k, m in enumerate(cf):
+        assert (rows[m]["d_deg"], rows[m]["d_mm"]) == (10.0 + k, 20.0 + k), m
+        assert rows[m]["sigma"] == 30.0 + k or (m == first and np.isnan(rows[m]["sigma"]) and not rows[m]["far"])
+    n = len(cf)
+    assert [(r["d_deg"], r["d_mm"], r["sigma"]) for r in ctx["offsets"]["rows"] if r["kind"] == "half"] == \
+        [(10.0 + n, 20.0 + n, 30.0 + n), (11.0 + n, 21.0 + n, 31.0 + n)]
+    methods = {m["name"]: m for m in ctx["methods"]}
+    assert all((methods[m]["d_deg"], methods[m]["d_mm"]) == (10.0 + k, 20.0 + k) for k, m in enumerate(cf))
+
+
 def test_euler_sigma_propagation_matches_sampling():
     """Delta-method Euler sigmas against sampled perturbations T · Exp(xi) (right tangent, as the covariance)."""
     from handeye.conventions import vendor_euler_from_R

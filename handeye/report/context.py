@@ -16,7 +16,7 @@ import numpy as np
 
 from .. import __version__
 from ..conventions import pose_forms, vendor_euler_from_R
-from ..frames import pose_error, quat_wxyz_from_R
+from ..frames import quat_wxyz_from_R
 from ..mounting import EYE_IN_HAND, MODES, mounting
 from ..output import plain
 from .advice import STAGE_CHECKS, failure_advice, finding_advice, root_cause, untrusted_metrics
@@ -384,7 +384,7 @@ def _methods(res, T_x, x_name) -> list[dict]:
             row["t_mm"] = (T[:3, 3] * 1e3).tolist()
             row["euler_deg"] = np.degrees(vendor_euler_from_R(T[:3, :3])).tolist()
             if T_x is not None:
-                row["d_deg"], row["d_mm"] = pose_error(T, T_x)
+                row["d_deg"], row["d_mm"], _ = _stored_difference(e)
                 row["offset_mm"] = ((T[:3, 3] - T_x[:3, 3]) * 1e3).tolist()
             row["cons_mm"], row["cons_deg"] = e.get("board_consistency_mm"), e.get("board_consistency_deg")
         rows.append(row)
@@ -425,13 +425,19 @@ def _intrinsics_rows(intr, sig, res, *, model_sigma=None) -> Optional[dict]:
             "sigma_source_text": SIGMA_SOURCE_TEXT.get(ref.get("intrinsics_sigma_source"), "")}
 
 
+def _stored_difference(e: dict) -> tuple[float, float, float]:
+    """(deg, mm, verdict sigmas) of a closed form or a refitted half against the result, as result.json
+    stores them (``diff_to_result_deg``, ``_mm``, ``_sigma``; NaN where it does not)."""
+    return _num(e.get("diff_to_result_deg")), _num(e.get("diff_to_result_mm")), _num(e.get("diff_to_result_sigma"))
+
+
 def _offsets(res, ref, T_x, cov, x_name) -> Optional[dict]:
     """Where the result lies against each closed form and each half of the views (refitted alone), in mm,
     degrees and verdict sigmas, with the sentences that explain a departure."""
     from scipy.stats import chi2
 
     from ..config import load_preset
-    from .uncertainty import offset_explanation, sigma_distance
+    from .uncertainty import offset_explanation
 
     if T_x is None or cov is None or not ref:
         return None
@@ -441,21 +447,20 @@ def _offsets(res, ref, T_x, cov, x_name) -> Optional[dict]:
     for m, e in (res.get("closed_form") or {}).items():
         T = as_T(e.get(x_name))
         if T is not None:
-            rows.append({"name": m, "kind": "closed_form", "T": T})
+            rows.append({"name": m, "kind": "closed_form", "T": T, "stored": e})
     val = ref.get("validation") if isinstance(ref.get("validation"), dict) else {}
     halves = val.get("halves") or {}
     for h in ("odd", "even"):
         T = as_T((halves.get(h) or {}).get(x_name))
         if T is not None:
             rows.append({"name": f"{h} views ({len(halves[h].get('view_ids') or [])}) refitted alone", "kind": "half",
-                         "T": T})
+                         "T": T, "stored": halves[h]})
     if not rows:
         return None
     for r in rows:
         T = r.pop("T")
-        r["d_deg"], r["d_mm"] = pose_error(T, T_x)
+        r["d_deg"], r["d_mm"], r["sigma"] = _stored_difference(r.pop("stored"))
         r["offset_mm"] = ((T[:3, 3] - T_x[:3, 3]) * 1e3).tolist()
-        r["sigma"] = sigma_distance(T_x, T, cov)
         r["far"] = bool(r["sigma"] > limit)
     split = (halves.get("odd_vs_even") or {}).get("mahalanobis2")
     model = ref.get("robot_model") if isinstance(ref.get("robot_model"), dict) else {}

@@ -95,18 +95,6 @@ def ellipse_points(cov_2x2: np.ndarray, *, k_sigma: float, n: int = 120) -> np.n
 
 
 # ------------------------------------------------------------------------------ offsets of the result
-def sigma_distance(T_x: np.ndarray, T_other: np.ndarray, cov_x_6x6: np.ndarray) -> float:
-    """sqrt(xi^T C^-1 xi), xi = Log(T_x^-1 T_other): how many (verdict) sigmas ``T_other`` lies from
-    ``T_x`` along its own direction (NaN when C is singular)."""
-    from ..frames import tangent_difference
-
-    xi = tangent_difference(np.asarray(T_x, float), np.asarray(T_other, float))
-    try:
-        return float(np.sqrt(max(float(xi @ np.linalg.solve(np.asarray(cov_x_6x6, float), xi)), 0.0)))
-    except np.linalg.LinAlgError:
-        return float("nan")
-
-
 def offset_explanation(rows: list, *, limit_sigma: float, halves_m2: float | None, halves_m2_limit: float,
                        robot_mm: float | None, robot_deg: float | None, robot_model: str) -> list:
     """Sentences that explain where the result lies against the closed forms and the two halves.
