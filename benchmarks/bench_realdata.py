@@ -459,7 +459,8 @@ def main() -> None:
                 if args.references:
                     references(name, path, opts)
                 if name in HALF_SETS:
-                    results.append(dict(half_split(label, path, opts, args.halvings), set=name, kinematic=kinematic))
+                    results.append(dict(half_split(label, path, opts, args.halvings), set=name,
+                                        kinematic=kinematic if name.startswith("ur3") else None))
                 else:
                     loo = loo_board_poses(name, path, opts)
                     if loo:
@@ -488,7 +489,7 @@ def main() -> None:
         print(_row(r["name"], [x for x in r["rows"] if not x.get("failed")], r["n_views"]))
     for kinematic in (False, True):  # pooled: the UR3 sets with one robot model, with the other sets
         if any(r.get("kinematic") == kinematic for r in results):
-            rows = [x for r in results if "error" not in r and r.get("kinematic", kinematic) == kinematic
+            rows = [x for r in results if "error" not in r and r["kinematic"] in (None, kinematic)
                     for x in r["rows"] if not x.get("failed")]
             print(_row(f"all (UR3 {'kinematic' if kinematic else 'iid'})", rows, None))
     if results:
