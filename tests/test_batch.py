@@ -144,7 +144,9 @@ def test_every_result_matches_the_simulated_truth(fleet, cluster_batch):
         assert rot_err_deg < 4 * np.linalg.norm(ref["sigma_rot_deg"]), (key, rot_err_deg, ref["sigma_rot_deg"])
 
 
-def test_index_rows_and_drift_match_the_truth(fleet, cluster_batch):
+def test_index_rows_and_drift_match_the_truth(fleet, cluster_batch, monkeypatch):
+    from collections import Counter
+
     from handeye.batch.index import read_fleet_csv
 
     _, truth = fleet
@@ -176,7 +178,16 @@ def test_index_rows_and_drift_match_the_truth(fleet, cluster_batch):
     # drift: cell-02's bump is found, the size of the simulated bump within 4 sigma; the others are small
     from handeye.batch.index import fleet_rows, install_summaries
 
+    reads, read_text = Counter(), Path.read_text
+
+    def counted(path, *a, **k):
+        reads[path.name] += 1
+        return read_text(path, *a, **k)
+
+    monkeypatch.setattr(Path, "read_text", counted)
     inst = {i["install"]: i for i in install_summaries(out, fleet_rows(out), plots=False)}
+    monkeypatch.undo()
+    assert reads["result.json"] == len(results), "each result.json is read once, the drifts included"
     drifts = {(d["from"], d["to"]): d for d in inst["cell-02"]["drifts"]}
     s1, s2 = sorted(k.split("/")[1] for k in truth if k.startswith("cell-02"))[1:]
     bump = drifts[(s1, s2)]

@@ -104,9 +104,30 @@ def session_row(out: Path, folder: Path) -> dict:
             rms = next((c.get("value") for c in (res.get("qa") or {}).get("checks") or []
                         if c.get("key") == "reprojection_rms_px"), None)
         row["reprojection_rms_px"] = None if rms is None else float(rms)
+        row["compared"] = _comparable(res, folder / "result.json")  # for the drift: result.json is read once
     if (folder / "report.html").exists():
         row["report"] = "/".join(rel) + "/report.html"
     return row
+
+
+def _comparable(res: Optional[dict], path: Path):
+    """The result as the drift compares it (:class:`handeye.recal.loaded.LoadedResult`, its source the
+    file), from result.json's content ``res`` as read (None: read ``path``); or the error loading it
+    raised (the drift reports it). Only a file that does not load is read again, for load_result's own
+    message naming it."""
+    from dataclasses import replace
+
+    from ..recal.loaded import load_result
+
+    try:
+        if res is not None and "handeye_result" in res:
+            try:
+                return replace(load_result(res), source=str(path))
+            except Exception:  # noqa: BLE001 - said as load_result says it of the file, below
+                pass
+        return load_result(path)
+    except Exception as e:  # noqa: BLE001 - one result that cannot be compared must not lose the index
+        return e
 
 
 def fleet_rows(out) -> list[dict]:
@@ -119,12 +140,17 @@ def fleet_rows(out) -> list[dict]:
 
 # ------------------------------------------------------------------------------------------ installs
 def _drift(out: Path, a: dict, b: dict) -> dict:
-    """compare_results between two consecutive sessions of an install, as a table row."""
-    from ..recal.compare import compare_results
+    """compare_results between two consecutive sessions of an install, as a table row (their results as
+    :func:`session_row` loaded them)."""
+    from ..recal.compare import compare_loaded
 
     d = {"from": a["session"], "to": b["session"], "time_utc": b["time_utc"]}
     try:
-        c = compare_results(out / a["result_dir"], out / b["result_dir"])
+        pair = [r.get("compared") or _comparable(None, out / r["result_dir"] / "result.json") for r in (a, b)]
+        for loaded in pair:
+            if isinstance(loaded, Exception):
+                raise loaded
+        c = compare_loaded(*pair)
     except Exception as e:  # noqa: BLE001 - one pair that cannot be compared must not lose the index
         log.warning("drift %s -> %s not computed: %s", a["session"], b["session"], e)
         return {**d, "comparable": False, "reason": f"{type(e).__name__}: {e}"}
