@@ -9,6 +9,7 @@ import json
 import os
 import sys
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -27,15 +28,36 @@ TEMP_SUFFIX = ".tmp"
 LOCK_NAME = ".handeye.lock"
 
 
+class OutputWriteError(OSError):
+    """The file system refused to write an output (disk full, read-only, permissions): ``filename`` is
+    the output, ``errno`` and ``strerror`` the refusal's; the original OSError is its ``__cause__``. What
+    tells a write error from a read error (the command line gives each its own advice)."""
+
+
+@contextmanager
+def writing(path: str | Path):
+    """Inside, an OSError is one of writing ``path`` (an output file or folder): re-raised as
+    :class:`OutputWriteError` naming the file it names, else ``path``."""
+    try:
+        yield
+    except OutputWriteError:
+        raise
+    except OSError as e:
+        raise OutputWriteError(e.errno, e.strerror or str(e), str(e.filename or path)) from e
+
+
 def atomic_write_bytes(path: str | Path, data: bytes, *, durable: bool = True) -> Path:
     """Write ``data`` to ``path`` so that readers see the old file or the whole new one, never half.
 
     ``durable`` also flushes the bytes to the disk before the rename (survives a power cut; costs a
-    disk sync per file): on for results and sessions, off for derived files such as thumbnails."""
+    disk sync per file): on for results and sessions, off for derived files such as thumbnails.
+    A refusal of the file system is an :class:`OutputWriteError` naming ``path``."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=TEMP_SUFFIX, dir=path.parent)
+    with writing(path):  # names the folder that cannot be made
+        path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = None
     try:
+        fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=TEMP_SUFFIX, dir=path.parent)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             if durable:
@@ -43,11 +65,14 @@ def atomic_write_bytes(path: str | Path, data: bytes, *, durable: bool = True) -
                 os.fsync(f.fileno())
         os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp creates 0600; outputs are ordinary files
         os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
+    except BaseException as e:
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+        if isinstance(e, OSError) and not isinstance(e, OutputWriteError):
+            raise OutputWriteError(e.errno, e.strerror or str(e), str(path)) from e  # the output, not its temp
         raise
     return path
 

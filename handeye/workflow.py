@@ -62,7 +62,7 @@ from typing import Callable, Optional
 
 from .errors import HandeyeError, SessionRefused, verdict_exit_code
 from .output import (FolderLock, atomic_write_bytes, atomic_write_text, check_out_dir, inputs_record,
-                     remove_stray_temps, to_json, write_json)
+                     remove_stray_temps, to_json, write_json, writing)
 from .pipeline import CalibrateOptions, CalibrationRun, run_calibration
 
 log = logging.getLogger(__name__)
@@ -233,8 +233,9 @@ def _finish(out_dir: Path, res: dict, observations: Optional[dict], seconds: dic
     paths = ()
     seconds["write"] = time.perf_counter() - t_write
     res["seconds"] = dict(seconds)
-    for name in REPORT_NAMES:  # the previous result's reports must not sit beside this result
-        (out_dir / name).unlink(missing_ok=True)
+    with writing(out_dir):
+        for name in REPORT_NAMES:  # the previous result's reports must not sit beside this result
+            (out_dir / name).unlink(missing_ok=True)
     shutil.rmtree(out_dir / "report_files", ignore_errors=True)
     t_v = time.perf_counter()
     # the folder as a reader sees it: result.json's content through the JSON it is written as
@@ -282,10 +283,11 @@ def _failed_load(session_path, err: HandeyeError, *, mode, out_dir: Path, report
     t2 = time.perf_counter()
     _keep_previous(out_dir, failed=True)
     for stale in (out_dir / "observations.json", out_dir / THUMBNAIL_DIR):  # an earlier run's, not this one's
-        if stale.is_dir():
-            shutil.rmtree(stale)
-        elif stale.exists():
-            stale.unlink()
+        with writing(stale):
+            if stale.is_dir():
+                shutil.rmtree(stale)
+            elif stale.exists():
+                stale.unlink()
     return _finish(out_dir, res, None, seconds, report=report, qa=qa, t0=t0, t_write=t2, run=None, error=err,
                    progress=lambda s: None)
 
@@ -336,9 +338,10 @@ def write_thumbnails(out_dir: Path, per_view: dict) -> list[Path]:
             written.append(atomic_write_bytes(folder / f"{vid}.jpg", bytes(data), durable=False))
     if folder.is_dir():
         keep = {p.name for p in written}
-        for p in folder.glob("*.jpg"):
-            if p.name not in keep:
-                p.unlink()
+        with writing(folder):
+            for p in folder.glob("*.jpg"):
+                if p.name not in keep:
+                    p.unlink()
     return written
 
 

@@ -42,7 +42,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from ..errors import QAFailed
-from ..output import atomic_write_bytes, hash_files, write_json
+from ..output import atomic_write_bytes, hash_files, write_json, writing
 from .discover import SessionJob
 
 log = logging.getLogger(__name__)
@@ -217,14 +217,16 @@ def run_session(spec: dict) -> dict:
 
 
 def _run_child(spec: dict, out: Path, *, session_path: Optional[str] = None) -> dict:
-    out.mkdir(parents=True, exist_ok=True)
+    with writing(out):
+        out.mkdir(parents=True, exist_ok=True)
+        log_file = open(out / LOG_NAME, "wb")
     t0 = time.perf_counter()
     rec = {k: spec[k] for k in ("session", "install", "name", "time_utc", "time_source", "key")}
     rec.update(session=session_path or spec["session"], worker=f"{socket.gethostname()}:{os.getpid()}",
                started_utc=_now())
     cmd = [sys.executable, "-m", "handeye.batch.child", json.dumps(spec)]
     env = {**os.environ, **SESSION_ENV}
-    with open(out / LOG_NAME, "wb") as log_file:
+    with log_file:
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log_file,
                                 start_new_session=True, env=env)
         try:

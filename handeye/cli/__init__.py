@@ -28,6 +28,7 @@ input, 3-6 detection, motion, solver and hardware failures.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
 import sys
@@ -108,9 +109,7 @@ def main(argv=None) -> int:
     except OSError as e:  # the file system refused (disk full, permissions, a file vanished): name the file
         if args.debug:
             raise
-        where = f"{e.filename}: " if e.filename else ""
-        print(f"handeye: error: {where}{e.strerror or e} -> free space, fix the permissions or choose another "
-              "output folder; the previous result files are unchanged", file=sys.stderr)
+        print(f"handeye: error: {os_error_line(e)}", file=sys.stderr)
         return HandeyeError.exit_code
     except Exception as e:  # noqa: BLE001 - a bug: one line, the traceback with --debug
         if args.debug:
@@ -119,6 +118,27 @@ def main(argv=None) -> int:
         print(f"handeye: internal error ({msg}); this is a bug -> rerun with --debug and report the traceback",
               file=sys.stderr)
         return 1
+
+
+#: what only a write is refused with: the disk or quota is full, the file system read-only, the file too large
+WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG})
+
+
+def os_error_line(e: OSError) -> str:
+    """The one line for a refusal of the file system: a write (:class:`handeye.output.OutputWriteError`, or
+    an error only a write gets) names the output and how to make it writable; a read names the file read
+    and how to make it readable."""
+    from ..output import OutputWriteError
+
+    why = e.strerror or str(e)
+    if isinstance(e, OutputWriteError) or e.errno in WRITE_ERRNOS:
+        return (f"cannot write {e.filename or 'the output'} ({why}) -> free space on its disk, make its folder "
+                "writable or choose another output folder; the previous result files are unchanged")
+    if e.filename:
+        return (f"cannot read {e.filename} ({why}) -> check that the file exists and that this user may read it "
+                "(its permissions and those of its folders), then run again")
+    return (f"the file system refused ({why}) -> check that the input files are readable and the output folder "
+            "writable, then run again")
 
 
 if __name__ == "__main__":  # pragma: no cover

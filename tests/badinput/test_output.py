@@ -174,6 +174,51 @@ def test_a_run_writes_result_json_once_and_judges_and_reports_from_one_context(f
         assert res["run_id"] in text and res["verdict"] in text, name
 
 
+@pytest.mark.parametrize("refused", ["write", "read"])
+def test_a_refusal_of_the_file_system_names_the_file_and_a_fix_of_its_kind(refused, good_result, tiny_vendor, run_cli,
+                                                                          names, tmp_path, monkeypatch):
+    """A write refused names the output and a write fix (space, a writable folder); a read refused names the
+    file read and a read fix (its permissions), never output-folder advice."""
+    import shutil
+
+    import handeye.output
+    from handeye.cli import os_error_line
+    from handeye.output import OutputWriteError
+
+    out = tmp_path / "out"
+    shutil.copytree(good_result, out)
+    if refused == "write":
+        real = handeye.output.os.fsync
+
+        def full(fd):
+            if os.path.basename(os.readlink(f"/proc/self/fd/{fd}")).startswith(".result.json."):
+                raise OSError(errno.ENOSPC, "No space left on device")
+            return real(fd)
+
+        monkeypatch.setattr(handeye.output.os, "fsync", full)
+    else:
+        real = handeye.output.file_sha256
+
+        def unreadable(path):
+            if str(path).endswith(".jpg"):
+                raise PermissionError(errno.EACCES, "Permission denied", str(path))
+            return real(path)
+
+        monkeypatch.setattr(handeye.output, "file_sha256", unreadable)
+    rc, err = run_cli("calibrate", tiny_vendor, "--out", out, "--no-report", "--no-refine")
+    assert rc == 2, err
+    if refused == "write":
+        names(err, f"cannot write {out / 'result.json'}", "No space left on device", "free space", "writable")
+        assert "cannot read" not in err
+    else:
+        names(err, f"cannot read {tiny_vendor}", ".jpg (Permission denied)", "may read it")
+        assert "output folder" not in err and "free space" not in err
+    line = os_error_line(OSError(errno.EROFS, "Read-only file system", "/mnt/x"))  # only a write gets this
+    assert line.startswith("cannot write /mnt/x (Read-only file system)")
+    assert os_error_line(OutputWriteError(errno.EACCES, "Permission denied", "/o/r.json")).startswith("cannot write")
+    assert os_error_line(FileNotFoundError(errno.ENOENT, "No such file", "/s/1.jpg")).startswith("cannot read /s/1.jpg")
+
+
 def test_failed_runs_keep_the_last_good_result(good_result, tiny_vendor, copy_session, run_cli, fast_failed_load,
                                                tmp_path):
     import shutil
