@@ -317,6 +317,42 @@ def test_index_escapes_names(tmp_path):
     assert "1 ERROR" in (tmp_path / "index.md").read_text()
 
 
+def test_a_failed_export_is_shown_in_the_summary_the_progress_lines_and_the_index(tmp_path, capsys):
+    """calibrate --export in a batch: an export that failed (batch.json's export_error) is counted in the summary
+    line, has its own line on stderr, and is in fleet.csv's export_error column and the index's sessions table."""
+    from handeye.batch.index import read_fleet_csv, write_index
+    from handeye.batch.run import BatchSummary
+    from handeye.cli.batch import _Progress
+
+    why = "the result is not fit for use (verdict FAIL): nothing exported"
+    good = {"install": "cell-01", "name": "s0", "outcome": "done", "verdict": "PASS", "reason": ""}
+    bad = {"install": "cell-01", "name": "s1", "outcome": "done", "verdict": "FAIL", "reason": "a QA check failed",
+           "export_error": why}
+    summary = BatchSummary((good, bad), 3.0)
+    assert summary.export_errors == [bad] and summary.line().endswith("; the export failed for 1 session")
+    assert "export" not in BatchSummary((good,), 3.0).line()
+    capsys.readouterr()
+    bar = _Progress(2, quiet=True)
+    for rec in (good, bad):
+        bar.update(rec)
+    bar.close()
+    err = capsys.readouterr().err
+    assert f"cell-01/s1: the export failed: {why}" in err and "cell-01/s0" not in err
+    for rec in (good, bad):
+        folder = tmp_path / rec["install"] / rec["name"]
+        folder.mkdir(parents=True)
+        (folder / "batch.json").write_text(json.dumps(rec))
+        (folder / "result.json").write_text(json.dumps({"handeye_result": 1, "status": "ok", "mode": "eye_in_hand",
+                                                        "verdict": rec["verdict"], "findings": []}))
+    write_index(tmp_path, plots=False)
+    rows = {r["session"]: r for r in read_fleet_csv(tmp_path / "fleet.csv")}
+    assert rows["s1"]["export_error"] == why and rows["s0"]["export_error"] is None
+    assert f"export failed: {why}" in (tmp_path / "index.md").read_text()
+    assert "sessions whose export failed: **1**" in (tmp_path / "index.md").read_text()
+    html = (tmp_path / "index.html").read_text()
+    assert f"export failed: {why}" in html and "Exports failed" in html
+
+
 def test_bad_input_is_one_line(tmp_path):
     rc, out, err = _finish(_handeye("batch", tmp_path / "missing", "--out", tmp_path / "o"))
     assert rc == 2 and err.strip().count("\n") == 0 and "batch root not found" in err, err

@@ -40,7 +40,7 @@ log = logging.getLogger(__name__)
 COLUMNS = ("install", "session", "time_utc", "time_source", "mode", "verdict", "outcome", "x_name",
            "tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg", "rz_deg",
            "sigma_tx_mm", "sigma_ty_mm", "sigma_tz_mm", "sigma_rx_deg", "sigma_ry_deg", "sigma_rz_deg",
-           "sigma_source", "reprojection_rms_px", "findings", "reason", "result_dir", "report")
+           "sigma_source", "reprojection_rms_px", "findings", "reason", "result_dir", "report", "export_error")
 #: how many findings codes the fleet summary lists
 TOP_FINDINGS = 10
 FILES_DIR = "index_files"
@@ -68,7 +68,8 @@ def session_row(out: Path, folder: Path) -> dict:
     row.update(install=rec.get("install") or (rel[0] if len(rel) > 1 else "default"),
                session=rec.get("name") or ("/".join(rel[1:]) if len(rel) > 1 else folder.name),
                time_utc=rec.get("time_utc"), time_source=rec.get("time_source"),
-               result_dir="/".join(rel), outcome=rec.get("outcome"), reason=rec.get("reason") or "", findings=[])
+               result_dir="/".join(rel), outcome=rec.get("outcome"), reason=rec.get("reason") or "", findings=[],
+               export_error=rec.get("export_error"))  # calibrate --export failed on a usable result
     ver = read_json(folder / "verify.json") if res is None else None
     if ver is not None and (not rec or rec.get("outcome") == "done"):  # a verification session (handeye verify)
         from .run import VERIFY_VERDICTS
@@ -243,13 +244,15 @@ def trend_png(install: str, rows: list[dict]) -> bytes:
 
 def fleet_summary(rows: list[dict], installs: list[dict]) -> dict:
     """Fleet-wide: verdict counts, failing installs (latest session FAIL, REFUSED or ERROR), installs
-    with a significant drift, the most common findings codes (sessions that have each)."""
+    with a significant drift, the most common findings codes (sessions that have each), the sessions
+    whose export (``calibrate --export``) failed."""
     codes = Counter(c for r in rows for c in set(r["findings"]))
     return {"n_sessions": len(rows), "n_installs": len(installs),
             "verdicts": Counter(r["verdict"] for r in rows),
             "failing": [i for i in installs if i["latest_verdict"] in FAILED_VERDICTS],
             "drifting": [i for i in installs if i["n_drifted"]],
-            "top_findings": codes.most_common(TOP_FINDINGS)}
+            "top_findings": codes.most_common(TOP_FINDINGS),
+            "export_errors": [r for r in rows if r["export_error"]]}
 
 
 # ------------------------------------------------------------------------------------------ files

@@ -86,6 +86,11 @@ class BatchSummary:
         return Counter(r.get("verdict") or "ERROR" for r in self.records)
 
     @property
+    def export_errors(self) -> list:
+        """The records whose export (``calibrate --export``) failed: ``export_error`` says why."""
+        return [r for r in self.records if r.get("export_error")]
+
+    @property
     def exit_code(self) -> int:
         """0 when every session (run or skipped) is PASS or WARN, else :class:`QAFailed`'s code."""
         return QAFailed.exit_code if any(self.verdicts[v] for v in FAILED_VERDICTS) else 0
@@ -95,8 +100,10 @@ class BatchSummary:
         c, v = self.counts, self.verdicts
         verdicts = ", ".join(f"{v[k]} {k}" for k in ("PASS", "WARN", "VALID", "FAIL", "REFUSED", "DRIFTED", "ERROR")
                              if v[k])
+        exports = len(self.export_errors)
         return (f"{len(self.records)} sessions: {c['done']} done, {c['failed']} failed, {c['skipped']} skipped "
-                f"({verdicts or 'none'}) in {self.seconds:.0f} s")
+                f"({verdicts or 'none'}) in {self.seconds:.0f} s"
+                + (f"; the export failed for {exports} session{'s' if exports != 1 else ''}" if exports else ""))
 
 
 def record_state(rec: dict) -> str:

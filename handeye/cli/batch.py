@@ -1,7 +1,8 @@
 """``handeye batch ROOT --out OUT``: every session under ROOT, one Dask task each, then the fleet index.
 
 stderr: a progress bar (sessions done / failed / skipped) and, per failed session, one line with
-the reason; stdout: the one-line summary and the index's paths. Exit code 0 when every session
+the reason, per session whose export (``--export``) failed one line with its error; stdout: the
+one-line summary (with the count of failed exports) and the index's paths. Exit code 0 when every session
 (run now or skipped as unchanged) is PASS or WARN, else 7 (:class:`handeye.errors.QAFailed`'s code).
 ``--index-only OUT`` rebuilds the index from the result folders in OUT.
 """
@@ -121,6 +122,8 @@ class _Progress:
         if state == "failed":
             self.bar.write(f"{rec['install']}/{rec['name']}: {rec.get('verdict')} ({rec.get('outcome')}): "
                            f"{rec.get('reason') or ''}", file=sys.stderr)
+        if rec.get("export_error") and not rec.get("skipped"):
+            self.bar.write(f"{rec['install']}/{rec['name']}: the export failed: {rec['export_error']}", file=sys.stderr)
         self.bar.set_postfix_str(f"done {self.counts['done']} · failed {self.counts['failed']} · "
                                  f"skipped {self.counts['skipped']}", refresh=False)
         self.bar.update(1)
