@@ -257,11 +257,20 @@ def test_uploaded_session_gives_the_same_result(fleet, cluster_batch, tmp_path):
 
 # ------------------------------------------------------------------------------------------ smaller
 def test_a_session_past_its_time_limit_is_recorded_and_runs_again(fleet, tmp_path):
+    """The session's process sleeps far past the limit (a sitecustomize on its PYTHONPATH that acts only in the
+    process of ``python -m handeye.batch.child``): the limit is reached whatever the machine's speed."""
     root, _ = fleet
     one = tmp_path / "root" / "cell-09"
     shutil.copytree(root / "cell-01" / "2026-01-05", one / "2026-01-05")
     out = tmp_path / "out"
-    rc, stdout, stderr = _finish(_handeye("batch", one.parent, "--out", out, "--workers", "1", "--timeout", "0.5"))
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text("import sys, time\n"
+                                           "if 'handeye.batch.child' in sys.orig_argv:\n"
+                                           "    time.sleep(600)\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(hook), os.environ.get("PYTHONPATH")) if p))
+    rc, stdout, stderr = _finish(_handeye("batch", one.parent, "--out", out, "--workers", "1", "--timeout", "0.5",
+                                          env=env))
     assert rc == 7, stdout + stderr[-2000:]
     rec = json.loads((out / "cell-09" / "2026-01-05" / "batch.json").read_text())
     assert rec["outcome"] == "timeout" and rec["verdict"] == "ERROR" and "0.5 s" in rec["reason"]

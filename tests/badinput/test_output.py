@@ -67,36 +67,63 @@ def test_report_out(make, culprits, good_result, run_cli, names, tmp_path):
     names(err, *culprits)
 
 
+def _unwritable(folder):
+    """Make ``folder`` one this user cannot create files in: (undo, the refusal's text). Not root: no write
+    permission; root (who ignores permissions): the immutable attribute (chattr +i), else a read-only bind mount
+    of the folder onto itself. Skips only where none of these exists here."""
+    if os.geteuid() != 0:
+        folder.chmod(0o555)
+        return (lambda: folder.chmod(0o755)), "Permission denied"
+    if subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode == 0:
+        return (lambda: subprocess.run(["chattr", "-i", str(folder)], capture_output=True)), "Operation not permitted"
+    if subprocess.run(["mount", "--bind", str(folder), str(folder)], capture_output=True).returncode == 0:
+        if subprocess.run(["mount", "-o", "remount,bind,ro", str(folder)], capture_output=True).returncode == 0:
+            return (lambda: subprocess.run(["umount", str(folder)], capture_output=True)), "Read-only file system"
+        subprocess.run(["umount", str(folder)], capture_output=True)
+    pytest.skip("root here has neither chattr nor mount: no folder is unwritable to it")
+
+
 @pytest.fixture
 def read_only_folder(tmp_path):
+    """(a folder no file can be created in, the refusal's text): a read-only tmpfs where this user may mount
+    one, else a folder made unwritable (:func:`_unwritable`)."""
     ro = tmp_path / "ro"
     ro.mkdir()
     if subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(ro)], capture_output=True).returncode:
-        pytest.skip("cannot mount a read-only tmpfs here")
+        undo, reason = _unwritable(ro)
+    else:
+        undo, reason = (lambda: subprocess.run(["umount", str(ro)], capture_output=True)), "Read-only file system"
     try:
-        yield ro
+        yield ro, reason
     finally:
-        subprocess.run(["umount", str(ro)], capture_output=True)
+        undo()
 
 
 def test_read_only_out(read_only_folder, tiny_vendor, run_cli, names):
-    rc, err = run_cli("calibrate", tiny_vendor, "--out", read_only_folder / "out", "--no-report")
+    ro, reason = read_only_folder
+    rc, err = run_cli("calibrate", tiny_vendor, "--out", ro / "out", "--no-report")
     assert rc == 2
-    names(err, "--out cannot be written", "Read-only file system")
+    names(err, "--out cannot be written", reason, str(ro / "out"))
 
 
 def test_read_only_out_folder_itself(read_only_folder, tiny_vendor, run_cli, names):
-    rc, err = run_cli("calibrate", tiny_vendor, "--out", read_only_folder, "--no-report")
+    ro, reason = read_only_folder
+    rc, err = run_cli("calibrate", tiny_vendor, "--out", ro, "--no-report")
     assert rc == 2
-    names(err, "--out cannot be written", str(read_only_folder))
+    names(err, "--out cannot be written", reason, str(ro))
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root writes everywhere")
 def test_not_writable_out(tiny_vendor, run_cli, names, tmp_path):
-    (tmp_path / "locked").mkdir(mode=0o555)
-    rc, err = run_cli("calibrate", tiny_vendor, "--out", tmp_path / "locked" / "out", "--no-report")
+    """A folder this user may not write in (for root too: see :func:`_unwritable`)."""
+    (tmp_path / "locked").mkdir()
+    undo, reason = _unwritable(tmp_path / "locked")
+    try:
+        rc, err = run_cli("calibrate", tiny_vendor, "--out", tmp_path / "locked" / "out", "--no-report")
+    finally:
+        undo()
     assert rc == 2
-    names(err, "--out cannot be written")
+    names(err, "--out cannot be written", reason, str(tmp_path / "locked" / "out"))
+    assert not (tmp_path / "locked" / "out").exists()
 
 
 @pytest.mark.parametrize("target", ["result.json", "observations.json"])
@@ -106,9 +133,11 @@ def test_disk_full_keeps_the_previous_result(target, good_result, tiny_vendor, r
 
     import handeye.output
 
+    from handeye.report.folder import read_result_folder
+
     out = tmp_path / "out"
     shutil.copytree(good_result, out)
-    before = (out / "result.json").read_bytes()
+    before = {p.name: p.read_bytes() for p in out.glob("*.json")}
     real = handeye.output.os.fsync
 
     def full(fd):
@@ -119,11 +148,20 @@ def test_disk_full_keeps_the_previous_result(target, good_result, tiny_vendor, r
     monkeypatch.setattr(handeye.output.os, "fsync", full)
     rc, err = run_cli("calibrate", tiny_vendor, "--out", out, "--no-report", "--no-refine")
     assert rc == 2, err
-    names(err, "No space left on device")
-    assert (out / "result.json").read_bytes() == before or target == "observations.json" and \
-        json.loads((out / "result.json").read_text())["run_id"]
-    json.loads((out / "result.last-good.json").read_text())
-    assert not list(out.glob(".*.tmp")) and not (out / ".handeye.lock").exists()
+    names(err, "No space left on device", f"cannot write {out / target}")
+    after = {p.name: p.read_bytes() for p in out.glob("*.json")}
+    # nothing already written is lost or half-written: the previous result, its last good copy and (when the
+    # disk filled on it) the previous observations.json are byte for byte as they were
+    for name in ("result.json", "result.last-good.json"):
+        assert after[name] == before[name], name
+    folder = read_result_folder(out)
+    if target == "observations.json":
+        assert after["observations.json"] == before["observations.json"]
+        assert folder.observations["run_id"] == folder.result["run_id"] and folder.observations["views"]
+    else:  # this run's observations.json is whole, and not read beside the previous result
+        assert json.loads(after["observations.json"])["run_id"] != folder.result["run_id"] and not folder.observations
+    assert set(after) == set(before)
+    assert not list(out.rglob(".*.tmp")) and not (out / ".handeye.lock").exists()
 
 
 @pytest.mark.parametrize("failing", [False, True], ids=["good", "failing"])
