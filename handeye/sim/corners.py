@@ -19,8 +19,8 @@ from ..mounting import mounting
 from ..records import Detection
 from ..targets import TargetSpec
 from .robot_error import (DEFAULT_ARM, DH_ANGLE_ERROR_DEG, DH_LENGTH_ERROR_MM, ENCODER_SIGMA_DEG, check_model_name,
-                          joints_for_poses, make_kinematic_error, reachable, report_poses, workspace_scale)
-from .scenarios import (DEFAULT_INTRINSICS, DEFAULT_TARGET, default_distance_m, outlier_offset, perturb_T_base_end,
+                          joints_for_poses, make_kinematic_error, reachable, report_poses)
+from .scenarios import (DEFAULT_INTRINSICS, DEFAULT_TARGET, arm_workspace, outlier_offset, perturb_T_base_end,
                         random_streams, sample_hidden_view_pose, sample_setup, sample_view_poses)
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -169,11 +169,9 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
         model_rng = rngs["robot_model"] if robot_model_seed is None else random_streams(robot_model_seed)["robot_model"]
         kin = make_kinematic_error(rng=model_rng, arm=arm, length_error_mm=dh_length_error_mm,
                                    angle_error_deg=dh_angle_error_deg, encoder_sigma_deg=encoder_sigma_deg)
-        scale = workspace_scale(arm)
+        scale, sized = arm_workspace(arm, mode=mode, target=target)
         pose_ok = lambda T: reachable(kin, T) is not None  # noqa: E731
-        if "distance_m" not in view_options and mounting(mode).fixed_frame == "end":  # camera on the arm
-            d_lo, d_hi = default_distance_m(target)
-            view_options = dict(view_options, distance_m=(d_lo, max(1.5 * d_lo, d_hi * scale)))
+        view_options = {**sized, **view_options}  # a distance range given stays
     setup = sample_setup(mode=mode, rng=geo, target=target, workspace_scale=scale)
     T_x, T_board = setup["T_x"], setup["T_board"]
     if rig is not None:

@@ -25,8 +25,8 @@ from ..frames import inv_T
 from ..mounting import mounting
 from ..targets import TargetSpec
 from .render import render_view
-from .robot_error import KinematicRobotError, reachable, workspace_scale
-from .scenarios import (REACH_M, DEFAULT_INTRINSICS, DEFAULT_TARGET, default_distance_m, perturb_T_base_end,
+from .robot_error import KinematicRobotError, reachable
+from .scenarios import (REACH_M, DEFAULT_INTRINSICS, DEFAULT_TARGET, arm_workspace, perturb_T_base_end,
                         plausible_robot_pose, sample_setup, sample_view_poses)
 
 log = logging.getLogger(__name__)
@@ -50,11 +50,8 @@ class SimRig:
         intrinsics = DEFAULT_INTRINSICS if intrinsics is None else intrinsics
         scale, pose_ok, extra = 1.0, None, {}
         if kinematic is not None:
-            scale = workspace_scale(kinematic.arm)
+            scale, extra = arm_workspace(kinematic.arm, mode=mode, target=target)
             pose_ok = lambda T: reachable(kinematic, T) is not None  # noqa: E731
-            if mounting(mode).fixed_frame == "end":
-                d_lo, d_hi = default_distance_m(target)
-                extra["distance_m"] = (d_lo, max(1.5 * d_lo, d_hi * scale))
         setup = sample_setup(mode=mode, rng=rng, target=target, workspace_scale=scale)
         T0 = sample_view_poses(mode=mode, n_views=1, rng=rng, T_x=setup["T_x"], T_board=setup["T_board"],
                                target=target, intrinsics=intrinsics, tilt_deg=(0.0, 8.0), roll_deg=10.0,

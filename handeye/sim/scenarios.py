@@ -174,6 +174,20 @@ def default_distance_m(target: TargetSpec) -> tuple[float, float]:
     return (0.35 * s, 0.9 * s)
 
 
+def arm_workspace(arm: str, *, mode: str, target: TargetSpec) -> tuple[float, dict]:
+    """(workspace scale, view options) of a rig sized for the arm ``arm`` (a preset of
+    :mod:`handeye.kinematics`): the scale for :func:`sample_setup` (:func:`handeye.sim.robot_error.workspace_scale`)
+    and, with the camera on the arm, the camera-to-board distances (``distance_m`` of
+    :func:`sample_view_poses`) shrunk with the rig, never below 1.5 times the nearest."""
+    from .robot_error import workspace_scale
+
+    scale = workspace_scale(arm)
+    if mounting(mode).fixed_frame != "end":
+        return scale, {}
+    d_lo, d_hi = default_distance_m(target)
+    return scale, {"distance_m": (d_lo, max(1.5 * d_lo, d_hi * scale))}
+
+
 def _T_cam_board_from_view(target: TargetSpec, *, distance_m: float, tilt_rad: float, tilt_dir_rad: float,
                            roll_rad: float, aim_x_rad: float, aim_y_rad: float) -> np.ndarray:
     """Camera aimed at the board centre from ``distance_m``, tilted and rolled, then panned slightly."""
