@@ -314,10 +314,14 @@ def test_ur3_joint_angles_and_dh_table_calibrate_with_the_kinematic_model(ur3):
     assert np.asarray(rm["dh_offset"]).shape == (6, 4)
     # the encoder noise the data show (measured 0.085 deg) is far above the 0.01 deg start: estimated, not assumed
     assert 0.03 < rm["encoder_sigma_deg"] < 0.3, rm["encoder_sigma_deg"]
-    # the board's marginal covariance is reported beside T_end_board (the nominal mount: 80, -60, 12 mm)
+    # the board's marginal covariance is reported beside T_end_board; the board's centre sits where the
+    # nominal mount (tf_ee_to_cb.json) puts it, on the flange axis 12 mm out (whichever half turn of the
+    # symmetric board the session settled on)
     cov_b = np.asarray(res["refinement"]["cov_board_6x6"])
     assert np.all(np.linalg.eigvalsh(cov_b) > 0)
-    assert np.allclose(np.asarray(res["refinement"]["T_end_board"])[:3, 3], [0.080, -0.060, 0.012], atol=0.005)
+    T_end_board = np.asarray(res["refinement"]["T_end_board"])
+    centre = T_end_board[:3, :3] @ ur3["cam1", True].session.target.object_points().mean(axis=0) + T_end_board[:3, 3]
+    assert np.allclose(centre, [0.0, 0.0, 0.012], atol=0.005), centre
     # views 25 and 26 of this data set are paired with each other's joint angles (in both cameras; swapping
     # them back makes all 40 consistent): the robot-pose test drops exactly those two by tens of mm, and a
     # kinematic model that explained them away would be wrong
@@ -326,14 +330,18 @@ def test_ur3_joint_angles_and_dh_table_calibrate_with_the_kinematic_model(ur3):
 
 
 def test_ur3_cameras_agree_on_the_board_mount_within_their_covariances(ur3):
-    # the two cameras share only the flange -> board transform. Measured (40 views each): kinematic 0.82 mm /
-    # 0.12 deg apart, d2 2.1 (verdict) / 2.2 (model); iid 1.14 mm / 0.17 deg, d2 9.9 / 10.6. chi2(6): 99 % below 16.81
+    # the two cameras share only the flange -> board transform. Measured (40 views each, two corner detectors):
+    # kinematic 0.82 / 0.40 mm, 0.12 / 0.22 deg apart, d2 2.1 / 3.4 (verdict), 2.2 / 4.2 (model); iid 1.14 /
+    # 1.12 mm, 0.17 / 0.28 deg, d2 9.9 / 18.1 (verdict), 10.6 / 20.6 (model). chi2(6): 99 % below 16.81. So the
+    # kinematic model's covariances hold the cameras' difference; the iid model's do not always
     bench = ur3["bench"]
-    for kinematic in (True, False):
-        cc = bench.cross_camera(ur3["cam1", kinematic], ur3["cam2", kinematic])
-        assert cc["mm"] < 3.0 and cc["deg"] < 0.5, (kinematic, cc["mm"], cc["deg"])
-        assert cc["d2_verdict"] < 16.81 and cc["d2_model"] < 16.81, (kinematic, cc["d2_verdict"], cc["d2_model"])
-        assert cc["d2_verdict"] <= cc["d2_model"] + 1e-9  # the verdict covariance is never the smaller one
+    cc = {k: bench.cross_camera(ur3["cam1", k], ur3["cam2", k]) for k in (True, False)}
+    for k, c in cc.items():
+        assert c["mm"] < 3.0 and c["deg"] < 0.5, (k, c["mm"], c["deg"])
+        assert c["d2_verdict"] <= c["d2_model"] + 1e-9  # the verdict covariance is never the smaller one
+    kin = cc[True]
+    assert kin["d2_verdict"] < 16.81 and kin["d2_model"] < 16.81, (kin["d2_verdict"], kin["d2_model"])
+    assert kin["d2_verdict"] < cc[False]["d2_verdict"], (kin["d2_verdict"], cc[False]["d2_verdict"])
 
 
 def test_board_symmetry_transforms_map_the_corners_onto_their_turned_ids(ur3):
