@@ -107,7 +107,7 @@ def detect_image(view_id: str, path: Path, target: TargetSpec, *, min_corners: i
         return _failure(view_id, gray, out, o, t0)
     thumb = thumbnail_jpeg(gray, width_px=o.thumbnail_width_px, quality=o.thumbnail_jpeg_quality)
     ids, pts = out
-    cue = order_cue(gray, pts, target.cols, target.rows) if target.kind == "chessboard" else float("nan")
+    cue = order_cue(gray, pts, target.cols, target.rows, ids) if target.kind == "chessboard" else float("nan")
     blur = view_blur(gray, pts, ids, target.object_points(), target.square_m, charuco=target.kind == "charuco",
                      sharp_edge_sigma_px=o.sharp_edge_sigma_px)
     return Detection(view_id=view_id, corner_ids=ids, image_points=pts, image_size=size,

@@ -14,6 +14,7 @@ from ..records import Detection
 from ..targets import ChessboardSpec
 from .geometry import TimeBudget, apply_homography, board_homography, check_corners, search_copy, square_px
 from .options import DetectionOptions, default_options
+from .saddle import shading_free, symmetric_corners
 
 log = logging.getLogger(__name__)
 
@@ -66,13 +67,43 @@ def refine_chessboard(gray: np.ndarray, search: np.ndarray, scale: np.ndarray, c
                       spec: ChessboardSpec, options: DetectionOptions) -> np.ndarray:
     """Full-resolution corners (N,2) from ``coarse`` corners found in ``search`` (``gray`` reduced by
     ``scale``, per axis), with windows from the square size; on a reduced search image the corners are first
-    refined there, so the full-size windows only correct what the reduction lost."""
+    refined there, so the full-size windows only correct what the reduction lost. Corners that are not
+    trusted (:func:`final_corners`) are NaN."""
     bxy = board_squares(spec)
     start, win = subpix_windows(bxy, np.asarray(coarse, float).reshape(-1, 2), options)
     if np.any(scale != 1.0):
         start = (refine_corners(search, start, win, options) + 0.5) / scale - 0.5  # pixel centres at integers
         start, win = subpix_windows(bxy, start, options)
-    return refine_corners(gray, start, win, options)
+    return final_corners(gray, bxy, start, win, options)
+
+
+def final_corners(gray: np.ndarray, board_xy: np.ndarray, start: np.ndarray, win: np.ndarray,
+                  options: DetectionOptions) -> np.ndarray:
+    """The two refinement stages on the full image (:mod:`.saddle`), on the part of it around the corners:
+    cornerSubPix from ``start`` in half windows ``win``, then the centre of point symmetry in half windows
+    of ``saddle_window_factor`` x the square's size, both on the image smoothed by ``subpix_blur_sigma_px``.
+    A corner where the two disagree by more than ``corner_disagreement_max_px``, or where the second finds
+    no saddle, is NaN (not used), and logged with its reason."""
+    o = options
+    reach = int(np.max(win)) + o.saddle_shading_box_px + int(np.ceil(4 * o.subpix_blur_sigma_px)) + 2
+    h, w = gray.shape
+    x0, y0 = (max(int(np.floor(v)) - reach, 0) for v in np.nanmin(start, axis=0))
+    x1, y1 = (min(int(np.ceil(v)) + reach + 1, n) for v, n in zip(np.nanmax(start, axis=0), (w, h)))
+    shift = np.array([x0, y0], float)
+    smooth = cv2.GaussianBlur(gray[y0:y1, x0:x1], (0, 0), o.subpix_blur_sigma_px)
+    first = refine_corners(smooth, start - shift, win, o)
+    H = board_homography(board_xy, first, robust=False)
+    half = win if H is None else np.clip(np.floor(o.saddle_window_factor * square_px(H, board_xy, 1.0)),
+                                         o.subpix_window_min_px, o.subpix_window_max_px).astype(int)
+    second, saddle = symmetric_corners(shading_free(smooth, box_px=o.saddle_shading_box_px), first, half,
+                                       iterations=o.saddle_iterations)
+    apart = np.linalg.norm(second - first, axis=1)
+    bad = ~saddle | ~(apart <= o.corner_disagreement_max_px)
+    for k in np.flatnonzero(bad):
+        log.info("corner %d not used: %s", k, "no saddle point in its window" if not saddle[k] else
+                 f"cornerSubPix and the symmetry fit put it {apart[k]:.2f} px apart (limit "
+                 f"{o.corner_disagreement_max_px:g} px, configs/detection.yaml corner_disagreement_max_px)")
+    return np.where(bad[:, None], np.nan, second + shift)
 
 
 def find_chessboard_fast(gray: np.ndarray, spec: ChessboardSpec, *, options: DetectionOptions | None = None,
@@ -121,9 +152,9 @@ def detect_chessboard(gray: np.ndarray, spec: ChessboardSpec, *, options: Detect
         coarse = corners.reshape(-1, 2)
     bxy = board_squares(spec)
     pts = refine_chessboard(gray, search, scale, coarse, spec, o)
-    check = check_corners(bxy, pts, o)
+    check = _check(bxy, pts, o)
     if check.passed:
-        return np.arange(spec.n_corners), pts
+        return _used(pts)
     log.info("chessboard corners fail the geometric check (%s): searched again by the accurate detector", check.text())
     if budget.spent():
         return budget.timed_out(f"the accurate search after the geometric check failed ({check.text()})") + where
@@ -131,23 +162,45 @@ def detect_chessboard(gray: np.ndarray, spec: ChessboardSpec, *, options: Detect
     if not found:
         return (f"chessboard corners fail the geometric check ({check.text()}) and the accurate detector finds "
                 f"no board{where}")
-    pts = corners.reshape(-1, 2).astype(np.float64)
-    if np.any(scale != 1.0):
-        pts = refine_chessboard(gray, search, scale, pts, spec, o)
-    again = check_corners(bxy, pts, o)
+    pts = refine_chessboard(gray, search, scale, corners.reshape(-1, 2).astype(np.float64), spec, o)
+    again = _check(bxy, pts, o)
     if not again.passed:
         return f"chessboard corners fail the geometric check, also from the accurate detector: {again.text()}{where}"
-    return np.arange(spec.n_corners), pts
+    return _used(pts)
 
 
-def order_cue(gray: np.ndarray, pts: np.ndarray, cols: int, rows: int) -> float:
+def _check(board_xy: np.ndarray, pts: np.ndarray, options: DetectionOptions):
+    """The geometric check of the corners that are used (rows of ``pts`` that are not NaN)."""
+    keep = np.flatnonzero(np.isfinite(pts[:, 0]))
+    c = check_corners(board_xy[keep], pts[keep], options)
+    res, lim = np.full(len(pts), np.nan), np.full(len(pts), np.inf)
+    res[keep], lim[keep] = c.residual_px, c.limit_px
+    return replace(c, residual_px=res, limit_px=lim, worst=int(keep[c.worst]) if c.worst >= 0 else -1)
+
+
+def _used(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(corner ids, image points) of the corners that are used (not NaN)."""
+    ids = np.flatnonzero(np.isfinite(pts[:, 0]))
+    return ids, pts[ids]
+
+
+def order_cue(gray: np.ndarray, pts: np.ndarray, cols: int, rows: int, ids: np.ndarray | None = None) -> float:
     """Grey level of the square between the first four corners minus that of the last square.
 
     On a chessboard with cols + rows odd these two squares have opposite colours, so the sign tells
-    from which end the detector numbered the corners.
+    from which end the detector numbered the corners. ``ids``: the corner ids of ``pts`` when some
+    corners were not used; the missing ones are placed by the board homography of the others.
     """
     if cols < 2 or rows < 2:
         return float("nan")
+    if ids is not None and len(ids) < cols * rows:
+        bxy = np.stack(np.divmod(np.arange(cols * rows), cols)[::-1], axis=1).astype(float)
+        H = board_homography(bxy[ids], pts, robust=False)
+        if H is None:
+            return float("nan")
+        full = apply_homography(H, bxy)
+        full[ids] = pts
+        pts = full
     grid = pts.reshape(rows, cols, 2)
 
     def grey(quad):
@@ -180,5 +233,7 @@ def normalize_chessboard_order(dets: dict, spec: ChessboardSpec, *, options: Det
         if np.sign(c) == -majority and abs(c) > min_grey:  # a weak cue is left alone
             d = dets[vid]
             log.info("view %s: chessboard numbered from the other end; corner order reversed", vid)
-            out[vid] = replace(d, image_points=d.image_points[::-1].copy(), order_cue=-c)
+            n = spec.n_corners  # corner k of one numbering is corner n - 1 - k of the other
+            out[vid] = replace(d, corner_ids=(n - 1 - d.corner_ids)[::-1].copy(),
+                               image_points=d.image_points[::-1].copy(), order_cue=-c)
     return out

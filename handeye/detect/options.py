@@ -38,6 +38,11 @@ class DetectionOptions:
     grid_check_radius_steps: float  # the geometric check predicts a corner from neighbours this near (grid steps)
     grid_check_max_px: float  # ... and drops or re-detects a view with a corner farther than this from it ...
     grid_check_max_share: float  # ... plus this share of the square's size in px
+    subpix_blur_sigma_px: float  # chessboard corners are refined on the image smoothed by this Gaussian
+    saddle_window_factor: float  # symmetry fit half window = factor x the square's size in px (clipped as above)
+    saddle_shading_box_px: int  # the shading removed before the symmetry fit: a box average this wide
+    saddle_iterations: int  # re-centrings of the symmetry fit
+    corner_disagreement_max_px: float  # a corner where cornerSubPix and the symmetry fit differ more is not used
     charuco_subpix_window_px: int
     subpix_max_iter: int
     subpix_eps_px: float
