@@ -12,7 +12,11 @@ low-texture case); an 8000x6000 noise image (--big) alone and in a session of th
 a view without the board under a 1 ms time budget (dropped as timed out). On the real sets of
 ../shared/data (--shared): the chessboard sets' corners against findChessboardCornersSB (EXHAUSTIVE |
 ACCURACY) where both detect, and the geometric check's worst corner (px and share of its limit) on every
-set, ChArUco and circle grid included (the figures behind grid_check_max_px).
+set, ChArUco and circle grid included (the figures behind grid_check_max_px), and for the corners over
+1 px from SB which of the two lies nearer its neighbours' homography; the ViSP views rendered again from
+their solvePnP poses, both detectors against that truth (which one is off where they disagree). The
+rendered and real chessboard figures are printed for both refinement stages and for the cornerSubPix
+stage alone (time in the same process, so the ratio holds under any load).
 --real (e.g. ../shared/data/ur3-eyetohand-cam1, a 9x7 chessboard) also compares the cornerSubPix
 stopping rules on real images: how far the shipped rule leaves the corners from the 50 / 1e-4 rule.
 Renders a session (handeye.sim.vendor.write_vendor_session, view 5 hidden so one view takes the

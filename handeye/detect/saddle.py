@@ -16,7 +16,7 @@ depends on where the edge falls) is smoothed away by a Gaussian of about a pixel
 cornerSubPix (the first stage) uses the same smoothed image and a different principle (gradients
 orthogonal to the lines from the corner); where the two disagree by more than
 ``corner_disagreement_max_px`` the corner is not what both assume (occluded, a reflection, a defect, a
-window reaching another feature) and is not used (:func:`handeye.detect.chessboard.refine_chessboard`).
+window reaching another feature) and is not used (:func:`handeye.detect.chessboard.final_corners`).
 Measured on rendered 1280x720 views and the real chessboard sets in benchmarks/bench_detect.py.
 """
 from __future__ import annotations
