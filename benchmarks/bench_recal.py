@@ -112,14 +112,18 @@ def calibrate(s, options=None):
                   T_x0=est.T_x, T_board0=est.T_board, options=options or RefineOptions(), starts=closed)
 
 
+KINEMATIC_ARM = "rm65"  # the simulator's arm (handeye.sim.robot_error.DEFAULT_ARM)
 VALIDATED = False  # --validated: installs carry the verdict covariance of the validation stage, as calibrate's
 
 
 def install(mode, model, seed, validated=None):
     from handeye.recal.loaded import load_result, result_from_refinement
 
+    from handeye.refine import RefineOptions
+
     s = session(mode=mode, model=model, seed=seed, n_views=20)
-    r = calibrate(s)
+    # the kinematic installs name their arm, as calibrate --robot does (the refinement models its DH errors)
+    r = calibrate(s, RefineOptions(arm=KINEMATIC_ARM) if model == "kinematic" else None)
     val = None
     if (VALIDATED if validated is None else validated) and r.status == "ok":
         from handeye.refine.validation import validate
@@ -177,7 +181,71 @@ def planned_poses(inst, n_views: int, model: str) -> np.ndarray:
     return np.array(p.poses)
 
 
+CHI2_CRIT_6 = stats.chi2.isf(0.05, 6)
+
+
+def power_of(S: np.ndarray, drifts: np.ndarray) -> np.ndarray:
+    """Power of verify's test at 5 % for each drift (K,6) when the change has covariance ``S`` (6,6):
+    ``P(ncx2(6, delta^T S^-1 delta) > chi2_6(0.95))``."""
+    nc = np.einsum("ki,ij,kj->k", drifts, np.linalg.inv(S), drifts)
+    return stats.ncx2.sf(CHI2_CRIT_6, 6, np.maximum(nc, 1e-12))
+
+
+def scaled_install(inst, c: float):
+    """The installed result with all its covariances (X, the intrinsics, their joint) times ``c**2``: an install
+    with ``1/c**2`` times the views of the same kind."""
+    from dataclasses import replace
+
+    j = inst.cov_x_intrinsics
+    return replace(inst, cov_x=c ** 2 * inst.cov_x,
+                   cov_x_intrinsics=None if j is None else (j[0], c ** 2 * j[1], c ** 2 * j[2]))
+
+
+def theory(inst, r_model, v, bump, *, n_dirs: int = 400) -> dict:
+    """verify's theoretical power (non-central chi-square) for the verification ``v`` of the undisturbed rig
+    against ``inst``: for this trial's bump and on average over random bump directions; with the model's
+    installed covariance instead of the verdict's; the ceiling (perfect new views: the installed X given its
+    intrinsics is all that is left); the sigmas of the change with a perfect install (the new views alone) and
+    with perfect new views; ``scale95``: the factor on all the installed sigmas at which the average power
+    reaches 95 % with these new views (0: not even a perfect install does)."""
+    from dataclasses import replace
+
+    from handeye.recal.loaded import VAGUE_COV_X, installed_prior
+    from handeye.recal.verify import test_refined
+
+    prior, _ = installed_prior(inst, session_intrinsics=False, cov_x=VAGUE_COV_X)
+    dirs = np.array([random_bump(np.random.default_rng(k)) for k in range(n_dirs)])
+
+    def V(c, i=inst):
+        return test_refined(scaled_install(i, c), v.refined, prior, min_variance_share=1e-3).change_cov
+
+    avg = lambda S: float(np.mean(power_of(S, dirs)))  # noqa: E731
+    j = inst.cov_x_intrinsics
+    S_perfect_new = inst.cov_x - (j[1] @ np.linalg.solve(j[2], j[1].T) if j is not None else 0.0)
+    V1, V0 = V(1.0), V(1e-3)
+    if avg(V0) < 0.95:
+        scale = 0.0
+    elif avg(V1) >= 0.95:
+        scale = 1.0
+    else:
+        lo, hi = 1e-3, 1.0
+        for _ in range(20):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if avg(V(mid)) >= 0.95 else (lo, mid)
+        scale = lo
+    model = replace(inst, cov_x=r_model.cov_x_6x6)
+    return dict(power=float(power_of(V1, bump[None])[0]), power_avg=avg(V1), power_model_avg=avg(V(1.0, model)),
+                ceiling_avg=avg(S_perfect_new), scale95=scale,
+                s0_mm=float(1e3 * np.sqrt(np.trace(S_perfect_new[3:, 3:]))),
+                s0_deg=float(np.degrees(np.sqrt(np.trace(S_perfect_new[:3, :3])))),
+                snew_mm=float(1e3 * np.sqrt(np.trace(V0[3:, 3:]))),
+                snew_deg=float(np.degrees(np.sqrt(np.trace(V0[:3, :3])))),
+                v_mm=float(1e3 * np.sqrt(np.trace(V1[3:, 3:]))), v_deg=float(np.degrees(np.sqrt(np.trace(V1[:3, :3])))))
+
+
 def verify_trial(args) -> dict:
+    from dataclasses import replace
+
     from handeye.errors import HandeyeError
     from handeye.frames import se3_exp
     from handeye.recal.verify import verify_views
@@ -195,9 +263,14 @@ def verify_trial(args) -> dict:
             if planned is None:
                 views = refine_views(session(mode=mode, model=model, seed=seed + 100000, n_views=6, rig=rig,
                                              model_seed=seed))
-            else:
+            else:  # the arm may not reach every planned pose: topped up with random poses
                 views = views_at(planned, mode=mode, model=model, rig=rig, seed=seed + 100000, model_seed=seed,
                                  target=s.target, intrinsics=s.intrinsics)[:6]
+                if len(views) < 6:
+                    extra = refine_views(session(mode=mode, model=model, seed=seed + 100000, n_views=6 - len(views),
+                                                 rig=rig, model_seed=seed))
+                    views += [replace(x, view_id=f"r{x.view_id}") for x in extra]
+                    out["topped_up"] = len(extra)
             t0 = time.perf_counter()
             v = verify_views(inst, views=views, object_points=s.target.object_points())
             e = v.test.change_xi - xi
@@ -205,6 +278,8 @@ def verify_trial(args) -> dict:
                              within=float(e @ np.linalg.solve(v.test.change_cov, e)) <= CHI2_2SIGMA_6,
                              sig_mm=float(np.linalg.norm(v.change["sigma_trans_mm"])),
                              sig_deg=float(np.linalg.norm(v.change["sigma_rot_deg"])))
+            if name == "still":
+                out["theory"] = theory(inst, r, v, bump)
         return out
     except HandeyeError as e:
         return dict(mode=mode, model=model, seed=seed, skipped=str(e)[:100])
@@ -228,34 +303,53 @@ def compare_trial(args) -> dict:
                 p_intr=compare_loaded(a, b).intrinsics.get("p_value", np.nan))
 
 
+def refine_from_install(inst, views, object_points, options):
+    """The refinement of ``views`` as ``calibrate --prior`` runs it: from the installed intrinsics and X, the
+    board where the installed X puts it (the mean over the views)."""
+    from handeye.initial import solve_pnp
+    from handeye.frames import mean_T
+    from handeye.recal.verify import board_from_views
+    from handeye.refine import refine
+
+    C = np.stack([solve_pnp(object_points[v.corner_ids], v.image_points, inst.intrinsics)[0] for v in views])
+    E = np.stack([v.T_base_end for v in views])
+    B0 = mean_T(board_from_views(inst.mode, inst.T_x, E, C))
+    return refine(mode=inst.mode, object_points=object_points, views=views, intrinsics=inst.intrinsics,
+                  T_x0=inst.T_x, T_board0=B0, options=options)
+
+
 def prior_trial(args) -> dict:
-    from handeye.frames import pose_error, se3_exp, tangent_difference
-    from handeye.recal.prior import update_test
-    from handeye.recal.verify import installed_prior
+    from dataclasses import replace
+
+    from handeye.frames import pose_error, se3_exp
+    from handeye.recal.loaded import VAGUE_COV_X, installed_prior
+    from handeye.recal.verify import verify_views
     from handeye.refine import RefineOptions
 
-    mode, seed = args
+    mode, seed, poses = args
     s, r, inst = install(mode, "iid", seed)
-    out = dict(mode=mode, seed=seed)
+    out = dict(mode=mode, seed=seed, poses=poses)
+    obj = s.target.object_points()
+    planned = planned_poses(inst, 5, "iid") if poses == "planned" else None
+    prior, fixed = installed_prior(inst, session_intrinsics=False)
     for name, xi in (("still", np.zeros(6)), ("bumped", random_bump(np.random.default_rng(seed + 31)))):
         rig = (s.T_x_true @ se3_exp(xi), s.T_board_true)
-        new = session(mode=mode, model="iid", seed=seed + 400000, n_views=5, rig=rig)
-        prior, fixed = installed_prior(inst, session_intrinsics=False)
-        rp = calibrate(new, RefineOptions(prior=prior, fix=fixed))
-        contradicted = True
-        if rp.status == "ok":
-            t = update_test(cov_prior=inst.cov_x, update_xi=tangent_difference(inst.T_x, rp.T_x), cov_post=rp.cov_x_6x6)
-            contradicted = t.p_value < 0.05
-        kept = rp
-        if contradicted:  # as calibrate --prior: again without the prior on X, the intrinsics prior kept
-            from dataclasses import replace
-
-            kept = calibrate(new, RefineOptions(prior=replace(prior, cov_x=np.eye(6)), fix=fixed))
+        if planned is None:
+            views = refine_views(session(mode=mode, model="iid", seed=seed + 400000, n_views=5, rig=rig))
+        else:
+            views = views_at(planned, mode=mode, model="iid", rig=rig, seed=seed + 400000, model_seed=seed,
+                             target=s.target, intrinsics=s.intrinsics)
+        rp = refine_from_install(inst, views, obj, RefineOptions(prior=prior, fix=fixed))
+        # as calibrate --prior: verify's test on the views decides; when they contradict the prior, the views
+        # without the prior on X (the intrinsics prior kept)
+        contradicted = rp.status != "ok" or verify_views(inst, views=views, object_points=obj).drifted
+        alone = refine_from_install(inst, views, obj, RefineOptions(prior=replace(prior, cov_x=VAGUE_COV_X), fix=fixed))
+        kept = alone if contradicted else rp
         fresh = calibrate(session(mode=mode, model="iid", seed=seed + 500000, n_views=20, rig=rig))
         out[name] = dict(contradicted=contradicted, err_mm=pose_error(kept.T_x, rig[0])[1],
                          err_deg=pose_error(kept.T_x, rig[0])[0], fresh_mm=pose_error(fresh.T_x, rig[0])[1],
-                         fresh_deg=pose_error(fresh.T_x, rig[0])[0],
-                         installed_mm=pose_error(inst.T_x, rig[0])[1])
+                         fresh_deg=pose_error(fresh.T_x, rig[0])[0], alone_mm=pose_error(alone.T_x, rig[0])[1],
+                         alone_deg=pose_error(alone.T_x, rig[0])[0], installed_mm=pose_error(inst.T_x, rig[0])[1])
     return out
 
 
@@ -318,6 +412,27 @@ def report_verify(rows) -> None:
                      if len(ok) < len(rs) else ""))
 
 
+def report_theory(rows) -> None:
+    """The power the test should have (non-central chi-square) beside what the trials measured."""
+    print("verify theory (non-central chi-square, 6 dof, 5 %; sigmas: norms over the 3 axes; install: its X given "
+          "its intrinsics; new views: with a perfect install):")
+    print(f"  {'model':<10}{'mode':<12}{'change sigma':>17}{'install':>17}{'new views':>17}{'pred.':>7}"
+          f"{'measured':>9}{'model cov':>10}{'ceiling':>8}{'install x for 95%':>18}")
+    for model in MODELS:
+        for mode in MODES:
+            ok = [r for r in rows if r["mode"] == mode and r["model"] == model and "theory" in r]
+            if not ok:
+                continue
+            th = [r["theory"] for r in ok]
+            med = lambda k: float(np.median([t[k] for t in th]))  # noqa: E731
+            print(f"  {model:<10}{mode:<12}{med('v_mm'):>7.2f} mm {med('v_deg'):.3f}°{med('s0_mm'):>7.2f} mm "
+                  f"{med('s0_deg'):.3f}°{med('snew_mm'):>7.2f} mm {med('snew_deg'):.3f}°"
+                  f"{100 * np.mean([t['power'] for t in th]):>6.1f}%"
+                  f"{100 * np.mean([r['bumped']['drifted'] for r in ok]):>8.1f}%"
+                  f"{100 * np.mean([t['power_model_avg'] for t in th]):>9.1f}%"
+                  f"{100 * np.mean([t['ceiling_avg'] for t in th]):>7.1f}%{med('scale95'):>18.2f}")
+
+
 def report_compare(rows) -> None:
     for mode in MODES:
         rs = [r for r in rows if r["mode"] == mode]
@@ -344,7 +459,9 @@ def report_prior(rows) -> None:
               f"error {rms(x['err_mm'] for x in b):.3f} mm {rms(x['err_deg'] for x in b):.4f} deg (contradiction "
               f"reported in {100 * np.mean([x['contradicted'] for x in b]):.0f} %) vs fresh 20 views "
               f"{rms(x['fresh_mm'] for x in b):.3f} mm {rms(x['fresh_deg'] for x in b):.4f} deg (the install: "
-              f"{rms(x['installed_mm'] for x in b):.3f} mm); no bump: {rms(x['err_mm'] for x in s):.3f} mm "
+              f"{rms(x['installed_mm'] for x in b):.3f} mm; the 5 views without the prior on X: "
+              f"{rms(x.get('alone_mm', np.nan) for x in b):.3f} mm {rms(x.get('alone_deg', np.nan) for x in b):.4f} "
+              f"deg); no bump: {rms(x['err_mm'] for x in s):.3f} mm "
               f"{rms(x['err_deg'] for x in s):.4f} deg vs fresh {rms(x['fresh_mm'] for x in s):.3f} mm, contradiction "
               f"reported in {100 * np.mean([x['contradicted'] for x in s]):.1f} % (nominal 5 %)")
 
@@ -385,7 +502,8 @@ def main() -> None:
     ap.add_argument("--validated", action="store_true",
                     help="verify trials: installs with the validation stage's verdict covariance (as calibrate writes)")
     ap.add_argument("--poses", choices=("planned", "random"), default="planned",
-                    help="verify trials: the 6 views at the poses verify --plan proposes (default) or at random poses")
+                    help="verify and --prior trials: the new views at the poses verify --plan proposes (default) or "
+                         "at random poses")
     ap.add_argument("--jsonl", help="append every trial's outcome to this file as it comes")
     ap.add_argument("--from-jsonl", nargs="+", help="only report the trials in these files (verify, compare, prior)")
     a = ap.parse_args()
@@ -394,6 +512,7 @@ def main() -> None:
 
         rows = [json.loads(line) for f in a.from_jsonl for line in open(f, encoding="utf-8") if line.strip()]
         for sel, report in (([r for r in rows if "model" in r], report_verify),
+                            ([r for r in rows if "theory" in r], report_theory),
                             ([r for r in rows if "p" in r and "model" not in r], report_compare)):
             if sel:
                 report(sel)
@@ -405,13 +524,15 @@ def main() -> None:
     if a.trials:
         tasks = [(mode, model, s, a.validated, a.poses) for model in a.models for mode in a.modes for s in seeds]
         print(f"verify: {len(tasks)} trials", file=sys.stderr)
-        report_verify(run_pool(verify_trial, tasks, a.jobs, a.jsonl))
+        rows = run_pool(verify_trial, tasks, a.jobs, a.jsonl)
+        report_verify(rows)
+        report_theory(rows)
     if a.compare:
         tasks = [(mode, a.first_seed + s) for mode in a.modes for s in range(a.compare)]
         print(f"compare: {len(tasks)} pairs", file=sys.stderr)
         report_compare(run_pool(compare_trial, tasks, a.jobs, a.jsonl))
     if a.prior:
-        tasks = [(mode, a.first_seed + s) for mode in a.modes for s in range(a.prior)]
+        tasks = [(mode, a.first_seed + s, a.poses) for mode in a.modes for s in range(a.prior)]
         print(f"prior: {len(tasks)} trials", file=sys.stderr)
         report_prior(run_pool(prior_trial, tasks, a.jobs, a.jsonl))
     if a.timing:

@@ -138,17 +138,41 @@ def test_drift_test_is_the_wald_statistic_and_drops_unconstrained_directions():
     assert t5.dof == 5 and t5.statistic < t.statistic + 1e-9
 
 
-def test_prior_update_test_equals_the_wald_test_in_the_linear_model():
-    from handeye.recal.prior import update_test
+def test_joint_drift_test_is_chi_square_when_the_intrinsics_are_shared():
+    """A linear-Gaussian model of verify: an install solves (x, k) from 60 measurements G0 (x: rad and m, k: px),
+    new views measure some of the same kind, G, and are solved with x vague and k under the installed
+    intrinsics' prior, as verify does. Under X = X_installed the joint test is chi-square with 6 dof;
+    drift_test, which adds the installed covariance whole, counts the intrinsics' error they share twice."""
+    from handeye.recal.verify import drift_test, joint_drift_test
 
-    rng = np.random.default_rng(2)
-    S0, S_data = _spd(rng, 1e-7), _spd(rng, 2e-7)
-    d = 1e-3 * rng.normal(size=6)  # what the data alone say, in the prior's tangent
-    S_post = np.linalg.inv(np.linalg.inv(S0) + np.linalg.inv(S_data))
-    update = S_post @ np.linalg.solve(S_data, d)  # the posterior's update of the prior mean
-    t = update_test(cov_prior=S0, update_xi=update, cov_post=S_post)
-    assert t.dof == 6
-    assert t.statistic == pytest.approx(d @ np.linalg.solve(S0 + S_data, d), rel=1e-6)
+    rng = np.random.default_rng(3)
+    nk, n = 4, 800
+    X = rng.normal(size=(60, 6))
+    K = X[:, :nk] + 0.3 * rng.normal(size=(60, nk))  # the intrinsics confounded with x (cx with a rotation, ...)
+    G0 = np.hstack([3e3 * X, K])  # pixels per unit
+    S_inst = np.linalg.inv(G0.T @ G0)  # unit pixel noise
+    G = G0[:24] + 0.05 * rng.normal(size=(24, 6 + nk)) * np.r_[np.full(6, 3e3), np.full(nk, 1.0)]
+    S_kp, vague = S_inst[6:, 6:], np.eye(6)  # verify's priors: the installed intrinsics' covariance, x vague
+    info_prior = np.zeros((6 + nk, 6 + nk))
+    info_prior[:6, :6], info_prior[6:, 6:] = np.linalg.inv(vague), np.linalg.inv(S_kp)
+    P_v = np.linalg.inv(G.T @ G + info_prior)
+    T0 = np.eye(4)
+    Tj, Tw = [], []
+    for _ in range(n):
+        e = np.linalg.solve(G0.T @ G0, G0.T @ rng.normal(size=60))  # the install's error (x0, k0) - truth
+        # the new views' solve relative to the installed (x0, k0), priors centred there (truth at -e)
+        m = P_v @ (G.T @ (G @ -e + rng.normal(size=24)))
+        T_new = se3_exp(m[:6])
+        t = joint_drift_test(T_x_installed=T0, cov_installed=S_inst[:6, :6], cov_xk_installed=S_inst[:6, 6:],
+                             cov_kk_installed=S_kp, T_x_new=T_new, dk_new=m[6:], cov_new=P_v, cov_k_prior=S_kp,
+                             cov_x_prior=vague)
+        Tj.append(t.statistic)
+        Tw.append(drift_test(cov_installed=S_inst[:6, :6], T_x_installed=T0, T_x_new=T_new,
+                             cov_new=P_v[:6, :6]).statistic)
+        assert t.dof == 6
+    assert stats.kstest(Tj, stats.chi2(6).cdf).pvalue > 0.01
+    assert np.mean(Tj) == pytest.approx(6.0, abs=0.6)  # sd of the mean of 800 chi2_6: 0.12
+    assert np.mean(Tw) < 0.7 * np.mean(Tj)  # the shared error counted twice: a conservative test (2.9)
 
 
 # ------------------------------------------------------------------------------ verify on simulated rigs
@@ -295,7 +319,7 @@ def test_calibrate_with_prior_reports_the_update_or_the_contradiction(rendered, 
         assert abs(res["intrinsics"]["fx"] - installed["intrinsics"]["fx"]) < \
             5 * installed["refinement"]["intrinsics_sigma"]["fx"]
         if contradicted:
-            assert p["used"].startswith("no prior on X") and p["drift"]["trans_mm"] > 2.0
+            assert p["used"].startswith("no prior on X") and p["change"]["trans_mm"] > 2.0
         else:
             assert p["used"] == "prior" and p["test"]["dof"] == 6 and p["test"]["p_value"] > 0.05
             assert len(p["update"]["sigma_trans_mm"]) == 3 and all(s >= 0 for s in p["update"]["sigma_trans_mm"])
@@ -304,7 +328,7 @@ def test_calibrate_with_prior_reports_the_update_or_the_contradiction(rendered, 
         label = "CONTRADICTED" if contradicted else "PRIOR HOLDS"
         assert "## Prior: an earlier calibration" in md and label in md and p["summary"] in md
         assert 'id="prior"' in html and label in html
-        assert ("Drift: the new views alone" in md) is contradicted and "Update of the prior" in md
+        assert "Change of X the new views show" in md and "Update of the prior" in md
 
 
 def test_collect_verify_against_refuses_another_mode_in_one_line(rendered, tmp_path, capsys):

@@ -5,6 +5,8 @@ present, else ``refinement.cov_x_6x6`` (the model's); its parametrisation must b
 (:data:`handeye.refine.covariance.COV_PARAMETRISATION`: right perturbation, rotation first, radians and
 metres, along the camera axes). The same for the intrinsics (``intrinsics_sigma_verdict`` when present,
 else ``intrinsics_sigma``; sigmas of the free intrinsics only: a fixed or given intrinsic has sigma 0).
+The model's joint covariance of X and the free intrinsics (``refinement.cov_x_intrinsics``) is read
+too: verify needs it when the new views share the installed intrinsics.
 """
 from __future__ import annotations
 
@@ -43,6 +45,9 @@ class LoadedResult:
     robot_sigma_mm: Optional[float]
     robot_sigma_deg: Optional[float]
     raw: dict = field(repr=False, default_factory=dict)
+    # the model's joint covariance of X's tangent and the free intrinsics (refinement.cov_x_intrinsics):
+    # (names, cross (6,k), intrinsics (k,k)); None in results without it
+    cov_x_intrinsics: Optional[tuple] = field(repr=False, default=None)
 
     @property
     def ok(self) -> bool:
@@ -104,7 +109,19 @@ def load_result(result: ResultLike) -> LoadedResult:
         intrinsics_sigma={str(k): float(v) for k, v in sig.items() if v is not None and np.isfinite(float(v))},
         intrinsics_source=(intr_d or {}).get("source"), target=d.get("target"), image_size=size,
         sigma_px=_float(ref.get("sigma_px")), robot_sigma_mm=_float(ref.get("robot_sigma_mm")),
-        robot_sigma_deg=_float(ref.get("robot_sigma_deg")), raw=d)
+        robot_sigma_deg=_float(ref.get("robot_sigma_deg")), raw=d, cov_x_intrinsics=_joint(ref.get("cov_x_intrinsics")))
+
+
+def _joint(j) -> Optional[tuple]:
+    """(names, cross (6,k), intrinsics (k,k)) from refinement.cov_x_intrinsics, None when absent or malformed."""
+    if not isinstance(j, dict) or not isinstance(j.get("intrinsics"), list):
+        return None
+    names = tuple(str(n) for n in j["intrinsics"])
+    k = len(names)
+    cross, kk = _matrix(j.get("cross_6xk"), (6, k)), _matrix(j.get("intrinsics_kxk"), (k, k))
+    if k == 0 or cross is None or kk is None or not set(names) <= set(INTRINSIC_NAMES):
+        return None
+    return names, cross, 0.5 * (kk + kk.T)
 
 
 def _float(v) -> Optional[float]:

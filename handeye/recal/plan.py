@@ -11,7 +11,8 @@ of ``drift_mm`` and a rotation of ``drift_deg`` in any directions: the power rep
 the six axis combinations and ``n_directions`` seeded random ones.
 
 Candidate poses: the installed calibration's own robot poses (they showed the board) and the
-planner's orbit views around each of them (:func:`handeye.collect.plan.candidate_views`). Views are
+planner's orbit views around each of them (:func:`handeye.collect.plan.candidate_views`; their visibility
+judged without k3 when the fitted k3 folds the lens model back near the image corners). Views are
 added greedily, each the one that raises the worst-case non-centrality most, until the power reaches
 the goal or ``max_views``. Even infinitely many views leave ``S0``: the power of a perfect verification,
 ``P(ncx2(6, min delta^T S0^-1 delta) > ...)``, is the ceiling, and when it is below the goal the plan
@@ -152,11 +153,17 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
         config = PlanConfig(pixel_noise_px=sigma_px, robot_noise_mm=rs_mm, robot_noise_deg=rs_deg)
         for k, T0 in enumerate(base[:int(pc["orbit_views"])]):  # orbits around a few installed views
             C0 = m.predict_T_cam_board(T_x, T_board, T0)
-            try:
-                orbit = candidate_views(mode=mode, T_x=T_x, T_board=T_board, T_base_end_start=T0, T_cam_board_start=C0,
-                                        target=target, intrinsics=installed.intrinsics, config=config)
-            except ConfigError as e:  # e.g. a distortion the visibility test cannot invert: the installed poses only
-                log.warning("no orbit candidates (%s); planning from the installed poses", e)
+            orbit = None
+            for intr in (installed.intrinsics, _without_k3(installed.intrinsics)):
+                try:
+                    orbit = candidate_views(mode=mode, T_x=T_x, T_board=T_board, T_base_end_start=T0,
+                                            T_cam_board_start=C0, target=target, intrinsics=intr, config=config)
+                    break
+                except ConfigError as e:  # a distortion the visibility test cannot invert
+                    log.info("orbit candidates with dist=%s: %s", np.round(intr.dist, 4).tolist(), e.args[0])
+            if orbit is None:
+                log.warning("no orbit candidates (the lens distortion folds back in the image); planning from the "
+                            "installed poses")
                 break
             cands += [(c.T_base_end, f"orbit of installed view {k + 1}: {c.label}") for c in orbit]
     if not cands:
@@ -188,6 +195,15 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
                       poses=tuple(cands[i][0] for i in chosen), labels=tuple(cands[i][1] for i in chosen),
                       power_by_views=tuple(powers), n_views=n_goal, ceiling_power=ceiling, min_drift_scale=scale,
                       sigma_px=sigma_px, robot_sigma_mm=rs_mm, robot_sigma_deg=rs_deg, candidate_index=tuple(chosen))
+
+
+def _without_k3(intrinsics):
+    """The intrinsics with k3 = 0, for the collector's visibility test only: a 20-view calibration's k3 is
+    fitted where corners were, and often folds the lens model back near the image corners, where no
+    corner lies; the views' information is still computed with the full model."""
+    from dataclasses import replace
+
+    return replace(intrinsics, dist=tuple(intrinsics.dist[:4]) + (0.0,))
 
 
 def _noncentrality_for_power(goal: float, *, alpha: float, dof: int = 6) -> float:

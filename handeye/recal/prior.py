@@ -6,58 +6,31 @@ prior through :class:`handeye.refine.options.Prior`, and so do the earlier intri
 one recipe with ``handeye verify``, :func:`handeye.recal.loaded.installed_prior`. A few new views then
 update the calibration instead of replacing it.
 
-Whether the data contradict the prior: the update ``u = L^-1 Log(X0^-1 X_post)`` (``S0 = L L^T``) has
-covariance ``M = I - L^-1 S_post L^-T`` when the prior is right (a linear Gaussian update), so
-``T = sum_k (v_k . u)^2 / m_k`` over the eigenpairs ``(m_k, v_k)`` of ``M`` with ``m_k >= min_variance_share``
-is chi-square with that many degrees of freedom (the score test of ``X = X0``; the same statistic as
-``handeye verify``'s Wald test in the linear model). When ``p < alpha`` (or the solve with the prior
-fails), the prior is not used silently: the session is calibrated again without the prior on X (a vague
-term, :data:`handeye.recal.loaded.VAGUE_COV_X`: the data say its mean is wrong, and no inflation of
-``S0`` fitted to one drift would be better founded) but with the intrinsics prior (a bump moves the
-camera, not its lens), and the result says so, with the drift (the new estimate against ``X0``,
-:mod:`handeye.recal.compare`).
+Whether the data contradict the prior is ``handeye verify``'s test on the same views
+(:func:`handeye.recal.verify.verify_views`: the views refined with X free and the earlier intrinsics as
+their prior, the change of X estimated jointly with the intrinsics they share with the earlier result,
+its Wald test). So one test decides both commands, and a contradiction found here is a drift verify
+would report. When ``p < alpha`` (or the solve with the prior fails), the prior is not used silently:
+the session is calibrated again without the prior on X (a vague term,
+:data:`handeye.recal.loaded.VAGUE_COV_X`: the data say its mean is wrong, and no inflation of ``S0``
+fitted to one drift would be better founded) but with the intrinsics prior (a bump moves the camera,
+not its lens), and the result says so, with the drift (the change of X with its sigma).
 """
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Optional
 
 import numpy as np
-from scipy import stats
 
-from ..errors import InputError
+from ..errors import HandeyeError, InputError
+from ..frames import tangent_difference
 from ..output import plain
-from .compare import x_difference
 from .loaded import VAGUE_COV_X, LoadedResult, ResultLike, installed_prior, load_result
-from .verify import VerifyOptions, change_in_result_frame
+from .verify import VerifyOptions, change_in_result_frame, verify_views
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class UpdateTest:
-    statistic: float
-    dof: int
-    p_value: float
-    update_xi: np.ndarray  # (6,) Log(X0^-1 X_post), rad and m
-
-
-def update_test(*, cov_prior: np.ndarray, update_xi: np.ndarray, cov_post: np.ndarray,
-                min_variance_share: float = 1e-3) -> UpdateTest:
-    """The score test of a Gaussian prior ``N(X0, cov_prior)`` against the update the data made to it
-    (see the module docstring). ``update_xi`` (6,) in ``X0``'s right tangent; ``cov_post`` (6,6)."""
-    L = np.linalg.cholesky(0.5 * (cov_prior + cov_prior.T))
-    Li = np.linalg.inv(L)
-    u = Li @ np.asarray(update_xi, float)
-    M = np.eye(6) - Li @ (0.5 * (cov_post + cov_post.T)) @ Li.T
-    m, V = np.linalg.eigh(0.5 * (M + M.T))
-    keep = m >= float(min_variance_share)
-    proj = V.T @ u
-    T = float(np.sum(proj[keep] ** 2 / m[keep]))
-    dof = int(keep.sum())
-    return UpdateTest(statistic=T, dof=dof, p_value=float(stats.chi2.sf(T, dof)) if dof else 1.0,
-                      update_xi=np.asarray(update_xi, float))
 
 
 def check_prior_fits(installed: LoadedResult, session) -> None:
@@ -92,8 +65,8 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
     """Calibrate ``session`` (loaded) with the result ``prior`` as the prior of X and the intrinsics;
     when the data contradict it, calibrate again without the prior on X and say so.
 
-    Returns (the CalibrationRun kept, result.json's ``prior`` block: the prior, the update, the test,
-    ``contradicted``, ``used`` and, when contradicted, the ``drift``)."""
+    Returns (the CalibrationRun kept, result.json's ``prior`` block: the prior, the update, the test and the
+    ``change`` of X it estimates, ``contradicted``, ``used``)."""
     from ..pipeline import run_calibration
 
     progress = progress or (lambda s: None)
@@ -104,6 +77,7 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
     installed = prior if isinstance(prior, LoadedResult) else load_result(prior)
     check_prior_fits(installed, session)
     s_p, opts_p = _with_prior(session, options, installed)
+    prior_used = opts_p.refine_options["prior"]
     progress(f"calibrating with the prior {installed.source}")
     run = run_calibration(s_p, opts_p, progress=progress)
     rec = {"source": installed.source, "covariance_used": installed.cov_source, "frame": installed.x_name,
@@ -111,23 +85,29 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
            "sigma_trans_mm": 1000.0 * np.sqrt(np.diag(installed.T_x[:3, :3] @ installed.cov_x[3:, 3:]
                                                       @ installed.T_x[:3, :3].T)),
            "sigma_rot_deg": np.degrees(np.sqrt(np.diag(installed.cov_x[:3, :3]))),
-           "intrinsics": "the session's own" if opts_p.refine_options["prior"].intrinsics is None
+           "intrinsics": "the session's own" if prior_used.intrinsics is None
            else "the prior's, with its sigmas", "alpha": o.alpha}
-    contradicted, why = False, ""
     if run.status == "ok" and run.refined is not None:
-        t = update_test(cov_prior=installed.cov_x, update_xi=_log_update(installed.T_x, run.T_x),
-                        cov_post=run.refined.cov_x_6x6, min_variance_share=o.min_variance_share)
+        xi = tangent_difference(installed.T_x, run.T_x)
         spread = installed.cov_x - run.refined.cov_x_6x6  # the update's covariance when the prior is right
-        upd = change_in_result_frame(installed.T_x, t.update_xi, 0.5 * (spread + spread.T))
-        rec["update"] = dict(upd, sigma_meaning="1-sigma of the update when the prior is right (prior minus "
-                                                "posterior covariance)")
-        rec["test"] = {"kind": "score test of X = X_prior: the update against its spread when the prior is right",
-                       "statistic": t.statistic, "dof": t.dof, "p_value": t.p_value}
-        contradicted = t.p_value < o.alpha
-        why = f"the update is beyond the prior's uncertainty (p = {t.p_value:.3g} < {o.alpha:g})"
-    else:
-        contradicted = True
-        why = f"the calibration with the prior failed ({run.error})"
+        rec["update"] = dict(change_in_result_frame(installed.T_x, xi, 0.5 * (spread + spread.T)),
+                             sigma_meaning="1-sigma of the update when the prior is right (prior minus posterior "
+                                           "covariance)")
+    contradicted, why, v = True, f"the calibration with the prior failed ({run.error})", None
+    if len(run.board_poses) >= 3:
+        try:
+            v = verify_views(installed, views=_refine_views(run), object_points=session.target.object_points(),
+                             intrinsics=None if prior_used.intrinsics is not None else session.intrinsics, options=o)
+        except HandeyeError as e:
+            why = f"the test of the prior failed ({e})"
+    if v is not None:
+        t = v.test
+        rec["test"] = {"kind": "handeye verify's test on these views: " + t.kind, "statistic": t.statistic,
+                       "dof": t.dof, "p_value": t.p_value}
+        rec["change"] = dict(v.change, p_value=t.p_value)
+        contradicted = v.drifted or run.status != "ok"
+        why = (f"the views are beyond the prior's uncertainty (p = {t.p_value:.3g} < {o.alpha:g})" if v.drifted
+               else why)
     rec["contradicted"] = contradicted
     if not contradicted:
         rec["used"] = "prior"
@@ -141,25 +121,22 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
     run_n = run_calibration(s_n, opts_n, progress=progress)
     rec["used"] = "no prior on X (the new views alone; the prior's intrinsics kept)"
     if run_n.status == "ok" and run_n.refined is not None:
-        d = x_difference(installed.T_x, installed.cov_x, run_n.T_x, run_n.refined.cov_x_6x6)
-        p = float(stats.chi2.sf(d["d2"], 6))
-        rec["drift"] = {"d_trans_mm": d["d_trans_mm"], "d_rot_deg": d["d_rot_deg"],
-                        "trans_mm": float(np.linalg.norm(d["d_trans_mm"])),
-                        "rot_deg": float(np.linalg.norm(d["d_rot_deg"])), "sigma_trans_mm": d["sigma_trans_mm"],
-                        "sigma_rot_deg": d["sigma_rot_deg"], "mahalanobis2": d["d2"], "p_value": p}
-        rec["summary"] = (f"the data contradict the prior: {why}; {installed.x_name} drifted by "
-                          f"{rec['drift']['trans_mm']:.2f} mm, {rec['drift']['rot_deg']:.3f} deg "
-                          "(the result is the new views' calibration without the prior on X)")
+        size = (f"; {installed.x_name} drifted by {rec['change']['trans_mm']:.2f} mm, "
+                f"{rec['change']['rot_deg']:.3f} deg" if "change" in rec else "")
+        rec["summary"] = (f"the data contradict the prior: {why}{size} (the result is the new views' calibration "
+                          "without the prior on X)")
     else:
         rec["summary"] = f"the data contradict the prior: {why}; the calibration without it failed too"
     log.info("prior: %s", rec["summary"])
     return _described(run_n), plain(rec, nan_to_none=True)
 
 
-def _log_update(T_x0: np.ndarray, T_x: np.ndarray) -> np.ndarray:
-    from ..frames import tangent_difference
+def _refine_views(run) -> list:
+    """The detected views of a calibration run as the refinement takes them (corners in the board's order)."""
+    from ..refine import RefineView
 
-    return tangent_difference(T_x0, T_x)
+    return [RefineView(vid, bp.corner_ids, run.detections[vid].image_points, run.session.view(vid).T_base_end,
+                       run.session.view(vid).joint_angles) for vid, bp in run.board_poses.items()]
 
 
 def _described(run):

@@ -38,10 +38,10 @@ from typing import Optional, Sequence
 import numpy as np
 from scipy import stats
 
-from ..camera import Intrinsics
+from ..camera import INTRINSIC_NAMES, Intrinsics
 from ..config import load_preset
 from ..errors import CalibrationError, InputError
-from ..frames import inv_T, mean_T, pose_error, se3_exp, tangent_difference
+from ..frames import inv_T, mean_T, pose_error, se3_adjoint, se3_exp, tangent_difference
 from ..mounting import mounting
 from ..output import plain
 from .loaded import VAGUE_COV_X, LoadedResult, installed_prior
@@ -86,7 +86,9 @@ class DriftTest:
     change_cov: np.ndarray  # (6,6): S0 + Ad S_new Ad^T, the error of change_xi against the true change
     posterior_xi: np.ndarray  # (6,): the installed and the new estimate combined, Log(X0^-1 X_post)
     posterior_cov: np.ndarray  # (6,6)
-    variance_share: np.ndarray  # (6,) lambda_k = 1 / (1 + D_k), descending
+    variance_share: np.ndarray  # (6,) installed over the change's variance per whitened direction, descending
+    kind: str = ("Wald test of X = X_installed under the installed covariance plus the new views' noise "
+                 "(the intrinsics not shared)")
 
 
 def drift_test(*, cov_installed: np.ndarray, T_x_installed: np.ndarray, T_x_new: np.ndarray, cov_new: np.ndarray,
@@ -98,24 +100,97 @@ def drift_test(*, cov_installed: np.ndarray, T_x_installed: np.ndarray, T_x_new:
     diff = x_difference(T_x_installed, cov_installed, T_x_new, cov_new)
     d, S = diff["xi"], diff["S"]
     S0 = 0.5 * (cov_installed + cov_installed.T)
+    T, dof, p, lam, Q, proj = _whitened_wald(d, S, S0, min_variance_share)
     L = np.linalg.cholesky(S0)
-    Li = np.linalg.inv(L)
-    u = Li @ d
-    Dw = Li @ (S - S0) @ Li.T
-    Dk, V = np.linalg.eigh(0.5 * (Dw + Dw.T))
-    Dk = np.maximum(Dk, 0.0)
-    lam = 1.0 / (1.0 + Dk)
-    order = np.argsort(lam)[::-1]
-    lam, Dk, V = lam[order], Dk[order], V[:, order]
-    keep = lam >= float(min_variance_share)
-    proj = V.T @ u
-    T = float(np.sum(proj[keep] ** 2 * lam[keep]))
-    dof = int(keep.sum())
-    p = float(stats.chi2.sf(T, dof)) if dof else 1.0
-    post_xi = L @ (V @ (proj * lam))
-    post_cov = L @ (V * (Dk * lam)) @ V.T @ L.T
+    lam = np.minimum(lam, 1.0)  # S >= S0: the new views' share of the combined information
+    post_xi = L @ (Q @ (proj * lam))
+    post_cov = L @ (Q * (1.0 - lam)) @ Q.T @ L.T
     return DriftTest(statistic=T, dof=dof, p_value=p, change_xi=d, change_cov=S, posterior_xi=post_xi,
                      posterior_cov=post_cov, variance_share=lam)
+
+
+def joint_drift_test(*, T_x_installed: np.ndarray, cov_installed: np.ndarray, cov_xk_installed: np.ndarray,
+                     cov_kk_installed: np.ndarray, T_x_new: np.ndarray, dk_new: np.ndarray, cov_new: np.ndarray,
+                     cov_k_prior: np.ndarray, cov_x_prior: np.ndarray, min_variance_share: float = 1e-3) -> DriftTest:
+    """The Wald test of ``X_new = X0`` when the new views were refined with the installed intrinsics ``K0`` as
+    their prior: the installed ``(X0, K0)`` and the new views share the intrinsics' error, so the new views'
+    information is taken apart from that prior and the change is estimated jointly (module docstring).
+
+    ``cov_installed`` (6,6), ``cov_xk_installed`` (6,k), ``cov_kk_installed`` (k,k): the installed joint
+    covariance of X's tangent and the free intrinsics; ``T_x_new`` and ``dk_new`` (k,) = ``K_new - K0``: the
+    new views' refinement with covariance ``cov_new`` (6+k, 6+k; X in its own right tangent) under the priors
+    ``N(X0, cov_x_prior)`` and ``N(K0, cov_k_prior)``."""
+    nk = len(dk_new)
+    Ad = se3_adjoint(inv_T(T_x_installed) @ T_x_new)
+    A = np.eye(6 + nk)
+    A[:6, :6] = Ad
+    # the algebra in units of the installed sigmas: radians, metres, pixels and distortion coefficients
+    # differ by orders of magnitude, and the new views' information is a difference of two inverses
+    s_x = np.sqrt(np.diag(cov_installed))
+    scale = np.r_[s_x, np.sqrt(np.diag(cov_kk_installed))]
+    Dn = np.diag(1.0 / scale)
+    P_v = Dn @ A @ cov_new @ A.T @ Dn  # the refinement's posterior with X in X0's tangent
+    m_v = Dn @ np.r_[tangent_difference(T_x_installed, T_x_new), dk_new]
+    info_v = _inv_sym(P_v)
+    eta = info_v @ m_v  # both priors are centred at (X0, K0): zero in these coordinates
+    H = info_v.copy()
+    H[:6, :6] -= _inv_sym(Dn[:6, :6] @ cov_x_prior @ Dn[:6, :6])
+    H[6:, 6:] -= _inv_sym(Dn[6:, 6:] @ cov_k_prior @ Dn[6:, 6:])  # the new views' own information on (X_new, K)
+    S_inst = np.block([[cov_installed, cov_xk_installed], [cov_xk_installed.T, cov_kk_installed]])
+    J_inst = _inv_sym(Dn @ S_inst @ Dn)
+    # unknowns (X_old, K, X_new): the installed information on (X_old, K), the new views' on (X_new, K)
+    n = 12 + nk
+    xo, kk, xn = slice(0, 6), slice(6, 6 + nk), slice(6 + nk, n)
+    J = np.zeros((n, n))
+    J[:6 + nk, :6 + nk] += J_inst
+    iv = np.r_[np.arange(6 + nk, n), np.arange(6, 6 + nk)]  # (X_new, K) in the order of H
+    J[np.ix_(iv, iv)] += H
+    b = np.zeros(n)
+    b[iv] = eta
+    Sigma = _inv_sym(J)
+    theta = Sigma @ b
+    d = s_x * (theta[xn] - theta[xo])
+    V = np.outer(s_x, s_x) * (Sigma[xn, xn] + Sigma[xo, xo] - Sigma[xn, xo] - Sigma[xo, xn])
+    V = 0.5 * (V + V.T)
+    T, dof, p, lam, _, _ = _whitened_wald(d, V, cov_installed, min_variance_share)
+    # under H0 (X_new = X_old): the two share one X
+    J0 = J[:6 + nk, :6 + nk].copy()
+    J0[:6, :6] += J[xn, xn]
+    J0[:6, 6:] += J[xn, kk]
+    J0[6:, :6] += J[kk, xn]
+    S_post = _inv_sym(J0)
+    post = S_post @ np.r_[b[xn], b[kk]]
+    return DriftTest(statistic=T, dof=dof, p_value=p, change_xi=d, change_cov=V, posterior_xi=s_x * post[:6],
+                     posterior_cov=np.outer(s_x, s_x) * S_post[:6, :6], variance_share=lam, kind=JOINT_KIND)
+
+
+JOINT_KIND = ("Wald test of X = X_installed, the change estimated jointly with the intrinsics the new views share "
+              "with the installed calibration (its joint covariance of X and the intrinsics)")
+
+
+def _inv_sym(M: np.ndarray) -> np.ndarray:
+    """The inverse of a symmetric positive definite matrix (symmetrised)."""
+    M = 0.5 * (M + M.T)
+    Li = np.linalg.inv(np.linalg.cholesky(M))
+    return Li.T @ Li
+
+
+def _whitened_wald(d: np.ndarray, V: np.ndarray, S0: np.ndarray, min_variance_share: float):
+    """Wald statistic of the change ``d`` (6,) with covariance ``V`` over the directions where ``V`` is at most
+    ``S0 / min_variance_share`` (whitened by ``S0 = L L^T``: ``W = L^-1 V L^-T = Q diag(w) Q^T``,
+    ``lambda = 1 / w``): (statistic, dof, p, lambda descending, Q, projections of ``L^-1 d``)."""
+    L = np.linalg.cholesky(0.5 * (S0 + S0.T))
+    Li = np.linalg.inv(L)
+    W = Li @ V @ Li.T
+    w, Q = np.linalg.eigh(0.5 * (W + W.T))
+    lam = 1.0 / np.maximum(w, 1e-12)
+    order = np.argsort(lam)[::-1]
+    lam, Q = lam[order], Q[:, order]
+    keep = lam >= float(min_variance_share)
+    proj = Q.T @ (Li @ d)
+    T = float(np.sum(proj[keep] ** 2 * lam[keep]))
+    dof = int(keep.sum())
+    return T, dof, (float(stats.chi2.sf(T, dof)) if dof else 1.0), lam, Q, proj
 
 
 def change_in_result_frame(T_x0: np.ndarray, xi: np.ndarray, cov: np.ndarray) -> dict:
@@ -165,7 +240,7 @@ class Verification:
         return plain({
             "verdict": self.verdict, "headline": self.headline, "drifted": self.drifted, "mode": self.mode,
             "frame": self.frame,
-            "test": {"kind": "Wald test of X = X_installed under the installed covariance plus the new views' noise",
+            "test": {"kind": t.kind,
                      "statistic": t.statistic, "dof": t.dof, "p_value": t.p_value, "alpha": self.alpha,
                      "variance_share": t.variance_share, "covariance_used": self.cov_source},
             "change": dict(self.change, xi_rad_m=t.change_xi, cov_6x6=t.change_cov,
@@ -215,14 +290,13 @@ def verify_views(installed: LoadedResult, *, views: Sequence, object_points: np.
     ro = RefineOptions(intrinsics="fixed" if session_intr else "estimate", fix=fixed,
                        robot_noise="fixed" if (rs_mm > 0 and rs_deg > 0) else "none",
                        robot_sigma_mm=rs_mm if rs_mm > 0 else 0.1, robot_sigma_deg=rs_deg if rs_deg > 0 else 0.01,
-                       prior=prior)
+                       prior=prior, **installed_robot_model(installed))
     r = refine(mode=mode, object_points=object_points, views=list(views), intrinsics=intr, T_x0=X0, T_board0=B0,
                options=ro)
     if r.status != "ok":
         raise CalibrationError(f"the verification solve failed: {r.failure_reason}", code="refinement_failed",
                                hint="capture views with the whole board visible and the robot turned between them")
-    test = drift_test(cov_installed=installed.cov_x, T_x_installed=X0, T_x_new=r.T_x, cov_new=r.cov_x_6x6,
-                      min_variance_share=options.min_variance_share)
+    test = test_refined(installed, r, prior, min_variance_share=options.min_variance_share)
     drifted = test.p_value < options.alpha
     change = change_in_result_frame(X0, test.change_xi, test.change_cov)
     board = _board_change(installed, r, mode, E, C, options, change)
@@ -243,6 +317,68 @@ def verify_views(installed: LoadedResult, *, views: Sequence, object_points: np.
                         board=board, robot=robot, intrinsics=intr_d,
                         what_moved=moved, views=views_d, n_views=len(r.used_view_ids), sigma_px=r.sigma_px,
                         cov_source=installed.cov_source, seconds=time.perf_counter() - t0, refined=r)
+
+
+def installed_robot_model(installed: LoadedResult) -> dict:
+    """RefineOptions for the robot error model of the installed result when it names an arm (``calibrate
+    --robot``): the arm's kinematic model (DH offsets held by the prior the install used, encoder noise fixed
+    at the installed value); {} (the iid model at the installed sigmas) otherwise or when the arm is not a
+    shipped preset (its table is not in result.json)."""
+    ref = installed.raw.get("refinement") or {}
+    rm = ref.get("robot_model") or {}
+    if rm.get("kind") != "kinematic" or not rm.get("arm"):
+        return {}
+    from ..kinematics import PRESETS, load_arm
+
+    name = (ref.get("options") or {}).get("arm")  # the preset the install named, when it named one
+    if name not in PRESETS:
+        log.warning("the installed result's arm %s is not a shipped preset (its table is not in result.json): "
+                    "verifying with the iid robot model", rm["arm"])
+        return {}
+    arm = load_arm(name)
+    out = {"robot_model": "kinematic", "arm": arm}
+    if rm.get("encoder_sigma_deg"):
+        out["encoder_sigma_deg"] = float(rm["encoder_sigma_deg"])
+    prior_sd = rm.get("dh_prior_sigma") or {}
+    if prior_sd.get("length_mm") and prior_sd.get("angle_deg"):
+        out.update(dh_sigma_mm=float(prior_sd["length_mm"]), dh_sigma_deg=float(prior_sd["angle_deg"]))
+    return out
+
+
+def test_refined(installed: LoadedResult, r, prior, *, min_variance_share: float) -> DriftTest:
+    """The test of ``X = X0`` on new views refined (``r``) with X free under ``prior``
+    (:func:`handeye.recal.loaded.installed_prior`): :func:`joint_drift_test` when the new views share the
+    installed intrinsics and both results carry the joint covariance of X and the intrinsics, else
+    :func:`drift_test` (the session's own intrinsics: nothing shared; an older result: the installed X
+    covariance added whole, a conservative test)."""
+    t = _joint_test(installed, r, prior, min_variance_share) if prior.intrinsics is not None else None
+    if t is None:
+        t = drift_test(cov_installed=installed.cov_x, T_x_installed=installed.T_x, T_x_new=r.T_x,
+                       cov_new=r.cov_x_6x6, min_variance_share=min_variance_share)
+    return t
+
+
+def _joint_test(installed: LoadedResult, r, prior, min_variance_share: float) -> Optional[DriftTest]:
+    """:func:`joint_drift_test` of the refinement ``r`` (made under ``prior``), or None when the installed
+    result or the refinement lacks the joint covariance of X and the intrinsics, or their free intrinsics
+    differ."""
+    j, jr = installed.cov_x_intrinsics, r.cov_x_intrinsics
+    if j is None or jr is None or tuple(jr["intrinsics"]) != j[0] or prior.cov_intrinsics is None:
+        return None
+    idx = [INTRINSIC_NAMES.index(n) for n in j[0]]
+    nk = len(idx)
+    cov_new = np.zeros((6 + nk, 6 + nk))
+    cov_new[:6, :6], cov_new[:6, 6:], cov_new[6:, 6:] = r.cov_x_6x6, jr["cross_6xk"], jr["intrinsics_kxk"]
+    cov_new[6:, :6] = cov_new[:6, 6:].T
+    dk = r.intrinsics.as_vector()[idx] - installed.intrinsics.as_vector()[idx]
+    try:
+        return joint_drift_test(T_x_installed=installed.T_x, cov_installed=installed.cov_x, cov_xk_installed=j[1],
+                                cov_kk_installed=j[2], T_x_new=r.T_x, dk_new=dk, cov_new=cov_new,
+                                cov_k_prior=np.asarray(prior.cov_intrinsics)[np.ix_(idx, idx)],
+                                cov_x_prior=prior.cov_x, min_variance_share=min_variance_share)
+    except np.linalg.LinAlgError as e:
+        log.warning("the joint test of X and the intrinsics failed (%s); testing X alone", e)
+        return None
 
 
 def _board_change(installed: LoadedResult, r, mode: str, E: np.ndarray, C: np.ndarray, o: VerifyOptions,
@@ -384,8 +520,8 @@ def verify_session(session_path, against, *, options: VerifyOptions = VerifyOpti
                          f"{installed.image_size[0]}x{installed.image_size[1]}", path=s.path, code="not_comparable",
                          hint="capture at the calibrated resolution")
     t1 = time.perf_counter()
-    views = [RefineView(vid, bp.corner_ids, obs.detections[vid].image_points, s.view(vid).T_base_end)
-             for vid, bp in obs.board_poses.items()]
+    views = [RefineView(vid, bp.corner_ids, obs.detections[vid].image_points, s.view(vid).T_base_end,
+                        s.view(vid).joint_angles) for vid, bp in obs.board_poses.items()]
     v = verify_views(installed, views=views, object_points=s.target.object_points(), intrinsics=own, options=options)
     seconds = dict(obs.seconds, verify=time.perf_counter() - t1, total=time.perf_counter() - t0)
     return SessionVerification(verification=v, session_path=str(s.path), installed_source=installed.source,

@@ -60,6 +60,9 @@ class RefineResult:
     # marginal covariance (6,6) of T_board (T_base_board / T_end_board) in the parametrisation of
     # cov_x_6x6 (right tangent, rotation first); None when the refinement failed
     cov_board_6x6: Optional[np.ndarray] = None
+    # the joint marginal covariance of T_x and the free intrinsics: {"intrinsics": names in INTRINSIC_NAMES
+    # order, "cross_6xk": cov(xi_x, k) (6,nk), "intrinsics_kxk": cov(k) (nk,nk)}; None when failed or none free
+    cov_x_intrinsics: Optional[dict] = None
 
     @property
     def used_view_ids(self) -> list:
@@ -84,6 +87,7 @@ class RefineResult:
             "cov_x_6x6": self.cov_x_6x6,
             "cov_parametrisation": self.cov_parametrisation,
             "cov_board_6x6": self.cov_board_6x6,
+            "cov_x_intrinsics": self.cov_x_intrinsics,
             "correlation_6x6": self.correlation_6x6,
             "sigma_rot_deg": self.sigma_rot_deg,
             "sigma_rot_axes": "camera frame (right perturbation)",
@@ -230,4 +234,16 @@ def build_result(pb: "Problem", *, status: str, reason: str, S_cc: Optional[np.n
         rms_px_before=rms_before, rms_px_after=rms_after, per_view=_per_view(pb, dec),
         outliers=tuple(outliers), iterations=int(pb.iterations), seconds=time.perf_counter() - t0,
         start_method=start_method, options=pb.o, robot_model=robot_model_dict(pb, S_cc),
-        cov_board_6x6=None if S_cc is None else 0.5 * (S_cc[6:N_POSES, 6:N_POSES] + S_cc[6:N_POSES, 6:N_POSES].T))
+        cov_board_6x6=None if S_cc is None else 0.5 * (S_cc[6:N_POSES, 6:N_POSES] + S_cc[6:N_POSES, 6:N_POSES].T),
+        cov_x_intrinsics=_x_intrinsics_covariance(pb, S_cc))
+
+
+def _x_intrinsics_covariance(pb: "Problem", S_cc: Optional[np.ndarray]) -> Optional[dict]:
+    """The joint marginal covariance of T_x's tangent and the free intrinsics (``cov_x_intrinsics``)."""
+    nk = len(pb.free)
+    if S_cc is None or nk == 0:
+        return None
+    k = slice(N_POSES, N_POSES + nk)
+    S_kk = S_cc[k, k]
+    return {"intrinsics": [INTRINSIC_NAMES[fi] for fi in pb.free], "cross_6xk": S_cc[:6, k].copy(),
+            "intrinsics_kxk": 0.5 * (S_kk + S_kk.T)}

@@ -315,7 +315,7 @@ def _result_block(res, T_x, T_board, unc, pred, wd, x_name, b_name, parent, boar
 
 
 def _change_rows(d: dict) -> list[dict]:
-    """Per axis a change of X with its 1-sigma (a ``prior`` block's update or drift)."""
+    """Per axis a change of X with its 1-sigma (a ``prior`` block's update or change)."""
     keys = ("d_trans_mm", "sigma_trans_mm", "d_rot_deg", "sigma_rot_deg")
     vals = [np.asarray(d.get(k) if d.get(k) is not None else [np.nan] * 3, float).reshape(-1)[:3] for k in keys]
     return [{"axis": ax, **{k: float(v[i]) for k, v in zip(keys, vals)}} for i, ax in enumerate("xyz")]
@@ -329,7 +329,7 @@ def _prior_block(res, x_name) -> Optional[dict]:
         return None
     T0 = as_T(p.get(p.get("frame") or x_name))
     f = pose_forms(T0) if T0 is not None else None
-    test, upd, drift = p.get("test") or {}, p.get("update") or {}, p.get("drift") or {}
+    test, upd, change = p.get("test") or {}, p.get("update") or {}, p.get("change") or {}
     return {"source": p.get("source", ""), "frame": p.get("frame") or x_name,
             "covariance_used": p.get("covariance_used", ""), "intrinsics": p.get("intrinsics", ""),
             "translation_mm": f["translation_mm"] if f else None, "euler_deg": f["euler_vendor_deg"] if f else None,
@@ -338,8 +338,8 @@ def _prior_block(res, x_name) -> Optional[dict]:
             "update_rows": _change_rows(upd) if upd else None, "update_trans_mm": upd.get("trans_mm"),
             "update_rot_deg": upd.get("rot_deg"), "test": test or None, "alpha": p.get("alpha"),
             "contradicted": bool(p.get("contradicted")), "used": p.get("used", ""), "summary": p.get("summary", ""),
-            "drift_rows": _change_rows(drift) if drift else None, "drift_trans_mm": drift.get("trans_mm"),
-            "drift_rot_deg": drift.get("rot_deg"), "drift_p": drift.get("p_value")}
+            "change_rows": _change_rows(change) if change else None, "change_trans_mm": change.get("trans_mm"),
+            "change_rot_deg": change.get("rot_deg"), "change_p": change.get("p_value")}
 
 
 SIGMA_SOURCE_TEXT = {
