@@ -234,6 +234,33 @@ def test_verify_still_valid_on_the_same_rig_and_drifted_after_a_bump(install):
     assert "camera moved on the flange" in moved.what_moved[0]
     d = moved.to_dict()
     assert d["verdict"] == "drifted" and d["test"]["dof"] == 6 and d["frame"] == "T_end_cam"
+    # the install's joint covariance of X and the intrinsics is used: the intrinsics' shared error cancels, so
+    # the change is tighter than the installed covariance plus the new views' alone
+    from handeye.recal.verify import JOINT_KIND
+
+    assert same.test.kind == JOINT_KIND and np.trace(same.test.change_cov) < np.trace(inst.cov_x)
+    older = json.loads(json.dumps(res))
+    del older["refinement"]["cov_x_intrinsics"]  # a result written before the joint covariance was kept
+    old = verify_views(load_result(older), views=_views(_verification(s, np.zeros(6), seed=101)),
+                       object_points=s.target.object_points())
+    assert old.test.kind != JOINT_KIND and np.trace(old.test.change_cov) > np.trace(inst.cov_x)
+
+
+def test_verify_uses_the_installed_arm_when_the_result_names_a_preset():
+    from handeye.recal.verify import installed_robot_model
+
+    def named(arm_option, kind="kinematic"):
+        return load_result({"handeye_result": 1, "status": "ok", "mode": "eye_in_hand",
+                            "refinement": {"options": {"arm": arm_option},
+                                           "robot_model": {"kind": kind, "arm": "RealMan RM65-B",
+                                                           "encoder_sigma_deg": 0.01,
+                                                           "dh_prior_sigma": {"length_mm": 0.5, "angle_deg": 0.05}}}})
+
+    o = installed_robot_model(named("rm65"))
+    assert o["robot_model"] == "kinematic" and o["arm"].name == "RealMan RM65-B"
+    assert (o["encoder_sigma_deg"], o["dh_sigma_mm"], o["dh_sigma_deg"]) == (0.01, 0.5, 0.05)
+    assert installed_robot_model(named("my_arm.yaml")) == {}  # its table is not in result.json
+    assert installed_robot_model(named(None, kind="iid")) == {}
 
 
 def test_verify_refuses_too_few_views_and_a_result_without_covariance(install):

@@ -24,9 +24,10 @@ def add_arguments(p) -> None:
     from ..mounting import MODES
 
     p.description = ("Check a short session (3-8 views; the board may be anywhere) against an installed calibration "
-                     "without re-solving it: a score test of X = X_installed under the installed covariance plus the "
-                     "new views' noise, its p-value, the estimated change of X with 1-sigma, what moved (camera "
-                     "mount, board, robot), and the verdict 'still valid' or 'drifted' (exit code 9). Writes "
+                     "without re-solving it: a Wald test of X = X_installed, the change of X estimated jointly with "
+                     "the installed intrinsics the new views share (under the installed covariances its verdict "
+                     "uses and the new views' noise), its p-value, the estimated change of X with 1-sigma, what "
+                     "moved (camera mount, board, robot), and the verdict 'still valid' or 'drifted' (exit code 9). Writes "
                      "verify.json, verify.html and verify.md. With --plan: the views and robot poses that detect a "
                      "drift of --drift-mm / --drift-deg with 95 % power.")
     p.formatter_class = argparse.RawDescriptionHelpFormatter

@@ -53,6 +53,16 @@ class LoadedResult:
     def ok(self) -> bool:
         return self.status == "ok" and self.T_x is not None
 
+    @property
+    def cov_x_given_intrinsics(self) -> Optional[np.ndarray]:
+        """(6,6) the covariance of X were its intrinsics known: ``cov_x - C K^-1 C^T`` with the joint covariance
+        (the installed uncertainty a verification that shares these intrinsics faces); ``cov_x`` without it."""
+        if self.cov_x is None or self.cov_x_intrinsics is None:
+            return self.cov_x
+        _, C, K = self.cov_x_intrinsics
+        S = self.cov_x - C @ np.linalg.solve(K, C.T)
+        return 0.5 * (S + S.T)
+
 
 def _matrix(v, shape) -> Optional[np.ndarray]:
     if v is None:
