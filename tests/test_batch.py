@@ -341,12 +341,13 @@ def test_a_failed_export_is_shown_in_the_summary_the_progress_lines_and_the_inde
     assert summary.export_errors == [bad] and summary.line().endswith("; the export failed for 1 session")
     assert "export" not in BatchSummary((good,), 3.0).line()
     capsys.readouterr()
-    bar = _Progress(2, quiet=True)
-    for rec in (good, bad):
+    bar = _Progress(3, quiet=True)
+    for rec in (good, bad, {**bad, "name": "s2", "skipped": True}):  # skipped as unchanged: still not exported
         bar.update(rec)
     bar.close()
     err = capsys.readouterr().err
-    assert f"cell-01/s1: the export failed: {why}" in err and "cell-01/s0" not in err
+    assert f"cell-01/s1: the export failed: {why}" in err and f"cell-01/s2: the export failed: {why}" in err
+    assert "cell-01/s0" not in err
     for rec in (good, bad):
         folder = tmp_path / rec["install"] / rec["name"]
         folder.mkdir(parents=True)

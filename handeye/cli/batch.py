@@ -122,7 +122,7 @@ class _Progress:
         if state == "failed":
             self.bar.write(f"{rec['install']}/{rec['name']}: {rec.get('verdict')} ({rec.get('outcome')}): "
                            f"{rec.get('reason') or ''}", file=sys.stderr)
-        if rec.get("export_error") and not rec.get("skipped"):
+        if rec.get("export_error"):  # a skipped session's export is still missing: said too
             self.bar.write(f"{rec['install']}/{rec['name']}: the export failed: {rec['export_error']}", file=sys.stderr)
         self.bar.set_postfix_str(f"done {self.counts['done']} · failed {self.counts['failed']} · "
                                  f"skipped {self.counts['skipped']}", refresh=False)
