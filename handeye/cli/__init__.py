@@ -132,8 +132,11 @@ def os_error_line(e: OSError) -> str:
 
     why = e.strerror or str(e)
     if isinstance(e, OutputWriteError) or e.errno in WRITE_ERRNOS:
-        return (f"cannot write {e.filename or 'the output'} ({why}) -> free space on its disk, make its folder "
-                "writable or choose another output folder; the previous result files are unchanged")
+        fix = ("free space on its disk" if e.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG) else
+               "make its folder writable (its permissions, a read-only mount)"
+               if e.errno in (errno.EACCES, errno.EPERM, errno.EROFS) else "check that path")
+        return (f"cannot write {e.filename or 'the output'} ({why}) -> {fix} or choose another output folder; "
+                "the previous result files are unchanged")
     if e.filename:
         return (f"cannot read {e.filename} ({why}) -> check that the file exists and that this user may read it "
                 "(its permissions and those of its folders), then run again")

@@ -246,13 +246,14 @@ def test_a_refusal_of_the_file_system_names_the_file_and_a_fix_of_its_kind(refus
     rc, err = run_cli("calibrate", tiny_vendor, "--out", out, "--no-report", "--no-refine")
     assert rc == 2, err
     if refused == "write":
-        names(err, f"cannot write {out / 'result.json'}", "No space left on device", "free space", "writable")
+        names(err, f"cannot write {out / 'result.json'}", "No space left on device", "free space on its disk",
+              "choose another output folder")
         assert "cannot read" not in err
     else:
         names(err, f"cannot read {tiny_vendor}", ".jpg (Permission denied)", "may read it")
         assert "output folder" not in err and "free space" not in err
     line = os_error_line(OSError(errno.EROFS, "Read-only file system", "/mnt/x"))  # only a write gets this
-    assert line.startswith("cannot write /mnt/x (Read-only file system)")
+    assert line.startswith("cannot write /mnt/x (Read-only file system) -> make its folder writable")
     assert os_error_line(OutputWriteError(errno.EACCES, "Permission denied", "/o/r.json")).startswith("cannot write")
     assert os_error_line(FileNotFoundError(errno.ENOENT, "No such file", "/s/1.jpg")).startswith("cannot read /s/1.jpg")
 
