@@ -401,6 +401,22 @@ def test_encoder_noise_has_its_sigma():
     assert 0.015 < np.std(e) < 0.025 and abs(np.mean(e)) < 0.006
 
 
+def test_kinematic_session_views_are_in_one_arm_configuration():
+    """A capture sequence keeps the arm's configuration (shoulder, elbow, wrist on one side): every view's
+    true joints are reached from the first view's without crossing a singularity (det J keeps its sign along
+    the straight joint-space move), so all views carry the same kind of kinematic error."""
+    from handeye.kinematics import load_arm
+
+    for arm, mode in (("rm65", "eye_to_hand"), ("ur5e", "eye_in_hand")):
+        s = make_corner_session(mode=mode, n_views=20, seed=5, robot_error="kinematic", arm=arm)
+        chain = load_arm(arm)
+        q = np.asarray(s.joints_true)
+        for k in range(1, len(q)):
+            path = q[0] + np.linspace(0.0, 1.0, 16)[:, None] * (q[k] - q[0])
+            det = np.array([np.linalg.det(chain.jacobian_joints(p)) for p in path])
+            assert np.all(det > 0) or np.all(det < 0), (arm, k, det)
+
+
 def test_kinematic_sessions_are_reproducible_by_seed():
     a = make_corner_session(mode="eye_in_hand", n_views=5, seed=9, robot_error="kinematic", arm="ur5e")
     b = make_corner_session(mode="eye_in_hand", n_views=5, seed=9, robot_error="kinematic", arm="ur5e")

@@ -19,7 +19,7 @@ from ..mounting import mounting
 from ..records import Detection
 from ..targets import TargetSpec
 from .robot_error import (DEFAULT_ARM, DH_ANGLE_ERROR_DEG, DH_LENGTH_ERROR_MM, ENCODER_SIGMA_DEG, check_model_name,
-                          joints_for_poses, make_kinematic_error, reachable, report_poses)
+                          joints_for_poses, make_kinematic_error, OneConfiguration, report_poses)
 from .scenarios import (DEFAULT_INTRINSICS, DEFAULT_TARGET, arm_workspace, outlier_offset, perturb_T_base_end,
                         random_streams, sample_hidden_view_pose, sample_setup, sample_view_poses)
 
@@ -170,14 +170,23 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
         kin = make_kinematic_error(rng=model_rng, arm=arm, length_error_mm=dh_length_error_mm,
                                    angle_error_deg=dh_angle_error_deg, encoder_sigma_deg=encoder_sigma_deg)
         scale, sized = arm_workspace(arm, mode=mode, target=target)
-        pose_ok = lambda T: reachable(kin, T) is not None  # noqa: E731
+        pose_ok = OneConfiguration(kin)  # the views of one capture sequence: one arm configuration
         view_options = {**sized, **view_options}  # a distance range given stays
     setup = sample_setup(mode=mode, rng=geo, target=target, workspace_scale=scale)
     T_x, T_board = setup["T_x"], setup["T_board"]
     if rig is not None:
         T_x, T_board = np.asarray(rig[0], float), np.asarray(rig[1], float)
-    T_vis = sample_view_poses(mode=mode, n_views=len(visible), rng=geo, T_x=T_x, T_board=T_board, target=target,
-                              intrinsics=intrinsics, pose_ok=pose_ok, **view_options)
+    for attempt in range(4 if kin is not None else 1):
+        try:
+            T_vis = sample_view_poses(mode=mode, n_views=len(visible), rng=geo, T_x=T_x, T_board=T_board,
+                                      target=target, intrinsics=intrinsics, pose_ok=pose_ok, **view_options)
+            break
+        except ConfigError:
+            if kin is None or attempt == 3:
+                raise
+            # the first view's configuration leaves too little of the workspace: start from another view
+            # (3 tries), then let each pose take any configuration that reaches it
+            pose_ok = OneConfiguration(kin) if attempt < 2 else OneConfiguration(kin, any_configuration=True)
     T_true = np.empty((n_views, 4, 4))
     it = iter(T_vis)
     hid_rng = rngs["hidden"]
@@ -190,7 +199,7 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
 
     q_true = q_enc = None
     if kin is not None:
-        q_true = joints_for_poses(kin, T_true)
+        q_true = joints_for_poses(kin, T_true, configuration=pose_ok)
         q_enc, T_rep = report_poses(kin, q_true, rng=rngs["robot_noise"])
     else:
         T_rep = perturb_T_base_end(T_true, rng=rngs["robot_noise"], sigma_mm=float(robot_noise[0]),

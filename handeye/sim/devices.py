@@ -25,7 +25,7 @@ from ..frames import inv_T
 from ..mounting import mounting
 from ..targets import TargetSpec
 from .render import render_view
-from .robot_error import KinematicRobotError, reachable
+from .robot_error import KinematicRobotError, OneConfiguration, reachable
 from .scenarios import (REACH_M, DEFAULT_INTRINSICS, DEFAULT_TARGET, arm_workspace, perturb_T_base_end,
                         plausible_robot_pose, sample_setup, sample_view_poses)
 
@@ -93,11 +93,16 @@ class SimRobot(Robot):
         self.joints = None
         self.n_moves = 0
         self._set(rig.T_base_end_start)
+        # the poses the planner may ask for: those the arm reaches without flipping over from its start
+        self._configuration = None if kinematic is None else OneConfiguration(kinematic)
+        if self._configuration is not None:
+            self._configuration.joints(self.T_true)
 
     def _set(self, T_cmd: np.ndarray) -> None:
         if self.kinematic is not None:
             k = self.kinematic
-            q_enc = solve_ik(k.nominal, T_cmd, seeds=default_ik_seeds(k.nominal, T_cmd))
+            near = [np.asarray(self.joints, float)] if self.joints is not None else []  # the controller's choice:
+            q_enc = solve_ik(k.nominal, T_cmd, seeds=near + default_ik_seeds(k.nominal, T_cmd))  # nearest solution
             if q_enc is None:
                 raise HardwareError("the simulated arm cannot reach the commanded pose",
                                     received=f"flange at {np.round(np.asarray(T_cmd)[:3, 3], 3).tolist()} m",
@@ -130,7 +135,7 @@ class SimRobot(Robot):
     def pose_ok(self, T_base_end: np.ndarray) -> bool:
         """Within reach and above the table (used by the planner)."""
         return plausible_robot_pose(T_base_end, self.reach_m) and (
-            self.kinematic is None or reachable(self.kinematic, T_base_end) is not None)  # the cheap test first
+            self._configuration is None or self._configuration(T_base_end))  # the cheap test first
 
     def T_cam_board_true(self) -> np.ndarray:
         return mounting(self.rig.mode).predict_T_cam_board(self.rig.T_x, self.rig.T_board, self.T_true)

@@ -128,23 +128,68 @@ def workspace_scale(arm: str) -> float:
     return float(min(1.0, _wrist_reach(arm)[2] / 1.0))
 
 
-def reachable(error: KinematicRobotError, T_base_end: np.ndarray, *, margin: float = 0.98) -> Optional[np.ndarray]:
+def reachable(error: KinematicRobotError, T_base_end: np.ndarray, *, margin: float = 0.98,
+              near: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
     """True joint angles (n,) that put the true arm's flange at ``T_base_end``, or None (out of reach).
 
     A wrist point beyond ``margin`` of the arm's largest wrist distance is refused at once; otherwise
-    the inverse kinematics decides."""
+    the inverse kinematics decides: from the default seeds (any arm configuration), or with ``near``
+    only from there (the solution a controller reaches from the arm's current configuration)."""
     h, d_last, r = _wrist_reach(error.arm)
     T = np.asarray(T_base_end, float)
     if np.linalg.norm(T[:3, 3] - d_last * T[:3, 2] - [0.0, 0.0, h]) > margin * r:
         return None
-    return solve_ik(error.true, T, seeds=default_ik_seeds(error.true, T), max_iterations=30)
+    seeds = [np.asarray(near, float)] if near is not None else default_ik_seeds(error.true, T)
+    return solve_ik(error.true, T, seeds=seeds, max_iterations=30)
 
 
-def joints_for_poses(error: KinematicRobotError, T_base_end_true: np.ndarray) -> np.ndarray:
-    """(N, n) true joint angles of the true arm at each (N,4,4) true flange pose."""
+class OneConfiguration:
+    """Reachability of poses in ONE arm configuration (shoulder, elbow and wrist on the sides of the
+    first reachable pose), as a capture sequence has it: an operator jogging the arm, or a controller
+    moving it to the next Cartesian pose, takes the solution nearest the current joints, and a pose that
+    needs the arm to flip over is not one of the session's. Without this, poses reached in another
+    configuration carry a different kinematic error (DH offsets act through other joint angles) than
+    the rest, which no real capture sequence does. Call it as ``pose_ok``; ``reference`` is set by the
+    first reachable pose."""
+
+    def __init__(self, error: KinematicRobotError, *, any_configuration: bool = False):
+        self.error = error
+        self.reference: Optional[np.ndarray] = None
+        self.any_configuration = any_configuration  # each pose in whichever configuration reaches it first
+
+    def joints(self, T_base_end: np.ndarray) -> Optional[np.ndarray]:
+        if self.any_configuration:
+            return reachable(self.error, T_base_end)
+        q = reachable(self.error, T_base_end, near=self.reference)
+        if q is None:
+            return None
+        if self.reference is None:
+            self.reference = q
+        elif not self.same_configuration(q):
+            return None
+        return q
+
+    def same_configuration(self, q: np.ndarray, *, steps: int = 16) -> bool:
+        """Whether the straight joint-space move from the reference to ``q`` (both within the limits) crosses
+        no singularity: the sign of det J (the joint Jacobian of the flange pose) stays the same along it.
+        A shoulder, elbow or wrist flip is a crossing of the singularity between the two configurations."""
+        s = np.linspace(0.0, 1.0, steps)[:, None]
+        path = self.reference[None, :] + s * (np.asarray(q, float) - self.reference)[None, :]
+        chain = self.error.true
+        det = np.linalg.det(chain._jacobian_joints_frames(chain._frames(path)))
+        return bool(np.all(det > 0) or np.all(det < 0))
+
+    def __call__(self, T_base_end: np.ndarray) -> bool:
+        return self.joints(T_base_end) is not None
+
+
+def joints_for_poses(error: KinematicRobotError, T_base_end_true: np.ndarray, *,
+                     configuration: Optional[OneConfiguration] = None) -> np.ndarray:
+    """(N, n) true joint angles of the true arm at each (N,4,4) true flange pose (in ``configuration``
+    when given: the one the poses were sampled in)."""
     out = []
     for k, T in enumerate(np.asarray(T_base_end_true, float).reshape(-1, 4, 4)):
-        q = reachable(error, T)
+        q = configuration.joints(T) if configuration is not None else reachable(error, T)
         if q is None:
             raise ConfigError(f"pose {k + 1} is out of reach of the {error.nominal.name}",
                               expected="poses the arm can reach within its joint limits",
