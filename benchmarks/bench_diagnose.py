@@ -10,7 +10,8 @@ diagnose_run without and with cross-validation. ``--realdata`` runs the real dat
 (imported as the tests do) as recorded and with faults injected into their pose files, and prints the
 findings, the cross-validation verdict and the stages.
 
-    python benchmarks/bench_diagnose.py [--seeds 6] [--quick] [--timing] [--scaling] [--realdata] [--no-accuracy]
+    python benchmarks/bench_diagnose.py [--seeds 6] [--quick] [--refine] [--kinematic] [--timing] [--scaling] [--realdata]
+        [--no-accuracy] [--no-sensitivity] [--forensics N]
 
 Exit status 1 when any clean session got a fail/warn finding or any stage crashed.
 """
@@ -65,22 +66,28 @@ def _count_crashes(d: dict) -> None:
 
 
 def clean(seeds: range, root: Path, *, kinematic: bool = False) -> int:
-    """Clean corner-level sessions (iid robot noise at four levels, or with ``kinematic`` the RM65 arm with DH
-    errors and encoder noise of handeye.sim.robot_error, its poses given without the arm as a vendor folder does)."""
+    """Clean corner-level sessions (iid robot noise at four levels, or with ``kinematic`` the RM65 and UR5e arms
+    with DH errors and encoder noise of handeye.sim.robot_error, their poses given without the arm as a vendor
+    folder does). With --refine, the refinement's robot-pose statistics of all views (15 and 25 views) are
+    pooled and their tail fitted (:func:`_print_tail_fit`)."""
     bad = collections.Counter()
     modes = collections.Counter()  # the mode the data decide (the session states it): right, wrong, undecided
     n = 0
     t0 = time.perf_counter()
+    stats = []  # the refinement's robot-pose statistics of every view (--refine)
     for mode in ("eye_in_hand", "eye_to_hand"):
         for seed in seeds:
-            levels = (("kinematic", 0.3),) if kinematic else \
+            levels = (("rm65", 0.3), ("ur5e", 0.3)) if kinematic else \
                 (((0.0, 0.0), 0.3), ((0.3, 0.05), 0.3), ((1.0, 0.1), 0.5), ((2.0, 0.3), 1.0))
             for rn, px in levels:
                 for nv in (8, 15, 25):
-                    robot = dict(robot_error="kinematic", arm="rm65") if rn == "kinematic" else dict(robot_noise=rn)
+                    robot = dict(robot_error="kinematic", arm=rn) if kinematic else dict(robot_noise=rn)
                     cs = make_corner_session(mode=mode, n_views=nv, seed=seed, noise_px=px, **robot)
-                    d = _diagnose(_write_vendor(root / "clean", cs, cs.T_base_end_reported), cs)
+                    run, d = _run_and_diagnose(_write_vendor(root / "clean", cs, cs.T_base_end_reported), cs)
                     _count_crashes(d)
+                    if run.refined is not None and nv > 8:
+                        stats += [pv["robot_vs_camera_mahalanobis"] ** 2 for pv in run.refined.per_view.values()
+                                  if "robot_vs_camera_mahalanobis" in pv]
                     n += 1
                     decided = ((d.get("mode") or {}).get("evidence") or {}).get("decided")
                     modes[decided == mode if decided else "undecided"] += 1
@@ -90,11 +97,33 @@ def clean(seeds: range, root: Path, *, kinematic: bool = False) -> int:
     print(f"clean sessions: {n} ({time.perf_counter() - t0:.0f} s), with a fail/warn finding: "
           f"{sum(bad.values())}; mode from the data: right {modes[True]}, wrong {modes[False]}, undecided "
           f"{modes['undecided']}")
+    if stats:
+        _print_tail_fit(np.array(stats))
     if modes[False]:
         bad[("wrong mode detection", None, None)] += modes[False]
     for k, v in sorted(bad.items(), key=str):
         print(f"  {k}: {v}")
     return sum(bad.values())
+
+
+def _print_tail_fit(stat: np.ndarray) -> None:
+    """Pooled maximum-likelihood dof of the scale-mixture model of the robot-pose statistics (variance
+    matched, as handeye.stats.mixture_tail_pvalue reads them): what configs/refine.yaml iid_tail_dof states."""
+    from scipy.stats import chi2, f
+
+    from handeye.stats import TAIL_DOF_GRID
+
+    x = stat[np.isfinite(stat)]
+    ll = []
+    for nu in TAIL_DOF_GRID:
+        a = 1.0 if not np.isfinite(nu) else nu / (nu - 2.0)
+        ll.append(np.sum(chi2.logpdf(x, 6)) if not np.isfinite(nu) else np.sum(f.logpdf(x * a / 6, 6, nu) + np.log(a / 6)))
+    ll = np.array(ll)
+    k = int(np.argmax(ll))
+    inside = [nu for nu, v in zip(TAIL_DOF_GRID, ll) if v >= ll[k] - 1.92]
+    print(f"robot-pose statistics of {len(x)} views: mean {x.mean():.2f} (chi-square(6): 6), 99.9 % quantile "
+          f"{np.quantile(x, 0.999):.1f} (chi-square(6): 22.5); pooled ML tail dof {TAIL_DOF_GRID[k]:g} "
+          f"(log-likelihood {ll[k] - ll[-1]:.1f} above the Gaussian; 95 % interval {min(inside):g}-{max(inside):g})")
 
 
 def sensitivity(seeds: range, root: Path) -> None:
@@ -386,12 +415,15 @@ def _run_case(args) -> dict:
     return out
 
 
+REFINE = False  # --refine: calibrate as `handeye calibrate` does (the refinement's robot-pose decisions)
+
+
 def _run_and_diagnose(path: Path, cs, **opts):
     dets = {d.view_id: d for d in cs.detections()}
     orig = calibrate_mod.detect_views
     calibrate_mod.detect_views = lambda items, target, **kw: {v: dets.get(v, "not found") for v, _ in items}
     try:
-        run = run_calibration(load_session(path), CalibrateOptions(refine=False, **opts))
+        run = run_calibration(load_session(path), CalibrateOptions(**{"refine": REFINE, **opts}))
     finally:
         calibrate_mod.detect_views = orig
     return run, diagnose_run(run, images=False, cross_validation=False)
@@ -458,6 +490,10 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="2 seeds")
     ap.add_argument("--kinematic", action="store_true",
                     help="the clean sessions with the kinematic robot error model instead of iid noise levels")
+    ap.add_argument("--no-sensitivity", action="store_true", help="skip the injected robot-pose / board faults")
+    ap.add_argument("--refine", action="store_true",
+                    help="run the joint refinement as `handeye calibrate` does (slower; its robot-pose decisions "
+                         "replace the diagnostics' own test); default: the diagnostics without refinement")
     ap.add_argument("--timing", action="store_true", help="time diagnose_run on a rendered 20-view session")
     ap.add_argument("--scaling", action="store_true", help="CPU time against the view count (20, 60, 120)")
     ap.add_argument("--realdata", action="store_true", help="real datasets, as recorded and with injected faults")
@@ -469,6 +505,8 @@ def main(argv=None) -> int:
     ap.add_argument("--only", default="", help="--forensics: only the faults whose name contains this ('clean': "
                                                "only the clean sessions)")
     a = ap.parse_args(argv)
+    global REFINE
+    REFINE = a.refine
     seeds = range(2 if a.quick else a.seeds)
     false_alarms = 0
     with tempfile.TemporaryDirectory() as tmp:
@@ -477,7 +515,8 @@ def main(argv=None) -> int:
                                       only=a.only)
         if not a.no_accuracy:
             false_alarms += clean(seeds, Path(tmp), kinematic=a.kinematic)
-            sensitivity(seeds, Path(tmp))
+            if not a.no_sensitivity:
+                sensitivity(seeds, Path(tmp))
         if a.timing:
             timing(Path(tmp))
         if a.scaling:

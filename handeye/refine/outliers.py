@@ -10,12 +10,13 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Optional, Sequence
 
 import numpy as np
-from scipy.special import chdtrc, chdtri
+from scipy.special import chdtri
 
 from handeye.factors.reprojection import corner_robust_scales, stacked_chain_residual
 
 from ..frames import se3_exp, tangent_difference
 from ..output import plain
+from ..stats import leave_one_out_tail_dof, mixture_tail_pvalue, mixture_tail_quantile
 from .noise import robust_robot_sigmas, solve_with_vce
 from .options import RefineOptions, refine_preset
 
@@ -34,17 +35,20 @@ class RobotPoseGates:
     alpha: float  # false-alarm probability per view
     min_rot_deg: float  # practical-significance floor of the rotation disagreement
     min_trans_mm: float  # ... and of the translation disagreement
+    tail_dof: float = np.inf  # the null's tail is at least as heavy as t with this dof (inf: Gaussian)
 
     @staticmethod
-    def from_config(cfg: dict | None = None) -> "RobotPoseGates":
+    def from_config(cfg: dict | None = None, *, arm_modelled: bool = False) -> "RobotPoseGates":
+        """``arm_modelled``: the robot error is the arm's kinematic model (its tail is the model's own)."""
         c = (cfg if cfg is not None else refine_preset())["outliers"]["robot_pose"]
         return RobotPoseGates(alpha=float(c["alpha"]), min_rot_deg=float(c["min_rot_deg"]),
-                              min_trans_mm=float(c["min_trans_mm"]))
+                              min_trans_mm=float(c["min_trans_mm"]),
+                              tail_dof=np.inf if arm_modelled else float(c["iid_tail_dof"]))
 
     @staticmethod
-    def from_options(o: RefineOptions) -> "RobotPoseGates":
-        return RobotPoseGates(alpha=o.view_outlier_p, min_rot_deg=o.min_robot_disagreement_deg,
-                              min_trans_mm=o.min_robot_disagreement_mm)
+    def from_options(o: RefineOptions, *, arm_modelled: bool = False) -> "RobotPoseGates":
+        return replace(RobotPoseGates.from_config(arm_modelled=arm_modelled), alpha=o.view_outlier_p,
+                       min_rot_deg=o.min_robot_disagreement_deg, min_trans_mm=o.min_robot_disagreement_mm)
 
     @property
     def threshold(self) -> float:
@@ -65,16 +69,23 @@ class RobotPoseTest:
     sigma_trans_mm: np.ndarray  # (n,) the same for the translation
     threshold: float  # chi-square(6) quantile at 1 - alpha
     gates: RobotPoseGates
+    tail_dof: np.ndarray  # (n,) dof of the scale-mixture null of each view (inf: Gaussian; see robot_pose_test)
 
     @property
     def distance(self) -> np.ndarray:
         """sqrt(statistic): the disagreement in sigmas."""
         return np.sqrt(self.statistic)
 
+    @property
+    def thresholds(self) -> np.ndarray:
+        """(n,) each view's statistic at p = alpha under its own null (``threshold`` where Gaussian)."""
+        return mixture_tail_quantile(self.gates.alpha, ROBOT_POSE_DOF, self.tail_dof)
+
 
 def robot_pose_test(disagreement: np.ndarray, covariance: np.ndarray, *, robot_sigma_rot_rad: float = 0.0,
                     robot_sigma_trans_m: float = 0.0, gates: RobotPoseGates | None = None,
-                    robot_covariance: Optional[np.ndarray] = None) -> RobotPoseTest:
+                    robot_covariance: Optional[np.ndarray] = None, tail_from: Optional[np.ndarray] = None,
+                    tail_dof: Optional[np.ndarray] = None) -> RobotPoseTest:
     """Test each view's reported robot pose against the pose the rest of the data predict.
 
     Inputs, for n views:
@@ -97,6 +108,16 @@ def robot_pose_test(disagreement: np.ndarray, covariance: np.ndarray, *, robot_s
     ``p_value_i < alpha`` AND the disagreement is practically large: its rotation exceeds
     ``min_rot_deg`` or its translation ``min_trans_mm``. Gates default to configs/refine.yaml.
     Rows with a non-finite disagreement or covariance are not tested (NaN statistic, not flagged).
+
+    The robot's error need not be one Gaussian: a kinematic error (link lengths, joint offsets) makes
+    some poses worse than others, which an iid model with one sigma per axis cannot say. So the null of
+    each view is a scale mixture (multivariate t, variance matched to ``C_i + R``) whose degrees of
+    freedom come from the OTHER views' statistics (:func:`handeye.stats.leave_one_out_tail_dof`: rows in
+    ``tail_from``, default all tested rows, below the Gaussian threshold; Gaussian unless their spread
+    rejects it at 5 %): a view is flagged when it stands out from the spread the other views show. The
+    tail is at least as heavy as ``gates.tail_dof`` says: the robot error of an arm whose kinematics are
+    not modelled (configs/refine.yaml ``iid_tail_dof``). ``tail_dof`` (n,) gives the dofs instead (a view
+    tested again with another candidate pose).
     """
     g = gates if gates is not None else RobotPoseGates.from_config()
     d = np.asarray(disagreement, float).reshape(-1, 6)
@@ -112,14 +133,19 @@ def robot_pose_test(disagreement: np.ndarray, covariance: np.ndarray, *, robot_s
     if ok.any():
         stat[ok] = np.einsum("ni,ni->n", d[ok], np.linalg.solve(Ct[ok], d[ok][..., None])[..., 0])
     diag = np.diagonal(Ct, axis1=1, axis2=2)
-    p = np.where(ok, chdtrc(ROBOT_POSE_DOF, np.where(ok, stat, 0.0)), np.nan)
+    if tail_dof is None:
+        body = ok if tail_from is None else ok & np.asarray(tail_from, bool)
+        tail_dof = np.minimum(leave_one_out_tail_dof(stat, body, dim=ROBOT_POSE_DOF, cut=g.threshold), g.tail_dof)
+    tail_dof = np.broadcast_to(np.asarray(tail_dof, float), stat.shape).copy()
+    p = mixture_tail_pvalue(stat, ROBOT_POSE_DOF, tail_dof)
     rot_deg = np.degrees(np.linalg.norm(d[:, :3], axis=1))
     trans_mm = 1000.0 * np.linalg.norm(d[:, 3:], axis=1)
     large = (rot_deg > g.min_rot_deg) | (trans_mm > g.min_trans_mm)
     flagged = ok & (np.nan_to_num(p, nan=1.0) < g.alpha) & large
     return RobotPoseTest(statistic=stat, p_value=p, flagged=flagged, rot_deg=rot_deg, trans_mm=trans_mm,
                          sigma_rot_deg=np.degrees(np.sqrt(diag[:, :3].sum(axis=1))),
-                         sigma_trans_mm=1000.0 * np.sqrt(diag[:, 3:].sum(axis=1)), threshold=g.threshold, gates=g)
+                         sigma_trans_mm=1000.0 * np.sqrt(diag[:, 3:].sum(axis=1)), threshold=g.threshold, gates=g,
+                         tail_dof=tail_dof)
 
 
 # ------------------------------------------------------------------------------ the refinement's decisions
@@ -357,7 +383,10 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
     for i, ch in camera_only_poses(pb, own).items() if own else ():  # all fall-backs in one batch
         if ch.ok:
             d[i], C[i] = camera_side(i, ch)
-    return robot_pose_test(d, C, robot_covariance=R_all, gates=RobotPoseGates.from_options(pb.o))
+    # the tail of the robot error is judged from the views whose robot pose is in the solve
+    used = np.array([st == "used" for st in pb.status])
+    return robot_pose_test(d, C, robot_covariance=R_all, tail_from=used,
+                           gates=RobotPoseGates.from_options(pb.o, arm_modelled=pb.kin is not None))
 
 
 def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = None) -> Decision:
@@ -393,6 +422,16 @@ def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = No
     checks = [by_view.get(i) or _failed_check(pb.P[i], len(pb.obj[i])) for i in range(pb.n)]
     if robust_robot_sigma:
         robust_robot_sigmas(pb, {i: checks[i] for i in pb.prior_views()})
+        if o.robot_noise == "estimate":
+            # never below the configured start: on few views the robust estimate can fall to its floor (the
+            # camera-only covariances explain the median disagreement), and a robot sigma of ~0 would flag
+            # nearly every view before the variance components have spoken (VCE approaches a small robot
+            # sigma from above, so the start must not be at the floor either)
+            if pb.kin is not None:
+                pb.sigma_q = max(pb.sigma_q, pb.kin.encoder_sigma_rad)
+            else:
+                pb.sigma_rot = max(pb.sigma_rot, np.radians(o.robot_sigma_deg))
+                pb.sigma_trans = max(pb.sigma_trans, o.robot_sigma_mm / 1000.0)
     test = robot_tests(pb, checks, S_pp)
     status, masks, outliers = [], [], []
     for i, vid in enumerate(pb.ids):
@@ -474,14 +513,6 @@ def outlier_loop(pb: "Problem"):
         if n_robot < 3:
             raise TooFewRobotPoses(f"only {len(pb.prior_views())} views left whose robot pose agrees with the "
                                    "camera; need 3")
-        if rnd == 0 and o.robot_noise == "estimate":
-            # VCE approaches a small robot sigma from above; a robust estimate at the floor
-            # would freeze it there before the data have spoken
-            if pb.kin is not None:
-                pb.sigma_q = max(pb.sigma_q, pb.kin.encoder_sigma_rad)
-            else:
-                pb.sigma_rot = max(pb.sigma_rot, np.radians(o.robot_sigma_deg))
-                pb.sigma_trans = max(pb.sigma_trans, o.robot_sigma_mm / 1000.0)
         S_cc, S_pp = solve_with_vce(pb)
     log.warning("outlier decisions did not settle in %d rounds", o.max_outlier_rounds)
     return decide(pb, robust_robot_sigma=False, S_pp=S_pp), S_cc, S_pp
@@ -491,9 +522,12 @@ def robot_pose_outlier(vid: str, test, i: int, what: str, consequence: str) -> O
     """The ``robot_pose`` outlier of view ``vid`` (index ``i`` of the robot-pose ``test``): its disagreement in
     degrees, mm and Mahalanobis distance against the threshold, with what happens to the view."""
     rot_deg, trans_mm, dist = float(test.rot_deg[i]), float(test.trans_mm[i]), float(test.distance[i])
-    thr = float(np.sqrt(test.threshold))
+    thr = float(np.sqrt(test.thresholds[i]))
+    nu = float(test.tail_dof[i])
+    tail = "" if not np.isfinite(nu) else f" of the other views' heavy-tailed spread, t with {nu:g} dof"
     return Outlier(vid, "robot_pose", f"view {vid}: {what} by {rot_deg:.3f} deg / {trans_mm:.2f} mm (Mahalanobis "
-                   f"{dist:.1f}, threshold {thr:.1f}); {consequence}",
+                   f"{dist:.1f}, threshold {thr:.1f}{tail}); {consequence}",
                    size={"rot_deg": rot_deg, "trans_mm": trans_mm, "mahalanobis": dist,
                          "p_value": float(test.p_value[i]), "threshold": thr,
+                         "tail_dof": nu if np.isfinite(nu) else None,
                          "sigma_rot_deg": float(test.sigma_rot_deg[i]), "sigma_trans_mm": float(test.sigma_trans_mm[i])})
