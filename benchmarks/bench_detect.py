@@ -2,7 +2,7 @@
 accuracy against the ground truth, and the cornerSubPix stopping rule of configs/detection.yaml.
 
 Usage: python benchmarks/bench_detect.py [--views 20] [--rounds 7] [--session DIR] [--real DIR ...]
-                                         [--shared DIR | --no-shared] [--big W H]
+                                         [--shared DIR | --no-shared] [--big W H] [--supersample 4 8]
 Then: the refusal of a wrong board size (the session's images under a config.yaml that states 9x6 inner
 corners for the 11x8 board) through detect_views and through the whole calibration
 (handeye.workflow.calibrate_session without the reports), with the message it gives; the corner error
@@ -100,6 +100,8 @@ def main() -> None:
                     help="folder of the real datasets (the chessboard sets are compared with the accurate SB search)")
     ap.add_argument("--no-shared", action="store_true", help="skip the real datasets")
     ap.add_argument("--big", type=int, nargs=2, default=(8000, 6000), help="size of the noise image, px")
+    ap.add_argument("--supersample", type=int, nargs="+", default=[4],
+                    help="samples per pixel (per axis) of the low-texture renders, e.g. 4 8")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.session
@@ -179,7 +181,8 @@ def main() -> None:
                       f"error RMS {np.sqrt(np.mean(e ** 2)):.4f} px, max {e.max():.4f} px")
 
         _wrong_size(Path(folder), Path(tmp), args.rounds)
-        _low_texture(args.views, args.rounds)
+        for k in args.supersample:
+            _low_texture(args.views, args.rounds, k)
         _big_noise_image(Path(folder), Path(tmp), args.big)
         _timed_out(items, target, failed)
 
@@ -235,15 +238,17 @@ VISP_K = np.array([[607.593, 0, 323.463], [0, 607.575, 243.255], [0, 0, 1]])
 LOW_TEXTURE = ChessboardSpec(5, 4, 0.06)
 
 
-def _low_texture(n_views: int, rounds: int) -> None:
-    """Corner error against the rendered truth and time per image on 1280x720 views of LOW_TEXTURE."""
+def _low_texture(n_views: int, rounds: int, supersample: int = 4) -> None:
+    """Corner error against the rendered truth and time per image on 1280x720 views of LOW_TEXTURE, rendered
+    with ``supersample`` x ``supersample`` samples per pixel (more samples: the renderer's own share of the
+    error, its edges placed to 1 / (2 x supersample) px where they run along the pixel rows, shrinks)."""
     from handeye.sim.corners import make_corner_session
     from handeye.sim.render import render_view
     from handeye.sim.scenarios import default_intrinsics
 
     intr = default_intrinsics(1280, 720)
     cs = make_corner_session(n_views=n_views, seed=0, noise_px=0.0, intrinsics=intr, target=LOW_TEXTURE)
-    imgs = [(render_view(LOW_TEXTURE, intr, T, supersample=4), T) for T in cs.T_cam_board_true]
+    imgs = [(render_view(LOW_TEXTURE, intr, T, supersample=supersample), T) for T in cs.T_cam_board_true]
     for what, stage in (("cornerSubPix stage only", _one_stage), ("both stages", contextlib.nullcontext)):
         with stage():
             found = [(img, T, detect_gray(img, LOW_TEXTURE)) for img, T in imgs]
@@ -252,7 +257,8 @@ def _low_texture(n_views: int, rounds: int) -> None:
                                                                             intr), axis=1)
                               for _, T, d in found if not isinstance(d, str)])
         n = sum(not isinstance(d, str) for *_, d in found)
-        print(f"  low-texture board ({LOW_TEXTURE.describe()}), {what}, {n}/{len(found)} of 1280x720 views found: "
+        print(f"  low-texture board ({LOW_TEXTURE.describe()}), {what}, {n}/{len(found)} of 1280x720 views "
+              f"({supersample}x{supersample} samples per pixel) found: "
               f"{len(err)} corners used, error RMS {np.sqrt(np.mean(err ** 2)):.4f} px, max {err.max():.4f} px; "
               f"detect_gray {w:.2f} ms wall, {c:.2f} ms CPU")
 
