@@ -155,50 +155,47 @@ def test_a_wrong_robot_pose_is_flagged_under_the_kinematic_model():
     assert _m2(r, s) < chi2.ppf(0.999, 6)
 
 
-def test_the_pipeline_uses_the_arm_a_session_names(tmp_path):
-    """session.yaml ``robot: rm65`` and the views' joint angles reach the refinement (refine_stage)."""
+def _refine_stage_inputs(tmp_path, mode, seed, robot):
+    """A simulated kinematic session as refine_stage takes it (session with ``robot:``, board poses,
+    detections, flange poses, start): its images do not exist."""
     from types import SimpleNamespace
 
-    from handeye.pipeline import CalibrateOptions, refine_stage
     from handeye.records import HandEyeEstimate, Session, View
 
-    s = make_corner_session(mode="eye_in_hand", n_views=6, seed=0, noise_px=0.3, robot_error="kinematic")
+    s = make_corner_session(mode=mode, n_views=6, seed=seed, noise_px=0.3, robot_error="kinematic")
     views = tuple(View(vid, tmp_path / f"{vid}.png", s.T_base_end_reported[k], joint_angles=tuple(s.joints_encoder[k]))
                   for k, vid in enumerate(s.view_ids))
-    sess = Session(path=tmp_path, format="native", mode=s.mode, target=s.target, views=views, meta={"robot": "rm65"})
+    sess = Session(path=tmp_path, format="native", mode=s.mode, target=s.target, views=views, meta={"robot": robot})
     poses = {vid: SimpleNamespace(corner_ids=s.corner_ids[k]) for k, vid in enumerate(s.view_ids)}
     dets = {vid: SimpleNamespace(image_points=s.image_points[k]) for k, vid in enumerate(s.view_ids)}
     T = {vid: s.T_base_end_reported[k] for k, vid in enumerate(s.view_ids)}
     start = HandEyeEstimate(mode=s.mode, method="tsai", T_x=s.T_x_true, T_board=s.T_board_true)
-    r = refine_stage(sess, CalibrateOptions(), start, s.intrinsics, poses, dets, T)
+    return sess, start, s.intrinsics, poses, dets, T
+
+
+def test_the_pipeline_uses_the_arm_a_session_names(tmp_path):
+    """session.yaml ``robot: rm65`` and the views' joint angles reach the refinement (refine_stage)."""
+    from handeye.pipeline import CalibrateOptions, refine_stage
+
+    sess, start, intr, poses, dets, T = _refine_stage_inputs(tmp_path, "eye_in_hand", 0, "rm65")
+    r = refine_stage(sess, CalibrateOptions(), start, intr, poses, dets, T)
     assert r.robot_model["kind"] == "kinematic" and r.robot_model["joint_angles"] == "recorded"
     with pytest.raises(ConfigError, match="unknown robot model"):
-        refine_stage(replace(sess, meta={"robot": "kuka"}), CalibrateOptions(), start, s.intrinsics, poses, dets, T)
+        refine_stage(replace(sess, meta={"robot": "kuka"}), CalibrateOptions(), start, intr, poses, dets, T)
 
 
 def test_a_session_names_a_json_dh_table_and_a_broken_one_fails_before_detection(tmp_path):
     """``robot: arm.json`` (relative to the session) in the JSON form other tools write reaches the
     refinement; a table that cannot be read stops the run with its one error before any image is read."""
-    from types import SimpleNamespace
-
     from handeye.kinematics import load_arm
     from handeye.pipeline import CalibrateOptions, refine_stage, run_calibration
-    from handeye.records import HandEyeEstimate, Session, View
 
-    s = make_corner_session(mode="eye_to_hand", n_views=6, seed=1, noise_px=0.3, robot_error="kinematic")
     arm = load_arm("rm65")
     table = {"robot_name": "RM65 as JSON", "dh_convention": arm.convention, "units": {"length": "m", "angle": "rad"},
              "joints": [dict(zip(("a", "alpha", "d", "theta_offset"), map(float, row))) for row in arm.dh]}
     (tmp_path / "arm.json").write_text(json.dumps(table))
-    views = tuple(View(vid, tmp_path / f"{vid}.png", s.T_base_end_reported[k], joint_angles=tuple(s.joints_encoder[k]))
-                  for k, vid in enumerate(s.view_ids))
-    sess = Session(path=tmp_path, format="native", mode=s.mode, target=s.target, views=views,
-                   meta={"robot": "arm.json"})
-    poses = {vid: SimpleNamespace(corner_ids=s.corner_ids[k]) for k, vid in enumerate(s.view_ids)}
-    dets = {vid: SimpleNamespace(image_points=s.image_points[k]) for k, vid in enumerate(s.view_ids)}
-    T = {vid: s.T_base_end_reported[k] for k, vid in enumerate(s.view_ids)}
-    start = HandEyeEstimate(mode=s.mode, method="tsai", T_x=s.T_x_true, T_board=s.T_board_true)
-    r = refine_stage(sess, CalibrateOptions(), start, s.intrinsics, poses, dets, T)
+    sess, start, intr, poses, dets, T = _refine_stage_inputs(tmp_path, "eye_to_hand", 1, "arm.json")
+    r = refine_stage(sess, CalibrateOptions(), start, intr, poses, dets, T)
     assert r.robot_model["kind"] == "kinematic" and r.robot_model["arm"] == "RM65 as JSON"
     assert r.cov_board_6x6.shape == (6, 6) and np.all(np.linalg.eigvalsh(r.cov_board_6x6) > 0)
     (tmp_path / "arm.json").write_text(json.dumps(table)[:-3])
