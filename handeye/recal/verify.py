@@ -89,9 +89,9 @@ class DriftTest:
     statistic: float
     dof: int
     p_value: float
-    change_xi: np.ndarray  # (6,) rad, m: Log(X0^-1 X_new), as the new views alone estimate it
-    change_cov: np.ndarray  # (6,6): S0 + Ad S_new Ad^T, the error of change_xi against the true change
-    posterior_xi: np.ndarray  # (6,): the installed and the new estimate combined, Log(X0^-1 X_post)
+    change_xi: np.ndarray  # (6,) rad, m: X_new - X_old in X0's right tangent, as the test estimates it
+    change_cov: np.ndarray  # (6,6): the error of change_xi against the true change
+    posterior_xi: np.ndarray  # (6,): the installed and the new information combined, Log(X0^-1 X_post)
     posterior_cov: np.ndarray  # (6,6)
     variance_share: np.ndarray  # (6,) installed over the change's variance per whitened direction, descending
     kind: str = ("Wald test of X = X_installed under the installed covariance plus the new views' noise "
@@ -251,9 +251,10 @@ class Verification:
                      "statistic": t.statistic, "dof": t.dof, "p_value": t.p_value, "alpha": self.alpha,
                      "variance_share": t.variance_share, "covariance_used": self.cov_source},
             "change": dict(self.change, xi_rad_m=t.change_xi, cov_6x6=t.change_cov,
-                           definition=("Log(X_installed^-1 X_new) as the new views alone estimate it; sigma: the "
-                                       "new views' uncertainty plus the installed one; translation along the "
-                                       "parent frame's axes, rotation about the camera axes")),
+                           definition=("X_new - X_installed in X_installed's right tangent, as the test estimates "
+                                       "it (see test.kind); sigma: its 1-sigma, the installed and the new views' "
+                                       "uncertainty; translation along the parent frame's axes, rotation about "
+                                       "the camera axes")),
             "installed": {self.frame: self.T_x_installed},
             "posterior": {self.frame: self.T_x_posterior, "cov_x_6x6": self.cov_x_posterior},
             "board": self.board, "robot": self.robot, "intrinsics": self.intrinsics,
