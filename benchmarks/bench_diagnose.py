@@ -111,18 +111,17 @@ def _print_tail_fit(stat: np.ndarray) -> None:
     matched, as handeye.stats.mixture_tail_pvalue reads them): what configs/refine.yaml iid_tail_dof states."""
     from scipy.stats import chi2, f
 
-    from handeye.stats import TAIL_DOF_GRID
-
+    grid = (3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 13.0, 17.0, 22.0, 30.0, 45.0, 70.0, 120.0, np.inf)
     x = stat[np.isfinite(stat)]
     ll = []
-    for nu in TAIL_DOF_GRID:
+    for nu in grid:
         a = 1.0 if not np.isfinite(nu) else nu / (nu - 2.0)
         ll.append(np.sum(chi2.logpdf(x, 6)) if not np.isfinite(nu) else np.sum(f.logpdf(x * a / 6, 6, nu) + np.log(a / 6)))
     ll = np.array(ll)
     k = int(np.argmax(ll))
-    inside = [nu for nu, v in zip(TAIL_DOF_GRID, ll) if v >= ll[k] - 1.92]
+    inside = [nu for nu, v in zip(grid, ll) if v >= ll[k] - 1.92]
     print(f"robot-pose statistics of {len(x)} views: mean {x.mean():.2f} (chi-square(6): 6), 99.9 % quantile "
-          f"{np.quantile(x, 0.999):.1f} (chi-square(6): 22.5); pooled ML tail dof {TAIL_DOF_GRID[k]:g} "
+          f"{np.quantile(x, 0.999):.1f} (chi-square(6): 22.5); pooled ML tail dof {grid[k]:g} "
           f"(log-likelihood {ll[k] - ll[-1]:.1f} above the Gaussian; 95 % interval {min(inside):g}-{max(inside):g})")
 
 

@@ -32,22 +32,8 @@ def robust_noise_sigma(d: np.ndarray, C: np.ndarray, *, floor: float, shape: np.
 
 
 # ------------------------------------------------------------------------------ heavy-tailed residuals
-# Degrees of freedom tried for the scale-mixture (multivariate t) model of a residual's spread; inf is
-# the Gaussian. The test is matched to an estimated variance, and a variance estimate is only stable when
-# the fourth moment exists (dof > 4): heavier tails than that are not a model the covariance could carry.
-TAIL_DOF_GRID = (5.0, 6.0, 8.0, 10.0, 13.0, 17.0, 22.0, 30.0, 45.0, 70.0, 120.0, np.inf)
-# fewer statistics than this say nothing about the shape of a tail (the likelihood-ratio test of a t against
-# the Gaussian has next to no power on fewer, and its 5 % false calls would be extreme dofs): Gaussian
-MIN_TAIL_BODY = 12
-TAIL_LR_CRITICAL = float(chdtri(1, 0.10))  # 2.71: 5 % test of the Gaussian, a boundary point of the dof
-
-
-def _variance_match(nu: float) -> float:
-    """``a`` with ``statistic * a / dim ~ F(dim, nu)`` when the statistic is taken under the covariance of
-    the t distribution (``nu / (nu - 2)`` times its scale matrix), as an estimated covariance is."""
-    return 1.0 if not np.isfinite(nu) else nu / (nu - 2.0)
-
-
+# A multivariate t with nu dof whose covariance (nu / (nu - 2) times its scale matrix) is the one the
+# statistic was taken under: statistic * (nu / (nu - 2)) / dim ~ F(dim, nu).
 def mixture_tail_pvalue(statistic: np.ndarray, dim: int, dof: np.ndarray) -> np.ndarray:
     """P(statistic' > statistic) for squared Mahalanobis distances ``statistic`` (n,) of ``dim``-vectors
     under their covariance, when the vector is multivariate t with ``dof`` (n,; inf: Gaussian, chi-square)."""
@@ -71,50 +57,4 @@ def mixture_tail_quantile(p: float, dim: int, dof: np.ndarray) -> np.ndarray:
     out = np.full(nu.shape, float(chdtri(dim, p)))
     fin = np.isfinite(nu)
     out[fin] = dim * fdtri(dim, nu[fin], 1.0 - p) / (nu[fin] / (nu[fin] - 2.0))
-    return out
-
-
-def leave_one_out_tail_dof(statistic: np.ndarray, body: np.ndarray, *, dim: int, cut: float) -> np.ndarray:
-    """Each row's degrees of freedom of the scale-mixture (multivariate t) model, estimated from the OTHER
-    rows' statistics (squared Mahalanobis distances of ``dim``-vectors under their estimated covariance).
-
-    Only rows in ``body`` with a statistic below ``cut`` inform it: a gross error beyond ``cut`` can
-    neither make the tail look heavier nor mask another. The shape of their distribution decides, not its
-    scale: the t (dof over :data:`TAIL_DOF_GRID`) and the Gaussian (chi-square) are each fitted with a free
-    scale by maximum likelihood of the truncated distribution, and the t's dof is taken only when the
-    likelihood-ratio test rejects the Gaussian at 5 % (otherwise inf; ties go to the larger dof). A
-    covariance that is merely too large or too small (a noise estimate not yet converged) is thus not read
-    as a heavy tail; the test itself keeps the covariance's scale (:func:`mixture_tail_pvalue`). Fewer than
-    :data:`MIN_TAIL_BODY` other rows: inf (Gaussian)."""
-    from scipy.special import chdtr, fdtr
-    from scipy.stats import chi2, f
-
-    s = np.asarray(statistic, float)
-    n = s.shape[0]
-    inb = np.asarray(body, bool) & np.isfinite(s) & (s < cut)
-    x = s[inb]
-    if inb.sum() - 1 < MIN_TAIL_BODY:
-        return np.full(n, np.inf)
-    c = np.exp(np.linspace(np.log(0.05), np.log(20.0), 121))[:, None]  # scale of the statistic, relative
-    L = np.empty((len(TAIL_DOF_GRID), len(c), len(x)))  # log-likelihood of each body value per dof and scale
-    for g, nu in enumerate(TAIL_DOF_GRID):
-        if np.isfinite(nu):
-            a = _variance_match(nu) / (dim * c)
-            L[g] = f.logpdf(x[None, :] * a, dim, nu) + np.log(a) - np.log(fdtr(dim, nu, cut * a))
-        else:
-            L[g] = chi2.logpdf(x[None, :] / c, dim) - np.log(c) - np.log(chdtr(dim, cut / c))
-    total = L.sum(axis=2)
-    grid = np.asarray(TAIL_DOF_GRID)
-    out = np.full(n, np.inf)
-    pos = np.cumsum(inb) - 1  # a body row's column in L
-    for i in range(n):
-        if inb[i] and inb.sum() - 1 < MIN_TAIL_BODY:
-            continue
-        prof = (total - L[:, :, pos[i]] if inb[i] else total).max(axis=1)  # each dof at its best scale
-        # Gaussian unless the body rejects it: likelihood-ratio test at 5 % (dof = inf lies on the boundary
-        # of the parameter space, so the statistic is a 50:50 mixture of 0 and chi-square(1): 2.71)
-        if 2.0 * (prof.max() - prof[-1]) < TAIL_LR_CRITICAL:
-            continue
-        best = np.flatnonzero(prof >= prof.max() - 1e-9)
-        out[i] = grid[best[-1]]
     return out

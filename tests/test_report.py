@@ -259,13 +259,14 @@ def test_report_content_verdict_result_views_and_provenance(synthetic):
 
 
 def test_report_numbers_agree_with_the_refinement(synthetic):
-    """The report's own uncertainty propagation reproduces the refinement's sigmas and predicted error."""
+    """The report's own uncertainty propagation reproduces the refinement's sigmas and predicted error: those
+    of the covariance the verdict uses (``cov_x_6x6_verdict``, the model's or the validated one)."""
     from handeye.report.uncertainty import form_sigmas, predicted_point_error, radius95_mm
 
     res = synthetic["res"]
     ref = res["refinement"]
     T = np.asarray(res["T_end_cam"])
-    cov = np.asarray(ref["cov_x_6x6"])
+    cov = np.asarray(ref["cov_x_6x6_verdict"])
     s = form_sigmas(T, cov)
     np.testing.assert_allclose(s["translation_mm"], ref["sigma_trans_mm"], rtol=1e-4)
     np.testing.assert_allclose(s["rot_cam_deg"], ref["sigma_rot_deg"], rtol=1e-6)

@@ -81,7 +81,7 @@ class RobotPoseCheck:
         T_rep = np.asarray(T_reported, float).reshape(-1, 4, 4)
         d = tangent_difference(T_rep, np.broadcast_to(T_star, T_rep.shape))
         return robot_pose_test(d, np.broadcast_to(P, (len(T_rep), 6, 6)), robot_sigma_rot_rad=self.sigma_rot_rad,
-                               robot_sigma_trans_m=self.sigma_trans_m, tail_dof=self.test.tail_dof[k])
+                               robot_sigma_trans_m=self.sigma_trans_m)
 
 
 def robot_pose_check(obs: PoseObservations, fit: BoardFit, *, covs: Optional[np.ndarray] = None) -> RobotPoseCheck:
@@ -102,7 +102,7 @@ def robot_pose_check(obs: PoseObservations, fit: BoardFit, *, covs: Optional[np.
     use = fit.inliers()
     s_rot = robust_noise_sigma(e[use, :3], P[use][:, :3, :3], floor=np.radians(th.noise_floor_deg))
     s_tr = robust_noise_sigma(e[use, 3:], P[use][:, 3:, 3:], floor=th.noise_floor_mm / 1e3)
-    test = robot_pose_test(e, P, robot_sigma_rot_rad=s_rot, robot_sigma_trans_m=s_tr, tail_from=use)
+    test = robot_pose_test(e, P, robot_sigma_rot_rad=s_rot, robot_sigma_trans_m=s_tr)
     return RobotPoseCheck(obs.mode, fit, T_star, P, use, s_rot, s_tr, test, covs is not None)
 
 
@@ -124,9 +124,9 @@ def flagged_views(obs: PoseObservations, check: RobotPoseCheck, *, refined=None,
     g = t.gates
     flags = t.flagged & (check_with_intrinsics.test.flagged if check_with_intrinsics is not None else True)
     flags &= standing_out(check)
-    src = (f"the robot-pose test without the wild views: chi-square(6) beyond {np.sqrt(t.threshold):.1f} sigma "
-           f"(p < {g.alpha:g}; further where the other views' spread is heavier-tailed) of each view's camera "
-           "uncertainty plus robot noise "
+    null = "chi-square(6)" if not np.isfinite(g.tail_dof) else f"multivariate t ({g.tail_dof:g} dof: an arm's pose-dependent error)"
+    src = (f"the robot-pose test without the wild views: {null} beyond {np.sqrt(t.threshold):.1f} sigma "
+           f"(p < {g.alpha:g}) of each view's camera uncertainty plus robot noise "
            f"({np.degrees(check.sigma_rot_rad):.3f} deg, {1e3 * check.sigma_trans_m:.2f} mm per axis, estimated from "
            f"the other views), with and without the intrinsics' uncertainty, larger than {g.min_rot_deg:g} deg "
            f"or {g.min_trans_mm:g} mm, and {thresholds().robot_pose.size_ratio:g} x (1 + 2.5 / n) the other views' "

@@ -10,13 +10,12 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Optional, Sequence
 
 import numpy as np
-from scipy.special import chdtri
 
 from handeye.factors.reprojection import corner_robust_scales, stacked_chain_residual
 
 from ..frames import se3_exp, tangent_difference
 from ..output import plain
-from ..stats import leave_one_out_tail_dof, mixture_tail_pvalue, mixture_tail_quantile
+from ..stats import mixture_tail_pvalue, mixture_tail_quantile
 from .noise import robust_robot_sigmas, solve_with_vce
 from .options import RefineOptions, refine_preset
 
@@ -35,25 +34,27 @@ class RobotPoseGates:
     alpha: float  # false-alarm probability per view
     min_rot_deg: float  # practical-significance floor of the rotation disagreement
     min_trans_mm: float  # ... and of the translation disagreement
-    tail_dof: float = np.inf  # the null's tail is at least as heavy as t with this dof (inf: Gaussian)
+    tail_dof: float = np.inf  # the null is multivariate t with this dof, variance matched (inf: Gaussian)
 
     @staticmethod
-    def from_config(cfg: dict | None = None, *, arm_modelled: bool = False) -> "RobotPoseGates":
-        """``arm_modelled``: the robot error is the arm's kinematic model (its tail is the model's own)."""
+    def from_config(cfg: dict | None = None, *, unmodelled_arm: bool = True) -> "RobotPoseGates":
+        """``unmodelled_arm``: the poses come from an arm whose kinematic error is not modelled (the null's
+        tail is ``iid_tail_dof``); False: a kinematic model, or a tracker, carries the error (Gaussian)."""
         c = (cfg if cfg is not None else refine_preset())["outliers"]["robot_pose"]
         return RobotPoseGates(alpha=float(c["alpha"]), min_rot_deg=float(c["min_rot_deg"]),
                               min_trans_mm=float(c["min_trans_mm"]),
-                              tail_dof=np.inf if arm_modelled else float(c["iid_tail_dof"]))
+                              tail_dof=float(c["iid_tail_dof"]) if unmodelled_arm else np.inf)
 
     @staticmethod
-    def from_options(o: RefineOptions, *, arm_modelled: bool = False) -> "RobotPoseGates":
-        return replace(RobotPoseGates.from_config(arm_modelled=arm_modelled), alpha=o.view_outlier_p,
+    def from_options(o: RefineOptions, *, unmodelled_arm: bool = True) -> "RobotPoseGates":
+        return replace(RobotPoseGates.from_config(unmodelled_arm=unmodelled_arm), alpha=o.view_outlier_p,
                        min_rot_deg=o.min_robot_disagreement_deg, min_trans_mm=o.min_robot_disagreement_mm)
 
     @property
     def threshold(self) -> float:
-        """The chi-square(6) quantile at 1 - alpha (squared Mahalanobis units)."""
-        return float(chdtri(ROBOT_POSE_DOF, self.alpha))
+        """The statistic (squared Mahalanobis units) exceeded with probability alpha under the null:
+        the chi-square(6) quantile at 1 - alpha when Gaussian."""
+        return float(mixture_tail_quantile(self.alpha, ROBOT_POSE_DOF, np.array(self.tail_dof)))
 
 
 @dataclass(frozen=True)
@@ -67,25 +68,18 @@ class RobotPoseTest:
     trans_mm: np.ndarray  # (n,) |v| of the disagreement
     sigma_rot_deg: np.ndarray  # (n,) sqrt(trace) of the rotation block of C + R: RMS |omega| of a correct pose
     sigma_trans_mm: np.ndarray  # (n,) the same for the translation
-    threshold: float  # chi-square(6) quantile at 1 - alpha
+    threshold: float  # the null's quantile at 1 - alpha (chi-square(6) when Gaussian)
     gates: RobotPoseGates
-    tail_dof: np.ndarray  # (n,) dof of the scale-mixture null of each view (inf: Gaussian; see robot_pose_test)
 
     @property
     def distance(self) -> np.ndarray:
         """sqrt(statistic): the disagreement in sigmas."""
         return np.sqrt(self.statistic)
 
-    @property
-    def thresholds(self) -> np.ndarray:
-        """(n,) each view's statistic at p = alpha under its own null (``threshold`` where Gaussian)."""
-        return mixture_tail_quantile(self.gates.alpha, ROBOT_POSE_DOF, self.tail_dof)
-
 
 def robot_pose_test(disagreement: np.ndarray, covariance: np.ndarray, *, robot_sigma_rot_rad: float = 0.0,
                     robot_sigma_trans_m: float = 0.0, gates: RobotPoseGates | None = None,
-                    robot_covariance: Optional[np.ndarray] = None, tail_from: Optional[np.ndarray] = None,
-                    tail_dof: Optional[np.ndarray] = None) -> RobotPoseTest:
+                    robot_covariance: Optional[np.ndarray] = None) -> RobotPoseTest:
     """Test each view's reported robot pose against the pose the rest of the data predict.
 
     Inputs, for n views:
@@ -110,14 +104,10 @@ def robot_pose_test(disagreement: np.ndarray, covariance: np.ndarray, *, robot_s
     Rows with a non-finite disagreement or covariance are not tested (NaN statistic, not flagged).
 
     The robot's error need not be one Gaussian: a kinematic error (link lengths, joint offsets) makes
-    some poses worse than others, which an iid model with one sigma per axis cannot say. So the null of
-    each view is a scale mixture (multivariate t, variance matched to ``C_i + R``) whose degrees of
-    freedom come from the OTHER views' statistics (:func:`handeye.stats.leave_one_out_tail_dof`: rows in
-    ``tail_from``, default all tested rows, below the Gaussian threshold; Gaussian unless their spread
-    rejects it at 5 %): a view is flagged when it stands out from the spread the other views show. The
-    tail is at least as heavy as ``gates.tail_dof`` says: the robot error of an arm whose kinematics are
-    not modelled (configs/refine.yaml ``iid_tail_dof``). ``tail_dof`` (n,) gives the dofs instead (a view
-    tested again with another candidate pose).
+    some poses worse than others, which an iid model with one sigma per axis cannot say. When the arm's
+    kinematics are not modelled, the null is a scale mixture: a multivariate t with ``gates.tail_dof``
+    dof (configs/refine.yaml ``iid_tail_dof``), its covariance ``C_i + R`` (variance matched); the
+    kinematic model carries the pose dependence itself, and its null stays chi-square(6).
     """
     g = gates if gates is not None else RobotPoseGates.from_config()
     d = np.asarray(disagreement, float).reshape(-1, 6)
@@ -133,19 +123,14 @@ def robot_pose_test(disagreement: np.ndarray, covariance: np.ndarray, *, robot_s
     if ok.any():
         stat[ok] = np.einsum("ni,ni->n", d[ok], np.linalg.solve(Ct[ok], d[ok][..., None])[..., 0])
     diag = np.diagonal(Ct, axis1=1, axis2=2)
-    if tail_dof is None:
-        body = ok if tail_from is None else ok & np.asarray(tail_from, bool)
-        tail_dof = np.minimum(leave_one_out_tail_dof(stat, body, dim=ROBOT_POSE_DOF, cut=g.threshold), g.tail_dof)
-    tail_dof = np.broadcast_to(np.asarray(tail_dof, float), stat.shape).copy()
-    p = mixture_tail_pvalue(stat, ROBOT_POSE_DOF, tail_dof)
+    p = mixture_tail_pvalue(stat, ROBOT_POSE_DOF, np.full(stat.shape, g.tail_dof))
     rot_deg = np.degrees(np.linalg.norm(d[:, :3], axis=1))
     trans_mm = 1000.0 * np.linalg.norm(d[:, 3:], axis=1)
     large = (rot_deg > g.min_rot_deg) | (trans_mm > g.min_trans_mm)
     flagged = ok & (np.nan_to_num(p, nan=1.0) < g.alpha) & large
     return RobotPoseTest(statistic=stat, p_value=p, flagged=flagged, rot_deg=rot_deg, trans_mm=trans_mm,
                          sigma_rot_deg=np.degrees(np.sqrt(diag[:, :3].sum(axis=1))),
-                         sigma_trans_mm=1000.0 * np.sqrt(diag[:, 3:].sum(axis=1)), threshold=g.threshold, gates=g,
-                         tail_dof=tail_dof)
+                         sigma_trans_mm=1000.0 * np.sqrt(diag[:, 3:].sum(axis=1)), threshold=g.threshold, gates=g)
 
 
 # ------------------------------------------------------------------------------ the refinement's decisions
@@ -383,10 +368,8 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
     for i, ch in camera_only_poses(pb, own).items() if own else ():  # all fall-backs in one batch
         if ch.ok:
             d[i], C[i] = camera_side(i, ch)
-    # the tail of the robot error is judged from the views whose robot pose is in the solve
-    used = np.array([st == "used" for st in pb.status])
-    return robot_pose_test(d, C, robot_covariance=R_all, tail_from=used,
-                           gates=RobotPoseGates.from_options(pb.o, arm_modelled=pb.kin is not None))
+    return robot_pose_test(d, C, robot_covariance=R_all,
+                           gates=RobotPoseGates.from_options(pb.o, unmodelled_arm=pb.kin is None))
 
 
 def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = None) -> Decision:
@@ -522,9 +505,9 @@ def robot_pose_outlier(vid: str, test, i: int, what: str, consequence: str) -> O
     """The ``robot_pose`` outlier of view ``vid`` (index ``i`` of the robot-pose ``test``): its disagreement in
     degrees, mm and Mahalanobis distance against the threshold, with what happens to the view."""
     rot_deg, trans_mm, dist = float(test.rot_deg[i]), float(test.trans_mm[i]), float(test.distance[i])
-    thr = float(np.sqrt(test.thresholds[i]))
-    nu = float(test.tail_dof[i])
-    tail = "" if not np.isfinite(nu) else f" of the other views' heavy-tailed spread, t with {nu:g} dof"
+    thr = float(np.sqrt(test.threshold))
+    nu = float(test.gates.tail_dof)
+    tail = "" if not np.isfinite(nu) else f" of the unmodelled arm's error, t with {nu:g} dof"
     return Outlier(vid, "robot_pose", f"view {vid}: {what} by {rot_deg:.3f} deg / {trans_mm:.2f} mm (Mahalanobis "
                    f"{dist:.1f}, threshold {thr:.1f}{tail}); {consequence}",
                    size={"rot_deg": rot_deg, "trans_mm": trans_mm, "mahalanobis": dist,

@@ -238,7 +238,7 @@ def refine_poses(*, mode: str, views: Sequence[PoseView], T_x0: np.ndarray, T_bo
             if s < best:
                 best, start_method, st.T_x, st.T_board = s, name, est.T_x.copy(), est.T_board.copy()
     T_x_seed, T_board_seed = st.T_x.copy(), st.T_board.copy()
-    gates = RobotPoseGates.from_options(options)
+    gates = RobotPoseGates.from_options(options, unmodelled_arm=False)  # a tracker's error: Gaussian
     it_max = options.max_iterations
     dec_keep, test, S, r, J, resolved = None, None, None, None, None, {}
     try:
