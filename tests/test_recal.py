@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -260,6 +262,8 @@ def test_verify_uses_the_installed_arm_when_the_result_names_a_preset():
     assert o["robot_model"] == "kinematic" and o["arm"].name == "RealMan RM65-B"
     assert (o["encoder_sigma_deg"], o["dh_sigma_mm"], o["dh_sigma_deg"]) == (0.01, 0.5, 0.05)
     assert installed_robot_model(named("my_arm.yaml")) == {}  # its table is not in result.json
+    table = Path(__file__).resolve().parents[1] / "configs" / "robots" / "ur5e.yaml"  # a DH file that exists
+    assert installed_robot_model(named(str(table)))["arm"].n_joints == 6
     assert installed_robot_model(named(None, kind="iid")) == {}
 
 

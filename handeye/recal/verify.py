@@ -8,7 +8,7 @@ noise estimation as a calibration) with the installed intrinsics as a Gaussian p
 (:class:`handeye.refine.options.Prior`; the session's own intrinsics are held instead when it brings
 them), X free (the prior hook's X term is vague: 1 rad, 1 m), the board pose a free nuisance unknown,
 each robot pose tied to its reading with the installed robot noise (the installed arm's kinematic
-model when the result names a shipped arm: :func:`installed_robot_model`) and the pixel noise
+model when the result names a shipped arm or a DH file that still exists: :func:`installed_robot_model`) and the pixel noise
 estimated from the new corners. X is left free so that a drifted X does not make the robot-pose
 outlier test reject good views.
 
@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import logging
 import time
+from pathlib import Path
 from dataclasses import dataclass, field
 from typing import Optional, Sequence
 
@@ -330,18 +331,18 @@ def verify_views(installed: LoadedResult, *, views: Sequence, object_points: np.
 def installed_robot_model(installed: LoadedResult) -> dict:
     """RefineOptions for the robot error model of the installed result when it names an arm (``calibrate
     --robot``): the arm's kinematic model (DH offsets held by the prior the install used, encoder noise fixed
-    at the installed value); {} (the iid model at the installed sigmas) otherwise or when the arm is not a
-    shipped preset (its table is not in result.json)."""
+    at the installed value); {} (the iid model at the installed sigmas) otherwise or when the arm is neither a
+    shipped preset nor a DH file that still exists (its table is not in result.json)."""
     ref = installed.raw.get("refinement") or {}
     rm = ref.get("robot_model") or {}
     if rm.get("kind") != "kinematic" or not rm.get("arm"):
         return {}
     from ..kinematics import PRESETS, load_arm
 
-    name = (ref.get("options") or {}).get("arm")  # the preset the install named, when it named one
-    if name not in PRESETS:
-        log.warning("the installed result's arm %s is not a shipped preset (its table is not in result.json): "
-                    "verifying with the iid robot model", rm["arm"])
+    name = (ref.get("options") or {}).get("arm")  # the preset or DH file the install named, when it named one
+    if not (name in PRESETS or (isinstance(name, str) and Path(name).is_file())):
+        log.warning("the installed result's arm %s is neither a shipped preset nor a DH file that still exists "
+                    "(its table is not in result.json): verifying with the iid robot model", rm["arm"])
         return {}
     arm = load_arm(name)
     out = {"robot_model": "kinematic", "arm": arm}
