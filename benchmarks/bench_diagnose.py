@@ -10,8 +10,8 @@ diagnose_run without and with cross-validation. ``--realdata`` runs the real dat
 (imported as the tests do) as recorded and with faults injected into their pose files, and prints the
 findings, the cross-validation verdict and the stages.
 
-    python benchmarks/bench_diagnose.py [--seeds 6] [--quick] [--refine] [--kinematic] [--timing] [--scaling] [--realdata]
-        [--no-accuracy] [--no-sensitivity] [--forensics N]
+    python benchmarks/bench_diagnose.py [--seeds 6] [--quick] [--refine] [--kinematic] [--timing] [--scaling]
+        [--realdata] [--no-accuracy] [--no-sensitivity] [--forensics N]
 
 Exit status 1 when any clean session got a fail/warn finding or any stage crashed.
 """
@@ -116,7 +116,8 @@ def _print_tail_fit(stat: np.ndarray) -> None:
     ll = []
     for nu in grid:
         a = 1.0 if not np.isfinite(nu) else nu / (nu - 2.0)
-        ll.append(np.sum(chi2.logpdf(x, 6)) if not np.isfinite(nu) else np.sum(f.logpdf(x * a / 6, 6, nu) + np.log(a / 6)))
+        ll.append(np.sum(chi2.logpdf(x, 6)) if not np.isfinite(nu) else
+                  np.sum(f.logpdf(x * a / 6, 6, nu) + np.log(a / 6)))
     ll = np.array(ll)
     k = int(np.argmax(ll))
     inside = [nu for nu, v in zip(grid, ll) if v >= ll[k] - 1.92]

@@ -124,7 +124,8 @@ def flagged_views(obs: PoseObservations, check: RobotPoseCheck, *, refined=None,
     g = t.gates
     flags = t.flagged & (check_with_intrinsics.test.flagged if check_with_intrinsics is not None else True)
     flags &= standing_out(check)
-    null = "chi-square(6)" if not np.isfinite(g.tail_dof) else f"multivariate t ({g.tail_dof:g} dof: an arm's pose-dependent error)"
+    null = ("chi-square(6)" if not np.isfinite(g.tail_dof)
+            else f"multivariate t ({g.tail_dof:g} dof: an arm's pose-dependent error)")
     src = (f"the robot-pose test without the wild views: {null} beyond {np.sqrt(t.threshold):.1f} sigma "
            f"(p < {g.alpha:g}) of each view's camera uncertainty plus robot noise "
            f"({np.degrees(check.sigma_rot_rad):.3f} deg, {1e3 * check.sigma_trans_m:.2f} mm per axis, estimated from "
