@@ -257,10 +257,10 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     if opts.method not in METHODS:
         raise CalibrationError(f"unknown method {opts.method!r}", expected=" | ".join(METHODS), code="unknown_method")
     t0 = time.perf_counter()
-    if opts.refine:
-        session_arm(s, opts)  # the arm session.yaml names is read before any work: a wrong table is one error line
     if s.meta.get("pose_only"):  # target poses from a tracker: no detection, no intrinsics
         return _run_pose_only(s, opts, state, progress)
+    # the arm session.yaml names is read before any work: a wrong table is one error line
+    arm = session_arm(s, opts) if opts.refine else None
     unpaired: list = []
     if opts.shift_poses:
         s, unpaired = shift_poses(s, int(opts.shift_poses))
@@ -306,7 +306,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     if opts.refine:
         progress("joint refinement (GTSAM)")
         t2 = time.perf_counter()
-        refined = refine_stage(s, opts, start, intr, poses, dets, T_base_end, closed_forms=closed)
+        refined = refine_stage(s, opts, start, intr, poses, dets, T_base_end, closed_forms=closed, arm=arm)
         seconds["refine"] = time.perf_counter() - t2
         if refined.status != "ok":
             raise CalibrationError(f"refinement failed: {refined.failure_reason}",
@@ -499,15 +499,16 @@ def shift_poses(s: Session, shift: int) -> tuple[Session, list]:
 
 
 def refine_stage(s: Session, opts: CalibrateOptions, start: HandEyeEstimate, intr: Intrinsics, poses: dict,
-                 dets: dict, T_base_end: dict, closed_forms: Optional[dict] = None):
-    """The joint refinement from the chosen closed form."""
+                 dets: dict, T_base_end: dict, closed_forms: Optional[dict] = None, arm=None):
+    """The joint refinement from the chosen closed form (``arm``: the session's, when already read by
+    :func:`session_arm`)."""
     from .refine import RefineOptions, RefineView, refine
 
     views = [RefineView(vid, poses[vid].corner_ids, dets[vid].image_points, T_base_end[vid],
                         _joint_angles(s, vid)) for vid in poses]
     ro = dict(opts.refine_options)
     if ro.get("arm") is None:
-        ro["arm"] = session_arm(s, opts)
+        ro["arm"] = arm if arm is not None else session_arm(s, opts)
     if opts.fix_k3:
         ro["fix"] = tuple(sorted(set(ro.get("fix", ())) | {"k3"}))
     if s.intrinsics is not None and s.intrinsics_prior in ("fixed", "prior"):

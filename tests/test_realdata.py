@@ -38,10 +38,10 @@ def test_visp_closed_form_matches_the_reference(visp_session):
     assert len(run.used_ids) == 8
     # ViSP's reference is a closed form on the same images and intrinsics, but on ViSP's own corners
     # (cornerSubPix); ours come from a second refinement stage that moves a few corners by up to ~1 px.
-    # Park reproduces it to a tenth of the refined 1-sigma (measured 0.007 deg, 0.22 mm; with cornerSubPix
-    # corners as ViSP's it was 0.014 deg, 0.02 mm)
+    # Park reproduces it to about a tenth of the refined 1-sigma (1.3-2.5 mm, 0.12-0.22 deg per axis; measured
+    # 0.007 deg, 0.22 mm; with cornerSubPix corners as ViSP's it was 0.014 deg, 0.02 mm)
     r, t = pose_error(run.closed_forms["park"].T_x, VISP_REF)
-    assert r < 0.05 and t < 0.5, (r, t)
+    assert r < 0.05 and t < 0.25, (r, t)
     # the other methods scatter about it as the refined 1-sigma (1.3-2.5 mm, 0.12-0.22 deg per axis) allows
     for m in ("tsai", "horaud", "daniilidis"):
         r, t = pose_error(run.closed_forms[m].T_x, VISP_REF)
@@ -238,13 +238,20 @@ def test_ical_halves_agree_within_their_verdict_covariances(ical_workflow):
 
 
 def test_kinect_halves_agree_under_the_verdict_covariance(kinect_run):
-    # ~8-10 mm of robot error per view; views 1 and 4 (34-37 mm, 2 deg) lie within the heavier tail of an
-    # unmodelled arm's error and are kept. Measured: 7.8 under the model covariances, less under the verdict
-    # ones (never smaller than the model's); with those two views dropped by a Gaussian null the model's was
-    # 15.6 (outside 99 % of chi2(6)) and the verdict's 6.1. fx fy cx cy: verdict below chi2(4)'s 95 %
+    # ~8-10 mm of robot error per view, from an arm whose kinematics are not modelled: the robot-pose null is
+    # a t (iid_tail_dof), and a view beyond the Gaussian's threshold but within the t's keeps its robot pose
+    # (views 1 and 4, 34-37 mm / 2 deg, measured 4.6 and 5.4 sigma; a chi-square(6) null dropped them and the
+    # halves then disagreed under the model covariance, 15.6). Halves measured 7.8 (model), verdict less;
+    # fx fy cx cy: verdict below chi2(4)'s 95 %
+    from handeye.refine.outliers import RobotPoseGates
+
+    ref = kinect_run.refined
+    dist = {v: pv["robot_vs_camera_mahalanobis"] for v, pv in ref.per_view.items() if pv["status"] == "used"}
+    t_thr = np.sqrt(RobotPoseGates.from_config().threshold)
+    g_thr = np.sqrt(RobotPoseGates.from_config(unmodelled_arm=False).threshold)
+    assert max(dist.values()) < t_thr and any(d > g_thr for d in dist.values()), dist
     xv, xm, kv = _halves_d2(kinect_run.session, kinect_run.used_ids)
-    assert len(kinect_run.used_ids) == 15
-    assert xv <= xm + 1e-9 and xv < 12.6 and kv < 9.5, (xv, xm, kv)
+    assert xv < 12.6 and kv < 9.5, (xv, xm, kv)
 
 
 def test_ical_report_shows_where_the_result_lies_and_which_sigma_it_uses(ical_workflow):

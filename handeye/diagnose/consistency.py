@@ -21,7 +21,7 @@ import numpy as np
 from ..frames import inv_T, make_T, rotvec_from_R, se3_adjoint, tangent_difference, tangent_jacobian
 from ..initial.motion import axis_text, motion_quality, rotations_to_add
 from ..mounting import mounting
-from ..refine.outliers import RobotPoseTest, robot_pose_test
+from ..refine.outliers import RobotPoseGates, RobotPoseTest, robot_pose_test
 from ..stats import robust_noise_sigma
 from .findings import Finding, ids_text
 from .fits import BoardFit, fit_boards
@@ -81,7 +81,7 @@ class RobotPoseCheck:
         T_rep = np.asarray(T_reported, float).reshape(-1, 4, 4)
         d = tangent_difference(T_rep, np.broadcast_to(T_star, T_rep.shape))
         return robot_pose_test(d, np.broadcast_to(P, (len(T_rep), 6, 6)), robot_sigma_rot_rad=self.sigma_rot_rad,
-                               robot_sigma_trans_m=self.sigma_trans_m)
+                               robot_sigma_trans_m=self.sigma_trans_m, gates=self.test.gates)
 
 
 def robot_pose_check(obs: PoseObservations, fit: BoardFit, *, covs: Optional[np.ndarray] = None) -> RobotPoseCheck:
@@ -102,7 +102,10 @@ def robot_pose_check(obs: PoseObservations, fit: BoardFit, *, covs: Optional[np.
     use = fit.inliers()
     s_rot = robust_noise_sigma(e[use, :3], P[use][:, :3, :3], floor=np.radians(th.noise_floor_deg))
     s_tr = robust_noise_sigma(e[use, 3:], P[use][:, 3:, 3:], floor=th.noise_floor_mm / 1e3)
-    test = robot_pose_test(e, P, robot_sigma_rot_rad=s_rot, robot_sigma_trans_m=s_tr)
+    # this test models no arm's kinematics (one robust sigma per axis): an arm's pose-dependent error is in
+    # the null's tail; a tracker's error is Gaussian
+    gates = RobotPoseGates.from_config(unmodelled_arm=not obs.tracker)
+    test = robot_pose_test(e, P, robot_sigma_rot_rad=s_rot, robot_sigma_trans_m=s_tr, gates=gates)
     return RobotPoseCheck(obs.mode, fit, T_star, P, use, s_rot, s_tr, test, covs is not None)
 
 

@@ -29,6 +29,7 @@ class PoseObservations:
     target: object = None
     intrinsics_estimated: bool = True  # intrinsics come from these corners (their uncertainty counts)
     C_candidates: Optional[np.ndarray] = None  # (N,k,4,4) symmetric boards: T_cam_board under every ordering
+    tracker: bool = False  # the poses come from a tracker (pose-only session), not from an arm
 
     @property
     def n(self) -> int:
@@ -80,7 +81,8 @@ def observations_from_run(run) -> Optional[PoseObservations]:
     refined = run.refined if (run.refined is not None and getattr(run.refined, "status", "") == "ok") else None
     intrinsics = getattr(refined, "intrinsics_seed", None) if refined is not None else run.intrinsics
     return PoseObservations(s.mode, tuple(ids), C, T, raw_poses_of(s), times, corners, intrinsics or run.intrinsics,
-                            s.target, estimated, candidates_of(run.board_poses, ids))
+                            s.target, estimated, candidates_of(run.board_poses, ids),
+                            tracker=bool(s.meta.get("pose_only")))
 
 
 def candidates_of(board_poses: dict, ids) -> Optional[np.ndarray]:

@@ -22,6 +22,9 @@ N_POSES = 12  # T_x and T_board: the first 12 unknowns of the core, before the f
 COV_PARAMETRISATION = (
     "GTSAM Pose3 tangent, right perturbation: T_x_true = T_x · Exp(xi), xi = (omega_x, omega_y, omega_z [rad], "
     "v_x, v_y, v_z [m]), rotation first; omega and v along the axes of the camera frame (child frame of T_x)")
+COV_BOARD_PARAMETRISATION = (
+    "GTSAM Pose3 tangent, right perturbation: T_board_true = T_board · Exp(xi), xi = (omega [rad], v [m]), "
+    "rotation first; along the axes of the board frame (child frame of T_board)")
 
 
 def arrow_blocks(H: np.ndarray, c: int, n: int):

@@ -13,6 +13,7 @@ import numpy as np
 
 from handeye.factors.reprojection import corner_robust_scales, stacked_chain_residual
 
+from ..errors import ConfigError
 from ..frames import se3_exp, tangent_difference
 from ..output import plain
 from ..stats import mixture_tail_pvalue, mixture_tail_quantile
@@ -41,6 +42,11 @@ class RobotPoseGates:
         """``unmodelled_arm``: the poses come from an arm whose kinematic error is not modelled (the null's
         tail is ``iid_tail_dof``); False: a kinematic model, or a tracker, carries the error (Gaussian)."""
         c = (cfg if cfg is not None else refine_preset())["outliers"]["robot_pose"]
+        nu = c["iid_tail_dof"]
+        if isinstance(nu, bool) or not isinstance(nu, (int, float)) or not nu > 2:
+            raise ConfigError("outliers.robot_pose.iid_tail_dof is not a valid dof", path="configs/refine.yaml",
+                              expected="a number above 2 (the t's variance must exist), or .inf for a Gaussian",
+                              received=repr(nu))
         return RobotPoseGates(alpha=float(c["alpha"]), min_rot_deg=float(c["min_rot_deg"]),
                               min_trans_mm=float(c["min_trans_mm"]),
                               tail_dof=float(c["iid_tail_dof"]) if unmodelled_arm else np.inf)
@@ -369,7 +375,7 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
         if ch.ok:
             d[i], C[i] = camera_side(i, ch)
     return robot_pose_test(d, C, robot_covariance=R_all,
-                           gates=RobotPoseGates.from_options(pb.o, unmodelled_arm=pb.kin is None))
+                           gates=RobotPoseGates.from_options(pb.o, unmodelled_arm=pb.kind != "kinematic"))
 
 
 def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = None) -> Decision:

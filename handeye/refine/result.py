@@ -10,7 +10,7 @@ import numpy as np
 from ..camera import INTRINSIC_NAMES, Intrinsics
 from ..mounting import mounting
 from ..output import plain
-from .covariance import COV_PARAMETRISATION, N_POSES, hand_eye_uncertainty
+from .covariance import COV_BOARD_PARAMETRISATION, COV_PARAMETRISATION, N_POSES, hand_eye_uncertainty
 from .options import RefineOptions
 from .robot_model import describe_dh
 
@@ -57,8 +57,8 @@ class RefineResult:
     # the robot error model (handeye.refine.robot_model): kind none | iid | joint_space | kinematic, its
     # parameters, and what was estimated (:func:`robot_model_dict`)
     robot_model: dict = field(default_factory=dict)
-    # marginal covariance (6,6) of T_board (T_base_board / T_end_board) in the parametrisation of
-    # cov_x_6x6 (right tangent, rotation first); None when the refinement failed
+    # marginal covariance (6,6) of T_board (T_base_board / T_end_board): right tangent, rotation first, along
+    # the board frame's axes (COV_BOARD_PARAMETRISATION); None when the refinement failed
     cov_board_6x6: Optional[np.ndarray] = None
     # the joint marginal covariance of T_x and the free intrinsics: {"intrinsics": names in INTRINSIC_NAMES
     # order, "cross_6xk": cov(xi_x, k) (6,nk), "intrinsics_kxk": cov(k) (nk,nk)}; None when failed or none free
@@ -87,6 +87,7 @@ class RefineResult:
             "cov_x_6x6": self.cov_x_6x6,
             "cov_parametrisation": self.cov_parametrisation,
             "cov_board_6x6": self.cov_board_6x6,
+            "cov_board_parametrisation": COV_BOARD_PARAMETRISATION,
             "cov_x_intrinsics": self.cov_x_intrinsics,
             "correlation_6x6": self.correlation_6x6,
             "sigma_rot_deg": self.sigma_rot_deg,
