@@ -61,8 +61,8 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from .errors import HandeyeError, SessionRefused, verdict_exit_code
-from .output import (FolderLock, atomic_write_bytes, atomic_write_text, check_out_dir, inputs_record,
-                     remove_stray_temps, to_json, write_json, writing)
+from .output import (FolderLock, OutputWriteError, atomic_write_bytes, atomic_write_text, check_out_dir,
+                     inputs_record, remove_stray_temps, to_json, write_json, writing)
 from .pipeline import CalibrateOptions, CalibrationRun, run_calibration
 
 log = logging.getLogger(__name__)
@@ -244,18 +244,23 @@ def _finish(out_dir: Path, res: dict, observations: Optional[dict], seconds: dic
     res.update(verdict_fields(None if ctx is None else ctx["verdict"], res, error, qa_cfg=qa_cfg))
     seconds["verdict"] = time.perf_counter() - t_v
     rendered = None
-    if report and ctx is not None:
-        progress("reports")
-        t3 = time.perf_counter()
-        rendered = _render_reports(ctx, folder)
-        seconds["report"] = time.perf_counter() - t3
-    seconds["total"] = time.perf_counter() - t0
-    res["seconds"] = seconds
-    write_json(result_path, res)  # once, and before the reports: a report never describes another result
+    try:
+        if report and ctx is not None:
+            progress("reports")
+            t3 = time.perf_counter()
+            rendered = _render_reports(ctx, folder)
+            seconds["report"] = time.perf_counter() - t3
+    finally:  # a rendering that raises (or an interrupt) must not lose the result
+        seconds["total"] = time.perf_counter() - t0
+        res["seconds"] = seconds
+        write_json(result_path, res)  # once, and before the reports: a report never describes another result
     if rendered is not None:
         paths = tuple(_write_reports(out_dir, rendered))
     if error is None and res.get("verdict") in ("PASS", "WARN"):
-        write_json(out_dir / LAST_GOOD_NAME, res)
+        try:
+            write_json(out_dir / LAST_GOOD_NAME, res)
+        except OutputWriteError as e:  # result.json and the reports are complete: say so, and what failed
+            log.warning("%s is written; %s was not: %s", result_path, LAST_GOOD_NAME, e)
     status = "ok" if error is None else "failed"
     return WorkflowResult(status, out_dir, result_path, res, run, error, paths, seconds)
 

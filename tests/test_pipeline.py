@@ -274,3 +274,22 @@ def test_fixed_intrinsics_stay_fixed(rendered, tmp_path):
     start = ref["seed"]["intrinsics"]["dist"]
     assert all(ref["intrinsics"]["dist"][k] == start[k] for k in ("p1", "p2", "k3"))
     assert any(ref["intrinsics"]["dist"][k] != start[k] for k in ("k1", "k2"))  # the others did move
+
+
+def test_a_report_rendering_that_raises_keeps_the_result(rendered, tmp_path, monkeypatch):
+    """result.json is written even when rendering the reports raises (an error or an interrupt)."""
+    import handeye.workflow as workflow
+    from handeye.errors import HandeyeError
+
+    mode, session = rendered
+
+    def boom(ctx, folder):
+        raise HandeyeError("the report template cannot be read")
+
+    monkeypatch.setattr(workflow, "_render_reports", boom)
+    out = tmp_path / "out"
+    with pytest.raises(HandeyeError):
+        _run(session, out, report=True, refine=False)
+    res = json.loads((out / "result.json").read_text())
+    assert res["status"] == "ok" and res["mode"] == mode and "total" in res["seconds"]
+    assert not (out / "report.html").exists()
