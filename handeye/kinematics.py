@@ -392,6 +392,18 @@ def chain_from_dict(data: dict, *, source: str = "DH table") -> DHChain:
                    dh=np.array(rows), joint_limits_rad=lim, error_prior=_error_prior(data.get("error_prior"), source))
 
 
+def chain_to_dict(chain: DHChain) -> dict:
+    """The table of ``chain`` in the presets' form, metres and radians (:func:`chain_from_dict` reads it back;
+    the error prior is not part of it): a result records the arm it was calibrated with."""
+    lim = chain.joint_limits_rad
+    links = [dict(zip(PARAMETER_NAMES, (float(v) for v in row))) for row in np.asarray(chain.dh, float)]
+    if lim is not None:
+        for link, (lo, hi) in zip(links, np.asarray(lim, float)):
+            link["limits"] = [float(lo), float(hi)]
+    return {"name": chain.name, "convention": chain.convention, "length_unit": "m", "angle_unit": "rad",
+            "links": links}
+
+
 def _error_prior(d, source: str) -> Optional[tuple]:
     """``error_prior: {dh_length_sigma_mm, dh_angle_sigma_deg, encoder_sigma_deg}`` in SI, or None."""
     if d is None:

@@ -293,6 +293,16 @@ def test_verify_uses_the_installed_arm_when_the_result_names_a_preset():
     table = Path(__file__).resolve().parents[1] / "configs" / "robots" / "ur5e.yaml"  # a DH file that exists
     assert installed_robot_model(named(str(table)))["arm"].n_joints == 6
     assert installed_robot_model(named(None, kind="iid")) == {}
+    # the table result.json records (an arm named by session.yaml's robot:, whose options hold only its name)
+    from handeye.kinematics import chain_to_dict, load_arm
+
+    rm65 = load_arm("rm65")
+    d = named("RealMan RM65-B")
+    d.raw["refinement"]["robot_model"]["dh_table"] = chain_to_dict(rm65)
+    o = installed_robot_model(d)
+    assert o["robot_model"] == "kinematic" and o["arm"].name == rm65.name
+    np.testing.assert_allclose(o["arm"].dh, rm65.dh, atol=1e-12)
+    np.testing.assert_allclose(o["arm"].joint_limits_rad, rm65.joint_limits_rad, atol=1e-12)
 
 
 def test_verify_refuses_too_few_views_and_a_result_without_covariance(install):

@@ -330,21 +330,25 @@ def verify_views(installed: LoadedResult, *, views: Sequence, object_points: np.
 
 def installed_robot_model(installed: LoadedResult) -> dict:
     """RefineOptions for the robot error model of the installed result when it names an arm (``calibrate
-    --robot``): the arm's kinematic model (DH offsets held by the prior the install used, encoder noise fixed
-    at the installed value); {} (the iid model at the installed sigmas) otherwise or when the arm is neither a
-    shipped preset nor a DH file that still exists (its table is not in result.json)."""
+    --robot`` or session.yaml's ``robot:``): the arm's kinematic model (DH offsets held by the prior the
+    install used, encoder noise fixed at the installed value) from the DH table result.json records (or, in
+    results written before it did, the shipped preset or DH file it names); {} (the iid model at the
+    installed sigmas) otherwise."""
     ref = installed.raw.get("refinement") or {}
     rm = ref.get("robot_model") or {}
     if rm.get("kind") != "kinematic" or not rm.get("arm"):
         return {}
-    from ..kinematics import PRESETS, load_arm
+    from ..kinematics import PRESETS, chain_from_dict, load_arm
 
     name = (ref.get("options") or {}).get("arm")  # the preset or DH file the install named, when it named one
-    if not (name in PRESETS or (isinstance(name, str) and Path(name).is_file())):
-        log.warning("the installed result's arm %s is neither a shipped preset nor a DH file that still exists "
-                    "(its table is not in result.json): verifying with the iid robot model", rm["arm"])
+    if isinstance(rm.get("dh_table"), dict):
+        arm = chain_from_dict(rm["dh_table"], source=f"{installed.source} refinement.robot_model.dh_table")
+    elif name in PRESETS or (isinstance(name, str) and Path(name).is_file()):
+        arm = load_arm(name)
+    else:
+        log.warning("the installed result's arm %s is neither recorded as a table nor a shipped preset or DH file "
+                    "that still exists: verifying with the iid robot model", rm["arm"])
         return {}
-    arm = load_arm(name)
     out = {"robot_model": "kinematic", "arm": arm}
     if rm.get("encoder_sigma_deg"):
         out["encoder_sigma_deg"] = float(rm["encoder_sigma_deg"])

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Optional
 import numpy as np
 
 from ..camera import INTRINSIC_NAMES, Intrinsics
+from ..kinematics import chain_to_dict
 from ..mounting import mounting
 from ..output import plain
 from .covariance import COV_BOARD_PARAMETRISATION, COV_PARAMETRISATION, N_POSES, hand_eye_uncertainty
@@ -136,7 +137,7 @@ def robot_model_dict(pb: "Problem", S_cc: Optional[np.ndarray]) -> dict:
                 "estimated": ["sigma_mm", "sigma_deg"] if estimated else [],
                 "resolved": dict(pb.resolved) if estimated else {}}
     km = pb.kin
-    d = {"kind": km.kind, "arm": km.arm.name, "dh_convention": km.arm.convention,
+    d = {"kind": km.kind, "arm": km.arm.name, "dh_convention": km.arm.convention, "dh_table": chain_to_dict(km.arm),
          "description": ("true pose = reported · Exp(J_dh · dh_offset + J_q · encoder_error): shared DH offsets "
                          "(estimated with T_x where the views resolve them, held by their prior otherwise) and "
                          "encoder noise per joint and view" if km.kind == "kinematic" else
