@@ -372,6 +372,11 @@ def _write_reports(out_dir: Path, rendered: tuple) -> list[Path]:
 
     try:
         return write_files(out_dir, *rendered)
+    except OutputWriteError as e:  # the file system refused: a write fix, not bug advice
+        log.error("handeye: the report could not be written: cannot write %s (%s); result.json is complete. "
+                  "Free space or make the folder writable, then rebuild it with: handeye report %s",
+                  e.filename or out_dir, e.strerror or e, out_dir)
+        return []
     except Exception as e:  # noqa: BLE001 - the calibration result must survive a report that cannot be written
         report_crashed(e, out_dir)
         return []

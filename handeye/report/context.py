@@ -333,13 +333,10 @@ def _prior_block(res, x_name) -> Optional[dict]:
     return {"source": p.get("source", ""), "frame": p.get("frame") or x_name,
             "covariance_used": p.get("covariance_used", ""), "intrinsics": p.get("intrinsics", ""),
             "translation_mm": f["translation_mm"] if f else None, "euler_deg": f["euler_vendor_deg"] if f else None,
-            "vendor_line": f["vendor_pose_line"] if f else "",
             "sigma_trans_mm": p.get("sigma_trans_mm"), "sigma_rot_deg": p.get("sigma_rot_deg"),
-            "update_rows": _change_rows(upd) if upd else None, "update_trans_mm": upd.get("trans_mm"),
-            "update_rot_deg": upd.get("rot_deg"), "test": test or None, "alpha": p.get("alpha"),
+            "update_rows": _change_rows(upd) if upd else None, "test": test or None, "alpha": p.get("alpha"),
             "contradicted": bool(p.get("contradicted")), "used": p.get("used", ""), "summary": p.get("summary", ""),
-            "change_rows": _change_rows(change) if change else None, "change_trans_mm": change.get("trans_mm"),
-            "change_rot_deg": change.get("rot_deg"), "change_p": change.get("p_value")}
+            "change_rows": _change_rows(change) if change else None}
 
 
 SIGMA_SOURCE_TEXT = {
