@@ -17,14 +17,16 @@ uses the kinematic robot error model (:mod:`handeye.refine.robot_model`: the RM6
 0.3 mm / 0.03 deg prior, estimated with X or marginalised, plus encoder noise); sessions without them
 (iid, none) keep the iid model.
 
-Figures (2026-12-01, 20 views, RMS over sessions, 100 sessions per row, seeds 0-99; kinematic:
-``--seeds 100 --models kinematic --jsonl k.jsonl``; iid and none: ``--seeds 25 --models iid none`` and
-``--seeds 75 --first-seed 25 --models iid none`` into one file; tables by ``--summarize``):
+Figures (20 views, RMS over sessions, 100 sessions per row, seeds 0-99; kinematic, 2026-12-02, the
+views of each session in one arm configuration (handeye.sim.robot_error.OneConfiguration): ``--seeds 50
+--models kinematic`` and ``--first-seed 50 --seeds 50`` per mode into .jsonl files; iid and none,
+2026-12-01: ``--seeds 25 --models iid none`` and ``--seeds 75 --first-seed 25 --models iid none`` into one
+file; tables by ``--summarize``):
 
 | model, mode | robot error RMS | refined X | best closed form | 95 % coverage | median Mahalanobis^2 |
 |---|---|---|---|---|---|
-| kinematic, eye_in_hand | 1.16 mm, 0.105 deg | 0.062 deg, 0.53 mm | park 0.163 deg, 1.82 mm | 93 % | 6.0 |
-| kinematic, eye_to_hand | 1.22 mm, 0.110 deg | 0.086 deg, 0.67 mm | shah 0.135 deg, 1.50 mm | 98 % | 5.8 |
+| kinematic, eye_in_hand | 1.14 mm, 0.103 deg | 0.074 deg, 0.64 mm | andreff 0.170 deg, 1.78 mm | 91 % | 5.7 |
+| kinematic, eye_to_hand | 1.25 mm, 0.113 deg | 0.091 deg, 0.76 mm | shah 0.141 deg, 1.70 mm | 97 % | 5.7 |
 | iid, eye_in_hand | 0.35 mm, 0.087 deg | 0.103 deg, 0.49 mm | andreff 0.110 deg, 0.88 mm | 95 % | 6.0 |
 | iid, eye_to_hand | 0.35 mm, 0.087 deg | 0.107 deg, 0.52 mm | shah 0.121 deg, 0.91 mm | 93 % | 5.3 |
 | none, eye_in_hand | 0 | 0.076 deg, 0.17 mm | andreff 0.105 deg, 0.73 mm | 95 % | 4.2 |
