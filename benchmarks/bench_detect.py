@@ -3,6 +3,8 @@ accuracy against the ground truth, and the cornerSubPix stopping rule of configs
 
 Usage: python benchmarks/bench_detect.py [--views 20] [--rounds 7] [--session DIR] [--real DIR ...]
                                          [--shared DIR | --no-shared] [--big W H] [--supersample 4 8]
+       python benchmarks/bench_detect.py --wrong-size 54   (only the wrong-board-size sweep: N rendered
+       20-view sessions whose config.yaml states another size; refused naming the true size, and the time)
 Then: the refusal of a wrong board size (the session's images under a config.yaml that states 9x6 inner
 corners for the 11x8 board) through detect_views and through the whole calibration
 (handeye.workflow.calibrate_session without the reports), with the message it gives; the corner error
@@ -102,7 +104,13 @@ def main() -> None:
     ap.add_argument("--big", type=int, nargs=2, default=(8000, 6000), help="size of the noise image, px")
     ap.add_argument("--supersample", type=int, nargs="+", default=[4],
                     help="samples per pixel (per axis) of the low-texture renders, e.g. 4 8")
+    ap.add_argument("--wrong-size", type=int, default=0, metavar="N",
+                    help="only: N rendered sessions stated with a wrong board size (refusal, size named, time)")
     args = ap.parse_args()
+    if args.wrong_size:
+        with tempfile.TemporaryDirectory() as tmp:
+            _wrong_size_sweep(args.wrong_size, Path(tmp))
+        return
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.session
         if folder is None:
@@ -196,6 +204,42 @@ def main() -> None:
         if visp.is_dir():
             _sb_on_replicas(visp, SHARED_CHESSBOARDS[visp.name], 0.0236, VISP_K)
         _ical_checks(args.shared)
+
+
+def _wrong_size_sweep(n: int, tmp: Path) -> None:
+    """``n`` rendered 20-view 1280x720 sessions (both modes, three boards) whose config.yaml states a wrong
+    board size: refused as target_not_found, naming the size the images show, and how long it took."""
+    import yaml
+
+    from handeye.pipeline import CalibrateOptions
+    from handeye.sim.vendor import write_vendor_session
+    from handeye.targets import ChessboardSpec
+    from handeye.workflow import calibrate_session
+
+    boards = [ChessboardSpec(11, 8, 0.025), ChessboardSpec(9, 6, 0.03), ChessboardSpec(8, 6, 0.03)]
+    named, walls = 0, []
+    for k in range(n):
+        b = boards[k % len(boards)]
+        mode = ("eye_in_hand", "eye_to_hand")[(k // len(boards)) % 2]
+        folder = write_vendor_session(tmp / f"ws{k}", mode=mode, n_views=20, seed=100 + k, target=b,
+                                      supersample=2, workers=2)
+        stated = [(b.cols - 2, b.rows - 1), (b.cols + 1, b.rows), (b.rows, b.cols - 1)][k % 3]
+        cfg = yaml.safe_load((folder / "config.yaml").read_text())
+        cfg["checkerboard_args"].update(XX=stated[0], YY=stated[1])
+        (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
+        t0 = time.perf_counter()
+        wr = calibrate_session(folder, options=CalibrateOptions(refine=False), out_dir=tmp / f"ws{k}-out",
+                               report=False)
+        walls.append(time.perf_counter() - t0)
+        err = wr.result.get("error") or {}
+        ok = err.get("code") == "target_not_found" and f"{b.cols}x{b.rows} inner corners" in str(err.get("message"))
+        named += ok
+        if not ok:
+            print(f"    missed: {b.cols}x{b.rows} stated {stated[0]}x{stated[1]}, {mode}: {err.get('code')} "
+                  f"{str(err.get('message'))[:160]}")
+    print(f"  wrong board size, {n} rendered 20-view sessions (11x8, 9x6, 8x6 boards, both modes, three wrong "
+          f"sizes): refused naming the true size {named} / {n}; whole calibration without reports "
+          f"{np.median(walls):.2f} s wall median, {max(walls):.2f} s max")
 
 
 def _wrong_size(folder: Path, tmp: Path, rounds: int) -> None:
