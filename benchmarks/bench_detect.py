@@ -239,7 +239,8 @@ def _wrong_size_sweep(n: int, tmp: Path) -> None:
                   f"{str(err.get('message'))[:160]}")
     print(f"  wrong board size, {n} rendered 20-view sessions (11x8, 9x6, 8x6 boards, both modes, three wrong "
           f"sizes): refused naming the true size {named} / {n}; whole calibration without reports "
-          f"{np.median(walls):.2f} s wall median, {max(walls):.2f} s max")
+          f"{np.median(walls):.2f} s wall median, {max(walls):.2f} s max (session {int(np.argmax(walls)) + 1}), "
+          f"{sum(w < 3.0 for w in walls)} under 3 s")
 
 
 def _wrong_size(folder: Path, tmp: Path, rounds: int) -> None:

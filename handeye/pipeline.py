@@ -128,12 +128,16 @@ def observe(*, target: TargetSpec, items: Sequence[tuple[str, Any]], intrinsics:
             outcomes[vid] = ViewOutcome(vid, name, False, failure_reason(d))
     seconds["detect"] = time.perf_counter() - t0
     obs = Observation(target, outcomes, dets, failures, seconds=seconds)
-    if len(dets) < MIN_VIEWS:
+    if len(dets) < MIN_VIEWS or 2 * len(dets) < len(items):
+        # too few views, or the stated board in a minority of them: when the others show another board
+        # size, the few sightings of the stated one are the detector reading a grid into part of that board
+        # (one more column along an edge against a dark background); the session states the wrong size
         survey = size_survey(det, (target.cols, target.rows)) if target.kind == "chessboard" else None
         if survey is not None and survey.likely_size is not None:  # the images show another board size
             return replace(obs, error=DetectionError(
                 f"the target was found in only {len(dets)} of {len(items)} images: {survey.text()}",
                 hint=survey.fix(), code="target_not_found"))
+    if len(dets) < MIN_VIEWS:
         return replace(obs, error=DetectionError(
             f"the target was found in only {len(dets)} of {len(items)} images; at least {MIN_VIEWS} are needed",
             hint=f"check the board size in the session ({target_text(target)}) and that the whole board is visible "

@@ -245,6 +245,12 @@ def test_board_size_verdict_needs_the_stated_size_absent_and_another_in_most_vie
     assert board_size_verdict((9, 6), {"1": ((11, 8),), "2": ((11, 5),), "3": ()}) is None  # no size in 2 of 3
     assert board_size_verdict((9, 6), {"1": (), "2": (), "3": ()}) is None
     assert board_size_verdict((9, 6), {"1": ((11, 8),)}) is None  # one view is not enough
+    # after every view was searched (the stated board missing from most): a stated size seen in fewer of the
+    # checked views than another (a board edge against a dark background reads as one more column) does not
+    # hide the size the others show; seen as often, it does
+    two_one = {"1": ((11, 8),), "2": ((9, 6),), "3": ((11, 8),)}
+    assert board_size_verdict((9, 6), two_one, after_search=True) == (11, 8)
+    assert board_size_verdict((9, 6), {**two_one, "4": ((9, 6),)}, after_search=True) is None
 
 
 def _write(tmp_path, imgs):

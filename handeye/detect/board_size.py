@@ -54,22 +54,27 @@ def visible_grid_sizes(gray: np.ndarray, *, max_side_px: int = 800, full_size_re
     return ()
 
 
-def board_size_verdict(stated: Size, seen: Mapping[str, tuple], *, min_share: float = 2 / 3) -> Optional[Size]:
+def board_size_verdict(stated: Size, seen: Mapping[str, tuple], *, min_share: float = 2 / 3,
+                       after_search: bool = False) -> Optional[Size]:
     """The size the views show instead of ``stated``, or None when they do not show that clearly.
 
     ``seen``: view id -> sizes seen in that view (:func:`visible_grid_sizes`), over views where the
-    stated size was not found. Clear means: the stated size is seen in none of them, and one other size
-    in at least ``min_share`` of them and in at least 2 (ties: the larger grid).
+    stated size was not found. Clear means: one other size is seen in at least ``min_share`` of them and
+    in at least 2 (ties: the larger grid), and the stated size in none of them; ``after_search`` (the
+    stated board is missing from most views after every view was searched): in fewer of them than the
+    other size (a board without a white margin against a dark background can show one more row or column
+    of corners along an edge in a few views; that must not hide the size the other views show).
     """
     stated = normal_size(*stated)
-    if not seen or any(stated in sizes for sizes in seen.values()):
+    if not seen:
         return None
     counts = Counter(s for sizes in seen.values() for s in set(sizes))
+    n_stated = counts.pop(stated, 0)
     if not counts:
         return None
     best, n = max(counts.items(), key=lambda kv: (kv[1], kv[0][0] * kv[0][1]))
     need = max(2, math.ceil(min_share * len(seen) - 1e-9))
-    return best if n >= need else None
+    return best if n >= need and (n_stated < n if after_search else n_stated == 0) else None
 
 
 @dataclass(frozen=True)
@@ -89,7 +94,7 @@ class SizeSurvey:
     @property
     def likely_size(self) -> Optional[Size]:
         """The size the views show instead of the stated one (:func:`board_size_verdict`), or None."""
-        return board_size_verdict(self.stated, self.seen)
+        return board_size_verdict(self.stated, self.seen, after_search=True)
 
     def text(self) -> str:
         """e.g. "no 9x6 chessboard; 11x8 inner corners seen in 3 of 3 checked views"."""
