@@ -119,34 +119,6 @@ def _spd(rng, scale):
     return scale * (A @ A.T + 6 * np.eye(6))
 
 
-def test_the_installed_joint_covariance_takes_the_verdict_marginals():
-    """result.json's X-intrinsics joint covariance is the model's; X's and the intrinsics' verdict sigmas are
-    larger (validated on real data). The loaded joint keeps the model's correlations at the verdict's scale,
-    positive semi-definite, so that verify's joint test does not measure a change against the model's
-    smaller intrinsics uncertainty."""
-    rng = np.random.default_rng(0)
-    A = rng.normal(size=(10, 10)) * np.r_[[SIGMA_ROT] * 3, [SIGMA_TRANS] * 3, [0.5, 0.5, 0.4, 0.4]][:, None]
-    S = A @ A.T  # the model's joint covariance of (X tangent, fx fy cx cy)
-    d = fake_result(cov=S[:6, :6])
-    ref = d["refinement"]
-    ref["intrinsics_sigma"] = {n: float(np.sqrt(S[6 + k, 6 + k])) for k, n in enumerate(("fx", "fy", "cx", "cy"))}
-    ref["cov_x_intrinsics"] = {"intrinsics": ["fx", "fy", "cx", "cy"], "cross_6xk": S[:6, 6:].tolist(),
-                               "intrinsics_kxk": S[6:, 6:].tolist()}
-    ref["cov_x_6x6_verdict"] = (2.0 ** 2 * S[:6, :6]).tolist()  # validated: twice the model's sigmas
-    ref["intrinsics_sigma_verdict"] = {n: 3.0 * v for n, v in ref["intrinsics_sigma"].items()}
-    names, C, K = load_result(d).cov_x_intrinsics
-    np.testing.assert_allclose(np.sqrt(np.diag(K)), [3.0 * ref["intrinsics_sigma"][n] for n in names], rtol=1e-9)
-    np.testing.assert_allclose(C, 2.0 * S[:6, 6:] * 3.0, rtol=1e-9)  # the model's correlations kept
-    V = np.asarray(ref["cov_x_6x6_verdict"])
-    assert np.linalg.eigvalsh(V - C @ np.linalg.solve(K, C.T)).min() > -1e-12 * np.trace(V)
-    # a verdict X block too small for the scaled cross term: the cross term shrinks until the joint is PSD
-    ref["cov_x_6x6_verdict"] = S[:6, :6].tolist()
-    names, C, K = load_result(d).cov_x_intrinsics
-    V = S[:6, :6]
-    assert np.linalg.eigvalsh(V - C @ np.linalg.solve(K, C.T)).min() > -1e-12 * np.trace(V)
-    assert np.all(np.abs(C) <= np.abs(S[:6, 6:] * 3.0) + 1e-15)
-
-
 def test_drift_test_is_the_wald_statistic_and_drops_unconstrained_directions():
     from handeye.recal.verify import drift_test
 

@@ -120,22 +120,11 @@ def load_result(result: ResultLike) -> LoadedResult:
         intrinsics_source=(intr_d or {}).get("source"), target=d.get("target"), image_size=size,
         sigma_px=_float(ref.get("sigma_px")), robot_sigma_mm=_float(ref.get("robot_sigma_mm")),
         robot_sigma_deg=_float(ref.get("robot_sigma_deg")), raw=d,
-        cov_x_intrinsics=_joint(ref.get("cov_x_intrinsics"), cov_x=cov, sigma=sig,
-                                cov_x_model=_matrix(ref.get("cov_x_6x6"), (6, 6)),
-                                sigma_model=ref.get("intrinsics_sigma") or {}))
+        cov_x_intrinsics=_joint(ref.get("cov_x_intrinsics")))
 
 
-def _joint(j, *, cov_x: Optional[np.ndarray], cov_x_model: Optional[np.ndarray], sigma: dict,
-           sigma_model: dict) -> Optional[tuple]:
-    """(names, cross (6,k), intrinsics (k,k)) from refinement.cov_x_intrinsics, None when absent or malformed.
-
-    That joint covariance is the model's; the result's X covariance ``cov_x`` and intrinsics sigmas
-    ``sigma`` are the verdict's, which on real data are larger (the validated spread). The joint is
-    scaled to them, ``D S_model D`` with ``D`` the per-parameter ratios of verdict to model sigma, so that
-    its correlations are the model's and its marginals the verdict's; where the X block ``cov_x`` is not
-    large enough for the scaled cross term, the cross term is shrunk until the joint is positive
-    semi-definite (a test built on the model's own intrinsics covariance, far smaller than the verdict's on
-    real data, called drift where nothing moved)."""
+def _joint(j) -> Optional[tuple]:
+    """(names, cross (6,k), intrinsics (k,k)) from refinement.cov_x_intrinsics, None when absent or malformed."""
     if not isinstance(j, dict) or not isinstance(j.get("intrinsics"), list):
         return None
     names = tuple(str(n) for n in j["intrinsics"])
@@ -143,19 +132,7 @@ def _joint(j, *, cov_x: Optional[np.ndarray], cov_x_model: Optional[np.ndarray],
     cross, kk = _matrix(j.get("cross_6xk"), (6, k)), _matrix(j.get("intrinsics_kxk"), (k, k))
     if k == 0 or cross is None or kk is None or not set(names) <= set(INTRINSIC_NAMES):
         return None
-    kk = 0.5 * (kk + kk.T)
-    if cov_x is None or cov_x_model is None:
-        return names, cross, kk
-    dx = np.sqrt(np.maximum(np.diag(cov_x), 0.0) / np.maximum(np.diag(cov_x_model), 1e-300))
-    dk = np.array([float(sigma.get(n, 0.0) or 0.0) / float(sigma_model.get(n, 0.0) or np.nan) for n in names])
-    dk = np.where(np.isfinite(dk) & (dk > 0), dk, 1.0)
-    dx = np.where(np.isfinite(dx) & (dx > 0), dx, 1.0)
-    cross, kk = dx[:, None] * cross * dk[None, :], dk[:, None] * kk * dk[None, :]
-    for _ in range(30):  # the Schur complement cov_x - C K^-1 C^T must stay PSD
-        if np.linalg.eigvalsh(cov_x - cross @ np.linalg.solve(kk, cross.T)).min() >= -1e-12 * np.trace(cov_x):
-            break
-        cross = 0.9 * cross
-    return names, cross, kk
+    return names, cross, 0.5 * (kk + kk.T)
 
 
 def _float(v) -> Optional[float]:
