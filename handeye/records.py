@@ -79,6 +79,9 @@ class Detection:
     blur: Optional[dict] = None
     exposure: Optional[dict] = None
     thumbnail_jpeg: Optional[bytes] = None
+    # corners the detector found but does not use, as (corner id, reason): the refinement stages disagree,
+    # no saddle point, off the homography of the neighbours (handeye.detect.chessboard / charuco)
+    dropped_corners: tuple = ()
 
 
 @dataclass(frozen=True)

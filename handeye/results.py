@@ -102,6 +102,19 @@ def observations_dict(run) -> dict:
             "failed_views": failed}
 
 
+def dropped_corners(run, view_id: str) -> list:
+    """[{"corner_id", "reason"}] of the corners the detector found in the view but did not use, numbered as
+    the view's used corners are (its board orientation resolved); [] when none or not detected."""
+    det = (getattr(run, "detections", None) or {}).get(view_id)
+    if det is None or not getattr(det, "dropped_corners", ()):
+        return []
+    bp = (getattr(run, "board_poses", None) or {}).get(view_id)
+    syms = run.session.target.symmetries() if bp is not None else None
+    perm = syms[bp.orientation] if syms is not None and 0 <= bp.orientation < len(syms) else None
+    return [{"corner_id": int(perm[k]) if perm is not None else int(k), "reason": why}
+            for k, why in det.dropped_corners]
+
+
 def mode_source(run, mode_flag: Optional[str] = None) -> tuple[Optional[str], Optional[dict]]:
     """(``mode_source``, ``mode_evidence``): how the mounting mode was chosen (``stated`` | ``flag`` |
     ``detected`` | ``default``) as the run's ``mode_decision`` (or its session) records it, and the
@@ -151,7 +164,7 @@ def result_dict(run, *, mode_flag: Optional[str] = None) -> dict:
                                calibrate_camera_rms_px=run.intrinsics_rms_px)
     d["views"] = [{"id": o.view_id, "image": o.image, "used": o.used, "reason": o.reason, "n_corners": o.n_corners,
                    "pnp_rms_px": o.rms_px, "chain_max_px": o.max_px, "orientation": o.orientation,
-                   "flags": list(o.flags)}
+                   "flags": list(o.flags), "corners_dropped": dropped_corners(run, o.view_id)}
                   for o in run.outcomes]
     d["n_views"] = {"total": len(run.outcomes), "used": sum(o.used for o in run.outcomes)}
     if run.motion is not None:

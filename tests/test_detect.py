@@ -546,6 +546,30 @@ def test_a_corner_the_two_estimators_disagree_on_is_not_used(hd_views, caplog):
     assert _err_px(pts, truth[ids]).max() < 0.2  # the others stay where they were
 
 
+def test_a_corner_left_out_is_kept_with_its_reason_for_result_json(tmp_path, hd_views):
+    from types import SimpleNamespace
+
+    from handeye.detect import detect_image
+    from handeye.results import dropped_corners
+
+    spec, img, truth = hd_views[0]
+    spot = img.copy()
+    c = truth[30] + [2.0, 2.0]
+    cv2.circle(spot, tuple(int(v) for v in np.round(c * 16)), 48, 255, -1, shift=4, lineType=cv2.LINE_AA)
+    cv2.imwrite(str(tmp_path / "7.png"), spot)
+    det = detect_image("7", tmp_path / "7.png", spec)
+    assert [k for k, _ in det.dropped_corners] == [30] and 30 not in det.corner_ids
+    assert "cornerSubPix and the symmetry fit put it" in det.dropped_corners[0][1]
+    # numbered as the view's used corners: on a symmetric board seen turned by 180 degrees (orientation 1)
+    # corner k is corner n - 1 - k
+    n = spec.n_corners
+    turns = SimpleNamespace(symmetries=lambda: [np.arange(n), np.arange(n)[::-1]])
+    run = SimpleNamespace(detections={"7": det}, session=SimpleNamespace(target=turns),
+                          board_poses={"7": SimpleNamespace(orientation=1)})
+    assert dropped_corners(run, "7") == [{"corner_id": n - 1 - 30, "reason": det.dropped_corners[0][1]}]
+    assert dropped_corners(run, "8") == []  # a view without detection
+
+
 def test_a_view_missing_a_corner_keeps_its_order_cue_and_is_turned_back_whole(views):
     cs, imgs = views
     spec = cs.target

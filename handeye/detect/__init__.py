@@ -42,6 +42,7 @@ DETECTORS = {"chessboard": detect_chessboard, "charuco": detect_charuco, "circle
              "marker": detect_markers, "aprilgrid": detect_markers}
 #: detectors with slower fallback searches, which take the image's time budget (``budget=``)
 _BUDGETED = (detect_chessboard, detect_circlegrid)
+_DROPPING = (detect_chessboard, detect_charuco)  # report the corners they leave out (``dropped=``)
 _JPEG_MAGIC = b"\xff\xd8\xff"
 
 
@@ -71,12 +72,13 @@ def read_gray(path: Path) -> np.ndarray:
 
 
 def detect_gray(gray: np.ndarray, target: TargetSpec, *, min_corners: int | None = None,
-                options: DetectionOptions | None = None, budget: TimeBudget | None = None
-                ) -> tuple[np.ndarray, np.ndarray] | str:
+                options: DetectionOptions | None = None, budget: TimeBudget | None = None,
+                dropped: list | None = None) -> tuple[np.ndarray, np.ndarray] | str:
     """(corner ids, image points (N,2) px) of ``target`` in an 8-bit grey image, or the reason it was
     not found. Fewer than ``min_corners`` corners (default: configs/detection.yaml) counts as not found.
     ``budget``: the time left for this image (default: ``time_budget_s`` from now); detectors with slower
-    searches skip them once it is spent (the reason then says "detection timed out")."""
+    searches skip them once it is spent (the reason then says "detection timed out"). ``dropped``: a list
+    that receives (corner id, reason) of the corners found but not used (chessboard, ChArUco)."""
     o = options or default_options()
     detector = DETECTORS.get(getattr(target, "kind", None))
     if detector is None:
@@ -85,6 +87,8 @@ def detect_gray(gray: np.ndarray, target: TargetSpec, *, min_corners: int | None
     # floor asked for explicitly is kept
     need = min(o.min_corners, target.n_corners) if min_corners is None else min_corners
     kw = {"budget": budget or TimeBudget(o.time_budget_s)} if detector in _BUDGETED else {}
+    if detector in _DROPPING and dropped is not None:
+        kw["dropped"] = dropped
     out = detector(gray, target, options=o, **kw)
     if isinstance(out, str):
         return out
@@ -102,7 +106,8 @@ def detect_image(view_id: str, path: Path, target: TargetSpec, *, min_corners: i
     budget = TimeBudget(o.time_budget_s)
     gray = read_gray(path)
     size = (gray.shape[1], gray.shape[0])
-    out = detect_gray(gray, target, min_corners=min_corners, options=o, budget=budget)
+    dropped: list = []
+    out = detect_gray(gray, target, min_corners=min_corners, options=o, budget=budget, dropped=dropped)
     if isinstance(out, str):
         return _failure(view_id, gray, out, o, t0)
     thumb = thumbnail_jpeg(gray, width_px=o.thumbnail_width_px, quality=o.thumbnail_jpeg_quality)
@@ -113,7 +118,7 @@ def detect_image(view_id: str, path: Path, target: TargetSpec, *, min_corners: i
     return Detection(view_id=view_id, corner_ids=ids, image_points=pts, image_size=size,
                      sharpness=sharpness(gray, pts), order_cue=cue, blur=blur,
                      exposure=view_exposure(gray, pts, saturated_grey=o.saturated_grey), thumbnail_jpeg=thumb,
-                     seconds=time.perf_counter() - t0)
+                     seconds=time.perf_counter() - t0, dropped_corners=tuple(sorted(dropped)))
 
 
 def detect_views(items: Sequence[tuple[str, Path]], target: TargetSpec, *, workers: int | None = None,

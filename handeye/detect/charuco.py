@@ -22,14 +22,14 @@ def charuco_board(spec: CharucoSpec):
     return board
 
 
-def detect_charuco(gray: np.ndarray, spec: CharucoSpec, *, options: DetectionOptions | None = None
-                   ) -> tuple[np.ndarray, np.ndarray] | str:
+def detect_charuco(gray: np.ndarray, spec: CharucoSpec, *, options: DetectionOptions | None = None,
+                   dropped: list | None = None) -> tuple[np.ndarray, np.ndarray] | str:
     """(corner ids sorted, image points (N,2)) or a reason string.
 
     Images above ``search_max_megapixels_charuco_circles`` are searched on a reduced copy (the marker
     search's time grows with the area); the corners are refined there and again on the full image in a
     window of the same extent on the board. Corners that fail the geometric check are dropped
-    (:func:`off_grid_corners_removed`)."""
+    (:func:`off_grid_corners_removed`); ``dropped`` receives their (corner id, reason)."""
     o = options or default_options()
     search, scale = search_copy(gray, max_megapixels=o.search_max_megapixels_charuco_circles)
     detector = cv2.aruco.CharucoDetector(charuco_board(spec))
@@ -52,6 +52,8 @@ def detect_charuco(gray: np.ndarray, spec: CharucoSpec, *, options: DetectionOpt
     if not keep.all():
         log.info("ChArUco corners %s dropped: off the homography of their neighbours (geometric check)",
                  ids[~keep].tolist())
+        if dropped is not None:
+            dropped.extend((int(k), "off the homography of its neighbours (geometric check)") for k in ids[~keep])
     return ids[keep], pts[keep]
 
 

@@ -65,26 +65,27 @@ def refine_corners(gray: np.ndarray, pts: np.ndarray, win: np.ndarray, options: 
 
 
 def refine_chessboard(gray: np.ndarray, search: np.ndarray, scale: np.ndarray, coarse: np.ndarray,
-                      spec: ChessboardSpec, options: DetectionOptions) -> np.ndarray:
+                      spec: ChessboardSpec, options: DetectionOptions, dropped: list | None = None) -> np.ndarray:
     """Full-resolution corners (N,2) from ``coarse`` corners found in ``search`` (``gray`` reduced by
     ``scale``, per axis), with windows from the square size; on a reduced search image the corners are first
     refined there, so the full-size windows only correct what the reduction lost. Corners that are not
-    trusted (:func:`final_corners`) are NaN."""
+    trusted (:func:`final_corners`) are NaN (their (id, reason) appended to ``dropped``)."""
     bxy = board_squares(spec)
     start, win = subpix_windows(bxy, np.asarray(coarse, float).reshape(-1, 2), options)
     if np.any(scale != 1.0):
         start = (refine_corners(search, start, win, options) + 0.5) / scale - 0.5  # pixel centres at integers
         start, win = subpix_windows(bxy, start, options)
-    return final_corners(gray, bxy, start, win, options)
+    return final_corners(gray, bxy, start, win, options, dropped)
 
 
 def final_corners(gray: np.ndarray, board_xy: np.ndarray, start: np.ndarray, win: np.ndarray,
-                  options: DetectionOptions) -> np.ndarray:
+                  options: DetectionOptions, dropped: list | None = None) -> np.ndarray:
     """The two refinement stages on the full image (:mod:`.saddle`), on the part of it around the corners:
     cornerSubPix from ``start`` in half windows ``win``, then the centre of point symmetry in half windows
     of ``saddle_window_factor`` x the square's size, both on the image smoothed by ``subpix_blur_sigma_px``.
     A corner where the two disagree by more than ``corner_disagreement_max_px``, or where the second finds
-    no saddle, is NaN (not used), and logged with its reason."""
+    no saddle, is NaN (not used), and logged with its reason; (index, reason) of each is appended to
+    ``dropped`` when given."""
     o = options
     reach = int(np.max(win)) + o.saddle_shading_box_px + int(np.ceil(4 * o.subpix_blur_sigma_px)) + 2
     h, w = gray.shape
@@ -101,9 +102,12 @@ def final_corners(gray: np.ndarray, board_xy: np.ndarray, start: np.ndarray, win
     apart = np.linalg.norm(second - first, axis=1)
     bad = ~saddle | ~(apart <= o.corner_disagreement_max_px)
     for k in np.flatnonzero(bad):
-        log.info("corner %d not used: %s", k, "no saddle point in its window" if not saddle[k] else
-                 f"cornerSubPix and the symmetry fit put it {apart[k]:.2f} px apart (limit "
-                 f"{o.corner_disagreement_max_px:g} px, configs/detection.yaml corner_disagreement_max_px)")
+        why = ("no saddle point in its window" if not saddle[k] else
+               f"cornerSubPix and the symmetry fit put it {apart[k]:.2f} px apart (limit "
+               f"{o.corner_disagreement_max_px:g} px, configs/detection.yaml corner_disagreement_max_px)")
+        log.info("corner %d not used: %s", k, why)
+        if dropped is not None:
+            dropped.append((int(k), why))
     return np.where(bad[:, None], np.nan, second + shift)
 
 
@@ -128,7 +132,8 @@ def find_chessboard_fast(gray: np.ndarray, spec: ChessboardSpec, *, options: Det
 
 
 def detect_chessboard(gray: np.ndarray, spec: ChessboardSpec, *, options: DetectionOptions | None = None,
-                      budget: TimeBudget | None = None) -> tuple[np.ndarray, np.ndarray] | str:
+                      budget: TimeBudget | None = None, dropped: list | None = None
+                      ) -> tuple[np.ndarray, np.ndarray] | str:
     """(corner_ids, image points (N,2)) or a reason string.
 
     The searches run on the image, or on a reduced copy above ``search_max_megapixels``
@@ -136,10 +141,12 @@ def detect_chessboard(gray: np.ndarray, spec: ChessboardSpec, *, options: Detect
     from the square size (:func:`refine_chessboard`) and must pass the geometric check
     (:func:`.geometry.grid_check`). Corners that fail it are searched again by ``findChessboardCornersSB`` with
     EXHAUSTIVE | ACCURACY; corners that fail it again drop the view with the reason. ``budget`` (default:
-    ``time_budget_s``) skips the slower searches once spent: the view is dropped as timed out."""
+    ``time_budget_s``) skips the slower searches once spent: the view is dropped as timed out. ``dropped``:
+    a list that receives (corner id, reason) of the corners the returned view does not use."""
     o = options or default_options()
     budget = budget or TimeBudget(o.time_budget_s)
     size = (spec.cols, spec.rows)
+    notes: list = []
     search, scale = search_copy(gray, max_megapixels=o.search_max_megapixels)
     where = "" if np.all(scale == 1.0) else (f" (searched at {search.shape[1]}x{search.shape[0]}: the image is above "
                                      f"{o.search_max_megapixels:g} MP)")
@@ -152,10 +159,10 @@ def detect_chessboard(gray: np.ndarray, spec: ChessboardSpec, *, options: Detect
             return f"chessboard {spec.cols}x{spec.rows} not found{where}"
         coarse = corners.reshape(-1, 2)
     bxy = board_squares(spec)
-    pts = refine_chessboard(gray, search, scale, coarse, spec, o)
+    pts = refine_chessboard(gray, search, scale, coarse, spec, o, notes)
     check = _check(bxy, pts, o)
     if check.passed:
-        return _used(pts)
+        return _used(pts, notes, dropped)
     log.info("chessboard corners fail the geometric check (%s): searched again by the accurate detector", check.text())
     if budget.spent():
         return budget.timed_out(f"the accurate search after the geometric check failed ({check.text()})") + where
@@ -163,11 +170,12 @@ def detect_chessboard(gray: np.ndarray, spec: ChessboardSpec, *, options: Detect
     if not found:
         return (f"chessboard corners fail the geometric check ({check.text()}) and the accurate detector finds "
                 f"no board{where}")
-    pts = refine_chessboard(gray, search, scale, corners.reshape(-1, 2).astype(np.float64), spec, o)
+    notes.clear()  # the corners of the accurate search replace those of the first
+    pts = refine_chessboard(gray, search, scale, corners.reshape(-1, 2).astype(np.float64), spec, o, notes)
     again = _check(bxy, pts, o)
     if not again.passed:
         return f"chessboard corners fail the geometric check, also from the accurate detector: {again.text()}{where}"
-    return _used(pts)
+    return _used(pts, notes, dropped)
 
 
 def _check(board_xy: np.ndarray, pts: np.ndarray, options: DetectionOptions):
@@ -179,8 +187,11 @@ def _check(board_xy: np.ndarray, pts: np.ndarray, options: DetectionOptions):
     return replace(c, residual_px=res, limit_px=lim, worst=int(keep[c.worst]) if c.worst >= 0 else -1)
 
 
-def _used(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(corner ids, image points) of the corners that are used (not NaN)."""
+def _used(pts: np.ndarray, notes: list = (), dropped: list | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(corner ids, image points) of the corners that are used (not NaN); ``notes`` (the reasons of the
+    others) go to ``dropped`` when given."""
+    if dropped is not None:
+        dropped.extend(notes)
     ids = np.flatnonzero(np.isfinite(pts[:, 0]))
     return ids, pts[ids]
 
@@ -236,5 +247,6 @@ def normalize_chessboard_order(dets: dict, spec: ChessboardSpec, *, options: Det
             log.info("view %s: chessboard numbered from the other end; corner order reversed", vid)
             n = spec.n_corners  # corner k of one numbering is corner n - 1 - k of the other
             out[vid] = replace(d, corner_ids=(n - 1 - d.corner_ids)[::-1].copy(),
-                               image_points=d.image_points[::-1].copy(), order_cue=-c)
+                               image_points=d.image_points[::-1].copy(), order_cue=-c,
+                               dropped_corners=tuple(sorted((n - 1 - k, why) for k, why in d.dropped_corners)))
     return out

@@ -230,6 +230,12 @@ def _view_rows(res, ref, fits, centre, findings, image_size) -> list[dict]:
             kind = o.get("kind")
             sev = "info" if kind == "corners" else ("warn" if kind == "robot_pose" else "fail")
             flags.append({"severity": sev, "text": text})
+        by_reason: dict[str, list] = {}
+        for c in v.get("corners_dropped") or []:  # found by the detector, not used (result.json)
+            by_reason.setdefault(str(c.get("reason", "")), []).append(str(c.get("corner_id")))
+        for why, ids in by_reason.items():
+            flags.append({"severity": "info", "text": f"detector left out corner{'s' * (len(ids) > 1)} "
+                                                      f"{', '.join(ids)}: {why}"})
         for f in finding_by_view.get(vid, []):
             flags.append({"severity": f["severity"], "text": f["title"] + (f" ({f['code']})" if f["code"] else "")})
         rms = fit.rms_px if fit else _num(pv.get("rms_px", v.get("pnp_rms_px")))
