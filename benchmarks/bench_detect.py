@@ -58,7 +58,7 @@ def _one_stage():
     import handeye.detect.chessboard as chessboard
 
     two = chessboard.final_corners
-    chessboard.final_corners = lambda gray, bxy, start, win, o: refine_corners(gray, start, win, o)
+    chessboard.final_corners = lambda gray, bxy, start, win, o, dropped=None: refine_corners(gray, start, win, o)
     try:
         yield
     finally:

@@ -522,7 +522,7 @@ def test_the_second_stage_removes_the_aliasing_of_sharp_edges(hd_views, monkeypa
                                 lambda image, pts, half, iterations: (pts.copy(), np.ones(len(pts), bool)))
         if stages == "cornerSubPix only":  # ... and the image not smoothed either
             monkeypatch.setattr(chessboard, "final_corners",
-                                lambda gray, bxy, start, win, o: chessboard.refine_corners(gray, start, win, o))
+                                lambda gray, bxy, start, win, o, dropped=None: chessboard.refine_corners(gray, start, win, o))
         e = [_err_px(detect_chessboard(img, spec)[1], truth) for spec, img, truth in hd_views]
         errs[stages] = np.concatenate(e)
     rms = {k: float(np.sqrt(np.mean(e ** 2))) for k, e in errs.items()}
