@@ -161,12 +161,12 @@ def calibrate(s, options=None):
 
 
 KINEMATIC_ARM = "rm65"  # the simulator's arm (handeye.sim.robot_error.DEFAULT_ARM)
-def install(mode, model, seed, validated=False):
+def install(mode, model, seed, validated=False, n_views=20):
     from handeye.recal.loaded import load_result, result_from_refinement
 
     from handeye.refine import RefineOptions
 
-    s = session(mode=mode, model=model, seed=seed, n_views=20)
+    s = session(mode=mode, model=model, seed=seed, n_views=n_views)
     # the kinematic installs name their arm, as calibrate --robot does (the refinement models its DH errors)
     r = calibrate(s, RefineOptions(arm=KINEMATIC_ARM) if model == "kinematic" else None)
     val = None
@@ -278,7 +278,9 @@ def theory(inst, r_model, v, bump, *, n_dirs: int = 400) -> dict:
             mid = 0.5 * (lo + hi)
             lo, hi = (mid, hi) if avg(V(mid)) >= 0.95 else (lo, mid)
         scale = lo
-    model = replace(inst, cov_x=r_model.cov_x_6x6)
+    from handeye.recal.loaded import _joint
+
+    model = replace(inst, cov_x=r_model.cov_x_6x6, cov_x_intrinsics=_joint(r_model.cov_x_intrinsics))
     return dict(power=float(power_of(V1, bump[None])[0]), power_avg=avg(V1), power_model_avg=avg(V(1.0, model)),
                 ceiling_avg=avg(S_perfect_new), scale95=scale,
                 s0_mm=float(1e3 * np.sqrt(np.trace(S_perfect_new[3:, 3:]))),
@@ -295,13 +297,13 @@ def verify_trial(args) -> dict:
     from handeye.frames import se3_exp
     from handeye.recal.verify import verify_views
 
-    mode, model, seed, validated, poses = args
+    mode, model, seed, validated, poses, install_views = args
     try:
-        s, r, inst = install(mode, model, seed, validated)
+        s, r, inst = install(mode, model, seed, validated, install_views)
         if r.status != "ok":
             return dict(mode=mode, model=model, seed=seed, skipped=f"install: {r.failure_reason}")
         bump = random_bump(np.random.default_rng(seed + 7919))
-        out = dict(mode=mode, model=model, seed=seed, cov=inst.cov_source, poses=poses)
+        out = dict(mode=mode, model=model, seed=seed, cov=inst.cov_source, poses=poses, install_views=install_views)
         planned = planned_poses(inst, 6, model) if poses == "planned" else None
         for name, xi in (("still", np.zeros(6)), ("bumped", bump), ("bumped2", 2.0 * bump)):
             rig = (s.T_x_true @ se3_exp(xi), s.T_board_true)
@@ -435,7 +437,8 @@ def run_pool(fn, tasks, jobs, jsonl=None):
 
 
 def report_verify(rows) -> None:
-    print(f"verify: 6 views against a 20-view install, camera bumped {BUMP_MM:g} mm / {BUMP_DEG:g} deg; alpha 5 %; "
+    n = sorted({r.get("install_views", 20) for r in rows})
+    print(f"verify: 6 views against a {'/'.join(map(str, n))}-view install, camera bumped {BUMP_MM:g} mm / {BUMP_DEG:g} deg; alpha 5 %; "
           f"installed covariance: {rows[0]['cov'] if rows and 'cov' in rows[0] else 'cov_x_6x6'}")
     print(f"  {'model':<10}{'mode':<12}{'trials':>7}{'power':>8}{'false al.':>10}{'in 2 sig':>9}"
           f"{'sigma mm':>10}{'sigma deg':>10}{'time s':>8}{'power 2x':>9}")
@@ -545,6 +548,7 @@ def main() -> None:
     ap.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS)
     ap.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
     ap.add_argument("--first-seed", type=int, default=0)
+    ap.add_argument("--install-views", type=int, default=20, help="views of each simulated install (verify trials)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--validated", action="store_true",
                     help="verify and --prior trials: installs with the validation stage's verdict covariance (as "
@@ -570,7 +574,8 @@ def main() -> None:
         return
     seeds = range(a.first_seed, a.first_seed + a.trials)
     if a.trials:
-        tasks = [(mode, model, s, a.validated, a.poses) for model in a.models for mode in a.modes for s in seeds]
+        tasks = [(mode, model, s, a.validated, a.poses, a.install_views) for model in a.models for mode in a.modes
+                 for s in seeds]
         print(f"verify: {len(tasks)} trials", file=sys.stderr)
         rows = run_pool(verify_trial, tasks, a.jobs, a.jsonl)
         report_verify(rows)

@@ -119,6 +119,49 @@ def _spd(rng, scale):
     return scale * (A @ A.T + 6 * np.eye(6))
 
 
+def test_the_installed_joint_covariance_is_carried_to_the_verdict_covariances():
+    """result.json's X-intrinsics joint covariance is the model's; the verdict's X and intrinsics covariances are
+    larger (validated on real data). Loaded, the joint has the verdict's blocks, the model's canonical
+    correlations between X and the intrinsics, and stays positive definite, so that verify's joint test never
+    measures a change against the model's smaller intrinsics uncertainty."""
+    from handeye.recal.loaded import stretch
+
+    rng = np.random.default_rng(0)
+    names = ["fx", "fy", "cx", "cy"]
+    A = rng.normal(size=(10, 10)) * np.r_[[SIGMA_ROT] * 3, [SIGMA_TRANS] * 3, [0.5, 0.5, 0.4, 0.4]][:, None]
+    S = A @ A.T  # the model's joint covariance of (X tangent, fx fy cx cy)
+    d = fake_result(cov=S[:6, :6])
+    ref = d["refinement"]
+    ref["cov_x_intrinsics"] = {"intrinsics": names, "cross_6xk": S[:6, 6:].tolist(), "intrinsics_kxk": S[6:, 6:].tolist()}
+    # verdicts larger along some directions only (the generalised-eigenvalue maximum of the validation)
+    Vx = S[:6, :6] + 3.0 * np.outer(S[:6, 0], S[:6, 0]) / S[0, 0]
+    Vk = 2.0 ** 2 * S[6:, 6:]
+    ref["cov_x_6x6_verdict"] = Vx.tolist()
+    ref["intrinsics_cov_names"] = ["cx", "cy", "fx", "fy", "k1"]  # another order, one more parameter
+    P = np.zeros((5, 5))
+    P[:4, :4] = Vk[np.ix_([2, 3, 0, 1], [2, 3, 0, 1])]
+    P[4, 4] = 1e-4
+    ref["cov_intrinsics_verdict"] = P.tolist()
+    n, C, K = load_result(d).cov_x_intrinsics
+    assert list(n) == names
+    np.testing.assert_allclose(K, Vk, rtol=1e-9, atol=1e-12)
+    J = np.block([[Vx, C], [C.T, K]])
+    assert np.linalg.eigvalsh(J).min() > 0
+    # canonical correlations (singular values of Lx^-1 C Lk^-T) are the model's
+    def canon(Sxx, Sxk, Skk):
+        return np.linalg.svd(np.linalg.solve(np.linalg.cholesky(Sxx), Sxk) @ np.linalg.inv(np.linalg.cholesky(Skk)).T,
+                             compute_uv=False)
+    np.testing.assert_allclose(canon(Vx, C, K), canon(S[:6, :6], S[:6, 6:], S[6:, 6:]), rtol=1e-7)
+    # the stretch moves nothing where the verdict is the model's
+    np.testing.assert_allclose(stretch(S[:6, :6], S[:6, :6]), np.eye(6), atol=1e-9)
+    # no verdict in the result: the model's joint as stored
+    for k in ("cov_x_6x6_verdict", "intrinsics_cov_names", "cov_intrinsics_verdict"):
+        del ref[k]
+    n, C, K = load_result(d).cov_x_intrinsics
+    np.testing.assert_allclose(C, S[:6, 6:], rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(K, S[6:, 6:])
+
+
 def test_drift_test_is_the_wald_statistic_and_drops_unconstrained_directions():
     from handeye.recal.verify import drift_test
 

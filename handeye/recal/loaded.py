@@ -6,7 +6,11 @@ present, else ``refinement.cov_x_6x6`` (the model's); its parametrisation must b
 metres, along the camera axes). The same for the intrinsics (``intrinsics_sigma_verdict`` when present,
 else ``intrinsics_sigma``; sigmas of the free intrinsics only: a fixed or given intrinsic has sigma 0).
 The model's joint covariance of X and the free intrinsics (``refinement.cov_x_intrinsics``) is read
-too: verify needs it when the new views share the installed intrinsics.
+too: verify needs it when the new views share the installed intrinsics. When the verdict covariances
+differ from the model's, the joint is carried to them (:func:`verdict_joint`): its X block becomes the
+verdict's X covariance and its intrinsics block the verdict's intrinsics covariance, the model's
+correlation between the two kept, so that a test never mixes the verdict's X with the model's smaller
+intrinsics uncertainty.
 """
 from __future__ import annotations
 
@@ -45,8 +49,8 @@ class LoadedResult:
     robot_sigma_mm: Optional[float]
     robot_sigma_deg: Optional[float]
     raw: dict = field(repr=False, default_factory=dict)
-    # the model's joint covariance of X's tangent and the free intrinsics (refinement.cov_x_intrinsics):
-    # (names, cross (6,k), intrinsics (k,k)); None in results without it
+    # the joint covariance of X's tangent and the free intrinsics (refinement.cov_x_intrinsics, carried to the
+    # verdict covariances by verdict_joint): (names, cross (6,k), intrinsics (k,k)); None in results without it
     cov_x_intrinsics: Optional[tuple] = field(repr=False, default=None)
 
     @property
@@ -120,7 +124,53 @@ def load_result(result: ResultLike) -> LoadedResult:
         intrinsics_source=(intr_d or {}).get("source"), target=d.get("target"), image_size=size,
         sigma_px=_float(ref.get("sigma_px")), robot_sigma_mm=_float(ref.get("robot_sigma_mm")),
         robot_sigma_deg=_float(ref.get("robot_sigma_deg")), raw=d,
-        cov_x_intrinsics=_joint(ref.get("cov_x_intrinsics")))
+        cov_x_intrinsics=verdict_joint(_joint(ref.get("cov_x_intrinsics")), cov_x_model=_matrix(ref.get("cov_x_6x6"), (6, 6)),
+                                       cov_x=cov, intrinsics_verdict=_intrinsics_verdict(ref)))
+
+
+def stretch(cov_model: np.ndarray, cov_target: np.ndarray) -> np.ndarray:
+    """The map ``A`` with ``A cov_model A^T = cov_target`` that moves least: with ``cov_model = L L^T`` and
+    ``L^-1 cov_target L^-T = U D U^T``, ``A = L U D^(1/2) U^T L^-1`` (the identity where the two agree; the
+    verdict covariance of :mod:`handeye.refine.validation` differs from the model's only along the generalised
+    eigenvectors whose eigenvalue exceeds 1)."""
+    L = np.linalg.cholesky(0.5 * (cov_model + cov_model.T))
+    W = np.linalg.solve(L, np.linalg.solve(L, 0.5 * (cov_target + cov_target.T)).T)
+    d, U = np.linalg.eigh(0.5 * (W + W.T))
+    return L @ (U * np.sqrt(np.maximum(d, 0.0))) @ U.T @ np.linalg.inv(L)
+
+
+def verdict_joint(joint: Optional[tuple], *, cov_x_model: Optional[np.ndarray], cov_x: Optional[np.ndarray],
+                  intrinsics_verdict: Optional[tuple]) -> Optional[tuple]:
+    """The model's joint covariance ``(names, cross (6,k), K (k,k))`` of X and the free intrinsics carried to the
+    verdict covariances: ``J S J^T`` with ``J = diag(A, B)``, ``A`` = :func:`stretch` of the model's X covariance
+    ``cov_x_model`` to the verdict's ``cov_x``, ``B`` of ``K`` to the verdict's intrinsics covariance
+    (``intrinsics_verdict``: (names, (n,n)) covering ``names``). Positive definite whenever the model's joint
+    is, with the verdict's blocks on the diagonal and the model's canonical correlations between X and the
+    intrinsics. A block without its verdict covariance stays the model's."""
+    if joint is None:
+        return None
+    names, C, K = joint
+    try:
+        A = np.eye(6) if cov_x_model is None or cov_x is None else stretch(cov_x_model, cov_x)
+        B = np.eye(len(names))
+        if intrinsics_verdict is not None:
+            vn, V = intrinsics_verdict
+            if set(names) <= set(vn):
+                idx = [vn.index(n) for n in names]
+                B = stretch(K, V[np.ix_(idx, idx)])
+    except np.linalg.LinAlgError:  # a covariance that is not positive definite: the model's joint as stored
+        return joint
+    K2 = B @ K @ B.T
+    return names, A @ C @ B.T, 0.5 * (K2 + K2.T)
+
+
+def _intrinsics_verdict(ref: dict) -> Optional[tuple]:
+    """(names, covariance) of refinement.cov_intrinsics_verdict with its intrinsics_cov_names; None if absent."""
+    names = ref.get("intrinsics_cov_names")
+    if not isinstance(names, list) or not names:
+        return None
+    V = _matrix(ref.get("cov_intrinsics_verdict"), (len(names), len(names)))
+    return None if V is None else ([str(n) for n in names], V)
 
 
 def _joint(j) -> Optional[tuple]:
@@ -159,7 +209,8 @@ VAGUE_COV_X = np.eye(6)
 def installed_prior(installed: LoadedResult, *, session_intrinsics: bool, cov_x: Optional[np.ndarray] = None):
     """(Prior or None, names of intrinsics to hold) from the installed result: X with ``cov_x``
     (default: the installed covariance) and, unless the session brings its own intrinsics, the
-    installed intrinsics with their sigmas (those without a sigma are held at the installed value)."""
+    installed intrinsics with their sigmas (those without a sigma are held at the installed value) and, where the
+    result has the joint covariance, the correlations among them (fx and fy move together)."""
     from ..refine.options import Prior
 
     if installed.cov_x is None:
@@ -171,6 +222,11 @@ def installed_prior(installed: LoadedResult, *, session_intrinsics: bool, cov_x:
     sig = np.array([installed.intrinsics_sigma.get(n, 0.0) for n in INTRINSIC_NAMES])
     fixed = tuple(n for n, s in zip(INTRINSIC_NAMES, sig) if not s > 0)
     cov_k = np.diag(np.where(sig > 0, sig, 1.0) ** 2)
+    if installed.cov_x_intrinsics is not None:
+        names, _, K = installed.cov_x_intrinsics
+        idx = [INTRINSIC_NAMES.index(n) for n in names]
+        if all(sig[i] > 0 for i in idx) and np.allclose(np.sqrt(np.diag(K)), sig[idx], rtol=1e-6):
+            cov_k[np.ix_(idx, idx)] = K  # the same sigmas, with their correlations
     return Prior(T_x=installed.T_x, cov_x=cov, intrinsics=installed.intrinsics, cov_intrinsics=cov_k), fixed
 
 
