@@ -126,6 +126,27 @@ def gaussian_prior(*, key: int, mean: np.ndarray, cov: np.ndarray) -> gtsam.Nonl
     return gtsam.PriorFactorVector(key, mean, noise)
 
 
+def joint_gaussian_prior(*, key_pose: int, key_vector: int, mean_pose: np.ndarray, mean_vector: np.ndarray,
+                         cov: np.ndarray) -> gtsam.NonlinearFactor:
+    """Gaussian prior on a Pose3 and a Vector together, with their cross-covariance (e.g. an earlier calibration's
+    T_x and intrinsics, whose errors are correlated): error ``(Log(inv(mean_pose) · T), v - mean_vector)``
+    (6 + k,) ~ N(0, ``cov``), the pose's block in its right tangent, rotation first."""
+    mean_inv = gtsam.Pose3(np.asarray(mean_pose, float)).inverse()
+    m = np.asarray(mean_vector, float)
+    k = m.size
+    noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, float))
+    H_v = np.asfortranarray(np.vstack([np.zeros((6, k)), np.eye(k)]))
+
+    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H) -> np.ndarray:
+        D = mean_inv.compose(v.atPose3(key_pose))
+        if H is not None:
+            H[0] = np.asfortranarray(np.vstack([gtsam.Pose3.LogmapDerivative(D), np.zeros((k, 6))]))
+            H[1] = H_v
+        return np.concatenate([gtsam.Pose3.Logmap(D), np.asarray(v.atVector(key_vector), float) - m])
+
+    return gtsam.CustomFactor(noise, [key_pose, key_vector], error_func)
+
+
 def kinematic_robot_prior(*, key_robot: int, key_dh: Optional[int], T_base_end_reported: np.ndarray,
                           J_dh: np.ndarray, cov: np.ndarray, robust_k: Optional[float] = None) -> gtsam.NonlinearFactor:
     """Prior of the kinematic robot error model (:mod:`handeye.refine.robot_model`) tying the true robot

@@ -239,6 +239,44 @@ def test_prior_on_x_tight_pins_it_loose_changes_nothing(mode):
         _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, prior=Prior(T_p, np.eye(6), s.intrinsics, None))
 
 
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_a_joint_prior_on_x_and_the_intrinsics_keeps_their_correlation(mode):
+    """An earlier calibration's X and intrinsics are correlated: as one joint Gaussian prior that dominates the
+    data, the refinement sits on its means and reports its covariance, cross terms included; without the
+    cross-covariance (zeros) it is the two separate priors."""
+    from handeye.camera import INTRINSIC_NAMES
+
+    s = make_corner_session(mode=mode, n_views=10, seed=12, noise_px=0.3)
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(15, 15))
+    R = A @ A.T + 3 * np.eye(15)
+    d = 1.0 / np.sqrt(np.diag(R))
+    scale = np.r_[[1e-6] * 6, [1e-3] * 4, [1e-6] * 5]  # far tighter than 10 views tell (rad, m, px, -)
+    J = (scale * d)[:, None] * R * (scale * d)[None, :]
+    T_p = s.T_x_true @ se3_exp(np.r_[1e-4, -2e-4, 1e-4, 5e-4, 2e-4, -3e-4])
+    k_p = s.intrinsics.as_vector() + np.r_[0.5, -0.5, 0.4, -0.3, [0.0] * 5]
+    K_p = Intrinsics.from_vector(k_p, s.intrinsics.width, s.intrinsics.height)
+    r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics,
+                prior=Prior(T_p, J[:6, :6], K_p, J[6:, 6:], J[:6, 6:]))
+    assert r.status == "ok", r.failure_reason
+    assert np.abs(_xi_err(r.T_x, T_p)).max() < 1e-5
+    names = r.cov_x_intrinsics["intrinsics"]
+    idx = [INTRINSIC_NAMES.index(n) for n in names]
+    assert {"fx", "fy", "cx", "cy"} <= set(names)
+    np.testing.assert_allclose(r.intrinsics.as_vector()[idx], k_p[idx], atol=1e-2)
+    cross = np.asarray(r.cov_x_intrinsics["cross_6xk"])
+    np.testing.assert_allclose(cross, J[:6, 6:][:, idx], rtol=0.05, atol=0.02 * np.abs(cross).max())
+    # zero cross-covariance: the same as the two separate priors
+    a = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, prior=Prior(T_p, np.eye(6) * 1e-6, K_p, np.eye(9),
+                                                                         np.zeros((6, 9))))
+    b = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, prior=Prior(T_p, np.eye(6) * 1e-6, K_p, np.eye(9)))
+    assert np.abs(_xi_err(a.T_x, b.T_x)).max() < 1e-9
+    np.testing.assert_allclose(a.cov_x_6x6, b.cov_x_6x6, rtol=1e-6, atol=1e-15)
+    with pytest.raises(ConfigError, match="prior.cov_x_intrinsics"):
+        _refine(s, s.T_x_true, s.T_board_true, s.intrinsics,
+                prior=Prior(T_p, J[:6, :6], K_p, J[6:, 6:], 10 * J[:6, 6:] + 1.0))
+
+
 def test_to_dict_is_json_ready_and_names_frames():
     s = make_corner_session(mode="eye_to_hand", n_views=8, seed=1, noise_px=0.3, outlier_views=1)
     r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics)

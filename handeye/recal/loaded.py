@@ -210,7 +210,8 @@ def installed_prior(installed: LoadedResult, *, session_intrinsics: bool, cov_x:
     """(Prior or None, names of intrinsics to hold) from the installed result: X with ``cov_x``
     (default: the installed covariance) and, unless the session brings its own intrinsics, the
     installed intrinsics with their sigmas (those without a sigma are held at the installed value) and, where the
-    result has the joint covariance, the correlations among them (fx and fy move together)."""
+    result has the joint covariance, the correlations among them (fx and fy move together) and, when X's prior
+    is the installed covariance, their correlation with X (one joint prior)."""
     from ..refine.options import Prior
 
     if installed.cov_x is None:
@@ -222,12 +223,17 @@ def installed_prior(installed: LoadedResult, *, session_intrinsics: bool, cov_x:
     sig = np.array([installed.intrinsics_sigma.get(n, 0.0) for n in INTRINSIC_NAMES])
     fixed = tuple(n for n, s in zip(INTRINSIC_NAMES, sig) if not s > 0)
     cov_k = np.diag(np.where(sig > 0, sig, 1.0) ** 2)
+    cross = None
     if installed.cov_x_intrinsics is not None:
-        names, _, K = installed.cov_x_intrinsics
+        names, C, K = installed.cov_x_intrinsics
         idx = [INTRINSIC_NAMES.index(n) for n in names]
         if all(sig[i] > 0 for i in idx) and np.allclose(np.sqrt(np.diag(K)), sig[idx], rtol=1e-6):
             cov_k[np.ix_(idx, idx)] = K  # the same sigmas, with their correlations
-    return Prior(T_x=installed.T_x, cov_x=cov, intrinsics=installed.intrinsics, cov_intrinsics=cov_k), fixed
+            if cov_x is None:
+                cross = np.zeros((6, len(INTRINSIC_NAMES)))
+                cross[:, idx] = C
+    return Prior(T_x=installed.T_x, cov_x=cov, intrinsics=installed.intrinsics, cov_intrinsics=cov_k,
+                 cov_x_intrinsics=cross), fixed
 
 
 def result_from_refinement(refined, *, target, validation=None) -> dict:

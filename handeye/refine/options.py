@@ -55,12 +55,15 @@ class Prior:
     ``xi = (omega [rad], v [m])``, the parametrisation of ``RefineResult.cov_x_6x6``).
     ``intrinsics`` / ``cov_intrinsics`` (9,9) in the order of ``INTRINSIC_NAMES``: a prior on the
     free intrinsics (only their rows and columns are used); it adds to ``intrinsics="prior"``'s
-    factory prior when both are given."""
+    factory prior when both are given. ``cov_x_intrinsics`` (6,9): the cross-covariance of X's tangent and
+    the intrinsics (an earlier calibration's errors of the two are correlated: a principal point error tilts
+    X); with it the two priors are one joint Gaussian."""
 
     T_x: np.ndarray
     cov_x: np.ndarray
     intrinsics: Optional[Intrinsics] = None
     cov_intrinsics: Optional[np.ndarray] = None
+    cov_x_intrinsics: Optional[np.ndarray] = None
 
 
 @dataclass(frozen=True)
@@ -164,6 +167,16 @@ def check_prior(p: "Prior", bad) -> None:
     if p.cov_intrinsics is not None and not _is_covariance(p.cov_intrinsics, len(INTRINSIC_NAMES)):
         bad("prior.cov_intrinsics", "a symmetric positive definite 9x9 covariance in the order "
             + ", ".join(INTRINSIC_NAMES), np.shape(p.cov_intrinsics))
+    if p.cov_x_intrinsics is not None:
+        nk = len(INTRINSIC_NAMES)
+        if p.cov_intrinsics is None or np.shape(p.cov_x_intrinsics) != (6, nk):
+            bad("prior.cov_x_intrinsics", f"a 6x{nk} cross-covariance of X and the intrinsics, with cov_intrinsics",
+                np.shape(p.cov_x_intrinsics))
+        joint = np.block([[np.asarray(p.cov_x, float), np.asarray(p.cov_x_intrinsics, float)],
+                          [np.asarray(p.cov_x_intrinsics, float).T, np.asarray(p.cov_intrinsics, float)]])
+        if not _is_covariance(joint, 6 + nk):
+            bad("prior.cov_x_intrinsics", "a cross-covariance that keeps the joint covariance of X and the "
+                "intrinsics positive definite", "a joint covariance that is not")
 
 
 def check_T(T, what: str) -> np.ndarray:

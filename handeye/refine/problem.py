@@ -21,8 +21,8 @@ from typing import Optional, Sequence
 import gtsam
 import numpy as np
 
-from handeye.factors.gtsam_factors import (gaussian_prior, intrinsics_prior, kinematic_robot_prior,
-                                           robot_pose_prior, view_reprojection_factor)
+from handeye.factors.gtsam_factors import (gaussian_prior, intrinsics_prior, joint_gaussian_prior,
+                                           kinematic_robot_prior, robot_pose_prior, view_reprojection_factor)
 from handeye.factors.reprojection import stacked_chain_residual
 
 from ..camera import INTRINSIC_NAMES, Intrinsics
@@ -125,12 +125,16 @@ class Problem:
         # options.prior: Gaussian priors on T_x and on the free intrinsics (e.g. an earlier calibration)
         self.prior_x = None  # (T_x of the prior (4,4), its covariance (6,6))
         self.prior_k = None  # (mean (nk,), covariance (nk, nk)) of the free intrinsics
+        self.prior_cov_xk = None  # (6+nk, 6+nk): the two as one joint Gaussian (prior.cov_x_intrinsics given)
         if options.prior is not None:
             p = options.prior
             self.prior_x = (check_T(p.T_x, "prior T_x"), np.asarray(p.cov_x, float))
             if p.intrinsics is not None and self.free.size:
                 self.prior_k = (p.intrinsics.as_vector()[self.free].astype(float),
                                 np.asarray(p.cov_intrinsics, float)[np.ix_(self.free, self.free)])
+                if p.cov_x_intrinsics is not None:
+                    C = np.asarray(p.cov_x_intrinsics, float)[:, self.free]
+                    self.prior_cov_xk = np.block([[self.prior_x[1], C], [C.T, self.prior_k[1]]])
         self.robot_var = options.robot_noise != "none"
         self.kind = resolve_kind(options, self.views)
         self.kin = (build_kinematic_model(options, self.kind, self.views, self.reported)
@@ -299,10 +303,14 @@ class Problem:
         if self.prior_sig is not None and not pixel_only:
             g.add(intrinsics_prior(key_intrinsics=KEY_INTRINSICS, prior_values=self.k_given[self.free],
                                    sigmas=self.prior_sig))
-        if self.prior_x is not None and not pixel_only:
-            g.add(gaussian_prior(key=KEY_X, mean=self.prior_x[0], cov=self.prior_x[1]))
-        if self.prior_k is not None and not pixel_only:
-            g.add(gaussian_prior(key=KEY_INTRINSICS, mean=self.prior_k[0], cov=self.prior_k[1]))
+        if self.prior_cov_xk is not None and not pixel_only:
+            g.add(joint_gaussian_prior(key_pose=KEY_X, key_vector=KEY_INTRINSICS, mean_pose=self.prior_x[0],
+                                       mean_vector=self.prior_k[0], cov=self.prior_cov_xk))
+        else:
+            if self.prior_x is not None and not pixel_only:
+                g.add(gaussian_prior(key=KEY_X, mean=self.prior_x[0], cov=self.prior_x[1]))
+            if self.prior_k is not None and not pixel_only:
+                g.add(gaussian_prior(key=KEY_INTRINSICS, mean=self.prior_k[0], cov=self.prior_k[1]))
         return g, v, robot_keys
 
     def solve(self, *, robust: bool):
@@ -333,7 +341,7 @@ class Problem:
             W = np.diag(1.0 / self.prior_sig ** 2)
             H[ks, ks] += W
             g[ks] += W @ (self.k[self.free] - self.k_given[self.free])
-        if self.prior_k is not None:
+        if self.prior_k is not None and self.prior_cov_xk is None:
             W = np.linalg.inv(self.prior_k[1])
             H[ks, ks] += W
             g[ks] += W @ (self.k[self.free] - self.prior_k[0])
@@ -345,9 +353,17 @@ class Problem:
             T_p, cov = self.prior_x
             r = tangent_difference(T_p, self.T_x)
             J = tangent_jacobian(lambda T: tangent_difference(T_p, T), self.T_x)
-            JW = J.T @ np.linalg.inv(cov)
-            H[:6, :6] += JW @ J
-            g[:6] += JW @ r
+            if self.prior_cov_xk is None:
+                JW = J.T @ np.linalg.inv(cov)
+                H[:6, :6] += JW @ J
+                g[:6] += JW @ r
+            else:  # X and the free intrinsics as one joint Gaussian
+                idx = np.r_[0:6, N_POSES:N_POSES + self.free.size]
+                Jj = np.zeros((idx.size, idx.size))
+                Jj[:6, :6], Jj[6:, 6:] = J, np.eye(self.free.size)
+                JW = Jj.T @ np.linalg.inv(self.prior_cov_xk)
+                H[np.ix_(idx, idx)] += JW @ Jj
+                g[idx] += JW @ np.r_[r, self.k[self.free] - self.prior_k[0]]
         return H, g
 
     # -- information
