@@ -3,7 +3,9 @@
 The earlier ``X0`` (covariance ``S0``, the one its verdict uses) enters the refinement as a Gaussian
 prior through :class:`handeye.refine.options.Prior`, and so do the earlier intrinsics with their sigmas
 (the session starts from them; those without a sigma are held), unless the session brings its own:
-one recipe with ``handeye verify``, :func:`handeye.recal.loaded.installed_prior`. A few new views then
+one recipe with ``handeye verify``, :func:`handeye.recal.loaded.installed_prior`. With the earlier
+result's joint covariance of X and the intrinsics (carried to its verdict covariances) the two are one
+joint Gaussian prior: an earlier principal point error and the tilt of X it caused stay tied. A few new views then
 update the calibration instead of replacing it.
 
 Whether the data contradict the prior is ``handeye verify``'s test on the same views
