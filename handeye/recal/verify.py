@@ -1,9 +1,9 @@
 """Verify an installed calibration with a few new views, without re-solving it.
 
 Model. The installed result gives ``X0`` with covariance ``S0`` (the one its verdict uses), the
-intrinsics ``K0`` with their sigmas and the model's joint covariance of X and the free intrinsics
+intrinsics ``K0`` with their sigmas and the joint covariance of X and the free intrinsics
 (``refinement.cov_x_intrinsics``: the two errors are strongly correlated, a principal point error tilts
-X). The new views are refined (:func:`handeye.refine.refine`, the same graph, outlier decisions and
+X; carried to the verdict's X and intrinsics covariances, :func:`handeye.recal.loaded.verdict_joint`). The new views are refined (:func:`handeye.refine.refine`, the same graph, outlier decisions and
 noise estimation as a calibration) with the installed intrinsics as a Gaussian prior
 (:class:`handeye.refine.options.Prior`; the session's own intrinsics are held instead when it brings
 them), X free (the prior hook's X term is vague: 1 rad, 1 m), the board pose a free nuisance unknown,
