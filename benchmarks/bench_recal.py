@@ -330,6 +330,11 @@ def verify_trial(args) -> dict:
         return out
     except HandeyeError as e:
         return dict(mode=mode, model=model, seed=seed, skipped=str(e)[:100])
+    except Exception as e:  # noqa: BLE001 - a crash is counted with its traceback, not allowed to stop the run
+        import traceback
+
+        return dict(mode=mode, model=model, seed=seed, skipped=f"crashed: {type(e).__name__}: {e}"[:100],
+                    traceback=traceback.format_exc())
 
 
 def compare_trial(args) -> dict:

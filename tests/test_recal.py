@@ -423,3 +423,18 @@ def test_collect_verify_against_refuses_another_mode_in_one_line(rendered, tmp_p
     rc = main(["collect", str(tmp_path / "d"), "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim",
                "--sim-bump", "1", "0.1"])
     assert rc == 2 and "--verify-against" in capsys.readouterr().err
+
+
+def test_the_plan_inverts_one_views_rank_deficient_information():
+    """One view's information about (X, board) has rank 6 and entries up to ~1e12: the plan's covariance of X
+    is finite and huge along what the view cannot tell, and a full-rank information is inverted exactly."""
+    from handeye.recal.plan import x_covariance
+
+    rng = np.random.default_rng(3)
+    J = rng.normal(size=(6, 12)) * np.r_[[1e3] * 6, [1e6] * 6]  # rad and m columns, like pixels per unit
+    J[:, 6:] = J[:, :6] @ rng.normal(size=(6, 6))  # the board's effect a mix of X's: rank 6
+    info = J.T @ J
+    S = x_covariance(info)
+    assert np.all(np.isfinite(S)) and np.linalg.eigvalsh(S).max() > 1e3
+    full = info + np.diag(np.r_[[1e2] * 12])
+    np.testing.assert_allclose(x_covariance(full), np.linalg.inv(full + 1e-6 * np.eye(12))[:6, :6], rtol=1e-6)

@@ -103,8 +103,12 @@ def test_power(nc: float, *, alpha: float, dof: int = 6) -> float:
 
 
 def x_covariance(info: np.ndarray) -> np.ndarray:
-    """Covariance (6,6) of X from the summed information (12,12) of (X, board), the board marginalised."""
-    return np.linalg.inv(info + _FLOOR_INFO * np.eye(12))[:6, :6]
+    """Covariance (6,6) of X from the summed information (12,12) of (X, board), the board marginalised.
+    Inverted by eigenvalues, each at least the floor: one view's information has rank 6 (it sees X and the
+    board only together) and entries up to ~1e12 (1/m^2), so a plain inverse of it plus the floor can meet
+    an exactly zero pivot."""
+    w, V = np.linalg.eigh(0.5 * (info + info.T))
+    return ((V / np.maximum(w + _FLOOR_INFO, _FLOOR_INFO)) @ V.T)[:6, :6]
 
 
 def installed_poses(installed: LoadedResult) -> list[np.ndarray]:
