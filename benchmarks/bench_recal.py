@@ -241,9 +241,10 @@ def scaled_install(inst, c: float):
     with ``1/c**2`` times the views of the same kind."""
     from dataclasses import replace
 
-    j = inst.cov_x_intrinsics
+    j, dh = inst.cov_x_intrinsics, inst.dh_joint
     return replace(inst, cov_x=c ** 2 * inst.cov_x,
-                   cov_x_intrinsics=None if j is None else (j[0], c ** 2 * j[1], c ** 2 * j[2]))
+                   cov_x_intrinsics=None if j is None else (j[0], c ** 2 * j[1], c ** 2 * j[2]),
+                   dh_joint=None if dh is None else (dh[0], c ** 2 * dh[1], c ** 2 * dh[2], c ** 2 * dh[3]))
 
 
 def theory(inst, r_model, v, bump, *, n_dirs: int = 400) -> dict:
@@ -256,17 +257,23 @@ def theory(inst, r_model, v, bump, *, n_dirs: int = 400) -> dict:
     from dataclasses import replace
 
     from handeye.recal.loaded import VAGUE_COV_X, installed_prior
-    from handeye.recal.verify import test_refined
+    from handeye.recal.verify import installed_robot_model, test_refined, with_installed_dh
 
     prior, _ = installed_prior(inst, session_intrinsics=False, cov_x=VAGUE_COV_X)
+    prior = with_installed_dh(prior, inst, installed_robot_model(inst))  # as verify_views builds it
     dirs = np.array([random_bump(np.random.default_rng(k)) for k in range(n_dirs)])
 
     def V(c, i=inst):
         return test_refined(scaled_install(i, c), v.refined, prior, min_variance_share=1e-3).change_cov
 
     avg = lambda S: float(np.mean(power_of(S, dirs)))  # noqa: E731
-    j = inst.cov_x_intrinsics
-    S_perfect_new = inst.cov_x - (j[1] @ np.linalg.solve(j[2], j[1].T) if j is not None else 0.0)
+    j, dh = inst.cov_x_intrinsics, inst.dh_joint
+    S_perfect_new = inst.cov_x
+    if j is not None:  # X given what the new views share with the install: the intrinsics (and the DH offsets)
+        C, K = j[1], j[2]
+        if dh is not None and prior.dh_offsets is not None:
+            C, K = np.hstack([C, dh[1]]), np.block([[K, dh[2]], [dh[2].T, dh[3]]])
+        S_perfect_new = inst.cov_x - C @ np.linalg.solve(K, C.T)
     V1, V0 = V(1.0), V(1e-3)
     if avg(V0) < 0.95:
         scale = 0.0
@@ -278,9 +285,11 @@ def theory(inst, r_model, v, bump, *, n_dirs: int = 400) -> dict:
             mid = 0.5 * (lo + hi)
             lo, hi = (mid, hi) if avg(V(mid)) >= 0.95 else (lo, mid)
         scale = lo
-    from handeye.recal.loaded import _joint
+    from handeye.recal.loaded import _joints
 
-    model = replace(inst, cov_x=r_model.cov_x_6x6, cov_x_intrinsics=_joint(r_model.cov_x_intrinsics))
+    # the model's covariances throughout (X, the intrinsics, the DH offsets), as the refinement gave them
+    model = replace(inst, cov_x=r_model.cov_x_6x6, **_joints({"cov_x_intrinsics": r_model.cov_x_intrinsics},
+                                                           r_model.cov_x_6x6))
     return dict(power=float(power_of(V1, bump[None])[0]), power_avg=avg(V1), power_model_avg=avg(V(1.0, model)),
                 ceiling_avg=avg(S_perfect_new), scale95=scale,
                 s0_mm=float(1e3 * np.sqrt(np.trace(S_perfect_new[3:, 3:]))),

@@ -55,7 +55,10 @@ def closed_forms(s):
 
 
 def refine_views(s):
-    return [RefineView(vid, ids, pts, s.T_base_end_reported[k])
+    """The session's views as the refinement takes them, with the encoder readings when the simulated arm
+    recorded them (the kinematic robot error model), as a session with joint angles gives them."""
+    q = getattr(s, "joints_encoder", None)
+    return [RefineView(vid, ids, pts, s.T_base_end_reported[k], None if q is None else q[k])
             for k, (vid, ids, pts) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points))]
 
 

@@ -53,7 +53,6 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import replace
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -87,8 +86,7 @@ def one_session(args: tuple) -> dict:
     est = closed["tsai"]
     views = refine_views(s)
     ro = RefineOptions()
-    if s.joints_encoder is not None:  # the session records joint angles and names its arm
-        views = [replace(v, joint_angles=s.joints_encoder[k]) for k, v in enumerate(views)]
+    if s.joints_encoder is not None:  # the session records joint angles (refine_views passes them): its arm named
         ro = RefineOptions(arm=arm, robot_model=robot_model)
     r = refine(mode=mode, object_points=s.target.object_points(), views=views, intrinsics=intr,
                T_x0=est.T_x, T_board0=est.T_board, options=ro, starts=closed)

@@ -438,3 +438,47 @@ def test_the_plan_inverts_one_views_rank_deficient_information():
     assert np.all(np.isfinite(S)) and np.linalg.eigvalsh(S).max() > 1e3
     full = info + np.diag(np.r_[[1e2] * 12])
     np.testing.assert_allclose(x_covariance(full), np.linalg.inv(full + 1e-6 * np.eye(12))[:6, :6], rtol=1e-6)
+
+
+def test_verify_shares_the_installed_arms_dh_offsets():
+    """A kinematic install records its DH offsets with their covariance with X and the intrinsics; verify gives
+    them to the new views as their prior and takes them apart in the test like the shared intrinsics. The
+    arm's systematic error is then known, not a fresh unknown: the change of X is far more precise than with
+    the arm's own prior, an undisturbed rig is not called drifted and a 2 mm / 0.2 deg bump is (6 random
+    views; the planned ones of benchmarks/bench_recal.py detect half of it)."""
+    from dataclasses import replace
+
+    from handeye.frames import se3_exp
+    from handeye.recal.loaded import result_from_refinement
+    from handeye.recal.verify import verify_views
+    from handeye.refine import RefineOptions, RefineView, refine
+    from handeye.sim.corners import make_corner_session
+
+    def views(s):
+        return [RefineView(v, ids, pts, s.T_base_end_reported[k], s.joints_encoder[k])
+                for k, (v, ids, pts) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points))]
+
+    s = make_corner_session(mode="eye_in_hand", n_views=20, seed=3, noise_px=0.3, robot_error="kinematic")
+    r = refine(mode=s.mode, object_points=s.target.object_points(), views=views(s), intrinsics=s.intrinsics,
+               T_x0=s.T_x_true, T_board0=s.T_board_true, options=RefineOptions(arm="rm65"))
+    assert r.status == "ok", r.failure_reason
+    inst = load_result(result_from_refinement(r, target=s.target))
+    dh, C, K = inst.dh_joint[0], inst.cov_x_intrinsics[1], inst.cov_x_intrinsics[2]
+    m, k = len(dh), len(inst.cov_x_intrinsics[0])
+    assert m == 24 and inst.dh_joint[1].shape == (6, m) and inst.dh_joint[2].shape == (k, m)
+    J = np.block([[inst.cov_x, C, inst.dh_joint[1]], [C.T, K, inst.dh_joint[2]],
+                  [inst.dh_joint[1].T, inst.dh_joint[2].T, inst.dh_joint[3]]])
+    assert np.linalg.eigvalsh(J).min() > 0
+    results = {}
+    for name, xi in (("still", np.zeros(6)), ("bumped", np.r_[np.radians(0.2) * np.array([0.6, 0.0, 0.8]),
+                                                               2e-3 * np.array([0.0, 0.8, -0.6])])):
+        new = make_corner_session(mode="eye_in_hand", n_views=6, seed=40, noise_px=0.3, robot_error="kinematic",
+                                  rig=(s.T_x_true @ se3_exp(xi), s.T_board_true), robot_model_seed=3)
+        obj = s.target.object_points()
+        results[name] = verify_views(inst, views=views(new), object_points=obj)
+        if name == "still":
+            alone = verify_views(replace(inst, dh_joint=None), views=views(new), object_points=obj)
+    shared, own = results["still"].test.change_cov, alone.test.change_cov
+    assert np.trace(shared[3:, 3:]) < 0.8 * np.trace(own[3:, 3:])  # the arm's error no longer blurs the new X (0.66)
+    assert results["still"].test.p_value > 0.01 and not results["still"].drifted
+    assert results["bumped"].drifted

@@ -7,7 +7,7 @@ metres, along the camera axes). The same for the intrinsics (``intrinsics_sigma_
 else ``intrinsics_sigma``; sigmas of the free intrinsics only: a fixed or given intrinsic has sigma 0).
 The model's joint covariance of X and the free intrinsics (``refinement.cov_x_intrinsics``) is read
 too: verify needs it when the new views share the installed intrinsics. When the verdict covariances
-differ from the model's, the joint is carried to them (:func:`verdict_joint`): its X block becomes the
+differ from the model's, the joint is carried to them (:func:`verdict_maps`): its X block becomes the
 verdict's X covariance and its intrinsics block the verdict's intrinsics covariance, the model's
 correlation between the two kept, so that a test never mixes the verdict's X with the model's smaller
 intrinsics uncertainty.
@@ -50,8 +50,11 @@ class LoadedResult:
     robot_sigma_deg: Optional[float]
     raw: dict = field(repr=False, default_factory=dict)
     # the joint covariance of X's tangent and the free intrinsics (refinement.cov_x_intrinsics, carried to the
-    # verdict covariances by verdict_joint): (names, cross (6,k), intrinsics (k,k)); None in results without it
+    # verdict covariances by verdict_maps): (names, cross (6,k), intrinsics (k,k)); None in results without it
     cov_x_intrinsics: Optional[tuple] = field(repr=False, default=None)
+    # the kinematic robot model's DH offsets and their covariance with X and the intrinsics (the same source):
+    # (offsets (m,), cross with X (6,m), cross with the intrinsics (k,m), (m,m)); None without that model
+    dh_joint: Optional[tuple] = field(repr=False, default=None)
 
     @property
     def ok(self) -> bool:
@@ -124,8 +127,37 @@ def load_result(result: ResultLike) -> LoadedResult:
         intrinsics_source=(intr_d or {}).get("source"), target=d.get("target"), image_size=size,
         sigma_px=_float(ref.get("sigma_px")), robot_sigma_mm=_float(ref.get("robot_sigma_mm")),
         robot_sigma_deg=_float(ref.get("robot_sigma_deg")), raw=d,
-        cov_x_intrinsics=verdict_joint(_joint(ref.get("cov_x_intrinsics")), cov_x_model=_matrix(ref.get("cov_x_6x6"), (6, 6)),
-                                       cov_x=cov, intrinsics_verdict=_intrinsics_verdict(ref)))
+        **_joints(ref, cov))
+
+
+def _joints(ref: dict, cov_x: Optional[np.ndarray]) -> dict:
+    """``cov_x_intrinsics`` and ``dh_joint`` of a LoadedResult from result.json's refinement block, carried to
+    the verdict covariances (:func:`verdict_maps`)."""
+    j = ref.get("cov_x_intrinsics")
+    joint = _joint(j)
+    dh = _dh_joint(j, len(joint[0])) if joint is not None else None
+    maps = verdict_maps(joint, cov_x_model=_matrix(ref.get("cov_x_6x6"), (6, 6)), cov_x=cov_x,
+                        intrinsics_verdict=_intrinsics_verdict(ref))
+    if maps is None:
+        return {"cov_x_intrinsics": joint, "dh_joint": dh}
+    A, B = maps
+    names, C, K = joint
+    K2 = B @ K @ B.T
+    if dh is not None:
+        dh = (dh[0], A @ dh[1], B @ dh[2], dh[3])
+    return {"cov_x_intrinsics": (names, A @ C @ B.T, 0.5 * (K2 + K2.T)), "dh_joint": dh}
+
+
+def _dh_joint(j: dict, k: int) -> Optional[tuple]:
+    """(offsets (m,), cross with X (6,m), cross with the intrinsics (k,m), (m,m)) from cov_x_intrinsics' DH
+    keys; None when absent or malformed."""
+    dh = j.get("dh_offsets")
+    if dh is None or np.size(dh) == 0:
+        return None
+    m = int(np.size(dh))
+    parts = (_matrix(dh, (m,)), _matrix(j.get("cross_6xm"), (6, m)), _matrix(j.get("cross_kxm"), (k, m)),
+             _matrix(j.get("dh_mxm"), (m, m)))
+    return None if any(p is None for p in parts) else parts
 
 
 def stretch(cov_model: np.ndarray, cov_target: np.ndarray) -> np.ndarray:
@@ -139,14 +171,16 @@ def stretch(cov_model: np.ndarray, cov_target: np.ndarray) -> np.ndarray:
     return L @ (U * np.sqrt(np.maximum(d, 0.0))) @ U.T @ np.linalg.inv(L)
 
 
-def verdict_joint(joint: Optional[tuple], *, cov_x_model: Optional[np.ndarray], cov_x: Optional[np.ndarray],
-                  intrinsics_verdict: Optional[tuple]) -> Optional[tuple]:
-    """The model's joint covariance ``(names, cross (6,k), K (k,k))`` of X and the free intrinsics carried to the
-    verdict covariances: ``J S J^T`` with ``J = diag(A, B)``, ``A`` = :func:`stretch` of the model's X covariance
-    ``cov_x_model`` to the verdict's ``cov_x``, ``B`` of ``K`` to the verdict's intrinsics covariance
+def verdict_maps(joint: Optional[tuple], *, cov_x_model: Optional[np.ndarray], cov_x: Optional[np.ndarray],
+                 intrinsics_verdict: Optional[tuple]) -> Optional[tuple]:
+    """(A, B) that carry the model's joint covariance ``(names, cross (6,k), K (k,k))`` of X and the free
+    intrinsics to the verdict covariances: ``J S J^T`` with ``J = diag(A, B, I)`` (I: the DH offsets of the
+    kinematic robot model, which have no verdict covariance), ``A`` = :func:`stretch` of the model's X
+    covariance ``cov_x_model`` to the verdict's ``cov_x``, ``B`` of ``K`` to the verdict's intrinsics covariance
     (``intrinsics_verdict``: (names, (n,n)) covering ``names``). Positive definite whenever the model's joint
-    is, with the verdict's blocks on the diagonal and the model's canonical correlations between X and the
-    intrinsics. A block without its verdict covariance stays the model's."""
+    is, with the verdict's blocks on the diagonal and the model's canonical correlations between the blocks. A
+    block without its verdict covariance keeps the model's (identity); None: no joint, or a covariance that
+    is not positive definite (the model's joint is used as stored)."""
     if joint is None:
         return None
     names, C, K = joint
@@ -158,10 +192,9 @@ def verdict_joint(joint: Optional[tuple], *, cov_x_model: Optional[np.ndarray], 
             if set(names) <= set(vn):
                 idx = [vn.index(n) for n in names]
                 B = stretch(K, V[np.ix_(idx, idx)])
-    except np.linalg.LinAlgError:  # a covariance that is not positive definite: the model's joint as stored
-        return joint
-    K2 = B @ K @ B.T
-    return names, A @ C @ B.T, 0.5 * (K2 + K2.T)
+    except np.linalg.LinAlgError:
+        return None
+    return A, B
 
 
 def _intrinsics_verdict(ref: dict) -> Optional[tuple]:

@@ -3,7 +3,7 @@
 Model. The installed result gives ``X0`` with covariance ``S0`` (the one its verdict uses), the
 intrinsics ``K0`` with their sigmas and the joint covariance of X and the free intrinsics
 (``refinement.cov_x_intrinsics``: the two errors are strongly correlated, a principal point error tilts
-X; carried to the verdict's X and intrinsics covariances, :func:`handeye.recal.loaded.verdict_joint`). The new views are refined (:func:`handeye.refine.refine`, the same graph, outlier decisions and
+X; carried to the verdict's X and intrinsics covariances, :func:`handeye.recal.loaded.verdict_maps`). The new views are refined (:func:`handeye.refine.refine`, the same graph, outlier decisions and
 noise estimation as a calibration) with the installed intrinsics as a Gaussian prior
 (:class:`handeye.refine.options.Prior`; the session's own intrinsics are held instead when it brings
 them), X free (the prior hook's X term is vague: 1 rad, 1 m), the board pose a free nuisance unknown,
@@ -40,7 +40,7 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Optional, Sequence
 
 import numpy as np
@@ -296,10 +296,12 @@ def verify_views(installed: LoadedResult, *, views: Sequence, object_points: np.
     B_views = board_from_views(mode, X0, E, C)
     B0 = mean_T(B_views)
     rs_mm, rs_deg = installed.robot_sigma_mm or 0.0, installed.robot_sigma_deg or 0.0
+    robot = installed_robot_model(installed)
+    prior = with_installed_dh(prior, installed, robot)
     ro = RefineOptions(intrinsics="fixed" if session_intr else "estimate", fix=fixed,
                        robot_noise="fixed" if (rs_mm > 0 and rs_deg > 0) else "none",
                        robot_sigma_mm=rs_mm if rs_mm > 0 else 0.1, robot_sigma_deg=rs_deg if rs_deg > 0 else 0.01,
-                       prior=prior, **installed_robot_model(installed))
+                       prior=prior, **robot)
     r = refine(mode=mode, object_points=object_points, views=list(views), intrinsics=intr, T_x0=X0, T_board0=B0,
                options=ro)
     if r.status != "ok":
@@ -358,6 +360,19 @@ def installed_robot_model(installed: LoadedResult) -> dict:
     return out
 
 
+def with_installed_dh(prior, installed: LoadedResult, robot: dict):
+    """``prior`` with the installed arm's estimated DH offsets and their covariance (the install's posterior)
+    as the new views' DH prior, when the install modelled the same arm kinematically
+    (:func:`installed_robot_model`) and recorded them; the arm's own prior otherwise. The arm's systematic
+    error is then the install's, not a fresh unknown: the new views see X as precisely as that allows, and
+    the test takes the shared offsets apart like the shared intrinsics."""
+    dh = installed.dh_joint
+    arm = robot.get("arm")
+    if dh is None or robot.get("robot_model") != "kinematic" or arm is None or len(dh[0]) != 4 * arm.n_joints:
+        return prior
+    return replace(prior, dh_offsets=dh[0], cov_dh=dh[3])
+
+
 def test_refined(installed: LoadedResult, r, prior, *, min_variance_share: float) -> DriftTest:
     """The test of ``X = X0`` on new views refined (``r``) with X free under ``prior``
     (:func:`handeye.recal.loaded.installed_prior`): :func:`joint_drift_test` when the new views share the
@@ -379,16 +394,29 @@ def _joint_test(installed: LoadedResult, r, prior, min_variance_share: float) ->
     if j is None or jr is None or tuple(jr["intrinsics"]) != j[0] or prior.cov_intrinsics is None:
         return None
     idx = [INTRINSIC_NAMES.index(n) for n in j[0]]
-    nk = len(idx)
-    cov_new = np.zeros((6 + nk, 6 + nk))
-    cov_new[:6, :6], cov_new[:6, 6:], cov_new[6:, 6:] = r.cov_x_6x6, jr["cross_6xk"], jr["intrinsics_kxk"]
-    cov_new[6:, :6] = cov_new[:6, 6:].T
+    C_k, K_k = np.asarray(jr["cross_6xk"], float), np.asarray(jr["intrinsics_kxk"], float)
     dk = r.intrinsics.as_vector()[idx] - installed.intrinsics.as_vector()[idx]
+    cov_xk, cov_kk, cov_k_prior = j[1], j[2], np.asarray(prior.cov_intrinsics)[np.ix_(idx, idx)]
+    dh = installed.dh_joint
+    if prior.dh_offsets is not None and dh is not None and "dh_offsets" in jr:
+        # the arm's DH offsets are shared too (with_installed_dh): appended to the shared parameters
+        m = len(dh[0])
+        C_k = np.hstack([C_k, np.asarray(jr["cross_6xm"], float)])
+        K_k = np.block([[K_k, np.asarray(jr["cross_kxm"], float)],
+                        [np.asarray(jr["cross_kxm"], float).T, np.asarray(jr["dh_mxm"], float)]])
+        dk = np.r_[dk, np.asarray(jr["dh_offsets"], float) - dh[0]]
+        cov_xk = np.hstack([cov_xk, dh[1]])
+        cov_kk = np.block([[cov_kk, dh[2]], [dh[2].T, dh[3]]])
+        cov_k_prior = np.block([[cov_k_prior, np.zeros((len(idx), m))],
+                                [np.zeros((m, len(idx))), np.asarray(prior.cov_dh, float)]])
+    nk = len(dk)
+    cov_new = np.zeros((6 + nk, 6 + nk))
+    cov_new[:6, :6], cov_new[:6, 6:], cov_new[6:, 6:] = r.cov_x_6x6, C_k, K_k
+    cov_new[6:, :6] = cov_new[:6, 6:].T
     try:
-        return joint_drift_test(T_x_installed=installed.T_x, cov_installed=installed.cov_x, cov_xk_installed=j[1],
-                                cov_kk_installed=j[2], T_x_new=r.T_x, dk_new=dk, cov_new=cov_new,
-                                cov_k_prior=np.asarray(prior.cov_intrinsics)[np.ix_(idx, idx)],
-                                cov_x_prior=prior.cov_x, min_variance_share=min_variance_share)
+        return joint_drift_test(T_x_installed=installed.T_x, cov_installed=installed.cov_x, cov_xk_installed=cov_xk,
+                                cov_kk_installed=cov_kk, T_x_new=r.T_x, dk_new=dk, cov_new=cov_new,
+                                cov_k_prior=cov_k_prior, cov_x_prior=prior.cov_x, min_variance_share=min_variance_share)
     except np.linalg.LinAlgError as e:
         log.warning("the joint test of X and the intrinsics failed (%s); testing X alone", e)
         return None

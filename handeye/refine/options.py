@@ -57,13 +57,17 @@ class Prior:
     free intrinsics (only their rows and columns are used); it adds to ``intrinsics="prior"``'s
     factory prior when both are given. ``cov_x_intrinsics`` (6,9): the cross-covariance of X's tangent and
     the intrinsics (an earlier calibration's errors of the two are correlated: a principal point error tilts
-    X); with it the two priors are one joint Gaussian."""
+    X); with it the two priors are one joint Gaussian. ``dh_offsets`` (m,) / ``cov_dh`` (m,m): the kinematic
+    robot model's DH offsets (:mod:`handeye.refine.robot_model`, in its order) as an earlier calibration of the
+    same arm estimated them; they replace the arm's own prior N(0, error_prior) (used only with that model)."""
 
     T_x: np.ndarray
     cov_x: np.ndarray
     intrinsics: Optional[Intrinsics] = None
     cov_intrinsics: Optional[np.ndarray] = None
     cov_x_intrinsics: Optional[np.ndarray] = None
+    dh_offsets: Optional[np.ndarray] = None
+    cov_dh: Optional[np.ndarray] = None
 
 
 @dataclass(frozen=True)
@@ -167,6 +171,12 @@ def check_prior(p: "Prior", bad) -> None:
     if p.cov_intrinsics is not None and not _is_covariance(p.cov_intrinsics, len(INTRINSIC_NAMES)):
         bad("prior.cov_intrinsics", "a symmetric positive definite 9x9 covariance in the order "
             + ", ".join(INTRINSIC_NAMES), np.shape(p.cov_intrinsics))
+    if (p.dh_offsets is None) != (p.cov_dh is None):
+        bad("prior.cov_dh", "dh_offsets and cov_dh both given or both None", "only one of them")
+    if p.dh_offsets is not None and (np.ndim(p.dh_offsets) != 1
+                                     or not _is_covariance(p.cov_dh, int(np.size(p.dh_offsets)))):
+        bad("prior.cov_dh", "DH offsets (m,) with a symmetric positive definite (m,m) covariance",
+            f"{np.shape(p.dh_offsets)} and {np.shape(p.cov_dh)}")
     if p.cov_x_intrinsics is not None:
         nk = len(INTRINSIC_NAMES)
         if p.cov_intrinsics is None or np.shape(p.cov_x_intrinsics) != (6, nk):

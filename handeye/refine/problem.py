@@ -26,6 +26,7 @@ from handeye.factors.gtsam_factors import (gaussian_prior, intrinsics_prior, joi
 from handeye.factors.reprojection import stacked_chain_residual
 
 from ..camera import INTRINSIC_NAMES, Intrinsics
+from ..errors import ConfigError
 from ..frames import se3_exp, tangent_difference, tangent_jacobian
 from ..mounting import mounting
 from .covariance import N_POSES, arrow_blocks, arrow_solve, robot_residual_covariances
@@ -142,6 +143,17 @@ class Problem:
         self.m_dh = self.kin.m if self.kin is not None else 0
         self.dh = np.zeros(self.m_dh)
         self.S_dd = np.diag(self.kin.dh_sigma ** 2) if self.m_dh else np.zeros((0, 0))
+        # the DH offsets' prior: N(0, the arm's error prior), or an earlier calibration's estimate (prior.dh_offsets)
+        self.prior_dh = (np.zeros(self.m_dh), self.S_dd.copy())
+        p = options.prior
+        if self.m_dh and p is not None and p.dh_offsets is not None:
+            if np.size(p.dh_offsets) != self.m_dh:
+                raise ConfigError("prior.dh_offsets does not fit the arm's kinematic model",
+                                  expected=f"{self.m_dh} DH offsets ({self.kin.arm.name})",
+                                  received=f"{np.size(p.dh_offsets)}",
+                                  hint="give the DH offsets of a calibration of this arm, or none")
+            self.prior_dh = (np.asarray(p.dh_offsets, float).copy(), np.asarray(p.cov_dh, float).copy())
+            self.dh, self.S_dd = self.prior_dh[0].copy(), self.prior_dh[1].copy()
         self.sigma_q = self.kin.encoder_sigma_rad if self.kin is not None else 0.0
         self.robot_prior_k = float(refine_preset()["robust"]["robot_prior_k"])
         self.T_x = T_x0.copy()
@@ -299,7 +311,7 @@ class Problem:
                     g.add(kinematic_robot_prior(key_robot=key_r, key_dh=key_dh, T_base_end_reported=self.reported[i],
                                                 J_dh=self.kin.J_dh[i], cov=self.robot_cov([i])[0], robust_k=robust_k))
         if key_dh is not None:
-            g.add(intrinsics_prior(key_intrinsics=key_dh, prior_values=np.zeros(self.m_dh), sigmas=self.kin.dh_sigma))
+            g.add(gaussian_prior(key=key_dh, mean=self.prior_dh[0], cov=self.prior_dh[1]))
         if self.prior_sig is not None and not pixel_only:
             g.add(intrinsics_prior(key_intrinsics=KEY_INTRINSICS, prior_values=self.k_given[self.free],
                                    sigmas=self.prior_sig))
@@ -346,9 +358,9 @@ class Problem:
             H[ks, ks] += W
             g[ks] += W @ (self.k[self.free] - self.prior_k[0])
         if self.m_dh:
-            W = np.diag(1.0 / self.kin.dh_sigma ** 2)
+            W = np.linalg.inv(self.prior_dh[1])
             H[self.dh_slice, self.dh_slice] += W
-            g[self.dh_slice] += W @ self.dh
+            g[self.dh_slice] += W @ (self.dh - self.prior_dh[0])
         if self.prior_x is not None:
             T_p, cov = self.prior_x
             r = tangent_difference(T_p, self.T_x)

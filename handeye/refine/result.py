@@ -62,7 +62,8 @@ class RefineResult:
     # the board frame's axes (COV_BOARD_PARAMETRISATION); None when the refinement failed
     cov_board_6x6: Optional[np.ndarray] = None
     # the joint marginal covariance of T_x and the free intrinsics: {"intrinsics": names in INTRINSIC_NAMES
-    # order, "cross_6xk": cov(xi_x, k) (6,nk), "intrinsics_kxk": cov(k) (nk,nk)}; None when failed or none free
+    # order, "cross_6xk": cov(xi_x, k) (6,nk), "intrinsics_kxk": cov(k) (nk,nk); with the kinematic robot model
+    # also "dh_offsets" (m,), "cross_6xm", "cross_kxm", "dh_mxm"}; None when failed or none free
     cov_x_intrinsics: Optional[dict] = None
 
     @property
@@ -241,11 +242,18 @@ def build_result(pb: "Problem", *, status: str, reason: str, S_cc: Optional[np.n
 
 
 def _x_intrinsics_covariance(pb: "Problem", S_cc: Optional[np.ndarray]) -> Optional[dict]:
-    """The joint marginal covariance of T_x's tangent and the free intrinsics (``cov_x_intrinsics``)."""
+    """The joint marginal covariance of T_x's tangent and the free intrinsics (``cov_x_intrinsics``), with the
+    kinematic robot model's DH offsets (their estimate and covariance with both) when it has them."""
     nk = len(pb.free)
     if S_cc is None or nk == 0:
         return None
     k = slice(N_POSES, N_POSES + nk)
     S_kk = S_cc[k, k]
-    return {"intrinsics": [INTRINSIC_NAMES[fi] for fi in pb.free], "cross_6xk": S_cc[:6, k].copy(),
-            "intrinsics_kxk": 0.5 * (S_kk + S_kk.T)}
+    out = {"intrinsics": [INTRINSIC_NAMES[fi] for fi in pb.free], "cross_6xk": S_cc[:6, k].copy(),
+           "intrinsics_kxk": 0.5 * (S_kk + S_kk.T)}
+    if pb.m_dh:  # the kinematic model's DH offsets (SI units, the model's order) and their covariance with both
+        d = pb.dh_slice
+        S_dd = S_cc[d, d]
+        out.update(dh_offsets=pb.dh.copy(), cross_6xm=S_cc[:6, d].copy(), cross_kxm=S_cc[k, d].copy(),
+                   dh_mxm=0.5 * (S_dd + S_dd.T))
+    return out
