@@ -10,7 +10,8 @@ too: verify needs it when the new views share the installed intrinsics. When the
 differ from the model's, the joint is carried to them (:func:`verdict_maps`): its X block becomes the
 verdict's X covariance and its intrinsics block the verdict's intrinsics covariance, the model's
 correlation between the two kept, so that a test never mixes the verdict's X with the model's smaller
-intrinsics uncertainty.
+intrinsics uncertainty. A kinematic install's DH offsets (estimate and covariance with both, in the same
+block of result.json) are read with it: verify shares them with the new views.
 """
 from __future__ import annotations
 
