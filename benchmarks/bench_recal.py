@@ -3,10 +3,11 @@ calibrate --prior after a bump; verify's time on rendered images.
 
 Simulated installs (corner level, :func:`handeye.sim.corners.make_corner_session`: 11x8 board,
 1280x720, 0.3 px corners), both mounting modes, robot errors iid (0.2 mm / 0.05 deg per axis) or from
-the kinematic model (RM65-B, :mod:`handeye.sim.robot_error`; the verification sees the same arm). An
-install is a 20-view session refined as the pipeline does (OpenCV seeds, :func:`handeye.refine.refine`;
-the kinematic installs name their arm, as ``calibrate --robot rm65``; ``--validated``: with the verdict
-covariance ``calibrate`` writes); a verification is 6 views of the same rig (new noise) at the poses
+the kinematic model (RM65-B, :mod:`handeye.sim.robot_error`; the verification sees the same arm; the
+views carry the arm's encoder readings, as a session with joint angles does). An install is a 20-view
+session (``--install-views N``: N views) refined as the pipeline does (OpenCV seeds,
+:func:`handeye.refine.refine`; the kinematic installs name their arm, as ``calibrate --robot rm65``;
+``--validated``: with the verdict covariance ``calibrate`` writes); a verification is 6 views of the same rig (new noise) at the poses
 ``verify --plan`` proposes against the install (``--poses planned``, the default: what a user is told
 to capture; a kinematic arm's unreachable ones topped up with random poses) or at random poses
 (``--poses random``), undisturbed or with the camera bumped by 1 mm and 0.1 deg in random directions,
@@ -40,80 +41,59 @@ a contradiction (nominal 5 %). ``--poses`` as for verify (5 planned views by def
 Timing (``--timing``): verify_session on a rendered 6-view session at 1280x720 (detection included,
 rendering not), median of 3.
 
-Figures (2026-12-02, a shared 2-core machine at load average 8-12), verify with the joint test of X and
-the shared intrinsics (:func:`handeye.recal.verify.joint_drift_test`):
-
-``--trials 40 --models iid --validated``, then ``--first-seed 40 --trials 110`` and ``--first-seed 150
---trials 50`` (200 installs per mode, --from-jsonl of the three):
+Figures (2026-12-02, 2-core machine, ``--validated``, planned poses, the final code; 300 trials per row
+unless said):
 
 ::
 
-    verify: 6 views against a 20-view install, camera bumped 1 mm / 0.1 deg; alpha 5 %; installed covariance: cov_x_6x6_verdict
-      model     mode         trials   power false al. in 2 sig  sigma mm sigma deg  time s power 2x
-      iid       eye_in_hand     200   92.0%      1.5%    98.9%      0.51     0.074    0.11   100.0%
-      iid       eye_to_hand     200   88.5%      2.5%    97.7%      0.56     0.069    0.13    99.5%
-    verify theory (non-central chi-square, 6 dof, 5 %; sigmas: norms over the 3 axes; install: its X given its intrinsics; new views: with a perfect install):
-      model     mode             change sigma          install        new views  pred. measured model cov ceiling install x for 95% (10 %) ok as is
-      iid       eye_in_hand    0.51 mm 0.074°   0.38 mm 0.057°   0.31 mm 0.045°  89.9%    92.0%     97.4%   97.9%              0.93   0.62      37%
-      iid       eye_to_hand    0.56 mm 0.069°   0.37 mm 0.053°   0.39 mm 0.043°  92.7%    88.5%     99.4%   98.2%              1.00   0.61      55%
+    verify: 6 views, camera bumped 1 mm / 0.1 deg; alpha 5 %; installed covariance: cov_x_6x6_verdict
+      model     mode        install  trials   power false al. in 2 sig  sigma mm sigma deg  time s power 2x
+      kinematic eye_in_hand  20 views   300   98.3%      4.7%    96.3%      0.44     0.053    0.08   100.0%
+      kinematic eye_to_hand  20 views   299  100.0%      4.0%    96.0%      0.28     0.038    0.08   100.0%
+      iid       eye_in_hand  30 views   300   99.3%      3.3%    96.6%      0.42     0.060    0.06   100.0%
+      iid       eye_to_hand  30 views   300   98.7%      3.0%    97.0%      0.53     0.060    0.06   100.0%
+      iid       eye_in_hand  20 views   100   93.0%      2.0%    98.9%      0.49     0.067    0.05   100.0%
+      iid       eye_to_hand  20 views   100   93.0%      4.0%    96.8%      0.60     0.067    0.06   100.0%
 
-``--trials 15 --models kinematic --validated``, ``--first-seed 15`` and 4 of ``--first-seed 30`` (the run
-was stopped for time; 33 / 30 per mode):
+(``--trials 300 --models kinematic``; ``--trials 150 --models iid --install-views 30`` and the same with
+``--first-seed 150``; ``--trials 100 --models iid``.) The theory rows (non-central chi-square with each
+trial's change covariance) predict 98.2 / 99.9 % (kinematic), 98.3 / 97.3 % (iid, 30 views) and 93.9 /
+95.3 % (iid, 20 views).
 
-::
+What the power rests on: the change's sigma is the install's X given what the new views share with it
+(the intrinsics, and a kinematic install's DH offsets) and the 6 new views' own, in quadrature.
 
-    verify: 6 views against a 20-view install, camera bumped 1 mm / 0.1 deg; alpha 5 %; installed covariance: cov_x_6x6_verdict
-      model     mode         trials   power false al. in 2 sig  sigma mm sigma deg  time s power 2x
-      kinematic eye_in_hand      33   90.9%      9.1%    86.7%      0.89     0.086    0.31   100.0%  (1 skipped: view 19: the RealMan RM65-B cannot reach the reported pose; )
-      kinematic eye_to_hand      30   83.3%      0.0%   100.0%      1.05     0.084    0.32   100.0%
-    verify theory (non-central chi-square, 6 dof, 5 %; sigmas: norms over the 3 axes; install: its X given its intrinsics; new views: with a perfect install):
-      model     mode             change sigma          install        new views  pred. measured model cov ceiling install x for 95% (10 %) ok as is
-      kinematic eye_in_hand    0.89 mm 0.086°   0.51 mm 0.052°   0.72 mm 0.065°  87.8%    90.9%     87.1%   97.8%              0.76   0.00      21%
-      kinematic eye_to_hand    1.05 mm 0.084°   0.68 mm 0.054°   0.80 mm 0.063°  87.5%    83.3%     85.8%   97.5%              0.27   0.00       3%
+- Kinematic: the install's estimated DH offsets, with their covariance with X and the intrinsics, are
+  the new views' DH prior, and the test takes them apart like the intrinsics
+  (:func:`handeye.recal.verify.with_installed_dh`). Before (the new views under the arm's own DH prior,
+  40 trials per mode) the change's sigma was 0.93 / 1.07 mm and the power 80 / 80 %: each verification
+  re-learned the arm's systematic error from 6 views. The views must carry the joint readings: with the
+  install's joints from inverse kinematics of the reported poses (sometimes another arm configuration
+  than the one that took the view), the shared offsets were wrong for those views and eye-in-hand had
+  35 % false alarms (40 trials).
+- iid: nothing but the intrinsics is shared, so the install's own precision limits the power: a 20-view
+  install at this noise (0.35 mm / 0.04 deg given its intrinsics, norms over the axes) detects 93 %, a
+  30-view one (0.27 mm / 0.03 deg) 99 %. ``verify --plan`` says which an install allows (the ceiling with
+  perfect views, and the smallest drift it detects with 95 % power).
+- False alarms stay below 5 %: the test uses the verdict covariance, never smaller than the model's.
 
-What limits the power (the theory rows): the change's sigma is the install's X given its intrinsics
-(~0.37 mm / 0.055 deg, norms over the axes) and the 6 new views' (~0.3-0.4 mm / 0.045 deg) in
-quadrature. Before the joint test, the installed covariance was added whole: for a 20-view install the
-intrinsics' error is most of its rotation sigma about x and y (0.065 -> 0.017 deg per axis given the
-intrinsics) and of its depth (0.36 -> 0.19 mm), and the new views share it, so it was counted twice:
-false alarms 0-2.5 % instead of 5 %, power 30 % (random poses) / 48-73 % (planned poses). The earlier
-"46-61 % ceiling" was the worst drift direction of that conservative sum; over random directions its
-ceiling with perfect views was 89-97 % (4 installs), and given the shared intrinsics it is 98-99 %. With the joint test, the planned poses and the verdict
-covariance the measured power is close to the prediction (92 % vs 90 %, 89 % vs 93 %) and falls short of
-95 %: a 20-view install at this noise is about at the precision 95 % power needs on average (the median
-factor on its sigmas 0.93 eye-in-hand, 1.0 eye-to-hand; 37 % and 55 % of the installs suffice as they
-are), and 95 % power for 90 % of such installs needs their sigmas x 0.6, i.e. ~50 views of the same
-kind (or less robot noise); the new views cannot be improved much
-(the robot noise of 0.2 mm / 0.05 deg per view dominates them). With the model covariance instead
-of the verdict's the false alarms were 12-15 % (40 per mode): the model covariance is ~15 % optimistic
-about X given the intrinsics (mean squared Mahalanobis 6.96 and 6.22 for 6, 40 installs per mode),
-which the verdict absorbs. Random
-poses instead of planned: 30-38 % before the joint test (the planned poses alone: 48-73 %).
-Kinematic: the new views share the arm's DH errors with the install too, which are not taken apart, and
-many planned poses are out of the arm's reach (topped up with random ones); eye-in-hand calls 3 of 33
-undisturbed rigs drifted (9 %, above the 6 % goal at this small count), detects 91 % and has the change
-within its 2-sigma region in 87 % of detections (goal 90 %): the DH errors it ignores; eye-to-hand
-detects 83 % with no false alarm; its installs are less precise (0.68 mm given the intrinsics).
+--prior (``--prior 50``, 50 installs per mode): after a 1 mm / 0.1 deg bump the update's RMS error is
+0.452 mm / 0.107 deg (eye-in-hand) and 0.669 mm / 0.107 deg (eye-to-hand) against a fresh 20-view
+calibration's 0.457 mm / 0.088 deg and 0.464 mm / 0.101 deg (the contradiction found in 96 % and 92 %);
+without a bump 0.363 and 0.440 mm against the fresh 0.457 and 0.464 mm (better), a contradiction reported
+in 6 % and 0 % (nominal 5 %). After a detected bump the update is the 5 new views under the intrinsics
+prior (the 5 views without the prior on X: 0.451 / 0.659 mm); eye-to-hand falls 44 % short of a fresh
+20-view calibration: the 5 views' own precision, which more views close, not another use of the prior.
+(The intrinsics prior as its sigmas alone, without their correlations: 0.638 mm eye-to-hand, the same
+within the 50 trials' scatter.)
 
-``--prior 20 --validated`` and ``--prior 30 --first-seed 20 --validated`` (planned 5 views; 50 installs per
-mode): after a 1 mm / 0.1 deg bump the update's RMS error is 0.519 mm / 0.100 deg (eye-in-hand) and
-0.571 mm / 0.105 deg (eye-to-hand) against a fresh 20-view calibration's 0.457 mm / 0.088 deg and
-0.464 mm / 0.101 deg (the contradiction found in 92 % and 98 %): 13-23 % worse in translation; without
-a bump 0.388 and 0.409 mm against the fresh 0.457 and 0.464 mm (better), a contradiction reported in
-6 % and 2 % (nominal 5 %)
-(before: random 5 views and the score test, 1.02 / 0.89 mm with the contradiction found in 10 / 5 %).
-The remaining gap after a bump is the 5 views' own precision (the 5 views without the prior on X:
-0.51 / 0.57 mm): a detected drift drops the prior on X, and no inflation of it fitted to one drift is
-better founded; closing it takes more new views, not a different use of the prior.
+``--compare 100`` (200 pairs, from an earlier run; compare's code is unchanged since): KS of the p-values
+against uniform D = 0.059, p = 0.86 (eye-in-hand) and D = 0.078, p = 0.55 (eye-to-hand), not rejected at
+1 %; 5.0 % and 7.0 % called drifted at 5 %; a 2 mm bump flagged in 96 % and 96 % (the difference of two
+20-view calibrations has ~0.42 mm sigma per axis: 2 mm is a non-centrality of ~22, 95 % power).
 
-``--compare 100`` (200 pairs; unchanged by this work, from the earlier run): KS of the p-values against
-uniform D = 0.059, p = 0.86 (eye-in-hand) and D = 0.078, p = 0.55 (eye-to-hand), not rejected at 1 %;
-5.0 % and 7.0 % called drifted at 5 %; a 2 mm bump flagged in 96 % and 96 % (the difference of two
-20-view calibrations has ~0.42 mm sigma per axis: 2 mm is a non-centrality of ~22, 95 % power; "always"
-is not reachable at this noise).
-
-``--timing``: 6 rendered views at 1280x720, detection included: median 0.39 s wall at load
-average 10.5 (runs 0.58, 0.39, 0.32; detection 0.24 s, the verification 0.08 s).
+``--timing``: 6 rendered views at 1280x720, detection included: median 0.17 s wall at load average 1.8
+(runs 0.24, 0.17, 0.15; detection 0.10 s, the verification 0.05 s).
 
 Usage: python benchmarks/bench_recal.py --trials 300 --validated --compare 100 --prior 25 --timing --jobs 2
 (per mode and robot model; the issue's counts; --jsonl keeps every trial so that a long run can be
@@ -247,7 +227,7 @@ def scaled_install(inst, c: float):
                    dh_joint=None if dh is None else (dh[0], c ** 2 * dh[1], c ** 2 * dh[2], c ** 2 * dh[3]))
 
 
-def theory(inst, r_model, v, bump, *, n_dirs: int = 400) -> dict:
+def theory(inst, r_model, v, bump, views, *, n_dirs: int = 400) -> dict:
     """verify's theoretical power (non-central chi-square) for the verification ``v`` of the undisturbed rig
     against ``inst``: for this trial's bump and on average over random bump directions; with the model's
     installed covariance instead of the verdict's; the ceiling (perfect new views: the installed X given its
@@ -260,7 +240,7 @@ def theory(inst, r_model, v, bump, *, n_dirs: int = 400) -> dict:
     from handeye.recal.verify import installed_robot_model, test_refined, with_installed_dh
 
     prior, _ = installed_prior(inst, session_intrinsics=False, cov_x=VAGUE_COV_X)
-    prior = with_installed_dh(prior, inst, installed_robot_model(inst))  # as verify_views builds it
+    prior = with_installed_dh(prior, inst, installed_robot_model(inst), views)  # as verify_views builds it
     dirs = np.array([random_bump(np.random.default_rng(k)) for k in range(n_dirs)])
 
     def V(c, i=inst):
@@ -335,7 +315,7 @@ def verify_trial(args) -> dict:
                              sig_mm=float(np.linalg.norm(v.change["sigma_trans_mm"])),
                              sig_deg=float(np.linalg.norm(v.change["sigma_rot_deg"])))
             if name == "still":
-                out["theory"] = theory(inst, r, v, bump)
+                out["theory"] = theory(inst, r, v, bump, views)
         return out
     except HandeyeError as e:
         return dict(mode=mode, model=model, seed=seed, skipped=str(e)[:100])
@@ -380,8 +360,6 @@ def refine_from_install(inst, views, object_points, options):
 
 
 def prior_trial(args) -> dict:
-    from dataclasses import replace
-
     from handeye.frames import pose_error, se3_exp
     from handeye.recal.loaded import VAGUE_COV_X, installed_prior
     from handeye.recal.verify import verify_views
@@ -404,7 +382,8 @@ def prior_trial(args) -> dict:
         # as calibrate --prior: verify's test on the views decides; when they contradict the prior, the views
         # without the prior on X (the intrinsics prior kept)
         contradicted = rp.status != "ok" or verify_views(inst, views=views, object_points=obj).drifted
-        alone = refine_from_install(inst, views, obj, RefineOptions(prior=replace(prior, cov_x=VAGUE_COV_X), fix=fixed))
+        vague, _ = installed_prior(inst, session_intrinsics=False, cov_x=VAGUE_COV_X)  # as calibrate --prior builds it
+        alone = refine_from_install(inst, views, obj, RefineOptions(prior=vague, fix=fixed))
         kept = alone if contradicted else rp
         fresh = calibrate(session(mode=mode, model="iid", seed=seed + 500000, n_views=20, rig=rig))
         out[name] = dict(contradicted=contradicted, err_mm=pose_error(kept.T_x, rig[0])[1],

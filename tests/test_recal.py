@@ -482,3 +482,12 @@ def test_verify_shares_the_installed_arms_dh_offsets():
     assert np.trace(shared[3:, 3:]) < 0.8 * np.trace(own[3:, 3:])  # the arm's error no longer blurs the new X (0.66)
     assert results["still"].test.p_value > 0.01 and not results["still"].drifted
     assert results["bumped"].drifted
+    # views without recorded joints (inverse kinematics may pick another arm configuration): the arm's own prior
+    from handeye.recal.loaded import VAGUE_COV_X, installed_prior
+    from handeye.recal.verify import installed_robot_model, with_installed_dh
+
+    robot = installed_robot_model(inst)
+    prior, _ = installed_prior(inst, session_intrinsics=False, cov_x=VAGUE_COV_X)
+    assert prior.dh_offsets is None
+    assert with_installed_dh(prior, inst, robot, views(new)).dh_offsets is not None
+    assert with_installed_dh(prior, inst, robot, [replace(v, joint_angles=None) for v in views(new)]) is prior

@@ -299,7 +299,7 @@ def verify_views(installed: LoadedResult, *, views: Sequence, object_points: np.
     B0 = mean_T(B_views)
     rs_mm, rs_deg = installed.robot_sigma_mm or 0.0, installed.robot_sigma_deg or 0.0
     robot = installed_robot_model(installed)
-    prior = with_installed_dh(prior, installed, robot)
+    prior = with_installed_dh(prior, installed, robot, views)
     ro = RefineOptions(intrinsics="fixed" if session_intr else "estimate", fix=fixed,
                        robot_noise="fixed" if (rs_mm > 0 and rs_deg > 0) else "none",
                        robot_sigma_mm=rs_mm if rs_mm > 0 else 0.1, robot_sigma_deg=rs_deg if rs_deg > 0 else 0.01,
@@ -362,15 +362,20 @@ def installed_robot_model(installed: LoadedResult) -> dict:
     return out
 
 
-def with_installed_dh(prior, installed: LoadedResult, robot: dict):
+def with_installed_dh(prior, installed: LoadedResult, robot: dict, views: Sequence = ()):
     """``prior`` with the installed arm's estimated DH offsets and their covariance (the install's posterior)
     as the new views' DH prior, when the install modelled the same arm kinematically
     (:func:`installed_robot_model`) and recorded them; the arm's own prior otherwise. The arm's systematic
     error is then the install's, not a fresh unknown: the new views see X as precisely as that allows, and
-    the test takes the shared offsets apart like the shared intrinsics."""
+    the test takes the shared offsets apart like the shared intrinsics. Only when the install's views and
+    ``views`` carry recorded joint angles: joints from inverse kinematics of a reported pose may be another
+    arm configuration than the one that took the view, for which the shared offsets are wrong."""
     dh = installed.dh_joint
     arm = robot.get("arm")
     if dh is None or robot.get("robot_model") != "kinematic" or arm is None or len(dh[0]) != 4 * arm.n_joints:
+        return prior
+    recorded = ((installed.raw.get("refinement") or {}).get("robot_model") or {}).get("joint_angles") == "recorded"
+    if not recorded or any(getattr(v, "joint_angles", None) is None for v in views):
         return prior
     return replace(prior, dh_offsets=dh[0], cov_dh=dh[3])
 
