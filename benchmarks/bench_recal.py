@@ -78,13 +78,14 @@ What the power rests on: the change's sigma is the install's X given what the ne
 - False alarms stay below 5 %: the test uses the verdict covariance, never smaller than the model's.
 
 --prior (``--prior 50``, 50 installs per mode): after a 1 mm / 0.1 deg bump the update's RMS error is
-0.452 mm / 0.107 deg (eye-in-hand) and 0.669 mm / 0.107 deg (eye-to-hand) against a fresh 20-view
-calibration's 0.457 mm / 0.088 deg and 0.464 mm / 0.101 deg (the contradiction found in 96 % and 92 %);
-without a bump 0.363 and 0.440 mm against the fresh 0.457 and 0.464 mm (better), a contradiction reported
-in 6 % and 0 % (nominal 5 %). After a detected bump the update is the 5 new views under the intrinsics
-prior (the 5 views without the prior on X: 0.451 / 0.659 mm); eye-to-hand falls 44 % short of a fresh
-20-view calibration: the 5 views' own precision, which more views close, not another use of the prior.
-(The intrinsics prior as its sigmas alone, without their correlations: 0.638 mm eye-to-hand, the same
+0.431 mm / 0.104 deg (eye-in-hand) and 0.689 mm / 0.119 deg (eye-to-hand) against a fresh 20-view
+calibration's 0.457 mm / 0.088 deg and 0.464 mm / 0.101 deg (the contradiction found in 92 % and 90 %);
+without a bump 0.356 and 0.416 mm against the fresh 0.457 and 0.464 mm (better), a contradiction reported
+in 8 % and 0 % (nominal 5 %). After a detected bump the update is the 5 new views under the intrinsics
+prior (the 5 views without the prior on X: 0.407 / 0.662 mm): eye-in-hand matches a fresh 20-view
+calibration in translation and is 18 % worse in rotation, eye-to-hand is 48 % worse: the 5 views' own
+precision, which more views close, not another use of the prior. (In a separate run of the eye-to-hand
+trials with the intrinsics prior as its sigmas alone, without their correlations: 0.638 mm, the same
 within the 50 trials' scatter.)
 
 ``--compare 100`` (200 pairs, from an earlier run; compare's code is unchanged since): KS of the p-values
