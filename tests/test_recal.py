@@ -469,6 +469,9 @@ def test_verify_shares_the_installed_arms_dh_offsets():
     J = np.block([[inst.cov_x, C, inst.dh_joint[1]], [C.T, K, inst.dh_joint[2]],
                   [inst.dh_joint[1].T, inst.dh_joint[2].T, inst.dh_joint[3]]])
     assert np.linalg.eigvalsh(J).min() > 0
+    # what a verification faces of the install (verify --plan): X given the intrinsics and the DH offsets
+    S_k, S_kd = inst.cov_x_given_intrinsics, inst.cov_x_given_shared
+    assert np.trace(S_kd[3:, 3:]) < np.trace(S_k[3:, 3:]) and np.linalg.eigvalsh(S_kd).min() > 0
     results = {}
     for name, xi in (("still", np.zeros(6)), ("bumped", np.r_[np.radians(0.2) * np.array([0.6, 0.0, 0.8]),
                                                                2e-3 * np.array([0.0, 0.8, -0.6])])):

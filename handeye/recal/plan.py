@@ -5,8 +5,9 @@ From the installed calibration alone (its X and board, intrinsics, pixel and rob
 (:func:`handeye.collect.plan.view_information`: corner reprojection at the installed intrinsics, robot
 noise marginalised; the board a nuisance shared by the views, marginalised by inverting the summed 12x12
 information). Verify shares the installed intrinsics, so the installed uncertainty it faces is ``S0``,
-X's covariance given its intrinsics (:attr:`handeye.recal.loaded.LoadedResult.cov_x_given_intrinsics`;
-the whole covariance of results without the joint one); what the views' own sensitivity to the
+X's covariance given its intrinsics, and given a kinematic install's DH offsets when its views recorded
+joint angles (:attr:`handeye.recal.loaded.LoadedResult.cov_x_given_shared`; the whole covariance of results
+without the joint one); what the views' own sensitivity to the
 intrinsics adds is left out, so the plan is slightly optimistic. A set of views
 with X-covariance ``S_new`` makes verify's test statistic (:mod:`handeye.recal.verify`) non-central
 chi-square with 6 degrees of freedom and non-centrality ``delta^T (S0 + S_new)^-1 delta`` for a drift
@@ -178,7 +179,7 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
         raise InputError("no candidate robot poses to plan from", path=installed.source,
                          hint="the result holds no refined robot poses; give candidate poses")
     infos = [info_of(T) for T, _ in cands]
-    S0 = installed.cov_x_given_intrinsics  # verify shares the installed intrinsics: their error cancels
+    S0 = installed.cov_x_given_shared  # verify shares the installed intrinsics (and DH offsets): their error cancels
     ceiling = test_power(worst_noncentrality(S0, drifts), alpha=alpha)
     info = np.zeros((12, 12))
     chosen, powers, n_goal = [], [], None
