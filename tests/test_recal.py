@@ -484,6 +484,7 @@ def test_verify_shares_the_installed_arms_dh_offsets():
     shared, own = results["still"].test.change_cov, alone.test.change_cov
     assert np.trace(shared[3:, 3:]) < 0.8 * np.trace(own[3:, 3:])  # the arm's error no longer blurs the new X (0.66)
     assert results["still"].test.p_value > 0.01 and not results["still"].drifted
+    assert "DH offsets" in results["still"].test.kind and "DH offsets" not in alone.test.kind
     assert results["bumped"].drifted
     # views without recorded joints (inverse kinematics may pick another arm configuration): the arm's own prior
     from handeye.recal.loaded import VAGUE_COV_X, installed_prior

@@ -176,6 +176,9 @@ def joint_drift_test(*, T_x_installed: np.ndarray, cov_installed: np.ndarray, co
 
 JOINT_KIND = ("Wald test of X = X_installed, the change estimated jointly with the intrinsics the new views share "
               "with the installed calibration (its joint covariance of X and the intrinsics)")
+JOINT_DH_KIND = ("Wald test of X = X_installed, the change estimated jointly with the intrinsics and the arm's DH "
+                 "offsets the new views share with the installed calibration (its joint covariance of X, the "
+                 "intrinsics and the DH offsets)")
 
 
 def _inv_sym(M: np.ndarray) -> np.ndarray:
@@ -405,7 +408,8 @@ def _joint_test(installed: LoadedResult, r, prior, min_variance_share: float) ->
     dk = r.intrinsics.as_vector()[idx] - installed.intrinsics.as_vector()[idx]
     cov_xk, cov_kk, cov_k_prior = j[1], j[2], np.asarray(prior.cov_intrinsics)[np.ix_(idx, idx)]
     dh = installed.dh_joint
-    if prior.dh_offsets is not None and dh is not None and "dh_offsets" in jr:
+    shared_dh = prior.dh_offsets is not None and dh is not None and "dh_offsets" in jr
+    if shared_dh:
         # the arm's DH offsets are shared too (with_installed_dh): appended to the shared parameters
         m = len(dh[0])
         C_k = np.hstack([C_k, np.asarray(jr["cross_6xm"], float)])
@@ -421,9 +425,10 @@ def _joint_test(installed: LoadedResult, r, prior, min_variance_share: float) ->
     cov_new[:6, :6], cov_new[:6, 6:], cov_new[6:, 6:] = r.cov_x_6x6, C_k, K_k
     cov_new[6:, :6] = cov_new[:6, 6:].T
     try:
-        return joint_drift_test(T_x_installed=installed.T_x, cov_installed=installed.cov_x, cov_xk_installed=cov_xk,
-                                cov_kk_installed=cov_kk, T_x_new=r.T_x, dk_new=dk, cov_new=cov_new,
-                                cov_k_prior=cov_k_prior, cov_x_prior=prior.cov_x, min_variance_share=min_variance_share)
+        t = joint_drift_test(T_x_installed=installed.T_x, cov_installed=installed.cov_x, cov_xk_installed=cov_xk,
+                             cov_kk_installed=cov_kk, T_x_new=r.T_x, dk_new=dk, cov_new=cov_new,
+                             cov_k_prior=cov_k_prior, cov_x_prior=prior.cov_x, min_variance_share=min_variance_share)
+        return replace(t, kind=JOINT_DH_KIND) if shared_dh else t
     except np.linalg.LinAlgError as e:
         log.warning("the joint test of X and the intrinsics failed (%s); testing X alone", e)
         return None
