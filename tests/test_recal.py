@@ -495,3 +495,44 @@ def test_verify_shares_the_installed_arms_dh_offsets():
     assert prior.dh_offsets is None
     assert with_installed_dh(prior, inst, robot, views(new)).dh_offsets is not None
     assert with_installed_dh(prior, inst, robot, [replace(v, joint_angles=None) for v in views(new)]) is prior
+
+
+def test_compare_tests_x_given_the_shared_camera():
+    """Two results of one camera: the part of their X difference that their intrinsics difference explains is
+    taken out (X's error is largely its intrinsics' error), and X is tested against the smaller conditional
+    covariance; when the intrinsics changed, X is tested alone."""
+    from handeye.recal.compare import X_ALONE, X_GIVEN_INTRINSICS
+
+    rng = np.random.default_rng(2)
+    names = ["fx", "fy", "cx", "cy"]
+    A = rng.normal(size=(10, 10)) * np.r_[[SIGMA_ROT] * 3, [SIGMA_TRANS] * 3, [0.5, 0.5, 0.4, 0.4]][:, None]
+    S = A @ A.T + np.diag(np.r_[[SIGMA_ROT ** 2 / 4] * 3, [SIGMA_TRANS ** 2 / 4] * 3, [0.01] * 4])
+
+    def result(T_x, dk):
+        d = fake_result(T_x, cov=S[:6, :6])
+        for k, n in enumerate(names):
+            d["intrinsics"][n] += float(dk[k])
+        d["refinement"]["intrinsics_sigma"] = {n: float(np.sqrt(S[6 + k, 6 + k])) for k, n in enumerate(names)}
+        d["refinement"]["cov_x_intrinsics"] = {"intrinsics": names, "cross_6xk": S[:6, 6:].tolist(),
+                                               "intrinsics_kxk": S[6:, 6:].tolist()}
+        return d
+
+    C, K = S[:6, 6:], S[6:, 6:]
+    dk = 0.8 * np.sqrt(np.diag(K))  # within the intrinsics' uncertainty
+    explained = C @ np.linalg.solve(K, dk)  # the X error such an intrinsics error brings (per result, summed: 2C, 2K)
+    T_a = se3_exp(np.array([0.1, -0.2, 0.3, 0.05, 0.02, 0.1]))
+    c = compare_results(result(T_a, np.zeros(4)), result(T_a @ se3_exp(explained), dk))
+    assert c.x_test == X_GIVEN_INTRINSICS and not c.intrinsics["drifted"]
+    assert c.mahalanobis2 < 1e-6  # the difference is the one the intrinsics difference predicts
+    alone = float(explained @ np.linalg.solve(2 * S[:6, :6], explained))
+    assert alone > 0.1  # X alone would count it against X
+    # a bump of X with the intrinsics unchanged: the conditional covariance, smaller than X alone's
+    xi = np.r_[0.0, 0.0, 0.0, 1e-3, 0.0, 0.0]
+    c = compare_results(result(T_a, np.zeros(4)), result(T_a @ se3_exp(xi), np.zeros(4)))
+    S_c = 2 * (S[:6, :6] - C @ np.linalg.solve(K, C.T))
+    assert c.mahalanobis2 == pytest.approx(float(xi @ np.linalg.solve(S_c, xi)), rel=1e-3)
+    assert c.mahalanobis2 > float(xi @ np.linalg.solve(2 * S[:6, :6], xi))
+    # the intrinsics changed (a refocused lens): X alone
+    c = compare_results(result(T_a, np.zeros(4)), result(T_a @ se3_exp(xi), 10 * np.sqrt(np.diag(K))))
+    assert c.intrinsics["drifted"] and c.x_test == X_ALONE
+    assert c.mahalanobis2 == pytest.approx(float(xi @ np.linalg.solve(2 * S[:6, :6], xi)), rel=1e-3)
