@@ -332,17 +332,26 @@ def compare_trial(args) -> dict:
     from handeye.recal.compare import compare_loaded
     from handeye.recal.loaded import load_result, result_from_refinement
 
-    mode, seed = args
-    s, r, a = install(mode, "iid", seed)
-    sb = session(mode=mode, model="iid", seed=seed + 200000, n_views=20, rig=(s.T_x_true, s.T_board_true))
-    b = load_result(result_from_refinement(calibrate(sb), target=sb.target))
+    mode, seed, validated = args
+    s, r, a = install(mode, "iid", seed, validated)
+
+    def result_of(sx):
+        rx = calibrate(sx)
+        val = None
+        if validated and rx.status == "ok":
+            from handeye.refine.validation import validate
+
+            val = validate(rx, object_points=sx.target.object_points(), views=refine_views(sx), halves=False)
+        return load_result(result_from_refinement(rx, target=sx.target, validation=val))
+
+    b = result_of(session(mode=mode, model="iid", seed=seed + 200000, n_views=20, rig=(s.T_x_true, s.T_board_true)))
     u = np.random.default_rng(seed).normal(size=3)
     bump = np.r_[0, 0, 0, 2e-3 * u / np.linalg.norm(u)]
-    sc = session(mode=mode, model="iid", seed=seed + 300000, n_views=20,
-                 rig=(s.T_x_true @ se3_exp(bump), s.T_board_true))
-    c = load_result(result_from_refinement(calibrate(sc), target=sc.target))
-    return dict(mode=mode, seed=seed, p=compare_loaded(a, b).p_value, bumped=compare_loaded(a, c).drifted,
-                p_intr=compare_loaded(a, b).intrinsics.get("p_value", np.nan))
+    c = result_of(session(mode=mode, model="iid", seed=seed + 300000, n_views=20,
+                          rig=(s.T_x_true @ se3_exp(bump), s.T_board_true)))
+    same = compare_loaded(a, b)
+    return dict(mode=mode, seed=seed, p=same.p_value, bumped=compare_loaded(a, c).drifted,
+                p_intr=same.intrinsics.get("p_value", np.nan), validated=validated)
 
 
 def refine_from_install(inst, views, object_points, options):
@@ -575,7 +584,7 @@ def main() -> None:
         report_verify(rows)
         report_theory(rows)
     if a.compare:
-        tasks = [(mode, a.first_seed + s) for mode in a.modes for s in range(a.compare)]
+        tasks = [(mode, a.first_seed + s, a.validated) for mode in a.modes for s in range(a.compare)]
         print(f"compare: {len(tasks)} pairs", file=sys.stderr)
         report_compare(run_pool(compare_trial, tasks, a.jobs, a.jsonl))
     if a.prior:
