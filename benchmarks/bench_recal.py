@@ -23,7 +23,8 @@ checked by :func:`handeye.recal.verify.verify_views`. Printed per mode and robot
 - the theory beside it (:func:`theory`): the power the non-central chi-square predicts for each trial's
   bump with the change covariance the test used, with the model's installed covariance instead of the
   verdict's, the ceiling (perfect new views), the sigma of the change split into the install's (X given
-  its intrinsics) and the new views' (a perfect install), and the factor on all the installed sigmas at
+  what the new views share with it: its intrinsics, and a kinematic install's DH offsets) and the new
+  views' (a perfect install), and the factor on all the installed sigmas at
   which the average power over bump directions reaches 95 % (1: this install suffices; 0: not even a
   perfect install, the new views fall short): its median, its 10th percentile (the factor that makes
   90 % of such installs suffice) and the share of installs that suffice as they are.
@@ -231,8 +232,8 @@ def scaled_install(inst, c: float):
 def theory(inst, r_model, v, bump, views, *, n_dirs: int = 400) -> dict:
     """verify's theoretical power (non-central chi-square) for the verification ``v`` of the undisturbed rig
     against ``inst``: for this trial's bump and on average over random bump directions; with the model's
-    installed covariance instead of the verdict's; the ceiling (perfect new views: the installed X given its
-    intrinsics is all that is left); the sigmas of the change with a perfect install (the new views alone) and
+    installed covariance instead of the verdict's; the ceiling (perfect new views: the installed X given what
+    they share with it, its intrinsics and DH offsets, is all that is left); the sigmas of the change with a perfect install (the new views alone) and
     with perfect new views; ``scale95``: the factor on all the installed sigmas at which the average power
     reaches 95 % with these new views (0: not even a perfect install does)."""
     from dataclasses import replace
@@ -466,7 +467,8 @@ def report_verify(rows) -> None:
 def report_theory(rows) -> None:
     """The power the test should have (non-central chi-square) beside what the trials measured."""
     print("verify theory (non-central chi-square, 6 dof, 5 %; sigmas: norms over the 3 axes; install: its X given "
-          "its intrinsics; new views: with a perfect install):")
+          "what the new views share, its intrinsics and a kinematic install's DH offsets; new views: with a perfect "
+          "install):")
     print(f"  {'model':<10}{'mode':<12}{'change sigma':>17}{'install':>17}{'new views':>17}{'pred.':>7}"
           f"{'measured':>9}{'model cov':>10}{'ceiling':>8}{'install x for 95%':>18}{'(10 %)':>7}{'ok as is':>9}")
     for model in MODELS:

@@ -9,7 +9,7 @@ The model's joint covariance of X and the free intrinsics (``refinement.cov_x_in
 too: verify needs it when the new views share the installed intrinsics. When the verdict covariances
 differ from the model's, the joint is carried to them (:func:`verdict_maps`): its X block becomes the
 verdict's X covariance and its intrinsics block the verdict's intrinsics covariance, the model's
-correlation between the two kept, so that a test never mixes the verdict's X with the model's smaller
+canonical correlations between the two kept, so that a test never mixes the verdict's X with the model's smaller
 intrinsics uncertainty. A kinematic install's DH offsets (estimate and covariance with both, in the same
 block of result.json) are read with it: verify shares them with the new views.
 """

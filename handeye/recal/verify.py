@@ -372,7 +372,11 @@ def with_installed_dh(prior, installed: LoadedResult, robot: dict, views: Sequen
     error is then the install's, not a fresh unknown: the new views see X as precisely as that allows, and
     the test takes the shared offsets apart like the shared intrinsics. Only when the install's views and
     ``views`` carry recorded joint angles: joints from inverse kinematics of a reported pose may be another
-    arm configuration than the one that took the view, for which the shared offsets are wrong."""
+    arm configuration than the one that took the view, for which the shared offsets are wrong. Not when the
+    session brings its own intrinsics (``prior`` without them): the joint test, which takes shared
+    parameters apart, then does not run."""
+    if prior.intrinsics is None:
+        return prior
     dh = installed.dh_joint
     arm = robot.get("arm")
     if dh is None or robot.get("robot_model") != "kinematic" or arm is None or len(dh[0]) != 4 * arm.n_joints:
@@ -386,9 +390,9 @@ def with_installed_dh(prior, installed: LoadedResult, robot: dict, views: Sequen
 def test_refined(installed: LoadedResult, r, prior, *, min_variance_share: float) -> DriftTest:
     """The test of ``X = X0`` on new views refined (``r``) with X free under ``prior``
     (:func:`handeye.recal.loaded.installed_prior`): :func:`joint_drift_test` when the new views share the
-    installed intrinsics and both results carry the joint covariance of X and the intrinsics, else
-    :func:`drift_test` (the session's own intrinsics: nothing shared; an older result: the installed X
-    covariance added whole, a conservative test)."""
+    installed intrinsics (and DH offsets, :func:`with_installed_dh`) and both results carry the joint
+    covariance of X and the intrinsics, else :func:`drift_test` (the session's own intrinsics: nothing shared;
+    an older result: the installed X covariance added whole, a conservative test)."""
     t = _joint_test(installed, r, prior, min_variance_share) if prior.intrinsics is not None else None
     if t is None:
         t = drift_test(cov_installed=installed.cov_x, T_x_installed=installed.T_x, T_x_new=r.T_x,
