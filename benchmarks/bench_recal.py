@@ -229,7 +229,7 @@ def scaled_install(inst, c: float):
                    dh_joint=None if dh is None else (dh[0], c ** 2 * dh[1], c ** 2 * dh[2], c ** 2 * dh[3]))
 
 
-def theory(inst, r_model, v, bump, views, *, n_dirs: int = 400) -> dict:
+def theory(inst, r_model, v, bump, *, n_dirs: int = 400) -> dict:
     """verify's theoretical power (non-central chi-square) for the verification ``v`` of the undisturbed rig
     against ``inst``: for this trial's bump and on average over random bump directions; with the model's
     installed covariance instead of the verdict's; the ceiling (perfect new views: the installed X given what
@@ -238,11 +238,9 @@ def theory(inst, r_model, v, bump, views, *, n_dirs: int = 400) -> dict:
     reaches 95 % with these new views (0: not even a perfect install does)."""
     from dataclasses import replace
 
-    from handeye.recal.loaded import VAGUE_COV_X, installed_prior
-    from handeye.recal.verify import installed_robot_model, test_refined, with_installed_dh
+    from handeye.recal.verify import test_refined
 
-    prior, _ = installed_prior(inst, session_intrinsics=False, cov_x=VAGUE_COV_X)
-    prior = with_installed_dh(prior, inst, installed_robot_model(inst), views)  # as verify_views builds it
+    prior = v.refined.options.prior  # the one verify_views refined the new views under
     dirs = np.array([random_bump(np.random.default_rng(k)) for k in range(n_dirs)])
 
     def V(c, i=inst):
@@ -317,7 +315,7 @@ def verify_trial(args) -> dict:
                              sig_mm=float(np.linalg.norm(v.change["sigma_trans_mm"])),
                              sig_deg=float(np.linalg.norm(v.change["sigma_rot_deg"])))
             if name == "still":
-                out["theory"] = theory(inst, r, v, bump, views)
+                out["theory"] = theory(inst, r, v, bump)
         return out
     except HandeyeError as e:
         return dict(mode=mode, model=model, seed=seed, skipped=str(e)[:100])

@@ -72,12 +72,16 @@ class LoadedResult:
         return 0.5 * (S + S.T)
 
     @property
+    def joints_recorded(self) -> bool:
+        """The install's kinematic robot model took the views' recorded joint angles (not inverse kinematics)."""
+        return ((self.raw.get("refinement") or {}).get("robot_model") or {}).get("joint_angles") == "recorded"
+
+    @property
     def cov_x_given_shared(self) -> Optional[np.ndarray]:
         """(6,6) the covariance of X given what a verification shares with this install: the intrinsics and,
         for a kinematic install whose views recorded joint angles, the arm's DH offsets
         (:func:`handeye.recal.verify.with_installed_dh`); :attr:`cov_x_given_intrinsics` otherwise."""
-        recorded = ((self.raw.get("refinement") or {}).get("robot_model") or {}).get("joint_angles") == "recorded"
-        if self.cov_x_intrinsics is None or self.dh_joint is None or not recorded:
+        if self.cov_x_intrinsics is None or self.dh_joint is None or not self.joints_recorded:
             return self.cov_x_given_intrinsics
         _, C, K = self.cov_x_intrinsics
         _, Cd, Kd, D = self.dh_joint

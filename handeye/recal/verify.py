@@ -381,8 +381,7 @@ def with_installed_dh(prior, installed: LoadedResult, robot: dict, views: Sequen
     arm = robot.get("arm")
     if dh is None or robot.get("robot_model") != "kinematic" or arm is None or len(dh[0]) != 4 * arm.n_joints:
         return prior
-    recorded = ((installed.raw.get("refinement") or {}).get("robot_model") or {}).get("joint_angles") == "recorded"
-    if not recorded or any(getattr(v, "joint_angles", None) is None for v in views):
+    if not installed.joints_recorded or any(getattr(v, "joint_angles", None) is None for v in views):
         return prior
     return replace(prior, dh_offsets=dh[0], cov_dh=dh[3])
 

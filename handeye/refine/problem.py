@@ -141,10 +141,8 @@ class Problem:
         self.kin = (build_kinematic_model(options, self.kind, self.views, self.reported)
                     if self.kind in ("kinematic", "joint_space") else None)
         self.m_dh = self.kin.m if self.kin is not None else 0
-        self.dh = np.zeros(self.m_dh)
-        self.S_dd = np.diag(self.kin.dh_sigma ** 2) if self.m_dh else np.zeros((0, 0))
         # the DH offsets' prior: N(0, the arm's error prior), or an earlier calibration's estimate (prior.dh_offsets)
-        self.prior_dh = (np.zeros(self.m_dh), self.S_dd.copy())
+        self.prior_dh = (np.zeros(self.m_dh), np.diag(self.kin.dh_sigma ** 2) if self.m_dh else np.zeros((0, 0)))
         p = options.prior
         if self.m_dh and p is not None and p.dh_offsets is not None:
             if np.size(p.dh_offsets) != self.m_dh:
@@ -153,7 +151,7 @@ class Problem:
                                   received=f"{np.size(p.dh_offsets)}",
                                   hint="give the DH offsets of a calibration of this arm, or none")
             self.prior_dh = (np.asarray(p.dh_offsets, float).copy(), np.asarray(p.cov_dh, float).copy())
-            self.dh, self.S_dd = self.prior_dh[0].copy(), self.prior_dh[1].copy()
+        self.dh, self.S_dd = self.prior_dh[0].copy(), self.prior_dh[1].copy()  # the start: the prior's
         self.sigma_q = self.kin.encoder_sigma_rad if self.kin is not None else 0.0
         self.robot_prior_k = float(refine_preset()["robust"]["robot_prior_k"])
         self.T_x = T_x0.copy()
