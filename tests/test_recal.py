@@ -495,3 +495,21 @@ def test_verify_shares_the_installed_arms_dh_offsets():
     assert prior.dh_offsets is None
     assert with_installed_dh(prior, inst, robot, views(new)).dh_offsets is not None
     assert with_installed_dh(prior, inst, robot, [replace(v, joint_angles=None) for v in views(new)]) is prior
+    # the share of the DH prior the new views resolve is measured against the prior they had: the install's
+    rm_shared, rm_own = results["still"].refined.robot_model, alone.refined.robot_model
+    assert rm_shared["dh_prior"] == "an earlier calibration's estimate" and rm_own["dh_prior"] == "the arm's error prior"
+    sd_installed = np.sqrt(np.diag(inst.dh_joint[3]))
+    sd_new = np.asarray(rm_shared["dh_offset_sigma"], float).ravel() / np.tile([1e3, np.degrees(1), 1e3, np.degrees(1)], 6)
+    np.testing.assert_allclose(np.asarray(rm_shared["dh_resolved_share"], float).ravel(),
+                               1.0 - np.clip((sd_new / sd_installed) ** 2, 0.0, 1.0), atol=1e-9)
+    # verify --plan faces what verify will share: without an arm verify can rebuild, X given the intrinsics only
+    from handeye.recal.verify import shares_dh
+
+    assert shares_dh(inst)
+    no_arm = replace(inst, raw=dict(inst.raw, refinement=dict(inst.raw["refinement"], robot_model={
+        k: v for k, v in inst.raw["refinement"]["robot_model"].items() if k not in ("dh_table", "arm")})))
+    assert not shares_dh(no_arm)
+    from handeye.recal.plan import plan_verification
+
+    small = dict(drift_mm=0.3, drift_deg=0.03, max_views=3)  # a drift whose ceiling power is below 1
+    assert plan_verification(inst, **small).ceiling_power > plan_verification(no_arm, **small).ceiling_power + 0.05

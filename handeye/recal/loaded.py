@@ -78,10 +78,10 @@ class LoadedResult:
 
     @property
     def cov_x_given_shared(self) -> Optional[np.ndarray]:
-        """(6,6) the covariance of X given what a verification shares with this install: the intrinsics and,
-        for a kinematic install whose views recorded joint angles, the arm's DH offsets
-        (:func:`handeye.recal.verify.with_installed_dh`); :attr:`cov_x_given_intrinsics` otherwise."""
-        if self.cov_x_intrinsics is None or self.dh_joint is None or not self.joints_recorded:
+        """(6,6) the covariance of X given the intrinsics and the arm's DH offsets of a kinematic install (what a
+        verification faces when it shares both: :func:`handeye.recal.verify.shares_dh`);
+        :attr:`cov_x_given_intrinsics` for an install without DH offsets."""
+        if self.cov_x_intrinsics is None or self.dh_joint is None:
             return self.cov_x_given_intrinsics
         _, C, K = self.cov_x_intrinsics
         _, Cd, Kd, D = self.dh_joint

@@ -5,9 +5,10 @@ From the installed calibration alone (its X and board, intrinsics, pixel and rob
 (:func:`handeye.collect.plan.view_information`: corner reprojection at the installed intrinsics, robot
 noise marginalised; the board a nuisance shared by the views, marginalised by inverting the summed 12x12
 information). Verify shares the installed intrinsics, so the installed uncertainty it faces is ``S0``,
-X's covariance given its intrinsics, and given a kinematic install's DH offsets when its views recorded
-joint angles (:attr:`handeye.recal.loaded.LoadedResult.cov_x_given_shared`; the whole covariance of results
-without the joint one); what the views' own sensitivity to the
+X's covariance given its intrinsics, and given a kinematic install's DH offsets when verify will share them
+(:func:`handeye.recal.verify.shares_dh`: the install recorded joint angles for an arm verify can rebuild;
+:attr:`handeye.recal.loaded.LoadedResult.cov_x_given_shared`; the whole covariance of results without the
+joint one); what the views' own sensitivity to the
 intrinsics adds is left out, so the plan is slightly optimistic. A set of views
 with X-covariance ``S_new`` makes verify's test statistic (:mod:`handeye.recal.verify`) non-central
 chi-square with 6 degrees of freedom and non-centrality ``delta^T (S0 + S_new)^-1 delta`` for a drift
@@ -39,6 +40,7 @@ from ..mounting import mounting
 from ..output import plain
 from ..session.target_spec import parse_target
 from .loaded import LoadedResult, ResultLike, load_result
+from .verify import shares_dh
 
 log = logging.getLogger(__name__)
 
@@ -179,7 +181,8 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
         raise InputError("no candidate robot poses to plan from", path=installed.source,
                          hint="the result holds no refined robot poses; give candidate poses")
     infos = [info_of(T) for T, _ in cands]
-    S0 = installed.cov_x_given_shared  # verify shares the installed intrinsics (and DH offsets): their error cancels
+    # verify shares the installed intrinsics (and the DH offsets when it can): their error cancels in its test
+    S0 = installed.cov_x_given_shared if shares_dh(installed) else installed.cov_x_given_intrinsics
     ceiling = test_power(worst_noncentrality(S0, drifts), alpha=alpha)
     info = np.zeros((12, 12))
     chosen, powers, n_goal = [], [], None

@@ -375,15 +375,23 @@ def with_installed_dh(prior, installed: LoadedResult, robot: dict, views: Sequen
     arm configuration than the one that took the view, for which the shared offsets are wrong. Not when the
     session brings its own intrinsics (``prior`` without them): the joint test, which takes shared
     parameters apart, then does not run."""
-    if prior.intrinsics is None:
+    if prior.intrinsics is None or not shares_dh(installed, robot):
+        return prior
+    if any(getattr(v, "joint_angles", None) is None for v in views):
         return prior
     dh = installed.dh_joint
-    arm = robot.get("arm")
-    if dh is None or robot.get("robot_model") != "kinematic" or arm is None or len(dh[0]) != 4 * arm.n_joints:
-        return prior
-    if not installed.joints_recorded or any(getattr(v, "joint_angles", None) is None for v in views):
-        return prior
     return replace(prior, dh_offsets=dh[0], cov_dh=dh[3])
+
+
+def shares_dh(installed: LoadedResult, robot: Optional[dict] = None) -> bool:
+    """Whether a verification with recorded joint angles shares the install's DH offsets
+    (:func:`with_installed_dh`): the install recorded them for an arm verify can rebuild
+    (``robot``, default :func:`installed_robot_model`) with as many offsets, from recorded joint angles.
+    ``verify --plan`` asks the same question, so that it plans against the uncertainty verify will face."""
+    robot = installed_robot_model(installed) if robot is None else robot
+    dh, arm = installed.dh_joint, robot.get("arm")
+    return (dh is not None and robot.get("robot_model") == "kinematic" and arm is not None
+            and len(dh[0]) == 4 * arm.n_joints and installed.joints_recorded)
 
 
 def test_refined(installed: LoadedResult, r, prior, *, min_variance_share: float) -> DriftTest:
