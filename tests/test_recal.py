@@ -75,6 +75,58 @@ def test_compare_prefers_the_verdict_covariance():
     assert "not independent" in compare_results(a, b).note
 
 
+def _joint_result(T_x, k, D, H, K) -> dict:
+    """A result whose X error is ``D`` plus what its intrinsics error (fx, fy, cx, cy; covariance ``K``) causes
+    through ``H`` (6,4): the joint covariance result.json's cov_x_intrinsics carries."""
+    r = fake_result(T_x)
+    S = D + H @ K @ H.T
+    r["intrinsics"].update(fx=k[0], fy=k[1], cx=k[2], cy=k[3])
+    r["refinement"].update(cov_x_6x6=S.tolist(), intrinsics_sigma=dict(zip(("fx", "fy", "cx", "cy"), np.sqrt(np.diag(K)))),
+                           cov_x_intrinsics={"intrinsics": ["fx", "fy", "cx", "cy"], "cross_6xk": (H @ K).tolist(),
+                                             "intrinsics_kxk": K.tolist()})
+    return r
+
+
+def test_compare_takes_out_the_part_of_the_difference_the_intrinsics_explain():
+    # X's error tied to its principal point (cx tilts X about the camera y axis and shifts it along x) and fx to
+    # fy: compare tests X given the intrinsics difference. A difference of X that the cx difference explains is
+    # no drift; a camera moved by the same amount with the lens unchanged is one, and more clearly than X alone says
+    D = np.diag([SIGMA_ROT ** 2] * 3 + [SIGMA_TRANS ** 2] * 3) / 4.0
+    H = np.zeros((6, 4))
+    H[1, 2], H[3, 2] = 4e-4, 3e-4  # rad and m per px of cx
+    K = np.array([[0.25, 0.24, 0, 0], [0.24, 0.25, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
+    k_a = np.array([910.0, 909.0, 640.0, 360.0])
+    dk = np.array([0.0, 0.0, 3.0, 0.0])
+    T_a = se3_exp(np.array([0.1, -0.2, 0.3, 0.05, 0.02, 0.1]))
+    xi = H @ dk  # 0.069 deg about y, 0.9 mm along x
+    a = _joint_result(T_a, k_a, D, H, K)
+    lens = compare_results(a, _joint_result(T_a @ se3_exp(xi), k_a + dk, D, H, K))
+    assert lens.test == "X given the intrinsics difference"
+    assert lens.mahalanobis2 < 0.01 and not lens.drifted
+    assert lens.explained_trans_mm == pytest.approx(0.9, rel=0.02) and lens.explained_rot_deg == pytest.approx(
+        np.degrees(1.2e-3), rel=0.02)
+    moved = compare_results(a, _joint_result(T_a @ se3_exp(xi), k_a, D, H, K))
+    # the same difference without the lens change: X given dk = 0, the explicit conditional Gaussian
+    Ad = se3_adjoint(se3_exp(xi))
+    S = (D + H @ K @ H.T) + Ad @ (D + H @ K @ H.T) @ Ad.T
+    C = H @ K + Ad @ H @ K
+    V = S - C @ np.linalg.solve(2 * K, C.T)
+    assert moved.mahalanobis2 == pytest.approx(xi @ np.linalg.solve(V, xi), rel=1e-6)
+    assert moved.drifted and moved.mahalanobis2 > 3 * moved.mahalanobis2_x_alone
+    # a verdict twice the model's covariance of X (A = sqrt(2) I): the regression stays the model's geometry, the
+    # part the intrinsics do not explain doubles with X's covariance
+    a2, b2 = a, _joint_result(T_a @ se3_exp(xi), k_a, D, H, K)
+    for r in (a2, b2):
+        r["refinement"]["cov_x_6x6_verdict"] = (2 * np.asarray(r["refinement"]["cov_x_6x6"])).tolist()
+    assert compare_results(a2, b2).mahalanobis2 == pytest.approx(moved.mahalanobis2 / 2, rel=1e-6)
+    assert compare_results(a2, _joint_result(T_a @ se3_exp(xi), k_a + dk, D, H, K)).mahalanobis2 < 0.01
+    # the intrinsics under their full covariance: fx and fy moving together by 0.5 px is within it
+    both = compare_results(a, _joint_result(T_a, k_a + np.array([0.5, 0.5, 0, 0]), D, H, K))
+    assert both.intrinsics["dof"] == 4 and "full covariance" in both.intrinsics["test"]
+    assert both.intrinsics["mahalanobis2"] == pytest.approx(
+        np.array([0.5, 0.5]) @ np.linalg.solve(2 * K[:2, :2], np.array([0.5, 0.5])), rel=1e-9)
+
+
 @pytest.mark.parametrize("change, words", [
     (dict(mode="eye_to_hand"), "mounting modes differ"),
     (dict(size=(640, 480)), "camera resolutions differ"),

@@ -1,7 +1,8 @@
 """``handeye compare RESULT_A RESULT_B``: the difference between two calibrations of one rig.
 
 stdout: per axis the difference of X (mm, deg) with the sigma of the difference, the squared
-Mahalanobis distance under the sum of the two covariances and its p-value, the same for the
+Mahalanobis distance under the sum of the two covariances and its p-value (of X given the intrinsics
+difference when both results carry the joint covariance, :mod:`handeye.recal.compare`), the same for the
 intrinsics; ``--json`` prints :meth:`handeye.recal.compare.Comparison.to_dict` instead. Results
 that do not describe one quantity (mode, frames, board, camera resolution) are refused in one line
 (exit 2); a difference beyond the uncertainty exits with the DRIFTED code
@@ -19,8 +20,11 @@ def add_arguments(p) -> None:
 
     p.description = ("Compare two calibrations of one rig: B - A of the hand-eye transform per axis (mm, deg), "
                      "the squared Mahalanobis distance under the sum of both covariances (the ones each "
-                     "result's verdict uses) with its p-value, and the same for fx, fy, cx, cy. Refuses results "
-                     "of different modes, frames, boards or camera resolutions.")
+                     "result's verdict uses) with its p-value, and the same for fx, fy, cx, cy. When both results "
+                     "carry the joint covariance of X and the intrinsics, X is tested given the intrinsics "
+                     "difference (the part of the difference an intrinsics change explains taken out; the test of "
+                     "X alone is printed beside it). Refuses results of different modes, frames, boards or camera "
+                     "resolutions.")
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = exit_codes_text()
     p.add_argument("result_a", type=Path, help="the earlier result folder (or its result.json)")

@@ -56,6 +56,11 @@ class LoadedResult:
     # the kinematic robot model's DH offsets and their covariance with X and the intrinsics (the same source):
     # (offsets (m,), cross with X (6,m), cross with the intrinsics (k,m), (m,m)); None without that model
     dh_joint: Optional[tuple] = field(repr=False, default=None)
+    # what compare conditions X on the intrinsics with: (names, the model's cross-covariance C (6,k) and
+    # intrinsics covariance K (k,k) as result.json stores them, A C (6,k) with A the verdict map of X). C K^-1 is
+    # the model's geometry (how an intrinsics error moves X); with A C, X's part the intrinsics do not explain
+    # gets the verdict's inflation of X: A (S - C K^-1 C^T) A^T
+    x_on_intrinsics: Optional[tuple] = field(repr=False, default=None)
 
     @property
     def ok(self) -> bool:
@@ -158,13 +163,15 @@ def _joints(ref: dict, cov_x: Optional[np.ndarray]) -> dict:
     maps = verdict_maps(joint, cov_x_model=_matrix(ref.get("cov_x_6x6"), (6, 6)), cov_x=cov_x,
                         intrinsics_verdict=_intrinsics_verdict(ref))
     if maps is None:
-        return {"cov_x_intrinsics": joint, "dh_joint": dh}
+        return {"cov_x_intrinsics": joint, "dh_joint": dh,
+                "x_on_intrinsics": None if joint is None else joint + (joint[1],)}
     A, B = maps
     names, C, K = joint
     K2 = B @ K @ B.T
     if dh is not None:
         dh = (dh[0], A @ dh[1], B @ dh[2], dh[3])
-    return {"cov_x_intrinsics": (names, A @ C @ B.T, 0.5 * (K2 + K2.T)), "dh_joint": dh}
+    return {"cov_x_intrinsics": (names, A @ C @ B.T, 0.5 * (K2 + K2.T)), "dh_joint": dh,
+            "x_on_intrinsics": (names, C, K, A @ C)}
 
 
 def _dh_joint(j: dict, k: int) -> Optional[tuple]:
