@@ -399,12 +399,17 @@ def prior_trial(args) -> dict:
         rp = refine_from_install(inst, views, obj, RefineOptions(prior=prior, fix=fixed))
         # as calibrate --prior: verify's test on the views decides; when they contradict the prior, the views
         # without the prior on X (the intrinsics prior kept)
-        contradicted = rp.status != "ok" or verify_views(inst, views=views, object_points=obj).drifted
-        vague, _ = installed_prior(inst, session_intrinsics=False, cov_x=VAGUE_COV_X)  # as calibrate --prior builds it
-        alone = refine_from_install(inst, views, obj, RefineOptions(prior=vague, fix=fixed))
-        kept = alone if contradicted else rp
+        v = verify_views(inst, views=views, object_points=obj)
+        contradicted = rp.status != "ok" or v.drifted
+        # as calibrate --prior builds it: no prior on X, the intrinsics' kept, and the board's where it did not move
+        board_kept = bool(v.board.get("known") and not v.board.get("moved"))
+        vague, _ = installed_prior(inst, session_intrinsics=False, cov_x=VAGUE_COV_X, board=board_kept)
+        update = refine_from_install(inst, views, obj, RefineOptions(prior=vague, fix=fixed))
+        bare, _ = installed_prior(inst, session_intrinsics=False, cov_x=VAGUE_COV_X)
+        alone = refine_from_install(inst, views, obj, RefineOptions(prior=bare, fix=fixed)) if board_kept else update
+        kept = update if contradicted else rp
         fresh = calibrate(session(mode=mode, model="iid", seed=seed + 500000, n_views=20, rig=rig))
-        out[name] = dict(contradicted=contradicted, err_mm=pose_error(kept.T_x, rig[0])[1],
+        out[name] = dict(contradicted=contradicted, board_kept=board_kept, err_mm=pose_error(kept.T_x, rig[0])[1],
                          err_deg=pose_error(kept.T_x, rig[0])[0], fresh_mm=pose_error(fresh.T_x, rig[0])[1],
                          fresh_deg=pose_error(fresh.T_x, rig[0])[0], alone_mm=pose_error(alone.T_x, rig[0])[1],
                          alone_deg=pose_error(alone.T_x, rig[0])[0], installed_mm=pose_error(inst.T_x, rig[0])[1])
@@ -526,9 +531,10 @@ def report_prior(rows) -> None:
         b, s = [r["bumped"] for r in rs], [r["still"] for r in rs]
         print(f"--prior {mode}: {len(rs)} installs; 5 new views after a {BUMP_MM:g} mm / {BUMP_DEG:g} deg bump: RMS "
               f"error {rms(x['err_mm'] for x in b):.3f} mm {rms(x['err_deg'] for x in b):.4f} deg (contradiction "
-              f"reported in {100 * np.mean([x['contradicted'] for x in b]):.0f} %) vs fresh 20 views "
+              f"reported in {100 * np.mean([x['contradicted'] for x in b]):.0f} %, the board's pose kept in "
+              f"{100 * np.mean([x.get('board_kept', False) for x in b]):.0f} %) vs fresh 20 views "
               f"{rms(x['fresh_mm'] for x in b):.3f} mm {rms(x['fresh_deg'] for x in b):.4f} deg (the install: "
-              f"{rms(x['installed_mm'] for x in b):.3f} mm; the 5 views without the prior on X: "
+              f"{rms(x['installed_mm'] for x in b):.3f} mm; the 5 views without the priors on X and the board: "
               f"{rms(x.get('alone_mm', np.nan) for x in b):.3f} mm {rms(x.get('alone_deg', np.nan) for x in b):.4f} "
               f"deg); no bump: {rms(x['err_mm'] for x in s):.3f} mm "
               f"{rms(x['err_deg'] for x in s):.4f} deg vs fresh {rms(x['fresh_mm'] for x in s):.3f} mm, contradiction "

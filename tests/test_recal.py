@@ -414,10 +414,11 @@ def rendered(install, tmp_path_factory):
     (root / "installed" / "result.json").write_text(json.dumps(res))
     out = {"installed": root / "installed"}
     bump = np.array([np.radians(0.5), 0.0, 0.0, 0.0, 5e-3, 0.0])
-    for name, xi in (("same", np.zeros(6)), ("bumped", bump)):
+    moved = s.T_board_true @ se3_exp(np.array([0.0, 0.0, np.radians(2.0), 0.02, 0.0, 0.0]))  # 20 mm, 2 deg on the table
+    for name, xi, board in (("same", np.zeros(6), s.T_board_true), ("bumped", bump, s.T_board_true),
+                            ("bumped_board_moved", bump, moved)):
         out[name] = write_vendor_session(root / name, n_views=4, seed=200, robot_noise=(0.2, 0.05), image_noise=2.0,
-                                         intrinsics=s.intrinsics, supersample=2, rig=(s.T_x_true @ se3_exp(xi),
-                                                                                     s.T_board_true))
+                                         intrinsics=s.intrinsics, supersample=2, rig=(s.T_x_true @ se3_exp(xi), board))
     return out
 
 
@@ -443,7 +444,7 @@ def test_verify_cli_writes_reports_and_exits_9_when_drifted(rendered, tmp_path, 
 
 def test_calibrate_with_prior_reports_the_update_or_the_contradiction(rendered, tmp_path, capsys):
     installed = json.loads((rendered["installed"] / "result.json").read_text())
-    for name, contradicted in (("same", False), ("bumped", True)):
+    for name, contradicted in (("same", False), ("bumped", True), ("bumped_board_moved", True)):
         main(["-q", "calibrate", str(rendered[name]), "--prior", str(rendered["installed"]), "--out",
               str(tmp_path / name)])
         res = json.loads((tmp_path / name / "result.json").read_text())
@@ -456,6 +457,15 @@ def test_calibrate_with_prior_reports_the_update_or_the_contradiction(rendered, 
             5 * installed["refinement"]["intrinsics_sigma"]["fx"]
         if contradicted:
             assert p["used"].startswith("no prior on X") and p["change"]["trans_mm"] > 2.0
+            # the board's earlier pose is kept only where the board stayed: the bumped camera's views measure X
+            # through it
+            assert p["board_prior"] is (name == "bumped") and ("board pose" in p["used"]) is (name == "bumped")
+            if name == "bumped":
+                from handeye.frames import pose_error
+
+                rot, trans = pose_error(np.array(res["T_base_board"]), np.array(installed["T_base_board"]))
+                sd = 1000 * np.sqrt(np.trace(np.array(installed["refinement"]["cov_board_6x6"])[3:, 3:]))
+                assert trans < 3 * sd, (trans, sd)
         else:
             assert p["used"] == "prior" and p["test"]["dof"] == 6 and p["test"]["p_value"] > 0.05
             assert len(p["update"]["sigma_trans_mm"]) == 3 and all(s >= 0 for s in p["update"]["sigma_trans_mm"])

@@ -61,6 +61,9 @@ class LoadedResult:
     # the model's geometry (how an intrinsics error moves X); with A C, X's part the intrinsics do not explain
     # gets the verdict's inflation of X: A (S - C K^-1 C^T) A^T
     x_on_intrinsics: Optional[tuple] = field(repr=False, default=None)
+    # the board pose's model covariance (6,6) and its cross-covariance with the free intrinsics (6,k), carried
+    # like the intrinsics to their verdict covariance; None in results without them
+    board_joint: Optional[tuple] = field(repr=False, default=None)
 
     @property
     def ok(self) -> bool:
@@ -162,15 +165,21 @@ def _joints(ref: dict, cov_x: Optional[np.ndarray]) -> dict:
     dh = _dh_joint(j, len(joint[0])) if joint is not None else None
     maps = verdict_maps(joint, cov_x_model=_matrix(ref.get("cov_x_6x6"), (6, 6)), cov_x=cov_x,
                         intrinsics_verdict=_intrinsics_verdict(ref))
+    board = None
+    if joint is not None:
+        cb, cbk = _matrix(ref.get("cov_board_6x6"), (6, 6)), _matrix(j.get("cross_board_6xk"), (6, len(joint[0])))
+        board = None if cb is None or cbk is None else (0.5 * (cb + cb.T), cbk)
     if maps is None:
-        return {"cov_x_intrinsics": joint, "dh_joint": dh,
+        return {"cov_x_intrinsics": joint, "dh_joint": dh, "board_joint": board,
                 "x_on_intrinsics": None if joint is None else joint + (joint[1],)}
     A, B = maps
     names, C, K = joint
     K2 = B @ K @ B.T
     if dh is not None:
         dh = (dh[0], A @ dh[1], B @ dh[2], dh[3])
-    return {"cov_x_intrinsics": (names, A @ C @ B.T, 0.5 * (K2 + K2.T)), "dh_joint": dh,
+    if board is not None:
+        board = (board[0], board[1] @ B.T)
+    return {"cov_x_intrinsics": (names, A @ C @ B.T, 0.5 * (K2 + K2.T)), "dh_joint": dh, "board_joint": board,
             "x_on_intrinsics": (names, C, K, A @ C)}
 
 
@@ -265,20 +274,24 @@ def _check_parametrisation(text, source: str) -> None:
 VAGUE_COV_X = np.eye(6)
 
 
-def installed_prior(installed: LoadedResult, *, session_intrinsics: bool, cov_x: Optional[np.ndarray] = None):
+def installed_prior(installed: LoadedResult, *, session_intrinsics: bool, cov_x: Optional[np.ndarray] = None,
+                    board: bool = False):
     """(Prior or None, names of intrinsics to hold) from the installed result: X with ``cov_x``
     (default: the installed covariance) and, unless the session brings its own intrinsics, the
     installed intrinsics with their sigmas (those without a sigma are held at the installed value) and, where the
     result has the joint covariance, the correlations among them (fx and fy move together) and, when X's prior
-    is the installed covariance, their correlation with X (one joint prior)."""
+    is the installed covariance, their correlation with X (one joint prior). ``board``: the installed board pose
+    with its covariance too (the board has not moved), jointly with the intrinsics when X's prior is not."""
     from ..refine.options import Prior
 
     if installed.cov_x is None:
         raise InputError("the installed result has no covariance of X", path=installed.source,
                          hint="use a result calibrated with the refinement (without --no-refine)")
     cov = installed.cov_x if cov_x is None else cov_x
+    with_board = board and installed.board_joint is not None and installed.T_board is not None
     if session_intrinsics or installed.intrinsics is None:
-        return Prior(T_x=installed.T_x, cov_x=cov), ()
+        return Prior(T_x=installed.T_x, cov_x=cov, **(dict(T_board=installed.T_board, cov_board=installed.board_joint[0])
+                                                      if with_board else {})), ()
     sig = np.array([installed.intrinsics_sigma.get(n, 0.0) for n in INTRINSIC_NAMES])
     fixed = tuple(n for n, s in zip(INTRINSIC_NAMES, sig) if not s > 0)
     cov_k = np.diag(np.where(sig > 0, sig, 1.0) ** 2)
@@ -291,8 +304,17 @@ def installed_prior(installed: LoadedResult, *, session_intrinsics: bool, cov_x:
             if cov_x is None:
                 cross = np.zeros((6, len(INTRINSIC_NAMES)))
                 cross[:, idx] = C
+    extra = {}
+    if with_board:
+        cb, cbk = installed.board_joint
+        extra = dict(T_board=installed.T_board, cov_board=cb)
+        names = installed.cov_x_intrinsics[0] if installed.cov_x_intrinsics is not None else ()
+        idx = [INTRINSIC_NAMES.index(n) for n in names]
+        if cross is None and idx and np.allclose(cov_k[np.ix_(idx, idx)], installed.cov_x_intrinsics[2]):
+            extra["cov_board_intrinsics"] = np.zeros((6, len(INTRINSIC_NAMES)))
+            extra["cov_board_intrinsics"][:, idx] = cbk
     return Prior(T_x=installed.T_x, cov_x=cov, intrinsics=installed.intrinsics, cov_intrinsics=cov_k,
-                 cov_x_intrinsics=cross), fixed
+                 cov_x_intrinsics=cross, **extra), fixed
 
 
 def result_from_refinement(refined, *, target, validation=None) -> dict:

@@ -16,7 +16,10 @@ would report. When ``p < alpha`` (or the solve with the prior fails), the prior 
 the session is calibrated again without the prior on X (a vague term,
 :data:`handeye.recal.loaded.VAGUE_COV_X`: the data say its mean is wrong, and no inflation of ``S0``
 fitted to one drift would be better founded) but with the intrinsics prior (a bump moves the camera,
-not its lens), and the result says so, with the drift (the change of X with its sigma).
+not its lens) and, when verify's test finds the board where the earlier result put it, the earlier board
+pose with its covariance and its correlation with the intrinsics (a bumped camera does not move the
+board: each new view then measures X through it, instead of the few views fixing X and the board
+together), and the result says so, with the drift (the change of X with its sigma).
 """
 from __future__ import annotations
 
@@ -48,12 +51,13 @@ def check_prior_fits(installed: LoadedResult, session) -> None:
                          path=installed.source, code="not_comparable", hint="use a result of this board as --prior")
 
 
-def _with_prior(session, options, installed: LoadedResult, *, cov_x=None):
+def _with_prior(session, options, installed: LoadedResult, *, cov_x=None, board: bool = False):
     """(session, options) with the earlier X (covariance ``cov_x``, default its own) and, unless the session
     has its own intrinsics, the earlier intrinsics as priors (:func:`handeye.recal.loaded.installed_prior`:
-    the session starts from them, the refinement estimates them under their prior)."""
+    the session starts from them, the refinement estimates them under their prior); ``board``: the earlier
+    board pose too (jointly with the intrinsics), for a board that has not moved."""
     own = session.intrinsics is not None and session.intrinsics_prior in ("fixed", "prior")
-    prior, held = installed_prior(installed, session_intrinsics=own, cov_x=cov_x)
+    prior, held = installed_prior(installed, session_intrinsics=own, cov_x=cov_x, board=board)
     ro = dict(options.refine_options, prior=prior)
     if prior.intrinsics is not None:
         ro["intrinsics"] = "estimate"  # the prior's intrinsics term, and no factory prior on top of it
@@ -119,9 +123,15 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
         log.info("prior: %s", rec["summary"])
         return _described(run), plain(rec, nan_to_none=True)
     progress("the data contradict the prior: calibrating without it")
-    s_n, opts_n = _with_prior(session, options, installed, cov_x=VAGUE_COV_X)  # the intrinsics prior stays
+    # the intrinsics prior stays; so does the board's pose when verify found the board where it was (a bumped
+    # camera does not move the board, and each new view then measures X through it)
+    board_kept = bool(v is not None and v.board.get("known") and not v.board.get("moved")
+                      and installed.board_joint is not None)
+    s_n, opts_n = _with_prior(session, options, installed, cov_x=VAGUE_COV_X, board=board_kept)
     run_n = run_calibration(s_n, opts_n, progress=progress)
-    rec["used"] = "no prior on X (the new views alone; the prior's intrinsics kept)"
+    rec["used"] = ("no prior on X (the new views with the prior's intrinsics and board pose: the board did not move)"
+                   if board_kept else "no prior on X (the new views alone; the prior's intrinsics kept)")
+    rec["board_prior"] = board_kept
     if run_n.status == "ok" and run_n.refined is not None:
         size = (f"; {installed.x_name} drifted by {rec['change']['trans_mm']:.2f} mm, "
                 f"{rec['change']['rot_deg']:.3f} deg" if "change" in rec else "")

@@ -59,7 +59,11 @@ class Prior:
     the intrinsics (an earlier calibration's errors of the two are correlated: a principal point error tilts
     X); with it the two priors are one joint Gaussian. ``dh_offsets`` (m,) / ``cov_dh`` (m,m): the kinematic
     robot model's DH offsets (:mod:`handeye.refine.robot_model`, in its order) as an earlier calibration of the
-    same arm estimated them; they replace the arm's own prior N(0, error_prior) (used only with that model)."""
+    same arm estimated them; they replace the arm's own prior N(0, error_prior) (used only with that model).
+    ``T_board`` / ``cov_board`` (6,6): the board's pose (``T_base_board`` / ``T_end_board``) and its covariance in
+    its right tangent, e.g. an earlier calibration's when the board has not moved since (a bumped camera does not
+    move it); ``cov_board_intrinsics`` (6,9): its cross-covariance with the intrinsics (one joint Gaussian with
+    them; not together with ``cov_x_intrinsics``)."""
 
     T_x: np.ndarray
     cov_x: np.ndarray
@@ -68,6 +72,9 @@ class Prior:
     cov_x_intrinsics: Optional[np.ndarray] = None
     dh_offsets: Optional[np.ndarray] = None
     cov_dh: Optional[np.ndarray] = None
+    T_board: Optional[np.ndarray] = None
+    cov_board: Optional[np.ndarray] = None
+    cov_board_intrinsics: Optional[np.ndarray] = None
 
 
 @dataclass(frozen=True)
@@ -187,6 +194,23 @@ def check_prior(p: "Prior", bad) -> None:
         if not _is_covariance(joint, 6 + nk):
             bad("prior.cov_x_intrinsics", "a cross-covariance that keeps the joint covariance of X and the "
                 "intrinsics positive definite", "a joint covariance that is not")
+    if (p.T_board is None) != (p.cov_board is None):
+        bad("prior.cov_board", "T_board and cov_board both given or both None", "only one of them")
+    if p.cov_board is not None and not _is_covariance(p.cov_board, 6):
+        bad("prior.cov_board", "a symmetric positive definite 6x6 covariance", np.shape(p.cov_board))
+    if p.cov_board_intrinsics is not None:
+        nk = len(INTRINSIC_NAMES)
+        if p.cov_board is None or p.cov_intrinsics is None or np.shape(p.cov_board_intrinsics) != (6, nk):
+            bad("prior.cov_board_intrinsics", f"a 6x{nk} cross-covariance of the board and the intrinsics, with "
+                "cov_board and cov_intrinsics", np.shape(p.cov_board_intrinsics))
+        if p.cov_x_intrinsics is not None:
+            bad("prior.cov_board_intrinsics", "one joint prior with the intrinsics: X's or the board's",
+                "both cov_x_intrinsics and cov_board_intrinsics")
+        joint = np.block([[np.asarray(p.cov_board, float), np.asarray(p.cov_board_intrinsics, float)],
+                          [np.asarray(p.cov_board_intrinsics, float).T, np.asarray(p.cov_intrinsics, float)]])
+        if not _is_covariance(joint, 6 + nk):
+            bad("prior.cov_board_intrinsics", "a cross-covariance that keeps the joint covariance of the board and "
+                "the intrinsics positive definite", "a joint covariance that is not")
 
 
 def check_T(T, what: str) -> np.ndarray:

@@ -127,15 +127,22 @@ class Problem:
         self.prior_x = None  # (T_x of the prior (4,4), its covariance (6,6))
         self.prior_k = None  # (mean (nk,), covariance (nk, nk)) of the free intrinsics
         self.prior_cov_xk = None  # (6+nk, 6+nk): the two as one joint Gaussian (prior.cov_x_intrinsics given)
+        self.prior_board = None  # (T_board of the prior (4,4), its covariance (6,6))
+        self.prior_cov_bk = None  # (6+nk, 6+nk): the board and the intrinsics as one (prior.cov_board_intrinsics)
         if options.prior is not None:
             p = options.prior
             self.prior_x = (check_T(p.T_x, "prior T_x"), np.asarray(p.cov_x, float))
+            if p.T_board is not None:
+                self.prior_board = (check_T(p.T_board, "prior T_board"), np.asarray(p.cov_board, float))
             if p.intrinsics is not None and self.free.size:
                 self.prior_k = (p.intrinsics.as_vector()[self.free].astype(float),
                                 np.asarray(p.cov_intrinsics, float)[np.ix_(self.free, self.free)])
                 if p.cov_x_intrinsics is not None:
                     C = np.asarray(p.cov_x_intrinsics, float)[:, self.free]
                     self.prior_cov_xk = np.block([[self.prior_x[1], C], [C.T, self.prior_k[1]]])
+                elif p.cov_board_intrinsics is not None:
+                    C = np.asarray(p.cov_board_intrinsics, float)[:, self.free]
+                    self.prior_cov_bk = np.block([[self.prior_board[1], C], [C.T, self.prior_k[1]]])
         self.robot_var = options.robot_noise != "none"
         self.kind = resolve_kind(options, self.views)
         self.kin = (build_kinematic_model(options, self.kind, self.views, self.reported)
@@ -313,13 +320,20 @@ class Problem:
         if self.prior_sig is not None and not pixel_only:
             g.add(intrinsics_prior(key_intrinsics=KEY_INTRINSICS, prior_values=self.k_given[self.free],
                                    sigmas=self.prior_sig))
-        if self.prior_cov_xk is not None and not pixel_only:
-            g.add(joint_gaussian_prior(key_pose=KEY_X, key_vector=KEY_INTRINSICS, mean_pose=self.prior_x[0],
-                                       mean_vector=self.prior_k[0], cov=self.prior_cov_xk))
-        else:
-            if self.prior_x is not None and not pixel_only:
+        if not pixel_only:
+            # the priors of options.prior: X, the board and the intrinsics, the intrinsics in one joint Gaussian with
+            # X or with the board when their cross-covariance is given
+            if self.prior_cov_xk is not None:
+                g.add(joint_gaussian_prior(key_pose=KEY_X, key_vector=KEY_INTRINSICS, mean_pose=self.prior_x[0],
+                                           mean_vector=self.prior_k[0], cov=self.prior_cov_xk))
+            elif self.prior_x is not None:
                 g.add(gaussian_prior(key=KEY_X, mean=self.prior_x[0], cov=self.prior_x[1]))
-            if self.prior_k is not None and not pixel_only:
+            if self.prior_cov_bk is not None:
+                g.add(joint_gaussian_prior(key_pose=KEY_BOARD, key_vector=KEY_INTRINSICS, mean_pose=self.prior_board[0],
+                                           mean_vector=self.prior_k[0], cov=self.prior_cov_bk))
+            elif self.prior_board is not None:
+                g.add(gaussian_prior(key=KEY_BOARD, mean=self.prior_board[0], cov=self.prior_board[1]))
+            if self.prior_k is not None and self.prior_cov_xk is None and self.prior_cov_bk is None:
                 g.add(gaussian_prior(key=KEY_INTRINSICS, mean=self.prior_k[0], cov=self.prior_k[1]))
         return g, v, robot_keys
 
@@ -351,7 +365,7 @@ class Problem:
             W = np.diag(1.0 / self.prior_sig ** 2)
             H[ks, ks] += W
             g[ks] += W @ (self.k[self.free] - self.k_given[self.free])
-        if self.prior_k is not None and self.prior_cov_xk is None:
+        if self.prior_k is not None and self.prior_cov_xk is None and self.prior_cov_bk is None:
             W = np.linalg.inv(self.prior_k[1])
             H[ks, ks] += W
             g[ks] += W @ (self.k[self.free] - self.prior_k[0])
@@ -359,19 +373,22 @@ class Problem:
             W = np.linalg.inv(self.prior_dh[1])
             H[self.dh_slice, self.dh_slice] += W
             g[self.dh_slice] += W @ (self.dh - self.prior_dh[0])
-        if self.prior_x is not None:
-            T_p, cov = self.prior_x
-            r = tangent_difference(T_p, self.T_x)
-            J = tangent_jacobian(lambda T: tangent_difference(T_p, T), self.T_x)
-            if self.prior_cov_xk is None:
+        for at, T, prior, joint in ((0, self.T_x, self.prior_x, self.prior_cov_xk),
+                                    (6, self.T_board, self.prior_board, self.prior_cov_bk)):
+            if prior is None:
+                continue
+            T_p, cov = prior
+            r = tangent_difference(T_p, T)
+            J = tangent_jacobian(lambda T_: tangent_difference(T_p, T_), T)
+            if joint is None:
                 JW = J.T @ np.linalg.inv(cov)
-                H[:6, :6] += JW @ J
-                g[:6] += JW @ r
-            else:  # X and the free intrinsics as one joint Gaussian
-                idx = np.r_[0:6, N_POSES:N_POSES + self.free.size]
+                H[at:at + 6, at:at + 6] += JW @ J
+                g[at:at + 6] += JW @ r
+            else:  # the pose and the free intrinsics as one joint Gaussian
+                idx = np.r_[at:at + 6, N_POSES:N_POSES + self.free.size]
                 Jj = np.zeros((idx.size, idx.size))
                 Jj[:6, :6], Jj[6:, 6:] = J, np.eye(self.free.size)
-                JW = Jj.T @ np.linalg.inv(self.prior_cov_xk)
+                JW = Jj.T @ np.linalg.inv(joint)
                 H[np.ix_(idx, idx)] += JW @ Jj
                 g[idx] += JW @ np.r_[r, self.k[self.free] - self.prior_k[0]]
         return H, g

@@ -62,7 +62,8 @@ class RefineResult:
     # the board frame's axes (COV_BOARD_PARAMETRISATION); None when the refinement failed
     cov_board_6x6: Optional[np.ndarray] = None
     # the joint marginal covariance of T_x and the free intrinsics: {"intrinsics": names in INTRINSIC_NAMES
-    # order, "cross_6xk": cov(xi_x, k) (6,nk), "intrinsics_kxk": cov(k) (nk,nk); with the kinematic robot model
+    # order, "cross_6xk": cov(xi_x, k) (6,nk), "intrinsics_kxk": cov(k) (nk,nk), "cross_board_6xk":
+    # cov(xi_board, k) (6,nk) (the board's own block is cov_board_6x6); with the kinematic robot model
     # also "dh_offsets" (m,), "cross_6xm", "cross_kxm", "dh_mxm"}; None when failed or none free
     cov_x_intrinsics: Optional[dict] = None
 
@@ -251,7 +252,7 @@ def _x_intrinsics_covariance(pb: "Problem", S_cc: Optional[np.ndarray]) -> Optio
     k = slice(N_POSES, N_POSES + nk)
     S_kk = S_cc[k, k]
     out = {"intrinsics": [INTRINSIC_NAMES[fi] for fi in pb.free], "cross_6xk": S_cc[:6, k].copy(),
-           "intrinsics_kxk": 0.5 * (S_kk + S_kk.T)}
+           "intrinsics_kxk": 0.5 * (S_kk + S_kk.T), "cross_board_6xk": S_cc[6:N_POSES, k].copy()}
     if pb.m_dh:  # the kinematic model's DH offsets (SI units, the model's order) and their covariance with both
         d = pb.dh_slice
         S_dd = S_cc[d, d]
