@@ -78,16 +78,21 @@ What the power rests on: the change's sigma is the install's X given what the ne
   perfect views, and the smallest drift it detects with 95 % power).
 - False alarms stay at or below 5 %: the test uses the verdict covariance, never smaller than the model's.
 
---prior (``--prior 50``, 50 installs per mode): after a 1 mm / 0.1 deg bump the update's RMS error is
-0.431 mm / 0.104 deg (eye-in-hand) and 0.689 mm / 0.119 deg (eye-to-hand) against a fresh 20-view
-calibration's 0.457 mm / 0.088 deg and 0.464 mm / 0.101 deg (the contradiction found in 92 % and 90 %);
-without a bump 0.356 and 0.416 mm against the fresh 0.457 and 0.464 mm (better), a contradiction reported
-in 8 % and 0 % (nominal 5 %). After a detected bump the update is the 5 new views under the intrinsics
-prior (the 5 views without the prior on X: 0.407 / 0.662 mm): eye-in-hand matches a fresh 20-view
-calibration in translation and is 18 % worse in rotation, eye-to-hand is 48 % worse: the 5 views' own
-precision, which more views close, not another use of the prior. (In a separate run of the eye-to-hand
-trials with the intrinsics prior as its sigmas alone, without their correlations: 0.638 mm, the same
-within the 50 trials' scatter.)
+--prior (``--prior 50 --validated``, 50 installs per mode): after a 1 mm / 0.1 deg bump the contradiction is
+found in 96 % (eye-in-hand) and 92 % (eye-to-hand), the board then found unmoved in every run, and the
+update (the 5 new views with the prior's intrinsics and board pose, no prior on X) has an RMS error of
+0.384 mm / 0.093 deg and 0.623 mm / 0.116 deg, against a fresh 20-view calibration's 0.456 mm / 0.089 deg
+and 0.467 mm / 0.102 deg of the same rigs; without the board's pose, 0.419 mm / 0.100 deg and 0.677 mm /
+0.122 deg. Over all 50 bumped installs (a missed bump keeps the prior, 1 mm off): 0.383 mm / 0.092 deg and
+0.661 mm / 0.116 deg. Without a bump: 0.332 and 0.457 mm against the fresh 0.457 and 0.464 mm, a
+contradiction reported in 4 % and 4 % (nominal 5 %). So eye-in-hand the update matches a fresh 20-view
+calibration (better in translation, within the 50 trials' scatter in rotation); eye-to-hand it stays
+13-33 % worse. What limits it is the 5 views themselves: each measures X through one robot pose, and the
+board's pose and the intrinsics, carried from the install, are all the prior can still give once X has
+moved. In theory (the collector's information model, intrinsics known, 150 candidate poses, 5 chosen
+greedily) the 5 best views with the board known give 0.28 mm / 0.047 deg eye-in-hand and 0.39 mm /
+0.044 deg eye-to-hand, against 0.32 mm / 0.036 deg and 0.34 mm / 0.036 deg for 20 views: the robot's own
+0.05 deg per axis over 5 views is 0.039 deg already.
 
 ``--compare 100 --validated`` and the same with ``--first-seed 100`` (200 pairs per mode, compare's test of
 X given the intrinsics difference, :mod:`handeye.recal.compare`): 2.5 % and 2.5 % of the unchanged pairs called drifted at 5 %; a 2 mm bump

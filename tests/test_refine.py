@@ -4,6 +4,7 @@ the robot-pose test shared with the diagnostics, covariance calibration, options
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -275,6 +276,39 @@ def test_a_joint_prior_on_x_and_the_intrinsics_keeps_their_correlation(mode):
     with pytest.raises(ConfigError, match="prior.cov_x_intrinsics"):
         _refine(s, s.T_x_true, s.T_board_true, s.intrinsics,
                 prior=Prior(T_p, J[:6, :6], K_p, J[6:, 6:], 10 * J[:6, 6:] + 1.0))
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_a_joint_prior_on_the_board_and_the_intrinsics_keeps_their_correlation(mode):
+    """An earlier calibration's board pose (a board that has not moved) and intrinsics as one joint Gaussian prior,
+    X free: the refinement sits on the board's mean and reports the prior's covariance of the board and its
+    cross-covariance with the intrinsics; both joint priors at once are refused."""
+    from handeye.camera import INTRINSIC_NAMES
+
+    s = make_corner_session(mode=mode, n_views=10, seed=12, noise_px=0.3)
+    rng = np.random.default_rng(6)
+    A = rng.normal(size=(15, 15))
+    R = A @ A.T + 3 * np.eye(15)
+    d = 1.0 / np.sqrt(np.diag(R))
+    scale = np.r_[[1e-6] * 6, [1e-3] * 4, [1e-6] * 5]
+    J = (scale * d)[:, None] * R * (scale * d)[None, :]
+    T_bp = s.T_board_true @ se3_exp(np.r_[1e-4, -2e-4, 1e-4, 5e-4, 2e-4, -3e-4])
+    k_p = s.intrinsics.as_vector() + np.r_[0.5, -0.5, 0.4, -0.3, [0.0] * 5]
+    K_p = Intrinsics.from_vector(k_p, s.intrinsics.width, s.intrinsics.height)
+    prior = Prior(s.T_x_true, np.eye(6), K_p, J[6:, 6:], T_board=T_bp, cov_board=J[:6, :6],
+                  cov_board_intrinsics=J[:6, 6:])
+    r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, prior=prior)
+    assert r.status == "ok", r.failure_reason
+    assert np.abs(_xi_err(r.T_board, T_bp)).max() < 1e-5
+    names = r.cov_x_intrinsics["intrinsics"]
+    idx = [INTRINSIC_NAMES.index(n) for n in names]
+    np.testing.assert_allclose(r.intrinsics.as_vector()[idx], k_p[idx], atol=1e-2)
+    np.testing.assert_allclose(r.cov_board_6x6, J[:6, :6], rtol=0.05, atol=0.02 * np.abs(J[:6, :6]).max())
+    cross = np.asarray(r.cov_x_intrinsics["cross_board_6xk"])
+    np.testing.assert_allclose(cross, J[:6, 6:][:, idx], rtol=0.05, atol=0.02 * np.abs(cross).max())
+    with pytest.raises(ConfigError, match="prior.cov_board_intrinsics"):
+        _refine(s, s.T_x_true, s.T_board_true, s.intrinsics,
+                prior=replace(prior, cov_x_intrinsics=np.zeros((6, 9))))
 
 
 def test_to_dict_is_json_ready_and_names_frames():
