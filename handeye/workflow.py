@@ -99,7 +99,8 @@ class WorkflowResult:
 def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOptions(), out_dir,
                       report: bool = True, qa=None, mode: Optional[str] = None,
                       progress: Callable[[str], None] | None = None, diagnostics: bool = True,
-                      allow_outside: bool = False, site_files=(), prior=None) -> WorkflowResult:
+                      allow_outside: bool = False, site_files=(), prior=None,
+                      board_unmoved: bool = False) -> WorkflowResult:
     """Calibrate the session folder ``session_path`` and write its results into ``out_dir``.
 
     ``mode`` overrides the session's mounting mode; ``qa`` is a site QA file for the verdict and the
@@ -110,6 +111,7 @@ def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOpti
     files) are recorded with the session's files in ``provenance.inputs``. ``prior``: an earlier result of
     the rig (folder, result.json or dict) whose X and intrinsics enter the refinement as priors
     (:func:`handeye.recal.prior.calibrate_with_prior`); result.json's ``prior`` block says what it did.
+    ``board_unmoved``: with ``prior``, the board was not touched since (its earlier pose may enter too).
     """
     from .report.qa import load_qa
     from .session import load_session
@@ -124,11 +126,12 @@ def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOpti
         remove_stray_temps(out_dir)
         return _calibrate_locked(session_path, options=options, out_dir=out_dir, report=report, qa=(qa, qa_cfg),
                                  mode=mode, progress=progress, diagnostics=diagnostics, allow_outside=allow_outside,
-                                 t0=t0, site_files=site_files, prior=prior)
+                                 t0=t0, site_files=site_files, prior=prior, board_unmoved=board_unmoved)
 
 
 def _calibrate_locked(session_path, *, options, out_dir: Path, report: bool, qa: tuple, mode, progress,
-                      diagnostics: bool, allow_outside: bool, t0: float, site_files, prior=None) -> WorkflowResult:
+                      diagnostics: bool, allow_outside: bool, t0: float, site_files, prior=None,
+                      board_unmoved: bool = False) -> WorkflowResult:
     """``qa``: (the site QA file or None, its thresholds as loaded)."""
     from .session import load_session
 
@@ -145,7 +148,8 @@ def _calibrate_locked(session_path, *, options, out_dir: Path, report: bool, qa:
     if prior is not None:  # an earlier result as the prior of X and the intrinsics (handeye.recal.prior)
         from .recal.prior import calibrate_with_prior
 
-        run, prior_record = calibrate_with_prior(session, options, prior, progress=progress)
+        run, prior_record = calibrate_with_prior(session, options, prior, progress=progress,
+                                                 board_unmoved=board_unmoved)
     else:
         run = run_calibration(session, options, progress=progress)
     from .results import observations_dict, result_dict

@@ -73,6 +73,8 @@ def test_compare_prefers_the_verdict_covariance():
     assert c.mahalanobis2 == pytest.approx(1.0 / 8.0, rel=1e-6) and not c.drifted and c.note == ""
     b["prior"] = {"used": "prior", "source": "a/result.json"}  # B updated from A: not independent
     assert "not independent" in compare_results(a, b).note
+    b["prior"] = {"used": "no prior on X (...)", "source": "a/result.json", "board_prior": True}  # a contradicted prior
+    assert "intrinsics and board pose of a/result.json as priors" in compare_results(a, b).note
 
 
 def _joint_result(T_x, k, D, H, K) -> dict:
@@ -444,10 +446,12 @@ def test_verify_cli_writes_reports_and_exits_9_when_drifted(rendered, tmp_path, 
 
 def test_calibrate_with_prior_reports_the_update_or_the_contradiction(rendered, tmp_path, capsys):
     installed = json.loads((rendered["installed"] / "result.json").read_text())
-    for name, contradicted in (("same", False), ("bumped", True), ("bumped_board_moved", True)):
-        main(["-q", "calibrate", str(rendered[name]), "--prior", str(rendered["installed"]), "--out",
-              str(tmp_path / name)])
-        res = json.loads((tmp_path / name / "result.json").read_text())
+    runs = (("same", False, False), ("bumped", True, False), ("bumped", True, True), ("bumped_board_moved", True, True))
+    for name, contradicted, unmoved in runs:
+        out = tmp_path / f"{name}{'_unmoved' if unmoved else ''}"
+        main(["-q", "calibrate", str(rendered[name]), "--prior", str(rendered["installed"]), "--out", str(out)]
+             + (["--board-unmoved"] if unmoved else []))
+        res = json.loads((out / "result.json").read_text())
         p = res["prior"]
         assert p["contradicted"] is contradicted and p["frame"] == "T_end_cam"
         assert "prior:" in capsys.readouterr().out
@@ -457,10 +461,11 @@ def test_calibrate_with_prior_reports_the_update_or_the_contradiction(rendered, 
             5 * installed["refinement"]["intrinsics_sigma"]["fx"]
         if contradicted:
             assert p["used"].startswith("no prior on X") and p["change"]["trans_mm"] > 2.0
-            # the board's earlier pose is kept only where the board stayed: the bumped camera's views measure X
-            # through it
-            assert p["board_prior"] is (name == "bumped") and ("board pose" in p["used"]) is (name == "bumped")
-            if name == "bumped":
+            # the board's earlier pose is kept only when the user says the board stayed and verify does not find it
+            # moved: the bumped camera's views then measure X through it
+            kept = unmoved and name == "bumped"
+            assert p["board_prior"] is kept and ("board pose" in p["used"]) is kept
+            if kept:
                 from handeye.frames import pose_error
 
                 rot, trans = pose_error(np.array(res["T_base_board"]), np.array(installed["T_base_board"]))
@@ -469,8 +474,8 @@ def test_calibrate_with_prior_reports_the_update_or_the_contradiction(rendered, 
         else:
             assert p["used"] == "prior" and p["test"]["dof"] == 6 and p["test"]["p_value"] > 0.05
             assert len(p["update"]["sigma_trans_mm"]) == 3 and all(s >= 0 for s in p["update"]["sigma_trans_mm"])
-        md = (tmp_path / name / "report.md").read_text()
-        html = (tmp_path / name / "report.html").read_text()
+        md = (out / "report.md").read_text()
+        html = (out / "report.html").read_text()
         label = "CONTRADICTED" if contradicted else "PRIOR HOLDS"
         assert "## Prior: an earlier calibration" in md and label in md and p["summary"] in md
         assert 'id="prior"' in html and label in html

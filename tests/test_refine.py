@@ -306,6 +306,13 @@ def test_a_joint_prior_on_the_board_and_the_intrinsics_keeps_their_correlation(m
     np.testing.assert_allclose(r.cov_board_6x6, J[:6, :6], rtol=0.05, atol=0.02 * np.abs(J[:6, :6]).max())
     cross = np.asarray(r.cov_x_intrinsics["cross_board_6xk"])
     np.testing.assert_allclose(cross, J[:6, 6:][:, idx], rtol=0.05, atol=0.02 * np.abs(cross).max())
+    # the robot noise held: the solve and its covariance are the graph's alone (no noise estimation's core terms)
+    g = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, prior=prior, robot_noise="fixed", outlier_loop=False)
+    assert g.status == "ok", g.failure_reason
+    assert np.abs(_xi_err(g.T_board, T_bp)).max() < 1e-5
+    np.testing.assert_allclose(g.intrinsics.as_vector()[idx], k_p[idx], atol=1e-2)
+    np.testing.assert_allclose(np.asarray(g.cov_x_intrinsics["cross_board_6xk"]), J[:6, 6:][:, idx], rtol=0.05,
+                               atol=0.02 * np.abs(cross).max())
     with pytest.raises(ConfigError, match="prior.cov_board_intrinsics"):
         _refine(s, s.T_x_true, s.T_board_true, s.intrinsics,
                 prior=replace(prior, cov_x_intrinsics=np.zeros((6, 9))))

@@ -59,6 +59,11 @@ def add_arguments(p) -> None:
                    help="an earlier result of this rig: its X and intrinsics enter as priors with their covariances "
                         "(a few new views update it); result.json's prior block says whether the data contradict it "
                         "(then the session is calibrated without the prior on X, and the drift is printed)")
+    p.add_argument("--board-unmoved", action="store_true",
+                   help="with --prior: the board has not been touched since the earlier calibration (bolted to the "
+                        "flange or the table); when the data contradict the prior on X, the earlier board pose enters "
+                        "too, so each new view measures X through it (a board moved by a millimetre would then move "
+                        "X: a few views cannot tell that from a bumped camera)")
     p.add_argument("--allow-outside", action="store_true",
                    help="let session.yaml's image and pose-file paths leave the session folder (refused by default)")
     from ..export import FORMATS as EXPORT_FORMATS
@@ -171,7 +176,7 @@ def run(args) -> int:
     wr = calibrate_session(args.session, options=opts, out_dir=out, report=not args.no_report,
                            qa=getattr(args, "qa", None), mode=args.mode, progress=lambda s: log.info("%s", s),
                            allow_outside=getattr(args, "allow_outside", False), site_files=site,
-                           prior=getattr(args, "prior", None))
+                           prior=getattr(args, "prior", None), board_unmoved=getattr(args, "board_unmoved", False))
     if wr.run is None:  # the session could not be read: result.json and the report say why
         from .verdict import finding_lines
 

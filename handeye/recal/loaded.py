@@ -284,6 +284,8 @@ def installed_prior(installed: LoadedResult, *, session_intrinsics: bool, cov_x:
     with its covariance too (the board has not moved), jointly with the intrinsics when X's prior is not."""
     from ..refine.options import Prior
 
+    if board and cov_x is None:  # result.json has no cross-covariance of X and the board: not both as priors
+        raise ValueError("the installed board pose is a prior only with X's prior replaced (cov_x)")
     if installed.cov_x is None:
         raise InputError("the installed result has no covariance of X", path=installed.source,
                          hint="use a result calibrated with the refinement (without --no-refine)")

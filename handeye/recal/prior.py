@@ -16,10 +16,12 @@ would report. When ``p < alpha`` (or the solve with the prior fails), the prior 
 the session is calibrated again without the prior on X (a vague term,
 :data:`handeye.recal.loaded.VAGUE_COV_X`: the data say its mean is wrong, and no inflation of ``S0``
 fitted to one drift would be better founded) but with the intrinsics prior (a bump moves the camera,
-not its lens) and, when verify's test finds the board where the earlier result put it, the earlier board
-pose with its covariance and its correlation with the intrinsics (a bumped camera does not move the
-board: each new view then measures X through it, instead of the few views fixing X and the board
-together), and the result says so, with the drift (the change of X with its sigma).
+not its lens) and, when the user states that the board was not touched (``--board-unmoved``) and verify's
+test does not find it moved, the earlier board pose with its covariance and its correlation with the
+intrinsics (a bumped camera does not move the board: each new view then measures X through it, instead of
+the few views fixing X and the board together). It is the user's statement, not a test: a board moved by
+a millimetre or two is within what a few views can tell from a bumped camera, and X would take the
+move. The result says which priors it used, with the drift (the change of X with its sigma).
 """
 from __future__ import annotations
 
@@ -67,9 +69,11 @@ def _with_prior(session, options, installed: LoadedResult, *, cov_x=None, board:
 
 
 def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
-                         verify_options: Optional[VerifyOptions] = None) -> tuple:
+                         verify_options: Optional[VerifyOptions] = None, board_unmoved: bool = False) -> tuple:
     """Calibrate ``session`` (loaded) with the result ``prior`` as the prior of X and the intrinsics;
-    when the data contradict it, calibrate again without the prior on X and say so.
+    when the data contradict it, calibrate again without the prior on X and say so. ``board_unmoved``: the
+    user states that the board was not touched since; then, in that second calibration, the earlier board
+    pose enters too unless verify's test finds the board moved.
 
     Returns (the CalibrationRun kept, result.json's ``prior`` block: the prior, the update, the test and the
     ``change`` of X it estimates, ``contradicted``, ``used``)."""
@@ -115,6 +119,7 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
         why = (f"the views are beyond the prior's uncertainty (p = {t.p_value:.3g} < {o.alpha:g})" if v.drifted
                else why)
     rec["contradicted"] = contradicted
+    rec["board_prior"] = False
     if not contradicted:
         rec["used"] = "prior"
         rec["summary"] = (f"the prior {installed.x_name} was updated by {rec['update']['trans_mm']:.2f} mm, "
@@ -123,9 +128,10 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
         log.info("prior: %s", rec["summary"])
         return _described(run), plain(rec, nan_to_none=True)
     progress("the data contradict the prior: calibrating without it")
-    # the intrinsics prior stays; so does the board's pose when verify found the board where it was (a bumped
-    # camera does not move the board, and each new view then measures X through it)
-    board_kept = bool(v is not None and v.board.get("known") and not v.board.get("moved")
+    # the intrinsics prior stays; so does the board's pose when the user says the board was not touched and verify
+    # does not find it moved (a bumped camera does not move the board, and each new view then measures X through it;
+    # a few views cannot tell a board moved by a millimetre from a bumped camera, so it is the user's statement)
+    board_kept = bool(board_unmoved and v is not None and v.board.get("known") and not v.board.get("moved")
                       and installed.board_joint is not None)
     s_n, opts_n = _with_prior(session, options, installed, cov_x=VAGUE_COV_X, board=board_kept)
     run_n = run_calibration(s_n, opts_n, progress=progress)

@@ -4,7 +4,8 @@
 Variables (keys below): ``T_x`` (Pose3), ``T_board`` (Pose3), the free intrinsics (one Vector) and,
 per view with a robot-pose variable, the true robot pose ``T_base_end_i`` (Pose3). Factors: one
 reprojection ``CustomFactor`` per view (:mod:`handeye.factors.gtsam_factors`), a prior per robot pose
-tying it to the reported one, and optionally a prior on the intrinsics.
+tying it to the reported one, and optionally priors on the intrinsics, ``T_x`` and the board (an earlier
+calibration: ``options.prior``).
 
 Solver: Levenberg-Marquardt with diagonal (Marquardt) damping, ``lambda · diag(H)``. GTSAM's
 default damping ``lambda · I`` is not scale-free: on rendered images ``sigma_px`` is ~0.03 px, so

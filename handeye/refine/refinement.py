@@ -13,8 +13,9 @@ view, the true robot pose ``T_base_end_i``, tied to the reported pose by a prior
 first); ``robot_noise="none"`` holds the reported poses exact instead. With an arm named
 (``options.arm``) the prior is the kinematic one of :mod:`.robot_model` instead: the DH offsets of the
 arm, shared by all views, join the unknowns with their own prior, and each view's prior covariance is
-its encoder noise through the joint Jacobian. ``options.prior`` adds Gaussian priors on ``T_x`` and the
-free intrinsics (an earlier calibration). Every corner gives
+its encoder noise through the joint Jacobian. ``options.prior`` adds Gaussian priors on ``T_x``, the
+free intrinsics and optionally the board's pose (an earlier calibration; the intrinsics in one joint
+Gaussian with ``T_x`` or with the board when their cross-covariance is given). Every corner gives
 ``project(K, T_cam_board_i · p) - uv ~ N(0, sigma_px^2 I2)``.
 
 Stages
