@@ -86,7 +86,8 @@ fresh 20-view calibration's 0.457 mm / 0.088 deg and 0.464 mm / 0.101 deg of the
 ``--board-unmoved`` (the board found unmoved in every run, so its earlier pose kept): 0.401 mm / 0.102 deg
 and 0.557 mm / 0.107 deg. Without a bump: 0.382 and 0.413 mm against the fresh 0.457 and 0.464 mm, a
 contradiction reported in 6 % and 2 % (nominal 5 %). So the update matches a fresh 20-view calibration in
-eye-in-hand translation and is 6-34 % worse elsewhere (15-20 % with the board's pose). What limits it is
+eye-in-hand translation and is 10-34 % worse elsewhere; with the board's pose it is 12 % better in
+eye-in-hand translation and 6-20 % worse elsewhere. What limits it is
 the 5 views themselves: once X has moved, the prior can only give what did not move (the intrinsics, the
 board if it stayed), and each new view measures X through one robot pose. In theory (the collector's
 information model, intrinsics known, 150 candidate poses, 5 chosen greedily) the 5 best views with the

@@ -412,3 +412,37 @@ def test_a_session_that_declares_a_check_is_verified_against_its_installed_resul
     assert rows["bumped-check"][5] == "DRIFTED" and rows["same-check"][5] == "VALID"
     rc, stdout, stderr = _finish(_handeye("batch", checks, "--out", out, "--workers", "1", "--no-report"))
     assert "2 skipped" in stdout + stderr, stdout + stderr[-2000:]
+
+
+def test_a_prior_with_the_board_unmoved_reaches_the_calibration_and_the_skip_key(tmp_path, monkeypatch):
+    """``handeye batch ... --prior R --board-unmoved``: each session is calibrated with the board's earlier pose
+    allowed (as ``calibrate`` does it), and a batch run again with the flag changed does not skip the sessions."""
+    import handeye.workflow as workflow
+    from handeye.batch import child
+    from handeye.errors import InputError
+    from handeye.batch.discover import discover
+    from handeye.batch.run import session_key
+
+    p = tmp_path / "cell" / "20260301_1430"
+    p.mkdir(parents=True)
+    (p / "poses.txt").write_text("0,0,0,0,0,0\n")
+    job = discover(tmp_path)[0]
+    keys = [session_key(job, {"prior": None, "board_unmoved": flag}, {}) for flag in (False, True)]
+    assert keys[0] != keys[1]
+    seen = {}
+
+    def fake(session, **kw):
+        seen.update(kw)
+        raise InputError("stop here")
+
+    import argparse
+
+    from handeye.cli.calibrate import add_arguments
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    cal = {k: v for k, v in vars(parser.parse_args([str(p), "--prior", str(tmp_path / "r"), "--board-unmoved"])).items()
+           if k not in ("session", "func")}
+    monkeypatch.setattr(workflow, "calibrate_session", fake)
+    out = child.run({"session": str(p), "out_dir": str(tmp_path / "out"), "calibrate": cal})
+    assert out["outcome"] == "error" and seen["board_unmoved"] is True and str(seen["prior"]) == str(tmp_path / "r")

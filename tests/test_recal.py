@@ -73,8 +73,11 @@ def test_compare_prefers_the_verdict_covariance():
     assert c.mahalanobis2 == pytest.approx(1.0 / 8.0, rel=1e-6) and not c.drifted and c.note == ""
     b["prior"] = {"used": "prior", "source": "a/result.json"}  # B updated from A: not independent
     assert "not independent" in compare_results(a, b).note
-    b["prior"] = {"used": "no prior on X (...)", "source": "a/result.json", "board_prior": True}  # a contradicted prior
+    b["prior"] = {"used": "no prior on X (...)", "source": "a/result.json", "board_prior": True,
+                  "intrinsics": "the prior's, with its sigmas"}  # a contradicted prior: its intrinsics and board stay
     assert "intrinsics and board pose of a/result.json as priors" in compare_results(a, b).note
+    b["prior"].update(intrinsics="the session's own", board_prior=False)  # nothing of A stayed a prior
+    assert compare_results(a, b).note == ""
 
 
 def _joint_result(T_x, k, D, H, K) -> dict:

@@ -48,7 +48,8 @@ def run(spec: dict) -> dict:
         wr = calibrate_session(spec["session"], options=options_from_args(args), out_dir=spec["out_dir"],
                                report=not cal.get("no_report"), qa=cal.get("qa"), mode=cal.get("mode"),
                                progress=lambda s: log.info("%s", s), allow_outside=bool(cal.get("allow_outside")),
-                               site_files=[f for f in (cal.get("config"), cal.get("qa")) if f], prior=cal.get("prior"))
+                               site_files=[f for f in (cal.get("config"), cal.get("qa")) if f], prior=cal.get("prior"),
+                               board_unmoved=bool(cal.get("board_unmoved")))
     except HandeyeError as e:
         return {"outcome": "error", "status": "failed", "verdict": "ERROR", "reason": str(e), "exit_code": e.exit_code}
     reason = wr.result.get("failure_reason") or ("" if wr.verdict in ("PASS", "WARN")

@@ -170,6 +170,7 @@ def session_key(job: SessionJob, calibrate: dict, options: dict) -> dict:
                        "shift_poses": calibrate.get("shift_poses") or 0, "report": not calibrate.get("no_report"),
                        "qa_sha256": _file_sha(calibrate.get("qa")), "config_sha256": _file_sha(calibrate.get("config")),
                        "prior_sha256": _file_sha(calibrate.get("prior")), "export": calibrate.get("export"),
+                       **({"board_unmoved": True} if calibrate.get("board_unmoved") else {}),  # keys of earlier runs stay
                        "allow_outside": bool(calibrate.get("allow_outside"))})
 
 

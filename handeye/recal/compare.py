@@ -252,15 +252,19 @@ def compare_loaded(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) ->
 
 def _dependence_note(a: LoadedResult, b: LoadedResult) -> str:
     """A warning when a result was calibrated with an earlier one as its prior (the two are then not
-    independent, and the test's p-value is too large)."""
-    for r, name in ((a, "A"), (b, "B")):
-        prior = r.raw.get("prior") or {}
+    independent, and the test's p-value is too large), or, after a contradicted prior, with the earlier
+    intrinsics (and board pose) as priors; the stronger tie first."""
+    blocks = [(name, r.raw.get("prior") or {}) for r, name in ((a, "A"), (b, "B"))]
+    for name, prior in blocks:
         if prior.get("used") == "prior":
             return (f"result {name} was calibrated with {prior.get('source')} as its prior: the two are not "
                     "independent and the p-value is too large")
-        if prior.get("source"):  # a contradicted prior: its intrinsics (and board pose) were still priors
-            return (f"result {name} was calibrated with the intrinsics{' and board pose' if prior.get('board_prior') else ''}"
-                    f" of {prior.get('source')} as priors: the two are not independent")
+    for name, prior in blocks:  # a contradicted prior: what of the earlier result stayed a prior
+        kept = [w for w, yes in (("intrinsics", str(prior.get("intrinsics", "")).startswith("the prior's")),
+                                 ("board pose", bool(prior.get("board_prior")))) if yes]
+        if prior.get("source") and kept:
+            return (f"result {name} was calibrated with the {' and '.join(kept)} of {prior.get('source')} as priors: "
+                    "the two are not independent")
     return ""
 
 
