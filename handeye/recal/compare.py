@@ -15,22 +15,24 @@ difference ``dk = k_b - k_a``: ``r = xi - G dk`` with the model's regression ``G
 intrinsics covariance: how an intrinsics error moves X, geometry), and ``V = S - W (K_a + K_b)^-1 W^T``,
 ``W = A_a C_a + Ad A_b C_b`` (``A`` the map that carries each result's model covariance of X to its
 verdict's, :func:`handeye.recal.loaded.verdict_maps`): for one result ``A (S_x - C K^-1 C^T) A^T``, X's part
-that the intrinsics do not explain, inflated as the verdict inflates X. ``d2 = r^T V^-1 r``,
-chi-square(6) when the verdict's inflation of X is the model's shape scaled (it then applies to the part the
-intrinsics explain and to the rest alike; the model covariance is the case A = I). An inflation that comes
-from errors unrelated to the intrinsics and is large where the intrinsics explain most of X would make
-``V`` too small; the real sets' halves (``benchmarks/bench_realdata.py``) show no sign of it: the statistic
-stays below chi-square(6) there (medians 1.2-4.4 over 6 sets, at most 1 of 11 halvings above its 95 %
-point), and the test of X alone is reported beside it. The part of the difference the intrinsics explain (``G dk``) is taken out, and a moved
-camera (X changed, the lens not) stands out from the rest. (Scaling the regression by ``A`` too
-over-subtracts ``G dk`` and called simulated pairs of one rig drifted in 11 % eye-to-hand at the 5 %
-level; leaving ``V`` at ``S`` minus the model's explained part counts the verdict's whole inflation of X
-against the small remainder and made the test far too conservative: 0-1 % called drifted.) ``mahalanobis2_x_alone`` and its p-value
-report the test of X alone beside it. The intrinsics (fx, fy, cx, cy) are tested
-the same way under the sum of the two results' covariances of them (the joint covariance's intrinsics block,
-carried to the verdict: fx and fy are nearly fully correlated, so their sigmas alone would make the
-statistic heavier-tailed than chi-square), chi-square(4); results without the joint covariance are tested
-with the sum of their variances (a diagonal test, as many degrees of freedom as intrinsics with a sigma).
+that the intrinsics do not explain, inflated as the verdict inflates X. ``d2 = r^T V^-1 r`` is
+chi-square(6) when the verdict's inflation of X is the model's shape scaled (it then applies to the part
+the intrinsics explain and to the rest alike; the model covariance is the case A = I). The part of the
+difference the intrinsics explain (``G dk``) is taken out, and a moved camera (X changed, the lens not)
+stands out from the rest; ``mahalanobis2_x_alone`` and its p-value report the test of X alone beside it.
+
+An inflation that came from errors unrelated to the intrinsics, large where the intrinsics explain most
+of X, would make ``V`` too small. The real sets' halves (``benchmarks/bench_realdata.py``) show no sign of
+it: the statistic stays below chi-square(6) there (medians 1.2-4.4 over 6 sets, at most 1 of 11 halvings
+above its 95 % point). Two other forms were tried on simulated pairs of one rig: scaling the regression
+by ``A`` too over-subtracts ``G dk`` (11 % called drifted eye-to-hand at the 5 % level); counting the
+verdict's whole inflation of X against the remainder made the test far too conservative (0-1 %).
+
+The intrinsics (fx, fy, cx, cy) are tested under the sum of the two results' covariances of them (the
+joint covariance's intrinsics block, carried to the verdict: fx and fy are nearly fully correlated, so
+their sigmas alone would make the statistic heavier-tailed than chi-square), chi-square(4); results
+without the joint covariance are tested with the sum of their variances (a diagonal test, as many
+degrees of freedom as intrinsics with a sigma).
 
 Two results are comparable only when they describe the same quantity: the same mounting mode (and so
 the same frame of X), the same target and the same image size. Otherwise :func:`compare_results`
