@@ -209,6 +209,14 @@ def test_the_installed_joint_covariance_is_carried_to_the_verdict_covariances():
         return np.linalg.svd(np.linalg.solve(np.linalg.cholesky(Sxx), Sxk) @ np.linalg.inv(np.linalg.cholesky(Skk)).T,
                              compute_uv=False)
     np.testing.assert_allclose(canon(Vx, C, K), canon(S[:6, :6], S[:6, 6:], S[6:, 6:]), rtol=1e-7)
+    # a verdict without the intrinsics' correlations (measured one by one): the verdict's sigmas, the model's
+    # correlations among them (fx - fy stays as well determined, relative to fx, as the model says)
+    P[:4, :4] = np.diag(np.diag(P[:4, :4]))
+    ref["cov_intrinsics_verdict"] = P.tolist()
+    _, _, K1 = load_result(d).cov_x_intrinsics
+    np.testing.assert_allclose(np.sqrt(np.diag(K1)), np.sqrt(np.diag(Vk)), rtol=1e-9)
+    corr = lambda M: M / np.sqrt(np.outer(np.diag(M), np.diag(M)))
+    np.testing.assert_allclose(corr(K1), corr(S[6:, 6:]), atol=1e-9)
     # the stretch moves nothing where the verdict is the model's
     np.testing.assert_allclose(stretch(S[:6, :6], S[:6, :6]), np.eye(6), atol=1e-9)
     # no verdict in the result: the model's joint as stored

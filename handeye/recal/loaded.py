@@ -8,9 +8,9 @@ else ``intrinsics_sigma``; sigmas of the free intrinsics only: a fixed or given 
 The model's joint covariance of X and the free intrinsics (``refinement.cov_x_intrinsics``) is read
 too: verify needs it when the new views share the installed intrinsics. When the verdict covariances
 differ from the model's, the joint is carried to them (:func:`verdict_maps`): its X block becomes the
-verdict's X covariance and its intrinsics block the verdict's intrinsics covariance, the model's
-canonical correlations between the two kept, so that a test never mixes the verdict's X with the model's smaller
-intrinsics uncertainty. A kinematic install's DH offsets (estimate and covariance with both, in the same
+verdict's X covariance and its intrinsics the verdict's sigmas with the model's correlations among them,
+the model's canonical correlations between the two kept, so that a test never mixes the verdict's X with
+the model's smaller intrinsics uncertainty. A kinematic install's DH offsets (estimate and covariance with both, in the same
 block of result.json) are read with it: verify shares them with the new views.
 """
 from __future__ import annotations
@@ -211,9 +211,13 @@ def verdict_maps(joint: Optional[tuple], *, cov_x_model: Optional[np.ndarray], c
     """(A, B) that carry the model's joint covariance ``(names, cross (6,k), K (k,k))`` of X and the free
     intrinsics to the verdict covariances: ``J S J^T`` with ``J = diag(A, B, I)`` (I: the DH offsets of the
     kinematic robot model, which have no verdict covariance), ``A`` = :func:`stretch` of the model's X
-    covariance ``cov_x_model`` to the verdict's ``cov_x``, ``B`` of ``K`` to the verdict's intrinsics covariance
-    (``intrinsics_verdict``: (names, (n,n)) covering ``names``). Positive definite whenever the model's joint
-    is, with the verdict's blocks on the diagonal and the model's canonical correlations between the blocks. A
+    covariance ``cov_x_model`` to the verdict's ``cov_x``, ``B`` the diagonal map that gives each intrinsic its
+    verdict sigma (``intrinsics_verdict``: (names, (n,n)) covering ``names``) and keeps the model's correlations
+    among them. The intrinsics' verdict covariance is measured against their model sigmas one by one
+    (:mod:`handeye.refine.validation`), so its off-diagonal terms are not the data's: fx and fy, nearly fully
+    correlated, would there get a difference fx - fy as uncertain as each of them, and a test sharing the
+    intrinsics would lose what the data say best. Positive definite whenever the model's joint is, with the
+    verdict's X block and intrinsics sigmas, and the model's canonical correlations between the blocks. A
     block without its verdict covariance keeps the model's (identity); None: no joint, or a covariance that
     is not positive definite (the model's joint is used as stored)."""
     if joint is None:
@@ -226,7 +230,10 @@ def verdict_maps(joint: Optional[tuple], *, cov_x_model: Optional[np.ndarray], c
             vn, V = intrinsics_verdict
             if set(names) <= set(vn):
                 idx = [vn.index(n) for n in names]
-                B = stretch(K, V[np.ix_(idx, idx)])
+                sd_v, sd_m = np.sqrt(np.diag(V)[idx]), np.sqrt(np.diag(K))
+                if not (np.all(np.isfinite(sd_v)) and np.all(sd_m > 0)):
+                    raise np.linalg.LinAlgError("an intrinsics sigma is not positive")
+                B = np.diag(sd_v / sd_m)
     except np.linalg.LinAlgError:
         return None
     return A, B
