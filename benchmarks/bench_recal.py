@@ -80,7 +80,7 @@ What the power rests on: the change's sigma is the install's X given what the ne
   ``verify --plan`` says what an install allows (the ceiling with perfect views, and the smallest drift it
   detects with 95 % power).
 - False alarms are 4.3-6.0 % at the 5 % level (300 trials: +-1.3 % of sampling scatter): the test uses the
-  verdict covariance of X and the verdict's sigmas of the intrinsics, never smaller than the model's.
+  verdict covariance of X (never smaller than the model's) and the verdict's sigmas of the intrinsics.
 
 --prior (``--prior 50 --validated``, 50 installs per mode): after a 1 mm / 0.1 deg bump the contradiction is
 found in 96 % (eye-in-hand) and 98 % (eye-to-hand), and the update (the 5 new views with the prior's
@@ -117,7 +117,7 @@ medians 1.2-4.4, at most 1 of 11 halvings above 12.6).
 ``--timing``: 6 rendered views at 1280x720, detection included: median 0.17 s wall at load average 1.8
 (runs 0.24, 0.17, 0.15; detection 0.10 s, the verification 0.05 s).
 
-Usage: python benchmarks/bench_recal.py --trials 300 --validated --compare 100 --prior 25 --timing --jobs 2
+Usage: python benchmarks/bench_recal.py --trials 300 --validated --compare 100 --prior 50 --timing --jobs 2
 (per mode and robot model; the issue's counts; --jsonl keeps every trial so that a long run can be
 reported with --from-jsonl, and --first-seed continues one; quick look: --trials 5 --compare 5 --prior 2).
 Progress on stderr, figures on stdout.

@@ -178,9 +178,10 @@ def _spd(rng, scale):
 
 def test_the_installed_joint_covariance_is_carried_to_the_verdict_covariances():
     """result.json's X-intrinsics joint covariance is the model's; the verdict's X and intrinsics covariances are
-    larger (validated on real data). Loaded, the joint has the verdict's blocks, the model's canonical
-    correlations between X and the intrinsics, and stays positive definite, so that verify's joint test never
-    measures a change against the model's smaller intrinsics uncertainty."""
+    larger (validated on real data). Loaded, the joint has the verdict's X block and intrinsics sigmas (the model's
+    correlations among the intrinsics), the model's canonical correlations between X and the intrinsics, and stays
+    positive definite, so that verify's joint test never measures a change against the model's smaller intrinsics
+    uncertainty."""
     from handeye.recal.loaded import stretch
 
     rng = np.random.default_rng(0)

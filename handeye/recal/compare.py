@@ -29,8 +29,9 @@ by ``A`` too over-subtracts ``G dk`` (11 % called drifted eye-to-hand at the 5 %
 verdict's whole inflation of X against the remainder made the test far too conservative (0-1 %).
 
 The intrinsics (fx, fy, cx, cy) are tested under the sum of the two results' covariances of them (the
-joint covariance's intrinsics block, carried to the verdict: fx and fy are nearly fully correlated, so
-their sigmas alone would make the statistic heavier-tailed than chi-square), chi-square(4); results
+joint covariance's intrinsics block: the verdict's sigmas with the model's correlations; fx and fy are
+nearly fully correlated, so their sigmas alone would make the statistic heavier-tailed than chi-square),
+chi-square(4); results
 without the joint covariance are tested with the sum of their variances (a diagonal test, as many
 degrees of freedom as intrinsics with a sigma).
 
@@ -208,8 +209,8 @@ def intrinsics_difference(a: LoadedResult, b: LoadedResult, *, alpha: float = AL
 
 
 def _intrinsics_joint_test(a: LoadedResult, b: LoadedResult, alpha: float) -> Optional[dict]:
-    """The test of (fx, fy, cx, cy) under the sum of the two results' full covariances of them (the verdict
-    covariance with the correlations: fx and fy move together), when both carry it for all four."""
+    """The test of (fx, fy, cx, cy) under the sum of the two results' full covariances of them (the verdict's
+    sigmas with the model's correlations: fx and fy move together), when both carry it for all four."""
     ja, jb = a.cov_x_intrinsics, b.cov_x_intrinsics
     if ja is None or jb is None or not set(INTRINSICS_COMPARED) <= set(ja[0]) or not set(INTRINSICS_COMPARED) <= set(jb[0]):
         return None

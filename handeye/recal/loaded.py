@@ -61,8 +61,8 @@ class LoadedResult:
     # the model's geometry (how an intrinsics error moves X); with A C, X's part the intrinsics do not explain
     # gets the verdict's inflation of X: A (S - C K^-1 C^T) A^T
     x_on_intrinsics: Optional[tuple] = field(repr=False, default=None)
-    # the board pose's model covariance (6,6) and its cross-covariance with the free intrinsics (6,k), carried
-    # like the intrinsics to their verdict covariance; None in results without them
+    # the board pose's model covariance (6,6) and its cross-covariance with the free intrinsics (6,k), the latter
+    # carried like the intrinsics (to their verdict sigmas); None in results without them
     board_joint: Optional[tuple] = field(repr=False, default=None)
 
     @property
@@ -216,8 +216,9 @@ def verdict_maps(joint: Optional[tuple], *, cov_x_model: Optional[np.ndarray], c
     among them. The intrinsics' verdict covariance is measured against their model sigmas one by one
     (:mod:`handeye.refine.validation`), so its off-diagonal terms are not the data's: fx and fy, nearly fully
     correlated, would there get a difference fx - fy as uncertain as each of them, and a test sharing the
-    intrinsics would lose what the data say best. Positive definite whenever the model's joint is, with the
-    verdict's X block and intrinsics sigmas, and the model's canonical correlations between the blocks. A
+    intrinsics would lose what the data say best. Positive definite whenever the model's joint is (and every
+    verdict sigma positive), with the verdict's X block and intrinsics sigmas, and the model's canonical
+    correlations between the blocks. A
     block without its verdict covariance keeps the model's (identity); None: no joint, or a covariance that
     is not positive definite (the model's joint is used as stored)."""
     if joint is None:
@@ -230,9 +231,10 @@ def verdict_maps(joint: Optional[tuple], *, cov_x_model: Optional[np.ndarray], c
             vn, V = intrinsics_verdict
             if set(names) <= set(vn):
                 idx = [vn.index(n) for n in names]
-                sd_v, sd_m = np.sqrt(np.diag(V)[idx]), np.sqrt(np.diag(K))
-                if not (np.all(np.isfinite(sd_v)) and np.all(sd_m > 0)):
+                var_v, var_m = np.diag(V)[idx], np.diag(K)
+                if not (np.all(var_v > 0) and np.all(var_m > 0)):  # a singular map: the joint as stored
                     raise np.linalg.LinAlgError("an intrinsics sigma is not positive")
+                sd_v, sd_m = np.sqrt(var_v), np.sqrt(var_m)
                 B = np.diag(sd_v / sd_m)
     except np.linalg.LinAlgError:
         return None

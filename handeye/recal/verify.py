@@ -3,7 +3,7 @@
 Model. The installed result gives ``X0`` with covariance ``S0`` (the one its verdict uses), the
 intrinsics ``K0`` with their sigmas and the joint covariance of X and the free intrinsics
 (``refinement.cov_x_intrinsics``: the two errors are strongly correlated, a principal point error tilts
-X; carried to the verdict's X and intrinsics covariances, :func:`handeye.recal.loaded.verdict_maps`).
+X; carried to the verdict's X covariance and intrinsics sigmas, :func:`handeye.recal.loaded.verdict_maps`).
 The new views are refined (:func:`handeye.refine.refine`, the same graph, outlier decisions and noise
 estimation as a calibration) with the installed intrinsics as a Gaussian prior
 (:class:`handeye.refine.options.Prior`; the session's own intrinsics are held instead when it brings
