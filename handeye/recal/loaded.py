@@ -300,9 +300,9 @@ def installed_prior(installed: LoadedResult, *, session_intrinsics: bool, cov_x:
                          hint="use a result calibrated with the refinement (without --no-refine)")
     cov = installed.cov_x if cov_x is None else cov_x
     with_board = board and installed.board_joint is not None and installed.T_board is not None
+    board_kw = dict(T_board=installed.T_board, cov_board=installed.board_joint[0]) if with_board else {}
     if session_intrinsics or installed.intrinsics is None:
-        return Prior(T_x=installed.T_x, cov_x=cov, **(dict(T_board=installed.T_board, cov_board=installed.board_joint[0])
-                                                      if with_board else {})), ()
+        return Prior(T_x=installed.T_x, cov_x=cov, **board_kw), ()
     sig = np.array([installed.intrinsics_sigma.get(n, 0.0) for n in INTRINSIC_NAMES])
     fixed = tuple(n for n, s in zip(INTRINSIC_NAMES, sig) if not s > 0)
     cov_k = np.diag(np.where(sig > 0, sig, 1.0) ** 2)
@@ -315,17 +315,11 @@ def installed_prior(installed: LoadedResult, *, session_intrinsics: bool, cov_x:
             if cov_x is None:
                 cross = np.zeros((6, len(INTRINSIC_NAMES)))
                 cross[:, idx] = C
-    extra = {}
-    if with_board:
-        cb, cbk = installed.board_joint
-        extra = dict(T_board=installed.T_board, cov_board=cb)
-        names = installed.cov_x_intrinsics[0] if installed.cov_x_intrinsics is not None else ()
-        idx = [INTRINSIC_NAMES.index(n) for n in names]
-        if cross is None and idx and np.allclose(cov_k[np.ix_(idx, idx)], installed.cov_x_intrinsics[2]):
-            extra["cov_board_intrinsics"] = np.zeros((6, len(INTRINSIC_NAMES)))
-            extra["cov_board_intrinsics"][:, idx] = cbk
+            elif with_board:  # X's prior replaced (board requires it): the board joins the intrinsics instead
+                board_kw["cov_board_intrinsics"] = np.zeros((6, len(INTRINSIC_NAMES)))
+                board_kw["cov_board_intrinsics"][:, idx] = installed.board_joint[1]
     return Prior(T_x=installed.T_x, cov_x=cov, intrinsics=installed.intrinsics, cov_intrinsics=cov_k,
-                 cov_x_intrinsics=cross, **extra), fixed
+                 cov_x_intrinsics=cross, **board_kw), fixed
 
 
 def result_from_refinement(refined, *, target, validation=None) -> dict:

@@ -185,32 +185,31 @@ def check_prior(p: "Prior", bad) -> None:
         bad("prior.cov_dh", "DH offsets (m,) with a symmetric positive definite (m,m) covariance",
             f"{np.shape(p.dh_offsets)} and {np.shape(p.cov_dh)}")
     if p.cov_x_intrinsics is not None:
-        nk = len(INTRINSIC_NAMES)
-        if p.cov_intrinsics is None or np.shape(p.cov_x_intrinsics) != (6, nk):
-            bad("prior.cov_x_intrinsics", f"a 6x{nk} cross-covariance of X and the intrinsics, with cov_intrinsics",
-                np.shape(p.cov_x_intrinsics))
-        joint = np.block([[np.asarray(p.cov_x, float), np.asarray(p.cov_x_intrinsics, float)],
-                          [np.asarray(p.cov_x_intrinsics, float).T, np.asarray(p.cov_intrinsics, float)]])
-        if not _is_covariance(joint, 6 + nk):
-            bad("prior.cov_x_intrinsics", "a cross-covariance that keeps the joint covariance of X and the "
-                "intrinsics positive definite", "a joint covariance that is not")
+        _check_joint_with_intrinsics(bad, "cov_x_intrinsics", "X", p.cov_x, p.cov_x_intrinsics, p.cov_intrinsics)
     if (p.T_board is None) != (p.cov_board is None):
         bad("prior.cov_board", "T_board and cov_board both given or both None", "only one of them")
     if p.cov_board is not None and not _is_covariance(p.cov_board, 6):
         bad("prior.cov_board", "a symmetric positive definite 6x6 covariance", np.shape(p.cov_board))
     if p.cov_board_intrinsics is not None:
-        nk = len(INTRINSIC_NAMES)
-        if p.cov_board is None or p.cov_intrinsics is None or np.shape(p.cov_board_intrinsics) != (6, nk):
-            bad("prior.cov_board_intrinsics", f"a 6x{nk} cross-covariance of the board and the intrinsics, with "
-                "cov_board and cov_intrinsics", np.shape(p.cov_board_intrinsics))
         if p.cov_x_intrinsics is not None:
             bad("prior.cov_board_intrinsics", "one joint prior with the intrinsics: X's or the board's",
                 "both cov_x_intrinsics and cov_board_intrinsics")
-        joint = np.block([[np.asarray(p.cov_board, float), np.asarray(p.cov_board_intrinsics, float)],
-                          [np.asarray(p.cov_board_intrinsics, float).T, np.asarray(p.cov_intrinsics, float)]])
-        if not _is_covariance(joint, 6 + nk):
-            bad("prior.cov_board_intrinsics", "a cross-covariance that keeps the joint covariance of the board and "
-                "the intrinsics positive definite", "a joint covariance that is not")
+        _check_joint_with_intrinsics(bad, "cov_board_intrinsics", "the board", p.cov_board, p.cov_board_intrinsics,
+                                     p.cov_intrinsics)
+
+
+def _check_joint_with_intrinsics(bad, field_name: str, pose: str, cov_pose, cross, cov_k) -> None:
+    """``cross`` (6,9) of a pose prior (covariance ``cov_pose``) with the intrinsics prior (``cov_k``): given with
+    both, and keeping their joint covariance positive definite."""
+    nk = len(INTRINSIC_NAMES)
+    if cov_pose is None or cov_k is None or np.shape(cross) != (6, nk):
+        bad(f"prior.{field_name}", f"a 6x{nk} cross-covariance of {pose} and the intrinsics, with its covariance and "
+            "cov_intrinsics", np.shape(cross))
+    joint = np.block([[np.asarray(cov_pose, float), np.asarray(cross, float)],
+                      [np.asarray(cross, float).T, np.asarray(cov_k, float)]])
+    if not _is_covariance(joint, 6 + nk):
+        bad(f"prior.{field_name}", f"a cross-covariance that keeps the joint covariance of {pose} and the "
+            "intrinsics positive definite", "a joint covariance that is not")
 
 
 def check_T(T, what: str) -> np.ndarray:

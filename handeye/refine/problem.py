@@ -151,6 +151,7 @@ class Problem:
         self.m_dh = self.kin.m if self.kin is not None else 0
         # the DH offsets' prior: N(0, the arm's error prior), or an earlier calibration's estimate (prior.dh_offsets)
         self.prior_dh = (np.zeros(self.m_dh), np.diag(self.kin.dh_sigma ** 2) if self.m_dh else np.zeros((0, 0)))
+        self.prior_dh_earlier = False  # prior_dh is an earlier calibration's estimate, not the arm's error prior
         p = options.prior
         if self.m_dh and p is not None and p.dh_offsets is not None:
             if np.size(p.dh_offsets) != self.m_dh:
@@ -159,6 +160,7 @@ class Problem:
                                   received=f"{np.size(p.dh_offsets)}",
                                   hint="give the DH offsets of a calibration of this arm, or none")
             self.prior_dh = (np.asarray(p.dh_offsets, float).copy(), np.asarray(p.cov_dh, float).copy())
+            self.prior_dh_earlier = True
         self.dh, self.S_dd = self.prior_dh[0].copy(), self.prior_dh[1].copy()  # the start: the prior's
         self.sigma_q = self.kin.encoder_sigma_rad if self.kin is not None else 0.0
         self.robot_prior_k = float(refine_preset()["robust"]["robot_prior_k"])
@@ -322,18 +324,14 @@ class Problem:
             g.add(intrinsics_prior(key_intrinsics=KEY_INTRINSICS, prior_values=self.k_given[self.free],
                                    sigmas=self.prior_sig))
         if not pixel_only:
-            # the priors of options.prior: X, the board and the intrinsics, the intrinsics in one joint Gaussian with
-            # X or with the board when their cross-covariance is given
-            if self.prior_cov_xk is not None:
-                g.add(joint_gaussian_prior(key_pose=KEY_X, key_vector=KEY_INTRINSICS, mean_pose=self.prior_x[0],
-                                           mean_vector=self.prior_k[0], cov=self.prior_cov_xk))
-            elif self.prior_x is not None:
-                g.add(gaussian_prior(key=KEY_X, mean=self.prior_x[0], cov=self.prior_x[1]))
-            if self.prior_cov_bk is not None:
-                g.add(joint_gaussian_prior(key_pose=KEY_BOARD, key_vector=KEY_INTRINSICS, mean_pose=self.prior_board[0],
-                                           mean_vector=self.prior_k[0], cov=self.prior_cov_bk))
-            elif self.prior_board is not None:
-                g.add(gaussian_prior(key=KEY_BOARD, mean=self.prior_board[0], cov=self.prior_board[1]))
+            # the priors of options.prior (the same terms as core_prior): X and the board, each alone or in one joint
+            # Gaussian with the intrinsics when their cross-covariance is given; the intrinsics alone otherwise
+            for key, prior, joint in self._pose_priors():
+                if joint is not None:
+                    g.add(joint_gaussian_prior(key_pose=key, key_vector=KEY_INTRINSICS, mean_pose=prior[0],
+                                               mean_vector=self.prior_k[0], cov=joint))
+                elif prior is not None:
+                    g.add(gaussian_prior(key=key, mean=prior[0], cov=prior[1]))
             if self.prior_k is not None and self.prior_cov_xk is None and self.prior_cov_bk is None:
                 g.add(gaussian_prior(key=KEY_INTRINSICS, mean=self.prior_k[0], cov=self.prior_k[1]))
         return g, v, robot_keys
@@ -355,6 +353,11 @@ class Problem:
             self.P[i] = res.atPose3(key).matrix()
         return g, res, robot_keys
 
+    def _pose_priors(self) -> tuple:
+        """(key, (mean (4,4), covariance (6,6)) or None, joint covariance with the free intrinsics or None) of the
+        priors on T_x and on the board, in the core order."""
+        return ((KEY_X, self.prior_x, self.prior_cov_xk), (KEY_BOARD, self.prior_board, self.prior_cov_bk))
+
     def core_prior(self) -> tuple[np.ndarray, np.ndarray]:
         """Information (c,c) and gradient J^T W r (c,) at the current estimate of the priors on the core
         unknowns (the intrinsics prior of ``intrinsics="prior"`` and ``options.prior``), in the core
@@ -374,8 +377,7 @@ class Problem:
             W = np.linalg.inv(self.prior_dh[1])
             H[self.dh_slice, self.dh_slice] += W
             g[self.dh_slice] += W @ (self.dh - self.prior_dh[0])
-        for at, T, prior, joint in ((0, self.T_x, self.prior_x, self.prior_cov_xk),
-                                    (6, self.T_board, self.prior_board, self.prior_cov_bk)):
+        for (key, prior, joint), at, T in zip(self._pose_priors(), (0, 6), (self.T_x, self.T_board)):
             if prior is None:
                 continue
             T_p, cov = prior

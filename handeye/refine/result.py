@@ -155,8 +155,7 @@ def robot_model_dict(pb: "Problem", S_cc: Optional[np.ndarray]) -> dict:
          "estimated": (["dh_offset"] if km.m else []) + (["encoder_sigma_deg"] if estimated else [])}
     if km.m:
         S_dd = pb.S_dd if S_cc is None else S_cc[pb.dh_slice, pb.dh_slice]
-        earlier = pb.o.prior is not None and pb.o.prior.dh_offsets is not None  # pb.prior_dh is then that estimate
-        d.update(describe_dh(km, pb.dh, S_dd, pb.prior_dh[1] if earlier else None))
+        d.update(describe_dh(km, pb.dh, S_dd, pb.prior_dh[1] if pb.prior_dh_earlier else None))
     return d
 
 
