@@ -255,15 +255,17 @@ def board_symmetry_transforms(target) -> list:
 
 def board_covariances(run) -> dict:
     """T_board (T_end_board eye-to-hand) with its model covariance (the refinement's marginal,
-    ``cov_board_6x6``) and a verdict covariance built as the verdict of T_x is (the generalised maximum of
-    the model and the shrunk jackknife covariance of the validation's fold refits)."""
+    ``cov_board_6x6``) and a verdict covariance built as the verdict of T_x is: the model's, unless the
+    validation found the model's covariance of T_x too small on these folds (``val.x.finding``: the same
+    refits, the same error sources); then the generalised maximum of the model and the shrunk jackknife
+    covariance of the validation's fold refits."""
     from handeye.refine.validation import generalised_max, shrunk_jackknife
 
     ref, val = run.refined, run.validation
     out = {"T": ref.T_board, "model": np.asarray(ref.cov_board_6x6), "verdict": np.asarray(ref.cov_board_6x6),
            "source": "model"}
     ok = [r for r in (val.refits if val is not None else ()) if r.status == "ok"]
-    if val is not None and val.status == "ok" and len(ok) >= 3:
+    if val is not None and val.status == "ok" and val.x.finding and len(ok) >= 3:
         V, _, _ = shrunk_jackknife(np.stack([tangent_difference(ref.T_board, r.T_board) for r in ok]), out["model"])
         out["verdict"], lam = generalised_max(out["model"], V)
         out["source"] = "model" if np.all(lam <= 1) else "validated" if np.all(lam > 1) else "model+validated"

@@ -243,7 +243,10 @@ def validation_fields(ref, val) -> dict:
     ``predicted_error_axes_mm`` become the verdict's, the model's kept as ``*_model``; for the free
     intrinsics ``intrinsics_sigma_validated``, ``intrinsics_sigma_verdict`` and ``cov_intrinsics_verdict``
     (rows in ``intrinsics_cov_names``); ``validation``: the fold scheme, the spread over the model's
-    sigma, and the odd and even halves refitted (their T_x, intrinsics, and offset from the result).
+    sigma with its p-value if the model is right (``spread_p_value``; ``spread_beyond_chance``: below
+    validation.alpha, the verdict then takes the validated covariance where it is larger), the same for the
+    intrinsics and the model covariance they were measured against (``intrinsics_model``: full | sigmas), and
+    the odd and even halves refitted (their T_x, intrinsics, and offset from the result).
     """
     from .refine.covariance import hand_eye_uncertainty
     from .refine.validation import SIGMA_RULE, mahalanobis2
@@ -277,9 +280,13 @@ def validation_fields(ref, val) -> dict:
              "n_folds": K, "folds_solved": val.n_solved,
              "spread_over_model_sigma_max": float(np.sqrt(max(val.x.eig.max(), 0.0))),
              "spread_over_model_sigma_rms": float(np.sqrt(max(val.x.scale, 0.0))),
-             "generalised_eigenvalues": val.x.eig, "shrinkage": val.x.shrinkage}
+             "generalised_eigenvalues": val.x.eig, "shrinkage": val.x.shrinkage,
+             "spread_p_value": val.x.p_value, "spread_beyond_chance": val.x.finding, "spread_test": val.x.test}
     if kb is not None:
-        block["intrinsics_spread_over_model_sigma_max"] = float(np.sqrt(max(kb.eig.max(), 0.0)))
+        block.update(intrinsics_spread_over_model_sigma_max=float(np.sqrt(max(kb.eig.max(), 0.0))),
+                     intrinsics_spread_over_model_sigma_rms=float(np.sqrt(max(kb.scale, 0.0))),
+                     intrinsics_spread_p_value=kb.p_value, intrinsics_spread_beyond_chance=kb.finding,
+                     intrinsics_model=kb.model_form)
     halves = {}
     for name, fit in val.halves.items():
         h = {"view_ids": list(fit.view_ids), "status": fit.status}

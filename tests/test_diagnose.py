@@ -457,6 +457,7 @@ def test_cross_validation_matches_the_covariance_on_clean_data(tmp_path, monkeyp
     assert cv["n_folds"] == folds and cv["folds_solved"] == folds
     lo, hi = cv["ratio_limits"]
     assert cv["verdict"] == "consistent" and lo < cv["ratio_trans"] < hi
+    assert cv["spread_p_value"] >= settings()["alpha"]  # the validation's test on the same folds agrees
     assert len(cv["per_view"]) == cs.n_views and not _codes(d)
 
 
@@ -467,6 +468,7 @@ def test_cross_validation_says_when_the_model_misses_an_error_source(tmp_path, m
                                                            "robot_sigma_deg": 0.005, "outlier_loop": False})
     cv = d["cross_validation"]
     assert cv["verdict"] == "spread_exceeds_prediction" and "misses an error source" in cv["summary"]
+    assert cv["spread_p_value"] < 0.01 and "over the six directions" in cv["summary"]
     # a finding with its size; info, since the verdict covariance (the printed sigmas) covers the spread
     assert cv["covered_by_verdict"] and not _codes(d)
     assert _one(d, "uncertainty_underestimated")["severity"] == "info"

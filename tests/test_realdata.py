@@ -252,6 +252,9 @@ def test_kinect_halves_agree_under_the_verdict_covariance(kinect_run):
     assert max(dist.values()) < t_thr and any(d > g_thr for d in dist.values()), dist
     xv, xm, kv = _halves_d2(kinect_run.session, kinect_run.used_ids)
     assert xv < 12.6 and kv < 9.5, (xv, xm, kv)
+    # the folds show the model's covariance too small (measured p ~ 1e-17 for X): the verdict takes their spread
+    val = kinect_run.validation
+    assert val.x.finding and val.x.test == "fold information" and val.x.source != "model"
 
 
 def test_ical_report_shows_where_the_result_lies_and_which_sigma_it_uses(ical_workflow):
@@ -260,7 +263,15 @@ def test_ical_report_shows_where_the_result_lies_and_which_sigma_it_uses(ical_wo
 
     wr = ical_workflow
     ref = wr.result["refinement"]
-    assert ref["sigma_source"] in ("validated", "model+validated") and "cov_x_6x6_verdict" in ref
+    val = ref["validation"]
+    # which sigma the verdict uses follows the validation's finding. Measured: the folds' jackknife spread is 1.18x
+    # the model's sigma for X and 2.5x for the intrinsics, but each fold moves as the model predicts for that fold
+    # (p = 0.54 and 0.49: the views inform the result unequally, which inflates the jackknife): the model's
+    # covariance stands for both (the half-split test agrees: the model's X distances are within chi2(6))
+    assert "cov_x_6x6_verdict" in ref and val["spread_test"] == "fold information"
+    assert (ref["sigma_source"] == "model") == (not val["spread_beyond_chance"])
+    assert val["spread_p_value"] > 0.05 and val["intrinsics_spread_p_value"] > 0.05
+    assert ref["sigma_source"] == ref["intrinsics_sigma_source"] == "model" and val["intrinsics_model"] == "full"
     # the printed sigmas are the verdict covariance's, the model's kept beside them
     unc = hand_eye_uncertainty(np.asarray(ref["cov_x_6x6_verdict"]), wr.run.T_x, ref["working_distance_m"])
     assert np.allclose(ref["sigma_trans_mm"], unc.sigma_trans_mm)

@@ -210,6 +210,18 @@ def test_the_installed_joint_covariance_is_carried_to_the_verdict_covariances():
         return np.linalg.svd(np.linalg.solve(np.linalg.cholesky(Sxx), Sxk) @ np.linalg.inv(np.linalg.cholesky(Skk)).T,
                              compute_uv=False)
     np.testing.assert_allclose(canon(Vx, C, K), canon(S[:6, :6], S[:6, 6:], S[6:, 6:]), rtol=1e-7)
+    # a verdict measured against the intrinsics' joint model covariance (validation.intrinsics_model: full), larger
+    # along one direction only: carried as it is, its correlations included (not the diagonal map's)
+    Kv = S[6:, 6:] + 3.0 * np.outer(S[6:, 6], S[6:, 6]) / S[6, 6]
+    saved = (ref["intrinsics_cov_names"], ref["cov_intrinsics_verdict"])
+    ref.update(intrinsics_cov_names=names, cov_intrinsics_verdict=Kv.tolist(), validation={"intrinsics_model": "full"})
+    n, C2, K2 = load_result(d).cov_x_intrinsics
+    np.testing.assert_allclose(K2, Kv, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(canon(Vx, C2, K2), canon(S[:6, :6], S[:6, 6:], S[6:, 6:]), rtol=1e-7)
+    ref["validation"] = {"intrinsics_model": "sigmas"}  # measured one by one: the diagonal map, not Kv
+    assert not np.allclose(load_result(d).cov_x_intrinsics[2], Kv, rtol=1e-3)
+    ref["intrinsics_cov_names"], ref["cov_intrinsics_verdict"] = saved
+    del ref["validation"]
     # a verdict without the intrinsics' correlations (measured one by one): the verdict's sigmas, the model's
     # correlations among them (fx - fy stays as well determined, relative to fx, as the model says)
     P[:4, :4] = np.diag(np.diag(P[:4, :4]))

@@ -13,6 +13,10 @@ The grouped jackknife spread of the folds is compared with the refinement's mode
 judged against its own sampling distribution with K folds (``sqrt(chi2(K - 1) / (K - 1))`` at
 ``validation.alpha`` each side), and against the verdict sigmas (``covered_by_verdict``): a spread the
 verdict covariance covers is a finding of size only (info), since the printed sigmas already include it.
+When the validation ran on the same folds, its finding (:mod:`handeye.refine.validation`: each fold's
+displacement against what the model predicts for that fold, all six directions at once; the test that also
+decides the verdict covariance) says whether the spread exceeds the prediction, so the diagnostics and the
+verdict sigmas never disagree.
 """
 from __future__ import annotations
 
@@ -177,6 +181,7 @@ def cross_validate(run) -> dict:
                                    f"right: sqrt(chi2({len(ok) - 1}) / {len(ok) - 1}) at alpha {validation_alpha():g} "
                                    "each side")
     covered = None
+    exceeds = max(rr, rt) > hi
     if val is not None and val.status == "ok":
         from ..refine.covariance import hand_eye_uncertainty
 
@@ -186,14 +191,18 @@ def cross_validate(run) -> dict:
         vr, vt = _ratio(jk[:3], vu.sigma_rot_deg), _ratio(jk[3:], vu.sigma_trans_mm)
         out["ratio_rot_verdict"], out["ratio_trans_verdict"] = round(vr, 3), round(vt, 3)
         covered = max(vr, vt) <= hi
+        # one test decides, the validation's on all six directions at once (it also decides the verdict covariance)
+        exceeds = bool(val.x.finding)
+        out["spread_p_value"] = float(val.x.p_value)
     out["covered_by_verdict"] = covered
     size = (f"rotation {rr:.2f}x, translation {rt:.2f}x the model's sigma; {lo:.2f}-{hi:.2f}x is sampling noise "
             f"with {len(ok)} folds")
-    if max(rr, rt) > hi:
+    if exceeds:
         out["verdict"] = "spread_exceeds_prediction"
+        test = f"; p = {out['spread_p_value']:.2g} over the six directions" if "spread_p_value" in out else ""
         out["summary"] = (f"the result moves {max(rr, rt):.1f}x more between folds than the model covariance predicts "
-                          f"({size}): the model misses an error source (robot pose errors that are not independent "
-                          "per view, correlated detector errors, a moved board, timing)")
+                          f"({size}{test}): the model misses an error source (robot pose errors that are not "
+                          "independent per view, correlated detector errors, a moved board, timing)")
         out["summary"] += ("; the printed sigmas and the verdict use the validated covariance, which covers it"
                            if covered else "; trust the spread, not the covariance")
     elif min(rr, rt) < lo:
@@ -201,7 +210,9 @@ def cross_validate(run) -> dict:
         out["summary"] = f"the result moves less between folds than the model predicts ({size}): it is conservative"
     else:
         out["verdict"] = "consistent"
-        out["summary"] = f"the spread between folds matches the model's uncertainty ({size})"
+        test = (f"; p = {out['spread_p_value']:.2g} over the six directions, within chance"
+                if "spread_p_value" in out else "")
+        out["summary"] = f"the spread between folds matches the model's uncertainty ({size}{test})"
     return out
 
 

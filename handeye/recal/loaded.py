@@ -164,7 +164,8 @@ def _joints(ref: dict, cov_x: Optional[np.ndarray]) -> dict:
     joint = _joint(j)
     dh = _dh_joint(j, len(joint[0])) if joint is not None else None
     maps = verdict_maps(joint, cov_x_model=_matrix(ref.get("cov_x_6x6"), (6, 6)), cov_x=cov_x,
-                        intrinsics_verdict=_intrinsics_verdict(ref))
+                        intrinsics_verdict=_intrinsics_verdict(ref),
+                        intrinsics_full=(ref.get("validation") or {}).get("intrinsics_model") == "full")
     board = None
     if joint is not None:
         cb, cbk = _matrix(ref.get("cov_board_6x6"), (6, 6)), _matrix(j.get("cross_board_6xk"), (6, len(joint[0])))
@@ -207,20 +208,23 @@ def stretch(cov_model: np.ndarray, cov_target: np.ndarray) -> np.ndarray:
 
 
 def verdict_maps(joint: Optional[tuple], *, cov_x_model: Optional[np.ndarray], cov_x: Optional[np.ndarray],
-                 intrinsics_verdict: Optional[tuple]) -> Optional[tuple]:
+                 intrinsics_verdict: Optional[tuple], intrinsics_full: bool = False) -> Optional[tuple]:
     """(A, B) that carry the model's joint covariance ``(names, cross (6,k), K (k,k))`` of X and the free
     intrinsics to the verdict covariances: ``J S J^T`` with ``J = diag(A, B, I)`` (I: the DH offsets of the
     kinematic robot model, which have no verdict covariance), ``A`` = :func:`stretch` of the model's X
-    covariance ``cov_x_model`` to the verdict's ``cov_x``, ``B`` the diagonal map that gives each intrinsic its
-    verdict sigma (``intrinsics_verdict``: (names, (n,n)) covering ``names``) and keeps the model's correlations
-    among them. The intrinsics' verdict covariance is measured against their model sigmas one by one
-    (:mod:`handeye.refine.validation`), so its off-diagonal terms are not the data's: fx and fy, nearly fully
-    correlated, would there get a difference fx - fy as uncertain as each of them, and a test sharing the
-    intrinsics would lose what the data say best. Positive definite whenever the model's joint is (and every
-    verdict sigma positive), with the verdict's X block and intrinsics sigmas, and the model's canonical
-    correlations between the blocks. A
-    block without its verdict covariance keeps the model's (identity); None: no joint, or a covariance that
-    is not positive definite (the model's joint is used as stored)."""
+    covariance ``cov_x_model`` to the verdict's ``cov_x``. ``B`` carries K to the intrinsics' verdict
+    covariance (``intrinsics_verdict``: (names, (n,n)) covering ``names``):
+
+    * ``intrinsics_full`` (the validation measured the intrinsics against their joint model covariance, K):
+      :func:`stretch` of K to the verdict, which then keeps the correlations the data determine;
+    * otherwise (a result validated against the model sigmas one by one, whose verdict's off-diagonal terms are
+      not the data's: fx and fy, nearly fully correlated, would get a difference fx - fy as uncertain as each
+      of them): the diagonal map that gives each intrinsic its verdict sigma and keeps the model's correlations.
+
+    Positive definite whenever the model's joint is (and every verdict sigma positive), with the model's
+    canonical correlations between the blocks. A block without its verdict covariance keeps the model's
+    (identity); None: no joint, or a covariance that is not positive definite (the model's joint is used as
+    stored)."""
     if joint is None:
         return None
     names, C, K = joint
@@ -231,11 +235,13 @@ def verdict_maps(joint: Optional[tuple], *, cov_x_model: Optional[np.ndarray], c
             vn, V = intrinsics_verdict
             if set(names) <= set(vn):
                 idx = [vn.index(n) for n in names]
-                var_v, var_m = np.diag(V)[idx], np.diag(K)
-                if not (np.all(var_v > 0) and np.all(var_m > 0)):  # a singular map: the joint as stored
-                    raise np.linalg.LinAlgError("an intrinsics sigma is not positive")
-                sd_v, sd_m = np.sqrt(var_v), np.sqrt(var_m)
-                B = np.diag(sd_v / sd_m)
+                if intrinsics_full and list(vn) == list(names):
+                    B = stretch(K, V)
+                else:
+                    var_v, var_m = np.diag(V)[idx], np.diag(K)
+                    if not (np.all(var_v > 0) and np.all(var_m > 0)):  # a singular map: the joint as stored
+                        raise np.linalg.LinAlgError("an intrinsics sigma is not positive")
+                    B = np.diag(np.sqrt(var_v) / np.sqrt(var_m))
     except np.linalg.LinAlgError:
         return None
     return A, B

@@ -21,6 +21,7 @@ import numpy as np
 
 from ..camera import Intrinsics
 from ..errors import InputError
+from .covariance import N_POSES
 from .options import RefineView, check_inputs
 from .result import RefineResult
 
@@ -42,6 +43,8 @@ class Refit:
     T_board: Optional[np.ndarray]  # (4,4) (T_base_board / T_end_board)
     intrinsics: Optional[Intrinsics]
     view_ids: tuple  # the views of the solve
+    cov_x: Optional[np.ndarray] = None  # (6,6) the refit's model covariance of T_x (the tangent of cov_x_6x6)
+    cov_intrinsics: Optional[np.ndarray] = None  # (k,k) of the free intrinsics (the refinement's order)
 
 
 def refit(result: RefineResult, *, object_points: np.ndarray, views: Sequence[RefineView]) -> Refit:
@@ -90,8 +93,18 @@ def refit(result: RefineResult, *, object_points: np.ndarray, views: Sequence[Re
                 pb.status[i] = "robot_excluded"
             if vid in result.robot_poses:
                 pb.P[i] = np.asarray(result.robot_poses[vid], float)
-        pb.solve(robust=False)
+        g, values, robot_keys = pb.solve(robust=False)
     except (RuntimeError, np.linalg.LinAlgError) as e:  # GTSAM raises RuntimeError (indeterminant system)
         log.info("refit on views %s not solved: %s", list(ids), e)
         return Refit("failed", str(e), None, None, None, ids)
-    return Refit("ok", "", pb.T_x.copy(), pb.T_board.copy(), Intrinsics.from_vector(pb.k, pb.width, pb.height), ids)
+    cov_x = cov_k = None
+    try:  # the fold's own model covariance: how much less the fold knows than the full run
+        S_cc, _ = pb.covariances(g, values, robot_keys)
+        nk = pb.free.size
+        cov_x = 0.5 * (S_cc[:6, :6] + S_cc[:6, :6].T)
+        k = slice(N_POSES, N_POSES + nk)
+        cov_k = 0.5 * (S_cc[k, k] + S_cc[k, k].T) if nk else None
+    except (RuntimeError, np.linalg.LinAlgError) as e:
+        log.info("refit on views %s: no covariance (%s)", list(ids), e)
+    return Refit("ok", "", pb.T_x.copy(), pb.T_board.copy(), Intrinsics.from_vector(pb.k, pb.width, pb.height), ids,
+                 cov_x, cov_k)

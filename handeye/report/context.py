@@ -350,7 +350,8 @@ SIGMA_SOURCE_TEXT = {
                  "exceeds the model's in every direction",
     "model+validated": "the larger of the model's and the validated covariance (the spread over refits without "
                        "some views) in each direction",
-    "model": "the refinement's model covariance (the refits without some views spread no more than it predicts)",
+    "model": "the refinement's model covariance (the refits without some views spread no more than it predicts, "
+             "or by no more than chance)",
 }
 
 
