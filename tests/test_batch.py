@@ -195,7 +195,12 @@ def test_index_rows_and_drift_match_the_truth(fleet, cluster_batch, monkeypatch)
     rot_true_deg, trans_true_mm = pose_error(T2, T1)
     assert bump["drifted"] and bump["p_value"] < 1e-6
     assert abs(bump["rot_deg"] - rot_true_deg) < 0.2 and abs(bump["trans_mm"] - trans_true_mm) < 1.0, bump
-    assert [i for i in inst if inst[i]["n_drifted"]] == ["cell-02"]
+    # the undisturbed pairs: compare's test holds its 5 % level (its p-values are uniform on simulated pairs), so
+    # five of them give a chance alarm in about a quarter of fleets; none may be a confident one
+    for name, i in inst.items():
+        for d in i["drifts"]:
+            if (name, d["from"], d["to"]) != ("cell-02", s1, s2) and d.get("comparable"):
+                assert d["p_value"] > 1e-3, (name, d)
     for d in inst["cell-01"]["drifts"]:
         assert d["comparable"] and d["trans_mm"] < 1.5 and d["rot_deg"] < 0.2, d
     assert inst["cell-04"]["latest_verdict"] == "FAIL" and inst["cell-03"]["latest_verdict"] in ("PASS", "WARN")
@@ -446,3 +451,24 @@ def test_a_prior_with_the_board_unmoved_reaches_the_calibration_and_the_skip_key
     monkeypatch.setattr(workflow, "calibrate_session", fake)
     out = child.run({"session": str(p), "out_dir": str(tmp_path / "out"), "calibrate": cal})
     assert out["outcome"] == "error" and seen["board_unmoved"] is True and str(seen["prior"]) == str(tmp_path / "r")
+
+
+def test_a_retried_session_waits_for_its_earlier_attempt_to_release_the_folder(tmp_path):
+    """A task retried after its worker was killed may start while the first attempt's session process is still
+    ending (it holds the output folder's lock until then): the retry waits for that process instead of refusing
+    the folder; a lock of a process that is gone, or no lock, does not hold it up."""
+    import threading
+
+    from handeye.batch import child
+    from handeye.output import LOCK_NAME
+
+    out = tmp_path / "out"
+    out.mkdir()
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(1.0)"])
+    threading.Thread(target=proc.wait, daemon=True).start()  # reaped as init reaps an orphan
+    (out / LOCK_NAME).write_text(f"{proc.pid}\n")
+    child._wait_for_previous_attempt(out)
+    assert proc.poll() is not None, "returned while the earlier attempt still held the folder"
+    child._wait_for_previous_attempt(out)  # its pid is gone now: no wait
+    (out / LOCK_NAME).unlink()
+    child._wait_for_previous_attempt(out)

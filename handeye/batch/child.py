@@ -20,6 +20,10 @@ log = logging.getLogger(__name__)
 
 #: seconds between two looks at the parent process
 PARENT_POLL_S = 0.5
+#: seconds a retried task waits for its first attempt's process to end (an attempt whose worker was killed ends
+#: itself within PARENT_POLL_S, or when a long native call that holds the interpreter returns); a bound, after
+#: which the output folder's lock refuses the run as for any second run into one folder
+PREVIOUS_ATTEMPT_WAIT_S = 60.0
 
 
 def _exit_with_parent() -> None:
@@ -34,6 +38,27 @@ def _exit_with_parent() -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
+def _wait_for_previous_attempt(out_dir) -> None:
+    """A task retried after its worker was killed can start while the first attempt's session process is still
+    ending; it holds the output folder's lock until then. Wait for that holder (up to PREVIOUS_ATTEMPT_WAIT_S)
+    instead of refusing the folder."""
+    from pathlib import Path
+
+    from ..output import LOCK_NAME, _pid_alive
+
+    lock = Path(out_dir) / LOCK_NAME
+    deadline = time.monotonic() + PREVIOUS_ATTEMPT_WAIT_S
+    while time.monotonic() < deadline:
+        try:
+            holder = int(lock.read_text(encoding="utf-8").split()[0])
+        except (OSError, ValueError, IndexError):
+            return  # no lock, or one the run will take over or report
+        if holder == os.getpid() or not _pid_alive(holder):
+            return
+        log.info("waiting for pid %d (an earlier attempt of this session) to end", holder)
+        time.sleep(PARENT_POLL_S)
+
+
 def run(spec: dict) -> dict:
     from ..cli.calibrate import options_from_args
     from ..errors import HandeyeError
@@ -41,6 +66,7 @@ def run(spec: dict) -> dict:
     from .run import calibrate_namespace
 
     cal = spec["calibrate"]
+    _wait_for_previous_attempt(spec["out_dir"])
     if spec.get("verify_against"):
         return run_verify(spec)
     args = calibrate_namespace(cal)
