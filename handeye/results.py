@@ -285,7 +285,8 @@ def validation_fields(ref, val) -> dict:
     if kb is not None:
         block.update(intrinsics_spread_over_model_sigma_max=float(np.sqrt(max(kb.eig.max(), 0.0))),
                      intrinsics_spread_over_model_sigma_rms=float(np.sqrt(max(kb.scale, 0.0))),
-                     intrinsics_spread_p_value=kb.p_value, intrinsics_spread_beyond_chance=kb.finding,
+                     intrinsics_spread_p_value=kb.p_value if np.isfinite(kb.p_value) else None,
+                     intrinsics_spread_beyond_chance=kb.finding, intrinsics_spread_test=kb.test,
                      intrinsics_model=kb.model_form)
     halves = {}
     for name, fit in val.halves.items():

@@ -464,11 +464,24 @@ def test_a_retried_session_waits_for_its_earlier_attempt_to_release_the_folder(t
 
     out = tmp_path / "out"
     out.mkdir()
-    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(1.0)"])
-    threading.Thread(target=proc.wait, daemon=True).start()  # reaped as init reaps an orphan
-    (out / LOCK_NAME).write_text(f"{proc.pid}\n")
+    # the earlier attempt: a session process (its command line names handeye.batch.child) of another parent than
+    # the one that starts this attempt (this test process plays the new attempt, its parent the new worker)
+    earlier = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(1.0)", "handeye.batch.child"])
+    threading.Thread(target=earlier.wait, daemon=True).start()  # reaped as init reaps an orphan
+    (out / LOCK_NAME).write_text(f"{earlier.pid}\n")
+    assert child._earlier_attempt(earlier.pid)
     child._wait_for_previous_attempt(out)
-    assert proc.poll() is not None, "returned while the earlier attempt still held the folder"
+    assert earlier.poll() is not None, "returned while the earlier attempt still held the folder"
     child._wait_for_previous_attempt(out)  # its pid is gone now: no wait
+    # a live holder that is not a batch session (a calibrate run into the same folder): no wait, the lock refuses
+    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(5.0)"])
+    try:
+        (out / LOCK_NAME).write_text(f"{other.pid}\n")
+        assert not child._earlier_attempt(other.pid)
+        child._wait_for_previous_attempt(out)
+        assert other.poll() is None
+    finally:
+        other.kill()
+        other.wait()
     (out / LOCK_NAME).unlink()
     child._wait_for_previous_attempt(out)

@@ -11,7 +11,7 @@ from handeye.diagnose.crossval import ratio_limits
 from handeye.frames import tangent_difference
 from handeye.refine import RefineOptions, RefineView, refine
 from handeye.refine.validation import (Validation, _block, fold_indices, fold_information_statistic, generalised_max,
-                                       jackknife_covariance, mahalanobis2, settings, shrunk_jackknife, spread_p_value,
+                                       jackknife_covariance, mahalanobis2, settings, shrunk_jackknife, trace_p_value,
                                        validate)
 from handeye.results import validation_fields
 from handeye.sim.corners import make_corner_session
@@ -57,11 +57,11 @@ def test_verdict_covariance_is_never_smaller_than_either_in_any_direction():
         generalised_max(np.zeros((6, 6)), M)  # a model covariance that is not positive definite
 
 
-def test_the_spread_p_value_is_the_chi_square_tail_of_k_minus_1_dof_per_direction():
+def test_the_trace_p_value_is_the_chi_square_tail_of_k_minus_1_dof_per_direction():
     # (K - 1) D · scale ~ chi2((K - 1) D): at the mean the tail is near one half, far out it vanishes
-    assert spread_p_value(1.0, 12, 6) == pytest.approx(chi2.sf(66, 66))
-    assert spread_p_value(2.0, 12, 6) == pytest.approx(chi2.sf(132, 66)) and spread_p_value(2.0, 12, 6) < 1e-5
-    assert spread_p_value(0.5, 12, 6) > 0.99
+    assert trace_p_value(1.0, 12, 6) == pytest.approx(chi2.sf(66, 66))
+    assert trace_p_value(2.0, 12, 6) == pytest.approx(chi2.sf(132, 66)) and trace_p_value(2.0, 12, 6) < 1e-5
+    assert trace_p_value(0.5, 12, 6) > 0.99
 
 
 def _weighted_mean_folds(rng, covs, inflate=1.0):
@@ -186,6 +186,39 @@ def test_on_clean_data_the_folds_agree_with_the_model_and_the_verdict_covers_the
     # the halves: each a refit of half the views
     assert set(v.halves) == {"odd", "even"} and all(h.status == "ok" for h in v.halves.values())
     assert v.halves["odd"].view_ids[:2] == (s.view_ids[0], s.view_ids[2])
+
+
+def test_refits_without_their_covariance_fall_back_and_never_cancel_the_validation(monkeypatch):
+    # one fold without its covariance: the test runs over the others; the all-views refit without one: T_x falls
+    # back to the trace test and the intrinsics, whose jackknife would mislead it, keep the model's covariance; an
+    # all-views covariance that is not positive definite does the same, the validation still runs
+    from dataclasses import replace
+
+    import handeye.refine.refitting as refitting
+
+    s = make_corner_session(mode="eye_to_hand", n_views=14, seed=35, noise_px=0.3, robot_noise=(0.3, 0.03))
+    r, views = _refined(s)
+    real = refitting.refit
+    n_used = sum(pv["status"] == "used" for pv in r.per_view.values())
+
+    def run(change):
+        calls = []
+
+        def fake(result, *, object_points, views, covariance=True):
+            out = real(result, object_points=object_points, views=views, covariance=covariance)
+            calls.append(out)
+            return change(out, len(views), len(calls))
+        monkeypatch.setattr(refitting, "refit", fake)
+        return validate(r, object_points=s.target.object_points(), views=views, halves=False)
+
+    v = run(lambda out, n, k: replace(out, cov_x=None, cov_intrinsics=None) if k == 1 else out)
+    assert v.status == "ok" and v.x.test == v.intrinsics.test == "fold information"
+    v = run(lambda out, n, k: replace(out, cov_x=None, cov_intrinsics=None) if n == n_used else out)
+    assert v.status == "ok" and v.x.test == "trace" and v.intrinsics.test == "none"
+    assert not v.intrinsics.finding and np.allclose(v.intrinsics.cov_verdict, v.intrinsics.cov_model)
+    assert validation_fields(r, v)["validation"]["intrinsics_spread_p_value"] is None
+    v = run(lambda out, n, k: replace(out, cov_x=-np.eye(6)) if n == n_used else out)
+    assert v.status == "ok" and v.x.test == "trace" and v.intrinsics.test == "fold information"
 
 
 def test_an_unmodelled_robot_error_widens_the_verdict_until_it_covers_the_truth():

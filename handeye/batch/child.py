@@ -15,6 +15,7 @@ import os
 import sys
 import threading
 import time
+from pathlib import Path
 
 log = logging.getLogger(__name__)
 
@@ -38,24 +39,38 @@ def _exit_with_parent() -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
+def _earlier_attempt(pid: int) -> bool:
+    """Whether ``pid`` is a session process of a batch (``handeye.batch.child``) started by another process than
+    this one's: an earlier attempt of this task, whose worker was killed (Dask runs a task once at a time, so a
+    live attempt under another parent is a leftover; its parent is init or a subreaper by now). False where
+    /proc cannot tell (another system, another user's process)."""
+    try:
+        cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+        ppid = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, ValueError, IndexError):
+        return False
+    return any(b"handeye.batch.child" in c for c in cmd) and ppid != os.getppid()
+
+
 def _wait_for_previous_attempt(out_dir) -> None:
     """A task retried after its worker was killed can start while the first attempt's session process is still
     ending; it holds the output folder's lock until then. Wait for that holder (up to PREVIOUS_ATTEMPT_WAIT_S)
-    instead of refusing the folder."""
-    from pathlib import Path
-
+    instead of refusing the folder; any other holder (a live run) is left to the lock, which refuses at once."""
     from ..output import LOCK_NAME, _pid_alive
 
     lock = Path(out_dir) / LOCK_NAME
     deadline = time.monotonic() + PREVIOUS_ATTEMPT_WAIT_S
+    told = False
     while time.monotonic() < deadline:
         try:
             holder = int(lock.read_text(encoding="utf-8").split()[0])
         except (OSError, ValueError, IndexError):
             return  # no lock, or one the run will take over or report
-        if holder == os.getpid() or not _pid_alive(holder):
+        if holder == os.getpid() or not _pid_alive(holder) or not _earlier_attempt(holder):
             return
-        log.info("waiting for pid %d (an earlier attempt of this session) to end", holder)
+        if not told:
+            log.info("waiting for pid %d (an earlier attempt of this session whose worker is gone) to end", holder)
+            told = True
         time.sleep(PARENT_POLL_S)
 
 

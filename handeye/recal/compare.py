@@ -23,14 +23,14 @@ stands out from the rest; ``mahalanobis2_x_alone`` and its p-value report the te
 
 An inflation that came from errors unrelated to the intrinsics, large where the intrinsics explain most
 of X, would make ``V`` too small. The real sets' halves (``benchmarks/bench_realdata.py``) show no sign of
-it: the statistic stays below chi-square(6) there (medians 1.2-4.4 over 6 sets, at most 1 of 11 halvings
+it: the statistic stays below chi-square(6) there (medians 1.2-6.5 over 6 sets, at most 1 of 11 halvings
 above its 95 % point). Two other forms were tried on simulated pairs of one rig: scaling the regression
 by ``A`` too over-subtracts ``G dk`` (11 % called drifted eye-to-hand at the 5 % level); counting the
 verdict's whole inflation of X against the remainder made the test far too conservative (0-1 %).
 
 The intrinsics (fx, fy, cx, cy) are tested under the sum of the two results' covariances of them (the
-joint covariance's intrinsics block: the verdict's sigmas with the model's correlations; fx and fy are
-nearly fully correlated, so their sigmas alone would make the statistic heavier-tailed than chi-square),
+joint covariance's intrinsics block, carried to the verdict as :func:`~handeye.recal.loaded.verdict_maps`
+does; fx and fy are nearly fully correlated, so their sigmas alone would make the statistic heavier-tailed than chi-square),
 chi-square(4); results
 without the joint covariance are tested with the sum of their variances (a diagonal test, as many
 degrees of freedom as intrinsics with a sigma).
@@ -209,8 +209,8 @@ def intrinsics_difference(a: LoadedResult, b: LoadedResult, *, alpha: float = AL
 
 
 def _intrinsics_joint_test(a: LoadedResult, b: LoadedResult, alpha: float) -> Optional[dict]:
-    """The test of (fx, fy, cx, cy) under the sum of the two results' full covariances of them (the verdict's
-    sigmas with the model's correlations: fx and fy move together), when both carry it for all four."""
+    """The test of (fx, fy, cx, cy) under the sum of the two results' full covariances of them (the joint
+    covariance carried to the verdict: fx and fy move together), when both carry it for all four."""
     ja, jb = a.cov_x_intrinsics, b.cov_x_intrinsics
     if ja is None or jb is None or not set(INTRINSICS_COMPARED) <= set(ja[0]) or not set(INTRINSICS_COMPARED) <= set(jb[0]):
         return None

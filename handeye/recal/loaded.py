@@ -8,8 +8,9 @@ else ``intrinsics_sigma``; sigmas of the free intrinsics only: a fixed or given 
 The model's joint covariance of X and the free intrinsics (``refinement.cov_x_intrinsics``) is read
 too: verify needs it when the new views share the installed intrinsics. When the verdict covariances
 differ from the model's, the joint is carried to them (:func:`verdict_maps`): its X block becomes the
-verdict's X covariance and its intrinsics the verdict's sigmas with the model's correlations among them,
-the model's canonical correlations between the two kept, so that a test never mixes the verdict's X with
+verdict's X covariance and its intrinsics block the verdict's (for a result validated against the
+intrinsics' sigmas alone: the verdict's sigmas with the model's correlations among them), the model's
+canonical correlations between the two kept, so that a test never mixes the verdict's X with
 the model's smaller intrinsics uncertainty. A kinematic install's DH offsets (estimate and covariance with both, in the same
 block of result.json) are read with it: verify shares them with the new views.
 """

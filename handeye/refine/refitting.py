@@ -47,13 +47,16 @@ class Refit:
     cov_intrinsics: Optional[np.ndarray] = None  # (k,k) of the free intrinsics (the refinement's order)
 
 
-def refit(result: RefineResult, *, object_points: np.ndarray, views: Sequence[RefineView]) -> Refit:
+def refit(result: RefineResult, *, object_points: np.ndarray, views: Sequence[RefineView],
+          covariance: bool = True) -> Refit:
     """Solve the refinement of ``result`` again on ``views`` alone (a subset of its views), holding its
     noise levels and outlier decisions (see the module docstring).
 
     ``object_points`` (N,3): the board points the views' ``corner_ids`` index (the same as for
     :func:`handeye.refine.refine`). Raises InputError for a view the full run did not have or dropped,
     or for fewer than 3 views; a solve that fails returns ``status="failed"`` with the reason.
+    ``covariance``: also the refit's marginal covariance of T_x and the free intrinsics (``cov_x``,
+    ``cov_intrinsics``; None when the information matrix cannot be inverted).
     """
     from .problem import Problem  # GTSAM on first use
 
@@ -98,13 +101,13 @@ def refit(result: RefineResult, *, object_points: np.ndarray, views: Sequence[Re
         log.info("refit on views %s not solved: %s", list(ids), e)
         return Refit("failed", str(e), None, None, None, ids)
     cov_x = cov_k = None
-    try:  # the fold's own model covariance: how much less the fold knows than the full run
-        S_cc, _ = pb.covariances(g, values, robot_keys)
-        nk = pb.free.size
-        cov_x = 0.5 * (S_cc[:6, :6] + S_cc[:6, :6].T)
-        k = slice(N_POSES, N_POSES + nk)
-        cov_k = 0.5 * (S_cc[k, k] + S_cc[k, k].T) if nk else None
-    except (RuntimeError, np.linalg.LinAlgError) as e:
-        log.info("refit on views %s: no covariance (%s)", list(ids), e)
+    if covariance:  # the refit's own model covariance: how much less the fold knows than the full run
+        try:
+            S_cc, _ = pb.covariances(g, values, robot_keys)
+            k = slice(N_POSES, N_POSES + pb.free.size)
+            cov_x = 0.5 * (S_cc[:6, :6] + S_cc[:6, :6].T)
+            cov_k = 0.5 * (S_cc[k, k] + S_cc[k, k].T) if pb.free.size else None
+        except (RuntimeError, np.linalg.LinAlgError) as e:
+            log.info("refit on views %s: no covariance (%s)", list(ids), e)
     return Refit("ok", "", pb.T_x.copy(), pb.T_board.copy(), Intrinsics.from_vector(pb.k, pb.width, pb.height), ids,
                  cov_x, cov_k)

@@ -45,7 +45,8 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     diag = res.get("diagnostics") if isinstance(res.get("diagnostics"), dict) else {}
     T_x = as_T(res.get(x_name)) if ok else None
     T_board = as_T(res.get(b_name)) if ok else None
-    # the verdict covariance (validated) when the result has one, else the model's
+    # the verdict covariance when the result has one (the model's or the validated, as the validation found), else
+    # the model's
     cov = (as_cov6(ref.get("cov_x_6x6_verdict")) if ref.get("cov_x_6x6_verdict") is not None
            else as_cov6(ref.get("cov_x_6x6"))) if ref else None
     intr = res.get("intrinsics") or ref.get("intrinsics")
