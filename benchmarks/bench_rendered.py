@@ -14,7 +14,7 @@ the truth, the reported 1-sigma (RMS over the axes), the normalised error ``d^2 
 ``xi = Log(inv(T_est) · T_true)`` (right perturbation in the frame of X, rotation first, the
 parametrisation of ``RefineResult.cov_x_6x6``) and ``C = cov_x_6x6`` (chi-square with 6 dof when the
 reported covariance is honest: median 5.35, 95 % quantile 12.59), the coverage of the reported 95 %
-ellipsoid, the Cramer-Rao bound of the corner-level model at the truth with the pixel sigma that the
+ellipsoid, the same for the verdict covariance (``cov_x_6x6_verdict``, :mod:`handeye.refine.validation`), the Cramer-Rao bound of the corner-level model at the truth with the pixel sigma that the
 detector actually achieved on that session (measured against the true corners), outlier flags against
 ground_truth.json, false flags, failures and seconds. Diagnostics of the detector: RMS corner error
 against the true projections, and its per-view systematic part (RMS of each view's mean error and the
@@ -160,6 +160,9 @@ def _run_one(k: int, keep: str | None = None, cfg: dict | None = None) -> dict:
     d2 = float(xi @ np.linalg.solve(cov, xi))
     d2_rot = float(xi[:3] @ np.linalg.solve(cov[:3, :3], xi[:3]))
     d2_trans = float(xi[3:] @ np.linalg.solve(cov[3:, 3:], xi[3:]))
+    val = getattr(run, "validation", None)  # the verdict covariance calibrate reports (handeye.refine.validation)
+    val_ok = val is not None and val.status == "ok"
+    d2_verdict = float(xi @ np.linalg.solve(val.x.cov_verdict, xi)) if val_ok else d2
     flagged = {o.view_id for o in r.outliers if o.kind in ("robot_pose", "reprojection", "too_few_corners")}
     corner_flags = sum(len(o.corner_ids) for o in r.outliers if o.kind == "corners")
     # detector accuracy against the true projections
@@ -184,6 +187,7 @@ def _run_one(k: int, keep: str | None = None, cfg: dict | None = None) -> dict:
                 exclude=tuple(flagged_robot & set(cs.outlier_view_ids)) if cfg["robot_noise"][0] > 0 else ())
     row.update(rot_deg=float(np.degrees(np.linalg.norm(xi[:3]))), trans_mm=float(1000 * np.linalg.norm(
         (T_true - r.T_x)[:3, 3])), d2=d2, d2_rot=d2_rot, d2_trans=d2_trans, covered=d2 <= CHI2_95_6,
+        d2_verdict=d2_verdict, finding=bool(val_ok and val.x.finding),
         sig_rot_deg=float(np.sqrt(np.sum(r.sigma_rot_deg ** 2))),
         sig_trans_mm=float(1000 * np.sqrt(np.trace(cov[3:, 3:]))),
         crb_rot_deg=float(np.degrees(np.sqrt(np.trace(crb[:3, :3])))),
@@ -227,6 +231,10 @@ def summarize(rows: list, label: str = "all") -> None:
           f"coverage of the 95 % ellipsoid {np.mean(d2 <= CHI2_95_6) * 100:.0f} % "
           f"| rot-only d2 median {np.median([r['d2_rot'] for r in ok]):.2f} (chi2(3) {chi2.ppf(0.5, 3):.2f}), "
           f"trans-only {np.median([r['d2_trans'] for r in ok]):.2f}")
+    d2v = np.array([r["d2_verdict"] for r in ok])
+    print(f"  verdict        d2 median {np.median(d2v):.2f}, coverage of the 95 % ellipsoid "
+          f"{np.mean(d2v <= CHI2_95_6) * 100:.0f} % (the validation found the model's covariance too small in "
+          f"{sum(r['finding'] for r in ok)} of {len(ok)} sessions)")
     print(f"  detector       corner error {np.mean([r['det_sigma_px'] for r in ok]):.3f} px/coord (estimated sigma_px "
           f"{np.mean([r['sigma_px'] for r in ok]):.3f}), per-view mean error "
           f"{np.mean([r['view_bias_px'] for r in ok]):.3f}"
