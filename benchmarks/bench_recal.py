@@ -83,14 +83,15 @@ What the power rests on: the change's sigma is the install's X given what the ne
   verdict covariance of X (never smaller than the model's) and the verdict's sigmas of the intrinsics.
 
 --prior (``--prior 50 --validated``, 50 installs per mode): after a 1 mm / 0.1 deg bump the contradiction is
-found in 96 % (eye-in-hand) and 98 % (eye-to-hand), and the update (the 5 new views with the prior's
-intrinsics, no prior on X; over all 50 bumped installs) has an RMS error of 0.390 mm / 0.105 deg and
-0.672 mm / 0.110 deg, against a fresh 20-view calibration's 0.457 mm / 0.088 deg and 0.464 mm / 0.101 deg of
+found in 100 % (eye-in-hand) and 100 % (eye-to-hand), and the update (the 5 new views with the prior's
+intrinsics, no prior on X; over all 50 bumped installs) has an RMS error of 0.471 mm / 0.096 deg and
+0.650 mm / 0.104 deg, against a fresh 20-view calibration's 0.457 mm / 0.088 deg and 0.464 mm / 0.101 deg of
 the same rigs. With ``--board-unmoved`` (the board found unmoved in every run, so its earlier pose kept):
-0.356 mm / 0.103 deg and 0.600 mm / 0.103 deg. Without a bump: 0.356 and 0.460 mm against the fresh 0.457
-and 0.464 mm, a contradiction reported in 10 % and 2 % (nominal 5 %; 50 trials: +-3 % of sampling
-scatter). So the update is better than a fresh 20-view calibration in eye-in-hand translation and 9-45 %
-worse elsewhere; with the board's pose 22 % better in eye-in-hand translation and 2-29 % worse elsewhere.
+0.371 mm / 0.092 deg and 0.533 mm / 0.098 deg. Without a bump: 0.420 and 0.504 mm against the fresh 0.457
+and 0.464 mm, a contradiction reported in 12 % and 12 % (nominal 5 %; 50 trials: +-3 % of sampling
+scatter; 10 % and 2 % with the earlier, wider verdict covariance). So the update is within 3-9 % of a fresh
+20-view calibration in eye-in-hand and 3-40 % worse eye-to-hand; with the board's pose 19 % better in
+eye-in-hand translation, 3 % better in eye-to-hand rotation, and 4-15 % worse elsewhere.
 What limits it is the 5 views themselves: once X has moved, the prior can only give what did not move (the
 intrinsics, the board if it stayed), and each new view measures X through one robot pose. In theory (the collector's
 information model, intrinsics known, 150 candidate poses, 5 chosen greedily) the 5 best views with the
