@@ -298,6 +298,21 @@ def test_joint_drift_test_is_chi_square_when_the_intrinsics_are_shared():
     assert np.mean(Tw) < 0.7 * np.mean(Tj)  # the shared error counted twice: a conservative test (2.9)
 
 
+def test_the_p_value_allows_for_a_robot_noise_level_that_was_estimated():
+    # a Wald statistic whose covariance rests on a noise level estimated with nu degrees of freedom is
+    # T = chi2_6 / (chi2_nu / nu): the chi-square reference calls it significant too often, the F reference not
+    from handeye.recal.verify import wald_p_value
+
+    rng = np.random.default_rng(3)
+    nu = 30
+    T = rng.chisquare(6, 4000) / (rng.chisquare(nu, 4000) / nu)
+    p_chi = np.array([wald_p_value(t, 6) for t in T])
+    p_f = np.array([wald_p_value(t, 6, nu) for t in T])
+    assert np.mean(p_chi < 0.05) > 0.07 and abs(np.mean(p_f < 0.05) - 0.05) < 0.01
+    assert wald_p_value(12.59, 6) == pytest.approx(0.05, abs=1e-3) and wald_p_value(3.0, 0, nu) == 1.0
+    assert wald_p_value(12.59, 6, None) == wald_p_value(12.59, 6, float("nan"))
+
+
 # ------------------------------------------------------------------------------ verify on simulated rigs
 SMALL = dict(width=640, height=360)
 
@@ -347,6 +362,12 @@ def test_verify_still_valid_on_the_same_rig_and_drifted_after_a_bump(install):
     same = verify_views(inst, views=_views(_verification(s, np.zeros(6), seed=101)),
                         object_points=s.target.object_points())
     assert same.verdict == "still valid" and same.test.dof == 6 and same.test.p_value > 0.05
+    # the install estimated its robot noise (15 views: at most 45 equations per group; a group the camera cannot
+    # resolve is frozen and has none): the test takes the p-value from F with the fewest degrees of freedom
+    dof, resolved = res["refinement"]["robot_noise_dof"], res["refinement"]["robot_sigma_resolved"]
+    assert dof and set(dof) == {g for g, ok in resolved.items() if ok} and all(5 < v < 45 for v in dof.values())
+    assert same.test.noise_dof == pytest.approx(min(dof.values()))
+    assert same.to_dict()["test"]["reference"].startswith("6 F(6, ")
     assert same.what_moved == ("nothing moved beyond the uncertainty",)
     bump = np.array([np.radians(0.5), 0.0, 0.0, 0.0, 5e-3, 0.0])  # 0.5 deg, 5 mm along the camera's y
     moved = verify_views(inst, views=_views(_verification(s, bump, seed=102)), object_points=s.target.object_points())

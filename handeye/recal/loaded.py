@@ -81,6 +81,16 @@ class LoadedResult:
         return 0.5 * (S + S.T)
 
     @property
+    def robot_noise_dof(self) -> Optional[float]:
+        """The fewest degrees of freedom among the robot sigmas the calibration estimated
+        (``refinement.robot_noise_dof``): how well its robot noise level is known; None when it estimated none
+        (the noise stated, or an older result)."""
+        d = (self.raw.get("refinement") or {}).get("robot_noise_dof")
+        vals = [_float(v) for v in d.values()] if isinstance(d, dict) else []
+        vals = [v for v in vals if v is not None and v > 0]
+        return min(vals) if vals else None
+
+    @property
     def joints_recorded(self) -> bool:
         """The install's kinematic robot model took the views' recorded joint angles (not inverse kinematics)."""
         return ((self.raw.get("refinement") or {}).get("robot_model") or {}).get("joint_angles") == "recorded"

@@ -116,6 +116,7 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
     HK, gK = pb.core_prior()  # priors on the core unknowns (intrinsics, DH offsets, options.prior)
     s = np.r_[pb.sigma_px, pb.robot_sigmas]
     start = s.copy()
+    dof: dict = {}  # redundancy of each robot group whose sigma is estimated (its degrees of freedom)
     history = [np.log(s)]  # log-sigma iterates since the last extrapolation
     for _ in range(int(cfg["max_inner"])):
         w_px = 1.0 / s[0] ** 2
@@ -149,7 +150,9 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
                 r_g = counts[g] * n_pri - tr
                 if r_g < share * counts[g] * n_pri:
                     pb.resolved[name] = False  # the camera cannot resolve this robot noise: freeze
+                    dof.pop(name, None)
                     continue
+                dof[name] = float(r_g)
                 e2 = float(np.einsum("ni,nij,nj->", e_rob, W0[g], e_rob))
                 new[1 + g] = max(float(np.sqrt(max(e2, 0.0) / r_g)), floors[1 + g])
         r_px = lin.n_obs - D + absorbed
@@ -165,6 +168,7 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
             history = [np.log(s)]
     pb.sigma_px = float(s[0])
     pb.robot_sigmas = s[1:]
+    pb.noise_dof = dof
     S_u = robot_residual_covariances(S_cc, S_pp, S_cp, J, dh)
     if pb.m_dh:
         pb.S_dd = S_cc[dh, dh].copy()

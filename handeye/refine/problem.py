@@ -171,6 +171,7 @@ class Problem:
         self.sigma_rot = np.radians(options.robot_sigma_deg)
         self.sigma_trans = options.robot_sigma_mm / 1000.0
         self.resolved = {g: True for g in self.robot_groups}
+        self.noise_dof: dict = {}  # degrees of freedom of each estimated robot sigma (handeye.refine.noise)
         self.status = ["used"] * self.n
         self.mask = [np.ones(len(o), bool) for o in self.obj]
         self.iterations = 0

@@ -66,6 +66,9 @@ class RefineResult:
     # cov(xi_board, k) (6,nk) (the board's own block is cov_board_6x6); with the kinematic robot model
     # also "dh_offsets" (m,), "cross_6xm", "cross_kxm", "dh_mxm"}; None when failed or none free
     cov_x_intrinsics: Optional[dict] = None
+    # degrees of freedom (redundancy) of each robot sigma the variance-component estimation estimated
+    # ({"rot": r, "trans": r} or {"joint": r}); empty when none was estimated or resolved
+    robot_noise_dof: dict = field(default_factory=dict)
 
     @property
     def used_view_ids(self) -> list:
@@ -107,6 +110,7 @@ class RefineResult:
             "robot_sigma_mm": self.robot_sigma_mm,
             "robot_sigma_deg": self.robot_sigma_deg,
             "robot_sigma_resolved": self.robot_sigma_resolved,
+            "robot_noise_dof": self.robot_noise_dof,
             "robot_noise_model": self.options.robot_noise,
             "robot_model": self.robot_model,
             "rms_px_before": self.rms_px_before,
@@ -239,7 +243,8 @@ def build_result(pb: "Problem", *, status: str, reason: str, S_cc: Optional[np.n
         outliers=tuple(outliers), iterations=int(pb.iterations), seconds=time.perf_counter() - t0,
         start_method=start_method, options=pb.o, robot_model=robot_model_dict(pb, S_cc),
         cov_board_6x6=None if S_cc is None else 0.5 * (S_cc[6:N_POSES, 6:N_POSES] + S_cc[6:N_POSES, 6:N_POSES].T),
-        cov_x_intrinsics=_x_intrinsics_covariance(pb, S_cc))
+        cov_x_intrinsics=_x_intrinsics_covariance(pb, S_cc),
+        robot_noise_dof=dict(pb.noise_dof) if pb.o.robot_noise == "estimate" else {})
 
 
 def _x_intrinsics_covariance(pb: "Problem", S_cc: Optional[np.ndarray]) -> Optional[dict]:
