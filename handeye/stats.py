@@ -1,8 +1,10 @@
-"""Small robust statistics shared by the refinement and the diagnostics (pure numpy/scipy.special)."""
+"""Small statistics shared by the refinement, the diagnostics and the recalibration tests (pure numpy/scipy)."""
 from __future__ import annotations
 
 import numpy as np
 from scipy.special import chdtri
+from scipy.stats import chi2
+from scipy.stats import f as f_dist
 
 RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))  # median of |e| / sigma for a 2-D Gaussian
 
@@ -58,3 +60,22 @@ def mixture_tail_quantile(p: float, dim: int, dof: np.ndarray) -> np.ndarray:
     fin = np.isfinite(nu)
     out[fin] = dim * fdtri(dim, nu[fin], 1.0 - p) / (nu[fin] / (nu[fin] - 2.0))
     return out
+
+
+def wald_p_value(T: float, dof: int, noise_dof: float | None = None) -> float:
+    """P-value of the Wald statistic ``T`` with ``dof`` directions: chi-square(dof) when the covariances are
+    known; when they rest on a robot noise level estimated with ``noise_dof`` degrees of freedom (the plug-in
+    variance makes the statistic heavier-tailed, as Hotelling's T^2), ``T / dof`` is taken as F(dof, noise_dof)."""
+    if not dof:
+        return 1.0
+    if noise_dof is None or not np.isfinite(noise_dof) or noise_dof <= 0:
+        return float(chi2.sf(T, dof))
+    return float(f_dist.sf(T / dof, dof, noise_dof))
+
+
+def satterthwaite_dof(shares, dofs) -> float | None:
+    """Degrees of freedom of a variance that is the sum of parts with ``shares`` (summing to 1) each estimated
+    with ``dofs`` (None or inf: known): ``1 / sum(share^2 / dof)`` (Satterthwaite 1946); None when every part
+    is known."""
+    s = sum(float(a) ** 2 / float(n) for a, n in zip(shares, dofs) if n is not None and np.isfinite(n) and n > 0)
+    return 1.0 / s if s > 0 else None

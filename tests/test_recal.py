@@ -61,6 +61,16 @@ def test_compare_known_difference_gives_the_chi2_statistic():
     d = c.to_dict()
     assert d["dof"] == 6 and d["frame"] == "T_end_cam" and d["drifted"] is True
     assert c.intrinsics["fx"]["diff"] == 0.0 and c.intrinsics["p_value"] == pytest.approx(1.0)
+    assert c.robot_noise_dof is None and d["reference"] == "chi-square(6)"
+    # both results estimated their robot noise (30 and 60 dof): their covariances rest on the estimates, and the
+    # difference's (half of it from each, same covariances here) has Satterthwaite's 1 / (0.25/30 + 0.25/60) dof
+    a, b = fake_result(T_a), fake_result(T_b)
+    a["refinement"]["robot_noise_dof"], b["refinement"]["robot_noise_dof"] = {"rot": 30.0, "trans": 45.0}, {"rot": 60.0}
+    cf = compare_results(a, b)
+    assert cf.robot_noise_dof == pytest.approx(1.0 / (0.25 / 30 + 0.25 / 60), rel=1e-3)
+    assert cf.p_value == pytest.approx(stats.f.sf(expected / 6, 6, cf.robot_noise_dof), rel=1e-9)
+    assert cf.p_value > c.p_value  # the heavier tail
+    assert cf.to_dict()["reference"].startswith("6 F(6, 80)")
 
 
 def test_compare_prefers_the_verdict_covariance():
@@ -301,7 +311,7 @@ def test_joint_drift_test_is_chi_square_when_the_intrinsics_are_shared():
 def test_the_p_value_allows_for_a_robot_noise_level_that_was_estimated():
     # a Wald statistic whose covariance rests on a noise level estimated with nu degrees of freedom is
     # T = chi2_6 / (chi2_nu / nu): the chi-square reference calls it significant too often, the F reference not
-    from handeye.recal.verify import wald_p_value
+    from handeye.stats import wald_p_value
 
     rng = np.random.default_rng(3)
     nu = 30

@@ -4,7 +4,10 @@
 is tested against ``S = S_a + Ad · S_b · Ad^T`` (``Ad`` the adjoint of ``inv(X_a) · X_b``, which moves
 ``X_b``'s right-tangent covariance into ``X_a``'s): ``d2 = xi^T S^-1 xi`` is chi-square with 6 degrees
 of freedom when both results calibrate the same unchanged rig with independent data, so
-``p = P(chi2_6 > d2)``; ``drifted`` when ``p < alpha``.
+``p = P(chi2_6 > d2)``; ``drifted`` when ``p < alpha``. When the results estimated their robot noise, their
+covariances rest on those estimates and ``d2 / 6`` is taken as F(6, nu) instead, nu Satterthwaite's degrees of
+freedom of the sum (:func:`noise_dof`, :func:`handeye.stats.wald_p_value`, as :mod:`handeye.recal.verify`
+does).
 
 Both results estimated the intrinsics of one camera, and an intrinsics error moves X (a principal point
 error tilts it, a focal length error moves it along the optical axis): much of each result's uncertainty
@@ -51,6 +54,7 @@ from ..camera import INTRINSIC_NAMES
 from ..config import load_preset
 from ..frames import inv_T, rotvec_from_R, se3_adjoint, tangent_difference
 from ..output import plain
+from ..stats import satterthwaite_dof, wald_p_value
 from .loaded import LoadedResult, ResultLike, load_result
 
 #: the test's level (configs/recal.yaml test.alpha): an unchanged rig is called drifted this often
@@ -88,6 +92,9 @@ class Comparison:
     p_value_x_alone: float = float("nan")
     explained_trans_mm: float = float("nan")  # |G dk|: the part of the difference the intrinsics difference explains
     explained_rot_deg: float = float("nan")
+    # degrees of freedom of the difference's covariance when the results estimated their robot noise (the p-values
+    # then from F(6, nu), :func:`noise_dof`); None: chi-square
+    robot_noise_dof: Optional[float] = None
 
     def to_dict(self) -> dict:
         return plain({
@@ -102,7 +109,9 @@ class Comparison:
             "results": list(self.sources), "covariances": list(self.cov_sources), "note": self.note,
             "test": self.test, "mahalanobis2_x_alone": self.mahalanobis2_x_alone,
             "p_value_x_alone": self.p_value_x_alone, "explained_by_intrinsics_trans_mm": self.explained_trans_mm,
-            "explained_by_intrinsics_rot_deg": self.explained_rot_deg},
+            "explained_by_intrinsics_rot_deg": self.explained_rot_deg, "robot_noise_dof": self.robot_noise_dof,
+            "reference": "chi-square(6)" if self.robot_noise_dof is None else
+            f"6 F(6, {self.robot_noise_dof:.0f}) (the robot noise levels estimated)"},
             nan_to_none=True)
 
 
@@ -233,13 +242,14 @@ def compare_loaded(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) ->
     if reason:
         return not_comparable(reason, a.x_name if a.x_name == b.x_name else "", alpha=alpha, sources=sources)
     d = x_difference(a.T_x, a.cov_x, b.T_x, b.cov_x)
-    p_alone = float(stats.chi2.sf(d["d2"], 6))
+    nu = noise_dof(a, d["S"], b)
+    p_alone = wald_p_value(d["d2"], 6, nu)
     g = x_given_intrinsics(a, b, d)
     extra = {"test": "X alone", "mahalanobis2_x_alone": d["d2"], "p_value_x_alone": p_alone}
     d2, p = d["d2"], p_alone
     if g is not None:
         d2 = g["d2"]
-        p = float(stats.chi2.sf(d2, 6))
+        p = wald_p_value(d2, 6, nu)
         e = g["explained"]
         extra.update(test="X given the intrinsics difference",
                      explained_trans_mm=float(1000.0 * np.linalg.norm(a.T_x[:3, :3] @ e[3:])),
@@ -250,7 +260,17 @@ def compare_loaded(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) ->
                       drifted=bool(p < alpha), intrinsics=intrinsics_difference(a, b, alpha=alpha), alpha=alpha,
                       xi=d["xi"], sigma_trans_mm=d["sigma_trans_mm"], sigma_rot_deg=d["sigma_rot_deg"],
                       sources=sources, cov_sources=(a.cov_source, b.cov_source), note=_dependence_note(a, b),
-                      **extra)
+                      robot_noise_dof=nu, **extra)
+
+
+def noise_dof(a: LoadedResult, S: np.ndarray, b: LoadedResult) -> Optional[float]:
+    """Degrees of freedom of the covariance ``S = S_a + Ad S_b Ad^T`` of the difference when the results
+    estimated their robot noise (:attr:`~handeye.recal.loaded.LoadedResult.robot_noise_dof`): Satterthwaite's,
+    each result's share of ``S`` its average over the six whitened directions; None when neither did."""
+    if a.robot_noise_dof is None and b.robot_noise_dof is None:
+        return None
+    share_a = float(np.clip(np.trace(np.linalg.solve(S, a.cov_x)) / 6.0, 0.0, 1.0))
+    return satterthwaite_dof((share_a, 1.0 - share_a), (a.robot_noise_dof, b.robot_noise_dof))
 
 
 def _dependence_note(a: LoadedResult, b: LoadedResult) -> str:

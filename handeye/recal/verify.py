@@ -58,6 +58,7 @@ from ..errors import CalibrationError, InputError
 from ..frames import inv_T, mean_T, pose_error, se3_adjoint, se3_exp, tangent_difference
 from ..mounting import mounting
 from ..output import plain
+from ..stats import wald_p_value
 from .loaded import VAGUE_COV_X, LoadedResult, installed_prior
 
 log = logging.getLogger(__name__)
@@ -112,17 +113,6 @@ class DriftTest:
         if self.noise_dof is None:
             return f"chi-square({self.dof})"
         return f"{self.dof} F({self.dof}, {self.noise_dof:.0f}) (the robot noise level estimated)"
-
-
-def wald_p_value(T: float, dof: int, noise_dof: Optional[float] = None) -> float:
-    """P-value of the Wald statistic ``T`` with ``dof`` directions: chi-square(dof) when the covariances are
-    known; when they rest on a robot noise level estimated with ``noise_dof`` degrees of freedom (the plug-in
-    variance makes the statistic heavier-tailed, as Hotelling's T^2), ``T / dof`` is taken as F(dof, noise_dof)."""
-    if not dof:
-        return 1.0
-    if noise_dof is None or not np.isfinite(noise_dof) or noise_dof <= 0:
-        return float(stats.chi2.sf(T, dof))
-    return float(stats.f.sf(T / dof, dof, noise_dof))
 
 
 def drift_test(*, cov_installed: np.ndarray, T_x_installed: np.ndarray, T_x_new: np.ndarray, cov_new: np.ndarray,
