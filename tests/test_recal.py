@@ -62,10 +62,12 @@ def test_compare_known_difference_gives_the_chi2_statistic():
     assert d["dof"] == 6 and d["frame"] == "T_end_cam" and d["drifted"] is True
     assert c.intrinsics["fx"]["diff"] == 0.0 and c.intrinsics["p_value"] == pytest.approx(1.0)
     assert c.robot_noise_dof is None and d["reference"] == "chi-square(6)"
-    # both results estimated their robot noise (30 and 60 dof): their covariances rest on the estimates, and the
-    # difference's (half of it from each, same covariances here) has Satterthwaite's 1 / (0.25/30 + 0.25/60) dof
+    # both results estimated their robot noise (A: rotation 10 and translation 30 dof, Satterthwaite's 30 for equal
+    # parts; B: 60): their covariances rest on the estimates, and the difference's (half of it from each, the same
+    # covariances here) has 1 / (0.25/30 + 0.25/60) = 80 dof
     a, b = fake_result(T_a), fake_result(T_b)
-    a["refinement"]["robot_noise_dof"], b["refinement"]["robot_noise_dof"] = {"rot": 30.0, "trans": 45.0}, {"rot": 60.0}
+    a["refinement"]["robot_noise_dof"], b["refinement"]["robot_noise_dof"] = {"rot": 10.0, "trans": 30.0}, {"rot": 60.0}
+    assert load_result(a).robot_noise_dof == pytest.approx(30.0)
     cf = compare_results(a, b)
     assert cf.robot_noise_dof == pytest.approx(1.0 / (0.25 / 30 + 0.25 / 60), rel=1e-3)
     assert cf.p_value == pytest.approx(stats.f.sf(expected / 6, 6, cf.robot_noise_dof), rel=1e-9)
@@ -373,10 +375,12 @@ def test_verify_still_valid_on_the_same_rig_and_drifted_after_a_bump(install):
                         object_points=s.target.object_points())
     assert same.verdict == "still valid" and same.test.dof == 6 and same.test.p_value > 0.05
     # the install estimated its robot noise (15 views: at most 45 equations per group; a group the camera cannot
-    # resolve is frozen and has none): the test takes the p-value from F with the fewest degrees of freedom
+    # resolve is frozen and has none): the test takes the p-value from F with Satterthwaite's degrees of freedom
+    # of the estimated sigmas taken as equal parts
     dof, resolved = res["refinement"]["robot_noise_dof"], res["refinement"]["robot_sigma_resolved"]
     assert dof and set(dof) == {g for g, ok in resolved.items() if ok} and all(5 < v < 45 for v in dof.values())
-    assert same.test.noise_dof == pytest.approx(min(dof.values()))
+    n = len(dof)
+    assert same.test.noise_dof == pytest.approx(1.0 / sum((1.0 / n) ** 2 / v for v in dof.values()))
     assert same.to_dict()["test"]["reference"].startswith("6 F(6, ")
     assert same.what_moved == ("nothing moved beyond the uncertainty",)
     bump = np.array([np.radians(0.5), 0.0, 0.0, 0.0, 5e-3, 0.0])  # 0.5 deg, 5 mm along the camera's y
