@@ -63,7 +63,8 @@ The theory rows (non-central chi-square with each trial's change covariance) pre
 The test's reference: F(dof, nu) with nu the installed robot noise level's degrees of freedom
 (:func:`handeye.stats.wald_p_value`, :attr:`handeye.recal.loaded.LoadedResult.robot_noise_dof`). With the
 chi-square reference (the noise level taken as known) the iid eye-in-hand row called 8.0 % of 600
-undisturbed verifications drifted (2.2 % at 1 %, 0.7 % at 0.1 %: the tail of 6 F(6, 30-40)); with nu the
+undisturbed verifications drifted (2.2 % at 1 %, 0.7 % at 0.1 %: the tail of 6 F(6, nu) with nu about 30-40
+where the install's Satterthwaite value is about 50); with nu the
 fewest degrees of freedom of the install's robot sigmas (the translation's, about 16) 2.3 % and the power
 fell to 94.7 %. The kinematic rows' 2.3-2.7 % (4.7 / 5.0 % with chi-square) say that the encoder noise's
 degrees of freedom overstate its part in the change's covariance there: a conservative test.

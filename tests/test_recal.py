@@ -639,3 +639,16 @@ def test_verify_shares_the_installed_arms_dh_offsets():
 
     small = dict(drift_mm=0.3, drift_deg=0.03, max_views=3)  # a drift whose ceiling power is below 1
     assert plan_verification(inst, **small).ceiling_power > plan_verification(no_arm, **small).ceiling_power + 0.05
+
+
+def test_the_plan_counts_on_the_test_verify_runs():
+    # with the installed robot noise level estimated, verify's reference is F: at the non-centrality that gives the
+    # chi-square test 95 % power, the F test has less, and the plan asks for the larger non-centrality
+    from handeye.recal.plan import _noncentrality_for_power, test_power
+
+    nc = _noncentrality_for_power(0.95, alpha=0.05)
+    assert test_power(nc, alpha=0.05) == pytest.approx(0.95, abs=1e-6)
+    assert test_power(nc, alpha=0.05, noise_dof=30.0) < 0.92
+    nc_f = _noncentrality_for_power(0.95, alpha=0.05, noise_dof=30.0)
+    assert nc_f > nc and test_power(nc_f, alpha=0.05, noise_dof=30.0) == pytest.approx(0.95, abs=1e-6)
+    assert test_power(1e-9, alpha=0.05, noise_dof=30.0) == pytest.approx(0.05, abs=1e-3)  # no drift: the level

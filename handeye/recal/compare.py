@@ -110,7 +110,7 @@ class Comparison:
             "test": self.test, "mahalanobis2_x_alone": self.mahalanobis2_x_alone,
             "p_value_x_alone": self.p_value_x_alone, "explained_by_intrinsics_trans_mm": self.explained_trans_mm,
             "explained_by_intrinsics_rot_deg": self.explained_rot_deg, "robot_noise_dof": self.robot_noise_dof,
-            "reference": "chi-square(6)" if self.robot_noise_dof is None else
+            "reference": None if not self.comparable else "chi-square(6)" if self.robot_noise_dof is None else
             f"6 F(6, {self.robot_noise_dof:.0f}) (the robot noise levels estimated)"},
             nan_to_none=True)
 
@@ -269,6 +269,8 @@ def noise_dof(a: LoadedResult, S: np.ndarray, b: LoadedResult) -> Optional[float
     each result's share of ``S`` its average over the six whitened directions; None when neither did."""
     if a.robot_noise_dof is None and b.robot_noise_dof is None:
         return None
+    # the shares of the unconditional covariance S serve the conditional test too (X given the intrinsics
+    # difference): each result's noise level scales its part of both alike
     share_a = float(np.clip(np.trace(np.linalg.solve(S, a.cov_x)) / 6.0, 0.0, 1.0))
     return satterthwaite_dof((share_a, 1.0 - share_a), (a.robot_noise_dof, b.robot_noise_dof))
 

@@ -85,8 +85,10 @@ class LoadedResult:
     def robot_noise_dof(self) -> Optional[float]:
         """Degrees of freedom of the robot noise level the calibration estimated (``refinement.robot_noise_dof``:
         one per estimated robot sigma): Satterthwaite's for their sum with equal shares (the shares each sigma
-        has in X's covariance are not recorded; the pixel noise's part, known far better, is left out, which
-        errs toward fewer false alarms). None when it estimated none (the noise stated, or an older result).
+        has in X's covariance are not recorded: when one sigma dominates, the equal shares overstate the degrees
+        of freedom; the pixel noise's part, known far better, is left out, which understates them). None when it
+        estimated none (the noise stated, a pose-only result, a refinement without the outlier loop, whose
+        sigmas are robust estimates, or an older result).
         On simulated 20-view installs: about 50 eye-in-hand (rotation 50, translation 16) and 75 eye-to-hand."""
         d = (self.raw.get("refinement") or {}).get("robot_noise_dof")
         vals = [_float(v) for v in d.values()] if isinstance(d, dict) else []

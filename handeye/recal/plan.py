@@ -12,7 +12,8 @@ joint one); what the views' own sensitivity to the
 intrinsics adds is left out, so the plan is slightly optimistic. A set of views
 with X-covariance ``S_new`` makes verify's test statistic (:mod:`handeye.recal.verify`) non-central
 chi-square with 6 degrees of freedom and non-centrality ``delta^T (S0 + S_new)^-1 delta`` for a drift
-``delta``; its power at level ``alpha`` is ``P(ncx2(6, nc) > chi2_6(1 - alpha))``. A drift is a translation
+``delta``; its power at level ``alpha`` is ``P(ncx2(6, nc) > chi2_6(1 - alpha))``, or the non-central F's
+when the install estimated its robot noise (verify's F reference, :func:`test_power`). A drift is a translation
 of ``drift_mm`` and a rotation of ``drift_deg`` in any directions: the power reported is the worst over
 the six axis combinations and ``n_directions`` seeded random ones.
 
@@ -100,9 +101,14 @@ def worst_noncentrality(cov_change: np.ndarray, drifts: np.ndarray) -> float:
     return float(np.min(np.einsum("ki,ij,kj->k", drifts, P, drifts)))
 
 
-def test_power(nc: float, *, alpha: float, dof: int = 6) -> float:
-    """Probability that the chi-square test at ``alpha`` rejects under non-centrality ``nc``."""
-    return float(stats.ncx2.sf(stats.chi2.isf(alpha, dof), dof, max(nc, 1e-12)))
+def test_power(nc: float, *, alpha: float, dof: int = 6, noise_dof: Optional[float] = None) -> float:
+    """Probability that verify's test at ``alpha`` rejects under non-centrality ``nc``: chi-square, or F(dof,
+    noise_dof) on ``T / dof`` when the installed robot noise level was estimated
+    (:func:`handeye.stats.wald_p_value`; the non-central F then)."""
+    nc = max(nc, 1e-12)
+    if noise_dof is None or not np.isfinite(noise_dof) or noise_dof <= 0:
+        return float(stats.ncx2.sf(stats.chi2.isf(alpha, dof), dof, nc))
+    return float(stats.ncf.sf(stats.f.isf(alpha, dof, noise_dof), dof, noise_dof, nc))
 
 
 def x_covariance(info: np.ndarray) -> np.ndarray:
@@ -183,7 +189,8 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
     infos = [info_of(T) for T, _ in cands]
     # verify shares the installed intrinsics (and the DH offsets when it can): their error cancels in its test
     S0 = installed.cov_x_given_shared if shares_dh(installed) else installed.cov_x_given_intrinsics
-    ceiling = test_power(worst_noncentrality(S0, drifts), alpha=alpha)
+    nu = installed.robot_noise_dof
+    ceiling = test_power(worst_noncentrality(S0, drifts), alpha=alpha, noise_dof=nu)
     info = np.zeros((12, 12))
     chosen, powers, n_goal = [], [], None
     pool = list(range(len(cands)))
@@ -195,13 +202,13 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
         info = info + infos[best]
         chosen.append(best)
         pool.remove(best)
-        powers.append(test_power(nc, alpha=alpha))
+        powers.append(test_power(nc, alpha=alpha, noise_dof=nu))
         if n_goal is None and step >= 2 and powers[-1] >= goal:
             n_goal = step + 1
             break
         if not pool:
             break
-    nc_goal = _noncentrality_for_power(goal, alpha=alpha)
+    nc_goal = _noncentrality_for_power(goal, alpha=alpha, noise_dof=nu)
     scale = float(np.sqrt(nc_goal / nc)) if nc > 0 else float("inf")
     return VerifyPlan(frame=installed.x_name, drift_mm=drift_mm, drift_deg=drift_deg, power_goal=goal, alpha=alpha,
                       poses=tuple(cands[i][0] for i in chosen), labels=tuple(cands[i][1] for i in chosen),
@@ -218,14 +225,14 @@ def _without_k3(intrinsics):
     return replace(intrinsics, dist=tuple(intrinsics.dist[:4]) + (0.0,))
 
 
-def _noncentrality_for_power(goal: float, *, alpha: float, dof: int = 6) -> float:
+def _noncentrality_for_power(goal: float, *, alpha: float, dof: int = 6, noise_dof: Optional[float] = None) -> float:
     """The non-centrality at which the test at ``alpha`` has power ``goal`` (bisection)."""
     lo, hi = 0.0, 1.0
-    while test_power(hi, alpha=alpha, dof=dof) < goal:
+    while test_power(hi, alpha=alpha, dof=dof, noise_dof=noise_dof) < goal:
         hi *= 2.0
     for _ in range(60):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if test_power(mid, alpha=alpha, dof=dof) < goal else (lo, mid)
+        lo, hi = (mid, hi) if test_power(mid, alpha=alpha, dof=dof, noise_dof=noise_dof) < goal else (lo, mid)
     return hi
 
 

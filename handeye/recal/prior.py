@@ -113,7 +113,7 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
     if v is not None:
         t = v.test
         rec["test"] = {"kind": "handeye verify's test on these views: " + t.kind, "statistic": t.statistic,
-                       "dof": t.dof, "p_value": t.p_value}
+                       "dof": t.dof, "p_value": t.p_value, "reference": t.reference, "robot_noise_dof": t.noise_dof}
         rec["change"] = dict(v.change, p_value=t.p_value)
         contradicted = v.drifted or run.status != "ok"
         why = (f"the views are beyond the prior's uncertainty (p = {t.p_value:.3g} < {o.alpha:g})" if v.drifted

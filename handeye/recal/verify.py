@@ -26,10 +26,11 @@ sigmas), adds the installed information on ``(X_old, K)`` and estimates ``d = X_
 by ``S0 = L L^T`` (``L^-1 V L^-T = Q diag(w) Q^T``, ``u = L^-1 d``), ``T = sum_k (q_k . u)^2 / w_k`` over
 the directions where ``V`` is at most ``S0 / min_variance_share`` (the others the new views do not see),
 chi-square with that many degrees of freedom; ``p = P(chi2 > T)``, "drifted" when ``p < alpha``. When the
-install estimated its robot noise (``refinement.robot_noise_dof``: the redundancy of each robot sigma, the
-fewest taken), both covariances rest on that estimate and the new views' robot poses are tied with it:
-``T / dof`` is then F(dof, nu) instead (:func:`wald_p_value`; with nu about 30-40 for a 20-view install, the
-chi-square reference called 8 % of undisturbed simulated installs drifted at 5 %). Without
+install estimated its robot noise (``refinement.robot_noise_dof``: the redundancy of each robot sigma;
+:attr:`~handeye.recal.loaded.LoadedResult.robot_noise_dof`: Satterthwaite's over them, about 50 eye-in-hand
+and 75 eye-to-hand for a 20-view install), both covariances rest on that estimate and the new views' robot
+poses are tied with it: ``T / dof`` is then F(dof, nu) instead (:func:`handeye.stats.wald_p_value`; the
+chi-square reference called 8 % of undisturbed simulated eye-in-hand installs drifted at 5 %). Without
 the joint covariance (an older result) or with the session's own intrinsics, :func:`drift_test`:
 ``d = Log(X0^-1 X_new)`` with ``V = S0 + Ad S_new Ad^T`` (``Ad`` moves ``S_new`` into ``X0``'s tangent, as
 :mod:`handeye.recal.compare` does).
