@@ -492,6 +492,9 @@ def test_verify_cli_writes_reports_and_exits_9_when_drifted(rendered, tmp_path, 
     html = (tmp_path / "a" / "verify.html").read_text()
     md = (tmp_path / "a" / "verify.md").read_text()
     assert "STILL VALID" in html and "## What moved" in md and d["headline"] in md
+    # the test's reference distribution is named wherever the p-value is: the CLI, verify.json and both reports
+    ref = d["test"]["reference"]
+    assert ref.startswith(("chi-square(", "6 F(6, ")) and f"reference {ref}" in out and ref in html and ref in md
     rc = main(["verify", str(rendered["bumped"]), "--against", str(rendered["installed"]),
                "--out", str(tmp_path / "b")])
     assert rc == DRIFTED_EXIT_CODE and "DRIFTED" in capsys.readouterr().out

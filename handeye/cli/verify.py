@@ -109,7 +109,7 @@ def verification_lines(d: dict) -> list[str]:
         lines.append(f"  {ax}: {c['d_trans_mm'][k]:+8.3f} +- {c['sigma_trans_mm'][k]:.3f} mm   "
                      f"{c['d_rot_deg'][k]:+8.4f} +- {c['sigma_rot_deg'][k]:.4f} deg")
     lines.append(f"test: statistic {t['statistic']:.2f}, {t['dof']} dof, p = {t['p_value']:.3g} "
-                 f"(alpha {t['alpha']:g}); "
+                 f"(alpha {t['alpha']:g}; reference {t.get('reference') or 'chi-square'}); "
                  f"{d['n_views']} views")
     lines += [f"- {s}" for s in d["what_moved"]]
     return lines
