@@ -14,7 +14,8 @@ the truth, the reported 1-sigma (RMS over the axes), the normalised error ``d^2 
 ``xi = Log(inv(T_est) · T_true)`` (right perturbation in the frame of X, rotation first, the
 parametrisation of ``RefineResult.cov_x_6x6``) and ``C = cov_x_6x6`` (chi-square with 6 dof when the
 reported covariance is honest: median 5.35, 95 % quantile 12.59), the coverage of the reported 95 %
-ellipsoid, the same for the verdict covariance (``cov_x_6x6_verdict``, :mod:`handeye.refine.validation`), the Cramer-Rao bound of the corner-level model at the truth with the pixel sigma that the
+ellipsoid, the same for the verdict covariance (``cov_x_6x6_verdict``, :mod:`handeye.refine.validation`),
+the Cramer-Rao bound of the corner-level model at the truth with the pixel sigma that the
 detector actually achieved on that session (measured against the true corners), outlier flags against
 ground_truth.json, false flags, failures and seconds. Diagnostics of the detector: RMS corner error
 against the true projections, and its per-view systematic part (RMS of each view's mean error and the

@@ -210,8 +210,8 @@ def cross_validate(run) -> dict:
         out["summary"] = f"the result moves less between folds than the model predicts ({size}): it is conservative"
     elif max(rr, rt) > hi:  # above the equal-information range, yet each fold moves as the model predicts for it
         out["verdict"] = "consistent"
-        out["summary"] = (f"the result moves {max(rr, rt):.1f}x the model's sigma between folds ({size}), but each fold "
-                          f"moves as the model predicts for that fold (p = {out['spread_p_value']:.2g} over the six "
+        out["summary"] = (f"the result moves {max(rr, rt):.1f}x the model's sigma between folds ({size}), but each "
+                          f"fold moves as the model predicts for that fold (p = {out['spread_p_value']:.2g} over the six "
                           "directions, within chance): the views inform the result unequally, which widens the plain "
                           "spread; the model's covariance stands")
     else:

@@ -33,8 +33,8 @@ verdict's whole inflation of X against the remainder made the test far too conse
 
 The intrinsics (fx, fy, cx, cy) are tested under the sum of the two results' covariances of them (the
 joint covariance's intrinsics block, carried to the verdict as :func:`~handeye.recal.loaded.verdict_maps`
-does; fx and fy are nearly fully correlated, so their sigmas alone would make the statistic heavier-tailed than chi-square),
-chi-square(4); results
+does; fx and fy are nearly fully correlated, so their sigmas alone would make the statistic heavier-tailed
+than chi-square), chi-square(4); results
 without the joint covariance are tested with the sum of their variances (a diagonal test, as many
 degrees of freedom as intrinsics with a sigma).
 
@@ -267,12 +267,13 @@ def noise_dof(a: LoadedResult, S: np.ndarray, b: LoadedResult) -> Optional[float
     """Degrees of freedom of the covariance ``S = S_a + Ad S_b Ad^T`` of the difference when the results
     estimated their robot noise (:attr:`~handeye.recal.loaded.LoadedResult.robot_noise_dof`): Satterthwaite's,
     each result's share of ``S`` its average over the six whitened directions; None when neither did."""
-    if a.robot_noise_dof is None and b.robot_noise_dof is None:
+    nu_a, nu_b = a.robot_noise_dof, b.robot_noise_dof
+    if nu_a is None and nu_b is None:
         return None
     # the shares of the unconditional covariance S serve the conditional test too (X given the intrinsics
     # difference): each result's noise level scales its part of both alike
     share_a = float(np.clip(np.trace(np.linalg.solve(S, a.cov_x)) / 6.0, 0.0, 1.0))
-    return satterthwaite_dof((share_a, 1.0 - share_a), (a.robot_noise_dof, b.robot_noise_dof))
+    return satterthwaite_dof((share_a, 1.0 - share_a), (nu_a, nu_b))
 
 
 def _dependence_note(a: LoadedResult, b: LoadedResult) -> str:

@@ -251,8 +251,8 @@ def verdict_maps(joint: Optional[tuple], *, cov_x_model: Optional[np.ndarray], c
             vn, V = intrinsics_verdict
             if set(names) <= set(vn):
                 idx = [vn.index(n) for n in names]
-                if intrinsics_full and list(vn) == list(names):
-                    B = stretch(K, V)
+                if intrinsics_full:
+                    B = stretch(K, V[np.ix_(idx, idx)])
                 else:
                     var_v, var_m = np.diag(V)[idx], np.diag(K)
                     if not (np.all(var_v > 0) and np.all(var_m > 0)):  # a singular map: the joint as stored
