@@ -213,13 +213,19 @@ def check_out_dir(path: str | Path, *, option: str = "--out") -> Path:
 
 
 def _pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` still runs. A zombie (ended, not yet reaped: an orphan whose new parent does not
+    reap it promptly, as some container init processes do) has ended and holds nothing."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:  # another user's live process
         return True
-    return True
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):  # no /proc (another system), or it ended meanwhile
+        return True if not Path("/proc/self").exists() else Path(f"/proc/{pid}").exists()
+    return state not in ("Z", "X")
 
 
 class FolderLock:
