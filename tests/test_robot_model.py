@@ -224,3 +224,48 @@ def test_a_simulated_kinematic_session_names_its_arm_and_records_joint_angles(tm
     (tmp_path / "ground_truth.json").write_text(json.dumps(truth))
     with pytest.raises(ConfigError, match="not a kinematic simulated session"):
         write_native_session(tmp_path)
+
+
+def _kinematic_session_refined(mode, seed, far):
+    """A 20-view session of an arm whose DH errors are ``far`` times the RM65 preset's stated prior (0.3 mm /
+    0.03 deg; drawn from 0.1-0.5 mm / 0.01-0.05 deg times ``far``), refined with the preset."""
+    s = make_corner_session(mode=mode, n_views=20, seed=seed, noise_px=0.3, robot_error="kinematic",
+                            dh_length_error_mm=(0.1 * far, 0.5 * far), dh_angle_error_deg=(0.01 * far, 0.05 * far))
+    return s, _refine(s, _views(s, s.joints_encoder), arm="rm65")
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_an_arm_further_from_its_table_than_its_prior_states_widens_the_prior(mode, monkeypatch):
+    """The arm's DH errors are 5x what its preset states. The DH offsets the views resolve contradict the
+    stated prior (chi-square test), so its scale is estimated (~5) and X's ellipsoid holds the truth; held at
+    the stated prior, the encoder noise takes up the misfit (several times its true 0.005 deg) and X's
+    covariance is too small for its error. An arm within its stated prior keeps it (scale 1)."""
+    import handeye.refine.noise as noise
+
+    s, r = _kinematic_session_refined(mode, 0, 5.0)
+    rm = r.robot_model
+    assert rm["dh_prior_test"]["contradicted"] and rm["dh_prior_test"]["p_value"] < 1e-6, rm["dh_prior_test"]
+    assert 3.0 < rm["dh_prior_scale"] < 8.0
+    assert rm["dh_prior_sigma"]["length_mm"] == pytest.approx(0.3 * rm["dh_prior_scale"])
+    assert rm["dh_prior_sigma_stated"] == {"length_mm": pytest.approx(0.3), "angle_deg": pytest.approx(0.03)}
+    assert "dh_prior_scale" in rm["estimated"]
+    assert r.robot_noise_dof["dh_scale"] == pytest.approx(rm["dh_prior_test"]["redundancy"])  # verify's F reference
+    assert rm["encoder_sigma_deg"] < 0.008
+    assert _m2(r, s) < chi2.ppf(0.999, 6)
+    # a refit (a validation fold) holds the widened prior with the noise: on all views it is the full run
+    from handeye.refine.refitting import refit
+
+    again = refit(r, object_points=s.target.object_points(), views=_views(s, s.joints_encoder))
+    np.testing.assert_allclose(np.sqrt(np.diag(again.cov_x)), np.sqrt(np.diag(r.cov_x_6x6)), rtol=0.02)
+
+    cfg = noise._cfg()
+    monkeypatch.setattr(noise, "_cfg", lambda: {**cfg, "dh_prior_alpha": 0.0})  # the stated prior, never tested
+    _, held = _kinematic_session_refined(mode, 0, 5.0)
+    assert held.robot_model["dh_prior_scale"] == 1.0
+    assert held.robot_model["encoder_sigma_deg"] > 1.5 * rm["encoder_sigma_deg"]
+    assert _m2(held, s) > chi2.ppf(0.999, 6)
+    monkeypatch.undo()
+
+    _, within = _kinematic_session_refined(mode, 0, 1.0)
+    assert within.robot_model["dh_prior_scale"] == 1.0 and "dh_scale" not in within.robot_noise_dof
+    assert not within.robot_model["dh_prior_test"]["contradicted"]

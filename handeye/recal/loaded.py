@@ -84,7 +84,8 @@ class LoadedResult:
     @property
     def robot_noise_dof(self) -> Optional[float]:
         """Degrees of freedom of the robot noise level the calibration estimated (``refinement.robot_noise_dof``:
-        one per estimated robot sigma): Satterthwaite's for their sum with equal shares (the shares each sigma
+        one per estimated robot sigma, and the DH prior's scale where the views widened it): Satterthwaite's for
+        their sum with equal shares (the shares each sigma
         has in X's covariance are not recorded: when one sigma dominates, the equal shares overstate the degrees
         of freedom; the pixel noise's part, known far better, is left out, which understates them). None when it
         estimated none (the noise stated, a pose-only result, a refinement without the outlier loop, whose

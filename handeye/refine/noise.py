@@ -113,7 +113,11 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
     counts = pb.robot_group_counts()
     J = lin.J_dh  # shape (n, 6, m)
     dh = pb.dh_slice
-    HK, gK = pb.core_prior()  # priors on the core unknowns (intrinsics, DH offsets, options.prior)
+    HK, gK = pb.core_prior(dh=False)  # priors on the core unknowns (intrinsics, options.prior); the DH offsets' below
+    m = pb.m_dh
+    if m:  # the DH offsets' prior at unit scale: information W_dh / k^2 at scale k
+        W_dh, mu_dh = np.linalg.inv(pb.dh_prior_stated), pb.prior_dh[0]
+    k_dh = k_start = pb.dh_scale
     s = np.r_[pb.sigma_px, pb.robot_sigmas]
     start = s.copy()
     dof: dict = {}  # redundancy of each robot group whose sigma is estimated (its degrees of freedom)
@@ -122,10 +126,14 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
         w_px = 1.0 / s[0] ** 2
         W = sum(w / sg ** 2 for w, sg in zip(W0, s[1:]))  # shape (n, 6, 6): robot prior information
         Wr = np.einsum("nij,nj->ni", W, lin.xi)
-        Hcc = lin.Hcc * w_px + HK
+        HKi, gKi = HK.copy(), gK.copy()
+        if m:
+            HKi[dh, dh] += W_dh / k_dh ** 2
+            gKi[dh] += W_dh @ (pb.dh - mu_dh) / k_dh ** 2
+        Hcc = lin.Hcc * w_px + HKi
         Hcp = lin.Hcp * w_px
         grad = lin.g * w_px
-        grad[:c] += gK
+        grad[:c] += gKi
         grad[c:] += Wr.reshape(-1)
         if J.shape[-1]:
             JW = np.einsum("nim,nij->nmj", J, W)  # shape (n, m, 6)
@@ -137,8 +145,11 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
         Hdx_c = lin.Hcc @ dc + np.einsum("nci,ni->c", lin.Hcp, dp)
         Hdx_p = np.einsum("nci,c->ni", lin.Hcp, dc) + np.einsum("nij,nj->ni", lin.Hpp, dp)
         e_px2 = lin.rr + 2.0 * dx @ lin.g + dc @ Hdx_c + np.sum(dp * Hdx_p)
-        absorbed = float(np.sum(HK * S_cc))  # tr(H_prior Sigma_core)
+        absorbed = float(np.sum(HKi * S_cc))  # tr(H_prior Sigma_core)
         new = s.copy()
+        k_new = k_dh
+        if m and pb.dh_scale_estimable:
+            k_new = _dh_scale(pb, pb.dh + dc[dh] - mu_dh, W_dh, S_cc[dh, dh], k_dh)
         if n_pri:
             e_rob = lin.xi + dp - np.einsum("nim,m->ni", J, dc[dh])  # prior residuals after the step
             S_u = robot_residual_covariances(S_cc, S_pp, S_cp, J, dh)
@@ -158,8 +169,8 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
         r_px = lin.n_obs - D + absorbed
         if r_px > 0.5:
             new[0] = max(float(np.sqrt(max(e_px2, 0.0) / r_px)), floors[0])
-        change = float(np.max(np.abs(new / s - 1.0)))
-        s = new
+        change = max(float(np.max(np.abs(new / s - 1.0))), abs(k_new / k_dh - 1.0))
+        s, k_dh = new, k_new
         if change < tol:
             break
         history.append(np.log(s))
@@ -168,11 +179,49 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
             history = [np.log(s)]
     pb.sigma_px = float(s[0])
     pb.robot_sigmas = s[1:]
+    if m:
+        pb.set_dh_scale(k_dh)
+        if k_dh != 1.0:  # the DH prior's scale, estimated: one more variance component with its redundancy
+            dof["dh_scale"] = float(pb.dh_scale_test["redundancy"])
     pb.noise_dof = dof
     S_u = robot_residual_covariances(S_cc, S_pp, S_cp, J, dh)
     if pb.m_dh:
         pb.S_dd = S_cc[dh, dh].copy()
-    return VarianceComponents(float(np.max(np.abs(s / start - 1.0))), dx, S_cc, S_u)
+    change = max(float(np.max(np.abs(s / start - 1.0))), abs(k_dh / k_start - 1.0))
+    return VarianceComponents(change, dx, S_cc, S_u)
+
+
+def _dh_scale(pb: "Problem", delta: np.ndarray, W_dh: np.ndarray, S_dd: np.ndarray, k: float) -> float:
+    """The next scale of the arm's DH error prior (sigma = k times the stated ones), as a variance component.
+
+    The DH offsets ``delta`` (prior N(0, k^2 W_dh^-1)) with posterior covariance ``S_dd`` have the
+    redundancy ``r = m - tr(W_dh S_dd) / k^2`` (the offsets the views resolve; the others keep their prior
+    and count ~0). At the stated scale (k = 1) ``e = delta^T W_dh delta`` is tested against chi2(r); the
+    prior stands unless p < ``noise.dh_prior_alpha`` (the arm is further from its table than stated:
+    an uncalibrated arm, a nominal table, wear). Then the scale is estimated, ``k^2 = e / r``, never below
+    the stated prior: the offsets the views do not resolve are known through that prior alone and reach
+    ``T_x``'s covariance through it, so data on the resolved ones may widen it, not narrow it. Fewer than
+    ``noise.unresolved_redundancy_share`` of the offsets resolved: no test, the prior stands.
+    The test's outcome goes to ``pb.dh_scale_test``; once it rejects, the scale is estimated for the rest of
+    the round (:func:`solve_with_vce` starts each round at the stated prior)."""
+    cfg = _cfg()
+    m = delta.size
+    r = m - float(np.sum(W_dh * S_dd)) / k ** 2
+    e = float(delta @ W_dh @ delta)
+    if r < float(cfg["unresolved_redundancy_share"]) * m:
+        pb.dh_scale_test = {"resolved": False, "redundancy": r}
+        return k
+    if not pb.dh_scale_test.get("contradicted"):  # the stated prior (k = 1) until the test rejects it
+        from scipy.stats import chi2
+
+        p = float(chi2.sf(e, r))
+        pb.dh_scale_test = {"resolved": True, "statistic": e, "redundancy": r, "p_value": p,
+                            "alpha": float(cfg["dh_prior_alpha"]), "contradicted": p < float(cfg["dh_prior_alpha"])}
+        if not pb.dh_scale_test["contradicted"]:
+            return k
+    else:  # rejected in this round of the outlier loop: estimated from here on (no test again, no oscillation)
+        pb.dh_scale_test["redundancy"] = r
+    return max(float(np.sqrt(e / r)), 1.0)
 
 
 def _aitken(x0: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
@@ -202,6 +251,9 @@ def solve_with_vce(pb: "Problem"):
     covariances are those of the final linearisation, so no further solve is needed."""
     cfg = _cfg()
     pb.resolved = {g: True for g in pb.robot_groups}  # a new set of views may resolve what the last did not
+    if pb.dh_scale_estimable:  # and may agree with the arm's stated DH prior where the last did not
+        pb.set_dh_scale(1.0)
+        pb.dh_scale_test = {}
     for _ in range(int(cfg["max_outer"])):
         pb.solve(robust=False)
         lin = pb.pixel_linearisation()

@@ -162,6 +162,11 @@ class Problem:
             self.prior_dh = (np.asarray(p.dh_offsets, float).copy(), np.asarray(p.cov_dh, float).copy())
             self.prior_dh_earlier = True
         self.dh, self.S_dd = self.prior_dh[0].copy(), self.prior_dh[1].copy()  # the start: the prior's
+        # the arm's stated DH error prior (scale 1), and the scale it is used at: 1 unless the views contradict it,
+        # then estimated (handeye.refine.noise); the test's outcome in dh_scale_test
+        self.dh_prior_stated = self.prior_dh[1].copy()
+        self.dh_scale = 1.0
+        self.dh_scale_test: dict = {}
         self.sigma_q = self.kin.encoder_sigma_rad if self.kin is not None else 0.0
         self.robot_prior_k = float(refine_preset()["robust"]["robot_prior_k"])
         self.T_x = T_x0.copy()
@@ -204,6 +209,17 @@ class Problem:
     def dh_slice(self) -> slice:
         """The DH offsets' place in the core."""
         return slice(N_POSES + self.free.size, self.n_core)
+
+    @property
+    def dh_scale_estimable(self) -> bool:
+        """Whether the scale of the DH offsets' prior is a variance component: the arm's own error prior (not an
+        earlier calibration's estimate), with the robot noise estimated."""
+        return bool(self.m_dh) and not self.prior_dh_earlier and self.o.robot_noise == "estimate"
+
+    def set_dh_scale(self, k: float) -> None:
+        """Use the arm's DH error prior at ``k`` times its stated sigmas."""
+        self.dh_scale = float(k)
+        self.prior_dh = (self.prior_dh[0], self.dh_prior_stated * self.dh_scale ** 2)
 
     # -- robot error model (handeye.refine.robot_model)
     @property
@@ -359,10 +375,11 @@ class Problem:
         priors on T_x and on the board, in the core order."""
         return ((KEY_X, self.prior_x, self.prior_cov_xk), (KEY_BOARD, self.prior_board, self.prior_cov_bk))
 
-    def core_prior(self) -> tuple[np.ndarray, np.ndarray]:
+    def core_prior(self, dh: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Information (c,c) and gradient J^T W r (c,) at the current estimate of the priors on the core
-        unknowns (the intrinsics prior of ``intrinsics="prior"`` and ``options.prior``), in the core
-        order of :meth:`pixel_linearisation`; the same terms as the graph's prior factors."""
+        unknowns (the intrinsics prior of ``intrinsics="prior"``, the DH offsets' prior unless ``dh`` is
+        False, and ``options.prior``), in the core order of :meth:`pixel_linearisation`; the same terms as
+        the graph's prior factors."""
         c = self.n_core
         H, g = np.zeros((c, c)), np.zeros(c)
         ks = slice(N_POSES, N_POSES + self.free.size)
@@ -374,7 +391,7 @@ class Problem:
             W = np.linalg.inv(self.prior_k[1])
             H[ks, ks] += W
             g[ks] += W @ (self.k[self.free] - self.prior_k[0])
-        if self.m_dh:
+        if self.m_dh and dh:
             W = np.linalg.inv(self.prior_dh[1])
             H[self.dh_slice, self.dh_slice] += W
             g[self.dh_slice] += W @ (self.dh - self.prior_dh[0])

@@ -6,7 +6,8 @@ decisions would redo themselves on fewer data. So a refit is ONE Gaussian solve 
 model, started from the full solution, with:
 
 * the pixel sigma and the robot sigmas of the full run (``robot_noise`` "estimate" is held "fixed" at
-  the estimated values, the encoder sigma of a kinematic robot model too; "none" stays "none");
+  the estimated values, the encoder sigma of a kinematic robot model and its DH prior's scale too; "none"
+  stays "none");
 * the full run's outlier decisions: corners flagged there are left out, a view whose robot pose was
   excluded keeps its corners without a robot prior, and a view the run dropped cannot be refitted;
 * the refined robot poses of the full run as the start of each view's robot pose.
@@ -86,6 +87,9 @@ def refit(result: RefineResult, *, object_points: np.ndarray, views: Sequence[Re
                    robot_sigma_deg=max(result.robot_sigma_deg, ROBOT_SIGMA_MIN_DEG), outlier_loop=False, loss="none")
     if result.robot_model.get("encoder_sigma_deg"):  # the kinematic models' estimated encoder noise, held
         opts = replace(opts, encoder_sigma_deg=max(float(result.robot_model["encoder_sigma_deg"]), ROBOT_SIGMA_MIN_DEG))
+    sd = result.robot_model.get("dh_prior_sigma") or {}
+    if result.robot_model.get("dh_prior_scale", 1.0) != 1.0:  # the arm's DH prior as widened by the full run, held
+        opts = replace(opts, dh_sigma_mm=float(sd["length_mm"]), dh_sigma_deg=float(sd["angle_deg"]))
     ids = tuple(v.view_id for v in kept)
     try:
         pb = Problem(mode=result.mode, object_points=object_points, views=kept, reported=reported,

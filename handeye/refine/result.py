@@ -67,7 +67,8 @@ class RefineResult:
     # also "dh_offsets" (m,), "cross_6xm", "cross_kxm", "dh_mxm"}; None when failed or none free
     cov_x_intrinsics: Optional[dict] = None
     # degrees of freedom (redundancy) of each robot sigma the variance-component estimation estimated
-    # ({"rot": r, "trans": r} or {"joint": r}); empty when none was estimated or resolved
+    # ({"rot": r, "trans": r} or {"joint": r}, plus "dh_scale" where the views widened the arm's DH prior);
+    # empty when none was estimated or resolved
     robot_noise_dof: dict = field(default_factory=dict)
 
     @property
@@ -159,7 +160,10 @@ def robot_model_dict(pb: "Problem", S_cc: Optional[np.ndarray]) -> dict:
          "estimated": (["dh_offset"] if km.m else []) + (["encoder_sigma_deg"] if estimated else [])}
     if km.m:
         S_dd = pb.S_dd if S_cc is None else S_cc[pb.dh_slice, pb.dh_slice]
-        d.update(describe_dh(km, pb.dh, S_dd, pb.prior_dh[1] if pb.prior_dh_earlier else None))
+        d.update(describe_dh(km, pb.dh, S_dd, pb.prior_dh[1] if pb.prior_dh_earlier else None,
+                             scale=pb.dh_scale, test=pb.dh_scale_test))
+        if pb.dh_scale != 1.0:
+            d["estimated"].append("dh_prior_scale")
     return d
 
 

@@ -169,21 +169,28 @@ def build_kinematic_model(o: RefineOptions, kind: str, views: Sequence[RefineVie
 
 
 def describe_dh(km: KinematicRobotModel, delta: np.ndarray, S_dd: np.ndarray,
-                prior_cov: Optional[np.ndarray] = None) -> dict:
+                prior_cov: Optional[np.ndarray] = None, *, scale: float = 1.0, test: Optional[dict] = None) -> dict:
     """JSON-ready estimate of the DH offsets: per joint (a mm, alpha deg, d mm, theta_offset deg), their
     sigmas, and the share of each offset's prior variance the data removed (0: held by the prior alone,
     1: fixed by the data). ``prior_cov`` (m,m): the prior the offsets were estimated under when it is not the
     arm's own N(0, dh_sigma^2), e.g. an earlier calibration's estimate; the share is measured against it.
-    ``dh_prior_sigma`` is the arm's own prior either way; ``dh_prior`` says which one was used."""
+    ``dh_prior_sigma`` is the arm's own prior as used (``scale`` times the stated ``dh_prior_sigma_stated``,
+    the scale estimated when the views contradict the stated prior: ``test``, see
+    :func:`handeye.refine.noise._dh_scale`); ``dh_prior`` says which prior was used."""
     if km.m == 0:
         return {}
-    scale = np.tile([1e3, np.degrees(1.0), 1e3, np.degrees(1.0)], km.arm.n_joints)
+    units = np.tile([1e3, np.degrees(1.0), 1e3, np.degrees(1.0)], km.arm.n_joints)
     sd = np.sqrt(np.clip(np.diag(S_dd), 0.0, None))
-    prior_var = km.dh_sigma ** 2 if prior_cov is None else np.clip(np.diag(prior_cov), 1e-300, None)
+    prior_var = (scale * km.dh_sigma) ** 2 if prior_cov is None else np.clip(np.diag(prior_cov), 1e-300, None)
     share = 1.0 - np.clip(sd ** 2 / prior_var, 0.0, 1.0)
     shape = (km.arm.n_joints, 4)
+
+    def sigmas(k):
+        return {"length_mm": float(k * km.dh_sigma[0] * 1e3), "angle_deg": float(np.degrees(k * km.dh_sigma[1]))}
+
     return {"dh_columns": ["a_mm", "alpha_deg", "d_mm", "theta_offset_deg"],
-            "dh_offset": (delta * scale).reshape(shape), "dh_offset_sigma": (sd * scale).reshape(shape),
+            "dh_offset": (delta * units).reshape(shape), "dh_offset_sigma": (sd * units).reshape(shape),
             "dh_resolved_share": share.reshape(shape),
             "dh_prior": "the arm's error prior" if prior_cov is None else "an earlier calibration's estimate",
-            "dh_prior_sigma": {"length_mm": float(km.dh_sigma[0] * 1e3), "angle_deg": float(np.degrees(km.dh_sigma[1]))}}
+            "dh_prior_sigma": sigmas(scale), "dh_prior_sigma_stated": sigmas(1.0), "dh_prior_scale": float(scale),
+            "dh_prior_test": dict(test or {})}
