@@ -859,3 +859,42 @@ def test_views_with_flagged_corners_count_once_as_flagged(synthetic, tmp_path):
     assert card["sub"] == f"{n_base + 2} dropped or flagged"
     share = next(c for c in ctx["verdict"].checks if c.key == "dropped_share")
     assert share.value == pytest.approx((n_base + 2) / len(ctx["views"]))
+
+
+def test_a_kinematic_robot_model_is_summarised_with_its_dh_prior_test():
+    """The report names the kinematic model's arm, encoder noise and DH prior: the stated one, the one used and
+    the test between them, and the largest DH offsets; the DH table and every view's joint angles stay in
+    result.json."""
+    from handeye.report.context import _robot_model
+
+    off = np.zeros((6, 4))
+    off[4, 0], off[3, 1] = 2.36, -0.464
+    rm = {"kind": "kinematic", "arm": "UR3e", "dh_convention": "standard", "description": "DH offsets and encoder noise",
+          "dh_table": {"links": [{"a": 0.0}] * 6}, "joint_angles": "recorded",
+          "joint_angles_rad": {str(i): [0.1 * i] * 6 for i in range(1, 41)},
+          "encoder_sigma_deg": 0.0943, "encoder_sigma_resolved": True, "estimated": ["dh_offset", "encoder_sigma_deg"],
+          "dh_offset": off.tolist(), "dh_offset_sigma": np.full((6, 4), 0.1).tolist(),
+          "dh_resolved_share": np.r_[np.ones(15), np.zeros(9)].reshape(6, 4).tolist(), "dh_prior": "the arm's error prior",
+          "dh_prior_sigma": {"length_mm": 1.774, "angle_deg": 0.1774}, "dh_prior_sigma_stated": {"length_mm": 0.5,
+                                                                                                "angle_deg": 0.05},
+          "dh_prior_scale": 3.548, "dh_prior_test": {"resolved": True, "statistic": 34.43, "redundancy": 13.91,
+                                                      "p_value": 4.0e-5, "alpha": 0.01, "contradicted": True},
+          "tool_offset_T_flange_reported": np.eye(4).tolist(), "tool_offset_spread_deg_mm": [1e-14, 1e-13],
+          "joints_disagree_view_ids": ["7"]}
+    items = {it["name"]: it["value"] for it in _robot_model({"robot_model": rm})["items"]}
+    assert items["arm"] == "UR3e (standard DH)" and items["joint angles"] == "recorded"
+    assert items["encoder noise"].startswith("0.0943 deg") and "estimated" in items["encoder noise"]
+    dh = items["DH prior"]
+    assert dh.startswith("1.77 mm / 0.177 deg") and "stated 0.5 mm / 0.05 deg" in dh and "p = 4e-05" in dh
+    assert "x3.55" in dh
+    assert "+2.36" in items["DH offsets"] and "a of joint 5" in items["DH offsets"]
+    assert "alpha of joint 4" in items["DH offsets"] and "15 of 24 resolved" in items["DH offsets"]
+    assert items["joints disagree with the pose"] == "7"
+    text = " ".join(items.values())
+    assert "joint angles rad" not in items and "links" not in text and "0.4, 0.4" not in text
+    rm.update(dh_prior_scale=1.0, dh_prior_sigma=rm["dh_prior_sigma_stated"],
+              dh_prior_test={"resolved": True, "statistic": 9.1, "redundancy": 12.0, "p_value": 0.69,
+                             "contradicted": False}, joints_disagree_view_ids=[])
+    items = {it["name"]: it["value"] for it in _robot_model({"robot_model": rm})["items"]}
+    assert items["DH prior"] == "0.5 mm / 0.05 deg per DH parameter, the arm's stated prior (the views agree with it: p = 0.69)"
+    assert "joints disagree with the pose" not in items
