@@ -453,6 +453,18 @@ def test_a_prior_with_the_board_unmoved_reaches_the_calibration_and_the_skip_key
     assert out["outcome"] == "error" and seen["board_unmoved"] is True and str(seen["prior"]) == str(tmp_path / "r")
 
 
+def _wait_for_exec(pid: int, word: bytes) -> None:
+    """Until process ``pid`` runs its own command line (between fork and exec it still shows its parent's)."""
+    for _ in range(400):
+        try:
+            if word in Path(f"/proc/{pid}/cmdline").read_bytes():
+                return
+        except OSError:
+            pass
+        time.sleep(0.005)
+    pytest.fail(f"process {pid} did not start its command")
+
+
 def test_a_retried_session_waits_for_its_earlier_attempt_to_release_the_folder(tmp_path):
     """A task retried after its worker was killed may start while the first attempt's session process is still
     ending (it holds the output folder's lock until then): the retry waits for that process instead of refusing
@@ -467,6 +479,7 @@ def test_a_retried_session_waits_for_its_earlier_attempt_to_release_the_folder(t
     # the earlier attempt: a session process (its command line names handeye.batch.child) of another parent than
     # the one that starts this attempt (this test process plays the new attempt, its parent the new worker)
     earlier = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(1.0)", "handeye.batch.child"])
+    _wait_for_exec(earlier.pid, b"handeye.batch.child")  # a lock's holder has long run its own command
     threading.Thread(target=earlier.wait, daemon=True).start()  # reaped as init reaps an orphan
     (out / LOCK_NAME).write_text(f"{earlier.pid}\n")
     assert child._earlier_attempt(earlier.pid)
@@ -476,6 +489,7 @@ def test_a_retried_session_waits_for_its_earlier_attempt_to_release_the_folder(t
     # a live holder that is not a batch session (a calibrate run into the same folder): no wait, the lock refuses
     other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(5.0)"])
     try:
+        _wait_for_exec(other.pid, b"time.sleep(5.0)")
         (out / LOCK_NAME).write_text(f"{other.pid}\n")
         assert not child._earlier_attempt(other.pid)
         child._wait_for_previous_attempt(out)
