@@ -214,7 +214,8 @@ def check_out_dir(path: str | Path, *, option: str = "--out") -> Path:
 
 def _pid_alive(pid: int) -> bool:
     """Whether process ``pid`` still runs. A zombie (ended, not yet reaped: an orphan whose new parent does not
-    reap it promptly, as some container init processes do) has ended and holds nothing."""
+    reap it promptly, as some container init processes do) has ended and holds nothing; a process whose main
+    thread has ended while others run shows the same state and still runs."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -222,10 +223,12 @@ def _pid_alive(pid: int) -> bool:
     except PermissionError:  # another user's live process
         return True
     try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except (OSError, IndexError):  # no /proc (another system), or it ended meanwhile
+        status = dict(line.split(":", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines()
+                      if ":" in line)
+        state, threads = status["State"].split()[0], int(status["Threads"])
+    except (OSError, KeyError, IndexError, ValueError):  # no /proc (another system), or it ended meanwhile
         return True if not Path("/proc/self").exists() else Path(f"/proc/{pid}").exists()
-    return state not in ("Z", "X")
+    return state not in ("Z", "X") or threads > 1
 
 
 class FolderLock:

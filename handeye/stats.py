@@ -79,3 +79,16 @@ def satterthwaite_dof(shares, dofs) -> float | None:
     is known."""
     s = sum(float(a) ** 2 / float(n) for a, n in zip(shares, dofs) if n is not None and np.isfinite(n) and n > 0)
     return 1.0 / s if s > 0 else None
+
+
+def weighted_chi2_sf(x: float, weights) -> tuple[float, float]:
+    """Tail probability at ``x`` of ``sum w_i z_i^2`` (z_i iid N(0, 1), weights w_i >= 0) by Satterthwaite's
+    scaled chi-square ``c * chi2(nu)`` with the same mean and variance: ``c = sum w^2 / sum w``,
+    ``nu = (sum w)^2 / sum w^2``. Returns (p, nu). Plain chi2(sum w) would overstate the spread when weights are
+    below 1 (its variance is 2 sum w, the form's 2 sum w^2), and so the p-values."""
+    w = np.clip(np.asarray(weights, float).reshape(-1), 0.0, None)
+    s1, s2 = float(w.sum()), float(np.sum(w ** 2))
+    if s1 <= 0.0 or s2 <= 0.0:
+        return (1.0 if x <= 0 else 0.0), 0.0
+    c, nu = s2 / s1, s1 ** 2 / s2
+    return float(chi2.sf(x / c, nu)), nu

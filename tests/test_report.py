@@ -877,24 +877,30 @@ def test_a_kinematic_robot_model_is_summarised_with_its_dh_prior_test():
           "dh_resolved_share": np.r_[np.ones(15), np.zeros(9)].reshape(6, 4).tolist(), "dh_prior": "the arm's error prior",
           "dh_prior_sigma": {"length_mm": 1.774, "angle_deg": 0.1774}, "dh_prior_sigma_stated": {"length_mm": 0.5,
                                                                                                 "angle_deg": 0.05},
-          "dh_prior_scale": 3.548, "dh_prior_test": {"resolved": True, "statistic": 34.43, "redundancy": 13.91,
-                                                      "p_value": 4.0e-5, "alpha": 0.01, "contradicted": True},
+          "dh_prior_scale": 3.548, "dh_prior_test": {"resolved": True, "statistic": 33.33, "redundancy": 8.04,
+                                                      "dof": 11.98, "p_value": 1.6e-6, "alpha": 0.01,
+                                                      "contradicted": True},
           "tool_offset_T_flange_reported": np.eye(4).tolist(), "tool_offset_spread_deg_mm": [1e-14, 1e-13],
           "joints_disagree_view_ids": ["7"]}
     items = {it["name"]: it["value"] for it in _robot_model({"robot_model": rm})["items"]}
     assert items["arm"] == "UR3e (standard DH)" and items["joint angles"] == "recorded"
     assert items["encoder noise"].startswith("0.0943 deg") and "estimated" in items["encoder noise"]
     dh = items["DH prior"]
-    assert dh.startswith("1.77 mm / 0.177 deg") and "stated 0.5 mm / 0.05 deg" in dh and "p = 4e-05" in dh
+    assert dh.startswith("1.77 mm / 0.177 deg") and "stated 0.5 mm / 0.05 deg" in dh and "p = 1.6e-06" in dh
+    assert "chi-square 33.3 with 8.0 offsets resolved" in dh
     assert "x3.55" in dh
     assert "+2.36" in items["DH offsets"] and "a of joint 5" in items["DH offsets"]
-    assert "alpha of joint 4" in items["DH offsets"] and "15 of 24 resolved" in items["DH offsets"]
+    assert "alpha of joint 4" in items["DH offsets"] and "15 of 24 known more from the views" in items["DH offsets"]
     assert items["joints disagree with the pose"] == "7"
     text = " ".join(items.values())
     assert "joint angles rad" not in items and "links" not in text and "0.4, 0.4" not in text
     rm.update(dh_prior_scale=1.0, dh_prior_sigma=rm["dh_prior_sigma_stated"],
-              dh_prior_test={"resolved": True, "statistic": 9.1, "redundancy": 12.0, "p_value": 0.69,
+              dh_prior_test={"resolved": True, "statistic": 9.1, "redundancy": 12.0, "p_value": 0.69, "alpha": 0.01,
                              "contradicted": False}, joints_disagree_view_ids=[])
     items = {it["name"]: it["value"] for it in _robot_model({"robot_model": rm})["items"]}
-    assert items["DH prior"] == "0.5 mm / 0.05 deg per DH parameter, the arm's stated prior (the views agree with it: p = 0.69)"
+    assert items["DH prior"] == ("0.5 mm / 0.05 deg per DH parameter, the arm's stated prior (not rejected at 1 %: "
+                                 "p = 0.69)")
     assert "joints disagree with the pose" not in items
+    rm.update(dh_prior="an earlier calibration's estimate", dh_prior_test={})
+    items = {it["name"]: it["value"] for it in _robot_model({"robot_model": rm})["items"]}
+    assert items["DH prior"] == "an earlier calibration's estimate (the arm's own: 0.5 mm / 0.05 deg per DH parameter)"

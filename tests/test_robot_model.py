@@ -249,7 +249,10 @@ def test_an_arm_further_from_its_table_than_its_prior_states_widens_the_prior(mo
     assert rm["dh_prior_sigma"]["length_mm"] == pytest.approx(0.3 * rm["dh_prior_scale"])
     assert rm["dh_prior_sigma_stated"] == {"length_mm": pytest.approx(0.3), "angle_deg": pytest.approx(0.03)}
     assert "dh_prior_scale" in rm["estimated"]
-    assert r.robot_noise_dof["dh_scale"] == pytest.approx(rm["dh_prior_test"]["redundancy"])  # verify's F reference
+    # the test at the stated prior; the scale's own degrees of freedom at the widened one (verify's F reference)
+    assert 0 < rm["dh_prior_test"]["redundancy"] <= rm["dh_prior_test"]["dof"]
+    assert rm["dh_prior_test"]["redundancy"] < rm["dh_prior_scale_dof"]
+    assert r.robot_noise_dof["dh_scale"] == pytest.approx(rm["dh_prior_scale_dof"])
     assert rm["encoder_sigma_deg"] < 0.008
     assert _m2(r, s) < chi2.ppf(0.999, 6)
     # a refit (a validation fold) holds the widened prior with the noise: on all views it is the full run
@@ -268,4 +271,20 @@ def test_an_arm_further_from_its_table_than_its_prior_states_widens_the_prior(mo
 
     _, within = _kinematic_session_refined(mode, 0, 1.0)
     assert within.robot_model["dh_prior_scale"] == 1.0 and "dh_scale" not in within.robot_noise_dof
+    assert within.robot_model["dh_prior_scale_dof"] is None
     assert not within.robot_model["dh_prior_test"]["contradicted"]
+
+
+def test_the_dh_prior_test_holds_its_level_where_the_views_resolve_offsets_partly():
+    """The statistic of the DH prior test is sum lambda_i z_i^2 with weights between 0 (an offset left to its
+    prior) and 1 (one the views fix). Its reference (Satterthwaite's scaled chi-square) rejects at about the
+    nominal rate for any such weights; plain chi2(sum lambda) would reject far less often than nominal."""
+    from handeye.stats import weighted_chi2_sf
+
+    rng = np.random.default_rng(11)
+    for lam in (rng.uniform(0.0, 1.0, 24), np.full(24, 0.2), np.r_[np.ones(8), np.zeros(16)]):
+        e = (rng.standard_normal((20000, lam.size)) ** 2 * lam).sum(axis=1)
+        p = np.array([weighted_chi2_sf(x, lam)[0] for x in e])
+        assert 0.007 < np.mean(p < 0.01) < 0.014 and 0.04 < np.mean(p < 0.05) < 0.06, lam
+        if lam.max() < 1.0:
+            assert np.mean(chi2.sf(e, lam.sum()) < 0.01) < 0.005  # the plain reference: too few rejections

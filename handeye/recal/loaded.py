@@ -85,12 +85,12 @@ class LoadedResult:
     def robot_noise_dof(self) -> Optional[float]:
         """Degrees of freedom of the robot noise level the calibration estimated (``refinement.robot_noise_dof``:
         one per estimated robot sigma, and the DH prior's scale where the views widened it): Satterthwaite's for
-        their sum with equal shares (the shares each sigma
-        has in X's covariance are not recorded: when one sigma dominates, the equal shares overstate the degrees
-        of freedom; the pixel noise's part, known far better, is left out, which understates them). None when it
-        estimated none (the noise stated, a pose-only result, a refinement without the outlier loop, whose
-        sigmas are robust estimates, or an older result).
-        On simulated 20-view installs: about 50 eye-in-hand (rotation 50, translation 16) and 75 eye-to-hand."""
+        their sum with equal shares (the shares each has in X's covariance are not recorded: when one dominates,
+        the equal shares overstate the degrees of freedom; the pixel noise's part, known far better, is left out,
+        which understates them). None when it estimated none (the noise stated, a pose-only result, a refinement
+        without the outlier loop, whose sigmas are robust estimates, or an older result).
+        On simulated 20-view installs: about 50 eye-in-hand (rotation 50, translation 16) and 75 eye-to-hand; a
+        widened DH prior (10-17 degrees of freedom) brings a kinematic install's to about 40-60."""
         d = (self.raw.get("refinement") or {}).get("robot_noise_dof")
         vals = [_float(v) for v in d.values()] if isinstance(d, dict) else []
         vals = [v for v in vals if v is not None and v > 0]

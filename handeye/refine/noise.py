@@ -2,7 +2,9 @@
 (the iid robot model), or the pixel sigma and the encoder sigma (the kinematic robot models of
 :mod:`.robot_model`, whose per-view prior covariance is the encoder sigma squared times J_q J_q^T).
 
-They are three (two) variance components. On the cleaned data they are estimated by iterated
+They are three (two) variance components; with the kinematic model, the scale of the arm's DH prior
+becomes one more where the views contradict the stated prior (:func:`_dh_prior_test`, :func:`_dh_scale`).
+On the cleaned data they are estimated by iterated
 variance-component estimation (Helmert / Förstner): for each group ``g``,
 ``sigma_g^2 = e_g^T e_g / r_g`` with ``e_g`` the group's residuals and
 ``r_g = n_g - tr(W_g J_g Sigma J_g^T)`` its redundancy, taken from the marginal covariances of the
@@ -97,8 +99,10 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
     priors (residual ``u_i = p_i - J_dh,i · delta``: Jacobian I on the pose block and -J_dh,i on the
     DH offsets, information ``sum_g W_g,i / s_g^2``, :meth:`.problem.Problem.robot_group_weights`)
     and the priors on the core (:meth:`.problem.Problem.core_prior`); then s_g^2 = e_g^T W_g e_g / r_g.
-    The groups are the iid model's rotation and translation or the kinematic models' encoder noise.
-    Updates pb's sigmas in place."""
+    The groups are the iid model's rotation and translation or the kinematic models' encoder noise. With the
+    kinematic model's DH offsets, their prior's scale is tested once the sigmas first settle at the stated
+    prior and, where the test rejects it, estimated with them from there on (one test per round of the outlier
+    loop: :func:`solve_with_vce`). Updates pb's sigmas and DH prior scale in place."""
     cfg = _cfg()
     groups = pb.robot_groups
     floors = np.array([float(cfg["sigma_px_floor"])] + [
@@ -113,11 +117,11 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
     counts = pb.robot_group_counts()
     J = lin.J_dh  # shape (n, 6, m)
     dh = pb.dh_slice
-    HK, gK = pb.core_prior(dh=False)  # priors on the core unknowns (intrinsics, options.prior); the DH offsets' below
+    HK, gK = pb.core_prior()  # priors on the core unknowns (intrinsics, options.prior); the DH offsets' below
     m = pb.m_dh
-    if m:  # the DH offsets' prior at unit scale: information W_dh / k^2 at scale k
-        W_dh, mu_dh = np.linalg.inv(pb.dh_prior_stated), pb.prior_dh[0]
     k_dh = k_start = pb.dh_scale
+    test_dh = bool(m) and pb.dh_scale_estimable and not pb.dh_scale_test  # once per round of the outlier loop
+    scale_dh = bool(m) and pb.dh_scale_estimable and bool(pb.dh_scale_test.get("contradicted"))
     s = np.r_[pb.sigma_px, pb.robot_sigmas]
     start = s.copy()
     dof: dict = {}  # redundancy of each robot group whose sigma is estimated (its degrees of freedom)
@@ -127,9 +131,10 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
         W = sum(w / sg ** 2 for w, sg in zip(W0, s[1:]))  # shape (n, 6, 6): robot prior information
         Wr = np.einsum("nij,nj->ni", W, lin.xi)
         HKi, gKi = HK.copy(), gK.copy()
-        if m:
-            HKi[dh, dh] += W_dh / k_dh ** 2
-            gKi[dh] += W_dh @ (pb.dh - mu_dh) / k_dh ** 2
+        if m:  # the DH offsets' prior at its scale k_dh
+            H_dd, g_d = pb.dh_prior_information(k_dh)
+            HKi[dh, dh] += H_dd
+            gKi[dh] += g_d
         Hcc = lin.Hcc * w_px + HKi
         Hcp = lin.Hcp * w_px
         grad = lin.g * w_px
@@ -148,8 +153,8 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
         absorbed = float(np.sum(HKi * S_cc))  # tr(H_prior Sigma_core)
         new = s.copy()
         k_new = k_dh
-        if m and pb.dh_scale_estimable:
-            k_new = _dh_scale(pb, pb.dh + dc[dh] - mu_dh, W_dh, S_cc[dh, dh], k_dh)
+        if scale_dh:
+            k_new = _dh_scale(pb, pb.dh + dc[dh] - pb.prior_dh[0], S_cc[dh, dh], k_dh)
         if n_pri:
             e_rob = lin.xi + dp - np.einsum("nim,m->ni", J, dc[dh])  # prior residuals after the step
             S_u = robot_residual_covariances(S_cc, S_pp, S_cp, J, dh)
@@ -172,6 +177,11 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
         change = max(float(np.max(np.abs(new / s - 1.0))), abs(k_new / k_dh - 1.0))
         s, k_dh = new, k_new
         if change < tol:
+            if test_dh:  # settled at the stated DH prior: test it once; rejected, go on estimating its scale
+                test_dh = False
+                scale_dh = _dh_prior_test(pb, pb.dh + dc[dh] - pb.prior_dh[0], S_cc[dh, dh])
+                if scale_dh:
+                    continue
             break
         history.append(np.log(s))
         if len(history) == 3:
@@ -181,8 +191,8 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
     pb.robot_sigmas = s[1:]
     if m:
         pb.set_dh_scale(k_dh)
-        if k_dh != 1.0:  # the DH prior's scale, estimated: one more variance component with its redundancy
-            dof["dh_scale"] = float(pb.dh_scale_test["redundancy"])
+        if k_dh != 1.0 and pb.dh_scale_dof:  # the DH prior's scale, estimated: one more variance component
+            dof["dh_scale"] = float(pb.dh_scale_dof)
     pb.noise_dof = dof
     S_u = robot_residual_covariances(S_cc, S_pp, S_cp, J, dh)
     if pb.m_dh:
@@ -191,37 +201,53 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
     return VarianceComponents(change, dx, S_cc, S_u)
 
 
-def _dh_scale(pb: "Problem", delta: np.ndarray, W_dh: np.ndarray, S_dd: np.ndarray, k: float) -> float:
-    """The next scale of the arm's DH error prior (sigma = k times the stated ones), as a variance component.
+def _dh_prior_test(pb: "Problem", delta: np.ndarray, S_dd: np.ndarray) -> bool:
+    """Do the views contradict the arm's stated DH prior? ``delta``, ``S_dd``: the DH offsets and their
+    posterior covariance with the noise levels settled at that prior (k = 1).
 
-    The DH offsets ``delta`` (prior N(0, k^2 W_dh^-1)) with posterior covariance ``S_dd`` have the
-    redundancy ``r = m - tr(W_dh S_dd) / k^2`` (the offsets the views resolve; the others keep their prior
-    and count ~0). At the stated scale (k = 1) ``e = delta^T W_dh delta`` is tested against chi2(r); the
-    prior stands unless p < ``noise.dh_prior_alpha`` (the arm is further from its table than stated:
-    an uncalibrated arm, a nominal table, wear). Then the scale is estimated, ``k^2 = e / r``, never below
-    the stated prior: the offsets the views do not resolve are known through that prior alone and reach
-    ``T_x``'s covariance through it, so data on the resolved ones may widen it, not narrow it. Fewer than
-    ``noise.unresolved_redundancy_share`` of the offsets resolved: no test, the prior stands.
-    The test's outcome goes to ``pb.dh_scale_test``; once it rejects, the scale is estimated for the rest of
-    the round (:func:`solve_with_vce` starts each round at the stated prior)."""
+    With the stated prior N(0, Sigma_0) right, the estimate ``delta`` has covariance ``Sigma_0 - S_dd``, so
+    ``e = delta^T Sigma_0^-1 delta`` is ``sum lambda_i z_i^2`` with ``lambda = 1 - eig(Sigma_0^-1 S_dd)``: 1 for an
+    offset the views fix, 0 for one they leave to the prior; their sum ``r`` is the offsets' redundancy (about
+    how many the views resolve). ``e`` is tested against that form (Satterthwaite's scaled chi-square,
+    :func:`handeye.stats.weighted_chi2_sf`); the prior stands unless p < ``noise.dh_prior_alpha`` (the arm is
+    further from its table than stated: an uncalibrated arm, a nominal table, wear). Fewer than
+    ``noise.unresolved_redundancy_share`` of the offsets resolved: no test, the prior stands. The outcome goes
+    to ``pb.dh_scale_test``; returns whether the prior was rejected."""
+    from ..stats import weighted_chi2_sf
+
     cfg = _cfg()
     m = delta.size
-    r = m - float(np.sum(W_dh * S_dd)) / k ** 2
-    e = float(delta @ W_dh @ delta)
+    L = np.linalg.cholesky(pb.dh_prior_stated)
+    A = np.linalg.solve(L, np.linalg.solve(L, S_dd).T)  # L^-1 S_dd L^-T: eigenvalues of Sigma_0^-1 S_dd
+    lam = np.clip(1.0 - np.linalg.eigvalsh(0.5 * (A + A.T)), 0.0, 1.0)
+    r = float(lam.sum())
     if r < float(cfg["unresolved_redundancy_share"]) * m:
-        pb.dh_scale_test = {"resolved": False, "redundancy": r}
-        return k
-    if not pb.dh_scale_test.get("contradicted"):  # the stated prior (k = 1) until the test rejects it
-        from scipy.stats import chi2
+        pb.dh_scale_test = {"resolved": False, "redundancy": r, "contradicted": False}
+        return False
+    z = np.linalg.solve(L, delta)
+    e = float(z @ z)
+    p, nu = weighted_chi2_sf(e, lam)
+    alpha = float(cfg["dh_prior_alpha"])
+    pb.dh_scale_test = {"resolved": True, "statistic": e, "redundancy": r, "dof": nu, "p_value": p, "alpha": alpha,
+                        "contradicted": p < alpha,
+                        "reference": "Satterthwaite's scaled chi-square of the resolved offsets"}
+    return bool(p < alpha)
 
-        p = float(chi2.sf(e, r))
-        pb.dh_scale_test = {"resolved": True, "statistic": e, "redundancy": r, "p_value": p,
-                            "alpha": float(cfg["dh_prior_alpha"]), "contradicted": p < float(cfg["dh_prior_alpha"])}
-        if not pb.dh_scale_test["contradicted"]:
-            return k
-    else:  # rejected in this round of the outlier loop: estimated from here on (no test again, no oscillation)
-        pb.dh_scale_test["redundancy"] = r
-    return max(float(np.sqrt(e / r)), 1.0)
+
+def _dh_scale(pb: "Problem", delta: np.ndarray, S_dd: np.ndarray, k: float) -> float:
+    """The next scale of the arm's DH prior (sigmas k times the stated ones) once the views have contradicted it
+    (:func:`_dh_prior_test`), as a variance component: ``k^2 = e / r`` with ``e = delta^T Sigma_0^-1 delta`` and
+    the redundancy ``r = m - tr(Sigma_0^-1 S_dd) / k^2`` at the current scale (recorded in ``pb.dh_scale_dof``),
+    never below the stated prior: the offsets the views do not resolve are known only through that prior and
+    reach ``T_x``'s covariance through it, so data on the resolved ones may widen it, not narrow it. Where the
+    views no longer resolve enough of the offsets (``noise.unresolved_redundancy_share``), the scale is held."""
+    m = delta.size
+    W = np.linalg.inv(pb.dh_prior_stated)
+    r = m - float(np.sum(W * S_dd)) / k ** 2
+    if r < float(_cfg()["unresolved_redundancy_share"]) * m:
+        return k
+    pb.dh_scale_dof = r
+    return max(float(np.sqrt(float(delta @ W @ delta) / r)), 1.0)
 
 
 def _aitken(x0: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
@@ -253,7 +279,7 @@ def solve_with_vce(pb: "Problem"):
     pb.resolved = {g: True for g in pb.robot_groups}  # a new set of views may resolve what the last did not
     if pb.dh_scale_estimable:  # and may agree with the arm's stated DH prior where the last did not
         pb.set_dh_scale(1.0)
-        pb.dh_scale_test = {}
+        pb.dh_scale_test, pb.dh_scale_dof = {}, None
     for _ in range(int(cfg["max_outer"])):
         pb.solve(robust=False)
         lin = pb.pixel_linearisation()

@@ -167,6 +167,7 @@ class Problem:
         self.dh_prior_stated = self.prior_dh[1].copy()
         self.dh_scale = 1.0
         self.dh_scale_test: dict = {}
+        self.dh_scale_dof: Optional[float] = None  # redundancy of the estimated scale (handeye.refine.noise._dh_scale)
         self.sigma_q = self.kin.encoder_sigma_rad if self.kin is not None else 0.0
         self.robot_prior_k = float(refine_preset()["robust"]["robot_prior_k"])
         self.T_x = T_x0.copy()
@@ -220,6 +221,13 @@ class Problem:
         """Use the arm's DH error prior at ``k`` times its stated sigmas."""
         self.dh_scale = float(k)
         self.prior_dh = (self.prior_dh[0], self.dh_prior_stated * self.dh_scale ** 2)
+
+    def dh_prior_information(self, k: Optional[float] = None) -> tuple[np.ndarray, np.ndarray]:
+        """Information (m,m) and gradient (m,) of the DH offsets' prior at the current offsets, with the prior at
+        ``k`` times the stated sigmas (None: the scale in use); the terms of the graph's prior factor on them."""
+        k = self.dh_scale if k is None else float(k)
+        W = np.linalg.inv(self.dh_prior_stated) / k ** 2
+        return W, W @ (self.dh - self.prior_dh[0])
 
     # -- robot error model (handeye.refine.robot_model)
     @property
@@ -375,11 +383,11 @@ class Problem:
         priors on T_x and on the board, in the core order."""
         return ((KEY_X, self.prior_x, self.prior_cov_xk), (KEY_BOARD, self.prior_board, self.prior_cov_bk))
 
-    def core_prior(self, dh: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    def core_prior(self) -> tuple[np.ndarray, np.ndarray]:
         """Information (c,c) and gradient J^T W r (c,) at the current estimate of the priors on the core
-        unknowns (the intrinsics prior of ``intrinsics="prior"``, the DH offsets' prior unless ``dh`` is
-        False, and ``options.prior``), in the core order of :meth:`pixel_linearisation`; the same terms as
-        the graph's prior factors."""
+        unknowns but the DH offsets (the intrinsics prior of ``intrinsics="prior"`` and ``options.prior``), in
+        the core order of :meth:`pixel_linearisation`; the same terms as the graph's prior factors. The DH
+        offsets' prior, whose scale the noise estimation may change: :meth:`dh_prior_information`."""
         c = self.n_core
         H, g = np.zeros((c, c)), np.zeros(c)
         ks = slice(N_POSES, N_POSES + self.free.size)
@@ -391,10 +399,6 @@ class Problem:
             W = np.linalg.inv(self.prior_k[1])
             H[ks, ks] += W
             g[ks] += W @ (self.k[self.free] - self.prior_k[0])
-        if self.m_dh and dh:
-            W = np.linalg.inv(self.prior_dh[1])
-            H[self.dh_slice, self.dh_slice] += W
-            g[self.dh_slice] += W @ (self.dh - self.prior_dh[0])
         for (key, prior, joint), at, T in zip(self._pose_priors(), (0, 6), (self.T_x, self.T_board)):
             if prior is None:
                 continue

@@ -161,7 +161,7 @@ def robot_model_dict(pb: "Problem", S_cc: Optional[np.ndarray]) -> dict:
     if km.m:
         S_dd = pb.S_dd if S_cc is None else S_cc[pb.dh_slice, pb.dh_slice]
         d.update(describe_dh(km, pb.dh, S_dd, pb.prior_dh[1] if pb.prior_dh_earlier else None,
-                             scale=pb.dh_scale, test=pb.dh_scale_test))
+                             scale=pb.dh_scale, test=pb.dh_scale_test, scale_dof=pb.dh_scale_dof))
         if pb.dh_scale != 1.0:
             d["estimated"].append("dh_prior_scale")
     return d

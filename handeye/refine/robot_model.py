@@ -169,14 +169,15 @@ def build_kinematic_model(o: RefineOptions, kind: str, views: Sequence[RefineVie
 
 
 def describe_dh(km: KinematicRobotModel, delta: np.ndarray, S_dd: np.ndarray,
-                prior_cov: Optional[np.ndarray] = None, *, scale: float = 1.0, test: Optional[dict] = None) -> dict:
+                prior_cov: Optional[np.ndarray] = None, *, scale: float = 1.0, test: Optional[dict] = None,
+                scale_dof: Optional[float] = None) -> dict:
     """JSON-ready estimate of the DH offsets: per joint (a mm, alpha deg, d mm, theta_offset deg), their
     sigmas, and the share of each offset's prior variance the data removed (0: held by the prior alone,
     1: fixed by the data). ``prior_cov`` (m,m): the prior the offsets were estimated under when it is not the
     arm's own N(0, dh_sigma^2), e.g. an earlier calibration's estimate; the share is measured against it.
     ``dh_prior_sigma`` is the arm's own prior as used (``scale`` times the stated ``dh_prior_sigma_stated``,
-    the scale estimated when the views contradict the stated prior: ``test``, see
-    :func:`handeye.refine.noise._dh_scale`); ``dh_prior`` says which prior was used."""
+    the scale estimated with ``scale_dof`` degrees of freedom when the views contradict the stated prior:
+    ``test``, see :func:`handeye.refine.noise._dh_prior_test`); ``dh_prior`` says which prior was used."""
     if km.m == 0:
         return {}
     units = np.tile([1e3, np.degrees(1.0), 1e3, np.degrees(1.0)], km.arm.n_joints)
@@ -193,4 +194,4 @@ def describe_dh(km: KinematicRobotModel, delta: np.ndarray, S_dd: np.ndarray,
             "dh_resolved_share": share.reshape(shape),
             "dh_prior": "the arm's error prior" if prior_cov is None else "an earlier calibration's estimate",
             "dh_prior_sigma": sigmas(scale), "dh_prior_sigma_stated": sigmas(1.0), "dh_prior_scale": float(scale),
-            "dh_prior_test": dict(test or {})}
+            "dh_prior_test": dict(test or {}), "dh_prior_scale_dof": None if scale == 1.0 else scale_dof}

@@ -528,14 +528,15 @@ def _kinematic_items(rm: dict) -> list:
         test = rm.get("dh_prior_test") or {}
         line = f"{_num(used.get('length_mm')):.3g} mm / {_num(used.get('angle_deg')):.3g} deg per DH parameter"
         if rm.get("dh_prior") and rm["dh_prior"] != "the arm's error prior":
-            line += f" ({rm['dh_prior']})"
+            line = f"{rm['dh_prior']} (the arm's own: {line})"
         elif test.get("contradicted"):
             line += (f": the views contradict the arm's stated {_num(stated.get('length_mm')):.3g} mm / "
-                     f"{_num(stated.get('angle_deg')):.3g} deg (chi-square {_num(test.get('statistic')):.1f} on "
-                     f"{_num(test.get('redundancy')):.1f} resolved offsets, p = {_num(test.get('p_value')):.2g}), so "
+                     f"{_num(stated.get('angle_deg')):.3g} deg (chi-square {_num(test.get('statistic')):.1f} with "
+                     f"{_num(test.get('redundancy')):.1f} offsets resolved, p = {_num(test.get('p_value')):.2g}), so "
                      f"its scale was estimated: x{_num(rm.get('dh_prior_scale')):.2f}")
         elif test.get("resolved"):
-            line += f", the arm's stated prior (the views agree with it: p = {_num(test.get('p_value')):.2g})"
+            line += (f", the arm's stated prior (not rejected at {100 * _num(test.get('alpha')):g} %: "
+                     f"p = {_num(test.get('p_value')):.2g})")
         else:
             line += ", the arm's stated prior"
         items.append({"name": "DH prior", "value": line})
@@ -549,7 +550,8 @@ def _kinematic_items(rm: dict) -> list:
             j, c = np.unravel_index(int(np.argmax(sub)), sub.shape)
             parts.append(f"{o[j, cols[c]]:+.3g} ± {e[j, cols[c]]:.2g} {unit} ({names[cols[c]]} of joint {j + 1})")
         share = np.asarray(rm.get("dh_resolved_share") or [], float)
-        resolved = f" ({int(np.sum(share > 0.5))} of {share.size} resolved by the views)" if share.size else ""
+        resolved = (f" ({int(np.sum(share > 0.5))} of {share.size} known more from the views than from the prior)"
+                    if share.size else "")
         items.append({"name": "DH offsets", "value": "largest " + ", ".join(parts) + resolved})
     spread = rm.get("tool_offset_spread_deg_mm")
     T = rm.get("tool_offset_T_flange_reported")
