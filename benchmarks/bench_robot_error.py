@@ -50,10 +50,10 @@ in the error of X and is covered by its prior's share of the reported covariance
 
 An arm further from its DH table than its preset states (``--dh-error-scale 5``: DH errors of 0.5-2.5 mm /
 0.05-0.25 deg against the preset's 0.3 mm / 0.03 deg prior; 50 sessions per mode, 2026-12-02): the views
-contradict the stated prior in 50 of 50 sessions per mode (:func:`handeye.refine.noise._dh_scale`), its
-scale is estimated (median 5.56 eye-in-hand, 5.40 eye-to-hand), the encoder sigma comes out at 0.0049 deg;
-refined X 0.188 deg / 1.86 mm eye-in-hand (best closed form horaud 0.903 deg / 8.22 mm) and 0.242 deg /
-3.30 mm eye-to-hand (li 0.444 deg / 6.68 mm); coverage model / verdict 86 % / 92 % and 100 % / 100 %. In
+contradict the stated prior in 50 of 50 sessions per mode (:func:`handeye.refine.noise._dh_prior_test`), its
+scale is estimated (median 5.56 eye-in-hand, 5.40 eye-to-hand), the encoder sigma comes out at 0.0050 deg;
+refined X 0.188 deg / 1.85 mm eye-in-hand (best closed form horaud 0.903 deg / 8.22 mm) and 0.242 deg /
+3.30 mm eye-to-hand (li 0.444 deg / 6.68 mm); coverage model / verdict 90 % / 94 % and 100 % / 100 %. In
 the default sessions above the prior is contradicted in 0 of 200.
 Usage: python benchmarks/bench_robot_error.py --seeds 100 [--models kinematic iid none] [--modes ...]
 [--arm rm65|ur5e] [--dh-error-scale F] [--jobs 2]. Progress on stderr, figures on stdout.
