@@ -108,6 +108,26 @@ def test_simulate_writes_the_session_it_promises(tmp_path, capsys):
     assert "--views must be at least 3" in capsys.readouterr().err
 
 
+def test_simulate_an_arm_further_from_its_table(tmp_path, capsys):
+    """--dh-error MM DEG and --encoder-sigma DEG set the simulated arm's kinematic errors: each DH length and
+    angle error between a fifth of the given bound and the bound, recorded in ground_truth.json; without the
+    kinematic model they are refused."""
+    out = tmp_path / "arm"
+    assert main(["-q", "simulate", str(out), "--views", "4", "--seed", "2", "--robot-error", "kinematic",
+                 "--dh-error", "2.5", "0.25", "--encoder-sigma", "0.02"]) == 0
+    err = json.loads((out / "ground_truth.json").read_text())["robot_error"]
+    e = np.abs(np.asarray(err["dh_error_mm_deg"], float))
+    lengths, angles = e[:, [0, 2]], e[:, [1, 3]]
+    assert lengths.min() >= 0.5 - 1e-9 and lengths.max() <= 2.5 + 1e-9 and lengths.max() > 1.0
+    assert angles.min() >= 0.05 - 1e-9 and angles.max() <= 0.25 + 1e-9
+    assert err["encoder_sigma_deg"] == pytest.approx(0.02)
+    capsys.readouterr()
+    assert main(["simulate", str(tmp_path / "iid"), "--views", "3", "--dh-error", "1", "0.1"]) == 2
+    assert "add --robot-error kinematic" in capsys.readouterr().err
+    assert main(["simulate", str(tmp_path / "neg"), "--views", "3", "--robot-error", "kinematic",
+                 "--encoder-sigma", "-1"]) == 2
+
+
 def test_demo_reports_its_error_against_the_truth(tmp_path, capsys):
     assert main(["-q", "demo", "--out", str(tmp_path / "demo"), "--views", "8", "--mode", "eye_to_hand"]) == 0
     out = capsys.readouterr().out

@@ -43,6 +43,12 @@ def add_arguments(p) -> None:
                    help="robot error model: iid (--robot-noise per pose), kinematic (a 6-axis arm with DH errors and "
                         "encoder noise, handeye.sim.robot_error) or none")
     p.add_argument("--arm", default="rm65", help="kinematic arm preset (rm65, ur5e) or DH YAML file")
+    p.add_argument("--dh-error", nargs=2, type=float, metavar=("MM", "DEG"), default=None,
+                   help="kinematic: the largest error of each DH length (mm) and angle (deg) of the simulated arm, "
+                        "each drawn between a fifth of it and it (default 0.5 0.05: a factory-calibrated arm; "
+                        "larger: an arm further from its table than its preset states)")
+    p.add_argument("--encoder-sigma", type=float, metavar="DEG", default=None,
+                   help="kinematic: encoder noise per joint and view (default 0.005 deg)")
     p.add_argument("--hidden", nargs="*", default=[], metavar="ID", help="views rendered without the board")
     p.add_argument("--outliers", nargs="*", default=[], metavar="ID", help="views given a wrong robot pose")
     p.set_defaults(func=run)
@@ -54,11 +60,26 @@ def run(args) -> int:
 
     if args.views < 3:
         raise ConfigError("--views must be at least 3", received=str(args.views))
+    kin = {}
+    if args.dh_error is not None or args.encoder_sigma is not None:
+        if args.robot_error != "kinematic":
+            raise ConfigError("--dh-error and --encoder-sigma describe the kinematic robot error model",
+                              received=f"--robot-error {args.robot_error}", hint="add --robot-error kinematic")
+        if args.dh_error is not None:
+            mm, deg = (float(x) for x in args.dh_error)
+            if not (mm >= 0 and deg >= 0):
+                raise ConfigError("--dh-error must be two non-negative numbers (mm, deg)", received=f"{mm} {deg}")
+            kin.update(dh_length_error_mm=(mm / 5, mm), dh_angle_error_deg=(deg / 5, deg))
+        if args.encoder_sigma is not None:
+            if not args.encoder_sigma >= 0:
+                raise ConfigError("--encoder-sigma must be a non-negative number of degrees",
+                                  received=str(args.encoder_sigma))
+            kin["encoder_sigma_deg"] = float(args.encoder_sigma)
     path = write_vendor_session(args.out, mode=args.mode, n_views=args.views, seed=args.seed,
                                 image_noise=args.noise_px, blur_sigma_px=args.blur,
                                 robot_noise=tuple(args.robot_noise), hidden_views=tuple(args.hidden),
                                 outlier_views=tuple(args.outliers), robot_error=args.robot_error, arm=args.arm,
-                                target=sim_target(args.target))
+                                target=sim_target(args.target), **kin)
     print(f"synthetic {args.mode} session with {args.views} rendered views: {path}")
     if args.robot_error == "kinematic" and (Path(path) / "poses.txt").exists():
         from ..sim.robot_error import write_native_session
