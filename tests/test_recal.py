@@ -655,3 +655,73 @@ def test_the_plan_counts_on_the_test_verify_runs():
     nc_f = _noncentrality_for_power(0.95, alpha=0.05, noise_dof=30.0)
     assert nc_f > nc and test_power(nc_f, alpha=0.05, noise_dof=30.0) == pytest.approx(0.95, abs=1e-6)
     assert test_power(1e-9, alpha=0.05, noise_dof=30.0) == pytest.approx(0.05, abs=1e-3)  # no drift: the level
+
+
+def test_verify_compares_a_symmetric_board_in_the_installed_numbering(install):
+    """A later session may number a symmetric board from the other corner: its board frame is the installed
+    one turned by 180 degrees. Verify compares the boards in the turn nearest the new one (the board did not
+    move), not 180 degrees and the board's size apart; X's test does not depend on the board's frame."""
+    from handeye.diagnose.consistency import _rigid_motion
+    from handeye.recal.verify import nearest_board_turn, verify_views
+    from handeye.refine import RefineView
+    from handeye.targets import grid_turns
+
+    s, res = install
+    inst = load_result(res)
+    obj = s.target.object_points()
+    perm = grid_turns(s.target.cols, s.target.rows)[1]  # the half turn's corner order
+    F = np.linalg.inv(_rigid_motion(obj, obj[perm]))
+    views = _views(_verification(s, np.zeros(6), seed=101))
+    turned = [RefineView(v.view_id, perm[np.asarray(v.corner_ids)], v.image_points, v.T_base_end) for v in views]
+    plain_v = verify_views(inst, views=turned, object_points=obj)
+    assert plain_v.board["moved"] and plain_v.board["rot_deg"] > 170  # without the turns: a false "moved"
+    v = verify_views(inst, views=turned, object_points=obj, board_turns=[F])
+    assert v.board["turn_deg"] == pytest.approx(180.0) and not v.board["moved"]
+    assert v.board["trans_mm"] < 3 * v.board["sigma_trans_mm"] + 1.0
+    assert v.verdict == "still valid" and v.test.statistic == pytest.approx(plain_v.test.statistic, rel=1e-6)
+    same = verify_views(inst, views=views, object_points=obj, board_turns=[F])  # numbered as installed: no turn
+    assert same.board["turn_deg"] == pytest.approx(0.0) and not same.board["moved"]
+    # the turned result carries the board's covariance along: the same uncertainty, seen from the turned frame
+    t = inst.with_board_turned(F)
+    np.testing.assert_allclose(t.T_board, inst.T_board @ F)
+    assert np.trace(t.board_joint[0][3:, 3:]) > 0 and np.allclose(np.linalg.eigvalsh(t.board_joint[0][:3, :3]),
+                                                                   np.linalg.eigvalsh(inst.board_joint[0][:3, :3]))
+    assert np.array_equal(nearest_board_turn(None, inst.T_board, [F]), np.eye(4))  # no installed board: no turn
+
+
+def test_a_kept_board_prior_is_taken_in_the_new_sessions_numbering(rendered, tmp_path, monkeypatch, capsys):
+    """calibrate --prior --board-unmoved after a bump, with an install whose board frame is the new session's
+    turned by a half turn (a symmetric board numbered from the other corner; the symmetry is granted to this
+    board here): the earlier board pose is kept in the new session's numbering, and the result's board is the
+    installed one turned back."""
+    import handeye.diagnose.consistency as consistency
+    from handeye.frames import inv_T, pose_error, se3_adjoint
+    from handeye.targets import grid_turns
+
+    from handeye.sim.corners import make_corner_session
+
+    installed = json.loads((rendered["installed"] / "result.json").read_text())
+    target = make_corner_session(n_views=3, seed=0).target  # the install's board
+    obj = target.object_points()
+    perm = grid_turns(target.cols, target.rows)[1]
+    F = np.linalg.inv(consistency._rigid_motion(obj, obj[perm]))
+    monkeypatch.setattr(consistency, "board_turns", lambda t: [("180 deg", F)])
+    turned = json.loads(json.dumps(installed))
+    Finv = inv_T(F)
+    A = se3_adjoint(F)  # the board's right tangent seen from the turned frame: Ad(Finv^-1)
+    turned["T_base_board"] = (np.array(installed["T_base_board"]) @ Finv).tolist()
+    ref = turned["refinement"]
+    ref["cov_board_6x6"] = (A @ np.array(ref["cov_board_6x6"]) @ A.T).tolist()
+    ref["cov_x_intrinsics"]["cross_board_6xk"] = (A @ np.array(ref["cov_x_intrinsics"]["cross_board_6xk"])).tolist()
+    (tmp_path / "inst").mkdir()
+    (tmp_path / "inst" / "result.json").write_text(json.dumps(turned))
+    out = tmp_path / "out"
+    main(["-q", "calibrate", str(rendered["bumped"]), "--prior", str(tmp_path / "inst"), "--out", str(out),
+          "--board-unmoved", "--no-report"])
+    capsys.readouterr()
+    res = json.loads((out / "result.json").read_text())
+    p = res["prior"]
+    assert p["contradicted"] and p["board_prior"] is True, p["used"]
+    rot, trans = pose_error(np.array(res["T_base_board"]), np.array(installed["T_base_board"]))
+    sd = 1000 * np.sqrt(np.trace(np.array(installed["refinement"]["cov_board_6x6"])[3:, 3:]))
+    assert trans < 3 * sd and rot < 1.0, (trans, rot, sd)

@@ -71,6 +71,22 @@ class LoadedResult:
     def ok(self) -> bool:
         return self.status == "ok" and self.T_x is not None
 
+    def with_board_turned(self, H: np.ndarray) -> "LoadedResult":
+        """This result with its board frame moved by ``H`` (4,4): ``T_board H``, and the board's covariance
+        carried along (right tangent: ``Ad(H^-1)``). A symmetric board numbered from another corner in a later
+        session has its frame turned so (:func:`handeye.diagnose.consistency.board_turns`); X does not change."""
+        from dataclasses import replace
+
+        from ..frames import inv_T, se3_adjoint
+
+        if self.T_board is None:
+            return self
+        A = se3_adjoint(inv_T(np.asarray(H, float)))
+        bj = self.board_joint
+        if bj is not None:
+            bj = (A @ bj[0] @ A.T,) + tuple(None if c is None else A @ c for c in bj[1:])
+        return replace(self, T_board=self.T_board @ H, board_joint=bj)
+
     @property
     def cov_x_given_intrinsics(self) -> Optional[np.ndarray]:
         """(6,6) the covariance of X were its intrinsics known: ``cov_x - C K^-1 C^T`` with the joint covariance

@@ -77,6 +77,7 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
 
     Returns (the CalibrationRun kept, result.json's ``prior`` block: the prior, the update, the test and the
     ``change`` of X it estimates, ``contradicted``, ``used``)."""
+    from ..diagnose.consistency import board_turns
     from ..pipeline import run_calibration
 
     progress = progress or (lambda s: None)
@@ -107,7 +108,8 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
     if len(run.board_poses) >= 3:
         try:
             v = verify_views(installed, views=_refine_views(run), object_points=session.target.object_points(),
-                             intrinsics=None if prior_used.intrinsics is not None else session.intrinsics, options=o)
+                             intrinsics=None if prior_used.intrinsics is not None else session.intrinsics, options=o,
+                             board_turns=[F for _, F in board_turns(session.target)])
         except HandeyeError as e:
             why = f"the test of the prior failed ({e})"
     if v is not None:
@@ -133,7 +135,10 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
     # a few views cannot tell a board moved by a millimetre from a bumped camera, so it is the user's statement)
     board_kept = bool(board_unmoved and v is not None and v.board.get("known") and not v.board.get("moved")
                       and installed.board_joint is not None)
-    s_n, opts_n = _with_prior(session, options, installed, cov_x=VAGUE_COV_X, board=board_kept)
+    # a symmetric board numbered from another corner than in the earlier session: its board pose in this turn
+    board_from = installed.with_board_turned(np.asarray(v.board["T_turn"])) if board_kept and "T_turn" in v.board \
+        else installed
+    s_n, opts_n = _with_prior(session, options, board_from, cov_x=VAGUE_COV_X, board=board_kept)
     run_n = run_calibration(s_n, opts_n, progress=progress)
     rec["used"] = ("no prior on X (the new views with the prior's intrinsics and board pose: the board did not move)"
                    if board_kept else "no prior on X (the new views alone; the prior's intrinsics kept)")

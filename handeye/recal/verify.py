@@ -56,7 +56,7 @@ from scipy import stats
 from ..camera import INTRINSIC_NAMES, Intrinsics
 from ..config import load_preset
 from ..errors import CalibrationError, InputError
-from ..frames import inv_T, mean_T, pose_error, se3_adjoint, se3_exp, tangent_difference
+from ..frames import inv_T, mean_T, pose_error, rotvec_from_R, se3_adjoint, se3_exp, tangent_difference
 from ..mounting import mounting
 from ..output import plain
 from ..stats import wald_p_value
@@ -284,6 +284,19 @@ class Verification:
             "sigma_px": self.sigma_px, "seconds": self.seconds}, nan_to_none=True)
 
 
+def nearest_board_turn(T_board_installed: Optional[np.ndarray], T_board_new: np.ndarray,
+                       turns: Sequence[np.ndarray]) -> np.ndarray:
+    """Of the identity and ``turns`` (board-frame motions of a symmetric board's other numberings), the ``H``
+    that brings the installed board frame nearest the new one (``T_board_installed H`` against
+    ``T_board_new``, by rotation, then translation): a later session may number such a board from another
+    corner. Identity when there is no installed board or no turn."""
+    H = [np.eye(4)] + [np.asarray(F, float) for F in turns]
+    if T_board_installed is None or len(H) == 1:
+        return H[0]
+    d = [pose_error(T_board_installed @ h, T_board_new) for h in H]
+    return H[min(range(len(H)), key=lambda i: (round(d[i][0], 1), d[i][1]))]
+
+
 def board_from_views(mode: str, T_x: np.ndarray, T_base_end: np.ndarray, T_cam_board: np.ndarray) -> np.ndarray:
     """Per view (n,4,4) the board transform that ``T_x`` and the view imply: ``B_i = M_i^-1 X C_i``."""
     m = mounting(mode)
@@ -291,10 +304,13 @@ def board_from_views(mode: str, T_x: np.ndarray, T_base_end: np.ndarray, T_cam_b
 
 
 def verify_views(installed: LoadedResult, *, views: Sequence, object_points: np.ndarray,
-                 intrinsics: Optional[Intrinsics] = None, options: VerifyOptions = VerifyOptions()) -> Verification:
+                 intrinsics: Optional[Intrinsics] = None, options: VerifyOptions = VerifyOptions(),
+                 board_turns: Sequence[np.ndarray] = ()) -> Verification:
     """Test the installed calibration on ``views`` (:class:`handeye.refine.RefineView`, corners in the
     board's order). ``intrinsics``: the session's own (held fixed); None uses the installed ones with
-    their sigmas as a prior."""
+    their sigmas as a prior. ``board_turns``: the board-frame motions (4,4) of a symmetric board's other
+    numberings (:func:`handeye.diagnose.consistency.board_turns`); the installed board is compared in the turn
+    nearest the new views' (recorded in ``board["turn_deg"]`` and ``board["T_turn"]``)."""
     from ..initial import solve_pnp
     from ..refine import RefineOptions, refine
 
@@ -316,6 +332,8 @@ def verify_views(installed: LoadedResult, *, views: Sequence, object_points: np.
     E = np.stack([np.asarray(v.T_base_end, float) for v in views])
     B_views = board_from_views(mode, X0, E, C)
     B0 = mean_T(B_views)
+    H = nearest_board_turn(installed.T_board, B0, board_turns)
+    installed = installed.with_board_turned(H)
     rs_mm, rs_deg = installed.robot_sigma_mm or 0.0, installed.robot_sigma_deg or 0.0
     robot = installed_robot_model(installed)
     prior = with_installed_dh(prior, installed, robot, views)
@@ -332,6 +350,8 @@ def verify_views(installed: LoadedResult, *, views: Sequence, object_points: np.
     drifted = test.p_value < options.alpha
     change = change_in_result_frame(X0, test.change_xi, test.change_cov)
     board = _board_change(installed, r, mode, E, C, options, change)
+    if installed.T_board is not None:
+        board.update(T_turn=H, turn_deg=float(np.degrees(np.linalg.norm(rotvec_from_R(H[:3, :3])))))
     robot = _robot_disagreement(r)
     intr_d = _intrinsics_update(installed, r, session_intr)
     moved = what_moved(mode=mode, frame=installed.x_name, drifted=drifted, change=change, board=board, robot=robot,
@@ -576,6 +596,7 @@ def verify_session(session_path, against, *, options: VerifyOptions = VerifyOpti
                    progress=None) -> SessionVerification:
     """Detect the target in a short session (:func:`handeye.pipeline.observe`) and test the installed
     calibration ``against`` (a result folder, result.json or loaded dict) on it (:func:`verify_views`)."""
+    from ..diagnose.consistency import board_turns
     from ..pipeline import CalibrateOptions, observe, target_text
     from ..refine import RefineView
     from .loaded import load_result
@@ -603,7 +624,8 @@ def verify_session(session_path, against, *, options: VerifyOptions = VerifyOpti
     t1 = time.perf_counter()
     views = [RefineView(vid, bp.corner_ids, obs.detections[vid].image_points, s.view(vid).T_base_end,
                         s.view(vid).joint_angles) for vid, bp in obs.board_poses.items()]
-    v = verify_views(installed, views=views, object_points=s.target.object_points(), intrinsics=own, options=options)
+    v = verify_views(installed, views=views, object_points=s.target.object_points(), intrinsics=own, options=options,
+                     board_turns=[F for _, F in board_turns(s.target)])
     seconds = dict(obs.seconds, verify=time.perf_counter() - t1, total=time.perf_counter() - t0)
     return SessionVerification(verification=v, session_path=str(s.path), installed_source=installed.source,
                                outcomes=obs.ordered_outcomes(), target_text=target_text(s.target),
