@@ -124,8 +124,15 @@ def test_simulate_an_arm_further_from_its_table(tmp_path, capsys):
     capsys.readouterr()
     assert main(["simulate", str(tmp_path / "iid"), "--views", "3", "--dh-error", "1", "0.1"]) == 2
     assert "add --robot-error kinematic" in capsys.readouterr().err
-    assert main(["simulate", str(tmp_path / "neg"), "--views", "3", "--robot-error", "kinematic",
-                 "--encoder-sigma", "-1"]) == 2
+    for flag, values, words in (("--encoder-sigma", ["-1"], "--encoder-sigma must be"),
+                                ("--encoder-sigma", ["inf"], "--encoder-sigma must be"),
+                                ("--dh-error", ["inf", "0.1"], "--dh-error must be"),
+                                ("--dh-error", ["1", "nan"], "--dh-error must be")):
+        assert main(["simulate", str(tmp_path / "bad"), "--views", "3", "--robot-error", "kinematic", flag]
+                    + values) == 2, (flag, values)
+        err = capsys.readouterr().err
+        assert words in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "bad").exists()
 
 
 def test_demo_reports_its_error_against_the_truth(tmp_path, capsys):

@@ -657,10 +657,11 @@ def test_the_plan_counts_on_the_test_verify_runs():
     assert test_power(1e-9, alpha=0.05, noise_dof=30.0) == pytest.approx(0.05, abs=1e-3)  # no drift: the level
 
 
-def test_verify_compares_a_symmetric_board_in_the_installed_numbering(install):
+def test_verify_turns_the_installed_board_into_the_sessions_numbering(install):
     """A later session may number a symmetric board from the other corner: its board frame is the installed
-    one turned by 180 degrees. Verify compares the boards in the turn nearest the new one (the board did not
-    move), not 180 degrees and the board's size apart; X's test does not depend on the board's frame."""
+    one turned by 180 degrees. Verify turns the installed board pose into the new numbering (the turn nearest
+    the new one) before comparing (the board did not move), not 180 degrees and the board's size apart; X's
+    test does not depend on the board's frame."""
     from handeye.diagnose.consistency import _rigid_motion
     from handeye.recal.verify import nearest_board_turn, verify_views
     from handeye.refine import RefineView
@@ -677,16 +678,40 @@ def test_verify_compares_a_symmetric_board_in_the_installed_numbering(install):
     assert plain_v.board["moved"] and plain_v.board["rot_deg"] > 170  # without the turns: a false "moved"
     v = verify_views(inst, views=turned, object_points=obj, board_turns=[F])
     assert v.board["turn_deg"] == pytest.approx(180.0) and not v.board["moved"]
+    np.testing.assert_allclose(v.board["installed"], inst.T_board)  # result.json's, and the same board turned
+    np.testing.assert_allclose(v.board["installed_in_session_numbering"], inst.T_board @ F)
     assert v.board["trans_mm"] < 3 * v.board["sigma_trans_mm"] + 1.0
     assert v.verdict == "still valid" and v.test.statistic == pytest.approx(plain_v.test.statistic, rel=1e-6)
     same = verify_views(inst, views=views, object_points=obj, board_turns=[F])  # numbered as installed: no turn
     assert same.board["turn_deg"] == pytest.approx(0.0) and not same.board["moved"]
-    # the turned result carries the board's covariance along: the same uncertainty, seen from the turned frame
+    assert np.array_equal(nearest_board_turn(None, inst.T_board, [F]), np.eye(4))  # no installed board: no turn
+
+
+def test_a_turned_board_pose_carries_its_covariance_along(install):
+    """``with_board_turned(H)``: the board pose T H and the covariance of its right tangent as seen from the
+    turned frame, checked by sampling T Exp(xi) H for a quarter turn of a square grid (a half turn is its own
+    inverse and cannot tell H from H^-1); the cross-covariance with the intrinsics follows the board."""
+    from handeye.diagnose.consistency import board_turns
+    from handeye.frames import se3_exp, tangent_difference
+    from handeye.targets import ChessboardSpec
+
+    _, res = install
+    inst = load_result(res)
+    turns = board_turns(ChessboardSpec(cols=7, rows=7, square_m=0.03))
+    name, F = next((n, F) for n, F in turns if n in ("90 deg", "-90 deg", "270 deg"))
     t = inst.with_board_turned(F)
     np.testing.assert_allclose(t.T_board, inst.T_board @ F)
-    assert np.trace(t.board_joint[0][3:, 3:]) > 0 and np.allclose(np.linalg.eigvalsh(t.board_joint[0][:3, :3]),
-                                                                   np.linalg.eigvalsh(inst.board_joint[0][:3, :3]))
-    assert np.array_equal(nearest_board_turn(None, inst.T_board, [F]), np.eye(4))  # no installed board: no turn
+    C, K = inst.board_joint
+    rng = np.random.default_rng(4)
+    L = np.linalg.cholesky(C)
+    xi = rng.standard_normal((20000, 6)) @ L.T
+    seen = tangent_difference(inst.T_board @ F, inst.T_board @ se3_exp(xi) @ F)  # (n, 6)
+    S = np.cov(seen.T)
+    rel = np.abs(S - t.board_joint[0]) / np.sqrt(np.outer(np.diag(S), np.diag(S)))
+    assert rel.max() < 0.05, (name, rel.max())
+    # the intrinsics' cross-covariance: the board's tangent is a linear map of xi, so is its covariance with k
+    A = np.linalg.lstsq(xi, seen, rcond=None)[0].T  # (6, 6) from sampling
+    np.testing.assert_allclose(t.board_joint[1], A @ K, atol=0.05 * np.abs(A @ K).max())
 
 
 def test_a_kept_board_prior_is_taken_in_the_new_sessions_numbering(rendered, tmp_path, monkeypatch, capsys):
@@ -721,7 +746,15 @@ def test_a_kept_board_prior_is_taken_in_the_new_sessions_numbering(rendered, tmp
     capsys.readouterr()
     res = json.loads((out / "result.json").read_text())
     p = res["prior"]
-    assert p["contradicted"] and p["board_prior"] is True, p["used"]
+    assert p["contradicted"] and p["board_prior"] is True and p["board_turn_deg"] == pytest.approx(180.0), p["used"]
     rot, trans = pose_error(np.array(res["T_base_board"]), np.array(installed["T_base_board"]))
     sd = 1000 * np.sqrt(np.trace(np.array(installed["refinement"]["cov_board_6x6"])[3:, 3:]))
     assert trans < 3 * sd and rot < 1.0, (trans, rot, sd)
+    # the same as with the install in the session's own numbering: the board's pose and covariance came across
+    main(["-q", "calibrate", str(rendered["bumped"]), "--prior", str(rendered["installed"]), "--out",
+          str(tmp_path / "plain"), "--board-unmoved", "--no-report"])
+    capsys.readouterr()
+    ref = json.loads((tmp_path / "plain" / "result.json").read_text())
+    assert ref["prior"]["board_prior"] is True and ref["prior"]["board_turn_deg"] == pytest.approx(0.0)
+    rot, trans = pose_error(np.array(res["T_end_cam"]), np.array(ref["T_end_cam"]))
+    assert trans < 1e-4 and rot < 1e-5, (trans, rot)

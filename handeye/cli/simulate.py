@@ -48,7 +48,7 @@ def add_arguments(p) -> None:
                         "each drawn between a fifth of it and it (default 0.5 0.05: a factory-calibrated arm; "
                         "larger: an arm further from its table than its preset states)")
     p.add_argument("--encoder-sigma", type=float, metavar="DEG", default=None,
-                   help="kinematic: encoder noise per joint and view (default 0.005 deg)")
+                   help="kinematic: encoder noise per joint and view, 0-1 deg (default 0.005)")
     p.add_argument("--hidden", nargs="*", default=[], metavar="ID", help="views rendered without the board")
     p.add_argument("--outliers", nargs="*", default=[], metavar="ID", help="views given a wrong robot pose")
     p.set_defaults(func=run)
@@ -67,13 +67,14 @@ def run(args) -> int:
                               received=f"--robot-error {args.robot_error}", hint="add --robot-error kinematic")
         if args.dh_error is not None:
             mm, deg = (float(x) for x in args.dh_error)
-            if not (mm >= 0 and deg >= 0):
-                raise ConfigError("--dh-error must be two non-negative numbers (mm, deg)", received=f"{mm} {deg}")
+            if not (0 <= mm <= 100 and 0 <= deg <= 10):
+                raise ConfigError("--dh-error must be two numbers, 0-100 mm and 0-10 deg",
+                                  expected="the largest DH length and angle error, e.g. 2.5 0.25", received=f"{mm} {deg}")
             kin.update(dh_length_error_mm=(mm / 5, mm), dh_angle_error_deg=(deg / 5, deg))
         if args.encoder_sigma is not None:
-            if not args.encoder_sigma >= 0:
-                raise ConfigError("--encoder-sigma must be a non-negative number of degrees",
-                                  received=str(args.encoder_sigma))
+            if not 0 <= args.encoder_sigma <= 1:
+                raise ConfigError("--encoder-sigma must be a number of degrees between 0 and 1",
+                                  expected="e.g. 0.005", received=str(args.encoder_sigma))
             kin["encoder_sigma_deg"] = float(args.encoder_sigma)
     path = write_vendor_session(args.out, mode=args.mode, n_views=args.views, seed=args.seed,
                                 image_noise=args.noise_px, blur_sigma_px=args.blur,

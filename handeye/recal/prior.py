@@ -140,6 +140,16 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
         else installed
     s_n, opts_n = _with_prior(session, options, board_from, cov_x=VAGUE_COV_X, board=board_kept)
     run_n = run_calibration(s_n, opts_n, progress=progress)
+    if board_kept and any(getattr(bp, "orientation", 0) != getattr(run.board_poses.get(vid), "orientation", 0)
+                          for vid, bp in run_n.board_poses.items()):
+        # the run numbered the board otherwise than the views verify turned the earlier board pose for: that pose
+        # does not apply (the runs number the same detections alike; this guards the assumption)
+        log.warning("prior: the board was numbered otherwise in the calibration run; calibrating without its pose")
+        board_kept = False
+        s_n, opts_n = _with_prior(session, options, installed, cov_x=VAGUE_COV_X, board=False)
+        run_n = run_calibration(s_n, opts_n, progress=progress)
+    if board_kept:
+        rec["board_turn_deg"] = float(v.board.get("turn_deg", 0.0))
     rec["used"] = ("no prior on X (the new views with the prior's intrinsics and board pose: the board did not move)"
                    if board_kept else "no prior on X (the new views alone; the prior's intrinsics kept)")
     rec["board_prior"] = board_kept

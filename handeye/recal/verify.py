@@ -309,8 +309,9 @@ def verify_views(installed: LoadedResult, *, views: Sequence, object_points: np.
     """Test the installed calibration on ``views`` (:class:`handeye.refine.RefineView`, corners in the
     board's order). ``intrinsics``: the session's own (held fixed); None uses the installed ones with
     their sigmas as a prior. ``board_turns``: the board-frame motions (4,4) of a symmetric board's other
-    numberings (:func:`handeye.diagnose.consistency.board_turns`); the installed board is compared in the turn
-    nearest the new views' (recorded in ``board["turn_deg"]`` and ``board["T_turn"]``)."""
+    numberings (:func:`handeye.diagnose.consistency.board_turns`); the installed board pose is turned into the
+    new views' numbering (the turn nearest theirs) before the comparison (``board["turn_deg"]``,
+    ``board["T_turn"]``, ``board["installed_in_session_numbering"]``; ``board["installed"]`` is result.json's)."""
     from ..initial import solve_pnp
     from ..refine import RefineOptions, refine
 
@@ -333,7 +334,8 @@ def verify_views(installed: LoadedResult, *, views: Sequence, object_points: np.
     B_views = board_from_views(mode, X0, E, C)
     B0 = mean_T(B_views)
     H = nearest_board_turn(installed.T_board, B0, board_turns)
-    installed = installed.with_board_turned(H)
+    installed_T_board = installed.T_board
+    installed = installed.with_board_turned(H)  # its board pose in the new views' numbering
     rs_mm, rs_deg = installed.robot_sigma_mm or 0.0, installed.robot_sigma_deg or 0.0
     robot = installed_robot_model(installed)
     prior = with_installed_dh(prior, installed, robot, views)
@@ -350,8 +352,9 @@ def verify_views(installed: LoadedResult, *, views: Sequence, object_points: np.
     drifted = test.p_value < options.alpha
     change = change_in_result_frame(X0, test.change_xi, test.change_cov)
     board = _board_change(installed, r, mode, E, C, options, change)
-    if installed.T_board is not None:
-        board.update(T_turn=H, turn_deg=float(np.degrees(np.linalg.norm(rotvec_from_R(H[:3, :3])))))
+    if installed.T_board is not None:  # result.json's board, and the same board in this session's numbering
+        board.update(installed=installed_T_board, installed_in_session_numbering=installed.T_board, T_turn=H,
+                     turn_deg=float(np.degrees(np.linalg.norm(rotvec_from_R(H[:3, :3])))))
     robot = _robot_disagreement(r)
     intr_d = _intrinsics_update(installed, r, session_intr)
     moved = what_moved(mode=mode, frame=installed.x_name, drifted=drifted, change=change, board=board, robot=robot,
