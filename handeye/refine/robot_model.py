@@ -12,7 +12,8 @@ true pose. Kinds (``RobotModel.kind``):
   ``delta`` (one per DH parameter, ``(a, alpha, d, theta_offset)`` per joint) and each joint reading by
   encoder noise ``e_i``: ``u_i = J_dh,i · delta + J_q,i · e_i`` to first order (the DH and joint
   Jacobians at the view's joint angles, carried through a constant tool offset, see below), with
-  ``delta ~ N(0, diag(sigma_dh^2))`` (the arm's ``error_prior``) and ``e_i ~ N(0, s_q^2 I)``. So the
+  ``delta ~ N(0, diag(sigma_dh^2))`` (the arm's ``error_prior``, its scale estimated where the views
+  contradict it: :func:`handeye.refine.noise._dh_prior_test`) and ``e_i ~ N(0, s_q^2 I)``. So the
   per-view prior of ``P_i`` is ``u_i - J_dh,i · delta ~ N(0, s_q^2 B_i)``, ``B_i = J_q,i J_q,i^T``
   (+ a tiny ridge), and ``delta`` is an unknown of the core shared by every view: estimated jointly
   with ``T_x`` where the views resolve it, and held by its prior where they do not (a flange-length
