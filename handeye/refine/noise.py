@@ -130,9 +130,10 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
         w_px = 1.0 / s[0] ** 2
         W = sum(w / sg ** 2 for w, sg in zip(W0, s[1:]))  # shape (n, 6, 6): robot prior information
         Wr = np.einsum("nij,nj->ni", W, lin.xi)
-        HKi, gKi = HK.copy(), gK.copy()
+        HKi, gKi = HK, gK
         if m:  # the DH offsets' prior at its scale k_dh
             H_dd, g_d = pb.dh_prior_information(k_dh)
+            HKi, gKi = HK.copy(), gK.copy()
             HKi[dh, dh] += H_dd
             gKi[dh] += g_d
         Hcc = lin.Hcc * w_px + HKi
@@ -242,7 +243,7 @@ def _dh_scale(pb: "Problem", delta: np.ndarray, S_dd: np.ndarray, k: float) -> f
     reach ``T_x``'s covariance through it, so data on the resolved ones may widen it, not narrow it. Where the
     views no longer resolve enough of the offsets (``noise.unresolved_redundancy_share``), the scale is held."""
     m = delta.size
-    W = np.linalg.inv(pb.dh_prior_stated)
+    W = pb.dh_info_stated
     r = m - float(np.sum(W * S_dd)) / k ** 2
     if r < float(_cfg()["unresolved_redundancy_share"]) * m:
         return k

@@ -165,6 +165,7 @@ class Problem:
         # the arm's stated DH error prior (scale 1), and the scale it is used at: 1 unless the views contradict it,
         # then estimated (handeye.refine.noise); the test's outcome in dh_scale_test
         self.dh_prior_stated = self.prior_dh[1].copy()
+        self.dh_info_stated = np.linalg.inv(self.dh_prior_stated) if self.m_dh else np.zeros((0, 0))  # its inverse
         self.dh_scale = 1.0
         self.dh_scale_test: dict = {}
         self.dh_scale_dof: Optional[float] = None  # redundancy of the estimated scale (handeye.refine.noise._dh_scale)
@@ -226,7 +227,7 @@ class Problem:
         """Information (m,m) and gradient (m,) of the DH offsets' prior at the current offsets, with the prior at
         ``k`` times the stated sigmas (None: the scale in use); the terms of the graph's prior factor on them."""
         k = self.dh_scale if k is None else float(k)
-        W = np.linalg.inv(self.dh_prior_stated) / k ** 2
+        W = self.dh_info_stated / k ** 2
         return W, W @ (self.dh - self.prior_dh[0])
 
     # -- robot error model (handeye.refine.robot_model)
