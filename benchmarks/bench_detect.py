@@ -15,7 +15,8 @@ a view without the board under a 1 ms time budget (dropped as timed out). On the
 ../shared/data (--shared): the chessboard sets' corners against findChessboardCornersSB (EXHAUSTIVE |
 ACCURACY) where both detect, and the geometric check's worst corner (px and share of its limit) on every
 set, ChArUco and circle grid included (the figures behind grid_check_max_px), and for the corners over
-1 px from SB which of the two lies nearer its neighbours' homography; the ViSP views rendered again from
+1 px from SB which of the two lies nearer its neighbours' homography, and cv2.calibrateCamera's RMS with
+each detector's corners (which corners a camera model explains better); the ViSP views rendered again from
 their solvePnP poses, both detectors against that truth (which one is off where they disagree). The
 rendered and real chessboard figures are printed for both refinement stages and for the cornerSubPix
 stage alone (time in the same process, so the ratio holds under any load).
@@ -367,10 +368,14 @@ def _against_accurate_sb(folder: Path, size: tuple, K: np.ndarray | None = None)
     (SB may number the board from the other end: the nearer numbering is compared), the corners not used,
     the time of each (and of detect_gray with the cornerSubPix stage only), and for the corners over 1 px
     from SB which of the two agrees with its board neighbours (the geometric check's residual) and, given
-    the camera matrix ``K``, with the board pose solvePnP fits to each detector's corners of the view."""
+    the camera matrix ``K``, with the board pose solvePnP fits to each detector's corners of the view. Last,
+    which corners a camera model explains better: cv2.calibrateCamera on the views both detect, once with
+    each detector's corners (the RMS reprojection error of each)."""
     spec = ChessboardSpec(size[0], size[1], 1.0)
     bxy, o = board_squares(spec), default_options()
     d_max, n_both, n_img, ours_s, one_s, sb_s, checks, n_used, apart = [], 0, 0, 0.0, 0.0, 0.0, [], 0, []
+    calib = ([], [], [])  # board points, our corners, SB's, per view both detect
+    image_size = None
     for p in sorted(q for q in folder.rglob("*") if q.suffix.lower() in (".png", ".jpg", ".jpeg")):
         g = read_gray(p)
         n_img += 1
@@ -395,6 +400,9 @@ def _against_accurate_sb(folder: Path, size: tuple, K: np.ndarray | None = None)
         checks.append(check_corners(bxy[ids], pts, o))
         ref = ref.reshape(-1, 2).astype(np.float64)
         ref = min((ref, ref[::-1]), key=lambda r: np.max(np.linalg.norm(pts - r[ids], axis=1)))
+        image_size = (g.shape[1], g.shape[0])
+        for lst, a in zip(calib, (spec.object_points()[ids], pts, ref[ids])):
+            lst.append(np.asarray(a, np.float32))
         d = np.linalg.norm(pts - ref[ids], axis=1)
         d_max.append(d)
         n_both += 1
@@ -416,6 +424,10 @@ def _against_accurate_sb(folder: Path, size: tuple, K: np.ndarray | None = None)
         print(f"    a corner {'' if ours < theirs else 'NOT '}nearer its neighbours' homography than SB's: "
               f"{ours:.2f} px against SB's {theirs:.2f} px" + ("" if np.isnan(pnp_ours) else
               f"; from the view's solvePnP pose {pnp_ours:.2f} px against SB's {pnp_sb:.2f} px"))
+    if len(calib[0]) >= 3:
+        rms = [cv2.calibrateCamera(calib[0], c, image_size, None, None)[0] for c in calib[1:]]
+        print(f"    cv2.calibrateCamera on the {len(calib[0])} views both detect: RMS {rms[0]:.3f} px with detect_gray's "
+              f"corners, {rms[1]:.3f} px with SB's")
     _print_checks(folder.name, checks)
 
 

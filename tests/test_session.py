@@ -50,6 +50,49 @@ def test_vendor_gap_keeps_later_pairs(tmp_path):
     assert s.meta["missing_images"] == {"2": 2}
 
 
+def test_vendor_images_numbered_from_zero_pair_image_k_with_line_k_plus_1(tmp_path):
+    d = vendor(tmp_path)
+    for k in range(1, 5):  # 1.jpg..4.jpg -> 0.jpg..3.jpg, each image a distinct file
+        (d / f"{k}.jpg").write_bytes(f"image {k}".encode())
+    for k in range(1, 5):
+        (d / f"{k}.jpg").rename(d / f"{k - 1}.jpg")
+    (d / "2.jpg").unlink()  # the third pose line's image deleted
+    s = load_session(d)
+    assert [v.view_id for v in s.views] == ["0", "1", "3"]
+    for v in s.views:
+        assert v.image_path.read_bytes() == f"image {int(v.view_id) + 1}".encode()
+        np.testing.assert_allclose(v.T_base_end, POSES[int(v.view_id)], atol=1e-8)
+    assert s.meta["missing_images"] == {"2": 3}
+    lenient = read_session_lenient(d)  # the diagnostics read the same pairing
+    assert set(lenient.raw.values) == {"0", "1", "2", "3"}
+    for v in s.views:
+        np.testing.assert_allclose(T_from_pose_values(lenient.raw.values[v.view_id], lenient.raw.fmt), v.T_base_end,
+                                   atol=1e-12)
+    (d / "4.jpg").write_bytes(b"x")  # 0..4 against four pose lines: the last image has none
+    with pytest.raises(InputError, match=r"4.jpg has no pose line -> line k\+1 of poses.txt belongs to k.jpg"):
+        load_session(d)
+
+
+@pytest.mark.parametrize("header", ["x,y,z,rx,ry,rz", "x y z rx ry rz", "X,Y,Z,Rx,Ry,Rz"])
+def test_a_first_line_of_column_names_is_skipped(tmp_path, header):
+    good = [",".join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)) for T in POSES]
+    s = load_session(vendor(tmp_path, lines=[header, *good]))
+    assert [v.source_line for v in s.views] == [2, 3, 4, 5]
+    for v, T in zip(s.views, POSES):
+        np.testing.assert_allclose(v.T_base_end, T, atol=1e-8)
+
+
+@pytest.mark.parametrize("lines,match", [
+    (["x,y,z,rx,ry,rz", "x,y,z,rx,ry,rz"], r"poses.txt:2: malformed pose line"),  # only the first line
+    (["nan,nan,nan,nan,nan,nan"], r"poses.txt:1: pose line holds a value that is not a usable number"),
+    (["x,0.1,0.2,0,0,0"], r"poses.txt:1: malformed pose line"),  # names and numbers mixed: not a header
+])
+def test_only_a_first_line_of_names_is_a_header(tmp_path, lines, match):
+    good = [",".join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)) for T in POSES]
+    with pytest.raises(InputError, match=match):
+        load_session(vendor(tmp_path, lines=[*lines, *good]))
+
+
 def test_vendor_mode_key_and_override(tmp_path):
     d = vendor(tmp_path, config={"checkerboard_args": {"XX": 11, "YY": 8, "L": 0.03}, "mode": "eye_to_hand"})
     assert load_session(d).mode == "eye_to_hand"

@@ -178,7 +178,8 @@ def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = F
         s, fit, keep = best
         direction = f"+{s}" if s > 0 else str(s)
         kind_hint = (f"the first {s} pose line(s) belong to no image: delete them" if s > 0 else
-                     f"the pose(s) of the first {-s} image(s) are missing: pose line 1 holds image {1 - s}'s pose")
+                     f"the pose(s) of the first {-s} image(s) are missing: the first pose line holds the pose of the "
+                     f"image {-s} after the first")
         return [Finding(
             "pairs_shifted", "fail", f"Images and robot poses are out of step by {abs(s)}: image k belongs to pose "
                                      f"k{direction}",

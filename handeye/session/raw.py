@@ -21,7 +21,7 @@ from ..records import Session, view_id_key
 from ..targets import TargetSpec
 from .fields import check_mode, locate_session
 from .native import files_folder, read_native_document, view_image_path, view_pose_values
-from .vendor import VENDOR_DEFAULT_MODE, numbered_images, read_pose_lines, read_vendor_config
+from .vendor import VENDOR_DEFAULT_MODE, first_image_number, numbered_images, read_pose_lines, read_vendor_config
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +69,11 @@ def read_raw_poses(path: str | Path) -> Optional[RawPoses]:
 
 
 def _raw_vendor(folder: Path) -> RawPoses:
-    lines = read_pose_lines(folder / "poses.txt")
+    try:
+        first = first_image_number(numbered_images(folder))
+    except HandeyeError:  # no numbered images: the poses keep the vendor's numbering
+        first = 1
+    lines = read_pose_lines(folder / "poses.txt", first=first)
     values = {str(pl.index): pl.values for pl in lines}
     return RawPoses(VENDOR_POSE_FORMAT, values, tuple(values), str(folder / "poses.txt"))
 

@@ -1,5 +1,7 @@
 """The vendor session folder as it is: ``config.yaml`` (board), ``poses.txt`` (one pose line per image,
 ``x,y,z,rx,ry,rz`` in metres and radians) and numbered images ``1.jpg, 2.jpg, ...`` (line k <-> image k).
+Images numbered from 0 (``0.jpg, 1.jpg, ...``, as a loop over range(N) writes them) pair image k with line k+1;
+a first line of column names (``x,y,z,rx,ry,rz``) is skipped like a ``#`` comment.
 
 :func:`read_pose_lines`, :func:`read_vendor_config` and :func:`numbered_images` are the only parsers of
 these files; the strict loader (:func:`load_vendor_session`) and the lenient reader of the diagnostics
@@ -33,33 +35,52 @@ VENDOR_DEFAULT_MODE = "eye_in_hand"
 
 @dataclass(frozen=True)
 class PoseLine:
-    """One pose line of poses.txt: its 1-based number among the pose lines (= its image number), the
-    line number in the file and the numbers as written."""
+    """One pose line of poses.txt: its image's number (the pose lines counted from the first image's
+    number), the line number in the file and the numbers as written."""
 
     index: int
     lineno: int
     values: np.ndarray  # (n,) as written, no unit conversion
 
 
-def read_pose_lines(poses_path: Path) -> list[PoseLine]:
-    """The pose lines of poses.txt (blank lines and ``#`` comments skipped); InputError on a line that is
-    not numbers. Counts and units are not checked here."""
+def read_pose_lines(poses_path: Path, *, first: int = 1) -> list[PoseLine]:
+    """The pose lines of poses.txt (blank lines, ``#`` comments and a first line of column names skipped),
+    numbered from ``first`` (the number of the first image: :func:`first_image_number`); InputError on a
+    line that is not numbers. Counts and units are not checked here."""
     raw_lines = read_text(poses_path, what="poses.txt").splitlines()
     out: list[PoseLine] = []
+    header_seen = False
     for lineno, line in enumerate(raw_lines, start=1):
         s = line.strip()
         if not s or s.startswith("#"):
             continue
+        fields = [f for f in re.split(r"[,\s]+", s) if f]
+        if not out and not header_seen and _is_header(fields):
+            header_seen = True
+            log.debug("%s:%d: column names skipped: %s", poses_path, lineno, s[:80])
+            continue
         try:
-            values = np.array([float(f) for f in re.split(r"[,\s]+", s) if f])
+            values = np.array([float(f) for f in fields])
         except ValueError:
             raise InputError("malformed pose line", path=poses_path, line=lineno,
                              expected=_POSE_EXPECTED, received=repr(s[:80])) from None
         check_finite(values, path=poses_path, line=lineno, what="pose line")
-        out.append(PoseLine(len(out) + 1, lineno, values))
+        out.append(PoseLine(len(out) + first, lineno, values))
     if not out:
         raise InputError("poses.txt has no pose lines", path=poses_path, expected="one line x,y,z,rx,ry,rz per image")
     return out
+
+
+def _is_header(fields: list[str]) -> bool:
+    """A line of column names: every field a name (a letter first), none a number (``nan`` and ``inf``
+    are numbers here, so a pose line holding them is still refused as not finite)."""
+    def number(f: str) -> bool:
+        try:
+            float(f)
+            return True
+        except ValueError:
+            return False
+    return bool(fields) and all(f[0].isalpha() and not number(f) for f in fields)
 
 
 def read_vendor_config(folder: Path, *, strict: bool = True) -> tuple[ChessboardSpec, str | None, dict]:
@@ -97,12 +118,15 @@ def numbered_images(folder: Path) -> dict[int, Path]:
             if k in found:
                 raise InputError(f"two images for view {k}: {found[k].name} and {f.name}", path=folder,
                                  hint="keep one image per number")
-            if k < 1:
-                raise InputError("image numbering starts at 1", path=f, hint="rename 0.jpg to 1.jpg etc.")
             found[k] = f
     if not found:
         raise InputError("no numbered images (1.jpg, 2.jpg, ...) in the folder", path=folder)
     return found
+
+
+def first_image_number(images: dict[int, Path]) -> int:
+    """The number of the first pose line's image: 0 when the images are numbered from 0, else 1."""
+    return 0 if 0 in images else 1
 
 
 def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Session:
@@ -112,8 +136,13 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
     sess_mode = check_mode(mode if mode is not None else (cfg_mode or VENDOR_DEFAULT_MODE), path=folder / "config.yaml")
 
     poses_path = folder / "poses.txt"
+    pose_lines = read_pose_lines(poses_path)
+    images = numbered_images(folder)
+    first = first_image_number(images)
+    if first == 0:
+        log.info("%s: images numbered from 0: image k is paired with pose line k+1", folder)
     poses: list[tuple[int, np.ndarray]] = []  # (line number, T)
-    for pl in read_pose_lines(poses_path):
+    for pl in pose_lines:
         try:
             T = T_from_pose_values(pl.values, VENDOR_POSE_FORMAT)
         except ValueError as e:
@@ -122,23 +151,24 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
         check_angle_units(pl.values[3:], path=poses_path, line=pl.lineno)
         poses.append((pl.lineno, T))
 
-    images = numbered_images(folder)
     n_pose = len(poses)
-    missing = [k for k in images if k > n_pose]
+    missing = [k for k in sorted(images) if k - first >= n_pose]
     if missing:
+        belongs = "line k of poses.txt belongs to k.jpg" if first else "line k+1 of poses.txt belongs to k.jpg (images numbered from 0)"
         raise InputError(f"{len(images)} images but {n_pose} pose lines: image {images[missing[0]].name} has no pose line",
-                         path=poses_path, hint="line k of poses.txt belongs to k.jpg; add the missing poses or remove the extra images")
+                         path=poses_path, hint=f"{belongs}; add the missing poses or remove the extra images")
     # Gaps are allowed: a pose line whose image was deleted stays in the session as a dropped view.
-    without_image = [k for k in range(1, n_pose + 1) if k not in images]
+    without_image = [k for k in range(first, first + n_pose) if k not in images]
     if without_image:
-        log.warning("%s: pose lines without an image (views dropped): %s", poses_path, without_image)
+        log.warning("%s: pose lines without an image (views dropped): %s", poses_path,
+                    [k + 1 - first for k in without_image])
     views = []
     for k in sorted(images):
-        lineno, T = poses[k - 1]
+        lineno, T = poses[k - first]
         check_input_file(images[k], what="image", vid=str(k))
         views.append(View(view_id=str(k), image_path=images[k], T_base_end=T, source_line=lineno))
     return Session(path=folder, format="vendor", mode=sess_mode, target=target, views=tuple(views),
                    pose_format=VENDOR_POSE_FORMAT.describe(),
                    mode_source="flag" if mode is not None else ("stated" if cfg_mode else "default"),
-                   meta={"config": cfg, "missing_images": {str(k): poses[k - 1][0] for k in without_image},
+                   meta={"config": cfg, "missing_images": {str(k): poses[k - first][0] for k in without_image},
                          "files_read": [folder / "config.yaml", poses_path, *(images[k] for k in sorted(images))]})

@@ -69,7 +69,8 @@ CASES = [
     pytest.param(lambda t: t + "0.5,0.1,0.4,0.1,0.2\x00,0.3\n", 2, ["poses.txt:7"], id="nul_byte"),
     pytest.param(lambda t: t + "[0.5, 0.1, 0.4, 0.1, 0.2, 0.3]\n", 2, ["poses.txt:7", "malformed"], id="json_list"),
     pytest.param(lambda t: t + "x=0.5 y=0.1 z=0.4\n", 2, ["poses.txt:7", "malformed"], id="key_value"),
-    pytest.param(lambda t: "x,y,z,rx,ry,rz\n" + t, 2, ["poses.txt:1", "malformed"], id="header_line"),
+    pytest.param(lambda t: "x,y,z,rx,ry,rz\n" + t, 0, [], id="header_line_is_skipped"),
+    pytest.param(lambda t: "x,y,z,rx,ry,rz\nx,y,z,rx,ry,rz\n" + t, 2, ["poses.txt:2", "malformed"], id="two_header_lines"),
     pytest.param(lambda t: t + "0.5,0.1,0.4,0.1,0.2,0.3\n" * 3, 0, [], id="extra_lines_are_dropped_views"),
 ]
 
