@@ -73,7 +73,7 @@ def test_vendor_images_numbered_from_zero_pair_image_k_with_line_k_plus_1(tmp_pa
         load_session(d)
 
 
-@pytest.mark.parametrize("header", ["x,y,z,rx,ry,rz", "x y z rx ry rz", "X,Y,Z,Rx,Ry,Rz"])
+@pytest.mark.parametrize("header", ["x,y,z,rx,ry,rz", "x y z rx ry rz", "x[m],y[m],z[m],rx(rad),ry(rad),rz(rad)"])
 def test_a_first_line_of_column_names_is_skipped(tmp_path, header):
     good = [",".join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)) for T in POSES]
     s = load_session(vendor(tmp_path, lines=[header, *good]))
@@ -86,6 +86,7 @@ def test_a_first_line_of_column_names_is_skipped(tmp_path, header):
     (["x,y,z,rx,ry,rz", "x,y,z,rx,ry,rz"], r"poses.txt:2: malformed pose line"),  # only the first line
     (["nan,nan,nan,nan,nan,nan"], r"poses.txt:1: pose line holds a value that is not a usable number"),
     (["x,0.1,0.2,0,0,0"], r"poses.txt:1: malformed pose line"),  # names and numbers mixed: not a header
+    (["x=0.5 y=0.1 z=0.4 rx=0 ry=0 rz=0"], r"poses.txt:1: malformed pose line"),  # values named: not a header
 ])
 def test_only_a_first_line_of_names_is_a_header(tmp_path, lines, match):
     good = [",".join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)) for T in POSES]

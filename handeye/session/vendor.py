@@ -28,6 +28,7 @@ log = logging.getLogger(__name__)
 
 IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 _NUMBERED = re.compile(r"^(\d+)$")
+_NAME = re.compile(r"^[A-Za-z_][\w()\[\]/.-]*$")  # a column name: x, rx, rx(rad), x[m]
 _POSE_EXPECTED = "x,y,z,rx,ry,rz (metres, radians)"
 #: the mode of a vendor session whose config.yaml states none (the vendor's rig is eye-in-hand)
 VENDOR_DEFAULT_MODE = "eye_in_hand"
@@ -72,7 +73,7 @@ def read_pose_lines(poses_path: Path, *, first: int = 1) -> list[PoseLine]:
 
 
 def _is_header(fields: list[str]) -> bool:
-    """A line of column names: every field a name (a letter first), none a number (``nan`` and ``inf``
+    """A line of column names: every field a name (a letter first, no ``=``), none a number (``nan`` and ``inf``
     are numbers here, so a pose line holding them is still refused as not finite)."""
     def number(f: str) -> bool:
         try:
@@ -80,7 +81,7 @@ def _is_header(fields: list[str]) -> bool:
             return True
         except ValueError:
             return False
-    return bool(fields) and all(f[0].isalpha() and not number(f) for f in fields)
+    return bool(fields) and all(_NAME.match(f) and not number(f) for f in fields)
 
 
 def read_vendor_config(folder: Path, *, strict: bool = True) -> tuple[ChessboardSpec, str | None, dict]:
