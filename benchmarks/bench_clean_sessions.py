@@ -26,7 +26,6 @@ import argparse
 import collections
 import sys
 import tempfile
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -89,24 +88,25 @@ def main() -> int:
     a.cache.mkdir(parents=True, exist_ok=True)
     cfgs = settings(a.seeds, a.first)
     counts = collections.defaultdict(collections.Counter)
-    with ProcessPoolExecutor(a.workers) as ex:
-        for k, r in enumerate(ex.map(run_one, cfgs, [str(a.cache)] * len(cfgs))):
-            cfg = cfgs[k]
-            key = f"{cfg['mode']:12s} noise {cfg['image_noise']:g}"
-            c = counts[key]
-            c["sessions"] += 1
-            c["failed"] += r["status"] != "ok"
-            c["fail/warn finding"] += bool(r["findings"])
-            c["robot-pose flag"] += bool(r["robot"])
-            c["view flag"] += bool(r["view"] or r["not_used"])
-            c["corner flags"] += r["corners"]
-            c["model underestimated"] += r["model_underestimated"]
-            c["verdict validated"] += r["sigma_source"] in ("validated", "model+validated")
-            c["max_mahalanobis_x100"] = max(c["max_mahalanobis_x100"], int(100 * r["robot_max_mahalanobis"]))
-            if r["status"] != "ok" or r["findings"] or r["robot"] or r["view"] or r["not_used"]:
-                print(f"{r['name']}: status {r['status']} findings {r['findings']} robot {r['robot']} "
-                      f"view {r['view']} not used {r['not_used']}", flush=True)
-            print(f"[{k + 1}/{len(cfgs)}] {r['name']}", file=sys.stderr, flush=True)
+    from fanout import ordered_map
+
+    for k, r in enumerate(ordered_map(run_one, cfgs, [str(a.cache)] * len(cfgs), workers=a.workers)):
+        cfg = cfgs[k]
+        key = f"{cfg['mode']:12s} noise {cfg['image_noise']:g}"
+        c = counts[key]
+        c["sessions"] += 1
+        c["failed"] += r["status"] != "ok"
+        c["fail/warn finding"] += bool(r["findings"])
+        c["robot-pose flag"] += bool(r["robot"])
+        c["view flag"] += bool(r["view"] or r["not_used"])
+        c["corner flags"] += r["corners"]
+        c["model underestimated"] += r["model_underestimated"]
+        c["verdict validated"] += r["sigma_source"] in ("validated", "model+validated")
+        c["max_mahalanobis_x100"] = max(c["max_mahalanobis_x100"], int(100 * r["robot_max_mahalanobis"]))
+        if r["status"] != "ok" or r["findings"] or r["robot"] or r["view"] or r["not_used"]:
+            print(f"{r['name']}: status {r['status']} findings {r['findings']} robot {r['robot']} "
+                  f"view {r['view']} not used {r['not_used']}", flush=True)
+        print(f"[{k + 1}/{len(cfgs)}] {r['name']}", file=sys.stderr, flush=True)
     total = collections.Counter()
     print(f"{'setting':22s} sessions failed fail/warn robot-pose view corners max-robot-Mahalanobis "
           "model-underestimated(info) verdict-validated")

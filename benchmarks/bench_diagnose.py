@@ -435,7 +435,7 @@ def forensics(n_seeds: int, root: Path, *, workers: int = 2, n_clean: int = 0, o
 
     Returns the number of failures: a fault not named with its code, a clean session with a fail/warn
     finding or a refusal, a wrong mode detection, a crashed stage."""
-    from concurrent.futures import ProcessPoolExecutor
+    from fanout import ordered_map
 
     cases = []
     n_clean = n_clean or 5 * n_seeds
@@ -452,8 +452,7 @@ def forensics(n_seeds: int, root: Path, *, workers: int = 2, n_clean: int = 0, o
             for seed in range(max(1, n_clean // (2 * len(FORENSIC_TARGETS)))):
                 cases.append(("clean", tname, mode, seed, str(root)))
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=workers) as ex:
-        rows = list(ex.map(_run_case, cases, chunksize=4))
+    rows = list(ordered_map(_run_case, cases, workers=workers))
     bad = 0
     print(f"forensics: {len(rows)} corner-level sessions ({time.perf_counter() - t0:.0f} s, {workers} workers)")
     print(f"  {'fault':46s} {'expected':15s} named / sessions   (per target)")
@@ -501,7 +500,7 @@ def main(argv=None) -> int:
     ap.add_argument("--no-accuracy", action="store_true", help="skip the false-alarm and sensitivity runs")
     ap.add_argument("--forensics", type=int, metavar="N", default=None,
                     help="the injected-fault table: N sessions per fault (>= 50 for the full figures; --quick: 8)")
-    ap.add_argument("--workers", type=int, default=2, help="processes for --forensics")
+    ap.add_argument("--workers", type=int, default=2, help="Dask worker processes for --forensics (1: in this process)")
     ap.add_argument("--only", default="", help="--forensics: only the faults whose name contains this ('clean': "
                                                "only the clean sessions)")
     a = ap.parse_args(argv)

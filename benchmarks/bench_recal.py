@@ -147,7 +147,6 @@ import argparse
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -471,17 +470,12 @@ def run_pool(fn, tasks, jobs, jsonl=None):
             sink.write(json.dumps(r, default=float) + "\n")
             sink.flush()
 
-    if jobs > 1:
-        with ProcessPoolExecutor(jobs) as ex:
-            for k, r in enumerate(ex.map(fn, tasks, chunksize=1)):
-                keep(r)
-                if (k + 1) % 20 == 0:
-                    print(f"  {k + 1}/{len(tasks)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
-    else:
-        for k, t in enumerate(tasks):
-            keep(fn(t))
-            if (k + 1) % 20 == 0:
-                print(f"  {k + 1}/{len(tasks)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+    from fanout import ordered_map
+
+    for k, r in enumerate(ordered_map(fn, tasks, workers=jobs)):
+        keep(r)
+        if (k + 1) % 20 == 0:
+            print(f"  {k + 1}/{len(tasks)} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     if sink is not None:
         sink.close()
     return out

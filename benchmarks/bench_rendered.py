@@ -32,7 +32,6 @@ import shutil
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -271,10 +270,11 @@ def main(argv=None) -> int:
     print(f"# bench_rendered: sessions {ks[0]}..{ks[-1]}, {args.workers} workers")
     print(f"# command: python {' '.join(sys.argv)}")
     rows = []
-    with ProcessPoolExecutor(args.workers) as pool:
-        for r in pool.map(run_one, ks, [args.keep] * len(ks)):
-            rows.append(r)
-            print(_line(r), flush=True)
+    from fanout import ordered_map
+
+    for r in ordered_map(run_one, ks, [args.keep] * len(ks), workers=args.workers):
+        rows.append(r)
+        print(_line(r), flush=True)
     summarize(rows)
     for mode in ("eye_in_hand", "eye_to_hand"):
         summarize([r for r in rows if r["cfg"]["mode"] == mode], mode)

@@ -64,7 +64,6 @@ import argparse
 import json
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -207,17 +206,18 @@ def main(argv=None) -> int:
     if args.summarize:
         rows = [json.loads(line) for f in args.summarize for line in f.read_text().splitlines() if line.strip()]
         tasks = []
-    with ProcessPoolExecutor(max(1, args.jobs)) as pool:
-        for r in pool.map(one_session, tasks):
-            rows.append(r)
-            if args.jsonl:
-                with open(args.jsonl, "a") as f:
-                    f.write(json.dumps(r) + "\n")
-            if "skipped" in r:
-                print(f"  {r['model']} {r['mode']} seed {r['seed']}: not simulated: {r['skipped']}", file=sys.stderr)
-                continue
-            print(f"  {r['model']} {r['mode']} seed {r['seed']}: {r['rot']:.4f} deg {r['trans']:.3f} mm, "
-                  f"maha2 {r['maha2']:.1f}, {r['secs']:.1f} s", file=sys.stderr, flush=True)
+    from fanout import ordered_map
+
+    for r in ordered_map(one_session, tasks, workers=args.jobs if tasks else 1):
+        rows.append(r)
+        if args.jsonl:
+            with open(args.jsonl, "a") as f:
+                f.write(json.dumps(r) + "\n")
+        if "skipped" in r:
+            print(f"  {r['model']} {r['mode']} seed {r['seed']}: not simulated: {r['skipped']}", file=sys.stderr)
+            continue
+        print(f"  {r['model']} {r['mode']} seed {r['seed']}: {r['rot']:.4f} deg {r['trans']:.3f} mm, "
+              f"maha2 {r['maha2']:.1f}, {r['secs']:.1f} s", file=sys.stderr, flush=True)
     for model in args.models if not args.summarize else [m for m in MODELS if any(r["model"] == m for r in rows)]:
         for mode in args.modes:
             summarize(mode, model, rows)
