@@ -20,6 +20,13 @@ def load_preset(name: str) -> dict:
 
 
 @functools.lru_cache(maxsize=None)
+def arm_presets() -> tuple:
+    """Names of the shipped arm tables (``configs/robots/<name>.yaml``: ``rm65``, ``ur5e``, ...), sorted."""
+    folder = resources.files("handeye.configs").joinpath("robots")
+    return tuple(sorted(f.name[:-5] for f in folder.iterdir() if f.name.endswith(".yaml")))
+
+
+@functools.lru_cache(maxsize=None)
 def _parsed_preset(name: str) -> dict:
     try:
         text = resources.files("handeye.configs").joinpath(f"{name}.yaml").read_text(encoding="utf-8")

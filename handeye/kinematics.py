@@ -20,7 +20,8 @@ product, so each column is that screw carried to the end frame by the adjoint of
 chain; the tests check them against central differences.
 
 Shipped presets (``configs/robots/<name>.yaml``, table units mm and deg, each citing its source):
-``rm65`` (RealMan RM65-B, modified DH) and ``ur5e`` (Universal Robots UR5e, standard DH);
+``rm65`` (RealMan RM65-B, modified DH) and Universal Robots' ``ur3``, ``ur3e``, ``ur5``, ``ur5e``, ``ur10``,
+``ur10e``, ``ur16e`` (standard DH);
 :func:`load_arm` reads them, a file of the same form, or the JSON form other tools write (``robot_name``,
 ``dh_convention``, ``units: {length, angle}``, ``joints: [...]``).
 """
@@ -32,12 +33,13 @@ from typing import Optional, Sequence, Union
 
 import numpy as np
 
+from .config import arm_presets
 from .errors import ConfigError
 from .frames import inv_T, rotvec_from_R, se3_adjoint
 
 CONVENTIONS = ("standard", "modified")
 PARAMETER_NAMES = ("a", "alpha", "d", "theta_offset")
-PRESETS = ("rm65", "ur5e")
+PRESETS = arm_presets()  # the tables in configs/robots
 
 # unit screws (omega, v) of the four elementary motions
 _SCREW = {"rz": np.array([0, 0, 1, 0, 0, 0.0]), "tz": np.array([0, 0, 0, 0, 0, 1.0]),
@@ -420,7 +422,7 @@ def _error_prior(d, source: str) -> Optional[tuple]:
 
 
 def load_arm(name_or_path: Union[str, Path, dict], *, folder: Optional[Path] = None) -> DHChain:
-    """A shipped preset (``rm65``, ``ur5e``), a DH table file in either form of :func:`chain_from_dict`
+    """A shipped preset (:data:`PRESETS`: ``rm65``, ``ur5e``, ...), a DH table file in either form of :func:`chain_from_dict`
     (``.json`` read as JSON, anything else as YAML; relative paths from ``folder`` when given, e.g. a
     session's ``robot:``), or the table itself as a mapping. A file that cannot be read or parsed is a
     ConfigError naming it."""

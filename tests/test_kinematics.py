@@ -168,3 +168,53 @@ def test_unreadable_json_tables_are_one_config_error_naming_the_file(tmp_path):
     with pytest.raises(ConfigError, match="cannot read the DH table") as e:
         load_arm(bad_yaml)
     assert e.value.line is not None and "expected a YAML file" in str(e.value)
+
+
+# Universal Robots' published DH tables (d1, a2, a3, d4, d5, d6 in m; alpha = 90, 0, 0, 90, -90, 0 deg)
+UR_TABLES = {"ur3": (0.1519, -0.24365, -0.21325, 0.11235, 0.08535, 0.0819),
+             "ur3e": (0.15185, -0.24355, -0.2132, 0.13105, 0.08535, 0.0921),
+             "ur5": (0.089159, -0.425, -0.39225, 0.10915, 0.09465, 0.0823),
+             "ur5e": (0.1625, -0.425, -0.3922, 0.1333, 0.0997, 0.0996),
+             "ur10": (0.1273, -0.612, -0.5723, 0.163941, 0.1157, 0.0922),
+             "ur10e": (0.1807, -0.6127, -0.57155, 0.17415, 0.11985, 0.11655),
+             "ur16e": (0.1807, -0.4784, -0.36, 0.17415, 0.11985, 0.11655)}
+
+
+@pytest.mark.parametrize("name", sorted(UR_TABLES))
+def test_universal_robots_presets_are_the_published_tables(name):
+    assert name in PRESETS
+    d1, a2, a3, d4, d5, d6 = UR_TABLES[name]
+    arm = load_arm(name)
+    assert arm.convention == "standard" and arm.n_joints == 6
+    np.testing.assert_allclose(arm.dh[:, 0], [0, a2, a3, 0, 0, 0], atol=1e-12)  # a
+    np.testing.assert_allclose(np.degrees(arm.dh[:, 1]), [90, 0, 0, 90, -90, 0], atol=1e-12)  # alpha
+    np.testing.assert_allclose(arm.dh[:, 2], [d1, 0, 0, d4, d5, d6], atol=1e-12)  # d
+    np.testing.assert_allclose(arm.dh[:, 3], 0, atol=0)  # theta offsets
+    T = arm.T_base_end(np.zeros(6))  # stretched along -x, the flange's z axis along -y
+    np.testing.assert_allclose(T[:3, 3], [a2 + a3, -(d4 + d6), d1 - d5], atol=1e-12)
+    np.testing.assert_allclose(T[:3, 2], [0.0, -1.0, 0.0], atol=1e-12)
+    assert arm.error_prior is not None
+
+
+def test_every_table_in_configs_robots_is_a_preset():
+    from pathlib import Path
+
+    folder = Path(__file__).resolve().parents[1] / "configs" / "robots"
+    assert set(PRESETS) == {f.stem for f in folder.glob("*.yaml")}
+
+
+def test_the_ur3e_preset_gives_the_ur3_sets_flange_poses(shared_dataset):
+    """The UR3 set's arm is a UR3e: the preset's forward kinematics of its recorded joint angles are the flange
+    poses its SOURCE.md derives with the set's own nominal table."""
+    import json
+
+    folder = shared_dataset("ur3-eyetohand-cam1")
+    own = load_arm(folder / "robot_model_dh_nominal_ur3a.json")
+    np.testing.assert_allclose(load_arm("ur3e").dh, own.dh, atol=1e-9)
+    poses = json.loads((folder / "dataset_ur3a_joint_images_40poses.json").read_text())["poses"]
+    derived = {int(r.split()[0]): np.array(r.split()[2:], float).reshape(4, 4)
+               for r in (folder / "base_T_flange_fk_derived.txt").read_text().splitlines() if r and not r.startswith("#")}
+    assert len(derived) == len(poses) == 40
+    for p in poses:
+        q = np.radians([p["joint_angles_deg"][f"joint_{j}"] for j in range(1, 7)])
+        np.testing.assert_allclose(load_arm("ur3e").T_base_end(q), derived[p["pose_id"]], atol=1e-8)

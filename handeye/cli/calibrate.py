@@ -16,6 +16,7 @@ log = logging.getLogger(__name__)
 
 def add_arguments(p) -> None:
     """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
+    from ..config import arm_presets
     from ..errors import exit_codes_text
     from ..mounting import MODES
     from ..records import METHOD_NAMES
@@ -46,7 +47,7 @@ def add_arguments(p) -> None:
     p.add_argument("--robot-sigma", nargs=2, type=positive_float, metavar=("MM", "DEG"),
                    help="robot pose sigma: start value (estimate) or the value (fixed)")
     p.add_argument("--robot", metavar="ARM",
-                   help="the arm's kinematic model (rm65, ur5e or a DH YAML file): the refinement models the robot's "
+                   help=f"the arm's kinematic model (a preset: {', '.join(arm_presets())}; or a DH YAML file): the refinement models the robot's "
                         "error as DH offsets plus encoder noise (joint angles from the session, else by inverse "
                         "kinematics of the poses); default: the session's robot: key, else an iid pose error")
     p.add_argument("--workers", type=positive_int, help="threads for corner detection (default: all cores)")

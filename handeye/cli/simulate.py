@@ -23,6 +23,7 @@ def sim_target(name: str):
 
 def add_arguments(p) -> None:
     """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
+    from ..config import arm_presets
     from ..mounting import MODES
 
     p.description = ("Render a synthetic session in the vendor layout (N.jpg, poses.txt, config.yaml) plus "
@@ -42,7 +43,7 @@ def add_arguments(p) -> None:
     p.add_argument("--robot-error", choices=("iid", "kinematic", "none"), default="iid",
                    help="robot error model: iid (--robot-noise per pose), kinematic (a 6-axis arm with DH errors and "
                         "encoder noise, handeye.sim.robot_error) or none")
-    p.add_argument("--arm", default="rm65", help="kinematic arm preset (rm65, ur5e) or DH YAML file")
+    p.add_argument("--arm", default="rm65", help=f"kinematic arm preset ({', '.join(arm_presets())}) or DH YAML file")
     p.add_argument("--dh-error", nargs=2, type=float, metavar=("MM", "DEG"), default=None,
                    help="kinematic: the largest error of each DH length (mm) and angle (deg) of the simulated arm, "
                         "each drawn between a fifth of it and it (default 0.5 0.05: a factory-calibrated arm; "

@@ -90,7 +90,7 @@ class RefineOptions:
     # robot error model (handeye.refine.robot_model): auto | iid | kinematic | joint_space; auto is kinematic
     # when ``arm`` is named (joint angles from the views, else by inverse kinematics), else iid
     robot_model: str = "auto"
-    arm: Optional[object] = None  # the arm's kinematic model: a preset name (rm65, ur5e), a DH YAML path or a DHChain
+    arm: Optional[object] = None  # the arm's kinematic model: a preset name (kinematics.PRESETS), a DH YAML path or a DHChain
     dh_sigma_mm: Optional[float] = None  # prior sigma of each DH length offset (None: the arm's error_prior)
     dh_sigma_deg: Optional[float] = None  # ... of each DH angle offset
     encoder_sigma_deg: Optional[float] = None  # encoder noise per joint: start (estimate) or value (fixed)

@@ -39,7 +39,7 @@ import numpy as np
 
 from ..errors import ConfigError, InputError
 from ..frames import inv_T, mean_T, se3_adjoint, tangent_difference
-from ..kinematics import PARAMETER_NAMES, DHChain, default_ik_seeds, load_arm, solve_ik
+from ..kinematics import PARAMETER_NAMES, PRESETS, DHChain, default_ik_seeds, load_arm, solve_ik
 from .options import RefineOptions, RefineView, refine_preset
 
 LENGTH_PARAMETERS = (0, 2)  # a, d in a DH row (a, alpha, d, theta_offset); the others are angles
@@ -86,7 +86,7 @@ def resolve_kind(o: RefineOptions, views: Sequence[RefineView]) -> str:
         return "kinematic" if o.arm is not None else "iid"
     if o.robot_model in ("kinematic", "joint_space") and o.arm is None:
         raise ConfigError(f"robot_model {o.robot_model} needs the arm's kinematic model",
-                          expected="refine option arm: a preset (rm65, ur5e) or a DH table file", received="none",
+                          expected=f"refine option arm: a preset ({', '.join(PRESETS)}) or a DH table file", received="none",
                           hint="name the arm (session.yaml robot: rm65) or use robot_model iid")
     return o.robot_model
 
