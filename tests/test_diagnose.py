@@ -694,6 +694,27 @@ def test_wrong_euler_kind_on_a_symmetric_board_is_named_despite_turned_views(tmp
     assert f["details"]["best"]["changes"] == "euler_order" and f["details"]["cost_ratio"] > 5
 
 
+def test_the_fix_of_a_vendor_euler_finding_in_config_yaml_reads_the_poses_right(tmp_path, monkeypatch):
+    """The fix a vendor session gets for a misread Euler convention is a pose_format line for config.yaml;
+    written there, the same poses.txt calibrates without the finding."""
+    cs = _session("eye_in_hand", 45, n_views=12)
+    truth = PoseFormat(euler_order="zyx", euler_kind="intrinsic", angle_unit="rad", translation_unit="m")
+    folder = _write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported, truth))
+    _, d = _diagnose(folder, cs, monkeypatch)
+    action = _one(d, "euler_order")["action"]
+    assert action.startswith("state the format in config.yaml: pose_format: {")
+    snippet = action.split("config.yaml: ", 1)[1].split(" (or convert", 1)[0]
+    cfg = yaml.safe_load((folder / "config.yaml").read_text())
+    cfg.update(yaml.safe_load(snippet))
+    (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
+    s = load_session(folder)
+    assert "intrinsic zyx" in s.pose_format
+    for v, T in zip(s.views, cs.T_base_end_reported):
+        np.testing.assert_allclose(v.T_base_end, T, atol=1e-7)
+    run, d = _diagnose(folder, cs, monkeypatch)
+    assert run.status == "ok" and "euler_order" not in _codes(d)
+
+
 def test_clean_symmetric_board_with_turned_views_gets_no_finding(tmp_path, monkeypatch):
     cs = _turned(_session("eye_to_hand", 44, n_views=15, target=ChessboardSpec(7, 5, 0.03)), range(0, 15, 2))
     run, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch)

@@ -94,6 +94,47 @@ def test_only_a_first_line_of_names_is_a_header(tmp_path, lines, match):
         load_session(vendor(tmp_path, lines=[*lines, *good]))
 
 
+@pytest.mark.parametrize("fmt", [
+    {"rotation": "quaternion", "quaternion_order": "xyzw"},
+    {"rotation": "quaternion", "quaternion_order": "wxyz", "translation_unit": "mm"},
+    {"rotation": "matrix"},
+    {"rotation": "euler", "euler_order": "zyx", "euler_kind": "intrinsic", "angle_unit": "deg"},
+    {"rotation": "rotvec"},
+])
+def test_config_yaml_may_state_how_poses_txt_is_written(tmp_path, fmt):
+    pf = PoseFormat(**fmt)
+    lines = [" ".join(f"{v:.12g}" for v in pose_values_from_T(T, pf)) for T in POSES]
+    d = vendor(tmp_path, lines=lines, config={"checkerboard_args": {"XX": 11, "YY": 8, "L": 0.03}, "pose_format": fmt})
+    s = load_session(d)
+    assert s.pose_format == pf.validated().describe()
+    for v, T in zip(s.views, POSES):
+        np.testing.assert_allclose(v.T_base_end, T, atol=1e-9)
+    raw = read_raw_poses(d)  # the diagnostics read the numbers in the stated format too
+    assert raw.fmt == pf.validated()
+    np.testing.assert_allclose(T_from_pose_values(raw.values["2"], raw.fmt), POSES[1], atol=1e-9)
+
+
+@pytest.mark.parametrize("lines,config,match", [
+    (["0.1,0.2,0.3,0,0,0,1"], None, r"poses.txt:1: bad pose: .*got 7.* x,y,z and a quaternion: add to config.yaml "
+                                    r"pose_format: \{rotation: quaternion"),
+    ([",".join(["0"] * 15 + ["1"])], None, r"got 16.* a 4x4 matrix row by row: add to config.yaml pose_format"),
+    (["0.3,0.05,0.4,170,20,-90"], None, r"poses.txt:1: .*degrees; convert them to radians or add to config.yaml "
+                                        r"pose_format: \{rotation: euler, angle_unit: deg\}"),
+    (["300,50,400,0.1,0.2,0.3"], None, r"millimetres; convert to metres or add to config.yaml pose_format"),
+    (["0.1,0.2,0.3,0,0,0"], {"rotation": "quaternion"}, r"poses.txt:1: bad pose: expected 7 numbers"),
+    (["0.1,0.2,0.3,0,0,0"], {"rotation": "euler", "units": "deg"}, r"config.yaml: unknown pose_format field 'units'"),
+    (["0.1,0.2,0.3,0,0,0"], "euler", r"config.yaml: pose_format must be a mapping"),
+])
+def test_pose_lines_in_another_format_name_the_config_yaml_way(tmp_path, lines, config, match):
+    good = [",".join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)) for T in POSES]
+    cfg = {"checkerboard_args": {"XX": 11, "YY": 8, "L": 0.03}}
+    if config is not None:
+        cfg["pose_format"] = config
+    with pytest.raises(InputError, match=match) as e:
+        load_session(vendor(tmp_path, lines=[*lines, *good[len(lines):]], config=cfg))
+    assert "\n" not in str(e.value)
+
+
 def test_vendor_mode_key_and_override(tmp_path):
     d = vendor(tmp_path, config={"checkerboard_args": {"XX": 11, "YY": 8, "L": 0.03}, "mode": "eye_to_hand"})
     assert load_session(d).mode == "eye_to_hand"

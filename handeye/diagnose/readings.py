@@ -211,7 +211,7 @@ def reading_is_wrong(given: Reading, best: Reading) -> bool:
 
 
 def format_snippet(fmt: PoseFormat) -> str:
-    """The session.yaml line that states ``fmt``."""
+    """The session.yaml (or vendor config.yaml) line that states ``fmt``."""
     if fmt.rotation == "euler":
         return (f"pose_format: {{rotation: euler, euler_order: {fmt.euler_order}, euler_kind: {fmt.euler_kind}, "
                 f"angle_unit: {fmt.angle_unit}, translation_unit: {fmt.translation_unit}}}")
@@ -277,8 +277,8 @@ def reading_findings(obs: PoseObservations, readings: Sequence[Reading], *, sess
     details = {"given": given.row(), "best": best.row(), "rivals": [r.row() for r in rivals],
                "views_reordered": [str(v) for v in turned],
                "cost_ratio": (given.fit.cost / best.fit.cost) if best.fit.cost > 0 else None}
-    fix_fmt = ("convert the poses file to the vendor format (x, y, z in metres; rx, ry, rz in radians, "
-               f"R = Rz·Ry·Rx) or describe it in a session.yaml with {format_snippet(best.fmt)}"
+    fix_fmt = (f"state the format in config.yaml: {format_snippet(best.fmt)} (or convert poses.txt to the vendor's "
+               "x, y, z in metres and rx, ry, rz in radians, R = Rz·Ry·Rx)"
                if session_kind == "vendor" else f"state the format in session.yaml: {format_snippet(best.fmt)}")
     out = []
     for code in best.changes:

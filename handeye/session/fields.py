@@ -14,6 +14,7 @@ import numpy as np
 import yaml
 
 from ..config import load_preset
+from ..conventions import PoseFormat
 from ..errors import ConfigError, InputError
 from ..mounting import MODES
 from ..output import file_kind, read_text
@@ -137,23 +138,26 @@ def length_m(value, *, path: Path, field: str, strict: bool = True) -> float:
     return L
 
 
-def check_translation_units(T_base_end: np.ndarray, *, path: Path, line: int | None, unit: str) -> None:
-    """A robot position farther from the base than an arm reaches means the unit is wrong."""
+def check_translation_units(T_base_end: np.ndarray, *, path: Path, line: int | None, unit: str,
+                            or_state: str = "") -> None:
+    """A robot position farther from the base than an arm reaches means the unit is wrong. ``or_state``:
+    where the file's format could say so instead (a vendor config.yaml)."""
     dist = float(np.linalg.norm(T_base_end[:3, 3]))
     reach = _limits()["max_reach_m"]
     if dist > reach:
-        hint = ("the translation looks like millimetres; convert to metres" if unit == "m"
-                else "check translation_unit")
+        hint = ("the translation looks like millimetres; convert to metres" + (f" or {or_state}" if or_state else "")
+                if unit == "m" else "check translation_unit")
         raise InputError(f"robot position {dist:.1f} m from the base is not plausible", path=path, line=line,
                          expected=f"metres (an arm reaches < {reach:g} m)", hint=hint)
 
 
-def check_angle_units(angles_rad, *, path: Path, line: int | None) -> None:
-    """Angles stated in radians larger than a full turn are degrees."""
+def check_angle_units(angles_rad, *, path: Path, line: int | None, or_state: str = "") -> None:
+    """Angles stated in radians larger than a full turn are degrees (``or_state``: as above)."""
     a = np.abs(np.asarray(angles_rad, float))
     if np.any(a > _limits()["max_angle_rad"]):
         raise InputError(f"rotation angle {a.max():.1f} is larger than 2*pi", path=path, line=line,
-                         expected="radians", hint="the angles look like degrees; convert them to radians")
+                         expected="radians", hint="the angles look like degrees; convert them to radians"
+                         + (f" or {or_state}" if or_state else ""))
 
 
 def locate_session(path: str | Path) -> tuple[str, Path]:
@@ -173,3 +177,24 @@ def locate_session(path: str | Path) -> tuple[str, Path]:
         return "vendor", p
     raise InputError("no session.yaml or poses.txt in the folder", path=p,
                      hint="a vendor session needs poses.txt, N.jpg and config.yaml; see docs/session_format.md")
+
+
+def parse_pose_format(fmt_d, *, path: Path) -> PoseFormat:
+    """The ``pose_format:`` mapping of a session file (session.yaml, or a vendor config.yaml), validated."""
+    if fmt_d is None:
+        raise ConfigError("pose_format is missing", path=path,
+                          expected="pose_format: {rotation: euler | quaternion | rotvec | matrix, ...}",
+                          hint="state how the poses are written; the vendor's x,y,z,rx,ry,rz lines are "
+                               "pose_format: {rotation: euler, euler_order: xyz, euler_kind: extrinsic, "
+                               "angle_unit: rad, translation_unit: m}")
+    if not isinstance(fmt_d, dict):
+        raise ConfigError("pose_format must be a mapping", path=path, received=repr(fmt_d))
+    unknown = set(fmt_d) - set(PoseFormat.__dataclass_fields__)
+    if unknown:
+        raise ConfigError(f"unknown pose_format field {sorted(unknown)[0]!r}", path=path,
+                          expected=", ".join(f for f in PoseFormat.__dataclass_fields__))
+    if "rotation" not in fmt_d:
+        raise ConfigError("pose_format.rotation is missing", path=path,
+                          expected="euler | quaternion | rotvec | matrix")
+    return PoseFormat(**{k: (str(v).lower() if isinstance(v, str) else v) for k, v in fmt_d.items()}).validated(
+        source=str(path))

@@ -24,7 +24,7 @@ from ..errors import ConfigError, InputError
 from ..records import Session, View, view_id_key
 from ..targets import TargetSpec, TrackedTargetSpec
 from ..output import read_text
-from .fields import (IdTextLoader, check_angle_units, check_finite, check_input_file, check_mode,
+from .fields import (IdTextLoader, check_angle_units, check_finite, check_input_file, check_mode, parse_pose_format,
                      check_translation_units, positive_number, read_yaml)
 from .target_spec import parse_target
 
@@ -76,7 +76,7 @@ def read_native_document(path: Path) -> NativeDocument:
     if version != 1:
         raise ConfigError("unsupported handeye_session version", path=path, expected="1", received=repr(version))
     target = parse_target(d.get("target"), path=path) if not _pose_only(d) or d.get("target") else TrackedTargetSpec()
-    fmt = _parse_pose_format(d.get("pose_format"), path=path)
+    fmt = parse_pose_format(d.get("pose_format"), path=path)
     intr, intr_use = parse_intrinsics(d.get("intrinsics"), path=path)
     image_folder = d.get("image_folder")
     if image_folder is not None:
@@ -147,7 +147,7 @@ def _pose_only_fields(d: dict, entries: list, *, path: Path) -> tuple:
                           path=e.source, received="image views and target_pose views mixed",
                           hint="split the session, or give every view a target_pose")
     tfmt = d.get("target_pose_format")
-    tfmt = (_parse_pose_format(tfmt, path=path) if tfmt is not None
+    tfmt = (parse_pose_format(tfmt, path=path) if tfmt is not None
             else PoseFormat(rotation="matrix").validated(source=str(path)))
     sig = d.get("tracker_sigma")
     if sig is None:
@@ -173,26 +173,6 @@ def view_target_pose(doc: NativeDocument, e: ViewEntry) -> np.ndarray:
         raise InputError(f"view {vid}: bad target_pose: {err}", path=e.source, expected=fmt.describe()) from None
     check_translation_units(T, path=e.source, line=None, unit=fmt.translation_unit)
     return T
-
-
-def _parse_pose_format(fmt_d, *, path: Path) -> PoseFormat:
-    if fmt_d is None:
-        raise ConfigError("pose_format is missing", path=path,
-                          expected="pose_format: {rotation: euler | quaternion | rotvec | matrix, ...}",
-                          hint="state how the poses are written; the vendor's x,y,z,rx,ry,rz lines are "
-                               "pose_format: {rotation: euler, euler_order: xyz, euler_kind: extrinsic, "
-                               "angle_unit: rad, translation_unit: m}")
-    if not isinstance(fmt_d, dict):
-        raise ConfigError("pose_format must be a mapping", path=path, received=repr(fmt_d))
-    unknown = set(fmt_d) - set(PoseFormat.__dataclass_fields__)
-    if unknown:
-        raise ConfigError(f"unknown pose_format field {sorted(unknown)[0]!r}", path=path,
-                          expected=", ".join(f for f in PoseFormat.__dataclass_fields__))
-    if "rotation" not in fmt_d:
-        raise ConfigError("pose_format.rotation is missing", path=path,
-                          expected="euler | quaternion | rotvec | matrix")
-    return PoseFormat(**{k: (str(v).lower() if isinstance(v, str) else v) for k, v in fmt_d.items()}).validated(
-        source=str(path))
 
 
 #: characters a view id may not hold: it names files (thumbnails/<id>.jpg) and must stay one name

@@ -21,7 +21,8 @@ from ..records import Session, view_id_key
 from ..targets import TargetSpec
 from .fields import check_mode, locate_session
 from .native import files_folder, read_native_document, view_image_path, view_pose_values
-from .vendor import VENDOR_DEFAULT_MODE, first_image_number, numbered_images, read_pose_lines, read_vendor_config
+from .vendor import (VENDOR_DEFAULT_MODE, first_image_number, numbered_images, read_pose_lines, read_vendor_config,
+                     vendor_pose_format)
 
 log = logging.getLogger(__name__)
 
@@ -73,9 +74,13 @@ def _raw_vendor(folder: Path) -> RawPoses:
         first = first_image_number(numbered_images(folder))
     except HandeyeError:  # no numbered images: the poses keep the vendor's numbering
         first = 1
+    try:
+        fmt = vendor_pose_format(read_vendor_config(folder, strict=False)[2], folder / "config.yaml")
+    except HandeyeError:  # no readable config.yaml: the vendor's own line
+        fmt = VENDOR_POSE_FORMAT
     lines = read_pose_lines(folder / "poses.txt", first=first)
     values = {str(pl.index): pl.values for pl in lines}
-    return RawPoses(VENDOR_POSE_FORMAT, values, tuple(values), str(folder / "poses.txt"))
+    return RawPoses(fmt, values, tuple(values), str(folder / "poses.txt"))
 
 
 def _raw_native(path: Path) -> RawPoses:

@@ -1,7 +1,8 @@
 """The vendor session folder as it is: ``config.yaml`` (board), ``poses.txt`` (one pose line per image,
 ``x,y,z,rx,ry,rz`` in metres and radians) and numbered images ``1.jpg, 2.jpg, ...`` (line k <-> image k).
 Images numbered from 0 (``0.jpg, 1.jpg, ...``, as a loop over range(N) writes them) pair image k with line k+1;
-a first line of column names (``x,y,z,rx,ry,rz``) is skipped like a ``#`` comment.
+a first line of column names (``x,y,z,rx,ry,rz``) is skipped like a ``#`` comment. config.yaml may state
+another line format (``pose_format:``, as in session.yaml: :func:`vendor_pose_format`).
 
 :func:`read_pose_lines`, :func:`read_vendor_config` and :func:`numbered_images` are the only parsers of
 these files; the strict loader (:func:`load_vendor_session`) and the lenient reader of the diagnostics
@@ -16,13 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..conventions import VENDOR_POSE_FORMAT, T_from_pose_values
+from ..conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values
 from ..errors import ConfigError, InputError
 from ..records import Session, View
 from ..targets import ChessboardSpec
 from ..output import read_text
 from .fields import (check_angle_units, check_finite, check_input_file, check_mode, check_target_points,
-                     check_translation_units, length_m, positive_number, read_yaml)
+                     check_translation_units, length_m, parse_pose_format, positive_number, read_yaml)
 
 log = logging.getLogger(__name__)
 
@@ -125,6 +126,22 @@ def numbered_images(folder: Path) -> dict[int, Path]:
     return found
 
 
+def vendor_pose_format(cfg: dict, cfg_path: Path) -> PoseFormat:
+    """How poses.txt's lines are written: config.yaml's optional ``pose_format:`` (the fields and defaults of
+    session.yaml's), else the vendor's ``x,y,z,rx,ry,rz`` in metres and radians, R = Rz·Ry·Rx."""
+    if cfg.get("pose_format") is None:
+        return VENDOR_POSE_FORMAT
+    return parse_pose_format(cfg["pose_format"], path=cfg_path)
+
+
+def _count_hint(n: int) -> str:
+    """What a pose line of ``n`` numbers (not 6) may be, and how to say so."""
+    guess = {7: "x,y,z and a quaternion: add to config.yaml pose_format: {rotation: quaternion, "
+                "quaternion_order: wxyz} (or xyzw)",
+             16: "a 4x4 matrix row by row: add to config.yaml pose_format: {rotation: matrix}"}.get(n)
+    return f"{n} numbers may be {guess}" if guess else "write one pose per line: x,y,z,rx,ry,rz"
+
+
 def first_image_number(images: dict[int, Path]) -> int:
     """The number of the first pose line's image: 0 when the images are numbered from 0, else 1."""
     return 0 if 0 in images else 1
@@ -137,6 +154,8 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
     sess_mode = check_mode(mode if mode is not None else (cfg_mode or VENDOR_DEFAULT_MODE), path=folder / "config.yaml")
 
     poses_path = folder / "poses.txt"
+    fmt = vendor_pose_format(cfg, folder / "config.yaml")
+    stated = fmt is not VENDOR_POSE_FORMAT
     pose_lines = read_pose_lines(poses_path)
     images = numbered_images(folder)
     first = first_image_number(images)
@@ -145,11 +164,18 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
     poses: list[tuple[int, np.ndarray]] = []  # (line number, T)
     for pl in pose_lines:
         try:
-            T = T_from_pose_values(pl.values, VENDOR_POSE_FORMAT)
+            T = T_from_pose_values(pl.values, fmt)
         except ValueError as e:
-            raise InputError(f"bad pose: {e}", path=poses_path, line=pl.lineno, expected=_POSE_EXPECTED) from None
-        check_translation_units(T, path=poses_path, line=pl.lineno, unit="m")
-        check_angle_units(pl.values[3:], path=poses_path, line=pl.lineno)
+            hint = None if stated or pl.values.size == fmt.n_values else _count_hint(pl.values.size)
+            raise InputError(f"bad pose: {e}", path=poses_path, line=pl.lineno,
+                             expected=fmt.describe() if stated else _POSE_EXPECTED, hint=hint) from None
+        check_translation_units(T, path=poses_path, line=pl.lineno, unit=fmt.translation_unit,
+                                or_state="" if stated else "add to config.yaml pose_format: {rotation: euler, "
+                                                          "translation_unit: mm}")
+        if fmt.rotation in ("euler", "rotvec") and fmt.angle_unit == "rad":
+            check_angle_units(pl.values[3:], path=poses_path, line=pl.lineno,
+                              or_state="" if stated else "add to config.yaml pose_format: {rotation: euler, "
+                                                         "angle_unit: deg}")
         poses.append((pl.lineno, T))
 
     n_pose = len(poses)
@@ -169,7 +195,7 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
         check_input_file(images[k], what="image", vid=str(k))
         views.append(View(view_id=str(k), image_path=images[k], T_base_end=T, source_line=lineno))
     return Session(path=folder, format="vendor", mode=sess_mode, target=target, views=tuple(views),
-                   pose_format=VENDOR_POSE_FORMAT.describe(),
+                   pose_format=fmt.describe(),
                    mode_source="flag" if mode is not None else ("stated" if cfg_mode else "default"),
                    meta={"config": cfg, "missing_images": {str(k): poses[k - first][0] for k in without_image},
                          "files_read": [folder / "config.yaml", poses_path, *(images[k] for k in sorted(images))]})
