@@ -118,6 +118,8 @@ def test_config_yaml_may_state_how_poses_txt_is_written(tmp_path, fmt):
     (["0.1,0.2,0.3,0,0,0,1"], None, r"poses.txt:1: bad pose: .*got 7.* x,y,z and a quaternion: add to config.yaml "
                                     r"pose_format: \{rotation: quaternion"),
     ([",".join(["0"] * 15 + ["1"])], None, r"got 16.* a 4x4 matrix row by row: add to config.yaml pose_format"),
+    ([f"{k},0.1,0.2,0.3,0,0,0" for k in range(1, 5)], None, r"got 7.* the first number of every line counts the "
+                                                             r"lines \(a view number\): remove that column"),
     (["0.3,0.05,0.4,170,20,-90"], None, r"poses.txt:1: .*degrees; convert them to radians or add to config.yaml "
                                         r"pose_format: \{rotation: euler, angle_unit: deg\}"),
     (["300,50,400,0.1,0.2,0.3"], None, r"millimetres; convert to metres or add to config.yaml pose_format"),

@@ -134,8 +134,12 @@ def vendor_pose_format(cfg: dict, cfg_path: Path) -> PoseFormat:
     return parse_pose_format(cfg["pose_format"], path=cfg_path)
 
 
-def _count_hint(n: int) -> str:
+def _count_hint(n: int, lines: list[PoseLine]) -> str:
     """What a pose line of ``n`` numbers (not 6) may be, and how to say so."""
+    first = np.array([pl.values[0] if pl.values.size else np.nan for pl in lines])
+    if n == 7 and all(pl.values.size == 7 for pl in lines) and len(lines) > 1 and (
+            np.array_equal(first, np.arange(len(lines))) or np.array_equal(first, np.arange(1, len(lines) + 1))):
+        return "the first number of every line counts the lines (a view number): remove that column"
     guess = {7: "x,y,z and a quaternion: add to config.yaml pose_format: {rotation: quaternion, "
                 "quaternion_order: wxyz} (or xyzw)",
              16: "a 4x4 matrix row by row: add to config.yaml pose_format: {rotation: matrix}"}.get(n)
@@ -166,7 +170,7 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
         try:
             T = T_from_pose_values(pl.values, fmt)
         except ValueError as e:
-            hint = None if stated or pl.values.size == fmt.n_values else _count_hint(pl.values.size)
+            hint = None if stated or pl.values.size == fmt.n_values else _count_hint(pl.values.size, pose_lines)
             raise InputError(f"bad pose: {e}", path=poses_path, line=pl.lineno,
                              expected=fmt.describe() if stated else _POSE_EXPECTED, hint=hint) from None
         check_translation_units(T, path=poses_path, line=pl.lineno, unit=fmt.translation_unit,
