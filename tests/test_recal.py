@@ -758,3 +758,35 @@ def test_a_kept_board_prior_is_taken_in_the_new_sessions_numbering(rendered, tmp
     assert ref["prior"]["board_prior"] is True and ref["prior"]["board_turn_deg"] == pytest.approx(0.0)
     rot, trans = pose_error(np.array(res["T_end_cam"]), np.array(ref["T_end_cam"]))
     assert trans < 1e-4 and rot < 1e-5, (trans, rot)
+
+
+def test_a_board_numbered_otherwise_in_the_update_run_drops_the_board_prior(rendered, monkeypatch, caplog):
+    """The guard of calibrate --prior --board-unmoved: when the calibration without the prior on X numbers the board
+    otherwise than the run whose views verify turned the earlier board pose for, that pose does not apply: the
+    session is calibrated again without it, and the prior block says so."""
+    import dataclasses
+    import logging
+
+    import handeye.pipeline as pipeline
+    from handeye.pipeline import CalibrateOptions
+    from handeye.recal.prior import calibrate_with_prior
+    from handeye.session import load_session
+
+    real, priors = pipeline.run_calibration, []
+
+    def numbered_otherwise(session, options, **kw):
+        run = real(session, options, **kw)
+        priors.append(options.refine_options["prior"])
+        if len(priors) == 2:  # the run with the earlier board pose: its views numbered from another corner
+            run = dataclasses.replace(run, board_poses={vid: dataclasses.replace(bp, orientation=bp.orientation + 1)
+                                                        for vid, bp in run.board_poses.items()})
+        return run
+
+    monkeypatch.setattr(pipeline, "run_calibration", numbered_otherwise)
+    with caplog.at_level(logging.WARNING, logger="handeye.recal.prior"):
+        run, rec = calibrate_with_prior(load_session(rendered["bumped"]), CalibrateOptions(), rendered["installed"],
+                                        board_unmoved=True)
+    assert len(priors) == 3 and priors[1].T_board is not None and priors[2].T_board is None
+    assert rec["contradicted"] and rec["board_prior"] is False and "board_turn_deg" not in rec
+    assert rec["used"].startswith("no prior on X (the new views alone")
+    assert run.status == "ok" and "numbered otherwise" in caplog.text
