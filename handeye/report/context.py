@@ -255,10 +255,12 @@ def _view_rows(res, ref, fits, centre, findings, image_size) -> list[dict]:
             bad = flagged_corners.get(vid, set())
             corners = [(round(float(u), 1), round(float(w), 1), int(c) in bad)
                        for c, (u, w) in zip(fit.corner_ids, fit.image_points_px)]
-        # flagged: counted once in the dropped/flagged share, whether dropped, excluded or with flagged corners
-        flagged = status != "used" or bool(v.get("flags")) or vid in outl
+        # flagged: in the dropped/flagged share once, dropped or its robot pose excluded (it did not serve X);
+        # a used view with a few outlier corners is listed (corner_flags), not counted: its pose served X
+        flagged = status != "used"
+        corner_flags = status == "used" and (bool(v.get("flags")) or vid in outl)
         rows.append({"id": vid, "image": v.get("image") or "", "status": status, "reason_kind": reason_kind,
-                     "flagged": flagged,
+                     "flagged": flagged, "corner_flags": corner_flags,
                      "n_corners": v.get("n_corners") or (len(fit.corner_ids) if fit else 0),
                      "rms_px": rms, "max_px": mx, "chain_rms_px": chain, "robot_mm": rc_mm, "robot_deg": rc_deg,
                      "robot_maha": maha, "flags": flags, "corners": corners,
@@ -729,8 +731,9 @@ def _kpis(metrics, pred, wd, views, verdict: Verdict, ok: bool, untrusted: dict[
     n_used = sum(x["status"] == "used" for x in views)
     if views:
         n_flagged = sum(bool(x.get("flagged")) for x in views)
-        out.append(card("Views used", f"{n_used} / {len(views)}", f"{n_flagged} dropped or flagged",
-                        ["used_views"]))
+        n_corners = sum(bool(x.get("corner_flags")) for x in views)
+        out.append(card("Views used", f"{n_used} / {len(views)}", f"{n_flagged} dropped or flagged"
+                        + (f"; {n_corners} used with outlier corners" if n_corners else ""), ["used_views"]))
     mr, sp = metrics.get("max_rotation_deg"), metrics.get("axis_spread_deg")
     if mr is not None:
         out.append(card("Rotation coverage", f"{mr:.0f}°",

@@ -41,12 +41,18 @@ _MD_TAG = re.compile(r"<(?=[A-Za-z/!?])")  # what starts raw HTML (a tag, commen
 _MD_LINK = re.compile(r"\]\s*([(\[])")  # ](url) and ][ref]: the second half of a link or image
 
 
+class MdMarkup(str):
+    """Markdown the template wrote itself (a macro's image or link whose values were escaped one by one, a
+    ``<br>`` between flags): printed as it is (the ``md_markup`` filter)."""
+
+
 def md_text(x) -> str:
     """Text safe in Markdown rendered to HTML (python-markdown, GitHub): no raw HTML can start (``<``
     before a letter, ``/``, ``!`` or ``?`` becomes ``&lt;``) and no link or image can form (``](`` and
     ``][`` are broken with a backslash); ``8 < 10`` and ``[mm]`` stay as written. Every value a
-    Markdown template prints passes through it (the environment's ``finalize``)."""
-    if x is None or isinstance(x, (bool, int, float)):
+    Markdown template prints passes through it (the environment's ``finalize``), except the template's
+    own markup (:class:`MdMarkup`)."""
+    if x is None or isinstance(x, (bool, int, float, MdMarkup)):
         return x
     s = str(x)
     if "<" in s:
@@ -67,6 +73,7 @@ def _env(*, html: bool) -> jinja2.Environment:
     env.filters["pct"] = pct
     env.filters["sgn"] = lambda x, d=3: num(x, d, signed=True)
     env.filters["mdcell"] = mdcell
+    env.filters["md_markup"] = MdMarkup
     env.filters["status_label"] = lambda s: {"pass": "PASS", "warn": "WARN", "fail": "FAIL", "info": "INFO",
                                                       "untrusted": "UNTRUSTED"}.get(s, s)
     env.globals["version"] = __version__
