@@ -290,7 +290,9 @@ def validation_fields(ref, val) -> dict:
                      intrinsics_model=kb.model_form)
     halves = {}
     for name, fit in val.halves.items():
-        h = {"view_ids": list(fit.view_ids), "status": fit.status}
+        # view_ids: every view refitted (robot-excluded ones serve the intrinsics); used_view_ids: X's views
+        h = {"view_ids": list(fit.view_ids), "status": fit.status,
+             "used_view_ids": [v for v in fit.view_ids if (ref.per_view.get(v) or {}).get("status") == "used"]}
         if fit.status == "ok":
             r, t = pose_error(fit.T_x, ref.T_x)
             h.update({ref.x_name: fit.T_x, "intrinsics": fit.intrinsics.to_dict(), "diff_to_result_deg": r,

@@ -912,3 +912,20 @@ def test_a_kinematic_robot_model_is_summarised_with_its_dh_prior_test():
     rm.update(dh_prior="an earlier calibration's estimate", dh_prior_test={})
     items = {it["name"]: it["value"] for it in _robot_model({"robot_model": rm})["items"]}
     assert items["DH prior"] == "an earlier calibration's estimate (the arm's own: 0.5 mm / 0.05 deg per DH parameter)"
+
+
+def test_the_offset_explanation_names_what_the_robot_model_cannot_see():
+    """A result far from every closed form: the explanation's advice depends on the robot model used (the
+    kinematic model is not advised to a run that used it)."""
+    from handeye.report.uncertainty import offset_explanation
+
+    rows = [{"name": m, "kind": "closed_form", "d_mm": 20.0 + k, "d_deg": 1.5, "sigma": 9.0 + k,
+             "offset_mm": [20.0 + k, 0.0, 0.0]} for k, m in enumerate(("tsai", "park", "horaud"))]
+    rows += [{"name": h, "kind": "half", "d_mm": 1.0, "d_deg": 0.1, "sigma": 1.0, "offset_mm": [1.0, 0, 0]}
+             for h in ("odd", "even")]
+    kw = dict(limit_sigma=4.0, halves_m2=3.0, halves_m2_limit=16.8, robot_mm=0.8, robot_deg=0.2)
+    iid = " ".join(offset_explanation(rows, robot_model="iid", **kw))
+    kin = " ".join(offset_explanation(rows, robot_model="kinematic", **kw))
+    assert "each half of the views, refitted alone, lands within 1.0 σ" in iid
+    assert "calibrate with the arm's kinematic model (--robot ARM)" in iid
+    assert "--robot" not in kin and "beyond its DH offsets and encoder noise" in kin

@@ -245,14 +245,17 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
     if cv.get("verdict") == "spread_exceeds_prediction":
         # info when the verdict covariance (the printed sigmas) already covers the spread: a finding with its size
         covered = bool(cv.get("covered_by_verdict"))
+        model = getattr(getattr(run, "refined", None), "robot_model", None) or {}
+        beyond = ("arm errors beyond its DH offsets and encoder noise (joint elasticity, backlash)"
+                  if model.get("kind") == "kinematic" else
+                  "robot pose errors the model does not have (a kinematic robot model when joint angles exist)")
         findings.append(Finding("uncertainty_underestimated",
                                 "info" if covered or cv.get("n_views", 0) < thresholds().views.recommended else "warn",
                                 "The model covariance is too small: the result varies more between held-out folds "
                                 "than it predicts" + ("; the verdict uses the validated covariance" if covered else ""),
                                 cv["summary"] + f" (jackknife over {cv.get('n_folds')} folds: rotation "
                                 f"{cv.get('ratio_rot')}x, translation {cv.get('ratio_trans')}x the model's sigma)",
-                                "look for robot pose errors the model does not have (a kinematic robot model when "
-                                "joint angles exist), a moving board or timing problems" if covered else
+                                f"look for {beyond}, a moving board or timing problems" if covered else
                                 "use the cross-validation spread as the uncertainty; look for robot pose errors "
                                 "(estimate robot noise: --robot-noise estimate), a moving board or timing problems"))
     result["per_view"] = pose["per_view"] if pose else {}

@@ -383,10 +383,13 @@ def _uncertainty_block(ref, unc, parent) -> dict:
 
 def _methods(res, T_x, x_name) -> list[dict]:
     rows = []
+    ref = res.get("refinement") if isinstance(res.get("refinement"), dict) else {}
+    start = ref.get("start_method")  # the closed form the refinement started from, when not the seed
     for m, e in (res.get("closed_form") or {}).items():
         T = as_T(e.get(x_name))
         row = {"name": m, "status": e.get("status", "?"), "reason": e.get("failure_reason", ""),
-               "is_seed": m == res.get("method"), "is_result": False, "cons_mm": None, "cons_deg": None}
+               "is_seed": m == res.get("method"), "is_start": m == start and m != res.get("method"),
+               "is_result": False, "cons_mm": None, "cons_deg": None}
         if T is not None:
             row["t_mm"] = (T[:3, 3] * 1e3).tolist()
             row["euler_deg"] = np.degrees(vendor_euler_from_R(T[:3, :3])).tolist()
@@ -397,7 +400,7 @@ def _methods(res, T_x, x_name) -> list[dict]:
         rows.append(row)
     if T_x is not None and res.get("refined"):
         rows.append({"name": "joint refinement (result)", "status": "ok", "reason": "", "is_result": True,
-                     "is_seed": False, "cons_mm": None, "cons_deg": None,
+                     "is_seed": False, "is_start": False, "cons_mm": None, "cons_deg": None,
                      "t_mm": (T_x[:3, 3] * 1e3).tolist(),
                      "euler_deg": np.degrees(vendor_euler_from_R(T_x[:3, :3])).tolist(),
                      "d_deg": 0.0, "d_mm": 0.0, "offset_mm": [0.0, 0.0, 0.0]})
@@ -457,11 +460,15 @@ def _offsets(res, ref, T_x, cov, x_name) -> Optional[dict]:
             rows.append({"name": m, "kind": "closed_form", "T": T, "stored": e})
     val = ref.get("validation") if isinstance(ref.get("validation"), dict) else {}
     halves = val.get("halves") or {}
-    for h in ("odd", "even"):
+    n_used = sum(len((halves.get(h) or {}).get("used_view_ids") or []) for h in ("odd", "even"))
+    for h, which in (("odd", "1st"), ("even", "2nd")):
         T = as_T((halves.get(h) or {}).get(x_name))
         if T is not None:
-            rows.append({"name": f"{h} views ({len(halves[h].get('view_ids') or [])}) refitted alone", "kind": "half",
-                         "T": T, "stored": halves[h]})
+            ids = [str(v) for v in halves[h].get("used_view_ids") or halves[h].get("view_ids") or []]
+            shown = ", ".join(ids[:4]) + (f", …, {ids[-1]}" if len(ids) > 5 else "".join(f", {v}" for v in ids[4:]))
+            rows.append({"name": f"every other used view from the {which} ({len(ids)}"
+                                 + (f" of {n_used}" if n_used else "") + f": views {shown}), refitted alone",
+                         "kind": "half", "T": T, "stored": halves[h]})
     if not rows:
         return None
     for r in rows:
