@@ -929,3 +929,28 @@ def test_the_offset_explanation_names_what_the_robot_model_cannot_see():
     assert "each half of the views, refitted alone, lands within 1.0 σ" in iid
     assert "calibrate with the arm's kinematic model (--robot ARM)" in iid
     assert "--robot" not in kin and "beyond its DH offsets and encoder noise" in kin
+
+
+def test_each_figure_gets_its_own_qa_limits(synthetic, tmp_path, monkeypatch):
+    """The per-view figure draws the reprojection limits and the rotation figure the rotation limits (each
+    figure's limits bound when it is planned, not the last ones looked up)."""
+    import handeye.report.plots as plots
+    from handeye.report import build_report_context
+    from handeye.report.qa import load_qa
+
+    got = {}
+    for name in ("per_view_bars", "rotation_coverage"):
+        real = getattr(plots, name)
+
+        def spy(*a, _real=real, _name=name, **k):
+            got[_name] = k
+            return _real(*a, **k)
+        monkeypatch.setattr(plots, name, spy)
+    res = json.loads((synthetic["out"] / "result.json").read_text())
+    obs = json.loads((synthetic["out"] / "observations.json").read_text())
+    build_report_context(_folder(tmp_path / "f", res, obs), make_plots=True)
+    checks = load_qa()["checks"]
+    assert (got["per_view_bars"]["warn_px"], got["per_view_bars"]["fail_px"]) == (
+        checks["reprojection_rms_px"]["warn_above"], checks["reprojection_rms_px"]["fail_above"])
+    assert (got["rotation_coverage"]["warn_deg"], got["rotation_coverage"]["fail_deg"]) == (
+        checks["max_rotation_deg"]["warn_below"], checks["max_rotation_deg"]["fail_below"])

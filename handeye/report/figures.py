@@ -69,9 +69,9 @@ def report_figures(*, res: dict, obs: dict, ref: dict, fits: dict[str, ViewFit],
         jobs.append(("per_view", "Residual per view",
                      "RMS residual of each view, fitted on its own (dark) and through the robot chain (light). "
                      "Red outlines: views dropped or flagged; dashed lines: QA limits of the reprojection RMS.",
-                     lambda: plots.per_view_bars([v["id"] for v in views], [v["rms_px"] for v in views],
-                                                 [v["chain_rms_px"] for v in views], [v["status"] for v in views],
-                                                 warn_px=rl.get("warn_above"), fail_px=rl.get("fail_above"))))
+                     lambda rl=rl: plots.per_view_bars([v["id"] for v in views], [v["rms_px"] for v in views],
+                                                       [v["chain_rms_px"] for v in views], [v["status"] for v in views],
+                                                       warn_px=rl.get("warn_above"), fail_px=rl.get("fail_above"))))
     # coverage
     if image_size and fits and "coverage_counts" in notes:
         vv = [(vid, f.image_points_px, f.residual_px, vid in flagged) for vid, f in sorted(fits.items())]
@@ -110,8 +110,8 @@ def report_figures(*, res: dict, obs: dict, ref: dict, fits: dict[str, ViewFit],
                      "into one hemisphere, equal-area; colour = angle). Axes spread over the disk constrain the "
                      "hand-eye rotation in all directions; a line or a cluster means one axis is missing. Right: the "
                      "rotation angles between view pairs.",
-                     lambda: plots.rotation_coverage(rv, frame=notes.get("axis_frame", ""),
-                                                     warn_deg=rl.get("warn_below"), fail_deg=rl.get("fail_below"))))
+                     lambda rl=rl: plots.rotation_coverage(rv, frame=notes.get("axis_frame", ""),
+                                                           warn_deg=rl.get("warn_below"), fail_deg=rl.get("fail_below"))))
     # uncertainty
     if T_x is not None:
         meth = []
