@@ -675,7 +675,32 @@ def _cross_validation(cv) -> Optional[dict]:
         used |= {"jackknife_sigma_rot_deg", "jackknife_sigma_trans_mm", "predicted_sigma_rot_deg",
                  "predicted_sigma_trans_mm", "ratio_rot", "ratio_trans", "axes"}
     labels = {"method": "Refit", "scheme": "Scheme", "n_views": "Views", "n_folds": "Folds",
-              "folds_solved": "Folds solved", "held_out_rms_px_median": "Held-out RMS, median [px]"}
+              "folds_solved": "Folds solved", "held_out_rms_px_median": "Held-out RMS, median [px]",
+              "per_view": "Per view (the views held out together share their fold's shift of X)"}
+
+    def triple(v, d):
+        return ", ".join(f"{x:.{d}f}" for x in v) if isinstance(v, list) else v
+
+    lim = cv.get("ratio_limits")
+    if isinstance(lim, list) and len(lim) == 2:
+        out["items"].append({"name": "Ratio of chance (99 % of folds when the model holds)",
+                             "value": f"{lim[0]:.2f}-{lim[1]:.2f}×"})
+    if cv.get("spread_p_value") is not None:
+        out["items"].append({"name": "p-value of the spread under the model covariance",
+                             "value": f"{float(cv['spread_p_value']):.2g}"})
+    if cv.get("verdict_sigma_rot_deg") is not None:
+        out["items"].append({"name": "Verdict covariance (1 σ): rotation [°] / translation [mm]",
+                             "value": f"{triple(cv['verdict_sigma_rot_deg'], 4)} / "
+                                      f"{triple(cv.get('verdict_sigma_trans_mm'), 3)}"})
+    if cv.get("ratio_rot_verdict") is not None:
+        out["items"].append({"name": "Held-out spread / verdict σ",
+                             "value": f"rotation {cv['ratio_rot_verdict']:.2f}×, translation "
+                                      f"{cv.get('ratio_trans_verdict', float('nan')):.2f}×"
+                                      + ("" if cv.get("covered_by_verdict") is None else
+                                         "; the verdict covariance covers the spread" if cv["covered_by_verdict"]
+                                         else "; the verdict covariance does not cover the spread")})
+    used |= {"ratio_limits", "ratio_limits_meaning", "spread_p_value", "verdict_sigma_rot_deg",
+             "verdict_sigma_trans_mm", "ratio_rot_verdict", "ratio_trans_verdict", "covered_by_verdict"}
     for k, v in cv.items():
         if k in used:
             continue
