@@ -33,7 +33,8 @@ from handeye.targets import ChessboardSpec
 
 FAULT_CODES = {"translation_units", "angle_units", "euler_order", "quaternion_order", "mode_swapped",
                "poses_inverted", "pairs_shifted", "pairs_shuffled", "robot_pose_disagrees", "board_moved", "weak_motion",
-               "too_few_views", "target_not_found", "blurred", "overexposed", "partial_target", "corners_bunched",
+               "too_few_views", "target_not_found", "image_missing", "blurred", "overexposed", "partial_target",
+               "corners_bunched",
                "zero_distortion_given", "corner_order_flipped", "uncertainty_underestimated", "intrinsics_mismatch",
                "square_size", "poses_do_not_fit", "mode_undecided"}
 
@@ -806,3 +807,14 @@ def test_poses_that_fit_no_explanation_are_never_a_quiet_pass(tmp_path, monkeypa
     assert "fail" in {f["severity"] for f in d["findings"]}
     assert _codes(d) & {"poses_do_not_fit", "pairs_shifted", "pairs_shuffled", "mode_swapped", "poses_inverted",
                         "euler_order"}
+
+
+def test_a_pose_line_without_its_image_is_named_as_such_not_as_target_not_found(tmp_path, monkeypatch):
+    cs = _session("eye_in_hand", 46, n_views=12)
+    folder = _write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported))
+    (folder / "5.jpg").unlink()
+    run, d = _diagnose(folder, cs, monkeypatch)
+    assert run.status == "ok"
+    f = _one(d, "image_missing")
+    assert f["severity"] == "info" and f["view_ids"] == ["5"] and "image file missing (pose line 5" in f["evidence"]
+    assert "target_not_found" not in _codes(d, severities=("fail", "warn", "info"))

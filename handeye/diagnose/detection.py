@@ -88,7 +88,8 @@ def detection_findings(run, *, A: Optional[np.ndarray] = None, B: Optional[np.nd
     intr = run.intrinsics
     can_predict = A is not None and B is not None and intr is not None and intr.width > 0
     few = [o for o in not_found if "corners" in str(o.reason) and "only" in str(o.reason)]
-    missing = [o for o in not_found if o not in few]
+    absent = [o for o in not_found if str(o.reason).startswith("image file missing")]  # a pose without its image
+    missing = [o for o in not_found if o not in few and o not in absent]
     notes, cut = {}, {}
     for o in missing:
         note = f"view {o.view_id}: {o.reason}"
@@ -122,6 +123,12 @@ def detection_findings(run, *, A: Optional[np.ndarray] = None, B: Optional[np.nd
                   "nothing to do if few; otherwise keep the whole board in the image at every robot pose")
         out.append(Finding("target_not_found", sev, title, "; ".join(notes[o.view_id] for o in missing), action,
                            view_ids=tuple(o.view_id for o in missing)))
+    if absent:
+        out.append(Finding("image_missing", "info", f"{len(absent)} pose line(s) without an image (dropped)",
+                           "; ".join(f"view {o.view_id}: {o.reason}" for o in absent),
+                           "nothing to do if those images were deleted on purpose; if the images were renumbered "
+                           "after a deletion, the later images carry the wrong poses (the pairing check names them)",
+                           view_ids=tuple(o.view_id for o in absent)))
     partial = [(o.view_id, str(o.reason)) for o in few] + list(cut.items())
     n_board = s.target.n_corners
     for vid, det in (run.detections or {}).items():

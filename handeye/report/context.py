@@ -603,7 +603,7 @@ def _findings(diag: dict) -> list[dict]:
                     "evidence": _cap1(f.get("evidence", "")), "action": _cap1(f.get("action", "")),
                     "view_ids": [str(v) for v in (f.get("view_ids") or [])],
                     "details": f.get("details") if isinstance(f.get("details"), dict) else {},
-                    "advice": finding_advice(f)})
+                    "advice": _unless_said(finding_advice(f), f.get("action", ""))})
     out.sort(key=lambda f: SEVERITY_ORDER[f["severity"]])
     return out
 
@@ -648,6 +648,13 @@ def _col_title(key: str) -> str:
             break
     k = k.replace("_", " ").replace("rms", "RMS")
     return k[:1].upper() + k[1:] + unit
+
+
+def _unless_said(advice: str, action: str) -> str:
+    """The advice of a finding's code, or "" when its own action says the same."""
+    def norm(s):
+        return re.sub(r"[^a-z0-9]+", " ", str(s).lower()).strip()
+    return "" if norm(advice) == norm(action) else advice
 
 
 def _cross_validation(cv) -> Optional[dict]:
