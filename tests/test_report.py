@@ -346,6 +346,8 @@ def test_failed_session_report_says_why_and_what_to_change(failed):
     rows = [line for line in section.splitlines() if re.match(r"^\| \*\*\S+\*\* \|", line)]
     assert len(rows) == 10 and all("| dropped |" in r for r in rows)
     assert _images_decode(html)["jpeg"] == len(list((out / "thumbnails").glob("*.jpg")))
+    assert "no hand-eye transform was computed" in section and "constrain the hand-eye" not in section
+    assert 'class="kpi pass"' not in html  # no green card without a result
 
 
 @needs_chromium

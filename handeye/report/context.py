@@ -753,6 +753,8 @@ def _kpis(metrics, pred, wd, views, verdict: Verdict, ok: bool, untrusted: dict[
 
     def card(label, value, sub, keys):
         st = max((status.get(k, "pass") for k in keys), key=lambda s: STATUS_ORDER.get(s, 0)) if keys else ""
+        if not ok and st == "pass":  # no result: a number of the data is not a passed calibration
+            st = "info"
         doubt = next((untrusted[k] for k in keys if k in untrusted), None)
         if doubt and value != "n/a":
             return {"label": label, "value": value, "sub": f"not to be trusted: {doubt}", "status": "untrusted"}
