@@ -214,22 +214,26 @@ def robot_pose_findings(obs: PoseObservations, check: RobotPoseCheck, rest: Sequ
     parts = []
     for v in rest:
         k = idx[v]
-        txt = f"view {v}: {rot[k]:.2f} deg / {trans[k]:.1f} mm ({t.distance[k]:.0f} sigma)"
-        if v in ref_flags and getattr(ref_flags[v], "size", None):
+        here = f"{rot[k]:.2f} deg / {trans[k]:.1f} mm ({t.distance[k]:.0f} sigma) against the common board fit"
+        if v in ref_flags and getattr(ref_flags[v], "size", None):  # the refinement's measure, which flagged it
             sz = ref_flags[v].size
-            txt += f" (refinement: {sz.get('rot_deg', float('nan')):.2f} deg / {sz.get('trans_mm', float('nan')):.1f} mm"
-            txt += f", {sz.get('mahalanobis', float('nan')):.1f} sigma)" if "mahalanobis" in sz else ")"
+            txt = (f"view {v}: {sz.get('rot_deg', float('nan')):.2f} deg / {sz.get('trans_mm', float('nan')):.1f} mm "
+                   "in the refinement" + (f" (Mahalanobis {sz['mahalanobis']:.1f} under its own pose covariance)"
+                                          if "mahalanobis" in sz else "") + f"; {here}")
+        else:
+            txt = f"view {v}: {here}"
         if v in obs.times:
             ti, tp = obs.times[v]
             txt += f", image and pose {1e3 * abs(ti - tp):.0f} ms apart"
         parts.append(txt)
     inl = check.inliers
-    typical = (f"the other views agree to {float(np.median(rot[inl])):.3f} deg / "
+    typical = (f"against the common board fit the other views agree to {float(np.median(rot[inl])):.3f} deg / "
                f"{float(np.median(trans[inl])):.2f} mm (median)")
     sev = "warn" if len(rest) <= max(1, int(0.2 * obs.n)) else "fail"
     return [Finding(
         "robot_pose_disagrees", sev,
-        f"{len(rest)} view(s) where the robot pose disagrees with what the camera saw: {ids_text(rest)}",
+        f"{len(rest)} view(s) where the robot pose disagrees with what the camera saw (view"
+        f"{'s' if len(rest) > 1 else ''} {ids_text(rest)})",
         "reported vs camera-implied robot pose, " + "; ".join(parts) + f"; {typical}; flagged by {source}",
         "check these views: was the robot still moving at capture (wait for it to settle), did the board or the "
         "camera move, is the pose from another view? Re-capture them or leave them out",
