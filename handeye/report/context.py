@@ -299,7 +299,8 @@ def _result_block(res, T_x, T_board, unc, pred, wd, x_name, b_name, parent, boar
         add("Euler, R = Rz·Ry·Rx (extrinsic x-y-z)", c, "deg", eu[k], unc["euler_vendor_deg"][k] if unc else None, 3)
     out = {
         "name": x_name,
-        "meaning": (res.get("frames") or {}).get(x_name, ""),
+        # the frame's words without result.json's equation: the line below the name states it once
+        "meaning": re.sub(r";\s*p_\w+ = \w+ @ p_\w+\.?$", "", str((res.get("frames") or {}).get(x_name, ""))),
         "equation": f"p_{parent} = {x_name} · p_cam",
         "child": "cam", "parent": parent,
         "matrix_text": matrix_text(T_x),
