@@ -138,7 +138,6 @@ def cross_validate(run) -> dict:
     if len(ok) < max(3, len(fold_list) // 2):
         return {"summary": f"not run: only {len(ok)} of {len(fold_list)} folds could be solved", "method": method}
     deltas = np.stack([x_delta(T_full, estimates[k][0]) for k in ok])
-    d = int(round(np.mean([len(fold_list[k]) for k in ok])))
     jk = jackknife_sigmas(deltas)
     obj = s.target.object_points()
     rows, held_px = [], []
@@ -158,7 +157,8 @@ def cross_validate(run) -> dict:
                          "x_shift_deg": round(float(np.linalg.norm(dx[:3])), 4),
                          "x_shift_mm": round(float(np.linalg.norm(dx[3:])), 3)})
             held_px.append(float(np.sqrt(np.mean(r ** 2))))
-    out = {"method": method, "scheme": "leave-one-out" if d == 1 else f"{len(fold_list)}-fold (interleaved)",
+    loo = all(len(f) == 1 for f in fold_list)
+    out = {"method": method, "scheme": "leave-one-out" if loo else f"{len(fold_list)}-fold (interleaved)",
            "n_views": n, "n_folds": len(fold_list), "folds_solved": len(ok),
            "jackknife_sigma_rot_deg": [round(float(x), 5) for x in jk[:3]],
            "jackknife_sigma_trans_mm": [round(float(x), 4) for x in jk[3:]],

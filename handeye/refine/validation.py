@@ -219,7 +219,8 @@ class Validation:
         test = (f"beyond chance (p = {self.x.p_value:.2g})" if self.x.finding
                 else f"within chance (p = {self.x.p_value:.2g})")
         return (f"{self.scheme}, {self.n_solved}/{len(self.folds)} folds: the held-out spread is {rms:.2f}x the "
-                f"model's sigma on average (up to {r:.2f}x), {test}; the verdict uses the {self.x.source} covariance")
+                f"model's sigma on average over the six directions the model covariance whitens (up to {r:.2f}x "
+                f"along the worst), {test}; the verdict uses the {self.x.source} covariance")
 
 
 def validate(result: RefineResult, *, object_points: np.ndarray, views: Sequence[RefineView],

@@ -365,7 +365,8 @@ def _uncertainty_block(ref, unc, parent) -> dict:
     val = ref.get("validation") if isinstance(ref.get("validation"), dict) else {}
     rows = []
     for label, r, t in (("model (refinement)", ref.get("sigma_rot_deg_model"), ref.get("sigma_trans_mm_model")),
-                        ("validated (refits without some views)", ref.get("sigma_rot_deg_validated"),
+                        ("validated (the folds' spread, shrunk toward the model scaled to it)",
+                         ref.get("sigma_rot_deg_validated"),
                          ref.get("sigma_trans_mm_validated"))):
         if r is not None and t is not None:
             rows.append({"name": label, "rot": list(r), "trans": list(t)})
