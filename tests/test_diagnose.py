@@ -36,7 +36,7 @@ FAULT_CODES = {"translation_units", "angle_units", "euler_order", "quaternion_or
                "too_few_views", "target_not_found", "image_missing", "blurred", "overexposed", "partial_target",
                "corners_bunched",
                "zero_distortion_given", "corner_order_flipped", "uncertainty_underestimated", "intrinsics_mismatch",
-               "square_size", "poses_do_not_fit", "mode_undecided"}
+               "square_size", "poses_do_not_fit", "mode_undecided", "arm_beyond_table"}
 
 
 CLEAN_STAGES = {s: "ok" for s in ("observations", "readings", "pairing", "scale", "board_moved", "robot_poses", "motion",
@@ -818,3 +818,22 @@ def test_a_pose_line_without_its_image_is_named_as_such_not_as_target_not_found(
     f = _one(d, "image_missing")
     assert f["severity"] == "info" and f["view_ids"] == ["5"] and "image file missing (pose line 5" in f["evidence"]
     assert "target_not_found" not in _codes(d, severities=("fail", "warn", "info"))
+
+
+def test_an_arm_further_from_its_table_than_stated_is_an_info_finding_with_its_largest_offsets():
+    from handeye.diagnose import arm_table_findings
+
+    off, sd = np.zeros((6, 4)), np.full((6, 4), 0.5)
+    off[4, 0], off[1, 2], off[2, 3] = 2.36, 1.07, -0.08
+    sd[2, 3] = 0.01
+    model = {"kind": "kinematic", "dh_prior_scale": 3.55, "dh_columns": ["a_mm", "alpha_deg", "d_mm", "theta_offset_deg"],
+             "dh_offset": off.tolist(), "dh_offset_sigma": sd.tolist(),
+             "dh_prior_sigma_stated": {"length_mm": 0.5, "angle_deg": 0.05},
+             "dh_prior_test": {"p_value": 1.6e-6, "alpha": 0.01, "contradicted": True}}
+    (f,) = arm_table_findings(model)
+    assert f.code == "arm_beyond_table" and f.severity == "info" and "widened 3.5x" in f.title
+    assert "reject the stated 0.5 mm / 0.05 deg (p = 1.6e-06" in f.evidence
+    assert ("largest offsets theta of joint 3 -0.08 deg (8.0 sigma), a of joint 5 +2.36 mm (4.7 sigma), "
+            "d of joint 2 +1.07 mm (2.1 sigma)") in f.evidence
+    assert arm_table_findings(dict(model, dh_prior_scale=1.0)) == []  # the stated prior held
+    assert arm_table_findings(dict(model, kind="iid")) == [] and arm_table_findings(None) == []
