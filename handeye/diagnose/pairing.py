@@ -164,6 +164,11 @@ class PairingSearch:
         return assign, T, C, fit_boards(C, obs.M(T, invert=invert))
 
 
+def _cost_text() -> str:
+    th = thresholds().readings
+    return f"cost: the median board scatter in units of {th.cost_deg:g} deg and {th.cost_mm:g} mm, combined"
+
+
 def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = False, given_cost: float,
                      search: Optional[PairingSearch] = None) -> list:
     """Images and poses out of step (shift by +-1..max_shift) or shuffled. ``search``: the search already
@@ -184,8 +189,8 @@ def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = F
             "pairs_shifted", "fail", f"Images and robot poses are out of step by {abs(s)}: image k belongs to pose "
                                      f"k{direction}",
             f"pairing image k with pose k{direction}: board scatter {fit.median_rot_deg:.3f} deg / "
-            f"{fit.median_trans_mm:.2f} mm (median over {int(keep.sum())} views) against "
-            f"{given_cost:.1f} (cost) as paired now",
+            f"{fit.median_trans_mm:.2f} mm (median over {int(keep.sum())} views), a cost of {best[1].cost:.2f} "
+            f"against {given_cost:.1f} as paired now ({_cost_text()})",
             f"re-pair the poses with the images ({kind_hint}); capture poses and images together, by view id",
             details={"shift": s, "views_compared": int(keep.sum()), "board_scatter_deg": fit.median_rot_deg,
                      "board_scatter_mm": fit.median_trans_mm})]
@@ -201,8 +206,8 @@ def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = F
             "pairs_shuffled", "fail", f"Images and robot poses are shuffled: {len(moved)} of {obs.n} images carry "
                                      "another view's pose",
             f"matched by the rotation angles between views: {pairs}{' ...' if len(moved) > 10 else ''}; with this "
-            f"pairing the board scatters by {fit.median_rot_deg:.3f} deg / {fit.median_trans_mm:.2f} mm (median) "
-            f"against a cost of {given_cost:.1f} as paired now",
+            f"pairing the board scatters by {fit.median_rot_deg:.3f} deg / {fit.median_trans_mm:.2f} mm (median), "
+            f"a cost of {fit.cost:.2f} against {given_cost:.1f} as paired now ({_cost_text()})",
             "re-pair images and poses by view id (the recording lost the order); re-capture if unsure",
             view_ids=tuple(moved), details={"assignment": {v: assign[v] for v in moved},
                                             "board_scatter_deg": fit.median_rot_deg,
