@@ -831,9 +831,9 @@ def test_an_arm_further_from_its_table_than_stated_is_an_info_finding_with_its_l
              "dh_prior_sigma_stated": {"length_mm": 0.5, "angle_deg": 0.05},
              "dh_prior_test": {"p_value": 1.6e-6, "alpha": 0.01, "contradicted": True}}
     (f,) = arm_table_findings(model)
-    assert f.code == "arm_beyond_table" and f.severity == "info" and "widened 3.5x" in f.title
+    assert f.code == "arm_beyond_table" and f.severity == "info" and "widened 3.55x" in f.title
     assert "reject the stated 0.5 mm / 0.05 deg (p = 1.6e-06" in f.evidence
-    assert ("largest offsets theta of joint 3 -0.08 deg (8.0 sigma), a of joint 5 +2.36 mm (4.7 sigma), "
+    assert ("the offsets most beyond their sigma: theta of joint 3 -0.08 deg (8.0 sigma), a of joint 5 +2.36 mm (4.7 sigma), "
             "d of joint 2 +1.07 mm (2.1 sigma)") in f.evidence
     assert arm_table_findings(dict(model, dh_prior_scale=1.0)) == []  # the stated prior held
     assert arm_table_findings(dict(model, kind="iid")) == [] and arm_table_findings(None) == []

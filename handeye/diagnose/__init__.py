@@ -276,7 +276,8 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
 def arm_table_findings(model: Optional[dict]) -> list:
     """An info finding when the views put the arm further from its DH table than its stated prior allows
     (the kinematic model widened the prior: :func:`handeye.refine.noise._dh_prior_test`), with the largest
-    offsets: the arm's own kinematic calibration is off, which the hand-eye result has taken into account."""
+    offsets most beyond their sigma: the arm's own kinematic calibration is off, which the hand-eye result has taken
+    into account."""
     if not model or model.get("kind") != "kinematic" or float(model.get("dh_prior_scale") or 1.0) <= 1.0:
         return []
     test, stated = model.get("dh_prior_test") or {}, model.get("dh_prior_sigma_stated") or {}
@@ -287,12 +288,12 @@ def arm_table_findings(model: Optional[dict]) -> list:
     if off.ndim == 2 and off.shape == sd.shape and off.size and len(cols) == off.shape[1]:
         z = np.abs(off) / np.where(sd > 0, sd, np.inf)
         top = [np.unravel_index(k, off.shape) for k in np.argsort(-z, axis=None)[:3]]
-        largest = "; largest offsets " + ", ".join(
+        largest = "; the offsets most beyond their sigma: " + ", ".join(
             f"{cols[c].split('_')[0]} of joint {j + 1} {off[j, c]:+.2f} {cols[c].rsplit('_', 1)[-1]} ({z[j, c]:.1f} sigma)"
             for j, c in top)
     return [Finding("arm_beyond_table", "info",
                     f"The arm is further from its DH table than its stated tolerance: the robot error model's DH "
-                    f"prior was widened {float(model['dh_prior_scale']):.1f}x",
+                    f"prior was widened {float(model['dh_prior_scale']):.2f}x",
                     f"the DH offsets the views resolve reject the stated {stated.get('length_mm', float('nan')):.2g} "
                     f"mm / {stated.get('angle_deg', float('nan')):.2g} deg (p = {float(test.get('p_value', float('nan'))):.2g}"
                     f" at alpha {test.get('alpha', '?')}){largest}; the result's covariance includes the widened prior",

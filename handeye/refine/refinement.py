@@ -88,8 +88,8 @@ def best_start(pb: Problem, starts: Mapping[str, HandEyeEstimate]) -> tuple[np.n
             best = (check_T(est.T_x, f"{name} {pb.mounting.x_name}"), check_T(est.T_board, name))
             best_score, best_name = score, name
     if best_name != "given":
-        log.info("starting the refinement from the %s closed form (median view residual %.3g px; given start "
-                 "%.3g px)", best_name, best_score, given_score)
+        log.info("starting the refinement from the %s closed form (median view residual %.4f px; the given "
+                 "start's %.4f px)", best_name, best_score, given_score)
     return best[0], best[1], best_name
 
 

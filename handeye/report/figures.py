@@ -122,8 +122,9 @@ def report_figures(*, res: dict, obs: dict, ref: dict, fits: dict[str, ViewFit],
         cov_t = unc["cov_translation_mm2"] if unc is not None else None
         if cov_t is not None or meth:
             jobs.append(("uncertainty", "Uncertainty of the translation",
-                         ("1-σ (solid) and 2-σ (dashed) ellipses of the hand-eye translation from the refinement's "
-                          "covariance" if cov_t is not None else "No covariance (closed form only)")
+                         ("1-σ (solid) and 2-σ (dashed) ellipses of the hand-eye translation from the verdict "
+                          "covariance (the one every ± of the report uses)" if cov_t is not None
+                          else "No covariance (closed form only)")
                          + "; markers: the closed-form methods, relative to the result. The closed-form methods treat "
                          "the robot poses as exact and weigh views unevenly, so they scatter more than the refined "
                          "result; one method far from all others points at weak motion or a bad pose.",
