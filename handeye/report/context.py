@@ -775,7 +775,8 @@ def _kpis(metrics, pred, wd, views, verdict: Verdict, ok: bool, untrusted: dict[
     if views:
         n_flagged = sum(bool(x.get("flagged")) for x in views)
         n_corners = sum(bool(x.get("corner_flags")) for x in views)
-        out.append(card("Views used", f"{n_used} / {len(views)}", f"{n_flagged} dropped or flagged"
+        out.append(card("Views used" if ok else "Views detected and paired", f"{n_used} / {len(views)}",
+                        f"{n_flagged} dropped or flagged"
                         + (f"; {n_corners} used with outlier corners" if n_corners else ""), ["used_views"]))
     mr, sp = metrics.get("max_rotation_deg"), metrics.get("axis_spread_deg")
     if mr is not None:
