@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import os
 import sys
 import tempfile
 import time
@@ -415,7 +416,9 @@ def _run_case(args) -> dict:
     return out
 
 
-REFINE = False  # --refine: calibrate as `handeye calibrate` does (the refinement's robot-pose decisions)
+# --refine: calibrate as `handeye calibrate` does (the refinement's robot-pose decisions); through the environment,
+# so that the Dask workers, which import this script as a module, see it too
+REFINE = os.environ.get("BENCH_DIAGNOSE_REFINE") == "1"
 
 
 def _run_and_diagnose(path: Path, cs, **opts):
@@ -506,6 +509,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     global REFINE
     REFINE = a.refine
+    os.environ["BENCH_DIAGNOSE_REFINE"] = "1" if a.refine else "0"
     seeds = range(2 if a.quick else a.seeds)
     false_alarms = 0
     with tempfile.TemporaryDirectory() as tmp:

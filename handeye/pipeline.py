@@ -474,9 +474,10 @@ def _pairing_gate(s: Session, obs: Observation, M_all: dict, state: dict) -> Non
     shift = f.details.get("shift")
     if shift is not None:
         raise SessionRefused(
-            f"{f.title}: {f.evidence}", expected="image k paired with pose line k",
-            received=f"image k fits pose k{shift:+d}",
-            hint=f"fix the pairing, or apply the shift with --shift-poses {shift} (image k takes pose line k{shift:+d})",
+            f"{f.title}: {f.evidence}", expected="each image paired with its own pose line",
+            received=f"image k fits the pose written for image k{shift:+d}",
+            hint=f"fix the pairing, or apply the shift with --shift-poses {shift} (image k takes the pose written "
+                 f"for image k{shift:+d})",
             code="pairs_shifted")
     raise SessionRefused(f"{f.title}: {f.evidence}", expected="each image paired with its own robot pose",
                            received="poses that belong to other images", hint=f.action, code="pairs_shuffled")

@@ -837,3 +837,18 @@ def test_an_arm_further_from_its_table_than_stated_is_an_info_finding_with_its_l
             "d of joint 2 +1.07 mm (2.1 sigma)") in f.evidence
     assert arm_table_findings(dict(model, dh_prior_scale=1.0)) == []  # the stated prior held
     assert arm_table_findings(dict(model, kind="iid")) == [] and arm_table_findings(None) == []
+
+
+def test_a_stated_pose_format_the_lines_do_not_fit_is_not_called_a_detection_failure(tmp_path, monkeypatch):
+    cs = _session("eye_in_hand", 47, n_views=8)
+    folder = _write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported))
+    cfg = yaml.safe_load((folder / "config.yaml").read_text())
+    cfg["pose_format"] = {"rotation": "quaternion"}  # the lines hold six numbers
+    (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
+    with pytest.raises(InputError, match="do not match config.yaml's pose_format") as e:
+        load_session(folder)
+    _patch(monkeypatch, cs)
+    d = diagnose_session_error(folder, str(e.value))
+    (f,) = d["findings"]
+    assert f["code"] == "session_unreadable" and "fit no pose format" in f["title"]
+    assert "pose_format" in f["action"]

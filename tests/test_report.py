@@ -956,3 +956,27 @@ def test_each_figure_gets_its_own_qa_limits(synthetic, tmp_path, monkeypatch):
         checks["reprojection_rms_px"]["warn_above"], checks["reprojection_rms_px"]["fail_above"])
     assert (got["rotation_coverage"]["warn_deg"], got["rotation_coverage"]["fail_deg"]) == (
         checks["max_rotation_deg"]["warn_below"], checks["max_rotation_deg"]["fail_below"])
+
+
+def test_nulls_in_the_validation_block_and_deleted_images_do_not_break_or_inflate_the_report(synthetic, tmp_path):
+    """A NaN stored as null in the diagnostics' validation prints as a dash; a pose line whose image was deleted
+    is listed as dropped but is not counted in the dropped share (nothing was captured badly)."""
+    from handeye.report import build_report_context
+
+    res = json.loads((synthetic["out"] / "result.json").read_text())
+    obs = json.loads((synthetic["out"] / "observations.json").read_text())
+    cv = res["diagnostics"]["cross_validation"]
+    cv.update(verdict_sigma_rot_deg=[None, 0.01, 0.02], verdict_sigma_trans_mm=[None, 0.1, 0.2],
+              ratio_rot_verdict=0.9, ratio_trans_verdict=None, ratio_limits=[0.5, None], spread_p_value=0.3)
+    base = build_report_context(_folder(tmp_path / "a", res, obs), make_plots=False)
+    share0 = next(c for c in base["verdict"].checks if c.key == "dropped_share").value
+    v = next(x for x in res["views"] if x["used"])
+    v.update(used=False, reason="image file missing (pose line 3 not used)")
+    res["refinement"]["per_view"].pop(str(v["id"]), None)  # the refinement never saw it
+    md, _ = _reports(_folder(tmp_path / "b", res, obs))
+    assert "Held-out spread / verdict σ: rotation 0.90×, translation —×" in md
+    assert "Range of the ratio by chance when the model holds: 0.50-—×" in md
+    ctx = build_report_context(_folder(tmp_path / "c", res, obs), make_plots=False)
+    row = next(r for r in ctx["views"] if r["id"] == str(v["id"]))
+    assert row["status"] == "dropped" and row["reason_kind"] == "image missing" and not row["flagged"]
+    assert next(c for c in ctx["verdict"].checks if c.key == "dropped_share").value == pytest.approx(share0)

@@ -87,6 +87,8 @@ def test_a_first_line_of_column_names_is_skipped(tmp_path, header):
     (["nan,nan,nan,nan,nan,nan"], r"poses.txt:1: pose line holds a value that is not a usable number"),
     (["x,0.1,0.2,0,0,0"], r"poses.txt:1: malformed pose line"),  # names and numbers mixed: not a header
     (["x=0.5 y=0.1 z=0.4 rx=0 ry=0 rz=0"], r"poses.txt:1: malformed pose line"),  # values named: not a header
+    (["None,None,None,None,None,None"], r"poses.txt:1: malformed pose line"),  # a failed read, not names
+    (["x,y,z"], r"poses.txt:1: malformed pose line.*names 3 columns, the lines hold 6"),  # not these columns
 ])
 def test_only_a_first_line_of_names_is_a_header(tmp_path, lines, match):
     good = [",".join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)) for T in POSES]
@@ -666,3 +668,16 @@ def test_visp_apriltag_layout_imports_as_a_single_marker_with_its_id(tmp_path):
     assert s.target == MarkerSpec(0.048, "DICT_APRILTAG_36h11", 17)
     for v in s.views:
         assert np.allclose(v.T_base_end, truth["views"][v.view_id]["T_base_end_reported"], atol=1e-9)
+
+
+def test_images_from_zero_with_a_header_and_a_gap_name_the_pose_line_by_its_count(tmp_path):
+    good = [",".join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)) for T in POSES]
+    d = vendor(tmp_path, lines=["# poses", "x,y,z,rx,ry,rz", *good])
+    for k in range(1, 5):
+        (d / f"{k}.jpg").rename(d / f"{k - 1}.jpg")
+    (d / "1.jpg").unlink()  # the second pose line's image
+    s = load_session(d)
+    assert [v.view_id for v in s.views] == ["0", "2", "3"]
+    assert [v.source_line for v in s.views] == [3, 5, 6]  # lines in the file
+    assert s.meta["missing_images"] == {"1": 2}  # pose line 2: the second line with numbers
+    np.testing.assert_allclose(s.view("2").T_base_end, POSES[2], atol=1e-8)

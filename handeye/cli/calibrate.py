@@ -55,7 +55,8 @@ def add_arguments(p) -> None:
                    help="site QA thresholds for the verdict and the report (overrides configs/qa.yaml)")
     p.add_argument("--no-report", action="store_true", help="write result.json, observations.json and thumbnails only")
     p.add_argument("--shift-poses", type=int, default=0, metavar="N",
-                   help="pair image k with pose line k+N (the constant shift a refused run names)")
+                   help="pair image k with the pose written for image k+N (the constant shift a refused run "
+                        "names)")
     p.add_argument("--prior", type=Path, metavar="RESULT",
                    help="an earlier result of this rig: its X and intrinsics enter as priors with their covariances "
                         "(a few new views update it); result.json's prior block says whether the data contradict it "

@@ -302,9 +302,10 @@ def arm_table_findings(model: Optional[dict]) -> list:
 
 
 # ------------------------------------------------------------------------------ failed loads
-def _observe_lenient(sess) -> tuple[Optional[PoseObservations], int, int]:
+def _observe_lenient(sess) -> tuple[Optional[PoseObservations], Optional[int], int]:
     """Detections, intrinsics and board poses of a leniently read session through the pipeline's
-    observation stage: (observations | None, n_found, n_images)."""
+    observation stage: (observations | None, n_found, n_images); n_found is None when no reading of the
+    pose numbers parses (nothing was detected then)."""
     from ..initial import board_poses
     from ..pipeline import observe
 
@@ -319,7 +320,7 @@ def _observe_lenient(sess) -> tuple[Optional[PoseObservations], int, int]:
         if T_items is not None:
             break
     if T_items is None:
-        return None, 0, len(items)
+        return None, None, len(items)
     M_by_id = dict(zip(item_ids, mode.M_from_T_base_end(T_items)))
     seen = observe(target=target, items=items, intrinsics=sess.intrinsics, M_by_id=M_by_id)
     n_det = len(seen.detections)
@@ -370,6 +371,13 @@ def diagnose_session_error(path, error, *, mode: Optional[str] = None, images: b
         return plain(base, nan_to_none=True)
     observed = stages.run("observations", _observe_lenient, sess, default=(None, 0, len(sess.images_by_id)))
     obs, n_det, n_img = observed
+    if obs is None and n_det is None:  # the pose numbers parse in no reading: not a detection problem
+        base["findings"] = [Finding(
+            "session_unreadable", "fail", "The session could not be read: its pose numbers fit no pose format",
+            err, "write the poses as the format says, or state the format they are in (pose_format: in "
+                 "session.yaml or a vendor config.yaml, see docs/session_format.md)").to_dict()]
+        base.update(stages.to_dict())
+        return plain(base, nan_to_none=True)
     if obs is None:
         few = n_det < thresholds().views.min_fail
         base["findings"] = [Finding(

@@ -177,8 +177,8 @@ def cross_validate(run) -> dict:
     out["ratio_rot"], out["ratio_trans"] = round(rr, 3), round(rt, 3)
     lo, hi = ratio_limits(len(ok))
     out["ratio_limits"] = [round(lo, 3), round(hi, 3)]
-    out["ratio_limits_meaning"] = (f"the {1 - validation_alpha():.0%} range of this ratio when the model covariance is "
-                                   f"right: sqrt(chi2({len(ok) - 1}) / {len(ok) - 1}) at alpha {validation_alpha():g} "
+    out["ratio_limits_meaning"] = (f"the {1 - 2 * validation_alpha():.0%} range of this ratio when the model "
+                                   f"covariance is right: sqrt(chi2({len(ok) - 1}) / {len(ok) - 1}) at alpha {validation_alpha():g} "
                                    "each side")
     covered = None
     exceeds = max(rr, rt) > hi

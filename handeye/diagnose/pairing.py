@@ -182,7 +182,8 @@ def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = F
     if best is not None and is_clearly_better(best[1].cost, given_cost):
         s, fit, keep = best
         direction = f"+{s}" if s > 0 else str(s)
-        kind_hint = (f"the first {s} pose line(s) belong to no image: delete them" if s > 0 else
+        kind_hint = (f"the first {s} pose line(s) belong to no image: delete them (or the images are numbered "
+                     f"from 0 and the first {s} of them were deleted)" if s > 0 else
                      f"the pose(s) of the first {-s} image(s) are missing: the first pose line holds the pose of the "
                      f"image {-s} after the first")
         return [Finding(

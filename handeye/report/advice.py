@@ -27,7 +27,7 @@ ERROR_ADVICE = {
     "mode_swapped": "Check where the camera is mounted: on the flange it is eye_in_hand, on a stand eye_to_hand; "
                     "state that mode with --mode or mode: in the session.",
     "pairs_shifted": "Check whether the pose file has an extra or a missing line at the start; if the shift is "
-                     "certain, re-run with --shift-poses N (image k takes pose line k + N), else re-capture images "
+                     "certain, re-run with --shift-poses N (image k takes the pose written for image k + N), else re-capture images "
                      "and poses together, by view id.",
     "pairs_shuffled": "Re-pair images and poses by view id (the recording lost the order); re-capture if unsure.",
     "session_refused": "Read the finding that refused the run below; fix its cause and re-run handeye calibrate.",

@@ -216,7 +216,8 @@ def _view_rows(res, ref, fits, centre, findings, image_size) -> list[dict]:
         if not v.get("used", False):
             status = "flagged" if kinds or vid in per_view else "dropped"
             kind = next((OUTLIER_KIND_TEXT.get(k, k) for k in kinds if k), "")
-            reason_kind = kind or ("target not found" if fit is None else "not used")
+            reason_kind = kind or ("image missing" if str(v.get("reason") or "").startswith("image file missing")
+                                   else "target not found" if fit is None else "not used")
             flags.append({"severity": "fail", "text": _strip_view_prefix(v.get("reason") or "not used")})
         elif pv.get("status") == "robot_excluded":
             status, reason_kind = "flagged", OUTLIER_KIND_TEXT["robot_pose"]
@@ -257,7 +258,8 @@ def _view_rows(res, ref, fits, centre, findings, image_size) -> list[dict]:
                        for c, (u, w) in zip(fit.corner_ids, fit.image_points_px)]
         # flagged: in the dropped/flagged share once, dropped or its robot pose excluded (it did not serve X);
         # a used view with a few outlier corners is listed (corner_flags), not counted: its pose served X
-        flagged = status != "used"
+        # (a pose line whose image was deleted is listed as dropped, not counted: nothing was captured badly)
+        flagged = status != "used" and reason_kind != "image missing"
         corner_flags = status == "used" and (bool(v.get("flags")) or vid in outl)
         rows.append({"id": vid, "image": v.get("image") or "", "status": status, "reason_kind": reason_kind,
                      "flagged": flagged, "corner_flags": corner_flags,
@@ -687,24 +689,27 @@ def _cross_validation(cv) -> Optional[dict]:
               "folds_solved": "Folds solved", "held_out_rms_px_median": "Held-out RMS, median [px]",
               "per_view": "Per view (the views held out together share their fold's shift of X)"}
 
+    def num_text(x, d):
+        return f"{x:.{d}f}" if isinstance(x, (int, float)) else "—"  # a NaN is stored as null
+
     def triple(v, d):
-        return ", ".join(f"{x:.{d}f}" for x in v) if isinstance(v, list) else v
+        return ", ".join(num_text(x, d) for x in v) if isinstance(v, list) else num_text(v, d)
 
     lim = cv.get("ratio_limits")
     if isinstance(lim, list) and len(lim) == 2:
-        out["items"].append({"name": "Ratio of chance (99 % of folds when the model holds)",
-                             "value": f"{lim[0]:.2f}-{lim[1]:.2f}×"})
+        out["items"].append({"name": "Range of the ratio by chance when the model holds",
+                             "value": f"{num_text(lim[0], 2)}-{num_text(lim[1], 2)}×"})
     if cv.get("spread_p_value") is not None:
         out["items"].append({"name": "p-value of the spread under the model covariance",
-                             "value": f"{float(cv['spread_p_value']):.2g}"})
+                             "value": f"{float(cv['spread_p_value']):.2g}"})  # not None here
     if cv.get("verdict_sigma_rot_deg") is not None:
         out["items"].append({"name": "Verdict covariance (1 σ): rotation [°] / translation [mm]",
                              "value": f"{triple(cv['verdict_sigma_rot_deg'], 4)} / "
                                       f"{triple(cv.get('verdict_sigma_trans_mm'), 3)}"})
     if cv.get("ratio_rot_verdict") is not None:
         out["items"].append({"name": "Held-out spread / verdict σ",
-                             "value": f"rotation {cv['ratio_rot_verdict']:.2f}×, translation "
-                                      f"{cv.get('ratio_trans_verdict', float('nan')):.2f}×"
+                             "value": f"rotation {num_text(cv['ratio_rot_verdict'], 2)}×, translation "
+                                      f"{num_text(cv.get('ratio_trans_verdict'), 2)}×"
                                       + ("" if cv.get("covered_by_verdict") is None else
                                          "; the verdict covariance covers the spread" if cv["covered_by_verdict"]
                                          else "; the verdict covariance does not cover the spread")})

@@ -69,7 +69,8 @@ def report_figures(*, res: dict, obs: dict, ref: dict, fits: dict[str, ViewFit],
         jobs.append(("per_view", "Residual per view",
                      "RMS residual of each view, fitted on its own (dark) and through the robot chain (light). "
                      "Red outlines: views dropped or flagged; dashed lines: the QA limits of the session's reprojection RMS "
-                     "(the refined fit; the through-robot residuals add the robot's pose error and have no limit).",
+                     + ("(the refined fit" if ref else "(the views' own camera fits")
+                     + "; the through-robot residuals add the robot's pose error and have no limit).",
                      lambda rl=rl: plots.per_view_bars([v["id"] for v in views], [v["rms_px"] for v in views],
                                                        [v["chain_rms_px"] for v in views], [v["status"] for v in views],
                                                        warn_px=rl.get("warn_above"), fail_px=rl.get("fail_above"))))

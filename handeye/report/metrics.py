@@ -68,7 +68,8 @@ def qa_metrics(res: dict, ref: dict, fits: dict[str, ViewFit], views: list[dict]
         m["max_rotation_deg"] = m["axis_spread_deg"] = None
     # views
     n_total = len(views)
-    bad = [v for v in views if v["status"] != "used" or v.get("flagged")]  # each view once: dropped or pose excluded
+    # each view once: dropped or its robot pose excluded (not a pose line whose image was deleted)
+    bad = [v for v in views if v.get("flagged")]
     if n_total:
         m["dropped_share"] = len(bad) / n_total
     c["n_bad"], c["n_total"] = len(bad), n_total

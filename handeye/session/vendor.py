@@ -29,6 +29,7 @@ log = logging.getLogger(__name__)
 
 IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 _NUMBERED = re.compile(r"^(\d+)$")
+_NOT_NAMES = {"none", "null", "nil", "na", "n/a", "undefined", "error"}  # a value that failed, not a column name
 _NAME = re.compile(r"^[A-Za-z_][\w()\[\]/.-]*$")  # a column name: x, rx, rx(rad), x[m]
 _POSE_EXPECTED = "x,y,z,rx,ry,rz (metres, radians)"
 #: the mode of a vendor session whose config.yaml states none (the vendor's rig is eye-in-hand)
@@ -51,21 +52,27 @@ def read_pose_lines(poses_path: Path, *, first: int = 1) -> list[PoseLine]:
     line that is not numbers. Counts and units are not checked here."""
     raw_lines = read_text(poses_path, what="poses.txt").splitlines()
     out: list[PoseLine] = []
-    header_seen = False
+    header = None  # (line number, fields, text) of a first line of column names
     for lineno, line in enumerate(raw_lines, start=1):
         s = line.strip()
         if not s or s.startswith("#"):
             continue
         fields = [f for f in re.split(r"[,\s]+", s) if f]
-        if not out and not header_seen and _is_header(fields):
-            header_seen = True
-            log.debug("%s:%d: column names skipped: %s", poses_path, lineno, s[:80])
+        if not out and header is None and _is_header(fields):
+            header = (lineno, fields, s)
             continue
         try:
             values = np.array([float(f) for f in fields])
         except ValueError:
             raise InputError("malformed pose line", path=poses_path, line=lineno,
                              expected=_POSE_EXPECTED, received=repr(s[:80])) from None
+        if not out and header is not None:
+            if len(header[1]) != values.size:  # not the names of these columns: a pose line gone wrong
+                raise InputError("malformed pose line", path=poses_path, line=header[0], expected=_POSE_EXPECTED,
+                                 received=repr(header[2][:80]),
+                                 hint=f"as column names it names {len(header[1])} columns, the lines hold "
+                                      f"{values.size}")
+            log.debug("%s:%d: column names skipped: %s", poses_path, header[0], header[2][:80])
         check_finite(values, path=poses_path, line=lineno, what="pose line")
         out.append(PoseLine(len(out) + first, lineno, values))
     if not out:
@@ -82,7 +89,7 @@ def _is_header(fields: list[str]) -> bool:
             return True
         except ValueError:
             return False
-    return bool(fields) and all(_NAME.match(f) and not number(f) for f in fields)
+    return bool(fields) and all(_NAME.match(f) and not number(f) and f.lower() not in _NOT_NAMES for f in fields)
 
 
 def read_vendor_config(folder: Path, *, strict: bool = True) -> tuple[ChessboardSpec, str | None, dict]:
@@ -170,7 +177,8 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
         try:
             T = T_from_pose_values(pl.values, fmt)
         except ValueError as e:
-            hint = None if stated or pl.values.size == fmt.n_values else _count_hint(pl.values.size, pose_lines)
+            hint = ("the lines do not match config.yaml's pose_format: fix one of the two" if stated else
+                    None if pl.values.size == fmt.n_values else _count_hint(pl.values.size, pose_lines))
             raise InputError(f"bad pose: {e}", path=poses_path, line=pl.lineno,
                              expected=fmt.describe() if stated else _POSE_EXPECTED, hint=hint) from None
         check_translation_units(T, path=poses_path, line=pl.lineno, unit=fmt.translation_unit,
@@ -201,5 +209,5 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
     return Session(path=folder, format="vendor", mode=sess_mode, target=target, views=tuple(views),
                    pose_format=fmt.describe(),
                    mode_source="flag" if mode is not None else ("stated" if cfg_mode else "default"),
-                   meta={"config": cfg, "missing_images": {str(k): poses[k - first][0] for k in without_image},
+                   meta={"config": cfg, "missing_images": {str(k): k - first + 1 for k in without_image},  # pose line k
                          "files_read": [folder / "config.yaml", poses_path, *(images[k] for k in sorted(images))]})
