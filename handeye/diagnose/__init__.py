@@ -275,9 +275,9 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
 
 def arm_table_findings(model: Optional[dict]) -> list:
     """An info finding when the views put the arm further from its DH table than its stated prior allows
-    (the kinematic model widened the prior: :func:`handeye.refine.noise._dh_prior_test`), with the largest
-    offsets most beyond their sigma: the arm's own kinematic calibration is off, which the hand-eye result has taken
-    into account."""
+    (the kinematic model widened the prior: :func:`handeye.refine.noise._dh_prior_test`), with the offsets
+    most beyond their sigma: the arm's own kinematic calibration is off, which the hand-eye result has taken into
+    account."""
     if not model or model.get("kind") != "kinematic" or float(model.get("dh_prior_scale") or 1.0) <= 1.0:
         return []
     test, stated = model.get("dh_prior_test") or {}, model.get("dh_prior_sigma_stated") or {}

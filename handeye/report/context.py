@@ -701,7 +701,7 @@ def _cross_validation(cv) -> Optional[dict]:
                              "value": f"{num_text(lim[0], 2)}-{num_text(lim[1], 2)}×"})
     if cv.get("spread_p_value") is not None:
         out["items"].append({"name": "p-value of the spread under the model covariance",
-                             "value": f"{float(cv['spread_p_value']):.2g}"})  # not None here
+                             "value": f"{float(cv['spread_p_value']):.2g}"})
     if cv.get("verdict_sigma_rot_deg") is not None:
         out["items"].append({"name": "Verdict covariance (1 σ): rotation [°] / translation [mm]",
                              "value": f"{triple(cv['verdict_sigma_rot_deg'], 4)} / "
