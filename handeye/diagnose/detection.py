@@ -90,6 +90,7 @@ def detection_findings(run, *, A: Optional[np.ndarray] = None, B: Optional[np.nd
     few = [o for o in not_found if "corners" in str(o.reason) and "only" in str(o.reason)]
     absent = [o for o in not_found if str(o.reason).startswith("image file missing")]  # a pose without its image
     missing = [o for o in not_found if o not in few and o not in absent]
+    n_total -= len(absent)  # images looked at
     notes, cut = {}, {}
     for o in missing:
         note = f"view {o.view_id}: {o.reason}"
