@@ -771,7 +771,7 @@ REFUSALS = [
      "Pairs shifted by 2 lines: images and robot poses are out of step by 2: image k belongs to pose k+2. Fix: "
      "fix the pairing, or apply the shift with --shift-poses 2 (image k takes pose line k+2). No result is given."),
     ("pairs_shuffled", "Images and robot poses are shuffled: 6 of 12 images carry another view's pose: ...",
-     "re-pair images and poses by view id", "Pairs shuffled: images and robot poses are shuffled: 6 of 12 images "
+     "re-pair images and poses by view id", "Pairs shuffled: 6 of 12 images "
      "carry another view's pose. Fix: re-pair images and poses by view id. No result is given."),
 ]
 

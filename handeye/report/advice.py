@@ -193,6 +193,9 @@ def _cause_of_finding(f: dict) -> str:
     if code == "square_size" and details.get("measured_mm") is not None and details.get("stated_mm") is not None:
         label = f"Squares look like {float(details['measured_mm']):.1f} mm, not {float(details['stated_mm']):g} mm"
         return label
+    said = "images and robot poses are shuffled: "  # the label says it already
+    if code == "pairs_shuffled" and title.lower().startswith(said):
+        title = title[len(said):]
     if code == "pairs_shifted":
         label = _shift_label(details["shift"]) if "shift" in details else ROOT_CAUSE_LABELS["pairs_shuffled"]
     else:
