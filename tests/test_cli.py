@@ -422,3 +422,13 @@ def test_the_mode_line_says_when_the_data_chose_or_could_not_choose():
     assert mode_lines({"mode": "eye_in_hand", "mode_source": "stated"}) == []
     assert mode_lines({"mode": "eye_in_hand", "mode_source": "flag"}) == []
     assert verdict_lines({"status": "ok"}) == []  # a result.json from before verdicts: nothing invented
+
+
+def test_the_printed_sigmas_say_which_covariance_they_come_from():
+    from handeye.cli.calibrate import _sigma_source_words
+
+    ok = {"validation": {"status": "ok"}}
+    assert _sigma_source_words("model", ok) == "from the model covariance; the held-out folds agree with it"
+    assert _sigma_source_words("model", {"validation": {"status": "not_run"}}).endswith("not validated")
+    assert "held-out folds" in _sigma_source_words("validated", ok)
+    assert "in each direction" in _sigma_source_words("model+validated", ok)

@@ -14,6 +14,15 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 
+def _sigma_source_words(src: str, ref: dict) -> str:
+    """result.json's sigma_source (which covariance the verdict uses) in the words of the printed result."""
+    validated = ((ref.get("validation") or {}).get("status") == "ok")
+    return {"model": ("from the model covariance; the held-out folds agree with it" if validated
+                      else "from the model covariance; not validated"),
+            "validated": "from the spread over held-out folds, larger than the model's",
+            "model+validated": "the larger of the model's and the held-out folds' in each direction"}.get(src, src)
+
+
 def add_arguments(p) -> None:
     """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
     from ..config import arm_presets
@@ -250,7 +259,7 @@ def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
             src = ref.get("sigma_source")  # which covariance the verdict sigmas are (result.json's refinement block)
             lines.append("  1-sigma: translation [mm] " + " ".join(f"{x:.3f}" for x in sig)
                          + ", rotation [deg] " + " ".join(f"{x:.3f}" for x in sr)
-                         + (f" (verdict covariance: {src})" if src else ""))
+                         + (f" ({_sigma_source_words(src, ref)})" if src else ""))
         if ref.get("predicted_error_mm") is not None:
             lines.append(f"  predicted position error at {ref.get('working_distance_m', float('nan')):.2f} m: "
                          f"{ref['predicted_error_mm']:.2f} mm (1 sigma)")
