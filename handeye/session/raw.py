@@ -69,22 +69,31 @@ def read_raw_poses(path: str | Path) -> Optional[RawPoses]:
     return None
 
 
-def _raw_vendor(folder: Path) -> RawPoses:
+def _raw_vendor(folder: Path, *, cfg: Optional[dict] = None, images: Optional[dict] = None) -> RawPoses:
+    """poses.txt's numbers, keyed by the images' numbering, in config.yaml's stated format (else the vendor's).
+    ``cfg`` (config.yaml's mapping) and ``images`` (:func:`numbered_images`): when the caller has read them."""
+    if images is None:
+        try:
+            images = numbered_images(folder)
+        except HandeyeError:  # no numbered images: the poses keep the vendor's numbering
+            images = {}
+    if cfg is None:
+        try:
+            cfg = read_vendor_config(folder, strict=False)[2]
+        except HandeyeError:  # no readable config.yaml: the vendor's own line
+            cfg = {}
     try:
-        first = first_image_number(numbered_images(folder))
-    except HandeyeError:  # no numbered images: the poses keep the vendor's numbering
-        first = 1
-    try:
-        fmt = vendor_pose_format(read_vendor_config(folder, strict=False)[2], folder / "config.yaml")
-    except HandeyeError:  # no readable config.yaml: the vendor's own line
+        fmt = vendor_pose_format(cfg, folder / "config.yaml")
+    except HandeyeError:  # a pose_format that cannot be read: the vendor's own line
         fmt = VENDOR_POSE_FORMAT
-    lines = read_pose_lines(folder / "poses.txt", first=first)
+    lines = read_pose_lines(folder / "poses.txt", first=first_image_number(images))
     values = {str(pl.index): pl.values for pl in lines}
     return RawPoses(fmt, values, tuple(values), str(folder / "poses.txt"))
 
 
-def _raw_native(path: Path) -> RawPoses:
-    doc = read_native_document(path)
+def _raw_native(path: Path, *, doc=None) -> RawPoses:
+    """The views' pose numbers of session.yaml (``doc``: its document, when the caller has read it)."""
+    doc = read_native_document(path) if doc is None else doc
     values = {e.data["id"]: view_pose_values(e, doc.pose_format, folder=files_folder(doc)) for e in doc.entries}
     return RawPoses(doc.pose_format, values, tuple(sorted(values, key=view_id_key)), str(path))
 
@@ -116,7 +125,7 @@ def read_session_lenient(path: str | Path, *, mode: Optional[str] = None) -> Opt
         kind, p = locate_session(path)
         if kind == "native":
             doc = read_native_document(p)
-            raw = _raw_native(p)
+            raw = _raw_native(p, doc=doc)
             images = {}
             for e in doc.entries:
                 try:
@@ -127,9 +136,10 @@ def read_session_lenient(path: str | Path, *, mode: Optional[str] = None) -> Opt
             intr = doc.intrinsics if doc.intrinsics_use in ("fixed", "prior") else None
             return LenientSession(doc.target, check_mode(mode or doc.mode or VENDOR_DEFAULT_MODE, path=p), raw,
                                   images, intr)
-        target, cfg_mode, _ = read_vendor_config(p, strict=False)
-        raw = _raw_vendor(p)
-        images = {str(k): f for k, f in numbered_images(p).items() if f.is_file()}
+        target, cfg_mode, cfg = read_vendor_config(p, strict=False)
+        numbered = numbered_images(p)
+        raw = _raw_vendor(p, cfg=cfg, images=numbered)
+        images = {str(k): f for k, f in numbered.items() if f.is_file()}
         return LenientSession(target, check_mode(mode or cfg_mode or VENDOR_DEFAULT_MODE, path=p / "config.yaml"), raw,
                               images, None)
     except _UNREADABLE as e:
