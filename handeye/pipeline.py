@@ -24,7 +24,7 @@ from .detect import detect_views, size_survey
 from .errors import CalibrationError, DegenerateMotionError, DetectionError, HandeyeError, SessionRefused
 from .initial import METHODS, all_methods, board_poses, calibrate_intrinsics, chain_residuals, motion_quality
 from .mounting import MountingMode, mounting
-from .records import Detection, HandEyeEstimate, Session, ViewOutcome, view_id_key
+from .records import IMAGE_MISSING_REASON, Detection, HandEyeEstimate, Session, ViewOutcome, view_id_key
 from .targets import TargetSpec
 
 log = logging.getLogger(__name__)
@@ -278,7 +278,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     for vid, line in s.meta.get("missing_images", {}).items():  # poses whose image is missing (the loader)
         name = Path(s.meta.get("missing_image_files", {}).get(vid, f"{vid}.jpg")).name
         where = f"pose line {line}" if line is not None else "its pose"
-        outcomes[vid] = ViewOutcome(vid, name, False, f"image file missing ({where} not used)")
+        outcomes[vid] = ViewOutcome(vid, name, False, f"{IMAGE_MISSING_REASON} ({where} not used)")
     for v in unpaired:
         outcomes[v.view_id] = ViewOutcome(v.view_id, getattr(v.image_path, "name", str(v.image_path)), False,
                                           f"no pose line after --shift-poses {opts.shift_poses}")

@@ -100,6 +100,11 @@ class DetectionFailure:
     seen_sizes: Optional[tuple] = None
 
 
+#: the start of the reason of a view whose image file is missing (its pose line or entry has no image): the
+#: diagnostics and the report tell such a view from one whose image showed no target by it
+IMAGE_MISSING_REASON = "image file missing"
+
+
 @dataclass(frozen=True)
 class ViewOutcome:
     """What happened to one view: used or dropped, and why."""

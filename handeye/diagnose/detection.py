@@ -9,6 +9,7 @@ import numpy as np
 from ..camera import pixels_from_board_points
 from ..frames import transform_points
 from ..mounting import mounting
+from ..records import IMAGE_MISSING_REASON
 from .findings import Finding
 from .thresholds import thresholds
 
@@ -88,7 +89,7 @@ def detection_findings(run, *, A: Optional[np.ndarray] = None, B: Optional[np.nd
     intr = run.intrinsics
     can_predict = A is not None and B is not None and intr is not None and intr.width > 0
     few = [o for o in not_found if "corners" in str(o.reason) and "only" in str(o.reason)]
-    absent = [o for o in not_found if str(o.reason).startswith("image file missing")]  # a pose without its image
+    absent = [o for o in not_found if str(o.reason).startswith(IMAGE_MISSING_REASON)]  # a pose without its image
     missing = [o for o in not_found if o not in few and o not in absent]
     n_total -= len(absent)  # images looked at
     notes, cut = {}, {}

@@ -19,6 +19,7 @@ from ..conventions import pose_forms, vendor_euler_from_R
 from ..frames import quat_wxyz_from_R
 from ..mounting import EYE_IN_HAND, MODES, mounting
 from ..output import plain
+from ..records import IMAGE_MISSING_REASON
 from .advice import STAGE_CHECKS, failure_advice, finding_advice, root_cause, untrusted_metrics
 from .folder import ResultFolder
 from .metrics import qa_metrics
@@ -216,7 +217,7 @@ def _view_rows(res, ref, fits, centre, findings, image_size) -> list[dict]:
         if not v.get("used", False):
             status = "flagged" if kinds or vid in per_view else "dropped"
             kind = next((OUTLIER_KIND_TEXT.get(k, k) for k in kinds if k), "")
-            reason_kind = kind or ("image missing" if str(v.get("reason") or "").startswith("image file missing")
+            reason_kind = kind or ("image missing" if str(v.get("reason") or "").startswith(IMAGE_MISSING_REASON)
                                    else "target not found" if fit is None else "not used")
             flags.append({"severity": "fail", "text": _strip_view_prefix(v.get("reason") or "not used")})
         elif pv.get("status") == "robot_excluded":
