@@ -129,18 +129,17 @@ def offset_explanation(rows: list, *, limit_sigma: float, halves_m2: float | Non
                        "their own error (they ignore the pixel noise and weigh all motions alike), not the result's.")
         if robot_mm is not None and (robot_mm > 0 or (robot_deg or 0) > 0):
             kinematic = robot_model == "kinematic"
+            unseen, aside = (("an error of the arm beyond its DH offsets and encoder noise (joint elasticity, "
+                              "backlash, a wrong tool or base)", "") if kinematic
+                             else ("a robot error", " (a kinematic error of the arm)"))
             out.append(f"The refinement models robot-pose errors ({robot_model or 'robot error model'}: "
                        f"{robot_mm:.2f} mm / {robot_deg or 0:.3f}° per view, estimated) and weighs each view by "
                        "how well it fits; the closed forms take every robot pose as exact and weigh all motions "
-                       "alike, so robot-pose errors bias them. That favours the refinement, but "
-                       + ("an error of the arm beyond its DH offsets and encoder noise (joint elasticity, "
-                          "backlash, a wrong tool or base) that is the same in every view moves the refinement "
-                          "as well, and neither the halves nor the held-out folds can show it: check the result "
-                          "against an independent measurement." if kinematic else
-                          "a robot error that is the same in every view (a kinematic error of the arm) moves the "
-                          "refinement as well, and neither the halves nor the held-out folds can show it: check the "
-                          "result against an independent measurement, or calibrate with the arm's kinematic model "
-                          "(--robot ARM) when the views have joint angles."))
+                       f"alike, so robot-pose errors bias them. That favours the refinement, but {unseen} that is "
+                       f"the same in every view{aside} moves the refinement as well, and neither the halves nor the "
+                       "held-out folds can show it: check the result against an independent measurement"
+                       + ("." if kinematic else ", or calibrate with the arm's kinematic model (--robot ARM) when "
+                                                "the views have joint angles."))
         else:
             out.append("The refinement weighs each view by its pixel noise; the closed forms weigh all motions "
                        "alike and are biased by noise on few or short motions.")
