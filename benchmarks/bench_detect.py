@@ -16,8 +16,11 @@ a view without the board under a 1 ms time budget (dropped as timed out). On the
 ACCURACY) where both detect, and the geometric check's worst corner (px and share of its limit) on every
 set, ChArUco and circle grid included (the figures behind grid_check_max_px), and for the corners over
 1 px from SB which of the two lies nearer its neighbours' homography, and cv2.calibrateCamera's RMS with
-each detector's corners (which corners a camera model explains better); the ViSP views rendered again from
-their solvePnP poses, both detectors against that truth (which one is off where they disagree). The
+each detector's corners (which corners a camera model explains better); both detectors against a third
+estimate that is neither's method, the intersection of each inner corner's two edge lines fitted to the
+image (--crops DIR also writes each corner over 1 px from SB enlarged with both marks); the ViSP views
+rendered again from their solvePnP poses, both detectors and the edge-line intersection against that truth
+(which one is off where they disagree). The
 rendered and real chessboard figures are printed for both refinement stages and for the cornerSubPix
 stage alone (time in the same process, so the ratio holds under any load).
 --real (e.g. ../shared/data/ur3-eyetohand-cam1, a 9x7 chessboard) also compares the cornerSubPix
@@ -102,6 +105,9 @@ def main() -> None:
     ap.add_argument("--shared", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data",
                     help="folder of the real datasets (the chessboard sets are compared with the accurate SB search)")
     ap.add_argument("--no-shared", action="store_true", help="skip the real datasets")
+    ap.add_argument("--crops", type=Path, default=None, metavar="DIR",
+                    help="write each real corner over 1 px from SB enlarged 8x with both detectors' marks "
+                         "(ours red, SB's green) to DIR, e.g. reports/sb-crops")
     ap.add_argument("--big", type=int, nargs=2, default=(8000, 6000), help="size of the noise image, px")
     ap.add_argument("--supersample", type=int, nargs="+", default=[4],
                     help="samples per pixel (per axis) of the low-texture renders, e.g. 4 8")
@@ -200,7 +206,8 @@ def main() -> None:
     if not args.no_shared:
         for name, size in SHARED_CHESSBOARDS.items():
             if (args.shared / name).is_dir():
-                _against_accurate_sb(args.shared / name, size, VISP_K if name == "visp-franka-eye-in-hand" else None)
+                _against_accurate_sb(args.shared / name, size, VISP_K if name == "visp-franka-eye-in-hand" else None,
+                                     crops=args.crops)
         visp = args.shared / "visp-franka-eye-in-hand"
         if visp.is_dir():
             _sb_on_replicas(visp, SHARED_CHESSBOARDS[visp.name], 0.0236, VISP_K)
@@ -363,17 +370,19 @@ def _pnp_residual_px(obj: np.ndarray, pts: np.ndarray, K: np.ndarray) -> np.ndar
     return np.linalg.norm(cv2.projectPoints(obj, rvec, tvec, K, None)[0].reshape(-1, 2) - pts, axis=1)
 
 
-def _against_accurate_sb(folder: Path, size: tuple, K: np.ndarray | None = None) -> None:
+def _against_accurate_sb(folder: Path, size: tuple, K: np.ndarray | None = None, crops: Path | None = None) -> None:
     """Corners of detect_gray against findChessboardCornersSB (EXHAUSTIVE | ACCURACY) where both detect
     (SB may number the board from the other end: the nearer numbering is compared), the corners not used,
     the time of each (and of detect_gray with the cornerSubPix stage only), and for the corners over 1 px
     from SB which of the two agrees with its board neighbours (the geometric check's residual) and, given
     the camera matrix ``K``, with the board pose solvePnP fits to each detector's corners of the view. Last,
     which corners a camera model explains better: cv2.calibrateCamera on the views both detect, once with
-    each detector's corners (the RMS reprojection error of each)."""
+    each detector's corners (the RMS reprojection error of each). ``crops``: a folder for an 8x enlarged crop of
+    each corner over 1 px from SB with both marks (to look at which one sits on the junction)."""
     spec = ChessboardSpec(size[0], size[1], 1.0)
     bxy, o = board_squares(spec), default_options()
     d_max, n_both, n_img, ours_s, one_s, sb_s, checks, n_used, apart = [], 0, 0, 0.0, 0.0, 0.0, [], 0, []
+    edge_d, edge_far = [], []  # (ours, SB's) distance from the edge-line intersection: every inner corner, those apart
     calib = ([], [], [])  # board points, our corners, SB's, per view both detect
     image_size = None
     for p in sorted(q for q in folder.rglob("*") if q.suffix.lower() in (".png", ".jpg", ".jpeg")):
@@ -405,6 +414,9 @@ def _against_accurate_sb(folder: Path, size: tuple, K: np.ndarray | None = None)
             lst.append(np.asarray(a, np.float32))
         d = np.linalg.norm(pts - ref[ids], axis=1)
         d_max.append(d)
+        edges = _edge_line_distances(g, size, ids, pts, ref)
+        edge_d += [(e[1], e[2]) for e in edges]
+        edge_far += [e[1:] for e in edges if d[np.flatnonzero(ids == e[0])[0]] > 1]
         n_both += 1
         n_used += len(ids)
         far = d > 1
@@ -415,6 +427,9 @@ def _against_accurate_sb(folder: Path, size: tuple, K: np.ndarray | None = None)
             pnp = ((_pnp_residual_px(obj[ids], pts, K)[far], _pnp_residual_px(obj, ref, K)[ids[far]]) if K is not None
                    else (np.full(far.sum(), np.nan),) * 2)
             apart += list(zip(ours, theirs, *pnp))
+            if crops is not None:
+                for k in np.flatnonzero(far):
+                    _write_crop(crops / f"{folder.name}-{p.stem}-corner{ids[k]}.png", g, pts[k], ref[ids[k]])
     d = np.concatenate(d_max) if d_max else np.zeros(1)
     print(f"  {folder.name}: {n_both} of {n_img} images detected by both; {n_used} of {n_both * spec.n_corners} corners "
           f"used; corners from the accurate SB: RMS {np.sqrt(np.mean(d ** 2)):.3f} px, max {d.max():.3f} px, "
@@ -424,6 +439,12 @@ def _against_accurate_sb(folder: Path, size: tuple, K: np.ndarray | None = None)
         print(f"    a corner {'' if ours < theirs else 'NOT '}nearer its neighbours' homography than SB's: "
               f"{ours:.2f} px against SB's {theirs:.2f} px" + ("" if np.isnan(pnp_ours) else
               f"; from the view's solvePnP pose {pnp_ours:.2f} px against SB's {pnp_sb:.2f} px"))
+    if edge_d:
+        e = np.array(edge_d)
+        print(f"    the intersection of each inner corner's two edge lines (neither detector's method; "
+              f"{len(e)} corners): ours RMS {np.sqrt(np.mean(e[:, 0] ** 2)):.3f} px from it, SB's "
+              f"{np.sqrt(np.mean(e[:, 1] ** 2)):.3f} px" + ("" if not edge_far else "; the inner corners over 1 px "
+              "from SB: " + ", ".join(f"ours {a:.2f} / SB {b:.2f} px" for a, b in edge_far)))
     if len(calib[0]) >= 3:
         rms = [cv2.calibrateCamera(calib[0], c, image_size, None, None)[0] for c in calib[1:]]
         print(f"    cv2.calibrateCamera on the {len(calib[0])} views both detect: RMS {rms[0]:.3f} px with detect_gray's "
@@ -431,11 +452,63 @@ def _against_accurate_sb(folder: Path, size: tuple, K: np.ndarray | None = None)
     _print_checks(folder.name, checks)
 
 
+def _edge_line_corner(gray: np.ndarray, at: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+    """A corner found by neither detector's method: the intersection of the board's two edge lines through it.
+    ``neighbours`` (4, 2): the adjacent corners left, right, up, down. Along each of the four edges from ``at``
+    toward a neighbour (20-80 % of the way), the edge's crossing of 25 profiles across it (8 px long, the
+    centroid of the squared intensity gradient); a straight line through the crossings of opposite edges
+    (a straight board edge stays straight in an undistorted image), and the two lines' intersection."""
+    s = np.arange(-4.0, 4.01, 0.1)
+    t = np.linspace(0.2, 0.8, 25)
+    lines = []
+    for pair in ((0, 1), (2, 3)):
+        u = neighbours[list(pair)] - at  # (2, 2)
+        n = np.c_[-u[:, 1], u[:, 0]] / np.linalg.norm(u, axis=1)[:, None]
+        base = at + t[None, :, None] * u[:, None, :]  # (2, 25, 2)
+        pts = (base[:, :, None, :] + s[None, None, :, None] * n[:, None, None, :]).astype(np.float32)
+        prof = cv2.remap(gray, pts[..., 0].reshape(-1, s.size), pts[..., 1].reshape(-1, s.size), cv2.INTER_LINEAR)
+        w = np.gradient(prof.astype(np.float64), axis=1) ** 2
+        off = (w @ s) / w.sum(axis=1)
+        P = base.reshape(-1, 2) + off[:, None] * np.repeat(n, t.size, axis=0)
+        m = P.mean(axis=0)
+        lines.append((m, np.linalg.svd(P - m)[2][0]))
+    (m1, d1), (m2, d2) = lines
+    return m1 + np.linalg.solve(np.c_[d1, -d2], m2 - m1)[0] * d1
+
+
+def _edge_line_distances(gray: np.ndarray, size: tuple, ids: np.ndarray, ours: np.ndarray, sb: np.ndarray):
+    """For each corner with its four neighbours detected: (id, distance of ours, of SB's) from the edge-line
+    intersection (:func:`_edge_line_corner`, sampled around the two detectors' midpoint)."""
+    pos = dict(zip(ids.tolist(), ours))
+    out = []
+    for i, q in pos.items():
+        nb = [pos.get(j) for j in (i - 1, i + 1, i - size[0], i + size[0])]
+        if i % size[0] in (0, size[0] - 1) or any(x is None for x in nb):
+            continue
+        X = _edge_line_corner(gray, 0.5 * (q + sb[i]), np.array(nb))
+        out.append((i, np.linalg.norm(X - q), np.linalg.norm(X - sb[i])))
+    return out
+
+
+def _write_crop(path: Path, gray: np.ndarray, ours: np.ndarray, sb: np.ndarray, half: int = 20, zoom: int = 8) -> None:
+    """A (2 half + 1) px square of ``gray`` around ``ours`` enlarged ``zoom`` times (each pixel a block, its centre
+    at the block's centre), our corner marked red and SB's green."""
+    x0, y0 = np.maximum(np.round(ours).astype(int) - half, 0)
+    crop = cv2.resize(gray[y0:y0 + 2 * half + 1, x0:x0 + 2 * half + 1], None, fx=zoom, fy=zoom,
+                      interpolation=cv2.INTER_NEAREST)
+    crop = cv2.cvtColor(crop, cv2.COLOR_GRAY2BGR)
+    for q, colour in ((ours, (0, 0, 255)), (sb, (0, 255, 0))):
+        cv2.circle(crop, tuple(int(c) for c in (np.asarray(q) - (x0, y0) + 0.5) * zoom), 3, colour, -1)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), crop)
+    print(f"    crop: {path}")
+
+
 def _sb_on_replicas(folder: Path, size: tuple, square_m: float, K: np.ndarray) -> None:
     """Both detectors against the truth on rendered replicas of a real set: every view rendered (640x480,
     4x4 samples per pixel, 1 grey level of noise) from the board pose solvePnP gives for its detected corners,
     sharp and smoothed by a Gaussian of 0.7 and 1.2 px (which of the two is right where they disagree on
-    the real images)."""
+    the real images), and the edge-line intersection of the real images' inner corners (its own error here)."""
     from handeye.sim.render import render_view
 
     spec = ChessboardSpec(size[0], size[1], square_m)
@@ -453,7 +526,7 @@ def _sb_on_replicas(folder: Path, size: tuple, square_m: float, K: np.ndarray) -
             T[:3, :3], T[:3, 3] = cv2.Rodrigues(rvec)[0], tvec.ravel()
             poses.append(T)
     for blur in (0.0, 0.7, 1.2):
-        ours, sb = [], []
+        ours, sb, edge = [], [], []
         for T in poses:
             img = render_view(spec, intr, T, supersample=4, blur_sigma_px=blur, noise_sigma=1.0, rng=rng)
             truth = pixels_from_board_points(T, obj, intr)
@@ -464,7 +537,9 @@ def _sb_on_replicas(folder: Path, size: tuple, square_m: float, K: np.ndarray) -
                 ours.append(min((np.linalg.norm(out[1] - t[out[0]], axis=1) for t in (truth, truth[::-1])), key=np.max))
             if ok:
                 sb.append(min((np.linalg.norm(ref.reshape(-1, 2) - t, axis=1) for t in (truth, truth[::-1])), key=np.max))
-        for name, e in (("detect_gray", ours), ("SB accurate", sb)):
+            ids = np.arange(len(obj))
+            edge += [e[1] for e in _edge_line_distances(img, size, ids, truth, truth)]  # truth as both starts
+        for name, e in (("detect_gray", ours), ("SB accurate", sb), ("edge-line intersection", [np.array(edge)])):
             e = np.concatenate(e) if e else np.zeros(1)
             print(f"  {folder.name} rendered replicas, blur {blur:.1f} px: {name} error RMS {np.sqrt(np.mean(e ** 2)):.3f} px, "
                   f"max {e.max():.3f} px, {int((e > 0.5).sum())} over 0.5 px")
