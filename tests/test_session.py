@@ -82,6 +82,34 @@ def test_a_first_line_of_column_names_is_skipped(tmp_path, header):
         np.testing.assert_allclose(v.T_base_end, T, atol=1e-8)
 
 
+@pytest.mark.parametrize("wrap", ["[{}]", "({})", "[ {} ]"])
+def test_pose_lines_printed_as_lists_read_as_their_numbers(tmp_path, wrap):
+    sep = ", " if "[" in wrap and " " not in wrap else " " if " " in wrap else ","
+    lines = [wrap.format(sep.join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT))) for T in POSES]
+    s = load_session(vendor(tmp_path, lines=lines))
+    for v, T in zip(s.views, POSES):
+        np.testing.assert_allclose(v.T_base_end, T, atol=1e-8)
+
+
+def test_quoted_board_numbers_are_read_and_units_in_them_refused(tmp_path):
+    s = load_session(vendor(tmp_path, config={"checkerboard_args": {"XX": "11", "YY": "8", "L": "0.03"}}))
+    assert (s.target.cols, s.target.rows, s.target.square_m) == (11, 8, 0.03)
+    (tmp_path / "mm").mkdir()
+    with pytest.raises(ConfigError, match=r"config.yaml: invalid checkerboard_args.L; expected a number > 0; "
+                                          r"got '30 mm' -> write the bare number, without a unit \(metres\)"):
+        load_session(vendor(tmp_path / "mm", config={"checkerboard_args": {"XX": 11, "YY": 8, "L": "30 mm"}}))
+
+
+def test_images_in_a_subfolder_are_named_in_the_error(tmp_path):
+    d = vendor(tmp_path)
+    (d / "images").mkdir()
+    for p in d.glob("*.jpg"):
+        p.rename(d / "images" / p.name)
+    with pytest.raises(InputError, match=r"no numbered images .* -> the numbered images are in images/: move them "
+                                         r"next to poses.txt"):
+        load_session(d)
+
+
 @pytest.mark.parametrize("lines,match", [
     (["x,y,z,rx,ry,rz", "x,y,z,rx,ry,rz"], r"poses.txt:2: malformed pose line"),  # only the first line
     (["nan,nan,nan,nan,nan,nan"], r"poses.txt:1: pose line holds a value that is not a usable number"),

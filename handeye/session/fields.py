@@ -112,7 +112,16 @@ def check_mode(mode, *, path: Path, field: str = "mode") -> str:
 
 
 def positive_number(value, *, path: Path, field: str, integer: bool = False, minimum: float = 0.0):
-    """``value`` as a finite number > ``minimum`` (an int when ``integer``); ConfigError naming ``field``."""
+    """``value`` as a finite number > ``minimum`` (an int when ``integer``); ConfigError naming ``field``. A number
+    written in quotes (``L: "0.03"``) is read as the number."""
+    if isinstance(value, str):
+        try:
+            value = float(value.strip()) if not integer else int(value.strip())
+        except ValueError:
+            kind = "an integer" if integer else "a number"
+            raise ConfigError(f"invalid {field}", path=path, expected=f"{kind} > {minimum:g}", received=repr(value),
+                              hint="write the bare number, without a unit" + (" (metres)" if field.endswith(".L")
+                                                                               or "_m" in field else "")) from None
     ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
     if ok and integer:
         ok = float(value).is_integer()

@@ -61,8 +61,8 @@ def read_pose_lines(poses_path: Path, *, first: int = 1) -> list[PoseLine]:
         if not out and header is None and _is_header(fields):
             header = (lineno, fields, s)
             continue
-        try:
-            values = np.array([float(f) for f in fields])
+        try:  # a line printed as a list or tuple ([x, y, z, rx, ry, rz]) holds the same numbers
+            values = np.array([float(f) for f in (f.strip("[]()") for f in fields) if f])
         except ValueError:
             raise InputError("malformed pose line", path=poses_path, line=lineno,
                              expected=_POSE_EXPECTED, received=repr(s[:80])) from None
@@ -129,7 +129,10 @@ def numbered_images(folder: Path) -> dict[int, Path]:
                                  hint="keep one image per number")
             found[k] = f
     if not found:
-        raise InputError("no numbered images (1.jpg, 2.jpg, ...) in the folder", path=folder)
+        inside = sorted(d.name for d in folder.iterdir() if d.is_dir() and any(
+            f.suffix.lower() in IMAGE_EXTS and _NUMBERED.match(f.stem) for f in d.iterdir()))
+        raise InputError("no numbered images (1.jpg, 2.jpg, ...) in the folder", path=folder,
+                         hint=f"the numbered images are in {inside[0]}/: move them next to poses.txt" if inside else None)
     return found
 
 
