@@ -100,6 +100,20 @@ def test_quoted_board_numbers_are_read_and_units_in_them_refused(tmp_path):
         load_session(vendor(tmp_path / "mm", config={"checkerboard_args": {"XX": 11, "YY": 8, "L": "30 mm"}}))
 
 
+@pytest.mark.parametrize("change,match", [
+    (lambda d: (d / "config.yaml").rename(d / "config.yml"), r"config.yaml is missing -> rename config.yml to config.yaml"),
+    (lambda d: (d / "poses.txt").rename(d / "pose.txt"),
+     r"no session.yaml or poses.txt in the folder -> rename pose.txt to poses.txt"),
+    (lambda d: [p.rename(p.with_name("image_" + p.name)) for p in d.glob("*.jpg")],
+     r"no numbered images .* -> the images are named image_1.jpg, ...: rename them to the number alone"),
+])
+def test_near_misses_of_the_vendor_names_are_named_with_the_rename(tmp_path, change, match):
+    d = vendor(tmp_path)
+    change(d)
+    with pytest.raises(InputError, match=match):
+        load_session(d)
+
+
 def test_images_in_a_subfolder_are_named_in_the_error(tmp_path):
     d = vendor(tmp_path)
     (d / "images").mkdir()

@@ -184,8 +184,11 @@ def locate_session(path: str | Path) -> tuple[str, Path]:
         return "native", p / "session.yaml"
     if (p / "poses.txt").exists():
         return "vendor", p
+    near = sorted(f.name for f in p.iterdir() if f.is_file() and "pose" in f.stem.lower()
+                  and f.suffix.lower() in (".txt", ".csv"))
     raise InputError("no session.yaml or poses.txt in the folder", path=p,
-                     hint="a vendor session needs poses.txt, N.jpg and config.yaml; see docs/session_format.md")
+                     hint=f"rename {near[0]} to poses.txt if it holds the vendor's pose lines" if near else
+                     "a vendor session needs poses.txt, N.jpg and config.yaml; see docs/session_format.md")
 
 
 def parse_pose_format(fmt_d, *, path: Path) -> PoseFormat:

@@ -29,6 +29,7 @@ log = logging.getLogger(__name__)
 
 IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 _NUMBERED = re.compile(r"^(\d+)$")
+_PREFIXED = re.compile(r"^(\D+)(\d+)$")  # image_1, img-01: a number behind a name
 _NOT_NAMES = {"none", "null", "nil", "na", "n/a", "undefined", "error"}  # a value that failed, not a column name
 _NAME = re.compile(r"^[A-Za-z_][\w()\[\]/.-]*$")  # a column name: x, rx, rx(rad), x[m]
 _POSE_EXPECTED = "x,y,z,rx,ry,rz (metres, radians)"
@@ -101,7 +102,8 @@ def read_vendor_config(folder: Path, *, strict: bool = True) -> tuple[Chessboard
     cfg_path = folder / "config.yaml"
     if not cfg_path.exists():
         raise InputError("config.yaml is missing", path=cfg_path,
-                         hint="add config.yaml with checkerboard_args: {XX: 11, YY: 8, L: 0.03}")
+                         hint="rename config.yml to config.yaml" if (folder / "config.yml").exists() else
+                         "add config.yaml with checkerboard_args: {XX: 11, YY: 8, L: 0.03}")
     cfg = read_yaml(cfg_path)
     cb = cfg.get("checkerboard_args")
     if not isinstance(cb, dict):
@@ -131,8 +133,12 @@ def numbered_images(folder: Path) -> dict[int, Path]:
     if not found:
         inside = sorted(d.name for d in folder.iterdir() if d.is_dir() and any(
             f.suffix.lower() in IMAGE_EXTS and _NUMBERED.match(f.stem) for f in d.iterdir()))
-        raise InputError("no numbered images (1.jpg, 2.jpg, ...) in the folder", path=folder,
-                         hint=f"the numbered images are in {inside[0]}/: move them next to poses.txt" if inside else None)
+        prefixed = sorted((f.name for f in folder.iterdir() if f.suffix.lower() in IMAGE_EXTS
+                           and _PREFIXED.match(f.stem)), key=lambda n: int(_PREFIXED.match(Path(n).stem)[2]))
+        hint = (f"the numbered images are in {inside[0]}/: move them next to poses.txt" if inside else
+                f"the images are named {prefixed[0]}, ...: rename them to the number alone (1.jpg, 2.jpg, ...)"
+                if prefixed else None)
+        raise InputError("no numbered images (1.jpg, 2.jpg, ...) in the folder", path=folder, hint=hint)
     return found
 
 
