@@ -496,6 +496,18 @@ def test_evaluate_levels_and_missing_values():
     assert evaluate({"reprojection_rms_px": 1.0}, {**cfg, "missing_value": "pass"}).status == "warn"
 
 
+def test_a_value_that_crossed_its_limit_never_reads_as_the_limit():
+    from handeye.report.qa import evaluate
+
+    cfg = {"checks": {"max_rotation_deg": {"warn_below": 30.0}, "reprojection_rms_px": {"warn_above": 0.8}}}
+    v = evaluate({"max_rotation_deg": 29.97, "reprojection_rms_px": 0.8004}, cfg)
+    c = {c.key: c for c in v.checks}
+    assert c["max_rotation_deg"].value_text == "29.97 deg" and "29.97 deg < 30.0 deg" in v.headline
+    assert "at most 29.97 deg" in c["max_rotation_deg"].why
+    assert c["reprojection_rms_px"].value_text.startswith("0.8004")  # as many decimals as it takes
+    assert evaluate({"max_rotation_deg": 25.04}, cfg).checks[0].value_text == "25.0 deg"  # else as configured
+
+
 def test_a_failing_finding_fails_the_verdict_and_its_numbers_are_not_shown_green(synthetic, tmp_path):
     from handeye.report import build_report_context
 

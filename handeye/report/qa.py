@@ -5,6 +5,7 @@ does not pass says why, with the number, and what to do about it.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Optional
@@ -147,6 +148,26 @@ def _fmt_limit(lim: dict, fmt: str, unit: str) -> str:
     return ", ".join(parts) if parts else "not checked"
 
 
+class _ShownApart(float):
+    """A checked value that formats with as many more decimals (up to 3) as it takes to read otherwise than the
+    limit it crossed: 29.97 against 30 shows as "29.97", not "30.0 < 30.0"."""
+
+    def __new__(cls, value: float, limit: Optional[float]):
+        obj = super().__new__(cls, value)
+        obj.limit = limit
+        return obj
+
+    def __format__(self, spec: str) -> str:
+        m = re.fullmatch(r"(.*\.)(\d+)([ef%])", spec)
+        if m is None or self.limit is None:
+            return float.__format__(self, spec)
+        for d in range(int(m[2]), int(m[2]) + 4):
+            out = float.__format__(self, f"{m[1]}{d}{m[3]}")
+            if out != float.__format__(float(self.limit), f"{m[1]}{d}{m[3]}"):
+                return out
+        return float.__format__(self, spec)
+
+
 def _level(value: float, lim: dict) -> tuple[str, Optional[float]]:
     fa, wa, fb, wb = (lim.get(k) for k in ("fail_above", "warn_above", "fail_below", "warn_below"))
     if fa is not None and value > fa:
@@ -195,10 +216,11 @@ def evaluate(metrics: dict, cfg: dict, *, context: dict | None = None, failure: 
                     (key, title, limit_text))
             continue
         status, hit = _level(float(v), lim)
-        val_text = fmt.format(v) + (f" {unit}" if unit else "")
+        shown = _ShownApart(float(v), hit)  # a value that crossed its limit never reads as the limit
+        val_text = fmt.format(shown) + (f" {unit}" if unit else "")
         why = act = short = ""
         if status != "pass":
-            why, act = why_f(float(v), hit, ctx), act_f(ctx)
+            why, act = why_f(shown, hit, ctx), act_f(ctx)
             rel = ">" if hit == lim.get("warn_above") or hit == lim.get("fail_above") else "<"
             short = f"{title.split(' (')[0].lower()} {val_text} {rel} {fmt.format(hit)}{' ' + unit if unit else ''}"
         checks.append(Check(key, title, status, float(v), val_text, limit_text, why=why, action=act,
