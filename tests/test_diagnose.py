@@ -31,7 +31,7 @@ from handeye.sim.scenarios import default_intrinsics
 from handeye.sim.vendor import write_vendor_session
 from handeye.targets import ChessboardSpec
 
-FAULT_CODES = {"translation_units", "angle_units", "euler_order", "quaternion_order", "mode_swapped",
+FAULT_CODES = {"translation_units", "angle_units", "euler_order", "rotation_kind", "quaternion_order", "mode_swapped",
                "poses_inverted", "pairs_shifted", "pairs_shuffled", "robot_pose_disagrees", "board_moved", "weak_motion",
                "too_few_views", "target_not_found", "image_missing", "blurred", "overexposed", "partial_target",
                "corners_bunched",
@@ -146,10 +146,12 @@ def test_alternative_formats_cover_units_and_conventions():
     alts = alternative_formats(VENDOR_POSE_FORMAT)
     assert alts[0] == (VENDOR_POSE_FORMAT, ())
     changes = {c for _, cs in alts for c in cs}
-    assert changes == {"translation_units", "angle_units", "euler_order"}
-    assert len(alts) == 2 * 2 * 24  # m/mm x rad/deg x 24 Euler conventions
+    assert changes == {"translation_units", "angle_units", "euler_order", "rotation_kind"}
+    assert len(alts) == 2 * 2 * (24 + 1)  # m/mm x rad/deg x (24 Euler conventions + a rotation vector)
     q = alternative_formats(PoseFormat(rotation="quaternion"))
     assert {c for _, cs in q for c in cs} == {"translation_units", "quaternion_order"}
+    rv = alternative_formats(PoseFormat(rotation="rotvec"))
+    assert len(rv) == 2 * 2 * (1 + 24) and {f.rotation for f, _ in rv} == {"rotvec", "euler"}
 
 
 def test_edge_width_measures_a_known_blur():
@@ -301,6 +303,27 @@ def test_wrong_euler_order(tmp_path, monkeypatch, mode):
     assert _codes(d) == {"euler_order"}
     f = _one(d, "euler_order")
     assert "intrinsic zyx" in f["title"] and "euler_order: zyx" in f["action"]
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_rotation_vectors_read_as_euler_angles_are_named_and_the_fix_reads_them(tmp_path, monkeypatch, mode):
+    """A vendor poses.txt of rotation vectors (as UR controllers write x,y,z,rx,ry,rz): named, and the
+    pose_format line of the fix, written into config.yaml, reads the poses right."""
+    cs = _session(mode, 46, n_views=12)
+    folder = _write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported, PoseFormat(rotation="rotvec")))
+    cfg = yaml.safe_load((folder / "config.yaml").read_text())
+    cfg["mode"] = mode
+    (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
+    _, d = _diagnose(folder, cs, monkeypatch)
+    assert _codes(d) == {"rotation_kind"}
+    f = _one(d, "rotation_kind")
+    assert "rotation vectors" in f["title"] and "read as extrinsic xyz Euler angles" in f["title"]
+    cfg.update(yaml.safe_load(f["action"].split("config.yaml: ", 1)[1].split(" (or convert", 1)[0]))
+    (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
+    for v, T in zip(load_session(folder).views, cs.T_base_end_reported):
+        np.testing.assert_allclose(v.T_base_end, T, atol=1e-7)
+    run, d = _diagnose(folder, cs, monkeypatch)
+    assert run.status == "ok" and "rotation_kind" not in _codes(d)
 
 
 @pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])

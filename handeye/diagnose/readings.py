@@ -27,7 +27,7 @@ from .thresholds import thresholds
 
 EULER_ORDERS = ("xyz", "xzy", "yxz", "yzx", "zxy", "zyx", "xyx", "xzx", "yxy", "yzy", "zxz", "zyz")
 #: the codes of a global fault in how the poses were read or paired (the other checks then stop)
-READING_CODES = ("translation_units", "angle_units", "euler_order", "quaternion_order", "poses_inverted",
+READING_CODES = ("translation_units", "angle_units", "euler_order", "rotation_kind", "quaternion_order", "poses_inverted",
                  "mode_swapped")
 
 
@@ -35,6 +35,7 @@ def alternative_formats(fmt: PoseFormat) -> list[tuple[PoseFormat, tuple]]:
     """Every plausible reading of numbers written for ``fmt``: (format, changed aspects).
 
     Aspects: translation_units (m/mm), angle_units (rad/deg), euler_order (24 Euler conventions),
+    rotation_kind (three angles as a rotation vector instead of Euler angles, or the reverse),
     quaternion_order (wxyz/xyzw). The first entry is ``fmt`` itself with no changes.
     """
     rot_variants: list[tuple[dict, tuple]] = [({}, ())]
@@ -48,7 +49,13 @@ def alternative_formats(fmt: PoseFormat) -> list[tuple[PoseFormat, tuple]]:
                 continue
             for ch, codes in rot_variants[:2]:
                 more.append((dict(ch, euler_order=order, euler_kind=kind), codes + ("euler_order",)))
+        # three angles may be a rotation vector (axis times angle: what Universal Robots' controllers write)
+        more += [(dict(ch, rotation="rotvec"), codes + ("rotation_kind",)) for ch, codes in rot_variants[:2]]
         rot_variants += more
+    elif fmt.rotation == "rotvec":  # and a stated rotation vector may be Euler angles of any convention
+        rot_variants += [(dict(ch, rotation="euler", euler_order=order, euler_kind=kind), codes + ("rotation_kind",))
+                         for order, kind in product(EULER_ORDERS, ("extrinsic", "intrinsic"))
+                         for ch, codes in rot_variants[:2]]
     if fmt.rotation == "quaternion":
         other = "xyzw" if fmt.quaternion_order == "wxyz" else "wxyz"
         rot_variants.append(({"quaternion_order": other}, ("quaternion_order",)))
@@ -303,6 +310,12 @@ def reading_findings(obs: PoseObservations, readings: Sequence[Reading], *, sess
             title = (f"Robot angles follow another Euler convention: {best.fmt.euler_kind} {best.fmt.euler_order} "
                      f"(read as {fmt0.euler_kind} {fmt0.euler_order})")
             out.append(Finding("euler_order", "fail", title, ev, fix_fmt, details=details))
+        elif code == "rotation_kind":
+            title = ("Robot rotations are rotation vectors (axis x angle, as Universal Robots' controllers write "
+                     f"them), read as {fmt0.euler_kind} {fmt0.euler_order} Euler angles" if best.fmt.rotation == "rotvec"
+                     else f"Robot rotations are {best.fmt.euler_kind} {best.fmt.euler_order} Euler angles, read as "
+                     "a rotation vector")
+            out.append(Finding("rotation_kind", "fail", title, ev, fix_fmt, details=details))
         elif code == "quaternion_order":
             title = f"Quaternions are written {best.fmt.quaternion_order}, read as {fmt0.quaternion_order}"
             out.append(Finding("quaternion_order", "fail", title, ev, fix_fmt, details=details))

@@ -55,6 +55,7 @@ ROOT_CAUSE_LABELS = {
     "translation_units": "Robot translations in the wrong unit",
     "angle_units": "Robot angles in the wrong unit",
     "euler_order": "Wrong Euler angle order",
+    "rotation_kind": "Wrong kind of rotation",
     "quaternion_order": "Wrong quaternion order",
     "pairs_shuffled": "Pairs shuffled",
     "poses_do_not_fit": "Robot poses do not fit the images",
@@ -63,7 +64,7 @@ ROOT_CAUSE_LABELS = {
 
 #: codes whose fail or warn finding (or refusal) explains the verdict: the banner leads with the first found
 ROOT_CAUSE_CODES = ("mode_swapped", "poses_inverted", "pairs_shifted", "pairs_shuffled", "translation_units",
-                    "angle_units", "euler_order", "quaternion_order", "square_size", "board_moved",
+                    "angle_units", "euler_order", "rotation_kind", "quaternion_order", "square_size", "board_moved",
                     "poses_do_not_fit", "mode_undecided")
 
 #: advice for the error classes' default codes: only when nothing more precise is known
@@ -80,6 +81,7 @@ UNTRUSTED_METRICS = {
                           "axis_spread_deg"),
     "angle_units": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg", "max_rotation_deg", "axis_spread_deg"),
     "euler_order": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg", "max_rotation_deg", "axis_spread_deg"),
+    "rotation_kind": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg", "max_rotation_deg", "axis_spread_deg"),
     "quaternion_order": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg", "max_rotation_deg",
                          "axis_spread_deg"),
     "poses_inverted": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg", "max_rotation_deg", "axis_spread_deg"),
