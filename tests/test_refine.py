@@ -148,6 +148,21 @@ def test_wrong_robot_poses_are_flagged_and_do_not_pull_the_result(mode):
     assert xi @ np.linalg.solve(r.cov_x_6x6, xi) < chi2.ppf(0.999, 6)
 
 
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_a_robot_pose_of_another_view_is_a_robot_pose_outlier_not_an_undetermined_view(mode):
+    """Two views' robot poses swapped: each view's own fit starts from a pose far off (most corners outside
+    the robust gate there), restarts from its PnP pose and is judged as what it is, a wrong robot pose."""
+    s = make_corner_session(mode=mode, n_views=20, seed=7, noise_px=0.3)
+    T = s.T_base_end_reported.copy()
+    T[[2, 8]] = T[[8, 2]]
+    views = [RefineView(vid, i, p, T[k]) for k, (vid, i, p) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points))]
+    r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, views=views)
+    assert r.status == "ok"
+    assert {(o.view_id, o.kind) for o in r.outliers} == {("3", "robot_pose"), ("9", "robot_pose")}
+    xi = _xi_err(r.T_x, s.T_x_true)
+    assert xi @ np.linalg.solve(r.cov_x_6x6, xi) < chi2.ppf(0.999, 6)
+
+
 def test_corner_outliers_bad_views_and_sparse_views_get_reasons():
     s = make_corner_session(mode="eye_in_hand", n_views=15, seed=4, noise_px=0.3)
     pts = [p.copy() for p in s.image_points]

@@ -204,18 +204,75 @@ def _factor(s2: float, sigma_px: float) -> float:
 def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10) -> dict:
     """Robust Gauss-Newton (Huber, ``loss_k``) for the robot pose of each view in ``idx`` from its corners
     alone (``T_x``, ``T_board`` and the intrinsics held), all views at once, starting from the current
-    estimates ``pb.P``. The covariance is ``sigma_px^2 (J^T J)^-1`` over the corners within
-    ``corner_outlier_sigmas``. Returns {view index: ViewCheck}."""
+    estimates ``pb.P``; a view that most of its corners do not fit from there (a start far off: its
+    robot pose belongs to another image, or is misread) starts again from its own PnP pose carried through
+    ``T_x`` and ``T_board``, and keeps the fit with more corners within ``corner_outlier_sigmas``. The
+    covariance is ``sigma_px^2 (J^T J)^-1`` over those corners. Returns {view index: ViewCheck}."""
     empty = {int(i): _failed_check(pb.P[i].copy(), 0) for i in idx if pb.offsets[i + 1] == pb.offsets[i]}
     idx = np.asarray([i for i in idx if i not in empty], int)
     if idx.size == 0:
         return empty
+    fit = _own_fits(pb, idx, pb.P[idx].copy(), max_iters)
+    poor = np.flatnonzero(fit["n_inl"] * 2 < fit["counts"])
+    if poor.size:
+        again = _own_fits(pb, idx[poor], _pnp_starts(pb, idx[poor], fit["P"][poor]), max_iters)
+        better = again["n_inl"] > fit["n_inl"][poor]
+        for k, j in zip(poor[better], np.flatnonzero(better)):
+            for key in ("P", "alive", "n_inl", "H", "delta"):
+                fit[key][k] = again[key][j]
+            fit["e"][k] = again["e"][j]
+            fit["inl"][k] = again["inl"][j]
+    out = empty
+    for k, i in enumerate(idx):
+        e_k, P_k = fit["e"][k], fit["P"][k]
+        if not fit["alive"][k]:
+            out[int(i)] = _failed_check(P_k, int(fit["counts"][k]))
+            continue
+        cov = None
+        if 2 * fit["n_inl"][k] >= 6:
+            try:
+                cov = pb.sigma_px ** 2 * np.linalg.inv(fit["H"][k])
+            except np.linalg.LinAlgError:
+                cov = None
+        if cov is None or not np.all(np.isfinite(cov)):
+            out[int(i)] = ViewCheck(P_k, np.full((6, 6), np.nan), e_k, np.full(6, np.nan), False)
+        else:
+            s2 = own_fit_variance(e_k[fit["inl"][k]])
+            pb.own_fit_var[int(i)] = s2
+            out[int(i)] = ViewCheck(P_k, cov, e_k, fit["delta"][k], True, _factor(s2, pb.sigma_px))
+    return out
+
+
+def _pnp_starts(pb: "Problem", idx: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """Robot poses (len(idx),4,4) that put each view's camera at its own PnP pose of the board under the
+    current ``T_x``, ``T_board`` and intrinsics (``T_cam_board = inv(T_x) M T_board``); ``fallback`` where
+    PnP fails."""
+    from ..camera import Intrinsics
+    from ..errors import CalibrationError
+    from ..frames import inv_T
+    from ..initial.board_poses import solve_pnp
+
+    intr = Intrinsics.from_vector(pb.k, pb.width, pb.height)
+    out = np.array(fallback, float)
+    for k, i in enumerate(idx):
+        try:
+            C, _ = solve_pnp(pb.obj[i], pb.img[i], intr)
+        except (CalibrationError, ValueError):  # cv2 refuses a degenerate view: it keeps its start
+            continue
+        out[k] = pb.mounting.T_base_end_from_M(pb.T_x @ C @ inv_T(pb.T_board))
+    return out
+
+
+def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> dict:
+    """The robust Gauss-Newton of :func:`camera_only_poses` from the robot poses ``P`` (len(idx),4,4), all views
+    at once. Per view (lists in ``idx`` order): ``P``, ``alive``, ``counts``, ``n_inl`` (corners within
+    ``corner_outlier_sigmas``), ``H`` (J^T J over those), ``delta`` (reported to ``P``), ``e`` (each corner's
+    residual, px) and ``inl`` (its mask)."""
     sel = np.concatenate([np.arange(pb.offsets[i], pb.offsets[i + 1]) for i in idx])
     counts = pb.offsets[idx + 1] - pb.offsets[idx]
     local = np.repeat(np.arange(idx.size), counts)  # shape (M,): position in idx of each corner's view
     starts = np.r_[0, np.cumsum(counts)[:-1]]
     obj, img = pb.obj_all[sel], pb.img_all[sel]
-    P = pb.P[idx].copy()
     alive = counts > 0
     for it in range(max_iters + 1):
         r, J = stacked_chain_residual(T_x=pb.T_x, T_base_end=P, T_board=pb.T_board, invert_robot=pb.invert,
@@ -247,26 +304,10 @@ def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10)
     Jin = np.where(inl[:, None, None], J, 0.0)
     H = np.add.reduceat(np.einsum("mci,mcj->mij", Jin, Jin), starts, axis=0)
     n_inl = np.add.reduceat(inl.astype(int), starts)
-    delta = tangent_difference(pb.reported[idx], P)
-    out = empty
-    for k, i in enumerate(idx):
-        e_k = e[starts[k]:starts[k] + counts[k]]
-        if not alive[k]:
-            out[int(i)] = _failed_check(P[k], int(counts[k]))
-            continue
-        cov = None
-        if 2 * n_inl[k] >= 6:
-            try:
-                cov = pb.sigma_px ** 2 * np.linalg.inv(H[k])
-            except np.linalg.LinAlgError:
-                cov = None
-        if cov is None or not np.all(np.isfinite(cov)):
-            out[int(i)] = ViewCheck(P[k], np.full((6, 6), np.nan), e_k, np.full(6, np.nan), False)
-        else:
-            s2 = own_fit_variance(e_k[inl[starts[k]:starts[k] + counts[k]]])
-            pb.own_fit_var[int(i)] = s2
-            out[int(i)] = ViewCheck(P[k], cov, e_k, delta[k], True, _factor(s2, pb.sigma_px))
-    return out
+    ends = starts + counts
+    return {"P": P, "alive": alive, "counts": counts, "n_inl": n_inl, "H": H,
+            "delta": tangent_difference(pb.reported[idx], P),
+            "e": [e[a:b] for a, b in zip(starts, ends)], "inl": [inl[a:b] for a, b in zip(starts, ends)]}
 
 
 def joint_checks(pb: "Problem", S_pp: dict) -> dict:
