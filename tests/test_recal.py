@@ -554,19 +554,51 @@ def test_collect_verify_against_refuses_another_mode_in_one_line(rendered, tmp_p
     assert rc == 2 and "--verify-against" in capsys.readouterr().err
 
 
-def test_the_plan_inverts_one_views_rank_deficient_information():
-    """One view's information about (X, board) has rank 6 and entries up to ~1e12: the plan's covariance of X
-    is finite and huge along what the view cannot tell, and a full-rank information is inverted exactly."""
-    from handeye.recal.plan import x_covariance
+def test_the_plan_scores_views_that_leave_x_unknown_against_a_precise_install():
+    """One view's information about (X, board) has rank 6 and entries up to ~1e12: X given the board marginalised
+    is unknown. Against an install known to 1e-13 (a clean simulated session), the change's non-centrality
+    must still be computed (adding the two covariances and inverting lost the small one to rounding: a singular
+    matrix), and equal the direct formula where that is well conditioned."""
+    from handeye.recal.plan import worst_noncentrality, worst_noncentrality_with_views, x_information
 
     rng = np.random.default_rng(3)
     J = rng.normal(size=(6, 12)) * np.r_[[1e3] * 6, [1e6] * 6]  # rad and m columns, like pixels per unit
     J[:, 6:] = J[:, :6] @ rng.normal(size=(6, 6))  # the board's effect a mix of X's: rank 6
-    info = J.T @ J
-    S = x_covariance(info)
-    assert np.all(np.isfinite(S)) and np.linalg.eigvalsh(S).max() > 1e3
-    full = info + np.diag(np.r_[[1e2] * 12])
-    np.testing.assert_allclose(x_covariance(full), np.linalg.inv(full + 1e-6 * np.eye(12))[:6, :6], rtol=1e-6)
+    one = J.T @ J
+    assert np.abs(x_information(one)).max() < 1e-3 * np.abs(one).max() ** 0.5  # X not determined by one view
+    drifts = rng.normal(size=(20, 6)) * np.r_[[1e-3] * 3, [1e-3] * 3]
+    S0 = np.diag(np.r_[[2e-13] * 3, [1e-11] * 3])
+    nc = worst_noncentrality_with_views(S0, x_information(one), drifts)
+    assert np.isfinite(nc) and 0 <= nc < 1e-3  # an unknown X detects nothing
+    many = sum(J2.T @ J2 for J2 in (rng.normal(size=(12, 12)) * np.r_[[1e3] * 6, [1e6] * 6] for _ in range(4)))
+    Ix = x_information(many)
+    S0w = np.diag(np.r_[[1e-6] * 3, [1e-6] * 3])
+    np.testing.assert_allclose(worst_noncentrality_with_views(S0w, Ix, drifts),
+                               worst_noncentrality(S0w + np.linalg.inv(Ix), drifts), rtol=1e-6)
+
+
+def test_verify_plan_against_a_clean_simulated_install():
+    """An install without robot noise and with 0.01 px corners (as the demo's rendered session): X known to
+    ~1e-6 m, and the plan still scores the first views, which leave X unknown."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from bench_refine import closed_forms, refine_views
+
+    from handeye.recal.loaded import result_from_refinement
+    from handeye.recal.plan import plan_verification
+    from handeye.refine import refine
+    from handeye.sim.corners import make_corner_session
+    from handeye.sim.scenarios import default_intrinsics
+
+    s = make_corner_session(n_views=12, seed=5, noise_px=0.01, robot_noise=(0.0, 0.0),
+                            intrinsics=default_intrinsics(**SMALL))
+    intr, cf = closed_forms(s)
+    r = refine(mode=s.mode, object_points=s.target.object_points(), views=refine_views(s), intrinsics=intr,
+               T_x0=cf["tsai"].T_x, T_board0=cf["tsai"].T_board, starts=cf)
+    p = plan_verification(result_from_refinement(r, target=s.target))
+    assert p.n_views is not None and 3 <= p.n_views <= 8 and p.power_by_views[-1] >= 0.95
 
 
 def test_verify_shares_the_installed_arms_dh_offsets():

@@ -101,6 +101,25 @@ def worst_noncentrality(cov_change: np.ndarray, drifts: np.ndarray) -> float:
     return float(np.min(np.einsum("ki,ij,kj->k", drifts, P, drifts)))
 
 
+def worst_noncentrality_with_views(S0: np.ndarray, info_x: np.ndarray, drifts: np.ndarray) -> float:
+    """:func:`worst_noncentrality` of the change covariance ``S0 + info_x^-1`` (the installed X's plus the new
+    views', given as their information on X, :func:`x_information`), computed as
+    ``(I + info_x S0)^-1 info_x`` so that it stays exact when the views leave some direction of X
+    unknown (information ~0, variance ~1e6) while the install knows another to 1e-13: inverting the sum
+    of the two covariances loses the small one to rounding."""
+    P = np.linalg.solve(np.eye(6) + info_x @ S0, info_x)
+    P = 0.5 * (P + P.T)
+    return float(np.min(np.einsum("ki,ij,kj->k", drifts, P, drifts)))
+
+
+def x_information(info: np.ndarray) -> np.ndarray:
+    """Information (6,6) on X from the summed information (12,12) of (X, board), the board marginalised
+    (its Schur complement, the board's block floored so that an empty set of views inverts)."""
+    A, B, D = info[:6, :6], info[:6, 6:], info[6:, 6:] + _FLOOR_INFO * np.eye(6)
+    Ix = A - B @ np.linalg.solve(D, B.T)
+    return 0.5 * (Ix + Ix.T)
+
+
 def test_power(nc: float, *, alpha: float, dof: int = 6, noise_dof: Optional[float] = None) -> float:
     """Probability that verify's test at ``alpha`` rejects under non-centrality ``nc``: chi-square, or F(dof,
     noise_dof) on ``T / dof`` when the installed robot noise level was estimated
@@ -109,15 +128,6 @@ def test_power(nc: float, *, alpha: float, dof: int = 6, noise_dof: Optional[flo
     if noise_dof is None or not np.isfinite(noise_dof) or noise_dof <= 0:
         return float(stats.ncx2.sf(stats.chi2.isf(alpha, dof), dof, nc))
     return float(stats.ncf.sf(stats.f.isf(alpha, dof, noise_dof), dof, noise_dof, nc))
-
-
-def x_covariance(info: np.ndarray) -> np.ndarray:
-    """Covariance (6,6) of X from the summed information (12,12) of (X, board), the board marginalised.
-    Inverted by eigenvalues, each at least the floor: one view's information has rank 6 (it sees X and the
-    board only together) and entries up to ~1e12 (1/m^2), so a plain inverse of it plus the floor can meet
-    an exactly zero pivot."""
-    w, V = np.linalg.eigh(0.5 * (info + info.T))
-    return ((V / np.maximum(w + _FLOOR_INFO, _FLOOR_INFO)) @ V.T)[:6, :6]
 
 
 def installed_poses(installed: LoadedResult) -> list[np.ndarray]:
@@ -196,7 +206,7 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
     pool = list(range(len(cands)))
     nc = 0.0
     for step in range(max_views):
-        scores = [worst_noncentrality(S0 + x_covariance(info + infos[i]), drifts) for i in pool]
+        scores = [worst_noncentrality_with_views(S0, x_information(info + infos[i]), drifts) for i in pool]
         best = pool[int(np.argmax(scores))]
         nc = max(scores)
         info = info + infos[best]
