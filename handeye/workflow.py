@@ -44,7 +44,13 @@ matrix was computed (``ok``) or not (``failed``); ``verdict`` says whether to us
   :class:`~handeye.errors.SessionRefused`). A run is refused when the pipeline sets a
   ``SessionRefused`` as its error, or when a diagnostics finding carries ``refuses: true`` (at the
   top of the finding's dict or in its ``details``): its matrix, seed and closed forms are then
-  dropped and the finding is the error's reason (``error.code`` is the finding's code).
+  dropped and the finding is the error's reason (``error.code`` is the finding's code). A run that
+  failed (no matrix) while the diagnostics name a fault of the whole session (a misread pose format,
+  inverted poses, a swapped mode, shifted or shuffled pairs, a wrong square size: failing findings of
+  :data:`handeye.diagnose.GLOBAL_FAULT_CODES`) is refused for that fault too: the solver's failure was
+  its effect, and the finding's fix is what to do. A run with a matrix is refused when the robot poses
+  were read wrongly (units, rotation convention, inversion, mounting mode: failing findings of
+  :data:`handeye.diagnose.readings.READING_CODES`): a matrix from misread poses is no calibration.
 
 :attr:`WorkflowResult.exit_code` follows :mod:`handeye.errors`: the error's code when there is one,
 else the verdict's (:func:`handeye.errors.verdict_exit_code`).
@@ -166,6 +172,14 @@ def _calibrate_locked(session_path, *, options, out_dir: Path, report: bool, qa:
     refusal = refusing_finding(diag)
     if refusal is not None and run.error is None:
         run = _refused(run, refusal)
+    elif run.error is None and global_fault(diag, misread_only=True) is not None:
+        # a matrix from robot poses read wrongly (units, convention, inversion, mode) is no calibration
+        run = _refused(run, global_fault(diag, misread_only=True), evidence=False)
+    elif run.error is not None and not isinstance(run.error, SessionRefused):
+        cause = global_fault(diag)
+        if cause is not None:  # the failure is the effect of a fault the diagnostics name: that is the reason
+            log.info("the calibration failed (%s); the diagnostics name the cause", run.error)
+            run = _refused(run, cause, evidence=False)
     res = result_dict(run, mode_flag=mode)
     if prior_record is not None:
         res["prior"] = prior_record
@@ -211,10 +225,25 @@ def refusing_finding(diagnostics: Optional[dict]) -> Optional[dict]:
     return None
 
 
-def _refused(run: CalibrationRun, finding: dict) -> CalibrationRun:
-    """The run without any matrix, its error the refusing finding."""
+def global_fault(diagnostics: Optional[dict], *, misread_only: bool = False) -> Optional[dict]:
+    """The first failing diagnostics finding of a fault of the whole session
+    (:data:`handeye.diagnose.GLOBAL_FAULT_CODES`; ``misread_only``: of the robot poses read wrongly,
+    :data:`handeye.diagnose.readings.READING_CODES`), or None."""
+    from .diagnose import GLOBAL_FAULT_CODES
+    from .diagnose.readings import READING_CODES
+
+    codes = READING_CODES if misread_only else GLOBAL_FAULT_CODES
+    for f in (diagnostics or {}).get("findings") or []:
+        if isinstance(f, dict) and f.get("severity") == "fail" and f.get("code") in codes:
+            return f
+    return None
+
+
+def _refused(run: CalibrationRun, finding: dict, *, evidence: bool = True) -> CalibrationRun:
+    """The run without any matrix, its error the refusing finding (with its evidence unless ``evidence`` is
+    False: the finding is in the diagnostics with it)."""
     what = f"the session was refused: {str(finding.get('title') or finding.get('code')).rstrip('.')}"
-    if finding.get("evidence"):
+    if evidence and finding.get("evidence"):
         what += f" ({str(finding['evidence']).rstrip('.')})"
     err = SessionRefused(what, hint=finding.get("action") or None, code=str(finding.get("code") or "session_refused"))
     log.info("refused: %s", err)

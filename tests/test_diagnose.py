@@ -342,6 +342,27 @@ def test_inverted_robot_poses(tmp_path, monkeypatch, mode):
     assert _codes(d) == {"poses_inverted"}
 
 
+def test_a_run_that_fails_from_inverted_poses_is_refused_for_them(tmp_path, monkeypatch):
+    """Inverted poses: the run is refused for the cause the diagnostics name, with its fix: not reported as a
+    solver failure when the refinement fails (no view's robot pose agrees with its camera), and no matrix
+    when it does not."""
+    from handeye.errors import SessionRefused
+    from handeye.workflow import calibrate_session
+
+    cs = _session("eye_in_hand", 9, n_views=15, robot_noise=(0.2, 0.03))
+    folder = _write_vendor(tmp_path / "s", cs, _vals(inv_T(cs.T_base_end_reported)))
+    _patch(monkeypatch, cs)
+    for k, ro in enumerate(({}, {"robot_noise": "none"})):  # the refinement fits the misread poses / fails
+        assert run_calibration(load_session(folder), CalibrateOptions(refine_options=ro)).status == ("ok", "failed")[k]
+        wr = calibrate_session(folder, out_dir=tmp_path / f"out{k}", report=False,
+                               options=CalibrateOptions(refine_options=ro))
+        assert wr.exit_code == SessionRefused.exit_code and wr.verdict == "REFUSED"
+        err = wr.result["error"]
+        assert err["code"] == "poses_inverted" and "invert them" in err["fix"]
+        assert wr.result["verdict_headline"].startswith("Robot poses inverted")
+        assert wr.result["status"] == "failed" and wr.result.get("T_end_cam") is None
+
+
 # ------------------------------------------------------------------------------ pairing
 @pytest.mark.parametrize("shift", [1, -2])
 def test_pairs_shifted(tmp_path, monkeypatch, shift):

@@ -233,7 +233,8 @@ def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
     used, total = res["n_views"]["used"], res["n_views"]["total"]
     how = (f", method {res['method']}" + (" + joint refinement" if res.get("refined") else " (closed form only)")
            if res["status"] == "ok" else ", no result")
-    lines.append(f"handeye {__version__}: {mode}, {used}/{total} views used{how}")
+    counts = f"{used}/{total} views used" if res["status"] == "ok" else f"{total} views"
+    lines.append(f"handeye {__version__}: {mode}, {counts}{how}")
     lines += mode_lines(res)
     for v in res["views"]:
         if not v["used"]:
