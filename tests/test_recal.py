@@ -446,6 +446,24 @@ def test_verify_refuses_too_few_views_and_a_result_without_covariance(install):
         verify_views(load_result(bare), views=_views(v), object_points=s.target.object_points())
 
 
+def test_verify_with_robot_poses_far_noisier_than_installed_says_so(install):
+    """New views whose robot poses scatter 10x beyond the installed robot noise: the verification cannot be
+    solved (too few robot poses agree with the camera); the error measures the scatter and says what to check,
+    not 'turn the robot between views'."""
+    from handeye.errors import CalibrationError
+    from handeye.recal.verify import verify_views
+    from handeye.sim.corners import make_corner_session
+
+    s, res = install
+    v = make_corner_session(n_views=6, seed=104, noise_px=0.3, robot_noise=(2.0, 0.5), intrinsics=s.intrinsics,
+                            rig=(s.T_x_true, s.T_board_true))
+    with pytest.raises(CalibrationError) as e:
+        verify_views(load_result(res), views=_views(v), object_points=s.target.object_points())
+    hint = e.value.hint
+    assert "scatters by" in hint and "installed robot noise of" in hint and "at rest" in hint
+    assert "turned between them" not in hint
+
+
 def test_plan_power_grows_with_views_and_is_bounded_by_the_installed_uncertainty(install):
     from handeye.recal.plan import installed_poses, plan_verification, plan_lines
 
@@ -790,6 +808,26 @@ def test_a_kept_board_prior_is_taken_in_the_new_sessions_numbering(rendered, tmp
     assert ref["prior"]["board_prior"] is True and ref["prior"]["board_turn_deg"] == pytest.approx(0.0)
     rot, trans = pose_error(np.array(res["T_end_cam"]), np.array(ref["T_end_cam"]))
     assert trans < 1e-4 and rot < 1e-5, (trans, rot)
+
+
+def test_a_prior_whose_test_fails_is_not_used_and_not_called_contradicted(rendered, monkeypatch):
+    """When verify's test of the prior cannot be solved, the prior on X is not used, and the record says that it
+    could not be tested (not that the data contradict it); the report shows NOT TESTED."""
+    import handeye.recal.prior as prior_mod
+    from handeye.errors import CalibrationError
+    from handeye.pipeline import CalibrateOptions
+    from handeye.report.context import _prior_block
+    from handeye.session import load_session
+
+    def unsolvable(*a, **k):
+        raise CalibrationError("the verification solve failed: only 1 views left", code="refinement_failed")
+
+    monkeypatch.setattr(prior_mod, "verify_views", unsolvable)
+    run, rec = prior_mod.calibrate_with_prior(load_session(rendered["same"]), CalibrateOptions(), rendered["installed"])
+    assert run.status == "ok" and rec["tested"] is False and rec["used"].startswith("no prior on X")
+    assert rec["summary"].startswith("the prior could not be tested: the test of the prior failed")
+    assert "contradict" not in rec["summary"] and "test" not in rec
+    assert _prior_block({"prior": rec}, "T_end_cam")["tested"] is False
 
 
 def test_a_board_numbered_otherwise_in_the_update_run_drops_the_board_prior(rendered, monkeypatch, caplog):

@@ -127,9 +127,12 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
         rec["summary"] = (f"the prior {installed.x_name} was updated by {rec['update']['trans_mm']:.2f} mm, "
                           f"{rec['update']['rot_deg']:.3f} deg; the data agree with it "
                           f"(p = {rec['test']['p_value']:.3g})")
-        log.info("prior: %s", rec["summary"])
+        log.debug("prior: %s", rec["summary"])  # the command prints it after the result
         return _described(run), plain(rec, nan_to_none=True)
-    progress("the data contradict the prior: calibrating without it")
+    tested = v is not None and run.status == "ok"
+    rec["tested"] = tested
+    progress("the data contradict the prior: calibrating without it" if tested
+             else "the prior could not be tested: calibrating without it")
     # the intrinsics prior stays; so does the board's pose when the user says the board was not touched and verify
     # does not find it moved (a bumped camera does not move the board, and each new view then measures X through it;
     # a few views cannot tell a board moved by a millimetre from a bumped camera, so it is the user's statement)
@@ -153,14 +156,15 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
     rec["used"] = ("no prior on X (the new views with the prior's intrinsics and board pose: the board did not move)"
                    if board_kept else "no prior on X (the new views alone; the prior's intrinsics kept)")
     rec["board_prior"] = board_kept
+    lead = "the data contradict the prior" if tested else "the prior could not be tested"
     if run_n.status == "ok" and run_n.refined is not None:
         size = (f"; {installed.x_name} drifted by {rec['change']['trans_mm']:.2f} mm, "
-                f"{rec['change']['rot_deg']:.3f} deg" if "change" in rec else "")
-        rec["summary"] = (f"the data contradict the prior: {why}{size} (the result is the new views' calibration "
+                f"{rec['change']['rot_deg']:.3f} deg" if "change" in rec and tested else "")
+        rec["summary"] = (f"{lead}: {why}{size} (the result is the new views' calibration "
                           "without the prior on X)")
     else:
-        rec["summary"] = f"the data contradict the prior: {why}; the calibration without it failed too"
-    log.info("prior: %s", rec["summary"])
+        rec["summary"] = f"{lead}: {why}; the calibration without it failed too"
+    log.debug("prior: %s", rec["summary"])  # the command prints it after the result
     return _described(run_n), plain(rec, nan_to_none=True)
 
 

@@ -346,8 +346,15 @@ def verify_views(installed: LoadedResult, *, views: Sequence, object_points: np.
     r = refine(mode=mode, object_points=object_points, views=list(views), intrinsics=intr, T_x0=X0, T_board0=B0,
                options=ro)
     if r.status != "ok":
+        hint = "capture views with the whole board visible and the robot turned between them"
+        if r.failure_code == "too_few_robot_poses":  # the views' robot poses scatter beyond the installed noise
+            err = np.array([pose_error(B, B0) for B in B_views])
+            hint = (f"the board each view implies through its robot pose and the installed {installed.x_name} "
+                    f"scatters by {np.median(err[:, 1]):.1f} mm / {np.median(err[:, 0]):.2f} deg (median), against "
+                    f"an installed robot noise of {rs_mm:.2f} mm / {rs_deg:.3f} deg: make sure the robot is at rest "
+                    "at each capture and that the poses are the flange's of this robot, then capture again")
         raise CalibrationError(f"the verification solve failed: {r.failure_reason}", code="refinement_failed",
-                               hint="capture views with the whole board visible and the robot turned between them")
+                               hint=hint)
     test = test_refined(installed, r, prior, min_variance_share=options.min_variance_share)
     drifted = test.p_value < options.alpha
     change = change_in_result_frame(X0, test.change_xi, test.change_cov)

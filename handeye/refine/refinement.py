@@ -128,14 +128,15 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
                                   f"{options.min_corners}", size={"n_usable": len(pb.obj[i]),
                                                                   "n_corners": len(pb.obj[i])}))
 
-    def result(status, reason, S_cc=None, dec=None) -> RefineResult:
+    def result(status, reason, S_cc=None, dec=None, code="") -> RefineResult:
         return build_result(pb, status=status, reason=reason, S_cc=S_cc, dec=dec, rms_before=rms_before,
                             T_x0=T_x0, T_board0=T_board0, intrinsics0=intrinsics, t0=t0,
-                            outliers=dec.outliers if dec is not None else tuple(sparse), start_method=start_method)
+                            outliers=dec.outliers if dec is not None else tuple(sparse), start_method=start_method,
+                            failure_code=code)
 
-    def failed(reason: str) -> RefineResult:
+    def failed(reason: str, code: str) -> RefineResult:
         log.warning("refinement failed: %s", reason)
-        return result("failed", reason)
+        return result("failed", reason, code=code)
 
     try:
         # start: sigmas from each view's own fit at the start
@@ -159,8 +160,9 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
         S_cc, _ = pb.covariances(g, values, rk)
         return result("ok", "", S_cc)
     except TooFewRobotPoses as err:
-        return failed(str(err))
+        return failed(str(err), "too_few_robot_poses")
     except np.linalg.LinAlgError as err:
-        return failed(f"the information matrix is singular ({err}); the views do not constrain all unknowns")
+        return failed(f"the information matrix is singular ({err}); the views do not constrain all unknowns",
+                      "singular")
     except RuntimeError as err:  # GTSAM raises RuntimeError (e.g. indeterminant linear system)
-        return failed(f"GTSAM: {err}")
+        return failed(f"GTSAM: {err}", "solver")

@@ -70,6 +70,9 @@ class RefineResult:
     # ({"rot": r, "trans": r} or {"joint": r}, plus "dh_scale" where the views widened the arm's DH prior);
     # empty when none was estimated or resolved
     robot_noise_dof: dict = field(default_factory=dict)
+    #: why a failed refinement failed, for programs: "too_few_robot_poses" (fewer than 3 views keep a robot
+    #: pose that agrees with the camera), "singular", "solver"; empty when it did not fail
+    failure_code: str = ""
 
     @property
     def used_view_ids(self) -> list:
@@ -221,7 +224,7 @@ def _per_view(pb: "Problem", dec: Optional["Decision"]) -> dict:
 
 def build_result(pb: "Problem", *, status: str, reason: str, S_cc: Optional[np.ndarray], dec: Optional["Decision"],
                  rms_before: float, T_x0: np.ndarray, T_board0: np.ndarray, intrinsics0: Intrinsics, t0: float,
-                 outliers: tuple, start_method: str) -> RefineResult:
+                 outliers: tuple, start_method: str, failure_code: str = "") -> RefineResult:
     """The result from the final state of the problem and the core covariance ``S_cc`` (None: failed)."""
     wd = _working_distance(pb)
     unc = hand_eye_uncertainty(None if S_cc is None else S_cc[:6, :6], pb.T_x, wd)
@@ -245,7 +248,7 @@ def build_result(pb: "Problem", *, status: str, reason: str, S_cc: Optional[np.n
         robot_sigma_resolved=_resolved(pb),
         rms_px_before=rms_before, rms_px_after=rms_after, per_view=_per_view(pb, dec),
         outliers=tuple(outliers), iterations=int(pb.iterations), seconds=time.perf_counter() - t0,
-        start_method=start_method, options=pb.o, robot_model=robot_model_dict(pb, S_cc),
+        start_method=start_method, failure_code=failure_code, options=pb.o, robot_model=robot_model_dict(pb, S_cc),
         cov_board_6x6=None if S_cc is None else 0.5 * (S_cc[6:N_POSES, 6:N_POSES] + S_cc[6:N_POSES, 6:N_POSES].T),
         cov_x_intrinsics=_x_intrinsics_covariance(pb, S_cc),
         robot_noise_dof=dict(pb.noise_dof) if pb.o.robot_noise == "estimate" else {})

@@ -348,7 +348,8 @@ def _prior_block(res, x_name) -> Optional[dict]:
             "translation_mm": f["translation_mm"] if f else None, "euler_deg": f["euler_vendor_deg"] if f else None,
             "sigma_trans_mm": p.get("sigma_trans_mm"), "sigma_rot_deg": p.get("sigma_rot_deg"),
             "update_rows": _change_rows(upd) if upd else None, "test": test or None, "alpha": p.get("alpha"),
-            "contradicted": bool(p.get("contradicted")), "used": p.get("used", ""), "summary": p.get("summary", ""),
+            "contradicted": bool(p.get("contradicted")), "tested": p.get("tested", True) is not False,
+            "used": p.get("used", ""), "summary": p.get("summary", ""),
             "change_rows": _change_rows(change) if change else None}
 
 
