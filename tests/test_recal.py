@@ -810,6 +810,24 @@ def test_a_kept_board_prior_is_taken_in_the_new_sessions_numbering(rendered, tmp
     assert trans < 1e-4 and rot < 1e-5, (trans, rot)
 
 
+def test_verify_and_prior_refuse_images_of_another_resolution_in_one_line(rendered, tmp_path, capsys):
+    import shutil
+
+    import cv2
+
+    d = tmp_path / "half"
+    shutil.copytree(rendered["same"], d)
+    for p in d.glob("*.jpg"):
+        img = cv2.imread(str(p))
+        cv2.imwrite(str(p), cv2.resize(img, (img.shape[1] // 2, img.shape[0] // 2)))
+    for argv in (["verify", str(d), "--against", str(rendered["installed"])],
+                 ["calibrate", str(d), "--prior", str(rendered["installed"]), "--out", str(tmp_path / "out")]):
+        rc = main(["-q", *argv])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and len(err) == 1, err
+        assert "images are 320x180 but the installed calibration's are 640x360" in err[0], err
+
+
 def test_a_prior_whose_test_fails_is_not_used_and_not_called_contradicted(rendered, monkeypatch):
     """When verify's test of the prior cannot be solved, the prior on X is not used, and the record says that it
     could not be tested (not that the data contradict it); the report shows NOT TESTED."""

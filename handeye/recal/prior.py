@@ -35,13 +35,14 @@ from ..errors import HandeyeError, InputError
 from ..frames import tangent_difference
 from ..output import plain
 from .loaded import VAGUE_COV_X, LoadedResult, ResultLike, installed_prior, load_result
-from .verify import VerifyOptions, change_in_result_frame, verify_views
+from .verify import VerifyOptions, change_in_result_frame, check_resolution, verify_views
 
 log = logging.getLogger(__name__)
 
 
 def check_prior_fits(installed: LoadedResult, session) -> None:
-    """The earlier result must describe this rig: same mode, board; else a one-line InputError."""
+    """The earlier result must describe this rig: same mode, board and (unless the session brings its own
+    intrinsics) image resolution; else a one-line InputError."""
     if not installed.ok or installed.cov_x is None:
         raise InputError("the prior result has no hand-eye matrix with a covariance", path=installed.source,
                          hint="use a result calibrated with the refinement (status ok)")
@@ -51,6 +52,8 @@ def check_prior_fits(installed: LoadedResult, session) -> None:
     if installed.target is not None and session.target.to_dict() != installed.target:
         raise InputError(f"the prior used another board than the session ({session.target.describe()})",
                          path=installed.source, code="not_comparable", hint="use a result of this board as --prior")
+    if session.intrinsics is None:  # the prior's intrinsics would describe these images
+        check_resolution(installed, session)
 
 
 def _with_prior(session, options, installed: LoadedResult, *, cov_x=None, board: bool = False):

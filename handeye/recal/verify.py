@@ -602,6 +602,19 @@ def session_for_installed(session_path, installed: LoadedResult, *, mode: Option
     return s
 
 
+def check_resolution(installed: LoadedResult, session) -> None:
+    """The session's images (read from their headers) must have the installed calibration's resolution: its
+    intrinsics describe that image; else a one-line InputError (``not_comparable``)."""
+    from ..session import image_sizes
+
+    size = next(iter(image_sizes(session).values()), None)
+    if size and installed.image_size and tuple(size) != tuple(installed.image_size):
+        raise InputError(f"the session's images are {size[0]}x{size[1]} but the installed calibration's are "
+                         f"{installed.image_size[0]}x{installed.image_size[1]}", path=session.path,
+                         code="not_comparable", hint="capture at the calibrated resolution (the installed intrinsics "
+                                                     "describe that image)")
+
+
 def verify_session(session_path, against, *, options: VerifyOptions = VerifyOptions(), mode: Optional[str] = None,
                    progress=None) -> SessionVerification:
     """Detect the target in a short session (:func:`handeye.pipeline.observe`) and test the installed
@@ -617,6 +630,7 @@ def verify_session(session_path, against, *, options: VerifyOptions = VerifyOpti
         raise InputError(f"the installed result has no hand-eye matrix (status {installed.status})",
                          path=installed.source, hint="verify against a result with status ok")
     s = session_for_installed(session_path, installed, mode=mode)
+    check_resolution(installed, s)
     m = mounting(s.mode)
     own = s.intrinsics if (s.intrinsics is not None and s.intrinsics_prior in ("fixed", "prior")) else None
     intr = own if own is not None else installed.intrinsics
@@ -627,10 +641,6 @@ def verify_session(session_path, against, *, options: VerifyOptions = VerifyOpti
     if obs.error is not None:
         raise obs.error if obs.error.path is not None else obs.error.at(s.path)
     size = next(iter(obs.detections.values())).image_size
-    if installed.image_size and tuple(size) != tuple(installed.image_size):
-        raise InputError(f"the session's images are {size[0]}x{size[1]} but the installed calibration's are "
-                         f"{installed.image_size[0]}x{installed.image_size[1]}", path=s.path, code="not_comparable",
-                         hint="capture at the calibrated resolution")
     t1 = time.perf_counter()
     views = [RefineView(vid, bp.corner_ids, obs.detections[vid].image_points, s.view(vid).T_base_end,
                         s.view(vid).joint_angles) for vid, bp in obs.board_poses.items()]

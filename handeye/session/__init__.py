@@ -37,12 +37,9 @@ def load_session(path: str | Path, *, mode: str | None = None, allow_outside: bo
     return session
 
 
-def check_image_sizes(session: Session) -> None:
-    """All views' images of one size, read from the file headers (nothing is decoded): an image of
-    another size than the others is an InputError naming its view. Files whose header cannot be read
-    are left to detection (it drops them with the reason)."""
-    from collections import Counter
-
+def image_sizes(session: Session) -> dict:
+    """View id -> (width, height) of its image, read from the file header (nothing is decoded); views without
+    an image, or whose header cannot be read (left to detection, which drops them with the reason), are left out."""
     from PIL import Image, UnidentifiedImageError
 
     sizes = {}
@@ -54,6 +51,15 @@ def check_image_sizes(session: Session) -> None:
                 sizes[v.view_id] = tuple(im.size)
         except (OSError, UnidentifiedImageError, ValueError, Image.DecompressionBombError):
             continue
+    return sizes
+
+
+def check_image_sizes(session: Session) -> None:
+    """All views' images of one size (:func:`image_sizes`): an image of another size than the others is an
+    InputError naming its view."""
+    from collections import Counter
+
+    sizes = image_sizes(session)
     if len(set(sizes.values())) <= 1:
         return
     common, n_common = Counter(sizes.values()).most_common(1)[0]
