@@ -545,6 +545,8 @@ def test_calibrate_with_prior_reports_the_update_or_the_contradiction(rendered, 
             # moved: the bumped camera's views then measure X through it
             kept = unmoved and name == "bumped"
             assert p["board_prior"] is kept and ("board pose" in p["used"]) is kept
+            # the user's word overruled by the data is said, with the move
+            assert ("--board-unmoved was overruled: the board moved by" in p["summary"]) is (unmoved and not kept)
             if kept:
                 from handeye.frames import pose_error
 
@@ -826,6 +828,13 @@ def test_verify_and_prior_refuse_images_of_another_resolution_in_one_line(render
         err = capsys.readouterr().err.strip().splitlines()
         assert rc == 2 and len(err) == 1, err
         assert "images are 320x180 but the installed calibration's are 640x360" in err[0], err
+
+
+def test_board_unmoved_without_a_prior_is_refused(rendered, tmp_path, capsys):
+    rc = main(["-q", "calibrate", str(rendered["same"]), "--board-unmoved", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "add --prior RESULT, or drop --board-unmoved" in err[0]
+    assert not (tmp_path / "o").exists()
 
 
 def test_a_prior_whose_test_fails_is_not_used_and_not_called_contradicted(rendered, monkeypatch):

@@ -181,6 +181,12 @@ def options_from_args(args):
 def run(args) -> int:
     from ..workflow import calibrate_session
 
+    if getattr(args, "board_unmoved", False) and getattr(args, "prior", None) is None:
+        from ..errors import InputError
+
+        raise InputError("--board-unmoved says the board stayed since the earlier calibration given by --prior",
+                         expected="--prior RESULT with it", received="no --prior",
+                         hint="add --prior RESULT, or drop --board-unmoved")
     out = args.out or default_out_dir(args.session)
     opts = options_from_args(args)
     site = [f for f in (getattr(args, "config", None), getattr(args, "qa", None)) if f]

@@ -158,13 +158,20 @@ def calibrate_with_prior(session, options, prior: ResultLike, *, progress=None,
         rec["board_turn_deg"] = float(v.board.get("turn_deg", 0.0))
     rec["used"] = ("no prior on X (the new views with the prior's intrinsics and board pose: the board did not move)"
                    if board_kept else "no prior on X (the new views alone; the prior's intrinsics kept)")
+    overruled = ""
+    if board_unmoved and not board_kept and v is not None and v.board.get("moved"):
+        b = v.board  # the user's word against the data: say which one the run followed
+        overruled = (f"; --board-unmoved was overruled: the board moved by {b['trans_mm']:.1f} mm / "
+                     f"{b['rot_deg']:.2f} deg (sigma {b['sigma_trans_mm']:.1f} mm / {b['sigma_rot_deg']:.2f} deg), "
+                     "so its earlier pose was not used")
+        rec["board_unmoved_overruled"] = True
     rec["board_prior"] = board_kept
     lead = "the data contradict the prior" if tested else "the prior could not be tested"
     if run_n.status == "ok" and run_n.refined is not None:
         size = (f"; {installed.x_name} drifted by {rec['change']['trans_mm']:.2f} mm, "
                 f"{rec['change']['rot_deg']:.3f} deg" if "change" in rec and tested else "")
         rec["summary"] = (f"{lead}: {why}{size} (the result is the new views' calibration "
-                          "without the prior on X)")
+                          f"without the prior on X){overruled}")
     else:
         rec["summary"] = f"{lead}: {why}; the calibration without it failed too"
     log.debug("prior: %s", rec["summary"])  # the command prints it after the result
