@@ -47,7 +47,11 @@ def result_transform(result: dict) -> tuple[str, np.ndarray]:
     key = mounting(mode).x_name
     if key not in result:
         raise InputError(f"result.json has no hand-eye transform {key}", expected=f"mode {mode} and {key}")
-    T = np.asarray(result[key], float)
-    if T.shape != (4, 4) or not is_rotation(T[:3, :3], tol=1e-6):
-        raise InputError(f"{key} in result.json is not a 4x4 rigid transform")
+    try:
+        T = np.asarray(result[key], float)
+    except (TypeError, ValueError):
+        T = np.full((0,), np.nan)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not is_rotation(T[:3, :3], tol=1e-6):
+        raise InputError(f"damaged: {key} is not a finite 4x4 rigid transform", code="result_damaged",
+                         hint="the file was edited or damaged: restore it or calibrate again")
     return mode, T

@@ -45,6 +45,32 @@ def test_compare_identical_results_is_zero_and_not_drifted():
     assert not c.drifted and c.trans_mm == pytest.approx(0.0, abs=1e-9)
 
 
+@pytest.mark.parametrize("damage,what", [
+    (lambda d: d["T_end_cam"][0].__setitem__(3, float("nan")), "T_end_cam is not a finite 4x4 rigid transform"),
+    (lambda d: d["T_end_cam"][0].__setitem__(0, 2.0), "T_end_cam is not a finite 4x4 rigid transform"),
+    (lambda d: d["refinement"]["cov_x_6x6"][0].__setitem__(0, -1.0), "refinement.cov_x_6x6 is not a finite symmetric"),
+    (lambda d: d["intrinsics"].__setitem__("fx", float("nan")), "intrinsics.fx is nan"),
+])
+def test_a_damaged_result_is_refused_by_every_command_that_reads_it(tmp_path, capsys, damage, what):
+    """A NaN or an edited matrix in result.json would flow into compare as "no change" (p = nan), into export
+    and apply as numbers: each command refuses it in one line naming the entry."""
+    good, bad = tmp_path / "good", tmp_path / "bad"
+    for folder in (good, bad):
+        folder.mkdir()
+        d = fake_result()
+        if folder is bad:
+            damage(d)
+        (folder / "result.json").write_text(json.dumps(d))
+    argvs = [["compare", str(good), str(bad)], ["export", str(bad), "--to", "json", "--out", str(tmp_path / "x.json")]]
+    if "T_end_cam" in what:
+        argvs.append(["apply", str(bad), "--point", "0", "0", "0.5", "--end-pose", "0.5", "0", "0.5", "3.1", "0", "0"])
+    for argv in argvs:
+        rc = main(["-q", *argv])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and len(err) == 1 and f"damaged: {what}" in err[0], (argv, err)
+    assert not (tmp_path / "x.json").exists()
+
+
 def test_compare_known_difference_gives_the_chi2_statistic():
     T_a = se3_exp(np.array([0.1, -0.2, 0.3, 0.05, 0.02, 0.1]))
     xi = np.array([np.radians(0.1), 0.0, 0.0, 2e-3, 0.0, 0.0])  # 0.1 deg about camera x, 2 mm along camera x

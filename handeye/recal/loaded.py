@@ -131,6 +131,37 @@ class LoadedResult:
         return 0.5 * (S + S.T)
 
 
+def _check_intact(d: dict, x_name: str, ref: dict, source: str) -> None:
+    """A result whose calibration succeeded must hold a finite rigid X, a finite symmetric covariance that is
+    not negative, and finite positive focal lengths: a NaN or an edited matrix would otherwise flow into
+    every test as "no change"; InputError (``result_damaged``) naming the entry."""
+    from ..frames import is_rotation
+
+    if d.get("status") != "ok":
+        return
+
+    def damaged(what: str):
+        raise InputError(f"damaged: {what}", path=source, code="result_damaged",
+                         hint="the file was edited or damaged: restore it or calibrate again")
+
+    if x_name in d:
+        T = _matrix(d[x_name], (4, 4))
+        if T is None or not is_rotation(T[:3, :3], tol=1e-6) or not np.allclose(T[3], [0, 0, 0, 1]):
+            damaged(f"{x_name} is not a finite 4x4 rigid transform")
+    for key in ("cov_x_6x6_verdict", "cov_x_6x6"):
+        if ref.get(key) is not None:
+            c = _matrix(ref[key], (6, 6))
+            if c is None or not np.allclose(c, c.T, rtol=1e-6, atol=1e-18) or \
+                    np.linalg.eigvalsh(0.5 * (c + c.T)).min() < -1e-9 * max(np.abs(c).max(), 1e-30):
+                damaged(f"refinement.{key} is not a finite symmetric covariance")
+    intr = d.get("intrinsics")
+    if isinstance(intr, dict):
+        for k in ("fx", "fy", "cx", "cy"):
+            v = _float(intr.get(k)) if intr.get(k) is not None else None
+            if intr.get(k) is not None and (v is None or not np.isfinite(v) or (k in ("fx", "fy") and v <= 0)):
+                damaged(f"intrinsics.{k} is {intr.get(k)!r}")
+
+
 def _matrix(v, shape) -> Optional[np.ndarray]:
     if v is None:
         return None
@@ -168,6 +199,7 @@ def load_result(result: ResultLike) -> LoadedResult:
     x_name = str(he.get("name") or ("T_end_cam" if mode == "eye_in_hand" else "T_base_cam"))
     board_name = (d.get("board") or {}).get("name")
     ref = d.get("refinement") or {}
+    _check_intact(d, x_name, ref, source)
     cov, cov_source = None, "none"
     for key in ("cov_x_6x6_verdict", "cov_x_6x6"):
         c = _matrix(ref.get(key), (6, 6))
