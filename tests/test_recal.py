@@ -71,6 +71,24 @@ def test_a_damaged_result_is_refused_by_every_command_that_reads_it(tmp_path, ca
     assert not (tmp_path / "x.json").exists()
 
 
+def test_a_result_that_failed_qa_is_used_with_a_warning(tmp_path, caplog):
+    """compare and apply use a result whose verdict is FAIL as it is, and say so (export refuses it)."""
+    good, failed = tmp_path / "good", tmp_path / "failed"
+    for folder, extra in ((good, {}), (failed, {"verdict": "FAIL", "verdict_headline": "T_end_cam fails QA: x."})):
+        folder.mkdir()
+        (folder / "result.json").write_text(json.dumps(dict(fake_result(), **extra)))
+    for argv in (["compare", str(good), str(failed)],
+                 ["apply", str(failed), "--point", "0", "0", "0.5", "--end-pose", "0.5", "0", "0.5", "3.1", "0", "0"]):
+        caplog.clear()
+        with caplog.at_level("WARNING"):
+            assert main(argv) == 0
+        assert "this calibration's verdict is FAIL (T_end_cam fails QA: x); it is used as it is" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        main(["compare", str(good), str(good)])
+    assert "verdict is FAIL" not in caplog.text
+
+
 def test_compare_known_difference_gives_the_chi2_statistic():
     T_a = se3_exp(np.array([0.1, -0.2, 0.3, 0.05, 0.02, 0.1]))
     xi = np.array([np.radians(0.1), 0.0, 0.0, 2e-3, 0.0, 0.0])  # 0.1 deg about camera x, 2 mm along camera x

@@ -1,7 +1,10 @@
 """``handeye apply RESULT --point X Y Z | --pose ...``: camera observations in the robot base frame."""
 from __future__ import annotations
 
+import logging
 from pathlib import Path
+
+log = logging.getLogger(__name__)
 
 
 def finite_float(text: str) -> float:
@@ -54,6 +57,10 @@ def run(args) -> int:
     except (TypeError, ValueError) as e:  # a damaged matrix
         raise InputError(f"the hand-eye transform is damaged ({e})", path=path, expected="a 4x4 matrix of numbers",
                          hint="re-run handeye calibrate") from None
+    if str(res.get("verdict") or "").upper() == "FAIL":
+        from ..recal.loaded import load_result, unfit_note
+
+        log.warning("%s", unfit_note(load_result(path)))
     scale = 1e-3 if args.mm else 1.0
 
     def pose_arg(values, flag):

@@ -11,7 +11,10 @@ that do not describe one quantity (mode, frames, board, camera resolution) are r
 from __future__ import annotations
 
 import argparse
+import logging
 from pathlib import Path
+
+log = logging.getLogger(__name__)
 
 
 def add_arguments(p) -> None:
@@ -24,7 +27,8 @@ def add_arguments(p) -> None:
                      "carry the joint covariance of X and the intrinsics, X is tested given the intrinsics "
                      "difference (the part of the difference an intrinsics change explains taken out; the test of "
                      "X alone is printed beside it). Refuses results of different modes, frames, boards or camera "
-                     "resolutions.")
+                     "resolutions. The exit code follows the test of X (9: drifted); the intrinsics' test is "
+                     "printed beside it.")
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = exit_codes_text()
     p.add_argument("result_a", type=Path, help="the earlier result folder (or its result.json)")
@@ -42,6 +46,12 @@ def run(args) -> int:
     alpha = ALPHA if args.alpha is None else float(args.alpha)
     if not 0.0 < alpha < 1.0:
         raise InputError("--alpha must be a probability", expected="0 < alpha < 1", received=str(args.alpha))
+    from ..recal.loaded import load_result, unfit_note
+
+    for r in (args.result_a, args.result_b):
+        note = unfit_note(load_result(r))
+        if note:
+            log.warning("%s", note)
     c = compare_results(args.result_a, args.result_b, alpha=alpha)
     if not c.comparable:
         raise InputError(f"the two results are not comparable: {c.reason}", code="not_comparable",

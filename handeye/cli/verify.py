@@ -59,6 +59,11 @@ def run(args) -> int:
 
     _check_probability("--alpha", args.alpha)
     _check_probability("--power", args.power)
+    from ..recal.loaded import load_result, unfit_note
+
+    note = unfit_note(load_result(args.against))
+    if note:
+        log.warning("%s", note)
     if args.plan:
         if args.session:
             raise InputError("--plan takes no session", received=str(args.session),
@@ -102,9 +107,12 @@ def finish_verification(sv, out: Path, *, reports: bool = True, as_json: bool = 
 
 def verification_lines(d: dict) -> list[str]:
     """The summary a person reads: verdict, test, change per axis, what moved."""
+    from ..recal.loaded import axes_words
+
     t, c = d["test"], d["change"]
     lines = [d["headline"],
-             f"estimated change of {d['frame']} (new - installed; +- 1 sigma, the installed uncertainty included):"]
+             f"estimated change of {d['frame']} (new - installed; +- 1 sigma, the installed uncertainty included; "
+             f"{axes_words(d['frame'])}):"]
     for k, ax in enumerate("xyz"):
         lines.append(f"  {ax}: {c['d_trans_mm'][k]:+8.3f} +- {c['sigma_trans_mm'][k]:.3f} mm   "
                      f"{c['d_rot_deg'][k]:+8.4f} +- {c['sigma_rot_deg'][k]:.4f} deg")

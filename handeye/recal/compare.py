@@ -55,7 +55,7 @@ from ..config import load_preset
 from ..frames import inv_T, rotvec_from_R, se3_adjoint, tangent_difference
 from ..output import plain
 from ..stats import satterthwaite_dof, wald_p_value
-from .loaded import LoadedResult, ResultLike, load_result
+from .loaded import LoadedResult, ResultLike, axes_words, load_result
 
 #: the test's level (configs/recal.yaml test.alpha): an unchanged rig is called drifted this often
 ALPHA = float(load_preset("recal")["test"]["alpha"])
@@ -306,7 +306,8 @@ def comparison_lines(c: Comparison) -> list[str]:
     if not c.comparable:
         return [f"not comparable: {c.reason}"]
     ax = "xyz"
-    lines = [f"{c.frame}: B - A", f"  {'axis':<6}{'d [mm]':>10}{'sigma':>9}   {'d [deg]':>10}{'sigma':>9}"]
+    lines = [f"{c.frame}: B - A ({axes_words(c.frame)})",
+             f"  {'axis':<6}{'d [mm]':>10}{'sigma':>9}   {'d [deg]':>10}{'sigma':>9}"]
     for k in range(3):
         lines.append(f"  {ax[k]:<6}{c.d_trans_mm[k]:>10.3f}{c.sigma_trans_mm[k]:>9.3f}   "
                      f"{c.d_rot_deg[k]:>10.4f}{c.sigma_rot_deg[k]:>9.4f}")
@@ -325,5 +326,6 @@ def comparison_lines(c: Comparison) -> list[str]:
             for n in INTRINSICS_COMPARED if n in it))
         if "p_value" in it:
             lines.append(f"  Mahalanobis^2 {it['mahalanobis2']:.2f} ({it['dof']} dof), p = {it['p_value']:.3g}: "
-                         + ("CHANGED" if it["drifted"] else "same within the uncertainty"))
+                         + ("CHANGED (the exit code follows the test of X)" if it["drifted"]
+                            else "same within the uncertainty"))
     return lines

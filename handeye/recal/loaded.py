@@ -131,6 +131,24 @@ class LoadedResult:
         return 0.5 * (S + S.T)
 
 
+def axes_words(frame: str) -> str:
+    """Which axes a change of ``frame`` (T_parent_cam) is given along, for people: the translation the
+    parent's, the rotation the camera's (:func:`handeye.recal.verify.change_in_result_frame`)."""
+    parent = {"T_end_cam": "flange", "T_base_cam": "robot base"}.get(frame, "parent frame")
+    return f"mm along the {parent} axes, deg about the camera axes"
+
+
+def unfit_note(r: LoadedResult) -> Optional[str]:
+    """A warning for a result whose transform exists but whose verdict says it is not fit for use (FAIL), or
+    None: commands that use it anyway (verify, compare, apply) say so instead of trusting it silently."""
+    verdict = str(r.raw.get("verdict") or "").upper()
+    if not r.ok or verdict != "FAIL":
+        return None
+    head = str(r.raw.get("verdict_headline") or "").rstrip(".")
+    return (f"{r.source}: this calibration's verdict is FAIL" + (f" ({head})" if head else "")
+            + "; it is used as it is")
+
+
 def _check_intact(d: dict, x_name: str, ref: dict, source: str) -> None:
     """A result whose calibration succeeded must hold a finite rigid X, a finite symmetric covariance that is
     not negative, and finite positive focal lengths: a NaN or an edited matrix would otherwise flow into
