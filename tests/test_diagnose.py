@@ -293,6 +293,33 @@ def test_degrees_in_a_vendor_file_are_named_on_the_failed_load(tmp_path, monkeyp
     assert {f["code"] for f in d["findings"] if f["severity"] == "fail"} == {"angle_units"}
 
 
+def test_an_image_of_another_resolution_is_the_load_error_not_a_missing_board(tmp_path, monkeypatch):
+    """A session refused for one image of another size: the diagnosis looks at the images of the common size
+    (the poses fit as stated) instead of crashing and reporting the board found in 0 images."""
+    import cv2
+
+    cs = _session("eye_in_hand", 6)
+    folder = _write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported))
+    for k in range(1, cs.n_views + 1):
+        w, h = (320, 180) if k == 4 else (cs.intrinsics.width, cs.intrinsics.height)
+        cv2.imwrite(str(folder / f"{k}.jpg"), np.zeros((h, w), np.uint8))
+    with pytest.raises(InputError, match="view 4: image is 320x180") as e:
+        load_session(folder)
+    fake = _fake_detect(cs)
+
+    def detect_views(items, target, **kw):  # as the real one: images of two sizes are refused
+        if len({cv2.imread(str(p)).shape for _, p in items}) > 1:
+            raise InputError("images have different sizes")
+        return fake(items, target, **kw)
+
+    monkeypatch.setattr(calibrate_mod, "detect_views", detect_views)
+    monkeypatch.setattr(detect_mod, "detect_views", detect_views)
+    d = diagnose_session_error(folder, str(e.value))
+    assert d["crashed_stages"] == 0, d["stage_errors"]
+    codes = {f["code"] for f in d["findings"]}
+    assert "target_not_found" not in codes and "poses_fit_as_stated" in codes
+
+
 @pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
 def test_wrong_euler_order(tmp_path, monkeypatch, mode):
     cs = _session(mode, 7)

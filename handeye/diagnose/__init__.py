@@ -302,6 +302,20 @@ def arm_table_findings(model: Optional[dict]) -> list:
 
 
 # ------------------------------------------------------------------------------ failed loads
+def _of_one_size(items: list) -> list:
+    """The (view id, image path) items whose image (read from the file header) has the most common size;
+    those whose header cannot be read stay (detection drops them with the reason)."""
+    from collections import Counter
+
+    from ..session import image_sizes
+
+    sizes = image_sizes(items)
+    if len(set(sizes.values())) <= 1:
+        return items
+    common = Counter(sizes.values()).most_common(1)[0][0]
+    return [(v, p) for v, p in items if sizes.get(v, common) == common]
+
+
 def _observe_lenient(sess) -> tuple[Optional[PoseObservations], Optional[int], int]:
     """Detections, intrinsics and board poses of a leniently read session through the pipeline's
     observation stage: (observations | None, n_found, n_images); n_found is None when no reading of the
@@ -312,6 +326,7 @@ def _observe_lenient(sess) -> tuple[Optional[PoseObservations], Optional[int], i
     target, raw = sess.target, sess.raw
     mode = mounting(sess.mode)
     items = [(v, sess.images_by_id[v]) for v in sorted(sess.images_by_id, key=view_id_key) if v in raw.values]
+    items = _of_one_size(items)  # an image of another camera or resolution: the load error names it
     item_ids = [v for v, _ in items]
     # a reading that parses, to order symmetric boards' corners (re-done below with the best reading)
     T_items = None
@@ -376,6 +391,11 @@ def diagnose_session_error(path, error, *, mode: Optional[str] = None, images: b
             "session_unreadable", "fail", "The session could not be read: its pose numbers fit no pose format",
             err, "write the poses as the format says, or state the format they are in (pose_format: in "
                  "session.yaml or a vendor config.yaml, see docs/session_format.md)").to_dict()]
+        base.update(stages.to_dict())
+        return plain(base, nan_to_none=True)
+    if obs is None and stages.status.get("observations") == "crashed":  # the images were not looked at
+        base["findings"] = [Finding("session_unreadable", "fail", "The session could not be read", err,
+                                    "fix what the message names (see docs/session_format.md)").to_dict()]
         base.update(stages.to_dict())
         return plain(base, nan_to_none=True)
     if obs is None:

@@ -37,18 +37,21 @@ def load_session(path: str | Path, *, mode: str | None = None, allow_outside: bo
     return session
 
 
-def image_sizes(session: Session) -> dict:
-    """View id -> (width, height) of its image, read from the file header (nothing is decoded); views without
-    an image, or whose header cannot be read (left to detection, which drops them with the reason), are left out."""
+def image_sizes(items) -> dict:
+    """View id -> (width, height) of its image for (view id, image path) ``items`` (or a Session's views), read
+    from the file header (nothing is decoded); views without an image (pose-only views), or whose header cannot
+    be read (left to detection, which drops them with the reason), are left out."""
     from PIL import Image, UnidentifiedImageError
 
+    if isinstance(items, Session):
+        items = [(v.view_id, v.image_path) for v in items.views]
     sizes = {}
-    for v in session.views:
-        if v.image_path is None:  # a pose-only view (its target pose comes from a tracker)
+    for vid, path in items:
+        if path is None:
             continue
         try:
-            with Image.open(v.image_path) as im:
-                sizes[v.view_id] = tuple(im.size)
+            with Image.open(path) as im:
+                sizes[vid] = tuple(im.size)
         except (OSError, UnidentifiedImageError, ValueError, Image.DecompressionBombError):
             continue
     return sizes
