@@ -164,9 +164,14 @@ def test_config_yaml_may_state_how_poses_txt_is_written(tmp_path, fmt):
     ([",".join(["0"] * 15 + ["1"])], None, r"got 16.* a 4x4 matrix row by row: add to config.yaml pose_format"),
     ([f"{k},0.1,0.2,0.3,0,0,0" for k in range(1, 5)], None, r"got 7.* the first number of every line counts the "
                                                              r"lines \(a view number\): remove that column"),
-    (["0.3,0.05,0.4,170,20,-90"], None, r"poses.txt:1: .*degrees; convert them to radians or add to config.yaml "
-                                        r"pose_format: \{rotation: euler, angle_unit: deg\}"),
-    (["300,50,400,0.1,0.2,0.3"], None, r"millimetres; convert to metres or add to config.yaml pose_format"),
+    (["0.3,0.05,0.4,170,20,-90"] * 4, None, r"poses.txt:1: .*degrees; convert them to radians or add to "
+                                            r"config.yaml pose_format: \{rotation: euler, angle_unit: deg\}"),
+    (["300,50,400,0.1,0.2,0.3"] * 4, None, r"millimetres; convert to metres or add to config.yaml pose_format"),
+    # a few lines in other units than the rest: those lines are named, and the fix converts them (a unit stated
+    # for the whole file would misread the others)
+    (["0.3,0.05,0.4,170,20,-90"], None, r"poses.txt:1: rotation angles beyond 2\*pi on 1 of 4 pose lines \(line 1\)"
+                                        r".*look like degrees while the others fit radians: convert those lines"),
+    (["300,50,400,0.1,0.2,0.3"], None, r"positions beyond an arm's reach \(5 m\) on 1 of 4 pose lines.*millimetres"),
     (["0.1,0.2,0.3,0,0,0"], {"rotation": "quaternion"}, r"poses.txt:1: bad pose: expected 7 numbers"),
     (["0.1,0.2,0.3,0,0,0"], {"rotation": "euler", "units": "deg"}, r"config.yaml: unknown pose_format field 'units'"),
     (["0.1,0.2,0.3,0,0,0"], "euler", r"config.yaml: pose_format must be a mapping"),

@@ -21,7 +21,8 @@ from ..output import file_kind, read_text
 
 
 @functools.lru_cache(maxsize=None)
-def _limits() -> dict:
+def session_limits() -> dict:
+    """The plausibility limits of session values (configs/detection.yaml ``session``: reach, angles, lengths)."""
     return load_preset("detection")["session"]
 
 
@@ -137,7 +138,7 @@ def length_m(value, *, path: Path, field: str, strict: bool = True) -> float:
     L = positive_number(value, path=path, field=field)
     if not strict:
         return L
-    lim = _limits()
+    lim = session_limits()
     if L > lim["max_board_length_m"]:
         raise ConfigError(f"{field} looks like millimetres", path=path, expected="the square size in metres (e.g. 0.03)",
                           received=repr(value), hint=f"write {L / 1000:g} if the squares are {L:g} mm")
@@ -152,7 +153,7 @@ def check_translation_units(T_base_end: np.ndarray, *, path: Path, line: int | N
     """A robot position farther from the base than an arm reaches means the unit is wrong. ``or_state``:
     where the file's format could say so instead (a vendor config.yaml)."""
     dist = float(np.linalg.norm(T_base_end[:3, 3]))
-    reach = _limits()["max_reach_m"]
+    reach = session_limits()["max_reach_m"]
     if dist > reach:
         hint = ("the translation looks like millimetres; convert to metres" + (f" or {or_state}" if or_state else "")
                 if unit == "m" else "check translation_unit")
@@ -163,7 +164,7 @@ def check_translation_units(T_base_end: np.ndarray, *, path: Path, line: int | N
 def check_angle_units(angles_rad, *, path: Path, line: int | None, or_state: str = "") -> None:
     """Angles stated in radians larger than a full turn are degrees (``or_state``: as above)."""
     a = np.abs(np.asarray(angles_rad, float))
-    if np.any(a > _limits()["max_angle_rad"]):
+    if np.any(a > session_limits()["max_angle_rad"]):
         raise InputError(f"rotation angle {a.max():.1f} is larger than 2*pi", path=path, line=line,
                          expected="radians", hint="the angles look like degrees; convert them to radians"
                          + (f" or {or_state}" if or_state else ""))

@@ -23,7 +23,8 @@ from ..records import Session, View
 from ..targets import ChessboardSpec
 from ..output import read_text
 from .fields import (check_angle_units, check_finite, check_input_file, check_mode, check_target_points,
-                     check_translation_units, length_m, parse_pose_format, positive_number, read_yaml)
+                     check_translation_units, length_m, parse_pose_format, positive_number, read_yaml,
+                     session_limits)
 
 log = logging.getLogger(__name__)
 
@@ -162,6 +163,29 @@ def _count_hint(n: int, lines: list[PoseLine]) -> str:
     return f"{n} numbers may be {guess}" if guess else "write one pose per line: x,y,z,rx,ry,rz"
 
 
+def _check_mixed_units(lines: list[PoseLine], fmt: PoseFormat, poses_path: Path) -> None:
+    """A few pose lines in other units than the rest (angles beyond a full turn, positions beyond an arm's reach
+    on fewer than half of the lines: those lines were written in degrees or millimetres, the others not): an
+    InputError naming them, whose fix is to convert those lines (stating a unit for the whole file would
+    misread the others). A whole file in other units is left to the per-line checks, which say how to state it."""
+    lim = session_limits()
+    rows = [pl for pl in lines if pl.values.size == fmt.n_values and np.all(np.isfinite(pl.values))]
+    checks = []
+    if fmt.rotation in ("euler", "rotvec") and fmt.angle_unit == "rad":
+        checks.append(("rotation angles beyond 2*pi", "degrees", "radians",
+                       [pl for pl in rows if np.any(np.abs(pl.values[3:6]) > lim["max_angle_rad"])]))
+    if fmt.rotation != "matrix" and fmt.translation_unit == "m":
+        checks.append((f"positions beyond an arm's reach ({lim['max_reach_m']:g} m)", "millimetres", "metres",
+                       [pl for pl in rows if np.linalg.norm(pl.values[:3]) > lim["max_reach_m"]]))
+    for what, unit, stated, bad in checks:
+        if bad and 2 * len(bad) < len(rows):
+            named = ", ".join(str(pl.lineno) for pl in bad[:8]) + (", ..." if len(bad) > 8 else "")
+            raise InputError(f"{what} on {len(bad)} of {len(rows)} pose lines (line{'s' if len(bad) > 1 else ''} "
+                             f"{named})", path=poses_path, line=bad[0].lineno, expected=f"every line in {stated}",
+                             hint=f"those lines look like {unit} while the others fit {stated}: convert those lines "
+                                  f"to {stated} (or re-export the poses in one unit)")
+
+
 def first_image_number(images: dict[int, Path]) -> int:
     """The number of the first pose line's image: 0 when the images are numbered from 0, else 1."""
     return 0 if 0 in images else 1
@@ -181,6 +205,7 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
     first = first_image_number(images)
     if first == 0:
         log.info("%s: images numbered from 0: image k is paired with pose line k+1", folder)
+    _check_mixed_units(pose_lines, fmt, poses_path)
     poses: list[tuple[int, np.ndarray]] = []  # (line number, T)
     for pl in pose_lines:
         try:

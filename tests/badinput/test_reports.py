@@ -205,7 +205,7 @@ APPLY = [
     pytest.param(lambda b: b"[]", ["result.json", "not a JSON object"], id="a_list"),
     pytest.param(_set("status", "failed"), ["failed calibration"], id="failed_result"),
     pytest.param(lambda r: r.update({_matrix(r): [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}),
-                 ["not a 4x4 rigid transform"], id="not_rigid"),
+                 ["4x4 rigid transform"], id="not_rigid"),
     pytest.param(lambda r: r.update({_matrix(r): "identity"}), ["result.json", "4x4"], id="matrix_text"),
     pytest.param(lambda r: r.update({_matrix(r): [[1, 0, 0, 0]] * 3 + [[0, 0, "x", 1]]}), ["result.json", "4x4"],
                  id="matrix_letter"),
