@@ -402,6 +402,35 @@ def test_pairs_shifted(tmp_path, monkeypatch, shift):
     assert _one(d, "pairs_shifted")["details"]["shift"] == shift
 
 
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_a_capture_that_saved_a_pose_without_its_image_is_named_with_the_line_to_delete(tmp_path, monkeypatch, mode):
+    """Images numbered on while a failed capture left its pose in the file: from that image on each image carries
+    the pose written for the next one. Named as such (not as a shuffle), with the pose line to delete."""
+    cs = _session(mode, 10, n_views=14)
+    v = _vals(cs.T_base_end_reported)
+    stray = pose_values_from_T(cs.T_base_end_reported[2] @ T_from_rotvec([0.3, -0.2, 0.1], [0.05, 0.02, -0.03]),
+                               VENDOR_POSE_FORMAT)
+    lines = v[:6] + [stray] + v[6:]  # pose line 7 belongs to no image; image 7 is line 8's
+    _, d = _diagnose(_write_vendor(tmp_path / "s", cs, lines), cs, monkeypatch)
+    f = _one(d, "pairs_shuffled")
+    assert f["details"]["partial_shift"] == 1 and f["details"]["shift_from_image"] == "7"
+    assert "out of step from image 7 on" in f["title"] and f["action"].startswith("delete pose line 7 of the pose file")
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_a_capture_that_saved_an_image_without_its_pose_is_named_with_the_image(tmp_path, monkeypatch, mode):
+    """The reverse: image 7's pose was never written (the last image deleted to make the counts agree): from
+    image 8 on each image carries the pose written for the one before; image 7 has none."""
+    cs = _session(mode, 10, n_views=14)
+    v = _vals(cs.T_base_end_reported)
+    folder = _write_vendor(tmp_path / "s", cs, v[:6] + v[7:])
+    (folder / f"{cs.n_views}.jpg").unlink()
+    _, d = _diagnose(folder, cs, monkeypatch)
+    f = _one(d, "pairs_shuffled")
+    assert f["details"]["partial_shift"] == -1 and f["details"]["shift_from_image"] == "8"
+    assert "image 7 has no pose" in f["title"] and "add it as pose line 7" in f["action"]
+
+
 def test_pairs_shuffled(tmp_path, monkeypatch):
     cs = _session("eye_to_hand", 11)
     v = _vals(cs.T_base_end_reported)

@@ -91,7 +91,7 @@ class PairingSearch:
 
     def __init__(self, obs: PoseObservations, fmt: PoseFormat, *, invert: bool = False):
         self.obs, self.fmt, self.invert = obs, fmt, bool(invert)
-        self._shift = self._shuffle = None
+        self._shift = self._shuffle = self._partial = None
         self._searched = set()
 
     def matches(self, obs: PoseObservations, fmt: PoseFormat, *, invert: bool = False) -> bool:
@@ -112,6 +112,14 @@ class PairingSearch:
             self._shift = self._search_shift()
             self._searched.add("shift")
         return self._shift
+
+    def best_partial(self) -> Optional[tuple]:
+        """(s, first, lone, fit, keep, keys) of the pairing that is the given one up to an image and shifted by one
+        line from there on, whose boards fit best (see :func:`_search_partial`), or None."""
+        if "partial" not in self._searched:
+            self._partial = _search_partial(self.obs, self.fmt, self.invert)
+            self._searched.add("partial")
+        return self._partial
 
     def shuffle(self) -> Optional[tuple]:
         """(view id -> pose key, T (N,4,4), C (N,4,4), fit) of the shuffle matched by signature, or None when
@@ -179,6 +187,11 @@ def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = F
     if search is None or not search.matches(obs, fmt, invert=invert):
         search = PairingSearch(obs, fmt, invert=invert)
     best = search.best_shift()
+    partial = search.best_partial()
+    if partial is not None and is_clearly_better(partial[3].cost, given_cost) and (
+            best is None or not is_clearly_better(best[1].cost, given_cost)
+            or _n_unexplained(partial[3]) < _n_unexplained(best[1])):
+        return [_partial_shift_finding(obs, partial, given_cost)]
     if best is not None and is_clearly_better(best[1].cost, given_cost):
         s, fit, keep = best
         direction = f"+{s}" if s > 0 else str(s)
@@ -214,6 +227,72 @@ def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = F
                                             "board_scatter_deg": fit.median_rot_deg,
                                             "board_scatter_mm": fit.median_trans_mm})]
     return []
+
+
+def _n_unexplained(fit) -> int:
+    """How many views a pairing's board fit leaves unexplained (a view's implied board beyond the cost a
+    right reading reaches, :attr:`thresholds().readings.good_cost`)."""
+    return int(np.sum(fit.view_costs() > thresholds().readings.good_cost))
+
+
+def _search_partial(obs: PoseObservations, fmt: PoseFormat, invert: bool) -> Optional[tuple]:
+    """The best pairing shifted by one line from one image on (a capture that saved a pose without its image, or
+    an image without its pose, with the numbering carried on): for each shift s = +-1 and each image ``first``
+    in file order with two or more images before and after, the images before ``first`` keep their poses, and
+    from ``first`` on each takes the pose s lines from its own; for s = -1 the image just before ``first``
+    has no pose (left out). Returns (s, first, lone (the image without a pose, or None), fit, keep, keys),
+    the fit with the fewest unexplained views (then the lowest cost), or None."""
+    order = list(obs.raw.order)
+    pos = {k: i for i, k in enumerate(order)}
+    views = sorted((v for v in obs.ids if v in pos), key=pos.get)
+    best, best_key = None, None
+    for shift in (1, -1):
+        for k in range(2, len(views) - 1):
+            first = views[k]
+            lone = views[k - 1] if shift < 0 else None
+            keys = {v: order[pos[v] + shift] if pos[v] >= pos[first] else v for v in views if v != lone
+                    and 0 <= pos[v] + (shift if pos[v] >= pos[first] else 0) < len(order)}
+            keep = np.array([v in keys for v in obs.ids])
+            T = read_poses(obs.raw, fmt, [keys[v] for v in obs.ids if v in keys])
+            if T is None or keep.sum() < 5:
+                continue
+            M = obs.M(T, invert=invert)
+            try:
+                fit = fit_boards(_ordered_for(obs, keep, M), M)
+            except np.linalg.LinAlgError:
+                continue
+            rank = (_n_unexplained(fit), fit.cost)
+            if best is None or rank < best_key:
+                best, best_key = (shift, first, lone, fit, keep, keys), rank
+    return best
+
+
+def _partial_shift_finding(obs: PoseObservations, found: tuple, given_cost: float) -> Finding:
+    """The finding of a pairing shifted by one line from one image on (:func:`_search_partial`)."""
+    s, first, lone, fit, keep, keys = found
+    order = list(obs.raw.order)
+    b = order.index(first)
+    if s > 0:
+        title = (f"Images and robot poses are out of step from image {first} on: each image from there carries the "
+                 f"pose written for the image after it; the pose written for image {order[b]} belongs to no image")
+        fix = (f"delete pose line {b + 1} of the pose file (the pose written for image {order[b]}: a capture saved "
+               "the robot pose but no image), then calibrate again")
+    else:
+        title = (f"Images and robot poses are out of step from image {first} on: each image from there carries the "
+                 f"pose written for the image before it; image {lone} has no pose")
+        fix = (f"the pose of image {lone} is missing from the pose file (a capture saved the image but no robot "
+               f"pose): add it as pose line {order.index(lone) + 1}, or remove image {lone} and number the later "
+               "images one lower; then calibrate again")
+    moved = [v for v in obs.ids if keys.get(v, v) != v]
+    return Finding(
+        "pairs_shuffled", "fail", title,
+        f"pairing each image from {first} on with the pose {s:+d} line from its own: board scatter "
+        f"{fit.median_rot_deg:.3f} deg / {fit.median_trans_mm:.2f} mm (median over {int(keep.sum())} views, "
+        f"{_n_unexplained(fit)} unexplained), a cost of {fit.cost:.2f} against {given_cost:.1f} as paired now "
+        f"({_cost_text()})", fix, view_ids=tuple(moved + ([lone] if lone else [])),
+        details={"assignment": {v: keys[v] for v in moved}, "partial_shift": s, "shift_from_image": first,
+                 "image_without_pose": lone, "board_scatter_deg": fit.median_rot_deg,
+                 "board_scatter_mm": fit.median_trans_mm})
 
 
 def swapped_pose_findings(obs: PoseObservations, check: RobotPoseCheck, flagged: Sequence[str],

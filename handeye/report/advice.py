@@ -62,6 +62,9 @@ ROOT_CAUSE_LABELS = {
     "mode_undecided": "Mounting mode not decided",
 }
 
+#: the label of a pairs_shuffled finding that is a shift from one image on (a capture that lost its image or pose)
+PAIRS_OUT_OF_STEP = "Pairs out of step"
+
 #: codes whose fail or warn finding (or refusal) explains the verdict: the banner leads with the first found
 ROOT_CAUSE_CODES = ("mode_swapped", "poses_inverted", "pairs_shifted", "pairs_shuffled", "translation_units",
                     "angle_units", "euler_order", "rotation_kind", "quaternion_order", "square_size", "board_moved",
@@ -200,6 +203,8 @@ def _cause_of_finding(f: dict) -> str:
         title = title[len(said):]
     if code == "pairs_shifted":
         label = _shift_label(details["shift"]) if "shift" in details else ROOT_CAUSE_LABELS["pairs_shuffled"]
+    elif code == "pairs_shuffled" and details.get("partial_shift"):
+        label = PAIRS_OUT_OF_STEP  # from one image on: the title says where
     else:
         label = ROOT_CAUSE_LABELS.get(code, "")
     if not label:
@@ -222,7 +227,8 @@ def root_cause(res: dict, findings: list[dict]) -> dict | None:
                 or (code == "pairs_shuffled" and f.get("code") == "pairs_shifted")]
         if same:
             text = _cause_of_finding(same[0])
-            if code == "pairs_shuffled" and not text.startswith(ROOT_CAUSE_LABELS["pairs_shuffled"]):
+            if code == "pairs_shuffled" and not text.startswith((ROOT_CAUSE_LABELS["pairs_shuffled"],
+                                                                 PAIRS_OUT_OF_STEP)):
                 text = ROOT_CAUSE_LABELS["pairs_shuffled"]
         elif code == "pairs_shifted":
             text = _shift_label(None)
