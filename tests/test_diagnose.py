@@ -424,7 +424,13 @@ def test_a_capture_that_saved_an_image_without_its_pose_is_named_with_the_image(
     cs = _session(mode, 10, n_views=14)
     v = _vals(cs.T_base_end_reported)
     folder = _write_vendor(tmp_path / "s", cs, v[:6] + v[7:])
-    (folder / f"{cs.n_views}.jpg").unlink()
+    with pytest.raises(InputError, match=r"14 images but 13 pose lines: .*a pose missing in between"):
+        load_session(folder)  # as captured: the load refuses the count, and its diagnosis says where
+    _patch(monkeypatch, cs)
+    d = diagnose_session_error(folder, "14 images but 13 pose lines")
+    f = _one(d, "pairs_shuffled")
+    assert f["details"]["partial_shift"] == -1 and f["details"]["image_without_pose"] == "7"
+    (folder / f"{cs.n_views}.jpg").unlink()  # the counts made to agree: the run says the same
     _, d = _diagnose(folder, cs, monkeypatch)
     f = _one(d, "pairs_shuffled")
     assert f["details"]["partial_shift"] == -1 and f["details"]["shift_from_image"] == "8"

@@ -229,7 +229,9 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
     if missing:
         belongs = "line k of poses.txt belongs to k.jpg" if first else "line k+1 of poses.txt belongs to k.jpg (images numbered from 0)"
         raise InputError(f"{len(images)} images but {n_pose} pose lines: image {images[missing[0]].name} has no pose line",
-                         path=poses_path, hint=f"{belongs}; add the missing poses or remove the extra images")
+                         path=poses_path, hint=f"{belongs}; add the missing poses (a pose missing in between puts "
+                                               "every later image out of step: the report names where) or remove "
+                                               "the extra images")
     # Gaps are allowed: a pose line whose image was deleted stays in the session as a dropped view.
     without_image = [k for k in range(first, first + n_pose) if k not in images]
     if without_image:
