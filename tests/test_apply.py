@@ -76,6 +76,20 @@ def test_cli_apply_pose_in_millimetres(tmp_path, capsys):
     np.testing.assert_allclose(got, expect, atol=2e-6)  # printed with 6 decimals (m, rad)
 
 
+@pytest.mark.parametrize("end_pose,flags,says", [
+    (["500", "0", "500", "3.1", "0", "0"], [], "beyond an arm's reach; expected x, y, z in metres (or millimetres "
+                                               "with --mm) -> the position looks like millimetres: add --mm"),
+    (["0.5", "0", "0.5", "180", "0", "0"], [], "rotation angle 180 is larger than 2*pi"),
+    (["500", "0", "500", "180", "0", "0"], ["--mm"], "the angles look like degrees"),
+])
+def test_an_end_pose_in_other_units_is_refused(tmp_path, capsys, end_pose, flags, says):
+    cs = make_corner_session(mode="eye_in_hand", n_views=3, seed=2, noise_px=0.0)
+    _write_result(tmp_path, cs)
+    rc = main(["apply", str(tmp_path), "--point", "0", "0", "0.5", "--end-pose", *end_pose, *flags])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and says in err[0], err
+
+
 def test_apply_refuses_failed_results(tmp_path, capsys):
     p = tmp_path / "result.json"
     p.write_text(json.dumps({"status": "failed", "failure_reason": "degenerate", "mode": "eye_in_hand"}))

@@ -64,8 +64,18 @@ def run(args) -> int:
     scale = 1e-3 if args.mm else 1.0
 
     def pose_arg(values, flag):
+        from ..session.fields import session_limits
+
         v = np.asarray(values, float)
         v[:3] *= scale
+        lim = session_limits()
+        if np.any(np.abs(v[3:]) > lim["max_angle_rad"]):
+            raise ConfigError(f"{flag}: rotation angle {np.abs(v[3:]).max():g} is larger than 2*pi",
+                              expected="rx, ry, rz in radians", hint="the angles look like degrees: convert them")
+        if flag == "--end-pose" and np.linalg.norm(v[:3]) > lim["max_reach_m"]:
+            raise ConfigError(f"{flag}: the flange {np.linalg.norm(v[:3]):g} m from the base is beyond an arm's reach",
+                              expected="x, y, z in metres (or millimetres with --mm)",
+                              hint="the position looks like millimetres: add --mm")
         try:
             return T_from_pose_values(v, VENDOR_POSE_FORMAT)
         except ValueError as e:
