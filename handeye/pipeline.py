@@ -137,6 +137,11 @@ def observe(*, target: TargetSpec, items: Sequence[tuple[str, Any]], intrinsics:
             return replace(obs, error=DetectionError(
                 f"the target was found in only {len(dets)} of {len(items)} images: {survey.text()}",
                 hint=survey.fix(), code="target_not_found"))
+    if len(dets) < MIN_VIEWS and len(dets) == len(items):  # every image shows the board: too few images
+        return replace(obs, error=DetectionError(
+            f"the session has {len(items)} image{'s' if len(items) != 1 else ''} (the board found in each); at least "
+            f"{MIN_VIEWS} views are needed", hint="capture more views, with the robot turned between them",
+            code="too_few_views"))
     if len(dets) < MIN_VIEWS:
         return replace(obs, error=DetectionError(
             f"the target was found in only {len(dets)} of {len(items)} images; at least {MIN_VIEWS} are needed",

@@ -881,6 +881,30 @@ def test_board_unmoved_without_a_prior_is_refused(rendered, tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+def test_verify_and_plan_say_what_is_wrong_with_their_arguments(rendered, tmp_path, capsys):
+    """Each refused in one line that names the real problem: a power at or below the test's level, a --mode
+    that contradicts the installed result, a session of two views whose board was found in both."""
+    import shutil
+
+    inst = str(rendered["installed"])
+    two = tmp_path / "two"
+    shutil.copytree(rendered["same"], two)
+    for k in (3, 4):
+        (two / f"{k}.jpg").unlink()
+    (two / "poses.txt").write_text("\n".join((two / "poses.txt").read_text().split()[:2]) + "\n")
+    cases = ((["verify", "--plan", "--against", inst, "--power", "0.01"], "must exceed the test's level"),
+             (["verify", str(rendered["same"]), "--against", inst, "--mode", "eye_to_hand"],
+              "--mode eye_to_hand was given but the installed calibration is eye_in_hand"),
+             (["verify", str(two), "--against", inst], "the session has 2 images (the board found in each); at least 3"))
+    for argv, says in cases:
+        rc = main(["-q", *argv])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc in (2, 3) and len(err) == 1 and says in err[0], (argv, err)
+    assert main(["-q", "verify", "--plan", "--against", inst, "--out", str(tmp_path / "plan")]) == 0
+    plan = json.loads((tmp_path / "plan" / "plan.json").read_text())
+    assert plan["power_goal"] == 0.95 and len(plan["poses_T_base_end"]) >= 3
+
+
 def test_a_prior_whose_test_fails_is_not_used_and_not_called_contradicted(rendered, monkeypatch):
     """When verify's test of the prior cannot be solved, the prior on X is not used, and the record says that it
     could not be tested (not that the data contradict it); the report shows NOT TESTED."""

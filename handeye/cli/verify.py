@@ -35,7 +35,8 @@ def add_arguments(p) -> None:
     p.add_argument("session", nargs="?", help="the verification session folder (not with --plan)")
     p.add_argument("--against", required=True, type=Path, metavar="RESULT",
                    help="the installed calibration: a result folder or its result.json")
-    p.add_argument("--out", type=Path, help="output folder (default: reports/<session folder>-<hash>-verify)")
+    p.add_argument("--out", type=Path, help="output folder (default: reports/<session folder>-<hash>-verify); with "
+                                            "--plan: where plan.json is written (default: printed only)")
     p.add_argument("--mode", choices=MODES, help="mounting mode of the session (default: the installed result's)")
     p.add_argument("--alpha", type=float, help="level of the test (default 0.05, configs/recal.yaml)")
     p.add_argument("--no-report", action="store_true", help="write verify.json only")
@@ -134,4 +135,10 @@ def run_plan(args) -> int:
         print(to_json(p.to_dict()))
     else:
         print("\n".join(plan_lines(p)))
+    if args.out:
+        from ..output import check_out_dir, write_json
+
+        path = write_json(check_out_dir(args.out) / "plan.json", p.to_dict())
+        if not args.json:
+            print(f"written: {path}")
     return 0

@@ -358,7 +358,7 @@ def view_count_findings(n: int) -> list:
         return [Finding("too_few_views", sev, f"Only {n} usable views",
                         f"{n} views with the board found and a robot pose; the hand-eye solution needs at least "
                         f"{v.min_fail}, and {v.recommended}-20 give redundancy to check them",
-                        f"capture {v.recommended - n} or more views, tilted 20-45 deg about different axes")]
+                        f"capture {v.recommended - n} or more further views, tilted 20-45 deg about different axes")]
     if n < v.recommended:
         return [Finding("too_few_views", "info", f"{n} usable views; {v.recommended}-20 are recommended",
                         f"{n} views: outlier checks and cross-validation have little redundancy",

@@ -151,6 +151,9 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
     goal = float(pc["power"] if power is None else power)
     alpha = float(cfg["test"]["alpha"] if alpha is None else alpha)
     max_views = int(pc["max_views"] if max_views is None else max_views)
+    if not alpha < goal < 1.0:  # a test at alpha rejects with probability alpha when nothing moved
+        raise InputError("the power wanted must exceed the test's level", expected=f"{alpha:g} < --power < 1",
+                         received=f"{goal:g}", hint="ask for the probability of detecting the drift, e.g. 0.95")
     if not (drift_mm >= 0 and drift_deg >= 0 and drift_mm + drift_deg > 0):
         raise InputError("the drift to detect must be positive",
                          expected="--drift-mm >= 0, --drift-deg >= 0, not both 0",

@@ -593,8 +593,10 @@ def session_for_installed(session_path, installed: LoadedResult, *, mode: Option
 
         s = replace(s, mode=installed.mode, mode_source="flag")
     if s.mode != installed.mode:
-        raise InputError(f"the session is {s.mode} but the installed calibration is {installed.mode}",
-                         path=s.path, code="not_comparable", hint="verify against a result of this rig's mounting mode")
+        said = f"--mode {mode} was given" if mode is not None else f"the session is {s.mode}"
+        raise InputError(f"{said} but the installed calibration is {installed.mode}", path=s.path,
+                         code="not_comparable", hint="verify against a result of this rig's mounting mode"
+                         + ("" if mode is None else f", or drop --mode (the installed {installed.mode} is used)"))
     if installed.target is not None and s.target.to_dict() != installed.target:
         raise InputError(f"the session's board ({s.target.describe()}) is not the installed calibration's",
                          path=s.path, expected=str(installed.target), code="not_comparable",
