@@ -738,6 +738,16 @@ def test_verify_shares_the_installed_arms_dh_offsets():
 
     small = dict(drift_mm=0.3, drift_deg=0.03, max_views=3)  # a drift whose ceiling power is below 1
     assert plan_verification(inst, **small).ceiling_power > plan_verification(no_arm, **small).ceiling_power + 0.05
+    # the plan proposes only poses the installed arm reaches (its orbits around the installed poses go far)
+    from handeye.kinematics import default_ik_seeds, solve_ik
+
+    plan = plan_verification(inst, max_views=6, power=1.0 - 1e-9)
+    arm = robot["arm"]
+    lo, hi = arm.joint_limits_rad.T
+    seeds = list(np.random.default_rng(0).uniform(lo, hi, size=(300, arm.n_joints)))
+    assert len(plan.poses) == 6
+    for T, label in zip(plan.poses, plan.labels):
+        assert label.startswith("installed") or solve_ik(arm, T, seeds=default_ik_seeds(arm, T) + seeds) is not None
 
 
 def test_the_plan_counts_on_the_test_verify_runs():

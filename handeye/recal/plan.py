@@ -41,7 +41,7 @@ from ..mounting import mounting
 from ..output import plain
 from ..session.target_spec import parse_target
 from .loaded import LoadedResult, ResultLike, load_result
-from .verify import shares_dh
+from .verify import installed_robot_model, shares_dh
 
 log = logging.getLogger(__name__)
 
@@ -178,7 +178,8 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
         cands = [(np.asarray(T, float), f"given pose {k + 1}") for k, T in enumerate(candidates)]
     else:
         base = installed_poses(installed)
-        cands = [(T, f"installed view pose {k + 1}") for k, T in enumerate(base)]
+        cands = [(T, f"installed view pose {k + 1}") for k, T in enumerate(base)]  # reached once: kept
+        arm = installed_robot_model(installed).get("arm")
         m = mounting(mode)
         config = PlanConfig(pixel_noise_px=sigma_px, robot_noise_mm=rs_mm, robot_noise_deg=rs_deg)
         for k, T0 in enumerate(base[:int(pc["orbit_views"])]):  # orbits around a few installed views
@@ -195,7 +196,7 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
                 log.warning("no orbit candidates (the lens distortion folds back in the image); planning from the "
                             "installed poses")
                 break
-            cands += [(c.T_base_end, f"orbit of installed view {k + 1}: {c.label}") for c in orbit]
+            cands += _reachable([(c.T_base_end, f"orbit of installed view {k + 1}: {c.label}") for c in orbit], arm, T0)
     if not cands:
         raise InputError("no candidate robot poses to plan from", path=installed.source,
                          hint="the result holds no refined robot poses; give candidate poses")
@@ -227,6 +228,23 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
                       poses=tuple(cands[i][0] for i in chosen), labels=tuple(cands[i][1] for i in chosen),
                       power_by_views=tuple(powers), n_views=n_goal, ceiling_power=ceiling, min_drift_scale=scale,
                       sigma_px=sigma_px, robot_sigma_mm=rs_mm, robot_sigma_deg=rs_deg, candidate_index=tuple(chosen))
+
+
+def _reachable(cands: list, arm, T_from: np.ndarray) -> list:
+    """The candidate (pose, label) pairs around the installed pose ``T_from`` that the installed arm reaches (inverse
+    kinematics within its joint limits, from the configuration that reaches ``T_from`` and the default seeds);
+    all of them when the result names no arm."""
+    if arm is None:
+        return cands
+    from ..kinematics import default_ik_seeds, solve_ik
+
+    q0 = solve_ik(arm, T_from, seeds=default_ik_seeds(arm, T_from))
+    near = [] if q0 is None else [q0]
+    kept = [(T, label) for T, label in cands if solve_ik(arm, T, seeds=near + default_ik_seeds(arm, T)) is not None]
+    if len(kept) < len(cands):
+        log.info("plan: %d of %d candidate poses are beyond the reach of %s and left out", len(cands) - len(kept),
+                 len(cands), arm.name)
+    return kept
 
 
 def _without_k3(intrinsics):
