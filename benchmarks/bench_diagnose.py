@@ -303,6 +303,11 @@ FAULTS = {
     "shift by 1 line": ("pairs_shifted", ("chessboard 11x8", "chessboard 8x6 (even x even)", "charuco 9x7")),
     "shift by 2 lines": ("pairs_shifted", ("chessboard 11x8", "chessboard 8x6 (even x even)", "charuco 9x7")),
     "pairs shuffled": ("pairs_shuffled", ("chessboard 11x8", "chessboard 7x5 (odd x odd)", "charuco 9x7")),
+    "rotation vectors read as Euler angles": ("rotation_kind", ("chessboard 11x8",) + SYMMETRIC + ("charuco 9x7",)),
+    # a capture that saved its pose but no image (the images numbered on), and the reverse (the last image then
+    # deleted so that the counts agree): out of step from one image on, vendor folders
+    "a pose without its image": ("pairs_shuffled", ("chessboard 11x8", "chessboard 7x5 (odd x odd)")),
+    "an image without its pose": ("pairs_shuffled", ("chessboard 11x8", "chessboard 7x5 (odd x odd)")),
 }
 
 
@@ -359,7 +364,7 @@ def _run_case(args) -> dict:
     rng = np.random.default_rng(1000 + seed)
     rn = [(0.3, 0.05), (1.0, 0.1), (2.0, 0.3)][seed % 3]
     nv = (12, 15, 20)[seed % 3]
-    extra = 2 if fault.startswith("shift") else 0
+    extra = 2 if fault.startswith("shift") else 1 if fault == "a pose without its image" else 0
     cs_all = make_corner_session(mode=mode, n_views=nv + extra, seed=seed, robot_noise=rn, noise_px=0.3 + 0.2 * (seed % 3),
                                  target=target)
     cs = replace(cs_all, view_ids=cs_all.view_ids[:nv], corner_ids=cs_all.corner_ids[:nv],
@@ -382,6 +387,20 @@ def _run_case(args) -> dict:
     elif fault.startswith("shift"):
         shift = int(fault.split()[2])
         T = cs_all.T_base_end_reported[shift:shift + nv]  # image k carries the pose of image k + shift
+    elif fault == "rotation vectors read as Euler angles":
+        kw["fmt"] = replace(VENDOR_POSE_FORMAT, rotation="rotvec")
+    # the capture (0-based) that lost its image or its pose (drawn only for those faults: the others' draws stay)
+    lost = int(rng.integers(3, nv - 3)) if fault in ("a pose without its image", "an image without its pose") else -1
+    if fault == "a pose without its image":
+        keep = [k for k in range(nv + 1) if k != lost]  # the images of all captures but one, numbered on
+        cs = replace(cs_all, view_ids=cs_all.view_ids[:nv], corner_ids=tuple(cs_all.corner_ids[k] for k in keep),
+                     image_points=tuple(cs_all.image_points[k] for k in keep))
+        cs = _turn_some_views(cs, rng)
+        T = cs_all.T_base_end_reported[:nv + 1]
+    elif fault == "an image without its pose":
+        cs = replace(cs, view_ids=cs.view_ids[:nv - 1], corner_ids=cs.corner_ids[:nv - 1],
+                     image_points=cs.image_points[:nv - 1])
+        T = np.delete(T, lost, axis=0)
     if fault == "pairs shuffled":
         T = T[rng.permutation(nv)]
     path = _write_session(folder, cs, T, **kw)
@@ -407,6 +426,16 @@ def _run_case(args) -> dict:
         out["named"] = err == "mode_swapped"
     elif fault == "pairs shuffled":
         out["named"] = err == "pairs_shuffled"
+    elif fault == "rotation vectors read as Euler angles":
+        out["named"] = "rotation_kind" in codes and not (codes - {"rotation_kind", "weak_motion"})
+    elif fault in ("a pose without its image", "an image without its pose"):
+        # the refusal (most views out of step) or the failing finding (the last few) names the pose line to delete
+        # or the image that has none
+        fixes = [run.error.hint or ""] if err == "pairs_shuffled" else []
+        fixes += [f["action"] for f in d["findings"] if f["code"] == "pairs_shuffled" and f["severity"] == "fail"]
+        says = (f"delete pose line {lost + 1} " if fault == "a pose without its image"
+                else f"the pose of image {lost + 1} is missing")
+        out["named"] = any(says in fx for fx in fixes)
     elif fault.startswith("shift"):
         out["named"] = err == "pairs_shifted" and f"--shift-poses {-shift}" in (run.error.hint or "")
         if out["named"]:  # the offered flag must give a clean run

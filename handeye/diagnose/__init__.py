@@ -48,7 +48,7 @@ from .findings import SEVERITIES, Finding, Stages, worst_first
 from .imaging import coverage_findings, image_findings, image_metrics
 from .intrinsics import distortion_findings
 from .observations import PoseObservations, candidates_of, observations_from_run
-from .pairing import pairing_findings, swapped_pose_findings
+from .pairing import pairing_findings, partial_shift_findings, swapped_pose_findings
 from .scale import scale_findings
 from .readings import (READING_CODES, alternative_formats, evaluate_readings, given_reading, read_poses,
                        reading_findings, reading_in_use)
@@ -163,6 +163,9 @@ def _robot_pose_stage(obs: PoseObservations, fit, *, refined=None, exclude=()) -
     flagged = [v for v in flagged if v not in set(exclude)]
     out, flipped = corner_flip_findings(obs, check, flagged, covs)
     flagged = [v for v in flagged if v not in flipped]
+    stepped, out_of_step = partial_shift_findings(obs, fit, flagged)
+    out += stepped
+    flagged = [v for v in flagged if v not in out_of_step]
     swaps, swapped = swapped_pose_findings(obs, check, flagged, obs.raw.fmt)
     out += swaps
     out += robot_pose_findings(obs, check, [v for v in flagged if v not in swapped], ref_flags=ref_flags,

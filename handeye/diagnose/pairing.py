@@ -295,6 +295,23 @@ def _partial_shift_finding(obs: PoseObservations, found: tuple, given_cost: floa
                  "board_scatter_mm": fit.median_trans_mm})
 
 
+def partial_shift_findings(obs: PoseObservations, fit, flagged: Sequence[str]) -> tuple[list, set]:
+    """Views flagged for their robot poses that are the tail (or the head) of a pairing out of step from one
+    image on (:func:`_search_partial`): when the shifted pairing leaves fewer views unexplained than the given
+    one and every flagged view is among those it re-pairs, (its finding, the views it explains); else ([], set()).
+    A shift of the last few views leaves the median fit as given good, so the pairing check does not search."""
+    if len(flagged) < 2:
+        return [], set()
+    found = _search_partial(obs, obs.raw.fmt, False)
+    if found is None:
+        return [], set()
+    s, first, lone, pfit, keep, keys = found
+    moved = {v for v in obs.ids if keys.get(v, v) != v} | ({lone} if lone else set())
+    if _n_unexplained(pfit) >= _n_unexplained(fit) or not set(flagged) <= moved:
+        return [], set()
+    return [_partial_shift_finding(obs, found, fit.cost)], moved
+
+
 def swapped_pose_findings(obs: PoseObservations, check: RobotPoseCheck, flagged: Sequence[str],
                           fmt: PoseFormat) -> tuple[list, set]:
     """Flagged views whose image fits exactly one other recorded pose: (findings, the views explained).
