@@ -250,3 +250,38 @@ def test_cli_names_frames_and_out_file(tmp_path, capsys):
     assert sorted(p.name for p in (tmp_path / "urdf").iterdir()) == ["hand_eye.urdf", "hand_eye.urdf.xacro"]
     assert main(["export", str(tmp_path / "res"), "--to", "urdf", "--child", "my cam"]) == InputError.exit_code
     assert "--child 'my cam' is not a TF frame name" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("out,written", [
+    ("r2.urdf.xacro", ["r2.urdf", "r2.urdf.xacro"]),  # the macro's name given: each file on its own ending
+    ("r2.urdf", ["r2.urdf", "r2.urdf.xacro"]),
+    ("r2.xml", ["r2.urdf.xacro", "r2.xml"]),  # another extension: the URDF as named, the macro on its stem
+])
+def test_out_names_one_of_the_files_and_the_companions_share_its_stem(tmp_path, capsys, out, written):
+    _result(tmp_path / "res", "eye_in_hand", seed=2)
+    (tmp_path / "o").mkdir()
+    assert main(["export", str(tmp_path / "res"), "--to", "urdf", "--out", str(tmp_path / "o" / out)]) == 0
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == written
+    assert main(["export", str(tmp_path / "res"), "--to", "moveit", "--out", str(tmp_path / "m" / "cam.launch.py")]) == 0
+    assert sorted(p.name for p in (tmp_path / "m").iterdir()) == ["cam.launch.py", "cam.moveit.launch"]
+
+
+@pytest.mark.parametrize("mode,argv,says", [
+    ("eye_in_hand", ["--to", "ros2", "--camera-frame", "body", "--child", "camera_color_optical_frame"],
+     "--child camera_color_optical_frame names an optical frame but --camera-frame is body"),
+    ("eye_in_hand", ["--to", "ros2", "--child", "camera_link"],
+     "--child camera_link names a body frame but --camera-frame is optical"),
+    ("eye_to_hand", ["--to", "easy_handeye2", "--base-frame", "world"],
+     "--base-frame names the robot frame of an eye_in_hand calibration, this one is eye_to_hand"),
+    ("eye_in_hand", ["--to", "easy_handeye2", "--effector-frame", "flange"],
+     "--effector-frame names the robot frame of an eye_to_hand calibration, this one is eye_in_hand"),
+    ("eye_in_hand", ["--to", "ros2", "--base-frame", "world"], "--base-frame applies to --to easy_handeye2 only"),
+])
+def test_frame_options_that_contradict_the_export_are_refused(tmp_path, capsys, mode, argv, says):
+    """A camera frame named for the other rotation convention (90 degrees off in every consumer), or a robot frame
+    option of the other mounting mode (its file would contradict its own header), is refused in one line."""
+    _result(tmp_path / "res", mode, seed=3)
+    rc = main(["export", str(tmp_path / "res"), *argv, "--out", str(tmp_path / "x")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == InputError.exit_code and len(err) == 1 and says in err[0], err
+    assert not (tmp_path / "x").exists() or not any((tmp_path / "x").iterdir())

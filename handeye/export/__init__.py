@@ -57,6 +57,15 @@ def export_transform(result, *, parent: Optional[str] = None, child: Optional[st
         if name is not None and (not name.strip() or any(c.isspace() or c in "<>\"'&" for c in name)):
             raise InputError(f"{flag} {name!r} is not a TF frame name", expected="a name without spaces or quotes, "
                              "e.g. tool0 or camera_color_optical_frame")
+    if child is not None:  # ROS names optical frames *_optical_frame (REP 103): a rotation under the other
+        optical_name = "optical" in child.lower()  # convention's name is 90 degrees off for every consumer
+        if camera_frame == "body" and optical_name or camera_frame == "optical" and not optical_name and \
+                child.lower().endswith(("_link", "_frame")):
+            other = "optical" if camera_frame == "body" else "body"
+            raise InputError(f"--child {child} names {'an optical' if optical_name else 'a body'} frame but "
+                             f"--camera-frame is {camera_frame}", expected="the rotation of the frame the name "
+                             "stands for (ROS: *_optical_frame is x right, y down, z forward)",
+                             hint=f"use --camera-frame {other}, or a child name of the {camera_frame} frame")
     T, cov = camera_transform(r.T_x, r.cov_x, camera_frame)
     return ExportTransform(
         parent=parent or DEFAULT_FRAMES[r.mode if r.mode in DEFAULT_FRAMES else "eye_in_hand"],
@@ -75,9 +84,14 @@ def export_paths(fmt: str, out: Optional[Path], result_dir: Path) -> list[Path]:
     else:
         out = Path(out)
         name = out.name
-        base = out.with_name(name[: -len(suffixes[0])] if name.endswith(suffixes[0]) else name)
-        if base.name == name and out.suffix:  # another extension than the format's: keep the file as named
-            return [out] + [out.with_name(out.stem + s) for s in suffixes[1:]]
+        ending = max((s for s in suffixes if name.endswith(s) and len(name) > len(s)), key=len, default=None)
+        if ending is not None:  # one of the format's files named: each file takes its own ending on that name
+            base = out.with_name(name[: -len(ending)])
+        elif out.suffix:  # another extension than the format's: the first file as named, companions on its stem
+            stem = name.split(".", 1)[0] or name
+            return [out] + [out.with_name(stem + s) for s in suffixes[1:]]
+        else:
+            base = out
     return [base.with_name(base.name + s) for s in suffixes]
 
 
@@ -110,6 +124,15 @@ def export_result(result, fmt: str, *, out: Optional[Path] = None, parent: Optio
     from ..output import atomic_write_text
 
     e = export_transform(result, parent=parent, child=child, camera_frame=camera_frame, force=force)
+    for flag, name, mode in (("--base-frame", base_frame, "eye_in_hand"), ("--effector-frame", effector_frame,
+                                                                          "eye_to_hand")):
+        if name is None:
+            continue
+        if fmt != "easy_handeye2":
+            raise InputError(f"{flag} applies to --to easy_handeye2 only", hint=f"drop {flag}, or use --parent")
+        if e.mode != mode:  # the frame the camera hangs from: it is --parent's
+            raise InputError(f"{flag} names the robot frame of an {mode} calibration, this one is {e.mode}",
+                             hint=f"the camera's parent frame is --parent (here {e.parent}): use --parent {name}")
     src = Path(e.source)
     paths = export_paths(fmt, out, src.parent)
     texts = render(fmt, e, paths, base_frame=base_frame, effector_frame=effector_frame)
