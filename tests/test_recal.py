@@ -915,6 +915,19 @@ def test_verify_and_plan_say_what_is_wrong_with_their_arguments(rendered, tmp_pa
     assert plan["power_goal"] == 0.95 and len(plan["poses_T_base_end"]) >= 3
 
 
+def test_verify_on_the_installed_calibrations_own_images_says_so(rendered, tmp_path, caplog):
+    main(["-q", "calibrate", str(rendered["same"]), "--out", str(tmp_path / "own"), "--no-report"])
+    with caplog.at_level("WARNING"):
+        main(["-q", "verify", str(rendered["same"]), "--against", str(tmp_path / "own"), "--out", str(tmp_path / "v"),
+              "--no-report"])
+    assert "4 of 4 images are the installed calibration's own" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        main(["-q", "verify", str(rendered["bumped"]), "--against", str(tmp_path / "own"), "--out",
+              str(tmp_path / "v2"), "--no-report"])
+    assert "installed calibration's own" not in caplog.text
+
+
 def test_a_prior_whose_test_fails_is_not_used_and_not_called_contradicted(rendered, monkeypatch):
     """When verify's test of the prior cannot be solved, the prior on X is not used, and the record says that it
     could not be tested (not that the data contradict it); the report shows NOT TESTED."""

@@ -191,7 +191,7 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
                                             T_cam_board_start=C0, target=target, intrinsics=intr, config=config)
                     break
                 except ConfigError as e:  # a distortion the visibility test cannot invert
-                    log.info("orbit candidates with dist=%s: %s", np.round(intr.dist, 4).tolist(), e.args[0])
+                    log.debug("orbit candidates with dist=%s: %s", np.round(intr.dist, 4).tolist(), e.args[0])
             if orbit is None:
                 log.warning("no orbit candidates (the lens distortion folds back in the image); planning from the "
                             "installed poses")

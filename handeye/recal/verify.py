@@ -604,6 +604,25 @@ def session_for_installed(session_path, installed: LoadedResult, *, mode: Option
     return s
 
 
+def installed_images_among(installed: LoadedResult, session) -> int:
+    """How many of the session's images are files the installed calibration read, when its robot poses are too (by
+    their SHA-256 in the installed result's provenance): the installed session itself, not a new one. (Rendered
+    sessions of one scene can share images while their poses differ.)"""
+    from ..output import file_sha256
+
+    known = {str(i.get("sha256")) for i in (installed.raw.get("provenance") or {}).get("inputs") or []
+             if isinstance(i, dict)}
+    if not known:
+        return 0
+    images = {Path(v.image_path) for v in session.views if v.image_path is not None}
+    folder = Path(session.path)
+    others = [Path(f) for f in session.meta.get("files_read") or [folder / "poses.txt", folder / "session.yaml"]
+              if Path(f).name != "config.yaml"]  # the board's description is the same for every session of a rig
+    if not any(f.is_file() and f not in images and file_sha256(f) in known for f in others):
+        return 0
+    return sum(1 for p in images if p.is_file() and file_sha256(p) in known)
+
+
 def check_resolution(installed: LoadedResult, session) -> None:
     """The session's images (read from their headers) must have the installed calibration's resolution: its
     intrinsics describe that image; else a one-line InputError (``not_comparable``)."""
@@ -633,6 +652,11 @@ def verify_session(session_path, against, *, options: VerifyOptions = VerifyOpti
                          path=installed.source, hint="verify against a result with status ok")
     s = session_for_installed(session_path, installed, mode=mode)
     check_resolution(installed, s)
+    reused = installed_images_among(installed, s)
+    if reused:
+        log.warning("%s: %d of %d images are the installed calibration's own (the same files): verify tests new views "
+                    "against the installed calibration, and its own views cannot show a drift", s.path, reused,
+                    len(s.views))
     m = mounting(s.mode)
     own = s.intrinsics if (s.intrinsics is not None and s.intrinsics_prior in ("fixed", "prior")) else None
     intr = own if own is not None else installed.intrinsics
