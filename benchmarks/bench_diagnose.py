@@ -152,9 +152,11 @@ def sensitivity(seeds: range, root: Path) -> None:
                     _count_crashes(d)
                     hits[("board moved after view 10", rn, mm_size, deg_size)].append(any(
                         f["code"] == "board_moved" for f in d["findings"]))
+                    hits[("board moved after view 10, named there", rn, mm_size, deg_size)].append(any(
+                        f["code"] == "board_moved" and "between views 10 and 11" in f["title"] for f in d["findings"]))
     print("sensitivity (15 views; robot noise per axis mm/deg; fault size mm/deg): named / sessions")
     for (what, rn, a, b), v in sorted(hits.items(), key=str):
-        print(f"  {what:28s} noise {rn[0]:.1f} mm/{rn[1]:.2f} deg  fault {a:4.1f} mm/{b:.2f} deg: {sum(v)}/{len(v)}")
+        print(f"  {what:40s} noise {rn[0]:.1f} mm/{rn[1]:.2f} deg  fault {a:4.1f} mm/{b:.2f} deg: {sum(v)}/{len(v)}")
 
 
 def timing(root: Path, *, repeats: int = 5) -> None:

@@ -279,7 +279,7 @@ def step_test(v: np.ndarray, labels: np.ndarray, use: np.ndarray) -> tuple[float
 
 
 def _split_fits(obs: PoseObservations, M: np.ndarray):
-    """Best two-segment split of the view sequence (one board per segment), or None.
+    """Best two-segment split of the view sequence (one board per segment, the lowest score), or None.
 
     Returns (single fit, its score, (split score, k, split fit, p-value)); the score is the sum of the
     views' capped board deviations (small is good)."""
@@ -302,7 +302,10 @@ def _split_fits(obs: PoseObservations, M: np.ndarray):
         use = d <= max(3.0 * float(np.median(d)), 0.05)
         _, p = step_test(_board_deviations(f, obs.C, M), labels, use)
         score = float(np.sum(np.minimum(d, cap)))
-        key = (p, score)
+        # where the board moved is the split that fits best (its views' capped deviations), not the one whose test,
+        # run on its inliers, is the most significant: a view put on the wrong side is trimmed from the test, so a
+        # split one view off can reach the same p (0 at a large move)
+        key = (score, p)
         if best is None or key < best[0]:
             best = (key, (score, k, f, p))
     if best is None:
