@@ -376,6 +376,11 @@ SMALL = dict(width=640, height=360)
 @pytest.fixture(scope="module")
 def install():
     """A 15-view corner-level install (640x360, 0.3 px, robot 0.2 mm / 0.05 deg) and its result dict."""
+    return _installed(n_views=15, noise_px=0.3, robot_noise=(0.2, 0.05))
+
+
+def _installed(*, n_views, noise_px, robot_noise, seed=5):
+    """(corner-level session at 640x360, result dict of its refinement from the Tsai seed, as calibrate runs it)."""
     import sys
     from pathlib import Path
 
@@ -387,7 +392,7 @@ def install():
     from handeye.sim.corners import make_corner_session
     from handeye.sim.scenarios import default_intrinsics
 
-    s = make_corner_session(n_views=15, seed=5, noise_px=0.3, robot_noise=(0.2, 0.05),
+    s = make_corner_session(n_views=n_views, seed=seed, noise_px=noise_px, robot_noise=robot_noise,
                             intrinsics=default_intrinsics(**SMALL))
     intr, cf = closed_forms(s)
     r = refine(mode=s.mode, object_points=s.target.object_points(), views=refine_views(s), intrinsics=intr,
@@ -644,24 +649,10 @@ def test_the_plan_scores_views_that_leave_x_unknown_against_a_precise_install():
 def test_verify_plan_against_a_clean_simulated_install():
     """An install without robot noise and with 0.01 px corners (as the demo's rendered session): X known to
     ~1e-6 m, and the plan still scores the first views, which leave X unknown."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    from bench_refine import closed_forms, refine_views
-
-    from handeye.recal.loaded import result_from_refinement
     from handeye.recal.plan import plan_verification
-    from handeye.refine import refine
-    from handeye.sim.corners import make_corner_session
-    from handeye.sim.scenarios import default_intrinsics
 
-    s = make_corner_session(n_views=12, seed=5, noise_px=0.01, robot_noise=(0.0, 0.0),
-                            intrinsics=default_intrinsics(**SMALL))
-    intr, cf = closed_forms(s)
-    r = refine(mode=s.mode, object_points=s.target.object_points(), views=refine_views(s), intrinsics=intr,
-               T_x0=cf["tsai"].T_x, T_board0=cf["tsai"].T_board, starts=cf)
-    p = plan_verification(result_from_refinement(r, target=s.target))
+    _, res = _installed(n_views=12, noise_px=0.01, robot_noise=(0.0, 0.0))
+    p = plan_verification(res)
     assert p.n_views is not None and 3 <= p.n_views <= 8 and p.power_by_views[-1] >= 0.95
 
 

@@ -42,6 +42,16 @@ def _ordered_for(obs: PoseObservations, keep: np.ndarray, M: np.ndarray) -> np.n
     return cands[np.arange(len(cands)), lab]
 
 
+def _fit_pairing(obs: PoseObservations, keep: np.ndarray, T: np.ndarray, invert: bool):
+    """The board fit of the views ``keep`` paired with the robot poses ``T`` (a symmetric board ordered for this
+    pairing), or None when it is singular."""
+    M = obs.M(T, invert=invert)
+    try:
+        return fit_boards(_ordered_for(obs, keep, M), M)
+    except np.linalg.LinAlgError:
+        return None
+
+
 def _assignment_by_signature(obs: PoseObservations, fmt: PoseFormat, invert: bool) -> Optional[dict]:
     """Match images to poses by their sorted pair-rotation-angle signatures (a shuffled poses file).
 
@@ -140,10 +150,8 @@ class PairingSearch:
             keep, T = _shifted(obs, fmt, s)
             if T is None or keep.sum() < max(4, int(np.ceil(th.pairing.min_shift_share * obs.n))):
                 continue
-            M = obs.M(T, invert=invert)
-            try:
-                fit = fit_boards(_ordered_for(obs, keep, M), M)
-            except np.linalg.LinAlgError:
+            fit = _fit_pairing(obs, keep, T, invert)
+            if fit is None:
                 continue
             if best is None or fit.cost < best[1].cost:
                 best = (s, fit, keep)
@@ -256,10 +264,8 @@ def _search_partial(obs: PoseObservations, fmt: PoseFormat, invert: bool) -> Opt
             T = read_poses(obs.raw, fmt, [keys[v] for v in obs.ids if v in keys])
             if T is None or keep.sum() < 5:
                 continue
-            M = obs.M(T, invert=invert)
-            try:
-                fit = fit_boards(_ordered_for(obs, keep, M), M)
-            except np.linalg.LinAlgError:
+            fit = _fit_pairing(obs, keep, T, invert)
+            if fit is None:
                 continue
             rank = (_n_unexplained(fit), fit.cost)
             if best is None or rank < best_key:
