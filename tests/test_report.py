@@ -539,6 +539,26 @@ def test_a_failing_finding_fails_the_verdict_and_its_numbers_are_not_shown_green
     assert ctx["verdict"].counts["pass"] == sum(s == "pass" for s in status.values())
 
 
+def test_a_wrong_square_size_distrusts_the_translation_uncertainty_and_the_headline_skips_it(synthetic, tmp_path):
+    """A wrong square size scales X's translation and its sigma: the failing translation checks are shown
+    untrusted (fix the size first) and the headline names the size, not their numbers."""
+    from handeye.report import build_report_context
+
+    res = json.loads((synthetic["out"] / "result.json").read_text())
+    obs = json.loads((synthetic["out"] / "observations.json").read_text())
+    res["diagnostics"]["findings"] = [{"code": "square_size", "severity": "fail",
+                                       "title": "The board's squares look like 26.8 mm, not 23.6 mm", "evidence": "...",
+                                       "action": "state L: 0.0268", "view_ids": [],
+                                       "details": {"measured_mm": 26.8, "stated_mm": 23.6}}]
+    qa = tmp_path / "qa.yaml"  # a limit the synthetic result's translation sigma fails
+    qa.write_text("checks:\n  sigma_trans_mm: {warn_above: 0.00001, fail_above: 0.00002}\n")
+    ctx = build_report_context(_folder(tmp_path, res, obs), make_plots=False, qa=qa)
+    status = {c.key: c.status for c in ctx["verdict"].checks}
+    assert status["sigma_trans_mm"] == "untrusted" and status["predicted_error_mm"] == "untrusted"
+    head = ctx["verdict"].headline
+    assert head.startswith("Squares look like 26.8 mm, not 23.6 mm") and "translation uncertainty" not in head
+
+
 def _with_stages(res: dict, *, findings=None, crashed=None, skipped=None) -> dict:
     """``res`` with its diagnostics' stage record replaced: every stage ok, except ``crashed``
     ({name: error}) and ``skipped`` ({name: why}), as handeye.diagnose.findings.Stages writes it."""

@@ -90,6 +90,8 @@ UNTRUSTED_METRICS = {
     "poses_inverted": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg", "max_rotation_deg", "axis_spread_deg"),
     "mode_swapped": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
     "board_moved": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
+    # a wrong square size scales every camera translation: X's translation and its uncertainty are off with it
+    "square_size": ("predicted_error_mm", "sigma_trans_mm"),
     "intrinsics_mismatch": ("reprojection_rms_px", "predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
     "uncertainty_underestimated": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
 }

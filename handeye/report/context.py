@@ -96,6 +96,8 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     if cause:
         notes["root_cause"] = cause
     untrusted = untrusted_metrics(findings)
+    if any(f["severity"] == "fail" for f in findings):  # those checks are shown untrusted: the headline skips them
+        notes["headline_skips"] = tuple(untrusted)
     if pred is not None and "predicted_error_mm" not in untrusted:  # the headline repeats it
         notes["predicted_text"] = f"{pred['rms_mm']:.2f} mm (1 σ) at {wd:.2f} m"
     verdict = evaluate(metrics, qa_cfg, context=notes, failure=failure, findings=findings,

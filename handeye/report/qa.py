@@ -283,7 +283,7 @@ def _headline(status: str, checks: list, findings: list, ctx: dict, failure: dic
         return "The session could not be calibrated. " + (failure.get("short") or "")
     if cause and cause.get("severity") != status:
         cause = None  # a warning does not explain a failed verdict
-    named = [c for c in checks if c.status == status and c.short]
+    named = [c for c in checks if c.status == status and c.short and c.key not in ctx.get("headline_skips", ())]
     items = [c.short for c in named]
     items += [_lower1(str(f.get("title") or f.get("code") or "").rstrip(".")) for f in findings
               if str(f.get("severity")).lower() == status and not (cause and f.get("code") == cause["code"])]
