@@ -435,6 +435,12 @@ def test_a_capture_that_saved_an_image_without_its_pose_is_named_with_the_image(
     f = _one(d, "pairs_shuffled")
     assert f["details"]["partial_shift"] == -1 and f["details"]["shift_from_image"] == "8"
     assert "image 7 has no pose" in f["title"] and "add it as pose line 7" in f["action"]
+    assert f["view_ids"][0] == "7"  # in file order, the image without a pose first
+    from handeye.report.advice import failure_advice, finding_advice
+
+    assert finding_advice(f) == ""  # not the shuffle's "the recording lost the order"
+    res = {"status": "failed", "error": {"code": "pairs_shuffled", "what": "out of step", "fix": f["action"]}}
+    assert failure_advice(res, [f], has_views=True)["actions"] == [f["action"][:1].upper() + f["action"][1:] + "."]
 
 
 def test_pairs_shuffled(tmp_path, monkeypatch):

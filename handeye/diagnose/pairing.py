@@ -295,7 +295,7 @@ def _partial_shift_finding(obs: PoseObservations, found: tuple, given_cost: floa
         f"pairing each image from {first} on with the pose {s:+d} line from its own: board scatter "
         f"{fit.median_rot_deg:.3f} deg / {fit.median_trans_mm:.2f} mm (median over {int(keep.sum())} views, "
         f"{_n_unexplained(fit)} unexplained), a cost of {fit.cost:.2f} against {given_cost:.1f} as paired now "
-        f"({_cost_text()})", fix, view_ids=tuple(moved + ([lone] if lone else [])),
+        f"({_cost_text()})", fix, view_ids=tuple(sorted(moved + ([lone] if lone else []), key=order.index)),
         details={"assignment": {v: keys[v] for v in moved}, "partial_shift": s, "shift_from_image": first,
                  "image_without_pose": lone, "board_scatter_deg": fit.median_rot_deg,
                  "board_scatter_mm": fit.median_trans_mm})

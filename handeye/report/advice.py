@@ -155,7 +155,10 @@ def failure_advice(res: dict, findings: list[dict], *, has_views: bool) -> dict:
 
     code = str(err.get("code") or "")
     add(err.get("fix"))
-    add(ERROR_ADVICE.get(code, ""))
+    stepped = code == "pairs_shuffled" and any(f.get("code") == code and (f.get("details") or {}).get("partial_shift")
+                                               for f in findings)
+    if not stepped:  # a shift from one image on has its own fix: the order was not lost
+        add(ERROR_ADVICE.get(code, ""))
     for f in findings:
         if f["severity"] == "fail" and len(actions) < MAX_ACTIONS:
             add(f.get("action"))
@@ -169,7 +172,10 @@ def failure_advice(res: dict, findings: list[dict], *, has_views: bool) -> dict:
 
 
 def finding_advice(f: dict) -> str:
-    """What to check for a finding, by its code, beyond its own action ("" when nothing more is known)."""
+    """What to check for a finding, by its code, beyond its own action ("" when nothing more is known; a pairing
+    out of step from one image on has its own fix, the order was not lost)."""
+    if (f.get("details") or {}).get("partial_shift"):
+        return ""
     return _sentence(FINDING_ADVICE.get(str(f.get("code") or ""), ""))
 
 
