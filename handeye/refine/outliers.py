@@ -247,6 +247,8 @@ def _pnp_starts(pb: "Problem", idx: np.ndarray, fallback: np.ndarray) -> np.ndar
     """Robot poses (len(idx),4,4) that put each view's camera at its own PnP pose of the board under the
     current ``T_x``, ``T_board`` and intrinsics (``T_cam_board = inv(T_x) M T_board``); ``fallback`` where
     PnP fails."""
+    import cv2
+
     from ..camera import Intrinsics
     from ..errors import CalibrationError
     from ..frames import inv_T
@@ -257,7 +259,7 @@ def _pnp_starts(pb: "Problem", idx: np.ndarray, fallback: np.ndarray) -> np.ndar
     for k, i in enumerate(idx):
         try:
             C, _ = solve_pnp(pb.obj[i], pb.img[i], intr)
-        except (CalibrationError, ValueError):  # cv2 refuses a degenerate view: it keeps its start
+        except (CalibrationError, ValueError, cv2.error):  # a view PnP cannot solve keeps its start
             continue
         out[k] = pb.mounting.T_base_end_from_M(pb.T_x @ C @ inv_T(pb.T_board))
     return out
