@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import InputError
-from .frames import is_rotation, transform_points
+from .frames import is_rigid_transform, is_rotation, transform_points
 from .mounting import MODES, mounting
 
 
@@ -47,11 +47,7 @@ def result_transform(result: dict) -> tuple[str, np.ndarray]:
     key = mounting(mode).x_name
     if key not in result:
         raise InputError(f"result.json has no hand-eye transform {key}", expected=f"mode {mode} and {key}")
-    try:
-        T = np.asarray(result[key], float)
-    except (TypeError, ValueError):
-        T = np.full((0,), np.nan)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not is_rotation(T[:3, :3], tol=1e-6):
+    if not is_rigid_transform(result[key]):
         raise InputError(f"damaged: {key} is not a finite 4x4 rigid transform", code="result_damaged",
                          hint="the file was edited or damaged: restore it or calibrate again")
-    return mode, T
+    return mode, np.asarray(result[key], float)

@@ -72,6 +72,16 @@ def is_rotation(R: np.ndarray, *, tol: float = 1e-6) -> bool:
     return bool(np.allclose(R.T @ R, np.eye(3), atol=tol) and abs(np.linalg.det(R) - 1.0) < tol)
 
 
+def is_rigid_transform(T, *, tol: float = 1e-6) -> bool:
+    """``T`` is a finite 4x4 rigid transform: a rotation block (:func:`is_rotation`) and last row 0 0 0 1."""
+    try:
+        T = np.asarray(T, float)
+    except (TypeError, ValueError):
+        return False
+    return (T.shape == (4, 4) and bool(np.all(np.isfinite(T))) and is_rotation(T[:3, :3], tol=tol)
+            and bool(np.allclose(T[3], [0, 0, 0, 1])))
+
+
 def project_to_rotation(R: np.ndarray) -> np.ndarray:
     """Nearest rotation matrix (SVD), for matrices that are rotations up to rounding."""
     U, _, Vt = np.linalg.svd(np.asarray(R, float))

@@ -352,12 +352,11 @@ def verdict_fields(verdict, res: dict, error: Optional[HandeyeError], *, qa_cfg:
     if error is not None:
         label = "REFUSED" if isinstance(error, SessionRefused) else "FAIL"
         if label == "REFUSED":  # led by the root cause's name, as the report's banner is
-            from .report.advice import PAIRS_OUT_OF_STEP, ROOT_CAUSE_LABELS
+            from .report.advice import PAIRS_OUT_OF_STEP, ROOT_CAUSE_LABELS, is_out_of_step
 
             code = str(getattr(error, "code", "") or "")
             cause = ROOT_CAUSE_LABELS.get(code)
-            if code == "pairs_shuffled" and any(f.get("code") == code and (f.get("details") or {}).get("partial_shift")
-                                                for f in raw if isinstance(f, dict)):
+            if code == "pairs_shuffled" and any(is_out_of_step(f) for f in raw if isinstance(f, dict)):
                 cause = PAIRS_OUT_OF_STEP
             what = f"{error.what[:1].lower()}{error.what[1:]}" if cause else f"{error.what[:1].upper()}{error.what[1:]}"
             headline = f"{cause}: {what}; no result is given." if cause else f"{what}; no result is given."

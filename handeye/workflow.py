@@ -172,9 +172,9 @@ def _calibrate_locked(session_path, *, options, out_dir: Path, report: bool, qa:
     refusal = refusing_finding(diag)
     if refusal is not None and run.error is None:
         run = _refused(run, refusal)
-    elif run.error is None and global_fault(diag, misread_only=True) is not None:
+    elif run.error is None and (misread := global_fault(diag, misread_only=True)) is not None:
         # a matrix from robot poses read wrongly (units, convention, inversion, mode) is no calibration
-        run = _refused(run, global_fault(diag, misread_only=True), evidence=False)
+        run = _refused(run, misread, evidence=False)
     elif run.error is not None and not isinstance(run.error, SessionRefused):
         cause = global_fault(diag)
         if cause is not None:  # the failure is the effect of a fault the diagnostics name: that is the reason

@@ -27,8 +27,8 @@ from .thresholds import thresholds
 
 EULER_ORDERS = ("xyz", "xzy", "yxz", "yzx", "zxy", "zyx", "xyx", "xzx", "yxy", "yzy", "zxz", "zyz")
 #: the codes of a global fault in how the poses were read or paired (the other checks then stop)
-READING_CODES = ("translation_units", "angle_units", "euler_order", "rotation_kind", "quaternion_order", "poses_inverted",
-                 "mode_swapped")
+READING_CODES = ("translation_units", "angle_units", "euler_order", "rotation_kind", "quaternion_order",
+                 "poses_inverted", "mode_swapped")
 
 
 def alternative_formats(fmt: PoseFormat) -> list[tuple[PoseFormat, tuple]]:
@@ -311,10 +311,12 @@ def reading_findings(obs: PoseObservations, readings: Sequence[Reading], *, sess
                      f"(read as {fmt0.euler_kind} {fmt0.euler_order})")
             out.append(Finding("euler_order", "fail", title, ev, fix_fmt, details=details))
         elif code == "rotation_kind":
-            title = ("Robot rotations are rotation vectors (axis x angle, as Universal Robots' controllers write "
-                     f"them), read as {fmt0.euler_kind} {fmt0.euler_order} Euler angles" if best.fmt.rotation == "rotvec"
-                     else f"Robot rotations are {best.fmt.euler_kind} {best.fmt.euler_order} Euler angles, read as "
-                     "a rotation vector")
+            if best.fmt.rotation == "rotvec":
+                title = ("Robot rotations are rotation vectors (axis x angle, as Universal Robots' controllers write "
+                         f"them), read as {fmt0.euler_kind} {fmt0.euler_order} Euler angles")
+            else:
+                title = (f"Robot rotations are {best.fmt.euler_kind} {best.fmt.euler_order} Euler angles, read as a "
+                         "rotation vector")
             out.append(Finding("rotation_kind", "fail", title, ev, fix_fmt, details=details))
         elif code == "quaternion_order":
             title = f"Quaternions are written {best.fmt.quaternion_order}, read as {fmt0.quaternion_order}"

@@ -153,7 +153,7 @@ def _check_intact(d: dict, x_name: str, ref: dict, source: str) -> None:
     """A result whose calibration succeeded must hold a finite rigid X, a finite symmetric covariance that is
     not negative, and finite positive focal lengths: a NaN or an edited matrix would otherwise flow into
     every test as "no change"; InputError (``result_damaged``) naming the entry."""
-    from ..frames import is_rotation
+    from ..frames import is_rigid_transform
 
     if d.get("status") != "ok":
         return
@@ -162,10 +162,8 @@ def _check_intact(d: dict, x_name: str, ref: dict, source: str) -> None:
         raise InputError(f"damaged: {what}", path=source, code="result_damaged",
                          hint="the file was edited or damaged: restore it or calibrate again")
 
-    if x_name in d:
-        T = _matrix(d[x_name], (4, 4))
-        if T is None or not is_rotation(T[:3, :3], tol=1e-6) or not np.allclose(T[3], [0, 0, 0, 1]):
-            damaged(f"{x_name} is not a finite 4x4 rigid transform")
+    if x_name in d and not is_rigid_transform(d[x_name]):
+        damaged(f"{x_name} is not a finite 4x4 rigid transform")
     for key in ("cov_x_6x6_verdict", "cov_x_6x6"):
         if ref.get(key) is not None:
             c = _matrix(ref[key], (6, 6))
@@ -175,9 +173,11 @@ def _check_intact(d: dict, x_name: str, ref: dict, source: str) -> None:
     intr = d.get("intrinsics")
     if isinstance(intr, dict):
         for k in ("fx", "fy", "cx", "cy"):
-            v = _float(intr.get(k)) if intr.get(k) is not None else None
-            if intr.get(k) is not None and (v is None or not np.isfinite(v) or (k in ("fx", "fy") and v <= 0)):
-                damaged(f"intrinsics.{k} is {intr.get(k)!r}")
+            if intr.get(k) is None:
+                continue
+            v = _float(intr[k])  # None unless a finite number
+            if v is None or (k in ("fx", "fy") and v <= 0):
+                damaged(f"intrinsics.{k} is {intr[k]!r}")
 
 
 def _matrix(v, shape) -> Optional[np.ndarray]:

@@ -65,6 +65,11 @@ ROOT_CAUSE_LABELS = {
 #: the label of a pairs_shuffled finding that is a shift from one image on (a capture that lost its image or pose)
 PAIRS_OUT_OF_STEP = "Pairs out of step"
 
+
+def is_out_of_step(f: dict) -> bool:
+    """A pairs_shuffled finding that is a shift from one image on (its own fix: the order was not lost)."""
+    return f.get("code") == "pairs_shuffled" and bool((f.get("details") or {}).get("partial_shift"))
+
 #: codes whose fail or warn finding (or refusal) explains the verdict: the banner leads with the first found
 ROOT_CAUSE_CODES = ("mode_swapped", "poses_inverted", "pairs_shifted", "pairs_shuffled", "translation_units",
                     "angle_units", "euler_order", "rotation_kind", "quaternion_order", "square_size", "board_moved",
@@ -155,9 +160,7 @@ def failure_advice(res: dict, findings: list[dict], *, has_views: bool) -> dict:
 
     code = str(err.get("code") or "")
     add(err.get("fix"))
-    stepped = code == "pairs_shuffled" and any(f.get("code") == code and (f.get("details") or {}).get("partial_shift")
-                                               for f in findings)
-    if not stepped:  # a shift from one image on has its own fix: the order was not lost
+    if not (code == "pairs_shuffled" and any(is_out_of_step(f) for f in findings)):  # that one has its own fix
         add(ERROR_ADVICE.get(code, ""))
     for f in findings:
         if f["severity"] == "fail" and len(actions) < MAX_ACTIONS:
@@ -174,7 +177,7 @@ def failure_advice(res: dict, findings: list[dict], *, has_views: bool) -> dict:
 def finding_advice(f: dict) -> str:
     """What to check for a finding, by its code, beyond its own action ("" when nothing more is known; a pairing
     out of step from one image on has its own fix, the order was not lost)."""
-    if (f.get("details") or {}).get("partial_shift"):
+    if is_out_of_step(f):
         return ""
     return _sentence(FINDING_ADVICE.get(str(f.get("code") or ""), ""))
 
@@ -211,7 +214,7 @@ def _cause_of_finding(f: dict) -> str:
         title = title[len(said):]
     if code == "pairs_shifted":
         label = _shift_label(details["shift"]) if "shift" in details else ROOT_CAUSE_LABELS["pairs_shuffled"]
-    elif code == "pairs_shuffled" and details.get("partial_shift"):
+    elif is_out_of_step(f):
         label = PAIRS_OUT_OF_STEP  # from one image on: the title says where
     else:
         label = ROOT_CAUSE_LABELS.get(code, "")
