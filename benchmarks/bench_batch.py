@@ -13,6 +13,7 @@ into a fresh folder per configuration (``force``: every session runs). Per confi
 * ``memory``: the RSS of an idle worker process (Dask's own) and the peak RSS of a session's child
   process (the calibration): a worker needs about their sum.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -65,19 +66,25 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         write_fleet(root, n_installs=n_installs, sessions_per_install=3, n_views=a.views, image_size=(w, h))
         jobs = discover(root)[: a.sessions]
-        print(f"fleet: {len(jobs)} sessions of {a.views} views at {w}x{h} written in "
-              f"{time.perf_counter() - t0:.1f} s; {os.cpu_count()} CPUs")
-        print(f"{'workers':>7} {'reports':>7} {'sessions/min':>12} {'s/session':>9} {'wall s':>7} "
-              f"{'peak child MiB':>14}")
+        print(
+            f"fleet: {len(jobs)} sessions of {a.views} views at {w}x{h} written in "
+            f"{time.perf_counter() - t0:.1f} s; {os.cpu_count()} CPUs"
+        )
+        print(
+            f"{'workers':>7} {'reports':>7} {'sessions/min':>12} {'s/session':>9} {'wall s':>7} {'peak child MiB':>14}"
+        )
         for n in a.workers:
             for report in (False, True):
                 out = Path(tmp) / f"out_{n}_{int(report)}"
-                s = run_batch(jobs, out, calibrate=_calibrate_options(root, out, report), n_workers=n,
-                              force=True, timeout_s=3600)
+                s = run_batch(
+                    jobs, out, calibrate=_calibrate_options(root, out, report), n_workers=n, force=True, timeout_s=3600
+                )
                 per = [r["seconds"] for r in s.records if r.get("seconds")]
                 rss = [r["peak_rss_mb"] for r in s.records if r.get("peak_rss_mb")]
-                print(f"{n:>7} {'yes' if report else 'no':>7} {60 * len(jobs) / s.seconds:>12.1f} "
-                      f"{statistics.median(per):>9.1f} {s.seconds:>7.1f} {max(rss):>14.0f}")
+                print(
+                    f"{n:>7} {'yes' if report else 'no':>7} {60 * len(jobs) / s.seconds:>12.1f} "
+                    f"{statistics.median(per):>9.1f} {s.seconds:>7.1f} {max(rss):>14.0f}"
+                )
                 sys.stdout.flush()
         print(f"idle Dask worker process: {_idle_worker_rss_mb():.0f} MiB RSS")
     return 0

@@ -10,6 +10,7 @@ imports; `in-process` is the same workflow (handeye.workflow.calibrate_session) 
 after a warm-up, so the difference is the start-up. CPU is the command's user + system time (best
 run): on a busy machine (see the load average printed first) it is the steadier figure.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -21,7 +22,6 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-
 
 _CPU: list[float] = []  # CPU seconds (user + sys) of each command run, for figures on a busy machine
 
@@ -37,9 +37,12 @@ def _wall(cmd: list[str]) -> float:
 
 
 def _fmt(walls: list[float]) -> str:
-    cpu, _CPU[:] = min(_CPU[-len(walls):]), []
-    return (f"{min(walls):6.2f} s (best of {len(walls)}; all: " + ", ".join(f"{w:.2f}" for w in walls)
-            + f"; CPU {cpu:.2f} s)")
+    cpu, _CPU[:] = min(_CPU[-len(walls) :]), []
+    return (
+        f"{min(walls):6.2f} s (best of {len(walls)}; all: "
+        + ", ".join(f"{w:.2f}" for w in walls)
+        + f"; CPU {cpu:.2f} s)"
+    )
 
 
 def main() -> None:
@@ -56,13 +59,18 @@ def main() -> None:
     py = sys.executable
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     with tempfile.TemporaryDirectory() as tmp:
-        sess = write_vendor_session(Path(tmp) / "s", mode=args.mode, n_views=args.views, seed=7,
-                                    hidden_views=("5",), image_noise=2.0)
-        print(f"session: {args.views} rendered 1280x720 views ({args.mode}), one without the board; "
-              f"cores: {os.cpu_count()}, load average at start: {load:.1f}")
+        sess = write_vendor_session(
+            Path(tmp) / "s", mode=args.mode, n_views=args.views, seed=7, hidden_views=("5",), image_noise=2.0
+        )
+        print(
+            f"session: {args.views} rendered 1280x720 views ({args.mode}), one without the board; "
+            f"cores: {os.cpu_count()}, load average at start: {load:.1f}"
+        )
         print(f"{'python -c pass':32s} wall {_fmt([_wall([py, '-c', 'pass']) for _ in range(args.repeat)])}")
-        print(f"{'handeye --help':32s} wall "
-              f"{_fmt([_wall([py, '-m', 'handeye.cli', '--help']) for _ in range(args.repeat)])}")
+        print(
+            f"{'handeye --help':32s} wall "
+            f"{_fmt([_wall([py, '-m', 'handeye.cli', '--help']) for _ in range(args.repeat)])}"
+        )
         imports = "import handeye.cli, handeye.workflow, handeye.session, handeye.refine, handeye.diagnose"
         walls = [_wall([py, "-c", imports]) for _ in range(args.repeat)]
         print(f"{'imports of the calibrate path':32s} wall {_fmt(walls)}")

@@ -20,6 +20,7 @@ verdict covariance takes the validated one in some direction. Prints one line pe
 ``--seeds`` sessions per setting (mode x image noise); ``--cache`` keeps the rendered sessions for a
 second run (e.g. before / after a change). Exit status 1 when any false alarm occurred.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -51,8 +52,15 @@ def run_one(cfg: dict, cache: str) -> dict:
     name = f"{cfg['mode']}_n{cfg['image_noise']:g}_s{cfg['seed']}_v{cfg['n_views']}"
     folder = Path(cache) / name
     if not (folder / "ground_truth.json").exists():
-        write_vendor_session(folder, mode=cfg["mode"], n_views=cfg["n_views"], seed=cfg["seed"],
-                             image_noise=cfg["image_noise"], overwrite=True, workers=1)
+        write_vendor_session(
+            folder,
+            mode=cfg["mode"],
+            n_views=cfg["n_views"],
+            seed=cfg["seed"],
+            image_noise=cfg["image_noise"],
+            overwrite=True,
+            workers=1,
+        )
     with tempfile.TemporaryDirectory() as out:
         res = calibrate_session(folder, out_dir=out, report=False).result
     all_findings = (res.get("diagnostics") or {}).get("findings", [])
@@ -61,17 +69,21 @@ def run_one(cfg: dict, cache: str) -> dict:
     outliers = ref.get("outliers", [])
     flagged = {o["view_id"] for o in outliers if o["kind"] != "corners"}
     not_used = [v["id"] for v in res.get("views") or [] if not v.get("used") and v["id"] not in flagged]
-    return {"name": name, "status": res.get("status"),
-            "findings": [f"{f['severity']}:{f['code']}" for f in findings],
-            "robot": [o["view_id"] for o in outliers if o["kind"] == "robot_pose"],
-            "view": [o["view_id"] for o in outliers if o["kind"] in ("reprojection", "too_few_corners")],
-            "corners": sum(len(o["corner_ids"]) for o in outliers if o["kind"] == "corners"),
-            "not_used": not_used,
-            # the model covariance too small for the folds' spread: a finding of size (info) when the verdict covers it
-            "model_underestimated": any(f.get("code") == "uncertainty_underestimated" for f in all_findings),
-            "sigma_source": ref.get("sigma_source"),
-            "robot_max_mahalanobis": max([d.get("robot_vs_camera_mahalanobis", 0.0)
-                                          for d in ref.get("per_view", {}).values()] or [0.0])}
+    return {
+        "name": name,
+        "status": res.get("status"),
+        "findings": [f"{f['severity']}:{f['code']}" for f in findings],
+        "robot": [o["view_id"] for o in outliers if o["kind"] == "robot_pose"],
+        "view": [o["view_id"] for o in outliers if o["kind"] in ("reprojection", "too_few_corners")],
+        "corners": sum(len(o["corner_ids"]) for o in outliers if o["kind"] == "corners"),
+        "not_used": not_used,
+        # the model covariance too small for the folds' spread: a finding of size (info) when the verdict covers it
+        "model_underestimated": any(f.get("code") == "uncertainty_underestimated" for f in all_findings),
+        "sigma_source": ref.get("sigma_source"),
+        "robot_max_mahalanobis": max(
+            [d.get("robot_vs_camera_mahalanobis", 0.0) for d in ref.get("per_view", {}).values()] or [0.0]
+        ),
+    }
 
 
 def main() -> int:
@@ -104,20 +116,29 @@ def main() -> int:
         c["verdict validated"] += r["sigma_source"] in ("validated", "model+validated")
         c["max_mahalanobis_x100"] = max(c["max_mahalanobis_x100"], int(100 * r["robot_max_mahalanobis"]))
         if r["status"] != "ok" or r["findings"] or r["robot"] or r["view"] or r["not_used"]:
-            print(f"{r['name']}: status {r['status']} findings {r['findings']} robot {r['robot']} "
-                  f"view {r['view']} not used {r['not_used']}", flush=True)
+            print(
+                f"{r['name']}: status {r['status']} findings {r['findings']} robot {r['robot']} "
+                f"view {r['view']} not used {r['not_used']}",
+                flush=True,
+            )
         print(f"[{k + 1}/{len(cfgs)}] {r['name']}", file=sys.stderr, flush=True)
     total = collections.Counter()
-    print(f"{'setting':22s} sessions failed fail/warn robot-pose view corners max-robot-Mahalanobis "
-          "model-underestimated(info) verdict-validated")
+    print(
+        f"{'setting':22s} sessions failed fail/warn robot-pose view corners max-robot-Mahalanobis "
+        "model-underestimated(info) verdict-validated"
+    )
     for key, c in sorted(counts.items()):
-        print(f"{key:22s} {c['sessions']:8d} {c['failed']:6d} {c['fail/warn finding']:9d} {c['robot-pose flag']:10d} "
-              f"{c['view flag']:4d} {c['corner flags']:7d} {c['max_mahalanobis_x100'] / 100:21.2f} "
-              f"{c['model underestimated']:26d} {c['verdict validated']:17d}")
+        print(
+            f"{key:22s} {c['sessions']:8d} {c['failed']:6d} {c['fail/warn finding']:9d} {c['robot-pose flag']:10d} "
+            f"{c['view flag']:4d} {c['corner flags']:7d} {c['max_mahalanobis_x100'] / 100:21.2f} "
+            f"{c['model underestimated']:26d} {c['verdict validated']:17d}"
+        )
         total.update({k: v for k, v in c.items() if k != "max_mahalanobis_x100"})
-    print(f"{'all':22s} {total['sessions']:8d} {total['failed']:6d} {total['fail/warn finding']:9d} "
-          f"{total['robot-pose flag']:10d} {total['view flag']:4d} {total['corner flags']:7d} {'':21s} "
-          f"{total['model underestimated']:26d} {total['verdict validated']:17d}")
+    print(
+        f"{'all':22s} {total['sessions']:8d} {total['failed']:6d} {total['fail/warn finding']:9d} "
+        f"{total['robot-pose flag']:10d} {total['view flag']:4d} {total['corner flags']:7d} {'':21s} "
+        f"{total['model underestimated']:26d} {total['verdict validated']:17d}"
+    )
     bad = total["failed"] + total["fail/warn finding"] + total["robot-pose flag"] + total["view flag"]
     return 1 if bad else 0
 

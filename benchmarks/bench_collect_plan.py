@@ -14,6 +14,7 @@ reported covariance (an honest covariance gives a chi-square(6): mean 6).
 
     python benchmarks/bench_collect_plan.py [--planned 8] [--random 8 15 20] [--seeds 5] [--calibrate 12]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -34,15 +35,21 @@ def main(argv=None) -> int:
     ap.add_argument("--random", type=int, nargs="+", default=[8, 15, 20])
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--draws", type=int, default=10, help="random view sets per rig")
-    ap.add_argument("--calibrate", type=int, default=0, metavar="N",
-                    help="also collect and calibrate N simulated sessions per mode")
+    ap.add_argument(
+        "--calibrate", type=int, default=0, metavar="N", help="also collect and calibrate N simulated sessions per mode"
+    )
     a = ap.parse_args(argv)
     intr = default_intrinsics(1280, 720)
     cfg = P.PlanConfig()
-    print(f"assumed noise: {cfg.pixel_noise_px} px corners, robot {cfg.robot_noise_mm} mm / {cfg.robot_noise_deg} deg "
-          "per axis; sigma = root of the trace over 3 axes")
-    print(f"{'mode':12s} {'seed':>4s} {'plan views':>10s} {'plan deg':>9s} {'plan mm':>8s}"
-          + "".join(f" {'rand' + str(k) + ' deg':>11s} {'mm':>6s}" for k in a.random) + "  plan s")
+    print(
+        f"assumed noise: {cfg.pixel_noise_px} px corners, robot {cfg.robot_noise_mm} mm / {cfg.robot_noise_deg} deg "
+        "per axis; sigma = root of the trace over 3 axes"
+    )
+    print(
+        f"{'mode':12s} {'seed':>4s} {'plan views':>10s} {'plan deg':>9s} {'plan mm':>8s}"
+        + "".join(f" {'rand' + str(k) + ' deg':>11s} {'mm':>6s}" for k in a.random)
+        + "  plan s"
+    )
     for mode in ("eye_in_hand", "eye_to_hand"):
         for seed in range(a.seeds):
             rng = np.random.default_rng(seed)
@@ -51,19 +58,44 @@ def main(argv=None) -> int:
             C0 = mounting(mode).predict_T_cam_board(rig.T_x, rig.T_board, T0)
             probes = [pair[0] for pair in P.probe_poses(T0)]
             t = time.perf_counter()
-            plan = P.make_plan(mode=mode, T_x=rig.T_x, T_board=rig.T_board, T_base_end_start=T0,
-                               T_cam_board_start=C0, T_base_end_done=[T0, *probes], target=rig.target,
-                               intrinsics=intr, n_views=a.planned, config=cfg)
+            plan = P.make_plan(
+                mode=mode,
+                T_x=rig.T_x,
+                T_board=rig.T_board,
+                T_base_end_start=T0,
+                T_cam_board_start=C0,
+                T_base_end_done=[T0, *probes],
+                target=rig.target,
+                intrinsics=intr,
+                n_views=a.planned,
+                config=cfg,
+            )
             dt = time.perf_counter() - t
-            row = (f"{mode:12s} {seed:4d} {1 + len(probes) + len(plan.views):10d} "
-                   f"{plan.views[-1].sigma_rot_deg:9.4f} {plan.views[-1].sigma_trans_mm:8.3f}")
+            row = (
+                f"{mode:12s} {seed:4d} {1 + len(probes) + len(plan.views):10d} "
+                f"{plan.views[-1].sigma_rot_deg:9.4f} {plan.views[-1].sigma_trans_mm:8.3f}"
+            )
             for k in a.random:
                 sr, st = [], []
                 for _ in range(a.draws):
-                    Ts = sample_view_poses(mode=mode, n_views=k, rng=rng, T_x=rig.T_x, T_board=rig.T_board,
-                                           target=rig.target, intrinsics=intr)
-                    info = P.information_of_views(mode=mode, T_x=rig.T_x, T_board=rig.T_board, T_base_end=Ts,
-                                                  target=rig.target, intrinsics=intr, config=cfg)
+                    Ts = sample_view_poses(
+                        mode=mode,
+                        n_views=k,
+                        rng=rng,
+                        T_x=rig.T_x,
+                        T_board=rig.T_board,
+                        target=rig.target,
+                        intrinsics=intr,
+                    )
+                    info = P.information_of_views(
+                        mode=mode,
+                        T_x=rig.T_x,
+                        T_board=rig.T_board,
+                        T_base_end=Ts,
+                        target=rig.target,
+                        intrinsics=intr,
+                        config=cfg,
+                    )
                     r, s = P.predicted_sigma(info)
                     sr.append(r)
                     st.append(s)
@@ -94,8 +126,22 @@ def calibrate_collections(n: int) -> None:
         for seed in range(n):
             with tempfile.TemporaryDirectory() as tmp, contextlib.redirect_stdout(io.StringIO()):
                 col, res_dir = Path(tmp) / "col", Path(tmp) / "res"
-                cli(["-q", "collect", str(col), "--mode", mode, "--camera", "sim", "--robot", "sim", "--auto",
-                     "--seed", str(seed)])
+                cli(
+                    [
+                        "-q",
+                        "collect",
+                        str(col),
+                        "--mode",
+                        mode,
+                        "--camera",
+                        "sim",
+                        "--robot",
+                        "sim",
+                        "--auto",
+                        "--seed",
+                        str(seed),
+                    ]
+                )
                 cli(["-q", "calibrate", str(col), "--out", str(res_dir), "--no-report"])
                 truth = json.loads((col / "ground_truth.json").read_text())
                 res = json.loads((res_dir / "result.json").read_text())
@@ -106,8 +152,10 @@ def calibrate_collections(n: int) -> None:
             r, t = pose_error(T_est, T_true)
             d2s.append(d2)
             print(f"{mode:12s} {seed:4d} {r:8.4f} {t:7.3f} {d2:10.1f}", flush=True)
-        print(f"{mode}: mean d2 {np.mean(d2s):.2f} over {n} sessions (chi-square(6): 6, 90 % of means within "
-              f"{chi2.ppf(0.05, 6 * n) / n:.2f}-{chi2.ppf(0.95, 6 * n) / n:.2f})")
+        print(
+            f"{mode}: mean d2 {np.mean(d2s):.2f} over {n} sessions (chi-square(6): 6, 90 % of means within "
+            f"{chi2.ppf(0.05, 6 * n) / n:.2f}-{chi2.ppf(0.95, 6 * n) / n:.2f})"
+        )
 
 
 if __name__ == "__main__":

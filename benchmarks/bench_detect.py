@@ -32,6 +32,7 @@ read_gray (decoded straight to luma) with decoding the colours and converting th
 costs 3 ms in a process whose allocator already holds large blocks and 5.6 ms in a fresh one (the
 2.7 MB colour buffer is then mapped and faulted in anew each time).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -102,17 +103,36 @@ def main() -> None:
     ap.add_argument("--session", type=Path, default=None)
     ap.add_argument("--real", type=Path, nargs="*", default=[], help="folders of real 9x7 chessboard images")
     ap.add_argument("--real-board", type=int, nargs=2, default=(9, 7))
-    ap.add_argument("--shared", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data",
-                    help="folder of the real datasets (the chessboard sets are compared with the accurate SB search)")
+    ap.add_argument(
+        "--shared",
+        type=Path,
+        default=Path(__file__).resolve().parents[2] / "shared" / "data",
+        help="folder of the real datasets (the chessboard sets are compared with the accurate SB search)",
+    )
     ap.add_argument("--no-shared", action="store_true", help="skip the real datasets")
-    ap.add_argument("--crops", type=Path, default=None, metavar="DIR",
-                    help="write each real corner over 1 px from SB enlarged 8x with both detectors' marks "
-                         "(ours red, SB's green) to DIR, e.g. reports/sb-crops")
+    ap.add_argument(
+        "--crops",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="write each real corner over 1 px from SB enlarged 8x with both detectors' marks "
+        "(ours red, SB's green) to DIR, e.g. reports/sb-crops",
+    )
     ap.add_argument("--big", type=int, nargs=2, default=(8000, 6000), help="size of the noise image, px")
-    ap.add_argument("--supersample", type=int, nargs="+", default=[4],
-                    help="samples per pixel (per axis) of the low-texture renders, e.g. 4 8")
-    ap.add_argument("--wrong-size", type=int, default=0, metavar="N",
-                    help="only: N rendered sessions stated with a wrong board size (refusal, size named, time)")
+    ap.add_argument(
+        "--supersample",
+        type=int,
+        nargs="+",
+        default=[4],
+        help="samples per pixel (per axis) of the low-texture renders, e.g. 4 8",
+    )
+    ap.add_argument(
+        "--wrong-size",
+        type=int,
+        default=0,
+        metavar="N",
+        help="only: N rendered sessions stated with a wrong board size (refusal, size named, time)",
+    )
     args = ap.parse_args()
     if args.wrong_size:
         with tempfile.TemporaryDirectory() as tmp:
@@ -131,8 +151,10 @@ def main() -> None:
         grays = {v.view_id: read_gray(v.image_path) for v in views}
         found = {vid: detect_gray(g, target) for vid, g in grays.items()}
         board = [(vid, grays[vid], found[vid]) for vid in grays if not isinstance(found[vid], str)]
-        print(f"session {folder}: {len(views)} images {grays[views[0].view_id].shape[1]}x"
-              f"{grays[views[0].view_id].shape[0]}, target found in {len(board)}")
+        print(
+            f"session {folder}: {len(views)} images {grays[views[0].view_id].shape[1]}x"
+            f"{grays[views[0].view_id].shape[0]}, target found in {len(board)}"
+        )
 
         def colour_then_grey(vid, path):
             data = np.fromfile(str(path), np.uint8)
@@ -160,27 +182,46 @@ def main() -> None:
             res = detect_views(items, target)
             walls.append(time.perf_counter() - t0)
         failed = sorted(v for v, d in res.items() if isinstance(d, DetectionFailure))
-        print(f"  detect_views, {len(items)} images, default workers: {min(walls):.3f} s wall (min of {args.rounds}), "
-              f"median {np.median(walls):.3f} s; not found: {failed}")
+        print(
+            f"  detect_views, {len(items)} images, default workers: {min(walls):.3f} s wall (min of {args.rounds}), "
+            f"median {np.median(walls):.3f} s; not found: {failed}"
+        )
 
         if (Path(folder) / "ground_truth.json").exists():
             truth = _truth(Path(folder), s)
-            err = np.concatenate([np.linalg.norm(res[v].image_points - truth[v][res[v].corner_ids], axis=1)
-                                  for v in truth if v in res and not isinstance(res[v], DetectionFailure)])
-            print(f"  corner error against the truth: RMS {np.sqrt(np.mean(err ** 2)):.4f} px, max {err.max():.4f} px, "
-                  f"{len(err)} corners used")
+            err = np.concatenate(
+                [
+                    np.linalg.norm(res[v].image_points - truth[v][res[v].corner_ids], axis=1)
+                    for v in truth
+                    if v in res and not isinstance(res[v], DetectionFailure)
+                ]
+            )
+            print(
+                f"  corner error against the truth: RMS {np.sqrt(np.mean(err**2)):.4f} px, max {err.max():.4f} px, "
+                f"{len(err)} corners used"
+            )
             with _one_stage():
                 one = [(detect_gray(g, target), truth[vid]) for vid, g, _ in board if vid in truth]
-            e1 = np.concatenate([min((np.linalg.norm(d[1] - t[ids], axis=1) for ids in (d[0], len(t) - 1 - d[0])),
-                                     key=np.max) for d, t in one if not isinstance(d, str)])
-            print(f"  corner error, cornerSubPix stage only: RMS {np.sqrt(np.mean(e1 ** 2)):.4f} px, max {e1.max():.4f} px")
+            e1 = np.concatenate(
+                [
+                    min((np.linalg.norm(d[1] - t[ids], axis=1) for ids in (d[0], len(t) - 1 - d[0])), key=np.max)
+                    for d, t in one
+                    if not isinstance(d, str)
+                ]
+            )
+            print(
+                f"  corner error, cornerSubPix stage only: RMS {np.sqrt(np.mean(e1**2)):.4f} px, max {e1.max():.4f} px"
+            )
             # cornerSubPix stopping rules from the same starting corners (half-size search, scaled)
             starts = []
             for vid, g, _ in board:
                 h, w = g.shape
                 small = cv2.resize(g, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
-                ok, c = cv2.findChessboardCorners(small, (target.cols, target.rows), flags=cv2.CALIB_CB_ADAPTIVE_THRESH
-                                                  | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK)
+                ok, c = cv2.findChessboardCorners(
+                    small,
+                    (target.cols, target.rows),
+                    flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK,
+                )
                 if ok:
                     p0, win = subpix_windows(board_squares(target), (c.reshape(-1, 2) + 0.5) * 2 - 0.5, o)
                     starts.append((vid, g, p0.astype(np.float32), win))
@@ -191,9 +232,11 @@ def main() -> None:
                     c0 = time.process_time()
                     out = [refine_corners(g, p, win, rule) for _, g, p, win in starts]
                     best = min(best, (time.process_time() - c0) / len(starts) * 1e3)
-                e = np.concatenate([np.linalg.norm(p - truth[vid], axis=1) for p, (vid, *_) in zip(out, starts)])
-                print(f"  cornerSubPix max_iter {it} eps {eps:g}: {best:.2f} ms CPU per view, "
-                      f"error RMS {np.sqrt(np.mean(e ** 2)):.4f} px, max {e.max():.4f} px")
+                e = np.concatenate([np.linalg.norm(p - truth[vid], axis=1) for p, (vid, *_) in zip(out, starts, strict=False)])
+                print(
+                    f"  cornerSubPix max_iter {it} eps {eps:g}: {best:.2f} ms CPU per view, "
+                    f"error RMS {np.sqrt(np.mean(e**2)):.4f} px, max {e.max():.4f} px"
+                )
 
         _wrong_size(Path(folder), Path(tmp), args.rounds)
         for k in args.supersample:
@@ -206,8 +249,9 @@ def main() -> None:
     if not args.no_shared:
         for name, size in SHARED_CHESSBOARDS.items():
             if (args.shared / name).is_dir():
-                _against_accurate_sb(args.shared / name, size, VISP_K if name == "visp-franka-eye-in-hand" else None,
-                                     crops=args.crops)
+                _against_accurate_sb(
+                    args.shared / name, size, VISP_K if name == "visp-franka-eye-in-hand" else None, crops=args.crops
+                )
         visp = args.shared / "visp-franka-eye-in-hand"
         if visp.is_dir():
             _sb_on_replicas(visp, SHARED_CHESSBOARDS[visp.name], 0.0236, VISP_K)
@@ -229,26 +273,30 @@ def _wrong_size_sweep(n: int, tmp: Path) -> None:
     for k in range(n):
         b = boards[k % len(boards)]
         mode = ("eye_in_hand", "eye_to_hand")[(k // len(boards)) % 2]
-        folder = write_vendor_session(tmp / f"ws{k}", mode=mode, n_views=20, seed=100 + k, target=b,
-                                      supersample=2, workers=2)
+        folder = write_vendor_session(
+            tmp / f"ws{k}", mode=mode, n_views=20, seed=100 + k, target=b, supersample=2, workers=2
+        )
         stated = [(b.cols - 2, b.rows - 1), (b.cols + 1, b.rows), (b.rows, b.cols - 1)][k % 3]
         cfg = yaml.safe_load((folder / "config.yaml").read_text())
         cfg["checkerboard_args"].update(XX=stated[0], YY=stated[1])
         (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
         t0 = time.perf_counter()
-        wr = calibrate_session(folder, options=CalibrateOptions(refine=False), out_dir=tmp / f"ws{k}-out",
-                               report=False)
+        wr = calibrate_session(folder, options=CalibrateOptions(refine=False), out_dir=tmp / f"ws{k}-out", report=False)
         walls.append(time.perf_counter() - t0)
         err = wr.result.get("error") or {}
         ok = err.get("code") == "target_not_found" and f"{b.cols}x{b.rows} inner corners" in str(err.get("message"))
         named += ok
         if not ok:
-            print(f"    missed: {b.cols}x{b.rows} stated {stated[0]}x{stated[1]}, {mode}: {err.get('code')} "
-                  f"{str(err.get('message'))[:160]}")
-    print(f"  wrong board size, {n} rendered 20-view sessions (11x8, 9x6, 8x6 boards, both modes, three wrong "
-          f"sizes): refused naming the true size {named} / {n}; whole calibration without reports "
-          f"{np.median(walls):.2f} s wall median, {max(walls):.2f} s max (session {int(np.argmax(walls)) + 1}), "
-          f"{sum(w < 3.0 for w in walls)} under 3 s")
+            print(
+                f"    missed: {b.cols}x{b.rows} stated {stated[0]}x{stated[1]}, {mode}: {err.get('code')} "
+                f"{str(err.get('message'))[:160]}"
+            )
+    print(
+        f"  wrong board size, {n} rendered 20-view sessions (11x8, 9x6, 8x6 boards, both modes, three wrong "
+        f"sizes): refused naming the true size {named} / {n}; whole calibration without reports "
+        f"{np.median(walls):.2f} s wall median, {max(walls):.2f} s max (session {int(np.argmax(walls)) + 1}), "
+        f"{sum(w < 3.0 for w in walls)} under 3 s"
+    )
 
 
 def _wrong_size(folder: Path, tmp: Path, rounds: int) -> None:
@@ -275,12 +323,16 @@ def _wrong_size(folder: Path, tmp: Path, rounds: int) -> None:
         walls.append(time.perf_counter() - t0)
         cpus.append(time.process_time() - c0)
     searched = sum(not str(getattr(d, "reason", "")).startswith("not searched") for d in res.values())
-    print(f"  wrong board size (9x6 stated, 11x8 board), {len(items)} images: detect_views {min(walls):.3f} s wall "
-          f"(min of {rounds}), median {np.median(walls):.3f} s, CPU {min(cpus):.3f} s; {searched} images looked at")
+    print(
+        f"  wrong board size (9x6 stated, 11x8 board), {len(items)} images: detect_views {min(walls):.3f} s wall "
+        f"(min of {rounds}), median {np.median(walls):.3f} s, CPU {min(cpus):.3f} s; {searched} images looked at"
+    )
     t0 = time.perf_counter()
     wr = calibrate_session(bad, options=CalibrateOptions(refine=False), out_dir=tmp / "wrong-size-out", report=False)
-    print(f"  wrong board size, whole calibration without reports: {time.perf_counter() - t0:.2f} s wall, "
-          f"exit code {wr.exit_code}: {wr.result['error']['message']}")
+    print(
+        f"  wrong board size, whole calibration without reports: {time.perf_counter() - t0:.2f} s wall, "
+        f"exit code {wr.exit_code}: {wr.result['error']['message']}"
+    )
 
 
 #: the real chessboard sets of ../shared/data and their inner corners (cols, rows), from each SOURCE.md
@@ -306,14 +358,20 @@ def _low_texture(n_views: int, rounds: int, supersample: int = 4) -> None:
         with stage():
             found = [(img, T, detect_gray(img, LOW_TEXTURE)) for img, T in imgs]
             w, c = _best(lambda img, T, d: detect_gray(img, LOW_TEXTURE), found, rounds)
-        err = np.concatenate([np.linalg.norm(d[1] - pixels_from_board_points(T, LOW_TEXTURE.object_points()[d[0]],
-                                                                            intr), axis=1)
-                              for _, T, d in found if not isinstance(d, str)])
+        err = np.concatenate(
+            [
+                np.linalg.norm(d[1] - pixels_from_board_points(T, LOW_TEXTURE.object_points()[d[0]], intr), axis=1)
+                for _, T, d in found
+                if not isinstance(d, str)
+            ]
+        )
         n = sum(not isinstance(d, str) for *_, d in found)
-        print(f"  low-texture board ({LOW_TEXTURE.describe()}), {what}, {n}/{len(found)} of 1280x720 views "
-              f"({supersample}x{supersample} samples per pixel) found: "
-              f"{len(err)} corners used, error RMS {np.sqrt(np.mean(err ** 2)):.4f} px, max {err.max():.4f} px; "
-              f"detect_gray {w:.2f} ms wall, {c:.2f} ms CPU")
+        print(
+            f"  low-texture board ({LOW_TEXTURE.describe()}), {what}, {n}/{len(found)} of 1280x720 views "
+            f"({supersample}x{supersample} samples per pixel) found: "
+            f"{len(err)} corners used, error RMS {np.sqrt(np.mean(err**2)):.4f} px, max {err.max():.4f} px; "
+            f"detect_gray {w:.2f} ms wall, {c:.2f} ms CPU"
+        )
 
 
 def _big_noise_image(folder: Path, tmp: Path, size: tuple) -> None:
@@ -342,14 +400,18 @@ def _big_noise_image(folder: Path, tmp: Path, size: tuple) -> None:
         t0, c0 = time.perf_counter(), time.process_time()
         d = detect_image(vid, big / f"{vid}.jpg", s.target)
         what = f"{len(d.corner_ids)} corners" if isinstance(d, Detection) else d.reason
-        print(f"  {w}x{h} {'noise image' if vid == '1' else 'view with the board'}: detect_image "
-              f"{time.perf_counter() - t0:.2f} s wall, {time.process_time() - c0:.2f} s CPU: {what}")
+        print(
+            f"  {w}x{h} {'noise image' if vid == '1' else 'view with the board'}: detect_image "
+            f"{time.perf_counter() - t0:.2f} s wall, {time.process_time() - c0:.2f} s CPU: {what}"
+        )
     t0, c0 = time.perf_counter(), time.process_time()
     wr = calibrate_session(big, options=CalibrateOptions(refine=False), out_dir=tmp / "big-noise-out", report=False)
     err = (wr.result.get("error") or {}).get("message", "")
-    print(f"  session of these three {w}x{h} views, whole calibration without reports: "
-          f"{time.perf_counter() - t0:.2f} s wall, {time.process_time() - c0:.2f} s CPU, exit code {wr.exit_code}"
-          + (f": {err}" if err else ""))
+    print(
+        f"  session of these three {w}x{h} views, whole calibration without reports: "
+        f"{time.perf_counter() - t0:.2f} s wall, {time.process_time() - c0:.2f} s CPU, exit code {wr.exit_code}"
+        + (f": {err}" if err else "")
+    )
 
 
 def _timed_out(items, target, failed) -> None:
@@ -359,8 +421,10 @@ def _timed_out(items, target, failed) -> None:
         if vid in failed:
             t0 = time.perf_counter()
             d = detect_image(vid, path, target, options=o)
-            print(f"  view {vid} (no board) with time_budget_s 0.001: {(time.perf_counter() - t0) * 1e3:.0f} ms wall: "
-                  f"{d.reason}")
+            print(
+                f"  view {vid} (no board) with time_budget_s 0.001: {(time.perf_counter() - t0) * 1e3:.0f} ms wall: "
+                f"{d.reason}"
+            )
             return
 
 
@@ -398,8 +462,9 @@ def _against_accurate_sb(folder: Path, size: tuple, K: np.ndarray | None = None,
             both.append(c1 - c0)
             one.append(time.process_time() - c1)
         c2 = time.process_time()
-        ok, ref = cv2.findChessboardCornersSB(g, size, flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
-                                              | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        ok, ref = cv2.findChessboardCornersSB(
+            g, size, flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_NORMALIZE_IMAGE
+        )
         sb_s += time.process_time() - c2
         ours_s += min(both)
         one_s += min(one)
@@ -410,7 +475,7 @@ def _against_accurate_sb(folder: Path, size: tuple, K: np.ndarray | None = None,
         ref = ref.reshape(-1, 2).astype(np.float64)
         ref = min((ref, ref[::-1]), key=lambda r: np.max(np.linalg.norm(pts - r[ids], axis=1)))
         image_size = (g.shape[1], g.shape[0])
-        for lst, a in zip(calib, (spec.object_points()[ids], pts, ref[ids])):
+        for lst, a in zip(calib, (spec.object_points()[ids], pts, ref[ids]), strict=False):
             lst.append(np.asarray(a, np.float32))
         d = np.linalg.norm(pts - ref[ids], axis=1)
         d_max.append(d)
@@ -424,31 +489,51 @@ def _against_accurate_sb(folder: Path, size: tuple, K: np.ndarray | None = None,
             ours = check_corners(bxy[ids], pts, o).residual_px[far]
             theirs = check_corners(bxy, ref, o).residual_px[ids[far]]
             obj = spec.object_points()
-            pnp = ((_pnp_residual_px(obj[ids], pts, K)[far], _pnp_residual_px(obj, ref, K)[ids[far]]) if K is not None
-                   else (np.full(far.sum(), np.nan),) * 2)
-            apart += list(zip(ours, theirs, *pnp))
+            pnp = (
+                (_pnp_residual_px(obj[ids], pts, K)[far], _pnp_residual_px(obj, ref, K)[ids[far]])
+                if K is not None
+                else (np.full(far.sum(), np.nan),) * 2
+            )
+            apart += list(zip(ours, theirs, *pnp, strict=False))
             if crops is not None:
                 for k in np.flatnonzero(far):
                     _write_crop(crops / f"{folder.name}-{p.stem}-corner{ids[k]}.png", g, pts[k], ref[ids[k]])
     d = np.concatenate(d_max) if d_max else np.zeros(1)
-    print(f"  {folder.name}: {n_both} of {n_img} images detected by both; {n_used} of {n_both * spec.n_corners} corners "
-          f"used; corners from the accurate SB: RMS {np.sqrt(np.mean(d ** 2)):.3f} px, max {d.max():.3f} px, "
-          f"{int((d > 1).sum())} over 1 px; detect_gray {ours_s / n_img * 1e3:.1f} ms CPU per image (cornerSubPix stage "
-          f"only {one_s / n_img * 1e3:.1f} ms, SB accurate {sb_s / n_img * 1e3:.0f} ms)")
+    print(
+        f"  {folder.name}: {n_both} of {n_img} images detected by both; {n_used} of {n_both * spec.n_corners} corners "
+        f"used; corners from the accurate SB: RMS {np.sqrt(np.mean(d**2)):.3f} px, max {d.max():.3f} px, "
+        f"{int((d > 1).sum())} over 1 px; detect_gray {ours_s / n_img * 1e3:.1f} ms CPU per image (cornerSubPix stage "
+        f"only {one_s / n_img * 1e3:.1f} ms, SB accurate {sb_s / n_img * 1e3:.0f} ms)"
+    )
     for ours, theirs, pnp_ours, pnp_sb in apart:
-        print(f"    a corner {'' if ours < theirs else 'NOT '}nearer its neighbours' homography than SB's: "
-              f"{ours:.2f} px against SB's {theirs:.2f} px" + ("" if np.isnan(pnp_ours) else
-              f"; from the view's solvePnP pose {pnp_ours:.2f} px against SB's {pnp_sb:.2f} px"))
+        print(
+            f"    a corner {'' if ours < theirs else 'NOT '}nearer its neighbours' homography than SB's: "
+            f"{ours:.2f} px against SB's {theirs:.2f} px"
+            + (
+                ""
+                if np.isnan(pnp_ours)
+                else f"; from the view's solvePnP pose {pnp_ours:.2f} px against SB's {pnp_sb:.2f} px"
+            )
+        )
     if edge_d:
         e = np.array(edge_d)
-        print(f"    the intersection of each inner corner's two edge lines (neither detector's method; "
-              f"{len(e)} corners): ours RMS {np.sqrt(np.mean(e[:, 0] ** 2)):.3f} px from it, SB's "
-              f"{np.sqrt(np.mean(e[:, 1] ** 2)):.3f} px" + ("" if not edge_far else "; the inner corners over 1 px "
-              "from SB: " + ", ".join(f"ours {a:.2f} / SB {b:.2f} px" for a, b in edge_far)))
+        print(
+            f"    the intersection of each inner corner's two edge lines (neither detector's method; "
+            f"{len(e)} corners): ours RMS {np.sqrt(np.mean(e[:, 0] ** 2)):.3f} px from it, SB's "
+            f"{np.sqrt(np.mean(e[:, 1] ** 2)):.3f} px"
+            + (
+                ""
+                if not edge_far
+                else "; the inner corners over 1 px "
+                "from SB: " + ", ".join(f"ours {a:.2f} / SB {b:.2f} px" for a, b in edge_far)
+            )
+        )
     if len(calib[0]) >= 3:
         rms = [cv2.calibrateCamera(calib[0], c, image_size, None, None)[0] for c in calib[1:]]
-        print(f"    cv2.calibrateCamera on the {len(calib[0])} views both detect: RMS {rms[0]:.3f} px with detect_gray's "
-              f"corners, {rms[1]:.3f} px with SB's")
+        print(
+            f"    cv2.calibrateCamera on the {len(calib[0])} views both detect: RMS {rms[0]:.3f} px with detect_gray's "
+            f"corners, {rms[1]:.3f} px with SB's"
+        )
     _print_checks(folder.name, checks)
 
 
@@ -479,7 +564,7 @@ def _edge_line_corner(gray: np.ndarray, at: np.ndarray, neighbours: np.ndarray) 
 def _edge_line_distances(gray: np.ndarray, size: tuple, ids: np.ndarray, ours: np.ndarray, sb: np.ndarray):
     """For each corner with its four neighbours detected: (id, distance of ours, of SB's) from the edge-line
     intersection (:func:`_edge_line_corner`, sampled around the two detectors' midpoint)."""
-    pos = dict(zip(ids.tolist(), ours))
+    pos = dict(zip(ids.tolist(), ours, strict=False))
     out = []
     for i, q in pos.items():
         nb = [pos.get(j) for j in (i - 1, i + 1, i - size[0], i + size[0])]
@@ -494,8 +579,9 @@ def _write_crop(path: Path, gray: np.ndarray, ours: np.ndarray, sb: np.ndarray, 
     """A (2 half + 1) px square of ``gray`` around ``ours`` enlarged ``zoom`` times (each pixel a block, its centre
     at the block's centre), our corner marked red and SB's green."""
     x0, y0 = np.maximum(np.round(ours).astype(int) - half, 0)
-    crop = cv2.resize(gray[y0:y0 + 2 * half + 1, x0:x0 + 2 * half + 1], None, fx=zoom, fy=zoom,
-                      interpolation=cv2.INTER_NEAREST)
+    crop = cv2.resize(
+        gray[y0 : y0 + 2 * half + 1, x0 : x0 + 2 * half + 1], None, fx=zoom, fy=zoom, interpolation=cv2.INTER_NEAREST
+    )
     crop = cv2.cvtColor(crop, cv2.COLOR_GRAY2BGR)
     for q, colour in ((ours, (0, 0, 255)), (sb, (0, 255, 0))):
         cv2.circle(crop, tuple(int(c) for c in (np.asarray(q) - (x0, y0) + 0.5) * zoom), 3, colour, -1)
@@ -531,18 +617,23 @@ def _sb_on_replicas(folder: Path, size: tuple, square_m: float, K: np.ndarray) -
             img = render_view(spec, intr, T, supersample=4, blur_sigma_px=blur, noise_sigma=1.0, rng=rng)
             truth = pixels_from_board_points(T, obj, intr)
             out = detect_gray(img, spec)
-            ok, ref = cv2.findChessboardCornersSB(img, size, flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
-                                                  | cv2.CALIB_CB_NORMALIZE_IMAGE)
+            ok, ref = cv2.findChessboardCornersSB(
+                img, size, flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_NORMALIZE_IMAGE
+            )
             if not isinstance(out, str):
                 ours.append(min((np.linalg.norm(out[1] - t[out[0]], axis=1) for t in (truth, truth[::-1])), key=np.max))
             if ok:
-                sb.append(min((np.linalg.norm(ref.reshape(-1, 2) - t, axis=1) for t in (truth, truth[::-1])), key=np.max))
+                sb.append(
+                    min((np.linalg.norm(ref.reshape(-1, 2) - t, axis=1) for t in (truth, truth[::-1])), key=np.max)
+                )
             ids = np.arange(len(obj))
             edge += [e[1] for e in _edge_line_distances(img, size, ids, truth, truth)]  # truth as both starts
         for name, e in (("detect_gray", ours), ("SB accurate", sb), ("edge-line intersection", [np.array(edge)])):
             e = np.concatenate(e) if e else np.zeros(1)
-            print(f"  {folder.name} rendered replicas, blur {blur:.1f} px: {name} error RMS {np.sqrt(np.mean(e ** 2)):.3f} px, "
-                  f"max {e.max():.3f} px, {int((e > 0.5).sum())} over 0.5 px")
+            print(
+                f"  {folder.name} rendered replicas, blur {blur:.1f} px: {name} error RMS {np.sqrt(np.mean(e**2)):.3f} px, "
+                f"max {e.max():.3f} px, {int((e > 0.5).sum())} over 0.5 px"
+            )
 
 
 def _print_checks(name: str, checks) -> None:
@@ -550,8 +641,10 @@ def _print_checks(name: str, checks) -> None:
     res = [np.nanmax(c.residual_px) for c in checks if c.worst >= 0]
     share = [np.nanmax(c.residual_px / c.limit_px) for c in checks if c.worst >= 0]
     if res:
-        print(f"  {name}: geometric check over {len(res)} views: worst corner {max(res):.2f} px from its neighbours' "
-              f"homography (median view {np.median(res):.2f} px), at most {max(share):.2f} of its limit")
+        print(
+            f"  {name}: geometric check over {len(res)} views: worst corner {max(res):.2f} px from its neighbours' "
+            f"homography (median view {np.median(res):.2f} px), at most {max(share):.2f} of its limit"
+        )
 
 
 def _ical_checks(shared: Path) -> None:
@@ -560,8 +653,10 @@ def _ical_checks(shared: Path) -> None:
     from handeye.session.importers import import_ical
 
     loose = replace(default_options(), grid_check_max_px=1e9)
-    for name, kw in (("ical-mako-charuco-eye-to-hand", {"image_dir": "images_gray"}),
-                     ("ical-kinect-circlegrid-eye-in-hand", {})):
+    for name, kw in (
+        ("ical-mako-charuco-eye-to-hand", {"image_dir": "images_gray"}),
+        ("ical-kinect-circlegrid-eye-in-hand", {}),
+    ):
         if not (shared / name).is_dir():
             continue
         with tempfile.TemporaryDirectory() as tmp:
@@ -579,8 +674,9 @@ def _real_subpix(folder: Path, size: tuple) -> None:
     data = []
     for p in sorted(q for q in folder.rglob("*") if q.suffix.lower() in (".png", ".jpg", ".jpeg")):
         g = read_gray(p)
-        ok, c = cv2.findChessboardCorners(g, size, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-                                          | cv2.CALIB_CB_FAST_CHECK)
+        ok, c = cv2.findChessboardCorners(
+            g, size, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
+        )
         if ok:
             p0, win = subpix_windows(board_squares(ChessboardSpec(size[0], size[1], 1.0)), c.reshape(-1, 2), o)
             data.append((g, p0.astype(np.float32), win))
@@ -591,9 +687,11 @@ def _real_subpix(folder: Path, size: tuple) -> None:
         out = [refine_corners(g, p, w, rule) for g, p, w in data]
         ms = (time.process_time() - c0) / max(len(data), 1) * 1e3
         ref = out if ref is None else ref
-        d = np.concatenate([np.linalg.norm(a - b, axis=1) for a, b in zip(out, ref)]) if data else np.zeros(1)
-        print(f"  {folder.name}: {len(data)} views, cornerSubPix max_iter {it} eps {eps:g}: {ms:.2f} ms CPU per view; "
-              f"corners moved against 50 / 1e-4: RMS {np.sqrt(np.mean(d ** 2)):.4f} px, max {d.max():.4f} px")
+        d = np.concatenate([np.linalg.norm(a - b, axis=1) for a, b in zip(out, ref, strict=False)]) if data else np.zeros(1)
+        print(
+            f"  {folder.name}: {len(data)} views, cornerSubPix max_iter {it} eps {eps:g}: {ms:.2f} ms CPU per view; "
+            f"corners moved against 50 / 1e-4: RMS {np.sqrt(np.mean(d**2)):.4f} px, max {d.max():.4f} px"
+        )
 
 
 if __name__ == "__main__":

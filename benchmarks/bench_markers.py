@@ -10,6 +10,7 @@
 
     python benchmarks/bench_markers.py [--seeds 40] [--rendered 3]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -48,11 +49,18 @@ def ambiguity(seeds: int) -> int:
         n = distinct = flipped_first = kept = 0
         mount = mounting(mode)
         for seed in range(seeds):
-            s = make_corner_session(mode=mode, n_views=12, seed=seed, noise_px=0.3, target=spec,
-                                    distance_m=DISTANCE_M, tilt_deg=TILT_DEG)
-            dets = [Detection(view_id=v, corner_ids=np.asarray(s.corner_ids[k]),
-                              image_points=np.asarray(s.image_points[k]), image_size=(s.intrinsics.width, s.intrinsics.height))
-                    for k, v in enumerate(s.view_ids)]
+            s = make_corner_session(
+                mode=mode, n_views=12, seed=seed, noise_px=0.3, target=spec, distance_m=DISTANCE_M, tilt_deg=TILT_DEG
+            )
+            dets = [
+                Detection(
+                    view_id=v,
+                    corner_ids=np.asarray(s.corner_ids[k]),
+                    image_points=np.asarray(s.image_points[k]),
+                    image_size=(s.intrinsics.width, s.intrinsics.height),
+                )
+                for k, v in enumerate(s.view_ids)
+            ]
             M = {v: mount.M_from_T_base_end(s.T_base_end_reported[k]) for k, v in enumerate(s.view_ids)}
             poses = board_poses(dets, spec, s.intrinsics, M)
             for k, v in enumerate(s.view_ids):
@@ -65,9 +73,11 @@ def ambiguity(seeds: int) -> int:
                 err = [_deg(T_true, T) for T, _ in pair]
                 flipped_first += err[0] > err[1] + SEPARATE_DEG
                 kept += _deg(T_true, poses[v].T_cam_board) > min(err) + SEPARATE_DEG
-        print(f"ambiguity {mode}: {seeds} sessions, {n} views, {distinct} with two poses over {SEPARATE_DEG:g} deg "
-              f"apart, the better-fitting one flipped (>= {SEPARATE_DEG:g} deg further) in {flipped_first}, the "
-              f"flipped one kept in {kept}")
+        print(
+            f"ambiguity {mode}: {seeds} sessions, {n} views, {distinct} with two poses over {SEPARATE_DEG:g} deg "
+            f"apart, the better-fitting one flipped (>= {SEPARATE_DEG:g} deg further) in {flipped_first}, the "
+            f"flipped one kept in {kept}"
+        )
         kept_total += kept
     return kept_total
 
@@ -82,8 +92,14 @@ def rendered(n: int) -> None:
             for mode in ("eye_in_hand", "eye_to_hand"):
                 rows = []
                 for seed in range(n):
-                    folder = write_vendor_session(Path(tmp) / f"{target}-{mode}-{seed}", mode=mode, n_views=15,
-                                                  seed=seed, target=sim_target(target), image_noise=1.0)
+                    folder = write_vendor_session(
+                        Path(tmp) / f"{target}-{mode}-{seed}",
+                        mode=mode,
+                        n_views=15,
+                        seed=seed,
+                        target=sim_target(target),
+                        image_noise=1.0,
+                    )
                     t0 = time.perf_counter()
                     calibrate_session(folder, out_dir=Path(tmp) / f"out-{target}-{mode}-{seed}", report=False)
                     dt = time.perf_counter() - t0
@@ -97,13 +113,22 @@ def rendered(n: int) -> None:
                     ref = res["refinement"]
                     e_mm = 1e3 * np.linalg.norm(T[:3, 3] - Tt[:3, 3])
                     e_deg = _deg(Tt, T)
-                    rows.append((e_mm, e_mm / np.linalg.norm(ref["sigma_trans_mm"]), e_deg,
-                                 e_deg / np.linalg.norm(ref["sigma_rot_deg"]), dt))
+                    rows.append(
+                        (
+                            e_mm,
+                            e_mm / np.linalg.norm(ref["sigma_trans_mm"]),
+                            e_deg,
+                            e_deg / np.linalg.norm(ref["sigma_rot_deg"]),
+                            dt,
+                        )
+                    )
                 a = np.array(rows, float)
-                print(f"rendered {target:9s} {mode:11s}: {n} sessions, failed {int(np.isnan(a[:, 0]).sum())}, "
-                      f"error median {np.nanmedian(a[:, 0]):.3f} mm ({np.nanmedian(a[:, 1]):.2f} sigma) / "
-                      f"{np.nanmedian(a[:, 2]):.3f} deg ({np.nanmedian(a[:, 3]):.2f} sigma), "
-                      f"calibrate {np.median(a[:, 4]):.1f} s")
+                print(
+                    f"rendered {target:9s} {mode:11s}: {n} sessions, failed {int(np.isnan(a[:, 0]).sum())}, "
+                    f"error median {np.nanmedian(a[:, 0]):.3f} mm ({np.nanmedian(a[:, 1]):.2f} sigma) / "
+                    f"{np.nanmedian(a[:, 2]):.3f} deg ({np.nanmedian(a[:, 3]):.2f} sigma), "
+                    f"calibrate {np.median(a[:, 4]):.1f} s"
+                )
 
 
 def main(argv=None) -> int:

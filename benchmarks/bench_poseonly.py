@@ -22,6 +22,7 @@ clean views flagged; 100 sessions per mode, sigma stated: error / CRB 1.003 and 
 distance under an estimated covariance is about 6 F(6, r) (r ~ 50 per group here), whose 95 % point
 the chi-square quantile reaches at ~93 %.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -49,35 +50,48 @@ def crb_x(ts) -> np.ndarray:
         if vid in ts.truth.outlier_view_ids:
             continue
         C_true = ts.truth.T_cam_board_true[k]
-        _, J_x, J_b = pose_residual(T_x=ts.truth.T_x_true, M=m.M_from_T_base_end(ts.T_base_end[k]),
-                                    T_board=ts.truth.T_board_true, T_cam_board_measured=C_true)
+        _, J_x, J_b = pose_residual(
+            T_x=ts.truth.T_x_true,
+            M=m.M_from_T_base_end(ts.T_base_end[k]),
+            T_board=ts.truth.T_board_true,
+            T_cam_board_measured=C_true,
+        )
         J = np.hstack([J_x, J_b])
         H += J.T @ W @ J
     return np.linalg.inv(H)[:6, :6]
 
 
 def one(mode: str, seed: int, stated: bool) -> dict:
-    ts = make_tracker_session(mode=mode, n_views=N_VIEWS, seed=seed, sigma_mm=SIGMA_MM, sigma_deg=SIGMA_DEG,
-                              outlier_views=N_OUT)
+    ts = make_tracker_session(
+        mode=mode, n_views=N_VIEWS, seed=seed, sigma_mm=SIGMA_MM, sigma_deg=SIGMA_DEG, outlier_views=N_OUT
+    )
     m = mounting(mode)
     Ms = np.stack([m.M_from_T_base_end(T) for T in ts.T_base_end])
     cf = all_methods(m, ts.T_cam_board, Ms)
     views = [PoseView(v, ts.T_cam_board[k], ts.T_base_end[k]) for k, v in enumerate(ts.view_ids)]
     sig = (np.radians(SIGMA_DEG), SIGMA_MM / 1000.0) if stated else None
-    res = refine_poses(mode=mode, views=views, T_x0=cf["tsai"].T_x, T_board0=cf["tsai"].T_board, starts=cf,
-                       tracker_sigma=sig)
+    res = refine_poses(
+        mode=mode, views=views, T_x0=cf["tsai"].T_x, T_board0=cf["tsai"].T_board, starts=cf, tracker_sigma=sig
+    )
     if res.status != "ok":
         return {"ok": False}
     xi = se3_log(np.linalg.inv(res.T_x) @ ts.truth.T_x_true)
     crb = crb_x(ts)
     flagged = {o.view_id for o in res.outliers}
     truth = set(ts.truth.outlier_view_ids)
-    return {"ok": True, "eff2": float(xi @ np.linalg.solve(crb, xi)) / 6.0,
-            "rot2": float(xi[:3] @ xi[:3]), "trans2": float(xi[3:] @ xi[3:]),
-            "crb_rot": float(np.trace(crb[:3, :3])), "crb_trans": float(np.trace(crb[3:, 3:])),
-            "maha2": float(xi @ np.linalg.solve(res.cov_x_6x6, xi)),
-            "both_flagged": truth <= flagged, "false_flags": len(flagged - truth),
-            "sigma_mm": res.tracker_sigma_mm, "sigma_deg": res.tracker_sigma_deg}
+    return {
+        "ok": True,
+        "eff2": float(xi @ np.linalg.solve(crb, xi)) / 6.0,
+        "rot2": float(xi[:3] @ xi[:3]),
+        "trans2": float(xi[3:] @ xi[3:]),
+        "crb_rot": float(np.trace(crb[:3, :3])),
+        "crb_trans": float(np.trace(crb[3:, 3:])),
+        "maha2": float(xi @ np.linalg.solve(res.cov_x_6x6, xi)),
+        "both_flagged": truth <= flagged,
+        "false_flags": len(flagged - truth),
+        "sigma_mm": res.tracker_sigma_mm,
+        "sigma_deg": res.tracker_sigma_deg,
+    }
 
 
 def main() -> None:
@@ -86,9 +100,11 @@ def main() -> None:
     ap.add_argument("--stated", action="store_true", help="give the refinement the true tracker noise")
     a = ap.parse_args()
     q95 = float(chdtri(6, 0.05))
-    print(f"pose-only sessions: {N_VIEWS} views, tracker noise {SIGMA_MM} mm / {SIGMA_DEG} deg per axis, "
-          f"{N_OUT} wrong robot poses, tracker sigma {'stated' if a.stated else 'estimated'}; "
-          f"{a.sessions} sessions per mode")
+    print(
+        f"pose-only sessions: {N_VIEWS} views, tracker noise {SIGMA_MM} mm / {SIGMA_DEG} deg per axis, "
+        f"{N_OUT} wrong robot poses, tracker sigma {'stated' if a.stated else 'estimated'}; "
+        f"{a.sessions} sessions per mode"
+    )
     for mode in ("eye_in_hand", "eye_to_hand"):
         t0 = time.process_time()
         rows = [one(mode, seed, a.stated) for seed in range(a.sessions)]
@@ -99,11 +115,13 @@ def main() -> None:
         cover = np.mean([r["maha2"] <= q95 for r in ok])
         both = sum(r["both_flagged"] for r in ok)
         false = sum(r["false_flags"] for r in ok)
-        print(f"{mode}: {len(ok)}/{len(rows)} solved; error / CRB: {eff:.3f} (Mahalanobis), rotation {rot:.3f}, "
-              f"translation {trans:.3f}; coverage of the 95 % ellipsoid {cover:.1%}; both outliers flagged in "
-              f"{both}/{len(ok)}; clean views flagged {false} of {len(ok) * (N_VIEWS - N_OUT)}; "
-              f"tracker sigma median {np.median([r['sigma_mm'] for r in ok]):.3f} mm / "
-              f"{np.median([r['sigma_deg'] for r in ok]):.3f} deg; {time.process_time() - t0:.1f} s CPU")
+        print(
+            f"{mode}: {len(ok)}/{len(rows)} solved; error / CRB: {eff:.3f} (Mahalanobis), rotation {rot:.3f}, "
+            f"translation {trans:.3f}; coverage of the 95 % ellipsoid {cover:.1%}; both outliers flagged in "
+            f"{both}/{len(ok)}; clean views flagged {false} of {len(ok) * (N_VIEWS - N_OUT)}; "
+            f"tracker sigma median {np.median([r['sigma_mm'] for r in ok]):.3f} mm / "
+            f"{np.median([r['sigma_deg'] for r in ok]):.3f} deg; {time.process_time() - t0:.1f} s CPU"
+        )
 
 
 if __name__ == "__main__":

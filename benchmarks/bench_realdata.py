@@ -45,6 +45,7 @@ closed forms (the figures this script printed before the half-split test).
 
 ``--only ur3`` runs the two UR3 cameras (the cross-camera check needs both).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -61,8 +62,8 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from handeye.config import load_preset
-from handeye.kinematics import load_arm
 from handeye.frames import T_from_rotvec, inv_T, make_T, pose_error, tangent_difference, tangent_jacobian
+from handeye.kinematics import load_arm
 from handeye.pipeline import CalibrateOptions, run_calibration
 from handeye.session import load_session
 from handeye.session.importers import import_ical, import_visp
@@ -70,19 +71,33 @@ from handeye.session.importers import import_ical, import_visp
 CHI2_95 = {6: 12.592, 4: 9.488}
 REFS = {
     # ViSP's documented eMc (SOURCE.md)
-    "visp-franka-eye-in-hand": ("ViSP tutorial result", T_from_rotvec(
-        [0.001783530, 0.009173748, 1.581782359], [0.0577152, -0.0339249, -0.0422769])),
+    "visp-franka-eye-in-hand": (
+        "ViSP tutorial result",
+        T_from_rotvec([0.001783530, 0.009173748, 1.581782359], [0.0577152, -0.0339249, -0.0422769]),
+    ),
     # PARK on the staged grayscale images (SOURCE.md)
-    "ical-mako-charuco-eye-to-hand": ("PARK in SOURCE.md", make_T(
-        Rotation.from_rotvec(np.radians([8.01, 98.53, -146.56])).as_matrix(),
-        np.array([-18.30, 1264.28, 289.60]) / 1e3)),
+    "ical-mako-charuco-eye-to-hand": (
+        "PARK in SOURCE.md",
+        make_T(
+            Rotation.from_rotvec(np.radians([8.01, 98.53, -146.56])).as_matrix(),
+            np.array([-18.30, 1264.28, 289.60]) / 1e3,
+        ),
+    ),
     # TSAI with SOURCE.md's own intrinsics (no ground truth exists for this set)
-    "ical-kinect-circlegrid-eye-in-hand": ("TSAI in SOURCE.md", make_T(
-        Rotation.from_rotvec(np.radians([1.32, -0.91, -89.86])).as_matrix(), np.array([-86.16, 38.86, 77.24]) / 1e3)),
+    "ical-kinect-circlegrid-eye-in-hand": (
+        "TSAI in SOURCE.md",
+        make_T(
+            Rotation.from_rotvec(np.radians([1.32, -0.91, -89.86])).as_matrix(), np.array([-86.16, 38.86, 77.24]) / 1e3
+        ),
+    ),
 }
 MODELS = {"iid": (False,), "kinematic": (True,), "both": (False, True)}  # UR3 sets: kinematic robot model or not
-HALF_SETS = ("ical-mako-charuco-eye-to-hand", "ical-kinect-circlegrid-eye-in-hand", "ur3-eyetohand-cam1",
-             "ur3-eyetohand-cam2")
+HALF_SETS = (
+    "ical-mako-charuco-eye-to-hand",
+    "ical-kinect-circlegrid-eye-in-hand",
+    "ur3-eyetohand-cam1",
+    "ur3-eyetohand-cam2",
+)
 
 
 UR3_TABLE = "robot_model_dh_nominal_ur3a.json"  # the nominal standard-DH table (m, rad) of a UR3 folder
@@ -106,9 +121,13 @@ def import_ur3(src: Path, out: Path, *, kinematic: bool = False, ids: Optional[S
         parts = line.split()
         if ids is None or parts[0] in ids:
             views.append({"id": parts[0], "image": f"images/{parts[1]}", "pose": [float(x) for x in parts[2:18]]})
-    doc = {"handeye_session": 1, "mode": "eye_to_hand",
-           "target": {"type": "chessboard", "inner_corners": [9, 7], "square_m": 0.02},
-           "pose_format": {"rotation": "matrix", "translation_unit": "m"}, "image_folder": str(src)}
+    doc = {
+        "handeye_session": 1,
+        "mode": "eye_to_hand",
+        "target": {"type": "chessboard", "inner_corners": [9, 7], "square_m": 0.02},
+        "pose_format": {"rotation": "matrix", "translation_unit": "m"},
+        "image_folder": str(src),
+    }
     if kinematic:
         arm = load_arm(src / UR3_TABLE)
         poses = json.loads((src / UR3_JOINTS).read_text())["poses"]
@@ -166,8 +185,15 @@ def covariances(run) -> dict:
     names = ("fx", "fy", "cx", "cy")
     k = np.array([getattr(ref.intrinsics, n) for n in names])
     ks_model = np.diag([ref.intrinsics_sigma.get(n, np.nan) ** 2 for n in names])
-    out = {"T_x": ref.T_x, "k": k, "x_model": np.asarray(ref.cov_x_6x6), "k_model": ks_model,
-           "x_verdict": np.asarray(ref.cov_x_6x6), "k_verdict": ks_model, "source": "model"}
+    out = {
+        "T_x": ref.T_x,
+        "k": k,
+        "x_model": np.asarray(ref.cov_x_6x6),
+        "k_model": ks_model,
+        "x_verdict": np.asarray(ref.cov_x_6x6),
+        "k_verdict": ks_model,
+        "source": "model",
+    }
     if val is not None and val.status == "ok":
         out["x_verdict"], out["source"] = val.x.cov_verdict, val.x.source
         if val.intrinsics is not None and all(n in val.intrinsics.names for n in names):
@@ -200,7 +226,7 @@ def halves(ids: list, n_random: int, seed: int) -> list:
     for k in range(n_random):
         p = list(rng.permutation(len(ids)))
         a = sorted(p[: len(ids) // 2])
-        out.append((f"random {k + 1}", [ids[i] for i in a], [ids[i] for i in sorted(p[len(ids) // 2:])]))
+        out.append((f"random {k + 1}", [ids[i] for i in a], [ids[i] for i in sorted(p[len(ids) // 2 :])]))
     return out
 
 
@@ -212,8 +238,10 @@ def half_split(name: str, path: Path, opts, n_random: int) -> dict:
     ids = [v for v in full.used_ids]
     rows = []
     for label, a, b in halves(ids, n_random, seed=17):
-        runs = [calibrate(replace(session, views=tuple(v for v in session.views if v.view_id in set(h))), opts)
-                for h in (a, b)]
+        runs = [
+            calibrate(replace(session, views=tuple(v for v in session.views if v.view_id in set(h))), opts)
+            for h in (a, b)
+        ]
         if any(r is None for r in runs):
             rows.append({"label": label, "failed": True})
             continue
@@ -221,17 +249,29 @@ def half_split(name: str, path: Path, opts, n_random: int) -> dict:
         dx = tangent_difference(c1["T_x"], c2["T_x"])
         dk = c1["k"] - c2["k"]
         r, t = pose_error(c1["T_x"], c2["T_x"])
-        rows.append({"label": label, "n": (len(runs[0].used_ids), len(runs[1].used_ids)), "deg": r, "mm": t,
-                     "x_verdict": m2(dx, c1["x_verdict"] + c2["x_verdict"]),
-                     "x_model": m2(dx, c1["x_model"] + c2["x_model"]),
-                     "k_verdict": m2(dk, c1["k_verdict"] + c2["k_verdict"]),
-                     "k_model": m2(dk, c1["k_model"] + c2["k_model"]),
-                     "x_compare": compared(runs, session.target), "dk": dk, "sources": (c1["source"], c2["source"])})
-        print(f"  {name} {label:10s} halves {rows[-1]['n']}: {t:6.2f} mm {r:5.2f} deg; X d2 verdict "
-              f"{rows[-1]['x_verdict']:7.2f} model {rows[-1]['x_model']:8.2f}; fx fy cx cy d2 verdict "
-              f"{rows[-1]['k_verdict']:7.2f} model {rows[-1]['k_model']:8.2f}  (dk {np.round(dk, 1)}); compare's "
-              f"d2 {rows[-1]['x_compare']:7.2f}",
-              file=sys.stderr, flush=True)
+        rows.append(
+            {
+                "label": label,
+                "n": (len(runs[0].used_ids), len(runs[1].used_ids)),
+                "deg": r,
+                "mm": t,
+                "x_verdict": m2(dx, c1["x_verdict"] + c2["x_verdict"]),
+                "x_model": m2(dx, c1["x_model"] + c2["x_model"]),
+                "k_verdict": m2(dk, c1["k_verdict"] + c2["k_verdict"]),
+                "k_model": m2(dk, c1["k_model"] + c2["k_model"]),
+                "x_compare": compared(runs, session.target),
+                "dk": dk,
+                "sources": (c1["source"], c2["source"]),
+            }
+        )
+        print(
+            f"  {name} {label:10s} halves {rows[-1]['n']}: {t:6.2f} mm {r:5.2f} deg; X d2 verdict "
+            f"{rows[-1]['x_verdict']:7.2f} model {rows[-1]['x_model']:8.2f}; fx fy cx cy d2 verdict "
+            f"{rows[-1]['k_verdict']:7.2f} model {rows[-1]['k_model']:8.2f}  (dk {np.round(dk, 1)}); compare's "
+            f"d2 {rows[-1]['x_compare']:7.2f}",
+            file=sys.stderr,
+            flush=True,
+        )
     return {"name": name, "n_views": len(ids), "rows": rows, "full": full}
 
 
@@ -262,8 +302,12 @@ def board_covariances(run) -> dict:
     from handeye.refine.validation import generalised_max, shrunk_jackknife
 
     ref, val = run.refined, run.validation
-    out = {"T": ref.T_board, "model": np.asarray(ref.cov_board_6x6), "verdict": np.asarray(ref.cov_board_6x6),
-           "source": "model"}
+    out = {
+        "T": ref.T_board,
+        "model": np.asarray(ref.cov_board_6x6),
+        "verdict": np.asarray(ref.cov_board_6x6),
+        "source": "model",
+    }
     ok = [r for r in (val.refits if val is not None else ()) if r.status == "ok"]
     if val is not None and val.status == "ok" and val.x.finding and len(ok) >= 3:
         V, _, _ = shrunk_jackknife(np.stack([tangent_difference(ref.T_board, r.T_board) for r in ok]), out["model"])
@@ -291,11 +335,17 @@ def cross_camera(run_a, run_b) -> dict:
     _, S_turn, T_b, r, t = best
     Ad = se3_adjoint(inv_T(S_turn))  # T_b Exp(xi) S = T_b S Exp(Ad(S^-1) xi)
     dx = tangent_difference(a["T"], T_b)
-    out = {"mm": t, "deg": r, "turned": not np.allclose(S_turn, np.eye(4)), "dx": dx,
-           "d2_model": m2(dx, a["model"] + Ad @ b["model"] @ Ad.T),
-           "d2_verdict": m2(dx, a["verdict"] + Ad @ b["verdict"] @ Ad.T), "sources": (a["source"], b["source"]),
-           "sigma_mm": [1e3 * np.sqrt(np.diag(c["verdict"])[3:]) for c in (a, b)],
-           "t_mm": (1e3 * a["T"][:3, 3], 1e3 * T_b[:3, 3])}
+    out = {
+        "mm": t,
+        "deg": r,
+        "turned": not np.allclose(S_turn, np.eye(4)),
+        "dx": dx,
+        "d2_model": m2(dx, a["model"] + Ad @ b["model"] @ Ad.T),
+        "d2_verdict": m2(dx, a["verdict"] + Ad @ b["verdict"] @ Ad.T),
+        "sources": (a["source"], b["source"]),
+        "sigma_mm": [1e3 * np.sqrt(np.diag(c["verdict"])[3:]) for c in (a, b)],
+        "t_mm": (1e3 * a["T"][:3, 3], 1e3 * T_b[:3, 3]),
+    }
     return out
 
 
@@ -320,17 +370,27 @@ def robot_agreement(run_a, run_b) -> dict:
         return float(np.corrcoef(x, y)[0, 1]) if x.std() > 0 and y.std() > 0 else float("nan")
 
     rot, tr = slice(0, 3), slice(3, 6)
-    out = {"n": len(common), "rms_mm": (rms(ua, tr, 1e3), rms(ub, tr, 1e3)),
-           "rms_deg": (rms(ua, rot, np.degrees(1)), rms(ub, rot, np.degrees(1))),
-           "diff_mm": rms(ua - ub, tr, 1e3), "diff_deg": rms(ua - ub, rot, np.degrees(1)),
-           "corr_trans": corr(tr), "corr_rot": corr(rot)}
+    out = {
+        "n": len(common),
+        "rms_mm": (rms(ua, tr, 1e3), rms(ub, tr, 1e3)),
+        "rms_deg": (rms(ua, rot, np.degrees(1)), rms(ub, rot, np.degrees(1))),
+        "diff_mm": rms(ua - ub, tr, 1e3),
+        "diff_deg": rms(ua - ub, rot, np.degrees(1)),
+        "corr_trans": corr(tr),
+        "corr_rot": corr(rot),
+    }
     rm = [r.refined.robot_model for r in (run_a, run_b)]
     if all("dh_offset" in m for m in rm):
         d = [np.asarray(m["dh_offset"], float) for m in rm]
         s = [np.asarray(m["dh_offset_sigma"], float) for m in rm]
         z = (d[0] - d[1]) / np.sqrt(s[0] ** 2 + s[1] ** 2)
-        out["dh"] = {"offset": d, "sigma": s, "z": z, "columns": rm[0]["dh_columns"],
-                     "encoder_sigma_deg": tuple(m["encoder_sigma_deg"] for m in rm)}
+        out["dh"] = {
+            "offset": d,
+            "sigma": s,
+            "z": z,
+            "columns": rm[0]["dh_columns"],
+            "encoder_sigma_deg": tuple(m["encoder_sigma_deg"] for m in rm),
+        }
     return out
 
 
@@ -345,12 +405,18 @@ def print_cross_camera(label: str, run_a, run_b, src: Path) -> dict:
     cc = cross_camera(run_a, run_b)
     ra = robot_agreement(run_a, run_b)
     print(f"\nCross-camera check, {label}: T_end_board from cam1 and from cam2 (the same board on the same flange)")
-    print(f"  cam1 t = {np.round(cc['t_mm'][0], 2)} mm, cam2 t = {np.round(cc['t_mm'][1], 2)} mm"
-          f"{' (cam2 board frame turned by its symmetry)' if cc['turned'] else ''}")
-    print(f"  verdict 1-sigma t (mm): cam1 {np.round(cc['sigma_mm'][0], 2)}, cam2 {np.round(cc['sigma_mm'][1], 2)}"
-          f" (sources {cc['sources'][0]} / {cc['sources'][1]})")
-    print(f"  difference {cc['mm']:.2f} mm, {cc['deg']:.3f} deg; squared Mahalanobis under the sum of the covariances: "
-          f"verdict {cc['d2_verdict']:.2f}, model {cc['d2_model']:.2f} (chi2(6): 95 % below 12.6, 99 % below 16.8)")
+    print(
+        f"  cam1 t = {np.round(cc['t_mm'][0], 2)} mm, cam2 t = {np.round(cc['t_mm'][1], 2)} mm"
+        f"{' (cam2 board frame turned by its symmetry)' if cc['turned'] else ''}"
+    )
+    print(
+        f"  verdict 1-sigma t (mm): cam1 {np.round(cc['sigma_mm'][0], 2)}, cam2 {np.round(cc['sigma_mm'][1], 2)}"
+        f" (sources {cc['sources'][0]} / {cc['sources'][1]})"
+    )
+    print(
+        f"  difference {cc['mm']:.2f} mm, {cc['deg']:.3f} deg; squared Mahalanobis under the sum of the covariances: "
+        f"verdict {cc['d2_verdict']:.2f}, model {cc['d2_model']:.2f} (chi2(6): 95 % below 12.6, 99 % below 16.8)"
+    )
     ref = ur3_reference(src)
     T_a, T_b = run_a.T_x, run_b.T_x
     for cam, T in (("cam1", T_a), ("cam2", T_b)):
@@ -358,17 +424,23 @@ def print_cross_camera(label: str, run_a, run_b, src: Path) -> dict:
         print(f"  {cam} T_base_cam vs the author's base_T_camera: {t:.2f} mm, {r:.3f} deg")
     r, t = pose_error(inv_T(T_a) @ T_b, inv_T(ref["cam1"]) @ ref["cam2"])
     print(f"  T_cam1_cam2 (from the two results) vs the author's: {t:.2f} mm, {r:.3f} deg")
-    print(f"  robot pose corrections over {ra['n']} common views: RMS cam1 {ra['rms_mm'][0]:.2f} mm / "
-          f"{ra['rms_deg'][0]:.3f} deg, cam2 {ra['rms_mm'][1]:.2f} mm / {ra['rms_deg'][1]:.3f} deg; their difference "
-          f"{ra['diff_mm']:.2f} mm / {ra['diff_deg']:.3f} deg; correlation cam1-cam2 translation {ra['corr_trans']:.2f}, "
-          f"rotation {ra['corr_rot']:.2f}")
+    print(
+        f"  robot pose corrections over {ra['n']} common views: RMS cam1 {ra['rms_mm'][0]:.2f} mm / "
+        f"{ra['rms_deg'][0]:.3f} deg, cam2 {ra['rms_mm'][1]:.2f} mm / {ra['rms_deg'][1]:.3f} deg; their difference "
+        f"{ra['diff_mm']:.2f} mm / {ra['diff_deg']:.3f} deg; correlation cam1-cam2 translation {ra['corr_trans']:.2f}, "
+        f"rotation {ra['corr_rot']:.2f}"
+    )
     if "dh" in ra:
         dh = ra["dh"]
-        print(f"  encoder sigma estimated: cam1 {dh['encoder_sigma_deg'][0]:.4f} deg, cam2 {dh['encoder_sigma_deg'][1]:.4f} deg;"
-              f" DH offsets ({', '.join(dh['columns'])}) cam1 / cam2 (z of the difference):")
+        print(
+            f"  encoder sigma estimated: cam1 {dh['encoder_sigma_deg'][0]:.4f} deg, cam2 {dh['encoder_sigma_deg'][1]:.4f} deg;"
+            f" DH offsets ({', '.join(dh['columns'])}) cam1 / cam2 (z of the difference):"
+        )
         for j in range(dh["offset"][0].shape[0]):
-            cells = "  ".join(f"{dh['offset'][0][j, c]:+7.3f}/{dh['offset'][1][j, c]:+7.3f} ({dh['z'][j, c]:+5.1f})"
-                              for c in range(dh["offset"][0].shape[1]))
+            cells = "  ".join(
+                f"{dh['offset'][0][j, c]:+7.3f}/{dh['offset'][1][j, c]:+7.3f} ({dh['z'][j, c]:+5.1f})"
+                for c in range(dh["offset"][0].shape[1])
+            )
             print(f"    joint {j + 1}: {cells}")
     return {"label": label, **cc, "robot": ra}
 
@@ -402,11 +474,12 @@ def loo_board_poses(name: str, path: Path, opts) -> list:
 
         d = tangent_difference(T_obs, pred(ref.T_x))
         J_x = tangent_jacobian(lambda T: tangent_difference(T_obs, pred(T)), ref.T_x)
-        J_r = tangent_jacobian(lambda T: tangent_difference(T_obs, mount.predict_T_cam_board(ref.T_x, ref.T_board, T)),
-                               T_be)
+        J_r = tangent_jacobian(
+            lambda T: tangent_difference(T_obs, mount.predict_T_cam_board(ref.T_x, ref.T_board, T)), T_be
+        )
         robot = np.diag([np.radians(ref.robot_sigma_deg) ** 2] * 3 + [(ref.robot_sigma_mm / 1e3) ** 2] * 3)
         J_p = tangent_jacobian(lambda T: pixels_from_board_points(T, obj[ids], ref.intrinsics).ravel(), T_obs)
-        pnp = np.linalg.inv(J_p.T @ J_p) * ref.sigma_px ** 2  # observed pose: d = Log(T_obs^-1 pred) moves with it
+        pnp = np.linalg.inv(J_p.T @ J_p) * ref.sigma_px**2  # observed pose: d = Log(T_obs^-1 pred) moves with it
         cov_v = J_x @ c["x_verdict"] @ J_x.T + J_r @ robot @ J_r.T + pnp
         cov_m = J_x @ c["x_model"] @ J_x.T + J_r @ robot @ J_r.T + pnp
         r, t = pose_error(T_obs, pred(ref.T_x))
@@ -417,11 +490,14 @@ def loo_board_poses(name: str, path: Path, opts) -> list:
 def _row(label: str, rows: list, n_views: Optional[int]) -> str:
     """One line of the half-split table: median and share above the 95 % level, X and fx fy cx cy, verdict
     and model covariances."""
-    xv, xm, kv, km, xc = (np.array([x[k] for x in rows])
-                          for k in ("x_verdict", "x_model", "k_verdict", "k_model", "x_compare"))
+    xv, xm, kv, km, xc = (
+        np.array([x[k] for x in rows]) for k in ("x_verdict", "x_model", "k_verdict", "k_model", "x_compare")
+    )
     views = f"{n_views:5d}" if n_views is not None else " " * 5
-    return (f"{label:46s} {views} {len(rows):5d} |       {_stats(xv, CHI2_95[6])} |     {_stats(xm, CHI2_95[6])} |"
-            f"               {_stats(kv, CHI2_95[4])} |      {_stats(km, CHI2_95[4])} |     {_stats(xc, CHI2_95[6])}")
+    return (
+        f"{label:46s} {views} {len(rows):5d} |       {_stats(xv, CHI2_95[6])} |     {_stats(xm, CHI2_95[6])} |"
+        f"               {_stats(kv, CHI2_95[4])} |      {_stats(km, CHI2_95[4])} |     {_stats(xc, CHI2_95[6])}"
+    )
 
 
 def _stats(x: np.ndarray, limit: float) -> str:
@@ -442,9 +518,11 @@ def references(name: str, path: Path, opts) -> None:
         return
     r = run.refined
     rd, td = pose_error(run.T_x, T_ref)
-    print(f"\n{name}: refined {r.x_name} t = {np.round(run.T_x[:3, 3] * 1e3, 2)} mm; model 1-sigma "
-          f"{np.round(r.sigma_trans_mm, 2)} mm, {np.round(r.sigma_rot_deg, 3)} deg; robot noise {r.robot_sigma_mm:.2f} mm"
-          f" / {r.robot_sigma_deg:.3f} deg; vs {ref_name}: {td:.2f} mm, {rd:.3f} deg")
+    print(
+        f"\n{name}: refined {r.x_name} t = {np.round(run.T_x[:3, 3] * 1e3, 2)} mm; model 1-sigma "
+        f"{np.round(r.sigma_trans_mm, 2)} mm, {np.round(r.sigma_rot_deg, 3)} deg; robot noise {r.robot_sigma_mm:.2f} mm"
+        f" / {r.robot_sigma_deg:.3f} deg; vs {ref_name}: {td:.2f} mm, {rd:.3f} deg"
+    )
     cf = {m: pose_error(e.T_x, run.T_x) for m, e in run.closed_forms.items() if e.status == "ok"}
     print("  closed forms vs refined: " + ", ".join(f"{m} {t:.1f} mm/{a:.2f} deg" for m, (a, t) in cf.items()))
 
@@ -455,9 +533,13 @@ def main() -> None:
     ap.add_argument("--halvings", type=int, default=10, help="random halvings per set (besides odd/even)")
     ap.add_argument("--only", default=None, help="the sets whose name starts with this (e.g. ur3)")
     ap.add_argument("--references", action="store_true")
-    ap.add_argument("--model", choices=tuple(MODELS), default="both",
-                    help="robot error model of the UR3 sets: iid (derived flange poses), kinematic (joint angles + "
-                         "the nominal DH table) or both (default; the cross-camera check is printed for each)")
+    ap.add_argument(
+        "--model",
+        choices=tuple(MODELS),
+        default="both",
+        help="robot error model of the UR3 sets: iid (derived flange poses), kinematic (joint angles + "
+        "the nominal DH table) or both (default; the cross-camera check is printed for each)",
+    )
     args = ap.parse_args()
     DetectionCache().install()
     opts = CalibrateOptions.from_config(load_preset("calibration"))
@@ -475,29 +557,47 @@ def main() -> None:
                 if args.references:
                     references(name, path, opts)
                 if name in HALF_SETS:
-                    results.append(dict(half_split(label, path, opts, args.halvings), set=name,
-                                        kinematic=kinematic if name.startswith("ur3") else None))
+                    results.append(
+                        dict(
+                            half_split(label, path, opts, args.halvings),
+                            set=name,
+                            kinematic=kinematic if name.startswith("ur3") else None,
+                        )
+                    )
                 else:
                     loo = loo_board_poses(name, path, opts)
                     if loo:
                         v, m = np.array([x["verdict"] for x in loo]), np.array([x["model"] for x in loo])
-                        print(f"\n{name}: leave-one-out board pose predicted vs observed ({len(loo)} views), squared "
-                              f"Mahalanobis under the predicted covariance (chi2(6): median 5.35, 5 % above 12.6)")
+                        print(
+                            f"\n{name}: leave-one-out board pose predicted vs observed ({len(loo)} views), squared "
+                            f"Mahalanobis under the predicted covariance (chi2(6): median 5.35, 5 % above 12.6)"
+                        )
                         for x in loo:
-                            print(f"  view {x['view']:>3s}: {x['mm']:6.2f} mm {x['deg']:5.2f} deg  d2 verdict "
-                                  f"{x['verdict']:7.2f}  model {x['model']:7.2f}")
-                        print(f"  median / share above 12.6: verdict {_stats(v, CHI2_95[6])}   "
-                              f"model {_stats(m, CHI2_95[6])}")
+                            print(
+                                f"  view {x['view']:>3s}: {x['mm']:6.2f} mm {x['deg']:5.2f} deg  d2 verdict "
+                                f"{x['verdict']:7.2f}  model {x['model']:7.2f}"
+                            )
+                        print(
+                            f"  median / share above 12.6: verdict {_stats(v, CHI2_95[6])}   "
+                            f"model {_stats(m, CHI2_95[6])}"
+                        )
     for kinematic in (False, True):
         full = {r["set"]: r["full"] for r in results if r.get("kinematic") == kinematic and "full" in r}
         if "ur3-eyetohand-cam1" in full and "ur3-eyetohand-cam2" in full:
-            print_cross_camera("kinematic robot model (joints + DH table)" if kinematic else
-                               "iid robot model (derived flange poses)", full["ur3-eyetohand-cam1"],
-                               full["ur3-eyetohand-cam2"], args.data / "ur3-eyetohand-cam1")
-    print(f"\nHalf-split test ({args.halvings} random halvings + odd/even per set): squared Mahalanobis distance "
-          "between the halves' results under the sum of their covariances")
-    print(f"{'set':46s} views pairs | X verdict: median >12.6 | X model: median >12.6 | fx fy cx cy verdict: "
-          f"median >9.49 | model: median >9.49 | compare: median >12.6")
+            print_cross_camera(
+                "kinematic robot model (joints + DH table)" if kinematic else "iid robot model (derived flange poses)",
+                full["ur3-eyetohand-cam1"],
+                full["ur3-eyetohand-cam2"],
+                args.data / "ur3-eyetohand-cam1",
+            )
+    print(
+        f"\nHalf-split test ({args.halvings} random halvings + odd/even per set): squared Mahalanobis distance "
+        "between the halves' results under the sum of their covariances"
+    )
+    print(
+        f"{'set':46s} views pairs | X verdict: median >12.6 | X model: median >12.6 | fx fy cx cy verdict: "
+        f"median >9.49 | model: median >9.49 | compare: median >12.6"
+    )
     for r in results:
         if "error" in r:
             print(f"{r['name']:46s} {r['error']}")
@@ -505,8 +605,13 @@ def main() -> None:
         print(_row(r["name"], [x for x in r["rows"] if not x.get("failed")], r["n_views"]))
     for kinematic in (False, True):  # pooled: the UR3 sets with one robot model, with the other sets
         if any(r.get("kinematic") == kinematic for r in results):
-            rows = [x for r in results if "error" not in r and r["kinematic"] in (None, kinematic)
-                    for x in r["rows"] if not x.get("failed")]
+            rows = [
+                x
+                for r in results
+                if "error" not in r and r["kinematic"] in (None, kinematic)
+                for x in r["rows"]
+                if not x.get("failed")
+            ]
             print(_row(f"all (UR3 {'kinematic' if kinematic else 'iid'})", rows, None))
     if results:
         print("targets: X verdict median <= 8 and share above 12.6 <= 15 %; the same for fx fy cx cy")

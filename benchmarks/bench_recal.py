@@ -141,6 +141,7 @@ Usage: python benchmarks/bench_recal.py --trials 300 --validated --compare 100 -
 reported with --from-jsonl, and --first-seed continues one; quick look: --trials 5 --compare 5 --prior 2).
 Progress on stderr, figures on stdout.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -167,8 +168,9 @@ def session(*, mode, model, seed, n_views, rig=None, model_seed=None):
     from handeye.sim.corners import make_corner_session
 
     kw = dict(robot_error="iid", robot_noise=IID) if model == "iid" else dict(robot_error=model)
-    return make_corner_session(mode=mode, n_views=n_views, seed=seed, noise_px=NOISE_PX, rig=rig,
-                               robot_model_seed=model_seed, **kw)
+    return make_corner_session(
+        mode=mode, n_views=n_views, seed=seed, noise_px=NOISE_PX, rig=rig, robot_model_seed=model_seed, **kw
+    )
 
 
 def calibrate(s, options=None):
@@ -176,14 +178,23 @@ def calibrate(s, options=None):
 
     intr, closed = closed_forms(s)
     est = closed["tsai"]
-    return refine(mode=s.mode, object_points=s.target.object_points(), views=refine_views(s), intrinsics=intr,
-                  T_x0=est.T_x, T_board0=est.T_board, options=options or RefineOptions(), starts=closed)
+    return refine(
+        mode=s.mode,
+        object_points=s.target.object_points(),
+        views=refine_views(s),
+        intrinsics=intr,
+        T_x0=est.T_x,
+        T_board0=est.T_board,
+        options=options or RefineOptions(),
+        starts=closed,
+    )
 
 
 KINEMATIC_ARM = "rm65"  # the simulator's arm (handeye.sim.robot_error.DEFAULT_ARM)
+
+
 def install(mode, model, seed, validated=False, n_views=20):
     from handeye.recal.loaded import load_result, result_from_refinement
-
     from handeye.refine import RefineOptions
 
     s = session(mode=mode, model=model, seed=seed, n_views=n_views)
@@ -220,7 +231,7 @@ def views_at(poses, *, mode, model, rig, seed, model_seed, target, intrinsics):
 
         kin = make_kinematic_error(rng=random_streams(model_seed)["robot_model"])
         q = [reachable(kin, T) for T in T_true]
-        T_true = np.array([T for T, qk in zip(T_true, q) if qk is not None]).reshape(-1, 4, 4)
+        T_true = np.array([T for T, qk in zip(T_true, q, strict=False) if qk is not None]).reshape(-1, 4, 4)
         q_enc, T_rep = report_poses(kin, np.array([qk for qk in q if qk is not None]), rng=rng)
     else:
         T_rep = perturb_T_base_end(T_true, rng=rng, sigma_mm=IID[0], sigma_deg=IID[1])
@@ -232,8 +243,9 @@ def views_at(poses, *, mode, model, rig, seed, model_seed, target, intrinsics):
         uv = pixels_from_board_points(C[k], obj, intrinsics) + rng.normal(0.0, NOISE_PX, size=(len(obj), 2))
         ok = (z > 0) & np.all((uv >= 0) & (uv < [intrinsics.width, intrinsics.height]), axis=1)
         if ok.sum() >= 12:
-            views.append(RefineView(str(k + 1), np.flatnonzero(ok), uv[ok], T_rep[k],
-                                    None if q_enc is None else q_enc[k]))
+            views.append(
+                RefineView(str(k + 1), np.flatnonzero(ok), uv[ok], T_rep[k], None if q_enc is None else q_enc[k])
+            )
     return views
 
 
@@ -262,9 +274,12 @@ def scaled_install(inst, c: float):
     from dataclasses import replace
 
     j, dh = inst.cov_x_intrinsics, inst.dh_joint
-    return replace(inst, cov_x=c ** 2 * inst.cov_x,
-                   cov_x_intrinsics=None if j is None else (j[0], c ** 2 * j[1], c ** 2 * j[2]),
-                   dh_joint=None if dh is None else (dh[0], c ** 2 * dh[1], c ** 2 * dh[2], c ** 2 * dh[3]))
+    return replace(
+        inst,
+        cov_x=c**2 * inst.cov_x,
+        cov_x_intrinsics=None if j is None else (j[0], c**2 * j[1], c**2 * j[2]),
+        dh_joint=None if dh is None else (dh[0], c**2 * dh[1], c**2 * dh[2], c**2 * dh[3]),
+    )
 
 
 def theory(inst, r_model, v, bump, *, n_dirs: int = 400) -> dict:
@@ -306,15 +321,22 @@ def theory(inst, r_model, v, bump, *, n_dirs: int = 400) -> dict:
     from handeye.recal.loaded import _joints
 
     # the model's covariances throughout (X, the intrinsics, the DH offsets), as the refinement gave them
-    model = replace(inst, cov_x=r_model.cov_x_6x6, **_joints({"cov_x_intrinsics": r_model.cov_x_intrinsics},
-                                                           r_model.cov_x_6x6))
-    return dict(power=float(power_of(V1, bump[None])[0]), power_avg=avg(V1), power_model_avg=avg(V(1.0, model)),
-                ceiling_avg=avg(S_perfect_new), scale95=scale,
-                s0_mm=float(1e3 * np.sqrt(np.trace(S_perfect_new[3:, 3:]))),
-                s0_deg=float(np.degrees(np.sqrt(np.trace(S_perfect_new[:3, :3])))),
-                snew_mm=float(1e3 * np.sqrt(np.trace(V0[3:, 3:]))),
-                snew_deg=float(np.degrees(np.sqrt(np.trace(V0[:3, :3])))),
-                v_mm=float(1e3 * np.sqrt(np.trace(V1[3:, 3:]))), v_deg=float(np.degrees(np.sqrt(np.trace(V1[:3, :3])))))
+    model = replace(
+        inst, cov_x=r_model.cov_x_6x6, **_joints({"cov_x_intrinsics": r_model.cov_x_intrinsics}, r_model.cov_x_6x6)
+    )
+    return dict(
+        power=float(power_of(V1, bump[None])[0]),
+        power_avg=avg(V1),
+        power_model_avg=avg(V(1.0, model)),
+        ceiling_avg=avg(S_perfect_new),
+        scale95=scale,
+        s0_mm=float(1e3 * np.sqrt(np.trace(S_perfect_new[3:, 3:]))),
+        s0_deg=float(np.degrees(np.sqrt(np.trace(S_perfect_new[:3, :3])))),
+        snew_mm=float(1e3 * np.sqrt(np.trace(V0[3:, 3:]))),
+        snew_deg=float(np.degrees(np.sqrt(np.trace(V0[:3, :3])))),
+        v_mm=float(1e3 * np.sqrt(np.trace(V1[3:, 3:]))),
+        v_deg=float(np.degrees(np.sqrt(np.trace(V1[:3, :3])))),
+    )
 
 
 def verify_trial(args) -> dict:
@@ -335,23 +357,40 @@ def verify_trial(args) -> dict:
         for name, xi in (("still", np.zeros(6)), ("bumped", bump), ("bumped2", 2.0 * bump)):
             rig = (s.T_x_true @ se3_exp(xi), s.T_board_true)
             if planned is None:
-                views = refine_views(session(mode=mode, model=model, seed=seed + 100000, n_views=6, rig=rig,
-                                             model_seed=seed))
+                views = refine_views(
+                    session(mode=mode, model=model, seed=seed + 100000, n_views=6, rig=rig, model_seed=seed)
+                )
             else:  # the arm may not reach every planned pose: topped up with random poses
-                views = views_at(planned, mode=mode, model=model, rig=rig, seed=seed + 100000, model_seed=seed,
-                                 target=s.target, intrinsics=s.intrinsics)[:6]
+                views = views_at(
+                    planned,
+                    mode=mode,
+                    model=model,
+                    rig=rig,
+                    seed=seed + 100000,
+                    model_seed=seed,
+                    target=s.target,
+                    intrinsics=s.intrinsics,
+                )[:6]
                 if len(views) < 6:
-                    extra = refine_views(session(mode=mode, model=model, seed=seed + 100000, n_views=6 - len(views),
-                                                 rig=rig, model_seed=seed))
+                    extra = refine_views(
+                        session(
+                            mode=mode, model=model, seed=seed + 100000, n_views=6 - len(views), rig=rig, model_seed=seed
+                        )
+                    )
                     views += [replace(x, view_id=f"r{x.view_id}") for x in extra]
                     out["topped_up"] = len(extra)
             t0 = time.perf_counter()
             v = verify_views(inst, views=views, object_points=s.target.object_points())
             e = v.test.change_xi - xi
-            out[name] = dict(drifted=v.drifted, p=v.test.p_value, dof=v.test.dof, secs=time.perf_counter() - t0,
-                             within=float(e @ np.linalg.solve(v.test.change_cov, e)) <= CHI2_2SIGMA_6,
-                             sig_mm=float(np.linalg.norm(v.change["sigma_trans_mm"])),
-                             sig_deg=float(np.linalg.norm(v.change["sigma_rot_deg"])))
+            out[name] = dict(
+                drifted=v.drifted,
+                p=v.test.p_value,
+                dof=v.test.dof,
+                secs=time.perf_counter() - t0,
+                within=float(e @ np.linalg.solve(v.test.change_cov, e)) <= CHI2_2SIGMA_6,
+                sig_mm=float(np.linalg.norm(v.change["sigma_trans_mm"])),
+                sig_deg=float(np.linalg.norm(v.change["sigma_rot_deg"])),
+            )
             if name == "still":
                 out["theory"] = theory(inst, r, v, bump)
         return out
@@ -360,8 +399,13 @@ def verify_trial(args) -> dict:
     except Exception as e:  # noqa: BLE001 - a crash is counted with its traceback, not allowed to stop the run
         import traceback
 
-        return dict(mode=mode, model=model, seed=seed, skipped=f"crashed: {type(e).__name__}: {e}"[:100],
-                    traceback=traceback.format_exc())
+        return dict(
+            mode=mode,
+            model=model,
+            seed=seed,
+            skipped=f"crashed: {type(e).__name__}: {e}"[:100],
+            traceback=traceback.format_exc(),
+        )
 
 
 def compare_trial(args) -> dict:
@@ -384,27 +428,45 @@ def compare_trial(args) -> dict:
     b = result_of(session(mode=mode, model="iid", seed=seed + 200000, n_views=20, rig=(s.T_x_true, s.T_board_true)))
     u = np.random.default_rng(seed).normal(size=3)
     bump = np.r_[0, 0, 0, 2e-3 * u / np.linalg.norm(u)]
-    c = result_of(session(mode=mode, model="iid", seed=seed + 300000, n_views=20,
-                          rig=(s.T_x_true @ se3_exp(bump), s.T_board_true)))
+    c = result_of(
+        session(
+            mode=mode, model="iid", seed=seed + 300000, n_views=20, rig=(s.T_x_true @ se3_exp(bump), s.T_board_true)
+        )
+    )
     same, moved = compare_loaded(a, b), compare_loaded(a, c)
-    return dict(mode=mode, seed=seed, p=same.p_value, bumped=moved.drifted, test=same.test,
-                p_alone=same.p_value_x_alone, bumped_alone=bool(moved.p_value_x_alone < moved.alpha),
-                p_intr=same.intrinsics.get("p_value", np.nan), validated=validated)
+    return dict(
+        mode=mode,
+        seed=seed,
+        p=same.p_value,
+        bumped=moved.drifted,
+        test=same.test,
+        p_alone=same.p_value_x_alone,
+        bumped_alone=bool(moved.p_value_x_alone < moved.alpha),
+        p_intr=same.intrinsics.get("p_value", np.nan),
+        validated=validated,
+    )
 
 
 def refine_from_install(inst, views, object_points, options):
     """The refinement of ``views`` as ``calibrate --prior`` runs it: from the installed intrinsics and X, the
     board where the installed X puts it (the mean over the views)."""
-    from handeye.initial import solve_pnp
     from handeye.frames import mean_T
+    from handeye.initial import solve_pnp
     from handeye.recal.verify import board_from_views
     from handeye.refine import refine
 
     C = np.stack([solve_pnp(object_points[v.corner_ids], v.image_points, inst.intrinsics)[0] for v in views])
     E = np.stack([v.T_base_end for v in views])
     B0 = mean_T(board_from_views(inst.mode, inst.T_x, E, C))
-    return refine(mode=inst.mode, object_points=object_points, views=views, intrinsics=inst.intrinsics,
-                  T_x0=inst.T_x, T_board0=B0, options=options)
+    return refine(
+        mode=inst.mode,
+        object_points=object_points,
+        views=views,
+        intrinsics=inst.intrinsics,
+        T_x0=inst.T_x,
+        T_board0=B0,
+        options=options,
+    )
 
 
 def prior_trial(args) -> dict:
@@ -424,8 +486,16 @@ def prior_trial(args) -> dict:
         if planned is None:
             views = refine_views(session(mode=mode, model="iid", seed=seed + 400000, n_views=5, rig=rig))
         else:
-            views = views_at(planned, mode=mode, model="iid", rig=rig, seed=seed + 400000, model_seed=seed,
-                             target=s.target, intrinsics=s.intrinsics)
+            views = views_at(
+                planned,
+                mode=mode,
+                model="iid",
+                rig=rig,
+                seed=seed + 400000,
+                model_seed=seed,
+                target=s.target,
+                intrinsics=s.intrinsics,
+            )
         rp = refine_from_install(inst, views, obj, RefineOptions(prior=prior, fix=fixed))
         # as calibrate --prior: verify's test on the views decides; when they contradict the prior, the views
         # without the prior on X (the intrinsics prior kept)
@@ -442,17 +512,25 @@ def prior_trial(args) -> dict:
             with_board = refine_from_install(inst, views, obj, RefineOptions(prior=pb, fix=fixed))
         kept, kept_b = (alone, with_board) if contradicted else (rp, rp)
         fresh = calibrate(session(mode=mode, model="iid", seed=seed + 500000, n_views=20, rig=rig))
-        out[name] = dict(contradicted=contradicted, board_kept=board_kept, err_mm=pose_error(kept.T_x, rig[0])[1],
-                         board_mm=pose_error(kept_b.T_x, rig[0])[1], board_deg=pose_error(kept_b.T_x, rig[0])[0],
-                         err_deg=pose_error(kept.T_x, rig[0])[0], fresh_mm=pose_error(fresh.T_x, rig[0])[1],
-                         fresh_deg=pose_error(fresh.T_x, rig[0])[0], alone_mm=pose_error(alone.T_x, rig[0])[1],
-                         alone_deg=pose_error(alone.T_x, rig[0])[0], installed_mm=pose_error(inst.T_x, rig[0])[1])
+        out[name] = dict(
+            contradicted=contradicted,
+            board_kept=board_kept,
+            err_mm=pose_error(kept.T_x, rig[0])[1],
+            board_mm=pose_error(kept_b.T_x, rig[0])[1],
+            board_deg=pose_error(kept_b.T_x, rig[0])[0],
+            err_deg=pose_error(kept.T_x, rig[0])[0],
+            fresh_mm=pose_error(fresh.T_x, rig[0])[1],
+            fresh_deg=pose_error(fresh.T_x, rig[0])[0],
+            alone_mm=pose_error(alone.T_x, rig[0])[1],
+            alone_deg=pose_error(alone.T_x, rig[0])[0],
+            installed_mm=pose_error(inst.T_x, rig[0])[1],
+        )
     return out
 
 
 def rms(v) -> float:
     v = np.asarray(list(v), float)
-    return float(np.sqrt(np.mean(v ** 2))) if v.size else float("nan")
+    return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
 
 
 def run_pool(fn, tasks, jobs, jsonl=None):
@@ -483,10 +561,14 @@ def run_pool(fn, tasks, jobs, jsonl=None):
 
 def report_verify(rows) -> None:
     n = sorted({r.get("install_views", 20) for r in rows})
-    print(f"verify: 6 views against a {'/'.join(map(str, n))}-view install, camera bumped {BUMP_MM:g} mm / {BUMP_DEG:g} deg; alpha 5 %; "
-          f"installed covariance: {rows[0]['cov'] if rows and 'cov' in rows[0] else 'cov_x_6x6'}")
-    print(f"  {'model':<10}{'mode':<12}{'trials':>7}{'power':>8}{'false al.':>10}{'in 2 sig':>9}"
-          f"{'sigma mm':>10}{'sigma deg':>10}{'time s':>8}{'power 2x':>9}")
+    print(
+        f"verify: 6 views against a {'/'.join(map(str, n))}-view install, camera bumped {BUMP_MM:g} mm / {BUMP_DEG:g} deg; alpha 5 %; "
+        f"installed covariance: {rows[0]['cov'] if rows and 'cov' in rows[0] else 'cov_x_6x6'}"
+    )
+    print(
+        f"  {'model':<10}{'mode':<12}{'trials':>7}{'power':>8}{'false al.':>10}{'in 2 sig':>9}"
+        f"{'sigma mm':>10}{'sigma deg':>10}{'time s':>8}{'power 2x':>9}"
+    )
     for model in MODELS:
         for mode in MODES:
             rs = [r for r in rows if r["mode"] == mode and r["model"] == model]
@@ -494,24 +576,33 @@ def report_verify(rows) -> None:
             if not rs:
                 continue
             det = [r["bumped"] for r in ok if r["bumped"]["drifted"]]
-            print(f"  {model:<10}{mode:<12}{len(ok):>7}{100 * np.mean([r['bumped']['drifted'] for r in ok]):>7.1f}%"
-                  f"{100 * np.mean([r['still']['drifted'] for r in ok]):>9.1f}%"
-                  f"{100 * np.mean([d['within'] for d in det]) if det else float('nan'):>8.1f}%"
-                  f"{np.median([r['still']['sig_mm'] for r in ok]):>10.2f}"
-                  f"{np.median([r['still']['sig_deg'] for r in ok]):>10.3f}"
-                  f"{np.median([r['still']['secs'] for r in ok]):>8.2f}"
-                  f"{100 * np.mean([r['bumped2']['drifted'] for r in ok]):>8.1f}%"
-                  + (f"  ({len(rs) - len(ok)} skipped: {[r for r in rs if 'skipped' in r][0]['skipped'][:60]})"
-                     if len(ok) < len(rs) else ""))
+            print(
+                f"  {model:<10}{mode:<12}{len(ok):>7}{100 * np.mean([r['bumped']['drifted'] for r in ok]):>7.1f}%"
+                f"{100 * np.mean([r['still']['drifted'] for r in ok]):>9.1f}%"
+                f"{100 * np.mean([d['within'] for d in det]) if det else float('nan'):>8.1f}%"
+                f"{np.median([r['still']['sig_mm'] for r in ok]):>10.2f}"
+                f"{np.median([r['still']['sig_deg'] for r in ok]):>10.3f}"
+                f"{np.median([r['still']['secs'] for r in ok]):>8.2f}"
+                f"{100 * np.mean([r['bumped2']['drifted'] for r in ok]):>8.1f}%"
+                + (
+                    f"  ({len(rs) - len(ok)} skipped: {[r for r in rs if 'skipped' in r][0]['skipped'][:60]})"
+                    if len(ok) < len(rs)
+                    else ""
+                )
+            )
 
 
 def report_theory(rows) -> None:
     """The power the test should have (non-central chi-square) beside what the trials measured."""
-    print("verify theory (non-central chi-square, 6 dof, 5 %; sigmas: norms over the 3 axes; install: its X given "
-          "what the new views share, its intrinsics and a kinematic install's DH offsets; new views: with a perfect "
-          "install):")
-    print(f"  {'model':<10}{'mode':<12}{'change sigma':>17}{'install':>17}{'new views':>17}{'pred.':>7}"
-          f"{'measured':>9}{'model cov':>10}{'ceiling':>8}{'install x for 95%':>18}{'(10 %)':>7}{'ok as is':>9}")
+    print(
+        "verify theory (non-central chi-square, 6 dof, 5 %; sigmas: norms over the 3 axes; install: its X given "
+        "what the new views share, its intrinsics and a kinematic install's DH offsets; new views: with a perfect "
+        "install):"
+    )
+    print(
+        f"  {'model':<10}{'mode':<12}{'change sigma':>17}{'install':>17}{'new views':>17}{'pred.':>7}"
+        f"{'measured':>9}{'model cov':>10}{'ceiling':>8}{'install x for 95%':>18}{'(10 %)':>7}{'ok as is':>9}"
+    )
     for model in MODELS:
         for mode in MODES:
             ok = [r for r in rows if r["mode"] == mode and r["model"] == model and "theory" in r]
@@ -519,14 +610,16 @@ def report_theory(rows) -> None:
                 continue
             th = [r["theory"] for r in ok]
             med = lambda k: float(np.median([t[k] for t in th]))  # noqa: E731
-            print(f"  {model:<10}{mode:<12}{med('v_mm'):>7.2f} mm {med('v_deg'):.3f}°{med('s0_mm'):>7.2f} mm "
-                  f"{med('s0_deg'):.3f}°{med('snew_mm'):>7.2f} mm {med('snew_deg'):.3f}°"
-                  f"{100 * np.mean([t['power'] for t in th]):>6.1f}%"
-                  f"{100 * np.mean([r['bumped']['drifted'] for r in ok]):>8.1f}%"
-                  f"{100 * np.mean([t['power_model_avg'] for t in th]):>9.1f}%"
-                  f"{100 * np.mean([t['ceiling_avg'] for t in th]):>7.1f}%{med('scale95'):>18.2f}"
-                  f"{np.percentile([t['scale95'] for t in th], 10):>7.2f}"
-                  f"{100 * np.mean([t['scale95'] >= 0.999 for t in th]):>8.0f}%")
+            print(
+                f"  {model:<10}{mode:<12}{med('v_mm'):>7.2f} mm {med('v_deg'):.3f}°{med('s0_mm'):>7.2f} mm "
+                f"{med('s0_deg'):.3f}°{med('snew_mm'):>7.2f} mm {med('snew_deg'):.3f}°"
+                f"{100 * np.mean([t['power'] for t in th]):>6.1f}%"
+                f"{100 * np.mean([r['bumped']['drifted'] for r in ok]):>8.1f}%"
+                f"{100 * np.mean([t['power_model_avg'] for t in th]):>9.1f}%"
+                f"{100 * np.mean([t['ceiling_avg'] for t in th]):>7.1f}%{med('scale95'):>18.2f}"
+                f"{np.percentile([t['scale95'] for t in th], 10):>7.2f}"
+                f"{100 * np.mean([t['scale95'] >= 0.999 for t in th]):>8.0f}%"
+            )
 
 
 def report_compare(rows) -> None:
@@ -538,18 +631,22 @@ def report_compare(rows) -> None:
         ks = stats.kstest(p, "uniform")
         pi = np.array([r["p_intr"] for r in rs])
         ksi = stats.kstest(pi[np.isfinite(pi)], "uniform")
-        print(f"compare {mode}: {len(rs)} pairs of 20-view calibrations of one rig: KS of the p-values against "
-              f"uniform D = {ks.statistic:.3f}, p = {ks.pvalue:.3f} "
-              f"({'not rejected' if ks.pvalue > 0.01 else 'REJECTED'}"
-              f" at 1 %); drifted at 5 %: {100 * np.mean(p < 0.05):.1f} %; 2 mm bump flagged in "
-              f"{100 * np.mean([r['bumped'] for r in rs]):.1f} %; intrinsics KS p = {ksi.pvalue:.3f}; test: "
-              f"{', '.join(sorted({r.get('test', 'X alone') for r in rs}))}")
+        print(
+            f"compare {mode}: {len(rs)} pairs of 20-view calibrations of one rig: KS of the p-values against "
+            f"uniform D = {ks.statistic:.3f}, p = {ks.pvalue:.3f} "
+            f"({'not rejected' if ks.pvalue > 0.01 else 'REJECTED'}"
+            f" at 1 %); drifted at 5 %: {100 * np.mean(p < 0.05):.1f} %; 2 mm bump flagged in "
+            f"{100 * np.mean([r['bumped'] for r in rs]):.1f} %; intrinsics KS p = {ksi.pvalue:.3f}; test: "
+            f"{', '.join(sorted({r.get('test', 'X alone') for r in rs}))}"
+        )
         alone = [r for r in rs if "p_alone" in r]
         if alone and any(r.get("test", "X alone") != "X alone" for r in alone):
             pa = np.array([r["p_alone"] for r in alone])
-            print(f"  X alone on the same pairs: KS p = {stats.kstest(pa, 'uniform').pvalue:.3f}; drifted at 5 %: "
-                  f"{100 * np.mean(pa < 0.05):.1f} %; 2 mm bump flagged in "
-                  f"{100 * np.mean([r['bumped_alone'] for r in alone]):.1f} %")
+            print(
+                f"  X alone on the same pairs: KS p = {stats.kstest(pa, 'uniform').pvalue:.3f}; drifted at 5 %: "
+                f"{100 * np.mean(pa < 0.05):.1f} %; 2 mm bump flagged in "
+                f"{100 * np.mean([r['bumped_alone'] for r in alone]):.1f} %"
+            )
 
 
 def report_prior(rows) -> None:
@@ -559,20 +656,26 @@ def report_prior(rows) -> None:
             continue
         b, s = [r["bumped"] for r in rs], [r["still"] for r in rs]
         c = [x for x in b if x["contradicted"]]
-        print(f"--prior {mode}: {len(rs)} installs; 5 new views after a {BUMP_MM:g} mm / {BUMP_DEG:g} deg bump, "
-              f"contradiction reported in {100 * np.mean([x['contradicted'] for x in b]):.0f} %: RMS error "
-              f"{rms(x['err_mm'] for x in b):.3f} mm {rms(x['err_deg'] for x in b):.4f} deg; with --board-unmoved "
-              f"(the board found unmoved in {100 * np.mean([x.get('board_kept', False) for x in b]):.0f} %) "
-              f"{rms(x.get('board_mm', np.nan) for x in b):.3f} mm {rms(x.get('board_deg', np.nan) for x in b):.4f} "
-              f"deg; vs fresh 20 views {rms(x['fresh_mm'] for x in b):.3f} mm {rms(x['fresh_deg'] for x in b):.4f} "
-              f"deg (the install: {rms(x['installed_mm'] for x in b):.3f} mm)")
-        print(f"  the {len(c)} runs that found the contradiction: {rms(x['err_mm'] for x in c):.3f} mm "
-              f"{rms(x['err_deg'] for x in c):.4f} deg; with --board-unmoved {rms(x.get('board_mm', np.nan) for x in c):.3f}"
-              f" mm {rms(x.get('board_deg', np.nan) for x in c):.4f} deg; fresh {rms(x['fresh_mm'] for x in c):.3f} mm "
-              f"{rms(x['fresh_deg'] for x in c):.4f} deg")
-        print(f"  no bump: {rms(x['err_mm'] for x in s):.3f} mm {rms(x['err_deg'] for x in s):.4f} deg vs fresh "
-              f"{rms(x['fresh_mm'] for x in s):.3f} mm, contradiction reported in "
-              f"{100 * np.mean([x['contradicted'] for x in s]):.1f} % (nominal 5 %)")
+        print(
+            f"--prior {mode}: {len(rs)} installs; 5 new views after a {BUMP_MM:g} mm / {BUMP_DEG:g} deg bump, "
+            f"contradiction reported in {100 * np.mean([x['contradicted'] for x in b]):.0f} %: RMS error "
+            f"{rms(x['err_mm'] for x in b):.3f} mm {rms(x['err_deg'] for x in b):.4f} deg; with --board-unmoved "
+            f"(the board found unmoved in {100 * np.mean([x.get('board_kept', False) for x in b]):.0f} %) "
+            f"{rms(x.get('board_mm', np.nan) for x in b):.3f} mm {rms(x.get('board_deg', np.nan) for x in b):.4f} "
+            f"deg; vs fresh 20 views {rms(x['fresh_mm'] for x in b):.3f} mm {rms(x['fresh_deg'] for x in b):.4f} "
+            f"deg (the install: {rms(x['installed_mm'] for x in b):.3f} mm)"
+        )
+        print(
+            f"  the {len(c)} runs that found the contradiction: {rms(x['err_mm'] for x in c):.3f} mm "
+            f"{rms(x['err_deg'] for x in c):.4f} deg; with --board-unmoved {rms(x.get('board_mm', np.nan) for x in c):.3f}"
+            f" mm {rms(x.get('board_deg', np.nan) for x in c):.4f} deg; fresh {rms(x['fresh_mm'] for x in c):.3f} mm "
+            f"{rms(x['fresh_deg'] for x in c):.4f} deg"
+        )
+        print(
+            f"  no bump: {rms(x['err_mm'] for x in s):.3f} mm {rms(x['err_deg'] for x in s):.4f} deg vs fresh "
+            f"{rms(x['fresh_mm'] for x in s):.3f} mm, contradiction reported in "
+            f"{100 * np.mean([x['contradicted'] for x in s]):.1f} % (nominal 5 %)"
+        )
 
 
 def timing() -> None:
@@ -584,8 +687,9 @@ def timing() -> None:
 
     s, r, inst = install("eye_in_hand", "iid", 1)
     with tempfile.TemporaryDirectory() as tmp:
-        folder = write_vendor_session(Path(tmp) / "verify", n_views=6, seed=11, robot_noise=IID, image_noise=2.0,
-                                      rig=(s.T_x_true, s.T_board_true))
+        folder = write_vendor_session(
+            Path(tmp) / "verify", n_views=6, seed=11, robot_noise=IID, image_noise=2.0, rig=(s.T_x_true, s.T_board_true)
+        )
         raw = result_from_refinement(r, target=s.target)
         secs = []
         for _ in range(3):
@@ -593,9 +697,11 @@ def timing() -> None:
             sv = verify_session(folder, raw)
             secs.append(time.perf_counter() - t0)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    print(f"verify timing: 6 rendered views at 1280x720, detection included: median {np.median(secs):.2f} s wall, "
-          f"at load average {load:.1f} on {os.cpu_count()} cores (runs {', '.join(f'{x:.2f}' for x in secs)}; "
-          f"stages {', '.join(f'{k} {v:.2f}' for k, v in sv.seconds.items())})")
+    print(
+        f"verify timing: 6 rendered views at 1280x720, detection included: median {np.median(secs):.2f} s wall, "
+        f"at load average {load:.1f} on {os.cpu_count()} cores (runs {', '.join(f'{x:.2f}' for x in secs)}; "
+        f"stages {', '.join(f'{k} {v:.2f}' for k, v in sv.seconds.items())})"
+    )
 
 
 def main() -> None:
@@ -609,12 +715,19 @@ def main() -> None:
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--install-views", type=int, default=20, help="views of each simulated install (verify trials)")
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--validated", action="store_true",
-                    help="verify and --prior trials: installs with the validation stage's verdict covariance (as "
-                         "calibrate writes it)")
-    ap.add_argument("--poses", choices=("planned", "random"), default="planned",
-                    help="verify and --prior trials: the new views at the poses verify --plan proposes (default) or "
-                         "at random poses")
+    ap.add_argument(
+        "--validated",
+        action="store_true",
+        help="verify and --prior trials: installs with the validation stage's verdict covariance (as "
+        "calibrate writes it)",
+    )
+    ap.add_argument(
+        "--poses",
+        choices=("planned", "random"),
+        default="planned",
+        help="verify and --prior trials: the new views at the poses verify --plan proposes (default) or "
+        "at random poses",
+    )
     ap.add_argument("--jsonl", help="append every trial's outcome to this file as it comes")
     ap.add_argument("--from-jsonl", nargs="+", help="only report the trials in these files (verify, compare, prior)")
     a = ap.parse_args()
@@ -622,9 +735,11 @@ def main() -> None:
         import json
 
         rows = [json.loads(line) for f in a.from_jsonl for line in open(f, encoding="utf-8") if line.strip()]
-        for sel, report in (([r for r in rows if "model" in r], report_verify),
-                            ([r for r in rows if "theory" in r], report_theory),
-                            ([r for r in rows if "p" in r and "model" not in r], report_compare)):
+        for sel, report in (
+            ([r for r in rows if "model" in r], report_verify),
+            ([r for r in rows if "theory" in r], report_theory),
+            ([r for r in rows if "p" in r and "model" not in r], report_compare),
+        ):
             if sel:
                 report(sel)
         sel = [r for r in rows if isinstance(r.get("still"), dict) and "err_mm" in r["still"]]
@@ -633,8 +748,12 @@ def main() -> None:
         return
     seeds = range(a.first_seed, a.first_seed + a.trials)
     if a.trials:
-        tasks = [(mode, model, s, a.validated, a.poses, a.install_views) for model in a.models for mode in a.modes
-                 for s in seeds]
+        tasks = [
+            (mode, model, s, a.validated, a.poses, a.install_views)
+            for model in a.models
+            for mode in a.modes
+            for s in seeds
+        ]
         print(f"verify: {len(tasks)} trials", file=sys.stderr)
         rows = run_pool(verify_trial, tasks, a.jobs, a.jsonl)
         report_verify(rows)

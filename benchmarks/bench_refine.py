@@ -20,6 +20,7 @@ Usage: python benchmarks/bench_refine.py --seeds 50      (quick look: --seeds 5;
 Progress goes to stderr, the figures to stdout. Timings are wall and process CPU seconds (one
 thread); on a shared machine the CPU figure is the one to compare with the targets.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -31,9 +32,9 @@ from scipy.stats import chi2
 
 from handeye.factors.reprojection import chain_residual
 from handeye.frames import tangent_difference
+from handeye.initial import all_methods, calibrate_intrinsics, solve_pnp
 from handeye.mounting import mounting
 from handeye.refine import RefineOptions, RefineView, refine
-from handeye.initial import all_methods, calibrate_intrinsics, solve_pnp
 from handeye.sim.corners import make_corner_session
 
 MODES = ("eye_in_hand", "eye_to_hand")
@@ -58,8 +59,10 @@ def refine_views(s):
     """The session's views as the refinement takes them, with the encoder readings when the simulated arm
     recorded them (the kinematic robot error model), as a session with joint angles gives them."""
     q = getattr(s, "joints_encoder", None)
-    return [RefineView(vid, ids, pts, s.T_base_end_reported[k], None if q is None else q[k])
-            for k, (vid, ids, pts) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points))]
+    return [
+        RefineView(vid, ids, pts, s.T_base_end_reported[k], None if q is None else q[k])
+        for k, (vid, ids, pts) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points, strict=False))
+    ]
 
 
 def crb_x(s, *, sigma_px: float, robot_sigma_mm: float, robot_sigma_deg: float, exclude=()) -> np.ndarray:
@@ -78,10 +81,15 @@ def crb_x(s, *, sigma_px: float, robot_sigma_mm: float, robot_sigma_deg: float, 
     for i in range(n):
         if not len(s.corner_ids[i]):
             continue
-        _, J_x, J_r, J_b, J_k = chain_residual(T_x=s.T_x_true, T_base_end=s.T_base_end_true[i],
-                                               T_board=s.T_board_true, invert_robot=invert, intrinsics_vec=k,
-                                               object_points=obj_all[s.corner_ids[i]],
-                                               image_points=np.zeros((len(s.corner_ids[i]), 2)))
+        _, J_x, J_r, J_b, J_k = chain_residual(
+            T_x=s.T_x_true,
+            T_base_end=s.T_base_end_true[i],
+            T_board=s.T_board_true,
+            invert_robot=invert,
+            intrinsics_vec=k,
+            object_points=obj_all[s.corner_ids[i]],
+            image_points=np.zeros((len(s.corner_ids[i]), 2)),
+        )
         blocks = [J_x, J_b, J_k]
         if robot_var:
             blocks.append(J_r)
@@ -105,13 +113,22 @@ def x_error(T_est, T_true):
 def run_scenario(mode, seeds, *, robot_noise=(0.0, 0.0), outliers=0, label=""):
     rows = []
     for seed in seeds:
-        s = make_corner_session(mode=mode, n_views=20, seed=seed, noise_px=NOISE_PX, robot_noise=robot_noise,
-                                outlier_views=outliers)
+        s = make_corner_session(
+            mode=mode, n_views=20, seed=seed, noise_px=NOISE_PX, robot_noise=robot_noise, outlier_views=outliers
+        )
         intr, closed = closed_forms(s)
         est = closed["tsai"]
         t0, c0 = time.perf_counter(), time.process_time()
-        r = refine(mode=mode, object_points=s.target.object_points(), views=refine_views(s), intrinsics=intr,
-                   T_x0=est.T_x, T_board0=est.T_board, options=RefineOptions(), starts=closed)
+        r = refine(
+            mode=mode,
+            object_points=s.target.object_points(),
+            views=refine_views(s),
+            intrinsics=intr,
+            T_x0=est.T_x,
+            T_board0=est.T_board,
+            options=RefineOptions(),
+            starts=closed,
+        )
         secs, cpu = time.perf_counter() - t0, time.process_time() - c0
         rot, trans, xi = x_error(r.T_x, s.T_x_true)
         t_rot, t_trans, _ = x_error(est.T_x, s.T_x_true)
@@ -119,16 +136,33 @@ def run_scenario(mode, seeds, *, robot_noise=(0.0, 0.0), outliers=0, label=""):
         crb = crb_x(s, sigma_px=NOISE_PX, robot_sigma_mm=robot_noise[0], robot_sigma_deg=robot_noise[1])
         flagged = {o.view_id for o in r.outliers if o.kind in ("robot_pose", "reprojection", "too_few_corners")}
         maha2 = float(xi @ np.linalg.solve(r.cov_x_6x6, xi)) if r.status == "ok" else np.inf
-        rows.append(dict(seed=seed, ok=r.status == "ok", rot=rot, trans=trans, tsai_rot=t_rot, tsai_trans=t_trans,
-                         crb_rot=np.degrees(np.sqrt(np.trace(crb[:3, :3]))),
-                         crb_trans=1000 * np.sqrt(np.trace(crb[3:, 3:])),
-                         covered=maha2 <= CHI2_95_6, secs=secs, cpu=cpu, flagged=flagged,
-                         true_out=set(s.outlier_view_ids), sigma_px=r.sigma_px,
-                         robot_mm=r.robot_sigma_mm, robot_deg=r.robot_sigma_deg,
-                         pred_rot=np.sqrt(np.sum(r.sigma_rot_deg ** 2)),
-                         pred_trans=np.sqrt(np.trace(r.cov_x_6x6[3:, 3:])) * 1000))
-        print(f"  {label} {mode} seed {seed}: {rot:.4f} deg {trans:.4f} mm (tsai {t_rot:.3f} deg {t_trans:.3f} mm) "
-              f"{secs:.2f} s flagged {sorted(flagged)} true {sorted(s.outlier_view_ids)}", file=sys.stderr)
+        rows.append(
+            dict(
+                seed=seed,
+                ok=r.status == "ok",
+                rot=rot,
+                trans=trans,
+                tsai_rot=t_rot,
+                tsai_trans=t_trans,
+                crb_rot=np.degrees(np.sqrt(np.trace(crb[:3, :3]))),
+                crb_trans=1000 * np.sqrt(np.trace(crb[3:, 3:])),
+                covered=maha2 <= CHI2_95_6,
+                secs=secs,
+                cpu=cpu,
+                flagged=flagged,
+                true_out=set(s.outlier_view_ids),
+                sigma_px=r.sigma_px,
+                robot_mm=r.robot_sigma_mm,
+                robot_deg=r.robot_sigma_deg,
+                pred_rot=np.sqrt(np.sum(r.sigma_rot_deg**2)),
+                pred_trans=np.sqrt(np.trace(r.cov_x_6x6[3:, 3:])) * 1000,
+            )
+        )
+        print(
+            f"  {label} {mode} seed {seed}: {rot:.4f} deg {trans:.4f} mm (tsai {t_rot:.3f} deg {t_trans:.3f} mm) "
+            f"{secs:.2f} s flagged {sorted(flagged)} true {sorted(s.outlier_view_ids)}",
+            file=sys.stderr,
+        )
     return rows
 
 
@@ -141,19 +175,25 @@ def summarize(label, mode, rows):
     rot, trans = rms(rows, "rot"), rms(rows, "trans")
     mean = lambda key: float(np.mean([r[key] for r in rows]))  # noqa: E731
     print(f"{label} {mode}, {len(rows)} sessions ({sum(not r['ok'] for r in rows)} failed)")
-    print(f"  RMS error    refined {rot:.4f} deg {trans:.4f} mm | CRB {crb_rot:.4f} deg {crb_trans:.4f} mm | "
-          f"ratio {rot / crb_rot:.2f} {trans / crb_trans:.2f} | Tsai {rms(rows, 'tsai_rot'):.4f} deg "
-          f"{rms(rows, 'tsai_trans'):.4f} mm")
-    print(f"  uncertainty  reported RMS {rms(rows, 'pred_rot'):.4f} deg {rms(rows, 'pred_trans'):.4f} mm | truth "
-          f"inside the 95 % ellipsoid in {mean('covered') * 100:.0f} % | sigma_px {mean('sigma_px'):.3f} | "
-          f"robot sigma {mean('robot_mm'):.3f} mm {mean('robot_deg'):.4f} deg")
+    print(
+        f"  RMS error    refined {rot:.4f} deg {trans:.4f} mm | CRB {crb_rot:.4f} deg {crb_trans:.4f} mm | "
+        f"ratio {rot / crb_rot:.2f} {trans / crb_trans:.2f} | Tsai {rms(rows, 'tsai_rot'):.4f} deg "
+        f"{rms(rows, 'tsai_trans'):.4f} mm"
+    )
+    print(
+        f"  uncertainty  reported RMS {rms(rows, 'pred_rot'):.4f} deg {rms(rows, 'pred_trans'):.4f} mm | truth "
+        f"inside the 95 % ellipsoid in {mean('covered') * 100:.0f} % | sigma_px {mean('sigma_px'):.3f} | "
+        f"robot sigma {mean('robot_mm'):.3f} mm {mean('robot_deg'):.4f} deg"
+    )
     if rows[0]["true_out"]:
         both = np.mean([r["true_out"] <= r["flagged"] for r in rows]) * 100
         print(f"  outliers     both wrong robot poses flagged in {both:.0f} % of sessions")
     false = sum(len(r["flagged"] - r["true_out"]) for r in rows)
     print(f"  false flags  {false} views in {len(rows)} sessions")
-    print(f"  time         refine {np.median([r['secs'] for r in rows]):.2f} s wall median "
-          f"({max(r['secs'] for r in rows):.2f} max), {np.median([r['cpu'] for r in rows]):.2f} s cpu median")
+    print(
+        f"  time         refine {np.median([r['secs'] for r in rows]):.2f} s wall median "
+        f"({max(r['secs'] for r in rows):.2f} max), {np.median([r['cpu'] for r in rows]):.2f} s cpu median"
+    )
     return dict(rot_ratio=rot / crb_rot, trans_ratio=trans / crb_trans)
 
 
@@ -168,16 +208,31 @@ def time_solves(mode, n_views, repeats=3):
     times, cpus = [], []
     for _ in range(repeats):
         obj, reported = check_inputs(s.target.object_points(), refine_views(s))
-        pb = Problem(mode=mode, object_points=obj, views=refine_views(s), reported=reported, intrinsics=intr,
-                     T_x0=est.T_x, T_board0=est.T_board, options=RefineOptions())
+        pb = Problem(
+            mode=mode,
+            object_points=obj,
+            views=refine_views(s),
+            reported=reported,
+            intrinsics=intr,
+            T_x0=est.T_x,
+            T_board0=est.T_board,
+            options=RefineOptions(),
+        )
         pb.sigma_px = NOISE_PX
         t0, c0 = time.perf_counter(), time.process_time()
         pb.solve(robust=False)
         times.append(time.perf_counter() - t0)
         cpus.append(time.process_time() - c0)
     t0, c0 = time.perf_counter(), time.process_time()
-    r = refine(mode=mode, object_points=s.target.object_points(), views=refine_views(s), intrinsics=intr,
-               T_x0=est.T_x, T_board0=est.T_board, starts=closed)
+    r = refine(
+        mode=mode,
+        object_points=s.target.object_points(),
+        views=refine_views(s),
+        intrinsics=intr,
+        T_x0=est.T_x,
+        T_board0=est.T_board,
+        starts=closed,
+    )
     full, full_cpu = time.perf_counter() - t0, time.process_time() - c0
     return min(times), min(cpus), full, full_cpu, pb.iterations, r.status
 
@@ -186,14 +241,17 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=50, help="sessions per mode and scenario (default 50)")
     ap.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
-    ap.add_argument("--scenarios", nargs="+", default=["clean", "robot", "outliers"],
-                    choices=["clean", "robot", "outliers"])
+    ap.add_argument(
+        "--scenarios", nargs="+", default=["clean", "robot", "outliers"], choices=["clean", "robot", "outliers"]
+    )
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--no-timing", action="store_true")
     args = ap.parse_args(argv)
     seeds = range(args.first_seed, args.first_seed + args.seeds)
-    print(f"# bench_refine: {args.seeds} seeds per mode and scenario; 20 views, 11x8 board, 1280x720, "
-          f"{NOISE_PX} px; robot noise scenario {ROBOT_NOISE[0]} mm / {ROBOT_NOISE[1]} deg per axis")
+    print(
+        f"# bench_refine: {args.seeds} seeds per mode and scenario; 20 views, 11x8 board, 1280x720, "
+        f"{NOISE_PX} px; robot noise scenario {ROBOT_NOISE[0]} mm / {ROBOT_NOISE[1]} deg per axis"
+    )
     print(f"# command: python {' '.join(sys.argv)}")
     summary = {}
     for mode in args.modes:
@@ -211,9 +269,11 @@ def main(argv=None) -> int:
         for mode in args.modes:
             for n in (20, 200):
                 one, one_cpu, full, full_cpu, iters, status = time_solves(mode, n)
-                print(f"timing {mode:<12} {n:3d} views: one solve {one:.3f} s wall / {one_cpu:.3f} s cpu "
-                      f"({iters} LM iterations); full refine with outlier loop {full:.2f} s wall / {full_cpu:.2f} s cpu"
-                      f" ({status}; target for 200 views: < 3 s on 2 cores)")
+                print(
+                    f"timing {mode:<12} {n:3d} views: one solve {one:.3f} s wall / {one_cpu:.3f} s cpu "
+                    f"({iters} LM iterations); full refine with outlier loop {full:.2f} s wall / {full_cpu:.2f} s cpu"
+                    f" ({status}; target for 200 views: < 3 s on 2 cores)"
+                )
     return 0
 
 

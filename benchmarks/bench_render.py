@@ -7,6 +7,7 @@ figures depend on machine load; the CPU time (all threads) is printed too. The s
 variance of the Laplacian inside the detected board (handeye.detect.sharpness, the measure of
 configs/collect.yaml capture.min_sharpness) over the same views with 2 grey levels of image noise.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -37,24 +38,28 @@ def main() -> None:
     times, cpu = [], []
     for T in s.T_cam_board_true:
         t0, c0 = time.perf_counter(), time.process_time()
-        render.render_view(s.target, k, T, supersample=args.supersample, blur_sigma_px=0.5, noise_sigma=2.0,
-                           rng=rng)
+        render.render_view(s.target, k, T, supersample=args.supersample, blur_sigma_px=0.5, noise_sigma=2.0, rng=rng)
         times.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
-    print(f"{args.width}x{args.height} supersample {args.supersample}: undistortion grid (once per intrinsics) "
-          f"{t_grid:.2f} s; render {np.median(times):.3f} s/view median, {np.max(times):.3f} s max "
-          f"over {len(times)} views (CPU time, all threads: {np.median(cpu):.3f} s/view; load average "
-          f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)")
+    print(
+        f"{args.width}x{args.height} supersample {args.supersample}: undistortion grid (once per intrinsics) "
+        f"{t_grid:.2f} s; render {np.median(times):.3f} s/view median, {np.max(times):.3f} s max "
+        f"over {len(times)} views (CPU time, all threads: {np.median(cpu):.3f} s/view; load average "
+        f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)"
+    )
     print("blur sigma px | sharpness min / median over the views (variance of the Laplacian, grey levels^2)")
     for blur in (0.0, 1.0, 2.0, 4.0):
         values = []
         for T in s.T_cam_board_true:
-            img = render.render_view(s.target, k, T, supersample=args.supersample, blur_sigma_px=blur,
-                                     noise_sigma=2.0, rng=rng)
+            img = render.render_view(
+                s.target, k, T, supersample=args.supersample, blur_sigma_px=blur, noise_sigma=2.0, rng=rng
+            )
             found = detect_gray(img, s.target)
             values.append(np.nan if isinstance(found, str) else sharpness(img, found[1]))
-        print(f"{blur:13.1f} | {np.nanmin(values):8.1f} / {np.nanmedian(values):8.1f}  "
-              f"({int(np.sum(np.isfinite(values)))}/{len(values)} detected)")
+        print(
+            f"{blur:13.1f} | {np.nanmin(values):8.1f} / {np.nanmedian(values):8.1f}  "
+            f"({int(np.sum(np.isfinite(values)))}/{len(values)} detected)"
+        )
 
 
 if __name__ == "__main__":

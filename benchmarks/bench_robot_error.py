@@ -58,6 +58,7 @@ the default sessions above the prior is contradicted in 0 of 200.
 Usage: python benchmarks/bench_robot_error.py --seeds 100 [--models kinematic iid none] [--modes ...]
 [--arm rm65|ur5e] [--dh-error-scale F] [--jobs 2]. Progress on stderr, figures on stdout.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -83,15 +84,16 @@ def one_session(args: tuple) -> dict:
     from handeye.errors import HandeyeError
     from handeye.refine import RefineOptions, refine
     from handeye.sim.corners import make_corner_session
-
     from handeye.sim.robot_error import DH_ANGLE_ERROR_DEG, DH_LENGTH_ERROR_MM
 
     mode, model, seed, arm, robot_model, dh_scale = args
     t0 = time.perf_counter()
     kw = dict(robot_error=model, arm=arm) if model != "iid" else dict(robot_error="iid", robot_noise=IID_ROBOT_NOISE)
     if model == "kinematic" and dh_scale != 1.0:  # an arm further from its table than its preset states
-        kw.update(dh_length_error_mm=tuple(dh_scale * x for x in DH_LENGTH_ERROR_MM),
-                  dh_angle_error_deg=tuple(dh_scale * x for x in DH_ANGLE_ERROR_DEG))
+        kw.update(
+            dh_length_error_mm=tuple(dh_scale * x for x in DH_LENGTH_ERROR_MM),
+            dh_angle_error_deg=tuple(dh_scale * x for x in DH_ANGLE_ERROR_DEG),
+        )
     try:
         s = make_corner_session(mode=mode, n_views=20, seed=seed, noise_px=NOISE_PX, **kw)
     except HandeyeError as e:  # a rig the arm cannot show the board from: counted, not hidden
@@ -103,8 +105,16 @@ def one_session(args: tuple) -> dict:
     ro = RefineOptions()
     if s.joints_encoder is not None:  # the session records joint angles (refine_views passes them): its arm named
         ro = RefineOptions(arm=arm, robot_model=robot_model)
-    r = refine(mode=mode, object_points=s.target.object_points(), views=views, intrinsics=intr,
-               T_x0=est.T_x, T_board0=est.T_board, options=ro, starts=closed)
+    r = refine(
+        mode=mode,
+        object_points=s.target.object_points(),
+        views=views,
+        intrinsics=intr,
+        T_x0=est.T_x,
+        T_board0=est.T_board,
+        options=ro,
+        starts=closed,
+    )
     rot, trans, xi = x_error(r.T_x, s.T_x_true)
     cf = {m: x_error(e.T_x, s.T_x_true)[:2] for m, e in closed.items() if e.status != "failed"}
     ok = r.status == "ok"
@@ -112,6 +122,7 @@ def one_session(args: tuple) -> dict:
     maha2_v, source, t_val = np.inf, "model", 0.0
     if ok:  # the verdict covariance calibrate reports (handeye.refine.validation): refits without some views
         from handeye.refine.validation import validate
+
         t1 = time.perf_counter()
         val = validate(r, object_points=s.target.object_points(), views=views, halves=False)
         t_val = time.perf_counter() - t1
@@ -119,23 +130,38 @@ def one_session(args: tuple) -> dict:
         source = val.x.source if val.status == "ok" else "model (validation not run)"
         maha2_v = float(xi @ np.linalg.solve(cov_v, xi))
     from handeye.frames import pose_error
-    robot = np.array([pose_error(a, b) for a, b in zip(s.T_base_end_reported, s.T_base_end_true)])
-    return dict(mode=mode, model=model, seed=seed, ok=ok, rot=rot, trans=trans, cf=cf, maha2=maha2,
-                maha2_verdict=maha2_v, sigma_source=source, secs_validate=t_val,
-                pred_trans_axes_mm=[float(x) for x in r.sigma_trans_mm],
-                pred_rot=float(np.sqrt(np.sum(r.sigma_rot_deg ** 2))),
-                pred_trans=float(np.sqrt(np.trace(r.cov_x_6x6[3:, 3:])) * 1000),
-                robot_rot_deg=float(np.sqrt(np.mean(robot[:, 0] ** 2))),
-                robot_trans_mm=float(np.sqrt(np.mean(robot[:, 1] ** 2))),
-                est_robot_mm=r.robot_sigma_mm, est_robot_deg=r.robot_sigma_deg,
-                kind=r.robot_model.get("kind", "?"), enc_deg=r.robot_model.get("encoder_sigma_deg", np.nan),
-                dh_prior_scale=r.robot_model.get("dh_prior_scale", 1.0),
-                secs_sim=t_sim, secs=time.perf_counter() - t0)
+
+    robot = np.array([pose_error(a, b) for a, b in zip(s.T_base_end_reported, s.T_base_end_true, strict=False)])
+    return dict(
+        mode=mode,
+        model=model,
+        seed=seed,
+        ok=ok,
+        rot=rot,
+        trans=trans,
+        cf=cf,
+        maha2=maha2,
+        maha2_verdict=maha2_v,
+        sigma_source=source,
+        secs_validate=t_val,
+        pred_trans_axes_mm=[float(x) for x in r.sigma_trans_mm],
+        pred_rot=float(np.sqrt(np.sum(r.sigma_rot_deg**2))),
+        pred_trans=float(np.sqrt(np.trace(r.cov_x_6x6[3:, 3:])) * 1000),
+        robot_rot_deg=float(np.sqrt(np.mean(robot[:, 0] ** 2))),
+        robot_trans_mm=float(np.sqrt(np.mean(robot[:, 1] ** 2))),
+        est_robot_mm=r.robot_sigma_mm,
+        est_robot_deg=r.robot_sigma_deg,
+        kind=r.robot_model.get("kind", "?"),
+        enc_deg=r.robot_model.get("encoder_sigma_deg", np.nan),
+        dh_prior_scale=r.robot_model.get("dh_prior_scale", 1.0),
+        secs_sim=t_sim,
+        secs=time.perf_counter() - t0,
+    )
 
 
 def rms(values) -> float:
     v = np.asarray(list(values), float)
-    return float(np.sqrt(np.mean(v ** 2))) if len(v) else float("nan")
+    return float(np.sqrt(np.mean(v**2))) if len(v) else float("nan")
 
 
 def summarize(mode: str, model: str, rows: list) -> None:
@@ -147,38 +173,56 @@ def summarize(mode: str, model: str, rows: list) -> None:
     if not rows:
         return
     methods = sorted({m for r in rows for m in r["cf"]})
-    cf = {m: (rms(r["cf"][m][0] for r in rows if m in r["cf"]), rms(r["cf"][m][1] for r in rows if m in r["cf"]))
-          for m in methods}
+    cf = {
+        m: (rms(r["cf"][m][0] for r in rows if m in r["cf"]), rms(r["cf"][m][1] for r in rows if m in r["cf"]))
+        for m in methods
+    }
     best = min(cf, key=lambda m: cf[m][1])
     cover = np.mean([r["maha2"] <= CHI2_95_6 for r in rows]) * 100
     kinds = sorted({r["kind"] for r in rows})
-    print(f"{model:<9} {mode:<11} {len(rows):3d} sessions ({sum(not r['ok'] for r in rows)} failed), refinement's "
-          f"robot model {'/'.join(kinds)} | robot error "
-          f"RMS {rms(r['robot_trans_mm'] for r in rows):.3f} mm {rms(r['robot_rot_deg'] for r in rows):.4f} deg")
-    print(f"    refined   RMS {rms(r['rot'] for r in rows):.4f} deg {rms(r['trans'] for r in rows):.3f} mm | best "
-          f"closed form ({best}) {cf[best][0]:.4f} deg {cf[best][1]:.3f} mm | ratio refined/best "
-          f"{rms(r['trans'] for r in rows) / cf[best][1]:.2f} (trans) "
-          f"{rms(r['rot'] for r in rows) / cf[best][0]:.2f} (rot)")
-    print(f"    reported  RMS 1-sigma {rms(r['pred_rot'] for r in rows):.4f} deg {rms(r['pred_trans'] for r in rows):.3f}"
-          f" mm | truth inside the 95 % ellipsoid in {cover:.0f} % | median squared Mahalanobis "
-          f"{np.median([r['maha2'] for r in rows]):.1f} (chi2(6) median 5.3) | estimated robot sigma "
-          f"{np.mean([r['est_robot_mm'] for r in rows]):.3f} mm {np.mean([r['est_robot_deg'] for r in rows]):.4f} deg"
-          + (f" (encoder {np.nanmean([r['enc_deg'] for r in rows]):.4f} deg)" if "kinematic" in kinds else ""))
+    print(
+        f"{model:<9} {mode:<11} {len(rows):3d} sessions ({sum(not r['ok'] for r in rows)} failed), refinement's "
+        f"robot model {'/'.join(kinds)} | robot error "
+        f"RMS {rms(r['robot_trans_mm'] for r in rows):.3f} mm {rms(r['robot_rot_deg'] for r in rows):.4f} deg"
+    )
+    print(
+        f"    refined   RMS {rms(r['rot'] for r in rows):.4f} deg {rms(r['trans'] for r in rows):.3f} mm | best "
+        f"closed form ({best}) {cf[best][0]:.4f} deg {cf[best][1]:.3f} mm | ratio refined/best "
+        f"{rms(r['trans'] for r in rows) / cf[best][1]:.2f} (trans) "
+        f"{rms(r['rot'] for r in rows) / cf[best][0]:.2f} (rot)"
+    )
+    print(
+        f"    reported  RMS 1-sigma {rms(r['pred_rot'] for r in rows):.4f} deg {rms(r['pred_trans'] for r in rows):.3f}"
+        f" mm | truth inside the 95 % ellipsoid in {cover:.0f} % | median squared Mahalanobis "
+        f"{np.median([r['maha2'] for r in rows]):.1f} (chi2(6) median 5.3) | estimated robot sigma "
+        f"{np.mean([r['est_robot_mm'] for r in rows]):.3f} mm {np.mean([r['est_robot_deg'] for r in rows]):.4f} deg"
+        + (f" (encoder {np.nanmean([r['enc_deg'] for r in rows]):.4f} deg)" if "kinematic" in kinds else "")
+    )
     if all("maha2_verdict" in r for r in rows):
         mv = [r["maha2_verdict"] for r in rows]
         src = {k: sum(r["sigma_source"] == k for r in rows) for k in sorted({r["sigma_source"] for r in rows})}
-        print(f"    verdict   truth inside the 95 % ellipsoid of the verdict covariance (cov_x_6x6_verdict) in "
-              f"{np.mean([m <= CHI2_95_6 for m in mv]) * 100:.0f} % | median squared Mahalanobis {np.median(mv):.1f}"
-              f" | the verdict takes " + ", ".join(f"{k} {v}" for k, v in src.items())
-              + f" | validation {np.median([r['secs_validate'] for r in rows]):.2f} s (median)")
+        print(
+            f"    verdict   truth inside the 95 % ellipsoid of the verdict covariance (cov_x_6x6_verdict) in "
+            f"{np.mean([m <= CHI2_95_6 for m in mv]) * 100:.0f} % | median squared Mahalanobis {np.median(mv):.1f}"
+            f" | the verdict takes "
+            + ", ".join(f"{k} {v}" for k, v in src.items())
+            + f" | validation {np.median([r['secs_validate'] for r in rows]):.2f} s (median)"
+        )
     if "kinematic" in kinds:
         k = np.array([r.get("dh_prior_scale", 1.0) for r in rows])
-        print(f"    DH prior  widened (the views contradict the preset's) in {np.sum(k > 1)} of {len(k)} sessions"
-              + (f", scale median {np.median(k[k > 1]):.2f} (range {k[k > 1].min():.2f}-{k.max():.2f})"
-                 if np.any(k > 1) else ""))
+        print(
+            f"    DH prior  widened (the views contradict the preset's) in {np.sum(k > 1)} of {len(k)} sessions"
+            + (
+                f", scale median {np.median(k[k > 1]):.2f} (range {k[k > 1].min():.2f}-{k.max():.2f})"
+                if np.any(k > 1)
+                else ""
+            )
+        )
     print("    closed forms " + ", ".join(f"{m} {cf[m][0]:.3f} deg {cf[m][1]:.2f} mm" for m in methods))
-    print(f"    time      simulate {np.median([r['secs_sim'] for r in rows]):.1f} s, total "
-          f"{np.median([r['secs'] for r in rows]):.1f} s per session (median)")
+    print(
+        f"    time      simulate {np.median([r['secs_sim'] for r in rows]):.1f} s, total "
+        f"{np.median([r['secs'] for r in rows]):.1f} s per session (median)"
+    )
 
 
 def main(argv=None) -> int:
@@ -191,17 +235,31 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--jsonl", type=Path, help="append each session's row to this file as it finishes")
     ap.add_argument("--summarize", type=Path, nargs="+", help="print the table of rows saved with --jsonl, run nothing")
-    ap.add_argument("--dh-error-scale", type=float, default=1.0,
-                    help="kinematic sessions: the arm's DH errors drawn from this many times the simulator's range "
-                         "(an arm further from its table than its preset's prior states)")
-    ap.add_argument("--robot-model", default="auto", choices=("auto", "iid", "kinematic", "joint_space"),
-                    help="the refinement's robot error model for sessions with joint angles (auto: kinematic)")
+    ap.add_argument(
+        "--dh-error-scale",
+        type=float,
+        default=1.0,
+        help="kinematic sessions: the arm's DH errors drawn from this many times the simulator's range "
+        "(an arm further from its table than its preset's prior states)",
+    )
+    ap.add_argument(
+        "--robot-model",
+        default="auto",
+        choices=("auto", "iid", "kinematic", "joint_space"),
+        help="the refinement's robot error model for sessions with joint angles (auto: kinematic)",
+    )
     args = ap.parse_args(argv)
-    print(f"# bench_robot_error: {args.seeds} seeds per mode and model; 20 views, 11x8 board, 1280x720, {NOISE_PX} px;"
-          f" kinematic arm {args.arm} (DH errors x{args.dh_error_scale:g}); iid {IID_ROBOT_NOISE[0]} mm / {IID_ROBOT_NOISE[1]} deg per axis")
+    print(
+        f"# bench_robot_error: {args.seeds} seeds per mode and model; 20 views, 11x8 board, 1280x720, {NOISE_PX} px;"
+        f" kinematic arm {args.arm} (DH errors x{args.dh_error_scale:g}); iid {IID_ROBOT_NOISE[0]} mm / {IID_ROBOT_NOISE[1]} deg per axis"
+    )
     print(f"# command: python {' '.join(sys.argv)}")
-    tasks = [(mode, model, seed, args.arm, args.robot_model, args.dh_error_scale) for model in args.models for mode in args.modes
-             for seed in range(args.first_seed, args.first_seed + args.seeds)]
+    tasks = [
+        (mode, model, seed, args.arm, args.robot_model, args.dh_error_scale)
+        for model in args.models
+        for mode in args.modes
+        for seed in range(args.first_seed, args.first_seed + args.seeds)
+    ]
     rows = []
     if args.summarize:
         rows = [json.loads(line) for f in args.summarize for line in f.read_text().splitlines() if line.strip()]
@@ -216,8 +274,12 @@ def main(argv=None) -> int:
         if "skipped" in r:
             print(f"  {r['model']} {r['mode']} seed {r['seed']}: not simulated: {r['skipped']}", file=sys.stderr)
             continue
-        print(f"  {r['model']} {r['mode']} seed {r['seed']}: {r['rot']:.4f} deg {r['trans']:.3f} mm, "
-              f"maha2 {r['maha2']:.1f}, {r['secs']:.1f} s", file=sys.stderr, flush=True)
+        print(
+            f"  {r['model']} {r['mode']} seed {r['seed']}: {r['rot']:.4f} deg {r['trans']:.3f} mm, "
+            f"maha2 {r['maha2']:.1f}, {r['secs']:.1f} s",
+            file=sys.stderr,
+            flush=True,
+        )
     for model in args.models if not args.summarize else [m for m in MODELS if any(r["model"] == m for r in rows)]:
         for mode in args.modes:
             summarize(mode, model, rows)

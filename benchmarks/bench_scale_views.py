@@ -17,6 +17,7 @@ corners and the diagnostics run without the image measures (there are no images)
 solver and diagnostics alone in seconds. ``--profile`` prints the 25 most expensive functions
 (cumulative CPU time, cProfile) of the diagnostics of each session.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,8 +42,16 @@ def _rendered(root: Path, n_views: int, n_out: int, seed: int) -> Path:
     if (folder / "ground_truth.json").exists():
         return folder
     t0 = time.perf_counter()
-    write_vendor_session(folder, mode="eye_in_hand", n_views=n_views, seed=seed, image_noise=1.0,
-                         robot_noise=ROBOT_NOISE, outlier_views=n_out, overwrite=True)
+    write_vendor_session(
+        folder,
+        mode="eye_in_hand",
+        n_views=n_views,
+        seed=seed,
+        image_noise=1.0,
+        robot_noise=ROBOT_NOISE,
+        outlier_views=n_out,
+        overwrite=True,
+    )
     print(f"  (rendered {n_views} views in {time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     return folder
 
@@ -51,17 +60,27 @@ def _corner_session(root: Path, n_views: int, n_out: int, seed: int):
     from handeye.conventions import VENDOR_POSE_FORMAT, pose_values_from_T
     from handeye.sim.corners import make_corner_session
 
-    cs = make_corner_session(mode="eye_in_hand", n_views=n_views, seed=seed, robot_noise=ROBOT_NOISE,
-                             noise_px=0.3, outlier_views=n_out)
+    cs = make_corner_session(
+        mode="eye_in_hand", n_views=n_views, seed=seed, robot_noise=ROBOT_NOISE, noise_px=0.3, outlier_views=n_out
+    )
     folder = root / f"corners{n_views}_out{n_out}_seed{seed}"
     folder.mkdir(parents=True, exist_ok=True)
     for k in range(1, n_views + 1):
         (folder / f"{k}.jpg").write_bytes(b"")
-    (folder / "poses.txt").write_text("\n".join(",".join(f"{x:.9f}" for x in pose_values_from_T(t, VENDOR_POSE_FORMAT))
-                                                for t in cs.T_base_end_reported) + "\n")
-    (folder / "config.yaml").write_text(yaml.safe_dump(
-        {"checkerboard_args": {"XX": cs.target.cols, "YY": cs.target.rows, "L": cs.target.square_m},
-         "mode": cs.mode}))
+    (folder / "poses.txt").write_text(
+        "\n".join(
+            ",".join(f"{x:.9f}" for x in pose_values_from_T(t, VENDOR_POSE_FORMAT)) for t in cs.T_base_end_reported
+        )
+        + "\n"
+    )
+    (folder / "config.yaml").write_text(
+        yaml.safe_dump(
+            {
+                "checkerboard_args": {"XX": cs.target.cols, "YY": cs.target.rows, "L": cs.target.square_m},
+                "mode": cs.mode,
+            }
+        )
+    )
     return folder, cs
 
 
@@ -85,6 +104,7 @@ class _Timed:
                 if self.prof:
                     self.prof.disable()
                 self.cpu += time.process_time() - c0
+
         setattr(self.module, self.name, timed)
         return self
 
@@ -160,25 +180,30 @@ def main(argv=None) -> int:
     cases += [tuple(int(x) for x in c.split(":")) for c in a.outliers.split(",") if c.strip()]
     opts = CalibrateOptions.from_config(load_preset("calibration"))
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    print(f"{a.kind} sessions, eye-in-hand, robot noise {ROBOT_NOISE[0]} mm / {ROBOT_NOISE[1]} deg, seed {a.seed}; "
-          f"cores {os.cpu_count()}, load average at start {load:.1f}")
-    print("ratio = (total without the report) / calibrate, of the wall time and of this process's CPU time (all "
-          "threads; steadier on a busy machine); target < 2")
+    print(
+        f"{a.kind} sessions, eye-in-hand, robot noise {ROBOT_NOISE[0]} mm / {ROBOT_NOISE[1]} deg, seed {a.seed}; "
+        f"cores {os.cpu_count()}, load average at start {load:.1f}"
+    )
+    print(
+        "ratio = (total without the report) / calibrate, of the wall time and of this process's CPU time (all "
+        "threads; steadier on a busy machine); target < 2"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         root = a.keep or Path(tmp)
         for n_views, n_out in cases:
             if a.kind == "rendered":
                 folder = _rendered(root, n_views, n_out, a.seed)
-                seconds, cpu, codes, top = _run_rendered(folder, Path(tmp) / f"out{n_views}_{n_out}", opts,
-                                                         a.profile)
+                seconds, cpu, codes, top = _run_rendered(folder, Path(tmp) / f"out{n_views}_{n_out}", opts, a.profile)
             else:
                 folder, cs = _corner_session(root, n_views, n_out, a.seed)
                 seconds, cpu, codes, top = _run_corners(folder, cs, opts, a.profile)
-            print(f"{n_views:4d} views, {n_out} outliers: wall total {seconds['total']:7.2f} s, calibrate "
-                  f"{seconds['calibrate']:6.2f} s, diagnose {seconds.get('diagnose', 0.0):6.2f} s, ratio "
-                  f"{seconds['total'] / seconds['calibrate']:4.2f}; CPU total {cpu['total']:7.2f} s, calibrate "
-                  f"{cpu['calibrate']:6.2f} s, diagnose {cpu['diagnose']:6.2f} s, ratio "
-                  f"{cpu['total'] / max(cpu['calibrate'], 1e-9):4.2f}; fail/warn findings: {codes or 'none'}")
+            print(
+                f"{n_views:4d} views, {n_out} outliers: wall total {seconds['total']:7.2f} s, calibrate "
+                f"{seconds['calibrate']:6.2f} s, diagnose {seconds.get('diagnose', 0.0):6.2f} s, ratio "
+                f"{seconds['total'] / seconds['calibrate']:4.2f}; CPU total {cpu['total']:7.2f} s, calibrate "
+                f"{cpu['calibrate']:6.2f} s, diagnose {cpu['diagnose']:6.2f} s, ratio "
+                f"{cpu['total'] / max(cpu['calibrate'], 1e-9):4.2f}; fail/warn findings: {codes or 'none'}"
+            )
             print("    stages, wall [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in seconds.items()))
             if top:
                 print(top)

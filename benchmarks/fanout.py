@@ -6,6 +6,7 @@ A function of the script being run (``__main__``) is mapped by its module name (
 so the workers import the script as a module (its folder is put on their PYTHONPATH) instead of
 receiving a copy of it.
 """
+
 from __future__ import annotations
 
 import importlib

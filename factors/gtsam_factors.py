@@ -14,6 +14,7 @@ The pixel noise is an isotropic Gaussian of ``sigma_px`` per coordinate; an opti
 robust loss (Huber or Cauchy, threshold ``loss_k`` in sigmas) is applied inside the view factor,
 see :func:`.reprojection.corner_robust_scales`.
 """
+
 from __future__ import annotations
 
 from typing import Optional, Sequence
@@ -26,11 +27,22 @@ from handeye.mounting import mounting
 from .reprojection import chain_residual, corner_robust_scales
 
 
-def view_reprojection_factor(*, mode: str, key_x: int, key_board: int, key_robot: Optional[int],
-                             key_intrinsics: Optional[int], object_points: np.ndarray, image_points: np.ndarray,
-                             sigma_px: float, intrinsics_vec: np.ndarray, free_intrinsics: Sequence[int] = (),
-                             T_base_end: Optional[np.ndarray] = None, loss: str = "none",
-                             loss_k: float = 3.0) -> gtsam.CustomFactor:
+def view_reprojection_factor(
+    *,
+    mode: str,
+    key_x: int,
+    key_board: int,
+    key_robot: Optional[int],
+    key_intrinsics: Optional[int],
+    object_points: np.ndarray,
+    image_points: np.ndarray,
+    sigma_px: float,
+    intrinsics_vec: np.ndarray,
+    free_intrinsics: Sequence[int] = (),
+    T_base_end: Optional[np.ndarray] = None,
+    loss: str = "none",
+    loss_k: float = 3.0,
+) -> gtsam.CustomFactor:
     """A ``CustomFactor`` for all corners of one view.
 
     ``intrinsics_vec`` (9,) holds the values of the fixed intrinsics (and the start of the free
@@ -69,9 +81,16 @@ def view_reprojection_factor(*, mode: str, key_x: int, key_board: int, key_robot
         if key_intrinsics is not None:
             k_work[free] = v.atVector(key_intrinsics)
         want = H is not None
-        r, J_x, J_r, J_b, J_k = chain_residual(T_x=T_x, T_base_end=T_robot, T_board=T_board,
-                                               invert_robot=invert_robot, intrinsics_vec=k_work,
-                                               object_points=obj, image_points=img, jacobians=want)
+        r, J_x, J_r, J_b, J_k = chain_residual(
+            T_x=T_x,
+            T_base_end=T_robot,
+            T_board=T_board,
+            invert_robot=invert_robot,
+            intrinsics_vec=k_work,
+            object_points=obj,
+            image_points=img,
+            jacobians=want,
+        )
         w = None
         if loss != "none":
             cost_scale, irls_scale = corner_robust_scales(r, sigma_px=sigma_px, loss=loss, k=loss_k)
@@ -96,8 +115,14 @@ def view_reprojection_factor(*, mode: str, key_x: int, key_board: int, key_robot
     return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(n2, float(sigma_px)), keys, error_func)
 
 
-def robot_pose_prior(*, key_robot: int, T_base_end_reported: np.ndarray, sigma_rot_rad: float,
-                     sigma_trans_m: float, robust_k: Optional[float] = None) -> gtsam.NonlinearFactor:
+def robot_pose_prior(
+    *,
+    key_robot: int,
+    T_base_end_reported: np.ndarray,
+    sigma_rot_rad: float,
+    sigma_trans_m: float,
+    robust_k: Optional[float] = None,
+) -> gtsam.NonlinearFactor:
     """Prior tying the true robot pose variable to the reported one (GTSAM's PriorFactorPose3).
 
     The error is ``Log(inv(reported) · T_base_end)``: rotation (rad) then translation (m), both in
@@ -112,13 +137,15 @@ def robot_pose_prior(*, key_robot: int, T_base_end_reported: np.ndarray, sigma_r
 
 def intrinsics_prior(*, key_intrinsics: int, prior_values: np.ndarray, sigmas: np.ndarray) -> gtsam.NonlinearFactor:
     """Gaussian prior on the free-intrinsics vector (same order and length as the variable)."""
-    return gtsam.PriorFactorVector(key_intrinsics, np.asarray(prior_values, float),
-                                   gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, float)))
+    return gtsam.PriorFactorVector(
+        key_intrinsics, np.asarray(prior_values, float), gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, float))
+    )
 
 
 def gaussian_prior(*, key: int, mean: np.ndarray, cov: np.ndarray) -> gtsam.NonlinearFactor:
     """Gaussian prior with a full covariance on a Pose3 (``mean`` (4,4); ``cov`` (6,6) in its right
-    tangent, rotation first: error ``Log(inv(mean) · T)``) or on a Vector (``mean`` (k,), ``cov`` (k,k))."""
+    tangent, rotation first: error ``Log(inv(mean) · T)``) or on a Vector (``mean`` (k,), ``cov`` (k,k)).
+    """
     mean = np.asarray(mean, float)
     noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, float))
     if mean.shape == (4, 4):
@@ -126,11 +153,13 @@ def gaussian_prior(*, key: int, mean: np.ndarray, cov: np.ndarray) -> gtsam.Nonl
     return gtsam.PriorFactorVector(key, mean, noise)
 
 
-def joint_gaussian_prior(*, key_pose: int, key_vector: int, mean_pose: np.ndarray, mean_vector: np.ndarray,
-                         cov: np.ndarray) -> gtsam.NonlinearFactor:
+def joint_gaussian_prior(
+    *, key_pose: int, key_vector: int, mean_pose: np.ndarray, mean_vector: np.ndarray, cov: np.ndarray
+) -> gtsam.NonlinearFactor:
     """Gaussian prior on a Pose3 and a Vector together, with their cross-covariance (e.g. an earlier calibration's
     T_x and intrinsics, whose errors are correlated): error ``(Log(inv(mean_pose) · T), v - mean_vector)``
-    (6 + k,) ~ N(0, ``cov``), the pose's block in its right tangent, rotation first."""
+    (6 + k,) ~ N(0, ``cov``), the pose's block in its right tangent, rotation first.
+    """
     mean_inv = gtsam.Pose3(np.asarray(mean_pose, float)).inverse()
     m = np.asarray(mean_vector, float)
     k = m.size
@@ -147,13 +176,21 @@ def joint_gaussian_prior(*, key_pose: int, key_vector: int, mean_pose: np.ndarra
     return gtsam.CustomFactor(noise, [key_pose, key_vector], error_func)
 
 
-def kinematic_robot_prior(*, key_robot: int, key_dh: Optional[int], T_base_end_reported: np.ndarray,
-                          J_dh: np.ndarray, cov: np.ndarray, robust_k: Optional[float] = None) -> gtsam.NonlinearFactor:
+def kinematic_robot_prior(
+    *,
+    key_robot: int,
+    key_dh: Optional[int],
+    T_base_end_reported: np.ndarray,
+    J_dh: np.ndarray,
+    cov: np.ndarray,
+    robust_k: Optional[float] = None,
+) -> gtsam.NonlinearFactor:
     """Prior of the kinematic robot error model (:mod:`handeye.refine.robot_model`) tying the true robot
     pose to the reported one and the arm's DH offsets: error ``Log(inv(reported) · T_base_end) - J_dh · delta``
     (6,) (rotation then translation, end frame) ~ N(0, ``cov``), with ``delta`` the Vector at ``key_dh``
     (m,). ``key_dh`` None: no DH offsets (the joint-space model), a PriorFactorPose3 with covariance
-    ``cov``. ``robust_k`` wraps it in a Huber loss on the whitened 6-vector norm."""
+    ``cov``. ``robust_k`` wraps it in a Huber loss on the whitened 6-vector norm.
+    """
     noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, float))
     if robust_k is not None:
         noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)

@@ -10,6 +10,7 @@ frame of ``n`` (board or camera axes) does not matter.
 The residual math and its Jacobians are pure numpy (:func:`pose_residual`); :func:`pose_factor` is
 the thin ``CustomFactor`` wrapper the refinement's graph uses.
 """
+
 from __future__ import annotations
 
 from typing import Optional
@@ -31,21 +32,24 @@ def se3_ad(xi: np.ndarray) -> np.ndarray:
 def se3_right_jacobian_inverse(xi: np.ndarray) -> np.ndarray:
     """(6,6) ``d Log(Exp(xi) · Exp(d)) / d d`` at ``d = 0`` (the inverse right Jacobian of SE(3)) by its
     series ``I + ad/2 + ad^2/12 - ad^4/720 + ad^6/30240`` (Bernoulli numbers); the first left-out term is
-    ``ad^8/1209600``: below 1e-13 at |xi| = 0.1 (the residuals of a refinement), 1e-8 at |xi| = 0.5."""
+    ``ad^8/1209600``: below 1e-13 at |xi| = 0.1 (the residuals of a refinement), 1e-8 at |xi| = 0.5.
+    """
     A = se3_ad(np.asarray(xi, float))
     A2 = A @ A
     A4 = A2 @ A2
     return np.eye(6) + 0.5 * A + A2 / 12.0 - A4 / 720.0 + A4 @ A2 / 30240.0
 
 
-def pose_residual(*, T_x: np.ndarray, M: np.ndarray, T_board: np.ndarray, T_cam_board_measured: np.ndarray,
-                  jacobians: bool = True):
+def pose_residual(
+    *, T_x: np.ndarray, M: np.ndarray, T_board: np.ndarray, T_cam_board_measured: np.ndarray, jacobians: bool = True
+):
     """Residual (6,) of one measured pose and, with ``jacobians``, its Jacobians (6,6) in the right
     tangents of ``T_x`` and ``T_board``: (r, J_x, J_board) (Jacobians None without ``jacobians``).
 
     ``M`` is the view's robot motion (``inv(T_base_end)`` eye-in-hand, ``T_base_end`` eye-to-hand).
     ``T_x · Exp(xi)`` moves the prediction to ``Exp(-xi) · C = C · Exp(-Ad(inv(C)) xi)``;
-    ``T_board · Exp(eta)`` to ``C · Exp(eta)``."""
+    ``T_board · Exp(eta)`` to ``C · Exp(eta)``.
+    """
     C = inv_T(T_x) @ M @ T_board
     r = se3_log(inv_T(T_cam_board_measured) @ C)
     if not jacobians:
@@ -54,10 +58,19 @@ def pose_residual(*, T_x: np.ndarray, M: np.ndarray, T_board: np.ndarray, T_cam_
     return r, -Jr_inv @ se3_adjoint(inv_T(C)), Jr_inv
 
 
-def pose_factor(*, key_x: int, key_board: int, M: np.ndarray, T_cam_board_measured: np.ndarray,
-                sigma_rot_rad: float, sigma_trans_m: float, robust_k: Optional[float] = None) -> gtsam.CustomFactor:
+def pose_factor(
+    *,
+    key_x: int,
+    key_board: int,
+    M: np.ndarray,
+    T_cam_board_measured: np.ndarray,
+    sigma_rot_rad: float,
+    sigma_trans_m: float,
+    robust_k: Optional[float] = None,
+) -> gtsam.CustomFactor:
     """A ``CustomFactor`` on (``T_x``, ``T_board``) for one measured ``T_cam_board`` with the tracker's
-    isotropic noise; ``robust_k`` wraps it in a Huber loss at that many sigmas (on the whitened 6-vector)."""
+    isotropic noise; ``robust_k`` wraps it in a Huber loss at that many sigmas (on the whitened 6-vector).
+    """
     M = np.array(M, float)
     C_meas = np.array(T_cam_board_measured, float)
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma_rot_rad] * 3, [sigma_trans_m] * 3])
@@ -65,8 +78,13 @@ def pose_factor(*, key_x: int, key_board: int, M: np.ndarray, T_cam_board_measur
         noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
 
     def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H) -> np.ndarray:
-        r, J_x, J_b = pose_residual(T_x=v.atPose3(key_x).matrix(), M=M, T_board=v.atPose3(key_board).matrix(),
-                                    T_cam_board_measured=C_meas, jacobians=H is not None)
+        r, J_x, J_b = pose_residual(
+            T_x=v.atPose3(key_x).matrix(),
+            M=M,
+            T_board=v.atPose3(key_board).matrix(),
+            T_cam_board_measured=C_meas,
+            jacobians=H is not None,
+        )
         if H is not None:
             H[0] = np.asfortranarray(J_x)
             H[1] = np.asfortranarray(J_b)

@@ -26,6 +26,7 @@ Conventions
 
 Points behind the camera (z <= 0) give finite but meaningless residuals; the caller decides.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -54,9 +55,18 @@ _SIGN_ALL = {True: np.array([-1.0, -1.0, 1.0]), False: np.array([-1.0, 1.0, 1.0]
 _SIGN_ROBOT = {True: np.array([-1.0]), False: np.array([1.0])}
 
 
-def chain_residual(*, T_x: np.ndarray, T_base_end: np.ndarray, T_board: np.ndarray, invert_robot: bool,
-                   intrinsics_vec: np.ndarray, object_points: np.ndarray, image_points: np.ndarray,
-                   jacobians: bool = True, robot_only: bool = False):
+def chain_residual(
+    *,
+    T_x: np.ndarray,
+    T_base_end: np.ndarray,
+    T_board: np.ndarray,
+    invert_robot: bool,
+    intrinsics_vec: np.ndarray,
+    object_points: np.ndarray,
+    image_points: np.ndarray,
+    jacobians: bool = True,
+    robot_only: bool = False,
+):
     """Reprojection residual of one view through ``inv(T_x) · M · T_board``.
 
     ``M = inv(T_base_end)`` when ``invert_robot`` (eye-in-hand) else ``T_base_end`` (eye-to-hand).
@@ -97,9 +107,18 @@ def chain_residual(*, T_x: np.ndarray, T_base_end: np.ndarray, T_board: np.ndarr
     return residual, J[0].T, J[1].T, J[2].T, Jk_T.T
 
 
-def stacked_chain_residual(*, T_x: np.ndarray, T_base_end: np.ndarray, T_board: np.ndarray, invert_robot: bool,
-                           intrinsics_vec: np.ndarray, object_points: np.ndarray, image_points: np.ndarray,
-                           view_index: np.ndarray, robot_jacobian: bool = False):
+def stacked_chain_residual(
+    *,
+    T_x: np.ndarray,
+    T_base_end: np.ndarray,
+    T_board: np.ndarray,
+    invert_robot: bool,
+    intrinsics_vec: np.ndarray,
+    object_points: np.ndarray,
+    image_points: np.ndarray,
+    view_index: np.ndarray,
+    robot_jacobian: bool = False,
+):
     """:func:`chain_residual` of many views at once, for the numpy parts of the refinement (no GTSAM).
 
     The corners of all views are stacked: ``object_points`` (M,3), ``image_points`` (M,2) and
@@ -140,20 +159,36 @@ def stacked_chain_residual(*, T_x: np.ndarray, T_base_end: np.ndarray, T_board: 
     return residual, J
 
 
-def eye_in_hand_residual(*, T_end_cam, T_base_end, T_base_board, intrinsics_vec, object_points, image_points,
-                         jacobians: bool = True):
-    """pixel = project(K, inv(T_base_end · T_end_cam) · T_base_board · p); see :func:`chain_residual`."""
-    return chain_residual(T_x=T_end_cam, T_base_end=T_base_end, T_board=T_base_board, invert_robot=True,
-                          intrinsics_vec=intrinsics_vec, object_points=object_points,
-                          image_points=image_points, jacobians=jacobians)
+def eye_in_hand_residual(
+    *, T_end_cam, T_base_end, T_base_board, intrinsics_vec, object_points, image_points, jacobians: bool = True
+):
+    """Pixel = project(K, inv(T_base_end · T_end_cam) · T_base_board · p); see :func:`chain_residual`."""
+    return chain_residual(
+        T_x=T_end_cam,
+        T_base_end=T_base_end,
+        T_board=T_base_board,
+        invert_robot=True,
+        intrinsics_vec=intrinsics_vec,
+        object_points=object_points,
+        image_points=image_points,
+        jacobians=jacobians,
+    )
 
 
-def eye_to_hand_residual(*, T_base_cam, T_base_end, T_end_board, intrinsics_vec, object_points, image_points,
-                         jacobians: bool = True):
-    """pixel = project(K, inv(T_base_cam) · T_base_end · T_end_board · p); see :func:`chain_residual`."""
-    return chain_residual(T_x=T_base_cam, T_base_end=T_base_end, T_board=T_end_board, invert_robot=False,
-                          intrinsics_vec=intrinsics_vec, object_points=object_points,
-                          image_points=image_points, jacobians=jacobians)
+def eye_to_hand_residual(
+    *, T_base_cam, T_base_end, T_end_board, intrinsics_vec, object_points, image_points, jacobians: bool = True
+):
+    """Pixel = project(K, inv(T_base_cam) · T_base_end · T_end_board · p); see :func:`chain_residual`."""
+    return chain_residual(
+        T_x=T_base_cam,
+        T_base_end=T_base_end,
+        T_board=T_end_board,
+        invert_robot=False,
+        intrinsics_vec=intrinsics_vec,
+        object_points=object_points,
+        image_points=image_points,
+        jacobians=jacobians,
+    )
 
 
 # ------------------------------------------------------------------------------ robust losses

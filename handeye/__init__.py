@@ -3,7 +3,9 @@
 Frames and transforms follow one rule everywhere (see docs/conventions.md):
 ``T_a_b`` is the pose of frame ``b`` in frame ``a``, a 4x4 float64 with ``p_a = T_a_b @ p_b``.
 """
-from importlib.metadata import PackageNotFoundError, version as _version
+
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as _version
 
 try:
     __version__ = _version("handeye")

@@ -4,6 +4,7 @@ Eye-in-hand: ``p_base = T_base_end @ T_end_cam @ p_cam`` (needs the end pose at 
 Eye-to-hand: ``p_base = T_base_cam @ p_cam`` (the end pose is not needed).
 The difference lives in :meth:`handeye.mounting.MountingMode.T_base_cam`.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -18,8 +19,9 @@ def T_base_cam_from_result(mode: str, T_x: np.ndarray, T_base_end: np.ndarray | 
     return mounting(mode).T_base_cam(T_x, T_base_end)
 
 
-def points_cam_to_base(p_cam: np.ndarray, *, mode: str, T_x: np.ndarray,
-                       T_base_end: np.ndarray | None = None) -> np.ndarray:
+def points_cam_to_base(
+    p_cam: np.ndarray, *, mode: str, T_x: np.ndarray, T_base_end: np.ndarray | None = None
+) -> np.ndarray:
     """Points (N,3) or (3,) in the camera frame (metres) -> robot base frame (metres)."""
     p = np.asarray(p_cam, float)
     if p.shape[-1] != 3 or not np.all(np.isfinite(p)):
@@ -27,8 +29,9 @@ def points_cam_to_base(p_cam: np.ndarray, *, mode: str, T_x: np.ndarray,
     return transform_points(T_base_cam_from_result(mode, T_x, T_base_end), p)
 
 
-def pose_cam_to_base(T_cam_obj: np.ndarray, *, mode: str, T_x: np.ndarray,
-                     T_base_end: np.ndarray | None = None) -> np.ndarray:
+def pose_cam_to_base(
+    T_cam_obj: np.ndarray, *, mode: str, T_x: np.ndarray, T_base_end: np.ndarray | None = None
+) -> np.ndarray:
     """An object pose seen by the camera, ``T_cam_obj``, as ``T_base_obj``."""
     T = np.asarray(T_cam_obj, float)
     if T.shape != (4, 4) or not is_rotation(T[:3, :3], tol=1e-6):
@@ -40,14 +43,20 @@ def result_transform(result: dict) -> tuple[str, np.ndarray]:
     """(mode, T_x) from a loaded result.json, with checks."""
     mode = result.get("mode")
     if result.get("status", "ok") != "ok":
-        raise InputError(f"the result is a failed calibration ({str(result.get('failure_reason', ''))[:120]})",
-                         hint="calibrate again and apply a successful result", code="failed_result")
+        raise InputError(
+            f"the result is a failed calibration ({str(result.get('failure_reason', ''))[:120]})",
+            hint="calibrate again and apply a successful result",
+            code="failed_result",
+        )
     if mode not in MODES:
         raise InputError("result.json has no valid mounting mode", expected=" | ".join(MODES), received=repr(mode))
     key = mounting(mode).x_name
     if key not in result:
         raise InputError(f"result.json has no hand-eye transform {key}", expected=f"mode {mode} and {key}")
     if not is_rigid_transform(result[key]):
-        raise InputError(f"damaged: {key} is not a finite 4x4 rigid transform", code="result_damaged",
-                         hint="the file was edited or damaged: restore it or calibrate again")
+        raise InputError(
+            f"damaged: {key} is not a finite 4x4 rigid transform",
+            code="result_damaged",
+            hint="the file was edited or damaged: restore it or calibrate again",
+        )
     return mode, np.asarray(result[key], float)

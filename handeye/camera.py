@@ -6,6 +6,7 @@ is used only as a test oracle.
 
 Intrinsics vector order: ``(fx, fy, cx, cy, k1, k2, p1, p2, k3)`` (:data:`INTRINSIC_NAMES`).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -50,29 +51,44 @@ class Intrinsics:
     @staticmethod
     def from_vector(v, width: int, height: int) -> "Intrinsics":
         v = np.asarray(v, float)
-        return Intrinsics(float(v[0]), float(v[1]), float(v[2]), float(v[3]), tuple(float(x) for x in v[4:9]),
-                          int(width), int(height))
+        return Intrinsics(
+            float(v[0]), float(v[1]), float(v[2]), float(v[3]), tuple(float(x) for x in v[4:9]), int(width), int(height)
+        )
 
     @staticmethod
     def from_K(K, dist, width: int, height: int) -> "Intrinsics":
         d = np.zeros(5)
         dd = np.asarray(dist, float).reshape(-1)[:5]
         d[: dd.size] = dd
-        return Intrinsics(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
-                          tuple(float(x) for x in d), int(width), int(height))
+        return Intrinsics(
+            float(K[0, 0]),
+            float(K[1, 1]),
+            float(K[0, 2]),
+            float(K[1, 2]),
+            tuple(float(x) for x in d),
+            int(width),
+            int(height),
+        )
 
     def to_dict(self) -> dict:
-        return {"model": self.model, "fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,
-                "dist": dict(zip(DIST_NAMES, map(float, self.dist))),
-                "dist_order": "k1, k2, p1, p2, k3 (OpenCV)",
-                "image_size": [self.width, self.height]}
+        return {
+            "model": self.model,
+            "fx": self.fx,
+            "fy": self.fy,
+            "cx": self.cx,
+            "cy": self.cy,
+            "dist": dict(zip(DIST_NAMES, map(float, self.dist), strict=False)),
+            "dist_order": "k1, k2, p1, p2, k3 (OpenCV)",
+            "image_size": [self.width, self.height],
+        }
 
 
 # ------------------------------------------------------------------------------ projection
 def project_opencv5(intrinsics_vec, p_cam: np.ndarray, jacobians: bool):
     """Pixels (N,2) and, when asked, the Jacobians laid out transposed for speed:
     ``Jp_T`` (3, 2N) = (d uv / d p_cam)^T and ``Jk_T`` (9, 2N) = (d uv / d intrinsics)^T, with the
-    2N columns interleaved (u0, v0, u1, v1, ...)."""
+    2N columns interleaved (u0, v0, u1, v1, ...).
+    """
     fx, fy, cx, cy, k1, k2, p1, p2, k3 = (float(v) for v in intrinsics_vec)
     n = p_cam.shape[0]
     iz = 1.0 / p_cam[:, 2]
@@ -136,5 +152,6 @@ def pixels_from_cam_points(intrinsics_vec: np.ndarray, p_cam: np.ndarray, *, jac
 
 def pixels_from_board_points(T_cam_board: np.ndarray, p_board: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     """Pixels (N,2) of board points (N,3) seen from a camera at ``T_cam_board``."""
-    return project_opencv5(intrinsics.as_vector(), transform_points(T_cam_board, np.asarray(p_board, float).reshape(-1, 3)),
-                    False)[0]
+    return project_opencv5(
+        intrinsics.as_vector(), transform_points(T_cam_board, np.asarray(p_board, float).reshape(-1, 3)), False
+    )[0]

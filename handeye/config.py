@@ -1,4 +1,5 @@
 """Presets shipped in ``configs/`` (installed as ``handeye.configs``) and site overrides."""
+
 from __future__ import annotations
 
 import copy
@@ -56,18 +57,26 @@ def _type_name(v) -> str:
 
 def _check_type(key, base_value, value, *, source: str) -> None:
     """An override must have the preset value's type (numbers are interchangeable; a null in the preset
-    accepts anything, a null override is left to the setting's own check: it may mean "no limit")."""
+    accepts anything, a null override is left to the setting's own check: it may mean "no limit").
+    """
     if base_value is None or (value is None and not isinstance(base_value, dict)):
         return
-    ok = {bool: lambda x: isinstance(x, bool),
-          dict: lambda x: isinstance(x, dict),
-          list: lambda x: isinstance(x, list),
-          str: lambda x: isinstance(x, str)}.get(type(base_value))
+    ok = {
+        bool: lambda x: isinstance(x, bool),
+        dict: lambda x: isinstance(x, dict),
+        list: lambda x: isinstance(x, list),
+        str: lambda x: isinstance(x, str),
+    }.get(type(base_value))
     if ok is None and isinstance(base_value, (int, float)):
         ok = lambda x: isinstance(x, (int, float)) and not isinstance(x, bool)  # noqa: E731
     if ok is not None and (value is None or not ok(value)):
-        raise ConfigError(f"setting {key!r} has the wrong type", path=source, expected=_type_name(base_value),
-                          received=repr(value)[:60], hint=f"write {key} like the shipped preset does")
+        raise ConfigError(
+            f"setting {key!r} has the wrong type",
+            path=source,
+            expected=_type_name(base_value),
+            received=repr(value)[:60],
+            hint=f"write {key} like the shipped preset does",
+        )
 
 
 def load_with_override(name: str, override_path: str | Path | None) -> dict:
@@ -81,8 +90,9 @@ def load_with_override(name: str, override_path: str | Path | None) -> dict:
         data = yaml.safe_load(read_text(p, what="config file")) or {}
     except yaml.YAMLError as e:
         line = getattr(getattr(e, "problem_mark", None), "line", None)
-        raise InputError("not valid YAML", path=p, line=None if line is None else line + 1,
-                         hint="fix the syntax of this file") from None
+        raise InputError(
+            "not valid YAML", path=p, line=None if line is None else line + 1, hint="fix the syntax of this file"
+        ) from None
     if not isinstance(data, dict):
         raise ConfigError("expected a mapping at the top level", path=p)
     return merge(cfg, data, source=str(p))
@@ -101,7 +111,10 @@ def check_section(cls, section, *, name: str, source: str) -> dict:
     names = {f.name for f in fields(cls)}
     unknown, missing = set(section) - names, names - set(section)
     if unknown or missing:
-        raise ConfigError(f"section {name!r} does not match its settings", path=source,
-                          expected=", ".join(sorted(names)),
-                          received=f"unknown {sorted(unknown)}, missing {sorted(missing)}")
+        raise ConfigError(
+            f"section {name!r} does not match its settings",
+            path=source,
+            expected=", ".join(sorted(names)),
+            received=f"unknown {sorted(unknown)}, missing {sorted(missing)}",
+        )
     return section

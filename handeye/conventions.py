@@ -4,6 +4,7 @@ Everything inside handeye is a 4x4 ``T_a_b``. This module is the only place that
 Euler angles, quaternion orders, millimetres and the vendor's pose lines. The table in
 ``docs/conventions.md`` lists each external convention and its translation.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -15,10 +16,11 @@ from .frames import is_rotation, make_T
 
 
 def _Rotation():
-    """scipy's Rotation, imported on first use (Euler sequences of every order live only at this boundary)."""
+    """Scipy's Rotation, imported on first use (Euler sequences of every order live only at this boundary)."""
     from scipy.spatial.transform import Rotation
 
     return Rotation
+
 
 ROTATION_KINDS = ("euler", "quaternion", "rotvec", "matrix")
 _AXES = set("xyz")
@@ -45,8 +47,13 @@ class PoseFormat:
 
     def validated(self, *, source: str = "pose_format") -> "PoseFormat":
         def bad(field, expected, got):
-            raise ConfigError(f"invalid {field} in {source}", expected=expected, received=repr(got),
-                              hint="fix the pose_format section of the session file")
+            raise ConfigError(
+                f"invalid {field} in {source}",
+                expected=expected,
+                received=repr(got),
+                hint="fix the pose_format section of the session file",
+            )
+
         if self.rotation not in ROTATION_KINDS:
             bad("rotation", " | ".join(ROTATION_KINDS), self.rotation)
         order = str(self.euler_order).lower()
@@ -68,8 +75,7 @@ class PoseFormat:
 
     def describe(self) -> str:
         if self.rotation == "euler":
-            return (f"x,y,z [{self.translation_unit}] + Euler {self.euler_kind} {self.euler_order} "
-                    f"[{self.angle_unit}]")
+            return f"x,y,z [{self.translation_unit}] + Euler {self.euler_kind} {self.euler_order} [{self.angle_unit}]"
         if self.rotation == "quaternion":
             return f"x,y,z [{self.translation_unit}] + quaternion {self.quaternion_order}"
         if self.rotation == "rotvec":
@@ -78,8 +84,9 @@ class PoseFormat:
 
 
 #: The vendor's poses.txt: ``x,y,z,rx,ry,rz`` in metres and radians, R = Rz(rz)·Ry(ry)·Rx(rx).
-VENDOR_POSE_FORMAT = PoseFormat(rotation="euler", euler_order="xyz", euler_kind="extrinsic",
-                                angle_unit="rad", translation_unit="m")
+VENDOR_POSE_FORMAT = PoseFormat(
+    rotation="euler", euler_order="xyz", euler_kind="extrinsic", angle_unit="rad", translation_unit="m"
+)
 
 
 def _scipy_euler_seq(fmt: PoseFormat) -> str:
@@ -103,9 +110,14 @@ def T_from_pose_values(values, fmt: PoseFormat, *, rot_tol: float = 1e-4) -> np.
         T = v.reshape(4, 4).copy()
         if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
             transposed = np.allclose(T[:, 3], [0, 0, 0, 1], atol=1e-9)
-            raise ValueError(f"last row of the 4x4 matrix must be 0 0 0 1, got {T[3].tolist()}"
-                             + (" (the matrix looks transposed: write it row by row, translation in the last "
-                                "column)" if transposed else ""))
+            raise ValueError(
+                f"last row of the 4x4 matrix must be 0 0 0 1, got {T[3].tolist()}"
+                + (
+                    " (the matrix looks transposed: write it row by row, translation in the last column)"
+                    if transposed
+                    else ""
+                )
+            )
         if not is_rotation(T[:3, :3], tol=rot_tol):
             raise ValueError("the 3x3 block is not a rotation (R^T R != I or det != 1)")
         T[:3, 3] *= scale

@@ -13,6 +13,7 @@ table that ``handeye --help`` and the README show (a test keeps the README's tab
 Codes are the class's ``code`` unless a raise site names a more precise one with ``code=``; the ones
 raised by the calibration pipeline are listed in :data:`PIPELINE_CODES`.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -24,9 +25,17 @@ class HandeyeError(Exception):
     exit_code = 2
     code = "error"
 
-    def __init__(self, what: str, *, path: str | Path | None = None, line: int | None = None,
-                 expected: str | None = None, received: str | None = None, hint: str | None = None,
-                 code: str | None = None):
+    def __init__(
+        self,
+        what: str,
+        *,
+        path: str | Path | None = None,
+        line: int | None = None,
+        expected: str | None = None,
+        received: str | None = None,
+        hint: str | None = None,
+        code: str | None = None,
+    ):
         self.what = what
         self.path = None if path is None else str(path)
         self.line = line
@@ -53,15 +62,32 @@ class HandeyeError(Exception):
 
     def at(self, path: str | Path, line: int | None = None) -> "HandeyeError":
         """The same error located in ``path`` (a new exception of the same class and code)."""
-        return type(self)(self.what, path=path, line=line if line is not None else self.line, expected=self.expected,
-                          received=self.received, hint=self.hint, code=self.code)
+        return type(self)(
+            self.what,
+            path=path,
+            line=line if line is not None else self.line,
+            expected=self.expected,
+            received=self.received,
+            hint=self.hint,
+            code=self.code,
+        )
 
     def to_dict(self) -> dict:
         """The structured record (JSON-ready): code, what, file, line, expected, got, fix, exit_code,
-        plus ``type`` (the class name) and ``message`` (``str(self)``)."""
-        return {"code": self.code, "type": type(self).__name__, "what": self.what, "file": self.path,
-                "line": self.line, "expected": self.expected, "got": self.received, "fix": self.hint,
-                "exit_code": self.exit_code, "message": str(self)}
+        plus ``type`` (the class name) and ``message`` (``str(self)``).
+        """
+        return {
+            "code": self.code,
+            "type": type(self).__name__,
+            "what": self.what,
+            "file": self.path,
+            "line": self.line,
+            "expected": self.expected,
+            "got": self.received,
+            "fix": self.hint,
+            "exit_code": self.exit_code,
+            "message": str(self),
+        }
 
 
 class InputError(HandeyeError):
@@ -78,7 +104,8 @@ class ConfigError(InputError):
 
 class OutputError(InputError):
     """An output folder or file cannot be used: it is a file, lies under a file, is not writable, is
-    in use by another run, or the disk refused the write. Checked before the work starts where it can be."""
+    in use by another run, or the disk refused the write. Checked before the work starts where it can be.
+    """
 
     code = "output_unusable"
 
@@ -110,7 +137,8 @@ class SessionRefused(HandeyeError):
 
     Raised (or set as a run's error) by the stage that decides it, or by the workflow for a diagnostics
     finding that refuses the run (see :mod:`handeye.workflow`); ``code`` names the reason more precisely
-    when the raise site knows it (e.g. the finding's code)."""
+    when the raise site knows it (e.g. the finding's code).
+    """
 
     exit_code = 8
     code = "session_refused"
@@ -118,7 +146,8 @@ class SessionRefused(HandeyeError):
 
 class QAFailed(HandeyeError):
     """A matrix was computed, but the verdict is FAIL: a QA check or a diagnostics finding says it is
-    not fit for use. result.json and the reports are written; the CLI exits with this class's code."""
+    not fit for use. result.json and the reports are written; the CLI exits with this class's code.
+    """
 
     exit_code = 7
     code = "qa_failed"
@@ -168,8 +197,11 @@ DRIFTED_EXIT_CODE = 9
 EXIT_CODES = (
     (0, "PASS or WARN: the result is written (warnings and their fixes are printed)"),
     (1, "an unexpected internal error (a bug: please report it with the traceback of --debug)"),
-    (InputError.exit_code, "unusable input: a session, pose, config or QA file, a command-line option, or an "
-                           "output folder that cannot be written or is in use"),
+    (
+        InputError.exit_code,
+        "unusable input: a session, pose, config or QA file, a command-line option, or an "
+        "output folder that cannot be written or is in use",
+    ),
     (DetectionError.exit_code, "the target was not found in enough views (or not with the stated size)"),
     (DegenerateMotionError.exit_code, "the robot motion does not determine the hand-eye transform"),
     (CalibrationError.exit_code, "a solver failed"),

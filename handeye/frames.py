@@ -11,6 +11,7 @@ exact maps (not first-order approximations), :func:`se3_adjoint` moves a tangent
 frames (``T · Exp(xi) = Exp(Ad_T xi) · T``), :func:`tangent_jacobian` differentiates any function of
 a pose in this convention.
 """
+
 from __future__ import annotations
 
 from typing import Callable
@@ -78,8 +79,12 @@ def is_rigid_transform(T, *, tol: float = 1e-6) -> bool:
         T = np.asarray(T, float)
     except (TypeError, ValueError):
         return False
-    return (T.shape == (4, 4) and bool(np.all(np.isfinite(T))) and is_rotation(T[:3, :3], tol=tol)
-            and bool(np.allclose(T[3], [0, 0, 0, 1])))
+    return (
+        T.shape == (4, 4)
+        and bool(np.all(np.isfinite(T)))
+        and is_rotation(T[:3, :3], tol=tol)
+        and bool(np.allclose(T[3], [0, 0, 0, 1]))
+    )
 
 
 def project_to_rotation(R: np.ndarray) -> np.ndarray:
@@ -126,17 +131,22 @@ def quat_wxyz_from_R(R: np.ndarray) -> np.ndarray:
     """Unit quaternion(s) (w, x, y, z) with w >= 0 of rotation(s) (3,3) or (...,3,3)."""
     R = np.asarray(R, float)
     m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
-    cand = np.stack([1.0 + m00 + m11 + m22, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22,
-                     1.0 - m00 - m11 + m22], axis=-1)
+    cand = np.stack(
+        [1.0 + m00 + m11 + m22, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22], axis=-1
+    )
     k = np.argmax(cand, axis=-1)
     s = 2.0 * np.sqrt(np.maximum(np.take_along_axis(cand, k[..., None], -1)[..., 0], 1e-300))
     d21, d02, d10 = R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]
     s01, s02, s12 = R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1]
-    q = np.stack([
-        np.select([k == 0, k == 1, k == 2], [s / 4, d21 / s, d02 / s], d10 / s),
-        np.select([k == 0, k == 1, k == 2], [d21 / s, s / 4, s01 / s], s02 / s),
-        np.select([k == 0, k == 1, k == 2], [d02 / s, s01 / s, s / 4], s12 / s),
-        np.select([k == 0, k == 1, k == 2], [d10 / s, s02 / s, s12 / s], s / 4)], axis=-1)
+    q = np.stack(
+        [
+            np.select([k == 0, k == 1, k == 2], [s / 4, d21 / s, d02 / s], d10 / s),
+            np.select([k == 0, k == 1, k == 2], [d21 / s, s / 4, s01 / s], s02 / s),
+            np.select([k == 0, k == 1, k == 2], [d02 / s, s01 / s, s / 4], s12 / s),
+            np.select([k == 0, k == 1, k == 2], [d10 / s, s02 / s, s12 / s], s / 4),
+        ],
+        axis=-1,
+    )
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
     return np.where(q[..., :1] < 0, -q, q)
 
@@ -146,10 +156,14 @@ def R_from_quat_wxyz(q: np.ndarray) -> np.ndarray:
     q = np.asarray(q, float)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
 
 
 def R_from_rotvec(rotvec: np.ndarray) -> np.ndarray:

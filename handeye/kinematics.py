@@ -25,6 +25,7 @@ Shipped presets (``configs/robots/<name>.yaml``, table units mm and deg, each ci
 :func:`load_arm` reads them, a file of the same form, or the JSON form other tools write (``robot_name``,
 ``dh_convention``, ``units: {length, angle}``, ``joints: [...]``).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -42,11 +43,17 @@ PARAMETER_NAMES = ("a", "alpha", "d", "theta_offset")
 PRESETS = arm_presets()  # the tables in configs/robots
 
 # unit screws (omega, v) of the four elementary motions
-_SCREW = {"rz": np.array([0, 0, 1, 0, 0, 0.0]), "tz": np.array([0, 0, 0, 0, 0, 1.0]),
-          "tx": np.array([0, 0, 0, 1, 0, 0.0]), "rx": np.array([1, 0, 0, 0, 0, 0.0])}
+_SCREW = {
+    "rz": np.array([0, 0, 1, 0, 0, 0.0]),
+    "tz": np.array([0, 0, 0, 0, 0, 1.0]),
+    "tx": np.array([0, 0, 0, 1, 0, 0.0]),
+    "rx": np.array([1, 0, 0, 0, 0, 0.0]),
+}
 # the elementary motions of one link in product order, as (kind, column in the row (a, alpha, d, theta_offset))
-_ORDER = {"standard": (("rz", 3), ("tz", 2), ("tx", 0), ("rx", 1)),
-          "modified": (("rx", 1), ("tx", 0), ("rz", 3), ("tz", 2))}
+_ORDER = {
+    "standard": (("rz", 3), ("tz", 2), ("tx", 0), ("rx", 1)),
+    "modified": (("rx", 1), ("tx", 0), ("rz", 3), ("tz", 2)),
+}
 
 
 def _elementary(kind: str, value: float) -> np.ndarray:
@@ -81,19 +88,28 @@ class DHChain:
 
     def __post_init__(self):
         if self.convention not in CONVENTIONS:
-            raise ConfigError(f"unknown DH convention of {self.name!r}", expected=" | ".join(CONVENTIONS),
-                              received=repr(self.convention))
+            raise ConfigError(
+                f"unknown DH convention of {self.name!r}",
+                expected=" | ".join(CONVENTIONS),
+                received=repr(self.convention),
+            )
         dh = np.array(self.dh, float)
         if dh.ndim != 2 or dh.shape[1] != 4 or not np.all(np.isfinite(dh)) or len(dh) < 1:
-            raise ConfigError(f"invalid DH table of {self.name!r}", expected="n rows (a, alpha, d, theta_offset)",
-                              received=f"array of shape {dh.shape}")
+            raise ConfigError(
+                f"invalid DH table of {self.name!r}",
+                expected="n rows (a, alpha, d, theta_offset)",
+                received=f"array of shape {dh.shape}",
+            )
         dh.setflags(write=False)
         object.__setattr__(self, "dh", dh)
         if self.joint_limits_rad is not None:
             lim = np.array(self.joint_limits_rad, float)
             if lim.shape != (len(dh), 2) or np.any(lim[:, 0] >= lim[:, 1]):
-                raise ConfigError(f"invalid joint limits of {self.name!r}", expected=f"({len(dh)}, 2) low < high",
-                                  received=repr(lim.tolist()))
+                raise ConfigError(
+                    f"invalid joint limits of {self.name!r}",
+                    expected=f"({len(dh)}, 2) low < high",
+                    received=repr(lim.tolist()),
+                )
             lim.setflags(write=False)
             object.__setattr__(self, "joint_limits_rad", lim)
 
@@ -175,7 +191,8 @@ class DHChain:
 
     def _screw_columns(self, joints: np.ndarray, *, only_kind: Optional[str] = None) -> np.ndarray:
         """(6, 4n) body-frame columns of every elementary motion, in product order (zeros for the
-        motions of another kind than ``only_kind`` when it is given)."""
+        motions of another kind than ``only_kind`` when it is given).
+        """
         factors = self._factors(joints)
         cols = np.zeros((6, len(factors)))
         suffix = np.eye(4)  # product of the factors after k
@@ -191,7 +208,8 @@ class DHChain:
 
         Joint i turns about the z axis of the frame before its link (standard) or after it (modified; the
         Tz(d) that follows moves along that axis): the unit twist ``(z, p x z)`` in the base frame,
-        carried to the end frame by ``Ad(inv(T_base_end))``."""
+        carried to the end frame by ``Ad(inv(T_base_end))``.
+        """
         return self._jacobian_joints_frames(self._frames(joints))
 
     def _jacobian_joints_frames(self, frames: np.ndarray) -> np.ndarray:
@@ -224,6 +242,7 @@ def T_base_end(chain: DHChain, joints: np.ndarray) -> np.ndarray:
 # Inverse kinematics (numeric; for the simulator and for checks, not for motion planning)
 # ---------------------------------------------------------------------------------------------
 
+
 def _wrap(q: np.ndarray) -> np.ndarray:
     return (np.asarray(q, float) + np.pi) % (2 * np.pi) - np.pi
 
@@ -231,7 +250,8 @@ def _wrap(q: np.ndarray) -> np.ndarray:
 def _pose_error(T: np.ndarray, T_target: np.ndarray) -> np.ndarray:
     """``(rotation vector of R^T R_target, R^T (t_target - t))`` (..., 6) of poses T (..., 4, 4): zero exactly
     when the poses agree, the right-tangent difference to first order (cheaper than
-    :func:`handeye.frames.tangent_difference`)."""
+    :func:`handeye.frames.tangent_difference`).
+    """
     RT = np.swapaxes(T[..., :3, :3], -1, -2)
     R = RT @ T_target[:3, :3]
     w = 0.5 * np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
@@ -247,8 +267,14 @@ def _pose_error(T: np.ndarray, T_target: np.ndarray) -> np.ndarray:
     return np.concatenate([rot, v], axis=-1)
 
 
-def solve_ik(chain: DHChain, T_base_end_target: np.ndarray, *, seeds: Sequence[np.ndarray],
-             damping: float = 1e-3, max_iterations: int = 100) -> Optional[np.ndarray]:
+def solve_ik(
+    chain: DHChain,
+    T_base_end_target: np.ndarray,
+    *,
+    seeds: Sequence[np.ndarray],
+    damping: float = 1e-3,
+    max_iterations: int = 100,
+) -> Optional[np.ndarray]:
     """Joint angles (n,) whose flange pose is ``T_base_end_target``, within the joint limits, or None.
 
     Damped least squares (Levenberg-Marquardt on the right tangent of the pose) from every seed at
@@ -295,7 +321,8 @@ def solve_ik(chain: DHChain, T_base_end_target: np.ndarray, *, seeds: Sequence[n
 
 def default_ik_seeds(chain: DHChain, T_base_end_target: np.ndarray) -> list:
     """A few deterministic starting configurations: joint 1 turned towards the target, shoulder,
-    elbow and wrist in several bends."""
+    elbow and wrist in several bends.
+    """
     p = np.asarray(T_base_end_target, float)[:3, 3]
     base = float(np.arctan2(p[1], p[0]))
     seeds = []
@@ -320,17 +347,32 @@ def default_ik_seeds(chain: DHChain, T_base_end_target: np.ndarray) -> list:
 _LENGTH = {"m": 1.0, "mm": 1e-3}
 _ANGLE = {"rad": 1.0, "deg": np.pi / 180.0}
 # spellings of the units other tools write in their tables (``units: {length: metres, angle: degrees}``)
-_UNIT_NAMES = {"meter": "m", "meters": "m", "metre": "m", "metres": "m", "millimeter": "mm", "millimeters": "mm",
-               "millimetre": "mm", "millimetres": "mm", "radian": "rad", "radians": "rad", "degree": "deg",
-               "degrees": "deg"}
+_UNIT_NAMES = {
+    "meter": "m",
+    "meters": "m",
+    "metre": "m",
+    "metres": "m",
+    "millimeter": "mm",
+    "millimeters": "mm",
+    "millimetre": "mm",
+    "millimetres": "mm",
+    "radian": "rad",
+    "radians": "rad",
+    "degree": "deg",
+    "degrees": "deg",
+}
 
 
 def _field(data: dict, names: tuple, source: str, default=None):
     """The value of the one key of ``names`` (synonyms of one field) that ``data`` holds, else ``default``."""
     given = [k for k in names if k in data]
     if len(given) > 1:
-        raise ConfigError(f"DH table states both {given[0]} and {given[1]}", path=source,
-                          expected=f"one of {', '.join(names)}", received=", ".join(given))
+        raise ConfigError(
+            f"DH table states both {given[0]} and {given[1]}",
+            path=source,
+            expected=f"one of {', '.join(names)}",
+            received=", ".join(given),
+        )
     return data[given[0]] if given else default
 
 
@@ -338,17 +380,29 @@ def _units(data: dict, source: str) -> tuple:
     """(length unit, angle unit) of a table: ``length_unit`` / ``angle_unit``, or a ``units: {length, angle}`` block."""
     block = data.get("units")
     if block is not None and ("length_unit" in data or "angle_unit" in data):
-        raise ConfigError("DH table states its units twice", path=source,
-                          expected="units: {length, angle} or length_unit / angle_unit", received="both")
+        raise ConfigError(
+            "DH table states its units twice",
+            path=source,
+            expected="units: {length, angle} or length_unit / angle_unit",
+            received="both",
+        )
     if block is not None and not isinstance(block, dict):
-        raise ConfigError("DH table units must be a mapping", path=source, expected="units: {length: m, angle: rad}",
-                          received=repr(block)[:60])
-    lu, au = (block.get("length", "m"), block.get("angle", "rad")) if block is not None else (
-        data.get("length_unit", "m"), data.get("angle_unit", "rad"))
+        raise ConfigError(
+            "DH table units must be a mapping",
+            path=source,
+            expected="units: {length: m, angle: rad}",
+            received=repr(block)[:60],
+        )
+    lu, au = (
+        (block.get("length", "m"), block.get("angle", "rad"))
+        if block is not None
+        else (data.get("length_unit", "m"), data.get("angle_unit", "rad"))
+    )
     lu, au = (_UNIT_NAMES.get(str(u).lower(), str(u).lower()) for u in (lu, au))
     if lu not in _LENGTH or au not in _ANGLE:
-        raise ConfigError("unknown unit in DH table", path=source, expected="length m|mm, angle rad|deg",
-                          received=f"{lu!r}, {au!r}")
+        raise ConfigError(
+            "unknown unit in DH table", path=source, expected="length m|mm, angle rad|deg", received=f"{lu!r}, {au!r}"
+        )
     return lu, au
 
 
@@ -361,49 +415,78 @@ def chain_from_dict(data: dict, *, source: str = "DH table") -> DHChain:
       ``joints: [{a, alpha, d, theta_offset}]``, optionally ``degrees_of_freedom``).
 
     Units m | mm and rad | deg (or their spelled-out names); the keys of the two forms may be mixed,
-    but one field stated twice is an error."""
+    but one field stated twice is an error.
+    """
     if not isinstance(data, dict):
-        raise ConfigError("a DH table must be a mapping", path=source, expected="name, convention, links",
-                          received=type(data).__name__)
+        raise ConfigError(
+            "a DH table must be a mapping",
+            path=source,
+            expected="name, convention, links",
+            received=type(data).__name__,
+        )
     lu, au = _units(data, source)
     links = _field(data, ("links", "joints"), source)
     if not isinstance(links, list) or not links:
-        raise ConfigError("DH table without links", path=source, expected="links (or joints): a list of rows",
-                          received=repr(links)[:80])
+        raise ConfigError(
+            "DH table without links",
+            path=source,
+            expected="links (or joints): a list of rows",
+            received=repr(links)[:80],
+        )
     dof = data.get("degrees_of_freedom")
     if dof is not None and dof != len(links):
-        raise ConfigError("DH table rows do not match its degrees_of_freedom", path=source,
-                          expected=f"{dof} rows", received=f"{len(links)} rows")
+        raise ConfigError(
+            "DH table rows do not match its degrees_of_freedom",
+            path=source,
+            expected=f"{dof} rows",
+            received=f"{len(links)} rows",
+        )
     rows, limits = [], []
     for i, link in enumerate(links, start=1):
         missing = [k for k in PARAMETER_NAMES if not isinstance(link, dict) or k not in link]
         if missing:
-            raise ConfigError(f"DH row {i} lacks {', '.join(missing)}", path=source,
-                              expected="a, alpha, d, theta_offset", received=repr(link))
+            raise ConfigError(
+                f"DH row {i} lacks {', '.join(missing)}",
+                path=source,
+                expected="a, alpha, d, theta_offset",
+                received=repr(link),
+            )
         try:
-            rows.append([float(link["a"]) * _LENGTH[lu], float(link["alpha"]) * _ANGLE[au],
-                         float(link["d"]) * _LENGTH[lu], float(link["theta_offset"]) * _ANGLE[au]])
+            rows.append(
+                [
+                    float(link["a"]) * _LENGTH[lu],
+                    float(link["alpha"]) * _ANGLE[au],
+                    float(link["d"]) * _LENGTH[lu],
+                    float(link["theta_offset"]) * _ANGLE[au],
+                ]
+            )
             lim = link.get("limits")
             limits.append(None if lim is None else [float(lim[0]) * _ANGLE[au], float(lim[1]) * _ANGLE[au]])
         except (TypeError, ValueError, IndexError):
-            raise ConfigError(f"DH row {i} is not numeric", path=source, expected="numbers",
-                              received=repr(link)) from None
+            raise ConfigError(
+                f"DH row {i} is not numeric", path=source, expected="numbers", received=repr(link)
+            ) from None
     lim = None if any(x is None for x in limits) else np.array(limits)
     name = _field(data, ("name", "robot_name"), source, default=source)
-    return DHChain(name=str(name), convention=str(_field(data, ("convention", "dh_convention"), source, default="")),
-                   dh=np.array(rows), joint_limits_rad=lim, error_prior=_error_prior(data.get("error_prior"), source))
+    return DHChain(
+        name=str(name),
+        convention=str(_field(data, ("convention", "dh_convention"), source, default="")),
+        dh=np.array(rows),
+        joint_limits_rad=lim,
+        error_prior=_error_prior(data.get("error_prior"), source),
+    )
 
 
 def chain_to_dict(chain: DHChain) -> dict:
     """The table of ``chain`` in the presets' form, metres and radians (:func:`chain_from_dict` reads it back;
-    the error prior is not part of it): a result records the arm it was calibrated with."""
+    the error prior is not part of it): a result records the arm it was calibrated with.
+    """
     lim = chain.joint_limits_rad
-    links = [dict(zip(PARAMETER_NAMES, (float(v) for v in row))) for row in np.asarray(chain.dh, float)]
+    links = [dict(zip(PARAMETER_NAMES, (float(v) for v in row), strict=False)) for row in np.asarray(chain.dh, float)]
     if lim is not None:
-        for link, (lo, hi) in zip(links, np.asarray(lim, float)):
+        for link, (lo, hi) in zip(links, np.asarray(lim, float), strict=False):
             link["limits"] = [float(lo), float(hi)]
-    return {"name": chain.name, "convention": chain.convention, "length_unit": "m", "angle_unit": "rad",
-            "links": links}
+    return {"name": chain.name, "convention": chain.convention, "length_unit": "m", "angle_unit": "rad", "links": links}
 
 
 def _error_prior(d, source: str) -> Optional[tuple]:
@@ -414,8 +497,12 @@ def _error_prior(d, source: str) -> Optional[tuple]:
     try:
         vals = [float(d[k]) for k in keys]
     except (TypeError, KeyError, ValueError):
-        raise ConfigError("invalid error_prior of the DH table", path=source, expected=", ".join(keys) + " (numbers)",
-                          received=repr(d)[:80]) from None
+        raise ConfigError(
+            "invalid error_prior of the DH table",
+            path=source,
+            expected=", ".join(keys) + " (numbers)",
+            received=repr(d)[:80],
+        ) from None
     if not all(np.isfinite(v) and v > 0 for v in vals):
         raise ConfigError("error_prior sigmas must be positive", path=source, received=repr(vals))
     return (vals[0] * 1e-3, float(np.radians(vals[1])), float(np.radians(vals[2])))
@@ -425,7 +512,8 @@ def load_arm(name_or_path: Union[str, Path, dict], *, folder: Optional[Path] = N
     """A shipped preset (:data:`PRESETS`: ``rm65``, ``ur5e``, ...), a DH table file in either form of :func:`chain_from_dict`
     (``.json`` read as JSON, anything else as YAML; relative paths from ``folder`` when given, e.g. a
     session's ``robot:``), or the table itself as a mapping. A file that cannot be read or parsed is a
-    ConfigError naming it."""
+    ConfigError naming it.
+    """
     import json
 
     import yaml
@@ -439,8 +527,11 @@ def load_arm(name_or_path: Union[str, Path, dict], *, folder: Optional[Path] = N
         return chain_from_dict(load_preset(f"robots/{key}"), source=f"configs/robots/{key}.yaml")
     path = Path(key) if folder is None or Path(key).is_absolute() else Path(folder) / key
     if not path.is_file():
-        raise ConfigError("unknown robot model", expected=f"a preset ({', '.join(PRESETS)}) or a DH table file "
-                          "(YAML or JSON)", received=repr(key))
+        raise ConfigError(
+            "unknown robot model",
+            expected=f"a preset ({', '.join(PRESETS)}) or a DH table file (YAML or JSON)",
+            received=repr(key),
+        )
     is_json = path.suffix.lower() == ".json"
     try:
         text = path.read_text(encoding="utf-8")
@@ -448,7 +539,11 @@ def load_arm(name_or_path: Union[str, Path, dict], *, folder: Optional[Path] = N
     except (OSError, UnicodeDecodeError, ValueError, yaml.YAMLError) as e:  # json's errors are ValueErrors
         mark = getattr(e, "problem_mark", None)  # YAML's (0-based)
         line = e.lineno if isinstance(e, json.JSONDecodeError) else None if mark is None else mark.line + 1
-        raise ConfigError("cannot read the DH table", path=path, line=line,
-                          expected="a JSON file" if is_json else "a YAML file",
-                          received=f"{type(e).__name__}: {str(e).splitlines()[0][:80]}") from None
+        raise ConfigError(
+            "cannot read the DH table",
+            path=path,
+            line=line,
+            expected="a JSON file" if is_json else "a YAML file",
+            received=f"{type(e).__name__}: {str(e).splitlines()[0][:80]}",
+        ) from None
     return chain_from_dict(data, source=str(path))

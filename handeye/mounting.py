@@ -13,6 +13,7 @@ eye_to_hand   T_cam_base = inv(X)  T_base_end_i        T_end_board
 where X is the reported unknown (``T_end_cam`` or ``T_base_cam``). The two adapters below are
 the only place where the modes differ.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -67,12 +68,15 @@ class MountingMode:
 
     def T_base_cam(self, T_x: np.ndarray, T_base_end: np.ndarray | None) -> np.ndarray:
         """Camera in the base frame at robot pose(s) ``T_base_end`` (4,4)/(N,4,4) (eye-to-hand: constant,
-        the pose may be None). Eye-in-hand without a robot pose is a :class:`ConfigError`."""
+        the pose may be None). Eye-in-hand without a robot pose is a :class:`ConfigError`.
+        """
         if not self.inverts_robot:
             return np.asarray(T_x, float)
         if T_base_end is None:
-            raise ConfigError("eye-in-hand needs the robot's end pose at the time the camera saw the point",
-                              hint="pass --end-pose x y z rx ry rz (metres, radians, R = Rz·Ry·Rx)")
+            raise ConfigError(
+                "eye-in-hand needs the robot's end pose at the time the camera saw the point",
+                hint="pass --end-pose x y z rx ry rz (metres, radians, R = Rz·Ry·Rx)",
+            )
         return np.asarray(T_base_end, float) @ np.asarray(T_x, float)
 
     def T_base_board(self, T_board: np.ndarray, T_base_end: np.ndarray) -> np.ndarray:
@@ -82,10 +86,26 @@ class MountingMode:
         return np.asarray(T_base_end, float) @ np.asarray(T_board, float)
 
 
-EYE_IN_HAND = MountingMode("eye_in_hand", "T_end_cam", "T_base_board", "end", "base", inverts_robot=True,
-                          camera_location="on the robot's flange", board_location="on the table")
-EYE_TO_HAND = MountingMode("eye_to_hand", "T_base_cam", "T_end_board", "base", "end", inverts_robot=False,
-                          camera_location="beside the robot", board_location="in the gripper")
+EYE_IN_HAND = MountingMode(
+    "eye_in_hand",
+    "T_end_cam",
+    "T_base_board",
+    "end",
+    "base",
+    inverts_robot=True,
+    camera_location="on the robot's flange",
+    board_location="on the table",
+)
+EYE_TO_HAND = MountingMode(
+    "eye_to_hand",
+    "T_base_cam",
+    "T_end_board",
+    "base",
+    "end",
+    inverts_robot=False,
+    camera_location="beside the robot",
+    board_location="in the gripper",
+)
 
 
 def mounting(mode: str) -> MountingMode:
@@ -93,5 +113,9 @@ def mounting(mode: str) -> MountingMode:
         return EYE_IN_HAND
     if mode == "eye_to_hand":
         return EYE_TO_HAND
-    raise ConfigError("unknown mounting mode", expected=" | ".join(MODES), received=repr(mode),
-                      hint="use --mode eye_in_hand or --mode eye_to_hand")
+    raise ConfigError(
+        "unknown mounting mode",
+        expected=" | ".join(MODES),
+        received=repr(mode),
+        hint="use --mode eye_in_hand or --mode eye_to_hand",
+    )

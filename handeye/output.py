@@ -1,6 +1,8 @@
 """Writing outputs: atomic files, output folders checked before the work, one run at a time per folder
 (a lock file with the holder's pid), self-describing provenance; and the one reader of text input
-files (BOM and common encodings handled, the others named)."""
+files (BOM and common encodings handled, the others named).
+"""
+
 from __future__ import annotations
 
 import datetime as _dt
@@ -17,7 +19,6 @@ import numpy as np
 from . import __version__
 from .errors import InputError, OutputError
 
-
 _UMASK = os.umask(0)
 os.umask(_UMASK)
 
@@ -31,13 +32,15 @@ LOCK_NAME = ".handeye.lock"
 class OutputWriteError(OSError):
     """The file system refused to write an output (disk full, read-only, permissions): ``filename`` is
     the output, ``errno`` and ``strerror`` the refusal's; the original OSError is its ``__cause__``. What
-    tells a write error from a read error (the command line gives each its own advice)."""
+    tells a write error from a read error (the command line gives each its own advice).
+    """
 
 
 @contextmanager
 def writing(path: str | Path):
     """Inside, an OSError is one of writing ``path`` (an output file or folder): re-raised as
-    :class:`OutputWriteError` naming the file it names, else ``path``."""
+    :class:`OutputWriteError` naming the file it names, else ``path``.
+    """
     try:
         yield
     except OutputWriteError:
@@ -51,7 +54,8 @@ def atomic_write_bytes(path: str | Path, data: bytes, *, durable: bool = True) -
 
     ``durable`` also flushes the bytes to the disk before the rename (survives a power cut; costs a
     disk sync per file): on for results and sessions, off for derived files such as thumbnails.
-    A refusal of the file system is an :class:`OutputWriteError` naming ``path``."""
+    A refusal of the file system is an :class:`OutputWriteError` naming ``path``.
+    """
     path = Path(path)
     with writing(path):  # names the folder that cannot be made
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -83,7 +87,8 @@ def atomic_write_text(path: str | Path, text: str, *, durable: bool = True) -> P
 
 def plain(obj, *, nan_to_none: bool = False):
     """JSON/YAML-friendly copy: numpy arrays and scalars become Python lists and numbers, paths
-    strings, mapping keys strings; with ``nan_to_none`` non-finite floats become None (strict JSON)."""
+    strings, mapping keys strings; with ``nan_to_none`` non-finite floats become None (strict JSON).
+    """
     if isinstance(obj, dict):
         return {str(k): plain(v, nan_to_none=nan_to_none) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
@@ -100,7 +105,7 @@ def plain(obj, *, nan_to_none: bool = False):
 
 
 def _json_default(o):
-    """json's hook for what it cannot encode: the one converter, :func:`plain`."""
+    """Json's hook for what it cannot encode: the one converter, :func:`plain`."""
     if isinstance(o, (np.ndarray, np.generic, Path)):
         return plain(o)
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
@@ -108,7 +113,8 @@ def _json_default(o):
 
 def to_json(obj, *, indent: int | None = 2) -> str:
     """JSON text of ``obj`` (numpy values converted); ``indent=None`` writes one compact line, several
-    times faster for large files that only programs read."""
+    times faster for large files that only programs read.
+    """
     if indent is None:
         return json.dumps(obj, separators=(",", ":"), default=_json_default, allow_nan=True)
     return json.dumps(obj, indent=indent, default=_json_default, allow_nan=True)
@@ -126,8 +132,9 @@ def read_json(path: str | Path) -> dict:
     try:
         return json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise InputError("file not found", path=path,
-                         hint="run handeye calibrate first or pass the result folder") from None
+        raise InputError(
+            "file not found", path=path, hint="run handeye calibrate first or pass the result folder"
+        ) from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise InputError(f"not valid JSON ({e})", path=path) from None
 
@@ -167,7 +174,8 @@ def provenance(*, inputs_sha256: str | None = None, extra: dict | None = None) -
 
 def remove_stray_temps(folder: str | Path, *, subfolders: tuple = ("thumbnails", "report_files")) -> list[Path]:
     """Remove the temporary files a killed writer left in ``folder`` (and its output subfolders):
-    the hidden ``.NAME.XXXX.tmp`` files of :func:`atomic_write_bytes`. Call it holding the folder's lock."""
+    the hidden ``.NAME.XXXX.tmp`` files of :func:`atomic_write_bytes`. Call it holding the folder's lock.
+    """
     removed = []
     for d in (Path(folder), *(Path(folder) / s for s in subfolders)):
         if not d.is_dir():
@@ -191,31 +199,47 @@ def _first_existing(path: Path) -> Path:
 def check_out_dir(path: str | Path, *, option: str = "--out") -> Path:
     """``path`` as an output folder that can be created and written, checked before any work: not a
     file, not under a file, writable (a probe file is created and removed). OutputError naming the
-    folder and ``option`` otherwise. Creates the folder."""
+    folder and ``option`` otherwise. Creates the folder.
+    """
     path = Path(path)
     hint = f"pass another folder with {option}"
     if path.exists() and not path.is_dir():
-        raise OutputError(f"{option} is a file, not a folder", path=path, expected="a folder (or a new name)",
-                          received="a file" if path.is_file() else "not a regular folder", hint=hint)
+        raise OutputError(
+            f"{option} is a file, not a folder",
+            path=path,
+            expected="a folder (or a new name)",
+            received="a file" if path.is_file() else "not a regular folder",
+            hint=hint,
+        )
     anchor = _first_existing(path)
     if not anchor.is_dir():
-        raise OutputError(f"{option} lies under a file", path=path, expected="a folder path",
-                          received=f"{anchor} is a file", hint=hint)
+        raise OutputError(
+            f"{option} lies under a file",
+            path=path,
+            expected="a folder path",
+            received=f"{anchor} is a file",
+            hint=hint,
+        )
     try:
         path.mkdir(parents=True, exist_ok=True)
         fd, probe = tempfile.mkstemp(prefix=".handeye-probe.", suffix=TEMP_SUFFIX, dir=path)
         os.close(fd)
         os.unlink(probe)
     except OSError as e:
-        raise OutputError(f"{option} cannot be written ({e.strerror or e})", path=path,
-                          expected="a writable folder", hint=hint + ", or fix its permissions") from None
+        raise OutputError(
+            f"{option} cannot be written ({e.strerror or e})",
+            path=path,
+            expected="a writable folder",
+            hint=hint + ", or fix its permissions",
+        ) from None
     return path
 
 
 def _pid_alive(pid: int) -> bool:
     """Whether process ``pid`` still runs. A zombie (ended, not yet reaped: an orphan whose new parent does not
     reap it promptly, as some container init processes do) has ended and holds nothing; a process whose main
-    thread has ended while others run shows the same state and still runs."""
+    thread has ended while others run shows the same state and still runs.
+    """
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -223,8 +247,9 @@ def _pid_alive(pid: int) -> bool:
     except PermissionError:  # another user's live process
         return True
     try:
-        status = dict(line.split(":", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines()
-                      if ":" in line)
+        status = dict(
+            line.split(":", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines() if ":" in line
+        )
         state, threads = status["State"].split()[0], int(status["Threads"])
     except (OSError, KeyError, IndexError, ValueError):  # no /proc (another system), or it ended meanwhile
         return True if not Path("/proc/self").exists() else Path(f"/proc/{pid}").exists()
@@ -235,7 +260,8 @@ class FolderLock:
     """One writer per output folder: ``FOLDER/.handeye.lock`` holds the pid of the run writing there.
 
     A second run into the folder is refused (OutputError naming the holder's pid) while that pid lives;
-    a lock whose pid is gone (the run was killed) is stale and taken over. Used as a context manager."""
+    a lock whose pid is gone (the run was killed) is stale and taken over. Used as a context manager.
+    """
 
     def __init__(self, folder: str | Path, *, option: str = "--out"):
         self.path = Path(folder) / LOCK_NAME
@@ -249,24 +275,32 @@ class FolderLock:
             except FileExistsError:
                 holder = self._holder()
                 if holder is not None and holder != os.getpid() and _pid_alive(holder):
-                    raise OutputError(f"{self.option} is in use by another handeye run (pid {holder})",
-                                      path=self.path.parent, expected="one run per output folder",
-                                      hint=f"wait for pid {holder} to finish, or pass another folder with "
-                                           f"{self.option}") from None
+                    raise OutputError(
+                        f"{self.option} is in use by another handeye run (pid {holder})",
+                        path=self.path.parent,
+                        expected="one run per output folder",
+                        hint=f"wait for pid {holder} to finish, or pass another folder with {self.option}",
+                    ) from None
                 try:  # stale: its run was killed (or the file is empty or damaged)
                     self.path.unlink()
                 except FileNotFoundError:
                     pass
                 continue
             except OSError as e:
-                raise OutputError(f"{self.option} cannot be locked ({e.strerror or e})", path=self.path.parent,
-                                  hint=f"pass another folder with {self.option}") from None
+                raise OutputError(
+                    f"{self.option} cannot be locked ({e.strerror or e})",
+                    path=self.path.parent,
+                    hint=f"pass another folder with {self.option}",
+                ) from None
             with os.fdopen(fd, "w") as f:
                 f.write(f"{os.getpid()}\n")
             self._held = True
             return self
-        raise OutputError(f"{self.option} is being locked by other runs at the same time", path=self.path.parent,
-                          hint="run one calibration per output folder")
+        raise OutputError(
+            f"{self.option} is being locked by other runs at the same time",
+            path=self.path.parent,
+            hint="run one calibration per output folder",
+        )
 
     def _holder(self):
         try:
@@ -301,7 +335,8 @@ def file_sha256(path: str | Path) -> str:
 
 def inputs_record(paths, *, base: str | Path | None = None) -> list[dict]:
     """Every input file read, once each in the given order: ``{"path", "sha256", "bytes"}`` (paths
-    relative to ``base`` when inside it) for result.json's ``provenance.inputs``."""
+    relative to ``base`` when inside it) for result.json's ``provenance.inputs``.
+    """
     out, seen = [], set()
     for p in paths:
         p = Path(p)
@@ -321,21 +356,27 @@ def inputs_record(paths, *, base: str | Path | None = None) -> list[dict]:
 
 def decode_text(data: bytes, *, path: str | Path, what: str = "text file") -> str:
     """Bytes of a text input file as str: UTF-8 (a BOM is dropped), UTF-16 with a BOM, or Latin-1 when
-    the bytes are not UTF-8 (a warning names the file); UTF-16 without a BOM is an InputError naming it."""
+    the bytes are not UTF-8 (a warning names the file); UTF-16 without a BOM is an InputError naming it.
+    """
     import codecs
     import logging
 
     if data.startswith(codecs.BOM_UTF8):
-        data = data[len(codecs.BOM_UTF8):]
+        data = data[len(codecs.BOM_UTF8) :]
     elif data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
         try:
             return data.decode("utf-16")
         except UnicodeDecodeError:
-            raise InputError(f"{what} starts like UTF-16 but does not decode", path=path,
-                             hint="save it as UTF-8 text") from None
+            raise InputError(
+                f"{what} starts like UTF-16 but does not decode", path=path, hint="save it as UTF-8 text"
+            ) from None
     if data.count(b"\x00") > len(data) // 4:  # text never holds NULs; UTF-16 of ASCII is half NULs
-        raise InputError(f"{what} is UTF-16 without a byte-order mark (or binary)", path=path,
-                         expected="UTF-8 text", hint="save it as UTF-8 text")
+        raise InputError(
+            f"{what} is UTF-16 without a byte-order mark (or binary)",
+            path=path,
+            expected="UTF-8 text",
+            hint="save it as UTF-8 text",
+        )
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError:
@@ -346,7 +387,8 @@ def decode_text(data: bytes, *, path: str | Path, what: str = "text file") -> st
 
 def read_text(path: str | Path, *, what: str = "text file", max_bytes: int = 64 << 20) -> str:
     """The text of an input file (see :func:`decode_text`); InputError naming the file when it is missing,
-    not a regular file (a folder, a device, a pipe: never opened), unreadable or larger than ``max_bytes``."""
+    not a regular file (a folder, a device, a pipe: never opened), unreadable or larger than ``max_bytes``.
+    """
     import stat
 
     path = Path(path)
@@ -357,11 +399,16 @@ def read_text(path: str | Path, *, what: str = "text file", max_bytes: int = 64 
     except OSError as e:
         raise InputError(f"cannot read {what} ({e.strerror})", path=path) from None
     if not stat.S_ISREG(st.st_mode):
-        raise InputError(f"{what} is not a regular file", path=path, received=file_kind(st.st_mode),
-                         expected="a text file")
+        raise InputError(
+            f"{what} is not a regular file", path=path, received=file_kind(st.st_mode), expected="a text file"
+        )
     if st.st_size > max_bytes:
-        raise InputError(f"{what} is too large for a text input", path=path,
-                         received=f"{st.st_size} bytes", expected=f"at most {max_bytes} bytes")
+        raise InputError(
+            f"{what} is too large for a text input",
+            path=path,
+            received=f"{st.st_size} bytes",
+            expected=f"at most {max_bytes} bytes",
+        )
     try:
         with open(path, "rb") as f:
             data = f.read(max_bytes + 1)
@@ -374,9 +421,14 @@ def file_kind(mode: int) -> str:
     """What a stat mode is, for messages: a folder, a character device, a named pipe, ..."""
     import stat
 
-    for test, name in ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"),
-                       (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a named pipe"),
-                       (stat.S_ISSOCK, "a socket"), (stat.S_ISREG, "a regular file")):
+    for test, name in (
+        (stat.S_ISDIR, "a folder"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISFIFO, "a named pipe"),
+        (stat.S_ISSOCK, "a socket"),
+        (stat.S_ISREG, "a regular file"),
+    ):
         if test(mode):
             return name
     return "not a regular file"

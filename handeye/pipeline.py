@@ -9,6 +9,7 @@ calibrated: it returns a :class:`CalibrationRun` with ``status="failed"`` and th
 The observation stages (:func:`observe`: detection, intrinsics, board poses) are also what the
 diagnostics run on a session that the strict reader refuses, so there is one pipeline.
 """
+
 from __future__ import annotations
 
 import logging
@@ -49,14 +50,18 @@ class CalibrateOptions:
     @staticmethod
     def from_config(cfg: dict, **overrides) -> "CalibrateOptions":
         """Options from a calibration preset (configs/calibration.yaml) plus explicit overrides
-        (an override of None keeps the preset's value)."""
+        (an override of None keeps the preset's value).
+        """
         motion = cfg.get("motion") or {}
-        kw = {"method": cfg.get("method", "tsai"), "refine": bool(cfg.get("refine", True)),
-              "fix_k3": bool(cfg.get("fix_k3", False)),
-              "min_corners": None if cfg.get("min_corners") is None else int(cfg["min_corners"]),
-              "min_rotation_deg": _float_or_none(motion.get("min_rotation_deg")),
-              "min_axis_spread_deg": _float_or_none(motion.get("min_axis_spread_deg")),
-              "refine_options": {k: v for k, v in (cfg.get("refine_options") or {}).items() if v is not None}}
+        kw = {
+            "method": cfg.get("method", "tsai"),
+            "refine": bool(cfg.get("refine", True)),
+            "fix_k3": bool(cfg.get("fix_k3", False)),
+            "min_corners": None if cfg.get("min_corners") is None else int(cfg["min_corners"]),
+            "min_rotation_deg": _float_or_none(motion.get("min_rotation_deg")),
+            "min_axis_spread_deg": _float_or_none(motion.get("min_axis_spread_deg")),
+            "refine_options": {k: v for k, v in (cfg.get("refine_options") or {}).items() if v is not None},
+        }
         ro = overrides.pop("refine_options", None) or {}
         kw["refine_options"].update(ro)
         kw.update({k: v for k, v in overrides.items() if v is not None})
@@ -97,10 +102,17 @@ def failure_reason(d) -> str:
     return d if isinstance(d, str) else str(getattr(d, "reason", d))
 
 
-def observe(*, target: TargetSpec, items: Sequence[tuple[str, Any]], intrinsics: Optional[Intrinsics] = None,
-            intrinsics_prior: str = "fixed", M_by_id: Optional[Mapping[str, np.ndarray]] = None,
-            options: "CalibrateOptions" = CalibrateOptions(), intrinsics_source: str = "",
-            progress: Callable[[str], None] | None = None) -> Observation:
+def observe(
+    *,
+    target: TargetSpec,
+    items: Sequence[tuple[str, Any]],
+    intrinsics: Optional[Intrinsics] = None,
+    intrinsics_prior: str = "fixed",
+    M_by_id: Optional[Mapping[str, np.ndarray]] = None,
+    options: "CalibrateOptions" = CalibrateOptions(),
+    intrinsics_source: str = "",
+    progress: Callable[[str], None] | None = None,
+) -> Observation:
     """Detect the target in ``items`` ((view_id, image path) pairs), calibrate the camera unless
     ``intrinsics`` are given, and solve each view's board pose.
 
@@ -134,27 +146,48 @@ def observe(*, target: TargetSpec, items: Sequence[tuple[str, Any]], intrinsics:
         # (one more column along an edge against a dark background); the session states the wrong size
         survey = size_survey(det, (target.cols, target.rows)) if target.kind == "chessboard" else None
         if survey is not None and survey.likely_size is not None:  # the images show another board size
-            return replace(obs, error=DetectionError(
-                f"the target was found in only {len(dets)} of {len(items)} images: {survey.text()}",
-                hint=survey.fix(), code="target_not_found"))
+            return replace(
+                obs,
+                error=DetectionError(
+                    f"the target was found in only {len(dets)} of {len(items)} images: {survey.text()}",
+                    hint=survey.fix(),
+                    code="target_not_found",
+                ),
+            )
     if len(dets) < MIN_VIEWS and len(dets) == len(items):  # every image shows the board: too few images
-        return replace(obs, error=DetectionError(
-            f"the session has {len(items)} image{'s' if len(items) != 1 else ''} (the board found in each); at least "
-            f"{MIN_VIEWS} views are needed", hint="capture more views, with the robot turned between them",
-            code="too_few_views"))
+        return replace(
+            obs,
+            error=DetectionError(
+                f"the session has {len(items)} image{'s' if len(items) != 1 else ''} (the board found in each); at least "
+                f"{MIN_VIEWS} views are needed",
+                hint="capture more views, with the robot turned between them",
+                code="too_few_views",
+            ),
+        )
     if len(dets) < MIN_VIEWS:
-        return replace(obs, error=DetectionError(
-            f"the target was found in only {len(dets)} of {len(items)} images; at least {MIN_VIEWS} are needed",
-            hint=f"check the board size in the session ({target_text(target)}) and that the whole board is visible "
-                 "and sharp", code="target_not_found"))
+        return replace(
+            obs,
+            error=DetectionError(
+                f"the target was found in only {len(dets)} of {len(items)} images; at least {MIN_VIEWS} are needed",
+                hint=f"check the board size in the session ({target_text(target)}) and that the whole board is visible "
+                "and sharp",
+                code="target_not_found",
+            ),
+        )
     # --- intrinsics
     t1 = time.perf_counter()
     w, h = next(iter(dets.values())).image_size
     if intrinsics is not None:
         if (intrinsics.width, intrinsics.height) != (w, h):
-            return replace(obs, error=CalibrationError(
-                f"the given intrinsics are for {intrinsics.width}x{intrinsics.height} images but the images are "
-                f"{w}x{h}", hint="fix intrinsics.image_size or drop the intrinsics", code="intrinsics_size_mismatch"))
+            return replace(
+                obs,
+                error=CalibrationError(
+                    f"the given intrinsics are for {intrinsics.width}x{intrinsics.height} images but the images are "
+                    f"{w}x{h}",
+                    hint="fix intrinsics.image_size or drop the intrinsics",
+                    code="intrinsics_size_mismatch",
+                ),
+            )
         intr, src, rms = intrinsics, intrinsics_source or f"given ({intrinsics_prior})", None
     else:
         progress("calibrating the camera intrinsics")
@@ -249,10 +282,12 @@ class CalibrationRun:
         return [o.view_id for o in self.outcomes if o.used]
 
 
-def run_calibration(session: Session, options: CalibrateOptions = CalibrateOptions(), *,
-                    progress: Callable[[str], None] | None = None) -> CalibrationRun:
+def run_calibration(
+    session: Session, options: CalibrateOptions = CalibrateOptions(), *, progress: Callable[[str], None] | None = None
+) -> CalibrationRun:
     """All stages on a loaded session. A session that cannot be calibrated gives ``status="failed"``
-    with the error and every stage result reached so far (for the report)."""
+    with the error and every stage result reached so far (for the report).
+    """
     state: dict = {}
     try:
         return _run(session, options, state, progress or (lambda s: None))
@@ -277,24 +312,42 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     given = s.intrinsics if (s.intrinsics is not None and s.intrinsics_prior in ("fixed", "prior")) else None
     # the corner ordering of symmetric boards compares pair invariants, which are the same in both modes
     M_all = {v.view_id: mode.M_from_T_base_end(v.T_base_end) for v in s.views}
-    obs = observe(target=s.target, items=[(v.view_id, v.image_path) for v in s.views], intrinsics=given,
-                  intrinsics_prior=s.intrinsics_prior, M_by_id=M_all, options=opts, progress=progress)
+    obs = observe(
+        target=s.target,
+        items=[(v.view_id, v.image_path) for v in s.views],
+        intrinsics=given,
+        intrinsics_prior=s.intrinsics_prior,
+        M_by_id=M_all,
+        options=opts,
+        progress=progress,
+    )
     outcomes = dict(obs.outcomes)
     for vid, line in s.meta.get("missing_images", {}).items():  # poses whose image is missing (the loader)
         name = Path(s.meta.get("missing_image_files", {}).get(vid, f"{vid}.jpg")).name
         where = f"pose line {line}" if line is not None else "its pose"
         outcomes[vid] = ViewOutcome(vid, name, False, f"{IMAGE_MISSING_REASON} ({where} not used)")
     for v in unpaired:
-        outcomes[v.view_id] = ViewOutcome(v.view_id, getattr(v.image_path, "name", str(v.image_path)), False,
-                                          f"no pose line after --shift-poses {opts.shift_poses}")
+        outcomes[v.view_id] = ViewOutcome(
+            v.view_id,
+            getattr(v.image_path, "name", str(v.image_path)),
+            False,
+            f"no pose line after --shift-poses {opts.shift_poses}",
+        )
 
     def ordered():
         return tuple(outcomes[k] for k in sorted(outcomes, key=view_id_key))
 
     seconds = dict(obs.seconds)
-    state.update(outcomes=ordered(), detections=obs.detections, failures=obs.failures, seconds=seconds,
-                 intrinsics=obs.intrinsics, intrinsics_source=obs.intrinsics_source,
-                 intrinsics_rms_px=obs.intrinsics_rms_px, board_poses=obs.board_poses)
+    state.update(
+        outcomes=ordered(),
+        detections=obs.detections,
+        failures=obs.failures,
+        seconds=seconds,
+        intrinsics=obs.intrinsics,
+        intrinsics_source=obs.intrinsics_source,
+        intrinsics_rms_px=obs.intrinsics_rms_px,
+        board_poses=obs.board_poses,
+    )
     state["mode_decision"] = {"mode": s.mode, "mode_source": _stated_source(s)}
     if obs.error is not None:
         raise obs.error if obs.error.path is not None else obs.error.at(s.path)
@@ -318,9 +371,11 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
         refined = refine_stage(s, opts, start, intr, poses, dets, T_base_end, closed_forms=closed, arm=arm)
         seconds["refine"] = time.perf_counter() - t2
         if refined.status != "ok":
-            raise CalibrationError(f"refinement failed: {refined.failure_reason}",
-                                   hint="rerun with --no-refine to get the closed-form result",
-                                   code="refinement_failed")
+            raise CalibrationError(
+                f"refinement failed: {refined.failure_reason}",
+                hint="rerun with --no-refine to get the closed-form result",
+                code="refinement_failed",
+            )
         state.update(refined=refined, T_x=refined.T_x, T_board=refined.T_board, intrinsics=refined.intrinsics)
         if opts.validate:
             progress("validation: refits without some views")
@@ -334,12 +389,15 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     return CalibrationRun(session=s, options=opts, **state)
 
 
-def _closed_forms(s: Session, opts: CalibrateOptions, mode: MountingMode, C: np.ndarray, Ms: np.ndarray,
-                  state: dict, progress) -> tuple[dict, HandEyeEstimate]:
+def _closed_forms(
+    s: Session, opts: CalibrateOptions, mode: MountingMode, C: np.ndarray, Ms: np.ndarray, state: dict, progress
+) -> tuple[dict, HandEyeEstimate]:
     """The motion check and the closed forms from board poses ``C`` and robot motions ``Ms`` (n,4,4):
-    (every method's estimate, the chosen one); raises when the motion is degenerate or the method fails."""
-    mq = motion_quality(Ms, frame=mode.fixed_frame, min_rotation_deg=opts.min_rotation_deg,
-                        min_axis_spread_deg=opts.min_axis_spread_deg)
+    (every method's estimate, the chosen one); raises when the motion is degenerate or the method fails.
+    """
+    mq = motion_quality(
+        Ms, frame=mode.fixed_frame, min_rotation_deg=opts.min_rotation_deg, min_axis_spread_deg=opts.min_axis_spread_deg
+    )
     state.update(motion=mq)
     if mq.status != "ok":
         raise DegenerateMotionError(mq.reason, path=s.path, code=mq.code or None)
@@ -348,9 +406,11 @@ def _closed_forms(s: Session, opts: CalibrateOptions, mode: MountingMode, C: np.
     start = closed[opts.method]
     state.update(closed_forms=closed)
     if start.status != "ok":
-        raise CalibrationError(f"the {opts.method} solver failed: {start.failure_reason}",
-                               hint="try another --method (e.g. park) or check the robot poses",
-                               code="closed_form_failed")
+        raise CalibrationError(
+            f"the {opts.method} solver failed: {start.failure_reason}",
+            hint="try another --method (e.g. park) or check the robot poses",
+            code="closed_form_failed",
+        )
     state.update(start=start, T_x=start.T_x, T_board=start.T_board)
     return closed, start
 
@@ -358,19 +418,28 @@ def _closed_forms(s: Session, opts: CalibrateOptions, mode: MountingMode, C: np.
 def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) -> CalibrationRun:
     """The stages of a pose-only session: each view's ``T_cam_board`` is the tracker's (no detection,
     intrinsics or board poses to solve); the mode gate, the motion check and the closed forms as for
-    images; the refinement on pose factors (:func:`handeye.refine.poseonly.refine_poses`)."""
+    images; the refinement on pose factors (:func:`handeye.refine.poseonly.refine_poses`).
+    """
     from .initial import BoardPose
 
     t0 = time.perf_counter()
     outcomes = {v.view_id: ViewOutcome(v.view_id, "", True, "", 0) for v in s.views}
     poses = {v.view_id: BoardPose(v.view_id, v.T_cam_board, float("nan"), 0, np.zeros(0, int)) for v in s.views}
     seconds: dict = {}
-    state.update(outcomes=tuple(outcomes[k] for k in sorted(outcomes, key=view_id_key)), board_poses=poses,
-                 seconds=seconds, intrinsics_source="none (pose-only session: target poses from a tracker)")
+    state.update(
+        outcomes=tuple(outcomes[k] for k in sorted(outcomes, key=view_id_key)),
+        board_poses=poses,
+        seconds=seconds,
+        intrinsics_source="none (pose-only session: target poses from a tracker)",
+    )
     state["mode_decision"] = {"mode": s.mode, "mode_source": _stated_source(s)}
     if len(poses) < MIN_VIEWS:
-        raise CalibrationError(f"the session has {len(poses)} views; at least {MIN_VIEWS} are needed",
-                               hint="add views", code="too_few_views", path=s.path)
+        raise CalibrationError(
+            f"the session has {len(poses)} views; at least {MIN_VIEWS} are needed",
+            hint="add views",
+            code="too_few_views",
+            path=s.path,
+        )
     obs = Observation(s.target, outcomes, {}, {}, board_poses=poses)
     s = _mode_gate(s, obs, state, progress)
     mode = mounting(s.mode)
@@ -388,17 +457,26 @@ def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) ->
         progress("joint refinement on the tracker's poses (GTSAM)")
         t2 = time.perf_counter()
         ro = {k: v for k, v in opts.refine_options.items() if k not in ("arm", "intrinsics", "fix")}
-        refined = refine_poses(mode=s.mode, views=[PoseView(v, poses[v].T_cam_board, s.view(v).T_base_end) for v in ids],
-                               T_x0=start.T_x, T_board0=start.T_board, tracker_sigma=s.meta.get("tracker_sigma"),
-                               options=RefineOptions(**ro), starts=closed)
+        refined = refine_poses(
+            mode=s.mode,
+            views=[PoseView(v, poses[v].T_cam_board, s.view(v).T_base_end) for v in ids],
+            T_x0=start.T_x,
+            T_board0=start.T_board,
+            tracker_sigma=s.meta.get("tracker_sigma"),
+            options=RefineOptions(**ro),
+            starts=closed,
+        )
         seconds["refine"] = time.perf_counter() - t2
         if refined.status != "ok":
-            raise CalibrationError(f"refinement failed: {refined.failure_reason}",
-                                   hint="rerun with --no-refine to get the closed-form result",
-                                   code="refinement_failed")
+            raise CalibrationError(
+                f"refinement failed: {refined.failure_reason}",
+                hint="rerun with --no-refine to get the closed-form result",
+                code="refinement_failed",
+            )
         state.update(refined=refined, T_x=refined.T_x, T_board=refined.T_board)
-    state["outcomes"] = tuple(v for _, v in sorted(_final_outcomes(outcomes, {}, refined).items(),
-                                                  key=lambda kv: view_id_key(kv[0])))
+    state["outcomes"] = tuple(
+        v for _, v in sorted(_final_outcomes(outcomes, {}, refined).items(), key=lambda kv: view_id_key(kv[0]))
+    )
     seconds["calibrate"] = time.perf_counter() - t0
     state.pop("session", None)
     return CalibrationRun(session=s, options=opts, **state)
@@ -406,7 +484,7 @@ def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) ->
 
 # ------------------------------------------------------------------------------ pose forensics gates
 def _stated_source(s: Session) -> str:
-    """stated | flag | default: where the session's mode came from (the loader records it)."""
+    """Stated | flag | default: where the session's mode came from (the loader records it)."""
     return getattr(s, "mode_source", "stated") or "stated"
 
 
@@ -414,7 +492,8 @@ def _mode_gate(s: Session, obs: Observation, state: dict, progress) -> Session:
     """Decide the mode from the data when the session states none; refuse a stated mode the data contradict.
 
     Records ``state["mode_decision"]`` = {"mode", "mode_source", "evidence"} and, when the mode was
-    detected, a session in that mode (``state["session"]``)."""
+    detected, a session in that mode (``state["session"]``).
+    """
     from .diagnose.mode import mode_evidence
 
     source = _stated_source(s)
@@ -434,24 +513,31 @@ def _mode_gate(s: Session, obs: Observation, state: dict, progress) -> Session:
             s = replace(s, mode=ev.decided)
             state["session"] = s
         else:
-            log.warning("the session states no mounting mode and the data do not decide it; calibrating as %s "
-                        "(the default): %s", s.mode, ev.summary())
+            log.warning(
+                "the session states no mounting mode and the data do not decide it; calibrating as %s "
+                "(the default): %s",
+                s.mode,
+                ev.summary(),
+            )
             progress(f"mode: {s.mode} (the default; the data do not decide it: {ev.summary()})")
         return s
     if ev.decided is not None and ev.decided != s.mode:
         stated = "--mode" if source == "flag" else "the session"
         raise SessionRefused(
             f"the data are {ev.decided} but {stated} says {s.mode}: {ev.summary()}",
-            expected=f"robot and camera motions that fit {s.mode}", received=f"they fit {ev.decided}",
+            expected=f"robot and camera motions that fit {s.mode}",
+            received=f"they fit {ev.decided}",
             hint=f"calibrate with --mode {ev.decided} (or set mode: {ev.decided} in the session); if the camera "
-                 f"really is {s.mode.replace('_', '-')}, the robot poses may be inverted (T_end_base)",
-            code="mode_swapped")
+            f"really is {s.mode.replace('_', '-')}, the robot poses may be inverted (T_end_base)",
+            code="mode_swapped",
+        )
     return s
 
 
 def _pairing_gate(s: Session, obs: Observation, M_all: dict, state: dict) -> None:
     """Refuse a session whose images and robot poses are shifted or shuffled (no result from wrong pairs).
-    The search it made is the run's ``pairing`` (the diagnostics decide on it without searching again)."""
+    The search it made is the run's ``pairing`` (the diagnostics decide on it without searching again).
+    """
     from .diagnose.fits import fit_boards
     from .diagnose.observations import PoseObservations, candidates_of
     from .diagnose.pairing import PairingSearch, pairing_findings
@@ -469,8 +555,9 @@ def _pairing_gate(s: Session, obs: Observation, M_all: dict, state: dict) -> Non
     if fit.cost <= thresholds().readings.bad_cost:
         return
     T = np.stack([s.view(v).T_base_end for v in ids])
-    po = PoseObservations(s.mode, tuple(ids), C, T, raw_poses_of(s), {},
-                          C_candidates=candidates_of(obs.board_poses, ids))
+    po = PoseObservations(
+        s.mode, tuple(ids), C, T, raw_poses_of(s), {}, C_candidates=candidates_of(obs.board_poses, ids)
+    )
     search = state["pairing"] = PairingSearch(po, po.raw.fmt)
     found = pairing_findings(po, po.raw.fmt, given_cost=fit.cost, search=search)
     if not found:
@@ -479,18 +566,26 @@ def _pairing_gate(s: Session, obs: Observation, M_all: dict, state: dict) -> Non
     shift = f.details.get("shift")
     if shift is not None:
         raise SessionRefused(
-            f"{f.title}: {f.evidence}", expected="each image paired with its own pose line",
+            f"{f.title}: {f.evidence}",
+            expected="each image paired with its own pose line",
             received=f"image k fits the pose written for image k{shift:+d}",
             hint=f"fix the pairing, or apply the shift with --shift-poses {shift} (image k takes the pose written "
-                 f"for image k{shift:+d})",
-            code="pairs_shifted")
-    raise SessionRefused(f"{f.title}: {f.evidence}", expected="each image paired with its own robot pose",
-                           received="poses that belong to other images", hint=f.action, code="pairs_shuffled")
+            f"for image k{shift:+d})",
+            code="pairs_shifted",
+        )
+    raise SessionRefused(
+        f"{f.title}: {f.evidence}",
+        expected="each image paired with its own robot pose",
+        received="poses that belong to other images",
+        hint=f.action,
+        code="pairs_shuffled",
+    )
 
 
 def shift_poses(s: Session, shift: int) -> tuple[Session, list]:
     """The session with image k paired with the pose written for image k + ``shift`` (in the order the poses
-    are written): (session, views left without a pose)."""
+    are written): (session, views left without a pose).
+    """
     from .conventions import T_from_pose_values
     from .session.raw import raw_poses_of
 
@@ -508,14 +603,26 @@ def shift_poses(s: Session, shift: int) -> tuple[Session, list]:
     return replace(s, views=tuple(views), meta=meta), unpaired
 
 
-def refine_stage(s: Session, opts: CalibrateOptions, start: HandEyeEstimate, intr: Intrinsics, poses: dict,
-                 dets: dict, T_base_end: dict, closed_forms: Optional[dict] = None, arm=None):
+def refine_stage(
+    s: Session,
+    opts: CalibrateOptions,
+    start: HandEyeEstimate,
+    intr: Intrinsics,
+    poses: dict,
+    dets: dict,
+    T_base_end: dict,
+    closed_forms: Optional[dict] = None,
+    arm=None,
+):
     """The joint refinement from the chosen closed form (``arm``: the session's, when already read by
-    :func:`session_arm`)."""
+    :func:`session_arm`).
+    """
     from .refine import RefineOptions, RefineView, refine
 
-    views = [RefineView(vid, poses[vid].corner_ids, dets[vid].image_points, T_base_end[vid],
-                        _joint_angles(s, vid)) for vid in poses]
+    views = [
+        RefineView(vid, poses[vid].corner_ids, dets[vid].image_points, T_base_end[vid], _joint_angles(s, vid))
+        for vid in poses
+    ]
     ro = dict(opts.refine_options)
     if ro.get("arm") is None:
         ro["arm"] = arm if arm is not None else session_arm(s, opts)
@@ -523,13 +630,22 @@ def refine_stage(s: Session, opts: CalibrateOptions, start: HandEyeEstimate, int
         ro["fix"] = tuple(sorted(set(ro.get("fix", ())) | {"k3"}))
     if s.intrinsics is not None and s.intrinsics_prior in ("fixed", "prior"):
         ro.setdefault("intrinsics", s.intrinsics_prior)
-    return refine(mode=s.mode, object_points=s.target.object_points(), views=views, intrinsics=intr,
-                  T_x0=start.T_x, T_board0=start.T_board, options=RefineOptions(**ro), starts=closed_forms)
+    return refine(
+        mode=s.mode,
+        object_points=s.target.object_points(),
+        views=views,
+        intrinsics=intr,
+        T_x0=start.T_x,
+        T_board0=start.T_board,
+        options=RefineOptions(**ro),
+        starts=closed_forms,
+    )
 
 
 def session_arm(s: Session, opts: CalibrateOptions):
     """The arm session.yaml's ``robot:`` names (a preset, a DH table file relative to the session, or an
-    inline table; :func:`handeye.kinematics.load_arm`) when the options name none, else None."""
+    inline table; :func:`handeye.kinematics.load_arm`) when the options name none, else None.
+    """
     if opts.refine_options.get("arm") is not None or s.meta.get("robot") is None:
         return None
     from .kinematics import load_arm
@@ -546,11 +662,10 @@ def _joint_angles(s: Session, vid: str):
 
 def validate_stage(s: Session, refined, poses: dict, dets: dict, T_base_end: dict):
     """The validated and verdict covariances of the refined result (:func:`handeye.refine.validation.validate`):
-    refits without some views, from the refinement's own views."""
+    refits without some views, from the refinement's own views.
+    """
     from .refine import RefineView
-    from .refine.validation import validate
-
-    from .refine.validation import Validation
+    from .refine.validation import Validation, validate
 
     views = [RefineView(vid, poses[vid].corner_ids, dets[vid].image_points, T_base_end[vid]) for vid in poses]
     try:

@@ -3,6 +3,7 @@ closed-form estimates.
 
 Views are identified by ``view_id`` (a string such as "7" for ``7.jpg``), never by list position.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -87,7 +88,8 @@ class Detection:
 @dataclass(frozen=True)
 class DetectionFailure:
     """A view whose target was not found: why, and what was measured on its image anyway
-    (exposure over the whole image {"saturated_share", "p5", "p95"}, a small grey JPEG)."""
+    (exposure over the whole image {"saturated_share", "p5", "p95"}, a small grey JPEG).
+    """
 
     view_id: str
     reason: str

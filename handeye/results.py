@@ -20,6 +20,7 @@ the file) or not (``failed``). Whether to use it is the ``verdict`` (:func:`verd
   decide; null when not recorded) and ``mode_evidence`` (the mode test's numbers and ``summary``
   line, when it ran).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -40,7 +41,7 @@ OBSERVATIONS_VERSION = 1
 
 FRAME_DOC = {
     "T_end_cam": "pose of the camera (optical frame: x right, y down, z forward) in the end/flange frame; "
-                 "p_end = T_end_cam @ p_cam",
+    "p_end = T_end_cam @ p_cam",
     "T_base_cam": "pose of the camera (optical frame) in the robot base frame; p_base = T_base_cam @ p_cam",
     "T_base_board": "pose of the calibration board in the robot base frame; p_base = T_base_board @ p_board",
     "T_end_board": "pose of the calibration board in the end/flange frame; p_end = T_end_board @ p_board",
@@ -74,8 +75,12 @@ def observations_dict(run) -> dict:
     for vid, det in run.detections.items():
         bp = run.board_poses.get(vid)
         ids = bp.corner_ids if bp is not None else det.corner_ids
-        v = {"corner_ids": ids.tolist(), "image_points_px": det.image_points.tolist(),
-             "sharpness": det.sharpness, "image": str(s.view(vid).image_path)}
+        v = {
+            "corner_ids": ids.tolist(),
+            "image_points_px": det.image_points.tolist(),
+            "sharpness": det.sharpness,
+            "image": str(s.view(vid).image_path),
+        }
         for key in ("blur", "exposure"):
             if getattr(det, key, None) is not None:
                 v[key] = getattr(det, key)
@@ -96,30 +101,38 @@ def observations_dict(run) -> dict:
         failed[vid] = {"reason": reasons.get(vid, ""), "image": str(s.view(vid).image_path)}
         if getattr(f, "exposure", None) is not None:
             failed[vid]["exposure"] = f.exposure
-    return {"handeye_observations": OBSERVATIONS_VERSION, "mode": s.mode, "target": s.target.to_dict(),
-            "object_points_m": obj.tolist(),
-            "image_size": list(intr.image_size) if intr is not None else None, "views": views,
-            "failed_views": failed}
+    return {
+        "handeye_observations": OBSERVATIONS_VERSION,
+        "mode": s.mode,
+        "target": s.target.to_dict(),
+        "object_points_m": obj.tolist(),
+        "image_size": list(intr.image_size) if intr is not None else None,
+        "views": views,
+        "failed_views": failed,
+    }
 
 
 def dropped_corners(run, view_id: str) -> list:
     """[{"corner_id", "reason"}] of the corners the detector found in the view but did not use, numbered as
-    the view's used corners are (its board orientation resolved); [] when none or not detected."""
+    the view's used corners are (its board orientation resolved); [] when none or not detected.
+    """
     det = (getattr(run, "detections", None) or {}).get(view_id)
     if det is None or not getattr(det, "dropped_corners", ()):
         return []
     bp = (getattr(run, "board_poses", None) or {}).get(view_id)
     syms = run.session.target.symmetries() if bp is not None else None
     perm = syms[bp.orientation] if syms is not None and 0 <= bp.orientation < len(syms) else None
-    return [{"corner_id": int(perm[k]) if perm is not None else int(k), "reason": why}
-            for k, why in det.dropped_corners]
+    return [
+        {"corner_id": int(perm[k]) if perm is not None else int(k), "reason": why} for k, why in det.dropped_corners
+    ]
 
 
 def mode_source(run, mode_flag: Optional[str] = None) -> tuple[Optional[str], Optional[dict]]:
     """(``mode_source``, ``mode_evidence``): how the mounting mode was chosen (``stated`` | ``flag`` |
     ``detected`` | ``default``) as the run's ``mode_decision`` (or its session) records it, and the
     evidence of the mode test (a dict with its ``summary`` line) when it ran; ``flag`` when the mode
-    came from ``--mode`` and nothing else is recorded."""
+    came from ``--mode`` and nothing else is recorded.
+    """
     decision = getattr(run, "mode_decision", None) or {}
     src = decision.get("mode_source") or getattr(run.session, "mode_source", None)
     if mode_flag is not None and src in (None, "stated"):
@@ -130,7 +143,8 @@ def mode_source(run, mode_flag: Optional[str] = None) -> tuple[Optional[str], Op
 
 def result_dict(run, *, mode_flag: Optional[str] = None) -> dict:
     """Everything result.json holds but the verdict (:func:`verdict_fields`). A failed run has
-    ``status: failed``, the error and no result matrix. ``mode_flag``: the ``--mode`` given, if any."""
+    ``status: failed``, the error and no result matrix. ``mode_flag``: the ``--mode`` given, if any.
+    """
     s = run.session
     mode = mounting(s.mode)
     src, evidence = mode_source(run, mode_flag)
@@ -150,40 +164,75 @@ def result_dict(run, *, mode_flag: Optional[str] = None) -> dict:
     if run.status == "ok":
         d[mode.x_name] = run.T_x.tolist()
         d[mode.board_name] = run.T_board.tolist()
-        d["frames"] = {mode.x_name: FRAME_DOC[mode.x_name], mode.board_name: FRAME_DOC[mode.board_name],
-                       "units": "metres; angles in radians unless the key says _deg"}
+        d["frames"] = {
+            mode.x_name: FRAME_DOC[mode.x_name],
+            mode.board_name: FRAME_DOC[mode.board_name],
+            "units": "metres; angles in radians unless the key says _deg",
+        }
         d["hand_eye"] = dict(name=mode.x_name, **pose_forms(run.T_x))
         d["board"] = dict(name=mode.board_name, **pose_forms(run.T_board))
     if run.start is not None:
-        d["seed"] = {"method": run.start.method, mode.x_name: run.start.T_x.tolist(),
-                     mode.board_name: run.start.T_board.tolist()}
+        d["seed"] = {
+            "method": run.start.method,
+            mode.x_name: run.start.T_x.tolist(),
+            mode.board_name: run.start.T_board.tolist(),
+        }
     if run.closed_forms:
         d["closed_form"] = _closed_forms_dict(run, mode)
     if run.intrinsics is not None:
-        d["intrinsics"] = dict(run.intrinsics.to_dict(), source=run.intrinsics_source,
-                               calibrate_camera_rms_px=run.intrinsics_rms_px)
-    d["views"] = [{"id": o.view_id, "image": o.image, "used": o.used, "reason": o.reason, "n_corners": o.n_corners,
-                   "pnp_rms_px": o.rms_px, "chain_max_px": o.max_px, "orientation": o.orientation,
-                   "flags": list(o.flags), "corners_dropped": dropped_corners(run, o.view_id)}
-                  for o in run.outcomes]
+        d["intrinsics"] = dict(
+            run.intrinsics.to_dict(), source=run.intrinsics_source, calibrate_camera_rms_px=run.intrinsics_rms_px
+        )
+    d["views"] = [
+        {
+            "id": o.view_id,
+            "image": o.image,
+            "used": o.used,
+            "reason": o.reason,
+            "n_corners": o.n_corners,
+            "pnp_rms_px": o.rms_px,
+            "chain_max_px": o.max_px,
+            "orientation": o.orientation,
+            "flags": list(o.flags),
+            "corners_dropped": dropped_corners(run, o.view_id),
+        }
+        for o in run.outcomes
+    ]
     d["n_views"] = {"total": len(run.outcomes), "used": sum(o.used for o in run.outcomes)}
     if run.motion is not None:
         m = run.motion
-        d["motion"] = {"n_views": m.n_views, "max_rotation_deg": m.max_rotation_deg,
-                       "axis_spread_deg": m.axis_spread_deg, "status": m.status, "reason": m.reason,
-                       "min_rotation_deg": m.min_rotation_deg, "min_axis_spread_deg": m.min_axis_spread_deg}
+        d["motion"] = {
+            "n_views": m.n_views,
+            "max_rotation_deg": m.max_rotation_deg,
+            "axis_spread_deg": m.axis_spread_deg,
+            "status": m.status,
+            "reason": m.reason,
+            "min_rotation_deg": m.min_rotation_deg,
+            "min_axis_spread_deg": m.min_axis_spread_deg,
+        }
     if run.refined is not None and hasattr(run.refined, "to_dict"):
         d["refinement"] = run.refined.to_dict()
         if run.refined.status == "ok":
             d["refinement"].update(validation_fields(run.refined, getattr(run, "validation", None)))
     d["target"] = s.target.to_dict()
-    d["session"] = {"path": str(s.path), "format": s.format, "pose_format": s.pose_format,
-                    "intrinsics_given": s.intrinsics is not None}
+    d["session"] = {
+        "path": str(s.path),
+        "format": s.format,
+        "pose_format": s.pose_format,
+        "intrinsics_given": s.intrinsics is not None,
+    }
     d["seconds"] = dict(run.seconds)
-    d["provenance"] = provenance(inputs_sha256=hash_files(session_inputs(s)),
-                                 extra={"options": {"method": run.options.method, "refine": run.options.refine,
-                                                    "fix_k3": run.options.fix_k3,
-                                                    **run.options.refine_options}})
+    d["provenance"] = provenance(
+        inputs_sha256=hash_files(session_inputs(s)),
+        extra={
+            "options": {
+                "method": run.options.method,
+                "refine": run.options.refine,
+                "fix_k3": run.options.fix_k3,
+                **run.options.refine_options,
+            }
+        },
+    )
     return d
 
 
@@ -199,9 +248,15 @@ def _closed_forms_dict(run, mode) -> dict:
         e = {"status": est.status}
         if est.status == "ok":
             dt, dr = consistency(est, mode, C, Ms)
-            e.update({mode.x_name: est.T_x.tolist(), "translation_mm": (est.T_x[:3, 3] * 1e3).tolist(),
-                      "rotvec_deg": pose_forms(est.T_x)["rotvec_deg"],
-                      "board_consistency_mm": dt, "board_consistency_deg": dr})
+            e.update(
+                {
+                    mode.x_name: est.T_x.tolist(),
+                    "translation_mm": (est.T_x[:3, 3] * 1e3).tolist(),
+                    "rotvec_deg": pose_forms(est.T_x)["rotvec_deg"],
+                    "board_consistency_mm": dt,
+                    "board_consistency_deg": dr,
+                }
+            )
             if run.T_x is not None:
                 r, t = pose_error(est.T_x, run.T_x)
                 e["diff_to_result_deg"], e["diff_to_result_mm"] = r, t
@@ -215,7 +270,8 @@ def _closed_forms_dict(run, mode) -> dict:
 
 def verdict_cov_x(run) -> Optional[np.ndarray]:
     """The verdict covariance (6,6) of the run's T_x: the validated verdict when the run was validated,
-    else the refinement's model covariance; None without a refinement."""
+    else the refinement's model covariance; None without a refinement.
+    """
     ref = run.refined
     if ref is None or getattr(ref, "status", "") != "ok":
         return None
@@ -256,57 +312,89 @@ def validation_fields(ref, val) -> dict:
     for k in ("sigma_rot_deg", "sigma_trans_mm", "correlation_6x6", "predicted_error_mm", "predicted_error_axes_mm"):
         out[f"{k}_model"] = getattr(model, k)
     if val is None or val.status != "ok":
-        out.update(sigma_source="model", intrinsics_sigma_verdict=dict(ref.intrinsics_sigma),
-                   validation={"status": "not_run", "summary": "not run" if val is None else val.summary()})
+        out.update(
+            sigma_source="model",
+            intrinsics_sigma_verdict=dict(ref.intrinsics_sigma),
+            validation={"status": "not_run", "summary": "not run" if val is None else val.summary()},
+        )
         return plain(out)
     verdict = hand_eye_uncertainty(val.x.cov_verdict, ref.T_x, ref.working_distance_m)
     validated = hand_eye_uncertainty(val.x.cov_validated, ref.T_x, ref.working_distance_m)
-    out.update(cov_x_6x6_validated=val.x.cov_validated, cov_x_6x6_verdict=val.x.cov_verdict,
-               sigma_source=val.x.source, sigma_rot_deg_validated=validated.sigma_rot_deg,
-               sigma_trans_mm_validated=validated.sigma_trans_mm)
+    out.update(
+        cov_x_6x6_validated=val.x.cov_validated,
+        cov_x_6x6_verdict=val.x.cov_verdict,
+        sigma_source=val.x.source,
+        sigma_rot_deg_validated=validated.sigma_rot_deg,
+        sigma_trans_mm_validated=validated.sigma_trans_mm,
+    )
     for k in ("sigma_rot_deg", "sigma_trans_mm", "correlation_6x6", "predicted_error_mm", "predicted_error_axes_mm"):
         out[k] = getattr(verdict, k)
     kb = val.intrinsics
     if kb is not None:
         out["intrinsics_cov_names"] = list(kb.names)
         out["cov_intrinsics_verdict"] = kb.cov_verdict
-        out["intrinsics_sigma_validated"] = dict(zip(kb.names, np.sqrt(np.diag(kb.cov_validated))))
-        out["intrinsics_sigma_verdict"] = dict(zip(kb.names, np.sqrt(np.diag(kb.cov_verdict))))
+        out["intrinsics_sigma_validated"] = dict(zip(kb.names, np.sqrt(np.diag(kb.cov_validated)), strict=False))
+        out["intrinsics_sigma_verdict"] = dict(zip(kb.names, np.sqrt(np.diag(kb.cov_verdict)), strict=False))
         out["intrinsics_sigma_source"] = kb.source
     else:
         out["intrinsics_sigma_verdict"] = dict(ref.intrinsics_sigma)
     K = len(val.folds)
-    block = {"status": "ok", "summary": val.summary(), "scheme": val.scheme, "n_views": len(val.view_ids),
-             "n_folds": K, "folds_solved": val.n_solved,
-             "spread_over_model_sigma_max": float(np.sqrt(max(val.x.eig.max(), 0.0))),
-             "spread_over_model_sigma_rms": float(np.sqrt(max(val.x.scale, 0.0))),
-             "generalised_eigenvalues": val.x.eig, "shrinkage": val.x.shrinkage,
-             "spread_p_value": val.x.p_value, "spread_beyond_chance": val.x.finding, "spread_test": val.x.test}
+    block = {
+        "status": "ok",
+        "summary": val.summary(),
+        "scheme": val.scheme,
+        "n_views": len(val.view_ids),
+        "n_folds": K,
+        "folds_solved": val.n_solved,
+        "spread_over_model_sigma_max": float(np.sqrt(max(val.x.eig.max(), 0.0))),
+        "spread_over_model_sigma_rms": float(np.sqrt(max(val.x.scale, 0.0))),
+        "generalised_eigenvalues": val.x.eig,
+        "shrinkage": val.x.shrinkage,
+        "spread_p_value": val.x.p_value,
+        "spread_beyond_chance": val.x.finding,
+        "spread_test": val.x.test,
+    }
     if kb is not None:
-        block.update(intrinsics_spread_over_model_sigma_max=float(np.sqrt(max(kb.eig.max(), 0.0))),
-                     intrinsics_spread_over_model_sigma_rms=float(np.sqrt(max(kb.scale, 0.0))),
-                     intrinsics_spread_p_value=kb.p_value if np.isfinite(kb.p_value) else None,
-                     intrinsics_spread_beyond_chance=kb.finding, intrinsics_spread_test=kb.test,
-                     intrinsics_model=kb.model_form)
+        block.update(
+            intrinsics_spread_over_model_sigma_max=float(np.sqrt(max(kb.eig.max(), 0.0))),
+            intrinsics_spread_over_model_sigma_rms=float(np.sqrt(max(kb.scale, 0.0))),
+            intrinsics_spread_p_value=kb.p_value if np.isfinite(kb.p_value) else None,
+            intrinsics_spread_beyond_chance=kb.finding,
+            intrinsics_spread_test=kb.test,
+            intrinsics_model=kb.model_form,
+        )
     halves = {}
     for name, fit in val.halves.items():
         # view_ids: every view refitted (robot-excluded ones serve the intrinsics); used_view_ids: X's views
-        h = {"view_ids": list(fit.view_ids), "status": fit.status,
-             "used_view_ids": [v for v in fit.view_ids if (ref.per_view.get(v) or {}).get("status") == "used"]}
+        h = {
+            "view_ids": list(fit.view_ids),
+            "status": fit.status,
+            "used_view_ids": [v for v in fit.view_ids if (ref.per_view.get(v) or {}).get("status") == "used"],
+        }
         if fit.status == "ok":
             r, t = pose_error(fit.T_x, ref.T_x)
-            h.update({ref.x_name: fit.T_x, "intrinsics": fit.intrinsics.to_dict(), "diff_to_result_deg": r,
-                      "diff_to_result_mm": t,
-                      # result vs a half of its views: cov(half - full) = cov(half) - cov(full) ~ cov(full)
-                      "diff_to_result_sigma": _sigma_distance(ref.T_x, fit.T_x, val.x.cov_verdict)})
+            h.update(
+                {
+                    ref.x_name: fit.T_x,
+                    "intrinsics": fit.intrinsics.to_dict(),
+                    "diff_to_result_deg": r,
+                    "diff_to_result_mm": t,
+                    # result vs a half of its views: cov(half - full) = cov(half) - cov(full) ~ cov(full)
+                    "diff_to_result_sigma": _sigma_distance(ref.T_x, fit.T_x, val.x.cov_verdict),
+                }
+            )
         halves[name] = h
     if all(h.get("status") == "ok" for h in halves.values()) and len(halves) == 2:
         a, b = val.halves["odd"], val.halves["even"]
         # independent halves, each with about twice the full covariance: the difference has ~4x
         m2 = mahalanobis2(tangent_difference(a.T_x, b.T_x), 4.0 * val.x.cov_verdict)
         r, t = pose_error(a.T_x, b.T_x)
-        halves["odd_vs_even"] = {"diff_deg": r, "diff_mm": t, "mahalanobis2": m2,
-                                 "covariance": "4x the verdict covariance (each half has about twice it)"}
+        halves["odd_vs_even"] = {
+            "diff_deg": r,
+            "diff_mm": t,
+            "mahalanobis2": m2,
+            "covariance": "4x the verdict covariance (each half has about twice it)",
+        }
     block["halves"] = halves
     out["validation"] = block
     return plain(out)
@@ -314,12 +402,20 @@ def validation_fields(ref, val) -> dict:
 
 def failed_load_result(session_path, err: HandeyeError, mode: Optional[str]) -> dict:
     """result.json for a session that could not be read at all."""
-    return {"handeye_result": RESULT_VERSION, "status": "failed", "failure_reason": str(err),
-            "error": err.to_dict(), "mode": mode or "unknown", "mode_source": "flag" if mode else None,
-            "method": None, "refined": False, "views": [],
-            "n_views": {"total": 0, "used": 0},
-            "session": {"path": str(Path(session_path).resolve()), "format": "unreadable"},
-            "provenance": provenance()}
+    return {
+        "handeye_result": RESULT_VERSION,
+        "status": "failed",
+        "failure_reason": str(err),
+        "error": err.to_dict(),
+        "mode": mode or "unknown",
+        "mode_source": "flag" if mode else None,
+        "method": None,
+        "refined": False,
+        "views": [],
+        "n_views": {"total": 0, "used": 0},
+        "session": {"path": str(Path(session_path).resolve()), "format": "unreadable"},
+        "provenance": provenance(),
+    }
 
 
 #: the keys of a finding in result.json's ``findings``
@@ -337,13 +433,20 @@ def verdict_fields(verdict, res: dict, error: Optional[HandeyeError], *, qa_cfg:
     ``qa_cfg``: the QA thresholds the verdict used (for each check's ``limits``).
     """
     raw = ((res.get("diagnostics") or {}).get("findings")) or []
-    findings = [{k: (list(f.get(k) or []) if k == "view_ids" else f.get(k)) for k in FINDING_KEYS}
-                for f in raw if isinstance(f, dict)]
+    findings = [
+        {k: (list(f.get(k) or []) if k == "view_ids" else f.get(k)) for k in FINDING_KEYS}
+        for f in raw
+        if isinstance(f, dict)
+    ]
     findings.sort(key=lambda f: _SEVERITY_RANK.get(str(f["severity"]).lower(), 3))
     if verdict is not None:
         label, headline = verdict.label, verdict.headline
-        qa = {"source": verdict.thresholds_source, "status": verdict.status, "counts": dict(verdict.counts),
-              "checks": [_check_dict(c, (qa_cfg or {}).get("checks") or {}) for c in verdict.checks]}
+        qa = {
+            "source": verdict.thresholds_source,
+            "status": verdict.status,
+            "counts": dict(verdict.counts),
+            "checks": [_check_dict(c, (qa_cfg or {}).get("checks") or {}) for c in verdict.checks],
+        }
     else:
         worst = min((_SEVERITY_RANK.get(str(f["severity"]).lower(), 3) for f in findings), default=3)
         label = "FAIL" if worst == 0 else "WARN"
@@ -365,9 +468,23 @@ def verdict_fields(verdict, res: dict, error: Optional[HandeyeError], *, qa_cfg:
 
 def _check_dict(c, limits_cfg: dict) -> dict:
     """A QA check (:class:`handeye.report.qa.Check`) for result.json, with its limits as numbers
-    (``limits``: check key -> {warn_above, fail_above, warn_below, fail_below}, from the QA file)."""
-    limits = {k: {n: v for n, v in limits_cfg[k].items() if v is not None}
-              for k in c.key.split("+") if isinstance(limits_cfg.get(k), dict)}
-    return {"key": c.key, "title": c.title, "status": c.status, "value": c.value, "value_text": c.value_text,
-            "limit_text": c.limit_text, "limits": limits, "why": c.why, "action": c.action, "source": c.source,
-            "short": c.short}
+    (``limits``: check key -> {warn_above, fail_above, warn_below, fail_below}, from the QA file).
+    """
+    limits = {
+        k: {n: v for n, v in limits_cfg[k].items() if v is not None}
+        for k in c.key.split("+")
+        if isinstance(limits_cfg.get(k), dict)
+    }
+    return {
+        "key": c.key,
+        "title": c.title,
+        "status": c.status,
+        "value": c.value,
+        "value_text": c.value_text,
+        "limit_text": c.limit_text,
+        "limits": limits,
+        "why": c.why,
+        "action": c.action,
+        "source": c.source,
+        "short": c.short,
+    }

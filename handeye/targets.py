@@ -6,6 +6,7 @@ in OpenCV's numbering), ``symmetries()`` (the corner permutations a detector can
 ``to_dict()`` (the session/result form; :func:`handeye.session.target_spec.parse_target` reads it
 back with validation) and ``describe()`` (one line for messages).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -89,13 +90,20 @@ class CharucoSpec:
         return [np.arange(self.n_corners)]  # marker ids make the orientation unique
 
     def to_dict(self) -> dict:
-        return {"type": "charuco", "squares": [self.squares_x, self.squares_y], "square_m": self.square_m,
-                "marker_m": self.marker_m, "dictionary": self.dictionary,
-                "legacy_pattern": self.legacy_pattern}
+        return {
+            "type": "charuco",
+            "squares": [self.squares_x, self.squares_y],
+            "square_m": self.square_m,
+            "marker_m": self.marker_m,
+            "dictionary": self.dictionary,
+            "legacy_pattern": self.legacy_pattern,
+        }
 
     def describe(self) -> str:
-        return (f"ChArUco {self.squares_x}x{self.squares_y} squares, {self.square_m * 1000:g} mm squares, "
-                f"{self.marker_m * 1000:g} mm markers, {self.dictionary}")
+        return (
+            f"ChArUco {self.squares_x}x{self.squares_y} squares, {self.square_m * 1000:g} mm squares, "
+            f"{self.marker_m * 1000:g} mm markers, {self.dictionary}"
+        )
 
 
 @dataclass(frozen=True)
@@ -147,8 +155,13 @@ class CircleGridSpec:
         return grid_turns(self.cols, self.rows)
 
     def to_dict(self) -> dict:
-        return {"type": "circlegrid", "grid": [self.cols, self.rows], "spacing_m": self.spacing_m,
-                "asymmetric": self.asymmetric, "origin_dot": self.origin_dot}
+        return {
+            "type": "circlegrid",
+            "grid": [self.cols, self.rows],
+            "spacing_m": self.spacing_m,
+            "asymmetric": self.asymmetric,
+            "origin_dot": self.origin_dot,
+        }
 
     def describe(self) -> str:
         layout = "asymmetric " if self.asymmetric else ""
@@ -251,12 +264,20 @@ class AprilGridSpec:
         return [np.arange(self.n_corners)]  # tag ids fix the orientation
 
     def to_dict(self) -> dict:
-        return {"type": "aprilgrid", "tags": [self.cols, self.rows], "size_m": self.size_m, "spacing": self.spacing,
-                "dictionary": self.dictionary, "first_id": self.first_id}
+        return {
+            "type": "aprilgrid",
+            "tags": [self.cols, self.rows],
+            "size_m": self.size_m,
+            "spacing": self.spacing,
+            "dictionary": self.dictionary,
+            "first_id": self.first_id,
+        }
 
     def describe(self) -> str:
-        return (f"AprilGrid {self.cols}x{self.rows} tags, {self.size_m * 1000:g} mm, spacing {self.spacing:g}, "
-                f"{self.dictionary}")
+        return (
+            f"AprilGrid {self.cols}x{self.rows} tags, {self.size_m * 1000:g} mm, spacing {self.spacing:g}, "
+            f"{self.dictionary}"
+        )
 
 
 TargetSpec = Union[ChessboardSpec, CharucoSpec, CircleGridSpec, MarkerSpec, AprilGridSpec]
@@ -266,7 +287,8 @@ TargetSpec = Union[ChessboardSpec, CharucoSpec, CircleGridSpec, MarkerSpec, Apri
 class TrackedTargetSpec:
     """The target of a pose-only session: a frame whose pose an external tracker reports (no points are
     detected). ``object_points`` are its origin and the tips of its x and y axes at ``axis_m``, for
-    drawings and for code that sizes things by the target."""
+    drawings and for code that sizes things by the target.
+    """
 
     name: str = ""
     axis_m: float = 0.1

@@ -55,6 +55,7 @@ matrix was computed (``ok``) or not (``failed``); ``verdict`` says whether to us
 :attr:`WorkflowResult.exit_code` follows :mod:`handeye.errors`: the error's code when there is one,
 else the verdict's (:func:`handeye.errors.verdict_exit_code`).
 """
+
 from __future__ import annotations
 
 import json
@@ -67,8 +68,18 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from .errors import HandeyeError, SessionRefused, verdict_exit_code
-from .output import (FolderLock, OutputWriteError, atomic_write_bytes, atomic_write_text, check_out_dir,
-                     inputs_record, remove_stray_temps, to_json, write_json, writing)
+from .output import (
+    FolderLock,
+    OutputWriteError,
+    atomic_write_bytes,
+    atomic_write_text,
+    check_out_dir,
+    inputs_record,
+    remove_stray_temps,
+    to_json,
+    write_json,
+    writing,
+)
 from .pipeline import CalibrateOptions, CalibrationRun, run_calibration
 
 log = logging.getLogger(__name__)
@@ -102,11 +113,21 @@ class WorkflowResult:
         return self.error.exit_code if self.error is not None else verdict_exit_code(self.verdict)
 
 
-def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOptions(), out_dir,
-                      report: bool = True, qa=None, mode: Optional[str] = None,
-                      progress: Callable[[str], None] | None = None, diagnostics: bool = True,
-                      allow_outside: bool = False, site_files=(), prior=None,
-                      board_unmoved: bool = False) -> WorkflowResult:
+def calibrate_session(
+    session_path,
+    *,
+    options: CalibrateOptions = CalibrateOptions(),
+    out_dir,
+    report: bool = True,
+    qa=None,
+    mode: Optional[str] = None,
+    progress: Callable[[str], None] | None = None,
+    diagnostics: bool = True,
+    allow_outside: bool = False,
+    site_files=(),
+    prior=None,
+    board_unmoved: bool = False,
+) -> WorkflowResult:
     """Calibrate the session folder ``session_path`` and write its results into ``out_dir``.
 
     ``mode`` overrides the session's mounting mode; ``qa`` is a site QA file for the verdict and the
@@ -130,14 +151,39 @@ def calibrate_session(session_path, *, options: CalibrateOptions = CalibrateOpti
     out_dir = check_out_dir(out_dir)
     with FolderLock(out_dir):
         remove_stray_temps(out_dir)
-        return _calibrate_locked(session_path, options=options, out_dir=out_dir, report=report, qa=(qa, qa_cfg),
-                                 mode=mode, progress=progress, diagnostics=diagnostics, allow_outside=allow_outside,
-                                 t0=t0, site_files=site_files, prior=prior, board_unmoved=board_unmoved)
+        return _calibrate_locked(
+            session_path,
+            options=options,
+            out_dir=out_dir,
+            report=report,
+            qa=(qa, qa_cfg),
+            mode=mode,
+            progress=progress,
+            diagnostics=diagnostics,
+            allow_outside=allow_outside,
+            t0=t0,
+            site_files=site_files,
+            prior=prior,
+            board_unmoved=board_unmoved,
+        )
 
 
-def _calibrate_locked(session_path, *, options, out_dir: Path, report: bool, qa: tuple, mode, progress,
-                      diagnostics: bool, allow_outside: bool, t0: float, site_files, prior=None,
-                      board_unmoved: bool = False) -> WorkflowResult:
+def _calibrate_locked(
+    session_path,
+    *,
+    options,
+    out_dir: Path,
+    report: bool,
+    qa: tuple,
+    mode,
+    progress,
+    diagnostics: bool,
+    allow_outside: bool,
+    t0: float,
+    site_files,
+    prior=None,
+    board_unmoved: bool = False,
+) -> WorkflowResult:
     """``qa``: (the site QA file or None, its thresholds as loaded)."""
     from .session import load_session
 
@@ -146,16 +192,26 @@ def _calibrate_locked(session_path, *, options, out_dir: Path, report: bool, qa:
         session = load_session(session_path, mode=mode, allow_outside=allow_outside)
     except HandeyeError as e:
         # the session exists but cannot be read: still leave a result and a report that say why
-        return _failed_load(session_path, e, mode=mode, out_dir=out_dir, report=report, qa=qa, t0=t0,
-                            diagnostics=diagnostics, run_id=run_id)
+        return _failed_load(
+            session_path,
+            e,
+            mode=mode,
+            out_dir=out_dir,
+            report=report,
+            qa=qa,
+            t0=t0,
+            diagnostics=diagnostics,
+            run_id=run_id,
+        )
     t_load = time.perf_counter() - t0
     log.info("session %s: %d views, %s, %s", session.path, len(session.views), session.mode, session.format)
     prior_record = None
     if prior is not None:  # an earlier result as the prior of X and the intrinsics (handeye.recal.prior)
         from .recal.prior import calibrate_with_prior
 
-        run, prior_record = calibrate_with_prior(session, options, prior, progress=progress,
-                                                 board_unmoved=board_unmoved)
+        run, prior_record = calibrate_with_prior(
+            session, options, prior, progress=progress, board_unmoved=board_unmoved
+        )
     else:
         run = run_calibration(session, options, progress=progress)
     from .results import observations_dict, result_dict
@@ -196,21 +252,38 @@ def _calibrate_locked(session_path, *, options, out_dir: Path, report: bool, qa:
     write_thumbnails(out_dir, {**run.failures, **run.detections})
     obs_text = to_json({**observations_dict(run), "run_id": run_id}, indent=None)
     atomic_write_text(out_dir / "observations.json", obs_text + "\n")
-    return _finish(out_dir, res, json.loads(obs_text), seconds, report=report, qa=qa, t0=t0, t_write=t2, run=run,
-                   error=run.error, progress=progress)
+    return _finish(
+        out_dir,
+        res,
+        json.loads(obs_text),
+        seconds,
+        report=report,
+        qa=qa,
+        t0=t0,
+        t_write=t2,
+        run=run,
+        error=run.error,
+        progress=progress,
+    )
 
 
 def optional_stage(name: str, fn, *args, errors: dict, **kwargs):
     """``fn(*args, **kwargs)``, or None when it crashes: an optional stage (diagnostics, report) never
     takes the result down. The crash is one error line naming the stage (its traceback at debug level,
-    i.e. with ``--debug``) and ``errors[name]`` says what it was, for result.json's ``stage_errors``."""
+    i.e. with ``--debug``) and ``errors[name]`` says what it was, for result.json's ``stage_errors``.
+    """
     try:
         return fn(*args, **kwargs)
     except HandeyeError:
         raise
     except Exception as e:  # noqa: BLE001 - an optional stage must not lose the result
-        log.error("handeye: the %s stage crashed (%s: %s); the result is written without it. "
-                  "Rerun with --debug for the traceback and report it", name, type(e).__name__, e)
+        log.error(
+            "handeye: the %s stage crashed (%s: %s); the result is written without it. "
+            "Rerun with --debug for the traceback and report it",
+            name,
+            type(e).__name__,
+            e,
+        )
         log.debug("%s stage traceback", name, exc_info=True)
         errors[name] = f"{type(e).__name__}: {e}"
         return None
@@ -218,7 +291,8 @@ def optional_stage(name: str, fn, *args, errors: dict, **kwargs):
 
 def refusing_finding(diagnostics: Optional[dict]) -> Optional[dict]:
     """The first diagnostics finding that refuses the run (``refuses: true`` in the finding or its
-    ``details``), or None."""
+    ``details``), or None.
+    """
     for f in (diagnostics or {}).get("findings") or []:
         if isinstance(f, dict) and (f.get("refuses") is True or (f.get("details") or {}).get("refuses") is True):
             return f
@@ -228,7 +302,8 @@ def refusing_finding(diagnostics: Optional[dict]) -> Optional[dict]:
 def global_fault(diagnostics: Optional[dict], *, misread_only: bool = False) -> Optional[dict]:
     """The first failing diagnostics finding of a fault of the whole session
     (:data:`handeye.diagnose.GLOBAL_FAULT_CODES`; ``misread_only``: of the robot poses read wrongly,
-    :data:`handeye.diagnose.readings.READING_CODES`), or None."""
+    :data:`handeye.diagnose.readings.READING_CODES`), or None.
+    """
     from .diagnose import GLOBAL_FAULT_CODES
     from .diagnose.readings import READING_CODES
 
@@ -241,22 +316,35 @@ def global_fault(diagnostics: Optional[dict], *, misread_only: bool = False) -> 
 
 def _refused(run: CalibrationRun, finding: dict, *, evidence: bool = True) -> CalibrationRun:
     """The run without any matrix, its error the refusing finding (with its evidence unless ``evidence`` is
-    False: the finding is in the diagnostics with it)."""
+    False: the finding is in the diagnostics with it).
+    """
     what = f"the session was refused: {str(finding.get('title') or finding.get('code')).rstrip('.')}"
     if evidence and finding.get("evidence"):
         what += f" ({str(finding['evidence']).rstrip('.')})"
     err = SessionRefused(what, hint=finding.get("action") or None, code=str(finding.get("code") or "session_refused"))
     log.info("refused: %s", err)
-    return replace(run, status="failed", error=err, T_x=None, T_board=None, start=None, closed_forms={},
-                   refined=None)
+    return replace(run, status="failed", error=err, T_x=None, T_board=None, start=None, closed_forms={}, refined=None)
 
 
-def _finish(out_dir: Path, res: dict, observations: Optional[dict], seconds: dict, *, report: bool, qa: tuple,
-            t0: float, t_write: float, run, error, progress) -> WorkflowResult:
+def _finish(
+    out_dir: Path,
+    res: dict,
+    observations: Optional[dict],
+    seconds: dict,
+    *,
+    report: bool,
+    qa: tuple,
+    t0: float,
+    t_write: float,
+    run,
+    error,
+    progress,
+) -> WorkflowResult:
     """Judge the result (verdict, QA checks, findings) as the report does, from the folder's contents
     (``res`` and ``observations`` as written or about to be, the thumbnails on disk), render the
     reports from that one context, then write result.json once, atomically, ending with every stage's
-    time, and the reports beside it."""
+    time, and the reports beside it.
+    """
     from .output import to_json
     from .report.folder import result_folder
     from .results import verdict_fields
@@ -298,8 +386,18 @@ def _finish(out_dir: Path, res: dict, observations: Optional[dict], seconds: dic
     return WorkflowResult(status, out_dir, result_path, res, run, error, paths, seconds)
 
 
-def _failed_load(session_path, err: HandeyeError, *, mode, out_dir: Path, report: bool, qa: tuple, t0: float,
-                 diagnostics: bool, run_id: str) -> WorkflowResult:
+def _failed_load(
+    session_path,
+    err: HandeyeError,
+    *,
+    mode,
+    out_dir: Path,
+    report: bool,
+    qa: tuple,
+    t0: float,
+    diagnostics: bool,
+    run_id: str,
+) -> WorkflowResult:
     from .results import failed_load_result
 
     res = failed_load_result(session_path, err, mode)
@@ -311,8 +409,14 @@ def _failed_load(session_path, err: HandeyeError, *, mode, out_dir: Path, report
         from .diagnose import diagnose_session_error
 
         stage_errors = {}
-        diag = optional_stage("diagnostics", diagnose_session_error, Path(session_path), res["failure_reason"],
-                              mode=mode, errors=stage_errors)
+        diag = optional_stage(
+            "diagnostics",
+            diagnose_session_error,
+            Path(session_path),
+            res["failure_reason"],
+            mode=mode,
+            errors=stage_errors,
+        )
         if diag is not None:
             res["diagnostics"] = diag
         if stage_errors:
@@ -326,14 +430,26 @@ def _failed_load(session_path, err: HandeyeError, *, mode, out_dir: Path, report
                 shutil.rmtree(stale)
             elif stale.exists():
                 stale.unlink()
-    return _finish(out_dir, res, None, seconds, report=report, qa=qa, t0=t0, t_write=t2, run=None, error=err,
-                   progress=lambda s: None)
+    return _finish(
+        out_dir,
+        res,
+        None,
+        seconds,
+        report=report,
+        qa=qa,
+        t0=t0,
+        t_write=t2,
+        run=None,
+        error=err,
+        progress=lambda s: None,
+    )
 
 
 def _judge(folder, qa, qa_cfg: dict) -> Optional[dict]:
     """The report's context of the result folder (its ``verdict``: :class:`handeye.report.qa.Verdict`),
     without figures, or None when building it crashed (a report bug: logged;
-    :func:`handeye.results.verdict_fields` then judges from the findings alone, and no report is written)."""
+    :func:`handeye.results.verdict_fields` then judges from the findings alone, and no report is written).
+    """
     from .report import build_report_context
 
     try:
@@ -341,14 +457,20 @@ def _judge(folder, qa, qa_cfg: dict) -> Optional[dict]:
     except HandeyeError:
         raise
     except Exception as e:  # noqa: BLE001 - the result must survive a bug in the judging
-        log.error("handeye: the QA checks could not be evaluated (%s: %s); the verdict rests on the findings. "
-                  "Rebuild the report with: handeye --debug report %s", type(e).__name__, e, folder.path)
+        log.error(
+            "handeye: the QA checks could not be evaluated (%s: %s); the verdict rests on the findings. "
+            "Rebuild the report with: handeye --debug report %s",
+            type(e).__name__,
+            e,
+            folder.path,
+        )
         return None
 
 
 def _keep_previous(out_dir: Path, *, failed: bool) -> None:
     """Before a failed run's result.json replaces a successful one, keep a copy as result.previous.json
-    (a copy, written atomically: result.json stays in place until the new one replaces it)."""
+    (a copy, written atomically: result.json stays in place until the new one replaces it).
+    """
     current = out_dir / "result.json"
     out_dir.mkdir(parents=True, exist_ok=True)
     if not failed or not current.exists():
@@ -364,7 +486,8 @@ def _keep_previous(out_dir: Path, *, failed: bool) -> None:
 
 def write_thumbnails(out_dir: Path, per_view: dict) -> list[Path]:
     """``thumbnails/<view_id>.jpg`` from the JPEG bytes detection made (``thumbnail_jpeg`` on a
-    detection or a detection failure); thumbnails of views not in this run are removed."""
+    detection or a detection failure); thumbnails of views not in this run are removed.
+    """
     folder = Path(out_dir) / THUMBNAIL_DIR
     written = []
     for vid, rec in per_view.items():
@@ -385,7 +508,8 @@ def write_thumbnails(out_dir: Path, per_view: dict) -> list[Path]:
 
 def _render_reports(ctx: dict, folder) -> Optional[tuple]:
     """report.html and report.md of the judged context, with its figures, in memory; None when that
-    crashed (a report bug is logged, never fatal: result.json is complete without it)."""
+    crashed (a report bug is logged, never fatal: result.json is complete without it).
+    """
     from .report import render_reports, report_crashed
     from .report.context import add_figures
 
@@ -406,9 +530,13 @@ def _write_reports(out_dir: Path, rendered: tuple) -> list[Path]:
     try:
         return write_files(out_dir, *rendered)
     except OutputWriteError as e:  # the file system refused: a write fix, not bug advice
-        log.error("handeye: the report could not be written: cannot write %s (%s); result.json is complete. "
-                  "Free space or make the folder writable, then rebuild it with: handeye report %s",
-                  e.filename or out_dir, e.strerror or e, out_dir)
+        log.error(
+            "handeye: the report could not be written: cannot write %s (%s); result.json is complete. "
+            "Free space or make the folder writable, then rebuild it with: handeye report %s",
+            e.filename or out_dir,
+            e.strerror or e,
+            out_dir,
+        )
         return []
     except Exception as e:  # noqa: BLE001 - the calibration result must survive a report that cannot be written
         report_crashed(e, out_dir)

@@ -4,6 +4,7 @@
 A class is one test file (``test_<class>.py``); a case is one collected test (one row of a table,
 or one property-based test). Usage: ``python scripts/count_badinput.py``.
 """
+
 from __future__ import annotations
 
 import collections
@@ -25,8 +26,23 @@ CLASSES = {  # file stem -> the class's name in the docs
 
 
 def count() -> dict:
-    p = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:benchmark",
-                        "-p", "no:xdist", str(REPO / "tests" / "badinput")], capture_output=True, text=True, cwd=REPO)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "--collect-only",
+            "-q",
+            "-p",
+            "no:benchmark",
+            "-p",
+            "no:xdist",
+            str(REPO / "tests" / "badinput"),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
     if p.returncode != 0:
         sys.exit(f"collecting tests/badinput failed:\n{p.stdout[-2000:]}{p.stderr[-2000:]}")
     counts = collections.Counter()

@@ -4,6 +4,7 @@ Tests that need them skip cleanly when that folder is absent, except under CI (`
 missing dataset is a failure: CI always has ../shared beside the clone, so a skip there would hide
 that the real-data tests never ran.
 """
+
 from __future__ import annotations
 
 import os

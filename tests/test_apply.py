@@ -1,4 +1,5 @@
 """Applying a result: camera points and poses into the robot base, checked against ground truth."""
+
 import json
 
 import numpy as np
@@ -29,8 +30,9 @@ def test_points_and_poses_reach_the_base_frame(mode):
         p_cam, p_base = truth_points(cs, k)
         got = points_cam_to_base(p_cam, mode=mode, T_x=cs.T_x_true, T_base_end=cs.T_base_end_true[k])
         np.testing.assert_allclose(got, p_base, atol=1e-12)
-        T_base_board = pose_cam_to_base(cs.T_cam_board_true[k], mode=mode, T_x=cs.T_x_true,
-                                        T_base_end=cs.T_base_end_true[k])
+        T_base_board = pose_cam_to_base(
+            cs.T_cam_board_true[k], mode=mode, T_x=cs.T_x_true, T_base_end=cs.T_base_end_true[k]
+        )
         expect = cs.T_board_true if mode == "eye_in_hand" else cs.T_base_end_true[k] @ cs.T_board_true
         np.testing.assert_allclose(T_base_board, expect, atol=1e-12)
 
@@ -76,12 +78,19 @@ def test_cli_apply_pose_in_millimetres(tmp_path, capsys):
     np.testing.assert_allclose(got, expect, atol=2e-6)  # printed with 6 decimals (m, rad)
 
 
-@pytest.mark.parametrize("end_pose,flags,says", [
-    (["500", "0", "500", "3.1", "0", "0"], [], "beyond an arm's reach; expected x, y, z in metres (or millimetres "
-                                               "with --mm) -> the position looks like millimetres: add --mm"),
-    (["0.5", "0", "0.5", "180", "0", "0"], [], "rotation angle 180 is larger than 2*pi"),
-    (["500", "0", "500", "180", "0", "0"], ["--mm"], "the angles look like degrees"),
-])
+@pytest.mark.parametrize(
+    "end_pose,flags,says",
+    [
+        (
+            ["500", "0", "500", "3.1", "0", "0"],
+            [],
+            "beyond an arm's reach; expected x, y, z in metres (or millimetres "
+            "with --mm) -> the position looks like millimetres: add --mm",
+        ),
+        (["0.5", "0", "0.5", "180", "0", "0"], [], "rotation angle 180 is larger than 2*pi"),
+        (["500", "0", "500", "180", "0", "0"], ["--mm"], "the angles look like degrees"),
+    ],
+)
 def test_an_end_pose_in_other_units_is_refused(tmp_path, capsys, end_pose, flags, says):
     cs = make_corner_session(mode="eye_in_hand", n_views=3, seed=2, noise_px=0.0)
     _write_result(tmp_path, cs)

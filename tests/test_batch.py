@@ -7,6 +7,7 @@ bumped (1.5 deg, 3 mm) before its third session, cell-03's second session has a 
 numbers (it does not load), cell-04's second session has its poses shuffled (REFUSED) and its third a
 worn robot (4 mm / 1 deg pose noise: the result fails QA on its uncertainty).
 """
+
 from __future__ import annotations
 
 import json
@@ -30,8 +31,13 @@ BATCH_TIMEOUT_S = 900  # a hung test ends; no timing is asserted
 
 
 def _handeye(*args, **kw) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "handeye.cli", *map(str, args)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, **kw)
+    return subprocess.Popen(
+        [sys.executable, "-m", "handeye.cli", *map(str, args)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        **kw,
+    )
 
 
 def _finish(proc: subprocess.Popen) -> tuple[int, str, str]:
@@ -62,9 +68,27 @@ def cluster(tmp_path_factory):
     d = tmp_path_factory.mktemp("dask")
     sched_file = d / "scheduler.json"
     env = dict(os.environ, DASK_LOGGING__DISTRIBUTED="warning")
-    procs = [subprocess.Popen(["dask", "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
-                               "--dashboard-address", ":0", "--scheduler-file", str(sched_file)],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, cwd=d)]
+    procs = [
+        subprocess.Popen(
+            [
+                "dask",
+                "scheduler",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                "0",
+                "--no-dashboard",
+                "--dashboard-address",
+                ":0",
+                "--scheduler-file",
+                str(sched_file),
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            env=env,
+            cwd=d,
+        )
+    ]
     try:
         for _ in range(600):
             if sched_file.exists() and sched_file.stat().st_size:
@@ -72,9 +96,28 @@ def cluster(tmp_path_factory):
             time.sleep(0.1)
         address = json.loads(sched_file.read_text())["address"]
         for k in range(2):
-            procs.append(subprocess.Popen(["dask", "worker", "--scheduler-file", str(sched_file), "--nthreads", "1",
-                                           "--no-nanny", "--host", "127.0.0.1", "--no-dashboard", "--name", f"w{k}"],
-                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, cwd=d))
+            procs.append(
+                subprocess.Popen(
+                    [
+                        "dask",
+                        "worker",
+                        "--scheduler-file",
+                        str(sched_file),
+                        "--nthreads",
+                        "1",
+                        "--no-nanny",
+                        "--host",
+                        "127.0.0.1",
+                        "--no-dashboard",
+                        "--name",
+                        f"w{k}",
+                    ],
+                    stdout=subprocess.DEVNULL,
+                    stderr=subprocess.DEVNULL,
+                    env=env,
+                    cwd=d,
+                )
+            )
         from dask.distributed import Client
 
         with Client(address, timeout="60s") as c:
@@ -107,8 +150,15 @@ def cluster_batch(fleet, cluster, tmp_path_factory):
     first = _finish(proc)
     records_first = _records(out)
     second = _finish(_handeye("batch", root, "--out", out, "--scheduler", address, "--no-report"))
-    return {"out": out, "first": first, "second": second, "records_first": records_first,
-            "killed_during_batch": killed_during_batch, "w0": workers[0].pid, "w1": workers[1].pid}
+    return {
+        "out": out,
+        "first": first,
+        "second": second,
+        "records_first": records_first,
+        "killed_during_batch": killed_during_batch,
+        "w0": workers[0].pid,
+        "w1": workers[1].pid,
+    }
 
 
 def test_cluster_batch_gets_every_result_despite_a_killed_worker(fleet, cluster_batch):
@@ -212,8 +262,9 @@ def test_rerun_skips_every_session(cluster_batch):
     assert rc == 7, stdout
     assert "12 sessions: 0 done, 0 failed, 12 skipped" in stdout, stdout
     again = _records(cluster_batch["out"])
-    assert {k: r["finished_utc"] for k, r in again.items()} == \
-        {k: r["finished_utc"] for k, r in cluster_batch["records_first"].items()}, "no session ran again"
+    assert {k: r["finished_utc"] for k, r in again.items()} == {
+        k: r["finished_utc"] for k, r in cluster_batch["records_first"].items()
+    }, "no session ran again"
 
 
 def test_embedded_cluster_gives_identical_results(fleet, cluster_batch, tmp_path):
@@ -230,8 +281,9 @@ def test_embedded_cluster_gives_identical_results(fleet, cluster_batch, tmp_path
         if a[key]["status"] == "ok":  # the same numbers to rounding (threaded sums in OpenCV and GTSAM change
             # the last digits; the worn-robot session amplifies them to ~1e-11): 1e-9 of a metre, far below sigma
             np.testing.assert_allclose(a[key]["T_end_cam"], b[key]["T_end_cam"], rtol=0, atol=1e-9, err_msg=key)
-            np.testing.assert_allclose(a[key]["refinement"]["sigma_trans_mm"], b[key]["refinement"]["sigma_trans_mm"],
-                                       rtol=1e-6, err_msg=key)
+            np.testing.assert_allclose(
+                a[key]["refinement"]["sigma_trans_mm"], b[key]["refinement"]["sigma_trans_mm"], rtol=1e-6, err_msg=key
+            )
     ca, cb = ((o / "fleet.csv").read_text().splitlines() for o in (cluster_batch["out"], out))
     assert [r.split(",")[:8] for r in ca] == [r.split(",")[:8] for r in cb], "the same fleet table"
 
@@ -247,8 +299,9 @@ def test_uploaded_session_gives_the_same_result(fleet, cluster_batch, tmp_path):
     site_qa.parent.mkdir()
     site_qa.write_text(files("handeye.configs").joinpath("qa.yaml").read_text(encoding="utf-8"))
     out = tmp_path / "out"
-    rc, stdout, stderr = _finish(_handeye("batch", tmp_path / "root", "--out", out, "--workers", "1", "--upload",
-                                          "--no-report", "--qa", site_qa))
+    rc, stdout, stderr = _finish(
+        _handeye("batch", tmp_path / "root", "--out", out, "--workers", "1", "--upload", "--no-report", "--qa", site_qa)
+    )
     assert rc == 0, stdout + stderr[-2000:]
     a, b = _results(cluster_batch["out"])[key], _results(out)[key]
     assert a["verdict"] == b["verdict"] and a["provenance"]["inputs_sha256"] == b["provenance"]["inputs_sha256"]
@@ -270,12 +323,13 @@ def test_a_session_past_its_time_limit_is_recorded_and_runs_again(fleet, tmp_pat
     out = tmp_path / "out"
     hook = tmp_path / "hook"
     hook.mkdir()
-    (hook / "sitecustomize.py").write_text("import sys, time\n"
-                                           "if 'handeye.batch.child' in sys.orig_argv:\n"
-                                           "    time.sleep(600)\n")
+    (hook / "sitecustomize.py").write_text(
+        "import sys, time\nif 'handeye.batch.child' in sys.orig_argv:\n    time.sleep(600)\n"
+    )
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(hook), os.environ.get("PYTHONPATH")) if p))
-    rc, stdout, stderr = _finish(_handeye("batch", one.parent, "--out", out, "--workers", "1", "--timeout", "0.5",
-                                          env=env))
+    rc, stdout, stderr = _finish(
+        _handeye("batch", one.parent, "--out", out, "--workers", "1", "--timeout", "0.5", env=env)
+    )
     assert rc == 7, stdout + stderr[-2000:]
     rec = json.loads((out / "cell-09" / "2026-01-05" / "batch.json").read_text())
     assert rec["outcome"] == "timeout" and rec["verdict"] == "ERROR" and "0.5 s" in rec["reason"]
@@ -340,8 +394,14 @@ def test_a_failed_export_is_shown_in_the_summary_the_progress_lines_and_the_inde
 
     why = "the result is not fit for use (verdict FAIL): nothing exported"
     good = {"install": "cell-01", "name": "s0", "outcome": "done", "verdict": "PASS", "reason": ""}
-    bad = {"install": "cell-01", "name": "s1", "outcome": "done", "verdict": "FAIL", "reason": "a QA check failed",
-           "export_error": why}
+    bad = {
+        "install": "cell-01",
+        "name": "s1",
+        "outcome": "done",
+        "verdict": "FAIL",
+        "reason": "a QA check failed",
+        "export_error": why,
+    }
     summary = BatchSummary((good, bad), 3.0)
     assert summary.export_errors == [bad] and summary.line().endswith("; the export failed for 1 session")
     assert "export" not in BatchSummary((good,), 3.0).line()
@@ -357,8 +417,11 @@ def test_a_failed_export_is_shown_in_the_summary_the_progress_lines_and_the_inde
         folder = tmp_path / rec["install"] / rec["name"]
         folder.mkdir(parents=True)
         (folder / "batch.json").write_text(json.dumps(rec))
-        (folder / "result.json").write_text(json.dumps({"handeye_result": 1, "status": "ok", "mode": "eye_in_hand",
-                                                        "verdict": rec["verdict"], "findings": []}))
+        (folder / "result.json").write_text(
+            json.dumps(
+                {"handeye_result": 1, "status": "ok", "mode": "eye_in_hand", "verdict": rec["verdict"], "findings": []}
+            )
+        )
     write_index(tmp_path, plots=False)
     rows = {r["session"]: r for r in read_fleet_csv(tmp_path / "fleet.csv")}
     assert rows["s1"]["export_error"] == why and rows["s0"]["export_error"] is None
@@ -384,11 +447,19 @@ def _as_check(vendor: Path, dst: Path, against: Path) -> Path:
     shutil.copytree(vendor, dst)
     cfg = yaml.safe_load((dst / "config.yaml").read_text())["checkerboard_args"]
     lines = [ln for ln in (dst / "poses.txt").read_text().splitlines() if ln.strip()]
-    views = [{"id": str(k), "image": f"{k}.jpg", "pose": [float(x) for x in ln.split(",")]}
-             for k, ln in enumerate(lines, start=1) if (dst / f"{k}.jpg").exists()]
-    doc = {"handeye_session": 1, "mode": "eye_in_hand", "verify_against": os.path.relpath(against, dst),
-           "target": {"type": "chessboard", "inner_corners": [cfg["XX"], cfg["YY"]], "square_m": cfg["L"]},
-           "pose_format": {"rotation": "euler"}, "views": views}
+    views = [
+        {"id": str(k), "image": f"{k}.jpg", "pose": [float(x) for x in ln.split(",")]}
+        for k, ln in enumerate(lines, start=1)
+        if (dst / f"{k}.jpg").exists()
+    ]
+    doc = {
+        "handeye_session": 1,
+        "mode": "eye_in_hand",
+        "verify_against": os.path.relpath(against, dst),
+        "target": {"type": "chessboard", "inner_corners": [cfg["XX"], cfg["YY"]], "square_m": cfg["L"]},
+        "pose_format": {"rotation": "euler"},
+        "views": views,
+    }
     for name in ("poses.txt", "config.yaml"):
         (dst / name).unlink()
     (dst / "session.yaml").write_text(yaml.safe_dump(doc))
@@ -401,8 +472,10 @@ def test_a_session_that_declares_a_check_is_verified_against_its_installed_resul
     index; a rerun skips both."""
     root, truth = fleet
     done = cluster_batch["out"]
-    first, bumped = sorted(k for k in truth if k.startswith("cell-02/"))[0], \
-        next(k for k, s in truth.items() if s["fault"] == "bumped")
+    first, bumped = (
+        sorted(k for k in truth if k.startswith("cell-02/"))[0],
+        next(k for k, s in truth.items() if s["fault"] == "bumped"),
+    )
     checks = tmp_path / "checks"
     _as_check(Path(truth[first]["path"]), checks / "cell-02" / "same-check", done / first)
     _as_check(Path(truth[bumped]["path"]), checks / "cell-02" / "bumped-check", done / first)
@@ -424,9 +497,9 @@ def test_a_prior_with_the_board_unmoved_reaches_the_calibration_and_the_skip_key
     allowed (as ``calibrate`` does it), and a batch run again with the flag changed does not skip the sessions."""
     import handeye.workflow as workflow
     from handeye.batch import child
-    from handeye.errors import InputError
     from handeye.batch.discover import discover
     from handeye.batch.run import session_key
+    from handeye.errors import InputError
 
     p = tmp_path / "cell" / "20260301_1430"
     p.mkdir(parents=True)
@@ -446,8 +519,11 @@ def test_a_prior_with_the_board_unmoved_reaches_the_calibration_and_the_skip_key
 
     parser = argparse.ArgumentParser()
     add_arguments(parser)
-    cal = {k: v for k, v in vars(parser.parse_args([str(p), "--prior", str(tmp_path / "r"), "--board-unmoved"])).items()
-           if k not in ("session", "func")}
+    cal = {
+        k: v
+        for k, v in vars(parser.parse_args([str(p), "--prior", str(tmp_path / "r"), "--board-unmoved"])).items()
+        if k not in ("session", "func")
+    }
     monkeypatch.setattr(workflow, "calibrate_session", fake)
     out = child.run({"session": str(p), "out_dir": str(tmp_path / "out"), "calibrate": cal})
     assert out["outcome"] == "error" and seen["board_unmoved"] is True and str(seen["prior"]) == str(tmp_path / "r")

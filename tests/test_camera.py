@@ -1,4 +1,5 @@
 """handeye.camera: THE projection, against OpenCV's projectPoints (the oracle) and its own Jacobians."""
+
 from __future__ import annotations
 
 import cv2
@@ -42,15 +43,17 @@ def test_jacobians_match_central_differences():
     for a in range(3):
         d = np.zeros(3)
         d[a] = h
-        num = (pixels_from_cam_points(k, p + d, jacobians=False)[0]
-               - pixels_from_cam_points(k, p - d, jacobians=False)[0]) / (2 * h)
+        num = (
+            pixels_from_cam_points(k, p + d, jacobians=False)[0] - pixels_from_cam_points(k, p - d, jacobians=False)[0]
+        ) / (2 * h)
         np.testing.assert_allclose(J_p[:, :, a], num, rtol=1e-6, atol=1e-4)
     for a in range(9):
         step = h * max(1.0, abs(k[a]))
         d = np.zeros(9)
         d[a] = step
-        num = (pixels_from_cam_points(k + d, p, jacobians=False)[0]
-               - pixels_from_cam_points(k - d, p, jacobians=False)[0]) / (2 * step)
+        num = (
+            pixels_from_cam_points(k + d, p, jacobians=False)[0] - pixels_from_cam_points(k - d, p, jacobians=False)[0]
+        ) / (2 * step)
         np.testing.assert_allclose(J_k[:, :, a], num, rtol=1e-6, atol=1e-4)
 
 

@@ -3,6 +3,7 @@
 The workflow's numbers are tested in test_pipeline.py; here the commands must pass the flags through,
 print what the README promises and map errors to one line and an exit code.
 """
+
 import ast
 import json
 import os
@@ -40,8 +41,24 @@ def session(tmp_path_factory):
 def calibrated(session, tmp_path_factory):
     """`handeye calibrate` with the closed form only, no report: (out dir, stdout)."""
     out = tmp_path_factory.mktemp("cal") / "out"
-    cap = subprocess.run([sys.executable, "-m", "handeye.cli", "-q", "calibrate", str(session), "--out", str(out),
-                          "--no-report", "--no-refine", "--method", "park"], capture_output=True, text=True)
+    cap = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "handeye.cli",
+            "-q",
+            "calibrate",
+            str(session),
+            "--out",
+            str(out),
+            "--no-report",
+            "--no-refine",
+            "--method",
+            "park",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert cap.returncode == 0, cap.stderr
     assert cap.stderr == ""  # -q: nothing on stderr for a good run
     return out, cap.stdout
@@ -53,7 +70,7 @@ def test_calibrate_prints_the_matrix_it_wrote(calibrated):
     assert res["method"] == "park" and res["refined"] is False and res["status"] == "ok"
     lines = stdout.splitlines()
     k = lines.index("T_base_cam (p_base = T_base_cam @ p_cam):")
-    printed = np.array([[float(x) for x in line.strip(" []").split()] for line in lines[k + 1:k + 5]])
+    printed = np.array([[float(x) for x in line.strip(" []").split()] for line in lines[k + 1 : k + 5]])
     np.testing.assert_allclose(printed, np.asarray(res["T_base_cam"]), atol=5e-7)  # printed with 6 decimals
     assert lines[-1] == f"result: {out / 'result.json'}"
     assert not (out / "report.html").exists()
@@ -63,8 +80,28 @@ def test_calibrate_flags_reach_the_options(session, tmp_path):
     out = tmp_path / "out"
     site = tmp_path / "site.yaml"
     site.write_text(yaml.safe_dump({"refine_options": {"robot_sigma_mm": 0.5}}))
-    rc = main(["-q", "calibrate", str(session), "--out", str(out), "--no-report", "--fix", "p1", "p2",
-               "--robot-noise", "fixed", "--robot-sigma", "0.3", "0.04", "--config", str(site), "--workers", "1"])
+    rc = main(
+        [
+            "-q",
+            "calibrate",
+            str(session),
+            "--out",
+            str(out),
+            "--no-report",
+            "--fix",
+            "p1",
+            "p2",
+            "--robot-noise",
+            "fixed",
+            "--robot-sigma",
+            "0.3",
+            "0.04",
+            "--config",
+            str(site),
+            "--workers",
+            "1",
+        ]
+    )
     assert rc == 0
     opts = json.loads((out / "result.json").read_text())["provenance"]["options"]
     # the flag wins over the site file, which wins over the preset
@@ -97,8 +134,9 @@ def test_debug_keeps_the_traceback(tmp_path):
 
 def test_simulate_writes_the_session_it_promises(tmp_path, capsys):
     out = tmp_path / "sim"
-    assert main(["-q", "simulate", str(out), "--views", "3", "--seed", "3", "--hidden", "2",
-                 "--mode", "eye_in_hand"]) == 0
+    assert (
+        main(["-q", "simulate", str(out), "--views", "3", "--seed", "3", "--hidden", "2", "--mode", "eye_in_hand"]) == 0
+    )
     assert capsys.readouterr().out.splitlines()[0] == f"synthetic eye_in_hand session with 3 rendered views: {out}"
     s = load_session(out)
     assert [v.view_id for v in s.views] == ["1", "2", "3"] and s.mode == "eye_in_hand"
@@ -113,8 +151,27 @@ def test_simulate_an_arm_further_from_its_table(tmp_path, capsys):
     angle error between a fifth of the given bound and the bound, recorded in ground_truth.json; without the
     kinematic model they are refused."""
     out = tmp_path / "arm"
-    assert main(["-q", "simulate", str(out), "--views", "4", "--seed", "2", "--robot-error", "kinematic",
-                 "--dh-error", "2.5", "0.25", "--encoder-sigma", "0.02"]) == 0
+    assert (
+        main(
+            [
+                "-q",
+                "simulate",
+                str(out),
+                "--views",
+                "4",
+                "--seed",
+                "2",
+                "--robot-error",
+                "kinematic",
+                "--dh-error",
+                "2.5",
+                "0.25",
+                "--encoder-sigma",
+                "0.02",
+            ]
+        )
+        == 0
+    )
     err = json.loads((out / "ground_truth.json").read_text())["robot_error"]
     e = np.abs(np.asarray(err["dh_error_mm_deg"], float))
     lengths, angles = e[:, [0, 2]], e[:, [1, 3]]
@@ -124,12 +181,15 @@ def test_simulate_an_arm_further_from_its_table(tmp_path, capsys):
     capsys.readouterr()
     assert main(["simulate", str(tmp_path / "iid"), "--views", "3", "--dh-error", "1", "0.1"]) == 2
     assert "add --robot-error kinematic" in capsys.readouterr().err
-    for flag, values, words in (("--encoder-sigma", ["-1"], "--encoder-sigma must be"),
-                                ("--encoder-sigma", ["inf"], "--encoder-sigma must be"),
-                                ("--dh-error", ["inf", "0.1"], "--dh-error must be"),
-                                ("--dh-error", ["1", "nan"], "--dh-error must be")):
-        assert main(["simulate", str(tmp_path / "bad"), "--views", "3", "--robot-error", "kinematic", flag]
-                    + values) == 2, (flag, values)
+    for flag, values, words in (
+        ("--encoder-sigma", ["-1"], "--encoder-sigma must be"),
+        ("--encoder-sigma", ["inf"], "--encoder-sigma must be"),
+        ("--dh-error", ["inf", "0.1"], "--dh-error must be"),
+        ("--dh-error", ["1", "nan"], "--dh-error must be"),
+    ):
+        assert (
+            main(["simulate", str(tmp_path / "bad"), "--views", "3", "--robot-error", "kinematic", flag] + values) == 2
+        ), (flag, values)
         err = capsys.readouterr().err
         assert words in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "bad").exists()
@@ -152,13 +212,26 @@ def test_demo_reports_its_error_against_the_truth(tmp_path, capsys):
 
 def test_apply_maps_a_camera_point_into_the_base(tmp_path, capsys):
     cs = make_corner_session(mode="eye_in_hand", n_views=3, seed=2, noise_px=0.0)
-    (tmp_path / "result.json").write_text(json.dumps({"status": "ok", "mode": cs.mode,
-                                                       cs.x_name: cs.T_x_true.tolist()}))
+    (tmp_path / "result.json").write_text(
+        json.dumps({"status": "ok", "mode": cs.mode, cs.x_name: cs.T_x_true.tolist()})
+    )
     p_board = cs.target.object_points()[7]
     p_cam = transform_points(cs.T_cam_board_true[1], p_board)
     end = pose_values_from_T(cs.T_base_end_true[1], VENDOR_POSE_FORMAT)
-    assert main(["apply", str(tmp_path), "--point", *(f"{x * 1e3:.9f}" for x in p_cam), "--mm",
-                 "--end-pose", *(f"{v * (1e3 if k < 3 else 1):.9f}" for k, v in enumerate(end))]) == 0
+    assert (
+        main(
+            [
+                "apply",
+                str(tmp_path),
+                "--point",
+                *(f"{x * 1e3:.9f}" for x in p_cam),
+                "--mm",
+                "--end-pose",
+                *(f"{v * (1e3 if k < 3 else 1):.9f}" for k, v in enumerate(end)),
+            ]
+        )
+        == 0
+    )
     got = [float(x) for x in capsys.readouterr().out.splitlines()[0].split(":")[1].split()]
     np.testing.assert_allclose(got, transform_points(cs.T_board_true, p_board), atol=2e-6)  # board fixed in base
     assert main(["apply", str(tmp_path), "--point", "0", "0", "1"]) == 2  # eye-in-hand needs --end-pose
@@ -175,11 +248,13 @@ def test_import_visp_writes_a_session_with_the_same_poses(tmp_path, capsys):
         data = [[float(v)] for v in (*T[:3, 3], *rotvec_from_R(T[:3, :3]))]
         (src / f"img_pose_rPe_{k}.yaml").write_text(yaml.safe_dump({"rows": 6, "cols": 1, "data": data}))
     assert main(["import", "visp", str(src), str(tmp_path / "out")]) == 0
-    assert capsys.readouterr().out.strip().splitlines() == ["ViSP layout: chessboard 9x6 inner corners, 23.6 mm",
-                                                            f"session: {tmp_path / 'out' / 'session.yaml'}"]
+    assert capsys.readouterr().out.strip().splitlines() == [
+        "ViSP layout: chessboard 9x6 inner corners, 23.6 mm",
+        f"session: {tmp_path / 'out' / 'session.yaml'}",
+    ]
     s = load_session(tmp_path / "out")
     assert s.target.cols == 9 and s.target.rows == 6 and abs(s.target.square_m - 0.0236) < 1e-12
-    for v, T in zip(s.views, cs.T_base_end_true):
+    for v, T in zip(s.views, cs.T_base_end_true, strict=False):
         np.testing.assert_allclose(v.T_base_end, T, atol=1e-12)
 
 
@@ -197,8 +272,29 @@ def test_report_rebuilds_the_markdown_from_the_result_folder(calibrated, tmp_pat
 
 def test_collect_with_simulators_writes_a_session_that_loads(tmp_path, capsys):
     out = tmp_path / "col"
-    assert main(["-q", "collect", str(out), "--mode", "eye_to_hand", "--camera", "sim", "--robot", "sim", "--auto",
-                 "--views", "3", "--seed", "4", "--sim-supersample", "1"]) == 0
+    assert (
+        main(
+            [
+                "-q",
+                "collect",
+                str(out),
+                "--mode",
+                "eye_to_hand",
+                "--camera",
+                "sim",
+                "--robot",
+                "sim",
+                "--auto",
+                "--views",
+                "3",
+                "--seed",
+                "4",
+                "--sim-supersample",
+                "1",
+            ]
+        )
+        == 0
+    )
     first = capsys.readouterr().out.splitlines()[0]
     n_kept = int(first.split("(")[1].split()[0])
     s = load_session(out)
@@ -209,9 +305,11 @@ def test_collect_with_simulators_writes_a_session_that_loads(tmp_path, capsys):
 
 def _loaded_by(argv: list) -> list:
     """Command modules and libraries (numpy and heavier) imported by ``handeye ARGV`` in a new process."""
-    code = ("import sys; from handeye.cli import main\ntry: main(sys.argv[1:])\nexcept SystemExit: pass\n"
-            "print(sorted(m for m in sys.modules if m.startswith('handeye.cli.') "
-            "or m in ('numpy', 'scipy', 'matplotlib', 'gtsam', 'jinja2', 'cv2')))")
+    code = (
+        "import sys; from handeye.cli import main\ntry: main(sys.argv[1:])\nexcept SystemExit: pass\n"
+        "print(sorted(m for m in sys.modules if m.startswith('handeye.cli.') "
+        "or m in ('numpy', 'scipy', 'matplotlib', 'gtsam', 'jinja2', 'cv2')))"
+    )
     p = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, check=True)
     return ast.literal_eval(p.stdout.strip().splitlines()[-1])
 
@@ -223,10 +321,11 @@ def test_help_loads_only_the_chosen_command():
     assert _loaded_by(["report", "--help"]) == ["handeye.cli.report"]
     assert _loaded_by(["import", "--help"]) == ["handeye.cli.import_"]
     env = dict(os.environ, COLUMNS="200")  # one line per command
-    top = subprocess.run([sys.executable, "-m", "handeye.cli", "--help"], capture_output=True, text=True, check=True,
-                         env=env).stdout.splitlines()
+    top = subprocess.run(
+        [sys.executable, "-m", "handeye.cli", "--help"], capture_output=True, text=True, check=True, env=env
+    ).stdout.splitlines()
     k = top.index("  COMMAND")
-    listed = [line.split()[0] for line in top[k + 1:top.index("", k)]]
+    listed = [line.split()[0] for line in top[k + 1 : top.index("", k)]]
     from handeye.cli import COMMANDS
 
     assert listed[:7] == ["calibrate", "simulate", "demo", "apply", "import", "report", "collect"]
@@ -241,8 +340,9 @@ def test_help_loads_only_the_chosen_command():
 def test_site_min_corners_overrides_the_detection_preset(session, tmp_path, capsys):
     site = tmp_path / "site.yaml"
     site.write_text(yaml.safe_dump({"min_corners": 89}))  # the 11x8 board has 88 corners
-    assert main(["-q", "calibrate", str(session), "--config", str(site), "--out", str(tmp_path / "o"),
-                 "--no-report"]) == 3
+    assert (
+        main(["-q", "calibrate", str(session), "--config", str(site), "--out", str(tmp_path / "o"), "--no-report"]) == 3
+    )
     assert "found in only 0 of 8 images" in capsys.readouterr().err
 
 
@@ -284,8 +384,9 @@ def _calibrate(session, out, capsys, *extra):
 def test_robot_names_the_arm_whose_kinematic_error_the_refinement_models(clean, tmp_path, capsys):
     """A vendor folder (no joint angles) of a simulated RM65 with DH errors: --robot rm65 gets the joint angles by
     inverse kinematics and models the robot error in them; an unknown arm is one error line before any work."""
-    kin = write_vendor_session(tmp_path / "kin", mode="eye_in_hand", n_views=8, seed=4, robot_error="kinematic",
-                               arm="rm65", **SMALL)
+    kin = write_vendor_session(
+        tmp_path / "kin", mode="eye_in_hand", n_views=8, seed=4, robot_error="kinematic", arm="rm65", **SMALL
+    )
     assert not (kin / "session.yaml").exists()  # the vendor layout alone: no joint angles, no robot named
     rc, out, err, res = _calibrate(kin, tmp_path / "o", capsys, "--no-report", "--robot", "rm65")
     assert res["status"] == "ok" and rc in (0, QAFailed.exit_code)
@@ -299,7 +400,7 @@ def _verdict_block(lines):
     """The verdict line and the lines of its checks and findings."""
     k = next(i for i, line in enumerate(lines) if line.startswith("verdict: "))
     items = []
-    for line in lines[k + 1:]:
+    for line in lines[k + 1 :]:
         if not line.startswith(("  FAIL ", "  WARN ")):
             break
         items.append(line)
@@ -313,8 +414,9 @@ def test_a_clean_session_passes_exits_0_and_says_which_mode_the_data_chose(clean
     assert all(f["severity"] == "info" for f in res["findings"]), res["findings"]
     assert res["mode"] == "eye_in_hand" and res["mode_source"] == "detected"
     mode_line = [line for line in out if line.startswith("mode: ")]
-    assert mode_line == [f"mode: eye_in_hand, detected from the data (the session states none): "
-                         f"{res['mode_evidence']['summary']}"]
+    assert mode_line == [
+        f"mode: eye_in_hand, detected from the data (the session states none): {res['mode_evidence']['summary']}"
+    ]
     verdict, items = _verdict_block(out)
     assert verdict == f"verdict: PASS - {res['verdict_headline']}" and items == []
     assert out.index(verdict) > out.index("T_end_cam (p_end = T_end_cam @ p_cam):")  # after the result block
@@ -333,8 +435,9 @@ def test_a_site_qa_file_makes_the_same_run_warn_or_fail(clean, tmp_path, capsys,
     assert check["status"] == level and check["limits"]["reprojection_rms_px"][f"{level}_above"] == 0.01
     verdict, items = _verdict_block(out)
     assert verdict.startswith(f"verdict: {level.upper()} - ")
-    assert items == [f"  {level.upper()} {check['short']} -> fix: {check['action'][:1].lower()}"
-                     f"{check['action'][1:].rstrip('.')}"]
+    assert items == [
+        f"  {level.upper()} {check['short']} -> fix: {check['action'][:1].lower()}{check['action'][1:].rstrip('.')}"
+    ]
     if level == "warn":
         assert rc == 0 and err == []
     else:  # FAIL: its own exit code, and the result and the reports are still written
@@ -416,8 +519,9 @@ def test_the_mode_line_says_when_the_data_chose_or_could_not_choose():
 
     ev = {"summary": "eye_to_hand fits 40.0 x better"}
     assert mode_lines({"mode": "eye_to_hand", "mode_source": "detected", "mode_evidence": ev}) == [
-        "mode: eye_to_hand, detected from the data (the session states none): eye_to_hand fits 40.0 x better"]
-    line, = mode_lines({"mode": "eye_in_hand", "mode_source": "default", "mode_evidence": {"summary": "undecided"}})
+        "mode: eye_to_hand, detected from the data (the session states none): eye_to_hand fits 40.0 x better"
+    ]
+    (line,) = mode_lines({"mode": "eye_in_hand", "mode_source": "default", "mode_evidence": {"summary": "undecided"}})
     assert line.startswith("mode: eye_in_hand, the default") and "--mode" in line
     assert mode_lines({"mode": "eye_in_hand", "mode_source": "stated"}) == []
     assert mode_lines({"mode": "eye_in_hand", "mode_source": "flag"}) == []

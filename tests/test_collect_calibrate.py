@@ -1,5 +1,6 @@
 """A simulated automatic collection, then `handeye calibrate`, scored against the ground truth the
 simulators wrote into the session: the error must be explained by the covariance the result reports."""
+
 import json
 
 import numpy as np
@@ -14,8 +15,10 @@ from handeye.mounting import mounting
 @pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
 def test_simulated_collection_calibrates_to_the_simulated_accuracy(tmp_path, mode):
     out = tmp_path / "col"
-    assert main(["-q", "collect", str(out), "--mode", mode, "--camera", "sim", "--robot", "sim", "--auto",
-                 "--seed", "0"]) == 0
+    assert (
+        main(["-q", "collect", str(out), "--mode", mode, "--camera", "sim", "--robot", "sim", "--auto", "--seed", "0"])
+        == 0
+    )
     truth = json.loads((out / "ground_truth.json").read_text())
     assert main(["-q", "calibrate", str(out), "--out", str(tmp_path / "res"), "--no-report"]) == 0
     res = json.loads((tmp_path / "res" / "result.json").read_text())

@@ -1,5 +1,6 @@
 """Dependencies point one way: no core module (everything outside handeye.sim and handeye.cli,
 the collector included) imports the synthetic-data part."""
+
 from __future__ import annotations
 
 import json
@@ -26,8 +27,14 @@ def _core_modules() -> list[str]:
 def test_the_core_never_imports_the_simulator():
     modules = _core_modules()
     # the packages that must be covered are found (a broken walk would pass vacuously)
-    for expected in ("handeye.collect.plan", "handeye.collect.collector", "handeye.collect.visibility",
-                     "handeye.camera", "handeye.frames", "handeye.pipeline"):
+    for expected in (
+        "handeye.collect.plan",
+        "handeye.collect.collector",
+        "handeye.collect.visibility",
+        "handeye.camera",
+        "handeye.frames",
+        "handeye.pipeline",
+    ):
         assert expected in modules
     script = textwrap.dedent(f"""
         import importlib, json, sys
@@ -35,7 +42,12 @@ def test_the_core_never_imports_the_simulator():
             importlib.import_module(name)
         print(json.dumps(sorted(m for m in sys.modules if m == "handeye.sim" or m.startswith("handeye.sim."))))
     """)
-    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,
-                          cwd=Path(handeye.__file__).resolve().parents[1])
+    proc = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=Path(handeye.__file__).resolve().parents[1],
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert json.loads(proc.stdout.strip().splitlines()[-1]) == []

@@ -1,4 +1,5 @@
 """RealMan JSON client against a local emulator of the controller's TCP port (127.0.0.1, ephemeral)."""
+
 from __future__ import annotations
 
 import json
@@ -8,11 +9,17 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from handeye.sim.realman_emulator import RealmanEmulator
-from handeye.collect.realman import (JsonStreamDecoder, RealmanArm, T_base_end_from_realman_pose,
-                                     parse_robot_address, realman_error_codes, realman_pose_from_T)
+from handeye.collect.realman import (
+    JsonStreamDecoder,
+    RealmanArm,
+    T_base_end_from_realman_pose,
+    parse_robot_address,
+    realman_error_codes,
+    realman_pose_from_T,
+)
 from handeye.errors import ConfigError, HardwareError
 from handeye.frames import make_T, pose_error
+from handeye.sim.realman_emulator import RealmanEmulator
 
 
 # ------------------------------------------------------------------------------ framing
@@ -21,7 +28,7 @@ def test_decoder_joins_partial_messages():
     data = b'{"state":"current_arm_state","arm_state":{"pose":[1,2,3,4,5,6],"err":0}}\r\n'
     out = []
     for i in range(len(data)):  # one byte at a time
-        out += dec.feed(data[i:i + 1])
+        out += dec.feed(data[i : i + 1])
     assert out == [json.loads(data)]
     assert dec.discarded_bytes == 0
 
@@ -30,7 +37,7 @@ def test_decoder_splits_several_objects_in_one_packet():
     dec = JsonStreamDecoder()
     out = dec.feed(b'{"a":1}\r\n{"b":{"c":"}{"}}{"d":[1,{"e":2}]}\r\n{"f"')
     assert out == [{"a": 1}, {"b": {"c": "}{"}}, {"d": [1, {"e": 2}]}]
-    assert dec.feed(b':3}\r\n') == [{"f": 3}]
+    assert dec.feed(b":3}\r\n") == [{"f": 3}]
 
 
 def test_decoder_skips_garbage_and_truncated_objects():
@@ -51,8 +58,9 @@ def test_pose_units_and_euler_convention():
     # x 0.1 m, y 0.2 m, z 0.03 m, rx 0.4, ry 0.5, rz 0.6 rad (the vendor's documented example)
     T = T_base_end_from_realman_pose([100000, 200000, 30000, 400, 500, 600])
     np.testing.assert_allclose(T[:3, 3], [0.1, 0.2, 0.03], atol=1e-12)
-    R = (Rotation.from_rotvec([0, 0, 0.6]) * Rotation.from_rotvec([0, 0.5, 0])
-         * Rotation.from_rotvec([0.4, 0, 0])).as_matrix()  # R = Rz @ Ry @ Rx
+    R = (
+        Rotation.from_rotvec([0, 0, 0.6]) * Rotation.from_rotvec([0, 0.5, 0]) * Rotation.from_rotvec([0.4, 0, 0])
+    ).as_matrix()  # R = Rz @ Ry @ Rx
     np.testing.assert_allclose(T[:3, :3], R, atol=1e-12)
     assert realman_pose_from_T(T) == [100000, 200000, 30000, 400, 500, 600]
 
@@ -62,8 +70,17 @@ def test_pose_conversion_rejects_wrong_counts():
         T_base_end_from_realman_pose([1, 2, 3])
 
 
-@pytest.mark.parametrize("err, codes", [(0, []), ([0], []), ([0x1003, 0], [0x1003]),
-                                         ({"err_len": 1, "err": [4109]}, [4109]), (None, []), ("0x100D", None)])
+@pytest.mark.parametrize(
+    "err, codes",
+    [
+        (0, []),
+        ([0], []),
+        ([0x1003, 0], [0x1003]),
+        ({"err_len": 1, "err": [4109]}, [4109]),
+        (None, []),
+        ("0x100D", None),
+    ],
+)
 def test_error_code_shapes(err, codes):
     if codes is None:
         with pytest.raises(ValueError):

@@ -3,6 +3,7 @@
 The recording is written with the SDK's own software device and recorder (no camera needed), then
 played back through ``rs.config.enable_device_from_file`` exactly as ``--camera bag:FILE`` does.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -26,11 +27,12 @@ def _rs_project(xy: np.ndarray, model: str, c) -> np.ndarray:
     """librealsense's rs2_project_point_to_pixel distortion step (rsutil.h), on normalized points."""
     x, y = xy[:, 0], xy[:, 1]
     r2 = x * x + y * y
-    f = 1 + c[0] * r2 + c[1] * r2 ** 2 + c[4] * r2 ** 3
+    f = 1 + c[0] * r2 + c[1] * r2**2 + c[4] * r2**3
     if model == "brown_conrady":
         xf, yf = x * f, y * f
-        return np.stack([xf + 2 * c[2] * x * y + c[3] * (r2 + 2 * x * x),
-                         yf + 2 * c[3] * x * y + c[2] * (r2 + 2 * y * y)], 1)
+        return np.stack(
+            [xf + 2 * c[2] * x * y + c[3] * (r2 + 2 * x * x), yf + 2 * c[3] * x * y + c[2] * (r2 + 2 * y * y)], 1
+        )
     x, y = x * f, y * f  # modified / inverse Brown-Conrady: tangential terms after the radial scaling
     return np.stack([x + 2 * c[2] * x * y + c[3] * (r2 + 2 * x * x), y + 2 * c[3] * x * y + c[2] * (r2 + 2 * y * y)], 1)
 
@@ -41,13 +43,16 @@ def _cv_project(xy: np.ndarray, dist) -> np.ndarray:
     return uv.reshape(-1, 2)
 
 
-@pytest.mark.parametrize("model, coeffs, exactness", [
-    ("brown_conrady", [0.1, -0.2, 0.003, -0.002, 0.05], "exact"),
-    ("inverse_brown_conrady", [0.1, -0.2, 0.0, 0.0, 0.05], "exact"),
-    ("distortion.modified_brown_conrady", [0.1, -0.2, 0.003, -0.002, 0.05], "approximate"),
-    ("inverse_brown_conrady", [0, 0, 0, 0, 0], "exact"),
-    ("kannala_brandt4", [0.1, 0.01, 0, 0, 0], "not representable"),
-])
+@pytest.mark.parametrize(
+    "model, coeffs, exactness",
+    [
+        ("brown_conrady", [0.1, -0.2, 0.003, -0.002, 0.05], "exact"),
+        ("inverse_brown_conrady", [0.1, -0.2, 0.0, 0.0, 0.05], "exact"),
+        ("distortion.modified_brown_conrady", [0.1, -0.2, 0.003, -0.002, 0.05], "approximate"),
+        ("inverse_brown_conrady", [0, 0, 0, 0, 0], "exact"),
+        ("kannala_brandt4", [0.1, 0.01, 0, 0, 0], "not representable"),
+    ],
+)
 def test_realsense_distortion_maps_to_opencv(model, coeffs, exactness):
     dist, how = opencv5_from_realsense(model, coeffs)
     assert how == exactness
@@ -63,8 +68,16 @@ def test_realsense_distortion_maps_to_opencv(model, coeffs, exactness):
 
 
 def test_factory_intrinsics_record_the_original_model():
-    intr, source = intrinsics_from_realsense(fx=615.0, fy=614.5, ppx=322.1, ppy=241.7, width=640, height=480,
-                                             model="distortion.inverse_brown_conrady", coeffs=[0, 0, 0, 0, 0])
+    intr, source = intrinsics_from_realsense(
+        fx=615.0,
+        fy=614.5,
+        ppx=322.1,
+        ppy=241.7,
+        width=640,
+        height=480,
+        model="distortion.inverse_brown_conrady",
+        coeffs=[0, 0, 0, 0, 0],
+    )
     assert (intr.fx, intr.cy, intr.width, intr.dist) == (615.0, 241.7, 640, (0.0,) * 5)
     assert source["original_model"] == "inverse_brown_conrady" and source["mapping_to_opencv5"] == "exact"
 
@@ -122,7 +135,12 @@ def _record(rs, folder, frames, *, fx=455.0, fy=454.5, ppx=321.1, ppy=180.4, mod
         for i, img in enumerate(frames):
             f = rs.software_video_frame()
             f.pixels, f.bpp, f.stride = np.ascontiguousarray(img), 3, W * 3
-            f.timestamp, f.domain, f.frame_number, f.profile = 1000.0 + 33.3 * i, rs.timestamp_domain.system_time, i, profile
+            f.timestamp, f.domain, f.frame_number, f.profile = (
+                1000.0 + 33.3 * i,
+                rs.timestamp_domain.system_time,
+                i,
+                profile,
+            )
             sensor.on_video_frame(f)
             queue.wait_for_frame(10_000)  # through the sensor (and the recorder) before the next one and the stop
         sensor.stop()
@@ -141,8 +159,15 @@ def _board_frames(n):
 
     rig = SimRig.sample(mode="eye_in_hand", rng=np.random.default_rng(1), intrinsics=default_intrinsics(W, H))
     rng = np.random.default_rng(2)
-    Ts = sample_view_poses(mode="eye_in_hand", n_views=n, rng=rng, T_x=rig.T_x, T_board=rig.T_board,
-                           target=rig.target, intrinsics=rig.intrinsics)
+    Ts = sample_view_poses(
+        mode="eye_in_hand",
+        n_views=n,
+        rng=rng,
+        T_x=rig.T_x,
+        T_board=rig.T_board,
+        target=rig.target,
+        intrinsics=rig.intrinsics,
+    )
     C = mounting("eye_in_hand").predict_T_cam_board(rig.T_x, rig.T_board, Ts)
     return [render_view(rig.target, rig.intrinsics, c, supersample=2, channels=3) for c in C]
 
@@ -162,7 +187,7 @@ def test_recording_plays_back_frame_by_frame(tmp_path):
         src = cam.intrinsics_source()
         assert src["original_model"] == "inverse_brown_conrady" and src["mapping_to_opencv5"] == "approximate"
         got = [cam.grab()[0] for _ in frames]
-        for a, b in zip(got, frames):
+        for a, b in zip(got, frames, strict=False):
             np.testing.assert_array_equal(a, b)
         assert cam.last_frame_info["frame_number"] == 2
         with pytest.raises(HardwareError, match="no more colour frames"):
@@ -239,8 +264,9 @@ def test_collect_from_a_recording(tmp_path, monkeypatch):
     p = argparse.ArgumentParser()
     add_collect_arguments(p)
     out = tmp_path / "session"
-    args = p.parse_args([str(out), "--mode", "eye_in_hand", "--camera", f"bag:{path}", "--robot", "sim",
-                         "--no-preview", "--seed", "0"])
+    args = p.parse_args(
+        [str(out), "--mode", "eye_in_hand", "--camera", f"bag:{path}", "--robot", "sim", "--no-preview", "--seed", "0"]
+    )
     monkeypatch.setattr(sys, "stdin", io.StringIO("s\ns\ns\nq\n"))
     assert run_collect(args) == 0
     header = yaml.safe_load((out / "session.yaml").read_text())

@@ -1,6 +1,8 @@
 """Collected sessions: simulated collections against their ground truth, crash safety, the real-arm path."""
+
 from __future__ import annotations
 
+import argparse
 import io
 import json
 import os
@@ -11,26 +13,25 @@ import textwrap
 import time
 from pathlib import Path
 
-import argparse
 import cv2
 import numpy as np
 import pytest
 import yaml
 
 from handeye.camera import pixels_from_board_points
+from handeye.cli.collect import add_collect_arguments, parse_target_spec, run_collect
 from handeye.collect import session_writer as sw
 from handeye.collect.camera import Camera
-from handeye.detect import detect_gray
-from handeye.cli.collect import add_collect_arguments, parse_target_spec, run_collect
 from handeye.collect.collector import CaptureChecks, Collector
-from handeye.sim.realman_emulator import RealmanEmulator
 from handeye.collect.realman import RealmanArm
-from handeye.sim.devices import SimCamera, SimRig, SimRobot
-from handeye.sim.render import render_view
-from handeye.sim.scenarios import default_intrinsics
+from handeye.detect import detect_gray
 from handeye.errors import ConfigError, InputError
 from handeye.frames import inv_T, rotvec_from_R
 from handeye.mounting import mounting
+from handeye.sim.devices import SimCamera, SimRig, SimRobot
+from handeye.sim.realman_emulator import RealmanEmulator
+from handeye.sim.render import render_view
+from handeye.sim.scenarios import default_intrinsics
 from handeye.targets import ChessboardSpec
 
 REPO = Path(__file__).resolve().parents[1]
@@ -68,8 +69,11 @@ def _load(out: Path):
 @pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
 def test_simulated_auto_collection_agrees_with_ground_truth(tmp_path, mode):
     out = tmp_path / "s"
-    rc = run_collect(_args([out, "--mode", mode, "--camera", "sim", "--robot", "sim", "--auto", "--views", "6",
-                            "--seed", "11", *FAST]))
+    rc = run_collect(
+        _args(
+            [out, "--mode", mode, "--camera", "sim", "--robot", "sim", "--auto", "--views", "6", "--seed", "11", *FAST]
+        )
+    )
     assert rc == 0
     truth = json.loads((out / "ground_truth.json").read_text())
     mount = mounting(mode)
@@ -112,8 +116,9 @@ def test_simulated_auto_collection_agrees_with_ground_truth(tmp_path, mode):
 def test_simulated_interactive_collection_from_a_terminal(tmp_path, monkeypatch):
     out = tmp_path / "i"
     monkeypatch.setattr(sys, "stdin", io.StringIO("s\n\nhelp\ns\nq\ns\n"))
-    rc = run_collect(_args([out, "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim", "--seed", "2",
-                            "--no-preview", *FAST]))
+    rc = run_collect(
+        _args([out, "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim", "--seed", "2", "--no-preview", *FAST])
+    )
     assert rc == 0
     assert sorted(_records(out)) == ["1", "2", "3"]  # 'help' is not a key, input stops at 'q'
 
@@ -130,9 +135,14 @@ def test_blurred_frames_are_rejected_with_the_reason(tmp_path, caplog):
     cap = col.capture()
     assert not cap.kept and "not sharp" in cap.reason
     assert list((tmp_path / "b" / "views").iterdir()) == []
-    sharp = Collector(robot=robot, camera=SimCamera(robot, rng=np.random.default_rng(3)),
-                      writer=sw.SessionWriter(tmp_path / "s", mode="eye_in_hand", target=rig.target),
-                      target=rig.target, mode="eye_in_hand", checks=checks).capture()
+    sharp = Collector(
+        robot=robot,
+        camera=SimCamera(robot, rng=np.random.default_rng(3)),
+        writer=sw.SessionWriter(tmp_path / "s", mode="eye_in_hand", target=rig.target),
+        target=rig.target,
+        mode="eye_in_hand",
+        checks=checks,
+    ).capture()
     assert sharp.kept and sharp.sharpness > checks.min_sharpness, sharp.reason
 
 
@@ -164,8 +174,25 @@ def test_crash_between_image_and_record_leaves_a_readable_session(tmp_path, monk
 
     monkeypatch.setattr(sw, "atomic_write_bytes", flaky)
     with pytest.raises(KeyboardInterrupt):
-        run_collect(_args([out, "--mode", "eye_to_hand", "--camera", "sim", "--robot", "sim", "--auto",
-                           "--views", "4", "--seed", "5", *FAST]))
+        run_collect(
+            _args(
+                [
+                    out,
+                    "--mode",
+                    "eye_to_hand",
+                    "--camera",
+                    "sim",
+                    "--robot",
+                    "sim",
+                    "--auto",
+                    "--views",
+                    "4",
+                    "--seed",
+                    "5",
+                    *FAST,
+                ]
+            )
+        )
     recs = _records(out)
     assert sorted(recs) == ["1", "2"]
     assert (out / "images" / "3.png").exists()  # the orphan image of the capture in flight
@@ -196,9 +223,29 @@ def _env():
 
 def test_sigkill_while_a_record_is_renamed(tmp_path):
     out = tmp_path / "k"
-    proc = subprocess.run([sys.executable, "-c", _KILL_IN_RENAME, str(out), "--mode", "eye_in_hand", "--camera",
-                           "sim", "--robot", "sim", "--auto", "--views", "4", "--seed", "3", *FAST],
-                          env=_env(), capture_output=True, timeout=300)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            _KILL_IN_RENAME,
+            str(out),
+            "--mode",
+            "eye_in_hand",
+            "--camera",
+            "sim",
+            "--robot",
+            "sim",
+            "--auto",
+            "--views",
+            "4",
+            "--seed",
+            "3",
+            *FAST,
+        ],
+        env=_env(),
+        capture_output=True,
+        timeout=300,
+    )
     assert proc.returncode == -signal.SIGKILL
     assert len(list((out / "views").glob(".3.yaml.*.tmp"))) == 1  # the record in flight stayed a temp file
     recs = _records(out)
@@ -208,10 +255,32 @@ def test_sigkill_while_a_record_is_renamed(tmp_path):
 
 def test_sigkill_at_an_arbitrary_moment(tmp_path):
     out = tmp_path / "r"
-    proc = subprocess.Popen([sys.executable, "-m", "handeye.collect", str(out), "--mode", "eye_in_hand",
-                             "--camera", "sim", "--robot", "sim", "--auto", "--views", "30", "--seed", "4",
-                             "--sim-supersample", "4", "--resolution", "640x360"],
-                            env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "handeye.collect",
+            str(out),
+            "--mode",
+            "eye_in_hand",
+            "--camera",
+            "sim",
+            "--robot",
+            "sim",
+            "--auto",
+            "--views",
+            "30",
+            "--seed",
+            "4",
+            "--sim-supersample",
+            "4",
+            "--resolution",
+            "640x360",
+        ],
+        env=_env(),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and proc.poll() is None:
@@ -248,15 +317,20 @@ class _EmulatorCamera(Camera):
 
 @pytest.mark.parametrize("confirmed", [True, False])
 def test_auto_collection_drives_the_realman_client(tmp_path, confirmed):
-    rig = SimRig.sample(mode="eye_in_hand", rng=np.random.default_rng(8),
-                        intrinsics=default_intrinsics(640, 360))
+    rig = SimRig.sample(mode="eye_in_hand", rng=np.random.default_rng(8), intrinsics=default_intrinsics(640, 360))
     asked = []
     with RealmanEmulator(T_base_end=rig.T_base_end_start, lifetime_s=120) as emu:
         arm = RealmanArm(*emu.address, timeout_s=1.0, max_speed_fraction=0.5)
         camera = _EmulatorCamera(emu, rig)
         writer = sw.SessionWriter(tmp_path / "e", mode=rig.mode, target=rig.target, intrinsics=rig.intrinsics)
-        col = Collector(robot=arm, camera=camera, writer=writer, target=rig.target, mode=rig.mode,
-                        checks=CaptureChecks(settle_interval_s=0.01))
+        col = Collector(
+            robot=arm,
+            camera=camera,
+            writer=writer,
+            target=rig.target,
+            mode=rig.mode,
+            checks=CaptureChecks(settle_interval_s=0.01),
+        )
         col.run_auto(n_views=3, speed_fraction=0.2, confirm=lambda text: asked.append(text) or confirmed)
         arm.close()
     moves = [c for c in emu.received if c["command"] == "movej_p"]
@@ -282,8 +356,13 @@ def test_camera_unplugged_mid_session_keeps_what_was_saved(tmp_path):
             return super().grab()
 
     writer = sw.SessionWriter(tmp_path / "u", mode=rig.mode, target=rig.target, intrinsics=rig.intrinsics)
-    col = Collector(robot=robot, camera=Unplugged(robot, rng=np.random.default_rng(8)), writer=writer,
-                    target=rig.target, mode=rig.mode)
+    col = Collector(
+        robot=robot,
+        camera=Unplugged(robot, rng=np.random.default_rng(8)),
+        writer=writer,
+        target=rig.target,
+        mode=rig.mode,
+    )
     with pytest.raises(HardwareError, match="reconnect the camera"):
         col.run_auto(n_views=4, speed_fraction=0.2)
     assert sorted(_records(tmp_path / "u")) == ["1", "2", "3"]
@@ -294,12 +373,18 @@ def test_a_kinematic_simulated_arm_records_its_joint_angles(tmp_path):
     from handeye.sim.robot_error import make_kinematic_error
 
     kin = make_kinematic_error(rng=np.random.default_rng(4))
-    rig = SimRig.sample(mode="eye_in_hand", rng=np.random.default_rng(0), intrinsics=default_intrinsics(640, 360),
-                        kinematic=kin)
+    rig = SimRig.sample(
+        mode="eye_in_hand", rng=np.random.default_rng(0), intrinsics=default_intrinsics(640, 360), kinematic=kin
+    )
     robot = SimRobot(rig, rng=np.random.default_rng(1), kinematic=kin)
     writer = sw.SessionWriter(tmp_path / "k", mode="eye_in_hand", target=rig.target, intrinsics=rig.intrinsics)
-    cap = Collector(robot=robot, camera=SimCamera(robot, rng=np.random.default_rng(3)), writer=writer,
-                    target=rig.target, mode="eye_in_hand").capture()
+    cap = Collector(
+        robot=robot,
+        camera=SimCamera(robot, rng=np.random.default_rng(3)),
+        writer=writer,
+        target=rig.target,
+        mode="eye_in_hand",
+    ).capture()
     assert cap.kept, cap.reason
     rec = yaml.safe_load((tmp_path / "k" / "views" / f"{cap.view_id}.yaml").read_text())
     joints = np.array(rec["joints"])

@@ -82,9 +82,17 @@ def test_bad_values_raise():
         T_from_pose_values(M.reshape(-1), PoseFormat(rotation="matrix"))
 
 
-@pytest.mark.parametrize("field,value", [("rotation", "euler2"), ("euler_order", "xxy"), ("angle_unit", "grad"),
-                                         ("quaternion_order", "wzyx"), ("translation_unit", "cm"),
-                                         ("euler_kind", "both")])
+@pytest.mark.parametrize(
+    "field,value",
+    [
+        ("rotation", "euler2"),
+        ("euler_order", "xxy"),
+        ("angle_unit", "grad"),
+        ("quaternion_order", "wzyx"),
+        ("translation_unit", "cm"),
+        ("euler_kind", "both"),
+    ],
+)
 def test_pose_format_validation_names_the_field(field, value):
     with pytest.raises(ConfigError, match=field):
         PoseFormat(**{field: value}).validated()

@@ -1,18 +1,33 @@
 """Detection on rendered images: corner accuracy, the one dispatcher, failed views with their reason,
 the image measures taken during detection (blur, exposure, thumbnail) and the corner order of
 asymmetric boards."""
+
 import cv2
 import numpy as np
 import pytest
 from scipy.ndimage import map_coordinates
 
 from handeye.camera import pixels_from_board_points
-from handeye.detect import (board_size_verdict, detect_gray, detect_image, detect_views, read_gray, size_survey,
-                           visible_grid_sizes)
+from handeye.detect import (
+    board_size_verdict,
+    detect_gray,
+    detect_image,
+    detect_views,
+    read_gray,
+    size_survey,
+    visible_grid_sizes,
+)
 from handeye.detect.chessboard import detect_chessboard, normalize_chessboard_order, order_cue
 from handeye.detect.options import default_options
-from handeye.detect.quality import (board_mask, edge_profiles, image_exposure, neighbour_pairs, thumbnail_jpeg,
-                                    view_blur, view_exposure)
+from handeye.detect.quality import (
+    board_mask,
+    edge_profiles,
+    image_exposure,
+    neighbour_pairs,
+    thumbnail_jpeg,
+    view_blur,
+    view_exposure,
+)
 from handeye.errors import ConfigError, InputError
 from handeye.records import Detection, DetectionFailure
 from handeye.sim.corners import make_corner_session
@@ -35,7 +50,7 @@ def _rms(a, b):
 
 def test_rendered_corners_are_found_to_about_a_tenth_of_a_pixel(views):
     cs, imgs = views
-    for T, img in zip(cs.T_cam_board_true, imgs):
+    for T, img in zip(cs.T_cam_board_true, imgs, strict=False):
         ids, pts = detect_chessboard(img, cs.target)
         truth = pixels_from_board_points(T, cs.target.object_points()[ids], INTR)
         # measured 0.04-0.10 px RMS on 640x480 renders (cornerSubPix on anti-aliased edges)
@@ -68,8 +83,9 @@ def test_board_numbered_from_the_other_end_is_turned_back(views):
         ids, pts = detect_chessboard(img, cs.target)
         if k == 2:
             pts = pts[::-1].copy()  # what OpenCV sometimes returns for an 11x8 board
-        dets[str(k)] = Detection(str(k), ids, pts, (640, 480),
-                                 order_cue=order_cue(img, pts, cs.target.cols, cs.target.rows))
+        dets[str(k)] = Detection(
+            str(k), ids, pts, (640, 480), order_cue=order_cue(img, pts, cs.target.cols, cs.target.rows)
+        )
     assert np.sign(dets["2"].order_cue) != np.sign(dets["0"].order_cue)
     fixed = normalize_chessboard_order(dets, cs.target)
     for k, T in enumerate(cs.T_cam_board_true):
@@ -79,9 +95,11 @@ def test_board_numbered_from_the_other_end_is_turned_back(views):
 
 def test_symmetric_boards_are_left_to_the_motion_check():
     sym = ChessboardSpec(9, 7, 0.03)
-    d = {"1": Detection("1", np.arange(63), np.zeros((63, 2)), (640, 480), order_cue=-50.0),
-         "2": Detection("2", np.arange(63), np.ones((63, 2)), (640, 480), order_cue=50.0),
-         "3": Detection("3", np.arange(63), np.ones((63, 2)), (640, 480), order_cue=60.0)}
+    d = {
+        "1": Detection("1", np.arange(63), np.zeros((63, 2)), (640, 480), order_cue=-50.0),
+        "2": Detection("2", np.arange(63), np.ones((63, 2)), (640, 480), order_cue=50.0),
+        "3": Detection("3", np.arange(63), np.ones((63, 2)), (640, 480), order_cue=60.0),
+    }
     assert normalize_chessboard_order(d, sym) is d
 
 
@@ -164,7 +182,7 @@ def test_neighbour_pairs_on_a_partial_board():
     obj = spec.object_points()
     ids = np.array([0, 1, 2, 5, 6, 11])  # row 0: 0 1 2; row 1: 5 6; row 2: 11
     a, b = neighbour_pairs(obj, ids, spec.square_m)
-    pairs = {(int(ids[i]), int(ids[j])) for i, j in zip(a, b)}
+    pairs = {(int(ids[i]), int(ids[j])) for i, j in zip(a, b, strict=False)}
     assert pairs == {(0, 1), (1, 2), (1, 5), (2, 6), (5, 6)}
 
 
@@ -188,13 +206,22 @@ def test_exposure_is_the_share_and_percentiles_of_the_board_pixels():
     g[40:60, 50:90] = 255
     pts = np.array([[30.3, 20.2], [140.8, 35.1], [120.4, 100.9], [20.1, 90.5]])
     v = g[board_mask(g.shape, pts)]
-    want = {"saturated_share": float(np.mean(v >= default_options().saturated_grey)),
-            "p5": float(np.percentile(v, 5)), "p95": float(np.percentile(v, 95))}
+    want = {
+        "saturated_share": float(np.mean(v >= default_options().saturated_grey)),
+        "p5": float(np.percentile(v, 5)),
+        "p95": float(np.percentile(v, 95)),
+    }
     got = view_exposure(g, pts)
     assert got == pytest.approx(want, abs=1e-12) and got["saturated_share"] > 0.07
     whole = image_exposure(g)
-    assert whole == pytest.approx({"saturated_share": float(np.mean(g >= 250)), "p5": float(np.percentile(g, 5)),
-                                   "p95": float(np.percentile(g, 95))}, abs=1e-12)
+    assert whole == pytest.approx(
+        {
+            "saturated_share": float(np.mean(g >= 250)),
+            "p5": float(np.percentile(g, 5)),
+            "p95": float(np.percentile(g, 95)),
+        },
+        abs=1e-12,
+    )
     off = view_exposure(g, np.array([[-50.0, -50.0], [-10.0, -50.0], [-30.0, -10.0]]))  # hull outside the image
     assert all(np.isnan(x) for x in off.values())
 
@@ -228,6 +255,7 @@ def test_detection_settings_name_a_missing_or_unknown_key():
 
 
 # --- board size: which sizes the images show when the stated one is not found
+
 
 def test_visible_grid_sizes_counts_the_inner_corners_whatever_size_is_stated(views):
     cs, imgs = views
@@ -323,8 +351,13 @@ def hd_views():
     for spec in (ChessboardSpec(11, 8, 0.03), ChessboardSpec(5, 4, 0.06)):
         cs = make_corner_session(n_views=2, seed=3, noise_px=0.0, intrinsics=INTR_HD, target=spec)
         for T in cs.T_cam_board_true:
-            out.append((spec, render_view(spec, INTR_HD, T, supersample=4),
-                        pixels_from_board_points(T, spec.object_points(), INTR_HD)))
+            out.append(
+                (
+                    spec,
+                    render_view(spec, INTR_HD, T, supersample=4),
+                    pixels_from_board_points(T, spec.object_points(), INTR_HD),
+                )
+            )
     return out
 
 
@@ -344,7 +377,7 @@ def test_corners_at_1280x720_lie_within_about_a_twentieth_of_a_pixel_of_the_trut
     # noiseless renders: what is left is the symmetry fit on edges anti-aliased with 4x4 samples per pixel
     # (measured 0.016 px RMS, 0.06 px max on these four views; benchmarks/bench_detect.py prints 20 views
     # of each board); the bound is the one corners must meet (0.05 px RMS, no corner over 0.5 px)
-    assert np.sqrt(np.mean(err ** 2)) < 0.05 and err.max() < 0.5
+    assert np.sqrt(np.mean(err**2)) < 0.05 and err.max() < 0.5
 
 
 def test_coarse_corners_off_by_a_third_of_a_square_are_refined_back(hd_views, monkeypatch):
@@ -482,10 +515,11 @@ def test_charuco_views_above_the_size_limit_are_searched_reduced_and_refined_at_
 
 # --- the second refinement stage: the centre of point symmetry, and corners the two stages disagree on
 
+
 def _smooth_corner(size, c, normals, *, shading=(0.0, 0.0)):
     """A blurred checker corner at ``c`` (px) whose edges have the given unit normals (any angle between
     them), point-symmetric about ``c``, plus a linear shading (grey levels per px), float32 (H, W)."""
-    y, x = np.mgrid[0:size[0], 0:size[1]].astype(float)
+    y, x = np.mgrid[0 : size[0], 0 : size[1]].astype(float)
     d = np.stack([x - c[0], y - c[1]], axis=-1)
     s1, s2 = (np.tanh(d @ np.asarray(n, float) / 1.5) for n in normals)
     return (128.0 + 80.0 * s1 * s2 + shading[0] * (x - c[0]) + shading[1] * (y - c[1])).astype(np.float32)
@@ -518,14 +552,20 @@ def test_the_second_stage_removes_the_aliasing_of_sharp_edges(hd_views, monkeypa
     errs = {}
     for stages in ("both", "cornerSubPix on the smoothed image", "cornerSubPix only"):
         if stages != "both":  # the second stage left out: its corners are the first stage's
-            monkeypatch.setattr(chessboard, "symmetric_corners",
-                                lambda image, pts, half, iterations: (pts.copy(), np.ones(len(pts), bool)))
+            monkeypatch.setattr(
+                chessboard,
+                "symmetric_corners",
+                lambda image, pts, half, iterations: (pts.copy(), np.ones(len(pts), bool)),
+            )
         if stages == "cornerSubPix only":  # ... and the image not smoothed either
-            monkeypatch.setattr(chessboard, "final_corners",
-                                lambda gray, bxy, start, win, o, dropped=None: chessboard.refine_corners(gray, start, win, o))
+            monkeypatch.setattr(
+                chessboard,
+                "final_corners",
+                lambda gray, bxy, start, win, o, dropped=None: chessboard.refine_corners(gray, start, win, o),
+            )
         e = [_err_px(detect_chessboard(img, spec)[1], truth) for spec, img, truth in hd_views]
         errs[stages] = np.concatenate(e)
-    rms = {k: float(np.sqrt(np.mean(e ** 2))) for k, e in errs.items()}
+    rms = {k: float(np.sqrt(np.mean(e**2))) for k, e in errs.items()}
     # 4x4 samples per pixel: cornerSubPix alone 0.043 px RMS on these views, on the smoothed image 0.023 px,
     # both stages 0.016 px (measured; benchmarks/bench_detect.py prints 20 views of each board)
     assert rms["both"] < 0.035 and errs["both"].max() < 0.2
@@ -564,8 +604,9 @@ def test_a_corner_left_out_is_kept_with_its_reason_for_result_json(tmp_path, hd_
     # corner k is corner n - 1 - k
     n = spec.n_corners
     turns = SimpleNamespace(symmetries=lambda: [np.arange(n), np.arange(n)[::-1]])
-    run = SimpleNamespace(detections={"7": det}, session=SimpleNamespace(target=turns),
-                          board_poses={"7": SimpleNamespace(orientation=1)})
+    run = SimpleNamespace(
+        detections={"7": det}, session=SimpleNamespace(target=turns), board_poses={"7": SimpleNamespace(orientation=1)}
+    )
     assert dropped_corners(run, "7") == [{"corner_id": n - 1 - 30, "reason": det.dropped_corners[0][1]}]
     assert dropped_corners(run, "8") == []  # a view without detection
 
@@ -578,7 +619,8 @@ def test_a_view_missing_a_corner_keeps_its_order_cue_and_is_turned_back_whole(vi
     keep = np.setdiff1d(ids, [0, 40])  # corner 0 is one of the four around the first square
     assert abs(order_cue(imgs[0], pts[keep], spec.cols, spec.rows, keep) - full) < 1.0
     d = Detection("0", keep, pts[keep], (640, 480), order_cue=full)
-    turned = Detection("1", (spec.n_corners - 1 - keep)[::-1].copy(), pts[keep][::-1].copy(), (640, 480),
-                       order_cue=-full)
+    turned = Detection(
+        "1", (spec.n_corners - 1 - keep)[::-1].copy(), pts[keep][::-1].copy(), (640, 480), order_cue=-full
+    )
     fixed = normalize_chessboard_order({"0": d, "1": turned, "2": d}, spec)
     assert np.array_equal(fixed["1"].corner_ids, keep) and np.allclose(fixed["1"].image_points, pts[keep])

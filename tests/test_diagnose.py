@@ -5,6 +5,7 @@ session.yaml) are written with the faulty numbers and empty image files, and det
 the synthetic corners, so loading, raw re-reading and calibration run as for real data. Image-level
 faults (blur, a view without the board) use small rendered sessions.
 """
+
 import json
 from pathlib import Path
 
@@ -12,35 +13,73 @@ import numpy as np
 import pytest
 import yaml
 
-import handeye.pipeline as calibrate_mod
 import handeye.detect as detect_mod
-from handeye.pipeline import CalibrateOptions, run_calibration
+import handeye.pipeline as calibrate_mod
 from handeye.conventions import VENDOR_POSE_FORMAT, PoseFormat, pose_values_from_T
-from handeye.diagnose import Finding, alternative_formats, diagnose_run, diagnose_session_error
-from handeye.session.raw import read_raw_poses
 from handeye.detect.quality import edge_profiles, edge_sigma_px
-from handeye.diagnose.imaging import coverage
+from handeye.diagnose import Finding, alternative_formats, diagnose_run, diagnose_session_error
 from handeye.diagnose.geometry import camera_pose_covariances, jackknife_sigmas, pair_invariants, solve_A_from_pairs
+from handeye.diagnose.imaging import coverage
 from handeye.diagnose.thresholds import thresholds
 from handeye.errors import InputError
 from handeye.frames import T_from_rotvec, inv_T, pose_error
 from handeye.mounting import mounting
+from handeye.pipeline import CalibrateOptions, run_calibration
 from handeye.session import load_session
+from handeye.session.raw import read_raw_poses
 from handeye.sim.corners import make_corner_session
 from handeye.sim.scenarios import default_intrinsics
 from handeye.sim.vendor import write_vendor_session
 from handeye.targets import ChessboardSpec
 
-FAULT_CODES = {"translation_units", "angle_units", "euler_order", "rotation_kind", "quaternion_order", "mode_swapped",
-               "poses_inverted", "pairs_shifted", "pairs_shuffled", "robot_pose_disagrees", "board_moved", "weak_motion",
-               "too_few_views", "target_not_found", "image_missing", "blurred", "overexposed", "partial_target",
-               "corners_bunched",
-               "zero_distortion_given", "corner_order_flipped", "uncertainty_underestimated", "intrinsics_mismatch",
-               "square_size", "poses_do_not_fit", "mode_undecided", "arm_beyond_table"}
+FAULT_CODES = {
+    "translation_units",
+    "angle_units",
+    "euler_order",
+    "rotation_kind",
+    "quaternion_order",
+    "mode_swapped",
+    "poses_inverted",
+    "pairs_shifted",
+    "pairs_shuffled",
+    "robot_pose_disagrees",
+    "board_moved",
+    "weak_motion",
+    "too_few_views",
+    "target_not_found",
+    "image_missing",
+    "blurred",
+    "overexposed",
+    "partial_target",
+    "corners_bunched",
+    "zero_distortion_given",
+    "corner_order_flipped",
+    "uncertainty_underestimated",
+    "intrinsics_mismatch",
+    "square_size",
+    "poses_do_not_fit",
+    "mode_undecided",
+    "arm_beyond_table",
+}
 
 
-CLEAN_STAGES = {s: "ok" for s in ("observations", "readings", "pairing", "scale", "board_moved", "robot_poses", "motion",
-                                   "detection", "intrinsics", "images", "coverage", "cross_validation")}
+CLEAN_STAGES = {
+    s: "ok"
+    for s in (
+        "observations",
+        "readings",
+        "pairing",
+        "scale",
+        "board_moved",
+        "robot_poses",
+        "motion",
+        "detection",
+        "intrinsics",
+        "images",
+        "coverage",
+        "cross_validation",
+    )
+}
 
 
 # ------------------------------------------------------------------------------ helpers
@@ -49,6 +88,7 @@ def _fake_detect(cs):
 
     def detect_views(items, target, **kw):
         return {vid: dets.get(vid, "chessboard not found") for vid, _ in items}
+
     return detect_views
 
 
@@ -67,8 +107,10 @@ def _write_vendor(folder: Path, cs, values, *, mode=None) -> Path:
     for k in range(1, cs.n_views + 1):
         (folder / f"{k}.jpg").write_bytes(b"")
     (folder / "poses.txt").write_text("\n".join(",".join(f"{x:.9f}" for x in v) for v in values) + "\n")
-    cfg = {"checkerboard_args": {"XX": cs.target.cols, "YY": cs.target.rows, "L": cs.target.square_m},
-           "mode": mode or cs.mode}
+    cfg = {
+        "checkerboard_args": {"XX": cs.target.cols, "YY": cs.target.rows, "L": cs.target.square_m},
+        "mode": mode or cs.mode,
+    }
     (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
     return folder
 
@@ -79,10 +121,17 @@ def _write_native(folder: Path, cs, fmt: PoseFormat, values, *, mode=None, intri
     for k, vid in enumerate(cs.view_ids):
         (folder / f"{vid}.png").write_bytes(b"")
         views.append({"id": vid, "image": f"{vid}.png", "pose": [float(x) for x in values[k]]})
-    doc = {"handeye_session": 1, "mode": mode or cs.mode,
-           "target": {"type": "chessboard", "inner_corners": [cs.target.cols, cs.target.rows],
-                      "square_m": cs.target.square_m},
-           "pose_format": {k: getattr(fmt, k) for k in PoseFormat.__dataclass_fields__}, "views": views}
+    doc = {
+        "handeye_session": 1,
+        "mode": mode or cs.mode,
+        "target": {
+            "type": "chessboard",
+            "inner_corners": [cs.target.cols, cs.target.rows],
+            "square_m": cs.target.square_m,
+        },
+        "pose_format": {k: getattr(fmt, k) for k in PoseFormat.__dataclass_fields__},
+        "views": views,
+    }
     if intrinsics is not None:
         doc["intrinsics"] = intrinsics
     (folder / "session.yaml").write_text(yaml.safe_dump(doc))
@@ -157,6 +206,7 @@ def test_alternative_formats_cover_units_and_conventions():
 def test_edge_width_measures_a_known_blur():
     s = np.arange(-6, 6.001, 0.25)
     from scipy.special import erf
+
     for sigma in (1.0, 2.0):
         prof = 50 + 150 * 0.5 * (1 + erf(s / (np.sqrt(2) * np.hypot(sigma, 0.0))))
         est, con = edge_sigma_px(prof[None, :])
@@ -191,8 +241,12 @@ def test_pnp_covariance_is_in_the_right_tangent_and_matches_monte_carlo():
     uv = pixels_from_board_points(C, obj, intr)
     rng = np.random.default_rng(0)
     sigma_px = 0.5
-    xi = np.array([tangent_difference(C, solve_pnp(obj, uv + rng.normal(scale=sigma_px, size=uv.shape), intr)[0])
-                   for _ in range(400)])
+    xi = np.array(
+        [
+            tangent_difference(C, solve_pnp(obj, uv + rng.normal(scale=sigma_px, size=uv.shape), intr)[0])
+            for _ in range(400)
+        ]
+    )
     P = camera_pose_covariances(((obj, uv),), C[None], intr.as_vector(), sigma_px, intrinsics_estimated=False)[0]
     d2 = np.einsum("ni,ij,nj->n", xi, np.linalg.inv(P), xi)
     assert abs(d2.mean() - 6.0) < 0.9, d2.mean()
@@ -200,8 +254,11 @@ def test_pnp_covariance_is_in_the_right_tangent_and_matches_monte_carlo():
 
 def test_every_threshold_states_its_unit_and_origin():
     text = (Path(__file__).parents[1] / "configs" / "diagnostics.yaml").read_text()
-    leaves = [ln for ln in text.splitlines() if ln.strip() and not ln.strip().startswith("#")
-              and not ln.rstrip().endswith(":")]
+    leaves = [
+        ln
+        for ln in text.splitlines()
+        if ln.strip() and not ln.strip().startswith("#") and not ln.rstrip().endswith(":")
+    ]
     assert leaves and all("#" in ln for ln in leaves), [ln for ln in leaves if "#" not in ln]
     t = thresholds()
     assert t.cost(t.readings.cost_deg, 0.0) == pytest.approx(1.0) and t.views.min_fail == 3
@@ -212,12 +269,14 @@ def test_a_crashed_stage_is_reported_as_crashed_and_not_as_a_finding(tmp_path, m
 
     def broken(*a, **kw):
         raise RuntimeError("motion quality exploded")
+
     cs = _session("eye_in_hand", 0)
     path = _write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported))
     _patch(monkeypatch, cs)
     monkeypatch.setattr(consistency, "motion_quality", broken)
-    d = diagnose_run(run_calibration(load_session(path), CalibrateOptions(refine=False)), images=False,
-                     cross_validation=False)
+    d = diagnose_run(
+        run_calibration(load_session(path), CalibrateOptions(refine=False)), images=False, cross_validation=False
+    )
     json.dumps(d)
     assert d["stages"]["motion"] == "crashed" and d["crashed_stages"] == 1
     assert d["stage_errors"] == {"motion": "RuntimeError: motion quality exploded"}
@@ -347,7 +406,7 @@ def test_rotation_vectors_read_as_euler_angles_are_named_and_the_fix_reads_them(
     assert "rotation vectors" in f["title"] and "read as extrinsic xyz Euler angles" in f["title"]
     cfg.update(yaml.safe_load(f["action"].split("config.yaml: ", 1)[1].split(" (or convert", 1)[0]))
     (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
-    for v, T in zip(load_session(folder).views, cs.T_base_end_reported):
+    for v, T in zip(load_session(folder).views, cs.T_base_end_reported, strict=False):
         np.testing.assert_allclose(v.T_base_end, T, atol=1e-7)
     run, d = _diagnose(folder, cs, monkeypatch)
     assert run.status == "ok" and "rotation_kind" not in _codes(d)
@@ -381,8 +440,9 @@ def test_a_run_that_fails_from_inverted_poses_is_refused_for_them(tmp_path, monk
     _patch(monkeypatch, cs)
     for k, ro in enumerate(({}, {"robot_noise": "none"})):  # the refinement fits the misread poses / fails
         assert run_calibration(load_session(folder), CalibrateOptions(refine_options=ro)).status == ("ok", "failed")[k]
-        wr = calibrate_session(folder, out_dir=tmp_path / f"out{k}", report=False,
-                               options=CalibrateOptions(refine_options=ro))
+        wr = calibrate_session(
+            folder, out_dir=tmp_path / f"out{k}", report=False, options=CalibrateOptions(refine_options=ro)
+        )
         assert wr.exit_code == SessionRefused.exit_code and wr.verdict == "REFUSED"
         err = wr.result["error"]
         assert err["code"] == "poses_inverted" and "invert them" in err["fix"]
@@ -408,8 +468,9 @@ def test_a_capture_that_saved_a_pose_without_its_image_is_named_with_the_line_to
     the pose written for the next one. Named as such (not as a shuffle), with the pose line to delete."""
     cs = _session(mode, 10, n_views=14)
     v = _vals(cs.T_base_end_reported)
-    stray = pose_values_from_T(cs.T_base_end_reported[2] @ T_from_rotvec([0.3, -0.2, 0.1], [0.05, 0.02, -0.03]),
-                               VENDOR_POSE_FORMAT)
+    stray = pose_values_from_T(
+        cs.T_base_end_reported[2] @ T_from_rotvec([0.3, -0.2, 0.1], [0.05, 0.02, -0.03]), VENDOR_POSE_FORMAT
+    )
     lines = v[:6] + [stray] + v[6:]  # pose line 7 belongs to no image; image 7 is line 8's
     _, d = _diagnose(_write_vendor(tmp_path / "s", cs, lines), cs, monkeypatch)
     f = _one(d, "pairs_shuffled")
@@ -477,23 +538,35 @@ def test_outlier_views_are_named_with_their_size(tmp_path, monkeypatch, mode):
     for v in cs.outlier_view_ids:
         true_rot_deg, true_trans_mm = pose_error(cs.T_base_end_true[cs.index(v)], cs.T_base_end_reported[cs.index(v)])
         got = f["details"]["per_view"][v]
-        assert abs(got["rot_deg"] - true_rot_deg) < tol_deg and abs(got["trans_mm"] - true_trans_mm) < tol_mm, \
-            (got, true_rot_deg, true_trans_mm, tol_deg, tol_mm)
+        assert abs(got["rot_deg"] - true_rot_deg) < tol_deg and abs(got["trans_mm"] - true_trans_mm) < tol_mm, (
+            got,
+            true_rot_deg,
+            true_trans_mm,
+            tol_deg,
+            tol_mm,
+        )
 
 
 def test_outlier_views_agree_with_the_refinement(tmp_path, monkeypatch):
     cs = _session("eye_in_hand", 14, outlier_views=2)
-    run, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch,
-                       refine=True)
+    run, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch, refine=True)
     flagged = {o.view_id for o in run.refined.outliers if o.kind == "robot_pose"}
     assert flagged == set(cs.outlier_view_ids)
     f = _one(d, "robot_pose_disagrees")
     assert set(f["view_ids"]) == flagged and f["details"]["source"].startswith("the refinement's")
 
 
-@pytest.mark.parametrize("seed,mode,first_moved", [(40, "eye_in_hand", 7), (42, "eye_to_hand", 10),
-                                                     (46, "eye_in_hand", 14), (46, "eye_to_hand", 14),
-                                                     (31, "eye_in_hand", 11), (31, "eye_to_hand", 12)])
+@pytest.mark.parametrize(
+    "seed,mode,first_moved",
+    [
+        (40, "eye_in_hand", 7),
+        (42, "eye_to_hand", 10),
+        (46, "eye_in_hand", 14),
+        (46, "eye_to_hand", 14),
+        (31, "eye_in_hand", 11),
+        (31, "eye_to_hand", 12),
+    ],
+)
 def test_the_board_move_is_placed_where_it_happened(tmp_path, monkeypatch, seed, mode, first_moved):
     """20 views, 0.5 px corners, robot noise; the board moved by 5 mm / 0.5 deg before view ``first_moved``: the finding
     names the boundary itself (the split that fits best), not a neighbour whose test on its inliers is as
@@ -554,8 +627,16 @@ def test_too_few_views(tmp_path, monkeypatch):
 def test_zero_distortion_given_while_the_images_show_distortion(tmp_path, monkeypatch):
     cs = _session("eye_in_hand", 18, intrinsics=default_intrinsics(dist=(-0.25, 0.08, 0.0, 0.0, 0.0)))
     K = cs.intrinsics
-    intr = {"model": "opencv5", "fx": K.fx, "fy": K.fy, "cx": K.cx, "cy": K.cy, "dist": [0, 0, 0, 0, 0],
-            "image_size": [K.width, K.height], "use": "fixed"}
+    intr = {
+        "model": "opencv5",
+        "fx": K.fx,
+        "fy": K.fy,
+        "cx": K.cx,
+        "cy": K.cy,
+        "dist": [0, 0, 0, 0, 0],
+        "image_size": [K.width, K.height],
+        "use": "fixed",
+    }
     path = _write_native(tmp_path / "s", cs, VENDOR_POSE_FORMAT, _vals(cs.T_base_end_reported), intrinsics=intr)
     _, d = _diagnose(path, cs, monkeypatch)
     f = _one(d, "zero_distortion_given")
@@ -569,8 +650,14 @@ def test_zero_distortion_given_while_the_images_show_distortion(tmp_path, monkey
 
 
 def test_corners_bunched_in_the_middle(tmp_path, monkeypatch):
-    cs = make_corner_session(mode="eye_in_hand", n_views=10, seed=19, target=ChessboardSpec(7, 5, 0.012),
-                             distance_m=(0.45, 0.55), aim_deg=1.0)
+    cs = make_corner_session(
+        mode="eye_in_hand",
+        n_views=10,
+        seed=19,
+        target=ChessboardSpec(7, 5, 0.012),
+        distance_m=(0.45, 0.55),
+        aim_deg=1.0,
+    )
     _, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch)
     f = _one(d, "corners_bunched")
     assert "top-left" in f["evidence"] and f["details"]["cell_share"] < 0.3
@@ -579,8 +666,9 @@ def test_corners_bunched_in_the_middle(tmp_path, monkeypatch):
 # ------------------------------------------------------------------------------ cross-validation
 def test_cross_validation_matches_the_covariance_on_clean_data(tmp_path, monkeypatch):
     cs = _session("eye_to_hand", 20, robot_noise=(0.5, 0.05))
-    _, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch,
-                     refine=True, cv=True)
+    _, d = _diagnose(
+        _write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch, refine=True, cv=True
+    )
     cv = d["cross_validation"]
     # the validation's folds (configs/diagnostics.yaml validation:), reused by the cross-validation
     from handeye.refine.validation import fold_indices, settings
@@ -595,9 +683,19 @@ def test_cross_validation_matches_the_covariance_on_clean_data(tmp_path, monkeyp
 
 def test_cross_validation_says_when_the_model_misses_an_error_source(tmp_path, monkeypatch):
     cs = _session("eye_in_hand", 4, robot_noise=(1.0, 0.1))
-    _, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch,
-                     refine=True, cv=True, refine_options={"robot_noise": "fixed", "robot_sigma_mm": 0.05,
-                                                           "robot_sigma_deg": 0.005, "outlier_loop": False})
+    _, d = _diagnose(
+        _write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)),
+        cs,
+        monkeypatch,
+        refine=True,
+        cv=True,
+        refine_options={
+            "robot_noise": "fixed",
+            "robot_sigma_mm": 0.05,
+            "robot_sigma_deg": 0.005,
+            "outlier_loop": False,
+        },
+    )
     cv = d["cross_validation"]
     assert cv["verdict"] == "spread_exceeds_prediction" and "misses an error source" in cv["summary"]
     assert cv["spread_p_value"] < 0.01 and "over the six directions" in cv["summary"]
@@ -616,8 +714,16 @@ def test_cross_validation_without_refinement_reports_the_spread(tmp_path, monkey
 
 # ------------------------------------------------------------------------------ rendered images
 def _render(root, name, **kw):
-    return write_vendor_session(root / name, mode="eye_in_hand", n_views=8, seed=22,
-                                intrinsics=default_intrinsics(640, 360), supersample=2, image_noise=1.0, **kw)
+    return write_vendor_session(
+        root / name,
+        mode="eye_in_hand",
+        n_views=8,
+        seed=22,
+        intrinsics=default_intrinsics(640, 360),
+        supersample=2,
+        image_noise=1.0,
+        **kw,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -680,6 +786,7 @@ def test_rendered_partly_visible_and_overexposed(rendered, tmp_path):
     import shutil
 
     import cv2
+
     from handeye.sim.render import render_view
 
     folder = tmp_path / "s"
@@ -693,8 +800,9 @@ def test_rendered_partly_visible_and_overexposed(rendered, tmp_path):
     p = C[:3, :3] @ c + C[:3, 3]
     turn = T_from_rotvec([0.0, -(np.arctan2(320.0, intr.fx) - np.arctan2(p[0], p[2])), 0.0], [0.0, 0.0, 0.0])
     C2 = turn @ C
-    img = render_view(ChessboardSpec(11, 8, 0.03), intr, C2, supersample=2, noise_sigma=1.0,
-                      rng=np.random.default_rng(0))
+    img = render_view(
+        ChessboardSpec(11, 8, 0.03), intr, C2, supersample=2, noise_sigma=1.0, rng=np.random.default_rng(0)
+    )
     cv2.imwrite(str(folder / "4.jpg"), img)
     lines = (folder / "poses.txt").read_text().split("\n")
     lines[3] = ",".join(f"{x:.9f}" for x in pose_values_from_T(B @ inv_T(C2) @ inv_T(X), VENDOR_POSE_FORMAT))
@@ -752,14 +860,21 @@ def test_pair_fits_from_summed_terms_equal_the_direct_solves():
         a, b, rc, rm = motions.alpha[sel], motions.beta[sel], motions.rc[sel], motions.rm[sel]
         U, _, Vt = np.linalg.svd(b.T @ a)
         R = Vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))]) @ U.T
-        t, *_ = np.linalg.lstsq((rc[:, :3, :3] - np.eye(3)).reshape(-1, 3),
-                                (np.einsum("ij,pj->pi", R, rm[:, :3, 3]) - rc[:, :3, 3]).reshape(-1), rcond=None)
+        t, *_ = np.linalg.lstsq(
+            (rc[:, :3, :3] - np.eye(3)).reshape(-1, 3),
+            (np.einsum("ij,pj->pi", R, rm[:, :3, 3]) - rc[:, :3, 3]).reshape(-1),
+            rcond=None,
+        )
         return R, t
 
     n = len(C)
     rng = np.random.default_rng(3)
-    for labels in (np.zeros(n, int), (np.arange(n) >= 6).astype(int), np.repeat([0, 1, 2], [5, 5, 4]),
-                   rng.integers(0, 2, n)):
+    for labels in (
+        np.zeros(n, int),
+        (np.arange(n) >= 6).astype(int),
+        np.repeat([0, 1, 2], [5, 5, 4]),
+        rng.integers(0, 2, n),
+    ):
         for out in ((), (3,), (0, 9), tuple(range(5))):
             use = np.ones(n, bool)
             use[list(out)] = False
@@ -793,8 +908,7 @@ def test_scale_in_closed_form_is_exact_without_noise_and_tested_against_one():
 def test_wrong_square_size_is_named_with_the_measured_size(tmp_path, monkeypatch, mode, factor):
     cs = _session(mode, 41, robot_noise=(1.0, 0.1), n_views=15)
     stated = cs.target.square_m * factor
-    run, d = _diagnose(_write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), L=stated), cs,
-                       monkeypatch)
+    run, d = _diagnose(_write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), L=stated), cs, monkeypatch)
     assert _codes(d) == {"square_size"}  # named alone: not as robot noise, a moved board or outlier views
     f = _one(d, "square_size")
     assert f["severity"] == "fail"
@@ -841,7 +955,7 @@ def test_the_fix_of_a_vendor_euler_finding_in_config_yaml_reads_the_poses_right(
     (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
     s = load_session(folder)
     assert "intrinsic zyx" in s.pose_format
-    for v, T in zip(s.views, cs.T_base_end_reported):
+    for v, T in zip(s.views, cs.T_base_end_reported, strict=False):
         np.testing.assert_allclose(v.T_base_end, T, atol=1e-7)
     run, d = _diagnose(folder, cs, monkeypatch)
     assert run.status == "ok" and "euler_order" not in _codes(d)
@@ -857,8 +971,7 @@ def test_clean_symmetric_board_with_turned_views_gets_no_finding(tmp_path, monke
 @pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
 def test_the_mode_is_detected_when_the_session_states_none(tmp_path, monkeypatch, mode):
     cs = _session(mode, 45, robot_noise=(1.0, 0.1))
-    run, d = _diagnose(_write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), mode=None), cs,
-                       monkeypatch)
+    run, d = _diagnose(_write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), mode=None), cs, monkeypatch)
     assert run.status == "ok" and run.session.mode == mode
     assert run.mode_decision["mode"] == mode and run.mode_decision["mode_source"] == "detected"
     assert run.mode_decision["evidence"]["ratio"] > thresholds().mode.ratio
@@ -869,8 +982,9 @@ def test_a_stated_mode_is_kept_and_says_so(tmp_path, monkeypatch):
     cs = _session("eye_to_hand", 46)
     run, _ = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch)
     assert run.mode_decision["mode_source"] == "stated" and run.mode_decision["evidence"]["decided"] == "eye_to_hand"
-    run, _ = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch,
-                       mode="eye_to_hand")
+    run, _ = _diagnose(
+        _write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch, mode="eye_to_hand"
+    )
     assert run.mode_decision["mode_source"] == "flag"
 
 
@@ -888,8 +1002,9 @@ def test_a_native_session_without_mode_is_detected(tmp_path, monkeypatch):
 def test_a_stated_mode_the_data_contradict_is_refused_with_the_finding(tmp_path, monkeypatch, mode):
     cs = _session(mode, 48)
     other = mounting(mode).other.name
-    run, d = _diagnose(_write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), mode=other), cs,
-                       monkeypatch)
+    run, d = _diagnose(
+        _write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), mode=other), cs, monkeypatch
+    )
     assert run.status == "failed" and run.error.code == "mode_swapped" and run.T_x is None
     assert f"--mode {mode}" in run.error.hint
     assert d["findings"][0]["code"] == "mode_swapped"
@@ -900,9 +1015,11 @@ def test_shifted_pairs_are_refused_and_the_offered_flag_applies_the_shift(tmp_pa
     from dataclasses import replace
 
     full = _session("eye_to_hand", 49, n_views=14)
-    cs = replace(full, view_ids=full.view_ids[:12], corner_ids=full.corner_ids[:12], image_points=full.image_points[:12])
+    cs = replace(
+        full, view_ids=full.view_ids[:12], corner_ids=full.corner_ids[:12], image_points=full.image_points[:12]
+    )
     # the vendor script's failure: line k of poses.txt holds the pose of image k + shift
-    folder = _write_vendor(tmp_path / "s", cs, _vals(full.T_base_end_reported[shift:shift + 12]))
+    folder = _write_vendor(tmp_path / "s", cs, _vals(full.T_base_end_reported[shift : shift + 12]))
     run, d = _diagnose(folder, cs, monkeypatch)
     assert run.status == "failed" and run.error.code == "pairs_shifted" and run.T_x is None
     assert f"--shift-poses {-shift}" in run.error.hint
@@ -936,8 +1053,14 @@ def test_poses_that_fit_no_explanation_are_never_a_quiet_pass(tmp_path, monkeypa
     other = _session("eye_to_hand", 53, n_views=12)  # another rig's poses: no reading or pairing fits
     run, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(other.T_base_end_reported)), cs, monkeypatch)
     assert "fail" in {f["severity"] for f in d["findings"]}
-    assert _codes(d) & {"poses_do_not_fit", "pairs_shifted", "pairs_shuffled", "mode_swapped", "poses_inverted",
-                        "euler_order"}
+    assert _codes(d) & {
+        "poses_do_not_fit",
+        "pairs_shifted",
+        "pairs_shuffled",
+        "mode_swapped",
+        "poses_inverted",
+        "euler_order",
+    }
 
 
 def test_a_pose_line_without_its_image_is_named_as_such_not_as_target_not_found(tmp_path, monkeypatch):
@@ -957,15 +1080,22 @@ def test_an_arm_further_from_its_table_than_stated_is_an_info_finding_with_its_l
     off, sd = np.zeros((6, 4)), np.full((6, 4), 0.5)
     off[4, 0], off[1, 2], off[2, 3] = 2.36, 1.07, -0.08
     sd[2, 3] = 0.01
-    model = {"kind": "kinematic", "dh_prior_scale": 3.55, "dh_columns": ["a_mm", "alpha_deg", "d_mm", "theta_offset_deg"],
-             "dh_offset": off.tolist(), "dh_offset_sigma": sd.tolist(),
-             "dh_prior_sigma_stated": {"length_mm": 0.5, "angle_deg": 0.05},
-             "dh_prior_test": {"p_value": 1.6e-6, "alpha": 0.01, "contradicted": True}}
+    model = {
+        "kind": "kinematic",
+        "dh_prior_scale": 3.55,
+        "dh_columns": ["a_mm", "alpha_deg", "d_mm", "theta_offset_deg"],
+        "dh_offset": off.tolist(),
+        "dh_offset_sigma": sd.tolist(),
+        "dh_prior_sigma_stated": {"length_mm": 0.5, "angle_deg": 0.05},
+        "dh_prior_test": {"p_value": 1.6e-6, "alpha": 0.01, "contradicted": True},
+    }
     (f,) = arm_table_findings(model)
     assert f.code == "arm_beyond_table" and f.severity == "info" and "widened 3.55x" in f.title
     assert "reject the stated 0.5 mm / 0.05 deg (p = 1.6e-06" in f.evidence
-    assert ("the offsets most beyond their sigma: theta of joint 3 -0.08 deg (8.0 sigma), a of joint 5 +2.36 mm (4.7 sigma), "
-            "d of joint 2 +1.07 mm (2.1 sigma)") in f.evidence
+    assert (
+        "the offsets most beyond their sigma: theta of joint 3 -0.08 deg (8.0 sigma), a of joint 5 +2.36 mm (4.7 sigma), "
+        "d of joint 2 +1.07 mm (2.1 sigma)"
+    ) in f.evidence
     assert arm_table_findings(dict(model, dh_prior_scale=1.0)) == []  # the stated prior held
     assert arm_table_findings(dict(model, kind="iid")) == [] and arm_table_findings(None) == []
 

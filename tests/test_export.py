@@ -2,6 +2,7 @@
 xacro, YAML by PyYAML, the launch files executed with stand-ins for ROS 2's launch classes and their
 arguments parsed as static_transform_publisher does) and the transform recomposed equals result.json's
 to 1e-9. The body-frame export is the optical one times the fixed rotation."""
+
 from __future__ import annotations
 
 import json
@@ -41,10 +42,19 @@ def _result(folder, mode, *, seed=0, verdict="PASS", status="ok"):
     A = rng.normal(size=(6, 6)) * 1e-4
     cov = A @ A.T
     name = "T_end_cam" if mode == "eye_in_hand" else "T_base_cam"
-    d = {"handeye_result": 1, "status": status, "mode": mode, "hand_eye": {"name": name},
-         "verdict": verdict, "verdict_headline": "test", "failure_reason": None if status == "ok" else "no views",
-         "refinement": {"cov_x_6x6": cov.tolist(), "cov_parametrisation":
-                        "GTSAM Pose3 tangent, right perturbation: T_x_true = T_x · Exp(xi), rotation first"}}
+    d = {
+        "handeye_result": 1,
+        "status": status,
+        "mode": mode,
+        "hand_eye": {"name": name},
+        "verdict": verdict,
+        "verdict_headline": "test",
+        "failure_reason": None if status == "ok" else "no views",
+        "refinement": {
+            "cov_x_6x6": cov.tolist(),
+            "cov_parametrisation": "GTSAM Pose3 tangent, right perturbation: T_x_true = T_x · Exp(xi), rotation first",
+        },
+    }
     if status == "ok":
         d[name] = T.tolist()
     folder.mkdir(parents=True, exist_ok=True)
@@ -106,8 +116,11 @@ def _tf_yaml_transform(path):
     d = yaml.safe_load(path.read_text())
     (tr,) = d["transforms"]
     t, q = tr["transform"]["translation"], tr["transform"]["rotation"]
-    return tr["header"]["frame_id"], tr["child_frame_id"], _T_xyzw([t["x"], t["y"], t["z"]],
-                                                                   [q["x"], q["y"], q["z"], q["w"]])
+    return (
+        tr["header"]["frame_id"],
+        tr["child_frame_id"],
+        _T_xyzw([t["x"], t["y"], t["z"]], [q["x"], q["y"], q["z"], q["w"]]),
+    )
 
 
 def _urdf_transform(path):
@@ -123,9 +136,11 @@ def _xacro_transform(path, tmp_path):
     import xacro
 
     wrapper = tmp_path / "robot.urdf.xacro"
-    wrapper.write_text(f'<?xml version="1.0"?>\n<robot xmlns:xacro="http://www.ros.org/wiki/xacro" name="r">\n'
-                       f'  <xacro:include filename="{path}"/>\n  <link name="tool0"/>\n'
-                       f'  <link name="camera_color_optical_frame"/>\n  <xacro:handeye_camera_joint/>\n</robot>\n')
+    wrapper.write_text(
+        f'<?xml version="1.0"?>\n<robot xmlns:xacro="http://www.ros.org/wiki/xacro" name="r">\n'
+        f'  <xacro:include filename="{path}"/>\n  <link name="tool0"/>\n'
+        f'  <link name="camera_color_optical_frame"/>\n  <xacro:handeye_camera_joint/>\n</robot>\n'
+    )
     doc = xacro.process_file(str(wrapper))
     out = tmp_path / "expanded.urdf"
     out.write_text(doc.toxml())
@@ -179,8 +194,13 @@ def test_export_round_trips_through_its_reader(tmp_path, fmt, mode):
 @pytest.mark.parametrize("fmt", ["ros2", "urdf", "easy_handeye2", "yaml"])
 def test_body_frame_export_is_the_optical_one_times_the_fixed_rotation(tmp_path, fmt):
     T, _ = _result(tmp_path / "res", "eye_in_hand", seed=5)
-    paths = export_result(tmp_path / "res", fmt, camera_frame="body", child="cam_body" if fmt != "urdf" else None,
-                          out=tmp_path / "body" / "cam")
+    paths = export_result(
+        tmp_path / "res",
+        fmt,
+        camera_frame="body",
+        child="cam_body" if fmt != "urdf" else None,
+        out=tmp_path / "body" / "cam",
+    )
     child = "cam_body" if fmt != "urdf" else "camera_color_frame"
     if fmt == "urdf":
         got = [_urdf_transform(paths[0])]
@@ -200,8 +220,9 @@ def test_body_frame_export_is_the_optical_one_times_the_fixed_rotation(tmp_path,
 def test_sigmas_follow_the_covariance_and_the_camera_frame(tmp_path):
     T, cov = _result(tmp_path / "res", "eye_in_hand", seed=6)
     opt = yaml.safe_load(export_result(tmp_path / "res", "yaml", out=tmp_path / "o.yaml")[0].read_text())
-    body = yaml.safe_load(export_result(tmp_path / "res", "yaml", out=tmp_path / "b.yaml",
-                                        camera_frame="body")[0].read_text())
+    body = yaml.safe_load(
+        export_result(tmp_path / "res", "yaml", out=tmp_path / "b.yaml", camera_frame="body")[0].read_text()
+    )
     R = T[:3, :3]
     sig_t_mm = np.sqrt(np.diag(R @ cov[3:, 3:] @ R.T)) * 1e3  # translation of T moves by R v (first order)
     assert np.allclose(opt["sigma"]["translation_mm"], sig_t_mm, rtol=1e-4)
@@ -236,11 +257,30 @@ def test_failed_result_is_refused_even_forced(tmp_path, capsys):
 
 def test_cli_names_frames_and_out_file(tmp_path, capsys):
     T, _ = _result(tmp_path / "res", "eye_to_hand", seed=8)
-    assert main(["export", str(tmp_path / "res" / "result.json"), "--to", "ros2", "--parent", "world",
-                 "--child", "cam_optical", "--out", str(tmp_path / "ros" / "cam.launch.py")]) == 0
+    assert (
+        main(
+            [
+                "export",
+                str(tmp_path / "res" / "result.json"),
+                "--to",
+                "ros2",
+                "--parent",
+                "world",
+                "--child",
+                "cam_optical",
+                "--out",
+                str(tmp_path / "ros" / "cam.launch.py"),
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out.split()
-    assert out == ["ros2:", str(tmp_path / "ros" / "cam.launch.py"), "ros2:",
-                   str(tmp_path / "ros" / "cam.tf_static.yaml")]
+    assert out == [
+        "ros2:",
+        str(tmp_path / "ros" / "cam.launch.py"),
+        "ros2:",
+        str(tmp_path / "ros" / "cam.tf_static.yaml"),
+    ]
     parent, child, T_got = _launch_transform(tmp_path / "ros" / "cam.launch.py")
     assert (parent, child) == ("world", "cam_optical") and np.max(np.abs(T_got - T)) < TOL
     text = (tmp_path / "ros" / "cam.launch.py").read_text()
@@ -252,31 +292,51 @@ def test_cli_names_frames_and_out_file(tmp_path, capsys):
     assert "--child 'my cam' is not a TF frame name" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("out,written", [
-    ("r2.urdf.xacro", ["r2.urdf", "r2.urdf.xacro"]),  # the macro's name given: each file on its own ending
-    ("r2.urdf", ["r2.urdf", "r2.urdf.xacro"]),
-    ("r2.xml", ["r2.urdf.xacro", "r2.xml"]),  # another extension: the URDF as named, the macro on its stem
-])
+@pytest.mark.parametrize(
+    "out,written",
+    [
+        ("r2.urdf.xacro", ["r2.urdf", "r2.urdf.xacro"]),  # the macro's name given: each file on its own ending
+        ("r2.urdf", ["r2.urdf", "r2.urdf.xacro"]),
+        ("r2.xml", ["r2.urdf.xacro", "r2.xml"]),  # another extension: the URDF as named, the macro on its stem
+    ],
+)
 def test_out_names_one_of_the_files_and_the_companions_share_its_stem(tmp_path, capsys, out, written):
     _result(tmp_path / "res", "eye_in_hand", seed=2)
     (tmp_path / "o").mkdir()
     assert main(["export", str(tmp_path / "res"), "--to", "urdf", "--out", str(tmp_path / "o" / out)]) == 0
     assert sorted(p.name for p in (tmp_path / "o").iterdir()) == written
-    assert main(["export", str(tmp_path / "res"), "--to", "moveit", "--out", str(tmp_path / "m" / "cam.launch.py")]) == 0
+    assert (
+        main(["export", str(tmp_path / "res"), "--to", "moveit", "--out", str(tmp_path / "m" / "cam.launch.py")]) == 0
+    )
     assert sorted(p.name for p in (tmp_path / "m").iterdir()) == ["cam.launch.py", "cam.moveit.launch"]
 
 
-@pytest.mark.parametrize("mode,argv,says", [
-    ("eye_in_hand", ["--to", "ros2", "--camera-frame", "body", "--child", "camera_color_optical_frame"],
-     "--child camera_color_optical_frame names an optical frame but --camera-frame is body"),
-    ("eye_in_hand", ["--to", "ros2", "--child", "camera_link"],
-     "--child camera_link names a body frame but --camera-frame is optical"),
-    ("eye_to_hand", ["--to", "easy_handeye2", "--base-frame", "world"],
-     "--base-frame names the robot frame of an eye_in_hand calibration, this one is eye_to_hand"),
-    ("eye_in_hand", ["--to", "easy_handeye2", "--effector-frame", "flange"],
-     "--effector-frame names the robot frame of an eye_to_hand calibration, this one is eye_in_hand"),
-    ("eye_in_hand", ["--to", "ros2", "--base-frame", "world"], "--base-frame applies to --to easy_handeye2 only"),
-])
+@pytest.mark.parametrize(
+    "mode,argv,says",
+    [
+        (
+            "eye_in_hand",
+            ["--to", "ros2", "--camera-frame", "body", "--child", "camera_color_optical_frame"],
+            "--child camera_color_optical_frame names an optical frame but --camera-frame is body",
+        ),
+        (
+            "eye_in_hand",
+            ["--to", "ros2", "--child", "camera_link"],
+            "--child camera_link names a body frame but --camera-frame is optical",
+        ),
+        (
+            "eye_to_hand",
+            ["--to", "easy_handeye2", "--base-frame", "world"],
+            "--base-frame names the robot frame of an eye_in_hand calibration, this one is eye_to_hand",
+        ),
+        (
+            "eye_in_hand",
+            ["--to", "easy_handeye2", "--effector-frame", "flange"],
+            "--effector-frame names the robot frame of an eye_to_hand calibration, this one is eye_in_hand",
+        ),
+        ("eye_in_hand", ["--to", "ros2", "--base-frame", "world"], "--base-frame applies to --to easy_handeye2 only"),
+    ],
+)
 def test_frame_options_that_contradict_the_export_are_refused(tmp_path, capsys, mode, argv, says):
     """A camera frame named for the other rotation convention (90 degrees off in every consumer), or a robot frame
     option of the other mounting mode (its file would contradict its own header), is refused in one line."""

@@ -1,12 +1,22 @@
 """handeye.frames: the one SE(3) module, checked against GTSAM's Pose3 (the convention it states)."""
+
 from __future__ import annotations
 
 import gtsam
 import numpy as np
 import pytest
 
-from handeye.frames import (inv_T, is_rotation, make_T, pose_error, se3_adjoint, se3_exp, se3_log,
-                            tangent_difference, tangent_jacobian)
+from handeye.frames import (
+    inv_T,
+    is_rotation,
+    make_T,
+    pose_error,
+    se3_adjoint,
+    se3_exp,
+    se3_log,
+    tangent_difference,
+    tangent_jacobian,
+)
 
 
 def _random_xi(rng, n=None, *, rot_scale=0.5, trans_scale=0.5):
@@ -102,8 +112,12 @@ def test_rotation_forms_agree_with_scipy_including_near_pi_and_zero():
 
     from handeye.frames import R_from_quat_wxyz, R_from_rotvec, quat_wxyz_from_R, rotvec_from_R
 
-    rv = np.concatenate([Rotation.random(300, random_state=2).as_rotvec(),
-                         [[np.pi - 1e-7, 0, 0], [0, 1e-12, 0], [0, 0, 0], [0.3, 0.2, 2.5]]])
+    rv = np.concatenate(
+        [
+            Rotation.random(300, random_state=2).as_rotvec(),
+            [[np.pi - 1e-7, 0, 0], [0, 1e-12, 0], [0, 0, 0], [0.3, 0.2, 2.5]],
+        ]
+    )
     R = Rotation.from_rotvec(rv).as_matrix()
     np.testing.assert_allclose(R_from_rotvec(rv), R, atol=1e-14)
     np.testing.assert_allclose(R_from_rotvec(rotvec_from_R(R)), R, atol=1e-12)

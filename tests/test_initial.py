@@ -3,6 +3,7 @@ motion quality, OpenCV's closed forms in both modes; and the observation stage o
 
 Ground truth at two levels (STYLE 12): noiseless corners recover the truth to ~1e-8; noisy corners
 give errors that scale with the pixel noise."""
+
 import cv2
 import numpy as np
 import pytest
@@ -11,8 +12,18 @@ from handeye.camera import pixels_from_board_points
 from handeye.config import load_preset
 from handeye.errors import DetectionError
 from handeye.frames import T_from_rotvec, inv_T, pose_error
-from handeye.initial import (METHODS, board_poses, calibrate_intrinsics, chain_residuals, consistency,
-                             motion_quality, reprojection_rms, rotations_to_add, solve_closed_form, solve_pnp)
+from handeye.initial import (
+    METHODS,
+    board_poses,
+    calibrate_intrinsics,
+    chain_residuals,
+    consistency,
+    motion_quality,
+    reprojection_rms,
+    rotations_to_add,
+    solve_closed_form,
+    solve_pnp,
+)
 from handeye.initial.motion import default_thresholds
 from handeye.mounting import mounting
 from handeye.pipeline import CalibrateOptions, observe
@@ -104,8 +115,9 @@ def test_board_pose_and_its_rms_use_the_one_projection_which_matches_opencv():
     T, rms = solve_pnp(obj, d.image_points, cs.intrinsics)
     assert rms < 1e-6 and pose_error(T, cs.T_cam_board_true[0])[1] < 1e-6
     # cv2.projectPoints as the oracle of handeye.camera's projection (distortion included)
-    px = cv2.projectPoints(obj.reshape(-1, 1, 3), cv2.Rodrigues(T[:3, :3])[0], T[:3, 3], cs.intrinsics.K,
-                           cs.intrinsics.dist_array)[0].reshape(-1, 2)
+    px = cv2.projectPoints(
+        obj.reshape(-1, 1, 3), cv2.Rodrigues(T[:3, :3])[0], T[:3, 3], cs.intrinsics.K, cs.intrinsics.dist_array
+    )[0].reshape(-1, 2)
     np.testing.assert_allclose(pixels_from_board_points(T, obj, cs.intrinsics), px, atol=1e-9)
     shifted = d.image_points + np.array([0.3, -0.4])  # 0.5 px everywhere
     assert abs(reprojection_rms(obj, shifted, T, cs.intrinsics) - 0.5) < 1e-9
@@ -117,8 +129,10 @@ def test_symmetric_board_turned_views_give_the_same_result():
     m, C_ref, M, _ = closed_form_inputs(cs)
     ref = solve_closed_form(m, C_ref, M, method="tsai")
     # a detector reports some views in the 180-degree turned order: corner k is really id n-1-k
-    flipped = [Detection(d.view_id, d.corner_ids, d.image_points[::-1].copy(), d.image_size) if k % 3 == 1 else d
-               for k, d in enumerate(cs.detections())]
+    flipped = [
+        Detection(d.view_id, d.corner_ids, d.image_points[::-1].copy(), d.image_size) if k % 3 == 1 else d
+        for k, d in enumerate(cs.detections())
+    ]
     m, C, M, poses = closed_form_inputs(cs, detections=flipped, target=sym)
     assert [poses[d.view_id].orientation for d in flipped] == [int(k % 3 == 1) for k in range(len(flipped))]
     est = solve_closed_form(m, C, M, method="tsai")
@@ -149,8 +163,10 @@ def test_every_ordering_is_kept_so_another_reading_of_the_poses_can_choose_its_o
 
     sym = ChessboardSpec(7, 5, 0.03)  # odd x odd: 180-degree symmetric
     cs = make_corner_session(mode="eye_in_hand", n_views=12, seed=6, noise_px=0.1, target=sym)
-    flipped = [Detection(d.view_id, d.corner_ids, d.image_points[::-1].copy(), d.image_size) if k % 3 == 1
-               else d for k, d in enumerate(cs.detections())]
+    flipped = [
+        Detection(d.view_id, d.corner_ids, d.image_points[::-1].copy(), d.image_size) if k % 3 == 1 else d
+        for k, d in enumerate(cs.detections())
+    ]
     m, C, M, poses = closed_form_inputs(cs, detections=flipped, target=sym)
     ids = [d.view_id for d in flipped]
     Cs = np.stack([np.stack(poses[v].candidates) for v in ids])  # (n, 2, 4, 4)
@@ -222,11 +238,17 @@ def test_observe_with_given_intrinsics_of_another_size_stops_with_its_code(tmp_p
     from handeye.sim.scenarios import default_intrinsics
     from handeye.sim.vendor import write_vendor_session
 
-    s = write_vendor_session(tmp_path / "s", mode="eye_in_hand", n_views=4, seed=1, hidden_views=("2",),
-                             intrinsics=default_intrinsics(640, 480), supersample=2)
+    s = write_vendor_session(
+        tmp_path / "s",
+        mode="eye_in_hand",
+        n_views=4,
+        seed=1,
+        hidden_views=("2",),
+        intrinsics=default_intrinsics(640, 480),
+        supersample=2,
+    )
     items = [(str(k), s / f"{k}.jpg") for k in range(1, 5)]
-    obs = observe(target=_session_target(s), items=items,
-                  options=CalibrateOptions())
+    obs = observe(target=_session_target(s), items=items, options=CalibrateOptions())
     assert obs.error is None and sorted(obs.detections) == ["1", "3", "4"] and list(obs.failures) == ["2"]
     assert not obs.outcomes["2"].used and "not found" in obs.outcomes["2"].reason
     assert obs.intrinsics is not None and obs.intrinsics_rms_px < 0.2

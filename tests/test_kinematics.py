@@ -1,11 +1,12 @@
 """Forward kinematics from DH tables: the shipped presets against their manufacturers' reference poses,
 the Jacobians against central differences, inverse kinematics, and the loader's errors."""
+
 import numpy as np
 import pytest
 
 from handeye.errors import ConfigError
 from handeye.frames import se3_exp, tangent_difference
-from handeye.kinematics import DHChain, PRESETS, chain_from_dict, default_ik_seeds, load_arm, solve_ik
+from handeye.kinematics import PRESETS, DHChain, chain_from_dict, default_ik_seeds, load_arm, solve_ik
 
 
 def test_rm65_zero_configuration_stands_straight_up():
@@ -53,7 +54,9 @@ def test_jacobians_match_central_differences(name):
         for j in range(6):
             e = np.zeros(6)
             e[j] = h
-            num = (tangent_difference(T, arm.T_base_end(q + e)) - tangent_difference(T, arm.T_base_end(q - e))) / (2 * h)
+            num = (tangent_difference(T, arm.T_base_end(q + e)) - tangent_difference(T, arm.T_base_end(q - e))) / (
+                2 * h
+            )
             np.testing.assert_allclose(J_q[:, j], num, atol=1e-8)
         J_dh = arm.jacobian_dh(q)
         assert J_dh.shape == (6, 24)
@@ -61,8 +64,10 @@ def test_jacobians_match_central_differences(name):
             dh_p, dh_m = arm.dh.copy(), arm.dh.copy()
             dh_p.flat[j] += h
             dh_m.flat[j] -= h
-            num = (tangent_difference(T, arm.with_dh(dh_p).T_base_end(q))
-                   - tangent_difference(T, arm.with_dh(dh_m).T_base_end(q))) / (2 * h)
+            num = (
+                tangent_difference(T, arm.with_dh(dh_p).T_base_end(q))
+                - tangent_difference(T, arm.with_dh(dh_m).T_base_end(q))
+            ) / (2 * h)
             np.testing.assert_allclose(J_dh[:, j], num, atol=1e-8)
 
 
@@ -123,12 +128,25 @@ def test_bad_tables_are_refused_with_the_field_named():
 
 
 # the JSON form other tools write (here: Universal Robots' UR3e table as the UR3 data set's author stated it)
-UR3E_JSON = {"robot_name": "UR3e", "dh_convention": "standard", "degrees_of_freedom": 6,
-             "units": {"length": "m", "angle": "rad"},
-             "joints": [{"joint_id": f"J{i + 1}", "a": a, "alpha": al, "d": d, "theta_offset": 0.0}
-                        for i, (a, al, d) in enumerate([(0.0, np.pi / 2, 0.15185), (-0.24355, 0.0, 0.0),
-                                                        (-0.2132, 0.0, 0.0), (0.0, np.pi / 2, 0.13105),
-                                                        (0.0, -np.pi / 2, 0.08535), (0.0, 0.0, 0.0921)])]}
+UR3E_JSON = {
+    "robot_name": "UR3e",
+    "dh_convention": "standard",
+    "degrees_of_freedom": 6,
+    "units": {"length": "m", "angle": "rad"},
+    "joints": [
+        {"joint_id": f"J{i + 1}", "a": a, "alpha": al, "d": d, "theta_offset": 0.0}
+        for i, (a, al, d) in enumerate(
+            [
+                (0.0, np.pi / 2, 0.15185),
+                (-0.24355, 0.0, 0.0),
+                (-0.2132, 0.0, 0.0),
+                (0.0, np.pi / 2, 0.13105),
+                (0.0, -np.pi / 2, 0.08535),
+                (0.0, 0.0, 0.0921),
+            ]
+        )
+    ],
+}
 
 
 def test_a_json_table_with_a_units_block_reads_as_the_same_table_in_mm_and_deg(tmp_path):
@@ -137,8 +155,11 @@ def test_a_json_table_with_a_units_block_reads_as_the_same_table_in_mm_and_deg(t
     (tmp_path / "ur3e.json").write_text(json.dumps(UR3E_JSON))
     arm = load_arm("ur3e.json", folder=tmp_path)  # relative to the folder, as a session's robot: is
     assert arm.name == "UR3e" and arm.convention == "standard" and arm.n_joints == 6
-    mm_deg = dict(UR3E_JSON, units={"length": "millimetres", "angle": "degrees"},
-                  joints=[dict(j, a=1e3 * j["a"], d=1e3 * j["d"], alpha=np.degrees(j["alpha"])) for j in UR3E_JSON["joints"]])
+    mm_deg = dict(
+        UR3E_JSON,
+        units={"length": "millimetres", "angle": "degrees"},
+        joints=[dict(j, a=1e3 * j["a"], d=1e3 * j["d"], alpha=np.degrees(j["alpha"])) for j in UR3E_JSON["joints"]],
+    )
     np.testing.assert_allclose(chain_from_dict(mm_deg).dh, arm.dh, atol=1e-12)
     # the UR3e at zero joint angles lies along -x like the UR5e: flange at (a2 + a3, -(d4 + d6), d1 - d5)
     np.testing.assert_allclose(arm.T_base_end(np.zeros(6))[:3, 3], [-0.45675, -0.22315, 0.0665], atol=1e-9)
@@ -152,12 +173,14 @@ def test_unreadable_json_tables_are_one_config_error_naming_the_file(tmp_path):
     with pytest.raises(ConfigError, match="cannot read the DH table") as e:
         load_arm(bad)
     assert e.value.path == str(bad) and e.value.line == 1 and "JSONDecodeError" in str(e.value)
-    for change, match in ((dict(units={"length": "inch", "angle": "rad"}), "unit"),
-                          (dict(units="m"), "units must be a mapping"),
-                          (dict(degrees_of_freedom=7), "degrees_of_freedom"),
-                          (dict(links=UR3E_JSON["joints"]), "both links and joints"),
-                          (dict(length_unit="m"), "units twice"),
-                          (dict(name="x"), "both name and robot_name")):
+    for change, match in (
+        (dict(units={"length": "inch", "angle": "rad"}), "unit"),
+        (dict(units="m"), "units must be a mapping"),
+        (dict(degrees_of_freedom=7), "degrees_of_freedom"),
+        (dict(links=UR3E_JSON["joints"]), "both links and joints"),
+        (dict(length_unit="m"), "units twice"),
+        (dict(name="x"), "both name and robot_name"),
+    ):
         bad.write_text(json.dumps(dict(UR3E_JSON, **change)))
         with pytest.raises(ConfigError, match=match):
             load_arm(bad)
@@ -171,13 +194,15 @@ def test_unreadable_json_tables_are_one_config_error_naming_the_file(tmp_path):
 
 
 # Universal Robots' published DH tables (d1, a2, a3, d4, d5, d6 in m; alpha = 90, 0, 0, 90, -90, 0 deg)
-UR_TABLES = {"ur3": (0.1519, -0.24365, -0.21325, 0.11235, 0.08535, 0.0819),
-             "ur3e": (0.15185, -0.24355, -0.2132, 0.13105, 0.08535, 0.0921),
-             "ur5": (0.089159, -0.425, -0.39225, 0.10915, 0.09465, 0.0823),
-             "ur5e": (0.1625, -0.425, -0.3922, 0.1333, 0.0997, 0.0996),
-             "ur10": (0.1273, -0.612, -0.5723, 0.163941, 0.1157, 0.0922),
-             "ur10e": (0.1807, -0.6127, -0.57155, 0.17415, 0.11985, 0.11655),
-             "ur16e": (0.1807, -0.4784, -0.36, 0.17415, 0.11985, 0.11655)}
+UR_TABLES = {
+    "ur3": (0.1519, -0.24365, -0.21325, 0.11235, 0.08535, 0.0819),
+    "ur3e": (0.15185, -0.24355, -0.2132, 0.13105, 0.08535, 0.0921),
+    "ur5": (0.089159, -0.425, -0.39225, 0.10915, 0.09465, 0.0823),
+    "ur5e": (0.1625, -0.425, -0.3922, 0.1333, 0.0997, 0.0996),
+    "ur10": (0.1273, -0.612, -0.5723, 0.163941, 0.1157, 0.0922),
+    "ur10e": (0.1807, -0.6127, -0.57155, 0.17415, 0.11985, 0.11655),
+    "ur16e": (0.1807, -0.4784, -0.36, 0.17415, 0.11985, 0.11655),
+}
 
 
 @pytest.mark.parametrize("name", sorted(UR_TABLES))
@@ -213,8 +238,11 @@ def test_the_ur3e_preset_gives_the_ur3_sets_flange_poses(shared_dataset):
     own = load_arm(folder / "robot_model_dh_nominal_ur3a.json")
     np.testing.assert_allclose(load_arm("ur3e").dh, own.dh, atol=1e-9)
     poses = json.loads((folder / "dataset_ur3a_joint_images_40poses.json").read_text())["poses"]
-    derived = {int(r.split()[0]): np.array(r.split()[2:], float).reshape(4, 4)
-               for r in (folder / "base_T_flange_fk_derived.txt").read_text().splitlines() if r and not r.startswith("#")}
+    derived = {
+        int(r.split()[0]): np.array(r.split()[2:], float).reshape(4, 4)
+        for r in (folder / "base_T_flange_fk_derived.txt").read_text().splitlines()
+        if r and not r.startswith("#")
+    }
     assert len(derived) == len(poses) == 40
     for p in poses:
         q = np.radians([p["joint_angles_deg"][f"joint_{j}"] for j in range(1, 7)])

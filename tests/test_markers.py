@@ -1,5 +1,6 @@
 """Marker targets: one ArUco/AprilTag marker and Kalibr's AprilGrid (spec, session field, detector, renderer,
 the single marker's planar pose ambiguity, calibration end to end)."""
+
 from __future__ import annotations
 
 import json
@@ -24,8 +25,15 @@ DISTANCE_M, TILT_DEG, SEPARATE_DEG = (0.4, 0.8), (0.0, 15.0), 5.0
 SMALL = Intrinsics(fx=460.0, fy=460.0, cx=319.5, cy=239.5, dist=(0.05, -0.1, 0.0, 0.0, 0.0), width=640, height=480)
 
 
-@pytest.mark.parametrize("spec", [MarkerSpec(0.048), MarkerSpec(0.1, "DICT_4X4_50", 7), AprilGridSpec(6, 6, 0.025, 0.3),
-                                  AprilGridSpec(4, 3, 0.04, 0.25, first_id=10)])
+@pytest.mark.parametrize(
+    "spec",
+    [
+        MarkerSpec(0.048),
+        MarkerSpec(0.1, "DICT_4X4_50", 7),
+        AprilGridSpec(6, 6, 0.025, 0.3),
+        AprilGridSpec(4, 3, 0.04, 0.25, first_id=10),
+    ],
+)
 def test_spec_round_trips_through_the_session_field(spec):
     assert parse_target(spec.to_dict(), path=Path("session.yaml")) == spec
     pts = spec.object_points()
@@ -46,13 +54,16 @@ def test_aprilgrid_numbers_tags_as_kalibr_does():
     assert np.allclose(o[3] - o[0], [0, -g.pitch_m, 0])  # next row upwards
 
 
-@pytest.mark.parametrize("bad, what", [
-    ({"type": "marker", "size_m": 0.05, "dictionary": "DICT_NOPE"}, "unknown ArUco dictionary"),
-    ({"type": "marker", "size_m": 0.05, "dictionary": "DICT_4X4_50", "marker_id": 50}, "beyond the dictionary"),
-    ({"type": "aprilgrid", "tags": [30, 30], "size_m": 0.02}, "beyond the dictionary"),
-    ({"type": "aprilgrid", "tags": [6], "size_m": 0.02}, "target.tags"),
-    ({"type": "marker", "size_m": 48}, "millimetres"),
-])
+@pytest.mark.parametrize(
+    "bad, what",
+    [
+        ({"type": "marker", "size_m": 0.05, "dictionary": "DICT_NOPE"}, "unknown ArUco dictionary"),
+        ({"type": "marker", "size_m": 0.05, "dictionary": "DICT_4X4_50", "marker_id": 50}, "beyond the dictionary"),
+        ({"type": "aprilgrid", "tags": [30, 30], "size_m": 0.02}, "beyond the dictionary"),
+        ({"type": "aprilgrid", "tags": [6], "size_m": 0.02}, "target.tags"),
+        ({"type": "marker", "size_m": 48}, "millimetres"),
+    ],
+)
 def test_bad_marker_fields_are_named(bad, what):
     with pytest.raises(ConfigError, match=what):
         parse_target(bad, path=Path("session.yaml"))
@@ -68,8 +79,8 @@ def _rendered_corner_errors(spec, n_views=4, seed=3):
         out = detect_gray(img.astype(np.uint8), spec)
         assert not isinstance(out, str), out
         ids, pts = out
-        truth = dict(zip(s.corner_ids[k].tolist(), s.image_points[k]))
-        errs += [float(np.linalg.norm(p - truth[int(i)])) for i, p in zip(ids, pts)]
+        truth = dict(zip(s.corner_ids[k].tolist(), s.image_points[k], strict=False))
+        errs += [float(np.linalg.norm(p - truth[int(i)])) for i, p in zip(ids, pts, strict=False)]
         counts.append(len(ids))
     return np.array(errs), counts, s
 
@@ -78,7 +89,7 @@ def test_aprilgrid_corners_are_found_to_a_tenth_of_a_pixel():
     e, counts, s = _rendered_corner_errors(AprilGridSpec(4, 3, 0.05, 0.3))
     assert min(counts) >= 24  # at least half of the 12 tags in every view
     # measured on 1280x720 views: 0.05-0.06 px RMS, max 0.17 px (configs/detection.yaml markers)
-    assert np.sqrt(np.mean(e ** 2)) < 0.1 and e.max() < 0.3
+    assert np.sqrt(np.mean(e**2)) < 0.1 and e.max() < 0.3
 
 
 def test_single_marker_corners_are_found_with_their_ids_in_order():
@@ -86,7 +97,7 @@ def test_single_marker_corners_are_found_with_their_ids_in_order():
     assert counts == [4, 4, 4, 4]
     # a lone square's corners are L-junctions, which cornerSubPix places less well than a chessboard's
     # saddles (measured: 0.2-0.27 px RMS); a wrong order would put corners a marker side (~100 px) away
-    assert np.sqrt(np.mean(e ** 2)) < 0.4
+    assert np.sqrt(np.mean(e**2)) < 0.4
 
 
 def test_another_marker_id_is_not_taken_for_the_target():
@@ -103,11 +114,19 @@ def test_single_marker_ambiguity_is_resolved_by_the_robot_motion(mode):
     """Far, nearly head-on views of a 48 mm tag (benchmarks/bench_markers.py's setting): the flipped IPPE pose
     sometimes fits the corners better; the robot motion decides, and never for the flipped one."""
     spec = MarkerSpec(0.048)
-    s = make_corner_session(mode=mode, n_views=12, seed=0, noise_px=0.3, target=spec, distance_m=DISTANCE_M,
-                            tilt_deg=TILT_DEG)
+    s = make_corner_session(
+        mode=mode, n_views=12, seed=0, noise_px=0.3, target=spec, distance_m=DISTANCE_M, tilt_deg=TILT_DEG
+    )
     intr = s.intrinsics
-    dets = [Detection(view_id=v, corner_ids=np.asarray(s.corner_ids[k]), image_points=np.asarray(s.image_points[k]),
-                      image_size=(intr.width, intr.height)) for k, v in enumerate(s.view_ids)]
+    dets = [
+        Detection(
+            view_id=v,
+            corner_ids=np.asarray(s.corner_ids[k]),
+            image_points=np.asarray(s.image_points[k]),
+            image_size=(intr.width, intr.height),
+        )
+        for k, v in enumerate(s.view_ids)
+    ]
     mount = mounting(mode)
     M = {v: mount.M_from_T_base_end(s.T_base_end_reported[k]) for k, v in enumerate(s.view_ids)}
     poses = board_poses(dets, spec, intr, M)
@@ -129,8 +148,9 @@ def test_rendered_marker_sessions_calibrate(tmp_path, target, mode):
     from handeye.sim.vendor import write_vendor_session
     from handeye.workflow import calibrate_session
 
-    folder = write_vendor_session(tmp_path / "s", mode=mode, n_views=10, seed=4, target=sim_target(target),
-                                  intrinsics=SMALL)
+    folder = write_vendor_session(
+        tmp_path / "s", mode=mode, n_views=10, seed=4, target=sim_target(target), intrinsics=SMALL
+    )
     assert (folder / "session.yaml").exists() and not (folder / "poses.txt").exists()
     out = calibrate_session(folder, out_dir=tmp_path / "out", report=False)
     res = json.loads((tmp_path / "out" / "result.json").read_text())

@@ -1,5 +1,6 @@
 """The whole workflow (load -> calibrate -> diagnose -> write -> report) on rendered vendor sessions,
 through :func:`handeye.workflow.calibrate_session`, the function `handeye calibrate` runs."""
+
 import json
 
 import numpy as np
@@ -18,8 +19,20 @@ SMALL = dict(intrinsics=default_intrinsics(640, 480), supersample=3)
 #: chi-square quantile, 6 degrees of freedom, p = 0.999: a reported covariance that is honest lets a
 #: single error through with probability 0.999; one 2x too small (d2 x4) fails this session (d2 ~8-15)
 CHI2_6_999 = 22.458
-STAGES = ("load", "detect", "intrinsics", "board_poses", "closed_form", "refine", "calibrate", "diagnose", "write",
-          "verdict", "report", "total")
+STAGES = (
+    "load",
+    "detect",
+    "intrinsics",
+    "board_poses",
+    "closed_form",
+    "refine",
+    "calibrate",
+    "diagnose",
+    "write",
+    "verdict",
+    "report",
+    "total",
+)
 
 
 @pytest.fixture(scope="module", params=["eye_in_hand", "eye_to_hand"])
@@ -130,9 +143,18 @@ def test_a_refusing_finding_drops_the_matrix_and_is_the_reason(rendered, tmp_pat
 
     def with_a_refusal(run, **kw):
         d = real(run, **kw)
-        d["findings"].insert(0, {"code": "pairs_shuffled", "severity": "fail", "title": "Images carry other poses",
-                                 "evidence": "9 of 12 images", "action": "re-pair them by view id",
-                                 "view_ids": ["1", "2"], "details": {"refuses": True}})
+        d["findings"].insert(
+            0,
+            {
+                "code": "pairs_shuffled",
+                "severity": "fail",
+                "title": "Images carry other poses",
+                "evidence": "9 of 12 images",
+                "action": "re-pair them by view id",
+                "view_ids": ["1", "2"],
+                "details": {"refuses": True},
+            },
+        )
         return d
 
     monkeypatch.setattr(diagnose, "diagnose_run", with_a_refusal)
@@ -199,8 +221,9 @@ def test_closed_form_alone_is_within_ten_refined_sigmas(rendered, tmp_path):
 def test_a_mode_the_data_contradict_is_refused_without_a_matrix(rendered, tmp_path):
     mode, session = rendered
     wrong = mounting(mode).other
-    wr = calibrate_session(session, options=_opts(refine=False), out_dir=tmp_path / "out", report=False,
-                           mode=wrong.name)
+    wr = calibrate_session(
+        session, options=_opts(refine=False), out_dir=tmp_path / "out", report=False, mode=wrong.name
+    )
     res = json.loads((tmp_path / "out" / "result.json").read_text())
     assert res["error"]["code"] == "mode_swapped" and res["status"] == "failed"
     assert res["verdict"] == "REFUSED" and wr.exit_code == SessionRefused.exit_code
@@ -225,8 +248,9 @@ def test_board_size_mismatch_fails_with_a_structured_error_and_no_matrix(rendere
 
 def test_degenerate_motion_is_an_error_naming_the_axis(tmp_path):
     # one rotation axis: only roll about the optical axis, no tilts
-    session = write_vendor_session(tmp_path / "s", mode="eye_in_hand", n_views=6, seed=2, tilt_deg=(0.0, 0.0),
-                                   min_axis_spread_deg=0.0, **SMALL)
+    session = write_vendor_session(
+        tmp_path / "s", mode="eye_in_hand", n_views=6, seed=2, tilt_deg=(0.0, 0.0), min_axis_spread_deg=0.0, **SMALL
+    )
     wr = _run(session, tmp_path / "out", refine=False)
     assert wr.exit_code == 4 and wr.status == "failed"
     assert wr.result["error"]["code"] == "motion_one_axis"

@@ -1,5 +1,6 @@
 """Pose-only sessions: the pose factor, the refinement on tracker poses, session.yaml's target_pose views
 and the workflow on them."""
+
 from __future__ import annotations
 
 import json
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from handeye.errors import ConfigError, HandeyeError
+from handeye.errors import HandeyeError
 from handeye.factors.pose import pose_residual, se3_right_jacobian_inverse
 from handeye.frames import pose_error, se3_exp, se3_log, tangent_jacobian
 from handeye.initial import all_methods
@@ -40,10 +41,12 @@ def test_pose_residual_jacobians_match_numeric():
     T_x, M, T_b = (se3_exp(rng.standard_normal(6) * 0.5) for _ in range(3))
     C = np.linalg.inv(T_x) @ M @ T_b @ se3_exp(rng.standard_normal(6) * 0.02)
     r, J_x, J_b = pose_residual(T_x=T_x, M=M, T_board=T_b, T_cam_board_measured=C)
-    num_x = tangent_jacobian(lambda T: pose_residual(T_x=T, M=M, T_board=T_b, T_cam_board_measured=C,
-                                                     jacobians=False)[0], T_x)
-    num_b = tangent_jacobian(lambda T: pose_residual(T_x=T_x, M=M, T_board=T, T_cam_board_measured=C,
-                                                     jacobians=False)[0], T_b)
+    num_x = tangent_jacobian(
+        lambda T: pose_residual(T_x=T, M=M, T_board=T_b, T_cam_board_measured=C, jacobians=False)[0], T_x
+    )
+    num_b = tangent_jacobian(
+        lambda T: pose_residual(T_x=T_x, M=M, T_board=T, T_cam_board_measured=C, jacobians=False)[0], T_b
+    )
     assert np.abs(J_x - num_x).max() < 1e-6
     assert np.abs(J_b - num_b).max() < 1e-6
     assert np.linalg.norm(r) > 0.01  # the test is not at a zero residual
@@ -108,20 +111,26 @@ def test_target_pose_format_is_applied(tmp_path):
 
     fmt = PoseFormat(rotation="quaternion", quaternion_order="xyzw", translation_unit="mm")
     vals = pose_values_from_T(T, fmt).tolist()
-    d = {"handeye_session": 1, "pose_format": {"rotation": "matrix"},
-         "target_pose_format": {"rotation": "quaternion", "quaternion_order": "xyzw", "translation_unit": "mm"},
-         "views": [{"id": "1", "pose": np.eye(4).tolist(), "target_pose": vals}]}
+    d = {
+        "handeye_session": 1,
+        "pose_format": {"rotation": "matrix"},
+        "target_pose_format": {"rotation": "quaternion", "quaternion_order": "xyzw", "translation_unit": "mm"},
+        "views": [{"id": "1", "pose": np.eye(4).tolist(), "target_pose": vals}],
+    }
     (tmp_path / "session.yaml").write_text(yaml.safe_dump(d))
     s = load_session(tmp_path)
     assert np.allclose(s.views[0].T_cam_board, T, atol=1e-9)
 
 
-@pytest.mark.parametrize("change, message", [
-    (lambda d: d["views"].append({"id": "9", "image": "9.png", "pose": np.eye(4).tolist()}), "all images or all"),
-    (lambda d: d.update(tracker_sigma={"mm": 0.5}), "tracker_sigma"),
-    (lambda d: d.update(tracker_sigma={"mm": -1, "deg": 0.2}), "tracker_sigma.mm"),
-    (lambda d: d["views"][0].update(target_pose=[1, 2, 3]), "view 1"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda d: d["views"].append({"id": "9", "image": "9.png", "pose": np.eye(4).tolist()}), "all images or all"),
+        (lambda d: d.update(tracker_sigma={"mm": 0.5}), "tracker_sigma"),
+        (lambda d: d.update(tracker_sigma={"mm": -1, "deg": 0.2}), "tracker_sigma.mm"),
+        (lambda d: d["views"][0].update(target_pose=[1, 2, 3]), "view 1"),
+    ],
+)
 def test_bad_pose_only_sessions_are_one_line_errors(tmp_path, change, message):
     ts = make_tracker_session(n_views=4, seed=1)
     ts.write(tmp_path)
@@ -156,14 +165,23 @@ def _samples_file(path, ts, calibration_type):
 
     def tf(T):
         q = quat_wxyz_from_R(T[:3, :3])
-        return {"translation": dict(zip("xyz", map(float, T[:3, 3]))),
-                "rotation": {"x": float(q[1]), "y": float(q[2]), "z": float(q[3]), "w": float(q[0])}}
+        return {
+            "translation": dict(zip("xyz", map(float, T[:3, 3]), strict=False)),
+            "rotation": {"x": float(q[1]), "y": float(q[2]), "z": float(q[3]), "w": float(q[0])},
+        }
 
     robot = ts.T_base_end if calibration_type == "eye_in_hand" else np.linalg.inv(ts.T_base_end)
-    d = {"parameters": {"name": "demo", "calibration_type": calibration_type, "robot_base_frame": "base_link",
-                        "robot_effector_frame": "tool0", "tracking_base_frame": "camera_color_optical_frame",
-                        "tracking_marker_frame": "marker"},
-         "samples": [{"robot": tf(R), "tracking": tf(C)} for R, C in zip(robot, ts.T_cam_board)]}
+    d = {
+        "parameters": {
+            "name": "demo",
+            "calibration_type": calibration_type,
+            "robot_base_frame": "base_link",
+            "robot_effector_frame": "tool0",
+            "tracking_base_frame": "camera_color_optical_frame",
+            "tracking_marker_frame": "marker",
+        },
+        "samples": [{"robot": tf(R), "tracking": tf(C)} for R, C in zip(robot, ts.T_cam_board, strict=False)],
+    }
     path.write_text(yaml.safe_dump(d, sort_keys=False))
     return path
 
@@ -174,8 +192,10 @@ def test_easy_handeye2_samples_import_to_a_pose_only_session(tmp_path, ctype, mo
 
     ts = make_tracker_session(mode=mode, n_views=5, seed=3)
     src = _samples_file(tmp_path / "demo.samples", ts, ctype)
-    assert main(["-q", "import", "easy_handeye2", str(src), "--out", str(tmp_path / "s"),
-                 "--tracker-sigma", "0.5", "0.2"]) == 0
+    assert (
+        main(["-q", "import", "easy_handeye2", str(src), "--out", str(tmp_path / "s"), "--tracker-sigma", "0.5", "0.2"])
+        == 0
+    )
     s = load_session(tmp_path / "s")
     assert s.mode == mode and s.meta["pose_only"]
     assert s.meta["tracker_sigma"] == pytest.approx((np.radians(0.2), 0.0005))
@@ -185,13 +205,16 @@ def test_easy_handeye2_samples_import_to_a_pose_only_session(tmp_path, ctype, mo
         assert np.allclose(v.T_cam_board, ts.T_cam_board[k], atol=1e-9)
 
 
-@pytest.mark.parametrize("edit, mode, message", [
-    (lambda d: d["parameters"].update(calibration_type=""), None, "--mode"),
-    (lambda d: None, "eye_to_hand", "--mode eye_to_hand but the samples are eye_in_hand"),
-    (lambda d: d["samples"][1]["tracking"]["rotation"].update(w=3.0), None, "sample 1 tracking"),
-    (lambda d: d["samples"][0].pop("robot"), None, "sample 0"),
-    (lambda d: d.pop("samples"), None, "no samples list"),
-])
+@pytest.mark.parametrize(
+    "edit, mode, message",
+    [
+        (lambda d: d["parameters"].update(calibration_type=""), None, "--mode"),
+        (lambda d: None, "eye_to_hand", "--mode eye_to_hand but the samples are eye_in_hand"),
+        (lambda d: d["samples"][1]["tracking"]["rotation"].update(w=3.0), None, "sample 1 tracking"),
+        (lambda d: d["samples"][0].pop("robot"), None, "sample 0"),
+        (lambda d: d.pop("samples"), None, "no samples list"),
+    ],
+)
 def test_bad_easy_handeye2_samples_are_one_line_errors(tmp_path, edit, mode, message):
     from handeye.session.easy_handeye2 import import_easy_handeye2
 

@@ -1,23 +1,25 @@
 """Real datasets recorded by others (../shared/data; skipped when absent, a failure in CI: see conftest)."""
+
 import json
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
-from handeye.pipeline import CalibrateOptions, run_calibration
 from handeye.cli import main
 from handeye.frames import T_from_rotvec, make_T, pose_error
-from handeye.session.importers import import_ical, import_visp
+from handeye.pipeline import CalibrateOptions, run_calibration
 from handeye.session import load_session
-from scipy.spatial.transform import Rotation
+from handeye.session.importers import import_ical, import_visp
 
 pytestmark = pytest.mark.realdata
 
 # ViSP's documented result for its Franka data (SOURCE.md): eMc = T_end_cam
 VISP_REF = T_from_rotvec([0.001783530, 0.009173748, 1.581782359], [0.0577152, -0.0339249, -0.0422769])
 # industrial_calibration ChArUco set, PARK on the staged grayscale images (SOURCE.md), T_base_cam
-ICAL_PARK = make_T(Rotation.from_rotvec(np.radians([8.01, 98.53, -146.56])).as_matrix(),
-                   np.array([-18.30, 1264.28, 289.60]) / 1e3)
+ICAL_PARK = make_T(
+    Rotation.from_rotvec(np.radians([8.01, 98.53, -146.56])).as_matrix(), np.array([-18.30, 1264.28, 289.60]) / 1e3
+)
 
 
 @pytest.fixture(scope="module")
@@ -103,10 +105,12 @@ def test_ical_refined_agrees_with_the_closed_forms(ical_session):
 
 # industrial_calibration circle-grid set (SOURCE.md): X = T_tool_cam from OpenCV's closed forms with the
 # author's own intrinsics (fx 529.4, RMS 0.689 px), mm / rotation vector in degrees
-KINECT_SOURCE = {"tsai": ([-86.16, 38.86, 77.24], [1.32, -0.91, -89.86]),
-                 "park": ([-87.03, 36.21, 77.54], [1.12, -1.00, -89.89]),
-                 "horaud": ([-87.00, 36.24, 77.53], [1.12, -1.00, -89.89]),
-                 "daniilidis": ([-88.74, 39.35, 76.58], [1.14, -0.81, -90.07])}
+KINECT_SOURCE = {
+    "tsai": ([-86.16, 38.86, 77.24], [1.32, -0.91, -89.86]),
+    "park": ([-87.03, 36.21, 77.54], [1.12, -1.00, -89.89]),
+    "horaud": ([-87.00, 36.24, 77.53], [1.12, -1.00, -89.89]),
+    "daniilidis": ([-88.74, 39.35, 76.58], [1.14, -0.81, -90.07]),
+}
 
 
 @pytest.fixture(scope="module")
@@ -173,8 +177,8 @@ def test_kinect_circlegrid_refined_agrees_with_the_closed_forms(kinect_run):
 
 def test_kinect_motion_resolves_scrambled_circle_grid_orders(kinect_run):
     # the fallback when the big dot cannot be told apart: each view's numbering turned at random
-    from handeye.mounting import mounting
     from handeye.initial import board_poses
+    from handeye.mounting import mounting
     from handeye.records import Detection
 
     run = kinect_run
@@ -209,8 +213,12 @@ def _halves_d2(session, ids):
 
     from handeye.frames import tangent_difference
 
-    runs = [run_calibration(_replace(session, views=tuple(v for v in session.views if v.view_id in set(ids[k::2]))),
-                            CalibrateOptions()) for k in (0, 1)]
+    runs = [
+        run_calibration(
+            _replace(session, views=tuple(v for v in session.views if v.view_id in set(ids[k::2]))), CalibrateOptions()
+        )
+        for k in (0, 1)
+    ]
     assert all(r.status == "ok" for r in runs), [r.failure_reason for r in runs]
     dx = tangent_difference(runs[0].T_x, runs[1].T_x)
     verdict = sum(r.validation.x.cov_verdict if r.validation.status == "ok" else r.refined.cov_x_6x6 for r in runs)
@@ -218,8 +226,11 @@ def _halves_d2(session, ids):
     idx = [runs[0].validation.intrinsics.names.index(n) for n in ("fx", "fy", "cx", "cy")]
     dk = np.array([getattr(runs[0].intrinsics, n) - getattr(runs[1].intrinsics, n) for n in ("fx", "fy", "cx", "cy")])
     kv = sum(r.validation.intrinsics.cov_verdict[np.ix_(idx, idx)] for r in runs)
-    return (float(dx @ np.linalg.solve(verdict, dx)), float(dx @ np.linalg.solve(model, dx)),
-            float(dk @ np.linalg.solve(kv, dk)))
+    return (
+        float(dx @ np.linalg.solve(verdict, dx)),
+        float(dx @ np.linalg.solve(model, dx)),
+        float(dk @ np.linalg.solve(kv, dk)),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -370,6 +381,6 @@ def test_ur3_cameras_agree_on_the_board_mount_within_their_covariances(ur3):
 def test_board_symmetry_transforms_map_the_corners_onto_their_turned_ids(ur3):
     target = ur3["cam1", True].session.target
     obj = target.object_points()
-    for perm, S in zip(target.symmetries(), ur3["bench"].board_symmetry_transforms(target)):
+    for perm, S in zip(target.symmetries(), ur3["bench"].board_symmetry_transforms(target), strict=False):
         np.testing.assert_allclose(obj @ S[:3, :3].T + S[:3, 3], obj[perm], atol=1e-12)
     assert len(target.symmetries()) == 2  # 9 x 7 inner corners: the half turn

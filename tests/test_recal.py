@@ -1,9 +1,9 @@
 """Recalibration: compare two results, verify a short session against an installed calibration,
 calibrate with an earlier result as the prior, and plan a verification."""
+
 from __future__ import annotations
 
 import json
-
 from pathlib import Path
 
 import numpy as np
@@ -25,15 +25,33 @@ def fake_result(T_x=None, *, mode="eye_in_hand", size=(1280, 720), square_m=0.03
     x_name = "T_end_cam" if mode == "eye_in_hand" else "T_base_cam"
     board_name = "T_base_board" if mode == "eye_in_hand" else "T_end_board"
     T_x = np.eye(4) if T_x is None else T_x
-    cov = np.diag([SIGMA_ROT ** 2] * 3 + [SIGMA_TRANS ** 2] * 3) if cov is None else cov
-    return {"handeye_result": 1, "status": "ok", "mode": mode, "hand_eye": {"name": x_name},
-            "board": {"name": board_name}, x_name: T_x.tolist(), board_name: np.eye(4).tolist(),
-            "intrinsics": {"fx": fx, "fy": 909.0, "cx": 640.0, "cy": 360.0, "image_size": list(size),
-                           "dist": {"k1": 0.1, "k2": 0.0, "p1": 0.0, "p2": 0.0, "k3": 0.0}},
-            "target": {"type": "chessboard", "inner_corners": [11, 8], "square_m": square_m},
-            "refinement": {"cov_x_6x6": cov.tolist(), "intrinsics_sigma": {"fx": 0.5, "fy": 0.5, "cx": 0.4, "cy": 0.4},
-                           "cov_parametrisation": "GTSAM Pose3 tangent, right perturbation: ..., rotation first",
-                           "sigma_px": 0.3, "robot_sigma_mm": 0.2, "robot_sigma_deg": 0.05}}
+    cov = np.diag([SIGMA_ROT**2] * 3 + [SIGMA_TRANS**2] * 3) if cov is None else cov
+    return {
+        "handeye_result": 1,
+        "status": "ok",
+        "mode": mode,
+        "hand_eye": {"name": x_name},
+        "board": {"name": board_name},
+        x_name: T_x.tolist(),
+        board_name: np.eye(4).tolist(),
+        "intrinsics": {
+            "fx": fx,
+            "fy": 909.0,
+            "cx": 640.0,
+            "cy": 360.0,
+            "image_size": list(size),
+            "dist": {"k1": 0.1, "k2": 0.0, "p1": 0.0, "p2": 0.0, "k3": 0.0},
+        },
+        "target": {"type": "chessboard", "inner_corners": [11, 8], "square_m": square_m},
+        "refinement": {
+            "cov_x_6x6": cov.tolist(),
+            "intrinsics_sigma": {"fx": 0.5, "fy": 0.5, "cx": 0.4, "cy": 0.4},
+            "cov_parametrisation": "GTSAM Pose3 tangent, right perturbation: ..., rotation first",
+            "sigma_px": 0.3,
+            "robot_sigma_mm": 0.2,
+            "robot_sigma_deg": 0.05,
+        },
+    }
 
 
 # ------------------------------------------------------------------------------ compare
@@ -45,12 +63,18 @@ def test_compare_identical_results_is_zero_and_not_drifted():
     assert not c.drifted and c.trans_mm == pytest.approx(0.0, abs=1e-9)
 
 
-@pytest.mark.parametrize("damage,what", [
-    (lambda d: d["T_end_cam"][0].__setitem__(3, float("nan")), "T_end_cam is not a finite 4x4 rigid transform"),
-    (lambda d: d["T_end_cam"][0].__setitem__(0, 2.0), "T_end_cam is not a finite 4x4 rigid transform"),
-    (lambda d: d["refinement"]["cov_x_6x6"][0].__setitem__(0, -1.0), "refinement.cov_x_6x6 is not a finite symmetric"),
-    (lambda d: d["intrinsics"].__setitem__("fx", float("nan")), "intrinsics.fx is nan"),
-])
+@pytest.mark.parametrize(
+    "damage,what",
+    [
+        (lambda d: d["T_end_cam"][0].__setitem__(3, float("nan")), "T_end_cam is not a finite 4x4 rigid transform"),
+        (lambda d: d["T_end_cam"][0].__setitem__(0, 2.0), "T_end_cam is not a finite 4x4 rigid transform"),
+        (
+            lambda d: d["refinement"]["cov_x_6x6"][0].__setitem__(0, -1.0),
+            "refinement.cov_x_6x6 is not a finite symmetric",
+        ),
+        (lambda d: d["intrinsics"].__setitem__("fx", float("nan")), "intrinsics.fx is nan"),
+    ],
+)
 def test_a_damaged_result_is_refused_by_every_command_that_reads_it(tmp_path, capsys, damage, what):
     """A NaN or an edited matrix in result.json would flow into compare as "no change" (p = nan), into export
     and apply as numbers: each command refuses it in one line naming the entry."""
@@ -77,8 +101,10 @@ def test_a_result_that_failed_qa_is_used_with_a_warning(tmp_path, caplog):
     for folder, extra in ((good, {}), (failed, {"verdict": "FAIL", "verdict_headline": "T_end_cam fails QA: x."})):
         folder.mkdir()
         (folder / "result.json").write_text(json.dumps(dict(fake_result(), **extra)))
-    for argv in (["compare", str(good), str(failed)],
-                 ["apply", str(failed), "--point", "0", "0", "0.5", "--end-pose", "0.5", "0", "0.5", "3.1", "0", "0"]):
+    for argv in (
+        ["compare", str(good), str(failed)],
+        ["apply", str(failed), "--point", "0", "0", "0.5", "--end-pose", "0.5", "0", "0.5", "3.1", "0", "0"],
+    ):
         caplog.clear()
         with caplog.at_level("WARNING"):
             assert main(argv) == 0
@@ -93,7 +119,7 @@ def test_compare_known_difference_gives_the_chi2_statistic():
     T_a = se3_exp(np.array([0.1, -0.2, 0.3, 0.05, 0.02, 0.1]))
     xi = np.array([np.radians(0.1), 0.0, 0.0, 2e-3, 0.0, 0.0])  # 0.1 deg about camera x, 2 mm along camera x
     T_b = T_a @ se3_exp(xi)
-    cov = np.diag([SIGMA_ROT ** 2] * 3 + [SIGMA_TRANS ** 2] * 3)
+    cov = np.diag([SIGMA_ROT**2] * 3 + [SIGMA_TRANS**2] * 3)
     Ad = se3_adjoint(se3_exp(xi))
     expected = xi @ np.linalg.solve(cov + Ad @ cov @ Ad.T, xi)
     c = compare_results(fake_result(T_a), fake_result(T_b))
@@ -121,7 +147,7 @@ def test_compare_known_difference_gives_the_chi2_statistic():
 
 def test_compare_prefers_the_verdict_covariance():
     a, b = fake_result(), fake_result(se3_exp(np.array([0, 0, 0, 1e-3, 0, 0])))
-    wide = np.diag([SIGMA_ROT ** 2] * 3 + [(2e-3) ** 2] * 3)
+    wide = np.diag([SIGMA_ROT**2] * 3 + [(2e-3) ** 2] * 3)
     for r in (a, b):
         r["refinement"]["cov_x_6x6_verdict"] = wide.tolist()
     c = compare_results(a, b)
@@ -129,8 +155,12 @@ def test_compare_prefers_the_verdict_covariance():
     assert c.mahalanobis2 == pytest.approx(1.0 / 8.0, rel=1e-6) and not c.drifted and c.note == ""
     b["prior"] = {"used": "prior", "source": "a/result.json"}  # B updated from A: not independent
     assert "not independent" in compare_results(a, b).note
-    b["prior"] = {"used": "no prior on X (...)", "source": "a/result.json", "board_prior": True,
-                  "intrinsics": "the prior's, with its sigmas"}  # a contradicted prior: its intrinsics and board stay
+    b["prior"] = {
+        "used": "no prior on X (...)",
+        "source": "a/result.json",
+        "board_prior": True,
+        "intrinsics": "the prior's, with its sigmas",
+    }  # a contradicted prior: its intrinsics and board stay
     assert "intrinsics and board pose of a/result.json as priors" in compare_results(a, b).note
     b["prior"].update(intrinsics="the session's own", board_prior=False)  # nothing of A stayed a prior
     assert compare_results(a, b).note == ""
@@ -142,9 +172,15 @@ def _joint_result(T_x, k, D, H, K) -> dict:
     r = fake_result(T_x)
     S = D + H @ K @ H.T
     r["intrinsics"].update(fx=k[0], fy=k[1], cx=k[2], cy=k[3])
-    r["refinement"].update(cov_x_6x6=S.tolist(), intrinsics_sigma=dict(zip(("fx", "fy", "cx", "cy"), np.sqrt(np.diag(K)))),
-                           cov_x_intrinsics={"intrinsics": ["fx", "fy", "cx", "cy"], "cross_6xk": (H @ K).tolist(),
-                                             "intrinsics_kxk": K.tolist()})
+    r["refinement"].update(
+        cov_x_6x6=S.tolist(),
+        intrinsics_sigma=dict(zip(("fx", "fy", "cx", "cy"), np.sqrt(np.diag(K)), strict=False)),
+        cov_x_intrinsics={
+            "intrinsics": ["fx", "fy", "cx", "cy"],
+            "cross_6xk": (H @ K).tolist(),
+            "intrinsics_kxk": K.tolist(),
+        },
+    )
     return r
 
 
@@ -152,7 +188,7 @@ def test_compare_takes_out_the_part_of_the_difference_the_intrinsics_explain():
     # X's error tied to its principal point (cx tilts X about the camera y axis and shifts it along x) and fx to
     # fy: compare tests X given the intrinsics difference. A difference of X that the cx difference explains is
     # no drift; a camera moved by the same amount with the lens unchanged is one, and more clearly than X alone says
-    D = np.diag([SIGMA_ROT ** 2] * 3 + [SIGMA_TRANS ** 2] * 3) / 4.0
+    D = np.diag([SIGMA_ROT**2] * 3 + [SIGMA_TRANS**2] * 3) / 4.0
     H = np.zeros((6, 4))
     H[1, 2], H[3, 2] = 4e-4, 3e-4  # rad and m per px of cx
     K = np.array([[0.25, 0.24, 0, 0], [0.24, 0.25, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
@@ -165,7 +201,8 @@ def test_compare_takes_out_the_part_of_the_difference_the_intrinsics_explain():
     assert lens.test == "X given the intrinsics difference"
     assert lens.mahalanobis2 < 0.01 and not lens.drifted
     assert lens.explained_trans_mm == pytest.approx(0.9, rel=0.02) and lens.explained_rot_deg == pytest.approx(
-        np.degrees(1.2e-3), rel=0.02)
+        np.degrees(1.2e-3), rel=0.02
+    )
     moved = compare_results(a, _joint_result(T_a @ se3_exp(xi), k_a, D, H, K))
     # the same difference without the lens change: X given dk = 0, the explicit conditional Gaussian
     Ad = se3_adjoint(se3_exp(xi))
@@ -185,14 +222,18 @@ def test_compare_takes_out_the_part_of_the_difference_the_intrinsics_explain():
     both = compare_results(a, _joint_result(T_a, k_a + np.array([0.5, 0.5, 0, 0]), D, H, K))
     assert both.intrinsics["dof"] == 4 and "full covariance" in both.intrinsics["test"]
     assert both.intrinsics["mahalanobis2"] == pytest.approx(
-        np.array([0.5, 0.5]) @ np.linalg.solve(2 * K[:2, :2], np.array([0.5, 0.5])), rel=1e-9)
+        np.array([0.5, 0.5]) @ np.linalg.solve(2 * K[:2, :2], np.array([0.5, 0.5])), rel=1e-9
+    )
 
 
-@pytest.mark.parametrize("change, words", [
-    (dict(mode="eye_to_hand"), "mounting modes differ"),
-    (dict(size=(640, 480)), "camera resolutions differ"),
-    (dict(square_m=0.025), "boards differ"),
-])
+@pytest.mark.parametrize(
+    "change, words",
+    [
+        (dict(mode="eye_to_hand"), "mounting modes differ"),
+        (dict(size=(640, 480)), "camera resolutions differ"),
+        (dict(square_m=0.025), "boards differ"),
+    ],
+)
 def test_compare_refuses_results_of_different_rigs(change, words):
     c = compare_results(fake_result(), fake_result(**change))
     assert not c.comparable and words in c.reason and not c.drifted and np.isnan(c.p_value)
@@ -212,8 +253,11 @@ def test_compare_reads_result_folders_and_refuses_a_bad_parametrisation(tmp_path
 
 def test_compare_cli_exit_codes_and_json(tmp_path, capsys):
     paths = {}
-    for name, r in {"a": fake_result(), "b": fake_result(se3_exp(np.array([0, 0, 0, 2e-3, 0, 0]))),
-                    "c": fake_result(mode="eye_to_hand")}.items():
+    for name, r in {
+        "a": fake_result(),
+        "b": fake_result(se3_exp(np.array([0, 0, 0, 2e-3, 0, 0]))),
+        "c": fake_result(mode="eye_to_hand"),
+    }.items():
         paths[name] = tmp_path / f"{name}.json"
         paths[name].write_text(json.dumps(r))
     assert main(["compare", str(paths["a"]), str(paths["a"])]) == 0
@@ -246,10 +290,14 @@ def test_the_installed_joint_covariance_is_carried_to_the_verdict_covariances():
     S = A @ A.T  # the model's joint covariance of (X tangent, fx fy cx cy)
     d = fake_result(cov=S[:6, :6])
     ref = d["refinement"]
-    ref["cov_x_intrinsics"] = {"intrinsics": names, "cross_6xk": S[:6, 6:].tolist(), "intrinsics_kxk": S[6:, 6:].tolist()}
+    ref["cov_x_intrinsics"] = {
+        "intrinsics": names,
+        "cross_6xk": S[:6, 6:].tolist(),
+        "intrinsics_kxk": S[6:, 6:].tolist(),
+    }
     # verdicts larger along some directions only (the generalised-eigenvalue maximum of the validation)
     Vx = S[:6, :6] + 3.0 * np.outer(S[:6, 0], S[:6, 0]) / S[0, 0]
-    Vk = 2.0 ** 2 * S[6:, 6:]
+    Vk = 2.0**2 * S[6:, 6:]
     ref["cov_x_6x6_verdict"] = Vx.tolist()
     ref["intrinsics_cov_names"] = ["cx", "cy", "fx", "fy", "k1"]  # another order, one more parameter
     P = np.zeros((5, 5))
@@ -261,10 +309,13 @@ def test_the_installed_joint_covariance_is_carried_to_the_verdict_covariances():
     np.testing.assert_allclose(K, Vk, rtol=1e-9, atol=1e-12)
     J = np.block([[Vx, C], [C.T, K]])
     assert np.linalg.eigvalsh(J).min() > 0
+
     # canonical correlations (singular values of Lx^-1 C Lk^-T) are the model's
     def canon(Sxx, Sxk, Skk):
-        return np.linalg.svd(np.linalg.solve(np.linalg.cholesky(Sxx), Sxk) @ np.linalg.inv(np.linalg.cholesky(Skk)).T,
-                             compute_uv=False)
+        return np.linalg.svd(
+            np.linalg.solve(np.linalg.cholesky(Sxx), Sxk) @ np.linalg.inv(np.linalg.cholesky(Skk)).T, compute_uv=False
+        )
+
     np.testing.assert_allclose(canon(Vx, C, K), canon(S[:6, :6], S[:6, 6:], S[6:, 6:]), rtol=1e-7)
     # a verdict measured against the intrinsics' joint model covariance (validation.intrinsics_model: full), larger
     # along one direction only: carried as it is, its correlations included (not the diagonal map's)
@@ -342,12 +393,21 @@ def test_joint_drift_test_is_chi_square_when_the_intrinsics_are_shared():
         # the new views' solve relative to the installed (x0, k0), priors centred there (truth at -e)
         m = P_v @ (G.T @ (G @ -e + rng.normal(size=24)))
         T_new = se3_exp(m[:6])
-        t = joint_drift_test(T_x_installed=T0, cov_installed=S_inst[:6, :6], cov_xk_installed=S_inst[:6, 6:],
-                             cov_kk_installed=S_kp, T_x_new=T_new, dk_new=m[6:], cov_new=P_v, cov_k_prior=S_kp,
-                             cov_x_prior=vague)
+        t = joint_drift_test(
+            T_x_installed=T0,
+            cov_installed=S_inst[:6, :6],
+            cov_xk_installed=S_inst[:6, 6:],
+            cov_kk_installed=S_kp,
+            T_x_new=T_new,
+            dk_new=m[6:],
+            cov_new=P_v,
+            cov_k_prior=S_kp,
+            cov_x_prior=vague,
+        )
         Tj.append(t.statistic)
-        Tw.append(drift_test(cov_installed=S_inst[:6, :6], T_x_installed=T0, T_x_new=T_new,
-                             cov_new=P_v[:6, :6]).statistic)
+        Tw.append(
+            drift_test(cov_installed=S_inst[:6, :6], T_x_installed=T0, T_x_new=T_new, cov_new=P_v[:6, :6]).statistic
+        )
         assert t.dof == 6
     assert stats.kstest(Tj, stats.chi2(6).cdf).pvalue > 0.01
     assert np.mean(Tj) == pytest.approx(6.0, abs=0.6)  # sd of the mean of 800 chi2_6: 0.12
@@ -392,11 +452,19 @@ def _installed(*, n_views, noise_px, robot_noise, seed=5):
     from handeye.sim.corners import make_corner_session
     from handeye.sim.scenarios import default_intrinsics
 
-    s = make_corner_session(n_views=n_views, seed=seed, noise_px=noise_px, robot_noise=robot_noise,
-                            intrinsics=default_intrinsics(**SMALL))
+    s = make_corner_session(
+        n_views=n_views, seed=seed, noise_px=noise_px, robot_noise=robot_noise, intrinsics=default_intrinsics(**SMALL)
+    )
     intr, cf = closed_forms(s)
-    r = refine(mode=s.mode, object_points=s.target.object_points(), views=refine_views(s), intrinsics=intr,
-               T_x0=cf["tsai"].T_x, T_board0=cf["tsai"].T_board, starts=cf)
+    r = refine(
+        mode=s.mode,
+        object_points=s.target.object_points(),
+        views=refine_views(s),
+        intrinsics=intr,
+        T_x0=cf["tsai"].T_x,
+        T_board0=cf["tsai"].T_board,
+        starts=cf,
+    )
     assert r.status == "ok"
     return s, result_from_refinement(r, target=s.target)
 
@@ -404,15 +472,23 @@ def _installed(*, n_views, noise_px, robot_noise, seed=5):
 def _verification(s, xi, *, seed, n_views=6):
     from handeye.sim.corners import make_corner_session
 
-    return make_corner_session(n_views=n_views, seed=seed, noise_px=0.3, robot_noise=(0.2, 0.05),
-                               intrinsics=s.intrinsics, rig=(s.T_x_true @ se3_exp(xi), s.T_board_true))
+    return make_corner_session(
+        n_views=n_views,
+        seed=seed,
+        noise_px=0.3,
+        robot_noise=(0.2, 0.05),
+        intrinsics=s.intrinsics,
+        rig=(s.T_x_true @ se3_exp(xi), s.T_board_true),
+    )
 
 
 def _views(s):
     from handeye.refine import RefineView
 
-    return [RefineView(v, i, p, s.T_base_end_reported[k])
-            for k, (v, i, p) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points))]
+    return [
+        RefineView(v, i, p, s.T_base_end_reported[k])
+        for k, (v, i, p) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points, strict=False))
+    ]
 
 
 def test_verify_still_valid_on_the_same_rig_and_drifted_after_a_bump(install):
@@ -420,8 +496,9 @@ def test_verify_still_valid_on_the_same_rig_and_drifted_after_a_bump(install):
 
     s, res = install
     inst = load_result(res)
-    same = verify_views(inst, views=_views(_verification(s, np.zeros(6), seed=101)),
-                        object_points=s.target.object_points())
+    same = verify_views(
+        inst, views=_views(_verification(s, np.zeros(6), seed=101)), object_points=s.target.object_points()
+    )
     assert same.verdict == "still valid" and same.test.dof == 6 and same.test.p_value > 0.05
     # the install estimated its robot noise (15 views: at most 45 equations per group; a group the camera cannot
     # resolve is frozen and has none): the test takes the p-value from F with Satterthwaite's degrees of freedom
@@ -448,8 +525,11 @@ def test_verify_still_valid_on_the_same_rig_and_drifted_after_a_bump(install):
     assert same.test.kind == JOINT_KIND and np.trace(same.test.change_cov) < np.trace(inst.cov_x)
     older = json.loads(json.dumps(res))
     del older["refinement"]["cov_x_intrinsics"]  # a result written before the joint covariance was kept
-    old = verify_views(load_result(older), views=_views(_verification(s, np.zeros(6), seed=101)),
-                       object_points=s.target.object_points())
+    old = verify_views(
+        load_result(older),
+        views=_views(_verification(s, np.zeros(6), seed=101)),
+        object_points=s.target.object_points(),
+    )
     assert old.test.kind != JOINT_KIND and np.trace(old.test.change_cov) > np.trace(inst.cov_x)
 
 
@@ -457,11 +537,22 @@ def test_verify_uses_the_installed_arm_when_the_result_names_a_preset():
     from handeye.recal.verify import installed_robot_model
 
     def named(arm_option, kind="kinematic"):
-        return load_result({"handeye_result": 1, "status": "ok", "mode": "eye_in_hand",
-                            "refinement": {"options": {"arm": arm_option},
-                                           "robot_model": {"kind": kind, "arm": "RealMan RM65-B",
-                                                           "encoder_sigma_deg": 0.01,
-                                                           "dh_prior_sigma": {"length_mm": 0.5, "angle_deg": 0.05}}}})
+        return load_result(
+            {
+                "handeye_result": 1,
+                "status": "ok",
+                "mode": "eye_in_hand",
+                "refinement": {
+                    "options": {"arm": arm_option},
+                    "robot_model": {
+                        "kind": kind,
+                        "arm": "RealMan RM65-B",
+                        "encoder_sigma_deg": 0.01,
+                        "dh_prior_sigma": {"length_mm": 0.5, "angle_deg": 0.05},
+                    },
+                },
+            }
+        )
 
     o = installed_robot_model(named("rm65"))
     assert o["robot_model"] == "kinematic" and o["arm"].name == "RealMan RM65-B"
@@ -504,8 +595,14 @@ def test_verify_with_robot_poses_far_noisier_than_installed_says_so(install):
     from handeye.sim.corners import make_corner_session
 
     s, res = install
-    v = make_corner_session(n_views=6, seed=104, noise_px=0.3, robot_noise=(2.0, 0.5), intrinsics=s.intrinsics,
-                            rig=(s.T_x_true, s.T_board_true))
+    v = make_corner_session(
+        n_views=6,
+        seed=104,
+        noise_px=0.3,
+        robot_noise=(2.0, 0.5),
+        intrinsics=s.intrinsics,
+        rig=(s.T_x_true, s.T_board_true),
+    )
     with pytest.raises(CalibrationError) as e:
         verify_views(load_result(res), views=_views(v), object_points=s.target.object_points())
     hint = e.value.hint
@@ -514,13 +611,13 @@ def test_verify_with_robot_poses_far_noisier_than_installed_says_so(install):
 
 
 def test_plan_power_grows_with_views_and_is_bounded_by_the_installed_uncertainty(install):
-    from handeye.recal.plan import installed_poses, plan_verification, plan_lines
+    from handeye.recal.plan import installed_poses, plan_lines, plan_verification
 
     s, res = install
     inst = load_result(res)
     p = plan_verification(inst, candidates=installed_poses(inst), max_views=8)
     assert p.power_by_views[0] == pytest.approx(0.05, abs=1e-3)  # one view says nothing about X: the test's level
-    assert all(b >= a - 1e-9 for a, b in zip(p.power_by_views, p.power_by_views[1:]))
+    assert all(b >= a - 1e-9 for a, b in zip(p.power_by_views, p.power_by_views[1:], strict=False))
     assert p.power_by_views[-1] <= p.ceiling_power + 1e-9
     big = plan_verification(inst, candidates=installed_poses(inst), drift_mm=10.0, drift_deg=1.0, max_views=8)
     assert big.n_views is not None and 3 <= big.n_views <= 8 and big.power_by_views[-1] >= 0.95
@@ -543,10 +640,21 @@ def rendered(install, tmp_path_factory):
     out = {"installed": root / "installed"}
     bump = np.array([np.radians(0.5), 0.0, 0.0, 0.0, 5e-3, 0.0])
     moved = s.T_board_true @ se3_exp(np.array([0.0, 0.0, np.radians(2.0), 0.02, 0.0, 0.0]))  # 20 mm, 2 deg on the table
-    for name, xi, board in (("same", np.zeros(6), s.T_board_true), ("bumped", bump, s.T_board_true),
-                            ("bumped_board_moved", bump, moved)):
-        out[name] = write_vendor_session(root / name, n_views=4, seed=200, robot_noise=(0.2, 0.05), image_noise=2.0,
-                                         intrinsics=s.intrinsics, supersample=2, rig=(s.T_x_true @ se3_exp(xi), board))
+    for name, xi, board in (
+        ("same", np.zeros(6), s.T_board_true),
+        ("bumped", bump, s.T_board_true),
+        ("bumped_board_moved", bump, moved),
+    ):
+        out[name] = write_vendor_session(
+            root / name,
+            n_views=4,
+            seed=200,
+            robot_noise=(0.2, 0.05),
+            image_noise=2.0,
+            intrinsics=s.intrinsics,
+            supersample=2,
+            rig=(s.T_x_true @ se3_exp(xi), board),
+        )
     return out
 
 
@@ -562,15 +670,17 @@ def test_verify_cli_writes_reports_and_exits_9_when_drifted(rendered, tmp_path, 
     # the test's reference distribution is named wherever the p-value is: the CLI, verify.json and both reports
     ref = d["test"]["reference"]
     assert ref.startswith(("chi-square(", "6 F(6, ")) and f"reference {ref}" in out and ref in html and ref in md
-    rc = main(["verify", str(rendered["bumped"]), "--against", str(rendered["installed"]),
-               "--out", str(tmp_path / "b")])
+    rc = main(
+        ["verify", str(rendered["bumped"]), "--against", str(rendered["installed"]), "--out", str(tmp_path / "b")]
+    )
     assert rc == DRIFTED_EXIT_CODE and "DRIFTED" in capsys.readouterr().out
     assert json.loads((tmp_path / "b" / "verify.json").read_text())["drifted"] is True
     rc = main(["verify", str(rendered["same"]), "--against", str(rendered["installed"]), "--mode", "eye_to_hand"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "eye_to_hand" in err[0]
-    assert main(["verify", "--plan", "--against", str(rendered["installed"]),
-                 "--drift-mm", "0", "--drift-deg", "0"]) == 2
+    assert (
+        main(["verify", "--plan", "--against", str(rendered["installed"]), "--drift-mm", "0", "--drift-deg", "0"]) == 2
+    )
 
 
 def test_calibrate_with_prior_reports_the_update_or_the_contradiction(rendered, tmp_path, capsys):
@@ -578,16 +688,20 @@ def test_calibrate_with_prior_reports_the_update_or_the_contradiction(rendered, 
     runs = (("same", False, False), ("bumped", True, False), ("bumped", True, True), ("bumped_board_moved", True, True))
     for name, contradicted, unmoved in runs:
         out = tmp_path / f"{name}{'_unmoved' if unmoved else ''}"
-        main(["-q", "calibrate", str(rendered[name]), "--prior", str(rendered["installed"]), "--out", str(out)]
-             + (["--board-unmoved"] if unmoved else []))
+        main(
+            ["-q", "calibrate", str(rendered[name]), "--prior", str(rendered["installed"]), "--out", str(out)]
+            + (["--board-unmoved"] if unmoved else [])
+        )
         res = json.loads((out / "result.json").read_text())
         p = res["prior"]
         assert p["contradicted"] is contradicted and p["frame"] == "T_end_cam"
         assert "prior:" in capsys.readouterr().out
         # a bump moves the camera, not its lens: the prior's intrinsics stay either way
         assert p["intrinsics"] == "the prior's, with its sigmas"
-        assert abs(res["intrinsics"]["fx"] - installed["intrinsics"]["fx"]) < \
-            5 * installed["refinement"]["intrinsics_sigma"]["fx"]
+        assert (
+            abs(res["intrinsics"]["fx"] - installed["intrinsics"]["fx"])
+            < 5 * installed["refinement"]["intrinsics_sigma"]["fx"]
+        )
         if contradicted:
             assert p["used"].startswith("no prior on X") and p["change"]["trans_mm"] > 2.0
             # the board's earlier pose is kept only when the user says the board stayed and verify does not find it
@@ -614,12 +728,37 @@ def test_calibrate_with_prior_reports_the_update_or_the_contradiction(rendered, 
 
 
 def test_collect_verify_against_refuses_another_mode_in_one_line(rendered, tmp_path, capsys):
-    rc = main(["collect", str(tmp_path / "c"), "--mode", "eye_to_hand", "--camera", "sim", "--robot", "sim",
-               "--verify-against", str(rendered["installed"])])
+    rc = main(
+        [
+            "collect",
+            str(tmp_path / "c"),
+            "--mode",
+            "eye_to_hand",
+            "--camera",
+            "sim",
+            "--robot",
+            "sim",
+            "--verify-against",
+            str(rendered["installed"]),
+        ]
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "installed calibration is eye_in_hand" in err[0]
-    rc = main(["collect", str(tmp_path / "d"), "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim",
-               "--sim-bump", "1", "0.1"])
+    rc = main(
+        [
+            "collect",
+            str(tmp_path / "d"),
+            "--mode",
+            "eye_in_hand",
+            "--camera",
+            "sim",
+            "--robot",
+            "sim",
+            "--sim-bump",
+            "1",
+            "0.1",
+        ]
+    )
     assert rc == 2 and "--verify-against" in capsys.readouterr().err
 
 
@@ -642,8 +781,9 @@ def test_the_plan_scores_views_that_leave_x_unknown_against_a_precise_install():
     many = sum(J2.T @ J2 for J2 in (rng.normal(size=(12, 12)) * np.r_[[1e3] * 6, [1e6] * 6] for _ in range(4)))
     Ix = x_information(many)
     S0w = np.diag(np.r_[[1e-6] * 3, [1e-6] * 3])
-    np.testing.assert_allclose(worst_noncentrality_with_views(S0w, Ix, drifts),
-                               worst_noncentrality(S0w + np.linalg.inv(Ix), drifts), rtol=1e-6)
+    np.testing.assert_allclose(
+        worst_noncentrality_with_views(S0w, Ix, drifts), worst_noncentrality(S0w + np.linalg.inv(Ix), drifts), rtol=1e-6
+    )
 
 
 def test_verify_plan_against_a_clean_simulated_install():
@@ -671,28 +811,51 @@ def test_verify_shares_the_installed_arms_dh_offsets():
     from handeye.sim.corners import make_corner_session
 
     def views(s):
-        return [RefineView(v, ids, pts, s.T_base_end_reported[k], s.joints_encoder[k])
-                for k, (v, ids, pts) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points))]
+        return [
+            RefineView(v, ids, pts, s.T_base_end_reported[k], s.joints_encoder[k])
+            for k, (v, ids, pts) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points, strict=False))
+        ]
 
     s = make_corner_session(mode="eye_in_hand", n_views=20, seed=3, noise_px=0.3, robot_error="kinematic")
-    r = refine(mode=s.mode, object_points=s.target.object_points(), views=views(s), intrinsics=s.intrinsics,
-               T_x0=s.T_x_true, T_board0=s.T_board_true, options=RefineOptions(arm="rm65"))
+    r = refine(
+        mode=s.mode,
+        object_points=s.target.object_points(),
+        views=views(s),
+        intrinsics=s.intrinsics,
+        T_x0=s.T_x_true,
+        T_board0=s.T_board_true,
+        options=RefineOptions(arm="rm65"),
+    )
     assert r.status == "ok", r.failure_reason
     inst = load_result(result_from_refinement(r, target=s.target))
     dh, C, K = inst.dh_joint[0], inst.cov_x_intrinsics[1], inst.cov_x_intrinsics[2]
     m, k = len(dh), len(inst.cov_x_intrinsics[0])
     assert m == 24 and inst.dh_joint[1].shape == (6, m) and inst.dh_joint[2].shape == (k, m)
-    J = np.block([[inst.cov_x, C, inst.dh_joint[1]], [C.T, K, inst.dh_joint[2]],
-                  [inst.dh_joint[1].T, inst.dh_joint[2].T, inst.dh_joint[3]]])
+    J = np.block(
+        [
+            [inst.cov_x, C, inst.dh_joint[1]],
+            [C.T, K, inst.dh_joint[2]],
+            [inst.dh_joint[1].T, inst.dh_joint[2].T, inst.dh_joint[3]],
+        ]
+    )
     assert np.linalg.eigvalsh(J).min() > 0
     # what a verification faces of the install (verify --plan): X given the intrinsics and the DH offsets
     S_k, S_kd = inst.cov_x_given_intrinsics, inst.cov_x_given_shared
     assert np.trace(S_kd[3:, 3:]) < np.trace(S_k[3:, 3:]) and np.linalg.eigvalsh(S_kd).min() > 0
     results = {}
-    for name, xi in (("still", np.zeros(6)), ("bumped", np.r_[np.radians(0.2) * np.array([0.6, 0.0, 0.8]),
-                                                               2e-3 * np.array([0.0, 0.8, -0.6])])):
-        new = make_corner_session(mode="eye_in_hand", n_views=6, seed=40, noise_px=0.3, robot_error="kinematic",
-                                  rig=(s.T_x_true @ se3_exp(xi), s.T_board_true), robot_model_seed=3)
+    for name, xi in (
+        ("still", np.zeros(6)),
+        ("bumped", np.r_[np.radians(0.2) * np.array([0.6, 0.0, 0.8]), 2e-3 * np.array([0.0, 0.8, -0.6])]),
+    ):
+        new = make_corner_session(
+            mode="eye_in_hand",
+            n_views=6,
+            seed=40,
+            noise_px=0.3,
+            robot_error="kinematic",
+            rig=(s.T_x_true @ se3_exp(xi), s.T_board_true),
+            robot_model_seed=3,
+        )
         obj = s.target.object_points()
         results[name] = verify_views(inst, views=views(new), object_points=obj)
         if name == "still":
@@ -713,17 +876,34 @@ def test_verify_shares_the_installed_arms_dh_offsets():
     assert with_installed_dh(prior, inst, robot, [replace(v, joint_angles=None) for v in views(new)]) is prior
     # the share of the DH prior the new views resolve is measured against the prior they had: the install's
     rm_shared, rm_own = results["still"].refined.robot_model, alone.refined.robot_model
-    assert rm_shared["dh_prior"] == "an earlier calibration's estimate" and rm_own["dh_prior"] == "the arm's error prior"
+    assert (
+        rm_shared["dh_prior"] == "an earlier calibration's estimate" and rm_own["dh_prior"] == "the arm's error prior"
+    )
     sd_installed = np.sqrt(np.diag(inst.dh_joint[3]))
-    sd_new = np.asarray(rm_shared["dh_offset_sigma"], float).ravel() / np.tile([1e3, np.degrees(1), 1e3, np.degrees(1)], 6)
-    np.testing.assert_allclose(np.asarray(rm_shared["dh_resolved_share"], float).ravel(),
-                               1.0 - np.clip((sd_new / sd_installed) ** 2, 0.0, 1.0), atol=1e-9)
+    sd_new = np.asarray(rm_shared["dh_offset_sigma"], float).ravel() / np.tile(
+        [1e3, np.degrees(1), 1e3, np.degrees(1)], 6
+    )
+    np.testing.assert_allclose(
+        np.asarray(rm_shared["dh_resolved_share"], float).ravel(),
+        1.0 - np.clip((sd_new / sd_installed) ** 2, 0.0, 1.0),
+        atol=1e-9,
+    )
     # verify --plan faces what verify will share: without an arm verify can rebuild, X given the intrinsics only
     from handeye.recal.verify import shares_dh
 
     assert shares_dh(inst)
-    no_arm = replace(inst, raw=dict(inst.raw, refinement=dict(inst.raw["refinement"], robot_model={
-        k: v for k, v in inst.raw["refinement"]["robot_model"].items() if k not in ("dh_table", "arm")})))
+    no_arm = replace(
+        inst,
+        raw=dict(
+            inst.raw,
+            refinement=dict(
+                inst.raw["refinement"],
+                robot_model={
+                    k: v for k, v in inst.raw["refinement"]["robot_model"].items() if k not in ("dh_table", "arm")
+                },
+            ),
+        ),
+    )
     assert not shares_dh(no_arm)
     from handeye.recal.plan import plan_verification
 
@@ -737,7 +917,7 @@ def test_verify_shares_the_installed_arms_dh_offsets():
     lo, hi = arm.joint_limits_rad.T
     seeds = list(np.random.default_rng(0).uniform(lo, hi, size=(300, arm.n_joints)))
     assert len(plan.poses) == 6
-    for T, label in zip(plan.poses, plan.labels):
+    for T, label in zip(plan.poses, plan.labels, strict=False):
         assert label.startswith("installed") or solve_ik(arm, T, seeds=default_ik_seeds(arm, T) + seeds) is not None
 
 
@@ -818,9 +998,8 @@ def test_a_kept_board_prior_is_taken_in_the_new_sessions_numbering(rendered, tmp
     installed one turned back."""
     import handeye.diagnose.consistency as consistency
     from handeye.frames import inv_T, pose_error, se3_adjoint
-    from handeye.targets import grid_turns
-
     from handeye.sim.corners import make_corner_session
+    from handeye.targets import grid_turns
 
     installed = json.loads((rendered["installed"] / "result.json").read_text())
     target = make_corner_session(n_views=3, seed=0).target  # the install's board
@@ -838,8 +1017,19 @@ def test_a_kept_board_prior_is_taken_in_the_new_sessions_numbering(rendered, tmp
     (tmp_path / "inst").mkdir()
     (tmp_path / "inst" / "result.json").write_text(json.dumps(turned))
     out = tmp_path / "out"
-    main(["-q", "calibrate", str(rendered["bumped"]), "--prior", str(tmp_path / "inst"), "--out", str(out),
-          "--board-unmoved", "--no-report"])
+    main(
+        [
+            "-q",
+            "calibrate",
+            str(rendered["bumped"]),
+            "--prior",
+            str(tmp_path / "inst"),
+            "--out",
+            str(out),
+            "--board-unmoved",
+            "--no-report",
+        ]
+    )
     capsys.readouterr()
     res = json.loads((out / "result.json").read_text())
     p = res["prior"]
@@ -848,8 +1038,19 @@ def test_a_kept_board_prior_is_taken_in_the_new_sessions_numbering(rendered, tmp
     sd = 1000 * np.sqrt(np.trace(np.array(installed["refinement"]["cov_board_6x6"])[3:, 3:]))
     assert trans < 3 * sd and rot < 1.0, (trans, rot, sd)
     # the same as with the install in the session's own numbering: the board's pose and covariance came across
-    main(["-q", "calibrate", str(rendered["bumped"]), "--prior", str(rendered["installed"]), "--out",
-          str(tmp_path / "plain"), "--board-unmoved", "--no-report"])
+    main(
+        [
+            "-q",
+            "calibrate",
+            str(rendered["bumped"]),
+            "--prior",
+            str(rendered["installed"]),
+            "--out",
+            str(tmp_path / "plain"),
+            "--board-unmoved",
+            "--no-report",
+        ]
+    )
     capsys.readouterr()
     ref = json.loads((tmp_path / "plain" / "result.json").read_text())
     assert ref["prior"]["board_prior"] is True and ref["prior"]["board_turn_deg"] == pytest.approx(0.0)
@@ -867,8 +1068,10 @@ def test_verify_and_prior_refuse_images_of_another_resolution_in_one_line(render
     for p in d.glob("*.jpg"):
         img = cv2.imread(str(p))
         cv2.imwrite(str(p), cv2.resize(img, (img.shape[1] // 2, img.shape[0] // 2)))
-    for argv in (["verify", str(d), "--against", str(rendered["installed"])],
-                 ["calibrate", str(d), "--prior", str(rendered["installed"]), "--out", str(tmp_path / "out")]):
+    for argv in (
+        ["verify", str(d), "--against", str(rendered["installed"])],
+        ["calibrate", str(d), "--prior", str(rendered["installed"]), "--out", str(tmp_path / "out")],
+    ):
         rc = main(["-q", *argv])
         err = capsys.readouterr().err.strip().splitlines()
         assert rc == 2 and len(err) == 1, err
@@ -893,10 +1096,14 @@ def test_verify_and_plan_say_what_is_wrong_with_their_arguments(rendered, tmp_pa
     for k in (3, 4):
         (two / f"{k}.jpg").unlink()
     (two / "poses.txt").write_text("\n".join((two / "poses.txt").read_text().split()[:2]) + "\n")
-    cases = ((["verify", "--plan", "--against", inst, "--power", "0.01"], "must exceed the test's level"),
-             (["verify", str(rendered["same"]), "--against", inst, "--mode", "eye_to_hand"],
-              "--mode eye_to_hand was given but the installed calibration is eye_in_hand"),
-             (["verify", str(two), "--against", inst], "the session has 2 images (the board found in each); at least 3"))
+    cases = (
+        (["verify", "--plan", "--against", inst, "--power", "0.01"], "must exceed the test's level"),
+        (
+            ["verify", str(rendered["same"]), "--against", inst, "--mode", "eye_to_hand"],
+            "--mode eye_to_hand was given but the installed calibration is eye_in_hand",
+        ),
+        (["verify", str(two), "--against", inst], "the session has 2 images (the board found in each); at least 3"),
+    )
     for argv, says in cases:
         rc = main(["-q", *argv])
         err = capsys.readouterr().err.strip().splitlines()
@@ -909,13 +1116,33 @@ def test_verify_and_plan_say_what_is_wrong_with_their_arguments(rendered, tmp_pa
 def test_verify_on_the_installed_calibrations_own_images_says_so(rendered, tmp_path, caplog):
     main(["-q", "calibrate", str(rendered["same"]), "--out", str(tmp_path / "own"), "--no-report"])
     with caplog.at_level("WARNING"):
-        main(["-q", "verify", str(rendered["same"]), "--against", str(tmp_path / "own"), "--out", str(tmp_path / "v"),
-              "--no-report"])
+        main(
+            [
+                "-q",
+                "verify",
+                str(rendered["same"]),
+                "--against",
+                str(tmp_path / "own"),
+                "--out",
+                str(tmp_path / "v"),
+                "--no-report",
+            ]
+        )
     assert "4 of 4 images are the installed calibration's own" in caplog.text
     caplog.clear()
     with caplog.at_level("WARNING"):
-        main(["-q", "verify", str(rendered["bumped"]), "--against", str(tmp_path / "own"), "--out",
-              str(tmp_path / "v2"), "--no-report"])
+        main(
+            [
+                "-q",
+                "verify",
+                str(rendered["bumped"]),
+                "--against",
+                str(tmp_path / "own"),
+                "--out",
+                str(tmp_path / "v2"),
+                "--no-report",
+            ]
+        )
     assert "installed calibration's own" not in caplog.text
 
 
@@ -957,14 +1184,19 @@ def test_a_board_numbered_otherwise_in_the_update_run_drops_the_board_prior(rend
         run = real(session, options, **kw)
         priors.append(options.refine_options["prior"])
         if len(priors) == 2:  # the run with the earlier board pose: its views numbered from another corner
-            run = dataclasses.replace(run, board_poses={vid: dataclasses.replace(bp, orientation=bp.orientation + 1)
-                                                        for vid, bp in run.board_poses.items()})
+            run = dataclasses.replace(
+                run,
+                board_poses={
+                    vid: dataclasses.replace(bp, orientation=bp.orientation + 1) for vid, bp in run.board_poses.items()
+                },
+            )
         return run
 
     monkeypatch.setattr(pipeline, "run_calibration", numbered_otherwise)
     with caplog.at_level(logging.WARNING, logger="handeye.recal.prior"):
-        run, rec = calibrate_with_prior(load_session(rendered["bumped"]), CalibrateOptions(), rendered["installed"],
-                                        board_unmoved=True)
+        run, rec = calibrate_with_prior(
+            load_session(rendered["bumped"]), CalibrateOptions(), rendered["installed"], board_unmoved=True
+        )
     assert len(priors) == 3 and priors[1].T_board is not None and priors[2].T_board is None
     assert rec["contradicted"] and rec["board_prior"] is False and "board_turn_deg" not in rec
     assert rec["used"].startswith("no prior on X (the new views alone")

@@ -1,6 +1,7 @@
 """Joint refinement: noiseless recovery, noisy recovery within bounds tied to the noise (the
 Cramer-Rao bound of the model at the truth), noise and robot-noise estimation, outlier decisions,
 the robot-pose test shared with the diagnostics, covariance calibration, options and exceptions."""
+
 from __future__ import annotations
 
 import json
@@ -23,12 +24,15 @@ from handeye.sim.corners import make_corner_session
 
 def _views(s, image_points=None):
     pts = s.image_points if image_points is None else image_points
-    return [RefineView(vid, ids, p, s.T_base_end_reported[k])
-            for k, (vid, ids, p) in enumerate(zip(s.view_ids, s.corner_ids, pts))]
+    return [
+        RefineView(vid, ids, p, s.T_base_end_reported[k])
+        for k, (vid, ids, p) in enumerate(zip(s.view_ids, s.corner_ids, pts, strict=False))
+    ]
 
 
 def _perturbed_seed(s, rng, *, rot_deg=1.0, trans_mm=5.0):
     """Truth moved by a random rotation/translation of the given size (board too), and intrinsics off by ~1 %."""
+
     def move(T):
         w = rng.normal(size=3)
         v = rng.normal(size=3)
@@ -49,18 +53,30 @@ def _crb_x(s, sigma_px):
     obj, k = s.target.object_points(), s.intrinsics.as_vector()
     H = np.zeros((21, 21))
     for i in range(s.n_views):
-        _, J_x, _, J_b, J_k = chain_residual(T_x=s.T_x_true, T_base_end=s.T_base_end_true[i], T_board=s.T_board_true,
-                                             invert_robot=mounting(s.mode).inverts_robot, intrinsics_vec=k,
-                                             object_points=obj[s.corner_ids[i]],
-                                             image_points=np.zeros((len(s.corner_ids[i]), 2)))
+        _, J_x, _, J_b, J_k = chain_residual(
+            T_x=s.T_x_true,
+            T_base_end=s.T_base_end_true[i],
+            T_board=s.T_board_true,
+            invert_robot=mounting(s.mode).inverts_robot,
+            intrinsics_vec=k,
+            object_points=obj[s.corner_ids[i]],
+            image_points=np.zeros((len(s.corner_ids[i]), 2)),
+        )
         J = np.hstack([J_x, J_b, J_k]) / sigma_px
         H += J.T @ J
     return np.linalg.inv(H)[:6, :6]
 
 
 def _refine(s, T_x0, T_b0, intr, views=None, **opts):
-    return refine(mode=s.mode, object_points=s.target.object_points(), views=_views(s) if views is None else views,
-                  intrinsics=intr, T_x0=T_x0, T_board0=T_b0, options=RefineOptions(**opts))
+    return refine(
+        mode=s.mode,
+        object_points=s.target.object_points(),
+        views=_views(s) if views is None else views,
+        intrinsics=intr,
+        T_x0=T_x0,
+        T_board0=T_b0,
+        options=RefineOptions(**opts),
+    )
 
 
 @pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
@@ -72,8 +88,13 @@ def test_noiseless_recovery_from_perturbed_seed(mode):
     xi = _xi_err(r.T_x, s.T_x_true)
     assert np.abs(xi).max() < 1e-8, f"{mode}: T_x off by {xi} (rad, m) on noiseless data"
     assert np.abs(_xi_err(r.T_board, s.T_board_true)).max() < 1e-8
-    np.testing.assert_allclose(r.intrinsics.as_vector(), s.intrinsics.as_vector(), rtol=1e-8, atol=1e-9,
-                               err_msg="intrinsics not recovered on noiseless data")
+    np.testing.assert_allclose(
+        r.intrinsics.as_vector(),
+        s.intrinsics.as_vector(),
+        rtol=1e-8,
+        atol=1e-9,
+        err_msg="intrinsics not recovered on noiseless data",
+    )
     assert r.rms_px_after < 1e-6 < r.rms_px_before
     assert not r.outliers, f"outliers flagged on noiseless data: {r.outliers}"
 
@@ -155,7 +176,7 @@ def test_a_robot_pose_of_another_view_is_a_robot_pose_outlier_not_an_undetermine
     s = make_corner_session(mode=mode, n_views=20, seed=7, noise_px=0.3)
     T = s.T_base_end_reported.copy()
     T[[2, 8]] = T[[8, 2]]
-    views = [RefineView(vid, i, p, T[k]) for k, (vid, i, p) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points))]
+    views = [RefineView(vid, i, p, T[k]) for k, (vid, i, p) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points, strict=False))]
     r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, views=views)
     assert r.status == "ok"
     assert {(o.view_id, o.kind) for o in r.outliers} == {("3", "robot_pose"), ("9", "robot_pose")}
@@ -171,7 +192,7 @@ def test_corner_outliers_bad_views_and_sparse_views_get_reasons():
     pts[6] = pts[6][np.random.default_rng(0).permutation(len(pts[6]))]  # view "7": corners mis-ordered
     ids[9], pts[9] = ids[9][:5], pts[9][:5]  # view "10": only 5 corners
     ids[11], pts[11] = ids[11][:0], pts[11][:0]  # view "12": none (the board was not seen)
-    views = [RefineView(vid, i, p, s.T_base_end_reported[k]) for k, (vid, i, p) in enumerate(zip(s.view_ids, ids, pts))]
+    views = [RefineView(vid, i, p, s.T_base_end_reported[k]) for k, (vid, i, p) in enumerate(zip(s.view_ids, ids, pts, strict=False))]
     r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, views=views)
     assert r.status == "ok"
     by_kind = {}
@@ -194,8 +215,16 @@ def test_covariance_is_calibrated_small_monte_carlo():
     d2 = []
     for _ in range(30):
         pts = [p + rng.normal(0.0, 0.5, p.shape) for p in s.image_points]
-        r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, views=_views(s, pts), outlier_loop=False,
-                    loss="none", robot_noise="none")
+        r = _refine(
+            s,
+            s.T_x_true,
+            s.T_board_true,
+            s.intrinsics,
+            views=_views(s, pts),
+            outlier_loop=False,
+            loss="none",
+            robot_noise="none",
+        )
         xi = _xi_err(r.T_x, s.T_x_true)
         d2.append(xi @ np.linalg.solve(r.cov_x_6x6, xi))
     # the sum of 30 chi-square(6) draws is chi-square(180): two-sided 0.1 % band [126, 247]. A covariance 2x too
@@ -214,8 +243,9 @@ def test_intrinsics_options_fixed_subset_and_prior():
     r = _refine(s, s.T_x_true, s.T_board_true, intr0, intrinsics="fixed", outlier_loop=False)
     assert r.intrinsics.as_vector().tolist() == v0.tolist() and r.intrinsics_sigma == {}
     tight = tuple([1e-6] * 9)
-    r = _refine(s, s.T_x_true, s.T_board_true, intr0, intrinsics="prior", intrinsics_prior_sigma=tight,
-                outlier_loop=False)
+    r = _refine(
+        s, s.T_x_true, s.T_board_true, intr0, intrinsics="prior", intrinsics_prior_sigma=tight, outlier_loop=False
+    )
     np.testing.assert_allclose(r.intrinsics.as_vector(), v0, atol=1e-4)
     for robot_noise in ("none", "fixed"):
         r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, robot_noise=robot_noise)
@@ -232,7 +262,7 @@ def test_prior_on_x_tight_pins_it_loose_changes_nothing(mode):
     # a tight prior 0.3 deg / 3 mm off the truth (about 10-100 sigma of the data): X sits on it, its
     # covariance is the prior's
     T_p = s.T_x_true @ se3_exp(np.r_[np.radians(0.3) * np.array([0.6, 0.0, 0.8]), 0.003, -0.001, 0.0])
-    cov_tight = np.diag([1e-7 ** 2] * 3 + [1e-7 ** 2] * 3)
+    cov_tight = np.diag([1e-7**2] * 3 + [1e-7**2] * 3)
     r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, prior=Prior(T_p, cov_tight))
     assert r.status == "ok", r.failure_reason
     assert np.abs(_xi_err(r.T_x, T_p)).max() < 1e-6, f"{mode}: tight prior did not pin X: {_xi_err(r.T_x, T_p)}"
@@ -244,10 +274,14 @@ def test_prior_on_x_tight_pins_it_loose_changes_nothing(mode):
     np.testing.assert_allclose(r.cov_x_6x6, free.cov_x_6x6, rtol=0.01, atol=1e-3 * np.abs(free.cov_x_6x6).max())
     # intrinsics prior: tight on fx, fy, cx, cy 5 px away, loose elsewhere
     k_p = s.intrinsics.as_vector() + np.r_[5.0, -5.0, 5.0, -5.0, [0.0] * 5]
-    cov_k = np.diag(np.r_[[1e-4 ** 2] * 4, [1.0] * 5])
-    r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics,
-                prior=Prior(s.T_x_true, np.eye(6), Intrinsics.from_vector(k_p, s.intrinsics.width,
-                                                                            s.intrinsics.height), cov_k))
+    cov_k = np.diag(np.r_[[1e-4**2] * 4, [1.0] * 5])
+    r = _refine(
+        s,
+        s.T_x_true,
+        s.T_board_true,
+        s.intrinsics,
+        prior=Prior(s.T_x_true, np.eye(6), Intrinsics.from_vector(k_p, s.intrinsics.width, s.intrinsics.height), cov_k),
+    )
     np.testing.assert_allclose(r.intrinsics.as_vector()[:4], k_p[:4], atol=1e-3)
     with pytest.raises(ConfigError, match="prior.cov_x"):
         _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, prior=Prior(T_p, -np.eye(6)))
@@ -272,8 +306,7 @@ def test_a_joint_prior_on_x_and_the_intrinsics_keeps_their_correlation(mode):
     T_p = s.T_x_true @ se3_exp(np.r_[1e-4, -2e-4, 1e-4, 5e-4, 2e-4, -3e-4])
     k_p = s.intrinsics.as_vector() + np.r_[0.5, -0.5, 0.4, -0.3, [0.0] * 5]
     K_p = Intrinsics.from_vector(k_p, s.intrinsics.width, s.intrinsics.height)
-    r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics,
-                prior=Prior(T_p, J[:6, :6], K_p, J[6:, 6:], J[:6, 6:]))
+    r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, prior=Prior(T_p, J[:6, :6], K_p, J[6:, 6:], J[:6, 6:]))
     assert r.status == "ok", r.failure_reason
     assert np.abs(_xi_err(r.T_x, T_p)).max() < 1e-5
     names = r.cov_x_intrinsics["intrinsics"]
@@ -283,14 +316,24 @@ def test_a_joint_prior_on_x_and_the_intrinsics_keeps_their_correlation(mode):
     cross = np.asarray(r.cov_x_intrinsics["cross_6xk"])
     np.testing.assert_allclose(cross, J[:6, 6:][:, idx], rtol=0.05, atol=0.02 * np.abs(cross).max())
     # zero cross-covariance: the same as the two separate priors
-    a = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, prior=Prior(T_p, np.eye(6) * 1e-6, K_p, np.eye(9),
-                                                                         np.zeros((6, 9))))
+    a = _refine(
+        s,
+        s.T_x_true,
+        s.T_board_true,
+        s.intrinsics,
+        prior=Prior(T_p, np.eye(6) * 1e-6, K_p, np.eye(9), np.zeros((6, 9))),
+    )
     b = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, prior=Prior(T_p, np.eye(6) * 1e-6, K_p, np.eye(9)))
     assert np.abs(_xi_err(a.T_x, b.T_x)).max() < 1e-9
     np.testing.assert_allclose(a.cov_x_6x6, b.cov_x_6x6, rtol=1e-6, atol=1e-15)
     with pytest.raises(ConfigError, match="prior.cov_x_intrinsics"):
-        _refine(s, s.T_x_true, s.T_board_true, s.intrinsics,
-                prior=Prior(T_p, J[:6, :6], K_p, J[6:, 6:], 10 * J[:6, 6:] + 1.0))
+        _refine(
+            s,
+            s.T_x_true,
+            s.T_board_true,
+            s.intrinsics,
+            prior=Prior(T_p, J[:6, :6], K_p, J[6:, 6:], 10 * J[:6, 6:] + 1.0),
+        )
 
 
 @pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
@@ -310,8 +353,9 @@ def test_a_joint_prior_on_the_board_and_the_intrinsics_keeps_their_correlation(m
     T_bp = s.T_board_true @ se3_exp(np.r_[1e-4, -2e-4, 1e-4, 5e-4, 2e-4, -3e-4])
     k_p = s.intrinsics.as_vector() + np.r_[0.5, -0.5, 0.4, -0.3, [0.0] * 5]
     K_p = Intrinsics.from_vector(k_p, s.intrinsics.width, s.intrinsics.height)
-    prior = Prior(s.T_x_true, np.eye(6), K_p, J[6:, 6:], T_board=T_bp, cov_board=J[:6, :6],
-                  cov_board_intrinsics=J[:6, 6:])
+    prior = Prior(
+        s.T_x_true, np.eye(6), K_p, J[6:, 6:], T_board=T_bp, cov_board=J[:6, :6], cov_board_intrinsics=J[:6, 6:]
+    )
     r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, prior=prior)
     assert r.status == "ok", r.failure_reason
     assert np.abs(_xi_err(r.T_board, T_bp)).max() < 1e-5
@@ -326,11 +370,11 @@ def test_a_joint_prior_on_the_board_and_the_intrinsics_keeps_their_correlation(m
     assert g.status == "ok", g.failure_reason
     assert np.abs(_xi_err(g.T_board, T_bp)).max() < 1e-5
     np.testing.assert_allclose(g.intrinsics.as_vector()[idx], k_p[idx], atol=1e-2)
-    np.testing.assert_allclose(np.asarray(g.cov_x_intrinsics["cross_board_6xk"]), J[:6, 6:][:, idx], rtol=0.05,
-                               atol=0.02 * np.abs(cross).max())
+    np.testing.assert_allclose(
+        np.asarray(g.cov_x_intrinsics["cross_board_6xk"]), J[:6, 6:][:, idx], rtol=0.05, atol=0.02 * np.abs(cross).max()
+    )
     with pytest.raises(ConfigError, match="prior.cov_board_intrinsics"):
-        _refine(s, s.T_x_true, s.T_board_true, s.intrinsics,
-                prior=replace(prior, cov_x_intrinsics=np.zeros((6, 9))))
+        _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, prior=replace(prior, cov_x_intrinsics=np.zeros((6, 9))))
 
 
 def test_to_dict_is_json_ready_and_names_frames():
@@ -340,8 +384,18 @@ def test_to_dict_is_json_ready_and_names_frames():
     assert d["x_name"] == "T_base_cam" and np.asarray(d["T_base_cam"]).shape == (4, 4)
     assert np.asarray(d["T_end_board"]).shape == (4, 4)
     assert np.asarray(d["cov_x_6x6"]).shape == (6, 6) and "rotation first" in d["cov_parametrisation"]
-    for key in ("sigma_rot_deg", "sigma_trans_mm", "predicted_error_mm", "working_distance_m", "sigma_px",
-                "robot_sigma_mm", "robot_sigma_deg", "rms_px_before", "rms_px_after", "iterations"):
+    for key in (
+        "sigma_rot_deg",
+        "sigma_trans_mm",
+        "predicted_error_mm",
+        "working_distance_m",
+        "sigma_px",
+        "robot_sigma_mm",
+        "robot_sigma_deg",
+        "rms_px_before",
+        "rms_px_after",
+        "iterations",
+    ):
         np.testing.assert_array_equal(d[key], getattr(r, key), err_msg=key)
     np.testing.assert_allclose(d["seed"]["T_base_cam"], s.T_x_true, atol=1e-12)  # the seed, re-orthonormalised
     assert set(d["per_view"]) == set(s.view_ids) and d["per_view"] == json.loads(json.dumps(r.per_view))
@@ -351,27 +405,64 @@ def test_to_dict_is_json_ready_and_names_frames():
 def test_invalid_options_and_inputs_raise_one_line_errors():
     s = make_corner_session(mode="eye_in_hand", n_views=5, seed=0, noise_px=0.3)
     obj = s.target.object_points()
-    for bad in (dict(intrinsics="guess"), dict(robot_noise="maybe"), dict(loss="tukey"), dict(fix=("f",)),
-                dict(robot_sigma_mm=-1.0), dict(intrinsics_prior_sigma=(1.0, 2.0))):
+    for bad in (
+        dict(intrinsics="guess"),
+        dict(robot_noise="maybe"),
+        dict(loss="tukey"),
+        dict(fix=("f",)),
+        dict(robot_sigma_mm=-1.0),
+        dict(intrinsics_prior_sigma=(1.0, 2.0)),
+    ):
         with pytest.raises(ConfigError) as e:
-            refine(mode="eye_in_hand", object_points=obj, views=_views(s), intrinsics=s.intrinsics,
-                   T_x0=s.T_x_true, T_board0=s.T_board_true, options=RefineOptions(**bad))
+            refine(
+                mode="eye_in_hand",
+                object_points=obj,
+                views=_views(s),
+                intrinsics=s.intrinsics,
+                T_x0=s.T_x_true,
+                T_board0=s.T_board_true,
+                options=RefineOptions(**bad),
+            )
         assert "\n" not in str(e.value) and list(bad)[0] in str(e.value)
     with pytest.raises(ConfigError):
-        refine(mode="hand_in_eye", object_points=obj, views=_views(s), intrinsics=s.intrinsics,
-               T_x0=s.T_x_true, T_board0=s.T_board_true)
+        refine(
+            mode="hand_in_eye",
+            object_points=obj,
+            views=_views(s),
+            intrinsics=s.intrinsics,
+            T_x0=s.T_x_true,
+            T_board0=s.T_board_true,
+        )
     T_bad = s.T_x_true.copy()
     T_bad[:3, :3] *= 2.0
     with pytest.raises(InputError, match="not a rigid"):
-        refine(mode="eye_in_hand", object_points=obj, views=_views(s), intrinsics=s.intrinsics,
-               T_x0=T_bad, T_board0=s.T_board_true)
+        refine(
+            mode="eye_in_hand",
+            object_points=obj,
+            views=_views(s),
+            intrinsics=s.intrinsics,
+            T_x0=T_bad,
+            T_board0=s.T_board_true,
+        )
     v = _views(s)
     with pytest.raises(InputError, match="duplicate view id"):
-        refine(mode="eye_in_hand", object_points=obj, views=v + v[:1], intrinsics=s.intrinsics,
-               T_x0=s.T_x_true, T_board0=s.T_board_true)
+        refine(
+            mode="eye_in_hand",
+            object_points=obj,
+            views=v + v[:1],
+            intrinsics=s.intrinsics,
+            T_x0=s.T_x_true,
+            T_board0=s.T_board_true,
+        )
     with pytest.raises(InputError, match="at least 3 views"):
-        refine(mode="eye_in_hand", object_points=obj, views=v[:2], intrinsics=s.intrinsics,
-               T_x0=s.T_x_true, T_board0=s.T_board_true)
+        refine(
+            mode="eye_in_hand",
+            object_points=obj,
+            views=v[:2],
+            intrinsics=s.intrinsics,
+            T_x0=s.T_x_true,
+            T_board0=s.T_board_true,
+        )
 
 
 # ------------------------------------------------------------------------------ the robot-pose test
@@ -383,7 +474,7 @@ def test_robot_pose_test_is_chi_square_for_correct_poses_and_flags_by_size():
     A = rng.normal(size=(n, 6, 6)) * np.r_[[1e-3] * 3, [1e-4] * 3][None, :, None]
     C = A @ np.swapaxes(A, 1, 2)  # per-view prediction covariances, shape (n, 6, 6)
     s_rot, s_trans = 2e-3, 3e-4
-    R = np.diag([s_rot ** 2] * 3 + [s_trans ** 2] * 3)
+    R = np.diag([s_rot**2] * 3 + [s_trans**2] * 3)
     d = np.stack([rng.multivariate_normal(np.zeros(6), c + R) for c in C])
     gates = RobotPoseGates(alpha=0.01, min_rot_deg=0.0, min_trans_mm=0.0)
     t = robot_pose_test(d, C, robot_sigma_rot_rad=s_rot, robot_sigma_trans_m=s_trans, gates=gates)
@@ -400,8 +491,13 @@ def test_robot_pose_test_is_chi_square_for_correct_poses_and_flags_by_size():
     floors = RobotPoseGates(alpha=1e-4, min_rot_deg=0.1, min_trans_mm=0.5)
     t = robot_pose_test(big[None], tiny, robot_sigma_rot_rad=1e-5, robot_sigma_trans_m=1e-6, gates=floors)
     assert t.p_value[0] < 1e-10 and not t.flagged[0]
-    t = robot_pose_test(2 * np.r_[big[:3] * 2.5, big[3:] * 6][None], tiny, robot_sigma_rot_rad=1e-5,
-                        robot_sigma_trans_m=1e-6, gates=floors)
+    t = robot_pose_test(
+        2 * np.r_[big[:3] * 2.5, big[3:] * 6][None],
+        tiny,
+        robot_sigma_rot_rad=1e-5,
+        robot_sigma_trans_m=1e-6,
+        gates=floors,
+    )
     assert t.flagged[0] and t.rot_deg[0] > 0.1
     # rows without a prediction are not tested
     t = robot_pose_test(np.full((1, 6), np.nan), tiny, robot_sigma_rot_rad=1e-3, robot_sigma_trans_m=1e-3, gates=floors)
@@ -429,8 +525,9 @@ def test_robot_pose_test_null_is_heavier_tailed_for_an_unmodelled_arm():
     assert t.threshold > chi2.isf(1e-4, 6)
     assert f.sf(t.threshold * nu / (nu - 2) / 6, 6, nu) == pytest.approx(1e-4, rel=1e-6)
     assert not t.flagged[0] and t.flagged[1]
-    t = robot_pose_test(d, C, robot_sigma_rot_rad=1.0, robot_sigma_trans_m=1.0,
-                        gates=RobotPoseGates.from_config(unmodelled_arm=False))
+    t = robot_pose_test(
+        d, C, robot_sigma_rot_rad=1.0, robot_sigma_trans_m=1.0, gates=RobotPoseGates.from_config(unmodelled_arm=False)
+    )
     assert t.flagged[0] and t.flagged[1]
     assert t.threshold == pytest.approx(chi2.isf(1e-4, 6))
 
@@ -459,17 +556,33 @@ def test_starts_choose_the_closed_form_the_views_agree_with():
 
     s = make_corner_session(mode="eye_in_hand", n_views=12, seed=9, noise_px=0.3)
     bad_x = s.T_x_true @ se3_exp(np.r_[np.radians(30.0), 0.0, 0.0, 0.05, 0.0, 0.0])
-    good = HandEyeEstimate(mode=s.mode, method="park", T_x=s.T_x_true @ se3_exp(np.r_[1e-3, 0, 0, 1e-3, 0, 0]),
-                           T_board=s.T_board_true)
-    failed = HandEyeEstimate(mode=s.mode, method="li", T_x=np.full((4, 4), np.nan), T_board=np.eye(4),
-                             status="failed", failure_reason="test")
-    r = refine(mode=s.mode, object_points=s.target.object_points(), views=_views(s), intrinsics=s.intrinsics,
-               T_x0=bad_x, T_board0=s.T_board_true, starts={"li": failed, "park": good})
+    good = HandEyeEstimate(
+        mode=s.mode, method="park", T_x=s.T_x_true @ se3_exp(np.r_[1e-3, 0, 0, 1e-3, 0, 0]), T_board=s.T_board_true
+    )
+    failed = HandEyeEstimate(
+        mode=s.mode, method="li", T_x=np.full((4, 4), np.nan), T_board=np.eye(4), status="failed", failure_reason="test"
+    )
+    r = refine(
+        mode=s.mode,
+        object_points=s.target.object_points(),
+        views=_views(s),
+        intrinsics=s.intrinsics,
+        T_x0=bad_x,
+        T_board0=s.T_board_true,
+        starts={"li": failed, "park": good},
+    )
     assert r.status == "ok" and r.start_method == "park"
     xi = _xi_err(r.T_x, s.T_x_true)
     assert xi @ np.linalg.solve(r.cov_x_6x6, xi) < chi2.ppf(0.999, 6)
-    r = refine(mode=s.mode, object_points=s.target.object_points(), views=_views(s), intrinsics=s.intrinsics,
-               T_x0=s.T_x_true, T_board0=s.T_board_true, starts={"park": good})
+    r = refine(
+        mode=s.mode,
+        object_points=s.target.object_points(),
+        views=_views(s),
+        intrinsics=s.intrinsics,
+        T_x0=s.T_x_true,
+        T_board0=s.T_board_true,
+        starts={"park": good},
+    )
     assert r.start_method == "given"
 
 

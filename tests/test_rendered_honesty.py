@@ -12,6 +12,7 @@ benchmarks/bench_rendered.py (coverage and d2 over 40 sessions). Clean sessions 
 (each view's robot-pose test uses that view's own corner noise, configs/refine.yaml; the false-alarm
 count over 120 clean sessions is benchmarks/bench_clean_sessions.py's); a wrong robot pose is flagged.
 """
+
 import json
 import logging
 from concurrent.futures import ThreadPoolExecutor
@@ -20,8 +21,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from handeye.pipeline import CalibrateOptions, run_calibration
 from handeye.frames import tangent_difference
+from handeye.pipeline import CalibrateOptions, run_calibration
 from handeye.refine import RefineOptions
 from handeye.session import load_session
 from handeye.sim.scenarios import default_intrinsics
@@ -41,9 +42,19 @@ CASES = [
 def _run(case, root):
     mode, n, seed, noise, blur, robot, n_out = case
     out = root / f"s{seed}"
-    write_vendor_session(out, mode=mode, n_views=n, seed=seed, image_noise=noise, blur_sigma_px=blur,
-                         robot_noise=robot, hidden_views=(str(n // 2),), outlier_views=n_out, intrinsics=SMALL,
-                         workers=1)
+    write_vendor_session(
+        out,
+        mode=mode,
+        n_views=n,
+        seed=seed,
+        image_noise=noise,
+        blur_sigma_px=blur,
+        robot_noise=robot,
+        hidden_views=(str(n // 2),),
+        outlier_views=n_out,
+        intrinsics=SMALL,
+        workers=1,
+    )
     truth = json.loads((out / "ground_truth.json").read_text())
     run = run_calibration(load_session(out), CalibrateOptions(workers=1))
     return case, truth, run
@@ -88,7 +99,9 @@ def test_the_verdict_covariance_covers_at_least_what_the_model_does_and_is_not_g
         d2v.append(float(xi @ np.linalg.solve(run.validation.x.cov_verdict, xi)))
     d2m, d2v = np.array(d2m), np.array(d2v)
     assert np.all(d2v <= d2m * (1 + 1e-9)), (d2v, d2m)
-    assert d2v.sum() > chi2.ppf(0.0005, 6 * len(d2v)), f"verdict far too wide: {np.round(d2v, 2)} (model {np.round(d2m, 2)})"
+    assert d2v.sum() > chi2.ppf(0.0005, 6 * len(d2v)), (
+        f"verdict far too wide: {np.round(d2v, 2)} (model {np.round(d2m, 2)})"
+    )
 
 
 def test_clean_rendered_sessions_get_no_flags_and_wrong_poses_are_flagged(runs):

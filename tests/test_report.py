@@ -8,12 +8,13 @@ refinement; the verdict moves to known values with site thresholds; names are es
 session whose board is never found still gets a report that says why (keyed on the error's code) and
 what to change; numbers a finding distrusts are not shown green.
 """
+
 from __future__ import annotations
 
 import html as html_lib
 import json
-import shutil
 import re
+import shutil
 import subprocess
 from html.parser import HTMLParser
 from pathlib import Path
@@ -37,9 +38,17 @@ def synthetic(tmp_path_factory):
     """A refined eye-in-hand session with view 4 hidden and view 7 given a wrong robot pose, written by
     the workflow (result.json with diagnostics, observations.json, thumbnails/, both reports)."""
     root = tmp_path_factory.mktemp("report_synth")
-    session = write_vendor_session(root / "session", mode="eye_in_hand", n_views=10, seed=5, hidden_views=("4",),
-                                   outlier_views=("7",), image_noise=1.0, intrinsics=default_intrinsics(640, 480),
-                                   supersample=3)
+    session = write_vendor_session(
+        root / "session",
+        mode="eye_in_hand",
+        n_views=10,
+        seed=5,
+        hidden_views=("4",),
+        outlier_views=("7",),
+        image_noise=1.0,
+        intrinsics=default_intrinsics(640, 480),
+        supersample=3,
+    )
     out = root / "result"
     wf = calibrate_session(session, options=CalibrateOptions(refine=True), out_dir=out)
     assert wf.status == "ok", wf.result.get("failure_reason")
@@ -90,9 +99,22 @@ window.addEventListener('load', function () {
 def _chromium(args: list, tmp: Path) -> subprocess.CompletedProcess:
     profile = tmp / "chromium-profile"
     profile.mkdir(exist_ok=True)
-    cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-           "--disable-background-networking", "--disable-component-update", "--disable-sync",
-           "--disable-dev-shm-usage", f"--user-data-dir={profile}", "--enable-logging=stderr", "--v=0", *args]
+    cmd = [
+        CHROMIUM,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--disable-dev-shm-usage",
+        f"--user-data-dir={profile}",
+        "--enable-logging=stderr",
+        "--v=0",
+        *args,
+    ]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=180)
 
 
@@ -210,8 +232,9 @@ def test_markdown_renders_with_every_image_beside_it(synthetic):
     out = synthetic["out"]
     html = _markdown_ok(out / "report.md")
     files = sorted(p.name for p in (out / "report_files").iterdir())
-    assert files == sorted(f"{k}.png" for k in ("residuals", "per_view", "coverage", "poses", "rotations",
-                                                "uncertainty"))
+    assert files == sorted(
+        f"{k}.png" for k in ("residuals", "per_view", "coverage", "poses", "rotations", "uncertainty")
+    )
     # in the result folder the thumbnails are linked where they are, not copied
     links = re.findall(r"!\[view [^\]]*\]\(([^)]+)\)", (out / "report.md").read_text(encoding="utf-8"))
     assert sorted(links) == sorted(f"thumbnails/{p.name}" for p in (out / "thumbnails").glob("*.jpg"))
@@ -240,8 +263,9 @@ def test_report_content_verdict_result_views_and_provenance(synthetic):
     # per view: each view's status as result.json has it; the hidden view dropped with its reason,
     # the outlier flagged with the refinement's reason
     section = text.split("## Views", 1)[1].split("\n## ", 1)[0]
-    rows = {line.split("|")[1].strip(" *"): line for line in section.splitlines()
-            if re.match(r"^\| \*\*\S+\*\* \|", line)}
+    rows = {
+        line.split("|")[1].strip(" *"): line for line in section.splitlines() if re.match(r"^\| \*\*\S+\*\* \|", line)
+    }
     assert sorted(rows) == sorted(v["id"] for v in res["views"])
     for v in res["views"]:
         status = rows[v["id"]].split("|")[3].strip()
@@ -301,8 +325,10 @@ def test_offsets_and_methods_show_the_differences_result_json_stores(synthetic, 
         assert (rows[m]["d_deg"], rows[m]["d_mm"]) == (10.0 + k, 20.0 + k), m
         assert rows[m]["sigma"] == 30.0 + k or (m == first and np.isnan(rows[m]["sigma"]) and not rows[m]["far"])
     n = len(cf)
-    assert [(r["d_deg"], r["d_mm"], r["sigma"]) for r in ctx["offsets"]["rows"] if r["kind"] == "half"] == \
-        [(10.0 + n, 20.0 + n, 30.0 + n), (11.0 + n, 21.0 + n, 31.0 + n)]
+    assert [(r["d_deg"], r["d_mm"], r["sigma"]) for r in ctx["offsets"]["rows"] if r["kind"] == "half"] == [
+        (10.0 + n, 20.0 + n, 30.0 + n),
+        (11.0 + n, 21.0 + n, 31.0 + n),
+    ]
     methods = {m["name"]: m for m in ctx["methods"]}
     assert all((methods[m]["d_deg"], methods[m]["d_mm"]) == (10.0 + k, 20.0 + k) for k, m in enumerate(cf))
 
@@ -361,16 +387,31 @@ def test_advice_is_keyed_on_the_error_code_not_its_text(tmp_path):
     from handeye.report import build_report_context
     from handeye.report.advice import ERROR_ADVICE
 
-    res = {"status": "failed", "mode": "eye_in_hand", "views": [], "failure_reason": "x",
-           "error": {"code": "motion_one_axis", "what": "the target was found in only 2 of 9 images",
-                     "file": "/s/session.yaml", "line": 3, "expected": None, "got": None,
-                     "fix": "rotate about another axis"}}
+    res = {
+        "status": "failed",
+        "mode": "eye_in_hand",
+        "views": [],
+        "failure_reason": "x",
+        "error": {
+            "code": "motion_one_axis",
+            "what": "the target was found in only 2 of 9 images",
+            "file": "/s/session.yaml",
+            "line": 3,
+            "expected": None,
+            "got": None,
+            "fix": "rotate about another axis",
+        },
+    }
     f = build_report_context(_folder(tmp_path / "a", res), make_plots=False)["failure"]
     assert f["code"] == "motion_one_axis" and f["where"] == "/s/session.yaml:3"
     assert f["actions"] == ["Rotate about another axis.", ERROR_ADVICE["motion_one_axis"]]
     # a result without a structured error (written before errors had codes): its text, generic advice
-    old = {"status": "failed", "mode": "eye_in_hand", "views": [],
-           "failure_reason": "the target was found in only 0 of 10 images"}
+    old = {
+        "status": "failed",
+        "mode": "eye_in_hand",
+        "views": [],
+        "failure_reason": "the target was found in only 0 of 10 images",
+    }
     f = build_report_context(_folder(tmp_path / "b", old), make_plots=False)["failure"]
     assert f["code"] == "" and f["problem"] == "The target was found in only 0 of 10 images."
     assert ERROR_ADVICE["target_not_found"] not in f["actions"] and len(f["actions"]) == 1
@@ -380,11 +421,24 @@ def test_report_without_views_or_observations_still_builds(tmp_path):
     """A session that does not even load: no views, no observations, unknown mode."""
     from handeye.report import write_reports
 
-    res = {"handeye_result": 1, "status": "failed", "mode": "unknown", "views": [], "n_views": {"total": 0, "used": 0},
-           "failure_reason": "/x/session.yaml: unknown target type; expected chessboard | charuco; got 'circles'",
-           "error": {"code": "config_error", "what": "unknown target type", "file": "/x/session.yaml",
-                     "expected": "chessboard | charuco", "got": "'circles'", "fix": None},
-           "session": {"path": "/x", "format": "unreadable"}, "provenance": {"handeye_version": "0"}}
+    res = {
+        "handeye_result": 1,
+        "status": "failed",
+        "mode": "unknown",
+        "views": [],
+        "n_views": {"total": 0, "used": 0},
+        "failure_reason": "/x/session.yaml: unknown target type; expected chessboard | charuco; got 'circles'",
+        "error": {
+            "code": "config_error",
+            "what": "unknown target type",
+            "file": "/x/session.yaml",
+            "expected": "chessboard | charuco",
+            "got": "'circles'",
+            "fix": None,
+        },
+        "session": {"path": "/x", "format": "unreadable"},
+        "provenance": {"handeye_version": "0"},
+    }
     paths = write_reports(_folder(tmp_path, res), strict=True)
     md = paths[1].read_text(encoding="utf-8")
     assert "Unknown target type; expected chessboard \\| charuco; got 'circles'." in md
@@ -402,8 +456,16 @@ def test_names_and_texts_are_escaped(synthetic, tmp_path):
     res = json.loads((synthetic["out"] / "result.json").read_text())
     res["session"]["path"] = "/data/<b>cell&3</b>"
     evil = '<img src=x onerror="alert(1)">'
-    res["diagnostics"]["findings"] = [{"code": "overexposed", "severity": "info", "title": f"clipped {evil}",
-                                       "evidence": "a | b", "action": "x", "view_ids": ["1"]}]
+    res["diagnostics"]["findings"] = [
+        {
+            "code": "overexposed",
+            "severity": "info",
+            "title": f"clipped {evil}",
+            "evidence": "a | b",
+            "action": "x",
+            "view_ids": ["1"],
+        }
+    ]
     res["views"][0]["reason"] = "odd | reason"
     res["views"][0]["used"] = False
     obs = json.loads((synthetic["out"] / "observations.json").read_text())
@@ -482,16 +544,30 @@ def test_evaluate_levels_and_missing_values():
     """QA levels on plain numbers: above/below limits, the stricter level first, a missing value."""
     from handeye.report.qa import evaluate
 
-    cfg = {"missing_value": "warn", "checks": {"reprojection_rms_px": {"warn_above": 0.8, "fail_above": 1.5},
-                                               "used_views": {"warn_below": 10, "fail_below": 6},
-                                               "predicted_error_mm": {"warn_above": 2.0, "fail_above": 5.0}}}
+    cfg = {
+        "missing_value": "warn",
+        "checks": {
+            "reprojection_rms_px": {"warn_above": 0.8, "fail_above": 1.5},
+            "used_views": {"warn_below": 10, "fail_below": 6},
+            "predicted_error_mm": {"warn_above": 2.0, "fail_above": 5.0},
+        },
+    }
     st = lambda m: {c.key: c.status for c in evaluate(m, cfg).checks}  # noqa: E731
     assert st({"reprojection_rms_px": 0.5, "used_views": 12, "predicted_error_mm": 1.0}) == {
-        "reprojection_rms_px": "pass", "used_views": "pass", "predicted_error_mm": "pass"}
+        "reprojection_rms_px": "pass",
+        "used_views": "pass",
+        "predicted_error_mm": "pass",
+    }
     assert st({"reprojection_rms_px": 1.0, "used_views": 8, "predicted_error_mm": 6.0}) == {
-        "reprojection_rms_px": "warn", "used_views": "warn", "predicted_error_mm": "fail"}
+        "reprojection_rms_px": "warn",
+        "used_views": "warn",
+        "predicted_error_mm": "fail",
+    }
     assert st({"reprojection_rms_px": 2.0, "used_views": 5, "predicted_error_mm": None}) == {
-        "reprojection_rms_px": "fail", "used_views": "fail", "predicted_error_mm": "warn"}
+        "reprojection_rms_px": "fail",
+        "used_views": "fail",
+        "predicted_error_mm": "warn",
+    }
     assert evaluate({"reprojection_rms_px": 1.0}, cfg).status == "warn"
     assert evaluate({"reprojection_rms_px": 1.0}, {**cfg, "missing_value": "pass"}).status == "warn"
 
@@ -513,9 +589,16 @@ def test_a_failing_finding_fails_the_verdict_and_its_numbers_are_not_shown_green
 
     res = json.loads((synthetic["out"] / "result.json").read_text())
     obs = json.loads((synthetic["out"] / "observations.json").read_text())
-    res["diagnostics"]["findings"] = [{"code": "translation_units", "severity": "fail",
-                                       "title": "Robot translations are in millimetres, read as metres",
-                                       "evidence": "...", "action": "set translation_unit: mm", "view_ids": []}]
+    res["diagnostics"]["findings"] = [
+        {
+            "code": "translation_units",
+            "severity": "fail",
+            "title": "Robot translations are in millimetres, read as metres",
+            "evidence": "...",
+            "action": "set translation_unit: mm",
+            "view_ids": [],
+        }
+    ]
     ctx = build_report_context(_folder(tmp_path, res, obs), make_plots=False)
     assert ctx["verdict"].status == "fail" and "millimetres" in ctx["verdict"].headline
     assert "Predicted position error" not in ctx["verdict"].headline  # a distrusted number is not headlined
@@ -528,13 +611,15 @@ def test_a_failing_finding_fails_the_verdict_and_its_numbers_are_not_shown_green
     status = {c.key: c.status for c in ctx["verdict"].checks}
     assert status["predicted_error_mm"] == "untrusted" and status["max_rotation_deg"] == "untrusted"
     res["diagnostics"]["findings"] = []
-    before = {c.key: c.status for c in build_report_context(_folder(tmp_path, res, obs), make_plots=False)
-              ["verdict"].checks}
+    before = {
+        c.key: c.status for c in build_report_context(_folder(tmp_path, res, obs), make_plots=False)["verdict"].checks
+    }
     from handeye.report.advice import UNTRUSTED_METRICS
 
     distrusted = set(UNTRUSTED_METRICS["translation_units"])
     assert {k: v for k, v in status.items() if k not in distrusted} == {
-        k: v for k, v in before.items() if k not in distrusted}  # the other checks are as they were
+        k: v for k, v in before.items() if k not in distrusted
+    }  # the other checks are as they were
     assert {status[k] for k in distrusted if before[k] == "pass"} == {"untrusted"}
     assert ctx["verdict"].counts["pass"] == sum(s == "pass" for s in status.values())
 
@@ -546,10 +631,17 @@ def test_a_wrong_square_size_distrusts_the_translation_uncertainty_and_the_headl
 
     res = json.loads((synthetic["out"] / "result.json").read_text())
     obs = json.loads((synthetic["out"] / "observations.json").read_text())
-    res["diagnostics"]["findings"] = [{"code": "square_size", "severity": "fail",
-                                       "title": "The board's squares look like 26.8 mm, not 23.6 mm", "evidence": "...",
-                                       "action": "state L: 0.0268", "view_ids": [],
-                                       "details": {"measured_mm": 26.8, "stated_mm": 23.6}}]
+    res["diagnostics"]["findings"] = [
+        {
+            "code": "square_size",
+            "severity": "fail",
+            "title": "The board's squares look like 26.8 mm, not 23.6 mm",
+            "evidence": "...",
+            "action": "state L: 0.0268",
+            "view_ids": [],
+            "details": {"measured_mm": 26.8, "stated_mm": 23.6},
+        }
+    ]
     qa = tmp_path / "qa.yaml"  # a limit the synthetic result's translation sigma fails
     qa.write_text("checks:\n  sigma_trans_mm: {warn_above: 0.00001, fail_above: 0.00002}\n")
     ctx = build_report_context(_folder(tmp_path, res, obs), make_plots=False, qa=qa)
@@ -592,8 +684,9 @@ def test_a_crashed_diagnostics_stage_is_shown_and_counts_in_the_verdict(syntheti
     obs = json.loads((synthetic["out"] / "observations.json").read_text())
     assert res["diagnostics"]["crashed_stages"] == 0 and res["diagnostics"]["stages"]["images"] == "ok"
     shipped = load_qa()["checks"]
-    off = yaml.safe_dump({"include_diagnostics": False,
-                          "checks": {k: {lim: None for lim in shipped[k]} for k in shipped}})
+    off = yaml.safe_dump(
+        {"include_diagnostics": False, "checks": {k: {lim: None for lim in shipped[k]} for k in shipped}}
+    )
     error = "ValueError: operands could not be broadcast together with shapes (3,) (4,)"
 
     clean = _folder(tmp_path / "clean", _with_stages(res, findings=[]), obs)
@@ -601,7 +694,8 @@ def test_a_crashed_diagnostics_stage_is_shown_and_counts_in_the_verdict(syntheti
     assert _verdict(clean, off, tmp_path)["verdict"].status == "pass"  # the control: nothing else counts
     v = _verdict(crashed, off, tmp_path)["verdict"]
     assert v.status == "warn" and [(c.key, c.status, c.value) for c in v.checks] == [
-        ("diagnostics_stages", "warn", 1.0)]
+        ("diagnostics_stages", "warn", 1.0)
+    ]
     assert "diagnostics stage images crashed" in v.headline and error in v.checks[0].why
     v = _verdict(crashed, off + "crashed_stage: fail\n", tmp_path)["verdict"]
     assert v.status == "fail" and v.checks[0].status == "fail"
@@ -697,9 +791,11 @@ def test_matplotlib_and_jinja_load_only_when_a_report_is_written(synthetic):
     """The calibrate command and a report without figures do not pay for matplotlib (or jinja2 for a context)."""
     import sys
 
-    code = ("import sys; from handeye.report import build_report_context; import handeye.cli; "
-            "build_report_context(sys.argv[1], make_plots=False); "
-            "print(','.join(m for m in ('matplotlib', 'jinja2', 'PIL') if m in sys.modules))")
+    code = (
+        "import sys; from handeye.report import build_report_context; import handeye.cli; "
+        "build_report_context(sys.argv[1], make_plots=False); "
+        "print(','.join(m for m in ('matplotlib', 'jinja2', 'PIL') if m in sys.modules))"
+    )
     p = subprocess.run([sys.executable, "-c", code, str(synthetic["out"])], capture_output=True, text=True, check=True)
     assert p.stdout.strip() == "", p.stdout
 
@@ -721,8 +817,14 @@ def test_pose_figure_draws_both_mounting_modes():
         for moves in (True, False):
             cams = T_be @ T_x if moves else np.repeat(T_x[None], 6, axis=0)
             boards = np.repeat(T_x[None], 6, axis=0) if moves else T_be @ T_x
-            png = plots.poses_3d(T_base_cams=cams, T_base_ends=T_be, T_base_boards=boards, board_outline=outline,
-                                 flagged=flagged, camera_moves=moves)
+            png = plots.poses_3d(
+                T_base_cams=cams,
+                T_base_ends=T_be,
+                T_base_boards=boards,
+                board_outline=outline,
+                flagged=flagged,
+                camera_moves=moves,
+            )
             img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
             assert img.shape == (390, 860, 3) and float(img.std()) > 10
 
@@ -733,8 +835,9 @@ def test_clean_real_dataset_is_not_reported_as_failed(tmp_path, shared_dataset):
 
     real = shared_dataset("ical-mako-charuco-eye-to-hand")
     session = import_ical(real, tmp_path / "session")
-    wf = calibrate_session(Path(session).parent, options=CalibrateOptions(refine=False), out_dir=tmp_path / "out",
-                           diagnostics=False)
+    wf = calibrate_session(
+        Path(session).parent, options=CalibrateOptions(refine=False), out_dir=tmp_path / "out", diagnostics=False
+    )
     md = (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
     assert wf.status == "ok" and "## Verdict: **FAIL**" not in md
     assert "| **2** |" in md and "dropped" in md  # the one view with too few corners
@@ -743,18 +846,45 @@ def test_clean_real_dataset_is_not_reported_as_failed(tmp_path, shared_dataset):
 
 # ------------------------------------------------------------------------------ the banner's root cause
 ROOT_CAUSE_FINDINGS = [
-    ({"code": "mode_swapped", "severity": "fail", "title": "The data are eye-to-hand but were calibrated as "
-      "eye-in-hand", "action": "calibrate with --mode eye_to_hand"},
-     "Mode swapped: the data are eye-to-hand but were calibrated as eye-in-hand. "),
-    ({"code": "board_moved", "severity": "fail", "title": "The board slipped in the gripper after view 6",
-      "action": "clamp the board", "details": {"split_after_view": "6"}},
-     "The board slipped in the gripper after view 6. "),
-    ({"code": "square_size", "severity": "fail", "title": "The board's squares look like 30.0 mm, not 25 mm",
-      "action": "measure the squares", "details": {"measured_mm": 30.04, "stated_mm": 25.0}},
-     "Squares look like 30.0 mm, not 25 mm. "),
-    ({"code": "pairs_shifted", "severity": "fail", "title": "Images and robot poses are out of step by 1: image "
-      "k belongs to pose k+1", "action": "re-pair the poses", "details": {"shift": 1}},
-     "Pairs shifted by one line: images and robot poses are out of step by 1: image k belongs to pose k+1. "),
+    (
+        {
+            "code": "mode_swapped",
+            "severity": "fail",
+            "title": "The data are eye-to-hand but were calibrated as eye-in-hand",
+            "action": "calibrate with --mode eye_to_hand",
+        },
+        "Mode swapped: the data are eye-to-hand but were calibrated as eye-in-hand. ",
+    ),
+    (
+        {
+            "code": "board_moved",
+            "severity": "fail",
+            "title": "The board slipped in the gripper after view 6",
+            "action": "clamp the board",
+            "details": {"split_after_view": "6"},
+        },
+        "The board slipped in the gripper after view 6. ",
+    ),
+    (
+        {
+            "code": "square_size",
+            "severity": "fail",
+            "title": "The board's squares look like 30.0 mm, not 25 mm",
+            "action": "measure the squares",
+            "details": {"measured_mm": 30.04, "stated_mm": 25.0},
+        },
+        "Squares look like 30.0 mm, not 25 mm. ",
+    ),
+    (
+        {
+            "code": "pairs_shifted",
+            "severity": "fail",
+            "title": "Images and robot poses are out of step by 1: image k belongs to pose k+1",
+            "action": "re-pair the poses",
+            "details": {"shift": 1},
+        },
+        "Pairs shifted by one line: images and robot poses are out of step by 1: image k belongs to pose k+1. ",
+    ),
 ]
 
 
@@ -783,28 +913,40 @@ def test_a_warning_does_not_lead_a_failed_banner(synthetic, tmp_path):
     res = json.loads((synthetic["out"] / "result.json").read_text())
     res["diagnostics"]["findings"] = [
         {"code": "mode_undecided", "severity": "warn", "title": "The session states no mounting mode", "action": ""},
-        {"code": "blurred", "severity": "fail", "title": "Blurred images: 2 view(s)", "action": "refocus"}]
+        {"code": "blurred", "severity": "fail", "title": "Blurred images: 2 view(s)", "action": "refocus"},
+    ]
     ctx = build_report_context(_folder(tmp_path / "f", res), make_plots=False)
     assert ctx["verdict"].headline.startswith("T_end_cam fails QA: blurred images")
     res["diagnostics"]["findings"] = res["diagnostics"]["findings"][:1]
     ctx = build_report_context(_folder(tmp_path / "w", res), make_plots=False)
     assert ctx["verdict"].status == "warn"
     assert ctx["verdict"].headline.startswith(
-        "Mounting mode not decided: the session states no mounting mode. T_end_cam passes")
+        "Mounting mode not decided: the session states no mounting mode. T_end_cam passes"
+    )
 
 
 REFUSALS = [
-    ("mode_swapped", "the data are eye_to_hand but --mode says eye_in_hand: fits 12x better",
-     "calibrate with --mode eye_to_hand (or set mode: eye_to_hand in the session)",
-     "Mode swapped: the data are eye_to_hand but --mode says eye_in_hand: fits 12x better. Fix: calibrate with "
-     "--mode eye_to_hand (or set mode: eye_to_hand in the session). No result is given."),
-    ("pairs_shifted", "Images and robot poses are out of step by 2: image k belongs to pose k+2: ...",
-     "fix the pairing, or apply the shift with --shift-poses 2 (image k takes pose line k+2)",
-     "Pairs shifted by 2 lines: images and robot poses are out of step by 2: image k belongs to pose k+2. Fix: "
-     "fix the pairing, or apply the shift with --shift-poses 2 (image k takes pose line k+2). No result is given."),
-    ("pairs_shuffled", "Images and robot poses are shuffled: 6 of 12 images carry another view's pose: ...",
-     "re-pair images and poses by view id", "Pairs shuffled: 6 of 12 images "
-     "carry another view's pose. Fix: re-pair images and poses by view id. No result is given."),
+    (
+        "mode_swapped",
+        "the data are eye_to_hand but --mode says eye_in_hand: fits 12x better",
+        "calibrate with --mode eye_to_hand (or set mode: eye_to_hand in the session)",
+        "Mode swapped: the data are eye_to_hand but --mode says eye_in_hand: fits 12x better. Fix: calibrate with "
+        "--mode eye_to_hand (or set mode: eye_to_hand in the session). No result is given.",
+    ),
+    (
+        "pairs_shifted",
+        "Images and robot poses are out of step by 2: image k belongs to pose k+2: ...",
+        "fix the pairing, or apply the shift with --shift-poses 2 (image k takes pose line k+2)",
+        "Pairs shifted by 2 lines: images and robot poses are out of step by 2: image k belongs to pose k+2. Fix: "
+        "fix the pairing, or apply the shift with --shift-poses 2 (image k takes pose line k+2). No result is given.",
+    ),
+    (
+        "pairs_shuffled",
+        "Images and robot poses are shuffled: 6 of 12 images carry another view's pose: ...",
+        "re-pair images and poses by view id",
+        "Pairs shuffled: 6 of 12 images "
+        "carry another view's pose. Fix: re-pair images and poses by view id. No result is given.",
+    ),
 ]
 
 
@@ -814,15 +956,43 @@ def test_a_refused_run_leads_with_its_cause_and_fix(tmp_path, code, what, fix, h
 
     findings = []
     if code == "pairs_shifted":
-        findings = [{"code": "pairs_shifted", "severity": "fail", "title": "Images and robot poses are out of step "
-                     "by 2: image k belongs to pose k+2", "action": "re-pair", "details": {"shift": 2}}]
+        findings = [
+            {
+                "code": "pairs_shifted",
+                "severity": "fail",
+                "title": "Images and robot poses are out of step by 2: image k belongs to pose k+2",
+                "action": "re-pair",
+                "details": {"shift": 2},
+            }
+        ]
     if code == "pairs_shuffled":
-        findings = [{"code": "pairs_shuffled", "severity": "fail", "title": "Images and robot poses are shuffled: "
-                     "6 of 12 images carry another view's pose", "action": "re-pair", "details": {}}]
-    res = {"status": "failed", "verdict": "REFUSED", "mode": "eye_in_hand", "views": [], "failure_reason": what,
-           "diagnostics": {"findings": findings},
-           "error": {"code": code, "type": "SessionRefused", "what": what, "file": None, "line": None,
-                     "expected": None, "got": None, "fix": fix}}
+        findings = [
+            {
+                "code": "pairs_shuffled",
+                "severity": "fail",
+                "title": "Images and robot poses are shuffled: 6 of 12 images carry another view's pose",
+                "action": "re-pair",
+                "details": {},
+            }
+        ]
+    res = {
+        "status": "failed",
+        "verdict": "REFUSED",
+        "mode": "eye_in_hand",
+        "views": [],
+        "failure_reason": what,
+        "diagnostics": {"findings": findings},
+        "error": {
+            "code": code,
+            "type": "SessionRefused",
+            "what": what,
+            "file": None,
+            "line": None,
+            "expected": None,
+            "got": None,
+            "fix": fix,
+        },
+    }
     folder = _folder(tmp_path, res)
     ctx = build_report_context(folder, make_plots=False)
     assert ctx["verdict_label"] == "REFUSED" and ctx["verdict"].headline == headline
@@ -855,8 +1025,13 @@ def test_advice_for_the_new_finding_and_refusal_codes(tmp_path):
     assert finding_advice(f) == FINDING_ADVICE["square_size"]
     assert finding_advice({"code": "blurred", "title": "squares look like 30 mm"}) == ""
     for code in ("mode_swapped", "pairs_shifted", "pairs_shuffled"):
-        res = {"status": "failed", "mode": "eye_in_hand", "views": [], "failure_reason": "x",
-               "error": {"code": code, "type": "SessionRefused", "what": "refused", "fix": None}}
+        res = {
+            "status": "failed",
+            "mode": "eye_in_hand",
+            "views": [],
+            "failure_reason": "x",
+            "error": {"code": code, "type": "SessionRefused", "what": "refused", "fix": None},
+        }
         f = build_report_context(_folder(tmp_path / code, res), make_plots=False)["failure"]
         assert ERROR_ADVICE[code] in f["actions"]
 
@@ -865,9 +1040,16 @@ def test_the_findings_section_shows_the_advice_of_the_code(synthetic, tmp_path):
     from handeye.report.advice import FINDING_ADVICE
 
     res = json.loads((synthetic["out"] / "result.json").read_text())
-    res["diagnostics"]["findings"] = [{"code": "poses_do_not_fit", "severity": "fail", "title": "The robot poses "
-                                       "do not fit the images as read", "evidence": "...", "action": "check",
-                                       "view_ids": []}]
+    res["diagnostics"]["findings"] = [
+        {
+            "code": "poses_do_not_fit",
+            "severity": "fail",
+            "title": "The robot poses do not fit the images as read",
+            "evidence": "...",
+            "action": "check",
+            "view_ids": [],
+        }
+    ]
     md, text = _reports(_folder(tmp_path, res))
     assert f"Check: {FINDING_ADVICE['poses_do_not_fit']}" in md
     assert f"Check: {FINDING_ADVICE['poses_do_not_fit']}" in text
@@ -911,19 +1093,37 @@ def test_a_kinematic_robot_model_is_summarised_with_its_dh_prior_test():
 
     off = np.zeros((6, 4))
     off[4, 0], off[3, 1] = 2.36, -0.464
-    rm = {"kind": "kinematic", "arm": "UR3e", "dh_convention": "standard", "description": "DH offsets and encoder noise",
-          "dh_table": {"links": [{"a": 0.0}] * 6}, "joint_angles": "recorded",
-          "joint_angles_rad": {str(i): [0.1 * i] * 6 for i in range(1, 41)},
-          "encoder_sigma_deg": 0.0943, "encoder_sigma_resolved": True, "estimated": ["dh_offset", "encoder_sigma_deg"],
-          "dh_offset": off.tolist(), "dh_offset_sigma": np.full((6, 4), 0.1).tolist(),
-          "dh_resolved_share": np.r_[np.ones(15), np.zeros(9)].reshape(6, 4).tolist(), "dh_prior": "the arm's error prior",
-          "dh_prior_sigma": {"length_mm": 1.774, "angle_deg": 0.1774}, "dh_prior_sigma_stated": {"length_mm": 0.5,
-                                                                                                "angle_deg": 0.05},
-          "dh_prior_scale": 3.548, "dh_prior_test": {"resolved": True, "statistic": 33.33, "redundancy": 8.04,
-                                                      "dof": 11.98, "p_value": 1.6e-6, "alpha": 0.01,
-                                                      "contradicted": True},
-          "tool_offset_T_flange_reported": np.eye(4).tolist(), "tool_offset_spread_deg_mm": [1e-14, 1e-13],
-          "joints_disagree_view_ids": ["7"]}
+    rm = {
+        "kind": "kinematic",
+        "arm": "UR3e",
+        "dh_convention": "standard",
+        "description": "DH offsets and encoder noise",
+        "dh_table": {"links": [{"a": 0.0}] * 6},
+        "joint_angles": "recorded",
+        "joint_angles_rad": {str(i): [0.1 * i] * 6 for i in range(1, 41)},
+        "encoder_sigma_deg": 0.0943,
+        "encoder_sigma_resolved": True,
+        "estimated": ["dh_offset", "encoder_sigma_deg"],
+        "dh_offset": off.tolist(),
+        "dh_offset_sigma": np.full((6, 4), 0.1).tolist(),
+        "dh_resolved_share": np.r_[np.ones(15), np.zeros(9)].reshape(6, 4).tolist(),
+        "dh_prior": "the arm's error prior",
+        "dh_prior_sigma": {"length_mm": 1.774, "angle_deg": 0.1774},
+        "dh_prior_sigma_stated": {"length_mm": 0.5, "angle_deg": 0.05},
+        "dh_prior_scale": 3.548,
+        "dh_prior_test": {
+            "resolved": True,
+            "statistic": 33.33,
+            "redundancy": 8.04,
+            "dof": 11.98,
+            "p_value": 1.6e-6,
+            "alpha": 0.01,
+            "contradicted": True,
+        },
+        "tool_offset_T_flange_reported": np.eye(4).tolist(),
+        "tool_offset_spread_deg_mm": [1e-14, 1e-13],
+        "joints_disagree_view_ids": ["7"],
+    }
     items = {it["name"]: it["value"] for it in _robot_model({"robot_model": rm})["items"]}
     assert items["arm"] == "UR3e (standard DH)" and items["joint angles"] == "recorded"
     assert items["encoder noise"].startswith("0.0943 deg") and "estimated" in items["encoder noise"]
@@ -936,12 +1136,23 @@ def test_a_kinematic_robot_model_is_summarised_with_its_dh_prior_test():
     assert items["joints disagree with the pose"] == "7"
     text = " ".join(items.values())
     assert "joint angles rad" not in items and "links" not in text and "0.4, 0.4" not in text
-    rm.update(dh_prior_scale=1.0, dh_prior_sigma=rm["dh_prior_sigma_stated"],
-              dh_prior_test={"resolved": True, "statistic": 9.1, "redundancy": 12.0, "p_value": 0.69, "alpha": 0.01,
-                             "contradicted": False}, joints_disagree_view_ids=[])
+    rm.update(
+        dh_prior_scale=1.0,
+        dh_prior_sigma=rm["dh_prior_sigma_stated"],
+        dh_prior_test={
+            "resolved": True,
+            "statistic": 9.1,
+            "redundancy": 12.0,
+            "p_value": 0.69,
+            "alpha": 0.01,
+            "contradicted": False,
+        },
+        joints_disagree_view_ids=[],
+    )
     items = {it["name"]: it["value"] for it in _robot_model({"robot_model": rm})["items"]}
-    assert items["DH prior"] == ("0.5 mm / 0.05 deg per DH parameter, the arm's stated prior (not rejected at 1 %: "
-                                 "p = 0.69)")
+    assert items["DH prior"] == (
+        "0.5 mm / 0.05 deg per DH parameter, the arm's stated prior (not rejected at 1 %: p = 0.69)"
+    )
     assert "joints disagree with the pose" not in items
     rm.update(dh_prior="an earlier calibration's estimate", dh_prior_test={})
     items = {it["name"]: it["value"] for it in _robot_model({"robot_model": rm})["items"]}
@@ -953,10 +1164,21 @@ def test_the_offset_explanation_names_what_the_robot_model_cannot_see():
     kinematic model is not advised to a run that used it)."""
     from handeye.report.uncertainty import offset_explanation
 
-    rows = [{"name": m, "kind": "closed_form", "d_mm": 20.0 + k, "d_deg": 1.5, "sigma": 9.0 + k,
-             "offset_mm": [20.0 + k, 0.0, 0.0]} for k, m in enumerate(("tsai", "park", "horaud"))]
-    rows += [{"name": h, "kind": "half", "d_mm": 1.0, "d_deg": 0.1, "sigma": 1.0, "offset_mm": [1.0, 0, 0]}
-             for h in ("odd", "even")]
+    rows = [
+        {
+            "name": m,
+            "kind": "closed_form",
+            "d_mm": 20.0 + k,
+            "d_deg": 1.5,
+            "sigma": 9.0 + k,
+            "offset_mm": [20.0 + k, 0.0, 0.0],
+        }
+        for k, m in enumerate(("tsai", "park", "horaud"))
+    ]
+    rows += [
+        {"name": h, "kind": "half", "d_mm": 1.0, "d_deg": 0.1, "sigma": 1.0, "offset_mm": [1.0, 0, 0]}
+        for h in ("odd", "even")
+    ]
     kw = dict(limit_sigma=4.0, halves_m2=3.0, halves_m2_limit=16.8, robot_mm=0.8, robot_deg=0.2)
     iid = " ".join(offset_explanation(rows, robot_model="iid", **kw))
     kin = " ".join(offset_explanation(rows, robot_model="kinematic", **kw))
@@ -979,15 +1201,20 @@ def test_each_figure_gets_its_own_qa_limits(synthetic, tmp_path, monkeypatch):
         def spy(*a, _real=real, _name=name, **k):
             got[_name] = k
             return _real(*a, **k)
+
         monkeypatch.setattr(plots, name, spy)
     res = json.loads((synthetic["out"] / "result.json").read_text())
     obs = json.loads((synthetic["out"] / "observations.json").read_text())
     build_report_context(_folder(tmp_path / "f", res, obs), make_plots=True)
     checks = load_qa()["checks"]
     assert (got["per_view_bars"]["warn_px"], got["per_view_bars"]["fail_px"]) == (
-        checks["reprojection_rms_px"]["warn_above"], checks["reprojection_rms_px"]["fail_above"])
+        checks["reprojection_rms_px"]["warn_above"],
+        checks["reprojection_rms_px"]["fail_above"],
+    )
     assert (got["rotation_coverage"]["warn_deg"], got["rotation_coverage"]["fail_deg"]) == (
-        checks["max_rotation_deg"]["warn_below"], checks["max_rotation_deg"]["fail_below"])
+        checks["max_rotation_deg"]["warn_below"],
+        checks["max_rotation_deg"]["fail_below"],
+    )
 
 
 def test_nulls_in_the_validation_block_and_deleted_images_do_not_break_or_inflate_the_report(synthetic, tmp_path):
@@ -998,8 +1225,14 @@ def test_nulls_in_the_validation_block_and_deleted_images_do_not_break_or_inflat
     res = json.loads((synthetic["out"] / "result.json").read_text())
     obs = json.loads((synthetic["out"] / "observations.json").read_text())
     cv = res["diagnostics"]["cross_validation"]
-    cv.update(verdict_sigma_rot_deg=[None, 0.01, 0.02], verdict_sigma_trans_mm=[None, 0.1, 0.2],
-              ratio_rot_verdict=0.9, ratio_trans_verdict=None, ratio_limits=[0.5, None], spread_p_value=0.3)
+    cv.update(
+        verdict_sigma_rot_deg=[None, 0.01, 0.02],
+        verdict_sigma_trans_mm=[None, 0.1, 0.2],
+        ratio_rot_verdict=0.9,
+        ratio_trans_verdict=None,
+        ratio_limits=[0.5, None],
+        spread_p_value=0.3,
+    )
     base = build_report_context(_folder(tmp_path / "a", res, obs), make_plots=False)
     share0 = next(c for c in base["verdict"].checks if c.key == "dropped_share").value
     v = next(x for x in res["views"] if x["used"])

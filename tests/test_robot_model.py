@@ -1,6 +1,7 @@
 """The refinement's kinematic robot error model: the factor against numerical derivatives, recovery of a
 known joint-offset error, the DH prior's share in the covariance of X where the views cannot resolve
 it, joint angles by inverse kinematics and through a tool offset, and the errors of bad input."""
+
 from __future__ import annotations
 
 import json
@@ -25,13 +26,22 @@ THETA_3 = 4 * 2 + 3  # index of theta_offset_3 among the DH offsets (a, alpha, d
 
 def _views(s, joints, T_reported=None):
     T = s.T_base_end_reported if T_reported is None else T_reported
-    return [RefineView(vid, ids, pts, T[k], None if joints is None else joints[k])
-            for k, (vid, ids, pts) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points))]
+    return [
+        RefineView(vid, ids, pts, T[k], None if joints is None else joints[k])
+        for k, (vid, ids, pts) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points, strict=False))
+    ]
 
 
 def _refine(s, views, **opts):
-    return refine(mode=s.mode, object_points=s.target.object_points(), views=views, intrinsics=s.intrinsics,
-                  T_x0=s.T_x_true, T_board0=s.T_board_true, options=RefineOptions(**opts))
+    return refine(
+        mode=s.mode,
+        object_points=s.target.object_points(),
+        views=views,
+        intrinsics=s.intrinsics,
+        T_x0=s.T_x_true,
+        T_board0=s.T_board_true,
+        options=RefineOptions(**opts),
+    )
 
 
 def _m2(r, s):
@@ -41,8 +51,16 @@ def _m2(r, s):
 
 def _exact_arm_session(mode, seed, *, n_views=15, noise_px=0.1):
     """A session of the nominal RM65-B with exact encoders: reported = true, joint angles recorded."""
-    return make_corner_session(mode=mode, n_views=n_views, seed=seed, noise_px=noise_px, robot_error="kinematic",
-                               dh_length_error_mm=(0.0, 0.0), dh_angle_error_deg=(0.0, 0.0), encoder_sigma_deg=0.0)
+    return make_corner_session(
+        mode=mode,
+        n_views=n_views,
+        seed=seed,
+        noise_px=noise_px,
+        robot_error="kinematic",
+        dh_length_error_mm=(0.0, 0.0),
+        dh_angle_error_deg=(0.0, 0.0),
+        encoder_sigma_deg=0.0,
+    )
 
 
 def test_kinematic_prior_factor_jacobians_match_numerical_derivatives():
@@ -57,8 +75,10 @@ def test_kinematic_prior_factor_jacobians_match_numerical_derivatives():
     v.insert(2, dh)
     lin = f.linearize(v)
     A, b = lin.jacobian()
+
     def err(p, d):
         return tangent_difference(T_rep, p.matrix()) - J @ d
+
     np.testing.assert_allclose(-b, err(P, dh), atol=1e-12)
     np.testing.assert_allclose(A[:, :6], numericalDerivative21(err, P, dh), atol=1e-7)
     np.testing.assert_allclose(A[:, 6:], numericalDerivative22(err, P, dh), atol=1e-7)
@@ -94,7 +114,7 @@ def test_an_unresolved_flange_length_error_is_in_the_covariance_of_x():
     true_arm = ARM.with_dh(ARM.dh + 0.0003 * np.outer(np.eye(6)[5], [0, 0, 1, 0]))  # d_6 + 0.3 mm
     # the flange is at the session's true poses, reached by the true arm; the controller reports the
     # nominal arm's pose at those joint angles
-    q = np.stack([solve_ik(true_arm, T, seeds=[q0]) for T, q0 in zip(s.T_base_end_true, s.joints_true)])
+    q = np.stack([solve_ik(true_arm, T, seeds=[q0]) for T, q0 in zip(s.T_base_end_true, s.joints_true, strict=False)])
     T_rep = ARM.T_base_end(q)
     r = _refine(s, _views(s, q, T_rep), arm="rm65")
     kin_sd = r.robot_model["dh_offset_sigma"][5][2]
@@ -114,11 +134,18 @@ def test_joint_angles_by_inverse_kinematics_and_through_a_tool_offset():
     assert _m2(ik, s) < chi2.ppf(0.999, 6)  # the arm's configuration may differ from the recorded one
     # a tool frame 0.1 m out on the flange z: reported poses are the tool's, the model carries it
     T_tool = se3_exp(np.r_[0.0, 0.0, 0.3, 0.0, 0.0, 0.1])
-    tool_views = [RefineView(v.view_id, v.corner_ids, v.image_points, v.T_base_end @ T_tool, v.joint_angles)
-                  for v in _views(s, q)]
-    tooled = refine(mode=s.mode, object_points=s.target.object_points(), views=tool_views, intrinsics=s.intrinsics,
-                    T_x0=s.T_x_true, T_board0=np.linalg.inv(T_tool) @ s.T_board_true,
-                    options=RefineOptions(arm="rm65"))
+    tool_views = [
+        RefineView(v.view_id, v.corner_ids, v.image_points, v.T_base_end @ T_tool, v.joint_angles) for v in _views(s, q)
+    ]
+    tooled = refine(
+        mode=s.mode,
+        object_points=s.target.object_points(),
+        views=tool_views,
+        intrinsics=s.intrinsics,
+        T_x0=s.T_x_true,
+        T_board0=np.linalg.inv(T_tool) @ s.T_board_true,
+        options=RefineOptions(arm="rm65"),
+    )
     np.testing.assert_allclose(tangent_difference(tooled.T_x, base.T_x), 0.0, atol=1e-6)
     np.testing.assert_allclose(tooled.robot_model["tool_offset_T_flange_reported"], T_tool, atol=1e-9)
     assert np.allclose(tooled.cov_x_6x6, base.cov_x_6x6, rtol=1e-3, atol=1e-12)
@@ -146,8 +173,9 @@ def test_model_choice_and_bad_input():
 
 
 def test_a_wrong_robot_pose_is_flagged_under_the_kinematic_model():
-    s = make_corner_session(mode="eye_in_hand", n_views=12, seed=7, noise_px=0.3, robot_error="kinematic",
-                            outlier_views=1)
+    s = make_corner_session(
+        mode="eye_in_hand", n_views=12, seed=7, noise_px=0.3, robot_error="kinematic", outlier_views=1
+    )
     r = _refine(s, _views(s, np.asarray(s.joints_encoder)), arm="rm65")
     assert r.robot_model["joints_disagree_view_ids"] == list(s.outlier_view_ids)
     flagged = [o.view_id for o in r.outliers if o.kind == "robot_pose"]
@@ -163,8 +191,10 @@ def _refine_stage_inputs(tmp_path, mode, seed, robot):
     from handeye.records import HandEyeEstimate, Session, View
 
     s = make_corner_session(mode=mode, n_views=6, seed=seed, noise_px=0.3, robot_error="kinematic")
-    views = tuple(View(vid, tmp_path / f"{vid}.png", s.T_base_end_reported[k], joint_angles=tuple(s.joints_encoder[k]))
-                  for k, vid in enumerate(s.view_ids))
+    views = tuple(
+        View(vid, tmp_path / f"{vid}.png", s.T_base_end_reported[k], joint_angles=tuple(s.joints_encoder[k]))
+        for k, vid in enumerate(s.view_ids)
+    )
     sess = Session(path=tmp_path, format="native", mode=s.mode, target=s.target, views=views, meta={"robot": robot})
     poses = {vid: SimpleNamespace(corner_ids=s.corner_ids[k]) for k, vid in enumerate(s.view_ids)}
     dets = {vid: SimpleNamespace(image_points=s.image_points[k]) for k, vid in enumerate(s.view_ids)}
@@ -191,8 +221,12 @@ def test_a_session_names_a_json_dh_table_and_a_broken_one_fails_before_detection
     from handeye.pipeline import CalibrateOptions, refine_stage, run_calibration
 
     arm = load_arm("rm65")
-    table = {"robot_name": "RM65 as JSON", "dh_convention": arm.convention, "units": {"length": "m", "angle": "rad"},
-             "joints": [dict(zip(("a", "alpha", "d", "theta_offset"), map(float, row))) for row in arm.dh]}
+    table = {
+        "robot_name": "RM65 as JSON",
+        "dh_convention": arm.convention,
+        "units": {"length": "m", "angle": "rad"},
+        "joints": [dict(zip(("a", "alpha", "d", "theta_offset"), map(float, row), strict=False)) for row in arm.dh],
+    }
     (tmp_path / "arm.json").write_text(json.dumps(table))
     sess, start, intr, poses, dets, T = _refine_stage_inputs(tmp_path, "eye_to_hand", 1, "arm.json")
     r = refine_stage(sess, CalibrateOptions(), start, intr, poses, dets, T)
@@ -210,10 +244,15 @@ def test_a_simulated_kinematic_session_names_its_arm_and_records_joint_angles(tm
     from handeye.session.native import read_native_document, view_joint_angles
     from handeye.sim.robot_error import write_native_session
 
-    truth = {"mode": "eye_to_hand", "target": {"type": "chessboard", "inner_corners": [11, 8], "square_m": 0.03},
-             "robot_error": {"model": "kinematic", "arm": "rm65"},
-             "views": {"1": {"image": "1.jpg", "joints_encoder": [0.1, -0.4, 1.2, 0.0, 1.0, 0.2]},
-                       "2": {"image": "2.jpg", "joints_encoder": [0.2, -0.3, 1.1, 0.1, 0.9, 0.3]}}}
+    truth = {
+        "mode": "eye_to_hand",
+        "target": {"type": "chessboard", "inner_corners": [11, 8], "square_m": 0.03},
+        "robot_error": {"model": "kinematic", "arm": "rm65"},
+        "views": {
+            "1": {"image": "1.jpg", "joints_encoder": [0.1, -0.4, 1.2, 0.0, 1.0, 0.2]},
+            "2": {"image": "2.jpg", "joints_encoder": [0.2, -0.3, 1.1, 0.1, 0.9, 0.3]},
+        },
+    }
     (tmp_path / "ground_truth.json").write_text(json.dumps(truth))
     (tmp_path / "poses.txt").write_text("0.4,0.0,0.3,3.1,0.0,0.1\n0.5,0.1,0.3,3.0,0.1,0.0\n")
     doc = read_native_document(write_native_session(tmp_path))
@@ -229,8 +268,15 @@ def test_a_simulated_kinematic_session_names_its_arm_and_records_joint_angles(tm
 def _kinematic_session_refined(mode, seed, far):
     """A 20-view session of an arm whose DH errors are ``far`` times the RM65 preset's stated prior (0.3 mm /
     0.03 deg; drawn from 0.1-0.5 mm / 0.01-0.05 deg times ``far``), refined with the preset."""
-    s = make_corner_session(mode=mode, n_views=20, seed=seed, noise_px=0.3, robot_error="kinematic",
-                            dh_length_error_mm=(0.1 * far, 0.5 * far), dh_angle_error_deg=(0.01 * far, 0.05 * far))
+    s = make_corner_session(
+        mode=mode,
+        n_views=20,
+        seed=seed,
+        noise_px=0.3,
+        robot_error="kinematic",
+        dh_length_error_mm=(0.1 * far, 0.5 * far),
+        dh_angle_error_deg=(0.01 * far, 0.05 * far),
+    )
     return s, _refine(s, _views(s, s.joints_encoder), arm="rm65")
 
 

@@ -3,6 +3,7 @@ written here with rosbags from a rendered session (TF at 100 Hz through a moving
 the robot stopping at each view, images also while it moves, CameraInfo), import to sessions that
 calibrate to the rendered vendor folder's result within 0.1 mm / 0.01 deg; a bag in which the robot
 never stops is one clear error line."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -19,7 +20,7 @@ from handeye.frames import inv_T, make_T, pose_error, quat_wxyz_from_R, se3_exp,
 from handeye.output import read_json
 
 rosbags = pytest.importorskip("rosbags")
-from rosbags.typesys import Stores, get_typestore, get_types_from_msg  # noqa: E402
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E402
 
 N_VIEWS = 10
 TF_HZ = 100.0
@@ -99,10 +100,13 @@ def _tf_msg(ts, t, parent, child, T, ros1):
     g = ts.types
     q = quat_wxyz_from_R(T[:3, :3])
     tr = g["geometry_msgs/msg/TransformStamped"](
-        header=_header(ts, t, parent, ros1), child_frame_id=child,
+        header=_header(ts, t, parent, ros1),
+        child_frame_id=child,
         transform=g["geometry_msgs/msg/Transform"](
             translation=g["geometry_msgs/msg/Vector3"](x=T[0, 3], y=T[1, 3], z=T[2, 3]),
-            rotation=g["geometry_msgs/msg/Quaternion"](x=q[1], y=q[2], z=q[3], w=q[0])))
+            rotation=g["geometry_msgs/msg/Quaternion"](x=q[1], y=q[2], z=q[3], w=q[0]),
+        ),
+    )
     return g["tf2_msgs/msg/TFMessage"](transforms=[tr])
 
 
@@ -126,35 +130,58 @@ def write_bag(vendor: Path, path: Path, *, ros1: bool, stops: bool = True, stora
             if k + 1 < len(poses):  # while moving on, the camera still shows the old view: never a view
                 images.append((b + 0.4 + IMAGE_SKEW_S, files[k]))
     else:
-        images = [(t + IMAGE_SKEW_S, files[min(int((t - times[0]) / (MOVE_S)), len(files) - 1)])
-                  for t in times[::20]]
+        images = [(t + IMAGE_SKEW_S, files[min(int((t - times[0]) / (MOVE_S)), len(files) - 1)]) for t in times[::20]]
     intr = gt["intrinsics"]
     d = intr["dist"]
     w, h = intr["image_size"]
     K = np.array([intr["fx"], 0, intr["cx"], 0, intr["fy"], intr["cy"], 0, 0, 1], float)
-    kw = dict(D=np.array([d["k1"], d["k2"], d["p1"], d["p2"], d["k3"]]), K=K, R=np.eye(3).ravel(),
-              P=np.zeros(12)) if ros1 else \
-        dict(d=np.array([d["k1"], d["k2"], d["p1"], d["p2"], d["k3"]]), k=K, r=np.eye(3).ravel(), p=np.zeros(12))
+    kw = (
+        dict(D=np.array([d["k1"], d["k2"], d["p1"], d["p2"], d["k3"]]), K=K, R=np.eye(3).ravel(), P=np.zeros(12))
+        if ros1
+        else dict(d=np.array([d["k1"], d["k2"], d["p1"], d["p2"], d["k3"]]), k=K, r=np.eye(3).ravel(), p=np.zeros(12))
+    )
     info = g["sensor_msgs/msg/CameraInfo"](
-        header=_header(ts, times[0], "camera_color_optical_frame", ros1), height=h, width=w,
-        distortion_model="plumb_bob", binning_x=0, binning_y=0,
-        roi=g["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False), **kw)
+        header=_header(ts, times[0], "camera_color_optical_frame", ros1),
+        height=h,
+        width=w,
+        distortion_model="plumb_bob",
+        binning_x=0,
+        binning_y=0,
+        roi=g["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+        **kw,
+    )
     msgs = []  # (time, topic, msgtype, message)
     T_link6 = [T @ inv_T(T_LINK6_TOOL0) for T in Ts]
-    for t, T in zip(times, T_link6):
+    for t, T in zip(times, T_link6, strict=False):
         msgs.append((t, "/tf", "tf2_msgs/msg/TFMessage", _tf_msg(ts, t, "base_link", "link_6", T, ros1)))
-    msgs.append((times[0], "/tf_static", "tf2_msgs/msg/TFMessage",
-                 _tf_msg(ts, times[0], "link_6", "tool0", T_LINK6_TOOL0, ros1)))
+    msgs.append(
+        (
+            times[0],
+            "/tf_static",
+            "tf2_msgs/msg/TFMessage",
+            _tf_msg(ts, times[0], "link_6", "tool0", T_LINK6_TOOL0, ros1),
+        )
+    )
     msgs.append((times[0], "/camera/color/camera_info", "sensor_msgs/msg/CameraInfo", info))
     for t, f in images:
         if ros1:
-            m = g["sensor_msgs/msg/CompressedImage"](header=_header(ts, t, "camera_color_optical_frame", ros1),
-                                                     format="jpeg", data=np.frombuffer(f.read_bytes(), np.uint8))
+            m = g["sensor_msgs/msg/CompressedImage"](
+                header=_header(ts, t, "camera_color_optical_frame", ros1),
+                format="jpeg",
+                data=np.frombuffer(f.read_bytes(), np.uint8),
+            )
             msgs.append((t, "/camera/color/image_raw/compressed", "sensor_msgs/msg/CompressedImage", m))
         else:
             img = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
-            m = g["sensor_msgs/msg/Image"](header=_header(ts, t, "camera_color_optical_frame", ros1), height=h,
-                                           width=w, encoding="mono8", is_bigendian=0, step=w, data=img.reshape(-1))
+            m = g["sensor_msgs/msg/Image"](
+                header=_header(ts, t, "camera_color_optical_frame", ros1),
+                height=h,
+                width=w,
+                encoding="mono8",
+                is_bigendian=0,
+                step=w,
+                data=img.reshape(-1),
+            )
             msgs.append((t, "/camera/color/image_raw", "sensor_msgs/msg/Image", m))
     msgs.sort(key=lambda m: m[0])
     if ros1:
@@ -190,8 +217,10 @@ def reference(rendered):
     root, vendor = rendered
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
-        assert main(["-q", "calibrate", str(vendor), "--out", str(root / "res_vendor"), "--no-report",
-                     "--export", "ros2"]) == 0
+        assert (
+            main(["-q", "calibrate", str(vendor), "--out", str(root / "res_vendor"), "--no-report", "--export", "ros2"])
+            == 0
+        )
     return buf.getvalue(), root / "res_vendor"
 
 
@@ -210,19 +239,46 @@ def test_ros2_and_ros1_bags_calibrate_like_the_vendor_folder(rendered, reference
     T_ref = np.asarray(read_json(reference[1])["T_end_cam"])
     common = ["--base", "base_link", "--end", "tool0", "--target", str(root / "config_copy.yaml")]
     (root / "config_copy.yaml").write_text((vendor / "config.yaml").read_text())
-    assert main(["import", "rosbag", str(root / "bag2"), "--image-topic", "/camera/color/image_raw",
-                 "--out", str(root / "s2"), *common]) == 0
+    assert (
+        main(
+            [
+                "import",
+                "rosbag",
+                str(root / "bag2"),
+                "--image-topic",
+                "/camera/color/image_raw",
+                "--out",
+                str(root / "s2"),
+                *common,
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert f"{N_VIEWS} views from {N_VIEWS} still periods" in out
     assert "at most 3.0 ms" in out and "intrinsics: from CameraInfo (use: prior)" in out
-    assert main(["import", "rosbag", str(root / "cal.bag"), str(root / "s1"), "--image-topic",
-                 "/camera/color/image_raw/compressed", "--camera-info", "/camera/color/camera_info", *common]) == 0
+    assert (
+        main(
+            [
+                "import",
+                "rosbag",
+                str(root / "cal.bag"),
+                str(root / "s1"),
+                "--image-topic",
+                "/camera/color/image_raw/compressed",
+                "--camera-info",
+                "/camera/color/camera_info",
+                *common,
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     for s in ("s2", "s1"):
         doc = yaml.safe_load((root / s / "session.yaml").read_text())
         assert len(doc["views"]) == N_VIEWS and doc["source"]["tf_chain"] == ["base_link -> link_6", "link_6 -> tool0"]
         # each view carries its vendor pose (through the moving and the static edge, interpolated 3 ms off)
-        for v, T in zip(doc["views"], _vendor_poses(vendor)):
+        for v, T in zip(doc["views"], _vendor_poses(vendor), strict=False):
             assert np.max(np.abs(np.asarray(v["pose"]) - T)) < 1e-9
         res = _calibrate(root / s, root / f"res_{s}")
         d_mm, d_deg = pose_error(np.asarray(res["T_end_cam"]), T_ref)
@@ -243,15 +299,45 @@ def test_calibrate_export_shortcut_writes_next_to_the_result(reference):
 def test_bag_without_still_periods_is_one_clear_error(rendered, capsys):
     root, vendor = rendered
     write_bag(vendor, root / "moving", ros1=False, stops=False, storage="sqlite3")
-    code = main(["import", "rosbag", str(root / "moving"), "--image-topic", "/camera/color/image_raw", "--base",
-                 "base_link", "--end", "tool0", "--target", str(vendor / "config.yaml"), "--out", str(root / "sm")])
+    code = main(
+        [
+            "import",
+            "rosbag",
+            str(root / "moving"),
+            "--image-topic",
+            "/camera/color/image_raw",
+            "--base",
+            "base_link",
+            "--end",
+            "tool0",
+            "--target",
+            str(vendor / "config.yaml"),
+            "--out",
+            str(root / "sm"),
+        ]
+    )
     err = capsys.readouterr().err.strip()
     assert code == InputError.exit_code
     assert len(err.splitlines()) == 1 and "no still periods in the bag" in err and "--min-still-s" in err
     assert not (root / "sm" / "session.yaml").exists()
     # a frame the bag does not have is named with the ones it has
-    code = main(["import", "rosbag", str(root / "moving"), "--image-topic", "/camera/color/image_raw", "--base",
-                 "base", "--end", "tool0", "--target", str(vendor / "config.yaml"), "--out", str(root / "sm")])
+    code = main(
+        [
+            "import",
+            "rosbag",
+            str(root / "moving"),
+            "--image-topic",
+            "/camera/color/image_raw",
+            "--base",
+            "base",
+            "--end",
+            "tool0",
+            "--target",
+            str(vendor / "config.yaml"),
+            "--out",
+            str(root / "sm"),
+        ]
+    )
     err = capsys.readouterr().err.strip()
     assert code == InputError.exit_code and "frame 'base' is not in the bag's TF" in err and "base_link" in err
 
@@ -278,7 +364,7 @@ def test_still_periods_are_found_under_tf_jitter():
         periods = still_periods(t[::step], np.array(Ts)[::step], st)
         truth = [(0.0, 1.0), (2.0, 3.5), (4.5, t[::step][-1])]
         assert len(periods) == 3, (step, periods)
-        for (a, b), (ta, tb) in zip(periods, truth):
+        for (a, b), (ta, tb) in zip(periods, truth, strict=False):
             assert abs(a - ta) <= slack and abs(b - tb) <= slack, (step, a, b, ta, tb)
 
 
@@ -298,8 +384,9 @@ def test_raw_images_are_written_as_lossless_png(encoding):
     pad = 3 * ch  # extra items per row
     rows = np.zeros((h, w * ch + pad), dtype)
     rows[:, : w * ch] = img.reshape(h, -1)
-    msg = SimpleNamespace(encoding=encoding, height=h, width=w, step=rows.shape[1] * rows.itemsize,
-                          is_bigendian=0, data=rows.tobytes())
+    msg = SimpleNamespace(
+        encoding=encoding, height=h, width=w, step=rows.shape[1] * rows.itemsize, is_bigendian=0, data=rows.tobytes()
+    )
     data, ext = _image_file(msg, "sensor_msgs/msg/Image")
     got = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     want = {"rgb8": img[..., ::-1], "bgr8": img, "mono8": img[..., 0], "mono16": img[..., 0], "bgra8": img[..., :3]}

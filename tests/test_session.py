@@ -1,4 +1,5 @@
 """Reading the vendor folder and the native session.yaml, and every bad input's one-line error."""
+
 import json
 from pathlib import Path
 
@@ -35,7 +36,7 @@ def test_vendor_folder_reads_poses_by_line_number(tmp_path):
     s = load_session(vendor(tmp_path))
     assert s.format == "vendor" and s.mode == "eye_in_hand"
     assert [v.view_id for v in s.views] == ["1", "2", "3", "4"]
-    for v, T in zip(s.views, POSES):
+    for v, T in zip(s.views, POSES, strict=False):
         assert v.image_path.name == f"{v.view_id}.jpg"
         np.testing.assert_allclose(v.T_base_end, T, atol=1e-8)
     assert (s.target.cols, s.target.rows, s.target.square_m) == (11, 8, 0.03)
@@ -66,8 +67,9 @@ def test_vendor_images_numbered_from_zero_pair_image_k_with_line_k_plus_1(tmp_pa
     lenient = read_session_lenient(d)  # the diagnostics read the same pairing
     assert set(lenient.raw.values) == {"0", "1", "2", "3"}
     for v in s.views:
-        np.testing.assert_allclose(T_from_pose_values(lenient.raw.values[v.view_id], lenient.raw.fmt), v.T_base_end,
-                                   atol=1e-12)
+        np.testing.assert_allclose(
+            T_from_pose_values(lenient.raw.values[v.view_id], lenient.raw.fmt), v.T_base_end, atol=1e-12
+        )
     (d / "4.jpg").write_bytes(b"x")  # 0..4 against four pose lines: the last image has none
     with pytest.raises(InputError, match=r"4.jpg has no pose line -> line k\+1 of poses.txt belongs to k.jpg"):
         load_session(d)
@@ -78,7 +80,7 @@ def test_a_first_line_of_column_names_is_skipped(tmp_path, header):
     good = [",".join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)) for T in POSES]
     s = load_session(vendor(tmp_path, lines=[header, *good]))
     assert [v.source_line for v in s.views] == [2, 3, 4, 5]
-    for v, T in zip(s.views, POSES):
+    for v, T in zip(s.views, POSES, strict=False):
         np.testing.assert_allclose(v.T_base_end, T, atol=1e-8)
 
 
@@ -87,7 +89,7 @@ def test_pose_lines_printed_as_lists_read_as_their_numbers(tmp_path, wrap):
     sep = ", " if "[" in wrap and " " not in wrap else " " if " " in wrap else ","
     lines = [wrap.format(sep.join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT))) for T in POSES]
     s = load_session(vendor(tmp_path, lines=lines))
-    for v, T in zip(s.views, POSES):
+    for v, T in zip(s.views, POSES, strict=False):
         np.testing.assert_allclose(v.T_base_end, T, atol=1e-8)
 
 
@@ -95,18 +97,31 @@ def test_quoted_board_numbers_are_read_and_units_in_them_refused(tmp_path):
     s = load_session(vendor(tmp_path, config={"checkerboard_args": {"XX": "11", "YY": "8", "L": "0.03"}}))
     assert (s.target.cols, s.target.rows, s.target.square_m) == (11, 8, 0.03)
     (tmp_path / "mm").mkdir()
-    with pytest.raises(ConfigError, match=r"config.yaml: invalid checkerboard_args.L; expected a number > 0; "
-                                          r"got '30 mm' -> write the bare number, without a unit \(metres\)"):
+    with pytest.raises(
+        ConfigError,
+        match=r"config.yaml: invalid checkerboard_args.L; expected a number > 0; "
+        r"got '30 mm' -> write the bare number, without a unit \(metres\)",
+    ):
         load_session(vendor(tmp_path / "mm", config={"checkerboard_args": {"XX": 11, "YY": 8, "L": "30 mm"}}))
 
 
-@pytest.mark.parametrize("change,match", [
-    (lambda d: (d / "config.yaml").rename(d / "config.yml"), r"config.yaml is missing -> rename config.yml to config.yaml"),
-    (lambda d: (d / "poses.txt").rename(d / "pose.txt"),
-     r"no session.yaml or poses.txt in the folder -> rename pose.txt to poses.txt"),
-    (lambda d: [p.rename(p.with_name("image_" + p.name)) for p in d.glob("*.jpg")],
-     r"no numbered images .* -> the images are named image_1.jpg, ...: rename them to the number alone"),
-])
+@pytest.mark.parametrize(
+    "change,match",
+    [
+        (
+            lambda d: (d / "config.yaml").rename(d / "config.yml"),
+            r"config.yaml is missing -> rename config.yml to config.yaml",
+        ),
+        (
+            lambda d: (d / "poses.txt").rename(d / "pose.txt"),
+            r"no session.yaml or poses.txt in the folder -> rename pose.txt to poses.txt",
+        ),
+        (
+            lambda d: [p.rename(p.with_name("image_" + p.name)) for p in d.glob("*.jpg")],
+            r"no numbered images .* -> the images are named image_1.jpg, ...: rename them to the number alone",
+        ),
+    ],
+)
 def test_near_misses_of_the_vendor_names_are_named_with_the_rename(tmp_path, change, match):
     d = vendor(tmp_path)
     change(d)
@@ -119,70 +134,106 @@ def test_images_in_a_subfolder_are_named_in_the_error(tmp_path):
     (d / "images").mkdir()
     for p in d.glob("*.jpg"):
         p.rename(d / "images" / p.name)
-    with pytest.raises(InputError, match=r"no numbered images .* -> the numbered images are in images/: move them "
-                                         r"next to poses.txt"):
+    with pytest.raises(
+        InputError,
+        match=r"no numbered images .* -> the numbered images are in images/: move them "
+        r"next to poses.txt",
+    ):
         load_session(d)
 
 
-@pytest.mark.parametrize("lines,match", [
-    (["x,y,z,rx,ry,rz", "x,y,z,rx,ry,rz"], r"poses.txt:2: malformed pose line"),  # only the first line
-    (["nan,nan,nan,nan,nan,nan"], r"poses.txt:1: pose line holds a value that is not a usable number"),
-    (["x,0.1,0.2,0,0,0"], r"poses.txt:1: malformed pose line"),  # names and numbers mixed: not a header
-    (["x=0.5 y=0.1 z=0.4 rx=0 ry=0 rz=0"], r"poses.txt:1: malformed pose line"),  # values named: not a header
-    (["None,None,None,None,None,None"], r"poses.txt:1: malformed pose line"),  # a failed read, not names
-    (["x,y,z"], r"poses.txt:1: malformed pose line.*names 3 columns, the lines hold 6"),  # not these columns
-])
+@pytest.mark.parametrize(
+    "lines,match",
+    [
+        (["x,y,z,rx,ry,rz", "x,y,z,rx,ry,rz"], r"poses.txt:2: malformed pose line"),  # only the first line
+        (["nan,nan,nan,nan,nan,nan"], r"poses.txt:1: pose line holds a value that is not a usable number"),
+        (["x,0.1,0.2,0,0,0"], r"poses.txt:1: malformed pose line"),  # names and numbers mixed: not a header
+        (["x=0.5 y=0.1 z=0.4 rx=0 ry=0 rz=0"], r"poses.txt:1: malformed pose line"),  # values named: not a header
+        (["None,None,None,None,None,None"], r"poses.txt:1: malformed pose line"),  # a failed read, not names
+        (["x,y,z"], r"poses.txt:1: malformed pose line.*names 3 columns, the lines hold 6"),  # not these columns
+    ],
+)
 def test_only_a_first_line_of_names_is_a_header(tmp_path, lines, match):
     good = [",".join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)) for T in POSES]
     with pytest.raises(InputError, match=match):
         load_session(vendor(tmp_path, lines=[*lines, *good]))
 
 
-@pytest.mark.parametrize("fmt", [
-    {"rotation": "quaternion", "quaternion_order": "xyzw"},
-    {"rotation": "quaternion", "quaternion_order": "wxyz", "translation_unit": "mm"},
-    {"rotation": "matrix"},
-    {"rotation": "euler", "euler_order": "zyx", "euler_kind": "intrinsic", "angle_unit": "deg"},
-    {"rotation": "rotvec"},
-])
+@pytest.mark.parametrize(
+    "fmt",
+    [
+        {"rotation": "quaternion", "quaternion_order": "xyzw"},
+        {"rotation": "quaternion", "quaternion_order": "wxyz", "translation_unit": "mm"},
+        {"rotation": "matrix"},
+        {"rotation": "euler", "euler_order": "zyx", "euler_kind": "intrinsic", "angle_unit": "deg"},
+        {"rotation": "rotvec"},
+    ],
+)
 def test_config_yaml_may_state_how_poses_txt_is_written(tmp_path, fmt):
     pf = PoseFormat(**fmt)
     lines = [" ".join(f"{v:.12g}" for v in pose_values_from_T(T, pf)) for T in POSES]
     d = vendor(tmp_path, lines=lines, config={"checkerboard_args": {"XX": 11, "YY": 8, "L": 0.03}, "pose_format": fmt})
     s = load_session(d)
     assert s.pose_format == pf.validated().describe()
-    for v, T in zip(s.views, POSES):
+    for v, T in zip(s.views, POSES, strict=False):
         np.testing.assert_allclose(v.T_base_end, T, atol=1e-9)
     raw = read_raw_poses(d)  # the diagnostics read the numbers in the stated format too
     assert raw.fmt == pf.validated()
     np.testing.assert_allclose(T_from_pose_values(raw.values["2"], raw.fmt), POSES[1], atol=1e-9)
 
 
-@pytest.mark.parametrize("lines,config,match", [
-    (["0.1,0.2,0.3,0,0,0,1"], None, r"poses.txt:1: bad pose: .*got 7.* x,y,z and a quaternion: add to config.yaml "
-                                    r"pose_format: \{rotation: quaternion"),
-    ([",".join(["0"] * 15 + ["1"])], None, r"got 16.* a 4x4 matrix row by row: add to config.yaml pose_format"),
-    ([f"{k},0.1,0.2,0.3,0,0,0" for k in range(1, 5)], None, r"got 7.* the first number of every line counts the "
-                                                             r"lines \(a view number\): remove that column"),
-    (["0.3,0.05,0.4,170,20,-90"] * 4, None, r"poses.txt:1: .*degrees; convert them to radians or add to "
-                                            r"config.yaml pose_format: \{rotation: euler, angle_unit: deg\}"),
-    (["300,50,400,0.1,0.2,0.3"] * 4, None, r"millimetres; convert to metres or add to config.yaml pose_format"),
-    # a few lines in other units than the rest: those lines are named, and the fix converts them (a unit stated
-    # for the whole file would misread the others)
-    (["0.3,0.05,0.4,170,20,-90"], None, r"poses.txt:1: rotation angles beyond 2\*pi on 1 of 4 pose lines \(line 1\)"
-                                        r".*look like degrees while the others fit radians: convert those lines"),
-    (["300,50,400,0.1,0.2,0.3"], None, r"positions beyond an arm's reach \(5 m\) on 1 of 4 pose lines.*millimetres"),
-    (["0.1,0.2,0.3,0,0,0"], {"rotation": "quaternion"}, r"poses.txt:1: bad pose: expected 7 numbers"),
-    (["0.1,0.2,0.3,0,0,0"], {"rotation": "euler", "units": "deg"}, r"config.yaml: unknown pose_format field 'units'"),
-    (["0.1,0.2,0.3,0,0,0"], "euler", r"config.yaml: pose_format must be a mapping"),
-])
+@pytest.mark.parametrize(
+    "lines,config,match",
+    [
+        (
+            ["0.1,0.2,0.3,0,0,0,1"],
+            None,
+            r"poses.txt:1: bad pose: .*got 7.* x,y,z and a quaternion: add to config.yaml "
+            r"pose_format: \{rotation: quaternion",
+        ),
+        ([",".join(["0"] * 15 + ["1"])], None, r"got 16.* a 4x4 matrix row by row: add to config.yaml pose_format"),
+        (
+            [f"{k},0.1,0.2,0.3,0,0,0" for k in range(1, 5)],
+            None,
+            r"got 7.* the first number of every line counts the "
+            r"lines \(a view number\): remove that column",
+        ),
+        (
+            ["0.3,0.05,0.4,170,20,-90"] * 4,
+            None,
+            r"poses.txt:1: .*degrees; convert them to radians or add to "
+            r"config.yaml pose_format: \{rotation: euler, angle_unit: deg\}",
+        ),
+        (["300,50,400,0.1,0.2,0.3"] * 4, None, r"millimetres; convert to metres or add to config.yaml pose_format"),
+        # a few lines in other units than the rest: those lines are named, and the fix converts them (a unit stated
+        # for the whole file would misread the others)
+        (
+            ["0.3,0.05,0.4,170,20,-90"],
+            None,
+            r"poses.txt:1: rotation angles beyond 2\*pi on 1 of 4 pose lines \(line 1\)"
+            r".*look like degrees while the others fit radians: convert those lines",
+        ),
+        (
+            ["300,50,400,0.1,0.2,0.3"],
+            None,
+            r"positions beyond an arm's reach \(5 m\) on 1 of 4 pose lines.*millimetres",
+        ),
+        (["0.1,0.2,0.3,0,0,0"], {"rotation": "quaternion"}, r"poses.txt:1: bad pose: expected 7 numbers"),
+        (
+            ["0.1,0.2,0.3,0,0,0"],
+            {"rotation": "euler", "units": "deg"},
+            r"config.yaml: unknown pose_format field 'units'",
+        ),
+        (["0.1,0.2,0.3,0,0,0"], "euler", r"config.yaml: pose_format must be a mapping"),
+    ],
+)
 def test_pose_lines_in_another_format_name_the_config_yaml_way(tmp_path, lines, config, match):
     good = [",".join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)) for T in POSES]
     cfg = {"checkerboard_args": {"XX": 11, "YY": 8, "L": 0.03}}
     if config is not None:
         cfg["pose_format"] = config
     with pytest.raises(InputError, match=match) as e:
-        load_session(vendor(tmp_path, lines=[*lines, *good[len(lines):]], config=cfg))
+        load_session(vendor(tmp_path, lines=[*lines, *good[len(lines) :]], config=cfg))
     assert "\n" not in str(e.value)
 
 
@@ -192,19 +243,22 @@ def test_vendor_mode_key_and_override(tmp_path):
     assert load_session(d, mode="eye_in_hand").mode == "eye_in_hand"
 
 
-@pytest.mark.parametrize("case,match", [
-    ("more_images", "5 images but 4 pose lines"),
-    ("malformed", r"poses.txt:2: malformed pose line"),
-    ("nan", r"poses.txt:3: pose line holds a value that is not a usable number.*got nan"),
-    ("short", r"poses.txt:1: bad pose: expected 6 numbers"),
-    ("mm", r"poses.txt:1: .*millimetres"),
-    ("degrees", r"poses.txt:1: .*degrees"),
-    ("no_config", "config.yaml is missing"),
-    ("bad_mode", "invalid mode"),
-    ("square_mm", "looks like millimetres"),
-    ("zero_corners", r"checkerboard_args.XX"),
-    ("bad_yaml", "not valid YAML"),
-])
+@pytest.mark.parametrize(
+    "case,match",
+    [
+        ("more_images", "5 images but 4 pose lines"),
+        ("malformed", r"poses.txt:2: malformed pose line"),
+        ("nan", r"poses.txt:3: pose line holds a value that is not a usable number.*got nan"),
+        ("short", r"poses.txt:1: bad pose: expected 6 numbers"),
+        ("mm", r"poses.txt:1: .*millimetres"),
+        ("degrees", r"poses.txt:1: .*degrees"),
+        ("no_config", "config.yaml is missing"),
+        ("bad_mode", "invalid mode"),
+        ("square_mm", "looks like millimetres"),
+        ("zero_corners", r"checkerboard_args.XX"),
+        ("bad_yaml", "not valid YAML"),
+    ],
+)
 def test_vendor_bad_inputs_give_one_line_errors(tmp_path, case, match):
     good = [",".join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)) for T in POSES]
     cfg = {"checkerboard_args": {"XX": 11, "YY": 8, "L": 0.03}}
@@ -245,13 +299,28 @@ def native(tmp_path, *, fmt=None, extra=None, views=None):
         views = []
         for k, T in enumerate(POSES, start=1):
             (d / f"img{k}.png").write_bytes(b"x")
-            views.append({"id": f"v{k}", "image": f"img{k}.png", "pose": pose_values_from_T(T, fmt).tolist(),
-                          "t_image": 10.0 + k, "t_pose": 10.0 + k})
-    doc = {"handeye_session": 1, "mode": "eye_to_hand",
-           "target": {"type": "charuco", "squares": [5, 7], "square_m": 0.036, "marker_m": 0.018,
-                      "dictionary": "DICT_6X6_250"},
-           "pose_format": {k: getattr(fmt, k) for k in ("rotation", "quaternion_order", "translation_unit")},
-           "views": views}
+            views.append(
+                {
+                    "id": f"v{k}",
+                    "image": f"img{k}.png",
+                    "pose": pose_values_from_T(T, fmt).tolist(),
+                    "t_image": 10.0 + k,
+                    "t_pose": 10.0 + k,
+                }
+            )
+    doc = {
+        "handeye_session": 1,
+        "mode": "eye_to_hand",
+        "target": {
+            "type": "charuco",
+            "squares": [5, 7],
+            "square_m": 0.036,
+            "marker_m": 0.018,
+            "dictionary": "DICT_6X6_250",
+        },
+        "pose_format": {k: getattr(fmt, k) for k in ("rotation", "quaternion_order", "translation_unit")},
+        "views": views,
+    }
     doc.update(extra or {})
     (d / "session.yaml").write_text(yaml.safe_dump(doc))
     return d
@@ -261,7 +330,7 @@ def test_native_session_converts_poses_once(tmp_path):
     s = load_session(native(tmp_path))
     assert s.format == "native" and s.mode == "eye_to_hand" and s.target.kind == "charuco"
     assert [v.view_id for v in s.views] == ["v1", "v2", "v3", "v4"]
-    for v, T in zip(s.views, POSES):
+    for v, T in zip(s.views, POSES, strict=False):
         np.testing.assert_allclose(v.T_base_end, T, atol=1e-9)
     assert s.view("v2").t_image == 12.0
 
@@ -272,8 +341,9 @@ def _write_view_records(folder):
     fmt = PoseFormat(rotation="quaternion", quaternion_order="xyzw", translation_unit="mm")
     for k, T in enumerate(POSES, start=1):
         (folder.parent / f"img{k}.png").write_bytes(b"x")
-        (folder / f"{k:04d}.yaml").write_text(yaml.safe_dump(
-            {"id": str(k), "image": f"img{k}.png", "pose": pose_values_from_T(T, fmt).tolist()}))
+        (folder / f"{k:04d}.yaml").write_text(
+            yaml.safe_dump({"id": str(k), "image": f"img{k}.png", "pose": pose_values_from_T(T, fmt).tolist()})
+        )
 
 
 def test_native_view_records_folder(tmp_path):
@@ -285,29 +355,60 @@ def test_native_view_records_folder(tmp_path):
 
 
 def test_native_given_intrinsics(tmp_path):
-    intr = {"model": "opencv5", "fx": 900.0, "fy": 901.0, "cx": 640.0, "cy": 360.0, "dist": [0.1, -0.2, 0, 0, 0.05],
-            "image_size": [1280, 720], "use": "prior"}
+    intr = {
+        "model": "opencv5",
+        "fx": 900.0,
+        "fy": 901.0,
+        "cx": 640.0,
+        "cy": 360.0,
+        "dist": [0.1, -0.2, 0, 0, 0.05],
+        "image_size": [1280, 720],
+        "use": "prior",
+    }
     s = load_session(native(tmp_path, extra={"intrinsics": intr}))
     assert s.intrinsics.fx == 900.0 and s.intrinsics.dist[4] == 0.05 and s.intrinsics_prior == "prior"
 
 
-@pytest.mark.parametrize("extra,match", [
-    ({"mode": "sideways"}, "invalid mode"),
-    ({"target": {"type": "circles"}}, "unknown target type"),
-    ({"target": {"type": "charuco", "squares": [5, 7], "square_m": 0.03, "marker_m": 0.04}}, "marker_m must be smaller"),
-    ({"pose_format": {"rotation": "quaternion", "quaternion_order": "qxyz"}}, "quaternion_order"),
-    ({"pose_format": {"rotation": "euler", "scale": 2}}, "unknown pose_format field 'scale'"),
-    ({"intrinsics": {"fx": -1, "fy": 1, "cx": 1, "cy": 1, "image_size": [10, 10]}}, "intrinsics.fx"),
-    ({"intrinsics": {"fx": 1, "fy": 1, "cx": 1, "cy": 1, "dist": [0, "a", 0, 0], "image_size": [10, 10]}},
-     "intrinsics.dist must be 4 or 5 finite numbers"),
-    ({"intrinsics": {"fx": 1, "fy": 1, "cx": 1, "cy": 1, "dist": [0, 0, 0], "image_size": [10, 10]}},
-     "intrinsics.dist must be 4 or 5 finite numbers"),
-    ({"intrinsics": {"fx": 1, "fy": 1, "cx": 1, "cy": 1, "image_size": [10, 10], "use": "maybe"}}, "intrinsics.use"),
-    ({"target": {"type": "charuco", "squares": [5, 7], "square_m": 0.036, "marker_m": 0.018,
-                 "dictionary": "DICT_9X9_1"}}, "unknown ArUco dictionary"),
-    ({"views": "all of them"}, "views must be a list"),
-    ({"handeye_session": 7}, "version"),
-])
+@pytest.mark.parametrize(
+    "extra,match",
+    [
+        ({"mode": "sideways"}, "invalid mode"),
+        ({"target": {"type": "circles"}}, "unknown target type"),
+        (
+            {"target": {"type": "charuco", "squares": [5, 7], "square_m": 0.03, "marker_m": 0.04}},
+            "marker_m must be smaller",
+        ),
+        ({"pose_format": {"rotation": "quaternion", "quaternion_order": "qxyz"}}, "quaternion_order"),
+        ({"pose_format": {"rotation": "euler", "scale": 2}}, "unknown pose_format field 'scale'"),
+        ({"intrinsics": {"fx": -1, "fy": 1, "cx": 1, "cy": 1, "image_size": [10, 10]}}, "intrinsics.fx"),
+        (
+            {"intrinsics": {"fx": 1, "fy": 1, "cx": 1, "cy": 1, "dist": [0, "a", 0, 0], "image_size": [10, 10]}},
+            "intrinsics.dist must be 4 or 5 finite numbers",
+        ),
+        (
+            {"intrinsics": {"fx": 1, "fy": 1, "cx": 1, "cy": 1, "dist": [0, 0, 0], "image_size": [10, 10]}},
+            "intrinsics.dist must be 4 or 5 finite numbers",
+        ),
+        (
+            {"intrinsics": {"fx": 1, "fy": 1, "cx": 1, "cy": 1, "image_size": [10, 10], "use": "maybe"}},
+            "intrinsics.use",
+        ),
+        (
+            {
+                "target": {
+                    "type": "charuco",
+                    "squares": [5, 7],
+                    "square_m": 0.036,
+                    "marker_m": 0.018,
+                    "dictionary": "DICT_9X9_1",
+                }
+            },
+            "unknown ArUco dictionary",
+        ),
+        ({"views": "all of them"}, "views must be a list"),
+        ({"handeye_session": 7}, "version"),
+    ],
+)
 def test_native_bad_config(tmp_path, extra, match):
     with pytest.raises(ConfigError, match=match) as e:
         load_session(native(tmp_path, extra=extra))
@@ -393,28 +494,40 @@ def test_lenient_and_strict_readings_agree_on_a_clean_session(tmp_path):
         assert lenient.target == s.target and lenient.mode == s.mode
         assert lenient.images_by_id == {v.view_id: v.image_path for v in s.views}
         for v in s.views:  # the raw numbers read in the stated format are the loaded poses
-            np.testing.assert_allclose(T_from_pose_values(lenient.raw.values[v.view_id], lenient.raw.fmt),
-                                       v.T_base_end, atol=1e-12)
+            np.testing.assert_allclose(
+                T_from_pose_values(lenient.raw.values[v.view_id], lenient.raw.fmt), v.T_base_end, atol=1e-12
+            )
         assert raw_poses_of(s).source == lenient.raw.source  # still the file's numbers
 
 
 def test_lenient_reading_of_a_session_written_in_degrees(tmp_path):
-    d = vendor(tmp_path, lines=_vendor_lines(degrees=True),
-               config={"checkerboard_args": {"XX": 11, "YY": 8, "L": 0.03}, "mode": "eye_to_hand"})
+    d = vendor(
+        tmp_path,
+        lines=_vendor_lines(degrees=True),
+        config={"checkerboard_args": {"XX": 11, "YY": 8, "L": 0.03}, "mode": "eye_to_hand"},
+    )
     (d / "2.jpg").unlink()
     with pytest.raises(InputError, match="degrees"):
         load_session(d)
     lenient = read_session_lenient(d, mode=None)
     assert lenient.mode == "eye_to_hand" and read_session_lenient(d, mode="eye_in_hand").mode == "eye_in_hand"
     assert sorted(lenient.images_by_id) == ["1", "3", "4"] and sorted(lenient.raw.values) == ["1", "2", "3", "4"]
-    np.testing.assert_allclose(np.radians(lenient.raw.values["3"][3:]),
-                               pose_values_from_T(POSES[2], VENDOR_POSE_FORMAT)[3:], atol=1e-9)
+    np.testing.assert_allclose(
+        np.radians(lenient.raw.values["3"][3:]), pose_values_from_T(POSES[2], VENDOR_POSE_FORMAT)[3:], atol=1e-9
+    )
     assert lenient.intrinsics is None
 
 
 def test_lenient_native_keeps_given_intrinsics_and_view_records(tmp_path):
-    intr = {"model": "opencv5", "fx": 900.0, "fy": 901.0, "cx": 640.0, "cy": 360.0, "image_size": [1280, 720],
-            "use": "fixed"}
+    intr = {
+        "model": "opencv5",
+        "fx": 900.0,
+        "fy": 901.0,
+        "cx": 640.0,
+        "cy": 360.0,
+        "image_size": [1280, 720],
+        "use": "fixed",
+    }
     d = native(tmp_path, views=[], extra={"view_records": "views", "intrinsics": intr, "mode": None})
     _write_view_records(d / "views")
     s = load_session(d)  # no mode stated: read as eye-in-hand until the data decide (mode_source "default")
@@ -444,12 +557,17 @@ def test_unreadable_sessions_read_leniently_are_none(tmp_path):
     assert read_session_lenient(d) is None
 
 
-@pytest.mark.parametrize("spec, text", [
-    (ChessboardSpec(11, 8, 0.03), "chessboard 11x8 inner corners, 30 mm"),
-    (CharucoSpec(5, 7, 0.036195, 0.018256, "DICT_6X6_250", True),
-     "ChArUco 5x7 squares, 36.195 mm squares, 18.256 mm markers, DICT_6X6_250"),
-    (CircleGridSpec(10, 10, 0.0254, origin_dot=True), "circle grid 10x10 dots, 25.4 mm spacing, origin dot"),
-])
+@pytest.mark.parametrize(
+    "spec, text",
+    [
+        (ChessboardSpec(11, 8, 0.03), "chessboard 11x8 inner corners, 30 mm"),
+        (
+            CharucoSpec(5, 7, 0.036195, 0.018256, "DICT_6X6_250", True),
+            "ChArUco 5x7 squares, 36.195 mm squares, 18.256 mm markers, DICT_6X6_250",
+        ),
+        (CircleGridSpec(10, 10, 0.0254, origin_dot=True), "circle grid 10x10 dots, 25.4 mm spacing, origin dot"),
+    ],
+)
 def test_target_specs_read_back_what_they_write(spec, text):
     assert parse_target(spec.to_dict(), path=Path("session.yaml")) == spec
     assert spec.describe() == text
@@ -468,11 +586,12 @@ def test_visp_import_reads_metres_and_theta_u(tmp_path):
         (src / f"franka_image-{k}.png").write_bytes(b"x")
         values = [*T[:3, 3], *Rotation.from_matrix(T[:3, :3]).as_rotvec()]
         (src / f"franka_pose_rPe_{k}.yaml").write_text(
-            "rows: 6\ncols: 1\ndata:\n" + "".join(f"  - [{float(v)!r}]\n" for v in values))
+            "rows: 6\ncols: 1\ndata:\n" + "".join(f"  - [{float(v)!r}]\n" for v in values)
+        )
     s = load_session(import_visp(src, tmp_path / "out"))
     assert s.target == ChessboardSpec(9, 6, 0.0236) and s.mode == "eye_in_hand"
     assert [v.view_id for v in s.views] == ["1", "2", "3", "4"]
-    for v, T in zip(s.views, POSES):
+    for v, T in zip(s.views, POSES, strict=False):
         np.testing.assert_allclose(v.T_base_end, T, atol=1e-12)
         assert v.image_path == src / f"franka_image-{v.view_id}.png"
 
@@ -488,17 +607,39 @@ def test_ical_import_reads_xyzw_quaternions_and_the_static_camera(tmp_path):
     for k, T in enumerate(POSES):
         (src / "images" / f"{k}.png").write_bytes(b"x")
         w, x, y, z = quat_wxyz_from_R(T[:3, :3])
-        (src / "poses" / f"{k}.yaml").write_text(yaml.safe_dump(
-            {"x": float(T[0, 3]), "y": float(T[1, 3]), "z": float(T[2, 3]),
-             "qx": float(x), "qy": float(y), "qz": float(z), "qw": float(w)}))
+        (src / "poses" / f"{k}.yaml").write_text(
+            yaml.safe_dump(
+                {
+                    "x": float(T[0, 3]),
+                    "y": float(T[1, 3]),
+                    "z": float(T[2, 3]),
+                    "qx": float(x),
+                    "qy": float(y),
+                    "qz": float(z),
+                    "qw": float(w),
+                }
+            )
+        )
         data.append({"image": f"images/{k}.png", "pose": f"poses/{k}.yaml"})
-    (src / "cal_data.yaml").write_text(yaml.safe_dump({
-        "static_camera": True, "data": data,
-        "target_finder": {"type": "CharucoGridTargetFinder", "cols": 5, "rows": 7, "chessboard_dim": 0.036195,
-                          "aruco_marker_dim": 0.018256, "dictionary": 10}}))
+    (src / "cal_data.yaml").write_text(
+        yaml.safe_dump(
+            {
+                "static_camera": True,
+                "data": data,
+                "target_finder": {
+                    "type": "CharucoGridTargetFinder",
+                    "cols": 5,
+                    "rows": 7,
+                    "chessboard_dim": 0.036195,
+                    "aruco_marker_dim": 0.018256,
+                    "dictionary": 10,
+                },
+            }
+        )
+    )
     s = load_session(import_ical(src, tmp_path / "out"))
     assert s.mode == "eye_to_hand" and s.target == CharucoSpec(5, 7, 0.036195, 0.018256, "DICT_6X6_250")
-    for v, T in zip(s.views, POSES):
+    for v, T in zip(s.views, POSES, strict=False):
         np.testing.assert_allclose(v.T_base_end, T, atol=1e-12)
     (src / "cal_data.yaml").write_text(yaml.safe_dump({"data": data, "target_finder": {"type": "DotFinder"}}))
     with pytest.raises(InputError, match="unsupported industrial_calibration target finder"):
@@ -514,7 +655,8 @@ def _native_text(tmp_path, views_yaml: str, *, fmt: str = "{rotation: matrix}", 
         (d / f"{name}.png").write_bytes(b"x")
     (d / "session.yaml").write_text(
         "handeye_session: 1\nmode: eye_in_hand\ntarget: {type: chessboard, inner_corners: [11, 8], square_m: 0.03}\n"
-        f"pose_format: {fmt}\n{extra}views:\n{views_yaml}")
+        f"pose_format: {fmt}\n{extra}views:\n{views_yaml}"
+    )
     return d
 
 
@@ -523,9 +665,13 @@ _ROWS = [[0.0, -1.0, 0.0, 0.1], [1.0, 0.0, 0.0, 0.2], [0.0, 0.0, 1.0, 0.3], [0.0
 
 def test_view_ids_are_kept_as_written(tmp_path):
     flat = str(sum(_ROWS, []))
-    d = _native_text(tmp_path, f"  - {{id: 010, image: a.png, pose: {flat}}}\n"
-                               f"  - {{id: 7, image: b.png, pose: {flat}}}\n"
-                               f"  - {{id: '10', image: c.png, pose: {flat}}}\n", images="abc")
+    d = _native_text(
+        tmp_path,
+        f"  - {{id: 010, image: a.png, pose: {flat}}}\n"
+        f"  - {{id: 7, image: b.png, pose: {flat}}}\n"
+        f"  - {{id: '10', image: c.png, pose: {flat}}}\n",
+        images="abc",
+    )
     # YAML 1.1 reads an unquoted 010 as the octal number 8: the id stays "010", never "8"
     assert [v.view_id for v in load_session(d).views] == ["7", "010", "10"]
     for bad, got in (("~", "None"), ("[1, 2]", "['1', '2']"), ("''", "''")):
@@ -546,8 +692,9 @@ def test_a_4x4_pose_is_nested_rows_or_16_numbers_row_by_row(tmp_path):
     with pytest.raises(InputError, match="a nested pose must be a 4x4 matrix"):  # 3 x 4: not a 4x4
         load_session(_native_text(tmp_path, f"  - {{id: a, image: a.png, pose: {_ROWS[:3]}}}\n"))
     with pytest.raises(InputError, match="a nested pose must be a 4x4 matrix .* with pose_format.rotation: matrix"):
-        load_session(_native_text(tmp_path, "  - {id: a, image: a.png, pose: [[0, 0, 0], [0, 0, 0]]}\n",
-                                  fmt="{rotation: euler}"))
+        load_session(
+            _native_text(tmp_path, "  - {id: a, image: a.png, pose: [[0, 0, 0], [0, 0, 0]]}\n", fmt="{rotation: euler}")
+        )
 
 
 def test_a_pose_file_holds_a_4x4_or_one_pose_line_in_the_session_format(tmp_path):
@@ -557,8 +704,11 @@ def test_a_pose_file_holds_a_4x4_or_one_pose_line_in_the_session_format(tmp_path
     np.testing.assert_array_equal(s.views[0].T_base_end, np.array(_ROWS))
     assert read_raw_poses(d).values["a"].tolist() == sum(_ROWS, [])  # the lenient reader reads it the same way
     vendor_line = pose_values_from_T(POSES[0], VENDOR_POSE_FORMAT)
-    d = _native_text(tmp_path, "  - {id: a, image: a.png, pose_file: 000_pose.csv}\n",
-                     fmt="{rotation: euler, euler_order: xyz, euler_kind: extrinsic, angle_unit: rad}")
+    d = _native_text(
+        tmp_path,
+        "  - {id: a, image: a.png, pose_file: 000_pose.csv}\n",
+        fmt="{rotation: euler, euler_order: xyz, euler_kind: extrinsic, angle_unit: rad}",
+    )
     with pytest.raises(ConfigError, match="holds a 4x4 matrix but pose_format.rotation is euler"):
         load_session(d)
     (d / "000_pose.csv").write_text(" ".join(f"{v:.12f}" for v in vendor_line) + "\n")
@@ -567,10 +717,11 @@ def test_a_pose_file_holds_a_4x4_or_one_pose_line_in_the_session_format(tmp_path
     with pytest.raises(InputError, match="neither one pose line nor a 4x4 matrix"):
         load_session(d)
     for views, match in (
-            ("  - {id: a, image: a.png, pose_file: gone.csv}\n", "gone.csv: view a: pose file missing"),
-            ("  - {id: a, image: a.png, pose_file: ../x.csv}\n", "view a: pose file '../x.csv' is outside"),
-            ("  - {id: a, image: a.png, pose_file: p.csv, pose: [1, 2, 3, 4, 5, 6]}\n", "either pose or pose_file"),
-            ("  - {id: a, image: a.png}\n", "either pose or pose_file; expected .* got neither")):
+        ("  - {id: a, image: a.png, pose_file: gone.csv}\n", "gone.csv: view a: pose file missing"),
+        ("  - {id: a, image: a.png, pose_file: ../x.csv}\n", "view a: pose file '../x.csv' is outside"),
+        ("  - {id: a, image: a.png, pose_file: p.csv, pose: [1, 2, 3, 4, 5, 6]}\n", "either pose or pose_file"),
+        ("  - {id: a, image: a.png}\n", "either pose or pose_file; expected .* got neither"),
+    ):
         with pytest.raises(InputError, match=match):
             load_session(_native_text(tmp_path, views))
 
@@ -583,8 +734,9 @@ def test_pose_format_must_state_the_rotation_kind(tmp_path):
     with pytest.raises(ConfigError, match="pose_format is missing.* the vendor's x,y,z,rx,ry,rz lines are"):
         load_session(d)
     # the fields the rotation kind does not state take the documented defaults
-    d = _native_text(tmp_path, "  - {id: a, image: a.png, pose: [0.1, 0.2, 0.3, 0.1, 0.2, 0.3]}\n",
-                     fmt="{rotation: euler}")
+    d = _native_text(
+        tmp_path, "  - {id: a, image: a.png, pose: [0.1, 0.2, 0.3, 0.1, 0.2, 0.3]}\n", fmt="{rotation: euler}"
+    )
     assert load_session(d).pose_format == VENDOR_POSE_FORMAT.describe()
 
 
@@ -610,11 +762,14 @@ def test_image_paths_stay_inside_the_session_folder_unless_allowed(tmp_path):
     assert load_session(d).views[0].image_path == d / "link.png"
 
 
-@pytest.mark.parametrize("intr,match", [
-    ({"distortion_model": "rational_polynomial"}, "unsupported intrinsics.distortion_model.*8 coefficients"),
-    ({"distortion_model": "equidistant"}, "unsupported intrinsics.distortion_model.*fisheye"),
-    ({"dist": [0.1, 0.01, 0, 0, 0.001, 0, 0, 0]}, "8 coefficients: ROS's rational_polynomial"),
-])
+@pytest.mark.parametrize(
+    "intr,match",
+    [
+        ({"distortion_model": "rational_polynomial"}, "unsupported intrinsics.distortion_model.*8 coefficients"),
+        ({"distortion_model": "equidistant"}, "unsupported intrinsics.distortion_model.*fisheye"),
+        ({"dist": [0.1, 0.01, 0, 0, 0.001, 0, 0, 0]}, "8 coefficients: ROS's rational_polynomial"),
+    ],
+)
 def test_ros_camera_info_distortion_other_than_plumb_bob_is_refused(tmp_path, intr, match):
     base = {"fx": 900.0, "fy": 900.0, "cx": 640.0, "cy": 360.0, "image_size": [1280, 720]}
     with pytest.raises(ConfigError, match=match):
@@ -623,8 +778,15 @@ def test_ros_camera_info_distortion_other_than_plumb_bob_is_refused(tmp_path, in
 
 def test_ros_camera_info_plumb_bob_d_is_dist_in_the_same_order(tmp_path):
     D = [0.11, -0.22, 0.001, -0.002, 0.05]  # CameraInfo D for distortion_model plumb_bob: k1, k2, t1 (p1), t2 (p2), k3
-    intr = {"fx": 900.0, "fy": 900.0, "cx": 640.0, "cy": 360.0, "image_size": [1280, 720],
-            "distortion_model": "plumb_bob", "dist": D}
+    intr = {
+        "fx": 900.0,
+        "fy": 900.0,
+        "cx": 640.0,
+        "cy": 360.0,
+        "image_size": [1280, 720],
+        "distortion_model": "plumb_bob",
+        "dist": D,
+    }
     s = load_session(native(tmp_path, extra={"intrinsics": intr}))
     assert list(s.intrinsics.dist) == D
 
@@ -636,8 +798,12 @@ def test_factory_prior_sigmas_in_the_doc_are_the_refinement_preset():
 
     p = load_preset("refine")["intrinsics_prior"]
     doc = (Path(__file__).resolve().parents[1] / "docs" / "session_format.md").read_text()
-    m = re.search(r"`use: prior` assumes .*?fx, fy: ([0-9.]+) %.*?cx, cy: ([0-9.]+) % of the image width, height"
-                  r".*?k1, k2: ([0-9.]+).*?p1, p2: ([0-9.]+).*?k3: ([0-9.]+)", doc, re.S)
+    m = re.search(
+        r"`use: prior` assumes .*?fx, fy: ([0-9.]+) %.*?cx, cy: ([0-9.]+) % of the image width, height"
+        r".*?k1, k2: ([0-9.]+).*?p1, p2: ([0-9.]+).*?k3: ([0-9.]+)",
+        doc,
+        re.S,
+    )
     assert m, "docs/session_format.md states the factory prior's sigmas"
     assert float(m.group(1)) / 100 == p["focal_share"] and float(m.group(2)) / 100 == p["centre_share"]
     d = p["distortion"]
@@ -646,13 +812,19 @@ def test_factory_prior_sigmas_in_the_doc_are_the_refinement_preset():
 
 def test_joint_angles_are_read_per_view(tmp_path):
     pose = str(sum(_ROWS, []))
-    d = _native_text(tmp_path, f"  - {{id: a, image: a.png, pose: {pose}, joints: [0.1, -1.2, 1.5, 0, 1.57, 3.1]}}\n"
-                               f"  - {{id: b, image: b.png, pose: {pose}}}\n", images="ab")
+    d = _native_text(
+        tmp_path,
+        f"  - {{id: a, image: a.png, pose: {pose}, joints: [0.1, -1.2, 1.5, 0, 1.57, 3.1]}}\n"
+        f"  - {{id: b, image: b.png, pose: {pose}}}\n",
+        images="ab",
+    )
     s = load_session(d)
     assert s.view("a").joint_angles == (0.1, -1.2, 1.5, 0.0, 1.57, 3.1) and s.view("b").joint_angles is None
-    for joints, match in (("[0, 90, 45]", "view a: joint angle 90.0 is larger than 2\\*pi.* degrees"),
-                          ("[0, x]", "joints must be a list"),
-                          ("3", "joints must be a list")):
+    for joints, match in (
+        ("[0, 90, 45]", "view a: joint angle 90.0 is larger than 2\\*pi.* degrees"),
+        ("[0, x]", "joints must be a list"),
+        ("3", "joints must be a list"),
+    ):
         d = _native_text(tmp_path, f"  - {{id: a, image: a.png, pose: {pose}, joints: {joints}}}\n")
         with pytest.raises(InputError, match=match):
             load_session(d)
@@ -698,8 +870,14 @@ def test_visp_apriltag_layout_imports_as_a_single_marker_with_its_id(tmp_path):
     from handeye.targets import MarkerSpec
 
     small = Intrinsics(fx=460.0, fy=460.0, cx=319.5, cy=239.5, dist=(0.0,) * 5, width=640, height=480)
-    sim = write_vendor_session(tmp_path / "sim", mode="eye_to_hand", n_views=4, seed=2, intrinsics=small,
-                               target=MarkerSpec(0.048, marker_id=17))
+    sim = write_vendor_session(
+        tmp_path / "sim",
+        mode="eye_to_hand",
+        n_views=4,
+        seed=2,
+        intrinsics=small,
+        target=MarkerSpec(0.048, marker_id=17),
+    )
     truth = json.loads((sim / "ground_truth.json").read_text())
     src = tmp_path / "visp"
     src.mkdir()
@@ -708,8 +886,9 @@ def test_visp_apriltag_layout_imports_as_a_single_marker_with_its_id(tmp_path):
         cv2.imwrite(str(src / f"franka_image-{vid}.png"), cv2.imread(str(sim / v["image"])))
         T = np.array(v["T_base_end_reported"])
         data = list(T[:3, 3]) + list(rotvec_from_R(T[:3, :3]))
-        (src / f"franka_pose_rPe_{vid}.yaml").write_text("rows: 6\ncols: 1\ndata:\n" +
-                                                         "".join(f"  - [{float(x)!r}]\n" for x in data))
+        (src / f"franka_pose_rPe_{vid}.yaml").write_text(
+            "rows: 6\ncols: 1\ndata:\n" + "".join(f"  - [{float(x)!r}]\n" for x in data)
+        )
     path = import_visp(src, tmp_path / "out")
     s = load_session(path)
     assert s.target == MarkerSpec(0.048, "DICT_APRILTAG_36h11", 17)

@@ -1,4 +1,5 @@
 """Tests for handeye.sim: scenarios, corner sessions, the renderer and the vendor writer, against ground truth."""
+
 from __future__ import annotations
 
 import json
@@ -13,8 +14,8 @@ from handeye.collect.visibility import board_in_image, board_out_of_image
 from handeye.conventions import VENDOR_POSE_FORMAT, T_from_pose_values
 from handeye.errors import ConfigError, DegenerateMotionError
 from handeye.frames import inv_T, is_rotation, rotation_angle_rad, tangent_difference
-from handeye.mounting import mounting
 from handeye.initial.motion import motion_quality
+from handeye.mounting import mounting
 from handeye.sim import render, scenarios
 from handeye.sim.corners import make_corner_session
 from handeye.sim.vendor import write_vendor_session
@@ -24,6 +25,7 @@ MODES = ("eye_in_hand", "eye_to_hand")
 
 
 # ---------------------------------------------------------------- setup and view poses
+
 
 @pytest.mark.parametrize("mode", MODES)
 def test_sample_setup_is_plausible(mode):
@@ -46,8 +48,15 @@ def test_sample_setup_is_plausible(mode):
 def test_view_poses_show_whole_board_and_pass_the_motion_gates(mode):
     rng = np.random.default_rng(2)
     s = scenarios.sample_setup(mode=mode, rng=rng)
-    T_base_end = scenarios.sample_view_poses(mode=mode, n_views=12, rng=rng, T_x=s["T_x"], T_board=s["T_board"],
-                                         target=scenarios.DEFAULT_TARGET, intrinsics=scenarios.DEFAULT_INTRINSICS)
+    T_base_end = scenarios.sample_view_poses(
+        mode=mode,
+        n_views=12,
+        rng=rng,
+        T_x=s["T_x"],
+        T_board=s["T_board"],
+        target=scenarios.DEFAULT_TARGET,
+        intrinsics=scenarios.DEFAULT_INTRINSICS,
+    )
     assert T_base_end.shape == (12, 4, 4)
     T_cam_board = mounting(mode).predict_T_cam_board(s["T_x"], s["T_board"], T_base_end)
     for T in T_cam_board:
@@ -66,8 +75,16 @@ def test_view_poses_without_roll_or_tilt_are_degenerate():
     rng = np.random.default_rng(3)
     s = scenarios.sample_setup(mode="eye_in_hand", rng=rng)
     with pytest.raises(DegenerateMotionError):
-        scenarios.sample_view_poses(mode="eye_in_hand", n_views=8, rng=rng, T_x=s["T_x"], T_board=s["T_board"],
-                                tilt_deg=(0.0, 0.0), roll_deg=0.0, aim_deg=3.0)
+        scenarios.sample_view_poses(
+            mode="eye_in_hand",
+            n_views=8,
+            rng=rng,
+            T_x=s["T_x"],
+            T_board=s["T_board"],
+            tilt_deg=(0.0, 0.0),
+            roll_deg=0.0,
+            aim_deg=3.0,
+        )
 
 
 def test_view_poses_reject_bad_options():
@@ -76,11 +93,19 @@ def test_view_poses_reject_bad_options():
     with pytest.raises(ConfigError):
         scenarios.sample_view_poses(mode="eye_on_hand", n_views=5, rng=rng, T_x=s["T_x"], T_board=s["T_board"])
     with pytest.raises(ConfigError):
-        scenarios.sample_view_poses(mode="eye_in_hand", n_views=5, rng=rng, T_x=s["T_x"], T_board=s["T_board"],
-                                distance_m=(0.9, 0.3))
+        scenarios.sample_view_poses(
+            mode="eye_in_hand", n_views=5, rng=rng, T_x=s["T_x"], T_board=s["T_board"], distance_m=(0.9, 0.3)
+        )
     with pytest.raises(ConfigError):  # a 0.36 m pattern cannot fill 0.1 m of view
-        scenarios.sample_view_poses(mode="eye_in_hand", n_views=2, rng=rng, T_x=s["T_x"], T_board=s["T_board"],
-                                distance_m=(0.1, 0.12), max_tries=50)
+        scenarios.sample_view_poses(
+            mode="eye_in_hand",
+            n_views=2,
+            rng=rng,
+            T_x=s["T_x"],
+            T_board=s["T_board"],
+            distance_m=(0.1, 0.12),
+            max_tries=50,
+        )
 
 
 def test_default_intrinsics_scale_with_height():
@@ -93,6 +118,7 @@ def test_default_intrinsics_scale_with_height():
 
 
 # ---------------------------------------------------------------- corner-level sessions
+
 
 @pytest.mark.parametrize("mode", MODES)
 def test_noiseless_corners_reproject_exactly_through_truth(mode):
@@ -112,7 +138,7 @@ def test_pixel_noise_matches_sigma_and_keeps_geometry():
     clean = make_corner_session(n_views=10, seed=5, noise_px=0.0)
     noisy = make_corner_session(n_views=10, seed=5, noise_px=0.5)
     np.testing.assert_array_equal(clean.T_base_end_true, noisy.T_base_end_true)  # noise never moves geometry
-    d = np.concatenate([a - b for a, b in zip(noisy.image_points, clean.image_points)]).ravel()
+    d = np.concatenate([a - b for a, b in zip(noisy.image_points, clean.image_points, strict=False)]).ravel()
     n = d.size  # 10 views * 88 corners * 2
     assert abs(d.std() - 0.5) < 0.5 * 5 / np.sqrt(2 * n), f"pixel noise std {d.std():.4f}"
 
@@ -143,8 +169,9 @@ def _rotvec(R):
 def _cv2_pixels(T_cam_board, p_board, intr):
     """cv2.projectPoints as the independent oracle of the projection the sessions are made with."""
     rvec = Rotation.from_matrix(T_cam_board[:3, :3]).as_rotvec()
-    uv, _ = cv2.projectPoints(np.ascontiguousarray(p_board, float), rvec, T_cam_board[:3, 3].copy(), intr.K,
-                              intr.dist_array)
+    uv, _ = cv2.projectPoints(
+        np.ascontiguousarray(p_board, float), rvec, T_cam_board[:3, 3].copy(), intr.K, intr.dist_array
+    )
     return uv.reshape(-1, 2)
 
 
@@ -250,7 +277,7 @@ def test_rendered_charuco_ids_and_corners_match_truth():
     corners, ids, _, _ = cv2.aruco.CharucoDetector(board).detectBoard(img)
     assert ids is not None and len(ids) == target.n_corners
     err = corners.reshape(-1, 2) - s.image_points[0][ids.ravel()]
-    rms_px = np.sqrt(np.mean(np.sum(err ** 2, axis=1)))
+    rms_px = np.sqrt(np.mean(np.sum(err**2, axis=1)))
     assert rms_px < 0.15, f"rms {rms_px:.4f} px"  # measured 0.046 (0.036-0.134 over 8 views)
 
 
@@ -284,8 +311,9 @@ def test_render_view_blur_noise_and_bad_options():
     blurred = render.render_view(s.target, SMALL, T, background="flat", blur_sigma_px=1.5).astype(float)
     lap = lambda im: cv2.Laplacian(im, cv2.CV_64F).var()  # noqa: E731
     assert lap(blurred) < 0.5 * lap(clean)
-    noisy = render.render_view(s.target, SMALL, T, background="flat", noise_sigma=3.0,
-                                     rng=np.random.default_rng(1)).astype(float)
+    noisy = render.render_view(
+        s.target, SMALL, T, background="flat", noise_sigma=3.0, rng=np.random.default_rng(1)
+    ).astype(float)
     # Gaussian noise of 3 grey levels plus the rounding to integers (uniform, variance 1/12): std
     # sqrt(9 + 1/12) = 3.014; over 640 x 360 pixels the sample std scatters by 3 / sqrt(2 n) = 0.0044
     assert abs(np.std(noisy - clean) - np.sqrt(9.0 + 1.0 / 12.0)) < 5 * 3.0 / np.sqrt(2 * noisy.size)
@@ -299,10 +327,20 @@ def test_render_view_blur_noise_and_bad_options():
 
 # ---------------------------------------------------------------- vendor-layout writer
 
+
 def test_vendor_session_files_poses_and_hidden_views(tmp_path):
-    out = write_vendor_session(tmp_path / "s", mode="eye_to_hand", n_views=4, seed=13, image_noise=1.0,
-                                     blur_sigma_px=0.3, robot_noise=(1.0, 0.1), hidden_views=["2"], outlier_views=1,
-                                     intrinsics=SMALL)
+    out = write_vendor_session(
+        tmp_path / "s",
+        mode="eye_to_hand",
+        n_views=4,
+        seed=13,
+        image_noise=1.0,
+        blur_sigma_px=0.3,
+        robot_noise=(1.0, 0.1),
+        hidden_views=["2"],
+        outlier_views=1,
+        intrinsics=SMALL,
+    )
     names = sorted(p.name for p in out.iterdir())
     assert names == ["1.jpg", "2.jpg", "3.jpg", "4.jpg", "config.yaml", "ground_truth.json", "poses.txt"], names
     cfg = yaml.safe_load((out / "config.yaml").read_text())
@@ -318,8 +356,15 @@ def test_vendor_session_files_poses_and_hidden_views(tmp_path):
     # <= 1.5e-9 per matrix entry from three rounded angles)
     lines = (out / "poses.txt").read_text().splitlines()
     assert len(lines) == 4
-    same = make_corner_session(mode="eye_to_hand", n_views=4, seed=13, robot_noise=(1.0, 0.1),
-                                     hidden_views=["2"], outlier_views=1, intrinsics=SMALL)
+    same = make_corner_session(
+        mode="eye_to_hand",
+        n_views=4,
+        seed=13,
+        robot_noise=(1.0, 0.1),
+        hidden_views=["2"],
+        outlier_views=1,
+        intrinsics=SMALL,
+    )
     for k, line in enumerate(lines, start=1):
         T_file = T_from_pose_values([float(v) for v in line.split(",")], VENDOR_POSE_FORMAT)
         T_rep = np.asarray(truth["views"][str(k)]["T_base_end_reported"])
@@ -350,6 +395,7 @@ def test_vendor_session_refuses_to_overwrite_and_bad_options(tmp_path):
 
 
 # ---------------------------------------------------------------- kinematic robot error
+
 
 def test_kinematic_session_poses_are_the_two_arms_forward_kinematics():
     from handeye.kinematics import load_arm
@@ -384,12 +430,14 @@ def test_kinematic_error_is_the_dh_jacobian_times_the_dh_error():
     # second-order remainder: |delta|^2 times lever arms below 1 m, i.e. below ~1e-6 (1 um, 1e-4 deg)
     np.testing.assert_allclose(xi, pred, atol=2e-6)
     assert 0.1 < np.sqrt(np.mean(np.sum(xi[:, 3:] ** 2, axis=1))) * 1e3 < 3.0  # mm: the size the ranges give
+
     # correlated across views: the base-frame position errors point the same way (mean pairwise cosine)
     def mean_cosine(sess):
         d = sess.T_base_end_reported[:, :3, 3] - sess.T_base_end_true[:, :3, 3]
         u = d / np.linalg.norm(d, axis=1, keepdims=True)
         n = len(u)
         return (np.sum(u @ u.T) - n) / (n * (n - 1))
+
     iid = make_corner_session(mode="eye_in_hand", n_views=10, seed=4, robot_noise=(0.5, 0.05))
     assert mean_cosine(s) > 0.5
     assert abs(mean_cosine(iid)) < 0.3

@@ -1,6 +1,7 @@
 """The validated covariance (handeye.refine.validation): the jackknife and its scaling, the verdict rule,
 the refits on simulated sessions (clean: the model holds and the verdict stays near it; a robot error the
 model does not have: the verdict widens to cover the truth), and the fields result.json carries."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -10,9 +11,19 @@ from scipy.stats import chi2
 from handeye.diagnose.crossval import ratio_limits
 from handeye.frames import tangent_difference
 from handeye.refine import RefineOptions, RefineView, refine
-from handeye.refine.validation import (Validation, _block, fold_indices, fold_information_statistic, generalised_max,
-                                       jackknife_covariance, mahalanobis2, settings, shrunk_jackknife, trace_p_value,
-                                       validate)
+from handeye.refine.validation import (
+    Validation,
+    _block,
+    fold_indices,
+    fold_information_statistic,
+    generalised_max,
+    jackknife_covariance,
+    mahalanobis2,
+    settings,
+    shrunk_jackknife,
+    trace_p_value,
+    validate,
+)
 from handeye.results import validation_fields
 from handeye.sim.corners import make_corner_session
 
@@ -73,6 +84,7 @@ def _weighted_mean_folds(rng, covs, inflate=1.0):
     def fit(idx):
         C = np.linalg.inv(sum(W[i] for i in idx))
         return C @ sum(W[i] @ y[i] for i in idx), C
+
     n = len(covs)
     t_all, C_all = fit(range(n))
     folds = [fit([i for i in range(n) if i != k]) for k in range(n)]
@@ -125,8 +137,9 @@ def test_the_verdict_is_the_model_unless_the_folds_reject_it_at_alpha():
     found = []
     for _ in range(400):
         x = rng.normal(size=(K, 6)) @ L.T * np.sqrt(K)  # per-unit influence: the mean of K has covariance M
-        b = _block(tuple("abcdef"), M, np.stack([np.delete(x, k, axis=0).mean(axis=0) - x.mean(axis=0)
-                                                 for k in range(K)]))
+        b = _block(
+            tuple("abcdef"), M, np.stack([np.delete(x, k, axis=0).mean(axis=0) - x.mean(axis=0) for k in range(K)])
+        )
         found.append(b.finding)
         if not b.finding:
             assert np.allclose(b.cov_verdict, M) and b.source == "model" and b.p_value >= alpha
@@ -153,14 +166,23 @@ def test_shrinkage_keeps_the_average_spread_over_the_model():
 
 # ------------------------------------------------------------------------------ refits on simulated sessions
 def _views(s):
-    return [RefineView(vid, ids, p, s.T_base_end_reported[k])
-            for k, (vid, ids, p) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points))]
+    return [
+        RefineView(vid, ids, p, s.T_base_end_reported[k])
+        for k, (vid, ids, p) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points, strict=False))
+    ]
 
 
 def _refined(s, **opts):
     views = _views(s)
-    r = refine(mode=s.mode, object_points=s.target.object_points(), views=views, intrinsics=s.intrinsics,
-               T_x0=s.T_x_true, T_board0=s.T_board_true, options=RefineOptions(**opts))
+    r = refine(
+        mode=s.mode,
+        object_points=s.target.object_points(),
+        views=views,
+        intrinsics=s.intrinsics,
+        T_x0=s.T_x_true,
+        T_board0=s.T_board_true,
+        options=RefineOptions(**opts),
+    )
     assert r.status == "ok", r.failure_reason
     return r, views
 
@@ -173,7 +195,7 @@ def test_on_clean_data_the_folds_agree_with_the_model_and_the_verdict_covers_the
     assert v.status == "ok" and v.n_solved == len(v.folds) == settings()["folds"]
     lo, hi = ratio_limits(len(v.folds))
     # the folds' spread over the model's, averaged over the 6 directions, is sampling noise (K - 1 dof each)
-    assert lo ** 2 < v.x.scale < hi ** 2, v.x.scale
+    assert lo**2 < v.x.scale < hi**2, v.x.scale
     M, C = r.cov_x_6x6, v.x.cov_verdict
     # no finding: the verdict is the model's, and the summary says the spread is within chance
     assert not v.x.finding and v.x.p_value >= settings()["alpha"] and np.allclose(C, M) and v.x.source == "model"
@@ -208,6 +230,7 @@ def test_refits_without_their_covariance_fall_back_and_never_cancel_the_validati
             out = real(result, object_points=object_points, views=views, covariance=covariance)
             calls.append(out)
             return change(out, len(views), len(calls))
+
         monkeypatch.setattr(refitting, "refit", fake)
         return validate(r, object_points=s.target.object_points(), views=views, halves=False)
 
@@ -254,8 +277,9 @@ def test_result_json_carries_the_model_the_validated_and_the_verdict_uncertainty
     assert f["sigma_source"] == v.x.source and "generalised-eigenvalue maximum" in f["sigma_rule"]
     # the printed sigmas are the verdict's; the model's are kept beside them
     assert np.allclose(np.degrees(np.sqrt(np.diag(C)[:3])), f["sigma_rot_deg"])
-    assert np.allclose(f["sigma_rot_deg_model"], r.sigma_rot_deg) and np.allclose(f["sigma_trans_mm_model"],
-                                                                                    r.sigma_trans_mm)
+    assert np.allclose(f["sigma_rot_deg_model"], r.sigma_rot_deg) and np.allclose(
+        f["sigma_trans_mm_model"], r.sigma_trans_mm
+    )
     assert all(f["sigma_trans_mm"][k] >= f["sigma_trans_mm_model"][k] - 1e-12 for k in range(3))
     names = f["intrinsics_cov_names"]
     assert names == list(r.intrinsics_sigma) and set(f["intrinsics_sigma_verdict"]) == set(names)

@@ -7,6 +7,7 @@ prints one JSON line on stdout: ``outcome`` (``done``, or ``error`` when the wor
 Log lines go to stderr (the task keeps them in ``batch.log``). The process ends itself when its parent (the Dask worker) is gone, so a killed
 worker leaves no session running behind it.
 """
+
 from __future__ import annotations
 
 import json
@@ -43,7 +44,8 @@ def _earlier_attempt(pid: int) -> bool:
     """Whether ``pid`` is a session process of a batch (``handeye.batch.child``) started by another process than
     this one's: an earlier attempt of this task, whose worker was killed (Dask runs a task once at a time, so a
     live attempt under another parent is a leftover; its parent is init or a subreaper by now). False where
-    /proc cannot tell (another system, another user's process)."""
+    /proc cannot tell (another system, another user's process).
+    """
     try:
         cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
         ppid = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
@@ -55,7 +57,8 @@ def _earlier_attempt(pid: int) -> bool:
 def _wait_for_previous_attempt(out_dir) -> None:
     """A task retried after its worker was killed can start while the first attempt's session process is still
     ending; it holds the output folder's lock until then. Wait for that holder (up to PREVIOUS_ATTEMPT_WAIT_S)
-    instead of refusing the folder; any other holder (a live run) is left to the lock, which refuses at once."""
+    instead of refusing the folder; any other holder (a live run) is left to the lock, which refuses at once.
+    """
     from ..output import LOCK_NAME, _pid_alive
 
     lock = Path(out_dir) / LOCK_NAME
@@ -86,17 +89,25 @@ def run(spec: dict) -> dict:
         return run_verify(spec)
     args = calibrate_namespace(cal)
     try:  # as handeye calibrate runs it (handeye.cli.calibrate.run)
-        wr = calibrate_session(spec["session"], options=options_from_args(args), out_dir=spec["out_dir"],
-                               report=not cal.get("no_report"), qa=cal.get("qa"), mode=cal.get("mode"),
-                               progress=lambda s: log.info("%s", s), allow_outside=bool(cal.get("allow_outside")),
-                               site_files=[f for f in (cal.get("config"), cal.get("qa")) if f], prior=cal.get("prior"),
-                               board_unmoved=bool(cal.get("board_unmoved")))
+        wr = calibrate_session(
+            spec["session"],
+            options=options_from_args(args),
+            out_dir=spec["out_dir"],
+            report=not cal.get("no_report"),
+            qa=cal.get("qa"),
+            mode=cal.get("mode"),
+            progress=lambda s: log.info("%s", s),
+            allow_outside=bool(cal.get("allow_outside")),
+            site_files=[f for f in (cal.get("config"), cal.get("qa")) if f],
+            prior=cal.get("prior"),
+            board_unmoved=bool(cal.get("board_unmoved")),
+        )
     except HandeyeError as e:
         return {"outcome": "error", "status": "failed", "verdict": "ERROR", "reason": str(e), "exit_code": e.exit_code}
-    reason = wr.result.get("failure_reason") or ("" if wr.verdict in ("PASS", "WARN")
-                                                 else wr.result.get("verdict_headline", ""))
-    reply = {"outcome": "done", "status": wr.status, "verdict": wr.verdict, "reason": reason,
-             "exit_code": wr.exit_code}
+    reason = wr.result.get("failure_reason") or (
+        "" if wr.verdict in ("PASS", "WARN") else wr.result.get("verdict_headline", "")
+    )
+    reply = {"outcome": "done", "status": wr.status, "verdict": wr.verdict, "reason": reason, "exit_code": wr.exit_code}
     if cal.get("export") and wr.status == "ok":  # calibrate --export: next to the result, when usable
         from ..export import export_result
 
@@ -109,7 +120,8 @@ def run(spec: dict) -> dict:
 
 def run_verify(spec: dict) -> dict:
     """A verification session (``verify_against`` in its session.yaml), as ``handeye verify`` runs it: verify.json
-    and its reports in the session's output folder; verdict VALID or DRIFTED."""
+    and its reports in the session's output folder; verdict VALID or DRIFTED.
+    """
     from pathlib import Path
 
     from ..errors import DRIFTED_EXIT_CODE, HandeyeError
@@ -120,16 +132,26 @@ def run_verify(spec: dict) -> dict:
 
     cal, out = spec["calibrate"], Path(spec["out_dir"])
     try:
-        sv = verify_session(spec["session"], spec["verify_against"], options=VerifyOptions.from_config(),
-                            mode=cal.get("mode"), progress=lambda s: log.info("%s", s))
+        sv = verify_session(
+            spec["session"],
+            spec["verify_against"],
+            options=VerifyOptions.from_config(),
+            mode=cal.get("mode"),
+            progress=lambda s: log.info("%s", s),
+        )
         write_json(out / "verify.json", verify_dict(sv))
         if not cal.get("no_report"):
             write_verify_reports(out)
     except HandeyeError as e:
         return {"outcome": "error", "status": "failed", "verdict": "ERROR", "reason": str(e), "exit_code": e.exit_code}
     v = sv.verification
-    return {"outcome": "done", "status": "ok", "verdict": VERIFY_VERDICTS[v.verdict],
-            "reason": "" if not v.drifted else v.headline, "exit_code": DRIFTED_EXIT_CODE if v.drifted else 0}
+    return {
+        "outcome": "done",
+        "status": "ok",
+        "verdict": VERIFY_VERDICTS[v.verdict],
+        "reason": "" if not v.drifted else v.headline,
+        "exit_code": DRIFTED_EXIT_CODE if v.drifted else 0,
+    }
 
 
 def _peak_rss_mb():

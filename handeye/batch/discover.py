@@ -24,6 +24,7 @@ Install and session names become folder names under OUT: characters other than l
 ``.``, ``_`` and ``-`` are replaced by ``_`` (a name made only of dots is refused), and two sessions
 that would land in one folder get ``~2``, ``~3`` appended.
 """
+
 from __future__ import annotations
 
 import datetime as _dt
@@ -46,7 +47,8 @@ _DATE_RE = re.compile(r"(?<!\d)(\d{4})-?(\d{2})-?(\d{2})(?:[T_ -]?(\d{2}):?(\d{2
 @dataclass(frozen=True)
 class SessionJob:
     """One session of the batch: where it is, its install, its name (a path under the install's
-    output folder, ``/``-separated), its time (ISO 8601 UTC, or None) and where that came from."""
+    output folder, ``/``-separated), its time (ISO 8601 UTC, or None) and where that came from.
+    """
 
     path: Path
     install: str
@@ -88,8 +90,11 @@ def discover(root) -> list[SessionJob]:
     """Every session under ``root`` as a :class:`SessionJob`, sorted by install, time and name."""
     root = Path(root)
     if not root.is_dir():
-        raise InputError("batch root not found or not a folder", path=root,
-                         hint="pass the folder that holds the sessions (ROOT/<install>/<session>/)")
+        raise InputError(
+            "batch root not found or not a folder",
+            path=root,
+            hint="pass the folder that holds the sessions (ROOT/<install>/<session>/)",
+        )
     jobs, taken = [], set()
     for folder, layout in find_session_folders(root):
         meta = _session_yaml(folder) if layout == "native" else {}
@@ -111,11 +116,24 @@ def discover(root) -> list[SessionJob]:
         against = meta.get("verify_against")
         if against not in (None, ""):
             if not isinstance(against, str):
-                raise InputError("verify_against must be a path", path=folder / "session.yaml", received=repr(against),
-                                 expected="the installed result folder or its result.json (relative to the session)")
+                raise InputError(
+                    "verify_against must be a path",
+                    path=folder / "session.yaml",
+                    received=repr(against),
+                    expected="the installed result folder or its result.json (relative to the session)",
+                )
             against = str((folder / against).resolve())
-        jobs.append(SessionJob(path=folder.resolve(), install=install, name=name, time_utc=t, time_source=src,
-                               layout=layout, verify_against=against or None))
+        jobs.append(
+            SessionJob(
+                path=folder.resolve(),
+                install=install,
+                name=name,
+                time_utc=t,
+                time_source=src,
+                layout=layout,
+                verify_against=against or None,
+            )
+        )
     jobs.sort(key=lambda j: (j.install, j.time_utc or "", j.name))
     log.info("%d sessions in %d installs under %s", len(jobs), len({j.install for j in jobs}), root)
     return jobs
@@ -123,7 +141,8 @@ def discover(root) -> list[SessionJob]:
 
 def _session_yaml(folder: Path) -> dict:
     """The top-level mapping of ``session.yaml`` ({} when it does not parse: the calibration then
-    reports why, the batch only needs the install and the time)."""
+    reports why, the batch only needs the install and the time).
+    """
     import yaml
 
     try:

@@ -19,6 +19,7 @@ change (mm, in the frame of X's translation, e.g. the end frame for ``T_end_cam`
 change ``rotvec(R_first^T R)`` (deg, about the camera axes), with 2-sigma bands from each session's
 printed sigmas (``sigma_trans_mm``, ``sigma_rot_deg``: the same axes).
 """
+
 from __future__ import annotations
 
 import csv
@@ -37,10 +38,35 @@ from .run import FAILED_VERDICTS, LOG_NAME, RECORD_NAME, read_json
 log = logging.getLogger(__name__)
 
 #: fleet.csv's columns, in order
-COLUMNS = ("install", "session", "time_utc", "time_source", "mode", "verdict", "outcome", "x_name",
-           "tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg", "rz_deg",
-           "sigma_tx_mm", "sigma_ty_mm", "sigma_tz_mm", "sigma_rx_deg", "sigma_ry_deg", "sigma_rz_deg",
-           "sigma_source", "reprojection_rms_px", "findings", "reason", "result_dir", "report", "export_error")
+COLUMNS = (
+    "install",
+    "session",
+    "time_utc",
+    "time_source",
+    "mode",
+    "verdict",
+    "outcome",
+    "x_name",
+    "tx_mm",
+    "ty_mm",
+    "tz_mm",
+    "rx_deg",
+    "ry_deg",
+    "rz_deg",
+    "sigma_tx_mm",
+    "sigma_ty_mm",
+    "sigma_tz_mm",
+    "sigma_rx_deg",
+    "sigma_ry_deg",
+    "sigma_rz_deg",
+    "sigma_source",
+    "reprojection_rms_px",
+    "findings",
+    "reason",
+    "result_dir",
+    "report",
+    "export_error",
+)
 #: how many findings codes the fleet summary lists
 TOP_FINDINGS = 10
 FILES_DIR = "index_files"
@@ -65,27 +91,41 @@ def session_row(out: Path, folder: Path) -> dict:
     rec = read_json(folder / RECORD_NAME) or {}
     res = read_json(folder / "result.json")
     row = {c: None for c in COLUMNS}
-    row.update(install=rec.get("install") or (rel[0] if len(rel) > 1 else "default"),
-               session=rec.get("name") or ("/".join(rel[1:]) if len(rel) > 1 else folder.name),
-               time_utc=rec.get("time_utc"), time_source=rec.get("time_source"),
-               result_dir="/".join(rel), outcome=rec.get("outcome"), reason=rec.get("reason") or "", findings=[],
-               export_error=rec.get("export_error"))  # calibrate --export failed on a usable result
+    row.update(
+        install=rec.get("install") or (rel[0] if len(rel) > 1 else "default"),
+        session=rec.get("name") or ("/".join(rel[1:]) if len(rel) > 1 else folder.name),
+        time_utc=rec.get("time_utc"),
+        time_source=rec.get("time_source"),
+        result_dir="/".join(rel),
+        outcome=rec.get("outcome"),
+        reason=rec.get("reason") or "",
+        findings=[],
+        export_error=rec.get("export_error"),
+    )  # calibrate --export failed on a usable result
     ver = read_json(folder / "verify.json") if res is None else None
     if ver is not None and (not rec or rec.get("outcome") == "done"):  # a verification session (handeye verify)
         from .run import VERIFY_VERDICTS
 
-        row.update(mode=ver.get("mode"), x_name=ver.get("frame"), outcome=row["outcome"] or "done",
-                   verdict=VERIFY_VERDICTS.get(str(ver.get("verdict")), "ERROR"),
-                   time_utc=row["time_utc"] or (ver.get("provenance") or {}).get("time_utc"),
-                   reason=row["reason"] or ("" if ver.get("verdict") == "still valid" else str(ver.get("headline"))))
+        row.update(
+            mode=ver.get("mode"),
+            x_name=ver.get("frame"),
+            outcome=row["outcome"] or "done",
+            verdict=VERIFY_VERDICTS.get(str(ver.get("verdict")), "ERROR"),
+            time_utc=row["time_utc"] or (ver.get("provenance") or {}).get("time_utc"),
+            reason=row["reason"] or ("" if ver.get("verdict") == "still valid" else str(ver.get("headline"))),
+        )
         if (folder / "verify.html").exists():
             row["report"] = "/".join(rel) + "/verify.html"
         return row
     if rec and rec.get("outcome") != "done" or res is None:
         row.update(verdict="ERROR", reason=row["reason"] or "no result.json")
         return row
-    row.update(mode=res.get("mode"), verdict=res.get("verdict") or "FAIL", outcome=row["outcome"] or "done",
-               findings=[str(f.get("code")) for f in res.get("findings") or [] if isinstance(f, dict)])
+    row.update(
+        mode=res.get("mode"),
+        verdict=res.get("verdict") or "FAIL",
+        outcome=row["outcome"] or "done",
+        findings=[str(f.get("code")) for f in res.get("findings") or [] if isinstance(f, dict)],
+    )
     if not row["time_utc"]:
         row.update(time_utc=(res.get("provenance") or {}).get("time_utc"), time_source="calibrated")
     if not row["reason"] and row["verdict"] not in ("PASS", "WARN"):
@@ -94,16 +134,24 @@ def session_row(out: Path, folder: Path) -> dict:
     if isinstance(he, dict):
         ref = res.get("refinement") or {}
         row.update(x_name=he.get("name"), sigma_source=ref.get("sigma_source") or ("model" if ref else None))
-        for names, key, src in ((("tx_mm", "ty_mm", "tz_mm"), "translation_mm", he),
-                                (("rx_deg", "ry_deg", "rz_deg"), "rotvec_deg", he),
-                                (("sigma_tx_mm", "sigma_ty_mm", "sigma_tz_mm"), "sigma_trans_mm", ref),
-                                (("sigma_rx_deg", "sigma_ry_deg", "sigma_rz_deg"), "sigma_rot_deg", ref)):
+        for names, key, src in (
+            (("tx_mm", "ty_mm", "tz_mm"), "translation_mm", he),
+            (("rx_deg", "ry_deg", "rz_deg"), "rotvec_deg", he),
+            (("sigma_tx_mm", "sigma_ty_mm", "sigma_tz_mm"), "sigma_trans_mm", ref),
+            (("sigma_rx_deg", "sigma_ry_deg", "sigma_rz_deg"), "sigma_rot_deg", ref),
+        ):
             vals = src.get(key) or [None] * 3
-            row.update(dict(zip(names, (None if v is None else float(v) for v in vals))))
+            row.update(dict(zip(names, (None if v is None else float(v) for v in vals), strict=False)))
         rms = ref.get("rms_px_after")
         if rms is None:
-            rms = next((c.get("value") for c in (res.get("qa") or {}).get("checks") or []
-                        if c.get("key") == "reprojection_rms_px"), None)
+            rms = next(
+                (
+                    c.get("value")
+                    for c in (res.get("qa") or {}).get("checks") or []
+                    if c.get("key") == "reprojection_rms_px"
+                ),
+                None,
+            )
         row["reprojection_rms_px"] = None if rms is None else float(rms)
         row["compared"] = _comparable(res, folder / "result.json")  # for the drift: result.json is read once
     if (folder / "report.html").exists():
@@ -115,7 +163,8 @@ def _comparable(res: Optional[dict], path: Path):
     """The result as the drift compares it (:class:`handeye.recal.loaded.LoadedResult`, its source the
     file), from result.json's content ``res`` as read (None: read ``path``); or the error loading it
     raised (the drift reports it). Only a file that does not load is read again, for load_result's own
-    message naming it."""
+    message naming it.
+    """
     from dataclasses import replace
 
     from ..recal.loaded import load_result
@@ -142,7 +191,8 @@ def fleet_rows(out) -> list[dict]:
 # ------------------------------------------------------------------------------------------ installs
 def _drift(out: Path, a: dict, b: dict) -> dict:
     """compare_results between two consecutive sessions of an install, as a table row (their results as
-    :func:`session_row` loaded them)."""
+    :func:`session_row` loaded them).
+    """
     from ..recal.compare import compare_loaded
 
     d = {"from": a["session"], "to": b["session"], "time_utc": b["time_utc"]}
@@ -157,14 +207,23 @@ def _drift(out: Path, a: dict, b: dict) -> dict:
         return {**d, "comparable": False, "reason": f"{type(e).__name__}: {e}"}
     if not c.comparable:
         return {**d, "comparable": False, "reason": c.reason}
-    return {**d, "comparable": True, "reason": "", "trans_mm": float(c.trans_mm), "rot_deg": float(c.rot_deg),
-            "d_trans_mm": [float(x) for x in c.d_trans_mm], "d_rot_deg": [float(x) for x in c.d_rot_deg],
-            "p_value": float(c.p_value), "drifted": bool(c.drifted)}
+    return {
+        **d,
+        "comparable": True,
+        "reason": "",
+        "trans_mm": float(c.trans_mm),
+        "rot_deg": float(c.rot_deg),
+        "d_trans_mm": [float(x) for x in c.d_trans_mm],
+        "d_rot_deg": [float(x) for x in c.d_rot_deg],
+        "p_value": float(c.p_value),
+        "drifted": bool(c.drifted),
+    }
 
 
 def install_summaries(out, rows: list[dict], *, plots: bool = True) -> list[dict]:
     """Per install: its rows (by time), latest verdict, drifts between consecutive sessions with a
-    result, and the trend plot (PNG bytes or None)."""
+    result, and the trend plot (PNG bytes or None).
+    """
     out = Path(out)
     by_install: dict[str, list] = {}
     for r in rows:
@@ -173,10 +232,18 @@ def install_summaries(out, rows: list[dict], *, plots: bool = True) -> list[dict
     for name in sorted(by_install):
         rs = by_install[name]
         usable = [r for r in rs if r["tx_mm"] is not None]
-        drifts = [_drift(out, a, b) for a, b in zip(usable, usable[1:])]
-        summaries.append({"install": name, "rows": rs, "latest": rs[-1], "latest_verdict": rs[-1]["verdict"],
-                          "drifts": drifts, "n_drifted": sum(bool(d.get("drifted")) for d in drifts),
-                          "trend_png": trend_png(name, usable) if plots and usable else None})
+        drifts = [_drift(out, a, b) for a, b in zip(usable, usable[1:], strict=False)]
+        summaries.append(
+            {
+                "install": name,
+                "rows": rs,
+                "latest": rs[-1],
+                "latest_verdict": rs[-1]["verdict"],
+                "drifts": drifts,
+                "n_drifted": sum(bool(d.get("drifted")) for d in drifts),
+                "trend_png": trend_png(name, usable) if plots and usable else None,
+            }
+        )
     return summaries
 
 
@@ -190,7 +257,8 @@ def _rotvec_change_deg(first: dict, row: dict) -> np.ndarray:
 
 def trend_series(rows: list[dict]) -> dict:
     """Change of X since the first row (see the module docstring): ``dt_mm`` (N, 3), ``dr_deg`` (N, 3),
-    their 1-sigma ``st_mm`` / ``sr_deg`` (N, 3; NaN when not reported), ``times`` (N,) datetimes."""
+    their 1-sigma ``st_mm`` / ``sr_deg`` (N, 3; NaN when not reported), ``times`` (N,) datetimes.
+    """
     import datetime as _dt
 
     def vec(r, names):
@@ -203,9 +271,13 @@ def trend_series(rows: list[dict]) -> dict:
             times.append(_dt.datetime.fromisoformat(r["time_utc"]))
         except (TypeError, ValueError):
             times.append(_dt.datetime(1970, 1, 1) + _dt.timedelta(days=k))
-    return {"times": times, "dt_mm": t - t[0], "dr_deg": np.array([_rotvec_change_deg(rows[0], r) for r in rows]),
-            "st_mm": np.array([vec(r, ("sigma_tx_mm", "sigma_ty_mm", "sigma_tz_mm")) for r in rows]),
-            "sr_deg": np.array([vec(r, ("sigma_rx_deg", "sigma_ry_deg", "sigma_rz_deg")) for r in rows])}
+    return {
+        "times": times,
+        "dt_mm": t - t[0],
+        "dr_deg": np.array([_rotvec_change_deg(rows[0], r) for r in rows]),
+        "st_mm": np.array([vec(r, ("sigma_tx_mm", "sigma_ty_mm", "sigma_tz_mm")) for r in rows]),
+        "sr_deg": np.array([vec(r, ("sigma_rx_deg", "sigma_ry_deg", "sigma_rz_deg")) for r in rows]),
+    }
 
 
 def trend_png(install: str, rows: list[dict]) -> bytes:
@@ -221,16 +293,26 @@ def trend_png(install: str, rows: list[dict]) -> bytes:
         fig = Figure(figsize=(9.0, 2.8), dpi=110)
         FigureCanvasAgg(fig)
         fig.subplots_adjust(left=0.08, right=0.98, bottom=0.16, top=0.86, wspace=0.28)
-        for k, (key, skey, unit, title) in enumerate((("dt_mm", "st_mm", "mm", "translation change"),
-                                                      ("dr_deg", "sr_deg", "deg", "rotation change (camera axes)"))):
+        for k, (key, skey, unit, title) in enumerate(
+            (
+                ("dt_mm", "st_mm", "mm", "translation change"),
+                ("dr_deg", "sr_deg", "deg", "rotation change (camera axes)"),
+            )
+        ):
             ax = fig.add_subplot(1, 2, k + 1)
-            for j, (axis, color) in enumerate(zip("xyz", ("#c0392b", "#27865a", "#2c5d95"))):
+            for j, (axis, color) in enumerate(zip("xyz", ("#c0392b", "#27865a", "#2c5d95"), strict=False)):
                 y, sig = s[key][:, j], s[skey][:, j]
                 ax.plot(s["times"], y, "o-", color=color, ms=3.5, lw=1.2, label=axis)
                 ok = np.isfinite(sig)
                 if ok.any():
-                    ax.fill_between(np.array(s["times"], dtype=object)[ok], (y - 2 * sig)[ok], (y + 2 * sig)[ok],
-                                    color=color, alpha=0.15, lw=0)
+                    ax.fill_between(
+                        np.array(s["times"], dtype=object)[ok],
+                        (y - 2 * sig)[ok],
+                        (y + 2 * sig)[ok],
+                        color=color,
+                        alpha=0.15,
+                        lw=0,
+                    )
             ax.set_title(f"{title} [{unit}]", fontsize=9.5, loc="left")
             locator = AutoDateLocator(maxticks=5)
             ax.xaxis.set_major_locator(locator)
@@ -245,14 +327,18 @@ def trend_png(install: str, rows: list[dict]) -> bytes:
 def fleet_summary(rows: list[dict], installs: list[dict]) -> dict:
     """Fleet-wide: verdict counts, failing installs (latest session FAIL, REFUSED or ERROR), installs
     with a significant drift, the most common findings codes (sessions that have each), the sessions
-    whose export (``calibrate --export``) failed."""
+    whose export (``calibrate --export``) failed.
+    """
     codes = Counter(c for r in rows for c in set(r["findings"]))
-    return {"n_sessions": len(rows), "n_installs": len(installs),
-            "verdicts": Counter(r["verdict"] for r in rows),
-            "failing": [i for i in installs if i["latest_verdict"] in FAILED_VERDICTS],
-            "drifting": [i for i in installs if i["n_drifted"]],
-            "top_findings": codes.most_common(TOP_FINDINGS),
-            "export_errors": [r for r in rows if r["export_error"]]}
+    return {
+        "n_sessions": len(rows),
+        "n_installs": len(installs),
+        "verdicts": Counter(r["verdict"] for r in rows),
+        "failing": [i for i in installs if i["latest_verdict"] in FAILED_VERDICTS],
+        "drifting": [i for i in installs if i["n_drifted"]],
+        "top_findings": codes.most_common(TOP_FINDINGS),
+        "export_errors": [r for r in rows if r["export_error"]],
+    }
 
 
 # ------------------------------------------------------------------------------------------ files
@@ -299,9 +385,14 @@ def _env(*, html: bool):
 
     from ..report.render import mdcell, num
 
-    env = jinja2.Environment(loader=jinja2.PackageLoader("handeye", "templates"), autoescape=html,
-                             undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True,
-                             keep_trailing_newline=True)
+    env = jinja2.Environment(
+        loader=jinja2.PackageLoader("handeye", "templates"),
+        autoescape=html,
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+        keep_trailing_newline=True,
+    )
     env.filters["num"] = num
     env.filters["mdcell"] = lambda x: mdcell(x).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
     env.filters["pill"] = lambda v: {"PASS": "pass", "WARN": "warn"}.get(str(v), "fail")
@@ -318,20 +409,30 @@ def write_index(out, *, plots: bool = True) -> list[Path]:
     out = Path(out)
     rows = fleet_rows(out)
     installs = install_summaries(out, rows, plots=plots)
-    ctx = {"rows": rows, "installs": installs, "fleet": fleet_summary(rows, installs), "version": __version__,
-           "generated_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-           "anchor": lambda name: "install-" + safe_name(name), "log_name": LOG_NAME}
+    ctx = {
+        "rows": rows,
+        "installs": installs,
+        "fleet": fleet_summary(rows, installs),
+        "version": __version__,
+        "generated_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "anchor": lambda name: "install-" + safe_name(name),
+        "log_name": LOG_NAME,
+    }
     written = [atomic_write_text(out / "fleet.csv", csv_text(rows))]
     pq_path = _write_parquet(out / "fleet.parquet", rows)
     if pq_path is not None:
         written.append(pq_path)
     images = {i["install"]: data_uri(i["trend_png"]) for i in installs if i["trend_png"]}
-    written.append(atomic_write_text(out / "index.html",
-                                     _env(html=True).get_template("fleet.html.j2").render(**ctx, images=images)))
+    written.append(
+        atomic_write_text(
+            out / "index.html", _env(html=True).get_template("fleet.html.j2").render(**ctx, images=images)
+        )
+    )
     files = {i["install"]: f"{FILES_DIR}/trend_{safe_name(i['install'])}.png" for i in installs if i["trend_png"]}
     for i in installs:
         if i["trend_png"]:
             atomic_write_bytes(out / files[i["install"]], i["trend_png"])
-    written.append(atomic_write_text(out / "index.md",
-                                     _env(html=False).get_template("fleet.md.j2").render(**ctx, images=files)))
+    written.append(
+        atomic_write_text(out / "index.md", _env(html=False).get_template("fleet.md.j2").render(**ctx, images=files))
+    )
     return written

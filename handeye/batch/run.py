@@ -25,6 +25,7 @@ calibration and prior files go with each task too; result.json's ``session.path`
 worker's temporary copy, batch.json's ``session`` the original). Nothing here imports the
 calibration: the task and the client stay light.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -78,7 +79,7 @@ class BatchSummary:
 
     @property
     def counts(self) -> Counter:
-        """done / failed / skipped (failed: verdict FAIL or REFUSED, or no result of this run)."""
+        """Done / failed / skipped (failed: verdict FAIL or REFUSED, or no result of this run)."""
         return Counter(record_state(r) for r in self.records)
 
     @property
@@ -98,16 +99,19 @@ class BatchSummary:
     def line(self) -> str:
         """The one-line summary."""
         c, v = self.counts, self.verdicts
-        verdicts = ", ".join(f"{v[k]} {k}" for k in ("PASS", "WARN", "VALID", "FAIL", "REFUSED", "DRIFTED", "ERROR")
-                             if v[k])
+        verdicts = ", ".join(
+            f"{v[k]} {k}" for k in ("PASS", "WARN", "VALID", "FAIL", "REFUSED", "DRIFTED", "ERROR") if v[k]
+        )
         exports = len(self.export_errors)
-        return (f"{len(self.records)} sessions: {c['done']} done, {c['failed']} failed, {c['skipped']} skipped "
-                f"({verdicts or 'none'}) in {self.seconds:.0f} s"
-                + (f"; the export failed for {exports} session{'s' if exports != 1 else ''}" if exports else ""))
+        return (
+            f"{len(self.records)} sessions: {c['done']} done, {c['failed']} failed, {c['skipped']} skipped "
+            f"({verdicts or 'none'}) in {self.seconds:.0f} s"
+            + (f"; the export failed for {exports} session{'s' if exports != 1 else ''}" if exports else "")
+        )
 
 
 def record_state(rec: dict) -> str:
-    """done | failed | skipped for the progress bar."""
+    """Done | failed | skipped for the progress bar."""
     if rec.get("skipped"):
         return "skipped"
     return "failed" if (rec.get("verdict") or "ERROR") in FAILED_VERDICTS else "done"
@@ -121,7 +125,8 @@ def _canonical(obj):
 
 def calibrate_namespace(calibrate: dict):
     """The ``handeye calibrate`` arguments of one batch session: ``calibrate`` (its flags by their
-    argparse names) with one detection thread (the batch runs sessions side by side)."""
+    argparse names) with one detection thread (the batch runs sessions side by side).
+    """
     import argparse
 
     return argparse.Namespace(**{**calibrate, "workers": 1})
@@ -129,7 +134,8 @@ def calibrate_namespace(calibrate: dict):
 
 def provenance_options(calibrate: dict) -> dict:
     """The calibration options as result.json's ``provenance.options`` records them, for the
-    command-line options ``calibrate`` (the ``handeye calibrate`` flags by their argparse names)."""
+    command-line options ``calibrate`` (the ``handeye calibrate`` flags by their argparse names).
+    """
     from ..cli.calibrate import options_from_args
 
     o = options_from_args(calibrate_namespace(calibrate))
@@ -146,7 +152,8 @@ def _file_sha(path) -> Optional[str]:
 
 def inputs_sha256(job: SessionJob, mode: Optional[str], *, allow_outside: bool = False) -> tuple[str, str]:
     """(hash, what it covers): result.json's input hash (the loaded session's images, poses and
-    config), or, for a session that does not load, the hash of every file in its folder."""
+    config), or, for a session that does not load, the hash of every file in its folder.
+    """
     from ..errors import HandeyeError
     from ..results import session_inputs
     from ..session import load_session
@@ -163,15 +170,32 @@ def session_key(job: SessionJob, calibrate: dict, options: dict) -> dict:
     h, covers = inputs_sha256(job, calibrate.get("mode"), allow_outside=bool(calibrate.get("allow_outside")))
     if job.verify_against:  # a verification: its session and the installed result it is checked against
         against = Path(job.verify_against)
-        return _canonical({"inputs_sha256": h, "inputs": covers, "verify_against": str(against),
-                           "against_sha256": _file_sha(against / "result.json" if against.is_dir() else against),
-                           "mode": calibrate.get("mode"), "report": not calibrate.get("no_report")})
-    return _canonical({"inputs_sha256": h, "inputs": covers, "options": options, "mode": calibrate.get("mode"),
-                       "shift_poses": calibrate.get("shift_poses") or 0, "report": not calibrate.get("no_report"),
-                       "qa_sha256": _file_sha(calibrate.get("qa")), "config_sha256": _file_sha(calibrate.get("config")),
-                       "prior_sha256": _file_sha(calibrate.get("prior")), "export": calibrate.get("export"),
-                       **({"board_unmoved": True} if calibrate.get("board_unmoved") else {}),  # keys of earlier runs stay
-                       "allow_outside": bool(calibrate.get("allow_outside"))})
+        return _canonical(
+            {
+                "inputs_sha256": h,
+                "inputs": covers,
+                "verify_against": str(against),
+                "against_sha256": _file_sha(against / "result.json" if against.is_dir() else against),
+                "mode": calibrate.get("mode"),
+                "report": not calibrate.get("no_report"),
+            }
+        )
+    return _canonical(
+        {
+            "inputs_sha256": h,
+            "inputs": covers,
+            "options": options,
+            "mode": calibrate.get("mode"),
+            "shift_poses": calibrate.get("shift_poses") or 0,
+            "report": not calibrate.get("no_report"),
+            "qa_sha256": _file_sha(calibrate.get("qa")),
+            "config_sha256": _file_sha(calibrate.get("config")),
+            "prior_sha256": _file_sha(calibrate.get("prior")),
+            "export": calibrate.get("export"),
+            **({"board_unmoved": True} if calibrate.get("board_unmoved") else {}),  # keys of earlier runs stay
+            "allow_outside": bool(calibrate.get("allow_outside")),
+        }
+    )
 
 
 def read_json(path: Path) -> Optional[dict]:
@@ -184,7 +208,8 @@ def read_json(path: Path) -> Optional[dict]:
 
 def current_record(out_dir: Path, key: dict) -> Optional[dict]:
     """The session's batch record when its last run finished with the same key and its result.json
-    still records that key's inputs and options (so the run can be skipped), else None."""
+    still records that key's inputs and options (so the run can be skipped), else None.
+    """
     rec = read_json(out_dir / RECORD_NAME)
     if rec is None or rec.get("key") != key or rec.get("outcome") != "done":
         return None
@@ -207,7 +232,8 @@ def run_session(spec: dict) -> dict:
     and return the session's batch record. ``spec``: session, out_dir, install, name, time_utc,
     time_source, key, calibrate (the command-line options), timeout_s, and ``files`` (relative path
     -> bytes) when the client uploads the session: it is then written to a temporary folder on the
-    worker, calibrated there, and the output folder comes back as ``files`` in the record."""
+    worker, calibrated there, and the output folder comes back as ``files`` in the record.
+    """
     if spec.get("files") is None:
         return _run_child(spec, Path(spec["out_dir"]))
     import tempfile
@@ -219,8 +245,18 @@ def run_session(spec: dict) -> dict:
         for name, (base, data) in (spec.get("site_files") or {}).items():  # --qa, --config, --prior
             calibrate[name] = str(atomic_write_bytes(Path(tmp) / f"site_{name}" / base, data, durable=False))
         out = Path(tmp) / "out"
-        rec = _run_child({**spec, "files": None, "site_files": None, "session": str(session), "out_dir": str(out),
-                          "calibrate": calibrate}, out, session_path=spec["session"])
+        rec = _run_child(
+            {
+                **spec,
+                "files": None,
+                "site_files": None,
+                "session": str(session),
+                "out_dir": str(out),
+                "calibrate": calibrate,
+            },
+            out,
+            session_path=spec["session"],
+        )
         return {**rec, "files": read_tree(out)}
 
 
@@ -230,21 +266,26 @@ def _run_child(spec: dict, out: Path, *, session_path: Optional[str] = None) -> 
         log_file = open(out / LOG_NAME, "wb")
     t0 = time.perf_counter()
     rec = {k: spec[k] for k in ("session", "install", "name", "time_utc", "time_source", "key")}
-    rec.update(session=session_path or spec["session"], worker=f"{socket.gethostname()}:{os.getpid()}",
-               started_utc=_now())
+    rec.update(
+        session=session_path or spec["session"], worker=f"{socket.gethostname()}:{os.getpid()}", started_utc=_now()
+    )
     cmd = [sys.executable, "-m", "handeye.batch.child", json.dumps(spec)]
     env = {**os.environ, **SESSION_ENV}
     with log_file:
-        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log_file,
-                                start_new_session=True, env=env)
+        proc = subprocess.Popen(
+            cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log_file, start_new_session=True, env=env
+        )
         try:
             stdout, _ = proc.communicate(timeout=float(spec["timeout_s"]))
         except subprocess.TimeoutExpired:
             _kill_group(proc)
             proc.communicate()
             limit = float(spec["timeout_s"])
-            rec.update(outcome="timeout", verdict="ERROR",
-                       reason=f"no result within the time limit of {limit:g} s; the session was killed")
+            rec.update(
+                outcome="timeout",
+                verdict="ERROR",
+                reason=f"no result within the time limit of {limit:g} s; the session was killed",
+            )
             return _finish_record(out, rec, t0)
     lines = stdout.decode("utf-8", "replace").strip().splitlines()
     reply = None
@@ -254,9 +295,12 @@ def _run_child(spec: dict, out: Path, *, session_path: Optional[str] = None) -> 
         except ValueError:
             reply = None
     if not isinstance(reply, dict):
-        how = (f"killed by signal {-proc.returncode}" if proc.returncode < 0 else f"exit code {proc.returncode}")
-        rec.update(outcome="crashed", verdict="ERROR",
-                   reason=f"the session's process ended without a result ({how}): {_last_line(out / LOG_NAME)}")
+        how = f"killed by signal {-proc.returncode}" if proc.returncode < 0 else f"exit code {proc.returncode}"
+        rec.update(
+            outcome="crashed",
+            verdict="ERROR",
+            reason=f"the session's process ended without a result ({how}): {_last_line(out / LOG_NAME)}",
+        )
     else:
         rec.update(reply)
     return _finish_record(out, rec, t0)
@@ -267,7 +311,7 @@ SITE_FILE_OPTIONS = ("qa", "config", "prior")
 
 
 def site_files(calibrate: dict) -> dict:
-    """option -> (file name, bytes) of the files the options name (a result folder: its result.json)."""
+    """Option -> (file name, bytes) of the files the options name (a result folder: its result.json)."""
     files = {}
     for name in SITE_FILE_OPTIONS:
         if calibrate.get(name):
@@ -285,7 +329,8 @@ def read_tree(folder: Path) -> dict:
 def write_tree(folder: Path, files: dict, *, keep_prefix: str = "result.") -> None:
     """Write ``files`` (from :func:`read_tree`) under ``folder``; files already there that are not in
     ``files`` are removed, except those whose name starts with ``keep_prefix`` (earlier results the
-    workflow keeps: result.previous.json, result.last-good.json)."""
+    workflow keeps: result.previous.json, result.last-good.json).
+    """
     folder = Path(folder)
     for rel in files:
         if Path(rel).is_absolute() or ".." in Path(rel).parts:
@@ -336,8 +381,9 @@ class BatchPlan:
     skipped: list = field(default_factory=list)
 
 
-def plan_batch(jobs: list[SessionJob], out: Path, *, calibrate: dict, timeout_s: float = DEFAULT_TIMEOUT_S,
-               force: bool = False) -> BatchPlan:
+def plan_batch(
+    jobs: list[SessionJob], out: Path, *, calibrate: dict, timeout_s: float = DEFAULT_TIMEOUT_S, force: bool = False
+) -> BatchPlan:
     """Decide per session whether it runs (a task spec) or is skipped (its record, ``skipped: true``)."""
     options = provenance_options(calibrate)
     plan = BatchPlan()
@@ -348,30 +394,51 @@ def plan_batch(jobs: list[SessionJob], out: Path, *, calibrate: dict, timeout_s:
         if rec is not None:
             plan.skipped.append({**rec, "skipped": True})
             continue
-        plan.specs.append({"session": str(job.path), "out_dir": str(out_dir), "install": job.install,
-                           "name": job.name, "time_utc": job.time_utc, "time_source": job.time_source,
-                           "key": key, "calibrate": _canonical(calibrate), "timeout_s": float(timeout_s),
-                           "verify_against": job.verify_against})
+        plan.specs.append(
+            {
+                "session": str(job.path),
+                "out_dir": str(out_dir),
+                "install": job.install,
+                "name": job.name,
+                "time_utc": job.time_utc,
+                "time_source": job.time_source,
+                "key": key,
+                "calibrate": _canonical(calibrate),
+                "timeout_s": float(timeout_s),
+                "verify_against": job.verify_against,
+            }
+        )
     return plan
 
 
 def open_client(scheduler: Optional[str] = None, n_workers: Optional[int] = None):
     """A Dask client: of the cluster at ``scheduler`` (``tcp://HOST:8786``), or of an embedded
     LocalCluster of ``n_workers`` single-threaded worker processes (default: the CPU count).
-    Close it with ``client.close()`` (and the cluster with ``client.cluster.close()``)."""
+    Close it with ``client.close()`` (and the cluster with ``client.cluster.close()``).
+    """
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
         return Client(scheduler, timeout="30s")
     n = int(n_workers or os.cpu_count() or 1)
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                           dashboard_address=":0", scheduler_kwargs={"dashboard": False})  # no fixed port taken
+    cluster = LocalCluster(
+        n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0", scheduler_kwargs={"dashboard": False}
+    )  # no fixed port taken
     return Client(cluster)
 
 
-def run_batch(jobs: list[SessionJob], out, *, calibrate: dict, scheduler: Optional[str] = None,
-              n_workers: Optional[int] = None, timeout_s: float = DEFAULT_TIMEOUT_S, force: bool = False,
-              upload: bool = False, progress: Optional[Callable[[dict], None]] = None) -> BatchSummary:
+def run_batch(
+    jobs: list[SessionJob],
+    out,
+    *,
+    calibrate: dict,
+    scheduler: Optional[str] = None,
+    n_workers: Optional[int] = None,
+    timeout_s: float = DEFAULT_TIMEOUT_S,
+    force: bool = False,
+    upload: bool = False,
+    progress: Optional[Callable[[dict], None]] = None,
+) -> BatchSummary:
     """Run ``jobs`` on Dask into ``out`` and return the records of every session (run and skipped).
 
     ``calibrate``: the ``handeye calibrate`` options by their argparse names (method, no_refine,
@@ -437,9 +504,12 @@ def _collect(fut, spec: dict) -> dict:
 
         lost = isinstance(e, KilledWorker)
         rec = {k: spec[k] for k in ("session", "install", "name", "time_utc", "time_source", "key")}
-        rec.update(outcome="lost" if lost else "error", verdict="ERROR", finished_utc=_now(),
-                   reason=(f"the workers running it died ({e})" if lost
-                           else f"the task failed: {type(e).__name__}: {e}"))
+        rec.update(
+            outcome="lost" if lost else "error",
+            verdict="ERROR",
+            finished_utc=_now(),
+            reason=(f"the workers running it died ({e})" if lost else f"the task failed: {type(e).__name__}: {e}"),
+        )
         try:
             write_json(Path(spec["out_dir"]) / RECORD_NAME, rec)
         except OSError as w:

@@ -25,6 +25,7 @@ traceback (``--debug`` shows it). The exit codes (:data:`handeye.errors.EXIT_COD
 ``handeye --help`` and ``handeye calibrate --help``): 0 PASS or WARN, 7 FAIL, 8 REFUSED, 2 unusable
 input, 3-6 detection, motion, solver and hardware failures.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -57,7 +58,8 @@ COMMANDS = {
 
 class _LazyCommands(argparse._SubParsersAction):
     """The sub-command action: a command's module is imported, and its arguments added to its
-    (until then empty) parser, only when that command is parsed."""
+    (until then empty) parser, only when that command is parsed.
+    """
 
     def __call__(self, parser, namespace, values, option_string=None):
         name = values[0] if values else None
@@ -77,8 +79,12 @@ def add_command_arguments(parser: argparse.ArgumentParser, name: str) -> argpars
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``handeye`` parser; every command is listed, and loaded when it is parsed."""
-    p = argparse.ArgumentParser(prog="handeye", description="Robot hand-eye calibration with honest uncertainty.",
-                                epilog=exit_codes_text(), formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        prog="handeye",
+        description="Robot hand-eye calibration with honest uncertainty.",
+        epilog=exit_codes_text(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("--version", action="version", version=f"handeye {__version__}")
     p.add_argument("-v", "--verbose", action="store_true", help="more progress detail on stderr")
     p.add_argument("-q", "--quiet", action="store_true", help="only errors on stderr")
@@ -115,8 +121,10 @@ def main(argv=None) -> int:
         if args.debug:
             raise
         msg = " ".join(f"{type(e).__name__}: {e}".split())[:300]
-        print(f"handeye: internal error ({msg}); this is a bug -> rerun with --debug and report the traceback",
-              file=sys.stderr)
+        print(
+            f"handeye: internal error ({msg}); this is a bug -> rerun with --debug and report the traceback",
+            file=sys.stderr,
+        )
         return 1
 
 
@@ -127,21 +135,32 @@ WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG})
 def os_error_line(e: OSError) -> str:
     """The one line for a refusal of the file system: a write (:class:`handeye.output.OutputWriteError`, or
     an error only a write gets) names the output and how to make it writable; a read names the file read
-    and how to make it readable."""
+    and how to make it readable.
+    """
     from ..output import OutputWriteError
 
     why = e.strerror or str(e)
     if isinstance(e, OutputWriteError) or e.errno in WRITE_ERRNOS:
-        fix = ("free space on its disk" if e.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG) else
-               "make its folder writable (its permissions, a read-only mount)"
-               if e.errno in (errno.EACCES, errno.EPERM, errno.EROFS) else "check that path")
-        return (f"cannot write {e.filename or 'the output'} ({why}) -> {fix} or choose another output folder; "
-                "the previous result files are unchanged")
+        fix = (
+            "free space on its disk"
+            if e.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+            else "make its folder writable (its permissions, a read-only mount)"
+            if e.errno in (errno.EACCES, errno.EPERM, errno.EROFS)
+            else "check that path"
+        )
+        return (
+            f"cannot write {e.filename or 'the output'} ({why}) -> {fix} or choose another output folder; "
+            "the previous result files are unchanged"
+        )
     if e.filename:
-        return (f"cannot read {e.filename} ({why}) -> check that the file exists and that this user may read it "
-                "(its permissions and those of its folders), then run again")
-    return (f"the file system refused ({why}) -> check that the input files are readable and the output folder "
-            "writable, then run again")
+        return (
+            f"cannot read {e.filename} ({why}) -> check that the file exists and that this user may read it "
+            "(its permissions and those of its folders), then run again"
+        )
+    return (
+        f"the file system refused ({why}) -> check that the input files are readable and the output folder "
+        "writable, then run again"
+    )
 
 
 if __name__ == "__main__":  # pragma: no cover

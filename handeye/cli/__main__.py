@@ -1,4 +1,5 @@
 """``python -m handeye.cli``: the same entry point as the ``handeye`` command."""
+
 import sys
 
 from . import main

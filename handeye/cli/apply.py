@@ -1,4 +1,5 @@
 """``handeye apply RESULT --point X Y Z | --pose ...``: camera observations in the robot base frame."""
+
 from __future__ import annotations
 
 import logging
@@ -8,7 +9,7 @@ log = logging.getLogger(__name__)
 
 
 def finite_float(text: str) -> float:
-    """argparse type: a finite number (no nan, inf or overflow)."""
+    """Argparse type: a finite number (no nan, inf or overflow)."""
     import argparse
     import math
 
@@ -26,12 +27,23 @@ def add_arguments(p) -> None:
     p.description = "Eye-in-hand needs the end pose at capture time (--end-pose); eye-to-hand does not."
     p.add_argument("result", type=Path, help="result.json or the folder holding it")
     g = p.add_mutually_exclusive_group(required=True)
-    g.add_argument("--point", nargs=3, type=finite_float, metavar=("X", "Y", "Z"),
-                   help="point in the camera frame, metres")
-    g.add_argument("--pose", nargs=6, type=finite_float, metavar=("X", "Y", "Z", "RX", "RY", "RZ"),
-                   help="object pose in the camera frame: metres, radians, R = Rz·Ry·Rx")
-    p.add_argument("--end-pose", nargs=6, type=finite_float, metavar=("X", "Y", "Z", "RX", "RY", "RZ"),
-                   help="robot end pose in the base frame (vendor convention: metres, radians, R = Rz·Ry·Rx)")
+    g.add_argument(
+        "--point", nargs=3, type=finite_float, metavar=("X", "Y", "Z"), help="point in the camera frame, metres"
+    )
+    g.add_argument(
+        "--pose",
+        nargs=6,
+        type=finite_float,
+        metavar=("X", "Y", "Z", "RX", "RY", "RZ"),
+        help="object pose in the camera frame: metres, radians, R = Rz·Ry·Rx",
+    )
+    p.add_argument(
+        "--end-pose",
+        nargs=6,
+        type=finite_float,
+        metavar=("X", "Y", "Z", "RX", "RY", "RZ"),
+        help="robot end pose in the base frame (vendor convention: metres, radians, R = Rz·Ry·Rx)",
+    )
     p.add_argument("--mm", action="store_true", help="--point/--pose/--end-pose translations are in millimetres")
     p.set_defaults(func=run)
 
@@ -41,10 +53,8 @@ def run(args) -> int:
 
     from ..apply import points_cam_to_base, pose_cam_to_base, result_transform
     from ..conventions import VENDOR_POSE_FORMAT, T_from_pose_values, pose_forms
-    from ..errors import ConfigError
+    from ..errors import ConfigError, HandeyeError, InputError
     from ..output import read_json
-
-    from ..errors import HandeyeError, InputError
 
     path = Path(args.result) / "result.json" if Path(args.result).is_dir() else Path(args.result)
     res = read_json(path)
@@ -55,8 +65,12 @@ def run(args) -> int:
     except HandeyeError as e:
         raise e.at(path) from None
     except (TypeError, ValueError) as e:  # a damaged matrix
-        raise InputError(f"the hand-eye transform is damaged ({e})", path=path, expected="a 4x4 matrix of numbers",
-                         hint="re-run handeye calibrate") from None
+        raise InputError(
+            f"the hand-eye transform is damaged ({e})",
+            path=path,
+            expected="a 4x4 matrix of numbers",
+            hint="re-run handeye calibrate",
+        ) from None
     if str(res.get("verdict") or "").upper() == "FAIL":
         from ..recal.loaded import load_result, unfit_note
 
@@ -70,12 +84,17 @@ def run(args) -> int:
         v[:3] *= scale
         lim = session_limits()
         if np.any(np.abs(v[3:]) > lim["max_angle_rad"]):
-            raise ConfigError(f"{flag}: rotation angle {np.abs(v[3:]).max():g} is larger than 2*pi",
-                              expected="rx, ry, rz in radians", hint="the angles look like degrees: convert them")
+            raise ConfigError(
+                f"{flag}: rotation angle {np.abs(v[3:]).max():g} is larger than 2*pi",
+                expected="rx, ry, rz in radians",
+                hint="the angles look like degrees: convert them",
+            )
         if flag == "--end-pose" and np.linalg.norm(v[:3]) > lim["max_reach_m"]:
-            raise ConfigError(f"{flag}: the flange {np.linalg.norm(v[:3]):g} m from the base is beyond an arm's reach",
-                              expected="x, y, z in metres (or millimetres with --mm)",
-                              hint="the position looks like millimetres: add --mm")
+            raise ConfigError(
+                f"{flag}: the flange {np.linalg.norm(v[:3]):g} m from the base is beyond an arm's reach",
+                expected="x, y, z in metres (or millimetres with --mm)",
+                hint="the position looks like millimetres: add --mm",
+            )
         try:
             return T_from_pose_values(v, VENDOR_POSE_FORMAT)
         except ValueError as e:

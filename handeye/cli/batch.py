@@ -6,6 +6,7 @@ one-line summary (with the count of failed exports) and the index's paths. Exit 
 (run now or skipped as unchanged) is PASS or WARN, else 7 (:class:`handeye.errors.QAFailed`'s code).
 ``--index-only OUT`` rebuilds the index from the result folders in OUT.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -25,26 +26,45 @@ def add_arguments(p) -> None:
     from ..batch.run import DEFAULT_TIMEOUT_S
     from .calibrate import add_arguments as add_calibrate_arguments
 
-    p.description = ("Calibrate every session under ROOT (folders with session.yaml or poses.txt), one Dask task "
-                     "per session, into OUT/<install>/<session>/ (the same files as handeye calibrate), then "
-                     "write the fleet index OUT/index.html, index.md and fleet.csv. The install of a session is "
-                     "session.yaml's 'install:' key, else the first folder under ROOT (ROOT/<install>/<session>/). "
-                     "Sessions whose inputs and options have not changed since their last result are skipped.")
+    p.description = (
+        "Calibrate every session under ROOT (folders with session.yaml or poses.txt), one Dask task "
+        "per session, into OUT/<install>/<session>/ (the same files as handeye calibrate), then "
+        "write the fleet index OUT/index.html, index.md and fleet.csv. The install of a session is "
+        "session.yaml's 'install:' key, else the first folder under ROOT (ROOT/<install>/<session>/). "
+        "Sessions whose inputs and options have not changed since their last result are skipped."
+    )
     p.formatter_class = argparse.RawDescriptionHelpFormatter
-    p.epilog = ("exit codes: 0 every session PASS or WARN; 7 a session FAIL, REFUSED or without a result "
-                "(timeout, crash, lost worker); 2 unusable input")
+    p.epilog = (
+        "exit codes: 0 every session PASS or WARN; 7 a session FAIL, REFUSED or without a result "
+        "(timeout, crash, lost worker); 2 unusable input"
+    )
     p.add_argument("root", type=Path, help="folder holding the sessions (with --index-only: the output folder)")
     p.add_argument("--out", type=Path, help="output folder (required unless --index-only)")
-    p.add_argument("--workers", type=int, metavar="N",
-                   help="worker processes of the embedded Dask cluster (default: the CPU count)")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="use the Dask cluster of this scheduler (tcp://HOST:8786) instead of an embedded one; "
-                        "its workers must see ROOT and OUT at the same paths, unless --upload")
-    p.add_argument("--upload", action="store_true",
-                   help="send each session's files to the workers and their results back (workers that do not "
-                        "share the client's filesystem); default: workers read ROOT and write OUT themselves")
-    p.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT_S, metavar="S",
-                   help=f"time limit of one session in seconds (default {DEFAULT_TIMEOUT_S:g})")
+    p.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help="worker processes of the embedded Dask cluster (default: the CPU count)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="use the Dask cluster of this scheduler (tcp://HOST:8786) instead of an embedded one; "
+        "its workers must see ROOT and OUT at the same paths, unless --upload",
+    )
+    p.add_argument(
+        "--upload",
+        action="store_true",
+        help="send each session's files to the workers and their results back (workers that do not "
+        "share the client's filesystem); default: workers read ROOT and write OUT themselves",
+    )
+    p.add_argument(
+        "--timeout",
+        type=float,
+        default=DEFAULT_TIMEOUT_S,
+        metavar="S",
+        help=f"time limit of one session in seconds (default {DEFAULT_TIMEOUT_S:g})",
+    )
     p.add_argument("--force", action="store_true", help="run every session, changed or not")
     p.add_argument("--index-only", action="store_true", help="only rebuild the index of the output folder ROOT")
     tmp = argparse.ArgumentParser(add_help=False)
@@ -58,8 +78,10 @@ def add_arguments(p) -> None:
 
 def calibrate_options(args) -> dict:
     """The ``handeye calibrate`` options of the batch, by argparse name, paths absolute."""
-    return {d: (str(Path(v).resolve()) if isinstance(v, Path) else v)
-            for d, v in ((d, getattr(args, d)) for d in args.calibrate_dests)}
+    return {
+        d: (str(Path(v).resolve()) if isinstance(v, Path) else v)
+        for d, v in ((d, getattr(args, d)) for d in args.calibrate_dests)
+    }
 
 
 def run(args) -> int:
@@ -87,13 +109,24 @@ def run(args) -> int:
     load_qa(args.qa)  # a bad site QA file stops the batch before any session runs
     jobs = discover(args.root)
     if not jobs:
-        raise InputError("no sessions found", path=args.root,
-                         expected="folders with session.yaml or poses.txt (ROOT/<install>/<session>/)")
+        raise InputError(
+            "no sessions found",
+            path=args.root,
+            expected="folders with session.yaml or poses.txt (ROOT/<install>/<session>/)",
+        )
     bar = _Progress(len(jobs), quiet=getattr(args, "quiet", False))
     try:
-        summary = run_batch(jobs, args.out.resolve(), calibrate=calibrate_options(args), scheduler=args.scheduler,
-                            n_workers=args.workers, timeout_s=args.timeout, force=args.force, upload=args.upload,
-                            progress=bar.update)
+        summary = run_batch(
+            jobs,
+            args.out.resolve(),
+            calibrate=calibrate_options(args),
+            scheduler=args.scheduler,
+            n_workers=args.workers,
+            timeout_s=args.timeout,
+            force=args.force,
+            upload=args.upload,
+            progress=bar.update,
+        )
     finally:
         bar.close()
     paths = write_index(args.out)
@@ -120,12 +153,17 @@ class _Progress:
         state = record_state(rec)
         self.counts[state] += 1
         if state == "failed":
-            self.bar.write(f"{rec['install']}/{rec['name']}: {rec.get('verdict')} ({rec.get('outcome')}): "
-                           f"{rec.get('reason') or ''}", file=sys.stderr)
+            self.bar.write(
+                f"{rec['install']}/{rec['name']}: {rec.get('verdict')} ({rec.get('outcome')}): "
+                f"{rec.get('reason') or ''}",
+                file=sys.stderr,
+            )
         if rec.get("export_error"):  # a skipped session's export is still missing: said too
             self.bar.write(f"{rec['install']}/{rec['name']}: the export failed: {rec['export_error']}", file=sys.stderr)
-        self.bar.set_postfix_str(f"done {self.counts['done']} · failed {self.counts['failed']} · "
-                                 f"skipped {self.counts['skipped']}", refresh=False)
+        self.bar.set_postfix_str(
+            f"done {self.counts['done']} · failed {self.counts['failed']} · skipped {self.counts['skipped']}",
+            refresh=False,
+        )
         self.bar.update(1)
 
     def close(self) -> None:

@@ -4,6 +4,7 @@ stdout: the views used, the result block (matrix, forms, 1-sigma), then the verd
 warning or failing QA check and finding with its fix (:mod:`.verdict`), then the files written. The
 exit code is the error's, or the verdict's (:data:`handeye.errors.EXIT_CODES`).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -16,11 +17,16 @@ log = logging.getLogger(__name__)
 
 def _sigma_source_words(src: str, ref: dict) -> str:
     """result.json's sigma_source (which covariance the verdict uses) in the words of the printed result."""
-    validated = ((ref.get("validation") or {}).get("status") == "ok")
-    return {"model": ("from the model covariance; the held-out folds agree with it" if validated
-                      else "from the model covariance; not validated"),
-            "validated": "from the spread over held-out folds, larger than the model's",
-            "model+validated": "the larger of the model's and the held-out folds' in each direction"}.get(src, src)
+    validated = (ref.get("validation") or {}).get("status") == "ok"
+    return {
+        "model": (
+            "from the model covariance; the held-out folds agree with it"
+            if validated
+            else "from the model covariance; not validated"
+        ),
+        "validated": "from the spread over held-out folds, larger than the model's",
+        "model+validated": "the larger of the model's and the held-out folds' in each direction",
+    }.get(src, src)
 
 
 def add_arguments(p) -> None:
@@ -30,63 +36,114 @@ def add_arguments(p) -> None:
     from ..mounting import MODES
     from ..records import METHOD_NAMES
 
-    p.description = ("Detect the target, calibrate the camera, start from an OpenCV closed-form solution and "
-                     "refine jointly; writes DIR/result.json, observations.json, thumbnails/ and the reports. "
-                     "Prints the result, then the verdict (PASS / WARN / FAIL / REFUSED) and every warning or "
-                     "failure with its fix.")
+    p.description = (
+        "Detect the target, calibrate the camera, start from an OpenCV closed-form solution and "
+        "refine jointly; writes DIR/result.json, observations.json, thumbnails/ and the reports. "
+        "Prints the result, then the verdict (PASS / WARN / FAIL / REFUSED) and every warning or "
+        "failure with its fix."
+    )
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = exit_codes_text()
     p.add_argument("session", help="session folder (poses.txt + N.jpg + config.yaml, or session.yaml)")
-    p.add_argument("--mode", choices=MODES,
-                   help="mounting mode (overrides the session's own; default: the session's, else eye_in_hand)")
-    p.add_argument("--method", choices=METHOD_NAMES,
-                   help="closed-form method reported as the seed (the result with --no-refine); the refinement "
-                        "starts from it unless another closed form explains the views better (default: tsai, "
-                        "from the preset)")
+    p.add_argument(
+        "--mode",
+        choices=MODES,
+        help="mounting mode (overrides the session's own; default: the session's, else eye_in_hand)",
+    )
+    p.add_argument(
+        "--method",
+        choices=METHOD_NAMES,
+        help="closed-form method reported as the seed (the result with --no-refine); the refinement "
+        "starts from it unless another closed form explains the views better (default: tsai, "
+        "from the preset)",
+    )
     p.add_argument("--config", type=Path, help="site YAML overriding configs/calibration.yaml (same keys)")
-    p.add_argument("--out", type=Path,
-                   help="output folder (default: reports/<session folder name>-<8 hex digits of its full path>); "
-                        "checked before the work starts and locked while the run writes into it")
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="output folder (default: reports/<session folder name>-<8 hex digits of its full path>); "
+        "checked before the work starts and locked while the run writes into it",
+    )
     p.add_argument("--no-refine", action="store_true", help="stop at the closed-form solution")
     p.add_argument("--fix-k3", action="store_true", help="hold the k3 distortion coefficient at 0")
-    p.add_argument("--fix", nargs="+", metavar="NAME", choices=["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"],
-                   help="intrinsics held at their starting values in the refinement (e.g. --fix p1 p2 k3)")
-    p.add_argument("--robot-noise", choices=["estimate", "fixed", "none"], default=None,
-                   help="robot pose noise model in the refinement (default: estimate)")
-    p.add_argument("--robot-sigma", nargs=2, type=positive_float, metavar=("MM", "DEG"),
-                   help="robot pose sigma: start value (estimate) or the value (fixed)")
-    p.add_argument("--robot", metavar="ARM",
-                   help=f"the arm's kinematic model (a preset: {', '.join(arm_presets())}; or a DH YAML file): the refinement models the robot's "
-                        "error as DH offsets plus encoder noise (joint angles from the session, else by inverse "
-                        "kinematics of the poses); default: the session's robot: key, else an iid pose error")
+    p.add_argument(
+        "--fix",
+        nargs="+",
+        metavar="NAME",
+        choices=["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"],
+        help="intrinsics held at their starting values in the refinement (e.g. --fix p1 p2 k3)",
+    )
+    p.add_argument(
+        "--robot-noise",
+        choices=["estimate", "fixed", "none"],
+        default=None,
+        help="robot pose noise model in the refinement (default: estimate)",
+    )
+    p.add_argument(
+        "--robot-sigma",
+        nargs=2,
+        type=positive_float,
+        metavar=("MM", "DEG"),
+        help="robot pose sigma: start value (estimate) or the value (fixed)",
+    )
+    p.add_argument(
+        "--robot",
+        metavar="ARM",
+        help=f"the arm's kinematic model (a preset: {', '.join(arm_presets())}; or a DH YAML file): the refinement models the robot's "
+        "error as DH offsets plus encoder noise (joint angles from the session, else by inverse "
+        "kinematics of the poses); default: the session's robot: key, else an iid pose error",
+    )
     p.add_argument("--workers", type=positive_int, help="threads for corner detection (default: all cores)")
-    p.add_argument("--qa", type=Path, metavar="FILE",
-                   help="site QA thresholds for the verdict and the report (overrides configs/qa.yaml)")
+    p.add_argument(
+        "--qa",
+        type=Path,
+        metavar="FILE",
+        help="site QA thresholds for the verdict and the report (overrides configs/qa.yaml)",
+    )
     p.add_argument("--no-report", action="store_true", help="write result.json, observations.json and thumbnails only")
-    p.add_argument("--shift-poses", type=int, default=0, metavar="N",
-                   help="pair image k with the pose written for image k+N (the constant shift a refused run "
-                        "names)")
-    p.add_argument("--prior", type=Path, metavar="RESULT",
-                   help="an earlier result of this rig: its X and intrinsics enter as priors with their covariances "
-                        "(a few new views update it); result.json's prior block says whether the data contradict it "
-                        "(then the session is calibrated without the prior on X, and the drift is printed)")
-    p.add_argument("--board-unmoved", action="store_true",
-                   help="with --prior: the board has not been touched since the earlier calibration (bolted to the "
-                        "flange or the table); when the data contradict the prior on X, the earlier board pose enters "
-                        "too, so each new view measures X through it (a board moved by a millimetre would then move "
-                        "X: a few views cannot tell that from a bumped camera)")
-    p.add_argument("--allow-outside", action="store_true",
-                   help="let session.yaml's image and pose-file paths leave the session folder (refused by default)")
+    p.add_argument(
+        "--shift-poses",
+        type=int,
+        default=0,
+        metavar="N",
+        help="pair image k with the pose written for image k+N (the constant shift a refused run names)",
+    )
+    p.add_argument(
+        "--prior",
+        type=Path,
+        metavar="RESULT",
+        help="an earlier result of this rig: its X and intrinsics enter as priors with their covariances "
+        "(a few new views update it); result.json's prior block says whether the data contradict it "
+        "(then the session is calibrated without the prior on X, and the drift is printed)",
+    )
+    p.add_argument(
+        "--board-unmoved",
+        action="store_true",
+        help="with --prior: the board has not been touched since the earlier calibration (bolted to the "
+        "flange or the table); when the data contradict the prior on X, the earlier board pose enters "
+        "too, so each new view measures X through it (a board moved by a millimetre would then move "
+        "X: a few views cannot tell that from a bumped camera)",
+    )
+    p.add_argument(
+        "--allow-outside",
+        action="store_true",
+        help="let session.yaml's image and pose-file paths leave the session folder (refused by default)",
+    )
     from ..export import FORMATS as EXPORT_FORMATS
 
-    p.add_argument("--export", choices=list(EXPORT_FORMATS), metavar="FORMAT",
-                   help="also write the result for robot software next to result.json: "
-                        + ", ".join(EXPORT_FORMATS) + " (as handeye export; not for a FAIL or REFUSED verdict)")
+    p.add_argument(
+        "--export",
+        choices=list(EXPORT_FORMATS),
+        metavar="FORMAT",
+        help="also write the result for robot software next to result.json: "
+        + ", ".join(EXPORT_FORMATS)
+        + " (as handeye export; not for a FAIL or REFUSED verdict)",
+    )
     p.set_defaults(func=run)
 
 
 def positive_int(text: str) -> int:
-    """argparse type: a whole number >= 1 (``--workers``)."""
+    """Argparse type: a whole number >= 1 (``--workers``)."""
     try:
         v = int(text)
     except ValueError:
@@ -97,7 +154,7 @@ def positive_int(text: str) -> int:
 
 
 def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0 (sigmas)."""
+    """Argparse type: a finite number > 0 (sigmas)."""
     import math
 
     try:
@@ -111,7 +168,8 @@ def positive_float(text: str) -> float:
 
 def default_out_dir(session) -> Path:
     """``reports/<session folder name>-<8 hex digits of the SHA-1 of its absolute path>``: two sessions
-    of the same folder name (a/session, b/session) never share an output folder."""
+    of the same folder name (a/session, b/session) never share an output folder.
+    """
     import hashlib
 
     p = Path(session).resolve()
@@ -123,7 +181,10 @@ def default_out_dir(session) -> Path:
 _SITE_CHECKS = {
     "motion.min_rotation_deg": ("a number of degrees >= 0", lambda v: _pos(v) or v == 0),
     "motion.min_axis_spread_deg": ("a number of degrees >= 0", lambda v: _pos(v) or v == 0),
-    "min_corners": ("a whole number >= 4, or null", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 4),
+    "min_corners": (
+        "a whole number >= 4, or null",
+        lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 4,
+    ),
     "refine_options.robot_noise": ("estimate | fixed | none", lambda v: v in ("estimate", "fixed", "none")),
     "refine_options.robot_sigma_mm": ("a number > 0 (mm)", lambda v: _pos(v)),
     "refine_options.robot_sigma_deg": ("a number > 0 (degrees)", lambda v: _pos(v)),
@@ -140,7 +201,8 @@ def _pos(v) -> bool:
 
 def check_site_config(cfg: dict, *, source) -> dict:
     """The calibration settings whose preset value is null (any type merges over it) checked by type, and
-    the motion gates by range; ConfigError naming the setting and the file."""
+    the motion gates by range; ConfigError naming the setting and the file.
+    """
     from ..errors import ConfigError
 
     for key, (expected, ok) in _SITE_CHECKS.items():
@@ -148,8 +210,13 @@ def check_site_config(cfg: dict, *, source) -> dict:
         for part in key.split("."):
             v = v.get(part) if isinstance(v, dict) else None
         if v is not None and not ok(v):
-            raise ConfigError(f"invalid setting {key}", path=source, expected=expected, received=repr(v)[:60],
-                              hint="fix the value in this file")
+            raise ConfigError(
+                f"invalid setting {key}",
+                path=source,
+                expected=expected,
+                received=repr(v)[:60],
+                hint="fix the value in this file",
+            )
     return cfg
 
 
@@ -158,8 +225,10 @@ def options_from_args(args):
     from ..config import load_with_override
     from ..pipeline import CalibrateOptions
 
-    cfg = check_site_config(load_with_override("calibration", getattr(args, "config", None)),
-                            source=getattr(args, "config", None) or "configs/calibration.yaml")
+    cfg = check_site_config(
+        load_with_override("calibration", getattr(args, "config", None)),
+        source=getattr(args, "config", None) or "configs/calibration.yaml",
+    )
     ro = {}
     if getattr(args, "robot_noise", None):
         ro["robot_noise"] = args.robot_noise
@@ -172,10 +241,15 @@ def options_from_args(args):
 
         load_arm(args.robot)  # a wrong name or file is one error line before any work
         ro["arm"] = str(Path(args.robot).resolve()) if Path(args.robot).is_file() else args.robot
-    return CalibrateOptions.from_config(cfg, method=args.method, refine=False if args.no_refine else None,
-                                        fix_k3=True if args.fix_k3 else None, workers=args.workers,
-                                        shift_poses=getattr(args, "shift_poses", 0) or None,
-                                        refine_options=ro)
+    return CalibrateOptions.from_config(
+        cfg,
+        method=args.method,
+        refine=False if args.no_refine else None,
+        fix_k3=True if args.fix_k3 else None,
+        workers=args.workers,
+        shift_poses=getattr(args, "shift_poses", 0) or None,
+        refine_options=ro,
+    )
 
 
 def run(args) -> int:
@@ -184,16 +258,28 @@ def run(args) -> int:
     if getattr(args, "board_unmoved", False) and getattr(args, "prior", None) is None:
         from ..errors import InputError
 
-        raise InputError("--board-unmoved says the board stayed since the earlier calibration given by --prior",
-                         expected="--prior RESULT with it", received="no --prior",
-                         hint="add --prior RESULT, or drop --board-unmoved")
+        raise InputError(
+            "--board-unmoved says the board stayed since the earlier calibration given by --prior",
+            expected="--prior RESULT with it",
+            received="no --prior",
+            hint="add --prior RESULT, or drop --board-unmoved",
+        )
     out = args.out or default_out_dir(args.session)
     opts = options_from_args(args)
     site = [f for f in (getattr(args, "config", None), getattr(args, "qa", None)) if f]
-    wr = calibrate_session(args.session, options=opts, out_dir=out, report=not args.no_report,
-                           qa=getattr(args, "qa", None), mode=args.mode, progress=lambda s: log.info("%s", s),
-                           allow_outside=getattr(args, "allow_outside", False), site_files=site,
-                           prior=getattr(args, "prior", None), board_unmoved=getattr(args, "board_unmoved", False))
+    wr = calibrate_session(
+        args.session,
+        options=opts,
+        out_dir=out,
+        report=not args.no_report,
+        qa=getattr(args, "qa", None),
+        mode=args.mode,
+        progress=lambda s: log.info("%s", s),
+        allow_outside=getattr(args, "allow_outside", False),
+        site_files=site,
+        prior=getattr(args, "prior", None),
+        board_unmoved=getattr(args, "board_unmoved", False),
+    )
     if wr.run is None:  # the session could not be read: result.json and the report say why
         from .verdict import finding_lines
 
@@ -227,7 +313,8 @@ def run(args) -> int:
 
 def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
     """The lines ``handeye calibrate`` prints on stdout: views used (and the mode, when the data chose
-    it), the transform and its uncertainty, the verdict with every warning and failure, the files."""
+    it), the transform and its uncertainty, the verdict with every warning and failure, the files.
+    """
     import numpy as np
 
     from .. import __version__
@@ -237,8 +324,11 @@ def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
     lines = []
     mode = res["mode"]
     used, total = res["n_views"]["used"], res["n_views"]["total"]
-    how = (f", method {res['method']}" + (" + joint refinement" if res.get("refined") else " (closed form only)")
-           if res["status"] == "ok" else ", no result")
+    how = (
+        f", method {res['method']}" + (" + joint refinement" if res.get("refined") else " (closed form only)")
+        if res["status"] == "ok"
+        else ", no result"
+    )
     counts = f"{used}/{total} views used" if res["status"] == "ok" else f"{total} views"
     lines.append(f"handeye {__version__}: {mode}, {counts}{how}")
     lines += mode_lines(res)
@@ -257,19 +347,27 @@ def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
         q = he["quaternion_wxyz"]
         lines.append(f"  quaternion (w, x, y, z): {q[0]:+.6f} {q[1]:+.6f} {q[2]:+.6f} {q[3]:+.6f}")
         e = he["euler_vendor_deg"]
-        lines.append(f"  vendor x,y,z,rx,ry,rz (m, rad; R = Rz·Ry·Rx): {he['vendor_pose_line']}"
-                     f"  [deg: {e[0]:+.3f} {e[1]:+.3f} {e[2]:+.3f}]")
+        lines.append(
+            f"  vendor x,y,z,rx,ry,rz (m, rad; R = Rz·Ry·Rx): {he['vendor_pose_line']}"
+            f"  [deg: {e[0]:+.3f} {e[1]:+.3f} {e[2]:+.3f}]"
+        )
         ref = res.get("refinement") or {}
         sig = ref.get("sigma_trans_mm")
         if sig is not None:
             sr = ref.get("sigma_rot_deg")
             src = ref.get("sigma_source")  # which covariance the verdict sigmas are (result.json's refinement block)
-            lines.append("  1-sigma: translation [mm] " + " ".join(f"{x:.3f}" for x in sig)
-                         + ", rotation [deg] " + " ".join(f"{x:.3f}" for x in sr)
-                         + (f" ({_sigma_source_words(src, ref)})" if src else ""))
+            lines.append(
+                "  1-sigma: translation [mm] "
+                + " ".join(f"{x:.3f}" for x in sig)
+                + ", rotation [deg] "
+                + " ".join(f"{x:.3f}" for x in sr)
+                + (f" ({_sigma_source_words(src, ref)})" if src else "")
+            )
         if ref.get("predicted_error_mm") is not None:
-            lines.append(f"  predicted position error at {ref.get('working_distance_m', float('nan')):.2f} m: "
-                         f"{ref['predicted_error_mm']:.2f} mm (1 sigma)")
+            lines.append(
+                f"  predicted position error at {ref.get('working_distance_m', float('nan')):.2f} m: "
+                f"{ref['predicted_error_mm']:.2f} mm (1 sigma)"
+            )
     elif "verdict" not in res:
         lines.append(f"FAILED: {res['failure_reason']}")
     lines += verdict_lines(res)

@@ -8,6 +8,7 @@ that do not describe one quantity (mode, frames, board, camera resolution) are r
 (exit 2); a difference beyond the uncertainty exits with the DRIFTED code
 (:data:`handeye.errors.EXIT_CODES`).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -21,14 +22,16 @@ def add_arguments(p) -> None:
     """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
     from ..errors import exit_codes_text
 
-    p.description = ("Compare two calibrations of one rig: B - A of the hand-eye transform per axis (mm, deg), "
-                     "the squared Mahalanobis distance under the sum of both covariances (the ones each "
-                     "result's verdict uses) with its p-value, and the same for fx, fy, cx, cy. When both results "
-                     "carry the joint covariance of X and the intrinsics, X is tested given the intrinsics "
-                     "difference (the part of the difference an intrinsics change explains taken out; the test of "
-                     "X alone is printed beside it). Refuses results of different modes, frames, boards or camera "
-                     "resolutions. The exit code follows the test of X (9: drifted); the intrinsics' test is "
-                     "printed beside it.")
+    p.description = (
+        "Compare two calibrations of one rig: B - A of the hand-eye transform per axis (mm, deg), "
+        "the squared Mahalanobis distance under the sum of both covariances (the ones each "
+        "result's verdict uses) with its p-value, and the same for fx, fy, cx, cy. When both results "
+        "carry the joint covariance of X and the intrinsics, X is tested given the intrinsics "
+        "difference (the part of the difference an intrinsics change explains taken out; the test of "
+        "X alone is printed beside it). Refuses results of different modes, frames, boards or camera "
+        "resolutions. The exit code follows the test of X (9: drifted); the intrinsics' test is "
+        "printed beside it."
+    )
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = exit_codes_text()
     p.add_argument("result_a", type=Path, help="the earlier result folder (or its result.json)")
@@ -54,8 +57,11 @@ def run(args) -> int:
             log.warning("%s", note)
     c = compare_results(args.result_a, args.result_b, alpha=alpha)
     if not c.comparable:
-        raise InputError(f"the two results are not comparable: {c.reason}", code="not_comparable",
-                         hint="compare calibrations of one rig (same mode, board and camera resolution)")
+        raise InputError(
+            f"the two results are not comparable: {c.reason}",
+            code="not_comparable",
+            hint="compare calibrations of one rig (same mode, board and camera resolution)",
+        )
     if args.json:
         print(to_json(c.to_dict()))
     else:

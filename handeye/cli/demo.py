@@ -1,4 +1,5 @@
 """``handeye demo``: simulate a rendered session, calibrate it and compare with the ground truth."""
+
 from __future__ import annotations
 
 import logging
@@ -31,9 +32,24 @@ def run(args) -> int:
     log.info("rendering a synthetic %s session with %d views into %s", args.mode, args.views, session_dir)
     # a realistic session: image noise, a little blur, and one view without the board
     # parsed like the command line, so that every other simulate option keeps its default
-    sim_args = build_parser().parse_args(["simulate", str(session_dir), "--mode", args.mode, "--views", str(args.views),
-                                          "--seed", str(args.seed), "--noise-px", "2.0", "--blur", "0.5",
-                                          "--hidden", str(max(2, args.views // 2))])
+    sim_args = build_parser().parse_args(
+        [
+            "simulate",
+            str(session_dir),
+            "--mode",
+            args.mode,
+            "--views",
+            str(args.views),
+            "--seed",
+            str(args.seed),
+            "--noise-px",
+            "2.0",
+            "--blur",
+            "0.5",
+            "--hidden",
+            str(max(2, args.views // 2)),
+        ]
+    )
     simulate.run(sim_args)
     cal_args = build_parser().parse_args(["calibrate", str(session_dir), "--out", str(args.out / "result")])
     cal_args.debug = getattr(args, "debug", False)

@@ -3,6 +3,7 @@
 stdout: one line per file written. A result without a matrix, or with a FAIL or REFUSED verdict
 (unless ``--force``), is refused with one line.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -18,27 +19,48 @@ def add_arguments(p) -> None:
         "Write the hand-eye transform in a robot software's format. The transform is parent -> child "
         "(p_parent = T @ p_child): the flange (eye_in_hand) or the robot base (eye_to_hand) -> the camera. "
         "handeye's camera frame is the optical frame (z forward); --camera-frame body exports the REP 103 body "
-        "frame (x forward) at the same origin. Each file states its frames, quaternion order and sigmas.")
+        "frame (x forward) at the same origin. Each file states its frames, quaternion order and sigmas."
+    )
     p.formatter_class = argparse.RawDescriptionHelpFormatter
-    p.epilog = "formats:\n" + "\n".join(f"  {k:<14} {v[1]}: " + ", ".join("NAME" + s for s in v[0])
-                                        for k, v in FORMATS.items())
+    p.epilog = "formats:\n" + "\n".join(
+        f"  {k:<14} {v[1]}: " + ", ".join("NAME" + s for s in v[0]) for k, v in FORMATS.items()
+    )
     p.add_argument("result", type=Path, help="result folder (or its result.json)")
     p.add_argument("--to", required=True, choices=list(FORMATS), help="export format")
-    p.add_argument("--parent", metavar="FRAME",
-                   help=f"parent frame (default: {DEFAULT_FRAMES['eye_in_hand']} for eye_in_hand, "
-                        f"{DEFAULT_FRAMES['eye_to_hand']} for eye_to_hand)")
-    p.add_argument("--child", metavar="FRAME",
-                   help=f"camera frame name (default: {DEFAULT_FRAMES['camera_optical']}, or "
-                        f"{DEFAULT_FRAMES['camera_body']} with --camera-frame body)")
-    p.add_argument("--camera-frame", choices=["optical", "body"], default="optical",
-                   help="optical: x right, y down, z forward (default, handeye's); body: x forward, y left, z up")
-    p.add_argument("--base-frame", metavar="FRAME", help="easy_handeye2 only: robot_base_frame of an eye_in_hand "
-                                                       "calibration (default base_link)")
-    p.add_argument("--effector-frame", metavar="FRAME", help="easy_handeye2 only: robot_effector_frame of an "
-                                                           "eye_to_hand calibration (default tool0)")
-    p.add_argument("--out", type=Path, metavar="FILE",
-                   help="file to write (companions share its name) or an existing folder; "
-                        "default RESULT/hand_eye.<format suffix>")
+    p.add_argument(
+        "--parent",
+        metavar="FRAME",
+        help=f"parent frame (default: {DEFAULT_FRAMES['eye_in_hand']} for eye_in_hand, "
+        f"{DEFAULT_FRAMES['eye_to_hand']} for eye_to_hand)",
+    )
+    p.add_argument(
+        "--child",
+        metavar="FRAME",
+        help=f"camera frame name (default: {DEFAULT_FRAMES['camera_optical']}, or "
+        f"{DEFAULT_FRAMES['camera_body']} with --camera-frame body)",
+    )
+    p.add_argument(
+        "--camera-frame",
+        choices=["optical", "body"],
+        default="optical",
+        help="optical: x right, y down, z forward (default, handeye's); body: x forward, y left, z up",
+    )
+    p.add_argument(
+        "--base-frame",
+        metavar="FRAME",
+        help="easy_handeye2 only: robot_base_frame of an eye_in_hand calibration (default base_link)",
+    )
+    p.add_argument(
+        "--effector-frame",
+        metavar="FRAME",
+        help="easy_handeye2 only: robot_effector_frame of an eye_to_hand calibration (default tool0)",
+    )
+    p.add_argument(
+        "--out",
+        type=Path,
+        metavar="FILE",
+        help="file to write (companions share its name) or an existing folder; default RESULT/hand_eye.<format suffix>",
+    )
     p.add_argument("--force", action="store_true", help="export a result whose verdict is FAIL")
     p.set_defaults(func=run)
 
@@ -46,8 +68,16 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from ..export import export_result
 
-    for path in export_result(args.result, args.to, out=args.out, parent=args.parent, child=args.child,
-                              camera_frame=args.camera_frame, force=args.force, base_frame=args.base_frame,
-                              effector_frame=args.effector_frame):
+    for path in export_result(
+        args.result,
+        args.to,
+        out=args.out,
+        parent=args.parent,
+        child=args.child,
+        camera_frame=args.camera_frame,
+        force=args.force,
+        base_frame=args.base_frame,
+        effector_frame=args.effector_frame,
+    ):
         print(f"{args.to}: {path}")
     return 0

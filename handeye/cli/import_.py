@@ -1,6 +1,8 @@
 """``handeye import visp|ical SRC OUT``: a session.yaml for another tool's data folder;
 ``handeye import rosbag BAG --image-topic T --base FRAME --end FRAME --target FILE [--out DEST]``: a session
-(session.yaml + images) from a ROS 1 or ROS 2 bag (:mod:`handeye.session.rosbag`)."""
+(session.yaml + images) from a ROS 1 or ROS 2 bag (:mod:`handeye.session.rosbag`).
+"""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,41 +10,76 @@ from pathlib import Path
 
 def add_arguments(p) -> None:
     """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
-    p.description = ("Writes OUT/session.yaml pointing at the original images; nothing is copied. visp reads ViSP's "
-                     "hand-eye data folders (images [PREFIX_]image-N.png, robot poses [PREFIX_]pose_rPe_N.yaml, and "
-                     "chessboard-data.txt or apriltag-data.txt; docs/session_format.md).")
-    p.add_argument("kind", choices=["visp", "ical", "rosbag", "easy_handeye2"],
-                   help="visp: ViSP hand-eye data; ical: ROS-I industrial_calibration; rosbag: a ROS 1 or ROS 2 bag; "
-                        "easy_handeye2: its saved samples (.samples), as a pose-only session")
+    p.description = (
+        "Writes OUT/session.yaml pointing at the original images; nothing is copied. visp reads ViSP's "
+        "hand-eye data folders (images [PREFIX_]image-N.png, robot poses [PREFIX_]pose_rPe_N.yaml, and "
+        "chessboard-data.txt or apriltag-data.txt; docs/session_format.md)."
+    )
+    p.add_argument(
+        "kind",
+        choices=["visp", "ical", "rosbag", "easy_handeye2"],
+        help="visp: ViSP hand-eye data; ical: ROS-I industrial_calibration; rosbag: a ROS 1 or ROS 2 bag; "
+        "easy_handeye2: its saved samples (.samples), as a pose-only session",
+    )
     p.add_argument("src", type=Path, help="the other tool's data folder, or the bag (ROS 1 .bag, ROS 2 bag folder)")
     p.add_argument("out", type=Path, nargs="?", help="folder for session.yaml (rosbag: or --out)")
     p.add_argument("--given-intrinsics", action="store_true", help="use the intrinsics shipped with the data (fixed)")
-    p.add_argument("--force", action="store_true", help="visp, ical: replace the session.yaml of an existing session in OUT")
+    p.add_argument(
+        "--force", action="store_true", help="visp, ical: replace the session.yaml of an existing session in OUT"
+    )
     add_rosbag_arguments(p.add_argument_group("rosbag"))
     g = p.add_argument_group("easy_handeye2")
-    g.add_argument("--tracker-sigma", nargs=2, type=float, metavar=("MM", "DEG"),
-                   help="the tracker's noise per axis (default: estimated at calibration)")
+    g.add_argument(
+        "--tracker-sigma",
+        nargs=2,
+        type=float,
+        metavar=("MM", "DEG"),
+        help="the tracker's noise per axis (default: estimated at calibration)",
+    )
     p.set_defaults(func=run)
 
 
 def add_rosbag_arguments(g) -> None:
     """The options of ``handeye import rosbag`` (stillness defaults: configs/rosbag.yaml)."""
     g.add_argument("--image-topic", metavar="T", help="sensor_msgs/Image or CompressedImage topic")
-    g.add_argument("--camera-info", metavar="T", help="sensor_msgs/CameraInfo topic (default: camera_info "
-                                                      "beside the image topic, when recorded)")
+    g.add_argument(
+        "--camera-info",
+        metavar="T",
+        help="sensor_msgs/CameraInfo topic (default: camera_info beside the image topic, when recorded)",
+    )
     g.add_argument("--base", metavar="FRAME", help="robot base frame in TF (e.g. base_link)")
     g.add_argument("--end", metavar="FRAME", help="flange / tool frame in TF (e.g. tool0)")
-    g.add_argument("--target", type=Path, metavar="FILE",
-                   help="the board: a YAML with a session.yaml target: mapping, or a vendor config.yaml")
-    g.add_argument("--mode", choices=("eye_in_hand", "eye_to_hand"),  # handeye.mounting.MODES (numpy-free help)
-                   help="mounting mode (default: decided from the data)")
+    g.add_argument(
+        "--target",
+        type=Path,
+        metavar="FILE",
+        help="the board: a YAML with a session.yaml target: mapping, or a vendor config.yaml",
+    )
+    g.add_argument(
+        "--mode",
+        choices=("eye_in_hand", "eye_to_hand"),  # handeye.mounting.MODES (numpy-free help)
+        help="mounting mode (default: decided from the data)",
+    )
     g.add_argument("--out", dest="out_opt", type=Path, metavar="DEST", help="session folder (default: BAG_session)")
-    g.add_argument("--intrinsics-use", choices=["fixed", "prior", "initial"], default="prior",
-                   help="how the CameraInfo intrinsics are used (default prior)")
-    for name, unit in (("still-trans-mm-s", "mm/s"), ("still-rot-deg-s", "deg/s"), ("speed-window-s", "s"),
-                       ("min-still-s", "s"), ("margin-s", "s")):
-        g.add_argument(f"--{name}", type=float, metavar=unit.upper().replace("/", "_"),
-                       help=f"stillness: {name.replace('-', ' ')} [{unit}] (configs/rosbag.yaml)")
+    g.add_argument(
+        "--intrinsics-use",
+        choices=["fixed", "prior", "initial"],
+        default="prior",
+        help="how the CameraInfo intrinsics are used (default prior)",
+    )
+    for name, unit in (
+        ("still-trans-mm-s", "mm/s"),
+        ("still-rot-deg-s", "deg/s"),
+        ("speed-window-s", "s"),
+        ("min-still-s", "s"),
+        ("margin-s", "s"),
+    ):
+        g.add_argument(
+            f"--{name}",
+            type=float,
+            metavar=unit.upper().replace("/", "_"),
+            help=f"stillness: {name.replace('-', ' ')} [{unit}] (configs/rosbag.yaml)",
+        )
 
 
 def run(args) -> int:
@@ -83,16 +120,30 @@ def run_rosbag(args) -> int:
 
     missing = [f"--{n}" for n in ("image_topic", "base", "end", "target") if getattr(args, n) is None]
     if missing:
-        raise InputError("handeye import rosbag needs " + ", ".join(m.replace("_", "-") for m in missing),
-                         hint="e.g. --image-topic /camera/color/image_raw --base base_link --end tool0 "
-                              "--target config.yaml")
+        raise InputError(
+            "handeye import rosbag needs " + ", ".join(m.replace("_", "-") for m in missing),
+            hint="e.g. --image-topic /camera/color/image_raw --base base_link --end tool0 --target config.yaml",
+        )
     target, mode = read_target_file(args.target)
-    st = Stillness.from_preset(**{k: getattr(args, k) for k in ("still_trans_mm_s", "still_rot_deg_s",
-                                                                "speed_window_s", "min_still_s", "margin_s")})
+    st = Stillness.from_preset(
+        **{
+            k: getattr(args, k)
+            for k in ("still_trans_mm_s", "still_rot_deg_s", "speed_window_s", "min_still_s", "margin_s")
+        }
+    )
     out = args.out_opt or args.out or Path(args.src.name.split(".")[0] + "_session")
-    rep = import_rosbag(args.src, out, image_topic=args.image_topic, base_frame=args.base, end_frame=args.end,
-                        target=target, camera_info_topic=args.camera_info, mode=args.mode or mode, stillness=st,
-                        intrinsics_use=args.intrinsics_use)
+    rep = import_rosbag(
+        args.src,
+        out,
+        image_topic=args.image_topic,
+        base_frame=args.base,
+        end_frame=args.end,
+        target=target,
+        camera_info_topic=args.camera_info,
+        mode=args.mode or mode,
+        stillness=st,
+        intrinsics_use=args.intrinsics_use,
+    )
     for line in rep.summary_lines():
         print(line)
     return 0

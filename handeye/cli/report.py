@@ -1,4 +1,5 @@
 """``handeye report RESULT_DIR [--qa FILE]``: (re)build report.html and report.md from a result folder."""
+
 from __future__ import annotations
 
 import argparse
@@ -17,12 +18,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_report_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = ("Rebuild report.html (self-contained) and report.md (+ report_files/) from a folder "
-                          "written by handeye calibrate (result.json, observations.json, thumbnails/); the "
-                          "session itself is not read.")
+    parser.description = (
+        "Rebuild report.html (self-contained) and report.md (+ report_files/) from a folder "
+        "written by handeye calibrate (result.json, observations.json, thumbnails/); the "
+        "session itself is not read."
+    )
     parser.add_argument("result_dir", type=Path, help="folder holding result.json (or the result.json itself)")
-    parser.add_argument("--qa", type=Path, metavar="FILE",
-                        help="site QA thresholds (YAML) overriding the shipped configs/qa.yaml")
+    parser.add_argument(
+        "--qa", type=Path, metavar="FILE", help="site QA thresholds (YAML) overriding the shipped configs/qa.yaml"
+    )
     parser.add_argument("--out", type=Path, metavar="DIR", help="write the reports here (default: RESULT_DIR)")
     parser.add_argument("--format", choices=["all", "html", "md"], default="all", help="which report(s) to write")
 
@@ -34,8 +38,9 @@ def run_report(args) -> int:
     src = Path(args.result_dir)
     result_dir = src.parent if src.is_file() else src
     if not (result_dir / "result.json").exists():
-        raise InputError("no result.json in this folder", path=result_dir,
-                         hint="pass the folder written by handeye calibrate --out")
+        raise InputError(
+            "no result.json in this folder", path=result_dir, hint="pass the folder written by handeye calibrate --out"
+        )
     out = Path(args.out) if getattr(args, "out", None) else result_dir
     fmt = getattr(args, "format", "all")
     formats = ("html", "md") if fmt == "all" else (fmt,)
@@ -43,17 +48,18 @@ def run_report(args) -> int:
     with FolderLock(out, option="the result folder"):
         remove_stray_temps(out)
         try:
-            paths = write_reports(result_dir, qa=getattr(args, "qa", None), out_dir=out, formats=formats,
-                                  strict=True)
+            paths = write_reports(result_dir, qa=getattr(args, "qa", None), out_dir=out, formats=formats, strict=True)
         except HandeyeError:
             raise
         except Exception as e:  # noqa: BLE001 - result.json passed its checks; the rest of it may still be damaged
             if getattr(args, "debug", False):
                 raise
-            raise InputError(f"the report could not be built from this result.json ({type(e).__name__}: "
-                             f"{str(e)[:80]})", path=result_dir / "result.json",
-                             hint="re-run handeye calibrate into this folder; if the file is intact, rerun with "
-                                  "--debug and report the traceback") from None
+            raise InputError(
+                f"the report could not be built from this result.json ({type(e).__name__}: {str(e)[:80]})",
+                path=result_dir / "result.json",
+                hint="re-run handeye calibrate into this folder; if the file is intact, rerun with "
+                "--debug and report the traceback",
+            ) from None
     for p in paths:
         print(f"report: {p}")
     return 0

@@ -1,4 +1,5 @@
 """``handeye simulate OUT``: a rendered synthetic session in the vendor layout, with its ground truth."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -17,8 +18,12 @@ def sim_target(name: str):
     from ..sim.scenarios import DEFAULT_TARGET
     from ..targets import AprilGridSpec, CharucoSpec, MarkerSpec
 
-    return {"chessboard": DEFAULT_TARGET, "charuco": CharucoSpec(9, 7, 0.03, 0.022, "DICT_5X5_100"),
-            "marker": MarkerSpec(0.048), "aprilgrid": AprilGridSpec(6, 6, 0.025, 0.3)}[name]
+    return {
+        "chessboard": DEFAULT_TARGET,
+        "charuco": CharucoSpec(9, 7, 0.03, 0.022, "DICT_5X5_100"),
+        "marker": MarkerSpec(0.048),
+        "aprilgrid": AprilGridSpec(6, 6, 0.025, 0.3),
+    }[name]
 
 
 def add_arguments(p) -> None:
@@ -26,30 +31,61 @@ def add_arguments(p) -> None:
     from ..config import arm_presets
     from ..mounting import MODES
 
-    p.description = ("Render a synthetic session in the vendor layout (N.jpg, poses.txt, config.yaml) plus "
-                     "ground_truth.json; targets other than the chessboard get a session.yaml instead of "
-                     "poses.txt and config.yaml.")
+    p.description = (
+        "Render a synthetic session in the vendor layout (N.jpg, poses.txt, config.yaml) plus "
+        "ground_truth.json; targets other than the chessboard get a session.yaml instead of "
+        "poses.txt and config.yaml."
+    )
     p.add_argument("out", type=Path, help="output folder (created)")
     p.add_argument("--mode", choices=MODES, default="eye_in_hand")
     p.add_argument("--views", type=int, default=20)
-    p.add_argument("--target", choices=tuple(TARGETS), default="chessboard",
-                   help="; ".join(f"{k}: {v}" for k, v in TARGETS.items()))
+    p.add_argument(
+        "--target",
+        choices=tuple(TARGETS),
+        default="chessboard",
+        help="; ".join(f"{k}: {v}" for k, v in TARGETS.items()),
+    )
     p.add_argument("--seed", type=int, default=0, help="random seed of the scene, poses and noise")
-    p.add_argument("--noise-px", type=float, default=0.0,
-                   help="Gaussian image noise in grey levels added to the rendered images (default 0)")
+    p.add_argument(
+        "--noise-px",
+        type=float,
+        default=0.0,
+        help="Gaussian image noise in grey levels added to the rendered images (default 0)",
+    )
     p.add_argument("--blur", type=float, default=0.0, help="Gaussian blur sigma in pixels")
-    p.add_argument("--robot-noise", nargs=2, type=float, metavar=("MM", "DEG"), default=(0.0, 0.0),
-                   help="per-axis robot pose noise added to the reported poses")
-    p.add_argument("--robot-error", choices=("iid", "kinematic", "none"), default="iid",
-                   help="robot error model: iid (--robot-noise per pose), kinematic (a 6-axis arm with DH errors and "
-                        "encoder noise, handeye.sim.robot_error) or none")
+    p.add_argument(
+        "--robot-noise",
+        nargs=2,
+        type=float,
+        metavar=("MM", "DEG"),
+        default=(0.0, 0.0),
+        help="per-axis robot pose noise added to the reported poses",
+    )
+    p.add_argument(
+        "--robot-error",
+        choices=("iid", "kinematic", "none"),
+        default="iid",
+        help="robot error model: iid (--robot-noise per pose), kinematic (a 6-axis arm with DH errors and "
+        "encoder noise, handeye.sim.robot_error) or none",
+    )
     p.add_argument("--arm", default="rm65", help=f"kinematic arm preset ({', '.join(arm_presets())}) or DH YAML file")
-    p.add_argument("--dh-error", nargs=2, type=float, metavar=("MM", "DEG"), default=None,
-                   help="kinematic: the largest error of each DH length (mm) and angle (deg) of the simulated arm, "
-                        "each drawn between a fifth of it and it (default 0.5 0.05: a factory-calibrated arm; "
-                        "larger: an arm further from its table than its preset states)")
-    p.add_argument("--encoder-sigma", type=float, metavar="DEG", default=None,
-                   help="kinematic: encoder noise per joint and view, 0-1 deg (default 0.005)")
+    p.add_argument(
+        "--dh-error",
+        nargs=2,
+        type=float,
+        metavar=("MM", "DEG"),
+        default=None,
+        help="kinematic: the largest error of each DH length (mm) and angle (deg) of the simulated arm, "
+        "each drawn between a fifth of it and it (default 0.5 0.05: a factory-calibrated arm; "
+        "larger: an arm further from its table than its preset states)",
+    )
+    p.add_argument(
+        "--encoder-sigma",
+        type=float,
+        metavar="DEG",
+        default=None,
+        help="kinematic: encoder noise per joint and view, 0-1 deg (default 0.005)",
+    )
     p.add_argument("--hidden", nargs="*", default=[], metavar="ID", help="views rendered without the board")
     p.add_argument("--outliers", nargs="*", default=[], metavar="ID", help="views given a wrong robot pose")
     p.set_defaults(func=run)
@@ -64,24 +100,43 @@ def run(args) -> int:
     kin = {}
     if args.dh_error is not None or args.encoder_sigma is not None:
         if args.robot_error != "kinematic":
-            raise ConfigError("--dh-error and --encoder-sigma describe the kinematic robot error model",
-                              received=f"--robot-error {args.robot_error}", hint="add --robot-error kinematic")
+            raise ConfigError(
+                "--dh-error and --encoder-sigma describe the kinematic robot error model",
+                received=f"--robot-error {args.robot_error}",
+                hint="add --robot-error kinematic",
+            )
         if args.dh_error is not None:
             mm, deg = (float(x) for x in args.dh_error)
             if not (0 <= mm <= 100 and 0 <= deg <= 10):
-                raise ConfigError("--dh-error must be two numbers, 0-100 mm and 0-10 deg",
-                                  expected="the largest DH length and angle error, e.g. 2.5 0.25", received=f"{mm} {deg}")
+                raise ConfigError(
+                    "--dh-error must be two numbers, 0-100 mm and 0-10 deg",
+                    expected="the largest DH length and angle error, e.g. 2.5 0.25",
+                    received=f"{mm} {deg}",
+                )
             kin.update(dh_length_error_mm=(mm / 5, mm), dh_angle_error_deg=(deg / 5, deg))
         if args.encoder_sigma is not None:
             if not 0 <= args.encoder_sigma <= 1:
-                raise ConfigError("--encoder-sigma must be a number of degrees between 0 and 1",
-                                  expected="e.g. 0.005", received=str(args.encoder_sigma))
+                raise ConfigError(
+                    "--encoder-sigma must be a number of degrees between 0 and 1",
+                    expected="e.g. 0.005",
+                    received=str(args.encoder_sigma),
+                )
             kin["encoder_sigma_deg"] = float(args.encoder_sigma)
-    path = write_vendor_session(args.out, mode=args.mode, n_views=args.views, seed=args.seed,
-                                image_noise=args.noise_px, blur_sigma_px=args.blur,
-                                robot_noise=tuple(args.robot_noise), hidden_views=tuple(args.hidden),
-                                outlier_views=tuple(args.outliers), robot_error=args.robot_error, arm=args.arm,
-                                target=sim_target(args.target), **kin)
+    path = write_vendor_session(
+        args.out,
+        mode=args.mode,
+        n_views=args.views,
+        seed=args.seed,
+        image_noise=args.noise_px,
+        blur_sigma_px=args.blur,
+        robot_noise=tuple(args.robot_noise),
+        hidden_views=tuple(args.hidden),
+        outlier_views=tuple(args.outliers),
+        robot_error=args.robot_error,
+        arm=args.arm,
+        target=sim_target(args.target),
+        **kin,
+    )
     print(f"synthetic {args.mode} session with {args.views} rendered views: {path}")
     if args.robot_error == "kinematic" and (Path(path) / "poses.txt").exists():
         from ..sim.robot_error import write_native_session

@@ -4,6 +4,7 @@ chosen when the session did not state it. Everything comes from result.json (``v
 ``verdict_headline``, ``qa``, ``findings``, ``mode_source``, ``mode_evidence``; see
 :mod:`handeye.results`), so a result folder prints the same lines anywhere.
 """
+
 from __future__ import annotations
 
 _RANK = {"fail": 0, "warn": 1}
@@ -17,15 +18,18 @@ def mode_lines(res: dict) -> list[str]:
     if src == "detected":
         return [f"mode: {mode}, detected from the data (the session states none){why}"]
     if src == "default":
-        return [f"mode: {mode}, the default (the session states none and the data do not decide it{why}); "
-                f"state it with --mode if this is wrong"]
+        return [
+            f"mode: {mode}, the default (the session states none and the data do not decide it{why}); "
+            f"state it with --mode if this is wrong"
+        ]
     return []
 
 
 def verdict_lines(res: dict) -> list[str]:
     """``verdict: PASS|WARN|FAIL|REFUSED - headline``, then every failing or warning check and finding,
     worst first, a finding (a cause) before a QA check (an effect) of the same severity:
-    ``  FAIL <what> -> fix: <what to do>``."""
+    ``  FAIL <what> -> fix: <what to do>``.
+    """
     verdict = res.get("verdict")
     if verdict is None:  # a result.json written before verdicts were stored
         return []
@@ -52,8 +56,9 @@ def _item_lines(res: dict, *, checks: bool, skip=()) -> list[str]:
         st = str(c.get("status", "")).lower()
         if st in _RANK and c.get("key") != "calibration":  # the failed calibration is the line above
             what = c.get("short") or c.get("title") or c.get("key")
-            items.append((st, 1, f"{what} ({c.get('why')})" if c.get("why") and not c.get("short") else what,
-                          c.get("action")))
+            items.append(
+                (st, 1, f"{what} ({c.get('why')})" if c.get("why") and not c.get("short") else what, c.get("action"))
+            )
     for f in res.get("findings") or []:
         st = str(f.get("severity", "")).lower()
         if st in _RANK and f.get("code") not in skip:

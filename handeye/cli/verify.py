@@ -9,6 +9,7 @@ statistic and p-value, the estimated change per axis with 1-sigma, what moved, t
 ``handeye verify --plan --against RESULT [--drift-mm 1 --drift-deg 0.1]``: how many views, and which
 robot poses, detect that drift with 95 % power (:mod:`handeye.recal.plan`); nothing is captured.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -23,20 +24,31 @@ def add_arguments(p) -> None:
     from ..errors import exit_codes_text
     from ..mounting import MODES
 
-    p.description = ("Check a short session (3-8 views; the board may be anywhere) against an installed calibration "
-                     "without re-solving it: a Wald test of X = X_installed, the change of X estimated jointly with "
-                     "the installed intrinsics the new views share (under the installed covariances its verdict "
-                     "uses and the new views' noise), its p-value, the estimated change of X with 1-sigma, what "
-                     "moved (camera mount, board, robot), and the verdict 'still valid' or 'drifted' (exit code 9). Writes "
-                     "verify.json, verify.html and verify.md. With --plan: the views and robot poses that detect a "
-                     "drift of --drift-mm / --drift-deg with 95 % power.")
+    p.description = (
+        "Check a short session (3-8 views; the board may be anywhere) against an installed calibration "
+        "without re-solving it: a Wald test of X = X_installed, the change of X estimated jointly with "
+        "the installed intrinsics the new views share (under the installed covariances its verdict "
+        "uses and the new views' noise), its p-value, the estimated change of X with 1-sigma, what "
+        "moved (camera mount, board, robot), and the verdict 'still valid' or 'drifted' (exit code 9). Writes "
+        "verify.json, verify.html and verify.md. With --plan: the views and robot poses that detect a "
+        "drift of --drift-mm / --drift-deg with 95 % power."
+    )
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = exit_codes_text()
     p.add_argument("session", nargs="?", help="the verification session folder (not with --plan)")
-    p.add_argument("--against", required=True, type=Path, metavar="RESULT",
-                   help="the installed calibration: a result folder or its result.json")
-    p.add_argument("--out", type=Path, help="output folder (default: reports/<session folder>-<hash>-verify); with "
-                                            "--plan: where plan.json is written (default: printed only)")
+    p.add_argument(
+        "--against",
+        required=True,
+        type=Path,
+        metavar="RESULT",
+        help="the installed calibration: a result folder or its result.json",
+    )
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="output folder (default: reports/<session folder>-<hash>-verify); with "
+        "--plan: where plan.json is written (default: printed only)",
+    )
     p.add_argument("--mode", choices=MODES, help="mounting mode of the session (default: the installed result's)")
     p.add_argument("--alpha", type=float, help="level of the test (default 0.05, configs/recal.yaml)")
     p.add_argument("--no-report", action="store_true", help="write verify.json only")
@@ -67,8 +79,9 @@ def run(args) -> int:
         log.warning("%s", note)
     if args.plan:
         if args.session:
-            raise InputError("--plan takes no session", received=str(args.session),
-                             hint="handeye verify --plan --against RESULT")
+            raise InputError(
+                "--plan takes no session", received=str(args.session), hint="handeye verify --plan --against RESULT"
+            )
         return run_plan(args)
     if not args.session:
         raise InputError("no session to verify", hint="handeye verify SESSION --against RESULT (or --plan)")
@@ -91,7 +104,8 @@ def run_verify(args) -> int:
 
 def finish_verification(sv, out: Path, *, reports: bool = True, as_json: bool = False) -> int:
     """Write verify.json (and its reports) to ``out``, print the summary (or the JSON) and the files written;
-    the exit code: DRIFTED when drifted, else 0."""
+    the exit code: DRIFTED when drifted, else 0.
+    """
     from ..errors import DRIFTED_EXIT_CODE
     from ..output import to_json
     from ..recal.report import write_verification
@@ -111,15 +125,21 @@ def verification_lines(d: dict) -> list[str]:
     from ..recal.loaded import axes_words
 
     t, c = d["test"], d["change"]
-    lines = [d["headline"],
-             f"estimated change of {d['frame']} (new - installed; +- 1 sigma, the installed uncertainty included; "
-             f"{axes_words(d['frame'])}):"]
+    lines = [
+        d["headline"],
+        f"estimated change of {d['frame']} (new - installed; +- 1 sigma, the installed uncertainty included; "
+        f"{axes_words(d['frame'])}):",
+    ]
     for k, ax in enumerate("xyz"):
-        lines.append(f"  {ax}: {c['d_trans_mm'][k]:+8.3f} +- {c['sigma_trans_mm'][k]:.3f} mm   "
-                     f"{c['d_rot_deg'][k]:+8.4f} +- {c['sigma_rot_deg'][k]:.4f} deg")
-    lines.append(f"test: statistic {t['statistic']:.2f}, {t['dof']} dof, p = {t['p_value']:.3g} "
-                 f"(alpha {t['alpha']:g}; reference {t.get('reference') or 'chi-square'}); "
-                 f"{d['n_views']} views")
+        lines.append(
+            f"  {ax}: {c['d_trans_mm'][k]:+8.3f} +- {c['sigma_trans_mm'][k]:.3f} mm   "
+            f"{c['d_rot_deg'][k]:+8.4f} +- {c['sigma_rot_deg'][k]:.4f} deg"
+        )
+    lines.append(
+        f"test: statistic {t['statistic']:.2f}, {t['dof']} dof, p = {t['p_value']:.3g} "
+        f"(alpha {t['alpha']:g}; reference {t.get('reference') or 'chi-square'}); "
+        f"{d['n_views']} views"
+    )
     lines += [f"- {s}" for s in d["what_moved"]]
     return lines
 
@@ -127,8 +147,9 @@ def verification_lines(d: dict) -> list[str]:
 def run_plan(args) -> int:
     from ..recal.plan import plan_lines, plan_verification
 
-    p = plan_verification(args.against, drift_mm=args.drift_mm, drift_deg=args.drift_deg, power=args.power,
-                          alpha=args.alpha)
+    p = plan_verification(
+        args.against, drift_mm=args.drift_mm, drift_deg=args.drift_deg, power=args.power, alpha=args.alpha
+    )
     if args.json:
         from ..output import to_json
 

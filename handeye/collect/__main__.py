@@ -1,4 +1,5 @@
 """``python -m handeye.collect OUT ...``: the ``handeye collect`` command on its own."""
+
 from __future__ import annotations
 
 import sys

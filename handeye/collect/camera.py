@@ -4,6 +4,7 @@ A camera returns frames as numpy arrays (8-bit BGR or grayscale, exactly as deli
 image is the camera frame, never a preview) with the UNIX time each frame was received, and the
 factory intrinsics where the device knows them.
 """
+
 from __future__ import annotations
 
 import abc

@@ -10,6 +10,7 @@ Modes: interactive (key ``s`` captures, ``q`` quits; a preview window where a di
 OpenCV GUI exist, a terminal prompt otherwise) and automatic (:meth:`Collector.run_auto`: probe
 moves, a first rough hand-eye, then the planned views of :mod:`handeye.collect.plan`).
 """
+
 from __future__ import annotations
 
 import logging
@@ -22,14 +23,14 @@ from typing import Callable, Optional, TextIO
 import cv2
 import numpy as np
 
+from ..camera import Intrinsics
+from ..config import load_preset
 from ..detect import detect_gray, sharpness
 from ..errors import DetectionError, HardwareError
 from ..frames import rotation_angle_rad
-from ..mounting import mounting
 from ..initial import solve_closed_form, solve_pnp
+from ..mounting import mounting
 from ..targets import ChessboardSpec, TargetSpec
-from ..camera import Intrinsics
-from ..config import load_preset
 from . import plan as planning
 from .camera import Camera
 from .robot import PoseReading, Robot, poses_agree
@@ -71,8 +72,14 @@ class Capture:
     T_cam_board: Optional[np.ndarray] = None  # from PnP with the camera's intrinsics, when known
 
 
-def board_pose(target: TargetSpec, intrinsics: Intrinsics, corner_ids: np.ndarray, image_points: np.ndarray, *,
-               reference: Optional[np.ndarray] = None) -> np.ndarray:
+def board_pose(
+    target: TargetSpec,
+    intrinsics: Intrinsics,
+    corner_ids: np.ndarray,
+    image_points: np.ndarray,
+    *,
+    reference: Optional[np.ndarray] = None,
+) -> np.ndarray:
     """``T_cam_board`` by PnP; for a symmetric board, the corner ordering closest to ``reference``."""
     obj = target.object_points()
     best, best_d = None, np.inf
@@ -109,8 +116,17 @@ def _gray(image: np.ndarray) -> np.ndarray:
 class Collector:
     """Captures views from ``robot`` and ``camera`` into ``writer``."""
 
-    def __init__(self, *, robot: Robot, camera: Camera, writer: SessionWriter, target: TargetSpec, mode: str,
-                 checks: CaptureChecks = CaptureChecks(), truth: Optional[Callable[[str], None]] = None):
+    def __init__(
+        self,
+        *,
+        robot: Robot,
+        camera: Camera,
+        writer: SessionWriter,
+        target: TargetSpec,
+        mode: str,
+        checks: CaptureChecks = CaptureChecks(),
+        truth: Optional[Callable[[str], None]] = None,
+    ):
         self.robot = robot
         self.camera = camera
         self.writer = writer
@@ -130,11 +146,14 @@ class Collector:
         first = self.robot.read_pose()
         image, t_image = self.camera.grab()
         second = self.robot.read_pose()
-        still, rot_deg, trans_mm = poses_agree(first.T_base_end, second.T_base_end, tol_mm=c.still_tol_mm,
-                                               tol_deg=c.still_tol_deg)
+        still, rot_deg, trans_mm = poses_agree(
+            first.T_base_end, second.T_base_end, tol_mm=c.still_tol_mm, tol_deg=c.still_tol_deg
+        )
         if not still:
-            return self._reject(f"the arm moved while the frame was taken ({trans_mm:.2f} mm, {rot_deg:.3f} deg "
-                                f"between the pose reads; tolerance {c.still_tol_mm} mm, {c.still_tol_deg} deg)")
+            return self._reject(
+                f"the arm moved while the frame was taken ({trans_mm:.2f} mm, {rot_deg:.3f} deg "
+                f"between the pose reads; tolerance {c.still_tol_mm} mm, {c.still_tol_deg} deg)"
+            )
         errors = first.errors or second.errors
         if errors:
             from .realman import describe_error_codes
@@ -147,22 +166,31 @@ class Collector:
         ids, pts = found
         sharp = sharpness(gray, pts)
         if not sharp >= c.min_sharpness:
-            return self._reject(f"image not sharp (variance of the Laplacian {sharp:.1f} < {c.min_sharpness:g}); "
-                                "check focus, lighting and that nothing moves")
+            return self._reject(
+                f"image not sharp (variance of the Laplacian {sharp:.1f} < {c.min_sharpness:g}); "
+                "check focus, lighting and that nothing moves"
+            )
         T_cb = None
         if self.intrinsics is not None:
             T_cb = board_pose(self.target, self.intrinsics, ids, pts, reference=reference_T_cam_board)
         vid = str(self._next_id)
         state = dict(first.state)
-        extra = {"checks": {"pose_reads_dt_s": round(second.t_pose - first.t_pose, 4),
-                            "pose_reads_diff_mm": round(trans_mm, 4), "pose_reads_diff_deg": round(rot_deg, 5),
-                            "sharpness": round(float(sharp), 2), "n_corners": int(len(ids))}}
+        extra = {
+            "checks": {
+                "pose_reads_dt_s": round(second.t_pose - first.t_pose, 4),
+                "pose_reads_diff_mm": round(trans_mm, 4),
+                "pose_reads_diff_deg": round(rot_deg, 5),
+                "sharpness": round(float(sharp), 2),
+                "n_corners": int(len(ids)),
+            }
+        }
         if self.camera.last_frame_info:
             extra["camera_frame"] = dict(self.camera.last_frame_info)
         if first.joints is not None:
             extra["joints"] = [float(v) for v in first.joints]  # radians, the encoder readings with this pose
-        self.writer.write_view(vid, image, first.T_base_end, t_image=t_image, t_pose=first.t_pose,
-                               robot_state=state, extra=extra)
+        self.writer.write_view(
+            vid, image, first.T_base_end, t_image=t_image, t_pose=first.t_pose, robot_state=state, extra=extra
+        )
         self._next_id += 1
         cap = Capture(True, "", vid, first, ids, pts, float(sharp), T_cb)
         self.kept.append(cap)
@@ -182,23 +210,30 @@ class Collector:
         c = self.checks
         t_end = time.monotonic() + c.settle_timeout_s
         while True:
-            if self.robot.is_still(interval_s=c.settle_interval_s if self.robot.is_real else 0.0,
-                                   tol_mm=c.still_tol_mm, tol_deg=c.still_tol_deg):
+            if self.robot.is_still(
+                interval_s=c.settle_interval_s if self.robot.is_real else 0.0,
+                tol_mm=c.still_tol_mm,
+                tol_deg=c.still_tol_deg,
+            ):
                 return True
             if time.monotonic() > t_end:
                 return False
 
     # -- interactive ---------------------------------------------------------------------------
-    def run_interactive(self, *, preview: Optional[bool] = None, stdin: Optional[TextIO] = None,
-                        max_views: Optional[int] = None) -> int:
+    def run_interactive(
+        self, *, preview: Optional[bool] = None, stdin: Optional[TextIO] = None, max_views: Optional[int] = None
+    ) -> int:
         """Capture on ``s``, quit on ``q``; returns the number of views kept."""
         use_gui = gui_available() if preview is None else preview
         if use_gui:
             return self._run_preview(max_views=max_views)
         stream = sys.stdin if stdin is None else stdin
         guided = hasattr(self.robot, "simulate_hand_guiding")
-        print("Move the arm so the camera sees the whole board, then press s + Enter to capture; "
-              "q + Enter (or end of input) quits.", file=sys.stderr)
+        print(
+            "Move the arm so the camera sees the whole board, then press s + Enter to capture; "
+            "q + Enter (or end of input) quits.",
+            file=sys.stderr,
+        )
         first = True
         while max_views is None or len(self.kept) < max_views:
             print(f"[{len(self.kept)} views] s = capture, q = quit > ", end="", file=sys.stderr, flush=True)
@@ -230,12 +265,20 @@ class Collector:
                 scale = min(1.0, 960.0 / shown.shape[1])
                 small = cv2.resize(shown, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
                 if isinstance(self.target, ChessboardSpec):
-                    ok, corners = cv2.findChessboardCorners(_gray(small), (self.target.cols, self.target.rows),
-                                                            flags=cv2.CALIB_CB_FAST_CHECK)
+                    ok, corners = cv2.findChessboardCorners(
+                        _gray(small), (self.target.cols, self.target.rows), flags=cv2.CALIB_CB_FAST_CHECK
+                    )
                     if ok:
                         cv2.drawChessboardCorners(small, (self.target.cols, self.target.rows), corners, ok)
-                cv2.putText(small, f"{len(self.kept)} views | {message}", (10, 25), cv2.FONT_HERSHEY_SIMPLEX, 0.6,
-                            (0, 255, 255), 2)
+                cv2.putText(
+                    small,
+                    f"{len(self.kept)} views | {message}",
+                    (10, 25),
+                    cv2.FONT_HERSHEY_SIMPLEX,
+                    0.6,
+                    (0, 255, 255),
+                    2,
+                )
                 cv2.imshow(win, small)
                 key = cv2.waitKey(30) & 0xFF
                 if key in (ord("q"), 27):
@@ -250,26 +293,37 @@ class Collector:
         return len(self.kept)
 
     # -- automatic -----------------------------------------------------------------------------
-    def run_auto(self, *, n_views: int, speed_fraction: float, plan_config: planning.PlanConfig = planning.PlanConfig(),
-                 confirm: Callable[[str], bool] = lambda text: True, probe_deg: float = 6.0) -> planning.Plan:
+    def run_auto(
+        self,
+        *,
+        n_views: int,
+        speed_fraction: float,
+        plan_config: planning.PlanConfig = planning.PlanConfig(),
+        confirm: Callable[[str], bool] = lambda text: True,
+        probe_deg: float = 6.0,
+    ) -> planning.Plan:
         """Probe, plan and capture ``n_views`` planned views (plus the start and probe views)."""
         if self.intrinsics is None:
-            raise HardwareError("automatic mode needs the camera's intrinsics to plan, and this camera has none",
-                                hint="use interactive mode, or a camera that reports factory intrinsics")
+            raise HardwareError(
+                "automatic mode needs the camera's intrinsics to plan, and this camera has none",
+                hint="use interactive mode, or a camera that reports factory intrinsics",
+            )
         mount = mounting(self.mode)
         start = self.capture()
         if not start.kept:
-            raise DetectionError(f"automatic mode starts from a view of the board, and the first capture failed: "
-                                 f"{start.reason}", hint="move the arm so the camera sees the whole board, "
-                                 "roughly face on, then start again")
+            raise DetectionError(
+                f"automatic mode starts from a view of the board, and the first capture failed: {start.reason}",
+                hint="move the arm so the camera sees the whole board, roughly face on, then start again",
+            )
         T0, C0 = start.pose.T_base_end, start.T_cam_board
         probes = planning.probe_poses(T0, probe_deg=probe_deg)
         if self.robot.is_real and not confirm(
-                f"The arm will make {len(probes)} small probe moves ({probe_deg:g} deg about the end's own x, y and "
-                f"z axes; other directions or half the angle where the board leaves the image) at {100 * speed_fraction:.0f}% speed. Continue?"):
+            f"The arm will make {len(probes)} small probe moves ({probe_deg:g} deg about the end's own x, y and "
+            f"z axes; other directions or half the angle where the board leaves the image) at {100 * speed_fraction:.0f}% speed. Continue?"
+        ):
             log.warning("stopped before moving the arm")
             return planning.Plan((), float("nan"), float("nan"), np.zeros(3), "cancelled", "not confirmed")
-        for axis, tries in zip("xyz", probes):
+        for axis, tries in zip("xyz", probes, strict=False):
             for T in tries:
                 self.robot.move_to(T, speed_fraction=speed_fraction)
                 cap = self._capture_after_move(reference=C0)
@@ -278,26 +332,48 @@ class Collector:
                 log.info("the probe about the end's %s axis lost the board; trying another direction or angle", axis)
         views = [c for c in self.kept if c.T_cam_board is not None]
         if len(views) < 3:
-            raise DetectionError(f"only {len(views)} of the start and probe views show the board; a first "
-                                 "hand-eye estimate needs 3", hint="start from a pose where the board is in the "
-                                 "middle of the image, or lower --probe-deg")
+            raise DetectionError(
+                f"only {len(views)} of the start and probe views show the board; a first hand-eye estimate needs 3",
+                hint="start from a pose where the board is in the middle of the image, or lower --probe-deg",
+            )
         M = mount.M_from_T_base_end(np.stack([c.pose.T_base_end for c in views]))
         C = np.stack([c.T_cam_board for c in views])
         rough = solve_closed_form(mount, C, M, method="park")
         if rough.status != "ok":
-            raise DetectionError(f"the first hand-eye estimate failed ({rough.failure_reason})",
-                                 hint="check the board size given with --target")
-        log.info("first estimate from %d views; planning %d views (predicted 1-sigma of %s, total over 3 axes):",
-                 len(views), n_views, mount.x_name)
+            raise DetectionError(
+                f"the first hand-eye estimate failed ({rough.failure_reason})",
+                hint="check the board size given with --target",
+            )
+        log.info(
+            "first estimate from %d views; planning %d views (predicted 1-sigma of %s, total over 3 axes):",
+            len(views),
+            n_views,
+            mount.x_name,
+        )
 
         def on_step(pv: planning.PlannedView) -> None:
-            log.info("  plan %2d: sigma %.3f deg, %.2f mm  (%s)", pv.index, pv.sigma_rot_deg, pv.sigma_trans_mm,
-                     pv.candidate.label)
+            log.info(
+                "  plan %2d: sigma %.3f deg, %.2f mm  (%s)",
+                pv.index,
+                pv.sigma_rot_deg,
+                pv.sigma_trans_mm,
+                pv.candidate.label,
+            )
 
-        plan = planning.make_plan(mode=self.mode, T_x=rough.T_x, T_board=rough.T_board, T_base_end_start=T0,
-                                  T_cam_board_start=C0, T_base_end_done=[c.pose.T_base_end for c in views],
-                                  target=self.target, intrinsics=self.intrinsics, n_views=n_views,
-                                  config=plan_config, pose_ok=getattr(self.robot, "pose_ok", None), on_step=on_step)
+        plan = planning.make_plan(
+            mode=self.mode,
+            T_x=rough.T_x,
+            T_board=rough.T_board,
+            T_base_end_start=T0,
+            T_cam_board_start=C0,
+            T_base_end_done=[c.pose.T_base_end for c in views],
+            target=self.target,
+            intrinsics=self.intrinsics,
+            n_views=n_views,
+            config=plan_config,
+            pose_ok=getattr(self.robot, "pose_ok", None),
+            on_step=on_step,
+        )
         if plan.status != "ok":
             log.warning("plan: %s", plan.failure_reason)
         if not plan.views:
@@ -305,8 +381,9 @@ class Collector:
         travel = max(np.linalg.norm(pv.candidate.T_base_end[:3, 3] - T0[:3, 3]) for pv in plan.views)
         turn = max(np.linalg.norm(pv.candidate.end_rotvec_deg) for pv in plan.views)
         if self.robot.is_real and not confirm(
-                f"The plan moves the arm to {len(plan.views)} poses up to {1000 * travel:.0f} mm and {turn:.0f} deg "
-                f"from the start pose, at {100 * speed_fraction:.0f}% speed. Continue?"):
+            f"The plan moves the arm to {len(plan.views)} poses up to {1000 * travel:.0f} mm and {turn:.0f} deg "
+            f"from the start pose, at {100 * speed_fraction:.0f}% speed. Continue?"
+        ):
             log.warning("stopped before the planned moves")
             return plan
         done = [c.pose.T_base_end for c in views]
@@ -315,18 +392,31 @@ class Collector:
             cap = self._capture_after_move(reference=pv.candidate.T_cam_board)
             if cap.kept:
                 done.append(cap.pose.T_base_end)
-                info = planning.information_of_views(mode=self.mode, T_x=rough.T_x, T_board=rough.T_board,
-                                                     T_base_end=done, target=self.target,
-                                                     intrinsics=self.intrinsics, config=plan_config)
+                info = planning.information_of_views(
+                    mode=self.mode,
+                    T_x=rough.T_x,
+                    T_board=rough.T_board,
+                    T_base_end=done,
+                    target=self.target,
+                    intrinsics=self.intrinsics,
+                    config=plan_config,
+                )
                 sr, st = planning.predicted_sigma(info)
-                log.info("planned view %d/%d captured as view %s: predicted sigma %.3f deg, %.2f mm",
-                         pv.index, len(plan.views), cap.view_id, sr, st)
+                log.info(
+                    "planned view %d/%d captured as view %s: predicted sigma %.3f deg, %.2f mm",
+                    pv.index,
+                    len(plan.views),
+                    cap.view_id,
+                    sr,
+                    st,
+                )
             else:
                 log.warning("planned view %d/%d skipped: %s", pv.index, len(plan.views), cap.reason)
         return plan
 
-    def capture_at(self, T_base_end: np.ndarray, *, speed_fraction: float,
-                   reference: Optional[np.ndarray] = None) -> Capture:
+    def capture_at(
+        self, T_base_end: np.ndarray, *, speed_fraction: float, reference: Optional[np.ndarray] = None
+    ) -> Capture:
         """Move to ``T_base_end``, wait until the arm is still and capture (a planned view)."""
         self.robot.move_to(T_base_end, speed_fraction=speed_fraction)
         return self._capture_after_move(reference=reference)

@@ -26,6 +26,7 @@ missing axis are eligible.
 Predicted sigma is reported as the root of the trace of the marginal covariance: the total 1-sigma
 error over the three axes, in degrees for the rotation and millimetres for the translation.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -112,9 +113,18 @@ def _perturbations(T: np.ndarray) -> np.ndarray:
     return np.asarray(T, float) @ _DELTAS
 
 
-def view_information(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_end: np.ndarray,
-                     object_points: np.ndarray, intrinsics: Intrinsics, pixel_noise_px: float,
-                     robot_noise_mm: float, robot_noise_deg: float) -> np.ndarray:
+def view_information(
+    *,
+    mode: str,
+    T_x: np.ndarray,
+    T_board: np.ndarray,
+    T_base_end: np.ndarray,
+    object_points: np.ndarray,
+    intrinsics: Intrinsics,
+    pixel_noise_px: float,
+    robot_noise_mm: float,
+    robot_noise_deg: float,
+) -> np.ndarray:
     """Fisher information (12, 12) of one view about (xi_x, xi_board), robot noise marginalised."""
     mount = mounting(mode)
     Px, Pb, Pe = _perturbations(T_x), _perturbations(T_board), _perturbations(T_base_end)
@@ -146,7 +156,8 @@ def predicted_sigma(info: np.ndarray) -> tuple[float, float]:
     """(sigma_rot_deg, sigma_trans_mm) of ``T_x``: root of the trace of its marginal covariance."""
     cov = np.linalg.inv(info + _prior())[:6, :6]
     return float(np.degrees(np.sqrt(max(np.trace(cov[:3, :3]), 0.0)))), float(
-        1e3 * np.sqrt(max(np.trace(cov[3:, 3:]), 0.0)))
+        1e3 * np.sqrt(max(np.trace(cov[3:, 3:]), 0.0))
+    )
 
 
 def _logdet_x(info: np.ndarray) -> float:
@@ -156,8 +167,9 @@ def _logdet_x(info: np.ndarray) -> float:
 
 
 # ------------------------------------------------------------------------------ candidates
-def orbit_T_cam_board(T_cam_board_0: np.ndarray, *, center_board: np.ndarray, rotvec_cam: np.ndarray,
-                      distance_scale: float = 1.0) -> np.ndarray:
+def orbit_T_cam_board(
+    T_cam_board_0: np.ndarray, *, center_board: np.ndarray, rotvec_cam: np.ndarray, distance_scale: float = 1.0
+) -> np.ndarray:
     """The camera of ``T_cam_board_0`` turned by ``rotvec_cam`` (its own axes) about the board centre.
 
     The board centre keeps its direction in the camera; its distance is scaled by ``distance_scale``.
@@ -175,22 +187,35 @@ def end_rotvec_deg(T_base_end_start: np.ndarray, T_base_end: np.ndarray) -> np.n
     return np.degrees(rotvec_from_R(T_base_end_start[:3, :3].T @ T_base_end[:3, :3]))
 
 
-def candidate_views(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_end_start: np.ndarray,
-                    T_cam_board_start: np.ndarray, target: TargetSpec, intrinsics: Intrinsics,
-                    config: PlanConfig = PlanConfig(),
-                    pose_ok: Optional[Callable[[np.ndarray], bool]] = None) -> list[Candidate]:
+def candidate_views(
+    *,
+    mode: str,
+    T_x: np.ndarray,
+    T_board: np.ndarray,
+    T_base_end_start: np.ndarray,
+    T_cam_board_start: np.ndarray,
+    target: TargetSpec,
+    intrinsics: Intrinsics,
+    config: PlanConfig = PlanConfig(),
+    pose_ok: Optional[Callable[[np.ndarray], bool]] = None,
+) -> list[Candidate]:
     """Feasible orbit views around the start view, with their Fisher information."""
     mount = mounting(mode)
     obj = target.object_points()
     c = board_center(target)
-    grid = [g for g in itertools.product(config.tilt_deg, config.tilt_deg, config.roll_deg, config.distance_scales)
-            if not (g[0] == g[1] == g[2] == 0 and g[3] == 1.0)]  # all but the start view itself
-    ax, ay, roll, scale = (np.array(v, float) for v in zip(*grid))
+    grid = [
+        g
+        for g in itertools.product(config.tilt_deg, config.tilt_deg, config.roll_deg, config.distance_scales)
+        if not (g[0] == g[1] == g[2] == 0 and g[3] == 1.0)
+    ]  # all but the start view itself
+    ax, ay, roll, scale = (np.array(v, float) for v in zip(*grid, strict=False))
     zeros = np.zeros_like(ax)
     # tilt about the camera's x, then its y, then roll about the optical axis
-    Q = (R_from_rotvec(np.radians(np.stack([zeros, zeros, roll], 1)))
-         @ R_from_rotvec(np.radians(np.stack([zeros, ay, zeros], 1)))
-         @ R_from_rotvec(np.radians(np.stack([ax, zeros, zeros], 1))))  # (K, 3, 3)
+    Q = (
+        R_from_rotvec(np.radians(np.stack([zeros, zeros, roll], 1)))
+        @ R_from_rotvec(np.radians(np.stack([zeros, ay, zeros], 1)))
+        @ R_from_rotvec(np.radians(np.stack([ax, zeros, zeros], 1)))
+    )  # (K, 3, 3)
     T_board_cam0 = inv_T(T_cam_board_start)
     R0, o0 = T_board_cam0[:3, :3], T_board_cam0[:3, 3]
     R_board_cam = R0 @ Q  # (K, 3, 3); the same turn about the board centre: G = R0 Q R0^T
@@ -203,26 +228,50 @@ def candidate_views(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_e
     R_rel = np.einsum("ji,kjl->kil", T_base_end_start[:3, :3], T_be[:, :3, :3])
     rv_deg = np.degrees(rotvec_from_R(R_rel))
     travel = np.linalg.norm(T_be[:, :3, 3] - T_base_end_start[:3, 3], axis=1)
-    keep = ((view_angle <= config.max_view_angle_deg) & (np.linalg.norm(rv_deg, axis=1) <= config.max_end_rotation_deg)
-            & (travel <= config.max_travel_m))
+    keep = (
+        (view_angle <= config.max_view_angle_deg)
+        & (np.linalg.norm(rv_deg, axis=1) <= config.max_end_rotation_deg)
+        & (travel <= config.max_travel_m)
+    )
     out = []
     for k in np.flatnonzero(keep):
         if not board_in_image(target, intrinsics, C[k], margin_px=config.margin_px):
             continue
         if pose_ok is not None and not pose_ok(T_be[k]):
             continue
-        info = view_information(mode=mode, T_x=T_x, T_board=T_board, T_base_end=T_be[k], object_points=obj,
-                                intrinsics=intrinsics, pixel_noise_px=config.pixel_noise_px,
-                                robot_noise_mm=config.robot_noise_mm, robot_noise_deg=config.robot_noise_deg)
-        out.append(Candidate(T_be[k], C[k], rv_deg[k], info,
-                             f"tilt x {ax[k]:+.0f} y {ay[k]:+.0f} roll {roll[k]:+.0f} dist x{scale[k]:.2f}"))
+        info = view_information(
+            mode=mode,
+            T_x=T_x,
+            T_board=T_board,
+            T_base_end=T_be[k],
+            object_points=obj,
+            intrinsics=intrinsics,
+            pixel_noise_px=config.pixel_noise_px,
+            robot_noise_mm=config.robot_noise_mm,
+            robot_noise_deg=config.robot_noise_deg,
+        )
+        out.append(
+            Candidate(
+                T_be[k],
+                C[k],
+                rv_deg[k],
+                info,
+                f"tilt x {ax[k]:+.0f} y {ay[k]:+.0f} roll {roll[k]:+.0f} dist x{scale[k]:.2f}",
+            )
+        )
     return out
 
 
 # ------------------------------------------------------------------------------ greedy choice
-def greedy_plan(candidates: Sequence[Candidate], *, n_views: int, info_start: np.ndarray,
-                rotvec_done_deg: Sequence[np.ndarray] = (), config: PlanConfig = PlanConfig(),
-                on_step: Optional[Callable[[PlannedView], None]] = None) -> Plan:
+def greedy_plan(
+    candidates: Sequence[Candidate],
+    *,
+    n_views: int,
+    info_start: np.ndarray,
+    rotvec_done_deg: Sequence[np.ndarray] = (),
+    config: PlanConfig = PlanConfig(),
+    on_step: Optional[Callable[[PlannedView], None]] = None,
+) -> Plan:
     """Pick ``n_views`` candidates greedily (D-optimal for ``T_x``), meeting the rotation coverage."""
     if n_views < 1:
         raise ConfigError("the plan needs at least one view", expected="n_views >= 1", received=str(n_views))
@@ -252,17 +301,21 @@ def greedy_plan(candidates: Sequence[Candidate], *, n_views: int, info_start: np
         chosen.append(pv)
         if on_step is not None:
             on_step(pv)
-        pool = [i for i, sep in zip(pool, _separation_deg(candidates, pool, cand))
-                if i != best and sep >= config.min_separation_deg]
+        pool = [
+            i
+            for i, sep in zip(pool, _separation_deg(candidates, pool, cand), strict=False)
+            if i != best and sep >= config.min_separation_deg
+        ]
     status, reason = "ok", ""
     if len(chosen) < n_views:
         status, reason = "short", f"only {len(chosen)} feasible views for the {n_views} asked"
-    lacking = [a for a, v in zip("xyz", cover) if v < need]
+    lacking = [a for a, v in zip("xyz", cover, strict=False) if v < need]
     if lacking:
         status = "short"
         reason = (reason + "; " if reason else "") + (
             f"end rotation about {', '.join(lacking)} stays below {need:g} deg within the limits "
-            f"(max {', '.join(f'{v:.0f}' for v in cover)} deg about x, y, z)")
+            f"(max {', '.join(f'{v:.0f}' for v in cover)} deg about x, y, z)"
+        )
     return Plan(tuple(chosen), s0[0], s0[1], cover, status, reason)
 
 
@@ -277,36 +330,78 @@ def _separation_deg(candidates: Sequence[Candidate], idx: Sequence[int], ref: Ca
     return d_rot + 100.0 * d_dist
 
 
-def make_plan(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_end_start: np.ndarray,
-              T_cam_board_start: np.ndarray, T_base_end_done: Sequence[np.ndarray], target: TargetSpec,
-              intrinsics: Intrinsics, n_views: int, config: PlanConfig = PlanConfig(),
-              pose_ok: Optional[Callable[[np.ndarray], bool]] = None,
-              on_step: Optional[Callable[[PlannedView], None]] = None) -> Plan:
+def make_plan(
+    *,
+    mode: str,
+    T_x: np.ndarray,
+    T_board: np.ndarray,
+    T_base_end_start: np.ndarray,
+    T_cam_board_start: np.ndarray,
+    T_base_end_done: Sequence[np.ndarray],
+    target: TargetSpec,
+    intrinsics: Intrinsics,
+    n_views: int,
+    config: PlanConfig = PlanConfig(),
+    pose_ok: Optional[Callable[[np.ndarray], bool]] = None,
+    on_step: Optional[Callable[[PlannedView], None]] = None,
+) -> Plan:
     """Plan ``n_views`` more views around the start view, given the views already captured.
 
     ``T_x``/``T_board`` are the current (rough) estimates; ``T_base_end_done`` the poses of the
     views already captured (their information counts, so the plan complements them).
     """
-    info0 = information_of_views(mode=mode, T_x=T_x, T_board=T_board, T_base_end=T_base_end_done, target=target,
-                                 intrinsics=intrinsics, config=config)
-    cands = candidate_views(mode=mode, T_x=T_x, T_board=T_board, T_base_end_start=T_base_end_start,
-                            T_cam_board_start=T_cam_board_start, target=target, intrinsics=intrinsics,
-                            config=config, pose_ok=pose_ok)
+    info0 = information_of_views(
+        mode=mode,
+        T_x=T_x,
+        T_board=T_board,
+        T_base_end=T_base_end_done,
+        target=target,
+        intrinsics=intrinsics,
+        config=config,
+    )
+    cands = candidate_views(
+        mode=mode,
+        T_x=T_x,
+        T_board=T_board,
+        T_base_end_start=T_base_end_start,
+        T_cam_board_start=T_cam_board_start,
+        target=target,
+        intrinsics=intrinsics,
+        config=config,
+        pose_ok=pose_ok,
+    )
     log.info("planning: %d feasible candidate views around the start pose", len(cands))
     done_rv = [end_rotvec_deg(T_base_end_start, T) for T in T_base_end_done]
-    return greedy_plan(cands, n_views=n_views, info_start=info0, rotvec_done_deg=done_rv, config=config,
-                       on_step=on_step)
+    return greedy_plan(
+        cands, n_views=n_views, info_start=info0, rotvec_done_deg=done_rv, config=config, on_step=on_step
+    )
 
 
-def information_of_views(*, mode: str, T_x: np.ndarray, T_board: np.ndarray, T_base_end: Sequence[np.ndarray],
-                         target: TargetSpec, intrinsics: Intrinsics, config: PlanConfig = PlanConfig()) -> np.ndarray:
+def information_of_views(
+    *,
+    mode: str,
+    T_x: np.ndarray,
+    T_board: np.ndarray,
+    T_base_end: Sequence[np.ndarray],
+    target: TargetSpec,
+    intrinsics: Intrinsics,
+    config: PlanConfig = PlanConfig(),
+) -> np.ndarray:
     """Summed Fisher information (12, 12) of views at the given robot poses."""
     obj = target.object_points()
     info = np.zeros((12, 12))
     for T in T_base_end:
-        info += view_information(mode=mode, T_x=T_x, T_board=T_board, T_base_end=T, object_points=obj,
-                                 intrinsics=intrinsics, pixel_noise_px=config.pixel_noise_px,
-                                 robot_noise_mm=config.robot_noise_mm, robot_noise_deg=config.robot_noise_deg)
+        info += view_information(
+            mode=mode,
+            T_x=T_x,
+            T_board=T_board,
+            T_base_end=T,
+            object_points=obj,
+            intrinsics=intrinsics,
+            pixel_noise_px=config.pixel_noise_px,
+            robot_noise_mm=config.robot_noise_mm,
+            robot_noise_deg=config.robot_noise_deg,
+        )
     return info
 
 
@@ -318,6 +413,10 @@ def probe_poses(T_base_end_start: np.ndarray, *, probe_deg: float = 6.0) -> list
     """
     out = []
     for e in np.eye(3):
-        out.append(tuple(T_base_end_start @ T_from_rotvec(np.radians(a) * e, np.zeros(3))
-                         for a in (probe_deg, -probe_deg, probe_deg / 2, -probe_deg / 2)))
+        out.append(
+            tuple(
+                T_base_end_start @ T_from_rotvec(np.radians(a) * e, np.zeros(3))
+                for a in (probe_deg, -probe_deg, probe_deg / 2, -probe_deg / 2)
+            )
+        )
     return out

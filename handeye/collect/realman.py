@@ -24,6 +24,7 @@ vendor's ROS driver (RealManRobot/rm_robot, ``rm_driver/src/rm_robot.h``, error-
 Reads are retried on a fresh connection (a read has no side effect); a motion command is sent
 once and never resent: if its outcome is unknown the user is told to check the arm.
 """
+
 from __future__ import annotations
 
 import json
@@ -89,8 +90,12 @@ def parse_robot_address(spec: str, *, default_port: int = REALMAN_DEFAULT_PORT) 
     s = (spec or "").strip()
     m = re.fullmatch(r"\[([^\]]+)\](?::(\d+))?", s) or re.fullmatch(r"([^:\s]+)(?::(\d+))?", s)
     if not m or not m.group(1):
-        raise ConfigError("the RealMan arm's address is missing or malformed", expected="IP[:PORT], e.g. 192.168.1.18",
-                          received=repr(spec), hint="give it as --robot realman:192.168.1.18 (port 8080 by default)")
+        raise ConfigError(
+            "the RealMan arm's address is missing or malformed",
+            expected="IP[:PORT], e.g. 192.168.1.18",
+            received=repr(spec),
+            hint="give it as --robot realman:192.168.1.18 (port 8080 by default)",
+        )
     port = int(m.group(2)) if m.group(2) else default_port
     if not 0 < port < 65536:
         raise ConfigError("invalid TCP port for the RealMan arm", expected="1..65535", received=str(port))
@@ -196,7 +201,8 @@ class JsonStreamDecoder:
 
 def _scan_object(buf: bytearray) -> tuple[str, int]:
     """For ``buf`` starting with '{': ("complete", index of the closing brace), ("truncated",
-    index of the line break that cut it) or ("incomplete", -1)."""
+    index of the line break that cut it) or ("incomplete", -1).
+    """
     depth = 0
     in_str = False
     esc = False
@@ -237,18 +243,30 @@ class RealmanArm(Robot):
 
     is_real = True
 
-    def __init__(self, host: str, port: int = REALMAN_DEFAULT_PORT, *, timeout_s: float = 2.0,
-                 read_retries: int = 2, motion_timeout_s: float = 120.0, motion: str = "movej_p",
-                 max_speed_fraction: float = 0.3, work_frame: str | None = "Base",
-                 arrive_tol_mm: float = 2.0, arrive_tol_deg: float = 0.5):
+    def __init__(
+        self,
+        host: str,
+        port: int = REALMAN_DEFAULT_PORT,
+        *,
+        timeout_s: float = 2.0,
+        read_retries: int = 2,
+        motion_timeout_s: float = 120.0,
+        motion: str = "movej_p",
+        max_speed_fraction: float = 0.3,
+        work_frame: str | None = "Base",
+        arrive_tol_mm: float = 2.0,
+        arrive_tol_deg: float = 0.5,
+    ):
         if not host:
             raise ConfigError("the RealMan arm's address is missing", hint="use --robot realman:IP[:PORT]")
         if motion not in MOTION_COMMANDS:
-            raise ConfigError("unknown RealMan motion command", expected=" | ".join(MOTION_COMMANDS),
-                              received=repr(motion))
+            raise ConfigError(
+                "unknown RealMan motion command", expected=" | ".join(MOTION_COMMANDS), received=repr(motion)
+            )
         if not 0 < max_speed_fraction <= 1:
-            raise ConfigError("invalid maximum speed fraction", expected="0 < value <= 1",
-                              received=repr(max_speed_fraction))
+            raise ConfigError(
+                "invalid maximum speed fraction", expected="0 < value <= 1", received=repr(max_speed_fraction)
+            )
         self.host, self.port = host, int(port)
         self.name = f"realman {host}:{self.port}"
         self.timeout_s = float(timeout_s)
@@ -277,9 +295,11 @@ class RealmanArm(Robot):
             self._sock = socket.create_connection((self.host, self.port), timeout=self.timeout_s)
         except OSError as e:
             self._sock = None
-            raise HardwareError(f"cannot reach the {self._where()} ({e.strerror or e})",
-                                hint="check the address, the cable and that the controller is on; "
-                                     "close the teach pendant's JSON session") from None
+            raise HardwareError(
+                f"cannot reach the {self._where()} ({e.strerror or e})",
+                hint="check the address, the cable and that the controller is on; "
+                "close the teach pendant's JSON session",
+            ) from None
         self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self._decoder.reset()
         self._pending.clear()
@@ -331,10 +351,12 @@ class RealmanArm(Robot):
                 raise _LinkError("the arm closed the connection")
             self._pending.extend(self._decoder.feed(data))
 
-    def _request(self, command: dict, match: Callable[[dict], bool], *, retries: int,
-                 timeout_s: float | None = None) -> dict:
+    def _request(
+        self, command: dict, match: Callable[[dict], bool], *, retries: int, timeout_s: float | None = None
+    ) -> dict:
         """Send ``command`` and return the first matching reply; reconnect and resend up to
-        ``retries`` times (only for commands without side effects)."""
+        ``retries`` times (only for commands without side effects).
+        """
         what = command.get("command", "?")
         last = ""
         for attempt in range(retries + 1):
@@ -348,25 +370,36 @@ class RealmanArm(Robot):
                 last = str(e)
                 self._disconnect()
                 if attempt < retries:
-                    log.warning("%s: %s; reconnecting and asking again (%d/%d)", self._where(), last,
-                                attempt + 1, retries)
+                    log.warning(
+                        "%s: %s; reconnecting and asking again (%d/%d)", self._where(), last, attempt + 1, retries
+                    )
                     time.sleep(min(0.2 * (attempt + 1), 1.0))
-        raise HardwareError(f"the {self._where()} did not answer {what!r} ({last}) after {retries + 1} attempts",
-                            hint="check the network link and that no other program holds the arm's JSON port")
+        raise HardwareError(
+            f"the {self._where()} did not answer {what!r} ({last}) after {retries + 1} attempts",
+            hint="check the network link and that no other program holds the arm's JSON port",
+        )
 
     # -- setup ---------------------------------------------------------------------------------
     def _set_work_frame(self, frame: str) -> None:
-        reply = self._request({"command": "set_change_work_frame", "frame_name": frame},
-                              lambda m: m.get("command") == "set_change_work_frame", retries=self.read_retries)
+        reply = self._request(
+            {"command": "set_change_work_frame", "frame_name": frame},
+            lambda m: m.get("command") == "set_change_work_frame",
+            retries=self.read_retries,
+        )
         if reply.get("change_work_frame") is not True:
-            raise HardwareError(f"the {self._where()} refused to switch its work frame to {frame!r}",
-                                received=json.dumps(reply), hint="check the frame exists on the controller")
+            raise HardwareError(
+                f"the {self._where()} refused to switch its work frame to {frame!r}",
+                received=json.dumps(reply),
+                hint="check the frame exists on the controller",
+            )
 
     def _query_tool_frame(self) -> str | None:
         try:
-            reply = self._request({"command": "get_current_tool_frame"},
-                                  lambda m: m.get("state") == "current_tool_frame"
-                                  or m.get("command") == "get_current_tool_frame", retries=0)
+            reply = self._request(
+                {"command": "get_current_tool_frame"},
+                lambda m: m.get("state") == "current_tool_frame" or m.get("command") == "get_current_tool_frame",
+                retries=0,
+            )
         except HardwareError as e:
             log.warning("could not read the active tool frame (%s); poses are of whatever tool is active", e)
             if self._sock is None:
@@ -375,18 +408,26 @@ class RealmanArm(Robot):
         return reply.get("tool_name")
 
     def describe(self) -> dict:
-        return {"backend": "realman", "address": f"{self.host}:{self.port}", "protocol": "RealMan JSON over TCP",
-                "work_frame": self.work_frame, "tool_frame": self.tool_frame, "motion_command": self.motion,
-                "max_speed_fraction": self.max_speed_fraction,
-                "pose_resolution": "0.001 mm, 0.001 rad (as reported by get_current_arm_state)"}
+        return {
+            "backend": "realman",
+            "address": f"{self.host}:{self.port}",
+            "protocol": "RealMan JSON over TCP",
+            "work_frame": self.work_frame,
+            "tool_frame": self.tool_frame,
+            "motion_command": self.motion,
+            "max_speed_fraction": self.max_speed_fraction,
+            "pose_resolution": "0.001 mm, 0.001 rad (as reported by get_current_arm_state)",
+        }
 
     # -- Robot ---------------------------------------------------------------------------------
     def read_pose(self) -> PoseReading:
         last = ""
         for _attempt in range(self.read_retries + 1):
-            reply = self._request({"command": "get_current_arm_state"},
-                                  lambda m: m.get("state") == "current_arm_state" or "arm_state" in m,
-                                  retries=self.read_retries)
+            reply = self._request(
+                {"command": "get_current_arm_state"},
+                lambda m: m.get("state") == "current_arm_state" or "arm_state" in m,
+                retries=self.read_retries,
+            )
             t = time.time()
             try:
                 return self._parse_arm_state(reply, t)
@@ -394,8 +435,11 @@ class RealmanArm(Robot):
                 log.warning("%s: malformed arm state (%s); asking again", self._where(), e)
                 last = str(e)
                 self._disconnect()
-        raise HardwareError(f"the {self._where()} keeps sending a malformed arm state", received=last,
-                            hint="check the controller firmware version")
+        raise HardwareError(
+            f"the {self._where()} keeps sending a malformed arm state",
+            received=last,
+            hint="check the controller firmware version",
+        )
 
     def _parse_arm_state(self, reply: dict, t: float) -> PoseReading:
         st = reply.get("arm_state")
@@ -408,8 +452,13 @@ class RealmanArm(Robot):
             raise ValueError(f"arm_state.pose is {pose!r}")
         T = T_base_end_from_realman_pose(pose)
         errors = realman_error_codes(st.get("err", st.get("arm_err")))
-        state = {"raw_pose": [v for v in pose], "pose_units": "0.001 mm, 0.001 rad (x,y,z,rx,ry,rz; R=Rz@Ry@Rx)",
-                 "errors": errors, "work_frame": self.work_frame, "tool_frame": self.tool_frame}
+        state = {
+            "raw_pose": [v for v in pose],
+            "pose_units": "0.001 mm, 0.001 rad (x,y,z,rx,ry,rz; R=Rz@Ry@Rx)",
+            "errors": errors,
+            "work_frame": self.work_frame,
+            "tool_frame": self.tool_frame,
+        }
         joints = None
         if isinstance(st.get("joint"), list):
             state["joint_mdeg"] = list(st["joint"])
@@ -422,8 +471,7 @@ class RealmanArm(Robot):
         try:
             self._disconnect()
             self._connect()
-            reply = self._request({"command": "set_arm_stop"}, lambda m: m.get("command") == "set_arm_stop",
-                                  retries=0)
+            reply = self._request({"command": "set_arm_stop"}, lambda m: m.get("command") == "set_arm_stop", retries=0)
             return reply.get("arm_stop") is True
         except HardwareError as e:
             log.error("could not send the stop command: %s", e)
@@ -434,47 +482,69 @@ class RealmanArm(Robot):
             raise ConfigError("invalid speed fraction", expected="0 < value <= 1", received=repr(speed_fraction))
         now = self.read_pose()
         if now.errors:
-            raise HardwareError(f"the {self._where()} reports {describe_error_codes(now.errors)}",
-                                hint="clear the error on the teach pendant (or clear_system_err) before moving")
+            raise HardwareError(
+                f"the {self._where()} reports {describe_error_codes(now.errors)}",
+                hint="clear the error on the teach pendant (or clear_system_err) before moving",
+            )
         v = int(np.clip(round(100 * min(speed_fraction, self.max_speed_fraction)), 1, 100))
         pose = realman_pose_from_T(T_base_end)
         cmd = {"command": self.motion, "pose": pose, "v": v, "r": 0, "trajectory_connect": 0}
-        unknown = ("the arm may still be moving; the motion was not resent. Check the arm, then "
-                   "re-run collect into a new folder (views already saved are kept)")
+        unknown = (
+            "the arm may still be moving; the motion was not resent. Check the arm, then "
+            "re-run collect into a new folder (views already saved are kept)"
+        )
         try:
             if self._sock is None:
                 self._connect()
                 self.reconnects += 1
             self._send(cmd)
-            ack = self._await(lambda m: m.get("command") == self.motion or m.get("state") in
-                              ("pose_state", "current_trajectory_state"), timeout_s=self.timeout_s,
-                              what=self.motion)
+            ack = self._await(
+                lambda m: (
+                    m.get("command") == self.motion or m.get("state") in ("pose_state", "current_trajectory_state")
+                ),
+                timeout_s=self.timeout_s,
+                what=self.motion,
+            )
             if ack.get("state") != "current_trajectory_state":
                 refused = ack.get("receive_state") is False or realman_error_codes(ack.get("arm_err"))
                 if refused:
-                    raise HardwareError(f"the {self._where()} refused {self.motion} to {pose}",
-                                        received=json.dumps(ack),
-                                        hint="the target is probably unreachable; plan a smaller motion")
-                done = self._await(lambda m: m.get("state") == "current_trajectory_state"
-                                   and int(m.get("device", 0)) == 0, timeout_s=self.motion_timeout_s,
-                                   what=f"{self.motion} completion")
+                    raise HardwareError(
+                        f"the {self._where()} refused {self.motion} to {pose}",
+                        received=json.dumps(ack),
+                        hint="the target is probably unreachable; plan a smaller motion",
+                    )
+                done = self._await(
+                    lambda m: m.get("state") == "current_trajectory_state" and int(m.get("device", 0)) == 0,
+                    timeout_s=self.motion_timeout_s,
+                    what=f"{self.motion} completion",
+                )
             else:
                 done = ack
         except _LinkError as e:
             self._disconnect()
             if "no answer" in str(e):
                 stopped = self.stop()
-                raise HardwareError(f"{self.motion} to {pose} on the {self._where()}: {e}; "
-                                    f"stop command {'confirmed' if stopped else 'NOT confirmed'}",
-                                    hint=unknown) from None
-            raise HardwareError(f"lost the link to the {self._where()} during {self.motion} ({e})",
-                                hint=unknown) from None
+                raise HardwareError(
+                    f"{self.motion} to {pose} on the {self._where()}: {e}; "
+                    f"stop command {'confirmed' if stopped else 'NOT confirmed'}",
+                    hint=unknown,
+                ) from None
+            raise HardwareError(
+                f"lost the link to the {self._where()} during {self.motion} ({e})", hint=unknown
+            ) from None
         if done.get("trajectory_state") is not True:
-            raise HardwareError(f"the {self._where()} reports that {self.motion} to {pose} failed",
-                                received=json.dumps(done), hint="check the arm for errors and obstacles")
+            raise HardwareError(
+                f"the {self._where()} reports that {self.motion} to {pose} failed",
+                received=json.dumps(done),
+                hint="check the arm for errors and obstacles",
+            )
         reached = self.read_pose()
-        ok, rot_deg, trans_mm = poses_agree(reached.T_base_end, T_base_end, tol_mm=self.arrive_tol_mm,
-                                            tol_deg=self.arrive_tol_deg)
+        ok, rot_deg, trans_mm = poses_agree(
+            reached.T_base_end, T_base_end, tol_mm=self.arrive_tol_mm, tol_deg=self.arrive_tol_deg
+        )
         if not ok:
-            raise HardwareError(f"the {self._where()} stopped {trans_mm:.1f} mm / {rot_deg:.2f} deg away from "
-                                f"the target of {self.motion}", hint="check the arm for errors and obstacles")
+            raise HardwareError(
+                f"the {self._where()} stopped {trans_mm:.1f} mm / {rot_deg:.2f} deg away from "
+                f"the target of {self.motion}",
+                hint="check the arm for errors and obstacles",
+            )

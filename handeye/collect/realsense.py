@@ -11,6 +11,7 @@ is OpenCV's (k1, k2, p1, p2, k3) exactly. ``modified_brown_conrady`` and ``inver
 Other models (fisheye) are not representable and are recorded without distortion. The original
 model name and coefficients are always recorded.
 """
+
 from __future__ import annotations
 
 import logging
@@ -23,8 +24,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..errors import ConfigError, HardwareError
 from ..camera import Intrinsics
+from ..errors import ConfigError, HardwareError
 from .camera import Camera
 
 log = logging.getLogger(__name__)
@@ -37,11 +38,15 @@ def import_pyrealsense2():
     except ImportError as e:
         text = str(e)
         if "libusb" in text:
-            raise HardwareError(f"pyrealsense2 is installed but cannot load libusb ({text})",
-                                hint="install it: apt-get install libusb-1.0-0 (Debian/Ubuntu)") from None
-        raise HardwareError(f"pyrealsense2 is not available ({text})",
-                            hint="pip install pyrealsense2 (x86-64 Linux/Windows wheels), or build librealsense "
-                                 "with its Python bindings") from None
+            raise HardwareError(
+                f"pyrealsense2 is installed but cannot load libusb ({text})",
+                hint="install it: apt-get install libusb-1.0-0 (Debian/Ubuntu)",
+            ) from None
+        raise HardwareError(
+            f"pyrealsense2 is not available ({text})",
+            hint="pip install pyrealsense2 (x86-64 Linux/Windows wheels), or build librealsense "
+            "with its Python bindings",
+        ) from None
     return rs
 
 
@@ -58,16 +63,24 @@ def opencv5_from_realsense(model: str, coeffs) -> tuple[tuple, str]:
     return (0.0,) * 5, "not representable"
 
 
-def intrinsics_from_realsense(*, fx: float, fy: float, ppx: float, ppy: float, width: int, height: int,
-                              model: str, coeffs) -> tuple[Intrinsics, dict]:
+def intrinsics_from_realsense(
+    *, fx: float, fy: float, ppx: float, ppy: float, width: int, height: int, model: str, coeffs
+) -> tuple[Intrinsics, dict]:
     """Intrinsics in handeye's OpenCV form plus a record of the original RealSense values."""
     dist, exactness = opencv5_from_realsense(model, coeffs)
     if exactness != "exact":
-        log.warning("RealSense distortion model %s maps to OpenCV's %s; the intrinsics are only a starting value",
-                    model, exactness)
+        log.warning(
+            "RealSense distortion model %s maps to OpenCV's %s; the intrinsics are only a starting value",
+            model,
+            exactness,
+        )
     intr = Intrinsics(float(fx), float(fy), float(ppx), float(ppy), dist, int(width), int(height))
-    source = {"kind": "factory (RealSense)", "original_model": str(model).replace("distortion.", ""),
-              "original_coeffs": [float(x) for x in coeffs], "mapping_to_opencv5": exactness}
+    source = {
+        "kind": "factory (RealSense)",
+        "original_model": str(model).replace("distortion.", ""),
+        "original_coeffs": [float(x) for x in coeffs],
+        "mapping_to_opencv5": exactness,
+    }
     return intr, source
 
 
@@ -90,8 +103,11 @@ def _bgr_from_frame(rs, frame) -> np.ndarray:
 
 
 def _frame_info(rs, frame) -> dict:
-    return {"frame_number": int(frame.get_frame_number()), "device_timestamp_ms": float(frame.get_timestamp()),
-            "timestamp_domain": str(frame.get_frame_timestamp_domain()).replace("timestamp_domain.", "")}
+    return {
+        "frame_number": int(frame.get_frame_number()),
+        "device_timestamp_ms": float(frame.get_timestamp()),
+        "timestamp_domain": str(frame.get_frame_timestamp_domain()).replace("timestamp_domain.", ""),
+    }
 
 
 class _RealSenseBase(Camera):
@@ -111,8 +127,15 @@ class _RealSenseBase(Camera):
         rs = self._rs
         ii = vsp.get_intrinsics()
         self._intr, self._intr_source = intrinsics_from_realsense(
-            fx=ii.fx, fy=ii.fy, ppx=ii.ppx, ppy=ii.ppy, width=ii.width, height=ii.height, model=str(ii.model),
-            coeffs=ii.coeffs)
+            fx=ii.fx,
+            fy=ii.fy,
+            ppx=ii.ppx,
+            ppy=ii.ppy,
+            width=ii.width,
+            height=ii.height,
+            model=str(ii.model),
+            coeffs=ii.coeffs,
+        )
         info = {}
         for key in ("name", "serial_number", "firmware_version", "product_line"):
             field = getattr(rs.camera_info, key)
@@ -143,8 +166,16 @@ class _RealSenseBase(Camera):
 class RealSenseCamera(_RealSenseBase):
     """A live RealSense camera's colour stream at ``width`` x ``height``, ``fps``."""
 
-    def __init__(self, *, width: int = 1280, height: int = 720, fps: int = 30, serial: str | None = None,
-                 settle_frames: int = 30, timeout_s: float = 5.0):
+    def __init__(
+        self,
+        *,
+        width: int = 1280,
+        height: int = 720,
+        fps: int = 30,
+        serial: str | None = None,
+        settle_frames: int = 30,
+        timeout_s: float = 5.0,
+    ):
         super().__init__()
         rs = self._rs
         self.name = "realsense"
@@ -153,8 +184,10 @@ class RealSenseCamera(_RealSenseBase):
             devices = rs.context().query_devices()
             n_dev = len(devices)
         except RuntimeError as e:
-            raise HardwareError(f"cannot enumerate RealSense devices ({e})",
-                                hint="check USB permissions (udev rules) and that libusb is installed") from None
+            raise HardwareError(
+                f"cannot enumerate RealSense devices ({e})",
+                hint="check USB permissions (udev rules) and that libusb is installed",
+            ) from None
         if n_dev == 0:
             raise HardwareError("no RealSense camera found", hint="plug it into a USB3 port and check the cable")
         cfg = rs.config()
@@ -166,8 +199,10 @@ class RealSenseCamera(_RealSenseBase):
             profile = self._pipe.start(cfg)
         except RuntimeError as e:
             self._pipe = None
-            raise HardwareError(f"the RealSense camera cannot stream colour {width}x{height} at {fps} fps ({e})",
-                                hint="pick a supported mode, e.g. --resolution 1280x720 --fps 30") from None
+            raise HardwareError(
+                f"the RealSense camera cannot stream colour {width}x{height} at {fps} fps ({e})",
+                hint="pick a supported mode, e.g. --resolution 1280x720 --fps 30",
+            ) from None
         self._read_profile(profile)
         self.name = f"realsense {self._device_info.get('name', '')} #{self._device_info.get('serial_number', '?')}"
         # Auto exposure and white balance need a moment after the stream starts.
@@ -178,8 +213,10 @@ class RealSenseCamera(_RealSenseBase):
         try:
             return self._pipe.wait_for_frames(self.timeout_ms)
         except RuntimeError as e:
-            raise HardwareError(f"no frame from the RealSense camera within {self.timeout_ms / 1000:g} s ({e})",
-                                hint="the camera may be unplugged or on a USB2 port; reconnect it") from None
+            raise HardwareError(
+                f"no frame from the RealSense camera within {self.timeout_ms / 1000:g} s ({e})",
+                hint="the camera may be unplugged or on a USB2 port; reconnect it",
+            ) from None
 
     def grab(self) -> tuple[np.ndarray, float]:
         if self._pipe is None:
@@ -192,8 +229,9 @@ class RealSenseCamera(_RealSenseBase):
         t = time.time()
         color = fs.get_color_frame()
         if not color:
-            raise HardwareError("the RealSense camera delivered a frame set without colour",
-                                hint="reconnect the camera")
+            raise HardwareError(
+                "the RealSense camera delivered a frame set without colour", hint="reconnect the camera"
+            )
         self.last_frame_info = _frame_info(self._rs, color)
         return _bgr_from_frame(self._rs, color), t
 
@@ -249,8 +287,11 @@ class BagCamera(_RealSenseBase):
             sensor.start(self._on_frame)
         except RuntimeError as e:
             self.close()
-            raise HardwareError(f"cannot play the RealSense recording ({e})", path=self.path,
-                                hint="it needs a colour stream; check the file with realsense-viewer") from None
+            raise HardwareError(
+                f"cannot play the RealSense recording ({e})",
+                path=self.path,
+                hint="it needs a colour stream; check the file with realsense-viewer",
+            ) from None
 
     def _colour_stream(self):
         rs = self._rs
@@ -258,8 +299,11 @@ class BagCamera(_RealSenseBase):
             for p in sensor.get_stream_profiles():
                 if p.stream_type() == rs.stream.color:
                     return sensor, p.as_video_stream_profile()
-        raise HardwareError("the recording has no colour stream", path=self.path,
-                            hint="record the colour stream (realsense-viewer: RGB camera on)")
+        raise HardwareError(
+            "the recording has no colour stream",
+            path=self.path,
+            hint="record the colour stream (realsense-viewer: RGB camera on)",
+        )
 
     def _ended(self) -> bool:
         """The player has played the whole recording (it reports stopped after handing over its last frame)."""
@@ -268,7 +312,8 @@ class BagCamera(_RealSenseBase):
     def _on_frame(self, frame) -> None:
         """Player thread: convert the frame and wait for room in the queue (the player waits with it).
         Marked busy while it runs: stopping the sensor under a running callback crashed librealsense (a
-        segmentation fault when a reader gave up on a slow player and closed it)."""
+        segmentation fault when a reader gave up on a slow player and closed it).
+        """
         self._idle.clear()
         try:
             if self._closing.is_set():
@@ -298,14 +343,18 @@ class BagCamera(_RealSenseBase):
                 # the player puts its last frame before it reports the end, so an empty queue after
                 # the end means no frame is left
                 if self._ended() and self._frames.empty():
-                    raise HardwareError(f"the recording has no more colour frames (after {self.n_frames})",
-                                        path=self.path,
-                                        hint="record a longer sequence or capture fewer views") from None
+                    raise HardwareError(
+                        f"the recording has no more colour frames (after {self.n_frames})",
+                        path=self.path,
+                        hint="record a longer sequence or capture fewer views",
+                    ) from None
                 if time.monotonic() > deadline:
-                    raise HardwareError(f"the recording's player stalled: no colour frame within {self.timeout_s:g} s "
-                                        f"and no end of the recording (after {self.n_frames} frames)", path=self.path,
-                                        hint="check the file with realsense-viewer; on a very busy machine pass a "
-                                             "longer timeout") from None
+                    raise HardwareError(
+                        f"the recording's player stalled: no colour frame within {self.timeout_s:g} s "
+                        f"and no end of the recording (after {self.n_frames} frames)",
+                        path=self.path,
+                        hint="check the file with realsense-viewer; on a very busy machine pass a longer timeout",
+                    ) from None
         if isinstance(item, HardwareError):
             raise item
         image, info = item
@@ -321,12 +370,15 @@ class BagCamera(_RealSenseBase):
 
 def _status_recorder(rs, played: threading.Event, stopped: threading.Event):
     """The player's status callback: sets ``played`` when it plays and ``stopped`` when it stops after that
-    (a closure, not a method: the player must not keep the camera alive)."""
+    (a closure, not a method: the player must not keep the camera alive).
+    """
+
     def on_status(status) -> None:
         if status == rs.playback_status.playing:
             played.set()
         elif status == rs.playback_status.stopped and played.is_set():
             stopped.set()
+
     return on_status
 
 
@@ -337,7 +389,8 @@ _CALLBACK_WAIT_S = 10.0
 
 def _stop_player(closing: threading.Event, idle: threading.Event, player: list) -> None:
     """Let a waiting frame callback return (and wait for a running one), stop and close the sensor, drop the
-    playback device."""
+    playback device.
+    """
     closing.set()
     if not idle.wait(_CALLBACK_WAIT_S):
         log.warning("a frame callback still runs after %g s; stopping the player anyway", _CALLBACK_WAIT_S)

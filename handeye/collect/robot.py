@@ -4,6 +4,7 @@ A robot reports the pose of its end (flange or active tool frame) in its base fr
 ``T_base_end`` in metres, and can be asked to move there. Every backend converts its own pose
 convention once, at its boundary, through :mod:`handeye.conventions`.
 """
+
 from __future__ import annotations
 
 import abc

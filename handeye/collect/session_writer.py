@@ -18,6 +18,7 @@ loader).
 Poses are written as ``T_base_end`` 4x4 matrices in metres (``pose_format: {rotation: matrix,
 translation_unit: m}``): no angle convention to get wrong, full float precision.
 """
+
 from __future__ import annotations
 
 import datetime as _dt
@@ -31,9 +32,9 @@ import numpy as np
 import yaml
 
 from .. import __version__
+from ..camera import Intrinsics
 from ..errors import HardwareError, InputError
 from ..output import atomic_write_bytes, plain, to_json
-from ..camera import Intrinsics
 from ..targets import TargetSpec
 
 log = logging.getLogger(__name__)
@@ -56,7 +57,8 @@ def _fsync_dir(folder: Path) -> None:
 
 def write_durably(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically (a reader sees the old file or the whole new one), then
-    fsync the folder so that the new name is on disk too."""
+    fsync the folder so that the new name is on disk too.
+    """
     atomic_write_bytes(path, data)
     _fsync_dir(Path(path).parent)
 
@@ -67,9 +69,16 @@ def dump_yaml(data: dict) -> bytes:
 
 def intrinsics_header(intr: Intrinsics, *, use: str = "initial", source: dict | None = None) -> dict:
     """The ``intrinsics:`` block of session.yaml (dist as a list k1, k2, p1, p2, k3)."""
-    block = {"model": "opencv5", "fx": float(intr.fx), "fy": float(intr.fy), "cx": float(intr.cx),
-             "cy": float(intr.cy), "dist": [float(x) for x in intr.dist], "image_size": [intr.width, intr.height],
-             "use": use}
+    block = {
+        "model": "opencv5",
+        "fx": float(intr.fx),
+        "fy": float(intr.fy),
+        "cx": float(intr.cx),
+        "cy": float(intr.cy),
+        "dist": [float(x) for x in intr.dist],
+        "image_size": [intr.width, intr.height],
+        "use": use,
+    }
     if source:
         block["source"] = plain(source)
     return block
@@ -78,12 +87,23 @@ def intrinsics_header(intr: Intrinsics, *, use: str = "initial", source: dict | 
 class SessionWriter:
     """Creates ``out_dir`` with its header, then writes one capture at a time."""
 
-    def __init__(self, out_dir: str | Path, *, mode: str, target: TargetSpec, intrinsics: Intrinsics | None = None,
-                 intrinsics_source: dict | None = None, collected: dict | None = None):
+    def __init__(
+        self,
+        out_dir: str | Path,
+        *,
+        mode: str,
+        target: TargetSpec,
+        intrinsics: Intrinsics | None = None,
+        intrinsics_source: dict | None = None,
+        collected: dict | None = None,
+    ):
         self.out = Path(out_dir)
         if (self.out / "session.yaml").exists() or (self.out.exists() and any(self.out.iterdir())):
-            raise InputError("output folder is not empty", path=self.out,
-                             hint="collect into a new folder; an existing session is never overwritten")
+            raise InputError(
+                "output folder is not empty",
+                path=self.out,
+                hint="collect into a new folder; an existing session is never overwritten",
+            )
         try:
             (self.out / IMAGES_DIR).mkdir(parents=True, exist_ok=True)
             (self.out / RECORDS_DIR).mkdir(exist_ok=True)
@@ -114,11 +134,23 @@ class SessionWriter:
         try:
             write_durably(path, data)
         except OSError as e:
-            raise HardwareError(f"cannot write {path.name} ({e.strerror})", path=path,
-                                hint="check free disk space; the views already saved are intact") from None
+            raise HardwareError(
+                f"cannot write {path.name} ({e.strerror})",
+                path=path,
+                hint="check free disk space; the views already saved are intact",
+            ) from None
 
-    def write_view(self, view_id: str, image: np.ndarray, T_base_end: np.ndarray, *, t_image: float,
-                   t_pose: float, robot_state: dict | None = None, extra: dict | None = None) -> Path:
+    def write_view(
+        self,
+        view_id: str,
+        image: np.ndarray,
+        T_base_end: np.ndarray,
+        *,
+        t_image: float,
+        t_pose: float,
+        robot_state: dict | None = None,
+        extra: dict | None = None,
+    ) -> Path:
         """Write ``images/<id>.png`` then ``views/<id>.yaml``; returns the record path."""
         vid = str(view_id)
         rec_path = self.out / RECORDS_DIR / f"{vid}.yaml"
@@ -129,12 +161,20 @@ class SessionWriter:
             raise ValueError(f"T_base_end must be a finite 4x4 matrix, got shape {T.shape}")
         ok, png = cv2.imencode(".png", image)
         if not ok:
-            raise HardwareError(f"view {vid}: the camera frame could not be encoded as PNG",
-                                received=f"array {image.shape} {image.dtype}")
+            raise HardwareError(
+                f"view {vid}: the camera frame could not be encoded as PNG",
+                received=f"array {image.shape} {image.dtype}",
+            )
         img_rel = f"{IMAGES_DIR}/{vid}.png"
         self._write(self.out / img_rel, png.tobytes())
-        record = {"id": vid, "image": img_rel, "pose": T.tolist(), "t_image": float(t_image),
-                  "t_pose": float(t_pose), "robot_state": robot_state or {}}
+        record = {
+            "id": vid,
+            "image": img_rel,
+            "pose": T.tolist(),
+            "t_image": float(t_image),
+            "t_pose": float(t_pose),
+            "robot_state": robot_state or {},
+        }
         if extra:
             record.update(extra)
         self._write(rec_path, dump_yaml(record))

@@ -5,6 +5,7 @@ views show the whole pattern; hidden views none of it). Pixels come from THE pro
 (:func:`handeye.camera.pixels_from_cam_points`); the undistorted image border comes from OpenCV's
 iterative undistortion (an inverse mapping, not a projection).
 """
+
 from __future__ import annotations
 
 import functools
@@ -44,10 +45,17 @@ def pattern_bounds(target: TargetSpec, *, margin_squares: float = 0.0) -> tuple[
         return (-gap - m, target.cols * target.pitch_m + m, -gap - m, target.rows * target.pitch_m + m)
     if isinstance(target, CircleGridSpec):
         p = target.object_points()
-        return (float(p[:, 0].min()) - L - m, float(p[:, 0].max()) + L + m,
-                float(p[:, 1].min()) - L - m, float(p[:, 1].max()) + L + m)
-    raise ConfigError("unknown target type", expected="a chessboard, ChArUco, circle grid, marker or AprilGrid spec",
-                      received=type(target).__name__)
+        return (
+            float(p[:, 0].min()) - L - m,
+            float(p[:, 0].max()) + L + m,
+            float(p[:, 1].min()) - L - m,
+            float(p[:, 1].max()) + L + m,
+        )
+    raise ConfigError(
+        "unknown target type",
+        expected="a chessboard, ChArUco, circle grid, marker or AprilGrid spec",
+        received=type(target).__name__,
+    )
 
 
 def board_center(target: TargetSpec) -> np.ndarray:
@@ -75,7 +83,8 @@ def _board_grid_points(target: TargetSpec, *, margin_squares: float, step_m: flo
 
 def default_margin_px(intrinsics: Intrinsics) -> float:
     """Margin kept between the pattern and the image border (configs/collect.yaml ``visibility:``:
-    1.5 % of the width, at least 8 px)."""
+    1.5 % of the width, at least 8 px).
+    """
     return max(float(_LIMITS["min_margin_px"]), float(_LIMITS["margin_share_of_width"]) * intrinsics.width)
 
 
@@ -86,39 +95,64 @@ def image_normalized_extent(intrinsics: Intrinsics) -> dict:
     border. Raises ConfigError if the distortion folds back (is not monotonic) inside the image,
     because then a pixel no longer has a unique viewing ray.
     """
-    return dict(_normalized_extent(intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy,
-                                   tuple(float(d) for d in intrinsics.dist), int(intrinsics.width),
-                                   int(intrinsics.height)))
+    return dict(
+        _normalized_extent(
+            intrinsics.fx,
+            intrinsics.fy,
+            intrinsics.cx,
+            intrinsics.cy,
+            tuple(float(d) for d in intrinsics.dist),
+            int(intrinsics.width),
+            int(intrinsics.height),
+        )
+    )
 
 
 @functools.lru_cache(maxsize=16)
 def _normalized_extent(fx: float, fy: float, cx: float, cy: float, dist: tuple, W: int, H: int) -> dict:
     if W <= 0 or H <= 0:
-        raise ConfigError("intrinsics without an image size", expected="width and height > 0",
-                          received=f"{W}x{H}", hint="give the intrinsics their image size")
+        raise ConfigError(
+            "intrinsics without an image size",
+            expected="width and height > 0",
+            received=f"{W}x{H}",
+            hint="give the intrinsics their image size",
+        )
     n = 64
-    uu = np.concatenate([np.linspace(-0.5, W - 0.5, n), np.full(n, W - 0.5), np.linspace(W - 0.5, -0.5, n),
-                         np.full(n, -0.5)])
-    vv = np.concatenate([np.full(n, -0.5), np.linspace(-0.5, H - 0.5, n), np.full(n, H - 0.5),
-                         np.linspace(H - 0.5, -0.5, n)])
+    uu = np.concatenate(
+        [np.linspace(-0.5, W - 0.5, n), np.full(n, W - 0.5), np.linspace(W - 0.5, -0.5, n), np.full(n, -0.5)]
+    )
+    vv = np.concatenate(
+        [np.full(n, -0.5), np.linspace(-0.5, H - 0.5, n), np.full(n, H - 0.5), np.linspace(H - 0.5, -0.5, n)]
+    )
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
-    xy = cv2.undistortPointsIter(np.stack([uu, vv], -1).reshape(-1, 1, 2), K, np.asarray(dist, float),
-                                 None, None, crit).reshape(-1, 2)
-    r2 = (xy ** 2).sum(axis=1)
+    xy = cv2.undistortPointsIter(
+        np.stack([uu, vv], -1).reshape(-1, 1, 2), K, np.asarray(dist, float), None, None, crit
+    ).reshape(-1, 2)
+    r2 = (xy**2).sum(axis=1)
     # d(r * radial(r)) / dr must stay positive up to the image corners (plus a little).
     k1, k2, _, _, k3 = dist
     rr2 = np.linspace(0.0, 1.2 * r2.max(), 200)
-    slope = 1.0 + 3 * k1 * rr2 + 5 * k2 * rr2 ** 2 + 7 * k3 * rr2 ** 3
+    slope = 1.0 + 3 * k1 * rr2 + 5 * k2 * rr2**2 + 7 * k3 * rr2**3
     if np.any(slope <= 0.05):
-        raise ConfigError("lens distortion folds back inside the image", expected="monotonic radial distortion",
-                          received=f"dist={dist}", hint="use milder k1/k2/k3")
-    return {"r2_max": float(r2.max()), "x_min": float(xy[:, 0].min()), "x_max": float(xy[:, 0].max()),
-            "y_min": float(xy[:, 1].min()), "y_max": float(xy[:, 1].max())}
+        raise ConfigError(
+            "lens distortion folds back inside the image",
+            expected="monotonic radial distortion",
+            received=f"dist={dist}",
+            hint="use milder k1/k2/k3",
+        )
+    return {
+        "r2_max": float(r2.max()),
+        "x_min": float(xy[:, 0].min()),
+        "x_max": float(xy[:, 0].max()),
+        "y_min": float(xy[:, 1].min()),
+        "y_max": float(xy[:, 1].max()),
+    }
 
 
-def board_in_image(target: TargetSpec, intrinsics: Intrinsics, T_cam_board: np.ndarray, *,
-                   margin_px: float | None = None) -> bool:
+def board_in_image(
+    target: TargetSpec, intrinsics: Intrinsics, T_cam_board: np.ndarray, *, margin_px: float | None = None
+) -> bool:
     """True if the whole pattern (outer edge of the squares) is in the image with ``margin_px``.
 
     Also requires every outline point in front of the camera and inside the region where the lens
@@ -138,8 +172,9 @@ def board_in_image(target: TargetSpec, intrinsics: Intrinsics, T_cam_board: np.n
     return bool(np.all((u >= margin - 0.5) & (u <= W - 0.5 - margin) & (v >= margin - 0.5) & (v <= H - 0.5 - margin)))
 
 
-def board_out_of_image(target: TargetSpec, intrinsics: Intrinsics, T_cam_board: np.ndarray, *,
-                       margin_squares: float = 1.0) -> bool:
+def board_out_of_image(
+    target: TargetSpec, intrinsics: Intrinsics, T_cam_board: np.ndarray, *, margin_squares: float = 1.0
+) -> bool:
     """True if no part of the board (white border included) can appear in the image.
 
     Checked on a 1 cm grid of board points against the bounding box of the image in undistorted
@@ -153,6 +188,7 @@ def board_out_of_image(target: TargetSpec, intrinsics: Intrinsics, T_cam_board: 
     x = p_cam[front, 0] / p_cam[front, 2]
     y = p_cam[front, 1] / p_cam[front, 2]
     pad = 0.02
-    inside = ((x >= ext["x_min"] - pad) & (x <= ext["x_max"] + pad) & (y >= ext["y_min"] - pad)
-              & (y <= ext["y_max"] + pad))
+    inside = (
+        (x >= ext["x_min"] - pad) & (x <= ext["x_max"] + pad) & (y >= ext["y_min"] - pad) & (y <= ext["y_max"] + pad)
+    )
     return not bool(np.any(inside))

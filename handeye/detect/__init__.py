@@ -10,6 +10,7 @@ parallel threads (OpenCV releases the GIL); for a chessboard it first looks at a
 they show another board size (:mod:`.board_size`) it stops there instead of running the slow search
 on every image. Thresholds are in configs/detection.yaml.
 """
+
 from __future__ import annotations
 
 import logging
@@ -38,8 +39,13 @@ from .quality import image_exposure, sharpness, thumbnail_jpeg, view_blur, view_
 log = logging.getLogger(__name__)
 
 #: the detector of each target kind (``TargetSpec.kind``)
-DETECTORS = {"chessboard": detect_chessboard, "charuco": detect_charuco, "circlegrid": detect_circlegrid,
-             "marker": detect_markers, "aprilgrid": detect_markers}
+DETECTORS = {
+    "chessboard": detect_chessboard,
+    "charuco": detect_charuco,
+    "circlegrid": detect_circlegrid,
+    "marker": detect_markers,
+    "aprilgrid": detect_markers,
+}
 #: detectors with slower fallback searches, which take the image's time budget (``budget=``)
 _BUDGETED = (detect_chessboard, detect_circlegrid)
 _DROPPING = (detect_chessboard, detect_charuco)  # report the corners they leave out (``dropped=``)
@@ -62,8 +68,11 @@ def read_gray(path: Path) -> np.ndarray:
         jpeg = data[:3].tobytes() == _JPEG_MAGIC
         img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE if jpeg else cv2.IMREAD_UNCHANGED)
     if img is None:
-        raise InputError("image cannot be decoded (corrupt or not an image)", path=path,
-                         hint="re-capture the view or remove the image and its pose")
+        raise InputError(
+            "image cannot be decoded (corrupt or not an image)",
+            path=path,
+            hint="re-capture the view or remove the image and its pose",
+        )
     if img.dtype != np.uint8:
         img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
     if img.ndim == 3:
@@ -71,14 +80,21 @@ def read_gray(path: Path) -> np.ndarray:
     return img
 
 
-def detect_gray(gray: np.ndarray, target: TargetSpec, *, min_corners: int | None = None,
-                options: DetectionOptions | None = None, budget: TimeBudget | None = None,
-                dropped: list | None = None) -> tuple[np.ndarray, np.ndarray] | str:
+def detect_gray(
+    gray: np.ndarray,
+    target: TargetSpec,
+    *,
+    min_corners: int | None = None,
+    options: DetectionOptions | None = None,
+    budget: TimeBudget | None = None,
+    dropped: list | None = None,
+) -> tuple[np.ndarray, np.ndarray] | str:
     """(corner ids, image points (N,2) px) of ``target`` in an 8-bit grey image, or the reason it was
     not found. Fewer than ``min_corners`` corners (default: configs/detection.yaml) counts as not found.
     ``budget``: the time left for this image (default: ``time_budget_s`` from now); detectors with slower
     searches skip them once it is spent (the reason then says "detection timed out"). ``dropped``: a list
-    that receives (corner id, reason) of the corners found but not used (chessboard, ChArUco)."""
+    that receives (corner id, reason) of the corners found but not used (chessboard, ChArUco).
+    """
     o = options or default_options()
     detector = DETECTORS.get(getattr(target, "kind", None))
     if detector is None:
@@ -98,8 +114,14 @@ def detect_gray(gray: np.ndarray, target: TargetSpec, *, min_corners: int | None
     return ids, pts
 
 
-def detect_image(view_id: str, path: Path, target: TargetSpec, *, min_corners: int | None = None,
-                 options: DetectionOptions | None = None) -> Detection | DetectionFailure:
+def detect_image(
+    view_id: str,
+    path: Path,
+    target: TargetSpec,
+    *,
+    min_corners: int | None = None,
+    options: DetectionOptions | None = None,
+) -> Detection | DetectionFailure:
     """Detect the target in one image file and measure the image while it is decoded."""
     o = options or default_options()
     t0 = time.perf_counter()
@@ -113,17 +135,39 @@ def detect_image(view_id: str, path: Path, target: TargetSpec, *, min_corners: i
     thumb = thumbnail_jpeg(gray, width_px=o.thumbnail_width_px, quality=o.thumbnail_jpeg_quality)
     ids, pts = out
     cue = order_cue(gray, pts, target.cols, target.rows, ids) if target.kind == "chessboard" else float("nan")
-    blur = view_blur(gray, pts, ids, target.object_points(), target.square_m, charuco=target.kind == "charuco",
-                     sharp_edge_sigma_px=o.sharp_edge_sigma_px)
-    return Detection(view_id=view_id, corner_ids=ids, image_points=pts, image_size=size,
-                     sharpness=sharpness(gray, pts), order_cue=cue, blur=blur,
-                     exposure=view_exposure(gray, pts, saturated_grey=o.saturated_grey), thumbnail_jpeg=thumb,
-                     seconds=time.perf_counter() - t0, dropped_corners=tuple(sorted(dropped)))
+    blur = view_blur(
+        gray,
+        pts,
+        ids,
+        target.object_points(),
+        target.square_m,
+        charuco=target.kind == "charuco",
+        sharp_edge_sigma_px=o.sharp_edge_sigma_px,
+    )
+    return Detection(
+        view_id=view_id,
+        corner_ids=ids,
+        image_points=pts,
+        image_size=size,
+        sharpness=sharpness(gray, pts),
+        order_cue=cue,
+        blur=blur,
+        exposure=view_exposure(gray, pts, saturated_grey=o.saturated_grey),
+        thumbnail_jpeg=thumb,
+        seconds=time.perf_counter() - t0,
+        dropped_corners=tuple(sorted(dropped)),
+    )
 
 
-def detect_views(items: Sequence[tuple[str, Path]], target: TargetSpec, *, workers: int | None = None,
-                 min_corners: int | None = None, options: DetectionOptions | None = None,
-                 progress: Callable[[int, int], None] | None = None) -> dict[str, Detection | DetectionFailure]:
+def detect_views(
+    items: Sequence[tuple[str, Path]],
+    target: TargetSpec,
+    *,
+    workers: int | None = None,
+    min_corners: int | None = None,
+    options: DetectionOptions | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict[str, Detection | DetectionFailure]:
     """Detect the target in every (view_id, image_path); results keyed by view id.
 
     Chessboards: when the first views show another board size, the others are not searched
@@ -159,8 +203,11 @@ def detect_views(items: Sequence[tuple[str, Path]], target: TargetSpec, *, worke
         results = normalize_chessboard_order(results, target, options=o)
     sizes = {d.image_size for d in results.values() if d.image_size is not None}
     if len(sizes) > 1:
-        raise InputError(f"images have different sizes {sorted(sizes)}", path=Path(items[0][1]).parent,
-                         hint="all views of a session must come from one camera at one resolution")
+        raise InputError(
+            f"images have different sizes {sorted(sizes)}",
+            path=Path(items[0][1]).parent,
+            hint="all views of a session must come from one camera at one resolution",
+        )
     return results
 
 
@@ -170,7 +217,8 @@ def _wrong_board_size(items, target, pool, o: DetectionOptions) -> dict | None:
     show another one. The first view is looked at alone (a session with the right size pays for that
     one look, 50-100 ms), the others of the probe together. Checked views keep the sizes seen
     (``seen_sizes``); the others are decoded only for their thumbnail and exposure, and say they were
-    not searched."""
+    not searched.
+    """
     probe = list(items[: o.size_probe_views])
     if len(probe) < 2:
         return None
@@ -183,7 +231,8 @@ def _wrong_board_size(items, target, pool, o: DetectionOptions) -> dict | None:
         gray = read_gray(path)
         seen = visible_grid_sizes(gray, max_side_px=o.size_survey_max_side_px)
         why = f"chessboard {said} not found" + (
-            f"; the detector sees {', '.join(size_text(s) for s in seen)} inner corners" if seen else "")
+            f"; the detector sees {', '.join(size_text(s) for s in seen)} inner corners" if seen else ""
+        )
         return vid, _failure(vid, gray, why, o, t0, seen_sizes=seen)
 
     looked = dict([look(probe[0])])
@@ -193,8 +242,12 @@ def _wrong_board_size(items, target, pool, o: DetectionOptions) -> dict | None:
     likely = board_size_verdict(stated, {v: f.seen_sizes for v, f in looked.items()})
     if likely is None:
         return None
-    log.info("chessboard %s in none of the first %d views, which show %s: the other views are not searched",
-             said, len(probe), size_text(likely))
+    log.info(
+        "chessboard %s in none of the first %d views, which show %s: the other views are not searched",
+        said,
+        len(probe),
+        size_text(likely),
+    )
     why = f"not searched: no {said} chessboard in the first {len(probe)} views, which show {size_text(likely)}"
 
     def skip(item):
@@ -209,15 +262,20 @@ def _wrong_board_size(items, target, pool, o: DetectionOptions) -> dict | None:
 
 def _sizes_of_failures(results: dict, paths: dict, pool, o: DetectionOptions) -> dict:
     """When the stated chessboard was not found in most views (the probe could not tell why), the
-    board sizes seen in a few of the failed views (``seen_sizes``), so the message can name them."""
+    board sizes seen in a few of the failed views (``seen_sizes``), so the message can name them.
+    """
     failed = [v for v, d in results.items() if isinstance(d, DetectionFailure) and d.seen_sizes is None]
     if len(failed) * 2 <= len(results):
         return results
     pick = [failed[i] for i in sorted(set(np.linspace(0, len(failed) - 1, o.size_probe_views).round().astype(int)))]
 
     def look(vid):
-        return vid, visible_grid_sizes(read_gray(paths[vid]), max_side_px=o.size_survey_max_side_px,
-                                       full_size_retry=True, retry_max_megapixels=o.search_max_megapixels)
+        return vid, visible_grid_sizes(
+            read_gray(paths[vid]),
+            max_side_px=o.size_survey_max_side_px,
+            full_size_retry=True,
+            retry_max_megapixels=o.search_max_megapixels,
+        )
 
     out = dict(results)
     for vid, seen in pool.map(look, pick):
@@ -226,8 +284,12 @@ def _sizes_of_failures(results: dict, paths: dict, pool, o: DetectionOptions) ->
 
 
 def _failure(vid: str, gray: np.ndarray, reason: str, o: DetectionOptions, t0: float, **kw) -> DetectionFailure:
-    return DetectionFailure(view_id=vid, reason=reason,
-                            thumbnail_jpeg=thumbnail_jpeg(gray, width_px=o.thumbnail_width_px,
-                                                          quality=o.thumbnail_jpeg_quality),
-                            exposure=image_exposure(gray, saturated_grey=o.saturated_grey),
-                            image_size=(gray.shape[1], gray.shape[0]), seconds=time.perf_counter() - t0, **kw)
+    return DetectionFailure(
+        view_id=vid,
+        reason=reason,
+        thumbnail_jpeg=thumbnail_jpeg(gray, width_px=o.thumbnail_width_px, quality=o.thumbnail_jpeg_quality),
+        exposure=image_exposure(gray, saturated_grey=o.saturated_grey),
+        image_size=(gray.shape[1], gray.shape[0]),
+        seconds=time.perf_counter() - t0,
+        **kw,
+    )

@@ -7,6 +7,7 @@ seed returns the whole grid it can follow), on a reduced copy of the image (25-8
 present; :class:`SizeSurvey` words it. Sizes are ``(cols, rows)`` inner corners with cols >= rows:
 OpenCV finds an 11x8 pattern as 8x11 too, so orientation does not matter.
 """
+
 from __future__ import annotations
 
 import math
@@ -29,8 +30,9 @@ def size_text(size: Size) -> str:
     return f"{size[0]}x{size[1]}"
 
 
-def visible_grid_sizes(gray: np.ndarray, *, max_side_px: int = 800, full_size_retry: bool = False,
-                       retry_max_megapixels: float = 1.0) -> tuple:
+def visible_grid_sizes(
+    gray: np.ndarray, *, max_side_px: int = 800, full_size_retry: bool = False, retry_max_megapixels: float = 1.0
+) -> tuple:
     """Inner-corner sizes ``((cols, rows), ...)`` of the chessboards seen in an 8-bit grey image
     (at most one: the largest grid the detector follows); ``()`` when none.
 
@@ -47,15 +49,17 @@ def visible_grid_sizes(gray: np.ndarray, *, max_side_px: int = 800, full_size_re
     for s in scales:
         img = gray if s == 1.0 else cv2.resize(gray, (round(w * s), round(h * s)), interpolation=cv2.INTER_AREA)
         found, _, meta = cv2.findChessboardCornersSBWithMeta(
-            img, (3, 3), flags=cv2.CALIB_CB_LARGER | cv2.CALIB_CB_NORMALIZE_IMAGE)
+            img, (3, 3), flags=cv2.CALIB_CB_LARGER | cv2.CALIB_CB_NORMALIZE_IMAGE
+        )
         if found and meta is not None and meta.ndim == 2:
             rows, cols = meta.shape
             return (normal_size(cols, rows),)
     return ()
 
 
-def board_size_verdict(stated: Size, seen: Mapping[str, tuple], *, min_share: float = 2 / 3,
-                       after_search: bool = False) -> Optional[Size]:
+def board_size_verdict(
+    stated: Size, seen: Mapping[str, tuple], *, min_share: float = 2 / 3, after_search: bool = False
+) -> Optional[Size]:
     """The size the views show instead of ``stated``, or None when they do not show that clearly.
 
     ``seen``: view id -> sizes seen in that view (:func:`visible_grid_sizes`), over views where the
@@ -87,7 +91,7 @@ class SizeSurvey:
 
     @property
     def counts(self) -> dict:
-        """size -> number of checked views showing it, most frequent first."""
+        """Size -> number of checked views showing it, most frequent first."""
         c = Counter(s for sizes in self.seen.values() for s in set(sizes))
         return dict(sorted(c.items(), key=lambda kv: (-kv[1], -kv[0][0] * kv[0][1])))
 
@@ -99,25 +103,32 @@ class SizeSurvey:
     def text(self) -> str:
         """e.g. "no 9x6 chessboard; 11x8 inner corners seen in 3 of 3 checked views"."""
         n = len(self.seen)
-        seen = ", ".join(f"{size_text(s)} inner corners seen in {k} of {n} checked views"
-                         for s, k in self.counts.items())
-        return (f"no {self.stated[0]}x{self.stated[1]} chessboard; "
-                + (seen or f"no chessboard seen in {n} checked views"))
+        seen = ", ".join(
+            f"{size_text(s)} inner corners seen in {k} of {n} checked views" for s, k in self.counts.items()
+        )
+        return f"no {self.stated[0]}x{self.stated[1]} chessboard; " + (
+            seen or f"no chessboard seen in {n} checked views"
+        )
 
     def fix(self) -> str:
         """What to change in the session files."""
         size = self.likely_size
         if size is None:
-            return (f"count the inner corners (where four squares meet) and state them; the session says "
-                    f"{self.stated[0]}x{self.stated[1]}")
+            return (
+                f"count the inner corners (where four squares meet) and state them; the session says "
+                f"{self.stated[0]}x{self.stated[1]}"
+            )
         c, r = size
-        return (f"the board has {c}x{r} inner corners, not {self.stated[0]}x{self.stated[1]}: fix config.yaml "
-                f"checkerboard_args XX: {c}, YY: {r} (or session.yaml target.inner_corners: [{c}, {r}])")
+        return (
+            f"the board has {c}x{r} inner corners, not {self.stated[0]}x{self.stated[1]}: fix config.yaml "
+            f"checkerboard_args XX: {c}, YY: {r} (or session.yaml target.inner_corners: [{c}, {r}])"
+        )
 
 
 def size_survey(results: Mapping[str, object], stated: Size) -> Optional[SizeSurvey]:
     """The survey recorded on the failures of :func:`handeye.detect.detect_views` (their ``seen_sizes``),
-    or None when no view was checked."""
+    or None when no view was checked.
+    """
     seen = {vid: tuple(r.seen_sizes) for vid, r in results.items() if getattr(r, "seen_sizes", None) is not None}
     if not seen:
         return None

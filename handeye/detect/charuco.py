@@ -1,4 +1,5 @@
 """ChArUco boards: corner ids from the markers (partial views allowed), sub-pixel corners."""
+
 from __future__ import annotations
 
 import logging
@@ -22,14 +23,16 @@ def charuco_board(spec: CharucoSpec):
     return board
 
 
-def detect_charuco(gray: np.ndarray, spec: CharucoSpec, *, options: DetectionOptions | None = None,
-                   dropped: list | None = None) -> tuple[np.ndarray, np.ndarray] | str:
+def detect_charuco(
+    gray: np.ndarray, spec: CharucoSpec, *, options: DetectionOptions | None = None, dropped: list | None = None
+) -> tuple[np.ndarray, np.ndarray] | str:
     """(corner ids sorted, image points (N,2)) or a reason string.
 
     Images above ``search_max_megapixels_charuco_circles`` are searched on a reduced copy (the marker
     search's time grows with the area); the corners are refined there and again on the full image in a
     window of the same extent on the board. Corners that fail the geometric check are dropped
-    (:func:`off_grid_corners_removed`); ``dropped`` receives their (corner id, reason)."""
+    (:func:`off_grid_corners_removed`); ``dropped`` receives their (corner id, reason).
+    """
     o = options or default_options()
     search, scale = search_copy(gray, max_megapixels=o.search_max_megapixels_charuco_circles)
     detector = cv2.aruco.CharucoDetector(charuco_board(spec))
@@ -40,8 +43,9 @@ def detect_charuco(gray: np.ndarray, spec: CharucoSpec, *, options: DetectionOpt
         return f"ChArUco board not found ({n_markers} markers seen{where})"
     ids = ch_ids.reshape(-1).astype(int)
     win = o.charuco_subpix_window_px
-    pts = cv2.cornerSubPix(search, ch_corners.reshape(-1, 1, 2).astype(np.float32), (win, win), (-1, -1),
-                           o.subpix_criteria).reshape(-1, 2)
+    pts = cv2.cornerSubPix(
+        search, ch_corners.reshape(-1, 1, 2).astype(np.float32), (win, win), (-1, -1), o.subpix_criteria
+    ).reshape(-1, 2)
     if np.any(scale != 1.0):
         full = int(round(win / float(scale.min())))  # the same extent on the board as ``win`` on the copy
         pts = ((pts + 0.5) / scale - 0.5).astype(np.float32)
@@ -50,8 +54,9 @@ def detect_charuco(gray: np.ndarray, spec: CharucoSpec, *, options: DetectionOpt
     ids, pts = ids[order], pts[order].astype(np.float64)
     keep = off_grid_corners_removed(spec.object_points()[ids, :2], pts, o)
     if not keep.all():
-        log.info("ChArUco corners %s dropped: off the homography of their neighbours (geometric check)",
-                 ids[~keep].tolist())
+        log.info(
+            "ChArUco corners %s dropped: off the homography of their neighbours (geometric check)", ids[~keep].tolist()
+        )
         if dropped is not None:
             dropped.extend((int(k), "off the homography of its neighbours (geometric check)") for k in ids[~keep])
     return ids[keep], pts[keep]
@@ -60,7 +65,8 @@ def detect_charuco(gray: np.ndarray, spec: CharucoSpec, *, options: DetectionOpt
 def off_grid_corners_removed(board_xy: np.ndarray, pts: np.ndarray, options: DetectionOptions) -> np.ndarray:
     """Mask (N,) of the corners kept after the geometric check (:func:`.geometry.grid_check`): the corner
     farthest over its limit is removed, and the check repeated without it (one wrong corner also moves
-    its neighbours' predictions), until all pass."""
+    its neighbours' predictions), until all pass.
+    """
     keep = np.ones(len(pts), bool)
     while keep.sum() > 0:
         idx = np.flatnonzero(keep)

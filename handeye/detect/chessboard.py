@@ -2,7 +2,9 @@
 very large ones), refined on the full image in windows set from the square size by cornerSubPix and then
 by the centre of point symmetry (:mod:`.saddle`; a corner the two put far apart is not used), checked
 against the board's own geometry (re-detected by the accurate search when they fail), and the corner
-order of boards whose colours tell their orientation."""
+order of boards whose colours tell their orientation.
+"""
+
 from __future__ import annotations
 
 import logging
@@ -29,14 +31,14 @@ def board_squares(spec: ChessboardSpec) -> np.ndarray:
     return spec.object_points()[:, :2] / spec.square_m
 
 
-def subpix_windows(board_xy: np.ndarray, pts: np.ndarray, options: DetectionOptions
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def subpix_windows(board_xy: np.ndarray, pts: np.ndarray, options: DetectionOptions) -> tuple[np.ndarray, np.ndarray]:
     """(start points (N,2), cornerSubPix half window of each corner (N,) px) for coarse corners ``pts``.
 
     The board homography is fitted to the coarse corners (:func:`.geometry.board_homography`; robustly
     when a least-squares fit leaves a corner off); the window is ``subpix_window_factor`` x the square's
     size in px at each corner, clipped to [min, max] px; a coarse corner farther than
-    ``coarse_outlier_squares`` from the homography's prediction starts from the prediction."""
+    ``coarse_outlier_squares`` from the homography's prediction starts from the prediction.
+    """
     o = options
     for robust in (False, True):
         H = board_homography(board_xy, pts, robust=robust)
@@ -55,21 +57,30 @@ def subpix_windows(board_xy: np.ndarray, pts: np.ndarray, options: DetectionOpti
 
 
 def refine_corners(gray: np.ndarray, pts: np.ndarray, win: np.ndarray, options: DetectionOptions) -> np.ndarray:
-    """cornerSubPix of every corner with its own half window (corners of one window size together)."""
+    """CornerSubPix of every corner with its own half window (corners of one window size together)."""
     out = np.asarray(pts, np.float32).reshape(-1, 2).copy()
     for w in np.unique(win):
         k = np.flatnonzero(win == w)
-        out[k] = cv2.cornerSubPix(gray, out[k].reshape(-1, 1, 2), (int(w), int(w)), (-1, -1),
-                                  options.subpix_criteria).reshape(-1, 2)
+        out[k] = cv2.cornerSubPix(
+            gray, out[k].reshape(-1, 1, 2), (int(w), int(w)), (-1, -1), options.subpix_criteria
+        ).reshape(-1, 2)
     return out.astype(np.float64)
 
 
-def refine_chessboard(gray: np.ndarray, search: np.ndarray, scale: np.ndarray, coarse: np.ndarray,
-                      spec: ChessboardSpec, options: DetectionOptions, dropped: list | None = None) -> np.ndarray:
+def refine_chessboard(
+    gray: np.ndarray,
+    search: np.ndarray,
+    scale: np.ndarray,
+    coarse: np.ndarray,
+    spec: ChessboardSpec,
+    options: DetectionOptions,
+    dropped: list | None = None,
+) -> np.ndarray:
     """Full-resolution corners (N,2) from ``coarse`` corners found in ``search`` (``gray`` reduced by
     ``scale``, per axis), with windows from the square size; on a reduced search image the corners are first
     refined there, so the full-size windows only correct what the reduction lost. Corners that are not
-    trusted (:func:`final_corners`) are NaN (their (id, reason) appended to ``dropped``)."""
+    trusted (:func:`final_corners`) are NaN (their (id, reason) appended to ``dropped``).
+    """
     bxy = board_squares(spec)
     start, win = subpix_windows(bxy, np.asarray(coarse, float).reshape(-1, 2), options)
     if np.any(scale != 1.0):
@@ -78,45 +89,65 @@ def refine_chessboard(gray: np.ndarray, search: np.ndarray, scale: np.ndarray, c
     return final_corners(gray, bxy, start, win, options, dropped)
 
 
-def final_corners(gray: np.ndarray, board_xy: np.ndarray, start: np.ndarray, win: np.ndarray,
-                  options: DetectionOptions, dropped: list | None = None) -> np.ndarray:
+def final_corners(
+    gray: np.ndarray,
+    board_xy: np.ndarray,
+    start: np.ndarray,
+    win: np.ndarray,
+    options: DetectionOptions,
+    dropped: list | None = None,
+) -> np.ndarray:
     """The two refinement stages on the full image (:mod:`.saddle`), on the part of it around the corners:
     cornerSubPix from ``start`` in half windows ``win``, then the centre of point symmetry in half windows
     of ``saddle_window_factor`` x the square's size, both on the image smoothed by ``subpix_blur_sigma_px``.
     A corner where the two disagree by more than ``corner_disagreement_max_px``, or where the second finds
     no saddle, is NaN (not used), and logged with its reason; (index, reason) of each is appended to
-    ``dropped`` when given."""
+    ``dropped`` when given.
+    """
     o = options
     reach = int(np.max(win)) + o.saddle_shading_box_px + int(np.ceil(4 * o.subpix_blur_sigma_px)) + 2
     h, w = gray.shape
     x0, y0 = (max(int(np.floor(v)) - reach, 0) for v in np.nanmin(start, axis=0))
-    x1, y1 = (min(int(np.ceil(v)) + reach + 1, n) for v, n in zip(np.nanmax(start, axis=0), (w, h)))
+    x1, y1 = (min(int(np.ceil(v)) + reach + 1, n) for v, n in zip(np.nanmax(start, axis=0), (w, h), strict=False))
     shift = np.array([x0, y0], float)
     smooth = cv2.GaussianBlur(gray[y0:y1, x0:x1], (0, 0), o.subpix_blur_sigma_px)
     first = refine_corners(smooth, start - shift, win, o)
     H = board_homography(board_xy, first, robust=False)
-    half = win if H is None else np.clip(np.floor(o.saddle_window_factor * square_px(H, board_xy, 1.0)),
-                                         o.subpix_window_min_px, o.subpix_window_max_px).astype(int)
-    second, saddle = symmetric_corners(shading_free(smooth, box_px=o.saddle_shading_box_px), first, half,
-                                       iterations=o.saddle_iterations)
+    half = (
+        win
+        if H is None
+        else np.clip(
+            np.floor(o.saddle_window_factor * square_px(H, board_xy, 1.0)),
+            o.subpix_window_min_px,
+            o.subpix_window_max_px,
+        ).astype(int)
+    )
+    second, saddle = symmetric_corners(
+        shading_free(smooth, box_px=o.saddle_shading_box_px), first, half, iterations=o.saddle_iterations
+    )
     apart = np.linalg.norm(second - first, axis=1)
     bad = ~saddle | ~(apart <= o.corner_disagreement_max_px)
     for k in np.flatnonzero(bad):
-        why = ("no saddle point in its window" if not saddle[k] else
-               f"cornerSubPix and the symmetry fit put it {apart[k]:.2f} px apart (limit "
-               f"{o.corner_disagreement_max_px:g} px, configs/detection.yaml corner_disagreement_max_px)")
+        why = (
+            "no saddle point in its window"
+            if not saddle[k]
+            else f"cornerSubPix and the symmetry fit put it {apart[k]:.2f} px apart (limit "
+            f"{o.corner_disagreement_max_px:g} px, configs/detection.yaml corner_disagreement_max_px)"
+        )
         log.info("corner %d not used: %s", k, why)
         if dropped is not None:
             dropped.append((int(k), why))
     return np.where(bad[:, None], np.nan, second + shift)
 
 
-def find_chessboard_fast(gray: np.ndarray, spec: ChessboardSpec, *, options: DetectionOptions | None = None,
-                         budget: TimeBudget | None = None) -> np.ndarray | None:
+def find_chessboard_fast(
+    gray: np.ndarray, spec: ChessboardSpec, *, options: DetectionOptions | None = None, budget: TimeBudget | None = None
+) -> np.ndarray | None:
     """Corners (N,2) in ``gray``'s pixels as the fast search finds them (not refined), or None.
 
     Detect on a half-size image first when large: several times faster, and FAST_CHECK rejects an image
-    without a board in milliseconds. The full-size search follows unless ``budget`` is spent."""
+    without a board in milliseconds. The full-size search follows unless ``budget`` is spent.
+    """
     o = options or default_options()
     size = (spec.cols, spec.rows)
     h, w = gray.shape
@@ -131,9 +162,14 @@ def find_chessboard_fast(gray: np.ndarray, spec: ChessboardSpec, *, options: Det
     return corners.reshape(-1, 2).astype(np.float64) if found else None
 
 
-def detect_chessboard(gray: np.ndarray, spec: ChessboardSpec, *, options: DetectionOptions | None = None,
-                      budget: TimeBudget | None = None, dropped: list | None = None
-                      ) -> tuple[np.ndarray, np.ndarray] | str:
+def detect_chessboard(
+    gray: np.ndarray,
+    spec: ChessboardSpec,
+    *,
+    options: DetectionOptions | None = None,
+    budget: TimeBudget | None = None,
+    dropped: list | None = None,
+) -> tuple[np.ndarray, np.ndarray] | str:
     """(corner_ids, image points (N,2)) or a reason string.
 
     The searches run on the image, or on a reduced copy above ``search_max_megapixels``
@@ -142,14 +178,18 @@ def detect_chessboard(gray: np.ndarray, spec: ChessboardSpec, *, options: Detect
     (:func:`.geometry.grid_check`). Corners that fail it are searched again by ``findChessboardCornersSB`` with
     EXHAUSTIVE | ACCURACY; corners that fail it again drop the view with the reason. ``budget`` (default:
     ``time_budget_s``) skips the slower searches once spent: the view is dropped as timed out. ``dropped``:
-    a list that receives (corner id, reason) of the corners the returned view does not use."""
+    a list that receives (corner id, reason) of the corners the returned view does not use.
+    """
     o = options or default_options()
     budget = budget or TimeBudget(o.time_budget_s)
     size = (spec.cols, spec.rows)
     notes: list = []
     search, scale = search_copy(gray, max_megapixels=o.search_max_megapixels)
-    where = "" if np.all(scale == 1.0) else (f" (searched at {search.shape[1]}x{search.shape[0]}: the image is above "
-                                     f"{o.search_max_megapixels:g} MP)")
+    where = (
+        ""
+        if np.all(scale == 1.0)
+        else (f" (searched at {search.shape[1]}x{search.shape[0]}: the image is above {o.search_max_megapixels:g} MP)")
+    )
     coarse = find_chessboard_fast(search, spec, options=o, budget=budget)
     if coarse is None:
         if budget.spent():
@@ -168,8 +208,10 @@ def detect_chessboard(gray: np.ndarray, spec: ChessboardSpec, *, options: Detect
         return budget.timed_out(f"the accurate search after the geometric check failed ({check.text()})") + where
     found, corners = cv2.findChessboardCornersSB(search, size, flags=_ACCURATE_FLAGS)
     if not found:
-        return (f"chessboard corners fail the geometric check ({check.text()}) and the accurate detector finds "
-                f"no board{where}")
+        return (
+            f"chessboard corners fail the geometric check ({check.text()}) and the accurate detector finds "
+            f"no board{where}"
+        )
     notes.clear()  # the corners of the accurate search replace those of the first
     pts = refine_chessboard(gray, search, scale, corners.reshape(-1, 2).astype(np.float64), spec, o, notes)
     again = _check(bxy, pts, o)
@@ -189,7 +231,8 @@ def _check(board_xy: np.ndarray, pts: np.ndarray, options: DetectionOptions):
 
 def _used(pts: np.ndarray, notes: list = (), dropped: list | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(corner ids, image points) of the corners that are used (not NaN); ``notes`` (the reasons of the
-    others) go to ``dropped`` when given."""
+    others) go to ``dropped`` when given.
+    """
     if dropped is not None:
         dropped.extend(notes)
     ids = np.flatnonzero(np.isfinite(pts[:, 0]))
@@ -219,7 +262,7 @@ def order_cue(gray: np.ndarray, pts: np.ndarray, cols: int, rows: int, ids: np.n
         c = quad.reshape(-1, 2).mean(axis=0)
         r = max(1, int(0.15 * np.linalg.norm(quad[0, 0] - quad[1, 1])))
         x, y = int(round(c[0])), int(round(c[1]))
-        win = gray[max(y - r, 0): y + r + 1, max(x - r, 0): x + r + 1]
+        win = gray[max(y - r, 0) : y + r + 1, max(x - r, 0) : x + r + 1]
         return float(win.mean()) if win.size else float("nan")
 
     return grey(grid[:2, :2]) - grey(grid[-2:, -2:])
@@ -246,7 +289,11 @@ def normalize_chessboard_order(dets: dict, spec: ChessboardSpec, *, options: Det
             d = dets[vid]
             log.info("view %s: chessboard numbered from the other end; corner order reversed", vid)
             n = spec.n_corners  # corner k of one numbering is corner n - 1 - k of the other
-            out[vid] = replace(d, corner_ids=(n - 1 - d.corner_ids)[::-1].copy(),
-                               image_points=d.image_points[::-1].copy(), order_cue=-c,
-                               dropped_corners=tuple(sorted((n - 1 - k, why) for k, why in d.dropped_corners)))
+            out[vid] = replace(
+                d,
+                corner_ids=(n - 1 - d.corner_ids)[::-1].copy(),
+                image_points=d.image_points[::-1].copy(),
+                order_cue=-c,
+                dropped_corners=tuple(sorted((n - 1 - k, why) for k, why in d.dropped_corners)),
+            )
     return out

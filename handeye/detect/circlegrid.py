@@ -1,5 +1,7 @@
 """Circle grids (symmetric, asymmetric, and symmetric with a larger origin dot): dot centres by
-OpenCV's blob detector and grid finder, numbered as the board seen from its front."""
+OpenCV's blob detector and grid finder, numbered as the board seen from its front.
+"""
+
 from __future__ import annotations
 
 import logging
@@ -14,10 +16,12 @@ from .options import CircleBlobOptions, DetectionOptions, default_options
 log = logging.getLogger(__name__)
 
 
-def circle_blob_detector(image_size: tuple[int, int], options: CircleBlobOptions | None = None
-                         ) -> "cv2.SimpleBlobDetector":
+def circle_blob_detector(
+    image_size: tuple[int, int], options: CircleBlobOptions | None = None
+) -> "cv2.SimpleBlobDetector":
     """Dark round blobs, set up as industrial_calibration's circle finder (configs/detection.yaml
-    ``circle_blobs``); the largest blob area grows with the image area beyond 640x480."""
+    ``circle_blobs``); the largest blob area grows with the image area beyond 640x480.
+    """
     o = options or default_options().circle_blobs
     w, h = image_size
     p = cv2.SimpleBlobDetector_Params()
@@ -33,26 +37,31 @@ def circle_blob_detector(image_size: tuple[int, int], options: CircleBlobOptions
     return cv2.SimpleBlobDetector_create(p)
 
 
-def detect_circlegrid(gray: np.ndarray, spec: CircleGridSpec, *, options: DetectionOptions | None = None,
-                      budget: TimeBudget | None = None) -> tuple[np.ndarray, np.ndarray] | str:
+def detect_circlegrid(
+    gray: np.ndarray, spec: CircleGridSpec, *, options: DetectionOptions | None = None, budget: TimeBudget | None = None
+) -> tuple[np.ndarray, np.ndarray] | str:
     """(dot ids, image points (N,2)) of a circle grid, or a reason string (:func:`find_circlegrid`).
 
     Images above ``search_max_megapixels_charuco_circles`` are searched on a reduced copy (the blob
-    search's time grows with the area) and the dot centres scaled back to the full image."""
+    search's time grows with the area) and the dot centres scaled back to the full image.
+    """
     o = options or default_options()
     search, scale = search_copy(gray, max_megapixels=o.search_max_megapixels_charuco_circles)
     out = find_circlegrid(search, spec, options=o, budget=budget)
     if np.all(scale == 1.0):
         return out
     if isinstance(out, str):
-        return (f"{out} (searched at {search.shape[1]}x{search.shape[0]}: the image is above "
-                f"{o.search_max_megapixels_charuco_circles:g} MP)")
+        return (
+            f"{out} (searched at {search.shape[1]}x{search.shape[0]}: the image is above "
+            f"{o.search_max_megapixels_charuco_circles:g} MP)"
+        )
     ids, pts = out
     return ids, (pts + 0.5) / scale - 0.5  # pixel centres at integers in both images
 
 
-def find_circlegrid(gray: np.ndarray, spec: CircleGridSpec, *, options: DetectionOptions | None = None,
-                    budget: TimeBudget | None = None) -> tuple[np.ndarray, np.ndarray] | str:
+def find_circlegrid(
+    gray: np.ndarray, spec: CircleGridSpec, *, options: DetectionOptions | None = None, budget: TimeBudget | None = None
+) -> tuple[np.ndarray, np.ndarray] | str:
     """(dot ids, image points (N,2)) of a circle grid, or a reason string.
 
     ``cv2.findCirclesGrid`` (CLUSTERING) on dark blobs. A symmetric grid's order is made to look
@@ -68,8 +77,9 @@ def find_circlegrid(gray: np.ndarray, spec: CircleGridSpec, *, options: Detectio
     h, w = gray.shape
     blobs = circle_blob_detector((w, h), o.circle_blobs)
     flags = cv2.CALIB_CB_ASYMMETRIC_GRID if spec.asymmetric else cv2.CALIB_CB_SYMMETRIC_GRID
-    found, centers = cv2.findCirclesGrid(gray, (spec.cols, spec.rows), flags=flags | cv2.CALIB_CB_CLUSTERING,
-                                         blobDetector=blobs)
+    found, centers = cv2.findCirclesGrid(
+        gray, (spec.cols, spec.rows), flags=flags | cv2.CALIB_CB_CLUSTERING, blobDetector=blobs
+    )
     if not found:
         if budget.spent():
             return budget.timed_out("the circle-grid search without clustering")
@@ -105,7 +115,8 @@ def find_circlegrid(gray: np.ndarray, spec: CircleGridSpec, *, options: Detectio
 
 def origin_corner(gray: np.ndarray, pts: np.ndarray, spec: CircleGridSpec, blobs, *, ratio: float) -> int | None:
     """Detected index of the corner dot whose blob is ``ratio`` times larger than the grid's median dot
-    and than every other corner dot, or None when none stands out."""
+    and than every other corner dot, or None when none stands out.
+    """
     kps = blobs.detect(gray)
     if not kps:
         return None

@@ -8,6 +8,7 @@ from that prediction. A neighbourhood of a few squares is small enough for lens 
 below a pixel, so a corner placed on the wrong saddle point or pulled off by a wrong neighbour stands out
 by pixels while well-placed corners stay at their noise.
 """
+
 from __future__ import annotations
 
 import functools
@@ -25,7 +26,8 @@ def _homographies(nb: "_Neighbourhoods", dst: np.ndarray) -> np.ndarray:
     """Least-squares homographies board -> image of every neighbourhood, shape (M, 3, 3): the linear (DLT)
     fit with h33 = 1 on coordinates normalised to mean 0 and RMS sqrt(2) (where h33 stays far from 0).
 
-    dst: image points of the neighbours, shape (M, k, 2) (rows outside ``nb.mask`` are ignored)."""
+    dst: image points of the neighbours, shape (M, k, 2) (rows outside ``nb.mask`` are ignored).
+    """
     dn, Td = _normalise_masked(dst, nb.mask)
     x, y, one, w = nb.x, nb.y, nb.mask, nb.mask
     u, v = dn[..., 0], dn[..., 1]
@@ -42,7 +44,8 @@ def _homographies(nb: "_Neighbourhoods", dst: np.ndarray) -> np.ndarray:
 
 def _normalise_masked(pts: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(points of each set moved to mean 0 and scaled to RMS sqrt(2), zero outside ``mask``; the (M, 3, 3)
-    transforms); pts shape (M, k, 2), mask (M, k) of 0/1."""
+    transforms); pts shape (M, k, 2), mask (M, k) of 0/1.
+    """
     m = mask[..., None]
     n = np.maximum(m.sum(axis=1, keepdims=True), 1.0)
     c = (pts * m).sum(axis=1, keepdims=True) / n
@@ -82,10 +85,11 @@ def _neighbourhoods_cached(key: bytes, n: int, radius_steps: float, min_neighbou
     # neighbours on one line fit no homography: need spread across both board directions
     c = (src * mask[..., None]).sum(axis=1) / np.maximum(mask.sum(axis=1), 1)[:, None]
     dev = (src - c[:, None]) * mask[..., None]
-    ok &= np.linalg.eigvalsh(dev.transpose(0, 2, 1) @ dev)[:, 0] > 1e-6 * step ** 2
+    ok &= np.linalg.eigvalsh(dev.transpose(0, 2, 1) @ dev)[:, 0] > 1e-6 * step**2
     sn, Ts = _normalise_masked(src[ok], mask[ok])
-    return _Neighbourhoods(step=step, idx=np.flatnonzero(ok), order=order[ok], mask=mask[ok], x=sn[..., 0],
-                           y=sn[..., 1], Ts=Ts)
+    return _Neighbourhoods(
+        step=step, idx=np.flatnonzero(ok), order=order[ok], mask=mask[ok], x=sn[..., 0], y=sn[..., 1], Ts=Ts
+    )
 
 
 def _neighbourhoods(board_xy: np.ndarray, radius_steps: float, min_neighbours: int) -> _Neighbourhoods:
@@ -116,12 +120,21 @@ class GridCheck:
     def text(self, what: str = "corner") -> str:
         """e.g. "corner 13 lies 3.0 px from where its neighbours put it (limit 1.8 px)"."""
         k = self.worst
-        return (f"{what} {k} lies {self.residual_px[k]:.1f} px from where its neighbours put it "
-                f"(limit {self.limit_px[k]:.1f} px, configs/detection.yaml grid_check_max_px and _share)")
+        return (
+            f"{what} {k} lies {self.residual_px[k]:.1f} px from where its neighbours put it "
+            f"(limit {self.limit_px[k]:.1f} px, configs/detection.yaml grid_check_max_px and _share)"
+        )
 
 
-def grid_check(board_xy: np.ndarray, image_xy: np.ndarray, *, radius_steps: float, max_px: float,
-               max_share: float, min_neighbours: int = 6) -> GridCheck:
+def grid_check(
+    board_xy: np.ndarray,
+    image_xy: np.ndarray,
+    *,
+    radius_steps: float,
+    max_px: float,
+    max_share: float,
+    min_neighbours: int = 6,
+) -> GridCheck:
     """Each detected corner against the homography of its board neighbours.
 
     board_xy: (N, 2) board-plane positions of the detected corners (any unit); image_xy: (N, 2) px.
@@ -129,7 +142,8 @@ def grid_check(board_xy: np.ndarray, image_xy: np.ndarray, *, radius_steps: floa
     may lie ``max_px + max_share x`` (the size of one grid step there, px) from its prediction: the
     first term for the corner noise, the second for lens distortion, which bends the neighbourhood in
     proportion to its size in the image. Corners with fewer than ``min_neighbours`` neighbours, or
-    neighbours all on one line, are not checked (NaN)."""
+    neighbours all on one line, are not checked (NaN).
+    """
     board_xy = np.asarray(board_xy, float)
     image_xy = np.asarray(image_xy, float)
     n = len(board_xy)
@@ -147,53 +161,69 @@ def grid_check(board_xy: np.ndarray, image_xy: np.ndarray, *, radius_steps: floa
 
 def check_corners(board_xy: np.ndarray, image_xy: np.ndarray, options) -> GridCheck:
     """:func:`grid_check` with the settings of ``options`` (a :class:`.options.DetectionOptions`)."""
-    return grid_check(board_xy, image_xy, radius_steps=options.grid_check_radius_steps,
-                      max_px=options.grid_check_max_px, max_share=options.grid_check_max_share)
+    return grid_check(
+        board_xy,
+        image_xy,
+        radius_steps=options.grid_check_radius_steps,
+        max_px=options.grid_check_max_px,
+        max_share=options.grid_check_max_share,
+    )
 
 
 def _step_px(H: np.ndarray, board_xy: np.ndarray, step: float) -> np.ndarray:
     """Shortest image length (px) of one grid step at each board point under its own (N, 3, 3) or a
-    common (3, 3) homography: the smallest singular value of the Jacobian there, shape (N,)."""
+    common (3, 3) homography: the smallest singular value of the Jacobian there, shape (N,).
+    """
     Hs = np.broadcast_to(H, (len(board_xy), 3, 3))
     p = (Hs @ np.concatenate([board_xy, np.ones((len(board_xy), 1))], axis=1)[..., None])[..., 0]  # (N, 3)
     w = p[:, 2]
     # d(u, v)/d(x, y) of (H p)[:2] / (H p)[2]
-    J = (Hs[:, :2, :2] * w[:, None, None] - p[:, :2, None] * Hs[:, 2:3, :2]) / (w ** 2)[:, None, None]
+    J = (Hs[:, :2, :2] * w[:, None, None] - p[:, :2, None] * Hs[:, 2:3, :2]) / (w**2)[:, None, None]
     # smallest singular value of a 2x2 matrix: sqrt of the smaller eigenvalue of J^T J
-    a, b, c = (J ** 2).sum(axis=1)[:, 0], (J[:, :, 0] * J[:, :, 1]).sum(axis=1), (J ** 2).sum(axis=1)[:, 1]
-    lo = 0.5 * (a + c) - np.sqrt(0.25 * (a - c) ** 2 + b ** 2)
+    a, b, c = (J**2).sum(axis=1)[:, 0], (J[:, :, 0] * J[:, :, 1]).sum(axis=1), (J**2).sum(axis=1)[:, 1]
+    lo = 0.5 * (a + c) - np.sqrt(0.25 * (a - c) ** 2 + b**2)
     return np.sqrt(np.maximum(lo, 0.0)) * step
 
 
 def board_homography(board_xy: np.ndarray, image_xy: np.ndarray, *, robust: bool = True) -> np.ndarray | None:
     """Homography board plane -> image, or None when it cannot be fitted. ``robust``: least median of
     squares (up to half of the corners may be wrong); otherwise least squares (faster, for corners
-    that are all right)."""
+    that are all right).
+    """
     if len(board_xy) < 4:
         return None
-    H, _ = cv2.findHomography(np.asarray(board_xy, np.float64), np.asarray(image_xy, np.float64),
-                              cv2.LMEDS if robust else 0)
+    H, _ = cv2.findHomography(
+        np.asarray(board_xy, np.float64), np.asarray(image_xy, np.float64), cv2.LMEDS if robust else 0
+    )
     return H
 
 
 def square_px(H: np.ndarray, board_xy: np.ndarray, step: float) -> np.ndarray:
     """Size in px of a grid step at each board point under ``H``: the shortest image length of one step
-    in any direction, shape (N,)."""
+    in any direction, shape (N,).
+    """
     return _step_px(H, board_xy, step)
 
 
 def search_copy(gray: np.ndarray, *, max_megapixels: float) -> tuple[np.ndarray, np.ndarray]:
     """(the image the searches run on, its scale (x, y)): the image itself, or, above ``max_megapixels``,
     a copy reduced to that area (the searches' time grows faster than the area; the corners are refined
-    on the full image afterwards)."""
+    on the full image afterwards).
+    """
     h, w = gray.shape[:2]
     mp = w * h / 1e6
     if mp <= max_megapixels:
         return gray, np.ones(2)
     scale = float(np.sqrt(max_megapixels / mp))
     size = (max(1, int(w * scale)), max(1, int(h * scale)))
-    log.info("image %dx%d (%.1f MP) is above the %.g MP search limit: searched at %dx%d, refined at full size",
-             w, h, mp, max_megapixels, *size)
+    log.info(
+        "image %dx%d (%.1f MP) is above the %.g MP search limit: searched at %dx%d, refined at full size",
+        w,
+        h,
+        mp,
+        max_megapixels,
+        *size,
+    )
     return cv2.resize(gray, size, interpolation=cv2.INTER_AREA), np.array([size[0] / w, size[1] / h])
 
 
@@ -201,7 +231,8 @@ def search_copy(gray: np.ndarray, *, max_megapixels: float) -> tuple[np.ndarray,
 class TimeBudget:
     """Time one image's detection may take before its slower searches are skipped: CPU time of the
     thread that detects it (from the creation of the budget), so that one image gives the same outcome
-    on an idle and on a loaded machine (wall-clock time there also counts the other threads' work)."""
+    on an idle and on a loaded machine (wall-clock time there also counts the other threads' work).
+    """
 
     seconds: float
     start: float = field(default_factory=time.thread_time)
@@ -214,5 +245,7 @@ class TimeBudget:
 
     def timed_out(self, skipped: str) -> str:
         """The reason of a view dropped because the budget was spent before ``skipped`` could run."""
-        return (f"detection timed out: {self.elapsed():.3g} s of CPU time spent of the {self.seconds:g} s budget "
-                f"(configs/detection.yaml time_budget_s), {skipped} skipped")
+        return (
+            f"detection timed out: {self.elapsed():.3g} s of CPU time spent of the {self.seconds:g} s budget "
+            f"(configs/detection.yaml time_budget_s), {skipped} skipped"
+        )

@@ -6,6 +6,7 @@ refined with ``cv2.cornerSubPix`` in a window sized from the marker's own border
 gap) in pixels (configs/detection.yaml ``markers``, where the measured alternatives are listed). Only the
 ids the target holds count; a marker id seen twice (a second print in the scene) is left out.
 """
+
 from __future__ import annotations
 
 from functools import lru_cache
@@ -16,6 +17,7 @@ import numpy as np
 from ..config import load_preset
 from ..targets import AprilGridSpec, MarkerSpec
 from .options import DetectionOptions, default_options
+
 
 @lru_cache(maxsize=8)
 def _detector(dictionary: str) -> cv2.aruco.ArucoDetector:
@@ -32,7 +34,8 @@ def _settings() -> dict:
 
 def subpix_half_window_px(corners: np.ndarray, spec, *, share: float, lo: int, hi: int) -> int:
     """Half window for cornerSubPix on the markers ``corners`` (m,4,2): ``share`` x the smallest of the border
-    cell and (AprilGrid) the gap between tags, in px on the smallest marker, clipped to [lo, hi]."""
+    cell and (AprilGrid) the gap between tags, in px on the smallest marker, clipped to [lo, hi].
+    """
     side_px = float(np.min(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).mean(axis=1)))
     bits = _detector(spec.dictionary).getDictionary().markerSize
     feature = side_px / (bits + 2)
@@ -48,10 +51,12 @@ def tag_ids(spec) -> np.ndarray:
     return spec.first_id + np.arange(spec.n_tags)
 
 
-def detect_markers(gray: np.ndarray, spec: MarkerSpec | AprilGridSpec, *, options: DetectionOptions | None = None
-                   ) -> tuple[np.ndarray, np.ndarray] | str:
+def detect_markers(
+    gray: np.ndarray, spec: MarkerSpec | AprilGridSpec, *, options: DetectionOptions | None = None
+) -> tuple[np.ndarray, np.ndarray] | str:
     """(corner ids sorted, image points (N,2) px) of the target's markers in ``gray``, or the reason.
-    The window settings are configs/detection.yaml's ``markers`` section; ``options`` gives the stopping rule."""
+    The window settings are configs/detection.yaml's ``markers`` section; ``options`` gives the stopping rule.
+    """
     o = options or default_options()
     corners, ids, _rejected = _detector(spec.dictionary).detectMarkers(gray)
     if ids is None or len(ids) == 0:
@@ -61,7 +66,7 @@ def detect_markers(gray: np.ndarray, spec: MarkerSpec | AprilGridSpec, *, option
     seen, counts = np.unique(ids, return_counts=True)
     twice = set(seen[counts > 1].tolist())
     out_ids, out_pts = [], []
-    for m, c in zip(ids, corners):
+    for m, c in zip(ids, corners, strict=False):
         k = wanted.get(int(m))
         if k is None or int(m) in twice:
             continue
@@ -69,13 +74,21 @@ def detect_markers(gray: np.ndarray, spec: MarkerSpec | AprilGridSpec, *, option
         out_pts.append(np.asarray(c, float).reshape(4, 2))
     if not out_ids:
         others = ", ".join(str(i) for i in sorted(set(ids.tolist()))[:8])
-        why = f"marker id {sorted(twice)} seen more than once" if twice & set(wanted) else \
-            f"none of the target's marker ids among those seen ({others})"
+        why = (
+            f"marker id {sorted(twice)} seen more than once"
+            if twice & set(wanted)
+            else f"none of the target's marker ids among those seen ({others})"
+        )
         return f"{spec.describe()}: {why}"
     cid = np.concatenate(out_ids)
     cfg = _settings()
-    win = subpix_half_window_px(np.stack(out_pts), spec, share=float(cfg["subpix_window_share"]),
-                                lo=int(cfg["subpix_window_min_px"]), hi=int(cfg["subpix_window_max_px"]))
+    win = subpix_half_window_px(
+        np.stack(out_pts),
+        spec,
+        share=float(cfg["subpix_window_share"]),
+        lo=int(cfg["subpix_window_min_px"]),
+        hi=int(cfg["subpix_window_max_px"]),
+    )
     pts = np.concatenate(out_pts).astype(np.float32).reshape(-1, 1, 2)
     # cv2.aruco's contour corners can be 2-3 px off, outside a small window: a coarse pass with twice the window
     # (its extra edges bias it, but it reaches the corner), then the pass with the corner's own window

@@ -1,5 +1,7 @@
 """Detection settings, read from ``configs/detection.yaml`` (``detection:``), where each has its unit
-and origin."""
+and origin.
+"""
+
 from __future__ import annotations
 
 import functools
@@ -60,8 +62,9 @@ class DetectionOptions:
     def from_config(cls, cfg: dict) -> "DetectionOptions":
         """From the ``detection:`` mapping; a missing or unknown key is a ConfigError naming it."""
         check_section(cls, cfg, name="detection", source="configs/detection.yaml")
-        check_section(CircleBlobOptions, cfg["circle_blobs"], name="detection.circle_blobs",
-                      source="configs/detection.yaml")
+        check_section(
+            CircleBlobOptions, cfg["circle_blobs"], name="detection.circle_blobs", source="configs/detection.yaml"
+        )
         return cls(**dict(cfg, circle_blobs=CircleBlobOptions(**cfg["circle_blobs"])))
 
     @property

@@ -7,6 +7,7 @@ corners a step of contrast ``D`` blurred by a Gaussian of ``sigma`` has a larges
 gives about 0.5 px (pixel area and sampling, ``sharp_edge_sigma_px`` in configs/detection.yaml);
 a blur adds in quadrature.
 """
+
 from __future__ import annotations
 
 import cv2
@@ -22,16 +23,19 @@ def sharpness(gray: np.ndarray, pts: np.ndarray) -> float:
     """Variance of the Laplacian inside the target's bounding box (higher is sharper)."""
     x0, y0 = np.floor(pts.min(axis=0)).astype(int)
     x1, y1 = np.ceil(pts.max(axis=0)).astype(int)
-    roi = gray[max(y0, 0): y1 + 1, max(x0, 0): x1 + 1]
+    roi = gray[max(y0, 0) : y1 + 1, max(x0, 0) : x1 + 1]
     if roi.size < 16:
         return float("nan")
     _, std = cv2.meanStdDev(cv2.Laplacian(roi, cv2.CV_64F))
     return float(std[0, 0] ** 2)
 
 
-def neighbour_pairs(object_points: np.ndarray, corner_ids: np.ndarray, square_m: float) -> tuple[np.ndarray, np.ndarray]:
+def neighbour_pairs(
+    object_points: np.ndarray, corner_ids: np.ndarray, square_m: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Index pairs (into ``corner_ids``) of corners one square apart along the board's x or y axis,
-    ordered by the first corner, its x neighbour before its y neighbour."""
+    ordered by the first corner, its x neighbour before its y neighbour.
+    """
     P = np.asarray(object_points, float)[np.asarray(corner_ids)]
     if len(P) == 0:
         return np.zeros(0, int), np.zeros(0, int)
@@ -51,8 +55,9 @@ def neighbour_pairs(object_points: np.ndarray, corner_ids: np.ndarray, square_m:
     return a.astype(int), other[hit].astype(int)
 
 
-def edge_profiles(gray: np.ndarray, p0: np.ndarray, p1: np.ndarray, *, half_width: float, step_px: float = 0.25
-                  ) -> np.ndarray:
+def edge_profiles(
+    gray: np.ndarray, p0: np.ndarray, p1: np.ndarray, *, half_width: float, step_px: float = 0.25
+) -> np.ndarray:
     """Grey-level profiles (K, S) across the edge through the middle of each corner pair (p0, p1: (K,2)).
 
     Bilinear samples; outside the image the border pixels are repeated.
@@ -70,7 +75,8 @@ def edge_profiles(gray: np.ndarray, p0: np.ndarray, p1: np.ndarray, *, half_widt
 
 def _bilinear(gray: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Bilinear grey values at (x, y) px, the border pixels repeated outside the image (as
-    ``scipy.ndimage.map_coordinates(order=1, mode="nearest")``)."""
+    ``scipy.ndimage.map_coordinates(order=1, mode="nearest")``).
+    """
     h, w = gray.shape[:2]
     x = np.clip(x, 0.0, w - 1.0)
     y = np.clip(y, 0.0, h - 1.0)
@@ -94,11 +100,11 @@ def edge_sigma_px(profiles: np.ndarray, *, step_px: float = 0.25) -> tuple[np.nd
     contrast = np.abs(P[:, -q:].mean(axis=1) - P[:, :q].mean(axis=1))
     # central difference over 1 px (4 samples) tames the noise
     h = int(round(1.0 / step_px))
-    g = np.abs(P[:, 2 * h:] - P[:, :-2 * h]) / (2 * h * step_px)
+    g = np.abs(P[:, 2 * h :] - P[:, : -2 * h]) / (2 * h * step_px)
     gmax = g.max(axis=1) if g.shape[1] else np.zeros(len(P))
     sigma = contrast / (SQRT_2PI * np.maximum(gmax, 1e-9))
     # the 1-px central difference itself widens a step by a box of 2 px (sigma^2 += 1/3)
-    sigma = np.sqrt(np.maximum(sigma ** 2 - 1.0 / 3.0, 0.0))
+    sigma = np.sqrt(np.maximum(sigma**2 - 1.0 / 3.0, 0.0))
     return sigma, contrast
 
 
@@ -111,8 +117,16 @@ def _median(v: np.ndarray) -> float:
     return float(0.5 * (v[(n - 1) // 2] + v[n // 2]))
 
 
-def view_blur(gray: np.ndarray, image_points: np.ndarray, corner_ids: np.ndarray, object_points: np.ndarray,
-              square_m: float, *, charuco: bool = False, sharp_edge_sigma_px: float | None = None) -> dict:
+def view_blur(
+    gray: np.ndarray,
+    image_points: np.ndarray,
+    corner_ids: np.ndarray,
+    object_points: np.ndarray,
+    square_m: float,
+    *,
+    charuco: bool = False,
+    sharp_edge_sigma_px: float | None = None,
+) -> dict:
     """Edge width of one view: ``{"edge_sigma_px", "blur_sigma_px", "contrast", "n_edges", "square_px"}``.
 
     Per direction of the board (x and y) the median over its edges; the larger of the two is reported,
@@ -146,9 +160,13 @@ def view_blur(gray: np.ndarray, image_points: np.ndarray, corner_ids: np.ndarray
     if not meds:
         return dict(_NAN_BLUR)
     e = max(meds)
-    return {"edge_sigma_px": e, "blur_sigma_px": float(np.sqrt(max(e ** 2 - sharp ** 2, 0.0))),
-            "contrast": float(_median(contrasts)), "n_edges": int(len(a)),
-            "square_px": float(_median(spacing))}
+    return {
+        "edge_sigma_px": e,
+        "blur_sigma_px": float(np.sqrt(max(e**2 - sharp**2, 0.0))),
+        "contrast": float(_median(contrasts)),
+        "n_edges": int(len(a)),
+        "square_px": float(_median(spacing)),
+    }
 
 
 def _hull(image_points: np.ndarray, grow: float) -> np.ndarray:
@@ -167,7 +185,8 @@ def board_mask(shape: tuple, image_points: np.ndarray, *, grow: float = 0.0) -> 
 
 def _board_histogram(gray: np.ndarray, image_points: np.ndarray) -> np.ndarray:
     """Counts (256,) of the grey levels inside the corners' convex hull (the pixels of
-    :func:`board_mask`), read from the hull's bounding box only."""
+    :func:`board_mask`), read from the hull's bounding box only.
+    """
     hull = _hull(image_points, 0.0)
     h, w = gray.shape[:2]
     x, y, bw, bh = cv2.boundingRect(hull)

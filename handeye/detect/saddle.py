@@ -19,6 +19,7 @@ orthogonal to the lines from the corner); where the two disagree by more than
 window reaching another feature) and is not used (:func:`handeye.detect.chessboard.final_corners`).
 Measured on rendered 1280x720 views and the real chessboard sets in benchmarks/bench_detect.py.
 """
+
 from __future__ import annotations
 
 import functools
@@ -34,11 +35,12 @@ def _fit_rows(half_win: int, grid_half: int) -> np.ndarray:
     """P (6, M): the weighted least-squares map from the samples of a (2 g + 1)^2 grid (g = ``grid_half``,
     row-major) to the coefficients (x^2, xy, y^2, x, y, 1) of a quadratic, with Gaussian weights of sigma =
     ``half_win`` / 2 inside the window of half size ``half_win`` (symmetric about the centre) and 0
-    outside it."""
+    outside it.
+    """
     d = np.arange(-grid_half, grid_half + 1, dtype=float)
     dx, dy = (a.ravel() for a in np.meshgrid(d, d))
     inside = (np.abs(dx) <= half_win) & (np.abs(dy) <= half_win)
-    w = np.where(inside, np.exp(-0.5 * (dx ** 2 + dy ** 2) / (0.5 * half_win) ** 2), 0.0)
+    w = np.where(inside, np.exp(-0.5 * (dx**2 + dy**2) / (0.5 * half_win) ** 2), 0.0)
     A = np.stack([dx * dx, dx * dy, dy * dy, dx, dy, np.ones_like(dx)], axis=1)  # shape (M, 6)
     Aw = A * w[:, None]
     return np.linalg.solve(A.T @ Aw, Aw.T)
@@ -48,15 +50,17 @@ def _patches(padded: np.ndarray, c: np.ndarray, g: int) -> np.ndarray:
     """Bilinear samples of ``padded`` at ``c[i] + (dx, dy)``, dx, dy in -g..g, shape (n, (2g+1)^2), row-major.
     All samples of a corner share its fractional position, so they are four weighted shifts of one integer
     block (cv2.remap would round the positions to 1/32 px, a shift of up to 0.016 px common to the window).
-    ``c`` must keep the blocks inside ``padded``."""
+    ``c`` must keep the blocks inside ``padded``.
+    """
     f = np.floor(c).astype(int)
     fx, fy = (c - f).T[:, :, None, None]  # shape (n, 1, 1) each
     r = np.arange(-g, g + 2)
     offsets = (r[:, None] * padded.shape[1] + r[None, :]).ravel()
     block = np.take(padded, (f[:, 1] * padded.shape[1] + f[:, 0])[:, None] + offsets[None, :])
     block = block.reshape(len(c), 2 * g + 2, 2 * g + 2).astype(float)
-    v = ((1 - fy) * ((1 - fx) * block[:, :-1, :-1] + fx * block[:, :-1, 1:])
-         + fy * ((1 - fx) * block[:, 1:, :-1] + fx * block[:, 1:, 1:]))
+    v = (1 - fy) * ((1 - fx) * block[:, :-1, :-1] + fx * block[:, :-1, 1:]) + fy * (
+        (1 - fx) * block[:, 1:, :-1] + fx * block[:, 1:, 1:]
+    )
     return v.reshape(len(c), -1)
 
 
@@ -66,12 +70,14 @@ def shading_free(smooth: np.ndarray, *, box_px: int) -> np.ndarray:
     return cv2.subtract(smooth, box, dtype=cv2.CV_32F)
 
 
-def symmetric_corners(image: np.ndarray, pts: np.ndarray, half_win: np.ndarray, *, iterations: int
-                      ) -> tuple[np.ndarray, np.ndarray]:
+def symmetric_corners(
+    image: np.ndarray, pts: np.ndarray, half_win: np.ndarray, *, iterations: int
+) -> tuple[np.ndarray, np.ndarray]:
     """(corners (N, 2), ok (N,) bool): each of ``pts`` moved to the saddle point of the quadratic fitted
     to ``image`` (float32, shading removed: :func:`shading_free`) in its window of half size ``half_win``
     px, re-centred up to ``iterations`` times (until no corner moves by 0.001 px). ``ok`` is False where
-    the fit is no saddle (the window holds no corner) or the estimate left its window."""
+    the fit is no saddle (the window holds no corner) or the estimate left its window.
+    """
     start = np.asarray(pts, float).reshape(-1, 2)
     half_win = np.asarray(half_win, int)
     g = int(half_win.max())

@@ -27,6 +27,7 @@ Every check runs as a named stage; a stage that raises is reported as ``crashed`
 ``diagnostics["stages"]`` with its exception in ``["stage_errors"]`` (never as a finding). All
 functions are pure (no printing, no writing); images are only read.
 """
+
 from __future__ import annotations
 
 import logging
@@ -40,8 +41,16 @@ from ..frames import inv_T
 from ..mounting import mounting
 from ..output import plain
 from ..records import view_id_key
-from .consistency import (board_moved_findings, corner_flip_findings, flagged_views, motion_findings,
-                          robot_pose_check, robot_pose_findings, view_count_findings, view_disagreements)
+from .consistency import (
+    board_moved_findings,
+    corner_flip_findings,
+    flagged_views,
+    motion_findings,
+    robot_pose_check,
+    robot_pose_findings,
+    view_count_findings,
+    view_disagreements,
+)
 from .crossval import cross_validate
 from .detection import detection_findings
 from .findings import SEVERITIES, Finding, Stages, worst_first
@@ -49,9 +58,16 @@ from .imaging import coverage_findings, image_findings, image_metrics
 from .intrinsics import distortion_findings
 from .observations import PoseObservations, candidates_of, observations_from_run
 from .pairing import pairing_findings, partial_shift_findings, swapped_pose_findings
+from .readings import (
+    READING_CODES,
+    alternative_formats,
+    evaluate_readings,
+    given_reading,
+    read_poses,
+    reading_findings,
+    reading_in_use,
+)
 from .scale import scale_findings
-from .readings import (READING_CODES, alternative_formats, evaluate_readings, given_reading, read_poses,
-                       reading_findings, reading_in_use)
 from .thresholds import thresholds
 
 log = logging.getLogger(__name__)
@@ -62,15 +78,24 @@ __all__ = ["diagnose_run", "diagnose_session_error", "Finding", "SEVERITIES", "a
 GLOBAL_FAULT_CODES = READING_CODES + ("pairs_shifted", "pairs_shuffled", "square_size")
 
 
-def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session_kind: str = "native",
-                 pairing=None) -> dict:
+def _pose_checks(
+    stages: Stages, obs: PoseObservations, *, refined=None, session_kind: str = "native", pairing=None
+) -> dict:
     """Readings, pairing, board move, per-view disagreement and motion on one set of observations
     (``pairing``: the pairing search the calibration already made, :class:`.pairing.PairingSearch`).
 
     Returns ``{"findings", "readings", "global_fault", "per_view", "fit", "M"}`` (fit/M None when the
-    readings crashed)."""
-    out: dict = {"findings": [], "readings": [], "global_fault": False, "per_view": {}, "fit": None, "M": None,
-                 "scale": None}
+    readings crashed).
+    """
+    out: dict = {
+        "findings": [],
+        "readings": [],
+        "global_fault": False,
+        "per_view": {},
+        "fit": None,
+        "M": None,
+        "scale": None,
+    }
     readings = stages.run("readings", evaluate_readings, obs)
     if readings is None:
         for name in ("pairing", "scale", "board_moved", "robot_poses"):
@@ -81,8 +106,14 @@ def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session
     given = given_reading(readings)
     if given is None and readings and readings[0].fit.cost < thresholds().readings.good_cost:
         given_cost = float("inf")  # the stated reading does not even parse
-        rf = stages.run("readings", reading_findings, obs, [replace(readings[0], changes=(), invert=False)] +
-                        list(readings), session_kind=session_kind, default=[])
+        rf = stages.run(
+            "readings",
+            reading_findings,
+            obs,
+            [replace(readings[0], changes=(), invert=False)] + list(readings),
+            session_kind=session_kind,
+            default=[],
+        )
     else:
         given_cost = given.fit.cost if given is not None else float("inf")
         rf = stages.run("readings", reading_findings, obs, readings, session_kind=session_kind, default=[])
@@ -96,8 +127,9 @@ def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session
         for name in ("pairing", "scale", "board_moved", "robot_poses"):
             stages.skip(name, "the robot poses do not match the images as read")
     else:
-        pf = stages.run("pairing", pairing_findings, obs, obs.raw.fmt, given_cost=given_cost, search=pairing,
-                        default=[])
+        pf = stages.run(
+            "pairing", pairing_findings, obs, obs.raw.fmt, given_cost=given_cost, search=pairing, default=[]
+        )
         out["findings"] += pf
         out["global_fault"] = bool(pf)
         if pf:
@@ -110,8 +142,11 @@ def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session
                 sf, est = [], None
                 stages.skip("scale", "the robot motion does not determine the scale (see the motion findings)")
             out["findings"] += sf
-            out["scale"] = None if est is None else {"scale": est.k, "sigma": est.sigma, "n_views": est.n_views,
-                                                     "p_value": est.p_value()}
+            out["scale"] = (
+                None
+                if est is None
+                else {"scale": est.k, "sigma": est.sigma, "n_views": est.n_views, "p_value": est.p_value()}
+            )
             if sf:
                 out["global_fault"] = True
                 for name in ("board_moved", "robot_poses"):
@@ -120,13 +155,23 @@ def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session
                 bm, segfit = stages.run("board_moved", board_moved_findings, obs, M, default=([], None))
                 out["findings"] += bm
                 fit = segfit or fit
-                found = stages.run("robot_poses", _robot_pose_stage, obs, fit, refined=refined,
-                                   exclude=bm[0].view_ids if bm else (), default=None)
+                found = stages.run(
+                    "robot_poses",
+                    _robot_pose_stage,
+                    obs,
+                    fit,
+                    refined=refined,
+                    exclude=bm[0].view_ids if bm else (),
+                    default=None,
+                )
                 if found is not None:
                     out["findings"] += found[0]
                     out["per_view"] = found[1]
-    if given_cost > thresholds().readings.bad_cost and not any(f.severity in ("fail", "warn") for f in out["findings"]) \
-            and _motion_ok(obs, M):  # (a degenerate motion does not determine the fit: the motion finding says so)
+    if (
+        given_cost > thresholds().readings.bad_cost
+        and not any(f.severity in ("fail", "warn") for f in out["findings"])
+        and _motion_ok(obs, M)
+    ):  # (a degenerate motion does not determine the fit: the motion finding says so)
         out["findings"].append(_unexplained(obs, given))
         out["global_fault"] = True
     out["findings"] += stages.run("motion", motion_findings, obs.mode, M, A=None if fit is None else fit.A, default=[])
@@ -136,13 +181,22 @@ def _pose_checks(stages: Stages, obs: PoseObservations, *, refined=None, session
 
 def _unexplained(obs: PoseObservations, given) -> Finding:
     """The poses as read do not fit the images and no check found why: never a quiet pass."""
-    sc = "" if given is None else (f": the board implied by each view scatters by {given.fit.median_rot_deg:.2f} deg / "
-                                   f"{given.fit.median_trans_mm:.1f} mm (median over {obs.n} views)")
-    return Finding("poses_do_not_fit", "fail",
-                   "The robot poses do not fit the images as read, and no single cause was found",
-                   f"no reading of the pose numbers, pairing, scale, board move or single view explains it{sc}",
-                   "check that every image is paired with the pose recorded at that moment, the pose format, the "
-                   "mounting mode and the board; re-capture if unsure")
+    sc = (
+        ""
+        if given is None
+        else (
+            f": the board implied by each view scatters by {given.fit.median_rot_deg:.2f} deg / "
+            f"{given.fit.median_trans_mm:.1f} mm (median over {obs.n} views)"
+        )
+    )
+    return Finding(
+        "poses_do_not_fit",
+        "fail",
+        "The robot poses do not fit the images as read, and no single cause was found",
+        f"no reading of the pose numbers, pairing, scale, board move or single view explains it{sc}",
+        "check that every image is paired with the pose recorded at that moment, the pose format, the "
+        "mounting mode and the board; re-capture if unsure",
+    )
 
 
 def _motion_ok(obs: PoseObservations, M: np.ndarray) -> bool:
@@ -154,11 +208,15 @@ def _motion_ok(obs: PoseObservations, M: np.ndarray) -> bool:
 
 def _robot_pose_stage(obs: PoseObservations, fit, *, refined=None, exclude=()) -> tuple[list, dict]:
     """(findings, per-view numbers): robot poses that disagree, explained by a corner flip or a swap where
-    one fits."""
+    one fits.
+    """
     covs = obs.pnp_covariances(with_intrinsics=False)
     check = robot_pose_check(obs, fit, covs=covs)
-    check_k = robot_pose_check(obs, fit, covs=obs.pnp_covariances()) if obs.intrinsics_estimated and covs is not None \
+    check_k = (
+        robot_pose_check(obs, fit, covs=obs.pnp_covariances())
+        if obs.intrinsics_estimated and covs is not None
         else None
+    )
     flagged, ref_flags, source = flagged_views(obs, check, refined=refined, check_with_intrinsics=check_k)
     flagged = [v for v in flagged if v not in set(exclude)]
     out, flipped = corner_flip_findings(obs, check, flagged, covs)
@@ -168,14 +226,18 @@ def _robot_pose_stage(obs: PoseObservations, fit, *, refined=None, exclude=()) -
     flagged = [v for v in flagged if v not in out_of_step]
     swaps, swapped = swapped_pose_findings(obs, check, flagged, obs.raw.fmt)
     out += swaps
-    out += robot_pose_findings(obs, check, [v for v in flagged if v not in swapped], ref_flags=ref_flags,
-                               source=source)
+    out += robot_pose_findings(obs, check, [v for v in flagged if v not in swapped], ref_flags=ref_flags, source=source)
     rot, trans = view_disagreements(obs.mode, fit, obs.C, obs.T)
-    per_view = {v: {"robot_vs_camera_rot_deg": float(rot[k]), "robot_vs_camera_trans_mm": float(trans[k]),
-                    "robot_vs_camera_sigmas": float(check.test.distance[k]),
-                    "implied_board_rot_deg": float(fit.board_rot_deg[k]),
-                    "implied_board_trans_mm": float(fit.board_trans_mm[k])}
-                for k, v in enumerate(obs.ids)}
+    per_view = {
+        v: {
+            "robot_vs_camera_rot_deg": float(rot[k]),
+            "robot_vs_camera_trans_mm": float(trans[k]),
+            "robot_vs_camera_sigmas": float(check.test.distance[k]),
+            "implied_board_rot_deg": float(fit.board_rot_deg[k]),
+            "implied_board_trans_mm": float(fit.board_trans_mm[k]),
+        }
+        for k, v in enumerate(obs.ids)
+    }
     return out, per_view
 
 
@@ -186,8 +248,9 @@ def _prediction(run, pose_checks: Optional[dict]):
     if not pose_checks["global_fault"] and run.T_x is not None and run.T_board is not None and run.status == "ok":
         return inv_T(run.T_x), run.T_board, False
     fit = pose_checks["fit"]
-    inverted = pose_checks["global_fault"] and any(f.code in ("poses_inverted", "mode_swapped")
-                                                   for f in pose_checks["findings"])
+    inverted = pose_checks["global_fault"] and any(
+        f.code in ("poses_inverted", "mode_swapped") for f in pose_checks["findings"]
+    )
     return fit.A, fit.B[0], inverted
 
 
@@ -206,8 +269,9 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
     obs = stages.run("observations", observations_from_run, run)
     pose = None
     if obs is not None:
-        pose = _pose_checks(stages, obs, refined=run.refined, session_kind=s.format,
-                            pairing=getattr(run, "pairing", None))
+        pose = _pose_checks(
+            stages, obs, refined=run.refined, session_kind=s.format, pairing=getattr(run, "pairing", None)
+        )
         findings += pose["findings"]
         result["readings"] = pose["readings"]
         result["scale"] = pose["scale"]
@@ -230,8 +294,10 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
     if images:
         metrics = stages.run("images", image_metrics, run, default={})
         findings += stages.run("images", image_findings, metrics, default=[])
-        result["images"] = {v: {k: (round(float(x), 4) if isinstance(x, (float, np.floating)) else x)
-                                for k, x in m.items()} for v, m in metrics.items()}
+        result["images"] = {
+            v: {k: (round(float(x), 4) if isinstance(x, (float, np.floating)) else x) for k, x in m.items()}
+            for v, m in metrics.items()
+        }
     else:
         stages.skip("images", "not asked for")
     findings += stages.run("coverage", coverage_findings, run, default=[])
@@ -239,9 +305,15 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
     if cross_validation and not global_fault and run.status == "ok" and not pose_only:
         cv = stages.run("cross_validation", cross_validate, run, default=None) or {"summary": "not run: it crashed"}
     else:
-        why = ("the robot poses do not match the images as read" if global_fault
-               else "no hand-eye result" if run.status != "ok"
-               else "a pose-only session (no corners to refit)" if pose_only else "not asked for")
+        why = (
+            "the robot poses do not match the images as read"
+            if global_fault
+            else "no hand-eye result"
+            if run.status != "ok"
+            else "a pose-only session (no corners to refit)"
+            if pose_only
+            else "not asked for"
+        )
         stages.skip("cross_validation", why)
         cv = {"summary": "not run: " + why}
     result["cross_validation"] = cv
@@ -249,27 +321,40 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
         # info when the verdict covariance (the printed sigmas) already covers the spread: a finding with its size
         covered = bool(cv.get("covered_by_verdict"))
         model = getattr(getattr(run, "refined", None), "robot_model", None) or {}
-        beyond = ("arm errors beyond its DH offsets and encoder noise (joint elasticity, backlash)"
-                  if model.get("kind") == "kinematic" else
-                  "robot pose errors the model does not have (a kinematic robot model when joint angles exist)")
-        findings.append(Finding("uncertainty_underestimated",
-                                "info" if covered or cv.get("n_views", 0) < thresholds().views.recommended else "warn",
-                                "The model covariance is too small: the result varies more between held-out folds "
-                                "than it predicts" + ("; the verdict uses the validated covariance" if covered else ""),
-                                cv["summary"] + f" (jackknife over {cv.get('n_folds')} folds: rotation "
-                                f"{cv.get('ratio_rot')}x, translation {cv.get('ratio_trans')}x the model's sigma)",
-                                f"look for {beyond}, a moving board or timing problems" if covered else
-                                "use the cross-validation spread as the uncertainty; look for robot pose errors "
-                                "(estimate robot noise: --robot-noise estimate), a moving board or timing problems"))
+        beyond = (
+            "arm errors beyond its DH offsets and encoder noise (joint elasticity, backlash)"
+            if model.get("kind") == "kinematic"
+            else "robot pose errors the model does not have (a kinematic robot model when joint angles exist)"
+        )
+        findings.append(
+            Finding(
+                "uncertainty_underestimated",
+                "info" if covered or cv.get("n_views", 0) < thresholds().views.recommended else "warn",
+                "The model covariance is too small: the result varies more between held-out folds "
+                "than it predicts" + ("; the verdict uses the validated covariance" if covered else ""),
+                cv["summary"] + f" (jackknife over {cv.get('n_folds')} folds: rotation "
+                f"{cv.get('ratio_rot')}x, translation {cv.get('ratio_trans')}x the model's sigma)",
+                f"look for {beyond}, a moving board or timing problems"
+                if covered
+                else "use the cross-validation spread as the uncertainty; look for robot pose errors "
+                "(estimate robot noise: --robot-noise estimate), a moving board or timing problems",
+            )
+        )
     result["per_view"] = pose["per_view"] if pose else {}
     decision = getattr(run, "mode_decision", None)
     if decision:
         result["mode"] = decision
         if decision.get("mode_source") == "default":
-            findings.append(Finding("mode_undecided", "warn",
-                                    f"The session states no mounting mode and the data do not decide it: calibrated "
-                                    f"as {decision['mode']} (the default)", decision.get("evidence", {}).get(
-                                        "summary", ""), "state the mode (--mode or mode: in the session)"))
+            findings.append(
+                Finding(
+                    "mode_undecided",
+                    "warn",
+                    f"The session states no mounting mode and the data do not decide it: calibrated "
+                    f"as {decision['mode']} (the default)",
+                    decision.get("evidence", {}).get("summary", ""),
+                    "state the mode (--mode or mode: in the session)",
+                )
+            )
     findings += arm_table_findings(getattr(getattr(run, "refined", None), "robot_model", None))
     result["findings"] = [f.to_dict() for f in worst_first(findings)]
     result.update(stages.to_dict())
@@ -280,7 +365,8 @@ def arm_table_findings(model: Optional[dict]) -> list:
     """An info finding when the views put the arm further from its DH table than its stated prior allows
     (the kinematic model widened the prior: :func:`handeye.refine.noise._dh_prior_test`), with the offsets
     most beyond their sigma: the arm's own kinematic calibration is off, which the hand-eye result has taken into
-    account."""
+    account.
+    """
     if not model or model.get("kind") != "kinematic" or float(model.get("dh_prior_scale") or 1.0) <= 1.0:
         return []
     test, stated = model.get("dh_prior_test") or {}, model.get("dh_prior_sigma_stated") or {}
@@ -293,21 +379,28 @@ def arm_table_findings(model: Optional[dict]) -> list:
         top = [np.unravel_index(k, off.shape) for k in np.argsort(-z, axis=None)[:3]]
         largest = "; the offsets most beyond their sigma: " + ", ".join(
             f"{cols[c].split('_')[0]} of joint {j + 1} {off[j, c]:+.2f} {cols[c].rsplit('_', 1)[-1]} ({z[j, c]:.1f} sigma)"
-            for j, c in top)
-    return [Finding("arm_beyond_table", "info",
-                    f"The arm is further from its DH table than its stated tolerance: the robot error model's DH "
-                    f"prior was widened {float(model['dh_prior_scale']):.2f}x",
-                    f"the DH offsets the views resolve reject the stated {stated.get('length_mm', float('nan')):.2g} "
-                    f"mm / {stated.get('angle_deg', float('nan')):.2g} deg (p = {float(test.get('p_value', float('nan'))):.2g}"
-                    f" at alpha {test.get('alpha', '?')}){largest}; the result's covariance includes the widened prior",
-                    "nothing for this calibration; if the arm's absolute accuracy matters elsewhere, have its "
-                    "kinematics calibrated (or give its calibrated DH table with --robot FILE)")]
+            for j, c in top
+        )
+    return [
+        Finding(
+            "arm_beyond_table",
+            "info",
+            f"The arm is further from its DH table than its stated tolerance: the robot error model's DH "
+            f"prior was widened {float(model['dh_prior_scale']):.2f}x",
+            f"the DH offsets the views resolve reject the stated {stated.get('length_mm', float('nan')):.2g} "
+            f"mm / {stated.get('angle_deg', float('nan')):.2g} deg (p = {float(test.get('p_value', float('nan'))):.2g}"
+            f" at alpha {test.get('alpha', '?')}){largest}; the result's covariance includes the widened prior",
+            "nothing for this calibration; if the arm's absolute accuracy matters elsewhere, have its "
+            "kinematics calibrated (or give its calibrated DH table with --robot FILE)",
+        )
+    ]
 
 
 # ------------------------------------------------------------------------------ failed loads
 def _of_one_size(items: list) -> list:
     """The (view id, image path) items whose image (read from the file header) has the most common size;
-    those whose header cannot be read stay (detection drops them with the reason)."""
+    those whose header cannot be read stay (detection drops them with the reason).
+    """
     from collections import Counter
 
     from ..session import image_sizes
@@ -322,7 +415,8 @@ def _of_one_size(items: list) -> list:
 def _observe_lenient(sess) -> tuple[Optional[PoseObservations], Optional[int], int]:
     """Detections, intrinsics and board poses of a leniently read session through the pipeline's
     observation stage: (observations | None, n_found, n_images); n_found is None when no reading of the
-    pose numbers parses (nothing was detected then)."""
+    pose numbers parses (nothing was detected then).
+    """
     from ..initial import board_poses
     from ..pipeline import observe
 
@@ -339,7 +433,7 @@ def _observe_lenient(sess) -> tuple[Optional[PoseObservations], Optional[int], i
             break
     if T_items is None:
         return None, None, len(items)
-    M_by_id = dict(zip(item_ids, mode.M_from_T_base_end(T_items)))
+    M_by_id = dict(zip(item_ids, mode.M_from_T_base_end(T_items), strict=False))
     seen = observe(target=target, items=items, intrinsics=sess.intrinsics, M_by_id=M_by_id)
     n_det = len(seen.detections)
     if seen.error is not None or len(seen.board_poses) < thresholds().views.min_fail:
@@ -351,8 +445,19 @@ def _observe_lenient(sess) -> tuple[Optional[PoseObservations], Optional[int], i
     def observations(poses) -> PoseObservations:
         C = np.stack([poses[v].T_cam_board for v in ids])
         corners = tuple((obj[poses[v].corner_ids], seen.detections[v].image_points) for v in ids)
-        return PoseObservations(sess.mode, tuple(ids), C, T, raw, {}, corners, seen.intrinsics, target,
-                                sess.intrinsics is None, candidates_of(poses, ids))
+        return PoseObservations(
+            sess.mode,
+            tuple(ids),
+            C,
+            T,
+            raw,
+            {},
+            corners,
+            seen.intrinsics,
+            target,
+            sess.intrinsics is None,
+            candidates_of(poses, ids),
+        )
 
     obs = observations(seen.board_poses)
     if len(target.symmetries()) > 1:
@@ -362,7 +467,7 @@ def _observe_lenient(sess) -> tuple[Optional[PoseObservations], Optional[int], i
             T_best = read_poses(raw, best.fmt, ids)
             if T_best is not None:
                 M_best = mode.M_from_T_base_end(inv_T(T_best) if best.invert else T_best)
-                poses = board_poses([seen.detections[v] for v in ids], target, seen.intrinsics, dict(zip(ids, M_best)))
+                poses = board_poses([seen.detections[v] for v in ids], target, seen.intrinsics, dict(zip(ids, M_best, strict=False)))
                 obs = observations(poses)
     return obs, n_det, len(items)
 
@@ -379,35 +484,65 @@ def diagnose_session_error(path, error, *, mode: Optional[str] = None, images: b
 
     err = str(error)
     stages = Stages()
-    base = {"version": 2, "load_error": err, "findings": [],
-            "cross_validation": {"summary": "not run: the session did not load"}}
+    base = {
+        "version": 2,
+        "load_error": err,
+        "findings": [],
+        "cross_validation": {"summary": "not run: the session did not load"},
+    }
     sess = stages.run("lenient_read", read_session_lenient, path, mode=mode)
     if sess is None:
-        base["findings"] = [Finding("session_unreadable", "fail", "The session could not be read", err,
-                                    "fix what the message names (see docs/session_format.md)").to_dict()]
+        base["findings"] = [
+            Finding(
+                "session_unreadable",
+                "fail",
+                "The session could not be read",
+                err,
+                "fix what the message names (see docs/session_format.md)",
+            ).to_dict()
+        ]
         base.update(stages.to_dict())
         return plain(base, nan_to_none=True)
     observed = stages.run("observations", _observe_lenient, sess, default=(None, 0, len(sess.images_by_id)))
     obs, n_det, n_img = observed
     if obs is None and n_det is None:  # the pose numbers parse in no reading: not a detection problem
-        base["findings"] = [Finding(
-            "session_unreadable", "fail", "The session could not be read: its pose numbers fit no pose format",
-            err, "write the poses as the format says, or state the format they are in (pose_format: in "
-                 "session.yaml or a vendor config.yaml, see docs/session_format.md)").to_dict()]
+        base["findings"] = [
+            Finding(
+                "session_unreadable",
+                "fail",
+                "The session could not be read: its pose numbers fit no pose format",
+                err,
+                "write the poses as the format says, or state the format they are in (pose_format: in "
+                "session.yaml or a vendor config.yaml, see docs/session_format.md)",
+            ).to_dict()
+        ]
         base.update(stages.to_dict())
         return plain(base, nan_to_none=True)
     if obs is None and stages.status.get("observations") == "crashed":  # the images were not looked at
-        base["findings"] = [Finding("session_unreadable", "fail", "The session could not be read", err,
-                                    "fix what the message names (see docs/session_format.md)").to_dict()]
+        base["findings"] = [
+            Finding(
+                "session_unreadable",
+                "fail",
+                "The session could not be read",
+                err,
+                "fix what the message names (see docs/session_format.md)",
+            ).to_dict()
+        ]
         base.update(stages.to_dict())
         return plain(base, nan_to_none=True)
     if obs is None:
         few = n_det < thresholds().views.min_fail
-        base["findings"] = [Finding(
-            "target_not_found" if few else "session_unreadable", "fail",
-            f"The session could not be read, and the board was found in only {n_det} of {n_img} images" if few
-            else "The session could not be read, and its robot poses could not be compared with the images",
-            err, "fix what the message names; check the board size (inner corners) in the session").to_dict()]
+        base["findings"] = [
+            Finding(
+                "target_not_found" if few else "session_unreadable",
+                "fail",
+                f"The session could not be read, and the board was found in only {n_det} of {n_img} images"
+                if few
+                else "The session could not be read, and its robot poses could not be compared with the images",
+                err,
+                "fix what the message names; check the board size (inner corners) in the session",
+            ).to_dict()
+        ]
         base.update(stages.to_dict())
         return plain(base, nan_to_none=True)
     kind = "vendor" if Path(sess.raw.source).name == "poses.txt" else "native"
@@ -416,13 +551,19 @@ def diagnose_session_error(path, error, *, mode: Optional[str] = None, images: b
     if not any(f.code in GLOBAL_FAULT_CODES for f in findings):
         given = next((r for r in pose["readings"] if r["changes"] == "as given"), None)
         if given is not None and given["cost"] < thresholds().readings.good_cost:
-            findings.insert(0, Finding("poses_fit_as_stated", "info", "The robot poses fit the images as stated",
-                                       f"read as stated the board scatters by {given['board_scatter_deg']:.3f} deg / "
-                                       f"{given['board_scatter_mm']:.2f} mm; the load error is about something else",
-                                       "fix what the load error names"))
+            findings.insert(
+                0,
+                Finding(
+                    "poses_fit_as_stated",
+                    "info",
+                    "The robot poses fit the images as stated",
+                    f"read as stated the board scatters by {given['board_scatter_deg']:.3f} deg / "
+                    f"{given['board_scatter_mm']:.2f} mm; the load error is about something else",
+                    "fix what the load error names",
+                ),
+            )
     base["findings"] = [f.to_dict() for f in worst_first(findings)]
     base["readings"] = pose["readings"]
     base["n_views"] = {"images": n_img, "board_found": n_det}
     base.update(stages.to_dict())
     return plain(base, nan_to_none=True)
-

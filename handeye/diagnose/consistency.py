@@ -11,6 +11,7 @@ with what the camera saw, corners numbered from the other end, and the robot's m
 * weak_motion, too_few_views: :func:`handeye.initial.motion.motion_quality` with the warn levels of
   configs/diagnostics.yaml.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -39,14 +40,18 @@ def implied_robot_poses(mode: str, fit: BoardFit, C: np.ndarray) -> np.ndarray:
 
 def view_disagreements(mode: str, fit: BoardFit, C: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(rot_deg, trans_mm) per view between the reported robot pose and the one the camera implies,
-    as ``inv(T_reported) T_implied`` (end frame)."""
+    as ``inv(T_reported) T_implied`` (end frame).
+    """
     return pose_differences(T, implied_robot_poses(mode, fit, C))
 
 
-def _implied_pose_covariances(mode: str, fit: BoardFit, idx: np.ndarray, C: np.ndarray, cov_C: np.ndarray) -> np.ndarray:
+def _implied_pose_covariances(
+    mode: str, fit: BoardFit, idx: np.ndarray, C: np.ndarray, cov_C: np.ndarray
+) -> np.ndarray:
     """Covariances (K,6,6) of the implied robot poses (right tangent) of views ``idx`` with board poses ``C``
     (K,4,4) from the board poses' covariances ``cov_C`` (K,6,6, right tangent): ``J S J^T`` with the
-    Jacobian of the implied pose taken numerically for all views at once (central differences)."""
+    Jacobian of the implied pose taken numerically for all views at once (central differences).
+    """
     mount = mounting(mode)
     A_inv, B_inv = inv_T(fit.A), inv_T(fit.B[fit.group_index()[idx]])
     T0 = mount.T_base_end_from_M(A_inv @ C @ B_inv)
@@ -68,20 +73,30 @@ class RobotPoseCheck:
     test: RobotPoseTest  # of the reported poses
     with_camera_covariance: bool
 
-    def test_poses(self, k: int, T_reported: np.ndarray, *, C_k: Optional[np.ndarray] = None,
-                   cov_C_k: Optional[np.ndarray] = None) -> RobotPoseTest:
+    def test_poses(
+        self, k: int, T_reported: np.ndarray, *, C_k: Optional[np.ndarray] = None, cov_C_k: Optional[np.ndarray] = None
+    ) -> RobotPoseTest:
         """The same test of view k against other reported poses (K,4,4) in one vectorised call, or of
-        another board pose ``C_k`` (with its covariance) against the view's own reported pose."""
+        another board pose ``C_k`` (with its covariance) against the view's own reported pose.
+        """
         if C_k is None:
             T_star, P = self.T_implied[k], self.cov_implied[k]
         else:
             T_star = implied_robot_poses(self.mode, self.fit, C_k[None])[0]
-            P = (_implied_pose_covariances(self.mode, self.fit, np.array([k]), C_k[None], cov_C_k[None])[0]
-                 if cov_C_k is not None else np.zeros((6, 6)))
+            P = (
+                _implied_pose_covariances(self.mode, self.fit, np.array([k]), C_k[None], cov_C_k[None])[0]
+                if cov_C_k is not None
+                else np.zeros((6, 6))
+            )
         T_rep = np.asarray(T_reported, float).reshape(-1, 4, 4)
         d = tangent_difference(T_rep, np.broadcast_to(T_star, T_rep.shape))
-        return robot_pose_test(d, np.broadcast_to(P, (len(T_rep), 6, 6)), robot_sigma_rot_rad=self.sigma_rot_rad,
-                               robot_sigma_trans_m=self.sigma_trans_m, gates=self.test.gates)
+        return robot_pose_test(
+            d,
+            np.broadcast_to(P, (len(T_rep), 6, 6)),
+            robot_sigma_rot_rad=self.sigma_rot_rad,
+            robot_sigma_trans_m=self.sigma_trans_m,
+            gates=self.test.gates,
+        )
 
 
 def robot_pose_check(obs: PoseObservations, fit: BoardFit, *, covs: Optional[np.ndarray] = None) -> RobotPoseCheck:
@@ -109,39 +124,57 @@ def robot_pose_check(obs: PoseObservations, fit: BoardFit, *, covs: Optional[np.
     return RobotPoseCheck(obs.mode, fit, T_star, P, use, s_rot, s_tr, test, covs is not None)
 
 
-def flagged_views(obs: PoseObservations, check: RobotPoseCheck, *, refined=None,
-                  check_with_intrinsics: Optional[RobotPoseCheck] = None) -> tuple[list, dict, str]:
+def flagged_views(
+    obs: PoseObservations,
+    check: RobotPoseCheck,
+    *,
+    refined=None,
+    check_with_intrinsics: Optional[RobotPoseCheck] = None,
+) -> tuple[list, dict, str]:
     """(flagged view ids, the refinement's robot-pose outliers by view, where the decision came from).
 
     A refinement that ran its outlier loop decided already: its decisions are used. Otherwise the
     diagnostics' own run of the one test decides: ``check`` with the PnP-only covariances and, when the
     intrinsics were estimated from the same corners, ``check_with_intrinsics`` with their uncertainty
     added. The truth lies between the two (the fitted A, B absorb the part of the intrinsics' error common
-    to all views, but not all of it), so a view is flagged only when both tests flag it."""
-    if (refined is not None and getattr(refined, "status", "") == "ok"
-            and getattr(getattr(refined, "options", None), "outlier_loop", True)):
+    to all views, but not all of it), so a view is flagged only when both tests flag it.
+    """
+    if (
+        refined is not None
+        and getattr(refined, "status", "") == "ok"
+        and getattr(getattr(refined, "options", None), "outlier_loop", True)
+    ):
         ref = {o.view_id: o for o in getattr(refined, "outliers", ()) if getattr(o, "kind", "") == "robot_pose"}
-        return ([v for v in obs.ids if v in ref], ref,
-                "the refinement's robot-pose test (Mahalanobis distance with the estimated robot and pixel noise)")
+        return (
+            [v for v in obs.ids if v in ref],
+            ref,
+            "the refinement's robot-pose test (Mahalanobis distance with the estimated robot and pixel noise)",
+        )
     t = check.test
     g = t.gates
     flags = t.flagged & (check_with_intrinsics.test.flagged if check_with_intrinsics is not None else True)
     flags &= standing_out(check)
-    null = ("chi-square(6)" if not np.isfinite(g.tail_dof)
-            else f"multivariate t ({g.tail_dof:g} dof: an arm's pose-dependent error)")
-    src = (f"the robot-pose test without the wild views: {null} beyond {np.sqrt(t.threshold):.1f} sigma "
-           f"(p < {g.alpha:g}) of each view's camera uncertainty plus robot noise "
-           f"({np.degrees(check.sigma_rot_rad):.3f} deg, {1e3 * check.sigma_trans_m:.2f} mm per axis, estimated from "
-           f"the other views), with and without the intrinsics' uncertainty, larger than {g.min_rot_deg:g} deg "
-           f"or {g.min_trans_mm:g} mm, and {thresholds().robot_pose.size_ratio:g} x (1 + 2.5 / n) the other views' "
-           "median disagreement")
-    return [v for v, f in zip(obs.ids, flags) if f], {}, src
+    null = (
+        "chi-square(6)"
+        if not np.isfinite(g.tail_dof)
+        else f"multivariate t ({g.tail_dof:g} dof: an arm's pose-dependent error)"
+    )
+    src = (
+        f"the robot-pose test without the wild views: {null} beyond {np.sqrt(t.threshold):.1f} sigma "
+        f"(p < {g.alpha:g}) of each view's camera uncertainty plus robot noise "
+        f"({np.degrees(check.sigma_rot_rad):.3f} deg, {1e3 * check.sigma_trans_m:.2f} mm per axis, estimated from "
+        f"the other views), with and without the intrinsics' uncertainty, larger than {g.min_rot_deg:g} deg "
+        f"or {g.min_trans_mm:g} mm, and {thresholds().robot_pose.size_ratio:g} x (1 + 2.5 / n) the other views' "
+        "median disagreement"
+    )
+    return [v for v, f in zip(obs.ids, flags, strict=False) if f], {}, src
 
 
 def standing_out(check: RobotPoseCheck) -> np.ndarray:
     """(N,) views whose disagreement (rotation or translation) exceeds ``size_ratio x (1 + 2.5 / n)`` times the
     inlier views' median: the noise model of a run without refinement is estimated from the same few views,
-    so a flagged view must also stand out from them (medians of few views are noisy, hence 1 + 2.5 / n)."""
+    so a flagged view must also stand out from them (medians of few views are noisy, hence 1 + 2.5 / n).
+    """
     th = thresholds().robot_pose
     t, use = check.test, check.inliers
     med_rot = max(float(np.median(t.rot_deg[use])), th.noise_floor_deg)
@@ -154,7 +187,8 @@ def board_turns(target) -> list:
     """Board-frame transforms (name, F) for each way a detector can number a symmetric board's corners
     (:meth:`TargetSpec.symmetries`, identity left out): the true ``T_cam_board`` is ``C @ F`` when the
     corners were numbered that way. ``F`` is the rigid motion of the board plane that takes each corner to
-    the one it was confused with (a turn about the board's normal)."""
+    the one it was confused with (a turn about the board's normal).
+    """
     obj = target.object_points()
     out = []
     for perm in target.symmetries()[1:]:
@@ -173,8 +207,9 @@ def _rigid_motion(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     return make_T(R, qc - R @ pc)
 
 
-def corner_flip_findings(obs: PoseObservations, check: RobotPoseCheck, flagged: Sequence[str],
-                         covs: Optional[np.ndarray]) -> tuple[list, set]:
+def corner_flip_findings(
+    obs: PoseObservations, check: RobotPoseCheck, flagged: Sequence[str], covs: Optional[np.ndarray]
+) -> tuple[list, set]:
     """Flagged views that agree once the board is turned: (findings, those view ids)."""
     idx = {v: k for k, v in enumerate(obs.ids)}
     ratio = thresholds().robot_pose.flip_agreement_ratio
@@ -192,19 +227,27 @@ def corner_flip_findings(obs: PoseObservations, check: RobotPoseCheck, flagged: 
     if not flipped:
         return [], set()
     vs = list(flipped)
-    return [Finding(
-        "corner_order_flipped", "warn",
-        f"The corners were numbered from the other end of the board in {len(vs)} view(s): {ids_text(vs)}",
-        "; ".join(f"view {v}: camera and robot disagree by {rot[idx[v]]:.1f} deg / {trans[idx[v]]:.0f} mm, with the "
-                  f"board turned by {flipped[v][0]} they agree to {flipped[v][1]:.2f} deg / {flipped[v][2]:.1f} mm"
-                  for v in vs),
-        "the detector cannot tell this board's orientation in these views; use a ChArUco board (or a chessboard "
-        "with a mark) or leave these views out; the robot poses are fine",
-        view_ids=tuple(vs), details={"turns": {v: flipped[v][0] for v in vs}})], set(vs)
+    return [
+        Finding(
+            "corner_order_flipped",
+            "warn",
+            f"The corners were numbered from the other end of the board in {len(vs)} view(s): {ids_text(vs)}",
+            "; ".join(
+                f"view {v}: camera and robot disagree by {rot[idx[v]]:.1f} deg / {trans[idx[v]]:.0f} mm, with the "
+                f"board turned by {flipped[v][0]} they agree to {flipped[v][1]:.2f} deg / {flipped[v][2]:.1f} mm"
+                for v in vs
+            ),
+            "the detector cannot tell this board's orientation in these views; use a ChArUco board (or a chessboard "
+            "with a mark) or leave these views out; the robot poses are fine",
+            view_ids=tuple(vs),
+            details={"turns": {v: flipped[v][0] for v in vs}},
+        )
+    ], set(vs)
 
 
-def robot_pose_findings(obs: PoseObservations, check: RobotPoseCheck, rest: Sequence[str], *, ref_flags: dict,
-                        source: str) -> list:
+def robot_pose_findings(
+    obs: PoseObservations, check: RobotPoseCheck, rest: Sequence[str], *, ref_flags: dict, source: str
+) -> list:
     """The robot_pose_disagrees finding for the flagged views that no other explanation took."""
     if not rest:
         return []
@@ -217,9 +260,16 @@ def robot_pose_findings(obs: PoseObservations, check: RobotPoseCheck, rest: Sequ
         here = f"{rot[k]:.2f} deg / {trans[k]:.1f} mm ({t.distance[k]:.0f} sigma) against the common board fit"
         if v in ref_flags and getattr(ref_flags[v], "size", None):  # the refinement's measure, which flagged it
             sz = ref_flags[v].size
-            txt = (f"view {v}: {sz.get('rot_deg', float('nan')):.2f} deg / {sz.get('trans_mm', float('nan')):.1f} mm "
-                   "in the refinement" + (f" (Mahalanobis {sz['mahalanobis']:.1f} under its own pose covariance)"
-                                          if "mahalanobis" in sz else "") + f"; {here}")
+            txt = (
+                f"view {v}: {sz.get('rot_deg', float('nan')):.2f} deg / {sz.get('trans_mm', float('nan')):.1f} mm "
+                "in the refinement"
+                + (
+                    f" (Mahalanobis {sz['mahalanobis']:.1f} under its own pose covariance)"
+                    if "mahalanobis" in sz
+                    else ""
+                )
+                + f"; {here}"
+            )
         else:
             txt = f"view {v}: {here}"
         if v in obs.times:
@@ -227,28 +277,45 @@ def robot_pose_findings(obs: PoseObservations, check: RobotPoseCheck, rest: Sequ
             txt += f", image and pose {1e3 * abs(ti - tp):.0f} ms apart"
         parts.append(txt)
     inl = check.inliers
-    typical = (f"against the common board fit the other views agree to {float(np.median(rot[inl])):.3f} deg / "
-               f"{float(np.median(trans[inl])):.2f} mm (median)")
+    typical = (
+        f"against the common board fit the other views agree to {float(np.median(rot[inl])):.3f} deg / "
+        f"{float(np.median(trans[inl])):.2f} mm (median)"
+    )
     sev = "warn" if len(rest) <= max(1, int(0.2 * obs.n)) else "fail"
-    return [Finding(
-        "robot_pose_disagrees", sev,
-        f"{len(rest)} view(s) where the robot pose disagrees with what the camera saw (view"
-        f"{'s' if len(rest) > 1 else ''} {ids_text(rest)})",
-        "reported vs camera-implied robot pose, " + "; ".join(parts) + f"; {typical}; flagged by {source}",
-        "check these views: was the robot still moving at capture (wait for it to settle), did the board or the "
-        "camera move, is the pose from another view? Re-capture them or leave them out",
-        view_ids=tuple(rest),
-        details={"per_view": {v: {"rot_deg": float(rot[idx[v]]), "trans_mm": float(trans[idx[v]]),
-                                  "sigmas": float(t.distance[idx[v]])} for v in rest},
-                 "inlier_median_deg": float(np.median(rot[inl])), "inlier_median_mm": float(np.median(trans[inl])),
-                 "robot_sigma_deg": float(np.degrees(check.sigma_rot_rad)),
-                 "robot_sigma_mm": float(1e3 * check.sigma_trans_m), "source": source})]
+    return [
+        Finding(
+            "robot_pose_disagrees",
+            sev,
+            f"{len(rest)} view(s) where the robot pose disagrees with what the camera saw (view"
+            f"{'s' if len(rest) > 1 else ''} {ids_text(rest)})",
+            "reported vs camera-implied robot pose, " + "; ".join(parts) + f"; {typical}; flagged by {source}",
+            "check these views: was the robot still moving at capture (wait for it to settle), did the board or the "
+            "camera move, is the pose from another view? Re-capture them or leave them out",
+            view_ids=tuple(rest),
+            details={
+                "per_view": {
+                    v: {
+                        "rot_deg": float(rot[idx[v]]),
+                        "trans_mm": float(trans[idx[v]]),
+                        "sigmas": float(t.distance[idx[v]]),
+                    }
+                    for v in rest
+                },
+                "inlier_median_deg": float(np.median(rot[inl])),
+                "inlier_median_mm": float(np.median(trans[inl])),
+                "robot_sigma_deg": float(np.degrees(check.sigma_rot_rad)),
+                "robot_sigma_mm": float(1e3 * check.sigma_trans_m),
+                "source": source,
+            },
+        )
+    ]
 
 
 # ------------------------------------------------------------------------------ board moved
 def _board_deviations(fit: BoardFit, C: np.ndarray, M: np.ndarray) -> np.ndarray:
     """(N,6) implied board of each view against the first group's board: rotation vector [deg], translation
-    difference [mm] along the board's parent frame."""
+    difference [mm] along the board's parent frame.
+    """
     Bs = implied_boards(fit.A, C, M)
     B0 = fit.B[0]
     rv = rotvec_from_R(np.swapaxes(B0[:3, :3], 0, 1) @ Bs[:, :3, :3])
@@ -259,7 +326,8 @@ def step_test(v: np.ndarray, labels: np.ndarray, use: np.ndarray) -> tuple[float
     """Hotelling's two-sample test of equal mean board in the two segments: (T^2, p-value).
 
     The pooled within-segment covariance of the implied boards (6-D) is the noise; the p-value is
-    from ``T^2 (nu - 5) / (6 nu) ~ F(6, nu - 5)``, ``nu = n0 + n1 - 2``."""
+    from ``T^2 (nu - 5) / (6 nu) ~ F(6, nu - 5)``, ``nu = n0 + n1 - 2``.
+    """
     from scipy.special import fdtrc
 
     a, b = v[(labels == 0) & use], v[(labels == 1) & use]
@@ -282,7 +350,8 @@ def _split_fits(obs: PoseObservations, M: np.ndarray):
     """Best two-segment split of the view sequence (one board per segment, the lowest score), or None.
 
     Returns (single fit, its score, (split score, k, split fit, p-value)); the score is the sum of the
-    views' capped board deviations (small is good)."""
+    views' capped board deviations (small is good).
+    """
     th = thresholds()
     n, seg = obs.n, th.board_moved.min_segment
     if n < 2 * seg:
@@ -323,8 +392,9 @@ def board_moved_findings(obs: PoseObservations, M: np.ndarray) -> tuple[list, Op
     step_rot, step_mm = (float(x[0]) for x in pose_differences(f.B[0], f.B[1]))
     within_rot = float(np.median(f.board_rot_deg))
     within_mm = float(np.median(f.board_trans_mm))
-    big = ((step_rot > max(bm.min_step_deg, bm.within_factor * within_rot))
-           or (step_mm > max(bm.min_step_mm, bm.within_factor * within_mm)))
+    big = (step_rot > max(bm.min_step_deg, bm.within_factor * within_rot)) or (
+        step_mm > max(bm.min_step_mm, bm.within_factor * within_mm)
+    )
     n_splits = obs.n - 2 * bm.min_segment + 1
     significant = p < bm.p_value / n_splits if p < 1.0 else s1 > bm.gain * s2
     if not (significant and big and s1 > bm.min_gain * s2):
@@ -335,20 +405,37 @@ def board_moved_findings(obs: PoseObservations, M: np.ndarray) -> tuple[list, Op
     where = f"between views {obs.ids[k - 1]} and {obs.ids[k]}"
     if mode.camera_moves:  # the board lies on the table
         title = f"The board moved on the table {where}"
-        action = ("fix the board (clamp or tape it) and re-capture, or calibrate the views before and after the "
-                  "move as separate sessions")
+        action = (
+            "fix the board (clamp or tape it) and re-capture, or calibrate the views before and after the "
+            "move as separate sessions"
+        )
     else:  # the board is held by the robot
         title = f"The board slipped in the gripper {where}"
         action = "clamp the board rigidly to the flange and re-capture, or calibrate each part as its own session"
-    ev = (f"views {before[0]}..{before[-1]} and {after[0]}..{after[-1]} each fit one board "
-          f"(median scatter {within_rot:.3f} deg / {within_mm:.2f} mm) but the two boards differ by "
-          f"{step_rot:.2f} deg / {step_mm:.1f} mm; one board for all views leaves "
-          f"{single.median_rot_deg:.2f} deg / {single.median_trans_mm:.1f} mm (median); the split explains the "
-          f"views {s1 / max(s2, 1e-9):.1f}x better" + (f" (two-sample test of the boards: p = {p:.1e})" if p < 1.0
-                                                       else ""))
-    fnd = Finding("board_moved", "fail", title, ev, action, view_ids=tuple(minority),
-                  details={"split_after_view": obs.ids[k - 1], "step_deg": step_rot, "step_mm": step_mm,
-                           "within_deg": within_rot, "within_mm": within_mm, "p_value": p})
+    ev = (
+        f"views {before[0]}..{before[-1]} and {after[0]}..{after[-1]} each fit one board "
+        f"(median scatter {within_rot:.3f} deg / {within_mm:.2f} mm) but the two boards differ by "
+        f"{step_rot:.2f} deg / {step_mm:.1f} mm; one board for all views leaves "
+        f"{single.median_rot_deg:.2f} deg / {single.median_trans_mm:.1f} mm (median); the split explains the "
+        f"views {s1 / max(s2, 1e-9):.1f}x better"
+        + (f" (two-sample test of the boards: p = {p:.1e})" if p < 1.0 else "")
+    )
+    fnd = Finding(
+        "board_moved",
+        "fail",
+        title,
+        ev,
+        action,
+        view_ids=tuple(minority),
+        details={
+            "split_after_view": obs.ids[k - 1],
+            "step_deg": step_rot,
+            "step_mm": step_mm,
+            "within_deg": within_rot,
+            "within_mm": within_mm,
+            "p_value": p,
+        },
+    )
     return [fnd], f
 
 
@@ -358,14 +445,26 @@ def view_count_findings(n: int) -> list:
     v = thresholds().views
     if n < v.min_warn:
         sev = "fail" if n < v.min_fail else "warn"
-        return [Finding("too_few_views", sev, f"Only {n} usable views",
-                        f"{n} views with the board found and a robot pose; the hand-eye solution needs at least "
-                        f"{v.min_fail}, and {v.recommended}-20 give redundancy to check them",
-                        f"capture {v.recommended - n} or more further views, tilted 20-45 deg about different axes")]
+        return [
+            Finding(
+                "too_few_views",
+                sev,
+                f"Only {n} usable views",
+                f"{n} views with the board found and a robot pose; the hand-eye solution needs at least "
+                f"{v.min_fail}, and {v.recommended}-20 give redundancy to check them",
+                f"capture {v.recommended - n} or more further views, tilted 20-45 deg about different axes",
+            )
+        ]
     if n < v.recommended:
-        return [Finding("too_few_views", "info", f"{n} usable views; {v.recommended}-20 are recommended",
-                        f"{n} views: outlier checks and cross-validation have little redundancy",
-                        f"add {v.recommended - n} or more views, tilted about different axes")]
+        return [
+            Finding(
+                "too_few_views",
+                "info",
+                f"{n} usable views; {v.recommended}-20 are recommended",
+                f"{n} views: outlier checks and cross-validation have little redundancy",
+                f"add {v.recommended - n} or more views, tilted about different axes",
+            )
+        ]
     return []
 
 
@@ -381,20 +480,44 @@ def motion_findings(mode: str, M: np.ndarray, *, A: Optional[np.ndarray] = None)
     add = "add views rotated 20-45 deg about " + rotations_to_add(M, frame)
     if A is not None:
         add += " (in the camera frame: about " + rotations_to_add(M, "camera", R=A[:3, :3]) + ")"
-    details = {"max_rotation_deg": mq.max_rotation_deg, "axis_spread_deg": mq.axis_spread_deg,
-               "main_axis": mq.main_axis, "weak_axes": mq.weak_axes, "frame": frame}
-    ev = (f"largest rotation between two views {mq.max_rotation_deg:.1f} deg, rotation axes spread "
-          f"{mq.axis_spread_deg:.1f} deg around {axis_text(mq.main_axis, frame)} ({n} views)")
+    details = {
+        "max_rotation_deg": mq.max_rotation_deg,
+        "axis_spread_deg": mq.axis_spread_deg,
+        "main_axis": mq.main_axis,
+        "weak_axes": mq.weak_axes,
+        "frame": frame,
+    }
+    ev = (
+        f"largest rotation between two views {mq.max_rotation_deg:.1f} deg, rotation axes spread "
+        f"{mq.axis_spread_deg:.1f} deg around {axis_text(mq.main_axis, frame)} ({n} views)"
+    )
     if mq.status != "ok":
         small = mq.max_rotation_deg < mq.min_rotation_deg
         what = "the robot barely rotates between views" if small else "all rotations are about one axis"
-        out.append(Finding("weak_motion", "fail", f"Degenerate motion: {what}; the hand-eye transform is not "
-                                                  "determined", ev + f"; needs >= {mq.min_rotation_deg:g} deg and a "
-                                                  f"spread >= {mq.min_axis_spread_deg:g} deg", add, details=details))
+        out.append(
+            Finding(
+                "weak_motion",
+                "fail",
+                f"Degenerate motion: {what}; the hand-eye transform is not determined",
+                ev + f"; needs >= {mq.min_rotation_deg:g} deg and a spread >= {mq.min_axis_spread_deg:g} deg",
+                add,
+                details=details,
+            )
+        )
     elif mq.max_rotation_deg < w.warn_rotation_deg or mq.axis_spread_deg < w.warn_axis_spread_deg:
-        what = ("small rotations between views" if mq.max_rotation_deg < w.warn_rotation_deg
-                else "rotation axes nearly parallel")
-        out.append(Finding("weak_motion", "warn", f"Weak motion: {what}; the result is poorly constrained",
-                           ev + f"; recommended >= {w.warn_rotation_deg:g} deg and a spread >= "
-                                f"{w.warn_axis_spread_deg:g} deg", add, details=details))
+        what = (
+            "small rotations between views"
+            if mq.max_rotation_deg < w.warn_rotation_deg
+            else "rotation axes nearly parallel"
+        )
+        out.append(
+            Finding(
+                "weak_motion",
+                "warn",
+                f"Weak motion: {what}; the result is poorly constrained",
+                ev + f"; recommended >= {w.warn_rotation_deg:g} deg and a spread >= {w.warn_axis_spread_deg:g} deg",
+                add,
+                details=details,
+            )
+        )
     return out

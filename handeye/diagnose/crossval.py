@@ -18,6 +18,7 @@ displacement against what the model predicts for that fold, all six directions a
 decides the verdict covariance) says whether the spread exceeds the prediction, so the diagnostics and the
 verdict sigmas never disagree.
 """
+
 from __future__ import annotations
 
 import logging
@@ -35,7 +36,8 @@ log = logging.getLogger(__name__)
 
 def x_delta(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
     """(rot about the camera axes [deg] (3), translation along the parent axes [mm] (3)) of T vs T_ref,
-    in the parametrisation of the refinement's sigmas (T = T_ref Exp(omega), t - t_ref)."""
+    in the parametrisation of the refinement's sigmas (T = T_ref Exp(omega), t - t_ref).
+    """
     om = rotvec_from_R(T_ref[:3, :3].T @ T[:3, :3])
     return np.concatenate([np.degrees(om), 1e3 * (T[:3, 3] - T_ref[:3, 3])])
 
@@ -65,7 +67,8 @@ def folds(n: int, *, refined: bool) -> list:
 
 def _refined_folds(run, ref, ids, fold_list, T_rep):
     """(estimates per fold: (T_x, T_board, intrinsics) or None, method text): one solve per fold
-    (:func:`handeye.refine.refit`: the full run's noise levels and outlier decisions held)."""
+    (:func:`handeye.refine.refit`: the full run's noise levels and outlier decisions held).
+    """
     from ..refine import RefineView, refit
 
     obj = run.session.target.object_points()
@@ -75,8 +78,10 @@ def _refined_folds(run, ref, ids, fold_list, T_rep):
         out = set(f.tolist())
         fit = refit(ref, object_points=obj, views=[views[k] for k in range(len(views)) if k not in out])
         estimates.append((fit.T_x, fit.T_board, fit.intrinsics) if fit.status == "ok" else None)
-    method = (f"refinement refitted per fold (one solve from the full solution, noise held at the full run's "
-              f"{ref.robot_sigma_mm:.3f} mm / {ref.robot_sigma_deg:.4f} deg robot, {ref.sigma_px:.3f} px)")
+    method = (
+        f"refinement refitted per fold (one solve from the full solution, noise held at the full run's "
+        f"{ref.robot_sigma_mm:.3f} mm / {ref.robot_sigma_deg:.4f} deg robot, {ref.sigma_px:.3f} px)"
+    )
     return estimates, method
 
 
@@ -124,9 +129,11 @@ def cross_validate(run) -> dict:
     T_rep = {v: s.view(v).T_base_end for v in ids}
     if val is not None:
         estimates = [(r.T_x, r.T_board, r.intrinsics) if r.status == "ok" else None for r in val.refits]
-        method = (f"refinement refitted per fold (the validation's folds: one solve from the full solution, noise held "
-                  f"at the full run's {ref.robot_sigma_mm:.3f} mm / {ref.robot_sigma_deg:.4f} deg robot, "
-                  f"{ref.sigma_px:.3f} px)")
+        method = (
+            f"refinement refitted per fold (the validation's folds: one solve from the full solution, noise held "
+            f"at the full run's {ref.robot_sigma_mm:.3f} mm / {ref.robot_sigma_deg:.4f} deg robot, "
+            f"{ref.sigma_px:.3f} px)"
+        )
         T_full, B_full, intr_full = ref.T_x, ref.T_board, ref.intrinsics
     elif ref is not None:
         estimates, method = _refined_folds(run, ref, ids, fold_list, T_rep)
@@ -147,28 +154,49 @@ def cross_validate(run) -> dict:
             v = ids[i]
             bp = run.board_poses[v]
             img = run.detections[v].image_points
-            r = np.linalg.norm(pixels_from_board_points(mount.predict_T_cam_board(T_x, T_b, T_rep[v]), obj[bp.corner_ids],
-                                                        intr_k) - img, axis=1)
-            r_in = np.linalg.norm(pixels_from_board_points(mount.predict_T_cam_board(T_full, B_full, T_rep[v]),
-                                                           obj[bp.corner_ids], intr_full) - img, axis=1)
+            r = np.linalg.norm(
+                pixels_from_board_points(mount.predict_T_cam_board(T_x, T_b, T_rep[v]), obj[bp.corner_ids], intr_k)
+                - img,
+                axis=1,
+            )
+            r_in = np.linalg.norm(
+                pixels_from_board_points(
+                    mount.predict_T_cam_board(T_full, B_full, T_rep[v]), obj[bp.corner_ids], intr_full
+                )
+                - img,
+                axis=1,
+            )
             dx = deltas[row]
-            rows.append({"view": v, "held_out_rms_px": round(float(np.sqrt(np.mean(r ** 2))), 3),
-                         "in_sample_rms_px": round(float(np.sqrt(np.mean(r_in ** 2))), 3),
-                         "x_shift_deg": round(float(np.linalg.norm(dx[:3])), 4),
-                         "x_shift_mm": round(float(np.linalg.norm(dx[3:])), 3)})
-            held_px.append(float(np.sqrt(np.mean(r ** 2))))
+            rows.append(
+                {
+                    "view": v,
+                    "held_out_rms_px": round(float(np.sqrt(np.mean(r**2))), 3),
+                    "in_sample_rms_px": round(float(np.sqrt(np.mean(r_in**2))), 3),
+                    "x_shift_deg": round(float(np.linalg.norm(dx[:3])), 4),
+                    "x_shift_mm": round(float(np.linalg.norm(dx[3:])), 3),
+                }
+            )
+            held_px.append(float(np.sqrt(np.mean(r**2))))
     loo = all(len(f) == 1 for f in fold_list)
-    out = {"method": method, "scheme": "leave-one-out" if loo else f"{len(fold_list)}-fold (interleaved)",
-           "n_views": n, "n_folds": len(fold_list), "folds_solved": len(ok),
-           "jackknife_sigma_rot_deg": [round(float(x), 5) for x in jk[:3]],
-           "jackknife_sigma_trans_mm": [round(float(x), 4) for x in jk[3:]],
-           "axes": f"rotation about the camera axes, translation of {mount.x_name} along the {mount.fixed_frame} axes",
-           "held_out_rms_px_median": round(float(np.median(held_px)), 3), "per_view": rows}
+    out = {
+        "method": method,
+        "scheme": "leave-one-out" if loo else f"{len(fold_list)}-fold (interleaved)",
+        "n_views": n,
+        "n_folds": len(fold_list),
+        "folds_solved": len(ok),
+        "jackknife_sigma_rot_deg": [round(float(x), 5) for x in jk[:3]],
+        "jackknife_sigma_trans_mm": [round(float(x), 4) for x in jk[3:]],
+        "axes": f"rotation about the camera axes, translation of {mount.x_name} along the {mount.fixed_frame} axes",
+        "held_out_rms_px_median": round(float(np.median(held_px)), 3),
+        "per_view": rows,
+    }
     if ref is None:
         out["verdict"] = "no_prediction"
-        out["summary"] = (f"the closed-form result moves by {float(np.sqrt(np.sum(jk[3:] ** 2))):.2f} mm / "
-                          f"{float(np.sqrt(np.sum(jk[:3] ** 2))):.3f} deg (jackknife 1 sigma); no covariance to "
-                          "compare with (refinement not run)")
+        out["summary"] = (
+            f"the closed-form result moves by {float(np.sqrt(np.sum(jk[3:] ** 2))):.2f} mm / "
+            f"{float(np.sqrt(np.sum(jk[:3] ** 2))):.3f} deg (jackknife 1 sigma); no covariance to "
+            "compare with (refinement not run)"
+        )
         return out
     pr, pt = np.asarray(ref.sigma_rot_deg, float), np.asarray(ref.sigma_trans_mm, float)
     out["predicted_sigma_rot_deg"] = [round(float(x), 5) for x in pr]
@@ -177,9 +205,11 @@ def cross_validate(run) -> dict:
     out["ratio_rot"], out["ratio_trans"] = round(rr, 3), round(rt, 3)
     lo, hi = ratio_limits(len(ok))
     out["ratio_limits"] = [round(lo, 3), round(hi, 3)]
-    out["ratio_limits_meaning"] = (f"the {1 - 2 * validation_alpha():.0%} range of this ratio when the model "
-                                   f"covariance is right: sqrt(chi2({len(ok) - 1}) / {len(ok) - 1}) at alpha {validation_alpha():g} "
-                                   "each side")
+    out["ratio_limits_meaning"] = (
+        f"the {1 - 2 * validation_alpha():.0%} range of this ratio when the model "
+        f"covariance is right: sqrt(chi2({len(ok) - 1}) / {len(ok) - 1}) at alpha {validation_alpha():g} "
+        "each side"
+    )
     covered = None
     exceeds = max(rr, rt) > hi
     if val is not None and val.status == "ok":
@@ -195,29 +225,41 @@ def cross_validate(run) -> dict:
         exceeds = bool(val.x.finding)
         out["spread_p_value"] = float(val.x.p_value)
     out["covered_by_verdict"] = covered
-    size = (f"rotation {rr:.2f}x, translation {rt:.2f}x the model's sigma; {lo:.2f}-{hi:.2f}x is sampling noise "
-            f"with {len(ok)} folds that inform the result equally")
+    size = (
+        f"rotation {rr:.2f}x, translation {rt:.2f}x the model's sigma; {lo:.2f}-{hi:.2f}x is sampling noise "
+        f"with {len(ok)} folds that inform the result equally"
+    )
     if exceeds:
         out["verdict"] = "spread_exceeds_prediction"
         test = f"; p = {out['spread_p_value']:.2g} over the six directions" if "spread_p_value" in out else ""
-        out["summary"] = (f"the result moves {max(rr, rt):.1f}x more between folds than the model covariance predicts "
-                          f"({size}{test}): the model misses an error source (robot pose errors that are not "
-                          "independent per view, correlated detector errors, a moved board, timing)")
-        out["summary"] += ("; the printed sigmas and the verdict use the validated covariance, which covers it"
-                           if covered else "; trust the spread, not the covariance")
+        out["summary"] = (
+            f"the result moves {max(rr, rt):.1f}x more between folds than the model covariance predicts "
+            f"({size}{test}): the model misses an error source (robot pose errors that are not "
+            "independent per view, correlated detector errors, a moved board, timing)"
+        )
+        out["summary"] += (
+            "; the printed sigmas and the verdict use the validated covariance, which covers it"
+            if covered
+            else "; trust the spread, not the covariance"
+        )
     elif min(rr, rt) < lo:
         out["verdict"] = "spread_below_prediction"
         out["summary"] = f"the result moves less between folds than the model predicts ({size}): it is conservative"
     elif max(rr, rt) > hi:  # above the equal-information range, yet each fold moves as the model predicts for it
         out["verdict"] = "consistent"
-        out["summary"] = (f"the result moves {max(rr, rt):.1f}x the model's sigma between folds ({size}), but each "
-                          f"fold moves as the model predicts for that fold (p = {out['spread_p_value']:.2g} over the six "
-                          "directions, within chance): the views inform the result unequally, which widens the plain "
-                          "spread; the model's covariance stands")
+        out["summary"] = (
+            f"the result moves {max(rr, rt):.1f}x the model's sigma between folds ({size}), but each "
+            f"fold moves as the model predicts for that fold (p = {out['spread_p_value']:.2g} over the six "
+            "directions, within chance): the views inform the result unequally, which widens the plain "
+            "spread; the model's covariance stands"
+        )
     else:
         out["verdict"] = "consistent"
-        test = (f"; p = {out['spread_p_value']:.2g} over the six directions, within chance"
-                if "spread_p_value" in out else "")
+        test = (
+            f"; p = {out['spread_p_value']:.2g} over the six directions, within chance"
+            if "spread_p_value" in out
+            else ""
+        )
         out["summary"] = f"the spread between folds matches the model's uncertainty ({size}{test})"
     return out
 
@@ -236,7 +278,8 @@ def validation_alpha() -> float:
 def ratio_limits(k_folds: int) -> tuple[float, float]:
     """(low, high): the two-sided range, at ``validation.alpha`` each side, of a jackknife sigma over the
     true sigma from ``k_folds`` folds, ``sqrt(chi2(K - 1) / (K - 1))`` (K - 1 degrees of freedom: the
-    three axes of a block are not independent, so no more are counted)."""
+    three axes of a block are not independent, so no more are counted).
+    """
     from scipy.stats import chi2
 
     a, dof = validation_alpha(), max(int(k_folds) - 1, 1)

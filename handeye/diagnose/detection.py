@@ -1,5 +1,7 @@
 """Views dropped by detection: target_not_found (with where the board would have been, from the robot
-pose and the hand-eye model) and partial_target."""
+pose and the hand-eye model) and partial_target.
+"""
+
 from __future__ import annotations
 
 from typing import Optional
@@ -20,25 +22,32 @@ def _image_r2_max(intr) -> float:
 
     W, H = intr.width, intr.height
     t = np.linspace(0.0, 1.0, 17)
-    border = np.concatenate([np.c_[t * (W - 1), np.zeros_like(t)], np.c_[t * (W - 1), np.full_like(t, H - 1)],
-                             np.c_[np.zeros_like(t), t * (H - 1)], np.c_[np.full_like(t, W - 1), t * (H - 1)]])
+    border = np.concatenate(
+        [
+            np.c_[t * (W - 1), np.zeros_like(t)],
+            np.c_[t * (W - 1), np.full_like(t, H - 1)],
+            np.c_[np.zeros_like(t), t * (H - 1)],
+            np.c_[np.full_like(t, W - 1), t * (H - 1)],
+        ]
+    )
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
     xy = cv2.undistortPointsIter(border.reshape(-1, 1, 2), intr.K, intr.dist_array, None, None, crit).reshape(-1, 2)
-    return float(np.max(np.sum(xy ** 2, axis=1)))
+    return float(np.max(np.sum(xy**2, axis=1)))
 
 
 def board_visibility(target, intr, T_cam_board: np.ndarray) -> float:
     """Share (0..1) of the board's corners that project inside the image, in front of the camera.
 
     Points beyond the image's undistorted radius do not count even if the distortion polynomial folds
-    them back into the image."""
+    them back into the image.
+    """
     obj = target.object_points()
     p_cam = transform_points(T_cam_board, obj)
     front = p_cam[:, 2] > thresholds().detection.min_depth_m
     if not front.any():
         return 0.0
     x = p_cam[front, :2] / p_cam[front, 2:3]
-    in_lens = np.sum(x ** 2, axis=1) <= 1.02 * _image_r2_max(intr)
+    in_lens = np.sum(x**2, axis=1) <= 1.02 * _image_r2_max(intr)
     uv = pixels_from_board_points(T_cam_board, obj[front], intr)
     inside = (uv[:, 0] >= 0) & (uv[:, 0] <= intr.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= intr.height - 1)
     return float((inside & in_lens).sum()) / len(obj)
@@ -47,8 +56,8 @@ def board_visibility(target, intr, T_cam_board: np.ndarray) -> float:
 def _why_not_found(run, vid: str, C_pred: np.ndarray) -> str:
     """Look where the board should be in an image whose target was not found: blur, exposure."""
     from ..detect import read_gray
-    from ..errors import HandeyeError
     from ..detect.quality import view_blur, view_exposure
+    from ..errors import HandeyeError
 
     s = run.session
     try:
@@ -70,12 +79,14 @@ def _why_not_found(run, vid: str, C_pred: np.ndarray) -> str:
     return (": " + ", ".join(why)) if why else " (blur, exposure, glare or something in front of it?)"
 
 
-def detection_findings(run, *, A: Optional[np.ndarray] = None, B: Optional[np.ndarray] = None,
-                       invert_poses: bool = False) -> list:
+def detection_findings(
+    run, *, A: Optional[np.ndarray] = None, B: Optional[np.ndarray] = None, invert_poses: bool = False
+) -> list:
     """Dropped views (target not found, too few corners) with where the board would have been.
 
     ``A``, ``B``: the model ``C_i = A M_i B`` to predict the board with; ``invert_poses`` when the robot
-    poses fit only inverted."""
+    poses fit only inverted.
+    """
     from ..frames import inv_T
 
     s = run.session
@@ -103,14 +114,16 @@ def detection_findings(run, *, A: Optional[np.ndarray] = None, B: Optional[np.nd
             C_pred = A @ mount.M_from_T_base_end(inv_T(T) if invert_poses else T) @ B
             vis = board_visibility(s.target, intr, C_pred)
             if 0.0 < vis < 0.999:
-                cut[o.view_id] = f"not found; at this robot pose only {100 * vis:.0f}% of the board's corners are " \
-                                 "in the image"
+                cut[o.view_id] = (
+                    f"not found; at this robot pose only {100 * vis:.0f}% of the board's corners are in the image"
+                )
                 continue
             if vis == 0.0:
                 note += " - at this robot pose the board is outside the image"
             else:
-                note += " - at this robot pose the whole board should be in the image" + _why_not_found(run, o.view_id,
-                                                                                                      C_pred)
+                note += " - at this robot pose the whole board should be in the image" + _why_not_found(
+                    run, o.view_id, C_pred
+                )
         notes[o.view_id] = note
     missing = [o for o in missing if o.view_id in notes]
     warn_share = th.detection.warn_share
@@ -118,19 +131,39 @@ def detection_findings(run, *, A: Optional[np.ndarray] = None, B: Optional[np.nd
         share = len(missing) / max(n_total, 1)
         failed = n_found < th.views.min_fail
         sev = "fail" if failed else ("warn" if share > warn_share else "info")
-        title = (f"The target was found in only {n_found} of {n_total} images" if failed or share > warn_share else
-                 f"Target not found in {len(missing)} of {n_total} images (dropped with their poses)")
-        action = ("check the board size in the session (inner corners, not squares), lighting and focus, and that "
-                  "the whole board is in every image" if failed or share > warn_share else
-                  "nothing to do if few; otherwise keep the whole board in the image at every robot pose")
-        out.append(Finding("target_not_found", sev, title, "; ".join(notes[o.view_id] for o in missing), action,
-                           view_ids=tuple(o.view_id for o in missing)))
+        title = (
+            f"The target was found in only {n_found} of {n_total} images"
+            if failed or share > warn_share
+            else f"Target not found in {len(missing)} of {n_total} images (dropped with their poses)"
+        )
+        action = (
+            "check the board size in the session (inner corners, not squares), lighting and focus, and that "
+            "the whole board is in every image"
+            if failed or share > warn_share
+            else "nothing to do if few; otherwise keep the whole board in the image at every robot pose"
+        )
+        out.append(
+            Finding(
+                "target_not_found",
+                sev,
+                title,
+                "; ".join(notes[o.view_id] for o in missing),
+                action,
+                view_ids=tuple(o.view_id for o in missing),
+            )
+        )
     if absent:
-        out.append(Finding("image_missing", "info", f"{len(absent)} pose line(s) without an image (dropped)",
-                           "; ".join(f"view {o.view_id}: {o.reason}" for o in absent),
-                           "nothing to do if those images were deleted on purpose; if the images were renumbered "
-                           "after a deletion, the later images carry the wrong poses (the pairing check names them)",
-                           view_ids=tuple(o.view_id for o in absent)))
+        out.append(
+            Finding(
+                "image_missing",
+                "info",
+                f"{len(absent)} pose line(s) without an image (dropped)",
+                "; ".join(f"view {o.view_id}: {o.reason}" for o in absent),
+                "nothing to do if those images were deleted on purpose; if the images were renumbered "
+                "after a deletion, the later images carry the wrong poses (the pairing check names them)",
+                view_ids=tuple(o.view_id for o in absent),
+            )
+        )
     partial = [(o.view_id, str(o.reason)) for o in few] + list(cut.items())
     n_board = s.target.n_corners
     for vid, det in (run.detections or {}).items():
@@ -138,8 +171,15 @@ def detection_findings(run, *, A: Optional[np.ndarray] = None, B: Optional[np.nd
             partial.append((vid, f"{len(det.corner_ids)} of {n_board} corners"))
     if partial:
         sev = "warn" if len(partial) > warn_share * max(n_total, 1) else "info"
-        out.append(Finding("partial_target", sev, f"Board only partly visible in {len(partial)} view(s)",
-                           "; ".join(f"view {v}: {r}" for v, r in partial),
-                           "keep the whole board inside the image; partial views add little and corners near the "
-                           "board's edge constrain the pose poorly", view_ids=tuple(v for v, _ in partial)))
+        out.append(
+            Finding(
+                "partial_target",
+                sev,
+                f"Board only partly visible in {len(partial)} view(s)",
+                "; ".join(f"view {v}: {r}" for v, r in partial),
+                "keep the whole board inside the image; partial views add little and corners near the "
+                "board's edge constrain the pose poorly",
+                view_ids=tuple(v for v, _ in partial),
+            )
+        )
     return out

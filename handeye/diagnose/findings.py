@@ -5,6 +5,7 @@ recorded as ``crashed`` with its exception (``diagnostics["stages"]`` and ``["st
 never turned into a finding or into "nothing found", so a clean-session test or benchmark sees the
 crash. A stage that does not apply (no hand-eye result, images not read) is ``skipped`` with why.
 """
+
 from __future__ import annotations
 
 import logging
@@ -85,6 +86,11 @@ class Stages:
 
     def to_dict(self) -> dict:
         """``{"stages": {name: ok|crashed|skipped}, "stage_errors": {name: "Type: message"},
-        "stages_skipped": {name: why}, "crashed_stages": count}``."""
-        return {"stages": dict(self.status), "stage_errors": dict(self.errors), "stages_skipped": dict(self.skipped),
-                "crashed_stages": len(self.crashed)}
+        "stages_skipped": {name: why}, "crashed_stages": count}``.
+        """
+        return {
+            "stages": dict(self.status),
+            "stage_errors": dict(self.errors),
+            "stages_skipped": dict(self.skipped),
+            "crashed_stages": len(self.crashed),
+        }

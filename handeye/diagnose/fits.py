@@ -4,6 +4,7 @@ What the pose checks compare: a reading of the robot poses, a pairing of images 
 split of the sequence into two boards is judged by how much the board implied by each view
 (``B_i = inv(A M_i) C_i``) scatters around the fitted one (:attr:`BoardFit.cost`).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -45,9 +46,15 @@ class BoardFit:
         return np.searchsorted(np.unique(self.labels), self.labels)
 
 
-def fit_boards(C: np.ndarray, M: np.ndarray, *, labels: Optional[np.ndarray] = None,
-               use: Optional[np.ndarray] = None, robust: bool = True,
-               motions: Optional[PairMotions] = None) -> BoardFit:
+def fit_boards(
+    C: np.ndarray,
+    M: np.ndarray,
+    *,
+    labels: Optional[np.ndarray] = None,
+    use: Optional[np.ndarray] = None,
+    robust: bool = True,
+    motions: Optional[PairMotions] = None,
+) -> BoardFit:
     """Park & Martin on all pairs within a group (among views in ``use``), one board per group.
 
     ``C`` (N,4,4) board poses ``T_cam_board``, ``M`` (N,4,4) robot motions. ``robust``: refit twice
@@ -74,8 +81,9 @@ def fit_boards(C: np.ndarray, M: np.ndarray, *, labels: Optional[np.ndarray] = N
             break
         A = A_from_sums(motions.group_sums(labels, use))
         Bs = implied_boards(A, C, M)
-        B = np.stack([robust_mean_T(Bs[(labels == g) & use] if ((labels == g) & use).sum() else Bs[labels == g])
-                      for g in groups])
+        B = np.stack(
+            [robust_mean_T(Bs[(labels == g) & use] if ((labels == g) & use).sum() else Bs[labels == g]) for g in groups]
+        )
         rot, trans = pose_differences(B[gi], Bs)
         d = th.cost(rot, trans)
         if float(np.median(d[use0])) > 10.0 * th.readings.bad_cost:

@@ -16,12 +16,14 @@ Everything here works on the one model ``C_i = A · M_i · B`` (``C_i = T_cam_bo
 
 No I/O, no printing, inputs never mutated.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+
 from ..camera import pixels_from_cam_points
 from ..frames import inv_T, make_T, mean_T, project_to_rotation, rotvec_from_R, screw_invariants, skew
 
@@ -57,25 +59,34 @@ def pair_invariants(C: np.ndarray, M: np.ndarray, *, pairs: tuple | None = None)
     pitch_res = np.where(ok, 1e3 * np.abs(p_c - p_m), np.nan)
     s_a = ang_res / NOMINAL_ANGLE_SIGMA_DEG
     s_p = np.where(ok, pitch_res / NOMINAL_PITCH_SIGMA_MM, 0.0)
-    return {"i": i, "j": j, "angle_deg": np.degrees(a_m), "angle_res_deg": ang_res, "pitch_res_mm": pitch_res,
-            "score": np.hypot(s_a, s_p)}
+    return {
+        "i": i,
+        "j": j,
+        "angle_deg": np.degrees(a_m),
+        "angle_res_deg": ang_res,
+        "pitch_res_mm": pitch_res,
+        "score": np.hypot(s_a, s_p),
+    }
 
 
 def summarize_invariants(inv: dict) -> dict:
     """Medians of a pair-invariant table (what a reading is judged by)."""
     pr = inv["pitch_res_mm"]
     pr = pr[np.isfinite(pr)]
-    return {"n_pairs": int(len(inv["score"])),
-            "median_angle_res_deg": float(np.median(inv["angle_res_deg"])) if len(inv["score"]) else float("nan"),
-            "median_pitch_res_mm": float(np.median(pr)) if pr.size else float("nan"),
-            "median_score": float(np.median(inv["score"])) if len(inv["score"]) else float("nan")}
+    return {
+        "n_pairs": int(len(inv["score"])),
+        "median_angle_res_deg": float(np.median(inv["angle_res_deg"])) if len(inv["score"]) else float("nan"),
+        "median_pitch_res_mm": float(np.median(pr)) if pr.size else float("nan"),
+        "median_score": float(np.median(inv["score"])) if len(inv["score"]) else float("nan"),
+    }
 
 
 @dataclass(frozen=True)
 class PairMotions:
     """Relative motions of view pairs, computed once and shared by every fit on the same ``C`` and ``M``:
     pair indices ``i, j`` (P,), ``rc = C_i C_j^-1`` and ``rm = M_i M_j^-1`` (P,4,4), and their rotation
-    vectors ``alpha``, ``beta`` (P,3)."""
+    vectors ``alpha``, ``beta`` (P,3).
+    """
 
     i: np.ndarray
     j: np.ndarray
@@ -90,7 +101,8 @@ class PairMotions:
         (:meth:`sums`) instead of solving over 3 equations per pair: ``beta alpha^T`` (9, Kabsch),
         ``W^T W`` (16) and ``W[a,:] t_M[b]`` (36) with ``W = [R_C - I | t_C]`` (3,4), the design of
         ``(R_C - I) t_A + k t_C = R_A t_M`` (Park & Martin's translation with k = 1 moved to the right, and
-        the scale of :mod:`.scale`)."""
+        the scale of :mod:`.scale`).
+        """
         Wt = np.swapaxes(self.rc[:, :3, :], 1, 2).copy()  # (P,4,3): W^T
         Wt[:, [0, 1, 2], [0, 1, 2]] -= 1.0
         out = np.empty((len(Wt), 61))
@@ -115,8 +127,10 @@ class PairMotions:
         np.add.at(by_i, self.i, self.terms)
         np.add.at(by_j, self.j, self.terms)
         zero = np.zeros((1, self.terms.shape[1]))
-        return (np.concatenate([zero, np.cumsum(by_j, axis=0)]),
-                np.concatenate([np.cumsum(by_i[::-1], axis=0)[::-1], zero]))
+        return (
+            np.concatenate([zero, np.cumsum(by_j, axis=0)]),
+            np.concatenate([np.cumsum(by_i[::-1], axis=0)[::-1], zero]),
+        )
 
     @cached_property
     def _pair_index(self) -> np.ndarray:
@@ -130,7 +144,8 @@ class PairMotions:
         """(61,) the :attr:`terms` summed over the pairs of views in one group (same ``labels``) that are both
         in ``use`` (bool (n,)), for motions of all pairs i < j. Equal to ``sums(same_group & use[i] & use[j])``
         but cheap for what the fits ask most: one group or a split of the sequence in two (from running sums)
-        with a few views left out (the pairs they are in subtracted)."""
+        with a few views left out (the pairs they are in subtracted).
+        """
         labels, use = np.asarray(labels), np.asarray(use, bool)
         n = len(labels)
         same = labels[self.i] == labels[self.j]
@@ -169,7 +184,8 @@ def rotation_from_sums(sums: np.ndarray) -> np.ndarray:
 
 def solve_from_sums(sums: np.ndarray, R_A: np.ndarray, *, scale: bool) -> np.ndarray:
     """Least squares of ``(R_C - I) t_A + k t_C = R_A t_M`` over the pairs summed in ``sums``, through its
-    normal equations: ``(t_A, k)`` (4,) with ``scale``, else ``t_A`` (3,) with k = 1."""
+    normal equations: ``(t_A, k)`` (4,) with ``scale``, else ``t_A`` (3,) with k = 1.
+    """
     N = sums[9:25].reshape(4, 4)
     b = np.einsum("kab,ab->k", sums[25:61].reshape(4, 3, 3), R_A)
     if not scale:
@@ -183,7 +199,8 @@ def solve_A(motions: PairMotions, sel: np.ndarray | None = None) -> np.ndarray:
     """``A`` (4,4) of ``C_i C_j^-1 = A M_i M_j^-1 A^-1`` from the pairs ``sel`` (bool (P,)) of ``motions``
     (Park & Martin). Rotation: the relative rotation vectors satisfy ``alpha = R_A beta`` (Kabsch).
     Translation: ``(R_Cij - I) t_A = R_A t_Mij - t_Cij`` in least squares (normal equations of the summed
-    pair terms: the cost of a fit is one weighted sum over the pairs)."""
+    pair terms: the cost of a fit is one weighted sum over the pairs).
+    """
     return A_from_sums(motions.sums(sel))
 
 
@@ -205,14 +222,17 @@ def implied_boards(A: np.ndarray, C: np.ndarray, M: np.ndarray) -> np.ndarray:
 
 def robust_mean_T(Ts: np.ndarray) -> np.ndarray:
     """Mean transform that ignores a minority of wild ones: chordal mean of those within 3x the median
-    distance of the componentwise median."""
+    distance of the componentwise median.
+    """
     Ts = np.asarray(Ts, float)
     if len(Ts) < 3:
         return mean_T(Ts)
     t_med = np.median(Ts[:, :3, 3], axis=0)
     R_med = project_to_rotation(np.median(Ts[:, :3, :3], axis=0))
-    d = np.linalg.norm(Ts[:, :3, 3] - t_med, axis=1) / 0.01 + rotation_angles_deg(
-        np.swapaxes(Ts[:, :3, :3], 1, 2) @ R_med) / 0.5
+    d = (
+        np.linalg.norm(Ts[:, :3, 3] - t_med, axis=1) / 0.01
+        + rotation_angles_deg(np.swapaxes(Ts[:, :3, :3], 1, 2) @ R_med) / 0.5
+    )
     keep = d <= 3.0 * max(np.median(d), 1e-9)
     return mean_T(Ts[keep])
 
@@ -244,7 +264,7 @@ def jackknife_sigmas(deltas: np.ndarray) -> np.ndarray:
     x = np.asarray(deltas, float)
     K = x.shape[0]
     dev = x - x.mean(axis=0)
-    return np.sqrt((K - 1) / K * np.sum(dev ** 2, axis=0))
+    return np.sqrt((K - 1) / K * np.sum(dev**2, axis=0))
 
 
 # ------------------------------------------------------------------------------ per-view covariances
@@ -252,8 +272,9 @@ RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))  # median of |e| / sigma for
 
 
 def _pose_and_intrinsics_jacobians(p_board: np.ndarray, T_cam_board: np.ndarray, intrinsics_vec: np.ndarray):
-    """d pixels / d xi (2K,6) for ``T_cam_board · Exp(xi)`` (right tangent, board frame) and
-    d pixels / d intrinsics (2K,9) at board points ``p_board`` (K,3)."""
+    """D pixels / d xi (2K,6) for ``T_cam_board · Exp(xi)`` (right tangent, board frame) and
+    d pixels / d intrinsics (2K,9) at board points ``p_board`` (K,3).
+    """
     p = np.asarray(p_board, float).reshape(-1, 3)
     R, t = T_cam_board[:3, :3], T_cam_board[:3, 3]
     _, J_uv_p, J_uv_k = pixels_from_cam_points(intrinsics_vec, p @ R.T + t)  # (K,2,3), (K,2,9)
@@ -263,8 +284,9 @@ def _pose_and_intrinsics_jacobians(p_board: np.ndarray, T_cam_board: np.ndarray,
     return J_xi.reshape(-1, 6), J_uv_k.reshape(-1, 9)
 
 
-def camera_pose_covariances(corners, T_cam_board: np.ndarray, intrinsics_vec: np.ndarray, sigma_px: float, *,
-                            intrinsics_estimated: bool) -> np.ndarray:
+def camera_pose_covariances(
+    corners, T_cam_board: np.ndarray, intrinsics_vec: np.ndarray, sigma_px: float, *, intrinsics_estimated: bool
+) -> np.ndarray:
     """Marginal covariance (N,6,6) of each view's board pose from the camera alone, in the right tangent
     of :mod:`handeye.frames` (``T_cam_board_true = T_cam_board · Exp(xi)``, xi in the board frame),
     including the uncertainty of intrinsics estimated from the same corners.
@@ -277,7 +299,7 @@ def camera_pose_covariances(corners, T_cam_board: np.ndarray, intrinsics_vec: np
     n = len(corners)
     Hpp, HKp = [], []
     HKK = np.zeros((9, 9))
-    for (obj, _), T in zip(corners, T_cam_board):
+    for (obj, _), T in zip(corners, T_cam_board, strict=False):
         Jp, JK = _pose_and_intrinsics_jacobians(obj, T, intrinsics_vec)
         Hpp.append(Jp.T @ Jp)
         HKp.append(JK.T @ Jp)
@@ -289,12 +311,12 @@ def camera_pose_covariances(corners, T_cam_board: np.ndarray, intrinsics_vec: np
         except np.linalg.LinAlgError:
             Hpp_inv.append(np.full((6, 6), np.inf))
     if not intrinsics_estimated:
-        return sigma_px ** 2 * np.stack(Hpp_inv)
+        return sigma_px**2 * np.stack(Hpp_inv)
     S = HKK - sum(HKp[i] @ Hpp_inv[i] @ HKp[i].T for i in range(n) if np.all(np.isfinite(Hpp_inv[i])))
     # a weak prior (50 px on fx..cy, 1 on each distortion coefficient) keeps unobservable ones finite;
     # H is information times sigma_px^2, so a prior sigma s adds sigma_px^2 / s^2
     prior = np.array([50.0] * 4 + [1.0] * 5)
-    S = S + np.diag(sigma_px ** 2 / prior ** 2)
+    S = S + np.diag(sigma_px**2 / prior**2)
     try:
         SKK = np.linalg.inv(S)
     except np.linalg.LinAlgError:
@@ -303,4 +325,4 @@ def camera_pose_covariances(corners, T_cam_board: np.ndarray, intrinsics_vec: np
     for i in range(n):
         G = Hpp_inv[i] @ HKp[i].T  # (6,9)
         out[i] = Hpp_inv[i] + G @ SKK @ G.T
-    return sigma_px ** 2 * out
+    return sigma_px**2 * out

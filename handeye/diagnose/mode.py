@@ -9,6 +9,7 @@ size does not make the mode undecided. A mode is decided only when its model fit
 (a camera on the flange is closer to the flange than the board is to the base; a camera beside the
 robot farther from the base than the board from the flange). Otherwise the mode is undecided.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -46,15 +47,24 @@ class ModeEvidence:
             parts.append(f"{m}: board scatter {d:.2f} deg / {mm:.1f} mm (cost {self.costs[m]:.2f})")
         txt = "; ".join(parts)
         if self.decided is None:
-            return txt + f"; undecided (ratio {self.ratio:.1f}, needs {thresholds().mode.ratio:g}" + \
-                (", and a plausible camera position" if not self.plausible.get(self.best, False) else "") + ")"
+            return (
+                txt
+                + f"; undecided (ratio {self.ratio:.1f}, needs {thresholds().mode.ratio:g}"
+                + (", and a plausible camera position" if not self.plausible.get(self.best, False) else "")
+                + ")"
+            )
         return txt + f"; {self.decided} fits {self.ratio:.1f} x better"
 
     def to_dict(self) -> dict:
-        return {"costs": {m: _finite(c) for m, c in self.costs.items()},
-                "board_scatter": {m: [_finite(a), _finite(b)] for m, (a, b) in self.scatter.items()},
-                "plausible": dict(self.plausible), "best": self.best, "decided": self.decided,
-                "ratio": _finite(self.ratio), "summary": self.summary()}
+        return {
+            "costs": {m: _finite(c) for m, c in self.costs.items()},
+            "board_scatter": {m: [_finite(a), _finite(b)] for m, (a, b) in self.scatter.items()},
+            "plausible": dict(self.plausible),
+            "best": self.best,
+            "decided": self.decided,
+            "ratio": _finite(self.ratio),
+            "summary": self.summary(),
+        }
 
 
 def _finite(x):

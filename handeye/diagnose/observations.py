@@ -1,6 +1,8 @@
 """What the pose-level checks work on: the views with a board pose, in session order, with the robot
 pose numbers as written (:class:`PoseObservations`), built from a calibration run or from a leniently
-read session."""
+read session.
+"""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -38,7 +40,8 @@ class PoseObservations:
     @property
     def candidates_are_turns(self) -> bool:
         """``C_candidates`` are turns of a symmetric board (False: the two poses of a single marker's planar
-        ambiguity), for :func:`handeye.initial.board_poses.orientation_labels`."""
+        ambiguity), for :func:`handeye.initial.board_poses.orientation_labels`.
+        """
         return not getattr(self.target, "pose_ambiguous", False)
 
     @property
@@ -48,15 +51,24 @@ class PoseObservations:
     def pnp_covariances(self, *, with_intrinsics: bool = True) -> Optional[np.ndarray]:
         """(N,6,6) covariance of each view's board pose (right tangent of :mod:`handeye.frames`), with the
         pixel noise taken robustly from all PnP residuals; None without corners. ``with_intrinsics``: add
-        the uncertainty of intrinsics estimated from the same corners (when they were)."""
+        the uncertainty of intrinsics estimated from the same corners (when they were).
+        """
         if not self.corners or self.intrinsics is None:
             return None
-        res = [np.linalg.norm(pixels_from_board_points(C, o, self.intrinsics) - im, axis=1)
-               for (o, im), C in zip(self.corners, self.C)]
-        sigma_px = max(float(np.median(np.concatenate(res))) / RAYLEIGH_MEDIAN,
-                       thresholds().robot_pose.pixel_sigma_floor_px)
-        return camera_pose_covariances(self.corners, self.C, self.intrinsics.as_vector(), sigma_px,
-                                       intrinsics_estimated=with_intrinsics and self.intrinsics_estimated)
+        res = [
+            np.linalg.norm(pixels_from_board_points(C, o, self.intrinsics) - im, axis=1)
+            for (o, im), C in zip(self.corners, self.C, strict=False)
+        ]
+        sigma_px = max(
+            float(np.median(np.concatenate(res))) / RAYLEIGH_MEDIAN, thresholds().robot_pose.pixel_sigma_floor_px
+        )
+        return camera_pose_covariances(
+            self.corners,
+            self.C,
+            self.intrinsics.as_vector(),
+            sigma_px,
+            intrinsics_estimated=with_intrinsics and self.intrinsics_estimated,
+        )
 
     def M(self, T: Optional[np.ndarray] = None, *, invert: bool = False) -> np.ndarray:
         """Robot motions of the mode for poses ``T`` (default: as loaded); ``invert``: of the inverted poses."""
@@ -74,15 +86,29 @@ def observations_from_run(run) -> Optional[PoseObservations]:
     T = np.stack([s.view(v).T_base_end for v in ids])
     times = {v.view_id: (v.t_image, v.t_pose) for v in s.views if v.t_image is not None and v.t_pose is not None}
     obj = s.target.object_points()
-    corners = tuple((obj[run.board_poses[v].corner_ids], run.detections[v].image_points) for v in ids) \
-        if run.detections and all(v in run.detections for v in ids) else ()
+    corners = (
+        tuple((obj[run.board_poses[v].corner_ids], run.detections[v].image_points) for v in ids)
+        if run.detections and all(v in run.detections for v in ids)
+        else ()
+    )
     estimated = not (s.intrinsics is not None and s.intrinsics_prior == "fixed")
     # the intrinsics the board poses were solved with (a refinement replaces run.intrinsics by its own)
     refined = run.refined if (run.refined is not None and getattr(run.refined, "status", "") == "ok") else None
     intrinsics = getattr(refined, "intrinsics_seed", None) if refined is not None else run.intrinsics
-    return PoseObservations(s.mode, tuple(ids), C, T, raw_poses_of(s), times, corners, intrinsics or run.intrinsics,
-                            s.target, estimated, candidates_of(run.board_poses, ids),
-                            tracker=bool(s.meta.get("pose_only")))
+    return PoseObservations(
+        s.mode,
+        tuple(ids),
+        C,
+        T,
+        raw_poses_of(s),
+        times,
+        corners,
+        intrinsics or run.intrinsics,
+        s.target,
+        estimated,
+        candidates_of(run.board_poses, ids),
+        tracker=bool(s.meta.get("pose_only")),
+    )
 
 
 def candidates_of(board_poses: dict, ids) -> Optional[np.ndarray]:

@@ -4,6 +4,7 @@ another view (two detected views swapped, or an image carrying an undetected vie
 A constant shift reports the code ``pairs_shifted`` (with the shift); a shuffle, swapped poses and an image
 carrying another view's pose report ``pairs_shuffled``.
 """
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -25,14 +26,15 @@ def _shifted(obs: PoseObservations, fmt: PoseFormat, shift: int) -> tuple[np.nda
     order = obs.raw.order
     pos = {v: k for k, v in enumerate(order)}
     keep = np.array([v in pos and 0 <= pos[v] + shift < len(order) for v in obs.ids])
-    keys = [order[pos[v] + shift] for v, k in zip(obs.ids, keep) if k]
+    keys = [order[pos[v] + shift] for v, k in zip(obs.ids, keep, strict=False) if k]
     return keep, read_poses(obs.raw, fmt, keys)
 
 
 def _ordered_for(obs: PoseObservations, keep: np.ndarray, M: np.ndarray) -> np.ndarray:
     """Board poses of the views ``keep`` with a symmetric board's corner ordering resolved against the robot
     motions ``M`` of this pairing (its own best ordering: a wrong pairing cannot hide behind turned views,
-    and a right one is not spoiled by the ordering the wrong pairing chose)."""
+    and a right one is not spoiled by the ordering the wrong pairing chose).
+    """
     if obs.C_candidates is None:
         return obs.C[keep]
     from ..initial.board_poses import candidate_invariants, orientation_labels
@@ -44,7 +46,8 @@ def _ordered_for(obs: PoseObservations, keep: np.ndarray, M: np.ndarray) -> np.n
 
 def _fit_pairing(obs: PoseObservations, keep: np.ndarray, T: np.ndarray, invert: bool):
     """The board fit of the views ``keep`` paired with the robot poses ``T`` (a symmetric board ordered for this
-    pairing), or None when it is singular."""
+    pairing), or None when it is singular.
+    """
     M = obs.M(T, invert=invert)
     try:
         return fit_boards(_ordered_for(obs, keep, M), M)
@@ -56,7 +59,8 @@ def _assignment_by_signature(obs: PoseObservations, fmt: PoseFormat, invert: boo
     """Match images to poses by their sorted pair-rotation-angle signatures (a shuffled poses file).
 
     Returns view id -> pose key, or None. Angles of relative motions do not depend on A or B, so the
-    sorted list of a view's angles to all others identifies its pose up to noise."""
+    sorted list of a view's angles to all others identifies its pose up to noise.
+    """
     from scipy.optimize import linear_sum_assignment
 
     order = list(obs.raw.order)
@@ -79,7 +83,7 @@ def _assignment_by_signature(obs: PoseObservations, fmt: PoseFormat, invert: boo
             d = np.abs(sig_c[i][:, None] - sig_m[p][None, :]).min(axis=1)
             cost[i, p] = float(np.mean(d))
     r, c = linear_sum_assignment(cost)
-    return {obs.ids[i]: order[p] for i, p in zip(r, c)}
+    return {obs.ids[i]: order[p] for i, p in zip(r, c, strict=False)}
 
 
 def _same_values(a: dict, b: dict) -> bool:
@@ -97,7 +101,8 @@ class PairingSearch:
     observations: the best constant shift, and the match of a shuffle by rotation-angle signatures. Each
     part is computed the first time it is asked for and kept, so the pipeline's pairing gate and the
     diagnostics search once (:attr:`handeye.pipeline.CalibrationRun.pairing`); the decision, which depends
-    on the cost of the pairing as given, is :func:`pairing_findings`'."""
+    on the cost of the pairing as given, is :func:`pairing_findings`'.
+    """
 
     def __init__(self, obs: PoseObservations, fmt: PoseFormat, *, invert: bool = False):
         self.obs, self.fmt, self.invert = obs, fmt, bool(invert)
@@ -106,15 +111,25 @@ class PairingSearch:
 
     def matches(self, obs: PoseObservations, fmt: PoseFormat, *, invert: bool = False) -> bool:
         """Whether this search is the one of ``obs`` read with ``fmt`` (the same views, board poses, pose
-        numbers and file order: everything the search reads)."""
+        numbers and file order: everything the search reads).
+        """
         a, b = self.obs, obs
         if a is b:
             return self.fmt == fmt and self.invert == bool(invert)
         same_cands = (a.C_candidates is None and b.C_candidates is None) or (
-            a.C_candidates is not None and b.C_candidates is not None and np.array_equal(a.C_candidates, b.C_candidates))
-        return (self.fmt == fmt and self.invert == bool(invert) and a.mode == b.mode and tuple(a.ids) == tuple(b.ids)
-                and np.array_equal(a.C, b.C) and same_cands and a.candidates_are_turns == b.candidates_are_turns
-                and tuple(a.raw.order) == tuple(b.raw.order) and _same_values(a.raw.values, b.raw.values))
+            a.C_candidates is not None and b.C_candidates is not None and np.array_equal(a.C_candidates, b.C_candidates)
+        )
+        return (
+            self.fmt == fmt
+            and self.invert == bool(invert)
+            and a.mode == b.mode
+            and tuple(a.ids) == tuple(b.ids)
+            and np.array_equal(a.C, b.C)
+            and same_cands
+            and a.candidates_are_turns == b.candidates_are_turns
+            and tuple(a.raw.order) == tuple(b.raw.order)
+            and _same_values(a.raw.values, b.raw.values)
+        )
 
     def best_shift(self) -> Optional[tuple]:
         """(shift, fit, views kept) of the constant shift by +-1..max_shift whose boards fit best, or None."""
@@ -125,7 +140,8 @@ class PairingSearch:
 
     def best_partial(self) -> Optional[tuple]:
         """(s, first, lone, fit, keep, keys) of the pairing that is the given one up to an image and shifted by one
-        line from there on, whose boards fit best (see :func:`_search_partial`), or None."""
+        line from there on, whose boards fit best (see :func:`_search_partial`), or None.
+        """
         if "partial" not in self._searched:
             self._partial = _search_partial(self.obs, self.fmt, self.invert)
             self._searched.add("partial")
@@ -133,7 +149,8 @@ class PairingSearch:
 
     def shuffle(self) -> Optional[tuple]:
         """(view id -> pose key, T (N,4,4), C (N,4,4), fit) of the shuffle matched by signature, or None when
-        no match moves two or more views."""
+        no match moves two or more views.
+        """
         if "shuffle" not in self._searched:
             self._shuffle = self._search_shuffle()
             self._searched.add("shuffle")
@@ -185,10 +202,17 @@ def _cost_text() -> str:
     return f"cost: the median board scatter in units of {th.cost_deg:g} deg and {th.cost_mm:g} mm, combined"
 
 
-def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = False, given_cost: float,
-                     search: Optional[PairingSearch] = None) -> list:
+def pairing_findings(
+    obs: PoseObservations,
+    fmt: PoseFormat,
+    *,
+    invert: bool = False,
+    given_cost: float,
+    search: Optional[PairingSearch] = None,
+) -> list:
     """Images and poses out of step (shift by +-1..max_shift) or shuffled. ``search``: the search already
-    made on these observations (used when it :meth:`~PairingSearch.matches` them, else searched here)."""
+    made on these observations (used when it :meth:`~PairingSearch.matches` them, else searched here).
+    """
     th = thresholds()
     if given_cost <= th.readings.bad_cost:
         return []
@@ -196,26 +220,43 @@ def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = F
         search = PairingSearch(obs, fmt, invert=invert)
     best = search.best_shift()
     partial = search.best_partial()
-    if partial is not None and is_clearly_better(partial[3].cost, given_cost) and (
-            best is None or not is_clearly_better(best[1].cost, given_cost)
-            or _n_unexplained(partial[3]) < _n_unexplained(best[1])):
+    if (
+        partial is not None
+        and is_clearly_better(partial[3].cost, given_cost)
+        and (
+            best is None
+            or not is_clearly_better(best[1].cost, given_cost)
+            or _n_unexplained(partial[3]) < _n_unexplained(best[1])
+        )
+    ):
         return [_partial_shift_finding(obs, partial, given_cost)]
     if best is not None and is_clearly_better(best[1].cost, given_cost):
         s, fit, keep = best
         direction = f"+{s}" if s > 0 else str(s)
-        kind_hint = (f"the first {s} pose line(s) belong to no image: delete them (or the images are numbered "
-                     f"from 0 and the first {s} of them were deleted)" if s > 0 else
-                     f"the pose(s) of the first {-s} image(s) are missing: the first pose line holds the pose of the "
-                     f"image {-s} after the first")
-        return [Finding(
-            "pairs_shifted", "fail", f"Images and robot poses are out of step by {abs(s)}: image k belongs to pose "
-                                     f"k{direction}",
-            f"pairing image k with pose k{direction}: board scatter {fit.median_rot_deg:.3f} deg / "
-            f"{fit.median_trans_mm:.2f} mm (median over {int(keep.sum())} views), a cost of {best[1].cost:.2f} "
-            f"against {given_cost:.1f} as paired now ({_cost_text()})",
-            f"re-pair the poses with the images ({kind_hint}); capture poses and images together, by view id",
-            details={"shift": s, "views_compared": int(keep.sum()), "board_scatter_deg": fit.median_rot_deg,
-                     "board_scatter_mm": fit.median_trans_mm})]
+        kind_hint = (
+            f"the first {s} pose line(s) belong to no image: delete them (or the images are numbered "
+            f"from 0 and the first {s} of them were deleted)"
+            if s > 0
+            else f"the pose(s) of the first {-s} image(s) are missing: the first pose line holds the pose of the "
+            f"image {-s} after the first"
+        )
+        return [
+            Finding(
+                "pairs_shifted",
+                "fail",
+                f"Images and robot poses are out of step by {abs(s)}: image k belongs to pose k{direction}",
+                f"pairing image k with pose k{direction}: board scatter {fit.median_rot_deg:.3f} deg / "
+                f"{fit.median_trans_mm:.2f} mm (median over {int(keep.sum())} views), a cost of {best[1].cost:.2f} "
+                f"against {given_cost:.1f} as paired now ({_cost_text()})",
+                f"re-pair the poses with the images ({kind_hint}); capture poses and images together, by view id",
+                details={
+                    "shift": s,
+                    "views_compared": int(keep.sum()),
+                    "board_scatter_deg": fit.median_rot_deg,
+                    "board_scatter_mm": fit.median_trans_mm,
+                },
+            )
+        ]
     # a shuffle: match by signature, then check the matched pairing with a full fit
     found = search.shuffle()
     if found is None:
@@ -224,22 +265,30 @@ def pairing_findings(obs: PoseObservations, fmt: PoseFormat, *, invert: bool = F
     moved = [v for v in obs.ids if assign[v] != v]
     if is_clearly_better(fit.cost, given_cost):
         pairs = ", ".join(f"image {v} <- pose {assign[v]}" for v in moved[:10])
-        return [Finding(
-            "pairs_shuffled", "fail", f"Images and robot poses are shuffled: {len(moved)} of {obs.n} images carry "
-                                     "another view's pose",
-            f"matched by the rotation angles between views: {pairs}{' ...' if len(moved) > 10 else ''}; with this "
-            f"pairing the board scatters by {fit.median_rot_deg:.3f} deg / {fit.median_trans_mm:.2f} mm (median), "
-            f"a cost of {fit.cost:.2f} against {given_cost:.1f} as paired now ({_cost_text()})",
-            "re-pair images and poses by view id (the recording lost the order); re-capture if unsure",
-            view_ids=tuple(moved), details={"assignment": {v: assign[v] for v in moved},
-                                            "board_scatter_deg": fit.median_rot_deg,
-                                            "board_scatter_mm": fit.median_trans_mm})]
+        return [
+            Finding(
+                "pairs_shuffled",
+                "fail",
+                f"Images and robot poses are shuffled: {len(moved)} of {obs.n} images carry another view's pose",
+                f"matched by the rotation angles between views: {pairs}{' ...' if len(moved) > 10 else ''}; with this "
+                f"pairing the board scatters by {fit.median_rot_deg:.3f} deg / {fit.median_trans_mm:.2f} mm (median), "
+                f"a cost of {fit.cost:.2f} against {given_cost:.1f} as paired now ({_cost_text()})",
+                "re-pair images and poses by view id (the recording lost the order); re-capture if unsure",
+                view_ids=tuple(moved),
+                details={
+                    "assignment": {v: assign[v] for v in moved},
+                    "board_scatter_deg": fit.median_rot_deg,
+                    "board_scatter_mm": fit.median_trans_mm,
+                },
+            )
+        ]
     return []
 
 
 def _n_unexplained(fit) -> int:
     """How many views a pairing's board fit leaves unexplained (a view's implied board beyond the cost a
-    right reading reaches, :attr:`thresholds().readings.good_cost`)."""
+    right reading reaches, :attr:`thresholds().readings.good_cost`).
+    """
     return int(np.sum(fit.view_costs() > thresholds().readings.good_cost))
 
 
@@ -249,7 +298,8 @@ def _search_partial(obs: PoseObservations, fmt: PoseFormat, invert: bool) -> Opt
     in file order with two or more images before and after, the images before ``first`` keep their poses, and
     from ``first`` on each takes the pose s lines from its own; for s = -1 the image just before ``first``
     has no pose (left out). Returns (s, first, lone (the image without a pose, or None), fit, keep, keys),
-    the fit with the fewest unexplained views (then the lowest cost), or None."""
+    the fit with the fewest unexplained views (then the lowest cost), or None.
+    """
     order = list(obs.raw.order)
     pos = {k: i for i, k in enumerate(order)}
     views = sorted((v for v in obs.ids if v in pos), key=pos.get)
@@ -258,8 +308,11 @@ def _search_partial(obs: PoseObservations, fmt: PoseFormat, invert: bool) -> Opt
         for k in range(2, len(views) - 1):
             first = views[k]
             lone = views[k - 1] if shift < 0 else None
-            keys = {v: order[pos[v] + shift] if pos[v] >= pos[first] else v for v in views if v != lone
-                    and 0 <= pos[v] + (shift if pos[v] >= pos[first] else 0) < len(order)}
+            keys = {
+                v: order[pos[v] + shift] if pos[v] >= pos[first] else v
+                for v in views
+                if v != lone and 0 <= pos[v] + (shift if pos[v] >= pos[first] else 0) < len(order)
+            }
             keep = np.array([v in keys for v in obs.ids])
             T = read_poses(obs.raw, fmt, [keys[v] for v in obs.ids if v in keys])
             if T is None or keep.sum() < 5:
@@ -279,33 +332,52 @@ def _partial_shift_finding(obs: PoseObservations, found: tuple, given_cost: floa
     order = list(obs.raw.order)
     b = order.index(first)
     if s > 0:
-        title = (f"Images and robot poses are out of step from image {first} on: each image from there carries the "
-                 f"pose written for the image after it; the pose written for image {order[b]} belongs to no image")
-        fix = (f"delete pose line {b + 1} of the pose file (the pose written for image {order[b]}: a capture saved "
-               "the robot pose but no image), then calibrate again")
+        title = (
+            f"Images and robot poses are out of step from image {first} on: each image from there carries the "
+            f"pose written for the image after it; the pose written for image {order[b]} belongs to no image"
+        )
+        fix = (
+            f"delete pose line {b + 1} of the pose file (the pose written for image {order[b]}: a capture saved "
+            "the robot pose but no image), then calibrate again"
+        )
     else:
-        title = (f"Images and robot poses are out of step from image {first} on: each image from there carries the "
-                 f"pose written for the image before it; image {lone} has no pose")
-        fix = (f"the pose of image {lone} is missing from the pose file (a capture saved the image but no robot "
-               f"pose): add it as pose line {order.index(lone) + 1}, or remove image {lone} and number the later "
-               "images one lower; then calibrate again")
+        title = (
+            f"Images and robot poses are out of step from image {first} on: each image from there carries the "
+            f"pose written for the image before it; image {lone} has no pose"
+        )
+        fix = (
+            f"the pose of image {lone} is missing from the pose file (a capture saved the image but no robot "
+            f"pose): add it as pose line {order.index(lone) + 1}, or remove image {lone} and number the later "
+            "images one lower; then calibrate again"
+        )
     moved = [v for v in obs.ids if keys.get(v, v) != v]
     return Finding(
-        "pairs_shuffled", "fail", title,
+        "pairs_shuffled",
+        "fail",
+        title,
         f"pairing each image from {first} on with the pose {s:+d} line from its own: board scatter "
         f"{fit.median_rot_deg:.3f} deg / {fit.median_trans_mm:.2f} mm (median over {int(keep.sum())} views, "
         f"{_n_unexplained(fit)} unexplained), a cost of {fit.cost:.2f} against {given_cost:.1f} as paired now "
-        f"({_cost_text()})", fix, view_ids=tuple(sorted(moved + ([lone] if lone else []), key=order.index)),
-        details={"assignment": {v: keys[v] for v in moved}, "partial_shift": s, "shift_from_image": first,
-                 "image_without_pose": lone, "board_scatter_deg": fit.median_rot_deg,
-                 "board_scatter_mm": fit.median_trans_mm})
+        f"({_cost_text()})",
+        fix,
+        view_ids=tuple(sorted(moved + ([lone] if lone else []), key=order.index)),
+        details={
+            "assignment": {v: keys[v] for v in moved},
+            "partial_shift": s,
+            "shift_from_image": first,
+            "image_without_pose": lone,
+            "board_scatter_deg": fit.median_rot_deg,
+            "board_scatter_mm": fit.median_trans_mm,
+        },
+    )
 
 
 def partial_shift_findings(obs: PoseObservations, fit, flagged: Sequence[str]) -> tuple[list, set]:
     """Views flagged for their robot poses that are the tail (or the head) of a pairing out of step from one
     image on (:func:`_search_partial`): when the shifted pairing leaves fewer views unexplained than the given
     one and every flagged view is among those it re-pairs, (its finding, the views it explains); else ([], set()).
-    A shift of the last few views leaves the median fit as given good, so the pairing check does not search."""
+    A shift of the last few views leaves the median fit as given good, so the pairing check does not search.
+    """
     if len(flagged) < 2:
         return [], set()
     found = _search_partial(obs, obs.raw.fmt, False)
@@ -318,12 +390,14 @@ def partial_shift_findings(obs: PoseObservations, fit, flagged: Sequence[str]) -
     return [_partial_shift_finding(obs, found, fit.cost)], moved
 
 
-def swapped_pose_findings(obs: PoseObservations, check: RobotPoseCheck, flagged: Sequence[str],
-                          fmt: PoseFormat) -> tuple[list, set]:
+def swapped_pose_findings(
+    obs: PoseObservations, check: RobotPoseCheck, flagged: Sequence[str], fmt: PoseFormat
+) -> tuple[list, set]:
     """Flagged views whose image fits exactly one other recorded pose: (findings, the views explained).
 
     Each flagged view's camera-implied pose is tested against every recorded pose at once (one
-    vectorised call of the robot-pose test per flagged view: linear in the view count)."""
+    vectorised call of the robot-pose test per flagged view: linear in the view count).
+    """
     if not 1 <= len(flagged) <= thresholds().pairing.max_swap_candidates:
         return [], set()
     idx = {v: k for k, v in enumerate(obs.ids)}
@@ -341,8 +415,11 @@ def swapped_pose_findings(obs: PoseObservations, check: RobotPoseCheck, flagged:
             continue
         ka = idx[a]
         t_all = check.test_poses(ka, T_all)
-        fits = [(key, float(t_all.rot_deg[p]), float(t_all.trans_mm[p])) for p, key in enumerate(keys)
-                if key != a and not t_all.flagged[p] and t_all.distance[p] < 0.5 * t.distance[ka]]
+        fits = [
+            (key, float(t_all.rot_deg[p]), float(t_all.trans_mm[p]))
+            for p, key in enumerate(keys)
+            if key != a and not t_all.flagged[p] and t_all.distance[p] < 0.5 * t.distance[ka]
+        ]
         if len(fits) != 1:
             continue
         b, r_b, t_b = fits[0]
@@ -353,20 +430,32 @@ def swapped_pose_findings(obs: PoseObservations, check: RobotPoseCheck, flagged:
             if t_ba.flagged[0]:
                 continue
             swapped |= {a, b}
-            out.append(Finding(
-                "pairs_shuffled", "fail", f"The robot poses of views {a} and {b} are swapped",
-                f"view {a} disagrees with its own pose by {rot[ka]:.2f} deg / {trans[ka]:.1f} mm and "
-                f"view {b} by {rot[kb]:.2f} deg / {trans[kb]:.1f} mm; with each other's pose they "
-                f"agree ({t_ab.rot_deg[0]:.3f} deg / {t_ab.trans_mm[0]:.2f} mm and "
-                f"{t_ba.rot_deg[0]:.3f} deg / {t_ba.trans_mm[0]:.2f} mm)",
-                "swap the two pose entries (and pair images and poses by view id when recording)",
-                view_ids=(a, b), details={"swapped": [a, b]}))
+            out.append(
+                Finding(
+                    "pairs_shuffled",
+                    "fail",
+                    f"The robot poses of views {a} and {b} are swapped",
+                    f"view {a} disagrees with its own pose by {rot[ka]:.2f} deg / {trans[ka]:.1f} mm and "
+                    f"view {b} by {rot[kb]:.2f} deg / {trans[kb]:.1f} mm; with each other's pose they "
+                    f"agree ({t_ab.rot_deg[0]:.3f} deg / {t_ab.trans_mm[0]:.2f} mm and "
+                    f"{t_ba.rot_deg[0]:.3f} deg / {t_ba.trans_mm[0]:.2f} mm)",
+                    "swap the two pose entries (and pair images and poses by view id when recording)",
+                    view_ids=(a, b),
+                    details={"swapped": [a, b]},
+                )
+            )
         elif b not in idx:
             swapped.add(a)
-            out.append(Finding(
-                "pairs_shuffled", "fail", f"View {a}'s image carries the robot pose recorded for view {b}",
-                f"view {a} disagrees with its own pose by {rot[ka]:.2f} deg / {trans[ka]:.1f} mm but agrees "
-                f"with the pose of view {b} ({r_b:.3f} deg / {t_b:.2f} mm), whose image was not used",
-                f"swap the pose entries of views {a} and {b} (and pair images and poses by view id when "
-                "recording)", view_ids=(a, b), details={"swapped": [a, b]}))
+            out.append(
+                Finding(
+                    "pairs_shuffled",
+                    "fail",
+                    f"View {a}'s image carries the robot pose recorded for view {b}",
+                    f"view {a} disagrees with its own pose by {rot[ka]:.2f} deg / {trans[ka]:.1f} mm but agrees "
+                    f"with the pose of view {b} ({r_b:.3f} deg / {t_b:.2f} mm), whose image was not used",
+                    f"swap the pose entries of views {a} and {b} (and pair images and poses by view id when recording)",
+                    view_ids=(a, b),
+                    details={"swapped": [a, b]},
+                )
+            )
     return out, swapped

@@ -7,6 +7,7 @@ rotation-angle invariant, which does not depend on translation units, inversion 
 poses and a swapped mounting mode give the same numbers; they are told apart by which physical reading
 of the solution is plausible (camera near the flange or beside the robot).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -27,8 +28,15 @@ from .thresholds import thresholds
 
 EULER_ORDERS = ("xyz", "xzy", "yxz", "yzx", "zxy", "zyx", "xyx", "xzx", "yxy", "yzy", "zxz", "zyz")
 #: the codes of a global fault in how the poses were read or paired (the other checks then stop)
-READING_CODES = ("translation_units", "angle_units", "euler_order", "rotation_kind", "quaternion_order",
-                 "poses_inverted", "mode_swapped")
+READING_CODES = (
+    "translation_units",
+    "angle_units",
+    "euler_order",
+    "rotation_kind",
+    "quaternion_order",
+    "poses_inverted",
+    "mode_swapped",
+)
 
 
 def alternative_formats(fmt: PoseFormat) -> list[tuple[PoseFormat, tuple]]:
@@ -53,9 +61,11 @@ def alternative_formats(fmt: PoseFormat) -> list[tuple[PoseFormat, tuple]]:
         more += [(dict(ch, rotation="rotvec"), codes + ("rotation_kind",)) for ch, codes in rot_variants[:2]]
         rot_variants += more
     elif fmt.rotation == "rotvec":  # and a stated rotation vector may be Euler angles of any convention
-        rot_variants += [(dict(ch, rotation="euler", euler_order=order, euler_kind=kind), codes + ("rotation_kind",))
-                         for order, kind in product(EULER_ORDERS, ("extrinsic", "intrinsic"))
-                         for ch, codes in rot_variants[:2]]
+        rot_variants += [
+            (dict(ch, rotation="euler", euler_order=order, euler_kind=kind), codes + ("rotation_kind",))
+            for order, kind in product(EULER_ORDERS, ("extrinsic", "intrinsic"))
+            for ch, codes in rot_variants[:2]
+        ]
     if fmt.rotation == "quaternion":
         other = "xyzw" if fmt.quaternion_order == "wxyz" else "wxyz"
         rot_variants.append(({"quaternion_order": other}, ("quaternion_order",)))
@@ -72,7 +82,8 @@ def read_poses(raw: RawPoses, fmt: PoseFormat, ids: Sequence[str]) -> Optional[n
     """``T_base_end`` (N,4,4) of the views ``ids`` read with ``fmt`` (None if any pose does not parse).
 
     Vectorised for Euler angles and rotation vectors (same conversion as
-    :func:`handeye.conventions.T_from_pose_values`, which handles the other forms)."""
+    :func:`handeye.conventions.T_from_pose_values`, which handles the other forms).
+    """
     from scipy.spatial.transform import Rotation
 
     try:
@@ -124,12 +135,15 @@ class Reading:
         return self.fmt.describe() + (", inverted" if self.invert else "")
 
     def row(self) -> dict:
-        return {"reading": self.describe(), "changes": ", ".join(self.codes) or "as given",
-                "board_scatter_deg": round(self.fit.median_rot_deg, 4),
-                "board_scatter_mm": round(self.fit.median_trans_mm, 3),
-                "pair_angle_residual_deg": round(self.angle_res_deg, 4),
-                "pair_pitch_residual_mm": round(self.pitch_res_mm, 3) if np.isfinite(self.pitch_res_mm) else None,
-                "cost": round(self.fit.cost, 3)}
+        return {
+            "reading": self.describe(),
+            "changes": ", ".join(self.codes) or "as given",
+            "board_scatter_deg": round(self.fit.median_rot_deg, 4),
+            "board_scatter_mm": round(self.fit.median_trans_mm, 3),
+            "pair_angle_residual_deg": round(self.angle_res_deg, 4),
+            "pair_pitch_residual_mm": round(self.pitch_res_mm, 3) if np.isfinite(self.pitch_res_mm) else None,
+            "cost": round(self.fit.cost, 3),
+        }
 
 
 def evaluate_readings(obs: PoseObservations) -> list[Reading]:
@@ -137,7 +151,8 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
 
     On a symmetric board (``obs.C_candidates``) each rotation reading is scored with its own best corner
     ordering (:func:`handeye.initial.board_poses.orientation_labels`), so a misread pose cannot hide behind
-    views turned by 180 (or 90) degrees to agree with it: readings and orderings are resolved together."""
+    views turned by 180 (or 90) degrees to agree with it: readings and orderings are resolved together.
+    """
     from ..initial.board_poses import candidate_invariants, orientation_labels
 
     fmt0 = obs.raw.fmt
@@ -172,8 +187,9 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
     # misreadings) keep all pair angles, and only the full fit tells them apart
     ranked = sorted(rot_score, key=rot_score.get)
     best = rot_score[ranked[0]]
-    keep = {k for k in ranked[:thresholds().readings.max_rotation_readings]
-            if rot_score[k] <= max(2.0 * best, best + 0.1)}
+    keep = {
+        k for k in ranked[: thresholds().readings.max_rotation_readings] if rot_score[k] <= max(2.0 * best, best + 0.1)
+    }
     keep |= set(ranked[:2]) | {replace(fmt0)}
     out = []
     for fmt, changes in alts:
@@ -190,8 +206,9 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
                 fit = fit_boards(C, obs.M(T, invert=invert))
             except np.linalg.LinAlgError:
                 continue
-            out.append(Reading(fmt, changes, invert, fit, s["median_angle_res_deg"], s["median_pitch_res_mm"],
-                               labels=lab))
+            out.append(
+                Reading(fmt, changes, invert, fit, s["median_angle_res_deg"], s["median_pitch_res_mm"], labels=lab)
+            )
     out.sort(key=lambda r: (r.fit.cost, len(r.codes)))
     return out
 
@@ -200,7 +217,7 @@ def turned_views(obs: PoseObservations, given: Reading, best: Reading) -> list:
     """Ids of the views whose corner ordering differs between two readings (symmetric boards)."""
     if given.labels is None or best.labels is None:
         return []
-    return [v for v, a, b in zip(obs.ids, given.labels, best.labels) if a != b]
+    return [v for v, a, b in zip(obs.ids, given.labels, best.labels, strict=False) if a != b]
 
 
 def given_reading(readings: Sequence[Reading]) -> Optional[Reading]:
@@ -220,21 +237,35 @@ def reading_is_wrong(given: Reading, best: Reading) -> bool:
 def format_snippet(fmt: PoseFormat) -> str:
     """The session.yaml (or vendor config.yaml) line that states ``fmt``."""
     if fmt.rotation == "euler":
-        return (f"pose_format: {{rotation: euler, euler_order: {fmt.euler_order}, euler_kind: {fmt.euler_kind}, "
-                f"angle_unit: {fmt.angle_unit}, translation_unit: {fmt.translation_unit}}}")
+        return (
+            f"pose_format: {{rotation: euler, euler_order: {fmt.euler_order}, euler_kind: {fmt.euler_kind}, "
+            f"angle_unit: {fmt.angle_unit}, translation_unit: {fmt.translation_unit}}}"
+        )
     if fmt.rotation == "quaternion":
-        return (f"pose_format: {{rotation: quaternion, quaternion_order: {fmt.quaternion_order}, "
-                f"translation_unit: {fmt.translation_unit}}}")
+        return (
+            f"pose_format: {{rotation: quaternion, quaternion_order: {fmt.quaternion_order}, "
+            f"translation_unit: {fmt.translation_unit}}}"
+        )
     if fmt.rotation == "rotvec":
-        return f"pose_format: {{rotation: rotvec, angle_unit: {fmt.angle_unit}, translation_unit: {fmt.translation_unit}}}"
+        return (
+            f"pose_format: {{rotation: rotvec, angle_unit: {fmt.angle_unit}, translation_unit: {fmt.translation_unit}}}"
+        )
     return f"pose_format: {{rotation: matrix, translation_unit: {fmt.translation_unit}}}"
 
 
 def pitch_scale(obs: PoseObservations, fmt_read: PoseFormat, fmt_true: PoseFormat) -> Optional[float]:
     """Median ratio camera pitch / robot pitch under a reading (how far off the translation scale is)."""
-    T = read_poses(obs.raw, replace(fmt_read, **{k: getattr(fmt_true, k) for k in
-                                                 ("rotation", "euler_order", "euler_kind", "angle_unit",
-                                                  "quaternion_order")}), obs.ids)
+    T = read_poses(
+        obs.raw,
+        replace(
+            fmt_read,
+            **{
+                k: getattr(fmt_true, k)
+                for k in ("rotation", "euler_order", "euler_kind", "angle_unit", "quaternion_order")
+            },
+        ),
+        obs.ids,
+    )
     if T is None:
         return None
     M = obs.M(T)
@@ -250,7 +281,8 @@ def pitch_scale(obs: PoseObservations, fmt_read: PoseFormat, fmt_true: PoseForma
 
 def inverse_reading_kind(mode: str, fit: BoardFit) -> str:
     """For a fit with inverted robot motions: "poses_inverted" or "mode_swapped", by which reading puts
-    the camera near the flange (eye-in-hand-like: |t_X| < |t_board|) or beside the robot."""
+    the camera near the flange (eye-in-hand-like: |t_X| < |t_board|) or beside the robot.
+    """
     t_x = float(np.linalg.norm(inv_T(fit.A)[:3, 3]))
     t_b = float(np.linalg.norm(fit.B[0][:3, 3]))
     looks_like_camera_on_robot = t_x < t_b
@@ -267,56 +299,85 @@ def reading_findings(obs: PoseObservations, readings: Sequence[Reading], *, sess
         return []
     fmt0 = obs.raw.fmt
     rivals = [r for r in readings[1:] if r.fit.cost < 1.5 * best.fit.cost and r.codes != best.codes][:3]
-    ev = (f"as given ({given.describe()}): the board implied by each view scatters by {given.fit.median_rot_deg:.2f} deg"
-          f" / {given.fit.median_trans_mm:.1f} mm (median), robot and camera rotation angles differ by "
-          f"{given.angle_res_deg:.2f} deg (median over {obs.n * (obs.n - 1) // 2} view pairs); read as "
-          f"{best.describe()}: {best.fit.median_rot_deg:.3f} deg / {best.fit.median_trans_mm:.2f} mm, "
-          f"{best.angle_res_deg:.3f} deg (cost {best.fit.cost:.2f} against {given.fit.cost:.1f} as given: "
-          f"{given.fit.cost / max(best.fit.cost, 1e-9):.0f} x better)")
+    ev = (
+        f"as given ({given.describe()}): the board implied by each view scatters by {given.fit.median_rot_deg:.2f} deg"
+        f" / {given.fit.median_trans_mm:.1f} mm (median), robot and camera rotation angles differ by "
+        f"{given.angle_res_deg:.2f} deg (median over {obs.n * (obs.n - 1) // 2} view pairs); read as "
+        f"{best.describe()}: {best.fit.median_rot_deg:.3f} deg / {best.fit.median_trans_mm:.2f} mm, "
+        f"{best.angle_res_deg:.3f} deg (cost {best.fit.cost:.2f} against {given.fit.cost:.1f} as given: "
+        f"{given.fit.cost / max(best.fit.cost, 1e-9):.0f} x better)"
+    )
     if rivals:
-        ev += "; about as good: " + "; ".join(f"{r.describe()} ({r.fit.median_rot_deg:.3f} deg / "
-                                              f"{r.fit.median_trans_mm:.2f} mm)" for r in rivals)
+        ev += "; about as good: " + "; ".join(
+            f"{r.describe()} ({r.fit.median_rot_deg:.3f} deg / {r.fit.median_trans_mm:.2f} mm)" for r in rivals
+        )
     turned = turned_views(obs, given, best)
     if turned:
-        ev += (f"; on this symmetric board the corner order of {len(turned)} of {obs.n} views depends on the "
-               f"reading (views {ids_text(turned)}): as given they were turned to agree with the misread motion, "
-               f"so each reading was scored with its own best ordering")
-    details = {"given": given.row(), "best": best.row(), "rivals": [r.row() for r in rivals],
-               "views_reordered": [str(v) for v in turned],
-               "cost_ratio": (given.fit.cost / best.fit.cost) if best.fit.cost > 0 else None}
-    fix_fmt = (f"state the format in config.yaml: {format_snippet(best.fmt)} (or convert poses.txt to the vendor's "
-               "x, y, z in metres and rx, ry, rz in radians, R = Rz·Ry·Rx)"
-               if session_kind == "vendor" else f"state the format in session.yaml: {format_snippet(best.fmt)}")
+        ev += (
+            f"; on this symmetric board the corner order of {len(turned)} of {obs.n} views depends on the "
+            f"reading (views {ids_text(turned)}): as given they were turned to agree with the misread motion, "
+            f"so each reading was scored with its own best ordering"
+        )
+    details = {
+        "given": given.row(),
+        "best": best.row(),
+        "rivals": [r.row() for r in rivals],
+        "views_reordered": [str(v) for v in turned],
+        "cost_ratio": (given.fit.cost / best.fit.cost) if best.fit.cost > 0 else None,
+    }
+    fix_fmt = (
+        f"state the format in config.yaml: {format_snippet(best.fmt)} (or convert poses.txt to the vendor's "
+        "x, y, z in metres and rx, ry, rz in radians, R = Rz·Ry·Rx)"
+        if session_kind == "vendor"
+        else f"state the format in session.yaml: {format_snippet(best.fmt)}"
+    )
     out = []
     for code in best.changes:
         if code == "translation_units":
             scale = pitch_scale(obs, fmt0, best.fmt)
-            title = ("Robot translations are in millimetres but were read as metres" if best.fmt.translation_unit == "mm"
-                     else "Robot translations are in metres but were read as millimetres")
+            title = (
+                "Robot translations are in millimetres but were read as metres"
+                if best.fmt.translation_unit == "mm"
+                else "Robot translations are in metres but were read as millimetres"
+            )
             if scale:
-                e = ev + (f"; as given, the robot moves {1 / scale:.4g} x farther along its rotation axes than the "
-                          f"camera saw" if abs(scale) < 1 else
-                          f"; as given, the camera saw {scale:.4g} x more motion along the rotation axes than the "
-                          f"robot reports")
+                e = ev + (
+                    f"; as given, the robot moves {1 / scale:.4g} x farther along its rotation axes than the camera saw"
+                    if abs(scale) < 1
+                    else f"; as given, the camera saw {scale:.4g} x more motion along the rotation axes than the "
+                    f"robot reports"
+                )
             else:
                 e = ev
-            out.append(Finding("translation_units", "fail", title, e, fix_fmt,
-                               details=dict(details, camera_over_robot_pitch=scale)))
+            out.append(
+                Finding(
+                    "translation_units", "fail", title, e, fix_fmt, details=dict(details, camera_over_robot_pitch=scale)
+                )
+            )
         elif code == "angle_units":
-            title = ("Robot angles are in degrees but were read as radians" if best.fmt.angle_unit == "deg"
-                     else "Robot angles are in radians but were read as degrees")
+            title = (
+                "Robot angles are in degrees but were read as radians"
+                if best.fmt.angle_unit == "deg"
+                else "Robot angles are in radians but were read as degrees"
+            )
             out.append(Finding("angle_units", "fail", title, ev, fix_fmt, details=details))
         elif code == "euler_order":
-            title = (f"Robot angles follow another Euler convention: {best.fmt.euler_kind} {best.fmt.euler_order} "
-                     f"(read as {fmt0.euler_kind} {fmt0.euler_order})")
+            title = (
+                f"Robot angles follow another Euler convention: {best.fmt.euler_kind} {best.fmt.euler_order} "
+                f"(read as {fmt0.euler_kind} {fmt0.euler_order})"
+            )
             out.append(Finding("euler_order", "fail", title, ev, fix_fmt, details=details))
         elif code == "rotation_kind":
             if best.fmt.rotation == "rotvec":
-                title = ("Robot rotations are rotation vectors (axis x angle, as Universal Robots' controllers write "
-                         f"them), read as {fmt0.euler_kind} {fmt0.euler_order} Euler angles")
+                title = (
+                    "Robot rotations are rotation vectors (axis x angle, as Universal Robots' controllers write "
+                    f"them), read as {fmt0.euler_kind} {fmt0.euler_order} Euler angles"
+                )
             else:
-                title = (f"Robot rotations are {best.fmt.euler_kind} {best.fmt.euler_order} Euler angles, read as a "
-                         "rotation vector")
+                title = (
+                    f"Robot rotations are {best.fmt.euler_kind} {best.fmt.euler_order} Euler angles, read as a "
+                    "rotation vector"
+                )
             out.append(Finding("rotation_kind", "fail", title, ev, fix_fmt, details=details))
         elif code == "quaternion_order":
             title = f"Quaternions are written {best.fmt.quaternion_order}, read as {fmt0.quaternion_order}"
@@ -333,24 +394,35 @@ def _inverse_finding(obs: PoseObservations, best: Reading, ev: str, details: dic
     fits_as = mode if kind == "poses_inverted" else other
     t_x = 1e3 * float(np.linalg.norm(inv_T(best.fit.A)[:3, 3]))
     t_b = 1e3 * float(np.linalg.norm(best.fit.B[0][:3, 3]))
-    e = ev + (f"; with the inverted motions the camera sits {t_x:.0f} mm from the {fits_as.fixed_frame} origin and "
-              f"the board {t_b:.0f} mm from the {fits_as.board_frame} origin")
+    e = ev + (
+        f"; with the inverted motions the camera sits {t_x:.0f} mm from the {fits_as.fixed_frame} origin and "
+        f"the board {t_b:.0f} mm from the {fits_as.board_frame} origin"
+    )
     if kind == "poses_inverted":
-        return Finding("poses_inverted", "fail",
-                       "Robot poses are inverted (the pose of the base in the flange, T_end_base, "
-                       "instead of the flange in the base)",
-                       e + f" (calibrating as {other.name} would fit equally, but puts the camera implausibly)",
-                       "write each robot pose as the flange in the base frame (T_base_end), i.e. invert "
-                       "them, or export the other pose from the robot controller", details=details)
-    return Finding("mode_swapped", "fail",
-                   f"The data are {other.name.replace('_', '-')} but were calibrated as {mode.name.replace('_', '-')}",
-                   e + " (inverted robot poses would fit equally, but put the camera implausibly)",
-                   f"calibrate with --mode {other.name} (or set mode: {other.name} in the session)", details=details)
+        return Finding(
+            "poses_inverted",
+            "fail",
+            "Robot poses are inverted (the pose of the base in the flange, T_end_base, "
+            "instead of the flange in the base)",
+            e + f" (calibrating as {other.name} would fit equally, but puts the camera implausibly)",
+            "write each robot pose as the flange in the base frame (T_base_end), i.e. invert "
+            "them, or export the other pose from the robot controller",
+            details=details,
+        )
+    return Finding(
+        "mode_swapped",
+        "fail",
+        f"The data are {other.name.replace('_', '-')} but were calibrated as {mode.name.replace('_', '-')}",
+        e + " (inverted robot poses would fit equally, but put the camera implausibly)",
+        f"calibrate with --mode {other.name} (or set mode: {other.name} in the session)",
+        details=details,
+    )
 
 
 def reading_in_use(obs: PoseObservations, readings: Sequence[Reading], findings: Sequence[Finding]):
     """(robot motions M (N,4,4), fit) of the reading the other checks should use: the best reading when
-    the given one was found wrong, else the given one."""
+    the given one was found wrong, else the given one.
+    """
     if findings:
         best = readings[0]
         T = read_poses(obs.raw, best.fmt, obs.ids)
@@ -360,5 +432,15 @@ def reading_in_use(obs: PoseObservations, readings: Sequence[Reading], findings:
     return M, (given.fit if given is not None else fit_boards(obs.C, M))
 
 
-__all__ = ["EULER_ORDERS", "READING_CODES", "Reading", "alternative_formats", "read_poses", "evaluate_readings",
-           "given_reading", "reading_is_wrong", "reading_findings", "reading_in_use"]
+__all__ = [
+    "EULER_ORDERS",
+    "READING_CODES",
+    "Reading",
+    "alternative_formats",
+    "read_poses",
+    "evaluate_readings",
+    "given_reading",
+    "reading_is_wrong",
+    "reading_findings",
+    "reading_in_use",
+]

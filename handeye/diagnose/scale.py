@@ -13,6 +13,7 @@ from 1 both statistically (a two-sided t test at ``scale.p_value``) and practica
 ``scale.min_rel``), and when rescaling the squares by ``k`` shrinks the board scatter by
 ``scale.min_scatter_gain`` (the scale explains the data), see configs/diagnostics.yaml.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -40,14 +41,15 @@ class ScaleEstimate:
 
     def p_value(self) -> float:
         """Two-sided p-value of k = 1 (Student t with n - 1 degrees of freedom; scipy.special's distribution
-        function, what scipy.stats.t.sf evaluates, without importing scipy.stats: seconds of start-up)."""
+        function, what scipy.stats.t.sf evaluates, without importing scipy.stats: seconds of start-up).
+        """
         from scipy.special import stdtr
 
         return float(2.0 * stdtr(max(self.n_views - 1, 1), -self.z))
 
 
 def _k_from_sums(sums: np.ndarray) -> float:
-    """k from summed pair terms (:meth:`PairMotions.sums`): R_A by Kabsch, then (t_A, k) in least squares."""
+    """K from summed pair terms (:meth:`PairMotions.sums`): R_A by Kabsch, then (t_A, k) in least squares."""
     return float(solve_from_sums(sums, rotation_from_sums(sums), scale=True)[3])
 
 
@@ -56,7 +58,8 @@ def estimate_scale(C: np.ndarray, M: np.ndarray, *, use: Optional[np.ndarray] = 
     jackknife sigma over the views in ``use`` (bool (N,), default all); None with fewer than 4 views.
 
     The pairs' terms are computed once and summed per view, so each leave-one-out solve subtracts the
-    sums of the pairs of the view it leaves out: O(pairs) in all, not O(views x pairs)."""
+    sums of the pairs of the view it leaves out: O(pairs) in all, not O(views x pairs).
+    """
     idx = np.flatnonzero(np.ones(len(C), bool) if use is None else np.asarray(use, bool))
     n = len(idx)
     if n < 4:
@@ -109,18 +112,40 @@ def scale_findings(obs, fit, M: np.ndarray) -> tuple[list, Optional[ScaleEstimat
     what, L = stated_length_m(obs.target)
     true_mm, sig_mm = 1e3 * L * est.k, 1e3 * L * est.sigma
     noun = "dot spacing" if what == "dot spacing" else "squares"
-    title = (f"The board's {noun} look like {true_mm:.1f} mm, not {1e3 * L:g} mm"
-             if noun == "squares" else f"The board's dot spacing looks like {true_mm:.1f} mm, not {1e3 * L:g} mm")
+    title = (
+        f"The board's {noun} look like {true_mm:.1f} mm, not {1e3 * L:g} mm"
+        if noun == "squares"
+        else f"The board's dot spacing looks like {true_mm:.1f} mm, not {1e3 * L:g} mm"
+    )
     field = "spacing_m" if noun == "dot spacing" else "square_m"
-    ev = (f"the camera's motions are {est.k:.4f} ± {est.sigma:.4f} x the robot's once both are compared in one "
-          f"frame (closed form over all view pairs of {est.n_views} views, jackknife sigma; 1 is "
-          f"{est.z:.0f} sigma away, p = {est.p_value():.1e}): {noun} of {true_mm:.2f} ± {sig_mm:.2f} mm; with "
-          f"that size the board implied by each view scatters by {rescaled_fit.median_trans_mm:.2f} mm instead of "
-          f"{as_stated.median_trans_mm:.2f} mm (median)")
-    action = (f"measure the printed {noun} with a caliper and state that size (vendor config.yaml: L: "
-              f"{L * est.k:.4f}; session.yaml: target.{field}: {L * est.k:.4f}); a printer's 'fit to page' "
-              f"shrinks boards by a few per cent")
-    return [Finding("square_size", "fail", title, ev, action,
-                    details={"scale": est.k, "scale_sigma": est.sigma, "n_views": est.n_views,
-                             "stated_mm": 1e3 * L, "measured_mm": true_mm, "measured_sigma_mm": sig_mm,
-                             "p_value": est.p_value(), "scatter_gain": gain})], est
+    ev = (
+        f"the camera's motions are {est.k:.4f} ± {est.sigma:.4f} x the robot's once both are compared in one "
+        f"frame (closed form over all view pairs of {est.n_views} views, jackknife sigma; 1 is "
+        f"{est.z:.0f} sigma away, p = {est.p_value():.1e}): {noun} of {true_mm:.2f} ± {sig_mm:.2f} mm; with "
+        f"that size the board implied by each view scatters by {rescaled_fit.median_trans_mm:.2f} mm instead of "
+        f"{as_stated.median_trans_mm:.2f} mm (median)"
+    )
+    action = (
+        f"measure the printed {noun} with a caliper and state that size (vendor config.yaml: L: "
+        f"{L * est.k:.4f}; session.yaml: target.{field}: {L * est.k:.4f}); a printer's 'fit to page' "
+        f"shrinks boards by a few per cent"
+    )
+    return [
+        Finding(
+            "square_size",
+            "fail",
+            title,
+            ev,
+            action,
+            details={
+                "scale": est.k,
+                "scale_sigma": est.sigma,
+                "n_views": est.n_views,
+                "stated_mm": 1e3 * L,
+                "measured_mm": true_mm,
+                "measured_sigma_mm": sig_mm,
+                "p_value": est.p_value(),
+                "scatter_gain": gain,
+            },
+        )
+    ], est

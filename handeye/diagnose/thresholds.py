@@ -3,6 +3,7 @@
 :func:`thresholds` returns the shipped values; every check takes its numbers from it, so a site
 can tune them in one file and the docs can point at one place.
 """
+
 from __future__ import annotations
 
 import functools
@@ -19,8 +20,9 @@ def _section(cls, cfg: dict, name: str):
         try:
             out[f.name] = int(d[f.name]) if f.type == "int" else float(d[f.name])
         except (TypeError, ValueError):
-            raise ConfigError(f"diagnostics preset: {name}.{f.name} is not a number", expected=f.type,
-                              received=repr(d[f.name])) from None
+            raise ConfigError(
+                f"diagnostics preset: {name}.{f.name} is not a number", expected=f.type, received=repr(d[f.name])
+            ) from None
     return cls(**out)
 
 
@@ -160,9 +162,26 @@ class _Sec:
     type_cls: type
 
 
-_SECTIONS = tuple(_Sec(f.name, c) for f, c in zip(
-    fields(Thresholds), (Readings, Pairing, Views, Motion, RobotPose, BoardMoved, Detection, IntrinsicsChecks,
-                         Images, CrossValidation, Scale, Mode)))
+_SECTIONS = tuple(
+    _Sec(f.name, c)
+    for f, c in zip(
+        fields(Thresholds),
+        (
+            Readings,
+            Pairing,
+            Views,
+            Motion,
+            RobotPose,
+            BoardMoved,
+            Detection,
+            IntrinsicsChecks,
+            Images,
+            CrossValidation,
+            Scale,
+            Mode,
+        ), strict=False,
+    )
+)
 
 
 @functools.lru_cache(maxsize=1)

@@ -11,6 +11,7 @@
   ``camera_color_frame``) has the same origin and is turned by the fixed rotation
   :data:`R_OPTICAL_BODY`: ``T_parent_body = T_parent_optical @ T_optical_body``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -24,9 +25,7 @@ from ..frames import make_T, quat_wxyz_from_R, se3_adjoint
 
 #: the body frame's axes in the optical frame (columns): body x = optical z (forward), body y = -optical x
 #: (left), body z = -optical y (up); ``p_optical = R_OPTICAL_BODY @ p_body``
-R_OPTICAL_BODY = np.array([[0.0, -1.0, 0.0],
-                           [0.0, 0.0, -1.0],
-                           [1.0, 0.0, 0.0]])
+R_OPTICAL_BODY = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
 T_OPTICAL_BODY = make_T(R_OPTICAL_BODY, np.zeros(3))
 
 CAMERA_FRAMES = ("optical", "body")
@@ -44,8 +43,8 @@ DEFAULT_FRAMES = {
 CAMERA_FRAME_TEXT = {
     "optical": "optical frame (x right, y down, z forward; ROS *_optical_frame), handeye's camera frame",
     "body": "body frame (REP 103: x forward, y left, z up), the optical frame turned by the fixed rotation "
-            "T_optical_body (quaternion x, y, z, w = 0.5, -0.5, 0.5, 0.5; the RealSense driver's "
-            "camera_color_frame -> camera_color_optical_frame is its inverse) at the same origin",
+    "T_optical_body (quaternion x, y, z, w = 0.5, -0.5, 0.5, 0.5; the RealSense driver's "
+    "camera_color_frame -> camera_color_optical_frame is its inverse) at the same origin",
 }
 
 RPY_TEXT = "roll, pitch, yaw [rad], fixed axes: R = Rz(yaw) * Ry(pitch) * Rx(roll) (URDF, tf2)"
@@ -66,7 +65,8 @@ def rpy_from_R(R: np.ndarray) -> np.ndarray:
 class ExportTransform:
     """The transform to export: ``T_parent_child`` (4x4) with its frame names, the camera frame kind,
     the mounting mode and, when the result has one, its covariance ``cov_6x6`` in handeye's tangent
-    (right perturbation of ``T_parent_child``, rotation first, radians and metres, child axes)."""
+    (right perturbation of ``T_parent_child``, rotation first, radians and metres, child axes).
+    """
 
     parent: str
     child: str
@@ -93,20 +93,25 @@ class ExportTransform:
 
     def sigmas(self) -> Optional[dict]:
         """1-sigma of the translation (mm, parent axes), of roll/pitch/yaw (deg) and of the rotation
-        about the child's axes (deg), propagated from ``cov_6x6``; None without a covariance."""
+        about the child's axes (deg), propagated from ``cov_6x6``; None without a covariance.
+        """
         if self.cov_6x6 is None:
             return None
         from ..report.uncertainty import form_sigmas
 
         s = form_sigmas(self.T_parent_child, self.cov_6x6)
-        return {"translation_mm": s["translation_mm"], "rpy_deg": s["euler_vendor_deg"],
-                "rotation_child_axes_deg": s["rot_cam_deg"]}
+        return {
+            "translation_mm": s["translation_mm"],
+            "rpy_deg": s["euler_vendor_deg"],
+            "rotation_child_axes_deg": s["rot_cam_deg"],
+        }
 
 
 def camera_transform(T_x_optical: np.ndarray, cov_optical: Optional[np.ndarray], camera_frame: str):
     """``(T_parent_camera, cov)`` for the chosen camera frame: the optical one as it is, or the body
     one ``T_parent_optical @ T_optical_body`` with the covariance moved to the body axes
-    (``T·Exp(xi)·C = T·C·Exp(Ad(C^-1) xi)``)."""
+    (``T·Exp(xi)·C = T·C·Exp(Ad(C^-1) xi)``).
+    """
     if camera_frame not in CAMERA_FRAMES:
         raise InputError(f"unknown camera frame {camera_frame!r}", expected=" | ".join(CAMERA_FRAMES))
     T = np.asarray(T_x_optical, float)

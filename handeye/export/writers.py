@@ -19,6 +19,7 @@ format                    files
 ``yaml`` / ``json``       frames, matrix, translation, quaternion (xyzw and wxyz), rpy, sigmas, covariance
 ========================  ==================================================================================
 """
+
 from __future__ import annotations
 
 import json
@@ -44,20 +45,26 @@ def header_lines(e: ExportTransform) -> list[str]:
         f"camera frame: {CAMERA_FRAME_TEXT[e.camera_frame]}",
         "translation [m] x y z: " + " ".join(num(v) for v in t),
         "quaternion x y z w (ROS order): " + " ".join(num(v) for v in q),
-        f"rpy: " + " ".join(num(v) for v in rpy) + f"  ({RPY_TEXT})",
+        "rpy: " + " ".join(num(v) for v in rpy) + f"  ({RPY_TEXT})",
     ]
     s = e.sigmas()
     if s is not None:
-        lines.append("1-sigma: translation [mm] " + " ".join(f"{v:.3f}" for v in s["translation_mm"])
-                     + ", roll pitch yaw [deg] " + " ".join(f"{v:.4f}" for v in s["rpy_deg"])
-                     + f" ({e.cov_source})")
+        lines.append(
+            "1-sigma: translation [mm] "
+            + " ".join(f"{v:.3f}" for v in s["translation_mm"])
+            + ", roll pitch yaw [deg] "
+            + " ".join(f"{v:.4f}" for v in s["rpy_deg"])
+            + f" ({e.cov_source})"
+        )
     else:
         lines.append("1-sigma: not available (the result has no covariance)")
     lines.append(f"from {e.source}, verdict {e.verdict}")
     if e.child in (DEFAULT_FRAMES["camera_optical"], DEFAULT_FRAMES["camera_body"]):
-        lines.append(f"the RealSense driver publishes camera_link -> camera_color_frame -> camera_color_optical_frame "
-                     f"itself and a frame has one parent in tf2: with the driver running publish {e.parent} -> "
-                     f"camera_link = this transform @ inv(T_camera_link_{e.child}) (from the driver's /tf_static)")
+        lines.append(
+            f"the RealSense driver publishes camera_link -> camera_color_frame -> camera_color_optical_frame "
+            f"itself and a frame has one parent in tf2: with the driver running publish {e.parent} -> "
+            f"camera_link = this transform @ inv(T_camera_link_{e.child}) (from the driver's /tf_static)"
+        )
     return lines
 
 
@@ -67,67 +74,86 @@ def _comment(lines, mark: str) -> str:
 
 def _stp_arguments(e: ExportTransform) -> list[tuple[str, str]]:
     t, q = e.translation_m, e.quat_xyzw
-    return [("--frame-id", e.parent), ("--child-frame-id", e.child),
-            ("--x", num(t[0])), ("--y", num(t[1])), ("--z", num(t[2])),
-            ("--qx", num(q[0])), ("--qy", num(q[1])), ("--qz", num(q[2])), ("--qw", num(q[3]))]
+    return [
+        ("--frame-id", e.parent),
+        ("--child-frame-id", e.child),
+        ("--x", num(t[0])),
+        ("--y", num(t[1])),
+        ("--z", num(t[2])),
+        ("--qx", num(q[0])),
+        ("--qy", num(q[1])),
+        ("--qz", num(q[2])),
+        ("--qw", num(q[3])),
+    ]
 
 
 def ros2_launch(e: ExportTransform, *, moveit_layout: bool = False) -> str:
     """A ROS 2 Python launch file running tf2_ros' static_transform_publisher with the transform.
     ``moveit_layout``: the layout MoveIt 2 Calibration writes when it saves the camera pose (its two
-    docstrings, the arguments one per line, roll/pitch/yaw as comments)."""
+    docstrings, the arguments one per line, roll/pitch/yaw as comments).
+    """
     args = _stp_arguments(e)
     kind = "EYE-IN-HAND" if e.mode == "eye_in_hand" else "EYE-TO-HAND"
     if moveit_layout:
-        head = ['""" Static transform publisher of a hand-eye calibration (MoveIt 2 Calibration\'s layout) """',
-                f'""" {kind}: {e.parent} -> {e.child} """']
+        head = [
+            '""" Static transform publisher of a hand-eye calibration (MoveIt 2 Calibration\'s layout) """',
+            f'""" {kind}: {e.parent} -> {e.child} """',
+        ]
     else:
         head = [f'"""Static transform {e.parent} -> {e.child} from a handeye calibration ({e.mode})."""']
     rpy = e.rpy_rad
     arg_lines = []
     for flag, value in args:
         arg_lines += [f"                {json.dumps(flag)},", f"                {json.dumps(value)},"]
-    for flag, v in zip(("--roll", "--pitch", "--yaw"), rpy):
+    for flag, v in zip(("--roll", "--pitch", "--yaw"), rpy, strict=False):
         arg_lines += [f"                # {json.dumps(flag)},", f"                # {json.dumps(num(v))},"]
-    return "\n".join(head + [
-        _comment(header_lines(e), "#"),
-        "from launch import LaunchDescription",
-        "from launch_ros.actions import Node",
-        "",
-        "",
-        "def generate_launch_description() -> LaunchDescription:",
-        "    nodes = [",
-        "        Node(",
-        '            package="tf2_ros",',
-        '            executable="static_transform_publisher",',
-        f'            name={json.dumps("handeye_" + _ident(e.parent) + "_to_" + _ident(e.child))},',
-        '            output="log",',
-        "            arguments=[",
-        *arg_lines,
-        "            ],",
-        "        ),",
-        "    ]",
-        "    return LaunchDescription(nodes)",
-        ""])
+    return "\n".join(
+        head
+        + [
+            _comment(header_lines(e), "#"),
+            "from launch import LaunchDescription",
+            "from launch_ros.actions import Node",
+            "",
+            "",
+            "def generate_launch_description() -> LaunchDescription:",
+            "    nodes = [",
+            "        Node(",
+            '            package="tf2_ros",',
+            '            executable="static_transform_publisher",',
+            f"            name={json.dumps('handeye_' + _ident(e.parent) + '_to_' + _ident(e.child))},",
+            '            output="log",',
+            "            arguments=[",
+            *arg_lines,
+            "            ],",
+            "        ),",
+            "    ]",
+            "    return LaunchDescription(nodes)",
+            "",
+        ]
+    )
 
 
 def moveit1_launch(e: ExportTransform) -> str:
     """The ROS 1 launch file MoveIt Calibration saves ("Save camera pose"): static_transform_publisher
     with ``args="x y z qx qy qz qw frame_id child_frame_id"``. Its comment's rpy is URDF's fixed-axis
-    roll-pitch-yaw (MoveIt's own comment writes Eigen's eulerAngles(0, 1, 2), moving axes, under that name)."""
+    roll-pitch-yaw (MoveIt's own comment writes Eigen's eulerAngles(0, 1, 2), moving axes, under that name).
+    """
     from xml.sax.saxutils import quoteattr
 
     t, q = e.translation_m, e.quat_xyzw
     xyz, rpy = " ".join(num(v) for v in t), " ".join(num(v) for v in e.rpy_rad)
     args = f"{xyz}   {' '.join(num(v) for v in q)} {e.parent} {e.child}"
-    return "\n".join([
-        "<launch>",
-        "  " + _xml_comment(e).replace("\n", "\n  "),
-        f'  <!-- xyz="{xyz}" rpy="{rpy}" ({RPY_TEXT}) -->',
-        '  <node pkg="tf2_ros" type="static_transform_publisher" name="camera_link_broadcaster"',
-        f"      args={quoteattr(args)} />",
-        "</launch>",
-        ""])
+    return "\n".join(
+        [
+            "<launch>",
+            "  " + _xml_comment(e).replace("\n", "\n  "),
+            f'  <!-- xyz="{xyz}" rpy="{rpy}" ({RPY_TEXT}) -->',
+            '  <node pkg="tf2_ros" type="static_transform_publisher" name="camera_link_broadcaster"',
+            f"      args={quoteattr(args)} />",
+            "</launch>",
+            "",
+        ]
+    )
 
 
 def _ident(name: str) -> str:
@@ -137,19 +163,23 @@ def _ident(name: str) -> str:
 def tf_static_yaml(e: ExportTransform) -> str:
     """The transform as a tf2_msgs/TFMessage (``ros2 topic echo /tf_static``'s layout; publish it with
     ``ros2 topic pub --once /tf_static tf2_msgs/msg/TFMessage "$(cat FILE)"`` under a transient-local QoS,
-    or read it in a node)."""
+    or read it in a node).
+    """
     t, q = e.translation_m, e.quat_xyzw
-    return "\n".join([
-        _comment(header_lines(e), "#"),
-        "transforms:",
-        "- header:",
-        "    stamp: {sec: 0, nanosec: 0}",
-        f"    frame_id: {json.dumps(e.parent)}",
-        f"  child_frame_id: {json.dumps(e.child)}",
-        "  transform:",
-        f"    translation: {{x: {num(t[0])}, y: {num(t[1])}, z: {num(t[2])}}}",
-        f"    rotation: {{x: {num(q[0])}, y: {num(q[1])}, z: {num(q[2])}, w: {num(q[3])}}}",
-        ""])
+    return "\n".join(
+        [
+            _comment(header_lines(e), "#"),
+            "transforms:",
+            "- header:",
+            "    stamp: {sec: 0, nanosec: 0}",
+            f"    frame_id: {json.dumps(e.parent)}",
+            f"  child_frame_id: {json.dumps(e.child)}",
+            "  transform:",
+            f"    translation: {{x: {num(t[0])}, y: {num(t[1])}, z: {num(t[2])}}}",
+            f"    rotation: {{x: {num(q[0])}, y: {num(q[1])}, z: {num(q[2])}, w: {num(q[3])}}}",
+            "",
+        ]
+    )
 
 
 def _xml_comment(e: ExportTransform) -> str:
@@ -166,76 +196,88 @@ def urdf(e: ExportTransform) -> str:
     """A URDF with the parent and child links and the fixed joint between them."""
     from xml.sax.saxutils import quoteattr
 
-    return "\n".join([
-        '<?xml version="1.0"?>',
-        _xml_comment(e),
-        '<robot name="handeye_calibration">',
-        f"  <link name={quoteattr(e.parent)}/>",
-        f"  <link name={quoteattr(e.child)}/>",
-        f'  <joint name={quoteattr(_ident(e.parent) + "_to_" + _ident(e.child))} type="fixed">',
-        f"    <parent link={quoteattr(e.parent)}/>",
-        f"    <child link={quoteattr(e.child)}/>",
-        f"    {_origin(e)}",
-        "  </joint>",
-        "</robot>",
-        ""])
+    return "\n".join(
+        [
+            '<?xml version="1.0"?>',
+            _xml_comment(e),
+            '<robot name="handeye_calibration">',
+            f"  <link name={quoteattr(e.parent)}/>",
+            f"  <link name={quoteattr(e.child)}/>",
+            f'  <joint name={quoteattr(_ident(e.parent) + "_to_" + _ident(e.child))} type="fixed">',
+            f"    <parent link={quoteattr(e.parent)}/>",
+            f"    <child link={quoteattr(e.child)}/>",
+            f"    {_origin(e)}",
+            "  </joint>",
+            "</robot>",
+            "",
+        ]
+    )
 
 
 def xacro(e: ExportTransform) -> str:
     """A xacro file defining the macro ``handeye_camera_joint`` (params ``parent``, ``child``, defaulting
-    to the exported frames): include it in the robot's xacro and call ``<xacro:handeye_camera_joint/>``."""
+    to the exported frames): include it in the robot's xacro and call ``<xacro:handeye_camera_joint/>``.
+    """
     from xml.sax.saxutils import quoteattr
 
     params = f"parent:={e.parent} child:={e.child}"
-    return "\n".join([
-        '<?xml version="1.0"?>',
-        _xml_comment(e),
-        '<robot xmlns:xacro="http://www.ros.org/wiki/xacro">',
-        f"  <xacro:macro name=\"handeye_camera_joint\" params={quoteattr(params)}>",
-        '    <joint name="${parent}_to_${child}" type="fixed">',
-        '      <parent link="${parent}"/>',
-        '      <child link="${child}"/>',
-        f"      {_origin(e)}",
-        "    </joint>",
-        "  </xacro:macro>",
-        "</robot>",
-        ""])
+    return "\n".join(
+        [
+            '<?xml version="1.0"?>',
+            _xml_comment(e),
+            '<robot xmlns:xacro="http://www.ros.org/wiki/xacro">',
+            f'  <xacro:macro name="handeye_camera_joint" params={quoteattr(params)}>',
+            '    <joint name="${parent}_to_${child}" type="fixed">',
+            '      <parent link="${parent}"/>',
+            '      <child link="${child}"/>',
+            f"      {_origin(e)}",
+            "    </joint>",
+            "  </xacro:macro>",
+            "</robot>",
+            "",
+        ]
+    )
 
 
 def easy_handeye2_calib(e: ExportTransform, *, name: str, base: str, effector: str) -> str:
     """easy_handeye2's saved calibration (``~/.ros2/easy_handeye2/calibrations/NAME.calib``): for
     eye_in_hand the transform is robot_effector_frame -> tracking_base_frame (the camera), for
-    eye_on_base robot_base_frame -> tracking_base_frame."""
+    eye_on_base robot_base_frame -> tracking_base_frame.
+    """
     t, q = e.translation_m, e.quat_xyzw
     kind = "eye_in_hand" if e.mode == "eye_in_hand" else "eye_on_base"
-    return "\n".join([
-        _comment(header_lines(e), "#"),
-        "parameters:",
-        f"  name: {json.dumps(name)}",
-        f"  calibration_type: {kind}",
-        f"  robot_base_frame: {json.dumps(base)}",
-        f"  robot_effector_frame: {json.dumps(effector)}",
-        f"  tracking_base_frame: {json.dumps(e.child)}",
-        "  tracking_marker_frame: handeye_target",
-        "  freehand_robot_movement: true",
-        "  move_group_namespace: /",
-        "  move_group: manipulator",
-        "transform:",
-        "  translation:",
-        f"    x: {num(t[0])}",
-        f"    y: {num(t[1])}",
-        f"    z: {num(t[2])}",
-        "  rotation:",
-        f"    x: {num(q[0])}",
-        f"    y: {num(q[1])}",
-        f"    z: {num(q[2])}",
-        f"    w: {num(q[3])}",
-        ""])
+    return "\n".join(
+        [
+            _comment(header_lines(e), "#"),
+            "parameters:",
+            f"  name: {json.dumps(name)}",
+            f"  calibration_type: {kind}",
+            f"  robot_base_frame: {json.dumps(base)}",
+            f"  robot_effector_frame: {json.dumps(effector)}",
+            f"  tracking_base_frame: {json.dumps(e.child)}",
+            "  tracking_marker_frame: handeye_target",
+            "  freehand_robot_movement: true",
+            "  move_group_namespace: /",
+            "  move_group: manipulator",
+            "transform:",
+            "  translation:",
+            f"    x: {num(t[0])}",
+            f"    y: {num(t[1])}",
+            f"    z: {num(t[2])}",
+            "  rotation:",
+            f"    x: {num(q[0])}",
+            f"    y: {num(q[1])}",
+            f"    z: {num(q[2])}",
+            f"    w: {num(q[3])}",
+            "",
+        ]
+    )
 
 
 def plain_dict(e: ExportTransform) -> dict:
     """The ``yaml`` / ``json`` export: frames, matrix, translation, quaternion (order in the key), rpy,
-    sigmas and covariance, provenance."""
+    sigmas and covariance, provenance.
+    """
     from ..output import provenance
 
     s = e.sigmas()
@@ -262,11 +304,17 @@ def plain_dict(e: ExportTransform) -> dict:
         "provenance": provenance(),
     }
     if s is not None:
-        d["sigma"] = {"translation_mm": s["translation_mm"].tolist(), "rpy_deg": s["rpy_deg"].tolist(),
-                      "rotation_child_axes_deg": s["rotation_child_axes_deg"].tolist(), "source": e.cov_source}
+        d["sigma"] = {
+            "translation_mm": s["translation_mm"].tolist(),
+            "rpy_deg": s["rpy_deg"].tolist(),
+            "rotation_child_axes_deg": s["rotation_child_axes_deg"].tolist(),
+            "source": e.cov_source,
+        }
         d["cov_6x6"] = np.asarray(e.cov_6x6).tolist()
-        d["cov_parametrisation"] = ("right perturbation T_true = T · Exp(xi), xi = (omega [rad], v [m]), "
-                                    "rotation first, along the child frame's axes (GTSAM Pose3 tangent)")
+        d["cov_parametrisation"] = (
+            "right perturbation T_true = T · Exp(xi), xi = (omega [rad], v [m]), "
+            "rotation first, along the child frame's axes (GTSAM Pose3 tangent)"
+        )
     return d
 
 
@@ -283,7 +331,7 @@ def plain_json(e: ExportTransform) -> str:
 
 
 def _floats(o):
-    """numpy scalars as Python floats (yaml.safe_dump writes floats with repr: exact round trip)."""
+    """Numpy scalars as Python floats (yaml.safe_dump writes floats with repr: exact round trip)."""
     if isinstance(o, dict):
         return {k: _floats(v) for k, v in o.items()}
     if isinstance(o, (list, tuple)):

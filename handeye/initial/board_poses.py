@@ -1,4 +1,5 @@
 """Per-view board poses ``T_cam_board`` (solvePnP) and the corner ordering of symmetric boards."""
+
 from __future__ import annotations
 
 import itertools
@@ -32,11 +33,12 @@ def solve_pnp(object_points: np.ndarray, image_points: np.ndarray, intr: Intrins
     return T, reprojection_rms(object_points, image_points, T, intr)
 
 
-def reprojection_rms(object_points: np.ndarray, image_points: np.ndarray, T_cam_board: np.ndarray,
-                     intr: Intrinsics) -> float:
+def reprojection_rms(
+    object_points: np.ndarray, image_points: np.ndarray, T_cam_board: np.ndarray, intr: Intrinsics
+) -> float:
     """RMS (px) of the corner residuals of one view under ``T_cam_board``."""
     r = pixels_from_board_points(T_cam_board, object_points, intr) - image_points
-    return float(np.sqrt(np.mean(np.sum(r ** 2, axis=1))))
+    return float(np.sqrt(np.mean(np.sum(r**2, axis=1))))
 
 
 @dataclass(frozen=True)
@@ -49,8 +51,9 @@ class BoardPose:
     candidates: tuple = ()  # symmetric boards: T_cam_board under every admissible ordering (index = orientation)
 
 
-def board_poses(detections: Sequence[Detection], target: TargetSpec, intr: Intrinsics,
-                M: Mapping[str, np.ndarray]) -> dict[str, BoardPose]:
+def board_poses(
+    detections: Sequence[Detection], target: TargetSpec, intr: Intrinsics, M: Mapping[str, np.ndarray]
+) -> dict[str, BoardPose]:
     """Per-view ``T_cam_board``, with the corner ordering of symmetric boards made consistent.
 
     A symmetric board's detector ordering may be turned by 180 (or 90) degrees in some views. For
@@ -68,8 +71,9 @@ def board_poses(detections: Sequence[Detection], target: TargetSpec, intr: Intri
     cands: dict[str, list[tuple[np.ndarray, float, np.ndarray]]] = {}
     for d in detections:
         if ambiguous:
-            cands[d.view_id] = [(T, rms, d.corner_ids) for T, rms in planar_pose_pair(obj[d.corner_ids],
-                                                                                      d.image_points, intr)]
+            cands[d.view_id] = [
+                (T, rms, d.corner_ids) for T, rms in planar_pose_pair(obj[d.corner_ids], d.image_points, intr)
+            ]
             continue
         cands[d.view_id] = []
         for perm in syms:
@@ -83,21 +87,31 @@ def board_poses(detections: Sequence[Detection], target: TargetSpec, intr: Intri
         Cs = np.stack([[c[0] for c in cands[v]] for v in vids])  # (n,k,4,4)
         Ms = np.stack([M[v] for v in vids])
         lab = orientation_labels(candidate_invariants(Cs), Ms, turns=not ambiguous)
-        labels = dict(zip(vids, rotation_consistent_labels(Cs, Ms, lab) if ambiguous else lab))
-    return {vid: BoardPose(vid, cands[vid][c][0], cands[vid][c][1], c, cands[vid][c][2],
-                           tuple(t[0] for t in cands[vid]) if many else ()) for vid, c in labels.items()}
+        labels = dict(zip(vids, rotation_consistent_labels(Cs, Ms, lab) if ambiguous else lab, strict=False))
+    return {
+        vid: BoardPose(
+            vid,
+            cands[vid][c][0],
+            cands[vid][c][1],
+            c,
+            cands[vid][c][2],
+            tuple(t[0] for t in cands[vid]) if many else (),
+        )
+        for vid, c in labels.items()
+    }
 
 
 def planar_pose_pair(object_points: np.ndarray, image_points: np.ndarray, intr: Intrinsics) -> list:
     """Both poses ``[(T_cam_board, rms_px), ...]`` of the planar ambiguity (IPPE's two solutions, each refined
-    with Levenberg-Marquardt), the smaller reprojection error first; one entry when IPPE gives one."""
+    with Levenberg-Marquardt), the smaller reprojection error first; one entry when IPPE gives one.
+    """
     obj = object_points.astype(np.float64).reshape(-1, 1, 3)
     img = image_points.astype(np.float64).reshape(-1, 1, 2)
     n, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, img, intr.K, intr.dist_array, flags=cv2.SOLVEPNP_IPPE)
     if not n:
         return [solve_pnp(object_points, image_points, intr)]
     out = []
-    for rvec, tvec in zip(rvecs, tvecs):
+    for rvec, tvec in zip(rvecs, tvecs, strict=False):
         rvec, tvec = cv2.solvePnPRefineLM(obj, img, intr.K, intr.dist_array, rvec, tvec)
         T = make_T(cv2.Rodrigues(rvec)[0], tvec.reshape(3))
         out.append((T, reprojection_rms(object_points, image_points, T, intr)))
@@ -105,8 +119,9 @@ def planar_pose_pair(object_points: np.ndarray, image_points: np.ndarray, intr: 
     return out if len(out) == 2 else out + out  # always two candidates, so every view has the same count
 
 
-def rotation_consistent_labels(Cs: np.ndarray, Ms: np.ndarray, labels: np.ndarray, *, rounds: int = 5,
-                               max_triples: int = 300) -> np.ndarray:
+def rotation_consistent_labels(
+    Cs: np.ndarray, Ms: np.ndarray, labels: np.ndarray, *, rounds: int = 5, max_triples: int = 300
+) -> np.ndarray:
     """Candidate labels chosen by the rotations of the model ``C_i = A M_i B`` itself (hypothesise and verify).
 
     The pair invariants of :func:`orientation_labels` compare one number per pair and drown in the pose noise of
@@ -115,7 +130,8 @@ def rotation_consistent_labels(Cs: np.ndarray, Ms: np.ndarray, labels: np.ndarra
     rotation of A (their pair rotation axes map by R_A, Park and Martin) and of B (chordal mean); every view then
     takes its candidate nearest to the predicted ``R_A R_Mi R_B`` and the hypothesis scores the sum of those angles,
     each capped at 10 degrees so that a wrong robot pose counts as one bad view. The best hypothesis (the start
-    ``labels`` is one) is refined with all views until its labels are stable. ``Cs`` (n,k,4,4), ``Ms`` (n,4,4)."""
+    ``labels`` is one) is refined with all views until its labels are stable. ``Cs`` (n,k,4,4), ``Ms`` (n,4,4).
+    """
     n, k = Cs.shape[:2]
     R_M, R_Cs = Ms[:, :3, :3], Cs[..., :3, :3]
     cap = np.radians(10.0)
@@ -138,8 +154,11 @@ def rotation_consistent_labels(Cs: np.ndarray, Ms: np.ndarray, labels: np.ndarra
 
     best_lab, best_score = verify(*model(np.asarray(labels, int), np.arange(n)))
     rng = np.random.default_rng(0)
-    triples = np.array(list(itertools.combinations(range(n), 3))) if n <= 14 else \
-        np.sort(np.array([rng.choice(n, 3, replace=False) for _ in range(max_triples)]), axis=1)
+    triples = (
+        np.array(list(itertools.combinations(range(n), 3)))
+        if n <= 14
+        else np.sort(np.array([rng.choice(n, 3, replace=False) for _ in range(max_triples)]), axis=1)
+    )
     if len(triples) > max_triples:
         triples = triples[rng.choice(len(triples), max_triples, replace=False)]
     combos = np.array(list(np.ndindex(k, k, k)))
@@ -159,7 +178,8 @@ def rotation_consistent_labels(Cs: np.ndarray, Ms: np.ndarray, labels: np.ndarra
 
 def candidate_invariants(Cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Screw invariants (angle, pitch), each (n,k,n,k), of the camera pair motions for every ordering of
-    each view: ``Cs`` (n,k,4,4) is ``T_cam_board`` of view i under ordering a."""
+    each view: ``Cs`` (n,k,4,4) is ``T_cam_board`` of view i under ordering a.
+    """
     n, k = Cs.shape[:2]
     rel_C = Cs[:, :, None, None] @ inv_T(Cs)[None, None]  # (n,k,n,k,4,4)
     ang_C, pitch_C = screw_invariants(rel_C.reshape(-1, 4, 4))
@@ -171,7 +191,8 @@ def orientation_labels(inv_C: tuple[np.ndarray, np.ndarray], Ms: np.ndarray, *, 
     the robot motions ``Ms`` (n,4,4); ``inv_C`` from :func:`candidate_invariants`. With ``turns`` (the
     candidates are turns of a symmetric board) the detector's own order is kept for the majority (turning
     every view alike only changes the board frame); without (the two poses of a planar ambiguity) the
-    labels are kept as they are."""
+    labels are kept as they are.
+    """
     ang_C, pitch_C = inv_C
     n, k = ang_C.shape[:2]
     # robot relative-motion invariants for all pairs

@@ -16,6 +16,7 @@ calibrateRobotWorldHandEye base2grip.  ``M_i``
 ... output ``base2world``              ``inv(B)``
 =====================================  ======================================================
 """
+
 from __future__ import annotations
 
 from typing import Mapping
@@ -57,18 +58,28 @@ def solve_closed_form(mode: MountingMode, C: np.ndarray, M: np.ndarray, *, metho
         raise CalibrationError(f"unknown method {method!r}", expected=" | ".join(METHODS), code="unknown_method")
     if method in HAND_EYE_METHODS:
         G = inv_T(M)  # "gripper2base"
-        R, t = cv2.calibrateHandEye(list(G[:, :3, :3]), list(G[:, :3, 3]), list(C[:, :3, :3]), list(C[:, :3, 3]),
-                                    method=HAND_EYE_METHODS[method])
+        R, t = cv2.calibrateHandEye(
+            list(G[:, :3, :3]),
+            list(G[:, :3, 3]),
+            list(C[:, :3, :3]),
+            list(C[:, :3, 3]),
+            method=HAND_EYE_METHODS[method],
+        )
         X = make_T(R, t.reshape(3))  # "cam2gripper" = inv(A)
         if not np.all(np.isfinite(X)):
-            return HandEyeEstimate(mode.name, method, np.eye(4), np.eye(4), "failed",
-                                   "solver returned non-finite values")
+            return HandEyeEstimate(
+                mode.name, method, np.eye(4), np.eye(4), "failed", "solver returned non-finite values"
+            )
         A = inv_T(X)
         B = mean_T(inv_T(A @ M) @ C)
     else:
         R_bw, t_bw, R_gc, t_gc = cv2.calibrateRobotWorldHandEye(
-            list(C[:, :3, :3]), list(C[:, :3, 3]), list(M[:, :3, :3]), list(M[:, :3, 3]),
-            method=ROBOT_WORLD_METHODS[method])
+            list(C[:, :3, :3]),
+            list(C[:, :3, 3]),
+            list(M[:, :3, :3]),
+            list(M[:, :3, 3]),
+            method=ROBOT_WORLD_METHODS[method],
+        )
         A = make_T(R_gc, t_gc.reshape(3))  # "gripper2cam"
         B = inv_T(make_T(R_bw, t_bw.reshape(3)))  # inv("base2world")
         X = inv_T(A)
@@ -76,8 +87,14 @@ def solve_closed_form(mode: MountingMode, C: np.ndarray, M: np.ndarray, *, metho
         return HandEyeEstimate(mode.name, method, np.eye(4), np.eye(4), "failed", "solver returned non-finite values")
     if not (is_rotation(X[:3, :3], tol=1e-4) and is_rotation(B[:3, :3], tol=1e-4)):
         # e.g. Andreff/Li on inconsistent data can return a reflection: not a usable result
-        return HandEyeEstimate(mode.name, method, np.eye(4), np.eye(4), "failed",
-                               "solver returned a matrix that is not a rotation (data inconsistent with the model)")
+        return HandEyeEstimate(
+            mode.name,
+            method,
+            np.eye(4),
+            np.eye(4),
+            "failed",
+            "solver returned a matrix that is not a rotation (data inconsistent with the model)",
+        )
     return HandEyeEstimate(mode.name, method, X, B)
 
 
@@ -93,15 +110,21 @@ def all_methods(mode: MountingMode, C: np.ndarray, M: np.ndarray) -> dict[str, H
     return out
 
 
-def chain_residuals(est: HandEyeEstimate, mode: MountingMode, obj: np.ndarray, poses: Mapping[str, BoardPose],
-                    detections: Mapping[str, Detection], T_base_end: Mapping[str, np.ndarray],
-                    intr: Intrinsics) -> dict[str, tuple[float, float]]:
+def chain_residuals(
+    est: HandEyeEstimate,
+    mode: MountingMode,
+    obj: np.ndarray,
+    poses: Mapping[str, BoardPose],
+    detections: Mapping[str, Detection],
+    T_base_end: Mapping[str, np.ndarray],
+    intr: Intrinsics,
+) -> dict[str, tuple[float, float]]:
     """Per view (rms_px, max_px) of the corners predicted through robot pose + hand-eye + board."""
     out = {}
     for vid, bp in poses.items():
         C = mode.predict_T_cam_board(est.T_x, est.T_board, T_base_end[vid])
         r = np.linalg.norm(pixels_from_board_points(C, obj[bp.corner_ids], intr) - detections[vid].image_points, axis=1)
-        out[vid] = (float(np.sqrt(np.mean(r ** 2))), float(r.max()))
+        out[vid] = (float(np.sqrt(np.mean(r**2))), float(r.max()))
     return out
 
 

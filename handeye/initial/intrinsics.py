@@ -1,4 +1,5 @@
 """Camera intrinsics from the detected views: OpenCV's calibrateCamera (5-coefficient model)."""
+
 from __future__ import annotations
 
 from typing import Sequence
@@ -11,23 +12,37 @@ from ..errors import CalibrationError, DetectionError
 from ..records import Detection
 
 
-def calibrate_intrinsics(detections: Sequence[Detection], object_points: np.ndarray, *,
-                         fix_k3: bool = False) -> tuple[Intrinsics, float]:
+def calibrate_intrinsics(
+    detections: Sequence[Detection], object_points: np.ndarray, *, fix_k3: bool = False
+) -> tuple[Intrinsics, float]:
     """OpenCV calibrateCamera (5-coefficient model) on the detected views: (intrinsics, rms_px).
 
     ``object_points`` (M,3) are the target's points in the board frame, indexed by the detections'
     ``corner_ids``.
     """
     if len(detections) < 3:
-        raise DetectionError(f"only {len(detections)} views with a detected target; calibrating the camera needs 3+",
-                             hint="capture more views with the whole board visible", code="target_not_found")
+        raise DetectionError(
+            f"only {len(detections)} views with a detected target; calibrating the camera needs 3+",
+            hint="capture more views with the whole board visible",
+            code="target_not_found",
+        )
     obj = [object_points[d.corner_ids].astype(np.float32) for d in detections]
     img = [d.image_points.astype(np.float32).reshape(-1, 1, 2) for d in detections]
     w, h = detections[0].image_size
     flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
-    rms, K, dist, _, _ = cv2.calibrateCamera(obj, img, (int(w), int(h)), None, None, flags=flags,
-                                             criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12))
+    rms, K, dist, _, _ = cv2.calibrateCamera(
+        obj,
+        img,
+        (int(w), int(h)),
+        None,
+        None,
+        flags=flags,
+        criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12),
+    )
     if not np.all(np.isfinite(K)) or K[0, 0] <= 0:
-        raise CalibrationError("camera calibration failed", hint="check the board size in the config and the images",
-                               code="camera_calibration_failed")
+        raise CalibrationError(
+            "camera calibration failed",
+            hint="check the board size in the config and the images",
+            code="camera_calibration_failed",
+        )
     return Intrinsics.from_K(K, dist, w, h), float(rms)

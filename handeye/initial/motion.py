@@ -6,6 +6,7 @@ the one computation of that coverage, used by the pipeline (to stop), the diagno
 and the simulator/planner (to check a plan). Its thresholds live in configs/calibration.yaml
 (``motion:``) and nowhere else.
 """
+
 from __future__ import annotations
 
 import functools
@@ -54,7 +55,8 @@ class MotionQuality:
 
 def _rotation_axes(M: np.ndarray):
     """Largest relative rotation (deg) and the eigen-decomposition (ascending) of the weighted
-    scatter of the relative rotation vectors over all pairs ``M_i M_j^-1``."""
+    scatter of the relative rotation vectors over all pairs ``M_i M_j^-1``.
+    """
     n = len(M)
     iu, ju = np.triu_indices(n, 1)
     rv = rotvec_from_R((M[iu] @ inv_T(M[ju]))[:, :3, :3])  # shape (P, 3)
@@ -64,8 +66,9 @@ def _rotation_axes(M: np.ndarray):
     return float(np.degrees(ang.max())), evals, evecs
 
 
-def motion_quality(M: np.ndarray, *, frame: str, min_rotation_deg: Optional[float] = None,
-                   min_axis_spread_deg: Optional[float] = None) -> MotionQuality:
+def motion_quality(
+    M: np.ndarray, *, frame: str, min_rotation_deg: Optional[float] = None, min_axis_spread_deg: Optional[float] = None
+) -> MotionQuality:
     """Rotation coverage of the robot motions ``M`` (N,4,4) for the hand-eye problem.
 
     ``frame`` names the frame the axes are expressed in (for the message). A threshold left at None
@@ -78,23 +81,48 @@ def motion_quality(M: np.ndarray, *, frame: str, min_rotation_deg: Optional[floa
     n = len(M)
     gates = dict(min_rotation_deg=min_rot, min_axis_spread_deg=min_spread)
     if n < 3:
-        return MotionQuality(n, 0.0, 0.0, np.zeros(3), np.eye(3)[:2], "degenerate",
-                             f"only {n} usable views; the hand-eye solution needs at least 3 (10-20 recommended)",
-                             "too_few_views", **gates)
+        return MotionQuality(
+            n,
+            0.0,
+            0.0,
+            np.zeros(3),
+            np.eye(3)[:2],
+            "degenerate",
+            f"only {n} usable views; the hand-eye solution needs at least 3 (10-20 recommended)",
+            "too_few_views",
+            **gates,
+        )
     max_deg, evals, evecs = _rotation_axes(M)
     main = evecs[:, 2]
     spread = float(np.degrees(np.arctan2(np.sqrt(max(evals[1], 0)), np.sqrt(max(evals[2], 1e-30)))))
     weak = evecs[:, :2].T
     if max_deg < min_rot:
-        return MotionQuality(n, max_deg, spread, main, weak, "degenerate",
-                             f"the robot rotates at most {max_deg:.1f} deg between views (needs {min_rot:g}); add "
-                             f"views tilted by 20-45 deg about two different axes of the {frame} frame",
-                             "motion_small_rotation", **gates)
+        return MotionQuality(
+            n,
+            max_deg,
+            spread,
+            main,
+            weak,
+            "degenerate",
+            f"the robot rotates at most {max_deg:.1f} deg between views (needs {min_rot:g}); add "
+            f"views tilted by 20-45 deg about two different axes of the {frame} frame",
+            "motion_small_rotation",
+            **gates,
+        )
     if spread < min_spread:
-        return MotionQuality(n, max_deg, spread, main, weak, "degenerate",
-                             f"all rotations are about one axis ({_vec_text(main)} in the {frame} frame, spread "
-                             f"{spread:.1f} deg, needs {min_spread:g}); add views rotated 20-45 deg about "
-                             f"{_vec_text(weak[1])} and {_vec_text(weak[0])}", "motion_one_axis", **gates)
+        return MotionQuality(
+            n,
+            max_deg,
+            spread,
+            main,
+            weak,
+            "degenerate",
+            f"all rotations are about one axis ({_vec_text(main)} in the {frame} frame, spread "
+            f"{spread:.1f} deg, needs {min_spread:g}); add views rotated 20-45 deg about "
+            f"{_vec_text(weak[1])} and {_vec_text(weak[0])}",
+            "motion_one_axis",
+            **gates,
+        )
     return MotionQuality(n, max_deg, spread, main, weak, "ok", "", "", **gates)
 
 
@@ -108,7 +136,8 @@ def _vec_text(a: np.ndarray) -> str:
 
 def axis_text(a: np.ndarray, frame: str) -> str:
     """A direction in words: ``the base z axis [+0.00, +0.00, +1.00]`` when it is close to a frame
-    axis (within ~25 deg), else ``[...] in the base frame``."""
+    axis (within ~25 deg), else ``[...] in the base frame``.
+    """
     a = np.asarray(a, float) / max(float(np.linalg.norm(a)), 1e-12)
     a = a if a[np.argmax(np.abs(a))] >= 0 else -a
     k = int(np.argmax(np.abs(a)))
@@ -121,7 +150,8 @@ def rotations_to_add(M: np.ndarray, frame: str, *, R: Optional[np.ndarray] = Non
     """The axes the relative robot rotations lack, in words (``R`` maps them into another frame).
 
     When the two least-rotated directions are about equally weak (all rotations about one axis), any
-    two axes across the main axis will do: name the frame's axes closest to that plane."""
+    two axes across the main axis will do: name the frame's axes closest to that plane.
+    """
     ev, V = _rotation_axes(np.asarray(M, float))[1:]
     if R is not None:
         V = R @ V
@@ -130,8 +160,11 @@ def rotations_to_add(M: np.ndarray, frame: str, *, R: Optional[np.ndarray] = Non
         k = int(np.argmax(np.abs(main)))
         if abs(main[k]) > 0.9:
             a, b = [name for m, name in enumerate("xyz") if m != k]
-            return (f"the {frame} {a} axis and the {frame} {b} axis "
-                    f"(across the {frame} {'xyz'[k]} axis, the only one used)")
-        return (f"two axes across {axis_text(main, frame)} (the only one used), e.g. {axis_text(weak1, frame)} and "
-                f"{axis_text(weak2, frame)}")
+            return (
+                f"the {frame} {a} axis and the {frame} {b} axis (across the {frame} {'xyz'[k]} axis, the only one used)"
+            )
+        return (
+            f"two axes across {axis_text(main, frame)} (the only one used), e.g. {axis_text(weak1, frame)} and "
+            f"{axis_text(weak2, frame)}"
+        )
     return axis_text(weak1, frame)

@@ -42,6 +42,7 @@ Two results are comparable only when they describe the same quantity: the same m
 the same frame of X), the same target and the same image size. Otherwise :func:`compare_results`
 returns ``comparable=False`` with ``reason`` naming the difference.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -67,7 +68,8 @@ class Comparison:
     """``X_b`` against ``X_a``. Translations: ``t_b - t_a`` along the parent frame's axes (mm);
     rotations: ``rotvec(R_a^T R_b)`` about the camera axes of ``X_a`` (deg); ``xi``: the tangent
     difference the test uses; ``intrinsics``: per name ``{a, b, diff, sigma, z}`` and ``mahalanobis2``,
-    ``dof``, ``p_value``, ``drifted`` (absent when neither result has intrinsics sigmas)."""
+    ``dof``, ``p_value``, ``drifted`` (absent when neither result has intrinsics sigmas).
+    """
 
     comparable: bool
     reason: str
@@ -97,29 +99,62 @@ class Comparison:
     robot_noise_dof: Optional[float] = None
 
     def to_dict(self) -> dict:
-        return plain({
-            "comparable": self.comparable, "reason": self.reason, "frame": self.frame,
-            "d_trans_mm": self.d_trans_mm, "d_rot_deg": self.d_rot_deg, "trans_mm": self.trans_mm,
-            "rot_deg": self.rot_deg, "sigma_trans_mm": self.sigma_trans_mm, "sigma_rot_deg": self.sigma_rot_deg,
-            "mahalanobis2": self.mahalanobis2, "dof": 6, "p_value": self.p_value, "alpha": self.alpha,
-            "drifted": self.drifted, "intrinsics": self.intrinsics, "xi_rad_m": self.xi,
-            "xi_definition": "Log(inv(X_a) X_b): rotation (rad) then translation (m), along the camera axes of X_a",
-            "d_trans_definition": "t_b - t_a along the parent frame's axes (mm)",
-            "d_rot_definition": "rotation vector of R_a^T R_b about the camera axes of X_a (deg)",
-            "results": list(self.sources), "covariances": list(self.cov_sources), "note": self.note,
-            "test": self.test, "mahalanobis2_x_alone": self.mahalanobis2_x_alone,
-            "p_value_x_alone": self.p_value_x_alone, "explained_by_intrinsics_trans_mm": self.explained_trans_mm,
-            "explained_by_intrinsics_rot_deg": self.explained_rot_deg, "robot_noise_dof": self.robot_noise_dof,
-            "reference": None if not self.comparable else "chi-square(6)" if self.robot_noise_dof is None else
-            f"6 F(6, {self.robot_noise_dof:.0f}) (the robot noise levels estimated)"},
-            nan_to_none=True)
+        return plain(
+            {
+                "comparable": self.comparable,
+                "reason": self.reason,
+                "frame": self.frame,
+                "d_trans_mm": self.d_trans_mm,
+                "d_rot_deg": self.d_rot_deg,
+                "trans_mm": self.trans_mm,
+                "rot_deg": self.rot_deg,
+                "sigma_trans_mm": self.sigma_trans_mm,
+                "sigma_rot_deg": self.sigma_rot_deg,
+                "mahalanobis2": self.mahalanobis2,
+                "dof": 6,
+                "p_value": self.p_value,
+                "alpha": self.alpha,
+                "drifted": self.drifted,
+                "intrinsics": self.intrinsics,
+                "xi_rad_m": self.xi,
+                "xi_definition": "Log(inv(X_a) X_b): rotation (rad) then translation (m), along the camera axes of X_a",
+                "d_trans_definition": "t_b - t_a along the parent frame's axes (mm)",
+                "d_rot_definition": "rotation vector of R_a^T R_b about the camera axes of X_a (deg)",
+                "results": list(self.sources),
+                "covariances": list(self.cov_sources),
+                "note": self.note,
+                "test": self.test,
+                "mahalanobis2_x_alone": self.mahalanobis2_x_alone,
+                "p_value_x_alone": self.p_value_x_alone,
+                "explained_by_intrinsics_trans_mm": self.explained_trans_mm,
+                "explained_by_intrinsics_rot_deg": self.explained_rot_deg,
+                "robot_noise_dof": self.robot_noise_dof,
+                "reference": None
+                if not self.comparable
+                else "chi-square(6)"
+                if self.robot_noise_dof is None
+                else f"6 F(6, {self.robot_noise_dof:.0f}) (the robot noise levels estimated)",
+            },
+            nan_to_none=True,
+        )
 
 
 def not_comparable(reason: str, frame: str = "", *, alpha: float = ALPHA, sources: tuple = ()) -> Comparison:
     nan3 = np.full(3, np.nan)
-    return Comparison(comparable=False, reason=reason, frame=frame, d_trans_mm=nan3, d_rot_deg=nan3,
-                      trans_mm=float("nan"), rot_deg=float("nan"), mahalanobis2=float("nan"),
-                      p_value=float("nan"), drifted=False, alpha=alpha, sources=sources)
+    return Comparison(
+        comparable=False,
+        reason=reason,
+        frame=frame,
+        d_trans_mm=nan3,
+        d_rot_deg=nan3,
+        trans_mm=float("nan"),
+        rot_deg=float("nan"),
+        mahalanobis2=float("nan"),
+        p_value=float("nan"),
+        drifted=False,
+        alpha=alpha,
+        sources=sources,
+    )
 
 
 def why_not_comparable(a: LoadedResult, b: LoadedResult) -> str:
@@ -134,8 +169,10 @@ def why_not_comparable(a: LoadedResult, b: LoadedResult) -> str:
     if a.target != b.target:
         return f"boards differ: A used {_target_text(a.target)}, B used {_target_text(b.target)}"
     if a.image_size and b.image_size and a.image_size != b.image_size:
-        return (f"camera resolutions differ: A is {a.image_size[0]}x{a.image_size[1]}, "
-                f"B is {b.image_size[0]}x{b.image_size[1]}")
+        return (
+            f"camera resolutions differ: A is {a.image_size[0]}x{a.image_size[1]}, "
+            f"B is {b.image_size[0]}x{b.image_size[1]}"
+        )
     for r, name in ((a, "A"), (b, "B")):
         if r.cov_x is None:
             return f"result {name} has no covariance of {r.x_name} (calibrated without the refinement)"
@@ -145,13 +182,20 @@ def why_not_comparable(a: LoadedResult, b: LoadedResult) -> str:
 def _target_text(t) -> str:
     if not isinstance(t, dict):
         return "an unknown board"
-    return " ".join(f"{k}={v}" for k, v in t.items() if k in ("type", "inner_corners", "squares", "grid", "square_m",
-                                                               "marker_m", "spacing_m", "dictionary")) or str(t)[:60]
+    return (
+        " ".join(
+            f"{k}={v}"
+            for k, v in t.items()
+            if k in ("type", "inner_corners", "squares", "grid", "square_m", "marker_m", "spacing_m", "dictionary")
+        )
+        or str(t)[:60]
+    )
 
 
 def x_difference(T_a: np.ndarray, cov_a: np.ndarray, T_b: np.ndarray, cov_b: np.ndarray) -> dict:
     """The tangent difference ``xi`` (6,), its covariance ``S`` (6,6) (``cov_b`` moved into ``T_a``'s
-    tangent), ``d2 = xi^T S^-1 xi`` and the derived per-axis forms (see the module docstring)."""
+    tangent), ``d2 = xi^T S^-1 xi`` and the derived per-axis forms (see the module docstring).
+    """
     xi = tangent_difference(T_a, T_b)
     Ad = se3_adjoint(inv_T(T_a) @ T_b)
     S = np.asarray(cov_a, float) + Ad @ np.asarray(cov_b, float) @ Ad.T
@@ -160,17 +204,22 @@ def x_difference(T_a: np.ndarray, cov_a: np.ndarray, T_b: np.ndarray, cov_b: np.
     R_a = T_a[:3, :3]
     # translation t_b - t_a = R_a · (J v) ~ R_a v to first order: its covariance R_a S_vv R_a^T
     cov_t = R_a @ S[3:, 3:] @ R_a.T
-    return {"xi": xi, "S": S, "d2": d2,
-            "d_trans_mm": 1000.0 * (T_b[:3, 3] - T_a[:3, 3]),
-            "d_rot_deg": np.degrees(rotvec_from_R(R_a.T @ T_b[:3, :3])),
-            "sigma_trans_mm": 1000.0 * np.sqrt(np.diag(cov_t)),
-            "sigma_rot_deg": np.degrees(np.sqrt(np.diag(S[:3, :3])))}
+    return {
+        "xi": xi,
+        "S": S,
+        "d2": d2,
+        "d_trans_mm": 1000.0 * (T_b[:3, 3] - T_a[:3, 3]),
+        "d_rot_deg": np.degrees(rotvec_from_R(R_a.T @ T_b[:3, :3])),
+        "sigma_trans_mm": 1000.0 * np.sqrt(np.diag(cov_t)),
+        "sigma_rot_deg": np.degrees(np.sqrt(np.diag(S[:3, :3]))),
+    }
 
 
 def x_given_intrinsics(a: LoadedResult, b: LoadedResult, d: dict) -> Optional[dict]:
     """The test of X given the intrinsics difference (see the module docstring) on the difference ``d`` of
     :func:`x_difference`: ``{"d2", "explained" (6,): G dk}``; None when either result lacks the joint
-    covariance or their free intrinsics differ."""
+    covariance or their free intrinsics differ.
+    """
     ja, jb = a.x_on_intrinsics, b.x_on_intrinsics
     if ja is None or jb is None or tuple(ja[0]) != tuple(jb[0]) or a.intrinsics is None or b.intrinsics is None:
         return None
@@ -194,7 +243,8 @@ def x_given_intrinsics(a: LoadedResult, b: LoadedResult, d: dict) -> Optional[di
 
 def intrinsics_difference(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) -> dict:
     """Per intrinsic (fx, fy, cx, cy) ``{a, b, diff, sigma, z}`` and the diagonal chi-square test over
-    those with a sigma; {} when either result has no intrinsics."""
+    those with a sigma; {} when either result has no intrinsics.
+    """
     if a.intrinsics is None or b.intrinsics is None:
         return {}
     full = _intrinsics_joint_test(a, b, alpha)
@@ -212,16 +262,27 @@ def intrinsics_difference(a: LoadedResult, b: LoadedResult, *, alpha: float = AL
         out.update(full)
     elif dof:
         p = float(stats.chi2.sf(d2, dof))
-        out.update(mahalanobis2=d2, dof=dof, p_value=p, drifted=bool(p < alpha),
-                   test="diagonal: the results store the intrinsics' sigmas, not their correlations")
+        out.update(
+            mahalanobis2=d2,
+            dof=dof,
+            p_value=p,
+            drifted=bool(p < alpha),
+            test="diagonal: the results store the intrinsics' sigmas, not their correlations",
+        )
     return out
 
 
 def _intrinsics_joint_test(a: LoadedResult, b: LoadedResult, alpha: float) -> Optional[dict]:
     """The test of (fx, fy, cx, cy) under the sum of the two results' full covariances of them (the joint
-    covariance carried to the verdict: fx and fy move together), when both carry it for all four."""
+    covariance carried to the verdict: fx and fy move together), when both carry it for all four.
+    """
     ja, jb = a.cov_x_intrinsics, b.cov_x_intrinsics
-    if ja is None or jb is None or not set(INTRINSICS_COMPARED) <= set(ja[0]) or not set(INTRINSICS_COMPARED) <= set(jb[0]):
+    if (
+        ja is None
+        or jb is None
+        or not set(INTRINSICS_COMPARED) <= set(ja[0])
+        or not set(INTRINSICS_COMPARED) <= set(jb[0])
+    ):
         return None
     ia, ib = ([list(j[0]).index(n) for n in INTRINSICS_COMPARED] for j in (ja, jb))
     S = ja[2][np.ix_(ia, ia)] + jb[2][np.ix_(ib, ib)]
@@ -231,8 +292,13 @@ def _intrinsics_joint_test(a: LoadedResult, b: LoadedResult, alpha: float) -> Op
     except np.linalg.LinAlgError:
         return None
     p = float(stats.chi2.sf(d2, len(dk)))
-    return dict(mahalanobis2=d2, dof=len(dk), p_value=p, drifted=bool(p < alpha),
-                test="full covariance of fx, fy, cx, cy (with their correlations)")
+    return dict(
+        mahalanobis2=d2,
+        dof=len(dk),
+        p_value=p,
+        drifted=bool(p < alpha),
+        test="full covariance of fx, fy, cx, cy (with their correlations)",
+    )
 
 
 def compare_loaded(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) -> Comparison:
@@ -251,22 +317,40 @@ def compare_loaded(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) ->
         d2 = g["d2"]
         p = wald_p_value(d2, 6, nu)
         e = g["explained"]
-        extra.update(test="X given the intrinsics difference",
-                     explained_trans_mm=float(1000.0 * np.linalg.norm(a.T_x[:3, :3] @ e[3:])),
-                     explained_rot_deg=float(np.degrees(np.linalg.norm(e[:3]))))
-    return Comparison(comparable=True, reason="", frame=a.x_name, d_trans_mm=d["d_trans_mm"],
-                      d_rot_deg=d["d_rot_deg"], trans_mm=float(np.linalg.norm(d["d_trans_mm"])),
-                      rot_deg=float(np.linalg.norm(d["d_rot_deg"])), mahalanobis2=d2, p_value=p,
-                      drifted=bool(p < alpha), intrinsics=intrinsics_difference(a, b, alpha=alpha), alpha=alpha,
-                      xi=d["xi"], sigma_trans_mm=d["sigma_trans_mm"], sigma_rot_deg=d["sigma_rot_deg"],
-                      sources=sources, cov_sources=(a.cov_source, b.cov_source), note=_dependence_note(a, b),
-                      robot_noise_dof=nu, **extra)
+        extra.update(
+            test="X given the intrinsics difference",
+            explained_trans_mm=float(1000.0 * np.linalg.norm(a.T_x[:3, :3] @ e[3:])),
+            explained_rot_deg=float(np.degrees(np.linalg.norm(e[:3]))),
+        )
+    return Comparison(
+        comparable=True,
+        reason="",
+        frame=a.x_name,
+        d_trans_mm=d["d_trans_mm"],
+        d_rot_deg=d["d_rot_deg"],
+        trans_mm=float(np.linalg.norm(d["d_trans_mm"])),
+        rot_deg=float(np.linalg.norm(d["d_rot_deg"])),
+        mahalanobis2=d2,
+        p_value=p,
+        drifted=bool(p < alpha),
+        intrinsics=intrinsics_difference(a, b, alpha=alpha),
+        alpha=alpha,
+        xi=d["xi"],
+        sigma_trans_mm=d["sigma_trans_mm"],
+        sigma_rot_deg=d["sigma_rot_deg"],
+        sources=sources,
+        cov_sources=(a.cov_source, b.cov_source),
+        note=_dependence_note(a, b),
+        robot_noise_dof=nu,
+        **extra,
+    )
 
 
 def noise_dof(a: LoadedResult, S: np.ndarray, b: LoadedResult) -> Optional[float]:
     """Degrees of freedom of the covariance ``S = S_a + Ad S_b Ad^T`` of the difference when the results
     estimated their robot noise (:attr:`~handeye.recal.loaded.LoadedResult.robot_noise_dof`): Satterthwaite's,
-    each result's share of ``S`` its average over the six whitened directions; None when neither did."""
+    each result's share of ``S`` its average over the six whitened directions; None when neither did.
+    """
     nu_a, nu_b = a.robot_noise_dof, b.robot_noise_dof
     if nu_a is None and nu_b is None:
         return None
@@ -279,25 +363,37 @@ def noise_dof(a: LoadedResult, S: np.ndarray, b: LoadedResult) -> Optional[float
 def _dependence_note(a: LoadedResult, b: LoadedResult) -> str:
     """A warning when a result was calibrated with an earlier one as its prior (the two are then not
     independent, and the test's p-value is too large), or, after a contradicted prior, with the earlier
-    intrinsics (and board pose) as priors; the stronger tie first."""
+    intrinsics (and board pose) as priors; the stronger tie first.
+    """
     blocks = [(name, r.raw.get("prior") or {}) for r, name in ((a, "A"), (b, "B"))]
     for name, prior in blocks:
         if prior.get("used") == "prior":
-            return (f"result {name} was calibrated with {prior.get('source')} as its prior: the two are not "
-                    "independent and the p-value is too large")
+            return (
+                f"result {name} was calibrated with {prior.get('source')} as its prior: the two are not "
+                "independent and the p-value is too large"
+            )
     for name, prior in blocks:  # a contradicted prior: what of the earlier result stayed a prior
-        kept = [w for w, yes in (("intrinsics", str(prior.get("intrinsics", "")).startswith("the prior's")),
-                                 ("board pose", bool(prior.get("board_prior")))) if yes]
+        kept = [
+            w
+            for w, yes in (
+                ("intrinsics", str(prior.get("intrinsics", "")).startswith("the prior's")),
+                ("board pose", bool(prior.get("board_prior"))),
+            )
+            if yes
+        ]
         if prior.get("source") and kept:
-            return (f"result {name} was calibrated with the {' and '.join(kept)} of {prior.get('source')} as priors: "
-                    "the two are not independent")
+            return (
+                f"result {name} was calibrated with the {' and '.join(kept)} of {prior.get('source')} as priors: "
+                "the two are not independent"
+            )
     return ""
 
 
 def compare_results(a: ResultLike, b: ResultLike, *, alpha: float = ALPHA) -> Comparison:
     """Compare result ``b`` with result ``a`` (each a result folder, a result.json path or the loaded
     dict). Unreadable files raise :class:`~handeye.errors.InputError`; results that do not describe one
-    quantity give ``comparable=False`` and the ``reason``."""
+    quantity give ``comparable=False`` and the ``reason``.
+    """
     return compare_loaded(load_result(a), load_result(b), alpha=alpha)
 
 
@@ -306,26 +402,41 @@ def comparison_lines(c: Comparison) -> list[str]:
     if not c.comparable:
         return [f"not comparable: {c.reason}"]
     ax = "xyz"
-    lines = [f"{c.frame}: B - A ({axes_words(c.frame)})",
-             f"  {'axis':<6}{'d [mm]':>10}{'sigma':>9}   {'d [deg]':>10}{'sigma':>9}"]
+    lines = [
+        f"{c.frame}: B - A ({axes_words(c.frame)})",
+        f"  {'axis':<6}{'d [mm]':>10}{'sigma':>9}   {'d [deg]':>10}{'sigma':>9}",
+    ]
     for k in range(3):
-        lines.append(f"  {ax[k]:<6}{c.d_trans_mm[k]:>10.3f}{c.sigma_trans_mm[k]:>9.3f}   "
-                     f"{c.d_rot_deg[k]:>10.4f}{c.sigma_rot_deg[k]:>9.4f}")
+        lines.append(
+            f"  {ax[k]:<6}{c.d_trans_mm[k]:>10.3f}{c.sigma_trans_mm[k]:>9.3f}   "
+            f"{c.d_rot_deg[k]:>10.4f}{c.sigma_rot_deg[k]:>9.4f}"
+        )
     lines.append(f"  {'norm':<6}{c.trans_mm:>10.3f}{'':>9}   {c.rot_deg:>10.4f}")
     if c.test != "X alone":
-        lines.append(f"  the intrinsics difference explains {c.explained_trans_mm:.3f} mm, {c.explained_rot_deg:.4f} deg "
-                     f"of it (X alone: Mahalanobis^2 {c.mahalanobis2_x_alone:.2f}, p = {c.p_value_x_alone:.3g})")
-    lines.append(f"  {c.test}: Mahalanobis^2 {c.mahalanobis2:.2f} (6 dof), p = {c.p_value:.3g}: "
-                 + ("DRIFTED" if c.drifted else "same within the uncertainty") + f" at {c.alpha:g}")
+        lines.append(
+            f"  the intrinsics difference explains {c.explained_trans_mm:.3f} mm, {c.explained_rot_deg:.4f} deg "
+            f"of it (X alone: Mahalanobis^2 {c.mahalanobis2_x_alone:.2f}, p = {c.p_value_x_alone:.3g})"
+        )
+    lines.append(
+        f"  {c.test}: Mahalanobis^2 {c.mahalanobis2:.2f} (6 dof), p = {c.p_value:.3g}: "
+        + ("DRIFTED" if c.drifted else "same within the uncertainty")
+        + f" at {c.alpha:g}"
+    )
     if c.note:
         lines.append(f"  note: {c.note}")
     it = c.intrinsics
     if it:
-        lines.append("intrinsics: " + ", ".join(
-            f"{n} {it[n]['diff']:+.2f} px" + (f" (z {it[n]['z']:+.1f})" if np.isfinite(it[n]['z']) else "")
-            for n in INTRINSICS_COMPARED if n in it))
+        lines.append(
+            "intrinsics: "
+            + ", ".join(
+                f"{n} {it[n]['diff']:+.2f} px" + (f" (z {it[n]['z']:+.1f})" if np.isfinite(it[n]["z"]) else "")
+                for n in INTRINSICS_COMPARED
+                if n in it
+            )
+        )
         if "p_value" in it:
-            lines.append(f"  Mahalanobis^2 {it['mahalanobis2']:.2f} ({it['dof']} dof), p = {it['p_value']:.3g}: "
-                         + ("CHANGED (the exit code follows the test of X)" if it["drifted"]
-                            else "same within the uncertainty"))
+            lines.append(
+                f"  Mahalanobis^2 {it['mahalanobis2']:.2f} ({it['dof']} dof), p = {it['p_value']:.3g}: "
+                + ("CHANGED (the exit code follows the test of X)" if it["drifted"] else "same within the uncertainty")
+            )
     return lines

@@ -14,6 +14,7 @@ canonical correlations between the two kept, so that a test never mixes the verd
 the model's smaller intrinsics uncertainty. A kinematic install's DH offsets (estimate and covariance with both, in the same
 block of result.json) are read with it: verify shares them with the new views.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -74,7 +75,8 @@ class LoadedResult:
     def with_board_turned(self, H: np.ndarray) -> "LoadedResult":
         """This result with its board frame moved by ``H`` (4,4): ``T_board H``, and the board's covariance
         carried along (right tangent: ``Ad(H^-1)``). A symmetric board numbered from another corner in a later
-        session has its frame turned so (:func:`handeye.diagnose.consistency.board_turns`); X does not change."""
+        session has its frame turned so (:func:`handeye.diagnose.consistency.board_turns`); X does not change.
+        """
         from dataclasses import replace
 
         from ..frames import inv_T, se3_adjoint
@@ -90,7 +92,8 @@ class LoadedResult:
     @property
     def cov_x_given_intrinsics(self) -> Optional[np.ndarray]:
         """(6,6) the covariance of X were its intrinsics known: ``cov_x - C K^-1 C^T`` with the joint covariance
-        (the installed uncertainty a verification that shares these intrinsics faces); ``cov_x`` without it."""
+        (the installed uncertainty a verification that shares these intrinsics faces); ``cov_x`` without it.
+        """
         if self.cov_x is None or self.cov_x_intrinsics is None:
             return self.cov_x
         _, C, K = self.cov_x_intrinsics
@@ -106,7 +109,8 @@ class LoadedResult:
         which understates them). None when it estimated none (the noise stated, a pose-only result, a refinement
         without the outlier loop, whose sigmas are robust estimates, or an older result).
         On simulated 20-view installs: about 50 eye-in-hand (rotation 50, translation 16) and 75 eye-to-hand; a
-        widened DH prior (10-17 degrees of freedom) brings a kinematic install's to about 40-60."""
+        widened DH prior (10-17 degrees of freedom) brings a kinematic install's to about 40-60.
+        """
         d = (self.raw.get("refinement") or {}).get("robot_noise_dof")
         vals = [_float(v) for v in d.values()] if isinstance(d, dict) else []
         vals = [v for v in vals if v is not None and v > 0]
@@ -121,7 +125,8 @@ class LoadedResult:
     def cov_x_given_shared(self) -> Optional[np.ndarray]:
         """(6,6) the covariance of X given the intrinsics and the arm's DH offsets of a kinematic install (what a
         verification faces when it shares both: :func:`handeye.recal.verify.shares_dh`);
-        :attr:`cov_x_given_intrinsics` for an install without DH offsets."""
+        :attr:`cov_x_given_intrinsics` for an install without DH offsets.
+        """
         if self.cov_x_intrinsics is None or self.dh_joint is None:
             return self.cov_x_given_intrinsics
         _, C, K = self.cov_x_intrinsics
@@ -133,42 +138,51 @@ class LoadedResult:
 
 def axes_words(frame: str) -> str:
     """Which axes a change of ``frame`` (T_parent_cam) is given along, for people: the translation the
-    parent's, the rotation the camera's (:func:`handeye.recal.verify.change_in_result_frame`)."""
+    parent's, the rotation the camera's (:func:`handeye.recal.verify.change_in_result_frame`).
+    """
     parent = {"T_end_cam": "flange", "T_base_cam": "robot base"}.get(frame, "parent frame")
     return f"mm along the {parent} axes, deg about the camera axes"
 
 
 def unfit_note(r: LoadedResult) -> Optional[str]:
     """A warning for a result whose transform exists but whose verdict says it is not fit for use (FAIL), or
-    None: commands that use it anyway (verify, compare, apply) say so instead of trusting it silently."""
+    None: commands that use it anyway (verify, compare, apply) say so instead of trusting it silently.
+    """
     verdict = str(r.raw.get("verdict") or "").upper()
     if not r.ok or verdict != "FAIL":
         return None
     head = str(r.raw.get("verdict_headline") or "").rstrip(".")
-    return (f"{r.source}: this calibration's verdict is FAIL" + (f" ({head})" if head else "")
-            + "; it is used as it is")
+    return f"{r.source}: this calibration's verdict is FAIL" + (f" ({head})" if head else "") + "; it is used as it is"
 
 
 def _check_intact(d: dict, x_name: str, ref: dict, source: str) -> None:
     """A result whose calibration succeeded must hold a finite rigid X, a finite symmetric covariance that is
     not negative, and finite positive focal lengths: a NaN or an edited matrix would otherwise flow into
-    every test as "no change"; InputError (``result_damaged``) naming the entry."""
+    every test as "no change"; InputError (``result_damaged``) naming the entry.
+    """
     from ..frames import is_rigid_transform
 
     if d.get("status") != "ok":
         return
 
     def damaged(what: str):
-        raise InputError(f"damaged: {what}", path=source, code="result_damaged",
-                         hint="the file was edited or damaged: restore it or calibrate again")
+        raise InputError(
+            f"damaged: {what}",
+            path=source,
+            code="result_damaged",
+            hint="the file was edited or damaged: restore it or calibrate again",
+        )
 
     if x_name in d and not is_rigid_transform(d[x_name]):
         damaged(f"{x_name} is not a finite 4x4 rigid transform")
     for key in ("cov_x_6x6_verdict", "cov_x_6x6"):
         if ref.get(key) is not None:
             c = _matrix(ref[key], (6, 6))
-            if c is None or not np.allclose(c, c.T, rtol=1e-6, atol=1e-18) or \
-                    np.linalg.eigvalsh(0.5 * (c + c.T)).min() < -1e-9 * max(np.abs(c).max(), 1e-30):
+            if (
+                c is None
+                or not np.allclose(c, c.T, rtol=1e-6, atol=1e-18)
+                or np.linalg.eigvalsh(0.5 * (c + c.T)).min() < -1e-9 * max(np.abs(c).max(), 1e-30)
+            ):
                 damaged(f"refinement.{key} is not a finite symmetric covariance")
     intr = d.get("intrinsics")
     if isinstance(intr, dict):
@@ -194,15 +208,19 @@ def _intrinsics(d: Optional[dict]) -> Optional[Intrinsics]:
     if not isinstance(d, dict) or not all(k in d for k in ("fx", "fy", "cx", "cy")):
         return None
     dist = d.get("dist") or {}
-    dist_vals = tuple(float(dist.get(k, 0.0)) for k in INTRINSIC_NAMES[4:]) if isinstance(dist, dict) \
+    dist_vals = (
+        tuple(float(dist.get(k, 0.0)) for k in INTRINSIC_NAMES[4:])
+        if isinstance(dist, dict)
         else tuple(float(x) for x in list(dist)[:5])
+    )
     w, h = (d.get("image_size") or [0, 0])[:2]
     return Intrinsics(float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]), dist_vals, int(w), int(h))
 
 
 def load_result(result: ResultLike) -> LoadedResult:
     """Read a result folder, a result.json path or an already loaded dict. Unreadable files raise
-    :class:`~handeye.errors.InputError`; a failed result loads with ``status != "ok"``."""
+    :class:`~handeye.errors.InputError`; a failed result loads with ``status != "ok"``.
+    """
     if isinstance(result, dict):
         d, source = result, "<dict>"
     else:
@@ -210,8 +228,12 @@ def load_result(result: ResultLike) -> LoadedResult:
         d = read_json(p)
         source = str(p / "result.json" if p.is_dir() else p)
         if not isinstance(d, dict) or "handeye_result" not in d:
-            raise InputError("not a handeye result.json", path=source, expected="a file written by handeye calibrate",
-                             hint="pass the result folder of handeye calibrate or its result.json")
+            raise InputError(
+                "not a handeye result.json",
+                path=source,
+                expected="a file written by handeye calibrate",
+                hint="pass the result folder of handeye calibrate or its result.json",
+            )
     he = d.get("hand_eye") or {}
     mode = str(d.get("mode") or "unknown")
     x_name = str(he.get("name") or ("T_end_cam" if mode == "eye_in_hand" else "T_base_cam"))
@@ -230,32 +252,53 @@ def load_result(result: ResultLike) -> LoadedResult:
     intr_d = d.get("intrinsics")
     size = tuple(int(v) for v in (intr_d or {}).get("image_size") or ()) or None
     return LoadedResult(
-        source=source, status=str(d.get("status")), mode=mode, x_name=x_name, board_name=board_name,
-        T_x=_matrix(d.get(x_name), (4, 4)), T_board=_matrix(d.get(board_name), (4, 4)) if board_name else None,
-        cov_x=cov, cov_source=cov_source, intrinsics=_intrinsics(intr_d),
+        source=source,
+        status=str(d.get("status")),
+        mode=mode,
+        x_name=x_name,
+        board_name=board_name,
+        T_x=_matrix(d.get(x_name), (4, 4)),
+        T_board=_matrix(d.get(board_name), (4, 4)) if board_name else None,
+        cov_x=cov,
+        cov_source=cov_source,
+        intrinsics=_intrinsics(intr_d),
         intrinsics_sigma={str(k): float(v) for k, v in sig.items() if v is not None and np.isfinite(float(v))},
-        intrinsics_source=(intr_d or {}).get("source"), target=d.get("target"), image_size=size,
-        sigma_px=_float(ref.get("sigma_px")), robot_sigma_mm=_float(ref.get("robot_sigma_mm")),
-        robot_sigma_deg=_float(ref.get("robot_sigma_deg")), raw=d,
-        **_joints(ref, cov))
+        intrinsics_source=(intr_d or {}).get("source"),
+        target=d.get("target"),
+        image_size=size,
+        sigma_px=_float(ref.get("sigma_px")),
+        robot_sigma_mm=_float(ref.get("robot_sigma_mm")),
+        robot_sigma_deg=_float(ref.get("robot_sigma_deg")),
+        raw=d,
+        **_joints(ref, cov),
+    )
 
 
 def _joints(ref: dict, cov_x: Optional[np.ndarray]) -> dict:
     """``cov_x_intrinsics`` and ``dh_joint`` of a LoadedResult from result.json's refinement block, carried to
-    the verdict covariances (:func:`verdict_maps`)."""
+    the verdict covariances (:func:`verdict_maps`).
+    """
     j = ref.get("cov_x_intrinsics")
     joint = _joint(j)
     dh = _dh_joint(j, len(joint[0])) if joint is not None else None
-    maps = verdict_maps(joint, cov_x_model=_matrix(ref.get("cov_x_6x6"), (6, 6)), cov_x=cov_x,
-                        intrinsics_verdict=_intrinsics_verdict(ref),
-                        intrinsics_full=(ref.get("validation") or {}).get("intrinsics_model") == "full")
+    maps = verdict_maps(
+        joint,
+        cov_x_model=_matrix(ref.get("cov_x_6x6"), (6, 6)),
+        cov_x=cov_x,
+        intrinsics_verdict=_intrinsics_verdict(ref),
+        intrinsics_full=(ref.get("validation") or {}).get("intrinsics_model") == "full",
+    )
     board = None
     if joint is not None:
         cb, cbk = _matrix(ref.get("cov_board_6x6"), (6, 6)), _matrix(j.get("cross_board_6xk"), (6, len(joint[0])))
         board = None if cb is None or cbk is None else (0.5 * (cb + cb.T), cbk)
     if maps is None:
-        return {"cov_x_intrinsics": joint, "dh_joint": dh, "board_joint": board,
-                "x_on_intrinsics": None if joint is None else joint + (joint[1],)}
+        return {
+            "cov_x_intrinsics": joint,
+            "dh_joint": dh,
+            "board_joint": board,
+            "x_on_intrinsics": None if joint is None else joint + (joint[1],),
+        }
     A, B = maps
     names, C, K = joint
     K2 = B @ K @ B.T
@@ -263,19 +306,28 @@ def _joints(ref: dict, cov_x: Optional[np.ndarray]) -> dict:
         dh = (dh[0], A @ dh[1], B @ dh[2], dh[3])
     if board is not None:
         board = (board[0], board[1] @ B.T)
-    return {"cov_x_intrinsics": (names, A @ C @ B.T, 0.5 * (K2 + K2.T)), "dh_joint": dh, "board_joint": board,
-            "x_on_intrinsics": (names, C, K, A @ C)}
+    return {
+        "cov_x_intrinsics": (names, A @ C @ B.T, 0.5 * (K2 + K2.T)),
+        "dh_joint": dh,
+        "board_joint": board,
+        "x_on_intrinsics": (names, C, K, A @ C),
+    }
 
 
 def _dh_joint(j: dict, k: int) -> Optional[tuple]:
     """(offsets (m,), cross with X (6,m), cross with the intrinsics (k,m), (m,m)) from cov_x_intrinsics' DH
-    keys; None when absent or malformed."""
+    keys; None when absent or malformed.
+    """
     dh = j.get("dh_offsets")
     if dh is None or np.size(dh) == 0:
         return None
     m = int(np.size(dh))
-    parts = (_matrix(dh, (m,)), _matrix(j.get("cross_6xm"), (6, m)), _matrix(j.get("cross_kxm"), (k, m)),
-             _matrix(j.get("dh_mxm"), (m, m)))
+    parts = (
+        _matrix(dh, (m,)),
+        _matrix(j.get("cross_6xm"), (6, m)),
+        _matrix(j.get("cross_kxm"), (k, m)),
+        _matrix(j.get("dh_mxm"), (m, m)),
+    )
     return None if any(p is None for p in parts) else parts
 
 
@@ -283,15 +335,22 @@ def stretch(cov_model: np.ndarray, cov_target: np.ndarray) -> np.ndarray:
     """The map ``A`` with ``A cov_model A^T = cov_target`` that moves least: with ``cov_model = L L^T`` and
     ``L^-1 cov_target L^-T = U D U^T``, ``A = L U D^(1/2) U^T L^-1`` (the identity where the two agree; the
     verdict covariance of :mod:`handeye.refine.validation` differs from the model's only along the generalised
-    eigenvectors whose eigenvalue exceeds 1)."""
+    eigenvectors whose eigenvalue exceeds 1).
+    """
     L = np.linalg.cholesky(0.5 * (cov_model + cov_model.T))
     W = np.linalg.solve(L, np.linalg.solve(L, 0.5 * (cov_target + cov_target.T)).T)
     d, U = np.linalg.eigh(0.5 * (W + W.T))
     return L @ (U * np.sqrt(np.maximum(d, 0.0))) @ U.T @ np.linalg.inv(L)
 
 
-def verdict_maps(joint: Optional[tuple], *, cov_x_model: Optional[np.ndarray], cov_x: Optional[np.ndarray],
-                 intrinsics_verdict: Optional[tuple], intrinsics_full: bool = False) -> Optional[tuple]:
+def verdict_maps(
+    joint: Optional[tuple],
+    *,
+    cov_x_model: Optional[np.ndarray],
+    cov_x: Optional[np.ndarray],
+    intrinsics_verdict: Optional[tuple],
+    intrinsics_full: bool = False,
+) -> Optional[tuple]:
     """(A, B) that carry the model's joint covariance ``(names, cross (6,k), K (k,k))`` of X and the free
     intrinsics to the verdict covariances: ``J S J^T`` with ``J = diag(A, B, I)`` (I: the DH offsets of the
     kinematic robot model, which have no verdict covariance), ``A`` = :func:`stretch` of the model's X
@@ -307,7 +366,8 @@ def verdict_maps(joint: Optional[tuple], *, cov_x_model: Optional[np.ndarray], c
     Positive definite whenever the model's joint is (and every verdict sigma positive), with the model's
     canonical correlations between the blocks. A block without its verdict covariance keeps the model's
     (identity); None: no joint, or a covariance that is not positive definite (the model's joint is used as
-    stored)."""
+    stored).
+    """
     if joint is None:
         return None
     names, C, K = joint
@@ -363,37 +423,46 @@ def _check_parametrisation(text, source: str) -> None:
     """The covariance must be in handeye's one tangent (right perturbation, rotation first)."""
     t = str(text or "")
     if t and not ("right perturbation" in t and "rotation first" in t):
-        raise InputError("the covariance of X is in an unknown parametrisation", path=source,
-                         expected="right perturbation, rotation first (GTSAM Pose3 tangent)", received=t[:80],
-                         hint="recompute the result with this version of handeye calibrate")
+        raise InputError(
+            "the covariance of X is in an unknown parametrisation",
+            path=source,
+            expected="right perturbation, rotation first (GTSAM Pose3 tangent)",
+            received=t[:80],
+            hint="recompute the result with this version of handeye calibrate",
+        )
 
 
 #: the prior hook's term on X when the new views alone should decide it: 1 rad, 1 m (vague)
 VAGUE_COV_X = np.eye(6)
 
 
-def installed_prior(installed: LoadedResult, *, session_intrinsics: bool, cov_x: Optional[np.ndarray] = None,
-                    board: bool = False):
+def installed_prior(
+    installed: LoadedResult, *, session_intrinsics: bool, cov_x: Optional[np.ndarray] = None, board: bool = False
+):
     """(Prior or None, names of intrinsics to hold) from the installed result: X with ``cov_x``
     (default: the installed covariance) and, unless the session brings its own intrinsics, the
     installed intrinsics with their sigmas (those without a sigma are held at the installed value) and, where the
     result has the joint covariance, the correlations among them (fx and fy move together) and, when X's prior
     is the installed covariance, their correlation with X (one joint prior). ``board``: the installed board pose
-    with its covariance too (the board has not moved), jointly with the intrinsics when X's prior is not."""
+    with its covariance too (the board has not moved), jointly with the intrinsics when X's prior is not.
+    """
     from ..refine.options import Prior
 
     if board and cov_x is None:  # result.json has no cross-covariance of X and the board: not both as priors
         raise ValueError("the installed board pose is a prior only with X's prior replaced (cov_x)")
     if installed.cov_x is None:
-        raise InputError("the installed result has no covariance of X", path=installed.source,
-                         hint="use a result calibrated with the refinement (without --no-refine)")
+        raise InputError(
+            "the installed result has no covariance of X",
+            path=installed.source,
+            hint="use a result calibrated with the refinement (without --no-refine)",
+        )
     cov = installed.cov_x if cov_x is None else cov_x
     with_board = board and installed.board_joint is not None and installed.T_board is not None
     board_kw = dict(T_board=installed.T_board, cov_board=installed.board_joint[0]) if with_board else {}
     if session_intrinsics or installed.intrinsics is None:
         return Prior(T_x=installed.T_x, cov_x=cov, **board_kw), ()
     sig = np.array([installed.intrinsics_sigma.get(n, 0.0) for n in INTRINSIC_NAMES])
-    fixed = tuple(n for n, s in zip(INTRINSIC_NAMES, sig) if not s > 0)
+    fixed = tuple(n for n, s in zip(INTRINSIC_NAMES, sig, strict=False) if not s > 0)
     cov_k = np.diag(np.where(sig > 0, sig, 1.0) ** 2)
     cross = None
     if installed.cov_x_intrinsics is not None:
@@ -407,8 +476,14 @@ def installed_prior(installed: LoadedResult, *, session_intrinsics: bool, cov_x:
             elif with_board:  # X's prior replaced (board requires it): the board joins the intrinsics instead
                 board_kw["cov_board_intrinsics"] = np.zeros((6, len(INTRINSIC_NAMES)))
                 board_kw["cov_board_intrinsics"][:, idx] = installed.board_joint[1]
-    return Prior(T_x=installed.T_x, cov_x=cov, intrinsics=installed.intrinsics, cov_intrinsics=cov_k,
-                 cov_x_intrinsics=cross, **board_kw), fixed
+    return Prior(
+        T_x=installed.T_x,
+        cov_x=cov,
+        intrinsics=installed.intrinsics,
+        cov_intrinsics=cov_k,
+        cov_x_intrinsics=cross,
+        **board_kw,
+    ), fixed
 
 
 def result_from_refinement(refined, *, target, validation=None) -> dict:
@@ -416,7 +491,8 @@ def result_from_refinement(refined, *, target, validation=None) -> dict:
     :class:`~handeye.refine.RefineResult` and the target spec: for programs (and the benchmarks)
     that refine without writing a result folder. ``validation``
     (:func:`handeye.refine.validation.validate` of ``refined``) adds the verdict covariances as
-    result.json has them (:func:`handeye.results.validation_fields`)."""
+    result.json has them (:func:`handeye.results.validation_fields`).
+    """
     from ..output import plain
 
     ok = refined.status == "ok"
@@ -425,10 +501,16 @@ def result_from_refinement(refined, *, target, validation=None) -> dict:
         from ..results import validation_fields
 
         ref.update(validation_fields(refined, validation))
-    d = {"handeye_result": 1, "status": refined.status, "mode": refined.mode,
-         "hand_eye": {"name": refined.x_name}, "board": {"name": refined.board_name},
-         "intrinsics": dict(refined.intrinsics.to_dict(), source="refined"),
-         "refinement": ref, "target": target.to_dict()}
+    d = {
+        "handeye_result": 1,
+        "status": refined.status,
+        "mode": refined.mode,
+        "hand_eye": {"name": refined.x_name},
+        "board": {"name": refined.board_name},
+        "intrinsics": dict(refined.intrinsics.to_dict(), source="refined"),
+        "refinement": ref,
+        "target": target.to_dict(),
+    }
     if ok:
         d[refined.x_name] = refined.T_x
         d[refined.board_name] = refined.T_board

@@ -25,6 +25,7 @@ the goal or ``max_views``. Even infinitely many views leave ``S0``: the power of
 ``P(ncx2(6, min delta^T S0^-1 delta) > ...)``, is the ceiling, and when it is below the goal the plan
 says so and gives the smallest drift the installed calibration can tell at that power.
 """
+
 from __future__ import annotations
 
 import logging
@@ -69,21 +70,36 @@ class VerifyPlan:
     candidate_index: tuple = ()  # index of each chosen pose among the candidates
 
     def to_dict(self) -> dict:
-        return plain({"frame": self.frame, "drift_mm": self.drift_mm, "drift_deg": self.drift_deg,
-                      "power_goal": self.power_goal, "alpha": self.alpha, "n_views": self.n_views,
-                      "power_by_views": self.power_by_views, "ceiling_power": self.ceiling_power,
-                      "detectable_drift_mm": self.drift_mm * self.min_drift_scale,
-                      "detectable_drift_deg": self.drift_deg * self.min_drift_scale,
-                      "poses_T_base_end": self.poses, "labels": self.labels,
-                      "poses_vendor": [pose_values_from_T(T, VENDOR_POSE_FORMAT) for T in self.poses],
-                      "poses_vendor_format": "x,y,z [m], rx,ry,rz [rad], R = Rz·Ry·Rx",
-                      "noise": {"sigma_px": self.sigma_px, "robot_sigma_mm": self.robot_sigma_mm,
-                                "robot_sigma_deg": self.robot_sigma_deg}}, nan_to_none=True)
+        return plain(
+            {
+                "frame": self.frame,
+                "drift_mm": self.drift_mm,
+                "drift_deg": self.drift_deg,
+                "power_goal": self.power_goal,
+                "alpha": self.alpha,
+                "n_views": self.n_views,
+                "power_by_views": self.power_by_views,
+                "ceiling_power": self.ceiling_power,
+                "detectable_drift_mm": self.drift_mm * self.min_drift_scale,
+                "detectable_drift_deg": self.drift_deg * self.min_drift_scale,
+                "poses_T_base_end": self.poses,
+                "labels": self.labels,
+                "poses_vendor": [pose_values_from_T(T, VENDOR_POSE_FORMAT) for T in self.poses],
+                "poses_vendor_format": "x,y,z [m], rx,ry,rz [rad], R = Rz·Ry·Rx",
+                "noise": {
+                    "sigma_px": self.sigma_px,
+                    "robot_sigma_mm": self.robot_sigma_mm,
+                    "robot_sigma_deg": self.robot_sigma_deg,
+                },
+            },
+            nan_to_none=True,
+        )
 
 
 def drift_directions(*, drift_mm: float, drift_deg: float, n_random: int, seed: int = 0) -> np.ndarray:
     """(K, 6) drifts in the tangent (rad, m): a rotation of ``drift_deg`` and a translation of ``drift_mm``,
-    along the axis pairs and ``n_random`` seeded random direction pairs (both signs count the same)."""
+    along the axis pairs and ``n_random`` seeded random direction pairs (both signs count the same).
+    """
     rng = np.random.default_rng(seed)
     eye = np.eye(3)
     w = [eye[i] for i in range(3) for _ in range(3)] + list(_unit(rng.normal(size=(n_random, 3))))
@@ -96,7 +112,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def worst_noncentrality(cov_change: np.ndarray, drifts: np.ndarray) -> float:
-    """min over the drifts (K,6) of ``delta^T cov_change^-1 delta``."""
+    """Min over the drifts (K,6) of ``delta^T cov_change^-1 delta``."""
     P = np.linalg.inv(0.5 * (cov_change + cov_change.T))
     return float(np.min(np.einsum("ki,ij,kj->k", drifts, P, drifts)))
 
@@ -106,7 +122,8 @@ def worst_noncentrality_with_views(S0: np.ndarray, info_x: np.ndarray, drifts: n
     views', given as their information on X, :func:`x_information`), computed as
     ``(I + info_x S0)^-1 info_x`` so that it stays exact when the views leave some direction of X
     unknown (information ~0, variance ~1e6) while the install knows another to 1e-13: inverting the sum
-    of the two covariances loses the small one to rounding."""
+    of the two covariances loses the small one to rounding.
+    """
     P = np.linalg.solve(np.eye(6) + info_x @ S0, info_x)
     P = 0.5 * (P + P.T)
     return float(np.min(np.einsum("ki,ij,kj->k", drifts, P, drifts)))
@@ -114,7 +131,8 @@ def worst_noncentrality_with_views(S0: np.ndarray, info_x: np.ndarray, drifts: n
 
 def x_information(info: np.ndarray) -> np.ndarray:
     """Information (6,6) on X from the summed information (12,12) of (X, board), the board marginalised
-    (its Schur complement, the board's block floored so that an empty set of views inverts)."""
+    (its Schur complement, the board's block floored so that an empty set of views inverts).
+    """
     A, B, D = info[:6, :6], info[:6, 6:], info[6:, 6:] + _FLOOR_INFO * np.eye(6)
     Ix = A - B @ np.linalg.solve(D, B.T)
     return 0.5 * (Ix + Ix.T)
@@ -123,7 +141,8 @@ def x_information(info: np.ndarray) -> np.ndarray:
 def test_power(nc: float, *, alpha: float, dof: int = 6, noise_dof: Optional[float] = None) -> float:
     """Probability that verify's test at ``alpha`` rejects under non-centrality ``nc``: chi-square, or F(dof,
     noise_dof) on ``T / dof`` when the installed robot noise level was estimated
-    (:func:`handeye.stats.wald_p_value`; the non-central F then)."""
+    (:func:`handeye.stats.wald_p_value`; the non-central F then).
+    """
     nc = max(nc, 1e-12)
     if noise_dof is None or not np.isfinite(noise_dof) or noise_dof <= 0:
         return float(stats.ncx2.sf(stats.chi2.isf(alpha, dof), dof, nc))
@@ -136,12 +155,20 @@ def installed_poses(installed: LoadedResult) -> list[np.ndarray]:
     return [np.asarray(T, float) for T in poses.values()]
 
 
-def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, drift_deg: Optional[float] = None,
-                      power: Optional[float] = None, alpha: Optional[float] = None,
-                      max_views: Optional[int] = None, candidates: Optional[Sequence[np.ndarray]] = None,
-                      cfg: Optional[dict] = None) -> VerifyPlan:
+def plan_verification(
+    against: ResultLike,
+    *,
+    drift_mm: Optional[float] = None,
+    drift_deg: Optional[float] = None,
+    power: Optional[float] = None,
+    alpha: Optional[float] = None,
+    max_views: Optional[int] = None,
+    candidates: Optional[Sequence[np.ndarray]] = None,
+    cfg: Optional[dict] = None,
+) -> VerifyPlan:
     """The verification plan for the installed result ``against`` (see the module docstring).
-    ``candidates``: robot poses to choose from (default: the installed views' poses and orbits around them)."""
+    ``candidates``: robot poses to choose from (default: the installed views' poses and orbits around them).
+    """
     from ..collect.plan import PlanConfig, candidate_views, view_information
 
     cfg = load_preset("recal") if cfg is None else cfg
@@ -152,16 +179,25 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
     alpha = float(cfg["test"]["alpha"] if alpha is None else alpha)
     max_views = int(pc["max_views"] if max_views is None else max_views)
     if not alpha < goal < 1.0:  # a test at alpha rejects with probability alpha when nothing moved
-        raise InputError("the power wanted must exceed the test's level", expected=f"{alpha:g} < --power < 1",
-                         received=f"{goal:g}", hint="ask for the probability of detecting the drift, e.g. 0.95")
+        raise InputError(
+            "the power wanted must exceed the test's level",
+            expected=f"{alpha:g} < --power < 1",
+            received=f"{goal:g}",
+            hint="ask for the probability of detecting the drift, e.g. 0.95",
+        )
     if not (drift_mm >= 0 and drift_deg >= 0 and drift_mm + drift_deg > 0):
-        raise InputError("the drift to detect must be positive",
-                         expected="--drift-mm >= 0, --drift-deg >= 0, not both 0",
-                         received=f"{drift_mm} mm, {drift_deg} deg")
+        raise InputError(
+            "the drift to detect must be positive",
+            expected="--drift-mm >= 0, --drift-deg >= 0, not both 0",
+            received=f"{drift_mm} mm, {drift_deg} deg",
+        )
     installed = against if isinstance(against, LoadedResult) else load_result(against)
     if not installed.ok or installed.cov_x is None or installed.T_board is None or installed.intrinsics is None:
-        raise InputError("the installed result lacks X, its covariance, the board or the intrinsics",
-                         path=installed.source, hint="plan against a refined result with status ok")
+        raise InputError(
+            "the installed result lacks X, its covariance, the board or the intrinsics",
+            path=installed.source,
+            hint="plan against a refined result with status ok",
+        )
     target = parse_target(installed.target, path=installed.source)
     obj = target.object_points()
     mode, T_x, T_board = installed.mode, installed.T_x, installed.T_board
@@ -170,9 +206,17 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
     drifts = drift_directions(drift_mm=drift_mm, drift_deg=drift_deg, n_random=int(pc["n_directions"]))
 
     def info_of(T):
-        return view_information(mode=mode, T_x=T_x, T_board=T_board, T_base_end=T, object_points=obj,
-                                intrinsics=installed.intrinsics, pixel_noise_px=sigma_px, robot_noise_mm=rs_mm,
-                                robot_noise_deg=rs_deg)
+        return view_information(
+            mode=mode,
+            T_x=T_x,
+            T_board=T_board,
+            T_base_end=T,
+            object_points=obj,
+            intrinsics=installed.intrinsics,
+            pixel_noise_px=sigma_px,
+            robot_noise_mm=rs_mm,
+            robot_noise_deg=rs_deg,
+        )
 
     if candidates is not None:
         cands = [(np.asarray(T, float), f"given pose {k + 1}") for k, T in enumerate(candidates)]
@@ -182,24 +226,37 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
         arm = installed_robot_model(installed).get("arm")
         m = mounting(mode)
         config = PlanConfig(pixel_noise_px=sigma_px, robot_noise_mm=rs_mm, robot_noise_deg=rs_deg)
-        for k, T0 in enumerate(base[:int(pc["orbit_views"])]):  # orbits around a few installed views
+        for k, T0 in enumerate(base[: int(pc["orbit_views"])]):  # orbits around a few installed views
             C0 = m.predict_T_cam_board(T_x, T_board, T0)
             orbit = None
             for intr in (installed.intrinsics, _without_k3(installed.intrinsics)):
                 try:
-                    orbit = candidate_views(mode=mode, T_x=T_x, T_board=T_board, T_base_end_start=T0,
-                                            T_cam_board_start=C0, target=target, intrinsics=intr, config=config)
+                    orbit = candidate_views(
+                        mode=mode,
+                        T_x=T_x,
+                        T_board=T_board,
+                        T_base_end_start=T0,
+                        T_cam_board_start=C0,
+                        target=target,
+                        intrinsics=intr,
+                        config=config,
+                    )
                     break
                 except ConfigError as e:  # a distortion the visibility test cannot invert
                     log.debug("orbit candidates with dist=%s: %s", np.round(intr.dist, 4).tolist(), e.args[0])
             if orbit is None:
-                log.warning("no orbit candidates (the lens distortion folds back in the image); planning from the "
-                            "installed poses")
+                log.warning(
+                    "no orbit candidates (the lens distortion folds back in the image); planning from the "
+                    "installed poses"
+                )
                 break
             cands += _reachable([(c.T_base_end, f"orbit of installed view {k + 1}: {c.label}") for c in orbit], arm, T0)
     if not cands:
-        raise InputError("no candidate robot poses to plan from", path=installed.source,
-                         hint="the result holds no refined robot poses; give candidate poses")
+        raise InputError(
+            "no candidate robot poses to plan from",
+            path=installed.source,
+            hint="the result holds no refined robot poses; give candidate poses",
+        )
     infos = [info_of(T) for T, _ in cands]
     # verify shares the installed intrinsics (and the DH offsets when it can): their error cancels in its test
     S0 = installed.cov_x_given_shared if shares_dh(installed) else installed.cov_x_given_intrinsics
@@ -224,16 +281,30 @@ def plan_verification(against: ResultLike, *, drift_mm: Optional[float] = None, 
             break
     nc_goal = _noncentrality_for_power(goal, alpha=alpha, noise_dof=nu)
     scale = float(np.sqrt(nc_goal / nc)) if nc > 0 else float("inf")
-    return VerifyPlan(frame=installed.x_name, drift_mm=drift_mm, drift_deg=drift_deg, power_goal=goal, alpha=alpha,
-                      poses=tuple(cands[i][0] for i in chosen), labels=tuple(cands[i][1] for i in chosen),
-                      power_by_views=tuple(powers), n_views=n_goal, ceiling_power=ceiling, min_drift_scale=scale,
-                      sigma_px=sigma_px, robot_sigma_mm=rs_mm, robot_sigma_deg=rs_deg, candidate_index=tuple(chosen))
+    return VerifyPlan(
+        frame=installed.x_name,
+        drift_mm=drift_mm,
+        drift_deg=drift_deg,
+        power_goal=goal,
+        alpha=alpha,
+        poses=tuple(cands[i][0] for i in chosen),
+        labels=tuple(cands[i][1] for i in chosen),
+        power_by_views=tuple(powers),
+        n_views=n_goal,
+        ceiling_power=ceiling,
+        min_drift_scale=scale,
+        sigma_px=sigma_px,
+        robot_sigma_mm=rs_mm,
+        robot_sigma_deg=rs_deg,
+        candidate_index=tuple(chosen),
+    )
 
 
 def _reachable(cands: list, arm, T_from: np.ndarray) -> list:
     """The candidate (pose, label) pairs around the installed pose ``T_from`` that the installed arm reaches (inverse
     kinematics within its joint limits, from the configuration that reaches ``T_from`` and the default seeds);
-    all of them when the result names no arm."""
+    all of them when the result names no arm.
+    """
     if arm is None:
         return cands
     from ..kinematics import default_ik_seeds, solve_ik
@@ -242,15 +313,20 @@ def _reachable(cands: list, arm, T_from: np.ndarray) -> list:
     near = [] if q0 is None else [q0]
     kept = [(T, label) for T, label in cands if solve_ik(arm, T, seeds=near + default_ik_seeds(arm, T)) is not None]
     if len(kept) < len(cands):
-        log.info("plan: %d of %d candidate poses are beyond the reach of %s and left out", len(cands) - len(kept),
-                 len(cands), arm.name)
+        log.info(
+            "plan: %d of %d candidate poses are beyond the reach of %s and left out",
+            len(cands) - len(kept),
+            len(cands),
+            arm.name,
+        )
     return kept
 
 
 def _without_k3(intrinsics):
     """The intrinsics with k3 = 0, for the collector's visibility test only: a 20-view calibration's k3 is
     fitted where corners were, and often folds the lens model back near the image corners, where no
-    corner lies; the views' information is still computed with the full model."""
+    corner lies; the views' information is still computed with the full model.
+    """
     from dataclasses import replace
 
     return replace(intrinsics, dist=tuple(intrinsics.dist[:4]) + (0.0,))
@@ -274,20 +350,30 @@ def plan_lines(p: VerifyPlan) -> list[str]:
     if p.n_views is not None:
         head = f"{p.n_views} views detect a drift of {drift} of {p.frame} with {goal} power (worst direction)"
     else:
-        head = (f"no plan of up to {len(p.poses)} views reaches {goal} power for a drift of {drift} of {p.frame} "
-                f"(best {100 * p.power_by_views[-1]:.0f} %)")
+        head = (
+            f"no plan of up to {len(p.poses)} views reaches {goal} power for a drift of {drift} of {p.frame} "
+            f"(best {100 * p.power_by_views[-1]:.0f} %)"
+        )
     lines = [head]
     if p.ceiling_power < p.power_goal:
-        lines.append(f"the installed calibration's own uncertainty limits the power to {100 * p.ceiling_power:.0f} % "
-                     f"for this drift even with perfect views: recalibrate with more views to verify at {drift}")
-    lines.append(f"with these views the drift detected with {goal} power is {p.drift_mm * p.min_drift_scale:.2f} mm / "
-                 f"{p.drift_deg * p.min_drift_scale:.3f} deg")
-    lines.append(f"assumed noise (installed): {p.sigma_px:.2f} px corners, robot {p.robot_sigma_mm:.3f} mm / "
-                 f"{p.robot_sigma_deg:.4f} deg")
+        lines.append(
+            f"the installed calibration's own uncertainty limits the power to {100 * p.ceiling_power:.0f} % "
+            f"for this drift even with perfect views: recalibrate with more views to verify at {drift}"
+        )
+    lines.append(
+        f"with these views the drift detected with {goal} power is {p.drift_mm * p.min_drift_scale:.2f} mm / "
+        f"{p.drift_deg * p.min_drift_scale:.3f} deg"
+    )
+    lines.append(
+        f"assumed noise (installed): {p.sigma_px:.2f} px corners, robot {p.robot_sigma_mm:.3f} mm / "
+        f"{p.robot_sigma_deg:.4f} deg"
+    )
     lines.append("poses T_base_end to visit (x, y, z [mm]; rx, ry, rz [deg], R = Rz·Ry·Rx), power after the view:")
-    for k, (T, label, pw) in enumerate(zip(p.poses, p.labels, p.power_by_views)):
+    for k, (T, label, pw) in enumerate(zip(p.poses, p.labels, p.power_by_views, strict=False)):
         v = pose_values_from_T(T, VENDOR_POSE_FORMAT)
-        lines.append(f"  {k + 1:2d}: {1000 * v[0]:8.1f} {1000 * v[1]:8.1f} {1000 * v[2]:8.1f}  "
-                     f"{np.degrees(v[3]):7.2f} {np.degrees(v[4]):7.2f} {np.degrees(v[5]):7.2f}   "
-                     f"{100 * pw:5.1f} %  ({label})")
+        lines.append(
+            f"  {k + 1:2d}: {1000 * v[0]:8.1f} {1000 * v[1]:8.1f} {1000 * v[2]:8.1f}  "
+            f"{np.degrees(v[3]):7.2f} {np.degrees(v[4]):7.2f} {np.degrees(v[5]):7.2f}   "
+            f"{100 * pw:5.1f} %  ({label})"
+        )
     return lines

@@ -1,5 +1,7 @@
 """verify.html and verify.md from verify.json alone, in the calibration report's style (its
-stylesheet and number filters, :mod:`handeye.report.render`)."""
+stylesheet and number filters, :mod:`handeye.report.render`).
+"""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -10,17 +12,23 @@ from ..output import atomic_write_text, read_json
 def verify_context(v: dict) -> dict:
     drifted = bool(v.get("drifted"))
     mode = v.get("mode", "")
-    return {"v": v, "label": "DRIFTED" if drifted else "STILL VALID", "status": "fail" if drifted else "pass",
-            "session_name": Path(str((v.get("session") or {}).get("path", "session"))).name,
-            "mode_text": {"eye_in_hand": "Eye-in-hand (camera on the robot)",
-                          "eye_to_hand": "Eye-to-hand (camera fixed, board on the robot)"}.get(mode, mode),
-            "checked_utc": str((v.get("provenance") or {}).get("time_utc", "")).replace("T", " ").replace(
-                "+00:00", " UTC")}
+    return {
+        "v": v,
+        "label": "DRIFTED" if drifted else "STILL VALID",
+        "status": "fail" if drifted else "pass",
+        "session_name": Path(str((v.get("session") or {}).get("path", "session"))).name,
+        "mode_text": {
+            "eye_in_hand": "Eye-in-hand (camera on the robot)",
+            "eye_to_hand": "Eye-to-hand (camera fixed, board on the robot)",
+        }.get(mode, mode),
+        "checked_utc": str((v.get("provenance") or {}).get("time_utc", "")).replace("T", " ").replace("+00:00", " UTC"),
+    }
 
 
 def write_verification(sv, out_dir, *, reports: bool = True) -> tuple[dict, list[Path]]:
     """verify.json of a :class:`~handeye.recal.verify.SessionVerification` in ``out_dir`` and, with
-    ``reports``, verify.html and verify.md from it: (verify.json's content, the files written)."""
+    ``reports``, verify.html and verify.md from it: (verify.json's content, the files written).
+    """
     from ..output import write_json
     from .verify import verify_dict
 
@@ -39,9 +47,13 @@ def write_verify_reports(out_dir, *, formats=("html", "md")) -> list[Path]:
     ctx = verify_context(read_json(out_dir / "verify.json"))
     written = []
     if "html" in formats:
-        written.append(atomic_write_text(out_dir / "verify.html",
-                                         _env(html=True).get_template("verify.html.j2").render(**ctx)))
+        written.append(
+            atomic_write_text(out_dir / "verify.html", _env(html=True).get_template("verify.html.j2").render(**ctx))
+        )
     if "md" in formats:
-        written.append(atomic_write_text(out_dir / "verify.md",
-                                         _tidy_markdown(_env(html=False).get_template("verify.md.j2").render(**ctx))))
+        written.append(
+            atomic_write_text(
+                out_dir / "verify.md", _tidy_markdown(_env(html=False).get_template("verify.md.j2").render(**ctx))
+            )
+        )
     return written

@@ -17,6 +17,7 @@ Modules, by concern:
 ``refine`` and ``refit`` are imported on first use, so that ``handeye.refine.outliers`` can be imported without
 loading GTSAM.
 """
+
 from __future__ import annotations
 
 from .options import RefineOptions, RefineView

@@ -9,6 +9,7 @@ Pose covariances are in the one tangent of :mod:`handeye.frames` (rotation first
 perturbation): ``T_x,true = T_x · Exp(xi)``, ``xi = (omega [rad], v [m])`` along the child frame of
 ``T_x`` (the camera).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -21,10 +22,12 @@ from ..frames import skew
 N_POSES = 12  # T_x and T_board: the first 12 unknowns of the core, before the free intrinsics
 COV_PARAMETRISATION = (
     "GTSAM Pose3 tangent, right perturbation: T_x_true = T_x · Exp(xi), xi = (omega_x, omega_y, omega_z [rad], "
-    "v_x, v_y, v_z [m]), rotation first; omega and v along the axes of the camera frame (child frame of T_x)")
+    "v_x, v_y, v_z [m]), rotation first; omega and v along the axes of the camera frame (child frame of T_x)"
+)
 COV_BOARD_PARAMETRISATION = (
     "GTSAM Pose3 tangent, right perturbation: T_board_true = T_board · Exp(xi), xi = (omega [rad], v [m]), "
-    "rotation first; along the axes of the board frame (child frame of T_board)")
+    "rotation first; along the axes of the board frame (child frame of T_board)"
+)
 
 
 def arrow_blocks(H: np.ndarray, c: int, n: int):
@@ -37,18 +40,21 @@ def arrow_blocks(H: np.ndarray, c: int, n: int):
 
 def arrow_inverse(H: np.ndarray, c: int, n: int):
     """Diagonal blocks of inv(H) for an information matrix with a dense core of size c followed by
-    n 6x6 blocks that couple only with the core: (Sigma_core (c,c), Sigma_blocks (n,6,6))."""
+    n 6x6 blocks that couple only with the core: (Sigma_core (c,c), Sigma_blocks (n,6,6)).
+    """
     S_cc, S_pp, _ = arrow_solve(*arrow_blocks(H, c, n))
     return S_cc, S_pp
 
 
-def arrow_solve(Hcc: np.ndarray, Hcp: np.ndarray, Hpp: np.ndarray, rhs: Optional[np.ndarray] = None, *,
-                cross: bool = False):
+def arrow_solve(
+    Hcc: np.ndarray, Hcp: np.ndarray, Hpp: np.ndarray, rhs: Optional[np.ndarray] = None, *, cross: bool = False
+):
     """Schur-complement inverse of the arrow-shaped information [[Hcc, Hcp^T...], [Hcp_i^T, Hpp_i]].
 
     Returns (Sigma_core, Sigma_blocks (n,6,6), solution of H x = rhs or None), and with ``cross`` also
     the core-block cross covariances (n,c,6) ``-Sigma_core Hcp_i Hpp_i^-1``. Raises LinAlgError
-    when H is not positive definite (some unknown is not constrained)."""
+    when H is not positive definite (some unknown is not constrained).
+    """
     n = Hpp.shape[0]
     if n == 0:
         L = np.linalg.cholesky(Hcc)
@@ -76,11 +82,13 @@ def arrow_solve(Hcc: np.ndarray, Hcp: np.ndarray, Hpp: np.ndarray, rhs: Optional
     return S_cc, S_pp, x
 
 
-def robot_residual_covariances(S_cc: np.ndarray, S_pp: np.ndarray, S_cp: np.ndarray, J_dh: np.ndarray,
-                               dh: slice) -> np.ndarray:
+def robot_residual_covariances(
+    S_cc: np.ndarray, S_pp: np.ndarray, S_cp: np.ndarray, J_dh: np.ndarray, dh: slice
+) -> np.ndarray:
     """(n,6,6) covariance of each robot prior residual ``u_i = p_i - J_dh,i · delta`` (p_i: the robot-pose
     block, delta: the DH offsets at ``dh`` in the core) from the marginals of :func:`arrow_solve`
-    (``S_cp`` its cross covariances). Without DH offsets (m = 0) it is ``S_pp``."""
+    (``S_cp`` its cross covariances). Without DH offsets (m = 0) it is ``S_pp``.
+    """
     if J_dh.shape[-1] == 0 or len(S_pp) == 0:
         return np.array(S_pp, float).reshape(-1, 6, 6)
     S_dp = S_cp[:, dh, :]  # shape (n, m, 6)
@@ -108,7 +116,8 @@ def hand_eye_uncertainty(cov_x: Optional[np.ndarray], T_x: np.ndarray, working_d
     The translation sigmas are those of ``T_x``'s translation vector in the parent frame
     (``R · cov_v · R^T``); the predicted error is the RMS (sqrt of the covariance trace) of the
     point ``(0, 0, working_distance_m)`` of the camera frame mapped into the parent frame by
-    ``T_x``, to first order: ``d p / d xi = R · [-[p]x, I]``."""
+    ``T_x``, to first order: ``d p / d xi = R · [-[p]x, I]``.
+    """
     cov = np.full((6, 6), np.nan) if cov_x is None else 0.5 * (cov_x + cov_x.T)
     sd = np.sqrt(np.diag(cov))
     R = T_x[:3, :3]
@@ -116,7 +125,10 @@ def hand_eye_uncertainty(cov_x: Optional[np.ndarray], T_x: np.ndarray, working_d
     J = R @ np.hstack([-skew(p_cam), np.eye(3)])  # d(point in parent frame)/d xi
     cov_p = J @ cov @ J.T
     return HandEyeUncertainty(
-        cov_x_6x6=cov, sigma_rot_deg=np.degrees(sd[:3]),
+        cov_x_6x6=cov,
+        sigma_rot_deg=np.degrees(sd[:3]),
         sigma_trans_mm=1000.0 * np.sqrt(np.diag(R @ cov[3:, 3:] @ R.T)),
-        correlation_6x6=cov / np.outer(sd, sd), predicted_error_mm=float(1000.0 * np.sqrt(np.trace(cov_p))),
-        predicted_error_axes_mm=1000.0 * np.sqrt(np.diag(cov_p)))
+        correlation_6x6=cov / np.outer(sd, sd),
+        predicted_error_mm=float(1000.0 * np.sqrt(np.trace(cov_p))),
+        predicted_error_axes_mm=1000.0 * np.sqrt(np.diag(cov_p)),
+    )

@@ -26,6 +26,7 @@ the chi-square median (:func:`handeye.stats.robust_noise_sigma`).
 
 Pure numpy: the problem (:class:`.problem.Problem`) is passed in.
 """
+
 from __future__ import annotations
 
 import logging
@@ -62,7 +63,8 @@ def sigma_px_from_residuals(e: np.ndarray) -> float:
 def robust_robot_sigmas(pb: "Problem", checks: Mapping[int, "ViewCheck"]) -> None:
     """Robot sigmas from camera-only poses (``checks``: view index -> its check) by the robust median
     estimator (robot_noise="estimate"). Kinematic models: the encoder sigma, with each view's
-    disagreement less the current DH offsets' share and their covariance added to the camera's."""
+    disagreement less the current DH offsets' share and their covariance added to the camera's.
+    """
     idx = [i for i, c in checks.items() if c.ok]
     if pb.o.robot_noise != "estimate" or len(idx) < 3:
         return
@@ -83,7 +85,8 @@ def robust_robot_sigmas(pb: "Problem", checks: Mapping[int, "ViewCheck"]) -> Non
 class VarianceComponents:
     """Outcome of :func:`vce_on_linearisation`: the relative change of the sigmas over the call, and,
     at the final sigmas, the linear least-squares step and the marginal covariances (core, and per
-    robot block the covariance of its prior residual, :func:`.covariance.robot_residual_covariances`)."""
+    robot block the covariance of its prior residual, :func:`.covariance.robot_residual_covariances`).
+    """
 
     change: float
     dx: np.ndarray  # (c + 6n,) in the order of the linearisation
@@ -102,11 +105,17 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
     The groups are the iid model's rotation and translation or the kinematic models' encoder noise. With the
     kinematic model's DH offsets, their prior's scale is tested once the sigmas first settle at the stated
     prior and, where the test rejects it, estimated with them from there on (one test per round of the outlier
-    loop: :func:`solve_with_vce`). Updates pb's sigmas and DH prior scale in place."""
+    loop: :func:`solve_with_vce`). Updates pb's sigmas and DH prior scale in place.
+    """
     cfg = _cfg()
     groups = pb.robot_groups
-    floors = np.array([float(cfg["sigma_px_floor"])] + [
-        float(cfg["robot_sigma_trans_floor_m"] if g == "trans" else cfg["robot_sigma_rot_floor_rad"]) for g in groups])
+    floors = np.array(
+        [float(cfg["sigma_px_floor"])]
+        + [
+            float(cfg["robot_sigma_trans_floor_m"] if g == "trans" else cfg["robot_sigma_rot_floor_rad"])
+            for g in groups
+        ]
+    )
     share, tol = float(cfg["unresolved_redundancy_share"]), float(cfg["inner_tol"])
     c, n = lin.c, lin.Hpp.shape[0]
     D = c + 6 * n
@@ -128,7 +137,7 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
     history = [np.log(s)]  # log-sigma iterates since the last extrapolation
     for _ in range(int(cfg["max_inner"])):
         w_px = 1.0 / s[0] ** 2
-        W = sum(w / sg ** 2 for w, sg in zip(W0, s[1:]))  # shape (n, 6, 6): robot prior information
+        W = sum(w / sg**2 for w, sg in zip(W0, s[1:], strict=False))  # shape (n, 6, 6): robot prior information
         Wr = np.einsum("nij,nj->ni", W, lin.xi)
         HKi, gKi = HK, gK
         if m:  # the DH offsets' prior at its scale k_dh
@@ -213,7 +222,8 @@ def _dh_prior_test(pb: "Problem", delta: np.ndarray, S_dd: np.ndarray) -> bool:
     :func:`handeye.stats.weighted_chi2_sf`); the prior stands unless p < ``noise.dh_prior_alpha`` (the arm is
     further from its table than stated: an uncalibrated arm, a nominal table, wear). Fewer than
     ``noise.unresolved_redundancy_share`` of the offsets resolved: no test, the prior stands. The outcome goes
-    to ``pb.dh_scale_test``; returns whether the prior was rejected."""
+    to ``pb.dh_scale_test``; returns whether the prior was rejected.
+    """
     from ..stats import weighted_chi2_sf
 
     cfg = _cfg()
@@ -229,9 +239,16 @@ def _dh_prior_test(pb: "Problem", delta: np.ndarray, S_dd: np.ndarray) -> bool:
     e = float(z @ z)
     p, nu = weighted_chi2_sf(e, lam)
     alpha = float(cfg["dh_prior_alpha"])
-    pb.dh_scale_test = {"resolved": True, "statistic": e, "redundancy": r, "dof": nu, "p_value": p, "alpha": alpha,
-                        "contradicted": p < alpha,
-                        "reference": "Satterthwaite's scaled chi-square of the resolved offsets"}
+    pb.dh_scale_test = {
+        "resolved": True,
+        "statistic": e,
+        "redundancy": r,
+        "dof": nu,
+        "p_value": p,
+        "alpha": alpha,
+        "contradicted": p < alpha,
+        "reference": "Satterthwaite's scaled chi-square of the resolved offsets",
+    }
     return bool(p < alpha)
 
 
@@ -241,10 +258,11 @@ def _dh_scale(pb: "Problem", delta: np.ndarray, S_dd: np.ndarray, k: float) -> f
     the redundancy ``r = m - tr(Sigma_0^-1 S_dd) / k^2`` at the current scale (recorded in ``pb.dh_scale_dof``),
     never below the stated prior: the offsets the views do not resolve are known only through that prior and
     reach ``T_x``'s covariance through it, so data on the resolved ones may widen it, not narrow it. Where the
-    views no longer resolve enough of the offsets (``noise.unresolved_redundancy_share``), the scale is held."""
+    views no longer resolve enough of the offsets (``noise.unresolved_redundancy_share``), the scale is held.
+    """
     m = delta.size
     W = pb.dh_info_stated
-    r = m - float(np.sum(W * S_dd)) / k ** 2
+    r = m - float(np.sum(W * S_dd)) / k**2
     if r < float(_cfg()["unresolved_redundancy_share"]) * m:
         return k
     pb.dh_scale_dof = r
@@ -258,7 +276,8 @@ def _aitken(x0: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
     The fixed-point iteration converges linearly, slowly (ratio ~0.93) when a robot sigma heads for
     a level the camera barely resolves: 80 iterations on a clean 200-view session. Extrapolating
     every third iterate lands near the fixed point; the plain iterations that follow it decide
-    convergence, so the fixed point and the tolerance are those of the plain iteration."""
+    convergence, so the fixed point and the tolerance are those of the plain iteration.
+    """
     d1, d2 = x1 - x0, x2 - x1
     with np.errstate(divide="ignore", invalid="ignore"):
         rho = np.where(d1 != 0.0, d2 / d1, 0.0)
@@ -275,7 +294,8 @@ def solve_with_vce(pb: "Problem"):
     Once a solve's sigmas are within ``noise.outer_tol`` of the estimate on its linearisation, that
     solve is at the optimum of a problem whose weights differ by less than that: the Gauss-Newton
     step at the final sigmas (computed by the estimation anyway) finishes it, and the estimation's
-    covariances are those of the final linearisation, so no further solve is needed."""
+    covariances are those of the final linearisation, so no further solve is needed.
+    """
     cfg = _cfg()
     pb.resolved = {g: True for g in pb.robot_groups}  # a new set of views may resolve what the last did not
     if pb.dh_scale_estimable:  # and may agree with the arm's stated DH prior where the last did not
@@ -285,10 +305,15 @@ def solve_with_vce(pb: "Problem"):
         pb.solve(robust=False)
         lin = pb.pixel_linearisation()
         vce = vce_on_linearisation(pb, lin)
-        log.debug("VCE: sigma_px %.4f, robot %.5f deg %.5f mm (change %.3g)", pb.sigma_px,
-                  np.degrees(pb.sigma_rot), 1000 * pb.sigma_trans, vce.change)
+        log.debug(
+            "VCE: sigma_px %.4f, robot %.5f deg %.5f mm (change %.3g)",
+            pb.sigma_px,
+            np.degrees(pb.sigma_rot),
+            1000 * pb.sigma_trans,
+            vce.change,
+        )
         if vce.change < float(cfg["outer_tol"]):
             pb.apply_step(lin.robot_views, vce.dx)
-            return vce.S_cc, dict(zip(lin.robot_views, vce.S_pp))
+            return vce.S_cc, dict(zip(lin.robot_views, vce.S_pp, strict=False))
     g, values, rk = pb.solve(robust=False)  # not settled: a last solve at the last sigmas
     return pb.covariances(g, values, rk)

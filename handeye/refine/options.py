@@ -1,5 +1,7 @@
 """Inputs of the refinement: its options (defaults from configs/refine.yaml), one view, and their
-validation (done once, at the boundary, with messages that name the field)."""
+validation (done once, at the boundary, with messages that name the field).
+"""
+
 from __future__ import annotations
 
 import functools
@@ -31,6 +33,7 @@ def _from_preset(*path: str):
         for k in path:
             v = v[k]
         return v
+
     return field(default_factory=get)
 
 
@@ -63,7 +66,8 @@ class Prior:
     ``T_board`` / ``cov_board`` (6,6): the board's pose (``T_base_board`` / ``T_end_board``) and its covariance in
     its right tangent, e.g. an earlier calibration's when the board has not moved since (a bumped camera does not
     move it); ``cov_board_intrinsics`` (6,9): its cross-covariance with the intrinsics (one joint Gaussian with
-    them; not together with ``cov_x_intrinsics``)."""
+    them; not together with ``cov_x_intrinsics``).
+    """
 
     T_x: np.ndarray
     cov_x: np.ndarray
@@ -90,7 +94,9 @@ class RefineOptions:
     # robot error model (handeye.refine.robot_model): auto | iid | kinematic | joint_space; auto is kinematic
     # when ``arm`` is named (joint angles from the views, else by inverse kinematics), else iid
     robot_model: str = "auto"
-    arm: Optional[object] = None  # the arm's kinematic model: a preset name (kinematics.PRESETS), a DH YAML path or a DHChain
+    arm: Optional[object] = (
+        None  # the arm's kinematic model: a preset name (kinematics.PRESETS), a DH YAML path or a DHChain
+    )
     dh_sigma_mm: Optional[float] = None  # prior sigma of each DH length offset (None: the arm's error_prior)
     dh_sigma_deg: Optional[float] = None  # ... of each DH angle offset
     encoder_sigma_deg: Optional[float] = None  # encoder noise per joint: start (estimate) or value (fixed)
@@ -111,8 +117,12 @@ class RefineOptions:
 
 def check_options(o: RefineOptions) -> None:
     def bad(field_name, expected, got):
-        raise ConfigError(f"refine option {field_name} is invalid", expected=expected, received=repr(got),
-                          hint=f"fix refine.{field_name} in the config or the command line")
+        raise ConfigError(
+            f"refine option {field_name} is invalid",
+            expected=expected,
+            received=repr(got),
+            hint=f"fix refine.{field_name} in the config or the command line",
+        )
 
     if o.intrinsics not in INTRINSICS_MODES:
         bad("intrinsics", " | ".join(INTRINSICS_MODES), o.intrinsics)
@@ -132,8 +142,11 @@ def check_options(o: RefineOptions) -> None:
     if o.intrinsics_prior_sigma is not None:
         s = np.asarray(o.intrinsics_prior_sigma, float).reshape(-1)
         if s.size != 9 or not np.all(s > 0):
-            bad("intrinsics_prior_sigma", "9 positive sigmas (fx, fy, cx, cy, k1, k2, p1, p2, k3)",
-                o.intrinsics_prior_sigma)
+            bad(
+                "intrinsics_prior_sigma",
+                "9 positive sigmas (fx, fy, cx, cy, k1, k2, p1, p2, k3)",
+                o.intrinsics_prior_sigma,
+            )
     for name in ("robot_sigma_mm", "robot_sigma_deg", "loss_k", "corner_outlier_sigmas"):
         v = getattr(o, name)
         if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
@@ -173,17 +186,23 @@ def check_prior(p: "Prior", bad) -> None:
     if not _is_covariance(p.cov_x, 6):
         bad("prior.cov_x", "a symmetric positive definite 6x6 covariance (rad^2, m^2)", np.shape(p.cov_x))
     if (p.intrinsics is None) != (p.cov_intrinsics is None):
-        bad("prior.cov_intrinsics", "intrinsics and cov_intrinsics both given or both None",
-            "only one of them")
+        bad("prior.cov_intrinsics", "intrinsics and cov_intrinsics both given or both None", "only one of them")
     if p.cov_intrinsics is not None and not _is_covariance(p.cov_intrinsics, len(INTRINSIC_NAMES)):
-        bad("prior.cov_intrinsics", "a symmetric positive definite 9x9 covariance in the order "
-            + ", ".join(INTRINSIC_NAMES), np.shape(p.cov_intrinsics))
+        bad(
+            "prior.cov_intrinsics",
+            "a symmetric positive definite 9x9 covariance in the order " + ", ".join(INTRINSIC_NAMES),
+            np.shape(p.cov_intrinsics),
+        )
     if (p.dh_offsets is None) != (p.cov_dh is None):
         bad("prior.cov_dh", "dh_offsets and cov_dh both given or both None", "only one of them")
-    if p.dh_offsets is not None and (np.ndim(p.dh_offsets) != 1
-                                     or not _is_covariance(p.cov_dh, int(np.size(p.dh_offsets)))):
-        bad("prior.cov_dh", "DH offsets (m,) with a symmetric positive definite (m,m) covariance",
-            f"{np.shape(p.dh_offsets)} and {np.shape(p.cov_dh)}")
+    if p.dh_offsets is not None and (
+        np.ndim(p.dh_offsets) != 1 or not _is_covariance(p.cov_dh, int(np.size(p.dh_offsets)))
+    ):
+        bad(
+            "prior.cov_dh",
+            "DH offsets (m,) with a symmetric positive definite (m,m) covariance",
+            f"{np.shape(p.dh_offsets)} and {np.shape(p.cov_dh)}",
+        )
     if p.cov_x_intrinsics is not None:
         _check_joint_with_intrinsics(bad, "cov_x_intrinsics", "X", p.cov_x, p.cov_x_intrinsics, p.cov_intrinsics)
     if (p.T_board is None) != (p.cov_board is None):
@@ -192,35 +211,57 @@ def check_prior(p: "Prior", bad) -> None:
         bad("prior.cov_board", "a symmetric positive definite 6x6 covariance", np.shape(p.cov_board))
     if p.cov_board_intrinsics is not None:
         if p.cov_x_intrinsics is not None:
-            bad("prior.cov_board_intrinsics", "one joint prior with the intrinsics: X's or the board's",
-                "both cov_x_intrinsics and cov_board_intrinsics")
-        _check_joint_with_intrinsics(bad, "cov_board_intrinsics", "the board", p.cov_board, p.cov_board_intrinsics,
-                                     p.cov_intrinsics)
+            bad(
+                "prior.cov_board_intrinsics",
+                "one joint prior with the intrinsics: X's or the board's",
+                "both cov_x_intrinsics and cov_board_intrinsics",
+            )
+        _check_joint_with_intrinsics(
+            bad, "cov_board_intrinsics", "the board", p.cov_board, p.cov_board_intrinsics, p.cov_intrinsics
+        )
 
 
 def _check_joint_with_intrinsics(bad, field_name: str, pose: str, cov_pose, cross, cov_k) -> None:
     """``cross`` (6,9) of a pose prior (covariance ``cov_pose``) with the intrinsics prior (``cov_k``): given with
-    both, and keeping their joint covariance positive definite."""
+    both, and keeping their joint covariance positive definite.
+    """
     nk = len(INTRINSIC_NAMES)
     if cov_pose is None or cov_k is None or np.shape(cross) != (6, nk):
-        bad(f"prior.{field_name}", f"a 6x{nk} cross-covariance of {pose} and the intrinsics, with its covariance and "
-            "cov_intrinsics", np.shape(cross))
-    joint = np.block([[np.asarray(cov_pose, float), np.asarray(cross, float)],
-                      [np.asarray(cross, float).T, np.asarray(cov_k, float)]])
+        bad(
+            f"prior.{field_name}",
+            f"a 6x{nk} cross-covariance of {pose} and the intrinsics, with its covariance and cov_intrinsics",
+            np.shape(cross),
+        )
+    joint = np.block(
+        [
+            [np.asarray(cov_pose, float), np.asarray(cross, float)],
+            [np.asarray(cross, float).T, np.asarray(cov_k, float)],
+        ]
+    )
     if not _is_covariance(joint, 6 + nk):
-        bad(f"prior.{field_name}", f"a cross-covariance that keeps the joint covariance of {pose} and the "
-            "intrinsics positive definite", "a joint covariance that is not")
+        bad(
+            f"prior.{field_name}",
+            f"a cross-covariance that keeps the joint covariance of {pose} and the intrinsics positive definite",
+            "a joint covariance that is not",
+        )
 
 
 def check_T(T, what: str) -> np.ndarray:
     """A rigid 4x4 transform, its rotation re-orthonormalised (inputs rounded to a few decimals)."""
-    return check_T_stack(np.asarray(T, dtype=float)[None], [what])[0] if np.shape(T) == (4, 4) else \
-        _not_rigid(what, np.shape(T))
+    return (
+        check_T_stack(np.asarray(T, dtype=float)[None], [what])[0]
+        if np.shape(T) == (4, 4)
+        else _not_rigid(what, np.shape(T))
+    )
 
 
 def _not_rigid(what: str, shape) -> None:
-    raise InputError(f"{what} is not a rigid 4x4 transform", expected="(4,4) with a rotation block and "
-                     "last row 0 0 0 1", received=f"shape {shape}", hint="check the seed / pose conversion")
+    raise InputError(
+        f"{what} is not a rigid 4x4 transform",
+        expected="(4,4) with a rotation block and last row 0 0 0 1",
+        received=f"shape {shape}",
+        hint="check the seed / pose conversion",
+    )
 
 
 def check_T_stack(Ts: np.ndarray, whats) -> np.ndarray:
@@ -247,25 +288,36 @@ def check_T_stack(Ts: np.ndarray, whats) -> np.ndarray:
 
 def check_inputs(object_points, views) -> tuple[np.ndarray, np.ndarray]:
     """Validate the board points (N,3) and the views (unique ids, matching lengths, rigid poses);
-    returns the board points as float and the reported robot poses (n,4,4), re-orthonormalised."""
+    returns the board points as float and the reported robot poses (n,4,4), re-orthonormalised.
+    """
     object_points = np.asarray(object_points, float)
     if object_points.ndim != 2 or object_points.shape[1] != 3:
         raise InputError("object_points must be (N, 3)", received=f"shape {object_points.shape}")
     seen = set()
     for v in views:
         if v.view_id in seen:
-            raise InputError("duplicate view id in the refinement", received=repr(v.view_id),
-                             hint="views are linked by id; give each view a unique id")
+            raise InputError(
+                "duplicate view id in the refinement",
+                received=repr(v.view_id),
+                hint="views are linked by id; give each view a unique id",
+            )
         seen.add(v.view_id)
         n = len(np.asarray(v.corner_ids))
         if np.asarray(v.image_points).reshape(-1, 2).shape[0] != n:
-            raise InputError(f"view {v.view_id}: corner_ids and image_points differ in length",
-                             expected=f"{n} image points", received=str(np.asarray(v.image_points).shape))
+            raise InputError(
+                f"view {v.view_id}: corner_ids and image_points differ in length",
+                expected=f"{n} image points",
+                received=str(np.asarray(v.image_points).shape),
+            )
         if np.shape(v.T_base_end) != (4, 4):
             _not_rigid(f"view {v.view_id} T_base_end", np.shape(v.T_base_end))
     if len(views) < 3:
-        raise InputError("the refinement needs at least 3 views", received=f"{len(views)} views",
-                         hint="capture more views with the board visible")
-    reported = check_T_stack(np.stack([np.asarray(v.T_base_end, float) for v in views]),
-                             [f"view {v.view_id} T_base_end" for v in views])
+        raise InputError(
+            "the refinement needs at least 3 views",
+            received=f"{len(views)} views",
+            hint="capture more views with the board visible",
+        )
+    reported = check_T_stack(
+        np.stack([np.asarray(v.T_base_end, float) for v in views]), [f"view {v.view_id} T_base_end" for v in views]
+    )
     return object_points, reported

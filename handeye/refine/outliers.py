@@ -3,6 +3,7 @@
 :func:`robot_pose_test` is the one gated test of a reported robot pose against the pose the rest of
 the data predict; the refinement and the diagnostics (for runs without a refinement) both call it.
 """
+
 from __future__ import annotations
 
 import logging
@@ -40,26 +41,38 @@ class RobotPoseGates:
     @staticmethod
     def from_config(cfg: dict | None = None, *, unmodelled_arm: bool = True) -> "RobotPoseGates":
         """``unmodelled_arm``: the poses come from an arm whose kinematic error is not modelled (the null's
-        tail is ``iid_tail_dof``); False: a kinematic model, or a tracker, carries the error (Gaussian)."""
+        tail is ``iid_tail_dof``); False: a kinematic model, or a tracker, carries the error (Gaussian).
+        """
         c = (cfg if cfg is not None else refine_preset())["outliers"]["robot_pose"]
         nu = c["iid_tail_dof"]
         if isinstance(nu, bool) or not isinstance(nu, (int, float)) or not nu > 2:
-            raise ConfigError("outliers.robot_pose.iid_tail_dof is not a valid dof", path="configs/refine.yaml",
-                              expected="a number above 2 (the t's variance must exist), or .inf for a Gaussian",
-                              received=repr(nu))
-        return RobotPoseGates(alpha=float(c["alpha"]), min_rot_deg=float(c["min_rot_deg"]),
-                              min_trans_mm=float(c["min_trans_mm"]),
-                              tail_dof=float(c["iid_tail_dof"]) if unmodelled_arm else np.inf)
+            raise ConfigError(
+                "outliers.robot_pose.iid_tail_dof is not a valid dof",
+                path="configs/refine.yaml",
+                expected="a number above 2 (the t's variance must exist), or .inf for a Gaussian",
+                received=repr(nu),
+            )
+        return RobotPoseGates(
+            alpha=float(c["alpha"]),
+            min_rot_deg=float(c["min_rot_deg"]),
+            min_trans_mm=float(c["min_trans_mm"]),
+            tail_dof=float(c["iid_tail_dof"]) if unmodelled_arm else np.inf,
+        )
 
     @staticmethod
     def from_options(o: RefineOptions, *, unmodelled_arm: bool = True) -> "RobotPoseGates":
-        return replace(RobotPoseGates.from_config(unmodelled_arm=unmodelled_arm), alpha=o.view_outlier_p,
-                       min_rot_deg=o.min_robot_disagreement_deg, min_trans_mm=o.min_robot_disagreement_mm)
+        return replace(
+            RobotPoseGates.from_config(unmodelled_arm=unmodelled_arm),
+            alpha=o.view_outlier_p,
+            min_rot_deg=o.min_robot_disagreement_deg,
+            min_trans_mm=o.min_robot_disagreement_mm,
+        )
 
     @property
     def threshold(self) -> float:
         """The statistic (squared Mahalanobis units) exceeded with probability alpha under the null:
-        the chi-square(6) quantile at 1 - alpha when Gaussian."""
+        the chi-square(6) quantile at 1 - alpha when Gaussian.
+        """
         return float(mixture_tail_quantile(self.alpha, ROBOT_POSE_DOF, np.array(self.tail_dof)))
 
 
@@ -83,9 +96,15 @@ class RobotPoseTest:
         return np.sqrt(self.statistic)
 
 
-def robot_pose_test(disagreement: np.ndarray, covariance: np.ndarray, *, robot_sigma_rot_rad: float = 0.0,
-                    robot_sigma_trans_m: float = 0.0, gates: RobotPoseGates | None = None,
-                    robot_covariance: Optional[np.ndarray] = None) -> RobotPoseTest:
+def robot_pose_test(
+    disagreement: np.ndarray,
+    covariance: np.ndarray,
+    *,
+    robot_sigma_rot_rad: float = 0.0,
+    robot_sigma_trans_m: float = 0.0,
+    gates: RobotPoseGates | None = None,
+    robot_covariance: Optional[np.ndarray] = None,
+) -> RobotPoseTest:
     """Test each view's reported robot pose against the pose the rest of the data predict.
 
     Inputs, for n views:
@@ -120,7 +139,7 @@ def robot_pose_test(disagreement: np.ndarray, covariance: np.ndarray, *, robot_s
     C = np.asarray(covariance, float).reshape(-1, 6, 6)
     if C.shape[0] != d.shape[0]:
         raise ValueError(f"disagreement has {d.shape[0]} rows but covariance {C.shape[0]}")
-    R = np.diag([robot_sigma_rot_rad ** 2] * 3 + [robot_sigma_trans_m ** 2] * 3)
+    R = np.diag([robot_sigma_rot_rad**2] * 3 + [robot_sigma_trans_m**2] * 3)
     if robot_covariance is not None:
         R = np.asarray(robot_covariance, float).reshape(-1, 6, 6)
     ok = np.all(np.isfinite(d), axis=1) & np.all(np.isfinite(C), axis=(1, 2))
@@ -134,9 +153,17 @@ def robot_pose_test(disagreement: np.ndarray, covariance: np.ndarray, *, robot_s
     trans_mm = 1000.0 * np.linalg.norm(d[:, 3:], axis=1)
     large = (rot_deg > g.min_rot_deg) | (trans_mm > g.min_trans_mm)
     flagged = ok & (np.nan_to_num(p, nan=1.0) < g.alpha) & large
-    return RobotPoseTest(statistic=stat, p_value=p, flagged=flagged, rot_deg=rot_deg, trans_mm=trans_mm,
-                         sigma_rot_deg=np.degrees(np.sqrt(diag[:, :3].sum(axis=1))),
-                         sigma_trans_mm=1000.0 * np.sqrt(diag[:, 3:].sum(axis=1)), threshold=g.threshold, gates=g)
+    return RobotPoseTest(
+        statistic=stat,
+        p_value=p,
+        flagged=flagged,
+        rot_deg=rot_deg,
+        trans_mm=trans_mm,
+        sigma_rot_deg=np.degrees(np.sqrt(diag[:, :3].sum(axis=1))),
+        sigma_trans_mm=1000.0 * np.sqrt(diag[:, 3:].sum(axis=1)),
+        threshold=g.threshold,
+        gates=g,
+    )
 
 
 # ------------------------------------------------------------------------------ the refinement's decisions
@@ -154,8 +181,13 @@ class Outlier:
         return self.reason
 
     def to_dict(self) -> dict:
-        return {"view_id": self.view_id, "kind": self.kind, "reason": self.reason,
-                "corner_ids": [int(c) for c in self.corner_ids], "size": plain(self.size)}
+        return {
+            "view_id": self.view_id,
+            "kind": self.kind,
+            "reason": self.reason,
+            "corner_ids": [int(c) for c in self.corner_ids],
+            "size": plain(self.size),
+        }
 
 
 @dataclass(frozen=True)
@@ -177,7 +209,8 @@ def _failed_check(P: np.ndarray, n_corners: int) -> ViewCheck:
 
 def own_fit_variance(resid_px: np.ndarray, *, n_params: int = 6) -> float:
     """``s^2 = sum |e|^2 / (2 N - n_params)`` [px^2] of a view's N corner residual norms ``resid_px`` against
-    the pose fitted to that view alone (``n_params`` = 6 pose unknowns); NaN without redundancy."""
+    the pose fitted to that view alone (``n_params`` = 6 pose unknowns); NaN without redundancy.
+    """
     e = np.asarray(resid_px, float)
     e = e[np.isfinite(e)]
     dof = 2 * e.size - n_params
@@ -193,12 +226,13 @@ def view_variance_factor(resid_px: np.ndarray, *, sigma_px: float, n_params: int
     The pose of a view whose corners scatter k times more than sigma_px is about k times less certain
     than ``sigma_px^2 (J^T J)^-1`` says; the test of its robot pose must use that view's own level,
     measured where the robot pose plays no part (the view's own fit), so that a wrong robot pose
-    cannot hide behind it. Never below 1: a view is not held to a tighter standard than the run."""
+    cannot hide behind it. Never below 1: a view is not held to a tighter standard than the run.
+    """
     return _factor(own_fit_variance(resid_px, n_params=n_params), sigma_px)
 
 
 def _factor(s2: float, sigma_px: float) -> float:
-    return max(1.0, s2 / sigma_px ** 2) if np.isfinite(s2) and sigma_px > 0 else 1.0
+    return max(1.0, s2 / sigma_px**2) if np.isfinite(s2) and sigma_px > 0 else 1.0
 
 
 def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10) -> dict:
@@ -207,7 +241,8 @@ def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10)
     estimates ``pb.P``; a view that most of its corners do not fit from there (a start far off: its
     robot pose belongs to another image, or is misread) starts again from its own PnP pose carried through
     ``T_x`` and ``T_board``, and keeps the fit with more corners within ``corner_outlier_sigmas``. The
-    covariance is ``sigma_px^2 (J^T J)^-1`` over those corners. Returns {view index: ViewCheck}."""
+    covariance is ``sigma_px^2 (J^T J)^-1`` over those corners. Returns {view index: ViewCheck}.
+    """
     empty = {int(i): _failed_check(pb.P[i].copy(), 0) for i in idx if pb.offsets[i + 1] == pb.offsets[i]}
     idx = np.asarray([i for i in idx if i not in empty], int)
     if idx.size == 0:
@@ -217,7 +252,7 @@ def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10)
     if poor.size:
         again = _own_fits(pb, idx[poor], _pnp_starts(pb, idx[poor], fit["P"][poor]), max_iters)
         better = again["n_inl"] > fit["n_inl"][poor]
-        for k, j in zip(poor[better], np.flatnonzero(better)):
+        for k, j in zip(poor[better], np.flatnonzero(better), strict=False):
             for key in ("P", "alive", "n_inl", "H", "delta"):
                 fit[key][k] = again[key][j]
             fit["e"][k] = again["e"][j]
@@ -231,7 +266,7 @@ def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10)
         cov = None
         if 2 * fit["n_inl"][k] >= 6:
             try:
-                cov = pb.sigma_px ** 2 * np.linalg.inv(fit["H"][k])
+                cov = pb.sigma_px**2 * np.linalg.inv(fit["H"][k])
             except np.linalg.LinAlgError:
                 cov = None
         if cov is None or not np.all(np.isfinite(cov)):
@@ -246,7 +281,8 @@ def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10)
 def _pnp_starts(pb: "Problem", idx: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     """Robot poses (len(idx),4,4) that put each view's camera at its own PnP pose of the board under the
     current ``T_x``, ``T_board`` and intrinsics (``T_cam_board = inv(T_x) M T_board``); ``fallback`` where
-    PnP fails."""
+    PnP fails.
+    """
     import cv2
 
     from ..camera import Intrinsics
@@ -269,7 +305,8 @@ def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> 
     """The robust Gauss-Newton of :func:`camera_only_poses` from the robot poses ``P`` (len(idx),4,4), all views
     at once. Per view (lists in ``idx`` order): ``P``, ``alive``, ``counts``, ``n_inl`` (corners within
     ``corner_outlier_sigmas``), ``H`` (J^T J over those), ``delta`` (reported to ``P``), ``e`` (each corner's
-    residual, px) and ``inl`` (its mask)."""
+    residual, px) and ``inl`` (its mask).
+    """
     sel = np.concatenate([np.arange(pb.offsets[i], pb.offsets[i + 1]) for i in idx])
     counts = pb.offsets[idx + 1] - pb.offsets[idx]
     local = np.repeat(np.arange(idx.size), counts)  # shape (M,): position in idx of each corner's view
@@ -277,9 +314,17 @@ def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> 
     obj, img = pb.obj_all[sel], pb.img_all[sel]
     alive = counts > 0
     for it in range(max_iters + 1):
-        r, J = stacked_chain_residual(T_x=pb.T_x, T_base_end=P, T_board=pb.T_board, invert_robot=pb.invert,
-                                      intrinsics_vec=pb.k, object_points=obj, image_points=img, view_index=local,
-                                      robot_jacobian=True)
+        r, J = stacked_chain_residual(
+            T_x=pb.T_x,
+            T_base_end=P,
+            T_board=pb.T_board,
+            invert_robot=pb.invert,
+            intrinsics_vec=pb.k,
+            object_points=obj,
+            image_points=img,
+            view_index=local,
+            robot_jacobian=True,
+        )
         finite = np.all(np.isfinite(r), axis=1) & np.all(np.isfinite(J), axis=(1, 2))
         alive &= np.logical_and.reduceat(finite, starts)
         if it == max_iters:
@@ -307,14 +352,22 @@ def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> 
     H = np.add.reduceat(np.einsum("mci,mcj->mij", Jin, Jin), starts, axis=0)
     n_inl = np.add.reduceat(inl.astype(int), starts)
     ends = starts + counts
-    return {"P": P, "alive": alive, "counts": counts, "n_inl": n_inl, "H": H,
-            "delta": tangent_difference(pb.reported[idx], P),
-            "e": [e[a:b] for a, b in zip(starts, ends)], "inl": [inl[a:b] for a, b in zip(starts, ends)]}
+    return {
+        "P": P,
+        "alive": alive,
+        "counts": counts,
+        "n_inl": n_inl,
+        "H": H,
+        "delta": tangent_difference(pb.reported[idx], P),
+        "e": [e[a:b] for a, b in zip(starts, ends, strict=False)],
+        "inl": [inl[a:b] for a, b in zip(starts, ends, strict=False)],
+    }
 
 
 def joint_checks(pb: "Problem", S_pp: dict) -> dict:
     """The views of the last Gaussian solve as it has them (their robot poses variables of that solve),
-    with the marginal covariance of each robot pose. Returns {view index: ViewCheck}."""
+    with the marginal covariance of each robot pose. Returns {view index: ViewCheck}.
+    """
     idx = sorted(S_pp)
     if not idx:
         return {}
@@ -337,7 +390,8 @@ class Decision:
 
 def _robot_test_cov(pb: "Problem") -> np.ndarray:
     """(n,6,6) each view's robot noise covariance for the test: the model's, or for robot_noise "none"
-    the configured iid tolerance."""
+    the configured iid tolerance.
+    """
     if pb.robot_var:
         return pb.robot_cov(range(pb.n))
     R = np.diag([np.radians(pb.o.robot_sigma_deg) ** 2] * 3 + [(pb.o.robot_sigma_mm / 1000.0) ** 2] * 3)
@@ -353,7 +407,8 @@ def leave_one_out(e: np.ndarray, R: np.ndarray, S_p: np.ndarray) -> tuple[np.nda
     ``e = (R - S_p) R^-1 d`` with ``d`` the leave-one-out disagreement, so
     ``d = R (R - S_p)^-1 e`` and ``S_loo = R (R - S_p)^-1 R - R``; ``d^T (S_loo + R)^-1 d`` is then
     ``e^T (R - S_p)^-1 e``, Baarda's normalised residual. Raises LinAlgError when ``R - S_p`` is not
-    positive definite (the solve did not weigh the prior as ``R`` says)."""
+    positive definite (the solve did not weigh the prior as ``R`` says).
+    """
     np.linalg.cholesky(R - S_p)
     C_inv_R = np.linalg.solve(R - S_p, R)
     return C_inv_R.T @ e, R @ C_inv_R - R
@@ -363,7 +418,8 @@ def prior_share(R: np.ndarray, S_p: np.ndarray) -> float:
     """Smallest eigenvalue of ``R^-1/2 (R - S_p) R^-1/2``: the share of a robot pose's information that
     comes from the camera (1: the camera alone fixes it; 0: its prior alone does). :func:`leave_one_out`
     divides by it, so where it is tiny (a robot sigma near its floor, as on a simulated exact robot) the
-    leave-one-out prediction is the rounding error of ``R - S_p`` blown up."""
+    leave-one-out prediction is the rounding error of ``R - S_p`` blown up.
+    """
     w = 1.0 / np.sqrt(np.diag(R))
     return float(np.linalg.eigvalsh((R - S_p) * np.outer(w, w))[0])
 
@@ -381,7 +437,8 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
     ignores the uncertainty of ``T_x``, ``T_board`` and the intrinsics (a share of about 1 / n views).
     Each view's camera-side covariance is scaled by its own corner variance
     (:func:`view_variance_factor`). Under the kinematic model the camera-only comparison is made with
-    the current DH offsets taken off the disagreement and their covariance added to the camera's."""
+    the current DH offsets taken off the disagreement and their covariance added to the camera's.
+    """
     R_all = _robot_test_cov(pb)
     loo_min = float(refine_preset()["outliers"]["robot_pose"]["loo_min_camera_share"])
     d = np.full((pb.n, 6), np.nan)
@@ -417,8 +474,9 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
     for i, ch in camera_only_poses(pb, own).items() if own else ():  # all fall-backs in one batch
         if ch.ok:
             d[i], C[i] = camera_side(i, ch)
-    return robot_pose_test(d, C, robot_covariance=R_all,
-                           gates=RobotPoseGates.from_options(pb.o, unmodelled_arm=pb.kind != "kinematic"))
+    return robot_pose_test(
+        d, C, robot_covariance=R_all, gates=RobotPoseGates.from_options(pb.o, unmodelled_arm=pb.kind != "kinematic")
+    )
 
 
 def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = None) -> Decision:
@@ -437,7 +495,8 @@ def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = No
 
     ``robust_robot_sigma``: first set the robot sigmas from the camera-only poses by the robust
     (median) estimator, for decisions made before the data are clean. ``S_pp``: robot-pose
-    covariances of the last Gaussian solve, for the exact robot-pose tests."""
+    covariances of the last Gaussian solve, for the exact robot-pose tests.
+    """
     o = pb.o
     t_corner = o.corner_outlier_sigmas
     share = float(refine_preset()["outliers"]["reprojection_share"])
@@ -445,11 +504,11 @@ def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = No
     # camera side from their own fit (measured without the robot pose; its residual variance hardly
     # moves between rounds, so a view's first own fit serves, divided by the current sigma_px^2)
     by_view = joint_checks(pb, S_pp) if S_pp is not None else {}
-    need = [i for i in range(pb.n) if len(pb.obj[i]) >= o.min_corners
-            and (i not in by_view or i not in pb.own_fit_var)]
+    need = [i for i in range(pb.n) if len(pb.obj[i]) >= o.min_corners and (i not in by_view or i not in pb.own_fit_var)]
     own = camera_only_poses(pb, need)
-    by_view = {i: replace(ch, variance_factor=_factor(pb.own_fit_var.get(i, np.nan), pb.sigma_px))
-               for i, ch in by_view.items()}
+    by_view = {
+        i: replace(ch, variance_factor=_factor(pb.own_fit_var.get(i, np.nan), pb.sigma_px)) for i, ch in by_view.items()
+    }
     by_view.update({i: ch for i, ch in own.items() if i not in by_view})
     checks = [by_view.get(i) or _failed_check(pb.P[i], len(pb.obj[i])) for i in range(pb.n)]
     if robust_robot_sigma:
@@ -474,35 +533,66 @@ def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = No
         if not ch.ok and n_all >= o.min_corners:
             status.append("removed")
             masks.append(np.ones(n_all, bool))
-            outliers.append(Outlier(vid, "reprojection", f"view {vid}: its corners alone do not determine a pose "
-                                    f"({n_all} corners)", size={"n_corners": n_all}))
+            outliers.append(
+                Outlier(
+                    vid,
+                    "reprojection",
+                    f"view {vid}: its corners alone do not determine a pose ({n_all} corners)",
+                    size={"n_corners": n_all},
+                )
+            )
             continue
         if n_good < o.min_corners or not ch.ok:
             status.append("removed")
             masks.append(np.ones(n_all, bool))
-            outliers.append(Outlier(vid, "too_few_corners", f"view {vid}: {n_good} usable corners of {n_all}, "
-                                    f"need {o.min_corners}", size={"n_usable": n_good, "n_corners": n_all}))
+            outliers.append(
+                Outlier(
+                    vid,
+                    "too_few_corners",
+                    f"view {vid}: {n_good} usable corners of {n_all}, need {o.min_corners}",
+                    size={"n_usable": n_good, "n_corners": n_all},
+                )
+            )
             continue
         if bad.mean() > share:
-            rms = float(np.sqrt(np.mean(ch.resid_px ** 2)))
+            rms = float(np.sqrt(np.mean(ch.resid_px**2)))
             status.append("removed")
             masks.append(np.ones(n_all, bool))
-            outliers.append(Outlier(vid, "reprojection", f"view {vid}: {int(bad.sum())} of {n_all} corners beyond "
-                                    f"{t_corner:g} sigma even with the pose fitted to this view alone "
-                                    f"(rms {rms:.2f} px, sigma {pb.sigma_px:.3f} px)",
-                                    size={"rms_px": rms, "max_px": float(ch.resid_px.max()),
-                                          "n_flagged": int(bad.sum())}))
+            outliers.append(
+                Outlier(
+                    vid,
+                    "reprojection",
+                    f"view {vid}: {int(bad.sum())} of {n_all} corners beyond "
+                    f"{t_corner:g} sigma even with the pose fitted to this view alone "
+                    f"(rms {rms:.2f} px, sigma {pb.sigma_px:.3f} px)",
+                    size={"rms_px": rms, "max_px": float(ch.resid_px.max()), "n_flagged": int(bad.sum())},
+                )
+            )
             continue
         masks.append(~bad)
         if bad.any():
             ids = tuple(int(c) for c in np.asarray(pb.views[i].corner_ids)[bad])
-            outliers.append(Outlier(vid, "corners", f"view {vid}: {len(ids)} corner(s) beyond {t_corner:g} sigma "
-                                    f"(max {ch.resid_px[bad].max():.2f} px, sigma {pb.sigma_px:.3f} px)",
-                                    corner_ids=ids, size={"residual_px": ch.resid_px[bad]}))
+            outliers.append(
+                Outlier(
+                    vid,
+                    "corners",
+                    f"view {vid}: {len(ids)} corner(s) beyond {t_corner:g} sigma "
+                    f"(max {ch.resid_px[bad].max():.2f} px, sigma {pb.sigma_px:.3f} px)",
+                    corner_ids=ids,
+                    size={"residual_px": ch.resid_px[bad]},
+                )
+            )
         if test.flagged[i]:
             status.append("robot_excluded")
-            outliers.append(robot_pose_outlier(vid, test, i, "reported robot pose disagrees with the camera",
-                                               "its corners still serve the intrinsics"))
+            outliers.append(
+                robot_pose_outlier(
+                    vid,
+                    test,
+                    i,
+                    "reported robot pose disagrees with the camera",
+                    "its corners still serve the intrinsics",
+                )
+            )
         else:
             status.append("used")
     return Decision(tuple(status), tuple(masks), tuple(outliers), tuple(checks), test)
@@ -524,7 +614,8 @@ def outlier_loop(pb: "Problem"):
     """Decide, exclude, re-solve (Gaussian, with variance-component estimation) and decide again from
     scratch against the clean solution, so that a flagged view or corner that fits it is re-admitted,
     until the set is stable (or ``max_outlier_rounds``). Returns (Decision, Sigma_core, {view:
-    Sigma_robot}); raises TooFewRobotPoses."""
+    Sigma_robot}); raises TooFewRobotPoses.
+    """
     o = pb.o
     seen_keys = []
     S_pp = None
@@ -540,11 +631,13 @@ def outlier_loop(pb: "Problem"):
             return dec, S_cc, S_pp
         seen_keys.append(dec.key())
         apply_decision(pb, dec)
-        n_robot = len(pb.prior_views()) + (0 if pb.robot_var else len([i for i in pb.active()
-                                                                         if pb.status[i] == "used"]))
+        n_robot = len(pb.prior_views()) + (
+            0 if pb.robot_var else len([i for i in pb.active() if pb.status[i] == "used"])
+        )
         if n_robot < 3:
-            raise TooFewRobotPoses(f"only {len(pb.prior_views())} views left whose robot pose agrees with the "
-                                   "camera; need 3")
+            raise TooFewRobotPoses(
+                f"only {len(pb.prior_views())} views left whose robot pose agrees with the camera; need 3"
+            )
         S_cc, S_pp = solve_with_vce(pb)
     log.warning("outlier decisions did not settle in %d rounds", o.max_outlier_rounds)
     return decide(pb, robust_robot_sigma=False, S_pp=S_pp), S_cc, S_pp
@@ -552,14 +645,25 @@ def outlier_loop(pb: "Problem"):
 
 def robot_pose_outlier(vid: str, test, i: int, what: str, consequence: str) -> Outlier:
     """The ``robot_pose`` outlier of view ``vid`` (index ``i`` of the robot-pose ``test``): its disagreement in
-    degrees, mm and Mahalanobis distance against the threshold, with what happens to the view."""
+    degrees, mm and Mahalanobis distance against the threshold, with what happens to the view.
+    """
     rot_deg, trans_mm, dist = float(test.rot_deg[i]), float(test.trans_mm[i]), float(test.distance[i])
     thr = float(np.sqrt(test.threshold))
     nu = float(test.gates.tail_dof)
     tail = "" if not np.isfinite(nu) else f" of the unmodelled arm's error, t with {nu:g} dof"
-    return Outlier(vid, "robot_pose", f"view {vid}: {what} by {rot_deg:.3f} deg / {trans_mm:.2f} mm (Mahalanobis "
-                   f"{dist:.1f}, threshold {thr:.1f}{tail}); {consequence}",
-                   size={"rot_deg": rot_deg, "trans_mm": trans_mm, "mahalanobis": dist,
-                         "p_value": float(test.p_value[i]), "threshold": thr,
-                         "tail_dof": nu if np.isfinite(nu) else None,
-                         "sigma_rot_deg": float(test.sigma_rot_deg[i]), "sigma_trans_mm": float(test.sigma_trans_mm[i])})
+    return Outlier(
+        vid,
+        "robot_pose",
+        f"view {vid}: {what} by {rot_deg:.3f} deg / {trans_mm:.2f} mm (Mahalanobis "
+        f"{dist:.1f}, threshold {thr:.1f}{tail}); {consequence}",
+        size={
+            "rot_deg": rot_deg,
+            "trans_mm": trans_mm,
+            "mahalanobis": dist,
+            "p_value": float(test.p_value[i]),
+            "threshold": thr,
+            "tail_dof": nu if np.isfinite(nu) else None,
+            "sigma_rot_deg": float(test.sigma_rot_deg[i]),
+            "sigma_trans_mm": float(test.sigma_trans_mm[i]),
+        },
+    )

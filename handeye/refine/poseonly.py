@@ -19,6 +19,7 @@ in the solve (:func:`.outliers.leave_one_out`) and the plain prediction for view
 the set of views is stable. The covariance is the inverse information of the final Gaussian solve.
 The graph is built and solved in :mod:`.problem` (:func:`.problem.solve_pose_graph`).
 """
+
 from __future__ import annotations
 
 import logging
@@ -64,7 +65,8 @@ class _NoIntrinsics:
 @dataclass(frozen=True)
 class PoseRefineResult(RefineResult):
     """A :class:`.result.RefineResult` of pose-only views: no intrinsics and no pixels (``intrinsics`` is
-    None, the pixel figures NaN); the tracker's noise instead."""
+    None, the pixel figures NaN); the tracker's noise instead.
+    """
 
     tracker_sigma_deg: float = float("nan")
     tracker_sigma_mm: float = float("nan")
@@ -75,10 +77,14 @@ class PoseRefineResult(RefineResult):
     def to_dict(self) -> dict:
         d = RefineResult.to_dict(replace(self, intrinsics=_NoIntrinsics(), intrinsics_seed=_NoIntrinsics()))
         d["observations"] = "poses"
-        d["tracker_noise"] = {"sigma_deg": self.tracker_sigma_deg, "sigma_mm": self.tracker_sigma_mm,
-                              "source": self.tracker_sigma_source, "resolved": dict(self.tracker_sigma_resolved),
-                              "model": "T_cam_board_measured = T_cam_board_true · Exp(n), n ~ N(0, diag(sigma_rad^2 I3,"
-                                       " sigma_m^2 I3)); robot poses taken as reported (their noise is part of it)"}
+        d["tracker_noise"] = {
+            "sigma_deg": self.tracker_sigma_deg,
+            "sigma_mm": self.tracker_sigma_mm,
+            "source": self.tracker_sigma_source,
+            "resolved": dict(self.tracker_sigma_resolved),
+            "model": "T_cam_board_measured = T_cam_board_true · Exp(n), n ~ N(0, diag(sigma_rad^2 I3,"
+            " sigma_m^2 I3)); robot poses taken as reported (their noise is part of it)",
+        }
         if self.cov_board_6x6 is not None:
             d["cov_board_6x6"] = self.cov_board_6x6.tolist()
         return d
@@ -98,8 +104,10 @@ class _State:
         """(r (n,6), J (n,6,12) or None) of every view at the current (or given) solution."""
         T_x = self.T_x if T_x is None else T_x
         T_board = self.T_board if T_board is None else T_board
-        out = [pose_residual(T_x=T_x, M=M, T_board=T_board, T_cam_board_measured=C, jacobians=jacobians)
-               for M, C in zip(self.M, self.C)]
+        out = [
+            pose_residual(T_x=T_x, M=M, T_board=T_board, T_cam_board_measured=C, jacobians=jacobians)
+            for M, C in zip(self.M, self.C, strict=False)
+        ]
         r = np.stack([o[0] for o in out])
         J = np.stack([np.hstack([o[1], o[2]]) for o in out]) if jacobians else None
         return r, J
@@ -117,7 +125,9 @@ def _robust_sigmas(r: np.ndarray, floors: np.ndarray) -> np.ndarray:
 def _score(st: _State, T_x, T_board) -> float:
     """Median over the views of the rotation and translation residuals in units of the start sigmas."""
     r, _ = st.residuals(T_x, T_board)
-    return float(np.median(np.linalg.norm(r[:, :3], axis=1) / st.sigma[0] + np.linalg.norm(r[:, 3:], axis=1) / st.sigma[1]))
+    return float(
+        np.median(np.linalg.norm(r[:, :3], axis=1) / st.sigma[0] + np.linalg.norm(r[:, 3:], axis=1) / st.sigma[1])
+    )
 
 
 def _information(st: _State, J: np.ndarray, prior_x) -> np.ndarray:
@@ -130,9 +140,16 @@ def _information(st: _State, J: np.ndarray, prior_x) -> np.ndarray:
 def _solve(st: _State, *, robust_k, prior_x, max_iterations) -> None:
     k = np.flatnonzero(st.keep)
     sig = np.broadcast_to(st.sigma, (k.size, 2))
-    st.T_x, st.T_board, it = solve_pose_graph(M=st.M[k], T_cam_board=st.C[k], sigmas=sig, T_x0=st.T_x,
-                                              T_board0=st.T_board, robust_k=robust_k, prior_x=prior_x,
-                                              max_iterations=max_iterations)
+    st.T_x, st.T_board, it = solve_pose_graph(
+        M=st.M[k],
+        T_cam_board=st.C[k],
+        sigmas=sig,
+        T_x0=st.T_x,
+        T_board0=st.T_board,
+        robust_k=robust_k,
+        prior_x=prior_x,
+        max_iterations=max_iterations,
+    )
     st.iterations += it
 
 
@@ -141,7 +158,8 @@ def _vce_on_linearisation(st: _State, r: np.ndarray, J: np.ndarray, prior_x, flo
     ``J`` (n,6,12) at the last solve): for sigmas s the weighted least-squares step, its residuals ``e_g``
     and the redundancies ``r_g = n_g - tr(W_g J Sigma J^T)`` give ``s_g^2 = e_g^T e_g / r_g``, until the
     sigmas change by less than ``noise.inner_tol``. Updates ``st.sigma`` and ``resolved``; returns the
-    relative change of the sigmas."""
+    relative change of the sigmas.
+    """
     cfg = refine_preset()["noise"]
     share, tol = float(cfg["unresolved_redundancy_share"]), float(cfg["inner_tol"])
     rk, Jk = r[st.keep], J[st.keep]
@@ -172,7 +190,8 @@ def _solve_with_vce(st: _State, *, estimate: bool, prior_x, max_iterations, floo
     """Gaussian solves alternating with variance-component estimation on each linearisation
     (:func:`_vce_on_linearisation`) until a solve's sigmas are within ``noise.outer_tol`` of the estimate
     on its linearisation (as :func:`.noise.solve_with_vce` does for the pixel and robot sigmas); returns
-    (Sigma (12,12), r, J, resolved) at the final solution."""
+    (Sigma (12,12), r, J, resolved) at the final solution.
+    """
     cfg = refine_preset()["noise"]
     resolved = {"rot": True, "trans": True}
     for _ in range(int(cfg["max_outer"]) if estimate else 0):  # a stated sigma: one solve below
@@ -206,14 +225,22 @@ def _tests(st: _State, S: np.ndarray, r: np.ndarray, J: np.ndarray, gates: Robot
     return robot_pose_test(d, C, robot_covariance=np.broadcast_to(R, (len(r), 6, 6)), gates=gates)
 
 
-def refine_poses(*, mode: str, views: Sequence[PoseView], T_x0: np.ndarray, T_board0: np.ndarray,
-                 tracker_sigma: Optional[tuple] = None, options: RefineOptions = RefineOptions(),
-                 starts: Optional[Mapping[str, HandEyeEstimate]] = None) -> PoseRefineResult:
+def refine_poses(
+    *,
+    mode: str,
+    views: Sequence[PoseView],
+    T_x0: np.ndarray,
+    T_board0: np.ndarray,
+    tracker_sigma: Optional[tuple] = None,
+    options: RefineOptions = RefineOptions(),
+    starts: Optional[Mapping[str, HandEyeEstimate]] = None,
+) -> PoseRefineResult:
     """Refine ``T_x`` and ``T_board`` from pose-only views; see the module docstring.
 
     ``tracker_sigma``: (rotation [rad], translation [m]) of the tracker, held; None: estimated.
     ``starts``: the closed forms (method -> estimate); the refinement starts from the one the views
-    agree with best. A solve that fails returns ``status="failed"`` with the reason."""
+    agree with best. A solve that fails returns ``status="failed"`` with the reason.
+    """
     t0 = time.perf_counter()
     mount = mounting(mode)
     T_x0 = check_T(T_x0, f"seed {mount.x_name}")
@@ -225,8 +252,11 @@ def refine_poses(*, mode: str, views: Sequence[PoseView], T_x0: np.ndarray, T_bo
     floors = np.array([float(cfg["robot_sigma_rot_floor_rad"]), float(cfg["robot_sigma_trans_floor_m"])])
     estimate = tracker_sigma is None
     st = _State(M, C, T_x0.copy(), T_board0.copy(), np.ones(2), np.ones(len(views), bool))
-    prior_x = None if options.prior is None else (check_T(options.prior.T_x, "prior T_x"),
-                                                  np.asarray(options.prior.cov_x, float))
+    prior_x = (
+        None
+        if options.prior is None
+        else (check_T(options.prior.T_x, "prior T_x"), np.asarray(options.prior.cov_x, float))
+    )
     st.sigma = _robust_sigmas(st.residuals()[0], floors) if estimate else np.asarray(tracker_sigma, float)
     start_method = "given"
     if starts:
@@ -265,8 +295,9 @@ def refine_poses(*, mode: str, views: Sequence[PoseView], T_x0: np.ndarray, T_bo
                 log.warning("outlier decisions oscillate; keeping the latest set")
             seen.append(keep)
             st.keep = keep
-            S, r, J, resolved = _solve_with_vce(st, estimate=estimate, prior_x=prior_x, max_iterations=it_max,
-                                                floors=floors)
+            S, r, J, resolved = _solve_with_vce(
+                st, estimate=estimate, prior_x=prior_x, max_iterations=it_max, floors=floors
+            )
             test = _tests(st, S, r, J, gates)
             if oscillates:
                 break
@@ -284,8 +315,13 @@ def refine_poses(*, mode: str, views: Sequence[PoseView], T_x0: np.ndarray, T_bo
     unc = hand_eye_uncertainty(S_x, st.T_x, wd)
     per_view, outliers = {}, []
     for i, vid in enumerate(ids):
-        pv = {"status": "used" if dec_keep is not None and dec_keep[i] else "removed", "n_corners": 0, "n_used": 0,
-              "rms_px": float("nan"), "max_px": float("nan")}
+        pv = {
+            "status": "used" if dec_keep is not None and dec_keep[i] else "removed",
+            "n_corners": 0,
+            "n_used": 0,
+            "rms_px": float("nan"),
+            "max_px": float("nan"),
+        }
         if r is not None:
             pv["pose_residual_rot_deg"] = float(np.degrees(np.linalg.norm(r[i, :3])))
             pv["pose_residual_trans_mm"] = float(1000.0 * np.linalg.norm(r[i, 3:]))
@@ -294,23 +330,59 @@ def refine_poses(*, mode: str, views: Sequence[PoseView], T_x0: np.ndarray, T_bo
             pv["robot_vs_camera_trans_mm"] = float(test.trans_mm[i])
             pv["robot_vs_camera_mahalanobis"] = float(test.distance[i])
             if test.flagged[i]:
-                outliers.append(robot_pose_outlier(vid, test, i, "the reported robot pose and the tracker's target "
-                                                   "pose disagree with the other views", "view left out"))
+                outliers.append(
+                    robot_pose_outlier(
+                        vid,
+                        test,
+                        i,
+                        "the reported robot pose and the tracker's target pose disagree with the other views",
+                        "view left out",
+                    )
+                )
         per_view[vid] = pv
     nan = float("nan")
     return PoseRefineResult(
-        status=status, failure_reason=reason, mode=mode, x_name=mount.x_name, board_name=mount.board_name,
-        T_x=st.T_x.copy(), T_board=st.T_board.copy(), intrinsics=None, T_x_seed=T_x_seed, T_board_seed=T_board_seed,
-        intrinsics_seed=None, robot_poses={vid: np.asarray(v.T_base_end, float).copy() for vid, v in zip(ids, views)},
-        cov_x_6x6=unc.cov_x_6x6, cov_parametrisation=COV_PARAMETRISATION, sigma_rot_deg=unc.sigma_rot_deg,
-        sigma_trans_mm=unc.sigma_trans_mm, correlation_6x6=unc.correlation_6x6, intrinsics_sigma={},
-        working_distance_m=wd, predicted_error_mm=unc.predicted_error_mm,
-        predicted_error_axes_mm=unc.predicted_error_axes_mm, sigma_px=nan, robot_sigma_mm=0.0, robot_sigma_deg=0.0,
-        robot_sigma_resolved={}, rms_px_before=nan, rms_px_after=nan, per_view=per_view, outliers=tuple(outliers),
-        iterations=st.iterations, seconds=time.perf_counter() - t0, start_method=start_method,
+        status=status,
+        failure_reason=reason,
+        mode=mode,
+        x_name=mount.x_name,
+        board_name=mount.board_name,
+        T_x=st.T_x.copy(),
+        T_board=st.T_board.copy(),
+        intrinsics=None,
+        T_x_seed=T_x_seed,
+        T_board_seed=T_board_seed,
+        intrinsics_seed=None,
+        robot_poses={vid: np.asarray(v.T_base_end, float).copy() for vid, v in zip(ids, views, strict=False)},
+        cov_x_6x6=unc.cov_x_6x6,
+        cov_parametrisation=COV_PARAMETRISATION,
+        sigma_rot_deg=unc.sigma_rot_deg,
+        sigma_trans_mm=unc.sigma_trans_mm,
+        correlation_6x6=unc.correlation_6x6,
+        intrinsics_sigma={},
+        working_distance_m=wd,
+        predicted_error_mm=unc.predicted_error_mm,
+        predicted_error_axes_mm=unc.predicted_error_axes_mm,
+        sigma_px=nan,
+        robot_sigma_mm=0.0,
+        robot_sigma_deg=0.0,
+        robot_sigma_resolved={},
+        rms_px_before=nan,
+        rms_px_after=nan,
+        per_view=per_view,
+        outliers=tuple(outliers),
+        iterations=st.iterations,
+        seconds=time.perf_counter() - t0,
+        start_method=start_method,
         options=replace(options, robot_noise="none"),
-        robot_model={"kind": "none", "description": "reported robot poses taken as exact (pose-only views: the robot's "
-                                                    "noise is part of the tracker's)"},
-        tracker_sigma_deg=float(np.degrees(st.sigma[0])), tracker_sigma_mm=float(1000.0 * st.sigma[1]),
-        tracker_sigma_source="estimated" if estimate else "stated", tracker_sigma_resolved=resolved,
-        cov_board_6x6=None if status != "ok" else S[6:, 6:].copy())
+        robot_model={
+            "kind": "none",
+            "description": "reported robot poses taken as exact (pose-only views: the robot's "
+            "noise is part of the tracker's)",
+        },
+        tracker_sigma_deg=float(np.degrees(st.sigma[0])),
+        tracker_sigma_mm=float(1000.0 * st.sigma[1]),
+        tracker_sigma_source="estimated" if estimate else "stated",
+        tracker_sigma_resolved=resolved,
+        cov_board_6x6=None if status != "ok" else S[6:, 6:].copy(),
+    )

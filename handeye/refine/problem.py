@@ -14,6 +14,7 @@ Gauss-Newton step that overshoots; LM then stops at once, far from the optimum (
 session with two wrong robot poses). Damping proportional to the diagonal shrinks the step whatever
 the units and noise levels.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -22,8 +23,14 @@ from typing import Optional, Sequence
 import gtsam
 import numpy as np
 
-from handeye.factors.gtsam_factors import (gaussian_prior, intrinsics_prior, joint_gaussian_prior,
-                                           kinematic_robot_prior, robot_pose_prior, view_reprojection_factor)
+from handeye.factors.gtsam_factors import (
+    gaussian_prior,
+    intrinsics_prior,
+    joint_gaussian_prior,
+    kinematic_robot_prior,
+    robot_pose_prior,
+    view_reprojection_factor,
+)
 from handeye.factors.reprojection import stacked_chain_residual
 
 from ..camera import INTRINSIC_NAMES, Intrinsics
@@ -42,7 +49,8 @@ KEY_DH = gtsam.symbol("d", 0)
 
 def lm_params(max_iterations: int) -> "gtsam.LevenbergMarquardtParams":
     """The solver settings of every solve: at most ``max_iterations``, the preset's relative tolerance, and
-    scale-free diagonal damping (see the module docstring)."""
+    scale-free diagonal damping (see the module docstring).
+    """
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(int(max_iterations))
     params.setRelativeErrorTol(float(refine_preset()["solver"]["relative_error_tol"]))
@@ -61,7 +69,8 @@ class PixelLinearisation:
     """Reprojection part of a linearisation with unit pixel sigma: information blocks (core c, then n
     robot blocks), gradient g = J^T r, r^T r and the count of observations; plus the robot prior
     residuals xi (n,6) (:meth:`Problem.prior_residuals`; rows without a prior flagged False in
-    ``prior``) and their Jacobians in the DH offsets ``J_dh`` (n,6,m), the core's last m unknowns."""
+    ``prior``) and their Jacobians in the DH offsets ``J_dh`` (n,6,m), the core's last m unknowns.
+    """
 
     Hcc: np.ndarray
     Hcp: np.ndarray  # shape (n, c, 6)
@@ -84,10 +93,21 @@ class Problem:
     ``sigma_rot`` [rad], ``sigma_trans`` [m] of the iid robot model, ``sigma_q`` [rad] of the
     kinematic one) are the noise models of the next solve. The robot error model
     (:mod:`.robot_model`) is ``kind``; the kinematic one adds the DH offsets ``dh`` (m,) to the core,
-    after the free intrinsics, with ``S_dd`` their latest marginal covariance (at first their prior)."""
+    after the free intrinsics, with ``S_dd`` their latest marginal covariance (at first their prior).
+    """
 
-    def __init__(self, *, mode: str, object_points: np.ndarray, views: Sequence[RefineView], reported: np.ndarray,
-                 intrinsics: Intrinsics, T_x0: np.ndarray, T_board0: np.ndarray, options: RefineOptions):
+    def __init__(
+        self,
+        *,
+        mode: str,
+        object_points: np.ndarray,
+        views: Sequence[RefineView],
+        reported: np.ndarray,
+        intrinsics: Intrinsics,
+        T_x0: np.ndarray,
+        T_board0: np.ndarray,
+        options: RefineOptions,
+    ):
         """``reported`` (n,4,4): the views' reported robot poses, checked (:func:`.options.check_inputs`)."""
         self.mode = mode
         self.mounting = mounting(mode)
@@ -121,8 +141,13 @@ class Problem:
                 p = refine_preset()["intrinsics_prior"]
                 w = self.width if self.width > 0 else 2.0 * self.k[2]
                 h = self.height if self.height > 0 else 2.0 * self.k[3]
-                sig = np.r_[p["focal_share"] * self.k[0], p["focal_share"] * self.k[1], p["centre_share"] * w,
-                            p["centre_share"] * h, np.asarray(p["distortion"], float)]
+                sig = np.r_[
+                    p["focal_share"] * self.k[0],
+                    p["focal_share"] * self.k[1],
+                    p["centre_share"] * w,
+                    p["centre_share"] * h,
+                    np.asarray(p["distortion"], float),
+                ]
             self.prior_sig = sig[self.free]
         # options.prior: Gaussian priors on T_x and on the free intrinsics (e.g. an earlier calibration)
         self.prior_x = None  # (T_x of the prior (4,4), its covariance (6,6))
@@ -136,8 +161,10 @@ class Problem:
             if p.T_board is not None:
                 self.prior_board = (check_T(p.T_board, "prior T_board"), np.asarray(p.cov_board, float))
             if p.intrinsics is not None and self.free.size:
-                self.prior_k = (p.intrinsics.as_vector()[self.free].astype(float),
-                                np.asarray(p.cov_intrinsics, float)[np.ix_(self.free, self.free)])
+                self.prior_k = (
+                    p.intrinsics.as_vector()[self.free].astype(float),
+                    np.asarray(p.cov_intrinsics, float)[np.ix_(self.free, self.free)],
+                )
                 if p.cov_x_intrinsics is not None:
                     C = np.asarray(p.cov_x_intrinsics, float)[:, self.free]
                     self.prior_cov_xk = np.block([[self.prior_x[1], C], [C.T, self.prior_k[1]]])
@@ -146,19 +173,24 @@ class Problem:
                     self.prior_cov_bk = np.block([[self.prior_board[1], C], [C.T, self.prior_k[1]]])
         self.robot_var = options.robot_noise != "none"
         self.kind = resolve_kind(options, self.views)
-        self.kin = (build_kinematic_model(options, self.kind, self.views, self.reported)
-                    if self.kind in ("kinematic", "joint_space") else None)
+        self.kin = (
+            build_kinematic_model(options, self.kind, self.views, self.reported)
+            if self.kind in ("kinematic", "joint_space")
+            else None
+        )
         self.m_dh = self.kin.m if self.kin is not None else 0
         # the DH offsets' prior: N(0, the arm's error prior), or an earlier calibration's estimate (prior.dh_offsets)
-        self.prior_dh = (np.zeros(self.m_dh), np.diag(self.kin.dh_sigma ** 2) if self.m_dh else np.zeros((0, 0)))
+        self.prior_dh = (np.zeros(self.m_dh), np.diag(self.kin.dh_sigma**2) if self.m_dh else np.zeros((0, 0)))
         self.prior_dh_earlier = False  # prior_dh is an earlier calibration's estimate, not the arm's error prior
         p = options.prior
         if self.m_dh and p is not None and p.dh_offsets is not None:
             if np.size(p.dh_offsets) != self.m_dh:
-                raise ConfigError("prior.dh_offsets does not fit the arm's kinematic model",
-                                  expected=f"{self.m_dh} DH offsets ({self.kin.arm.name})",
-                                  received=f"{np.size(p.dh_offsets)}",
-                                  hint="give the DH offsets of a calibration of this arm, or none")
+                raise ConfigError(
+                    "prior.dh_offsets does not fit the arm's kinematic model",
+                    expected=f"{self.m_dh} DH offsets ({self.kin.arm.name})",
+                    received=f"{np.size(p.dh_offsets)}",
+                    hint="give the DH offsets of a calibration of this arm, or none",
+                )
             self.prior_dh = (np.asarray(p.dh_offsets, float).copy(), np.asarray(p.cov_dh, float).copy())
             self.prior_dh_earlier = True
         self.dh, self.S_dd = self.prior_dh[0].copy(), self.prior_dh[1].copy()  # the start: the prior's
@@ -215,26 +247,29 @@ class Problem:
     @property
     def dh_scale_estimable(self) -> bool:
         """Whether the scale of the DH offsets' prior is a variance component: the arm's own error prior (not an
-        earlier calibration's estimate), with the robot noise estimated."""
+        earlier calibration's estimate), with the robot noise estimated.
+        """
         return bool(self.m_dh) and not self.prior_dh_earlier and self.o.robot_noise == "estimate"
 
     def set_dh_scale(self, k: float) -> None:
         """Use the arm's DH error prior at ``k`` times its stated sigmas."""
         self.dh_scale = float(k)
-        self.prior_dh = (self.prior_dh[0], self.dh_prior_stated * self.dh_scale ** 2)
+        self.prior_dh = (self.prior_dh[0], self.dh_prior_stated * self.dh_scale**2)
 
     def dh_prior_information(self, k: Optional[float] = None) -> tuple[np.ndarray, np.ndarray]:
         """Information (m,m) and gradient (m,) of the DH offsets' prior at the current offsets, with the prior at
-        ``k`` times the stated sigmas (None: the scale in use); the terms of the graph's prior factor on them."""
+        ``k`` times the stated sigmas (None: the scale in use); the terms of the graph's prior factor on them.
+        """
         k = self.dh_scale if k is None else float(k)
-        W = self.dh_info_stated / k ** 2
+        W = self.dh_info_stated / k**2
         return W, W @ (self.dh - self.prior_dh[0])
 
     # -- robot error model (handeye.refine.robot_model)
     @property
     def robot_groups(self) -> tuple:
         """Names of the robot noise's variance components: the iid model's rotation and translation, or
-        the encoder noise of the kinematic ones."""
+        the encoder noise of the kinematic ones.
+        """
         return ("joint",) if self.kin is not None else ("rot", "trans")
 
     @property
@@ -250,7 +285,8 @@ class Problem:
 
     def robot_group_weights(self, idx: Sequence[int]) -> list:
         """Per group, the weights (len(idx),6,6) of a view's prior residual at unit group sigma: the prior's
-        information is sum_g W_g / s_g^2."""
+        information is sum_g W_g / s_g^2.
+        """
         idx = list(idx)
         if self.kin is not None:
             return [np.linalg.inv(self.kin.B[idx])]
@@ -265,9 +301,8 @@ class Problem:
         """(len(idx),6,6): the covariance of each view's robot prior residual at the current sigmas."""
         idx = list(idx)
         if self.kin is not None:
-            return self.sigma_q ** 2 * self.kin.B[idx]
-        return np.broadcast_to(np.diag([self.sigma_rot ** 2] * 3 + [self.sigma_trans ** 2] * 3),
-                               (len(idx), 6, 6)).copy()
+            return self.sigma_q**2 * self.kin.B[idx]
+        return np.broadcast_to(np.diag([self.sigma_rot**2] * 3 + [self.sigma_trans**2] * 3), (len(idx), 6, 6)).copy()
 
     def J_dh(self, idx: Sequence[int]) -> np.ndarray:
         """(len(idx),6,m): d(true robot pose, right tangent of the reported one) / d(DH offsets)."""
@@ -280,14 +315,26 @@ class Problem:
         return self.robot_residuals(idx) - np.einsum("nij,j->ni", self.J_dh(idx), self.dh)
 
     # -- residuals (numpy, every view at once)
-    def corner_residuals(self, *, T_robots: Optional[np.ndarray] = None, T_x: Optional[np.ndarray] = None,
-                         T_board: Optional[np.ndarray] = None) -> np.ndarray:
+    def corner_residuals(
+        self,
+        *,
+        T_robots: Optional[np.ndarray] = None,
+        T_x: Optional[np.ndarray] = None,
+        T_board: Optional[np.ndarray] = None,
+    ) -> np.ndarray:
         """Residuals (M,2) of every corner of every view, stacked in view order (split them with
-        :meth:`per_view`), at the current solution or the given poses (T_robots (n,4,4))."""
+        :meth:`per_view`), at the current solution or the given poses (T_robots (n,4,4)).
+        """
         return stacked_chain_residual(
-            T_x=self.T_x if T_x is None else T_x, T_base_end=self.robot_poses() if T_robots is None else T_robots,
-            T_board=self.T_board if T_board is None else T_board, invert_robot=self.invert, intrinsics_vec=self.k,
-            object_points=self.obj_all, image_points=self.img_all, view_index=self.view_of)[0]
+            T_x=self.T_x if T_x is None else T_x,
+            T_base_end=self.robot_poses() if T_robots is None else T_robots,
+            T_board=self.T_board if T_board is None else T_board,
+            invert_robot=self.invert,
+            intrinsics_vec=self.k,
+            object_points=self.obj_all,
+            image_points=self.img_all,
+            view_index=self.view_of,
+        )[0]
 
     def per_view(self, a: np.ndarray) -> list[np.ndarray]:
         """A stacked per-corner array (M, ...) split into the views' parts."""
@@ -310,7 +357,8 @@ class Problem:
     # -- graph
     def build(self, *, robust: bool, pixel_only: bool = False):
         """Graph and Values of the current problem; ``pixel_only`` keeps only the reprojection factors,
-        with unit pixel sigma (for the variance-component estimation)."""
+        with unit pixel sigma (for the variance-component estimation).
+        """
         g = gtsam.NonlinearFactorGraph()
         v = gtsam.Values()
         v.insert(KEY_X, gtsam.Pose3(self.T_x))
@@ -329,33 +377,68 @@ class Problem:
                 v.insert(key_r, gtsam.Pose3(self.P[i]))
                 robot_keys[i] = key_r
             m = self.mask[i]
-            g.add(view_reprojection_factor(
-                mode=self.mode, key_x=KEY_X, key_board=KEY_BOARD, key_robot=key_r, key_intrinsics=key_k,
-                object_points=self.obj[i][m], image_points=self.img[i][m],
-                sigma_px=1.0 if pixel_only else self.sigma_px,
-                intrinsics_vec=self.k, free_intrinsics=self.free, T_base_end=self.reported[i],
-                loss=self.o.loss if robust else "none", loss_k=self.o.loss_k))
+            g.add(
+                view_reprojection_factor(
+                    mode=self.mode,
+                    key_x=KEY_X,
+                    key_board=KEY_BOARD,
+                    key_robot=key_r,
+                    key_intrinsics=key_k,
+                    object_points=self.obj[i][m],
+                    image_points=self.img[i][m],
+                    sigma_px=1.0 if pixel_only else self.sigma_px,
+                    intrinsics_vec=self.k,
+                    free_intrinsics=self.free,
+                    T_base_end=self.reported[i],
+                    loss=self.o.loss if robust else "none",
+                    loss_k=self.o.loss_k,
+                )
+            )
             if key_r is not None and self.status[i] == "used" and not pixel_only:
                 robust_k = self.robot_prior_k if robust and self.o.loss != "none" else None
                 if self.kin is None:
-                    g.add(robot_pose_prior(key_robot=key_r, T_base_end_reported=self.reported[i],
-                                           sigma_rot_rad=self.sigma_rot, sigma_trans_m=self.sigma_trans,
-                                           robust_k=robust_k))
+                    g.add(
+                        robot_pose_prior(
+                            key_robot=key_r,
+                            T_base_end_reported=self.reported[i],
+                            sigma_rot_rad=self.sigma_rot,
+                            sigma_trans_m=self.sigma_trans,
+                            robust_k=robust_k,
+                        )
+                    )
                 else:
-                    g.add(kinematic_robot_prior(key_robot=key_r, key_dh=key_dh, T_base_end_reported=self.reported[i],
-                                                J_dh=self.kin.J_dh[i], cov=self.robot_cov([i])[0], robust_k=robust_k))
+                    g.add(
+                        kinematic_robot_prior(
+                            key_robot=key_r,
+                            key_dh=key_dh,
+                            T_base_end_reported=self.reported[i],
+                            J_dh=self.kin.J_dh[i],
+                            cov=self.robot_cov([i])[0],
+                            robust_k=robust_k,
+                        )
+                    )
         if key_dh is not None:
             g.add(gaussian_prior(key=key_dh, mean=self.prior_dh[0], cov=self.prior_dh[1]))
         if self.prior_sig is not None and not pixel_only:
-            g.add(intrinsics_prior(key_intrinsics=KEY_INTRINSICS, prior_values=self.k_given[self.free],
-                                   sigmas=self.prior_sig))
+            g.add(
+                intrinsics_prior(
+                    key_intrinsics=KEY_INTRINSICS, prior_values=self.k_given[self.free], sigmas=self.prior_sig
+                )
+            )
         if not pixel_only:
             # the priors of options.prior (the same terms as core_prior): X and the board, each alone or in one joint
             # Gaussian with the intrinsics when their cross-covariance is given; the intrinsics alone otherwise
             for key, prior, joint in self._pose_priors():
                 if joint is not None:
-                    g.add(joint_gaussian_prior(key_pose=key, key_vector=KEY_INTRINSICS, mean_pose=prior[0],
-                                               mean_vector=self.prior_k[0], cov=joint))
+                    g.add(
+                        joint_gaussian_prior(
+                            key_pose=key,
+                            key_vector=KEY_INTRINSICS,
+                            mean_pose=prior[0],
+                            mean_vector=self.prior_k[0],
+                            cov=joint,
+                        )
+                    )
                 elif prior is not None:
                     g.add(gaussian_prior(key=key, mean=prior[0], cov=prior[1]))
             if self.prior_k is not None and self.prior_cov_xk is None and self.prior_cov_bk is None:
@@ -381,26 +464,28 @@ class Problem:
 
     def _pose_priors(self) -> tuple:
         """(key, (mean (4,4), covariance (6,6)) or None, joint covariance with the free intrinsics or None) of the
-        priors on T_x and on the board, in the core order."""
+        priors on T_x and on the board, in the core order.
+        """
         return ((KEY_X, self.prior_x, self.prior_cov_xk), (KEY_BOARD, self.prior_board, self.prior_cov_bk))
 
     def core_prior(self) -> tuple[np.ndarray, np.ndarray]:
         """Information (c,c) and gradient J^T W r (c,) at the current estimate of the priors on the core
         unknowns but the DH offsets (the intrinsics prior of ``intrinsics="prior"`` and ``options.prior``), in
         the core order of :meth:`pixel_linearisation`; the same terms as the graph's prior factors. The DH
-        offsets' prior, whose scale the noise estimation may change: :meth:`dh_prior_information`."""
+        offsets' prior, whose scale the noise estimation may change: :meth:`dh_prior_information`.
+        """
         c = self.n_core
         H, g = np.zeros((c, c)), np.zeros(c)
         ks = slice(N_POSES, N_POSES + self.free.size)
         if self.prior_sig is not None:
-            W = np.diag(1.0 / self.prior_sig ** 2)
+            W = np.diag(1.0 / self.prior_sig**2)
             H[ks, ks] += W
             g[ks] += W @ (self.k[self.free] - self.k_given[self.free])
         if self.prior_k is not None and self.prior_cov_xk is None and self.prior_cov_bk is None:
             W = np.linalg.inv(self.prior_k[1])
             H[ks, ks] += W
             g[ks] += W @ (self.k[self.free] - self.prior_k[0])
-        for (key, prior, joint), at, T in zip(self._pose_priors(), (0, 6), (self.T_x, self.T_board)):
+        for (key, prior, joint), at, T in zip(self._pose_priors(), (0, 6), (self.T_x, self.T_board), strict=False):
             if prior is None:
                 continue
             T_p, cov = prior
@@ -408,10 +493,10 @@ class Problem:
             J = tangent_jacobian(lambda T_: tangent_difference(T_p, T_), T)
             if joint is None:
                 JW = J.T @ np.linalg.inv(cov)
-                H[at:at + 6, at:at + 6] += JW @ J
-                g[at:at + 6] += JW @ r
+                H[at : at + 6, at : at + 6] += JW @ J
+                g[at : at + 6] += JW @ r
             else:  # the pose and the free intrinsics as one joint Gaussian
-                idx = np.r_[at:at + 6, N_POSES:N_POSES + self.free.size]
+                idx = np.r_[at : at + 6, N_POSES : N_POSES + self.free.size]
                 Jj = np.zeros((idx.size, idx.size))
                 Jj[:6, :6], Jj[6:, 6:] = J, np.eye(self.free.size)
                 JW = Jj.T @ np.linalg.inv(joint)
@@ -431,7 +516,8 @@ class Problem:
     def covariances(self, g, values, robot_keys):
         """Marginal covariances (core block, {view index: 6x6 covariance of its robot prior residual})
         from the information matrix of graph ``g`` at ``values`` (arrow order: T_x, T_board, intrinsics,
-        DH offsets, robot poses); see :func:`.covariance.robot_residual_covariances`."""
+        DH offsets, robot poses); see :func:`.covariance.robot_residual_covariances`.
+        """
         H, _ = g.linearize(values).hessian(self._ordering(robot_keys))
         idx_p = sorted(robot_keys)
         Hcc, Hcp, Hpp = arrow_blocks(H, self.n_core, len(idx_p))
@@ -439,7 +525,7 @@ class Problem:
         S_u = robot_residual_covariances(S_cc, S_pp, S_cp, self.J_dh(idx_p), self.dh_slice)
         if self.m_dh:
             self.S_dd = S_cc[self.dh_slice, self.dh_slice].copy()
-        return S_cc, dict(zip(idx_p, S_u))
+        return S_cc, dict(zip(idx_p, S_u, strict=False))
 
     def pixel_linearisation(self) -> PixelLinearisation:
         """Unit-sigma information of the reprojection factors alone at the current estimate."""
@@ -457,19 +543,30 @@ class Problem:
         Hcp[:, :c_pix] = Hcp0
         g0 = -np.asarray(eta).reshape(-1)
         grad = np.concatenate([g0[:c_pix], np.zeros(self.m_dh), g0[c_pix:]])
-        return PixelLinearisation(Hcc=Hcc, Hcp=Hcp, Hpp=Hpp, g=grad, rr=float(np.sum(e * e)), n_obs=int(e.size),
-                                  prior=prior, xi=self.prior_residuals(idx_p), c=c, robot_views=tuple(idx_p),
-                                  J_dh=self.J_dh(idx_p))
+        return PixelLinearisation(
+            Hcc=Hcc,
+            Hcp=Hcp,
+            Hpp=Hpp,
+            g=grad,
+            rr=float(np.sum(e * e)),
+            n_obs=int(e.size),
+            prior=prior,
+            xi=self.prior_residuals(idx_p),
+            c=c,
+            robot_views=tuple(idx_p),
+            J_dh=self.J_dh(idx_p),
+        )
 
     def apply_step(self, robot_views: Sequence[int], dx: np.ndarray) -> None:
         """Move the estimates by a step ``dx`` in the order of :meth:`pixel_linearisation` (T_x, T_board,
-        free intrinsics, DH offsets, then one 6-vector per view of ``robot_views``), poses by right perturbation."""
+        free intrinsics, DH offsets, then one 6-vector per view of ``robot_views``), poses by right perturbation.
+        """
         c = self.n_core
         self.T_x = self.T_x @ se3_exp(dx[0:6])
         self.T_board = self.T_board @ se3_exp(dx[6:12])
         if self.free.size:
             self.k = self.k.copy()
-            self.k[self.free] += dx[N_POSES:N_POSES + self.free.size]
+            self.k[self.free] += dx[N_POSES : N_POSES + self.free.size]
         if self.m_dh:
             self.dh = self.dh + dx[self.dh_slice]
         if len(robot_views):
@@ -478,23 +575,41 @@ class Problem:
 
 
 # ------------------------------------------------------------------------------ pose-only views
-def solve_pose_graph(*, M: np.ndarray, T_cam_board: np.ndarray, sigmas: np.ndarray, T_x0: np.ndarray,
-                     T_board0: np.ndarray, robust_k: Optional[float] = None, prior_x=None,
-                     max_iterations: int = 100) -> tuple[np.ndarray, np.ndarray, int]:
+def solve_pose_graph(
+    *,
+    M: np.ndarray,
+    T_cam_board: np.ndarray,
+    sigmas: np.ndarray,
+    T_x0: np.ndarray,
+    T_board0: np.ndarray,
+    robust_k: Optional[float] = None,
+    prior_x=None,
+    max_iterations: int = 100,
+) -> tuple[np.ndarray, np.ndarray, int]:
     """Levenberg-Marquardt on ``T_x`` and ``T_board`` from measured camera -> target poses (pose-only
     views, :mod:`handeye.factors.pose`): ``M`` (n,4,4) the views' robot motions, ``T_cam_board`` (n,4,4)
     the tracker's poses, ``sigmas`` (n,2) each view's (rotation [rad], translation [m]) noise;
     ``prior_x`` (T_x (4,4), covariance (6,6)) an optional Gaussian prior on ``T_x``. Returns
-    (T_x, T_board, iterations)."""
+    (T_x, T_board, iterations).
+    """
     from handeye.factors.pose import pose_factor
 
     g = gtsam.NonlinearFactorGraph()
     v = gtsam.Values()
     v.insert(KEY_X, gtsam.Pose3(np.asarray(T_x0, float)))
     v.insert(KEY_BOARD, gtsam.Pose3(np.asarray(T_board0, float)))
-    for Mi, Ci, si in zip(M, T_cam_board, sigmas):
-        g.add(pose_factor(key_x=KEY_X, key_board=KEY_BOARD, M=Mi, T_cam_board_measured=Ci,
-                          sigma_rot_rad=float(si[0]), sigma_trans_m=float(si[1]), robust_k=robust_k))
+    for Mi, Ci, si in zip(M, T_cam_board, sigmas, strict=False):
+        g.add(
+            pose_factor(
+                key_x=KEY_X,
+                key_board=KEY_BOARD,
+                M=Mi,
+                T_cam_board_measured=Ci,
+                sigma_rot_rad=float(si[0]),
+                sigma_trans_m=float(si[1]),
+                robust_k=robust_k,
+            )
+        )
     if prior_x is not None:
         g.add(gaussian_prior(key=KEY_X, mean=prior_x[0], cov=prior_x[1]))
     opt = gtsam.LevenbergMarquardtOptimizer(g, v, lm_params(max_iterations))

@@ -35,6 +35,7 @@ Stages
 
 The graph itself is built and solved in :mod:`.problem` (the only GTSAM user).
 """
+
 from __future__ import annotations
 
 import logging
@@ -58,7 +59,8 @@ log = logging.getLogger(__name__)
 
 def seed_score(pb: Problem, T_x: np.ndarray, T_board: np.ndarray) -> float:
     """Median over the views of each view's median corner residual (px) through the reported robot
-    pose: a start that half the views agree with scores low, whatever the other views do."""
+    pose: a start that half the views agree with scores low, whatever the other views do.
+    """
     e = np.linalg.norm(pb.corner_residuals(T_robots=pb.reported, T_x=T_x, T_board=T_board), axis=1)
     e = np.where(np.isfinite(e), e, np.inf)
     counts = np.diff(pb.offsets)
@@ -77,7 +79,8 @@ def seed_score(pb: Problem, T_x: np.ndarray, T_board: np.ndarray) -> float:
 
 def best_start(pb: Problem, starts: Mapping[str, HandEyeEstimate]) -> tuple[np.ndarray, np.ndarray, str]:
     """The given start, or the candidate among ``starts`` with the lowest :func:`seed_score` when
-    that is lower. Candidates that failed or are not finite are skipped."""
+    that is lower. Candidates that failed or are not finite are skipped.
+    """
     best, best_score, best_name = (pb.T_x, pb.T_board), seed_score(pb, pb.T_x, pb.T_board), "given"
     given_score = best_score
     for name, est in starts.items():
@@ -88,14 +91,26 @@ def best_start(pb: Problem, starts: Mapping[str, HandEyeEstimate]) -> tuple[np.n
             best = (check_T(est.T_x, f"{name} {pb.mounting.x_name}"), check_T(est.T_board, name))
             best_score, best_name = score, name
     if best_name != "given":
-        log.info("starting the refinement from the %s closed form (median view residual %.4f px; the given "
-                 "start's %.4f px)", best_name, best_score, given_score)
+        log.info(
+            "starting the refinement from the %s closed form (median view residual %.4f px; the given start's %.4f px)",
+            best_name,
+            best_score,
+            given_score,
+        )
     return best[0], best[1], best_name
 
 
-def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView], intrinsics: Intrinsics,
-           T_x0: np.ndarray, T_board0: np.ndarray, options: RefineOptions = RefineOptions(),
-           starts: Optional[Mapping[str, HandEyeEstimate]] = None) -> RefineResult:
+def refine(
+    *,
+    mode: str,
+    object_points: np.ndarray,
+    views: Sequence[RefineView],
+    intrinsics: Intrinsics,
+    T_x0: np.ndarray,
+    T_board0: np.ndarray,
+    options: RefineOptions = RefineOptions(),
+    starts: Optional[Mapping[str, HandEyeEstimate]] = None,
+) -> RefineResult:
     """Refine hand-eye, board, intrinsics and robot poses jointly; see the module docstring.
 
     ``starts``: other candidate starts (method name -> closed-form estimate, e.g. the pipeline's
@@ -113,26 +128,50 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
     object_points, reported = check_inputs(object_points, views)
     if len(object_points) < options.min_corners:  # a target with fewer corners (one marker: 4) must show them all
         options = replace(options, min_corners=len(object_points))
-    pb = Problem(mode=mode, object_points=object_points, views=views, reported=reported, intrinsics=intrinsics,
-                 T_x0=T_x0, T_board0=T_board0, options=options)
+    pb = Problem(
+        mode=mode,
+        object_points=object_points,
+        views=views,
+        reported=reported,
+        intrinsics=intrinsics,
+        T_x0=T_x0,
+        T_board0=T_board0,
+        options=options,
+    )
     start_method = "given"
     if starts:
         pb.T_x, pb.T_board, start_method = best_start(pb, starts)
     e_before = pb.corner_residuals(T_robots=pb.reported)
-    rms_before = float(np.sqrt(np.mean(np.sum(e_before ** 2, axis=1))))
+    rms_before = float(np.sqrt(np.mean(np.sum(e_before**2, axis=1))))
     sparse = []  # views that cannot even start (the outlier loop re-examines them with reasons)
     for i, vid in enumerate(pb.ids):
         if len(pb.obj[i]) < options.min_corners:
             pb.status[i] = "removed"
-            sparse.append(Outlier(vid, "too_few_corners", f"view {vid}: {len(pb.obj[i])} corners, need "
-                                  f"{options.min_corners}", size={"n_usable": len(pb.obj[i]),
-                                                                  "n_corners": len(pb.obj[i])}))
+            sparse.append(
+                Outlier(
+                    vid,
+                    "too_few_corners",
+                    f"view {vid}: {len(pb.obj[i])} corners, need {options.min_corners}",
+                    size={"n_usable": len(pb.obj[i]), "n_corners": len(pb.obj[i])},
+                )
+            )
 
     def result(status, reason, S_cc=None, dec=None, code="") -> RefineResult:
-        return build_result(pb, status=status, reason=reason, S_cc=S_cc, dec=dec, rms_before=rms_before,
-                            T_x0=T_x0, T_board0=T_board0, intrinsics0=intrinsics, t0=t0,
-                            outliers=dec.outliers if dec is not None else tuple(sparse), start_method=start_method,
-                            failure_code=code)
+        return build_result(
+            pb,
+            status=status,
+            reason=reason,
+            S_cc=S_cc,
+            dec=dec,
+            rms_before=rms_before,
+            T_x0=T_x0,
+            T_board0=T_board0,
+            intrinsics0=intrinsics,
+            t0=t0,
+            outliers=dec.outliers if dec is not None else tuple(sparse),
+            start_method=start_method,
+            failure_code=code,
+        )
 
     def failed(reason: str, code: str) -> RefineResult:
         log.warning("refinement failed: %s", reason)
@@ -145,7 +184,7 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
         e0 = np.concatenate([c.resid_px for c in checks0.values() if c.ok]) if checks0 else np.zeros(0)
         if e0.size:
             pb.sigma_px = sigma_px_from_residuals(e0)
-            checks0 = {i: replace(c, cov_cam=c.cov_cam * pb.sigma_px ** 2) for i, c in checks0.items()}  # were for 1 px
+            checks0 = {i: replace(c, cov_cam=c.cov_cam * pb.sigma_px**2) for i, c in checks0.items()}  # were for 1 px
         robust_robot_sigmas(pb, checks0)
         # guard: robust solves, pixel sigma from the median residual in between (without a robust loss one
         # Gaussian solve gives the residuals the pixel sigma is estimated from)
@@ -162,7 +201,8 @@ def refine(*, mode: str, object_points: np.ndarray, views: Sequence[RefineView],
     except TooFewRobotPoses as err:
         return failed(str(err), "too_few_robot_poses")
     except np.linalg.LinAlgError as err:
-        return failed(f"the information matrix is singular ({err}); the views do not constrain all unknowns",
-                      "singular")
+        return failed(
+            f"the information matrix is singular ({err}); the views do not constrain all unknowns", "singular"
+        )
     except RuntimeError as err:  # GTSAM raises RuntimeError (e.g. indeterminant linear system)
         return failed(f"GTSAM: {err}", "solver")

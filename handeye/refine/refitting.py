@@ -12,6 +12,7 @@ model, started from the full solution, with:
   excluded keeps its corners without a robot prior, and a view the run dropped cannot be refitted;
 * the refined robot poses of the full run as the start of each view's robot pose.
 """
+
 from __future__ import annotations
 
 import logging
@@ -48,8 +49,9 @@ class Refit:
     cov_intrinsics: Optional[np.ndarray] = None  # (k,k) of the free intrinsics (the refinement's order)
 
 
-def refit(result: RefineResult, *, object_points: np.ndarray, views: Sequence[RefineView],
-          covariance: bool = True) -> Refit:
+def refit(
+    result: RefineResult, *, object_points: np.ndarray, views: Sequence[RefineView], covariance: bool = True
+) -> Refit:
     """Solve the refinement of ``result`` again on ``views`` alone (a subset of its views), holding its
     noise levels and outlier decisions (see the module docstring).
 
@@ -62,8 +64,11 @@ def refit(result: RefineResult, *, object_points: np.ndarray, views: Sequence[Re
     from .problem import Problem  # GTSAM on first use
 
     if result.status != "ok":
-        raise InputError("refit needs a successful refinement", received=f"status {result.status!r}",
-                         hint="refit only results with status 'ok'")
+        raise InputError(
+            "refit needs a successful refinement",
+            received=f"status {result.status!r}",
+            hint="refit only results with status 'ok'",
+        )
     flagged: dict = {}
     for o in result.outliers:
         if o.kind == "corners":
@@ -73,18 +78,33 @@ def refit(result: RefineResult, *, object_points: np.ndarray, views: Sequence[Re
     for v in views:
         st = result.per_view.get(v.view_id, {}).get("status")
         if st not in ("used", "robot_excluded"):
-            raise InputError(f"view {v.view_id} cannot be refitted", expected="a view the refinement used",
-                             received="not in the refinement" if st is None else f"status {st!r}",
-                             hint="refit a subset of result.per_view's used views")
+            raise InputError(
+                f"view {v.view_id} cannot be refitted",
+                expected="a view the refinement used",
+                received="not in the refinement" if st is None else f"status {st!r}",
+                hint="refit a subset of result.per_view's used views",
+            )
         cid = np.asarray(v.corner_ids, int)
         keep = np.array([int(c) not in flagged.get(v.view_id, ()) for c in cid], bool)
-        kept.append(RefineView(v.view_id, cid[keep], np.asarray(v.image_points, float).reshape(-1, 2)[keep],
-                               v.T_base_end, v.joint_angles if v.joint_angles is not None else joints.get(v.view_id)))
+        kept.append(
+            RefineView(
+                v.view_id,
+                cid[keep],
+                np.asarray(v.image_points, float).reshape(-1, 2)[keep],
+                v.T_base_end,
+                v.joint_angles if v.joint_angles is not None else joints.get(v.view_id),
+            )
+        )
     object_points, reported = check_inputs(object_points, kept)
     o0 = result.options
-    opts = replace(o0, robot_noise="none" if o0.robot_noise == "none" else "fixed",
-                   robot_sigma_mm=max(result.robot_sigma_mm, ROBOT_SIGMA_MIN_MM),
-                   robot_sigma_deg=max(result.robot_sigma_deg, ROBOT_SIGMA_MIN_DEG), outlier_loop=False, loss="none")
+    opts = replace(
+        o0,
+        robot_noise="none" if o0.robot_noise == "none" else "fixed",
+        robot_sigma_mm=max(result.robot_sigma_mm, ROBOT_SIGMA_MIN_MM),
+        robot_sigma_deg=max(result.robot_sigma_deg, ROBOT_SIGMA_MIN_DEG),
+        outlier_loop=False,
+        loss="none",
+    )
     if result.robot_model.get("encoder_sigma_deg"):  # the kinematic models' estimated encoder noise, held
         opts = replace(opts, encoder_sigma_deg=max(float(result.robot_model["encoder_sigma_deg"]), ROBOT_SIGMA_MIN_DEG))
     sd = result.robot_model.get("dh_prior_sigma") or {}
@@ -92,8 +112,16 @@ def refit(result: RefineResult, *, object_points: np.ndarray, views: Sequence[Re
         opts = replace(opts, dh_sigma_mm=float(sd["length_mm"]), dh_sigma_deg=float(sd["angle_deg"]))
     ids = tuple(v.view_id for v in kept)
     try:
-        pb = Problem(mode=result.mode, object_points=object_points, views=kept, reported=reported,
-                     intrinsics=result.intrinsics, T_x0=result.T_x, T_board0=result.T_board, options=opts)
+        pb = Problem(
+            mode=result.mode,
+            object_points=object_points,
+            views=kept,
+            reported=reported,
+            intrinsics=result.intrinsics,
+            T_x0=result.T_x,
+            T_board0=result.T_board,
+            options=opts,
+        )
         pb.sigma_px = float(result.sigma_px)
         for i, vid in enumerate(ids):
             if result.per_view[vid]["status"] == "robot_excluded":
@@ -113,5 +141,6 @@ def refit(result: RefineResult, *, object_points: np.ndarray, views: Sequence[Re
             cov_k = 0.5 * (S_cc[k, k] + S_cc[k, k].T) if pb.free.size else None
         except (RuntimeError, np.linalg.LinAlgError) as e:
             log.info("refit on views %s: no covariance (%s)", list(ids), e)
-    return Refit("ok", "", pb.T_x.copy(), pb.T_board.copy(), Intrinsics.from_vector(pb.k, pb.width, pb.height), ids,
-                 cov_x, cov_k)
+    return Refit(
+        "ok", "", pb.T_x.copy(), pb.T_board.copy(), Intrinsics.from_vector(pb.k, pb.width, pb.height), ids, cov_x, cov_k
+    )

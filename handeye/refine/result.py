@@ -1,4 +1,5 @@
 """The refinement's result: what it found, how sure it is, and every outlier decision with its reason."""
+
 from __future__ import annotations
 
 import time
@@ -81,51 +82,58 @@ class RefineResult:
     def to_dict(self) -> dict:
         """JSON-ready content for result.json (nested lists, names with units)."""
         parent = mounting(self.mode).fixed_frame
-        return plain({
-            "status": self.status,
-            "failure_reason": self.failure_reason,
-            "mode": self.mode,
-            "x_name": self.x_name,
-            self.x_name: self.T_x,
-            "board_name": self.board_name,
-            self.board_name: self.T_board,
-            "intrinsics": self.intrinsics.to_dict(),
-            "intrinsics_sigma": self.intrinsics_sigma,
-            "seed": {self.x_name: self.T_x_seed, self.board_name: self.T_board_seed,
-                     "intrinsics": self.intrinsics_seed.to_dict()},
-            "start_method": self.start_method,
-            "cov_x_6x6": self.cov_x_6x6,
-            "cov_parametrisation": self.cov_parametrisation,
-            "cov_board_6x6": self.cov_board_6x6,
-            "cov_board_parametrisation": COV_BOARD_PARAMETRISATION,
-            "cov_x_intrinsics": self.cov_x_intrinsics,
-            "correlation_6x6": self.correlation_6x6,
-            "sigma_rot_deg": self.sigma_rot_deg,
-            "sigma_rot_axes": "camera frame (right perturbation)",
-            "sigma_trans_mm": self.sigma_trans_mm,
-            "sigma_trans_axes": f"{parent} frame (translation vector of {self.x_name})",
-            "working_distance_m": self.working_distance_m,
-            "predicted_error_mm": self.predicted_error_mm,
-            "predicted_error_definition": ("RMS 3-D error (sqrt of the covariance trace) of a point on the optical "
-                                           f"axis at working_distance_m, mapped into the {parent} frame by "
-                                           f"{self.x_name}"),
-            "predicted_error_axes_mm": self.predicted_error_axes_mm,
-            "sigma_px": self.sigma_px,
-            "robot_sigma_mm": self.robot_sigma_mm,
-            "robot_sigma_deg": self.robot_sigma_deg,
-            "robot_sigma_resolved": self.robot_sigma_resolved,
-            "robot_noise_dof": self.robot_noise_dof,
-            "robot_noise_model": self.options.robot_noise,
-            "robot_model": self.robot_model,
-            "rms_px_before": self.rms_px_before,
-            "rms_px_after": self.rms_px_after,
-            "per_view": self.per_view,
-            "outliers": [o.to_dict() for o in self.outliers],
-            "robot_poses_refined_T_base_end": self.robot_poses,
-            "iterations": self.iterations,
-            "seconds": self.seconds,
-            "options": _options_dict(self.options),
-        })
+        return plain(
+            {
+                "status": self.status,
+                "failure_reason": self.failure_reason,
+                "mode": self.mode,
+                "x_name": self.x_name,
+                self.x_name: self.T_x,
+                "board_name": self.board_name,
+                self.board_name: self.T_board,
+                "intrinsics": self.intrinsics.to_dict(),
+                "intrinsics_sigma": self.intrinsics_sigma,
+                "seed": {
+                    self.x_name: self.T_x_seed,
+                    self.board_name: self.T_board_seed,
+                    "intrinsics": self.intrinsics_seed.to_dict(),
+                },
+                "start_method": self.start_method,
+                "cov_x_6x6": self.cov_x_6x6,
+                "cov_parametrisation": self.cov_parametrisation,
+                "cov_board_6x6": self.cov_board_6x6,
+                "cov_board_parametrisation": COV_BOARD_PARAMETRISATION,
+                "cov_x_intrinsics": self.cov_x_intrinsics,
+                "correlation_6x6": self.correlation_6x6,
+                "sigma_rot_deg": self.sigma_rot_deg,
+                "sigma_rot_axes": "camera frame (right perturbation)",
+                "sigma_trans_mm": self.sigma_trans_mm,
+                "sigma_trans_axes": f"{parent} frame (translation vector of {self.x_name})",
+                "working_distance_m": self.working_distance_m,
+                "predicted_error_mm": self.predicted_error_mm,
+                "predicted_error_definition": (
+                    "RMS 3-D error (sqrt of the covariance trace) of a point on the optical "
+                    f"axis at working_distance_m, mapped into the {parent} frame by "
+                    f"{self.x_name}"
+                ),
+                "predicted_error_axes_mm": self.predicted_error_axes_mm,
+                "sigma_px": self.sigma_px,
+                "robot_sigma_mm": self.robot_sigma_mm,
+                "robot_sigma_deg": self.robot_sigma_deg,
+                "robot_sigma_resolved": self.robot_sigma_resolved,
+                "robot_noise_dof": self.robot_noise_dof,
+                "robot_noise_model": self.options.robot_noise,
+                "robot_model": self.robot_model,
+                "rms_px_before": self.rms_px_before,
+                "rms_px_after": self.rms_px_after,
+                "per_view": self.per_view,
+                "outliers": [o.to_dict() for o in self.outliers],
+                "robot_poses_refined_T_base_end": self.robot_poses,
+                "iterations": self.iterations,
+                "seconds": self.seconds,
+                "options": _options_dict(self.options),
+            }
+        )
 
 
 def _options_dict(o: RefineOptions) -> dict:
@@ -137,34 +145,61 @@ def _options_dict(o: RefineOptions) -> dict:
 
 def robot_model_dict(pb: "Problem", S_cc: Optional[np.ndarray]) -> dict:
     """JSON-ready description of the robot error model of a solved problem (``S_cc``: its core covariance,
-    None when it failed): kind, parameters and what was estimated."""
+    None when it failed): kind, parameters and what was estimated.
+    """
     estimated = pb.o.robot_noise == "estimate"
     if pb.kind == "none":
         return {"kind": "none", "description": "reported robot poses taken as exact"}
     if pb.kin is None:
-        return {"kind": "iid", "description": "independent Gaussian error per view and axis, end frame",
-                "sigma_mm": 1000.0 * pb.sigma_trans, "sigma_deg": float(np.degrees(pb.sigma_rot)),
-                "estimated": ["sigma_mm", "sigma_deg"] if estimated else [],
-                "resolved": dict(pb.resolved) if estimated else {}}
+        return {
+            "kind": "iid",
+            "description": "independent Gaussian error per view and axis, end frame",
+            "sigma_mm": 1000.0 * pb.sigma_trans,
+            "sigma_deg": float(np.degrees(pb.sigma_rot)),
+            "estimated": ["sigma_mm", "sigma_deg"] if estimated else [],
+            "resolved": dict(pb.resolved) if estimated else {},
+        }
     km = pb.kin
-    d = {"kind": km.kind, "arm": km.arm.name, "dh_convention": km.arm.convention, "dh_table": chain_to_dict(km.arm),
-         "description": ("true pose = reported · Exp(J_dh · dh_offset + J_q · encoder_error): shared DH offsets "
-                         "(estimated with T_x where the views resolve them, held by their prior otherwise) and "
-                         "encoder noise per joint and view" if km.kind == "kinematic" else
-                         "true pose = reported · Exp(J_q · encoder_error): encoder noise per joint and view"),
-         "encoder_sigma_deg": float(np.degrees(pb.sigma_q)),
-         "encoder_sigma_resolved": bool(pb.resolved.get("joint", True)) if estimated else None,
-         "joint_angles": ("recorded" if all(s == "recorded" for s in km.joints_source) else
-                          "inverse kinematics of the reported poses" if all(s != "recorded" for s in km.joints_source)
-                          else "recorded, inverse kinematics for views without them"),
-         "joint_angles_rad": {vid: km.joints[i] for i, vid in enumerate(pb.ids)},
-         "tool_offset_T_flange_reported": km.T_tool, "tool_offset_spread_deg_mm": list(km.tool_spread),
-         "joints_disagree_view_ids": list(km.joints_disagree),
-         "estimated": (["dh_offset"] if km.m else []) + (["encoder_sigma_deg"] if estimated else [])}
+    d = {
+        "kind": km.kind,
+        "arm": km.arm.name,
+        "dh_convention": km.arm.convention,
+        "dh_table": chain_to_dict(km.arm),
+        "description": (
+            "true pose = reported · Exp(J_dh · dh_offset + J_q · encoder_error): shared DH offsets "
+            "(estimated with T_x where the views resolve them, held by their prior otherwise) and "
+            "encoder noise per joint and view"
+            if km.kind == "kinematic"
+            else "true pose = reported · Exp(J_q · encoder_error): encoder noise per joint and view"
+        ),
+        "encoder_sigma_deg": float(np.degrees(pb.sigma_q)),
+        "encoder_sigma_resolved": bool(pb.resolved.get("joint", True)) if estimated else None,
+        "joint_angles": (
+            "recorded"
+            if all(s == "recorded" for s in km.joints_source)
+            else "inverse kinematics of the reported poses"
+            if all(s != "recorded" for s in km.joints_source)
+            else "recorded, inverse kinematics for views without them"
+        ),
+        "joint_angles_rad": {vid: km.joints[i] for i, vid in enumerate(pb.ids)},
+        "tool_offset_T_flange_reported": km.T_tool,
+        "tool_offset_spread_deg_mm": list(km.tool_spread),
+        "joints_disagree_view_ids": list(km.joints_disagree),
+        "estimated": (["dh_offset"] if km.m else []) + (["encoder_sigma_deg"] if estimated else []),
+    }
     if km.m:
         S_dd = pb.S_dd if S_cc is None else S_cc[pb.dh_slice, pb.dh_slice]
-        d.update(describe_dh(km, pb.dh, S_dd, pb.prior_dh[1] if pb.prior_dh_earlier else None,
-                             scale=pb.dh_scale, test=pb.dh_scale_test, scale_dof=pb.dh_scale_dof))
+        d.update(
+            describe_dh(
+                km,
+                pb.dh,
+                S_dd,
+                pb.prior_dh[1] if pb.prior_dh_earlier else None,
+                scale=pb.dh_scale,
+                test=pb.dh_scale_test,
+                scale_dof=pb.dh_scale_dof,
+            )
+        )
         if pb.dh_scale != 1.0:
             d["estimated"].append("dh_prior_scale")
     return d
@@ -172,7 +207,8 @@ def robot_model_dict(pb: "Problem", S_cc: Optional[np.ndarray]) -> dict:
 
 def _equivalent_robot_sigmas(pb: "Problem") -> tuple[float, float]:
     """(mm, deg): the robot sigma per axis, or for the kinematic models the RMS per axis of each view's
-    encoder-noise covariance over the views."""
+    encoder-noise covariance over the views.
+    """
     if not pb.robot_var:
         return 0.0, 0.0
     if pb.kin is None:
@@ -212,7 +248,7 @@ def _per_view(pb: "Problem", dec: Optional["Decision"]) -> dict:
         if st == "removed" and dec is not None and dec.checks[i].ok:
             e = dec.checks[i].resid_px  # a dropped view: residuals against its own best pose
         sel = e[used] if used.any() else e
-        d["rms_px"] = float(np.sqrt(np.mean(sel ** 2))) if sel.size else float("nan")
+        d["rms_px"] = float(np.sqrt(np.mean(sel**2))) if sel.size else float("nan")
         d["max_px"] = float(sel.max()) if sel.size else float("nan")
         if dec is not None and np.isfinite(dec.robot_test.statistic[i]):
             d["robot_vs_camera_rot_deg"] = float(dec.robot_test.rot_deg[i])
@@ -222,51 +258,98 @@ def _per_view(pb: "Problem", dec: Optional["Decision"]) -> dict:
     return per_view
 
 
-def build_result(pb: "Problem", *, status: str, reason: str, S_cc: Optional[np.ndarray], dec: Optional["Decision"],
-                 rms_before: float, T_x0: np.ndarray, T_board0: np.ndarray, intrinsics0: Intrinsics, t0: float,
-                 outliers: tuple, start_method: str, failure_code: str = "") -> RefineResult:
+def build_result(
+    pb: "Problem",
+    *,
+    status: str,
+    reason: str,
+    S_cc: Optional[np.ndarray],
+    dec: Optional["Decision"],
+    rms_before: float,
+    T_x0: np.ndarray,
+    T_board0: np.ndarray,
+    intrinsics0: Intrinsics,
+    t0: float,
+    outliers: tuple,
+    start_method: str,
+    failure_code: str = "",
+) -> RefineResult:
     """The result from the final state of the problem and the core covariance ``S_cc`` (None: failed)."""
     wd = _working_distance(pb)
     unc = hand_eye_uncertainty(None if S_cc is None else S_cc[:6, :6], pb.T_x, wd)
-    intr_sigma = {} if S_cc is None else {INTRINSIC_NAMES[fi]: float(np.sqrt(S_cc[N_POSES + j, N_POSES + j]))
-                                          for j, fi in enumerate(pb.free)}
+    intr_sigma = (
+        {}
+        if S_cc is None
+        else {INTRINSIC_NAMES[fi]: float(np.sqrt(S_cc[N_POSES + j, N_POSES + j])) for j, fi in enumerate(pb.free)}
+    )
     robot_sigma_mm, robot_sigma_deg = _equivalent_robot_sigmas(pb)
     rms_after = float("nan")
     if pb.active():
         rms_after = float(np.sqrt(np.mean(np.sum(pb.used_corner_residuals() ** 2, axis=1))))
     return RefineResult(
-        status=status, failure_reason=reason, mode=pb.mode, x_name=pb.mounting.x_name,
-        board_name=pb.mounting.board_name, T_x=pb.T_x.copy(), T_board=pb.T_board.copy(),
-        intrinsics=Intrinsics.from_vector(pb.k, pb.width, pb.height), T_x_seed=T_x0.copy(),
-        T_board_seed=T_board0.copy(), intrinsics_seed=intrinsics0,
+        status=status,
+        failure_reason=reason,
+        mode=pb.mode,
+        x_name=pb.mounting.x_name,
+        board_name=pb.mounting.board_name,
+        T_x=pb.T_x.copy(),
+        T_board=pb.T_board.copy(),
+        intrinsics=Intrinsics.from_vector(pb.k, pb.width, pb.height),
+        T_x_seed=T_x0.copy(),
+        T_board_seed=T_board0.copy(),
+        intrinsics_seed=intrinsics0,
         robot_poses={vid: pb.robot_pose(i).copy() for i, vid in enumerate(pb.ids)},
-        cov_x_6x6=unc.cov_x_6x6, cov_parametrisation=COV_PARAMETRISATION, sigma_rot_deg=unc.sigma_rot_deg,
-        sigma_trans_mm=unc.sigma_trans_mm, correlation_6x6=unc.correlation_6x6, intrinsics_sigma=intr_sigma,
-        working_distance_m=wd, predicted_error_mm=unc.predicted_error_mm,
-        predicted_error_axes_mm=unc.predicted_error_axes_mm, sigma_px=float(pb.sigma_px),
-        robot_sigma_mm=robot_sigma_mm, robot_sigma_deg=robot_sigma_deg,
+        cov_x_6x6=unc.cov_x_6x6,
+        cov_parametrisation=COV_PARAMETRISATION,
+        sigma_rot_deg=unc.sigma_rot_deg,
+        sigma_trans_mm=unc.sigma_trans_mm,
+        correlation_6x6=unc.correlation_6x6,
+        intrinsics_sigma=intr_sigma,
+        working_distance_m=wd,
+        predicted_error_mm=unc.predicted_error_mm,
+        predicted_error_axes_mm=unc.predicted_error_axes_mm,
+        sigma_px=float(pb.sigma_px),
+        robot_sigma_mm=robot_sigma_mm,
+        robot_sigma_deg=robot_sigma_deg,
         robot_sigma_resolved=_resolved(pb),
-        rms_px_before=rms_before, rms_px_after=rms_after, per_view=_per_view(pb, dec),
-        outliers=tuple(outliers), iterations=int(pb.iterations), seconds=time.perf_counter() - t0,
-        start_method=start_method, failure_code=failure_code, options=pb.o, robot_model=robot_model_dict(pb, S_cc),
+        rms_px_before=rms_before,
+        rms_px_after=rms_after,
+        per_view=_per_view(pb, dec),
+        outliers=tuple(outliers),
+        iterations=int(pb.iterations),
+        seconds=time.perf_counter() - t0,
+        start_method=start_method,
+        failure_code=failure_code,
+        options=pb.o,
+        robot_model=robot_model_dict(pb, S_cc),
         cov_board_6x6=None if S_cc is None else 0.5 * (S_cc[6:N_POSES, 6:N_POSES] + S_cc[6:N_POSES, 6:N_POSES].T),
         cov_x_intrinsics=_x_intrinsics_covariance(pb, S_cc),
-        robot_noise_dof=dict(pb.noise_dof) if pb.o.robot_noise == "estimate" else {})
+        robot_noise_dof=dict(pb.noise_dof) if pb.o.robot_noise == "estimate" else {},
+    )
 
 
 def _x_intrinsics_covariance(pb: "Problem", S_cc: Optional[np.ndarray]) -> Optional[dict]:
     """The joint marginal covariance of T_x's tangent and the free intrinsics (``cov_x_intrinsics``), with the
-    kinematic robot model's DH offsets (their estimate and covariance with both) when it has them."""
+    kinematic robot model's DH offsets (their estimate and covariance with both) when it has them.
+    """
     nk = len(pb.free)
     if S_cc is None or nk == 0:
         return None
     k = slice(N_POSES, N_POSES + nk)
     S_kk = S_cc[k, k]
-    out = {"intrinsics": [INTRINSIC_NAMES[fi] for fi in pb.free], "cross_6xk": S_cc[:6, k].copy(),
-           "intrinsics_kxk": 0.5 * (S_kk + S_kk.T), "cross_board_6xk": S_cc[6:N_POSES, k].copy()}
+    out = {
+        "intrinsics": [INTRINSIC_NAMES[fi] for fi in pb.free],
+        "cross_6xk": S_cc[:6, k].copy(),
+        "intrinsics_kxk": 0.5 * (S_kk + S_kk.T),
+        "cross_board_6xk": S_cc[6:N_POSES, k].copy(),
+    }
     if pb.m_dh:  # the kinematic model's DH offsets (SI units, the model's order) and their covariance with both
         d = pb.dh_slice
         S_dd = S_cc[d, d]
-        out.update(dh_offsets=pb.dh.copy(), cross_6xm=S_cc[:6, d].copy(), cross_kxm=S_cc[k, d].copy(),
-                   dh_mxm=0.5 * (S_dd + S_dd.T))
+        out.update(
+            dh_offsets=pb.dh.copy(),
+            cross_6xm=S_cc[:6, d].copy(),
+            cross_kxm=S_cc[k, d].copy(),
+            dh_mxm=0.5 * (S_dd + S_dd.T),
+        )
     return out

@@ -30,6 +30,7 @@ the reported frame by ``Ad(inv(T_tool))``. A view outside that agreement (its po
 joints) is named and left to the robot-pose test; when most views disagree the table is not the one
 the controller computes with: a ConfigError.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -48,7 +49,8 @@ LENGTH_PARAMETERS = (0, 2)  # a, d in a DH row (a, alpha, d, theta_offset); the 
 @dataclass(frozen=True)
 class KinematicRobotModel:
     """The per-view matrices of the ``kinematic`` / ``joint_space`` models for n views of an arm with
-    m DH parameters (m = 0 for ``joint_space``)."""
+    m DH parameters (m = 0 for ``joint_space``).
+    """
 
     kind: str  # kinematic | joint_space
     arm: DHChain
@@ -67,7 +69,7 @@ class KinematicRobotModel:
         return int(self.J_dh.shape[2])
 
     def parameter_names(self) -> list:
-        return [f"{p}_{j + 1}" for j in range(self.arm.n_joints) for p in PARAMETER_NAMES][:self.m]
+        return [f"{p}_{j + 1}" for j in range(self.arm.n_joints) for p in PARAMETER_NAMES][: self.m]
 
 
 def _arm(o: RefineOptions) -> Optional[DHChain]:
@@ -77,53 +79,66 @@ def _arm(o: RefineOptions) -> Optional[DHChain]:
 
 
 def resolve_kind(o: RefineOptions, views: Sequence[RefineView]) -> str:
-    """none | iid | kinematic | joint_space: the model of ``o.robot_model`` for these views. ``auto``
+    """None | iid | kinematic | joint_space: the model of ``o.robot_model`` for these views. ``auto``
     is ``kinematic`` when an arm is named (views without joint angles get them by inverse kinematics),
-    else ``iid``."""
+    else ``iid``.
+    """
     if o.robot_noise == "none":
         return "none"
     if o.robot_model == "auto":
         return "kinematic" if o.arm is not None else "iid"
     if o.robot_model in ("kinematic", "joint_space") and o.arm is None:
-        raise ConfigError(f"robot_model {o.robot_model} needs the arm's kinematic model",
-                          expected=f"refine option arm: a preset ({', '.join(PRESETS)}) or a DH table file", received="none",
-                          hint="name the arm (session.yaml robot: rm65) or use robot_model iid")
+        raise ConfigError(
+            f"robot_model {o.robot_model} needs the arm's kinematic model",
+            expected=f"refine option arm: a preset ({', '.join(PRESETS)}) or a DH table file",
+            received="none",
+            hint="name the arm (session.yaml robot: rm65) or use robot_model iid",
+        )
     return o.robot_model
 
 
 def _joints(arm: DHChain, views: Sequence[RefineView], reported: np.ndarray) -> tuple[np.ndarray, tuple]:
     out, source = [], []
     prev = None
-    for v, T in zip(views, reported):
+    for v, T in zip(views, reported, strict=False):
         if v.joint_angles is not None:
             q = np.asarray(v.joint_angles, float).reshape(-1)
             if q.shape != (arm.n_joints,):
-                raise InputError(f"view {v.view_id}: {q.size} joint angles for the {arm.n_joints}-joint {arm.name}",
-                                 expected=f"{arm.n_joints} joint angles (radians)", received=str(q.size),
-                                 hint="name the arm the session was recorded with")
+                raise InputError(
+                    f"view {v.view_id}: {q.size} joint angles for the {arm.n_joints}-joint {arm.name}",
+                    expected=f"{arm.n_joints} joint angles (radians)",
+                    received=str(q.size),
+                    hint="name the arm the session was recorded with",
+                )
             out.append(q)
             source.append("recorded")
             continue
         seeds = ([prev] if prev is not None else []) + default_ik_seeds(arm, T)
         q = solve_ik(arm, T, seeds=seeds)
         if q is None:
-            raise InputError(f"view {v.view_id}: the {arm.name} cannot reach the reported pose",
-                             expected="a pose within the arm's reach and joint limits",
-                             received=f"flange at {np.round(T[:3, 3], 3).tolist()} m",
-                             hint="check the arm named for the session, or use robot_model iid")
+            raise InputError(
+                f"view {v.view_id}: the {arm.name} cannot reach the reported pose",
+                expected="a pose within the arm's reach and joint limits",
+                received=f"flange at {np.round(T[:3, 3], 3).tolist()} m",
+                hint="check the arm named for the session, or use robot_model iid",
+            )
         out.append(q)
         source.append("inverse_kinematics")
         prev = q
     return np.array(out), tuple(source)
 
 
-def build_kinematic_model(o: RefineOptions, kind: str, views: Sequence[RefineView],
-                          reported: np.ndarray) -> KinematicRobotModel:
+def build_kinematic_model(
+    o: RefineOptions, kind: str, views: Sequence[RefineView], reported: np.ndarray
+) -> KinematicRobotModel:
     """The matrices of the ``kinematic`` or ``joint_space`` model at the views' joint angles."""
     arm = _arm(o)
     cfg = refine_preset()["robot_model"]
-    prior = arm.error_prior or (float(cfg["dh_length_sigma_mm"]) * 1e-3, float(np.radians(cfg["dh_angle_sigma_deg"])),
-                                float(np.radians(cfg["encoder_sigma_deg"])))
+    prior = arm.error_prior or (
+        float(cfg["dh_length_sigma_mm"]) * 1e-3,
+        float(np.radians(cfg["dh_angle_sigma_deg"])),
+        float(np.radians(cfg["encoder_sigma_deg"])),
+    )
     length_sigma = prior[0] if o.dh_sigma_mm is None else o.dh_sigma_mm * 1e-3
     angle_sigma = prior[1] if o.dh_sigma_deg is None else float(np.radians(o.dh_sigma_deg))
     encoder_sigma = prior[2] if o.encoder_sigma_deg is None else float(np.radians(o.encoder_sigma_deg))
@@ -134,23 +149,26 @@ def build_kinematic_model(o: RefineOptions, kind: str, views: Sequence[RefineVie
 
     def within(T_ref):
         d = tangent_difference(T_ref, tools)
-        return ((np.degrees(np.linalg.norm(d[:, :3], axis=1)) <= tol_deg)
-                & (1e3 * np.linalg.norm(d[:, 3:], axis=1) <= tol_mm))
+        return (np.degrees(np.linalg.norm(d[:, :3], axis=1)) <= tol_deg) & (
+            1e3 * np.linalg.norm(d[:, 3:], axis=1) <= tol_mm
+        )
 
     # the tool offset most views agree with (a view whose pose is wrong, not its joints, is left to the
     # robot-pose test); most views disagreeing means the table is not the controller's
-    candidates = tools[::max(1, len(tools) // 15)]  # at most ~15 candidates: O(n) for long sessions
+    candidates = tools[:: max(1, len(tools) // 15)]  # at most ~15 candidates: O(n) for long sessions
     agree = max((within(T) for T in candidates), key=lambda m: int(m.sum()))
     if 2 * int(agree.sum()) <= len(tools):
-        raise ConfigError(f"the joint angles do not give the reported poses through the {arm.name}'s table",
-                          expected=f"one constant tool offset within {tol_mm} mm / {tol_deg} deg for most views",
-                          received=f"{int(agree.sum())} of {len(tools)} views agree on one",
-                          hint="name the arm the session was recorded with, or use robot_model iid")
+        raise ConfigError(
+            f"the joint angles do not give the reported poses through the {arm.name}'s table",
+            expected=f"one constant tool offset within {tol_mm} mm / {tol_deg} deg for most views",
+            received=f"{int(agree.sum())} of {len(tools)} views agree on one",
+            hint="name the arm the session was recorded with, or use robot_model iid",
+        )
     T_tool = mean_T(tools[agree])
     spread = tangent_difference(T_tool, tools[agree])
     rot_deg = float(np.degrees(np.max(np.linalg.norm(spread[:, :3], axis=1))))
     trans_mm = float(1e3 * np.max(np.linalg.norm(spread[:, 3:], axis=1)))
-    disagree = tuple(v.view_id for v, ok in zip(views, agree) if not ok)
+    disagree = tuple(v.view_id for v, ok in zip(views, agree, strict=False) if not ok)
     Ad = se3_adjoint(inv_T(T_tool))
     n = len(views)
     with_dh = kind == "kinematic"
@@ -164,35 +182,59 @@ def build_kinematic_model(o: RefineOptions, kind: str, views: Sequence[RefineVie
         if with_dh:
             J_dh[i] = Ad @ arm.jacobian_dh(q[i])
     sig = np.tile([length_sigma, angle_sigma, length_sigma, angle_sigma], arm.n_joints)[:m]
-    return KinematicRobotModel(kind=kind, arm=arm, joints=q, joints_source=source, J_dh=J_dh, B=B, dh_sigma=sig,
-                               encoder_sigma_rad=encoder_sigma, T_tool=T_tool, tool_spread=(rot_deg, trans_mm),
-                               joints_disagree=disagree)
+    return KinematicRobotModel(
+        kind=kind,
+        arm=arm,
+        joints=q,
+        joints_source=source,
+        J_dh=J_dh,
+        B=B,
+        dh_sigma=sig,
+        encoder_sigma_rad=encoder_sigma,
+        T_tool=T_tool,
+        tool_spread=(rot_deg, trans_mm),
+        joints_disagree=disagree,
+    )
 
 
-def describe_dh(km: KinematicRobotModel, delta: np.ndarray, S_dd: np.ndarray,
-                prior_cov: Optional[np.ndarray] = None, *, scale: float = 1.0, test: Optional[dict] = None,
-                scale_dof: Optional[float] = None) -> dict:
+def describe_dh(
+    km: KinematicRobotModel,
+    delta: np.ndarray,
+    S_dd: np.ndarray,
+    prior_cov: Optional[np.ndarray] = None,
+    *,
+    scale: float = 1.0,
+    test: Optional[dict] = None,
+    scale_dof: Optional[float] = None,
+) -> dict:
     """JSON-ready estimate of the DH offsets: per joint (a mm, alpha deg, d mm, theta_offset deg), their
     sigmas, and the share of each offset's prior variance the data removed (0: held by the prior alone,
     1: fixed by the data). ``prior_cov`` (m,m): the prior the offsets were estimated under when it is not the
     arm's own N(0, dh_sigma^2), e.g. an earlier calibration's estimate; the share is measured against it.
     ``dh_prior_sigma`` is the arm's own prior as used (``scale`` times the stated ``dh_prior_sigma_stated``,
     the scale estimated with ``scale_dof`` degrees of freedom when the views contradict the stated prior:
-    ``test``, see :func:`handeye.refine.noise._dh_prior_test`); ``dh_prior`` says which prior was used."""
+    ``test``, see :func:`handeye.refine.noise._dh_prior_test`); ``dh_prior`` says which prior was used.
+    """
     if km.m == 0:
         return {}
     units = np.tile([1e3, np.degrees(1.0), 1e3, np.degrees(1.0)], km.arm.n_joints)
     sd = np.sqrt(np.clip(np.diag(S_dd), 0.0, None))
     prior_var = (scale * km.dh_sigma) ** 2 if prior_cov is None else np.clip(np.diag(prior_cov), 1e-300, None)
-    share = 1.0 - np.clip(sd ** 2 / prior_var, 0.0, 1.0)
+    share = 1.0 - np.clip(sd**2 / prior_var, 0.0, 1.0)
     shape = (km.arm.n_joints, 4)
 
     def sigmas(k):
         return {"length_mm": float(k * km.dh_sigma[0] * 1e3), "angle_deg": float(np.degrees(k * km.dh_sigma[1]))}
 
-    return {"dh_columns": ["a_mm", "alpha_deg", "d_mm", "theta_offset_deg"],
-            "dh_offset": (delta * units).reshape(shape), "dh_offset_sigma": (sd * units).reshape(shape),
-            "dh_resolved_share": share.reshape(shape),
-            "dh_prior": "the arm's error prior" if prior_cov is None else "an earlier calibration's estimate",
-            "dh_prior_sigma": sigmas(scale), "dh_prior_sigma_stated": sigmas(1.0), "dh_prior_scale": float(scale),
-            "dh_prior_test": dict(test or {}), "dh_prior_scale_dof": None if scale == 1.0 else scale_dof}
+    return {
+        "dh_columns": ["a_mm", "alpha_deg", "d_mm", "theta_offset_deg"],
+        "dh_offset": (delta * units).reshape(shape),
+        "dh_offset_sigma": (sd * units).reshape(shape),
+        "dh_resolved_share": share.reshape(shape),
+        "dh_prior": "the arm's error prior" if prior_cov is None else "an earlier calibration's estimate",
+        "dh_prior_sigma": sigmas(scale),
+        "dh_prior_sigma_stated": sigmas(1.0),
+        "dh_prior_scale": float(scale),
+        "dh_prior_test": dict(test or {}),
+        "dh_prior_scale_dof": None if scale == 1.0 else scale_dof,
+    }

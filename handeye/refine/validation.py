@@ -53,6 +53,7 @@ The same folds serve the cross-validation of the diagnostics (:mod:`handeye.diag
 the views are solved once. The two halves of the used views (odd and even positions in view order) are
 refitted too, for the report's offsets of the result from each half.
 """
+
 from __future__ import annotations
 
 import logging
@@ -70,11 +71,13 @@ from .result import RefineResult
 
 log = logging.getLogger(__name__)
 
-SIGMA_RULE = ("verdict covariance = the model covariance M unless the folds reject it (each fold's displacement "
-              "against the covariance the model predicts for it, chi-square at validation.alpha); then the "
-              "generalised-eigenvalue maximum of "
-              "the model and the validated covariance: C = L U max(Lambda, 1) U^T L^T with M = L L^T and "
-              "L^-1 V L^-T = U Lambda U^T, so that u^T C u >= max(u^T M u, u^T V u) along every direction u")
+SIGMA_RULE = (
+    "verdict covariance = the model covariance M unless the folds reject it (each fold's displacement "
+    "against the covariance the model predicts for it, chi-square at validation.alpha); then the "
+    "generalised-eigenvalue maximum of "
+    "the model and the validated covariance: C = L U max(Lambda, 1) U^T L^T with M = L L^T and "
+    "L^-1 V L^-T = U Lambda U^T, so that u^T C u >= max(u^T M u, u^T V u) along every direction u"
+)
 
 
 def settings() -> dict:
@@ -85,7 +88,8 @@ def settings() -> dict:
 # ------------------------------------------------------------------------------ pure math
 def fold_indices(n: int, *, loo_max_views: int, folds: int) -> list:
     """Index arrays of the held-out views of each fold: one view each up to ``loo_max_views`` views,
-    else ``folds`` interleaved groups (view k in fold k mod folds)."""
+    else ``folds`` interleaved groups (view k in fold k mod folds).
+    """
     if n <= loo_max_views:
         return [np.array([i]) for i in range(n)]
     return [np.arange(f, n, folds) for f in range(folds)]
@@ -93,7 +97,8 @@ def fold_indices(n: int, *, loo_max_views: int, folds: int) -> list:
 
 def jackknife_covariance(thetas: np.ndarray) -> np.ndarray:
     """Grouped jackknife covariance (D,D) of K fold estimates ``thetas`` (K,D) of folds that partition
-    the units: ``(K - 1) / K · sum_k (theta_k - mean)(theta_k - mean)^T``."""
+    the units: ``(K - 1) / K · sum_k (theta_k - mean)(theta_k - mean)^T``.
+    """
     x = np.asarray(thetas, float)
     K = x.shape[0]
     dev = x - x.mean(axis=0)
@@ -104,7 +109,8 @@ def shrunk_jackknife(thetas: np.ndarray, cov_model: np.ndarray) -> tuple[np.ndar
     """(validated covariance (D,D), shrinkage intensity in [0, 1], scale s): the jackknife covariance of
     ``thetas`` (K,D), whitened by ``cov_model``, shrunk toward ``s · I`` with the Ledoit-Wolf intensity
     estimated from the K folds, and mapped back. ``s = tr(M^-1 S) / D``: the spread over the model's
-    prediction, averaged over the D directions."""
+    prediction, averaged over the D directions.
+    """
     x = np.asarray(thetas, float)
     K, D = x.shape
     L = np.linalg.cholesky(0.5 * (cov_model + cov_model.T))
@@ -121,7 +127,8 @@ def shrunk_jackknife(thetas: np.ndarray, cov_model: np.ndarray) -> tuple[np.ndar
 def generalised_max(cov_model: np.ndarray, cov_other: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(C, generalised eigenvalues of ``cov_other`` against ``cov_model`` (D,), ascending): the smallest
     covariance of the form ``L U diag(c) U^T L^T`` with ``u^T C u >= max(u^T M u, u^T V u)`` along
-    every direction (:data:`SIGMA_RULE`)."""
+    every direction (:data:`SIGMA_RULE`).
+    """
     M = 0.5 * (cov_model + cov_model.T)
     L = np.linalg.cholesky(M)
     W = np.linalg.solve(L, np.linalg.solve(L, 0.5 * (cov_other + cov_other.T)).T)
@@ -130,18 +137,20 @@ def generalised_max(cov_model: np.ndarray, cov_other: np.ndarray) -> tuple[np.nd
     return 0.5 * (C + C.T), lam
 
 
-def fold_information_statistic(deltas: np.ndarray, fold_covs: Sequence[np.ndarray], cov_all: np.ndarray, *,
-                               floor: float) -> tuple[float, float]:
+def fold_information_statistic(
+    deltas: np.ndarray, fold_covs: Sequence[np.ndarray], cov_all: np.ndarray, *, floor: float
+) -> tuple[float, float]:
     """(T, dof) of the folds' displacements ``deltas`` (K,D) from the all-views refit against their model
     covariances ``P_k = fold_covs[k] - cov_all`` (module docstring): ``T = (K - 1) / K · sum_k delta_k^T P_k^+
     delta_k`` over the directions (generalised eigenvectors against ``cov_all``) in which ``P_k`` exceeds
     ``floor`` times ``cov_all``, ``dof = (K - 1) / K`` times their number. chi-square(dof) if the model is
-    right (exactly, for a linear Gaussian model and leave-one-out of independent views, in expectation)."""
+    right (exactly, for a linear Gaussian model and leave-one-out of independent views, in expectation).
+    """
     d = np.asarray(deltas, float)
     K = d.shape[0]
     L = np.linalg.cholesky(0.5 * (cov_all + cov_all.T))
     T, n = 0.0, 0
-    for dk, Ck in zip(d, fold_covs):
+    for dk, Ck in zip(d, fold_covs, strict=False):
         Pw = np.linalg.solve(L, np.linalg.solve(L, np.asarray(Ck, float) - cov_all).T)
         w, U = np.linalg.eigh(0.5 * (Pw + Pw.T))
         z = U.T @ np.linalg.solve(L, dk)
@@ -153,7 +162,8 @@ def fold_information_statistic(deltas: np.ndarray, fold_covs: Sequence[np.ndarra
 
 def trace_p_value(scale: float, k_folds: int, dim: int) -> float:
     """Upper tail probability of the folds' spread ``scale = tr(M^-1 S) / D`` if the model covariance is
-    right: ``(K - 1) D · scale`` is chi-square with ``(K - 1) D`` degrees of freedom."""
+    right: ``(K - 1) D · scale`` is chi-square with ``(K - 1) D`` degrees of freedom.
+    """
     dof = max(int(k_folds) - 1, 1) * int(dim)
     return float(chi2.sf(dof * float(scale), dof))
 
@@ -186,7 +196,7 @@ class Block:
 
     @property
     def source(self) -> str:
-        """model | validated | model+validated: which covariance the verdict takes in which directions."""
+        """Model | validated | model+validated: which covariance the verdict takes in which directions."""
         above = self.eig > 1.0
         if not self.finding or not above.any():
             return "model"
@@ -216,18 +226,25 @@ class Validation:
             return f"not run: {self.reason}"
         r = np.sqrt(max(float(self.x.eig.max()), 0.0))
         rms = np.sqrt(max(float(self.x.scale), 0.0))
-        test = (f"beyond chance (p = {self.x.p_value:.2g})" if self.x.finding
-                else f"within chance (p = {self.x.p_value:.2g})")
-        return (f"{self.scheme}, {self.n_solved}/{len(self.folds)} folds: the held-out spread is {rms:.2f}x the "
-                f"model's sigma on average over the six directions the model covariance whitens (up to {r:.2f}x "
-                f"along the worst), {test}; the verdict uses the {self.x.source} covariance")
+        test = (
+            f"beyond chance (p = {self.x.p_value:.2g})"
+            if self.x.finding
+            else f"within chance (p = {self.x.p_value:.2g})"
+        )
+        return (
+            f"{self.scheme}, {self.n_solved}/{len(self.folds)} folds: the held-out spread is {rms:.2f}x the "
+            f"model's sigma on average over the six directions the model covariance whitens (up to {r:.2f}x "
+            f"along the worst), {test}; the verdict uses the {self.x.source} covariance"
+        )
 
 
-def validate(result: RefineResult, *, object_points: np.ndarray, views: Sequence[RefineView],
-             halves: bool = True) -> Validation:
+def validate(
+    result: RefineResult, *, object_points: np.ndarray, views: Sequence[RefineView], halves: bool = True
+) -> Validation:
     """Validated and verdict covariances of ``result`` (see the module docstring) from refits on
     ``views`` (the refinement's views; those it did not use are left out of the folds, robot-excluded
-    views stay in every fold). ``halves``: also refit the odd and even halves of the used views."""
+    views stay in every fold). ``halves``: also refit the odd and even halves of the used views.
+    """
     from .refitting import refit
 
     cfg = settings()
@@ -245,8 +262,9 @@ def validate(result: RefineResult, *, object_points: np.ndarray, views: Sequence
     refits = []
     for f in fold_list:
         out = set(f.tolist())
-        refits.append(refit(result, object_points=object_points,
-                            views=[v for k, v in enumerate(used) if k not in out] + kept))
+        refits.append(
+            refit(result, object_points=object_points, views=[v for k, v in enumerate(used) if k not in out] + kept)
+        )
     folds = tuple(tuple(ids[i] for i in f) for f in fold_list)
     half = {}
     if halves:
@@ -263,20 +281,34 @@ def validate(result: RefineResult, *, object_points: np.ndarray, views: Sequence
     floor = float(cfg["information_floor"])
     try:
         test = _fold_test(ok, every, lambda r: tangent_difference(every.T_x, r.T_x), lambda r: r.cov_x, floor)
-        xb = _block(("rx", "ry", "rz", "tx", "ty", "tz"), result.cov_x_6x6,
-                    np.stack([tangent_difference(result.T_x, r.T_x) for r in ok]), test=test)
+        xb = _block(
+            ("rx", "ry", "rz", "tx", "ty", "tz"),
+            result.cov_x_6x6,
+            np.stack([tangent_difference(result.T_x, r.T_x) for r in ok]),
+            test=test,
+        )
         names = tuple(k for k in INTRINSIC_NAMES if k in result.intrinsics_sigma)
         kb = None
         if names:
             idx = [INTRINSIC_NAMES.index(k) for k in names]
             k0 = result.intrinsics.as_vector()[idx]
             M_k, form = intrinsics_model_covariance(result, names)
-            test = _fold_test(ok, every, lambda r: r.intrinsics.as_vector()[idx] - every.intrinsics.as_vector()[idx],
-                              lambda r: r.cov_intrinsics, floor)
+            test = _fold_test(
+                ok,
+                every,
+                lambda r: r.intrinsics.as_vector()[idx] - every.intrinsics.as_vector()[idx],
+                lambda r: r.cov_intrinsics,
+                floor,
+            )
             # no trace test for the intrinsics: their jackknife is far from the model's even when it holds (the
             # views inform the distortion very unequally), so without the folds' own covariances the model stands
-            kb = _block(names, M_k, np.stack([r.intrinsics.as_vector()[idx] - k0 for r in ok]), model_form=form,
-                        test=test if test is not None else "none")
+            kb = _block(
+                names,
+                M_k,
+                np.stack([r.intrinsics.as_vector()[idx] - k0 for r in ok]),
+                model_form=form,
+                test=test if test is not None else "none",
+            )
     except np.linalg.LinAlgError as e:  # a model covariance that is not positive definite
         return Validation("not_run", f"covariance not positive definite ({e})", **base)
     return Validation("ok", "", x=xb, intrinsics=kb, **base)
@@ -286,15 +318,17 @@ def _fold_test(ok: list, every, delta, cov, floor: float) -> Optional[tuple]:
     """(T, dof) of :func:`fold_information_statistic` over the solved folds that have their own covariance
     (``delta(refit)``: its displacement from the all-views refit ``every``; ``cov(refit)``: its covariance),
     or None when no test is possible (the all-views refit failed or has no usable covariance, or fewer than
-    3 folds have theirs)."""
+    3 folds have theirs).
+    """
     if every.status != "ok" or cov(every) is None:
         return None
     folds = [r for r in ok if cov(r) is not None]
     if len(folds) < 3:
         return None
     try:
-        return fold_information_statistic(np.stack([delta(r) for r in folds]), [cov(r) for r in folds], cov(every),
-                                          floor=floor)
+        return fold_information_statistic(
+            np.stack([delta(r) for r in folds]), [cov(r) for r in folds], cov(every), floor=floor
+        )
     except np.linalg.LinAlgError as e:  # the all-views covariance not positive definite
         log.info("the folds' test is not possible (%s)", e)
         return None
@@ -302,7 +336,8 @@ def _fold_test(ok: list, every, delta, cov, floor: float) -> Optional[tuple]:
 
 def intrinsics_model_covariance(result: RefineResult, names: tuple) -> tuple[np.ndarray, str]:
     """(model covariance of the free intrinsics ``names``, "full" | "sigmas"): the marginal of the refinement's
-    joint covariance when it has one for exactly these intrinsics, else the diagonal of their model sigmas."""
+    joint covariance when it has one for exactly these intrinsics, else the diagonal of their model sigmas.
+    """
     j = result.cov_x_intrinsics
     if j is not None and tuple(j["intrinsics"]) == tuple(names):
         K = np.asarray(j["intrinsics_kxk"], float)
@@ -312,13 +347,13 @@ def intrinsics_model_covariance(result: RefineResult, names: tuple) -> tuple[np.
         except np.linalg.LinAlgError:
             log.warning("the joint intrinsics covariance is not positive definite: validated against the sigmas")
     sig = np.array([result.intrinsics_sigma[k] for k in names], float)
-    return np.diag(sig ** 2), "sigmas"
+    return np.diag(sig**2), "sigmas"
 
 
-def _block(names: tuple, cov_model: np.ndarray, thetas: np.ndarray, *, model_form: str = "full",
-           test=None) -> Block:
+def _block(names: tuple, cov_model: np.ndarray, thetas: np.ndarray, *, model_form: str = "full", test=None) -> Block:
     """One block's covariances; ``test``: (T, dof) of :func:`fold_information_statistic`, None for the trace
-    test of the jackknife against the model (equal leverage), or "none" (no test: the model stands)."""
+    test of the jackknife against the model (equal leverage), or "none" (no test: the model stands).
+    """
     M = np.asarray(cov_model, float)
     if not np.all(np.isfinite(M)):
         raise np.linalg.LinAlgError("the model covariance is not finite")

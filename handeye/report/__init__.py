@@ -13,6 +13,7 @@ keyed on error and finding codes) and :mod:`.figures` / :mod:`.plots` (what is d
 :mod:`.render` turns the context into HTML and Markdown. matplotlib and jinja2 load only when a
 report is written.
 """
+
 from __future__ import annotations
 
 import logging
@@ -33,8 +34,15 @@ def __getattr__(name):  # the QA module loads the config machinery only when ask
     raise AttributeError(name)
 
 
-def write_reports(result_dir: str | Path, *, qa: str | Path | None = None, out_dir: str | Path | None = None,
-                  formats=("html", "md"), strict: bool = False, plots: bool = True) -> list[Path]:
+def write_reports(
+    result_dir: str | Path,
+    *,
+    qa: str | Path | None = None,
+    out_dir: str | Path | None = None,
+    formats=("html", "md"),
+    strict: bool = False,
+    plots: bool = True,
+) -> list[Path]:
     """Write ``report.html`` and ``report.md`` (figures in ``report_files/``) for a result folder.
 
     ``result_dir``: the folder written by ``handeye calibrate`` (result.json, observations.json,
@@ -66,7 +74,8 @@ def render_reports(ctx: dict, folder, *, out_dir: str | Path, formats=("html", "
     """(html text or None, (Markdown text, its files) or None): the reports of the context ``ctx`` of
     ``folder`` (a :class:`~handeye.report.folder.ResultFolder`) rendered in memory, for
     :func:`handeye.report.render.write_files` into ``out_dir``. A context built without figures is
-    rendered without them (:func:`handeye.report.context.add_figures` adds them)."""
+    rendered without them (:func:`handeye.report.context.add_figures` adds them).
+    """
     from .render import render_html, render_markdown
 
     html = render_html(ctx) if "html" in formats else None
@@ -77,16 +86,23 @@ def render_reports(ctx: dict, folder, *, out_dir: str | Path, formats=("html", "
 
 def report_crashed(e: Exception, result_dir: Path) -> None:
     """The one error line of a report that could not be built (a bug: result.json is complete without it)."""
-    log.error("handeye: the report could not be written (%s: %s); result.json is complete. "
-              "Rebuild it with: handeye --debug report %s", type(e).__name__, e, result_dir)
+    log.error(
+        "handeye: the report could not be written (%s: %s); result.json is complete. "
+        "Rebuild it with: handeye --debug report %s",
+        type(e).__name__,
+        e,
+        result_dir,
+    )
 
 
-def build_report_context(result_dir, *, qa: str | Path | None = None, qa_cfg: dict | None = None,
-                         make_plots: bool = True) -> dict:
+def build_report_context(
+    result_dir, *, qa: str | Path | None = None, qa_cfg: dict | None = None, make_plots: bool = True
+) -> dict:
     """The template context of a result folder (what the report shows, as plain values).
 
     ``result_dir``: a folder (read here) or a :class:`~handeye.report.folder.ResultFolder` already read;
-    ``qa_cfg``: the QA thresholds of ``qa`` when already loaded (:func:`handeye.report.qa.load_qa`)."""
+    ``qa_cfg``: the QA thresholds of ``qa`` when already loaded (:func:`handeye.report.qa.load_qa`).
+    """
     from .folder import ResultFolder, read_result_folder
 
     folder = result_dir if isinstance(result_dir, ResultFolder) else read_result_folder(result_dir)

@@ -4,31 +4,32 @@ A failed run's result.json holds the structured error (:meth:`handeye.errors.Han
 code, what, file, line, expected, got, fix); the diagnostics' findings carry a ``code``. The advice
 here complements the error's own ``fix`` with what a person should check, per code.
 """
+
 from __future__ import annotations
 
 #: error code -> what to check (in addition to the error's own ``fix``)
 ERROR_ADVICE = {
     "target_not_found": "Count the inner corners (where four squares meet), not the squares, give the square size "
-                        "in metres, and check in the thumbnails below that the board is whole, sharp and evenly lit.",
+    "in metres, and check in the thumbnails below that the board is whole, sharp and evenly lit.",
     "detection_failed": "Count the inner corners (where four squares meet), not the squares, give the square size "
-                        "in metres, and check in the thumbnails below that the board is whole, sharp and evenly lit.",
+    "in metres, and check in the thumbnails below that the board is whole, sharp and evenly lit.",
     "too_few_views": "Collect 15-25 views with the board fully visible.",
     "motion_small_rotation": "Collect views tilted 20-45 deg against each other about two different axes.",
     "motion_one_axis": "Tilt the tool about the other axes as well, not only about one.",
     "degenerate_motion": "Collect views tilted 20-45 deg against each other about two different axes.",
     "refinement_failed": "Re-run with --no-refine to get the closed-form result, and check the per-view table for "
-                         "views whose robot pose disagrees with the image.",
+    "views whose robot pose disagrees with the image.",
     "intrinsics_size_mismatch": "Fix the intrinsics' image size in the session or remove the given intrinsics.",
     "closed_form_failed": "Try another --method (e.g. park) and check the robot poses' units and rotation convention.",
     "unknown_method": "Use one of the methods handeye calibrate --help lists.",
     "camera_calibration_failed": "Give the camera intrinsics in the session, or add views that reach the image "
-                                 "corners at different distances and tilts.",
+    "corners at different distances and tilts.",
     "pnp_failed": "Check the board description (inner corners, square size) against the thumbnails.",
     "mode_swapped": "Check where the camera is mounted: on the flange it is eye_in_hand, on a stand eye_to_hand; "
-                    "state that mode with --mode or mode: in the session.",
+    "state that mode with --mode or mode: in the session.",
     "pairs_shifted": "Check whether the pose file has an extra or a missing line at the start; if the shift is "
-                     "certain, re-run with --shift-poses N (image k takes the pose written for image k + N), else re-capture images "
-                     "and poses together, by view id.",
+    "certain, re-run with --shift-poses N (image k takes the pose written for image k + N), else re-capture images "
+    "and poses together, by view id.",
     "pairs_shuffled": "Re-pair images and poses by view id (the recording lost the order); re-capture if unsure.",
     "session_refused": "Read the finding that refused the run below; fix its cause and re-run handeye calibrate.",
 }
@@ -36,12 +37,12 @@ ERROR_ADVICE = {
 #: finding code -> what to check (the findings' own ``action`` comes first; this adds what a person checks)
 FINDING_ADVICE = {
     "square_size": "Measure a printed square with a caliper and state that size in metres; a printer's 'fit to "
-                   "page' shrinks a board by a few per cent.",
+    "page' shrinks a board by a few per cent.",
     "poses_do_not_fit": "Check that each image is paired with the pose recorded at that moment, the pose format "
-                        "(units, Euler order), the mounting mode and that the board stayed put; re-capture if "
-                        "unsure.",
+    "(units, Euler order), the mounting mode and that the board stayed put; re-capture if "
+    "unsure.",
     "mode_undecided": "State the mounting mode (--mode eye_in_hand or eye_to_hand, or mode: in the session); the "
-                      "data did not decide it, so the default was used.",
+    "data did not decide it, so the default was used.",
     "mode_swapped": ERROR_ADVICE["mode_swapped"],
     "pairs_shifted": ERROR_ADVICE["pairs_shifted"],
     "pairs_shuffled": ERROR_ADVICE["pairs_shuffled"],
@@ -70,28 +71,51 @@ def is_out_of_step(f: dict) -> bool:
     """A pairs_shuffled finding that is a shift from one image on (its own fix: the order was not lost)."""
     return f.get("code") == "pairs_shuffled" and bool((f.get("details") or {}).get("partial_shift"))
 
+
 #: codes whose fail or warn finding (or refusal) explains the verdict: the banner leads with the first found
-ROOT_CAUSE_CODES = ("mode_swapped", "poses_inverted", "pairs_shifted", "pairs_shuffled", "translation_units",
-                    "angle_units", "euler_order", "rotation_kind", "quaternion_order", "square_size", "board_moved",
-                    "poses_do_not_fit", "mode_undecided")
+ROOT_CAUSE_CODES = (
+    "mode_swapped",
+    "poses_inverted",
+    "pairs_shifted",
+    "pairs_shuffled",
+    "translation_units",
+    "angle_units",
+    "euler_order",
+    "rotation_kind",
+    "quaternion_order",
+    "square_size",
+    "board_moved",
+    "poses_do_not_fit",
+    "mode_undecided",
+)
 
 #: advice for the error classes' default codes: only when nothing more precise is known
 FALLBACK_ADVICE = {
     "input_error": "Fix what the message names (docs/session_format.md describes the session files) and re-run "
-                   "handeye calibrate.",
+    "handeye calibrate.",
     "config_error": "Fix the setting the message names and re-run handeye calibrate.",
 }
 
 #: finding code -> the QA metrics whose value that finding makes untrustworthy (the number is computed
 #: from data the finding says is wrong, so a green card for it would mislead)
 UNTRUSTED_METRICS = {
-    "translation_units": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg", "max_rotation_deg",
-                          "axis_spread_deg"),
+    "translation_units": (
+        "predicted_error_mm",
+        "sigma_trans_mm",
+        "sigma_rot_deg",
+        "max_rotation_deg",
+        "axis_spread_deg",
+    ),
     "angle_units": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg", "max_rotation_deg", "axis_spread_deg"),
     "euler_order": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg", "max_rotation_deg", "axis_spread_deg"),
     "rotation_kind": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg", "max_rotation_deg", "axis_spread_deg"),
-    "quaternion_order": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg", "max_rotation_deg",
-                         "axis_spread_deg"),
+    "quaternion_order": (
+        "predicted_error_mm",
+        "sigma_trans_mm",
+        "sigma_rot_deg",
+        "max_rotation_deg",
+        "axis_spread_deg",
+    ),
     "poses_inverted": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg", "max_rotation_deg", "axis_spread_deg"),
     "mode_swapped": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
     "board_moved": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
@@ -120,10 +144,12 @@ STAGE_CHECKS = {
 
 MAX_ACTIONS = 3  # a short list is read; the findings section below has every finding's action
 
-GENERIC_WITH_VIEWS = ("Read the per-view table for what was found in each image, fix the cause and re-run "
-                      "handeye calibrate.")
-GENERIC_WITHOUT_VIEWS = ("Fix what the message names (docs/session_format.md describes the session files) and "
-                         "re-run handeye calibrate.")
+GENERIC_WITH_VIEWS = (
+    "Read the per-view table for what was found in each image, fix the cause and re-run handeye calibrate."
+)
+GENERIC_WITHOUT_VIEWS = (
+    "Fix what the message names (docs/session_format.md describes the session files) and re-run handeye calibrate."
+)
 
 
 def _sentence(s) -> str:
@@ -133,7 +159,8 @@ def _sentence(s) -> str:
 
 def error_record(res: dict) -> dict:
     """The structured error of a failed run; a result written before errors had codes gives its
-    ``failure_reason`` as ``what`` and the code ``""``."""
+    ``failure_reason`` as ``what`` and the code ``""``.
+    """
     err = res.get("error")
     if isinstance(err, dict) and err.get("what"):
         return err
@@ -143,7 +170,8 @@ def error_record(res: dict) -> dict:
 def failure_advice(res: dict, findings: list[dict], *, has_views: bool) -> dict:
     """Why a run failed and what to change: the error's own fix, the advice for its code, then the
     actions of the diagnostics' fail findings (up to :data:`MAX_ACTIONS` in all); generic advice only
-    when none of these says anything."""
+    when none of these says anything.
+    """
     err = error_record(res)
     parts = [str(err["what"])]
     if err.get("expected"):
@@ -170,20 +198,20 @@ def failure_advice(res: dict, findings: list[dict], *, has_views: bool) -> dict:
     where = err.get("file") or ""
     if where and err.get("line") is not None:
         where = f"{where}:{err['line']}"
-    return {"code": err.get("code") or "", "problem": problem, "short": problem, "where": where,
-            "actions": actions}
+    return {"code": err.get("code") or "", "problem": problem, "short": problem, "where": where, "actions": actions}
 
 
 def finding_advice(f: dict) -> str:
     """What to check for a finding, by its code, beyond its own action ("" when nothing more is known; a pairing
-    out of step from one image on has its own fix, the order was not lost)."""
+    out of step from one image on has its own fix, the order was not lost).
+    """
     if is_out_of_step(f):
         return ""
     return _sentence(FINDING_ADVICE.get(str(f.get("code") or ""), ""))
 
 
 def untrusted_metrics(findings: list[dict]) -> dict[str, str]:
-    """metric key -> the title of the (fail or warn) finding that makes its value untrustworthy."""
+    """Metric key -> the title of the (fail or warn) finding that makes its value untrustworthy."""
     out: dict[str, str] = {}
     for f in findings:
         if f["severity"] not in ("fail", "warn"):
@@ -211,7 +239,7 @@ def _cause_of_finding(f: dict) -> str:
         return label
     said = "images and robot poses are shuffled: "  # the label says it already
     if code == "pairs_shuffled" and title.lower().startswith(said):
-        title = title[len(said):]
+        title = title[len(said) :]
     if code == "pairs_shifted":
         label = _shift_label(details["shift"]) if "shift" in details else ROOT_CAUSE_LABELS["pairs_shuffled"]
     elif is_out_of_step(f):
@@ -229,17 +257,22 @@ def root_cause(res: dict, findings: list[dict]) -> dict | None:
     A failed run whose error code names a cause (a refusal: mode_swapped, pairs_shifted, pairs_shuffled, or a
     refusing finding's code) gives ``{"code", "text", "fix", "refused": True}`` with the error's own fix; else
     the first fail, then warn finding with a code of :data:`ROOT_CAUSE_CODES` gives ``{"code", "text", "fix",
-    "refused": False}`` with its action. Keyed on codes, never on message text."""
+    "refused": False}`` with its action. Keyed on codes, never on message text.
+    """
     err = res.get("error") if isinstance(res.get("error"), dict) else {}
     code = str(err.get("code") or "")
     refused = res.get("verdict") == "REFUSED" or err.get("type") == "SessionRefused"
     if res.get("status") != "ok" and (refused or code in ROOT_CAUSE_CODES):
-        same = [f for f in findings if f.get("code") == code
-                or (code == "pairs_shuffled" and f.get("code") == "pairs_shifted")]
+        same = [
+            f
+            for f in findings
+            if f.get("code") == code or (code == "pairs_shuffled" and f.get("code") == "pairs_shifted")
+        ]
         if same:
             text = _cause_of_finding(same[0])
-            if code == "pairs_shuffled" and not text.startswith((ROOT_CAUSE_LABELS["pairs_shuffled"],
-                                                                 PAIRS_OUT_OF_STEP)):
+            if code == "pairs_shuffled" and not text.startswith(
+                (ROOT_CAUSE_LABELS["pairs_shuffled"], PAIRS_OUT_OF_STEP)
+            ):
                 text = ROOT_CAUSE_LABELS["pairs_shuffled"]
         elif code == "pairs_shifted":
             text = _shift_label(None)
@@ -249,12 +282,21 @@ def root_cause(res: dict, findings: list[dict]) -> dict | None:
             text = f"{label}: {what[:1].lower() + what[1:]}" if label and what else (label or _sentence(what))
         fix = err.get("fix") or ERROR_ADVICE.get(code) or (same[0].get("action") if same else "")
         if text:
-            return {"code": code, "text": text.rstrip("."), "fix": _sentence(fix).rstrip("."), "refused": refused,
-                    "severity": "fail"}
+            return {
+                "code": code,
+                "text": text.rstrip("."),
+                "fix": _sentence(fix).rstrip("."),
+                "refused": refused,
+                "severity": "fail",
+            }
     for severity in ("fail", "warn"):
         for f in findings:
             if f.get("severity") == severity and f.get("code") in ROOT_CAUSE_CODES:
-                return {"code": f["code"], "text": _cause_of_finding(f), "severity": severity,
-                        "fix": _sentence(f.get("action") or FINDING_ADVICE.get(f["code"], "")).rstrip("."),
-                        "refused": False}
+                return {
+                    "code": f["code"],
+                    "text": _cause_of_finding(f),
+                    "severity": severity,
+                    "fix": _sentence(f.get("action") or FINDING_ADVICE.get(f["code"], "")).rstrip("."),
+                    "refused": False,
+                }
     return None

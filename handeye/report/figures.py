@@ -4,6 +4,7 @@ The figures are drawn one after the other in this process: on two cores, worker 
 more (start-up, pickling, matplotlib imported twice) than they save. A figure that cannot be drawn
 is logged and left out; it never costs the report.
 """
+
 from __future__ import annotations
 
 import logging
@@ -36,9 +37,22 @@ def _board_outline(obs: dict) -> np.ndarray:
     return np.array([[lo[0], lo[1], 0], [hi[0], lo[1], 0], [hi[0], hi[1], 0], [lo[0], hi[1], 0]], float)
 
 
-def report_figures(*, res: dict, obs: dict, ref: dict, fits: dict[str, ViewFit], views: list[dict],
-                   T_x: Optional[np.ndarray], T_board: Optional[np.ndarray], unc: Optional[dict], metrics: dict,
-                   notes: dict, qa_cfg: dict, mounting: MountingMode, image_size) -> list[Plot]:
+def report_figures(
+    *,
+    res: dict,
+    obs: dict,
+    ref: dict,
+    fits: dict[str, ViewFit],
+    views: list[dict],
+    T_x: Optional[np.ndarray],
+    T_board: Optional[np.ndarray],
+    unc: Optional[dict],
+    metrics: dict,
+    notes: dict,
+    qa_cfg: dict,
+    mounting: MountingMode,
+    image_size,
+) -> list[Plot]:
     from . import plots
 
     used = {v["id"] for v in views if v["status"] == "used"}
@@ -55,35 +69,60 @@ def report_figures(*, res: dict, obs: dict, ref: dict, fits: dict[str, ViewFit],
             sigma, src = float(ref["sigma_px"]), "estimated by the refinement"
         else:
             dof = max(2 * len(cam_all) - 6 * len(cam), 1)
-            sigma, src = float(np.sqrt(np.sum(cam_all ** 2) / dof)), "from the camera-fit residuals"
+            sigma, src = float(np.sqrt(np.sum(cam_all**2) / dof)), "from the camera-fit residuals"
         chain_all = np.concatenate(chain) if chain else None
-        jobs.append(("residuals", "Residuals against the noise model",
-                     "Lengths of the corner residuals: filled, each view fitted on its own (camera, intrinsics, "
-                     "corner detection); outline, the board predicted through the reported robot pose and the result "
-                     "— the difference between the two is what the robot's pose error adds. The curve is the "
-                     "distribution the lengths follow when the pixel noise is Gaussian with the stated σ.",
-                     lambda: plots.residual_histogram(cam_all, chain_all, sigma_px=sigma, sigma_source=src)))
+        jobs.append(
+            (
+                "residuals",
+                "Residuals against the noise model",
+                "Lengths of the corner residuals: filled, each view fitted on its own (camera, intrinsics, "
+                "corner detection); outline, the board predicted through the reported robot pose and the result "
+                "— the difference between the two is what the robot's pose error adds. The curve is the "
+                "distribution the lengths follow when the pixel noise is Gaussian with the stated σ.",
+                lambda: plots.residual_histogram(cam_all, chain_all, sigma_px=sigma, sigma_source=src),
+            )
+        )
     # per-view bars
     if views and any(finite(v["rms_px"]) for v in views):
         rl = lim.get("reprojection_rms_px") or {}
-        jobs.append(("per_view", "Residual per view",
-                     "RMS residual of each view, fitted on its own (dark) and through the robot chain (light). "
-                     "Red outlines: views dropped or flagged; dashed lines: the QA limits of the session's reprojection RMS "
-                     + ("(the refined fit" if ref else "(the views' own camera fits")
-                     + "; the through-robot residuals add the robot's pose error and have no limit).",
-                     lambda rl=rl: plots.per_view_bars([v["id"] for v in views], [v["rms_px"] for v in views],
-                                                       [v["chain_rms_px"] for v in views], [v["status"] for v in views],
-                                                       warn_px=rl.get("warn_above"), fail_px=rl.get("fail_above"))))
+        jobs.append(
+            (
+                "per_view",
+                "Residual per view",
+                "RMS residual of each view, fitted on its own (dark) and through the robot chain (light). "
+                "Red outlines: views dropped or flagged; dashed lines: the QA limits of the session's reprojection RMS "
+                + ("(the refined fit" if ref else "(the views' own camera fits")
+                + "; the through-robot residuals add the robot's pose error and have no limit).",
+                lambda rl=rl: plots.per_view_bars(
+                    [v["id"] for v in views],
+                    [v["rms_px"] for v in views],
+                    [v["chain_rms_px"] for v in views],
+                    [v["status"] for v in views],
+                    warn_px=rl.get("warn_above"),
+                    fail_px=rl.get("fail_above"),
+                ),
+            )
+        )
     # coverage
     if image_size and fits and "coverage_counts" in notes:
         vv = [(vid, f.image_points_px, f.residual_px, vid in flagged) for vid, f in sorted(fits.items())]
-        jobs.append(("coverage", "Image coverage and residual vectors",
-                     "Left: where the detected corners fall (cell shading = number of corners; outlines = each "
-                     "view's board). Lens distortion is only known where corners were seen. Right: the camera-fit "
-                     "residual of every corner, magnified; a systematic pattern (swirl, radial) points at a lens "
-                     "model that does not fit.",
-                     lambda: plots.image_coverage(int(image_size[0]), int(image_size[1]), vv, notes["coverage_counts"],
-                                                  coverage_share=float(metrics.get("image_coverage") or 0.0))))
+        jobs.append(
+            (
+                "coverage",
+                "Image coverage and residual vectors",
+                "Left: where the detected corners fall (cell shading = number of corners; outlines = each "
+                "view's board). Lens distortion is only known where corners were seen. Right: the camera-fit "
+                "residual of every corner, magnified; a systematic pattern (swirl, radial) points at a lens "
+                "model that does not fit.",
+                lambda: plots.image_coverage(
+                    int(image_size[0]),
+                    int(image_size[1]),
+                    vv,
+                    notes["coverage_counts"],
+                    coverage_share=float(metrics.get("image_coverage") or 0.0),
+                ),
+            )
+        )
     # robot, camera and board in the base frame
     if T_x is not None and T_board is not None:
         ids = [v["id"] for v in views if v["id"] in fits and fits[v["id"]].T_base_end is not None]
@@ -96,24 +135,43 @@ def report_figures(*, res: dict, obs: dict, ref: dict, fits: dict[str, ViewFit],
             outline = _board_outline(obs)
             fl = [v in flagged for v in ids]
             moves = mounting.camera_moves
-            jobs.append(("poses", "Robot, camera and board",
-                         "Robot poses (small axes: x red, y green, z blue) as reported, the camera"
-                         + (" at each pose" if moves else "") + " and the board" + ("" if moves else " at each pose")
-                         + " under the result, in the robot base frame, seen obliquely and from above. "
-                         "Red: views dropped or flagged.",
-                         lambda: plots.poses_3d(T_base_cams=cams, T_base_ends=T_be, T_base_boards=boards,
-                                                board_outline=outline, flagged=fl, camera_moves=moves)))
+            jobs.append(
+                (
+                    "poses",
+                    "Robot, camera and board",
+                    "Robot poses (small axes: x red, y green, z blue) as reported, the camera"
+                    + (" at each pose" if moves else "")
+                    + " and the board"
+                    + ("" if moves else " at each pose")
+                    + " under the result, in the robot base frame, seen obliquely and from above. "
+                    "Red: views dropped or flagged.",
+                    lambda: plots.poses_3d(
+                        T_base_cams=cams,
+                        T_base_ends=T_be,
+                        T_base_boards=boards,
+                        board_outline=outline,
+                        flagged=fl,
+                        camera_moves=moves,
+                    ),
+                )
+            )
     # rotation coverage
     rv = notes.get("rotvecs")
     if rv is not None and len(rv):
         rl = lim.get("max_rotation_deg") or {}
-        jobs.append(("rotations", "Rotation coverage",
-                     "Every pair of used views defines a robot rotation. Left: its axis (a point per pair, folded "
-                     "into one hemisphere, equal-area; colour = angle). Axes spread over the disk constrain the "
-                     "hand-eye rotation in all directions; a line or a cluster means one axis is missing. Right: the "
-                     "rotation angles between view pairs.",
-                     lambda rl=rl: plots.rotation_coverage(rv, frame=notes.get("axis_frame", ""),
-                                                           warn_deg=rl.get("warn_below"), fail_deg=rl.get("fail_below"))))
+        jobs.append(
+            (
+                "rotations",
+                "Rotation coverage",
+                "Every pair of used views defines a robot rotation. Left: its axis (a point per pair, folded "
+                "into one hemisphere, equal-area; colour = angle). Axes spread over the disk constrain the "
+                "hand-eye rotation in all directions; a line or a cluster means one axis is missing. Right: the "
+                "rotation angles between view pairs.",
+                lambda rl=rl: plots.rotation_coverage(
+                    rv, frame=notes.get("axis_frame", ""), warn_deg=rl.get("warn_below"), fail_deg=rl.get("fail_below")
+                ),
+            )
+        )
     # uncertainty
     if T_x is not None:
         meth = []
@@ -123,15 +181,24 @@ def report_figures(*, res: dict, obs: dict, ref: dict, fits: dict[str, ViewFit],
                 meth.append((m, (T[:3, 3] - T_x[:3, 3]) * 1e3))
         cov_t = unc["cov_translation_mm2"] if unc is not None else None
         if cov_t is not None or meth:
-            jobs.append(("uncertainty", "Uncertainty of the translation",
-                         ("1-σ (solid) and 2-σ (dashed) ellipses of the hand-eye translation from the verdict "
-                          "covariance (the one every ± of the report uses)" if cov_t is not None
-                          else "No covariance (closed form only)")
-                         + "; markers: the closed-form methods, relative to the result. The closed-form methods treat "
-                         "the robot poses as exact and weigh views unevenly, so they scatter more than the refined "
-                         "result; one method far from all others points at weak motion or a bad pose.",
-                         lambda: plots.translation_uncertainty(cov_t, meth, frame=mounting.fixed_frame,
-                                                               x_name=mounting.x_name)))
+            jobs.append(
+                (
+                    "uncertainty",
+                    "Uncertainty of the translation",
+                    (
+                        "1-σ (solid) and 2-σ (dashed) ellipses of the hand-eye translation from the verdict "
+                        "covariance (the one every ± of the report uses)"
+                        if cov_t is not None
+                        else "No covariance (closed form only)"
+                    )
+                    + "; markers: the closed-form methods, relative to the result. The closed-form methods treat "
+                    "the robot poses as exact and weigh views unevenly, so they scatter more than the refined "
+                    "result; one method far from all others points at weak motion or a bad pose.",
+                    lambda: plots.translation_uncertainty(
+                        cov_t, meth, frame=mounting.fixed_frame, x_name=mounting.x_name
+                    ),
+                )
+            )
     out: list[Plot] = []
     with plots.style():
         for key, title, caption, draw in jobs:

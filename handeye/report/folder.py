@@ -9,6 +9,7 @@ the field, never a crash deep in the report. observations.json is used only when
 same run (its ``run_id`` equals result.json's; a run killed after writing it but before result.json
 leaves the older result with a newer observations.json, which is then ignored).
 """
+
 from __future__ import annotations
 
 import json
@@ -32,8 +33,9 @@ def _read_json(p: Path) -> dict:
     try:
         d = json.loads(p.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
-        raise InputError(f"not valid JSON ({type(e).__name__}: {str(e)[:80]})", path=p,
-                         hint="re-run handeye calibrate") from None
+        raise InputError(
+            f"not valid JSON ({type(e).__name__}: {str(e)[:80]})", path=p, hint="re-run handeye calibrate"
+        ) from None
     except OSError as e:
         raise InputError(f"cannot read the file ({e.strerror})", path=p, hint="re-run handeye calibrate") from None
     if not isinstance(d, dict):
@@ -48,8 +50,9 @@ def read_result_folder(path: str | Path) -> ResultFolder:
         path = path.parent
     res_path = path / "result.json"
     if not res_path.is_file():
-        raise InputError("no result.json in this folder", path=path,
-                         hint="pass the folder written by handeye calibrate --out")
+        raise InputError(
+            "no result.json in this folder", path=path, hint="pass the folder written by handeye calibrate --out"
+        )
     res = check_result(_read_json(res_path), path=res_path)
     obs_path = path / "observations.json"
     return _assemble(path, res, _read_json(obs_path) if obs_path.is_file() else None)
@@ -58,7 +61,8 @@ def read_result_folder(path: str | Path) -> ResultFolder:
 def result_folder(path: str | Path, result: dict, observations: dict | None = None) -> ResultFolder:
     """The result folder ``path`` with result.json's and observations.json's contents given (as just
     written there: nothing is read again but the thumbnails), checked as :func:`read_result_folder`
-    checks them."""
+    checks them.
+    """
     path = Path(path)
     return _assemble(path, check_result(result, path=path / "result.json"), observations)
 
@@ -78,7 +82,8 @@ def _assemble(path: Path, res: dict, obs: dict | None) -> ResultFolder:
 
 def _matching_observations(res: dict, obs: dict) -> dict:
     """observations.json restricted to the views of this result (a stale file from an earlier run of
-    another session in the same folder must not leak into the report)."""
+    another session in the same folder must not leak into the report).
+    """
     ids = {str(v.get("id")) for v in res.get("views") or []}
     if not ids or (obs.get("mode") and res.get("mode") and obs.get("mode") != res.get("mode")):
         return {}
@@ -92,15 +97,24 @@ def _matching_observations(res: dict, obs: dict) -> dict:
 
 
 def _bad(path: Path, field: str, expected: str, got) -> InputError:
-    return InputError(f"result.json field {field} is damaged", path=path, expected=expected,
-                      received=repr(got)[:60], hint="re-run handeye calibrate into this folder")
+    return InputError(
+        f"result.json field {field} is damaged",
+        path=path,
+        expected=expected,
+        received=repr(got)[:60],
+        hint="re-run handeye calibrate into this folder",
+    )
 
 
 def _matrix_4x4(v) -> bool:
     import math
 
-    return (isinstance(v, list) and len(v) == 4 and all(isinstance(r, list) and len(r) == 4 for r in v)
-            and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for r in v for x in r))
+    return (
+        isinstance(v, list)
+        and len(v) == 4
+        and all(isinstance(r, list) and len(r) == 4 for r in v)
+        and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for r in v for x in r)
+    )
 
 
 def check_result(res: dict, *, path: Path) -> dict:
@@ -121,11 +135,25 @@ def check_result(res: dict, *, path: Path) -> dict:
         if not isinstance(v.get("used", False), bool):
             raise _bad(path, f"views[{k}].used", "true | false", v.get("used"))
     n = res.get("n_views", {"total": len(views), "used": 0})
-    if not (isinstance(n, dict) and all(isinstance(n.get(k), int) and not isinstance(n.get(k), bool)
-                                        for k in ("total", "used"))):
+    if not (
+        isinstance(n, dict)
+        and all(isinstance(n.get(k), int) and not isinstance(n.get(k), bool) for k in ("total", "used"))
+    ):
         raise _bad(path, "n_views", "{total: N, used: N}", n)
-    for key in ("refinement", "diagnostics", "provenance", "seconds", "error", "hand_eye", "session", "motion",
-                "intrinsics", "target", "closed_forms", "qa"):
+    for key in (
+        "refinement",
+        "diagnostics",
+        "provenance",
+        "seconds",
+        "error",
+        "hand_eye",
+        "session",
+        "motion",
+        "intrinsics",
+        "target",
+        "closed_forms",
+        "qa",
+    ):
         if res.get(key) is not None and not isinstance(res[key], dict):
             raise _bad(path, key, "a mapping", res[key])
     for key in ("findings",):

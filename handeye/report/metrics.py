@@ -4,6 +4,7 @@
 and ``notes`` (where each number comes from, the words its advice needs, and the arrays the figures
 reuse). Motion coverage is :func:`handeye.initial.motion.motion_quality`, the pipeline's own measure.
 """
+
 from __future__ import annotations
 
 from typing import Any, Optional
@@ -16,9 +17,19 @@ from ..records import view_id_key
 from .observations import ViewFit, coverage_counts, finite, relative_rotvecs, rms_norm, robot_motions
 
 
-def qa_metrics(res: dict, ref: dict, fits: dict[str, ViewFit], views: list[dict], unc: Optional[dict],
-               pred: Optional[dict], wd: float, image_size, mounting: MountingMode, *,
-               coverage_cells_x: int = 16) -> tuple[dict, dict]:
+def qa_metrics(
+    res: dict,
+    ref: dict,
+    fits: dict[str, ViewFit],
+    views: list[dict],
+    unc: Optional[dict],
+    pred: Optional[dict],
+    wd: float,
+    image_size,
+    mounting: MountingMode,
+    *,
+    coverage_cells_x: int = 16,
+) -> tuple[dict, dict]:
     m: dict[str, Optional[float]] = {}
     c: dict[str, Any] = {}
     used_ids = {v["id"] for v in views if v["status"] == "used"}
@@ -46,8 +57,9 @@ def qa_metrics(res: dict, ref: dict, fits: dict[str, ViewFit], views: list[dict]
     else:
         m["sigma_trans_mm"] = m["sigma_rot_deg"] = None
     for k in ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"):
-        c[f"{k}_missing"] = ("no covariance: the joint refinement did not run" if res.get("status") == "ok"
-                             else "no result")
+        c[f"{k}_missing"] = (
+            "no covariance: the joint refinement did not run" if res.get("status") == "ok" else "no result"
+        )
         c[f"{k}_missing_action"] = "run handeye calibrate without --no-refine to get the uncertainty"
     # motion of the used views, judged as the pipeline judges it
     Ts = [fits[v].T_base_end for v in sorted(used_ids, key=view_id_key) if v in fits and fits[v].T_base_end is not None]
@@ -82,8 +94,9 @@ def qa_metrics(res: dict, ref: dict, fits: dict[str, ViewFit], views: list[dict]
     # coverage
     pts = [fits[v].image_points_px for v in fits if v in used_ids or not used_ids]
     if image_size and pts:
-        counts = coverage_counts(np.concatenate(pts), width=int(image_size[0]), height=int(image_size[1]),
-                                 cells_x=coverage_cells_x)
+        counts = coverage_counts(
+            np.concatenate(pts), width=int(image_size[0]), height=int(image_size[1]), cells_x=coverage_cells_x
+        )
         m["image_coverage"] = float((counts > 0).mean())
         c["coverage_counts"] = counts
     else:

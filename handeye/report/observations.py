@@ -5,6 +5,7 @@ intrinsics (``T_cam_board_pnp``, ``residual_pnp_px``) and the board predicted th
 robot pose and the result (``T_cam_board_chain``, ``residual_chain_px``). The report reads them; it
 never re-solves a pose. A view without them (a hand-edited file) shows no residuals.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -46,7 +47,7 @@ def as_cov6(x) -> Optional[np.ndarray]:
 
 def rms_norm(r) -> float:
     r = np.asarray(r, float).reshape(-1, 2)
-    return float(np.sqrt(np.mean(np.sum(r ** 2, axis=1)))) if len(r) else float("nan")
+    return float(np.sqrt(np.mean(np.sum(r**2, axis=1)))) if len(r) else float("nan")
 
 
 @dataclass(frozen=True)
@@ -77,7 +78,7 @@ class ViewFit:
 
 
 def view_fits(obs: dict) -> dict[str, ViewFit]:
-    """view id -> :class:`ViewFit` for every view observations.json describes."""
+    """View id -> :class:`ViewFit` for every view observations.json describes."""
     out: dict[str, ViewFit] = {}
     for vid, v in (obs.get("views") or {}).items():
         try:
@@ -87,9 +88,16 @@ def view_fits(obs: dict) -> dict[str, ViewFit]:
             continue
         resid = _finite_array(v.get("residual_pnp_px"), (len(ids), 2))
         chain = _finite_array(v.get("residual_chain_px"), (len(ids), 2))
-        out[str(vid)] = ViewFit(str(vid), ids, uv, resid if resid is not None else np.full((len(ids), 2), np.nan),
-                                as_T(v.get("T_cam_board_pnp")), chain, as_T(v.get("T_cam_board_chain")),
-                                as_T(v.get("T_base_end_reported")))
+        out[str(vid)] = ViewFit(
+            str(vid),
+            ids,
+            uv,
+            resid if resid is not None else np.full((len(ids), 2), np.nan),
+            as_T(v.get("T_cam_board_pnp")),
+            chain,
+            as_T(v.get("T_cam_board_chain")),
+            as_T(v.get("T_base_end_reported")),
+        )
     return out
 
 
@@ -111,7 +119,8 @@ def median_board_distance_m(fits: dict[str, ViewFit], board_centre_m: np.ndarray
 
 def coverage_counts(points_px: np.ndarray, *, width: int, height: int, cells_x: int) -> np.ndarray:
     """Corner counts in a grid of square-ish cells over the image (rows, cols); ``cells_x`` across the
-    width (configs/qa.yaml ``coverage_grid_cells_x``), rows in proportion."""
+    width (configs/qa.yaml ``coverage_grid_cells_x``), rows in proportion.
+    """
     cells_y = max(1, int(round(cells_x * height / max(width, 1))))
     pts = np.asarray(points_px, float).reshape(-1, 2)
     counts = np.zeros((cells_y, cells_x), int)

@@ -5,6 +5,7 @@ is kept light, because it is most of a report's cost: an Agg canvas without pypl
 margins instead of a layout engine, one collection per kind of line instead of one artist per line,
 2-D projections instead of mplot3d, and 8-bit palette PNGs. Nothing here reads files.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -79,8 +80,9 @@ def _png(fig) -> bytes:
 
     fig.canvas.draw()
     rgb = np.asarray(fig.canvas.buffer_rgba())[:, :, :3]
-    img = Image.fromarray(np.ascontiguousarray(rgb)).quantize(colors=128, method=Image.Quantize.FASTOCTREE,
-                                                              dither=Image.Dither.NONE)
+    img = Image.fromarray(np.ascontiguousarray(rgb)).quantize(
+        colors=128, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE
+    )
     buf = io.BytesIO()
     img.save(buf, format="png", compress_level=6)
     return buf.getvalue()
@@ -105,8 +107,15 @@ def _bars(ax, x: np.ndarray, height: np.ndarray, width: float, *, color, edgecol
 
     x0, x1 = x - width / 2, x + width / 2
     h = np.nan_to_num(np.asarray(height, float))
-    verts = np.stack([np.stack([x0, np.zeros_like(h)], 1), np.stack([x0, h], 1), np.stack([x1, h], 1),
-                      np.stack([x1, np.zeros_like(h)], 1)], axis=1)
+    verts = np.stack(
+        [
+            np.stack([x0, np.zeros_like(h)], 1),
+            np.stack([x0, h], 1),
+            np.stack([x1, h], 1),
+            np.stack([x1, np.zeros_like(h)], 1),
+        ],
+        axis=1,
+    )
     ax.add_collection(PolyCollection(verts, facecolors=color, edgecolors=edgecolors, linewidths=1.2, label=label))
     ax.update_datalim([(float(x0.min()), 0.0), (float(x1.max()), float(h.max(initial=0.0)))])
 
@@ -137,8 +146,10 @@ def _hull(pts: np.ndarray) -> np.ndarray:
     def half(points):
         out: list = []
         for x, y in points:
-            while len(out) >= 2 and ((out[-1][0] - out[-2][0]) * (y - out[-2][1])
-                                     - (out[-1][1] - out[-2][1]) * (x - out[-2][0])) <= 0:
+            while (
+                len(out) >= 2
+                and ((out[-1][0] - out[-2][0]) * (y - out[-2][1]) - (out[-1][1] - out[-2][1]) * (x - out[-2][0])) <= 0
+            ):
                 out.pop()
             out.append((x, y))
         return out
@@ -148,10 +159,12 @@ def _hull(pts: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------ residuals
-def residual_histogram(camera_px: np.ndarray, chain_px: Optional[np.ndarray], *, sigma_px: float,
-                       sigma_source: str) -> bytes:
+def residual_histogram(
+    camera_px: np.ndarray, chain_px: Optional[np.ndarray], *, sigma_px: float, sigma_source: str
+) -> bytes:
     """Corner residual lengths (camera fit, and through the robot) against the Rayleigh law of a 2-D
-    Gaussian with ``sigma_px`` per axis."""
+    Gaussian with ``sigma_px`` per axis.
+    """
     fig = _fig(2.9, left=0.07, bottom=0.16, top=0.9)
     ax = fig.add_subplot()
     e = np.linalg.norm(np.asarray(camera_px, float).reshape(-1, 2), axis=1)
@@ -159,19 +172,39 @@ def residual_histogram(camera_px: np.ndarray, chain_px: Optional[np.ndarray], *,
     ec = None if chain_px is None else np.linalg.norm(np.asarray(chain_px, float).reshape(-1, 2), axis=1)
     ec = ec[np.isfinite(ec)] if ec is not None else None
     both = np.concatenate([e, ec]) if ec is not None and len(ec) else e
-    hi = max(float(np.quantile(both, 0.995)) if len(both) else 0.0,
-             4.0 * sigma_px if np.isfinite(sigma_px) else 0.0, 1e-6)
+    hi = max(
+        float(np.quantile(both, 0.995)) if len(both) else 0.0, 4.0 * sigma_px if np.isfinite(sigma_px) else 0.0, 1e-6
+    )
     bins = np.linspace(0.0, hi, 40)
     if len(e):
-        ax.hist(np.clip(e, 0, hi), bins=bins, density=True, histtype="stepfilled", color=NAVY, alpha=0.7,
-                label=f"camera fit: {len(e)} corners, RMS {np.sqrt(np.mean(e ** 2)):.3f} px")
+        ax.hist(
+            np.clip(e, 0, hi),
+            bins=bins,
+            density=True,
+            histtype="stepfilled",
+            color=NAVY,
+            alpha=0.7,
+            label=f"camera fit: {len(e)} corners, RMS {np.sqrt(np.mean(e**2)):.3f} px",
+        )
     if ec is not None and len(ec):
-        ax.hist(np.clip(ec, 0, hi), bins=bins, density=True, histtype="step", color=TEAL, lw=1.6,
-                label=f"through the robot: RMS {np.sqrt(np.mean(ec ** 2)):.3f} px")
+        ax.hist(
+            np.clip(ec, 0, hi),
+            bins=bins,
+            density=True,
+            histtype="step",
+            color=TEAL,
+            lw=1.6,
+            label=f"through the robot: RMS {np.sqrt(np.mean(ec**2)):.3f} px",
+        )
     if np.isfinite(sigma_px) and sigma_px > 0:
         x = np.linspace(0.0, hi, 200)
-        ax.plot(x, x / sigma_px ** 2 * np.exp(-0.5 * (x / sigma_px) ** 2), color=ORANGE, lw=1.6,
-                label=f"expected (σ = {sigma_px:.3f} px/axis, {sigma_source})")
+        ax.plot(
+            x,
+            x / sigma_px**2 * np.exp(-0.5 * (x / sigma_px) ** 2),
+            color=ORANGE,
+            lw=1.6,
+            label=f"expected (σ = {sigma_px:.3f} px/axis, {sigma_source})",
+        )
     ax.set_title("Corner residual lengths")
     ax.set_xlabel("residual length [px]")
     ax.set_ylabel("density")
@@ -182,8 +215,15 @@ def residual_histogram(camera_px: np.ndarray, chain_px: Optional[np.ndarray], *,
     return _png(fig)
 
 
-def per_view_bars(ids: Sequence[str], camera_rms: Sequence[float], chain_rms: Sequence[float],
-                  status: Sequence[str], *, warn_px: Optional[float], fail_px: Optional[float]) -> bytes:
+def per_view_bars(
+    ids: Sequence[str],
+    camera_rms: Sequence[float],
+    chain_rms: Sequence[float],
+    status: Sequence[str],
+    *,
+    warn_px: Optional[float],
+    fail_px: Optional[float],
+) -> bytes:
     """Per-view RMS: camera fit and through the robot; dropped views marked, QA limits drawn."""
     n = len(ids)
     fig = _fig(2.8, bottom=0.2 if n > 24 else 0.16, top=0.84)
@@ -204,12 +244,21 @@ def per_view_bars(ids: Sequence[str], camera_rms: Sequence[float], chain_rms: Se
     clipped = top > 1.05 * cap
     if clipped:  # one gross outlier must not flatten every other bar: cut the axis, print the value
         top = cap
-        for xi, c, h in zip(x, cam, ch):
+        for xi, c, h in zip(x, cam, ch, strict=False):
             for off, val in ((-w / 2, c), (w / 2, h)):
                 if np.isfinite(val) and val > cap:
-                    ax.text(xi + off, cap * 0.97, f"{val:.0f} px ↑" if val >= 10 else f"{val:.1f} px ↑",
-                            ha="center", va="top", fontsize=7, color="white", fontweight="bold", rotation=90)
-    for xi, s, c in zip(x, status, cam):
+                    ax.text(
+                        xi + off,
+                        cap * 0.97,
+                        f"{val:.0f} px ↑" if val >= 10 else f"{val:.1f} px ↑",
+                        ha="center",
+                        va="top",
+                        fontsize=7,
+                        color="white",
+                        fontweight="bold",
+                        rotation=90,
+                    )
+    for xi, s, c in zip(x, status, cam, strict=False):
         if s == "dropped" and not np.isfinite(c):
             ax.text(xi, top * 0.04, "dropped", rotation=90, ha="center", va="bottom", fontsize=7, color=RED)
     if warn_px is not None and warn_px < top * 1.3:
@@ -237,10 +286,12 @@ def _nice(x: float) -> float:
     return float(10 * e)
 
 
-def image_coverage(width: int, height: int, views: Sequence[tuple], counts: np.ndarray, *,
-                   coverage_share: float) -> bytes:
+def image_coverage(
+    width: int, height: int, views: Sequence[tuple], counts: np.ndarray, *, coverage_share: float
+) -> bytes:
     """Left: which parts of the image the corners reach (cell counts, each view's outline).
-    Right: camera-fit residual vectors, magnified. ``views``: (id, points (N,2), residuals (N,2), flagged)."""
+    Right: camera-fit residual vectors, magnified. ``views``: (id, points (N,2), residuals (N,2), flagged).
+    """
     from matplotlib.colors import LinearSegmentedColormap
 
     aspect = height / max(width, 1)
@@ -249,12 +300,25 @@ def image_coverage(width: int, height: int, views: Sequence[tuple], counts: np.n
         ax, ax2 = fig.subplots(1, 2)
     ax.set_title(f"Corner coverage: {coverage_share:.0%} of the image")
     cmap = LinearSegmentedColormap.from_list("cov", ["#ffffff", "#cfe0f1", "#5b8fc4", NAVY])
-    ax.imshow(np.ma.masked_where(counts == 0, counts), extent=(0, width, height, 0), cmap=cmap,
-              interpolation="nearest", aspect="equal", vmin=0, vmax=max(1, counts.max()), alpha=0.9)
+    ax.imshow(
+        np.ma.masked_where(counts == 0, counts),
+        extent=(0, width, height, 0),
+        cmap=cmap,
+        interpolation="nearest",
+        aspect="equal",
+        vmin=0,
+        vmax=max(1, counts.max()),
+        alpha=0.9,
+    )
     for flagged in (False, True):
         hulls = [_hull(pts) for _, pts, _, f in views if f == flagged and len(pts) >= 3]
-        _lines(ax, [np.vstack([h, h[:1]]) for h in hulls if len(h) >= 3], colors=RED if flagged else MUTED,
-               linewidths=0.7, alpha=0.8)
+        _lines(
+            ax,
+            [np.vstack([h, h[:1]]) for h in hulls if len(h) >= 3],
+            colors=RED if flagged else MUTED,
+            linewidths=0.7,
+            alpha=0.8,
+        )
     ok = [(p, r, f) for _, p, r, f in views if len(p) and np.all(np.isfinite(r))]
     allr = np.concatenate([r for _, r, _ in ok]) if ok else np.zeros((0, 2))
     ref = float(np.quantile(np.linalg.norm(allr, axis=1), 0.9)) if len(allr) else 1.0
@@ -292,19 +356,29 @@ def _view_matrix(elev_deg: float, azim_deg: float) -> np.ndarray:
     return np.stack([right, up])
 
 
-def poses_3d(*, T_base_cams: np.ndarray, T_base_ends: np.ndarray, T_base_boards: np.ndarray,
-             board_outline: np.ndarray, flagged: Sequence[bool], camera_moves: bool) -> bytes:
+def poses_3d(
+    *,
+    T_base_cams: np.ndarray,
+    T_base_ends: np.ndarray,
+    T_base_boards: np.ndarray,
+    board_outline: np.ndarray,
+    flagged: Sequence[bool],
+    camera_moves: bool,
+) -> bytes:
     """Robot base, end poses, cameras and board(s) in the base frame: an oblique and a top view
     (orthographic projections drawn in 2-D). ``camera_moves``: a camera per pose (eye-in-hand), else a
-    board per pose."""
+    board per pose.
+    """
     from matplotlib.collections import PolyCollection
 
     flagged = np.asarray(flagged, bool)
     pts = np.concatenate([T_base_cams[:, :3, 3], T_base_ends[:, :3, 3], T_base_boards[:, :3, 3], np.zeros((1, 3))])
     L = 0.07 * (float(np.max(np.ptp(pts, axis=0))) or 1.0)
     fig = _fig(3.9, left=0.02, right=0.99, bottom=0.12, top=0.92, wspace=0.08)
-    views = [("Oblique view (elevation 24°, azimuth −58°)", _view_matrix(24, -58), False),
-             ("Top view (base x–y)", np.array([[1.0, 0, 0], [0, 1.0, 0]]), True)]
+    views = [
+        ("Oblique view (elevation 24°, azimuth −58°)", _view_matrix(24, -58), False),
+        ("Top view (base x–y)", np.array([[1.0, 0, 0], [0, 1.0, 0]]), True),
+    ]
     for k, (title, P, labelled) in enumerate(views):
         if labelled:
             ax = fig.add_subplot(1, 2, k + 1)
@@ -327,17 +401,28 @@ def poses_3d(*, T_base_cams: np.ndarray, T_base_ends: np.ndarray, T_base_boards:
         for bad in (False, True):
             sel = np.flatnonzero(flagged == bad)
             if camera_moves:
-                _lines(ax, [proj(_frustum(T_base_cams[i], 0.9 * L)) for i in sel], colors=RED if bad else NAVY,
-                       linewidths=0.8)
+                _lines(
+                    ax,
+                    [proj(_frustum(T_base_cams[i], 0.9 * L)) for i in sel],
+                    colors=RED if bad else NAVY,
+                    linewidths=0.8,
+                )
             else:
                 polys = [proj(transform(T_base_boards[i], board_outline)) for i in sel]
                 if polys:
-                    ax.add_collection(PolyCollection(polys, facecolors=RED if bad else ORANGE, alpha=0.3,
-                                                     edgecolors="none"))
+                    ax.add_collection(
+                        PolyCollection(polys, facecolors=RED if bad else ORANGE, alpha=0.3, edgecolors="none")
+                    )
             # dotted link from the flange to what it carries
             carried = T_base_cams if camera_moves else T_base_boards
-            _lines(ax, [proj(np.stack([T_base_ends[i, :3, 3], carried[i, :3, 3]])) for i in sel],
-                   colors=RED if bad else MUTED, linewidths=0.5, linestyles=":", alpha=0.6)
+            _lines(
+                ax,
+                [proj(np.stack([T_base_ends[i, :3, 3], carried[i, :3, 3]])) for i in sel],
+                colors=RED if bad else MUTED,
+                linewidths=0.5,
+                linestyles=":",
+                alpha=0.6,
+            )
         if camera_moves:
             B = proj(transform(T_base_boards[0], board_outline))
             ax.fill(B[:, 0], B[:, 1], color=ORANGE, alpha=0.5, lw=0)
@@ -377,8 +462,9 @@ def _frustum(T: np.ndarray, L: float) -> np.ndarray:
     return np.array([o, P[0], P[1], o, P[2], P[3], o, P[0], P[3], P[2], P[1]])
 
 
-def rotation_coverage(rotvecs: np.ndarray, *, frame: str, warn_deg: Optional[float],
-                      fail_deg: Optional[float]) -> bytes:
+def rotation_coverage(
+    rotvecs: np.ndarray, *, frame: str, warn_deg: Optional[float], fail_deg: Optional[float]
+) -> bytes:
     """Axes of the pairwise robot rotations on an equal-area disk (hemisphere, sign folded) and their angles."""
     rv = np.asarray(rotvecs, float).reshape(-1, 3)
     ang = np.linalg.norm(rv, axis=1)
@@ -393,17 +479,36 @@ def rotation_coverage(rotvecs: np.ndarray, *, frame: str, warn_deg: Optional[flo
     phi = np.arctan2(a[:, 1], a[:, 0])
     t = np.linspace(0, 2 * np.pi, 120)
     rings = [(np.sqrt(1 - np.cos(np.radians(d))), f"{d}°") for d in (30, 60, 90)]
-    _lines(ax, [np.stack([r0 * np.cos(t), r0 * np.sin(t)], axis=1) for r0, _ in rings] + [
-        np.array([[-1, 0], [1, 0]]), np.array([[0, -1], [0, 1]])], colors=GRID, linewidths=0.8)
+    _lines(
+        ax,
+        [np.stack([r0 * np.cos(t), r0 * np.sin(t)], axis=1) for r0, _ in rings]
+        + [np.array([[-1, 0], [1, 0]]), np.array([[0, -1], [0, 1]])],
+        colors=GRID,
+        linewidths=0.8,
+    )
     for r0, lab in rings:
         ax.text(r0 * np.cos(np.radians(75)), r0 * np.sin(np.radians(75)), lab, fontsize=6.5, color=MUTED)
     vmax = max(90.0, float(np.degrees(ang.max())) if len(ang) else 90.0)
-    ax.scatter(rr * np.cos(phi), rr * np.sin(phi), c=np.degrees(ang[keep]), cmap="viridis", s=10, vmin=0,
-               vmax=vmax, edgecolor="none")
+    ax.scatter(
+        rr * np.cos(phi),
+        rr * np.sin(phi),
+        c=np.degrees(ang[keep]),
+        cmap="viridis",
+        s=10,
+        vmin=0,
+        vmax=vmax,
+        edgecolor="none",
+    )
     ax.text(1.04, 0, "+x", fontsize=7.5, va="center")
     ax.text(0, 1.05, "+y", fontsize=7.5, ha="center")
-    ax.text(0.0, -1.15, f"rings: tilt from +z · colour: angle 0–{vmax:.0f}° (viridis)", fontsize=6.8,
-            color=MUTED, ha="center")
+    ax.text(
+        0.0,
+        -1.15,
+        f"rings: tilt from +z · colour: angle 0–{vmax:.0f}° (viridis)",
+        fontsize=6.8,
+        color=MUTED,
+        ha="center",
+    )
     ax.set_xlim(-1.15, 1.15)
     ax.set_ylim(-1.2, 1.15)
     ax.set_aspect("equal")
@@ -411,9 +516,13 @@ def rotation_coverage(rotvecs: np.ndarray, *, frame: str, warn_deg: Optional[flo
     ax2 = fig.add_subplot(gs[1])
     ax2.set_title(f"Rotation between view pairs ({len(ang)} pairs)")
     if len(ang):
-        ax2.hist(np.degrees(ang), bins=np.linspace(0, max(180.0, np.degrees(ang.max())), 37), color=NAVY,
-                 histtype="stepfilled",
-                 alpha=0.8)
+        ax2.hist(
+            np.degrees(ang),
+            bins=np.linspace(0, max(180.0, np.degrees(ang.max())), 37),
+            color=NAVY,
+            histtype="stepfilled",
+            alpha=0.8,
+        )
     if fail_deg is not None:
         ax2.axvline(fail_deg, color=RED, ls="--", lw=1.0, label=f"QA fail < {fail_deg:g}° (largest)")
     if warn_deg is not None:
@@ -426,10 +535,12 @@ def rotation_coverage(rotvecs: np.ndarray, *, frame: str, warn_deg: Optional[flo
     return _png(fig)
 
 
-def translation_uncertainty(cov_t_mm2: Optional[np.ndarray], methods: Sequence[tuple], *, frame: str,
-                            x_name: str) -> bytes:
+def translation_uncertainty(
+    cov_t_mm2: Optional[np.ndarray], methods: Sequence[tuple], *, frame: str, x_name: str
+) -> bytes:
     """1- and 2-sigma ellipses of the translation (three planes of ``frame``), with the closed-form methods
-    as points relative to the result. ``methods``: (name, offset_mm (3,))."""
+    as points relative to the result. ``methods``: (name, offset_mm (3,)).
+    """
     fig = _fig(3.0, left=0.095, right=0.8, bottom=0.16, top=0.84, wspace=0.5)
     axs = fig.subplots(1, 3)
     lab = "xyz"
@@ -462,8 +573,17 @@ def translation_uncertainty(cov_t_mm2: Optional[np.ndarray], methods: Sequence[t
             if outside:  # pin to the border along its direction, hollow marker
                 f = 0.97 * lim / max(abs(px), abs(py))
                 px, py = px * f, py * f
-            ax.plot(px, py, marker=markers[n % len(markers)], ms=4.5, ls="none", color=f"C{n % 10}",
-                    mfc="none" if outside else f"C{n % 10}", label=name if k == 0 else None, alpha=0.9)
+            ax.plot(
+                px,
+                py,
+                marker=markers[n % len(markers)],
+                ms=4.5,
+                ls="none",
+                color=f"C{n % 10}",
+                mfc="none" if outside else f"C{n % 10}",
+                label=name if k == 0 else None,
+                alpha=0.9,
+            )
         ax.set_xlim(-lim, lim)
         ax.set_ylim(-lim, lim)
         ax.set_aspect("equal")
@@ -473,6 +593,12 @@ def translation_uncertainty(cov_t_mm2: Optional[np.ndarray], methods: Sequence[t
     handles, labels = axs[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="center left", bbox_to_anchor=(0.81, 0.5), fontsize=7.5)
     note = f"; hollow: {n_out} beyond the range, at the border" if n_out else ""
-    fig.suptitle(f"Translation of {x_name} ({frame} frame), offsets from the result{note}", fontsize=9.5,
-                 fontweight="bold", x=0.01, ha="left", color=INK)
+    fig.suptitle(
+        f"Translation of {x_name} ({frame} frame), offsets from the result{note}",
+        fontsize=9.5,
+        fontweight="bold",
+        x=0.01,
+        ha="left",
+        color=INK,
+    )
     return _png(fig)

@@ -3,6 +3,7 @@
 :func:`evaluate` takes plain numbers (``metrics``) and returns a :class:`Verdict`; every check that
 does not pass says why, with the number, and what to do about it.
 """
+
 from __future__ import annotations
 
 import re
@@ -52,26 +53,34 @@ def load_qa(path: str | Path | None = None) -> dict:
     cfg = load_with_override("qa", path) if path is not None else load_preset("qa")
     src = str(path) if path is not None else "configs/qa.yaml"
     if cfg.get("crashed_stage", "warn") not in CRASHED_STAGE_STATUSES:
-        raise ConfigError("crashed_stage must be warn or fail (a crashed check never passes)", path=src,
-                          expected=" | ".join(CRASHED_STAGE_STATUSES), received=repr(cfg.get("crashed_stage")))
+        raise ConfigError(
+            "crashed_stage must be warn or fail (a crashed check never passes)",
+            path=src,
+            expected=" | ".join(CRASHED_STAGE_STATUSES),
+            received=repr(cfg.get("crashed_stage")),
+        )
     if cfg.get("missing_value", "warn") not in STATUS_ORDER:
-        raise ConfigError("missing_value must be one of pass | info | warn | fail", path=src,
-                          received=repr(cfg.get("missing_value")))
+        raise ConfigError(
+            "missing_value must be one of pass | info | warn | fail", path=src, received=repr(cfg.get("missing_value"))
+        )
     wd = cfg.get("working_distance_m")
     if wd is not None and not (isinstance(wd, (int, float)) and wd > 0):
-        raise ConfigError("working_distance_m must be a positive number of metres or null", path=src,
-                          received=repr(wd))
+        raise ConfigError("working_distance_m must be a positive number of metres or null", path=src, received=repr(wd))
     cells = cfg.get("coverage_grid_cells_x", 16)
     if not (isinstance(cells, int) and not isinstance(cells, bool) and cells >= 1):
-        raise ConfigError("coverage_grid_cells_x must be a positive whole number of cells", path=src,
-                          received=repr(cells))
+        raise ConfigError(
+            "coverage_grid_cells_x must be a positive whole number of cells", path=src, received=repr(cells)
+        )
     for name, lim in (cfg.get("checks") or {}).items():
         if not isinstance(lim, dict):
             raise ConfigError(f"checks.{name} must be a mapping of limits", path=src, received=repr(lim))
         for k, v in lim.items():
             if k not in ("warn_above", "fail_above", "warn_below", "fail_below"):
-                raise ConfigError(f"checks.{name}: unknown limit {k!r}", path=src,
-                                  expected="warn_above, fail_above, warn_below, fail_below")
+                raise ConfigError(
+                    f"checks.{name}: unknown limit {k!r}",
+                    path=src,
+                    expected="warn_above, fail_above, warn_below, fail_below",
+                )
             if v is not None and not isinstance(v, (int, float)):
                 raise ConfigError(f"checks.{name}.{k} must be a number or null", path=src, received=repr(v))
     return cfg
@@ -81,54 +90,105 @@ def load_qa(path: str | Path | None = None) -> dict:
 _SPEC = {
     # key: (title, unit, format, why(value, limit, ctx), action(ctx))
     "reprojection_rms_px": (
-        "Reprojection RMS", "px", "{:.3f}",
-        lambda v, lim, c: f"detected corners sit {v:.2f} px RMS from where the model puts them ({c.get('rms_source', '')}); "
-                          f"the limit is {lim:g} px, so the camera model or the corner detections do not fit the images",
-        lambda c: "check focus and motion blur, that the board is flat and its square size is right, and that the lens "
-                  "did not move; recalibrate the intrinsics with views that reach the image corners"),
+        "Reprojection RMS",
+        "px",
+        "{:.3f}",
+        lambda v, lim, c: (
+            f"detected corners sit {v:.2f} px RMS from where the model puts them ({c.get('rms_source', '')}); "
+            f"the limit is {lim:g} px, so the camera model or the corner detections do not fit the images"
+        ),
+        lambda c: (
+            "check focus and motion blur, that the board is flat and its square size is right, and that the lens "
+            "did not move; recalibrate the intrinsics with views that reach the image corners"
+        ),
+    ),
     "predicted_error_mm": (
-        "Predicted position error", "mm", "{:.2f}",
-        lambda v, lim, c: f"a point {c.get('wd_m', float('nan')):.2f} m in front of the camera is placed with "
-                          f"{v:.2f} mm RMS 3-D error (1 σ), above the limit of {lim:g} mm",
-        lambda c: "add views with larger rotations (20-45 deg) about different axes, hold the board near the working "
-                  "distance, make sure the robot is at rest when each image is taken; the error shrinks about "
-                  "with 1/sqrt(number of views)"),
+        "Predicted position error",
+        "mm",
+        "{:.2f}",
+        lambda v, lim, c: (
+            f"a point {c.get('wd_m', float('nan')):.2f} m in front of the camera is placed with "
+            f"{v:.2f} mm RMS 3-D error (1 σ), above the limit of {lim:g} mm"
+        ),
+        lambda c: (
+            "add views with larger rotations (20-45 deg) about different axes, hold the board near the working "
+            "distance, make sure the robot is at rest when each image is taken; the error shrinks about "
+            "with 1/sqrt(number of views)"
+        ),
+    ),
     "sigma_trans_mm": (
-        "Translation uncertainty (largest axis, 1 σ)", "mm", "{:.3f}",
-        lambda v, lim, c: f"the hand-eye translation is known to {v:.2f} mm (1 σ, {c.get('sigma_t_axis', '')}), "
-                          f"the limit is {lim:g} mm",
-        lambda c: "add views that rotate the camera about axes perpendicular to the weak direction and vary the "
-                  "distance to the board; check the robot's repeatability"),
+        "Translation uncertainty (largest axis, 1 σ)",
+        "mm",
+        "{:.3f}",
+        lambda v, lim, c: (
+            f"the hand-eye translation is known to {v:.2f} mm (1 σ, {c.get('sigma_t_axis', '')}), "
+            f"the limit is {lim:g} mm"
+        ),
+        lambda c: (
+            "add views that rotate the camera about axes perpendicular to the weak direction and vary the "
+            "distance to the board; check the robot's repeatability"
+        ),
+    ),
     "sigma_rot_deg": (
-        "Rotation uncertainty (largest axis, 1 σ)", "deg", "{:.3f}",
-        lambda v, lim, c: f"the hand-eye rotation is known to {v:.3f} deg (1 σ, about camera {c.get('sigma_r_axis', '')}), "
-                          f"the limit is {lim:g} deg",
-        lambda c: "add views with larger rotations between them and views where the board fills more of the image"),
+        "Rotation uncertainty (largest axis, 1 σ)",
+        "deg",
+        "{:.3f}",
+        lambda v, lim, c: (
+            f"the hand-eye rotation is known to {v:.3f} deg (1 σ, about camera {c.get('sigma_r_axis', '')}), "
+            f"the limit is {lim:g} deg"
+        ),
+        lambda c: "add views with larger rotations between them and views where the board fills more of the image",
+    ),
     "max_rotation_deg": (
-        "Largest rotation between views", "deg", "{:.1f}",
-        lambda v, lim, c: f"the robot turns at most {v:.1f} deg between two views (limit {lim:g} deg); small rotations "
-                          "leave the hand-eye translation poorly determined",
-        lambda c: "add views tilted 20-45 deg (or more) against each other about two different axes"),
+        "Largest rotation between views",
+        "deg",
+        "{:.1f}",
+        lambda v, lim, c: (
+            f"the robot turns at most {v:.1f} deg between two views (limit {lim:g} deg); small rotations "
+            "leave the hand-eye translation poorly determined"
+        ),
+        lambda c: "add views tilted 20-45 deg (or more) against each other about two different axes",
+    ),
     "axis_spread_deg": (
-        "Spread of rotation axes", "deg", "{:.1f}",
-        lambda v, lim, c: f"the rotations between views are mostly about one axis ({c.get('main_axis', '?')}); "
-                          f"spread {v:.1f} deg, limit {lim:g} deg",
-        lambda c: f"add views rotated 20-45 deg about {c.get('weak_axes', 'the other two axes')}"),
+        "Spread of rotation axes",
+        "deg",
+        "{:.1f}",
+        lambda v, lim, c: (
+            f"the rotations between views are mostly about one axis ({c.get('main_axis', '?')}); "
+            f"spread {v:.1f} deg, limit {lim:g} deg"
+        ),
+        lambda c: f"add views rotated 20-45 deg about {c.get('weak_axes', 'the other two axes')}",
+    ),
     "dropped_share": (
-        "Views dropped or flagged", "", "{:.0%}",
-        lambda v, lim, c: f"{c.get('n_bad', '?')} of {c.get('n_total', '?')} views were dropped or flagged "
-                          f"({v:.0%}, limit {lim:.0%}): {c.get('bad_reasons', '')}",
-        lambda c: "read the reasons in the per-view table; fix the cause (board partly outside the image, blur, robot "
-                  "still moving, poses and images out of step) and retake those views"),
+        "Views dropped or flagged",
+        "",
+        "{:.0%}",
+        lambda v, lim, c: (
+            f"{c.get('n_bad', '?')} of {c.get('n_total', '?')} views were dropped or flagged "
+            f"({v:.0%}, limit {lim:.0%}): {c.get('bad_reasons', '')}"
+        ),
+        lambda c: (
+            "read the reasons in the per-view table; fix the cause (board partly outside the image, blur, robot "
+            "still moving, poses and images out of step) and retake those views"
+        ),
+    ),
     "used_views": (
-        "Views used", "", "{:.0f}",
+        "Views used",
+        "",
+        "{:.0f}",
         lambda v, lim, c: f"only {v:.0f} views constrain the hand-eye transform (limit {lim:g})",
-        lambda c: "collect 15-25 views with the board fully visible and varied orientations"),
+        lambda c: "collect 15-25 views with the board fully visible and varied orientations",
+    ),
     "image_coverage": (
-        "Image area reached by corners", "", "{:.0%}",
-        lambda v, lim, c: f"detected corners reach {v:.0%} of the image (limit {lim:.0%}); the lens distortion is "
-                          "then only known where the board was",
-        lambda c: "add views with the board near the image edges and corners"),
+        "Image area reached by corners",
+        "",
+        "{:.0%}",
+        lambda v, lim, c: (
+            f"detected corners reach {v:.0%} of the image (limit {lim:.0%}); the lens distortion is "
+            "then only known where the board was"
+        ),
+        lambda c: "add views with the board near the image edges and corners",
+    ),
 }
 
 
@@ -150,7 +210,8 @@ def _fmt_limit(lim: dict, fmt: str, unit: str) -> str:
 
 class _ShownApart(float):
     """A checked value that formats with as many more decimals (up to 3) as it takes to read otherwise than the
-    limit it crossed: 29.97 against 30 shows as "29.97", not "30.0 < 30.0"."""
+    limit it crossed: 29.97 against 30 shows as "29.97", not "30.0 < 30.0".
+    """
 
     def __new__(cls, value: float, limit: Optional[float]):
         obj = super().__new__(cls, value)
@@ -181,9 +242,16 @@ def _level(value: float, lim: dict) -> tuple[str, Optional[float]]:
     return "pass", None
 
 
-def evaluate(metrics: dict, cfg: dict, *, context: dict | None = None, failure: dict | None = None,
-             findings: list | None = None, crashed_stages: list | None = None,
-             thresholds_source: str = "configs/qa.yaml (shipped)") -> Verdict:
+def evaluate(
+    metrics: dict,
+    cfg: dict,
+    *,
+    context: dict | None = None,
+    failure: dict | None = None,
+    findings: list | None = None,
+    crashed_stages: list | None = None,
+    thresholds_source: str = "configs/qa.yaml (shipped)",
+) -> Verdict:
     """Verdict from ``metrics`` (check key -> number or None), thresholds ``cfg`` (see configs/qa.yaml).
 
     ``failure``: ``{"problem": ..., "action": ...}`` when the calibration itself failed (always FAIL).
@@ -195,9 +263,19 @@ def evaluate(metrics: dict, cfg: dict, *, context: dict | None = None, failure: 
     ctx = context or {}
     checks: list[Check] = []
     if failure:
-        checks.append(Check("calibration", "Calibration", "fail", None, "failed", "must succeed",
-                            why=failure.get("problem", failure.get("reason", "")), action=failure.get("action", ""),
-                            short="the calibration failed"))
+        checks.append(
+            Check(
+                "calibration",
+                "Calibration",
+                "fail",
+                None,
+                "failed",
+                "must succeed",
+                why=failure.get("problem", failure.get("reason", "")),
+                action=failure.get("action", ""),
+                short="the calibration failed",
+            )
+        )
     if crashed_stages:
         checks.append(_crashed_check(crashed_stages, cfg.get("crashed_stage", "warn")))
     missing_status = cfg.get("missing_value", "warn")
@@ -213,7 +291,8 @@ def evaluate(metrics: dict, cfg: dict, *, context: dict | None = None, failure: 
         if v is None:
             if not failure:  # a failed run only shows the checks that have a number
                 missing.setdefault(ctx.get(f"{key}_missing", "not available for this run"), []).append(
-                    (key, title, limit_text))
+                    (key, title, limit_text)
+                )
             continue
         status, hit = _level(float(v), lim)
         shown = _ShownApart(float(v), hit)  # a value that crossed its limit never reads as the limit
@@ -223,45 +302,89 @@ def evaluate(metrics: dict, cfg: dict, *, context: dict | None = None, failure: 
             why, act = why_f(shown, hit, ctx), act_f(ctx)
             rel = ">" if hit == lim.get("warn_above") or hit == lim.get("fail_above") else "<"
             short = f"{title.split(' (')[0].lower()} {val_text} {rel} {fmt.format(hit)}{' ' + unit if unit else ''}"
-        checks.append(Check(key, title, status, float(v), val_text, limit_text, why=why, action=act,
-                            source=ctx.get(f"{key}_source", ""), short=short))
+        checks.append(
+            Check(
+                key,
+                title,
+                status,
+                float(v),
+                val_text,
+                limit_text,
+                why=why,
+                action=act,
+                source=ctx.get(f"{key}_source", ""),
+                short=short,
+            )
+        )
     for why, items in missing.items():
         keys = [k for k, _, _ in items]
         titles = [t.split(" (")[0] for _, t, _ in items]
         title = _join([titles[0]] + [t[:1].lower() + t[1:] for t in titles[1:]])
         act = ctx.get(f"{keys[0]}_missing_action", "")
         quiet = missing_status == "pass"
-        checks.append(Check("+".join(keys), title, missing_status, None, "n/a",
-                            "; ".join(lt for _, _, lt in items), why="" if quiet else why,
-                            action="" if quiet else act, short=f"{title[:1].lower() + title[1:]} not available"))
+        checks.append(
+            Check(
+                "+".join(keys),
+                title,
+                missing_status,
+                None,
+                "n/a",
+                "; ".join(lt for _, _, lt in items),
+                why="" if quiet else why,
+                action="" if quiet else act,
+                short=f"{title[:1].lower() + title[1:]} not available",
+            )
+        )
     counted = []
     if cfg.get("include_diagnostics", True):
         counted = [f for f in (findings or []) if str(f.get("severity", "")).lower() in ("fail", "warn")]
-    worst = max([STATUS_ORDER[c.status] for c in checks]
-                + [STATUS_ORDER[str(f["severity"]).lower()] for f in counted] + [0])
+    worst = max(
+        [STATUS_ORDER[c.status] for c in checks] + [STATUS_ORDER[str(f["severity"]).lower()] for f in counted] + [0]
+    )
     status = {0: "pass", 1: "pass", 2: "warn", 3: "fail"}[worst]
     checks = [replace(c, why=_cap(c.why), action=_cap(c.action)) for c in checks]
     counts = {s: sum(c.status == s for c in checks) for s in ("pass", "warn", "fail", "info")}
     counts["findings_fail"] = sum(str(f["severity"]).lower() == "fail" for f in counted)
     counts["findings_warn"] = sum(str(f["severity"]).lower() == "warn" for f in counted)
-    return Verdict(status, _headline(status, checks, counted, ctx, failure), tuple(checks), tuple(counted),
-                   thresholds_source, counts)
+    return Verdict(
+        status,
+        _headline(status, checks, counted, ctx, failure),
+        tuple(checks),
+        tuple(counted),
+        thresholds_source,
+        counts,
+    )
 
 
 def _crashed_check(crashed: list, status: str) -> Check:
     """One check for every diagnostics stage that crashed: which, its error and what did not run."""
     names = [str(c["name"]) for c in crashed]
     n = len(names)
-    why = "; ".join(f"the {c['name']} stage ({c['checks']}) crashed with {c['error']}" if c.get("checks")
-                    else f"the {c['name']} stage crashed with {c['error']}" for c in crashed)
-    why += (", so its checks did not run" if n == 1 else ", so their checks did not run") + \
-        " and the dataset was not fully examined"
-    action = ("rebuild the result with handeye --debug calibrate to see the traceback and report it as a bug; "
-              "until then, check by hand what the crashed stage looks at")
-    short = (f"diagnostics stage {names[0]} crashed" if n == 1
-             else f"diagnostics stages {_join(names)} crashed")
-    return Check("diagnostics_stages", "Diagnostics stages", status, float(n), f"{n} crashed", "every stage must run",
-                 why=why, action=action, short=short)
+    why = "; ".join(
+        f"the {c['name']} stage ({c['checks']}) crashed with {c['error']}"
+        if c.get("checks")
+        else f"the {c['name']} stage crashed with {c['error']}"
+        for c in crashed
+    )
+    why += (
+        ", so its checks did not run" if n == 1 else ", so their checks did not run"
+    ) + " and the dataset was not fully examined"
+    action = (
+        "rebuild the result with handeye --debug calibrate to see the traceback and report it as a bug; "
+        "until then, check by hand what the crashed stage looks at"
+    )
+    short = f"diagnostics stage {names[0]} crashed" if n == 1 else f"diagnostics stages {_join(names)} crashed"
+    return Check(
+        "diagnostics_stages",
+        "Diagnostics stages",
+        status,
+        float(n),
+        f"{n} crashed",
+        "every stage must run",
+        why=why,
+        action=action,
+        short=short,
+    )
 
 
 def _cap(s: str) -> str:
@@ -285,8 +408,11 @@ def _headline(status: str, checks: list, findings: list, ctx: dict, failure: dic
         cause = None  # a warning does not explain a failed verdict
     named = [c for c in checks if c.status == status and c.short and c.key not in ctx.get("headline_skips", ())]
     items = [c.short for c in named]
-    items += [_lower1(str(f.get("title") or f.get("code") or "").rstrip(".")) for f in findings
-              if str(f.get("severity")).lower() == status and not (cause and f.get("code") == cause["code"])]
+    items += [
+        _lower1(str(f.get("title") or f.get("code") or "").rstrip("."))
+        for f in findings
+        if str(f.get("severity")).lower() == status and not (cause and f.get("code") == cause["code"])
+    ]
     lead = f"{cause['text']}. " if cause and status != "pass" else ""
     name = ctx.get("x_name", "The hand-eye transform")
     pe = ctx.get("predicted_text")

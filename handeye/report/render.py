@@ -2,6 +2,7 @@
 and thumbnails inlined as data URIs) and to Markdown with its figures and thumbnails as files in
 ``report_files/``. Templates ship in ``handeye/templates``.
 """
+
 from __future__ import annotations
 
 import base64
@@ -25,7 +26,8 @@ _ESCAPING_REVISION = "md-escape-1"
 
 def _bytecode_cache() -> jinja2.BytecodeCache | None:
     """Compiled templates kept between runs (keyed on the template source, like ``__pycache__``):
-    compiling them costs more than the rest of the rendering. None when no cache folder is writable."""
+    compiling them costs more than the rest of the rendering. None when no cache folder is writable.
+    """
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     # the compiled code depends on the environment's finalize (Markdown escaping), which the cache's key
     # (the template source) does not see: the folder name carries its revision
@@ -43,7 +45,8 @@ _MD_LINK = re.compile(r"\]\s*([(\[])")  # ](url) and ][ref]: the second half of 
 
 class MdMarkup(str):
     """Markdown the template wrote itself (a macro's image or link whose values were escaped one by one, a
-    ``<br>`` between flags): printed as it is (the ``md_markup`` filter)."""
+    ``<br>`` between flags): printed as it is (the ``md_markup`` filter).
+    """
 
 
 def md_text(x) -> str:
@@ -51,7 +54,8 @@ def md_text(x) -> str:
     before a letter, ``/``, ``!`` or ``?`` becomes ``&lt;``) and no link or image can form (``](`` and
     ``][`` are broken with a backslash); ``8 < 10`` and ``[mm]`` stay as written. Every value a
     Markdown template prints passes through it (the environment's ``finalize``), except the template's
-    own markup (:class:`MdMarkup`)."""
+    own markup (:class:`MdMarkup`).
+    """
     if x is None or isinstance(x, (bool, int, float, MdMarkup)):
         return x
     s = str(x)
@@ -65,17 +69,28 @@ def md_text(x) -> str:
 @functools.lru_cache(maxsize=2)
 def _env(*, html: bool) -> jinja2.Environment:
     root = resources.files("handeye").joinpath("templates")
-    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(root)), autoescape=html,
-                             undefined=jinja2.StrictUndefined, bytecode_cache=_bytecode_cache(),
-                             trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True,
-                             finalize=None if html else md_text)
+    env = jinja2.Environment(
+        loader=jinja2.FileSystemLoader(str(root)),
+        autoescape=html,
+        undefined=jinja2.StrictUndefined,
+        bytecode_cache=_bytecode_cache(),
+        trim_blocks=True,
+        lstrip_blocks=True,
+        keep_trailing_newline=True,
+        finalize=None if html else md_text,
+    )
     env.filters["num"] = num
     env.filters["pct"] = pct
     env.filters["sgn"] = lambda x, d=3: num(x, d, signed=True)
     env.filters["mdcell"] = mdcell
     env.filters["md_markup"] = MdMarkup
-    env.filters["status_label"] = lambda s: {"pass": "PASS", "warn": "WARN", "fail": "FAIL", "info": "INFO",
-                                                      "untrusted": "UNTRUSTED"}.get(s, s)
+    env.filters["status_label"] = lambda s: {
+        "pass": "PASS",
+        "warn": "WARN",
+        "fail": "FAIL",
+        "info": "INFO",
+        "untrusted": "UNTRUSTED",
+    }.get(s, s)
     env.globals["version"] = __version__
     return env
 
@@ -125,7 +140,8 @@ def render_html(ctx: dict) -> str:
 
 def render_markdown(ctx: dict, *, thumbnails_beside: bool = False) -> tuple[str, dict[str, bytes]]:
     """Markdown text and the files it links (relative path -> bytes). ``thumbnails_beside``: the
-    Markdown is written into the result folder, whose ``thumbnails/`` it links instead of copying."""
+    Markdown is written into the result folder, whose ``thumbnails/`` it links instead of copying.
+    """
     files: dict[str, bytes] = {}
     images, thumbs = {}, {}
     for p in ctx["plots"]:
@@ -152,8 +168,13 @@ def _tidy_markdown(text: str) -> str:
             in_code = not in_code
         is_row = not in_code and line.startswith("|")
         prev = out[-1] if out else ""
-        if not in_code and line.strip() and prev.strip() and (is_row != prev.startswith("|")) \
-                and not prev.startswith("```"):
+        if (
+            not in_code
+            and line.strip()
+            and prev.strip()
+            and (is_row != prev.startswith("|"))
+            and not prev.startswith("```")
+        ):
             out.append("")
         out.append(line)
     return re.sub(r"\n{3,}", "\n\n", "\n".join(out)).strip() + "\n"

@@ -6,6 +6,7 @@ package's one tangent convention (:mod:`handeye.frames`, GTSAM's Pose3): right p
 Every derived sigma is first-order propagation ``J C J^T`` with ``J`` from
 :func:`handeye.frames.tangent_jacobian`.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -71,9 +72,12 @@ def predicted_point_error(T_x: np.ndarray, cov_x_6x6: np.ndarray, *, working_dis
     p_cam = np.array([0.0, 0.0, float(working_distance_m)])
     J = R @ np.hstack([-skew(p_cam), np.eye(3)])  # d(point in the parent frame) / d xi, right tangent
     cov_p_mm2 = J @ np.asarray(cov_x_6x6, float) @ J.T * 1e6
-    return {"rms_mm": float(np.sqrt(max(np.trace(cov_p_mm2), 0.0))),
-            "axes_mm": np.sqrt(np.maximum(np.diag(cov_p_mm2), 0.0)),
-            "r95_mm": radius95_mm(cov_p_mm2), "cov_mm2": cov_p_mm2}
+    return {
+        "rms_mm": float(np.sqrt(max(np.trace(cov_p_mm2), 0.0))),
+        "axes_mm": np.sqrt(np.maximum(np.diag(cov_p_mm2), 0.0)),
+        "r95_mm": radius95_mm(cov_p_mm2),
+        "cov_mm2": cov_p_mm2,
+    }
 
 
 def radius95_mm(cov_mm2: np.ndarray, *, n_samples: int = 60_000) -> float:
@@ -82,7 +86,7 @@ def radius95_mm(cov_mm2: np.ndarray, *, n_samples: int = 60_000) -> float:
     if not np.any(evals > 0):
         return 0.0
     z = np.random.default_rng(0).standard_normal((n_samples, evals.size))
-    r2 = (z ** 2) @ evals
+    r2 = (z**2) @ evals
     return float(np.sqrt(np.quantile(r2, 0.95)))
 
 
@@ -95,8 +99,16 @@ def ellipse_points(cov_2x2: np.ndarray, *, k_sigma: float, n: int = 120) -> np.n
 
 
 # ------------------------------------------------------------------------------ offsets of the result
-def offset_explanation(rows: list, *, limit_sigma: float, halves_m2: float | None, halves_m2_limit: float,
-                       robot_mm: float | None, robot_deg: float | None, robot_model: str) -> list:
+def offset_explanation(
+    rows: list,
+    *,
+    limit_sigma: float,
+    halves_m2: float | None,
+    halves_m2_limit: float,
+    robot_mm: float | None,
+    robot_deg: float | None,
+    robot_model: str,
+) -> list:
     """Sentences that explain where the result lies against the closed forms and the two halves.
 
     ``rows``: dicts with ``name``, ``kind`` (closed_form | half), ``d_mm``, ``d_deg``, ``sigma`` (distance in
@@ -114,46 +126,71 @@ def offset_explanation(rows: list, *, limit_sigma: float, halves_m2: float | Non
         deg = [r["d_deg"] for r in far]
         sig = [r["sigma"] for r in far]
         which = "every closed form" if len(far) == len(cf) else f"{len(far)} of the {len(cf)} closed forms"
-        s = (f"The refined result lies {min(mm):.1f}-{max(mm):.1f} mm and {min(deg):.2f}-{max(deg):.2f}° "
-             f"({min(sig):.1f}-{max(sig):.1f} σ) from {which}")
+        s = (
+            f"The refined result lies {min(mm):.1f}-{max(mm):.1f} mm and {min(deg):.2f}-{max(deg):.2f}° "
+            f"({min(sig):.1f}-{max(sig):.1f} σ) from {which}"
+        )
         if halves_near:
-            s += (", and each half of the views, refitted alone, lands within "
-                  f"{max(r['sigma'] for r in hv):.1f} σ of it: the offset is in all of the data, not in a few views.")
+            s += (
+                ", and each half of the views, refitted alone, lands within "
+                f"{max(r['sigma'] for r in hv):.1f} σ of it: the offset is in all of the data, not in a few views."
+            )
         else:
             s += "."
         out.append(s)
         off = np.array([r["offset_mm"] for r in cf], float)  # shape (n, 3): closed form minus result
         spread = float(max(np.linalg.norm(a - b) for a in off for b in off)) if len(off) > 1 else 0.0
         if spread >= 0.5 * float(np.median(mm)):
-            out.append(f"The closed forms scatter among themselves by up to {spread:.1f} mm: much of the offset is "
-                       "their own error (they ignore the pixel noise and weigh all motions alike), not the result's.")
+            out.append(
+                f"The closed forms scatter among themselves by up to {spread:.1f} mm: much of the offset is "
+                "their own error (they ignore the pixel noise and weigh all motions alike), not the result's."
+            )
         if robot_mm is not None and (robot_mm > 0 or (robot_deg or 0) > 0):
             kinematic = robot_model == "kinematic"
-            unseen, aside = (("an error of the arm beyond its DH offsets and encoder noise (joint elasticity, "
-                              "backlash, a wrong tool or base)", "") if kinematic
-                             else ("a robot error", " (a kinematic error of the arm)"))
-            out.append(f"The refinement models robot-pose errors ({robot_model or 'robot error model'}: "
-                       f"{robot_mm:.2f} mm / {robot_deg or 0:.3f}° per view, estimated) and weighs each view by "
-                       "how well it fits; the closed forms take every robot pose as exact and weigh all motions "
-                       f"alike, so robot-pose errors bias them. That favours the refinement, but {unseen} that is "
-                       f"the same in every view{aside} moves the refinement as well, and neither the halves nor the "
-                       "held-out folds can show it: check the result against an independent measurement"
-                       + ("." if kinematic else ", or calibrate with the arm's kinematic model (--robot ARM) when "
-                                                "the views have joint angles."))
+            unseen, aside = (
+                (
+                    "an error of the arm beyond its DH offsets and encoder noise (joint elasticity, "
+                    "backlash, a wrong tool or base)",
+                    "",
+                )
+                if kinematic
+                else ("a robot error", " (a kinematic error of the arm)")
+            )
+            out.append(
+                f"The refinement models robot-pose errors ({robot_model or 'robot error model'}: "
+                f"{robot_mm:.2f} mm / {robot_deg or 0:.3f}° per view, estimated) and weighs each view by "
+                "how well it fits; the closed forms take every robot pose as exact and weigh all motions "
+                f"alike, so robot-pose errors bias them. That favours the refinement, but {unseen} that is "
+                f"the same in every view{aside} moves the refinement as well, and neither the halves nor the "
+                "held-out folds can show it: check the result against an independent measurement"
+                + (
+                    "."
+                    if kinematic
+                    else ", or calibrate with the arm's kinematic model (--robot ARM) when the views have joint angles."
+                )
+            )
         else:
-            out.append("The refinement weighs each view by its pixel noise; the closed forms weigh all motions "
-                       "alike and are biased by noise on few or short motions.")
+            out.append(
+                "The refinement weighs each view by its pixel noise; the closed forms weigh all motions "
+                "alike and are biased by noise on few or short motions."
+            )
     elif far:
         names = ", ".join(r["name"] for r in far)
-        out.append(f"{names} lie{'s' if len(far) == 1 else ''} more than {limit_sigma:.1f} σ from the result while the "
-                   "other closed forms agree with it: a closed form biased by noise on this data (linear "
-                   "solutions such as Andreff's and Li's are the most sensitive to translation noise).")
+        out.append(
+            f"{names} lie{'s' if len(far) == 1 else ''} more than {limit_sigma:.1f} σ from the result while the "
+            "other closed forms agree with it: a closed form biased by noise on this data (linear "
+            "solutions such as Andreff's and Li's are the most sensitive to translation noise)."
+        )
     if halves_split:
-        out.append(f"The two halves of the views disagree with each other beyond their uncertainty (squared "
-                   f"Mahalanobis distance {halves_m2:.1f} under the sum of their covariances; {halves_m2_limit:.1f} "
-                   "holds 99 % of chance splits): something differs between the halves (the board or the camera "
-                   "moved, robot drift, temperature, a few bad views), which no covariance of one session covers.")
+        out.append(
+            f"The two halves of the views disagree with each other beyond their uncertainty (squared "
+            f"Mahalanobis distance {halves_m2:.1f} under the sum of their covariances; {halves_m2_limit:.1f} "
+            "holds 99 % of chance splits): something differs between the halves (the board or the camera "
+            "moved, robot drift, temperature, a few bad views), which no covariance of one session covers."
+        )
     if not out and (cf or hv):
-        out.append(f"The result agrees with every closed form and with both halves of the views within "
-                   f"{limit_sigma:.1f} σ of its verdict covariance.")
+        out.append(
+            f"The result agrees with every closed form and with both halves of the views within "
+            f"{limit_sigma:.1f} σ of its verdict covariance."
+        )
     return out

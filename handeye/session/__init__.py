@@ -10,6 +10,7 @@
 Strict loading validates everything once; errors name the file (and line) and what to do. Poses are
 converted to ``T_base_end`` (metres) at this boundary. See docs/session_format.md.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -40,7 +41,8 @@ def load_session(path: str | Path, *, mode: str | None = None, allow_outside: bo
 def image_sizes(items) -> dict:
     """View id -> (width, height) of its image for (view id, image path) ``items`` (or a Session's views), read
     from the file header (nothing is decoded); views without an image (pose-only views), or whose header cannot
-    be read (left to detection, which drops them with the reason), are left out."""
+    be read (left to detection, which drops them with the reason), are left out.
+    """
     from PIL import Image, UnidentifiedImageError
 
     if isinstance(items, Session):
@@ -59,7 +61,8 @@ def image_sizes(items) -> dict:
 
 def check_image_sizes(session: Session) -> None:
     """All views' images of one size (:func:`image_sizes`): an image of another size than the others is an
-    InputError naming its view."""
+    InputError naming its view.
+    """
     from collections import Counter
 
     sizes = image_sizes(session)
@@ -69,7 +72,10 @@ def check_image_sizes(session: Session) -> None:
     odd = [vid for vid, s in sizes.items() if s != common]
     vid = odd[0]
     w, h = sizes[vid]
-    raise InputError(f"view {vid}: image is {w}x{h}, the other {n_common} views' are {common[0]}x{common[1]}"
-                     + (f" ({len(odd)} views differ: {', '.join(odd[:5])})" if len(odd) > 1 else ""),
-                     path=session.view(vid).image_path, expected=f"{common[0]}x{common[1]} (one camera, one resolution)",
-                     hint="remove the view or replace its image by one from the same camera")
+    raise InputError(
+        f"view {vid}: image is {w}x{h}, the other {n_common} views' are {common[0]}x{common[1]}"
+        + (f" ({len(odd)} views differ: {', '.join(odd[:5])})" if len(odd) > 1 else ""),
+        path=session.view(vid).image_path,
+        expected=f"{common[0]}x{common[1]} (one camera, one resolution)",
+        hint="remove the view or replace its image by one from the same camera",
+    )

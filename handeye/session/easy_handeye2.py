@@ -17,6 +17,7 @@ So the camera is the tracker's base frame (for a camera-based marker tracker, it
 board is the marker frame. The session holds 4x4 matrices (``T_base_end``, ``T_cam_board``) so nothing
 is read twice; the ``source`` block keeps the frame names.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -39,25 +40,36 @@ def _transform(t, *, path: Path, where: str) -> np.ndarray:
         xyz = np.array([float(tr[k]) for k in "xyz"])
         q = np.array([float(rot[k]) for k in "wxyz"])
     except (TypeError, KeyError, ValueError):
-        raise InputError(f"{where} is not a transform", path=path, received=repr(t)[:80],
-                         expected="{translation: {x, y, z}, rotation: {x, y, z, w}}") from None
+        raise InputError(
+            f"{where} is not a transform",
+            path=path,
+            received=repr(t)[:80],
+            expected="{translation: {x, y, z}, rotation: {x, y, z, w}}",
+        ) from None
     if not (np.all(np.isfinite(xyz)) and np.all(np.isfinite(q))):
         raise InputError(f"{where} holds a number that is not finite", path=path, received=repr(t)[:80])
     n = float(np.linalg.norm(q))
     if abs(n - 1.0) > 1e-3:
-        raise InputError(f"{where}: the rotation quaternion's norm is {n:.4g}, not 1", path=path,
-                         expected="a unit quaternion x, y, z, w")
+        raise InputError(
+            f"{where}: the rotation quaternion's norm is {n:.4g}, not 1",
+            path=path,
+            expected="a unit quaternion x, y, z, w",
+        )
     return make_T(R_from_quat_wxyz(q / n), xyz)
 
 
 def read_samples(path: str | Path, *, mode: Optional[str] = None) -> tuple[str, dict, list]:
     """(mode, parameters, [(T_base_end, T_cam_board), ...]) of a ``.samples`` file. ``mode`` (handeye's name)
-    is needed when the file's ``calibration_type`` is empty, and must agree with it otherwise."""
+    is needed when the file's ``calibration_type`` is empty, and must agree with it otherwise.
+    """
     path = Path(path)
     d = read_yaml(path)
     if not isinstance(d, dict) or not isinstance(d.get("samples"), list):
-        raise InputError("not an easy_handeye2 samples file: no samples list", path=path,
-                         expected="parameters: {...} and samples: [{robot: ..., tracking: ...}, ...]")
+        raise InputError(
+            "not an easy_handeye2 samples file: no samples list",
+            path=path,
+            expected="parameters: {...} and samples: [{robot: ..., tracking: ...}, ...]",
+        )
     params = d.get("parameters") or {}
     if not isinstance(params, dict):
         raise InputError("parameters must be a mapping", path=path, received=repr(params)[:60])
@@ -66,12 +78,17 @@ def read_samples(path: str | Path, *, mode: Optional[str] = None) -> tuple[str, 
         raise InputError("unknown calibration_type", path=path, expected=" | ".join(MODES), received=repr(ctype))
     stated = MODES.get(ctype)
     if mode is None and stated is None:
-        raise ConfigError("the samples do not say the calibration type (calibration_type is empty)", path=path,
-                          expected="eye_in_hand or eye_on_base", hint="give --mode eye_in_hand or --mode eye_to_hand: "
-                          "it also says how easy_handeye2 stored the robot poses (T_base_end or T_end_base)")
+        raise ConfigError(
+            "the samples do not say the calibration type (calibration_type is empty)",
+            path=path,
+            expected="eye_in_hand or eye_on_base",
+            hint="give --mode eye_in_hand or --mode eye_to_hand: "
+            "it also says how easy_handeye2 stored the robot poses (T_base_end or T_end_base)",
+        )
     if mode is not None and stated is not None and mode != stated:
-        raise ConfigError(f"--mode {mode} but the samples are {ctype}", path=path,
-                          hint=f"leave --mode out, or give --mode {stated}")
+        raise ConfigError(
+            f"--mode {mode} but the samples are {ctype}", path=path, hint=f"leave --mode out, or give --mode {stated}"
+        )
     mode = mode or stated
     if len(d["samples"]) < 3:
         raise InputError(f"{len(d['samples'])} samples; at least 3 are needed", path=path)
@@ -85,23 +102,48 @@ def read_samples(path: str | Path, *, mode: Optional[str] = None) -> tuple[str, 
     return mode, params, pairs
 
 
-def import_easy_handeye2(src: str | Path, out: str | Path, *, mode: Optional[str] = None,
-                         tracker_sigma: Optional[tuple] = None, force: bool = False) -> Path:
+def import_easy_handeye2(
+    src: str | Path,
+    out: str | Path,
+    *,
+    mode: Optional[str] = None,
+    tracker_sigma: Optional[tuple] = None,
+    force: bool = False,
+) -> Path:
     """``out/session.yaml``: the pose-only session of an easy_handeye2 ``.samples`` file (views ``1``..``N`` in
-    the file's order). ``tracker_sigma``: (mm, deg) of the tracker when known (else estimated at calibration)."""
+    the file's order). ``tracker_sigma``: (mm, deg) of the tracker when known (else estimated at calibration).
+    """
     from .importers import _check_out, _write
 
     src, out = Path(src), Path(out)
     mode, params, pairs = read_samples(src, mode=mode)
     _check_out(out, force=force)
-    doc = {"handeye_session": 1, "mode": mode,
-           "source": {"tool": "easy_handeye2", "file": str(src.resolve()),
-                      **{k: params.get(k) for k in ("name", "calibration_type", "robot_base_frame",
-                                                    "robot_effector_frame", "tracking_base_frame",
-                                                    "tracking_marker_frame") if params.get(k)}},
-           "pose_format": {"rotation": "matrix"}, "target_pose_format": {"rotation": "matrix"}}
+    doc = {
+        "handeye_session": 1,
+        "mode": mode,
+        "source": {
+            "tool": "easy_handeye2",
+            "file": str(src.resolve()),
+            **{
+                k: params.get(k)
+                for k in (
+                    "name",
+                    "calibration_type",
+                    "robot_base_frame",
+                    "robot_effector_frame",
+                    "tracking_base_frame",
+                    "tracking_marker_frame",
+                )
+                if params.get(k)
+            },
+        },
+        "pose_format": {"rotation": "matrix"},
+        "target_pose_format": {"rotation": "matrix"},
+    }
     if tracker_sigma is not None:
         doc["tracker_sigma"] = {"mm": float(tracker_sigma[0]), "deg": float(tracker_sigma[1])}
-    doc["views"] = [{"id": str(k + 1), "pose": np.round(T, 15).tolist(), "target_pose": np.round(C, 15).tolist()}
-                    for k, (T, C) in enumerate(pairs)]
+    doc["views"] = [
+        {"id": str(k + 1), "pose": np.round(T, 15).tolist(), "target_pose": np.round(C, 15).tolist()}
+        for k, (T, C) in enumerate(pairs)
+    ]
     return _write(out, doc)

@@ -8,6 +8,7 @@
   (``CharucoGridTargetFinder``) and circle grids (``ModifiedCircleGridTargetFinder``: symmetric
   grid, ``spacing`` between dot centres, one double-size origin dot).
 """
+
 from __future__ import annotations
 
 import os
@@ -44,16 +45,22 @@ def _mapping(v, *, path: Path, field: str, expected: str) -> dict:
 
 
 #: what ``handeye import visp`` reads, for its help and its messages
-VISP_LAYOUT = ("ViSP's hand-eye data folders (apps/calibration/hand-eye/data-eye-in-hand and data-eye-to-hand): "
-               "images [PREFIX_]image-N.png, robot poses [PREFIX_]pose_rPe_N.yaml or pose_fPe_N.yaml (vpPoseVector: "
-               "metres + theta-u radians, the end in the base frame), and the target: chessboard-data.txt ('9 x 6' "
-               "inner corners, 'square size: 0.0236 m') or apriltag-data.txt ('36h11' family, 'size: 0.048 m', one "
-               "tag per image); optional *camera.xml")
+VISP_LAYOUT = (
+    "ViSP's hand-eye data folders (apps/calibration/hand-eye/data-eye-in-hand and data-eye-to-hand): "
+    "images [PREFIX_]image-N.png, robot poses [PREFIX_]pose_rPe_N.yaml or pose_fPe_N.yaml (vpPoseVector: "
+    "metres + theta-u radians, the end in the base frame), and the target: chessboard-data.txt ('9 x 6' "
+    "inner corners, 'square size: 0.0236 m') or apriltag-data.txt ('36h11' family, 'size: 0.048 m', one "
+    "tag per image); optional *camera.xml"
+)
 _VISP_IMAGE = re.compile(r"^(?:.*_)?image-(\d+)\.png$")
 _VISP_POSE = re.compile(r"^(?:.*_)?pose_[rf]Pe_(\d+)\.yaml$")
 #: AprilTag families of ViSP's vpDetectorAprilTag that cv2.aruco also has
-_VISP_TAG_FAMILIES = {"36h11": "DICT_APRILTAG_36h11", "25h9": "DICT_APRILTAG_25h9", "16h5": "DICT_APRILTAG_16h5",
-                      "36h10": "DICT_APRILTAG_36h10"}
+_VISP_TAG_FAMILIES = {
+    "36h11": "DICT_APRILTAG_36h11",
+    "25h9": "DICT_APRILTAG_25h9",
+    "16h5": "DICT_APRILTAG_16h5",
+    "36h10": "DICT_APRILTAG_36h10",
+}
 
 
 def _visp_other_target(src: Path) -> str | None:
@@ -75,24 +82,36 @@ def _visp_description(src: Path, name: str, patterns: dict, expected: str) -> tu
 
 
 def _visp_chessboard(src: Path) -> dict:
-    _f, m = _visp_description(src, "chessboard-data.txt", {"size": r"(\d+)\s*x\s*(\d+)",
-                                                            "square": r"square size:\s*([0-9.eE+-]+)"},
-                              "'9 x 6' and 'square size: 0.0236 m'")
-    return {"type": "chessboard", "inner_corners": [int(m["size"].group(1)), int(m["size"].group(2))],
-            "square_m": float(m["square"].group(1))}
+    _f, m = _visp_description(
+        src,
+        "chessboard-data.txt",
+        {"size": r"(\d+)\s*x\s*(\d+)", "square": r"square size:\s*([0-9.eE+-]+)"},
+        "'9 x 6' and 'square size: 0.0236 m'",
+    )
+    return {
+        "type": "chessboard",
+        "inner_corners": [int(m["size"].group(1)), int(m["size"].group(2))],
+        "square_m": float(m["square"].group(1)),
+    }
 
 
 def _visp_apriltag(src: Path, images: list) -> dict:
     """The single-marker target of ViSP's AprilTag data: family and size from apriltag-data.txt, the tag id from the
-    first image that shows exactly one tag of that family (ViSP's tool assumes one tag per image)."""
+    first image that shows exactly one tag of that family (ViSP's tool assumes one tag per image).
+    """
     import cv2
 
-    f, m = _visp_description(src, "apriltag-data.txt", {"family": r"\b(\d+h\d+)\b", "size": r"size:\s*([0-9.eE+-]+)"},
-                             "a family such as '36h11' and 'size: 0.048 m'")
+    f, m = _visp_description(
+        src,
+        "apriltag-data.txt",
+        {"family": r"\b(\d+h\d+)\b", "size": r"size:\s*([0-9.eE+-]+)"},
+        "a family such as '36h11' and 'size: 0.048 m'",
+    )
     fam, size = m["family"], m["size"]
     if fam.group(1) not in _VISP_TAG_FAMILIES:
-        raise InputError(f"unsupported AprilTag family {fam.group(1)!r}", path=f,
-                         expected=" | ".join(_VISP_TAG_FAMILIES))
+        raise InputError(
+            f"unsupported AprilTag family {fam.group(1)!r}", path=f, expected=" | ".join(_VISP_TAG_FAMILIES)
+        )
     dictionary = _VISP_TAG_FAMILIES[fam.group(1)]
     detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)))
     for img in images:
@@ -101,18 +120,26 @@ def _visp_apriltag(src: Path, images: list) -> dict:
             continue
         _corners, ids, _ = detector.detectMarkers(gray)
         if ids is not None and len(ids) == 1:
-            return {"type": "marker", "size_m": _number(size.group(1), path=f, field="size"), "dictionary": dictionary,
-                    "marker_id": int(ids[0][0])}
-    raise InputError(f"no image shows exactly one {fam.group(1)} tag", path=src,
-                     expected="one AprilTag in view, as ViSP's visp-compute-apriltag-poses assumes",
-                     hint="check the family in apriltag-data.txt")
+            return {
+                "type": "marker",
+                "size_m": _number(size.group(1), path=f, field="size"),
+                "dictionary": dictionary,
+                "marker_id": int(ids[0][0]),
+            }
+    raise InputError(
+        f"no image shows exactly one {fam.group(1)} tag",
+        path=src,
+        expected="one AprilTag in view, as ViSP's visp-compute-apriltag-poses assumes",
+        hint="check the family in apriltag-data.txt",
+    )
 
 
 def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool = False, force: bool = False) -> Path:
     """``out/session.yaml`` for a ViSP data folder of the layout :data:`VISP_LAYOUT` (an existing session
     in ``out`` is refused unless ``force``). The target is the chessboard of chessboard-data.txt or the single
     AprilTag of apriltag-data.txt (``source.layout`` in session.yaml says which); the mode is left to the data
-    (ViSP's folders hold both mounting modes with the same files)."""
+    (ViSP's folders hold both mounting modes with the same files).
+    """
     src, out = Path(src).resolve(), Path(out)
     _check_out(out, force=force)
     if not src.is_dir():
@@ -127,37 +154,60 @@ def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool 
         other = _visp_other_target(src)
         if other is not None:
             kind = other[: -len("-data.txt")]
-            raise InputError(f"unsupported ViSP target {kind!r} ({other})", path=src / other,
-                             expected="chessboard-data.txt or apriltag-data.txt",
-                             hint="write session.yaml by hand for a target handeye supports, see docs/session_format.md")
-        raise InputError("no ViSP target description (chessboard-data.txt or apriltag-data.txt)", path=src,
-                         expected=VISP_LAYOUT)
+            raise InputError(
+                f"unsupported ViSP target {kind!r} ({other})",
+                path=src / other,
+                expected="chessboard-data.txt or apriltag-data.txt",
+                hint="write session.yaml by hand for a target handeye supports, see docs/session_format.md",
+            )
+        raise InputError(
+            "no ViSP target description (chessboard-data.txt or apriltag-data.txt)", path=src, expected=VISP_LAYOUT
+        )
     if not imgs:
         raise InputError("no ViSP images ([PREFIX_]image-N.png) in the folder", path=src, expected=VISP_LAYOUT)
     target = _visp_chessboard(src) if layout == "chessboard" else _visp_apriltag(src, [imgs[k] for k in sorted(imgs)])
     views = []
     for k in sorted(imgs):
         if k not in poses:
-            raise InputError(f"image {imgs[k].name} has no pose file", path=src,
-                             expected=f"pose_rPe_{k}.yaml (or with the images' prefix)")
+            raise InputError(
+                f"image {imgs[k].name} has no pose file",
+                path=src,
+                expected=f"pose_rPe_{k}.yaml (or with the images' prefix)",
+            )
         data = read_yaml(poses[k]).get("data")
         if not (isinstance(data, list) and len(data) == 6 and all(isinstance(v, list) and len(v) == 1 for v in data)):
-            raise InputError("not a ViSP vpPoseVector (data: 6 rows of one number)", path=poses[k],
-                             received=repr(data)[:60], expected="data: [[tx], [ty], [tz], [tux], [tuy], [tuz]]")
-        views.append({"id": str(k), "image": imgs[k].name,
-                      "pose": [_number(v[0], path=poses[k], field=f"data[{i}]") for i, v in enumerate(data)]})
-    doc = {"handeye_session": 1, "target": target,
-           "pose_format": {"rotation": "rotvec", "angle_unit": "rad", "translation_unit": "m"},
-           "image_folder": str(src), "source": {"importer": "visp", "layout": layout, "path": str(src)},
-           "views": views}
+            raise InputError(
+                "not a ViSP vpPoseVector (data: 6 rows of one number)",
+                path=poses[k],
+                received=repr(data)[:60],
+                expected="data: [[tx], [ty], [tz], [tux], [tuy], [tuz]]",
+            )
+        views.append(
+            {
+                "id": str(k),
+                "image": imgs[k].name,
+                "pose": [_number(v[0], path=poses[k], field=f"data[{i}]") for i, v in enumerate(data)],
+            }
+        )
+    doc = {
+        "handeye_session": 1,
+        "target": target,
+        "pose_format": {"rotation": "rotvec", "angle_unit": "rad", "translation_unit": "m"},
+        "image_folder": str(src),
+        "source": {"importer": "visp", "layout": layout, "path": str(src)},
+        "views": views,
+    }
     cam = next(iter(src.glob("*camera*.xml")), None)
     if use_given_intrinsics and cam is not None:
         t = read_text(cam, what="camera file")
         found = {k: re.search(rf"<{k}>\s*([0-9.eE+-]+)", t) for k in ("px", "py", "u0", "v0")}
         if not all(found.values()):
-            raise InputError("camera file without px, py, u0, v0", path=cam,
-                             expected="ViSP's camera XML with <px>, <py>, <u0>, <v0>",
-                             hint="remove --given-intrinsics to estimate the intrinsics")
+            raise InputError(
+                "camera file without px, py, u0, v0",
+                path=cam,
+                expected="ViSP's camera XML with <px>, <py>, <u0>, <v0>",
+                hint="remove --given-intrinsics to estimate the intrinsics",
+            )
         vals = {k: _number(m.group(1), path=cam, field=k) for k, m in found.items()}
         import cv2
 
@@ -165,37 +215,63 @@ def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool 
         if first is None:
             raise InputError("cannot read the image for the image size", path=imgs[min(imgs)])
         h, w = first.shape
-        doc["intrinsics"] = {"model": "opencv5", "fx": vals["px"], "fy": vals["py"], "cx": vals["u0"],
-                             "cy": vals["v0"], "dist": [0, 0, 0, 0, 0], "image_size": [w, h], "use": "fixed"}
+        doc["intrinsics"] = {
+            "model": "opencv5",
+            "fx": vals["px"],
+            "fy": vals["py"],
+            "cx": vals["u0"],
+            "cy": vals["v0"],
+            "dist": [0, 0, 0, 0, 0],
+            "image_size": [w, h],
+            "use": "fixed",
+        }
     return _write(out, doc)
 
 
 def import_ical(src: str | Path, out: str | Path, *, image_dir: str | None = None, force: bool = False) -> Path:
     """``out/session.yaml`` for an industrial_calibration data folder (an existing session in ``out`` is
-    refused unless ``force``); every field is checked and named when missing or of the wrong type."""
+    refused unless ``force``); every field is checked and named when missing or of the wrong type.
+    """
     src, out = Path(src).resolve(), Path(out)
     _check_out(out, force=force)
     cal_path = src / "cal_data.yaml"
     cal = read_yaml(cal_path)
     data = cal.get("data")
     if not isinstance(data, list) or not data:
-        raise InputError("cal_data.yaml has no data list", path=cal_path,
-                         expected="data: [{image: FILE, pose: FILE}, ...]", received=repr(data)[:60])
+        raise InputError(
+            "cal_data.yaml has no data list",
+            path=cal_path,
+            expected="data: [{image: FILE, pose: FILE}, ...]",
+            received=repr(data)[:60],
+        )
     views = []
     for k, entry in enumerate(data):
         if not (isinstance(entry, dict) and isinstance(entry.get("image"), str) and isinstance(entry.get("pose"), str)):
-            raise InputError(f"data[{k}] must name an image and a pose file", path=cal_path,
-                             expected="{image: FILE, pose: FILE}", received=repr(entry)[:60])
+            raise InputError(
+                f"data[{k}] must name an image and a pose file",
+                path=cal_path,
+                expected="{image: FILE, pose: FILE}",
+                received=repr(entry)[:60],
+            )
         img = src / entry["image"]
         if image_dir is not None or not img.exists():
             alt = src / (image_dir or "images_gray") / Path(entry["image"]).name
             img = alt if alt.exists() else img
         pose_path = src / entry["pose"]
         p = read_yaml(pose_path)
-        views.append({"id": Path(entry["image"]).stem, "image": os.path.relpath(img, src),
-                      "pose": [_number(p.get(c), path=pose_path, field=c) for c in ("x", "y", "z", "qw", "qx", "qy", "qz")]})
-    tgt = _mapping(cal.get("target_finder", {}), path=cal_path, field="target_finder",
-                   expected="{type: CharucoGridTargetFinder | ModifiedCircleGridTargetFinder, ...}")
+        views.append(
+            {
+                "id": Path(entry["image"]).stem,
+                "image": os.path.relpath(img, src),
+                "pose": [_number(p.get(c), path=pose_path, field=c) for c in ("x", "y", "z", "qw", "qx", "qy", "qz")],
+            }
+        )
+    tgt = _mapping(
+        cal.get("target_finder", {}),
+        path=cal_path,
+        field="target_finder",
+        expected="{type: CharucoGridTargetFinder | ModifiedCircleGridTargetFinder, ...}",
+    )
     kind = str(tgt.get("type", ""))
 
     def num(key):
@@ -204,35 +280,72 @@ def import_ical(src: str | Path, out: str | Path, *, image_dir: str | None = Non
     def count(key):
         v = num(key)
         if not (v.is_integer() and 1 <= v <= 1000):
-            raise InputError(f"target_finder.{key} is not a grid size", path=cal_path, received=repr(tgt.get(key)),
-                             expected="a whole number 1..1000")
+            raise InputError(
+                f"target_finder.{key} is not a grid size",
+                path=cal_path,
+                received=repr(tgt.get(key)),
+                expected="a whole number 1..1000",
+            )
         return int(v)
 
     if kind.lower().startswith("charuco") or "CharucoGrid" in str(tgt):
-        target = {"type": "charuco", "squares": [count("cols"), count("rows")],
-                  "square_m": num("chessboard_dim"), "marker_m": num("aruco_marker_dim"),
-                  "dictionary": _aruco_name(int(_number(tgt.get("dictionary", 10), path=cal_path,
-                                                        field="target_finder.dictionary")))}
+        target = {
+            "type": "charuco",
+            "squares": [count("cols"), count("rows")],
+            "square_m": num("chessboard_dim"),
+            "marker_m": num("aruco_marker_dim"),
+            "dictionary": _aruco_name(
+                int(_number(tgt.get("dictionary", 10), path=cal_path, field="target_finder.dictionary"))
+            ),
+        }
     elif "circlegrid" in kind.lower():
         # ModifiedCircleGridTargetFinder: symmetric grid with one double-size origin dot
-        target = {"type": "circlegrid", "grid": [count("cols"), count("rows")],
-                  "spacing_m": num("spacing"), "asymmetric": False,
-                  "origin_dot": kind.lower().startswith("modified")}
+        target = {
+            "type": "circlegrid",
+            "grid": [count("cols"), count("rows")],
+            "spacing_m": num("spacing"),
+            "asymmetric": False,
+            "origin_dot": kind.lower().startswith("modified"),
+        }
     else:
-        raise InputError("unsupported industrial_calibration target finder", path=src / "cal_data.yaml",
-                         expected="CharucoGridTargetFinder | ModifiedCircleGridTargetFinder",
-                         received=str(tgt.get("type")))
+        raise InputError(
+            "unsupported industrial_calibration target finder",
+            path=src / "cal_data.yaml",
+            expected="CharucoGridTargetFinder | ModifiedCircleGridTargetFinder",
+            received=str(tgt.get("type")),
+        )
     mode = "eye_to_hand" if cal.get("static_camera", False) else "eye_in_hand"
-    doc = {"handeye_session": 1, "mode": mode, "target": target,
-           "pose_format": {"rotation": "quaternion", "quaternion_order": "wxyz", "translation_unit": "m"},
-           "image_folder": str(src), "source": {"importer": "ical", "path": str(src)}, "views": views}
+    doc = {
+        "handeye_session": 1,
+        "mode": mode,
+        "target": target,
+        "pose_format": {"rotation": "quaternion", "quaternion_order": "wxyz", "translation_unit": "m"},
+        "image_folder": str(src),
+        "source": {"importer": "ical", "path": str(src)},
+        "views": views,
+    }
     return _write(out, doc)
 
 
-_ARUCO = {0: "DICT_4X4_50", 1: "DICT_4X4_100", 2: "DICT_4X4_250", 3: "DICT_4X4_1000", 4: "DICT_5X5_50",
-          5: "DICT_5X5_100", 6: "DICT_5X5_250", 7: "DICT_5X5_1000", 8: "DICT_6X6_50", 9: "DICT_6X6_100",
-          10: "DICT_6X6_250", 11: "DICT_6X6_1000", 12: "DICT_7X7_50", 13: "DICT_7X7_100", 14: "DICT_7X7_250",
-          15: "DICT_7X7_1000", 16: "DICT_ARUCO_ORIGINAL"}
+_ARUCO = {
+    0: "DICT_4X4_50",
+    1: "DICT_4X4_100",
+    2: "DICT_4X4_250",
+    3: "DICT_4X4_1000",
+    4: "DICT_5X5_50",
+    5: "DICT_5X5_100",
+    6: "DICT_5X5_250",
+    7: "DICT_5X5_1000",
+    8: "DICT_6X6_50",
+    9: "DICT_6X6_100",
+    10: "DICT_6X6_250",
+    11: "DICT_6X6_1000",
+    12: "DICT_7X7_50",
+    13: "DICT_7X7_100",
+    14: "DICT_7X7_250",
+    15: "DICT_7X7_1000",
+    16: "DICT_ARUCO_ORIGINAL",
+}
 
 
 def _aruco_name(code: int) -> str:
@@ -241,7 +354,8 @@ def _aruco_name(code: int) -> str:
 
 def _check_out(out: Path, *, force: bool) -> None:
     """The importer's output folder: a new or empty folder, or one whose session is to be replaced
-    (``force``); a collected session (view_records/) or a vendor session is never overwritten silently."""
+    (``force``); a collected session (view_records/) or a vendor session is never overwritten silently.
+    """
     from ..errors import OutputError
     from ..output import check_out_dir
 
@@ -250,9 +364,13 @@ def _check_out(out: Path, *, force: bool) -> None:
     if out.is_dir() and not force:
         held = [n for n in (SESSION_FILE, "poses.txt", "view_records") if (out / n).exists()]
         if held:
-            raise OutputError("OUT already holds a session", path=out, received=held[0],
-                              expected="a new or empty folder",
-                              hint="choose another folder, or pass --force to replace its session.yaml")
+            raise OutputError(
+                "OUT already holds a session",
+                path=out,
+                received=held[0],
+                expected="a new or empty folder",
+                hint="choose another folder, or pass --force to replace its session.yaml",
+            )
     check_out_dir(out, option="OUT")
 
 

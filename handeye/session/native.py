@@ -7,6 +7,7 @@
 both use it, and :func:`view_pose_values` / :func:`view_image_path` are the only readers of a view's
 pose and image path. The rules are in docs/session_format.md.
 """
+
 from __future__ import annotations
 
 import logging
@@ -21,11 +22,20 @@ import numpy as np
 from ..camera import Intrinsics
 from ..conventions import PoseFormat, T_from_pose_values
 from ..errors import ConfigError, InputError
+from ..output import read_text
 from ..records import Session, View, view_id_key
 from ..targets import TargetSpec, TrackedTargetSpec
-from ..output import read_text
-from .fields import (IdTextLoader, check_angle_units, check_finite, check_input_file, check_mode, parse_pose_format,
-                     check_translation_units, positive_number, read_yaml)
+from .fields import (
+    IdTextLoader,
+    check_angle_units,
+    check_finite,
+    check_input_file,
+    check_mode,
+    check_translation_units,
+    parse_pose_format,
+    positive_number,
+    read_yaml,
+)
 from .target_spec import parse_target
 
 log = logging.getLogger(__name__)
@@ -34,9 +44,11 @@ INTRINSICS_USES = ("fixed", "prior", "initial")
 #: ROS CameraInfo ``distortion_model`` names: plumb_bob is OpenCV's 5-coefficient model (D = k1, k2, p1,
 #: p2, k3 in that order); the others are different models, which handeye does not have
 DISTORTION_MODELS = ("plumb_bob",)
-_OTHER_DISTORTION = {"rational_polynomial": "8 coefficients k1, k2, p1, p2, k3, k4, k5, k6",
-                     "equidistant": "the fisheye model, 4 coefficients k1..k4",
-                     "fisheye": "the fisheye model, 4 coefficients k1..k4"}
+_OTHER_DISTORTION = {
+    "rational_polynomial": "8 coefficients k1, k2, p1, p2, k3, k4, k5, k6",
+    "equidistant": "the fisheye model, 4 coefficients k1..k4",
+    "fisheye": "the fisheye model, 4 coefficients k1..k4",
+}
 
 
 @dataclass(frozen=True)
@@ -51,7 +63,8 @@ class ViewEntry:
 class NativeDocument:
     """A parsed session.yaml: the stated mode (None when absent), target, pose format, intrinsics
     (with their use: estimate | fixed | prior), the folder images are relative to, and the view
-    entries (ids checked, not yet converted to poses)."""
+    entries (ids checked, not yet converted to poses).
+    """
 
     path: Path
     data: dict
@@ -89,8 +102,12 @@ def read_native_document(path: Path) -> NativeDocument:
     entries = [ViewEntry(e, path) for e in inline]
     rec_dir = d.get("view_records")
     if rec_dir is not None and not (isinstance(rec_dir, str) and rec_dir):
-        raise ConfigError("view_records must be a folder name", path=path, received=repr(rec_dir)[:60],
-                          expected="a folder inside the session folder, e.g. view_records")
+        raise ConfigError(
+            "view_records must be a folder name",
+            path=path,
+            received=repr(rec_dir)[:60],
+            expected="a folder inside the session folder, e.g. view_records",
+        )
     if rec_dir:
         rec_dir = inside_folder(path.parent, rec_dir, vid="records", what="folder view_records", source=path)
     if rec_dir and rec_dir.is_dir():
@@ -102,59 +119,88 @@ def read_native_document(path: Path) -> NativeDocument:
         raise InputError("the session has no views", path=path, hint="add a views: list or records in view_records/")
     for e in entries:
         if not isinstance(e.data, dict):
-            raise ConfigError("each view must be a mapping with id, image, pose", path=e.source,
-                              received=repr(e.data)[:60])
+            raise ConfigError(
+                "each view must be a mapping with id, image, pose", path=e.source, received=repr(e.data)[:60]
+            )
         for key in ("id",) if "target_pose" in e.data else ("id", "image"):
             if key not in e.data:
-                raise ConfigError(f"view is missing {key!r}", path=e.source, received=repr(e.data)[:80],
-                                  expected="id, image, pose (or pose_file)")
+                raise ConfigError(
+                    f"view is missing {key!r}",
+                    path=e.source,
+                    received=repr(e.data)[:80],
+                    expected="id, image, pose (or pose_file)",
+                )
         vid = e.data["id"]
         if not isinstance(vid, str) or not vid.strip():
-            raise ConfigError("invalid view id", path=e.source, expected="a non-empty text such as \"7\" or \"010\"",
-                              received=repr(vid))
+            raise ConfigError(
+                "invalid view id", path=e.source, expected='a non-empty text such as "7" or "010"', received=repr(vid)
+            )
         if _ID_FORBIDDEN.search(vid) or vid in (".", ".."):
-            raise ConfigError("invalid view id", path=e.source, received=repr(vid)[:60],
-                              expected="a text without /, \\ or control characters (it names the view's files)")
+            raise ConfigError(
+                "invalid view id",
+                path=e.source,
+                received=repr(vid)[:60],
+                expected="a text without /, \\ or control characters (it names the view's files)",
+            )
         if "target_pose" in e.data:
             pass  # a pose-only view: no image (target_pose is read by view_target_pose)
         elif not isinstance(e.data["image"], str) or not e.data["image"].strip():
-            raise ConfigError(f"view {vid}: image must be a file name", path=e.source, received=repr(e.data["image"])[:60],
-                              expected="a path relative to the session folder, e.g. images/7.png")
+            raise ConfigError(
+                f"view {vid}: image must be a file name",
+                path=e.source,
+                received=repr(e.data["image"])[:60],
+                expected="a path relative to the session folder, e.g. images/7.png",
+            )
         if ("pose" in e.data) == ("pose_file" in e.data):
-            raise ConfigError(f"view {vid}: give either pose or pose_file", path=e.source,
-                              received="both" if "pose" in e.data else "neither",
-                              expected="pose: [numbers in pose_format] or pose_file: FILE")
+            raise ConfigError(
+                f"view {vid}: give either pose or pose_file",
+                path=e.source,
+                received="both" if "pose" in e.data else "neither",
+                expected="pose: [numbers in pose_format] or pose_file: FILE",
+            )
     po = _pose_only_fields(d, entries, path=path)
     return NativeDocument(path, d, d.get("mode"), target, fmt, intr, intr_use, tuple(entries), image_folder, *po)
 
 
 def _pose_only(d: dict) -> bool:
     """Whether session.yaml's inline views carry target poses (a pose-only session needs no target:; one that
-    mixes them with image views is refused by :func:`_pose_only_fields`)."""
+    mixes them with image views is refused by :func:`_pose_only_fields`).
+    """
     views = d.get("views")
     return isinstance(views, list) and any(isinstance(v, dict) and "target_pose" in v for v in views)
 
 
 def _pose_only_fields(d: dict, entries: list, *, path: Path) -> tuple:
     """(target_pose_format, tracker_sigma) of a pose-only session ((None, None) for an image session);
-    ConfigError when image and target-pose views are mixed or a field is malformed."""
+    ConfigError when image and target-pose views are mixed or a field is malformed.
+    """
     with_pose = [e for e in entries if "target_pose" in e.data]
     if not with_pose:
         return None, None
     if len(with_pose) != len(entries):
         e = next(e for e in entries if "target_pose" not in e.data)
-        raise ConfigError(f"view {e.data['id']}: a session's views are either all images or all target poses",
-                          path=e.source, received="image views and target_pose views mixed",
-                          hint="split the session, or give every view a target_pose")
+        raise ConfigError(
+            f"view {e.data['id']}: a session's views are either all images or all target poses",
+            path=e.source,
+            received="image views and target_pose views mixed",
+            hint="split the session, or give every view a target_pose",
+        )
     tfmt = d.get("target_pose_format")
-    tfmt = (parse_pose_format(tfmt, path=path) if tfmt is not None
-            else PoseFormat(rotation="matrix").validated(source=str(path)))
+    tfmt = (
+        parse_pose_format(tfmt, path=path)
+        if tfmt is not None
+        else PoseFormat(rotation="matrix").validated(source=str(path))
+    )
     sig = d.get("tracker_sigma")
     if sig is None:
         return tfmt, None
     if not isinstance(sig, dict) or set(sig) != {"mm", "deg"}:
-        raise ConfigError("tracker_sigma must be {mm: NUMBER, deg: NUMBER}", path=path, received=repr(sig)[:60],
-                          expected="the tracker's noise per axis, e.g. tracker_sigma: {mm: 0.5, deg: 0.2}")
+        raise ConfigError(
+            "tracker_sigma must be {mm: NUMBER, deg: NUMBER}",
+            path=path,
+            received=repr(sig)[:60],
+            expected="the tracker's noise per axis, e.g. tracker_sigma: {mm: 0.5, deg: 0.2}",
+        )
     mm = positive_number(sig["mm"], path=path, field="tracker_sigma.mm")
     deg = positive_number(sig["deg"], path=path, field="tracker_sigma.deg")
     return tfmt, (float(np.radians(deg)), float(mm) / 1000.0)
@@ -162,11 +208,13 @@ def _pose_only_fields(d: dict, entries: list, *, path: Path) -> tuple:
 
 def view_target_pose(doc: NativeDocument, e: ViewEntry) -> np.ndarray:
     """A pose-only view's ``target_pose``: ``T_cam_board`` (metres) read in ``target_pose_format`` (4x4 by
-    default), checked like a robot pose."""
+    default), checked like a robot pose.
+    """
     vid = e.data["id"]
     fmt = doc.target_pose_format
-    values = view_pose_values(ViewEntry({"id": vid, "pose": e.data["target_pose"]}, e.source), fmt,
-                              folder=files_folder(doc))
+    values = view_pose_values(
+        ViewEntry({"id": vid, "pose": e.data["target_pose"]}, e.source), fmt, folder=files_folder(doc)
+    )
     try:
         T = T_from_pose_values(values, fmt)
     except (ValueError, TypeError) as err:
@@ -191,8 +239,9 @@ def _read_pose_file(f: Path, *, vid: str) -> list:
         try:
             rows.append([float(x) for x in _NUMBER_SEP.split(s) if x])
         except ValueError:
-            raise InputError(f"view {vid}: pose file line is not numbers", path=f, line=lineno,
-                             received=repr(s[:60])) from None
+            raise InputError(
+                f"view {vid}: pose file line is not numbers", path=f, line=lineno, received=repr(s[:60])
+            ) from None
     return rows
 
 
@@ -216,49 +265,68 @@ def view_pose_values(e: ViewEntry, fmt: PoseFormat, *, folder: Path, allow_outsi
         shape = [len(r) for r in rows]
         if shape == [4, 4, 4, 4]:
             if fmt.rotation != "matrix":
-                raise ConfigError(f"view {vid}: the pose file holds a 4x4 matrix but pose_format.rotation is "
-                                  f"{fmt.rotation}", path=f, hint="set pose_format: {rotation: matrix} (all views "
-                                                                  "of a session share one pose format)")
+                raise ConfigError(
+                    f"view {vid}: the pose file holds a 4x4 matrix but pose_format.rotation is {fmt.rotation}",
+                    path=f,
+                    hint="set pose_format: {rotation: matrix} (all views of a session share one pose format)",
+                )
             check_finite(rows, path=f, line=None, what=f"view {vid}: pose file")
             return np.asarray(rows, float).reshape(-1)
         if len(rows) == 1:
             check_finite(rows[0], path=f, line=None, what=f"view {vid}: pose file")
             return np.asarray(rows[0], float)
-        raise InputError(f"view {vid}: pose file is neither one pose line nor a 4x4 matrix", path=f,
-                         expected="4 lines of 4 numbers, or one line such as x,y,z,rx,ry,rz",
-                         received=f"{len(rows)} lines of {shape} numbers")
+        raise InputError(
+            f"view {vid}: pose file is neither one pose line nor a 4x4 matrix",
+            path=f,
+            expected="4 lines of 4 numbers, or one line such as x,y,z,rx,ry,rz",
+            received=f"{len(rows)} lines of {shape} numbers",
+        )
     pose = e.data["pose"]
     if not isinstance(pose, list) or not pose:
-        raise InputError(f"view {vid}: pose must be a list of numbers", path=e.source, received=repr(pose)[:60],
-                         expected=fmt.describe())
+        raise InputError(
+            f"view {vid}: pose must be a list of numbers",
+            path=e.source,
+            received=repr(pose)[:60],
+            expected=fmt.describe(),
+        )
     if any(isinstance(r, list) for r in pose):
         if fmt.rotation != "matrix" or len(pose) != 4 or any(not isinstance(r, list) or len(r) != 4 for r in pose):
-            raise InputError(f"view {vid}: a nested pose must be a 4x4 matrix (4 rows of 4) with "
-                             "pose_format.rotation: matrix", path=e.source, received=repr(pose)[:80],
-                             expected=fmt.describe())
+            raise InputError(
+                f"view {vid}: a nested pose must be a 4x4 matrix (4 rows of 4) with pose_format.rotation: matrix",
+                path=e.source,
+                received=repr(pose)[:80],
+                expected=fmt.describe(),
+            )
     if any(isinstance(x, (bool, str)) for x in (sum(pose, []) if isinstance(pose[0], list) else pose)):
-        raise InputError(f"view {vid}: pose must be numbers", path=e.source, received=repr(pose)[:80],
-                         expected=fmt.describe())
+        raise InputError(
+            f"view {vid}: pose must be numbers", path=e.source, received=repr(pose)[:80], expected=fmt.describe()
+        )
     try:
         values = np.asarray(pose, dtype=float).reshape(-1)
     except (TypeError, ValueError):
-        raise InputError(f"view {vid}: pose must be numbers", path=e.source, received=repr(pose)[:80],
-                         expected=fmt.describe()) from None
+        raise InputError(
+            f"view {vid}: pose must be numbers", path=e.source, received=repr(pose)[:80], expected=fmt.describe()
+        ) from None
     check_finite(values, path=e.source, line=None, what=f"view {vid}: pose")
     return values
 
 
-def inside_folder(folder: Path, written: str, *, vid: str, what: str, source: Path,
-                  allow_outside: bool = False) -> Path:
+def inside_folder(
+    folder: Path, written: str, *, vid: str, what: str, source: Path, allow_outside: bool = False
+) -> Path:
     """``folder / written`` with ``..`` resolved (symbolic links are not followed: a link placed in the
-    folder is the user's choice); InputError when it leaves ``folder`` unless ``allow_outside``."""
+    folder is the user's choice); InputError when it leaves ``folder`` unless ``allow_outside``.
+    """
     p = Path(os.path.normpath(Path(folder) / str(written)))
     base = Path(os.path.normpath(folder))
     if not allow_outside and base != p and base not in p.parents:
-        raise InputError(f"view {vid}: {what} {written!r} is outside the session folder", path=source,
-                         expected=f"a path inside {base}",
-                         hint="copy the files into the session folder, or state image_folder: FOLDER in "
-                              "session.yaml for images kept elsewhere (their paths are then relative to it)")
+        raise InputError(
+            f"view {vid}: {what} {written!r} is outside the session folder",
+            path=source,
+            expected=f"a path inside {base}",
+            hint="copy the files into the session folder, or state image_folder: FOLDER in "
+            "session.yaml for images kept elsewhere (their paths are then relative to it)",
+        )
     return p
 
 
@@ -269,8 +337,9 @@ def files_folder(doc: NativeDocument) -> Path:
 
 def view_image_path(doc: NativeDocument, e: ViewEntry, *, allow_outside: bool = False) -> Path:
     """The image of a view, relative to :func:`files_folder` and inside it (unless ``allow_outside``)."""
-    return inside_folder(files_folder(doc), e.data["image"], vid=e.data["id"], what="image", source=e.source,
-                         allow_outside=allow_outside)
+    return inside_folder(
+        files_folder(doc), e.data["image"], vid=e.data["id"], what="image", source=e.source, allow_outside=allow_outside
+    )
 
 
 def view_joint_angles(e: ViewEntry) -> Optional[tuple]:
@@ -284,13 +353,21 @@ def view_joint_angles(e: ViewEntry) -> Optional[tuple]:
     except (TypeError, ValueError):
         arr = np.array([np.nan])
     if not isinstance(q, list) or arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)):
-        raise InputError(f"view {vid}: joints must be a list of joint angles", path=e.source,
-                         expected="radians, one number per joint", received=repr(q)[:80])
+        raise InputError(
+            f"view {vid}: joints must be a list of joint angles",
+            path=e.source,
+            expected="radians, one number per joint",
+            received=repr(q)[:80],
+        )
     try:
         check_angle_units(arr, path=e.source, line=None)
     except InputError as err:
-        raise InputError(f"view {vid}: joint angle {np.abs(arr).max():.1f} is larger than 2*pi", path=e.source,
-                         expected=err.expected, hint=err.hint) from None
+        raise InputError(
+            f"view {vid}: joint angle {np.abs(arr).max():.1f} is larger than 2*pi",
+            path=e.source,
+            expected=err.expected,
+            hint=err.hint,
+        ) from None
     return tuple(float(x) for x in arr)
 
 
@@ -302,15 +379,22 @@ def parse_intrinsics(d, *, path: Path) -> tuple[Optional[Intrinsics], str]:
         raise ConfigError("intrinsics must be a mapping", path=path, received=repr(d)[:60])
     model = d.get("model", "opencv5")
     if model not in ("opencv5", "pinhole"):
-        raise ConfigError("unsupported intrinsics model", path=path, expected="opencv5 (k1,k2,p1,p2,k3) | pinhole",
-                          received=repr(model))
+        raise ConfigError(
+            "unsupported intrinsics model",
+            path=path,
+            expected="opencv5 (k1,k2,p1,p2,k3) | pinhole",
+            received=repr(model),
+        )
     dm = d.get("distortion_model", "plumb_bob")
     if dm not in DISTORTION_MODELS:
-        raise ConfigError("unsupported intrinsics.distortion_model", path=path,
-                          expected="plumb_bob (ROS CameraInfo's name for OpenCV's k1, k2, p1, p2, k3)",
-                          received=repr(dm) + (f" ({_OTHER_DISTORTION[dm]})" if dm in _OTHER_DISTORTION else ""),
-                          hint="handeye's camera model is OpenCV's 5-coefficient one; calibrate without "
-                               "intrinsics (remove the section) to estimate it")
+        raise ConfigError(
+            "unsupported intrinsics.distortion_model",
+            path=path,
+            expected="plumb_bob (ROS CameraInfo's name for OpenCV's k1, k2, p1, p2, k3)",
+            received=repr(dm) + (f" ({_OTHER_DISTORTION[dm]})" if dm in _OTHER_DISTORTION else ""),
+            hint="handeye's camera model is OpenCV's 5-coefficient one; calibrate without "
+            "intrinsics (remove the section) to estimate it",
+        )
     vals = {k: positive_number(d.get(k), path=path, field=f"intrinsics.{k}") for k in ("fx", "fy", "cx", "cy")}
     dist = d.get("dist", [0, 0, 0, 0, 0]) if model == "opencv5" else [0, 0, 0, 0, 0]
     try:
@@ -318,12 +402,18 @@ def parse_intrinsics(d, *, path: Path) -> tuple[Optional[Intrinsics], str]:
     except (TypeError, ValueError):
         dist = np.array([np.nan])
     if dist.size == 8 and np.all(np.isfinite(dist)):
-        raise ConfigError("intrinsics.dist has 8 coefficients: ROS's rational_polynomial model, which handeye does "
-                          "not have", path=path, expected="4 or 5 numbers k1, k2, p1, p2[, k3] (plumb_bob)",
-                          received=repr(d.get("dist")))
+        raise ConfigError(
+            "intrinsics.dist has 8 coefficients: ROS's rational_polynomial model, which handeye does not have",
+            path=path,
+            expected="4 or 5 numbers k1, k2, p1, p2[, k3] (plumb_bob)",
+            received=repr(d.get("dist")),
+        )
     if dist.size not in (4, 5) or not np.all(np.isfinite(dist)):
-        raise ConfigError("intrinsics.dist must be 4 or 5 finite numbers (k1, k2, p1, p2[, k3])", path=path,
-                          received=repr(d.get("dist")))
+        raise ConfigError(
+            "intrinsics.dist must be 4 or 5 finite numbers (k1, k2, p1, p2[, k3])",
+            path=path,
+            received=repr(d.get("dist")),
+        )
     size = d.get("image_size")
     if not (isinstance(size, (list, tuple)) and len(size) == 2):
         raise ConfigError("intrinsics.image_size must be [width, height]", path=path, received=repr(size))
@@ -369,31 +459,58 @@ def load_native_session(path: str | Path, *, mode: str | None = None, allow_outs
         if "pose_file" in e.data:
             files_read.append(files_folder(doc) / str(e.data["pose_file"]))
         if doc.target_pose_format is not None:  # a pose-only view: the tracker's T_cam_board, no image
-            views.append(View(view_id=vid, image_path=None, T_base_end=T, t_image=t_image, t_pose=t_pose,
-                              joint_angles=joints, T_cam_board=view_target_pose(doc, e)))
+            views.append(
+                View(
+                    view_id=vid,
+                    image_path=None,
+                    T_base_end=T,
+                    t_image=t_image,
+                    t_pose=t_pose,
+                    joint_angles=joints,
+                    T_cam_board=view_target_pose(doc, e),
+                )
+            )
             continue
         img = view_image_path(doc, e, allow_outside=allow_outside)
         if not os.path.lexists(img):
             missing[vid] = img
             continue
         files_read.append(check_input_file(img, what="image", vid=vid))
-        views.append(View(view_id=vid, image_path=img, T_base_end=T, t_image=t_image, t_pose=t_pose,
-                          joint_angles=joints))
+        views.append(
+            View(view_id=vid, image_path=img, T_base_end=T, t_image=t_image, t_pose=t_pose, joint_angles=joints)
+        )
     if not views:
         first = next(iter(missing.values()))
-        raise InputError(f"none of the {len(missing)} views' images exists", path=first,
-                         hint="image paths are relative to the session folder (or image_folder); check them")
+        raise InputError(
+            f"none of the {len(missing)} views' images exists",
+            path=first,
+            hint="image paths are relative to the session folder (or image_folder); check them",
+        )
     if missing:
         log.warning("%s: views without their image file (dropped with their poses): %s", path, sorted(missing))
     views.sort(key=lambda v: view_id_key(v.view_id))
     meta = {k: v for k, v in doc.data.items() if k not in ("views",)}
-    meta.update(missing_images={v: None for v in missing}, missing_image_files={v: str(f) for v, f in missing.items()},
-                files_read=files_read)
+    meta.update(
+        missing_images={v: None for v in missing},
+        missing_image_files={v: str(f) for v, f in missing.items()},
+        files_read=files_read,
+    )
     if doc.target_pose_format is not None:
-        meta.update(pose_only=True, tracker_sigma=doc.tracker_sigma, target_pose_format=doc.target_pose_format.describe())
-    return Session(path=path.parent, format="native", mode=sess_mode, target=doc.target, views=tuple(views),
-                   intrinsics=doc.intrinsics, intrinsics_prior=doc.intrinsics_use, pose_format=fmt.describe(),
-                   mode_source=source, meta=meta)
+        meta.update(
+            pose_only=True, tracker_sigma=doc.tracker_sigma, target_pose_format=doc.target_pose_format.describe()
+        )
+    return Session(
+        path=path.parent,
+        format="native",
+        mode=sess_mode,
+        target=doc.target,
+        views=tuple(views),
+        intrinsics=doc.intrinsics,
+        intrinsics_prior=doc.intrinsics_use,
+        pose_format=fmt.describe(),
+        mode_source=source,
+        meta=meta,
+    )
 
 
 def _opt_time(e: ViewEntry, key: str):
@@ -402,7 +519,11 @@ def _opt_time(e: ViewEntry, key: str):
     if v is None:
         return None
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
-        raise ConfigError(f"view {e.data['id']}: invalid {key}", path=e.source,
-                          expected="a time stamp in seconds (a number)", received=repr(v)[:60],
-                          hint=f"write {key} as seconds, e.g. 1712345678.25, or remove it")
+        raise ConfigError(
+            f"view {e.data['id']}: invalid {key}",
+            path=e.source,
+            expected="a time stamp in seconds (a number)",
+            received=repr(v)[:60],
+            hint=f"write {key} as seconds, e.g. 1712345678.25, or remove it",
+        )
     return float(v)

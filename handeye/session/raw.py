@@ -5,6 +5,7 @@ The same parsers as the strict loaders (:mod:`.vendor`, :mod:`.native`) read the
 plausibility checks (units of poses and board lengths) are skipped, so a session written in
 millimetres or degrees can still be re-read every plausible way.
 """
+
 from __future__ import annotations
 
 import logging
@@ -21,8 +22,14 @@ from ..records import Session, view_id_key
 from ..targets import TargetSpec
 from .fields import check_mode, locate_session
 from .native import files_folder, read_native_document, view_image_path, view_pose_values
-from .vendor import (VENDOR_DEFAULT_MODE, first_image_number, numbered_images, read_pose_lines, read_vendor_config,
-                     vendor_pose_format)
+from .vendor import (
+    VENDOR_DEFAULT_MODE,
+    first_image_number,
+    numbered_images,
+    read_pose_lines,
+    read_vendor_config,
+    vendor_pose_format,
+)
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +54,8 @@ class RawPoses:
 @dataclass(frozen=True)
 class LenientSession:
     """A session read without unit checks: target, mode, raw poses, images by view id, and the given
-    intrinsics when the session says to use them (fixed or prior), else None."""
+    intrinsics when the session says to use them (fixed or prior), else None.
+    """
 
     target: TargetSpec
     mode: str
@@ -71,7 +79,8 @@ def read_raw_poses(path: str | Path) -> Optional[RawPoses]:
 
 def _raw_vendor(folder: Path, *, cfg: Optional[dict] = None, images: Optional[dict] = None) -> RawPoses:
     """poses.txt's numbers, keyed by the images' numbering, in config.yaml's stated format (else the vendor's).
-    ``cfg`` (config.yaml's mapping) and ``images`` (:func:`numbered_images`): when the caller has read them."""
+    ``cfg`` (config.yaml's mapping) and ``images`` (:func:`numbered_images`): when the caller has read them.
+    """
     if images is None:
         try:
             images = numbered_images(folder)
@@ -100,12 +109,16 @@ def _raw_native(path: Path, *, doc=None) -> RawPoses:
 
 def raw_poses_of(session: Session) -> RawPoses:
     """The raw pose numbers behind a loaded session: re-read from its file when the file still holds
-    the same views and poses, else regenerated from the loaded poses in the vendor format."""
+    the same views and poses, else regenerated from the loaded poses in the vendor format.
+    """
     raw = read_raw_poses(session.path) if session.format in ("vendor", "native") else None
     if raw is not None:
         try:
-            same = all(v.view_id in raw.values and np.allclose(
-                T_from_pose_values(raw.values[v.view_id], raw.fmt), v.T_base_end, atol=1e-9) for v in session.views)
+            same = all(
+                v.view_id in raw.values
+                and np.allclose(T_from_pose_values(raw.values[v.view_id], raw.fmt), v.T_base_end, atol=1e-9)
+                for v in session.views
+            )
         except ValueError:
             same = False
         if same:
@@ -134,14 +147,16 @@ def read_session_lenient(path: str | Path, *, mode: Optional[str] = None) -> Opt
                     continue
             images = {v: f for v, f in images.items() if f.is_file()}  # never a folder, device or pipe
             intr = doc.intrinsics if doc.intrinsics_use in ("fixed", "prior") else None
-            return LenientSession(doc.target, check_mode(mode or doc.mode or VENDOR_DEFAULT_MODE, path=p), raw,
-                                  images, intr)
+            return LenientSession(
+                doc.target, check_mode(mode or doc.mode or VENDOR_DEFAULT_MODE, path=p), raw, images, intr
+            )
         target, cfg_mode, cfg = read_vendor_config(p, strict=False)
         numbered = numbered_images(p)
         raw = _raw_vendor(p, cfg=cfg, images=numbered)
         images = {str(k): f for k, f in numbered.items() if f.is_file()}
-        return LenientSession(target, check_mode(mode or cfg_mode or VENDOR_DEFAULT_MODE, path=p / "config.yaml"), raw,
-                              images, None)
+        return LenientSession(
+            target, check_mode(mode or cfg_mode or VENDOR_DEFAULT_MODE, path=p / "config.yaml"), raw, images, None
+        )
     except _UNREADABLE as e:
         log.debug("session %s unreadable even leniently: %s", path, e)
         return None

@@ -19,6 +19,7 @@ What it takes from the bag:
 It writes ``OUT/session.yaml`` (poses as 4x4 matrices of ``T_base_end``, metres) and
 ``OUT/images/<id>.png`` (a compressed image keeps its own bytes and format).
 """
+
 from __future__ import annotations
 
 import logging
@@ -71,13 +72,18 @@ class RosbagImport:
     views: list = field(default_factory=list)  # per view: id, t_image, offset_ms, period [start, end]
 
     def summary_lines(self) -> list[str]:
-        return [f"{self.n_views} views from {self.n_still_periods} still periods"
-                + (f" ({self.periods_without_image} without an image inside their margins)"
-                   if self.periods_without_image else ""),
-                f"time offset image -> nearest TF sample: at most {self.max_offset_ms:.1f} ms; the pose moved at most "
-                f"{self.max_motion_mm:.3f} mm / {self.max_motion_deg:.4f} deg over a still period",
-                f"intrinsics: {self.intrinsics}",
-                f"session: {self.session_path}"]
+        return [
+            f"{self.n_views} views from {self.n_still_periods} still periods"
+            + (
+                f" ({self.periods_without_image} without an image inside their margins)"
+                if self.periods_without_image
+                else ""
+            ),
+            f"time offset image -> nearest TF sample: at most {self.max_offset_ms:.1f} ms; the pose moved at most "
+            f"{self.max_motion_mm:.3f} mm / {self.max_motion_deg:.4f} deg over a still period",
+            f"intrinsics: {self.intrinsics}",
+            f"session: {self.session_path}",
+        ]
 
 
 # ------------------------------------------------------------------------------ TF
@@ -133,7 +139,8 @@ def _stamp(msg) -> float:
 def _raw_header_stamp(raw: bytes, *, ros2: bool) -> float:
     """The header stamp of a serialized message that starts with a std_msgs/Header (Image,
     CompressedImage), read from its first bytes: ROS 2 CDR (4-byte encapsulation, then int32 sec,
-    uint32 nanosec; byte 1 says the byte order), ROS 1 (uint32 seq, uint32 secs, uint32 nsecs, little endian)."""
+    uint32 nanosec; byte 1 says the byte order), ROS 1 (uint32 seq, uint32 secs, uint32 nsecs, little endian).
+    """
     b = memoryview(raw)
     if ros2:
         order = "<" if b[1] == 1 else ">"
@@ -147,14 +154,17 @@ def _raw_header_stamp(raw: bytes, *, ros2: bool) -> float:
 def _chain(edges: dict, base: str, end: str, *, bag: Path) -> list[tuple[tuple[str, str], bool]]:
     """The edges from ``base`` to ``end``: ((parent, child), forward) in order (forward False: inverted)."""
     nbrs: dict[str, list] = {}
-    for (p, c) in edges:
+    for p, c in edges:
         nbrs.setdefault(p, []).append((c, (p, c), True))
         nbrs.setdefault(c, []).append((p, (p, c), False))
     for name in (base, end):
         if name not in nbrs:
-            raise InputError(f"frame {name!r} is not in the bag's TF", path=bag,
-                             expected="one of " + ", ".join(sorted(nbrs)[:12]) if nbrs else "a TF stream (/tf)",
-                             hint="pass --base and --end as the frames the robot publishes (e.g. base_link, tool0)")
+            raise InputError(
+                f"frame {name!r} is not in the bag's TF",
+                path=bag,
+                expected="one of " + ", ".join(sorted(nbrs)[:12]) if nbrs else "a TF stream (/tf)",
+                hint="pass --base and --end as the frames the robot publishes (e.g. base_link, tool0)",
+            )
     prev = {base: None}
     queue = [base]
     while queue:
@@ -164,8 +174,11 @@ def _chain(edges: dict, base: str, end: str, *, bag: Path) -> list[tuple[tuple[s
                 prev[g] = (f, e, fwd)
                 queue.append(g)
     if end not in prev:
-        raise InputError(f"no TF chain from {base!r} to {end!r} in the bag", path=bag,
-                         hint="the two frames are in separate TF trees; record the robot's whole TF")
+        raise InputError(
+            f"no TF chain from {base!r} to {end!r} in the bag",
+            path=bag,
+            hint="the two frames are in separate TF trees; record the robot's whole TF",
+        )
     out, f = [], end
     while prev[f] is not None:
         f0, e, fwd = prev[f]
@@ -186,7 +199,8 @@ def _compose(edges: dict, chain, times: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------------------ stillness
 def still_periods(times: np.ndarray, T_base_end: np.ndarray, st: Stillness) -> list[tuple[float, float]]:
     """[start, end] of each period in which the pose moves slower than the thresholds for at least
-    ``min_still_s``; ``times`` (N,) sorted, ``T_base_end`` (N,4,4)."""
+    ``min_still_s``; ``times`` (N,) sorted, ``T_base_end`` (N,4,4).
+    """
     n = len(times)
     if n < 2:
         return []
@@ -201,8 +215,11 @@ def still_periods(times: np.ndarray, T_base_end: np.ndarray, st: Stillness) -> l
     R_rel = np.einsum("nji,njk->nik", T_base_end[lo, :3, :3], T_base_end[hi, :3, :3])
     d_deg = np.degrees(rotation_angle_rad(R_rel))
     with np.errstate(divide="ignore", invalid="ignore"):
-        still = ok_dt & (d_mm / np.where(ok_dt, dt, 1.0) < st.still_trans_mm_s) \
+        still = (
+            ok_dt
+            & (d_mm / np.where(ok_dt, dt, 1.0) < st.still_trans_mm_s)
             & (d_deg / np.where(ok_dt, dt, 1.0) < st.still_rot_deg_s)
+        )
     periods = []
     k = 0
     while k < n:
@@ -240,8 +257,10 @@ def _image_file(msg, msgtype: str) -> tuple[bytes, str]:
     step_items = int(msg.step) // data.itemsize
     channels = {"mono8": 1, "8uc1": 1, "mono16": 1, "16uc1": 1, "rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4}
     if enc not in channels:
-        raise InputError(f"image encoding {msg.encoding!r} is not read",
-                         expected="mono8, mono16, rgb8, bgr8, rgba8 or bgra8 (or a CompressedImage topic)")
+        raise InputError(
+            f"image encoding {msg.encoding!r} is not read",
+            expected="mono8, mono16, rgb8, bgr8, rgba8 or bgra8 (or a CompressedImage topic)",
+        )
     c = channels[enc]
     img = data.reshape(h, step_items)[:, : w * c].reshape(h, w, c) if c > 1 else data.reshape(h, step_items)[:, :w]
     if enc == "rgb8":
@@ -264,12 +283,25 @@ def _intrinsics(msg, *, use: str) -> tuple[Optional[dict], str]:
     if K.size != 9 or K[0] <= 0 or K[4] <= 0:
         return None, "none (CameraInfo has no calibration: K is zero); estimated from the images"
     if model != "plumb_bob" or len(D) not in (0, 4, 5):
-        return None, (f"none (CameraInfo's {model} with {len(D)} coefficients is not handeye's 5-coefficient "
-                      "model); estimated from the images")
+        return None, (
+            f"none (CameraInfo's {model} with {len(D)} coefficients is not handeye's 5-coefficient "
+            "model); estimated from the images"
+        )
     dist = (D + [0.0] * 5)[:5]
-    return ({"model": "opencv5", "distortion_model": "plumb_bob", "fx": float(K[0]), "fy": float(K[4]),
-             "cx": float(K[2]), "cy": float(K[5]), "dist": dist, "image_size": [int(msg.width), int(msg.height)],
-             "use": use}, f"from CameraInfo (use: {use})")
+    return (
+        {
+            "model": "opencv5",
+            "distortion_model": "plumb_bob",
+            "fx": float(K[0]),
+            "fy": float(K[4]),
+            "cx": float(K[2]),
+            "cy": float(K[5]),
+            "dist": dist,
+            "image_size": [int(msg.width), int(msg.height)],
+            "use": use,
+        },
+        f"from CameraInfo (use: {use})",
+    )
 
 
 # ------------------------------------------------------------------------------ the importer
@@ -283,31 +315,42 @@ def _open_reader(bag: Path):
         reader = AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
     except (AnyReaderError, OSError, ValueError, KeyError) as e:
-        raise InputError(f"not a readable ROS bag ({e})", path=bag,
-                         expected="a ROS 1 .bag file or a ROS 2 bag folder (sqlite3 or MCAP)") from None
+        raise InputError(
+            f"not a readable ROS bag ({e})",
+            path=bag,
+            expected="a ROS 1 .bag file or a ROS 2 bag folder (sqlite3 or MCAP)",
+        ) from None
     return reader
 
 
 def _connections(reader, bag: Path, image_topic: str, camera_info_topic: Optional[str]):
     """(image connection, CameraInfo connection or None, TF connections); a missing topic is named with
-    the ones the bag has."""
+    the ones the bag has.
+    """
     conns = {c.topic: c for c in reader.connections}
     kinds = {t: c.msgtype.split("/")[-1] for t, c in conns.items()}
     if kinds.get(image_topic) not in ("Image", "CompressedImage"):
         images = sorted(t for t, k in kinds.items() if k in ("Image", "CompressedImage"))
-        raise InputError(f"no image topic {image_topic!r} in the bag", path=bag,
-                         expected="one of " + (", ".join(images) or "(no image topics)"))
+        raise InputError(
+            f"no image topic {image_topic!r} in the bag",
+            path=bag,
+            expected="one of " + (", ".join(images) or "(no image topics)"),
+        )
     if camera_info_topic is None:
         guess = image_topic.rsplit("/", 1)[0] + "/camera_info"
         camera_info_topic = guess if kinds.get(guess) == "CameraInfo" else None
     elif kinds.get(camera_info_topic) != "CameraInfo":
-        raise InputError(f"no camera info topic {camera_info_topic!r} in the bag", path=bag,
-                         expected="one of " + (", ".join(sorted(t for t, k in kinds.items() if k == "CameraInfo"))
-                                               or "(no CameraInfo topics)"))
+        raise InputError(
+            f"no camera info topic {camera_info_topic!r} in the bag",
+            path=bag,
+            expected="one of "
+            + (", ".join(sorted(t for t, k in kinds.items() if k == "CameraInfo")) or "(no CameraInfo topics)"),
+        )
     tf_conns = [c for c in reader.connections if kinds[c.topic] == "TFMessage"]
     if not tf_conns:
-        raise InputError("the bag has no TF (tf2_msgs/TFMessage) topic", path=bag,
-                         hint="record /tf and /tf_static with the images")
+        raise InputError(
+            "the bag has no TF (tf2_msgs/TFMessage) topic", path=bag, hint="record /tf and /tf_static with the images"
+        )
     return conns[image_topic], (conns[camera_info_topic] if camera_info_topic else None), tf_conns
 
 
@@ -336,7 +379,8 @@ def _read_tf(reader, tf_conns, info_conn) -> tuple[dict, object]:
 
 def pick_images(periods, stamps: np.ndarray, *, margin_s: float) -> tuple[list[tuple[int, float, float]], int]:
     """One image per still period: (index into ``stamps``, period start, end) of the image nearest the
-    period's middle among those at least ``margin_s`` inside it, and how many periods had none."""
+    period's middle among those at least ``margin_s`` inside it, and how many periods had none.
+    """
     picked, without = [], 0
     for a, b in periods:
         inside = np.flatnonzero((stamps >= a + margin_s) & (stamps <= b - margin_s))
@@ -357,13 +401,24 @@ def _pose_at(edges, chain, times: np.ndarray, T_all: np.ndarray, t_img: float, a
     return T, float(np.min(np.abs(near - t_img)) * 1e3), mm, deg
 
 
-def import_rosbag(bag: str | Path, out: str | Path, *, image_topic: str, base_frame: str, end_frame: str,
-                  target: dict, camera_info_topic: Optional[str] = None, mode: Optional[str] = None,
-                  stillness: Optional[Stillness] = None, intrinsics_use: str = "prior") -> RosbagImport:
+def import_rosbag(
+    bag: str | Path,
+    out: str | Path,
+    *,
+    image_topic: str,
+    base_frame: str,
+    end_frame: str,
+    target: dict,
+    camera_info_topic: Optional[str] = None,
+    mode: Optional[str] = None,
+    stillness: Optional[Stillness] = None,
+    intrinsics_use: str = "prior",
+) -> RosbagImport:
     """Write ``out/session.yaml`` and ``out/images/`` from the bag (see the module's description).
 
     ``target`` is the session's ``target:`` mapping (the bag does not say which board was seen);
-    ``camera_info_topic`` defaults to ``camera_info`` beside the image topic when the bag has it."""
+    ``camera_info_topic`` defaults to ``camera_info`` beside the image topic when the bag has it.
+    """
     import yaml
 
     from ..output import atomic_write_bytes, atomic_write_text
@@ -379,8 +434,11 @@ def import_rosbag(bag: str | Path, out: str | Path, *, image_topic: str, base_fr
         chain = _chain(edges, _frame(base_frame), _frame(end_frame), bag=bag)
         dyn = [edges[e].t for e, _ in chain if not edges[e].static]
         if not dyn:
-            raise InputError(f"{base_frame} -> {end_frame} is static in the bag's TF", path=bag,
-                             hint="pass the robot's base and flange frames, whose transform the robot publishes")
+            raise InputError(
+                f"{base_frame} -> {end_frame} is static in the bag's TF",
+                path=bag,
+                hint="pass the robot's base and flange frames, whose transform the robot publishes",
+            )
         times = np.unique(np.concatenate(dyn))
         T_all = _compose(edges, chain, times)
         periods = still_periods(times, T_all, st)
@@ -388,17 +446,25 @@ def import_rosbag(bag: str | Path, out: str | Path, *, image_topic: str, base_fr
             raise InputError(
                 f"no still periods in the bag: {base_frame} -> {end_frame} never stood still for {st.min_still_s:g} s "
                 f"(speed under {st.still_trans_mm_s:g} mm/s and {st.still_rot_deg_s:g} deg/s over "
-                f"{st.speed_window_s:g} s)", path=bag, code="no_still_periods",
+                f"{st.speed_window_s:g} s)",
+                path=bag,
+                code="no_still_periods",
                 hint="check --base/--end, or loosen --still-trans-mm-s / --still-rot-deg-s / --min-still-s if the "
-                     "arm's TF jitters at rest")
-        img_stamps = [(_raw_header_stamp(raw, ros2=reader.is2) or t_bag * 1e-9, t_bag)  # stamps only, no pixels
-                      for _, t_bag, raw in reader.messages(connections=[img_conn])]
+                "arm's TF jitters at rest",
+            )
+        img_stamps = [
+            (_raw_header_stamp(raw, ros2=reader.is2) or t_bag * 1e-9, t_bag)  # stamps only, no pixels
+            for _, t_bag, raw in reader.messages(connections=[img_conn])
+        ]
         stamps = np.array([s for s, _ in img_stamps], float)
         picked, without = pick_images(periods, stamps, margin_s=st.margin_s)
         if not picked:
-            raise InputError(f"no image inside any of the {len(periods)} still periods (margin {st.margin_s:g} s)",
-                             path=bag, code="no_images_at_rest",
-                             hint=f"check that {image_topic} was recorded while the robot stood still, and the clocks")
+            raise InputError(
+                f"no image inside any of the {len(periods)} still periods (margin {st.margin_s:g} s)",
+                path=bag,
+                code="no_images_at_rest",
+                hint=f"check that {image_topic} was recorded while the robot stood still, and the clocks",
+            )
         wanted = {img_stamps[k][1]: k for k, _, _ in picked}
         files: dict[int, tuple[bytes, str]] = {}
         for conn, t_bag, raw in reader.messages(connections=[img_conn]):
@@ -417,34 +483,64 @@ def import_rosbag(bag: str | Path, out: str | Path, *, image_topic: str, base_fr
         data, ext = files[k]
         rel = f"images/{vid}{ext}"
         atomic_write_bytes(out / rel, data, durable=False)
-        views.append({"id": vid, "image": rel, "pose": [[float(x) for x in row] for row in T],
-                      "t_image": t_img, "t_pose": t_img})
-        report_views.append({"id": vid, "t_image": t_img, "offset_ms": off_ms, "still_period_s": [a, b],
-                             "motion_mm": mm, "motion_deg": deg})
+        views.append(
+            {"id": vid, "image": rel, "pose": [[float(x) for x in row] for row in T], "t_image": t_img, "t_pose": t_img}
+        )
+        report_views.append(
+            {
+                "id": vid,
+                "t_image": t_img,
+                "offset_ms": off_ms,
+                "still_period_s": [a, b],
+                "motion_mm": mm,
+                "motion_deg": deg,
+            }
+        )
     intr, intr_text = (None, "none (no CameraInfo topic); estimated from the images")
     if info is not None:
         intr, intr_text = _intrinsics(info, use=intrinsics_use)
-    doc = {"handeye_session": 1, **({"mode": mode} if mode else {}), "target": target,
-           "pose_format": {"rotation": "matrix", "translation_unit": "m"}, **({"intrinsics": intr} if intr else {})}
+    doc = {
+        "handeye_session": 1,
+        **({"mode": mode} if mode else {}),
+        "target": target,
+        "pose_format": {"rotation": "matrix", "translation_unit": "m"},
+        **({"intrinsics": intr} if intr else {}),
+    }
     max_off = max(v["offset_ms"] for v in report_views)
-    doc["source"] = {"importer": "rosbag", "path": str(bag.resolve()), "image_topic": image_topic,
-                     "camera_info_topic": info_conn.topic if info_conn else None, "base_frame": base_frame,
-                     "end_frame": end_frame,
-                     "tf_chain": [f"{p} -> {c}" if fwd else f"inverse of {p} -> {c}" for (p, c), fwd in chain],
-                     "stillness": {f.name: getattr(st, f.name) for f in fields(st)},
-                     "still_periods": len(periods), "periods_without_image": without,
-                     "max_offset_ms": max_off, "views": report_views}
+    doc["source"] = {
+        "importer": "rosbag",
+        "path": str(bag.resolve()),
+        "image_topic": image_topic,
+        "camera_info_topic": info_conn.topic if info_conn else None,
+        "base_frame": base_frame,
+        "end_frame": end_frame,
+        "tf_chain": [f"{p} -> {c}" if fwd else f"inverse of {p} -> {c}" for (p, c), fwd in chain],
+        "stillness": {f.name: getattr(st, f.name) for f in fields(st)},
+        "still_periods": len(periods),
+        "periods_without_image": without,
+        "max_offset_ms": max_off,
+        "views": report_views,
+    }
     doc["views"] = views
     path = atomic_write_text(out / "session.yaml", yaml.safe_dump(doc, sort_keys=False))
     log.info("rosbag %s: %d still periods, %d views", bag, len(periods), len(views))
-    return RosbagImport(path, len(views), len(periods), without, max_off,
-                        max(v["motion_mm"] for v in report_views), max(v["motion_deg"] for v in report_views),
-                        intr_text, report_views)
+    return RosbagImport(
+        path,
+        len(views),
+        len(periods),
+        without,
+        max_off,
+        max(v["motion_mm"] for v in report_views),
+        max(v["motion_deg"] for v in report_views),
+        intr_text,
+        report_views,
+    )
 
 
 def read_target_file(path: Path) -> tuple[dict, Optional[str]]:
     """(the ``target:`` mapping, the mode it states or None) from a YAML holding a session.yaml-like
-    ``target:`` (and optional ``mode:``) or a vendor config.yaml (``checkerboard_args``)."""
+    ``target:`` (and optional ``mode:``) or a vendor config.yaml (``checkerboard_args``).
+    """
     from .fields import read_yaml
 
     path = Path(path)
@@ -453,8 +549,12 @@ def read_target_file(path: Path) -> tuple[dict, Optional[str]]:
         return dict(d["target"]), d.get("mode")
     if isinstance(d, dict) and isinstance(d.get("checkerboard_args"), dict):
         cb = d["checkerboard_args"]
-        return {"type": "chessboard", "inner_corners": [cb.get("XX"), cb.get("YY")], "square_m": cb.get("L")}, \
-            d.get("mode")
-    raise InputError("no target in the file", path=path,
-                     expected="target: {type: chessboard, inner_corners: [11, 8], square_m: 0.03}, or a vendor "
-                              "config.yaml with checkerboard_args")
+        return {"type": "chessboard", "inner_corners": [cb.get("XX"), cb.get("YY")], "square_m": cb.get("L")}, d.get(
+            "mode"
+        )
+    raise InputError(
+        "no target in the file",
+        path=path,
+        expected="target: {type: chessboard, inner_corners: [11, 8], square_m: 0.03}, or a vendor "
+        "config.yaml with checkerboard_args",
+    )

@@ -1,5 +1,7 @@
 """The ``target:`` section of a session file -> a target spec (chessboard, ChArUco, circle grid, one
-marker, AprilGrid)."""
+marker, AprilGrid).
+"""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -16,8 +18,9 @@ def _int_pair(t: dict, key: str, meaning: str, *, path: Path, minimum: int) -> t
     v = t.get(key)
     if not (isinstance(v, (list, tuple)) and len(v) == 2):
         raise ConfigError(f"target.{key} must be {meaning}", path=path, received=repr(v))
-    pair = tuple(positive_number(v[k], path=path, field=f"target.{key}[{k}]", integer=True, minimum=minimum)
-                 for k in range(2))
+    pair = tuple(
+        positive_number(v[k], path=path, field=f"target.{key}[{k}]", integer=True, minimum=minimum) for k in range(2)
+    )
     check_target_points(pair[0] * pair[1], path=path, field=f"target.{key}")
     return pair
 
@@ -39,21 +42,27 @@ def _charuco(t: dict, path: Path) -> CharucoSpec:
     square = length_m(t.get("square_m"), path=path, field="target.square_m")
     marker = positive_number(t.get("marker_m"), path=path, field="target.marker_m")
     if marker >= square:
-        raise ConfigError("target.marker_m must be smaller than square_m", path=path,
-                          received=f"marker {marker} >= square {square}")
+        raise ConfigError(
+            "target.marker_m must be smaller than square_m", path=path, received=f"marker {marker} >= square {square}"
+        )
     dictionary = _dictionary(t, "DICT_6X6_250", path=path)
     return CharucoSpec(sx, sy, square, marker, dictionary, bool(t.get("legacy_pattern", False)))
 
 
 def _dictionary(t: dict, default: str, *, path: Path) -> str:
     """``target.dictionary``: one of cv2.aruco's predefined dictionaries (AprilTag families included, e.g.
-    DICT_APRILTAG_36h11)."""
+    DICT_APRILTAG_36h11).
+    """
     dictionary = str(t.get("dictionary", default))
     import cv2
 
     if not (dictionary.startswith("DICT_") and hasattr(cv2.aruco, dictionary)):
-        raise ConfigError("unknown ArUco dictionary", path=path, expected="e.g. DICT_6X6_250 or DICT_APRILTAG_36h11",
-                          received=repr(dictionary))
+        raise ConfigError(
+            "unknown ArUco dictionary",
+            path=path,
+            expected="e.g. DICT_6X6_250 or DICT_APRILTAG_36h11",
+            received=repr(dictionary),
+        )
     return dictionary
 
 
@@ -64,8 +73,12 @@ def _marker_id(t: dict, key: str, dictionary: str, *, path: Path, count: int = 1
     v = positive_number(t.get(key, 0), path=path, field=f"target.{key}", integer=True, minimum=-1)
     size = len(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)).bytesList)
     if v + count > size:
-        raise ConfigError(f"target.{key} is beyond the dictionary", path=path,
-                          expected=f"ids 0..{size - 1} of {dictionary}", received=f"{v}..{v + count - 1}")
+        raise ConfigError(
+            f"target.{key} is beyond the dictionary",
+            path=path,
+            expected=f"ids 0..{size - 1} of {dictionary}",
+            received=f"{v}..{v + count - 1}",
+        )
     return int(v)
 
 
@@ -89,23 +102,33 @@ def _circlegrid(t: dict, path: Path) -> CircleGridSpec:
     spacing = length_m(t.get("spacing_m"), path=path, field="target.spacing_m")
     asymmetric, origin_dot = _flag(t, "asymmetric", path=path), _flag(t, "origin_dot", path=path)
     if asymmetric and origin_dot:
-        raise ConfigError("target.origin_dot is for symmetric grids only", path=path,
-                          received="asymmetric: true, origin_dot: true",
-                          hint="an asymmetric grid needs no origin dot; set one of them to false")
+        raise ConfigError(
+            "target.origin_dot is for symmetric grids only",
+            path=path,
+            received="asymmetric: true, origin_dot: true",
+            hint="an asymmetric grid needs no origin dot; set one of them to false",
+        )
     return CircleGridSpec(cols, rows, spacing, asymmetric=asymmetric, origin_dot=origin_dot)
 
 
-_PARSERS = {"chessboard": _chessboard, "charuco": _charuco, "circlegrid": _circlegrid, "marker": _marker,
-            "aprilgrid": _aprilgrid}
+_PARSERS = {
+    "chessboard": _chessboard,
+    "charuco": _charuco,
+    "circlegrid": _circlegrid,
+    "marker": _marker,
+    "aprilgrid": _aprilgrid,
+}
 
 
 def parse_target(t, *, path: Path) -> TargetSpec:
     """The spec a session's ``target:`` mapping describes; ConfigError naming the field otherwise."""
     if not isinstance(t, dict) or "type" not in t:
-        raise ConfigError("target is missing or has no type", path=path,
-                          expected="target: {type: chessboard, inner_corners: [11, 8], square_m: 0.03}")
+        raise ConfigError(
+            "target is missing or has no type",
+            path=path,
+            expected="target: {type: chessboard, inner_corners: [11, 8], square_m: 0.03}",
+        )
     parser = _PARSERS.get(t["type"]) if isinstance(t["type"], str) else None
     if parser is None:
-        raise ConfigError("unknown target type", path=path, expected=" | ".join(TARGET_TYPES),
-                          received=repr(t["type"]))
+        raise ConfigError("unknown target type", path=path, expected=" | ".join(TARGET_TYPES), received=repr(t["type"]))
     return parser(t, path)

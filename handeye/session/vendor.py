@@ -8,6 +8,7 @@ another line format (``pose_format:``, as in session.yaml: :func:`vendor_pose_fo
 these files; the strict loader (:func:`load_vendor_session`) and the lenient reader of the diagnostics
 (:mod:`handeye.session.raw`) both use them.
 """
+
 from __future__ import annotations
 
 import logging
@@ -19,12 +20,22 @@ import numpy as np
 
 from ..conventions import VENDOR_POSE_FORMAT, PoseFormat, T_from_pose_values
 from ..errors import ConfigError, InputError
+from ..output import read_text
 from ..records import Session, View
 from ..targets import ChessboardSpec
-from ..output import read_text
-from .fields import (check_angle_units, check_finite, check_input_file, check_mode, check_target_points,
-                     check_translation_units, length_m, parse_pose_format, positive_number, read_yaml,
-                     session_limits)
+from .fields import (
+    check_angle_units,
+    check_finite,
+    check_input_file,
+    check_mode,
+    check_target_points,
+    check_translation_units,
+    length_m,
+    parse_pose_format,
+    positive_number,
+    read_yaml,
+    session_limits,
+)
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +52,8 @@ VENDOR_DEFAULT_MODE = "eye_in_hand"
 @dataclass(frozen=True)
 class PoseLine:
     """One pose line of poses.txt: its image's number (the pose lines counted from the first image's
-    number), the line number in the file and the numbers as written."""
+    number), the line number in the file and the numbers as written.
+    """
 
     index: int
     lineno: int
@@ -51,7 +63,8 @@ class PoseLine:
 def read_pose_lines(poses_path: Path, *, first: int = 1) -> list[PoseLine]:
     """The pose lines of poses.txt (blank lines, ``#`` comments and a first line of column names skipped),
     numbered from ``first`` (the number of the first image: :func:`first_image_number`); InputError on a
-    line that is not numbers. Counts and units are not checked here."""
+    line that is not numbers. Counts and units are not checked here.
+    """
     raw_lines = read_text(poses_path, what="poses.txt").splitlines()
     out: list[PoseLine] = []
     header = None  # (line number, fields, text) of a first line of column names
@@ -66,14 +79,19 @@ def read_pose_lines(poses_path: Path, *, first: int = 1) -> list[PoseLine]:
         try:  # a line printed as a list or tuple ([x, y, z, rx, ry, rz]) holds the same numbers
             values = np.array([float(f) for f in (f.strip("[]()") for f in fields) if f])
         except ValueError:
-            raise InputError("malformed pose line", path=poses_path, line=lineno,
-                             expected=_POSE_EXPECTED, received=repr(s[:80])) from None
+            raise InputError(
+                "malformed pose line", path=poses_path, line=lineno, expected=_POSE_EXPECTED, received=repr(s[:80])
+            ) from None
         if not out and header is not None:
             if len(header[1]) != values.size:  # not the names of these columns: a pose line gone wrong
-                raise InputError("malformed pose line", path=poses_path, line=header[0], expected=_POSE_EXPECTED,
-                                 received=repr(header[2][:80]),
-                                 hint=f"as column names it names {len(header[1])} columns, the lines hold "
-                                      f"{values.size}")
+                raise InputError(
+                    "malformed pose line",
+                    path=poses_path,
+                    line=header[0],
+                    expected=_POSE_EXPECTED,
+                    received=repr(header[2][:80]),
+                    hint=f"as column names it names {len(header[1])} columns, the lines hold {values.size}",
+                )
             log.debug("%s:%d: column names skipped: %s", poses_path, header[0], header[2][:80])
         check_finite(values, path=poses_path, line=lineno, what="pose line")
         out.append(PoseLine(len(out) + first, lineno, values))
@@ -84,13 +102,16 @@ def read_pose_lines(poses_path: Path, *, first: int = 1) -> list[PoseLine]:
 
 def _is_header(fields: list[str]) -> bool:
     """A line of column names: every field a name (a letter first, no ``=``), none a number (``nan`` and ``inf``
-    are numbers here, so a pose line holding them is still refused as not finite)."""
+    are numbers here, so a pose line holding them is still refused as not finite).
+    """
+
     def number(f: str) -> bool:
         try:
             float(f)
             return True
         except ValueError:
             return False
+
     return bool(fields) and all(_NAME.match(f) and not number(f) and f.lower() not in _NOT_NAMES for f in fields)
 
 
@@ -102,18 +123,29 @@ def read_vendor_config(folder: Path, *, strict: bool = True) -> tuple[Chessboard
     """
     cfg_path = folder / "config.yaml"
     if not cfg_path.exists():
-        raise InputError("config.yaml is missing", path=cfg_path,
-                         hint="rename config.yml to config.yaml" if (folder / "config.yml").exists() else
-                         "add config.yaml with checkerboard_args: {XX: 11, YY: 8, L: 0.03}")
+        raise InputError(
+            "config.yaml is missing",
+            path=cfg_path,
+            hint="rename config.yml to config.yaml"
+            if (folder / "config.yml").exists()
+            else "add config.yaml with checkerboard_args: {XX: 11, YY: 8, L: 0.03}",
+        )
     cfg = read_yaml(cfg_path)
     cb = cfg.get("checkerboard_args")
     if not isinstance(cb, dict):
-        raise ConfigError("checkerboard_args is missing or not a mapping", path=cfg_path,
-                          expected="checkerboard_args: {XX: 11, YY: 8, L: 0.03}", received=repr(cb))
+        raise ConfigError(
+            "checkerboard_args is missing or not a mapping",
+            path=cfg_path,
+            expected="checkerboard_args: {XX: 11, YY: 8, L: 0.03}",
+            received=repr(cb),
+        )
     for key in ("XX", "YY", "L"):
         if key not in cb:
-            raise ConfigError(f"checkerboard_args.{key} is missing", path=cfg_path,
-                              expected="XX (inner corners, long side), YY (short side), L (square, metres)")
+            raise ConfigError(
+                f"checkerboard_args.{key} is missing",
+                path=cfg_path,
+                expected="XX (inner corners, long side), YY (short side), L (square, metres)",
+            )
     xx = positive_number(cb["XX"], path=cfg_path, field="checkerboard_args.XX", integer=True, minimum=1)
     yy = positive_number(cb["YY"], path=cfg_path, field="checkerboard_args.YY", integer=True, minimum=1)
     check_target_points(xx * yy, path=cfg_path, field="checkerboard_args XX x YY")
@@ -128,24 +160,37 @@ def numbered_images(folder: Path) -> dict[int, Path]:
         if f.suffix.lower() in IMAGE_EXTS and _NUMBERED.match(f.stem):
             k = int(f.stem)
             if k in found:
-                raise InputError(f"two images for view {k}: {found[k].name} and {f.name}", path=folder,
-                                 hint="keep one image per number")
+                raise InputError(
+                    f"two images for view {k}: {found[k].name} and {f.name}",
+                    path=folder,
+                    hint="keep one image per number",
+                )
             found[k] = f
     if not found:
-        inside = sorted(d.name for d in folder.iterdir() if d.is_dir() and any(
-            f.suffix.lower() in IMAGE_EXTS and _NUMBERED.match(f.stem) for f in d.iterdir()))
-        prefixed = sorted((f.name for f in folder.iterdir() if f.suffix.lower() in IMAGE_EXTS
-                           and _PREFIXED.match(f.stem)), key=lambda n: int(_PREFIXED.match(Path(n).stem)[2]))
-        hint = (f"the numbered images are in {inside[0]}/: move them next to poses.txt" if inside else
-                f"the images are named {prefixed[0]}, ...: rename them to the number alone (1.jpg, 2.jpg, ...)"
-                if prefixed else None)
+        inside = sorted(
+            d.name
+            for d in folder.iterdir()
+            if d.is_dir() and any(f.suffix.lower() in IMAGE_EXTS and _NUMBERED.match(f.stem) for f in d.iterdir())
+        )
+        prefixed = sorted(
+            (f.name for f in folder.iterdir() if f.suffix.lower() in IMAGE_EXTS and _PREFIXED.match(f.stem)),
+            key=lambda n: int(_PREFIXED.match(Path(n).stem)[2]),
+        )
+        hint = (
+            f"the numbered images are in {inside[0]}/: move them next to poses.txt"
+            if inside
+            else f"the images are named {prefixed[0]}, ...: rename them to the number alone (1.jpg, 2.jpg, ...)"
+            if prefixed
+            else None
+        )
         raise InputError("no numbered images (1.jpg, 2.jpg, ...) in the folder", path=folder, hint=hint)
     return found
 
 
 def vendor_pose_format(cfg: dict, cfg_path: Path) -> PoseFormat:
     """How poses.txt's lines are written: config.yaml's optional ``pose_format:`` (the fields and defaults of
-    session.yaml's), else the vendor's ``x,y,z,rx,ry,rz`` in metres and radians, R = Rz·Ry·Rx."""
+    session.yaml's), else the vendor's ``x,y,z,rx,ry,rz`` in metres and radians, R = Rz·Ry·Rx.
+    """
     if cfg.get("pose_format") is None:
         return VENDOR_POSE_FORMAT
     return parse_pose_format(cfg["pose_format"], path=cfg_path)
@@ -154,12 +199,18 @@ def vendor_pose_format(cfg: dict, cfg_path: Path) -> PoseFormat:
 def _count_hint(n: int, lines: list[PoseLine]) -> str:
     """What a pose line of ``n`` numbers (not 6) may be, and how to say so."""
     first = np.array([pl.values[0] if pl.values.size else np.nan for pl in lines])
-    if n == 7 and all(pl.values.size == 7 for pl in lines) and len(lines) > 1 and (
-            np.array_equal(first, np.arange(len(lines))) or np.array_equal(first, np.arange(1, len(lines) + 1))):
+    if (
+        n == 7
+        and all(pl.values.size == 7 for pl in lines)
+        and len(lines) > 1
+        and (np.array_equal(first, np.arange(len(lines))) or np.array_equal(first, np.arange(1, len(lines) + 1)))
+    ):
         return "the first number of every line counts the lines (a view number): remove that column"
-    guess = {7: "x,y,z and a quaternion: add to config.yaml pose_format: {rotation: quaternion, "
-                "quaternion_order: wxyz} (or xyzw)",
-             16: "a 4x4 matrix row by row: add to config.yaml pose_format: {rotation: matrix}"}.get(n)
+    guess = {
+        7: "x,y,z and a quaternion: add to config.yaml pose_format: {rotation: quaternion, "
+        "quaternion_order: wxyz} (or xyzw)",
+        16: "a 4x4 matrix row by row: add to config.yaml pose_format: {rotation: matrix}",
+    }.get(n)
     return f"{n} numbers may be {guess}" if guess else "write one pose per line: x,y,z,rx,ry,rz"
 
 
@@ -167,23 +218,40 @@ def _check_mixed_units(lines: list[PoseLine], fmt: PoseFormat, poses_path: Path)
     """A few pose lines in other units than the rest (angles beyond a full turn, positions beyond an arm's reach
     on fewer than half of the lines: those lines were written in degrees or millimetres, the others not): an
     InputError naming them, whose fix is to convert those lines (stating a unit for the whole file would
-    misread the others). A whole file in other units is left to the per-line checks, which say how to state it."""
+    misread the others). A whole file in other units is left to the per-line checks, which say how to state it.
+    """
     lim = session_limits()
     rows = [pl for pl in lines if pl.values.size == fmt.n_values and np.all(np.isfinite(pl.values))]
     checks = []
     if fmt.rotation in ("euler", "rotvec") and fmt.angle_unit == "rad":
-        checks.append(("rotation angles beyond 2*pi", "degrees", "radians",
-                       [pl for pl in rows if np.any(np.abs(pl.values[3:6]) > lim["max_angle_rad"])]))
+        checks.append(
+            (
+                "rotation angles beyond 2*pi",
+                "degrees",
+                "radians",
+                [pl for pl in rows if np.any(np.abs(pl.values[3:6]) > lim["max_angle_rad"])],
+            )
+        )
     if fmt.rotation != "matrix" and fmt.translation_unit == "m":
-        checks.append((f"positions beyond an arm's reach ({lim['max_reach_m']:g} m)", "millimetres", "metres",
-                       [pl for pl in rows if np.linalg.norm(pl.values[:3]) > lim["max_reach_m"]]))
+        checks.append(
+            (
+                f"positions beyond an arm's reach ({lim['max_reach_m']:g} m)",
+                "millimetres",
+                "metres",
+                [pl for pl in rows if np.linalg.norm(pl.values[:3]) > lim["max_reach_m"]],
+            )
+        )
     for what, unit, stated, bad in checks:
         if bad and 2 * len(bad) < len(rows):
             named = ", ".join(str(pl.lineno) for pl in bad[:8]) + (", ..." if len(bad) > 8 else "")
-            raise InputError(f"{what} on {len(bad)} of {len(rows)} pose lines (line{'s' if len(bad) > 1 else ''} "
-                             f"{named})", path=poses_path, line=bad[0].lineno, expected=f"every line in {stated}",
-                             hint=f"those lines look like {unit} while the others fit {stated}: convert those lines "
-                                  f"to {stated} (or re-export the poses in one unit)")
+            raise InputError(
+                f"{what} on {len(bad)} of {len(rows)} pose lines (line{'s' if len(bad) > 1 else ''} {named})",
+                path=poses_path,
+                line=bad[0].lineno,
+                expected=f"every line in {stated}",
+                hint=f"those lines look like {unit} while the others fit {stated}: convert those lines "
+                f"to {stated} (or re-export the poses in one unit)",
+            )
 
 
 def first_image_number(images: dict[int, Path]) -> int:
@@ -211,39 +279,73 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
         try:
             T = T_from_pose_values(pl.values, fmt)
         except ValueError as e:
-            hint = ("the lines do not match config.yaml's pose_format: fix one of the two" if stated else
-                    None if pl.values.size == fmt.n_values else _count_hint(pl.values.size, pose_lines))
-            raise InputError(f"bad pose: {e}", path=poses_path, line=pl.lineno,
-                             expected=fmt.describe() if stated else _POSE_EXPECTED, hint=hint) from None
-        check_translation_units(T, path=poses_path, line=pl.lineno, unit=fmt.translation_unit,
-                                or_state="" if stated else "add to config.yaml pose_format: {rotation: euler, "
-                                                          "translation_unit: mm}")
+            hint = (
+                "the lines do not match config.yaml's pose_format: fix one of the two"
+                if stated
+                else None
+                if pl.values.size == fmt.n_values
+                else _count_hint(pl.values.size, pose_lines)
+            )
+            raise InputError(
+                f"bad pose: {e}",
+                path=poses_path,
+                line=pl.lineno,
+                expected=fmt.describe() if stated else _POSE_EXPECTED,
+                hint=hint,
+            ) from None
+        check_translation_units(
+            T,
+            path=poses_path,
+            line=pl.lineno,
+            unit=fmt.translation_unit,
+            or_state="" if stated else "add to config.yaml pose_format: {rotation: euler, translation_unit: mm}",
+        )
         if fmt.rotation in ("euler", "rotvec") and fmt.angle_unit == "rad":
-            check_angle_units(pl.values[3:], path=poses_path, line=pl.lineno,
-                              or_state="" if stated else "add to config.yaml pose_format: {rotation: euler, "
-                                                         "angle_unit: deg}")
+            check_angle_units(
+                pl.values[3:],
+                path=poses_path,
+                line=pl.lineno,
+                or_state="" if stated else "add to config.yaml pose_format: {rotation: euler, angle_unit: deg}",
+            )
         poses.append((pl.lineno, T))
 
     n_pose = len(poses)
     missing = [k for k in sorted(images) if k - first >= n_pose]
     if missing:
-        belongs = "line k of poses.txt belongs to k.jpg" if first else "line k+1 of poses.txt belongs to k.jpg (images numbered from 0)"
-        raise InputError(f"{len(images)} images but {n_pose} pose lines: image {images[missing[0]].name} has no pose line",
-                         path=poses_path, hint=f"{belongs}; add the missing poses (a pose missing in between puts "
-                                               "every later image out of step: the report names where) or remove "
-                                               "the extra images")
+        belongs = (
+            "line k of poses.txt belongs to k.jpg"
+            if first
+            else "line k+1 of poses.txt belongs to k.jpg (images numbered from 0)"
+        )
+        raise InputError(
+            f"{len(images)} images but {n_pose} pose lines: image {images[missing[0]].name} has no pose line",
+            path=poses_path,
+            hint=f"{belongs}; add the missing poses (a pose missing in between puts "
+            "every later image out of step: the report names where) or remove "
+            "the extra images",
+        )
     # Gaps are allowed: a pose line whose image was deleted stays in the session as a dropped view.
     without_image = [k for k in range(first, first + n_pose) if k not in images]
     if without_image:
-        log.warning("%s: pose lines without an image (views dropped): %s", poses_path,
-                    [k + 1 - first for k in without_image])
+        log.warning(
+            "%s: pose lines without an image (views dropped): %s", poses_path, [k + 1 - first for k in without_image]
+        )
     views = []
     for k in sorted(images):
         lineno, T = poses[k - first]
         check_input_file(images[k], what="image", vid=str(k))
         views.append(View(view_id=str(k), image_path=images[k], T_base_end=T, source_line=lineno))
-    return Session(path=folder, format="vendor", mode=sess_mode, target=target, views=tuple(views),
-                   pose_format=fmt.describe(),
-                   mode_source="flag" if mode is not None else ("stated" if cfg_mode else "default"),
-                   meta={"config": cfg, "missing_images": {str(k): k - first + 1 for k in without_image},  # pose line k
-                         "files_read": [folder / "config.yaml", poses_path, *(images[k] for k in sorted(images))]})
+    return Session(
+        path=folder,
+        format="vendor",
+        mode=sess_mode,
+        target=target,
+        views=tuple(views),
+        pose_format=fmt.describe(),
+        mode_source="flag" if mode is not None else ("stated" if cfg_mode else "default"),
+        meta={
+            "config": cfg,
+            "missing_images": {str(k): k - first + 1 for k in without_image},  # pose line k
+            "files_read": [folder / "config.yaml", poses_path, *(images[k] for k in sorted(images))],
+        },
+    )

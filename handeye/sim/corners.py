@@ -6,6 +6,7 @@ the target's corners through the truth with THE projection
 gross robot-pose outliers, and returns a frozen :class:`CornerSession`. The same seed and options
 give the geometry that :func:`handeye.sim.vendor.write_vendor_session` renders to images.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -18,10 +19,29 @@ from ..errors import ConfigError
 from ..mounting import mounting
 from ..records import Detection
 from ..targets import TargetSpec
-from .robot_error import (DEFAULT_ARM, DH_ANGLE_ERROR_DEG, DH_LENGTH_ERROR_MM, ENCODER_SIGMA_DEG, check_model_name,
-                          joints_for_poses, make_kinematic_error, OneConfiguration, report_poses)
-from .scenarios import (DEFAULT_INTRINSICS, DEFAULT_TARGET, arm_workspace, outlier_offset, perturb_T_base_end,
-                        random_streams, sample_hidden_view_pose, sample_setup, sample_view_poses)
+from .robot_error import (
+    DEFAULT_ARM,
+    DH_ANGLE_ERROR_DEG,
+    DH_LENGTH_ERROR_MM,
+    ENCODER_SIGMA_DEG,
+    OneConfiguration,
+    check_model_name,
+    joints_for_poses,
+    make_kinematic_error,
+    report_poses,
+)
+from .scenarios import (
+    DEFAULT_INTRINSICS,
+    DEFAULT_TARGET,
+    arm_workspace,
+    outlier_offset,
+    perturb_T_base_end,
+    random_streams,
+    sample_hidden_view_pose,
+    sample_setup,
+    sample_view_poses,
+)
+
 
 def _frozen(a: np.ndarray) -> np.ndarray:
     a = np.array(a, copy=True)
@@ -90,8 +110,11 @@ class CornerSession:
     def detections(self) -> tuple:
         """:class:`handeye.records.Detection` per visible view (hidden views have none)."""
         size = (self.intrinsics.width, self.intrinsics.height)
-        return tuple(Detection(view_id=vid, corner_ids=ids, image_points=pts, image_size=size)
-                     for vid, ids, pts in zip(self.view_ids, self.corner_ids, self.image_points) if len(ids))
+        return tuple(
+            Detection(view_id=vid, corner_ids=ids, image_points=pts, image_size=size)
+            for vid, ids, pts in zip(self.view_ids, self.corner_ids, self.image_points, strict=False)
+            if len(ids)
+        )
 
 
 def _resolve_view_ids(n_views: int, ids, what: str) -> tuple:
@@ -105,17 +128,28 @@ def _resolve_view_ids(n_views: int, ids, what: str) -> tuple:
     return tuple(sorted(out, key=int))
 
 
-def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: int = 0,
-                        target: TargetSpec = DEFAULT_TARGET, intrinsics: Optional[Intrinsics] = None,
-                        noise_px: float = 0.3, robot_noise: tuple[float, float] = (0.0, 0.0),
-                        outlier_views: Union[int, Sequence[str]] = 0, hidden_views: Sequence[str] = (),
-                        outlier_trans_mm: tuple[float, float] = (5.0, 30.0),
-                        outlier_rot_deg: tuple[float, float] = (2.0, 10.0), robot_error: str = "iid",
-                        arm: str = DEFAULT_ARM, encoder_sigma_deg: float = ENCODER_SIGMA_DEG,
-                        dh_length_error_mm: tuple[float, float] = DH_LENGTH_ERROR_MM,
-                        dh_angle_error_deg: tuple[float, float] = DH_ANGLE_ERROR_DEG,
-                        rig: Optional[tuple] = None, robot_model_seed: Optional[int] = None,
-                        **view_options) -> CornerSession:
+def make_corner_session(
+    *,
+    mode: str = "eye_in_hand",
+    n_views: int = 20,
+    seed: int = 0,
+    target: TargetSpec = DEFAULT_TARGET,
+    intrinsics: Optional[Intrinsics] = None,
+    noise_px: float = 0.3,
+    robot_noise: tuple[float, float] = (0.0, 0.0),
+    outlier_views: Union[int, Sequence[str]] = 0,
+    hidden_views: Sequence[str] = (),
+    outlier_trans_mm: tuple[float, float] = (5.0, 30.0),
+    outlier_rot_deg: tuple[float, float] = (2.0, 10.0),
+    robot_error: str = "iid",
+    arm: str = DEFAULT_ARM,
+    encoder_sigma_deg: float = ENCODER_SIGMA_DEG,
+    dh_length_error_mm: tuple[float, float] = DH_LENGTH_ERROR_MM,
+    dh_angle_error_deg: tuple[float, float] = DH_ANGLE_ERROR_DEG,
+    rig: Optional[tuple] = None,
+    robot_model_seed: Optional[int] = None,
+    **view_options,
+) -> CornerSession:
     """A corner-level synthetic session with ground truth (see module docstring for seeding).
 
     ``noise_px``: Gaussian sigma (px, per coordinate) added to the projected corners.
@@ -141,34 +175,49 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
     intrinsics = DEFAULT_INTRINSICS if intrinsics is None else intrinsics
     n_views = int(n_views)
     if noise_px < 0 or robot_noise[0] < 0 or robot_noise[1] < 0:
-        raise ConfigError("negative noise level", expected="noise_px, robot_noise >= 0",
-                          received=f"noise_px={noise_px}, robot_noise={tuple(robot_noise)}")
+        raise ConfigError(
+            "negative noise level",
+            expected="noise_px, robot_noise >= 0",
+            received=f"noise_px={noise_px}, robot_noise={tuple(robot_noise)}",
+        )
     check_model_name(robot_error)
     if robot_error != "iid" and (robot_noise[0] > 0 or robot_noise[1] > 0):
-        raise ConfigError(f"robot_noise is the iid model's; robot_error is {robot_error!r}",
-                          expected="robot_noise (0, 0) or robot_error 'iid'", received=str(tuple(robot_noise)))
+        raise ConfigError(
+            f"robot_noise is the iid model's; robot_error is {robot_error!r}",
+            expected="robot_noise (0, 0) or robot_error 'iid'",
+            received=str(tuple(robot_noise)),
+        )
     view_ids = tuple(str(k) for k in range(1, n_views + 1))
     hidden = _resolve_view_ids(n_views, hidden_views, "hidden_views")
     rngs = random_streams(seed)
     visible = [v for v in view_ids if v not in hidden]
     if isinstance(outlier_views, (int, np.integer)):
         if not 0 <= int(outlier_views) <= len(visible):
-            raise ConfigError("too many outlier views", expected=f"0..{len(visible)} (visible views)",
-                              received=str(outlier_views))
+            raise ConfigError(
+                "too many outlier views", expected=f"0..{len(visible)} (visible views)", received=str(outlier_views)
+            )
         picked = rngs["outliers"].choice(len(visible), size=int(outlier_views), replace=False)
         outliers = tuple(sorted((visible[i] for i in picked), key=int))
     else:
         outliers = _resolve_view_ids(n_views, outlier_views, "outlier_views")
         if set(outliers) & set(hidden):
-            raise ConfigError("a view cannot be both hidden and an outlier", expected="disjoint id sets",
-                              received=repr(sorted(set(outliers) & set(hidden), key=int)))
+            raise ConfigError(
+                "a view cannot be both hidden and an outlier",
+                expected="disjoint id sets",
+                received=repr(sorted(set(outliers) & set(hidden), key=int)),
+            )
 
     geo = rngs["geometry"]
     kin, pose_ok, scale = None, None, 1.0
     if robot_error == "kinematic":
         model_rng = rngs["robot_model"] if robot_model_seed is None else random_streams(robot_model_seed)["robot_model"]
-        kin = make_kinematic_error(rng=model_rng, arm=arm, length_error_mm=dh_length_error_mm,
-                                   angle_error_deg=dh_angle_error_deg, encoder_sigma_deg=encoder_sigma_deg)
+        kin = make_kinematic_error(
+            rng=model_rng,
+            arm=arm,
+            length_error_mm=dh_length_error_mm,
+            angle_error_deg=dh_angle_error_deg,
+            encoder_sigma_deg=encoder_sigma_deg,
+        )
         scale, sized = arm_workspace(arm, mode=mode, target=target)
         pose_ok = OneConfiguration(kin)  # the views of one capture sequence: one arm configuration
         view_options = {**sized, **view_options}  # a distance range given stays
@@ -178,8 +227,17 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
         T_x, T_board = np.asarray(rig[0], float), np.asarray(rig[1], float)
     for attempt in range(4 if kin is not None else 1):
         try:
-            T_vis = sample_view_poses(mode=mode, n_views=len(visible), rng=geo, T_x=T_x, T_board=T_board,
-                                      target=target, intrinsics=intrinsics, pose_ok=pose_ok, **view_options)
+            T_vis = sample_view_poses(
+                mode=mode,
+                n_views=len(visible),
+                rng=geo,
+                T_x=T_x,
+                T_board=T_board,
+                target=target,
+                intrinsics=intrinsics,
+                pose_ok=pose_ok,
+                **view_options,
+            )
             break
         except ConfigError:
             if kin is None or attempt == 3:
@@ -192,8 +250,9 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
     hid_rng = rngs["hidden"]
     for k, vid in enumerate(view_ids):
         if vid in hidden:
-            T_true[k] = sample_hidden_view_pose(mode=mode, rng=hid_rng, T_x=T_x, T_board=T_board, target=target,
-                                                intrinsics=intrinsics, pose_ok=pose_ok)
+            T_true[k] = sample_hidden_view_pose(
+                mode=mode, rng=hid_rng, T_x=T_x, T_board=T_board, target=target, intrinsics=intrinsics, pose_ok=pose_ok
+            )
         else:
             T_true[k] = next(it)
 
@@ -202,8 +261,9 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
         q_true = joints_for_poses(kin, T_true, configuration=pose_ok)
         q_enc, T_rep = report_poses(kin, q_true, rng=rngs["robot_noise"])
     else:
-        T_rep = perturb_T_base_end(T_true, rng=rngs["robot_noise"], sigma_mm=float(robot_noise[0]),
-                                   sigma_deg=float(robot_noise[1]))
+        T_rep = perturb_T_base_end(
+            T_true, rng=rngs["robot_noise"], sigma_mm=float(robot_noise[0]), sigma_deg=float(robot_noise[1])
+        )
     out_rng = rngs["outliers"]
     for vid in outliers:
         k = view_ids.index(vid)
@@ -223,13 +283,24 @@ def make_corner_session(*, mode: str = "eye_in_hand", n_views: int = 20, seed: i
         uv = uv + px_rng.normal(0.0, float(noise_px), size=uv.shape) if noise_px > 0 else uv
         ids_out.append(_frozen(all_ids))
         pts_out.append(_frozen(uv))
-    return CornerSession(mode=mode, target=target, intrinsics=intrinsics, T_x_true=_frozen(T_x),
-                         T_board_true=_frozen(T_board), view_ids=view_ids, corner_ids=tuple(ids_out),
-                         image_points=tuple(pts_out), T_base_end_true=_frozen(T_true),
-                         T_base_end_reported=_frozen(T_rep), outlier_view_ids=outliers, hidden_view_ids=hidden,
-                         noise_px=float(noise_px), robot_noise=(float(robot_noise[0]), float(robot_noise[1])),
-                         seed=int(seed), robot_error=robot_error,
-                         joints_true=None if q_true is None else _frozen(q_true),
-                         joints_encoder=None if q_enc is None else _frozen(q_enc),
-                         robot_model=None if kin is None else kin.describe())
-
+    return CornerSession(
+        mode=mode,
+        target=target,
+        intrinsics=intrinsics,
+        T_x_true=_frozen(T_x),
+        T_board_true=_frozen(T_board),
+        view_ids=view_ids,
+        corner_ids=tuple(ids_out),
+        image_points=tuple(pts_out),
+        T_base_end_true=_frozen(T_true),
+        T_base_end_reported=_frozen(T_rep),
+        outlier_view_ids=outliers,
+        hidden_view_ids=hidden,
+        noise_px=float(noise_px),
+        robot_noise=(float(robot_noise[0]), float(robot_noise[1])),
+        seed=int(seed),
+        robot_error=robot_error,
+        joints_true=None if q_true is None else _frozen(q_true),
+        joints_encoder=None if q_enc is None else _frozen(q_enc),
+        robot_model=None if kin is None else kin.describe(),
+    )

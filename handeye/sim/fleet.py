@@ -14,6 +14,7 @@ sessions get their pose lines permuted (images carry other views' poses); ``nois
 the robot noise ``noisy_robot`` (a worn arm: the result fails QA on its uncertainty). :func:`write_fleet`
 returns the manifest (also written as ``ROOT/fleet_truth.json``).
 """
+
 from __future__ import annotations
 
 import datetime as _dt
@@ -35,25 +36,45 @@ from .vendor import write_vendor_session
 DEFAULT_BUMP = ((0.9, -0.9, 0.6), (2.0, -1.5, 1.5))
 
 
-def write_fleet(root, *, n_installs: int = 4, sessions_per_install: int = 3, n_views: int = 8,
-                image_size: tuple[int, int] = (640, 360), n_view_sets: int = 3, seed: int = 0,
-                robot_noise: tuple[float, float] = (0.1, 0.02), bumps: Optional[dict] = None,
-                broken: tuple = (), shuffled: tuple = (), noisy: tuple = (),
-                noisy_robot: tuple[float, float] = (4.0, 1.0), start: str = "2026-01-05",
-                days_between: int = 30) -> dict:
+def write_fleet(
+    root,
+    *,
+    n_installs: int = 4,
+    sessions_per_install: int = 3,
+    n_views: int = 8,
+    image_size: tuple[int, int] = (640, 360),
+    n_view_sets: int = 3,
+    seed: int = 0,
+    robot_noise: tuple[float, float] = (0.1, 0.02),
+    bumps: Optional[dict] = None,
+    broken: tuple = (),
+    shuffled: tuple = (),
+    noisy: tuple = (),
+    noisy_robot: tuple[float, float] = (4.0, 1.0),
+    start: str = "2026-01-05",
+    days_between: int = 30,
+) -> dict:
     """Write the fleet under ``root`` (see the module docstring) and return its manifest:
     ``{"sessions": [{"install", "session", "path", "T_end_cam", "T_base_board", "fault"}]}``.
     ``bumps``: {(install index, session index): (rotvec_deg, t_mm)}; ``broken`` / ``shuffled`` /
-    ``noisy``: (install index, session index) pairs. ``robot_noise``: (mm, deg) per axis."""
+    ``noisy``: (install index, session index) pairs. ``robot_noise``: (mm, deg) per axis.
+    """
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     bumps = dict(bumps or {})
     sets_dir = root / ".view_sets"  # hidden: not a session of the fleet
     view_sets = []
     for k in range(n_view_sets):
-        p = write_vendor_session(sets_dir / f"set{k}", n_views=n_views, seed=seed * 1000 + k,
-                                 intrinsics=default_intrinsics(*image_size), supersample=2, workers=1,
-                                 overwrite=True, image_noise=2.0)
+        p = write_vendor_session(
+            sets_dir / f"set{k}",
+            n_views=n_views,
+            seed=seed * 1000 + k,
+            intrinsics=default_intrinsics(*image_size),
+            supersample=2,
+            workers=1,
+            overwrite=True,
+            image_noise=2.0,
+        )
         gt = json.loads((p / "ground_truth.json").read_text(encoding="utf-8"))
         view_sets.append((p, gt))
     day0 = _dt.date.fromisoformat(start)
@@ -69,25 +90,55 @@ def write_fleet(root, *, n_installs: int = 4, sessions_per_install: int = 3, n_v
             day = day0 + _dt.timedelta(days=days_between * j + i)
             out = root / install / day.isoformat()
             src, gt = view_sets[(i + j) % n_view_sets]
-            fault = next((name for name, where in (("broken", broken), ("shuffled", shuffled), ("noisy", noisy),
-                                                   ("bumped", bumps)) if (i, j) in where), None)
-            _write_session(out, src, gt, T_end_cam, T_base_board,
-                           robot_noise=noisy_robot if fault == "noisy" else robot_noise,
-                           rng=random_streams(seed * 1000 + 100 * i + j)["robot_noise"], fault=fault)
-            manifest["sessions"].append({"install": install, "session": day.isoformat(), "path": str(out),
-                                         "T_end_cam": T_end_cam.tolist(), "T_base_board": T_base_board.tolist(),
-                                         "fault": fault})
+            fault = next(
+                (
+                    name
+                    for name, where in (("broken", broken), ("shuffled", shuffled), ("noisy", noisy), ("bumped", bumps))
+                    if (i, j) in where
+                ),
+                None,
+            )
+            _write_session(
+                out,
+                src,
+                gt,
+                T_end_cam,
+                T_base_board,
+                robot_noise=noisy_robot if fault == "noisy" else robot_noise,
+                rng=random_streams(seed * 1000 + 100 * i + j)["robot_noise"],
+                fault=fault,
+            )
+            manifest["sessions"].append(
+                {
+                    "install": install,
+                    "session": day.isoformat(),
+                    "path": str(out),
+                    "T_end_cam": T_end_cam.tolist(),
+                    "T_base_board": T_base_board.tolist(),
+                    "fault": fault,
+                }
+            )
     shutil.rmtree(sets_dir, ignore_errors=True)
     atomic_write_text(root / "fleet_truth.json", to_json(manifest) + "\n")
     return manifest
 
 
-def _write_session(out: Path, src: Path, gt: dict, T_end_cam: np.ndarray, T_base_board: np.ndarray, *,
-                   robot_noise, rng, fault: Optional[str]) -> None:
+def _write_session(
+    out: Path,
+    src: Path,
+    gt: dict,
+    T_end_cam: np.ndarray,
+    T_base_board: np.ndarray,
+    *,
+    robot_noise,
+    rng,
+    fault: Optional[str],
+) -> None:
     out.mkdir(parents=True, exist_ok=True)
     ids = sorted(gt["views"], key=int)
-    T_true = np.stack([T_base_board @ inv_T(np.asarray(gt["views"][v]["T_cam_board_true"])) @ inv_T(T_end_cam)
-                       for v in ids])  # shape (N, 4, 4)
+    T_true = np.stack(
+        [T_base_board @ inv_T(np.asarray(gt["views"][v]["T_cam_board_true"])) @ inv_T(T_end_cam) for v in ids]
+    )  # shape (N, 4, 4)
     T_reported = perturb_T_base_end(T_true, rng=rng, sigma_mm=robot_noise[0], sigma_deg=robot_noise[1])
     lines = [",".join(f"{x:.9f}" for x in pose_values_from_T(T, VENDOR_POSE_FORMAT)) for T in T_reported]
     if fault == "shuffled":  # images carry other views' poses, in no constant shift
@@ -107,7 +158,15 @@ def _write_session(out: Path, src: Path, gt: dict, T_end_cam: np.ndarray, T_base
             shutil.copyfile(src / name, out / name)
     shutil.copyfile(src / "config.yaml", out / "config.yaml")
     atomic_write_text(out / "poses.txt", "\n".join(lines) + "\n")
-    truth = {"handeye_synthetic_ground_truth": 1, "mode": "eye_in_hand", "T_end_cam": T_end_cam.tolist(),
-             "T_base_board": T_base_board.tolist(), "fault": fault, "robot_noise_mm": robot_noise[0],
-             "robot_noise_deg": robot_noise[1], "intrinsics": gt["intrinsics"], "target": gt["target"]}
+    truth = {
+        "handeye_synthetic_ground_truth": 1,
+        "mode": "eye_in_hand",
+        "T_end_cam": T_end_cam.tolist(),
+        "T_base_board": T_base_board.tolist(),
+        "fault": fault,
+        "robot_noise_mm": robot_noise[0],
+        "robot_noise_deg": robot_noise[1],
+        "intrinsics": gt["intrinsics"],
+        "target": gt["target"],
+    }
     atomic_write_text(out / "ground_truth.json", to_json(truth) + "\n")

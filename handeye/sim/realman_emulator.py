@@ -9,6 +9,7 @@ Every loop is bounded and the server stops by itself after ``lifetime_s``.
     with RealmanEmulator(faults=["split", "drop"]) as emu:
         arm = RealmanArm(*emu.address)
 """
+
 from __future__ import annotations
 
 import json
@@ -29,9 +30,19 @@ FAULTS = ("split", "merge", "garbage", "truncate", "silent", "drop", "refuse", "
 
 
 class RealmanEmulator:
-    def __init__(self, *, host: str = "127.0.0.1", port: int = 0, T_base_end: np.ndarray | None = None,
-                 faults=(), errors=(), err_format: str = "list", motion_time_s: float = 0.02,
-                 lifetime_s: float = 30.0, split_delay_s: float = 0.01):
+    def __init__(
+        self,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        T_base_end: np.ndarray | None = None,
+        faults=(),
+        errors=(),
+        err_format: str = "list",
+        motion_time_s: float = 0.02,
+        lifetime_s: float = 30.0,
+        split_delay_s: float = 0.01,
+    ):
         for f in faults:
             if f not in FAULTS:
                 raise ValueError(f"unknown fault {f!r}; expected one of {FAULTS}")
@@ -150,7 +161,7 @@ class RealmanEmulator:
         try:
             if fault == "split":
                 for i in range(0, len(data), 7):
-                    conn.sendall(data[i: i + 7])
+                    conn.sendall(data[i : i + 7])
                     time.sleep(self.split_delay_s)
             else:
                 conn.sendall(data)
@@ -160,7 +171,8 @@ class RealmanEmulator:
 
     def _joint_units(self) -> list | None:
         """The RM65-B's joint angles (0.001 deg) at the current pose (nominal DH, cached per pose), or None
-        when the arm cannot reach it (then the state has no ``joint`` field)."""
+        when the arm cannot reach it (then the state has no ``joint`` field).
+        """
         key = tuple(self.pose_units)
         if getattr(self, "_joints_for", (None,))[0] != key:
             from ..collect.realman import T_base_end_from_realman_pose
@@ -173,8 +185,11 @@ class RealmanEmulator:
         return self._joints_for[1]
 
     def _arm_state(self) -> dict:
-        err = {"list": self.errors or [0], "int": self.errors[0] if self.errors else 0,
-               "dict": {"err_len": len(self.errors), "err": self.errors}}[self.err_format]
+        err = {
+            "list": self.errors or [0],
+            "int": self.errors[0] if self.errors else 0,
+            "dict": {"err_len": len(self.errors), "err": self.errors},
+        }[self.err_format]
         state = {"pose": list(self.pose_units), "err": err}
         joints = self._joint_units()
         if joints is not None:
@@ -190,16 +205,29 @@ class RealmanEmulator:
             self.work_frame = str(cmd.get("frame_name"))
             return self._send(conn, {"command": name, "change_work_frame": True}, fault)
         if name == "get_current_tool_frame":
-            return self._send(conn, {"state": "current_tool_frame", "tool_name": "Arm_Tip",
-                                     "pose": [0, 0, 0, 0, 0, 0], "payload": 0, "position": [0, 0, 0]}, fault)
+            return self._send(
+                conn,
+                {
+                    "state": "current_tool_frame",
+                    "tool_name": "Arm_Tip",
+                    "pose": [0, 0, 0, 0, 0, 0],
+                    "payload": 0,
+                    "position": [0, 0, 0],
+                },
+                fault,
+            )
         if name == "set_arm_stop":
             return self._send(conn, {"command": name, "arm_stop": True}, fault)
         if name in ("movel", "movej_p"):
             pose = cmd.get("pose")
             ok = isinstance(pose, list) and len(pose) == 6 and fault != "refuse" and not self.errors
             if name == "movej_p":
-                ack = {"state": "pose_state", "pose": list(self.pose_units), "joint": [0] * 6,
-                       "arm_err": 0 if ok else 0x1003}
+                ack = {
+                    "state": "pose_state",
+                    "pose": list(self.pose_units),
+                    "joint": [0] * 6,
+                    "arm_err": 0 if ok else 0x1003,
+                }
             else:
                 ack = {"command": name, "receive_state": ok}
             if not self._send(conn, ack, fault if fault not in ("refuse", "fail_motion") else None):
@@ -211,6 +239,14 @@ class RealmanEmulator:
             if success:
                 with self._lock:
                     self.pose_units = [int(v) for v in pose]
-            return self._send(conn, {"state": "current_trajectory_state", "trajectory_state": success,
-                                     "device": 0, "trajectory_connect": 0}, None)
+            return self._send(
+                conn,
+                {
+                    "state": "current_trajectory_state",
+                    "trajectory_state": success,
+                    "device": 0,
+                    "trajectory_connect": 0,
+                },
+                None,
+            )
         return self._send(conn, {"command": name, "error": "unknown command"}, fault)

@@ -12,6 +12,7 @@ geometry is that of ``cv2.projectPoints``.
 Pixel convention (OpenCV's): pixel (u, v) has its centre at integer coordinates; the image spans
 [-0.5, W-0.5] x [-0.5, H-0.5]. Sub-sample k of s sits at ``u + (k + 0.5) / s - 0.5``.
 """
+
 from __future__ import annotations
 
 import logging
@@ -25,7 +26,7 @@ import numpy as np
 from ..camera import Intrinsics, pixels_from_cam_points
 from ..collect.visibility import pattern_bounds
 from ..errors import ConfigError
-from ..targets import AprilGridSpec, ChessboardSpec, CharucoSpec, MarkerSpec, TargetSpec
+from ..targets import AprilGridSpec, CharucoSpec, ChessboardSpec, MarkerSpec, TargetSpec
 
 log = logging.getLogger(__name__)
 
@@ -47,8 +48,15 @@ _tex_cache: dict = {}
 
 
 def _intrinsics_key(intrinsics: Intrinsics) -> tuple:
-    return (float(intrinsics.fx), float(intrinsics.fy), float(intrinsics.cx), float(intrinsics.cy),
-            tuple(float(d) for d in intrinsics.dist), int(intrinsics.width), int(intrinsics.height))
+    return (
+        float(intrinsics.fx),
+        float(intrinsics.fy),
+        float(intrinsics.cx),
+        float(intrinsics.cy),
+        tuple(float(d) for d in intrinsics.dist),
+        int(intrinsics.width),
+        int(intrinsics.height),
+    )
 
 
 def _sample_coords(n: int, s: int) -> np.ndarray:
@@ -56,8 +64,9 @@ def _sample_coords(n: int, s: int) -> np.ndarray:
     return (np.arange(n * s, dtype=float) + 0.5) / s - 0.5
 
 
-def _newton_undistort(x: np.ndarray, y: np.ndarray, xt: np.ndarray, yt: np.ndarray, dist, *,
-                      iterations: int) -> tuple[np.ndarray, np.ndarray]:
+def _newton_undistort(
+    x: np.ndarray, y: np.ndarray, xt: np.ndarray, yt: np.ndarray, dist, *, iterations: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Solve distort(x, y) = (xt, yt) by Newton steps from (x, y); all float64 arrays."""
     k1, k2, p1, p2, k3 = (float(v) for v in dist)
     for _ in range(iterations):
@@ -104,12 +113,12 @@ def _build_grid(intrinsics: Intrinsics, s: int) -> np.ndarray:
 
     def work(r0: int) -> float:
         r1 = min(H * s, r0 + s * _CHUNK_OUTPUT_ROWS)
-        map_v = np.ascontiguousarray(np.broadcast_to(((vs[r0:r1] + g) / g).astype(np.float32)[:, None],
-                                                     (r1 - r0, W * s)))
+        map_v = np.ascontiguousarray(
+            np.broadcast_to(((vs[r0:r1] + g) / g).astype(np.float32)[:, None], (r1 - r0, W * s))
+        )
         start = cv2.remap(coarse, map_u[: r1 - r0], map_v, cv2.INTER_LINEAR)
         yt = ((vs[r0:r1] - cy) / fy)[:, None]
-        x, y = _newton_undistort(start[..., 0].astype(float), start[..., 1].astype(float), xt, yt, dist,
-                                 iterations=1)
+        x, y = _newton_undistort(start[..., 0].astype(float), start[..., 1].astype(float), xt, yt, dist, iterations=1)
         u_px, v_px = us[None, :], vs[r0:r1, None]
         res_px = _roundtrip_px(intrinsics, x, y, u_px, v_px)
         if res_px > _ROUNDTRIP_TOL_PX:  # strong distortion near the border: polish further
@@ -117,10 +126,20 @@ def _build_grid(intrinsics: Intrinsics, s: int) -> np.ndarray:
             res_px = _roundtrip_px(intrinsics, x, y, u_px, v_px)
         # Independent check of the float64 solution through cv2.projectPoints (every 97th sample).
         sub_x, sub_y = x.ravel()[::97], y.ravel()[::97]
-        uv, _ = cv2.projectPoints(np.stack([sub_x, sub_y, np.ones_like(sub_x)], 1), np.zeros(3), np.zeros(3),
-                                  intrinsics.K, intrinsics.dist_array)
-        want = np.stack([np.broadcast_to(us[None, :], x.shape).ravel()[::97],
-                         np.broadcast_to(vs[r0:r1, None], x.shape).ravel()[::97]], 1)
+        uv, _ = cv2.projectPoints(
+            np.stack([sub_x, sub_y, np.ones_like(sub_x)], 1),
+            np.zeros(3),
+            np.zeros(3),
+            intrinsics.K,
+            intrinsics.dist_array,
+        )
+        want = np.stack(
+            [
+                np.broadcast_to(us[None, :], x.shape).ravel()[::97],
+                np.broadcast_to(vs[r0:r1, None], x.shape).ravel()[::97],
+            ],
+            1,
+        )
         res_px = max(res_px, float(np.max(np.abs(uv.reshape(-1, 2) - want))))
         grid[r0:r1, :, 0] = x
         grid[r0:r1, :, 1] = y
@@ -129,9 +148,12 @@ def _build_grid(intrinsics: Intrinsics, s: int) -> np.ndarray:
     with ThreadPoolExecutor(_N_THREADS) as pool:
         worst_px = max(pool.map(work, range(0, H * s, s * _CHUNK_OUTPUT_ROWS)))
     if worst_px > _ROUNDTRIP_TOL_PX or not np.all(np.isfinite(grid)):
-        raise ConfigError("cannot invert the lens distortion for rendering",
-                           expected=f"round trip < {_ROUNDTRIP_TOL_PX} px", received=f"{worst_px:.2e} px",
-                           hint="use milder distortion coefficients")
+        raise ConfigError(
+            "cannot invert the lens distortion for rendering",
+            expected=f"round trip < {_ROUNDTRIP_TOL_PX} px",
+            received=f"{worst_px:.2e} px",
+            hint="use milder distortion coefficients",
+        )
     log.debug("undistortion grid %dx%d (x%d): worst float64 round trip %.1e px", W, H, s, worst_px)
     return grid
 
@@ -146,8 +168,11 @@ def undistorted_sample_grid(intrinsics: Intrinsics, *, supersample: int = 4) -> 
     if s < 1 or s > 16:
         raise ConfigError("invalid supersample", expected="1..16 samples per pixel axis", received=str(supersample))
     if intrinsics.width <= 0 or intrinsics.height <= 0:
-        raise ConfigError("intrinsics without an image size", expected="width and height > 0",
-                          received=f"{intrinsics.width}x{intrinsics.height}")
+        raise ConfigError(
+            "intrinsics without an image size",
+            expected="width and height > 0",
+            received=f"{intrinsics.width}x{intrinsics.height}",
+        )
     key = _intrinsics_key(intrinsics) + (s,)
     with _grid_lock:
         grid = _grid_cache.get(key)
@@ -171,8 +196,9 @@ def roundtrip_error_px(intrinsics: Intrinsics, *, supersample: int = 4, stride: 
     idx = np.arange(0, grid.shape[0] * grid.shape[1], int(stride))
     rows, cols = np.divmod(idx, W)
     xy = grid.reshape(-1, 2)[idx].astype(float)
-    uv, _ = cv2.projectPoints(np.c_[xy, np.ones(len(xy))], np.zeros(3), np.zeros(3), intrinsics.K,
-                              intrinsics.dist_array)
+    uv, _ = cv2.projectPoints(
+        np.c_[xy, np.ones(len(xy))], np.zeros(3), np.zeros(3), intrinsics.K, intrinsics.dist_array
+    )
     truth = np.stack([_sample_coords(intrinsics.width, s)[cols], _sample_coords(intrinsics.height, s)[rows]], 1)
     return float(np.max(np.abs(uv.reshape(-1, 2) - truth)))
 
@@ -181,8 +207,15 @@ def roundtrip_error_px(intrinsics: Intrinsics, *, supersample: int = 4, stride: 
 # Textures
 # --------------------------------------------------------------------------------------------
 
-def board_texture(target: TargetSpec, *, margin_squares: int = 1, black: float = BLACK_LEVEL,
-                  white: float = WHITE_LEVEL, charuco_px_per_square: int = 120) -> tuple[np.ndarray, float]:
+
+def board_texture(
+    target: TargetSpec,
+    *,
+    margin_squares: int = 1,
+    black: float = BLACK_LEVEL,
+    white: float = WHITE_LEVEL,
+    charuco_px_per_square: int = 120,
+) -> tuple[np.ndarray, float]:
     """(texture (h, w, 2) float32 = (grey level, 1), texels per square) of the board with its white border.
 
     Texel (i, j) covers board x in [x0 + i, x0 + i + 1) / p squares (x0 = left edge of the white
@@ -205,8 +238,9 @@ def board_texture(target: TargetSpec, *, margin_squares: int = 1, black: float =
     elif isinstance(target, CharucoSpec):
         p = int(charuco_px_per_square)
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, target.dictionary))
-        board = cv2.aruco.CharucoBoard((target.squares_x, target.squares_y), target.square_m, target.marker_m,
-                                       dictionary)
+        board = cv2.aruco.CharucoBoard(
+            (target.squares_x, target.squares_y), target.square_m, target.marker_m, dictionary
+        )
         board.setLegacyPattern(bool(target.legacy_pattern))
         size = ((target.squares_x + 2 * m) * p, (target.squares_y + 2 * m) * p)
         img = board.generateImage(size, marginSize=m * p, borderBits=1)
@@ -214,8 +248,11 @@ def board_texture(target: TargetSpec, *, margin_squares: int = 1, black: float =
     elif isinstance(target, (MarkerSpec, AprilGridSpec)):
         p, grey = _marker_texture(target, m, black, white, int(charuco_px_per_square))
     else:
-        raise ConfigError("unknown target type", expected="a chessboard, ChArUco, marker or AprilGrid spec",
-                          received=type(target).__name__)
+        raise ConfigError(
+            "unknown target type",
+            expected="a chessboard, ChArUco, marker or AprilGrid spec",
+            received=type(target).__name__,
+        )
     tex = np.dstack([grey, np.ones_like(grey)])
     tex.setflags(write=False)
     _tex_cache[key] = (tex, float(p))
@@ -227,13 +264,23 @@ def _marker_texture(target, m: int, black: float, white: float, p_min: int) -> t
 
     Markers come from cv2.aruco's ``generateImageMarker`` (one black border cell, the code inside). The
     texel count per tag side is chosen so that every tag corner and gap square falls on a texel edge
-    (exact corners, as for a chessboard's squares)."""
+    (exact corners, as for a chessboard's squares).
+    """
     spacing = getattr(target, "spacing", 0.0)
-    p = next((q for q in range(max(p_min, 8), 8 * max(p_min, 8) + 1)
-              if q % 8 == 0 and abs(q * spacing - round(q * spacing)) < 1e-6), None)
+    p = next(
+        (
+            q
+            for q in range(max(p_min, 8), 8 * max(p_min, 8) + 1)
+            if q % 8 == 0 and abs(q * spacing - round(q * spacing)) < 1e-6
+        ),
+        None,
+    )
     if p is None:
-        raise ConfigError("AprilGrid spacing cannot be rendered exactly", expected="a spacing with few decimals (e.g. 0.3)",
-                          received=repr(spacing))
+        raise ConfigError(
+            "AprilGrid spacing cannot be rendered exactly",
+            expected="a spacing with few decimals (e.g. 0.3)",
+            received=repr(spacing),
+        )
     x0, x1, y0, y1 = pattern_bounds(target, margin_squares=m)
     per_m = p / target.size_m
     grey = np.full((int(round((y1 - y0) * per_m)), int(round((x1 - x0) * per_m))), white, np.float32)
@@ -250,11 +297,11 @@ def _marker_texture(target, m: int, black: float, white: float, p_min: int) -> t
         for c in range(target.cols + 1):
             for r in range(target.rows + 1):
                 i, j = at(c * target.pitch_m, r * target.pitch_m)
-                grey[i - g:i, j - g:j] = black
-    for tag, o in zip(ids, origins):
+                grey[i - g : i, j - g : j] = black
+    for tag, o in zip(ids, origins, strict=False):
         img = cv2.aruco.generateImageMarker(dictionary, int(tag), p, borderBits=1)
         i, j = at(o[0], o[1])
-        grey[i:i + p, j:j + p] = black + (white - black) * (img.astype(np.float32) / 255.0)
+        grey[i : i + p, j : j + p] = black + (white - black) * (img.astype(np.float32) / 255.0)
     return p, grey
 
 
@@ -280,16 +327,18 @@ def _background(background, width: int, height: int) -> np.ndarray:
             return textured_background(width, height)
         if background == "flat":
             return np.full((height, width), BACKGROUND_LEVEL, np.float32)
-        raise ConfigError("unknown background", expected="'textured' | 'flat' | grey level | image",
-                          received=repr(background))
+        raise ConfigError(
+            "unknown background", expected="'textured' | 'flat' | grey level | image", received=repr(background)
+        )
     if np.isscalar(background):
         return np.full((height, width), float(background), np.float32)
     bg = np.asarray(background)
     if bg.ndim == 3:
         bg = cv2.cvtColor(bg.astype(np.uint8), cv2.COLOR_BGR2GRAY)
     if bg.shape != (height, width):
-        raise ConfigError("background image has the wrong size", expected=f"{height}x{width}",
-                          received="x".join(map(str, bg.shape)))
+        raise ConfigError(
+            "background image has the wrong size", expected=f"{height}x{width}", received="x".join(map(str, bg.shape))
+        )
     return bg.astype(np.float32)
 
 
@@ -297,8 +346,10 @@ def _background(background, width: int, height: int) -> np.ndarray:
 # Rendering
 # --------------------------------------------------------------------------------------------
 
-def _texture_from_normalized(target: TargetSpec, T_cam_board: np.ndarray, *, margin_squares: int,
-                             texels_per_square: float) -> tuple[np.ndarray, np.ndarray]:
+
+def _texture_from_normalized(
+    target: TargetSpec, T_cam_board: np.ndarray, *, margin_squares: int, texels_per_square: float
+) -> tuple[np.ndarray, np.ndarray]:
     """(H_tex (3,3), w_row (3,)): texel coords ~ H_tex @ (x, y, 1); ``w_row @ (x, y, 1)`` = 1/depth."""
     T = np.asarray(T_cam_board, float)
     H_cam_board = np.column_stack([T[:3, 0], T[:3, 1], T[:3, 3]])  # (X, Y, 1) -> z (x, y, 1)
@@ -309,9 +360,16 @@ def _texture_from_normalized(target: TargetSpec, T_cam_board: np.ndarray, *, mar
     return A @ H_board_cam, H_board_cam[2]
 
 
-def render_accumulate(target: TargetSpec, intrinsics: Intrinsics, T_cam_board: np.ndarray, *, supersample: int = 4,
-                      margin_squares: int = 1, black: float = BLACK_LEVEL,
-                      white: float = WHITE_LEVEL) -> tuple[np.ndarray, np.ndarray]:
+def render_accumulate(
+    target: TargetSpec,
+    intrinsics: Intrinsics,
+    T_cam_board: np.ndarray,
+    *,
+    supersample: int = 4,
+    margin_squares: int = 1,
+    black: float = BLACK_LEVEL,
+    white: float = WHITE_LEVEL,
+) -> tuple[np.ndarray, np.ndarray]:
     """(board grey premultiplied by coverage, coverage) per output pixel, both (H, W) float32.
 
     Coverage is the fraction of a pixel's samples that hit the board (white border included).
@@ -346,17 +404,28 @@ def render_accumulate(target: TargetSpec, intrinsics: Intrinsics, T_cam_board: n
             inv_depth = g[..., 0] * w_row[0] + g[..., 1] * w_row[1] + w_row[2]
             m[inv_depth <= min_inv_depth] = -1e6
         samples = cv2.remap(tex, m, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0))
-        acc[r0 // s: r1 // s] = cv2.resize(samples, (W, (r1 - r0) // s), interpolation=cv2.INTER_AREA)
+        acc[r0 // s : r1 // s] = cv2.resize(samples, (W, (r1 - r0) // s), interpolation=cv2.INTER_AREA)
 
     with ThreadPoolExecutor(_N_THREADS) as pool:
         list(pool.map(work, range(0, H * s, rows_per_chunk)))
     return acc[..., 0], acc[..., 1]
 
 
-def render_view(target: TargetSpec, intrinsics: Intrinsics, T_cam_board: np.ndarray, *, supersample: int = 4,
-                blur_sigma_px: float = 0.0, noise_sigma: float = 0.0, rng: Optional[np.random.Generator] = None,
-                background: Union[str, float, np.ndarray] = "textured", channels: int = 1,
-                margin_squares: int = 1, black: float = BLACK_LEVEL, white: float = WHITE_LEVEL) -> np.ndarray:
+def render_view(
+    target: TargetSpec,
+    intrinsics: Intrinsics,
+    T_cam_board: np.ndarray,
+    *,
+    supersample: int = 4,
+    blur_sigma_px: float = 0.0,
+    noise_sigma: float = 0.0,
+    rng: Optional[np.random.Generator] = None,
+    background: Union[str, float, np.ndarray] = "textured",
+    channels: int = 1,
+    margin_squares: int = 1,
+    black: float = BLACK_LEVEL,
+    white: float = WHITE_LEVEL,
+) -> np.ndarray:
     """An 8-bit image (H, W) (``channels=1``) or BGR (H, W, 3) of the target seen from ``T_cam_board``.
 
     Anti-aliased with ``supersample``\\ :sup:`2` samples per pixel through OpenCV's lens model, the
@@ -367,15 +436,26 @@ def render_view(target: TargetSpec, intrinsics: Intrinsics, T_cam_board: np.ndar
     if channels not in (1, 3):
         raise ConfigError("invalid channels", expected="1 (grey) or 3 (BGR)", received=str(channels))
     if blur_sigma_px < 0 or noise_sigma < 0:
-        raise ConfigError("negative blur or noise", expected=">= 0",
-                          received=f"blur_sigma_px={blur_sigma_px}, noise_sigma={noise_sigma}")
+        raise ConfigError(
+            "negative blur or noise",
+            expected=">= 0",
+            received=f"blur_sigma_px={blur_sigma_px}, noise_sigma={noise_sigma}",
+        )
     if noise_sigma > 0 and rng is None:
-        raise ConfigError("image noise needs a random generator", expected="rng=np.random.default_rng(seed)",
-                          received="rng=None")
+        raise ConfigError(
+            "image noise needs a random generator", expected="rng=np.random.default_rng(seed)", received="rng=None"
+        )
     W, H = intrinsics.width, intrinsics.height
     bg = _background(background, W, H)
-    board, cover = render_accumulate(target, intrinsics, T_cam_board, supersample=supersample,
-                                     margin_squares=margin_squares, black=black, white=white)
+    board, cover = render_accumulate(
+        target,
+        intrinsics,
+        T_cam_board,
+        supersample=supersample,
+        margin_squares=margin_squares,
+        black=black,
+        white=white,
+    )
     img = board + (1.0 - cover) * bg
     if blur_sigma_px > 0:
         img = cv2.GaussianBlur(img, (0, 0), float(blur_sigma_px))

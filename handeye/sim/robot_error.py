@@ -22,6 +22,7 @@ encoder noise 0.005 deg per joint (19-bit absolute encoders resolve 0.0007 deg; 
 compliance make the repeatable part a few thousandths of a degree, which at the RM65's 0.6 m
 reach is the +-0.05 mm repeatability).
 """
+
 from __future__ import annotations
 
 import functools
@@ -50,7 +51,8 @@ def check_model_name(name: str) -> str:
 @dataclass(frozen=True)
 class KinematicRobotError:
     """The kinematic robot error of one session: the nominal (published) arm the controller computes
-    with, the true arm, and the per-joint encoder noise sigma (radians)."""
+    with, the true arm, and the per-joint encoder noise sigma (radians).
+    """
 
     nominal: DHChain
     true: DHChain
@@ -64,27 +66,43 @@ class KinematicRobotError:
     def describe(self) -> dict:
         """JSON-ready description (ground_truth.json)."""
         err = self.dh_error
-        return {"model": "kinematic", "arm": self.arm, "arm_name": self.nominal.name,
-                "dh_convention": self.nominal.convention,
-                "dh_columns": ["a_m", "alpha_rad", "d_m", "theta_offset_rad"],
-                "dh_nominal": self.nominal.dh.tolist(), "dh_true": self.true.dh.tolist(),
-                "dh_error_mm_deg": np.column_stack([err[:, 0] * 1e3, np.degrees(err[:, 1]), err[:, 2] * 1e3,
-                                                    np.degrees(err[:, 3])]).tolist(),
-                "encoder_sigma_deg": float(np.degrees(self.encoder_sigma_rad)),
-                "convention": ("T_base_end_reported = FK_nominal(joints_encoder), joints_encoder = joints_true + "
-                               "N(0, encoder_sigma) per joint and view; the flange is at FK_true(joints_true)")}
+        return {
+            "model": "kinematic",
+            "arm": self.arm,
+            "arm_name": self.nominal.name,
+            "dh_convention": self.nominal.convention,
+            "dh_columns": ["a_m", "alpha_rad", "d_m", "theta_offset_rad"],
+            "dh_nominal": self.nominal.dh.tolist(),
+            "dh_true": self.true.dh.tolist(),
+            "dh_error_mm_deg": np.column_stack(
+                [err[:, 0] * 1e3, np.degrees(err[:, 1]), err[:, 2] * 1e3, np.degrees(err[:, 3])]
+            ).tolist(),
+            "encoder_sigma_deg": float(np.degrees(self.encoder_sigma_rad)),
+            "convention": (
+                "T_base_end_reported = FK_nominal(joints_encoder), joints_encoder = joints_true + "
+                "N(0, encoder_sigma) per joint and view; the flange is at FK_true(joints_true)"
+            ),
+        }
 
 
-def sample_true_arm(nominal: DHChain, *, rng: np.random.Generator,
-                    length_error_mm: tuple[float, float] = DH_LENGTH_ERROR_MM,
-                    angle_error_deg: tuple[float, float] = DH_ANGLE_ERROR_DEG) -> DHChain:
+def sample_true_arm(
+    nominal: DHChain,
+    *,
+    rng: np.random.Generator,
+    length_error_mm: tuple[float, float] = DH_LENGTH_ERROR_MM,
+    angle_error_deg: tuple[float, float] = DH_ANGLE_ERROR_DEG,
+) -> DHChain:
     """``nominal`` with every a and d off by a magnitude uniform in ``length_error_mm`` and every alpha
-    and theta_offset by one uniform in ``angle_error_deg``, each with a random sign."""
+    and theta_offset by one uniform in ``angle_error_deg``, each with a random sign.
+    """
     lo_l, hi_l = (float(x) for x in length_error_mm)
     lo_a, hi_a = (float(x) for x in angle_error_deg)
     if not (0 <= lo_l <= hi_l and 0 <= lo_a <= hi_a):
-        raise ConfigError("invalid DH error range", expected="0 <= low <= high",
-                          received=f"length {length_error_mm} mm, angle {angle_error_deg} deg")
+        raise ConfigError(
+            "invalid DH error range",
+            expected="0 <= low <= high",
+            received=f"length {length_error_mm} mm, angle {angle_error_deg} deg",
+        )
     n = nominal.n_joints
     mag = np.empty((n, 4))
     mag[:, [0, 2]] = rng.uniform(lo_l, hi_l, size=(n, 2)) * 1e-3
@@ -93,17 +111,22 @@ def sample_true_arm(nominal: DHChain, *, rng: np.random.Generator,
     return nominal.with_dh(nominal.dh + sign * mag, name=nominal.name + " (perturbed)")
 
 
-def make_kinematic_error(*, rng: np.random.Generator, arm: str = DEFAULT_ARM,
-                         length_error_mm: tuple[float, float] = DH_LENGTH_ERROR_MM,
-                         angle_error_deg: tuple[float, float] = DH_ANGLE_ERROR_DEG,
-                         encoder_sigma_deg: float = ENCODER_SIGMA_DEG) -> KinematicRobotError:
+def make_kinematic_error(
+    *,
+    rng: np.random.Generator,
+    arm: str = DEFAULT_ARM,
+    length_error_mm: tuple[float, float] = DH_LENGTH_ERROR_MM,
+    angle_error_deg: tuple[float, float] = DH_ANGLE_ERROR_DEG,
+    encoder_sigma_deg: float = ENCODER_SIGMA_DEG,
+) -> KinematicRobotError:
     """One session's kinematic robot error (the true arm drawn from ``rng``)."""
     if encoder_sigma_deg < 0:
         raise ConfigError("negative encoder noise", expected=">= 0 deg", received=str(encoder_sigma_deg))
     nominal = load_arm(arm)
     true = sample_true_arm(nominal, rng=rng, length_error_mm=length_error_mm, angle_error_deg=angle_error_deg)
-    return KinematicRobotError(nominal=nominal, true=true, encoder_sigma_rad=float(np.radians(encoder_sigma_deg)),
-                               arm=str(arm))
+    return KinematicRobotError(
+        nominal=nominal, true=true, encoder_sigma_rad=float(np.radians(encoder_sigma_deg)), arm=str(arm)
+    )
 
 
 @functools.lru_cache(maxsize=None)
@@ -111,7 +134,8 @@ def _wrist_reach(arm: str) -> tuple[float, float, float]:
     """(height of the shoulder above the base, last link's d, the largest distance of the wrist point
     from the shoulder) of a preset. The wrist point is the flange minus the last d along the flange z
     (the wrist centre of arms with a spherical wrist). From 4000 configurations within the joint
-    limits (a fixed sample, so always the same)."""
+    limits (a fixed sample, so always the same).
+    """
     chain = load_arm(arm)
     rng = np.random.default_rng(12345)
     lim = chain.joint_limits_rad if chain.joint_limits_rad is not None else np.tile([-np.pi, np.pi], (6, 1))
@@ -124,17 +148,20 @@ def _wrist_reach(arm: str) -> tuple[float, float, float]:
 
 def workspace_scale(arm: str) -> float:
     """How much smaller than the simulator's default rig (made for a 1.3 m reach) the rig must be for ``arm``:
-    the largest wrist distance from the shoulder over 1 m, at most 1."""
+    the largest wrist distance from the shoulder over 1 m, at most 1.
+    """
     return float(min(1.0, _wrist_reach(arm)[2] / 1.0))
 
 
-def reachable(error: KinematicRobotError, T_base_end: np.ndarray, *, margin: float = 0.98,
-              near: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
+def reachable(
+    error: KinematicRobotError, T_base_end: np.ndarray, *, margin: float = 0.98, near: Optional[np.ndarray] = None
+) -> Optional[np.ndarray]:
     """True joint angles (n,) that put the true arm's flange at ``T_base_end``, or None (out of reach).
 
     A wrist point beyond ``margin`` of the arm's largest wrist distance is refused at once; otherwise
     the inverse kinematics decides: from the default seeds (any arm configuration), or with ``near``
-    only from there (the solution a controller reaches from the arm's current configuration)."""
+    only from there (the solution a controller reaches from the arm's current configuration).
+    """
     h, d_last, r = _wrist_reach(error.arm)
     T = np.asarray(T_base_end, float)
     if np.linalg.norm(T[:3, 3] - d_last * T[:3, 2] - [0.0, 0.0, h]) > margin * r:
@@ -150,7 +177,8 @@ class OneConfiguration:
     needs the arm to flip over is not one of the session's. Without this, poses reached in another
     configuration carry a different kinematic error (DH offsets act through other joint angles) than
     the rest, which no real capture sequence does. Call it as ``pose_ok``; ``reference`` is set by the
-    first reachable pose."""
+    first reachable pose.
+    """
 
     def __init__(self, error: KinematicRobotError, *, any_configuration: bool = False):
         self.error = error
@@ -172,7 +200,8 @@ class OneConfiguration:
     def same_configuration(self, q: np.ndarray, *, steps: int = 16) -> bool:
         """Whether the straight joint-space move from the reference to ``q`` (both within the limits) crosses
         no singularity: the sign of det J (the joint Jacobian of the flange pose) stays the same along it.
-        A shoulder, elbow or wrist flip is a crossing of the singularity between the two configurations."""
+        A shoulder, elbow or wrist flip is a crossing of the singularity between the two configurations.
+        """
         s = np.linspace(0.0, 1.0, steps)[:, None]
         path = self.reference[None, :] + s * (np.asarray(q, float) - self.reference)[None, :]
         chain = self.error.true
@@ -183,26 +212,32 @@ class OneConfiguration:
         return self.joints(T_base_end) is not None
 
 
-def joints_for_poses(error: KinematicRobotError, T_base_end_true: np.ndarray, *,
-                     configuration: Optional[OneConfiguration] = None) -> np.ndarray:
+def joints_for_poses(
+    error: KinematicRobotError, T_base_end_true: np.ndarray, *, configuration: Optional[OneConfiguration] = None
+) -> np.ndarray:
     """(N, n) true joint angles of the true arm at each (N,4,4) true flange pose (in ``configuration``
-    when given: the one the poses were sampled in)."""
+    when given: the one the poses were sampled in).
+    """
     out = []
     for k, T in enumerate(np.asarray(T_base_end_true, float).reshape(-1, 4, 4)):
         q = configuration.joints(T) if configuration is not None else reachable(error, T)
         if q is None:
-            raise ConfigError(f"pose {k + 1} is out of reach of the {error.nominal.name}",
-                              expected="poses the arm can reach within its joint limits",
-                              received=f"flange at {np.round(T[:3, 3], 3).tolist()} m",
-                              hint="sample the views with the arm's reachability check (pose_ok)")
+            raise ConfigError(
+                f"pose {k + 1} is out of reach of the {error.nominal.name}",
+                expected="poses the arm can reach within its joint limits",
+                received=f"flange at {np.round(T[:3, 3], 3).tolist()} m",
+                hint="sample the views with the arm's reachability check (pose_ok)",
+            )
         out.append(q)
     return np.array(out).reshape(-1, error.nominal.n_joints)
 
 
-def report_poses(error: KinematicRobotError, joints_true: np.ndarray, *,
-                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def report_poses(
+    error: KinematicRobotError, joints_true: np.ndarray, *, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
     """(joints_encoder (N, n), T_base_end_reported (N,4,4)): the encoder readings and the nominal model's
-    flange poses from them."""
+    flange poses from them.
+    """
     q = np.asarray(joints_true, float).reshape(-1, error.nominal.n_joints)
     q_enc = q + rng.normal(0.0, error.encoder_sigma_rad, size=q.shape)
     return q_enc, error.nominal.T_base_end(q_enc).reshape(-1, 4, 4)
@@ -212,26 +247,42 @@ def write_native_session(folder: Path) -> Path:
     """``session.yaml`` in a simulated kinematic vendor folder (:func:`handeye.sim.vendor.write_vendor_session`
     with ``robot_error="kinematic"``): the same images and reported poses (poses.txt's numbers), each view's
     encoder joint angles (``joints:``) and ``robot:`` naming the arm, so that the refinement uses the
-    kinematic robot error model (a session.yaml is read before poses.txt). Returns its path."""
+    kinematic robot error model (a session.yaml is read before poses.txt). Returns its path.
+    """
     import json
 
     import yaml
 
-    from ..output import atomic_write_text
     from ..kinematics import PRESETS
+    from ..output import atomic_write_text
 
     folder = Path(folder)
     truth = json.loads((folder / "ground_truth.json").read_text(encoding="utf-8"))
     model = truth.get("robot_error") or {}
     if model.get("model") != "kinematic":
-        raise ConfigError("not a kinematic simulated session", path=folder / "ground_truth.json",
-                          expected="robot_error model kinematic", received=repr(model.get("model")))
+        raise ConfigError(
+            "not a kinematic simulated session",
+            path=folder / "ground_truth.json",
+            expected="robot_error model kinematic",
+            received=repr(model.get("model")),
+        )
     lines = [ln for ln in (folder / "poses.txt").read_text(encoding="utf-8").splitlines() if ln.strip()]
     arm = str(model["arm"])
-    views = [{"id": vid, "image": v["image"], "pose": [float(x) for x in lines[k].split(",")],
-              "joints": [float(x) for x in v["joints_encoder"]]}
-             for k, (vid, v) in enumerate(truth["views"].items())]
-    doc = {"handeye_session": 1, "mode": truth["mode"],
-           "robot": arm if arm in PRESETS else str(Path(arm).resolve()),
-           "target": truth["target"], "pose_format": {"rotation": "euler"}, "views": views}
+    views = [
+        {
+            "id": vid,
+            "image": v["image"],
+            "pose": [float(x) for x in lines[k].split(",")],
+            "joints": [float(x) for x in v["joints_encoder"]],
+        }
+        for k, (vid, v) in enumerate(truth["views"].items())
+    ]
+    doc = {
+        "handeye_session": 1,
+        "mode": truth["mode"],
+        "robot": arm if arm in PRESETS else str(Path(arm).resolve()),
+        "target": truth["target"],
+        "pose_format": {"rotation": "euler"},
+        "views": views,
+    }
     return atomic_write_text(folder / "session.yaml", yaml.safe_dump(doc, sort_keys=False))

@@ -15,6 +15,7 @@ Robot noise convention: the reported pose is ``T_base_end_reported = T_base_end_
 ``dT`` is a small transform expressed in the *end* frame (rotation vector with sigma_deg per axis,
 translation with sigma_mm per axis).
 """
+
 from __future__ import annotations
 
 from typing import Callable, Optional, Sequence
@@ -39,7 +40,7 @@ STREAMS = ("geometry", "pixel_noise", "robot_noise", "outliers", "image_noise", 
 def random_streams(seed: int) -> dict:
     """One independent ``np.random.Generator`` per name in :data:`STREAMS`, all from ``seed``."""
     children = np.random.SeedSequence(int(seed)).spawn(len(STREAMS))
-    return {name: np.random.default_rng(ss) for name, ss in zip(STREAMS, children)}
+    return {name: np.random.default_rng(ss) for name, ss in zip(STREAMS, children, strict=False)}
 
 
 # --------------------------------------------------------------------------------------------
@@ -61,13 +62,22 @@ def default_intrinsics(width: int = 1280, height: int = 720, *, dist: Sequence[f
     and principal-point offset scale with ``height / 720``), like the real sensor's modes.
     """
     if int(width) < 16 or int(height) < 16:
-        raise ConfigError("image size too small", expected="width and height >= 16 px",
-                          received=f"{width}x{height}", hint="use e.g. 1280x720 or 640x360")
+        raise ConfigError(
+            "image size too small",
+            expected="width and height >= 16 px",
+            received=f"{width}x{height}",
+            hint="use e.g. 1280x720 or 640x360",
+        )
     s = float(height) / 720.0
-    return Intrinsics(fx=_D435_F_PX_AT_720[0] * s, fy=_D435_F_PX_AT_720[1] * s,
-                      cx=(width - 1) / 2.0 + _D435_PP_OFFSET_AT_720[0] * s,
-                      cy=(height - 1) / 2.0 + _D435_PP_OFFSET_AT_720[1] * s,
-                      dist=tuple(float(x) for x in dist), width=int(width), height=int(height))
+    return Intrinsics(
+        fx=_D435_F_PX_AT_720[0] * s,
+        fy=_D435_F_PX_AT_720[1] * s,
+        cx=(width - 1) / 2.0 + _D435_PP_OFFSET_AT_720[0] * s,
+        cy=(height - 1) / 2.0 + _D435_PP_OFFSET_AT_720[1] * s,
+        dist=tuple(float(x) for x in dist),
+        width=int(width),
+        height=int(height),
+    )
 
 
 DEFAULT_INTRINSICS = default_intrinsics()
@@ -76,6 +86,7 @@ DEFAULT_INTRINSICS = default_intrinsics()
 # --------------------------------------------------------------------------------------------
 # Setup and view poses
 # --------------------------------------------------------------------------------------------
+
 
 def _Rz(a: float) -> np.ndarray:
     return R_from_rotvec([0.0, 0.0, a])
@@ -92,8 +103,7 @@ def _small_tilt(rng: np.random.Generator, max_deg: float) -> np.ndarray:
     return R_from_rotvec(ang * np.array([np.cos(phi), np.sin(phi), 0.0]))
 
 
-def _camera_on_flange(rng: np.random.Generator, c_board: np.ndarray, target: TargetSpec,
-                      scale: float = 1.0) -> tuple:
+def _camera_on_flange(rng: np.random.Generator, c_board: np.ndarray, target: TargetSpec, scale: float = 1.0) -> tuple:
     """(T_end_cam, T_base_board): camera on the flange, board lying face-up on the table."""
     while True:
         radial = rng.uniform(0.04, 0.08)
@@ -110,8 +120,9 @@ def _camera_on_flange(rng: np.random.Generator, c_board: np.ndarray, target: Tar
     return T_x, T_board
 
 
-def _camera_beside_robot(rng: np.random.Generator, c_board: np.ndarray, target: TargetSpec,
-                         scale: float = 1.0) -> tuple:
+def _camera_beside_robot(
+    rng: np.random.Generator, c_board: np.ndarray, target: TargetSpec, scale: float = 1.0
+) -> tuple:
     """(T_base_cam, T_end_board): a fixed camera looking at the workspace, board in the gripper."""
     work = np.array([rng.uniform(0.4, 0.6), rng.uniform(-0.1, 0.1), rng.uniform(0.15, 0.35)]) * scale
     # 1.0-1.5 m; closer for boards smaller than the default, which must come near the camera
@@ -136,8 +147,9 @@ def _camera_beside_robot(rng: np.random.Generator, c_board: np.ndarray, target: 
 _RIG_BY_CAMERA_FRAME = {"end": _camera_on_flange, "base": _camera_beside_robot}
 
 
-def sample_setup(*, mode: str, rng: np.random.Generator, target: TargetSpec = DEFAULT_TARGET,
-                 workspace_scale: float = 1.0) -> dict:
+def sample_setup(
+    *, mode: str, rng: np.random.Generator, target: TargetSpec = DEFAULT_TARGET, workspace_scale: float = 1.0
+) -> dict:
     """A plausible ground-truth rig for ``mode``.
 
     eye_in_hand: camera on the flange (``T_end_cam``: 5-10 cm offset, optical axis within 10 deg
@@ -162,8 +174,9 @@ def sample_setup(*, mode: str, rng: np.random.Generator, target: TargetSpec = DE
     if float(workspace_scale) == 1.0:  # the seeded geometry of every existing session stays as it was
         T_x, T_board = _RIG_BY_CAMERA_FRAME[mount.fixed_frame](rng, board_center(target), target)
     else:
-        T_x, T_board = _RIG_BY_CAMERA_FRAME[mount.fixed_frame](rng, board_center(target), target,
-                                                               float(workspace_scale))
+        T_x, T_board = _RIG_BY_CAMERA_FRAME[mount.fixed_frame](
+            rng, board_center(target), target, float(workspace_scale)
+        )
     return {"mode": mode, "x_name": mount.x_name, "board_name": mount.board_name, "T_x": T_x, "T_board": T_board}
 
 
@@ -178,7 +191,8 @@ def arm_workspace(arm: str, *, mode: str, target: TargetSpec) -> tuple[float, di
     """(workspace scale, view options) of a rig sized for the arm ``arm`` (a preset of
     :mod:`handeye.kinematics`): the scale for :func:`sample_setup` (:func:`handeye.sim.robot_error.workspace_scale`)
     and, with the camera on the arm, the camera-to-board distances (``distance_m`` of
-    :func:`sample_view_poses`) shrunk with the rig, never below 1.5 times the nearest."""
+    :func:`sample_view_poses`) shrunk with the rig, never below 1.5 times the nearest.
+    """
     from .robot_error import workspace_scale
 
     scale = workspace_scale(arm)
@@ -188,8 +202,16 @@ def arm_workspace(arm: str, *, mode: str, target: TargetSpec) -> tuple[float, di
     return scale, {"distance_m": (d_lo, max(1.5 * d_lo, d_hi * scale))}
 
 
-def _T_cam_board_from_view(target: TargetSpec, *, distance_m: float, tilt_rad: float, tilt_dir_rad: float,
-                           roll_rad: float, aim_x_rad: float, aim_y_rad: float) -> np.ndarray:
+def _T_cam_board_from_view(
+    target: TargetSpec,
+    *,
+    distance_m: float,
+    tilt_rad: float,
+    tilt_dir_rad: float,
+    roll_rad: float,
+    aim_x_rad: float,
+    aim_y_rad: float,
+) -> np.ndarray:
     """Camera aimed at the board centre from ``distance_m``, tilted and rolled, then panned slightly."""
     c = board_center(target)
     R_tilt = R_from_rotvec(tilt_rad * np.array([np.cos(tilt_dir_rad), np.sin(tilt_dir_rad), 0.0]))
@@ -199,8 +221,9 @@ def _T_cam_board_from_view(target: TargetSpec, *, distance_m: float, tilt_rad: f
     return inv_T(make_T(R_board_cam, o_board))
 
 
-def _T_base_end_from_T_cam_board(mode: str, T_x: np.ndarray, T_board: np.ndarray,
-                                 T_cam_board: np.ndarray) -> np.ndarray:
+def _T_base_end_from_T_cam_board(
+    mode: str, T_x: np.ndarray, T_board: np.ndarray, T_cam_board: np.ndarray
+) -> np.ndarray:
     """Invert the model: T_cam_board = inv(T_x) · M · T_board  ->  M  ->  T_base_end."""
     mount = mounting(mode)
     M = T_x @ T_cam_board @ inv_T(T_board)
@@ -219,12 +242,25 @@ def plausible_robot_pose(T_base_end: np.ndarray, reach_m: tuple[float, float] = 
     return reach_m[0] <= r <= reach_m[1] and p[2] > MIN_FLANGE_HEIGHT_M
 
 
-def sample_view_poses(*, mode: str, n_views: int, rng: np.random.Generator, T_x: np.ndarray, T_board: np.ndarray,
-                      target: TargetSpec = DEFAULT_TARGET, intrinsics: Optional[Intrinsics] = None,
-                      distance_m: Optional[tuple[float, float]] = None, tilt_deg: tuple[float, float] = (15.0, 40.0),
-                      roll_deg: float = 80.0, aim_deg: float = 6.0, margin_px: Optional[float] = None,
-                      reach_m: tuple[float, float] = REACH_M, min_axis_spread_deg: Optional[float] = None,
-                      max_tries: int = 3000, pose_ok: Optional[Callable[[np.ndarray], bool]] = None) -> np.ndarray:
+def sample_view_poses(
+    *,
+    mode: str,
+    n_views: int,
+    rng: np.random.Generator,
+    T_x: np.ndarray,
+    T_board: np.ndarray,
+    target: TargetSpec = DEFAULT_TARGET,
+    intrinsics: Optional[Intrinsics] = None,
+    distance_m: Optional[tuple[float, float]] = None,
+    tilt_deg: tuple[float, float] = (15.0, 40.0),
+    roll_deg: float = 80.0,
+    aim_deg: float = 6.0,
+    margin_px: Optional[float] = None,
+    reach_m: tuple[float, float] = REACH_M,
+    min_axis_spread_deg: Optional[float] = None,
+    max_tries: int = 3000,
+    pose_ok: Optional[Callable[[np.ndarray], bool]] = None,
+) -> np.ndarray:
     """(N,4,4) robot poses ``T_base_end`` that show the board the way users are told to.
 
     Per view: camera-to-board-centre distance in ``distance_m`` (default
@@ -265,9 +301,14 @@ def sample_view_poses(*, mode: str, n_views: int, rng: np.random.Generator, T_x:
                 else:
                     jd, jr, jp = rng.uniform(size=3)
                 T_cam_board = _T_cam_board_from_view(
-                    target, distance_m=d_lo + (d_hi - d_lo) * jd, tilt_rad=rng.uniform(t_lo, t_hi),
-                    tilt_dir_rad=2 * np.pi * jp, roll_rad=roll * (2 * jr - 1),
-                    aim_x_rad=rng.uniform(-aim, aim), aim_y_rad=rng.uniform(-aim, aim))
+                    target,
+                    distance_m=d_lo + (d_hi - d_lo) * jd,
+                    tilt_rad=rng.uniform(t_lo, t_hi),
+                    tilt_dir_rad=2 * np.pi * jp,
+                    roll_rad=roll * (2 * jr - 1),
+                    aim_x_rad=rng.uniform(-aim, aim),
+                    aim_y_rad=rng.uniform(-aim, aim),
+                )
                 if not board_in_image(target, intrinsics, T_cam_board, margin_px=margin_px):
                     continue
                 T_base_end = _T_base_end_from_T_cam_board(mode, T_x, T_board, T_cam_board)
@@ -278,27 +319,43 @@ def sample_view_poses(*, mode: str, n_views: int, rng: np.random.Generator, T_x:
                 out[k] = T_base_end
                 break
             else:
-                raise ConfigError("cannot place the board in the image", expected=(
-                    f"a view at {d_lo:.2f}-{d_hi:.2f} m showing the whole pattern with {margin_px:.0f} px margin"),
+                raise ConfigError(
+                    "cannot place the board in the image",
+                    expected=(
+                        f"a view at {d_lo:.2f}-{d_hi:.2f} m showing the whole pattern with {margin_px:.0f} px margin"
+                    ),
                     received=f"{max_tries} rejected samples",
-                    hint="increase distance_m, reduce tilt_deg/roll_deg or use a smaller target")
+                    hint="increase distance_m, reduce tilt_deg/roll_deg or use a smaller target",
+                )
         if n_views < 3:
             return out
-        quality = motion_quality(mount.M_from_T_base_end(out), frame=mount.fixed_frame,
-                                 min_axis_spread_deg=min_axis_spread_deg)
+        quality = motion_quality(
+            mount.M_from_T_base_end(out), frame=mount.fixed_frame, min_axis_spread_deg=min_axis_spread_deg
+        )
         if quality.status == "ok":
             return out
-    raise DegenerateMotionError("sampled views do not rotate about two different axes",
-                                expected=f"motion that passes the calibration's gates (rotation >= "
-                                         f"{quality.min_rotation_deg:g} deg, axis spread >= "
-                                         f"{quality.min_axis_spread_deg:g} deg)",
-                                received=f"{quality.reason} (after 20 draws)", hint="widen tilt_deg and roll_deg")
+    raise DegenerateMotionError(
+        "sampled views do not rotate about two different axes",
+        expected=f"motion that passes the calibration's gates (rotation >= "
+        f"{quality.min_rotation_deg:g} deg, axis spread >= "
+        f"{quality.min_axis_spread_deg:g} deg)",
+        received=f"{quality.reason} (after 20 draws)",
+        hint="widen tilt_deg and roll_deg",
+    )
 
 
-def sample_hidden_view_pose(*, mode: str, rng: np.random.Generator, T_x: np.ndarray, T_board: np.ndarray,
-                            target: TargetSpec = DEFAULT_TARGET, intrinsics: Optional[Intrinsics] = None,
-                            reach_m: tuple[float, float] = REACH_M, max_tries: int = 3000,
-                            pose_ok: Optional[Callable[[np.ndarray], bool]] = None) -> np.ndarray:
+def sample_hidden_view_pose(
+    *,
+    mode: str,
+    rng: np.random.Generator,
+    T_x: np.ndarray,
+    T_board: np.ndarray,
+    target: TargetSpec = DEFAULT_TARGET,
+    intrinsics: Optional[Intrinsics] = None,
+    reach_m: tuple[float, float] = REACH_M,
+    max_tries: int = 3000,
+    pose_ok: Optional[Callable[[np.ndarray], bool]] = None,
+) -> np.ndarray:
     """A robot pose ``T_base_end`` (4,4) at which no part of the board is in the image.
 
     A view of the board (distance up to twice the normal range) whose camera is then turned
@@ -310,9 +367,14 @@ def sample_hidden_view_pose(*, mode: str, rng: np.random.Generator, T_x: np.ndar
     d_lo, d_hi = default_distance_m(target)
     for _ in range(max_tries):
         T_cam_board = _T_cam_board_from_view(
-            target, distance_m=rng.uniform(d_lo, 2.0 * d_hi), tilt_rad=np.radians(rng.uniform(0.0, 30.0)),
-            tilt_dir_rad=rng.uniform(0, 2 * np.pi), roll_rad=np.radians(rng.uniform(-80, 80)),
-            aim_x_rad=0.0, aim_y_rad=0.0)
+            target,
+            distance_m=rng.uniform(d_lo, 2.0 * d_hi),
+            tilt_rad=np.radians(rng.uniform(0.0, 30.0)),
+            tilt_dir_rad=rng.uniform(0, 2 * np.pi),
+            roll_rad=np.radians(rng.uniform(-80, 80)),
+            aim_x_rad=0.0,
+            aim_y_rad=0.0,
+        )
         phi = rng.uniform(0.0, 2 * np.pi)
         turn = np.radians(rng.uniform(40.0, 100.0)) * np.array([np.cos(phi), np.sin(phi), 0.0])
         T_cam_board = make_T(R_from_rotvec(turn), np.zeros(3)) @ T_cam_board
@@ -321,18 +383,25 @@ def sample_hidden_view_pose(*, mode: str, rng: np.random.Generator, T_x: np.ndar
         T_base_end = _T_base_end_from_T_cam_board(mode, T_x, T_board, T_cam_board)
         if plausible_robot_pose(T_base_end, reach_m) and (pose_ok is None or pose_ok(T_base_end)):
             return T_base_end
-    raise ConfigError("cannot sample a pose that hides the board", expected="a reachable pose looking away",
-                      received=f"{max_tries} rejected samples", hint="widen reach_m")
+    raise ConfigError(
+        "cannot sample a pose that hides the board",
+        expected="a reachable pose looking away",
+        received=f"{max_tries} rejected samples",
+        hint="widen reach_m",
+    )
 
 
 # --------------------------------------------------------------------------------------------
 # Robot noise and outliers
 # --------------------------------------------------------------------------------------------
 
-def perturb_T_base_end(T_base_end: np.ndarray, *, rng: np.random.Generator, sigma_mm: float,
-                       sigma_deg: float) -> np.ndarray:
+
+def perturb_T_base_end(
+    T_base_end: np.ndarray, *, rng: np.random.Generator, sigma_mm: float, sigma_deg: float
+) -> np.ndarray:
     """``T_base_end @ dT`` with dT in the end frame: rotation vector ~ N(0, sigma_deg) and
-    translation ~ N(0, sigma_mm) per axis. Input (N,4,4), output a new (N,4,4)."""
+    translation ~ N(0, sigma_mm) per axis. Input (N,4,4), output a new (N,4,4).
+    """
     T = np.asarray(T_base_end, float).reshape(-1, 4, 4)
     n = T.shape[0]
     rv = rng.normal(0.0, np.radians(sigma_deg), size=(n, 3))
@@ -341,11 +410,13 @@ def perturb_T_base_end(T_base_end: np.ndarray, *, rng: np.random.Generator, sigm
     return T @ dT
 
 
-def outlier_offset(rng: np.random.Generator, *, trans_mm: tuple[float, float] = (5.0, 30.0),
-                   rot_deg: tuple[float, float] = (2.0, 10.0)) -> np.ndarray:
+def outlier_offset(
+    rng: np.random.Generator, *, trans_mm: tuple[float, float] = (5.0, 30.0), rot_deg: tuple[float, float] = (2.0, 10.0)
+) -> np.ndarray:
     """A gross pose error dT (4,4): random direction, |t| in ``trans_mm``, angle in ``rot_deg``."""
+
     def unit() -> np.ndarray:
         v = rng.normal(size=3)
         return v / np.linalg.norm(v)
-    return T_from_rotvec(np.radians(rng.uniform(*rot_deg)) * unit(), 1e-3 * rng.uniform(*trans_mm) * unit())
 
+    return T_from_rotvec(np.radians(rng.uniform(*rot_deg)) * unit(), 1e-3 * rng.uniform(*trans_mm) * unit())

@@ -6,6 +6,7 @@
 describe (ChArUco, circle grids, markers) get a native ``session.yaml`` with the same views and poses instead
 of ``poses.txt`` and ``config.yaml``.
 """
+
 from __future__ import annotations
 
 import logging
@@ -35,25 +36,47 @@ _VENDOR_FILE_RE = r"^\d+\.(jpg|png)$"
 
 def _clear_previous_session(out: Path, *, overwrite: bool) -> None:
     names = [p.name for p in out.iterdir()] if out.exists() else []
-    ours = [n for n in names if re.match(_VENDOR_FILE_RE, n) or n in ("poses.txt", "config.yaml", "session.yaml",
-                                                                        "ground_truth.json")]
+    ours = [
+        n
+        for n in names
+        if re.match(_VENDOR_FILE_RE, n) or n in ("poses.txt", "config.yaml", "session.yaml", "ground_truth.json")
+    ]
     if not ours:
         return
     if not overwrite:
-        raise ConfigError("output folder already holds a session", path=out,
-                          expected="an empty or new folder", received=f"{len(ours)} session files (e.g. {ours[0]})",
-                          hint="choose another folder or pass overwrite=True")
+        raise ConfigError(
+            "output folder already holds a session",
+            path=out,
+            expected="an empty or new folder",
+            received=f"{len(ours)} session files (e.g. {ours[0]})",
+            hint="choose another folder or pass overwrite=True",
+        )
     for n in ours:
         (out / n).unlink()
 
 
-def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 20, seed: int = 0,
-                         image_noise: float = 0.0, blur_sigma_px: float = 0.0,
-                         robot_noise: tuple[float, float] = (0.0, 0.0), hidden_views: Sequence[str] = (),
-                         outlier_views: Union[int, Sequence[str]] = 0, image_format: str = "jpg",
-                         target: ChessboardSpec = DEFAULT_TARGET, intrinsics: Optional[Intrinsics] = None,
-                         supersample: int = 4, jpeg_quality: int = 95, overwrite: bool = False,
-                         workers: int = 2, robot_error: str = "iid", arm: str = "rm65", **view_options) -> Path:
+def write_vendor_session(
+    out_dir,
+    *,
+    mode: str = "eye_in_hand",
+    n_views: int = 20,
+    seed: int = 0,
+    image_noise: float = 0.0,
+    blur_sigma_px: float = 0.0,
+    robot_noise: tuple[float, float] = (0.0, 0.0),
+    hidden_views: Sequence[str] = (),
+    outlier_views: Union[int, Sequence[str]] = 0,
+    image_format: str = "jpg",
+    target: ChessboardSpec = DEFAULT_TARGET,
+    intrinsics: Optional[Intrinsics] = None,
+    supersample: int = 4,
+    jpeg_quality: int = 95,
+    overwrite: bool = False,
+    workers: int = 2,
+    robot_error: str = "iid",
+    arm: str = "rm65",
+    **view_options,
+) -> Path:
     """Render a synthetic session in the vendor layout (or, for a target other than a chessboard, as a native
     session.yaml with the same poses) and return its folder.
 
@@ -79,12 +102,26 @@ def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 2
     if fmt not in ("jpg", "png"):
         raise ConfigError("unsupported image format", expected="jpg | png", received=repr(image_format))
     if image_noise < 0 or blur_sigma_px < 0:
-        raise ConfigError("negative image noise or blur", expected=">= 0",
-                          received=f"image_noise={image_noise}, blur_sigma_px={blur_sigma_px}")
+        raise ConfigError(
+            "negative image noise or blur",
+            expected=">= 0",
+            received=f"image_noise={image_noise}, blur_sigma_px={blur_sigma_px}",
+        )
     intrinsics = DEFAULT_INTRINSICS if intrinsics is None else intrinsics
-    session = make_corner_session(mode=mode, n_views=n_views, seed=seed, target=target, intrinsics=intrinsics,
-                                  noise_px=0.0, robot_noise=robot_noise, outlier_views=outlier_views,
-                                  hidden_views=hidden_views, robot_error=robot_error, arm=arm, **view_options)
+    session = make_corner_session(
+        mode=mode,
+        n_views=n_views,
+        seed=seed,
+        target=target,
+        intrinsics=intrinsics,
+        noise_px=0.0,
+        robot_noise=robot_noise,
+        outlier_views=outlier_views,
+        hidden_views=hidden_views,
+        robot_error=robot_error,
+        arm=arm,
+        **view_options,
+    )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     _clear_previous_session(out, overwrite=overwrite)
@@ -95,9 +132,16 @@ def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 2
     render.undistorted_sample_grid(intrinsics, supersample=supersample)  # build the cache once
 
     def render_one(k: int) -> str:
-        img = render.render_view(target, intrinsics, T_cam_board[k], supersample=supersample,
-                                       blur_sigma_px=blur_sigma_px, noise_sigma=image_noise, rng=view_rngs[k],
-                                       channels=3)
+        img = render.render_view(
+            target,
+            intrinsics,
+            T_cam_board[k],
+            supersample=supersample,
+            blur_sigma_px=blur_sigma_px,
+            noise_sigma=image_noise,
+            rng=view_rngs[k],
+            channels=3,
+        )
         ok, buf = cv2.imencode("." + fmt, img, encode_params)
         if not ok:  # pragma: no cover - cv2 always encodes jpg/png
             raise ConfigError("image encoding failed", expected=f"a .{fmt} image", received="cv2.imencode False")
@@ -109,17 +153,25 @@ def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 2
     with ThreadPoolExecutor(max(1, int(workers))) as pool:
         names = list(pool.map(render_one, range(session.n_views)))
 
-    values = [[round(float(v), 9) for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)]
-              for T in session.T_base_end_reported]
+    values = [
+        [round(float(v), 9) for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)] for T in session.T_base_end_reported
+    ]
     if isinstance(target, ChessboardSpec):
         lines = [",".join(f"{v:.9f}" for v in vals) for vals in values]
         atomic_write_text(out / "poses.txt", "\n".join(lines) + "\n")
-        config = {"checkerboard_args": {"XX": int(target.cols), "YY": int(target.rows), "L": float(target.square_m)},
-                  "mode": mode}
+        config = {
+            "checkerboard_args": {"XX": int(target.cols), "YY": int(target.rows), "L": float(target.square_m)},
+            "mode": mode,
+        }
         atomic_write_text(out / "config.yaml", yaml.safe_dump(config, sort_keys=False))
     else:  # the vendor layout has no place for other targets: the native session file, same poses
-        doc = {"handeye_session": 1, "mode": mode, "target": target.to_dict(), "pose_format": {"rotation": "euler"},
-               "views": [{"id": vid, "image": names[k], "pose": values[k]} for k, vid in enumerate(session.view_ids)]}
+        doc = {
+            "handeye_session": 1,
+            "mode": mode,
+            "target": target.to_dict(),
+            "pose_format": {"rotation": "euler"},
+            "views": [{"id": vid, "image": names[k], "pose": values[k]} for k, vid in enumerate(session.view_ids)],
+        }
         if getattr(target, "pose_ambiguous", False):
             # four corners a view cannot calibrate a camera: a single-marker session states its intrinsics, as a
             # user of one tag does (the camera's factory values)
@@ -129,19 +181,24 @@ def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 2
     mount = mounting(mode)
     views = {}
     for k, vid in enumerate(session.view_ids):
-        views[vid] = {"image": names[k], "T_base_end_true": session.T_base_end_true[k].tolist(),
-                      "T_base_end_reported": session.T_base_end_reported[k].tolist(),
-                      "T_cam_board_true": T_cam_board[k].tolist(), "hidden": vid in session.hidden_view_ids,
-                      "outlier": vid in session.outlier_view_ids}
+        views[vid] = {
+            "image": names[k],
+            "T_base_end_true": session.T_base_end_true[k].tolist(),
+            "T_base_end_reported": session.T_base_end_reported[k].tolist(),
+            "T_cam_board_true": T_cam_board[k].tolist(),
+            "hidden": vid in session.hidden_view_ids,
+            "outlier": vid in session.outlier_view_ids,
+        }
         if session.joints_encoder is not None:
             views[vid]["joints_encoder"] = session.joints_encoder[k].tolist()
             views[vid]["joints_true"] = session.joints_true[k].tolist()
     truth = {
         "handeye_synthetic_ground_truth": 1,
         "mode": mode,
-        "frames": ("T_a_b maps points of frame b into frame a (p_a = T_a_b @ p_b), metres; cam is the optical "
-                   "frame (x right, y down, z forward); T_cam_board_i = inv(" + mount.x_name + ") . M_i . "
-                   + mount.board_name),
+        "frames": (
+            "T_a_b maps points of frame b into frame a (p_a = T_a_b @ p_b), metres; cam is the optical "
+            "frame (x right, y down, z forward); T_cam_board_i = inv(" + mount.x_name + ") . M_i . " + mount.board_name
+        ),
         mount.x_name: session.T_x_true.tolist(),
         mount.board_name: session.T_board_true.tolist(),
         "target": target.to_dict(),
@@ -154,8 +211,10 @@ def write_vendor_session(out_dir, *, mode: str = "eye_in_hand", n_views: int = 2
             "blur_sigma_px": float(blur_sigma_px),
             "robot_noise_mm": float(session.robot_noise[0]),
             "robot_noise_deg": float(session.robot_noise[1]),
-            "robot_noise_convention": ("T_base_end_reported = T_base_end_true @ dT, dT in the end frame: "
-                                       "per-axis Gaussian rotation vector (deg) and translation (mm)"),
+            "robot_noise_convention": (
+                "T_base_end_reported = T_base_end_true @ dT, dT in the end frame: "
+                "per-axis Gaussian rotation vector (deg) and translation (mm)"
+            ),
             "outlier_trans_mm": list(view_options.get("outlier_trans_mm", (5.0, 30.0))),
             "outlier_rot_deg": list(view_options.get("outlier_rot_deg", (2.0, 10.0))),
             "render_supersample": int(supersample),

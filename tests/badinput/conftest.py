@@ -7,6 +7,7 @@ Sessions are tiny (6 rendered 400x300 views, made once per test process). A sess
 read still gets a result.json from the diagnostics of the failed load; those diagnostics are tested
 elsewhere, so here (``fast_failed_load``) they return at once.
 """
+
 from __future__ import annotations
 
 import shutil
@@ -26,8 +27,15 @@ def tiny_vendor(tmp_path_factory) -> Path:
     from handeye.sim.vendor import write_vendor_session
 
     out = tmp_path_factory.mktemp("badinput") / "vendor"
-    write_vendor_session(out, mode="eye_in_hand", n_views=N_VIEWS, seed=3, intrinsics=default_intrinsics(400, 300),
-                         supersample=2, workers=1)
+    write_vendor_session(
+        out,
+        mode="eye_in_hand",
+        n_views=N_VIEWS,
+        seed=3,
+        intrinsics=default_intrinsics(400, 300),
+        supersample=2,
+        workers=1,
+    )
     return out
 
 
@@ -44,13 +52,30 @@ def tiny_native(tiny_vendor, tmp_path_factory) -> Path:
     for v in s.views:
         shutil.copy(v.image_path, out / v.image_path.name)
     lines = [ln for ln in (tiny_vendor / "poses.txt").read_text().splitlines() if ln.strip()]
-    doc = {"handeye_session": 1, "mode": "eye_in_hand",
-           "target": {"type": "chessboard", "inner_corners": [s.target.cols, s.target.rows],
-                      "square_m": s.target.square_m},
-           "pose_format": {"rotation": "euler", "euler_order": "xyz", "euler_kind": "extrinsic",
-                           "angle_unit": "rad", "translation_unit": "m"},
-           "views": [{"id": v.view_id, "image": v.image_path.name,
-                      "pose": [float(x) for x in lines[int(v.view_id) - 1].split(",")]} for v in s.views]}
+    doc = {
+        "handeye_session": 1,
+        "mode": "eye_in_hand",
+        "target": {
+            "type": "chessboard",
+            "inner_corners": [s.target.cols, s.target.rows],
+            "square_m": s.target.square_m,
+        },
+        "pose_format": {
+            "rotation": "euler",
+            "euler_order": "xyz",
+            "euler_kind": "extrinsic",
+            "angle_unit": "rad",
+            "translation_unit": "m",
+        },
+        "views": [
+            {
+                "id": v.view_id,
+                "image": v.image_path.name,
+                "pose": [float(x) for x in lines[int(v.view_id) - 1].split(",")],
+            }
+            for v in s.views
+        ],
+    }
     (out / "session.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
     return out
 
@@ -58,10 +83,12 @@ def tiny_native(tiny_vendor, tmp_path_factory) -> Path:
 @pytest.fixture
 def copy_session(tmp_path):
     """``copy_session(src, name="s")``: a private copy of a session folder to break."""
+
     def make(src: Path, name: str = "s") -> Path:
         dest = tmp_path / name
         shutil.copytree(src, dest)
         return dest
+
     return make
 
 
@@ -76,6 +103,7 @@ def fast_failed_load(monkeypatch):
 @pytest.fixture
 def run_cli(capsys):
     """``run_cli(*argv) -> (exit code, stderr)``; asserts the failure is one line without a traceback."""
+
     def run(*argv, one_line: bool = True):
         capsys.readouterr()
         try:
@@ -84,11 +112,15 @@ def run_cli(capsys):
             rc = e.code
         cap = capsys.readouterr()
         assert "Traceback" not in cap.err and "Traceback" not in cap.out
-        err_lines = [ln for ln in cap.err.splitlines() if ln.startswith("handeye") and ": error" in ln
-                     or ln.startswith("handeye: ")]
+        err_lines = [
+            ln
+            for ln in cap.err.splitlines()
+            if ln.startswith("handeye") and ": error" in ln or ln.startswith("handeye: ")
+        ]
         if rc not in (0, 7) and one_line:
             assert len(err_lines) == 1, cap.err
         return rc, cap.err
+
     return run
 
 

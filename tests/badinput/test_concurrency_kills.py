@@ -6,6 +6,7 @@ never describes another run than result.json's, and the next run leaves no tempo
 
 The killed runs are forked from the test process (the imports are warm) and kill themselves at a
 named write: before or after the n-th ``os.replace`` onto a file, or inside its ``fsync``."""
+
 from __future__ import annotations
 
 import json
@@ -79,8 +80,9 @@ def run_killed(argv: list, when: str, name: str, nth: int = 1) -> None:
             os.waitpid(pid, 0)
             pytest.fail(f"the run did not reach {when} {name} #{nth} within 120 s")
         time.sleep(0.02)
-    assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGKILL, \
+    assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGKILL, (
         f"the run ended without reaching {when} {name} #{nth}"
+    )
 
 
 def check_folder(out, *, old_run_id: str) -> dict:
@@ -132,30 +134,44 @@ def out(good_result, tmp_path):
 
 
 GOOD_RUN_POINTS = [  # result.json is written once
-    ("before", "3.jpg", 1), ("after", "3.jpg", 1), ("before", "observations.json", 1),
-    ("fsync", "observations.json", 1), ("after", "observations.json", 1), ("before", "result.json", 1),
-    ("fsync", "result.json", 1), ("after", "result.json", 1), ("before", "result.last-good.json", 1),
-    ("fsync", "result.last-good.json", 1), ("after", "result.last-good.json", 1),
+    ("before", "3.jpg", 1),
+    ("after", "3.jpg", 1),
+    ("before", "observations.json", 1),
+    ("fsync", "observations.json", 1),
+    ("after", "observations.json", 1),
+    ("before", "result.json", 1),
+    ("fsync", "result.json", 1),
+    ("after", "result.json", 1),
+    ("before", "result.last-good.json", 1),
+    ("fsync", "result.last-good.json", 1),
+    ("after", "result.last-good.json", 1),
 ]
 
 
 @pytest.mark.parametrize("when, name, nth", GOOD_RUN_POINTS, ids=[f"{w}-{n}-{k}" for w, n, k in GOOD_RUN_POINTS])
 def test_kill_a_calibration(when, name, nth, tiny_vendor, out, bad_session):
     old = json.loads((out / "result.json").read_text())["run_id"]
-    run_killed(["calibrate", tiny_vendor, "--out", out, "--no-refine", "--no-report", "--workers", "1"], when, name, nth)
+    run_killed(
+        ["calibrate", tiny_vendor, "--out", out, "--no-refine", "--no-report", "--workers", "1"], when, name, nth
+    )
     check_folder(out, old_run_id=old)
     next_run_cleans(out, bad_session)
 
 
 FAILING_RUN_POINTS = [  # result.json once, then its reports
-    ("before", "result.previous.json", 1), ("fsync", "result.previous.json", 1), ("after", "result.previous.json", 1),
-    ("before", "result.json", 1), ("fsync", "result.json", 1), ("after", "result.json", 1),
-    ("before", "report.html", 1), ("after", "report.html", 1), ("before", "report.md", 1),
+    ("before", "result.previous.json", 1),
+    ("fsync", "result.previous.json", 1),
+    ("after", "result.previous.json", 1),
+    ("before", "result.json", 1),
+    ("fsync", "result.json", 1),
+    ("after", "result.json", 1),
+    ("before", "report.html", 1),
+    ("after", "report.html", 1),
+    ("before", "report.md", 1),
 ]
 
 
-@pytest.mark.parametrize("when, name, nth", FAILING_RUN_POINTS,
-                         ids=[f"{w}-{n}-{k}" for w, n, k in FAILING_RUN_POINTS])
+@pytest.mark.parametrize("when, name, nth", FAILING_RUN_POINTS, ids=[f"{w}-{n}-{k}" for w, n, k in FAILING_RUN_POINTS])
 def test_kill_a_failing_calibration(when, name, nth, out, bad_session):
     old = json.loads((out / "result.json").read_text())["run_id"]
     run_killed(["calibrate", bad_session, "--out", out], when, name, nth)
@@ -212,13 +228,15 @@ def test_a_stale_lock_is_taken_over(content, out, bad_session, run_cli):
 def test_two_concurrent_runs_one_refused(out, tiny_vendor, tmp_path):
     """Two processes into one folder at once: one writes, the other is refused with exit code 2."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
-    code = ("import sys, time, handeye.workflow as w\n"
-            "real = w._calibrate_locked\n"
-            "def slow(*a, **k):\n    time.sleep(4)\n    return real(*a, **k)\n"
-            "w._calibrate_locked = slow\n"
-            "from handeye.cli import main\n"
-            f"sys.exit(main(['-q', 'calibrate', {str(tiny_vendor)!r}, '--out', {str(out)!r}, '--no-refine', "
-            "'--no-report']))")
+    code = (
+        "import sys, time, handeye.workflow as w\n"
+        "real = w._calibrate_locked\n"
+        "def slow(*a, **k):\n    time.sleep(4)\n    return real(*a, **k)\n"
+        "w._calibrate_locked = slow\n"
+        "from handeye.cli import main\n"
+        f"sys.exit(main(['-q', 'calibrate', {str(tiny_vendor)!r}, '--out', {str(out)!r}, '--no-refine', "
+        "'--no-report']))"
+    )
     first = subprocess.Popen([sys.executable, "-c", code], env=env, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 60
     while not (out / ".handeye.lock").exists() and time.monotonic() < deadline:

@@ -1,5 +1,6 @@
 """Bad input, class "configs": the vendor config.yaml, the site --config and --qa files, and the
 command-line numbers. Each case: exit code 2 and the error names the file (or option) and the field."""
+
 from __future__ import annotations
 
 import codecs
@@ -36,8 +37,11 @@ VENDOR_CONFIG = [
     pytest.param(_cfg(L=None), ["config.yaml", "None"], id="L_null"),
     pytest.param(_cfg() + "mode: sideways\n", ["config.yaml", "sideways"], id="bad_mode"),
     pytest.param(b"\x00\x01\x02" * 50, ["config.yaml", "UTF-16"], id="binary"),
-    pytest.param("checkerboard_args: !!python/object/apply:os.system ['true']\n", ["config.yaml", "YAML"],
-                 id="python_tag_never_runs"),
+    pytest.param(
+        "checkerboard_args: !!python/object/apply:os.system ['true']\n",
+        ["config.yaml", "YAML"],
+        id="python_tag_never_runs",
+    ),
     pytest.param("a: &a [*a]\n", ["config.yaml"], id="recursive_alias"),
 ]
 
@@ -51,11 +55,14 @@ def test_vendor_config(text, culprits, tiny_vendor, copy_session, run_cli, names
     names(err, *culprits)
 
 
-@pytest.mark.parametrize("text", [
-    pytest.param(("# Schachbrett, Kantenlänge 30 mm\n" + _cfg()).encode("latin-1"), id="latin1"),
-    pytest.param(codecs.BOM_UTF8 + _cfg().encode(), id="utf8_bom"),
-    pytest.param(_cfg().encode("utf-16"), id="utf16_bom"),
-])
+@pytest.mark.parametrize(
+    "text",
+    [
+        pytest.param(("# Schachbrett, Kantenlänge 30 mm\n" + _cfg()).encode("latin-1"), id="latin1"),
+        pytest.param(codecs.BOM_UTF8 + _cfg().encode(), id="utf8_bom"),
+        pytest.param(_cfg().encode("utf-16"), id="utf16_bom"),
+    ],
+)
 def test_vendor_config_encodings_are_read(text, tiny_vendor, copy_session, run_cli, tmp_path):
     s = copy_session(tiny_vendor)
     (s / "config.yaml").write_bytes(text)
@@ -77,8 +84,9 @@ SITE_CONFIG = [
     pytest.param("motion: {min_rotation_deg: ten}\n", ["site.yaml", "min_rotation_deg"], id="motion_text"),
     pytest.param("motion: {min_rotation: 10}\n", ["site.yaml", "min_rotation"], id="motion_unknown"),
     pytest.param("motion: {min_rotation_deg: .nan}\n", ["site.yaml", "motion.min_rotation_deg"], id="motion_nan"),
-    pytest.param("motion: {min_axis_spread_deg: -5}\n", ["site.yaml", "motion.min_axis_spread_deg"],
-                 id="motion_negative"),
+    pytest.param(
+        "motion: {min_axis_spread_deg: -5}\n", ["site.yaml", "motion.min_axis_spread_deg"], id="motion_negative"
+    ),
     pytest.param("refine_options: {robot_noise: sometimes}\n", ["site.yaml", "robot_noise"], id="robot_noise"),
     pytest.param("refine_options: {robot_sigma_mm: -1}\n", ["site.yaml", "robot_sigma_mm"], id="sigma_negative"),
     pytest.param("refine_options: {outlier_loop: often}\n", ["site.yaml", "outlier_loop"], id="outlier_loop"),
@@ -169,8 +177,9 @@ COLLECT = [
 
 @pytest.mark.parametrize("argv, option", COLLECT)
 def test_collect_options(argv, option, run_cli, names, tmp_path):
-    rc, err = run_cli("collect", tmp_path / "new", "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim",
-                      "--seed", "1", *argv)
+    rc, err = run_cli(
+        "collect", tmp_path / "new", "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim", "--seed", "1", *argv
+    )
     assert rc == 2, err
     names(err, option)
     assert not (tmp_path / "new").exists()  # refused before anything was written

@@ -1,5 +1,6 @@
 """Bad input, class "images": image paths that are not image files (folders, devices, pipes, links to
 nothing), broken image bytes, one image of another size. Only regular files are ever opened."""
+
 from __future__ import annotations
 
 import os
@@ -12,6 +13,7 @@ def _replace(view: str, make):
         p = s / f"{view}.jpg"
         p.unlink()
         make(p)
+
     return f
 
 
@@ -25,6 +27,7 @@ def _resized(w, h):
         import numpy as np
 
         cv2.imwrite(str(p), np.full((h, w), 128, np.uint8))
+
     return make
 
 
@@ -32,19 +35,27 @@ def _resized(w, h):
 CASES = [
     pytest.param(_replace("3", lambda p: p.mkdir()), 2, ["view 3", "3.jpg", "a folder"], id="folder"),
     pytest.param(_replace("3", lambda p: os.mkfifo(p)), 2, ["view 3", "3.jpg", "named pipe"], id="named_pipe"),
-    pytest.param(_replace("3", lambda p: p.symlink_to("/dev/zero")), 2, ["view 3", "3.jpg", "character device"],
-                 id="dev_zero"),
-    pytest.param(_replace("3", lambda p: p.symlink_to("/dev/null")), 2, ["view 3", "3.jpg", "character device"],
-                 id="dev_null"),
-    pytest.param(_replace("3", lambda p: p.symlink_to(p.parent / "nowhere.jpg")), 2, ["view 3", "3.jpg"],
-                 id="dangling_link"),
+    pytest.param(
+        _replace("3", lambda p: p.symlink_to("/dev/zero")), 2, ["view 3", "3.jpg", "character device"], id="dev_zero"
+    ),
+    pytest.param(
+        _replace("3", lambda p: p.symlink_to("/dev/null")), 2, ["view 3", "3.jpg", "character device"], id="dev_null"
+    ),
+    pytest.param(
+        _replace("3", lambda p: p.symlink_to(p.parent / "nowhere.jpg")), 2, ["view 3", "3.jpg"], id="dangling_link"
+    ),
     pytest.param(_replace("3", lambda p: p.symlink_to(p.parent)), 2, ["view 3", "a folder"], id="link_to_folder"),
     pytest.param(_replace("3", _resized(200, 150)), 2, ["view 3", "200x150", "400x300"], id="other_size"),
     pytest.param(_replace("3", _resized(300, 400)), 2, ["view 3", "300x400"], id="portrait"),
     pytest.param(_replace("1", _resized(800, 600)), 2, ["view 1", "800x600"], id="first_view_other_size"),
     pytest.param(_replace("3", _bytes(b"")), 2, ["3.jpg", "cannot be decoded"], id="empty_file"),
     pytest.param(_replace("3", _bytes(b"not an image at all")), 2, ["3.jpg", "cannot be decoded"], id="text_file"),
-    pytest.param(_replace("3", _bytes(b"\xff\xd8\xff\xe0" + b"\x00" * 100)), 2, ["3.jpg", "cannot be decoded"], id="truncated_jpeg"),
+    pytest.param(
+        _replace("3", _bytes(b"\xff\xd8\xff\xe0" + b"\x00" * 100)),
+        2,
+        ["3.jpg", "cannot be decoded"],
+        id="truncated_jpeg",
+    ),
     pytest.param(_replace("3", _bytes(os.urandom(5000))), 2, ["3.jpg", "cannot be decoded"], id="random_bytes"),
 ]
 
@@ -69,8 +80,9 @@ NATIVE_CASES = [
 
 
 @pytest.mark.parametrize("change, code, culprits", NATIVE_CASES)
-def test_native_image_path(change, code, culprits, tiny_native, copy_session, run_cli, names, fast_failed_load,
-                           tmp_path):
+def test_native_image_path(
+    change, code, culprits, tiny_native, copy_session, run_cli, names, fast_failed_load, tmp_path
+):
     import yaml
 
     s = copy_session(tiny_native)

@@ -1,5 +1,6 @@
 """Bad input, class "importers": malformed ViSP and industrial_calibration folders, and an OUT that
 already holds a session (refused unless --force). Each case: exit code 2 and the file named."""
+
 from __future__ import annotations
 
 import pytest
@@ -11,8 +12,9 @@ POSE = [0.5, 0.1, 0.4, 0.1, 0.2, 0.3]
 def _visp(src, *, n=3, board="Chessboard: 9 x 6\nsquare size: 0.0236 m\n", pose=None):
     src.mkdir(parents=True, exist_ok=True)
     if board is not None:
-        (src / "chessboard-data.txt").write_text(board) if isinstance(board, str) else \
-            (src / "chessboard-data.txt").write_bytes(board)
+        (src / "chessboard-data.txt").write_text(board) if isinstance(board, str) else (
+            src / "chessboard-data.txt"
+        ).write_bytes(board)
     for k in range(1, n + 1):
         (src / f"image-{k}.png").write_bytes(b"x")
         text = pose if pose is not None else "rows: 6\ncols: 1\ndata:\n" + "".join(f"  - [{v}]\n" for v in POSE)
@@ -27,10 +29,10 @@ VISP = [
     pytest.param(dict(n=0), ["no ViSP images"], id="no_images"),
     pytest.param(dict(pose="rows: 6\n"), ["pose_rPe_1.yaml", "vpPoseVector"], id="pose_no_data"),
     pytest.param(dict(pose="data: [1, 2, 3, 4, 5, 6]\n"), ["pose_rPe_1.yaml", "vpPoseVector"], id="pose_flat"),
-    pytest.param(dict(pose="data: [[a], [b], [c], [d], [e], [f]]\n"), ["pose_rPe_1.yaml", "data[0]"],
-                 id="pose_letters"),
-    pytest.param(dict(pose="data: [[.nan], [0], [0], [0], [0], [0]]\n"), ["pose_rPe_1.yaml", "data[0]"],
-                 id="pose_nan"),
+    pytest.param(
+        dict(pose="data: [[a], [b], [c], [d], [e], [f]]\n"), ["pose_rPe_1.yaml", "data[0]"], id="pose_letters"
+    ),
+    pytest.param(dict(pose="data: [[.nan], [0], [0], [0], [0], [0]]\n"), ["pose_rPe_1.yaml", "data[0]"], id="pose_nan"),
     pytest.param(dict(pose="data: {a: 1}\n"), ["pose_rPe_1.yaml"], id="pose_mapping"),
     pytest.param(dict(pose="- 1\n- 2\n"), ["pose_rPe_1.yaml", "mapping"], id="pose_list"),
     pytest.param(dict(pose="data: [[1]\n"), ["pose_rPe_1.yaml", "YAML"], id="pose_bad_yaml"),
@@ -57,12 +59,21 @@ def _ical(src, *, data=None, pose=None, finder=None):
     (src / "images").mkdir(parents=True)
     (src / "poses").mkdir()
     (src / "images" / "0.png").write_bytes(b"x")
-    (src / "poses" / "0.yaml").write_text(yaml.safe_dump(
-        pose if pose is not None else {"x": 0.5, "y": 0.1, "z": 0.4, "qx": 0, "qy": 0, "qz": 0, "qw": 1}))
-    doc = {"data": data if data is not None else [{"image": "images/0.png", "pose": "poses/0.yaml"}],
-           "target_finder": finder if finder is not None else
-           {"type": "CharucoGridTargetFinder", "cols": 5, "rows": 7, "chessboard_dim": 0.036,
-            "aruco_marker_dim": 0.018}}
+    (src / "poses" / "0.yaml").write_text(
+        yaml.safe_dump(pose if pose is not None else {"x": 0.5, "y": 0.1, "z": 0.4, "qx": 0, "qy": 0, "qz": 0, "qw": 1})
+    )
+    doc = {
+        "data": data if data is not None else [{"image": "images/0.png", "pose": "poses/0.yaml"}],
+        "target_finder": finder
+        if finder is not None
+        else {
+            "type": "CharucoGridTargetFinder",
+            "cols": 5,
+            "rows": 7,
+            "chessboard_dim": 0.036,
+            "aruco_marker_dim": 0.018,
+        },
+    }
     (src / "cal_data.yaml").write_text(yaml.safe_dump(doc))
     return src
 
@@ -76,25 +87,34 @@ ICAL = [
     pytest.param(dict(data=[{"image": 3, "pose": "poses/0.yaml"}]), ["cal_data.yaml", "data[0]"], id="image_number"),
     pytest.param(dict(data=[{"image": "images/0.png", "pose": "poses/9.yaml"}]), ["9.yaml"], id="pose_missing"),
     pytest.param(dict(pose={"x": 0.5}), ["0.yaml", "y is not a number"], id="pose_incomplete"),
-    pytest.param(dict(pose={"x": "a", "y": 0, "z": 0, "qx": 0, "qy": 0, "qz": 0, "qw": 1}), ["0.yaml", "x"],
-                 id="pose_letter"),
+    pytest.param(
+        dict(pose={"x": "a", "y": 0, "z": 0, "qx": 0, "qy": 0, "qz": 0, "qw": 1}), ["0.yaml", "x"], id="pose_letter"
+    ),
     pytest.param(dict(finder=[1, 2]), ["cal_data.yaml", "target_finder"], id="finder_list"),
     pytest.param(dict(finder={"type": "DotFinder"}), ["cal_data.yaml", "target finder"], id="finder_unknown"),
     pytest.param(dict(finder={**_CH, "cols": "five"}), ["cal_data.yaml", "target_finder.cols"], id="cols_text"),
     pytest.param(dict(finder={**_CH, "cols": 100000}), ["cal_data.yaml", "target_finder.cols"], id="cols_huge"),
-    pytest.param(dict(finder={k: v for k, v in _CH.items() if k != "chessboard_dim"}),
-                 ["cal_data.yaml", "chessboard_dim"], id="no_square"),
-    pytest.param(dict(finder={"type": "ModifiedCircleGridTargetFinder", "cols": 5}), ["cal_data.yaml", "rows"],
-                 id="circles_no_rows"),
+    pytest.param(
+        dict(finder={k: v for k, v in _CH.items() if k != "chessboard_dim"}),
+        ["cal_data.yaml", "chessboard_dim"],
+        id="no_square",
+    ),
+    pytest.param(
+        dict(finder={"type": "ModifiedCircleGridTargetFinder", "cols": 5}),
+        ["cal_data.yaml", "rows"],
+        id="circles_no_rows",
+    ),
 ]
 
 
 MAKERS = {"visp": _visp, "ical": _ical}
 
 
-@pytest.mark.parametrize("kind, kw, culprits",
-                         [pytest.param("visp", *p.values, id=f"visp-{p.id}") for p in VISP]
-                         + [pytest.param("ical", *p.values, id=f"ical-{p.id}") for p in ICAL])
+@pytest.mark.parametrize(
+    "kind, kw, culprits",
+    [pytest.param("visp", *p.values, id=f"visp-{p.id}") for p in VISP]
+    + [pytest.param("ical", *p.values, id=f"ical-{p.id}") for p in ICAL],
+)
 def test_malformed_source(kind, kw, culprits, run_cli, names, tmp_path):
     src = MAKERS[kind](tmp_path / kind, **kw)
     rc, err = run_cli("import", kind, src, tmp_path / "out")

@@ -1,5 +1,6 @@
 """Bad input, class "native sessions": session.yaml fields of the wrong type or value, view records
 and pose files. Each case: exit code 2 and the error names session.yaml (or the record) and the field."""
+
 from __future__ import annotations
 
 import pytest
@@ -53,8 +54,9 @@ CASES = [
     pytest.param(lambda d: d["pose_format"].update(angle_unit="grad"), ["grad"], id="angle_unit"),
     pytest.param(_drop("target"), ["target is missing"], id="no_target"),
     pytest.param(_target(type="hexboard"), ["unknown target type", "'hexboard'"], id="target_type"),
-    pytest.param(_target(inner_corners=[100000, 100000]), ["target.inner_corners", "10000000000 points"],
-                 id="board_100000"),
+    pytest.param(
+        _target(inner_corners=[100000, 100000]), ["target.inner_corners", "10000000000 points"], id="board_100000"
+    ),
     pytest.param(_target(inner_corners=[11]), ["target.inner_corners"], id="corners_one"),
     pytest.param(_target(inner_corners=["a", 8]), ["target.inner_corners[0]"], id="corners_text"),
     pytest.param(_target(square_m=30), ["target.square_m", "millimetres"], id="square_mm"),
@@ -77,8 +79,9 @@ CASES = [
     pytest.param(_view(1, pose=[[1, 0, 0, 0]] * 4), ["view 2", "4x4"], id="pose_matrix_in_euler"),
     pytest.param(_view(1, joints="home"), ["view 2", "joints"], id="joints_text"),
     pytest.param(_view(1, joints=[0, 0, 90, 0, 0, 0]), ["view 2", "joint angle"], id="joints_degrees"),
-    pytest.param(_top(view_records="../../../../etc"), ["view_records", "outside the session folder"],
-                 id="records_outside"),
+    pytest.param(
+        _top(view_records="../../../../etc"), ["view_records", "outside the session folder"], id="records_outside"
+    ),
     pytest.param(_top(view_records=7), ["view_records must be a folder name"], id="records_number"),
     pytest.param(_top(image_folder=3), ["image_folder"], id="image_folder_number"),
 ]
@@ -119,11 +122,14 @@ def test_pose_file(text, culprits, tiny_native, copy_session, run_cli, names, fa
     names(err, "p2.txt", *culprits)
 
 
-@pytest.mark.parametrize("pose_file, culprits", [
-    pytest.param("../../../etc/hostname", ["outside the session folder"], id="outside"),
-    pytest.param("missing.txt", ["pose file missing"], id="missing"),
-    pytest.param(".", ["not a regular file"], id="folder"),
-])
+@pytest.mark.parametrize(
+    "pose_file, culprits",
+    [
+        pytest.param("../../../etc/hostname", ["outside the session folder"], id="outside"),
+        pytest.param("missing.txt", ["pose file missing"], id="missing"),
+        pytest.param(".", ["not a regular file"], id="folder"),
+    ],
+)
 def test_pose_file_path(pose_file, culprits, tiny_native, copy_session, run_cli, names, fast_failed_load, tmp_path):
     s = copy_session(tiny_native)
     doc = yaml.safe_load((s / "session.yaml").read_text())
@@ -148,25 +154,53 @@ def test_view_record_that_is_not_a_mapping(tiny_native, copy_session, run_cli, n
 
 
 _VALUES = __import__("hypothesis.strategies", fromlist=["x"])
-_FIELDS = [("view", "t_image"), ("view", "t_pose"), ("view", "pose"), ("view", "joints"), ("view", "id"),
-           ("view", "image"), ("top", "mode"), ("top", "pose_format"), ("top", "intrinsics"), ("top", "target"),
-           ("top", "image_folder"), ("top", "view_records"), ("top", "views"), ("target", "inner_corners"),
-           ("target", "square_m"), ("target", "type"), ("pose_format", "rotation"), ("pose_format", "angle_unit"),
-           ("pose_format", "euler_order"), ("intrinsics", "fx"), ("intrinsics", "dist"), ("intrinsics", "image_size"),
-           ("intrinsics", "use")]
+_FIELDS = [
+    ("view", "t_image"),
+    ("view", "t_pose"),
+    ("view", "pose"),
+    ("view", "joints"),
+    ("view", "id"),
+    ("view", "image"),
+    ("top", "mode"),
+    ("top", "pose_format"),
+    ("top", "intrinsics"),
+    ("top", "target"),
+    ("top", "image_folder"),
+    ("top", "view_records"),
+    ("top", "views"),
+    ("target", "inner_corners"),
+    ("target", "square_m"),
+    ("target", "type"),
+    ("pose_format", "rotation"),
+    ("pose_format", "angle_unit"),
+    ("pose_format", "euler_order"),
+    ("intrinsics", "fx"),
+    ("intrinsics", "dist"),
+    ("intrinsics", "image_size"),
+    ("intrinsics", "use"),
+]
 
 
 def _yaml_values():
     st = _VALUES
-    scalar = st.one_of(st.none(), st.booleans(), st.integers(-10**12, 10**12), st.floats(allow_nan=True),
-                       st.text(max_size=12), st.sampled_from(["1e308", ".nan", "010", "eye_in_hand", "-1"]))
-    return st.recursive(scalar, lambda inner: st.one_of(st.lists(inner, max_size=6),
-                                                        st.dictionaries(st.text(max_size=6), inner, max_size=3)),
-                        max_leaves=12)
+    scalar = st.one_of(
+        st.none(),
+        st.booleans(),
+        st.integers(-(10**12), 10**12),
+        st.floats(allow_nan=True),
+        st.text(max_size=12),
+        st.sampled_from(["1e308", ".nan", "010", "eye_in_hand", "-1"]),
+    )
+    return st.recursive(
+        scalar,
+        lambda inner: st.one_of(st.lists(inner, max_size=6), st.dictionaries(st.text(max_size=6), inner, max_size=3)),
+        max_leaves=12,
+    )
 
 
-@__import__("hypothesis").settings(max_examples=150, deadline=None,
-                                   suppress_health_check=list(__import__("hypothesis").HealthCheck))
+@__import__("hypothesis").settings(
+    max_examples=150, deadline=None, suppress_health_check=list(__import__("hypothesis").HealthCheck)
+)
 @__import__("hypothesis").given(field=_VALUES.sampled_from(_FIELDS), value=_yaml_values())
 def test_any_value_in_any_field_loads_or_is_one_named_line(field, value, tiny_native, tmp_path_factory):
     """Property: session.yaml with any YAML value in one of its fields loads, or raises one HandeyeError
@@ -178,11 +212,23 @@ def test_any_value_in_any_field_loads_or_is_one_named_line(field, value, tiny_na
     for f in tiny_native.iterdir():
         (s / f.name).symlink_to(f)
     doc = yaml.safe_load((tiny_native / "session.yaml").read_text())
-    doc["intrinsics"] = {"fx": 400.0, "fy": 400.0, "cx": 200.0, "cy": 150.0, "dist": [0, 0, 0, 0, 0],
-                         "image_size": [400, 300], "use": "initial"}
+    doc["intrinsics"] = {
+        "fx": 400.0,
+        "fy": 400.0,
+        "cx": 200.0,
+        "cy": 150.0,
+        "dist": [0, 0, 0, 0, 0],
+        "image_size": [400, 300],
+        "use": "initial",
+    }
     where, key = field
-    holder = {"top": doc, "view": doc["views"][1], "target": doc["target"], "pose_format": doc["pose_format"],
-              "intrinsics": doc["intrinsics"]}[where]
+    holder = {
+        "top": doc,
+        "view": doc["views"][1],
+        "target": doc["target"],
+        "pose_format": doc["pose_format"],
+        "intrinsics": doc["intrinsics"],
+    }[where]
     holder[key] = value
     (s / "session.yaml").unlink()
     (s / "session.yaml").write_text(yaml.safe_dump(doc))

@@ -2,6 +2,7 @@
 read-only or not writable, or whose disk fills up; checked before the work starts, exit code 2 naming
 the folder. And the folder's history: the last good result survives failed runs, no report describes
 another result, two sessions of one folder name never share the default folder."""
+
 from __future__ import annotations
 
 import errno
@@ -38,10 +39,12 @@ OUT_CASES = [
     pytest.param(_link_to_file, ["--out is a file"], id="link_to_a_file"),
     pytest.param(_fifo, ["--out is a file", "not a regular folder"], id="named_pipe"),
     pytest.param(lambda tmp: __import__("pathlib").Path("/dev/null"), ["--out is a file"], id="dev_null"),
-    pytest.param(lambda tmp: __import__("pathlib").Path("/proc/self/handeye-out"), ["--out cannot be written"],
-                 id="proc"),
-    pytest.param(lambda tmp: __import__("pathlib").Path("/sys/kernel/handeye-out"), ["--out cannot be written"],
-                 id="sysfs"),
+    pytest.param(
+        lambda tmp: __import__("pathlib").Path("/proc/self/handeye-out"), ["--out cannot be written"], id="proc"
+    ),
+    pytest.param(
+        lambda tmp: __import__("pathlib").Path("/sys/kernel/handeye-out"), ["--out cannot be written"], id="sysfs"
+    ),
 ]
 
 
@@ -127,12 +130,10 @@ def test_not_writable_out(tiny_vendor, run_cli, names, tmp_path):
 
 
 @pytest.mark.parametrize("target", ["result.json", "observations.json"])
-def test_disk_full_keeps_the_previous_result(target, good_result, tiny_vendor, run_cli, names, tmp_path,
-                                             monkeypatch):
+def test_disk_full_keeps_the_previous_result(target, good_result, tiny_vendor, run_cli, names, tmp_path, monkeypatch):
     import shutil
 
     import handeye.output
-
     from handeye.report.folder import read_result_folder
 
     out = tmp_path / "out"
@@ -165,9 +166,9 @@ def test_disk_full_keeps_the_previous_result(target, good_result, tiny_vendor, r
 
 
 @pytest.mark.parametrize("failing", [False, True], ids=["good", "failing"])
-def test_a_run_writes_result_json_once_and_judges_and_reports_from_one_context(failing, good_result, tiny_vendor,
-                                                                               copy_session, run_cli, tmp_path,
-                                                                               monkeypatch):
+def test_a_run_writes_result_json_once_and_judges_and_reports_from_one_context(
+    failing, good_result, tiny_vendor, copy_session, run_cli, tmp_path, monkeypatch
+):
     """One build of the report context (the verdict and the reports), one load of the QA thresholds,
     one atomic write of result.json, then its reports, which carry its run id and verdict."""
     import shutil
@@ -213,8 +214,9 @@ def test_a_run_writes_result_json_once_and_judges_and_reports_from_one_context(f
 
 
 @pytest.mark.parametrize("refused", ["write", "read"])
-def test_a_refusal_of_the_file_system_names_the_file_and_a_fix_of_its_kind(refused, good_result, tiny_vendor, run_cli,
-                                                                          names, tmp_path, monkeypatch):
+def test_a_refusal_of_the_file_system_names_the_file_and_a_fix_of_its_kind(
+    refused, good_result, tiny_vendor, run_cli, names, tmp_path, monkeypatch
+):
     """A write refused names the output and a write fix (space, a writable folder); a read refused names the
     file read and a read fix (its permissions), never output-folder advice."""
     import shutil
@@ -246,8 +248,13 @@ def test_a_refusal_of_the_file_system_names_the_file_and_a_fix_of_its_kind(refus
     rc, err = run_cli("calibrate", tiny_vendor, "--out", out, "--no-report", "--no-refine")
     assert rc == 2, err
     if refused == "write":
-        names(err, f"cannot write {out / 'result.json'}", "No space left on device", "free space on its disk",
-              "choose another output folder")
+        names(
+            err,
+            f"cannot write {out / 'result.json'}",
+            "No space left on device",
+            "free space on its disk",
+            "choose another output folder",
+        )
         assert "cannot read" not in err
     else:
         names(err, f"cannot read {tiny_vendor}", ".jpg (Permission denied)", "may read it")
@@ -258,8 +265,9 @@ def test_a_refusal_of_the_file_system_names_the_file_and_a_fix_of_its_kind(refus
     assert os_error_line(FileNotFoundError(errno.ENOENT, "No such file", "/s/1.jpg")).startswith("cannot read /s/1.jpg")
 
 
-def test_failed_runs_keep_the_last_good_result(good_result, tiny_vendor, copy_session, run_cli, fast_failed_load,
-                                               tmp_path):
+def test_failed_runs_keep_the_last_good_result(
+    good_result, tiny_vendor, copy_session, run_cli, fast_failed_load, tmp_path
+):
     import shutil
 
     out = tmp_path / "out"
@@ -313,17 +321,32 @@ def _existing_session(tmp):
 COLLECT_OUT = [
     pytest.param(lambda tmp: _file(tmp), ["output folder is not empty"], id="is_a_file"),
     pytest.param(lambda tmp: _under_file(tmp), ["OUT lies under a file"], id="under_a_file"),
-    pytest.param(lambda tmp: _existing_session(tmp), ["output folder is not empty", "never overwritten"],
-                 id="existing_session"),
-    pytest.param(lambda tmp: __import__("pathlib").Path("/proc/self/handeye-out"), ["OUT cannot be written"],
-                 id="proc"),
+    pytest.param(
+        lambda tmp: _existing_session(tmp), ["output folder is not empty", "never overwritten"], id="existing_session"
+    ),
+    pytest.param(
+        lambda tmp: __import__("pathlib").Path("/proc/self/handeye-out"), ["OUT cannot be written"], id="proc"
+    ),
 ]
 
 
 @pytest.mark.parametrize("make, culprits", COLLECT_OUT)
 def test_collect_out(make, culprits, run_cli, names, tmp_path):
     out = make(tmp_path)
-    rc, err = run_cli("collect", out, "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim", "--auto",
-                      "--views", "3", "--seed", "1")
+    rc, err = run_cli(
+        "collect",
+        out,
+        "--mode",
+        "eye_in_hand",
+        "--camera",
+        "sim",
+        "--robot",
+        "sim",
+        "--auto",
+        "--views",
+        "3",
+        "--seed",
+        "1",
+    )
     assert rc == 2, err
     names(err, str(out), *culprits)

@@ -1,5 +1,6 @@
 """Bad input, class "pose text": poses.txt of a vendor session written wrongly (format, numbers,
 units, encodings, counts). Each case: exit code 2 and the error names poses.txt (and the line)."""
+
 from __future__ import annotations
 
 import codecs
@@ -18,6 +19,7 @@ def _set_line(k: int, new: str):
         lines = _lines(text)
         lines[k] = new
         return "\n".join(lines) + "\n"
+
     return f
 
 
@@ -28,6 +30,7 @@ def _field(k: int, j: int, value: str):
         parts[j] = value
         lines[k] = ",".join(parts)
         return "\n".join(lines) + "\n"
+
     return f
 
 
@@ -68,10 +71,14 @@ CASES = [
     pytest.param(lambda t: b"\xff\xd8\xff\xe0" + bytes(range(256)) * 4, 2, ["poses.txt"], id="binary_jpeg_bytes"),
     pytest.param(lambda t: t + "0.5,0.1,0.4,0.1,0.2\x00,0.3\n", 2, ["poses.txt:7"], id="nul_byte"),
     pytest.param(lambda t: t + "[0.5, 0.1, 0.4, 0.1, 0.2, 0.3]\n", 0, [], id="list_line_is_read"),
-    pytest.param(lambda t: t + "[[0.5, 0.1, 0.4], [0.1, 0.2]]\n", 2, ["poses.txt:7", "got 5"], id="nested_list_of_five"),
+    pytest.param(
+        lambda t: t + "[[0.5, 0.1, 0.4], [0.1, 0.2]]\n", 2, ["poses.txt:7", "got 5"], id="nested_list_of_five"
+    ),
     pytest.param(lambda t: t + "x=0.5 y=0.1 z=0.4\n", 2, ["poses.txt:7", "malformed"], id="key_value"),
     pytest.param(lambda t: "x,y,z,rx,ry,rz\n" + t, 0, [], id="header_line_is_skipped"),
-    pytest.param(lambda t: "x,y,z,rx,ry,rz\nx,y,z,rx,ry,rz\n" + t, 2, ["poses.txt:2", "malformed"], id="two_header_lines"),
+    pytest.param(
+        lambda t: "x,y,z,rx,ry,rz\nx,y,z,rx,ry,rz\n" + t, 2, ["poses.txt:2", "malformed"], id="two_header_lines"
+    ),
     pytest.param(lambda t: t + "0.5,0.1,0.4,0.1,0.2,0.3\n" * 3, 0, [], id="extra_lines_are_dropped_views"),
 ]
 

@@ -1,6 +1,7 @@
 """Bad input, class "reports": ``handeye report`` on a damaged result folder (exit code 2 naming
 result.json and the field), and hostile view ids and folder names, which never run a script in
 report.md (rendered with python-markdown, loaded in headless Chromium) or report.html."""
+
 from __future__ import annotations
 
 import html.parser
@@ -18,6 +19,7 @@ CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser") or shuti
 def _set(key, value):
     def f(res):
         res[key] = value
+
     return f
 
 
@@ -54,8 +56,9 @@ DAMAGE = [
     pytest.param(_set("views", [{"id": None}]), ["result.json", "views[0]"], id="view_id_null"),
     pytest.param(_set("views", [{"id": "1", "used": "yes"}]), ["result.json", "views[0].used"], id="view_used_text"),
     pytest.param(_set("n_views", "6"), ["result.json", "n_views"], id="n_views_text"),
-    pytest.param(lambda r: r.update({_matrix(r): [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}), ["result.json", "4x4"],
-                 id="matrix_3x3"),
+    pytest.param(
+        lambda r: r.update({_matrix(r): [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}), ["result.json", "4x4"], id="matrix_3x3"
+    ),
     pytest.param(lambda r: r.update({_matrix(r): [[float("nan")] * 4] * 4}), ["result.json", "4x4"], id="matrix_nan"),
     pytest.param(lambda r: r.pop(_matrix(r)), ["result.json", "4x4"], id="matrix_missing"),
     pytest.param(lambda r: r.pop("hand_eye"), ["result.json", "hand_eye"], id="no_hand_eye"),
@@ -79,12 +82,15 @@ def test_damaged_result(damage, culprits, good_result, run_cli, names, tmp_path)
     names(err, *culprits)
 
 
-@pytest.mark.parametrize("what, culprits", [
-    pytest.param("missing", ["no result.json"], id="missing"),
-    pytest.param("folder", ["no result.json"], id="result_json_is_a_folder"),
-    pytest.param("observations", ["observations.json", "not valid JSON"], id="observations_damaged"),
-    pytest.param("nothing", ["no result.json"], id="folder_missing"),
-])
+@pytest.mark.parametrize(
+    "what, culprits",
+    [
+        pytest.param("missing", ["no result.json"], id="missing"),
+        pytest.param("folder", ["no result.json"], id="result_json_is_a_folder"),
+        pytest.param("observations", ["observations.json", "not valid JSON"], id="observations_damaged"),
+        pytest.param("nothing", ["no result.json"], id="folder_missing"),
+    ],
+)
 def test_damaged_folder(what, culprits, good_result, run_cli, names, tmp_path):
     out = tmp_path / "out"
     shutil.copytree(good_result, out)
@@ -115,8 +121,9 @@ def test_observations_of_another_run_are_ignored(good_result, run_cli, tmp_path)
 
 
 @pytest.mark.parametrize("vid", ["<script>alert(1)</script>", "a/b", "../../x", "tab\there", "."])
-def test_view_ids_that_are_not_one_name_are_refused(vid, tiny_native, copy_session, run_cli, names,
-                                                    fast_failed_load, tmp_path):
+def test_view_ids_that_are_not_one_name_are_refused(
+    vid, tiny_native, copy_session, run_cli, names, fast_failed_load, tmp_path
+):
     s = copy_session(tiny_native)
     doc = yaml.safe_load((s / "session.yaml").read_text())
     doc["views"][0]["id"] = vid
@@ -127,9 +134,14 @@ def test_view_ids_that_are_not_one_name_are_refused(vid, tiny_native, copy_sessi
 
 
 PWN = "document.body.setAttribute('data-pwned',{})"
-HOSTILE_IDS = [f"<img src=x onerror={PWN.format(1)}>", f"<svg onload={PWN.format(2)}>",
-               f"[click](javascript:{PWN.format(3)})", "<iframe src=javascript:alert(4)>",
-               f"<b onmouseover={PWN.format(5)}>x", f"<details open ontoggle={PWN.format(6)}>"]
+HOSTILE_IDS = [
+    f"<img src=x onerror={PWN.format(1)}>",
+    f"<svg onload={PWN.format(2)}>",
+    f"[click](javascript:{PWN.format(3)})",
+    "<iframe src=javascript:alert(4)>",
+    f"<b onmouseover={PWN.format(5)}>x",
+    f"<details open ontoggle={PWN.format(6)}>",
+]
 HOSTILE_FOLDER = f"<img src=y onerror={PWN.format(7)}>"
 
 
@@ -139,9 +151,11 @@ class _Tags(html.parser.HTMLParser):
         self.bad = []
 
     def handle_starttag(self, tag, attrs):
-        if tag in ("script", "iframe", "svg", "object", "embed") or \
-                any(k.startswith("on") for k, _ in attrs) or \
-                any(k in ("href", "src") and (v or "").strip().lower().startswith("javascript:") for k, v in attrs):
+        if (
+            tag in ("script", "iframe", "svg", "object", "embed")
+            or any(k.startswith("on") for k, _ in attrs)
+            or any(k in ("href", "src") and (v or "").strip().lower().startswith("javascript:") for k, v in attrs)
+        ):
             self.bad.append((tag, attrs))
 
 
@@ -153,7 +167,7 @@ def hostile_result(tiny_native, tmp_path_factory):
     s = base / HOSTILE_FOLDER
     shutil.copytree(tiny_native, s)
     doc = yaml.safe_load((s / "session.yaml").read_text())
-    for v, vid in zip(doc["views"], HOSTILE_IDS):
+    for v, vid in zip(doc["views"], HOSTILE_IDS, strict=False):
         v["id"] = vid
     (s / "session.yaml").write_text(yaml.safe_dump(doc))
     out = base / "out"
@@ -189,12 +203,24 @@ def test_hostile_names_make_no_tags_in_the_html(hostile_result):
 @pytest.mark.parametrize("which", ["md", "html"])
 def test_hostile_names_run_no_script_in_chromium(which, hostile_result, tmp_path):
     page = tmp_path / "page.html"
-    page.write_text(_markdown_html(hostile_result / "report.md") if which == "md"
-                    else (hostile_result / "report.html").read_text(), encoding="utf-8")
+    page.write_text(
+        _markdown_html(hostile_result / "report.md") if which == "md" else (hostile_result / "report.html").read_text(),
+        encoding="utf-8",
+    )
     profile = tmp_path / "profile"
-    cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-dev-shm-usage",
-           "--disable-background-networking", f"--user-data-dir={profile}", "--virtual-time-budget=5000",
-           "--dump-dom", page.as_uri()]
+    cmd = [
+        CHROMIUM,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--no-first-run",
+        "--disable-dev-shm-usage",
+        "--disable-background-networking",
+        f"--user-data-dir={profile}",
+        "--virtual-time-budget=5000",
+        "--dump-dom",
+        page.as_uri(),
+    ]
     p = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
     assert p.returncode == 0, p.stderr[-1000:]
     assert "<body" in p.stdout and "data-pwned" not in p.stdout.split("<body", 1)[1].split(">", 1)[0]
@@ -204,11 +230,17 @@ APPLY = [
     pytest.param(lambda b: b[:40], ["result.json", "not valid JSON"], id="truncated"),
     pytest.param(lambda b: b"[]", ["result.json", "not a JSON object"], id="a_list"),
     pytest.param(_set("status", "failed"), ["failed calibration"], id="failed_result"),
-    pytest.param(lambda r: r.update({_matrix(r): [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}),
-                 ["4x4 rigid transform"], id="not_rigid"),
+    pytest.param(
+        lambda r: r.update({_matrix(r): [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}),
+        ["4x4 rigid transform"],
+        id="not_rigid",
+    ),
     pytest.param(lambda r: r.update({_matrix(r): "identity"}), ["result.json", "4x4"], id="matrix_text"),
-    pytest.param(lambda r: r.update({_matrix(r): [[1, 0, 0, 0]] * 3 + [[0, 0, "x", 1]]}), ["result.json", "4x4"],
-                 id="matrix_letter"),
+    pytest.param(
+        lambda r: r.update({_matrix(r): [[1, 0, 0, 0]] * 3 + [[0, 0, "x", 1]]}),
+        ["result.json", "4x4"],
+        id="matrix_letter",
+    ),
 ]
 
 
@@ -222,11 +254,14 @@ def test_apply_on_a_damaged_result(damage, culprits, good_result, run_cli, names
     names(err, *culprits)
 
 
-@pytest.mark.parametrize("argv, option", [
-    pytest.param(["--point", "nan", "0", "0.5"], "--point", id="point_nan"),
-    pytest.param(["--point", "1e999", "0", "0.5"], "--point", id="point_overflow"),
-    pytest.param(["--pose", "0", "0", "0.5", "0", "0"], "--pose", id="pose_five"),
-])
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        pytest.param(["--point", "nan", "0", "0.5"], "--point", id="point_nan"),
+        pytest.param(["--point", "1e999", "0", "0.5"], "--point", id="point_overflow"),
+        pytest.param(["--pose", "0", "0", "0.5", "0", "0"], "--pose", id="pose_five"),
+    ],
+)
 def test_apply_numbers(argv, option, good_result, run_cli, names):
     rc, err = run_cli("apply", good_result, *argv)
     assert rc == 2, err
