@@ -536,3 +536,37 @@ def test_the_printed_sigmas_say_which_covariance_they_come_from():
     assert _sigma_source_words("model", {"validation": {"status": "not_run"}}).endswith("not validated")
     assert "held-out folds" in _sigma_source_words("validated", ok)
     assert "in each direction" in _sigma_source_words("model+validated", ok)
+
+
+def test_calibrate_help_groups_every_flag_and_the_module_names_every_command():
+    import handeye.cli as cli
+
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, cli._LazyCommands))
+    calibrate = cli.add_command_arguments(sub._name_parser_map["calibrate"], "calibrate")
+    groups = {
+        g.title: {a.option_strings[0] if a.option_strings else a.dest for a in g._group_actions}
+        for g in calibrate._action_groups
+    }
+    assert groups["input"] == {"session", "--mode", "--config", "--workers", "--shift-poses", "--allow-outside"}
+    assert groups["model"] == {
+        "--method",
+        "--no-refine",
+        "--fix-k3",
+        "--fix",
+        "--robot-noise",
+        "--robot-sigma",
+        "--robot",
+        "--prior",
+        "--board-unmoved",
+    }
+    assert groups["output"] == {"--out", "--export"}
+    assert groups["reporting"] == {"--qa", "--no-report"}
+    grouped = set().union(*(groups[t] for t in ("input", "model", "output", "reporting")))
+    every = {a.option_strings[0] if a.option_strings else a.dest for a in calibrate._actions} - {"-h"}
+    assert grouped == every  # no flag left outside the four groups
+    text = calibrate.format_help()
+    assert text.index("\ninput:") < text.index("\nmodel:") < text.index("\noutput:") < text.index("\nreporting:")
+    assert len(cli.COMMANDS) == 11
+    for name in cli.COMMANDS:  # the module docstring's command table names every command
+        assert re.search(rf"\b{name}\b", cli.__doc__), name

@@ -44,71 +44,77 @@ def add_arguments(p) -> None:
     )
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = exit_codes_text()
-    p.add_argument("session", help="session folder (poses.txt + N.jpg + config.yaml, or session.yaml)")
-    p.add_argument(
+    inp = p.add_argument_group("input")
+    model = p.add_argument_group("model")
+    out = p.add_argument_group("output")
+    rep = p.add_argument_group("reporting")
+    inp.add_argument("session", help="session folder (poses.txt + N.jpg + config.yaml, or session.yaml)")
+    inp.add_argument(
         "--mode",
         choices=MODES,
         help="mounting mode (overrides the session's own; default: the session's, else eye_in_hand)",
     )
-    p.add_argument(
+    model.add_argument(
         "--method",
         choices=METHOD_NAMES,
         help="closed-form method reported as the seed (the result with --no-refine); the refinement "
         "starts from it unless another closed form explains the views better (default: tsai, "
         "from the preset)",
     )
-    p.add_argument("--config", type=Path, help="site YAML overriding configs/calibration.yaml (same keys)")
-    p.add_argument(
+    inp.add_argument("--config", type=Path, help="site YAML overriding configs/calibration.yaml (same keys)")
+    out.add_argument(
         "--out",
         type=Path,
         help="output folder (default: reports/<session folder name>-<8 hex digits of its full path>); "
         "checked before the work starts and locked while the run writes into it",
     )
-    p.add_argument("--no-refine", action="store_true", help="stop at the closed-form solution")
-    p.add_argument("--fix-k3", action="store_true", help="hold the k3 distortion coefficient at 0")
-    p.add_argument(
+    model.add_argument("--no-refine", action="store_true", help="stop at the closed-form solution")
+    model.add_argument("--fix-k3", action="store_true", help="hold the k3 distortion coefficient at 0")
+    model.add_argument(
         "--fix",
         nargs="+",
         metavar="NAME",
         choices=["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"],
         help="intrinsics held at their starting values in the refinement (e.g. --fix p1 p2 k3)",
     )
-    p.add_argument(
+    model.add_argument(
         "--robot-noise",
         choices=["estimate", "fixed", "none"],
         default=None,
         help="robot pose noise model in the refinement (default: estimate)",
     )
-    p.add_argument(
+    model.add_argument(
         "--robot-sigma",
         nargs=2,
         type=positive_float,
         metavar=("MM", "DEG"),
         help="robot pose sigma: start value (estimate) or the value (fixed)",
     )
-    p.add_argument(
+    model.add_argument(
         "--robot",
         metavar="ARM",
         help=f"the arm's kinematic model (a preset: {', '.join(arm_presets())}; or a DH YAML file): the refinement models the robot's "
         "error as DH offsets plus encoder noise (joint angles from the session, else by inverse "
         "kinematics of the poses); default: the session's robot: key, else an iid pose error",
     )
-    p.add_argument("--workers", type=positive_int, help="threads for corner detection (default: all cores)")
-    p.add_argument(
+    inp.add_argument("--workers", type=positive_int, help="threads for corner detection (default: all cores)")
+    rep.add_argument(
         "--qa",
         type=Path,
         metavar="FILE",
         help="site QA thresholds for the verdict and the report (overrides configs/qa.yaml)",
     )
-    p.add_argument("--no-report", action="store_true", help="write result.json, observations.json and thumbnails only")
-    p.add_argument(
+    rep.add_argument(
+        "--no-report", action="store_true", help="write result.json, observations.json and thumbnails only"
+    )
+    inp.add_argument(
         "--shift-poses",
         type=int,
         default=0,
         metavar="N",
         help="pair image k with the pose written for image k+N (the constant shift a refused run names)",
     )
-    p.add_argument(
+    model.add_argument(
         "--prior",
         type=Path,
         metavar="RESULT",
@@ -116,7 +122,7 @@ def add_arguments(p) -> None:
         "(a few new views update it); result.json's prior block says whether the data contradict it "
         "(then the session is calibrated without the prior on X, and the drift is printed)",
     )
-    p.add_argument(
+    model.add_argument(
         "--board-unmoved",
         action="store_true",
         help="with --prior: the board has not been touched since the earlier calibration (bolted to the "
@@ -124,14 +130,14 @@ def add_arguments(p) -> None:
         "too, so each new view measures X through it (a board moved by a millimetre would then move "
         "X: a few views cannot tell that from a bumped camera)",
     )
-    p.add_argument(
+    inp.add_argument(
         "--allow-outside",
         action="store_true",
         help="let session.yaml's image and pose-file paths leave the session folder (refused by default)",
     )
     from ..export import FORMATS as EXPORT_FORMATS
 
-    p.add_argument(
+    out.add_argument(
         "--export",
         choices=list(EXPORT_FORMATS),
         metavar="FORMAT",
