@@ -1,18 +1,12 @@
 """Thin GTSAM wrappers around :mod:`.reprojection`: one ``CustomFactor`` per view, not per corner.
 
-Variables (GTSAM keys chosen by the caller):
+Variables (keys chosen by the caller): ``key_x`` (Pose3 ``T_x``), ``key_board`` (Pose3 ``T_board``),
+``key_robot`` (Pose3, the view's true ``T_base_end``, or None to hold the reported pose) and
+``key_intrinsics`` (a Vector of the free intrinsics in ``INTRINSIC_NAMES`` order; GTSAM's Cal3DS2 has
+no k3). Pixel noise is isotropic ``sigma_px``, with an optional per-corner robust loss
+(:func:`.reprojection.corner_robust_scales`).
 
-* ``key_x``      Pose3  ``T_x`` (``T_end_cam`` eye-in-hand, ``T_base_cam`` eye-to-hand)
-* ``key_board``  Pose3  ``T_board`` (``T_base_board`` eye-in-hand, ``T_end_board`` eye-to-hand)
-* ``key_robot``  Pose3  the true robot pose ``T_base_end`` of this view, or None to hold the
-  reported pose fixed
-* ``key_intrinsics``  Vector of the *free* intrinsics, in the order of ``INTRINSIC_NAMES`` with the
-  fixed ones left out; None holds all nine fixed. (GTSAM's Cal3DS2 has no k3, so the intrinsics are
-  a plain vector.)
-
-The pixel noise is an isotropic Gaussian of ``sigma_px`` per coordinate; an optional per-corner
-robust loss (Huber or Cauchy, threshold ``loss_k`` in sigmas) is applied inside the view factor,
-see :func:`.reprojection.corner_robust_scales`.
+See docs/refinement.md.
 """
 
 from __future__ import annotations

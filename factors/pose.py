@@ -1,14 +1,11 @@
-"""Pose factors: a measured camera -> target pose ``T_cam_board`` (from an external tracker) against the
-one the hand-eye chain predicts, ``T_cam_board_i = inv(T_x) · M_i · T_board`` (:mod:`handeye.mounting`).
+"""Pose factors: a tracker's measured ``T_cam_board`` against the one the hand-eye chain predicts.
 
-Residual (6,), GTSAM's Pose3 tangent (rotation [rad] first, then translation [m], right perturbation):
-``r_i = Log(inv(T_cam_board_measured_i) · T_cam_board_predicted_i)``, i.e. the predicted pose is the
-measured one times ``Exp(r_i)``. A tracker whose measured pose is the true one times ``Exp(n)``,
-``n ~ N(0, diag(s_rot^2 I3, s_trans^2 I3))``, gives ``r_i = -n`` at the truth; for isotropic noise the
-frame of ``n`` (board or camera axes) does not matter.
-
-The residual math and its Jacobians are pure numpy (:func:`pose_residual`); :func:`pose_factor` is
-the thin ``CustomFactor`` wrapper the refinement's graph uses.
+The chain is ``T_cam_board_i = inv(T_x) · M_i · T_board`` (:mod:`handeye.mounting`). Residual (6,),
+GTSAM's Pose3 tangent (rotation [rad] first, right perturbation):
+``r_i = Log(inv(T_cam_board_measured_i) · T_cam_board_predicted_i)``. A tracker whose measured pose
+is the true one times ``Exp(n)``, ``n ~ N(0, diag(s_rot^2 I3, s_trans^2 I3))``, gives ``r_i = -n`` at
+the truth; for isotropic noise the frame of ``n`` does not matter. The residual and its Jacobians
+are pure numpy (:func:`pose_residual`); :func:`pose_factor` is the thin ``CustomFactor`` wrapper.
 """
 
 from __future__ import annotations

@@ -1,30 +1,12 @@
 """Reprojection residual of board corners through the hand-eye chain, with analytic Jacobians.
 
-Pure numpy, vectorised over all corners of one view. Both mounting modes are the one chain of
-:mod:`handeye.mounting`::
+Pure numpy, vectorised over the corners of one view. Both mounting modes are the one chain
+``T_cam_board_i = inv(T_x) · M_i · B`` of :mod:`handeye.mounting`: :func:`chain_residual` takes
+``T_x``, the robot pose ``T_base_end`` and ``T_board`` plus ``invert_robot``. Pixels follow OpenCV's
+5-coefficient model; the residual is ``predicted - measured``, interleaved, shape (2N,); pose
+Jacobians use GTSAM's Pose3 tangent (rotation first, right perturbation).
 
-    T_cam_board_i = A · M_i · B,      A = inv(T_x)
-
-==============  ==============  =========================  ==============
-mode            T_x (variable)  M_i from robot variable    B (variable)
-==============  ==============  =========================  ==============
-eye_in_hand     T_end_cam       inv(T_base_end_i)          T_base_board
-eye_to_hand     T_base_cam      T_base_end_i               T_end_board
-==============  ==============  =========================  ==============
-
-so :func:`chain_residual` takes the three variables as they are stored (``T_x``, the robot pose
-``T_base_end`` and ``T_board``) plus ``invert_robot`` and is wrapped by two thin adapters.
-
-Conventions
------------
-* Pixels: OpenCV's 5-coefficient model, intrinsics vector ``(fx, fy, cx, cy, k1, k2, p1, p2, k3)``.
-* Residual: ``predicted - measured`` in pixels, interleaved ``(u0, v0, u1, v1, ...)``, shape (2N,).
-* Pose Jacobians follow GTSAM's Pose3 tangent: ``xi = (omega, v)``, rotation first, right
-  perturbation ``T · Exp(xi)``. Exp(xi) acts on a point as ``p + omega x p + v`` to first order, so
-  ``d(T Exp(xi) p)/dxi = R · [-[p]x, I]`` and, for a variable that enters inverted,
-  ``d(inv(T Exp(xi)) p)/dxi = [[q]x, -I]`` with ``q = inv(T) p``.
-
-Points behind the camera (z <= 0) give finite but meaningless residuals; the caller decides.
+See docs/refinement.md.
 """
 
 from __future__ import annotations

@@ -1,17 +1,12 @@
 """One exception family for the package, with structured fields.
 
-Every error says what went wrong (``what``), where (``path``, ``line``), what was expected and what was
-received, and what to try (``hint``). ``str(err)`` joins them into one line for a person; ``err.code``
-is a stable machine name and ``err.to_dict()`` the record that result.json stores under ``"error"``,
-so that reports and tools key on the code, never on the message text. The CLI prints ``str(err)`` and
-exits with ``err.exit_code``.
+Every error says what went wrong, where (file, line), what was expected and received, and what to
+try. ``str(err)`` is one line for a person, ``err.code`` a stable machine name and ``err.to_dict()``
+the record result.json stores under ``"error"``. This module is the one source of the exit codes:
+each class's ``exit_code``, :func:`verdict_exit_code` for a run with a matrix, and :data:`EXIT_CODES`,
+the table ``handeye --help`` and the README show. :data:`PIPELINE_CODES` lists the pipeline's codes.
 
-This module is the one source of the exit codes: every class carries its ``exit_code``, the verdict of a
-run that computed a matrix maps to one through :func:`verdict_exit_code`, and :data:`EXIT_CODES` is the
-table that ``handeye --help`` and the README show (a test keeps the README's table equal to it).
-
-Codes are the class's ``code`` unless a raise site names a more precise one with ``code=``; the ones
-raised by the calibration pipeline are listed in :data:`PIPELINE_CODES`.
+See docs/cli.md.
 """
 
 from __future__ import annotations

@@ -1,29 +1,13 @@
 """Forward kinematics of a serial arm from a Denavit-Hartenberg table, with its Jacobians (pure numpy).
 
-A :class:`DHChain` holds one row per revolute joint, ``(a, alpha, d, theta_offset)`` in metres and
-radians, and the convention that reads it:
+A :class:`DHChain` holds one row ``(a, alpha, d, theta_offset)`` per revolute joint (metres, radians)
+in the ``standard`` or ``modified`` convention; ``T_base_end`` is the product of the joint transforms
+and the DH angle is the encoder's ``q + theta_offset``. Jacobians in ``q`` and in the DH parameters
+use the tangent of :mod:`handeye.frames`. :func:`load_arm` reads a shipped preset
+(``configs/robots/``: ``rm65`` and Universal Robots' arms), a file of the same form or the JSON form
+other tools write.
 
-* ``standard`` (distal DH, Universal Robots' tables):
-  ``T_{i-1,i} = Rz(q_i + theta_offset_i) · Tz(d_i) · Tx(a_i) · Rx(alpha_i)``;
-* ``modified`` (Craig's proximal DH, RealMan's tables), where row i holds ``a_{i-1}, alpha_{i-1}``:
-  ``T_{i-1,i} = Rx(alpha_{i-1}) · Tx(a_{i-1}) · Rz(q_i + theta_offset_i) · Tz(d_i)``.
-
-``T_base_end = T_{0,1} · ... · T_{n-1,n}``: the base is the DH frame 0, the end is the last DH
-frame (the flange). Joint angles ``q`` are what the arm's encoders report (radians); the DH angle
-is ``q + theta_offset``.
-
-Jacobians use THE tangent convention of :mod:`handeye.frames` (GTSAM's Pose3: ``xi = (omega, v)``,
-right perturbation): ``T_base_end(q + dq) ≈ T_base_end(q) · Exp(J_q · dq)``, and likewise for the
-DH parameters, flattened row by row as ``(a_1, alpha_1, d_1, theta_offset_1, a_2, ...)``.
-Every DH parameter moves the chain by a unit screw (about or along z or x) at one point of the
-product, so each column is that screw carried to the end frame by the adjoint of the rest of the
-chain; the tests check them against central differences.
-
-Shipped presets (``configs/robots/<name>.yaml``, table units mm and deg, each citing its source):
-``rm65`` (RealMan RM65-B, modified DH) and Universal Robots' ``ur3``, ``ur3e``, ``ur5``, ``ur5e``, ``ur10``,
-``ur10e``, ``ur16e`` (standard DH);
-:func:`load_arm` reads them, a file of the same form, or the JSON form other tools write (``robot_name``,
-``dh_convention``, ``units: {length, angle}``, ``joints: [...]``).
+See docs/robot_error.md.
 """
 
 from __future__ import annotations

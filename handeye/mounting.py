@@ -1,17 +1,11 @@
 """The one hand-eye model that serves both mounting modes.
 
 Both modes are ``T_cam_board_i = A · M_i · B`` with a known robot motion ``M_i`` and two constant
-unknowns ``A`` and ``B``:
+unknowns: eye-in-hand ``A = T_cam_end``, ``M_i = T_end_base_i``, ``B = T_base_board``; eye-to-hand
+``A = T_cam_base``, ``M_i = T_base_end_i``, ``B = T_end_board``. The reported unknown X is ``inv(A)``
+(``T_end_cam`` or ``T_base_cam``). The two adapters below are the only place where the modes differ.
 
-============  ===================  ==================  ==================
-mode          A                    M_i                 B
-============  ===================  ==================  ==================
-eye_in_hand   T_cam_end = inv(X)   T_end_base_i        T_base_board
-eye_to_hand   T_cam_base = inv(X)  T_base_end_i        T_end_board
-============  ===================  ==================  ==================
-
-where X is the reported unknown (``T_end_cam`` or ``T_base_cam``). The two adapters below are
-the only place where the modes differ.
+See docs/conventions.md.
 """
 
 from __future__ import annotations

@@ -1,6 +1,8 @@
-"""Writing outputs: atomic files, output folders checked before the work, one run at a time per folder
-(a lock file with the holder's pid), self-describing provenance; and the one reader of text input
-files (BOM and common encodings handled, the others named).
+"""Writing outputs safely, and the one reader of text input files.
+
+Atomic files, output folders checked before the work, one run at a time per folder (a lock file with
+the holder's pid), self-describing provenance; text inputs are read with BOM and common encodings
+handled, the others named.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
-"""The calibration stages: images -> detections -> intrinsics -> board poses -> motion check ->
-closed forms -> refinement, returning one :class:`CalibrationRun`.
+"""The calibration stages, from images to the refinement, returning one :class:`CalibrationRun`.
 
+Images -> detections -> intrinsics -> board poses -> motion check -> closed forms -> refinement.
 Views are linked by id from start to end. A view that fails at any stage is dropped together with
 its robot pose, and its outcome records why. The pipeline never raises for a session that cannot be
 calibrated: it returns a :class:`CalibrationRun` with ``status="failed"`` and the structured error

@@ -1,7 +1,7 @@
-"""Frozen records of the data that flows through the pipeline: views, sessions, detections, outcomes,
-closed-form estimates.
+"""Frozen records of the data that flows through the pipeline.
 
-Views are identified by ``view_id`` (a string such as "7" for ``7.jpg``), never by list position.
+Views, sessions, detections, outcomes and closed-form estimates. Views are identified by ``view_id``
+(a string such as "7" for ``7.jpg``), never by list position.
 """
 
 from __future__ import annotations

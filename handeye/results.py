@@ -1,24 +1,12 @@
 """What a calibration leaves behind: result.json and observations.json.
 
-Both are plain JSON written atomically (:mod:`handeye.output`) and read back by everything that comes
-after a calibration (the report, ``handeye apply``, tools). A failed run still has a result.json:
-``status: failed``, ``failure_reason`` (one line for a person) and ``error`` (the structured record of
-:meth:`handeye.errors.HandeyeError.to_dict`, keyed by a stable ``code``).
+Both are plain JSON written atomically (:mod:`handeye.output`) and read by everything after a
+calibration. A failed run still has a result.json with ``status: failed``, ``failure_reason`` and the
+structured ``error``. ``status`` says only whether a matrix was computed; whether to use it is the
+``verdict`` (:func:`verdict_fields`: ``verdict``, ``verdict_headline``, ``qa``, ``findings``,
+``mode_source``, ``mode_evidence``).
 
-``status`` says only whether a matrix was computed (``ok``: the hand-eye and board matrices are in
-the file) or not (``failed``). Whether to use it is the ``verdict`` (:func:`verdict_fields`):
-
-- ``verdict``: PASS | WARN | FAIL | REFUSED (:data:`handeye.errors.VERDICTS`); ``verdict_headline``
-  one line for a person;
-- ``qa``: ``{"source", "status", "counts", "checks": [{key, title, status, value, value_text,
-  limit_text, limits, why, action, source, short}]}``, the QA checks as the report shows them
-  (``status`` pass | info | warn | fail, or ``untrusted`` for a passing number a finding doubts);
-- ``findings``: the diagnostics' findings, worst first, as ``{code, severity, title, evidence,
-  action, view_ids}`` (the full records with their numbers stay in ``diagnostics.findings``);
-- ``mode_source``: how the mounting mode was chosen (``stated`` in the session, ``flag`` from
-  ``--mode``, ``detected`` from the data, ``default`` when neither states it and the data do not
-  decide; null when not recorded) and ``mode_evidence`` (the mode test's numbers and ``summary``
-  line, when it ran).
+See docs/calibrate.md.
 """
 
 from __future__ import annotations

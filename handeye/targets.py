@@ -1,5 +1,4 @@
-"""Calibration targets: chessboard, ChArUco, circle-grid, single-marker and AprilGrid specs, their corner
-numbering and symmetries.
+"""Calibration targets: chessboard, ChArUco, circle-grid, single-marker and AprilGrid specs.
 
 Each spec is a frozen dataclass with ``object_points()`` (the board-frame corner positions, metres,
 in OpenCV's numbering), ``symmetries()`` (the corner permutations a detector cannot tell apart),

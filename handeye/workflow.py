@@ -1,59 +1,13 @@
 """The product workflow, once: load -> calibrate -> diagnose -> write -> verdict -> report.
 
-:func:`calibrate_session` is what ``handeye calibrate`` does, and what tests and benchmarks call to
-exercise the same path. It writes into ``out_dir``:
+:func:`calibrate_session` is what ``handeye calibrate`` does and what the tests and benchmarks call.
+It writes result.json (with the verdict and the time of every stage), observations.json, thumbnails
+and the reports into ``out_dir``, one locked run at a time, atomically, with one ``run_id``; a failed
+run still gets a result.json and a report saying why, and ``result.last-good.json`` keeps the last
+usable one. The verdict (PASS / WARN / FAIL / REFUSED) is the report's own, stored in result.json;
+:attr:`WorkflowResult.exit_code` follows :mod:`handeye.errors`.
 
-- ``result.json``: the result (or the failure with its structured ``error``), the verdict,
-  diagnostics, and ``seconds`` for every stage: load, detect, intrinsics, board_poses, closed_form,
-  refine (the pipeline's stages; ``calibrate`` is all of them together), diagnose, write, verdict,
-  report (the reports built and rendered; their files are written after result.json), and ``total``
-  from the start of the load to the end of the report (start-up and imports are not in it);
-- ``observations.json``: per-view corners and residuals;
-- ``thumbnails/<view_id>.jpg``: small images of every view (when detection made them);
-- ``report.html`` / ``report.md``, built from the folder alone (unless ``report=False``).
-
-A session that cannot be calibrated still gets a result.json and a report saying why; the last
-successful result.json is then kept as ``result.previous.json``, and the last result whose verdict
-was PASS or WARN as ``result.last-good.json`` (it survives any number of failed runs). A session
-folder that does not exist raises (there is nothing to report on).
-
-One run at a time per folder, and one run in the folder: ``out_dir`` is checked before any work (not
-a file, not under a file, writable) and locked (``.handeye.lock`` with the run's pid; a second run is
-refused while that pid lives, a killed run's lock is stale and taken over). The temporary files a
-killed run left are removed, the reports of the previous result are removed before the new result
-is written (a report never describes another result than result.json's), and result.json,
-observations.json and the reports carry the same ``run_id``. result.json is written once, last among
-the run's data files and before the reports, atomically: a run killed at any point leaves the previous
-result.json or the new one.
-Every file the run read is in result.json's ``provenance.inputs`` with its SHA-256.
-
-A crash inside the diagnostics (an optional stage) is reported as such (one error line; the
-traceback with ``--debug``): the result is written without them and says so in ``stage_errors``.
-
-The verdict belongs to the run: result.json's ``verdict`` is the report's own verdict (the QA checks
-of ``configs/qa.yaml``, or the site ``qa`` file, loaded once, and the diagnostics' findings, evaluated
-by :func:`handeye.report.build_report_context` from the folder's contents as they are written, without
-figures; the reports are rendered from that same context), stored with ``qa`` (every check with its
-value and limits) and ``findings``. ``status`` only says whether a
-matrix was computed (``ok``) or not (``failed``); ``verdict`` says whether to use it:
-
-- ``PASS`` / ``WARN``: a matrix, fit for use (the warnings say what to improve); exit code 0;
-- ``FAIL``: a matrix that a QA check or a finding says is not fit for use (``status: ok``), or no
-  matrix because the calibration failed (``status: failed``, with its ``error``);
-- ``REFUSED``: no matrix, because the data contradict themselves (``status: failed``, ``error`` a
-  :class:`~handeye.errors.SessionRefused`). A run is refused when the pipeline sets a
-  ``SessionRefused`` as its error, or when a diagnostics finding carries ``refuses: true`` (at the
-  top of the finding's dict or in its ``details``): its matrix, seed and closed forms are then
-  dropped and the finding is the error's reason (``error.code`` is the finding's code). A run that
-  failed (no matrix) while the diagnostics name a fault of the whole session (a misread pose format,
-  inverted poses, a swapped mode, shifted or shuffled pairs, a wrong square size: failing findings of
-  :data:`handeye.diagnose.GLOBAL_FAULT_CODES`) is refused for that fault too: the solver's failure was
-  its effect, and the finding's fix is what to do. A run with a matrix is refused when the robot poses
-  were read wrongly (units, rotation convention, inversion, mounting mode: failing findings of
-  :data:`handeye.diagnose.readings.READING_CODES`): a matrix from misread poses is no calibration.
-
-:attr:`WorkflowResult.exit_code` follows :mod:`handeye.errors`: the error's code when there is one,
-else the verdict's (:func:`handeye.errors.verdict_exit_code`).
+See docs/calibrate.md.
 """
 
 from __future__ import annotations

@@ -4,8 +4,8 @@ Runs :func:`handeye.workflow.calibrate_session` with the ``handeye calibrate`` o
 (:func:`handeye.cli.calibrate.options_from_args`: the single command's results, bit for bit) and
 prints one JSON line on stdout: ``outcome`` (``done``, or ``error`` when the workflow raised),
 ``status``, ``verdict``, ``reason``, ``exit_code`` and ``peak_rss_mb`` (the process's peak memory).
-Log lines go to stderr (the task keeps them in ``batch.log``). The process ends itself when its parent (the Dask worker) is gone, so a killed
-worker leaves no session running behind it.
+Log lines go to stderr (the task keeps them in ``batch.log``). The process ends itself when its
+parent (the Dask worker) is gone, so a killed worker leaves no session running behind it.
 """
 
 from __future__ import annotations

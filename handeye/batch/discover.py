@@ -1,28 +1,12 @@
-"""Find the sessions under a root folder and group them by install.
+"""Find the sessions under a root folder, group them by install and give each its time.
 
-A session is a folder holding ``session.yaml`` (native layout) or ``poses.txt`` (vendor layout); the
-search does not descend into a session folder. Each session belongs to one install:
+A session is a folder holding ``session.yaml`` or ``poses.txt``. Its install is ``install:`` in its
+``session.yaml``, else its first folder under the root (``ROOT/<install>/<session>/``), else the root's
+own name; its time is ``time:``, else the first ``t_image``, else a date in its folder name, else the
+newest modification time of its files. A session with ``verify_against:`` is a verification, not a
+calibration. Names become folder names under OUT, made safe and unique.
 
-1. ``install: NAME`` at the top of its ``session.yaml``, when given;
-2. else the first folder under the root: ``ROOT/<install>/<session>/`` (deeper sessions keep their
-   whole path below the install as their name: ``ROOT/cell-07/2026/03-01`` is install ``cell-07``,
-   session ``2026/03-01``);
-3. else, for a session directly in ROOT (``ROOT/<session>/``), ROOT's own folder name: ROOT is then
-   one install's folder;
-4. else (ROOT is itself a session) the install ``default``.
-
-The session's time orders an install's sessions for the drift and the trend: ``time:`` in
-``session.yaml`` (ISO 8601), else the earliest ``t_image`` of its inline views, else a date in its
-folder name (``2026-03-01``, ``20260301`` with an optional ``_1430`` / ``T14:30``), else the newest
-modification time of its files. ``time_source`` says which.
-
-A session whose ``session.yaml`` says ``verify_against: PATH`` (an installed result folder or its result.json,
-relative to the session folder) is a check of that installed calibration: the batch runs ``handeye verify`` on it
-(:func:`handeye.batch.child.run_verify`) instead of a calibration.
-
-Install and session names become folder names under OUT: characters other than letters, digits,
-``.``, ``_`` and ``-`` are replaced by ``_`` (a name made only of dots is refused), and two sessions
-that would land in one folder get ``~2``, ``~3`` appended.
+See docs/fleet.md.
 """
 
 from __future__ import annotations

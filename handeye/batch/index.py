@@ -1,23 +1,12 @@
 """The fleet index of a batch output folder, from its result folders alone.
 
-Writes into OUT:
+Writes ``fleet.csv`` (and ``fleet.parquet`` with pyarrow), one row per session (:data:`COLUMNS`), and
+``index.html`` / ``index.md``: the fleet's verdicts, the installs whose latest session fails, the most
+common findings, and per install the drift of X between consecutive sessions
+(:func:`handeye.recal.compare.compare_results`) and the trend of X with 2-sigma bands. A session whose
+last batch run ended without a result is listed as ERROR with the reason.
 
-- ``fleet.csv`` (and ``fleet.parquet`` when pyarrow is installed): one row per session (:data:`COLUMNS`);
-- ``index.html`` (self-contained: styles and trend plots inlined) and ``index.md`` (its plots in
-  ``index_files/``): the fleet's verdicts, the installs whose latest session fails, the most common
-  findings, and per install the latest verdict, the drift of X between consecutive sessions with its
-  significance (:func:`handeye.recal.compare.compare_results`) and the trend of X over time with its
-  2-sigma bands; every session links to its report.
-
-A session folder is any folder under OUT holding ``result.json`` or ``batch.json`` (the batch's record,
-:mod:`handeye.batch.run`); its install and name come from the record, else from its path
-(``OUT/<install>/<session>``). A session whose last batch run ended without a result (timeout, crash,
-lost worker) is listed with verdict ERROR and the reason, whatever an older result.json says.
-
-The trend plot shows each session's X against the install's first usable session: the translation
-change (mm, in the frame of X's translation, e.g. the end frame for ``T_end_cam``) and the rotation
-change ``rotvec(R_first^T R)`` (deg, about the camera axes), with 2-sigma bands from each session's
-printed sigmas (``sigma_trans_mm``, ``sigma_rot_deg``: the same axes).
+See docs/fleet.md.
 """
 
 from __future__ import annotations

@@ -1,29 +1,12 @@
 """Run a batch of sessions on Dask: one task per session, resumable, isolated.
 
-Each session is one Dask task (:func:`run_session`). The task runs ``handeye.workflow.calibrate_session``
-(the single ``handeye calibrate`` command's workflow, :mod:`handeye.batch.child`) in a child process,
-so that a session that hangs is killed at the time limit and one that crashes the interpreter takes
-only its child with it; the task records what happened in ``OUT/<install>/<session>/batch.json``
-(and the child's log lines in ``batch.log``). A worker that dies (killed, out of memory, its machine
-gone) loses its running task: the scheduler gives it to another worker (up to Dask's
-``distributed.scheduler.allowed-failures`` times), after which the session is recorded as ``lost``.
+Each task (:func:`run_session`) runs the calibrate workflow in a child process (:mod:`handeye.batch.child`)
+with a time limit, so a hung or crashing session takes only its child with it; what happened is
+recorded in ``OUT/<install>/<session>/batch.json``. A session is skipped when its inputs and options
+(:func:`session_key`) match its last finished run. Data reach the workers through a shared filesystem
+or uploaded with each task. Nothing here imports the calibration.
 
-Resuming: a session is skipped when its ``batch.json`` records a finished run (``outcome: done``) with
-the same key, and its result.json's ``provenance.inputs_sha256`` and ``provenance.options`` are the
-key's. The key (:func:`session_key`) is the hash result.json records (the session's images, poses and
-config), the calibration options as result.json records them, and what else changes the outputs: the
-mounting mode flag, the pose shift, whether reports are written, the export format, and the SHA-256
-of the site QA and calibration files and of the prior result. A session whose load fails is keyed
-on all its files instead. Timed-out, crashed and lost sessions run again on the next batch; ``force``
-redoes everything.
-
-Data reach the workers in one of two ways (see the README): through a shared filesystem (the
-workers read ROOT and write OUT at the client's paths; the default), or uploaded (``upload``: the
-client reads each session's files and sends them with its task; the worker calibrates a temporary
-copy and returns the output folder's files, which the client writes under OUT; the site QA,
-calibration and prior files go with each task too; result.json's ``session.path`` is then the
-worker's temporary copy, batch.json's ``session`` the original). Nothing here imports the
-calibration: the task and the client stay light.
+See docs/fleet.md.
 """
 
 from __future__ import annotations

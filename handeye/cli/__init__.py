@@ -1,29 +1,13 @@
 """The ``handeye`` command line: the parser, the error mapping and one thin module per command.
 
-==============  ====================================================================
-command         module
-==============  ====================================================================
-calibrate       :mod:`.calibrate` (through :func:`handeye.workflow.calibrate_session`)
-simulate        :mod:`.simulate`
-demo            :mod:`.demo`
-apply           :mod:`.apply`
-import          :mod:`.import_`
-report          :mod:`.report`
-collect         :mod:`.collect`
-export          :mod:`.export` (through :func:`handeye.export.export_result`)
-==============  ====================================================================
+:data:`COMMANDS` is the command table: calibrate, simulate, demo, apply, import (module ``import_``),
+report, collect, batch, export, compare and verify, each with its module in this package and its line
+in ``handeye --help``. Only the chosen command's module is imported; it adds its own arguments.
 
-Command modules load lazily: :data:`COMMANDS` holds each command's module name and the one line
-``handeye --help`` shows, and only the chosen command's module is imported (its
-``add_arguments(parser)`` fills in the command's description and arguments when the command is
-parsed). So ``handeye --help`` imports no command module and ``handeye report DIR`` only the
-report's. Command modules also import their heavy dependencies inside ``run``.
+Progress goes to stderr, results to stdout and files. A user mistake ends in one line on stderr and
+an exit code from :data:`handeye.errors.EXIT_CODES`, never a traceback (``--debug`` shows it).
 
-Progress and log lines go to stderr, results to stdout and files. A user mistake ends in one line
-on stderr and a non-zero exit code (:attr:`handeye.errors.HandeyeError.exit_code`), never a
-traceback (``--debug`` shows it). The exit codes (:data:`handeye.errors.EXIT_CODES`, the epilog of
-``handeye --help`` and ``handeye calibrate --help``): 0 PASS or WARN, 7 FAIL, 8 REFUSED, 2 unusable
-input, 3-6 detection, motion, solver and hardware failures.
+See docs/cli.md.
 """
 
 from __future__ import annotations

@@ -1,6 +1,8 @@
-"""``handeye import visp|ical SRC OUT``: a session.yaml for another tool's data folder;
-``handeye import rosbag BAG --image-topic T --base FRAME --end FRAME --target FILE [--out DEST]``: a session
-(session.yaml + images) from a ROS 1 or ROS 2 bag (:mod:`handeye.session.rosbag`).
+"""``handeye import``: a native session for another tool's data.
+
+``handeye import visp|ical SRC OUT`` writes a session.yaml for a ViSP or industrial_calibration data
+folder; ``handeye import rosbag BAG --image-topic T --base FRAME --end FRAME --target FILE [--out DEST]``
+writes a session (session.yaml + images) from a ROS 1 or ROS 2 bag (:mod:`handeye.session.rosbag`).
 """
 
 from __future__ import annotations

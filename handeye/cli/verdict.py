@@ -1,8 +1,9 @@
-"""What ``handeye calibrate`` prints after the result block: the verdict line, one line for every QA
-check and diagnostics finding that warns or fails (each with its fix), and how the mounting mode was
-chosen when the session did not state it. Everything comes from result.json (``verdict``,
-``verdict_headline``, ``qa``, ``findings``, ``mode_source``, ``mode_evidence``; see
-:mod:`handeye.results`), so a result folder prints the same lines anywhere.
+"""What ``handeye calibrate`` prints after the result block: the verdict and what to fix.
+
+The verdict line, one line for every QA check and diagnostics finding that warns or fails (each with
+its fix), and how the mounting mode was chosen when the session did not state it. Everything comes
+from result.json (``verdict``, ``verdict_headline``, ``qa``, ``findings``, ``mode_source``,
+``mode_evidence``; see :mod:`handeye.results`), so a result folder prints the same lines anywhere.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``handeye verify SESSION --against RESULT``: is an installed calibration still valid?
+"""``handeye verify SESSION --against RESULT``: whether an installed calibration is still valid.
 
 A short session (3-8 views, the board anywhere) is tested against the installed hand-eye transform
 (and intrinsics, unless the session brings its own) without re-solving it

@@ -1,30 +1,13 @@
 """Automatic pose plan: few views, chosen to make the hand-eye result as certain as possible.
 
-Everything here is pure math on the one model ``T_cam_board_i = inv(T_x) · M_i · T_board``
-(:mod:`handeye.mounting`), for both mounting modes.
+Pure math on the one model ``T_cam_board_i = inv(T_x) · M_i · T_board`` (:mod:`handeye.mounting`).
+Candidate views orbit the board from the current view; each is mapped to a robot pose through the
+current hand-eye estimate and kept when the board stays in the image. A greedy D-optimal design then
+adds, one at a time, the candidate that most reduces ``log det`` of the predicted covariance of
+``T_x`` (Fisher information of the corners, robot noise marginalised), while requiring rotation about
+all three end-frame axes. The predicted sigma is the root of the trace (deg, mm).
 
-Candidate views orbit the board: starting from the current view ``T_cam_board_0``, the camera is
-rotated about the board centre (tilts about the camera's x and y axes, a roll about its optical
-axis, and a change of distance), so the board stays in the middle of the image. Each candidate is
-mapped to a robot pose through the current estimate of the hand-eye transform, and kept if the
-whole pattern stays in the image, the board is not seen too obliquely and the arm does not travel
-or turn too far.
-
-Choice (greedy D-optimal design): the uncertainty of a plan is predicted from the Fisher information
-of its views under a corner reprojection model. Per view, with the 12 unknowns
-``theta = (xi_x, xi_board)`` (right perturbations ``T_x · Exp(xi)``, tangent order (rotation,
-translation)) and the robot-pose error ``xi_m`` (``T_base_end · Exp(xi_m)``, covariance ``S_m`` from
-the assumed robot noise), the corners' covariance is ``sigma_px^2 I + J_m S_m J_m^T`` and the view
-contributes ``J_theta^T (sigma_px^2 I + J_m S_m J_m^T)^-1 J_theta`` (Jacobians by central
-differences of THE projection, :func:`handeye.camera.pixels_from_cam_points`, over right
-perturbations ``T · Exp(±h e_k)`` with :func:`handeye.frames.se3_exp`). Each step adds the
-candidate that most reduces ``log det`` of the marginal covariance of ``T_x``. The rotations of the
-end relative to the start pose must reach at least ``min_axis_rotation_deg`` about each of the end
-frame's three axes; when the remaining slots are needed for that, only candidates that add a
-missing axis are eligible.
-
-Predicted sigma is reported as the root of the trace of the marginal covariance: the total 1-sigma
-error over the three axes, in degrees for the rotation and millimetres for the translation.
+See docs/collect.md.
 """
 
 from __future__ import annotations

@@ -1,28 +1,11 @@
-"""RealMan arm client speaking the controller's JSON protocol over TCP (what the vendor tool uses).
+r"""RealMan arm client speaking the controller's JSON protocol over TCP (what the vendor tool uses).
 
-Protocol facts used here, from RealMan's public documentation (RealManRobot/rm_docs,
-``docs/en/robot/json/getStartedJson``, ``armState``, ``coordinate``, ``motionConfig``) and the
-vendor's ROS driver (RealManRobot/rm_robot, ``rm_driver/src/rm_robot.h``, error-code table):
+One compact JSON object per command, terminated by ``\r\n``, on port 8080 by default; answers are
+framed by braces (several may share a packet, one may be split). Poses come in 0.001 mm and
+0.001 rad in the vendor convention (:data:`handeye.conventions.VENDOR_POSE_FORMAT`). Reads are
+retried on a fresh connection; a motion command is sent once and never resent.
 
-* TCP, default port 8080; every command is one compact JSON object terminated by ``\\r\\n`` and
-  the controller answers one JSON object per line. Several answers can arrive in one packet and
-  one answer can be split over several packets, so the reader below frames by braces.
-* ``{"command":"get_current_arm_state"}`` -> ``{"state":"current_arm_state","arm_state":
-  {"joint":[..], "pose":[x,y,z,rx,ry,rz], "err": ...}}``. Position in 0.001 mm, orientation in
-  0.001 rad, ``R = Rz(rz) @ Ry(ry) @ Rx(rx)`` (the vendor pose convention,
-  :data:`handeye.conventions.VENDOR_POSE_FORMAT`). ``err`` is an int, a list of ints or
-  ``{"err_len": n, "err": [...]}`` depending on the firmware; 0 means healthy.
-* ``{"command":"set_change_work_frame","frame_name":"Base"}`` -> ``{"command":
-  "set_change_work_frame","change_work_frame":true}``; poses are reported in the work frame.
-* ``{"command":"get_current_tool_frame"}`` -> ``{"state":"current_tool_frame","tool_name":..}``.
-* ``{"command":"movel"|"movej_p","pose":[..],"v":percent,"r":0,"trajectory_connect":0}`` ->
-  an acknowledgement (``{"command":"movel","receive_state":true}``; for ``movej_p`` some
-  firmware answers ``{"state":"pose_state",...,"arm_err":0}``), then on completion
-  ``{"state":"current_trajectory_state","trajectory_state":true|false,"device":0}``.
-* ``{"command":"set_arm_stop"}`` stops the current trajectory.
-
-Reads are retried on a fresh connection (a read has no side effect); a motion command is sent
-once and never resent: if its outcome is unknown the user is told to check the arm.
+See docs/collect.md for the commands used and their sources.
 """
 
 from __future__ import annotations

@@ -1,22 +1,11 @@
 """Writes a native handeye session (docs/session_format.md) so that a crash never corrupts it.
 
-Layout written:
+``OUT/session.yaml`` (header), ``OUT/images/<id>.png`` (the frame as grabbed) and one
+``OUT/views/<id>.yaml`` record per capture, each written atomically
+(:func:`handeye.output.atomic_write_bytes`), the image before its record, so a kill loses at most the
+capture in flight. Poses are written as ``T_base_end`` 4x4 matrices in metres.
 
-    OUT/session.yaml          header: mode, target, pose_format, intrinsics, how it was collected
-    OUT/images/<id>.png       the camera frame exactly as grabbed (never a preview)
-    OUT/views/<id>.yaml       one record per capture: id, image, pose, t_image, t_pose, robot_state,
-                              joints (joint angles in radians, when the arm reports them)
-    OUT/ground_truth.json     simulated backends only
-
-Every file is written by :func:`handeye.output.atomic_write_bytes` (a temporary ``.<name>.*.tmp`` in
-the same folder, flushed, fsync'ed and renamed over its final name; ``os.replace`` is atomic on
-POSIX and Windows), then the folder is fsync'ed so the rename itself survives a power loss. The
-image is written before its record, so a record that exists always has its image; a kill at any
-moment loses at most the capture in flight (an orphan image or a ``.tmp`` file, both ignored by the
-loader).
-
-Poses are written as ``T_base_end`` 4x4 matrices in metres (``pose_format: {rotation: matrix,
-translation_unit: m}``): no angle convention to get wrong, full float precision.
+See docs/collect.md.
 """
 
 from __future__ import annotations

@@ -1,14 +1,12 @@
-"""Target detection behind one dispatcher: chessboard (:mod:`.chessboard`), ChArUco (:mod:`.charuco`)
-and circle grid (:mod:`.circlegrid`), plus the image-quality measures (:mod:`.quality`) taken from
-the same decoded image.
+"""Target detection behind one dispatcher, with the image-quality measures of the same decoded image.
 
-:func:`detect_gray` finds the target in a grey image; :func:`detect_image` reads one file and returns
-a :class:`~handeye.records.Detection` (corners, sharpness, blur, exposure, thumbnail) or a
-:class:`~handeye.records.DetectionFailure` (reason, exposure, thumbnail), each with its view id, so the
-caller drops a failed view *together with its pose*. :func:`detect_views` does a whole session in
-parallel threads (OpenCV releases the GIL); for a chessboard it first looks at a few views, and when
-they show another board size (:mod:`.board_size`) it stops there instead of running the slow search
-on every image. Thresholds are in configs/detection.yaml.
+Targets: chessboard (:mod:`.chessboard`), ChArUco (:mod:`.charuco`), circle grid (:mod:`.circlegrid`),
+markers (:mod:`.markers`); quality measures in :mod:`.quality`. :func:`detect_gray` finds the target
+in a grey image; :func:`detect_image` reads one file and returns a :class:`~handeye.records.Detection`
+or a :class:`~handeye.records.DetectionFailure`, each with its view id, so the caller drops a failed
+view *together with its pose*. :func:`detect_views` does a whole session in parallel threads; for a
+chessboard it first checks a few views for another board size (:mod:`.board_size`) before the slow
+search on every image. Thresholds are in configs/detection.yaml; see docs/detection.md.
 """
 
 from __future__ import annotations

@@ -1,8 +1,10 @@
-"""Chessboards: corners by OpenCV's searches (at half size first in large images, on a reduced copy in
-very large ones), refined on the full image in windows set from the square size by cornerSubPix and then
+"""Chessboard corners: OpenCV's searches, two refinement stages, the geometric check and the corner order.
+
+Corners are found by OpenCV's searches (at half size first in large images, on a reduced copy in very
+large ones), refined on the full image in windows set from the square size by cornerSubPix and then
 by the centre of point symmetry (:mod:`.saddle`; a corner the two put far apart is not used), checked
 against the board's own geometry (re-detected by the accurate search when they fail), and the corner
-order of boards whose colours tell their orientation.
+order of boards whose colours tell their orientation is fixed.
 """
 
 from __future__ import annotations

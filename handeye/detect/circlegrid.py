@@ -1,5 +1,6 @@
-"""Circle grids (symmetric, asymmetric, and symmetric with a larger origin dot): dot centres by
-OpenCV's blob detector and grid finder, numbered as the board seen from its front.
+"""Circle grids (symmetric, asymmetric, and symmetric with a larger origin dot).
+
+Dot centres by OpenCV's blob detector and grid finder, numbered as the board seen from its front.
 """
 
 from __future__ import annotations

@@ -1,12 +1,12 @@
-"""The board's own geometry applied to detected corners: a homography of the board plane, the size of
-a square in pixels from it, the geometric check of a view's corners, the reduced copy of a large image
-that the searches run on, and the time budget of one image's detection.
+"""The board's own geometry applied to detected corners, and the limits of one image's detection.
 
-The check (:func:`grid_check`) predicts every corner from its neighbours on the board (those within
-``radius`` grid steps) through the homography they fit, and measures how far the detected corner lies
-from that prediction. A neighbourhood of a few squares is small enough for lens distortion to stay far
-below a pixel, so a corner placed on the wrong saddle point or pulled off by a wrong neighbour stands out
-by pixels while well-placed corners stay at their noise.
+A homography of the board plane, the size of a square in pixels from it, the geometric check of a
+view's corners, the reduced copy of a large image that the searches run on, and the time budget of
+one image's detection. The check (:func:`grid_check`) predicts every corner from its neighbours on
+the board (those within ``radius`` grid steps) through the homography they fit, and measures how far
+the detected corner lies from that prediction. A neighbourhood of a few squares is small enough for
+lens distortion to stay far below a pixel, so a corner placed on the wrong saddle point or pulled off
+by a wrong neighbour stands out by pixels while well-placed corners stay at their noise.
 """
 
 from __future__ import annotations

@@ -1,5 +1,6 @@
-"""Detection settings, read from ``configs/detection.yaml`` (``detection:``), where each has its unit
-and origin.
+"""Detection settings, read from ``configs/detection.yaml`` (``detection:``).
+
+Each setting has its unit and origin in that file.
 """
 
 from __future__ import annotations

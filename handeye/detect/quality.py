@@ -1,8 +1,8 @@
-"""Image-quality measures of one view, taken from the decoded grey image during detection (so no later
-stage decodes the image again): sharpness, edge blur, exposure, and a small JPEG thumbnail.
+"""Image-quality measures of one view: sharpness, edge blur, exposure and a small JPEG thumbnail.
 
-Blur is measured as the width of the board's own edges: across the edge between two neighbouring
-corners a step of contrast ``D`` blurred by a Gaussian of ``sigma`` has a largest slope
+They are taken from the decoded grey image during detection, so no later stage decodes the image
+again. Blur is measured as the width of the board's own edges: across the edge between two
+neighbouring corners a step of contrast ``D`` blurred by a Gaussian of ``sigma`` has a largest slope
 ``D / (sigma sqrt(2 pi))``, so ``sigma = D / (sqrt(2 pi) max|dI/ds|)``. A sharp, anti-aliased image
 gives about 0.5 px (pixel area and sampling, ``sharp_edge_sigma_px`` in configs/detection.yaml);
 a blur adds in quadrature.

@@ -1,23 +1,12 @@
-"""The second refinement stage of chessboard corners: the centre of point symmetry of the image around
-each corner (the saddle point of a quadratic fitted to the smoothed, shading-free intensity).
+"""The second refinement stage of chessboard corners: the centre of point symmetry around each corner.
 
-An ideal chessboard corner seen through any point-symmetric blur (the lens, the pixel's area, the
-smoothing below) is point-symmetric about the corner: ``I(c + d) = I(c - d)`` wherever the four squares'
-edges are straight, whatever the angle between them. So the corner is where the odd part of the image
-around it vanishes. A quadratic ``a x^2 + b xy + c y^2 + d x + e y + f`` fitted with weights symmetric
-about the current estimate has linear terms ``(d, e)`` that are the weighted odd moments of the
-intensity; the step to its saddle point moves the estimate until they are zero. Two things break the
-symmetry and are removed first: a smooth shading across the window (a linear ramp adds to ``d, e``
-directly) is taken out by subtracting a box average much larger than the corner (the box of a linear
-ramp is the ramp itself, and the box of a point-symmetric image is symmetric about the same point), and
-the pixel grid (a sharp edge sampled at one pixel per unit aliases, so interpolating between pixels
-depends on where the edge falls) is smoothed away by a Gaussian of about a pixel before either stage.
+An ideal corner seen through any point-symmetric blur is point-symmetric about the corner, so the
+corner is where the odd part of the image around it vanishes: the saddle point of a quadratic fitted
+with symmetric weights to the smoothed, shading-free intensity. A corner that this stage and
+cornerSubPix put more than ``corner_disagreement_max_px`` apart is not used
+(:func:`handeye.detect.chessboard.final_corners`).
 
-cornerSubPix (the first stage) uses the same smoothed image and a different principle (gradients
-orthogonal to the lines from the corner); where the two disagree by more than
-``corner_disagreement_max_px`` the corner is not what both assume (occluded, a reflection, a defect, a
-window reaching another feature) and is not used (:func:`handeye.detect.chessboard.final_corners`).
-Measured on rendered 1280x720 views and the real chessboard sets in benchmarks/bench_detect.py.
+See docs/detection.md.
 """
 
 from __future__ import annotations

@@ -1,31 +1,12 @@
 """Dataset diagnostics that name the mistake, and validation by held-out views.
 
 :func:`diagnose_run` looks at a :class:`handeye.pipeline.CalibrationRun` (successful or failed) and
-returns ``{"findings": [...], "stages": {...}, "cross_validation": {...}, ...}`` for
-``result.json["diagnostics"]``; :func:`diagnose_session_error` does what it can for a session that does
-not even load (robot poses that look like millimetres or degrees): it re-reads the raw pose values in
-every plausible way and says which reading fits the images.
+returns the ``diagnostics`` block of result.json (findings, stage statuses, cross-validation);
+:func:`diagnose_session_error` re-reads the raw poses of a session that does not load in every
+plausible way and says which reading fits the images. Every check runs as a named stage: one that
+raises is reported as ``crashed``, never as a finding. All functions are pure; images are only read.
 
-=================  ==================================================================================
-module             holds
-=================  ==================================================================================
-``findings``       the :class:`Finding` record, severities, and the guarded stage runner
-``thresholds``     every threshold, from configs/diagnostics.yaml
-``observations``   the views with a board pose, as the pose checks see them
-``fits``           robust fits of ``C_i = A M_i B`` (one board per group of views)
-``readings``       pose-format forensics: units, Euler order, quaternion order, inverted, mode swapped
-``pairing``        images and poses shifted, shuffled or swapped
-``consistency``    board moved, robot pose disagrees, corner order flipped, motion and view count
-``detection``      target not found (where it should have been), partial target
-``intrinsics``     given intrinsics against the images
-``imaging``        blur, exposure and coverage
-``crossval``       cross-validation by held-out views
-``geometry``       the pure math behind them (pair invariants, Park & Martin, covariances, jackknife)
-=================  ==================================================================================
-
-Every check runs as a named stage; a stage that raises is reported as ``crashed`` in
-``diagnostics["stages"]`` with its exception in ``["stage_errors"]`` (never as a finding). All
-functions are pure (no printing, no writing); images are only read.
+See docs/diagnostics.md for the modules and every finding.
 """
 
 from __future__ import annotations

@@ -1,12 +1,10 @@
-"""Consistency of the views with one hand-eye model: a board that moved, robot poses that disagree
-with what the camera saw, corners numbered from the other end, and the robot's motion.
+"""Consistency of the views with one hand-eye model: board moved, robot poses, corner order, motion.
 
 * board_moved: the best split of the view sequence into two boards, Hotelling's two-sample test of
   the implied boards;
 * robot_pose_disagrees: the refinement's robot-pose decisions when it made them; otherwise the one
   robot-pose test (:func:`handeye.refine.outliers.robot_pose_test`) of each reported pose against the
-  pose the camera implies, with the camera-only covariance (PnP, propagated in the right
-  tangent of :mod:`handeye.frames`) and robot noise estimated robustly from the other views;
+  pose the camera implies, with the camera-only covariance and robot noise estimated robustly;
 * corner_order_flipped: a flagged view that agrees once its board is turned by 180 (or 90) degrees;
 * weak_motion, too_few_views: :func:`handeye.initial.motion.motion_quality` with the warn levels of
   configs/diagnostics.yaml.

@@ -1,22 +1,12 @@
 """Cross-validation of the hand-eye result by held-out views.
 
-Leave-one-out (interleaved k-fold above a view count, configs/diagnostics.yaml ``cross_validation``).
-When the run was refined, each fold is ONE Gaussian solve of the refinement (:func:`handeye.refine.refit`)
-started from the full solution, with the full run's noise levels (pixel and robot sigmas) and outlier
-decisions (flagged corners and views left out) held: the
-fold measures how the estimate moves without its views, not how noise estimation and outlier
-decisions would redo themselves. A validated run (:mod:`handeye.refine.validation`) already solved
-these folds: its refits are reused, so the views are solved once. Without a refinement each fold is
-the run's closed-form method.
+Leave-one-out, or interleaved k-fold above a view count. With a refinement each fold is one Gaussian
+solve (:func:`handeye.refine.refit`) with the full run's noise levels and outlier decisions held, and
+a validated run's refits are reused; without one, each fold is the closed-form method. The folds'
+jackknife spread is judged against the model sigmas and against the verdict sigmas, so the
+diagnostics and the printed sigmas never disagree.
 
-The grouped jackknife spread of the folds is compared with the refinement's model sigmas; the ratio is
-judged against its own sampling distribution with K folds (``sqrt(chi2(K - 1) / (K - 1))`` at
-``validation.alpha`` each side), and against the verdict sigmas (``covered_by_verdict``): a spread the
-verdict covariance covers is a finding of size only (info), since the printed sigmas already include it.
-When the validation ran on the same folds, its finding (:mod:`handeye.refine.validation`: each fold's
-displacement against what the model predicts for that fold, all six directions at once; the test that also
-decides the verdict covariance) says whether the spread exceeds the prediction, so the diagnostics and the
-verdict sigmas never disagree.
+See docs/uncertainty.md.
 """
 
 from __future__ import annotations

@@ -1,5 +1,6 @@
-"""Views dropped by detection: target_not_found (with where the board would have been, from the robot
-pose and the hand-eye model) and partial_target.
+"""Views dropped by detection: target_not_found and partial_target.
+
+target_not_found says where the board would have been, from the robot pose and the hand-eye model.
 """
 
 from __future__ import annotations

@@ -1,20 +1,12 @@
 """Pure math behind the dataset diagnostics (:mod:`handeye.diagnose`).
 
-Everything here works on the one model ``C_i = A · M_i · B`` (``C_i = T_cam_board_i`` from PnP,
-``M_i`` the robot motion of :mod:`handeye.mounting`). Two facts carry most diagnostics:
+Everything works on the one model ``C_i = A · M_i · B``: pair invariants (rotation angle and screw
+pitch of ``C_i C_j^-1`` and ``M_i M_j^-1`` must agree whatever ``A`` and ``B``,
+:func:`pair_invariants`), ``A`` from chosen pairs (:func:`solve_A_from_pairs`, Park & Martin), and each
+view's implied board and robot pose, which size a disagreement in mm and degrees. No I/O, no
+printing, inputs never mutated.
 
-* For any pair of views, ``C_i C_j^-1 = A (M_i M_j^-1) A^-1``: the camera's relative motion is the
-  robot's relative motion seen through the unknown ``A``. Its rotation angle and its screw pitch
-  (translation along the rotation axis) are invariant under that conjugation, so they must be equal
-  for camera and robot *whatever* the hand-eye transform and the board transform are
-  (:func:`pair_invariants`). A reading of the robot poses (units, Euler order, inversion, mounting
-  mode, pairing) that is wrong breaks that equality for most pairs; a view whose robot pose is wrong
-  breaks it for the pairs it is in; a board that moved breaks it for pairs across the move.
-* Given ``A`` from the pairs alone (:func:`solve_A_from_pairs`, Park & Martin on any chosen set of
-  pairs), each view implies its own board transform ``B_i = inv(A M_i) C_i`` and its own robot pose
-  ``M_i* = inv(A) C_i inv(B)``, which give the size of a disagreement in mm and degrees.
-
-No I/O, no printing, inputs never mutated.
+See docs/diagnostics.md.
 """
 
 from __future__ import annotations

@@ -1,6 +1,7 @@
-"""Image-level findings: blurred, overexposed (from the blur and exposure measures that detection took on
-the image it decoded, :mod:`handeye.detect.quality`) and corners_bunched (coverage of the image by the
-corners of all views).
+"""Image-level findings: blurred, overexposed and corners_bunched.
+
+Blur and exposure come from the measures detection took on the image it decoded
+(:mod:`handeye.detect.quality`); corners_bunched from the coverage of the image by all views' corners.
 """
 
 from __future__ import annotations

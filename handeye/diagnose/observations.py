@@ -1,6 +1,7 @@
-"""What the pose-level checks work on: the views with a board pose, in session order, with the robot
-pose numbers as written (:class:`PoseObservations`), built from a calibration run or from a leniently
-read session.
+"""What the pose-level checks work on: the views with a board pose, in session order.
+
+:class:`PoseObservations` holds them with the robot pose numbers as written, built from a calibration
+run or from a leniently read session.
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
-"""Pairing of images and robot poses: shifted by a few lines, shuffled, or single poses that belong to
-another view (two detected views swapped, or an image carrying an undetected view's pose).
+"""Pairing of images and robot poses: shifted by a few lines, shuffled, or single poses swapped.
 
-A constant shift reports the code ``pairs_shifted`` (with the shift); a shuffle, swapped poses and an image
-carrying another view's pose report ``pairs_shuffled``.
+A single pose may belong to another view (two detected views swapped, or an image carrying an
+undetected view's pose). A constant shift reports the code ``pairs_shifted`` (with the shift); a
+shuffle, swapped poses and an image carrying another view's pose report ``pairs_shuffled``.
 """
 
 from __future__ import annotations

@@ -1,17 +1,11 @@
-"""The board's scale against the robot's: is the stated square size right?
+"""The board's scale against the robot's: a check of the stated square size.
 
-The square size sets the scale of every camera translation (PnP with squares stated ``L`` when they
-are really ``k·L`` gives translations ``1/k`` of the truth; the intrinsics do not change); the robot
-sets the scale of the world. With one extra unknown ``k`` the translation part of the pair equations
-of ``C_i = A · M_i · B`` stays linear::
+A wrong square size scales every camera translation by ``1/k``; with ``k`` as one more unknown the
+pair equations of ``C_i = A · M_i · B`` stay linear, so ``k`` comes in closed form with ``t_A`` and
+its sigma from the jackknife over views. ``k`` is named when it differs from 1 statistically and
+practically and rescaling the squares explains the data (configs/diagnostics.yaml ``scale:``).
 
-    (R_Cij - I) t_A + k · t_Cij = R_A t_Mij        (all view pairs i < j, R_A from the rotations)
-
-so ``k`` comes in closed form with ``t_A``; its sigma is the jackknife over views (pairs share views:
-the residual-based sigma of all pairs together would be far too small). ``k`` is named when it differs
-from 1 both statistically (a two-sided t test at ``scale.p_value``) and practically (by more than
-``scale.min_rel``), and when rescaling the squares by ``k`` shrinks the board scatter by
-``scale.min_scatter_gain`` (the scale explains the data), see configs/diagnostics.yaml.
+See docs/diagnostics.md.
 """
 
 from __future__ import annotations

@@ -1,13 +1,14 @@
-"""Export a calibration result where robot software reads it: ROS 2 (static transform launch file and
-tf2 YAML), URDF / xacro, MoveIt 2 Calibration's launch file, easy_handeye2's calibration file, plain
-YAML / JSON (``handeye export``, ``handeye calibrate --export``).
+"""Export a calibration result where robot software reads it (``handeye export``, ``calibrate --export``).
+
+Formats: ROS 2 (static transform launch file and tf2 YAML), URDF / xacro, MoveIt 2 Calibration's
+launch file, easy_handeye2's calibration file, plain YAML / JSON.
 
 - :mod:`.frames`   ROS's conventions (tf2 parent -> child, quaternion x y z w, URDF rpy), the optical
   and body camera frames, the default frame names, :class:`ExportTransform`;
 - :mod:`.writers`  the text of each format.
 
 Only a usable result is exported: ``status: ok`` and a verdict other than FAIL or REFUSED (``force``
-exports a FAIL anyway; a result without a matrix never).
+exports a FAIL anyway; a result without a matrix never). See docs/export.md.
 """
 
 from __future__ import annotations

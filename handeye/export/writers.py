@@ -1,23 +1,11 @@
 """The text of each export format, from one :class:`~handeye.export.frames.ExportTransform`.
 
-Every file states the frames (parent -> child, ``p_parent = T @ p_child``), which camera frame the
-child is, the quaternion order, the roll-pitch-yaw convention, the 1-sigma uncertainty when the result
-has a covariance, and where it came from (handeye version, result file, verdict, time). Numbers are
-written with Python's shortest round-trip ``repr``, so a reader recovers the matrix to float precision.
+Formats: ``ros2`` (launch file and tf2 YAML), ``urdf`` (URDF and xacro macro), ``moveit`` (MoveIt
+Calibration's launch files), ``easy_handeye2`` (its ``.calib``), ``yaml`` / ``json``. Every file
+states its frames (parent -> child), the camera frame, the quaternion order, the rpy convention, the
+1-sigma uncertainty and its provenance; numbers are written with Python's round-trip ``repr``.
 
-========================  ==================================================================================
-format                    files
-========================  ==================================================================================
-``ros2``                  ``NAME.launch.py`` (tf2_ros static_transform_publisher with --x --y --z --qx --qy
-                          --qz --qw --frame-id --child-frame-id) and ``NAME.tf_static.yaml`` (the same as a
-                          tf2_msgs/TFMessage, as ``ros2 topic echo /tf_static`` prints it)
-``urdf``                  ``NAME.urdf`` (the two links and a fixed joint, origin xyz rpy) and
-                          ``NAME.urdf.xacro`` (a macro ``handeye_camera_joint`` with parent and child params)
-``moveit``                ``NAME.moveit.launch.py`` and ``NAME.moveit.launch``: the launch files MoveIt 2 and
-                          MoveIt (ROS 1) Calibration save the camera pose in
-``easy_handeye2``         ``NAME.calib``: easy_handeye2's saved calibration (parameters + transform)
-``yaml`` / ``json``       frames, matrix, translation, quaternion (xyzw and wxyz), rpy, sigmas, covariance
-========================  ==================================================================================
+See docs/export.md.
 """
 
 from __future__ import annotations

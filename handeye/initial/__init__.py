@@ -1,15 +1,11 @@
-"""The initial estimate: camera intrinsics, per-view board poses (with the symmetric-board
-ordering), the motion-quality gate and OpenCV's closed-form hand-eye solutions.
+"""The initial estimate: intrinsics, board poses, the motion gate and OpenCV's closed forms.
 
-=================  ==============================================================
-module             holds
-=================  ==============================================================
-``intrinsics``     :func:`calibrate_intrinsics` (OpenCV calibrateCamera)
-``board_poses``    :func:`solve_pnp`, :func:`board_poses`, :class:`BoardPose`
-``motion``         :func:`motion_quality` (the one degeneracy test; thresholds in configs/)
-``closed_form``    :data:`METHODS`, :func:`solve_closed_form`, :func:`all_methods`,
-                   :func:`consistency`, :func:`chain_residuals`
-=================  ==============================================================
+- ``intrinsics``: :func:`calibrate_intrinsics` (OpenCV calibrateCamera);
+- ``board_poses``: :func:`solve_pnp`, :func:`board_poses`, :class:`BoardPose` (with the
+  symmetric-board ordering);
+- ``motion``: :func:`motion_quality` (the one degeneracy test; thresholds in configs/);
+- ``closed_form``: :data:`METHODS`, :func:`solve_closed_form`, :func:`all_methods`,
+  :func:`consistency`, :func:`chain_residuals`.
 """
 
 from .board_poses import BoardPose, board_poses, reprojection_rms, solve_pnp

@@ -1,20 +1,11 @@
-"""OpenCV's closed-form hand-eye solvers through the one generic model ``C_i = A · M_i · B``,
-their agreement with the data (board consistency, residuals through the robot chain).
+"""OpenCV's closed-form hand-eye solvers through the one generic model ``C_i = A · M_i · B``.
 
-OpenCV names its inputs ``X2Y`` (the pose of X in Y). The translation into handeye's names happens
-only in :func:`solve_closed_form`:
+Also their agreement with the data (board consistency, residuals through the robot chain). OpenCV
+names its inputs ``X2Y`` (the pose of X in Y); they are translated into handeye's names only in
+:func:`solve_closed_form` (``R_gripper2base`` -> ``inv(M_i)``, ``R_target2cam`` -> ``C_i``,
+``R_cam2gripper`` -> ``inv(A) = X``; the table is in docs/detection.md).
 
-=====================================  ======================================================
-OpenCV argument                        handeye quantity (generic model)
-=====================================  ======================================================
-calibrateHandEye ``R_gripper2base``    ``inv(M_i)`` (eye-in-hand: T_base_end_i)
-calibrateHandEye ``R_target2cam``      ``C_i = T_cam_board_i``
-calibrateHandEye ``R_cam2gripper``     ``inv(A) = X`` (T_end_cam or T_base_cam)
-calibrateRobotWorldHandEye world2cam   ``C_i``
-calibrateRobotWorldHandEye base2grip.  ``M_i``
-... output ``gripper2cam``             ``A``
-... output ``base2world``              ``inv(B)``
-=====================================  ======================================================
+See docs/detection.md.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Motion quality: do the robot's relative rotations determine the hand-eye transform?
+"""Motion quality: whether the robot's relative rotations determine the hand-eye transform.
 
 The hand-eye problem ``C_i = A · M_i · B`` is solvable only when the relative motions ``M_i M_j^-1``
 include rotations about at least two different axes (Tsai and Lenz 1989). :func:`motion_quality` is

@@ -1,46 +1,12 @@
 """The difference between two calibrations of one rig, and whether it exceeds their uncertainty.
 
-``xi = Log(inv(X_a) · X_b)`` (handeye's one tangent: rotation first, along the camera axes of ``X_a``)
-is tested against ``S = S_a + Ad · S_b · Ad^T`` (``Ad`` the adjoint of ``inv(X_a) · X_b``, which moves
-``X_b``'s right-tangent covariance into ``X_a``'s): ``d2 = xi^T S^-1 xi`` is chi-square with 6 degrees
-of freedom when both results calibrate the same unchanged rig with independent data, so
-``p = P(chi2_6 > d2)``; ``drifted`` when ``p < alpha``. When the results estimated their robot noise, their
-covariances rest on those estimates and ``d2 / 6`` is taken as F(6, nu) instead, nu Satterthwaite's degrees of
-freedom of the sum (:func:`noise_dof`, :func:`handeye.stats.wald_p_value`, as :mod:`handeye.recal.verify`
-does).
+``xi = Log(inv(X_a) · X_b)`` is tested against the sum of the two covariances: chi-square with 6
+degrees of freedom, or F when the results estimated their robot noise. When both carry the joint
+covariance of X and the intrinsics, the test is of X given the intrinsics difference (a moved camera
+stands out from a lens re-estimate), with the test of X alone beside it; the intrinsics get their own
+test. Results of different modes, targets or image sizes are not comparable (``reason`` says why).
 
-Both results estimated the intrinsics of one camera, and an intrinsics error moves X (a principal point
-error tilts it, a focal length error moves it along the optical axis): much of each result's uncertainty
-of X is its intrinsics' error. When both carry the joint covariance of X and the same free intrinsics
-(:attr:`handeye.recal.loaded.LoadedResult.x_on_intrinsics`), the test is of X given the intrinsics
-difference ``dk = k_b - k_a``: ``r = xi - G dk`` with the model's regression ``G = (C_a + Ad C_b)
-(K_a + K_b)^-1`` (``C`` each result's model cross-covariance of X and the intrinsics, ``K`` its model
-intrinsics covariance: how an intrinsics error moves X, geometry), and ``V = S - W (K_a + K_b)^-1 W^T``,
-``W = A_a C_a + Ad A_b C_b`` (``A`` the map that carries each result's model covariance of X to its
-verdict's, :func:`handeye.recal.loaded.verdict_maps`): for one result ``A (S_x - C K^-1 C^T) A^T``, X's part
-that the intrinsics do not explain, inflated as the verdict inflates X. ``d2 = r^T V^-1 r`` is
-chi-square(6) when the verdict's inflation of X is the model's shape scaled (it then applies to the part
-the intrinsics explain and to the rest alike; the model covariance is the case A = I). The part of the
-difference the intrinsics explain (``G dk``) is taken out, and a moved camera (X changed, the lens not)
-stands out from the rest; ``mahalanobis2_x_alone`` and its p-value report the test of X alone beside it.
-
-An inflation that came from errors unrelated to the intrinsics, large where the intrinsics explain most
-of X, would make ``V`` too small. The real sets' halves (``benchmarks/bench_realdata.py``) show no sign of
-it: the statistic stays below chi-square(6) there (medians 1.2-6.5 over 6 sets, at most 1 of 11 halvings
-above its 95 % point). Two other forms were tried on simulated pairs of one rig: scaling the regression
-by ``A`` too over-subtracts ``G dk`` (11 % called drifted eye-to-hand at the 5 % level); counting the
-verdict's whole inflation of X against the remainder made the test far too conservative (0-1 %).
-
-The intrinsics (fx, fy, cx, cy) are tested under the sum of the two results' covariances of them (the
-joint covariance's intrinsics block, carried to the verdict as :func:`~handeye.recal.loaded.verdict_maps`
-does; fx and fy are nearly fully correlated, so their sigmas alone would make the statistic heavier-tailed
-than chi-square), chi-square(4); results
-without the joint covariance are tested with the sum of their variances (a diagonal test, as many
-degrees of freedom as intrinsics with a sigma).
-
-Two results are comparable only when they describe the same quantity: the same mounting mode (and so
-the same frame of X), the same target and the same image size. Otherwise :func:`compare_results`
-returns ``comparable=False`` with ``reason`` naming the difference.
+See docs/recalibrate.md for the derivation and the forms rejected.
 """
 
 from __future__ import annotations

@@ -1,18 +1,11 @@
 """What a result.json says about the hand-eye transform X, the intrinsics and their covariances.
 
-The covariance of X is the one the result's verdict uses: ``refinement.cov_x_6x6_verdict`` when
-present, else ``refinement.cov_x_6x6`` (the model's); its parametrisation must be handeye's one tangent
-(:data:`handeye.refine.covariance.COV_PARAMETRISATION`: right perturbation, rotation first, radians and
-metres, along the camera axes). The same for the intrinsics (``intrinsics_sigma_verdict`` when present,
-else ``intrinsics_sigma``; sigmas of the free intrinsics only: a fixed or given intrinsic has sigma 0).
-The model's joint covariance of X and the free intrinsics (``refinement.cov_x_intrinsics``) is read
-too: verify needs it when the new views share the installed intrinsics. When the verdict covariances
-differ from the model's, the joint is carried to them (:func:`verdict_maps`): its X block becomes the
-verdict's X covariance and its intrinsics block the verdict's (for a result validated against the
-intrinsics' sigmas alone: the verdict's sigmas with the model's correlations among them), the model's
-canonical correlations between the two kept, so that a test never mixes the verdict's X with
-the model's smaller intrinsics uncertainty. A kinematic install's DH offsets (estimate and covariance with both, in the same
-block of result.json) are read with it: verify shares them with the new views.
+The covariances are those the result's verdict uses (``cov_x_6x6_verdict``, ``intrinsics_sigma_verdict``,
+else the model's), in handeye's one tangent. The model's joint covariance of X and the free intrinsics
+is read too and carried to the verdict covariances (:func:`verdict_maps`), so a test never mixes the
+verdict's X with the model's intrinsics; a kinematic install's DH offsets are read with it.
+
+See docs/recalibrate.md.
 """
 
 from __future__ import annotations

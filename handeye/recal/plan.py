@@ -1,29 +1,12 @@
 """How many views, and which robot poses, a verification needs to detect a drift.
 
-From the installed calibration alone (its X and board, intrinsics, pixel and robot noise, covariance
-``S0``), the information a verification view brings about X is predicted with the collector's planner
-(:func:`handeye.collect.plan.view_information`: corner reprojection at the installed intrinsics, robot
-noise marginalised; the board a nuisance shared by the views, marginalised by inverting the summed 12x12
-information). Verify shares the installed intrinsics, so the installed uncertainty it faces is ``S0``,
-X's covariance given its intrinsics, and given a kinematic install's DH offsets when verify will share them
-(:func:`handeye.recal.verify.shares_dh`: the install recorded joint angles for an arm verify can rebuild;
-:attr:`handeye.recal.loaded.LoadedResult.cov_x_given_shared`; the whole covariance of results without the
-joint one); what the views' own sensitivity to the
-intrinsics adds is left out, so the plan is slightly optimistic. A set of views
-with X-covariance ``S_new`` makes verify's test statistic (:mod:`handeye.recal.verify`) non-central
-chi-square with 6 degrees of freedom and non-centrality ``delta^T (S0 + S_new)^-1 delta`` for a drift
-``delta``; its power at level ``alpha`` is ``P(ncx2(6, nc) > chi2_6(1 - alpha))``, or the non-central F's
-when the install estimated its robot noise (verify's F reference, :func:`test_power`). A drift is a translation
-of ``drift_mm`` and a rotation of ``drift_deg`` in any directions: the power reported is the worst over
-the six axis combinations and ``n_directions`` seeded random ones.
+From the installed calibration alone, each candidate view's information about X is predicted with
+the collector's planner (:func:`handeye.collect.plan.view_information`); verify's statistic is then
+non-central chi-square (or F), and its power for a drift of ``drift_mm`` / ``drift_deg`` in the worst
+direction follows (:func:`test_power`). Views are added greedily until the power reaches the goal or
+``max_views``; the installed covariance sets a ceiling, and the plan says when it is below the goal.
 
-Candidate poses: the installed calibration's own robot poses (they showed the board) and the
-planner's orbit views around each of them (:func:`handeye.collect.plan.candidate_views`; their visibility
-judged without k3 when the fitted k3 folds the lens model back near the image corners). Views are
-added greedily, each the one that raises the worst-case non-centrality most, until the power reaches
-the goal or ``max_views``. Even infinitely many views leave ``S0``: the power of a perfect verification,
-``P(ncx2(6, min delta^T S0^-1 delta) > ...)``, is the ceiling, and when it is below the goal the plan
-says so and gives the smallest drift the installed calibration can tell at that power.
+See docs/recalibrate.md.
 """
 
 from __future__ import annotations

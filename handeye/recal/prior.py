@@ -1,27 +1,12 @@
 """An earlier result as the prior of a new calibration (``handeye calibrate SESSION --prior RESULT``).
 
-The earlier ``X0`` (covariance ``S0``, the one its verdict uses) enters the refinement as a Gaussian
-prior through :class:`handeye.refine.options.Prior`, and so do the earlier intrinsics with their sigmas
-(the session starts from them; those without a sigma are held), unless the session brings its own:
-one recipe with ``handeye verify``, :func:`handeye.recal.loaded.installed_prior`. With the earlier
-result's joint covariance of X and the intrinsics (carried to its verdict covariances) the two are one
-joint Gaussian prior: an earlier principal point error and the tilt of X it caused stay tied. A few new views then
-update the calibration instead of replacing it.
+The earlier X and intrinsics enter the refinement as one joint Gaussian prior
+(:class:`handeye.refine.options.Prior`), so a few new views update the calibration. Whether the data
+contradict it is ``handeye verify``'s test on the same views; when they do, the session is calibrated
+again without the prior on X (the intrinsics prior kept, and the board pose too with
+``--board-unmoved``), and the result says which priors it used and the drift.
 
-Whether the data contradict the prior is ``handeye verify``'s test on the same views
-(:func:`handeye.recal.verify.verify_views`: the views refined with X free and the earlier intrinsics as
-their prior, the change of X estimated jointly with the intrinsics they share with the earlier result,
-its Wald test). So one test decides both commands, and a contradiction found here is a drift verify
-would report. When ``p < alpha`` (or the solve with the prior fails), the prior is not used silently:
-the session is calibrated again without the prior on X (a vague term,
-:data:`handeye.recal.loaded.VAGUE_COV_X`: the data say its mean is wrong, and no inflation of ``S0``
-fitted to one drift would be better founded) but with the intrinsics prior (a bump moves the camera,
-not its lens) and, when the user states that the board was not touched (``--board-unmoved``) and verify's
-test does not find it moved, the earlier board pose with its covariance and its correlation with the
-intrinsics (a bumped camera does not move the board: each new view then measures X through it, instead of
-the few views fixing X and the board together). It is the user's statement, not a test: a board moved by
-a millimetre or two is within what a few views can tell from a bumped camera, and X would take the
-move. The result says which priors it used, with the drift (the change of X with its sigma).
+See docs/recalibrate.md.
 """
 
 from __future__ import annotations

@@ -1,5 +1,6 @@
-"""verify.html and verify.md from verify.json alone, in the calibration report's style (its
-stylesheet and number filters, :mod:`handeye.report.render`).
+"""verify.html and verify.md from verify.json alone, in the calibration report's style.
+
+They use the calibration report's stylesheet and number filters (:mod:`handeye.report.render`).
 """
 
 from __future__ import annotations

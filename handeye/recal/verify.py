@@ -1,46 +1,13 @@
 """Verify an installed calibration with a few new views, without re-solving it.
 
-Model. The installed result gives ``X0`` with covariance ``S0`` (the one its verdict uses), the
-intrinsics ``K0`` with their sigmas and the joint covariance of X and the free intrinsics
-(``refinement.cov_x_intrinsics``: the two errors are strongly correlated, a principal point error tilts
-X; carried to the verdict's X covariance and intrinsics sigmas, :func:`handeye.recal.loaded.verdict_maps`).
-The new views are refined (:func:`handeye.refine.refine`, the same graph, outlier decisions and noise
-estimation as a calibration) with the installed intrinsics as a Gaussian prior
-(:class:`handeye.refine.options.Prior`; the session's own intrinsics are held instead when it brings
-them), X free (the prior hook's X term is vague: 1 rad, 1 m), the board pose a free nuisance unknown,
-each robot pose tied to its reading with the installed robot noise and the pixel noise estimated from
-the new corners. X is left free so that a drifted X does not make the robot-pose outlier test reject
-good views. When the install modelled its arm kinematically (a shipped arm or a DH table result.json
-records: :func:`installed_robot_model`), the new views use that model, and the DH offsets the install
-estimated, with their covariance, are the new views' DH prior (:func:`with_installed_dh`): the arm's
-systematic error is the install's, not a fresh unknown.
+The new views are refined with X free, the installed intrinsics (and a kinematic install's DH
+offsets) as priors and the board a nuisance. :func:`joint_drift_test` estimates the change
+``d = X_new - X_old`` jointly with the parameters the views share with the install, so their error is
+not counted twice, and tests ``H0: X_new = X_old`` by Wald's test (chi-square, or F when the install
+estimated its robot noise); :func:`drift_test` is the plain form for older results. The report says
+what moved: the camera mount, the board, robot poses or the intrinsics.
 
-Test of ``H0: X_new = X_old`` (nothing moved). The new views share the installed intrinsics (and DH
-offsets), so their X and ``X0`` share those errors: adding ``S0`` and the new views' covariance would
-count them twice (a conservative test; for a 20-view install the intrinsics' error is most of ``S0``'s
-rotation about the optical axis' normals and of its depth). :func:`joint_drift_test` takes the new
-views' own information on ``(X_new, K)`` (K: the shared parameters, the intrinsics and the DH offsets)
-out of the refinement (its joint covariance minus the priors' information, in units of the installed
-sigmas), adds the installed information on ``(X_old, K)`` and estimates ``d = X_new - X_old`` (in
-``X0``'s tangent) with its covariance ``V``: the exact Wald test of the linear-Gaussian model. Whitened
-by ``S0 = L L^T`` (``L^-1 V L^-T = Q diag(w) Q^T``, ``u = L^-1 d``), ``T = sum_k (q_k . u)^2 / w_k`` over
-the directions where ``V`` is at most ``S0 / min_variance_share`` (the others the new views do not see),
-chi-square with that many degrees of freedom; ``p = P(chi2 > T)``, "drifted" when ``p < alpha``. When the
-install estimated its robot noise (``refinement.robot_noise_dof``: the redundancy of each robot sigma;
-:attr:`~handeye.recal.loaded.LoadedResult.robot_noise_dof`: Satterthwaite's over them, about 50 eye-in-hand
-and 75 eye-to-hand for a 20-view install), both covariances rest on that estimate and the new views' robot
-poses are tied with it: ``T / dof`` is then F(dof, nu) instead (:func:`handeye.stats.wald_p_value`; the
-chi-square reference called 8 % of undisturbed simulated eye-in-hand installs drifted at 5 %). Without
-the joint covariance (an older result) or with the session's own intrinsics, :func:`drift_test`:
-``d = Log(X0^-1 X_new)`` with ``V = S0 + Ad S_new Ad^T`` (``Ad`` moves ``S_new`` into ``X0``'s tangent, as
-:mod:`handeye.recal.compare` does).
-
-Estimated change: ``d`` with covariance ``V``, its error against the true change. The posterior under
-``H0`` (the installed and the new information on one X) is reported beside it.
-
-What moved, when it can be told: X (the camera mount; eye-to-hand also a moved robot base), the
-board (its pose against the installed one, beyond its scatter over the new views), the robot (views
-whose robot pose the refinement's robot-pose test rejects), the intrinsics (their update).
+See docs/recalibrate.md.
 """
 
 from __future__ import annotations

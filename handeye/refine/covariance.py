@@ -1,13 +1,13 @@
-"""Covariance algebra of the refinement (pure numpy): the arrow-shaped information matrix and the
-forms derived from the hand-eye covariance.
+"""Covariance algebra of the refinement (pure numpy): the arrow-shaped information and derived forms.
 
 The information of the refinement has an arrow structure: a dense core (``T_x``, ``T_board``, the
 free intrinsics; ``c`` unknowns) and one 6x6 block per robot-pose variable that couples only with
-the core. A Schur complement on the core inverts it exactly in O(n) instead of O(n^3).
+the core. A Schur complement on the core inverts it exactly in O(n) instead of O(n^3). The forms
+derived from the hand-eye covariance are sigmas, correlations and the predicted error.
 
 Pose covariances are in the one tangent of :mod:`handeye.frames` (rotation first, right
 perturbation): ``T_x,true = T_x · Exp(xi)``, ``xi = (omega [rad], v [m])`` along the child frame of
-``T_x`` (the camera).
+``T_x`` (the camera). See docs/uncertainty.md.
 """
 
 from __future__ import annotations

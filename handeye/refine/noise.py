@@ -1,30 +1,12 @@
-"""Noise levels of the refinement: the pixel sigma and the robot's rotation and translation sigmas
-(the iid robot model), or the pixel sigma and the encoder sigma (the kinematic robot models of
-:mod:`.robot_model`, whose per-view prior covariance is the encoder sigma squared times J_q J_q^T).
+"""Noise levels of the refinement: the pixel sigma and the robot's (or the encoder's) sigmas.
 
-They are three (two) variance components; with the kinematic model, the scale of the arm's DH prior
-becomes one more where the views contradict the stated prior (:func:`_dh_prior_test`, :func:`_dh_scale`).
-On the cleaned data they are estimated by iterated
-variance-component estimation (Helmert / Förstner): for each group ``g``,
-``sigma_g^2 = e_g^T e_g / r_g`` with ``e_g`` the group's residuals and
-``r_g = n_g - tr(W_g J_g Sigma J_g^T)`` its redundancy, taken from the marginal covariances of the
-robot-pose variables (the arrow-shaped information is inverted exactly by a Schur complement, see
-:mod:`.covariance`); the pixel group gets the remaining redundancy. This is the REML fixed point:
-for Gaussian data it converges to unbiased sigmas. The fixed-point iteration runs in numpy on one
-linearisation (unit-sigma pixel information from the problem plus the priors), then the problem is
-re-solved with the new sigmas and the iteration repeats on the new linearisation until the sigmas
-change by less than ``noise.outer_tol``. The robot sigmas start from the larger of the robust
-estimate and the configured value, so that a robot noise the camera cannot see is approached from
-above. When a robot group's redundancy falls below ``noise.unresolved_redundancy_share`` of its
-count, the camera can no longer resolve that robot noise: its sigma stays where it is (the robot is
-effectively exact at that level) and is reported with ``robot_sigma_resolved = False``.
+They are variance components (with a kinematic arm, the scale of its DH prior becomes one more where
+the views contradict it). On clean data they are estimated by iterated variance-component estimation
+(Helmert / Förstner, the REML fixed point); before the data are clean they come from robust
+statistics (:func:`handeye.stats.robust_noise_sigma`). A robot sigma the camera cannot resolve is
+held and reported with ``robot_sigma_resolved = False``. Pure numpy: the problem is passed in.
 
-Before the data are clean, the sigmas come from robust statistics instead: ``sigma_px`` from the
-median corner residual, and each robot sigma from the value that makes the median per-view
-Mahalanobis distance between the reported robot pose and the pose the camera alone implies equal to
-the chi-square median (:func:`handeye.stats.robust_noise_sigma`).
-
-Pure numpy: the problem (:class:`.problem.Problem`) is passed in.
+See docs/refinement.md.
 """
 
 from __future__ import annotations

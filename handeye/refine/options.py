@@ -1,5 +1,7 @@
-"""Inputs of the refinement: its options (defaults from configs/refine.yaml), one view, and their
-validation (done once, at the boundary, with messages that name the field).
+"""Inputs of the refinement: its options, one view, and their validation.
+
+Defaults come from configs/refine.yaml; validation is done once, at the boundary, with messages that
+name the field.
 """
 
 from __future__ import annotations

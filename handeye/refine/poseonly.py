@@ -1,23 +1,12 @@
-"""Refinement of pose-only views: the camera -> target pose of each view comes from an external tracker
-(a marker tracker, easy_handeye2 samples, a pose list) instead of detected corners.
+"""Refinement of pose-only views, whose camera -> target poses come from an external tracker.
 
-Model
------
-``T_cam_board_measured_i = inv(T_x) · M_i · T_board · Exp(-n_i)`` with the tracker's noise
-``n_i ~ N(0, diag(s_rot^2 I3, s_trans^2 I3))`` (:mod:`handeye.factors.pose`). Unknowns: ``T_x`` and
-``T_board``; the robot poses are taken as reported, so robot noise shows up as tracker noise (the
-two are not separable from poses alone). The tracker's sigmas are the session's stated
-``tracker_sigma`` (held), or estimated: first robustly (median residual), then by the same
-variance-component estimation as the pixel sigma of image sessions (Helmert: ``s_g^2 = e_g^T e_g / r_g``
-with the redundancy ``r_g = n_g - tr(W_g J Sigma J^T)``), with rotation and translation as the two
-groups.
+``T_cam_board_measured_i = inv(T_x) · M_i · T_board · Exp(-n_i)`` with the tracker's noise ``n_i``
+(:mod:`handeye.factors.pose`); the robot poses are taken as reported. The tracker's sigmas are the
+session's or estimated by variance components. Stages: the best closed-form start, a Huber solve,
+then the outlier loop with THE robot-pose test (:func:`.outliers.robot_pose_test`) until the set of
+views is stable; the covariance is the final solve's. The graph is :func:`.problem.solve_pose_graph`.
 
-Stages: the best start among the closed forms (lowest median residual), a Huber solve, then the
-outlier loop: every view's reported pose pair is tested by THE robot-pose test
-(:func:`.outliers.robot_pose_test`) on ``T_cam_board``, with Baarda's leave-one-out prediction for views
-in the solve (:func:`.outliers.leave_one_out`) and the plain prediction for views left out, until
-the set of views is stable. The covariance is the inverse information of the final Gaussian solve.
-The graph is built and solved in :mod:`.problem` (:func:`.problem.solve_pose_graph`).
+See docs/refinement.md.
 """
 
 from __future__ import annotations

@@ -1,18 +1,11 @@
-"""The refinement problem in GTSAM: the ONLY module of handeye that builds factor graphs and
-``gtsam.Values``.
+"""The refinement problem in GTSAM: the ONLY module of handeye that builds factor graphs and Values.
 
-Variables (keys below): ``T_x`` (Pose3), ``T_board`` (Pose3), the free intrinsics (one Vector) and,
-per view with a robot-pose variable, the true robot pose ``T_base_end_i`` (Pose3). Factors: one
+Variables: ``T_x``, ``T_board``, the free intrinsics and, per view, the true robot pose. Factors: one
 reprojection ``CustomFactor`` per view (:mod:`handeye.factors.gtsam_factors`), a prior per robot pose
-tying it to the reported one, and optionally priors on the intrinsics, ``T_x`` and the board (an earlier
-calibration: ``options.prior``).
+and optional priors from an earlier calibration (``options.prior``). The solver is Levenberg-Marquardt
+with diagonal (Marquardt) damping, which stays scale-free whatever the units and noise levels.
 
-Solver: Levenberg-Marquardt with diagonal (Marquardt) damping, ``lambda · diag(H)``. GTSAM's
-default damping ``lambda · I`` is not scale-free: on rendered images ``sigma_px`` is ~0.03 px, so
-the information of the poses is ~1e10 and the largest default lambda (1e5) cannot shorten a
-Gauss-Newton step that overshoots; LM then stops at once, far from the optimum (seen on a 12-view
-session with two wrong robot poses). Damping proportional to the diagonal shrinks the step whatever
-the units and noise levels.
+See docs/refinement.md.
 """
 
 from __future__ import annotations

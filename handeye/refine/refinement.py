@@ -1,39 +1,13 @@
-"""refine(): joint maximum-likelihood refinement of the hand-eye transform, the board, the intrinsics
-and the true robot poses, with noise estimation, outlier decisions and the covariance.
+"""refine(): joint maximum-likelihood refinement of the hand-eye transform, board, intrinsics and robot poses.
 
-Model
------
-Both mounting modes are ``T_cam_board_i = inv(T_x) · M_i · T_board`` (see :mod:`handeye.mounting`).
-Unknowns: ``T_x`` (``T_end_cam`` eye-in-hand, ``T_base_cam`` eye-to-hand); ``T_board``
-(``T_base_board`` / ``T_end_board``); the free subset of the intrinsics
-``(fx, fy, cx, cy, k1, k2, p1, p2, k3)`` (``options.fix`` names the fixed ones;
-``intrinsics="fixed"`` fixes all; ``"prior"`` adds a Gaussian prior around the given ones); per
-view, the true robot pose ``T_base_end_i``, tied to the reported pose by a prior
-``Log(inv(T_reported) · T_base_end_i) ~ N(0, diag(s_rot^2 I3, s_trans^2 I3))`` (end frame, rotation
-first); ``robot_noise="none"`` holds the reported poses exact instead. With an arm named
-(``options.arm``) the prior is the kinematic one of :mod:`.robot_model` instead: the DH offsets of the
-arm, shared by all views, join the unknowns with their own prior, and each view's prior covariance is
-its encoder noise through the joint Jacobian. ``options.prior`` adds Gaussian priors on ``T_x``, the
-free intrinsics and optionally the board's pose (an earlier calibration; the intrinsics in one joint
-Gaussian with ``T_x`` or with the board when their cross-covariance is given). Every corner gives
-``project(K, T_cam_board_i · p) - uv ~ N(0, sigma_px^2 I2)``.
+Both mounting modes are ``T_cam_board_i = inv(T_x) · M_i · T_board`` (:mod:`handeye.mounting`); the
+unknowns are ``T_x``, ``T_board``, the free intrinsics and each view's true robot pose, tied to the
+reported one by the robot model (:mod:`.robot_model`), with optional priors from an earlier
+calibration. Stages: the best closed-form start, guard solves with robust losses, the outlier loop
+with variance-component estimation (:mod:`.outliers`, :mod:`.noise`), then the covariance
+(:mod:`.covariance`). The graph is built and solved in :mod:`.problem`.
 
-Stages
-------
-1. Start: the given ``T_x0`` / ``T_board0``, or, among ``starts`` (the pipeline's closed-form
-   solutions), the one with the lowest median over the views of the view's median corner residual
-   through its reported robot pose: one closed-form method can be tens of degrees off when a robot
-   pose is wrong (Tsai 120 deg off with one wrong pose in 12 views, where Park was within 1 deg) and
-   the local solves below cannot recover from such a start.
-2. Guard: noise levels from each view's own fit, then two solves with robust losses (per corner,
-   and Huber on each robot prior), the pixel sigma from the median residual in between (one
-   Gaussian solve with ``loss="none"``).
-3. Outlier loop (:mod:`.outliers`): decisions against the current solution, Gaussian re-solves
-   with variance-component estimation (:mod:`.noise`), until the decisions are stable.
-4. Covariance (:mod:`.covariance`) from the information of the final Gaussian linearisation, in
-   which the estimated sigmas are the noise models.
-
-The graph itself is built and solved in :mod:`.problem` (the only GTSAM user).
+See docs/refinement.md.
 """
 
 from __future__ import annotations

@@ -1,16 +1,11 @@
-"""refit(): the refinement's solution on a subset of its views, with the full run's noise levels and
-outlier decisions held (one cross-validation fold).
+"""refit(): the refinement's solution on a subset of its views, one cross-validation fold.
 
-A fold must measure how the estimate moves without some views, not how noise estimation and outlier
-decisions would redo themselves on fewer data. So a refit is ONE Gaussian solve of the refinement's
-model, started from the full solution, with:
+A refit is ONE Gaussian solve of the refinement's model, started from the full solution, with the
+full run's noise levels (pixel, robot, encoder, DH prior scale) and outlier decisions held, so a fold
+measures how the estimate moves without some views, not how noise estimation and outlier decisions
+would redo themselves on fewer data.
 
-* the pixel sigma and the robot sigmas of the full run (``robot_noise`` "estimate" is held "fixed" at
-  the estimated values, the encoder sigma of a kinematic robot model and its DH prior's scale too; "none"
-  stays "none");
-* the full run's outlier decisions: corners flagged there are left out, a view whose robot pose was
-  excluded keeps its corners without a robot prior, and a view the run dropped cannot be refitted;
-* the refined robot poses of the full run as the start of each view's robot pose.
+See docs/refinement.md.
 """
 
 from __future__ import annotations

@@ -1,34 +1,12 @@
-"""The refinement's robot error models (pure numpy): which error the reported robot poses carry, and
-the per-view matrices the problem, the noise estimation and the outlier test build from it.
+"""The refinement's robot error models (pure numpy) and the per-view matrices built from them.
 
-Every model is written in one tangent: the true flange pose of view i is
-``T_base_end_true_i = T_reported_i · Exp(u_i)`` (:mod:`handeye.frames`: rotation first, right
-perturbation, along the end-frame axes), and the refinement's robot-pose variable ``P_i`` is that
-true pose. Kinds (``RobotModel.kind``):
+The true flange pose is ``T_reported_i · Exp(u_i)`` in the tangent of :mod:`handeye.frames`. Kinds:
+``none`` (exact poses), ``iid`` (independent per view), ``kinematic`` (shared DH offsets ``delta``
+with the arm's prior plus encoder noise, ``u_i = J_dh,i · delta + J_q,i · e_i``) and ``joint_space``
+(encoder noise only). Joint angles come from the session or from inverse kinematics; a constant tool
+offset between the flange and the reported frame is estimated from the views.
 
-* ``none``: ``u_i = 0`` (the reported poses are exact; ``robot_noise="none"``);
-* ``iid``: ``u_i ~ N(0, diag(s_rot^2 I3, s_trans^2 I3))``, independent per view;
-* ``kinematic``: the arm's published DH table (:mod:`handeye.kinematics`) is off by shared offsets
-  ``delta`` (one per DH parameter, ``(a, alpha, d, theta_offset)`` per joint) and each joint reading by
-  encoder noise ``e_i``: ``u_i = J_dh,i · delta + J_q,i · e_i`` to first order (the DH and joint
-  Jacobians at the view's joint angles, carried through a constant tool offset, see below), with
-  ``delta ~ N(0, diag(sigma_dh^2))`` (the arm's ``error_prior``, its scale estimated where the views
-  contradict it: :func:`handeye.refine.noise._dh_prior_test`) and ``e_i ~ N(0, s_q^2 I)``. So the
-  per-view prior of ``P_i`` is ``u_i - J_dh,i · delta ~ N(0, s_q^2 B_i)``, ``B_i = J_q,i J_q,i^T``
-  (+ a tiny ridge), and ``delta`` is an unknown of the core shared by every view: estimated jointly
-  with ``T_x`` where the views resolve it, and held by its prior where they do not (a flange-length
-  error is absorbed into ``T_x`` eye-in-hand; a base error into ``T_x`` eye-to-hand), so that its
-  prior's share reaches the covariance of ``T_x`` through the marginal;
-* ``joint_space``: the same without ``delta`` (encoder noise only).
-
-Joint angles come from the session (``RefineView.joint_angles``) or, for views without them, from the
-inverse kinematics of the reported pose (the solution closest to the previous view's). The reported
-pose may be the tool's rather than the flange's: ``T_reported = FK(q) · T_tool`` with a constant
-``T_tool`` (the mean of ``inv(FK(q_i)) · T_reported_i`` over the views that agree on it within
-``robot_model.tool_spread_mm`` / ``tool_spread_deg``, configs/refine.yaml); the Jacobians are carried to
-the reported frame by ``Ad(inv(T_tool))``. A view outside that agreement (its pose wrong, not its
-joints) is named and left to the robot-pose test; when most views disagree the table is not the one
-the controller computes with: a ConfigError.
+See docs/robot_error.md.
 """
 
 from __future__ import annotations

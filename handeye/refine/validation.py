@@ -1,57 +1,12 @@
-"""The validated covariance of a refined result: how much ``T_x`` and the intrinsics move between refits
-without some of the views, and the verdict covariance that the printed sigmas and the verdict use.
+"""The validated covariance of a refined result and the verdict covariance that the printed sigmas use.
 
-The refinement's own (model) covariance is right only when its noise model is: iid pixel noise and
-iid robot-pose errors of the estimated size. Real rigs break that (pose-dependent kinematic errors,
-correlated detector errors within a view), and the model covariance then says the answer is more
-certain than the data allow. Resampling the views measures the scatter directly:
+Refits without some of the views (leave-one-out or interleaved folds, :func:`handeye.refine.refit`)
+give a jackknife covariance, shrunk toward the model's shape: the validated covariance. A test of
+each fold against what the model predicts for it decides whether the model covariance is too small;
+only then is the verdict covariance the larger of the two along every direction. The same folds
+serve the diagnostics' cross-validation, and the odd and even halves are refitted for the report.
 
-* **Folds.** Leave-one-out up to ``validation.loo_max_views`` used views, interleaved k-fold above
-  (``validation.folds``; ``configs/diagnostics.yaml``). Each fold is ONE Gaussian solve of the
-  refinement without its views (:func:`handeye.refine.refit`: the full run's noise levels and outlier
-  decisions held), so it measures how the estimate moves, not how noise estimation would redo itself.
-* **Jackknife covariance** of the fold estimates (grouped delete-d jackknife, K folds that partition
-  the views): ``S = (K - 1) / K · sum_k (theta_k - mean)(theta_k - mean)^T``, ``theta`` the right-tangent
-  difference of ``T_x`` to the full solution (the parametrisation of ``cov_x_6x6``) or the free
-  intrinsics. A view whose error the robot-pose variables absorbed moves ``T_x`` only as much as it
-  informs it, so views made consistent that way add nothing to the validated certainty.
-* **Shrinkage.** With K folds, S has only K - 1 degrees of freedom in 6 (or 9) dimensions: its
-  eigenvalues scatter widely even when the model is right (Marchenko-Pastur). S is whitened by the
-  model covariance M and shrunk (Ledoit & Wolf 2004, intensity estimated from the folds themselves)
-  toward ``s · I``, ``s = tr(M^-1 S) / p`` (the model's shape at the scale the folds show, a
-  well-determined number); back in the original space that is the **validated covariance** V.
-* **The finding: is the model wrong?** The jackknife itself cannot say: its expectation exceeds the model's
-  covariance when the views inform the result unequally (a view near the image corner carries most of the
-  distortion; the jackknife is biased upward, Efron & Stein 1981): 1.2x in variance for T_x, and 3-5x on average
-  and up to 15x for the intrinsics against their joint covariance, on simulated 20-view sessions whose model
-  is right. So each fold is measured against what the
-  model predicts for that fold: refitted on all views as the folds are (``theta_all``, ``M_all``), fold k
-  moves by ``delta_k = theta_k - theta_all`` with covariance ``P_k = M_k - M_all`` (its own model covariance
-  less the full one: the information its views carried), and
-  ``T = (K - 1) / K · sum_k delta_k^T P_k^+ delta_k`` is chi-square with ``(K - 1) / K · sum_k rank(P_k)``
-  degrees of freedom if the model is right (directions in which leaving the fold out raises the variance by
-  less than ``validation.information_floor`` of the full one are left out: the fold carries no information
-  there, and its displacement is the solver's tolerance). The folds show the model wrong when the upper
-  tail probability is below ``validation.alpha``. The test runs over the folds that have their covariance
-  (at least 3). Without them (the all-views refit failed, say), ``(K - 1) tr(M^-1 S)`` against chi-square
-  with ``(K - 1) D`` dof stands in for T_x (the equal-leverage case of the same test, 1.2x biased upward); the
-  intrinsics, whose jackknife is far from their model even when it holds, are then not tested and keep the
-  model's covariance.
-* **Verdict covariance**, the rule: M when the folds are consistent with it; after a finding,
-  ``C = L U max(Lambda, 1) U^T L^T`` with ``M = L L^T`` and ``L^-1 V L^-T = U Lambda U^T`` (generalised
-  eigenvalues of V against M): along every direction u, ``u^T C u >= max(u^T M u, u^T V u)``, never smaller
-  than either covariance, and M where the folds scatter less than the model predicts. Taking the maximum
-  without the test would inflate every session by the folds' chance scatter, and a test that uses the
-  verdict (``compare``, ``verify``) would then accept too often.
-
-The intrinsics are measured against their joint model covariance (the marginal of the refinement's
-joint covariance with X, ``RefineResult.cov_x_intrinsics``), so the verdict keeps the correlations the
-data determine (fx and fy nearly fully correlated: fx - fy is known far better than either); a result
-without the joint uses the model sigmas alone.
-
-The same folds serve the cross-validation of the diagnostics (:mod:`handeye.diagnose.crossval`), so
-the views are solved once. The two halves of the used views (odd and even positions in view order) are
-refitted too, for the report's offsets of the result from each half.
+See docs/uncertainty.md.
 """
 
 from __future__ import annotations

@@ -1,17 +1,13 @@
 """Accuracy reports: ``report.html`` (one self-contained file) and ``report.md`` (+ ``report_files/``).
 
-Built from a result folder alone (result.json, observations.json, thumbnails/), so that
-``handeye report RESULT_DIR`` rebuilds it anywhere without the session or a re-run:
+Built from a result folder alone (result.json, observations.json, thumbnails/), so
+``write_reports("reports/cell3")`` or ``handeye report DIR`` rebuilds them without the session.
+:mod:`.folder` reads the folder, :mod:`.context` computes what the templates show (with
+:mod:`.observations`, :mod:`.uncertainty`, :mod:`.metrics`, :mod:`.qa`, :mod:`.advice`,
+:mod:`.figures`, :mod:`.plots`) and :mod:`.render` writes HTML and Markdown. matplotlib and jinja2
+load only when a report is written.
 
-    from handeye.report import write_reports
-    paths = write_reports("reports/cell3")
-
-Modules: :mod:`.folder` reads the folder; :mod:`.context` computes what the templates show, with
-:mod:`.observations` (per-view arrays), :mod:`.uncertainty` (every form's sigma), :mod:`.metrics`
-(the numbers QA judges), :mod:`.qa` (the verdict against configs/qa.yaml), :mod:`.advice` (what to do,
-keyed on error and finding codes) and :mod:`.figures` / :mod:`.plots` (what is drawn / the drawing);
-:mod:`.render` turns the context into HTML and Markdown. matplotlib and jinja2 load only when a
-report is written.
+See docs/report.md.
 """
 
 from __future__ import annotations

@@ -1,6 +1,7 @@
-"""Render the report context (:mod:`handeye.report.context`) to one self-contained HTML file (figures
-and thumbnails inlined as data URIs) and to Markdown with its figures and thumbnails as files in
-``report_files/``. Templates ship in ``handeye/templates``.
+"""Render the report context (:mod:`handeye.report.context`) to HTML and Markdown.
+
+The HTML is one self-contained file (figures and thumbnails inlined as data URIs); the Markdown has
+its figures and thumbnails as files in ``report_files/``. Templates ship in ``handeye/templates``.
 """
 
 from __future__ import annotations

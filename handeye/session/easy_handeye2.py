@@ -1,21 +1,11 @@
 """easy_handeye2's saved samples (``~/.ros2/easy_handeye2/calibrations/NAME.samples``) as a pose-only session.
 
-The file is YAML: ``parameters`` (``calibration_type``: eye_in_hand | eye_on_base, the four frame names)
-and ``samples``, each ``{robot: T, tracking: T}`` with ``T = {translation: {x, y, z}, rotation: {x, y, z, w}}``
-(geometry_msgs/Transform: metres, a unit quaternion). Both are tf2 lookups ``lookup_transform(target, source)``,
-the pose of ``source`` in ``target``:
+Each sample is a ``robot`` and a ``tracking`` transform (tf2 lookups, metres and unit quaternions):
+the robot one is ``T_base_end`` eye-in-hand and ``T_end_base`` (inverted here) eye-on-base, the
+tracking one ``T_cam_board``. The camera is the tracker's base frame and the board the marker frame;
+the session holds 4x4 matrices and its ``source`` block keeps the frame names.
 
-=========== ============================================ =========================================
-sample      eye_in_hand                                  eye_on_base (handeye's eye_to_hand)
-=========== ============================================ =========================================
-robot       (robot_base_frame, robot_effector_frame):    (robot_effector_frame, robot_base_frame):
-            ``T_base_end``                               ``T_end_base`` -- inverted here
-tracking    (tracking_base_frame, tracking_marker_frame): ``T_cam_board`` (the tracker's base frame is the camera's)
-=========== ============================================ =========================================
-
-So the camera is the tracker's base frame (for a camera-based marker tracker, its optical frame) and the
-board is the marker frame. The session holds 4x4 matrices (``T_base_end``, ``T_cam_board``) so nothing
-is read twice; the ``source`` block keeps the frame names.
+See docs/session_format.md.
 """
 
 from __future__ import annotations

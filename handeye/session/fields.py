@@ -1,8 +1,8 @@
-"""Reading and validating the fields of session files: YAML documents, numbers, lengths, the mode and
-the plausibility of robot positions and angles. Every message names the file, the field, what was
-expected and what was received.
+"""Reading and validating the fields of session files.
 
-The plausibility limits are in ``configs/detection.yaml`` (``session:``).
+YAML documents, numbers, lengths, the mode and the plausibility of robot positions and angles. Every
+message names the file, the field, what was expected and what was received. The plausibility limits
+are in ``configs/detection.yaml`` (``session:``).
 """
 
 from __future__ import annotations

@@ -1,5 +1,7 @@
-"""Importers for other tools' session layouts: each writes a native ``session.yaml`` whose
-``image_folder`` is the original folder (nothing is copied) and states the pose format those tools use.
+"""Importers for other tools' session layouts, each writing a native ``session.yaml``.
+
+Its ``image_folder`` is the original folder (nothing is copied) and it states the pose format those
+tools use.
 
 - ``visp``: the layout :data:`VISP_LAYOUT` describes (ViSP's chessboard and single-AprilTag data); other
   ViSP target descriptions are refused by name.

@@ -1,7 +1,7 @@
-"""handeye's native ``session.yaml``: target, mode, pose format, optional intrinsics, and views
-(``views:`` inline and/or one YAML record per view in ``view_records/``), each with id, image and pose
-(``pose:`` inline or ``pose_file:``), optionally the arm's joint angles (``joints:``).
+"""handeye's native ``session.yaml``: target, mode, pose format, optional intrinsics, and views.
 
+Views come inline (``views:``) and/or as one YAML record per view in ``view_records/``, each with id,
+image and pose (``pose:`` inline or ``pose_file:``), optionally the arm's joint angles (``joints:``).
 :func:`read_native_document` is the only parser of this file; the strict loader
 (:func:`load_native_session`) and the lenient reader of the diagnostics (:mod:`handeye.session.raw`)
 both use it, and :func:`view_pose_values` / :func:`view_image_path` are the only readers of a view's

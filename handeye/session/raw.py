@@ -1,9 +1,8 @@
-"""Sessions read leniently, for the diagnostics: the robot pose numbers exactly as written (before
-any unit or convention is applied) and what is needed to look at the images.
+"""Sessions read leniently, for the diagnostics: the robot pose numbers exactly as written.
 
-The same parsers as the strict loaders (:mod:`.vendor`, :mod:`.native`) read the files; only the
-plausibility checks (units of poses and board lengths) are skipped, so a session written in
-millimetres or degrees can still be re-read every plausible way.
+Also what is needed to look at the images. The same parsers as the strict loaders (:mod:`.vendor`,
+:mod:`.native`) read the files; only the plausibility checks (units of poses and board lengths) are
+skipped, so a session written in millimetres or degrees can still be re-read every plausible way.
 """
 
 from __future__ import annotations

@@ -1,23 +1,11 @@
-"""``handeye import rosbag``: a native session from a ROS 1 or ROS 2 bag (sqlite3 or MCAP), read with
-the pure-Python ``rosbags``.
+"""``handeye import rosbag``: a native session from a ROS 1 or ROS 2 bag, read with ``rosbags``.
 
-What it takes from the bag:
+The TF chain from ``base`` to ``end`` is interpolated in time; the periods in which it stands still
+(:class:`Stillness`, ``configs/rosbag.yaml``) get one image each, paired with base -> end at the image's
+stamp; CameraInfo gives the intrinsics. It writes ``OUT/session.yaml`` (``T_base_end`` as 4x4 matrices,
+metres) and ``OUT/images/<id>.png``.
 
-- the TF stream (``tf2_msgs/TFMessage`` on any topic, ``/tf_static`` included): the chain of frames
-  from ``base`` to ``end`` (composed over intermediate links, edges walked backwards inverted), each
-  edge interpolated at a time (translation linear, rotation slerp) by its header stamps;
-- still periods: the base -> end transform moves slower than ``still_trans_mm_s`` and
-  ``still_rot_deg_s`` (measured over ``speed_window_s``) for at least ``min_still_s``
-  (:class:`Stillness`, defaults in ``configs/rosbag.yaml``);
-- one image per still period (``sensor_msgs/Image`` or ``CompressedImage`` on ``image_topic``): the one
-  nearest the middle of the period, at least ``margin_s`` inside it, paired with base -> end
-  interpolated at the image's header stamp. The time offset between the image and the nearest TF
-  sample is reported, with how far the pose moved over the period;
-- intrinsics from ``sensor_msgs/CameraInfo`` (``plumb_bob``: ``D`` is OpenCV's k1, k2, p1, p2, k3 as it
-  is; see docs/session_format.md), written with ``use: prior`` unless stated otherwise.
-
-It writes ``OUT/session.yaml`` (poses as 4x4 matrices of ``T_base_end``, metres) and
-``OUT/images/<id>.png`` (a compressed image keeps its own bytes and format).
+See docs/session_format.md.
 """
 
 from __future__ import annotations

@@ -1,5 +1,6 @@
-"""The ``target:`` section of a session file -> a target spec (chessboard, ChArUco, circle grid, one
-marker, AprilGrid).
+"""The ``target:`` section of a session file read into a target spec.
+
+Chessboard, ChArUco, circle grid, one marker or an AprilGrid.
 """
 
 from __future__ import annotations

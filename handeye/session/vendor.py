@@ -1,7 +1,8 @@
-"""The vendor session folder as it is: ``config.yaml`` (board), ``poses.txt`` (one pose line per image,
-``x,y,z,rx,ry,rz`` in metres and radians) and numbered images ``1.jpg, 2.jpg, ...`` (line k <-> image k).
-Images numbered from 0 (``0.jpg, 1.jpg, ...``, as a loop over range(N) writes them) pair image k with line k+1;
-a first line of column names (``x,y,z,rx,ry,rz``) is skipped like a ``#`` comment. config.yaml may state
+"""The vendor session folder as it is: ``config.yaml``, ``poses.txt`` and numbered images.
+
+``config.yaml`` gives the board, ``poses.txt`` one pose line per image (``x,y,z,rx,ry,rz`` in metres and
+radians), images ``1.jpg, 2.jpg, ...`` pair with lines 1, 2, ...; images numbered from 0 pair image k
+with line k+1. A first line of column names is skipped like a ``#`` comment. config.yaml may state
 another line format (``pose_format:``, as in session.yaml: :func:`vendor_pose_format`).
 
 :func:`read_pose_lines`, :func:`read_vendor_config` and :func:`numbered_images` are the only parsers of

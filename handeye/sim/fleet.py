@@ -1,18 +1,11 @@
 """A synthetic fleet: installs with dated eye-in-hand sessions and known truth, for ``handeye batch``.
 
-:func:`write_fleet` writes ``ROOT/<install>/<YYYY-MM-DD>/`` vendor sessions. Every install is one
-rig (its own ``T_end_cam`` and ``T_base_board`` from :func:`handeye.sim.scenarios.sample_setup`);
-its sessions reuse a few rendered view sets (the images depend only on each view's ``T_cam_board``),
-with the robot poses that the install's rig needs to see the board so:
-``T_base_end_i = T_base_board @ inv(T_cam_board_i) @ inv(T_end_cam)``, plus iid robot noise.
-Each session's ``ground_truth.json`` holds its true ``T_end_cam`` and ``T_base_board``.
+:func:`write_fleet` writes ``ROOT/<install>/<YYYY-MM-DD>/`` vendor sessions, one rig per install,
+each session with its ``ground_truth.json``. Faults by (install, session): ``bumps`` (the camera
+moved on the flange from then on), ``broken`` (a pose line that does not load), ``shuffled`` (pose
+lines permuted) and ``noisy`` (a worn arm). It returns the manifest (``ROOT/fleet_truth.json``).
 
-Faults, by (install index, session index): ``bumps`` move the camera on the flange from that session
-on (``T_end_cam @ T_from_rotvec(rot, t)``, the bump's rotation vector in deg and translation in mm);
-``broken`` sessions get a pose line with five numbers (the session does not load); ``shuffled``
-sessions get their pose lines permuted (images carry other views' poses); ``noisy`` sessions get
-the robot noise ``noisy_robot`` (a worn arm: the result fails QA on its uncertainty). :func:`write_fleet`
-returns the manifest (also written as ``ROOT/fleet_truth.json``).
+See docs/fleet.md.
 """
 
 from __future__ import annotations

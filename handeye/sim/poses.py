@@ -1,8 +1,8 @@
-"""Synthetic pose-only (tracker) sessions with ground truth: the camera -> target poses of a corner-level
-session (:func:`handeye.sim.corners.make_corner_session`), perturbed by the tracker's noise, and the
-reported robot poses (gross errors on ``outlier_views`` as there).
+"""Synthetic pose-only (tracker) sessions with ground truth.
 
-The tracker's noise is right-multiplied: ``T_cam_board_measured = T_cam_board_true · Exp(n)``,
+The camera -> target poses of a corner-level session (:func:`handeye.sim.corners.make_corner_session`),
+perturbed by the tracker's noise, and the reported robot poses (gross errors on ``outlier_views`` as
+there). The tracker's noise is right-multiplied: ``T_cam_board_measured = T_cam_board_true · Exp(n)``,
 ``n ~ N(0, diag(s_rot^2 I3, s_trans^2 I3))`` (:mod:`handeye.factors.pose`).
 """
 

@@ -1,16 +1,11 @@
 """Render synthetic target images through exactly OpenCV's lens model.
 
-For each output pixel, ``supersample`` x ``supersample`` sub-pixel samples are mapped to
-undistorted normalized coordinates by inverting OpenCV's 5-coefficient distortion (Newton
-iterations in float64 from an interpolated ``cv2.undistortPointsIter`` start, checked to
-round-trip to < 1e-6 px; cached per intrinsics), intersected with the board plane through the
-inverse homography, and looked up (nearest texel, exact for a chessboard whose squares are texels)
-in the board texture. The samples of a pixel are box-averaged (``cv2.resize`` INTER_AREA), so the
-grey level of a pixel is the board colour averaged over its area: an anti-aliased image whose
-geometry is that of ``cv2.projectPoints``.
+Every pixel is supersampled: each sub-pixel sample is undistorted (Newton iterations on OpenCV's
+5-coefficient model, round-trip checked), intersected with the board plane and looked up in the board
+texture, and the samples are box-averaged, so the image is anti-aliased and its geometry is that of
+``cv2.projectPoints``. Pixel centres are at integer coordinates (OpenCV's convention).
 
-Pixel convention (OpenCV's): pixel (u, v) has its centre at integer coordinates; the image spans
-[-0.5, W-0.5] x [-0.5, H-0.5]. Sub-sample k of s sits at ``u + (k + 0.5) / s - 0.5``.
+See docs/simulation.md.
 """
 
 from __future__ import annotations

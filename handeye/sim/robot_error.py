@@ -1,26 +1,11 @@
 """Robot error models of the simulator: how the pose an arm reports differs from where its flange is.
 
-Three models (``ROBOT_ERROR_MODELS``), chosen by name wherever a synthetic session is made
-(:func:`handeye.sim.corners.make_corner_session`, ``handeye simulate --robot-error``, the benchmarks):
+:data:`ROBOT_ERROR_MODELS`: ``none`` (exact), ``iid`` (a small independent error per view in the end
+frame) and ``kinematic`` (a true arm whose DH table is off the nominal one by 0.1-0.5 mm and
+0.01-0.05 deg, read by encoders with noise and reported through the nominal table, so the error is
+pose-dependent and correlated across views, as on real arms).
 
-* ``none``: the reported pose is the true pose;
-* ``iid``: ``T_base_end_reported = T_base_end_true @ dT`` with an independent small ``dT`` per view in
-  the end frame (per-axis Gaussian rotation and translation; :func:`handeye.sim.scenarios.perturb_T_base_end`);
-* ``kinematic``: a real 6-axis kinematic chain (:mod:`handeye.kinematics`, default the RealMan RM65-B).
-  The TRUE arm is the published (nominal) DH table with every length (a, d) off by 0.1-0.5 mm and
-  every angle (alpha, theta_offset) off by 0.01-0.05 deg (magnitudes uniform in those ranges,
-  random signs, one draw per session: :func:`sample_true_arm`). At each view the flange is at its
-  true pose, reached by true joint angles ``q_true`` (inverse kinematics of the true arm); the
-  encoders read ``q_encoder = q_true + e`` with ``e`` ~ N(0, ``encoder_sigma_deg``) per joint and
-  view; the controller reports ``T_base_end_reported = FK_nominal(q_encoder)``. So the error of the
-  reported pose is pose-dependent and correlated across views (the DH errors are shared, the
-  encoder noise is not), as on real arms.
-
-Default sizes: DH errors as above (the ranges named in the issue that asked for this model; a
-factory-calibrated 6-axis arm is typically 0.1-1 mm absolute, e.g. RM65 repeatability +-0.05 mm),
-encoder noise 0.005 deg per joint (19-bit absolute encoders resolve 0.0007 deg; backlash and
-compliance make the repeatable part a few thousandths of a degree, which at the RM65's 0.6 m
-reach is the +-0.05 mm repeatability).
+See docs/robot_error.md for the model and its default sizes.
 """
 
 from __future__ import annotations

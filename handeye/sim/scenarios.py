@@ -1,19 +1,11 @@
 """Scenarios: the ground truth of a synthetic rig and the robot poses it is shown from.
 
-* the default camera (:func:`default_intrinsics`, RealSense-D435-like) and target (:data:`DEFAULT_TARGET`);
-* one seed, independent random streams (:func:`random_streams`), so changing a noise level never
-  changes the geometry of a session;
-* a plausible rig per mounting mode (:func:`sample_setup`), view poses that show the whole board
-  the way users are told to (:func:`sample_view_poses`) and poses that hide it
-  (:func:`sample_hidden_view_pose`);
-* robot pose noise and gross outliers (:func:`perturb_T_base_end`, :func:`outlier_offset`).
+The default camera and target, independent seeded random streams (a noise level never changes the
+geometry), a plausible rig per mounting mode, view poses that show or hide the board, and robot pose
+noise and outliers. Geometry goes through :mod:`handeye.mounting`; the reported pose is
+``T_base_end_true @ dT`` with ``dT`` a small transform in the end frame.
 
-Geometry goes through the one model in :mod:`handeye.mounting`:
-``T_cam_board_i = inv(T_x) · M_i · T_board``.
-
-Robot noise convention: the reported pose is ``T_base_end_reported = T_base_end_true @ dT`` where
-``dT`` is a small transform expressed in the *end* frame (rotation vector with sigma_deg per axis,
-translation with sigma_mm per axis).
+See docs/simulation.md.
 """
 
 from __future__ import annotations
