@@ -474,6 +474,12 @@ def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) ->
                 code="refinement_failed",
             )
         state.update(refined=refined, T_x=refined.T_x, T_board=refined.T_board)
+        if opts.validate:
+            progress("validation: refits without some views")
+            t3 = time.perf_counter()
+            pose_views = [PoseView(v, poses[v].T_cam_board, s.view(v).T_base_end) for v in ids]
+            state["validation"] = validate_pose_stage(refined, pose_views)
+            seconds["validate"] = time.perf_counter() - t3
     state["outcomes"] = tuple(
         v for _, v in sorted(_final_outcomes(outcomes, {}, refined).items(), key=lambda kv: view_id_key(kv[0]))
     )
@@ -670,6 +676,25 @@ def validate_stage(s: Session, refined, poses: dict, dets: dict, T_base_end: dic
     views = [RefineView(vid, poses[vid].corner_ids, dets[vid].image_points, T_base_end[vid]) for vid in poses]
     try:
         return validate(refined, object_points=s.target.object_points(), views=views)
+    except (HandeyeError, RuntimeError, np.linalg.LinAlgError) as e:  # the result stands on its model covariance
+        log.warning("validation not run: %s", e)
+        return Validation("not_run", f"{type(e).__name__}: {e}")
+    except Exception as e:  # noqa: BLE001 - a bug in the validation must not lose the refined result
+        log.error("validation crashed (%s: %s); the sigmas are the model's", type(e).__name__, e, exc_info=True)
+        return Validation("not_run", f"crashed: {type(e).__name__}: {e}")
+
+
+def validate_pose_stage(refined, views: list):
+    """The validated and verdict covariances of a pose-only result: refits without some views.
+
+    The same folds and rule as for image sessions (:func:`handeye.refine.validation.validate`), each fold
+    one solve of the pose graph with the tracker's sigmas held (:func:`handeye.refine.poseonly.refit_poses`).
+    """
+    from .refine.poseonly import refit_poses
+    from .refine.validation import Validation, validate
+
+    try:
+        return validate(refined, views=views, refit_views=lambda sub, cov: refit_poses(refined, sub, cov))
     except (HandeyeError, RuntimeError, np.linalg.LinAlgError) as e:  # the result stands on its model covariance
         log.warning("validation not run: %s", e)
         return Validation("not_run", f"{type(e).__name__}: {e}")

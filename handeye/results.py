@@ -364,7 +364,7 @@ def validation_fields(ref, val) -> dict:
             h.update(
                 {
                     ref.x_name: fit.T_x,
-                    "intrinsics": fit.intrinsics.to_dict(),
+                    "intrinsics": None if fit.intrinsics is None else fit.intrinsics.to_dict(),
                     "diff_to_result_deg": r,
                     "diff_to_result_mm": t,
                     # result vs a half of its views: cov(half - full) = cov(half) - cov(full) ~ cov(full)

@@ -282,8 +282,10 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
     else:
         stages.skip("images", "not asked for")
     findings += stages.run("coverage", coverage_findings, run, default=[])
-    pose_only = bool(s.meta.get("pose_only"))  # the refits re-detect nothing: they need corners
-    if cross_validation and not global_fault and run.status == "ok" and not pose_only:
+    # pose-only views have no corners: their folds are the validation's refits on the tracker's poses
+    val = getattr(run, "validation", None)
+    no_folds = bool(s.meta.get("pose_only")) and not (val is not None and val.refits)
+    if cross_validation and not global_fault and run.status == "ok" and not no_folds:
         cv = stages.run("cross_validation", cross_validate, run, default=None) or {"summary": "not run: it crashed"}
     else:
         why = (
@@ -291,8 +293,8 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
             if global_fault
             else "no hand-eye result"
             if run.status != "ok"
-            else "a pose-only session (no corners to refit)"
-            if pose_only
+            else "a pose-only session without the validation's refits (no corners to refit)"
+            if no_folds
             else "not asked for"
         )
         stages.skip("cross_validation", why)
@@ -448,7 +450,9 @@ def _observe_lenient(sess) -> tuple[Optional[PoseObservations], Optional[int], i
             T_best = read_poses(raw, best.fmt, ids)
             if T_best is not None:
                 M_best = mode.M_from_T_base_end(inv_T(T_best) if best.invert else T_best)
-                poses = board_poses([seen.detections[v] for v in ids], target, seen.intrinsics, dict(zip(ids, M_best, strict=False)))
+                poses = board_poses(
+                    [seen.detections[v] for v in ids], target, seen.intrinsics, dict(zip(ids, M_best, strict=False))
+                )
                 obs = observations(poses)
     return obs, n_det, len(items)
 

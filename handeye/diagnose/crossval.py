@@ -16,7 +16,7 @@ import logging
 import numpy as np
 
 from ..camera import pixels_from_board_points
-from ..frames import rotvec_from_R
+from ..frames import pose_error, rotvec_from_R
 from ..mounting import mounting
 from .geometry import jackknife_sigmas
 from .thresholds import thresholds
@@ -119,10 +119,15 @@ def cross_validate(run) -> dict:
     T_rep = {v: s.view(v).T_base_end for v in ids}
     if val is not None:
         estimates = [(r.T_x, r.T_board, r.intrinsics) if r.status == "ok" else None for r in val.refits]
+        held = (
+            f"the tracker's {ref.tracker_sigma_mm:.3f} mm / {ref.tracker_sigma_deg:.4f} deg"
+            if s.meta.get("pose_only")
+            else f"the full run's {ref.robot_sigma_mm:.3f} mm / {ref.robot_sigma_deg:.4f} deg robot, "
+            f"{ref.sigma_px:.3f} px"
+        )
         method = (
-            f"refinement refitted per fold (the validation's folds: one solve from the full solution, noise held "
-            f"at the full run's {ref.robot_sigma_mm:.3f} mm / {ref.robot_sigma_deg:.4f} deg robot, "
-            f"{ref.sigma_px:.3f} px)"
+            "refinement refitted per fold (the validation's folds: one solve from the full solution, "
+            f"noise held at {held})"
         )
         T_full, B_full, intr_full = ref.T_x, ref.T_board, ref.intrinsics
     elif ref is not None:
@@ -136,37 +141,12 @@ def cross_validate(run) -> dict:
         return {"summary": f"not run: only {len(ok)} of {len(fold_list)} folds could be solved", "method": method}
     deltas = np.stack([x_delta(T_full, estimates[k][0]) for k in ok])
     jk = jackknife_sigmas(deltas)
-    obj = s.target.object_points()
-    rows, held_px = [], []
-    for row, k in enumerate(ok):
-        T_x, T_b, intr_k = estimates[k]
-        for i in fold_list[k]:
-            v = ids[i]
-            bp = run.board_poses[v]
-            img = run.detections[v].image_points
-            r = np.linalg.norm(
-                pixels_from_board_points(mount.predict_T_cam_board(T_x, T_b, T_rep[v]), obj[bp.corner_ids], intr_k)
-                - img,
-                axis=1,
-            )
-            r_in = np.linalg.norm(
-                pixels_from_board_points(
-                    mount.predict_T_cam_board(T_full, B_full, T_rep[v]), obj[bp.corner_ids], intr_full
-                )
-                - img,
-                axis=1,
-            )
-            dx = deltas[row]
-            rows.append(
-                {
-                    "view": v,
-                    "held_out_rms_px": round(float(np.sqrt(np.mean(r**2))), 3),
-                    "in_sample_rms_px": round(float(np.sqrt(np.mean(r_in**2))), 3),
-                    "x_shift_deg": round(float(np.linalg.norm(dx[:3])), 4),
-                    "x_shift_mm": round(float(np.linalg.norm(dx[3:])), 3),
-                }
-            )
-            held_px.append(float(np.sqrt(np.mean(r**2))))
+    pose_only = bool(s.meta.get("pose_only"))
+    rows = [
+        _held_out_row(run, mount, estimates[k], (T_full, B_full, intr_full), ids[i], T_rep[ids[i]], deltas[row])
+        for row, k in enumerate(ok)
+        for i in fold_list[k]
+    ]
     loo = all(len(f) == 1 for f in fold_list)
     out = {
         "method": method,
@@ -177,9 +157,13 @@ def cross_validate(run) -> dict:
         "jackknife_sigma_rot_deg": [round(float(x), 5) for x in jk[:3]],
         "jackknife_sigma_trans_mm": [round(float(x), 4) for x in jk[3:]],
         "axes": f"rotation about the camera axes, translation of {mount.x_name} along the {mount.fixed_frame} axes",
-        "held_out_rms_px_median": round(float(np.median(held_px)), 3),
         "per_view": rows,
     }
+    if pose_only:
+        out["held_out_trans_mm_median"] = round(float(np.median([r["held_out_trans_mm"] for r in rows])), 3)
+        out["held_out_rot_deg_median"] = round(float(np.median([r["held_out_rot_deg"] for r in rows])), 4)
+    else:
+        out["held_out_rms_px_median"] = round(float(np.median([r["held_out_rms_px"] for r in rows])), 3)
     if ref is None:
         out["verdict"] = "no_prediction"
         out["summary"] = (
@@ -252,6 +236,29 @@ def cross_validate(run) -> dict:
         )
         out["summary"] = f"the spread between folds matches the model's uncertainty ({size}{test})"
     return out
+
+
+def _held_out_row(run, mount, fold_fit: tuple, full_fit: tuple, v: str, T_base_end: np.ndarray, dx: np.ndarray) -> dict:
+    """One held-out view: its residual under the fold's fit and under the full one, and the fold's shift of X.
+
+    Image views: RMS reprojection error in pixels; pose-only views: the tracker's pose against the
+    chain's prediction (rotation in deg, translation in mm).
+    """
+    bp = run.board_poses[v]
+    row: dict = {"view": v}
+    if run.session.meta.get("pose_only"):
+        for key, (T_x, T_b, _) in (("held_out", fold_fit), ("in_sample", full_fit)):
+            rot, trans = pose_error(mount.predict_T_cam_board(T_x, T_b, T_base_end), bp.T_cam_board)
+            row[f"{key}_rot_deg"], row[f"{key}_trans_mm"] = round(float(rot), 4), round(float(trans), 3)
+    else:
+        obj = run.session.target.object_points()[bp.corner_ids]
+        img = run.detections[v].image_points
+        for key, (T_x, T_b, intr) in (("held_out", fold_fit), ("in_sample", full_fit)):
+            px = pixels_from_board_points(mount.predict_T_cam_board(T_x, T_b, T_base_end), obj, intr) - img
+            row[f"{key}_rms_px"] = round(float(np.sqrt(np.mean(np.sum(px**2, axis=1)))), 3)
+    row["x_shift_deg"] = round(float(np.linalg.norm(dx[:3])), 4)
+    row["x_shift_mm"] = round(float(np.linalg.norm(dx[3:])), 3)
+    return row
 
 
 def _ratio(spread: np.ndarray, sigma: np.ndarray) -> float:

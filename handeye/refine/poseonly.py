@@ -27,6 +27,7 @@ from .covariance import COV_PARAMETRISATION, hand_eye_uncertainty
 from .options import RefineOptions, check_T, refine_preset
 from .outliers import RobotPoseGates, leave_one_out, robot_pose_outlier, robot_pose_test
 from .problem import solve_pose_graph
+from .refitting import Refit
 from .result import RefineResult
 
 log = logging.getLogger(__name__)
@@ -375,3 +376,35 @@ def refine_poses(
         tracker_sigma_resolved=resolved,
         cov_board_6x6=None if status != "ok" else S[6:, 6:].copy(),
     )
+
+
+def refit_poses(result: PoseRefineResult, views: Sequence[PoseView], covariance: bool = True) -> Refit:
+    """Solve the pose-only refinement of ``result`` again on ``views`` alone (one validation fold).
+
+    As :func:`handeye.refine.refit` does for image views: ONE Gaussian solve from the full solution,
+    with the full run's tracker sigmas, prior and outlier decisions held (views it left out are not
+    used). ``covariance``: also the refit's model covariance of ``T_x`` (``cov_x``). A solve that fails
+    returns ``status="failed"`` with the reason.
+    """
+    ids = tuple(v.view_id for v in views)
+    if result.status != "ok":
+        return Refit("failed", "the refinement did not succeed", None, None, None, ids)
+    kept = [v for v in views if result.per_view.get(v.view_id, {}).get("status") == "used"]
+    if len(kept) < 3:
+        return Refit("failed", f"{len(kept)} usable views (needs 3)", None, None, None, ids)
+    mount = mounting(result.mode)
+    M = np.stack([mount.M_from_T_base_end(np.asarray(v.T_base_end, float)) for v in kept])
+    C = np.stack([np.asarray(v.T_cam_board, float) for v in kept])
+    sigma = np.array([np.radians(result.tracker_sigma_deg), result.tracker_sigma_mm / 1000.0])
+    prior = result.options.prior
+    prior_x = None if prior is None else (np.asarray(prior.T_x, float), np.asarray(prior.cov_x, float))
+    st = _State(M, C, result.T_x.copy(), result.T_board.copy(), sigma, np.ones(len(kept), bool))
+    try:
+        _solve(st, robust_k=None, prior_x=prior_x, max_iterations=result.options.max_iterations)
+        cov_x = None
+        if covariance:
+            _, J = st.residuals(jacobians=True)
+            cov_x = np.linalg.inv(_information(st, J, prior_x))[:6, :6]
+    except (np.linalg.LinAlgError, RuntimeError) as err:  # GTSAM raises RuntimeError on a singular system
+        return Refit("failed", f"{type(err).__name__}: {err}", None, None, None, ids)
+    return Refit("ok", "", st.T_x, st.T_board, None, tuple(v.view_id for v in kept), cov_x=cov_x)

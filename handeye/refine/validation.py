@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from typing import Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 from scipy.stats import chi2
@@ -194,13 +194,26 @@ class Validation:
 
 
 def validate(
-    result: RefineResult, *, object_points: np.ndarray, views: Sequence[RefineView], halves: bool = True
+    result: RefineResult,
+    *,
+    object_points: Optional[np.ndarray] = None,
+    views: Sequence,
+    halves: bool = True,
+    refit_views: Optional[Callable] = None,
 ) -> Validation:
-    """Validated and verdict covariances of ``result`` (see the module docstring) from refits on
-    ``views`` (the refinement's views; those it did not use are left out of the folds, robot-excluded
+    """Validated and verdict covariances of ``result`` from refits on some of its views.
+
+    ``views``: the refinement's views (those it did not use are left out of the folds, robot-excluded
     views stay in every fold). ``halves``: also refit the odd and even halves of the used views.
+    ``refit_views(views, covariance)`` solves the refinement again on a subset; the default is
+    :func:`handeye.refine.refit` with ``object_points`` (image views); pose-only results pass
+    :func:`handeye.refine.poseonly.refit_poses`. See the module docstring for the method.
     """
-    from .refitting import refit
+    if refit_views is None:
+        from .refitting import refit as refit_images
+
+        def refit_views(sub, covariance=True):
+            return refit_images(result, object_points=object_points, views=sub, covariance=covariance)
 
     cfg = settings()
     if result.status != "ok":
@@ -217,22 +230,20 @@ def validate(
     refits = []
     for f in fold_list:
         out = set(f.tolist())
-        refits.append(
-            refit(result, object_points=object_points, views=[v for k, v in enumerate(used) if k not in out] + kept)
-        )
+        refits.append(refit_views([v for k, v in enumerate(used) if k not in out] + kept, True))
     folds = tuple(tuple(ids[i] for i in f) for f in fold_list)
     half = {}
     if halves:
         for name, start in (("odd", 0), ("even", 1)):
             sub = used[start::2]
             if len(sub) >= 3:
-                half[name] = refit(result, object_points=object_points, views=sub + kept, covariance=False)
+                half[name] = refit_views(sub + kept, False)
     ok = [r for r in refits if r.status == "ok"]
     base = dict(scheme=scheme, view_ids=ids, folds=folds, refits=tuple(refits), halves=half)
     if len(ok) < max(3, len(fold_list) // 2 + 1):
         return Validation("not_run", f"only {len(ok)} of {len(fold_list)} folds could be solved", **base)
     # the reference of the finding's test: all views, refitted as the folds are
-    every = refit(result, object_points=object_points, views=used + kept)
+    every = refit_views(used + kept, True)
     floor = float(cfg["information_floor"])
     try:
         test = _fold_test(ok, every, lambda r: tangent_difference(every.T_x, r.T_x), lambda r: r.cov_x, floor)

@@ -939,6 +939,8 @@ def _cross_validation(cv) -> Optional[dict]:
         "n_folds": "Folds",
         "folds_solved": "Folds solved",
         "held_out_rms_px_median": "Held-out RMS, median [px]",
+        "held_out_trans_mm_median": "Held-out pose residual, median [mm]",
+        "held_out_rot_deg_median": "Held-out pose residual, median [deg]",
         "per_view": "Per view (the views held out together share their fold's shift of X)",
     }
 
