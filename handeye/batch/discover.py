@@ -152,8 +152,8 @@ def walk_sessions(root: Path) -> tuple[list[tuple[Path, str]], list[SkippedFolde
     visit(root, (), follow=False)
     for path, parents in links:  # after every real folder: a session reached both ways keeps its real name
         visit(path, parents, follow=True)
-    for s in skipped:
-        log.warning("%s: skipped: %s", s.path, s.reason)
+    for s in skipped:  # the command says them itself
+        log.info("%s: skipped: %s", s.path, s.reason)
     return sorted(found, key=lambda fl: str(fl[0])), sorted(skipped, key=lambda s: str(s.path))
 
 
@@ -179,7 +179,7 @@ def discover_fleet(root) -> Discovery:
     """Every session under ``root`` and the folders skipped on the way.
 
     Sessions as :class:`SessionJob`, sorted by install, time and name; skipped folders as
-    :class:`SkippedFolder`, each also logged as a warning.
+    :class:`SkippedFolder`.
     """
     root = Path(root)
     if not root.is_dir():

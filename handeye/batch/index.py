@@ -431,16 +431,17 @@ def install_drifts(out: Path, usable: list[dict]) -> list[dict]:
     """
     drifts, last_of = [], {}
     for k, row in enumerate(usable):
-        prev = usable[k - 1] if k else None
-        key = series_key(row)
-        if prev is not None and (key is None or series_key(prev) is None):
-            drifts.append(_drift(out, prev, row))
-        elif prev is not None and key != series_key(prev):
-            drifts.append(_not_comparable(prev, row))
-            if key in last_of:
-                drifts.append(_drift(out, last_of[key], row))
-        elif prev is not None:
-            drifts.append(_drift(out, prev, row))
+        key, prev = series_key(row), (usable[k - 1] if k else None)
+        if prev is not None:
+            prev_key = series_key(prev)
+            if key is None or prev_key is None:  # the pair's row says why a result does not load
+                drifts.append(_drift(out, prev, row))
+            elif key != prev_key:
+                drifts.append(_not_comparable(prev, row))
+            else:
+                drifts.append(_drift(out, prev, row))
+        if key is not None and key in last_of and last_of[key] is not prev:  # across sessions of other series
+            drifts.append(_drift(out, last_of[key], row))
         if key is not None:
             last_of[key] = row
     return drifts
@@ -450,7 +451,7 @@ def install_summaries(out, rows: list[dict], *, plots: bool = True) -> list[dict
     """Per install: its rows (by time), latest verdict, drifts and trends.
 
     ``drifts``: :func:`install_drifts`; ``trends``: per series with a result (:func:`series_key`) its
-    ``label``, ``rows`` and trend plot ``png`` (bytes, or None without ``plots``).
+    ``label``, ``rows`` and trend plot ``png`` (bytes; None without ``plots`` or for one session alone).
     """
     out = Path(out)
     by_install: dict[str, list] = {}
@@ -467,7 +468,11 @@ def install_summaries(out, rows: list[dict], *, plots: bool = True) -> list[dict
             if key is not None:
                 series.setdefault(key, []).append(r)
         trends = [
-            {"label": _series_label(key), "rows": srows, "png": trend_png(name, srows) if plots else None}
+            {
+                "label": _series_label(key),
+                "rows": srows,
+                "png": trend_png(name, srows) if plots and len(srows) > 1 else None,
+            }
             for key, srows in series.items()
         ]
         summaries.append(
