@@ -431,7 +431,8 @@ def _keep_previous(out_dir: Path, *, failed: bool) -> None:
         return
     try:
         data = current.read_bytes()
-        was_ok = json.loads(data.decode("utf-8")).get("status") == "ok"
+        previous = json.loads(data.decode("utf-8"))
+        was_ok = isinstance(previous, dict) and previous.get("status") == "ok"  # a damaged one is not kept
     except (OSError, ValueError):
         was_ok = False
     if was_ok:

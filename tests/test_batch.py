@@ -601,3 +601,80 @@ def test_a_lock_held_by_an_ended_unreaped_process_is_taken_over(tmp_path):
             assert lock.path.read_text().split()[0] == str(os.getpid())
     finally:
         ended.wait()
+
+
+# ------------------------------------------------------------------------------------------ one bad session
+def test_a_fleet_of_mixed_rigs_damaged_results_links_and_a_bad_time_gives_every_session_a_row(tmp_path):
+    """One install remounted eye-to-hand for a session, another given a 9x6 board for one, a session with
+    ``t_image: 1.0e+20``, a result.json under OUT whose verdict is a mapping (its session runs again) and one
+    that is not JSON (a session no longer in ROOT), a session linked in from outside ROOT, a second link to a
+    session, an install reached twice and a link loop: every session is calibrated once and has a row, the
+    pairs across rigs are not comparable with the reason, the index is written, exit 7 (the damaged result)."""
+    from handeye.batch.index import DAMAGED, SKIPPED_NAME, fleet_rows, install_summaries, read_fleet_csv
+    from handeye.sim.fleet import write_damaged_result, write_fleet
+
+    root, out = tmp_path / "root", tmp_path / "out"
+    manifest = write_fleet(
+        root,
+        n_installs=2,
+        sessions_per_install=3,
+        n_view_sets=2,
+        modes={(0, 1): "eye_to_hand"},
+        boards={(1, 1): (9, 6)},
+        bad_time=((1, 2),),
+    )
+    truth = {f"{s['install']}/{s['session']}": s for s in manifest["sessions"]}
+    outside = tmp_path / "elsewhere" / "2026-01-06"  # cell-02's first session lives outside ROOT, linked in
+    outside.parent.mkdir()
+    shutil.move(root / "cell-02" / "2026-01-06", outside)
+    os.symlink(outside, root / "cell-02" / "2026-01-06")
+    os.symlink(root / "cell-01" / "2026-01-05", root / "cell-02" / "again")
+    os.symlink(root / "cell-02", root / "cell-03")
+    os.symlink(root, root / "cell-02" / "loop")
+    write_damaged_result(out / "cell-01" / "2026-01-05", "verdict_mapping")
+    write_damaged_result(out / "cell-old" / "2025-12-01", "invalid_json")
+
+    rc, stdout, stderr = _finish(_handeye("batch", root, "--out", out, "--workers", "1", "--no-report"))
+    assert rc == 7, stdout + stderr[-3000:]
+    assert "internal error" not in stderr and "6 sessions: 6 done, 0 failed" in stdout, stdout + stderr[-3000:]
+    assert "3 folders skipped" in stdout, stdout
+    for name, why in (("cell-02/again", "reached twice"), ("cell-03", "reached twice"), ("cell-02/loop", "loop")):
+        assert f"{root / name}: skipped: " in stderr and why in stderr, (name, stderr[-3000:])
+    skipped = json.loads((out / SKIPPED_NAME).read_text())["skipped"]
+    assert sorted(Path(s["path"]).relative_to(root).as_posix() for s in skipped) == [
+        "cell-02/again",
+        "cell-02/loop",
+        "cell-03",
+    ]
+    assert not (out / "cell-02" / "again").exists() and not (out / "cell-03").exists(), "calibrated once"
+    linked = json.loads((out / "cell-02" / "2026-01-06" / "batch.json").read_text())
+    assert linked["session"] == str(outside.resolve()) and linked["outcome"] == "done"
+
+    rows = {f"{r['install']}/{r['session']}": r for r in read_fleet_csv(out / "fleet.csv")}
+    assert set(rows) == set(truth) | {"cell-old/2025-12-01"}, "every session has a row"
+    for key, s in truth.items():
+        r = rows[key]
+        assert r["verdict"] in ("PASS", "WARN") and r["outcome"] == "done" and r["mode"] == s["mode"], (key, r)
+        assert r["time_utc"].startswith(s["session"]) and r["time_source"] == "folder name", (key, r)
+    assert json.loads((out / "cell-01" / "2026-01-05" / "result.json").read_text())["verdict"] in ("PASS", "WARN")
+    old = rows["cell-old/2025-12-01"]
+    assert old["outcome"] == DAMAGED and old["reason"].startswith("result.json is damaged: it is not valid JSON")
+    bad_time = next(k for k, s in truth.items() if s["fault"] == "bad_time")
+    assert "t_image 1e+20 is not a time" in rows[bad_time]["warnings"]
+
+    inst = {i["install"]: i for i in install_summaries(out, fleet_rows(out), plots=False)}
+    for name, first, other, last, why in (
+        ("cell-01", "2026-01-05", "2026-02-04", "2026-03-06", "mounting modes differ"),
+        ("cell-02", "2026-01-06", "2026-02-05", "2026-03-07", "boards differ"),
+    ):
+        drifts = {(d["from"], d["to"]): d for d in inst[name]["drifts"]}
+        assert set(drifts) == {(first, other), (other, last), (first, last)}, drifts
+        for pair in ((first, other), (other, last)):
+            assert not drifts[pair]["comparable"] and drifts[pair]["reason"].startswith(why), drifts[pair]
+        assert drifts[(first, last)]["comparable"], drifts[(first, last)]  # the same rig: compared
+        assert {len(t["rows"]) for t in inst[name]["trends"]} == {1, 2}, "one trend per rig"
+    html, md = (out / "index.html").read_text(), (out / "index.md").read_text()
+    for text in (html, md):
+        assert "not comparable: mounting modes differ" in text and "not comparable: boards differ" in text
+        assert "Damaged results" in text and "Folders skipped" in text
+    assert html.count('src="data:image/png;base64,') == 2, "a trend per rig with two sessions"

@@ -6,7 +6,7 @@ own name; its time is ``time:``, else the first ``t_image``, else a date in its 
 newest modification time of its files. A session with ``verify_against:`` is a verification, not a
 calibration. Names become folder names under OUT, made safe and unique.
 
-See docs/fleet.md.
+See docs/fleet.md and, for faults in one session, docs/batch.md.
 """
 
 from __future__ import annotations
@@ -30,8 +30,13 @@ _DATE_RE = re.compile(r"(?<!\d)(\d{4})-?(\d{2})-?(\d{2})(?:[T_ -]?(\d{2}):?(\d{2
 
 @dataclass(frozen=True)
 class SessionJob:
-    """One session of the batch: where it is, its install, its name (a path under the install's
-    output folder, ``/``-separated), its time (ISO 8601 UTC, or None) and where that came from.
+    """One session of the batch.
+
+    Where it is, its install, its name (a path under the install's output folder, ``/``-separated), its
+    time (ISO 8601 UTC, or None) and where that came from.
+
+    ``warnings``: what discovery passed over (a time that is not one); ``error``: why the session cannot
+    run at all (the batch records it as a failed session without running it).
     """
 
     path: Path
@@ -41,11 +46,32 @@ class SessionJob:
     time_source: str
     layout: str  # native | vendor
     verify_against: str | None = None  # session.yaml verify_against: the installed result this session checks
+    warnings: tuple = ()
+    error: str | None = None
 
     @property
     def key(self) -> str:
         """``install/name``: the session's folder under OUT."""
         return f"{self.install}/{self.name}"
+
+
+@dataclass(frozen=True)
+class SkippedFolder:
+    """A folder under the root that discovery did not enter, and why.
+
+    A link loop, a second link to a folder already reached, a link to nothing, a folder that cannot be listed.
+    """
+
+    path: Path
+    reason: str
+
+
+@dataclass(frozen=True)
+class Discovery:
+    """The sessions under a root (:class:`SessionJob`, sorted) and the folders skipped on the way."""
+
+    jobs: list
+    skipped: list
 
 
 def safe_component(name: str) -> str:
@@ -56,22 +82,83 @@ def safe_component(name: str) -> str:
     return s
 
 
+def walk_sessions(root: Path) -> tuple[list[tuple[Path, str]], list[SkippedFolder]]:
+    """(folder, layout) of every session under ``root`` and the folders skipped, both sorted by path.
+
+    ``root`` itself may be a session; folders are named by the path they were reached by (module docstring).
+    """
+    root = Path(root)
+    found: list[tuple[Path, str]] = []
+    skipped: list[SkippedFolder] = []
+    reached: dict[str, Path] = {}  # real path -> the path it was first reached by
+    links: list[tuple[Path, tuple]] = []  # links met on the walk of the real folders, with their parents' real paths
+
+    def visit(folder: Path, parents: tuple, *, follow: bool) -> None:
+        real = os.path.realpath(folder)
+        if real in parents:
+            skipped.append(SkippedFolder(folder, f"a link loop: it leads back to {reached.get(real, real)}"))
+            return
+        if real in reached:
+            skipped.append(SkippedFolder(folder, f"the same folder as {reached[real]} (reached twice through a link)"))
+            return
+        reached[real] = folder
+        try:
+            entries = sorted(os.scandir(folder), key=lambda e: e.name)
+        except OSError as e:
+            skipped.append(SkippedFolder(folder, f"cannot be listed ({e.strerror or e})"))
+            return
+        names = {e.name for e in entries if _is(e.is_file)}
+        layout = "native" if "session.yaml" in names else ("vendor" if "poses.txt" in names else None)
+        if layout is not None:  # a session's sub-folders (images, view records) are part of it
+            found.append((folder, layout))
+            return
+        for e in entries:
+            if e.name.startswith("."):
+                continue
+            path = Path(e.path)
+            if e.is_symlink():
+                if not os.path.exists(path):
+                    skipped.append(SkippedFolder(path, f"a link to nothing ({os.readlink(path)} does not exist)"))
+                elif _is(e.is_dir):
+                    if follow:
+                        visit(path, parents + (real,), follow=True)
+                    else:
+                        links.append((path, parents + (real,)))
+            elif _is(e.is_dir):
+                visit(path, parents + (real,), follow=follow)
+
+    visit(root, (), follow=False)
+    for path, parents in links:  # after every real folder: a session reached both ways keeps its real name
+        visit(path, parents, follow=True)
+    for s in skipped:  # the command says them itself
+        log.info("%s: skipped: %s", s.path, s.reason)
+    return sorted(found, key=lambda fl: str(fl[0])), sorted(skipped, key=lambda s: str(s.path))
+
+
+def _is(test) -> bool:
+    """``DirEntry.is_file`` / ``is_dir`` (links followed), False where the entry cannot be looked at."""
+    try:
+        return test()
+    except OSError:
+        return False
+
+
 def find_session_folders(root: Path) -> list[tuple[Path, str]]:
     """(folder, layout) of every session under ``root`` (``root`` itself included), sorted by path."""
-    found = []
-    for folder, dirs, files in os.walk(root, followlinks=False):
-        names = set(files)
-        layout = "native" if "session.yaml" in names else ("vendor" if "poses.txt" in names else None)
-        if layout is not None:
-            found.append((Path(folder), layout))
-            dirs[:] = []  # a session's sub-folders (images, view records) are part of it
-        else:
-            dirs[:] = sorted(d for d in dirs if not d.startswith("."))
-    return sorted(found, key=lambda fl: str(fl[0]))
+    return walk_sessions(root)[0]
 
 
 def discover(root) -> list[SessionJob]:
     """Every session under ``root`` as a :class:`SessionJob`, sorted by install, time and name."""
+    return discover_fleet(root).jobs
+
+
+def discover_fleet(root) -> Discovery:
+    """Every session under ``root`` and the folders skipped on the way.
+
+    Sessions as :class:`SessionJob`, sorted by install, time and name; skipped folders as
+    :class:`SkippedFolder`.
+    """
     root = Path(root)
     if not root.is_dir():
         raise InputError(
@@ -80,33 +167,41 @@ def discover(root) -> list[SessionJob]:
             hint="pass the folder that holds the sessions (ROOT/<install>/<session>/)",
         )
     jobs, taken = [], set()
-    for folder, layout in find_session_folders(root):
-        meta = _session_yaml(folder) if layout == "native" else {}
+    folders, skipped = walk_sessions(root)
+    for folder, layout in folders:
+        warnings: list[str] = []
+        meta = _session_yaml(folder, warnings) if layout == "native" else {}
         rel = folder.relative_to(root).parts
-        if meta.get("install") not in (None, ""):
+        if isinstance(meta.get("install"), (str, int, float)) and meta["install"] != "":
             install = safe_component(meta["install"])
             name = "/".join(safe_component(p) for p in rel[1:]) if len(rel) > 1 else safe_component(folder.name)
-        elif len(rel) >= 2:
-            install, name = safe_component(rel[0]), "/".join(safe_component(p) for p in rel[1:])
-        elif len(rel) == 1:
-            install, name = safe_component(root.resolve().name), safe_component(rel[0])
         else:
-            install, name = DEFAULT_INSTALL, safe_component(folder.resolve().name)
+            if meta.get("install") not in (None, ""):
+                warnings.append(f"install {_short(meta['install'])} is not a name; grouped by its folder")
+            if len(rel) >= 2:
+                install, name = safe_component(rel[0]), "/".join(safe_component(p) for p in rel[1:])
+            elif len(rel) == 1:
+                install, name = safe_component(root.resolve().name), safe_component(rel[0])
+            else:
+                install, name = DEFAULT_INSTALL, safe_component(folder.resolve().name)
         base, k = name, 2
         while (install, name) in taken:
             name, k = f"{base}~{k}", k + 1
         taken.add((install, name))
-        t, src = session_time(folder, meta)
-        against = meta.get("verify_against")
-        if against not in (None, ""):
-            if not isinstance(against, str):
-                raise InputError(
-                    "verify_against must be a path",
-                    path=folder / "session.yaml",
-                    received=repr(against),
-                    expected="the installed result folder or its result.json (relative to the session)",
-                )
+        t, src = session_time(folder, meta, warnings)
+        against, error = meta.get("verify_against"), None
+        if against in (None, ""):
+            against = None
+        elif not isinstance(against, str):
+            error = (
+                f"{folder / 'session.yaml'}: verify_against must be a path (the installed result folder or its "
+                f"result.json, relative to the session); got {_short(against)}"
+            )
+            against = None
+        else:
             against = str((folder / against).resolve())
+        for w in warnings:
+            log.warning("%s: %s", folder, w)
         jobs.append(
             SessionJob(
                 path=folder.resolve(),
@@ -115,17 +210,27 @@ def discover(root) -> list[SessionJob]:
                 time_utc=t,
                 time_source=src,
                 layout=layout,
-                verify_against=against or None,
+                verify_against=against,
+                warnings=tuple(warnings),
+                error=error,
             )
         )
     jobs.sort(key=lambda j: (j.install, j.time_utc or "", j.name))
     log.info("%d sessions in %d installs under %s", len(jobs), len({j.install for j in jobs}), root)
-    return jobs
+    return Discovery(jobs=jobs, skipped=skipped)
 
 
-def _session_yaml(folder: Path) -> dict:
-    """The top-level mapping of ``session.yaml`` ({} when it does not parse: the calibration then
-    reports why, the batch only needs the install and the time).
+def _short(value) -> str:
+    """``repr(value)`` cut to one short line, for a warning."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _session_yaml(folder: Path, warnings: list) -> dict:
+    """The top-level mapping of ``session.yaml``.
+
+    {} when it does not parse, with a warning in ``warnings``: the calibration then reports why, the batch
+    only needs the install and the time.
     """
     import yaml
 
@@ -134,8 +239,10 @@ def _session_yaml(folder: Path) -> dict:
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
         # its install, time and verify_against are lost: grouped by its path, run as a calibration, which names
         # the file's fault in its own record
-        log.warning("%s: not read for the batch (%s); grouped by its folder", folder / "session.yaml", e)
+        warnings.append(f"session.yaml not read for the batch ({' '.join(str(e).split())}); grouped by its folder")
         return {}
+    if d is not None and not isinstance(d, dict):
+        warnings.append("session.yaml is not a mapping; grouped by its folder")
     return d if isinstance(d, dict) else {}
 
 
@@ -145,22 +252,39 @@ def _iso(t: _dt.datetime) -> str:
     return t.astimezone(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
-def session_time(folder: Path, meta: dict) -> tuple[str | None, str]:
-    """(ISO 8601 UTC time, source) of a session (see the module docstring)."""
+def session_time(folder: Path, meta: dict, warnings: list | None = None) -> tuple[str | None, str]:
+    """(ISO 8601 UTC time, source) of a session (see the module docstring).
+
+    A value passed over is said in ``warnings`` (a list the caller keeps).
+    """
+    warnings = [] if warnings is None else warnings
     t = meta.get("time")
     if isinstance(t, _dt.datetime):
         return _iso(t), "session.yaml time"
     if isinstance(t, _dt.date):
         return _iso(_dt.datetime(t.year, t.month, t.day)), "session.yaml time"
-    if isinstance(t, str):
+    if t is not None:
         try:
             return _iso(_dt.datetime.fromisoformat(t.strip())), "session.yaml time"
-        except ValueError:
-            log.warning("%s: session.yaml time %r is not ISO 8601; using the next source", folder, t)
-    stamps = [v.get("t_image") for v in (meta.get("views") or []) if isinstance(v, dict)]
-    stamps = [float(s) for s in stamps if isinstance(s, (int, float)) and not isinstance(s, bool)]
+        except (AttributeError, ValueError, OverflowError):
+            warnings.append(f"session.yaml time {_short(t)} is not an ISO 8601 time; the time is taken from elsewhere")
+    views = meta.get("views")
+    stamps, bad = [], []
+    for v in views if isinstance(views, list) else []:
+        s = v.get("t_image") if isinstance(v, dict) else None
+        if s is None:
+            continue
+        if isinstance(s, (int, float)) and not isinstance(s, bool) and _stamp(s) is not None:
+            stamps.append(float(s))
+        else:
+            bad.append(s)
+    if bad:
+        warnings.append(
+            f"t_image {_short(bad[0])}{f' (and {len(bad) - 1} more)' if len(bad) > 1 else ''} is not a time "
+            "(seconds since 1970); those stamps are passed over for the session's time"
+        )
     if stamps:
-        return _iso(_dt.datetime.fromtimestamp(min(stamps), _dt.timezone.utc)), "t_image"
+        return _iso(_stamp(min(stamps))), "t_image"
     m = _DATE_RE.search(folder.name)
     if m:
         y, mo, d, hh, mm, ss = (int(g) if g else 0 for g in m.groups())
@@ -169,7 +293,17 @@ def session_time(folder: Path, meta: dict) -> tuple[str | None, str]:
         except ValueError:
             pass
     try:
-        newest = max(p.stat().st_mtime for p in folder.iterdir() if p.is_file())
+        newest = _stamp(max(p.stat().st_mtime for p in folder.iterdir() if p.is_file()))
     except (OSError, ValueError):
+        newest = None
+    if newest is None:
         return None, "none"
-    return _iso(_dt.datetime.fromtimestamp(newest, _dt.timezone.utc)), "file time"
+    return _iso(newest), "file time"
+
+
+def _stamp(seconds: float) -> _dt.datetime | None:
+    """``seconds`` since 1970 as a UTC time, None when it is not one this platform can represent."""
+    try:
+        return _dt.datetime.fromtimestamp(float(seconds), _dt.timezone.utc)
+    except (OverflowError, OSError, ValueError):
+        return None

@@ -6,7 +6,7 @@ common findings, and per install the drift of X between consecutive sessions
 (:func:`handeye.recal.compare.compare_results`) and the trend of X with 2-sigma bands. A session whose
 last batch run ended without a result is listed as ERROR with the reason.
 
-See docs/fleet.md.
+See docs/fleet.md and, for faults in one session, docs/batch.md.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from typing import Optional
 
 import numpy as np
 
+from ..errors import VERDICTS, HandeyeError, InputError
 from ..output import atomic_write_bytes, atomic_write_text
 from .run import FAILED_VERDICTS, LOG_NAME, RECORD_NAME, read_json
 
@@ -55,10 +56,140 @@ COLUMNS = (
     "result_dir",
     "report",
     "export_error",
+    "warnings",
 )
 #: how many findings codes the fleet summary lists
 TOP_FINDINGS = 10
 FILES_DIR = "index_files"
+#: a row's outcome when its result.json cannot be read
+DAMAGED = "damaged"
+#: what reading one result for one row may raise; one session's fault, never the index's
+ROW_ERRORS = (HandeyeError, ValueError, TypeError, KeyError, AttributeError, IndexError)
+#: the file discovery's skipped folders are kept in (written by the batch, read by the index)
+SKIPPED_NAME = "skipped.json"
+
+
+class DamagedResult(InputError):
+    """A result.json (or verify.json) whose content the fleet index cannot use: the field and why."""
+
+    code = "result_damaged"
+
+
+def _damaged(field: str, value, expected: str) -> DamagedResult:
+    kind = {dict: "a mapping", list: "a list", str: "a text", bool: "a boolean", type(None): "null"}.get(
+        type(value), type(value).__name__
+    )
+    text = " ".join(repr(value).split())
+    return DamagedResult(f"field {field} is {kind} ({text[:40]})", expected=expected)
+
+
+def _text(d: dict, key: str, field: str, *, choices=None) -> Optional[str]:
+    """``d[key]`` as a text, None when absent.
+
+    DamagedResult naming ``field`` when it is another kind or not one of ``choices``.
+    """
+    v = d.get(key)
+    if v is None:
+        return None
+    if not isinstance(v, str) or (choices is not None and v not in choices):
+        raise _damaged(field, v, "one of " + ", ".join(choices) if choices else "a text")
+    return v
+
+
+def _mapping(d: dict, key: str, field: str) -> dict:
+    """``d[key]`` as a mapping ({} when absent or null); DamagedResult when it is another kind."""
+    v = d.get(key)
+    if v is None:
+        return {}
+    if not isinstance(v, dict):
+        raise _damaged(field, v, "a mapping")
+    return v
+
+
+def _number(v, field: str) -> Optional[float]:
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+        raise _damaged(field, v, "a finite number")
+    return float(v)
+
+
+def _vector3(d: dict, key: str, field: str) -> Optional[list]:
+    v = d.get(key)
+    if v is None:
+        return None
+    if not isinstance(v, list) or len(v) != 3:
+        raise _damaged(field, v, "a list of 3 numbers")
+    return [_number(x, f"{field}[{k}]") for k, x in enumerate(v)]
+
+
+def result_fields(res) -> dict:
+    """The fields of a result.json's content that the fleet row shows, each checked for its kind.
+
+    Returns ``mode``, ``verdict`` (FAIL when absent, as in results older than the verdict), ``status``,
+    ``findings`` (codes), ``time_utc``, ``why`` (failure reason or headline), and for a result with a
+    matrix ``x_name``, ``translation_mm``, ``rotvec_deg``, ``sigma_trans_mm``, ``sigma_rot_deg``,
+    ``sigma_source``, ``rms_px``. Raises :class:`DamagedResult` naming the first field of the wrong kind.
+    """
+    if not isinstance(res, dict):
+        raise _damaged("(top level)", res, "a mapping")
+    status = _text(res, "status", "status")
+    f = {
+        "mode": _text(res, "mode", "mode"),
+        "verdict": _text(res, "verdict", "verdict", choices=tuple(VERDICTS)) or "FAIL",
+        "status": status,
+        "time_utc": _text(_mapping(res, "provenance", "provenance"), "time_utc", "provenance.time_utc"),
+        "why": _text(res, "failure_reason", "failure_reason") or _text(res, "verdict_headline", "verdict_headline"),
+    }
+    findings = res.get("findings") or []
+    if not isinstance(findings, list):
+        raise _damaged("findings", findings, "a list")
+    f["findings"] = [str(x.get("code")) for x in findings if isinstance(x, dict)]
+    he = res.get("hand_eye") if status == "ok" else None
+    if he is None:
+        return f
+    if not isinstance(he, dict):
+        raise _damaged("hand_eye", he, "a mapping")
+    ref = _mapping(res, "refinement", "refinement")
+    f.update(
+        x_name=_text(he, "name", "hand_eye.name"),
+        translation_mm=_vector3(he, "translation_mm", "hand_eye.translation_mm"),
+        rotvec_deg=_vector3(he, "rotvec_deg", "hand_eye.rotvec_deg"),
+        sigma_trans_mm=_vector3(ref, "sigma_trans_mm", "refinement.sigma_trans_mm"),
+        sigma_rot_deg=_vector3(ref, "sigma_rot_deg", "refinement.sigma_rot_deg"),
+        sigma_source=_text(ref, "sigma_source", "refinement.sigma_source") or ("model" if ref else None),
+    )
+    rms = _number(ref.get("rms_px_after"), "refinement.rms_px_after")
+    if rms is None:
+        checks = _mapping(res, "qa", "qa").get("checks") or []
+        if not isinstance(checks, list):
+            raise _damaged("qa.checks", checks, "a list")
+        rms = next(
+            (
+                _number(c.get("value"), "qa.checks[reprojection_rms_px].value")
+                for c in checks
+                if isinstance(c, dict) and c.get("key") == "reprojection_rms_px"
+            ),
+            None,
+        )
+    f["rms_px"] = rms
+    return f
+
+
+def _read_json_file(path: Path) -> tuple[Optional[object], Optional[str]]:
+    """(content, None) of a JSON file, (None, None) when there is none, (None, why) when it does not parse."""
+    import json
+
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return None, None
+    except (OSError, UnicodeDecodeError) as e:
+        return None, f"cannot be read ({e})"
+    try:
+        return json.loads(text), None
+    except ValueError as e:
+        return None, f"is not valid JSON ({e})"
 
 
 # ------------------------------------------------------------------------------------------ rows
@@ -75,76 +206,91 @@ def session_folders(out: Path) -> list[Path]:
 
 
 def session_row(out: Path, folder: Path) -> dict:
-    """The fleet row of one session folder (see :data:`COLUMNS`; vectors as 3-lists, findings a list)."""
+    """The fleet row of one session folder (see :data:`COLUMNS`; vectors as 3-lists, findings a list).
+
+    A result.json (or verify.json) that cannot be used makes the row ``damaged`` with the reason; the
+    batch record's fields of the wrong kind are passed over.
+    """
     rel = folder.relative_to(out).parts
     rec = read_json(folder / RECORD_NAME) or {}
-    res = read_json(folder / "result.json")
     row = {c: None for c in COLUMNS}
+    warnings = rec.get("warnings")
     row.update(
-        install=rec.get("install") or (rel[0] if len(rel) > 1 else "default"),
-        session=rec.get("name") or ("/".join(rel[1:]) if len(rel) > 1 else folder.name),
-        time_utc=rec.get("time_utc"),
-        time_source=rec.get("time_source"),
+        install=_rec_text(rec, "install") or (rel[0] if len(rel) > 1 else "default"),
+        session=_rec_text(rec, "name") or ("/".join(rel[1:]) if len(rel) > 1 else folder.name),
+        time_utc=_rec_text(rec, "time_utc"),
+        time_source=_rec_text(rec, "time_source"),
         result_dir="/".join(rel),
-        outcome=rec.get("outcome"),
-        reason=rec.get("reason") or "",
+        outcome=_rec_text(rec, "outcome"),
+        reason=_rec_text(rec, "reason") or "",
         findings=[],
-        export_error=rec.get("export_error"),
+        export_error=_rec_text(rec, "export_error"),
+        warnings="; ".join(str(w) for w in warnings) if isinstance(warnings, list) else None,
     )  # calibrate --export failed on a usable result
-    ver = read_json(folder / "verify.json") if res is None else None
-    if ver is not None and (not rec or rec.get("outcome") == "done"):  # a verification session (handeye verify)
-        from .run import VERIFY_VERDICTS
-
-        row.update(
-            mode=ver.get("mode"),
-            x_name=ver.get("frame"),
-            outcome=row["outcome"] or "done",
-            verdict=VERIFY_VERDICTS.get(str(ver.get("verdict")), "ERROR"),
-            time_utc=row["time_utc"] or (ver.get("provenance") or {}).get("time_utc"),
-            reason=row["reason"] or ("" if ver.get("verdict") == "still valid" else str(ver.get("headline"))),
-        )
-        if (folder / "verify.html").exists():
-            row["report"] = "/".join(rel) + "/verify.html"
+    which = "result.json"
+    res, res_error = _read_json_file(folder / which)
+    try:
+        if res_error is not None:
+            raise DamagedResult(f"it {res_error}")
+        if res is None:
+            which = "verify.json"
+            ver, ver_error = _read_json_file(folder / which)
+            if ver_error is not None:
+                raise DamagedResult(f"it {ver_error}")
+            if ver is not None and (not rec or rec.get("outcome") == "done"):  # a verification (handeye verify)
+                return _verify_row(row, ver, folder, rel)
+        if rec and rec.get("outcome") != "done" or res is None:
+            row.update(verdict="ERROR", reason=row["reason"] or "no result.json")
+            return row
+        f = result_fields(res)
+    except ROW_ERRORS as e:
+        log.warning("%s: %s is damaged: %s", folder, which, e)
+        row.update(outcome=DAMAGED, verdict="ERROR", reason=f"{which} is damaged: {e}")
         return row
-    if rec and rec.get("outcome") != "done" or res is None:
-        row.update(verdict="ERROR", reason=row["reason"] or "no result.json")
-        return row
-    row.update(
-        mode=res.get("mode"),
-        verdict=res.get("verdict") or "FAIL",
-        outcome=row["outcome"] or "done",
-        findings=[str(f.get("code")) for f in res.get("findings") or [] if isinstance(f, dict)],
-    )
+    row.update(mode=f["mode"], verdict=f["verdict"], outcome=row["outcome"] or "done", findings=f["findings"])
     if not row["time_utc"]:
-        row.update(time_utc=(res.get("provenance") or {}).get("time_utc"), time_source="calibrated")
+        row.update(time_utc=f["time_utc"], time_source="calibrated")
     if not row["reason"] and row["verdict"] not in ("PASS", "WARN"):
-        row["reason"] = res.get("failure_reason") or res.get("verdict_headline") or ""
-    he = res.get("hand_eye") if res.get("status") == "ok" else None
-    if isinstance(he, dict):
-        ref = res.get("refinement") or {}
-        row.update(x_name=he.get("name"), sigma_source=ref.get("sigma_source") or ("model" if ref else None))
-        for names, key, src in (
-            (("tx_mm", "ty_mm", "tz_mm"), "translation_mm", he),
-            (("rx_deg", "ry_deg", "rz_deg"), "rotvec_deg", he),
-            (("sigma_tx_mm", "sigma_ty_mm", "sigma_tz_mm"), "sigma_trans_mm", ref),
-            (("sigma_rx_deg", "sigma_ry_deg", "sigma_rz_deg"), "sigma_rot_deg", ref),
+        row["reason"] = f["why"] or ""
+    if f.get("translation_mm") is not None and f.get("rotvec_deg") is not None:
+        row.update(x_name=f["x_name"], sigma_source=f["sigma_source"], reprojection_rms_px=f["rms_px"])
+        for names, key in (
+            (("tx_mm", "ty_mm", "tz_mm"), "translation_mm"),
+            (("rx_deg", "ry_deg", "rz_deg"), "rotvec_deg"),
+            (("sigma_tx_mm", "sigma_ty_mm", "sigma_tz_mm"), "sigma_trans_mm"),
+            (("sigma_rx_deg", "sigma_ry_deg", "sigma_rz_deg"), "sigma_rot_deg"),
         ):
-            vals = src.get(key) or [None] * 3
-            row.update(dict(zip(names, (None if v is None else float(v) for v in vals), strict=False)))
-        rms = ref.get("rms_px_after")
-        if rms is None:
-            rms = next(
-                (
-                    c.get("value")
-                    for c in (res.get("qa") or {}).get("checks") or []
-                    if c.get("key") == "reprojection_rms_px"
-                ),
-                None,
-            )
-        row["reprojection_rms_px"] = None if rms is None else float(rms)
+            row.update(dict(zip(names, f[key] or [None] * 3, strict=True)))
         row["compared"] = _comparable(res, folder / "result.json")  # for the drift: result.json is read once
     if (folder / "report.html").exists():
         row["report"] = "/".join(rel) + "/report.html"
+    return row
+
+
+def _rec_text(rec: dict, key: str) -> Optional[str]:
+    """A text field of a batch record (None when absent or of another kind)."""
+    v = rec.get(key)
+    return v if isinstance(v, str) else None
+
+
+def _verify_row(row: dict, ver, folder: Path, rel: tuple) -> dict:
+    """The row of a verification session (handeye verify) from its verify.json's content ``ver``."""
+    from .run import VERIFY_VERDICTS
+
+    if not isinstance(ver, dict):
+        raise _damaged("(top level)", ver, "a mapping")
+    verdict = _text(ver, "verdict", "verdict", choices=tuple(VERIFY_VERDICTS))
+    prov = _mapping(ver, "provenance", "provenance")
+    row.update(
+        mode=_text(ver, "mode", "mode"),
+        x_name=_text(ver, "frame", "frame"),
+        outcome=row["outcome"] or "done",
+        verdict=VERIFY_VERDICTS.get(verdict, "ERROR"),
+        time_utc=row["time_utc"] or _text(prov, "time_utc", "provenance.time_utc"),
+        reason=row["reason"] or ("" if verdict == "still valid" else str(ver.get("headline"))),
+    )
+    if (folder / "verify.html").exists():
+        row["report"] = "/".join(rel) + "/verify.html"
     return row
 
 
@@ -162,10 +308,10 @@ def _comparable(res: Optional[dict], path: Path):
         if res is not None and "handeye_result" in res:
             try:
                 return replace(load_result(res), source=str(path))
-            except Exception:  # noqa: BLE001 - said as load_result says it of the file, below
+            except ROW_ERRORS:  # said as load_result says it of the file, below
                 pass
         return load_result(path)
-    except Exception as e:  # noqa: BLE001 - one result that cannot be compared must not lose the index
+    except ROW_ERRORS as e:  # one result that cannot be compared must not lose the index
         return e
 
 
@@ -179,19 +325,21 @@ def fleet_rows(out) -> list[dict]:
 
 # ------------------------------------------------------------------------------------------ installs
 def _drift(out: Path, a: dict, b: dict) -> dict:
-    """compare_results between two consecutive sessions of an install, as a table row (their results as
-    :func:`session_row` loaded them).
+    """compare_results between two sessions of an install, as a table row.
+
+    Their results as :func:`session_row` loaded them. Every row has ``comparable``, ``reason`` and
+    ``drifted`` (False when not comparable); a comparable one the numbers of the comparison.
     """
     from ..recal.compare import compare_loaded
 
-    d = {"from": a["session"], "to": b["session"], "time_utc": b["time_utc"]}
+    d = {"from": a["session"], "to": b["session"], "time_utc": b["time_utc"], "drifted": False}
     try:
         pair = [r.get("compared") or _comparable(None, out / r["result_dir"] / "result.json") for r in (a, b)]
         for loaded in pair:
             if isinstance(loaded, Exception):
                 raise loaded
         c = compare_loaded(*pair)
-    except Exception as e:  # noqa: BLE001 - one pair that cannot be compared must not lose the index
+    except ROW_ERRORS as e:  # one pair that cannot be compared must not lose the index
         log.warning("drift %s -> %s not computed: %s", a["session"], b["session"], e)
         return {**d, "comparable": False, "reason": f"{type(e).__name__}: {e}"}
     if not c.comparable:
@@ -209,9 +357,83 @@ def _drift(out: Path, a: dict, b: dict) -> dict:
     }
 
 
+def series_key(row: dict) -> Optional[tuple]:
+    """What a session's result describes: (mode, frame of X, board, image size).
+
+    None when its result does not load for a comparison. Two sessions are compared only within one key
+    (module docstring).
+    """
+    import json
+
+    loaded = row.get("compared")
+    if loaded is None or isinstance(loaded, Exception):
+        return None
+    size = tuple(loaded.image_size) if loaded.image_size else None
+    return (loaded.mode, loaded.x_name, json.dumps(loaded.target, sort_keys=True, default=str), size)
+
+
+def _series_label(key: tuple) -> str:
+    """One line naming a series: its mode, X, board and image size."""
+    import json
+
+    mode, x_name, target, size = key
+    t = json.loads(target)
+    board = "an unknown board"
+    if isinstance(t, dict):
+        dims = t.get("inner_corners") or t.get("squares") or t.get("grid")
+        board = str(t.get("type") or "board") + (
+            f" {dims[0]}x{dims[1]}" if isinstance(dims, list) and len(dims) == 2 else ""
+        )
+        if isinstance(t.get("square_m"), (int, float)):
+            board += f" of {1e3 * t['square_m']:g} mm"
+    return f"{mode}, {x_name}, {board}" + (f", {size[0]}x{size[1]} px" if size else "")
+
+
+def _not_comparable(a: dict, b: dict) -> dict:
+    """The drift row of two consecutive sessions of two series: not comparable, with the difference."""
+    from ..recal.compare import why_not_comparable
+
+    reason = why_not_comparable(a["compared"], b["compared"]) or "the results describe different quantities"
+    return {
+        "from": a["session"],
+        "to": b["session"],
+        "time_utc": b["time_utc"],
+        "comparable": False,
+        "reason": reason,
+        "drifted": False,
+    }
+
+
+def install_drifts(out: Path, usable: list[dict]) -> list[dict]:
+    """The drift rows of an install's sessions with a result (by time).
+
+    Each session against the previous one of its series (:func:`series_key`); two consecutive sessions of
+    two series also get a row, not comparable, naming the difference. A session whose result does not load
+    for a comparison is paired with the previous session, and its row says why.
+    """
+    drifts, last_of = [], {}
+    for k, row in enumerate(usable):
+        key, prev = series_key(row), (usable[k - 1] if k else None)
+        if prev is not None:
+            prev_key = series_key(prev)
+            if key is None or prev_key is None:  # the pair's row says why a result does not load
+                drifts.append(_drift(out, prev, row))
+            elif key != prev_key:
+                drifts.append(_not_comparable(prev, row))
+            else:
+                drifts.append(_drift(out, prev, row))
+        if key is not None and key in last_of and last_of[key] is not prev:  # across sessions of other series
+            drifts.append(_drift(out, last_of[key], row))
+        if key is not None:
+            last_of[key] = row
+    return drifts
+
+
 def install_summaries(out, rows: list[dict], *, plots: bool = True) -> list[dict]:
-    """Per install: its rows (by time), latest verdict, drifts between consecutive sessions with a
-    result, and the trend plot (PNG bytes or None).
+    """Per install: its rows (by time), latest verdict, drifts and trends.
+
+    ``drifts``: :func:`install_drifts`; ``trends``: per series with a result (:func:`series_key`) its
+    ``label``, ``rows`` and trend plot ``png`` (bytes; None without ``plots`` or for one session alone).
     """
     out = Path(out)
     by_install: dict[str, list] = {}
@@ -221,7 +443,20 @@ def install_summaries(out, rows: list[dict], *, plots: bool = True) -> list[dict
     for name in sorted(by_install):
         rs = by_install[name]
         usable = [r for r in rs if r["tx_mm"] is not None]
-        drifts = [_drift(out, a, b) for a, b in zip(usable, usable[1:], strict=False)]
+        drifts = install_drifts(out, usable)
+        series: dict = {}
+        for r in usable:
+            key = series_key(r)
+            if key is not None:
+                series.setdefault(key, []).append(r)
+        trends = [
+            {
+                "label": _series_label(key),
+                "rows": srows,
+                "png": trend_png(name, srows) if plots and len(srows) > 1 else None,
+            }
+            for key, srows in series.items()
+        ]
         summaries.append(
             {
                 "install": name,
@@ -229,8 +464,8 @@ def install_summaries(out, rows: list[dict], *, plots: bool = True) -> list[dict
                 "latest": rs[-1],
                 "latest_verdict": rs[-1]["verdict"],
                 "drifts": drifts,
-                "n_drifted": sum(bool(d.get("drifted")) for d in drifts),
-                "trend_png": trend_png(name, usable) if plots and usable else None,
+                "n_drifted": sum(bool(d["drifted"]) for d in drifts),
+                "trends": trends,
             }
         )
     return summaries
@@ -327,6 +562,7 @@ def fleet_summary(rows: list[dict], installs: list[dict]) -> dict:
         "drifting": [i for i in installs if i["n_drifted"]],
         "top_findings": codes.most_common(TOP_FINDINGS),
         "export_errors": [r for r in rows if r["export_error"]],
+        "damaged": [r for r in rows if r["outcome"] == DAMAGED],
     }
 
 
@@ -388,6 +624,25 @@ def _env(*, html: bool):
     return env
 
 
+def write_skipped(out, skipped: list) -> Path:
+    """Keep the folders discovery skipped (:class:`handeye.batch.discover.SkippedFolder`) in OUT for the index."""
+    import json
+
+    data = [{"path": str(s.path), "reason": s.reason} for s in skipped]
+    return atomic_write_text(Path(out) / SKIPPED_NAME, json.dumps({"skipped": data}, indent=1) + "\n")
+
+
+def read_skipped(out) -> list[dict]:
+    """The skipped folders of the last batch into ``out`` (``path``, ``reason``); [] when none are recorded."""
+    d = read_json(Path(out) / SKIPPED_NAME) or {}
+    items = d.get("skipped")
+    return [
+        {"path": str(x.get("path")), "reason": str(x.get("reason"))}
+        for x in (items if isinstance(items, list) else [])
+        if isinstance(x, dict)
+    ]
+
+
 def write_index(out, *, plots: bool = True) -> list[Path]:
     """Write fleet.csv (fleet.parquet), index.html, index.md and index_files/ into ``out``; return the paths."""
     import datetime as _dt
@@ -402,6 +657,7 @@ def write_index(out, *, plots: bool = True) -> list[Path]:
         "rows": rows,
         "installs": installs,
         "fleet": fleet_summary(rows, installs),
+        "skipped": read_skipped(out),
         "version": __version__,
         "generated_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "anchor": lambda name: "install-" + safe_name(name),
@@ -411,16 +667,18 @@ def write_index(out, *, plots: bool = True) -> list[Path]:
     pq_path = _write_parquet(out / "fleet.parquet", rows)
     if pq_path is not None:
         written.append(pq_path)
-    images = {i["install"]: data_uri(i["trend_png"]) for i in installs if i["trend_png"]}
+    images = {i["install"]: [(t["label"], data_uri(t["png"])) for t in i["trends"] if t["png"]] for i in installs}
     written.append(
         atomic_write_text(
             out / "index.html", _env(html=True).get_template("fleet.html.j2").render(**ctx, images=images)
         )
     )
-    files = {i["install"]: f"{FILES_DIR}/trend_{safe_name(i['install'])}.png" for i in installs if i["trend_png"]}
+    files = {}
     for i in installs:
-        if i["trend_png"]:
-            atomic_write_bytes(out / files[i["install"]], i["trend_png"])
+        for k, t in enumerate(t for t in i["trends"] if t["png"]):  # one install's first series keeps its old name
+            name = f"{FILES_DIR}/trend_{safe_name(i['install'])}{f'_{k + 1}' if k else ''}.png"
+            atomic_write_bytes(out / name, t["png"])
+            files.setdefault(i["install"], []).append((t["label"], name))
     written.append(
         atomic_write_text(out / "index.md", _env(html=False).get_template("fleet.md.j2").render(**ctx, images=files))
     )

@@ -143,7 +143,9 @@ def inputs_sha256(job: SessionJob, mode: Optional[str], *, allow_outside: bool =
 
     try:
         return hash_files(session_inputs(load_session(job.path, mode=mode, allow_outside=allow_outside))), "session"
-    except HandeyeError:
+    except (HandeyeError, ValueError, TypeError, KeyError, OverflowError) as e:
+        # a session that does not load (the calibration says why in its own record): keyed on its files
+        log.debug("%s: keyed on its files (%s: %s)", job.path, type(e).__name__, e)
         files = sorted(p for p in job.path.rglob("*") if p.is_file())
         return hash_files(files), "folder"
 
@@ -198,8 +200,15 @@ def current_record(out_dir: Path, key: dict) -> Optional[dict]:
         return None
     if key.get("verify_against"):  # the key holds the session's and the installed result's hashes
         return rec if read_json(out_dir / "verify.json") is not None else None
+    from .index import DamagedResult, result_fields
+
     res = read_json(out_dir / "result.json")
     if res is None:
+        return None
+    try:  # a result damaged since its run is calibrated again, not carried on as it is
+        result_fields(res)
+    except DamagedResult as e:
+        log.warning("%s: result.json is damaged (%s); the session runs again", out_dir, e)
         return None
     prov = res.get("provenance") or {}
     if key["inputs"] == "session" and prov.get("inputs_sha256") != key["inputs_sha256"]:
@@ -248,7 +257,7 @@ def _run_child(spec: dict, out: Path, *, session_path: Optional[str] = None) -> 
         out.mkdir(parents=True, exist_ok=True)
         log_file = open(out / LOG_NAME, "wb")
     t0 = time.perf_counter()
-    rec = {k: spec[k] for k in ("session", "install", "name", "time_utc", "time_source", "key")}
+    rec = spec_record(spec)
     rec.update(
         session=session_path or spec["session"], worker=f"{socket.gethostname()}:{os.getpid()}", started_utc=_now()
     )
@@ -327,6 +336,17 @@ def write_tree(folder: Path, files: dict, *, keep_prefix: str = "result.") -> No
         atomic_write_bytes(folder / rel, data, durable=False)
 
 
+def spec_record(spec: dict) -> dict:
+    """The start of a session's batch record.
+
+    What the task spec says of the session, and the warnings of its discovery when there were any.
+    """
+    rec = {k: spec[k] for k in ("session", "install", "name", "time_utc", "time_source", "key")}
+    if spec.get("warnings"):
+        rec["warnings"] = list(spec["warnings"])
+    return rec
+
+
 def _finish_record(out: Path, rec: dict, t0: float) -> dict:
     rec["seconds"] = time.perf_counter() - t0
     rec["finished_utc"] = _now()
@@ -358,10 +378,15 @@ def _now() -> str:
 # ------------------------------------------------------------------------------------------ batch
 @dataclass
 class BatchPlan:
-    """The sessions to run (their task specs) and the skipped ones (their current records)."""
+    """The sessions to run, to skip, and that cannot run.
+
+    ``specs``: task specs; ``skipped``: current records of unchanged sessions; ``refused``: records of
+    sessions that cannot run (outcome ``error``, the reason from discovery or from reading their files).
+    """
 
     specs: list = field(default_factory=list)
     skipped: list = field(default_factory=list)
+    refused: list = field(default_factory=list)
 
 
 def plan_batch(
@@ -372,19 +397,32 @@ def plan_batch(
     plan = BatchPlan()
     for job in jobs:
         out_dir = Path(out) / job.install / job.name
-        key = session_key(job, calibrate, options)
+        spec = {
+            "session": str(job.path),
+            "out_dir": str(out_dir),
+            "install": job.install,
+            "name": job.name,
+            "time_utc": job.time_utc,
+            "time_source": job.time_source,
+            "key": None,
+            "warnings": list(job.warnings),
+        }
+        why = job.error
+        if why is None:
+            try:
+                key = session_key(job, calibrate, options)
+            except OSError as e:  # the session's files cannot be read: that session fails, the batch goes on
+                why = f"its files cannot be read ({e})"
+        if why is not None:
+            plan.refused.append(_refused_record(spec, why))
+            continue
         rec = None if force else current_record(out_dir, key)
         if rec is not None:
             plan.skipped.append({**rec, "skipped": True})
             continue
         plan.specs.append(
             {
-                "session": str(job.path),
-                "out_dir": str(out_dir),
-                "install": job.install,
-                "name": job.name,
-                "time_utc": job.time_utc,
-                "time_source": job.time_source,
+                **spec,
                 "key": key,
                 "calibrate": _canonical(calibrate),
                 "timeout_s": float(timeout_s),
@@ -392,6 +430,16 @@ def plan_batch(
             }
         )
     return plan
+
+
+def _refused_record(spec: dict, why: str) -> dict:
+    """The batch record of a session that cannot run (``why``), written into its output folder."""
+    rec = {**spec_record(spec), "outcome": "error", "verdict": "ERROR", "reason": why, "finished_utc": _now()}
+    try:
+        write_json(Path(spec["out_dir"]) / RECORD_NAME, rec)
+    except OSError as w:
+        log.warning("%s: could not record that the session cannot run (%s)", spec["out_dir"], w)
+    return rec
 
 
 def open_client(scheduler: Optional[str] = None, n_workers: Optional[int] = None):
@@ -439,7 +487,7 @@ def run_batch(
     plan = plan_batch(jobs, out, calibrate=calibrate, timeout_s=timeout_s, force=force)
     progress = progress or (lambda rec: None)
     records = []
-    for rec in plan.skipped:
+    for rec in plan.skipped + plan.refused:
         records.append(rec)
         progress(rec)
     if plan.specs:
@@ -486,7 +534,7 @@ def _collect(fut, spec: dict) -> dict:
         from distributed import KilledWorker
 
         lost = isinstance(e, KilledWorker)
-        rec = {k: spec[k] for k in ("session", "install", "name", "time_utc", "time_source", "key")}
+        rec = spec_record(spec)
         rec.update(
             outcome="lost" if lost else "error",
             verdict="ERROR",

@@ -2,9 +2,12 @@
 
 stderr: a progress bar (sessions done / failed / skipped) and, per failed session, one line with
 the reason, per session whose export (``--export``) failed one line with its error; stdout: the
-one-line summary (with the count of failed exports) and the index's paths. Exit code 0 when every session
-(run now or skipped as unchanged) is PASS or WARN, else 7 (:class:`handeye.errors.QAFailed`'s code).
-``--index-only OUT`` rebuilds the index from the result folders in OUT.
+one-line summary (with the count of failed exports) and the index's paths. Folders under ROOT that discovery
+did not enter (a link loop, a second link to one folder) are one stderr line each and listed in the index.
+Exit code 0 when every session (run now or skipped as unchanged) is PASS or WARN and every result in the
+index could be read, else 7 (:class:`handeye.errors.QAFailed`'s code); one bad session never stops the
+batch. ``--index-only OUT`` rebuilds the index from the result folders in OUT; its exit code is the same
+rule over the index's rows.
 """
 
 from __future__ import annotations
@@ -35,8 +38,10 @@ def add_arguments(p) -> None:
     )
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = (
-        "exit codes: 0 every session PASS or WARN; 7 a session FAIL, REFUSED or without a result "
-        "(timeout, crash, lost worker); 2 unusable input"
+        "exit codes: 0 every session PASS or WARN (with --index-only: every row of the index PASS, WARN or "
+        "VALID); 7 a session FAIL, REFUSED, DRIFTED or without a result (timeout, crash, lost worker, a "
+        "session that cannot be read), or a result under OUT that is damaged; 2 unusable input (the root, "
+        "the options, the site QA file)"
     )
     p.add_argument("root", type=Path, help="folder holding the sessions (with --index-only: the output folder)")
     p.add_argument("--out", type=Path, help="output folder (required unless --index-only)")
@@ -84,8 +89,22 @@ def calibrate_options(args) -> dict:
     }
 
 
+def index_exit_code(out: Path, *, every_row: bool) -> int:
+    """The exit code that the index written in ``out`` calls for.
+
+    :class:`QAFailed`'s code when a row is damaged (a result that cannot be read) or, with ``every_row``,
+    when a row is not PASS, WARN or VALID; else 0.
+    """
+    from ..batch.index import DAMAGED, read_fleet_csv
+    from ..errors import QAFailed
+
+    rows = read_fleet_csv(out / "fleet.csv")
+    bad = [r for r in rows if r["outcome"] == DAMAGED or (every_row and r["verdict"] not in ("PASS", "WARN", "VALID"))]
+    return QAFailed.exit_code if bad else 0
+
+
 def run(args) -> int:
-    from ..batch.index import write_index
+    from ..batch.index import write_index, write_skipped
     from ..errors import InputError
 
     if args.index_only:
@@ -93,21 +112,24 @@ def run(args) -> int:
             raise InputError("output folder not found", path=args.root, hint="pass the --out folder of a batch")
         for p in write_index(args.root):
             print(f"index: {p}")
-        return 0
+        return index_exit_code(args.root, every_row=True)
     if args.out is None:
         raise InputError("--out is required", hint="handeye batch ROOT --out OUT")
     if args.workers is not None and args.workers < 1:
         raise InputError("--workers must be at least 1", received=str(args.workers))
     if args.timeout <= 0:
         raise InputError("--timeout must be a positive number of seconds", received=str(args.timeout))
-    from ..batch.discover import discover
+    from ..batch.discover import discover_fleet
     from ..batch.run import run_batch
     from ..report.qa import load_qa
 
     if not getattr(args, "verbose", False):  # Dask's INFO lines, in this process and the workers it starts
         os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
     load_qa(args.qa)  # a bad site QA file stops the batch before any session runs
-    jobs = discover(args.root)
+    found = discover_fleet(args.root)
+    jobs = found.jobs
+    for s in found.skipped:
+        print(f"{s.path}: skipped: {s.reason}", file=sys.stderr)
     if not jobs:
         raise InputError(
             "no sessions found",
@@ -129,11 +151,13 @@ def run(args) -> int:
         )
     finally:
         bar.close()
+    write_skipped(args.out, found.skipped)
     paths = write_index(args.out)
-    print(summary.line())
+    n_skipped = len(found.skipped)
+    print(summary.line() + (f"; {n_skipped} folder{'s' if n_skipped != 1 else ''} skipped" if n_skipped else ""))
     for p in paths:
         print(f"index: {p}")
-    return summary.exit_code
+    return max(summary.exit_code, index_exit_code(args.out, every_row=False))
 
 
 class _Progress:
