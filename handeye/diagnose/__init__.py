@@ -107,6 +107,10 @@ def _pose_checks(
     elif rf:
         for name in ("pairing", "scale", "board_moved", "robot_poses"):
             stages.skip(name, "the robot poses do not match the images as read")
+    elif not _motion_ok(obs, M):
+        # a motion that leaves X undetermined fits alternative pairings or a moved board as well as the truth
+        for name in ("pairing", "scale", "board_moved", "robot_poses"):
+            stages.skip(name, "the robot motion does not determine the hand-eye transform (see the motion findings)")
     else:
         pf = stages.run(
             "pairing", pairing_findings, obs, obs.raw.fmt, given_cost=given_cost, search=pairing, default=[]
@@ -117,11 +121,7 @@ def _pose_checks(
             for name in ("scale", "board_moved", "robot_poses"):
                 stages.skip(name, "images and robot poses are paired wrongly")
         else:
-            if _motion_ok(obs, M):
-                sf, est = stages.run("scale", scale_findings, obs, fit, M, default=([], None))
-            else:
-                sf, est = [], None
-                stages.skip("scale", "the robot motion does not determine the scale (see the motion findings)")
+            sf, est = stages.run("scale", scale_findings, obs, fit, M, default=([], None))
             out["findings"] += sf
             out["scale"] = (
                 None
