@@ -307,8 +307,10 @@ def run(args) -> int:
         from ..export import export_result
 
         try:
+            from ..export.writers import text_line
+
             for path in export_result(wr.out_dir, args.export):
-                print(f"{args.export}: {path}")
+                print(f"{args.export}: {text_line(path)}")
         except HandeyeError as e:  # the calibration stands; the exit code says the export is missing
             print(f"handeye: not exported: {e}", file=sys.stderr)
             if not wr.exit_code:

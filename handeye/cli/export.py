@@ -1,6 +1,6 @@
 """``handeye export RESULT --to FORMAT``: the result where robot software reads it (:mod:`handeye.export`).
 
-stdout: one line per file written. A result without a matrix, or with a FAIL or REFUSED verdict
+stdout: one line per file written (a path's unprintable characters escaped, so one line each). A result without a matrix, or with a FAIL or REFUSED verdict
 (unless ``--force``), is refused with one line.
 """
 
@@ -67,6 +67,7 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from ..export import export_result
+    from ..export.writers import text_line
 
     for path in export_result(
         args.result,
@@ -79,5 +80,5 @@ def run(args) -> int:
         base_frame=args.base_frame,
         effector_frame=args.effector_frame,
     ):
-        print(f"{args.to}: {path}")
+        print(f"{args.to}: {text_line(path)}")
     return 0
