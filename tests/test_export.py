@@ -364,7 +364,7 @@ def test_a_hostile_result_path_and_verdict_export_safely_to_every_format(tmp_pat
     _no_pwned(tmp_path)
 
 
-def test_a_session_folder_named_with_code_calibrates_and_exports_safely(tmp_path, capsys):
+def test_a_session_folder_named_with_code_calibrates_and_exports_safely(tmp_path, capsys, monkeypatch):
     """The issue's case: ``calibrate --export`` of a session folder whose name holds a newline and code. The
     default output folder's name has no control character; the launch files load without running it."""
     session = tmp_path / ("s" + PWN)
@@ -386,6 +386,14 @@ def test_a_session_folder_named_with_code_calibrates_and_exports_safely(tmp_path
     assert np.max(np.abs(T - T_result)) < TOL
     assert _ros1_launch_transform(hostile / "hand_eye.moveit.launch")[:2] == ("tool0", "camera_color_optical_frame")
     _no_pwned(tmp_path)
+    # an export that fails after a usable run: the run stands, the exit code says the file is missing
+    from handeye.export import writers
+
+    monkeypatch.setattr(writers, "urdf", lambda e: "<robot")
+    assert main(["-q", "calibrate", str(session), "--no-report", "--export", "urdf"]) == InputError.exit_code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("handeye: not exported: ") and "nothing was written" in err[0]
+    assert not (res / "hand_eye.urdf").exists() and (res / "result.json").exists()
 
 
 def _xacro_with(path, tmp_path, parent, child):
