@@ -459,6 +459,12 @@ def test_export_never_writes_over_a_result_folders_own_files(tmp_path, capsys, f
     rel = tmp_path / "res" / ".." / "other" / "observations.json"
     assert main(["export", str(tmp_path / "res"), "--to", "json", "--out", str(rel)]) == InputError.exit_code
     assert (tmp_path / "other" / "observations.json").read_text() == "{}"
+    # a result file of another name, exported over itself
+    mine = tmp_path / "mine.json"
+    (tmp_path / "res" / "result.json").rename(mine)
+    data = mine.read_bytes()
+    assert main(["export", str(mine), "--to", "json", "--out", str(mine)]) == InputError.exit_code
+    assert "it is the result being exported" in capsys.readouterr().err and mine.read_bytes() == data
 
 
 @pytest.mark.parametrize("flag", ["--parent", "--child", "--base-frame", "--effector-frame"])

@@ -222,6 +222,18 @@ def _result_folder_file(path: Path, result_dir: Path) -> Optional[str]:
     return None
 
 
+def _same_entry(a: Path, b: Path) -> bool:
+    """``a`` and ``b`` name the same file (or ``a`` would replace the folder entry of ``b``)."""
+    import os
+
+    if Path(os.path.realpath(a.parent)) / a.name == Path(os.path.realpath(b.parent)) / b.name:
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # a does not exist yet
+        return False
+
+
 def export_result(
     result,
     fmt: str,
@@ -263,6 +275,8 @@ def export_result(
     paths = export_paths(fmt, out, src.parent)
     for p in paths:
         why = _result_folder_file(p, src.parent)
+        if why is None and _same_entry(p, src):
+            why = "it is the result being exported"
         if why is not None:
             raise InputError(
                 f"will not write {fmt} over {p}: {why}",
