@@ -509,3 +509,31 @@ def test_a_file_that_does_not_read_back_is_not_written(tmp_path, capsys, monkeyp
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "hand_eye.urdf holds a transform 0.001 away" in err[0] and "nothing was written" in err[0]
     assert sorted(p.name for p in (tmp_path / "res").iterdir()) == ["result.json"]
+
+
+def test_a_refused_write_leaves_every_file_of_the_format_as_it_was(tmp_path, monkeypatch):
+    """The disk refuses the second file of ros2: the first, already staged, is not renamed into place either."""
+    import errno
+
+    import handeye.output as output
+    from handeye.output import OutputWriteError
+
+    _result(tmp_path / "res", "eye_in_hand", seed=16)
+    old = export_result(tmp_path / "res", "ros2")
+    before = {p: p.read_bytes() for p in old}
+    _result(tmp_path / "res", "eye_in_hand", seed=17)  # a new calibration
+    real, calls = output.atomic_write_bytes, []
+
+    def full_disk_on_second(path, data, **kw):
+        calls.append(path)
+        if len(calls) == 2:
+            raise OutputWriteError(errno.ENOSPC, "No space left on device", str(path))
+        return real(path, data, **kw)
+
+    monkeypatch.setattr(output, "atomic_write_bytes", full_disk_on_second)
+    with pytest.raises(OutputWriteError):
+        export_result(tmp_path / "res", "ros2")
+    assert {p: p.read_bytes() for p in old} == before
+    assert sorted(p.name for p in (tmp_path / "res").iterdir()) == sorted(["result.json", *(p.name for p in old)])
+    monkeypatch.setattr(output, "atomic_write_bytes", real)
+    assert export_result(tmp_path / "res", "ros2") == old and old[0].read_bytes() != before[old[0]]

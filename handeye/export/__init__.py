@@ -253,7 +253,6 @@ def export_result(
     reader and must hold the frames and the transform meant (:mod:`.readback`) before any is written; each is
     written atomically (a reader sees the old file or the new one).
     """
-    from ..output import atomic_write_bytes
     from .readback import check, read_back
 
     e = export_transform(result, parent=parent, child=child, camera_frame=camera_frame, force=force)
@@ -288,4 +287,35 @@ def export_result(
     for p, b, (_, kind, fields) in zip(paths, data, files, strict=True):
         got = read_back(kind, b, name=p.name)
         check(got, parent=e.parent, child=e.child, T_parent_child=e.T_parent_child, fields=fields, name=p.name)
-    return [atomic_write_bytes(p, b) for p, b in zip(paths, data, strict=True)]
+    return _write_together(paths, data)
+
+
+def _write_together(paths: list[Path], data: list[bytes]) -> list[Path]:
+    """Write a format's files so that they change together.
+
+    Each is written whole beside its target first (:func:`~handeye.output.atomic_write_bytes` into a temporary
+    name), and only when all are on disk are they renamed into place. A refused write (disk full,
+    permissions) leaves every target as it was.
+    """
+    import os
+    import tempfile
+
+    from ..output import TEMP_SUFFIX, atomic_write_bytes, writing
+
+    staged: list[tuple[Path, Path]] = []
+    try:
+        for p, b in zip(paths, data, strict=True):
+            with writing(p):
+                p.parent.mkdir(parents=True, exist_ok=True)
+                fd, tmp = tempfile.mkstemp(prefix="." + p.name + ".", suffix=TEMP_SUFFIX, dir=p.parent)
+                os.close(fd)
+            staged.append((Path(tmp), p))
+            atomic_write_bytes(tmp, b)  # the bytes flushed to the disk under the temporary name
+        for tmp, p in staged:
+            with writing(p):
+                os.replace(tmp, p)
+    finally:
+        for tmp, _ in staged:
+            if tmp.exists():
+                tmp.unlink()
+    return list(paths)

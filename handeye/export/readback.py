@@ -71,6 +71,8 @@ def _floats(text: str, n: int) -> list[float]:
 
 def _launch_py(data: bytes) -> ReadBack:
     """A ROS 2 launch file: compiled from its bytes (as ``ros2 launch`` loads it, encoding line included)."""
+    from .writers import PROVENANCE_NAME
+
     tree = compile(data, "<launch file>", "exec", flags=ast.PyCF_ONLY_AST, dont_inherit=True)
     compile(tree, "<launch file>", "exec", dont_inherit=True)  # what the parser lets through, the compiler may not
     fields: dict = {}
@@ -86,7 +88,8 @@ def _launch_py(data: bytes) -> ReadBack:
             isinstance(stmt, ast.Assign)
             and len(stmt.targets) == 1
             and isinstance(stmt.targets[0], ast.Name)
-            and stmt.targets[0].id not in fields
+            and stmt.targets[0].id == PROVENANCE_NAME
+            and PROVENANCE_NAME not in fields
         ):
             fields[stmt.targets[0].id] = ast.literal_eval(stmt.value)
             continue

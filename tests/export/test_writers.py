@@ -204,6 +204,7 @@ def test_a_file_that_reads_back_otherwise_is_refused():
     text = w.ros2_launch(e)
     for bad, says in (
         (text + "\nimport os\n", "unexpected statement"),
+        (text + "\nNode = print\n", "unexpected statement"),
         (text.replace('"--qw",\n                "', '"--qw",\n                "2'), "away from the calibration"),
         (text.replace("def generate_launch_description()", "@print\ndef generate_launch_description()"), "decorators"),
         (text.replace('package="tf2_ros"', 'package=__import__("os").getcwd()'), "ValueError"),
