@@ -189,6 +189,7 @@ RESULT_FOLDER_FILES = (
     "verify.md",
     "plan.json",
     "batch.json",
+    "batch.log",
     "fleet.csv",
     "fleet.parquet",
     "index.html",
