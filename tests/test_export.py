@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import sys
 import types
+import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
@@ -133,18 +134,7 @@ def _urdf_transform(path):
 
 
 def _xacro_transform(path, tmp_path):
-    import xacro
-
-    wrapper = tmp_path / "robot.urdf.xacro"
-    wrapper.write_text(
-        f'<?xml version="1.0"?>\n<robot xmlns:xacro="http://www.ros.org/wiki/xacro" name="r">\n'
-        f'  <xacro:include filename="{path}"/>\n  <link name="tool0"/>\n'
-        f'  <link name="camera_color_optical_frame"/>\n  <xacro:handeye_camera_joint/>\n</robot>\n'
-    )
-    doc = xacro.process_file(str(wrapper))
-    out = tmp_path / "expanded.urdf"
-    out.write_text(doc.toxml())
-    return _urdf_transform(out)
+    return _xacro_with(path, tmp_path, "tool0", "camera_color_optical_frame")
 
 
 def _calib_transform(path):
@@ -345,3 +335,205 @@ def test_frame_options_that_contradict_the_export_are_refused(tmp_path, capsys, 
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == InputError.exit_code and len(err) == 1 and says in err[0], err
     assert not (tmp_path / "x").exists() or not any((tmp_path / "x").iterdir())
+
+
+PWN = '\nopen("PWNED","w").write("x")\n#'
+
+
+def _no_pwned(*folders):
+    for f in folders:
+        assert not list(f.rglob("PWNED")), f
+
+
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_a_hostile_result_path_and_verdict_export_safely_to_every_format(tmp_path, capsys, fmt):
+    """A result folder whose name holds code after a newline and '---', and a verdict edited to hold a newline:
+    every file of every format is read back by its real reader (the launch files executed in this test's own
+    working folder), holds the transform, and no PWNED file appears."""
+    res = tmp_path / ("r---" + PWN + "-")
+    T, _ = _result(res, "eye_in_hand", seed=9, verdict="WARN" + PWN)
+    assert main(["export", str(res), "--to", fmt]) == 0
+    paths = [res / ("hand_eye" + s) for s in FORMATS[fmt][0]]
+    shown = str(tmp_path / 'r---\\x0aopen("PWNED","w").write("x")\\x0a#-')  # one line per file
+    assert capsys.readouterr().out.splitlines() == [f"{fmt}: {shown}/{p.name}" for p in paths]
+    for _, _, T_got in _read_all(paths, fmt, tmp_path):
+        assert np.max(np.abs(T_got - T)) < TOL
+    for p in paths:
+        if p.name.endswith((".urdf", ".xacro", ".launch")):
+            ET.parse(p)
+    _no_pwned(tmp_path)
+
+
+def test_a_session_folder_named_with_code_calibrates_and_exports_safely(tmp_path, capsys, monkeypatch):
+    """The issue's case: ``calibrate --export`` of a session folder whose name holds a newline and code. The
+    default output folder's name has no control character; the launch files load without running it."""
+    session = tmp_path / ("s" + PWN)
+    assert main(["-q", "simulate", str(session), "--views", "8", "--seed", "3"]) == 0
+    capsys.readouterr()
+    assert main(["-q", "calibrate", str(session), "--no-report", "--export", "ros2"]) == 0
+    out = capsys.readouterr().out
+    (res,) = (tmp_path / "reports").iterdir()
+    assert res.name.isprintable() and res.name.startswith('sopen("PWNED","w").write("x")#-')
+    assert f"ros2: reports/{res.name}/hand_eye.launch.py" in out.splitlines()
+    parent, child, T = _launch_transform(res / "hand_eye.launch.py")
+    T_result = np.asarray(json.loads((res / "result.json").read_text())["T_end_cam"])
+    assert (parent, child) == ("tool0", "camera_color_optical_frame") and np.max(np.abs(T - T_result)) < TOL
+    # the result's own path holding the newline: export into it
+    hostile = tmp_path / ("m" + PWN)
+    hostile.mkdir()
+    assert main(["export", str(res), "--to", "moveit", "--out", str(hostile)]) == 0
+    parent, child, T = _launch_transform(hostile / "hand_eye.moveit.launch.py")
+    assert np.max(np.abs(T - T_result)) < TOL
+    assert _ros1_launch_transform(hostile / "hand_eye.moveit.launch")[:2] == ("tool0", "camera_color_optical_frame")
+    _no_pwned(tmp_path)
+    # an export that fails after a usable run: the run stands, the exit code says the file is missing
+    from handeye.export import writers
+
+    monkeypatch.setattr(writers, "urdf", lambda e: "<robot")
+    assert main(["-q", "calibrate", str(session), "--no-report", "--export", "urdf"]) == InputError.exit_code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("handeye: not exported: ") and "nothing was written" in err[0]
+    assert not (res / "hand_eye.urdf").exists() and (res / "result.json").exists()
+
+
+def _xacro_with(path, tmp_path, parent, child):
+    import xacro
+
+    wrapper = tmp_path / "robot.urdf.xacro"
+    root = ET.Element("robot", {"name": "r", "xmlns:xacro": "http://www.ros.org/wiki/xacro"})
+    ET.SubElement(root, "xacro:include", {"filename": str(path)})
+    for name in (parent, child):
+        ET.SubElement(root, "link", {"name": name})
+    ET.SubElement(root, "xacro:handeye_camera_joint")
+    wrapper.write_bytes(ET.tostring(root))
+    out = tmp_path / "expanded.urdf"
+    out.write_text(xacro.process_file(str(wrapper)).toxml())
+    return _urdf_transform(out)
+
+
+def test_dashes_in_the_child_frame_and_the_result_path_keep_xml_well_formed(tmp_path, capsys):
+    res = tmp_path / "res---x--"
+    T, _ = _result(res, "eye_in_hand", seed=10)
+    child = "cam---x_optical_frame"
+    out = tmp_path / "o---"
+    out.mkdir()
+    for fmt in ("urdf", "moveit"):
+        assert main(["export", str(res), "--to", fmt, "--child", child, "--out", str(out)]) == 0
+    for name in ("hand_eye.urdf", "hand_eye.urdf.xacro", "hand_eye.moveit.launch"):
+        ET.parse(out / name)  # well-formed
+        assert "---" in (out / name).read_text()  # the child's name, in the attributes
+    assert _urdf_transform(out / "hand_eye.urdf")[:2] == ("tool0", child)
+    parent, got_child, T_got = _xacro_with(out / "hand_eye.urdf.xacro", tmp_path, "tool0", child)
+    assert (parent, got_child) == ("tool0", child) and np.max(np.abs(T_got - T)) < TOL
+    assert _ros1_launch_transform(out / "hand_eye.moveit.launch")[1] == child
+    assert _launch_transform(out / "hand_eye.moveit.launch.py")[1] == child
+
+
+@pytest.mark.parametrize(
+    "fmt,name",
+    [
+        ("json", "result.json"),
+        ("urdf", "observations.json"),
+        ("yaml", "result.last-good.json"),
+        ("ros2", "report.html"),
+        ("easy_handeye2", "report.md"),
+        ("json", "verify.json"),
+        ("yaml", "batch.json"),
+        ("json", "thumbnails/view_01.jpg"),
+    ],
+)
+def test_export_never_writes_over_a_result_folders_own_files(tmp_path, capsys, fmt, name):
+    _result(tmp_path / "res", "eye_in_hand", seed=11)
+    target = tmp_path / "res" / name
+    target.parent.mkdir(exist_ok=True)
+    if not target.exists():
+        target.write_bytes(b"\x00the folder's own bytes\n")
+    before = {p: p.read_bytes() for p in (tmp_path / "res").rglob("*") if p.is_file()}
+    assert main(["export", str(tmp_path / "res"), "--to", fmt, "--out", str(target)]) == InputError.exit_code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"will not write {fmt} over" in err[0] and "-> name another file" in err[0], err
+    assert {p: p.read_bytes() for p in (tmp_path / "res").rglob("*") if p.is_file()} == before
+    # the same name in another result folder, reached through a relative path, is refused too
+    _result(tmp_path / "other", "eye_in_hand", seed=12)
+    (tmp_path / "other" / "observations.json").write_text("{}")
+    rel = tmp_path / "res" / ".." / "other" / "observations.json"
+    assert main(["export", str(tmp_path / "res"), "--to", "json", "--out", str(rel)]) == InputError.exit_code
+    assert (tmp_path / "other" / "observations.json").read_text() == "{}"
+    # a result file of another name, exported over itself
+    mine = tmp_path / "mine.json"
+    (tmp_path / "res" / "result.json").rename(mine)
+    data = mine.read_bytes()
+    assert main(["export", str(mine), "--to", "json", "--out", str(mine)]) == InputError.exit_code
+    assert "it is the result being exported" in capsys.readouterr().err and mine.read_bytes() == data
+
+
+@pytest.mark.parametrize("flag", ["--parent", "--child", "--base-frame", "--effector-frame"])
+@pytest.mark.parametrize("name", ["my cam", "-x", "a${b}", "a\nb"])
+def test_every_frame_option_is_checked_as_a_frame_name(tmp_path, capsys, flag, name):
+    _result(tmp_path / "res", "eye_in_hand", seed=13)
+    rc = main(
+        ["export", str(tmp_path / "res"), "--to", "easy_handeye2", f"{flag}={name}", "--out", str(tmp_path / "x")]
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == InputError.exit_code and len(err) == 1 and f"{flag} {name!r} is not a TF frame name" in err[0], err
+    assert not (tmp_path / "x").exists()
+
+
+def test_a_result_whose_mode_is_no_mounting_mode_is_refused(tmp_path, capsys):
+    _result(tmp_path / "res", "eye_in_hand", seed=14)
+    d = json.loads((tmp_path / "res" / "result.json").read_text())
+    d["mode"] = 'eye_in_hand"""\nopen("PWNED","w")'
+    write_json(tmp_path / "res" / "result.json", d)
+    assert main(["export", str(tmp_path / "res"), "--to", "ros2"]) == InputError.exit_code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is not a mounting mode" in err[0] and "eye_in_hand | eye_to_hand" in err[0]
+    assert not (tmp_path / "res" / "hand_eye.launch.py").exists()
+
+
+def test_a_file_that_does_not_read_back_is_not_written(tmp_path, capsys, monkeypatch):
+    """A writer whose file would not read back (here: a URDF with a joint 1 mm off) fails the command and
+    writes none of the format's files."""
+    from handeye.export import writers
+
+    _result(tmp_path / "res", "eye_in_hand", seed=15)
+    good = writers.urdf
+
+    def shifted(e):
+        text = good(e)
+        head, rest = text.split('xyz="', 1)
+        x, rest = rest.split(" ", 1)
+        return head + f'xyz="{float(x) + 1e-3!r} ' + rest
+
+    monkeypatch.setattr(writers, "urdf", shifted)
+    assert main(["export", str(tmp_path / "res"), "--to", "urdf"]) == InputError.exit_code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "hand_eye.urdf holds a transform 0.001 away" in err[0] and "nothing was written" in err[0]
+    assert sorted(p.name for p in (tmp_path / "res").iterdir()) == ["result.json"]
+
+
+def test_a_refused_write_leaves_every_file_of_the_format_as_it_was(tmp_path, monkeypatch):
+    """The disk refuses the second file of ros2: the first, already staged, is not renamed into place either."""
+    import errno
+
+    import handeye.output as output
+    from handeye.output import OutputWriteError
+
+    _result(tmp_path / "res", "eye_in_hand", seed=16)
+    old = export_result(tmp_path / "res", "ros2")
+    before = {p: p.read_bytes() for p in old}
+    _result(tmp_path / "res", "eye_in_hand", seed=17)  # a new calibration
+    real, calls = output.atomic_write_bytes, []
+
+    def full_disk_on_second(path, data, **kw):
+        calls.append(path)
+        if len(calls) == 2:
+            raise OutputWriteError(errno.ENOSPC, "No space left on device", str(path))
+        return real(path, data, **kw)
+
+    monkeypatch.setattr(output, "atomic_write_bytes", full_disk_on_second)
+    with pytest.raises(OutputWriteError):
+        export_result(tmp_path / "res", "ros2")
+    assert {p: p.read_bytes() for p in old} == before
+    assert sorted(p.name for p in (tmp_path / "res").iterdir()) == sorted(["result.json", *(p.name for p in old)])
+    monkeypatch.setattr(output, "atomic_write_bytes", real)
+    assert export_result(tmp_path / "res", "ros2") == old and old[0].read_bytes() != before[old[0]]

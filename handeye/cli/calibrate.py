@@ -143,7 +143,7 @@ def add_arguments(p) -> None:
         metavar="FORMAT",
         help="also write the result for robot software next to result.json: "
         + ", ".join(EXPORT_FORMATS)
-        + " (as handeye export; not for a FAIL or REFUSED verdict)",
+        + " (as handeye export; not for a FAIL or REFUSED verdict; an export that fails gives its exit code)",
     )
     p.set_defaults(func=run)
 
@@ -173,14 +173,19 @@ def positive_float(text: str) -> float:
 
 
 def default_out_dir(session) -> Path:
-    """``reports/<session folder name>-<8 hex digits of the SHA-1 of its absolute path>``: two sessions
-    of the same folder name (a/session, b/session) never share an output folder.
+    """``reports/<session folder name>-<8 hex digits of the SHA-1 of its absolute path>``.
+
+    Two sessions of the same folder name (a/session, b/session) never share an output folder. The name
+    keeps what ``str.isprintable`` accepts (no control character, line break or undecodable byte reaches
+    a file name; the hash still tells such folders apart), ``session`` when nothing is left.
     """
     import hashlib
+    import os
 
     p = Path(session).resolve()
     folder = p.parent if p.is_file() else p
-    return Path("reports") / f"{folder.name}-{hashlib.sha1(str(folder).encode()).hexdigest()[:8]}"
+    name = "".join(c for c in folder.name if c.isprintable()).strip() or "session"
+    return Path("reports") / f"{name}-{hashlib.sha1(os.fsencode(folder)).hexdigest()[:8]}"
 
 
 #: site config keys of configs/calibration.yaml checked beyond their type (null presets, ranges) -> check
@@ -308,10 +313,14 @@ def run(args) -> int:
         from ..export import export_result
 
         try:
+            from ..export.writers import text_line
+
             for path in export_result(wr.out_dir, args.export):
-                print(f"{args.export}: {path}")
-        except HandeyeError as e:
+                print(f"{args.export}: {text_line(path)}")
+        except HandeyeError as e:  # the calibration stands; the exit code says the export is missing
             print(f"handeye: not exported: {e}", file=sys.stderr)
+            if not wr.exit_code:
+                return e.exit_code
     if wr.exit_code:
         print(f"handeye: verdict {wr.verdict}: {wr.result.get('verdict_headline', '')}", file=sys.stderr)
     return wr.exit_code

@@ -1,7 +1,7 @@
 """``handeye export RESULT --to FORMAT``: the result where robot software reads it (:mod:`handeye.export`).
 
-stdout: one line per file written. A result without a matrix, or with a FAIL or REFUSED verdict
-(unless ``--force``), is refused with one line.
+stdout: one line per file written (a path's unprintable characters escaped, so one line each). A result
+without a matrix, or with a FAIL or REFUSED verdict (unless ``--force``), is refused with one line.
 """
 
 from __future__ import annotations
@@ -19,7 +19,10 @@ def add_arguments(p) -> None:
         "Write the hand-eye transform in a robot software's format. The transform is parent -> child "
         "(p_parent = T @ p_child): the flange (eye_in_hand) or the robot base (eye_to_hand) -> the camera. "
         "handeye's camera frame is the optical frame (z forward); --camera-frame body exports the REP 103 body "
-        "frame (x forward) at the same origin. Each file states its frames, quaternion order and sigmas."
+        "frame (x forward) at the same origin. Each file states its frames, quaternion order and sigmas. "
+        "Every file is parsed back by its own reader before any is written; a result folder's own files "
+        "(result.json, observations.json, reports, thumbnails/ ...) are never written over. Frame names: "
+        "letters, digits and _ . / - (see docs/export.md)."
     )
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = "formats:\n" + "\n".join(
@@ -67,6 +70,7 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from ..export import export_result
+    from ..export.writers import text_line
 
     for path in export_result(
         args.result,
@@ -79,5 +83,5 @@ def run(args) -> int:
         base_frame=args.base_frame,
         effector_frame=args.effector_frame,
     ):
-        print(f"{args.to}: {path}")
+        print(f"{args.to}: {text_line(path)}")
     return 0

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Optional
 
 from ..errors import InputError
-from .frames import CAMERA_FRAMES, DEFAULT_FRAMES, ExportTransform, camera_transform
+from .frames import CAMERA_FRAMES, DEFAULT_FRAMES, ExportTransform, camera_transform, check_frame_name
 
 #: format -> (the files it writes, from the base name; the one-line description)
 FORMATS = {
@@ -70,14 +70,18 @@ def export_transform(
             code="result_not_usable",
             hint="fix the calibration (see its report), or pass --force to export it anyway",
         )
+    if r.mode not in ("eye_in_hand", "eye_to_hand"):  # the parent frame and every file's words depend on it
+        raise InputError(
+            f"the result's mode {r.mode!r} is not a mounting mode",
+            path=r.source,
+            expected="eye_in_hand | eye_to_hand",
+            hint="calibrate the session again, or restore result.json",
+        )
     if camera_frame not in CAMERA_FRAMES:
         raise InputError(f"unknown camera frame {camera_frame!r}", expected=" | ".join(CAMERA_FRAMES))
     for flag, name in (("--parent", parent), ("--child", child)):
-        if name is not None and (not name.strip() or any(c.isspace() or c in "<>\"'&" for c in name)):
-            raise InputError(
-                f"{flag} {name!r} is not a TF frame name",
-                expected="a name without spaces or quotes, e.g. tool0 or camera_color_optical_frame",
-            )
+        if name is not None:
+            check_frame_name(name, flag)
     if child is not None:  # ROS names optical frames *_optical_frame (REP 103): a rotation under the other
         optical_name = "optical" in child.lower()  # convention's name is 90 degrees off for every consumer
         if (
@@ -140,25 +144,96 @@ def render(
     *,
     base_frame: Optional[str] = None,
     effector_frame: Optional[str] = None,
-) -> list[str]:
-    """The text of each file of format ``fmt`` (in the order of ``paths``)."""
+) -> list[tuple[str, str, dict]]:
+    """Each file of format ``fmt`` (in the order of ``paths``): ``(text, kind, fields)``.
+
+    ``kind`` names its reader in :data:`.readback.READERS`, ``fields`` what that reader must find in it
+    besides the frames and the transform.
+    """
     from . import writers as w
 
+    launch_fields = {"node_name": w.node_name(e), w.PROVENANCE_NAME: w.provenance_constant(e)}
     if fmt == "ros2":
-        return [w.ros2_launch(e), w.tf_static_yaml(e)]
+        return [(w.ros2_launch(e), "launch.py", launch_fields), (w.tf_static_yaml(e), "tf_static", {})]
     if fmt == "urdf":
-        return [w.urdf(e), w.xacro(e)]
+        return [(w.urdf(e), "urdf", {"joint_name": w.joint_name(e)}), (w.xacro(e), "xacro", {})]
     if fmt == "moveit":
-        return [w.ros2_launch(e, moveit_layout=True), w.moveit1_launch(e)]
+        return [
+            (w.ros2_launch(e, moveit_layout=True), "launch.py", launch_fields),
+            (w.moveit1_launch(e), "ros1_launch", {}),
+        ]
     if fmt == "easy_handeye2":
         eye_in_hand = e.mode == "eye_in_hand"
         base = base_frame or (DEFAULT_FRAMES["eye_to_hand"] if eye_in_hand else e.parent)
         effector = effector_frame or (e.parent if eye_in_hand else DEFAULT_FRAMES["eye_in_hand"])
         name = paths[0].name[: -len(".calib")] if paths[0].name.endswith(".calib") else paths[0].stem
-        return [w.easy_handeye2_calib(e, name=name, base=base, effector=effector)]
+        fields = {"name": name, "robot_base_frame": base, "robot_effector_frame": effector}
+        return [(w.easy_handeye2_calib(e, name=name, base=base, effector=effector), "calib", fields)]
+    d = w.plain_dict(e)
+    fields = {"mode": e.mode, "verdict": e.verdict, "source": e.source, "camera_frame": e.camera_frame}
+    fields["result_name"] = e.x_name
     if fmt == "yaml":
-        return [w.plain_yaml(e)]
-    return [w.plain_json(e)]
+        return [(w.plain_yaml(e, d), "plain_yaml", fields)]
+    return [(w.plain_json(e, d), "plain_json", fields)]
+
+
+#: the files of a result folder (and of verify's and batch's output folders) an export never replaces
+RESULT_FOLDER_FILES = (
+    "result.json",
+    "result.previous.json",
+    "result.last-good.json",
+    "observations.json",
+    "report.html",
+    "report.md",
+    "verify.json",
+    "verify.html",
+    "verify.md",
+    "plan.json",
+    "batch.json",
+    "batch.log",
+    "fleet.csv",
+    "fleet.parquet",
+    "index.html",
+    "index.md",
+    ".handeye.lock",
+)
+#: a result folder's subfolders an export never writes into
+RESULT_FOLDER_DIRS = ("thumbnails", "report_files", "index_files")
+#: what makes a folder a result folder (or verify's or batch's output)
+_RESULT_MARKS = ("result.json", "verify.json", "batch.json")
+
+
+def _result_folder_file(path: Path, result_dir: Path) -> Optional[str]:
+    """The reason ``path`` is one of a result folder's own files (None: it is not).
+
+    A name of :data:`RESULT_FOLDER_FILES` in the exported result's folder or in any folder holding a result,
+    or a file under one of their :data:`RESULT_FOLDER_DIRS`.
+    """
+    import os
+
+    where = Path(os.path.realpath(path.parent))  # the folder entry the export would replace (not a link's target)
+
+    def is_result_folder(folder: Path) -> bool:
+        return folder == Path(os.path.realpath(result_dir)) or any((folder / m).is_file() for m in _RESULT_MARKS)
+
+    if path.name in RESULT_FOLDER_FILES and is_result_folder(where):
+        return f"{path.name} is the result folder's own file"
+    for up in [where, *where.parents]:
+        if up.name in RESULT_FOLDER_DIRS and is_result_folder(up.parent):
+            return f"{up.name}/ belongs to the result folder"
+    return None
+
+
+def _same_entry(a: Path, b: Path) -> bool:
+    """``a`` and ``b`` name the same file (or ``a`` would replace the folder entry of ``b``)."""
+    import os
+
+    if Path(os.path.realpath(a.parent)) / a.name == Path(os.path.realpath(b.parent)) / b.name:
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # a does not exist yet
+        return False
 
 
 def export_result(
@@ -173,8 +248,14 @@ def export_result(
     base_frame: Optional[str] = None,
     effector_frame: Optional[str] = None,
 ) -> list[Path]:
-    """Write the export ``fmt`` of ``result`` (a result folder or result.json path); returns the files."""
-    from ..output import atomic_write_text
+    """Write the export ``fmt`` of ``result`` (a result folder or result.json path); returns the files.
+
+    Refused before anything is written (:class:`~handeye.errors.InputError`): a file that would replace one of
+    a result folder's own (:data:`RESULT_FOLDER_FILES`). Every file is parsed back by its own language's
+    reader and must hold the frames and the transform meant (:mod:`.readback`) before any is written; each is
+    written atomically (a reader sees the old file or the new one).
+    """
+    from .readback import check, read_back
 
     e = export_transform(result, parent=parent, child=child, camera_frame=camera_frame, force=force)
     for flag, name, mode in (
@@ -183,6 +264,7 @@ def export_result(
     ):
         if name is None:
             continue
+        check_frame_name(name, flag)
         if fmt != "easy_handeye2":
             raise InputError(f"{flag} applies to --to easy_handeye2 only", hint=f"drop {flag}, or use --parent")
         if e.mode != mode:  # the frame the camera hangs from: it is --parent's
@@ -192,5 +274,50 @@ def export_result(
             )
     src = Path(e.source)
     paths = export_paths(fmt, out, src.parent)
-    texts = render(fmt, e, paths, base_frame=base_frame, effector_frame=effector_frame)
-    return [atomic_write_text(p, t) for p, t in zip(paths, texts, strict=False)]
+    for p in paths:
+        why = _result_folder_file(p, src.parent)
+        if why is None and _same_entry(p, src):
+            why = "it is the result being exported"
+        if why is not None:
+            raise InputError(
+                f"will not write {fmt} over {p}: {why}",
+                code="export_over_result",
+                hint=f"name another file or folder with --out (e.g. {p.parent / DEFAULT_BASENAME}{FORMATS[fmt][0][0]})",
+            )
+    files = render(fmt, e, paths, base_frame=base_frame, effector_frame=effector_frame)
+    data = [text.encode("utf-8") for text, _, _ in files]
+    for p, b, (_, kind, fields) in zip(paths, data, files, strict=True):
+        got = read_back(kind, b, name=p.name)
+        check(got, parent=e.parent, child=e.child, T_parent_child=e.T_parent_child, fields=fields, name=p.name)
+    return _write_together(paths, data)
+
+
+def _write_together(paths: list[Path], data: list[bytes]) -> list[Path]:
+    """Write a format's files so that they change together.
+
+    Each is written whole beside its target first (:func:`~handeye.output.atomic_write_bytes` into a temporary
+    name), and only when all are on disk are they renamed into place. A refused write (disk full,
+    permissions) leaves every target as it was.
+    """
+    import os
+    import tempfile
+
+    from ..output import TEMP_SUFFIX, atomic_write_bytes, writing
+
+    staged: list[tuple[Path, Path]] = []
+    try:
+        for p, b in zip(paths, data, strict=True):
+            with writing(p):
+                p.parent.mkdir(parents=True, exist_ok=True)
+                fd, tmp = tempfile.mkstemp(prefix="." + p.name + ".", suffix=TEMP_SUFFIX, dir=p.parent)
+                os.close(fd)
+            staged.append((Path(tmp), p))
+            atomic_write_bytes(tmp, b)  # the bytes flushed to the disk under the temporary name
+        for tmp, p in staged:
+            with writing(p):
+                os.replace(tmp, p)
+    finally:
+        for tmp, _ in staged:
+            if tmp.exists():
+                tmp.unlink()
+    return list(paths)

@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Optional
 
@@ -47,6 +48,26 @@ CAMERA_FRAME_TEXT = {
     "camera_color_frame -> camera_color_optical_frame is its inverse) at the same origin",
 }
 
+#: a frame name every exported format carries as it is: ASCII letters, digits and ``_ . / -``, starting with a
+#: letter, digit or ``_`` (tf2 refuses a leading ``/``; a leading ``-`` reads as an option to
+#: static_transform_publisher; spaces split ROS 1's ``args``; ``$ { }`` are xacro expressions; quotes and
+#: ``< > &`` are markup)
+FRAME_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_./-]*")
+FRAME_NAME_TEXT = (
+    "letters, digits and _ . / - (starting with a letter, digit or _), e.g. tool0 or camera_color_optical_frame"
+)
+
+
+def check_frame_name(name, option: str) -> str:
+    """``name`` if it is a frame name (:data:`FRAME_NAME`).
+
+    Else :class:`~handeye.errors.InputError` naming ``option`` (the command-line flag or the field it came from).
+    """
+    if not isinstance(name, str) or FRAME_NAME.fullmatch(name) is None:
+        raise InputError(f"{option} {name!r} is not a TF frame name", expected=FRAME_NAME_TEXT)
+    return name
+
+
 RPY_TEXT = "roll, pitch, yaw [rad], fixed axes: R = Rz(yaw) * Ry(pitch) * Rx(roll) (URDF, tf2)"
 
 
@@ -78,6 +99,16 @@ class ExportTransform:
     cov_source: str
     source: str  # the result.json it came from
     verdict: str
+
+    def __post_init__(self):
+        """Frames and the transform checked once: every writer can put the names into its file as they are."""
+        check_frame_name(self.parent, "parent frame")
+        check_frame_name(self.child, "child frame")
+        if self.camera_frame not in CAMERA_FRAMES:
+            raise InputError(f"unknown camera frame {self.camera_frame!r}", expected=" | ".join(CAMERA_FRAMES))
+        T = np.asarray(self.T_parent_child, float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise InputError("the transform to export is not a finite 4x4 matrix", received=f"shape {T.shape}")
 
     @property
     def translation_m(self) -> np.ndarray:

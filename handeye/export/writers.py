@@ -5,12 +5,15 @@ Calibration's launch files), ``easy_handeye2`` (its ``.calib``), ``yaml`` / ``js
 states its frames (parent -> child), the camera frame, the quaternion order, the rpy convention, the
 1-sigma uncertainty and its provenance; numbers are written with Python's round-trip ``repr``.
 
-See docs/export.md.
+Text from outside (paths, modes, verdicts, names) is written in each language's own escaping, and
+:mod:`.readback` parses every file back before it is written. See docs/export.md.
 """
 
 from __future__ import annotations
 
 import json
+import re
+import xml.etree.ElementTree as ET
 
 import numpy as np
 
@@ -21,6 +24,48 @@ from .frames import CAMERA_FRAME_TEXT, DEFAULT_FRAMES, RPY_TEXT, ExportTransform
 def num(x) -> str:
     """A float as its shortest round-trip text."""
     return repr(float(x))
+
+
+def text_line(s) -> str:
+    r"""``s`` as one line of printable text, for a comment.
+
+    Each character ``str.isprintable`` refuses (control characters, line and paragraph separators, NEL,
+    BOM, lone surrogates) becomes its escape ``\xNN`` / ``\uNNNN``. Safe in a comment of Python, YAML
+    and XML: nothing in it can end the comment's line.
+    """
+    out = []
+    for c in str(s):
+        if c.isprintable():
+            out.append(c)
+        else:
+            o = ord(c)
+            out.append(f"\\x{o:02x}" if o < 0x100 else f"\\u{o:04x}" if o < 0x10000 else f"\\U{o:08x}")
+    return "".join(out)
+
+
+def xml_comment(lines) -> ET.Element:
+    r"""An XML comment holding ``lines``, each through :func:`text_line`.
+
+    A run of ``-`` keeps its first and writes the others as ``\x2d`` (XML comments may not hold ``--``),
+    and the text ends in a newline (never in the ``-`` a comment may not end with).
+    """
+    body = [re.sub(r"-{2,}", lambda m: "-" + "\\x2d" * (len(m.group()) - 1), text_line(s)) for s in lines]
+    return ET.Comment("\n" + "".join("  " + s + "\n" for s in body))
+
+
+def comment(lines, mark: str = "#") -> str:
+    """``lines`` as comment lines of a Python or YAML file (each through :func:`text_line`)."""
+    return "\n".join(f"{mark} {text_line(s)}".rstrip() for s in lines)
+
+
+def py_docstring(text: str) -> str:
+    """A docstring literal of ``text``.
+
+    Between triple quotes and a space (MoveIt's layout) when the text holds no quote, backslash or
+    unprintable character, else its ``repr``.
+    """
+    plain = text.isprintable() and '"' not in text and "\\" not in text
+    return f'""" {text} """' if plain else repr(text)
 
 
 def header_lines(e: ExportTransform) -> list[str]:
@@ -56,13 +101,20 @@ def header_lines(e: ExportTransform) -> list[str]:
     return lines
 
 
-def _comment(lines, mark: str) -> str:
-    return "\n".join(f"{mark} {s}".rstrip() for s in lines)
+#: the name of the provenance constant in the generated Python launch files (the result's path, mode and
+#: verdict as Python literals: exact, where the header comments escape what is not printable)
+PROVENANCE_NAME = "HANDEYE_CALIBRATION"
 
 
-def _stp_arguments(e: ExportTransform) -> list[tuple[str, str]]:
+def provenance_constant(e: ExportTransform) -> dict:
+    """What a launch file's :data:`PROVENANCE_NAME` holds."""
+    return {"handeye": __version__, "source": e.source, "mode": e.mode, "verdict": e.verdict}
+
+
+def stp_arguments(e: ExportTransform) -> list[str]:
+    """tf2_ros static_transform_publisher's arguments (ROS 2: ``--x .. --qw --frame-id --child-frame-id``)."""
     t, q = e.translation_m, e.quat_xyzw
-    return [
+    pairs = [
         ("--frame-id", e.parent),
         ("--child-frame-id", e.child),
         ("--x", num(t[0])),
@@ -73,34 +125,44 @@ def _stp_arguments(e: ExportTransform) -> list[tuple[str, str]]:
         ("--qz", num(q[2])),
         ("--qw", num(q[3])),
     ]
+    return [v for pair in pairs for v in pair]
+
+
+def node_name(e: ExportTransform) -> str:
+    """The static_transform_publisher node's name (a ROS node name: letters, digits and _)."""
+    return "handeye_" + _ident(e.parent) + "_to_" + _ident(e.child)
 
 
 def ros2_launch(e: ExportTransform, *, moveit_layout: bool = False) -> str:
     """A ROS 2 Python launch file running tf2_ros' static_transform_publisher with the transform.
+
     ``moveit_layout``: the layout MoveIt 2 Calibration writes when it saves the camera pose (its two
-    docstrings, the arguments one per line, roll/pitch/yaw as comments).
+    docstrings, the arguments one per line, roll/pitch/yaw as comments). The first two lines hold no outside
+    text (Python reads an encoding declaration there); every literal is ``json.dumps`` / ``repr``.
     """
-    args = _stp_arguments(e)
+    args = stp_arguments(e)
     kind = "EYE-IN-HAND" if e.mode == "eye_in_hand" else "EYE-TO-HAND"
     if moveit_layout:
         head = [
-            '""" Static transform publisher of a hand-eye calibration (MoveIt 2 Calibration\'s layout) """',
-            f'""" {kind}: {e.parent} -> {e.child} """',
+            py_docstring("Static transform publisher of a hand-eye calibration (MoveIt 2 Calibration's layout)"),
+            py_docstring(f"{kind}: {e.parent} -> {e.child}"),
         ]
     else:
-        head = [f'"""Static transform {e.parent} -> {e.child} from a handeye calibration ({e.mode})."""']
-    rpy = e.rpy_rad
-    arg_lines = []
-    for flag, value in args:
-        arg_lines += [f"                {json.dumps(flag)},", f"                {json.dumps(value)},"]
-    for flag, v in zip(("--roll", "--pitch", "--yaw"), rpy, strict=False):
+        head = [
+            json.dumps(f"Static transform {e.parent} -> {e.child} from a handeye calibration ({e.mode})."),
+            f"# written by handeye {text_line(__version__)}",
+        ]
+    arg_lines = [f"                {json.dumps(v)}," for v in args]
+    for flag, v in zip(("--roll", "--pitch", "--yaw"), e.rpy_rad, strict=True):
         arg_lines += [f"                # {json.dumps(flag)},", f"                # {json.dumps(num(v))},"]
     return "\n".join(
         head
         + [
-            _comment(header_lines(e), "#"),
+            comment(header_lines(e)),
             "from launch import LaunchDescription",
             "from launch_ros.actions import Node",
+            "",
+            f"{PROVENANCE_NAME} = {provenance_constant(e)!r}",
             "",
             "",
             "def generate_launch_description() -> LaunchDescription:",
@@ -108,7 +170,7 @@ def ros2_launch(e: ExportTransform, *, moveit_layout: bool = False) -> str:
             "        Node(",
             '            package="tf2_ros",',
             '            executable="static_transform_publisher",',
-            f"            name={json.dumps('handeye_' + _ident(e.parent) + '_to_' + _ident(e.child))},",
+            f"            name={json.dumps(node_name(e))},",
             '            output="log",',
             "            arguments=[",
             *arg_lines,
@@ -121,145 +183,162 @@ def ros2_launch(e: ExportTransform, *, moveit_layout: bool = False) -> str:
     )
 
 
-def moveit1_launch(e: ExportTransform) -> str:
-    """The ROS 1 launch file MoveIt Calibration saves ("Save camera pose"): static_transform_publisher
-    with ``args="x y z qx qy qz qw frame_id child_frame_id"``. Its comment's rpy is URDF's fixed-axis
-    roll-pitch-yaw (MoveIt's own comment writes Eigen's eulerAngles(0, 1, 2), moving axes, under that name).
-    """
-    from xml.sax.saxutils import quoteattr
-
-    t, q = e.translation_m, e.quat_xyzw
-    xyz, rpy = " ".join(num(v) for v in t), " ".join(num(v) for v in e.rpy_rad)
-    args = f"{xyz}   {' '.join(num(v) for v in q)} {e.parent} {e.child}"
+def _xml(root: ET.Element, head: ET.Element) -> str:
+    """An XML document: the declaration, the comment ``head``, then ``root`` (indented), all through ElementTree."""
+    ET.indent(root, space="  ")
     return "\n".join(
         [
-            "<launch>",
-            "  " + _xml_comment(e).replace("\n", "\n  "),
-            f'  <!-- xyz="{xyz}" rpy="{rpy}" ({RPY_TEXT}) -->',
-            '  <node pkg="tf2_ros" type="static_transform_publisher" name="camera_link_broadcaster"',
-            f"      args={quoteattr(args)} />",
-            "</launch>",
+            '<?xml version="1.0"?>',
+            ET.tostring(head, encoding="unicode"),
+            ET.tostring(root, encoding="unicode"),
             "",
         ]
     )
+
+
+def moveit1_launch(e: ExportTransform) -> str:
+    """The ROS 1 launch file MoveIt Calibration saves ("Save camera pose").
+
+    static_transform_publisher with ``args="x y z qx qy qz qw frame_id child_frame_id"``. Its comment's rpy
+    is URDF's fixed-axis roll-pitch-yaw (MoveIt's own comment writes Eigen's eulerAngles(0, 1, 2), moving
+    axes, under that name).
+    """
+    t, q = e.translation_m, e.quat_xyzw
+    xyz, rpy = " ".join(num(v) for v in t), " ".join(num(v) for v in e.rpy_rad)
+    root = ET.Element("launch")
+    root.append(xml_comment(header_lines(e) + [f'xyz="{xyz}" rpy="{rpy}" ({RPY_TEXT})']))
+    ET.SubElement(
+        root,
+        "node",
+        {
+            "pkg": "tf2_ros",
+            "type": "static_transform_publisher",
+            "name": "camera_link_broadcaster",
+            "args": f"{xyz} {' '.join(num(v) for v in q)} {e.parent} {e.child}",
+        },
+    )
+    return _xml(root, ET.Comment(" static transform of a hand-eye calibration (MoveIt Calibration's layout) "))
 
 
 def _ident(name: str) -> str:
-    return "".join(c if c.isalnum() else "_" for c in name).strip("_") or "frame"
+    return "".join(c if c.isascii() and c.isalnum() else "_" for c in name).strip("_") or "frame"
+
+
+def _yaml(lines, doc: dict, *, flow: bool | None = None) -> str:
+    """Comment ``lines`` then ``doc`` through ``yaml.safe_dump``.
+
+    ``flow`` None: mappings of scalars on one line each; False: block style throughout.
+    """
+    import yaml
+
+    return comment(lines) + "\n" + yaml.safe_dump(_floats(doc), sort_keys=False, default_flow_style=flow)
+
+
+def tf_static_dict(e: ExportTransform) -> dict:
+    """The transform as a tf2_msgs/TFMessage (a dict)."""
+    t, q = e.translation_m, e.quat_xyzw
+    return {
+        "transforms": [
+            {
+                "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": e.parent},
+                "child_frame_id": e.child,
+                "transform": {
+                    "translation": {"x": t[0], "y": t[1], "z": t[2]},
+                    "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
+                },
+            }
+        ]
+    }
 
 
 def tf_static_yaml(e: ExportTransform) -> str:
-    """The transform as a tf2_msgs/TFMessage (``ros2 topic echo /tf_static``'s layout; publish it with
-    ``ros2 topic pub --once /tf_static tf2_msgs/msg/TFMessage "$(cat FILE)"`` under a transient-local QoS,
-    or read it in a node).
+    """The transform as a tf2_msgs/TFMessage (``ros2 topic echo /tf_static``'s layout).
+
+    Publish it with ``ros2 topic pub --once /tf_static tf2_msgs/msg/TFMessage "$(cat FILE)"`` under a
+    transient-local QoS, or read it in a node.
     """
-    t, q = e.translation_m, e.quat_xyzw
-    return "\n".join(
-        [
-            _comment(header_lines(e), "#"),
-            "transforms:",
-            "- header:",
-            "    stamp: {sec: 0, nanosec: 0}",
-            f"    frame_id: {json.dumps(e.parent)}",
-            f"  child_frame_id: {json.dumps(e.child)}",
-            "  transform:",
-            f"    translation: {{x: {num(t[0])}, y: {num(t[1])}, z: {num(t[2])}}}",
-            f"    rotation: {{x: {num(q[0])}, y: {num(q[1])}, z: {num(q[2])}, w: {num(q[3])}}}",
-            "",
-        ]
-    )
+    return _yaml(header_lines(e), tf_static_dict(e))
 
 
-def _xml_comment(e: ExportTransform) -> str:
-    return "<!--\n" + "\n".join("  " + s.replace("--", "- -") for s in header_lines(e)) + "\n-->"
-
-
-def _origin(e: ExportTransform) -> str:
+def _origin(parent: ET.Element, e: ExportTransform) -> None:
     xyz = " ".join(num(v) for v in e.translation_m)
     rpy = " ".join(num(v) for v in e.rpy_rad)
-    return f'<origin xyz="{xyz}" rpy="{rpy}"/>'
+    ET.SubElement(parent, "origin", {"xyz": xyz, "rpy": rpy})
+
+
+def joint_name(e: ExportTransform) -> str:
+    """The URDF joint's name."""
+    return _ident(e.parent) + "_to_" + _ident(e.child)
 
 
 def urdf(e: ExportTransform) -> str:
     """A URDF with the parent and child links and the fixed joint between them."""
-    from xml.sax.saxutils import quoteattr
+    root = ET.Element("robot", {"name": "handeye_calibration"})
+    ET.SubElement(root, "link", {"name": e.parent})
+    ET.SubElement(root, "link", {"name": e.child})
+    joint = ET.SubElement(root, "joint", {"name": joint_name(e), "type": "fixed"})
+    ET.SubElement(joint, "parent", {"link": e.parent})
+    ET.SubElement(joint, "child", {"link": e.child})
+    _origin(joint, e)
+    return _xml(root, xml_comment(header_lines(e)))
 
-    return "\n".join(
-        [
-            '<?xml version="1.0"?>',
-            _xml_comment(e),
-            '<robot name="handeye_calibration">',
-            f"  <link name={quoteattr(e.parent)}/>",
-            f"  <link name={quoteattr(e.child)}/>",
-            f'  <joint name={quoteattr(_ident(e.parent) + "_to_" + _ident(e.child))} type="fixed">',
-            f"    <parent link={quoteattr(e.parent)}/>",
-            f"    <child link={quoteattr(e.child)}/>",
-            f"    {_origin(e)}",
-            "  </joint>",
-            "</robot>",
-            "",
-        ]
-    )
+
+XACRO_NS = "http://www.ros.org/wiki/xacro"
+XACRO_MACRO = "handeye_camera_joint"
 
 
 def xacro(e: ExportTransform) -> str:
-    """A xacro file defining the macro ``handeye_camera_joint`` (params ``parent``, ``child``, defaulting
-    to the exported frames): include it in the robot's xacro and call ``<xacro:handeye_camera_joint/>``.
-    """
-    from xml.sax.saxutils import quoteattr
+    """A xacro file defining the macro ``handeye_camera_joint``.
 
-    params = f"parent:={e.parent} child:={e.child}"
-    return "\n".join(
-        [
-            '<?xml version="1.0"?>',
-            _xml_comment(e),
-            '<robot xmlns:xacro="http://www.ros.org/wiki/xacro">',
-            f'  <xacro:macro name="handeye_camera_joint" params={quoteattr(params)}>',
-            '    <joint name="${parent}_to_${child}" type="fixed">',
-            '      <parent link="${parent}"/>',
-            '      <child link="${child}"/>',
-            f"      {_origin(e)}",
-            "    </joint>",
-            "  </xacro:macro>",
-            "</robot>",
-            "",
-        ]
+    Params ``parent``, ``child`` default to the exported frames: include it in the robot's xacro and call
+    ``<xacro:handeye_camera_joint/>``.
+    """
+    ET.register_namespace("xacro", XACRO_NS)
+    root = ET.Element("robot")
+    macro = ET.SubElement(
+        root, f"{{{XACRO_NS}}}macro", {"name": XACRO_MACRO, "params": f"parent:={e.parent} child:={e.child}"}
     )
+    joint = ET.SubElement(macro, "joint", {"name": "${parent}_to_${child}", "type": "fixed"})
+    ET.SubElement(joint, "parent", {"link": "${parent}"})
+    ET.SubElement(joint, "child", {"link": "${child}"})
+    _origin(joint, e)
+    return _xml(root, xml_comment(header_lines(e)))
+
+
+def calib_dict(e: ExportTransform, *, name: str, base: str, effector: str) -> dict:
+    """easy_handeye2's saved calibration as a dict (see :func:`easy_handeye2_calib`)."""
+    t, q = e.translation_m, e.quat_xyzw
+    return {
+        "parameters": {
+            "name": name,
+            "calibration_type": "eye_in_hand" if e.mode == "eye_in_hand" else "eye_on_base",
+            "robot_base_frame": base,
+            "robot_effector_frame": effector,
+            "tracking_base_frame": e.child,
+            "tracking_marker_frame": "handeye_target",
+            "freehand_robot_movement": True,
+            "move_group_namespace": "/",
+            "move_group": "manipulator",
+        },
+        "transform": {
+            "translation": {"x": t[0], "y": t[1], "z": t[2]},
+            "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
+        },
+    }
 
 
 def easy_handeye2_calib(e: ExportTransform, *, name: str, base: str, effector: str) -> str:
-    """easy_handeye2's saved calibration (``~/.ros2/easy_handeye2/calibrations/NAME.calib``): for
-    eye_in_hand the transform is robot_effector_frame -> tracking_base_frame (the camera), for
-    eye_on_base robot_base_frame -> tracking_base_frame.
+    """easy_handeye2's saved calibration (``~/.ros2/easy_handeye2/calibrations/NAME.calib``).
+
+    For eye_in_hand the transform is robot_effector_frame -> tracking_base_frame (the camera), for
+    eye_on_base robot_base_frame -> tracking_base_frame. ``base`` and ``effector`` are frame names.
     """
-    t, q = e.translation_m, e.quat_xyzw
-    kind = "eye_in_hand" if e.mode == "eye_in_hand" else "eye_on_base"
-    return "\n".join(
-        [
-            _comment(header_lines(e), "#"),
-            "parameters:",
-            f"  name: {json.dumps(name)}",
-            f"  calibration_type: {kind}",
-            f"  robot_base_frame: {json.dumps(base)}",
-            f"  robot_effector_frame: {json.dumps(effector)}",
-            f"  tracking_base_frame: {json.dumps(e.child)}",
-            "  tracking_marker_frame: handeye_target",
-            "  freehand_robot_movement: true",
-            "  move_group_namespace: /",
-            "  move_group: manipulator",
-            "transform:",
-            "  translation:",
-            f"    x: {num(t[0])}",
-            f"    y: {num(t[1])}",
-            f"    z: {num(t[2])}",
-            "  rotation:",
-            f"    x: {num(q[0])}",
-            f"    y: {num(q[1])}",
-            f"    z: {num(q[2])}",
-            f"    w: {num(q[3])}",
-            "",
-        ]
-    )
+    from .frames import check_frame_name
+
+    check_frame_name(base, "--base-frame")
+    check_frame_name(effector, "--effector-frame")
+    d = calib_dict(e, name=name, base=base, effector=effector)
+    return _yaml(header_lines(e), d, flow=False)
 
 
 def plain_dict(e: ExportTransform) -> dict:
@@ -306,16 +385,18 @@ def plain_dict(e: ExportTransform) -> dict:
     return d
 
 
-def plain_yaml(e: ExportTransform) -> str:
+def plain_yaml(e: ExportTransform, d: dict | None = None) -> str:
+    """The ``yaml`` export (``d``: :func:`plain_dict` made once, when the caller keeps it)."""
     import yaml
 
-    return _comment(header_lines(e), "#") + "\n" + yaml.safe_dump(_floats(plain_dict(e)), sort_keys=False)
+    return comment(header_lines(e)) + "\n" + yaml.safe_dump(_floats(plain_dict(e) if d is None else d), sort_keys=False)
 
 
-def plain_json(e: ExportTransform) -> str:
+def plain_json(e: ExportTransform, d: dict | None = None) -> str:
+    """The ``json`` export (``d`` as in :func:`plain_yaml`)."""
     from ..output import to_json
 
-    return to_json(plain_dict(e)) + "\n"
+    return to_json(plain_dict(e) if d is None else d) + "\n"
 
 
 def _floats(o):

@@ -84,6 +84,7 @@ def _env(*, html: bool) -> jinja2.Environment:
     env.filters["pct"] = pct
     env.filters["sgn"] = lambda x, d=3: num(x, d, signed=True)
     env.filters["mdcell"] = mdcell
+    env.filters["md_fence"] = md_fence
     env.filters["md_markup"] = MdMarkup
     env.filters["status_label"] = lambda s: {
         "pass": "PASS",
@@ -118,6 +119,15 @@ def pct(x, digits: int = 0) -> str:
     except (TypeError, ValueError):
         return "—"
     return "—" if not math.isfinite(v) else f"{100 * v:.{digits}f} %"
+
+
+def md_fence(x) -> str:
+    """The backtick fence of a code block holding ``x``.
+
+    Longer than any run of backticks in ``x``, so no line of it can close the block early.
+    """
+    longest = max((len(m.group()) for m in re.finditer(r"`+", str(x))), default=0)
+    return "`" * max(3, longest + 1)
 
 
 def mdcell(x) -> str:
@@ -163,21 +173,20 @@ def render_markdown(ctx: dict, *, thumbnails_beside: bool = False) -> tuple[str,
 def _tidy_markdown(text: str) -> str:
     """Blank lines around every table (template control blocks eat them) and no runs of blank lines."""
     out: list[str] = []
-    in_code = False
+    fence = None  # the open code block's fence: only a line of that fence closes it (md_fence)
+    after_fence = False
     for line in text.splitlines():
-        if line.startswith("```"):
-            in_code = not in_code
+        opening = None if fence is not None else re.match(r"`{3,}", line)
+        is_fence = opening is not None or (fence is not None and line.strip() == fence)
+        in_code = fence is not None or is_fence
         is_row = not in_code and line.startswith("|")
         prev = out[-1] if out else ""
-        if (
-            not in_code
-            and line.strip()
-            and prev.strip()
-            and (is_row != prev.startswith("|"))
-            and not prev.startswith("```")
-        ):
+        if not in_code and line.strip() and prev.strip() and (is_row != prev.startswith("|")) and not after_fence:
             out.append("")
         out.append(line)
+        if is_fence:
+            fence = opening.group() if opening is not None else None
+        after_fence = is_fence
     return re.sub(r"\n{3,}", "\n\n", "\n".join(out)).strip() + "\n"
 
 
