@@ -380,8 +380,67 @@ def _split_fits(obs: PoseObservations, M: np.ndarray):
     return single, float(np.sum(np.minimum(d1, cap))), best[1]
 
 
+def _break_fit(v: np.ndarray, k: int, *, ramp: bool) -> np.ndarray:
+    """(N,6) the best fit to ``v`` (N,6) of zero before view ``k`` and, from ``k`` on, a constant (a step)
+    or a line through zero at view ``k - 1`` (a drift that starts at ``k``)."""
+    n = len(v)
+    x = np.where(np.arange(n) >= k, (np.arange(n) - k + 1.0) if ramp else 1.0, 0.0)  # shape (N,)
+    slope = (x @ v) / max(float(x @ x), 1e-12)  # shape (6,)
+    return x[:, None] * slope[None, :]
+
+
+def drift_or_step(v: np.ndarray, use: np.ndarray, *, min_segment: int) -> tuple[str, int, float]:
+    """Whether the implied board deviations ``v`` (N,6) change in one step or drift: ("step" | "drift", the
+    first view that moved, the drift's residual share of the step's).
+
+    Both models have the same parameters (a break and six numbers), so the one with the smaller weighted
+    residual over the views ``use`` (each coordinate scaled by its robust spread) explains the sequence.
+    """
+    n = len(v)
+    w = 1.0 / np.maximum(np.median(np.abs(v[use] - np.median(v[use], axis=0)), axis=0), 1e-9)
+
+    def best(ramp: bool) -> tuple[float, int]:
+        ks = range(1, n - 1) if ramp else range(min_segment, n - min_segment + 1)
+        rss = [(float(np.sum((((v - _break_fit(v, k, ramp=ramp)) * w)[use]) ** 2)), k) for k in ks]
+        return min(rss)
+
+    (r_step, k_step), (r_drift, k_drift) = best(False), best(True)
+    if r_drift < r_step:
+        return "drift", k_drift, r_drift / max(r_step, 1e-12)
+    return "step", k_step, r_drift / max(r_step, 1e-12)
+
+
+def _drift_finding(obs: PoseObservations, k: int, share: float, f: BoardFit, M: np.ndarray) -> Finding:
+    """The target pose drifts over the views from view ``k`` on (a tracker's odometry, a creeping board)."""
+    v = _board_deviations(f, obs.C, M)
+    last = v[-1]
+    tracked = getattr(obs.target, "kind", "") == "tracked"
+    what = "The tracker's target pose drifts" if tracked else "The board drifts"
+    title = f"{what} from view {obs.ids[k]} on"
+    ev = (
+        f"the board implied by each view moves steadily from view {obs.ids[k]} on, by "
+        f"{float(np.linalg.norm(last[3:])):.1f} mm / {float(np.linalg.norm(last[:3])):.2f} deg at the last view; "
+        f"a gradual drift fits the sequence better than a single move (residual {share:.2f}x a step's)"
+    )
+    action = (
+        "a tracker that accumulates error (visual odometry, SLAM) cannot give the target's pose: locate the "
+        "target in every view directly (a marker tracker), or calibrate the views before the drift alone"
+        if tracked
+        else "the board crept during the collection: fix it rigidly (clamp or tape) and re-capture"
+    )
+    return Finding(
+        "target_drift",
+        "fail",
+        title,
+        ev,
+        action,
+        view_ids=tuple(obs.ids[k:]),
+        details={"drift_from_view": obs.ids[k], "residual_vs_step": share, "last_mm": float(np.linalg.norm(last[3:]))},
+    )
+
+
 def board_moved_findings(obs: PoseObservations, M: np.ndarray) -> tuple[list, Optional[BoardFit]]:
-    """A step in the implied board transform: (findings, segment fit to use for the other checks)."""
+    """A step (or a drift) in the implied board transform: (findings, segment fit to use for the other checks)."""
     r = _split_fits(obs, M)
     if r is None:
         return [], None
@@ -397,6 +456,12 @@ def board_moved_findings(obs: PoseObservations, M: np.ndarray) -> tuple[list, Op
     significant = p < bm.p_value / n_splits if p < 1.0 else s1 > bm.gain * s2
     if not (significant and big and s1 > bm.min_gain * s2):
         return [], None
+    d = f.view_costs()
+    kind, k_drift, share = drift_or_step(
+        _board_deviations(f, obs.C, M), d <= max(3.0 * float(np.median(d)), 0.05), min_segment=bm.min_segment
+    )
+    if kind == "drift":
+        return [_drift_finding(obs, k_drift, share, f, M)], None
     mode = mounting(obs.mode)
     before, after = obs.ids[:k], obs.ids[k:]
     minority = after if len(after) <= len(before) else before

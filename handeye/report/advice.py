@@ -85,6 +85,7 @@ ROOT_CAUSE_CODES = (
     "quaternion_order",
     "square_size",
     "board_moved",
+    "target_drift",
     "poses_do_not_fit",
     "mode_undecided",
 )
@@ -119,6 +120,7 @@ UNTRUSTED_METRICS = {
     "poses_inverted": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg", "max_rotation_deg", "axis_spread_deg"),
     "mode_swapped": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
     "board_moved": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
+    "target_drift": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
     # a wrong square size scales every camera translation: X's translation and its uncertainty are off with it
     "square_size": ("predicted_error_mm", "sigma_trans_mm"),
     "intrinsics_mismatch": ("reprojection_rms_px", "predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),

@@ -61,6 +61,7 @@ def make_arm_tracker_session(
     scale: float = 1.0,
     drift_mm_per_view: float = 0.0,
     drift_start: int | None = None,
+    step_mm: float = 0.0,
 ) -> TrackerSession:
     """A pose-only session of ``arm`` moved by a joint program, seen by a tracker.
 
@@ -68,7 +69,8 @@ def make_arm_tracker_session(
     ``other_range_deg``. The tracker's noise is ``sigma_mm`` / ``sigma_deg`` per axis, its translation
     noise along the camera's z axis ``axial_factor`` times larger. ``scale`` multiplies every measured
     translation; ``drift_mm_per_view`` moves the target by that much per view from ``drift_start`` on
-    (a drifting odometry), along a fixed direction drawn from the seed.
+    (a drifting odometry), along a fixed direction drawn from the seed; ``step_mm`` moves it once, by
+    that much, at ``drift_start`` (a target that was knocked).
     """
     rng = np.random.default_rng(seed)
     chain = load_arm(arm)
@@ -89,13 +91,13 @@ def make_arm_tracker_session(
     measured = []
     for k in range(n_views):
         T = C[k].copy()
-        if drift_mm_per_view and k >= start:
-            T[:3, 3] += (k - start + 1) * drift_mm_per_view / 1000.0 * direction
+        if k >= start:
+            T[:3, 3] += ((k - start + 1) * drift_mm_per_view + step_mm) / 1000.0 * direction
         n = rng.standard_normal(6) * noise_sd
         T = T @ se3_exp(np.r_[n[:3], 0.0, 0.0, 0.0])
         T[:3, 3] += n[3:]  # translation noise in the camera frame: z is the optical axis
         T[:3, 3] *= scale
         measured.append(T)
-    truth = ArmTrackerTruth(mode, T_x, T_board, q, scale, start if drift_mm_per_view else None)
+    truth = ArmTrackerTruth(mode, T_x, T_board, q, scale, start if drift_mm_per_view or step_mm else None)
     ids = tuple(f"{k + 1:03d}" for k in range(n_views))
     return TrackerSession(truth, ids, np.stack(measured), T_be, float(sigma_mm), float(sigma_deg))
