@@ -61,16 +61,22 @@ def pose_factor(
     key_board: int,
     M: np.ndarray,
     T_cam_board_measured: np.ndarray,
-    sigma_rot_rad: float,
-    sigma_trans_m: float,
+    sigma_rot_rad: Optional[float] = None,
+    sigma_trans_m: Optional[float] = None,
+    covariance: Optional[np.ndarray] = None,
     robust_k: Optional[float] = None,
 ) -> gtsam.CustomFactor:
-    """A ``CustomFactor`` on (``T_x``, ``T_board``) for one measured ``T_cam_board`` with the tracker's
-    isotropic noise; ``robust_k`` wraps it in a Huber loss at that many sigmas (on the whitened 6-vector).
+    """A ``CustomFactor`` on (``T_x``, ``T_board``) for one measured ``T_cam_board``.
+
+    The tracker's noise: isotropic sigmas, or the residual's ``covariance`` (6,6) when given; ``robust_k``
+    wraps it in a Huber loss at that many sigmas (on the whitened 6-vector).
     """
     M = np.array(M, float)
     C_meas = np.array(T_cam_board_measured, float)
-    noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma_rot_rad] * 3, [sigma_trans_m] * 3])
+    if covariance is not None:  # the residual's full covariance (a tracker noisier along its optical axis)
+        noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, float))
+    else:
+        noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma_rot_rad] * 3, [sigma_trans_m] * 3])
     if robust_k is not None:
         noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
 

@@ -99,7 +99,7 @@ def test_session_yaml_target_pose_views_load(tmp_path):
     ts.write(tmp_path)
     s = load_session(tmp_path)
     assert s.meta["pose_only"] and s.target.kind == "tracked"
-    assert s.meta["tracker_sigma"] == pytest.approx((np.radians(0.2), 0.0005))
+    assert s.meta["tracker_sigma"] == pytest.approx((np.radians(0.2), 0.0005, 0.0005))
     for k, v in enumerate(s.views):
         assert v.image_path is None
         assert np.allclose(v.T_cam_board, ts.T_cam_board[k], atol=1e-12)
@@ -198,7 +198,7 @@ def test_easy_handeye2_samples_import_to_a_pose_only_session(tmp_path, ctype, mo
     )
     s = load_session(tmp_path / "s")
     assert s.mode == mode and s.meta["pose_only"]
-    assert s.meta["tracker_sigma"] == pytest.approx((np.radians(0.2), 0.0005))
+    assert s.meta["tracker_sigma"] == pytest.approx((np.radians(0.2), 0.0005, 0.0005))
     for k, v in enumerate(s.views):
         assert v.view_id == str(k + 1)
         assert np.allclose(v.T_base_end, ts.T_base_end[k], atol=1e-9)

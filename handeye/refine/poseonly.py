@@ -32,8 +32,16 @@ from .result import RefineResult
 
 log = logging.getLogger(__name__)
 
-#: median of |x| for x ~ N(0, s^2 I3), in units of s
+#: median of |x| for x ~ N(0, s^2 I3), N(0, s^2 I2) and N(0, s^2), in units of s
 _NORM3_MEDIAN = float(np.sqrt(chdtri(3, 0.5)))
+_NORM2_MEDIAN = float(np.sqrt(chdtri(2, 0.5)))
+_NORM1_MEDIAN = float(np.sqrt(chdtri(1, 0.5)))
+
+
+def stated_sigmas(tracker_sigma) -> np.ndarray:
+    """(3,) rotation [rad], across and along the optical axis [m] from a stated (rad, m) or (rad, m, m_along)."""
+    sig = np.asarray(tracker_sigma, float).ravel()
+    return np.r_[sig, sig[1]] if sig.size == 2 else sig
 
 
 @dataclass(frozen=True)
@@ -59,7 +67,8 @@ class PoseRefineResult(RefineResult):
     """
 
     tracker_sigma_deg: float = float("nan")
-    tracker_sigma_mm: float = float("nan")
+    tracker_sigma_mm: float = float("nan")  # across the camera's optical axis (x, y), per axis
+    tracker_sigma_along_mm: float = float("nan")  # along the optical axis (z)
     tracker_sigma_source: str = ""  # stated | estimated
     tracker_sigma_resolved: dict = field(default_factory=dict)
     cov_board_6x6: Optional[np.ndarray] = None
@@ -70,10 +79,12 @@ class PoseRefineResult(RefineResult):
         d["tracker_noise"] = {
             "sigma_deg": self.tracker_sigma_deg,
             "sigma_mm": self.tracker_sigma_mm,
+            "sigma_mm_along": self.tracker_sigma_along_mm,
             "source": self.tracker_sigma_source,
             "resolved": dict(self.tracker_sigma_resolved),
-            "model": "T_cam_board_measured = T_cam_board_true · Exp(n), n ~ N(0, diag(sigma_rad^2 I3,"
-            " sigma_m^2 I3)); robot poses taken as reported (their noise is part of it)",
+            "model": "T_cam_board_measured = T_cam_board_true · Exp(n): rotation noise sigma_deg per axis, "
+            "translation noise in the camera frame sigma_mm per axis across the optical axis (x, y) and "
+            "sigma_mm_along along it (z); robot poses taken as reported (their noise is part of it)",
         }
         if self.cov_board_6x6 is not None:
             d["cov_board_6x6"] = self.cov_board_6x6.tolist()
@@ -86,9 +97,28 @@ class _State:
     C: np.ndarray  # shape (n, 4, 4)
     T_x: np.ndarray
     T_board: np.ndarray
-    sigma: np.ndarray  # (2,) rotation [rad], translation [m]
+    sigma: np.ndarray  # (3,) rotation [rad], translation across and along the camera's optical axis [m]
     keep: np.ndarray  # (n,) bool
     iterations: int = 0
+
+    def groups(self) -> np.ndarray:
+        """(3, n, 6, 6) each noise group's share ``Q_g`` of every view's residual covariance (unit variance).
+
+        The residual's translation lies in the target's frame (right perturbation), the tracker's noise in
+        the camera's: ``R^T diag(...) R`` with ``R`` the measured ``T_cam_board`` rotation.
+        """
+        n = len(self.C)
+        Q = np.zeros((3, n, 6, 6))
+        Q[0, :, :3, :3] = np.eye(3)
+        R = self.C[:, :3, :3]
+        Rt = np.swapaxes(R, 1, 2)
+        Q[1, :, 3:, 3:] = Rt @ np.diag([1.0, 1.0, 0.0]) @ R
+        Q[2, :, 3:, 3:] = Rt @ np.diag([0.0, 0.0, 1.0]) @ R
+        return Q
+
+    def covariances(self) -> np.ndarray:
+        """(n, 6, 6) every view's residual covariance at the current sigmas."""
+        return np.einsum("g,gnij->nij", self.sigma**2, self.groups())
 
     def residuals(self, T_x=None, T_board=None, *, jacobians: bool = False):
         """(r (n,6), J (n,6,12) or None) of every view at the current (or given) solution."""
@@ -103,25 +133,36 @@ class _State:
         return r, J
 
     def W(self) -> np.ndarray:
-        return np.diag(np.r_[[self.sigma[0] ** -2] * 3, [self.sigma[1] ** -2] * 3])
+        """(n, 6, 6) every view's weight: the inverse of its residual covariance."""
+        return np.linalg.inv(self.covariances())
 
 
-def _robust_sigmas(r: np.ndarray, floors: np.ndarray) -> np.ndarray:
-    """(rotation, translation) sigmas from the median residual norms (3-D isotropic Gaussian)."""
-    med = np.array([np.median(np.linalg.norm(r[:, :3], axis=1)), np.median(np.linalg.norm(r[:, 3:], axis=1))])
-    return np.maximum(med / _NORM3_MEDIAN, floors)
+def _camera_translations(C: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """(n, 3) the residuals' translations in the camera frame (``r`` (n,6) in the target's)."""
+    return -np.einsum("nij,nj->ni", C[:, :3, :3], r[:, 3:])
+
+
+def _robust_sigmas(C: np.ndarray, r: np.ndarray, floors: np.ndarray) -> np.ndarray:
+    """(rotation, across, along the optical axis) sigmas from the median residuals (Gaussian in each)."""
+    t = _camera_translations(C, r)
+    med = np.array(
+        [
+            np.median(np.linalg.norm(r[:, :3], axis=1)) / _NORM3_MEDIAN,
+            np.median(np.linalg.norm(t[:, :2], axis=1)) / _NORM2_MEDIAN,
+            np.median(np.abs(t[:, 2])) / _NORM1_MEDIAN,
+        ]
+    )
+    return np.maximum(med, floors)
 
 
 def _score(st: _State, T_x, T_board) -> float:
-    """Median over the views of the rotation and translation residuals in units of the start sigmas."""
+    """Median over the views of the whitened residual norms at the start sigmas."""
     r, _ = st.residuals(T_x, T_board)
-    return float(
-        np.median(np.linalg.norm(r[:, :3], axis=1) / st.sigma[0] + np.linalg.norm(r[:, 3:], axis=1) / st.sigma[1])
-    )
+    return float(np.median(np.sqrt(np.einsum("ni,nij,nj->n", r, st.W(), r))))
 
 
 def _information(st: _State, J: np.ndarray, prior_x) -> np.ndarray:
-    H = np.einsum("nki,kl,nlj->ij", J[st.keep], st.W(), J[st.keep])
+    H = np.einsum("nki,nkl,nlj->ij", J[st.keep], st.W()[st.keep], J[st.keep])
     if prior_x is not None:
         H[:6, :6] += np.linalg.inv(prior_x[1])
     return H
@@ -129,11 +170,10 @@ def _information(st: _State, J: np.ndarray, prior_x) -> np.ndarray:
 
 def _solve(st: _State, *, robust_k, prior_x, max_iterations) -> None:
     k = np.flatnonzero(st.keep)
-    sig = np.broadcast_to(st.sigma, (k.size, 2))
     st.T_x, st.T_board, it = solve_pose_graph(
         M=st.M[k],
         T_cam_board=st.C[k],
-        sigmas=sig,
+        covariances=st.covariances()[k],
         T_x0=st.T_x,
         T_board0=st.T_board,
         robust_k=robust_k,
@@ -144,31 +184,38 @@ def _solve(st: _State, *, robust_k, prior_x, max_iterations) -> None:
 
 
 def _vce_on_linearisation(st: _State, r: np.ndarray, J: np.ndarray, prior_x, floors, resolved: dict) -> float:
-    """Variance-component estimation (rotation, translation) iterated on one linearisation (``r`` (n,6),
-    ``J`` (n,6,12) at the last solve): for sigmas s the weighted least-squares step, its residuals ``e_g``
-    and the redundancies ``r_g = n_g - tr(W_g J Sigma J^T)`` give ``s_g^2 = e_g^T e_g / r_g``, until the
-    sigmas change by less than ``noise.inner_tol``. Updates ``st.sigma`` and ``resolved``; returns the
-    relative change of the sigmas.
+    """Variance-component estimation of the three tracker sigmas on one linearisation.
+
+    ``r`` (n,6), ``J`` (n,6,12) at the last solve. With the residual covariance ``sum_g s_g^2 Q_g`` (rotation;
+    translation across and along the optical axis, :meth:`_State.groups`), the weighted least-squares step
+    gives the residuals ``e`` and ``s_g^2 <- s_g^4 e^T W Q_g W e / r_g`` with the redundancy
+    ``r_g = s_g^2 tr(Q_g (W - W J Sigma J^T W))`` (Foerstner), iterated until the sigmas change by less than
+    ``noise.inner_tol``. Updates ``st.sigma`` and ``resolved``; returns the relative change of the sigmas.
     """
     cfg = refine_preset()["noise"]
     share, tol = float(cfg["unresolved_redundancy_share"]), float(cfg["inner_tol"])
     rk, Jk = r[st.keep], J[st.keep]
     n_k = rk.shape[0]
     start = st.sigma.copy()
+    Q = st.groups()[:, st.keep]  # shape (3, n_k, 6, 6)
+    dims = (3 * n_k, 2 * n_k, n_k)  # observations per group
     for _ in range(int(cfg["max_inner"])):
-        W = st.W()
+        W = st.W()[st.keep]
         S = np.linalg.inv(_information(st, J, prior_x))
-        dx = -S @ np.einsum("nki,kl,nl->i", Jk, W, rk)
+        dx = -S @ np.einsum("nki,nkl,nl->i", Jk, W, rk)
         e = rk + np.einsum("nki,i->nk", Jk, dx)  # residuals after the step
-        JSJ = np.einsum("nij,jk,nlk->nil", Jk, S, Jk)  # shape (n_k, 6, 6)
+        We = np.einsum("nij,nj->ni", W, e)
+        WJ = W @ Jk  # shape (n_k, 6, 12)
+        P = W - WJ @ S @ np.swapaxes(WJ, 1, 2)  # shape (n_k, 6, 6)
         new = st.sigma.copy()
-        for g, name in enumerate(("rot", "trans")):
-            sl = slice(3 * g, 3 * g + 3)
-            red = 3 * n_k - float(np.trace(JSJ[:, sl, sl], axis1=1, axis2=2).sum()) / st.sigma[g] ** 2
-            if red < share * 3 * n_k:
+        for g, name in enumerate(("rot", "trans", "trans_along")):
+            th = st.sigma[g] ** 2
+            red = th * float(np.einsum("nij,nji->", Q[g], P))
+            if red < share * dims[g]:
                 resolved[name] = False  # the data cannot resolve this group: its sigma stays
                 continue
-            new[g] = max(float(np.sqrt(np.sum(e[:, sl] ** 2) / red)), floors[g])
+            quad = float(np.einsum("ni,nij,nj->", We, Q[g], We))
+            new[g] = max(float(np.sqrt(th**2 * quad / red)), floors[g])
         change = float(np.max(np.abs(new / st.sigma - 1.0)))
         st.sigma = new
         if change < tol:
@@ -183,7 +230,7 @@ def _solve_with_vce(st: _State, *, estimate: bool, prior_x, max_iterations, floo
     (Sigma (12,12), r, J, resolved) at the final solution.
     """
     cfg = refine_preset()["noise"]
-    resolved = {"rot": True, "trans": True}
+    resolved = {"rot": True, "trans": True, "trans_along": True}
     for _ in range(int(cfg["max_outer"]) if estimate else 0):  # a stated sigma: one solve below
         _solve(st, robust_k=None, prior_x=prior_x, max_iterations=max_iterations)
         r, J = st.residuals(jacobians=True)
@@ -199,20 +246,20 @@ def _solve_with_vce(st: _State, *, estimate: bool, prior_x, max_iterations, floo
 
 def _tests(st: _State, S: np.ndarray, r: np.ndarray, J: np.ndarray, gates: RobotPoseGates):
     """THE robot-pose test of every view on ``T_cam_board``: leave-one-out for views in the solve."""
-    R = np.linalg.inv(st.W())
+    R = st.covariances()
     d = np.full((len(r), 6), np.nan)
     C = np.full((len(r), 6, 6), np.nan)
     for i in range(len(r)):
         S_p = J[i] @ S @ J[i].T  # covariance of the predicted pose
         if st.keep[i]:
             try:
-                d[i], C[i] = leave_one_out(r[i], R, S_p)
+                d[i], C[i] = leave_one_out(r[i], R[i], S_p)
             except np.linalg.LinAlgError:  # the view alone fixes the solution: no prediction without it
                 log.debug("view %d: no leave-one-out prediction (the view alone fixes the solution); not tested", i)
                 continue
         else:
             d[i], C[i] = r[i], S_p
-    return robot_pose_test(d, C, robot_covariance=np.broadcast_to(R, (len(r), 6, 6)), gates=gates)
+    return robot_pose_test(d, C, robot_covariance=R, gates=gates)
 
 
 def refine_poses(
@@ -227,7 +274,8 @@ def refine_poses(
 ) -> PoseRefineResult:
     """Refine ``T_x`` and ``T_board`` from pose-only views; see the module docstring.
 
-    ``tracker_sigma``: (rotation [rad], translation [m]) of the tracker, held; None: estimated.
+    ``tracker_sigma``: (rotation [rad], translation [m]) of the tracker, or (rotation, across, along the
+    optical axis), held; None: estimated (the three sigmas).
     ``starts``: the closed forms (method -> estimate); the refinement starts from the one the views
     agree with best. A solve that fails returns ``status="failed"`` with the reason.
     """
@@ -239,15 +287,15 @@ def refine_poses(
     M = np.stack([mount.M_from_T_base_end(check_T(v.T_base_end, f"view {v.view_id} T_base_end")) for v in views])
     C = np.stack([check_T(v.T_cam_board, f"view {v.view_id} T_cam_board") for v in views])
     cfg = refine_preset()["noise"]
-    floors = np.array([float(cfg["robot_sigma_rot_floor_rad"]), float(cfg["robot_sigma_trans_floor_m"])])
+    floors = np.array([float(cfg["robot_sigma_rot_floor_rad"])] + [float(cfg["robot_sigma_trans_floor_m"])] * 2)
     estimate = tracker_sigma is None
-    st = _State(M, C, T_x0.copy(), T_board0.copy(), np.ones(2), np.ones(len(views), bool))
+    st = _State(M, C, T_x0.copy(), T_board0.copy(), np.ones(3), np.ones(len(views), bool))
     prior_x = (
         None
         if options.prior is None
         else (check_T(options.prior.T_x, "prior T_x"), np.asarray(options.prior.cov_x, float))
     )
-    st.sigma = _robust_sigmas(st.residuals()[0], floors) if estimate else np.asarray(tracker_sigma, float)
+    st.sigma = _robust_sigmas(C, st.residuals()[0], floors) if estimate else stated_sigmas(tracker_sigma)
     start_method = "given"
     if starts:
         best = _score(st, st.T_x, st.T_board)
@@ -263,11 +311,11 @@ def refine_poses(
     dec_keep, test, S, r, J, resolved = None, None, None, None, None, {}
     try:
         if estimate:
-            st.sigma = _robust_sigmas(st.residuals()[0], floors)
+            st.sigma = _robust_sigmas(C, st.residuals()[0], floors)
         if options.loss != "none":
             _solve(st, robust_k=options.loss_k, prior_x=prior_x, max_iterations=it_max)
             if estimate:
-                st.sigma = _robust_sigmas(st.residuals()[0], floors)
+                st.sigma = _robust_sigmas(C, st.residuals()[0], floors)
         # the first decision against the robust solution, then from scratch against each clean one
         r, J = st.residuals(jacobians=True)
         S = np.linalg.inv(_information(st, J, prior_x))
@@ -372,6 +420,7 @@ def refine_poses(
         },
         tracker_sigma_deg=float(np.degrees(st.sigma[0])),
         tracker_sigma_mm=float(1000.0 * st.sigma[1]),
+        tracker_sigma_along_mm=float(1000.0 * st.sigma[2]),
         tracker_sigma_source="estimated" if estimate else "stated",
         tracker_sigma_resolved=resolved,
         cov_board_6x6=None if status != "ok" else S[6:, 6:].copy(),
@@ -395,7 +444,8 @@ def refit_poses(result: PoseRefineResult, views: Sequence[PoseView], covariance:
     mount = mounting(result.mode)
     M = np.stack([mount.M_from_T_base_end(np.asarray(v.T_base_end, float)) for v in kept])
     C = np.stack([np.asarray(v.T_cam_board, float) for v in kept])
-    sigma = np.array([np.radians(result.tracker_sigma_deg), result.tracker_sigma_mm / 1000.0])
+    along = result.tracker_sigma_along_mm if np.isfinite(result.tracker_sigma_along_mm) else result.tracker_sigma_mm
+    sigma = np.array([np.radians(result.tracker_sigma_deg), result.tracker_sigma_mm / 1000.0, along / 1000.0])
     prior = result.options.prior
     prior_x = None if prior is None else (np.asarray(prior.T_x, float), np.asarray(prior.cov_x, float))
     st = _State(M, C, result.T_x.copy(), result.T_board.copy(), sigma, np.ones(len(kept), bool))

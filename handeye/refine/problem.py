@@ -572,7 +572,7 @@ def solve_pose_graph(
     *,
     M: np.ndarray,
     T_cam_board: np.ndarray,
-    sigmas: np.ndarray,
+    covariances: np.ndarray,
     T_x0: np.ndarray,
     T_board0: np.ndarray,
     robust_k: Optional[float] = None,
@@ -581,7 +581,7 @@ def solve_pose_graph(
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Levenberg-Marquardt on ``T_x`` and ``T_board`` from measured camera -> target poses (pose-only
     views, :mod:`handeye.factors.pose`): ``M`` (n,4,4) the views' robot motions, ``T_cam_board`` (n,4,4)
-    the tracker's poses, ``sigmas`` (n,2) each view's (rotation [rad], translation [m]) noise;
+    the tracker's poses, ``covariances`` (n,6,6) each view's residual covariance (rotation [rad] first);
     ``prior_x`` (T_x (4,4), covariance (6,6)) an optional Gaussian prior on ``T_x``. Returns
     (T_x, T_board, iterations).
     """
@@ -591,16 +591,10 @@ def solve_pose_graph(
     v = gtsam.Values()
     v.insert(KEY_X, gtsam.Pose3(np.asarray(T_x0, float)))
     v.insert(KEY_BOARD, gtsam.Pose3(np.asarray(T_board0, float)))
-    for Mi, Ci, si in zip(M, T_cam_board, sigmas, strict=False):
+    for Mi, Ci, Si in zip(M, T_cam_board, covariances, strict=True):
         g.add(
             pose_factor(
-                key_x=KEY_X,
-                key_board=KEY_BOARD,
-                M=Mi,
-                T_cam_board_measured=Ci,
-                sigma_rot_rad=float(si[0]),
-                sigma_trans_m=float(si[1]),
-                robust_k=robust_k,
+                key_x=KEY_X, key_board=KEY_BOARD, M=Mi, T_cam_board_measured=Ci, covariance=Si, robust_k=robust_k
             )
         )
     if prior_x is not None:

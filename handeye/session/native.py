@@ -194,16 +194,18 @@ def _pose_only_fields(d: dict, entries: list, *, path: Path) -> tuple:
     sig = d.get("tracker_sigma")
     if sig is None:
         return tfmt, None
-    if not isinstance(sig, dict) or set(sig) != {"mm", "deg"}:
+    if not isinstance(sig, dict) or not {"mm", "deg"} <= set(sig) <= {"mm", "deg", "mm_along"}:
         raise ConfigError(
-            "tracker_sigma must be {mm: NUMBER, deg: NUMBER}",
+            "tracker_sigma must be {mm: NUMBER, deg: NUMBER} (and optionally mm_along: NUMBER)",
             path=path,
             received=repr(sig)[:60],
-            expected="the tracker's noise per axis, e.g. tracker_sigma: {mm: 0.5, deg: 0.2}",
+            expected="the tracker's noise per axis, e.g. tracker_sigma: {mm: 0.5, deg: 0.2, mm_along: 2.0} (mm "
+            "across the camera's optical axis, mm_along along it)",
         )
     mm = positive_number(sig["mm"], path=path, field="tracker_sigma.mm")
     deg = positive_number(sig["deg"], path=path, field="tracker_sigma.deg")
-    return tfmt, (float(np.radians(deg)), float(mm) / 1000.0)
+    along = positive_number(sig["mm_along"], path=path, field="tracker_sigma.mm_along") if "mm_along" in sig else mm
+    return tfmt, (float(np.radians(deg)), float(mm) / 1000.0, float(along) / 1000.0)
 
 
 def view_target_pose(doc: NativeDocument, e: ViewEntry) -> np.ndarray:
