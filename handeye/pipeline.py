@@ -507,11 +507,23 @@ def _mode_gate(s: Session, obs: Observation, state: dict, progress) -> Session:
     ev = mode_evidence(C, T)
     decision["evidence"] = ev.to_dict()
     if source == "default":
-        if ev.decided is not None:
-            progress(f"mode: {ev.decided}, detected from the data (the session states none): {ev.summary()}")
-            decision.update(mode=ev.decided, mode_source="detected")
-            s = replace(s, mode=ev.decided)
-            state["session"] = s
+        # the diagnostics' mode-swap test on the mode about to be used: a mode they would refuse is never chosen
+        chosen, summary = ev.decided or s.mode, ev.summary()
+        swap = _swap_test(s, obs, ids, C, T, chosen)
+        if swap is not None:
+            chosen, why = swap
+            summary = f"the mode-swap test: {why}" + (
+                f" (the quick test said {ev.decided}: {summary})"
+                if ev.decided is not None
+                else f" (the quick test: {summary})"
+            )
+            decision["evidence"].update(decided=chosen, swap_test=why, summary=summary)
+        if ev.decided is not None or swap is not None:
+            progress(f"mode: {chosen}, detected from the data (the session states none): {summary}")
+            decision.update(mode=chosen, mode_source="detected")
+            if chosen != s.mode:
+                s = replace(s, mode=chosen)
+                state["session"] = s
         else:
             log.warning(
                 "the session states no mounting mode and the data do not decide it; calibrating as %s "
@@ -532,6 +544,26 @@ def _mode_gate(s: Session, obs: Observation, state: dict, progress) -> Session:
             code="mode_swapped",
         )
     return s
+
+
+def _swap_test(s: Session, obs: Observation, ids: list, C: np.ndarray, T: np.ndarray, mode: str):
+    """(the other mode, why) when the diagnostics' mode-swap finding would fire on a run in ``mode``, else None."""
+    from .diagnose.mode import swapped_mode
+    from .diagnose.observations import PoseObservations, candidates_of
+    from .session.raw import raw_poses_of
+
+    po = PoseObservations(
+        mode,
+        tuple(ids),
+        C,
+        T,
+        raw_poses_of(s),
+        {},
+        target=s.target,
+        C_candidates=candidates_of(obs.board_poses, ids),
+        tracker=bool(s.meta.get("pose_only")),
+    )
+    return swapped_mode(po)
 
 
 def _pairing_gate(s: Session, obs: Observation, M_all: dict, state: dict) -> None:

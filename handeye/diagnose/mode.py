@@ -8,6 +8,8 @@ size does not make the mode undecided. A mode is decided only when its model fit
 ``mode.good_cost``), the other fits ``mode.ratio`` times worse, and the solution is physically plausible
 (a camera on the flange is closer to the flange than the board is to the base; a camera beside the
 robot farther from the base than the board from the flange). Otherwise the mode is undecided.
+:func:`swapped_mode` is the diagnostics' own mode-swap test (:mod:`.readings`), which a calibration without a
+stated mode also asks, so the mode it calibrates in is never one the diagnostics then refuse.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from .fits import fit_boards
 from .scale import estimate_scale, rescaled
 from .thresholds import thresholds
 
-__all__ = ["ModeEvidence", "mode_evidence"]
+__all__ = ["ModeEvidence", "mode_evidence", "swapped_mode"]
 
 
 @dataclass(frozen=True)
@@ -99,3 +101,21 @@ def mode_evidence(C: np.ndarray, T_base_end: np.ndarray) -> ModeEvidence:
     other = mounting(best).other.name
     clear = costs[best] < t.good_cost and costs[other] > t.ratio * costs[best] and plausible[best]
     return ModeEvidence(costs, scatter, plausible, best, best if clear else None)
+
+
+def swapped_mode(obs) -> Optional[tuple[str, str]]:
+    """(the other mode, the finding's evidence) when the diagnostics' mode-swap finding fires, else None.
+
+    ``obs``: :class:`.observations.PoseObservations` read in ``obs.mode``. The test is the diagnostics' own
+    (:func:`.readings.evaluate_readings`, :func:`.readings.reading_findings`): the poses as read fit badly,
+    the inverted motions fit clearly better, and the solution puts the camera where the other mode says.
+    """
+    from .readings import evaluate_readings, given_reading, reading_findings
+
+    readings = evaluate_readings(obs)
+    if given_reading(readings) is None:
+        return None
+    for f in reading_findings(obs, readings):
+        if f.code == "mode_swapped":
+            return mounting(obs.mode).other.name, f.evidence
+    return None
