@@ -91,6 +91,15 @@ def qa_metrics(
     items = [f"{k} (view{'s' if len(ids) > 1 else ''} {', '.join(ids)})" for k, ids in by_reason.items()]
     c["bad_reasons"] = "; ".join(items[:3]) + (f"; and {len(items) - 3} more" if len(items) > 3 else "")
     m["used_views"] = float(len(used_ids)) if n_total else None
+    prior = res.get("prior") if isinstance(res.get("prior"), dict) else {}
+    with_prior = prior.get("views_with_prior")
+    if n_total and prior.get("used") == "prior" and isinstance(with_prior, (int, float)) and with_prior > len(used_ids):
+        # --prior that the data agree with: X rests on the new views and the earlier ones behind the prior
+        m["used_views"] = float(with_prior)
+        c["used_views_source"] = (
+            f"{len(used_ids)} new views + {with_prior - len(used_ids):.0f} of the prior "
+            f"({prior.get('source', 'the earlier result')}) the new views agree with"
+        )
     # coverage
     pts = [fits[v].image_points_px for v in fits if v in used_ids or not used_ids]
     if image_size and pts:
