@@ -147,7 +147,7 @@ def visp_mode(src: Path, layout: str) -> tuple[str | None, str]:
             return mode.replace("-", "_"), f"the folder name {src.name!r}"
     if layout == "apriltag":
         return "eye_to_hand", "ViSP's AprilTag layout is its eye-to-hand tutorial's (tag on the flange, camera fixed)"
-    return None, "ViSP's chessboard layout serves both mounting modes: decided from the data"
+    return None, "ViSP's chessboard layout serves both mounting modes"
 
 
 def import_visp(
