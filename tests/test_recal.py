@@ -1203,26 +1203,40 @@ def test_a_board_numbered_otherwise_in_the_update_run_drops_the_board_prior(rend
     assert run.status == "ok" and "numbered otherwise" in caplog.text
 
 
-def test_a_few_views_with_a_prior_are_judged_with_the_priors_views_and_exported(rendered, tmp_path, capsys):
+def test_a_few_views_with_a_prior_are_judged_with_the_priors_views_and_exported(install, rendered, tmp_path, capsys):
     """The documented use of --prior (3-5 new views of an installed rig): the views check counts the prior's
-    views when the data agree with it, so the run is not failed for its view count, and --export runs."""
+    views when the data agree with it, so 5 new views are not failed for their count, and --export runs."""
+    from handeye.sim.vendor import write_vendor_session
+
+    s, _ = install
+    five = write_vendor_session(
+        tmp_path / "five",
+        n_views=5,
+        seed=201,
+        robot_noise=(0.2, 0.05),
+        image_noise=2.0,
+        intrinsics=s.intrinsics,
+        supersample=2,
+        rig=(s.T_x_true, s.T_board_true),
+    )
     installed = json.loads((rendered["installed"] / "result.json").read_text())
     out = tmp_path / "upd"
     rc = main(
-        ["-q", "calibrate", str(rendered["same"]), "--prior", str(rendered["installed"]), "--out", str(out)]
+        ["-q", "calibrate", str(five), "--prior", str(rendered["installed"]), "--out", str(out)]
         + ["--export", "json", "--no-report"]
     )
     printed = capsys.readouterr().out
     res = json.loads((out / "result.json").read_text())
-    assert res["prior"]["used"] == "prior" and res["n_views"]["used"] == 4
+    assert res["prior"]["used"] == "prior" and res["n_views"]["used"] == 5
     n_prior = sum(v["status"] == "used" for v in installed["refinement"]["per_view"].values())
     assert n_prior == 15 and res["prior"]["prior_views"] == n_prior
-    assert res["prior"]["views_with_prior"] == 4 + n_prior
+    assert res["prior"]["views_with_prior"] == 5 + n_prior
     check = next(c for c in res["qa"]["checks"] if c["key"] == "used_views")
-    assert check["value"] == 4 + n_prior and check["status"] != "fail", check
-    assert f"4 new views + {n_prior} of the prior" in check["source"]
+    assert check["value"] == 5 + n_prior and check["status"] != "fail", check
+    assert f"5 new views + {n_prior} of the prior" in check["source"]
     assert res["verdict"] in ("PASS", "WARN") and rc == 0, (rc, res["verdict_headline"])
-    assert "json:" in printed and list(out.glob("*.json")) != [out / "result.json"]
+    exported = [Path(line.split("json: ", 1)[1]) for line in printed.splitlines() if line.startswith("json: ")]
+    assert exported and all(f.is_file() and f != out / "result.json" for f in exported), printed
     # a contradicted prior does not count: the result is the new views' own
     out = tmp_path / "bumped"
     main(["-q", "calibrate", str(rendered["bumped"]), "--prior", str(rendered["installed"]), "--out", str(out)])
