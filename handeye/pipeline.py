@@ -352,9 +352,19 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     if obs.error is not None:
         raise obs.error if obs.error.path is not None else obs.error.at(s.path)
     poses, dets, intr = obs.board_poses, obs.detections, obs.intrinsics
+    session_mode = s.mode
     s = _mode_gate(s, obs, state, progress)
     mode = mounting(s.mode)
     M_all = {v.view_id: mode.M_from_T_base_end(v.T_base_end) for v in s.views}
+    if mode.name != session_mode and getattr(s.target, "pose_ambiguous", False):
+        # a single marker's planar pose is picked by the robot motion under a model: pick again under the mode found
+        obs = replace(
+            obs, board_poses=board_poses([dets[v] for v in sorted(dets, key=view_id_key)], s.target, intr, M_all)
+        )
+        poses = obs.board_poses
+        for vid, bp in poses.items():
+            outcomes[vid] = replace(outcomes[vid], rms_px=bp.rms_px, orientation=bp.orientation)
+        state.update(board_poses=poses, outcomes=ordered())
     _pairing_gate(s, obs, M_all, state)
     ids = list(poses)
     C = np.stack([poses[v].T_cam_board for v in ids])
@@ -495,6 +505,7 @@ def _mode_gate(s: Session, obs: Observation, state: dict, progress) -> Session:
     detected, a session in that mode (``state["session"]``).
     """
     from .diagnose.mode import mode_evidence
+    from .diagnose.observations import candidates_of
 
     source = _stated_source(s)
     ids = [v for v in sorted(obs.board_poses, key=view_id_key)]
@@ -504,7 +515,8 @@ def _mode_gate(s: Session, obs: Observation, state: dict, progress) -> Session:
         return s
     C = np.stack([obs.board_poses[v].T_cam_board for v in ids])
     T = np.stack([s.view(v).T_base_end for v in ids])
-    ev = mode_evidence(C, T)
+    ambiguous = bool(getattr(s.target, "pose_ambiguous", False))
+    ev = mode_evidence(C, T, C_candidates=candidates_of(obs.board_poses, ids) if ambiguous else None)
     decision["evidence"] = ev.to_dict()
     if source == "default":
         # the diagnostics' mode-swap test on the mode about to be used: a mode they would refuse is never chosen

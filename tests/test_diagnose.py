@@ -1007,7 +1007,7 @@ def test_an_undecided_quick_mode_test_never_ends_refused_for_a_mode_swap(tmp_pat
     import handeye.diagnose.mode as mode_module
 
     quick = mode_module.mode_evidence
-    monkeypatch.setattr(mode_module, "mode_evidence", lambda C, T: replace(quick(C, T), decided=None))
+    monkeypatch.setattr(mode_module, "mode_evidence", lambda C, T, **kw: replace(quick(C, T, **kw), decided=None))
     cs = _session("eye_to_hand", 45, robot_noise=(1.0, 0.1))
     folder = _write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), mode=None)
     run, d = _diagnose(folder, cs, monkeypatch)
@@ -1026,7 +1026,7 @@ def test_data_that_decide_no_mode_keep_the_default_and_say_so(tmp_path, monkeypa
     import handeye.diagnose.mode as mode_module
 
     quick = mode_module.mode_evidence
-    monkeypatch.setattr(mode_module, "mode_evidence", lambda C, T: replace(quick(C, T), decided=None))
+    monkeypatch.setattr(mode_module, "mode_evidence", lambda C, T, **kw: replace(quick(C, T, **kw), decided=None))
     cs = _session("eye_in_hand", 45, robot_noise=(1.0, 0.1))
     run, d = _diagnose(_write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), mode=None), cs, monkeypatch)
     assert run.status == "ok" and run.mode_decision["mode_source"] == "default"

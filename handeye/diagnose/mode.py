@@ -80,14 +80,21 @@ def _camera_on_robot(fit) -> bool:
     return t_x < t_b
 
 
-def mode_evidence(C: np.ndarray, T_base_end: np.ndarray) -> ModeEvidence:
-    """Both mounting models fitted to board poses ``C`` (N,4,4) and robot poses ``T_base_end`` (N,4,4)."""
+def mode_evidence(C: np.ndarray, T_base_end: np.ndarray, *, C_candidates: Optional[np.ndarray] = None) -> ModeEvidence:
+    """Both mounting models fitted to board poses ``C`` (N,4,4) and robot poses ``T_base_end`` (N,4,4).
+
+    ``C_candidates`` (N,2,4,4): a single marker's two planar poses per view. Which of them the robot motion
+    picks depends on the model (:func:`handeye.initial.board_poses.rotation_consistent_labels`), so each
+    model is fitted with its own picks, as the readings are (``C`` was picked under one mode only).
+    """
     t = thresholds().mode
     costs, scatter, plausible = {}, {}, {}
     for m in MODES:
         mount = mounting(m)
         M = mount.M_from_T_base_end(T_base_end)
         try:
+            if C_candidates is not None:
+                C = _picked(C_candidates, M)
             fit0 = fit_boards(C, M)
             est = estimate_scale(C, M, use=fit0.inliers())
             fit = fit_boards(rescaled(C, est.k), M) if est is not None and np.isfinite(est.k) and est.k > 0 else fit0
@@ -101,6 +108,15 @@ def mode_evidence(C: np.ndarray, T_base_end: np.ndarray) -> ModeEvidence:
     other = mounting(best).other.name
     clear = costs[best] < t.good_cost and costs[other] > t.ratio * costs[best] and plausible[best]
     return ModeEvidence(costs, scatter, plausible, best, best if clear else None)
+
+
+def _picked(C_candidates: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """(N,4,4) each view's planar pose that the robot motions ``M`` pick under their model."""
+    from ..initial.board_poses import candidate_invariants, orientation_labels, rotation_consistent_labels
+
+    lab = orientation_labels(candidate_invariants(C_candidates), M, turns=False)
+    lab = rotation_consistent_labels(C_candidates, M, lab)
+    return C_candidates[np.arange(len(C_candidates)), lab]
 
 
 def swapped_mode(obs) -> Optional[tuple[str, str]]:
