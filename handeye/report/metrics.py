@@ -92,12 +92,12 @@ def qa_metrics(
     c["bad_reasons"] = "; ".join(items[:3]) + (f"; and {len(items) - 3} more" if len(items) > 3 else "")
     m["used_views"] = float(len(used_ids)) if n_total else None
     prior = res.get("prior") if isinstance(res.get("prior"), dict) else {}
-    with_prior = prior.get("views_with_prior")
-    if n_total and prior.get("used") == "prior" and isinstance(with_prior, (int, float)) and with_prior > len(used_ids):
+    n_prior = prior.get("prior_views")
+    if n_total and prior.get("used") == "prior" and isinstance(n_prior, (int, float)) and n_prior > 0:
         # --prior that the data agree with: X rests on the new views and the earlier ones behind the prior
-        m["used_views"] = float(with_prior)
+        m["used_views"] = float(len(used_ids) + n_prior)
         c["used_views_source"] = (
-            f"{len(used_ids)} new views + {with_prior - len(used_ids):.0f} of the prior "
+            f"{len(used_ids)} new views + {n_prior:.0f} of the prior "
             f"({prior.get('source', 'the earlier result')}) the new views agree with"
         )
     # coverage
