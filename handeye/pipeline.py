@@ -352,9 +352,19 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     if obs.error is not None:
         raise obs.error if obs.error.path is not None else obs.error.at(s.path)
     poses, dets, intr = obs.board_poses, obs.detections, obs.intrinsics
+    session_mode = s.mode
     s = _mode_gate(s, obs, state, progress)
     mode = mounting(s.mode)
     M_all = {v.view_id: mode.M_from_T_base_end(v.T_base_end) for v in s.views}
+    if mode.name != session_mode and getattr(s.target, "pose_ambiguous", False):
+        # a single marker's planar pose is picked by the robot motion under a model: pick again under the mode found
+        obs = replace(
+            obs, board_poses=board_poses([dets[v] for v in sorted(dets, key=view_id_key)], s.target, intr, M_all)
+        )
+        poses = obs.board_poses
+        for vid, bp in poses.items():
+            outcomes[vid] = replace(outcomes[vid], rms_px=bp.rms_px, orientation=bp.orientation)
+        state.update(board_poses=poses, outcomes=ordered())
     _pairing_gate(s, obs, M_all, state)
     ids = list(poses)
     C = np.stack([poses[v].T_cam_board for v in ids])
@@ -501,6 +511,7 @@ def _mode_gate(s: Session, obs: Observation, state: dict, progress) -> Session:
     detected, a session in that mode (``state["session"]``).
     """
     from .diagnose.mode import mode_evidence
+    from .diagnose.observations import candidates_of
 
     source = _stated_source(s)
     ids = [v for v in sorted(obs.board_poses, key=view_id_key)]
@@ -510,14 +521,27 @@ def _mode_gate(s: Session, obs: Observation, state: dict, progress) -> Session:
         return s
     C = np.stack([obs.board_poses[v].T_cam_board for v in ids])
     T = np.stack([s.view(v).T_base_end for v in ids])
-    ev = mode_evidence(C, T)
+    ambiguous = bool(getattr(s.target, "pose_ambiguous", False))
+    ev = mode_evidence(C, T, C_candidates=candidates_of(obs.board_poses, ids) if ambiguous else None)
     decision["evidence"] = ev.to_dict()
     if source == "default":
-        if ev.decided is not None:
-            progress(f"mode: {ev.decided}, detected from the data (the session states none): {ev.summary()}")
-            decision.update(mode=ev.decided, mode_source="detected")
-            s = replace(s, mode=ev.decided)
-            state["session"] = s
+        # the diagnostics' mode-swap test on the mode about to be used: a mode they would refuse is never chosen
+        chosen, summary = ev.decided or s.mode, ev.summary()
+        swap = _swap_test(s, obs, ids, C, T, chosen)
+        if swap is not None:
+            chosen, why = swap
+            summary = f"the mode-swap test: {why}" + (
+                f" (the quick test said {ev.decided}: {summary})"
+                if ev.decided is not None
+                else f" (the quick test: {summary})"
+            )
+            decision["evidence"].update(decided=chosen, swap_test=why, summary=summary)
+        if ev.decided is not None or swap is not None:
+            progress(f"mode: {chosen}, detected from the data (the session states none): {summary}")
+            decision.update(mode=chosen, mode_source="detected")
+            if chosen != s.mode:
+                s = replace(s, mode=chosen)
+                state["session"] = s
         else:
             log.warning(
                 "the session states no mounting mode and the data do not decide it; calibrating as %s "
@@ -538,6 +562,26 @@ def _mode_gate(s: Session, obs: Observation, state: dict, progress) -> Session:
             code="mode_swapped",
         )
     return s
+
+
+def _swap_test(s: Session, obs: Observation, ids: list, C: np.ndarray, T: np.ndarray, mode: str):
+    """(the other mode, why) when the diagnostics' mode-swap finding would fire on a run in ``mode``, else None."""
+    from .diagnose.mode import swapped_mode
+    from .diagnose.observations import PoseObservations, candidates_of
+    from .session.raw import raw_poses_of
+
+    po = PoseObservations(
+        mode,
+        tuple(ids),
+        C,
+        T,
+        raw_poses_of(s),
+        {},
+        target=s.target,
+        C_candidates=candidates_of(obs.board_poses, ids),
+        tracker=bool(s.meta.get("pose_only")),
+    )
+    return swapped_mode(po)
 
 
 def _pairing_gate(s: Session, obs: Observation, M_all: dict, state: dict) -> None:

@@ -249,7 +249,8 @@ def test_import_visp_writes_a_session_with_the_same_poses(tmp_path, capsys):
         (src / f"img_pose_rPe_{k}.yaml").write_text(yaml.safe_dump({"rows": 6, "cols": 1, "data": data}))
     assert main(["import", "visp", str(src), str(tmp_path / "out")]) == 0
     assert capsys.readouterr().out.strip().splitlines() == [
-        "ViSP layout: chessboard 9x6 inner corners, 23.6 mm",
+        "ViSP layout: chessboard 9x6 inner corners, 23.6 mm; mode: from the data (ViSP's chessboard layout serves "
+        "both mounting modes)",
         f"session: {tmp_path / 'out' / 'session.yaml'}",
     ]
     s = load_session(tmp_path / "out")

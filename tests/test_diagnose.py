@@ -998,6 +998,41 @@ def test_a_native_session_without_mode_is_detected(tmp_path, monkeypatch):
     assert run.status == "ok" and run.session.mode == "eye_to_hand" and run.mode_decision["mode_source"] == "detected"
 
 
+def test_an_undecided_quick_mode_test_never_ends_refused_for_a_mode_swap(tmp_path, monkeypatch):
+    """The quick mode test (each model rescaled) may leave the mode undecided (on ViSP's eye-to-hand AprilTag
+    set: ratio 1.2) while the diagnostics' mode-swap finding is certain: the calibration asks that test too
+    and calibrates in the mode the diagnostics accept."""
+    from dataclasses import replace
+
+    import handeye.diagnose.mode as mode_module
+
+    quick = mode_module.mode_evidence
+    monkeypatch.setattr(mode_module, "mode_evidence", lambda C, T, **kw: replace(quick(C, T, **kw), decided=None))
+    cs = _session("eye_to_hand", 45, robot_noise=(1.0, 0.1))
+    folder = _write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), mode=None)
+    run, d = _diagnose(folder, cs, monkeypatch)
+    assert run.status == "ok" and run.session.mode == "eye_to_hand"
+    assert run.mode_decision["mode_source"] == "detected" and run.mode_decision["evidence"]["decided"] == "eye_to_hand"
+    assert "the mode-swap test" in run.mode_decision["evidence"]["summary"]
+    assert "mode_swapped" not in _codes(d) and "mode_undecided" not in _codes(d), d["findings"]
+    rot, trans = pose_error(run.T_x, cs.T_x_true)
+    assert rot < 0.5 and trans < 5.0
+
+
+def test_data_that_decide_no_mode_keep_the_default_and_say_so(tmp_path, monkeypatch):
+    """Neither test decides (the mode-swap test finds the default fitting): the default, with the warning."""
+    from dataclasses import replace
+
+    import handeye.diagnose.mode as mode_module
+
+    quick = mode_module.mode_evidence
+    monkeypatch.setattr(mode_module, "mode_evidence", lambda C, T, **kw: replace(quick(C, T, **kw), decided=None))
+    cs = _session("eye_in_hand", 45, robot_noise=(1.0, 0.1))
+    run, d = _diagnose(_write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), mode=None), cs, monkeypatch)
+    assert run.status == "ok" and run.mode_decision["mode_source"] == "default"
+    assert "mode_undecided" in _codes(d) and "mode_swapped" not in _codes(d)
+
+
 @pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
 def test_a_stated_mode_the_data_contradict_is_refused_with_the_finding(tmp_path, monkeypatch, mode):
     cs = _session(mode, 48)

@@ -226,3 +226,43 @@ def test_bad_easy_handeye2_samples_are_one_line_errors(tmp_path, edit, mode, mes
     with pytest.raises(HandeyeError) as e:
         import_easy_handeye2(src, tmp_path / "s", mode=mode)
     assert message in str(e.value)
+
+
+@pytest.mark.parametrize(
+    "flags, named",
+    [
+        (["--robot", "rm65"], "kinematic model enters the refinement of image sessions only"),
+        (["--robot-noise", "fixed"], "one noise of the tracker and the robot"),
+        (["--robot-sigma", "0.2", "0.05"], "tracker_sigma in session.yaml"),
+        (["--fix", "k3"], "no camera intrinsics"),
+        (["--fix-k3"], "no camera intrinsics"),
+        (["--shift-poses", "1"], "holds its tracker pose and its robot pose"),
+        (["--prior", "earlier"], "works on detected corners"),
+        (["--robot", "rm65", "--fix-k3"], "--robot: the arm's"),
+    ],
+)
+def test_calibrate_flags_a_pose_only_session_would_ignore_are_refused(tmp_path, capsys, flags, named):
+    """Flags that do not apply to a session kind are used or refused, never ignored: one line, exit 2."""
+    from handeye.cli import main
+
+    ts = make_tracker_session(n_views=8, seed=3)
+    ts.write(tmp_path / "s")
+    (tmp_path / "earlier").mkdir()
+    args = [a if a != "earlier" else str(tmp_path / "earlier") for a in flags]
+    rc = main(["-q", "calibrate", str(tmp_path / "s"), "--out", str(tmp_path / "o"), "--no-report", *args])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert "not apply to a pose-only session" in err[0] and named in err[0] and flags[0] in err[0]
+    assert not (tmp_path / "o" / "result.json").exists()
+
+
+def test_calibrate_flags_that_apply_to_a_pose_only_session_are_used(tmp_path):
+    """--method and --no-refine choose the solve; --workers is a thread limit (a batch passes it to every session)."""
+    from handeye.cli import main
+
+    ts = make_tracker_session(n_views=8, seed=3)
+    ts.write(tmp_path / "s")
+    flags = ["--no-report", "--workers", "1", "--method", "park", "--no-refine"]
+    assert main(["-q", "calibrate", str(tmp_path / "s"), "--out", str(tmp_path / "ok"), *flags]) == 0
+    d = json.loads((tmp_path / "ok" / "result.json").read_text())
+    assert d["status"] == "ok" and d["method"] == "park" and not d.get("refined")

@@ -1201,3 +1201,61 @@ def test_a_board_numbered_otherwise_in_the_update_run_drops_the_board_prior(rend
     assert rec["contradicted"] and rec["board_prior"] is False and "board_turn_deg" not in rec
     assert rec["used"].startswith("no prior on X (the new views alone")
     assert run.status == "ok" and "numbered otherwise" in caplog.text
+
+
+def test_a_few_views_with_a_prior_are_judged_with_the_priors_views_and_exported(install, rendered, tmp_path, capsys):
+    """The documented use of --prior (3-5 new views of an installed rig): the views check counts the prior's
+    views when the data agree with it, so 5 new views are not failed for their count, and --export runs."""
+    from handeye.sim.vendor import write_vendor_session
+
+    s, _ = install
+    five = write_vendor_session(
+        tmp_path / "five",
+        n_views=5,
+        seed=201,
+        robot_noise=(0.2, 0.05),
+        image_noise=2.0,
+        intrinsics=s.intrinsics,
+        supersample=2,
+        rig=(s.T_x_true, s.T_board_true),
+    )
+    installed = json.loads((rendered["installed"] / "result.json").read_text())
+    out = tmp_path / "upd"
+    rc = main(
+        ["-q", "calibrate", str(five), "--prior", str(rendered["installed"]), "--out", str(out)]
+        + ["--export", "json", "--no-report"]
+    )
+    printed = capsys.readouterr().out
+    res = json.loads((out / "result.json").read_text())
+    assert res["prior"]["used"] == "prior" and res["n_views"]["used"] == 5
+    n_prior = sum(v["status"] == "used" for v in installed["refinement"]["per_view"].values())
+    assert n_prior == 15 and res["prior"]["prior_views"] == n_prior
+    assert res["prior"]["views_with_prior"] == 5 + n_prior
+    check = next(c for c in res["qa"]["checks"] if c["key"] == "used_views")
+    assert check["value"] == 5 + n_prior and check["status"] != "fail", check
+    assert f"5 new views + {n_prior} of the prior" in check["source"]
+    assert res["verdict"] in ("PASS", "WARN") and rc == 0, (rc, res["verdict_headline"])
+    exported = [Path(line.split("json: ", 1)[1]) for line in printed.splitlines() if line.startswith("json: ")]
+    assert exported and all(f.is_file() and f != out / "result.json" for f in exported), printed
+    # a contradicted prior does not count: the result is the new views' own
+    out = tmp_path / "bumped"
+    main(["-q", "calibrate", str(rendered["bumped"]), "--prior", str(rendered["installed"]), "--out", str(out)])
+    res = json.loads((out / "result.json").read_text())
+    assert res["prior"]["contradicted"] and res["prior"]["views_with_prior"] == 4
+    assert next(c for c in res["qa"]["checks"] if c["key"] == "used_views")["value"] == 4
+
+
+def test_a_prior_with_a_broken_covariance_names_the_prior_file_and_its_field(rendered, tmp_path, capsys):
+    """A prior result whose joint covariance of X and the intrinsics is not positive definite is the prior file's
+    fault: one line naming that file and its result.json field, exit 2 (not a refine option of the config)."""
+    d = json.loads((rendered["installed"] / "result.json").read_text())
+    j = d["refinement"]["cov_x_intrinsics"]
+    j["cross_6xk"] = (1e3 * np.asarray(j["cross_6xk"], float) + 1.0).tolist()  # |correlation| far above 1
+    bad = tmp_path / "broken"
+    bad.mkdir()
+    (bad / "result.json").write_text(json.dumps(d))
+    rc = main(["-q", "calibrate", str(rendered["same"]), "--prior", str(bad), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert str(bad / "result.json") in err[0] and "refinement.cov_x_intrinsics.cross_6xk" in err[0], err[0]
+    assert "refine option" not in err[0] and "config" not in err[0]

@@ -892,6 +892,7 @@ def test_visp_apriltag_layout_imports_as_a_single_marker_with_its_id(tmp_path):
     path = import_visp(src, tmp_path / "out")
     s = load_session(path)
     assert s.target == MarkerSpec(0.048, "DICT_APRILTAG_36h11", 17)
+    assert s.mode == "eye_to_hand" and s.mode_source == "stated"  # ViSP's AprilTag layout is its eye-to-hand one
     for v in s.views:
         assert np.allclose(v.T_base_end, truth["views"][v.view_id]["T_base_end_reported"], atol=1e-9)
 

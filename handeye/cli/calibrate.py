@@ -95,7 +95,8 @@ def add_arguments(p) -> None:
         metavar="ARM",
         help=f"the arm's kinematic model (a preset: {', '.join(arm_presets())}; or a DH YAML file): the refinement models the robot's "
         "error as DH offsets plus encoder noise (joint angles from the session, else by inverse "
-        "kinematics of the poses); default: the session's robot: key, else an iid pose error",
+        "kinematics of the poses); default: the session's robot: key, else an iid pose error; image sessions "
+        "only (pose-only sessions refuse it, as every flag they would ignore)",
     )
     inp.add_argument("--workers", type=positive_int, help="threads for corner detection (default: all cores)")
     rep.add_argument(
@@ -263,9 +264,58 @@ def options_from_args(args):
     )
 
 
+#: calibrate's flags that a pose-only session (views with target_pose) has no use for: flag -> why
+POSE_ONLY_REFUSED = {
+    "robot": (
+        "--robot",
+        "the arm's kinematic model enters the refinement of image sessions only (a pose-only session's noise is "
+        "the tracker's and the robot's together)",
+    ),
+    "robot_noise": ("--robot-noise", "a pose-only session estimates one noise of the tracker and the robot together"),
+    "robot_sigma": (
+        "--robot-sigma",
+        "a pose-only session estimates one noise of the tracker and the robot together (state it as "
+        "tracker_sigma in session.yaml)",
+    ),
+    "fix": ("--fix", "a pose-only session has no camera intrinsics to hold"),
+    "fix_k3": ("--fix-k3", "a pose-only session has no camera intrinsics to hold"),
+    "shift_poses": ("--shift-poses", "each view of session.yaml holds its tracker pose and its robot pose together"),
+    "prior": (
+        "--prior",
+        "the prior's test (handeye verify's) works on detected corners, which a pose-only session has not",
+    ),
+    "board_unmoved": ("--board-unmoved", "it goes with --prior"),
+}
+
+
+def refuse_pose_only_flags(args) -> None:
+    """InputError (one line, exit 2) naming every flag given that a pose-only session would ignore, and why."""
+    from ..session.native import is_pose_only
+
+    given = [k for k in POSE_ONLY_REFUSED if getattr(args, k, None)]
+    if not given or not is_pose_only(args.session):
+        return
+    from ..errors import InputError
+
+    flags = ", ".join(POSE_ONLY_REFUSED[k][0] for k in given)
+    why = (
+        POSE_ONLY_REFUSED[given[0]][1]
+        if len(given) == 1
+        else "; ".join(f"{POSE_ONLY_REFUSED[k][0]}: {POSE_ONLY_REFUSED[k][1]}" for k in given)
+    )
+    raise InputError(
+        f"{flags} {'does' if len(given) == 1 else 'do'} not apply to a pose-only session (views with target_pose): "
+        + why,
+        path=args.session,
+        hint=f"drop {flags}",
+        code="flag_not_applicable",
+    )
+
+
 def run(args) -> int:
     from ..workflow import calibrate_session
 
+    refuse_pose_only_flags(args)
     if getattr(args, "board_unmoved", False) and getattr(args, "prior", None) is None:
         from ..errors import InputError
 

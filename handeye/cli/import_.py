@@ -60,7 +60,8 @@ def add_rosbag_arguments(g) -> None:
     g.add_argument(
         "--mode",
         choices=("eye_in_hand", "eye_to_hand"),  # handeye.mounting.MODES (numpy-free help)
-        help="mounting mode (default: decided from the data)",
+        help="mounting mode (rosbag, easy_handeye2, visp; default: the one the source states (visp: the folder "
+        "name, or eye_to_hand for its AprilTag layout), else decided from the data)",
     )
     g.add_argument("--out", dest="out_opt", type=Path, metavar="DEST", help="session folder (default: BAG_session)")
     g.add_argument(
@@ -96,10 +97,14 @@ def run(args) -> int:
 
         raise InputError(f"handeye import {args.kind} needs OUT, the folder for session.yaml")
     if args.kind == "visp":
-        path = import_visp(args.src, args.out, use_given_intrinsics=args.given_intrinsics, force=args.force)
+        path = import_visp(
+            args.src, args.out, use_given_intrinsics=args.given_intrinsics, force=args.force, mode=args.mode
+        )
         from ..session.native import read_native_document
 
-        print(f"ViSP layout: {read_native_document(path).target.describe()}")
+        doc = read_native_document(path)
+        why = (doc.data.get("source") or {}).get("mode")
+        print(f"ViSP layout: {doc.target.describe()}; mode: {doc.mode or 'from the data'} ({why})")
     else:
         path = import_ical(args.src, args.out, force=args.force)
     print(f"session: {path}")

@@ -8,6 +8,8 @@ size does not make the mode undecided. A mode is decided only when its model fit
 ``mode.good_cost``), the other fits ``mode.ratio`` times worse, and the solution is physically plausible
 (a camera on the flange is closer to the flange than the board is to the base; a camera beside the
 robot farther from the base than the board from the flange). Otherwise the mode is undecided.
+:func:`swapped_mode` is the diagnostics' own mode-swap test (:mod:`.readings`), which a calibration without a
+stated mode also asks, so the mode it calibrates in is never one the diagnostics then refuse.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from .fits import fit_boards
 from .scale import estimate_scale, rescaled
 from .thresholds import thresholds
 
-__all__ = ["ModeEvidence", "mode_evidence"]
+__all__ = ["ModeEvidence", "mode_evidence", "swapped_mode"]
 
 
 @dataclass(frozen=True)
@@ -78,14 +80,21 @@ def _camera_on_robot(fit) -> bool:
     return t_x < t_b
 
 
-def mode_evidence(C: np.ndarray, T_base_end: np.ndarray) -> ModeEvidence:
-    """Both mounting models fitted to board poses ``C`` (N,4,4) and robot poses ``T_base_end`` (N,4,4)."""
+def mode_evidence(C: np.ndarray, T_base_end: np.ndarray, *, C_candidates: Optional[np.ndarray] = None) -> ModeEvidence:
+    """Both mounting models fitted to board poses ``C`` (N,4,4) and robot poses ``T_base_end`` (N,4,4).
+
+    ``C_candidates`` (N,2,4,4): a single marker's two planar poses per view. Which of them the robot motion
+    picks depends on the model (:func:`handeye.initial.board_poses.rotation_consistent_labels`), so each
+    model is fitted with its own picks, as the readings are (``C`` was picked under one mode only).
+    """
     t = thresholds().mode
     costs, scatter, plausible = {}, {}, {}
     for m in MODES:
         mount = mounting(m)
         M = mount.M_from_T_base_end(T_base_end)
         try:
+            if C_candidates is not None:
+                C = _picked(C_candidates, M)
             fit0 = fit_boards(C, M)
             est = estimate_scale(C, M, use=fit0.inliers())
             fit = fit_boards(rescaled(C, est.k), M) if est is not None and np.isfinite(est.k) and est.k > 0 else fit0
@@ -99,3 +108,30 @@ def mode_evidence(C: np.ndarray, T_base_end: np.ndarray) -> ModeEvidence:
     other = mounting(best).other.name
     clear = costs[best] < t.good_cost and costs[other] > t.ratio * costs[best] and plausible[best]
     return ModeEvidence(costs, scatter, plausible, best, best if clear else None)
+
+
+def _picked(C_candidates: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """(N,4,4) each view's planar pose that the robot motions ``M`` pick under their model."""
+    from ..initial.board_poses import candidate_invariants, orientation_labels, rotation_consistent_labels
+
+    lab = orientation_labels(candidate_invariants(C_candidates), M, turns=False)
+    lab = rotation_consistent_labels(C_candidates, M, lab)
+    return C_candidates[np.arange(len(C_candidates)), lab]
+
+
+def swapped_mode(obs) -> Optional[tuple[str, str]]:
+    """(the other mode, the finding's evidence) when the diagnostics' mode-swap finding fires, else None.
+
+    ``obs``: :class:`.observations.PoseObservations` read in ``obs.mode``. The test is the diagnostics' own
+    (:func:`.readings.evaluate_readings`, :func:`.readings.reading_findings`): the poses as read fit badly,
+    the inverted motions fit clearly better, and the solution puts the camera where the other mode says.
+    """
+    from .readings import evaluate_readings, given_reading, reading_findings
+
+    readings = evaluate_readings(obs)
+    if given_reading(readings) is None:
+        return None
+    for f in reading_findings(obs, readings):
+        if f.code == "mode_swapped":
+            return mounting(obs.mode).other.name, f.evidence
+    return None

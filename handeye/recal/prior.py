@@ -54,6 +54,41 @@ def check_prior_fits(installed: LoadedResult, session) -> None:
         check_resolution(installed, session)
 
 
+#: result.json's field behind each part of the prior (:class:`handeye.refine.options.Prior`)
+_PRIOR_FIELDS = {
+    "prior.cov_intrinsics": "refinement.intrinsics_sigma / refinement.cov_x_intrinsics.intrinsics_kxk",
+    "prior.cov_x_intrinsics": "refinement.cov_x_intrinsics.cross_6xk",
+    "prior.cov_board": "refinement.cov_board_6x6",
+    "prior.cov_board_intrinsics": "refinement.cov_x_intrinsics.cross_board_6xk",
+    "prior.cov_dh": "refinement.cov_x_intrinsics (its DH offsets)",
+}
+
+
+def check_prior_file(prior, installed: LoadedResult) -> None:
+    """The prior built from ``installed``, checked as the refinement will check it.
+
+    A broken covariance is one InputError naming the prior's file and its result.json field (not a refine
+    option: the user gave a file).
+    """
+    from ..refine.options import check_prior
+
+    def bad(field_name, expected, got):
+        fields = dict(
+            _PRIOR_FIELDS, **{"prior.cov_x": f"refinement.{installed.cov_source}", "prior.T_x": installed.x_name}
+        )
+        where = fields.get(field_name, field_name)
+        raise InputError(
+            f"the prior's {where} is not usable ({field_name})",
+            path=installed.source,
+            expected=expected,
+            received=got,
+            hint="use another result as --prior, or recalibrate the rig without --prior",
+            code="prior_invalid",
+        )
+
+    check_prior(prior, bad)
+
+
 def _with_prior(session, options, installed: LoadedResult, *, cov_x=None, board: bool = False):
     """(session, options) with the earlier X (covariance ``cov_x``, default its own) and, unless the session
     has its own intrinsics, the earlier intrinsics as priors (:func:`handeye.recal.loaded.installed_prior`:
@@ -62,6 +97,7 @@ def _with_prior(session, options, installed: LoadedResult, *, cov_x=None, board:
     """
     own = session.intrinsics is not None and session.intrinsics_prior in ("fixed", "prior")
     prior, held = installed_prior(installed, session_intrinsics=own, cov_x=cov_x, board=board)
+    check_prior_file(prior, installed)
     ro = dict(options.refine_options, prior=prior)
     if prior.intrinsics is not None:
         ro["intrinsics"] = "estimate"  # the prior's intrinsics term, and no factory prior on top of it
@@ -152,8 +188,10 @@ def calibrate_with_prior(
         why = f"the views are beyond the prior's uncertainty (p = {t.p_value:.3g} < {o.alpha:g})" if v.drifted else why
     rec["contradicted"] = contradicted
     rec["board_prior"] = False
+    rec["prior_views"] = prior_views(installed)
     if not contradicted:
         rec["used"] = "prior"
+        rec["views_with_prior"] = _n_used(run) + rec["prior_views"]
         rec["summary"] = (
             f"the prior {installed.x_name} was updated by {rec['update']['trans_mm']:.2f} mm, "
             f"{rec['update']['rot_deg']:.3f} deg; the data agree with it "
@@ -211,6 +249,7 @@ def calibrate_with_prior(
         )
         rec["board_unmoved_overruled"] = True
     rec["board_prior"] = board_kept
+    rec["views_with_prior"] = _n_used(run_n)  # X from the new views alone: the prior's views do not count
     lead = "the data contradict the prior" if tested else "the prior could not be tested"
     if run_n.status == "ok" and run_n.refined is not None:
         size = (
@@ -225,6 +264,24 @@ def calibrate_with_prior(
         rec["summary"] = f"{lead}: {why}; the calibration without it failed too"
     log.debug("prior: %s", rec["summary"])  # the command prints it after the result
     return _described(run_n), plain(rec, nan_to_none=True)
+
+
+def prior_views(installed: LoadedResult) -> int:
+    """The views behind the prior's X: those its result used, plus its own prior's when that one held."""
+    raw = installed.raw or {}
+    own = raw.get("prior") if isinstance(raw.get("prior"), dict) else {}
+    if own.get("used") == "prior":
+        n = own.get("views_with_prior")
+    elif isinstance(raw.get("n_views"), dict):
+        n = raw["n_views"].get("used")
+    else:  # a result written without the view table: the views its refinement used
+        per_view = (raw.get("refinement") or {}).get("per_view")
+        n = sum(isinstance(v, dict) and v.get("status") == "used" for v in per_view.values()) if per_view else 0
+    return int(n) if isinstance(n, (int, float)) and not isinstance(n, bool) and n >= 0 else 0
+
+
+def _n_used(run) -> int:
+    return sum(bool(o.used) for o in run.outcomes)
 
 
 def _refine_views(run) -> list:

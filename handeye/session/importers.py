@@ -136,11 +136,36 @@ def _visp_apriltag(src: Path, images: list) -> dict:
     )
 
 
-def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool = False, force: bool = False) -> Path:
-    """``out/session.yaml`` for a ViSP data folder of the layout :data:`VISP_LAYOUT` (an existing session
-    in ``out`` is refused unless ``force``). The target is the chessboard of chessboard-data.txt or the single
-    AprilTag of apriltag-data.txt (``source.layout`` in session.yaml says which); the mode is left to the data
-    (ViSP's folders hold both mounting modes with the same files).
+def visp_mode(src: Path, layout: str) -> tuple[str | None, str]:
+    """(mounting mode, why) where the ViSP folder states it, else (None, why not).
+
+    ViSP's two data folders are named for their mode (``data-eye-in-hand``, ``data-eye-to-hand``); a folder
+    renamed keeps its layout, and ViSP's AprilTag layout is that of its eye-to-hand tutorial (the tag on the
+    flange, the camera fixed). Its chessboard layout serves both tutorials: that mode is left to the data.
+    """
+    name = src.name.lower().replace("_", "-")
+    for mode in ("eye-to-hand", "eye-in-hand"):
+        if mode in name:
+            return mode.replace("-", "_"), f"the folder name {src.name!r}"
+    if layout == "apriltag":
+        return "eye_to_hand", "ViSP's AprilTag layout is its eye-to-hand tutorial's (tag on the flange, camera fixed)"
+    return None, "ViSP's chessboard layout serves both mounting modes"
+
+
+def import_visp(
+    src: str | Path,
+    out: str | Path,
+    *,
+    use_given_intrinsics: bool = False,
+    force: bool = False,
+    mode: str | None = None,
+) -> Path:
+    """``out/session.yaml`` for a ViSP data folder of the layout :data:`VISP_LAYOUT`.
+
+    An existing session in ``out`` is refused unless ``force``. The target is the chessboard of
+    chessboard-data.txt or the single AprilTag of apriltag-data.txt (``source.layout`` in session.yaml says
+    which). The mounting mode is ``mode`` when given, else the one the folder states (:func:`visp_mode`),
+    written as ``mode:`` with its reason in ``source.mode``; otherwise left to the data.
     """
     src, out = Path(src).resolve(), Path(out)
     _check_out(out, force=force)
@@ -199,6 +224,12 @@ def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool 
         "source": {"importer": "visp", "layout": layout, "path": str(src)},
         "views": views,
     }
+    why = "--mode" if mode is not None else None
+    if mode is None:
+        mode, why = visp_mode(src, layout)
+    if mode is not None:
+        doc = {"handeye_session": 1, "mode": mode, **{k: v for k, v in doc.items() if k != "handeye_session"}}
+    doc["source"]["mode"] = why
     cam = next(iter(src.glob("*camera*.xml")), None)
     if use_given_intrinsics and cam is not None:
         t = read_text(cam, what="camera file")

@@ -170,6 +170,22 @@ def _pose_only(d: dict) -> bool:
     return isinstance(views, list) and any(isinstance(v, dict) and "target_pose" in v for v in views)
 
 
+def is_pose_only(path: str | Path) -> bool:
+    """Whether the session at ``path`` (a folder, session.yaml or poses.txt) is pose-only.
+
+    Pose-only: views with ``target_pose:``. False for an image session and for one that does not read (its
+    loader says why).
+    """
+    from ..errors import HandeyeError
+    from .fields import locate_session
+
+    try:
+        kind, p = locate_session(path)
+        return kind == "native" and _pose_only(read_yaml(p, loader=IdTextLoader))
+    except HandeyeError:
+        return False
+
+
 def _pose_only_fields(d: dict, entries: list, *, path: Path) -> tuple:
     """(target_pose_format, tracker_sigma) of a pose-only session ((None, None) for an image session);
     ConfigError when image and target-pose views are mixed or a field is malformed.
