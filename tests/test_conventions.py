@@ -97,7 +97,7 @@ def test_bad_values_raise():
         ("euler_order", "xxy"),
         ("angle_unit", "grad"),
         ("quaternion_order", "wzyx"),
-        ("translation_unit", "cm"),
+        ("translation_unit", "inch"),
         ("euler_kind", "both"),
     ],
 )

@@ -173,10 +173,10 @@ def _mirrored_finding(est: ScaleEstimate) -> Finding:
     return Finding(
         "images_mirrored",
         "fail",
-        "The images are mirrored: the camera moves opposite to the robot",
+        "The images are mirrored (the camera moves opposite to the robot)",
         f"the camera's motions are {est.k:.4f} ± {est.sigma:.4f} x the robot's once both are compared in one frame "
-        f"(closed form over all view pairs of {est.n_views} views, jackknife sigma; 0 is {abs(est.k) / est.sigma:.0f} "
-        f"sigma away, p = {est.p_value(against=0.0):.1e}): a negative scale, which no square size gives; a mirrored "
+        f"(closed form over all view pairs of {est.n_views} views, jackknife sigma; p = "
+        f"{est.p_value(against=0.0):.1e} against 0): a negative scale, which no square size gives; a mirrored "
         "image (left-right or up-down) does, the board then fits seen from behind",
         "turn off the mirror / flip setting of the camera or its driver and capture again, or flip every image "
         "back before calibrating; the stated square size is not the cause",

@@ -63,8 +63,6 @@ ROOT_CAUSE_LABELS = {
     "rotation_kind": "Wrong kind of rotation",
     "quaternion_order": "Wrong quaternion order",
     "pairs_shuffled": "Pairs shuffled",
-    "images_mirrored": "Images mirrored",
-    "scale_unexplained": "Camera and robot scales disagree",
     "poses_do_not_fit": "Robot poses do not fit the images",
     "mode_undecided": "Mounting mode not decided",
 }
