@@ -23,6 +23,8 @@ def _Rotation():
 
 
 ROTATION_KINDS = ("euler", "quaternion", "rotvec", "matrix")
+#: robot translation units a pose file may state -> metres per unit
+TRANSLATION_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3}
 _AXES = set("xyz")
 
 
@@ -34,7 +36,7 @@ class PoseFormat:
     Euler: ``euler_order`` names the axis of each listed angle (e.g. "xyz" means the values are
     rx, ry, rz); ``euler_kind`` extrinsic (fixed axes) or intrinsic (moving axes);
     ``angle_unit`` rad or deg (also used for rotvec). Quaternion: ``quaternion_order`` wxyz or xyzw.
-    ``translation_unit`` m or mm (matrix translations too). Values are
+    ``translation_unit`` m, cm or mm (matrix translations too). Values are
     ``[x, y, z, <rotation...>]``; a matrix is 16 row-major values or a nested 4x4 list.
     """
 
@@ -65,8 +67,8 @@ class PoseFormat:
             bad("angle_unit", "rad | deg", self.angle_unit)
         if self.quaternion_order not in ("wxyz", "xyzw"):
             bad("quaternion_order", "wxyz | xyzw", self.quaternion_order)
-        if self.translation_unit not in ("m", "mm"):
-            bad("translation_unit", "m | mm", self.translation_unit)
+        if self.translation_unit not in TRANSLATION_UNITS:
+            bad("translation_unit", " | ".join(TRANSLATION_UNITS), self.translation_unit)
         return replace(self, euler_order=order)
 
     @property
@@ -105,7 +107,7 @@ def T_from_pose_values(values, fmt: PoseFormat, *, rot_tol: float = 1e-4) -> np.
         raise ValueError(f"expected {fmt.n_values} numbers ({fmt.describe()}), got {v.size}")
     if not np.all(np.isfinite(v)):
         raise ValueError("pose contains NaN or infinite values")
-    scale = 1e-3 if fmt.translation_unit == "mm" else 1.0
+    scale = TRANSLATION_UNITS.get(fmt.translation_unit, 1.0)
     if fmt.rotation == "matrix":
         T = v.reshape(4, 4).copy()
         if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
@@ -141,7 +143,7 @@ def T_from_pose_values(values, fmt: PoseFormat, *, rot_tol: float = 1e-4) -> np.
 def pose_values_from_T(T_base_end: np.ndarray, fmt: PoseFormat) -> np.ndarray:
     """Inverse of :func:`T_from_pose_values`: the numbers to write for ``T_base_end``."""
     T = np.asarray(T_base_end, float)
-    scale = 1e3 if fmt.translation_unit == "mm" else 1.0
+    scale = 1.0 / TRANSLATION_UNITS.get(fmt.translation_unit, 1.0)
     t = T[:3, 3] * scale
     if fmt.rotation == "matrix":
         out = T.copy()

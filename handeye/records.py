@@ -98,7 +98,7 @@ class DetectionFailure:
     image_size: Optional[tuple] = None  # (width, height)
     seconds: float = 0.0
     # chessboards: the inner-corner sizes (cols, rows) seen in this image when the stated size was not
-    # found (handeye.detect.board_size); None when the image was not checked
+    # found (handeye.detect.board_size; every searched chessboard image records them); None when not checked
     seen_sizes: Optional[tuple] = None
 
 

@@ -42,8 +42,16 @@ FORMATS = [
     PoseFormat(rotation="quaternion", quaternion_order="xyzw", translation_unit="mm"),
     PoseFormat(rotation="rotvec"),
     PoseFormat(rotation="rotvec", angle_unit="deg"),
+    PoseFormat(rotation="rotvec", translation_unit="cm"),
     PoseFormat(rotation="matrix", translation_unit="mm"),
 ]
+
+
+def test_centimetres_are_a_translation_unit():
+    T = T_from_pose_values([12.5, -3.0, 40.0, 0, 0, 0], PoseFormat(translation_unit="cm").validated())
+    assert np.allclose(T[:3, 3], [0.125, -0.03, 0.4])
+    with pytest.raises(ConfigError, match="translation_unit"):
+        PoseFormat(translation_unit="in").validated()
 
 
 @pytest.mark.parametrize("fmt", FORMATS, ids=lambda f: f.describe())
@@ -89,7 +97,7 @@ def test_bad_values_raise():
         ("euler_order", "xxy"),
         ("angle_unit", "grad"),
         ("quaternion_order", "wzyx"),
-        ("translation_unit", "cm"),
+        ("translation_unit", "inch"),
         ("euler_kind", "both"),
     ],
 )

@@ -267,18 +267,20 @@ def test_visible_grid_sizes_counts_the_inner_corners_whatever_size_is_stated(vie
 
 
 def test_board_size_verdict_needs_the_stated_size_absent_and_another_in_most_views():
-    assert board_size_verdict((9, 6), {"1": ((11, 8),), "2": ((11, 8),), "3": ((11, 8),)}) == (11, 8)
-    assert board_size_verdict((6, 9), {"1": ((11, 8),), "2": (), "3": ((11, 8),)}) == (11, 8)  # one bad view
-    assert board_size_verdict((9, 6), {"1": ((11, 8),), "2": ((9, 6),), "3": ((11, 8),)}) is None  # stated seen
-    assert board_size_verdict((9, 6), {"1": ((11, 8),), "2": ((11, 5),), "3": ()}) is None  # no size in 2 of 3
-    assert board_size_verdict((9, 6), {"1": (), "2": (), "3": ()}) is None
-    assert board_size_verdict((9, 6), {"1": ((11, 8),)}) is None  # one view is not enough
-    # after every view was searched (the stated board missing from most): a stated size seen in fewer of the
-    # checked views than another (a board edge against a dark background reads as one more column) does not
-    # hide the size the others show; seen as often, it does
-    two_one = {"1": ((11, 8),), "2": ((9, 6),), "3": ((11, 8),)}
-    assert board_size_verdict((9, 6), two_one, after_search=True) == (11, 8)
-    assert board_size_verdict((9, 6), {**two_one, "4": ((9, 6),)}, after_search=True) is None
+    three = {"1": ((11, 8),), "2": ((11, 8),), "3": ((11, 8),)}
+    assert board_size_verdict((9, 6), three, n_searched=3) == (11, 8)
+    assert board_size_verdict((6, 9), {"1": ((11, 8),), "2": (), "3": ((11, 8),)}, n_searched=3) == (11, 8)
+    assert board_size_verdict((9, 6), {"1": ((11, 8),), "2": ((11, 5),), "3": ()}, n_searched=3) is None
+    assert board_size_verdict((9, 6), {"1": (), "2": (), "3": ()}, n_searched=3) is None
+    # another size is named only when most searched images show it: 3 of 10 (the stated board found in
+    # the other 7) never, 5 of 10 neither (not most), 6 of 10 yes
+    assert board_size_verdict((11, 9), dict.fromkeys("123", ((10, 9),)), n_searched=10) is None
+    assert board_size_verdict((11, 9), dict.fromkeys("12345", ((10, 9),)), n_searched=10) is None
+    assert board_size_verdict((11, 9), dict.fromkeys("123456", ((10, 9),)), n_searched=10) == (10, 9)
+    # the stated size seen by the survey in a failed view never counts as another size
+    assert board_size_verdict((9, 6), {**three, "4": ((9, 6),)}, n_searched=4) == (11, 8)  # 3 of 4
+    assert board_size_verdict((9, 6), {**three, "4": ((9, 6),)}, n_searched=6) is None  # 3 of 6
+    assert board_size_verdict((9, 6), three, n_searched=0) is None
 
 
 def _write(tmp_path, imgs):
@@ -290,20 +292,18 @@ def _write(tmp_path, imgs):
     return items
 
 
-def test_a_wrong_board_size_stops_after_the_first_views_and_names_the_size_seen(tmp_path, views):
+def test_a_wrong_board_size_is_searched_in_every_view_and_names_the_size_seen(tmp_path, views):
     cs, imgs = views
     items = _write(tmp_path, imgs + imgs[:2])  # 6 views of an 11 x 8 board
     res = detect_views(items, ChessboardSpec(9, 6, 0.03))
     assert list(res) == [v for v, _ in items] and all(isinstance(d, DetectionFailure) for d in res.values())
-    for v in ("1", "2", "3"):  # the probe (configs/detection.yaml size_probe_views: 3)
-        assert res[v].seen_sizes == ((11, 8),)
-        assert res[v].reason == "chessboard 9x6 not found; the detector sees 11x8 inner corners"
-    for v in ("4", "5", "6"):
-        assert res[v].seen_sizes is None and res[v].reason.startswith("not searched: no 9x6 chessboard")
-        assert res[v].thumbnail_jpeg and res[v].image_size == (640, 480)
+    for d in res.values():  # every image searched, each recording the size it shows
+        assert d.seen_sizes == ((11, 8),)
+        assert d.reason == "chessboard 9x6 not found; the detector sees 11x8 inner corners"
+        assert d.thumbnail_jpeg and d.image_size == (640, 480)
     survey = size_survey(res, (9, 6))
-    assert survey.likely_size == (11, 8) and survey.counts == {(11, 8): 3}
-    assert survey.text() == "no 9x6 chessboard; 11x8 inner corners seen in 3 of 3 checked views"
+    assert survey.likely_size == (11, 8) and survey.counts == {(11, 8): 6}
+    assert survey.text() == "no 9x6 chessboard in 6 of 6 images; 11x8 inner corners seen in 6 of 6"
     assert "checkerboard_args XX: 11, YY: 8" in survey.fix() and "not 9x6" in survey.fix()
     # the stated size is found: no survey, every view detected
     res = detect_views(items, cs.target)
@@ -316,7 +316,9 @@ def test_a_wrong_board_size_is_refused_with_the_size_the_images_show(tmp_path, v
     _, imgs = views
     obs = observe(target=ChessboardSpec(12, 8, 0.03), items=_write(tmp_path, imgs))
     assert obs.error.code == "target_not_found" and obs.error.exit_code == 3
-    assert "found in only 0 of 4 images: no 12x8 chessboard; 11x8 inner corners seen in 3 of 3" in obs.error.what
+    assert "found in only 0 of 4 images: no 12x8 chessboard in 4 of 4 images; 11x8 inner corners seen in 4 of 4" in (
+        obs.error.what
+    )
     assert "the board has 11x8 inner corners, not 12x8" in obs.error.hint
 
 
@@ -328,14 +330,16 @@ def test_when_the_first_views_show_no_other_size_every_view_is_searched(tmp_path
     assert res["1"].reason == "chessboard 11x8 not found"
 
 
-def test_sizes_are_named_after_a_full_search_the_probe_could_not_cut_short(tmp_path, views):
+def test_sizes_are_named_when_most_images_show_another_size(tmp_path, views):
     _, imgs = views
     blank = np.full_like(imgs[0], 128)
     res = detect_views(_write(tmp_path, [blank, blank] + imgs[:3]), ChessboardSpec(9, 6, 0.03))
     assert all(isinstance(d, DetectionFailure) for d in res.values())
-    assert not any(d.reason.startswith("not searched") for d in res.values())  # the probe saw one 11x8 only
     survey = size_survey(res, (9, 6))
-    assert len(survey.seen) == 3 and survey.likely_size == (11, 8)  # views picked across the session
+    assert len(survey.seen) == 5 and survey.counts == {(11, 8): 3} and survey.likely_size == (11, 8)  # 3 of 5
+    (tmp_path / "more").mkdir()
+    res = detect_views(_write(tmp_path / "more", [blank] * 3 + imgs[:3]), ChessboardSpec(9, 6, 0.03))
+    assert size_survey(res, (9, 6)).likely_size is None  # 3 of 6: not most
 
 
 # --- corners right the first time: full-size refinement, the geometric check, bounded detection

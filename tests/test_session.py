@@ -204,7 +204,11 @@ def test_config_yaml_may_state_how_poses_txt_is_written(tmp_path, fmt):
             r"poses.txt:1: .*degrees; convert them to radians or add to "
             r"config.yaml pose_format: \{rotation: euler, angle_unit: deg\}",
         ),
-        (["300,50,400,0.1,0.2,0.3"] * 4, None, r"millimetres; convert to metres or add to config.yaml pose_format"),
+        (
+            ["300,50,400,0.1,0.2,0.3"] * 4,
+            None,
+            r"millimetres or centimetres\?\); convert to metres or add to config.yaml pose_format",
+        ),
         # a few lines in other units than the rest: those lines are named, and the fix converts them (a unit stated
         # for the whole file would misread the others)
         (

@@ -1,12 +1,12 @@
 """Target detection behind one dispatcher, with the image-quality measures of the same decoded image.
 
-Targets: chessboard (:mod:`.chessboard`), ChArUco (:mod:`.charuco`), circle grid (:mod:`.circlegrid`),
-markers (:mod:`.markers`); quality measures in :mod:`.quality`. :func:`detect_gray` finds the target
-in a grey image; :func:`detect_image` reads one file and returns a :class:`~handeye.records.Detection`
-or a :class:`~handeye.records.DetectionFailure`, each with its view id, so the caller drops a failed
-view *together with its pose*. :func:`detect_views` does a whole session in parallel threads; for a
-chessboard it first checks a few views for another board size (:mod:`.board_size`) before the slow
-search on every image. Thresholds are in configs/detection.yaml; see docs/detection.md.
+:func:`detect_gray` finds the target in a grey image; :func:`detect_image` reads one file and returns
+a :class:`~handeye.records.Detection` (corners, sharpness, blur, exposure, thumbnail) or a
+:class:`~handeye.records.DetectionFailure` (reason, exposure, thumbnail), each with its view id, so the
+caller drops a failed view *together with its pose*. :func:`detect_views` does a whole session in
+parallel threads (OpenCV releases the GIL): each image is searched on its own, whatever the others show
+(a chessboard image without the stated board records the board sizes it shows, :mod:`.board_size`).
+Thresholds are in configs/detection.yaml; see docs/detection.md.
 """
 
 from __future__ import annotations
@@ -15,7 +15,6 @@ import logging
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -25,9 +24,16 @@ import numpy as np
 from ..errors import ConfigError, InputError
 from ..records import Detection, DetectionFailure
 from ..targets import TargetSpec
-from .board_size import SizeSurvey, board_size_verdict, normal_size, size_survey, size_text, visible_grid_sizes
+from .board_size import (  # noqa: F401 (SizeSurvey, board_size_verdict, size_survey: re-exported)
+    SizeSurvey,
+    board_size_verdict,
+    normal_size,
+    size_survey,
+    size_text,
+    visible_grid_sizes,
+)
 from .charuco import detect_charuco
-from .chessboard import detect_chessboard, normalize_chessboard_order, order_cue
+from .chessboard import board_order, detect_chessboard, order_cue
 from .circlegrid import detect_circlegrid
 from .geometry import TimeBudget
 from .markers import detect_markers
@@ -120,7 +126,12 @@ def detect_image(
     min_corners: int | None = None,
     options: DetectionOptions | None = None,
 ) -> Detection | DetectionFailure:
-    """Detect the target in one image file and measure the image while it is decoded."""
+    """Detect the target in one image file and measure the image while it is decoded.
+
+    The outcome depends on this image alone (and the settings), never on the other views of its session.
+    A chessboard that is not found keeps the board sizes the image shows (``seen_sizes``, named in the
+    reason when another size is seen), so a wrongly stated size can be named from all images.
+    """
     o = options or default_options()
     t0 = time.perf_counter()
     budget = TimeBudget(o.time_budget_s)
@@ -129,7 +140,18 @@ def detect_image(
     dropped: list = []
     out = detect_gray(gray, target, min_corners=min_corners, options=o, budget=budget, dropped=dropped)
     if isinstance(out, str):
-        return _failure(view_id, gray, out, o, t0)
+        if target.kind != "chessboard":
+            return _failure(view_id, gray, out, o, t0)
+        seen = visible_grid_sizes(
+            gray,
+            max_side_px=o.size_survey_max_side_px,
+            full_size_retry=True,
+            retry_max_megapixels=o.search_max_megapixels,
+        )
+        other = [size_text(s) for s in seen if s != normal_size(target.cols, target.rows)]
+        if other:
+            out += f"; the detector sees {', '.join(other)} inner corners"
+        return _failure(view_id, gray, out, o, t0, seen_sizes=seen)
     thumb = thumbnail_jpeg(gray, width_px=o.thumbnail_width_px, quality=o.thumbnail_jpeg_quality)
     ids, pts = out
     cue = order_cue(gray, pts, target.cols, target.rows, ids) if target.kind == "chessboard" else float("nan")
@@ -142,7 +164,7 @@ def detect_image(
         charuco=target.kind == "charuco",
         sharp_edge_sigma_px=o.sharp_edge_sigma_px,
     )
-    return Detection(
+    det = Detection(
         view_id=view_id,
         corner_ids=ids,
         image_points=pts,
@@ -155,6 +177,9 @@ def detect_image(
         seconds=time.perf_counter() - t0,
         dropped_corners=tuple(sorted(dropped)),
     )
+    if target.kind == "chessboard":  # numbered from the end the board's print fixes (its own image only)
+        det = board_order(det, target, min_grey=o.order_cue_min_grey)
+    return det
 
 
 def detect_views(
@@ -168,10 +193,11 @@ def detect_views(
 ) -> dict[str, Detection | DetectionFailure]:
     """Detect the target in every (view_id, image_path); results keyed by view id.
 
-    Chessboards: when the first views show another board size, the others are not searched
-    (:func:`_wrong_board_size`); when the stated board is missing from most views after a full search,
-    a few of them are checked for the sizes they show. Either way the checked failures keep those
-    sizes (``DetectionFailure.seen_sizes``; :func:`size_survey` words them). Unreadable images raise
+    Every image is searched with :func:`detect_image`, each on its own, so an image's corners (and the
+    corner order of an asymmetric chessboard) do not depend on which other views the session holds or
+    their order; the time bound
+    (configs/detection.yaml ``time_budget_s``) bounds the work on one image only. Chessboard failures keep
+    the sizes they show (``DetectionFailure.seen_sizes``; :func:`size_survey` words them). Unreadable images raise
     InputError (naming the file) after all workers finish; images of different sizes raise InputError
     too (one camera at one resolution per session).
     """
@@ -184,21 +210,10 @@ def detect_views(
         return vid, detect_image(vid, path, target, min_corners=min_corners, options=o)
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        todo = list(items)
-        if target.kind == "chessboard":
-            refused = _wrong_board_size(items, target, pool, o)
-            if refused is not None:
-                results, todo = refused, []
-                if progress:
-                    progress(len(items), len(items))
-        for k, (vid, res) in enumerate(pool.map(job, todo), start=1):
+        for k, (vid, res) in enumerate(pool.map(job, items), start=1):
             results[vid] = res
             if progress:
                 progress(k, len(items))
-        if target.kind == "chessboard" and todo:
-            results = _sizes_of_failures(results, dict(items), pool, o)
-    if target.kind == "chessboard":
-        results = normalize_chessboard_order(results, target, options=o)
     sizes = {d.image_size for d in results.values() if d.image_size is not None}
     if len(sizes) > 1:
         raise InputError(
@@ -207,78 +222,6 @@ def detect_views(
             hint="all views of a session must come from one camera at one resolution",
         )
     return results
-
-
-def _wrong_board_size(items, target, pool, o: DetectionOptions) -> dict | None:
-    """Failures for every view when the first views show another chessboard size than ``target``'s;
-    None (search every view as usual) when one of them shows the stated size or they do not clearly
-    show another one. The first view is looked at alone (a session with the right size pays for that
-    one look, 50-100 ms), the others of the probe together. Checked views keep the sizes seen
-    (``seen_sizes``); the others are decoded only for their thumbnail and exposure, and say they were
-    not searched.
-    """
-    probe = list(items[: o.size_probe_views])
-    if len(probe) < 2:
-        return None
-    stated = normal_size(target.cols, target.rows)
-    said = f"{target.cols}x{target.rows}"
-
-    def look(item):
-        vid, path = item
-        t0 = time.perf_counter()
-        gray = read_gray(path)
-        seen = visible_grid_sizes(gray, max_side_px=o.size_survey_max_side_px)
-        why = f"chessboard {said} not found" + (
-            f"; the detector sees {', '.join(size_text(s) for s in seen)} inner corners" if seen else ""
-        )
-        return vid, _failure(vid, gray, why, o, t0, seen_sizes=seen)
-
-    looked = dict([look(probe[0])])
-    if stated in looked[probe[0][0]].seen_sizes:
-        return None
-    looked.update(pool.map(look, probe[1:]))
-    likely = board_size_verdict(stated, {v: f.seen_sizes for v, f in looked.items()})
-    if likely is None:
-        return None
-    log.info(
-        "chessboard %s in none of the first %d views, which show %s: the other views are not searched",
-        said,
-        len(probe),
-        size_text(likely),
-    )
-    why = f"not searched: no {said} chessboard in the first {len(probe)} views, which show {size_text(likely)}"
-
-    def skip(item):
-        vid, path = item
-        t0 = time.perf_counter()
-        return vid, _failure(vid, read_gray(path), why, o, t0)
-
-    out = dict(looked)
-    out.update(pool.map(skip, [it for it in items if it[0] not in looked]))
-    return {vid: out[vid] for vid, _ in items}
-
-
-def _sizes_of_failures(results: dict, paths: dict, pool, o: DetectionOptions) -> dict:
-    """When the stated chessboard was not found in most views (the probe could not tell why), the
-    board sizes seen in a few of the failed views (``seen_sizes``), so the message can name them.
-    """
-    failed = [v for v, d in results.items() if isinstance(d, DetectionFailure) and d.seen_sizes is None]
-    if len(failed) * 2 <= len(results):
-        return results
-    pick = [failed[i] for i in sorted(set(np.linspace(0, len(failed) - 1, o.size_probe_views).round().astype(int)))]
-
-    def look(vid):
-        return vid, visible_grid_sizes(
-            read_gray(paths[vid]),
-            max_side_px=o.size_survey_max_side_px,
-            full_size_retry=True,
-            retry_max_megapixels=o.search_max_megapixels,
-        )
-
-    out = dict(results)
-    for vid, seen in pool.map(look, pick):
-        out[vid] = replace(results[vid], seen_sizes=seen)
-    return out
 
 
 def _failure(vid: str, gray: np.ndarray, reason: str, o: DetectionOptions, t0: float, **kw) -> DetectionFailure:

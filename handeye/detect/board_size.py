@@ -1,16 +1,15 @@
-"""Which chessboard sizes the images show, so a wrongly stated board size is named within seconds.
+"""Which chessboard sizes the images show, so a wrongly stated board size is named.
 
 :func:`visible_grid_sizes` counts the inner corners of the chessboard a detector sees in one image,
 whatever size the session states (``cv2.findChessboardCornersSB`` with ``CALIB_CB_LARGER`` from a 3x3
-seed returns the whole grid it can follow), on a reduced copy of the image (25-80 ms at 640x360).
-:func:`board_size_verdict` decides from a few views that the stated size is absent while another is
-present; :class:`SizeSurvey` words it. Sizes are ``(cols, rows)`` inner corners with cols >= rows:
-OpenCV finds an 11x8 pattern as 8x11 too, so orientation does not matter.
+seed returns the whole grid it can follow), on a reduced copy of the image (25-80 ms at 640x360); every
+image where the stated board is not found records it. :func:`board_size_verdict` names another size only
+when most of the searched images show it; :class:`SizeSurvey` words it. Sizes are ``(cols, rows)`` inner
+corners with cols >= rows: OpenCV finds an 11x8 pattern as 8x11 too, so orientation does not matter.
 """
 
 from __future__ import annotations
 
-import math
 from collections import Counter
 from dataclasses import dataclass
 from typing import Mapping, Optional
@@ -57,57 +56,50 @@ def visible_grid_sizes(
     return ()
 
 
-def board_size_verdict(
-    stated: Size, seen: Mapping[str, tuple], *, min_share: float = 2 / 3, after_search: bool = False
-) -> Optional[Size]:
-    """The size the views show instead of ``stated``, or None when they do not show that clearly.
+def board_size_verdict(stated: Size, seen: Mapping[str, tuple], *, n_searched: int) -> Optional[Size]:
+    """The size most searched images show instead of ``stated``, or None when most do not agree on one.
 
-    ``seen``: view id -> sizes seen in that view (:func:`visible_grid_sizes`), over views where the
-    stated size was not found. Clear means: one other size is seen in at least ``min_share`` of them and
-    in at least 2 (ties: the larger grid), and the stated size in none of them; ``after_search`` (the
-    stated board is missing from most views after every view was searched): in fewer of them than the
-    other size (a board without a white margin against a dark background can show one more row or column
-    of corners along an edge in a few views; that must not hide the size the other views show).
+    ``seen``: view id -> sizes seen in that view (:func:`visible_grid_sizes`), over the views where the
+    stated size was not found; ``n_searched``: the images searched for the stated board (found or not).
+    Another size is named only when it is seen in more than half of the searched images: a few views
+    that show one row or column less (the board partly out of view, strongly tilted, or a board edge
+    against a dark background read as one more column) never outvote the views where the stated board
+    was found. Ties between two other sizes cannot reach a majority each.
     """
     stated = normal_size(*stated)
-    if not seen:
-        return None
     counts = Counter(s for sizes in seen.values() for s in set(sizes))
-    n_stated = counts.pop(stated, 0)
-    if not counts:
+    counts.pop(stated, None)
+    if not counts or n_searched <= 0:
         return None
     best, n = max(counts.items(), key=lambda kv: (kv[1], kv[0][0] * kv[0][1]))
-    need = max(2, math.ceil(min_share * len(seen) - 1e-9))
-    return best if n >= need and (n_stated < n if after_search else n_stated == 0) else None
+    return best if 2 * n > n_searched else None
 
 
 @dataclass(frozen=True)
 class SizeSurvey:
-    """The chessboard sizes seen in the views checked when the stated size was not found."""
+    """The chessboard sizes seen in the images where the stated size was not found."""
 
     stated: Size  # (cols, rows) as the session states it
-    seen: dict  # view id -> tuple of sizes seen there
-    n_images: int  # images in the session
+    seen: dict  # view id -> tuple of sizes seen there (every image where the stated board was not found)
+    n_images: int  # images searched for the stated board (found or not)
 
     @property
     def counts(self) -> dict:
-        """Size -> number of checked views showing it, most frequent first."""
+        """Size -> number of images showing it, most frequent first."""
         c = Counter(s for sizes in self.seen.values() for s in set(sizes))
         return dict(sorted(c.items(), key=lambda kv: (-kv[1], -kv[0][0] * kv[0][1])))
 
     @property
     def likely_size(self) -> Optional[Size]:
         """The size the views show instead of the stated one (:func:`board_size_verdict`), or None."""
-        return board_size_verdict(self.stated, self.seen, after_search=True)
+        return board_size_verdict(self.stated, self.seen, n_searched=self.n_images)
 
     def text(self) -> str:
-        """e.g. "no 9x6 chessboard; 11x8 inner corners seen in 3 of 3 checked views"."""
-        n = len(self.seen)
-        seen = ", ".join(
-            f"{size_text(s)} inner corners seen in {k} of {n} checked views" for s, k in self.counts.items()
-        )
-        return f"no {self.stated[0]}x{self.stated[1]} chessboard; " + (
-            seen or f"no chessboard seen in {n} checked views"
+        """e.g. "no 9x6 chessboard in 20 of 20 images; 11x8 inner corners seen in 18 of 20"."""
+        n = self.n_images
+        seen = ", ".join(f"{size_text(s)} inner corners seen in {k} of {n}" for s, k in self.counts.items())
+        return f"no {self.stated[0]}x{self.stated[1]} chessboard in {len(self.seen)} of {n} images; " + (
+            seen or "no other chessboard seen in them"
         )
 
     def fix(self) -> str:
@@ -126,8 +118,9 @@ class SizeSurvey:
 
 
 def size_survey(results: Mapping[str, object], stated: Size) -> Optional[SizeSurvey]:
-    """The survey recorded on the failures of :func:`handeye.detect.detect_views` (their ``seen_sizes``),
-    or None when no view was checked.
+    """The survey recorded on the failures of :func:`handeye.detect.detect_views` (``seen_sizes``).
+
+    ``results``: every searched image's detection or failure. None when no image lacks the stated board.
     """
     seen = {vid: tuple(r.seen_sizes) for vid, r in results.items() if getattr(r, "seen_sizes", None) is not None}
     if not seen:

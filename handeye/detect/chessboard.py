@@ -270,32 +270,38 @@ def order_cue(gray: np.ndarray, pts: np.ndarray, cols: int, rows: int, ids: np.n
     return grey(grid[:2, :2]) - grey(grid[-2:, -2:])
 
 
-def normalize_chessboard_order(dets: dict, spec: ChessboardSpec, *, options: DetectionOptions | None = None) -> dict:
-    """Give every view of an asymmetric chessboard the corner numbering most views have.
+def board_order(det: Detection, spec: ChessboardSpec, *, min_grey: float) -> Detection:
+    """One view of an asymmetric chessboard numbered from the end whose first square is dark.
 
-    OpenCV sometimes numbers a (blurred, oblique) board from the other end; the colour of the first
-    square (``Detection.order_cue``) shows it. Symmetric boards (cols + rows even) are left to the
-    motion-based resolution in :func:`handeye.initial.board_poses`. Entries that are not detections
-    (failures) are passed through.
+    OpenCV sometimes numbers a (blurred, oblique) board from the other end; on a board with cols + rows
+    odd the square between the first four corners and the last one have opposite colours, so the colour
+    of the first square (``Detection.order_cue``: its grey minus the last one's) tells the end. The board's
+    print fixes the numbering (corner 0 at the corner of a dark square, as the boards handeye renders and
+    as OpenCV numbers the real ViSP board), so a view's order depends on its own image only, never on the
+    other views. A cue weaker than ``min_grey`` (grey levels) leaves the view as found; symmetric boards
+    (cols + rows even) are left to the motion-based resolution in :func:`handeye.initial.board_poses`.
+    """
+    c = det.order_cue
+    if (spec.cols + spec.rows) % 2 == 0 or not np.isfinite(c) or c <= min_grey:
+        return det
+    log.info("view %s: chessboard numbered from its light end; corner order reversed", det.view_id)
+    n = spec.n_corners  # corner k of one numbering is corner n - 1 - k of the other
+    return replace(
+        det,
+        corner_ids=(n - 1 - det.corner_ids)[::-1].copy(),
+        image_points=det.image_points[::-1].copy(),
+        order_cue=-c,
+        dropped_corners=tuple(sorted((n - 1 - k, why) for k, why in det.dropped_corners)),
+    )
+
+
+def normalize_chessboard_order(dets: dict, spec: ChessboardSpec, *, options: DetectionOptions | None = None) -> dict:
+    """:func:`board_order` applied to every detection of ``dets`` (failures are passed through).
+
+    Each view is turned by its own first square's colour, so the result of a view does not depend on
+    the others in ``dets``; symmetric boards are returned as given.
     """
     if (spec.cols + spec.rows) % 2 == 0:
         return dets
     min_grey = (options or default_options()).order_cue_min_grey
-    cues = {v: d.order_cue for v, d in dets.items() if isinstance(d, Detection) and np.isfinite(d.order_cue)}
-    if not cues:
-        return dets
-    majority = 1.0 if sum(np.sign(c) for c in cues.values()) >= 0 else -1.0
-    out = dict(dets)
-    for vid, c in cues.items():
-        if np.sign(c) == -majority and abs(c) > min_grey:  # a weak cue is left alone
-            d = dets[vid]
-            log.info("view %s: chessboard numbered from the other end; corner order reversed", vid)
-            n = spec.n_corners  # corner k of one numbering is corner n - 1 - k of the other
-            out[vid] = replace(
-                d,
-                corner_ids=(n - 1 - d.corner_ids)[::-1].copy(),
-                image_points=d.image_points[::-1].copy(),
-                order_cue=-c,
-                dropped_corners=tuple(sorted((n - 1 - k, why) for k, why in d.dropped_corners)),
-            )
-    return out
+    return {v: board_order(d, spec, min_grey=min_grey) if isinstance(d, Detection) else d for v, d in dets.items()}

@@ -56,7 +56,6 @@ class DetectionOptions:
     saturated_grey: int  # grey level counted as saturated
     thumbnail_width_px: int
     thumbnail_jpeg_quality: int
-    size_probe_views: int  # chessboards: views checked for the board size before the slow search runs on all
     size_survey_max_side_px: int  # the board-size survey works on images reduced to this longer side
 
     @classmethod

@@ -56,7 +56,13 @@ log = logging.getLogger(__name__)
 __all__ = ["diagnose_run", "diagnose_session_error", "Finding", "SEVERITIES", "alternative_formats"]
 
 #: findings that say the robot poses as a whole do not match the images as read or paired
-GLOBAL_FAULT_CODES = READING_CODES + ("pairs_shifted", "pairs_shuffled", "square_size")
+GLOBAL_FAULT_CODES = READING_CODES + (
+    "pairs_shifted",
+    "pairs_shuffled",
+    "square_size",
+    "images_mirrored",
+    "scale_unexplained",
+)
 
 
 def _pose_checks(
@@ -121,7 +127,7 @@ def _pose_checks(
             for name in ("scale", "board_moved", "robot_poses"):
                 stages.skip(name, "images and robot poses are paired wrongly")
         else:
-            sf, est = stages.run("scale", scale_findings, obs, fit, M, default=([], None))
+            sf, est = stages.run("scale", scale_findings, obs, fit, M, refined=refined, default=([], None))
             out["findings"] += sf
             out["scale"] = (
                 None
@@ -131,7 +137,7 @@ def _pose_checks(
             if sf:
                 out["global_fault"] = True
                 for name in ("board_moved", "robot_poses"):
-                    stages.skip(name, "the board's scale does not match the robot's (square size)")
+                    stages.skip(name, "the board's scale does not match the robot's (" + sf[0].code + ")")
             else:
                 bm, segfit = stages.run("board_moved", board_moved_findings, obs, M, default=([], None))
                 out["findings"] += bm

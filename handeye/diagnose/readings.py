@@ -1,6 +1,6 @@
 """Pose-format forensics: which reading of the raw robot pose numbers fits the images.
 
-Every plausible re-reading of the numbers as written (translation units m/mm, angle units rad/deg,
+Every plausible re-reading of the numbers as written (translation units m/cm/mm, angle units rad/deg,
 24 Euler conventions, quaternion orders) x {as given, inverted} is scored by the board scatter left
 after solving ``C_i = A M_i B`` (:mod:`.fits`). Rotation readings are first screened by the pair
 rotation-angle invariant, which does not depend on translation units, inversion or the mode. Inverted
@@ -16,7 +16,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..conventions import PoseFormat, T_from_pose_values
+from ..conventions import TRANSLATION_UNITS, PoseFormat, T_from_pose_values
 from ..frames import inv_T, screw_invariants
 from ..mounting import mounting
 from ..session.raw import RawPoses
@@ -27,6 +27,8 @@ from .observations import PoseObservations
 from .thresholds import thresholds
 
 EULER_ORDERS = ("xyz", "xzy", "yxz", "yzx", "zxy", "zyx", "xyx", "xzx", "yxy", "yzy", "zxz", "zyz")
+#: translation units (:data:`handeye.conventions.TRANSLATION_UNITS`) as a finding names them
+UNIT_NAMES = {"m": "metres", "cm": "centimetres", "mm": "millimetres"}
 #: the codes of a global fault in how the poses were read or paired (the other checks then stop)
 READING_CODES = (
     "translation_units",
@@ -42,7 +44,7 @@ READING_CODES = (
 def alternative_formats(fmt: PoseFormat) -> list[tuple[PoseFormat, tuple]]:
     """Every plausible reading of numbers written for ``fmt``: (format, changed aspects).
 
-    Aspects: translation_units (m/mm), angle_units (rad/deg), euler_order (24 Euler conventions),
+    Aspects: translation_units (m/cm/mm), angle_units (rad/deg), euler_order (24 Euler conventions),
     rotation_kind (three angles as a rotation vector instead of Euler angles, or the reverse),
     quaternion_order (wxyz/xyzw). The first entry is ``fmt`` itself with no changes.
     """
@@ -69,10 +71,10 @@ def alternative_formats(fmt: PoseFormat) -> list[tuple[PoseFormat, tuple]]:
     if fmt.rotation == "quaternion":
         other = "xyzw" if fmt.quaternion_order == "wxyz" else "wxyz"
         rot_variants.append(({"quaternion_order": other}, ("quaternion_order",)))
-    other_t = "mm" if fmt.translation_unit == "m" else "m"
+    other_t = [u for u in TRANSLATION_UNITS if u != fmt.translation_unit]
     out = []
-    for (ch, codes), t_alt in product(rot_variants, (False, True)):
-        ch2 = dict(ch, translation_unit=other_t) if t_alt else ch
+    for (ch, codes), t_alt in product(rot_variants, [None, *other_t]):
+        ch2 = dict(ch, translation_unit=t_alt) if t_alt else ch
         out.append((replace(fmt, **ch2), (("translation_units",) if t_alt else ()) + codes))
     out.sort(key=lambda fc: len(fc[1]))
     return out
@@ -93,7 +95,7 @@ def read_poses(raw: RawPoses, fmt: PoseFormat, ids: Sequence[str]) -> Optional[n
     if V.shape[1] != fmt.n_values or not np.all(np.isfinite(V)):
         return None
     if fmt.rotation in ("euler", "rotvec"):
-        scale = 1e-3 if fmt.translation_unit == "mm" else 1.0
+        scale = TRANSLATION_UNITS.get(fmt.translation_unit, 1.0)
         if fmt.rotation == "euler":
             seq = fmt.euler_order.lower() if fmt.euler_kind == "extrinsic" else fmt.euler_order.upper()
             R = Rotation.from_euler(seq, V[:, 3:6], degrees=fmt.angle_unit == "deg").as_matrix()
@@ -336,9 +338,8 @@ def reading_findings(obs: PoseObservations, readings: Sequence[Reading], *, sess
         if code == "translation_units":
             scale = pitch_scale(obs, fmt0, best.fmt)
             title = (
-                "Robot translations are in millimetres but were read as metres"
-                if best.fmt.translation_unit == "mm"
-                else "Robot translations are in metres but were read as millimetres"
+                f"Robot translations are in {UNIT_NAMES[best.fmt.translation_unit]} but were read as "
+                f"{UNIT_NAMES[fmt0.translation_unit]}"
             )
             if scale:
                 e = ev + (

@@ -46,7 +46,6 @@ class Pairing:
 @dataclass(frozen=True)
 class Scale:
     p_value: float
-    min_rel: float
     min_scatter_gain: float
 
 
@@ -179,7 +178,8 @@ _SECTIONS = tuple(
             CrossValidation,
             Scale,
             Mode,
-        ), strict=False,
+        ),
+        strict=False,
     )
 )
 

@@ -38,6 +38,10 @@ ERROR_ADVICE = {
 FINDING_ADVICE = {
     "square_size": "Measure a printed square with a caliper and state that size in metres; a printer's 'fit to "
     "page' shrinks a board by a few per cent.",
+    "images_mirrored": "Turn off the camera's or its driver's mirror / flip setting and capture again, or flip every "
+    "image back; no square size fixes a mirrored image.",
+    "scale_unexplained": "Check the unit of the robot translations (m, cm or mm) and that each pose is the flange's "
+    "pose in the robot's base frame.",
     "poses_do_not_fit": "Check that each image is paired with the pose recorded at that moment, the pose format "
     "(units, Euler order), the mounting mode and that the board stayed put; re-capture if "
     "unsure.",
@@ -83,6 +87,8 @@ ROOT_CAUSE_CODES = (
     "euler_order",
     "rotation_kind",
     "quaternion_order",
+    "images_mirrored",
+    "scale_unexplained",
     "square_size",
     "board_moved",
     "target_drift",
@@ -123,6 +129,9 @@ UNTRUSTED_METRICS = {
     "target_drift": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
     # a wrong square size scales every camera translation: X's translation and its uncertainty are off with it
     "square_size": ("predicted_error_mm", "sigma_trans_mm"),
+    # a mirrored image fits the board seen from behind: every camera pose, and X with it, is wrong
+    "images_mirrored": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
+    "scale_unexplained": ("predicted_error_mm", "sigma_trans_mm"),
     "intrinsics_mismatch": ("reprojection_rms_px", "predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
     "uncertainty_underestimated": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
 }

@@ -202,7 +202,8 @@ def check_translation_units(
     reach = session_limits()["max_reach_m"]
     if dist > reach:
         hint = (
-            "the translation looks like millimetres; convert to metres" + (f" or {or_state}" if or_state else "")
+            "the translation is not in metres (millimetres or centimetres?); convert to metres"
+            + (f" or {or_state}" if or_state else "")
             if unit == "m"
             else "check translation_unit"
         )

@@ -299,7 +299,9 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
             path=poses_path,
             line=pl.lineno,
             unit=fmt.translation_unit,
-            or_state="" if stated else "add to config.yaml pose_format: {rotation: euler, translation_unit: mm}",
+            or_state=""
+            if stated
+            else "add to config.yaml pose_format: {rotation: euler, translation_unit: mm} (or cm)",
         )
         if fmt.rotation in ("euler", "rotvec") and fmt.angle_unit == "rad":
             check_angle_units(
