@@ -1,0 +1,113 @@
+"""The automatic collection: corner orderings resolved before the first estimate, re-planning after misses,
+the simulator's seed recorded, and collect's exit codes."""
+
+from __future__ import annotations
+
+import argparse
+import io
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import yaml
+
+from handeye.cli.collect import add_collect_arguments, run_collect
+from handeye.collect import session_writer as sw
+from handeye.collect.collector import Collector, detector_orderings
+from handeye.errors import DetectionError
+from handeye.frames import se3_exp
+from handeye.sim.devices import SimCamera, SimRig, SimRobot
+from handeye.sim.scenarios import default_intrinsics
+from handeye.targets import ChessboardSpec
+
+
+def _args(out, *extra):
+    p = argparse.ArgumentParser()
+    add_collect_arguments(p)
+    return p.parse_args([str(out), "--camera", "sim", "--robot", "sim", *extra])
+
+
+def _collected(out) -> dict:
+    return yaml.safe_load((out / "session.yaml").read_text())["collected"]
+
+
+def test_an_asymmetric_chessboard_may_be_numbered_from_either_end():
+    orderings = detector_orderings(ChessboardSpec(11, 8, 0.03))
+    assert len(orderings) == 2
+    np.testing.assert_array_equal(orderings[0], np.arange(88))
+    np.testing.assert_array_equal(orderings[1], np.arange(88)[::-1])
+    assert len(detector_orderings(ChessboardSpec(9, 9, 0.03))) == 4
+
+
+# seeds whose start or probe views OpenCV numbered from the other end of the board: the first estimate was
+# wrong, all 8 planned poses missed the board and the session kept 4 views
+@pytest.mark.parametrize("seed", [96, 119])
+def test_a_probe_view_numbered_from_the_other_end_does_not_spoil_the_plan(tmp_path, seed, caplog):
+    out = tmp_path / "s"
+    assert run_collect(_args(out, "--mode", "eye_in_hand", "--auto", "--seed", str(seed))) == 0
+    recs = sorted((out / "views").glob("*.yaml"))
+    assert len(recs) == 12
+    assert _collected(out)["seed"] == seed
+
+
+class _SpoiledFirstEstimate(Collector):
+    """A collector whose first hand-eye estimate is 30 deg and 200 mm off (as a wrong view would make it)."""
+
+    spoiled = 0
+
+    def _estimate(self, mount):
+        views, rough = super()._estimate(mount)
+        if not self.spoiled and rough is not None:
+            self.spoiled = 1
+            T_x = rough.T_x @ se3_exp(np.r_[np.radians(30.0) * np.array([0.6, 0.8, 0.0]), 0.0, 0.2, 0.0])
+            rough = replace(rough, T_x=T_x)
+        return views, rough
+
+
+def test_two_planned_poses_missing_the_board_re_estimate_and_re_plan(tmp_path, caplog):
+    rig = SimRig.sample(mode="eye_in_hand", rng=np.random.default_rng(3), intrinsics=default_intrinsics(640, 360))
+    robot = SimRobot(rig, rng=np.random.default_rng(4))
+    writer = sw.SessionWriter(tmp_path / "r", mode=rig.mode, target=rig.target, intrinsics=rig.intrinsics)
+    col = _SpoiledFirstEstimate(
+        robot=robot,
+        camera=SimCamera(robot, rng=np.random.default_rng(5)),
+        writer=writer,
+        target=rig.target,
+        mode=rig.mode,
+    )
+    with caplog.at_level("INFO", logger="handeye.collect.collector"):
+        col.run_auto(n_views=8, speed_fraction=0.2)
+    misses = [c for c in col.rejected if c.reason.startswith("target not detected")]
+    assert len(misses) == 2, [c.reason for c in col.rejected]  # the two misses that started the re-plan
+    assert "2 planned poses in a row missed the board: re-estimated" in caplog.text
+    assert len(col.kept) == 4 + 8  # start, 3 probes, and every planned view after all
+
+
+def test_the_simulator_records_the_seed_it_drew_and_the_seed_repeats_the_run(tmp_path, monkeypatch):
+    runs = []
+    for k, seed in enumerate([None, "drawn"]):
+        out = tmp_path / f"s{k}"
+        extra = [] if seed is None else ["--seed", str(runs[0]["seed"])]
+        monkeypatch.setattr(sys, "stdin", io.StringIO("s\ns\nq\n"))
+        assert run_collect(_args(out, "--mode", "eye_to_hand", "--no-preview", *extra)) == 0
+        runs.append(_collected(out))
+        truth = yaml.safe_load((out / "ground_truth.json").read_text())
+        assert truth["seed"] == runs[-1]["seed"]
+        runs[-1]["truth"] = truth
+    assert isinstance(runs[0]["seed"], int) and runs[1]["seed"] == runs[0]["seed"]
+    assert runs[1]["truth"]["T_base_cam"] == runs[0]["truth"]["T_base_cam"]
+    assert runs[1]["truth"]["views"] == runs[0]["truth"]["views"]  # the same poses, true and reported
+
+
+def test_a_session_where_every_capture_is_rejected_exits_with_the_detection_code(tmp_path, monkeypatch):
+    from handeye.cli import main
+
+    monkeypatch.setattr(sys, "stdin", io.StringIO("s\ns\nq\n"))
+    out = tmp_path / "blind"
+    # a blur no chessboard detector finds: every capture is rejected as "target not detected"
+    with pytest.raises(DetectionError, match=r"no view kept: target not detected \(2x\)"):
+        run_collect(_args(out, "--mode", "eye_in_hand", "--no-preview", "--sim-blur", "40", "--seed", "1"))
+    monkeypatch.setattr(sys, "stdin", io.StringIO("q\n"))  # no capture at all: the same code, through the CLI
+    argv = ["collect", str(tmp_path / "none"), "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim"]
+    assert main([*argv, "--no-preview"]) == DetectionError.exit_code == 3
