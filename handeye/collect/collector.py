@@ -122,6 +122,16 @@ def board_pose(
     return Ts[0 if reference is None else nearest_ordering(Ts, reference)]
 
 
+def _narrower(config: planning.PlanConfig) -> planning.PlanConfig:
+    """``config`` with half its tilts and rolls and distances halfway to the start's."""
+    return replace(
+        config,
+        tilt_deg=tuple(sorted({0.5 * float(t) for t in config.tilt_deg})),
+        roll_deg=tuple(sorted({0.5 * float(r) for r in config.roll_deg})),
+        distance_scales=tuple(sorted({1.0 + 0.5 * (float(d) - 1.0) for d in config.distance_scales})),
+    )
+
+
 def gui_available() -> bool:
     """A display exists and this OpenCV build has a GUI backend (opencv-python-headless has none)."""
     if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
@@ -166,6 +176,7 @@ class Collector:
         self._on_kept_truth = truth  # simulated backends: record the true pose of a kept view
         self.kept: list[Capture] = []
         self.rejected: list[Capture] = []
+        self.history: list[Capture] = []  # every capture in the order taken, kept or not
         self._next_id = 1
         self._cue_min_grey = default_options().order_cue_min_grey
 
@@ -232,6 +243,7 @@ class Collector:
         self._next_id += 1
         cap = Capture(True, "", vid, first, ids, pts, float(sharp), T_cb, cue, orderings, orientation)
         self.kept.append(cap)
+        self.history.append(cap)
         if self._on_kept_truth is not None:
             self._on_kept_truth(vid)
         log.info("view %s kept: %d corners, sharpness %.0f", vid, len(ids), sharp)
@@ -306,6 +318,7 @@ class Collector:
     def _reject(self, reason: str) -> Capture:
         cap = Capture(False, reason)
         self.rejected.append(cap)
+        self.history.append(cap)
         log.warning("capture rejected: %s", reason)
         return cap
 
@@ -463,7 +476,7 @@ class Collector:
                 pv.candidate.label,
             )
 
-        captured, replans, plan = 0, 0, None
+        captured, replans, plan, narrowed = 0, 0, None, False
         while captured < n_views:
             plan = planning.make_plan(
                 mode=self.mode,
@@ -507,6 +520,18 @@ class Collector:
                     captured,
                 )
                 break
+            same = np.allclose(new.T_x, rough.T_x, rtol=0.0, atol=1e-9)  # the same views gave the same estimate
+            if same and narrowed:
+                log.warning(
+                    "planned poses miss the board and the estimate does not change; stopping with %d of %d "
+                    "planned views (start again from a view nearer the board's centre)",
+                    captured,
+                    n_views,
+                )
+                break
+            if same:  # stay nearer the views that worked, once
+                plan_config, narrowed = _narrower(plan_config), True
+                log.info("the estimate did not change: the new plan turns half as far")
             rough, C0 = new, views[0].T_cam_board
             cause = (
                 f"{missed} planned poses in a row missed the board"

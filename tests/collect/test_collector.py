@@ -55,17 +55,18 @@ class _SpoiledFirstEstimate(Collector):
     """A collector whose first hand-eye estimate is 30 deg and 200 mm off (as a wrong view would make it)."""
 
     spoiled = 0
+    every_time = False  # spoil every estimate alike (the same views giving the same wrong answer)
 
     def _estimate(self, mount):
         views, rough = super()._estimate(mount)
-        if not self.spoiled and rough is not None:
-            self.spoiled = 1
+        if (self.every_time or not self.spoiled) and rough is not None:
+            self.spoiled += 1
             T_x = rough.T_x @ se3_exp(np.r_[np.radians(30.0) * np.array([0.6, 0.8, 0.0]), 0.0, 0.2, 0.0])
             rough = replace(rough, T_x=T_x)
         return views, rough
 
 
-def test_two_planned_poses_missing_the_board_re_estimate_and_re_plan(tmp_path, caplog):
+def _spoiled_collector(tmp_path, *, every_time: bool) -> _SpoiledFirstEstimate:
     rig = SimRig.sample(mode="eye_in_hand", rng=np.random.default_rng(3), intrinsics=default_intrinsics(640, 360))
     robot = SimRobot(rig, rng=np.random.default_rng(4))
     writer = sw.SessionWriter(tmp_path / "r", mode=rig.mode, target=rig.target, intrinsics=rig.intrinsics)
@@ -76,12 +77,29 @@ def test_two_planned_poses_missing_the_board_re_estimate_and_re_plan(tmp_path, c
         target=rig.target,
         mode=rig.mode,
     )
+    col.every_time = every_time
+    return col
+
+
+def test_two_planned_poses_missing_the_board_re_estimate_and_re_plan(tmp_path, caplog):
+    col = _spoiled_collector(tmp_path, every_time=False)
     with caplog.at_level("INFO", logger="handeye.collect.collector"):
         col.run_auto(n_views=8, speed_fraction=0.2)
     misses = [c for c in col.rejected if c.reason.startswith("target not detected")]
     assert len(misses) == 2, [c.reason for c in col.rejected]  # the two misses that started the re-plan
-    assert "2 planned poses in a row missed the board: re-estimated" in caplog.text
+    assert "2 planned poses in a row missed the board: re-estimated from 4 views" in caplog.text
+    assert "half as far" not in caplog.text  # the new estimate differs: the plan keeps its reach
     assert len(col.kept) == 4 + 8  # start, 3 probes, and every planned view after all
+
+
+def test_an_estimate_that_stays_wrong_re_plans_nearer_once_then_stops(tmp_path, caplog):
+    col = _spoiled_collector(tmp_path, every_time=True)
+    with caplog.at_level("INFO", logger="handeye.collect.collector"):
+        col.run_auto(n_views=8, speed_fraction=0.2)
+    assert caplog.text.count("the estimate did not change: the new plan turns half as far") == 1
+    assert "the estimate does not change; stopping with" in caplog.text
+    misses = [c for c in col.history[4:] if not c.kept]
+    assert len(misses) <= 4  # two blind moves per plan, two plans
 
 
 def test_the_simulator_records_the_seed_it_drew_and_the_seed_repeats_the_run(tmp_path, monkeypatch):
