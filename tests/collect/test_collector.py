@@ -129,3 +129,43 @@ def test_a_session_where_every_capture_is_rejected_exits_with_the_detection_code
     monkeypatch.setattr(sys, "stdin", io.StringIO("q\n"))  # no capture at all: the same code, through the CLI
     argv = ["collect", str(tmp_path / "none"), "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim"]
     assert main([*argv, "--no-preview"]) == DetectionError.exit_code == 3
+
+
+def test_a_symmetric_board_view_numbered_from_the_other_end_is_turned_back_by_the_robot_motion(tmp_path):
+    from handeye.camera import pixels_from_board_points
+    from handeye.collect.collector import Capture, pose_orderings
+    from handeye.collect.plan import probe_poses
+    from handeye.collect.robot import PoseReading
+    from handeye.mounting import mounting
+
+    target = ChessboardSpec(9, 7, 0.03)  # cols + rows even: a half turn looks the same, colours or not
+    rig = SimRig.sample(
+        mode="eye_to_hand", rng=np.random.default_rng(2), target=target, intrinsics=default_intrinsics(1280, 720)
+    )
+    robot = SimRobot(rig, pose_noise_mm=0.0, pose_noise_deg=0.0)
+    writer = sw.SessionWriter(tmp_path / "y", mode=rig.mode, target=target, intrinsics=rig.intrinsics)
+    col = Collector(robot=robot, camera=SimCamera(robot), writer=writer, target=target, mode=rig.mode)
+    T0 = rig.T_base_end_start
+    poses = [T0] + [tries[0] for tries in probe_poses(T0, probe_deg=10.0)] + [T0 @ se3_exp(np.r_[0.1, 0.1, 0, 0, 0, 0])]
+    C_true = mounting(rig.mode).predict_T_cam_board(rig.T_x, rig.T_board, np.stack(poses))
+    obj = target.object_points()
+    caps = []
+    for k, (T, C) in enumerate(zip(poses, C_true, strict=True)):
+        ids = np.arange(target.n_corners)
+        pts = pixels_from_board_points(C, obj, rig.intrinsics)
+        if k == 2:  # this view's detector numbered the corners from the other end
+            pts = pts[::-1].copy()
+        Ts = pose_orderings(target, rig.intrinsics, ids, pts)
+        caps.append(Capture(True, "", str(k + 1), PoseReading(T, 0.0, {}), ids, pts, 100.0, Ts[0], float("nan"), Ts, 0))
+    assert rotation_angle_deg(caps[2].T_cam_board, C_true[2]) > 170  # as detected: turned by half a turn
+    out = col._reoriented(caps)
+    assert [c.orientation for c in out] == [0, 0, 1, 0, 0]
+    for c, C in zip(out, C_true, strict=True):
+        assert rotation_angle_deg(c.T_cam_board, C) < 1e-6
+        np.testing.assert_allclose(c.T_cam_board[:3, 3], C[:3, 3], atol=1e-9)
+
+
+def rotation_angle_deg(T_a: np.ndarray, T_b: np.ndarray) -> float:
+    from handeye.frames import rotation_angle_rad
+
+    return float(np.degrees(rotation_angle_rad(T_a[:3, :3].T @ T_b[:3, :3])))
