@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, DetectionError, HandeyeError, InputError
+from ..errors import ConfigError, DetectionError, HandeyeError, HardwareError, InputError
 from ..mounting import MODES, mounting
 from ..targets import CharucoSpec, ChessboardSpec, TargetSpec
 
@@ -379,8 +379,15 @@ def run_collect(args: argparse.Namespace) -> int:
     if rig is not None:
         print(f"ground truth: {Path(args.out) / 'ground_truth.json'} ({mounting(args.mode).x_name})")
     if not n:
+        rejected = collector.rejected
+        if rejected and all(c.reason.startswith("the arm") for c in rejected):  # moving, not settling, errors
+            raise HardwareError(
+                f"no view kept: {_rejections(rejected)}",
+                path=args.out,
+                hint="check the arm's state (errors, brakes, a motion still running) and try again",
+            )
         raise DetectionError(
-            f"no view kept: {_rejections(collector.rejected)}",
+            f"no view kept: {_rejections(rejected)}",
             path=args.out,
             hint="the board must be whole in the image, sharp, with the arm still; see the reasons logged above",
         )

@@ -169,3 +169,20 @@ def rotation_angle_deg(T_a: np.ndarray, T_b: np.ndarray) -> float:
     from handeye.frames import rotation_angle_rad
 
     return float(np.degrees(rotation_angle_rad(T_a[:3, :3].T @ T_b[:3, :3])))
+
+
+def test_an_arm_in_error_for_every_capture_exits_with_the_hardware_code(tmp_path, monkeypatch):
+    from handeye.cli import main
+    from handeye.collect.robot import PoseReading
+    from handeye.errors import HardwareError
+
+    real_read = SimRobot.read_pose
+
+    def in_error(self):
+        r = real_read(self)
+        return PoseReading(r.T_base_end, r.t_pose, {**r.state, "errors": [0x1001]}, r.joints)
+
+    monkeypatch.setattr(SimRobot, "read_pose", in_error)
+    monkeypatch.setattr(sys, "stdin", io.StringIO("s\ns\nq\n"))
+    argv = ["collect", str(tmp_path / "e"), "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim"]
+    assert main([*argv, "--no-preview", "--seed", "2"]) == HardwareError.exit_code == 6
