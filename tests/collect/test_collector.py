@@ -41,8 +41,9 @@ def test_an_asymmetric_chessboard_may_be_numbered_from_either_end():
 
 
 # seeds whose start or probe views OpenCV numbered from the other end of the board: the first estimate was
-# wrong, all 8 planned poses missed the board and the session kept 4 views
-@pytest.mark.parametrize("seed", [96, 119])
+# wrong, all 8 planned poses missed the board and the session kept 4 views (96, 119), or the first estimate
+# failed (63: "solver returned a matrix that is not a rotation", exit 3)
+@pytest.mark.parametrize("seed", [63, 96, 119])
 def test_a_probe_view_numbered_from_the_other_end_does_not_spoil_the_plan(tmp_path, seed, caplog):
     out = tmp_path / "s"
     assert run_collect(_args(out, "--mode", "eye_in_hand", "--auto", "--seed", str(seed))) == 0
