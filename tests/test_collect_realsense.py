@@ -1,15 +1,22 @@
 """RealSense backends: distortion mapping, and playback of a recording made from synthetic frames.
 
 The recording is written with the SDK's own software device and recorder (no camera needed), then
-played back through ``rs.config.enable_device_from_file`` exactly as ``--camera bag:FILE`` does.
+played back as ``--camera bag:FILE`` does. Every test that loads pyrealsense2's native code runs in
+a fresh interpreter of its own (:func:`in_subprocess`): a crash inside the library fails that test
+with the signal that ended it instead of taking down the pytest (or xdist worker) process.
 """
 
 from __future__ import annotations
 
 import argparse
 import builtins
+import functools
 import io
+import os
+import signal
+import subprocess
 import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -98,6 +105,57 @@ def test_missing_libusb_is_one_clear_line(monkeypatch):
         import_pyrealsense2()
 
 
+# ------------------------------------------------------------------------------ isolation
+_CHILD = "HANDEYE_TEST_IN_SUBPROCESS"  # names the one test a child interpreter runs itself
+
+
+def in_subprocess(test):
+    """Run ``test`` in a child ``python -m pytest`` of its own; its outcome (pass, skip, fail, or the signal
+    that killed it) is this test's outcome.
+
+    The child runs this one test with the same interpreter and environment (so the same handeye), without
+    xdist; the parent's fixtures are not used (the child makes its own).
+    """
+
+    @functools.wraps(test)
+    def run(*args, **kwargs):
+        if os.environ.get(_CHILD) == test.__name__:
+            return test(*args, **kwargs)
+        root = Path(__file__).resolve().parents[1]
+        env = {k: v for k, v in os.environ.items() if k != "PYTEST_ADDOPTS" and not k.startswith("PYTEST_XDIST")}
+        env[_CHILD] = test.__name__
+        cmd = [sys.executable, "-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider", "-p", "no:xdist"]
+        cmd.append(f"{Path(__file__).resolve()}::{test.__name__}")
+        cap = subprocess.run(cmd, cwd=root, env=env, capture_output=True, text=True, timeout=600)
+        text = cap.stdout + cap.stderr
+        if cap.returncode < 0:
+            name = signal.Signals(-cap.returncode).name
+            pytest.fail(f"{test.__name__} crashed its interpreter ({name}):\n{text[-4000:]}", pytrace=False)
+        if cap.returncode != 0:
+            pytest.fail(f"{test.__name__} failed in its own interpreter:\n{text[-6000:]}", pytrace=False)
+        if " passed" not in text:
+            reason = [ln for ln in text.splitlines() if ln.startswith("SKIPPED")]
+            pytest.skip(reason[0].split(": ", 1)[-1] if reason else "skipped in its own interpreter")
+
+    return run
+
+
+_CRASH = "HANDEYE_TEST_CRASH_PROBE"
+
+
+@in_subprocess
+def test_isolation_probe():
+    """Passes; kills its own interpreter when the test below asks it to."""
+    if os.environ.get(_CRASH) == "1":
+        os.kill(os.getpid(), signal.SIGSEGV)
+
+
+def test_a_native_crash_fails_one_test_and_not_the_process(monkeypatch):
+    monkeypatch.setenv(_CRASH, "1")
+    with pytest.raises(pytest.fail.Exception, match=r"crashed its interpreter \(SIGSEGV\)"):
+        test_isolation_probe()
+
+
 # ------------------------------------------------------------------------------ SDK playback
 def _rs():
     try:
@@ -172,6 +230,7 @@ def _board_frames(n):
     return [render_view(rig.target, rig.intrinsics, c, supersample=2, channels=3) for c in C]
 
 
+@in_subprocess
 def test_recording_plays_back_frame_by_frame(tmp_path):
     rs = _rs()
     frames = [np.full((H, W, 3), v, np.uint8) for v in (10, 60, 110)]
@@ -196,6 +255,7 @@ def test_recording_plays_back_frame_by_frame(tmp_path):
         cam.close()
 
 
+@in_subprocess
 def test_a_late_reader_gets_every_frame_in_order(tmp_path):
     """The player waits for the reader: a reader that starts late (a loaded machine) loses nothing.
 
@@ -223,6 +283,7 @@ def test_a_late_reader_gets_every_frame_in_order(tmp_path):
         cam.grab()
 
 
+@in_subprocess
 def test_a_slow_player_is_never_read_as_the_end(tmp_path, monkeypatch):
     """The end of a recording is the player's word, not a timeout: a player slower than the wait (a loaded
     machine) delivers every frame, and a stall says so instead of "no more colour frames (after 2)"."""
@@ -256,6 +317,46 @@ def test_a_slow_player_is_never_read_as_the_end(tmp_path, monkeypatch):
         cam.close()
 
 
+@in_subprocess
+def test_a_recording_closed_at_any_moment_shuts_down_in_order(tmp_path, monkeypatch):
+    """Readers that give up at random moments (during a stall, mid-recording, after the end) and close: the
+    shutdown is ordered (callback out, sensor stopped and released, player stopped, device released).
+
+    Releasing the device while its player was still stopping crashed librealsense in about one close in 25.
+    """
+    import random
+    import time
+
+    import handeye.collect.realsense as realsense
+
+    rs = _rs()
+    path = _record(rs, tmp_path, [np.full((H, W, 3), v, np.uint8) for v in (10, 60, 110)])
+    rnd = random.Random(3)
+    convert = realsense._bgr_from_frame
+
+    def slow(rs_, frame):  # a player as slow as a loaded machine makes it
+        time.sleep(rnd.uniform(0.0, 0.1))
+        return convert(rs_, frame)
+
+    monkeypatch.setattr(realsense, "_bgr_from_frame", slow)
+    for _ in range(30):
+        cam = realsense.BagCamera(path, timeout_s=rnd.uniform(0.001, 0.15))
+        try:
+            for _ in range(rnd.randint(0, 4)):
+                try:
+                    cam.grab()
+                except HardwareError as e:
+                    assert "stalled" in str(e) or "no more colour frames" in str(e)
+                    break
+            time.sleep(rnd.uniform(0.0, 0.05))
+        finally:
+            cam.close()
+        assert cam._player == []  # sensor and device released
+        with pytest.raises(HardwareError, match="closed"):
+            cam.grab()
+
+
+@in_subprocess
 def test_collect_from_a_recording(tmp_path, monkeypatch):
     rs = _rs()
     path = _record(rs, tmp_path, _board_frames(3))
@@ -281,6 +382,7 @@ def test_collect_from_a_recording(tmp_path, monkeypatch):
         assert cv2.imread(str(out / rec["image"])).shape == (H, W, 3)
 
 
+@in_subprocess
 def test_live_camera_absent_is_a_hardware_error():
     rs = _rs()
     if len(rs.context().query_devices()) > 0:

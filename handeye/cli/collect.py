@@ -10,13 +10,15 @@ from __future__ import annotations
 import argparse
 import logging
 import re
+import secrets
 import sys
+from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, HandeyeError, InputError
+from ..errors import ConfigError, DetectionError, HandeyeError, HardwareError, InputError
 from ..mounting import MODES, mounting
 from ..targets import CharucoSpec, ChessboardSpec, TargetSpec
 
@@ -164,7 +166,12 @@ def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
         help="size of the three probe rotations before planning (default %(default)s)",
     )
     g = parser.add_argument_group("simulation (--camera sim / --robot sim)")
-    g.add_argument("--seed", type=int, help="random seed of the simulated rig and noise (default: random)")
+    g.add_argument(
+        "--seed",
+        type=int,
+        help="random seed of the simulated rig and noise (default: drawn at random and recorded as "
+        "collected.seed in session.yaml)",
+    )
     g.add_argument(
         "--sim-pose-noise",
         nargs=2,
@@ -284,7 +291,13 @@ def run_collect(args: argparse.Namespace) -> int:
     from ..output import check_out_dir
 
     check_out_dir(out, option="OUT")  # not under a file, writable: before any device is opened
-    rng = np.random.default_rng(args.seed)
+    simulated = "sim" in (args.camera.strip(), args.robot.strip())
+    seed = args.seed
+    if simulated and seed is None:
+        seed = secrets.randbelow(2**31)  # drawn here and recorded, so that --seed reproduces the run
+    if simulated:
+        log.info("simulator seed %d (--seed %d repeats this run)", seed, seed)
+    rng = np.random.default_rng(seed)
     robot = camera = None
     try:
         robot, rig = _open_robot(args, target=target, width=width, height=height, rng=rng, installed=installed)
@@ -300,13 +313,14 @@ def run_collect(args: argparse.Namespace) -> int:
                 "robot": robot.describe(),
                 "camera": camera.describe(),
                 "capture": "auto" if args.auto else "interactive",
-                "seed": args.seed,
+                **({"seed": seed} if simulated else {}),  # the simulator's seed; real devices draw none
             },
         )
         truth_cb = None
         if rig is not None:
             truth = rig.truth()
             truth["robot_pose_noise"] = robot.describe()
+            truth["seed"] = seed
             truth["views"] = {}
             writer.write_ground_truth(truth)
 
@@ -364,9 +378,30 @@ def run_collect(args: argparse.Namespace) -> int:
     print(f"session: {args.out} ({n} views kept, {r} captures rejected)")
     if rig is not None:
         print(f"ground truth: {Path(args.out) / 'ground_truth.json'} ({mounting(args.mode).x_name})")
-    if installed is not None and n:
+    if not n:
+        rejected = collector.rejected
+        if rejected and all(c.reason.startswith("the arm") for c in rejected):  # moving, not settling, errors
+            raise HardwareError(
+                f"no view kept: {_rejections(rejected)}",
+                path=args.out,
+                hint="check the arm's state (errors, brakes, a motion still running) and try again",
+            )
+        raise DetectionError(
+            f"no view kept: {_rejections(rejected)}",
+            path=args.out,
+            hint="the board must be whole in the image, sharp, with the arm still; see the reasons logged above",
+        )
+    if installed is not None:
         return _verify_collected(Path(args.out), installed)
-    return 0 if n else 1
+    return 0
+
+
+def _rejections(rejected) -> str:
+    """The reasons of the rejected captures, the most common first, with their counts."""
+    if not rejected:
+        return "no capture was taken"
+    counts = Counter(re.split(r"[:(;]", c.reason, maxsplit=1)[0].strip() for c in rejected)
+    return "; ".join(f"{k} ({v}x)" for k, v in counts.most_common(3))
 
 
 def _installed(args):
@@ -463,8 +498,9 @@ def _given(defaults, **options):
 
 
 def _installed_rig(installed, *, target: TargetSpec, bump, rng: np.random.Generator):
-    """A simulated rig that is the installed calibration (X, board, intrinsics), started at its first
-    view's pose; ``bump`` (mm, deg): the camera moved by that much in random directions.
+    """A simulated rig that is the installed calibration (X, board, intrinsics), started at its first view's pose.
+
+    ``bump`` (mm, deg): the camera moved by that much in random directions.
     """
     from ..frames import se3_exp
     from ..recal.plan import installed_poses

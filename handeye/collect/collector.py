@@ -8,7 +8,8 @@ one-line HardwareError and leaves everything already saved intact.
 
 Modes: interactive (key ``s`` captures, ``q`` quits; a preview window where a display and an
 OpenCV GUI exist, a terminal prompt otherwise) and automatic (:meth:`Collector.run_auto`: probe
-moves, a first rough hand-eye, then the planned views of :mod:`handeye.collect.plan`).
+moves, a first rough hand-eye, then the planned views of :mod:`handeye.collect.plan`; two planned
+views in a row that miss the board re-estimate from every view kept and re-plan the rest).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import logging
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Optional, TextIO
 
 import cv2
@@ -26,11 +27,14 @@ import numpy as np
 from ..camera import Intrinsics
 from ..config import load_preset
 from ..detect import detect_gray, sharpness
+from ..detect.chessboard import order_cue
+from ..detect.options import default_options
 from ..errors import DetectionError, HardwareError
 from ..frames import rotation_angle_rad
 from ..initial import solve_closed_form, solve_pnp
+from ..initial.board_poses import candidate_invariants, orientation_labels
 from ..mounting import mounting
-from ..targets import ChessboardSpec, TargetSpec
+from ..targets import ChessboardSpec, TargetSpec, grid_turns
 from . import plan as planning
 from .camera import Camera
 from .robot import PoseReading, Robot, poses_agree
@@ -70,6 +74,39 @@ class Capture:
     image_points: Optional[np.ndarray] = None
     sharpness: float = float("nan")
     T_cam_board: Optional[np.ndarray] = None  # from PnP with the camera's intrinsics, when known
+    order_cue: float = float("nan")  # chessboard: which end the detector numbered from (detect.chessboard.order_cue)
+    T_cam_board_orderings: Optional[np.ndarray] = None  # (k, 4, 4): T_cam_board under each detector_orderings()
+    orientation: int = 0  # the index of T_cam_board in T_cam_board_orderings
+
+
+def detector_orderings(target: TargetSpec) -> list[np.ndarray]:
+    """Corner numberings a detector may give one view of ``target`` (maps a detected index to the corner id).
+
+    The identity first. A chessboard may be numbered from either end (and a square one from any corner)
+    whatever its colours: OpenCV's detector does not look at them, so an asymmetric chessboard (cols +
+    rows odd) gets its half turn here too, and the colour of the first square
+    (:func:`handeye.detect.chessboard.order_cue`) or the robot's motion tells which one a view has.
+    Other targets: their symmetries.
+    """
+    if isinstance(target, ChessboardSpec):
+        return grid_turns(target.cols, target.rows)
+    return list(target.symmetries())
+
+
+def pose_orderings(
+    target: TargetSpec, intrinsics: Intrinsics, corner_ids: np.ndarray, image_points: np.ndarray
+) -> np.ndarray:
+    """``T_cam_board`` by PnP under each of :func:`detector_orderings`, shape (k, 4, 4)."""
+    obj = target.object_points()
+    return np.stack(
+        [solve_pnp(obj[perm[corner_ids]], image_points, intrinsics)[0] for perm in detector_orderings(target)]
+    )
+
+
+def nearest_ordering(T_cam_board_orderings: np.ndarray, reference: np.ndarray) -> int:
+    """The index of the pose (k, 4, 4) whose rotation is nearest to ``reference``'s."""
+    d = [float(rotation_angle_rad(reference[:3, :3].T @ T[:3, :3])) for T in T_cam_board_orderings]
+    return int(np.argmin(d))
 
 
 def board_pose(
@@ -80,17 +117,19 @@ def board_pose(
     *,
     reference: Optional[np.ndarray] = None,
 ) -> np.ndarray:
-    """``T_cam_board`` by PnP; for a symmetric board, the corner ordering closest to ``reference``."""
-    obj = target.object_points()
-    best, best_d = None, np.inf
-    for perm in target.symmetries():
-        T, _ = solve_pnp(obj[perm[corner_ids]], image_points, intrinsics)
-        d = 0.0 if reference is None else float(rotation_angle_rad(reference[:3, :3].T @ T[:3, :3]))
-        if d < best_d:
-            best, best_d = T, d
-        if reference is None:
-            break
-    return best
+    """``T_cam_board`` by PnP; with ``reference``, under the corner ordering nearest to it (detector_orderings)."""
+    Ts = pose_orderings(target, intrinsics, corner_ids, image_points)
+    return Ts[0 if reference is None else nearest_ordering(Ts, reference)]
+
+
+def _narrower(config: planning.PlanConfig) -> planning.PlanConfig:
+    """``config`` with half its tilts and rolls and distances halfway to the start's."""
+    return replace(
+        config,
+        tilt_deg=tuple(sorted({0.5 * float(t) for t in config.tilt_deg})),
+        roll_deg=tuple(sorted({0.5 * float(r) for r in config.roll_deg})),
+        distance_scales=tuple(sorted({1.0 + 0.5 * (float(d) - 1.0) for d in config.distance_scales})),
+    )
 
 
 def gui_available() -> bool:
@@ -137,7 +176,9 @@ class Collector:
         self._on_kept_truth = truth  # simulated backends: record the true pose of a kept view
         self.kept: list[Capture] = []
         self.rejected: list[Capture] = []
+        self.history: list[Capture] = []  # every capture in the order taken, kept or not
         self._next_id = 1
+        self._cue_min_grey = default_options().order_cue_min_grey
 
     # -- one capture ---------------------------------------------------------------------------
     def capture(self, *, reference_T_cam_board: Optional[np.ndarray] = None) -> Capture:
@@ -170,9 +211,17 @@ class Collector:
                 f"image not sharp (variance of the Laplacian {sharp:.1f} < {c.min_sharpness:g}); "
                 "check focus, lighting and that nothing moves"
             )
-        T_cb = None
+        cue = float("nan")
+        if isinstance(self.target, ChessboardSpec):
+            cue = order_cue(gray, pts, self.target.cols, self.target.rows, ids)
+        T_cb = orderings = None
+        orientation = 0
         if self.intrinsics is not None:
-            T_cb = board_pose(self.target, self.intrinsics, ids, pts, reference=reference_T_cam_board)
+            orderings = pose_orderings(self.target, self.intrinsics, ids, pts)
+            orientation = self._ordering_by_colour(cue, self._colour_sign(self.kept))
+            if orientation is None:
+                orientation = 0 if reference_T_cam_board is None else nearest_ordering(orderings, reference_T_cam_board)
+            T_cb = orderings[orientation]
         vid = str(self._next_id)
         state = dict(first.state)
         extra = {
@@ -192,16 +241,84 @@ class Collector:
             vid, image, first.T_base_end, t_image=t_image, t_pose=first.t_pose, robot_state=state, extra=extra
         )
         self._next_id += 1
-        cap = Capture(True, "", vid, first, ids, pts, float(sharp), T_cb)
+        cap = Capture(True, "", vid, first, ids, pts, float(sharp), T_cb, cue, orderings, orientation)
         self.kept.append(cap)
+        self.history.append(cap)
         if self._on_kept_truth is not None:
             self._on_kept_truth(vid)
         log.info("view %s kept: %d corners, sharpness %.0f", vid, len(ids), sharp)
         return cap
 
+    # -- corner orderings -----------------------------------------------------------------------
+    def _colour_sign(self, caps: list[Capture]) -> Optional[float]:
+        """The sign of the colour cue most of ``caps`` show (an asymmetric chessboard), None when none shows one.
+
+        A tie keeps the first view's sign. The numbering most views have is the one kept, as
+        :func:`handeye.detect.chessboard.normalize_chessboard_order` does for a whole session.
+        """
+        t = self.target
+        if not (isinstance(t, ChessboardSpec) and (t.cols + t.rows) % 2 == 1):
+            return None
+        signs = [float(np.sign(c.order_cue)) for c in caps if abs(c.order_cue) > self._cue_min_grey]
+        if not signs:
+            return None
+        total = sum(signs)
+        return signs[0] if total == 0 else float(np.sign(total))
+
+    def _ordering_by_colour(self, cue: float, sign: Optional[float]) -> Optional[int]:
+        """0 (as detected) or 1 (numbered from the other end) when the colours tell, else None."""
+        if sign is None or not abs(cue) > self._cue_min_grey:
+            return None
+        return 0 if np.sign(cue) == sign else 1
+
+    def _reoriented(self, caps: list[Capture]) -> list[Capture]:
+        """``caps`` (with board poses) under one consistent corner ordering.
+
+        The colours decide where they tell, then the robot's motion (camera motions whose rotation
+        angle and screw pitch match the robot's).
+        """
+        k = len(detector_orderings(self.target))
+        sign = self._colour_sign(caps)
+        fixed = [self._ordering_by_colour(c.order_cue, sign) for c in caps]
+        labels = [c.orientation if f is None else f for c, f in zip(caps, fixed, strict=True)]
+        free = [i for i, f in enumerate(fixed) if f is None]
+        if k > 1 and free and len(caps) >= 3:
+            Cs = np.stack(
+                [
+                    c.T_cam_board_orderings if f is None else np.repeat(c.T_cam_board_orderings[f][None], k, axis=0)
+                    for c, f in zip(caps, fixed, strict=True)
+                ]
+            )  # shape (n, k, 4, 4): a view the colours decided has its one pose k times
+            Ms = mounting(self.mode).M_from_T_base_end(np.stack([c.pose.T_base_end for c in caps]))
+            # all free: the detector's own order for the majority; else the frame of the decided views
+            lab = orientation_labels(candidate_invariants(Cs), Ms, turns=len(free) == len(caps))
+            labels = [int(lab[i]) if fixed[i] is None else labels[i] for i in range(len(caps))]
+        out = []
+        for c, a in zip(caps, labels, strict=True):
+            if a != c.orientation:
+                log.info("view %s: corner order taken from the other end of the board (ordering %d)", c.view_id, a)
+            out.append(replace(c, orientation=a, T_cam_board=c.T_cam_board_orderings[a]))
+        return out
+
+    def _estimate(self, mount) -> tuple[list[Capture], object]:
+        """Every kept view with a board pose and the closed-form hand-eye from them (None: fewer than 3).
+
+        The views are re-oriented consistently first (and so replaced in ``kept``).
+        """
+        idx = [i for i, c in enumerate(self.kept) if c.T_cam_board is not None]
+        views = self._reoriented([self.kept[i] for i in idx])
+        for i, c in zip(idx, views, strict=True):
+            self.kept[i] = c
+        if len(views) < 3:
+            return views, None
+        M = mount.M_from_T_base_end(np.stack([c.pose.T_base_end for c in views]))
+        C = np.stack([c.T_cam_board for c in views])
+        return views, solve_closed_form(mount, C, M, method="park")
+
     def _reject(self, reason: str) -> Capture:
         cap = Capture(False, reason)
         self.rejected.append(cap)
+        self.history.append(cap)
         log.warning("capture rejected: %s", reason)
         return cap
 
@@ -319,7 +436,8 @@ class Collector:
         probes = planning.probe_poses(T0, probe_deg=probe_deg)
         if self.robot.is_real and not confirm(
             f"The arm will make {len(probes)} small probe moves ({probe_deg:g} deg about the end's own x, y and "
-            f"z axes; other directions or half the angle where the board leaves the image) at {100 * speed_fraction:.0f}% speed. Continue?"
+            "z axes; other directions or half the angle where the board leaves the image) at "
+            f"{100 * speed_fraction:.0f}% speed. Continue?"
         ):
             log.warning("stopped before moving the arm")
             return planning.Plan((), float("nan"), float("nan"), np.zeros(3), "cancelled", "not confirmed")
@@ -330,20 +448,18 @@ class Collector:
                 if cap.kept or not cap.reason.startswith("target not detected"):
                     break
                 log.info("the probe about the end's %s axis lost the board; trying another direction or angle", axis)
-        views = [c for c in self.kept if c.T_cam_board is not None]
-        if len(views) < 3:
+        views, rough = self._estimate(mount)
+        if rough is None:
             raise DetectionError(
                 f"only {len(views)} of the start and probe views show the board; a first hand-eye estimate needs 3",
                 hint="start from a pose where the board is in the middle of the image, or lower --probe-deg",
             )
-        M = mount.M_from_T_base_end(np.stack([c.pose.T_base_end for c in views]))
-        C = np.stack([c.T_cam_board for c in views])
-        rough = solve_closed_form(mount, C, M, method="park")
         if rough.status != "ok":
             raise DetectionError(
                 f"the first hand-eye estimate failed ({rough.failure_reason})",
                 hint="check the board size given with --target",
             )
+        C0 = views[0].T_cam_board  # the start view, in the ordering consistent with the others
         log.info(
             "first estimate from %d views; planning %d views (predicted 1-sigma of %s, total over 3 axes):",
             len(views),
@@ -360,59 +476,115 @@ class Collector:
                 pv.candidate.label,
             )
 
-        plan = planning.make_plan(
-            mode=self.mode,
-            T_x=rough.T_x,
-            T_board=rough.T_board,
-            T_base_end_start=T0,
-            T_cam_board_start=C0,
-            T_base_end_done=[c.pose.T_base_end for c in views],
-            target=self.target,
-            intrinsics=self.intrinsics,
-            n_views=n_views,
-            config=plan_config,
-            pose_ok=getattr(self.robot, "pose_ok", None),
-            on_step=on_step,
-        )
-        if plan.status != "ok":
-            log.warning("plan: %s", plan.failure_reason)
-        if not plan.views:
-            return plan
-        travel = max(np.linalg.norm(pv.candidate.T_base_end[:3, 3] - T0[:3, 3]) for pv in plan.views)
-        turn = max(np.linalg.norm(pv.candidate.end_rotvec_deg) for pv in plan.views)
-        if self.robot.is_real and not confirm(
-            f"The plan moves the arm to {len(plan.views)} poses up to {1000 * travel:.0f} mm and {turn:.0f} deg "
-            f"from the start pose, at {100 * speed_fraction:.0f}% speed. Continue?"
-        ):
-            log.warning("stopped before the planned moves")
-            return plan
-        done = [c.pose.T_base_end for c in views]
+        captured, replans, plan, narrowed = 0, 0, None, False
+        while captured < n_views:
+            plan = planning.make_plan(
+                mode=self.mode,
+                T_x=rough.T_x,
+                T_board=rough.T_board,
+                T_base_end_start=T0,
+                T_cam_board_start=C0,
+                T_base_end_done=[c.pose.T_base_end for c in views],
+                target=self.target,
+                intrinsics=self.intrinsics,
+                n_views=n_views - captured,
+                config=plan_config,
+                pose_ok=getattr(self.robot, "pose_ok", None),
+                on_step=on_step,
+            )
+            if plan.status != "ok":
+                log.warning("plan: %s", plan.failure_reason)
+            if not plan.views:
+                return plan
+            travel = max(np.linalg.norm(pv.candidate.T_base_end[:3, 3] - T0[:3, 3]) for pv in plan.views)
+            turn = max(np.linalg.norm(pv.candidate.end_rotvec_deg) for pv in plan.views)
+            if self.robot.is_real and not confirm(
+                f"The plan moves the arm to {len(plan.views)} poses up to {1000 * travel:.0f} mm and {turn:.0f} deg "
+                f"from the start pose, at {100 * speed_fraction:.0f}% speed. Continue?"
+            ):
+                log.warning("stopped before the planned moves")
+                return plan
+            n_kept, missed = self._run_plan(plan, rough=rough, speed_fraction=speed_fraction, plan_config=plan_config)
+            captured += n_kept
+            if captured >= n_views:
+                break
+            if replans == self.MAX_REPLANS:
+                log.warning("%d of the %d planned views kept after %d re-plans; stopping", captured, n_views, replans)
+                break
+            replans += 1
+            views, new = self._estimate(mount)
+            if new is None or new.status != "ok":
+                log.warning(
+                    "the new estimate failed (%s); stopping with %d planned views",
+                    "too few views" if new is None else new.failure_reason,
+                    captured,
+                )
+                break
+            same = np.allclose(new.T_x, rough.T_x, rtol=0.0, atol=1e-9)  # the same views gave the same estimate
+            if same and narrowed:
+                log.warning(
+                    "planned poses miss the board and the estimate does not change; stopping with %d of %d "
+                    "planned views (start again from a view nearer the board's centre)",
+                    captured,
+                    n_views,
+                )
+                break
+            if same:  # stay nearer the views that worked, once
+                plan_config, narrowed = _narrower(plan_config), True
+                log.info("the estimate did not change: the new plan turns half as far")
+            rough, C0 = new, views[0].T_cam_board
+            cause = (
+                f"{missed} planned poses in a row missed the board"
+                if missed >= self.MISSES_BEFORE_REPLAN
+                else "the plan ended with views rejected"
+            )
+            log.warning("%s: re-estimated from %d views, planning the %d left", cause, len(views), n_views - captured)
+        return plan
+
+    #: planned poses in a row that miss the board before the estimate is redone and the rest re-planned
+    MISSES_BEFORE_REPLAN = 2
+    #: re-plans after which a plan that keeps missing stops the automatic collection
+    MAX_REPLANS = 3
+
+    def _run_plan(
+        self, plan: planning.Plan, *, rough, speed_fraction: float, plan_config: planning.PlanConfig
+    ) -> tuple[int, int]:
+        """Move to and capture the planned views until ``MISSES_BEFORE_REPLAN`` in a row miss the board.
+
+        Returns (views kept, misses in a row at the end).
+        """
+        done = [c.pose.T_base_end for c in self.kept if c.T_cam_board is not None]
+        n_kept = missed = 0
         for pv in plan.views:
             self.robot.move_to(pv.candidate.T_base_end, speed_fraction=speed_fraction)
             cap = self._capture_after_move(reference=pv.candidate.T_cam_board)
-            if cap.kept:
-                done.append(cap.pose.T_base_end)
-                info = planning.information_of_views(
-                    mode=self.mode,
-                    T_x=rough.T_x,
-                    T_board=rough.T_board,
-                    T_base_end=done,
-                    target=self.target,
-                    intrinsics=self.intrinsics,
-                    config=plan_config,
-                )
-                sr, st = planning.predicted_sigma(info)
-                log.info(
-                    "planned view %d/%d captured as view %s: predicted sigma %.3f deg, %.2f mm",
-                    pv.index,
-                    len(plan.views),
-                    cap.view_id,
-                    sr,
-                    st,
-                )
-            else:
+            if not cap.kept:
                 log.warning("planned view %d/%d skipped: %s", pv.index, len(plan.views), cap.reason)
-        return plan
+                missed = missed + 1 if cap.reason.startswith("target not detected") else 0
+                if missed >= self.MISSES_BEFORE_REPLAN:
+                    return n_kept, missed
+                continue
+            n_kept, missed = n_kept + 1, 0
+            done.append(cap.pose.T_base_end)
+            info = planning.information_of_views(
+                mode=self.mode,
+                T_x=rough.T_x,
+                T_board=rough.T_board,
+                T_base_end=done,
+                target=self.target,
+                intrinsics=self.intrinsics,
+                config=plan_config,
+            )
+            sr, st = planning.predicted_sigma(info)
+            log.info(
+                "planned view %d/%d captured as view %s: predicted sigma %.3f deg, %.2f mm",
+                pv.index,
+                len(plan.views),
+                cap.view_id,
+                sr,
+                st,
+            )
+        return n_kept, missed
 
     def capture_at(
         self, T_base_end: np.ndarray, *, speed_fraction: float, reference: Optional[np.ndarray] = None
@@ -423,7 +595,7 @@ class Collector:
 
     def _capture_after_move(self, *, reference: Optional[np.ndarray]) -> Capture:
         cap = None
-        for attempt in range(2):
+        for _attempt in range(2):
             if not self.wait_still():
                 cap = self._reject("the arm did not settle after the motion")
                 continue
