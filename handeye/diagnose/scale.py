@@ -203,6 +203,22 @@ def _unexplained_scale_finding(est: ScaleEstimate, noun: str, L: float) -> Findi
     )
 
 
+def _tracker_scale_finding(est: ScaleEstimate) -> Finding:
+    """A tracker whose translations are a factor off the robot's (a wrong marker size, monocular SLAM)."""
+    return Finding(
+        "tracker_scale",
+        "fail",
+        f"The tracker's translations are {1.0 / est.k:.4f} x the robot's",
+        f"the robot's motions are {est.k:.4f} ± {est.sigma:.4f} x the tracker's once both are compared in one "
+        f"frame (closed form over all view pairs of {est.n_views} views, jackknife sigma; 1 is {est.z:.0f} sigma "
+        f"away, p = {est.p_value():.1e}): every target translation the tracker reports is scaled",
+        f"a marker tracker scales its translations with the marker size it is given: multiply that size by "
+        f"{est.k:.4f}; a monocular SLAM or odometry tracker has no metric scale: give it one (a stereo or depth "
+        "camera, or a known distance) before calibrating",
+        details={"scale": est.k, "scale_sigma": est.sigma, "n_views": est.n_views, "p_value": est.p_value()},
+    )
+
+
 def scale_findings(obs, fit, M: np.ndarray, *, refined=None) -> tuple[list, Optional[ScaleEstimate]]:
     """(findings, the estimate) of the board scale against the robot's, on the fit's inlier views.
 
@@ -210,13 +226,16 @@ def scale_findings(obs, fit, M: np.ndarray, *, refined=None) -> tuple[list, Opti
     compared with (default: the closed form's jackknife).
     """
     est = estimate_scale(obs.C, M, use=fit.inliers() if fit is not None else None)
-    if est is None or getattr(obs.target, "kind", "") == "tracked":  # pose-only: no printed length, no image
+    if est is None:
         return [], est
-    if est.mirrored:
+    tracked = getattr(obs.target, "kind", "") == "tracked"  # pose-only: no printed length, no image
+    if est.mirrored and not tracked:
         return [_mirrored_finding(est)], est
     cov_t = x_translation_cov(refined)
     if not is_scale_wrong(est, cov_t):
         return [], est
+    if tracked:
+        return [_tracker_scale_finding(est)], est
     # the scale must explain the data: with the squares rescaled the board scatter must not grow (measured
     # on the ical Kinect set: a k that passes the t test and raises the scatter is not the squares' size)
     as_stated = fit if fit is not None else fit_boards(obs.C, M)

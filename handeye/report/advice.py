@@ -90,6 +90,7 @@ ROOT_CAUSE_CODES = (
     "images_mirrored",
     "scale_unexplained",
     "square_size",
+    "tracker_scale",
     "board_moved",
     "target_drift",
     "poses_do_not_fit",
@@ -129,6 +130,7 @@ UNTRUSTED_METRICS = {
     "target_drift": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
     # a wrong square size scales every camera translation: X's translation and its uncertainty are off with it
     "square_size": ("predicted_error_mm", "sigma_trans_mm"),
+    "tracker_scale": ("predicted_error_mm", "sigma_trans_mm"),
     # a mirrored image fits the board seen from behind: every camera pose, and X with it, is wrong
     "images_mirrored": ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"),
     "scale_unexplained": ("predicted_error_mm", "sigma_trans_mm"),

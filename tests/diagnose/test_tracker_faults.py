@@ -50,3 +50,21 @@ def test_a_drifting_tracker_is_named_as_drift_where_it_starts(tmp_path, mode, se
 def test_a_knocked_target_is_still_a_move_not_a_drift(tmp_path, mode, seed):
     res = _calibrate(tmp_path, mode=mode, seed=seed, step_mm=25.0, drift_start=10)
     assert "board_moved" in _codes(res) and "target_drift" not in _codes(res), res["findings"]
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_a_tracker_with_twice_the_scale_is_named_with_its_factor(tmp_path, mode):
+    res = _calibrate(tmp_path, mode=mode, seed=0, scale=2.0)
+    codes = _codes(res)
+    assert "tracker_scale" in codes and not codes & {"board_moved", "poses_do_not_fit", "target_drift"}, codes
+    f = next(f for f in res["diagnostics"]["findings"] if f["code"] == "tracker_scale")
+    assert f["details"]["scale"] == pytest.approx(0.5, rel=0.01)
+    assert f"{f['details']['scale']:.4f}" in f["action"] and f"{1 / f['details']['scale']:.4f}" in f["title"]
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_clean_tracker_sessions_are_quiet(tmp_path, mode, seed):
+    res = _calibrate(tmp_path, mode=mode, seed=seed)
+    assert res["status"] == "ok" and not {f["code"] for f in res["findings"] if f["severity"] == "fail"}
+    assert not _codes(res) & (WRONG_FOR_MOTION | {"tracker_scale", "weak_motion"}), res["findings"]
