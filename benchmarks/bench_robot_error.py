@@ -251,7 +251,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     print(
         f"# bench_robot_error: {args.seeds} seeds per mode and model; 20 views, 11x8 board, 1280x720, {NOISE_PX} px;"
-        f" kinematic arm {args.arm} (DH errors x{args.dh_error_scale:g}); iid {IID_ROBOT_NOISE[0]} mm / {IID_ROBOT_NOISE[1]} deg per axis"
+        f" kinematic arm {args.arm} (DH errors x{args.dh_error_scale:g});"
+        f" iid {IID_ROBOT_NOISE[0]} mm / {IID_ROBOT_NOISE[1]} deg per axis"
     )
     print(f"# command: python {' '.join(sys.argv)}")
     tasks = [

@@ -119,7 +119,10 @@ class DHChain:
 
     @property
     def reach_m(self) -> float:
-        """Upper bound of the flange's distance from the first joint's axis point: sum of |a| and of |d| after joint 1."""
+        """Upper bound of the flange's distance from the first joint's axis point.
+
+        The sum of |a| and of |d| after joint 1.
+        """
         d = self.dh[:, 2].copy()
         d[0] = 0.0
         return float(np.sum(np.abs(self.dh[:, 0])) + np.sum(np.abs(d)))

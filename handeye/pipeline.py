@@ -158,7 +158,8 @@ def observe(
         return replace(
             obs,
             error=DetectionError(
-                f"the session has {len(items)} image{'s' if len(items) != 1 else ''} (the board found in each); at least "
+                f"the session has {len(items)} image{'s' if len(items) != 1 else ''} "
+                "(the board found in each); at least "
                 f"{MIN_VIEWS} views are needed",
                 hint="capture more views, with the robot turned between them",
                 code="too_few_views",
@@ -681,7 +682,7 @@ def validate_stage(s: Session, refined, poses: dict, dets: dict, T_base_end: dic
 def _final_outcomes(outcomes, chain, refined):
     """Outcomes after the solve: residuals through the robot chain, and the refinement's decisions."""
     out = outcomes
-    for vid, (rms, mx) in chain.items():
+    for vid, (_rms, mx) in chain.items():
         out[vid] = replace(out[vid], max_px=mx)
     if refined is None:
         return out

@@ -82,7 +82,11 @@ def satterthwaite_dof(shares, dofs) -> float | None:
     with ``dofs`` (None or inf: known): ``1 / sum(share^2 / dof)`` (Satterthwaite 1946); None when every part
     is known.
     """
-    s = sum(float(a) ** 2 / float(n) for a, n in zip(shares, dofs, strict=False) if n is not None and np.isfinite(n) and n > 0)
+    s = sum(
+        float(a) ** 2 / float(n)
+        for a, n in zip(shares, dofs, strict=False)
+        if n is not None and np.isfinite(n) and n > 0
+    )
     return 1.0 / s if s > 0 else None
 
 

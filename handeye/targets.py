@@ -52,7 +52,8 @@ class ChessboardSpec:
         is always first, then the 180-degree turn, then (square grids) the 90 and 270-degree turns.
         With (cols+1) x (rows+1) squares, a half turn maps the colour pattern onto itself when
         cols + rows is even. (On an asymmetric board the colours decide; a detector that numbers
-        such a board from the other end is corrected in detection, see handeye.detect.chessboard.normalize_chessboard_order.)
+        such a board from the other end is corrected in detection, see
+        handeye.detect.chessboard.normalize_chessboard_order.)
         """
         if (self.cols + self.rows) % 2 == 1:
             return [np.arange(self.n_corners)]

@@ -116,7 +116,7 @@ class WorkflowResult:
 def calibrate_session(
     session_path,
     *,
-    options: CalibrateOptions = CalibrateOptions(),
+    options: Optional[CalibrateOptions] = None,
     out_dir,
     report: bool = True,
     qa=None,
@@ -143,6 +143,7 @@ def calibrate_session(
     from .report.qa import load_qa
     from .session import load_session
 
+    options = CalibrateOptions() if options is None else options
     progress = progress or (lambda s: None)
     t0 = time.perf_counter()
     qa_cfg = load_qa(qa)  # a bad site QA file is unusable input: say so before the calibration, not after it

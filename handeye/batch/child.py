@@ -155,7 +155,7 @@ def run_verify(spec: dict) -> dict:
 
 
 def _peak_rss_mb():
-    """This process's peak resident memory in MiB (None where the platform does not say)."""
+    """Peak resident memory of this process in MiB (None where the platform does not say)."""
     try:
         import resource
     except ImportError:  # pragma: no cover - not on Windows

@@ -89,7 +89,8 @@ def add_arguments(p) -> None:
     p.add_argument(
         "--robot",
         metavar="ARM",
-        help=f"the arm's kinematic model (a preset: {', '.join(arm_presets())}; or a DH YAML file): the refinement models the robot's "
+        help=f"the arm's kinematic model (a preset: {', '.join(arm_presets())}; or a DH YAML file): "
+        "the refinement models the robot's "
         "error as DH offsets plus encoder noise (joint angles from the session, else by inverse "
         "kinematics of the poses); default: the session's robot: key, else an iid pose error",
     )

@@ -298,11 +298,12 @@ class Collector:
         *,
         n_views: int,
         speed_fraction: float,
-        plan_config: planning.PlanConfig = planning.PlanConfig(),
+        plan_config: Optional[planning.PlanConfig] = None,
         confirm: Callable[[str], bool] = lambda text: True,
         probe_deg: float = 6.0,
     ) -> planning.Plan:
         """Probe, plan and capture ``n_views`` planned views (plus the start and probe views)."""
+        plan_config = planning.PlanConfig() if plan_config is None else plan_config
         if self.intrinsics is None:
             raise HardwareError(
                 "automatic mode needs the camera's intrinsics to plan, and this camera has none",
@@ -319,7 +320,8 @@ class Collector:
         probes = planning.probe_poses(T0, probe_deg=probe_deg)
         if self.robot.is_real and not confirm(
             f"The arm will make {len(probes)} small probe moves ({probe_deg:g} deg about the end's own x, y and "
-            f"z axes; other directions or half the angle where the board leaves the image) at {100 * speed_fraction:.0f}% speed. Continue?"
+            f"z axes; other directions or half the angle where the board leaves the image) "
+            f"at {100 * speed_fraction:.0f}% speed. Continue?"
         ):
             log.warning("stopped before moving the arm")
             return planning.Plan((), float("nan"), float("nan"), np.zeros(3), "cancelled", "not confirmed")
@@ -423,7 +425,7 @@ class Collector:
 
     def _capture_after_move(self, *, reference: Optional[np.ndarray]) -> Capture:
         cap = None
-        for attempt in range(2):
+        for _attempt in range(2):
             if not self.wait_still():
                 cap = self._reject("the arm did not settle after the motion")
                 continue

@@ -27,7 +27,9 @@ import numpy as np
 from ..errors import ConfigError, InputError
 from ..records import Detection, DetectionFailure
 from ..targets import TargetSpec
-from .board_size import SizeSurvey, board_size_verdict, normal_size, size_survey, size_text, visible_grid_sizes
+from .board_size import SizeSurvey as SizeSurvey  # re-exported
+from .board_size import board_size_verdict, normal_size, size_text, visible_grid_sizes
+from .board_size import size_survey as size_survey  # re-exported
 from .charuco import detect_charuco
 from .chessboard import detect_chessboard, normalize_chessboard_order, order_cue
 from .circlegrid import detect_circlegrid

@@ -378,7 +378,8 @@ def arm_table_findings(model: Optional[dict]) -> list:
         z = np.abs(off) / np.where(sd > 0, sd, np.inf)
         top = [np.unravel_index(k, off.shape) for k in np.argsort(-z, axis=None)[:3]]
         largest = "; the offsets most beyond their sigma: " + ", ".join(
-            f"{cols[c].split('_')[0]} of joint {j + 1} {off[j, c]:+.2f} {cols[c].rsplit('_', 1)[-1]} ({z[j, c]:.1f} sigma)"
+            f"{cols[c].split('_')[0]} of joint {j + 1} {off[j, c]:+.2f} {cols[c].rsplit('_', 1)[-1]} "
+            f"({z[j, c]:.1f} sigma)"
             for j, c in top
         )
     return [
@@ -467,7 +468,9 @@ def _observe_lenient(sess) -> tuple[Optional[PoseObservations], Optional[int], i
             T_best = read_poses(raw, best.fmt, ids)
             if T_best is not None:
                 M_best = mode.M_from_T_base_end(inv_T(T_best) if best.invert else T_best)
-                poses = board_poses([seen.detections[v] for v in ids], target, seen.intrinsics, dict(zip(ids, M_best, strict=False)))
+                poses = board_poses(
+                    [seen.detections[v] for v in ids], target, seen.intrinsics, dict(zip(ids, M_best, strict=False))
+                )
                 obs = observations(poses)
     return obs, n_det, len(items)
 

@@ -179,7 +179,8 @@ _SECTIONS = tuple(
             CrossValidation,
             Scale,
             Mode,
-        ), strict=False,
+        ),
+        strict=False,
     )
 )
 

@@ -73,7 +73,9 @@ class LoadedResult:
         return self.status == "ok" and self.T_x is not None
 
     def with_board_turned(self, H: np.ndarray) -> "LoadedResult":
-        """This result with its board frame moved by ``H`` (4,4): ``T_board H``, and the board's covariance
+        """The result with its board frame moved by ``H`` (4,4) and the board's covariance carried along.
+
+        ``T_board H``, and the board's covariance
         carried along (right tangent: ``Ad(H^-1)``). A symmetric board numbered from another corner in a later
         session has its frame turned so (:func:`handeye.diagnose.consistency.board_turns`); X does not change.
         """

@@ -429,7 +429,8 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
 
     Each view's robot noise covariance R_i is its model's (:meth:`.problem.Problem.robot_cov`). With
     the covariances of a Gaussian solve (``S_pp``: the covariance of each robot-pose variable's prior
-    residual, which for the kinematic model includes the DH offsets' share): for a view whose prior is in the solve, the leave-one-out prediction from the prior
+    residual, which for the kinematic model includes the DH offsets' share): for a view whose prior is in
+    the solve, the leave-one-out prediction from the prior
     residual (:func:`leave_one_out`, Baarda's data snooping); for a view whose prior was excluded,
     its free pose ``P`` with covariance ``S_P``. Otherwise (robust phase, views not in the solve, or a
     view whose prior carries almost all the information about its pose, :func:`prior_share` below
@@ -618,7 +619,7 @@ def outlier_loop(pb: "Problem"):
     """
     o = pb.o
     seen_keys = []
-    S_pp = None
+    S_cc, S_pp = None, None
     for rnd in range(o.max_outlier_rounds):
         dec = decide(pb, robust_robot_sigma=rnd == 0, S_pp=S_pp)
         if seen_keys and dec.key() == seen_keys[-1]:

@@ -232,7 +232,7 @@ def refine_poses(
     T_x0: np.ndarray,
     T_board0: np.ndarray,
     tracker_sigma: Optional[tuple] = None,
-    options: RefineOptions = RefineOptions(),
+    options: Optional[RefineOptions] = None,
     starts: Optional[Mapping[str, HandEyeEstimate]] = None,
 ) -> PoseRefineResult:
     """Refine ``T_x`` and ``T_board`` from pose-only views; see the module docstring.
@@ -241,6 +241,7 @@ def refine_poses(
     ``starts``: the closed forms (method -> estimate); the refinement starts from the one the views
     agree with best. A solve that fails returns ``status="failed"`` with the reason.
     """
+    options = RefineOptions() if options is None else options
     t0 = time.perf_counter()
     mount = mounting(mode)
     T_x0 = check_T(T_x0, f"seed {mount.x_name}")

@@ -485,12 +485,12 @@ class Problem:
             W = np.linalg.inv(self.prior_k[1])
             H[ks, ks] += W
             g[ks] += W @ (self.k[self.free] - self.prior_k[0])
-        for (key, prior, joint), at, T in zip(self._pose_priors(), (0, 6), (self.T_x, self.T_board), strict=False):
+        for (_key, prior, joint), at, T in zip(self._pose_priors(), (0, 6), (self.T_x, self.T_board), strict=False):
             if prior is None:
                 continue
             T_p, cov = prior
             r = tangent_difference(T_p, T)
-            J = tangent_jacobian(lambda T_: tangent_difference(T_p, T_), T)
+            J = tangent_jacobian(lambda T_, T_p=T_p: tangent_difference(T_p, T_), T)
             if joint is None:
                 JW = J.T @ np.linalg.inv(cov)
                 H[at : at + 6, at : at + 6] += JW @ J

@@ -108,7 +108,7 @@ def refine(
     intrinsics: Intrinsics,
     T_x0: np.ndarray,
     T_board0: np.ndarray,
-    options: RefineOptions = RefineOptions(),
+    options: Optional[RefineOptions] = None,
     starts: Optional[Mapping[str, HandEyeEstimate]] = None,
 ) -> RefineResult:
     """Refine hand-eye, board, intrinsics and robot poses jointly; see the module docstring.
@@ -120,6 +120,7 @@ def refine(
     Raises ConfigError / InputError for invalid options or inputs; a solve that fails returns a
     result with ``status="failed"`` and a ``failure_reason``.
     """
+    options = RefineOptions() if options is None else options
     t0 = time.perf_counter()
     mount = mounting(mode)
     check_options(options)

@@ -387,7 +387,7 @@ def poses_3d(
                 ax = fig.add_subplot(1, 2, k + 1)
         ax.set_title(title)
 
-        def proj(p):
+        def proj(p, P=P):
             return np.asarray(p, float) @ P.T
 
         # robot end triads (as reported) and the base

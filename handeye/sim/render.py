@@ -426,9 +426,9 @@ def render_view(
     black: float = BLACK_LEVEL,
     white: float = WHITE_LEVEL,
 ) -> np.ndarray:
-    """An 8-bit image (H, W) (``channels=1``) or BGR (H, W, 3) of the target seen from ``T_cam_board``.
+    r"""An 8-bit image (H, W) (``channels=1``) or BGR (H, W, 3) of the target seen from ``T_cam_board``.
 
-    Anti-aliased with ``supersample``\\ :sup:`2` samples per pixel through OpenCV's lens model, the
+    Anti-aliased with ``supersample``\ :sup:`2` samples per pixel through OpenCV's lens model, the
     board (pattern plus ``margin_squares`` of white border) over ``background`` ("textured" mid
     grey, "flat", a grey level or an (H, W) image), then an optional Gaussian blur
     (``blur_sigma_px``) and Gaussian noise of ``noise_sigma`` grey levels (needs ``rng``).
