@@ -39,7 +39,9 @@ def arrow_blocks(H: np.ndarray, c: int, n: int):
 
 
 def arrow_inverse(H: np.ndarray, c: int, n: int):
-    """Diagonal blocks of inv(H) for an information matrix with a dense core of size c followed by
+    """Diagonal blocks of inv(H) for an arrow-shaped information matrix.
+
+    Diagonal blocks of inv(H) for an information matrix with a dense core of size c followed by
     n 6x6 blocks that couple only with the core: (Sigma_core (c,c), Sigma_blocks (n,6,6)).
     """
     S_cc, S_pp, _ = arrow_solve(*arrow_blocks(H, c, n))
@@ -85,7 +87,9 @@ def arrow_solve(
 def robot_residual_covariances(
     S_cc: np.ndarray, S_pp: np.ndarray, S_cp: np.ndarray, J_dh: np.ndarray, dh: slice
 ) -> np.ndarray:
-    """(n,6,6) covariance of each robot prior residual ``u_i = p_i - J_dh,i · delta`` (p_i: the robot-pose
+    """(n,6,6) covariance of each robot prior residual ``u_i = p_i - J_dh,i · delta``.
+
+    (n,6,6) covariance of each robot prior residual ``u_i = p_i - J_dh,i · delta`` (p_i: the robot-pose
     block, delta: the DH offsets at ``dh`` in the core) from the marginals of :func:`arrow_solve`
     (``S_cp`` its cross covariances). Without DH offsets (m = 0) it is ``S_pp``.
     """
@@ -110,7 +114,9 @@ class HandEyeUncertainty:
 
 
 def hand_eye_uncertainty(cov_x: Optional[np.ndarray], T_x: np.ndarray, working_distance_m: float) -> HandEyeUncertainty:
-    """Sigmas, correlations and the predicted error at the working distance from ``cov_x`` (6,6)
+    """Sigmas, correlations and the predicted error at the working distance from ``cov_x`` (6,6).
+
+    Sigmas, correlations and the predicted error at the working distance from ``cov_x`` (6,6)
     (None: all NaN).
 
     The translation sigmas are those of ``T_x``'s translation vector in the parent frame

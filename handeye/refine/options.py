@@ -50,7 +50,9 @@ class RefineView:
 
 @dataclass(frozen=True, eq=False)
 class Prior:
-    """Gaussian prior knowledge of the hand-eye transform (and optionally the intrinsics), e.g. an
+    """Gaussian prior knowledge of the hand-eye transform.
+
+    Gaussian prior knowledge of the hand-eye transform (and optionally the intrinsics), e.g. an
     earlier calibration of the same rig.
 
     ``T_x`` (4,4): the prior's ``T_end_cam`` (eye-in-hand) / ``T_base_cam`` (eye-to-hand); ``cov_x``
@@ -222,7 +224,9 @@ def check_prior(p: "Prior", bad) -> None:
 
 
 def _check_joint_with_intrinsics(bad, field_name: str, pose: str, cov_pose, cross, cov_k) -> None:
-    """``cross`` (6,9) of a pose prior (covariance ``cov_pose``) with the intrinsics prior (``cov_k``): given with
+    """``cross`` (6,9) of a pose prior (covariance ``cov_pose``) with the intrinsics prior.
+
+    ``cross`` (6,9) of a pose prior (covariance ``cov_pose``) with the intrinsics prior (``cov_k``): given with
     both, and keeping their joint covariance positive definite.
     """
     nk = len(INTRINSIC_NAMES)
@@ -287,7 +291,9 @@ def check_T_stack(Ts: np.ndarray, whats) -> np.ndarray:
 
 
 def check_inputs(object_points, views) -> tuple[np.ndarray, np.ndarray]:
-    """Validate the board points (N,3) and the views (unique ids, matching lengths, rigid poses);
+    """Validate the board points (N,3) and the views.
+
+    Validate the board points (N,3) and the views (unique ids, matching lengths, rigid poses);
     returns the board points as float and the reported robot poses (n,4,4), re-orthonormalised.
     """
     object_points = np.asarray(object_points, float)

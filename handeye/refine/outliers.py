@@ -40,7 +40,9 @@ class RobotPoseGates:
 
     @staticmethod
     def from_config(cfg: dict | None = None, *, unmodelled_arm: bool = True) -> "RobotPoseGates":
-        """``unmodelled_arm``: the poses come from an arm whose kinematic error is not modelled (the null's
+        """The robot-pose gates from the outlier settings ``cfg`` (default: the refine preset).
+
+        ``unmodelled_arm``: the poses come from an arm whose kinematic error is not modelled (the null's
         tail is ``iid_tail_dof``); False: a kinematic model, or a tracker, carries the error (Gaussian).
         """
         c = (cfg if cfg is not None else refine_preset())["outliers"]["robot_pose"]
@@ -70,8 +72,9 @@ class RobotPoseGates:
 
     @property
     def threshold(self) -> float:
-        """The statistic (squared Mahalanobis units) exceeded with probability alpha under the null:
-        the chi-square(6) quantile at 1 - alpha when Gaussian.
+        """The statistic (squared Mahalanobis units) exceeded with probability alpha under the null.
+
+        The chi-square(6) quantile at 1 - alpha when Gaussian.
         """
         return float(mixture_tail_quantile(self.alpha, ROBOT_POSE_DOF, np.array(self.tail_dof)))
 
@@ -208,7 +211,9 @@ def _failed_check(P: np.ndarray, n_corners: int) -> ViewCheck:
 
 
 def own_fit_variance(resid_px: np.ndarray, *, n_params: int = 6) -> float:
-    """``s^2 = sum |e|^2 / (2 N - n_params)`` [px^2] of a view's N corner residual norms ``resid_px`` against
+    """Own-fit variance ``s^2`` [px^2] of a view's corner residuals against its own pose fit.
+
+    ``s^2 = sum |e|^2 / (2 N - n_params)`` [px^2] of a view's N corner residual norms ``resid_px`` against
     the pose fitted to that view alone (``n_params`` = 6 pose unknowns); NaN without redundancy.
     """
     e = np.asarray(resid_px, float)
@@ -218,8 +223,10 @@ def own_fit_variance(resid_px: np.ndarray, *, n_params: int = 6) -> float:
 
 
 def view_variance_factor(resid_px: np.ndarray, *, sigma_px: float, n_params: int = 6) -> float:
-    """How much noisier one view's corners are than the run's pixel sigma: ``max(1, s^2 / sigma_px^2)``
-    with ``s^2`` the view's own-fit variance (:func:`own_fit_variance`) over its inlier corner residuals.
+    """How much noisier one view's corners are than the run's pixel sigma.
+
+    ``max(1, s^2 / sigma_px^2)`` with ``s^2`` the view's own-fit variance (:func:`own_fit_variance`) over
+    its inlier corner residuals.
 
     The detector's corner error is not one iid Gaussian over the run: it differs between views
     (perspective, distance and blur change the corner's edges), and within a view it is correlated.
@@ -236,7 +243,9 @@ def _factor(s2: float, sigma_px: float) -> float:
 
 
 def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10) -> dict:
-    """Robust Gauss-Newton (Huber, ``loss_k``) for the robot pose of each view in ``idx`` from its corners
+    """Robust Gauss-Newton for the robot pose of each view in ``idx`` from its corners alone.
+
+    Robust Gauss-Newton (Huber, ``loss_k``) for the robot pose of each view in ``idx`` from its corners
     alone (``T_x``, ``T_board`` and the intrinsics held), all views at once, starting from the current
     estimates ``pb.P``; a view that most of its corners do not fit from there (a start far off: its
     robot pose belongs to another image, or is misread) starts again from its own PnP pose carried through
@@ -279,7 +288,9 @@ def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10)
 
 
 def _pnp_starts(pb: "Problem", idx: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """Robot poses (len(idx),4,4) that put each view's camera at its own PnP pose of the board under the
+    """Robot poses that put each view's camera at its own PnP pose of the board.
+
+    Robot poses (len(idx),4,4) that put each view's camera at its own PnP pose of the board under the
     current ``T_x``, ``T_board`` and intrinsics (``T_cam_board = inv(T_x) M T_board``); ``fallback`` where
     PnP fails.
     """
@@ -302,7 +313,9 @@ def _pnp_starts(pb: "Problem", idx: np.ndarray, fallback: np.ndarray) -> np.ndar
 
 
 def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> dict:
-    """The robust Gauss-Newton of :func:`camera_only_poses` from the robot poses ``P`` (len(idx),4,4), all views
+    """The robust Gauss-Newton of :func:`camera_only_poses` from the robot poses ``P``.
+
+    The robust Gauss-Newton of :func:`camera_only_poses` from the robot poses ``P`` (len(idx),4,4), all views
     at once. Per view (lists in ``idx`` order): ``P``, ``alive``, ``counts``, ``n_inl`` (corners within
     ``corner_outlier_sigmas``), ``H`` (J^T J over those), ``delta`` (reported to ``P``), ``e`` (each corner's
     residual, px) and ``inl`` (its mask).
@@ -365,7 +378,9 @@ def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> 
 
 
 def joint_checks(pb: "Problem", S_pp: dict) -> dict:
-    """The views of the last Gaussian solve as it has them (their robot poses variables of that solve),
+    """The views of the last Gaussian solve as it has them.
+
+    The views of the last Gaussian solve as it has them (their robot poses variables of that solve),
     with the marginal covariance of each robot pose. Returns {view index: ViewCheck}.
     """
     idx = sorted(S_pp)
@@ -389,8 +404,9 @@ class Decision:
 
 
 def _robot_test_cov(pb: "Problem") -> np.ndarray:
-    """(n,6,6) each view's robot noise covariance for the test: the model's, or for robot_noise "none"
-    the configured iid tolerance.
+    """(n,6,6) each view's robot noise covariance for the test.
+
+    The model's, or for robot_noise "none" the configured iid tolerance.
     """
     if pb.robot_var:
         return pb.robot_cov(range(pb.n))
@@ -415,10 +431,12 @@ def leave_one_out(e: np.ndarray, R: np.ndarray, S_p: np.ndarray) -> tuple[np.nda
 
 
 def prior_share(R: np.ndarray, S_p: np.ndarray) -> float:
-    """Smallest eigenvalue of ``R^-1/2 (R - S_p) R^-1/2``: the share of a robot pose's information that
-    comes from the camera (1: the camera alone fixes it; 0: its prior alone does). :func:`leave_one_out`
-    divides by it, so where it is tiny (a robot sigma near its floor, as on a simulated exact robot) the
-    leave-one-out prediction is the rounding error of ``R - S_p`` blown up.
+    """Smallest eigenvalue of ``R^-1/2 (R - S_p) R^-1/2``.
+
+    The share of a robot pose's information that comes from the camera (1: the camera alone fixes it; 0:
+    its prior alone does). :func:`leave_one_out` divides by it, so where it is tiny (a robot sigma near
+    its floor, as on a simulated exact robot) the leave-one-out prediction is the rounding error of ``R
+    - S_p`` blown up.
     """
     w = 1.0 / np.sqrt(np.diag(R))
     return float(np.linalg.eigvalsh((R - S_p) * np.outer(w, w))[0])
@@ -481,7 +499,9 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
 
 
 def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = None) -> Decision:
-    """Outlier decisions for every view against the current solution, each with a reason and the size
+    """Outlier decisions for every view against the current solution.
+
+    Outlier decisions for every view against the current solution, each with a reason and the size
     of the disagreement:
 
     * corners further than ``corner_outlier_sigmas`` from their prediction are flagged
@@ -612,7 +632,9 @@ class TooFewRobotPoses(Exception):
 
 
 def outlier_loop(pb: "Problem"):
-    """Decide, exclude, re-solve (Gaussian, with variance-component estimation) and decide again from
+    """Decide, exclude, re-solve and decide again until the set of outliers is stable.
+
+    Decide, exclude, re-solve (Gaussian, with variance-component estimation) and decide again from
     scratch against the clean solution, so that a flagged view or corner that fits it is re-admitted,
     until the set is stable (or ``max_outlier_rounds``). Returns (Decision, Sigma_core, {view:
     Sigma_robot}); raises TooFewRobotPoses.
@@ -645,7 +667,9 @@ def outlier_loop(pb: "Problem"):
 
 
 def robot_pose_outlier(vid: str, test, i: int, what: str, consequence: str) -> Outlier:
-    """The ``robot_pose`` outlier of view ``vid`` (index ``i`` of the robot-pose ``test``): its disagreement in
+    """The ``robot_pose`` outlier of view ``vid``.
+
+    The ``robot_pose`` outlier of view ``vid`` (index ``i`` of the robot-pose ``test``): its disagreement in
     degrees, mm and Mahalanobis distance against the threshold, with what happens to the view.
     """
     rot_deg, trans_mm, dist = float(test.rot_deg[i]), float(test.trans_mm[i]), float(test.distance[i])

@@ -64,7 +64,9 @@ class _NoIntrinsics:
 
 @dataclass(frozen=True)
 class PoseRefineResult(RefineResult):
-    """A :class:`.result.RefineResult` of pose-only views: no intrinsics and no pixels (``intrinsics`` is
+    """A :class:`.result.RefineResult` of pose-only views: no intrinsics and no pixels.
+
+    A :class:`.result.RefineResult` of pose-only views: no intrinsics and no pixels (``intrinsics`` is
     None, the pixel figures NaN); the tracker's noise instead.
     """
 
@@ -154,7 +156,9 @@ def _solve(st: _State, *, robust_k, prior_x, max_iterations) -> None:
 
 
 def _vce_on_linearisation(st: _State, r: np.ndarray, J: np.ndarray, prior_x, floors, resolved: dict) -> float:
-    """Variance-component estimation (rotation, translation) iterated on one linearisation (``r`` (n,6),
+    """Variance-component estimation (rotation, translation) iterated on one linearisation.
+
+    Variance-component estimation (rotation, translation) iterated on one linearisation (``r`` (n,6),
     ``J`` (n,6,12) at the last solve): for sigmas s the weighted least-squares step, its residuals ``e_g``
     and the redundancies ``r_g = n_g - tr(W_g J Sigma J^T)`` give ``s_g^2 = e_g^T e_g / r_g``, until the
     sigmas change by less than ``noise.inner_tol``. Updates ``st.sigma`` and ``resolved``; returns the
@@ -187,7 +191,9 @@ def _vce_on_linearisation(st: _State, r: np.ndarray, J: np.ndarray, prior_x, flo
 
 
 def _solve_with_vce(st: _State, *, estimate: bool, prior_x, max_iterations, floors) -> tuple:
-    """Gaussian solves alternating with variance-component estimation on each linearisation
+    """Gaussian solves alternating with variance-component estimation on each linearisation.
+
+    Gaussian solves alternating with variance-component estimation on each linearisation
     (:func:`_vce_on_linearisation`) until a solve's sigmas are within ``noise.outer_tol`` of the estimate
     on its linearisation (as :func:`.noise.solve_with_vce` does for the pixel and robot sigmas); returns
     (Sigma (12,12), r, J, resolved) at the final solution.

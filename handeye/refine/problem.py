@@ -48,8 +48,10 @@ KEY_DH = gtsam.symbol("d", 0)
 
 
 def lm_params(max_iterations: int) -> "gtsam.LevenbergMarquardtParams":
-    """The solver settings of every solve: at most ``max_iterations``, the preset's relative tolerance, and
-    scale-free diagonal damping (see the module docstring).
+    """The solver settings of every solve.
+
+    At most ``max_iterations``, the preset's relative tolerance, and scale-free diagonal damping
+    (see the module docstring).
     """
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(int(max_iterations))
@@ -66,7 +68,9 @@ def key_robot(i: int) -> int:
 
 @dataclass(frozen=True)
 class PixelLinearisation:
-    """Reprojection part of a linearisation with unit pixel sigma: information blocks (core c, then n
+    """Reprojection part of a linearisation with unit pixel sigma.
+
+    Reprojection part of a linearisation with unit pixel sigma: information blocks (core c, then n
     robot blocks), gradient g = J^T r, r^T r and the count of observations; plus the robot prior
     residuals xi (n,6) (:meth:`Problem.prior_residuals`; rows without a prior flagged False in
     ``prior``) and their Jacobians in the DH offsets ``J_dh`` (n,6,m), the core's last m unknowns.
@@ -246,7 +250,9 @@ class Problem:
 
     @property
     def dh_scale_estimable(self) -> bool:
-        """Whether the scale of the DH offsets' prior is a variance component: the arm's own error prior (not an
+        """Whether the scale of the DH offsets' prior is a variance component.
+
+        Whether the scale of the DH offsets' prior is a variance component: the arm's own error prior (not an
         earlier calibration's estimate), with the robot noise estimated.
         """
         return bool(self.m_dh) and not self.prior_dh_earlier and self.o.robot_noise == "estimate"
@@ -257,7 +263,9 @@ class Problem:
         self.prior_dh = (self.prior_dh[0], self.dh_prior_stated * self.dh_scale**2)
 
     def dh_prior_information(self, k: Optional[float] = None) -> tuple[np.ndarray, np.ndarray]:
-        """Information (m,m) and gradient (m,) of the DH offsets' prior at the current offsets, with the prior at
+        """Information (m,m) and gradient (m,) of the DH offsets' prior at the current offsets.
+
+        Information (m,m) and gradient (m,) of the DH offsets' prior at the current offsets, with the prior at
         ``k`` times the stated sigmas (None: the scale in use); the terms of the graph's prior factor on them.
         """
         k = self.dh_scale if k is None else float(k)
@@ -267,8 +275,9 @@ class Problem:
     # -- robot error model (handeye.refine.robot_model)
     @property
     def robot_groups(self) -> tuple:
-        """Names of the robot noise's variance components: the iid model's rotation and translation, or
-        the encoder noise of the kinematic ones.
+        """Names of the robot noise's variance components.
+
+        The iid model's rotation and translation, or the encoder noise of the kinematic ones.
         """
         return ("joint",) if self.kin is not None else ("rot", "trans")
 
@@ -284,8 +293,9 @@ class Problem:
             self.sigma_rot, self.sigma_trans = float(s[0]), float(s[1])
 
     def robot_group_weights(self, idx: Sequence[int]) -> list:
-        """Per group, the weights (len(idx),6,6) of a view's prior residual at unit group sigma: the prior's
-        information is sum_g W_g / s_g^2.
+        """Per group, the weights (len(idx),6,6) of a view's prior residual at unit group sigma.
+
+        The prior's information is sum_g W_g / s_g^2.
         """
         idx = list(idx)
         if self.kin is not None:
@@ -322,7 +332,9 @@ class Problem:
         T_x: Optional[np.ndarray] = None,
         T_board: Optional[np.ndarray] = None,
     ) -> np.ndarray:
-        """Residuals (M,2) of every corner of every view, stacked in view order (split them with
+        """Residuals (M,2) of every corner of every view, stacked in view order.
+
+        Residuals (M,2) of every corner of every view, stacked in view order (split them with
         :meth:`per_view`), at the current solution or the given poses (T_robots (n,4,4)).
         """
         return stacked_chain_residual(
@@ -356,8 +368,10 @@ class Problem:
 
     # -- graph
     def build(self, *, robust: bool, pixel_only: bool = False):
-        """Graph and Values of the current problem; ``pixel_only`` keeps only the reprojection factors,
-        with unit pixel sigma (for the variance-component estimation).
+        """Graph and Values of the current problem.
+
+        ``pixel_only`` keeps only the reprojection factors, with unit pixel sigma (for the
+        variance-component estimation).
         """
         g = gtsam.NonlinearFactorGraph()
         v = gtsam.Values()
@@ -463,13 +477,17 @@ class Problem:
         return g, res, robot_keys
 
     def _pose_priors(self) -> tuple:
-        """(key, (mean (4,4), covariance (6,6)) or None, joint covariance with the free intrinsics or None) of the
+        """The priors on T_x and on the board: key, (mean, covariance) or None, joint covariance.
+
+        (key, (mean (4,4), covariance (6,6)) or None, joint covariance with the free intrinsics or None) of the
         priors on T_x and on the board, in the core order.
         """
         return ((KEY_X, self.prior_x, self.prior_cov_xk), (KEY_BOARD, self.prior_board, self.prior_cov_bk))
 
     def core_prior(self) -> tuple[np.ndarray, np.ndarray]:
-        """Information (c,c) and gradient J^T W r (c,) at the current estimate of the priors on the core
+        """Information (c,c) and gradient of the priors on the core unknowns but the DH offsets.
+
+        Information (c,c) and gradient J^T W r (c,) at the current estimate of the priors on the core
         unknowns but the DH offsets (the intrinsics prior of ``intrinsics="prior"`` and ``options.prior``), in
         the core order of :meth:`pixel_linearisation`; the same terms as the graph's prior factors. The DH
         offsets' prior, whose scale the noise estimation may change: :meth:`dh_prior_information`.
@@ -514,7 +532,9 @@ class Problem:
         return ordering
 
     def covariances(self, g, values, robot_keys):
-        """Marginal covariances (core block, {view index: 6x6 covariance of its robot prior residual})
+        """Marginal covariances of the core block and of each robot prior residual.
+
+        Marginal covariances (core block, {view index: 6x6 covariance of its robot prior residual})
         from the information matrix of graph ``g`` at ``values`` (arrow order: T_x, T_board, intrinsics,
         DH offsets, robot poses); see :func:`.covariance.robot_residual_covariances`.
         """
@@ -558,7 +578,9 @@ class Problem:
         )
 
     def apply_step(self, robot_views: Sequence[int], dx: np.ndarray) -> None:
-        """Move the estimates by a step ``dx`` in the order of :meth:`pixel_linearisation` (T_x, T_board,
+        """Move the estimates by a step ``dx`` in the order of :meth:`pixel_linearisation`.
+
+        Move the estimates by a step ``dx`` in the order of :meth:`pixel_linearisation` (T_x, T_board,
         free intrinsics, DH offsets, then one 6-vector per view of ``robot_views``), poses by right perturbation.
         """
         c = self.n_core
@@ -586,7 +608,9 @@ def solve_pose_graph(
     prior_x=None,
     max_iterations: int = 100,
 ) -> tuple[np.ndarray, np.ndarray, int]:
-    """Levenberg-Marquardt on ``T_x`` and ``T_board`` from measured camera -> target poses (pose-only
+    """Levenberg-Marquardt on ``T_x`` and ``T_board`` from measured camera -> target poses.
+
+    Levenberg-Marquardt on ``T_x`` and ``T_board`` from measured camera -> target poses (pose-only
     views, :mod:`handeye.factors.pose`): ``M`` (n,4,4) the views' robot motions, ``T_cam_board`` (n,4,4)
     the tracker's poses, ``sigmas`` (n,2) each view's (rotation [rad], translation [m]) noise;
     ``prior_x`` (T_x (4,4), covariance (6,6)) an optional Gaussian prior on ``T_x``. Returns

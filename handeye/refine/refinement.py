@@ -58,7 +58,9 @@ log = logging.getLogger(__name__)
 
 
 def seed_score(pb: Problem, T_x: np.ndarray, T_board: np.ndarray) -> float:
-    """Median over the views of each view's median corner residual (px) through the reported robot
+    """Median over the views of each view's median corner residual.
+
+    Median over the views of each view's median corner residual (px) through the reported robot
     pose: a start that half the views agree with scores low, whatever the other views do.
     """
     e = np.linalg.norm(pb.corner_residuals(T_robots=pb.reported, T_x=T_x, T_board=T_board), axis=1)
@@ -78,7 +80,9 @@ def seed_score(pb: Problem, T_x: np.ndarray, T_board: np.ndarray) -> float:
 
 
 def best_start(pb: Problem, starts: Mapping[str, HandEyeEstimate]) -> tuple[np.ndarray, np.ndarray, str]:
-    """The given start, or the candidate among ``starts`` with the lowest :func:`seed_score` when
+    """The given start, or the candidate among ``starts`` with a lower :func:`seed_score`.
+
+    The given start, or the candidate among ``starts`` with the lowest :func:`seed_score` when
     that is lower. Candidates that failed or are not finite are skipped.
     """
     best, best_score, best_name = (pb.T_x, pb.T_board), seed_score(pb, pb.T_x, pb.T_board), "given"

@@ -52,7 +52,9 @@ class Refit:
 def refit(
     result: RefineResult, *, object_points: np.ndarray, views: Sequence[RefineView], covariance: bool = True
 ) -> Refit:
-    """Solve the refinement of ``result`` again on ``views`` alone (a subset of its views), holding its
+    """Solve the refinement of ``result`` again on ``views`` alone.
+
+    Solve the refinement of ``result`` again on ``views`` alone (a subset of its views), holding its
     noise levels and outlier decisions (see the module docstring).
 
     ``object_points`` (N,3): the board points the views' ``corner_ids`` index (the same as for

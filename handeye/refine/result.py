@@ -144,7 +144,9 @@ def _options_dict(o: RefineOptions) -> dict:
 
 
 def robot_model_dict(pb: "Problem", S_cc: Optional[np.ndarray]) -> dict:
-    """JSON-ready description of the robot error model of a solved problem (``S_cc``: its core covariance,
+    """JSON-ready description of the robot error model of a solved problem.
+
+    JSON-ready description of the robot error model of a solved problem (``S_cc``: its core covariance,
     None when it failed): kind, parameters and what was estimated.
     """
     estimated = pb.o.robot_noise == "estimate"
@@ -206,7 +208,9 @@ def robot_model_dict(pb: "Problem", S_cc: Optional[np.ndarray]) -> dict:
 
 
 def _equivalent_robot_sigmas(pb: "Problem") -> tuple[float, float]:
-    """(mm, deg): the robot sigma per axis, or for the kinematic models the RMS per axis of each view's
+    """(mm, deg): the robot sigma per axis, or its RMS equivalent for the kinematic models.
+
+    (mm, deg): the robot sigma per axis, or for the kinematic models the RMS per axis of each view's
     encoder-noise covariance over the views.
     """
     if not pb.robot_var:
@@ -329,7 +333,9 @@ def build_result(
 
 
 def _x_intrinsics_covariance(pb: "Problem", S_cc: Optional[np.ndarray]) -> Optional[dict]:
-    """The joint marginal covariance of T_x's tangent and the free intrinsics (``cov_x_intrinsics``), with the
+    """The joint marginal covariance of T_x's tangent and the free intrinsics.
+
+    The joint marginal covariance of T_x's tangent and the free intrinsics (``cov_x_intrinsics``), with the
     kinematic robot model's DH offsets (their estimate and covariance with both) when it has them.
     """
     nk = len(pb.free)

@@ -48,7 +48,9 @@ LENGTH_PARAMETERS = (0, 2)  # a, d in a DH row (a, alpha, d, theta_offset); the 
 
 @dataclass(frozen=True)
 class KinematicRobotModel:
-    """The per-view matrices of the ``kinematic`` / ``joint_space`` models for n views of an arm with
+    """The per-view matrices of the ``kinematic`` / ``joint_space`` robot models.
+
+    The per-view matrices of the ``kinematic`` / ``joint_space`` models for n views of an arm with
     m DH parameters (m = 0 for ``joint_space``).
     """
 
@@ -79,7 +81,9 @@ def _arm(o: RefineOptions) -> Optional[DHChain]:
 
 
 def resolve_kind(o: RefineOptions, views: Sequence[RefineView]) -> str:
-    """None | iid | kinematic | joint_space: the model of ``o.robot_model`` for these views. ``auto``
+    """The robot model of ``o.robot_model`` for these views: None, iid, kinematic or joint_space.
+
+    None | iid | kinematic | joint_space: the model of ``o.robot_model`` for these views. ``auto``
     is ``kinematic`` when an arm is named (views without joint angles get them by inverse kinematics),
     else ``iid``.
     """
@@ -207,7 +211,9 @@ def describe_dh(
     test: Optional[dict] = None,
     scale_dof: Optional[float] = None,
 ) -> dict:
-    """JSON-ready estimate of the DH offsets: per joint (a mm, alpha deg, d mm, theta_offset deg), their
+    """JSON-ready estimate of the DH offsets per joint, with sigmas and prior shares.
+
+    JSON-ready estimate of the DH offsets: per joint (a mm, alpha deg, d mm, theta_offset deg), their
     sigmas, and the share of each offset's prior variance the data removed (0: held by the prior alone,
     1: fixed by the data). ``prior_cov`` (m,m): the prior the offsets were estimated under when it is not the
     arm's own N(0, dh_sigma^2), e.g. an earlier calibration's estimate; the share is measured against it.

@@ -87,8 +87,10 @@ def settings() -> dict:
 
 # ------------------------------------------------------------------------------ pure math
 def fold_indices(n: int, *, loo_max_views: int, folds: int) -> list:
-    """Index arrays of the held-out views of each fold: one view each up to ``loo_max_views`` views,
-    else ``folds`` interleaved groups (view k in fold k mod folds).
+    """Index arrays of the held-out views of each fold.
+
+    One view each up to ``loo_max_views`` views, else ``folds`` interleaved groups (view k in fold k
+    mod folds).
     """
     if n <= loo_max_views:
         return [np.array([i]) for i in range(n)]
@@ -96,7 +98,9 @@ def fold_indices(n: int, *, loo_max_views: int, folds: int) -> list:
 
 
 def jackknife_covariance(thetas: np.ndarray) -> np.ndarray:
-    """Grouped jackknife covariance (D,D) of K fold estimates ``thetas`` (K,D) of folds that partition
+    """Grouped jackknife covariance (D,D) of K fold estimates ``thetas``.
+
+    Grouped jackknife covariance (D,D) of K fold estimates ``thetas`` (K,D) of folds that partition
     the units: ``(K - 1) / K · sum_k (theta_k - mean)(theta_k - mean)^T``.
     """
     x = np.asarray(thetas, float)
@@ -106,7 +110,9 @@ def jackknife_covariance(thetas: np.ndarray) -> np.ndarray:
 
 
 def shrunk_jackknife(thetas: np.ndarray, cov_model: np.ndarray) -> tuple[np.ndarray, float, float]:
-    """(validated covariance (D,D), shrinkage intensity in [0, 1], scale s): the jackknife covariance of
+    """(validated covariance, shrinkage intensity, scale): the shrunk, whitened jackknife covariance.
+
+    (validated covariance (D,D), shrinkage intensity in [0, 1], scale s): the jackknife covariance of
     ``thetas`` (K,D), whitened by ``cov_model``, shrunk toward ``s · I`` with the Ledoit-Wolf intensity
     estimated from the K folds, and mapped back. ``s = tr(M^-1 S) / D``: the spread over the model's
     prediction, averaged over the D directions.
@@ -125,9 +131,10 @@ def shrunk_jackknife(thetas: np.ndarray, cov_model: np.ndarray) -> tuple[np.ndar
 
 
 def generalised_max(cov_model: np.ndarray, cov_other: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(C, generalised eigenvalues of ``cov_other`` against ``cov_model`` (D,), ascending): the smallest
-    covariance of the form ``L U diag(c) U^T L^T`` with ``u^T C u >= max(u^T M u, u^T V u)`` along
-    every direction (:data:`SIGMA_RULE`).
+    """(C, generalised eigenvalues of ``cov_other`` against ``cov_model`` (D,), ascending).
+
+    The smallest covariance of the form ``L U diag(c) U^T L^T`` with ``u^T C u >= max(u^T M u, u^T V
+    u)`` along every direction (:data:`SIGMA_RULE`).
     """
     M = 0.5 * (cov_model + cov_model.T)
     L = np.linalg.cholesky(M)
@@ -140,7 +147,9 @@ def generalised_max(cov_model: np.ndarray, cov_other: np.ndarray) -> tuple[np.nd
 def fold_information_statistic(
     deltas: np.ndarray, fold_covs: Sequence[np.ndarray], cov_all: np.ndarray, *, floor: float
 ) -> tuple[float, float]:
-    """(T, dof) of the folds' displacements ``deltas`` (K,D) from the all-views refit against their model
+    """(T, dof) of the folds' displacements from the all-views refit against their covariances.
+
+    (T, dof) of the folds' displacements ``deltas`` (K,D) from the all-views refit against their model
     covariances ``P_k = fold_covs[k] - cov_all`` (module docstring): ``T = (K - 1) / K · sum_k delta_k^T P_k^+
     delta_k`` over the directions (generalised eigenvectors against ``cov_all``) in which ``P_k`` exceeds
     ``floor`` times ``cov_all``, ``dof = (K - 1) / K`` times their number. chi-square(dof) if the model is
@@ -161,7 +170,9 @@ def fold_information_statistic(
 
 
 def trace_p_value(scale: float, k_folds: int, dim: int) -> float:
-    """Upper tail probability of the folds' spread ``scale = tr(M^-1 S) / D`` if the model covariance is
+    """Upper tail probability of the folds' spread if the model covariance is right.
+
+    Upper tail probability of the folds' spread ``scale = tr(M^-1 S) / D`` if the model covariance is
     right: ``(K - 1) D · scale`` is chi-square with ``(K - 1) D`` degrees of freedom.
     """
     dof = max(int(k_folds) - 1, 1) * int(dim)
@@ -241,7 +252,9 @@ class Validation:
 def validate(
     result: RefineResult, *, object_points: np.ndarray, views: Sequence[RefineView], halves: bool = True
 ) -> Validation:
-    """Validated and verdict covariances of ``result`` (see the module docstring) from refits on
+    """Validated and verdict covariances of ``result`` (see the module docstring) from refits on ``views``.
+
+    Validated and verdict covariances of ``result`` (see the module docstring) from refits on
     ``views`` (the refinement's views; those it did not use are left out of the folds, robot-excluded
     views stay in every fold). ``halves``: also refit the odd and even halves of the used views.
     """
@@ -315,7 +328,9 @@ def validate(
 
 
 def _fold_test(ok: list, every, delta, cov, floor: float) -> Optional[tuple]:
-    """(T, dof) of :func:`fold_information_statistic` over the solved folds that have their own covariance
+    """(T, dof) of :func:`fold_information_statistic` over the solved folds that have their own covariance.
+
+    (T, dof) of :func:`fold_information_statistic` over the solved folds that have their own covariance
     (``delta(refit)``: its displacement from the all-views refit ``every``; ``cov(refit)``: its covariance),
     or None when no test is possible (the all-views refit failed or has no usable covariance, or fewer than
     3 folds have theirs).
@@ -335,8 +350,10 @@ def _fold_test(ok: list, every, delta, cov, floor: float) -> Optional[tuple]:
 
 
 def intrinsics_model_covariance(result: RefineResult, names: tuple) -> tuple[np.ndarray, str]:
-    """(model covariance of the free intrinsics ``names``, "full" | "sigmas"): the marginal of the refinement's
-    joint covariance when it has one for exactly these intrinsics, else the diagonal of their model sigmas.
+    """(model covariance of the free intrinsics ``names``, "full" | "sigmas").
+
+    The marginal of the refinement's joint covariance when it has one for exactly these intrinsics, else
+    the diagonal of their model sigmas.
     """
     j = result.cov_x_intrinsics
     if j is not None and tuple(j["intrinsics"]) == tuple(names):
@@ -351,7 +368,9 @@ def intrinsics_model_covariance(result: RefineResult, names: tuple) -> tuple[np.
 
 
 def _block(names: tuple, cov_model: np.ndarray, thetas: np.ndarray, *, model_form: str = "full", test=None) -> Block:
-    """One block's covariances; ``test``: (T, dof) of :func:`fold_information_statistic`, None for the trace
+    """One block's validated covariances and its fold test.
+
+    One block's covariances; ``test``: (T, dof) of :func:`fold_information_statistic`, None for the trace
     test of the jackknife against the model (equal leverage), or "none" (no test: the model stands).
     """
     M = np.asarray(cov_model, float)
