@@ -143,7 +143,9 @@ def intrinsics_prior(*, key_intrinsics: int, prior_values: np.ndarray, sigmas: n
 
 
 def gaussian_prior(*, key: int, mean: np.ndarray, cov: np.ndarray) -> gtsam.NonlinearFactor:
-    """Gaussian prior with a full covariance on a Pose3 (``mean`` (4,4); ``cov`` (6,6) in its right
+    """Gaussian prior with a full covariance on a Pose3.
+
+    Gaussian prior with a full covariance on a Pose3 (``mean`` (4,4); ``cov`` (6,6) in its right
     tangent, rotation first: error ``Log(inv(mean) · T)``) or on a Vector (``mean`` (k,), ``cov`` (k,k)).
     """
     mean = np.asarray(mean, float)
@@ -156,7 +158,9 @@ def gaussian_prior(*, key: int, mean: np.ndarray, cov: np.ndarray) -> gtsam.Nonl
 def joint_gaussian_prior(
     *, key_pose: int, key_vector: int, mean_pose: np.ndarray, mean_vector: np.ndarray, cov: np.ndarray
 ) -> gtsam.NonlinearFactor:
-    """Gaussian prior on a Pose3 and a Vector together, with their cross-covariance (e.g. an earlier calibration's
+    """Gaussian prior on a Pose3 and a Vector together, with their cross-covariance.
+
+    Gaussian prior on a Pose3 and a Vector together, with their cross-covariance (e.g. an earlier calibration's
     T_x and intrinsics, whose errors are correlated): error ``(Log(inv(mean_pose) · T), v - mean_vector)``
     (6 + k,) ~ N(0, ``cov``), the pose's block in its right tangent, rotation first.
     """
@@ -185,7 +189,9 @@ def kinematic_robot_prior(
     cov: np.ndarray,
     robust_k: Optional[float] = None,
 ) -> gtsam.NonlinearFactor:
-    """Prior of the kinematic robot error model (:mod:`handeye.refine.robot_model`) tying the true robot
+    """Prior of the kinematic robot error model.
+
+    Prior of the kinematic robot error model (:mod:`handeye.refine.robot_model`) tying the true robot
     pose to the reported one and the arm's DH offsets: error ``Log(inv(reported) · T_base_end) - J_dh · delta``
     (6,) (rotation then translation, end frame) ~ N(0, ``cov``), with ``delta`` the Vector at ``key_dh``
     (m,). ``key_dh`` None: no DH offsets (the joint-space model), a PriorFactorPose3 with covariance

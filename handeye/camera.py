@@ -85,7 +85,9 @@ class Intrinsics:
 
 # ------------------------------------------------------------------------------ projection
 def project_opencv5(intrinsics_vec, p_cam: np.ndarray, jacobians: bool):
-    """Pixels (N,2) and, when asked, the Jacobians laid out transposed for speed:
+    """Pixels (N,2) and, when asked, the Jacobians laid out transposed for speed.
+
+    Pixels (N,2) and, when asked, the Jacobians laid out transposed for speed:
     ``Jp_T`` (3, 2N) = (d uv / d p_cam)^T and ``Jk_T`` (9, 2N) = (d uv / d intrinsics)^T, with the
     2N columns interleaved (u0, v0, u1, v1, ...).
     """

@@ -178,7 +178,9 @@ MARKER_CORNERS = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0
 
 @dataclass(frozen=True)
 class MarkerSpec:
-    """One square fiducial marker (ArUco or AprilTag through cv2.aruco's dictionaries), ``size_m`` the side of
+    """One square fiducial marker.
+
+    One square fiducial marker (ArUco or AprilTag through cv2.aruco's dictionaries), ``size_m`` the side of
     its black square (AprilTag's "tag size"). Corner ids 0-3: top-left, top-right, bottom-right, bottom-left
     (:data:`MARKER_CORNERS`); the board frame's origin is the top-left corner.
 
@@ -217,7 +219,9 @@ class MarkerSpec:
 
 @dataclass(frozen=True)
 class AprilGridSpec:
-    """Kalibr's AprilGrid: ``cols`` x ``rows`` tags of side ``size_m``, ``spacing`` (a ratio of the tag side)
+    """Kalibr's AprilGrid: ``cols`` x ``rows`` tags of side ``size_m`` with gaps between them.
+
+    Kalibr's AprilGrid: ``cols`` x ``rows`` tags of side ``size_m``, ``spacing`` (a ratio of the tag side)
     between neighbouring tags, small black squares in the gaps at the tags' corners.
 
     Tag ids as Kalibr numbers them: ``first_id`` at the bottom left of the print, increasing along a row to
@@ -286,7 +290,9 @@ TargetSpec = Union[ChessboardSpec, CharucoSpec, CircleGridSpec, MarkerSpec, Apri
 
 @dataclass(frozen=True)
 class TrackedTargetSpec:
-    """The target of a pose-only session: a frame whose pose an external tracker reports (no points are
+    """The target of a pose-only session: a frame whose pose an external tracker reports.
+
+    The target of a pose-only session: a frame whose pose an external tracker reports (no points are
     detected). ``object_points`` are its origin and the tips of its x and y axes at ``axis_m``, for
     drawings and for code that sizes things by the target.
     """

@@ -102,7 +102,9 @@ def board_poses(
 
 
 def planar_pose_pair(object_points: np.ndarray, image_points: np.ndarray, intr: Intrinsics) -> list:
-    """Both poses ``[(T_cam_board, rms_px), ...]`` of the planar ambiguity (IPPE's two solutions, each refined
+    """Both poses ``[(T_cam_board, rms_px), ...]`` of the planar ambiguity.
+
+    Both poses ``[(T_cam_board, rms_px), ...]`` of the planar ambiguity (IPPE's two solutions, each refined
     with Levenberg-Marquardt), the smaller reprojection error first; one entry when IPPE gives one.
     """
     obj = object_points.astype(np.float64).reshape(-1, 1, 3)
@@ -177,7 +179,9 @@ def rotation_consistent_labels(
 
 
 def candidate_invariants(Cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Screw invariants (angle, pitch), each (n,k,n,k), of the camera pair motions for every ordering of
+    """Screw invariants (angle, pitch) of the camera pair motions for every ordering of each view.
+
+    Screw invariants (angle, pitch), each (n,k,n,k), of the camera pair motions for every ordering of
     each view: ``Cs`` (n,k,4,4) is ``T_cam_board`` of view i under ordering a.
     """
     n, k = Cs.shape[:2]
@@ -187,7 +191,9 @@ def candidate_invariants(Cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def orientation_labels(inv_C: tuple[np.ndarray, np.ndarray], Ms: np.ndarray, *, turns: bool = True) -> np.ndarray:
-    """The candidate (index into the target's symmetries) of each view whose camera motions agree best with
+    """The symmetry candidate of each view whose camera motions agree best with the robot motions.
+
+    The candidate (index into the target's symmetries) of each view whose camera motions agree best with
     the robot motions ``Ms`` (n,4,4); ``inv_C`` from :func:`candidate_invariants`. With ``turns`` (the
     candidates are turns of a symmetric board) the detector's own order is kept for the majority (turning
     every view alike only changes the board frame); without (the two poses of a planar ambiguity) the

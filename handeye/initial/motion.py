@@ -54,7 +54,9 @@ class MotionQuality:
 
 
 def _rotation_axes(M: np.ndarray):
-    """Largest relative rotation (deg) and the eigen-decomposition (ascending) of the weighted
+    """Largest relative rotation (deg) and the eigen-decomposition.
+
+    Largest relative rotation (deg) and the eigen-decomposition (ascending) of the weighted
     scatter of the relative rotation vectors over all pairs ``M_i M_j^-1``.
     """
     n = len(M)
@@ -135,7 +137,9 @@ def _vec_text(a: np.ndarray) -> str:
 
 
 def axis_text(a: np.ndarray, frame: str) -> str:
-    """A direction in words: ``the base z axis [+0.00, +0.00, +1.00]`` when it is close to a frame
+    """A direction in words: ``the base z axis [+0.00, +0.00, +1.00]`` when it is close to a frame axis.
+
+    A direction in words: ``the base z axis [+0.00, +0.00, +1.00]`` when it is close to a frame
     axis (within ~25 deg), else ``[...] in the base frame``.
     """
     a = np.asarray(a, float) / max(float(np.linalg.norm(a)), 1e-12)
