@@ -91,7 +91,9 @@ def detect_gray(
     budget: TimeBudget | None = None,
     dropped: list | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | str:
-    """(corner ids, image points (N,2) px) of ``target`` in an 8-bit grey image, or the reason it was
+    """(corner ids, image points (N,2) px) of ``target`` in an 8-bit grey image.
+
+    (corner ids, image points (N,2) px) of ``target`` in an 8-bit grey image, or the reason it was
     not found. Fewer than ``min_corners`` corners (default: configs/detection.yaml) counts as not found.
     ``budget``: the time left for this image (default: ``time_budget_s`` from now); detectors with slower
     searches skip them once it is spent (the reason then says "detection timed out"). ``dropped``: a list
@@ -214,7 +216,9 @@ def detect_views(
 
 
 def _wrong_board_size(items, target, pool, o: DetectionOptions) -> dict | None:
-    """Failures for every view when the first views show another chessboard size than ``target``'s;
+    """Failures for every view when the first views show another chessboard size than ``target``'s.
+
+    Failures for every view when the first views show another chessboard size than ``target``'s;
     None (search every view as usual) when one of them shows the stated size or they do not clearly
     show another one. The first view is looked at alone (a session with the right size pays for that
     one look, 50-100 ms), the others of the probe together. Checked views keep the sizes seen
@@ -263,7 +267,9 @@ def _wrong_board_size(items, target, pool, o: DetectionOptions) -> dict | None:
 
 
 def _sizes_of_failures(results: dict, paths: dict, pool, o: DetectionOptions) -> dict:
-    """When the stated chessboard was not found in most views (the probe could not tell why), the
+    """The board sizes seen in a few failed views when the stated chessboard was mostly not found.
+
+    When the stated chessboard was not found in most views (the probe could not tell why), the
     board sizes seen in a few of the failed views (``seen_sizes``), so the message can name them.
     """
     failed = [v for v, d in results.items() if isinstance(d, DetectionFailure) and d.seen_sizes is None]

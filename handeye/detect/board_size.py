@@ -33,7 +33,9 @@ def size_text(size: Size) -> str:
 def visible_grid_sizes(
     gray: np.ndarray, *, max_side_px: int = 800, full_size_retry: bool = False, retry_max_megapixels: float = 1.0
 ) -> tuple:
-    """Inner-corner sizes ``((cols, rows), ...)`` of the chessboards seen in an 8-bit grey image
+    """Inner-corner sizes ``((cols, rows), ...)`` of the chessboards seen in an 8-bit grey image.
+
+    Inner-corner sizes ``((cols, rows), ...)`` of the chessboards seen in an 8-bit grey image
     (at most one: the largest grid the detector follows); ``()`` when none.
 
     The image is reduced so its longer side is at most ``max_side_px``; ``full_size_retry`` searches
@@ -126,7 +128,9 @@ class SizeSurvey:
 
 
 def size_survey(results: Mapping[str, object], stated: Size) -> Optional[SizeSurvey]:
-    """The survey recorded on the failures of :func:`handeye.detect.detect_views` (their ``seen_sizes``),
+    """The survey recorded on the failures of :func:`handeye.detect.detect_views`.
+
+    The survey recorded on the failures of :func:`handeye.detect.detect_views` (their ``seen_sizes``),
     or None when no view was checked.
     """
     seen = {vid: tuple(r.seen_sizes) for vid, r in results.items() if getattr(r, "seen_sizes", None) is not None}

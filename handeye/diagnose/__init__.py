@@ -81,7 +81,9 @@ GLOBAL_FAULT_CODES = READING_CODES + ("pairs_shifted", "pairs_shuffled", "square
 def _pose_checks(
     stages: Stages, obs: PoseObservations, *, refined=None, session_kind: str = "native", pairing=None
 ) -> dict:
-    """Readings, pairing, board move, per-view disagreement and motion on one set of observations
+    """Readings, pairing, board move, per-view disagreement and motion on one set of observations.
+
+    Readings, pairing, board move, per-view disagreement and motion on one set of observations
     (``pairing``: the pairing search the calibration already made, :class:`.pairing.PairingSearch`).
 
     Returns ``{"findings", "readings", "global_fault", "per_view", "fit", "M"}`` (fit/M None when the
@@ -207,7 +209,9 @@ def _motion_ok(obs: PoseObservations, M: np.ndarray) -> bool:
 
 
 def _robot_pose_stage(obs: PoseObservations, fit, *, refined=None, exclude=()) -> tuple[list, dict]:
-    """(findings, per-view numbers): robot poses that disagree, explained by a corner flip or a swap where
+    """(findings, per-view numbers) of the robot poses that disagree.
+
+    (findings, per-view numbers): robot poses that disagree, explained by a corner flip or a swap where
     one fits.
     """
     covs = obs.pnp_covariances(with_intrinsics=False)
@@ -362,7 +366,9 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
 
 
 def arm_table_findings(model: Optional[dict]) -> list:
-    """An info finding when the views put the arm further from its DH table than its stated prior allows
+    """An info finding when the views put the arm further from its DH table than its stated prior allows.
+
+    An info finding when the views put the arm further from its DH table than its stated prior allows
     (the kinematic model widened the prior: :func:`handeye.refine.noise._dh_prior_test`), with the offsets
     most beyond their sigma: the arm's own kinematic calibration is off, which the hand-eye result has taken into
     account.
@@ -399,7 +405,9 @@ def arm_table_findings(model: Optional[dict]) -> list:
 
 # ------------------------------------------------------------------------------ failed loads
 def _of_one_size(items: list) -> list:
-    """The (view id, image path) items whose image (read from the file header) has the most common size;
+    """The (view id, image path) items whose image has the most common size.
+
+    The (view id, image path) items whose image (read from the file header) has the most common size;
     those whose header cannot be read stay (detection drops them with the reason).
     """
     from collections import Counter
@@ -414,7 +422,9 @@ def _of_one_size(items: list) -> list:
 
 
 def _observe_lenient(sess) -> tuple[Optional[PoseObservations], Optional[int], int]:
-    """Detections, intrinsics and board poses of a leniently read session through the pipeline's
+    """Detections, intrinsics and board poses of a leniently read session.
+
+    Detections, intrinsics and board poses of a leniently read session through the pipeline's
     observation stage: (observations | None, n_found, n_images); n_found is None when no reading of the
     pose numbers parses (nothing was detected then).
     """

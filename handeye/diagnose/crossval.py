@@ -35,7 +35,9 @@ log = logging.getLogger(__name__)
 
 
 def x_delta(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """(rot about the camera axes [deg] (3), translation along the parent axes [mm] (3)) of T vs T_ref,
+    """(rot about the camera axes [deg] (3), translation along the parent axes [mm] (3)) of T vs T_ref.
+
+    (rot about the camera axes [deg] (3), translation along the parent axes [mm] (3)) of T vs T_ref,
     in the parametrisation of the refinement's sigmas (T = T_ref Exp(omega), t - t_ref).
     """
     om = rotvec_from_R(T_ref[:3, :3].T @ T[:3, :3])
@@ -66,7 +68,9 @@ def folds(n: int, *, refined: bool) -> list:
 
 
 def _refined_folds(run, ref, ids, fold_list, T_rep):
-    """(estimates per fold: (T_x, T_board, intrinsics) or None, method text): one solve per fold
+    """(estimates per fold: (T_x, T_board, intrinsics) or None, method text): one solve per fold.
+
+    (estimates per fold: (T_x, T_board, intrinsics) or None, method text): one solve per fold
     (:func:`handeye.refine.refit`: the full run's noise levels and outlier decisions held).
     """
     from ..refine import RefineView, refit
@@ -276,7 +280,9 @@ def validation_alpha() -> float:
 
 
 def ratio_limits(k_folds: int) -> tuple[float, float]:
-    """(low, high): the two-sided range, at ``validation.alpha`` each side, of a jackknife sigma over the
+    """(low, high): the two-sided range, at ``validation.alpha`` each side.
+
+    (low, high): the two-sided range, at ``validation.alpha`` each side, of a jackknife sigma over the
     true sigma from ``k_folds`` folds, ``sqrt(chi2(K - 1) / (K - 1))`` (K - 1 degrees of freedom: the
     three axes of a block are not independent, so no more are counted).
     """

@@ -39,7 +39,9 @@ class PoseObservations:
 
     @property
     def candidates_are_turns(self) -> bool:
-        """``C_candidates`` are turns of a symmetric board (False: the two poses of a single marker's planar
+        """Whether ``C_candidates`` are turns of a symmetric board.
+
+        ``C_candidates`` are turns of a symmetric board (False: the two poses of a single marker's planar
         ambiguity), for :func:`handeye.initial.board_poses.orientation_labels`.
         """
         return not getattr(self.target, "pose_ambiguous", False)
@@ -49,7 +51,9 @@ class PoseObservations:
         return mounting(self.mode)
 
     def pnp_covariances(self, *, with_intrinsics: bool = True) -> Optional[np.ndarray]:
-        """(N,6,6) covariance of each view's board pose (right tangent of :mod:`handeye.frames`), with the
+        """(N,6,6) covariance of each view's board pose.
+
+        (N,6,6) covariance of each view's board pose (right tangent of :mod:`handeye.frames`), with the
         pixel noise taken robustly from all PnP residuals; None without corners. ``with_intrinsics``: add
         the uncertainty of intrinsics estimated from the same corners (when they were).
         """

@@ -280,7 +280,9 @@ def pitch_scale(obs: PoseObservations, fmt_read: PoseFormat, fmt_true: PoseForma
 
 
 def inverse_reading_kind(mode: str, fit: BoardFit) -> str:
-    """For a fit with inverted robot motions: "poses_inverted" or "mode_swapped", by which reading puts
+    """Which reading a fit with inverted robot motions is: poses_inverted or mode_swapped.
+
+    For a fit with inverted robot motions: "poses_inverted" or "mode_swapped", by which reading puts
     the camera near the flange (eye-in-hand-like: |t_X| < |t_board|) or beside the robot.
     """
     t_x = float(np.linalg.norm(inv_T(fit.A)[:3, 3]))
@@ -420,8 +422,9 @@ def _inverse_finding(obs: PoseObservations, best: Reading, ev: str, details: dic
 
 
 def reading_in_use(obs: PoseObservations, readings: Sequence[Reading], findings: Sequence[Finding]):
-    """(robot motions M (N,4,4), fit) of the reading the other checks should use: the best reading when
-    the given one was found wrong, else the given one.
+    """(robot motions M (N,4,4), fit) of the reading the other checks should use.
+
+    The best reading when the given one was found wrong, else the given one.
     """
     if findings:
         best = readings[0]

@@ -40,7 +40,9 @@ class ScaleEstimate:
         return abs(self.k - 1.0) / self.sigma if self.sigma > 0 else float("inf")
 
     def p_value(self) -> float:
-        """Two-sided p-value of k = 1 (Student t with n - 1 degrees of freedom; scipy.special's distribution
+        """Two-sided p-value of k = 1.
+
+        Two-sided p-value of k = 1 (Student t with n - 1 degrees of freedom; scipy.special's distribution
         function, what scipy.stats.t.sf evaluates, without importing scipy.stats: seconds of start-up).
         """
         from scipy.special import stdtr
@@ -54,7 +56,9 @@ def _k_from_sums(sums: np.ndarray) -> float:
 
 
 def estimate_scale(C: np.ndarray, M: np.ndarray, *, use: Optional[np.ndarray] = None) -> Optional[ScaleEstimate]:
-    """The scale ratio ``k`` of ``C`` (N,4,4) ``T_cam_board`` against robot motions ``M`` (N,4,4), with its
+    """The scale ratio ``k`` of ``C`` (N,4,4) ``T_cam_board`` against robot motions ``M``.
+
+    The scale ratio ``k`` of ``C`` (N,4,4) ``T_cam_board`` against robot motions ``M`` (N,4,4), with its
     jackknife sigma over the views in ``use`` (bool (N,), default all); None with fewer than 4 views.
 
     The pairs' terms are computed once and summed per view, so each leave-one-out solve subtracts the
