@@ -65,7 +65,9 @@ INTRINSICS_COMPARED = ("fx", "fy", "cx", "cy")
 
 @dataclass(frozen=True)
 class Comparison:
-    """``X_b`` against ``X_a``. Translations: ``t_b - t_a`` along the parent frame's axes (mm);
+    """The difference of ``X_b`` against ``X_a`` and its test.
+
+    ``X_b`` against ``X_a``. Translations: ``t_b - t_a`` along the parent frame's axes (mm);
     rotations: ``rotvec(R_a^T R_b)`` about the camera axes of ``X_a`` (deg); ``xi``: the tangent
     difference the test uses; ``intrinsics``: per name ``{a, b, diff, sigma, z}`` and ``mahalanobis2``,
     ``dof``, ``p_value``, ``drifted`` (absent when neither result has intrinsics sigmas).
@@ -193,7 +195,9 @@ def _target_text(t) -> str:
 
 
 def x_difference(T_a: np.ndarray, cov_a: np.ndarray, T_b: np.ndarray, cov_b: np.ndarray) -> dict:
-    """The tangent difference ``xi`` (6,), its covariance ``S`` (6,6) (``cov_b`` moved into ``T_a``'s
+    """The tangent difference ``xi`` (6,) of the two transforms, its covariance and derived figures.
+
+    The tangent difference ``xi`` (6,), its covariance ``S`` (6,6) (``cov_b`` moved into ``T_a``'s
     tangent), ``d2 = xi^T S^-1 xi`` and the derived per-axis forms (see the module docstring).
     """
     xi = tangent_difference(T_a, T_b)
@@ -216,7 +220,9 @@ def x_difference(T_a: np.ndarray, cov_a: np.ndarray, T_b: np.ndarray, cov_b: np.
 
 
 def x_given_intrinsics(a: LoadedResult, b: LoadedResult, d: dict) -> Optional[dict]:
-    """The test of X given the intrinsics difference (see the module docstring) on the difference ``d`` of
+    """The test of X given the intrinsics difference.
+
+    The test of X given the intrinsics difference (see the module docstring) on the difference ``d`` of
     :func:`x_difference`: ``{"d2", "explained" (6,): G dk}``; None when either result lacks the joint
     covariance or their free intrinsics differ.
     """
@@ -242,7 +248,9 @@ def x_given_intrinsics(a: LoadedResult, b: LoadedResult, d: dict) -> Optional[di
 
 
 def intrinsics_difference(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) -> dict:
-    """Per intrinsic (fx, fy, cx, cy) ``{a, b, diff, sigma, z}`` and the diagonal chi-square test over
+    """Per intrinsic (fx, fy, cx, cy) the difference and its z, with the diagonal chi-square test.
+
+    Per intrinsic (fx, fy, cx, cy) ``{a, b, diff, sigma, z}`` and the diagonal chi-square test over
     those with a sigma; {} when either result has no intrinsics.
     """
     if a.intrinsics is None or b.intrinsics is None:
@@ -273,7 +281,9 @@ def intrinsics_difference(a: LoadedResult, b: LoadedResult, *, alpha: float = AL
 
 
 def _intrinsics_joint_test(a: LoadedResult, b: LoadedResult, alpha: float) -> Optional[dict]:
-    """The test of (fx, fy, cx, cy) under the sum of the two results' full covariances of them (the joint
+    """The test of (fx, fy, cx, cy) under the sum of the two results' full covariances of them.
+
+    The test of (fx, fy, cx, cy) under the sum of the two results' full covariances of them (the joint
     covariance carried to the verdict: fx and fy move together), when both carry it for all four.
     """
     ja, jb = a.cov_x_intrinsics, b.cov_x_intrinsics
@@ -347,7 +357,9 @@ def compare_loaded(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) ->
 
 
 def noise_dof(a: LoadedResult, S: np.ndarray, b: LoadedResult) -> Optional[float]:
-    """Degrees of freedom of the covariance ``S = S_a + Ad S_b Ad^T`` of the difference when the results
+    """Degrees of freedom of the difference's covariance when the robot noise was estimated.
+
+    Degrees of freedom of the covariance ``S = S_a + Ad S_b Ad^T`` of the difference when the results
     estimated their robot noise (:attr:`~handeye.recal.loaded.LoadedResult.robot_noise_dof`): Satterthwaite's,
     each result's share of ``S`` its average over the six whitened directions; None when neither did.
     """
@@ -361,7 +373,9 @@ def noise_dof(a: LoadedResult, S: np.ndarray, b: LoadedResult) -> Optional[float
 
 
 def _dependence_note(a: LoadedResult, b: LoadedResult) -> str:
-    """A warning when a result was calibrated with an earlier one as its prior (the two are then not
+    """A warning when a result was calibrated with an earlier one as its prior.
+
+    A warning when a result was calibrated with an earlier one as its prior (the two are then not
     independent, and the test's p-value is too large), or, after a contradicted prior, with the earlier
     intrinsics (and board pose) as priors; the stronger tie first.
     """
@@ -390,7 +404,9 @@ def _dependence_note(a: LoadedResult, b: LoadedResult) -> str:
 
 
 def compare_results(a: ResultLike, b: ResultLike, *, alpha: float = ALPHA) -> Comparison:
-    """Compare result ``b`` with result ``a`` (each a result folder, a result.json path or the loaded
+    """Compare result ``b`` with result ``a``.
+
+    Compare result ``b`` with result ``a`` (each a result folder, a result.json path or the loaded
     dict). Unreadable files raise :class:`~handeye.errors.InputError`; results that do not describe one
     quantity give ``comparable=False`` and the ``reason``.
     """

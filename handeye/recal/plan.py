@@ -97,7 +97,9 @@ class VerifyPlan:
 
 
 def drift_directions(*, drift_mm: float, drift_deg: float, n_random: int, seed: int = 0) -> np.ndarray:
-    """(K, 6) drifts in the tangent (rad, m): a rotation of ``drift_deg`` and a translation of ``drift_mm``,
+    """(K, 6) drifts in the tangent (rad, m) of the given rotation and translation sizes.
+
+    (K, 6) drifts in the tangent (rad, m): a rotation of ``drift_deg`` and a translation of ``drift_mm``,
     along the axis pairs and ``n_random`` seeded random direction pairs (both signs count the same).
     """
     rng = np.random.default_rng(seed)
@@ -118,7 +120,9 @@ def worst_noncentrality(cov_change: np.ndarray, drifts: np.ndarray) -> float:
 
 
 def worst_noncentrality_with_views(S0: np.ndarray, info_x: np.ndarray, drifts: np.ndarray) -> float:
-    """:func:`worst_noncentrality` of the change covariance ``S0 + info_x^-1`` (the installed X's plus the new
+    """:func:`worst_noncentrality` of the change covariance ``S0 + info_x^-1``.
+
+    :func:`worst_noncentrality` of the change covariance ``S0 + info_x^-1`` (the installed X's plus the new
     views', given as their information on X, :func:`x_information`), computed as
     ``(I + info_x S0)^-1 info_x`` so that it stays exact when the views leave some direction of X
     unknown (information ~0, variance ~1e6) while the install knows another to 1e-13: inverting the sum
@@ -130,7 +134,9 @@ def worst_noncentrality_with_views(S0: np.ndarray, info_x: np.ndarray, drifts: n
 
 
 def x_information(info: np.ndarray) -> np.ndarray:
-    """Information (6,6) on X from the summed information (12,12) of (X, board), the board marginalised
+    """Information (6,6) on X from the summed information (12,12) of (X, board), the board marginalised.
+
+    Information (6,6) on X from the summed information (12,12) of (X, board), the board marginalised
     (its Schur complement, the board's block floored so that an empty set of views inverts).
     """
     A, B, D = info[:6, :6], info[:6, 6:], info[6:, 6:] + _FLOOR_INFO * np.eye(6)
@@ -139,8 +145,9 @@ def x_information(info: np.ndarray) -> np.ndarray:
 
 
 def test_power(nc: float, *, alpha: float, dof: int = 6, noise_dof: Optional[float] = None) -> float:
-    """Probability that verify's test at ``alpha`` rejects under non-centrality ``nc``: chi-square, or F(dof,
-    noise_dof) on ``T / dof`` when the installed robot noise level was estimated
+    """Probability that verify's test at ``alpha`` rejects under non-centrality ``nc``.
+
+    Chi-square, or F(dof, noise_dof) on ``T / dof`` when the installed robot noise level was estimated
     (:func:`handeye.stats.wald_p_value`; the non-central F then).
     """
     nc = max(nc, 1e-12)
@@ -167,6 +174,7 @@ def plan_verification(
     cfg: Optional[dict] = None,
 ) -> VerifyPlan:
     """The verification plan for the installed result ``against`` (see the module docstring).
+
     ``candidates``: robot poses to choose from (default: the installed views' poses and orbits around them).
     """
     from ..collect.plan import PlanConfig, candidate_views, view_information
@@ -301,7 +309,9 @@ def plan_verification(
 
 
 def _reachable(cands: list, arm, T_from: np.ndarray) -> list:
-    """The candidate (pose, label) pairs around the installed pose ``T_from`` that the installed arm reaches (inverse
+    """The candidate (pose, label) pairs around ``T_from`` that the installed arm reaches.
+
+    The candidate (pose, label) pairs around the installed pose ``T_from`` that the installed arm reaches (inverse
     kinematics within its joint limits, from the configuration that reaches ``T_from`` and the default seeds);
     all of them when the result names no arm.
     """
@@ -323,9 +333,11 @@ def _reachable(cands: list, arm, T_from: np.ndarray) -> list:
 
 
 def _without_k3(intrinsics):
-    """The intrinsics with k3 = 0, for the collector's visibility test only: a 20-view calibration's k3 is
-    fitted where corners were, and often folds the lens model back near the image corners, where no
-    corner lies; the views' information is still computed with the full model.
+    """The intrinsics with k3 = 0, for the collector's visibility test only.
+
+    A 20-view calibration's k3 is fitted where corners were, and often folds the lens model back
+    near the image corners, where no corner lies; the views' information is still computed with the
+    full model.
     """
     from dataclasses import replace
 

@@ -42,7 +42,9 @@ log = logging.getLogger(__name__)
 
 
 def check_prior_fits(installed: LoadedResult, session) -> None:
-    """The earlier result must describe this rig: same mode, board and (unless the session brings its own
+    """The earlier result must describe this rig: same mode, board and image resolution.
+
+    The earlier result must describe this rig: same mode, board and (unless the session brings its own
     intrinsics) image resolution; else a one-line InputError.
     """
     if not installed.ok or installed.cov_x is None:
@@ -70,7 +72,9 @@ def check_prior_fits(installed: LoadedResult, session) -> None:
 
 
 def _with_prior(session, options, installed: LoadedResult, *, cov_x=None, board: bool = False):
-    """(session, options) with the earlier X (covariance ``cov_x``, default its own) and, unless the session
+    """(session, options) with the earlier X and intrinsics as priors.
+
+    (session, options) with the earlier X (covariance ``cov_x``, default its own) and, unless the session
     has its own intrinsics, the earlier intrinsics as priors (:func:`handeye.recal.loaded.installed_prior`:
     the session starts from them, the refinement estimates them under their prior); ``board``: the earlier
     board pose too (jointly with the intrinsics), for a board that has not moved.
@@ -94,8 +98,9 @@ def calibrate_with_prior(
     verify_options: Optional[VerifyOptions] = None,
     board_unmoved: bool = False,
 ) -> tuple:
-    """Calibrate ``session`` (loaded) with the result ``prior`` as the prior of X and the intrinsics;
-    when the data contradict it, calibrate again without the prior on X and say so. ``board_unmoved``: the
+    """Calibrate ``session`` (loaded) with the result ``prior`` as the prior of X and the intrinsics.
+
+    When the data contradict it, calibrate again without the prior on X and say so. ``board_unmoved``: the
     user states that the board was not touched since; then, in that second calibration, the earlier board
     pose enters too unless verify's test finds the board moved.
 
@@ -259,7 +264,9 @@ def _refine_views(run) -> list:
 
 
 def _described(run):
-    """The run with the prior in its options described in words (result.json's provenance records the
+    """The run with the prior in its options described in words.
+
+    The run with the prior in its options described in words (result.json's provenance records the
     options; the prior's numbers are in the ``prior`` block).
     """
     ro = dict(run.options.refine_options)

@@ -158,8 +158,10 @@ def _sentence(s) -> str:
 
 
 def error_record(res: dict) -> dict:
-    """The structured error of a failed run; a result written before errors had codes gives its
-    ``failure_reason`` as ``what`` and the code ``""``.
+    """The structured error of a failed run.
+
+    A result written before errors had codes gives its ``failure_reason`` as ``what`` and the code
+    ``""``.
     """
     err = res.get("error")
     if isinstance(err, dict) and err.get("what"):
@@ -168,9 +170,10 @@ def error_record(res: dict) -> dict:
 
 
 def failure_advice(res: dict, findings: list[dict], *, has_views: bool) -> dict:
-    """Why a run failed and what to change: the error's own fix, the advice for its code, then the
-    actions of the diagnostics' fail findings (up to :data:`MAX_ACTIONS` in all); generic advice only
-    when none of these says anything.
+    """Why a run failed and what to change.
+
+    The error's own fix, the advice for its code, then the actions of the diagnostics' fail findings
+    (up to :data:`MAX_ACTIONS` in all); generic advice only when none of these says anything.
     """
     err = error_record(res)
     parts = [str(err["what"])]
@@ -202,7 +205,9 @@ def failure_advice(res: dict, findings: list[dict], *, has_views: bool) -> dict:
 
 
 def finding_advice(f: dict) -> str:
-    """What to check for a finding, by its code, beyond its own action ("" when nothing more is known; a pairing
+    """What to check for a finding, by its code, beyond its own action.
+
+    What to check for a finding, by its code, beyond its own action ("" when nothing more is known; a pairing
     out of step from one image on has its own fix, the order was not lost).
     """
     if is_out_of_step(f):

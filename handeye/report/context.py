@@ -184,8 +184,9 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
 
 
 def add_figures(ctx: dict) -> dict:
-    """The report's figures (``ctx["plots"]``) for a context built without them: the context is built
-    once, judged, and drawn only when a report is written.
+    """The report's figures (``ctx["plots"]``) for a context built without them.
+
+    The context is built once, judged, and drawn only when a report is written.
     """
     from .figures import report_figures
 
@@ -432,7 +433,9 @@ def _change_rows(d: dict) -> list[dict]:
 
 
 def _prior_block(res, x_name) -> Optional[dict]:
-    """A ``calibrate --prior`` run (result.json's ``prior``): the earlier result used as the prior (source, X,
+    """A ``calibrate --prior`` run (result.json's ``prior``): the earlier result used as the prior.
+
+    A ``calibrate --prior`` run (result.json's ``prior``): the earlier result used as the prior (source, X,
     sigmas), the update the new views made to it, whether they contradict it and which the result is.
     """
     p = res.get("prior")
@@ -590,14 +593,18 @@ def _intrinsics_rows(intr, sig, res, *, model_sigma=None) -> Optional[dict]:
 
 
 def _stored_difference(e: dict) -> tuple[float, float, float]:
-    """(deg, mm, verdict sigmas) of a closed form or a refitted half against the result, as result.json
+    """(deg, mm, verdict sigmas) of a closed form or a refitted half against the result.
+
+    (deg, mm, verdict sigmas) of a closed form or a refitted half against the result, as result.json
     stores them (``diff_to_result_deg``, ``_mm``, ``_sigma``; NaN where it does not).
     """
     return _num(e.get("diff_to_result_deg")), _num(e.get("diff_to_result_mm")), _num(e.get("diff_to_result_sigma"))
 
 
 def _offsets(res, ref, T_x, cov, x_name) -> Optional[dict]:
-    """Where the result lies against each closed form and each half of the views (refitted alone), in mm,
+    """Where the result lies against each closed form and each half of the views.
+
+    Where the result lies against each closed form and each half of the views (refitted alone), in mm,
     degrees and verdict sigmas, with the sentences that explain a departure.
     """
     from scipy.stats import chi2
@@ -675,7 +682,9 @@ def _plain_text(v) -> str:
 
 
 def _robot_model(ref) -> Optional[dict]:
-    """The refinement's robot error model (``refinement.robot_model``: kind and its parameters), else the
+    """The refinement's robot error model.
+
+    The refinement's robot error model (``refinement.robot_model``: kind and its parameters), else the
     robot noise model's name with its estimated sigmas.
     """
     if not ref:
@@ -703,9 +712,11 @@ def _robot_model(ref) -> Optional[dict]:
 
 
 def _kinematic_items(rm: dict) -> list:
-    """The kinematic robot models' parameters as short lines: the arm, where the joint angles came from, the
-    encoder noise, the DH prior (stated, as used, its test) and the largest DH offsets, the tool offset. The DH
-    table and the joint angles of every view stay in result.json.
+    """The kinematic robot models' parameters as short lines.
+
+    The arm, where the joint angles came from, the encoder noise, the DH prior (stated, as used, its test) and
+    the largest DH offsets, the tool offset. The DH table and the joint angles of every view stay in
+    result.json.
     """
     items = [{"name": "model", "value": str(rm.get("description", ""))}]
     items.append({"name": "arm", "value": f"{rm.get('arm', '?')} ({rm.get('dh_convention', '?')} DH)"})
@@ -820,7 +831,9 @@ def _findings(diag: dict) -> list[dict]:
 
 
 def _stages(diag: dict) -> dict:
-    """How each diagnostics stage ended (``diagnostics["stages"]``, ``["stage_errors"]``,
+    """How each diagnostics stage ended.
+
+    How each diagnostics stage ended (``diagnostics["stages"]``, ``["stage_errors"]``,
     ``["stages_skipped"]``, ``["crashed_stages"]``; see handeye/diagnose/findings.py):
 
     ``{"crashed": [{name, checks, error}], "skipped": [{name, checks, why}], "n_ok": int, "known": bool,
@@ -1014,8 +1027,9 @@ def _cross_validation(cv) -> Optional[dict]:
 
 # ------------------------------------------------------------------------------ KPIs
 def _distrust(verdict: Verdict, untrusted: dict[str, str], *, fail_finding: bool = False) -> Verdict:
-    """Checks on a number a finding says is wrong are shown as untrusted, not as passed or failed: the
-    finding is the cause and counts towards the verdict itself (the label stays as judged), e.g. a board
+    """Checks on a number a finding says is wrong are shown as untrusted, not as passed or failed.
+
+    The finding is the cause and counts towards the verdict itself (the label stays as judged), e.g. a board
     that moved inflates the validated sigmas past their limit, and the report leads with the move. A warn or
     fail check is marked so only when a fail finding already makes the verdict FAIL (``fail_finding``).
     """
@@ -1039,8 +1053,9 @@ def _distrust(verdict: Verdict, untrusted: dict[str, str], *, fail_finding: bool
 
 
 def _kpis(metrics, pred, wd, views, verdict: Verdict, ok: bool, untrusted: dict[str, str]) -> list[dict]:
-    """The headline cards. A card whose number a finding says is not to be trusted is shown as such,
-    never green.
+    """The headline cards.
+
+    A card whose number a finding says is not to be trusted is shown as such, never green.
     """
     status = {k: c.status for c in verdict.checks for k in c.key.split("+")}
 

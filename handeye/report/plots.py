@@ -162,7 +162,9 @@ def _hull(pts: np.ndarray) -> np.ndarray:
 def residual_histogram(
     camera_px: np.ndarray, chain_px: Optional[np.ndarray], *, sigma_px: float, sigma_source: str
 ) -> bytes:
-    """Corner residual lengths (camera fit, and through the robot) against the Rayleigh law of a 2-D
+    """Corner residual lengths against the Rayleigh law of a 2-D Gaussian.
+
+    Corner residual lengths (camera fit, and through the robot) against the Rayleigh law of a 2-D
     Gaussian with ``sigma_px`` per axis.
     """
     fig = _fig(2.9, left=0.07, bottom=0.16, top=0.9)
@@ -289,7 +291,9 @@ def _nice(x: float) -> float:
 def image_coverage(
     width: int, height: int, views: Sequence[tuple], counts: np.ndarray, *, coverage_share: float
 ) -> bytes:
-    """Left: which parts of the image the corners reach (cell counts, each view's outline).
+    """Image coverage of the corners (left) and magnified camera-fit residual vectors (right).
+
+    Left: which parts of the image the corners reach (cell counts, each view's outline).
     Right: camera-fit residual vectors, magnified. ``views``: (id, points (N,2), residuals (N,2), flagged).
     """
     from matplotlib.colors import LinearSegmentedColormap
@@ -365,7 +369,9 @@ def poses_3d(
     flagged: Sequence[bool],
     camera_moves: bool,
 ) -> bytes:
-    """Robot base, end poses, cameras and board(s) in the base frame: an oblique and a top view
+    """Robot base, end poses, cameras and board(s) in the base frame: an oblique and a top view.
+
+    Robot base, end poses, cameras and board(s) in the base frame: an oblique and a top view
     (orthographic projections drawn in 2-D). ``camera_moves``: a camera per pose (eye-in-hand), else a
     board per pose.
     """
@@ -538,7 +544,9 @@ def rotation_coverage(
 def translation_uncertainty(
     cov_t_mm2: Optional[np.ndarray], methods: Sequence[tuple], *, frame: str, x_name: str
 ) -> bytes:
-    """1- and 2-sigma ellipses of the translation (three planes of ``frame``), with the closed-form methods
+    """1- and 2-sigma ellipses of the translation.
+
+    1- and 2-sigma ellipses of the translation (three planes of ``frame``), with the closed-form methods
     as points relative to the result. ``methods``: (name, offset_mm (3,)).
     """
     fig = _fig(3.0, left=0.095, right=0.8, bottom=0.16, top=0.84, wspace=0.5)
