@@ -46,7 +46,9 @@ _DATE_RE = re.compile(r"(?<!\d)(\d{4})-?(\d{2})-?(\d{2})(?:[T_ -]?(\d{2}):?(\d{2
 
 @dataclass(frozen=True)
 class SessionJob:
-    """One session of the batch: where it is, its install, its name (a path under the install's
+    """One session of the batch: where it is, its install, its name.
+
+    One session of the batch: where it is, its install, its name (a path under the install's
     output folder, ``/``-separated), its time (ISO 8601 UTC, or None) and where that came from.
     """
 
@@ -140,7 +142,9 @@ def discover(root) -> list[SessionJob]:
 
 
 def _session_yaml(folder: Path) -> dict:
-    """The top-level mapping of ``session.yaml`` ({} when it does not parse: the calibration then
+    """The top-level mapping of ``session.yaml``.
+
+    The top-level mapping of ``session.yaml`` ({} when it does not parse: the calibration then
     reports why, the batch only needs the install and the time).
     """
     import yaml

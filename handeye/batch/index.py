@@ -160,7 +160,9 @@ def session_row(out: Path, folder: Path) -> dict:
 
 
 def _comparable(res: Optional[dict], path: Path):
-    """The result as the drift compares it (:class:`handeye.recal.loaded.LoadedResult`, its source the
+    """The result as the drift compares it.
+
+    The result as the drift compares it (:class:`handeye.recal.loaded.LoadedResult`, its source the
     file), from result.json's content ``res`` as read (None: read ``path``); or the error loading it
     raised (the drift reports it). Only a file that does not load is read again, for load_result's own
     message naming it.
@@ -190,7 +192,9 @@ def fleet_rows(out) -> list[dict]:
 
 # ------------------------------------------------------------------------------------------ installs
 def _drift(out: Path, a: dict, b: dict) -> dict:
-    """compare_results between two consecutive sessions of an install, as a table row (their results as
+    """compare_results between two consecutive sessions of an install, as a table row.
+
+    compare_results between two consecutive sessions of an install, as a table row (their results as
     :func:`session_row` loaded them).
     """
     from ..recal.compare import compare_loaded
@@ -221,7 +225,9 @@ def _drift(out: Path, a: dict, b: dict) -> dict:
 
 
 def install_summaries(out, rows: list[dict], *, plots: bool = True) -> list[dict]:
-    """Per install: its rows (by time), latest verdict, drifts between consecutive sessions with a
+    """Per install: its rows (by time), latest verdict, drifts between consecutive sessions with a result.
+
+    Per install: its rows (by time), latest verdict, drifts between consecutive sessions with a
     result, and the trend plot (PNG bytes or None).
     """
     out = Path(out)
@@ -256,7 +262,9 @@ def _rotvec_change_deg(first: dict, row: dict) -> np.ndarray:
 
 
 def trend_series(rows: list[dict]) -> dict:
-    """Change of X since the first row (see the module docstring): ``dt_mm`` (N, 3), ``dr_deg`` (N, 3),
+    """Change of X since the first row, with its 1-sigma and the times.
+
+    Change of X since the first row (see the module docstring): ``dt_mm`` (N, 3), ``dr_deg`` (N, 3),
     their 1-sigma ``st_mm`` / ``sr_deg`` (N, 3; NaN when not reported), ``times`` (N,) datetimes.
     """
     import datetime as _dt
@@ -325,7 +333,9 @@ def trend_png(install: str, rows: list[dict]) -> bytes:
 
 
 def fleet_summary(rows: list[dict], installs: list[dict]) -> dict:
-    """Fleet-wide: verdict counts, failing installs (latest session FAIL, REFUSED or ERROR), installs
+    """Fleet-wide summary: verdict counts, failing and drifting installs, findings, failed exports.
+
+    Fleet-wide: verdict counts, failing installs (latest session FAIL, REFUSED or ERROR), installs
     with a significant drift, the most common findings codes (sessions that have each), the sessions
     whose export (``calibrate --export``) failed.
     """

@@ -57,7 +57,9 @@ COMMANDS = {
 
 
 class _LazyCommands(argparse._SubParsersAction):
-    """The sub-command action: a command's module is imported, and its arguments added to its
+    """The sub-command action: a command's module and arguments are loaded only when it is parsed.
+
+    The sub-command action: a command's module is imported, and its arguments added to its
     (until then empty) parser, only when that command is parsed.
     """
 
@@ -133,7 +135,9 @@ WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG})
 
 
 def os_error_line(e: OSError) -> str:
-    """The one line for a refusal of the file system: a write (:class:`handeye.output.OutputWriteError`, or
+    """The one line for a refusal of the file system, for a write or for a read.
+
+    The one line for a refusal of the file system: a write (:class:`handeye.output.OutputWriteError`, or
     an error only a write gets) names the output and how to make it writable; a read names the file read
     and how to make it readable.
     """

@@ -168,8 +168,9 @@ def positive_float(text: str) -> float:
 
 
 def default_out_dir(session) -> Path:
-    """``reports/<session folder name>-<8 hex digits of the SHA-1 of its absolute path>``: two sessions
-    of the same folder name (a/session, b/session) never share an output folder.
+    """``reports/<session folder name>-<8 hex digits of the SHA-1 of its absolute path>``.
+
+    Two sessions of the same folder name (a/session, b/session) never share an output folder.
     """
     import hashlib
 
@@ -201,7 +202,9 @@ def _pos(v) -> bool:
 
 
 def check_site_config(cfg: dict, *, source) -> dict:
-    """The calibration settings whose preset value is null (any type merges over it) checked by type, and
+    """The calibration settings whose preset value is null.
+
+    The calibration settings whose preset value is null (any type merges over it) checked by type, and
     the motion gates by range; ConfigError naming the setting and the file.
     """
     from ..errors import ConfigError
@@ -313,7 +316,9 @@ def run(args) -> int:
 
 
 def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
-    """The lines ``handeye calibrate`` prints on stdout: views used (and the mode, when the data chose
+    """The lines ``handeye calibrate`` prints on stdout.
+
+    The lines ``handeye calibrate`` prints on stdout: views used (and the mode, when the data chose
     it), the transform and its uncertainty, the verdict with every warning and failure, the files.
     """
     import numpy as np

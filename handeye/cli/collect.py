@@ -463,7 +463,9 @@ def _given(defaults, **options):
 
 
 def _installed_rig(installed, *, target: TargetSpec, bump, rng: np.random.Generator):
-    """A simulated rig that is the installed calibration (X, board, intrinsics), started at its first
+    """A simulated rig that is the installed calibration.
+
+    A simulated rig that is the installed calibration (X, board, intrinsics), started at its first
     view's pose; ``bump`` (mm, deg): the camera moved by that much in random directions.
     """
     from ..frames import se3_exp

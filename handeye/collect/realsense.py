@@ -237,7 +237,9 @@ class RealSenseCamera(_RealSenseBase):
 
 
 class BagCamera(_RealSenseBase):
-    """Frames from a RealSense recording (``.bag``, or ``.db3`` written by librealsense >= 2.56), one per grab,
+    """Frames from a RealSense recording.
+
+    Frames from a RealSense recording (``.bag``, or ``.db3`` written by librealsense >= 2.56), one per grab,
     every frame in recorded order.
 
     The recording is played through its playback device's colour sensor, not a pipeline: the device
@@ -311,6 +313,7 @@ class BagCamera(_RealSenseBase):
 
     def _on_frame(self, frame) -> None:
         """Player thread: convert the frame and wait for room in the queue (the player waits with it).
+
         Marked busy while it runs: stopping the sensor under a running callback crashed librealsense (a
         segmentation fault when a reader gave up on a slow player and closed it).
         """
@@ -369,8 +372,10 @@ class BagCamera(_RealSenseBase):
 
 
 def _status_recorder(rs, played: threading.Event, stopped: threading.Event):
-    """The player's status callback: sets ``played`` when it plays and ``stopped`` when it stops after that
-    (a closure, not a method: the player must not keep the camera alive).
+    """The player's status callback.
+
+    Sets ``played`` when it plays and ``stopped`` when it stops after that (a closure, not a method:
+    the player must not keep the camera alive).
     """
 
     def on_status(status) -> None:
@@ -388,7 +393,9 @@ _CALLBACK_WAIT_S = 10.0
 
 
 def _stop_player(closing: threading.Event, idle: threading.Event, player: list) -> None:
-    """Let a waiting frame callback return (and wait for a running one), stop and close the sensor, drop the
+    """Let a waiting frame callback return.
+
+    Let a waiting frame callback return (and wait for a running one), stop and close the sensor, drop the
     playback device.
     """
     closing.set()

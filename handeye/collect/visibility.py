@@ -82,7 +82,9 @@ def _board_grid_points(target: TargetSpec, *, margin_squares: float, step_m: flo
 
 
 def default_margin_px(intrinsics: Intrinsics) -> float:
-    """Margin kept between the pattern and the image border (configs/collect.yaml ``visibility:``:
+    """Margin kept between the pattern and the image border.
+
+    Margin kept between the pattern and the image border (configs/collect.yaml ``visibility:``:
     1.5 % of the width, at least 8 px).
     """
     return max(float(_LIMITS["min_margin_px"]), float(_LIMITS["margin_share_of_width"]) * intrinsics.width)

@@ -110,7 +110,9 @@ def export_transform(
 
 
 def export_paths(fmt: str, out: Optional[Path], result_dir: Path) -> list[Path]:
-    """The files format ``fmt`` writes: ``out`` names the first (its companions share its base name),
+    """The files format ``fmt`` writes (``out`` names the first, or their folder).
+
+    The files format ``fmt`` writes: ``out`` names the first (its companions share its base name),
     or the folder for them; default ``result_dir/hand_eye<suffix>``.
     """
     if fmt not in FORMATS:

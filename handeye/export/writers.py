@@ -89,6 +89,7 @@ def _stp_arguments(e: ExportTransform) -> list[tuple[str, str]]:
 
 def ros2_launch(e: ExportTransform, *, moveit_layout: bool = False) -> str:
     """A ROS 2 Python launch file running tf2_ros' static_transform_publisher with the transform.
+
     ``moveit_layout``: the layout MoveIt 2 Calibration writes when it saves the camera pose (its two
     docstrings, the arguments one per line, roll/pitch/yaw as comments).
     """
@@ -134,7 +135,9 @@ def ros2_launch(e: ExportTransform, *, moveit_layout: bool = False) -> str:
 
 
 def moveit1_launch(e: ExportTransform) -> str:
-    """The ROS 1 launch file MoveIt Calibration saves ("Save camera pose"): static_transform_publisher
+    """The ROS 1 launch file MoveIt Calibration saves.
+
+    The ROS 1 launch file MoveIt Calibration saves ("Save camera pose"): static_transform_publisher
     with ``args="x y z qx qy qz qw frame_id child_frame_id"``. Its comment's rpy is URDF's fixed-axis
     roll-pitch-yaw (MoveIt's own comment writes Eigen's eulerAngles(0, 1, 2), moving axes, under that name).
     """
@@ -161,7 +164,9 @@ def _ident(name: str) -> str:
 
 
 def tf_static_yaml(e: ExportTransform) -> str:
-    """The transform as a tf2_msgs/TFMessage (``ros2 topic echo /tf_static``'s layout; publish it with
+    """The transform as a tf2_msgs/TFMessage.
+
+    The transform as a tf2_msgs/TFMessage (``ros2 topic echo /tf_static``'s layout; publish it with
     ``ros2 topic pub --once /tf_static tf2_msgs/msg/TFMessage "$(cat FILE)"`` under a transient-local QoS,
     or read it in a node).
     """
@@ -215,7 +220,9 @@ def urdf(e: ExportTransform) -> str:
 
 
 def xacro(e: ExportTransform) -> str:
-    """A xacro file defining the macro ``handeye_camera_joint`` (params ``parent``, ``child``, defaulting
+    """A xacro file defining the macro ``handeye_camera_joint``.
+
+    A xacro file defining the macro ``handeye_camera_joint`` (params ``parent``, ``child``, defaulting
     to the exported frames): include it in the robot's xacro and call ``<xacro:handeye_camera_joint/>``.
     """
     from xml.sax.saxutils import quoteattr
@@ -240,7 +247,9 @@ def xacro(e: ExportTransform) -> str:
 
 
 def easy_handeye2_calib(e: ExportTransform, *, name: str, base: str, effector: str) -> str:
-    """easy_handeye2's saved calibration (``~/.ros2/easy_handeye2/calibrations/NAME.calib``): for
+    """easy_handeye2's saved calibration.
+
+    easy_handeye2's saved calibration (``~/.ros2/easy_handeye2/calibrations/NAME.calib``): for
     eye_in_hand the transform is robot_effector_frame -> tracking_base_frame (the camera), for
     eye_on_base robot_base_frame -> tracking_base_frame.
     """
@@ -275,7 +284,9 @@ def easy_handeye2_calib(e: ExportTransform, *, name: str, base: str, effector: s
 
 
 def plain_dict(e: ExportTransform) -> dict:
-    """The ``yaml`` / ``json`` export: frames, matrix, translation, quaternion (order in the key), rpy,
+    """The ``yaml`` / ``json`` export: frames, matrix, translation, quaternion.
+
+    The ``yaml`` / ``json`` export: frames, matrix, translation, quaternion (order in the key), rpy,
     sigmas and covariance, provenance.
     """
     from ..output import provenance

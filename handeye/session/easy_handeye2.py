@@ -59,7 +59,9 @@ def _transform(t, *, path: Path, where: str) -> np.ndarray:
 
 
 def read_samples(path: str | Path, *, mode: Optional[str] = None) -> tuple[str, dict, list]:
-    """(mode, parameters, [(T_base_end, T_cam_board), ...]) of a ``.samples`` file. ``mode`` (handeye's name)
+    """(mode, parameters, pose pairs) of an easy_handeye2 ``.samples`` file.
+
+    (mode, parameters, [(T_base_end, T_cam_board), ...]) of a ``.samples`` file. ``mode`` (handeye's name)
     is needed when the file's ``calibration_type`` is empty, and must agree with it otherwise.
     """
     path = Path(path)
@@ -110,7 +112,9 @@ def import_easy_handeye2(
     tracker_sigma: Optional[tuple] = None,
     force: bool = False,
 ) -> Path:
-    """``out/session.yaml``: the pose-only session of an easy_handeye2 ``.samples`` file (views ``1``..``N`` in
+    """``out/session.yaml``: the pose-only session of an easy_handeye2 ``.samples`` file.
+
+    ``out/session.yaml``: the pose-only session of an easy_handeye2 ``.samples`` file (views ``1``..``N`` in
     the file's order). ``tracker_sigma``: (mm, deg) of the tracker when known (else estimated at calibration).
     """
     from .importers import _check_out, _write

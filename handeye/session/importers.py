@@ -96,8 +96,10 @@ def _visp_chessboard(src: Path) -> dict:
 
 
 def _visp_apriltag(src: Path, images: list) -> dict:
-    """The single-marker target of ViSP's AprilTag data: family and size from apriltag-data.txt, the tag id from the
-    first image that shows exactly one tag of that family (ViSP's tool assumes one tag per image).
+    """The single-marker target of ViSP's AprilTag data.
+
+    Family and size from apriltag-data.txt, the tag id from the first image that shows exactly one tag of
+    that family (ViSP's tool assumes one tag per image).
     """
     import cv2
 
@@ -135,7 +137,9 @@ def _visp_apriltag(src: Path, images: list) -> dict:
 
 
 def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool = False, force: bool = False) -> Path:
-    """``out/session.yaml`` for a ViSP data folder of the layout :data:`VISP_LAYOUT` (an existing session
+    """``out/session.yaml`` for a ViSP data folder of the layout :data:`VISP_LAYOUT`.
+
+    ``out/session.yaml`` for a ViSP data folder of the layout :data:`VISP_LAYOUT` (an existing session
     in ``out`` is refused unless ``force``). The target is the chessboard of chessboard-data.txt or the single
     AprilTag of apriltag-data.txt (``source.layout`` in session.yaml says which); the mode is left to the data
     (ViSP's folders hold both mounting modes with the same files).
@@ -229,7 +233,9 @@ def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool 
 
 
 def import_ical(src: str | Path, out: str | Path, *, image_dir: str | None = None, force: bool = False) -> Path:
-    """``out/session.yaml`` for an industrial_calibration data folder (an existing session in ``out`` is
+    """``out/session.yaml`` for an industrial_calibration data folder.
+
+    ``out/session.yaml`` for an industrial_calibration data folder (an existing session in ``out`` is
     refused unless ``force``); every field is checked and named when missing or of the wrong type.
     """
     src, out = Path(src).resolve(), Path(out)
@@ -353,7 +359,9 @@ def _aruco_name(code: int) -> str:
 
 
 def _check_out(out: Path, *, force: bool) -> None:
-    """The importer's output folder: a new or empty folder, or one whose session is to be replaced
+    """The importer's output folder: a new or empty folder, or one whose session is to be replaced.
+
+    The importer's output folder: a new or empty folder, or one whose session is to be replaced
     (``force``); a collected session (view_records/) or a vendor session is never overwritten silently.
     """
     from ..errors import OutputError

@@ -61,7 +61,9 @@ class ViewEntry:
 
 @dataclass(frozen=True)
 class NativeDocument:
-    """A parsed session.yaml: the stated mode (None when absent), target, pose format, intrinsics
+    """A parsed session.yaml: the stated mode (None when absent), target, pose format, intrinsics.
+
+    A parsed session.yaml: the stated mode (None when absent), target, pose format, intrinsics
     (with their use: estimate | fixed | prior), the folder images are relative to, and the view
     entries (ids checked, not yet converted to poses).
     """
@@ -163,7 +165,9 @@ def read_native_document(path: Path) -> NativeDocument:
 
 
 def _pose_only(d: dict) -> bool:
-    """Whether session.yaml's inline views carry target poses (a pose-only session needs no target:; one that
+    """Whether session.yaml's inline views carry target poses.
+
+    Whether session.yaml's inline views carry target poses (a pose-only session needs no target:; one that
     mixes them with image views is refused by :func:`_pose_only_fields`).
     """
     views = d.get("views")
@@ -171,7 +175,9 @@ def _pose_only(d: dict) -> bool:
 
 
 def _pose_only_fields(d: dict, entries: list, *, path: Path) -> tuple:
-    """(target_pose_format, tracker_sigma) of a pose-only session ((None, None) for an image session);
+    """(target_pose_format, tracker_sigma) of a pose-only session.
+
+    (target_pose_format, tracker_sigma) of a pose-only session ((None, None) for an image session);
     ConfigError when image and target-pose views are mixed or a field is malformed.
     """
     with_pose = [e for e in entries if "target_pose" in e.data]
@@ -207,7 +213,9 @@ def _pose_only_fields(d: dict, entries: list, *, path: Path) -> tuple:
 
 
 def view_target_pose(doc: NativeDocument, e: ViewEntry) -> np.ndarray:
-    """A pose-only view's ``target_pose``: ``T_cam_board`` (metres) read in ``target_pose_format`` (4x4 by
+    """A pose-only view's ``target_pose``: ``T_cam_board`` (metres) read in ``target_pose_format``.
+
+    A pose-only view's ``target_pose``: ``T_cam_board`` (metres) read in ``target_pose_format`` (4x4 by
     default), checked like a robot pose.
     """
     vid = e.data["id"]
@@ -246,7 +254,9 @@ def _read_pose_file(f: Path, *, vid: str) -> list:
 
 
 def view_pose_values(e: ViewEntry, fmt: PoseFormat, *, folder: Path, allow_outside: bool = False) -> np.ndarray:
-    """The pose numbers of one view as written (flat, row-major for a matrix), from ``pose:`` or
+    """The pose numbers of one view as written.
+
+    The pose numbers of one view as written (flat, row-major for a matrix), from ``pose:`` or
     ``pose_file:``; InputError/ConfigError naming the view and file when their shape does not fit ``fmt``.
 
     A matrix is a nested 4x4 list (rows) or 16 numbers row by row; a pose file (relative to ``folder``,
@@ -314,7 +324,9 @@ def view_pose_values(e: ViewEntry, fmt: PoseFormat, *, folder: Path, allow_outsi
 def inside_folder(
     folder: Path, written: str, *, vid: str, what: str, source: Path, allow_outside: bool = False
 ) -> Path:
-    """``folder / written`` with ``..`` resolved (symbolic links are not followed: a link placed in the
+    """``folder / written`` with ``..`` resolved.
+
+    ``folder / written`` with ``..`` resolved (symbolic links are not followed: a link placed in the
     folder is the user's choice); InputError when it leaves ``folder`` unless ``allow_outside``.
     """
     p = Path(os.path.normpath(Path(folder) / str(written)))

@@ -137,7 +137,9 @@ def _stamp(msg) -> float:
 
 
 def _raw_header_stamp(raw: bytes, *, ros2: bool) -> float:
-    """The header stamp of a serialized message that starts with a std_msgs/Header (Image,
+    """The header stamp of a serialized message that starts with a std_msgs/Header.
+
+    The header stamp of a serialized message that starts with a std_msgs/Header (Image,
     CompressedImage), read from its first bytes: ROS 2 CDR (4-byte encapsulation, then int32 sec,
     uint32 nanosec; byte 1 says the byte order), ROS 1 (uint32 seq, uint32 secs, uint32 nsecs, little endian).
     """
@@ -198,7 +200,9 @@ def _compose(edges: dict, chain, times: np.ndarray) -> np.ndarray:
 
 # ------------------------------------------------------------------------------ stillness
 def still_periods(times: np.ndarray, T_base_end: np.ndarray, st: Stillness) -> list[tuple[float, float]]:
-    """[start, end] of each period in which the pose moves slower than the thresholds for at least
+    """[start, end] of each period in which the pose stays still for at least ``min_still_s``.
+
+    [start, end] of each period in which the pose moves slower than the thresholds for at least
     ``min_still_s``; ``times`` (N,) sorted, ``T_base_end`` (N,4,4).
     """
     n = len(times)
@@ -324,8 +328,9 @@ def _open_reader(bag: Path):
 
 
 def _connections(reader, bag: Path, image_topic: str, camera_info_topic: Optional[str]):
-    """(image connection, CameraInfo connection or None, TF connections); a missing topic is named with
-    the ones the bag has.
+    """(image connection, CameraInfo connection or None, TF connections).
+
+    A missing topic is named with the ones the bag has.
     """
     conns = {c.topic: c for c in reader.connections}
     kinds = {t: c.msgtype.split("/")[-1] for t, c in conns.items()}
@@ -378,7 +383,9 @@ def _read_tf(reader, tf_conns, info_conn) -> tuple[dict, object]:
 
 
 def pick_images(periods, stamps: np.ndarray, *, margin_s: float) -> tuple[list[tuple[int, float, float]], int]:
-    """One image per still period: (index into ``stamps``, period start, end) of the image nearest the
+    """One image per still period.
+
+    One image per still period: (index into ``stamps``, period start, end) of the image nearest the
     period's middle among those at least ``margin_s`` inside it, and how many periods had none.
     """
     picked, without = [], 0
@@ -538,7 +545,9 @@ def import_rosbag(
 
 
 def read_target_file(path: Path) -> tuple[dict, Optional[str]]:
-    """(the ``target:`` mapping, the mode it states or None) from a YAML holding a session.yaml-like
+    """(the ``target:`` mapping, the mode it states or None) from a YAML file.
+
+    (the ``target:`` mapping, the mode it states or None) from a YAML holding a session.yaml-like
     ``target:`` (and optional ``mode:``) or a vendor config.yaml (``checkerboard_args``).
     """
     from .fields import read_yaml

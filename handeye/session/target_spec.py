@@ -50,7 +50,9 @@ def _charuco(t: dict, path: Path) -> CharucoSpec:
 
 
 def _dictionary(t: dict, default: str, *, path: Path) -> str:
-    """``target.dictionary``: one of cv2.aruco's predefined dictionaries (AprilTag families included, e.g.
+    """``target.dictionary``: one of cv2.aruco's predefined dictionaries.
+
+    ``target.dictionary``: one of cv2.aruco's predefined dictionaries (AprilTag families included, e.g.
     DICT_APRILTAG_36h11).
     """
     dictionary = str(t.get("dictionary", default))

@@ -54,7 +54,9 @@ def write_fleet(
     start: str = "2026-01-05",
     days_between: int = 30,
 ) -> dict:
-    """Write the fleet under ``root`` (see the module docstring) and return its manifest:
+    """Write the fleet under ``root``.
+
+    Write the fleet under ``root`` (see the module docstring) and return its manifest:
     ``{"sessions": [{"install", "session", "path", "T_end_cam", "T_base_board", "fault"}]}``.
     ``bumps``: {(install index, session index): (rotvec_deg, t_mm)}; ``broken`` / ``shuffled`` /
     ``noisy``: (install index, session index) pairs. ``robot_noise``: (mm, deg) per axis.

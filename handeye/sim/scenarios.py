@@ -188,7 +188,9 @@ def default_distance_m(target: TargetSpec) -> tuple[float, float]:
 
 
 def arm_workspace(arm: str, *, mode: str, target: TargetSpec) -> tuple[float, dict]:
-    """(workspace scale, view options) of a rig sized for the arm ``arm`` (a preset of
+    """(workspace scale, view options) of a rig sized for the arm ``arm``.
+
+    (workspace scale, view options) of a rig sized for the arm ``arm`` (a preset of
     :mod:`handeye.kinematics`): the scale for :func:`sample_setup` (:func:`handeye.sim.robot_error.workspace_scale`)
     and, with the camera on the arm, the camera-to-board distances (``distance_m`` of
     :func:`sample_view_poses`) shrunk with the rig, never below 1.5 times the nearest.
@@ -399,8 +401,10 @@ def sample_hidden_view_pose(
 def perturb_T_base_end(
     T_base_end: np.ndarray, *, rng: np.random.Generator, sigma_mm: float, sigma_deg: float
 ) -> np.ndarray:
-    """``T_base_end @ dT`` with dT in the end frame: rotation vector ~ N(0, sigma_deg) and
-    translation ~ N(0, sigma_mm) per axis. Input (N,4,4), output a new (N,4,4).
+    """``T_base_end @ dT`` with dT in the end frame.
+
+    Rotation vector ~ N(0, sigma_deg) and translation ~ N(0, sigma_mm) per axis. Input (N,4,4),
+    output a new (N,4,4).
     """
     T = np.asarray(T_base_end, float).reshape(-1, 4, 4)
     n = T.shape[0]
