@@ -74,7 +74,7 @@ def view_reprojection_factor(
     H_k = np.zeros((n2, free.size), order="F")
     k_work = base_k.copy()
 
-    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H) -> np.ndarray:
+    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H: Optional[list[np.ndarray]]) -> np.ndarray:
         T_x = v.atPose3(key_x).matrix()
         T_board = v.atPose3(key_board).matrix()
         T_robot = v.atPose3(key_robot).matrix() if key_robot is not None else T_robot_fixed
@@ -99,10 +99,13 @@ def view_reprojection_factor(
             w = np.repeat(irls_scale, 2)[:, None]
         elif not want:
             return r
+        assert H is not None and J_x is not None and J_b is not None, "Jacobians asked for and computed"
         blocks = [(H_x, J_x), (H_b, J_b)]
         if key_robot is not None:
+            assert J_r is not None, "Jacobians asked for and computed"
             blocks.append((H_r, J_r))
         if key_intrinsics is not None:
+            assert J_k is not None, "Jacobians asked for and computed"
             blocks.append((H_k, J_k[:, free]))
         for i, (buf, J) in enumerate(blocks):
             if w is None:
@@ -129,7 +132,7 @@ def robot_pose_prior(
     the end frame. ``robust_k`` wraps it in a Huber loss on the whitened 6-vector norm.
     """
     sig = np.array([sigma_rot_rad] * 3 + [sigma_trans_m] * 3, dtype=float)
-    noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
+    noise: gtsam.noiseModel.Base = gtsam.noiseModel.Diagonal.Sigmas(sig)
     if robust_k is not None:
         noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
     return gtsam.PriorFactorPose3(key_robot, gtsam.Pose3(np.asarray(T_base_end_reported, float)), noise)
@@ -170,7 +173,7 @@ def joint_gaussian_prior(
     noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, float))
     H_v = np.asfortranarray(np.vstack([np.zeros((6, k)), np.eye(k)]))
 
-    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H) -> np.ndarray:
+    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H: Optional[list[np.ndarray]]) -> np.ndarray:
         D = mean_inv.compose(v.atPose3(key_pose))
         if H is not None:
             H[0] = np.asfortranarray(np.vstack([gtsam.Pose3.LogmapDerivative(D), np.zeros((k, 6))]))
@@ -197,7 +200,7 @@ def kinematic_robot_prior(
     (m,). ``key_dh`` None: no DH offsets (the joint-space model), a PriorFactorPose3 with covariance
     ``cov``. ``robust_k`` wraps it in a Huber loss on the whitened 6-vector norm.
     """
-    noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, float))
+    noise: gtsam.noiseModel.Base = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, float))
     if robust_k is not None:
         noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
     if key_dh is None:
@@ -206,7 +209,7 @@ def kinematic_robot_prior(
     J = np.asarray(J_dh, float)
     H_dh = np.asfortranarray(-J)
 
-    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H) -> np.ndarray:
+    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H: Optional[list[np.ndarray]]) -> np.ndarray:
         D = reported_inv.compose(v.atPose3(key_robot))
         r = gtsam.Pose3.Logmap(D) - J @ v.atVector(key_dh)
         if H is not None:

@@ -44,7 +44,7 @@ def se3_right_jacobian_inverse(xi: np.ndarray) -> np.ndarray:
 
 def pose_residual(
     *, T_x: np.ndarray, M: np.ndarray, T_board: np.ndarray, T_cam_board_measured: np.ndarray, jacobians: bool = True
-):
+) -> tuple[np.ndarray, Optional[np.ndarray], Optional[np.ndarray]]:
     """Residual (6,) of one measured pose and, with ``jacobians``, its Jacobians.
 
     Residual (6,) of one measured pose and, with ``jacobians``, its Jacobians (6,6) in the right
@@ -79,11 +79,11 @@ def pose_factor(
     """
     M = np.array(M, float)
     C_meas = np.array(T_cam_board_measured, float)
-    noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma_rot_rad] * 3, [sigma_trans_m] * 3])
+    noise: gtsam.noiseModel.Base = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma_rot_rad] * 3, [sigma_trans_m] * 3])
     if robust_k is not None:
         noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
 
-    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H) -> np.ndarray:
+    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H: Optional[list[np.ndarray]]) -> np.ndarray:
         r, J_x, J_b = pose_residual(
             T_x=v.atPose3(key_x).matrix(),
             M=M,

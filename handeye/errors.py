@@ -17,6 +17,7 @@ raised by the calibration pipeline are listed in :data:`PIPELINE_CODES`.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 
 class HandeyeError(Exception):
@@ -72,7 +73,7 @@ class HandeyeError(Exception):
             code=self.code,
         )
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """The structured record (JSON-ready).
 
         Code, what, file, line, expected, got, fix, exit_code, plus ``type`` (the class name) and

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -26,7 +26,7 @@ class MotionThresholds:
     min_axis_spread_deg: float
 
     @staticmethod
-    def from_config(cfg: dict) -> "MotionThresholds":
+    def from_config(cfg: dict[str, Any]) -> "MotionThresholds":
         m = cfg["motion"]
         return MotionThresholds(float(m["min_rotation_deg"]), float(m["min_axis_spread_deg"]))
 
@@ -53,7 +53,7 @@ class MotionQuality:
     min_axis_spread_deg: float = float("nan")
 
 
-def _rotation_axes(M: np.ndarray):
+def _rotation_axes(M: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
     """Largest relative rotation (deg) and the eigen-decomposition.
 
     Largest relative rotation (deg) and the eigen-decomposition (ascending) of the weighted
