@@ -38,7 +38,7 @@ def view_reprojection_factor(
     image_points: np.ndarray,
     sigma_px: float,
     intrinsics_vec: np.ndarray,
-    free_intrinsics: Sequence[int] = (),
+    free_intrinsics: Sequence[int] | np.ndarray = (),
     T_base_end: Optional[np.ndarray] = None,
     loss: str = "none",
     loss_k: float = 3.0,

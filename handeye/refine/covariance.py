@@ -13,7 +13,7 @@ perturbation): ``T_x,true = T_x · Exp(xi)``, ``xi = (omega [rad], v [m])`` alon
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -30,7 +30,7 @@ COV_BOARD_PARAMETRISATION = (
 )
 
 
-def arrow_blocks(H: np.ndarray, c: int, n: int):
+def arrow_blocks(H: np.ndarray, c: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(Hcc (c,c), Hcp (n,c,6), Hpp (n,6,6)) of a dense information matrix in arrow order."""
     Hcp = H[:c, c:].reshape(c, n, 6).transpose(1, 0, 2)
     blocks = H[c:, c:].reshape(n, 6, n, 6)
@@ -38,7 +38,7 @@ def arrow_blocks(H: np.ndarray, c: int, n: int):
     return H[:c, :c], Hcp, blocks[ar, :, ar, :]
 
 
-def arrow_inverse(H: np.ndarray, c: int, n: int):
+def arrow_inverse(H: np.ndarray, c: int, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Diagonal blocks of inv(H) for an arrow-shaped information matrix.
 
     Diagonal blocks of inv(H) for an information matrix with a dense core of size c followed by
@@ -50,7 +50,7 @@ def arrow_inverse(H: np.ndarray, c: int, n: int):
 
 def arrow_solve(
     Hcc: np.ndarray, Hcp: np.ndarray, Hpp: np.ndarray, rhs: Optional[np.ndarray] = None, *, cross: bool = False
-):
+) -> tuple[Any, ...]:
     """Schur-complement inverse of the arrow-shaped information [[Hcc, Hcp^T...], [Hcp_i^T, Hpp_i]].
 
     Returns (Sigma_core, Sigma_blocks (n,6,6), solution of H x = rhs or None), and with ``cross`` also

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
@@ -46,7 +46,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
-def _cfg() -> dict:
+def _cfg() -> dict[str, Any]:
     return refine_preset()["noise"]
 
 
@@ -137,7 +137,7 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
     scale_dh = bool(m) and pb.dh_scale_estimable and bool(pb.dh_scale_test.get("contradicted"))
     s = np.r_[pb.sigma_px, pb.robot_sigmas]
     start = s.copy()
-    dof: dict = {}  # redundancy of each robot group whose sigma is estimated (its degrees of freedom)
+    dof: dict[str, Any] = {}  # redundancy of each robot group whose sigma is estimated (its degrees of freedom)
     history = [np.log(s)]  # log-sigma iterates since the last extrapolation
     for _ in range(int(cfg["max_inner"])):
         w_px = 1.0 / s[0] ** 2
@@ -297,7 +297,7 @@ def _aitken(x0: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
     return np.exp(x)
 
 
-def solve_with_vce(pb: "Problem"):
+def solve_with_vce(pb: "Problem") -> tuple[np.ndarray, dict[int, np.ndarray]]:
     """Gaussian solves alternating with variance-component estimation until the sigmas settle.
 
     Gaussian solves alternating with variance-component estimation on each linearisation until

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Optional, Sequence
+from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 import numpy as np
 
@@ -39,7 +39,7 @@ class RobotPoseGates:
     tail_dof: float = np.inf  # the null is multivariate t with this dof, variance matched (inf: Gaussian)
 
     @staticmethod
-    def from_config(cfg: dict | None = None, *, unmodelled_arm: bool = True) -> "RobotPoseGates":
+    def from_config(cfg: dict[str, Any] | None = None, *, unmodelled_arm: bool = True) -> "RobotPoseGates":
         """The robot-pose gates from the outlier settings ``cfg`` (default: the refine preset).
 
         ``unmodelled_arm``: the poses come from an arm whose kinematic error is not modelled (the null's
@@ -142,7 +142,7 @@ def robot_pose_test(
     C = np.asarray(covariance, float).reshape(-1, 6, 6)
     if C.shape[0] != d.shape[0]:
         raise ValueError(f"disagreement has {d.shape[0]} rows but covariance {C.shape[0]}")
-    R = np.diag([robot_sigma_rot_rad**2] * 3 + [robot_sigma_trans_m**2] * 3)
+    R: np.ndarray = np.diag([robot_sigma_rot_rad**2] * 3 + [robot_sigma_trans_m**2] * 3)
     if robot_covariance is not None:
         R = np.asarray(robot_covariance, float).reshape(-1, 6, 6)
     ok = np.all(np.isfinite(d), axis=1) & np.all(np.isfinite(C), axis=(1, 2))
@@ -177,13 +177,13 @@ class Outlier:
     view_id: str
     kind: str  # corners | reprojection | too_few_corners | robot_pose
     reason: str  # one line for people
-    corner_ids: tuple = ()  # flagged corners (kind "corners"), else empty: the decision covers the view
-    size: dict = field(default_factory=dict)  # size of the disagreement, names with units
+    corner_ids: tuple[Any, ...] = ()  # flagged corners (kind "corners"), else empty: the decision covers the view
+    size: dict[str, Any] = field(default_factory=dict)  # size of the disagreement, names with units
 
     def __str__(self) -> str:
         return self.reason
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "view_id": self.view_id,
             "kind": self.kind,
@@ -242,7 +242,7 @@ def _factor(s2: float, sigma_px: float) -> float:
     return max(1.0, s2 / sigma_px**2) if np.isfinite(s2) and sigma_px > 0 else 1.0
 
 
-def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10) -> dict:
+def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10) -> dict[int, ViewCheck]:
     """Robust Gauss-Newton for the robot pose of each view in ``idx`` from its corners alone.
 
     Robust Gauss-Newton (Huber, ``loss_k``) for the robot pose of each view in ``idx`` from its corners
@@ -253,13 +253,13 @@ def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10)
     covariance is ``sigma_px^2 (J^T J)^-1`` over those corners. Returns {view index: ViewCheck}.
     """
     empty = {int(i): _failed_check(pb.P[i].copy(), 0) for i in idx if pb.offsets[i + 1] == pb.offsets[i]}
-    idx = np.asarray([i for i in idx if i not in empty], int)
-    if idx.size == 0:
+    ids = np.asarray([i for i in idx if i not in empty], int)
+    if ids.size == 0:
         return empty
-    fit = _own_fits(pb, idx, pb.P[idx].copy(), max_iters)
+    fit = _own_fits(pb, ids, pb.P[ids].copy(), max_iters)
     poor = np.flatnonzero(fit["n_inl"] * 2 < fit["counts"])
     if poor.size:
-        again = _own_fits(pb, idx[poor], _pnp_starts(pb, idx[poor], fit["P"][poor]), max_iters)
+        again = _own_fits(pb, ids[poor], _pnp_starts(pb, ids[poor], fit["P"][poor]), max_iters)
         better = again["n_inl"] > fit["n_inl"][poor]
         for k, j in zip(poor[better], np.flatnonzero(better), strict=False):
             for key in ("P", "alive", "n_inl", "H", "delta"):
@@ -267,7 +267,7 @@ def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10)
             fit["e"][k] = again["e"][j]
             fit["inl"][k] = again["inl"][j]
     out = empty
-    for k, i in enumerate(idx):
+    for k, i in enumerate(ids):
         e_k, P_k = fit["e"][k], fit["P"][k]
         if not fit["alive"][k]:
             out[int(i)] = _failed_check(P_k, int(fit["counts"][k]))
@@ -312,7 +312,7 @@ def _pnp_starts(pb: "Problem", idx: np.ndarray, fallback: np.ndarray) -> np.ndar
     return out
 
 
-def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> dict:
+def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> dict[str, Any]:
     """The robust Gauss-Newton of :func:`camera_only_poses` from the robot poses ``P``.
 
     The robust Gauss-Newton of :func:`camera_only_poses` from the robot poses ``P`` (len(idx),4,4), all views
@@ -338,6 +338,7 @@ def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> 
             view_index=local,
             robot_jacobian=True,
         )
+        assert J is not None, "robot_jacobian=True gives the Jacobian"
         finite = np.all(np.isfinite(r), axis=1) & np.all(np.isfinite(J), axis=(1, 2))
         alive &= np.logical_and.reduceat(finite, starts)
         if it == max_iters:
@@ -361,6 +362,7 @@ def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> 
             max_iters = it + 1
     e = np.linalg.norm(r, axis=1)
     inl = (e <= pb.o.corner_outlier_sigmas * pb.sigma_px) & alive[local]
+    assert J is not None, "robot_jacobian=True gives the Jacobian"
     Jin = np.where(inl[:, None, None], J, 0.0)
     H = np.add.reduceat(np.einsum("mci,mcj->mij", Jin, Jin), starts, axis=0)
     n_inl = np.add.reduceat(inl.astype(int), starts)
@@ -377,7 +379,7 @@ def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> 
     }
 
 
-def joint_checks(pb: "Problem", S_pp: dict) -> dict:
+def joint_checks(pb: "Problem", S_pp: dict[int, np.ndarray]) -> dict[int, ViewCheck]:
     """The views of the last Gaussian solve as it has them.
 
     The views of the last Gaussian solve as it has them (their robot poses variables of that solve),
@@ -393,13 +395,13 @@ def joint_checks(pb: "Problem", S_pp: dict) -> dict:
 
 @dataclass(frozen=True)
 class Decision:
-    status: tuple  # per view: used | robot_excluded | removed
-    masks: tuple  # per view: bool array of the corners kept
-    outliers: tuple  # Outlier, ...
-    checks: tuple  # per view ViewCheck
+    status: tuple[str, ...]  # per view: used | robot_excluded | removed
+    masks: tuple[Any, ...]  # per view: bool array of the corners kept
+    outliers: tuple[Any, ...]  # Outlier, ...
+    checks: tuple[Any, ...]  # per view ViewCheck
     robot_test: RobotPoseTest  # the robot-pose test of every view
 
-    def key(self):
+    def key(self) -> tuple[tuple[str, ...], tuple[bytes, ...]]:
         return self.status, tuple(m.tobytes() for m in self.masks)
 
 
@@ -442,7 +444,7 @@ def prior_share(R: np.ndarray, S_p: np.ndarray) -> float:
     return float(np.linalg.eigvalsh((R - S_p) * np.outer(w, w))[0])
 
 
-def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]) -> RobotPoseTest:
+def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict[int, np.ndarray]]) -> RobotPoseTest:
     """:func:`robot_pose_test` of every view's reported robot pose against what the other data imply.
 
     Each view's robot noise covariance R_i is its model's (:meth:`.problem.Problem.robot_cov`). With
@@ -466,10 +468,10 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
     J_all = pb.J_dh(range(pb.n))  # shape (n, 6, m)
     dh_cov = np.einsum("nim,mk,njk->nij", J_all, pb.S_dd, J_all)  # the DH offsets' share of each pose
 
-    def camera_side(i, ch):
+    def camera_side(i: int, ch: ViewCheck) -> tuple[np.ndarray, np.ndarray]:
         return ch.delta - J_all[i] @ pb.dh, ch.cov_cam * ch.variance_factor + dh_cov[i]
 
-    own = []  # views compared with their own fit
+    own: list[int] = []  # views compared with their own fit
     for i, ch in enumerate(checks):
         Sp = None if S_pp is None else S_pp.get(i)
         f = ch.variance_factor  # the view's own corner variance (camera side only; see view_variance_factor)
@@ -498,7 +500,7 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
     )
 
 
-def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = None) -> Decision:
+def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict[int, np.ndarray]] = None) -> Decision:
     """Outlier decisions for every view against the current solution.
 
     Outlier decisions for every view against the current solution, each with a reason and the size
@@ -631,7 +633,7 @@ class TooFewRobotPoses(Exception):
     """Fewer than 3 views keep a robot pose that agrees with the camera."""
 
 
-def outlier_loop(pb: "Problem"):
+def outlier_loop(pb: "Problem") -> tuple[Decision, Optional[np.ndarray], Optional[dict[int, np.ndarray]]]:
     """Decide, exclude, re-solve and decide again until the set of outliers is stable.
 
     Decide, exclude, re-solve (Gaussian, with variance-component estimation) and decide again from
@@ -640,8 +642,9 @@ def outlier_loop(pb: "Problem"):
     Sigma_robot}); raises TooFewRobotPoses.
     """
     o = pb.o
-    seen_keys = []
-    S_cc, S_pp = None, None
+    seen_keys: list[tuple[tuple[str, ...], tuple[bytes, ...]]] = []
+    S_cc: Optional[np.ndarray] = None
+    S_pp: Optional[dict[int, np.ndarray]] = None
     for rnd in range(o.max_outlier_rounds):
         dec = decide(pb, robust_robot_sigma=rnd == 0, S_pp=S_pp)
         if seen_keys and dec.key() == seen_keys[-1]:
@@ -666,7 +669,7 @@ def outlier_loop(pb: "Problem"):
     return decide(pb, robust_robot_sigma=False, S_pp=S_pp), S_cc, S_pp
 
 
-def robot_pose_outlier(vid: str, test, i: int, what: str, consequence: str) -> Outlier:
+def robot_pose_outlier(vid: str, test: RobotPoseTest, i: int, what: str, consequence: str) -> Outlier:
     """The ``robot_pose`` outlier of view ``vid``.
 
     The ``robot_pose`` outlier of view ``vid`` (index ``i`` of the robot-pose ``test``): its disagreement in

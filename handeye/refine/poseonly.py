@@ -25,7 +25,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field, replace
-from typing import Mapping, Optional, Sequence
+from typing import Any, Literal, Mapping, Optional, Sequence, overload
 
 import numpy as np
 from scipy.special import chdtri
@@ -36,7 +36,7 @@ from ..mounting import mounting
 from ..records import HandEyeEstimate
 from .covariance import COV_PARAMETRISATION, hand_eye_uncertainty
 from .options import RefineOptions, check_T, refine_preset
-from .outliers import RobotPoseGates, leave_one_out, robot_pose_outlier, robot_pose_test
+from .outliers import RobotPoseGates, RobotPoseTest, leave_one_out, robot_pose_outlier, robot_pose_test
 from .problem import solve_pose_graph
 from .result import RefineResult
 
@@ -58,7 +58,7 @@ class PoseView:
 class _NoIntrinsics:
     """Stands in for the intrinsics of a pose-only result when it is written (there is no camera model)."""
 
-    def to_dict(self):
+    def to_dict(self) -> None:
         return None
 
 
@@ -73,11 +73,12 @@ class PoseRefineResult(RefineResult):
     tracker_sigma_deg: float = float("nan")
     tracker_sigma_mm: float = float("nan")
     tracker_sigma_source: str = ""  # stated | estimated
-    tracker_sigma_resolved: dict = field(default_factory=dict)
+    tracker_sigma_resolved: dict[str, Any] = field(default_factory=dict)
     cov_board_6x6: Optional[np.ndarray] = None
 
-    def to_dict(self) -> dict:
-        d = RefineResult.to_dict(replace(self, intrinsics=_NoIntrinsics(), intrinsics_seed=_NoIntrinsics()))
+    def to_dict(self) -> dict[str, Any]:
+        no = _NoIntrinsics()
+        d = RefineResult.to_dict(replace(self, intrinsics=no, intrinsics_seed=no))  # type: ignore[arg-type]
         d["observations"] = "poses"
         d["tracker_noise"] = {
             "sigma_deg": self.tracker_sigma_deg,
@@ -102,7 +103,23 @@ class _State:
     keep: np.ndarray  # (n,) bool
     iterations: int = 0
 
-    def residuals(self, T_x=None, T_board=None, *, jacobians: bool = False):
+    @overload
+    def residuals(
+        self,
+        T_x: Optional[np.ndarray] = None,
+        T_board: Optional[np.ndarray] = None,
+        *,
+        jacobians: Literal[False] = False,
+    ) -> tuple[np.ndarray, None]: ...
+
+    @overload
+    def residuals(
+        self, T_x: Optional[np.ndarray] = None, T_board: Optional[np.ndarray] = None, *, jacobians: Literal[True]
+    ) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def residuals(
+        self, T_x: Optional[np.ndarray] = None, T_board: Optional[np.ndarray] = None, *, jacobians: bool = False
+    ) -> tuple[np.ndarray, Optional[np.ndarray]]:
         """(r (n,6), J (n,6,12) or None) of every view at the current (or given) solution."""
         T_x = self.T_x if T_x is None else T_x
         T_board = self.T_board if T_board is None else T_board
@@ -111,7 +128,7 @@ class _State:
             for M, C in zip(self.M, self.C, strict=False)
         ]
         r = np.stack([o[0] for o in out])
-        J = np.stack([np.hstack([o[1], o[2]]) for o in out]) if jacobians else None
+        J = np.stack([np.hstack([o[1], o[2]]) for o in out]) if jacobians else None  # type: ignore[list-item]
         return r, J
 
     def W(self) -> np.ndarray:
@@ -124,7 +141,7 @@ def _robust_sigmas(r: np.ndarray, floors: np.ndarray) -> np.ndarray:
     return np.maximum(med / _NORM3_MEDIAN, floors)
 
 
-def _score(st: _State, T_x, T_board) -> float:
+def _score(st: _State, T_x: np.ndarray, T_board: np.ndarray) -> float:
     """Median over the views of the rotation and translation residuals in units of the start sigmas."""
     r, _ = st.residuals(T_x, T_board)
     return float(
@@ -132,14 +149,16 @@ def _score(st: _State, T_x, T_board) -> float:
     )
 
 
-def _information(st: _State, J: np.ndarray, prior_x) -> np.ndarray:
+def _information(st: _State, J: np.ndarray, prior_x: Optional[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
     H = np.einsum("nki,kl,nlj->ij", J[st.keep], st.W(), J[st.keep])
     if prior_x is not None:
         H[:6, :6] += np.linalg.inv(prior_x[1])
     return H
 
 
-def _solve(st: _State, *, robust_k, prior_x, max_iterations) -> None:
+def _solve(
+    st: _State, *, robust_k: Optional[float], prior_x: Optional[tuple[np.ndarray, np.ndarray]], max_iterations: int
+) -> None:
     k = np.flatnonzero(st.keep)
     sig = np.broadcast_to(st.sigma, (k.size, 2))
     st.T_x, st.T_board, it = solve_pose_graph(
@@ -155,7 +174,14 @@ def _solve(st: _State, *, robust_k, prior_x, max_iterations) -> None:
     st.iterations += it
 
 
-def _vce_on_linearisation(st: _State, r: np.ndarray, J: np.ndarray, prior_x, floors, resolved: dict) -> float:
+def _vce_on_linearisation(
+    st: _State,
+    r: np.ndarray,
+    J: np.ndarray,
+    prior_x: Optional[tuple[np.ndarray, np.ndarray]],
+    floors: np.ndarray,
+    resolved: dict[str, bool],
+) -> float:
     """Variance-component estimation (rotation, translation) iterated on one linearisation.
 
     Variance-component estimation (rotation, translation) iterated on one linearisation (``r`` (n,6),
@@ -190,7 +216,14 @@ def _vce_on_linearisation(st: _State, r: np.ndarray, J: np.ndarray, prior_x, flo
     return float(np.max(np.abs(st.sigma / start - 1.0)))
 
 
-def _solve_with_vce(st: _State, *, estimate: bool, prior_x, max_iterations, floors) -> tuple:
+def _solve_with_vce(
+    st: _State,
+    *,
+    estimate: bool,
+    prior_x: Optional[tuple[np.ndarray, np.ndarray]],
+    max_iterations: int,
+    floors: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, bool]]:
     """Gaussian solves alternating with variance-component estimation on each linearisation.
 
     Gaussian solves alternating with variance-component estimation on each linearisation
@@ -213,7 +246,7 @@ def _solve_with_vce(st: _State, *, estimate: bool, prior_x, max_iterations, floo
     return np.linalg.inv(_information(st, J, prior_x)), r, J, resolved if estimate else {}
 
 
-def _tests(st: _State, S: np.ndarray, r: np.ndarray, J: np.ndarray, gates: RobotPoseGates):
+def _tests(st: _State, S: np.ndarray, r: np.ndarray, J: np.ndarray, gates: RobotPoseGates) -> RobotPoseTest:
     """THE robot-pose test of every view on ``T_cam_board``: leave-one-out for views in the solve."""
     R = np.linalg.inv(st.W())
     d = np.full((len(r), 6), np.nan)
@@ -237,7 +270,7 @@ def refine_poses(
     views: Sequence[PoseView],
     T_x0: np.ndarray,
     T_board0: np.ndarray,
-    tracker_sigma: Optional[tuple] = None,
+    tracker_sigma: Optional[tuple[Any, ...]] = None,
     options: Optional[RefineOptions] = None,
     starts: Optional[Mapping[str, HandEyeEstimate]] = None,
 ) -> PoseRefineResult:
@@ -277,7 +310,12 @@ def refine_poses(
     T_x_seed, T_board_seed = st.T_x.copy(), st.T_board.copy()
     gates = RobotPoseGates.from_options(options, unmodelled_arm=False)  # a tracker's error: Gaussian
     it_max = options.max_iterations
-    dec_keep, test, S, r, J, resolved = None, None, None, None, None, {}
+    dec_keep: Optional[np.ndarray] = None
+    test: Optional[RobotPoseTest] = None
+    S: Optional[np.ndarray] = None
+    r: Optional[np.ndarray] = None
+    J: Optional[np.ndarray] = None
+    resolved: dict[str, bool] = {}
     try:
         if estimate:
             st.sigma = _robust_sigmas(st.residuals()[0], floors)
@@ -290,7 +328,7 @@ def refine_poses(
         S = np.linalg.inv(_information(st, J, prior_x))
         # the robust solve down-weighted the outliers: each view against that solution, as if left out
         test = _tests(replace(st, keep=np.zeros(len(views), bool)), S, r, J, gates)
-        seen = []
+        seen: list[np.ndarray] = []
         for _ in range(options.max_outlier_rounds):
             keep = ~test.flagged
             if keep.sum() < 3:
@@ -318,7 +356,7 @@ def refine_poses(
         log.warning("pose-only refinement failed: %s", reason)
     depth = float(np.median(np.linalg.norm(C[:, :3, 3], axis=1)))  # the tracker's frame need not look along z
     wd = float(options.working_distance_m) if options.working_distance_m is not None else depth
-    S_x = None if status != "ok" else S[:6, :6]
+    S_x = None if status != "ok" or S is None else S[:6, :6]
     unc = hand_eye_uncertainty(S_x, st.T_x, wd)
     per_view, outliers = {}, []
     for i, vid in enumerate(ids):
@@ -356,10 +394,10 @@ def refine_poses(
         board_name=mount.board_name,
         T_x=st.T_x.copy(),
         T_board=st.T_board.copy(),
-        intrinsics=None,
+        intrinsics=None,  # type: ignore[arg-type]  # a pose-only result has no intrinsics
         T_x_seed=T_x_seed,
         T_board_seed=T_board_seed,
-        intrinsics_seed=None,
+        intrinsics_seed=None,  # type: ignore[arg-type]  # a pose-only result has no intrinsics
         robot_poses={vid: np.asarray(v.T_base_end, float).copy() for vid, v in zip(ids, views, strict=False)},
         cov_x_6x6=unc.cov_x_6x6,
         cov_parametrisation=COV_PARAMETRISATION,
@@ -391,5 +429,5 @@ def refine_poses(
         tracker_sigma_mm=float(1000.0 * st.sigma[1]),
         tracker_sigma_source="estimated" if estimate else "stated",
         tracker_sigma_resolved=resolved,
-        cov_board_6x6=None if status != "ok" else S[6:, 6:].copy(),
+        cov_board_6x6=None if status != "ok" or S is None else S[6:, 6:].copy(),
     )

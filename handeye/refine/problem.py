@@ -17,8 +17,9 @@ the units and noise levels.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import gtsam
 import numpy as np
@@ -85,7 +86,7 @@ class PixelLinearisation:
     prior: np.ndarray
     xi: np.ndarray
     c: int
-    robot_views: tuple  # view index of each robot block, in order
+    robot_views: tuple[Any, ...]  # view index of each robot block, in order
     J_dh: np.ndarray  # shape (n, 6, m)
 
 
@@ -154,11 +155,19 @@ class Problem:
                 ]
             self.prior_sig = sig[self.free]
         # options.prior: Gaussian priors on T_x and on the free intrinsics (e.g. an earlier calibration)
-        self.prior_x = None  # (T_x of the prior (4,4), its covariance (6,6))
-        self.prior_k = None  # (mean (nk,), covariance (nk, nk)) of the free intrinsics
-        self.prior_cov_xk = None  # (6+nk, 6+nk): the two as one joint Gaussian (prior.cov_x_intrinsics given)
-        self.prior_board = None  # (T_board of the prior (4,4), its covariance (6,6))
-        self.prior_cov_bk = None  # (6+nk, 6+nk): the board and the intrinsics as one (prior.cov_board_intrinsics)
+        self.prior_x: Optional[tuple[np.ndarray, np.ndarray]] = None  # (T_x of the prior (4,4), its covariance (6,6))
+        self.prior_k: Optional[tuple[np.ndarray, np.ndarray]] = (
+            None  # (mean (nk,), covariance (nk, nk)) of the free intrinsics
+        )
+        self.prior_cov_xk: Optional[np.ndarray] = (
+            None  # (6+nk, 6+nk): the two as one joint Gaussian (prior.cov_x_intrinsics given)
+        )
+        self.prior_board: Optional[tuple[np.ndarray, np.ndarray]] = (
+            None  # (T_board of the prior (4,4), its covariance (6,6))
+        )
+        self.prior_cov_bk: Optional[np.ndarray] = (
+            None  # (6+nk, 6+nk): the board and the intrinsics as one (prior.cov_board_intrinsics)
+        )
         if options.prior is not None:
             p = options.prior
             self.prior_x = (check_T(p.T_x, "prior T_x"), np.asarray(p.cov_x, float))
@@ -173,6 +182,7 @@ class Problem:
                     C = np.asarray(p.cov_x_intrinsics, float)[:, self.free]
                     self.prior_cov_xk = np.block([[self.prior_x[1], C], [C.T, self.prior_k[1]]])
                 elif p.cov_board_intrinsics is not None:
+                    assert self.prior_board is not None, "check_prior: cov_board_intrinsics needs T_board"
                     C = np.asarray(p.cov_board_intrinsics, float)[:, self.free]
                     self.prior_cov_bk = np.block([[self.prior_board[1], C], [C.T, self.prior_k[1]]])
         self.robot_var = options.robot_noise != "none"
@@ -184,11 +194,15 @@ class Problem:
         )
         self.m_dh = self.kin.m if self.kin is not None else 0
         # the DH offsets' prior: N(0, the arm's error prior), or an earlier calibration's estimate (prior.dh_offsets)
-        self.prior_dh = (np.zeros(self.m_dh), np.diag(self.kin.dh_sigma**2) if self.m_dh else np.zeros((0, 0)))
+        self.prior_dh = (
+            np.zeros(self.m_dh),
+            np.diag(self.kin.dh_sigma**2) if self.kin is not None and self.m_dh else np.zeros((0, 0)),
+        )
         self.prior_dh_earlier = False  # prior_dh is an earlier calibration's estimate, not the arm's error prior
         p = options.prior
         if self.m_dh and p is not None and p.dh_offsets is not None:
             if np.size(p.dh_offsets) != self.m_dh:
+                assert self.kin is not None, "m_dh > 0 only with a kinematic model"
                 raise ConfigError(
                     "prior.dh_offsets does not fit the arm's kinematic model",
                     expected=f"{self.m_dh} DH offsets ({self.kin.arm.name})",
@@ -203,7 +217,7 @@ class Problem:
         self.dh_prior_stated = self.prior_dh[1].copy()
         self.dh_info_stated = np.linalg.inv(self.dh_prior_stated) if self.m_dh else np.zeros((0, 0))  # its inverse
         self.dh_scale = 1.0
-        self.dh_scale_test: dict = {}
+        self.dh_scale_test: dict[str, Any] = {}
         self.dh_scale_dof: Optional[float] = None  # redundancy of the estimated scale (handeye.refine.noise._dh_scale)
         self.sigma_q = self.kin.encoder_sigma_rad if self.kin is not None else 0.0
         self.robot_prior_k = float(refine_preset()["robust"]["robot_prior_k"])
@@ -214,13 +228,13 @@ class Problem:
         self.sigma_rot = np.radians(options.robot_sigma_deg)
         self.sigma_trans = options.robot_sigma_mm / 1000.0
         self.resolved = {g: True for g in self.robot_groups}
-        self.noise_dof: dict = {}  # degrees of freedom of each estimated robot sigma (handeye.refine.noise)
+        self.noise_dof: dict[str, Any] = {}  # degrees of freedom of each estimated robot sigma (handeye.refine.noise)
         self.status = ["used"] * self.n
         self.mask = [np.ones(len(o), bool) for o in self.obj]
         self.iterations = 0
         # per view: its corners' residual variance in its own fit [px^2] (outliers.view_variance_factor);
         # filled by outliers.camera_only_poses, which does not depend on the robot pose
-        self.own_fit_var: dict = {}
+        self.own_fit_var: dict[int, float] = {}
 
     # -- views
     def active(self) -> list[int]:
@@ -274,7 +288,7 @@ class Problem:
 
     # -- robot error model (handeye.refine.robot_model)
     @property
-    def robot_groups(self) -> tuple:
+    def robot_groups(self) -> tuple[Any, ...]:
         """Names of the robot noise's variance components.
 
         The iid model's rotation and translation, or the encoder noise of the kinematic ones.
@@ -286,13 +300,13 @@ class Problem:
         return np.array([self.sigma_q] if self.kin is not None else [self.sigma_rot, self.sigma_trans], float)
 
     @robot_sigmas.setter
-    def robot_sigmas(self, s) -> None:
+    def robot_sigmas(self, s: Sequence[float] | np.ndarray) -> None:
         if self.kin is not None:
             self.sigma_q = float(s[0])
         else:
             self.sigma_rot, self.sigma_trans = float(s[0]), float(s[1])
 
-    def robot_group_weights(self, idx: Sequence[int]) -> list:
+    def robot_group_weights(self, idx: Sequence[int]) -> list[Any]:
         """Per group, the weights (len(idx),6,6) of a view's prior residual at unit group sigma.
 
         The prior's information is sum_g W_g / s_g^2.
@@ -303,7 +317,7 @@ class Problem:
         rot, trans = np.diag([1.0] * 3 + [0.0] * 3), np.diag([0.0] * 3 + [1.0] * 3)
         return [np.broadcast_to(rot, (len(idx), 6, 6)), np.broadcast_to(trans, (len(idx), 6, 6))]
 
-    def robot_group_counts(self) -> tuple:
+    def robot_group_counts(self) -> tuple[Any, ...]:
         """Equations per view of each group (the redundancy of the variance-component estimation)."""
         return (6,) if self.kin is not None else (3, 3)
 
@@ -318,6 +332,7 @@ class Problem:
         """(len(idx),6,m): d(true robot pose, right tangent of the reported one) / d(DH offsets)."""
         if not self.m_dh:
             return np.zeros((len(list(idx)), 6, 0))
+        assert self.kin is not None, "m_dh > 0 only with a kinematic model"
         return self.kin.J_dh[list(idx)]
 
     def prior_residuals(self, idx: Sequence[int]) -> np.ndarray:
@@ -367,7 +382,9 @@ class Problem:
         return tangent_difference(self.reported[idx], self.P[idx])
 
     # -- graph
-    def build(self, *, robust: bool, pixel_only: bool = False):
+    def build(
+        self, *, robust: bool, pixel_only: bool = False
+    ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, int]]:
         """Graph and Values of the current problem.
 
         ``pixel_only`` keeps only the reprojection factors, with unit pixel sigma (for the
@@ -383,7 +400,7 @@ class Problem:
         key_dh = KEY_DH if self.m_dh and not pixel_only else None
         if key_dh is not None:
             v.insert(key_dh, self.dh.copy())
-        robot_keys = {}
+        robot_keys: dict[int, int] = {}
         for i in self.active():
             key_r = None
             if self.has_robot_var(i):
@@ -444,6 +461,7 @@ class Problem:
             # Gaussian with the intrinsics when their cross-covariance is given; the intrinsics alone otherwise
             for key, prior, joint in self._pose_priors():
                 if joint is not None:
+                    assert self.prior_k is not None, "a joint prior comes with the intrinsics prior"
                     g.add(
                         joint_gaussian_prior(
                             key_pose=key,
@@ -459,7 +477,7 @@ class Problem:
                 g.add(gaussian_prior(key=KEY_INTRINSICS, mean=self.prior_k[0], cov=self.prior_k[1]))
         return g, v, robot_keys
 
-    def solve(self, *, robust: bool):
+    def solve(self, *, robust: bool) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, int]]:
         """One Levenberg-Marquardt solve of the current problem; updates the estimates in place."""
         g, v, robot_keys = self.build(robust=robust)
         opt = gtsam.LevenbergMarquardtOptimizer(g, v, lm_params(self.o.max_iterations))
@@ -476,7 +494,7 @@ class Problem:
             self.P[i] = res.atPose3(key).matrix()
         return g, res, robot_keys
 
-    def _pose_priors(self) -> tuple:
+    def _pose_priors(self) -> tuple[Any, ...]:
         """The priors on T_x and on the board: key, (mean, covariance) or None, joint covariance.
 
         (key, (mean (4,4), covariance (6,6)) or None, joint covariance with the free intrinsics or None) of the
@@ -508,12 +526,13 @@ class Problem:
                 continue
             T_p, cov = prior
             r = tangent_difference(T_p, T)
-            J = tangent_jacobian(lambda T_, T_p=T_p: tangent_difference(T_p, T_), T)
+            J = tangent_jacobian(functools.partial(tangent_difference, T_p), T)
             if joint is None:
                 JW = J.T @ np.linalg.inv(cov)
                 H[at : at + 6, at : at + 6] += JW @ J
                 g[at : at + 6] += JW @ r
             else:  # the pose and the free intrinsics as one joint Gaussian
+                assert self.prior_k is not None, "a joint prior comes with the intrinsics prior"
                 idx = np.r_[at : at + 6, N_POSES : N_POSES + self.free.size]
                 Jj = np.zeros((idx.size, idx.size))
                 Jj[:6, :6], Jj[6:, 6:] = J, np.eye(self.free.size)
@@ -523,7 +542,7 @@ class Problem:
         return H, g
 
     # -- information
-    def _ordering(self, robot_keys, *, with_dh: bool = True):
+    def _ordering(self, robot_keys: dict[int, int], *, with_dh: bool = True) -> gtsam.Ordering:
         ordering = gtsam.Ordering()
         keys = [KEY_X, KEY_BOARD] + ([KEY_INTRINSICS] if self.free.size else [])
         keys += [KEY_DH] if self.m_dh and with_dh else []
@@ -531,7 +550,9 @@ class Problem:
             ordering.push_back(k)
         return ordering
 
-    def covariances(self, g, values, robot_keys):
+    def covariances(
+        self, g: gtsam.NonlinearFactorGraph, values: gtsam.Values, robot_keys: dict[int, int]
+    ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
         """Marginal covariances of the core block and of each robot prior residual.
 
         Marginal covariances (core block, {view index: 6x6 covariance of its robot prior residual})
@@ -605,7 +626,7 @@ def solve_pose_graph(
     T_x0: np.ndarray,
     T_board0: np.ndarray,
     robust_k: Optional[float] = None,
-    prior_x=None,
+    prior_x: Optional[tuple[np.ndarray, np.ndarray]] = None,
     max_iterations: int = 100,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Levenberg-Marquardt on ``T_x`` and ``T_board`` from measured camera -> target poses.

@@ -50,7 +50,7 @@ from ..mounting import mounting
 from ..records import HandEyeEstimate
 from .noise import robust_robot_sigmas, robust_sigma_px, sigma_px_from_residuals
 from .options import RefineOptions, RefineView, check_inputs, check_options, check_T
-from .outliers import Outlier, TooFewRobotPoses, camera_only_poses, outlier_loop
+from .outliers import Decision, Outlier, TooFewRobotPoses, camera_only_poses, outlier_loop
 from .problem import Problem
 from .result import RefineResult, build_result
 
@@ -161,7 +161,13 @@ def refine(
                 )
             )
 
-    def result(status, reason, S_cc=None, dec=None, code="") -> RefineResult:
+    def result(
+        status: str,
+        reason: str,
+        S_cc: Optional[np.ndarray] = None,
+        dec: Optional[Decision] = None,
+        code: str = "",
+    ) -> RefineResult:
         return build_result(
             pb,
             status=status,
