@@ -52,7 +52,8 @@ def _type_name(v) -> str:
         return "true | false"
     if isinstance(v, (int, float)):
         return "a number"
-    return {dict: "a mapping", list: "a list", str: "a text"}.get(type(v), type(v).__name__)
+    words: dict[type, str] = {dict: "a mapping", list: "a list", str: "a text"}
+    return words.get(type(v), type(v).__name__)
 
 
 def _check_type(key, base_value, value, *, source: str) -> None:

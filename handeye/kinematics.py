@@ -30,7 +30,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Optional, Sequence, Union
+from typing import Any, Optional, Sequence, Union
 
 import numpy as np
 
@@ -492,7 +492,9 @@ def chain_to_dict(chain: DHChain) -> dict:
     the error prior is not part of it): a result records the arm it was calibrated with.
     """
     lim = chain.joint_limits_rad
-    links = [dict(zip(PARAMETER_NAMES, (float(v) for v in row), strict=False)) for row in np.asarray(chain.dh, float)]
+    links: list[dict[str, Any]] = [
+        dict(zip(PARAMETER_NAMES, (float(v) for v in row), strict=False)) for row in np.asarray(chain.dh, float)
+    ]
     if lim is not None:
         for link, (lo, hi) in zip(links, np.asarray(lim, float), strict=False):
             link["limits"] = [float(lo), float(hi)]

@@ -218,7 +218,8 @@ def _calibrate_locked(
     from .results import observations_dict, result_dict
 
     seconds = {"load": t_load, **run.seconds}
-    diag, stage_errors = None, {}
+    diag = None
+    stage_errors: dict[str, str] = {}
     if diagnostics:
         progress("diagnostics")
         t1 = time.perf_counter()
@@ -362,7 +363,7 @@ def _finish(
 
     qa_path, qa_cfg = qa
     result_path = out_dir / "result.json"
-    paths = ()
+    paths: tuple[Path, ...] = ()
     seconds["write"] = time.perf_counter() - t_write
     res["seconds"] = dict(seconds)
     with writing(out_dir):
@@ -419,7 +420,7 @@ def _failed_load(
         t1 = time.perf_counter()
         from .diagnose import diagnose_session_error
 
-        stage_errors = {}
+        stage_errors: dict[str, str] = {}
         diag = optional_stage(
             "diagnostics",
             diagnose_session_error,

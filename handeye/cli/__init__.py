@@ -75,7 +75,7 @@ def add_command_arguments(parser: argparse.ArgumentParser, name: str) -> argpars
     if not getattr(parser, "_handeye_loaded", False):
         module = importlib.import_module(f"{__name__}.{COMMANDS[name][0]}")
         module.add_arguments(parser)
-        parser._handeye_loaded = True
+        parser._handeye_loaded = True  # type: ignore[attr-defined]  # a marker on the parser
     return parser
 
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Optional, Sequence
+from typing import Optional, Sequence, Union
 
 import numpy as np
 from scipy import stats
@@ -163,7 +163,7 @@ def installed_poses(installed: LoadedResult) -> list[np.ndarray]:
 
 
 def plan_verification(
-    against: ResultLike,
+    against: Union[ResultLike, LoadedResult],
     *,
     drift_mm: Optional[float] = None,
     drift_deg: Optional[float] = None,
@@ -200,13 +200,19 @@ def plan_verification(
             received=f"{drift_mm} mm, {drift_deg} deg",
         )
     installed = against if isinstance(against, LoadedResult) else load_result(against)
-    if not installed.ok or installed.cov_x is None or installed.T_board is None or installed.intrinsics is None:
+    if (
+        not installed.ok
+        or installed.T_x is None
+        or installed.cov_x is None
+        or installed.T_board is None
+        or installed.intrinsics is None
+    ):
         raise InputError(
             "the installed result lacks X, its covariance, the board or the intrinsics",
             path=installed.source,
             hint="plan against a refined result with status ok",
         )
-    target = parse_target(installed.target, path=installed.source)
+    target = parse_target(installed.target, path=installed.source)  # type: ignore[arg-type]  # str names it alike
     obj = target.object_points()
     mode, T_x, T_board = installed.mode, installed.T_x, installed.T_board
     sigma_px = installed.sigma_px or 0.3
@@ -268,6 +274,7 @@ def plan_verification(
     infos = [info_of(T) for T, _ in cands]
     # verify shares the installed intrinsics (and the DH offsets when it can): their error cancels in its test
     S0 = installed.cov_x_given_shared if shares_dh(installed) else installed.cov_x_given_intrinsics
+    assert S0 is not None, "an ok result with its covariance and intrinsics has it"
     nu = installed.robot_noise_dof
     ceiling = test_power(worst_noncentrality(S0, drifts), alpha=alpha, noise_dof=nu)
     info = np.zeros((12, 12))

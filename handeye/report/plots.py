@@ -116,7 +116,15 @@ def _bars(ax, x: np.ndarray, height: np.ndarray, width: float, *, color, edgecol
         ],
         axis=1,
     )
-    ax.add_collection(PolyCollection(verts, facecolors=color, edgecolors=edgecolors, linewidths=1.2, label=label))
+    ax.add_collection(
+        PolyCollection(
+            verts,  # type: ignore[arg-type]  # an (n, 4, 2) array of polygons
+            facecolors=color,
+            edgecolors=edgecolors,
+            linewidths=1.2,
+            label=label,
+        )
+    )
     ax.update_datalim([(float(x0.min()), 0.0), (float(x1.max()), float(h.max(initial=0.0)))])
 
 
@@ -331,8 +339,7 @@ def image_coverage(
     for flagged, color in ((False, NAVY), (True, RED)):
         seg = [np.stack([p, p + gain * r], axis=1) for p, r, f in ok if f == flagged]
         if seg:
-            seg = np.concatenate(seg)
-            _lines(ax2, seg, colors=color, linewidths=0.8, alpha=0.85)
+            _lines(ax2, np.concatenate(seg), colors=color, linewidths=0.8, alpha=0.85)
     sx, sy = 0.06 * width, 0.94 * height
     one = _nice(ref) if ref > 0 else 1.0
     ax2.plot([sx, sx + one * gain], [sy, sy], color=INK, lw=1.6)
@@ -366,7 +373,7 @@ def poses_3d(
     T_base_ends: np.ndarray,
     T_base_boards: np.ndarray,
     board_outline: np.ndarray,
-    flagged: Sequence[bool],
+    flagged: Sequence[bool] | np.ndarray,
     camera_moves: bool,
 ) -> bytes:
     """Robot base, end poses, cameras and board(s) in the base frame: an oblique and a top view.

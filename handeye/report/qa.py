@@ -215,6 +215,8 @@ class _ShownApart(float):
     limit it crossed: 29.97 against 30 shows as "29.97", not "30.0 < 30.0".
     """
 
+    limit: Optional[float]
+
     def __new__(cls, value: float, limit: Optional[float]):
         obj = super().__new__(cls, value)
         obj.limit = limit

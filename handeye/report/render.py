@@ -12,6 +12,7 @@ import os
 import re
 from importlib import resources
 from pathlib import Path
+from typing import Any
 from urllib.parse import quote
 
 import jinja2
@@ -53,7 +54,7 @@ class MdMarkup(str):
     """
 
 
-def md_text(x) -> str:
+def md_text(x: Any) -> Any:
     """Text safe in Markdown rendered to HTML (python-markdown, GitHub): no raw HTML can start.
 
     Text safe in Markdown rendered to HTML (python-markdown, GitHub): no raw HTML can start (``<``

@@ -21,7 +21,7 @@ is read twice; the ``source`` block keeps the frame names.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -58,7 +58,9 @@ def _transform(t, *, path: Path, where: str) -> np.ndarray:
     return make_T(R_from_quat_wxyz(q / n), xyz)
 
 
-def read_samples(path: str | Path, *, mode: Optional[str] = None) -> tuple[str, dict, list]:
+def read_samples(
+    path: str | Path, *, mode: Optional[str] = None
+) -> tuple[Optional[str], dict[str, Any], list[tuple[np.ndarray, np.ndarray]]]:
     """(mode, parameters, pose pairs) of an easy_handeye2 ``.samples`` file.
 
     (mode, parameters, [(T_base_end, T_cam_board), ...]) of a ``.samples`` file. ``mode`` (handeye's name)
@@ -122,7 +124,7 @@ def import_easy_handeye2(
     src, out = Path(src), Path(out)
     mode, params, pairs = read_samples(src, mode=mode)
     _check_out(out, force=force)
-    doc = {
+    doc: dict[str, Any] = {
         "handeye_session": 1,
         "mode": mode,
         "source": {

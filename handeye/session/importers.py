@@ -212,7 +212,7 @@ def import_visp(src: str | Path, out: str | Path, *, use_given_intrinsics: bool 
                 expected="ViSP's camera XML with <px>, <py>, <u0>, <v0>",
                 hint="remove --given-intrinsics to estimate the intrinsics",
             )
-        vals = {k: _number(m.group(1), path=cam, field=k) for k, m in found.items()}
+        vals = {k: _number(m.group(1), path=cam, field=k) for k, m in found.items() if m is not None}  # all found
         import cv2
 
         first = cv2.imread(str(imgs[min(imgs)]), cv2.IMREAD_GRAYSCALE) if imgs[min(imgs)].is_file() else None

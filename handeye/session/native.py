@@ -15,7 +15,7 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional, Union
 
 import numpy as np
 
@@ -90,7 +90,9 @@ def read_native_document(path: Path) -> NativeDocument:
     version = d.get("handeye_session", 1)
     if version != 1:
         raise ConfigError("unsupported handeye_session version", path=path, expected="1", received=repr(version))
-    target = parse_target(d.get("target"), path=path) if not _pose_only(d) or d.get("target") else TrackedTargetSpec()
+    target: TargetSpec = (  # a pose-only session's target is a TrackedTargetSpec, outside the TargetSpec union
+        parse_target(d.get("target"), path=path) if not _pose_only(d) or d.get("target") else TrackedTargetSpec()  # type: ignore[assignment]
+    )
     fmt = parse_pose_format(d.get("pose_format"), path=path)
     intr, intr_use = parse_intrinsics(d.get("intrinsics"), path=path)
     image_folder = d.get("image_folder")
@@ -220,6 +222,7 @@ def view_target_pose(doc: NativeDocument, e: ViewEntry) -> np.ndarray:
     """
     vid = e.data["id"]
     fmt = doc.target_pose_format
+    assert fmt is not None, "a pose-only session has its target_pose_format"
     values = view_pose_values(
         ViewEntry({"id": vid, "pose": e.data["target_pose"]}, e.source), fmt, folder=files_folder(doc)
     )
@@ -383,7 +386,7 @@ def view_joint_angles(e: ViewEntry) -> Optional[tuple]:
     return tuple(float(x) for x in arr)
 
 
-def parse_intrinsics(d, *, path: Path) -> tuple[Optional[Intrinsics], str]:
+def parse_intrinsics(d: Any, *, path: Path) -> tuple[Optional[Intrinsics], str]:
     """(intrinsics or None, use: estimate | fixed | prior) from the ``intrinsics:`` mapping."""
     if d is None:
         return None, "estimate"
@@ -435,7 +438,7 @@ def parse_intrinsics(d, *, path: Path) -> tuple[Optional[Intrinsics], str]:
     if use not in INTRINSICS_USES:
         raise ConfigError("invalid intrinsics.use", path=path, expected=" | ".join(INTRINSICS_USES), received=repr(use))
     K = np.array([[vals["fx"], 0, vals["cx"]], [0, vals["fy"], vals["cy"]], [0, 0, 1]])
-    return Intrinsics.from_K(K, dist, w, h), {"initial": "estimate"}.get(use, use)
+    return Intrinsics.from_K(K, dist, w, h), str({"initial": "estimate"}.get(use, use))  # use: checked above
 
 
 def load_native_session(path: str | Path, *, mode: str | None = None, allow_outside: bool = False) -> Session:
@@ -474,7 +477,7 @@ def load_native_session(path: str | Path, *, mode: str | None = None, allow_outs
             views.append(
                 View(
                     view_id=vid,
-                    image_path=None,
+                    image_path=None,  # type: ignore[arg-type]  # a pose-only view has no image
                     T_base_end=T,
                     t_image=t_image,
                     t_pose=t_pose,

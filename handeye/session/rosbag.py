@@ -25,7 +25,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -167,7 +167,7 @@ def _chain(edges: dict, base: str, end: str, *, bag: Path) -> list[tuple[tuple[s
                 expected="one of " + ", ".join(sorted(nbrs)[:12]) if nbrs else "a TF stream (/tf)",
                 hint="pass --base and --end as the frames the robot publishes (e.g. base_link, tool0)",
             )
-    prev = {base: None}
+    prev: dict[str, Optional[tuple[str, Any, bool]]] = {base: None}
     queue = [base]
     while queue:
         f = queue.pop(0)
@@ -182,8 +182,8 @@ def _chain(edges: dict, base: str, end: str, *, bag: Path) -> list[tuple[tuple[s
             hint="the two frames are in separate TF trees; record the robot's whole TF",
         )
     out, f = [], end
-    while prev[f] is not None:
-        f0, e, fwd = prev[f]
+    while (link := prev[f]) is not None:
+        f0, e, fwd = link
         out.append((e, fwd))
         f = f0
     return out[::-1]
@@ -266,7 +266,9 @@ def _image_file(msg, msgtype: str) -> tuple[bytes, str]:
             expected="mono8, mono16, rgb8, bgr8, rgba8 or bgra8 (or a CompressedImage topic)",
         )
     c = channels[enc]
-    img = data.reshape(h, step_items)[:, : w * c].reshape(h, w, c) if c > 1 else data.reshape(h, step_items)[:, :w]
+    img: np.ndarray = (
+        data.reshape(h, step_items)[:, : w * c].reshape(h, w, c) if c > 1 else data.reshape(h, step_items)[:, :w]
+    )
     if enc == "rgb8":
         img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
     elif enc == "rgba8":

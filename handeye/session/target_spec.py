@@ -5,6 +5,7 @@ marker, AprilGrid).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, Callable, Union
 
 from ..errors import ConfigError
 from ..targets import AprilGridSpec, CharucoSpec, ChessboardSpec, CircleGridSpec, MarkerSpec, TargetSpec
@@ -113,7 +114,7 @@ def _circlegrid(t: dict, path: Path) -> CircleGridSpec:
     return CircleGridSpec(cols, rows, spacing, asymmetric=asymmetric, origin_dot=origin_dot)
 
 
-_PARSERS = {
+_PARSERS: dict[str, Callable[[dict[str, Any], Path], TargetSpec]] = {
     "chessboard": _chessboard,
     "charuco": _charuco,
     "circlegrid": _circlegrid,
@@ -122,7 +123,7 @@ _PARSERS = {
 }
 
 
-def parse_target(t, *, path: Path) -> TargetSpec:
+def parse_target(t: Any, *, path: Path) -> TargetSpec:
     """The spec a session's ``target:`` mapping describes; ConfigError naming the field otherwise."""
     if not isinstance(t, dict) or "type" not in t:
         raise ConfigError(

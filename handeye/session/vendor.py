@@ -180,7 +180,7 @@ def numbered_images(folder: Path) -> dict[int, Path]:
         )
         prefixed = sorted(
             (f.name for f in folder.iterdir() if f.suffix.lower() in IMAGE_EXTS and _PREFIXED.match(f.stem)),
-            key=lambda n: int(_PREFIXED.match(Path(n).stem)[2]),
+            key=lambda n: int(_PREFIXED.match(Path(n).stem)[2]),  # type: ignore[index]  # the names matched above
         )
         hint = (
             f"the numbered images are in {inside[0]}/: move them next to poses.txt"

@@ -22,7 +22,7 @@ import json
 import os
 import shutil
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -80,7 +80,7 @@ def write_fleet(
         gt = json.loads((p / "ground_truth.json").read_text(encoding="utf-8"))
         view_sets.append((p, gt))
     day0 = _dt.date.fromisoformat(start)
-    manifest = {"sessions": []}
+    manifest: dict[str, list[dict[str, Any]]] = {"sessions": []}
     for i in range(n_installs):
         install = f"cell-{i + 1:02d}"
         rig = sample_setup(mode="eye_in_hand", rng=random_streams(seed * 1000 + 500 + i)["geometry"])

@@ -239,6 +239,7 @@ class RealmanEmulator:
             time.sleep(self.motion_time_s)
             success = fault != "fail_motion"
             if success:
+                assert isinstance(pose, list), "ok: a pose list"
                 with self._lock:
                     self.pose_units = [int(v) for v in pose]
             return self._send(

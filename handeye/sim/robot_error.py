@@ -214,6 +214,7 @@ class OneConfiguration:
         no singularity: the sign of det J (the joint Jacobian of the flange pose) stays the same along it.
         A shoulder, elbow or wrist flip is a crossing of the singularity between the two configurations.
         """
+        assert self.reference is not None, "the first reachable pose sets the reference"
         s = np.linspace(0.0, 1.0, steps)[:, None]
         path = self.reference[None, :] + s * (np.asarray(q, float) - self.reference)[None, :]
         chain = self.error.true

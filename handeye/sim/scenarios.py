@@ -26,7 +26,7 @@ from ..camera import Intrinsics
 from ..collect.visibility import board_center, board_in_image, board_out_of_image, default_margin_px, pattern_bounds
 from ..errors import ConfigError, DegenerateMotionError
 from ..frames import R_from_rotvec, T_from_rotvec, inv_T, make_T
-from ..initial.motion import motion_quality
+from ..initial.motion import MotionQuality, motion_quality
 from ..mounting import mounting
 from ..targets import ChessboardSpec, TargetSpec
 
@@ -89,11 +89,11 @@ DEFAULT_INTRINSICS = default_intrinsics()
 
 
 def _Rz(a: float) -> np.ndarray:
-    return R_from_rotvec([0.0, 0.0, a])
+    return R_from_rotvec(np.array([0.0, 0.0, a]))
 
 
 def _Rx(a: float) -> np.ndarray:
-    return R_from_rotvec([a, 0.0, 0.0])
+    return R_from_rotvec(np.array([a, 0.0, 0.0]))
 
 
 def _small_tilt(rng: np.random.Generator, max_deg: float) -> np.ndarray:
@@ -219,7 +219,7 @@ def _T_cam_board_from_view(
     R_tilt = R_from_rotvec(tilt_rad * np.array([np.cos(tilt_dir_rad), np.sin(tilt_dir_rad), 0.0]))
     R_board_cam = R_tilt @ _Rz(roll_rad)  # roll about the optical axis
     o_board = c - distance_m * R_board_cam[:, 2]
-    R_board_cam = R_board_cam @ R_from_rotvec([aim_x_rad, aim_y_rad, 0.0])
+    R_board_cam = R_board_cam @ R_from_rotvec(np.array([aim_x_rad, aim_y_rad, 0.0]))
     return inv_T(make_T(R_board_cam, o_board))
 
 
@@ -292,7 +292,7 @@ def sample_view_poses(
     def strata() -> np.ndarray:  # (n,) values in [0, 1), one per stratum, shuffled
         return (rng.permutation(n_views) + rng.uniform(0.0, 1.0, n_views)) / n_views
 
-    quality = None
+    quality: Optional[MotionQuality] = None
     for _attempt in range(20):
         u_d, u_roll, u_dir = strata(), strata(), strata()
         out = np.empty((n_views, 4, 4))
@@ -336,6 +336,7 @@ def sample_view_poses(
         )
         if quality.status == "ok":
             return out
+    assert quality is not None, "20 draws made"
     raise DegenerateMotionError(
         "sampled views do not rotate about two different axes",
         expected=f"motion that passes the calibration's gates (rotation >= "

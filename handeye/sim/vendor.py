@@ -192,6 +192,7 @@ def write_vendor_session(
             "outlier": vid in session.outlier_view_ids,
         }
         if session.joints_encoder is not None:
+            assert session.joints_true is not None, "the simulator records both"
             views[vid]["joints_encoder"] = session.joints_encoder[k].tolist()
             views[vid]["joints_true"] = session.joints_true[k].tolist()
     truth = {
