@@ -359,6 +359,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     if obs.error is not None:
         raise obs.error if obs.error.path is not None else obs.error.at(s.path)
     poses, dets, intr = obs.board_poses, obs.detections, obs.intrinsics
+    assert intr is not None, "observe sets the intrinsics unless it failed"
     s = _mode_gate(s, obs, state, progress)
     mode = mounting(s.mode)
     M_all = {v.view_id: mode.M_from_T_base_end(v.T_base_end) for v in s.views}
@@ -509,7 +510,7 @@ def _mode_gate(s: Session, obs: Observation, state: dict, progress) -> Session:
 
     source = _stated_source(s)
     ids = [v for v in sorted(obs.board_poses, key=view_id_key)]
-    decision = {"mode": s.mode, "mode_source": source}
+    decision: dict[str, Any] = {"mode": s.mode, "mode_source": source}
     state["mode_decision"] = decision
     if len(ids) < 4:
         return s
@@ -698,7 +699,7 @@ def validate_stage(s: Session, refined, poses: dict, dets: dict, T_base_end: dic
         return Validation("not_run", f"crashed: {type(e).__name__}: {e}")
 
 
-def _final_outcomes(outcomes, chain, refined):
+def _final_outcomes(outcomes: dict[str, Any], chain: dict[str, Any], refined: Any) -> dict[str, Any]:
     """Outcomes after the solve: residuals through the robot chain, and the refinement's decisions."""
     out = outcomes
     for vid, (_rms, mx) in chain.items():

@@ -123,7 +123,7 @@ def dropped_corners(run, view_id: str) -> list:
         return []
     bp = (getattr(run, "board_poses", None) or {}).get(view_id)
     syms = run.session.target.symmetries() if bp is not None else None
-    perm = syms[bp.orientation] if syms is not None and 0 <= bp.orientation < len(syms) else None
+    perm = syms[bp.orientation] if bp is not None and syms is not None and 0 <= bp.orientation < len(syms) else None
     return [
         {"corner_id": int(perm[k]) if perm is not None else int(k), "reason": why} for k, why in det.dropped_corners
     ]

@@ -10,7 +10,7 @@ back with validation) and ``describe()`` (one line for messages).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Union
+from typing import Literal, Union
 
 import numpy as np
 
@@ -35,7 +35,7 @@ class ChessboardSpec:
     cols: int
     rows: int
     square_m: float
-    kind: str = "chessboard"
+    kind: Literal["chessboard"] = "chessboard"
 
     @property
     def n_corners(self) -> int:
@@ -76,7 +76,7 @@ class CharucoSpec:
     marker_m: float
     dictionary: str = "DICT_6X6_250"
     legacy_pattern: bool = False
-    kind: str = "charuco"
+    kind: Literal["charuco"] = "charuco"
 
     @property
     def n_corners(self) -> int:
@@ -124,7 +124,7 @@ class CircleGridSpec:
     spacing_m: float
     asymmetric: bool = False
     origin_dot: bool = False
-    kind: str = "circlegrid"
+    kind: Literal["circlegrid"] = "circlegrid"
 
     @property
     def n_corners(self) -> int:
@@ -192,7 +192,7 @@ class MarkerSpec:
     size_m: float
     dictionary: str = "DICT_APRILTAG_36h11"
     marker_id: int = 0
-    kind: str = "marker"
+    kind: Literal["marker"] = "marker"
     pose_ambiguous: bool = True
 
     @property
@@ -236,7 +236,7 @@ class AprilGridSpec:
     spacing: float = 0.3
     dictionary: str = "DICT_APRILTAG_36h11"
     first_id: int = 0
-    kind: str = "aprilgrid"
+    kind: Literal["aprilgrid"] = "aprilgrid"
     pose_ambiguous: bool = False
 
     @property
@@ -299,7 +299,7 @@ class TrackedTargetSpec:
 
     name: str = ""
     axis_m: float = 0.1
-    kind: str = "tracked"
+    kind: Literal["tracked"] = "tracked"
     pose_ambiguous: bool = False
 
     @property

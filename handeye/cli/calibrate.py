@@ -11,6 +11,7 @@ import argparse
 import logging
 import sys
 from pathlib import Path
+from typing import Any
 
 log = logging.getLogger(__name__)
 
@@ -210,7 +211,7 @@ def check_site_config(cfg: dict, *, source) -> dict:
     from ..errors import ConfigError
 
     for key, (expected, ok) in _SITE_CHECKS.items():
-        v = cfg
+        v: Any = cfg
         for part in key.split("."):
             v = v.get(part) if isinstance(v, dict) else None
         if v is not None and not ok(v):
@@ -291,12 +292,14 @@ def run(args) -> int:
             print(line)
         for p in wr.report_paths:
             print(f"report: {p}")
+        assert wr.error is not None, "a run that could not read its session has its error"
         raise wr.error
     print(format_summary(wr.result, wr.result_path, wr.report_paths))
     if (wr.result.get("prior") or {}).get("summary"):  # --prior: what the earlier result became
         print(f"prior: {wr.result['prior']['summary']}")
     if wr.status != "ok":
         if getattr(args, "debug", False):
+            assert wr.error is not None, "a failed run has its error"
             raise wr.error
         what = "refused" if wr.verdict == "REFUSED" else "calibration failed"
         print(f"handeye: {what}: {wr.result['failure_reason']}", file=sys.stderr)
@@ -360,7 +363,7 @@ def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
         ref = res.get("refinement") or {}
         sig = ref.get("sigma_trans_mm")
         if sig is not None:
-            sr = ref.get("sigma_rot_deg")
+            sr = ref.get("sigma_rot_deg") or ()  # written together with sigma_trans_mm
             src = ref.get("sigma_source")  # which covariance the verdict sigmas are (result.json's refinement block)
             lines.append(
                 "  1-sigma: translation [mm] "

@@ -151,8 +151,8 @@ def _hull(pts: np.ndarray) -> np.ndarray:
     if len(p) < 3:
         return np.asarray(p, float).reshape(-1, 2)
 
-    def half(points):
-        out: list = []
+    def half(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        out: list[tuple[float, float]] = []
         for x, y in points:
             while (
                 len(out) >= 2
