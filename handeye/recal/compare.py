@@ -46,7 +46,7 @@ returns ``comparable=False`` with ``reason`` naming the difference.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 from scipy import stats
@@ -230,6 +230,7 @@ def x_given_intrinsics(a: LoadedResult, b: LoadedResult, d: dict) -> Optional[di
     if ja is None or jb is None or tuple(ja[0]) != tuple(jb[0]) or a.intrinsics is None or b.intrinsics is None:
         return None
     idx = [INTRINSIC_NAMES.index(n) for n in ja[0]]
+    assert a.T_x is not None and b.T_x is not None, "compared results have X"
     dk = b.intrinsics.as_vector()[idx] - a.intrinsics.as_vector()[idx]
     Ad = se3_adjoint(inv_T(a.T_x) @ b.T_x)
     S_kk = ja[2] + jb[2]
@@ -256,7 +257,8 @@ def intrinsics_difference(a: LoadedResult, b: LoadedResult, *, alpha: float = AL
     if a.intrinsics is None or b.intrinsics is None:
         return {}
     full = _intrinsics_joint_test(a, b, alpha)
-    out, d2, dof = {}, 0.0, 0
+    out: dict[str, Any] = {}
+    d2, dof = 0.0, 0
     for name in INTRINSICS_COMPARED:
         va, vb = float(getattr(a.intrinsics, name)), float(getattr(b.intrinsics, name))
         var = a.intrinsics_sigma.get(name, 0.0) ** 2 + b.intrinsics_sigma.get(name, 0.0) ** 2
@@ -317,6 +319,8 @@ def compare_loaded(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) ->
     reason = why_not_comparable(a, b)
     if reason:
         return not_comparable(reason, a.x_name if a.x_name == b.x_name else "", alpha=alpha, sources=sources)
+    assert a.T_x is not None and b.T_x is not None, "comparable results have X (why_not_comparable)"
+    assert a.cov_x is not None and b.cov_x is not None, "comparable results have its covariance"
     d = x_difference(a.T_x, a.cov_x, b.T_x, b.cov_x)
     nu = noise_dof(a, d["S"], b)
     p_alone = wald_p_value(d["d2"], 6, nu)
@@ -368,6 +372,7 @@ def noise_dof(a: LoadedResult, S: np.ndarray, b: LoadedResult) -> Optional[float
         return None
     # the shares of the unconditional covariance S serve the conditional test too (X given the intrinsics
     # difference): each result's noise level scales its part of both alike
+    assert a.cov_x is not None, "compared results have the covariance of X"
     share_a = float(np.clip(np.trace(np.linalg.solve(S, a.cov_x)) / 6.0, 0.0, 1.0))
     return satterthwaite_dof((share_a, 1.0 - share_a), (nu_a, nu_b))
 

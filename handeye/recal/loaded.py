@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional, Union
+from typing import Any, Optional, Union
 
 import numpy as np
 
@@ -298,7 +298,7 @@ def _joints(ref: dict, cov_x: Optional[np.ndarray]) -> dict:
     """
     j = ref.get("cov_x_intrinsics")
     joint = _joint(j)
-    dh = _dh_joint(j, len(joint[0])) if joint is not None else None
+    dh = _dh_joint(j, len(joint[0])) if joint is not None and j is not None else None  # _joint(j): j a dict
     maps = verdict_maps(
         joint,
         cov_x_model=_matrix(ref.get("cov_x_6x6"), (6, 6)),
@@ -307,7 +307,7 @@ def _joints(ref: dict, cov_x: Optional[np.ndarray]) -> dict:
         intrinsics_full=(ref.get("validation") or {}).get("intrinsics_model") == "full",
     )
     board = None
-    if joint is not None:
+    if joint is not None and j is not None:
         cb, cbk = _matrix(ref.get("cov_board_6x6"), (6, 6)), _matrix(j.get("cross_board_6xk"), (6, len(joint[0])))
         board = None if cb is None or cbk is None else (0.5 * (cb + cb.T), cbk)
     if maps is None:
@@ -318,6 +318,7 @@ def _joints(ref: dict, cov_x: Optional[np.ndarray]) -> dict:
             "x_on_intrinsics": None if joint is None else joint + (joint[1],),
         }
     A, B = maps
+    assert joint is not None, "verdict_maps needs the joint covariance"
     names, C, K = joint
     K2 = B @ K @ B.T
     if dh is not None:
@@ -475,7 +476,7 @@ def installed_prior(
 
     if board and cov_x is None:  # result.json has no cross-covariance of X and the board: not both as priors
         raise ValueError("the installed board pose is a prior only with X's prior replaced (cov_x)")
-    if installed.cov_x is None:
+    if installed.cov_x is None or installed.T_x is None:
         raise InputError(
             "the installed result has no covariance of X",
             path=installed.source,
@@ -483,7 +484,11 @@ def installed_prior(
         )
     cov = installed.cov_x if cov_x is None else cov_x
     with_board = board and installed.board_joint is not None and installed.T_board is not None
-    board_kw = dict(T_board=installed.T_board, cov_board=installed.board_joint[0]) if with_board else {}
+    board_kw: dict[str, Any] = (
+        dict(T_board=installed.T_board, cov_board=installed.board_joint[0])
+        if with_board and installed.board_joint is not None
+        else {}
+    )
     if session_intrinsics or installed.intrinsics is None:
         return Prior(T_x=installed.T_x, cov_x=cov, **board_kw), ()
     sig = np.array([installed.intrinsics_sigma.get(n, 0.0) for n in INTRINSIC_NAMES])
@@ -500,7 +505,7 @@ def installed_prior(
                 cross[:, idx] = C
             elif with_board:  # X's prior replaced (board requires it): the board joins the intrinsics instead
                 board_kw["cov_board_intrinsics"] = np.zeros((6, len(INTRINSIC_NAMES)))
-                board_kw["cov_board_intrinsics"][:, idx] = installed.board_joint[1]
+                board_kw["cov_board_intrinsics"][:, idx] = installed.board_joint[1]  # type: ignore[index]  # with_board
     return Prior(
         T_x=installed.T_x,
         cov_x=cov,

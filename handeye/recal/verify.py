@@ -49,7 +49,7 @@ import logging
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
@@ -427,6 +427,7 @@ def verify_views(
             hint="capture 3-8 views with the whole board visible and the robot turned between them",
         )
     mode, X0 = installed.mode, installed.T_x
+    assert X0 is not None, "an ok result has X"
     session_intr = intrinsics is not None
     intr = intrinsics if session_intr else installed.intrinsics
     if intr is None:
@@ -556,7 +557,7 @@ def installed_robot_model(installed: LoadedResult) -> dict:
     if isinstance(rm.get("dh_table"), dict):
         arm = chain_from_dict(rm["dh_table"], source=f"{installed.source} refinement.robot_model.dh_table")
     elif name in PRESETS or (isinstance(name, str) and Path(name).is_file()):
-        arm = load_arm(name)
+        arm = load_arm(name)  # type: ignore[arg-type]  # a preset name or a file path here
     else:
         log.warning(
             "the installed result's arm %s is neither recorded as a table nor a shipped preset or DH file "
@@ -591,6 +592,7 @@ def with_installed_dh(prior, installed: LoadedResult, robot: dict, views: Sequen
     if any(getattr(v, "joint_angles", None) is None for v in views):
         return prior
     dh = installed.dh_joint
+    assert dh is not None, "shares_dh: the install recorded its DH offsets"
     return replace(prior, dh_offsets=dh[0], cov_dh=dh[3])
 
 
@@ -622,6 +624,7 @@ def test_refined(installed: LoadedResult, r, prior, *, min_variance_share: float
     covariance of X and the intrinsics, else :func:`drift_test` (the session's own intrinsics: nothing shared;
     an older result: the installed X covariance added whole, a conservative test).
     """
+    assert installed.T_x is not None and installed.cov_x is not None, "installed_prior checked both"
     t = _joint_test(installed, r, prior, min_variance_share) if prior.intrinsics is not None else None
     if t is None:
         t = drift_test(
@@ -647,11 +650,14 @@ def _joint_test(installed: LoadedResult, r, prior, min_variance_share: float) ->
         return None
     idx = [INTRINSIC_NAMES.index(n) for n in j[0]]
     C_k, K_k = np.asarray(jr["cross_6xk"], float), np.asarray(jr["intrinsics_kxk"], float)
+    assert installed.intrinsics is not None, "a joint covariance comes with the intrinsics"
+    assert installed.T_x is not None and installed.cov_x is not None, "installed_prior checked both"
     dk = r.intrinsics.as_vector()[idx] - installed.intrinsics.as_vector()[idx]
     cov_xk, cov_kk, cov_k_prior = j[1], j[2], np.asarray(prior.cov_intrinsics)[np.ix_(idx, idx)]
     dh = installed.dh_joint
     shared_dh = prior.dh_offsets is not None and dh is not None and "dh_offsets" in jr
     if shared_dh:
+        assert dh is not None, "shared_dh"
         # the arm's DH offsets are shared too (with_installed_dh): appended to the shared parameters
         m = len(dh[0])
         C_k = np.hstack([C_k, np.asarray(jr["cross_6xm"], float)])
@@ -741,7 +747,7 @@ def _robot_disagreement(r) -> dict:
 def _intrinsics_update(installed: LoadedResult, r, session_intr: bool) -> dict:
     if session_intr or installed.intrinsics is None:
         return {"source": "session" if session_intr else "none"}
-    d = {"source": "installed (prior)"}
+    d: dict[str, Any] = {"source": "installed (prior)"}
     new = r.intrinsics
     for n in ("fx", "fy", "cx", "cy"):
         s = installed.intrinsics_sigma.get(n, 0.0)
