@@ -45,10 +45,10 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     x_name, b_name = mount.x_name, mount.board_name
     parent, board_parent = mount.fixed_frame, mount.board_frame
     ok = res.get("status") == "ok"
-    ref = res.get("refinement") if isinstance(res.get("refinement"), dict) else {}
+    ref = ref if isinstance(ref := res.get("refinement"), dict) else {}
     if ref and ref.get("status") not in (None, "ok"):
         ref = {}
-    diag = res.get("diagnostics") if isinstance(res.get("diagnostics"), dict) else {}
+    diag = diag if isinstance(diag := res.get("diagnostics"), dict) else {}
     T_x = as_T(res.get(x_name)) if ok else None
     T_board = as_T(res.get(b_name)) if ok else None
     # the verdict covariance when the result has one (the model's or the validated, as the validation found), else
@@ -211,7 +211,7 @@ def _target_text(t: dict | None) -> str:
     if not t:
         return ""
     kind = t.get("type") or t.get("kind")
-    sq = t.get("square_m")
+    sq: Any = t.get("square_m")  # a number, as result.json writes it
     if kind == "chessboard":
         ic = t.get("inner_corners") or [t.get("cols"), t.get("rows")]
         return f"chessboard, {ic[0]}×{ic[1]} inner corners, {sq * 1e3:g} mm squares" if sq else "chessboard"
@@ -477,7 +477,7 @@ SIGMA_SOURCE_TEXT = {
 def _uncertainty_block(ref, unc, parent) -> dict:
     corr = ref.get("correlation_6x6")
     src = ref.get("sigma_source")
-    val = ref.get("validation") if isinstance(ref.get("validation"), dict) else {}
+    val = val if isinstance(val := ref.get("validation"), dict) else {}
     rows = []
     for label, r, t in (
         ("model (refinement)", ref.get("sigma_rot_deg_model"), ref.get("sigma_trans_mm_model")),
@@ -513,7 +513,7 @@ def _uncertainty_block(ref, unc, parent) -> dict:
 
 def _methods(res, T_x, x_name) -> list[dict]:
     rows = []
-    ref = res.get("refinement") if isinstance(res.get("refinement"), dict) else {}
+    ref = ref if isinstance(ref := res.get("refinement"), dict) else {}
     start = ref.get("start_method")  # the closed form the refinement started from, when not the seed
     for m, e in (res.get("closed_form") or {}).items():
         T = as_T(e.get(x_name))
@@ -580,7 +580,7 @@ def _intrinsics_rows(intr, sig, res, *, model_sigma=None) -> Optional[dict]:
                     {"name": k, "unit": "", "value": d[k], "sigma": sig.get(k), "sigma_model": model_sigma.get(k)}
                 )
     given = res.get("intrinsics") or {}
-    ref = res.get("refinement") if isinstance(res.get("refinement"), dict) else {}
+    ref = ref if isinstance(ref := res.get("refinement"), dict) else {}
     return {
         "rows": rows,
         "source": given.get("source", ""),
@@ -588,7 +588,7 @@ def _intrinsics_rows(intr, sig, res, *, model_sigma=None) -> Optional[dict]:
         "size": intr.get("image_size"),
         "refined": bool(sig),
         "sigma_source": ref.get("intrinsics_sigma_source") if ref.get("intrinsics_sigma_verdict") else None,
-        "sigma_source_text": SIGMA_SOURCE_TEXT.get(ref.get("intrinsics_sigma_source"), ""),
+        "sigma_source_text": SIGMA_SOURCE_TEXT.get(ref.get("intrinsics_sigma_source"), ""),  # type: ignore[arg-type]
     }
 
 
@@ -621,7 +621,7 @@ def _offsets(res, ref, T_x, cov, x_name) -> Optional[dict]:
         T = as_T(e.get(x_name))
         if T is not None:
             rows.append({"name": m, "kind": "closed_form", "T": T, "stored": e})
-    val = ref.get("validation") if isinstance(ref.get("validation"), dict) else {}
+    val = val if isinstance(val := ref.get("validation"), dict) else {}
     halves = val.get("halves") or {}
     n_used = sum(len((halves.get(h) or {}).get("used_view_ids") or []) for h in ("odd", "even"))
     for h, which in (("odd", "1st"), ("even", "2nd")):
@@ -647,7 +647,7 @@ def _offsets(res, ref, T_x, cov, x_name) -> Optional[dict]:
         r["offset_mm"] = ((T[:3, 3] - T_x[:3, 3]) * 1e3).tolist()
         r["far"] = bool(r["sigma"] > limit)
     split = (halves.get("odd_vs_even") or {}).get("mahalanobis2")
-    model = ref.get("robot_model") if isinstance(ref.get("robot_model"), dict) else {}
+    model = model if isinstance(model := ref.get("robot_model"), dict) else {}
     text = offset_explanation(
         rows,
         limit_sigma=limit,
@@ -808,7 +808,7 @@ def _cap1(s) -> str:
 
 
 def _findings(diag: dict) -> list[dict]:
-    out = []
+    out: list[dict] = []
     for f in (diag or {}).get("findings") or []:
         if not isinstance(f, dict):
             continue
@@ -842,9 +842,9 @@ def _stages(diag: dict) -> dict:
     everything ran.
     """
     diag = diag or {}
-    status = diag.get("stages") if isinstance(diag.get("stages"), dict) else {}
-    errors = diag.get("stage_errors") if isinstance(diag.get("stage_errors"), dict) else {}
-    skipped = diag.get("stages_skipped") if isinstance(diag.get("stages_skipped"), dict) else {}
+    status = status if isinstance(status := diag.get("stages"), dict) else {}
+    errors = errors if isinstance(errors := diag.get("stage_errors"), dict) else {}
+    skipped = skipped if isinstance(skipped := diag.get("stages_skipped"), dict) else {}
     crashed_names = [n for n, st in status.items() if st == "crashed"]
     crashed_names += [n for n in errors if n not in crashed_names]  # an error always means a crash
     try:
