@@ -177,8 +177,8 @@ def session_time(folder: Path, meta: dict) -> tuple[str | None, str]:
             return _iso(_dt.datetime.fromisoformat(t.strip())), "session.yaml time"
         except ValueError:
             log.warning("%s: session.yaml time %r is not ISO 8601; using the next source", folder, t)
-    stamps = [v.get("t_image") for v in (meta.get("views") or []) if isinstance(v, dict)]
-    stamps = [float(s) for s in stamps if isinstance(s, (int, float)) and not isinstance(s, bool)]
+    raw_stamps = [v.get("t_image") for v in (meta.get("views") or []) if isinstance(v, dict)]
+    stamps = [float(s) for s in raw_stamps if isinstance(s, (int, float)) and not isinstance(s, bool)]
     if stamps:
         return _iso(_dt.datetime.fromtimestamp(min(stamps), _dt.timezone.utc)), "t_image"
     m = _DATE_RE.search(folder.name)

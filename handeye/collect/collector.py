@@ -18,7 +18,7 @@ import os
 import sys
 import time
 from dataclasses import dataclass
-from typing import Callable, Optional, TextIO
+from typing import Any, Callable, Optional, TextIO
 
 import cv2
 import numpy as np
@@ -82,7 +82,8 @@ def board_pose(
 ) -> np.ndarray:
     """``T_cam_board`` by PnP; for a symmetric board, the corner ordering closest to ``reference``."""
     obj = target.object_points()
-    best, best_d = None, np.inf
+    best: Optional[np.ndarray] = None
+    best_d = np.inf
     for perm in target.symmetries():
         T, _ = solve_pnp(obj[perm[corner_ids]], image_points, intrinsics)
         d = 0.0 if reference is None else float(rotation_angle_rad(reference[:3, :3].T @ T[:3, :3]))
@@ -90,6 +91,7 @@ def board_pose(
             best, best_d = T, d
         if reference is None:
             break
+    assert best is not None, "a symmetric board has at least one ordering"
     return best
 
 
@@ -175,7 +177,7 @@ class Collector:
             T_cb = board_pose(self.target, self.intrinsics, ids, pts, reference=reference_T_cam_board)
         vid = str(self._next_id)
         state = dict(first.state)
-        extra = {
+        extra: dict[str, Any] = {
             "checks": {
                 "pose_reads_dt_s": round(second.t_pose - first.t_pose, 4),
                 "pose_reads_diff_mm": round(trans_mm, 4),
@@ -247,7 +249,7 @@ class Collector:
                 print("  keys: s (capture), q (quit)", file=sys.stderr)
                 continue
             if guided and not first:
-                self.robot.simulate_hand_guiding()
+                self.robot.simulate_hand_guiding()  # type: ignore[attr-defined]  # hasattr above
             first = False
             cap = self.capture()
             print(f"  view {cap.view_id} saved" if cap.kept else f"  rejected: {cap.reason}", file=sys.stderr)
@@ -285,7 +287,7 @@ class Collector:
                     break
                 if key == ord("s"):
                     if guided and self.kept:
-                        self.robot.simulate_hand_guiding()
+                        self.robot.simulate_hand_guiding()  # type: ignore[attr-defined]  # hasattr above
                     cap = self.capture()
                     message = f"view {cap.view_id} saved" if cap.kept else f"rejected: {cap.reason[:70]}"
         finally:
@@ -316,6 +318,7 @@ class Collector:
                 f"automatic mode starts from a view of the board, and the first capture failed: {start.reason}",
                 hint="move the arm so the camera sees the whole board, roughly face on, then start again",
             )
+        assert start.pose is not None and start.T_cam_board is not None, "a kept capture has both"
         T0, C0 = start.pose.T_base_end, start.T_cam_board
         probes = planning.probe_poses(T0, probe_deg=probe_deg)
         if self.robot.is_real and not confirm(
@@ -338,8 +341,9 @@ class Collector:
                 f"only {len(views)} of the start and probe views show the board; a first hand-eye estimate needs 3",
                 hint="start from a pose where the board is in the middle of the image, or lower --probe-deg",
             )
-        M = mount.M_from_T_base_end(np.stack([c.pose.T_base_end for c in views]))
-        C = np.stack([c.T_cam_board for c in views])
+        # kept captures (views) have a pose and a board pose
+        M = mount.M_from_T_base_end(np.stack([c.pose.T_base_end for c in views]))  # type: ignore[union-attr]
+        C = np.stack([c.T_cam_board for c in views])  # type: ignore[misc]
         rough = solve_closed_form(mount, C, M, method="park")
         if rough.status != "ok":
             raise DetectionError(
@@ -368,7 +372,7 @@ class Collector:
             T_board=rough.T_board,
             T_base_end_start=T0,
             T_cam_board_start=C0,
-            T_base_end_done=[c.pose.T_base_end for c in views],
+            T_base_end_done=[c.pose.T_base_end for c in views],  # type: ignore[union-attr]  # kept: a pose
             target=self.target,
             intrinsics=self.intrinsics,
             n_views=n_views,
@@ -388,12 +392,12 @@ class Collector:
         ):
             log.warning("stopped before the planned moves")
             return plan
-        done = [c.pose.T_base_end for c in views]
+        done = [c.pose.T_base_end for c in views]  # type: ignore[union-attr]  # kept: a pose
         for pv in plan.views:
             self.robot.move_to(pv.candidate.T_base_end, speed_fraction=speed_fraction)
             cap = self._capture_after_move(reference=pv.candidate.T_cam_board)
             if cap.kept:
-                done.append(cap.pose.T_base_end)
+                done.append(cap.pose.T_base_end)  # type: ignore[union-attr]  # kept: a pose
                 info = planning.information_of_views(
                     mode=self.mode,
                     T_x=rough.T_x,
@@ -432,4 +436,5 @@ class Collector:
             cap = self.capture(reference_T_cam_board=reference)
             if cap.kept or "moved while" not in cap.reason:
                 return cap
+        assert cap is not None, "two attempts made"
         return cap

@@ -128,7 +128,7 @@ def _normalized_extent(fx: float, fy: float, cx: float, cy: float, dist: tuple, 
     )
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
-    xy = cv2.undistortPointsIter(
+    xy = cv2.undistortPointsIter(  # type: ignore[call-overload]  # OpenCV's stubs: None for R and P
         np.stack([uu, vv], -1).reshape(-1, 1, 2), K, np.asarray(dist, float), None, None, crit
     ).reshape(-1, 2)
     r2 = (xy**2).sum(axis=1)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import dataclass
-from typing import Mapping, Optional
+from typing import Any, Mapping, Optional
 
 import cv2
 import numpy as np
@@ -127,7 +127,7 @@ class SizeSurvey:
         )
 
 
-def size_survey(results: Mapping[str, object], stated: Size) -> Optional[SizeSurvey]:
+def size_survey(results: Mapping[str, Any], stated: Size) -> Optional[SizeSurvey]:
     """The survey recorded on the failures of :func:`handeye.detect.detect_views`.
 
     The survey recorded on the failures of :func:`handeye.detect.detect_views` (their ``seen_sizes``),

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
+from typing import Any, Sequence
 
 import cv2
 import numpy as np
@@ -233,7 +234,9 @@ def _check(board_xy: np.ndarray, pts: np.ndarray, options: DetectionOptions):
     return replace(c, residual_px=res, limit_px=lim, worst=int(keep[c.worst]) if c.worst >= 0 else -1)
 
 
-def _used(pts: np.ndarray, notes: list = (), dropped: list | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _used(
+    pts: np.ndarray, notes: Sequence[Any] = (), dropped: list[Any] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """(corner ids, image points) of the corners that are used (not NaN).
 
     (corner ids, image points) of the corners that are used (not NaN); ``notes`` (the reasons of the

@@ -26,7 +26,7 @@ def circle_blob_detector(
     """
     o = options or default_options().circle_blobs
     w, h = image_size
-    p = cv2.SimpleBlobDetector_Params()
+    p = cv2.SimpleBlobDetector_Params()  # type: ignore[attr-defined]  # missing from OpenCV's stubs
     p.minThreshold, p.maxThreshold, p.thresholdStep = o.min_threshold, o.max_threshold, o.threshold_step
     p.minRepeatability = o.min_repeatability
     p.minDistBetweenBlobs = o.min_dist_px
@@ -36,7 +36,7 @@ def circle_blob_detector(
     p.filterByCircularity = False
     p.filterByInertia = False
     p.filterByConvexity, p.minConvexity = True, o.min_convexity
-    return cv2.SimpleBlobDetector_create(p)
+    return cv2.SimpleBlobDetector_create(p)  # type: ignore[attr-defined]  # missing from OpenCV's stubs
 
 
 def detect_circlegrid(

@@ -92,7 +92,7 @@ def detect_markers(
         lo=int(cfg["subpix_window_min_px"]),
         hi=int(cfg["subpix_window_max_px"]),
     )
-    pts = np.concatenate(out_pts).astype(np.float32).reshape(-1, 1, 2)
+    pts: np.ndarray = np.concatenate(out_pts).astype(np.float32).reshape(-1, 1, 2)
     # cv2.aruco's contour corners can be 2-3 px off, outside a small window: a coarse pass with twice the window
     # (its extra edges bias it, but it reaches the corner), then the pass with the corner's own window
     for w in (min(2 * win, int(cfg["subpix_window_max_px"])), win):

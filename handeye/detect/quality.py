@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from .options import default_options
 
@@ -112,7 +113,7 @@ def edge_sigma_px(profiles: np.ndarray, *, step_px: float = 0.25) -> tuple[np.nd
     return sigma, contrast
 
 
-def _median(v: np.ndarray) -> float:
+def _median(v: npt.ArrayLike) -> float:
     """np.median of a 1-D array without its per-call overhead (called ~10 times per view)."""
     v = np.sort(np.asarray(v, float).ravel())
     n = len(v)

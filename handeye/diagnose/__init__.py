@@ -477,6 +477,7 @@ def _observe_lenient(sess) -> tuple[Optional[PoseObservations], Optional[int], i
             best = readings[0]
             T_best = read_poses(raw, best.fmt, ids)
             if T_best is not None:
+                assert seen.intrinsics is not None, "board poses were solved with them"
                 M_best = mode.M_from_T_base_end(inv_T(T_best) if best.invert else T_best)
                 poses = board_poses(
                     [seen.detections[v] for v in ids], target, seen.intrinsics, dict(zip(ids, M_best, strict=False))

@@ -22,6 +22,7 @@ verdict sigmas never disagree.
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 import numpy as np
 
@@ -148,12 +149,12 @@ def cross_validate(run) -> dict:
     ok = [k for k, e in enumerate(estimates) if e is not None]
     if len(ok) < max(3, len(fold_list) // 2):
         return {"summary": f"not run: only {len(ok)} of {len(fold_list)} folds could be solved", "method": method}
-    deltas = np.stack([x_delta(T_full, estimates[k][0]) for k in ok])
+    deltas = np.stack([x_delta(T_full, estimates[k][0]) for k in ok])  # type: ignore[index]  # ok: solved folds
     jk = jackknife_sigmas(deltas)
     obj = s.target.object_points()
     rows, held_px = [], []
     for row, k in enumerate(ok):
-        T_x, T_b, intr_k = estimates[k]
+        T_x, T_b, intr_k = estimates[k]  # type: ignore[misc]  # ok: solved folds
         for i in fold_list[k]:
             v = ids[i]
             bp = run.board_poses[v]
@@ -182,7 +183,7 @@ def cross_validate(run) -> dict:
             )
             held_px.append(float(np.sqrt(np.mean(r**2))))
     loo = all(len(f) == 1 for f in fold_list)
-    out = {
+    out: dict[str, Any] = {
         "method": method,
         "scheme": "leave-one-out" if loo else f"{len(fold_list)}-fold (interleaved)",
         "n_views": n,

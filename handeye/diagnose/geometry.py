@@ -290,6 +290,7 @@ def _pose_and_intrinsics_jacobians(p_board: np.ndarray, T_cam_board: np.ndarray,
     p = np.asarray(p_board, float).reshape(-1, 3)
     R, t = T_cam_board[:3, :3], T_cam_board[:3, 3]
     _, J_uv_p, J_uv_k = pixels_from_cam_points(intrinsics_vec, p @ R.T + t)  # (K,2,3), (K,2,9)
+    assert J_uv_p is not None and J_uv_k is not None, "Jacobians asked for"
     # p_cam(xi) = R (p + omega x p + v) + t to first order: d p_cam / d xi = R [-[p]x | I]
     D = np.concatenate([-skew(p), np.broadcast_to(np.eye(3), (len(p), 3, 3))], axis=2)  # (K,3,6)
     J_xi = np.einsum("kab,bc,kcd->kad", J_uv_p, R, D)

@@ -81,7 +81,7 @@ def image_findings(metrics: dict) -> list:
     from .thresholds import thresholds
 
     t = thresholds().images
-    out = []
+    out: list[Finding] = []
     if not metrics:
         return out
     blur = {v: m for v, m in metrics.items() if np.isfinite(m.get("blur_sigma_px", np.nan))}

@@ -10,7 +10,7 @@ from typing import Optional
 
 import numpy as np
 
-from ..camera import pixels_from_board_points
+from ..camera import Intrinsics, pixels_from_board_points
 from ..frames import inv_T
 from ..mounting import mounting
 from ..session.raw import RawPoses, raw_poses_of
@@ -27,7 +27,7 @@ class PoseObservations:
     raw: RawPoses
     times: dict  # view id -> (t_image, t_pose) where recorded
     corners: tuple = ()  # per view (object_points (K,3), image_points (K,2)) for the PnP covariances
-    intrinsics: object = None
+    intrinsics: Optional[Intrinsics] = None
     target: object = None
     intrinsics_estimated: bool = True  # intrinsics come from these corners (their uncertainty counts)
     C_candidates: Optional[np.ndarray] = None  # (N,k,4,4) symmetric boards: T_cam_board under every ordering

@@ -8,7 +8,7 @@ carrying another view's pose report ``pairs_shuffled``.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
@@ -112,8 +112,10 @@ class PairingSearch:
 
     def __init__(self, obs: PoseObservations, fmt: PoseFormat, *, invert: bool = False):
         self.obs, self.fmt, self.invert = obs, fmt, bool(invert)
-        self._shift = self._shuffle = self._partial = None
-        self._searched = set()
+        self._shift: Optional[tuple[Any, ...]] = None
+        self._shuffle: Optional[tuple[Any, ...]] = None
+        self._partial: Optional[tuple[Any, ...]] = None
+        self._searched: set[str] = set()
 
     def matches(self, obs: PoseObservations, fmt: PoseFormat, *, invert: bool = False) -> bool:
         """Whether this search is the one of ``obs`` read with ``fmt``.
@@ -201,6 +203,7 @@ class PairingSearch:
             T_again = None if again is None else read_poses(obs.raw, fmt, [again[v] for v in obs.ids])
             if T_again is None or again == assign:
                 break
+            assert again is not None, "T_again read from it"
             assign, T = again, T_again
             C = _ordered_for(obs, everything, obs.M(T, invert=invert))
         moved = [v for v in obs.ids if assign[v] != v]
@@ -320,8 +323,9 @@ def _search_partial(obs: PoseObservations, fmt: PoseFormat, invert: bool) -> Opt
     """
     order = list(obs.raw.order)
     pos = {k: i for i, k in enumerate(order)}
-    views = sorted((v for v in obs.ids if v in pos), key=pos.get)
-    best, best_key = None, None
+    views = sorted((v for v in obs.ids if v in pos), key=pos.__getitem__)
+    best: Optional[tuple[Any, ...]] = None
+    best_key: Any = None
     for shift in (1, -1):
         for k in range(2, len(views) - 1):
             first = views[k]

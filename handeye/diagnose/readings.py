@@ -158,7 +158,7 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
     fmt0 = obs.raw.fmt
     alts = alternative_formats(fmt0)
     joint = obs.C_candidates is not None
-    inv_c = candidate_invariants(obs.C_candidates) if joint else None
+    inv_c = candidate_invariants(obs.C_candidates) if obs.C_candidates is not None else None  # joint
     # stage 1: rotation readings by the rotation-angle invariant (independent of translation units,
     # of inversion and of the mounting mode), each with its own ordering of a symmetric board's views
     rot_score: dict = {}
@@ -175,6 +175,7 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
             continue
         M = obs.M(T)
         if joint:
+            assert inv_c is not None and obs.C_candidates is not None, "joint"
             lab = orientation_labels(inv_c, M, turns=obs.candidates_are_turns)
             C = obs.C_candidates[np.arange(obs.n), lab]
             ordered[key] = (C, lab)
@@ -185,7 +186,7 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
         rot_score[key] = float(np.median(np.abs(pair_angles_deg(M[:, :3, :3], pi, pj) - ang_c)))
     # keep every rotation reading that ties with the best: readings of the form R' = U R^T V (some Euler
     # misreadings) keep all pair angles, and only the full fit tells them apart
-    ranked = sorted(rot_score, key=rot_score.get)
+    ranked = sorted(rot_score, key=rot_score.__getitem__)
     best = rot_score[ranked[0]]
     keep = {
         k for k in ranked[: thresholds().readings.max_rotation_readings] if rot_score[k] <= max(2.0 * best, best + 0.1)

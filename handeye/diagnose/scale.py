@@ -107,6 +107,7 @@ def scale_findings(obs, fit, M: np.ndarray) -> tuple[list, Optional[ScaleEstimat
     est = estimate_scale(obs.C, M, use=fit.inliers() if fit is not None else None)
     if not is_scale_wrong(est) or getattr(obs.target, "kind", "") == "tracked":  # pose-only: no printed length
         return [], est
+    assert est is not None, "is_scale_wrong(None) is False"
     # the scale must explain the data: with the squares rescaled the board scatter must shrink
     as_stated = fit if fit is not None else fit_boards(obs.C, M)
     rescaled_fit = fit_boards(rescaled(obs.C, est.k), M)

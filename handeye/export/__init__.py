@@ -94,6 +94,7 @@ def export_transform(
                 "stands for (ROS: *_optical_frame is x right, y down, z forward)",
                 hint=f"use --camera-frame {other}, or a child name of the {camera_frame} frame",
             )
+    assert r.T_x is not None, "an ok result has X"
     T, cov = camera_transform(r.T_x, r.cov_x, camera_frame)
     return ExportTransform(
         parent=parent or DEFAULT_FRAMES[r.mode if r.mode in DEFAULT_FRAMES else "eye_in_hand"],

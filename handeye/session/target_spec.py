@@ -5,7 +5,7 @@ marker, AprilGrid).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Callable, Union
+from typing import Any, Callable
 
 from ..errors import ConfigError
 from ..targets import AprilGridSpec, CharucoSpec, ChessboardSpec, CircleGridSpec, MarkerSpec, TargetSpec
