@@ -28,7 +28,7 @@ import logging
 import os
 from collections import Counter
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -90,7 +90,7 @@ def session_row(out: Path, folder: Path) -> dict:
     rel = folder.relative_to(out).parts
     rec = read_json(folder / RECORD_NAME) or {}
     res = read_json(folder / "result.json")
-    row = {c: None for c in COLUMNS}
+    row: dict[str, Any] = {c: None for c in COLUMNS}
     row.update(
         install=rec.get("install") or (rel[0] if len(rel) > 1 else "default"),
         session=rec.get("name") or ("/".join(rel[1:]) if len(rel) > 1 else folder.name),

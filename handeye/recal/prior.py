@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -121,11 +121,12 @@ def calibrate_with_prior(
     o = verify_options or VerifyOptions.from_config()
     installed = prior if isinstance(prior, LoadedResult) else load_result(prior)
     check_prior_fits(installed, session)
+    assert installed.T_x is not None and installed.cov_x is not None, "check_prior_fits: an ok result"
     s_p, opts_p = _with_prior(session, options, installed)
     prior_used = opts_p.refine_options["prior"]
     progress(f"calibrating with the prior {installed.source}")
     run = run_calibration(s_p, opts_p, progress=progress)
-    rec = {
+    rec: dict[str, Any] = {
         "source": installed.source,
         "covariance_used": installed.cov_source,
         "frame": installed.x_name,
@@ -137,7 +138,7 @@ def calibrate_with_prior(
         "intrinsics": "the session's own" if prior_used.intrinsics is None else "the prior's, with its sigmas",
         "alpha": o.alpha,
     }
-    if run.status == "ok" and run.refined is not None:
+    if run.status == "ok" and run.refined is not None and run.T_x is not None:  # an ok run has X
         xi = tangent_difference(installed.T_x, run.T_x)
         spread = installed.cov_x - run.refined.cov_x_6x6  # the update's covariance when the prior is right
         rec["update"] = dict(
@@ -200,7 +201,9 @@ def calibrate_with_prior(
     )
     # a symmetric board numbered from another corner than in the earlier session: its board pose in this turn
     board_from = (
-        installed.with_board_turned(np.asarray(v.board["T_turn"])) if board_kept and "T_turn" in v.board else installed
+        installed.with_board_turned(np.asarray(v.board["T_turn"]))
+        if board_kept and v is not None and "T_turn" in v.board
+        else installed
     )
     s_n, opts_n = _with_prior(session, options, board_from, cov_x=VAGUE_COV_X, board=board_kept)
     run_n = run_calibration(s_n, opts_n, progress=progress)
@@ -215,6 +218,7 @@ def calibrate_with_prior(
         s_n, opts_n = _with_prior(session, options, installed, cov_x=VAGUE_COV_X, board=False)
         run_n = run_calibration(s_n, opts_n, progress=progress)
     if board_kept:
+        assert v is not None, "board_kept needs the verification"
         rec["board_turn_deg"] = float(v.board.get("turn_deg", 0.0))
     rec["used"] = (
         "no prior on X (the new views with the prior's intrinsics and board pose: the board did not move)"
