@@ -13,7 +13,8 @@ so every one of these is a false alarm:
 Flagged single corners are counted too, for information (a corner far off its prediction may be a real
 detector error), and so are the sessions whose model covariance the cross-validation finds too small
 (``uncertainty_underestimated``, info when the verdict covariance covers the spread) and those whose
-verdict covariance takes the validated one in some direction. Prints one line per session with a false alarm and the counts per setting.
+verdict covariance takes the validated one in some direction. Prints one line per session with a false
+alarm and the counts per setting.
 
     python benchmarks/bench_clean_sessions.py [--seeds 30] [--first 0] [--cache DIR] [--workers 2]
 

@@ -232,7 +232,9 @@ def main() -> None:
                     c0 = time.process_time()
                     out = [refine_corners(g, p, win, rule) for _, g, p, win in starts]
                     best = min(best, (time.process_time() - c0) / len(starts) * 1e3)
-                e = np.concatenate([np.linalg.norm(p - truth[vid], axis=1) for p, (vid, *_) in zip(out, starts, strict=False)])
+                e = np.concatenate(
+                    [np.linalg.norm(p - truth[vid], axis=1) for p, (vid, *_) in zip(out, starts, strict=False)]
+                )
                 print(
                     f"  cornerSubPix max_iter {it} eps {eps:g}: {best:.2f} ms CPU per view, "
                     f"error RMS {np.sqrt(np.mean(e**2)):.4f} px, max {e.max():.4f} px"
@@ -632,7 +634,8 @@ def _sb_on_replicas(folder: Path, size: tuple, square_m: float, K: np.ndarray) -
         for name, e in (("detect_gray", ours), ("SB accurate", sb), ("edge-line intersection", [np.array(edge)])):
             e = np.concatenate(e) if e else np.zeros(1)
             print(
-                f"  {folder.name} rendered replicas, blur {blur:.1f} px: {name} error RMS {np.sqrt(np.mean(e**2)):.3f} px, "
+                f"  {folder.name} rendered replicas, blur {blur:.1f} px: {name} "
+                f"error RMS {np.sqrt(np.mean(e**2)):.3f} px, "
                 f"max {e.max():.3f} px, {int((e > 0.5).sum())} over 0.5 px"
             )
 
@@ -688,7 +691,11 @@ def _real_subpix(folder: Path, size: tuple) -> None:
         out = [refine_corners(g, p, w, rule) for g, p, w in data]
         ms = (time.process_time() - c0) / max(len(data), 1) * 1e3
         ref = out if ref is None else ref
-        d = np.concatenate([np.linalg.norm(a - b, axis=1) for a, b in zip(out, ref, strict=False)]) if data else np.zeros(1)
+        d = (
+            np.concatenate([np.linalg.norm(a - b, axis=1) for a, b in zip(out, ref, strict=False)])
+            if data
+            else np.zeros(1)
+        )
         print(
             f"  {folder.name}: {len(data)} views, cornerSubPix max_iter {it} eps {eps:g}: {ms:.2f} ms CPU per view; "
             f"corners moved against 50 / 1e-4: RMS {np.sqrt(np.mean(d**2)):.4f} px, max {d.max():.4f} px"

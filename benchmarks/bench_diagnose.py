@@ -232,7 +232,9 @@ def scaling(root: Path) -> None:
         cs = make_corner_session(mode="eye_in_hand", n_views=nv, seed=1, robot_noise=(0.3, 0.05))
         dets = {d.view_id: d for d in cs.detections()}
         orig = calibrate_mod.detect_views
-        calibrate_mod.detect_views = lambda items, target, **kw: {v: dets.get(v, "not found") for v, _ in items}
+        calibrate_mod.detect_views = lambda items, target, dets=dets, **kw: {
+            v: dets.get(v, "not found") for v, _ in items
+        }
         try:
             run = run_calibration(
                 load_session(_write_vendor(root / f"scale{nv}", cs, cs.T_base_end_reported)),
@@ -538,7 +540,7 @@ REFINE = os.environ.get("BENCH_DIAGNOSE_REFINE") == "1"
 def _run_and_diagnose(path: Path, cs, **opts):
     dets = {d.view_id: d for d in cs.detections()}
     orig = calibrate_mod.detect_views
-    calibrate_mod.detect_views = lambda items, target, **kw: {v: dets.get(v, "not found") for v, _ in items}
+    calibrate_mod.detect_views = lambda items, target, dets=dets, **kw: {v: dets.get(v, "not found") for v, _ in items}
     try:
         run = run_calibration(load_session(path), CalibrateOptions(**{"refine": REFINE, **opts}))
     finally:
@@ -588,7 +590,8 @@ def forensics(n_seeds: int, root: Path, *, workers: int = 2, n_clean: int = 0, o
         print(f"  {fault:46s} {exp:15s} {ok:4d} / {len(rs):4d}   ({per_t})")
         for r in [r for r in rs if not r["named"]][:3]:
             print(
-                f"      missed: {r['target']}, {r['mode']}: status {r['status']}, error {r['error']}, codes {r['codes']}, "
+                f"      missed: {r['target']}, {r['mode']}: status {r['status']}, error {r['error']}, "
+                f"codes {r['codes']}, "
                 f"measured {r.get('measured_mm')}"
             )
     wrong = [

@@ -433,7 +433,8 @@ def print_cross_camera(label: str, run_a, run_b, src: Path) -> dict:
     if "dh" in ra:
         dh = ra["dh"]
         print(
-            f"  encoder sigma estimated: cam1 {dh['encoder_sigma_deg'][0]:.4f} deg, cam2 {dh['encoder_sigma_deg'][1]:.4f} deg;"
+            f"  encoder sigma estimated: cam1 {dh['encoder_sigma_deg'][0]:.4f} deg, "
+            f"cam2 {dh['encoder_sigma_deg'][1]:.4f} deg;"
             f" DH offsets ({', '.join(dh['columns'])}) cam1 / cam2 (z of the difference):"
         )
         for j in range(dh["offset"][0].shape[0]):
@@ -469,16 +470,21 @@ def loo_board_poses(name: str, path: Path, opts) -> list:
         T_obs, _ = solve_pnp(obj[ids], det.image_points, ref.intrinsics)
         T_be = session.view(v).T_base_end
 
-        def pred(T_x, T_be=T_be):
+        def pred(T_x, T_be=T_be, ref=ref):
             return mount.predict_T_cam_board(T_x, ref.T_board, T_be)
 
         d = tangent_difference(T_obs, pred(ref.T_x))
-        J_x = tangent_jacobian(lambda T: tangent_difference(T_obs, pred(T)), ref.T_x)
+        J_x = tangent_jacobian(lambda T, T_obs=T_obs, pred=pred: tangent_difference(T_obs, pred(T)), ref.T_x)
         J_r = tangent_jacobian(
-            lambda T: tangent_difference(T_obs, mount.predict_T_cam_board(ref.T_x, ref.T_board, T)), T_be
+            lambda T, T_obs=T_obs, ref=ref: tangent_difference(
+                T_obs, mount.predict_T_cam_board(ref.T_x, ref.T_board, T)
+            ),
+            T_be,
         )
         robot = np.diag([np.radians(ref.robot_sigma_deg) ** 2] * 3 + [(ref.robot_sigma_mm / 1e3) ** 2] * 3)
-        J_p = tangent_jacobian(lambda T: pixels_from_board_points(T, obj[ids], ref.intrinsics).ravel(), T_obs)
+        J_p = tangent_jacobian(
+            lambda T, ids=ids, ref=ref: pixels_from_board_points(T, obj[ids], ref.intrinsics).ravel(), T_obs
+        )
         pnp = np.linalg.inv(J_p.T @ J_p) * ref.sigma_px**2  # observed pose: d = Log(T_obs^-1 pred) moves with it
         cov_v = J_x @ c["x_verdict"] @ J_x.T + J_r @ robot @ J_r.T + pnp
         cov_m = J_x @ c["x_model"] @ J_x.T + J_r @ robot @ J_r.T + pnp

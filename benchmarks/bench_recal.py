@@ -7,7 +7,8 @@ the kinematic model (RM65-B, :mod:`handeye.sim.robot_error`; the verification se
 views carry the arm's encoder readings, as a session with joint angles does). An install is a 20-view
 session (``--install-views N``: N views) refined as the pipeline does (OpenCV seeds,
 :func:`handeye.refine.refine`; the kinematic installs name their arm, as ``calibrate --robot rm65``;
-``--validated``: with the verdict covariance ``calibrate`` writes); a verification is 6 views of the same rig (new noise) at the poses
+``--validated``: with the verdict covariance ``calibrate`` writes); a verification is 6 views of the same
+rig (new noise) at the poses
 ``verify --plan`` proposes against the install (``--poses planned``, the default: what a user is told
 to capture; a kinematic arm's unreachable ones topped up with random poses) or at random poses
 (``--poses random``), undisturbed or with the camera bumped by 1 mm and 0.1 deg in random directions,
@@ -286,7 +287,8 @@ def theory(inst, r_model, v, bump, *, n_dirs: int = 400) -> dict:
     """verify's theoretical power (non-central chi-square) for the verification ``v`` of the undisturbed rig
     against ``inst``: for this trial's bump and on average over random bump directions; with the model's
     installed covariance instead of the verdict's; the ceiling (perfect new views: the installed X given what
-    they share with it, its intrinsics and DH offsets, is all that is left); the sigmas of the change with a perfect install (the new views alone) and
+    they share with it, its intrinsics and DH offsets, is all that is left); the sigmas of the change with a
+    perfect install (the new views alone) and
     with perfect new views; ``scale95``: the factor on all the installed sigmas at which the average power
     reaches 95 % with these new views (0: not even a perfect install does)."""
     from dataclasses import replace
@@ -562,7 +564,8 @@ def run_pool(fn, tasks, jobs, jsonl=None):
 def report_verify(rows) -> None:
     n = sorted({r.get("install_views", 20) for r in rows})
     print(
-        f"verify: 6 views against a {'/'.join(map(str, n))}-view install, camera bumped {BUMP_MM:g} mm / {BUMP_DEG:g} deg; alpha 5 %; "
+        f"verify: 6 views against a {'/'.join(map(str, n))}-view install, "
+        f"camera bumped {BUMP_MM:g} mm / {BUMP_DEG:g} deg; alpha 5 %; "
         f"installed covariance: {rows[0]['cov'] if rows and 'cov' in rows[0] else 'cov_x_6x6'}"
     )
     print(
@@ -609,7 +612,7 @@ def report_theory(rows) -> None:
             if not ok:
                 continue
             th = [r["theory"] for r in ok]
-            med = lambda k: float(np.median([t[k] for t in th]))  # noqa: E731
+            med = lambda k, th=th: float(np.median([t[k] for t in th]))  # noqa: E731
             print(
                 f"  {model:<10}{mode:<12}{med('v_mm'):>7.2f} mm {med('v_deg'):.3f}°{med('s0_mm'):>7.2f} mm "
                 f"{med('s0_deg'):.3f}°{med('snew_mm'):>7.2f} mm {med('snew_deg'):.3f}°"
@@ -667,7 +670,8 @@ def report_prior(rows) -> None:
         )
         print(
             f"  the {len(c)} runs that found the contradiction: {rms(x['err_mm'] for x in c):.3f} mm "
-            f"{rms(x['err_deg'] for x in c):.4f} deg; with --board-unmoved {rms(x.get('board_mm', np.nan) for x in c):.3f}"
+            f"{rms(x['err_deg'] for x in c):.4f} deg; "
+            f"with --board-unmoved {rms(x.get('board_mm', np.nan) for x in c):.3f}"
             f" mm {rms(x.get('board_deg', np.nan) for x in c):.4f} deg; fresh {rms(x['fresh_mm'] for x in c):.3f} mm "
             f"{rms(x['fresh_deg'] for x in c):.4f} deg"
         )

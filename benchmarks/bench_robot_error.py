@@ -24,9 +24,9 @@ ellipsoid of the model covariance (``cov_x_6x6``) and of the verdict covariance 
 (``cov_x_6x6_verdict``: the refits without some views of :mod:`handeye.refine.validation`, as the pipeline
 runs them):
 
-| model, mode | robot error RMS | refined X | best closed form | coverage model / verdict | median Mahalanobis^2 model / verdict |
+| model, mode | robot error RMS | refined X | best closed form | coverage model / verdict | median M2 model / verdict |
 |---|---|---|---|---|---|
-| kinematic, eye_in_hand | 1.14 mm, 0.103 deg | 0.074 deg, 0.64 mm | andreff 0.170 deg, 1.78 mm | 91 % / 91 % | 5.7 / 5.7 |
+| kinematic, eye_in_hand | 1.14 mm, 0.103 deg | 0.074 deg, 0.64 mm | andreff 0.170 deg,1.78 mm | 91 % / 91 % | 5.7/5.7 |
 | kinematic, eye_to_hand | 1.25 mm, 0.113 deg | 0.091 deg, 0.76 mm | shah 0.141 deg, 1.70 mm | 97 % / 97 % | 5.7 / 5.7 |
 | iid, eye_in_hand | 0.35 mm, 0.087 deg | 0.102 deg, 0.49 mm | andreff 0.110 deg, 0.88 mm | 95 % / 95 % | 5.8 / 5.8 |
 | iid, eye_to_hand | 0.35 mm, 0.087 deg | 0.107 deg, 0.52 mm | shah 0.121 deg, 0.91 mm | 93 % / 93 % | 5.3 / 5.3 |
@@ -251,7 +251,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     print(
         f"# bench_robot_error: {args.seeds} seeds per mode and model; 20 views, 11x8 board, 1280x720, {NOISE_PX} px;"
-        f" kinematic arm {args.arm} (DH errors x{args.dh_error_scale:g}); iid {IID_ROBOT_NOISE[0]} mm / {IID_ROBOT_NOISE[1]} deg per axis"
+        f" kinematic arm {args.arm} (DH errors x{args.dh_error_scale:g});"
+        f" iid {IID_ROBOT_NOISE[0]} mm / {IID_ROBOT_NOISE[1]} deg per axis"
     )
     print(f"# command: python {' '.join(sys.argv)}")
     tasks = [

@@ -32,7 +32,7 @@ def view_reprojection_factor(
     image_points: np.ndarray,
     sigma_px: float,
     intrinsics_vec: np.ndarray,
-    free_intrinsics: Sequence[int] = (),
+    free_intrinsics: Sequence[int] | np.ndarray = (),
     T_base_end: Optional[np.ndarray] = None,
     loss: str = "none",
     loss_k: float = 3.0,
@@ -68,7 +68,7 @@ def view_reprojection_factor(
     H_k = np.zeros((n2, free.size), order="F")
     k_work = base_k.copy()
 
-    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H) -> np.ndarray:
+    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H: Optional[list[np.ndarray]]) -> np.ndarray:
         T_x = v.atPose3(key_x).matrix()
         T_board = v.atPose3(key_board).matrix()
         T_robot = v.atPose3(key_robot).matrix() if key_robot is not None else T_robot_fixed
@@ -93,10 +93,13 @@ def view_reprojection_factor(
             w = np.repeat(irls_scale, 2)[:, None]
         elif not want:
             return r
+        assert H is not None and J_x is not None and J_b is not None, "Jacobians asked for and computed"
         blocks = [(H_x, J_x), (H_b, J_b)]
         if key_robot is not None:
+            assert J_r is not None, "Jacobians asked for and computed"
             blocks.append((H_r, J_r))
         if key_intrinsics is not None:
+            assert J_k is not None, "Jacobians asked for and computed"
             blocks.append((H_k, J_k[:, free]))
         for i, (buf, J) in enumerate(blocks):
             if w is None:
@@ -123,7 +126,7 @@ def robot_pose_prior(
     the end frame. ``robust_k`` wraps it in a Huber loss on the whitened 6-vector norm.
     """
     sig = np.array([sigma_rot_rad] * 3 + [sigma_trans_m] * 3, dtype=float)
-    noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
+    noise: gtsam.noiseModel.Base = gtsam.noiseModel.Diagonal.Sigmas(sig)
     if robust_k is not None:
         noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
     return gtsam.PriorFactorPose3(key_robot, gtsam.Pose3(np.asarray(T_base_end_reported, float)), noise)
@@ -137,7 +140,9 @@ def intrinsics_prior(*, key_intrinsics: int, prior_values: np.ndarray, sigmas: n
 
 
 def gaussian_prior(*, key: int, mean: np.ndarray, cov: np.ndarray) -> gtsam.NonlinearFactor:
-    """Gaussian prior with a full covariance on a Pose3 (``mean`` (4,4); ``cov`` (6,6) in its right
+    """Gaussian prior with a full covariance on a Pose3.
+
+    Gaussian prior with a full covariance on a Pose3 (``mean`` (4,4); ``cov`` (6,6) in its right
     tangent, rotation first: error ``Log(inv(mean) · T)``) or on a Vector (``mean`` (k,), ``cov`` (k,k)).
     """
     mean = np.asarray(mean, float)
@@ -150,7 +155,9 @@ def gaussian_prior(*, key: int, mean: np.ndarray, cov: np.ndarray) -> gtsam.Nonl
 def joint_gaussian_prior(
     *, key_pose: int, key_vector: int, mean_pose: np.ndarray, mean_vector: np.ndarray, cov: np.ndarray
 ) -> gtsam.NonlinearFactor:
-    """Gaussian prior on a Pose3 and a Vector together, with their cross-covariance (e.g. an earlier calibration's
+    """Gaussian prior on a Pose3 and a Vector together, with their cross-covariance.
+
+    Gaussian prior on a Pose3 and a Vector together, with their cross-covariance (e.g. an earlier calibration's
     T_x and intrinsics, whose errors are correlated): error ``(Log(inv(mean_pose) · T), v - mean_vector)``
     (6 + k,) ~ N(0, ``cov``), the pose's block in its right tangent, rotation first.
     """
@@ -160,7 +167,7 @@ def joint_gaussian_prior(
     noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, float))
     H_v = np.asfortranarray(np.vstack([np.zeros((6, k)), np.eye(k)]))
 
-    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H) -> np.ndarray:
+    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H: Optional[list[np.ndarray]]) -> np.ndarray:
         D = mean_inv.compose(v.atPose3(key_pose))
         if H is not None:
             H[0] = np.asfortranarray(np.vstack([gtsam.Pose3.LogmapDerivative(D), np.zeros((k, 6))]))
@@ -179,13 +186,15 @@ def kinematic_robot_prior(
     cov: np.ndarray,
     robust_k: Optional[float] = None,
 ) -> gtsam.NonlinearFactor:
-    """Prior of the kinematic robot error model (:mod:`handeye.refine.robot_model`) tying the true robot
+    """Prior of the kinematic robot error model.
+
+    Prior of the kinematic robot error model (:mod:`handeye.refine.robot_model`) tying the true robot
     pose to the reported one and the arm's DH offsets: error ``Log(inv(reported) · T_base_end) - J_dh · delta``
     (6,) (rotation then translation, end frame) ~ N(0, ``cov``), with ``delta`` the Vector at ``key_dh``
     (m,). ``key_dh`` None: no DH offsets (the joint-space model), a PriorFactorPose3 with covariance
     ``cov``. ``robust_k`` wraps it in a Huber loss on the whitened 6-vector norm.
     """
-    noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, float))
+    noise: gtsam.noiseModel.Base = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, float))
     if robust_k is not None:
         noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
     if key_dh is None:
@@ -194,7 +203,7 @@ def kinematic_robot_prior(
     J = np.asarray(J_dh, float)
     H_dh = np.asfortranarray(-J)
 
-    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H) -> np.ndarray:
+    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H: Optional[list[np.ndarray]]) -> np.ndarray:
         D = reported_inv.compose(v.atPose3(key_robot))
         r = gtsam.Pose3.Logmap(D) - J @ v.atVector(key_dh)
         if H is not None:

@@ -27,7 +27,9 @@ def se3_ad(xi: np.ndarray) -> np.ndarray:
 
 
 def se3_right_jacobian_inverse(xi: np.ndarray) -> np.ndarray:
-    """(6,6) ``d Log(Exp(xi) · Exp(d)) / d d`` at ``d = 0`` (the inverse right Jacobian of SE(3)) by its
+    """The inverse right Jacobian (6,6) of SE(3) by its series.
+
+    (6,6) ``d Log(Exp(xi) · Exp(d)) / d d`` at ``d = 0`` (the inverse right Jacobian of SE(3)) by its
     series ``I + ad/2 + ad^2/12 - ad^4/720 + ad^6/30240`` (Bernoulli numbers); the first left-out term is
     ``ad^8/1209600``: below 1e-13 at |xi| = 0.1 (the residuals of a refinement), 1e-8 at |xi| = 0.5.
     """
@@ -39,8 +41,10 @@ def se3_right_jacobian_inverse(xi: np.ndarray) -> np.ndarray:
 
 def pose_residual(
     *, T_x: np.ndarray, M: np.ndarray, T_board: np.ndarray, T_cam_board_measured: np.ndarray, jacobians: bool = True
-):
-    """Residual (6,) of one measured pose and, with ``jacobians``, its Jacobians (6,6) in the right
+) -> tuple[np.ndarray, Optional[np.ndarray], Optional[np.ndarray]]:
+    """Residual (6,) of one measured pose and, with ``jacobians``, its Jacobians.
+
+    Residual (6,) of one measured pose and, with ``jacobians``, its Jacobians (6,6) in the right
     tangents of ``T_x`` and ``T_board``: (r, J_x, J_board) (Jacobians None without ``jacobians``).
 
     ``M`` is the view's robot motion (``inv(T_base_end)`` eye-in-hand, ``T_base_end`` eye-to-hand).
@@ -80,7 +84,7 @@ def pose_factor(
     if robust_k is not None:
         noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
 
-    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H) -> np.ndarray:
+    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H: Optional[list[np.ndarray]]) -> np.ndarray:
         r, J_x, J_b = pose_residual(
             T_x=v.atPose3(key_x).matrix(),
             M=M,

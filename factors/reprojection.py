@@ -11,6 +11,8 @@ See docs/refinement.md.
 
 from __future__ import annotations
 
+from typing import Optional
+
 import numpy as np
 
 from handeye.camera import project_opencv5
@@ -48,7 +50,7 @@ def chain_residual(
     image_points: np.ndarray,
     jacobians: bool = True,
     robot_only: bool = False,
-):
+) -> tuple[np.ndarray, Optional[np.ndarray], Optional[np.ndarray], Optional[np.ndarray], Optional[np.ndarray]]:
     """Reprojection residual of one view through ``inv(T_x) · M · T_board``.
 
     ``M = inv(T_base_end)`` when ``invert_robot`` (eye-in-hand) else ``T_base_end`` (eye-to-hand).
@@ -75,6 +77,7 @@ def chain_residual(
     residual = (uv - image_points).reshape(-1)
     if not jacobians:
         return residual, None, None, None, None
+    assert Jp_T is not None and Jk_T is not None, "Jacobians asked for and computed"
 
     G_A = R_A.T @ Jp_T  # (J_p · R_A)^T, shape (3, 2N)
     # the point just after the robot perturbation: q_m if M = inv(T_base_end), else q_b (after A·M)
@@ -100,7 +103,7 @@ def stacked_chain_residual(
     image_points: np.ndarray,
     view_index: np.ndarray,
     robot_jacobian: bool = False,
-):
+) -> tuple[np.ndarray, Optional[np.ndarray]]:
     """:func:`chain_residual` of many views at once, for the numpy parts of the refinement (no GTSAM).
 
     The corners of all views are stacked: ``object_points`` (M,3), ``image_points`` (M,2) and
@@ -142,8 +145,15 @@ def stacked_chain_residual(
 
 
 def eye_in_hand_residual(
-    *, T_end_cam, T_base_end, T_base_board, intrinsics_vec, object_points, image_points, jacobians: bool = True
-):
+    *,
+    T_end_cam: np.ndarray,
+    T_base_end: np.ndarray,
+    T_base_board: np.ndarray,
+    intrinsics_vec: np.ndarray,
+    object_points: np.ndarray,
+    image_points: np.ndarray,
+    jacobians: bool = True,
+) -> tuple[np.ndarray, Optional[np.ndarray], Optional[np.ndarray], Optional[np.ndarray], Optional[np.ndarray]]:
     """Pixel = project(K, inv(T_base_end · T_end_cam) · T_base_board · p); see :func:`chain_residual`."""
     return chain_residual(
         T_x=T_end_cam,
@@ -158,8 +168,15 @@ def eye_in_hand_residual(
 
 
 def eye_to_hand_residual(
-    *, T_base_cam, T_base_end, T_end_board, intrinsics_vec, object_points, image_points, jacobians: bool = True
-):
+    *,
+    T_base_cam: np.ndarray,
+    T_base_end: np.ndarray,
+    T_end_board: np.ndarray,
+    intrinsics_vec: np.ndarray,
+    object_points: np.ndarray,
+    image_points: np.ndarray,
+    jacobians: bool = True,
+) -> tuple[np.ndarray, Optional[np.ndarray], Optional[np.ndarray], Optional[np.ndarray], Optional[np.ndarray]]:
     """Pixel = project(K, inv(T_base_cam) · T_base_end · T_end_board · p); see :func:`chain_residual`."""
     return chain_residual(
         T_x=T_base_cam,
@@ -177,7 +194,9 @@ def eye_to_hand_residual(
 LOSSES = ("none", "huber", "cauchy")
 
 
-def corner_robust_scales(residual: np.ndarray, *, sigma_px: float, loss: str, k: float):
+def corner_robust_scales(
+    residual: np.ndarray, *, sigma_px: float, loss: str, k: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Per-corner factors that turn a (2N,) residual into a robust one, inside one view factor.
 
     With ``s = |e_corner| / sigma_px`` and the loss rho(s) (Huber or Cauchy with threshold ``k`` in

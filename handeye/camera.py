@@ -10,8 +10,10 @@ Intrinsics vector order: ``(fx, fy, cx, cy, k1, k2, p1, p2, k3)`` (:data:`INTRIN
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Optional
 
 import numpy as np
+import numpy.typing as npt
 
 from .frames import transform_points
 
@@ -27,7 +29,7 @@ class Intrinsics:
     fy: float
     cx: float
     cy: float
-    dist: tuple = (0.0, 0.0, 0.0, 0.0, 0.0)
+    dist: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)
     width: int = 0
     height: int = 0
     model: str = "opencv5"
@@ -49,14 +51,14 @@ class Intrinsics:
         return np.concatenate([[self.fx, self.fy, self.cx, self.cy], self.dist_array])
 
     @staticmethod
-    def from_vector(v, width: int, height: int) -> "Intrinsics":
+    def from_vector(v: npt.ArrayLike, width: int, height: int) -> "Intrinsics":
         v = np.asarray(v, float)
         return Intrinsics(
             float(v[0]), float(v[1]), float(v[2]), float(v[3]), tuple(float(x) for x in v[4:9]), int(width), int(height)
         )
 
     @staticmethod
-    def from_K(K, dist, width: int, height: int) -> "Intrinsics":
+    def from_K(K: np.ndarray, dist: npt.ArrayLike, width: int, height: int) -> "Intrinsics":
         d = np.zeros(5)
         dd = np.asarray(dist, float).reshape(-1)[:5]
         d[: dd.size] = dd
@@ -70,7 +72,7 @@ class Intrinsics:
             int(height),
         )
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "model": self.model,
             "fx": self.fx,
@@ -84,8 +86,12 @@ class Intrinsics:
 
 
 # ------------------------------------------------------------------------------ projection
-def project_opencv5(intrinsics_vec, p_cam: np.ndarray, jacobians: bool):
-    """Pixels (N,2) and, when asked, the Jacobians laid out transposed for speed:
+def project_opencv5(
+    intrinsics_vec: np.ndarray, p_cam: np.ndarray, jacobians: bool
+) -> tuple[np.ndarray, Optional[np.ndarray], Optional[np.ndarray]]:
+    """Pixels (N,2) and, when asked, the Jacobians laid out transposed for speed.
+
+    Pixels (N,2) and, when asked, the Jacobians laid out transposed for speed:
     ``Jp_T`` (3, 2N) = (d uv / d p_cam)^T and ``Jk_T`` (9, 2N) = (d uv / d intrinsics)^T, with the
     2N columns interleaved (u0, v0, u1, v1, ...).
     """
@@ -136,7 +142,9 @@ def project_opencv5(intrinsics_vec, p_cam: np.ndarray, jacobians: bool):
     return uv, Jp.reshape(3, 2 * n), Jk.reshape(9, 2 * n)
 
 
-def pixels_from_cam_points(intrinsics_vec: np.ndarray, p_cam: np.ndarray, *, jacobians: bool = True):
+def pixels_from_cam_points(
+    intrinsics_vec: np.ndarray, p_cam: np.ndarray, *, jacobians: bool = True
+) -> tuple[np.ndarray, Optional[np.ndarray], Optional[np.ndarray]]:
     """Project camera-frame points (N,3) with OpenCV's 5-coefficient model.
 
     Returns ``(uv, J_uv_p, J_uv_intr)``: pixels (N,2), d uv / d p_cam (N,2,3) and
@@ -146,6 +154,7 @@ def pixels_from_cam_points(intrinsics_vec: np.ndarray, p_cam: np.ndarray, *, jac
     uv, Jp_T, Jk_T = project_opencv5(intrinsics_vec, p_cam, jacobians)
     if not jacobians:
         return uv, None, None
+    assert Jp_T is not None and Jk_T is not None, "Jacobians asked for and computed"
     n = p_cam.shape[0]
     return uv, Jp_T.reshape(3, n, 2).transpose(1, 2, 0), Jk_T.reshape(9, n, 2).transpose(1, 2, 0)
 

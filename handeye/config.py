@@ -52,11 +52,14 @@ def _type_name(v) -> str:
         return "true | false"
     if isinstance(v, (int, float)):
         return "a number"
-    return {dict: "a mapping", list: "a list", str: "a text"}.get(type(v), type(v).__name__)
+    words: dict[type, str] = {dict: "a mapping", list: "a list", str: "a text"}
+    return words.get(type(v), type(v).__name__)
 
 
 def _check_type(key, base_value, value, *, source: str) -> None:
-    """An override must have the preset value's type (numbers are interchangeable; a null in the preset
+    """An override must have the preset value's type.
+
+    An override must have the preset value's type (numbers are interchangeable; a null in the preset
     accepts anything, a null override is left to the setting's own check: it may mean "no limit").
     """
     if base_value is None or (value is None and not isinstance(base_value, dict)):

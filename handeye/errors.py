@@ -12,6 +12,7 @@ See docs/cli.md.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 
 class HandeyeError(Exception):
@@ -67,9 +68,11 @@ class HandeyeError(Exception):
             code=self.code,
         )
 
-    def to_dict(self) -> dict:
-        """The structured record (JSON-ready): code, what, file, line, expected, got, fix, exit_code,
-        plus ``type`` (the class name) and ``message`` (``str(self)``).
+    def to_dict(self) -> dict[str, Any]:
+        """The structured record (JSON-ready).
+
+        Code, what, file, line, expected, got, fix, exit_code, plus ``type`` (the class name) and
+        ``message`` (``str(self)``).
         """
         return {
             "code": self.code,
@@ -98,8 +101,10 @@ class ConfigError(InputError):
 
 
 class OutputError(InputError):
-    """An output folder or file cannot be used: it is a file, lies under a file, is not writable, is
-    in use by another run, or the disk refused the write. Checked before the work starts where it can be.
+    """An output folder or file cannot be used.
+
+    It is a file, lies under a file, is not writable, is in use by another run, or the disk refused the
+    write. Checked before the work starts where it can be.
     """
 
     code = "output_unusable"
@@ -127,7 +132,9 @@ class CalibrationError(HandeyeError):
 
 
 class SessionRefused(HandeyeError):
-    """The data contradict themselves so that no result can be trusted (images and poses shuffled or
+    """The data contradict themselves so that no result can be trusted.
+
+    The data contradict themselves so that no result can be trusted (images and poses shuffled or
     shifted, a stated mounting mode the data contradict): no matrix is given, the findings say why.
 
     Raised (or set as a run's error) by the stage that decides it, or by the workflow for a diagnostics
@@ -140,8 +147,10 @@ class SessionRefused(HandeyeError):
 
 
 class QAFailed(HandeyeError):
-    """A matrix was computed, but the verdict is FAIL: a QA check or a diagnostics finding says it is
-    not fit for use. result.json and the reports are written; the CLI exits with this class's code.
+    """A matrix was computed, but the verdict is FAIL.
+
+    A QA check or a diagnostics finding says it is not fit for use. result.json and the reports are
+    written; the CLI exits with this class's code.
     """
 
     exit_code = 7

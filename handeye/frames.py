@@ -73,7 +73,7 @@ def is_rotation(R: np.ndarray, *, tol: float = 1e-6) -> bool:
     return bool(np.allclose(R.T @ R, np.eye(3), atol=tol) and abs(np.linalg.det(R) - 1.0) < tol)
 
 
-def is_rigid_transform(T, *, tol: float = 1e-6) -> bool:
+def is_rigid_transform(T: object, *, tol: float = 1e-6) -> bool:
     """``T`` is a finite 4x4 rigid transform: a rotation block (:func:`is_rotation`) and last row 0 0 0 1."""
     try:
         T = np.asarray(T, float)

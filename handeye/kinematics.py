@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Optional, Sequence, Union
+from typing import Any, Optional, Sequence, Union
 
 import numpy as np
 
@@ -103,7 +103,10 @@ class DHChain:
 
     @property
     def reach_m(self) -> float:
-        """Upper bound of the flange's distance from the first joint's axis point: sum of |a| and of |d| after joint 1."""
+        """Upper bound of the flange's distance from the first joint's axis point.
+
+        The sum of |a| and of |d| after joint 1.
+        """
         d = self.dh[:, 2].copy()
         d[0] = 0.0
         return float(np.sum(np.abs(self.dh[:, 0])) + np.sum(np.abs(d)))
@@ -174,7 +177,9 @@ class DHChain:
         return T
 
     def _screw_columns(self, joints: np.ndarray, *, only_kind: Optional[str] = None) -> np.ndarray:
-        """(6, 4n) body-frame columns of every elementary motion, in product order (zeros for the
+        """(6, 4n) body-frame columns of every elementary motion, in product order.
+
+        (6, 4n) body-frame columns of every elementary motion, in product order (zeros for the
         motions of another kind than ``only_kind`` when it is given).
         """
         factors = self._factors(joints)
@@ -232,7 +237,9 @@ def _wrap(q: np.ndarray) -> np.ndarray:
 
 
 def _pose_error(T: np.ndarray, T_target: np.ndarray) -> np.ndarray:
-    """``(rotation vector of R^T R_target, R^T (t_target - t))`` (..., 6) of poses T (..., 4, 4): zero exactly
+    """``(rotation vector of R^T R_target, R^T (t_target - t))`` (..., 6) of poses T.
+
+    ``(rotation vector of R^T R_target, R^T (t_target - t))`` (..., 6) of poses T (..., 4, 4): zero exactly
     when the poses agree, the right-tangent difference to first order (cheaper than
     :func:`handeye.frames.tangent_difference`).
     """
@@ -304,8 +311,9 @@ def solve_ik(
 
 
 def default_ik_seeds(chain: DHChain, T_base_end_target: np.ndarray) -> list:
-    """A few deterministic starting configurations: joint 1 turned towards the target, shoulder,
-    elbow and wrist in several bends.
+    """A few deterministic starting configurations.
+
+    Joint 1 turned towards the target, shoulder, elbow and wrist in several bends.
     """
     p = np.asarray(T_base_end_target, float)[:3, 3]
     base = float(np.arctan2(p[1], p[0]))
@@ -462,11 +470,15 @@ def chain_from_dict(data: dict, *, source: str = "DH table") -> DHChain:
 
 
 def chain_to_dict(chain: DHChain) -> dict:
-    """The table of ``chain`` in the presets' form, metres and radians (:func:`chain_from_dict` reads it back;
+    """The table of ``chain`` in the presets' form, metres and radians.
+
+    The table of ``chain`` in the presets' form, metres and radians (:func:`chain_from_dict` reads it back;
     the error prior is not part of it): a result records the arm it was calibrated with.
     """
     lim = chain.joint_limits_rad
-    links = [dict(zip(PARAMETER_NAMES, (float(v) for v in row), strict=False)) for row in np.asarray(chain.dh, float)]
+    links: list[dict[str, Any]] = [
+        dict(zip(PARAMETER_NAMES, (float(v) for v in row), strict=False)) for row in np.asarray(chain.dh, float)
+    ]
     if lim is not None:
         for link, (lo, hi) in zip(links, np.asarray(lim, float), strict=False):
             link["limits"] = [float(lo), float(hi)]
@@ -493,9 +505,11 @@ def _error_prior(d, source: str) -> Optional[tuple]:
 
 
 def load_arm(name_or_path: Union[str, Path, dict], *, folder: Optional[Path] = None) -> DHChain:
-    """A shipped preset (:data:`PRESETS`: ``rm65``, ``ur5e``, ...), a DH table file in either form of :func:`chain_from_dict`
-    (``.json`` read as JSON, anything else as YAML; relative paths from ``folder`` when given, e.g. a
-    session's ``robot:``), or the table itself as a mapping. A file that cannot be read or parsed is a
+    """A DH chain from a shipped preset, a DH table file or the table itself.
+
+    A shipped preset (:data:`PRESETS`: ``rm65``, ``ur5e``, ...), a DH table file in either form of
+    :func:`chain_from_dict` (``.json`` read as JSON, anything else as YAML; relative paths from ``folder`` when given,
+    e.g. a session's ``robot:``), or the table itself as a mapping. A file that cannot be read or parsed is a
     ConfigError naming it.
     """
     import json

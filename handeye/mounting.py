@@ -61,7 +61,9 @@ class MountingMode:
         return inv_T(T_x) @ self.M_from_T_base_end(T_base_end) @ T_board
 
     def T_base_cam(self, T_x: np.ndarray, T_base_end: np.ndarray | None) -> np.ndarray:
-        """Camera in the base frame at robot pose(s) ``T_base_end`` (4,4)/(N,4,4) (eye-to-hand: constant,
+        """Camera in the base frame at robot pose(s) ``T_base_end`` (4,4)/(N,4,4).
+
+        Camera in the base frame at robot pose(s) ``T_base_end`` (4,4)/(N,4,4) (eye-to-hand: constant,
         the pose may be None). Eye-in-hand without a robot pose is a :class:`ConfigError`.
         """
         if not self.inverts_robot:

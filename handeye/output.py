@@ -32,7 +32,9 @@ LOCK_NAME = ".handeye.lock"
 
 
 class OutputWriteError(OSError):
-    """The file system refused to write an output (disk full, read-only, permissions): ``filename`` is
+    """The file system refused to write an output.
+
+    The file system refused to write an output (disk full, read-only, permissions): ``filename`` is
     the output, ``errno`` and ``strerror`` the refusal's; the original OSError is its ``__cause__``. What
     tells a write error from a read error (the command line gives each its own advice).
     """
@@ -40,7 +42,9 @@ class OutputWriteError(OSError):
 
 @contextmanager
 def writing(path: str | Path):
-    """Inside, an OSError is one of writing ``path`` (an output file or folder): re-raised as
+    """Context in which an OSError is re-raised as an :class:`OutputWriteError` for ``path``.
+
+    Inside, an OSError is one of writing ``path`` (an output file or folder): re-raised as
     :class:`OutputWriteError` naming the file it names, else ``path``.
     """
     try:
@@ -88,7 +92,9 @@ def atomic_write_text(path: str | Path, text: str, *, durable: bool = True) -> P
 
 
 def plain(obj, *, nan_to_none: bool = False):
-    """JSON/YAML-friendly copy: numpy arrays and scalars become Python lists and numbers, paths
+    """JSON/YAML-friendly copy: numpy arrays and scalars become Python lists and numbers, paths strings.
+
+    JSON/YAML-friendly copy: numpy arrays and scalars become Python lists and numbers, paths
     strings, mapping keys strings; with ``nan_to_none`` non-finite floats become None (strict JSON).
     """
     if isinstance(obj, dict):
@@ -114,8 +120,10 @@ def _json_default(o):
 
 
 def to_json(obj, *, indent: int | None = 2) -> str:
-    """JSON text of ``obj`` (numpy values converted); ``indent=None`` writes one compact line, several
-    times faster for large files that only programs read.
+    """JSON text of ``obj`` (numpy values converted).
+
+    ``indent=None`` writes one compact line, several times faster for large files that only programs
+    read.
     """
     if indent is None:
         return json.dumps(obj, separators=(",", ":"), default=_json_default, allow_nan=True)
@@ -175,7 +183,9 @@ def provenance(*, inputs_sha256: str | None = None, extra: dict | None = None) -
 
 
 def remove_stray_temps(folder: str | Path, *, subfolders: tuple = ("thumbnails", "report_files")) -> list[Path]:
-    """Remove the temporary files a killed writer left in ``folder`` (and its output subfolders):
+    """Remove the temporary files a killed writer left in ``folder``.
+
+    Remove the temporary files a killed writer left in ``folder`` (and its output subfolders):
     the hidden ``.NAME.XXXX.tmp`` files of :func:`atomic_write_bytes`. Call it holding the folder's lock.
     """
     removed = []
@@ -199,9 +209,10 @@ def _first_existing(path: Path) -> Path:
 
 
 def check_out_dir(path: str | Path, *, option: str = "--out") -> Path:
-    """``path`` as an output folder that can be created and written, checked before any work: not a
-    file, not under a file, writable (a probe file is created and removed). OutputError naming the
-    folder and ``option`` otherwise. Creates the folder.
+    """``path`` as an output folder that can be created and written, checked before any work.
+
+    Not a file, not under a file, writable (a probe file is created and removed). OutputError naming
+    the folder and ``option`` otherwise. Creates the folder.
     """
     path = Path(path)
     hint = f"pass another folder with {option}"
@@ -238,9 +249,11 @@ def check_out_dir(path: str | Path, *, option: str = "--out") -> Path:
 
 
 def _pid_alive(pid: int) -> bool:
-    """Whether process ``pid`` still runs. A zombie (ended, not yet reaped: an orphan whose new parent does not
-    reap it promptly, as some container init processes do) has ended and holds nothing; a process whose main
-    thread has ended while others run shows the same state and still runs.
+    """Whether process ``pid`` still runs.
+
+    A zombie (ended, not yet reaped: an orphan whose new parent does not reap it promptly, as some container
+    init processes do) has ended and holds nothing; a process whose main thread has ended while others run
+    shows the same state and still runs.
     """
     try:
         os.kill(pid, 0)
@@ -336,7 +349,9 @@ def file_sha256(path: str | Path) -> str:
 
 
 def inputs_record(paths, *, base: str | Path | None = None) -> list[dict]:
-    """Every input file read, once each in the given order: ``{"path", "sha256", "bytes"}`` (paths
+    """Every input file read, once each in the given order: ``{"path", "sha256", "bytes"}``.
+
+    Every input file read, once each in the given order: ``{"path", "sha256", "bytes"}`` (paths
     relative to ``base`` when inside it) for result.json's ``provenance.inputs``.
     """
     out, seen = [], set()
@@ -357,7 +372,9 @@ def inputs_record(paths, *, base: str | Path | None = None) -> list[dict]:
 
 
 def decode_text(data: bytes, *, path: str | Path, what: str = "text file") -> str:
-    """Bytes of a text input file as str: UTF-8 (a BOM is dropped), UTF-16 with a BOM, or Latin-1 when
+    """Bytes of a text input file as str: UTF-8, UTF-16 with a BOM, or Latin-1.
+
+    Bytes of a text input file as str: UTF-8 (a BOM is dropped), UTF-16 with a BOM, or Latin-1 when
     the bytes are not UTF-8 (a warning names the file); UTF-16 without a BOM is an InputError naming it.
     """
     import codecs
@@ -388,7 +405,9 @@ def decode_text(data: bytes, *, path: str | Path, what: str = "text file") -> st
 
 
 def read_text(path: str | Path, *, what: str = "text file", max_bytes: int = 64 << 20) -> str:
-    """The text of an input file (see :func:`decode_text`); InputError naming the file when it is missing,
+    """The text of an input file.
+
+    The text of an input file (see :func:`decode_text`); InputError naming the file when it is missing,
     not a regular file (a folder, a device, a pipe: never opened), unreadable or larger than ``max_bytes``.
     """
     import stat

@@ -49,7 +49,9 @@ class CalibrateOptions:
 
     @staticmethod
     def from_config(cfg: dict, **overrides) -> "CalibrateOptions":
-        """Options from a calibration preset (configs/calibration.yaml) plus explicit overrides
+        """Options from a calibration preset (configs/calibration.yaml) plus explicit overrides.
+
+        Options from a calibration preset (configs/calibration.yaml) plus explicit overrides
         (an override of None keeps the preset's value).
         """
         motion = cfg.get("motion") or {}
@@ -113,7 +115,9 @@ def observe(
     intrinsics_source: str = "",
     progress: Callable[[str], None] | None = None,
 ) -> Observation:
-    """Detect the target in ``items`` ((view_id, image path) pairs), calibrate the camera unless
+    """Detect the target, calibrate the camera unless given and solve each view's board pose.
+
+    Detect the target in ``items`` ((view_id, image path) pairs), calibrate the camera unless
     ``intrinsics`` are given, and solve each view's board pose.
 
     ``M_by_id`` (view_id -> robot motion ``M_i``, see :meth:`MountingMode.M_from_T_base_end`) orders
@@ -158,7 +162,8 @@ def observe(
         return replace(
             obs,
             error=DetectionError(
-                f"the session has {len(items)} image{'s' if len(items) != 1 else ''} (the board found in each); at least "
+                f"the session has {len(items)} image{'s' if len(items) != 1 else ''} "
+                "(the board found in each); at least "
                 f"{MIN_VIEWS} views are needed",
                 hint="capture more views, with the robot turned between them",
                 code="too_few_views",
@@ -285,8 +290,10 @@ class CalibrationRun:
 def run_calibration(
     session: Session, options: CalibrateOptions = CalibrateOptions(), *, progress: Callable[[str], None] | None = None
 ) -> CalibrationRun:
-    """All stages on a loaded session. A session that cannot be calibrated gives ``status="failed"``
-    with the error and every stage result reached so far (for the report).
+    """All stages on a loaded session.
+
+    A session that cannot be calibrated gives ``status="failed"`` with the error and every stage
+    result reached so far (for the report).
     """
     state: dict = {}
     try:
@@ -402,7 +409,9 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
 def _closed_forms(
     s: Session, opts: CalibrateOptions, mode: MountingMode, C: np.ndarray, Ms: np.ndarray, state: dict, progress
 ) -> tuple[dict, HandEyeEstimate]:
-    """The motion check and the closed forms from board poses ``C`` and robot motions ``Ms`` (n,4,4):
+    """The motion check and the closed forms from board poses ``C`` and robot motions ``Ms`` (n,4,4).
+
+    The motion check and the closed forms from board poses ``C`` and robot motions ``Ms`` (n,4,4):
     (every method's estimate, the chosen one); raises when the motion is degenerate or the method fails.
     """
     mq = motion_quality(
@@ -426,7 +435,9 @@ def _closed_forms(
 
 
 def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) -> CalibrationRun:
-    """The stages of a pose-only session: each view's ``T_cam_board`` is the tracker's (no detection,
+    """The stages of a pose-only session: each view's ``T_cam_board`` is the tracker's.
+
+    The stages of a pose-only session: each view's ``T_cam_board`` is the tracker's (no detection,
     intrinsics or board poses to solve); the mode gate, the motion check and the closed forms as for
     images; the refinement on pose factors (:func:`handeye.refine.poseonly.refine_poses`).
     """
@@ -515,7 +526,7 @@ def _mode_gate(s: Session, obs: Observation, state: dict, progress) -> Session:
 
     source = _stated_source(s)
     ids = [v for v in sorted(obs.board_poses, key=view_id_key)]
-    decision = {"mode": s.mode, "mode_source": source}
+    decision: dict[str, Any] = {"mode": s.mode, "mode_source": source}
     state["mode_decision"] = decision
     if len(ids) < 4:
         return s
@@ -586,6 +597,7 @@ def _swap_test(s: Session, obs: Observation, ids: list, C: np.ndarray, T: np.nda
 
 def _pairing_gate(s: Session, obs: Observation, M_all: dict, state: dict) -> None:
     """Refuse a session whose images and robot poses are shifted or shuffled (no result from wrong pairs).
+
     The search it made is the run's ``pairing`` (the diagnostics decide on it without searching again).
     """
     from .diagnose.fits import fit_boards
@@ -633,7 +645,9 @@ def _pairing_gate(s: Session, obs: Observation, M_all: dict, state: dict) -> Non
 
 
 def shift_poses(s: Session, shift: int) -> tuple[Session, list]:
-    """The session with image k paired with the pose written for image k + ``shift`` (in the order the poses
+    """The session with image k paired with the pose written for image k + ``shift``.
+
+    The session with image k paired with the pose written for image k + ``shift`` (in the order the poses
     are written): (session, views left without a pose).
     """
     from .conventions import T_from_pose_values
@@ -664,7 +678,9 @@ def refine_stage(
     closed_forms: Optional[dict] = None,
     arm=None,
 ):
-    """The joint refinement from the chosen closed form (``arm``: the session's, when already read by
+    """The joint refinement from the chosen closed form.
+
+    The joint refinement from the chosen closed form (``arm``: the session's, when already read by
     :func:`session_arm`).
     """
     from .refine import RefineOptions, RefineView, refine
@@ -693,7 +709,9 @@ def refine_stage(
 
 
 def session_arm(s: Session, opts: CalibrateOptions):
-    """The arm session.yaml's ``robot:`` names (a preset, a DH table file relative to the session, or an
+    """The arm session.yaml's ``robot:`` names.
+
+    The arm session.yaml's ``robot:`` names (a preset, a DH table file relative to the session, or an
     inline table; :func:`handeye.kinematics.load_arm`) when the options name none, else None.
     """
     if opts.refine_options.get("arm") is not None or s.meta.get("robot") is None:
@@ -711,7 +729,9 @@ def _joint_angles(s: Session, vid: str):
 
 
 def validate_stage(s: Session, refined, poses: dict, dets: dict, T_base_end: dict):
-    """The validated and verdict covariances of the refined result (:func:`handeye.refine.validation.validate`):
+    """The validated and verdict covariances of the refined result.
+
+    The validated and verdict covariances of the refined result (:func:`handeye.refine.validation.validate`):
     refits without some views, from the refinement's own views.
     """
     from .refine import RefineView
@@ -750,7 +770,7 @@ def validate_pose_stage(refined, views: list):
 def _final_outcomes(outcomes, chain, refined):
     """Outcomes after the solve: residuals through the robot chain, and the refinement's decisions."""
     out = outcomes
-    for vid, (rms, mx) in chain.items():
+    for vid, (_rms, mx) in chain.items():
         out[vid] = replace(out[vid], max_px=mx)
     if refined is None:
         return out

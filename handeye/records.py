@@ -87,7 +87,9 @@ class Detection:
 
 @dataclass(frozen=True)
 class DetectionFailure:
-    """A view whose target was not found: why, and what was measured on its image anyway
+    """A view whose target was not found: why, and what was measured on its image anyway.
+
+    A view whose target was not found: why, and what was measured on its image anyway
     (exposure over the whole image {"saturated_share", "p5", "p95"}, a small grey JPEG).
     """
 

@@ -101,7 +101,9 @@ def observations_dict(run) -> dict:
 
 
 def dropped_corners(run, view_id: str) -> list:
-    """[{"corner_id", "reason"}] of the corners the detector found in the view but did not use, numbered as
+    """[{"corner_id", "reason"}] of the corners the detector found in the view but did not use.
+
+    [{"corner_id", "reason"}] of the corners the detector found in the view but did not use, numbered as
     the view's used corners are (its board orientation resolved); [] when none or not detected.
     """
     det = (getattr(run, "detections", None) or {}).get(view_id)
@@ -109,14 +111,16 @@ def dropped_corners(run, view_id: str) -> list:
         return []
     bp = (getattr(run, "board_poses", None) or {}).get(view_id)
     syms = run.session.target.symmetries() if bp is not None else None
-    perm = syms[bp.orientation] if syms is not None and 0 <= bp.orientation < len(syms) else None
+    perm = syms[bp.orientation] if bp is not None and syms is not None and 0 <= bp.orientation < len(syms) else None
     return [
         {"corner_id": int(perm[k]) if perm is not None else int(k), "reason": why} for k, why in det.dropped_corners
     ]
 
 
 def mode_source(run, mode_flag: Optional[str] = None) -> tuple[Optional[str], Optional[dict]]:
-    """(``mode_source``, ``mode_evidence``): how the mounting mode was chosen (``stated`` | ``flag`` |
+    """(``mode_source``, ``mode_evidence``): how the mounting mode was chosen.
+
+    (``mode_source``, ``mode_evidence``): how the mounting mode was chosen (``stated`` | ``flag`` |
     ``detected`` | ``default``) as the run's ``mode_decision`` (or its session) records it, and the
     evidence of the mode test (a dict with its ``summary`` line) when it ran; ``flag`` when the mode
     came from ``--mode`` and nothing else is recorded.
@@ -130,8 +134,10 @@ def mode_source(run, mode_flag: Optional[str] = None) -> tuple[Optional[str], Op
 
 
 def result_dict(run, *, mode_flag: Optional[str] = None) -> dict:
-    """Everything result.json holds but the verdict (:func:`verdict_fields`). A failed run has
-    ``status: failed``, the error and no result matrix. ``mode_flag``: the ``--mode`` given, if any.
+    """Everything result.json holds but the verdict (:func:`verdict_fields`).
+
+    A failed run has ``status: failed``, the error and no result matrix. ``mode_flag``: the
+    ``--mode`` given, if any.
     """
     s = run.session
     mode = mounting(s.mode)
@@ -257,8 +263,10 @@ def _closed_forms_dict(run, mode) -> dict:
 
 
 def verdict_cov_x(run) -> Optional[np.ndarray]:
-    """The verdict covariance (6,6) of the run's T_x: the validated verdict when the run was validated,
-    else the refinement's model covariance; None without a refinement.
+    """The verdict covariance (6,6) of the run's T_x.
+
+    The validated verdict when the run was validated, else the refinement's model covariance; None
+    without a refinement.
     """
     ref = run.refined
     if ref is None or getattr(ref, "status", "") != "ok":
@@ -455,7 +463,9 @@ def verdict_fields(verdict, res: dict, error: Optional[HandeyeError], *, qa_cfg:
 
 
 def _check_dict(c, limits_cfg: dict) -> dict:
-    """A QA check (:class:`handeye.report.qa.Check`) for result.json, with its limits as numbers
+    """A QA check (:class:`handeye.report.qa.Check`) for result.json, with its limits as numbers.
+
+    A QA check (:class:`handeye.report.qa.Check`) for result.json, with its limits as numbers
     (``limits``: check key -> {warn_above, fail_above, warn_below, fail_below}, from the QA file).
     """
     limits = {

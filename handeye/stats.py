@@ -11,7 +11,9 @@ RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))  # median of |e| / sigma for
 
 
 def robust_noise_sigma(d: np.ndarray, C: np.ndarray, *, floor: float, shape: np.ndarray | None = None) -> float:
-    """Sigma s with median_i d_i^T (C_i + s^2 B_i)^-1 d_i = chi2(dim) median: the extra noise that makes
+    """Extra noise sigma that makes typical views' disagreements consistent with their covariances.
+
+    Sigma s with median_i d_i^T (C_i + s^2 B_i)^-1 d_i = chi2(dim) median: the extra noise that makes
     typical views' disagreements ``d`` (N,k) consistent with their covariances ``C`` (N,k,k); ``shape``
     B (N,k,k) is its covariance at s = 1 (None: isotropic, I).
     """
@@ -39,7 +41,9 @@ def robust_noise_sigma(d: np.ndarray, C: np.ndarray, *, floor: float, shape: np.
 # A multivariate t with nu dof whose covariance (nu / (nu - 2) times its scale matrix) is the one the
 # statistic was taken under: statistic * (nu / (nu - 2)) / dim ~ F(dim, nu).
 def mixture_tail_pvalue(statistic: np.ndarray, dim: int, dof: np.ndarray) -> np.ndarray:
-    """P(statistic' > statistic) for squared Mahalanobis distances ``statistic`` (n,) of ``dim``-vectors
+    """P(statistic' > statistic) for squared Mahalanobis distances ``statistic``.
+
+    P(statistic' > statistic) for squared Mahalanobis distances ``statistic`` (n,) of ``dim``-vectors
     under their covariance, when the vector is multivariate t with ``dof`` (n,; inf: Gaussian, chi-square).
     """
     from scipy.special import chdtrc, fdtrc
@@ -66,9 +70,11 @@ def mixture_tail_quantile(p: float, dim: int, dof: np.ndarray) -> np.ndarray:
 
 
 def wald_p_value(T: float, dof: int, noise_dof: float | None = None) -> float:
-    """P-value of the Wald statistic ``T`` with ``dof`` directions: chi-square(dof) when the covariances are
-    known; when they rest on a robot noise level estimated with ``noise_dof`` degrees of freedom (the plug-in
-    variance makes the statistic heavier-tailed, as Hotelling's T^2), ``T / dof`` is taken as F(dof, noise_dof).
+    """P-value of the Wald statistic ``T`` with ``dof`` directions.
+
+    Chi-square(dof) when the covariances are known; when they rest on a robot noise level estimated with
+    ``noise_dof`` degrees of freedom (the plug-in variance makes the statistic heavier-tailed, as Hotelling's
+    T^2), ``T / dof`` is taken as F(dof, noise_dof).
     """
     if not dof:
         return 1.0
@@ -78,16 +84,24 @@ def wald_p_value(T: float, dof: int, noise_dof: float | None = None) -> float:
 
 
 def satterthwaite_dof(shares, dofs) -> float | None:
-    """Degrees of freedom of a variance that is the sum of parts with ``shares`` (summing to 1) each estimated
+    """Degrees of freedom of a variance that is the sum of parts with ``shares``.
+
+    Degrees of freedom of a variance that is the sum of parts with ``shares`` (summing to 1) each estimated
     with ``dofs`` (None or inf: known): ``1 / sum(share^2 / dof)`` (Satterthwaite 1946); None when every part
     is known.
     """
-    s = sum(float(a) ** 2 / float(n) for a, n in zip(shares, dofs, strict=False) if n is not None and np.isfinite(n) and n > 0)
+    s = sum(
+        float(a) ** 2 / float(n)
+        for a, n in zip(shares, dofs, strict=False)
+        if n is not None and np.isfinite(n) and n > 0
+    )
     return 1.0 / s if s > 0 else None
 
 
 def weighted_chi2_sf(x: float, weights) -> tuple[float, float]:
-    """Tail probability at ``x`` of ``sum w_i z_i^2`` (z_i iid N(0, 1), weights w_i >= 0) by Satterthwaite's
+    """Tail probability at ``x`` of ``sum w_i z_i^2``.
+
+    Tail probability at ``x`` of ``sum w_i z_i^2`` (z_i iid N(0, 1), weights w_i >= 0) by Satterthwaite's
     scaled chi-square ``c * chi2(nu)`` with the same mean and variance: ``c = sum w^2 / sum w``,
     ``nu = (sum w)^2 / sum w^2``. Returns (p, nu). Plain chi2(sum w) would overstate the spread when weights are
     below 1 (its variance is 2 sum w, the form's 2 sum w^2), and so the p-values.

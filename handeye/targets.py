@@ -9,7 +9,7 @@ back with validation) and ``describe()`` (one line for messages).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Union
+from typing import Literal, Union
 
 import numpy as np
 
@@ -34,7 +34,7 @@ class ChessboardSpec:
     cols: int
     rows: int
     square_m: float
-    kind: str = "chessboard"
+    kind: Literal["chessboard"] = "chessboard"
 
     @property
     def n_corners(self) -> int:
@@ -74,7 +74,7 @@ class CharucoSpec:
     marker_m: float
     dictionary: str = "DICT_6X6_250"
     legacy_pattern: bool = False
-    kind: str = "charuco"
+    kind: Literal["charuco"] = "charuco"
 
     @property
     def n_corners(self) -> int:
@@ -122,7 +122,7 @@ class CircleGridSpec:
     spacing_m: float
     asymmetric: bool = False
     origin_dot: bool = False
-    kind: str = "circlegrid"
+    kind: Literal["circlegrid"] = "circlegrid"
 
     @property
     def n_corners(self) -> int:
@@ -176,7 +176,9 @@ MARKER_CORNERS = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0
 
 @dataclass(frozen=True)
 class MarkerSpec:
-    """One square fiducial marker (ArUco or AprilTag through cv2.aruco's dictionaries), ``size_m`` the side of
+    """One square fiducial marker.
+
+    One square fiducial marker (ArUco or AprilTag through cv2.aruco's dictionaries), ``size_m`` the side of
     its black square (AprilTag's "tag size"). Corner ids 0-3: top-left, top-right, bottom-right, bottom-left
     (:data:`MARKER_CORNERS`); the board frame's origin is the top-left corner.
 
@@ -188,7 +190,7 @@ class MarkerSpec:
     size_m: float
     dictionary: str = "DICT_APRILTAG_36h11"
     marker_id: int = 0
-    kind: str = "marker"
+    kind: Literal["marker"] = "marker"
     pose_ambiguous: bool = True
 
     @property
@@ -215,7 +217,9 @@ class MarkerSpec:
 
 @dataclass(frozen=True)
 class AprilGridSpec:
-    """Kalibr's AprilGrid: ``cols`` x ``rows`` tags of side ``size_m``, ``spacing`` (a ratio of the tag side)
+    """Kalibr's AprilGrid: ``cols`` x ``rows`` tags of side ``size_m`` with gaps between them.
+
+    Kalibr's AprilGrid: ``cols`` x ``rows`` tags of side ``size_m``, ``spacing`` (a ratio of the tag side)
     between neighbouring tags, small black squares in the gaps at the tags' corners.
 
     Tag ids as Kalibr numbers them: ``first_id`` at the bottom left of the print, increasing along a row to
@@ -230,7 +234,7 @@ class AprilGridSpec:
     spacing: float = 0.3
     dictionary: str = "DICT_APRILTAG_36h11"
     first_id: int = 0
-    kind: str = "aprilgrid"
+    kind: Literal["aprilgrid"] = "aprilgrid"
     pose_ambiguous: bool = False
 
     @property
@@ -284,14 +288,16 @@ TargetSpec = Union[ChessboardSpec, CharucoSpec, CircleGridSpec, MarkerSpec, Apri
 
 @dataclass(frozen=True)
 class TrackedTargetSpec:
-    """The target of a pose-only session: a frame whose pose an external tracker reports (no points are
+    """The target of a pose-only session: a frame whose pose an external tracker reports.
+
+    The target of a pose-only session: a frame whose pose an external tracker reports (no points are
     detected). ``object_points`` are its origin and the tips of its x and y axes at ``axis_m``, for
     drawings and for code that sizes things by the target.
     """
 
     name: str = ""
     axis_m: float = 0.1
-    kind: str = "tracked"
+    kind: Literal["tracked"] = "tracked"
     pose_ambiguous: bool = False
 
     @property

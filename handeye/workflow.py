@@ -70,7 +70,7 @@ class WorkflowResult:
 def calibrate_session(
     session_path,
     *,
-    options: CalibrateOptions = CalibrateOptions(),
+    options: Optional[CalibrateOptions] = None,
     out_dir,
     report: bool = True,
     qa=None,
@@ -97,6 +97,7 @@ def calibrate_session(
     from .report.qa import load_qa
     from .session import load_session
 
+    options = CalibrateOptions() if options is None else options
     progress = progress or (lambda s: None)
     t0 = time.perf_counter()
     qa_cfg = load_qa(qa)  # a bad site QA file is unusable input: say so before the calibration, not after it
@@ -171,7 +172,8 @@ def _calibrate_locked(
     from .results import observations_dict, result_dict
 
     seconds = {"load": t_load, **run.seconds}
-    diag, stage_errors = None, {}
+    diag = None
+    stage_errors: dict[str, str] = {}
     if diagnostics:
         progress("diagnostics")
         t1 = time.perf_counter()
@@ -222,7 +224,9 @@ def _calibrate_locked(
 
 
 def optional_stage(name: str, fn, *args, errors: dict, **kwargs):
-    """``fn(*args, **kwargs)``, or None when it crashes: an optional stage (diagnostics, report) never
+    """``fn(*args, **kwargs)``, or None when it crashes: an optional stage.
+
+    ``fn(*args, **kwargs)``, or None when it crashes: an optional stage (diagnostics, report) never
     takes the result down. The crash is one error line naming the stage (its traceback at debug level,
     i.e. with ``--debug``) and ``errors[name]`` says what it was, for result.json's ``stage_errors``.
     """
@@ -244,7 +248,9 @@ def optional_stage(name: str, fn, *args, errors: dict, **kwargs):
 
 
 def refusing_finding(diagnostics: Optional[dict]) -> Optional[dict]:
-    """The first diagnostics finding that refuses the run (``refuses: true`` in the finding or its
+    """The first diagnostics finding that refuses the run.
+
+    The first diagnostics finding that refuses the run (``refuses: true`` in the finding or its
     ``details``), or None.
     """
     for f in (diagnostics or {}).get("findings") or []:
@@ -254,7 +260,9 @@ def refusing_finding(diagnostics: Optional[dict]) -> Optional[dict]:
 
 
 def global_fault(diagnostics: Optional[dict], *, misread_only: bool = False) -> Optional[dict]:
-    """The first failing diagnostics finding of a fault of the whole session
+    """The first failing diagnostics finding of a fault of the whole session.
+
+    The first failing diagnostics finding of a fault of the whole session
     (:data:`handeye.diagnose.GLOBAL_FAULT_CODES`; ``misread_only``: of the robot poses read wrongly,
     :data:`handeye.diagnose.readings.READING_CODES`), or None.
     """
@@ -269,7 +277,9 @@ def global_fault(diagnostics: Optional[dict], *, misread_only: bool = False) -> 
 
 
 def _refused(run: CalibrationRun, finding: dict, *, evidence: bool = True) -> CalibrationRun:
-    """The run without any matrix, its error the refusing finding (with its evidence unless ``evidence`` is
+    """The run without any matrix, its error the refusing finding.
+
+    The run without any matrix, its error the refusing finding (with its evidence unless ``evidence`` is
     False: the finding is in the diagnostics with it).
     """
     what = f"the session was refused: {str(finding.get('title') or finding.get('code')).rstrip('.')}"
@@ -294,7 +304,9 @@ def _finish(
     error,
     progress,
 ) -> WorkflowResult:
-    """Judge the result (verdict, QA checks, findings) as the report does, from the folder's contents
+    """Judge the result (verdict, QA checks, findings) as the report does, from the folder's contents.
+
+    Judge the result (verdict, QA checks, findings) as the report does, from the folder's contents
     (``res`` and ``observations`` as written or about to be, the thumbnails on disk), render the
     reports from that one context, then write result.json once, atomically, ending with every stage's
     time, and the reports beside it.
@@ -305,7 +317,7 @@ def _finish(
 
     qa_path, qa_cfg = qa
     result_path = out_dir / "result.json"
-    paths = ()
+    paths: tuple[Path, ...] = ()
     seconds["write"] = time.perf_counter() - t_write
     res["seconds"] = dict(seconds)
     with writing(out_dir):
@@ -362,7 +374,7 @@ def _failed_load(
         t1 = time.perf_counter()
         from .diagnose import diagnose_session_error
 
-        stage_errors = {}
+        stage_errors: dict[str, str] = {}
         diag = optional_stage(
             "diagnostics",
             diagnose_session_error,
@@ -400,7 +412,9 @@ def _failed_load(
 
 
 def _judge(folder, qa, qa_cfg: dict) -> Optional[dict]:
-    """The report's context of the result folder (its ``verdict``: :class:`handeye.report.qa.Verdict`),
+    """The report's context of the result folder.
+
+    The report's context of the result folder (its ``verdict``: :class:`handeye.report.qa.Verdict`),
     without figures, or None when building it crashed (a report bug: logged;
     :func:`handeye.results.verdict_fields` then judges from the findings alone, and no report is written).
     """
@@ -422,7 +436,9 @@ def _judge(folder, qa, qa_cfg: dict) -> Optional[dict]:
 
 
 def _keep_previous(out_dir: Path, *, failed: bool) -> None:
-    """Before a failed run's result.json replaces a successful one, keep a copy as result.previous.json
+    """Before a failed run's result.json replaces a successful one, keep a copy as result.previous.json.
+
+    Before a failed run's result.json replaces a successful one, keep a copy as result.previous.json
     (a copy, written atomically: result.json stays in place until the new one replaces it).
     """
     current = out_dir / "result.json"
@@ -440,7 +456,9 @@ def _keep_previous(out_dir: Path, *, failed: bool) -> None:
 
 
 def write_thumbnails(out_dir: Path, per_view: dict) -> list[Path]:
-    """``thumbnails/<view_id>.jpg`` from the JPEG bytes detection made (``thumbnail_jpeg`` on a
+    """``thumbnails/<view_id>.jpg`` from the JPEG bytes detection made.
+
+    ``thumbnails/<view_id>.jpg`` from the JPEG bytes detection made (``thumbnail_jpeg`` on a
     detection or a detection failure); thumbnails of views not in this run are removed.
     """
     folder = Path(out_dir) / THUMBNAIL_DIR
@@ -462,8 +480,10 @@ def write_thumbnails(out_dir: Path, per_view: dict) -> list[Path]:
 
 
 def _render_reports(ctx: dict, folder) -> Optional[tuple]:
-    """report.html and report.md of the judged context, with its figures, in memory; None when that
-    crashed (a report bug is logged, never fatal: result.json is complete without it).
+    """report.html and report.md of the judged context, with its figures, in memory.
+
+    None when that crashed (a report bug is logged, never fatal: result.json is complete without
+    it).
     """
     from .report import render_reports, report_crashed
     from .report.context import add_figures

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Install everything the test suite needs on a fresh machine (system packages, handeye with its
-# test extras) and run the whole suite on all cores. CI (.ci/run) calls exactly this.
+# test extras), run the gates (ruff, ruff format, mypy) and the whole suite on all cores. CI (.ci/run)
+# calls exactly this; a gate that fails stops it before the tests.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
@@ -14,4 +15,8 @@ if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
   fi
 fi
 python3 -m pip install -q --disable-pip-version-check -e '.[test]'
+# the gates: lint, formatting and types (configured in pyproject.toml; the same as .pre-commit-config.yaml)
+python3 -m ruff check -q .
+python3 -m ruff format --check -q .
+python3 -m mypy --no-error-summary
 exec python3 -m pytest -p no:benchmark -n "${HANDEYE_TEST_WORKERS:-2}" "$@"

@@ -72,7 +72,7 @@ def test_cli_apply_pose_in_millimetres(tmp_path, capsys):
     v[:3] *= 1000
     assert main(["apply", str(tmp_path), "--pose", *(f"{x:.12f}" for x in v), "--mm"]) == 0
     out = capsys.readouterr().out
-    line = [l for l in out.splitlines() if l.startswith("x,y,z")][0]
+    line = [ln for ln in out.splitlines() if ln.startswith("x,y,z")][0]
     got = np.array([float(x) for x in line.split(":")[1].split(",")])
     expect = pose_values_from_T(cs.T_base_end_true[0] @ cs.T_board_true, VENDOR_POSE_FORMAT)
     np.testing.assert_allclose(got, expect, atol=2e-6)  # printed with 6 decimals (m, rad)

@@ -198,7 +198,7 @@ def test_simulate_an_arm_further_from_its_table(tmp_path, capsys):
 def test_demo_reports_its_error_against_the_truth(tmp_path, capsys):
     assert main(["-q", "demo", "--out", str(tmp_path / "demo"), "--views", "8", "--mode", "eye_to_hand"]) == 0
     out = capsys.readouterr().out
-    line = [l for l in out.splitlines() if l.startswith("error against the ground truth")][0]
+    line = [ln for ln in out.splitlines() if ln.startswith("error against the ground truth")][0]
     t_mm, r_deg = float(line.split(":")[1].split("mm")[0]), float(line.split(",")[1].split("deg")[0])
     res = json.loads((tmp_path / "demo" / "result" / "result.json").read_text())
     truth = json.loads((tmp_path / "demo" / "session" / "ground_truth.json").read_text())

@@ -75,7 +75,7 @@ def _fit_errors(mode, T_x, T_b, Ts, *, noise_px, robot_mm, robot_deg, trials, se
         reported = [scenarios.perturb_T_base_end(E, rng=rng, sigma_mm=robot_mm, sigma_deg=robot_deg)[0] for E in Ts]
         obs = [o + rng.normal(0.0, noise_px, o.shape) for o in clean]
 
-        def res(th):
+        def res(th, reported=reported, obs=obs):
             X = T_x @ se3_exp(th[:6])
             B = T_b @ se3_exp(th[6:])
             return np.concatenate([L @ (proj(X, B, E) - o).ravel() for L, E, o in zip(Ls, reported, obs, strict=False)])
@@ -110,7 +110,8 @@ def test_predicted_sigma_matches_monte_carlo(mode, robot):
     trans_mm = 1e3 * np.sqrt(np.mean(np.sum(err[:, 3:] ** 2, axis=1)))
     pv = plan.views[-1]
     print(
-        f"predicted {pv.sigma_rot_deg:.4f} deg {pv.sigma_trans_mm:.3f} mm, Monte Carlo {rot_deg:.4f} deg {trans_mm:.3f} mm"
+        f"predicted {pv.sigma_rot_deg:.4f} deg {pv.sigma_trans_mm:.3f} mm, "
+        f"Monte Carlo {rot_deg:.4f} deg {trans_mm:.3f} mm"
     )
     # 20 trials: the root-mean-square of a 3-d error scatters by ~10 % around its expectation
     assert rot_deg == pytest.approx(pv.sigma_rot_deg, rel=0.35)

@@ -819,7 +819,7 @@ def test_rendered_partly_visible_and_overexposed(rendered, tmp_path):
     assert not _codes(d) - {"partial_target", "overexposed"}
 
 
-# ------------------------------------------------------------------------------ scale, readings with orderings, mode, refusals
+# ----------------------------------------------------------------- scale, readings with orderings, mode, refusals
 def _write_vendor_cfg(folder: Path, cs, values, **cfg_changes) -> Path:
     """A vendor folder whose config.yaml is changed (square size ``L``, ``mode``: None drops it)."""
     _write_vendor(folder, cs, values)
@@ -1237,7 +1237,8 @@ def test_an_arm_further_from_its_table_than_stated_is_an_info_finding_with_its_l
     assert f.code == "arm_beyond_table" and f.severity == "info" and "widened 3.55x" in f.title
     assert "reject the stated 0.5 mm / 0.05 deg (p = 1.6e-06" in f.evidence
     assert (
-        "the offsets most beyond their sigma: theta of joint 3 -0.08 deg (8.0 sigma), a of joint 5 +2.36 mm (4.7 sigma), "
+        "the offsets most beyond their sigma: theta of joint 3 -0.08 deg (8.0 sigma), "
+        "a of joint 5 +2.36 mm (4.7 sigma), "
         "d of joint 2 +1.07 mm (2.1 sigma)"
     ) in f.evidence
     assert arm_table_findings(dict(model, dh_prior_scale=1.0)) == []  # the stated prior held

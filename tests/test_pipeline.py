@@ -180,7 +180,7 @@ def test_a_crash_while_judging_never_passes_and_keeps_the_result(rendered, tmp_p
 
     monkeypatch.setattr(report, "build_report_context", crash)
     mode, session = rendered
-    wr = _run(session, tmp_path / "out", refine=False)
+    _run(session, tmp_path / "out", refine=False)
     res = json.loads((tmp_path / "out" / "result.json").read_text())
     assert res["status"] == "ok" and mounting(mode).x_name in res  # the matrix survives
     assert res["verdict"] in ("WARN", "FAIL") and res["qa"]["checks"] == [] and "crashed" in res["qa"]["error"]

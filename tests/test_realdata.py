@@ -297,7 +297,7 @@ def test_ical_report_shows_where_the_result_lies_and_which_sigma_it_uses(ical_wo
     assert all(r["sigma"] < off["limit_sigma"] for r in off["rows"] if "refitted alone" in r["name"])
 
 
-# ------------------------------------------------------------------------------ UR3: joint angles + DH table, two cameras
+# -------------------------------------------------------------------------- UR3: joint angles + DH table, two cameras
 def _bench_realdata():
     """benchmarks/bench_realdata.py as a module: its UR3 importer and cross-camera check are the ones tested."""
     import importlib.util

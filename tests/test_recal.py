@@ -335,7 +335,10 @@ def test_the_installed_joint_covariance_is_carried_to_the_verdict_covariances():
     ref["cov_intrinsics_verdict"] = P.tolist()
     _, _, K1 = load_result(d).cov_x_intrinsics
     np.testing.assert_allclose(np.sqrt(np.diag(K1)), np.sqrt(np.diag(Vk)), rtol=1e-9)
-    corr = lambda M: M / np.sqrt(np.outer(np.diag(M), np.diag(M)))
+
+    def corr(M):
+        return M / np.sqrt(np.outer(np.diag(M), np.diag(M)))
+
     np.testing.assert_allclose(corr(K1), corr(S[6:, 6:]), atol=1e-9)
     # the stretch moves nothing where the verdict is the model's
     np.testing.assert_allclose(stretch(S[:6, :6], S[:6, :6]), np.eye(6), atol=1e-9)

@@ -176,7 +176,10 @@ def test_a_robot_pose_of_another_view_is_a_robot_pose_outlier_not_an_undetermine
     s = make_corner_session(mode=mode, n_views=20, seed=7, noise_px=0.3)
     T = s.T_base_end_reported.copy()
     T[[2, 8]] = T[[8, 2]]
-    views = [RefineView(vid, i, p, T[k]) for k, (vid, i, p) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points, strict=False))]
+    views = [
+        RefineView(vid, i, p, T[k])
+        for k, (vid, i, p) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points, strict=False))
+    ]
     r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, views=views)
     assert r.status == "ok"
     assert {(o.view_id, o.kind) for o in r.outliers} == {("3", "robot_pose"), ("9", "robot_pose")}
@@ -192,7 +195,10 @@ def test_corner_outliers_bad_views_and_sparse_views_get_reasons():
     pts[6] = pts[6][np.random.default_rng(0).permutation(len(pts[6]))]  # view "7": corners mis-ordered
     ids[9], pts[9] = ids[9][:5], pts[9][:5]  # view "10": only 5 corners
     ids[11], pts[11] = ids[11][:0], pts[11][:0]  # view "12": none (the board was not seen)
-    views = [RefineView(vid, i, p, s.T_base_end_reported[k]) for k, (vid, i, p) in enumerate(zip(s.view_ids, ids, pts, strict=False))]
+    views = [
+        RefineView(vid, i, p, s.T_base_end_reported[k])
+        for k, (vid, i, p) in enumerate(zip(s.view_ids, ids, pts, strict=False))
+    ]
     r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, views=views)
     assert r.status == "ok"
     by_kind = {}

@@ -69,7 +69,7 @@ def _timeline(poses, *, stops=True):
     t = 100.0
     for k, T in enumerate(poses):
         if stops:
-            for i in range(int(STILL_S * TF_HZ)):
+            for _ in range(int(STILL_S * TF_HZ)):
                 times.append(t)
                 Ts.append(T)
                 t += 1.0 / TF_HZ

@@ -41,7 +41,9 @@ def _exit_with_parent() -> None:
 
 
 def _earlier_attempt(pid: int) -> bool:
-    """Whether ``pid`` is a session process of a batch (``handeye.batch.child``) started by another process than
+    """Whether ``pid`` is a session process of a batch.
+
+    Whether ``pid`` is a session process of a batch (``handeye.batch.child``) started by another process than
     this one's: an earlier attempt of this task, whose worker was killed (Dask runs a task once at a time, so a
     live attempt under another parent is a leftover; its parent is init or a subreaper by now). False where
     /proc cannot tell (another system, another user's process).
@@ -55,7 +57,9 @@ def _earlier_attempt(pid: int) -> bool:
 
 
 def _wait_for_previous_attempt(out_dir) -> None:
-    """A task retried after its worker was killed can start while the first attempt's session process is still
+    """Wait for an earlier attempt's session process that still holds the output folder's lock.
+
+    A task retried after its worker was killed can start while the first attempt's session process is still
     ending; it holds the output folder's lock until then. Wait for that holder (up to PREVIOUS_ATTEMPT_WAIT_S)
     instead of refusing the folder; any other holder (a live run) is left to the lock, which refuses at once.
     """
@@ -119,8 +123,9 @@ def run(spec: dict) -> dict:
 
 
 def run_verify(spec: dict) -> dict:
-    """A verification session (``verify_against`` in its session.yaml), as ``handeye verify`` runs it: verify.json
-    and its reports in the session's output folder; verdict VALID or DRIFTED.
+    """A verification session (``verify_against`` in its session.yaml), as ``handeye verify`` runs it.
+
+    Verify.json and its reports in the session's output folder; verdict VALID or DRIFTED.
     """
     from pathlib import Path
 
@@ -155,7 +160,7 @@ def run_verify(spec: dict) -> dict:
 
 
 def _peak_rss_mb():
-    """This process's peak resident memory in MiB (None where the platform does not say)."""
+    """Peak resident memory of this process in MiB (None where the platform does not say)."""
     try:
         import resource
     except ImportError:  # pragma: no cover - not on Windows

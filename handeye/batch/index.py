@@ -295,7 +295,9 @@ def _verify_row(row: dict, ver, folder: Path, rel: tuple) -> dict:
 
 
 def _comparable(res: Optional[dict], path: Path):
-    """The result as the drift compares it (:class:`handeye.recal.loaded.LoadedResult`, its source the
+    """The result as the drift compares it.
+
+    The result as the drift compares it (:class:`handeye.recal.loaded.LoadedResult`, its source the
     file), from result.json's content ``res`` as read (None: read ``path``); or the error loading it
     raised (the drift reports it). Only a file that does not load is read again, for load_result's own
     message naming it.
@@ -480,7 +482,9 @@ def _rotvec_change_deg(first: dict, row: dict) -> np.ndarray:
 
 
 def trend_series(rows: list[dict]) -> dict:
-    """Change of X since the first row (see the module docstring): ``dt_mm`` (N, 3), ``dr_deg`` (N, 3),
+    """Change of X since the first row, with its 1-sigma and the times.
+
+    Change of X since the first row (see the module docstring): ``dt_mm`` (N, 3), ``dr_deg`` (N, 3),
     their 1-sigma ``st_mm`` / ``sr_deg`` (N, 3; NaN when not reported), ``times`` (N,) datetimes.
     """
     import datetime as _dt
@@ -549,7 +553,9 @@ def trend_png(install: str, rows: list[dict]) -> bytes:
 
 
 def fleet_summary(rows: list[dict], installs: list[dict]) -> dict:
-    """Fleet-wide: verdict counts, failing installs (latest session FAIL, REFUSED or ERROR), installs
+    """Fleet-wide summary: verdict counts, failing and drifting installs, findings, failed exports.
+
+    Fleet-wide: verdict counts, failing installs (latest session FAIL, REFUSED or ERROR), installs
     with a significant drift, the most common findings codes (sessions that have each), the sessions
     whose export (``calibrate --export``) failed.
     """

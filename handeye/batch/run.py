@@ -107,7 +107,9 @@ def _canonical(obj):
 
 
 def calibrate_namespace(calibrate: dict):
-    """The ``handeye calibrate`` arguments of one batch session: ``calibrate`` (its flags by their
+    """The ``handeye calibrate`` arguments of one batch session, with one detection thread.
+
+    The ``handeye calibrate`` arguments of one batch session: ``calibrate`` (its flags by their
     argparse names) with one detection thread (the batch runs sessions side by side).
     """
     import argparse
@@ -116,7 +118,9 @@ def calibrate_namespace(calibrate: dict):
 
 
 def provenance_options(calibrate: dict) -> dict:
-    """The calibration options as result.json's ``provenance.options`` records them, for the
+    """The calibration options as result.json's ``provenance.options`` records them.
+
+    The calibration options as result.json's ``provenance.options`` records them, for the
     command-line options ``calibrate`` (the ``handeye calibrate`` flags by their argparse names).
     """
     from ..cli.calibrate import options_from_args
@@ -134,7 +138,9 @@ def _file_sha(path) -> Optional[str]:
 
 
 def inputs_sha256(job: SessionJob, mode: Optional[str], *, allow_outside: bool = False) -> tuple[str, str]:
-    """(hash, what it covers): result.json's input hash (the loaded session's images, poses and
+    """(hash, what it covers) of a session's inputs, as result.json's input hash.
+
+    (hash, what it covers): result.json's input hash (the loaded session's images, poses and
     config), or, for a session that does not load, the hash of every file in its folder.
     """
     from ..errors import HandeyeError
@@ -192,7 +198,9 @@ def read_json(path: Path) -> Optional[dict]:
 
 
 def current_record(out_dir: Path, key: dict) -> Optional[dict]:
-    """The session's batch record when its last run finished with the same key and its result.json
+    """The session's batch record when its last run can be skipped, else None.
+
+    The session's batch record when its last run finished with the same key and its result.json
     still records that key's inputs and options (so the run can be skipped), else None.
     """
     rec = read_json(out_dir / RECORD_NAME)
@@ -220,11 +228,13 @@ def current_record(out_dir: Path, key: dict) -> Optional[dict]:
 
 # ------------------------------------------------------------------------------------------ task
 def run_session(spec: dict) -> dict:
-    """The Dask task of one session: run the workflow in a child process with a time limit, write
-    and return the session's batch record. ``spec``: session, out_dir, install, name, time_utc,
-    time_source, key, calibrate (the command-line options), timeout_s, and ``files`` (relative path
-    -> bytes) when the client uploads the session: it is then written to a temporary folder on the
-    worker, calibrated there, and the output folder comes back as ``files`` in the record.
+    """The Dask task of one session.
+
+    Run the workflow in a child process with a time limit, write and return the session's batch
+    record. ``spec``: session, out_dir, install, name, time_utc, time_source, key, calibrate (the
+    command-line options), timeout_s, and ``files`` (relative path -> bytes) when the client uploads
+    the session: it is then written to a temporary folder on the worker, calibrated there, and the
+    output folder comes back as ``files`` in the record.
     """
     if spec.get("files") is None:
         return _run_child(spec, Path(spec["out_dir"]))
@@ -319,9 +329,11 @@ def read_tree(folder: Path) -> dict:
 
 
 def write_tree(folder: Path, files: dict, *, keep_prefix: str = "result.") -> None:
-    """Write ``files`` (from :func:`read_tree`) under ``folder``; files already there that are not in
-    ``files`` are removed, except those whose name starts with ``keep_prefix`` (earlier results the
-    workflow keeps: result.previous.json, result.last-good.json).
+    """Write ``files`` (from :func:`read_tree`) under ``folder``.
+
+    Files already there that are not in ``files`` are removed, except those whose name starts with
+    ``keep_prefix`` (earlier results the workflow keeps: result.previous.json,
+    result.last-good.json).
     """
     folder = Path(folder)
     for rel in files:
@@ -443,7 +455,9 @@ def _refused_record(spec: dict, why: str) -> dict:
 
 
 def open_client(scheduler: Optional[str] = None, n_workers: Optional[int] = None):
-    """A Dask client: of the cluster at ``scheduler`` (``tcp://HOST:8786``), or of an embedded
+    """A Dask client of the cluster at ``scheduler`` or of an embedded LocalCluster.
+
+    A Dask client: of the cluster at ``scheduler`` (``tcp://HOST:8786``), or of an embedded
     LocalCluster of ``n_workers`` single-threaded worker processes (default: the CPU count).
     Close it with ``client.close()`` (and the cluster with ``client.cluster.close()``).
     """

@@ -41,7 +41,9 @@ COMMANDS = {
 
 
 class _LazyCommands(argparse._SubParsersAction):
-    """The sub-command action: a command's module is imported, and its arguments added to its
+    """The sub-command action: a command's module and arguments are loaded only when it is parsed.
+
+    The sub-command action: a command's module is imported, and its arguments added to its
     (until then empty) parser, only when that command is parsed.
     """
 
@@ -57,7 +59,7 @@ def add_command_arguments(parser: argparse.ArgumentParser, name: str) -> argpars
     if not getattr(parser, "_handeye_loaded", False):
         module = importlib.import_module(f"{__name__}.{COMMANDS[name][0]}")
         module.add_arguments(parser)
-        parser._handeye_loaded = True
+        parser._handeye_loaded = True  # type: ignore[attr-defined]  # a marker on the parser
     return parser
 
 
@@ -117,7 +119,9 @@ WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG})
 
 
 def os_error_line(e: OSError) -> str:
-    """The one line for a refusal of the file system: a write (:class:`handeye.output.OutputWriteError`, or
+    """The one line for a refusal of the file system, for a write or for a read.
+
+    The one line for a refusal of the file system: a write (:class:`handeye.output.OutputWriteError`, or
     an error only a write gets) names the output and how to make it writable; a read names the file read
     and how to make it readable.
     """

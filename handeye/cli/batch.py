@@ -168,7 +168,7 @@ class _Progress:
 
         from tqdm import tqdm
 
-        self.counts = Counter()
+        self.counts: Counter[str] = Counter()
         self.bar = tqdm(total=total, unit="session", file=sys.stderr, disable=quiet, dynamic_ncols=True)
 
     def update(self, rec: dict) -> None:

@@ -11,6 +11,7 @@ import argparse
 import logging
 import sys
 from pathlib import Path
+from typing import Any
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +94,8 @@ def add_arguments(p) -> None:
     model.add_argument(
         "--robot",
         metavar="ARM",
-        help=f"the arm's kinematic model (a preset: {', '.join(arm_presets())}; or a DH YAML file): the refinement models the robot's "
+        help=f"the arm's kinematic model (a preset: {', '.join(arm_presets())}; or a DH YAML file): "
+        "the refinement models the robot's "
         "error as DH offsets plus encoder noise (joint angles from the session, else by inverse "
         "kinematics of the poses); default: the session's robot: key, else an iid pose error; image sessions "
         "only (pose-only sessions refuse it, as every flag they would ignore)",
@@ -212,13 +214,15 @@ def _pos(v) -> bool:
 
 
 def check_site_config(cfg: dict, *, source) -> dict:
-    """The calibration settings whose preset value is null (any type merges over it) checked by type, and
+    """The calibration settings whose preset value is null.
+
+    The calibration settings whose preset value is null (any type merges over it) checked by type, and
     the motion gates by range; ConfigError naming the setting and the file.
     """
     from ..errors import ConfigError
 
     for key, (expected, ok) in _SITE_CHECKS.items():
-        v = cfg
+        v: Any = cfg
         for part in key.split("."):
             v = v.get(part) if isinstance(v, dict) else None
         if v is not None and not ok(v):
@@ -348,12 +352,14 @@ def run(args) -> int:
             print(line)
         for p in wr.report_paths:
             print(f"report: {p}")
+        assert wr.error is not None, "a run that could not read its session has its error"
         raise wr.error
     print(format_summary(wr.result, wr.result_path, wr.report_paths))
     if (wr.result.get("prior") or {}).get("summary"):  # --prior: what the earlier result became
         print(f"prior: {wr.result['prior']['summary']}")
     if wr.status != "ok":
         if getattr(args, "debug", False):
+            assert wr.error is not None, "a failed run has its error"
             raise wr.error
         what = "refused" if wr.verdict == "REFUSED" else "calibration failed"
         print(f"handeye: {what}: {wr.result['failure_reason']}", file=sys.stderr)
@@ -377,7 +383,9 @@ def run(args) -> int:
 
 
 def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
-    """The lines ``handeye calibrate`` prints on stdout: views used (and the mode, when the data chose
+    """The lines ``handeye calibrate`` prints on stdout.
+
+    The lines ``handeye calibrate`` prints on stdout: views used (and the mode, when the data chose
     it), the transform and its uncertainty, the verdict with every warning and failure, the files.
     """
     import numpy as np
@@ -419,7 +427,7 @@ def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
         ref = res.get("refinement") or {}
         sig = ref.get("sigma_trans_mm")
         if sig is not None:
-            sr = ref.get("sigma_rot_deg")
+            sr = ref.get("sigma_rot_deg") or ()  # written together with sigma_trans_mm
             src = ref.get("sigma_source")  # which covariance the verdict sigmas are (result.json's refinement block)
             lines.append(
                 "  1-sigma: translation [mm] "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 #: ``--target``: the simulated targets (the chessboard is the vendor layout's; the others get a session.yaml)
 TARGETS = {
@@ -97,7 +98,7 @@ def run(args) -> int:
 
     if args.views < 3:
         raise ConfigError("--views must be at least 3", received=str(args.views))
-    kin = {}
+    kin: dict[str, Any] = {}
     if args.dh_error is not None or args.encoder_sigma is not None:
         if args.robot_error != "kinematic":
             raise ConfigError(

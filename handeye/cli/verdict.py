@@ -27,7 +27,9 @@ def mode_lines(res: dict) -> list[str]:
 
 
 def verdict_lines(res: dict) -> list[str]:
-    """``verdict: PASS|WARN|FAIL|REFUSED - headline``, then every failing or warning check and finding,
+    """``verdict: PASS|WARN|FAIL|REFUSED - headline``, then every failing or warning check and finding.
+
+    ``verdict: PASS|WARN|FAIL|REFUSED - headline``, then every failing or warning check and finding,
     worst first, a finding (a cause) before a QA check (an effect) of the same severity:
     ``  FAIL <what> -> fix: <what to do>``.
     """

@@ -103,7 +103,9 @@ def run_verify(args) -> int:
 
 
 def finish_verification(sv, out: Path, *, reports: bool = True, as_json: bool = False) -> int:
-    """Write verify.json (and its reports) to ``out``, print the summary (or the JSON) and the files written;
+    """Write verify.json (and its reports) to ``out``, print the summary.
+
+    Write verify.json (and its reports) to ``out``, print the summary (or the JSON) and the files written;
     the exit code: DRIFTED when drifted, else 0.
     """
     from ..errors import DRIFTED_EXIT_CODE

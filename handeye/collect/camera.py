@@ -32,7 +32,7 @@ class Camera(abc.ABC):
     def grab(self) -> tuple[np.ndarray, float]:
         """A fresh frame (H, W[, 3]) uint8 and the UNIX time it was received; HardwareError on failure."""
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - optional hook: a device with nothing to release keeps it
         """Release the device (idempotent)."""
 
     def describe(self) -> dict:

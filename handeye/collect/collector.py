@@ -19,7 +19,7 @@ import os
 import sys
 import time
 from dataclasses import dataclass, replace
-from typing import Callable, Optional, TextIO
+from typing import Any, Callable, Optional, TextIO
 
 import cv2
 import numpy as np
@@ -224,7 +224,7 @@ class Collector:
             T_cb = orderings[orientation]
         vid = str(self._next_id)
         state = dict(first.state)
-        extra = {
+        extra: dict[str, Any] = {
             "checks": {
                 "pose_reads_dt_s": round(second.t_pose - first.t_pose, 4),
                 "pose_reads_diff_mm": round(trans_mm, 4),
@@ -364,7 +364,7 @@ class Collector:
                 print("  keys: s (capture), q (quit)", file=sys.stderr)
                 continue
             if guided and not first:
-                self.robot.simulate_hand_guiding()
+                self.robot.simulate_hand_guiding()  # type: ignore[attr-defined]  # hasattr above
             first = False
             cap = self.capture()
             print(f"  view {cap.view_id} saved" if cap.kept else f"  rejected: {cap.reason}", file=sys.stderr)
@@ -402,7 +402,7 @@ class Collector:
                     break
                 if key == ord("s"):
                     if guided and self.kept:
-                        self.robot.simulate_hand_guiding()
+                        self.robot.simulate_hand_guiding()  # type: ignore[attr-defined]  # hasattr above
                     cap = self.capture()
                     message = f"view {cap.view_id} saved" if cap.kept else f"rejected: {cap.reason[:70]}"
         finally:
@@ -415,11 +415,12 @@ class Collector:
         *,
         n_views: int,
         speed_fraction: float,
-        plan_config: planning.PlanConfig = planning.PlanConfig(),
+        plan_config: Optional[planning.PlanConfig] = None,
         confirm: Callable[[str], bool] = lambda text: True,
         probe_deg: float = 6.0,
     ) -> planning.Plan:
         """Probe, plan and capture ``n_views`` planned views (plus the start and probe views)."""
+        plan_config = planning.PlanConfig() if plan_config is None else plan_config
         if self.intrinsics is None:
             raise HardwareError(
                 "automatic mode needs the camera's intrinsics to plan, and this camera has none",
@@ -432,6 +433,7 @@ class Collector:
                 f"automatic mode starts from a view of the board, and the first capture failed: {start.reason}",
                 hint="move the arm so the camera sees the whole board, roughly face on, then start again",
             )
+        assert start.pose is not None and start.T_cam_board is not None, "a kept capture has both"
         T0, C0 = start.pose.T_base_end, start.T_cam_board
         probes = planning.probe_poses(T0, probe_deg=probe_deg)
         if self.robot.is_real and not confirm(
@@ -602,4 +604,5 @@ class Collector:
             cap = self.capture(reference_T_cam_board=reference)
             if cap.kept or "moved while" not in cap.reason:
                 return cap
+        assert cap is not None, "two attempts made"
         return cap

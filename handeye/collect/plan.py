@@ -56,7 +56,7 @@ class PlanConfig:
     def from_config(cfg: dict) -> "PlanConfig":
         """From a ``collect`` preset (``load_preset("collect")``, possibly merged with a site file)."""
         p = cfg["plan"]
-        return PlanConfig(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in p.items()})
+        return PlanConfig(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in p.items()})  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True)

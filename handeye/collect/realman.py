@@ -183,7 +183,9 @@ class JsonStreamDecoder:
 
 
 def _scan_object(buf: bytearray) -> tuple[str, int]:
-    """For ``buf`` starting with '{': ("complete", index of the closing brace), ("truncated",
+    """Whether the JSON object at the start of ``buf`` is complete, truncated or incomplete.
+
+    For ``buf`` starting with '{': ("complete", index of the closing brace), ("truncated",
     index of the line break that cut it) or ("incomplete", -1).
     """
     depth = 0
@@ -337,7 +339,9 @@ class RealmanArm(Robot):
     def _request(
         self, command: dict, match: Callable[[dict], bool], *, retries: int, timeout_s: float | None = None
     ) -> dict:
-        """Send ``command`` and return the first matching reply; reconnect and resend up to
+        """Send ``command`` and return the first matching reply; reconnect and resend up to ``retries`` times.
+
+        Send ``command`` and return the first matching reply; reconnect and resend up to
         ``retries`` times (only for commands without side effects).
         """
         what = command.get("command", "?")

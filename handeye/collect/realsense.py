@@ -20,6 +20,7 @@ import threading
 import time
 import weakref
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -111,9 +112,9 @@ def _frame_info(rs, frame) -> dict:
 
 
 class _RealSenseBase(Camera):
-    def __init__(self):
+    def __init__(self) -> None:
         self._rs = import_pyrealsense2()
-        self._pipe = None
+        self._pipe: Any = None
         self._intr: Intrinsics | None = None
         self._intr_source: dict = {}
         self._device_info: dict = {}
@@ -326,7 +327,7 @@ class BagCamera(_RealSenseBase):
             if self._closing.is_set():
                 return
             try:
-                item = (_bgr_from_frame(self._rs, frame), _frame_info(self._rs, frame))
+                item: Any = (_bgr_from_frame(self._rs, frame), _frame_info(self._rs, frame))
             except HardwareError as e:  # raised to the reader by the next grab
                 item = e
             while not self._closing.is_set():

@@ -77,7 +77,7 @@ class Robot(abc.ABC):
         is refused, fails, or its outcome is unknown; a motion command is never resent blindly.
         """
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - optional hook: a robot with nothing to release keeps it
         """Release the connection (idempotent)."""
 
     def describe(self) -> dict:

@@ -45,7 +45,9 @@ def _fsync_dir(folder: Path) -> None:
 
 
 def write_durably(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically (a reader sees the old file or the whole new one), then
+    """Write ``data`` to ``path`` atomically.
+
+    Write ``data`` to ``path`` atomically (a reader sees the old file or the whole new one), then
     fsync the folder so that the new name is on disk too.
     """
     atomic_write_bytes(path, data)

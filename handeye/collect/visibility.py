@@ -82,7 +82,9 @@ def _board_grid_points(target: TargetSpec, *, margin_squares: float, step_m: flo
 
 
 def default_margin_px(intrinsics: Intrinsics) -> float:
-    """Margin kept between the pattern and the image border (configs/collect.yaml ``visibility:``:
+    """Margin kept between the pattern and the image border.
+
+    Margin kept between the pattern and the image border (configs/collect.yaml ``visibility:``:
     1.5 % of the width, at least 8 px).
     """
     return max(float(_LIMITS["min_margin_px"]), float(_LIMITS["margin_share_of_width"]) * intrinsics.width)
@@ -126,7 +128,7 @@ def _normalized_extent(fx: float, fy: float, cx: float, cy: float, dist: tuple, 
     )
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
-    xy = cv2.undistortPointsIter(
+    xy = cv2.undistortPointsIter(  # type: ignore[call-overload]  # OpenCV's stubs: None for R and P
         np.stack([uu, vv], -1).reshape(-1, 1, 2), K, np.asarray(dist, float), None, None, crit
     ).reshape(-1, 2)
     r2 = (xy**2).sum(axis=1)

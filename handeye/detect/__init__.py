@@ -16,7 +16,7 @@ import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import cv2
 import numpy as np
@@ -43,7 +43,7 @@ from .quality import image_exposure, sharpness, thumbnail_jpeg, view_blur, view_
 log = logging.getLogger(__name__)
 
 #: the detector of each target kind (``TargetSpec.kind``)
-DETECTORS = {
+DETECTORS: dict[str, Callable[..., Any]] = {
     "chessboard": detect_chessboard,
     "charuco": detect_charuco,
     "circlegrid": detect_circlegrid,
@@ -78,7 +78,7 @@ def read_gray(path: Path) -> np.ndarray:
             hint="re-capture the view or remove the image and its pose",
         )
     if img.dtype != np.uint8:
-        img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+        img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)  # type: ignore[call-overload]
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
     return img
@@ -93,20 +93,22 @@ def detect_gray(
     budget: TimeBudget | None = None,
     dropped: list | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | str:
-    """(corner ids, image points (N,2) px) of ``target`` in an 8-bit grey image, or the reason it was
+    """(corner ids, image points (N,2) px) of ``target`` in an 8-bit grey image.
+
+    (corner ids, image points (N,2) px) of ``target`` in an 8-bit grey image, or the reason it was
     not found. Fewer than ``min_corners`` corners (default: configs/detection.yaml) counts as not found.
     ``budget``: the time left for this image (default: ``time_budget_s`` from now); detectors with slower
     searches skip them once it is spent (the reason then says "detection timed out"). ``dropped``: a list
     that receives (corner id, reason) of the corners found but not used (chessboard, ChArUco).
     """
     o = options or default_options()
-    detector = DETECTORS.get(getattr(target, "kind", None))
+    detector = DETECTORS.get(getattr(target, "kind", ""))
     if detector is None:
         raise ConfigError("no detector for this target", expected=" | ".join(DETECTORS), received=repr(target))
     # the preset's floor is capped at the target's corners (one marker has 4: it must show them all); a
     # floor asked for explicitly is kept
     need = min(o.min_corners, target.n_corners) if min_corners is None else min_corners
-    kw = {"budget": budget or TimeBudget(o.time_budget_s)} if detector in _BUDGETED else {}
+    kw: dict[str, Any] = {"budget": budget or TimeBudget(o.time_budget_s)} if detector in _BUDGETED else {}
     if detector in _DROPPING and dropped is not None:
         kw["dropped"] = dropped
     out = detector(gray, target, options=o, **kw)

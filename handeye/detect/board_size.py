@@ -32,7 +32,9 @@ def size_text(size: Size) -> str:
 def visible_grid_sizes(
     gray: np.ndarray, *, max_side_px: int = 800, full_size_retry: bool = False, retry_max_megapixels: float = 1.0
 ) -> tuple:
-    """Inner-corner sizes ``((cols, rows), ...)`` of the chessboards seen in an 8-bit grey image
+    """Inner-corner sizes ``((cols, rows), ...)`` of the chessboards seen in an 8-bit grey image.
+
+    Inner-corner sizes ``((cols, rows), ...)`` of the chessboards seen in an 8-bit grey image
     (at most one: the largest grid the detector follows); ``()`` when none.
 
     The image is reduced so its longer side is at most ``max_side_px``; ``full_size_retry`` searches

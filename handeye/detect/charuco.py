@@ -63,7 +63,9 @@ def detect_charuco(
 
 
 def off_grid_corners_removed(board_xy: np.ndarray, pts: np.ndarray, options: DetectionOptions) -> np.ndarray:
-    """Mask (N,) of the corners kept after the geometric check (:func:`.geometry.grid_check`): the corner
+    """Mask (N,) of the corners kept after the geometric check.
+
+    Mask (N,) of the corners kept after the geometric check (:func:`.geometry.grid_check`): the corner
     farthest over its limit is removed, and the check repeated without it (one wrong corner also moves
     its neighbours' predictions), until all pass.
     """

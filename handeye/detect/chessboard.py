@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
+from typing import Any, Sequence
 
 import cv2
 import numpy as np
@@ -78,7 +79,9 @@ def refine_chessboard(
     options: DetectionOptions,
     dropped: list | None = None,
 ) -> np.ndarray:
-    """Full-resolution corners (N,2) from ``coarse`` corners found in ``search`` (``gray`` reduced by
+    """Full-resolution corners (N,2) from ``coarse`` corners found in ``search``.
+
+    Full-resolution corners (N,2) from ``coarse`` corners found in ``search`` (``gray`` reduced by
     ``scale``, per axis), with windows from the square size; on a reduced search image the corners are first
     refined there, so the full-size windows only correct what the reduction lost. Corners that are not
     trusted (:func:`final_corners`) are NaN (their (id, reason) appended to ``dropped``).
@@ -99,7 +102,9 @@ def final_corners(
     options: DetectionOptions,
     dropped: list | None = None,
 ) -> np.ndarray:
-    """The two refinement stages on the full image (:mod:`.saddle`), on the part of it around the corners:
+    """The two refinement stages on the full image.
+
+    The two refinement stages on the full image (:mod:`.saddle`), on the part of it around the corners:
     cornerSubPix from ``start`` in half windows ``win``, then the centre of point symmetry in half windows
     of ``saddle_window_factor`` x the square's size, both on the image smoothed by ``subpix_blur_sigma_px``.
     A corner where the two disagree by more than ``corner_disagreement_max_px``, or where the second finds
@@ -231,8 +236,12 @@ def _check(board_xy: np.ndarray, pts: np.ndarray, options: DetectionOptions):
     return replace(c, residual_px=res, limit_px=lim, worst=int(keep[c.worst]) if c.worst >= 0 else -1)
 
 
-def _used(pts: np.ndarray, notes: list = (), dropped: list | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(corner ids, image points) of the corners that are used (not NaN); ``notes`` (the reasons of the
+def _used(
+    pts: np.ndarray, notes: Sequence[Any] = (), dropped: list[Any] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(corner ids, image points) of the corners that are used (not NaN).
+
+    (corner ids, image points) of the corners that are used (not NaN); ``notes`` (the reasons of the
     others) go to ``dropped`` when given.
     """
     if dropped is not None:

@@ -20,12 +20,14 @@ log = logging.getLogger(__name__)
 def circle_blob_detector(
     image_size: tuple[int, int], options: CircleBlobOptions | None = None
 ) -> "cv2.SimpleBlobDetector":
-    """Dark round blobs, set up as industrial_calibration's circle finder (configs/detection.yaml
+    """Dark round blobs, set up as industrial_calibration's circle finder.
+
+    Dark round blobs, set up as industrial_calibration's circle finder (configs/detection.yaml
     ``circle_blobs``); the largest blob area grows with the image area beyond 640x480.
     """
     o = options or default_options().circle_blobs
     w, h = image_size
-    p = cv2.SimpleBlobDetector_Params()
+    p = cv2.SimpleBlobDetector_Params()  # type: ignore[attr-defined]  # missing from OpenCV's stubs
     p.minThreshold, p.maxThreshold, p.thresholdStep = o.min_threshold, o.max_threshold, o.threshold_step
     p.minRepeatability = o.min_repeatability
     p.minDistBetweenBlobs = o.min_dist_px
@@ -35,7 +37,7 @@ def circle_blob_detector(
     p.filterByCircularity = False
     p.filterByInertia = False
     p.filterByConvexity, p.minConvexity = True, o.min_convexity
-    return cv2.SimpleBlobDetector_create(p)
+    return cv2.SimpleBlobDetector_create(p)  # type: ignore[attr-defined]  # missing from OpenCV's stubs
 
 
 def detect_circlegrid(
@@ -115,7 +117,9 @@ def find_circlegrid(
 
 
 def origin_corner(gray: np.ndarray, pts: np.ndarray, spec: CircleGridSpec, blobs, *, ratio: float) -> int | None:
-    """Detected index of the corner dot whose blob is ``ratio`` times larger than the grid's median dot
+    """Detected index of the corner dot that stands out by its size, or None.
+
+    Detected index of the corner dot whose blob is ``ratio`` times larger than the grid's median dot
     and than every other corner dot, or None when none stands out.
     """
     kps = blobs.detect(gray)

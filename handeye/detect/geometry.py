@@ -23,7 +23,9 @@ log = logging.getLogger(__name__)
 
 
 def _homographies(nb: "_Neighbourhoods", dst: np.ndarray) -> np.ndarray:
-    """Least-squares homographies board -> image of every neighbourhood, shape (M, 3, 3): the linear (DLT)
+    """Least-squares homographies board -> image of every neighbourhood, shape (M, 3, 3).
+
+    Least-squares homographies board -> image of every neighbourhood, shape (M, 3, 3): the linear (DLT)
     fit with h33 = 1 on coordinates normalised to mean 0 and RMS sqrt(2) (where h33 stays far from 0).
 
     dst: image points of the neighbours, shape (M, k, 2) (rows outside ``nb.mask`` are ignored).
@@ -43,7 +45,9 @@ def _homographies(nb: "_Neighbourhoods", dst: np.ndarray) -> np.ndarray:
 
 
 def _normalise_masked(pts: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(points of each set moved to mean 0 and scaled to RMS sqrt(2), zero outside ``mask``; the (M, 3, 3)
+    """Point sets moved to mean 0 and scaled to RMS sqrt(2), with their (M, 3, 3) transforms.
+
+    (points of each set moved to mean 0 and scaled to RMS sqrt(2), zero outside ``mask``; the (M, 3, 3)
     transforms); pts shape (M, k, 2), mask (M, k) of 0/1.
     """
     m = mask[..., None]
@@ -171,7 +175,9 @@ def check_corners(board_xy: np.ndarray, image_xy: np.ndarray, options) -> GridCh
 
 
 def _step_px(H: np.ndarray, board_xy: np.ndarray, step: float) -> np.ndarray:
-    """Shortest image length (px) of one grid step at each board point under its own (N, 3, 3) or a
+    """Shortest image length (px) of one grid step at each board point under a homography.
+
+    Shortest image length (px) of one grid step at each board point under its own (N, 3, 3) or a
     common (3, 3) homography: the smallest singular value of the Jacobian there, shape (N,).
     """
     Hs = np.broadcast_to(H, (len(board_xy), 3, 3))
@@ -186,9 +192,10 @@ def _step_px(H: np.ndarray, board_xy: np.ndarray, step: float) -> np.ndarray:
 
 
 def board_homography(board_xy: np.ndarray, image_xy: np.ndarray, *, robust: bool = True) -> np.ndarray | None:
-    """Homography board plane -> image, or None when it cannot be fitted. ``robust``: least median of
-    squares (up to half of the corners may be wrong); otherwise least squares (faster, for corners
-    that are all right).
+    """Homography board plane -> image, or None when it cannot be fitted.
+
+    ``robust``: least median of squares (up to half of the corners may be wrong); otherwise least
+    squares (faster, for corners that are all right).
     """
     if len(board_xy) < 4:
         return None
@@ -199,14 +206,17 @@ def board_homography(board_xy: np.ndarray, image_xy: np.ndarray, *, robust: bool
 
 
 def square_px(H: np.ndarray, board_xy: np.ndarray, step: float) -> np.ndarray:
-    """Size in px of a grid step at each board point under ``H``: the shortest image length of one step
-    in any direction, shape (N,).
+    """Size in px of a grid step at each board point under ``H``.
+
+    The shortest image length of one step in any direction, shape (N,).
     """
     return _step_px(H, board_xy, step)
 
 
 def search_copy(gray: np.ndarray, *, max_megapixels: float) -> tuple[np.ndarray, np.ndarray]:
-    """(the image the searches run on, its scale (x, y)): the image itself, or, above ``max_megapixels``,
+    """The image the searches run on and its scale (x, y): the image itself or a reduced copy.
+
+    (the image the searches run on, its scale (x, y)): the image itself, or, above ``max_megapixels``,
     a copy reduced to that area (the searches' time grows faster than the area; the corners are refined
     on the full image afterwards).
     """
@@ -229,9 +239,11 @@ def search_copy(gray: np.ndarray, *, max_megapixels: float) -> tuple[np.ndarray,
 
 @dataclass
 class TimeBudget:
-    """Time one image's detection may take before its slower searches are skipped: CPU time of the
-    thread that detects it (from the creation of the budget), so that one image gives the same outcome
-    on an idle and on a loaded machine (wall-clock time there also counts the other threads' work).
+    """Time one image's detection may take before its slower searches are skipped.
+
+    CPU time of the thread that detects it (from the creation of the budget), so that one image gives
+    the same outcome on an idle and on a loaded machine (wall-clock time there also counts the other
+    threads' work).
     """
 
     seconds: float

@@ -33,7 +33,9 @@ def _settings() -> dict:
 
 
 def subpix_half_window_px(corners: np.ndarray, spec, *, share: float, lo: int, hi: int) -> int:
-    """Half window for cornerSubPix on the markers ``corners`` (m,4,2): ``share`` x the smallest of the border
+    """Half window for cornerSubPix on the markers ``corners``.
+
+    Half window for cornerSubPix on the markers ``corners`` (m,4,2): ``share`` x the smallest of the border
     cell and (AprilGrid) the gap between tags, in px on the smallest marker, clipped to [lo, hi].
     """
     side_px = float(np.min(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).mean(axis=1)))
@@ -55,6 +57,7 @@ def detect_markers(
     gray: np.ndarray, spec: MarkerSpec | AprilGridSpec, *, options: DetectionOptions | None = None
 ) -> tuple[np.ndarray, np.ndarray] | str:
     """(corner ids sorted, image points (N,2) px) of the target's markers in ``gray``, or the reason.
+
     The window settings are configs/detection.yaml's ``markers`` section; ``options`` gives the stopping rule.
     """
     o = options or default_options()
@@ -89,7 +92,7 @@ def detect_markers(
         lo=int(cfg["subpix_window_min_px"]),
         hi=int(cfg["subpix_window_max_px"]),
     )
-    pts = np.concatenate(out_pts).astype(np.float32).reshape(-1, 1, 2)
+    pts: np.ndarray = np.concatenate(out_pts).astype(np.float32).reshape(-1, 1, 2)
     # cv2.aruco's contour corners can be 2-3 px off, outside a small window: a coarse pass with twice the window
     # (its extra edges bias it, but it reaches the corner), then the pass with the corner's own window
     for w in (min(2 * win, int(cfg["subpix_window_max_px"])), win):

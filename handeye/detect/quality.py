@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from .options import default_options
 
@@ -33,7 +34,9 @@ def sharpness(gray: np.ndarray, pts: np.ndarray) -> float:
 def neighbour_pairs(
     object_points: np.ndarray, corner_ids: np.ndarray, square_m: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs (into ``corner_ids``) of corners one square apart along the board's x or y axis,
+    """Index pairs (into ``corner_ids``) of corners one square apart along the board's x or y axis.
+
+    Index pairs (into ``corner_ids``) of corners one square apart along the board's x or y axis,
     ordered by the first corner, its x neighbour before its y neighbour.
     """
     P = np.asarray(object_points, float)[np.asarray(corner_ids)]
@@ -74,7 +77,9 @@ def edge_profiles(
 
 
 def _bilinear(gray: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear grey values at (x, y) px, the border pixels repeated outside the image (as
+    """Bilinear grey values at (x, y) px, the border pixels repeated outside the image.
+
+    Bilinear grey values at (x, y) px, the border pixels repeated outside the image (as
     ``scipy.ndimage.map_coordinates(order=1, mode="nearest")``).
     """
     h, w = gray.shape[:2]
@@ -108,7 +113,7 @@ def edge_sigma_px(profiles: np.ndarray, *, step_px: float = 0.25) -> tuple[np.nd
     return sigma, contrast
 
 
-def _median(v: np.ndarray) -> float:
+def _median(v: npt.ArrayLike) -> float:
     """np.median of a 1-D array without its per-call overhead (called ~10 times per view)."""
     v = np.sort(np.asarray(v, float).ravel())
     n = len(v)
@@ -184,7 +189,9 @@ def board_mask(shape: tuple, image_points: np.ndarray, *, grow: float = 0.0) -> 
 
 
 def _board_histogram(gray: np.ndarray, image_points: np.ndarray) -> np.ndarray:
-    """Counts (256,) of the grey levels inside the corners' convex hull (the pixels of
+    """Counts (256,) of the grey levels inside the corners' convex hull.
+
+    Counts (256,) of the grey levels inside the corners' convex hull (the pixels of
     :func:`board_mask`), read from the hull's bounding box only.
     """
     hull = _hull(image_points, 0.0)

@@ -21,7 +21,9 @@ _CONVERGED_PX = 1e-3  # a step this small leaves the corner where it is (far bel
 
 @functools.lru_cache(maxsize=64)
 def _fit_rows(half_win: int, grid_half: int) -> np.ndarray:
-    """P (6, M): the weighted least-squares map from the samples of a (2 g + 1)^2 grid (g = ``grid_half``,
+    """P (6, M): the weighted least-squares map from grid samples to a quadratic's coefficients.
+
+    P (6, M): the weighted least-squares map from the samples of a (2 g + 1)^2 grid (g = ``grid_half``,
     row-major) to the coefficients (x^2, xy, y^2, x, y, 1) of a quadratic, with Gaussian weights of sigma =
     ``half_win`` / 2 inside the window of half size ``half_win`` (symmetric about the centre) and 0
     outside it.
@@ -36,7 +38,9 @@ def _fit_rows(half_win: int, grid_half: int) -> np.ndarray:
 
 
 def _patches(padded: np.ndarray, c: np.ndarray, g: int) -> np.ndarray:
-    """Bilinear samples of ``padded`` at ``c[i] + (dx, dy)``, dx, dy in -g..g, shape (n, (2g+1)^2), row-major.
+    """Bilinear samples of ``padded`` on a (2g+1)^2 grid around each corner, shape (n, (2g+1)^2).
+
+    Bilinear samples of ``padded`` at ``c[i] + (dx, dy)``, dx, dy in -g..g, shape (n, (2g+1)^2), row-major.
     All samples of a corner share its fractional position, so they are four weighted shifts of one integer
     block (cv2.remap would round the positions to 1/32 px, a shift of up to 0.016 px common to the window).
     ``c`` must keep the blocks inside ``padded``.
@@ -62,7 +66,9 @@ def shading_free(smooth: np.ndarray, *, box_px: int) -> np.ndarray:
 def symmetric_corners(
     image: np.ndarray, pts: np.ndarray, half_win: np.ndarray, *, iterations: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(corners (N, 2), ok (N,) bool): each of ``pts`` moved to the saddle point of the quadratic fitted
+    """(corners (N, 2), ok (N,) bool): each point moved to the saddle point of a fitted quadratic.
+
+    (corners (N, 2), ok (N,) bool): each of ``pts`` moved to the saddle point of the quadratic fitted
     to ``image`` (float32, shading removed: :func:`shading_free`) in its window of half size ``half_win``
     px, re-centred up to ``iterations`` times (until no corner moves by 0.001 px). ``ok`` is False where
     the fit is no saddle (the window holds no corner) or the estimate left its window.

@@ -68,7 +68,9 @@ GLOBAL_FAULT_CODES = READING_CODES + (
 def _pose_checks(
     stages: Stages, obs: PoseObservations, *, refined=None, session_kind: str = "native", pairing=None
 ) -> dict:
-    """Readings, pairing, board move, per-view disagreement and motion on one set of observations
+    """Readings, pairing, board move, per-view disagreement and motion on one set of observations.
+
+    Readings, pairing, board move, per-view disagreement and motion on one set of observations
     (``pairing``: the pairing search the calibration already made, :class:`.pairing.PairingSearch`).
 
     Returns ``{"findings", "readings", "global_fault", "per_view", "fit", "M"}`` (fit/M None when the
@@ -194,7 +196,9 @@ def _motion_ok(obs: PoseObservations, M: np.ndarray) -> bool:
 
 
 def _robot_pose_stage(obs: PoseObservations, fit, *, refined=None, exclude=()) -> tuple[list, dict]:
-    """(findings, per-view numbers): robot poses that disagree, explained by a corner flip or a swap where
+    """(findings, per-view numbers) of the robot poses that disagree.
+
+    (findings, per-view numbers): robot poses that disagree, explained by a corner flip or a swap where
     one fits.
     """
     covs = obs.pnp_covariances(with_intrinsics=False)
@@ -351,7 +355,9 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
 
 
 def arm_table_findings(model: Optional[dict]) -> list:
-    """An info finding when the views put the arm further from its DH table than its stated prior allows
+    """An info finding when the views put the arm further from its DH table than its stated prior allows.
+
+    An info finding when the views put the arm further from its DH table than its stated prior allows
     (the kinematic model widened the prior: :func:`handeye.refine.noise._dh_prior_test`), with the offsets
     most beyond their sigma: the arm's own kinematic calibration is off, which the hand-eye result has taken into
     account.
@@ -367,7 +373,8 @@ def arm_table_findings(model: Optional[dict]) -> list:
         z = np.abs(off) / np.where(sd > 0, sd, np.inf)
         top = [np.unravel_index(k, off.shape) for k in np.argsort(-z, axis=None)[:3]]
         largest = "; the offsets most beyond their sigma: " + ", ".join(
-            f"{cols[c].split('_')[0]} of joint {j + 1} {off[j, c]:+.2f} {cols[c].rsplit('_', 1)[-1]} ({z[j, c]:.1f} sigma)"
+            f"{cols[c].split('_')[0]} of joint {j + 1} {off[j, c]:+.2f} {cols[c].rsplit('_', 1)[-1]} "
+            f"({z[j, c]:.1f} sigma)"
             for j, c in top
         )
     return [
@@ -387,7 +394,9 @@ def arm_table_findings(model: Optional[dict]) -> list:
 
 # ------------------------------------------------------------------------------ failed loads
 def _of_one_size(items: list) -> list:
-    """The (view id, image path) items whose image (read from the file header) has the most common size;
+    """The (view id, image path) items whose image has the most common size.
+
+    The (view id, image path) items whose image (read from the file header) has the most common size;
     those whose header cannot be read stay (detection drops them with the reason).
     """
     from collections import Counter
@@ -402,7 +411,9 @@ def _of_one_size(items: list) -> list:
 
 
 def _observe_lenient(sess) -> tuple[Optional[PoseObservations], Optional[int], int]:
-    """Detections, intrinsics and board poses of a leniently read session through the pipeline's
+    """Detections, intrinsics and board poses of a leniently read session.
+
+    Detections, intrinsics and board poses of a leniently read session through the pipeline's
     observation stage: (observations | None, n_found, n_images); n_found is None when no reading of the
     pose numbers parses (nothing was detected then).
     """
@@ -455,6 +466,7 @@ def _observe_lenient(sess) -> tuple[Optional[PoseObservations], Optional[int], i
             best = readings[0]
             T_best = read_poses(raw, best.fmt, ids)
             if T_best is not None:
+                assert seen.intrinsics is not None, "board poses were solved with them"
                 M_best = mode.M_from_T_base_end(inv_T(T_best) if best.invert else T_best)
                 poses = board_poses(
                     [seen.detections[v] for v in ids], target, seen.intrinsics, dict(zip(ids, M_best, strict=False))

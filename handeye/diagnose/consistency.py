@@ -37,7 +37,9 @@ def implied_robot_poses(mode: str, fit: BoardFit, C: np.ndarray) -> np.ndarray:
 
 
 def view_disagreements(mode: str, fit: BoardFit, C: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(rot_deg, trans_mm) per view between the reported robot pose and the one the camera implies,
+    """(rot_deg, trans_mm) per view between the reported robot pose and the one the camera implies.
+
+    (rot_deg, trans_mm) per view between the reported robot pose and the one the camera implies,
     as ``inv(T_reported) T_implied`` (end frame).
     """
     return pose_differences(T, implied_robot_poses(mode, fit, C))
@@ -46,7 +48,9 @@ def view_disagreements(mode: str, fit: BoardFit, C: np.ndarray, T: np.ndarray) -
 def _implied_pose_covariances(
     mode: str, fit: BoardFit, idx: np.ndarray, C: np.ndarray, cov_C: np.ndarray
 ) -> np.ndarray:
-    """Covariances (K,6,6) of the implied robot poses (right tangent) of views ``idx`` with board poses ``C``
+    """Covariances (K,6,6) of the implied robot poses.
+
+    Covariances (K,6,6) of the implied robot poses (right tangent) of views ``idx`` with board poses ``C``
     (K,4,4) from the board poses' covariances ``cov_C`` (K,6,6, right tangent): ``J S J^T`` with the
     Jacobian of the implied pose taken numerically for all views at once (central differences).
     """
@@ -74,7 +78,9 @@ class RobotPoseCheck:
     def test_poses(
         self, k: int, T_reported: np.ndarray, *, C_k: Optional[np.ndarray] = None, cov_C_k: Optional[np.ndarray] = None
     ) -> RobotPoseTest:
-        """The same test of view k against other reported poses (K,4,4) in one vectorised call, or of
+        """The same test of view k against other reported poses.
+
+        The same test of view k against other reported poses (K,4,4) in one vectorised call, or of
         another board pose ``C_k`` (with its covariance) against the view's own reported pose.
         """
         if C_k is None:
@@ -169,7 +175,9 @@ def flagged_views(
 
 
 def standing_out(check: RobotPoseCheck) -> np.ndarray:
-    """(N,) views whose disagreement (rotation or translation) exceeds ``size_ratio x (1 + 2.5 / n)`` times the
+    """(N,) views whose disagreement exceeds a multiple of the inlier views' median.
+
+    (N,) views whose disagreement (rotation or translation) exceeds ``size_ratio x (1 + 2.5 / n)`` times the
     inlier views' median: the noise model of a run without refinement is estimated from the same few views,
     so a flagged view must also stand out from them (medians of few views are noisy, hence 1 + 2.5 / n).
     """
@@ -182,7 +190,9 @@ def standing_out(check: RobotPoseCheck) -> np.ndarray:
 
 
 def board_turns(target) -> list:
-    """Board-frame transforms (name, F) for each way a detector can number a symmetric board's corners
+    """Board-frame transforms (name, F) for each way a detector can number a symmetric board's corners.
+
+    Board-frame transforms (name, F) for each way a detector can number a symmetric board's corners
     (:meth:`TargetSpec.symmetries`, identity left out): the true ``T_cam_board`` is ``C @ F`` when the
     corners were numbered that way. ``F`` is the rigid motion of the board plane that takes each corner to
     the one it was confused with (a turn about the board's normal).
@@ -311,8 +321,9 @@ def robot_pose_findings(
 
 # ------------------------------------------------------------------------------ board moved
 def _board_deviations(fit: BoardFit, C: np.ndarray, M: np.ndarray) -> np.ndarray:
-    """(N,6) implied board of each view against the first group's board: rotation vector [deg], translation
-    difference [mm] along the board's parent frame.
+    """(N,6) implied board of each view against the first group's board.
+
+    Rotation vector [deg], translation difference [mm] along the board's parent frame.
     """
     Bs = implied_boards(fit.A, C, M)
     B0 = fit.B[0]
@@ -381,8 +392,10 @@ def _split_fits(obs: PoseObservations, M: np.ndarray):
 
 
 def _break_fit(v: np.ndarray, k: int, *, ramp: bool) -> np.ndarray:
-    """(N,6) the best fit to ``v`` (N,6) of zero before view ``k`` and, from ``k`` on, a constant (a step)
-    or a line through zero at view ``k - 1`` (a drift that starts at ``k``)."""
+    """(N,6) the best fit to ``v`` (N,6) of zero before view ``k`` and a step or a drift from ``k`` on.
+
+    The step is a constant from view ``k`` on; the drift a line through zero at view ``k - 1``.
+    """
     n = len(v)
     x = np.where(np.arange(n) >= k, (np.arange(n) - k + 1.0) if ramp else 1.0, 0.0)  # shape (N,)
     slope = (x @ v) / max(float(x @ x), 1e-12)  # shape (6,)
@@ -390,10 +403,10 @@ def _break_fit(v: np.ndarray, k: int, *, ramp: bool) -> np.ndarray:
 
 
 def drift_or_step(v: np.ndarray, use: np.ndarray, *, min_segment: int) -> tuple[str, int, float]:
-    """Whether the implied board deviations ``v`` (N,6) change in one step or drift: ("step" | "drift", the
-    first view that moved, the drift's residual share of the step's).
+    """Whether the implied board deviations ``v`` (N,6) change in one step or drift.
 
-    Both models have the same parameters (a break and six numbers), so the one with the smaller weighted
+    Returns ("step" | "drift", the first view that moved, the drift's residual share of the step's). Both
+    models have the same parameters (a break and six numbers), so the one with the smaller weighted
     residual over the views ``use`` (each coordinate scaled by its robust spread) explains the sequence.
     """
     n = len(v)

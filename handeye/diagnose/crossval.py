@@ -12,6 +12,7 @@ See docs/uncertainty.md.
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 import numpy as np
 
@@ -25,7 +26,9 @@ log = logging.getLogger(__name__)
 
 
 def x_delta(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """(rot about the camera axes [deg] (3), translation along the parent axes [mm] (3)) of T vs T_ref,
+    """(rot about the camera axes [deg] (3), translation along the parent axes [mm] (3)) of T vs T_ref.
+
+    (rot about the camera axes [deg] (3), translation along the parent axes [mm] (3)) of T vs T_ref,
     in the parametrisation of the refinement's sigmas (T = T_ref Exp(omega), t - t_ref).
     """
     om = rotvec_from_R(T_ref[:3, :3].T @ T[:3, :3])
@@ -56,7 +59,9 @@ def folds(n: int, *, refined: bool) -> list:
 
 
 def _refined_folds(run, ref, ids, fold_list, T_rep):
-    """(estimates per fold: (T_x, T_board, intrinsics) or None, method text): one solve per fold
+    """(estimates per fold: (T_x, T_board, intrinsics) or None, method text): one solve per fold.
+
+    (estimates per fold: (T_x, T_board, intrinsics) or None, method text): one solve per fold
     (:func:`handeye.refine.refit`: the full run's noise levels and outlier decisions held).
     """
     from ..refine import RefineView, refit
@@ -139,7 +144,7 @@ def cross_validate(run) -> dict:
     ok = [k for k, e in enumerate(estimates) if e is not None]
     if len(ok) < max(3, len(fold_list) // 2):
         return {"summary": f"not run: only {len(ok)} of {len(fold_list)} folds could be solved", "method": method}
-    deltas = np.stack([x_delta(T_full, estimates[k][0]) for k in ok])
+    deltas = np.stack([x_delta(T_full, estimates[k][0]) for k in ok])  # type: ignore[index]  # ok: solved folds
     jk = jackknife_sigmas(deltas)
     pose_only = bool(s.meta.get("pose_only"))
     rows = [
@@ -148,7 +153,7 @@ def cross_validate(run) -> dict:
         for i in fold_list[k]
     ]
     loo = all(len(f) == 1 for f in fold_list)
-    out = {
+    out: dict[str, Any] = {
         "method": method,
         "scheme": "leave-one-out" if loo else f"{len(fold_list)}-fold (interleaved)",
         "n_views": n,
@@ -273,7 +278,9 @@ def validation_alpha() -> float:
 
 
 def ratio_limits(k_folds: int) -> tuple[float, float]:
-    """(low, high): the two-sided range, at ``validation.alpha`` each side, of a jackknife sigma over the
+    """(low, high): the two-sided range, at ``validation.alpha`` each side.
+
+    (low, high): the two-sided range, at ``validation.alpha`` each side, of a jackknife sigma over the
     true sigma from ``k_folds`` folds, ``sqrt(chi2(K - 1) / (K - 1))`` (K - 1 degrees of freedom: the
     three axes of a block are not independent, so no more are counted).
     """

@@ -32,7 +32,9 @@ def _image_r2_max(intr) -> float:
         ]
     )
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
-    xy = cv2.undistortPointsIter(border.reshape(-1, 1, 2), intr.K, intr.dist_array, None, None, crit).reshape(-1, 2)
+    xy = cv2.undistortPointsIter(  # type: ignore[call-overload]  # OpenCV's stubs: None for R and P
+        border.reshape(-1, 1, 2), intr.K, intr.dist_array, None, None, crit
+    ).reshape(-1, 2)
     return float(np.max(np.sum(xy**2, axis=1)))
 
 

@@ -85,7 +85,9 @@ class Stages:
         return [k for k, v in self.status.items() if v == "crashed"]
 
     def to_dict(self) -> dict:
-        """``{"stages": {name: ok|crashed|skipped}, "stage_errors": {name: "Type: message"},
+        """The stages' outcomes as a JSON-ready dict.
+
+        ``{"stages": {name: ok|crashed|skipped}, "stage_errors": {name: "Type: message"},
         "stages_skipped": {name: why}, "crashed_stages": count}``.
         """
         return {

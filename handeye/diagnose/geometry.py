@@ -75,8 +75,9 @@ def summarize_invariants(inv: dict) -> dict:
 
 @dataclass(frozen=True)
 class PairMotions:
-    """Relative motions of view pairs, computed once and shared by every fit on the same ``C`` and ``M``:
-    pair indices ``i, j`` (P,), ``rc = C_i C_j^-1`` and ``rm = M_i M_j^-1`` (P,4,4), and their rotation
+    """Relative motions of view pairs, computed once and shared by every fit on the same ``C`` and ``M``.
+
+    Pair indices ``i, j`` (P,), ``rc = C_i C_j^-1`` and ``rm = M_i M_j^-1`` (P,4,4), and their rotation
     vectors ``alpha``, ``beta`` (P,3).
     """
 
@@ -89,7 +90,9 @@ class PairMotions:
 
     @cached_property
     def terms(self) -> np.ndarray:
-        """(P, 61) each pair's terms of the linear solves, so that a fit on any set of pairs only sums rows
+        """(P, 61) each pair's terms of the linear solves, so that a fit on any set of pairs only sums rows.
+
+        (P, 61) each pair's terms of the linear solves, so that a fit on any set of pairs only sums rows
         (:meth:`sums`) instead of solving over 3 equations per pair: ``beta alpha^T`` (9, Kabsch),
         ``W^T W`` (16) and ``W[a,:] t_M[b]`` (36) with ``W = [R_C - I | t_C]`` (3,4), the design of
         ``(R_C - I) t_A + k t_C = R_A t_M`` (Park & Martin's translation with k = 1 moved to the right, and
@@ -133,7 +136,9 @@ class PairMotions:
         return idx
 
     def group_sums(self, labels: np.ndarray, use: np.ndarray) -> np.ndarray:
-        """(61,) the :attr:`terms` summed over the pairs of views in one group (same ``labels``) that are both
+        """(61,) the :attr:`terms` summed over the pairs of views in one group.
+
+        (61,) the :attr:`terms` summed over the pairs of views in one group (same ``labels``) that are both
         in ``use`` (bool (n,)), for motions of all pairs i < j. Equal to ``sums(same_group & use[i] & use[j])``
         but cheap for what the fits ask most: one group or a split of the sequence in two (from running sums)
         with a few views left out (the pairs they are in subtracted).
@@ -175,7 +180,9 @@ def rotation_from_sums(sums: np.ndarray) -> np.ndarray:
 
 
 def solve_from_sums(sums: np.ndarray, R_A: np.ndarray, *, scale: bool) -> np.ndarray:
-    """Least squares of ``(R_C - I) t_A + k t_C = R_A t_M`` over the pairs summed in ``sums``, through its
+    """Least squares of ``(R_C - I) t_A + k t_C = R_A t_M`` over the pairs summed in ``sums``.
+
+    Least squares of ``(R_C - I) t_A + k t_C = R_A t_M`` over the pairs summed in ``sums``, through its
     normal equations: ``(t_A, k)`` (4,) with ``scale``, else ``t_A`` (3,) with k = 1.
     """
     N = sums[9:25].reshape(4, 4)
@@ -188,7 +195,9 @@ def solve_from_sums(sums: np.ndarray, R_A: np.ndarray, *, scale: bool) -> np.nda
 
 
 def solve_A(motions: PairMotions, sel: np.ndarray | None = None) -> np.ndarray:
-    """``A`` (4,4) of ``C_i C_j^-1 = A M_i M_j^-1 A^-1`` from the pairs ``sel`` (bool (P,)) of ``motions``
+    """``A`` (4,4) of ``C_i C_j^-1 = A M_i M_j^-1 A^-1`` from the pairs ``sel`` (bool (P,)) of ``motions``.
+
+    ``A`` (4,4) of ``C_i C_j^-1 = A M_i M_j^-1 A^-1`` from the pairs ``sel`` (bool (P,)) of ``motions``
     (Park & Martin). Rotation: the relative rotation vectors satisfy ``alpha = R_A beta`` (Kabsch).
     Translation: ``(R_Cij - I) t_A = R_A t_Mij - t_Cij`` in least squares (normal equations of the summed
     pair terms: the cost of a fit is one weighted sum over the pairs).
@@ -213,8 +222,9 @@ def implied_boards(A: np.ndarray, C: np.ndarray, M: np.ndarray) -> np.ndarray:
 
 
 def robust_mean_T(Ts: np.ndarray) -> np.ndarray:
-    """Mean transform that ignores a minority of wild ones: chordal mean of those within 3x the median
-    distance of the componentwise median.
+    """Mean transform that ignores a minority of wild ones.
+
+    Chordal mean of those within 3x the median distance of the componentwise median.
     """
     Ts = np.asarray(Ts, float)
     if len(Ts) < 3:
@@ -264,12 +274,15 @@ RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))  # median of |e| / sigma for
 
 
 def _pose_and_intrinsics_jacobians(p_board: np.ndarray, T_cam_board: np.ndarray, intrinsics_vec: np.ndarray):
-    """D pixels / d xi (2K,6) for ``T_cam_board · Exp(xi)`` (right tangent, board frame) and
+    """D pixels / d xi (2K,6) for ``T_cam_board · Exp(xi)``.
+
+    D pixels / d xi (2K,6) for ``T_cam_board · Exp(xi)`` (right tangent, board frame) and
     d pixels / d intrinsics (2K,9) at board points ``p_board`` (K,3).
     """
     p = np.asarray(p_board, float).reshape(-1, 3)
     R, t = T_cam_board[:3, :3], T_cam_board[:3, 3]
     _, J_uv_p, J_uv_k = pixels_from_cam_points(intrinsics_vec, p @ R.T + t)  # (K,2,3), (K,2,9)
+    assert J_uv_p is not None and J_uv_k is not None, "Jacobians asked for"
     # p_cam(xi) = R (p + omega x p + v) + t to first order: d p_cam / d xi = R [-[p]x | I]
     D = np.concatenate([-skew(p), np.broadcast_to(np.eye(3), (len(p), 3, 3))], axis=2)  # (K,3,6)
     J_xi = np.einsum("kab,bc,kcd->kad", J_uv_p, R, D)
@@ -279,7 +292,9 @@ def _pose_and_intrinsics_jacobians(p_board: np.ndarray, T_cam_board: np.ndarray,
 def camera_pose_covariances(
     corners, T_cam_board: np.ndarray, intrinsics_vec: np.ndarray, sigma_px: float, *, intrinsics_estimated: bool
 ) -> np.ndarray:
-    """Marginal covariance (N,6,6) of each view's board pose from the camera alone, in the right tangent
+    """Marginal covariance (N,6,6) of each view's board pose from the camera alone.
+
+    Marginal covariance (N,6,6) of each view's board pose from the camera alone, in the right tangent
     of :mod:`handeye.frames` (``T_cam_board_true = T_cam_board · Exp(xi)``, xi in the board frame),
     including the uncertainty of intrinsics estimated from the same corners.
 

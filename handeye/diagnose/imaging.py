@@ -12,8 +12,10 @@ from ..detect.quality import view_blur, view_exposure
 
 
 def coverage(points: np.ndarray, width: int, height: int, *, nx: int = 8, ny: int = 6) -> dict:
-    """How the corners of all views cover the image: share of an nx x ny grid of cells that hold at least
-    one corner, share of the border cells, and the occupancy grid (rows top to bottom).
+    """How the corners of all views cover the image.
+
+    Share of an nx x ny grid of cells that hold at least one corner, share of the border cells, and
+    the occupancy grid (rows top to bottom).
     """
     pts = np.asarray(points, float).reshape(-1, 2)
     occ = np.zeros((ny, nx), bool)
@@ -49,8 +51,10 @@ def uncovered_regions(grid: np.ndarray) -> list[str]:
 
 # ------------------------------------------------------------------------------ findings on the images
 def image_metrics(run, *, max_views: int = 200) -> dict:
-    """Per used view: blur and exposure. Taken from the detection record when detection measured them
-    on the image it decoded; otherwise measured here (unreadable images are skipped).
+    """Per used view: blur and exposure.
+
+    Taken from the detection record when detection measured them on the image it decoded; otherwise
+    measured here (unreadable images are skipped).
     """
     from ..detect import read_gray
     from ..errors import HandeyeError
@@ -78,7 +82,7 @@ def image_findings(metrics: dict) -> list:
     from .thresholds import thresholds
 
     t = thresholds().images
-    out = []
+    out: list[Finding] = []
     if not metrics:
         return out
     blur = {v: m for v, m in metrics.items() if np.isfinite(m.get("blur_sigma_px", np.nan))}

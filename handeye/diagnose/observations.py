@@ -11,7 +11,7 @@ from typing import Optional
 
 import numpy as np
 
-from ..camera import pixels_from_board_points
+from ..camera import Intrinsics, pixels_from_board_points
 from ..frames import inv_T
 from ..mounting import mounting
 from ..session.raw import RawPoses, raw_poses_of
@@ -28,7 +28,7 @@ class PoseObservations:
     raw: RawPoses
     times: dict  # view id -> (t_image, t_pose) where recorded
     corners: tuple = ()  # per view (object_points (K,3), image_points (K,2)) for the PnP covariances
-    intrinsics: object = None
+    intrinsics: Optional[Intrinsics] = None
     target: object = None
     intrinsics_estimated: bool = True  # intrinsics come from these corners (their uncertainty counts)
     C_candidates: Optional[np.ndarray] = None  # (N,k,4,4) symmetric boards: T_cam_board under every ordering
@@ -40,7 +40,9 @@ class PoseObservations:
 
     @property
     def candidates_are_turns(self) -> bool:
-        """``C_candidates`` are turns of a symmetric board (False: the two poses of a single marker's planar
+        """Whether ``C_candidates`` are turns of a symmetric board.
+
+        ``C_candidates`` are turns of a symmetric board (False: the two poses of a single marker's planar
         ambiguity), for :func:`handeye.initial.board_poses.orientation_labels`.
         """
         return not getattr(self.target, "pose_ambiguous", False)
@@ -50,7 +52,9 @@ class PoseObservations:
         return mounting(self.mode)
 
     def pnp_covariances(self, *, with_intrinsics: bool = True) -> Optional[np.ndarray]:
-        """(N,6,6) covariance of each view's board pose (right tangent of :mod:`handeye.frames`), with the
+        """(N,6,6) covariance of each view's board pose.
+
+        (N,6,6) covariance of each view's board pose (right tangent of :mod:`handeye.frames`), with the
         pixel noise taken robustly from all PnP residuals; None without corners. ``with_intrinsics``: add
         the uncertainty of intrinsics estimated from the same corners (when they were).
         """

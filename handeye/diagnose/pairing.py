@@ -8,7 +8,7 @@ shuffle, swapped poses and an image carrying another view's pose report ``pairs_
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
@@ -31,7 +31,9 @@ def _shifted(obs: PoseObservations, fmt: PoseFormat, shift: int) -> tuple[np.nda
 
 
 def _ordered_for(obs: PoseObservations, keep: np.ndarray, M: np.ndarray) -> np.ndarray:
-    """Board poses of the views ``keep`` with a symmetric board's corner ordering resolved against the robot
+    """Board poses of the views ``keep``, a symmetric board's ordering resolved for this pairing.
+
+    Board poses of the views ``keep`` with a symmetric board's corner ordering resolved against the robot
     motions ``M`` of this pairing (its own best ordering: a wrong pairing cannot hide behind turned views,
     and a right one is not spoiled by the ordering the wrong pairing chose).
     """
@@ -45,7 +47,9 @@ def _ordered_for(obs: PoseObservations, keep: np.ndarray, M: np.ndarray) -> np.n
 
 
 def _fit_pairing(obs: PoseObservations, keep: np.ndarray, T: np.ndarray, invert: bool):
-    """The board fit of the views ``keep`` paired with the robot poses ``T`` (a symmetric board ordered for this
+    """The board fit of the views ``keep`` paired with the robot poses ``T``.
+
+    The board fit of the views ``keep`` paired with the robot poses ``T`` (a symmetric board ordered for this
     pairing), or None when it is singular.
     """
     M = obs.M(T, invert=invert)
@@ -97,7 +101,9 @@ def _same_values(a: dict, b: dict) -> bool:
 
 
 class PairingSearch:
-    """The search for the pairing of images and poses that fits better than the given one, on one set of
+    """The search for the pairing of images and poses that fits better than the given one.
+
+    The search for the pairing of images and poses that fits better than the given one, on one set of
     observations: the best constant shift, and the match of a shuffle by rotation-angle signatures. Each
     part is computed the first time it is asked for and kept, so the pipeline's pairing gate and the
     diagnostics search once (:attr:`handeye.pipeline.CalibrationRun.pairing`); the decision, which depends
@@ -106,11 +112,15 @@ class PairingSearch:
 
     def __init__(self, obs: PoseObservations, fmt: PoseFormat, *, invert: bool = False):
         self.obs, self.fmt, self.invert = obs, fmt, bool(invert)
-        self._shift = self._shuffle = self._partial = None
-        self._searched = set()
+        self._shift: Optional[tuple[Any, ...]] = None
+        self._shuffle: Optional[tuple[Any, ...]] = None
+        self._partial: Optional[tuple[Any, ...]] = None
+        self._searched: set[str] = set()
 
     def matches(self, obs: PoseObservations, fmt: PoseFormat, *, invert: bool = False) -> bool:
-        """Whether this search is the one of ``obs`` read with ``fmt`` (the same views, board poses, pose
+        """Whether this search is the one of ``obs`` read with ``fmt``.
+
+        Whether this search is the one of ``obs`` read with ``fmt`` (the same views, board poses, pose
         numbers and file order: everything the search reads).
         """
         a, b = self.obs, obs
@@ -139,7 +149,9 @@ class PairingSearch:
         return self._shift
 
     def best_partial(self) -> Optional[tuple]:
-        """(s, first, lone, fit, keep, keys) of the pairing that is the given one up to an image and shifted by one
+        """The pairing shifted by one line from one image on whose boards fit best, or None.
+
+        (s, first, lone, fit, keep, keys) of the pairing that is the given one up to an image and shifted by one
         line from there on, whose boards fit best (see :func:`_search_partial`), or None.
         """
         if "partial" not in self._searched:
@@ -148,7 +160,9 @@ class PairingSearch:
         return self._partial
 
     def shuffle(self) -> Optional[tuple]:
-        """(view id -> pose key, T (N,4,4), C (N,4,4), fit) of the shuffle matched by signature, or None when
+        """(view id -> pose key, T (N,4,4), C (N,4,4), fit) of the shuffle matched by signature.
+
+        (view id -> pose key, T (N,4,4), C (N,4,4), fit) of the shuffle matched by signature, or None when
         no match moves two or more views.
         """
         if "shuffle" not in self._searched:
@@ -189,6 +203,7 @@ class PairingSearch:
             T_again = None if again is None else read_poses(obs.raw, fmt, [again[v] for v in obs.ids])
             if T_again is None or again == assign:
                 break
+            assert again is not None, "T_again read from it"
             assign, T = again, T_again
             C = _ordered_for(obs, everything, obs.M(T, invert=invert))
         moved = [v for v in obs.ids if assign[v] != v]
@@ -210,8 +225,10 @@ def pairing_findings(
     given_cost: float,
     search: Optional[PairingSearch] = None,
 ) -> list:
-    """Images and poses out of step (shift by +-1..max_shift) or shuffled. ``search``: the search already
-    made on these observations (used when it :meth:`~PairingSearch.matches` them, else searched here).
+    """Images and poses out of step (shift by +-1..max_shift) or shuffled.
+
+    ``search``: the search already made on these observations (used when it
+    :meth:`~PairingSearch.matches` them, else searched here).
     """
     th = thresholds()
     if given_cost <= th.readings.bad_cost:
@@ -286,14 +303,18 @@ def pairing_findings(
 
 
 def _n_unexplained(fit) -> int:
-    """How many views a pairing's board fit leaves unexplained (a view's implied board beyond the cost a
+    """How many views a pairing's board fit leaves unexplained.
+
+    How many views a pairing's board fit leaves unexplained (a view's implied board beyond the cost a
     right reading reaches, :attr:`thresholds().readings.good_cost`).
     """
     return int(np.sum(fit.view_costs() > thresholds().readings.good_cost))
 
 
 def _search_partial(obs: PoseObservations, fmt: PoseFormat, invert: bool) -> Optional[tuple]:
-    """The best pairing shifted by one line from one image on (a capture that saved a pose without its image, or
+    """The best pairing shifted by one line from one image on.
+
+    The best pairing shifted by one line from one image on (a capture that saved a pose without its image, or
     an image without its pose, with the numbering carried on): for each shift s = +-1 and each image ``first``
     in file order with two or more images before and after, the images before ``first`` keep their poses, and
     from ``first`` on each takes the pose s lines from its own; for s = -1 the image just before ``first``
@@ -302,8 +323,9 @@ def _search_partial(obs: PoseObservations, fmt: PoseFormat, invert: bool) -> Opt
     """
     order = list(obs.raw.order)
     pos = {k: i for i, k in enumerate(order)}
-    views = sorted((v for v in obs.ids if v in pos), key=pos.get)
-    best, best_key = None, None
+    views = sorted((v for v in obs.ids if v in pos), key=pos.__getitem__)
+    best: Optional[tuple[Any, ...]] = None
+    best_key: Any = None
     for shift in (1, -1):
         for k in range(2, len(views) - 1):
             first = views[k]
@@ -373,7 +395,9 @@ def _partial_shift_finding(obs: PoseObservations, found: tuple, given_cost: floa
 
 
 def partial_shift_findings(obs: PoseObservations, fit, flagged: Sequence[str]) -> tuple[list, set]:
-    """Views flagged for their robot poses that are the tail (or the head) of a pairing out of step from one
+    """Flagged views that are the tail (or head) of a pairing out of step from one image on.
+
+    Views flagged for their robot poses that are the tail (or the head) of a pairing out of step from one
     image on (:func:`_search_partial`): when the shifted pairing leaves fewer views unexplained than the given
     one and every flagged view is among those it re-pairs, (its finding, the views it explains); else ([], set()).
     A shift of the last few views leaves the median fit as given good, so the pairing check does not search.

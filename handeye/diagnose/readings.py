@@ -160,7 +160,7 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
     fmt0 = obs.raw.fmt
     alts = alternative_formats(fmt0)
     joint = obs.C_candidates is not None
-    inv_c = candidate_invariants(obs.C_candidates) if joint else None
+    inv_c = candidate_invariants(obs.C_candidates) if obs.C_candidates is not None else None  # joint
     # stage 1: rotation readings by the rotation-angle invariant (independent of translation units,
     # of inversion and of the mounting mode), each with its own ordering of a symmetric board's views
     rot_score: dict = {}
@@ -177,6 +177,7 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
             continue
         M = obs.M(T)
         if joint:
+            assert inv_c is not None and obs.C_candidates is not None, "joint"
             lab = orientation_labels(inv_c, M, turns=obs.candidates_are_turns)
             C = obs.C_candidates[np.arange(obs.n), lab]
             ordered[key] = (C, lab)
@@ -187,7 +188,7 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
         rot_score[key] = float(np.median(np.abs(pair_angles_deg(M[:, :3, :3], pi, pj) - ang_c)))
     # keep every rotation reading that ties with the best: readings of the form R' = U R^T V (some Euler
     # misreadings) keep all pair angles, and only the full fit tells them apart
-    ranked = sorted(rot_score, key=rot_score.get)
+    ranked = sorted(rot_score, key=rot_score.__getitem__)
     best = rot_score[ranked[0]]
     keep = {
         k for k in ranked[: thresholds().readings.max_rotation_readings] if rot_score[k] <= max(2.0 * best, best + 0.1)
@@ -282,7 +283,9 @@ def pitch_scale(obs: PoseObservations, fmt_read: PoseFormat, fmt_true: PoseForma
 
 
 def inverse_reading_kind(mode: str, fit: BoardFit) -> str:
-    """For a fit with inverted robot motions: "poses_inverted" or "mode_swapped", by which reading puts
+    """Which reading a fit with inverted robot motions is: poses_inverted or mode_swapped.
+
+    For a fit with inverted robot motions: "poses_inverted" or "mode_swapped", by which reading puts
     the camera near the flange (eye-in-hand-like: |t_X| < |t_board|) or beside the robot.
     """
     t_x = float(np.linalg.norm(inv_T(fit.A)[:3, 3]))
@@ -421,8 +424,9 @@ def _inverse_finding(obs: PoseObservations, best: Reading, ev: str, details: dic
 
 
 def reading_in_use(obs: PoseObservations, readings: Sequence[Reading], findings: Sequence[Finding]):
-    """(robot motions M (N,4,4), fit) of the reading the other checks should use: the best reading when
-    the given one was found wrong, else the given one.
+    """(robot motions M (N,4,4), fit) of the reading the other checks should use.
+
+    The best reading when the given one was found wrong, else the given one.
     """
     if findings:
         best = readings[0]

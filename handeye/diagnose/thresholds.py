@@ -21,7 +21,7 @@ def _section(cls, cfg: dict, name: str):
             out[f.name] = int(d[f.name]) if f.type == "int" else float(d[f.name])
         except (TypeError, ValueError):
             raise ConfigError(
-                f"diagnostics preset: {name}.{f.name} is not a number", expected=f.type, received=repr(d[f.name])
+                f"diagnostics preset: {name}.{f.name} is not a number", expected=str(f.type), received=repr(d[f.name])
             ) from None
     return cls(**out)
 

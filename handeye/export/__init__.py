@@ -99,6 +99,7 @@ def export_transform(
                 "stands for (ROS: *_optical_frame is x right, y down, z forward)",
                 hint=f"use --camera-frame {other}, or a child name of the {camera_frame} frame",
             )
+    assert r.T_x is not None, "an ok result has X"
     T, cov = camera_transform(r.T_x, r.cov_x, camera_frame)
     return ExportTransform(
         parent=parent or DEFAULT_FRAMES[r.mode if r.mode in DEFAULT_FRAMES else "eye_in_hand"],
@@ -115,7 +116,9 @@ def export_transform(
 
 
 def export_paths(fmt: str, out: Optional[Path], result_dir: Path) -> list[Path]:
-    """The files format ``fmt`` writes: ``out`` names the first (its companions share its base name),
+    """The files format ``fmt`` writes (``out`` names the first, or their folder).
+
+    The files format ``fmt`` writes: ``out`` names the first (its companions share its base name),
     or the folder for them; default ``result_dir/hand_eye<suffix>``.
     """
     if fmt not in FORMATS:

@@ -84,7 +84,9 @@ def rpy_from_R(R: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ExportTransform:
-    """The transform to export: ``T_parent_child`` (4x4) with its frame names, the camera frame kind,
+    """The transform to export, ``T_parent_child``, with its frames and covariance.
+
+    The transform to export: ``T_parent_child`` (4x4) with its frame names, the camera frame kind,
     the mounting mode and, when the result has one, its covariance ``cov_6x6`` in handeye's tangent
     (right perturbation of ``T_parent_child``, rotation first, radians and metres, child axes).
     """
@@ -123,7 +125,9 @@ class ExportTransform:
         return rpy_from_R(self.T_parent_child[:3, :3])
 
     def sigmas(self) -> Optional[dict]:
-        """1-sigma of the translation (mm, parent axes), of roll/pitch/yaw (deg) and of the rotation
+        """1-sigma of the translation, of roll/pitch/yaw and of the rotation, from ``cov_6x6``.
+
+        1-sigma of the translation (mm, parent axes), of roll/pitch/yaw (deg) and of the rotation
         about the child's axes (deg), propagated from ``cov_6x6``; None without a covariance.
         """
         if self.cov_6x6 is None:
@@ -139,9 +143,10 @@ class ExportTransform:
 
 
 def camera_transform(T_x_optical: np.ndarray, cov_optical: Optional[np.ndarray], camera_frame: str):
-    """``(T_parent_camera, cov)`` for the chosen camera frame: the optical one as it is, or the body
-    one ``T_parent_optical @ T_optical_body`` with the covariance moved to the body axes
-    (``T·Exp(xi)·C = T·C·Exp(Ad(C^-1) xi)``).
+    """``(T_parent_camera, cov)`` for the chosen camera frame.
+
+    The optical one as it is, or the body one ``T_parent_optical @ T_optical_body`` with the
+    covariance moved to the body axes (``T·Exp(xi)·C = T·C·Exp(Ad(C^-1) xi)``).
     """
     if camera_frame not in CAMERA_FRAMES:
         raise InputError(f"unknown camera frame {camera_frame!r}", expected=" | ".join(CAMERA_FRAMES))

@@ -342,7 +342,9 @@ def easy_handeye2_calib(e: ExportTransform, *, name: str, base: str, effector: s
 
 
 def plain_dict(e: ExportTransform) -> dict:
-    """The ``yaml`` / ``json`` export: frames, matrix, translation, quaternion (order in the key), rpy,
+    """The ``yaml`` / ``json`` export: frames, matrix, translation, quaternion.
+
+    The ``yaml`` / ``json`` export: frames, matrix, translation, quaternion (order in the key), rpy,
     sigmas and covariance, provenance.
     """
     from ..output import provenance

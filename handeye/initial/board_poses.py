@@ -48,7 +48,9 @@ class BoardPose:
     rms_px: float
     orientation: int  # index into target.symmetries()
     corner_ids: np.ndarray  # ids after resolving the orientation
-    candidates: tuple = ()  # symmetric boards: T_cam_board under every admissible ordering (index = orientation)
+    candidates: tuple[
+        np.ndarray, ...
+    ] = ()  # symmetric boards: T_cam_board under every admissible ordering (index = orientation)
 
 
 def board_poses(
@@ -101,8 +103,12 @@ def board_poses(
     }
 
 
-def planar_pose_pair(object_points: np.ndarray, image_points: np.ndarray, intr: Intrinsics) -> list:
-    """Both poses ``[(T_cam_board, rms_px), ...]`` of the planar ambiguity (IPPE's two solutions, each refined
+def planar_pose_pair(
+    object_points: np.ndarray, image_points: np.ndarray, intr: Intrinsics
+) -> list[tuple[np.ndarray, float]]:
+    """Both poses ``[(T_cam_board, rms_px), ...]`` of the planar ambiguity.
+
+    Both poses ``[(T_cam_board, rms_px), ...]`` of the planar ambiguity (IPPE's two solutions, each refined
     with Levenberg-Marquardt), the smaller reprojection error first; one entry when IPPE gives one.
     """
     obj = object_points.astype(np.float64).reshape(-1, 1, 3)
@@ -136,7 +142,7 @@ def rotation_consistent_labels(
     R_M, R_Cs = Ms[:, :3, :3], Cs[..., :3, :3]
     cap = np.radians(10.0)
 
-    def model(lab, views):
+    def model(lab: np.ndarray, views: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(R_A, R_B) from the views ``views`` with labels ``lab`` (per view of ``views``)."""
         R_C = R_Cs[views, lab]
         p, q = np.triu_indices(len(views), 1)
@@ -147,7 +153,7 @@ def rotation_consistent_labels(
         R_B = project_to_rotation(np.einsum("nba,nbc->ac", R_A @ R_M[views], R_C))
         return R_A, R_B
 
-    def verify(R_A, R_B):
+    def verify(R_A: np.ndarray, R_B: np.ndarray) -> tuple[np.ndarray, float]:
         pred = R_A @ R_M @ R_B
         ang = rotation_angle_rad(np.einsum("nba,nkbc->nkac", pred, R_Cs))  # (n,k): pred^T C
         return np.argmin(ang, axis=1), float(np.minimum(ang.min(axis=1), cap).sum())
@@ -177,7 +183,9 @@ def rotation_consistent_labels(
 
 
 def candidate_invariants(Cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Screw invariants (angle, pitch), each (n,k,n,k), of the camera pair motions for every ordering of
+    """Screw invariants (angle, pitch) of the camera pair motions for every ordering of each view.
+
+    Screw invariants (angle, pitch), each (n,k,n,k), of the camera pair motions for every ordering of
     each view: ``Cs`` (n,k,4,4) is ``T_cam_board`` of view i under ordering a.
     """
     n, k = Cs.shape[:2]
@@ -187,7 +195,9 @@ def candidate_invariants(Cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def orientation_labels(inv_C: tuple[np.ndarray, np.ndarray], Ms: np.ndarray, *, turns: bool = True) -> np.ndarray:
-    """The candidate (index into the target's symmetries) of each view whose camera motions agree best with
+    """The symmetry candidate of each view whose camera motions agree best with the robot motions.
+
+    The candidate (index into the target's symmetries) of each view whose camera motions agree best with
     the robot motions ``Ms`` (n,4,4); ``inv_C`` from :func:`candidate_invariants`. With ``turns`` (the
     candidates are turns of a symmetric board) the detector's own order is kept for the majority (turning
     every view alike only changes the board frame); without (the two poses of a planar ambiguity) the
@@ -216,6 +226,7 @@ def orientation_labels(inv_C: tuple[np.ndarray, np.ndarray], Ms: np.ndarray, *, 
         c = cost[idx[:, None], lab[:, None], idx[None, :], lab[None, :]].sum()
         if c < best_cost:
             best, best_cost = lab.copy(), c
+    assert best is not None, "no labelling with a finite cost"
     return (_majority_frame(best, k) if turns else best).astype(int)
 
 

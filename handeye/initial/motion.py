@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -26,7 +26,7 @@ class MotionThresholds:
     min_axis_spread_deg: float
 
     @staticmethod
-    def from_config(cfg: dict) -> "MotionThresholds":
+    def from_config(cfg: dict[str, Any]) -> "MotionThresholds":
         m = cfg["motion"]
         return MotionThresholds(float(m["min_rotation_deg"]), float(m["min_axis_spread_deg"]))
 
@@ -53,8 +53,10 @@ class MotionQuality:
     min_axis_spread_deg: float = float("nan")
 
 
-def _rotation_axes(M: np.ndarray):
-    """Largest relative rotation (deg) and the eigen-decomposition (ascending) of the weighted
+def _rotation_axes(M: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Largest relative rotation (deg) and the eigen-decomposition.
+
+    Largest relative rotation (deg) and the eigen-decomposition (ascending) of the weighted
     scatter of the relative rotation vectors over all pairs ``M_i M_j^-1``.
     """
     n = len(M)
@@ -135,7 +137,9 @@ def _vec_text(a: np.ndarray) -> str:
 
 
 def axis_text(a: np.ndarray, frame: str) -> str:
-    """A direction in words: ``the base z axis [+0.00, +0.00, +1.00]`` when it is close to a frame
+    """A direction in words: ``the base z axis [+0.00, +0.00, +1.00]`` when it is close to a frame axis.
+
+    A direction in words: ``the base z axis [+0.00, +0.00, +1.00]`` when it is close to a frame
     axis (within ~25 deg), else ``[...] in the base frame``.
     """
     a = np.asarray(a, float) / max(float(np.linalg.norm(a)), 1e-12)

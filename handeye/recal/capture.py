@@ -40,6 +40,7 @@ def capture_verification(
             hint="move the arm so the camera sees the whole board, then start again",
         )
     T0, C0 = start.pose.T_base_end, start.T_cam_board
+    assert installed.T_x is not None, "the caller verifies against an ok result"
     board_now = board_from_views(installed.mode, installed.T_x, T0[None], C0[None])[0]
     config = plan_config or PlanConfig()
     cands = candidate_views(

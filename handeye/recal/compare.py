@@ -12,7 +12,7 @@ See docs/recalibrate.md for the derivation and the forms rejected.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 from scipy import stats
@@ -31,7 +31,9 @@ INTRINSICS_COMPARED = ("fx", "fy", "cx", "cy")
 
 @dataclass(frozen=True)
 class Comparison:
-    """``X_b`` against ``X_a``. Translations: ``t_b - t_a`` along the parent frame's axes (mm);
+    """The difference of ``X_b`` against ``X_a`` and its test.
+
+    ``X_b`` against ``X_a``. Translations: ``t_b - t_a`` along the parent frame's axes (mm);
     rotations: ``rotvec(R_a^T R_b)`` about the camera axes of ``X_a`` (deg); ``xi``: the tangent
     difference the test uses; ``intrinsics``: per name ``{a, b, diff, sigma, z}`` and ``mahalanobis2``,
     ``dof``, ``p_value``, ``drifted`` (absent when neither result has intrinsics sigmas).
@@ -159,7 +161,9 @@ def _target_text(t) -> str:
 
 
 def x_difference(T_a: np.ndarray, cov_a: np.ndarray, T_b: np.ndarray, cov_b: np.ndarray) -> dict:
-    """The tangent difference ``xi`` (6,), its covariance ``S`` (6,6) (``cov_b`` moved into ``T_a``'s
+    """The tangent difference ``xi`` (6,) of the two transforms, its covariance and derived figures.
+
+    The tangent difference ``xi`` (6,), its covariance ``S`` (6,6) (``cov_b`` moved into ``T_a``'s
     tangent), ``d2 = xi^T S^-1 xi`` and the derived per-axis forms (see the module docstring).
     """
     xi = tangent_difference(T_a, T_b)
@@ -182,7 +186,9 @@ def x_difference(T_a: np.ndarray, cov_a: np.ndarray, T_b: np.ndarray, cov_b: np.
 
 
 def x_given_intrinsics(a: LoadedResult, b: LoadedResult, d: dict) -> Optional[dict]:
-    """The test of X given the intrinsics difference (see the module docstring) on the difference ``d`` of
+    """The test of X given the intrinsics difference.
+
+    The test of X given the intrinsics difference (see the module docstring) on the difference ``d`` of
     :func:`x_difference`: ``{"d2", "explained" (6,): G dk}``; None when either result lacks the joint
     covariance or their free intrinsics differ.
     """
@@ -190,6 +196,7 @@ def x_given_intrinsics(a: LoadedResult, b: LoadedResult, d: dict) -> Optional[di
     if ja is None or jb is None or tuple(ja[0]) != tuple(jb[0]) or a.intrinsics is None or b.intrinsics is None:
         return None
     idx = [INTRINSIC_NAMES.index(n) for n in ja[0]]
+    assert a.T_x is not None and b.T_x is not None, "compared results have X"
     dk = b.intrinsics.as_vector()[idx] - a.intrinsics.as_vector()[idx]
     Ad = se3_adjoint(inv_T(a.T_x) @ b.T_x)
     S_kk = ja[2] + jb[2]
@@ -208,13 +215,16 @@ def x_given_intrinsics(a: LoadedResult, b: LoadedResult, d: dict) -> Optional[di
 
 
 def intrinsics_difference(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) -> dict:
-    """Per intrinsic (fx, fy, cx, cy) ``{a, b, diff, sigma, z}`` and the diagonal chi-square test over
+    """Per intrinsic (fx, fy, cx, cy) the difference and its z, with the diagonal chi-square test.
+
+    Per intrinsic (fx, fy, cx, cy) ``{a, b, diff, sigma, z}`` and the diagonal chi-square test over
     those with a sigma; {} when either result has no intrinsics.
     """
     if a.intrinsics is None or b.intrinsics is None:
         return {}
     full = _intrinsics_joint_test(a, b, alpha)
-    out, d2, dof = {}, 0.0, 0
+    out: dict[str, Any] = {}
+    d2, dof = 0.0, 0
     for name in INTRINSICS_COMPARED:
         va, vb = float(getattr(a.intrinsics, name)), float(getattr(b.intrinsics, name))
         var = a.intrinsics_sigma.get(name, 0.0) ** 2 + b.intrinsics_sigma.get(name, 0.0) ** 2
@@ -239,7 +249,9 @@ def intrinsics_difference(a: LoadedResult, b: LoadedResult, *, alpha: float = AL
 
 
 def _intrinsics_joint_test(a: LoadedResult, b: LoadedResult, alpha: float) -> Optional[dict]:
-    """The test of (fx, fy, cx, cy) under the sum of the two results' full covariances of them (the joint
+    """The test of (fx, fy, cx, cy) under the sum of the two results' full covariances of them.
+
+    The test of (fx, fy, cx, cy) under the sum of the two results' full covariances of them (the joint
     covariance carried to the verdict: fx and fy move together), when both carry it for all four.
     """
     ja, jb = a.cov_x_intrinsics, b.cov_x_intrinsics
@@ -273,6 +285,8 @@ def compare_loaded(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) ->
     reason = why_not_comparable(a, b)
     if reason:
         return not_comparable(reason, a.x_name if a.x_name == b.x_name else "", alpha=alpha, sources=sources)
+    assert a.T_x is not None and b.T_x is not None, "comparable results have X (why_not_comparable)"
+    assert a.cov_x is not None and b.cov_x is not None, "comparable results have its covariance"
     d = x_difference(a.T_x, a.cov_x, b.T_x, b.cov_x)
     nu = noise_dof(a, d["S"], b)
     p_alone = wald_p_value(d["d2"], 6, nu)
@@ -313,7 +327,9 @@ def compare_loaded(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) ->
 
 
 def noise_dof(a: LoadedResult, S: np.ndarray, b: LoadedResult) -> Optional[float]:
-    """Degrees of freedom of the covariance ``S = S_a + Ad S_b Ad^T`` of the difference when the results
+    """Degrees of freedom of the difference's covariance when the robot noise was estimated.
+
+    Degrees of freedom of the covariance ``S = S_a + Ad S_b Ad^T`` of the difference when the results
     estimated their robot noise (:attr:`~handeye.recal.loaded.LoadedResult.robot_noise_dof`): Satterthwaite's,
     each result's share of ``S`` its average over the six whitened directions; None when neither did.
     """
@@ -322,12 +338,15 @@ def noise_dof(a: LoadedResult, S: np.ndarray, b: LoadedResult) -> Optional[float
         return None
     # the shares of the unconditional covariance S serve the conditional test too (X given the intrinsics
     # difference): each result's noise level scales its part of both alike
+    assert a.cov_x is not None, "compared results have the covariance of X"
     share_a = float(np.clip(np.trace(np.linalg.solve(S, a.cov_x)) / 6.0, 0.0, 1.0))
     return satterthwaite_dof((share_a, 1.0 - share_a), (nu_a, nu_b))
 
 
 def _dependence_note(a: LoadedResult, b: LoadedResult) -> str:
-    """A warning when a result was calibrated with an earlier one as its prior (the two are then not
+    """A warning when a result was calibrated with an earlier one as its prior.
+
+    A warning when a result was calibrated with an earlier one as its prior (the two are then not
     independent, and the test's p-value is too large), or, after a contradicted prior, with the earlier
     intrinsics (and board pose) as priors; the stronger tie first.
     """
@@ -356,7 +375,9 @@ def _dependence_note(a: LoadedResult, b: LoadedResult) -> str:
 
 
 def compare_results(a: ResultLike, b: ResultLike, *, alpha: float = ALPHA) -> Comparison:
-    """Compare result ``b`` with result ``a`` (each a result folder, a result.json path or the loaded
+    """Compare result ``b`` with result ``a``.
+
+    Compare result ``b`` with result ``a`` (each a result folder, a result.json path or the loaded
     dict). Unreadable files raise :class:`~handeye.errors.InputError`; results that do not describe one
     quantity give ``comparable=False`` and the ``reason``.
     """

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional, Union
+from typing import Any, Optional, Union
 
 import numpy as np
 
@@ -66,7 +66,9 @@ class LoadedResult:
         return self.status == "ok" and self.T_x is not None
 
     def with_board_turned(self, H: np.ndarray) -> "LoadedResult":
-        """This result with its board frame moved by ``H`` (4,4): ``T_board H``, and the board's covariance
+        """The result with its board frame moved by ``H`` (4,4) and the board's covariance carried along.
+
+        ``T_board H``, and the board's covariance
         carried along (right tangent: ``Ad(H^-1)``). A symmetric board numbered from another corner in a later
         session has its frame turned so (:func:`handeye.diagnose.consistency.board_turns`); X does not change.
         """
@@ -84,8 +86,10 @@ class LoadedResult:
 
     @property
     def cov_x_given_intrinsics(self) -> Optional[np.ndarray]:
-        """(6,6) the covariance of X were its intrinsics known: ``cov_x - C K^-1 C^T`` with the joint covariance
-        (the installed uncertainty a verification that shares these intrinsics faces); ``cov_x`` without it.
+        """(6,6) the covariance of X were its intrinsics known.
+
+        ``cov_x - C K^-1 C^T`` with the joint covariance (the installed uncertainty a verification that
+        shares these intrinsics faces); ``cov_x`` without it.
         """
         if self.cov_x is None or self.cov_x_intrinsics is None:
             return self.cov_x
@@ -95,7 +99,9 @@ class LoadedResult:
 
     @property
     def robot_noise_dof(self) -> Optional[float]:
-        """Degrees of freedom of the robot noise level the calibration estimated (``refinement.robot_noise_dof``:
+        """Degrees of freedom of the robot noise level the calibration estimated.
+
+        Degrees of freedom of the robot noise level the calibration estimated (``refinement.robot_noise_dof``:
         one per estimated robot sigma, and the DH prior's scale where the views widened it): Satterthwaite's for
         their sum with equal shares (the shares each has in X's covariance are not recorded: when one dominates,
         the equal shares overstate the degrees of freedom; the pixel noise's part, known far better, is left out,
@@ -116,7 +122,9 @@ class LoadedResult:
 
     @property
     def cov_x_given_shared(self) -> Optional[np.ndarray]:
-        """(6,6) the covariance of X given the intrinsics and the arm's DH offsets of a kinematic install (what a
+        """(6,6) the covariance of X given the intrinsics and the arm's DH offsets of a kinematic install.
+
+        (6,6) the covariance of X given the intrinsics and the arm's DH offsets of a kinematic install (what a
         verification faces when it shares both: :func:`handeye.recal.verify.shares_dh`);
         :attr:`cov_x_given_intrinsics` for an install without DH offsets.
         """
@@ -130,7 +138,9 @@ class LoadedResult:
 
 
 def axes_words(frame: str) -> str:
-    """Which axes a change of ``frame`` (T_parent_cam) is given along, for people: the translation the
+    """Which axes a change of ``frame`` is given along, in words.
+
+    Which axes a change of ``frame`` (T_parent_cam) is given along, for people: the translation the
     parent's, the rotation the camera's (:func:`handeye.recal.verify.change_in_result_frame`).
     """
     parent = {"T_end_cam": "flange", "T_base_cam": "robot base"}.get(frame, "parent frame")
@@ -138,7 +148,9 @@ def axes_words(frame: str) -> str:
 
 
 def unfit_note(r: LoadedResult) -> Optional[str]:
-    """A warning for a result whose transform exists but whose verdict says it is not fit for use (FAIL), or
+    """A warning for a result whose transform exists but whose verdict says it is not fit for use.
+
+    A warning for a result whose transform exists but whose verdict says it is not fit for use (FAIL), or
     None: commands that use it anyway (verify, compare, apply) say so instead of trusting it silently.
     """
     verdict = str(r.raw.get("verdict") or "").upper()
@@ -149,7 +161,9 @@ def unfit_note(r: LoadedResult) -> Optional[str]:
 
 
 def _check_intact(d: dict, x_name: str, ref: dict, source: str) -> None:
-    """A result whose calibration succeeded must hold a finite rigid X, a finite symmetric covariance that is
+    """A result whose calibration succeeded must hold a finite rigid X.
+
+    A result whose calibration succeeded must hold a finite rigid X, a finite symmetric covariance that is
     not negative, and finite positive focal lengths: a NaN or an edited matrix would otherwise flow into
     every test as "no change"; InputError (``result_damaged``) naming the entry.
     """
@@ -211,8 +225,10 @@ def _intrinsics(d: Optional[dict]) -> Optional[Intrinsics]:
 
 
 def load_result(result: ResultLike) -> LoadedResult:
-    """Read a result folder, a result.json path or an already loaded dict. Unreadable files raise
-    :class:`~handeye.errors.InputError`; a failed result loads with ``status != "ok"``.
+    """Read a result folder, a result.json path or an already loaded dict.
+
+    Unreadable files raise :class:`~handeye.errors.InputError`; a failed result loads with ``status
+    != "ok"``.
     """
     if isinstance(result, dict):
         d, source = result, "<dict>"
@@ -268,12 +284,14 @@ def load_result(result: ResultLike) -> LoadedResult:
 
 
 def _joints(ref: dict, cov_x: Optional[np.ndarray]) -> dict:
-    """``cov_x_intrinsics`` and ``dh_joint`` of a LoadedResult from result.json's refinement block, carried to
+    """``cov_x_intrinsics`` and ``dh_joint`` of a LoadedResult from result.json's refinement block.
+
+    ``cov_x_intrinsics`` and ``dh_joint`` of a LoadedResult from result.json's refinement block, carried to
     the verdict covariances (:func:`verdict_maps`).
     """
     j = ref.get("cov_x_intrinsics")
     joint = _joint(j)
-    dh = _dh_joint(j, len(joint[0])) if joint is not None else None
+    dh = _dh_joint(j, len(joint[0])) if joint is not None and j is not None else None  # _joint(j): j a dict
     maps = verdict_maps(
         joint,
         cov_x_model=_matrix(ref.get("cov_x_6x6"), (6, 6)),
@@ -282,7 +300,7 @@ def _joints(ref: dict, cov_x: Optional[np.ndarray]) -> dict:
         intrinsics_full=(ref.get("validation") or {}).get("intrinsics_model") == "full",
     )
     board = None
-    if joint is not None:
+    if joint is not None and j is not None:
         cb, cbk = _matrix(ref.get("cov_board_6x6"), (6, 6)), _matrix(j.get("cross_board_6xk"), (6, len(joint[0])))
         board = None if cb is None or cbk is None else (0.5 * (cb + cb.T), cbk)
     if maps is None:
@@ -293,6 +311,7 @@ def _joints(ref: dict, cov_x: Optional[np.ndarray]) -> dict:
             "x_on_intrinsics": None if joint is None else joint + (joint[1],),
         }
     A, B = maps
+    assert joint is not None, "verdict_maps needs the joint covariance"
     names, C, K = joint
     K2 = B @ K @ B.T
     if dh is not None:
@@ -308,7 +327,9 @@ def _joints(ref: dict, cov_x: Optional[np.ndarray]) -> dict:
 
 
 def _dh_joint(j: dict, k: int) -> Optional[tuple]:
-    """(offsets (m,), cross with X (6,m), cross with the intrinsics (k,m), (m,m)) from cov_x_intrinsics' DH
+    """The DH offsets and their cross-covariances from cov_x_intrinsics' DH keys, or None.
+
+    (offsets (m,), cross with X (6,m), cross with the intrinsics (k,m), (m,m)) from cov_x_intrinsics' DH
     keys; None when absent or malformed.
     """
     dh = j.get("dh_offsets")
@@ -325,10 +346,11 @@ def _dh_joint(j: dict, k: int) -> Optional[tuple]:
 
 
 def stretch(cov_model: np.ndarray, cov_target: np.ndarray) -> np.ndarray:
-    """The map ``A`` with ``A cov_model A^T = cov_target`` that moves least: with ``cov_model = L L^T`` and
-    ``L^-1 cov_target L^-T = U D U^T``, ``A = L U D^(1/2) U^T L^-1`` (the identity where the two agree; the
-    verdict covariance of :mod:`handeye.refine.validation` differs from the model's only along the generalised
-    eigenvectors whose eigenvalue exceeds 1).
+    """The map ``A`` with ``A cov_model A^T = cov_target`` that moves least.
+
+    With ``cov_model = L L^T`` and ``L^-1 cov_target L^-T = U D U^T``, ``A = L U D^(1/2) U^T L^-1`` (the
+    identity where the two agree; the verdict covariance of :mod:`handeye.refine.validation` differs from the
+    model's only along the generalised eigenvectors whose eigenvalue exceeds 1).
     """
     L = np.linalg.cholesky(0.5 * (cov_model + cov_model.T))
     W = np.linalg.solve(L, np.linalg.solve(L, 0.5 * (cov_target + cov_target.T)).T)
@@ -344,7 +366,9 @@ def verdict_maps(
     intrinsics_verdict: Optional[tuple],
     intrinsics_full: bool = False,
 ) -> Optional[tuple]:
-    """(A, B) that carry the model's joint covariance ``(names, cross (6,k), K (k,k))`` of X and the free
+    """(A, B) that carry the model's joint covariance of X and the intrinsics to the verdict ones.
+
+    (A, B) that carry the model's joint covariance ``(names, cross (6,k), K (k,k))`` of X and the free
     intrinsics to the verdict covariances: ``J S J^T`` with ``J = diag(A, B, I)`` (I: the DH offsets of the
     kinematic robot model, which have no verdict covariance), ``A`` = :func:`stretch` of the model's X
     covariance ``cov_x_model`` to the verdict's ``cov_x``. ``B`` carries K to the intrinsics' verdict
@@ -432,7 +456,9 @@ VAGUE_COV_X = np.eye(6)
 def installed_prior(
     installed: LoadedResult, *, session_intrinsics: bool, cov_x: Optional[np.ndarray] = None, board: bool = False
 ):
-    """(Prior or None, names of intrinsics to hold) from the installed result: X with ``cov_x``
+    """(Prior or None, names of intrinsics to hold) from the installed result.
+
+    (Prior or None, names of intrinsics to hold) from the installed result: X with ``cov_x``
     (default: the installed covariance) and, unless the session brings its own intrinsics, the
     installed intrinsics with their sigmas (those without a sigma are held at the installed value) and, where the
     result has the joint covariance, the correlations among them (fx and fy move together) and, when X's prior
@@ -443,7 +469,7 @@ def installed_prior(
 
     if board and cov_x is None:  # result.json has no cross-covariance of X and the board: not both as priors
         raise ValueError("the installed board pose is a prior only with X's prior replaced (cov_x)")
-    if installed.cov_x is None:
+    if installed.cov_x is None or installed.T_x is None:
         raise InputError(
             "the installed result has no covariance of X",
             path=installed.source,
@@ -451,7 +477,11 @@ def installed_prior(
         )
     cov = installed.cov_x if cov_x is None else cov_x
     with_board = board and installed.board_joint is not None and installed.T_board is not None
-    board_kw = dict(T_board=installed.T_board, cov_board=installed.board_joint[0]) if with_board else {}
+    board_kw: dict[str, Any] = (
+        dict(T_board=installed.T_board, cov_board=installed.board_joint[0])
+        if with_board and installed.board_joint is not None
+        else {}
+    )
     if session_intrinsics or installed.intrinsics is None:
         return Prior(T_x=installed.T_x, cov_x=cov, **board_kw), ()
     sig = np.array([installed.intrinsics_sigma.get(n, 0.0) for n in INTRINSIC_NAMES])
@@ -468,7 +498,7 @@ def installed_prior(
                 cross[:, idx] = C
             elif with_board:  # X's prior replaced (board requires it): the board joins the intrinsics instead
                 board_kw["cov_board_intrinsics"] = np.zeros((6, len(INTRINSIC_NAMES)))
-                board_kw["cov_board_intrinsics"][:, idx] = installed.board_joint[1]
+                board_kw["cov_board_intrinsics"][:, idx] = installed.board_joint[1]  # type: ignore[index]  # with_board
     return Prior(
         T_x=installed.T_x,
         cov_x=cov,
@@ -480,7 +510,9 @@ def installed_prior(
 
 
 def result_from_refinement(refined, *, target, validation=None) -> dict:
-    """The parts of result.json that :func:`load_result` reads, from a
+    """The parts of result.json that :func:`load_result` reads.
+
+    The parts of result.json that :func:`load_result` reads, from a
     :class:`~handeye.refine.RefineResult` and the target spec: for programs (and the benchmarks)
     that refine without writing a result folder. ``validation``
     (:func:`handeye.refine.validation.validate` of ``refined``) adds the verdict covariances as

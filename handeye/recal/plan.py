@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Optional, Sequence
+from typing import Optional, Sequence, Union
 
 import numpy as np
 from scipy import stats
@@ -80,7 +80,9 @@ class VerifyPlan:
 
 
 def drift_directions(*, drift_mm: float, drift_deg: float, n_random: int, seed: int = 0) -> np.ndarray:
-    """(K, 6) drifts in the tangent (rad, m): a rotation of ``drift_deg`` and a translation of ``drift_mm``,
+    """(K, 6) drifts in the tangent (rad, m) of the given rotation and translation sizes.
+
+    (K, 6) drifts in the tangent (rad, m): a rotation of ``drift_deg`` and a translation of ``drift_mm``,
     along the axis pairs and ``n_random`` seeded random direction pairs (both signs count the same).
     """
     rng = np.random.default_rng(seed)
@@ -101,7 +103,9 @@ def worst_noncentrality(cov_change: np.ndarray, drifts: np.ndarray) -> float:
 
 
 def worst_noncentrality_with_views(S0: np.ndarray, info_x: np.ndarray, drifts: np.ndarray) -> float:
-    """:func:`worst_noncentrality` of the change covariance ``S0 + info_x^-1`` (the installed X's plus the new
+    """:func:`worst_noncentrality` of the change covariance ``S0 + info_x^-1``.
+
+    :func:`worst_noncentrality` of the change covariance ``S0 + info_x^-1`` (the installed X's plus the new
     views', given as their information on X, :func:`x_information`), computed as
     ``(I + info_x S0)^-1 info_x`` so that it stays exact when the views leave some direction of X
     unknown (information ~0, variance ~1e6) while the install knows another to 1e-13: inverting the sum
@@ -113,7 +117,9 @@ def worst_noncentrality_with_views(S0: np.ndarray, info_x: np.ndarray, drifts: n
 
 
 def x_information(info: np.ndarray) -> np.ndarray:
-    """Information (6,6) on X from the summed information (12,12) of (X, board), the board marginalised
+    """Information (6,6) on X from the summed information (12,12) of (X, board), the board marginalised.
+
+    Information (6,6) on X from the summed information (12,12) of (X, board), the board marginalised
     (its Schur complement, the board's block floored so that an empty set of views inverts).
     """
     A, B, D = info[:6, :6], info[:6, 6:], info[6:, 6:] + _FLOOR_INFO * np.eye(6)
@@ -122,8 +128,9 @@ def x_information(info: np.ndarray) -> np.ndarray:
 
 
 def test_power(nc: float, *, alpha: float, dof: int = 6, noise_dof: Optional[float] = None) -> float:
-    """Probability that verify's test at ``alpha`` rejects under non-centrality ``nc``: chi-square, or F(dof,
-    noise_dof) on ``T / dof`` when the installed robot noise level was estimated
+    """Probability that verify's test at ``alpha`` rejects under non-centrality ``nc``.
+
+    Chi-square, or F(dof, noise_dof) on ``T / dof`` when the installed robot noise level was estimated
     (:func:`handeye.stats.wald_p_value`; the non-central F then).
     """
     nc = max(nc, 1e-12)
@@ -139,7 +146,7 @@ def installed_poses(installed: LoadedResult) -> list[np.ndarray]:
 
 
 def plan_verification(
-    against: ResultLike,
+    against: Union[ResultLike, LoadedResult],
     *,
     drift_mm: Optional[float] = None,
     drift_deg: Optional[float] = None,
@@ -150,6 +157,7 @@ def plan_verification(
     cfg: Optional[dict] = None,
 ) -> VerifyPlan:
     """The verification plan for the installed result ``against`` (see the module docstring).
+
     ``candidates``: robot poses to choose from (default: the installed views' poses and orbits around them).
     """
     from ..collect.plan import PlanConfig, candidate_views, view_information
@@ -175,13 +183,19 @@ def plan_verification(
             received=f"{drift_mm} mm, {drift_deg} deg",
         )
     installed = against if isinstance(against, LoadedResult) else load_result(against)
-    if not installed.ok or installed.cov_x is None or installed.T_board is None or installed.intrinsics is None:
+    if (
+        not installed.ok
+        or installed.T_x is None
+        or installed.cov_x is None
+        or installed.T_board is None
+        or installed.intrinsics is None
+    ):
         raise InputError(
             "the installed result lacks X, its covariance, the board or the intrinsics",
             path=installed.source,
             hint="plan against a refined result with status ok",
         )
-    target = parse_target(installed.target, path=installed.source)
+    target = parse_target(installed.target, path=installed.source)  # type: ignore[arg-type]  # str names it alike
     obj = target.object_points()
     mode, T_x, T_board = installed.mode, installed.T_x, installed.T_board
     sigma_px = installed.sigma_px or 0.3
@@ -243,6 +257,7 @@ def plan_verification(
     infos = [info_of(T) for T, _ in cands]
     # verify shares the installed intrinsics (and the DH offsets when it can): their error cancels in its test
     S0 = installed.cov_x_given_shared if shares_dh(installed) else installed.cov_x_given_intrinsics
+    assert S0 is not None, "an ok result with its covariance and intrinsics has it"
     nu = installed.robot_noise_dof
     ceiling = test_power(worst_noncentrality(S0, drifts), alpha=alpha, noise_dof=nu)
     info = np.zeros((12, 12))
@@ -284,7 +299,9 @@ def plan_verification(
 
 
 def _reachable(cands: list, arm, T_from: np.ndarray) -> list:
-    """The candidate (pose, label) pairs around the installed pose ``T_from`` that the installed arm reaches (inverse
+    """The candidate (pose, label) pairs around ``T_from`` that the installed arm reaches.
+
+    The candidate (pose, label) pairs around the installed pose ``T_from`` that the installed arm reaches (inverse
     kinematics within its joint limits, from the configuration that reaches ``T_from`` and the default seeds);
     all of them when the result names no arm.
     """
@@ -306,9 +323,11 @@ def _reachable(cands: list, arm, T_from: np.ndarray) -> list:
 
 
 def _without_k3(intrinsics):
-    """The intrinsics with k3 = 0, for the collector's visibility test only: a 20-view calibration's k3 is
-    fitted where corners were, and often folds the lens model back near the image corners, where no
-    corner lies; the views' information is still computed with the full model.
+    """The intrinsics with k3 = 0, for the collector's visibility test only.
+
+    A 20-view calibration's k3 is fitted where corners were, and often folds the lens model back
+    near the image corners, where no corner lies; the views' information is still computed with the
+    full model.
     """
     from dataclasses import replace
 

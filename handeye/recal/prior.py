@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -27,7 +27,9 @@ log = logging.getLogger(__name__)
 
 
 def check_prior_fits(installed: LoadedResult, session) -> None:
-    """The earlier result must describe this rig: same mode, board and (unless the session brings its own
+    """The earlier result must describe this rig: same mode, board and image resolution.
+
+    The earlier result must describe this rig: same mode, board and (unless the session brings its own
     intrinsics) image resolution; else a one-line InputError.
     """
     if not installed.ok or installed.cov_x is None:
@@ -90,7 +92,9 @@ def check_prior_file(prior, installed: LoadedResult) -> None:
 
 
 def _with_prior(session, options, installed: LoadedResult, *, cov_x=None, board: bool = False):
-    """(session, options) with the earlier X (covariance ``cov_x``, default its own) and, unless the session
+    """(session, options) with the earlier X and intrinsics as priors.
+
+    (session, options) with the earlier X (covariance ``cov_x``, default its own) and, unless the session
     has its own intrinsics, the earlier intrinsics as priors (:func:`handeye.recal.loaded.installed_prior`:
     the session starts from them, the refinement estimates them under their prior); ``board``: the earlier
     board pose too (jointly with the intrinsics), for a board that has not moved.
@@ -115,8 +119,9 @@ def calibrate_with_prior(
     verify_options: Optional[VerifyOptions] = None,
     board_unmoved: bool = False,
 ) -> tuple:
-    """Calibrate ``session`` (loaded) with the result ``prior`` as the prior of X and the intrinsics;
-    when the data contradict it, calibrate again without the prior on X and say so. ``board_unmoved``: the
+    """Calibrate ``session`` (loaded) with the result ``prior`` as the prior of X and the intrinsics.
+
+    When the data contradict it, calibrate again without the prior on X and say so. ``board_unmoved``: the
     user states that the board was not touched since; then, in that second calibration, the earlier board
     pose enters too unless verify's test finds the board moved.
 
@@ -137,11 +142,12 @@ def calibrate_with_prior(
     o = verify_options or VerifyOptions.from_config()
     installed = prior if isinstance(prior, LoadedResult) else load_result(prior)
     check_prior_fits(installed, session)
+    assert installed.T_x is not None and installed.cov_x is not None, "check_prior_fits: an ok result"
     s_p, opts_p = _with_prior(session, options, installed)
     prior_used = opts_p.refine_options["prior"]
     progress(f"calibrating with the prior {installed.source}")
     run = run_calibration(s_p, opts_p, progress=progress)
-    rec = {
+    rec: dict[str, Any] = {
         "source": installed.source,
         "covariance_used": installed.cov_source,
         "frame": installed.x_name,
@@ -153,7 +159,7 @@ def calibrate_with_prior(
         "intrinsics": "the session's own" if prior_used.intrinsics is None else "the prior's, with its sigmas",
         "alpha": o.alpha,
     }
-    if run.status == "ok" and run.refined is not None:
+    if run.status == "ok" and run.refined is not None and run.T_x is not None:  # an ok run has X
         xi = tangent_difference(installed.T_x, run.T_x)
         spread = installed.cov_x - run.refined.cov_x_6x6  # the update's covariance when the prior is right
         rec["update"] = dict(
@@ -218,7 +224,9 @@ def calibrate_with_prior(
     )
     # a symmetric board numbered from another corner than in the earlier session: its board pose in this turn
     board_from = (
-        installed.with_board_turned(np.asarray(v.board["T_turn"])) if board_kept and "T_turn" in v.board else installed
+        installed.with_board_turned(np.asarray(v.board["T_turn"]))
+        if board_kept and v is not None and "T_turn" in v.board
+        else installed
     )
     s_n, opts_n = _with_prior(session, options, board_from, cov_x=VAGUE_COV_X, board=board_kept)
     run_n = run_calibration(s_n, opts_n, progress=progress)
@@ -233,6 +241,7 @@ def calibrate_with_prior(
         s_n, opts_n = _with_prior(session, options, installed, cov_x=VAGUE_COV_X, board=False)
         run_n = run_calibration(s_n, opts_n, progress=progress)
     if board_kept:
+        assert v is not None, "board_kept needs the verification"
         rec["board_turn_deg"] = float(v.board.get("turn_deg", 0.0))
     rec["used"] = (
         "no prior on X (the new views with the prior's intrinsics and board pose: the board did not move)"
@@ -301,7 +310,9 @@ def _refine_views(run) -> list:
 
 
 def _described(run):
-    """The run with the prior in its options described in words (result.json's provenance records the
+    """The run with the prior in its options described in words.
+
+    The run with the prior in its options described in words (result.json's provenance records the
     options; the prior's numbers are in the ``prior`` block).
     """
     ro = dict(run.options.refine_options)

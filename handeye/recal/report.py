@@ -27,7 +27,9 @@ def verify_context(v: dict) -> dict:
 
 
 def write_verification(sv, out_dir, *, reports: bool = True) -> tuple[dict, list[Path]]:
-    """verify.json of a :class:`~handeye.recal.verify.SessionVerification` in ``out_dir`` and, with
+    """verify.json of a verification in ``out_dir`` and, with ``reports``, verify.html and verify.md.
+
+    verify.json of a :class:`~handeye.recal.verify.SessionVerification` in ``out_dir`` and, with
     ``reports``, verify.html and verify.md from it: (verify.json's content, the files written).
     """
     from ..output import write_json

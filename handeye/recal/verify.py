@@ -16,7 +16,7 @@ import logging
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
@@ -97,7 +97,9 @@ def drift_test(
     cov_new: np.ndarray,
     min_variance_share: float = 1e-3,
 ) -> DriftTest:
-    """The Wald test of ``X_new`` (covariance ``cov_new`` in its right tangent) against the installed
+    """The Wald test of ``X_new`` against the installed ``X0``.
+
+    The Wald test of ``X_new`` (covariance ``cov_new`` in its right tangent) against the installed
     ``X0`` (``cov_installed``), counting only the directions the new estimate constrains.
     """
     from .compare import x_difference
@@ -135,7 +137,9 @@ def joint_drift_test(
     cov_x_prior: np.ndarray,
     min_variance_share: float = 1e-3,
 ) -> DriftTest:
-    """The Wald test of ``X_new = X0`` when the new views were refined with the installed intrinsics ``K0`` as
+    """The Wald test of ``X_new = X0`` with the installed intrinsics as the new views' prior.
+
+    The Wald test of ``X_new = X0`` when the new views were refined with the installed intrinsics ``K0`` as
     their prior: the installed ``(X0, K0)`` and the new views share the intrinsics' error, so the new views'
     information is taken apart from that prior and the change is estimated jointly (module docstring).
 
@@ -216,7 +220,9 @@ def _inv_sym(M: np.ndarray) -> np.ndarray:
 
 
 def _whitened_wald(d: np.ndarray, V: np.ndarray, S0: np.ndarray, min_variance_share: float):
-    """Wald statistic of the change ``d`` (6,) with covariance ``V`` over the directions where ``V`` is at most
+    """Wald statistic of the change ``d`` (6,) with covariance ``V`` over its well-measured directions.
+
+    Wald statistic of the change ``d`` (6,) with covariance ``V`` over the directions where ``V`` is at most
     ``S0 / min_variance_share`` (whitened by ``S0 = L L^T``: ``W = L^-1 V L^-T = Q diag(w) Q^T``,
     ``lambda = 1 / w``): (statistic, dof, p, lambda descending, Q, projections of ``L^-1 d``).
     """
@@ -235,7 +241,9 @@ def _whitened_wald(d: np.ndarray, V: np.ndarray, S0: np.ndarray, min_variance_sh
 
 
 def change_in_result_frame(T_x0: np.ndarray, xi: np.ndarray, cov: np.ndarray) -> dict:
-    """A tangent change of ``X0`` as the result shows X: translation (mm) along the parent frame's
+    """A tangent change of ``X0`` as the result shows X, with its 1-sigma.
+
+    A tangent change of ``X0`` as the result shows X: translation (mm) along the parent frame's
     axes, rotation (deg) about the camera axes, with 1-sigma of each (first order).
     """
     R = T_x0[:3, :3]
@@ -331,7 +339,9 @@ class Verification:
 def nearest_board_turn(
     T_board_installed: Optional[np.ndarray], T_board_new: np.ndarray, turns: Sequence[np.ndarray]
 ) -> np.ndarray:
-    """Of the identity and ``turns`` (board-frame motions of a symmetric board's other numberings), the ``H``
+    """The board turn ``H`` that brings the installed board frame nearest the new one.
+
+    Of the identity and ``turns`` (board-frame motions of a symmetric board's other numberings), the ``H``
     that brings the installed board frame nearest the new one (``T_board_installed H`` against
     ``T_board_new``, by rotation, then translation): a later session may number such a board from another
     corner. Identity when there is no installed board or no turn.
@@ -358,7 +368,9 @@ def verify_views(
     options: VerifyOptions = VerifyOptions(),
     board_turns: Sequence[np.ndarray] = (),
 ) -> Verification:
-    """Test the installed calibration on ``views`` (:class:`handeye.refine.RefineView`, corners in the
+    """Test the installed calibration on ``views``.
+
+    Test the installed calibration on ``views`` (:class:`handeye.refine.RefineView`, corners in the
     board's order). ``intrinsics``: the session's own (held fixed); None uses the installed ones with
     their sigmas as a prior. ``board_turns``: the board-frame motions (4,4) of a symmetric board's other
     numberings (:func:`handeye.diagnose.consistency.board_turns`); the installed board pose is turned into the
@@ -382,6 +394,7 @@ def verify_views(
             hint="capture 3-8 views with the whole board visible and the robot turned between them",
         )
     mode, X0 = installed.mode, installed.T_x
+    assert X0 is not None, "an ok result has X"
     session_intr = intrinsics is not None
     intr = intrinsics if session_intr else installed.intrinsics
     if intr is None:
@@ -493,7 +506,9 @@ def verify_views(
 
 
 def installed_robot_model(installed: LoadedResult) -> dict:
-    """RefineOptions for the robot error model of the installed result when it names an arm (``calibrate
+    """RefineOptions for the robot error model of the installed result when it names an arm.
+
+    RefineOptions for the robot error model of the installed result when it names an arm (``calibrate
     --robot`` or session.yaml's ``robot:``): the arm's kinematic model (DH offsets held by the prior the
     install used, encoder noise fixed at the installed value) from the DH table result.json records (or, in
     results written before it did, the shipped preset or DH file it names); {} (the iid model at the
@@ -509,7 +524,7 @@ def installed_robot_model(installed: LoadedResult) -> dict:
     if isinstance(rm.get("dh_table"), dict):
         arm = chain_from_dict(rm["dh_table"], source=f"{installed.source} refinement.robot_model.dh_table")
     elif name in PRESETS or (isinstance(name, str) and Path(name).is_file()):
-        arm = load_arm(name)
+        arm = load_arm(name)  # type: ignore[arg-type]  # a preset name or a file path here
     else:
         log.warning(
             "the installed result's arm %s is neither recorded as a table nor a shipped preset or DH file "
@@ -527,7 +542,9 @@ def installed_robot_model(installed: LoadedResult) -> dict:
 
 
 def with_installed_dh(prior, installed: LoadedResult, robot: dict, views: Sequence = ()):
-    """``prior`` with the installed arm's estimated DH offsets and their covariance (the install's posterior)
+    """``prior`` with the installed arm's estimated DH offsets and their covariance.
+
+    ``prior`` with the installed arm's estimated DH offsets and their covariance (the install's posterior)
     as the new views' DH prior, when the install modelled the same arm kinematically
     (:func:`installed_robot_model`) and recorded them; the arm's own prior otherwise. The arm's systematic
     error is then the install's, not a fresh unknown: the new views see X as precisely as that allows, and
@@ -542,11 +559,14 @@ def with_installed_dh(prior, installed: LoadedResult, robot: dict, views: Sequen
     if any(getattr(v, "joint_angles", None) is None for v in views):
         return prior
     dh = installed.dh_joint
+    assert dh is not None, "shares_dh: the install recorded its DH offsets"
     return replace(prior, dh_offsets=dh[0], cov_dh=dh[3])
 
 
 def shares_dh(installed: LoadedResult, robot: Optional[dict] = None) -> bool:
-    """Whether a verification with recorded joint angles shares the install's DH offsets
+    """Whether a verification with recorded joint angles shares the install's DH offsets.
+
+    Whether a verification with recorded joint angles shares the install's DH offsets
     (:func:`with_installed_dh`): the install recorded them for an arm verify can rebuild
     (``robot``, default :func:`installed_robot_model`) with as many offsets, from recorded joint angles.
     ``verify --plan`` asks the same question, so that it plans against the uncertainty verify will face.
@@ -563,12 +583,15 @@ def shares_dh(installed: LoadedResult, robot: Optional[dict] = None) -> bool:
 
 
 def test_refined(installed: LoadedResult, r, prior, *, min_variance_share: float) -> DriftTest:
-    """The test of ``X = X0`` on new views refined (``r``) with X free under ``prior``
+    """The test of ``X = X0`` on new views refined (``r``) with X free under ``prior``.
+
+    The test of ``X = X0`` on new views refined (``r``) with X free under ``prior``
     (:func:`handeye.recal.loaded.installed_prior`): :func:`joint_drift_test` when the new views share the
     installed intrinsics (and DH offsets, :func:`with_installed_dh`) and both results carry the joint
     covariance of X and the intrinsics, else :func:`drift_test` (the session's own intrinsics: nothing shared;
     an older result: the installed X covariance added whole, a conservative test).
     """
+    assert installed.T_x is not None and installed.cov_x is not None, "installed_prior checked both"
     t = _joint_test(installed, r, prior, min_variance_share) if prior.intrinsics is not None else None
     if t is None:
         t = drift_test(
@@ -583,7 +606,9 @@ def test_refined(installed: LoadedResult, r, prior, *, min_variance_share: float
 
 
 def _joint_test(installed: LoadedResult, r, prior, min_variance_share: float) -> Optional[DriftTest]:
-    """:func:`joint_drift_test` of the refinement ``r`` (made under ``prior``), or None when the installed
+    """:func:`joint_drift_test` of the refinement ``r``.
+
+    :func:`joint_drift_test` of the refinement ``r`` (made under ``prior``), or None when the installed
     result or the refinement lacks the joint covariance of X and the intrinsics, or their free intrinsics
     differ.
     """
@@ -592,11 +617,14 @@ def _joint_test(installed: LoadedResult, r, prior, min_variance_share: float) ->
         return None
     idx = [INTRINSIC_NAMES.index(n) for n in j[0]]
     C_k, K_k = np.asarray(jr["cross_6xk"], float), np.asarray(jr["intrinsics_kxk"], float)
+    assert installed.intrinsics is not None, "a joint covariance comes with the intrinsics"
+    assert installed.T_x is not None and installed.cov_x is not None, "installed_prior checked both"
     dk = r.intrinsics.as_vector()[idx] - installed.intrinsics.as_vector()[idx]
     cov_xk, cov_kk, cov_k_prior = j[1], j[2], np.asarray(prior.cov_intrinsics)[np.ix_(idx, idx)]
     dh = installed.dh_joint
     shared_dh = prior.dh_offsets is not None and dh is not None and "dh_offsets" in jr
     if shared_dh:
+        assert dh is not None, "shared_dh"
         # the arm's DH offsets are shared too (with_installed_dh): appended to the shared parameters
         m = len(dh[0])
         C_k = np.hstack([C_k, np.asarray(jr["cross_6xm"], float)])
@@ -638,9 +666,11 @@ def _joint_test(installed: LoadedResult, r, prior, min_variance_share: float) ->
 def _board_change(
     installed: LoadedResult, r, mode: str, E: np.ndarray, C: np.ndarray, o: VerifyOptions, change: dict
 ) -> dict:
-    """The new board pose against the installed one. Its sigma: the scatter of the per-view board
-    poses through the new X (the mean's standard error) and, in quadrature, the sigma of the change
-    of X (the board is found through X, so an error of X moves it as much, to first order).
+    """The new board pose against the installed one.
+
+    Its sigma: the scatter of the per-view board poses through the new X (the mean's standard error)
+    and, in quadrature, the sigma of the change of X (the board is found through X, so an error of X
+    moves it as much, to first order).
     """
     m = mounting(mode)
     d = {"name": m.board_name, "installed": installed.T_board, "new": r.T_board}
@@ -684,7 +714,7 @@ def _robot_disagreement(r) -> dict:
 def _intrinsics_update(installed: LoadedResult, r, session_intr: bool) -> dict:
     if session_intr or installed.intrinsics is None:
         return {"source": "session" if session_intr else "none"}
-    d = {"source": "installed (prior)"}
+    d: dict[str, Any] = {"source": "installed (prior)"}
     new = r.intrinsics
     for n in ("fx", "fy", "cx", "cy"):
         s = installed.intrinsics_sigma.get(n, 0.0)
@@ -758,8 +788,9 @@ class SessionVerification:
 
 
 def session_for_installed(session_path, installed: LoadedResult, *, mode: Optional[str] = None):
-    """The session, read in the installed result's mounting mode; refuses a session of another mode
-    or board (one line naming the difference).
+    """The session, read in the installed result's mounting mode.
+
+    Refuses a session of another mode or board (one line naming the difference).
     """
     from ..session import load_session
 
@@ -789,7 +820,9 @@ def session_for_installed(session_path, installed: LoadedResult, *, mode: Option
 
 
 def installed_images_among(installed: LoadedResult, session) -> int:
-    """How many of the session's images are files the installed calibration read, when its robot poses are too (by
+    """How many of the session's images are files the installed calibration read.
+
+    How many of the session's images are files the installed calibration read, when its robot poses are too (by
     their SHA-256 in the installed result's provenance): the installed session itself, not a new one. (Rendered
     sessions of one scene can share images while their poses differ.)
     """
@@ -813,8 +846,9 @@ def installed_images_among(installed: LoadedResult, session) -> int:
 
 
 def check_resolution(installed: LoadedResult, session) -> None:
-    """The session's images (read from their headers) must have the installed calibration's resolution: its
-    intrinsics describe that image; else a one-line InputError (``not_comparable``).
+    """The session's images (read from their headers) must have the installed calibration's resolution.
+
+    Its intrinsics describe that image; else a one-line InputError (``not_comparable``).
     """
     from ..session import image_sizes
 
@@ -832,7 +866,9 @@ def check_resolution(installed: LoadedResult, session) -> None:
 def verify_session(
     session_path, against, *, options: VerifyOptions = VerifyOptions(), mode: Optional[str] = None, progress=None
 ) -> SessionVerification:
-    """Detect the target in a short session (:func:`handeye.pipeline.observe`) and test the installed
+    """Detect the target in a short session and test the installed calibration ``against``.
+
+    Detect the target in a short session (:func:`handeye.pipeline.observe`) and test the installed
     calibration ``against`` (a result folder, result.json or loaded dict) on it (:func:`verify_views`).
     """
     from ..diagnose.consistency import board_turns

@@ -12,6 +12,8 @@ See docs/refinement.md.
 
 from __future__ import annotations
 
+from typing import Any
+
 from .options import RefineOptions, RefineView
 from .outliers import Outlier
 from .result import RefineResult
@@ -19,7 +21,7 @@ from .result import RefineResult
 __all__ = ["refine", "refit", "Refit", "RefineOptions", "RefineView", "RefineResult", "Outlier"]
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> Any:
     if name == "refine":
         from .refinement import refine
 

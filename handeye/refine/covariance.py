@@ -13,7 +13,7 @@ perturbation): ``T_x,true = T_x · Exp(xi)``, ``xi = (omega [rad], v [m])`` alon
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -30,7 +30,7 @@ COV_BOARD_PARAMETRISATION = (
 )
 
 
-def arrow_blocks(H: np.ndarray, c: int, n: int):
+def arrow_blocks(H: np.ndarray, c: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(Hcc (c,c), Hcp (n,c,6), Hpp (n,6,6)) of a dense information matrix in arrow order."""
     Hcp = H[:c, c:].reshape(c, n, 6).transpose(1, 0, 2)
     blocks = H[c:, c:].reshape(n, 6, n, 6)
@@ -38,8 +38,10 @@ def arrow_blocks(H: np.ndarray, c: int, n: int):
     return H[:c, :c], Hcp, blocks[ar, :, ar, :]
 
 
-def arrow_inverse(H: np.ndarray, c: int, n: int):
-    """Diagonal blocks of inv(H) for an information matrix with a dense core of size c followed by
+def arrow_inverse(H: np.ndarray, c: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Diagonal blocks of inv(H) for an arrow-shaped information matrix.
+
+    Diagonal blocks of inv(H) for an information matrix with a dense core of size c followed by
     n 6x6 blocks that couple only with the core: (Sigma_core (c,c), Sigma_blocks (n,6,6)).
     """
     S_cc, S_pp, _ = arrow_solve(*arrow_blocks(H, c, n))
@@ -48,7 +50,7 @@ def arrow_inverse(H: np.ndarray, c: int, n: int):
 
 def arrow_solve(
     Hcc: np.ndarray, Hcp: np.ndarray, Hpp: np.ndarray, rhs: Optional[np.ndarray] = None, *, cross: bool = False
-):
+) -> tuple[Any, ...]:
     """Schur-complement inverse of the arrow-shaped information [[Hcc, Hcp^T...], [Hcp_i^T, Hpp_i]].
 
     Returns (Sigma_core, Sigma_blocks (n,6,6), solution of H x = rhs or None), and with ``cross`` also
@@ -85,7 +87,9 @@ def arrow_solve(
 def robot_residual_covariances(
     S_cc: np.ndarray, S_pp: np.ndarray, S_cp: np.ndarray, J_dh: np.ndarray, dh: slice
 ) -> np.ndarray:
-    """(n,6,6) covariance of each robot prior residual ``u_i = p_i - J_dh,i · delta`` (p_i: the robot-pose
+    """(n,6,6) covariance of each robot prior residual ``u_i = p_i - J_dh,i · delta``.
+
+    (n,6,6) covariance of each robot prior residual ``u_i = p_i - J_dh,i · delta`` (p_i: the robot-pose
     block, delta: the DH offsets at ``dh`` in the core) from the marginals of :func:`arrow_solve`
     (``S_cp`` its cross covariances). Without DH offsets (m = 0) it is ``S_pp``.
     """
@@ -110,7 +114,9 @@ class HandEyeUncertainty:
 
 
 def hand_eye_uncertainty(cov_x: Optional[np.ndarray], T_x: np.ndarray, working_distance_m: float) -> HandEyeUncertainty:
-    """Sigmas, correlations and the predicted error at the working distance from ``cov_x`` (6,6)
+    """Sigmas, correlations and the predicted error at the working distance from ``cov_x`` (6,6).
+
+    Sigmas, correlations and the predicted error at the working distance from ``cov_x`` (6,6)
     (None: all NaN).
 
     The translation sigmas are those of ``T_x``'s translation vector in the parent frame

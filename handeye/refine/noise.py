@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
@@ -28,7 +28,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
-def _cfg() -> dict:
+def _cfg() -> dict[str, Any]:
     return refine_preset()["noise"]
 
 
@@ -43,7 +43,9 @@ def sigma_px_from_residuals(e: np.ndarray) -> float:
 
 
 def robust_robot_sigmas(pb: "Problem", checks: Mapping[int, "ViewCheck"]) -> None:
-    """Robot sigmas from camera-only poses (``checks``: view index -> its check) by the robust median
+    """Robot sigmas from camera-only poses.
+
+    Robot sigmas from camera-only poses (``checks``: view index -> its check) by the robust median
     estimator (robot_noise="estimate"). Kinematic models: the encoder sigma, with each view's
     disagreement less the current DH offsets' share and their covariance added to the camera's.
     """
@@ -65,9 +67,11 @@ def robust_robot_sigmas(pb: "Problem", checks: Mapping[int, "ViewCheck"]) -> Non
 
 @dataclass(frozen=True)
 class VarianceComponents:
-    """Outcome of :func:`vce_on_linearisation`: the relative change of the sigmas over the call, and,
-    at the final sigmas, the linear least-squares step and the marginal covariances (core, and per
-    robot block the covariance of its prior residual, :func:`.covariance.robot_residual_covariances`).
+    """Outcome of :func:`vce_on_linearisation`.
+
+    The relative change of the sigmas over the call, and, at the final sigmas, the linear
+    least-squares step and the marginal covariances (core, and per robot block the covariance of its
+    prior residual, :func:`.covariance.robot_residual_covariances`).
     """
 
     change: float
@@ -115,7 +119,7 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
     scale_dh = bool(m) and pb.dh_scale_estimable and bool(pb.dh_scale_test.get("contradicted"))
     s = np.r_[pb.sigma_px, pb.robot_sigmas]
     start = s.copy()
-    dof: dict = {}  # redundancy of each robot group whose sigma is estimated (its degrees of freedom)
+    dof: dict[str, Any] = {}  # redundancy of each robot group whose sigma is estimated (its degrees of freedom)
     history = [np.log(s)]  # log-sigma iterates since the last extrapolation
     for _ in range(int(cfg["max_inner"])):
         w_px = 1.0 / s[0] ** 2
@@ -194,8 +198,10 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
 
 
 def _dh_prior_test(pb: "Problem", delta: np.ndarray, S_dd: np.ndarray) -> bool:
-    """Do the views contradict the arm's stated DH prior? ``delta``, ``S_dd``: the DH offsets and their
-    posterior covariance with the noise levels settled at that prior (k = 1).
+    """Do the views contradict the arm's stated DH prior?
+
+    ``delta``, ``S_dd``: the DH offsets and their posterior covariance with the noise levels settled
+    at that prior (k = 1).
 
     With the stated prior N(0, Sigma_0) right, the estimate ``delta`` has covariance ``Sigma_0 - S_dd``, so
     ``e = delta^T Sigma_0^-1 delta`` is ``sum lambda_i z_i^2`` with ``lambda = 1 - eig(Sigma_0^-1 S_dd)``: 1 for an
@@ -235,7 +241,9 @@ def _dh_prior_test(pb: "Problem", delta: np.ndarray, S_dd: np.ndarray) -> bool:
 
 
 def _dh_scale(pb: "Problem", delta: np.ndarray, S_dd: np.ndarray, k: float) -> float:
-    """The next scale of the arm's DH prior (sigmas k times the stated ones) once the views have contradicted it
+    """The next scale of the arm's DH prior.
+
+    The next scale of the arm's DH prior (sigmas k times the stated ones) once the views have contradicted it
     (:func:`_dh_prior_test`), as a variance component: ``k^2 = e / r`` with ``e = delta^T Sigma_0^-1 delta`` and
     the redundancy ``r = m - tr(Sigma_0^-1 S_dd) / k^2`` at the current scale (recorded in ``pb.dh_scale_dof``),
     never below the stated prior: the offsets the views do not resolve are known only through that prior and
@@ -252,7 +260,9 @@ def _dh_scale(pb: "Problem", delta: np.ndarray, S_dd: np.ndarray, k: float) -> f
 
 
 def _aitken(x0: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
-    """Aitken's extrapolation of three successive log-sigma iterates, per component, where they converge
+    """Aitken's extrapolation of three successive log-sigma iterates, per component.
+
+    Aitken's extrapolation of three successive log-sigma iterates, per component, where they converge
     linearly and monotonically (ratio of successive steps in (0, 0.95)); returns sigmas.
 
     The fixed-point iteration converges linearly, slowly (ratio ~0.93) when a robot sigma heads for
@@ -269,8 +279,10 @@ def _aitken(x0: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
     return np.exp(x)
 
 
-def solve_with_vce(pb: "Problem"):
-    """Gaussian solves alternating with variance-component estimation on each linearisation until
+def solve_with_vce(pb: "Problem") -> tuple[np.ndarray, dict[int, np.ndarray]]:
+    """Gaussian solves alternating with variance-component estimation until the sigmas settle.
+
+    Gaussian solves alternating with variance-component estimation on each linearisation until
     the sigmas settle. Returns (Sigma_core, {view index: Sigma_robot}) at the final sigmas.
 
     Once a solve's sigmas are within ``noise.outer_tol`` of the estimate on its linearisation, that

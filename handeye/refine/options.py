@@ -8,15 +8,18 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field
-from typing import Optional
+from pathlib import Path
+from typing import Any, Callable, NoReturn, Optional, Sequence, Union
 
 import numpy as np
+import numpy.typing as npt
 
 from handeye.factors.reprojection import LOSSES
 
 from ..camera import INTRINSIC_NAMES, Intrinsics
 from ..config import load_preset
 from ..errors import ConfigError, InputError
+from ..kinematics import DHChain
 
 INTRINSICS_MODES = ("estimate", "fixed", "prior")
 ROBOT_NOISE_MODES = ("estimate", "fixed", "none")
@@ -24,13 +27,13 @@ ROBOT_MODELS = ("auto", "iid", "kinematic", "joint_space")  # handeye.refine.rob
 
 
 @functools.lru_cache(maxsize=None)
-def refine_preset() -> dict:
+def refine_preset() -> dict[str, Any]:
     """configs/refine.yaml, parsed once (callers must not change it)."""
     return load_preset("refine")
 
 
-def _from_preset(*path: str):
-    def get():
+def _from_preset(*path: str) -> Any:
+    def get() -> Any:
         v = refine_preset()
         for k in path:
             v = v[k]
@@ -52,7 +55,9 @@ class RefineView:
 
 @dataclass(frozen=True, eq=False)
 class Prior:
-    """Gaussian prior knowledge of the hand-eye transform (and optionally the intrinsics), e.g. an
+    """Gaussian prior knowledge of the hand-eye transform.
+
+    Gaussian prior knowledge of the hand-eye transform (and optionally the intrinsics), e.g. an
     earlier calibration of the same rig.
 
     ``T_x`` (4,4): the prior's ``T_end_cam`` (eye-in-hand) / ``T_base_cam`` (eye-to-hand); ``cov_x``
@@ -88,17 +93,16 @@ class RefineOptions:
     """What to estimate and how to decide outliers; thresholds default to configs/refine.yaml."""
 
     intrinsics: str = "estimate"  # estimate | fixed | prior
-    intrinsics_prior_sigma: Optional[tuple] = None  # 9 sigmas (fx, fy, cx, cy [px], k1, k2, p1, p2, k3)
-    fix: tuple = ()  # names of intrinsics held at their given values, e.g. ("k3", "p1", "p2")
+    intrinsics_prior_sigma: Optional[tuple[Any, ...]] = None  # 9 sigmas (fx, fy, cx, cy [px], k1, k2, p1, p2, k3)
+    fix: tuple[Any, ...] = ()  # names of intrinsics held at their given values, e.g. ("k3", "p1", "p2")
     robot_noise: str = "estimate"  # estimate | fixed | none
     robot_sigma_mm: float = _from_preset("robot_prior", "sigma_mm")  # start value (estimate) or the value (fixed)
     robot_sigma_deg: float = _from_preset("robot_prior", "sigma_deg")
     # robot error model (handeye.refine.robot_model): auto | iid | kinematic | joint_space; auto is kinematic
     # when ``arm`` is named (joint angles from the views, else by inverse kinematics), else iid
     robot_model: str = "auto"
-    arm: Optional[object] = (
-        None  # the arm's kinematic model: a preset name (kinematics.PRESETS), a DH YAML path or a DHChain
-    )
+    # the arm's kinematic model: a preset name (kinematics.PRESETS), a DH YAML path, its table or a DHChain
+    arm: Union[str, Path, dict[str, Any], DHChain, None] = None
     dh_sigma_mm: Optional[float] = None  # prior sigma of each DH length offset (None: the arm's error_prior)
     dh_sigma_deg: Optional[float] = None  # ... of each DH angle offset
     encoder_sigma_deg: Optional[float] = None  # encoder noise per joint: start (estimate) or value (fixed)
@@ -117,8 +121,12 @@ class RefineOptions:
     prior: Optional[Prior] = None  # Gaussian prior on T_x (and the free intrinsics), e.g. an earlier calibration
 
 
+#: ``bad(field, expected, got)``: raises the ConfigError naming an invalid option
+BadField = Callable[[str, str, object], NoReturn]
+
+
 def check_options(o: RefineOptions) -> None:
-    def bad(field_name, expected, got):
+    def bad(field_name: str, expected: str, got: object) -> NoReturn:
         raise ConfigError(
             f"refine option {field_name} is invalid",
             expected=expected,
@@ -168,7 +176,7 @@ def check_options(o: RefineOptions) -> None:
         check_prior(o.prior, bad)
 
 
-def _is_covariance(C, n: int) -> bool:
+def _is_covariance(C: Optional[npt.ArrayLike], n: int) -> bool:
     C = np.asarray(C, float) if C is not None else np.zeros(0)
     if C.shape != (n, n) or not np.all(np.isfinite(C)) or not np.allclose(C, C.T, rtol=1e-8, atol=0.0):
         return False
@@ -179,7 +187,7 @@ def _is_covariance(C, n: int) -> bool:
     return True
 
 
-def check_prior(p: "Prior", bad) -> None:
+def check_prior(p: "Prior", bad: BadField) -> None:
     """A prior's shapes and covariances (symmetric positive definite); ``bad(field, expected, got)`` raises."""
     if not isinstance(p, Prior):
         bad("prior", "a handeye.refine.options.Prior", type(p).__name__)
@@ -203,7 +211,7 @@ def check_prior(p: "Prior", bad) -> None:
         bad(
             "prior.cov_dh",
             "DH offsets (m,) with a symmetric positive definite (m,m) covariance",
-            f"{np.shape(p.dh_offsets)} and {np.shape(p.cov_dh)}",
+            f"{np.shape(p.dh_offsets)} and {np.shape(p.cov_dh)}",  # type: ignore[arg-type]  # np.shape(None) is ()
         )
     if p.cov_x_intrinsics is not None:
         _check_joint_with_intrinsics(bad, "cov_x_intrinsics", "X", p.cov_x, p.cov_x_intrinsics, p.cov_intrinsics)
@@ -223,8 +231,17 @@ def check_prior(p: "Prior", bad) -> None:
         )
 
 
-def _check_joint_with_intrinsics(bad, field_name: str, pose: str, cov_pose, cross, cov_k) -> None:
-    """``cross`` (6,9) of a pose prior (covariance ``cov_pose``) with the intrinsics prior (``cov_k``): given with
+def _check_joint_with_intrinsics(
+    bad: BadField,
+    field_name: str,
+    pose: str,
+    cov_pose: Optional[np.ndarray],
+    cross: np.ndarray,
+    cov_k: Optional[np.ndarray],
+) -> None:
+    """``cross`` (6,9) of a pose prior (covariance ``cov_pose``) with the intrinsics prior.
+
+    ``cross`` (6,9) of a pose prior (covariance ``cov_pose``) with the intrinsics prior (``cov_k``): given with
     both, and keeping their joint covariance positive definite.
     """
     nk = len(INTRINSIC_NAMES)
@@ -248,7 +265,7 @@ def _check_joint_with_intrinsics(bad, field_name: str, pose: str, cov_pose, cros
         )
 
 
-def check_T(T, what: str) -> np.ndarray:
+def check_T(T: npt.ArrayLike, what: str) -> np.ndarray:
     """A rigid 4x4 transform, its rotation re-orthonormalised (inputs rounded to a few decimals)."""
     return (
         check_T_stack(np.asarray(T, dtype=float)[None], [what])[0]
@@ -257,7 +274,7 @@ def check_T(T, what: str) -> np.ndarray:
     )
 
 
-def _not_rigid(what: str, shape) -> None:
+def _not_rigid(what: str, shape: tuple[int, ...]) -> NoReturn:
     raise InputError(
         f"{what} is not a rigid 4x4 transform",
         expected="(4,4) with a rotation block and last row 0 0 0 1",
@@ -266,7 +283,7 @@ def _not_rigid(what: str, shape) -> None:
     )
 
 
-def check_T_stack(Ts: np.ndarray, whats) -> np.ndarray:
+def check_T_stack(Ts: np.ndarray, whats: Sequence[str]) -> np.ndarray:
     """:func:`check_T` of (n,4,4) transforms at once; ``whats`` names each one for the message."""
     Ts = np.asarray(Ts, dtype=float)
     R = Ts[:, :3, :3]
@@ -288,14 +305,16 @@ def check_T_stack(Ts: np.ndarray, whats) -> np.ndarray:
     return out
 
 
-def check_inputs(object_points, views) -> tuple[np.ndarray, np.ndarray]:
-    """Validate the board points (N,3) and the views (unique ids, matching lengths, rigid poses);
+def check_inputs(object_points: npt.ArrayLike, views: Sequence[RefineView]) -> tuple[np.ndarray, np.ndarray]:
+    """Validate the board points (N,3) and the views.
+
+    Validate the board points (N,3) and the views (unique ids, matching lengths, rigid poses);
     returns the board points as float and the reported robot poses (n,4,4), re-orthonormalised.
     """
     object_points = np.asarray(object_points, float)
     if object_points.ndim != 2 or object_points.shape[1] != 3:
         raise InputError("object_points must be (N, 3)", received=f"shape {object_points.shape}")
-    seen = set()
+    seen: set[str] = set()
     for v in views:
         if v.view_id in seen:
             raise InputError(

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Optional, Sequence
+from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 import numpy as np
 
@@ -39,8 +39,10 @@ class RobotPoseGates:
     tail_dof: float = np.inf  # the null is multivariate t with this dof, variance matched (inf: Gaussian)
 
     @staticmethod
-    def from_config(cfg: dict | None = None, *, unmodelled_arm: bool = True) -> "RobotPoseGates":
-        """``unmodelled_arm``: the poses come from an arm whose kinematic error is not modelled (the null's
+    def from_config(cfg: dict[str, Any] | None = None, *, unmodelled_arm: bool = True) -> "RobotPoseGates":
+        """The robot-pose gates from the outlier settings ``cfg`` (default: the refine preset).
+
+        ``unmodelled_arm``: the poses come from an arm whose kinematic error is not modelled (the null's
         tail is ``iid_tail_dof``); False: a kinematic model, or a tracker, carries the error (Gaussian).
         """
         c = (cfg if cfg is not None else refine_preset())["outliers"]["robot_pose"]
@@ -70,8 +72,9 @@ class RobotPoseGates:
 
     @property
     def threshold(self) -> float:
-        """The statistic (squared Mahalanobis units) exceeded with probability alpha under the null:
-        the chi-square(6) quantile at 1 - alpha when Gaussian.
+        """The statistic (squared Mahalanobis units) exceeded with probability alpha under the null.
+
+        The chi-square(6) quantile at 1 - alpha when Gaussian.
         """
         return float(mixture_tail_quantile(self.alpha, ROBOT_POSE_DOF, np.array(self.tail_dof)))
 
@@ -139,7 +142,7 @@ def robot_pose_test(
     C = np.asarray(covariance, float).reshape(-1, 6, 6)
     if C.shape[0] != d.shape[0]:
         raise ValueError(f"disagreement has {d.shape[0]} rows but covariance {C.shape[0]}")
-    R = np.diag([robot_sigma_rot_rad**2] * 3 + [robot_sigma_trans_m**2] * 3)
+    R: np.ndarray = np.diag([robot_sigma_rot_rad**2] * 3 + [robot_sigma_trans_m**2] * 3)
     if robot_covariance is not None:
         R = np.asarray(robot_covariance, float).reshape(-1, 6, 6)
     ok = np.all(np.isfinite(d), axis=1) & np.all(np.isfinite(C), axis=(1, 2))
@@ -174,13 +177,13 @@ class Outlier:
     view_id: str
     kind: str  # corners | reprojection | too_few_corners | robot_pose
     reason: str  # one line for people
-    corner_ids: tuple = ()  # flagged corners (kind "corners"), else empty: the decision covers the view
-    size: dict = field(default_factory=dict)  # size of the disagreement, names with units
+    corner_ids: tuple[Any, ...] = ()  # flagged corners (kind "corners"), else empty: the decision covers the view
+    size: dict[str, Any] = field(default_factory=dict)  # size of the disagreement, names with units
 
     def __str__(self) -> str:
         return self.reason
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "view_id": self.view_id,
             "kind": self.kind,
@@ -208,7 +211,9 @@ def _failed_check(P: np.ndarray, n_corners: int) -> ViewCheck:
 
 
 def own_fit_variance(resid_px: np.ndarray, *, n_params: int = 6) -> float:
-    """``s^2 = sum |e|^2 / (2 N - n_params)`` [px^2] of a view's N corner residual norms ``resid_px`` against
+    """Own-fit variance ``s^2`` [px^2] of a view's corner residuals against its own pose fit.
+
+    ``s^2 = sum |e|^2 / (2 N - n_params)`` [px^2] of a view's N corner residual norms ``resid_px`` against
     the pose fitted to that view alone (``n_params`` = 6 pose unknowns); NaN without redundancy.
     """
     e = np.asarray(resid_px, float)
@@ -218,8 +223,10 @@ def own_fit_variance(resid_px: np.ndarray, *, n_params: int = 6) -> float:
 
 
 def view_variance_factor(resid_px: np.ndarray, *, sigma_px: float, n_params: int = 6) -> float:
-    """How much noisier one view's corners are than the run's pixel sigma: ``max(1, s^2 / sigma_px^2)``
-    with ``s^2`` the view's own-fit variance (:func:`own_fit_variance`) over its inlier corner residuals.
+    """How much noisier one view's corners are than the run's pixel sigma.
+
+    ``max(1, s^2 / sigma_px^2)`` with ``s^2`` the view's own-fit variance (:func:`own_fit_variance`) over
+    its inlier corner residuals.
 
     The detector's corner error is not one iid Gaussian over the run: it differs between views
     (perspective, distance and blur change the corner's edges), and within a view it is correlated.
@@ -235,8 +242,10 @@ def _factor(s2: float, sigma_px: float) -> float:
     return max(1.0, s2 / sigma_px**2) if np.isfinite(s2) and sigma_px > 0 else 1.0
 
 
-def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10) -> dict:
-    """Robust Gauss-Newton (Huber, ``loss_k``) for the robot pose of each view in ``idx`` from its corners
+def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10) -> dict[int, ViewCheck]:
+    """Robust Gauss-Newton for the robot pose of each view in ``idx`` from its corners alone.
+
+    Robust Gauss-Newton (Huber, ``loss_k``) for the robot pose of each view in ``idx`` from its corners
     alone (``T_x``, ``T_board`` and the intrinsics held), all views at once, starting from the current
     estimates ``pb.P``; a view that most of its corners do not fit from there (a start far off: its
     robot pose belongs to another image, or is misread) starts again from its own PnP pose carried through
@@ -244,13 +253,13 @@ def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10)
     covariance is ``sigma_px^2 (J^T J)^-1`` over those corners. Returns {view index: ViewCheck}.
     """
     empty = {int(i): _failed_check(pb.P[i].copy(), 0) for i in idx if pb.offsets[i + 1] == pb.offsets[i]}
-    idx = np.asarray([i for i in idx if i not in empty], int)
-    if idx.size == 0:
+    ids = np.asarray([i for i in idx if i not in empty], int)
+    if ids.size == 0:
         return empty
-    fit = _own_fits(pb, idx, pb.P[idx].copy(), max_iters)
+    fit = _own_fits(pb, ids, pb.P[ids].copy(), max_iters)
     poor = np.flatnonzero(fit["n_inl"] * 2 < fit["counts"])
     if poor.size:
-        again = _own_fits(pb, idx[poor], _pnp_starts(pb, idx[poor], fit["P"][poor]), max_iters)
+        again = _own_fits(pb, ids[poor], _pnp_starts(pb, ids[poor], fit["P"][poor]), max_iters)
         better = again["n_inl"] > fit["n_inl"][poor]
         for k, j in zip(poor[better], np.flatnonzero(better), strict=False):
             for key in ("P", "alive", "n_inl", "H", "delta"):
@@ -258,7 +267,7 @@ def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10)
             fit["e"][k] = again["e"][j]
             fit["inl"][k] = again["inl"][j]
     out = empty
-    for k, i in enumerate(idx):
+    for k, i in enumerate(ids):
         e_k, P_k = fit["e"][k], fit["P"][k]
         if not fit["alive"][k]:
             out[int(i)] = _failed_check(P_k, int(fit["counts"][k]))
@@ -279,7 +288,9 @@ def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10)
 
 
 def _pnp_starts(pb: "Problem", idx: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """Robot poses (len(idx),4,4) that put each view's camera at its own PnP pose of the board under the
+    """Robot poses that put each view's camera at its own PnP pose of the board.
+
+    Robot poses (len(idx),4,4) that put each view's camera at its own PnP pose of the board under the
     current ``T_x``, ``T_board`` and intrinsics (``T_cam_board = inv(T_x) M T_board``); ``fallback`` where
     PnP fails.
     """
@@ -301,8 +312,10 @@ def _pnp_starts(pb: "Problem", idx: np.ndarray, fallback: np.ndarray) -> np.ndar
     return out
 
 
-def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> dict:
-    """The robust Gauss-Newton of :func:`camera_only_poses` from the robot poses ``P`` (len(idx),4,4), all views
+def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> dict[str, Any]:
+    """The robust Gauss-Newton of :func:`camera_only_poses` from the robot poses ``P``.
+
+    The robust Gauss-Newton of :func:`camera_only_poses` from the robot poses ``P`` (len(idx),4,4), all views
     at once. Per view (lists in ``idx`` order): ``P``, ``alive``, ``counts``, ``n_inl`` (corners within
     ``corner_outlier_sigmas``), ``H`` (J^T J over those), ``delta`` (reported to ``P``), ``e`` (each corner's
     residual, px) and ``inl`` (its mask).
@@ -325,6 +338,7 @@ def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> 
             view_index=local,
             robot_jacobian=True,
         )
+        assert J is not None, "robot_jacobian=True gives the Jacobian"
         finite = np.all(np.isfinite(r), axis=1) & np.all(np.isfinite(J), axis=(1, 2))
         alive &= np.logical_and.reduceat(finite, starts)
         if it == max_iters:
@@ -348,6 +362,7 @@ def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> 
             max_iters = it + 1
     e = np.linalg.norm(r, axis=1)
     inl = (e <= pb.o.corner_outlier_sigmas * pb.sigma_px) & alive[local]
+    assert J is not None, "robot_jacobian=True gives the Jacobian"
     Jin = np.where(inl[:, None, None], J, 0.0)
     H = np.add.reduceat(np.einsum("mci,mcj->mij", Jin, Jin), starts, axis=0)
     n_inl = np.add.reduceat(inl.astype(int), starts)
@@ -364,8 +379,10 @@ def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> 
     }
 
 
-def joint_checks(pb: "Problem", S_pp: dict) -> dict:
-    """The views of the last Gaussian solve as it has them (their robot poses variables of that solve),
+def joint_checks(pb: "Problem", S_pp: dict[int, np.ndarray]) -> dict[int, ViewCheck]:
+    """The views of the last Gaussian solve as it has them.
+
+    The views of the last Gaussian solve as it has them (their robot poses variables of that solve),
     with the marginal covariance of each robot pose. Returns {view index: ViewCheck}.
     """
     idx = sorted(S_pp)
@@ -378,19 +395,20 @@ def joint_checks(pb: "Problem", S_pp: dict) -> dict:
 
 @dataclass(frozen=True)
 class Decision:
-    status: tuple  # per view: used | robot_excluded | removed
-    masks: tuple  # per view: bool array of the corners kept
-    outliers: tuple  # Outlier, ...
-    checks: tuple  # per view ViewCheck
+    status: tuple[str, ...]  # per view: used | robot_excluded | removed
+    masks: tuple[Any, ...]  # per view: bool array of the corners kept
+    outliers: tuple[Any, ...]  # Outlier, ...
+    checks: tuple[Any, ...]  # per view ViewCheck
     robot_test: RobotPoseTest  # the robot-pose test of every view
 
-    def key(self):
+    def key(self) -> tuple[tuple[str, ...], tuple[bytes, ...]]:
         return self.status, tuple(m.tobytes() for m in self.masks)
 
 
 def _robot_test_cov(pb: "Problem") -> np.ndarray:
-    """(n,6,6) each view's robot noise covariance for the test: the model's, or for robot_noise "none"
-    the configured iid tolerance.
+    """(n,6,6) each view's robot noise covariance for the test.
+
+    The model's, or for robot_noise "none" the configured iid tolerance.
     """
     if pb.robot_var:
         return pb.robot_cov(range(pb.n))
@@ -415,21 +433,24 @@ def leave_one_out(e: np.ndarray, R: np.ndarray, S_p: np.ndarray) -> tuple[np.nda
 
 
 def prior_share(R: np.ndarray, S_p: np.ndarray) -> float:
-    """Smallest eigenvalue of ``R^-1/2 (R - S_p) R^-1/2``: the share of a robot pose's information that
-    comes from the camera (1: the camera alone fixes it; 0: its prior alone does). :func:`leave_one_out`
-    divides by it, so where it is tiny (a robot sigma near its floor, as on a simulated exact robot) the
-    leave-one-out prediction is the rounding error of ``R - S_p`` blown up.
+    """Smallest eigenvalue of ``R^-1/2 (R - S_p) R^-1/2``.
+
+    The share of a robot pose's information that comes from the camera (1: the camera alone fixes it; 0:
+    its prior alone does). :func:`leave_one_out` divides by it, so where it is tiny (a robot sigma near
+    its floor, as on a simulated exact robot) the leave-one-out prediction is the rounding error of ``R
+    - S_p`` blown up.
     """
     w = 1.0 / np.sqrt(np.diag(R))
     return float(np.linalg.eigvalsh((R - S_p) * np.outer(w, w))[0])
 
 
-def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]) -> RobotPoseTest:
+def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict[int, np.ndarray]]) -> RobotPoseTest:
     """:func:`robot_pose_test` of every view's reported robot pose against what the other data imply.
 
     Each view's robot noise covariance R_i is its model's (:meth:`.problem.Problem.robot_cov`). With
     the covariances of a Gaussian solve (``S_pp``: the covariance of each robot-pose variable's prior
-    residual, which for the kinematic model includes the DH offsets' share): for a view whose prior is in the solve, the leave-one-out prediction from the prior
+    residual, which for the kinematic model includes the DH offsets' share): for a view whose prior is in
+    the solve, the leave-one-out prediction from the prior
     residual (:func:`leave_one_out`, Baarda's data snooping); for a view whose prior was excluded,
     its free pose ``P`` with covariance ``S_P``. Otherwise (robust phase, views not in the solve, or a
     view whose prior carries almost all the information about its pose, :func:`prior_share` below
@@ -447,10 +468,10 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
     J_all = pb.J_dh(range(pb.n))  # shape (n, 6, m)
     dh_cov = np.einsum("nim,mk,njk->nij", J_all, pb.S_dd, J_all)  # the DH offsets' share of each pose
 
-    def camera_side(i, ch):
+    def camera_side(i: int, ch: ViewCheck) -> tuple[np.ndarray, np.ndarray]:
         return ch.delta - J_all[i] @ pb.dh, ch.cov_cam * ch.variance_factor + dh_cov[i]
 
-    own = []  # views compared with their own fit
+    own: list[int] = []  # views compared with their own fit
     for i, ch in enumerate(checks):
         Sp = None if S_pp is None else S_pp.get(i)
         f = ch.variance_factor  # the view's own corner variance (camera side only; see view_variance_factor)
@@ -479,8 +500,10 @@ def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict]
     )
 
 
-def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict] = None) -> Decision:
-    """Outlier decisions for every view against the current solution, each with a reason and the size
+def decide(pb: "Problem", *, robust_robot_sigma: bool, S_pp: Optional[dict[int, np.ndarray]] = None) -> Decision:
+    """Outlier decisions for every view against the current solution.
+
+    Outlier decisions for every view against the current solution, each with a reason and the size
     of the disagreement:
 
     * corners further than ``corner_outlier_sigmas`` from their prediction are flagged
@@ -610,15 +633,18 @@ class TooFewRobotPoses(Exception):
     """Fewer than 3 views keep a robot pose that agrees with the camera."""
 
 
-def outlier_loop(pb: "Problem"):
-    """Decide, exclude, re-solve (Gaussian, with variance-component estimation) and decide again from
+def outlier_loop(pb: "Problem") -> tuple[Decision, Optional[np.ndarray], Optional[dict[int, np.ndarray]]]:
+    """Decide, exclude, re-solve and decide again until the set of outliers is stable.
+
+    Decide, exclude, re-solve (Gaussian, with variance-component estimation) and decide again from
     scratch against the clean solution, so that a flagged view or corner that fits it is re-admitted,
     until the set is stable (or ``max_outlier_rounds``). Returns (Decision, Sigma_core, {view:
     Sigma_robot}); raises TooFewRobotPoses.
     """
     o = pb.o
-    seen_keys = []
-    S_pp = None
+    seen_keys: list[tuple[tuple[str, ...], tuple[bytes, ...]]] = []
+    S_cc: Optional[np.ndarray] = None
+    S_pp: Optional[dict[int, np.ndarray]] = None
     for rnd in range(o.max_outlier_rounds):
         dec = decide(pb, robust_robot_sigma=rnd == 0, S_pp=S_pp)
         if seen_keys and dec.key() == seen_keys[-1]:
@@ -643,8 +669,10 @@ def outlier_loop(pb: "Problem"):
     return decide(pb, robust_robot_sigma=False, S_pp=S_pp), S_cc, S_pp
 
 
-def robot_pose_outlier(vid: str, test, i: int, what: str, consequence: str) -> Outlier:
-    """The ``robot_pose`` outlier of view ``vid`` (index ``i`` of the robot-pose ``test``): its disagreement in
+def robot_pose_outlier(vid: str, test: RobotPoseTest, i: int, what: str, consequence: str) -> Outlier:
+    """The ``robot_pose`` outlier of view ``vid``.
+
+    The ``robot_pose`` outlier of view ``vid`` (index ``i`` of the robot-pose ``test``): its disagreement in
     degrees, mm and Mahalanobis distance against the threshold, with what happens to the view.
     """
     rot_deg, trans_mm, dist = float(test.rot_deg[i]), float(test.trans_mm[i]), float(test.distance[i])

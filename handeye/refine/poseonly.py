@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field, replace
-from typing import Mapping, Optional, Sequence
+from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
 from scipy.special import chdtri
@@ -25,7 +25,7 @@ from ..mounting import mounting
 from ..records import HandEyeEstimate
 from .covariance import COV_PARAMETRISATION, hand_eye_uncertainty
 from .options import RefineOptions, check_T, refine_preset
-from .outliers import RobotPoseGates, leave_one_out, robot_pose_outlier, robot_pose_test
+from .outliers import RobotPoseGates, RobotPoseTest, leave_one_out, robot_pose_outlier, robot_pose_test
 from .problem import solve_pose_graph
 from .refitting import Refit
 from .result import RefineResult
@@ -56,13 +56,15 @@ class PoseView:
 class _NoIntrinsics:
     """Stands in for the intrinsics of a pose-only result when it is written (there is no camera model)."""
 
-    def to_dict(self):
+    def to_dict(self) -> None:
         return None
 
 
 @dataclass(frozen=True)
 class PoseRefineResult(RefineResult):
-    """A :class:`.result.RefineResult` of pose-only views: no intrinsics and no pixels (``intrinsics`` is
+    """A :class:`.result.RefineResult` of pose-only views: no intrinsics and no pixels.
+
+    A :class:`.result.RefineResult` of pose-only views: no intrinsics and no pixels (``intrinsics`` is
     None, the pixel figures NaN); the tracker's noise instead.
     """
 
@@ -70,11 +72,12 @@ class PoseRefineResult(RefineResult):
     tracker_sigma_mm: float = float("nan")  # across the camera's optical axis (x, y), per axis
     tracker_sigma_along_mm: float = float("nan")  # along the optical axis (z)
     tracker_sigma_source: str = ""  # stated | estimated
-    tracker_sigma_resolved: dict = field(default_factory=dict)
+    tracker_sigma_resolved: dict[str, Any] = field(default_factory=dict)
     cov_board_6x6: Optional[np.ndarray] = None
 
-    def to_dict(self) -> dict:
-        d = RefineResult.to_dict(replace(self, intrinsics=_NoIntrinsics(), intrinsics_seed=_NoIntrinsics()))
+    def to_dict(self) -> dict[str, Any]:
+        no = _NoIntrinsics()
+        d = RefineResult.to_dict(replace(self, intrinsics=no, intrinsics_seed=no))  # type: ignore[arg-type]
         d["observations"] = "poses"
         d["tracker_noise"] = {
             "sigma_deg": self.tracker_sigma_deg,
@@ -129,7 +132,7 @@ class _State:
             for M, C in zip(self.M, self.C, strict=False)
         ]
         r = np.stack([o[0] for o in out])
-        J = np.stack([np.hstack([o[1], o[2]]) for o in out]) if jacobians else None
+        J = np.stack([np.hstack([o[1], o[2]]) for o in out]) if jacobians else None  # type: ignore[list-item]
         return r, J
 
     def W(self) -> np.ndarray:
@@ -168,7 +171,9 @@ def _information(st: _State, J: np.ndarray, prior_x) -> np.ndarray:
     return H
 
 
-def _solve(st: _State, *, robust_k, prior_x, max_iterations) -> None:
+def _solve(
+    st: _State, *, robust_k: Optional[float], prior_x: Optional[tuple[np.ndarray, np.ndarray]], max_iterations: int
+) -> None:
     k = np.flatnonzero(st.keep)
     st.T_x, st.T_board, it = solve_pose_graph(
         M=st.M[k],
@@ -223,8 +228,17 @@ def _vce_on_linearisation(st: _State, r: np.ndarray, J: np.ndarray, prior_x, flo
     return float(np.max(np.abs(st.sigma / start - 1.0)))
 
 
-def _solve_with_vce(st: _State, *, estimate: bool, prior_x, max_iterations, floors) -> tuple:
-    """Gaussian solves alternating with variance-component estimation on each linearisation
+def _solve_with_vce(
+    st: _State,
+    *,
+    estimate: bool,
+    prior_x: Optional[tuple[np.ndarray, np.ndarray]],
+    max_iterations: int,
+    floors: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, bool]]:
+    """Gaussian solves alternating with variance-component estimation on each linearisation.
+
+    Gaussian solves alternating with variance-component estimation on each linearisation
     (:func:`_vce_on_linearisation`) until a solve's sigmas are within ``noise.outer_tol`` of the estimate
     on its linearisation (as :func:`.noise.solve_with_vce` does for the pixel and robot sigmas); returns
     (Sigma (12,12), r, J, resolved) at the final solution.
@@ -244,7 +258,7 @@ def _solve_with_vce(st: _State, *, estimate: bool, prior_x, max_iterations, floo
     return np.linalg.inv(_information(st, J, prior_x)), r, J, resolved if estimate else {}
 
 
-def _tests(st: _State, S: np.ndarray, r: np.ndarray, J: np.ndarray, gates: RobotPoseGates):
+def _tests(st: _State, S: np.ndarray, r: np.ndarray, J: np.ndarray, gates: RobotPoseGates) -> RobotPoseTest:
     """THE robot-pose test of every view on ``T_cam_board``: leave-one-out for views in the solve."""
     R = st.covariances()
     d = np.full((len(r), 6), np.nan)
@@ -268,8 +282,8 @@ def refine_poses(
     views: Sequence[PoseView],
     T_x0: np.ndarray,
     T_board0: np.ndarray,
-    tracker_sigma: Optional[tuple] = None,
-    options: RefineOptions = RefineOptions(),
+    tracker_sigma: Optional[tuple[Any, ...]] = None,
+    options: Optional[RefineOptions] = None,
     starts: Optional[Mapping[str, HandEyeEstimate]] = None,
 ) -> PoseRefineResult:
     """Refine ``T_x`` and ``T_board`` from pose-only views; see the module docstring.
@@ -279,6 +293,7 @@ def refine_poses(
     ``starts``: the closed forms (method -> estimate); the refinement starts from the one the views
     agree with best. A solve that fails returns ``status="failed"`` with the reason.
     """
+    options = RefineOptions() if options is None else options
     t0 = time.perf_counter()
     mount = mounting(mode)
     T_x0 = check_T(T_x0, f"seed {mount.x_name}")
@@ -308,7 +323,12 @@ def refine_poses(
     T_x_seed, T_board_seed = st.T_x.copy(), st.T_board.copy()
     gates = RobotPoseGates.from_options(options, unmodelled_arm=False)  # a tracker's error: Gaussian
     it_max = options.max_iterations
-    dec_keep, test, S, r, J, resolved = None, None, None, None, None, {}
+    dec_keep: Optional[np.ndarray] = None
+    test: Optional[RobotPoseTest] = None
+    S: Optional[np.ndarray] = None
+    r: Optional[np.ndarray] = None
+    J: Optional[np.ndarray] = None
+    resolved: dict[str, bool] = {}
     try:
         if estimate:
             st.sigma = _robust_sigmas(C, st.residuals()[0], floors)
@@ -321,7 +341,7 @@ def refine_poses(
         S = np.linalg.inv(_information(st, J, prior_x))
         # the robust solve down-weighted the outliers: each view against that solution, as if left out
         test = _tests(replace(st, keep=np.zeros(len(views), bool)), S, r, J, gates)
-        seen = []
+        seen: list[np.ndarray] = []
         for _ in range(options.max_outlier_rounds):
             keep = ~test.flagged
             if keep.sum() < 3:
@@ -349,7 +369,7 @@ def refine_poses(
         log.warning("pose-only refinement failed: %s", reason)
     depth = float(np.median(np.linalg.norm(C[:, :3, 3], axis=1)))  # the tracker's frame need not look along z
     wd = float(options.working_distance_m) if options.working_distance_m is not None else depth
-    S_x = None if status != "ok" else S[:6, :6]
+    S_x = None if status != "ok" or S is None else S[:6, :6]
     unc = hand_eye_uncertainty(S_x, st.T_x, wd)
     per_view, outliers = {}, []
     for i, vid in enumerate(ids):
@@ -387,10 +407,10 @@ def refine_poses(
         board_name=mount.board_name,
         T_x=st.T_x.copy(),
         T_board=st.T_board.copy(),
-        intrinsics=None,
+        intrinsics=None,  # type: ignore[arg-type]  # a pose-only result has no intrinsics
         T_x_seed=T_x_seed,
         T_board_seed=T_board_seed,
-        intrinsics_seed=None,
+        intrinsics_seed=None,  # type: ignore[arg-type]  # a pose-only result has no intrinsics
         robot_poses={vid: np.asarray(v.T_base_end, float).copy() for vid, v in zip(ids, views, strict=False)},
         cov_x_6x6=unc.cov_x_6x6,
         cov_parametrisation=COV_PARAMETRISATION,
@@ -423,7 +443,7 @@ def refine_poses(
         tracker_sigma_along_mm=float(1000.0 * st.sigma[2]),
         tracker_sigma_source="estimated" if estimate else "stated",
         tracker_sigma_resolved=resolved,
-        cov_board_6x6=None if status != "ok" else S[6:, 6:].copy(),
+        cov_board_6x6=None if status != "ok" or S is None else S[6:, 6:].copy(),
     )
 
 

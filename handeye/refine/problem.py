@@ -10,8 +10,9 @@ See docs/refinement.md.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import gtsam
 import numpy as np
@@ -41,8 +42,10 @@ KEY_DH = gtsam.symbol("d", 0)
 
 
 def lm_params(max_iterations: int) -> "gtsam.LevenbergMarquardtParams":
-    """The solver settings of every solve: at most ``max_iterations``, the preset's relative tolerance, and
-    scale-free diagonal damping (see the module docstring).
+    """The solver settings of every solve.
+
+    At most ``max_iterations``, the preset's relative tolerance, and scale-free diagonal damping
+    (see the module docstring).
     """
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(int(max_iterations))
@@ -59,7 +62,9 @@ def key_robot(i: int) -> int:
 
 @dataclass(frozen=True)
 class PixelLinearisation:
-    """Reprojection part of a linearisation with unit pixel sigma: information blocks (core c, then n
+    """Reprojection part of a linearisation with unit pixel sigma.
+
+    Reprojection part of a linearisation with unit pixel sigma: information blocks (core c, then n
     robot blocks), gradient g = J^T r, r^T r and the count of observations; plus the robot prior
     residuals xi (n,6) (:meth:`Problem.prior_residuals`; rows without a prior flagged False in
     ``prior``) and their Jacobians in the DH offsets ``J_dh`` (n,6,m), the core's last m unknowns.
@@ -74,7 +79,7 @@ class PixelLinearisation:
     prior: np.ndarray
     xi: np.ndarray
     c: int
-    robot_views: tuple  # view index of each robot block, in order
+    robot_views: tuple[Any, ...]  # view index of each robot block, in order
     J_dh: np.ndarray  # shape (n, 6, m)
 
 
@@ -143,11 +148,19 @@ class Problem:
                 ]
             self.prior_sig = sig[self.free]
         # options.prior: Gaussian priors on T_x and on the free intrinsics (e.g. an earlier calibration)
-        self.prior_x = None  # (T_x of the prior (4,4), its covariance (6,6))
-        self.prior_k = None  # (mean (nk,), covariance (nk, nk)) of the free intrinsics
-        self.prior_cov_xk = None  # (6+nk, 6+nk): the two as one joint Gaussian (prior.cov_x_intrinsics given)
-        self.prior_board = None  # (T_board of the prior (4,4), its covariance (6,6))
-        self.prior_cov_bk = None  # (6+nk, 6+nk): the board and the intrinsics as one (prior.cov_board_intrinsics)
+        self.prior_x: Optional[tuple[np.ndarray, np.ndarray]] = None  # (T_x of the prior (4,4), its covariance (6,6))
+        self.prior_k: Optional[tuple[np.ndarray, np.ndarray]] = (
+            None  # (mean (nk,), covariance (nk, nk)) of the free intrinsics
+        )
+        self.prior_cov_xk: Optional[np.ndarray] = (
+            None  # (6+nk, 6+nk): the two as one joint Gaussian (prior.cov_x_intrinsics given)
+        )
+        self.prior_board: Optional[tuple[np.ndarray, np.ndarray]] = (
+            None  # (T_board of the prior (4,4), its covariance (6,6))
+        )
+        self.prior_cov_bk: Optional[np.ndarray] = (
+            None  # (6+nk, 6+nk): the board and the intrinsics as one (prior.cov_board_intrinsics)
+        )
         if options.prior is not None:
             p = options.prior
             self.prior_x = (check_T(p.T_x, "prior T_x"), np.asarray(p.cov_x, float))
@@ -162,6 +175,7 @@ class Problem:
                     C = np.asarray(p.cov_x_intrinsics, float)[:, self.free]
                     self.prior_cov_xk = np.block([[self.prior_x[1], C], [C.T, self.prior_k[1]]])
                 elif p.cov_board_intrinsics is not None:
+                    assert self.prior_board is not None, "check_prior: cov_board_intrinsics needs T_board"
                     C = np.asarray(p.cov_board_intrinsics, float)[:, self.free]
                     self.prior_cov_bk = np.block([[self.prior_board[1], C], [C.T, self.prior_k[1]]])
         self.robot_var = options.robot_noise != "none"
@@ -173,11 +187,15 @@ class Problem:
         )
         self.m_dh = self.kin.m if self.kin is not None else 0
         # the DH offsets' prior: N(0, the arm's error prior), or an earlier calibration's estimate (prior.dh_offsets)
-        self.prior_dh = (np.zeros(self.m_dh), np.diag(self.kin.dh_sigma**2) if self.m_dh else np.zeros((0, 0)))
+        self.prior_dh = (
+            np.zeros(self.m_dh),
+            np.diag(self.kin.dh_sigma**2) if self.kin is not None and self.m_dh else np.zeros((0, 0)),
+        )
         self.prior_dh_earlier = False  # prior_dh is an earlier calibration's estimate, not the arm's error prior
         p = options.prior
         if self.m_dh and p is not None and p.dh_offsets is not None:
             if np.size(p.dh_offsets) != self.m_dh:
+                assert self.kin is not None, "m_dh > 0 only with a kinematic model"
                 raise ConfigError(
                     "prior.dh_offsets does not fit the arm's kinematic model",
                     expected=f"{self.m_dh} DH offsets ({self.kin.arm.name})",
@@ -192,7 +210,7 @@ class Problem:
         self.dh_prior_stated = self.prior_dh[1].copy()
         self.dh_info_stated = np.linalg.inv(self.dh_prior_stated) if self.m_dh else np.zeros((0, 0))  # its inverse
         self.dh_scale = 1.0
-        self.dh_scale_test: dict = {}
+        self.dh_scale_test: dict[str, Any] = {}
         self.dh_scale_dof: Optional[float] = None  # redundancy of the estimated scale (handeye.refine.noise._dh_scale)
         self.sigma_q = self.kin.encoder_sigma_rad if self.kin is not None else 0.0
         self.robot_prior_k = float(refine_preset()["robust"]["robot_prior_k"])
@@ -203,13 +221,13 @@ class Problem:
         self.sigma_rot = np.radians(options.robot_sigma_deg)
         self.sigma_trans = options.robot_sigma_mm / 1000.0
         self.resolved = {g: True for g in self.robot_groups}
-        self.noise_dof: dict = {}  # degrees of freedom of each estimated robot sigma (handeye.refine.noise)
+        self.noise_dof: dict[str, Any] = {}  # degrees of freedom of each estimated robot sigma (handeye.refine.noise)
         self.status = ["used"] * self.n
         self.mask = [np.ones(len(o), bool) for o in self.obj]
         self.iterations = 0
         # per view: its corners' residual variance in its own fit [px^2] (outliers.view_variance_factor);
         # filled by outliers.camera_only_poses, which does not depend on the robot pose
-        self.own_fit_var: dict = {}
+        self.own_fit_var: dict[int, float] = {}
 
     # -- views
     def active(self) -> list[int]:
@@ -239,7 +257,9 @@ class Problem:
 
     @property
     def dh_scale_estimable(self) -> bool:
-        """Whether the scale of the DH offsets' prior is a variance component: the arm's own error prior (not an
+        """Whether the scale of the DH offsets' prior is a variance component.
+
+        Whether the scale of the DH offsets' prior is a variance component: the arm's own error prior (not an
         earlier calibration's estimate), with the robot noise estimated.
         """
         return bool(self.m_dh) and not self.prior_dh_earlier and self.o.robot_noise == "estimate"
@@ -250,7 +270,9 @@ class Problem:
         self.prior_dh = (self.prior_dh[0], self.dh_prior_stated * self.dh_scale**2)
 
     def dh_prior_information(self, k: Optional[float] = None) -> tuple[np.ndarray, np.ndarray]:
-        """Information (m,m) and gradient (m,) of the DH offsets' prior at the current offsets, with the prior at
+        """Information (m,m) and gradient (m,) of the DH offsets' prior at the current offsets.
+
+        Information (m,m) and gradient (m,) of the DH offsets' prior at the current offsets, with the prior at
         ``k`` times the stated sigmas (None: the scale in use); the terms of the graph's prior factor on them.
         """
         k = self.dh_scale if k is None else float(k)
@@ -259,9 +281,10 @@ class Problem:
 
     # -- robot error model (handeye.refine.robot_model)
     @property
-    def robot_groups(self) -> tuple:
-        """Names of the robot noise's variance components: the iid model's rotation and translation, or
-        the encoder noise of the kinematic ones.
+    def robot_groups(self) -> tuple[Any, ...]:
+        """Names of the robot noise's variance components.
+
+        The iid model's rotation and translation, or the encoder noise of the kinematic ones.
         """
         return ("joint",) if self.kin is not None else ("rot", "trans")
 
@@ -270,15 +293,16 @@ class Problem:
         return np.array([self.sigma_q] if self.kin is not None else [self.sigma_rot, self.sigma_trans], float)
 
     @robot_sigmas.setter
-    def robot_sigmas(self, s) -> None:
+    def robot_sigmas(self, s: Sequence[float] | np.ndarray) -> None:
         if self.kin is not None:
             self.sigma_q = float(s[0])
         else:
             self.sigma_rot, self.sigma_trans = float(s[0]), float(s[1])
 
-    def robot_group_weights(self, idx: Sequence[int]) -> list:
-        """Per group, the weights (len(idx),6,6) of a view's prior residual at unit group sigma: the prior's
-        information is sum_g W_g / s_g^2.
+    def robot_group_weights(self, idx: Sequence[int]) -> list[Any]:
+        """Per group, the weights (len(idx),6,6) of a view's prior residual at unit group sigma.
+
+        The prior's information is sum_g W_g / s_g^2.
         """
         idx = list(idx)
         if self.kin is not None:
@@ -286,7 +310,7 @@ class Problem:
         rot, trans = np.diag([1.0] * 3 + [0.0] * 3), np.diag([0.0] * 3 + [1.0] * 3)
         return [np.broadcast_to(rot, (len(idx), 6, 6)), np.broadcast_to(trans, (len(idx), 6, 6))]
 
-    def robot_group_counts(self) -> tuple:
+    def robot_group_counts(self) -> tuple[Any, ...]:
         """Equations per view of each group (the redundancy of the variance-component estimation)."""
         return (6,) if self.kin is not None else (3, 3)
 
@@ -301,6 +325,7 @@ class Problem:
         """(len(idx),6,m): d(true robot pose, right tangent of the reported one) / d(DH offsets)."""
         if not self.m_dh:
             return np.zeros((len(list(idx)), 6, 0))
+        assert self.kin is not None, "m_dh > 0 only with a kinematic model"
         return self.kin.J_dh[list(idx)]
 
     def prior_residuals(self, idx: Sequence[int]) -> np.ndarray:
@@ -315,7 +340,9 @@ class Problem:
         T_x: Optional[np.ndarray] = None,
         T_board: Optional[np.ndarray] = None,
     ) -> np.ndarray:
-        """Residuals (M,2) of every corner of every view, stacked in view order (split them with
+        """Residuals (M,2) of every corner of every view, stacked in view order.
+
+        Residuals (M,2) of every corner of every view, stacked in view order (split them with
         :meth:`per_view`), at the current solution or the given poses (T_robots (n,4,4)).
         """
         return stacked_chain_residual(
@@ -348,9 +375,13 @@ class Problem:
         return tangent_difference(self.reported[idx], self.P[idx])
 
     # -- graph
-    def build(self, *, robust: bool, pixel_only: bool = False):
-        """Graph and Values of the current problem; ``pixel_only`` keeps only the reprojection factors,
-        with unit pixel sigma (for the variance-component estimation).
+    def build(
+        self, *, robust: bool, pixel_only: bool = False
+    ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, int]]:
+        """Graph and Values of the current problem.
+
+        ``pixel_only`` keeps only the reprojection factors, with unit pixel sigma (for the
+        variance-component estimation).
         """
         g = gtsam.NonlinearFactorGraph()
         v = gtsam.Values()
@@ -362,7 +393,7 @@ class Problem:
         key_dh = KEY_DH if self.m_dh and not pixel_only else None
         if key_dh is not None:
             v.insert(key_dh, self.dh.copy())
-        robot_keys = {}
+        robot_keys: dict[int, int] = {}
         for i in self.active():
             key_r = None
             if self.has_robot_var(i):
@@ -423,6 +454,7 @@ class Problem:
             # Gaussian with the intrinsics when their cross-covariance is given; the intrinsics alone otherwise
             for key, prior, joint in self._pose_priors():
                 if joint is not None:
+                    assert self.prior_k is not None, "a joint prior comes with the intrinsics prior"
                     g.add(
                         joint_gaussian_prior(
                             key_pose=key,
@@ -438,7 +470,7 @@ class Problem:
                 g.add(gaussian_prior(key=KEY_INTRINSICS, mean=self.prior_k[0], cov=self.prior_k[1]))
         return g, v, robot_keys
 
-    def solve(self, *, robust: bool):
+    def solve(self, *, robust: bool) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, int]]:
         """One Levenberg-Marquardt solve of the current problem; updates the estimates in place."""
         g, v, robot_keys = self.build(robust=robust)
         opt = gtsam.LevenbergMarquardtOptimizer(g, v, lm_params(self.o.max_iterations))
@@ -455,14 +487,18 @@ class Problem:
             self.P[i] = res.atPose3(key).matrix()
         return g, res, robot_keys
 
-    def _pose_priors(self) -> tuple:
-        """(key, (mean (4,4), covariance (6,6)) or None, joint covariance with the free intrinsics or None) of the
+    def _pose_priors(self) -> tuple[Any, ...]:
+        """The priors on T_x and on the board: key, (mean, covariance) or None, joint covariance.
+
+        (key, (mean (4,4), covariance (6,6)) or None, joint covariance with the free intrinsics or None) of the
         priors on T_x and on the board, in the core order.
         """
         return ((KEY_X, self.prior_x, self.prior_cov_xk), (KEY_BOARD, self.prior_board, self.prior_cov_bk))
 
     def core_prior(self) -> tuple[np.ndarray, np.ndarray]:
-        """Information (c,c) and gradient J^T W r (c,) at the current estimate of the priors on the core
+        """Information (c,c) and gradient of the priors on the core unknowns but the DH offsets.
+
+        Information (c,c) and gradient J^T W r (c,) at the current estimate of the priors on the core
         unknowns but the DH offsets (the intrinsics prior of ``intrinsics="prior"`` and ``options.prior``), in
         the core order of :meth:`pixel_linearisation`; the same terms as the graph's prior factors. The DH
         offsets' prior, whose scale the noise estimation may change: :meth:`dh_prior_information`.
@@ -478,17 +514,18 @@ class Problem:
             W = np.linalg.inv(self.prior_k[1])
             H[ks, ks] += W
             g[ks] += W @ (self.k[self.free] - self.prior_k[0])
-        for (key, prior, joint), at, T in zip(self._pose_priors(), (0, 6), (self.T_x, self.T_board), strict=False):
+        for (_key, prior, joint), at, T in zip(self._pose_priors(), (0, 6), (self.T_x, self.T_board), strict=False):
             if prior is None:
                 continue
             T_p, cov = prior
             r = tangent_difference(T_p, T)
-            J = tangent_jacobian(lambda T_: tangent_difference(T_p, T_), T)
+            J = tangent_jacobian(functools.partial(tangent_difference, T_p), T)
             if joint is None:
                 JW = J.T @ np.linalg.inv(cov)
                 H[at : at + 6, at : at + 6] += JW @ J
                 g[at : at + 6] += JW @ r
             else:  # the pose and the free intrinsics as one joint Gaussian
+                assert self.prior_k is not None, "a joint prior comes with the intrinsics prior"
                 idx = np.r_[at : at + 6, N_POSES : N_POSES + self.free.size]
                 Jj = np.zeros((idx.size, idx.size))
                 Jj[:6, :6], Jj[6:, 6:] = J, np.eye(self.free.size)
@@ -498,7 +535,7 @@ class Problem:
         return H, g
 
     # -- information
-    def _ordering(self, robot_keys, *, with_dh: bool = True):
+    def _ordering(self, robot_keys: dict[int, int], *, with_dh: bool = True) -> gtsam.Ordering:
         ordering = gtsam.Ordering()
         keys = [KEY_X, KEY_BOARD] + ([KEY_INTRINSICS] if self.free.size else [])
         keys += [KEY_DH] if self.m_dh and with_dh else []
@@ -506,8 +543,12 @@ class Problem:
             ordering.push_back(k)
         return ordering
 
-    def covariances(self, g, values, robot_keys):
-        """Marginal covariances (core block, {view index: 6x6 covariance of its robot prior residual})
+    def covariances(
+        self, g: gtsam.NonlinearFactorGraph, values: gtsam.Values, robot_keys: dict[int, int]
+    ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+        """Marginal covariances of the core block and of each robot prior residual.
+
+        Marginal covariances (core block, {view index: 6x6 covariance of its robot prior residual})
         from the information matrix of graph ``g`` at ``values`` (arrow order: T_x, T_board, intrinsics,
         DH offsets, robot poses); see :func:`.covariance.robot_residual_covariances`.
         """
@@ -551,7 +592,9 @@ class Problem:
         )
 
     def apply_step(self, robot_views: Sequence[int], dx: np.ndarray) -> None:
-        """Move the estimates by a step ``dx`` in the order of :meth:`pixel_linearisation` (T_x, T_board,
+        """Move the estimates by a step ``dx`` in the order of :meth:`pixel_linearisation`.
+
+        Move the estimates by a step ``dx`` in the order of :meth:`pixel_linearisation` (T_x, T_board,
         free intrinsics, DH offsets, then one 6-vector per view of ``robot_views``), poses by right perturbation.
         """
         c = self.n_core
@@ -576,10 +619,12 @@ def solve_pose_graph(
     T_x0: np.ndarray,
     T_board0: np.ndarray,
     robust_k: Optional[float] = None,
-    prior_x=None,
+    prior_x: Optional[tuple[np.ndarray, np.ndarray]] = None,
     max_iterations: int = 100,
 ) -> tuple[np.ndarray, np.ndarray, int]:
-    """Levenberg-Marquardt on ``T_x`` and ``T_board`` from measured camera -> target poses (pose-only
+    """Levenberg-Marquardt on ``T_x`` and ``T_board`` from measured camera -> target poses.
+
+    Levenberg-Marquardt on ``T_x`` and ``T_board`` from measured camera -> target poses (pose-only
     views, :mod:`handeye.factors.pose`): ``M`` (n,4,4) the views' robot motions, ``T_cam_board`` (n,4,4)
     the tracker's poses, ``covariances`` (n,6,6) each view's residual covariance (rotation [rad] first);
     ``prior_x`` (T_x (4,4), covariance (6,6)) an optional Gaussian prior on ``T_x``. Returns

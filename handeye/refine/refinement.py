@@ -24,7 +24,7 @@ from ..mounting import mounting
 from ..records import HandEyeEstimate
 from .noise import robust_robot_sigmas, robust_sigma_px, sigma_px_from_residuals
 from .options import RefineOptions, RefineView, check_inputs, check_options, check_T
-from .outliers import Outlier, TooFewRobotPoses, camera_only_poses, outlier_loop
+from .outliers import Decision, Outlier, TooFewRobotPoses, camera_only_poses, outlier_loop
 from .problem import Problem
 from .result import RefineResult, build_result
 
@@ -32,7 +32,9 @@ log = logging.getLogger(__name__)
 
 
 def seed_score(pb: Problem, T_x: np.ndarray, T_board: np.ndarray) -> float:
-    """Median over the views of each view's median corner residual (px) through the reported robot
+    """Median over the views of each view's median corner residual.
+
+    Median over the views of each view's median corner residual (px) through the reported robot
     pose: a start that half the views agree with scores low, whatever the other views do.
     """
     e = np.linalg.norm(pb.corner_residuals(T_robots=pb.reported, T_x=T_x, T_board=T_board), axis=1)
@@ -52,7 +54,9 @@ def seed_score(pb: Problem, T_x: np.ndarray, T_board: np.ndarray) -> float:
 
 
 def best_start(pb: Problem, starts: Mapping[str, HandEyeEstimate]) -> tuple[np.ndarray, np.ndarray, str]:
-    """The given start, or the candidate among ``starts`` with the lowest :func:`seed_score` when
+    """The given start, or the candidate among ``starts`` with a lower :func:`seed_score`.
+
+    The given start, or the candidate among ``starts`` with the lowest :func:`seed_score` when
     that is lower. Candidates that failed or are not finite are skipped.
     """
     best, best_score, best_name = (pb.T_x, pb.T_board), seed_score(pb, pb.T_x, pb.T_board), "given"
@@ -82,7 +86,7 @@ def refine(
     intrinsics: Intrinsics,
     T_x0: np.ndarray,
     T_board0: np.ndarray,
-    options: RefineOptions = RefineOptions(),
+    options: Optional[RefineOptions] = None,
     starts: Optional[Mapping[str, HandEyeEstimate]] = None,
 ) -> RefineResult:
     """Refine hand-eye, board, intrinsics and robot poses jointly; see the module docstring.
@@ -94,6 +98,7 @@ def refine(
     Raises ConfigError / InputError for invalid options or inputs; a solve that fails returns a
     result with ``status="failed"`` and a ``failure_reason``.
     """
+    options = RefineOptions() if options is None else options
     t0 = time.perf_counter()
     mount = mounting(mode)
     check_options(options)
@@ -130,7 +135,13 @@ def refine(
                 )
             )
 
-    def result(status, reason, S_cc=None, dec=None, code="") -> RefineResult:
+    def result(
+        status: str,
+        reason: str,
+        S_cc: Optional[np.ndarray] = None,
+        dec: Optional[Decision] = None,
+        code: str = "",
+    ) -> RefineResult:
         return build_result(
             pb,
             status=status,

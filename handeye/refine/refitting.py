@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, replace
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
@@ -39,7 +39,7 @@ class Refit:
     T_x: Optional[np.ndarray]  # (4,4) the result's transform (T_end_cam / T_base_cam), None when failed
     T_board: Optional[np.ndarray]  # (4,4) (T_base_board / T_end_board)
     intrinsics: Optional[Intrinsics]
-    view_ids: tuple  # the views of the solve
+    view_ids: tuple[Any, ...]  # the views of the solve
     cov_x: Optional[np.ndarray] = None  # (6,6) the refit's model covariance of T_x (the tangent of cov_x_6x6)
     cov_intrinsics: Optional[np.ndarray] = None  # (k,k) of the free intrinsics (the refinement's order)
 
@@ -47,7 +47,9 @@ class Refit:
 def refit(
     result: RefineResult, *, object_points: np.ndarray, views: Sequence[RefineView], covariance: bool = True
 ) -> Refit:
-    """Solve the refinement of ``result`` again on ``views`` alone (a subset of its views), holding its
+    """Solve the refinement of ``result`` again on ``views`` alone.
+
+    Solve the refinement of ``result`` again on ``views`` alone (a subset of its views), holding its
     noise levels and outlier decisions (see the module docstring).
 
     ``object_points`` (N,3): the board points the views' ``corner_ids`` index (the same as for
@@ -64,7 +66,7 @@ def refit(
             received=f"status {result.status!r}",
             hint="refit only results with status 'ok'",
         )
-    flagged: dict = {}
+    flagged: dict[str, Any] = {}
     for o in result.outliers:
         if o.kind == "corners":
             flagged.setdefault(o.view_id, set()).update(int(c) for c in o.corner_ids)

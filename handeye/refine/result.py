@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict, dataclass, field
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING, Any, Optional
 
 import numpy as np
 
@@ -34,31 +34,33 @@ class RefineResult:
     T_x_seed: np.ndarray
     T_board_seed: np.ndarray
     intrinsics_seed: Intrinsics
-    robot_poses: dict  # view_id -> refined T_base_end (4,4)
+    robot_poses: dict[str, Any]  # view_id -> refined T_base_end (4,4)
     cov_x_6x6: np.ndarray
     cov_parametrisation: str
     sigma_rot_deg: np.ndarray  # (3,) about the camera axes
     sigma_trans_mm: np.ndarray  # (3,) translation of T_x along the parent frame's axes
     correlation_6x6: np.ndarray
-    intrinsics_sigma: dict  # name -> sigma of the free intrinsics
+    intrinsics_sigma: dict[str, Any]  # name -> sigma of the free intrinsics
     working_distance_m: float
     predicted_error_mm: float  # RMS 3-D error of a point on the optical axis at the working distance
     predicted_error_axes_mm: np.ndarray  # (3,) per parent-frame axis
     sigma_px: float
     robot_sigma_mm: float
     robot_sigma_deg: float
-    robot_sigma_resolved: dict  # {"rot": bool, "trans": bool}; False: below what the camera resolves (an upper value)
+    robot_sigma_resolved: dict[
+        str, Any
+    ]  # {"rot": bool, "trans": bool}; False: below what the camera resolves (an upper value)
     rms_px_before: float
     rms_px_after: float
-    per_view: dict  # view_id -> dict(rms_px, max_px, n_corners, n_used, status, robot disagreement)
-    outliers: tuple  # tuple[Outlier, ...]
+    per_view: dict[str, Any]  # view_id -> dict(rms_px, max_px, n_corners, n_used, status, robot disagreement)
+    outliers: tuple[Any, ...]  # tuple[Outlier, ...]
     iterations: int
     seconds: float
     start_method: str = "given"  # the start the refinement used: "given" (T_x0, T_board0) or a closed form
     options: RefineOptions = RefineOptions()
     # the robot error model (handeye.refine.robot_model): kind none | iid | joint_space | kinematic, its
     # parameters, and what was estimated (:func:`robot_model_dict`)
-    robot_model: dict = field(default_factory=dict)
+    robot_model: dict[str, Any] = field(default_factory=dict)
     # marginal covariance (6,6) of T_board (T_base_board / T_end_board): right tangent, rotation first, along
     # the board frame's axes (COV_BOARD_PARAMETRISATION); None when the refinement failed
     cov_board_6x6: Optional[np.ndarray] = None
@@ -66,20 +68,20 @@ class RefineResult:
     # order, "cross_6xk": cov(xi_x, k) (6,nk), "intrinsics_kxk": cov(k) (nk,nk), "cross_board_6xk":
     # cov(xi_board, k) (6,nk) (the board's own block is cov_board_6x6); with the kinematic robot model
     # also "dh_offsets" (m,), "cross_6xm", "cross_kxm", "dh_mxm"}; None when failed or none free
-    cov_x_intrinsics: Optional[dict] = None
+    cov_x_intrinsics: Optional[dict[str, Any]] = None
     # degrees of freedom (redundancy) of each robot sigma the variance-component estimation estimated
     # ({"rot": r, "trans": r} or {"joint": r}, plus "dh_scale" where the views widened the arm's DH prior);
     # empty when none was estimated or resolved
-    robot_noise_dof: dict = field(default_factory=dict)
+    robot_noise_dof: dict[str, Any] = field(default_factory=dict)
     #: why a failed refinement failed, for programs: "too_few_robot_poses" (fewer than 3 views keep a robot
     #: pose that agrees with the camera), "singular", "solver"; empty when it did not fail
     failure_code: str = ""
 
     @property
-    def used_view_ids(self) -> list:
+    def used_view_ids(self) -> list[Any]:
         return [v for v, d in self.per_view.items() if d["status"] == "used"]
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready content for result.json (nested lists, names with units)."""
         parent = mounting(self.mode).fixed_frame
         return plain(
@@ -136,15 +138,17 @@ class RefineResult:
         )
 
 
-def _options_dict(o: RefineOptions) -> dict:
+def _options_dict(o: RefineOptions) -> dict[str, Any]:
     d = asdict(o)
     if o.arm is not None and not isinstance(o.arm, str):  # a DHChain: its name (the table is in robot_model)
         d["arm"] = getattr(o.arm, "name", str(o.arm))
     return d
 
 
-def robot_model_dict(pb: "Problem", S_cc: Optional[np.ndarray]) -> dict:
-    """JSON-ready description of the robot error model of a solved problem (``S_cc``: its core covariance,
+def robot_model_dict(pb: "Problem", S_cc: Optional[np.ndarray]) -> dict[str, Any]:
+    """JSON-ready description of the robot error model of a solved problem.
+
+    JSON-ready description of the robot error model of a solved problem (``S_cc``: its core covariance,
     None when it failed): kind, parameters and what was estimated.
     """
     estimated = pb.o.robot_noise == "estimate"
@@ -160,7 +164,7 @@ def robot_model_dict(pb: "Problem", S_cc: Optional[np.ndarray]) -> dict:
             "resolved": dict(pb.resolved) if estimated else {},
         }
     km = pb.kin
-    d = {
+    d: dict[str, Any] = {
         "kind": km.kind,
         "arm": km.arm.name,
         "dh_convention": km.arm.convention,
@@ -206,7 +210,9 @@ def robot_model_dict(pb: "Problem", S_cc: Optional[np.ndarray]) -> dict:
 
 
 def _equivalent_robot_sigmas(pb: "Problem") -> tuple[float, float]:
-    """(mm, deg): the robot sigma per axis, or for the kinematic models the RMS per axis of each view's
+    """(mm, deg): the robot sigma per axis, or its RMS equivalent for the kinematic models.
+
+    (mm, deg): the robot sigma per axis, or for the kinematic models the RMS per axis of each view's
     encoder-noise covariance over the views.
     """
     if not pb.robot_var:
@@ -217,7 +223,7 @@ def _equivalent_robot_sigmas(pb: "Problem") -> tuple[float, float]:
     return 1000.0 * float(np.sqrt(np.mean(d[:, 3:]))), float(np.degrees(np.sqrt(np.mean(d[:, :3]))))
 
 
-def _resolved(pb: "Problem") -> dict:
+def _resolved(pb: "Problem") -> dict[str, Any]:
     if pb.o.robot_noise != "estimate":
         return {}
     if pb.kin is None:
@@ -237,7 +243,7 @@ def _working_distance(pb: "Problem") -> float:
     return float(np.median(depths)) if depths else float("nan")
 
 
-def _per_view(pb: "Problem", dec: Optional["Decision"]) -> dict:
+def _per_view(pb: "Problem", dec: Optional["Decision"]) -> dict[str, Any]:
     per_view = {}
     e_all = pb.per_view(np.linalg.norm(pb.corner_residuals(), axis=1))
     for i, vid in enumerate(pb.ids):
@@ -270,7 +276,7 @@ def build_result(
     T_board0: np.ndarray,
     intrinsics0: Intrinsics,
     t0: float,
-    outliers: tuple,
+    outliers: tuple[Any, ...],
     start_method: str,
     failure_code: str = "",
 ) -> RefineResult:
@@ -328,8 +334,10 @@ def build_result(
     )
 
 
-def _x_intrinsics_covariance(pb: "Problem", S_cc: Optional[np.ndarray]) -> Optional[dict]:
-    """The joint marginal covariance of T_x's tangent and the free intrinsics (``cov_x_intrinsics``), with the
+def _x_intrinsics_covariance(pb: "Problem", S_cc: Optional[np.ndarray]) -> Optional[dict[str, Any]]:
+    """The joint marginal covariance of T_x's tangent and the free intrinsics.
+
+    The joint marginal covariance of T_x's tangent and the free intrinsics (``cov_x_intrinsics``), with the
     kinematic robot model's DH offsets (their estimate and covariance with both) when it has them.
     """
     nk = len(pb.free)

@@ -12,7 +12,7 @@ See docs/robot_error.md.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
@@ -26,27 +26,31 @@ LENGTH_PARAMETERS = (0, 2)  # a, d in a DH row (a, alpha, d, theta_offset); the 
 
 @dataclass(frozen=True)
 class KinematicRobotModel:
-    """The per-view matrices of the ``kinematic`` / ``joint_space`` models for n views of an arm with
+    """The per-view matrices of the ``kinematic`` / ``joint_space`` robot models.
+
+    The per-view matrices of the ``kinematic`` / ``joint_space`` models for n views of an arm with
     m DH parameters (m = 0 for ``joint_space``).
     """
 
     kind: str  # kinematic | joint_space
     arm: DHChain
     joints: np.ndarray  # (n, n_joints) radians
-    joints_source: tuple  # per view: "recorded" | "inverse_kinematics"
+    joints_source: tuple[str, ...]  # per view: "recorded" | "inverse_kinematics"
     J_dh: np.ndarray  # (n, 6, m): d u_i / d delta
     B: np.ndarray  # (n, 6, 6): J_q J_q^T + ridge, u_i's covariance per unit encoder variance
     dh_sigma: np.ndarray  # (m,) prior sigma of each DH offset (m, rad)
     encoder_sigma_rad: float  # start value (estimate) or value (fixed) of the encoder noise
     T_tool: np.ndarray  # (4,4) reported frame in the flange frame (identity: the flange)
-    tool_spread: tuple  # (rot deg, trans mm): largest departure of an agreeing view's tool offset from T_tool
-    joints_disagree: tuple = ()  # ids of views whose joint angles do not give their reported pose
+    tool_spread: tuple[
+        float, float
+    ]  # (rot deg, trans mm): largest departure of an agreeing view's tool offset from T_tool
+    joints_disagree: tuple[str, ...] = ()  # ids of views whose joint angles do not give their reported pose
 
     @property
     def m(self) -> int:
         return int(self.J_dh.shape[2])
 
-    def parameter_names(self) -> list:
+    def parameter_names(self) -> list[str]:
         return [f"{p}_{j + 1}" for j in range(self.arm.n_joints) for p in PARAMETER_NAMES][: self.m]
 
 
@@ -57,7 +61,9 @@ def _arm(o: RefineOptions) -> Optional[DHChain]:
 
 
 def resolve_kind(o: RefineOptions, views: Sequence[RefineView]) -> str:
-    """None | iid | kinematic | joint_space: the model of ``o.robot_model`` for these views. ``auto``
+    """The robot model of ``o.robot_model`` for these views: None, iid, kinematic or joint_space.
+
+    None | iid | kinematic | joint_space: the model of ``o.robot_model`` for these views. ``auto``
     is ``kinematic`` when an arm is named (views without joint angles get them by inverse kinematics),
     else ``iid``.
     """
@@ -75,9 +81,11 @@ def resolve_kind(o: RefineOptions, views: Sequence[RefineView]) -> str:
     return o.robot_model
 
 
-def _joints(arm: DHChain, views: Sequence[RefineView], reported: np.ndarray) -> tuple[np.ndarray, tuple]:
-    out, source = [], []
-    prev = None
+def _joints(arm: DHChain, views: Sequence[RefineView], reported: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
+    out: list[np.ndarray] = []
+    source: list[str] = []
+    prev: Optional[np.ndarray] = None
+    q: Optional[np.ndarray]
     for v, T in zip(views, reported, strict=False):
         if v.joint_angles is not None:
             q = np.asarray(v.joint_angles, float).reshape(-1)
@@ -111,6 +119,7 @@ def build_kinematic_model(
 ) -> KinematicRobotModel:
     """The matrices of the ``kinematic`` or ``joint_space`` model at the views' joint angles."""
     arm = _arm(o)
+    assert arm is not None, "resolve_kind gives a kinematic model only with an arm"
     cfg = refine_preset()["robot_model"]
     prior = arm.error_prior or (
         float(cfg["dh_length_sigma_mm"]) * 1e-3,
@@ -125,7 +134,7 @@ def build_kinematic_model(
     tools = inv_T(FK) @ reported  # shape (n, 4, 4): reported frame in the flange frame, per view
     tol_deg, tol_mm = float(cfg["tool_spread_deg"]), float(cfg["tool_spread_mm"])
 
-    def within(T_ref):
+    def within(T_ref: np.ndarray) -> np.ndarray:
         d = tangent_difference(T_ref, tools)
         return (np.degrees(np.linalg.norm(d[:, :3], axis=1)) <= tol_deg) & (
             1e3 * np.linalg.norm(d[:, 3:], axis=1) <= tol_mm
@@ -182,10 +191,12 @@ def describe_dh(
     prior_cov: Optional[np.ndarray] = None,
     *,
     scale: float = 1.0,
-    test: Optional[dict] = None,
+    test: Optional[dict[str, Any]] = None,
     scale_dof: Optional[float] = None,
-) -> dict:
-    """JSON-ready estimate of the DH offsets: per joint (a mm, alpha deg, d mm, theta_offset deg), their
+) -> dict[str, Any]:
+    """JSON-ready estimate of the DH offsets per joint, with sigmas and prior shares.
+
+    JSON-ready estimate of the DH offsets: per joint (a mm, alpha deg, d mm, theta_offset deg), their
     sigmas, and the share of each offset's prior variance the data removed (0: held by the prior alone,
     1: fixed by the data). ``prior_cov`` (m,m): the prior the offsets were estimated under when it is not the
     arm's own N(0, dh_sigma^2), e.g. an earlier calibration's estimate; the share is measured against it.
@@ -201,7 +212,7 @@ def describe_dh(
     share = 1.0 - np.clip(sd**2 / prior_var, 0.0, 1.0)
     shape = (km.arm.n_joints, 4)
 
-    def sigmas(k):
+    def sigmas(k: float) -> dict[str, float]:
         return {"length_mm": float(k * km.dh_sigma[0] * 1e3), "angle_deg": float(np.degrees(k * km.dh_sigma[1]))}
 
     return {

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from typing import Callable, Optional, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Optional, Sequence, Union
 
 import numpy as np
 from scipy.stats import chi2
@@ -21,8 +21,10 @@ from scipy.stats import chi2
 from ..camera import INTRINSIC_NAMES
 from ..config import load_preset
 from ..frames import tangent_difference
-from .options import RefineView
 from .result import RefineResult
+
+if TYPE_CHECKING:  # the type only: validate imports refit where it runs it
+    from .refitting import Refit
 
 log = logging.getLogger(__name__)
 
@@ -35,15 +37,17 @@ SIGMA_RULE = (
 )
 
 
-def settings() -> dict:
+def settings() -> dict[str, Any]:
     """``validation:`` of configs/diagnostics.yaml (fold scheme, minimum views, ratio test level)."""
     return load_preset("diagnostics")["validation"]
 
 
 # ------------------------------------------------------------------------------ pure math
-def fold_indices(n: int, *, loo_max_views: int, folds: int) -> list:
-    """Index arrays of the held-out views of each fold: one view each up to ``loo_max_views`` views,
-    else ``folds`` interleaved groups (view k in fold k mod folds).
+def fold_indices(n: int, *, loo_max_views: int, folds: int) -> list[np.ndarray]:
+    """Index arrays of the held-out views of each fold.
+
+    One view each up to ``loo_max_views`` views, else ``folds`` interleaved groups (view k in fold k
+    mod folds).
     """
     if n <= loo_max_views:
         return [np.array([i]) for i in range(n)]
@@ -51,7 +55,9 @@ def fold_indices(n: int, *, loo_max_views: int, folds: int) -> list:
 
 
 def jackknife_covariance(thetas: np.ndarray) -> np.ndarray:
-    """Grouped jackknife covariance (D,D) of K fold estimates ``thetas`` (K,D) of folds that partition
+    """Grouped jackknife covariance (D,D) of K fold estimates ``thetas``.
+
+    Grouped jackknife covariance (D,D) of K fold estimates ``thetas`` (K,D) of folds that partition
     the units: ``(K - 1) / K · sum_k (theta_k - mean)(theta_k - mean)^T``.
     """
     x = np.asarray(thetas, float)
@@ -61,7 +67,9 @@ def jackknife_covariance(thetas: np.ndarray) -> np.ndarray:
 
 
 def shrunk_jackknife(thetas: np.ndarray, cov_model: np.ndarray) -> tuple[np.ndarray, float, float]:
-    """(validated covariance (D,D), shrinkage intensity in [0, 1], scale s): the jackknife covariance of
+    """(validated covariance, shrinkage intensity, scale): the shrunk, whitened jackknife covariance.
+
+    (validated covariance (D,D), shrinkage intensity in [0, 1], scale s): the jackknife covariance of
     ``thetas`` (K,D), whitened by ``cov_model``, shrunk toward ``s · I`` with the Ledoit-Wolf intensity
     estimated from the K folds, and mapped back. ``s = tr(M^-1 S) / D``: the spread over the model's
     prediction, averaged over the D directions.
@@ -80,9 +88,10 @@ def shrunk_jackknife(thetas: np.ndarray, cov_model: np.ndarray) -> tuple[np.ndar
 
 
 def generalised_max(cov_model: np.ndarray, cov_other: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(C, generalised eigenvalues of ``cov_other`` against ``cov_model`` (D,), ascending): the smallest
-    covariance of the form ``L U diag(c) U^T L^T`` with ``u^T C u >= max(u^T M u, u^T V u)`` along
-    every direction (:data:`SIGMA_RULE`).
+    """(C, generalised eigenvalues of ``cov_other`` against ``cov_model`` (D,), ascending).
+
+    The smallest covariance of the form ``L U diag(c) U^T L^T`` with ``u^T C u >= max(u^T M u, u^T V
+    u)`` along every direction (:data:`SIGMA_RULE`).
     """
     M = 0.5 * (cov_model + cov_model.T)
     L = np.linalg.cholesky(M)
@@ -95,7 +104,9 @@ def generalised_max(cov_model: np.ndarray, cov_other: np.ndarray) -> tuple[np.nd
 def fold_information_statistic(
     deltas: np.ndarray, fold_covs: Sequence[np.ndarray], cov_all: np.ndarray, *, floor: float
 ) -> tuple[float, float]:
-    """(T, dof) of the folds' displacements ``deltas`` (K,D) from the all-views refit against their model
+    """(T, dof) of the folds' displacements from the all-views refit against their covariances.
+
+    (T, dof) of the folds' displacements ``deltas`` (K,D) from the all-views refit against their model
     covariances ``P_k = fold_covs[k] - cov_all`` (module docstring): ``T = (K - 1) / K · sum_k delta_k^T P_k^+
     delta_k`` over the directions (generalised eigenvectors against ``cov_all``) in which ``P_k`` exceeds
     ``floor`` times ``cov_all``, ``dof = (K - 1) / K`` times their number. chi-square(dof) if the model is
@@ -116,7 +127,9 @@ def fold_information_statistic(
 
 
 def trace_p_value(scale: float, k_folds: int, dim: int) -> float:
-    """Upper tail probability of the folds' spread ``scale = tr(M^-1 S) / D`` if the model covariance is
+    """Upper tail probability of the folds' spread if the model covariance is right.
+
+    Upper tail probability of the folds' spread ``scale = tr(M^-1 S) / D`` if the model covariance is
     right: ``(K - 1) D · scale`` is chi-square with ``(K - 1) D`` degrees of freedom.
     """
     dof = max(int(k_folds) - 1, 1) * int(dim)
@@ -136,7 +149,7 @@ def mahalanobis2(delta: np.ndarray, cov: np.ndarray) -> float:
 class Block:
     """One parameter block (``x``: T_x in the tangent of cov_x_6x6; ``intrinsics``: the free ones)."""
 
-    names: tuple
+    names: tuple[Any, ...]
     cov_model: np.ndarray
     cov_validated: np.ndarray
     cov_verdict: np.ndarray
@@ -165,12 +178,12 @@ class Validation:
     status: str
     reason: str = ""
     scheme: str = ""
-    view_ids: tuple = ()  # the used views, in view order
-    folds: tuple = ()  # per fold, the held-out view ids
-    refits: tuple = ()  # per fold, the Refit (status ok or failed)
+    view_ids: tuple[Any, ...] = ()  # the used views, in view order
+    folds: tuple[Any, ...] = ()  # per fold, the held-out view ids
+    refits: tuple[Any, ...] = ()  # per fold, the Refit (status ok or failed)
     x: Optional[Block] = None
     intrinsics: Optional[Block] = None
-    halves: dict = field(default_factory=dict)  # "odd" | "even" -> Refit
+    halves: dict[str, Any] = field(default_factory=dict)  # "odd" | "even" -> Refit
 
     @property
     def n_solved(self) -> int:
@@ -179,6 +192,7 @@ class Validation:
     def summary(self) -> str:
         if self.status != "ok":
             return f"not run: {self.reason}"
+        assert self.x is not None, "a validation that ran has its X block"
         r = np.sqrt(max(float(self.x.eig.max()), 0.0))
         rms = np.sqrt(max(float(self.x.scale), 0.0))
         test = (
@@ -239,30 +253,37 @@ def validate(
             if len(sub) >= 3:
                 half[name] = refit_views(sub + kept, False)
     ok = [r for r in refits if r.status == "ok"]
-    base = dict(scheme=scheme, view_ids=ids, folds=folds, refits=tuple(refits), halves=half)
+    base: dict[str, Any] = dict(scheme=scheme, view_ids=ids, folds=folds, refits=tuple(refits), halves=half)
     if len(ok) < max(3, len(fold_list) // 2 + 1):
         return Validation("not_run", f"only {len(ok)} of {len(fold_list)} folds could be solved", **base)
     # the reference of the finding's test: all views, refitted as the folds are
     every = refit_views(used + kept, True)
     floor = float(cfg["information_floor"])
     try:
-        test = _fold_test(ok, every, lambda r: tangent_difference(every.T_x, r.T_x), lambda r: r.cov_x, floor)
+        test = _fold_test(
+            ok,
+            every,
+            lambda r: tangent_difference(every.T_x, r.T_x),  # type: ignore[arg-type]  # solved refits have T_x
+            lambda r: r.cov_x,
+            floor,
+        )
         xb = _block(
             ("rx", "ry", "rz", "tx", "ty", "tz"),
             result.cov_x_6x6,
-            np.stack([tangent_difference(result.T_x, r.T_x) for r in ok]),
+            np.stack([tangent_difference(result.T_x, r.T_x) for r in ok]),  # type: ignore[arg-type]  # solved: T_x
             test=test,
         )
         names = tuple(k for k in INTRINSIC_NAMES if k in result.intrinsics_sigma)
         kb = None
         if names:
             idx = [INTRINSIC_NAMES.index(k) for k in names]
+            assert result.intrinsics is not None, "free intrinsics have sigmas only with intrinsics"
             k0 = result.intrinsics.as_vector()[idx]
             M_k, form = intrinsics_model_covariance(result, names)
             test = _fold_test(
                 ok,
                 every,
-                lambda r: r.intrinsics.as_vector()[idx] - every.intrinsics.as_vector()[idx],
+                lambda r: r.intrinsics.as_vector()[idx] - every.intrinsics.as_vector()[idx],  # type: ignore[union-attr]
                 lambda r: r.cov_intrinsics,
                 floor,
             )
@@ -271,7 +292,7 @@ def validate(
             kb = _block(
                 names,
                 M_k,
-                np.stack([r.intrinsics.as_vector()[idx] - k0 for r in ok]),
+                np.stack([r.intrinsics.as_vector()[idx] - k0 for r in ok]),  # type: ignore[union-attr]  # solved
                 model_form=form,
                 test=test if test is not None else "none",
             )
@@ -280,29 +301,40 @@ def validate(
     return Validation("ok", "", x=xb, intrinsics=kb, **base)
 
 
-def _fold_test(ok: list, every, delta, cov, floor: float) -> Optional[tuple]:
-    """(T, dof) of :func:`fold_information_statistic` over the solved folds that have their own covariance
+def _fold_test(
+    ok: list[Refit],
+    every: Refit,
+    delta: Callable[[Refit], np.ndarray],
+    cov: Callable[[Refit], Optional[np.ndarray]],
+    floor: float,
+) -> Optional[tuple[float, float]]:
+    """(T, dof) of :func:`fold_information_statistic` over the solved folds that have their own covariance.
+
+    (T, dof) of :func:`fold_information_statistic` over the solved folds that have their own covariance
     (``delta(refit)``: its displacement from the all-views refit ``every``; ``cov(refit)``: its covariance),
     or None when no test is possible (the all-views refit failed or has no usable covariance, or fewer than
     3 folds have theirs).
     """
-    if every.status != "ok" or cov(every) is None:
+    cov_every = cov(every) if every.status == "ok" else None
+    if cov_every is None:
         return None
-    folds = [r for r in ok if cov(r) is not None]
+    folds = [(r, c) for r in ok if (c := cov(r)) is not None]
     if len(folds) < 3:
         return None
     try:
         return fold_information_statistic(
-            np.stack([delta(r) for r in folds]), [cov(r) for r in folds], cov(every), floor=floor
+            np.stack([delta(r) for r, _ in folds]), [c for _, c in folds], cov_every, floor=floor
         )
     except np.linalg.LinAlgError as e:  # the all-views covariance not positive definite
         log.info("the folds' test is not possible (%s)", e)
         return None
 
 
-def intrinsics_model_covariance(result: RefineResult, names: tuple) -> tuple[np.ndarray, str]:
-    """(model covariance of the free intrinsics ``names``, "full" | "sigmas"): the marginal of the refinement's
-    joint covariance when it has one for exactly these intrinsics, else the diagonal of their model sigmas.
+def intrinsics_model_covariance(result: RefineResult, names: tuple[Any, ...]) -> tuple[np.ndarray, str]:
+    """(model covariance of the free intrinsics ``names``, "full" | "sigmas").
+
+    The marginal of the refinement's joint covariance when it has one for exactly these intrinsics, else
+    the diagonal of their model sigmas.
     """
     j = result.cov_x_intrinsics
     if j is not None and tuple(j["intrinsics"]) == tuple(names):
@@ -316,8 +348,17 @@ def intrinsics_model_covariance(result: RefineResult, names: tuple) -> tuple[np.
     return np.diag(sig**2), "sigmas"
 
 
-def _block(names: tuple, cov_model: np.ndarray, thetas: np.ndarray, *, model_form: str = "full", test=None) -> Block:
-    """One block's covariances; ``test``: (T, dof) of :func:`fold_information_statistic`, None for the trace
+def _block(
+    names: tuple[str, ...],
+    cov_model: np.ndarray,
+    thetas: np.ndarray,
+    *,
+    model_form: str = "full",
+    test: Union[tuple[float, float], str, None] = None,
+) -> Block:
+    """One block's validated covariances and its fold test.
+
+    One block's covariances; ``test``: (T, dof) of :func:`fold_information_statistic`, None for the trace
     test of the jackknife against the model (equal leverage), or "none" (no test: the model stands).
     """
     M = np.asarray(cov_model, float)

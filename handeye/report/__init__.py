@@ -67,7 +67,9 @@ def write_reports(
 
 
 def render_reports(ctx: dict, folder, *, out_dir: str | Path, formats=("html", "md")) -> tuple:
-    """(html text or None, (Markdown text, its files) or None): the reports of the context ``ctx`` of
+    """The HTML and Markdown reports of the context ``ctx`` of ``folder``.
+
+    (html text or None, (Markdown text, its files) or None): the reports of the context ``ctx`` of
     ``folder`` (a :class:`~handeye.report.folder.ResultFolder`) rendered in memory, for
     :func:`handeye.report.render.write_files` into ``out_dir``. A context built without figures is
     rendered without them (:func:`handeye.report.context.add_figures` adds them).

@@ -7,6 +7,8 @@ here complements the error's own ``fix`` with what a person should check, per co
 
 from __future__ import annotations
 
+from typing import Optional
+
 #: error code -> what to check (in addition to the error's own ``fix``)
 ERROR_ADVICE = {
     "target_not_found": "Count the inner corners (where four squares meet), not the squares, give the square size "
@@ -171,8 +173,10 @@ def _sentence(s) -> str:
 
 
 def error_record(res: dict) -> dict:
-    """The structured error of a failed run; a result written before errors had codes gives its
-    ``failure_reason`` as ``what`` and the code ``""``.
+    """The structured error of a failed run.
+
+    A result written before errors had codes gives its ``failure_reason`` as ``what`` and the code
+    ``""``.
     """
     err = res.get("error")
     if isinstance(err, dict) and err.get("what"):
@@ -181,9 +185,10 @@ def error_record(res: dict) -> dict:
 
 
 def failure_advice(res: dict, findings: list[dict], *, has_views: bool) -> dict:
-    """Why a run failed and what to change: the error's own fix, the advice for its code, then the
-    actions of the diagnostics' fail findings (up to :data:`MAX_ACTIONS` in all); generic advice only
-    when none of these says anything.
+    """Why a run failed and what to change.
+
+    The error's own fix, the advice for its code, then the actions of the diagnostics' fail findings
+    (up to :data:`MAX_ACTIONS` in all); generic advice only when none of these says anything.
     """
     err = error_record(res)
     parts = [str(err["what"])]
@@ -194,7 +199,7 @@ def failure_advice(res: dict, findings: list[dict], *, has_views: bool) -> dict:
     problem = _sentence("; ".join(parts))
     actions: list[str] = []
 
-    def add(text: str) -> None:
+    def add(text: Optional[str]) -> None:
         text = _sentence(text)
         if text and text not in actions:
             actions.append(text)
@@ -215,7 +220,9 @@ def failure_advice(res: dict, findings: list[dict], *, has_views: bool) -> dict:
 
 
 def finding_advice(f: dict) -> str:
-    """What to check for a finding, by its code, beyond its own action ("" when nothing more is known; a pairing
+    """What to check for a finding, by its code, beyond its own action.
+
+    What to check for a finding, by its code, beyond its own action ("" when nothing more is known; a pairing
     out of step from one image on has its own fix, the order was not lost).
     """
     if is_out_of_step(f):
@@ -230,7 +237,7 @@ def untrusted_metrics(findings: list[dict]) -> dict[str, str]:
         if f["severity"] not in ("fail", "warn"):
             continue
         for key in UNTRUSTED_METRICS.get(f.get("code", ""), ()):
-            out.setdefault(key, f.get("title") or f.get("code"))
+            out.setdefault(key, str(f.get("title") or f.get("code")))  # a finding has a code
     return out
 
 
@@ -246,7 +253,7 @@ def _shift_label(shift) -> str:
 def _cause_of_finding(f: dict) -> str:
     """The root cause a finding names: its label and title (``Mode swapped: the data are ...``)."""
     code, title = str(f.get("code") or ""), str(f.get("title") or "").rstrip(".")
-    details = f.get("details") if isinstance(f.get("details"), dict) else {}
+    details = details if isinstance(details := f.get("details"), dict) else {}
     if code == "square_size" and details.get("measured_mm") is not None and details.get("stated_mm") is not None:
         label = f"Squares look like {float(details['measured_mm']):.1f} mm, not {float(details['stated_mm']):g} mm"
         return label
@@ -272,7 +279,7 @@ def root_cause(res: dict, findings: list[dict]) -> dict | None:
     the first fail, then warn finding with a code of :data:`ROOT_CAUSE_CODES` gives ``{"code", "text", "fix",
     "refused": False}`` with its action. Keyed on codes, never on message text.
     """
-    err = res.get("error") if isinstance(res.get("error"), dict) else {}
+    err = err if isinstance(err := res.get("error"), dict) else {}
     code = str(err.get("code") or "")
     refused = res.get("verdict") == "REFUSED" or err.get("type") == "SessionRefused"
     if res.get("status") != "ok" and (refused or code in ROOT_CAUSE_CODES):

@@ -45,10 +45,10 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     x_name, b_name = mount.x_name, mount.board_name
     parent, board_parent = mount.fixed_frame, mount.board_frame
     ok = res.get("status") == "ok"
-    ref = res.get("refinement") if isinstance(res.get("refinement"), dict) else {}
+    ref = ref if isinstance(ref := res.get("refinement"), dict) else {}
     if ref and ref.get("status") not in (None, "ok"):
         ref = {}
-    diag = res.get("diagnostics") if isinstance(res.get("diagnostics"), dict) else {}
+    diag = diag if isinstance(diag := res.get("diagnostics"), dict) else {}
     T_x = as_T(res.get(x_name)) if ok else None
     T_board = as_T(res.get(b_name)) if ok else None
     # the verdict covariance when the result has one (the model's or the validated, as the validation found), else
@@ -184,8 +184,9 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
 
 
 def add_figures(ctx: dict) -> dict:
-    """The report's figures (``ctx["plots"]``) for a context built without them: the context is built
-    once, judged, and drawn only when a report is written.
+    """The report's figures (``ctx["plots"]``) for a context built without them.
+
+    The context is built once, judged, and drawn only when a report is written.
     """
     from .figures import report_figures
 
@@ -210,7 +211,7 @@ def _target_text(t: dict | None) -> str:
     if not t:
         return ""
     kind = t.get("type") or t.get("kind")
-    sq = t.get("square_m")
+    sq: Any = t.get("square_m")  # a number, as result.json writes it
     if kind == "chessboard":
         ic = t.get("inner_corners") or [t.get("cols"), t.get("rows")]
         return f"chessboard, {ic[0]}×{ic[1]} inner corners, {sq * 1e3:g} mm squares" if sq else "chessboard"
@@ -432,7 +433,9 @@ def _change_rows(d: dict) -> list[dict]:
 
 
 def _prior_block(res, x_name) -> Optional[dict]:
-    """A ``calibrate --prior`` run (result.json's ``prior``): the earlier result used as the prior (source, X,
+    """A ``calibrate --prior`` run (result.json's ``prior``): the earlier result used as the prior.
+
+    A ``calibrate --prior`` run (result.json's ``prior``): the earlier result used as the prior (source, X,
     sigmas), the update the new views made to it, whether they contradict it and which the result is.
     """
     p = res.get("prior")
@@ -474,7 +477,7 @@ SIGMA_SOURCE_TEXT = {
 def _uncertainty_block(ref, unc, parent) -> dict:
     corr = ref.get("correlation_6x6")
     src = ref.get("sigma_source")
-    val = ref.get("validation") if isinstance(ref.get("validation"), dict) else {}
+    val = val if isinstance(val := ref.get("validation"), dict) else {}
     rows = []
     for label, r, t in (
         ("model (refinement)", ref.get("sigma_rot_deg_model"), ref.get("sigma_trans_mm_model")),
@@ -510,7 +513,7 @@ def _uncertainty_block(ref, unc, parent) -> dict:
 
 def _methods(res, T_x, x_name) -> list[dict]:
     rows = []
-    ref = res.get("refinement") if isinstance(res.get("refinement"), dict) else {}
+    ref = ref if isinstance(ref := res.get("refinement"), dict) else {}
     start = ref.get("start_method")  # the closed form the refinement started from, when not the seed
     for m, e in (res.get("closed_form") or {}).items():
         T = as_T(e.get(x_name))
@@ -577,7 +580,7 @@ def _intrinsics_rows(intr, sig, res, *, model_sigma=None) -> Optional[dict]:
                     {"name": k, "unit": "", "value": d[k], "sigma": sig.get(k), "sigma_model": model_sigma.get(k)}
                 )
     given = res.get("intrinsics") or {}
-    ref = res.get("refinement") if isinstance(res.get("refinement"), dict) else {}
+    ref = ref if isinstance(ref := res.get("refinement"), dict) else {}
     return {
         "rows": rows,
         "source": given.get("source", ""),
@@ -585,19 +588,23 @@ def _intrinsics_rows(intr, sig, res, *, model_sigma=None) -> Optional[dict]:
         "size": intr.get("image_size"),
         "refined": bool(sig),
         "sigma_source": ref.get("intrinsics_sigma_source") if ref.get("intrinsics_sigma_verdict") else None,
-        "sigma_source_text": SIGMA_SOURCE_TEXT.get(ref.get("intrinsics_sigma_source"), ""),
+        "sigma_source_text": SIGMA_SOURCE_TEXT.get(ref.get("intrinsics_sigma_source"), ""),  # type: ignore[arg-type]
     }
 
 
 def _stored_difference(e: dict) -> tuple[float, float, float]:
-    """(deg, mm, verdict sigmas) of a closed form or a refitted half against the result, as result.json
+    """(deg, mm, verdict sigmas) of a closed form or a refitted half against the result.
+
+    (deg, mm, verdict sigmas) of a closed form or a refitted half against the result, as result.json
     stores them (``diff_to_result_deg``, ``_mm``, ``_sigma``; NaN where it does not).
     """
     return _num(e.get("diff_to_result_deg")), _num(e.get("diff_to_result_mm")), _num(e.get("diff_to_result_sigma"))
 
 
 def _offsets(res, ref, T_x, cov, x_name) -> Optional[dict]:
-    """Where the result lies against each closed form and each half of the views (refitted alone), in mm,
+    """Where the result lies against each closed form and each half of the views.
+
+    Where the result lies against each closed form and each half of the views (refitted alone), in mm,
     degrees and verdict sigmas, with the sentences that explain a departure.
     """
     from scipy.stats import chi2
@@ -614,7 +621,7 @@ def _offsets(res, ref, T_x, cov, x_name) -> Optional[dict]:
         T = as_T(e.get(x_name))
         if T is not None:
             rows.append({"name": m, "kind": "closed_form", "T": T, "stored": e})
-    val = ref.get("validation") if isinstance(ref.get("validation"), dict) else {}
+    val = val if isinstance(val := ref.get("validation"), dict) else {}
     halves = val.get("halves") or {}
     n_used = sum(len((halves.get(h) or {}).get("used_view_ids") or []) for h in ("odd", "even"))
     for h, which in (("odd", "1st"), ("even", "2nd")):
@@ -640,7 +647,7 @@ def _offsets(res, ref, T_x, cov, x_name) -> Optional[dict]:
         r["offset_mm"] = ((T[:3, 3] - T_x[:3, 3]) * 1e3).tolist()
         r["far"] = bool(r["sigma"] > limit)
     split = (halves.get("odd_vs_even") or {}).get("mahalanobis2")
-    model = ref.get("robot_model") if isinstance(ref.get("robot_model"), dict) else {}
+    model = model if isinstance(model := ref.get("robot_model"), dict) else {}
     text = offset_explanation(
         rows,
         limit_sigma=limit,
@@ -675,7 +682,9 @@ def _plain_text(v) -> str:
 
 
 def _robot_model(ref) -> Optional[dict]:
-    """The refinement's robot error model (``refinement.robot_model``: kind and its parameters), else the
+    """The refinement's robot error model.
+
+    The refinement's robot error model (``refinement.robot_model``: kind and its parameters), else the
     robot noise model's name with its estimated sigmas.
     """
     if not ref:
@@ -703,9 +712,11 @@ def _robot_model(ref) -> Optional[dict]:
 
 
 def _kinematic_items(rm: dict) -> list:
-    """The kinematic robot models' parameters as short lines: the arm, where the joint angles came from, the
-    encoder noise, the DH prior (stated, as used, its test) and the largest DH offsets, the tool offset. The DH
-    table and the joint angles of every view stay in result.json.
+    """The kinematic robot models' parameters as short lines.
+
+    The arm, where the joint angles came from, the encoder noise, the DH prior (stated, as used, its test) and
+    the largest DH offsets, the tool offset. The DH table and the joint angles of every view stay in
+    result.json.
     """
     items = [{"name": "model", "value": str(rm.get("description", ""))}]
     items.append({"name": "arm", "value": f"{rm.get('arm', '?')} ({rm.get('dh_convention', '?')} DH)"})
@@ -797,7 +808,7 @@ def _cap1(s) -> str:
 
 
 def _findings(diag: dict) -> list[dict]:
-    out = []
+    out: list[dict] = []
     for f in (diag or {}).get("findings") or []:
         if not isinstance(f, dict):
             continue
@@ -820,7 +831,9 @@ def _findings(diag: dict) -> list[dict]:
 
 
 def _stages(diag: dict) -> dict:
-    """How each diagnostics stage ended (``diagnostics["stages"]``, ``["stage_errors"]``,
+    """How each diagnostics stage ended.
+
+    How each diagnostics stage ended (``diagnostics["stages"]``, ``["stage_errors"]``,
     ``["stages_skipped"]``, ``["crashed_stages"]``; see handeye/diagnose/findings.py):
 
     ``{"crashed": [{name, checks, error}], "skipped": [{name, checks, why}], "n_ok": int, "known": bool,
@@ -829,9 +842,9 @@ def _stages(diag: dict) -> dict:
     everything ran.
     """
     diag = diag or {}
-    status = diag.get("stages") if isinstance(diag.get("stages"), dict) else {}
-    errors = diag.get("stage_errors") if isinstance(diag.get("stage_errors"), dict) else {}
-    skipped = diag.get("stages_skipped") if isinstance(diag.get("stages_skipped"), dict) else {}
+    status = status if isinstance(status := diag.get("stages"), dict) else {}
+    errors = errors if isinstance(errors := diag.get("stage_errors"), dict) else {}
+    skipped = skipped if isinstance(skipped := diag.get("stages_skipped"), dict) else {}
     crashed_names = [n for n, st in status.items() if st == "crashed"]
     crashed_names += [n for n in errors if n not in crashed_names]  # an error always means a crash
     try:
@@ -1016,8 +1029,9 @@ def _cross_validation(cv) -> Optional[dict]:
 
 # ------------------------------------------------------------------------------ KPIs
 def _distrust(verdict: Verdict, untrusted: dict[str, str], *, fail_finding: bool = False) -> Verdict:
-    """Checks on a number a finding says is wrong are shown as untrusted, not as passed or failed: the
-    finding is the cause and counts towards the verdict itself (the label stays as judged), e.g. a board
+    """Checks on a number a finding says is wrong are shown as untrusted, not as passed or failed.
+
+    The finding is the cause and counts towards the verdict itself (the label stays as judged), e.g. a board
     that moved inflates the validated sigmas past their limit, and the report leads with the move. A warn or
     fail check is marked so only when a fail finding already makes the verdict FAIL (``fail_finding``).
     """
@@ -1041,8 +1055,9 @@ def _distrust(verdict: Verdict, untrusted: dict[str, str], *, fail_finding: bool
 
 
 def _kpis(metrics, pred, wd, views, verdict: Verdict, ok: bool, untrusted: dict[str, str]) -> list[dict]:
-    """The headline cards. A card whose number a finding says is not to be trusted is shown as such,
-    never green.
+    """The headline cards.
+
+    A card whose number a finding says is not to be trusted is shown as such, never green.
     """
     status = {k: c.status for c in verdict.checks for k in c.key.split("+")}
 

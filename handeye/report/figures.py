@@ -58,11 +58,11 @@ def report_figures(
     used = {v["id"] for v in views if v["status"] == "used"}
     flagged = {v["id"] for v in views if v["status"] != "used"}
     lim = qa_cfg.get("checks") or {}
-    jobs: list[tuple[str, str, str, Callable[[], bytes]]] = []
+    jobs: list[tuple[str, str, str, Callable[..., bytes]]] = []
 
     # residual histogram
     cam = [fits[v].residual_px for v in sorted(fits) if v in used and np.all(np.isfinite(fits[v].residual_px))]
-    chain = [fits[v].residual_chain_px for v in sorted(fits) if v in used and fits[v].residual_chain_px is not None]
+    chain = [r for v in sorted(fits) if v in used and (r := fits[v].residual_chain_px) is not None]
     if cam:
         cam_all = np.concatenate(cam)
         if ref and finite(ref.get("sigma_px")):
@@ -70,7 +70,7 @@ def report_figures(
         else:
             dof = max(2 * len(cam_all) - 6 * len(cam), 1)
             sigma, src = float(np.sqrt(np.sum(cam_all**2) / dof)), "from the camera-fit residuals"
-        chain_all = np.concatenate(chain) if chain else None
+        chain_all: Optional[np.ndarray] = np.concatenate(chain) if chain else None
         jobs.append(
             (
                 "residuals",
@@ -127,7 +127,7 @@ def report_figures(
     if T_x is not None and T_board is not None:
         ids = [v["id"] for v in views if v["id"] in fits and fits[v["id"]].T_base_end is not None]
         if ids:
-            T_be = np.stack([fits[v].T_base_end for v in ids])
+            T_be = np.stack([fits[v].T_base_end for v in ids])  # type: ignore[misc]  # ids: views with a pose
             cams = mounting.T_base_cam(T_x, T_be)
             boards = mounting.T_base_board(T_board, T_be)
             cams = np.broadcast_to(cams, T_be.shape) if cams.ndim == 2 else cams

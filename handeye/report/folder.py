@@ -59,7 +59,9 @@ def read_result_folder(path: str | Path) -> ResultFolder:
 
 
 def result_folder(path: str | Path, result: dict, observations: dict | None = None) -> ResultFolder:
-    """The result folder ``path`` with result.json's and observations.json's contents given (as just
+    """The result folder ``path`` with result.json's and observations.json's contents given.
+
+    The result folder ``path`` with result.json's and observations.json's contents given (as just
     written there: nothing is read again but the thumbnails), checked as :func:`read_result_folder`
     checks them.
     """
@@ -81,7 +83,9 @@ def _assemble(path: Path, res: dict, obs: dict | None) -> ResultFolder:
 
 
 def _matching_observations(res: dict, obs: dict) -> dict:
-    """observations.json restricted to the views of this result (a stale file from an earlier run of
+    """observations.json restricted to the views of this result.
+
+    observations.json restricted to the views of this result (a stale file from an earlier run of
     another session in the same folder must not leak into the report).
     """
     ids = {str(v.get("id")) for v in res.get("views") or []}

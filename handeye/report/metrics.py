@@ -62,7 +62,7 @@ def qa_metrics(
         )
         c[f"{k}_missing_action"] = "run handeye calibrate without --no-refine to get the uncertainty"
     # motion of the used views, judged as the pipeline judges it
-    Ts = [fits[v].T_base_end for v in sorted(used_ids, key=view_id_key) if v in fits and fits[v].T_base_end is not None]
+    Ts = [T for v in sorted(used_ids, key=view_id_key) if v in fits and (T := fits[v].T_base_end) is not None]
     frame = mounting.fixed_frame  # the frame the motions' rotation axes are expressed in
     c["axis_frame"] = frame
     c["rotvecs"] = np.zeros((0, 3))

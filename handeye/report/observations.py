@@ -118,7 +118,9 @@ def median_board_distance_m(fits: dict[str, ViewFit], board_centre_m: np.ndarray
 
 
 def coverage_counts(points_px: np.ndarray, *, width: int, height: int, cells_x: int) -> np.ndarray:
-    """Corner counts in a grid of square-ish cells over the image (rows, cols); ``cells_x`` across the
+    """Corner counts in a grid of square-ish cells over the image.
+
+    Corner counts in a grid of square-ish cells over the image (rows, cols); ``cells_x`` across the
     width (configs/qa.yaml ``coverage_grid_cells_x``), rows in proportion.
     """
     cells_y = max(1, int(round(cells_x * height / max(width, 1))))

@@ -116,7 +116,15 @@ def _bars(ax, x: np.ndarray, height: np.ndarray, width: float, *, color, edgecol
         ],
         axis=1,
     )
-    ax.add_collection(PolyCollection(verts, facecolors=color, edgecolors=edgecolors, linewidths=1.2, label=label))
+    ax.add_collection(
+        PolyCollection(
+            verts,  # type: ignore[arg-type]  # an (n, 4, 2) array of polygons
+            facecolors=color,
+            edgecolors=edgecolors,
+            linewidths=1.2,
+            label=label,
+        )
+    )
     ax.update_datalim([(float(x0.min()), 0.0), (float(x1.max()), float(h.max(initial=0.0)))])
 
 
@@ -143,8 +151,8 @@ def _hull(pts: np.ndarray) -> np.ndarray:
     if len(p) < 3:
         return np.asarray(p, float).reshape(-1, 2)
 
-    def half(points):
-        out: list = []
+    def half(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        out: list[tuple[float, float]] = []
         for x, y in points:
             while (
                 len(out) >= 2
@@ -162,7 +170,9 @@ def _hull(pts: np.ndarray) -> np.ndarray:
 def residual_histogram(
     camera_px: np.ndarray, chain_px: Optional[np.ndarray], *, sigma_px: float, sigma_source: str
 ) -> bytes:
-    """Corner residual lengths (camera fit, and through the robot) against the Rayleigh law of a 2-D
+    """Corner residual lengths against the Rayleigh law of a 2-D Gaussian.
+
+    Corner residual lengths (camera fit, and through the robot) against the Rayleigh law of a 2-D
     Gaussian with ``sigma_px`` per axis.
     """
     fig = _fig(2.9, left=0.07, bottom=0.16, top=0.9)
@@ -289,7 +299,9 @@ def _nice(x: float) -> float:
 def image_coverage(
     width: int, height: int, views: Sequence[tuple], counts: np.ndarray, *, coverage_share: float
 ) -> bytes:
-    """Left: which parts of the image the corners reach (cell counts, each view's outline).
+    """Image coverage of the corners (left) and magnified camera-fit residual vectors (right).
+
+    Left: which parts of the image the corners reach (cell counts, each view's outline).
     Right: camera-fit residual vectors, magnified. ``views``: (id, points (N,2), residuals (N,2), flagged).
     """
     from matplotlib.colors import LinearSegmentedColormap
@@ -327,8 +339,7 @@ def image_coverage(
     for flagged, color in ((False, NAVY), (True, RED)):
         seg = [np.stack([p, p + gain * r], axis=1) for p, r, f in ok if f == flagged]
         if seg:
-            seg = np.concatenate(seg)
-            _lines(ax2, seg, colors=color, linewidths=0.8, alpha=0.85)
+            _lines(ax2, np.concatenate(seg), colors=color, linewidths=0.8, alpha=0.85)
     sx, sy = 0.06 * width, 0.94 * height
     one = _nice(ref) if ref > 0 else 1.0
     ax2.plot([sx, sx + one * gain], [sy, sy], color=INK, lw=1.6)
@@ -362,10 +373,12 @@ def poses_3d(
     T_base_ends: np.ndarray,
     T_base_boards: np.ndarray,
     board_outline: np.ndarray,
-    flagged: Sequence[bool],
+    flagged: Sequence[bool] | np.ndarray,
     camera_moves: bool,
 ) -> bytes:
-    """Robot base, end poses, cameras and board(s) in the base frame: an oblique and a top view
+    """Robot base, end poses, cameras and board(s) in the base frame: an oblique and a top view.
+
+    Robot base, end poses, cameras and board(s) in the base frame: an oblique and a top view
     (orthographic projections drawn in 2-D). ``camera_moves``: a camera per pose (eye-in-hand), else a
     board per pose.
     """
@@ -387,7 +400,7 @@ def poses_3d(
                 ax = fig.add_subplot(1, 2, k + 1)
         ax.set_title(title)
 
-        def proj(p):
+        def proj(p, P=P):
             return np.asarray(p, float) @ P.T
 
         # robot end triads (as reported) and the base
@@ -538,7 +551,9 @@ def rotation_coverage(
 def translation_uncertainty(
     cov_t_mm2: Optional[np.ndarray], methods: Sequence[tuple], *, frame: str, x_name: str
 ) -> bytes:
-    """1- and 2-sigma ellipses of the translation (three planes of ``frame``), with the closed-form methods
+    """1- and 2-sigma ellipses of the translation.
+
+    1- and 2-sigma ellipses of the translation (three planes of ``frame``), with the closed-form methods
     as points relative to the result. ``methods``: (name, offset_mm (3,)).
     """
     fig = _fig(3.0, left=0.095, right=0.8, bottom=0.16, top=0.84, wspace=0.5)

@@ -209,9 +209,13 @@ def _fmt_limit(lim: dict, fmt: str, unit: str) -> str:
 
 
 class _ShownApart(float):
-    """A checked value that formats with as many more decimals (up to 3) as it takes to read otherwise than the
+    """A checked value that formats with enough decimals to read otherwise than its limit.
+
+    A checked value that formats with as many more decimals (up to 3) as it takes to read otherwise than the
     limit it crossed: 29.97 against 30 shows as "29.97", not "30.0 < 30.0".
     """
+
+    limit: Optional[float]
 
     def __new__(cls, value: float, limit: Optional[float]):
         obj = super().__new__(cls, value)

@@ -13,6 +13,7 @@ import os
 import re
 from importlib import resources
 from pathlib import Path
+from typing import Any
 from urllib.parse import quote
 
 import jinja2
@@ -26,7 +27,9 @@ _ESCAPING_REVISION = "md-escape-1"
 
 
 def _bytecode_cache() -> jinja2.BytecodeCache | None:
-    """Compiled templates kept between runs (keyed on the template source, like ``__pycache__``):
+    """Compiled templates kept between runs.
+
+    Compiled templates kept between runs (keyed on the template source, like ``__pycache__``):
     compiling them costs more than the rest of the rendering. None when no cache folder is writable.
     """
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
@@ -45,13 +48,17 @@ _MD_LINK = re.compile(r"\]\s*([(\[])")  # ](url) and ][ref]: the second half of 
 
 
 class MdMarkup(str):
-    """Markdown the template wrote itself (a macro's image or link whose values were escaped one by one, a
+    """Markdown the template wrote itself.
+
+    Markdown the template wrote itself (a macro's image or link whose values were escaped one by one, a
     ``<br>`` between flags): printed as it is (the ``md_markup`` filter).
     """
 
 
-def md_text(x) -> str:
-    """Text safe in Markdown rendered to HTML (python-markdown, GitHub): no raw HTML can start (``<``
+def md_text(x: Any) -> Any:
+    """Text safe in Markdown rendered to HTML (python-markdown, GitHub): no raw HTML can start.
+
+    Text safe in Markdown rendered to HTML (python-markdown, GitHub): no raw HTML can start (``<``
     before a letter, ``/``, ``!`` or ``?`` becomes ``&lt;``) and no link or image can form (``](`` and
     ``][`` are broken with a backslash); ``8 < 10`` and ``[mm]`` stay as written. Every value a
     Markdown template prints passes through it (the environment's ``finalize``), except the template's
@@ -150,8 +157,10 @@ def render_html(ctx: dict) -> str:
 
 
 def render_markdown(ctx: dict, *, thumbnails_beside: bool = False) -> tuple[str, dict[str, bytes]]:
-    """Markdown text and the files it links (relative path -> bytes). ``thumbnails_beside``: the
-    Markdown is written into the result folder, whose ``thumbnails/`` it links instead of copying.
+    """Markdown text and the files it links (relative path -> bytes).
+
+    ``thumbnails_beside``: the Markdown is written into the result folder, whose ``thumbnails/`` it
+    links instead of copying.
     """
     files: dict[str, bytes] = {}
     images, thumbs = {}, {}

@@ -39,7 +39,9 @@ def load_session(path: str | Path, *, mode: str | None = None, allow_outside: bo
 
 
 def image_sizes(items) -> dict:
-    """View id -> (width, height) of its image for (view id, image path) ``items`` (or a Session's views), read
+    """View id -> (width, height) of its image for (view id, image path) ``items``.
+
+    View id -> (width, height) of its image for (view id, image path) ``items`` (or a Session's views), read
     from the file header (nothing is decoded); views without an image (pose-only views), or whose header cannot
     be read (left to detection, which drops them with the reason), are left out.
     """
@@ -60,7 +62,9 @@ def image_sizes(items) -> dict:
 
 
 def check_image_sizes(session: Session) -> None:
-    """All views' images of one size (:func:`image_sizes`): an image of another size than the others is an
+    """All views' images of one size.
+
+    All views' images of one size (:func:`image_sizes`): an image of another size than the others is an
     InputError naming its view.
     """
     from collections import Counter

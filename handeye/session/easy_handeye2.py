@@ -11,7 +11,7 @@ See docs/session_format.md.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -48,8 +48,12 @@ def _transform(t, *, path: Path, where: str) -> np.ndarray:
     return make_T(R_from_quat_wxyz(q / n), xyz)
 
 
-def read_samples(path: str | Path, *, mode: Optional[str] = None) -> tuple[str, dict, list]:
-    """(mode, parameters, [(T_base_end, T_cam_board), ...]) of a ``.samples`` file. ``mode`` (handeye's name)
+def read_samples(
+    path: str | Path, *, mode: Optional[str] = None
+) -> tuple[Optional[str], dict[str, Any], list[tuple[np.ndarray, np.ndarray]]]:
+    """(mode, parameters, pose pairs) of an easy_handeye2 ``.samples`` file.
+
+    (mode, parameters, [(T_base_end, T_cam_board), ...]) of a ``.samples`` file. ``mode`` (handeye's name)
     is needed when the file's ``calibration_type`` is empty, and must agree with it otherwise.
     """
     path = Path(path)
@@ -100,7 +104,9 @@ def import_easy_handeye2(
     tracker_sigma: Optional[tuple] = None,
     force: bool = False,
 ) -> Path:
-    """``out/session.yaml``: the pose-only session of an easy_handeye2 ``.samples`` file (views ``1``..``N`` in
+    """``out/session.yaml``: the pose-only session of an easy_handeye2 ``.samples`` file.
+
+    ``out/session.yaml``: the pose-only session of an easy_handeye2 ``.samples`` file (views ``1``..``N`` in
     the file's order). ``tracker_sigma``: (mm, deg) of the tracker when known (else estimated at calibration).
     """
     from .importers import _check_out, _write
@@ -108,7 +114,7 @@ def import_easy_handeye2(
     src, out = Path(src), Path(out)
     mode, params, pairs = read_samples(src, mode=mode)
     _check_out(out, force=force)
-    doc = {
+    doc: dict[str, Any] = {
         "handeye_session": 1,
         "mode": mode,
         "source": {

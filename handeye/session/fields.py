@@ -28,9 +28,10 @@ def session_limits() -> dict:
 
 
 class IdTextLoader(yaml.SafeLoader):
-    """YAML's safe loader, except that the value of every ``id:`` key is kept as the text written: an
-    unquoted ``010`` stays "010" (YAML 1.1 reads it as the octal number 8), ``7`` is "7", ``1.50``
-    is "1.50". A null id stays None (the loader refuses it).
+    """YAML's safe loader, except that the value of every ``id:`` key is kept as the text written.
+
+    An unquoted ``010`` stays "010" (YAML 1.1 reads it as the octal number 8), ``7`` is "7",
+    ``1.50`` is "1.50". A null id stays None (the loader refuses it).
     """
 
     def construct_mapping(self, node, deep=False):
@@ -48,6 +49,7 @@ class IdTextLoader(yaml.SafeLoader):
 
 def read_yaml(path: Path, *, loader=yaml.SafeLoader) -> dict:
     """The top-level mapping of a YAML file (empty file: ``{}``); InputError naming the file and line.
+
     ``loader``: :class:`IdTextLoader` for session files (view ids kept as written).
     """
     text = read_text(path, what="YAML file")
@@ -84,7 +86,9 @@ def check_target_points(n_points: int, *, path: Path, field: str) -> None:
 
 
 def check_input_file(path: Path, *, what: str, source: Path | None = None, vid: str | None = None) -> Path:
-    """``path`` as an input file that may be opened: a regular file (a folder, a device such as
+    """``path`` as an input file that may be opened: a readable regular file.
+
+    ``path`` as an input file that may be opened: a regular file (a folder, a device such as
     /dev/zero or a named pipe is never opened) that can be read; InputError naming the view and file.
     """
     import os
@@ -114,7 +118,9 @@ def check_input_file(path: Path, *, what: str, source: Path | None = None, vid: 
 
 
 def check_finite(values, *, path: Path, line: int | None, what: str) -> None:
-    """Numbers read from a file must be finite and of a size a pose can have (|x| < 1e6): NaN, inf and
+    """Numbers read from a file must be finite and of a size a pose can have.
+
+    Numbers read from a file must be finite and of a size a pose can have (|x| < 1e6): NaN, inf and
     1e308 are refused at load, naming the file and line.
     """
     a = np.asarray(values, dtype=float)
@@ -137,8 +143,9 @@ def check_mode(mode, *, path: Path, field: str = "mode") -> str:
 
 
 def positive_number(value, *, path: Path, field: str, integer: bool = False, minimum: float = 0.0):
-    """``value`` as a finite number > ``minimum`` (an int when ``integer``); ConfigError naming ``field``. A number
-    written in quotes (``L: "0.03"``) is read as the number.
+    """``value`` as a finite number > ``minimum`` (an int when ``integer``); ConfigError naming ``field``.
+
+    A number written in quotes (``L: "0.03"``) is read as the number.
     """
     if isinstance(value, str):
         try:
@@ -195,8 +202,9 @@ def length_m(value, *, path: Path, field: str, strict: bool = True) -> float:
 def check_translation_units(
     T_base_end: np.ndarray, *, path: Path, line: int | None, unit: str, or_state: str = ""
 ) -> None:
-    """A robot position farther from the base than an arm reaches means the unit is wrong. ``or_state``:
-    where the file's format could say so instead (a vendor config.yaml).
+    """A robot position farther from the base than an arm reaches means the unit is wrong.
+
+    ``or_state``: where the file's format could say so instead (a vendor config.yaml).
     """
     dist = float(np.linalg.norm(T_base_end[:3, 3]))
     reach = session_limits()["max_reach_m"]

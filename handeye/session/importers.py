@@ -98,8 +98,10 @@ def _visp_chessboard(src: Path) -> dict:
 
 
 def _visp_apriltag(src: Path, images: list) -> dict:
-    """The single-marker target of ViSP's AprilTag data: family and size from apriltag-data.txt, the tag id from the
-    first image that shows exactly one tag of that family (ViSP's tool assumes one tag per image).
+    """The single-marker target of ViSP's AprilTag data.
+
+    Family and size from apriltag-data.txt, the tag id from the first image that shows exactly one tag of
+    that family (ViSP's tool assumes one tag per image).
     """
     import cv2
 
@@ -241,7 +243,7 @@ def import_visp(
                 expected="ViSP's camera XML with <px>, <py>, <u0>, <v0>",
                 hint="remove --given-intrinsics to estimate the intrinsics",
             )
-        vals = {k: _number(m.group(1), path=cam, field=k) for k, m in found.items()}
+        vals = {k: _number(m.group(1), path=cam, field=k) for k, m in found.items() if m is not None}  # all found
         import cv2
 
         first = cv2.imread(str(imgs[min(imgs)]), cv2.IMREAD_GRAYSCALE) if imgs[min(imgs)].is_file() else None
@@ -262,7 +264,9 @@ def import_visp(
 
 
 def import_ical(src: str | Path, out: str | Path, *, image_dir: str | None = None, force: bool = False) -> Path:
-    """``out/session.yaml`` for an industrial_calibration data folder (an existing session in ``out`` is
+    """``out/session.yaml`` for an industrial_calibration data folder.
+
+    ``out/session.yaml`` for an industrial_calibration data folder (an existing session in ``out`` is
     refused unless ``force``); every field is checked and named when missing or of the wrong type.
     """
     src, out = Path(src).resolve(), Path(out)
@@ -386,7 +390,9 @@ def _aruco_name(code: int) -> str:
 
 
 def _check_out(out: Path, *, force: bool) -> None:
-    """The importer's output folder: a new or empty folder, or one whose session is to be replaced
+    """The importer's output folder: a new or empty folder, or one whose session is to be replaced.
+
+    The importer's output folder: a new or empty folder, or one whose session is to be replaced
     (``force``); a collected session (view_records/) or a vendor session is never overwritten silently.
     """
     from ..errors import OutputError

@@ -15,7 +15,7 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -61,7 +61,9 @@ class ViewEntry:
 
 @dataclass(frozen=True)
 class NativeDocument:
-    """A parsed session.yaml: the stated mode (None when absent), target, pose format, intrinsics
+    """A parsed session.yaml: the stated mode (None when absent), target, pose format, intrinsics.
+
+    A parsed session.yaml: the stated mode (None when absent), target, pose format, intrinsics
     (with their use: estimate | fixed | prior), the folder images are relative to, and the view
     entries (ids checked, not yet converted to poses).
     """
@@ -88,7 +90,9 @@ def read_native_document(path: Path) -> NativeDocument:
     version = d.get("handeye_session", 1)
     if version != 1:
         raise ConfigError("unsupported handeye_session version", path=path, expected="1", received=repr(version))
-    target = parse_target(d.get("target"), path=path) if not _pose_only(d) or d.get("target") else TrackedTargetSpec()
+    target: TargetSpec = (  # a pose-only session's target is a TrackedTargetSpec, outside the TargetSpec union
+        parse_target(d.get("target"), path=path) if not _pose_only(d) or d.get("target") else TrackedTargetSpec()  # type: ignore[assignment]
+    )
     fmt = parse_pose_format(d.get("pose_format"), path=path)
     intr, intr_use = parse_intrinsics(d.get("intrinsics"), path=path)
     image_folder = d.get("image_folder")
@@ -163,7 +167,9 @@ def read_native_document(path: Path) -> NativeDocument:
 
 
 def _pose_only(d: dict) -> bool:
-    """Whether session.yaml's inline views carry target poses (a pose-only session needs no target:; one that
+    """Whether session.yaml's inline views carry target poses.
+
+    Whether session.yaml's inline views carry target poses (a pose-only session needs no target:; one that
     mixes them with image views is refused by :func:`_pose_only_fields`).
     """
     views = d.get("views")
@@ -187,7 +193,9 @@ def is_pose_only(path: str | Path) -> bool:
 
 
 def _pose_only_fields(d: dict, entries: list, *, path: Path) -> tuple:
-    """(target_pose_format, tracker_sigma) of a pose-only session ((None, None) for an image session);
+    """(target_pose_format, tracker_sigma) of a pose-only session.
+
+    (target_pose_format, tracker_sigma) of a pose-only session ((None, None) for an image session);
     ConfigError when image and target-pose views are mixed or a field is malformed.
     """
     with_pose = [e for e in entries if "target_pose" in e.data]
@@ -225,11 +233,14 @@ def _pose_only_fields(d: dict, entries: list, *, path: Path) -> tuple:
 
 
 def view_target_pose(doc: NativeDocument, e: ViewEntry) -> np.ndarray:
-    """A pose-only view's ``target_pose``: ``T_cam_board`` (metres) read in ``target_pose_format`` (4x4 by
+    """A pose-only view's ``target_pose``: ``T_cam_board`` (metres) read in ``target_pose_format``.
+
+    A pose-only view's ``target_pose``: ``T_cam_board`` (metres) read in ``target_pose_format`` (4x4 by
     default), checked like a robot pose.
     """
     vid = e.data["id"]
     fmt = doc.target_pose_format
+    assert fmt is not None, "a pose-only session has its target_pose_format"
     values = view_pose_values(
         ViewEntry({"id": vid, "pose": e.data["target_pose"]}, e.source), fmt, folder=files_folder(doc)
     )
@@ -264,7 +275,9 @@ def _read_pose_file(f: Path, *, vid: str) -> list:
 
 
 def view_pose_values(e: ViewEntry, fmt: PoseFormat, *, folder: Path, allow_outside: bool = False) -> np.ndarray:
-    """The pose numbers of one view as written (flat, row-major for a matrix), from ``pose:`` or
+    """The pose numbers of one view as written.
+
+    The pose numbers of one view as written (flat, row-major for a matrix), from ``pose:`` or
     ``pose_file:``; InputError/ConfigError naming the view and file when their shape does not fit ``fmt``.
 
     A matrix is a nested 4x4 list (rows) or 16 numbers row by row; a pose file (relative to ``folder``,
@@ -332,7 +345,9 @@ def view_pose_values(e: ViewEntry, fmt: PoseFormat, *, folder: Path, allow_outsi
 def inside_folder(
     folder: Path, written: str, *, vid: str, what: str, source: Path, allow_outside: bool = False
 ) -> Path:
-    """``folder / written`` with ``..`` resolved (symbolic links are not followed: a link placed in the
+    """``folder / written`` with ``..`` resolved.
+
+    ``folder / written`` with ``..`` resolved (symbolic links are not followed: a link placed in the
     folder is the user's choice); InputError when it leaves ``folder`` unless ``allow_outside``.
     """
     p = Path(os.path.normpath(Path(folder) / str(written)))
@@ -389,7 +404,7 @@ def view_joint_angles(e: ViewEntry) -> Optional[tuple]:
     return tuple(float(x) for x in arr)
 
 
-def parse_intrinsics(d, *, path: Path) -> tuple[Optional[Intrinsics], str]:
+def parse_intrinsics(d: Any, *, path: Path) -> tuple[Optional[Intrinsics], str]:
     """(intrinsics or None, use: estimate | fixed | prior) from the ``intrinsics:`` mapping."""
     if d is None:
         return None, "estimate"
@@ -441,7 +456,7 @@ def parse_intrinsics(d, *, path: Path) -> tuple[Optional[Intrinsics], str]:
     if use not in INTRINSICS_USES:
         raise ConfigError("invalid intrinsics.use", path=path, expected=" | ".join(INTRINSICS_USES), received=repr(use))
     K = np.array([[vals["fx"], 0, vals["cx"]], [0, vals["fy"], vals["cy"]], [0, 0, 1]])
-    return Intrinsics.from_K(K, dist, w, h), {"initial": "estimate"}.get(use, use)
+    return Intrinsics.from_K(K, dist, w, h), str({"initial": "estimate"}.get(use, use))  # use: checked above
 
 
 def load_native_session(path: str | Path, *, mode: str | None = None, allow_outside: bool = False) -> Session:
@@ -480,7 +495,7 @@ def load_native_session(path: str | Path, *, mode: str | None = None, allow_outs
             views.append(
                 View(
                     view_id=vid,
-                    image_path=None,
+                    image_path=None,  # type: ignore[arg-type]  # a pose-only view has no image
                     T_base_end=T,
                     t_image=t_image,
                     t_pose=t_pose,

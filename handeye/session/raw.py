@@ -52,8 +52,10 @@ class RawPoses:
 
 @dataclass(frozen=True)
 class LenientSession:
-    """A session read without unit checks: target, mode, raw poses, images by view id, and the given
-    intrinsics when the session says to use them (fixed or prior), else None.
+    """A session read without unit checks.
+
+    Target, mode, raw poses, images by view id, and the given intrinsics when the session says to
+    use them (fixed or prior), else None.
     """
 
     target: TargetSpec
@@ -77,7 +79,9 @@ def read_raw_poses(path: str | Path) -> Optional[RawPoses]:
 
 
 def _raw_vendor(folder: Path, *, cfg: Optional[dict] = None, images: Optional[dict] = None) -> RawPoses:
-    """poses.txt's numbers, keyed by the images' numbering, in config.yaml's stated format (else the vendor's).
+    """poses.txt's numbers, keyed by the images' numbering, in config.yaml's stated format.
+
+    poses.txt's numbers, keyed by the images' numbering, in config.yaml's stated format (else the vendor's).
     ``cfg`` (config.yaml's mapping) and ``images`` (:func:`numbered_images`): when the caller has read them.
     """
     if images is None:
@@ -107,8 +111,10 @@ def _raw_native(path: Path, *, doc=None) -> RawPoses:
 
 
 def raw_poses_of(session: Session) -> RawPoses:
-    """The raw pose numbers behind a loaded session: re-read from its file when the file still holds
-    the same views and poses, else regenerated from the loaded poses in the vendor format.
+    """The raw pose numbers behind a loaded session.
+
+    Re-read from its file when the file still holds the same views and poses, else regenerated from
+    the loaded poses in the vendor format.
     """
     raw = read_raw_poses(session.path) if session.format in ("vendor", "native") else None
     if raw is not None:

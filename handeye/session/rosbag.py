@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -125,7 +125,9 @@ def _stamp(msg) -> float:
 
 
 def _raw_header_stamp(raw: bytes, *, ros2: bool) -> float:
-    """The header stamp of a serialized message that starts with a std_msgs/Header (Image,
+    """The header stamp of a serialized message that starts with a std_msgs/Header.
+
+    The header stamp of a serialized message that starts with a std_msgs/Header (Image,
     CompressedImage), read from its first bytes: ROS 2 CDR (4-byte encapsulation, then int32 sec,
     uint32 nanosec; byte 1 says the byte order), ROS 1 (uint32 seq, uint32 secs, uint32 nsecs, little endian).
     """
@@ -153,7 +155,7 @@ def _chain(edges: dict, base: str, end: str, *, bag: Path) -> list[tuple[tuple[s
                 expected="one of " + ", ".join(sorted(nbrs)[:12]) if nbrs else "a TF stream (/tf)",
                 hint="pass --base and --end as the frames the robot publishes (e.g. base_link, tool0)",
             )
-    prev = {base: None}
+    prev: dict[str, Optional[tuple[str, Any, bool]]] = {base: None}
     queue = [base]
     while queue:
         f = queue.pop(0)
@@ -168,8 +170,8 @@ def _chain(edges: dict, base: str, end: str, *, bag: Path) -> list[tuple[tuple[s
             hint="the two frames are in separate TF trees; record the robot's whole TF",
         )
     out, f = [], end
-    while prev[f] is not None:
-        f0, e, fwd = prev[f]
+    while (link := prev[f]) is not None:
+        f0, e, fwd = link
         out.append((e, fwd))
         f = f0
     return out[::-1]
@@ -186,7 +188,9 @@ def _compose(edges: dict, chain, times: np.ndarray) -> np.ndarray:
 
 # ------------------------------------------------------------------------------ stillness
 def still_periods(times: np.ndarray, T_base_end: np.ndarray, st: Stillness) -> list[tuple[float, float]]:
-    """[start, end] of each period in which the pose moves slower than the thresholds for at least
+    """[start, end] of each period in which the pose stays still for at least ``min_still_s``.
+
+    [start, end] of each period in which the pose moves slower than the thresholds for at least
     ``min_still_s``; ``times`` (N,) sorted, ``T_base_end`` (N,4,4).
     """
     n = len(times)
@@ -250,7 +254,9 @@ def _image_file(msg, msgtype: str) -> tuple[bytes, str]:
             expected="mono8, mono16, rgb8, bgr8, rgba8 or bgra8 (or a CompressedImage topic)",
         )
     c = channels[enc]
-    img = data.reshape(h, step_items)[:, : w * c].reshape(h, w, c) if c > 1 else data.reshape(h, step_items)[:, :w]
+    img: np.ndarray = (
+        data.reshape(h, step_items)[:, : w * c].reshape(h, w, c) if c > 1 else data.reshape(h, step_items)[:, :w]
+    )
     if enc == "rgb8":
         img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
     elif enc == "rgba8":
@@ -312,8 +318,9 @@ def _open_reader(bag: Path):
 
 
 def _connections(reader, bag: Path, image_topic: str, camera_info_topic: Optional[str]):
-    """(image connection, CameraInfo connection or None, TF connections); a missing topic is named with
-    the ones the bag has.
+    """(image connection, CameraInfo connection or None, TF connections).
+
+    A missing topic is named with the ones the bag has.
     """
     conns = {c.topic: c for c in reader.connections}
     kinds = {t: c.msgtype.split("/")[-1] for t, c in conns.items()}
@@ -366,7 +373,9 @@ def _read_tf(reader, tf_conns, info_conn) -> tuple[dict, object]:
 
 
 def pick_images(periods, stamps: np.ndarray, *, margin_s: float) -> tuple[list[tuple[int, float, float]], int]:
-    """One image per still period: (index into ``stamps``, period start, end) of the image nearest the
+    """One image per still period.
+
+    One image per still period: (index into ``stamps``, period start, end) of the image nearest the
     period's middle among those at least ``margin_s`` inside it, and how many periods had none.
     """
     picked, without = [], 0
@@ -526,7 +535,9 @@ def import_rosbag(
 
 
 def read_target_file(path: Path) -> tuple[dict, Optional[str]]:
-    """(the ``target:`` mapping, the mode it states or None) from a YAML holding a session.yaml-like
+    """(the ``target:`` mapping, the mode it states or None) from a YAML file.
+
+    (the ``target:`` mapping, the mode it states or None) from a YAML holding a session.yaml-like
     ``target:`` (and optional ``mode:``) or a vendor config.yaml (``checkerboard_args``).
     """
     from .fields import read_yaml

@@ -6,6 +6,7 @@ Chessboard, ChArUco, circle grid, one marker or an AprilGrid.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, Callable
 
 from ..errors import ConfigError
 from ..targets import AprilGridSpec, CharucoSpec, ChessboardSpec, CircleGridSpec, MarkerSpec, TargetSpec
@@ -51,7 +52,9 @@ def _charuco(t: dict, path: Path) -> CharucoSpec:
 
 
 def _dictionary(t: dict, default: str, *, path: Path) -> str:
-    """``target.dictionary``: one of cv2.aruco's predefined dictionaries (AprilTag families included, e.g.
+    """``target.dictionary``: one of cv2.aruco's predefined dictionaries.
+
+    ``target.dictionary``: one of cv2.aruco's predefined dictionaries (AprilTag families included, e.g.
     DICT_APRILTAG_36h11).
     """
     dictionary = str(t.get("dictionary", default))
@@ -112,7 +115,7 @@ def _circlegrid(t: dict, path: Path) -> CircleGridSpec:
     return CircleGridSpec(cols, rows, spacing, asymmetric=asymmetric, origin_dot=origin_dot)
 
 
-_PARSERS = {
+_PARSERS: dict[str, Callable[[dict[str, Any], Path], TargetSpec]] = {
     "chessboard": _chessboard,
     "charuco": _charuco,
     "circlegrid": _circlegrid,
@@ -121,7 +124,7 @@ _PARSERS = {
 }
 
 
-def parse_target(t, *, path: Path) -> TargetSpec:
+def parse_target(t: Any, *, path: Path) -> TargetSpec:
     """The spec a session's ``target:`` mapping describes; ConfigError naming the field otherwise."""
     if not isinstance(t, dict) or "type" not in t:
         raise ConfigError(

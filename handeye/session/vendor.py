@@ -52,7 +52,9 @@ VENDOR_DEFAULT_MODE = "eye_in_hand"
 
 @dataclass(frozen=True)
 class PoseLine:
-    """One pose line of poses.txt: its image's number (the pose lines counted from the first image's
+    """One pose line of poses.txt: its image's number, line number and numbers as written.
+
+    One pose line of poses.txt: its image's number (the pose lines counted from the first image's
     number), the line number in the file and the numbers as written.
     """
 
@@ -62,7 +64,9 @@ class PoseLine:
 
 
 def read_pose_lines(poses_path: Path, *, first: int = 1) -> list[PoseLine]:
-    """The pose lines of poses.txt (blank lines, ``#`` comments and a first line of column names skipped),
+    """The pose lines of poses.txt.
+
+    The pose lines of poses.txt (blank lines, ``#`` comments and a first line of column names skipped),
     numbered from ``first`` (the number of the first image: :func:`first_image_number`); InputError on a
     line that is not numbers. Counts and units are not checked here.
     """
@@ -102,7 +106,9 @@ def read_pose_lines(poses_path: Path, *, first: int = 1) -> list[PoseLine]:
 
 
 def _is_header(fields: list[str]) -> bool:
-    """A line of column names: every field a name (a letter first, no ``=``), none a number (``nan`` and ``inf``
+    """A line of column names: every field a name (a letter first, no ``=``), none a number.
+
+    A line of column names: every field a name (a letter first, no ``=``), none a number (``nan`` and ``inf``
     are numbers here, so a pose line holding them is still refused as not finite).
     """
 
@@ -175,7 +181,7 @@ def numbered_images(folder: Path) -> dict[int, Path]:
         )
         prefixed = sorted(
             (f.name for f in folder.iterdir() if f.suffix.lower() in IMAGE_EXTS and _PREFIXED.match(f.stem)),
-            key=lambda n: int(_PREFIXED.match(Path(n).stem)[2]),
+            key=lambda n: int(_PREFIXED.match(Path(n).stem)[2]),  # type: ignore[index]  # the names matched above
         )
         hint = (
             f"the numbered images are in {inside[0]}/: move them next to poses.txt"
@@ -189,7 +195,9 @@ def numbered_images(folder: Path) -> dict[int, Path]:
 
 
 def vendor_pose_format(cfg: dict, cfg_path: Path) -> PoseFormat:
-    """How poses.txt's lines are written: config.yaml's optional ``pose_format:`` (the fields and defaults of
+    """How poses.txt's lines are written: config.yaml's optional ``pose_format:``.
+
+    How poses.txt's lines are written: config.yaml's optional ``pose_format:`` (the fields and defaults of
     session.yaml's), else the vendor's ``x,y,z,rx,ry,rz`` in metres and radians, R = Rz·Ry·Rx.
     """
     if cfg.get("pose_format") is None:
@@ -216,7 +224,9 @@ def _count_hint(n: int, lines: list[PoseLine]) -> str:
 
 
 def _check_mixed_units(lines: list[PoseLine], fmt: PoseFormat, poses_path: Path) -> None:
-    """A few pose lines in other units than the rest (angles beyond a full turn, positions beyond an arm's reach
+    """A few pose lines in other units than the rest.
+
+    A few pose lines in other units than the rest (angles beyond a full turn, positions beyond an arm's reach
     on fewer than half of the lines: those lines were written in degrees or millimetres, the others not): an
     InputError naming them, whose fix is to convert those lines (stating a unit for the whole file would
     misread the others). A whole file in other units is left to the per-line checks, which say how to state it.

@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -63,7 +63,8 @@ class SimRig:
     ) -> "SimRig":
         """A rig; with ``kinematic`` one sized for that arm whose start pose the arm reaches."""
         intrinsics = DEFAULT_INTRINSICS if intrinsics is None else intrinsics
-        scale, pose_ok, extra = 1.0, None, {}
+        scale, pose_ok = 1.0, None
+        extra: dict[str, Any] = {}
         if kinematic is not None:
             scale, extra = arm_workspace(kinematic.arm, mode=mode, target=target)
             pose_ok = lambda T: reachable(kinematic, T) is not None  # noqa: E731

@@ -15,7 +15,7 @@ import json
 import os
 import shutil
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -51,7 +51,9 @@ def write_fleet(
     start: str = "2026-01-05",
     days_between: int = 30,
 ) -> dict:
-    """Write the fleet under ``root`` (see the module docstring) and return its manifest:
+    """Write the fleet under ``root``.
+
+    Write the fleet under ``root`` (see the module docstring) and return its manifest:
     ``{"sessions": [{"install", "session", "path", "T_end_cam", "T_base_board", "fault"}]}``.
     ``bumps``: {(install index, session index): (rotvec_deg, t_mm)}; ``broken`` / ``shuffled`` /
     ``noisy`` / ``bad_time``: (install index, session index) pairs. ``robot_noise``: (mm, deg) per axis.
@@ -79,7 +81,7 @@ def write_fleet(
         gt = json.loads((p / "ground_truth.json").read_text(encoding="utf-8"))
         view_sets.append((p, gt))
     day0 = _dt.date.fromisoformat(start)
-    manifest = {"sessions": []}
+    manifest: dict[str, list[dict[str, Any]]] = {"sessions": []}
     for i in range(n_installs):
         install = f"cell-{i + 1:02d}"
         rig = sample_setup(mode="eye_in_hand", rng=random_streams(seed * 1000 + 500 + i)["geometry"])

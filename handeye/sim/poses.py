@@ -21,7 +21,9 @@ from .corners import CornerSession, make_corner_session
 
 @dataclass(frozen=True)
 class TrackerSession:
-    """A pose-only session: per view (order of ``view_ids``) the measured ``T_cam_board`` (N,4,4) and the
+    """A pose-only session: per view (order of ``view_ids``) the measured ``T_cam_board``.
+
+    A pose-only session: per view (order of ``view_ids``) the measured ``T_cam_board`` (N,4,4) and the
     reported ``T_base_end`` (N,4,4), with the corner session it came from (its ground truth).
     """
 
@@ -67,7 +69,9 @@ def make_tracker_session(
     outlier_views: Union[int, Sequence[str]] = 0,
     **corner_options,
 ) -> TrackerSession:
-    """A tracker session: ``n_views`` views of the corner session of ``seed`` (noiseless corners, exact robot
+    """A tracker session: ``n_views`` views of the corner session of ``seed``.
+
+    A tracker session: ``n_views`` views of the corner session of ``seed`` (noiseless corners, exact robot
     poses unless ``corner_options`` say otherwise), target poses perturbed by the tracker's noise
     (``sigma_mm`` per axis, ``sigma_deg`` per axis) drawn from ``default_rng(seed + 7919)``.
     """

@@ -170,7 +170,9 @@ class RealmanEmulator:
         return True
 
     def _joint_units(self) -> list | None:
-        """The RM65-B's joint angles (0.001 deg) at the current pose (nominal DH, cached per pose), or None
+        """The RM65-B's joint angles (0.001 deg) at the current pose.
+
+        The RM65-B's joint angles (0.001 deg) at the current pose (nominal DH, cached per pose), or None
         when the arm cannot reach it (then the state has no ``joint`` field).
         """
         key = tuple(self.pose_units)
@@ -237,6 +239,7 @@ class RealmanEmulator:
             time.sleep(self.motion_time_s)
             success = fault != "fail_motion"
             if success:
+                assert isinstance(pose, list), "ok: a pose list"
                 with self._lock:
                     self.pose_units = [int(v) for v in pose]
             return self._send(

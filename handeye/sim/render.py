@@ -308,7 +308,7 @@ def textured_background(width: int, height: int, *, level: float = BACKGROUND_LE
         coarse = rng.normal(0.0, 1.0, (max(2, height // 48), max(2, width // 48))).astype(np.float32)
         soft = cv2.resize(coarse, (width, height), interpolation=cv2.INTER_CUBIC)
         soft = cv2.GaussianBlur(soft, (0, 0), 12.0)
-        soft *= 18.0 / max(float(soft.std()), 1e-6)
+        soft *= 18.0 / max(float(soft.std()), 1e-6)  # type: ignore[arg-type]  # cv2's stubs: float32 here
         grain = cv2.GaussianBlur(rng.normal(0.0, 6.0, (height, width)).astype(np.float32), (0, 0), 0.8)
         bg = np.clip(level + soft + grain, 40.0, 215.0).astype(np.float32)
         bg.setflags(write=False)
@@ -326,7 +326,7 @@ def _background(background, width: int, height: int) -> np.ndarray:
             "unknown background", expected="'textured' | 'flat' | grey level | image", received=repr(background)
         )
     if np.isscalar(background):
-        return np.full((height, width), float(background), np.float32)
+        return np.full((height, width), float(background), np.float32)  # type: ignore[arg-type]  # a scalar here
     bg = np.asarray(background)
     if bg.ndim == 3:
         bg = cv2.cvtColor(bg.astype(np.uint8), cv2.COLOR_BGR2GRAY)
@@ -398,7 +398,9 @@ def render_accumulate(
         if need_mask:
             inv_depth = g[..., 0] * w_row[0] + g[..., 1] * w_row[1] + w_row[2]
             m[inv_depth <= min_inv_depth] = -1e6
-        samples = cv2.remap(tex, m, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0))
+        samples = cv2.remap(  # type: ignore[call-overload]  # cv2's stubs: map2 may be None
+            tex, m, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0)
+        )
         acc[r0 // s : r1 // s] = cv2.resize(samples, (W, (r1 - r0) // s), interpolation=cv2.INTER_AREA)
 
     with ThreadPoolExecutor(_N_THREADS) as pool:
@@ -421,9 +423,9 @@ def render_view(
     black: float = BLACK_LEVEL,
     white: float = WHITE_LEVEL,
 ) -> np.ndarray:
-    """An 8-bit image (H, W) (``channels=1``) or BGR (H, W, 3) of the target seen from ``T_cam_board``.
+    r"""An 8-bit image (H, W) (``channels=1``) or BGR (H, W, 3) of the target seen from ``T_cam_board``.
 
-    Anti-aliased with ``supersample``\\ :sup:`2` samples per pixel through OpenCV's lens model, the
+    Anti-aliased with ``supersample``\ :sup:`2` samples per pixel through OpenCV's lens model, the
     board (pattern plus ``margin_squares`` of white border) over ``background`` ("textured" mid
     grey, "flat", a grey level or an (H, W) image), then an optional Gaussian blur
     (``blur_sigma_px``) and Gaussian noise of ``noise_sigma`` grey levels (needs ``rng``).
@@ -455,6 +457,7 @@ def render_view(
     if blur_sigma_px > 0:
         img = cv2.GaussianBlur(img, (0, 0), float(blur_sigma_px))
     if noise_sigma > 0:
+        assert rng is not None, "checked above"
         img = img + rng.normal(0.0, float(noise_sigma), img.shape).astype(np.float32)
     out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
     return cv2.cvtColor(out, cv2.COLOR_GRAY2BGR) if channels == 3 else out

@@ -35,7 +35,9 @@ def check_model_name(name: str) -> str:
 
 @dataclass(frozen=True)
 class KinematicRobotError:
-    """The kinematic robot error of one session: the nominal (published) arm the controller computes
+    """The kinematic robot error of one session: nominal arm, true arm and encoder noise.
+
+    The kinematic robot error of one session: the nominal (published) arm the controller computes
     with, the true arm, and the per-joint encoder noise sigma (radians).
     """
 
@@ -77,7 +79,9 @@ def sample_true_arm(
     length_error_mm: tuple[float, float] = DH_LENGTH_ERROR_MM,
     angle_error_deg: tuple[float, float] = DH_ANGLE_ERROR_DEG,
 ) -> DHChain:
-    """``nominal`` with every a and d off by a magnitude uniform in ``length_error_mm`` and every alpha
+    """``nominal`` with every DH parameter off by a random amount within the given bounds.
+
+    ``nominal`` with every a and d off by a magnitude uniform in ``length_error_mm`` and every alpha
     and theta_offset by one uniform in ``angle_error_deg``, each with a random sign.
     """
     lo_l, hi_l = (float(x) for x in length_error_mm)
@@ -116,7 +120,9 @@ def make_kinematic_error(
 
 @functools.lru_cache(maxsize=None)
 def _wrist_reach(arm: str) -> tuple[float, float, float]:
-    """(height of the shoulder above the base, last link's d, the largest distance of the wrist point
+    """(shoulder height, last link's d, largest wrist distance from the shoulder) of a preset.
+
+    (height of the shoulder above the base, last link's d, the largest distance of the wrist point
     from the shoulder) of a preset. The wrist point is the flange minus the last d along the flange z
     (the wrist centre of arms with a spherical wrist). From 4000 configurations within the joint
     limits (a fixed sample, so always the same).
@@ -132,7 +138,9 @@ def _wrist_reach(arm: str) -> tuple[float, float, float]:
 
 
 def workspace_scale(arm: str) -> float:
-    """How much smaller than the simulator's default rig (made for a 1.3 m reach) the rig must be for ``arm``:
+    """How much smaller than the simulator's default rig the rig must be for ``arm``.
+
+    How much smaller than the simulator's default rig (made for a 1.3 m reach) the rig must be for ``arm``:
     the largest wrist distance from the shoulder over 1 m, at most 1.
     """
     return float(min(1.0, _wrist_reach(arm)[2] / 1.0))
@@ -156,7 +164,9 @@ def reachable(
 
 
 class OneConfiguration:
-    """Reachability of poses in ONE arm configuration (shoulder, elbow and wrist on the sides of the
+    """Reachability of poses in ONE arm configuration.
+
+    Reachability of poses in ONE arm configuration (shoulder, elbow and wrist on the sides of the
     first reachable pose), as a capture sequence has it: an operator jogging the arm, or a controller
     moving it to the next Cartesian pose, takes the solution nearest the current joints, and a pose that
     needs the arm to flip over is not one of the session's. Without this, poses reached in another
@@ -183,10 +193,13 @@ class OneConfiguration:
         return q
 
     def same_configuration(self, q: np.ndarray, *, steps: int = 16) -> bool:
-        """Whether the straight joint-space move from the reference to ``q`` (both within the limits) crosses
+        """Whether the straight joint-space move from the reference to ``q`` crosses no singularity.
+
+        Whether the straight joint-space move from the reference to ``q`` (both within the limits) crosses
         no singularity: the sign of det J (the joint Jacobian of the flange pose) stays the same along it.
         A shoulder, elbow or wrist flip is a crossing of the singularity between the two configurations.
         """
+        assert self.reference is not None, "the first reachable pose sets the reference"
         s = np.linspace(0.0, 1.0, steps)[:, None]
         path = self.reference[None, :] + s * (np.asarray(q, float) - self.reference)[None, :]
         chain = self.error.true
@@ -200,7 +213,9 @@ class OneConfiguration:
 def joints_for_poses(
     error: KinematicRobotError, T_base_end_true: np.ndarray, *, configuration: Optional[OneConfiguration] = None
 ) -> np.ndarray:
-    """(N, n) true joint angles of the true arm at each (N,4,4) true flange pose (in ``configuration``
+    """(N, n) true joint angles of the true arm at each (N,4,4) true flange pose.
+
+    (N, n) true joint angles of the true arm at each (N,4,4) true flange pose (in ``configuration``
     when given: the one the poses were sampled in).
     """
     out = []
@@ -220,8 +235,9 @@ def joints_for_poses(
 def report_poses(
     error: KinematicRobotError, joints_true: np.ndarray, *, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(joints_encoder (N, n), T_base_end_reported (N,4,4)): the encoder readings and the nominal model's
-    flange poses from them.
+    """(joints_encoder (N, n), T_base_end_reported (N,4,4)).
+
+    The encoder readings and the nominal model's flange poses from them.
     """
     q = np.asarray(joints_true, float).reshape(-1, error.nominal.n_joints)
     q_enc = q + rng.normal(0.0, error.encoder_sigma_rad, size=q.shape)
@@ -229,7 +245,9 @@ def report_poses(
 
 
 def write_native_session(folder: Path) -> Path:
-    """``session.yaml`` in a simulated kinematic vendor folder (:func:`handeye.sim.vendor.write_vendor_session`
+    """``session.yaml`` in a simulated kinematic vendor folder.
+
+    ``session.yaml`` in a simulated kinematic vendor folder (:func:`handeye.sim.vendor.write_vendor_session`
     with ``robot_error="kinematic"``): the same images and reported poses (poses.txt's numbers), each view's
     encoder joint angles (``joints:``) and ``robot:`` naming the arm, so that the refinement uses the
     kinematic robot error model (a session.yaml is read before poses.txt). Returns its path.

@@ -18,7 +18,7 @@ from ..camera import Intrinsics
 from ..collect.visibility import board_center, board_in_image, board_out_of_image, default_margin_px, pattern_bounds
 from ..errors import ConfigError, DegenerateMotionError
 from ..frames import R_from_rotvec, T_from_rotvec, inv_T, make_T
-from ..initial.motion import motion_quality
+from ..initial.motion import MotionQuality, motion_quality
 from ..mounting import mounting
 from ..targets import ChessboardSpec, TargetSpec
 
@@ -81,11 +81,11 @@ DEFAULT_INTRINSICS = default_intrinsics()
 
 
 def _Rz(a: float) -> np.ndarray:
-    return R_from_rotvec([0.0, 0.0, a])
+    return R_from_rotvec(np.array([0.0, 0.0, a]))
 
 
 def _Rx(a: float) -> np.ndarray:
-    return R_from_rotvec([a, 0.0, 0.0])
+    return R_from_rotvec(np.array([a, 0.0, 0.0]))
 
 
 def _small_tilt(rng: np.random.Generator, max_deg: float) -> np.ndarray:
@@ -180,7 +180,9 @@ def default_distance_m(target: TargetSpec) -> tuple[float, float]:
 
 
 def arm_workspace(arm: str, *, mode: str, target: TargetSpec) -> tuple[float, dict]:
-    """(workspace scale, view options) of a rig sized for the arm ``arm`` (a preset of
+    """(workspace scale, view options) of a rig sized for the arm ``arm``.
+
+    (workspace scale, view options) of a rig sized for the arm ``arm`` (a preset of
     :mod:`handeye.kinematics`): the scale for :func:`sample_setup` (:func:`handeye.sim.robot_error.workspace_scale`)
     and, with the camera on the arm, the camera-to-board distances (``distance_m`` of
     :func:`sample_view_poses`) shrunk with the rig, never below 1.5 times the nearest.
@@ -209,7 +211,7 @@ def _T_cam_board_from_view(
     R_tilt = R_from_rotvec(tilt_rad * np.array([np.cos(tilt_dir_rad), np.sin(tilt_dir_rad), 0.0]))
     R_board_cam = R_tilt @ _Rz(roll_rad)  # roll about the optical axis
     o_board = c - distance_m * R_board_cam[:, 2]
-    R_board_cam = R_board_cam @ R_from_rotvec([aim_x_rad, aim_y_rad, 0.0])
+    R_board_cam = R_board_cam @ R_from_rotvec(np.array([aim_x_rad, aim_y_rad, 0.0]))
     return inv_T(make_T(R_board_cam, o_board))
 
 
@@ -282,7 +284,7 @@ def sample_view_poses(
     def strata() -> np.ndarray:  # (n,) values in [0, 1), one per stratum, shuffled
         return (rng.permutation(n_views) + rng.uniform(0.0, 1.0, n_views)) / n_views
 
-    quality = None
+    quality: Optional[MotionQuality] = None
     for _attempt in range(20):
         u_d, u_roll, u_dir = strata(), strata(), strata()
         out = np.empty((n_views, 4, 4))
@@ -326,6 +328,7 @@ def sample_view_poses(
         )
         if quality.status == "ok":
             return out
+    assert quality is not None, "20 draws made"
     raise DegenerateMotionError(
         "sampled views do not rotate about two different axes",
         expected=f"motion that passes the calibration's gates (rotation >= "
@@ -391,8 +394,10 @@ def sample_hidden_view_pose(
 def perturb_T_base_end(
     T_base_end: np.ndarray, *, rng: np.random.Generator, sigma_mm: float, sigma_deg: float
 ) -> np.ndarray:
-    """``T_base_end @ dT`` with dT in the end frame: rotation vector ~ N(0, sigma_deg) and
-    translation ~ N(0, sigma_mm) per axis. Input (N,4,4), output a new (N,4,4).
+    """``T_base_end @ dT`` with dT in the end frame.
+
+    Rotation vector ~ N(0, sigma_deg) and translation ~ N(0, sigma_mm) per axis. Input (N,4,4),
+    output a new (N,4,4).
     """
     T = np.asarray(T_base_end, float).reshape(-1, 4, 4)
     n = T.shape[0]

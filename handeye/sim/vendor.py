@@ -77,7 +77,9 @@ def write_vendor_session(
     arm: str = "rm65",
     **view_options,
 ) -> Path:
-    """Render a synthetic session in the vendor layout (or, for a target other than a chessboard, as a native
+    """Render a synthetic session in the vendor layout.
+
+    Render a synthetic session in the vendor layout (or, for a target other than a chessboard, as a native
     session.yaml with the same poses) and return its folder.
 
     Writes ``1.jpg .. N.jpg`` (or ``.png``; BGR, JPEG quality ``jpeg_quality``), ``poses.txt``
@@ -190,6 +192,7 @@ def write_vendor_session(
             "outlier": vid in session.outlier_view_ids,
         }
         if session.joints_encoder is not None:
+            assert session.joints_true is not None, "the simulator records both"
             views[vid]["joints_encoder"] = session.joints_encoder[k].tolist()
             views[vid]["joints_true"] = session.joints_true[k].tolist()
     truth = {
