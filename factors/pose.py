@@ -77,6 +77,7 @@ def pose_factor(
     """
     M = np.array(M, float)
     C_meas = np.array(T_cam_board_measured, float)
+    noise: gtsam.noiseModel.Base
     if covariance is not None:  # the residual's full covariance (a tracker noisier along its optical axis)
         noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, float))
     else:

@@ -112,19 +112,19 @@ def walk_sessions(root: Path) -> tuple[list[tuple[Path, str]], list[SkippedFolde
         if layout is not None:  # a session's sub-folders (images, view records) are part of it
             found.append((folder, layout))
             return
-        for e in entries:
-            if e.name.startswith("."):
+        for entry in entries:
+            if entry.name.startswith("."):
                 continue
-            path = Path(e.path)
-            if e.is_symlink():
+            path = Path(entry.path)
+            if entry.is_symlink():
                 if not os.path.exists(path):
                     skipped.append(SkippedFolder(path, f"a link to nothing ({os.readlink(path)} does not exist)"))
-                elif _is(e.is_dir):
+                elif _is(entry.is_dir):
                     if follow:
                         visit(path, parents + (real,), follow=True)
                     else:
                         links.append((path, parents + (real,)))
-            elif _is(e.is_dir):
+            elif _is(entry.is_dir):
                 visit(path, parents + (real,), follow=follow)
 
     visit(root, (), follow=False)
@@ -283,8 +283,9 @@ def session_time(folder: Path, meta: dict, warnings: list | None = None) -> tupl
             f"t_image {_short(bad[0])}{f' (and {len(bad) - 1} more)' if len(bad) > 1 else ''} is not a time "
             "(seconds since 1970); those stamps are passed over for the session's time"
         )
-    if stamps:
-        return _iso(_stamp(min(stamps))), "t_image"
+    first = _stamp(min(stamps)) if stamps else None
+    if first is not None:  # every stamp kept converts (checked above)
+        return _iso(first), "t_image"
     m = _DATE_RE.search(folder.name)
     if m:
         y, mo, d, hh, mm, ss = (int(g) if g else 0 for g in m.groups())

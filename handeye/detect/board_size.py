@@ -124,7 +124,7 @@ def size_survey(results: Mapping[str, object], stated: Size) -> Optional[SizeSur
 
     ``results``: every searched image's detection or failure. None when no image lacks the stated board.
     """
-    seen = {vid: tuple(r.seen_sizes) for vid, r in results.items() if getattr(r, "seen_sizes", None) is not None}
+    seen = {vid: tuple(s) for vid, r in results.items() if (s := getattr(r, "seen_sizes", None)) is not None}
     if not seen:
         return None
     return SizeSurvey(stated=tuple(stated), seen=seen, n_images=len(results))

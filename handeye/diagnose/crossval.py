@@ -148,7 +148,7 @@ def cross_validate(run) -> dict:
     jk = jackknife_sigmas(deltas)
     pose_only = bool(s.meta.get("pose_only"))
     rows = [
-        _held_out_row(run, mount, estimates[k], (T_full, B_full, intr_full), ids[i], T_rep[ids[i]], deltas[row])
+        _held_out_row(run, mount, estimates[k], (T_full, B_full, intr_full), ids[i], T_rep[ids[i]], deltas[row])  # type: ignore[arg-type]  # ok: solved folds
         for row, k in enumerate(ok)
         for i in fold_list[k]
     ]

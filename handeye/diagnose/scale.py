@@ -243,7 +243,7 @@ def scale_findings(obs, fit, M: np.ndarray, *, refined=None) -> tuple[list, Opti
     gain = as_stated.median_trans_mm / max(rescaled_fit.median_trans_mm, 1e-9)
     if gain < thresholds().scale.min_scatter_gain:
         return [], est
-    shift_mm = 1e3 * float(np.linalg.norm(est.x_shift_m))
+    shift_mm = 1e3 * float(np.linalg.norm(est.x_shift_m)) if est.x_shift_m is not None else float("nan")
     n_sig = x_shift_sigmas(est, cov_t)
     what, L = stated_length_m(obs.target)
     true_mm, sig_mm = 1e3 * L * est.k, 1e3 * L * est.sigma

@@ -312,10 +312,10 @@ def _write_together(paths: list[Path], data: list[bytes]) -> list[Path]:
         for p, b in zip(paths, data, strict=True):
             with writing(p):
                 p.parent.mkdir(parents=True, exist_ok=True)
-                fd, tmp = tempfile.mkstemp(prefix="." + p.name + ".", suffix=TEMP_SUFFIX, dir=p.parent)
+                fd, name = tempfile.mkstemp(prefix="." + p.name + ".", suffix=TEMP_SUFFIX, dir=p.parent)
                 os.close(fd)
-            staged.append((Path(tmp), p))
-            atomic_write_bytes(tmp, b)  # the bytes flushed to the disk under the temporary name
+            staged.append((Path(name), p))
+            atomic_write_bytes(name, b)  # the bytes flushed to the disk under the temporary name
         for tmp, p in staged:
             with writing(p):
                 os.replace(tmp, p)

@@ -14,6 +14,7 @@ import ast
 import json
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 
@@ -59,7 +60,7 @@ def _T_xyzw(t, q_xyzw) -> np.ndarray:
     return make_T(R_from_quat_wxyz(np.array([w, x, y, z])), np.array([float(v) for v in t]))
 
 
-def _floats(text: str, n: int) -> list[float]:
+def _floats(text: Optional[str], n: int) -> list[float]:
     vals = [float(v) for v in str(text).split()]
     if len(vals) != n:
         raise _Bad(f"expected {n} numbers, got {text!r}")
@@ -74,9 +75,10 @@ def _launch_py(data: bytes) -> ReadBack:
     from .writers import PROVENANCE_NAME
 
     tree = compile(data, "<launch file>", "exec", flags=ast.PyCF_ONLY_AST, dont_inherit=True)
+    assert isinstance(tree, ast.Module), "compile with PyCF_ONLY_AST returns a module"
     compile(tree, "<launch file>", "exec", dont_inherit=True)  # what the parser lets through, the compiler may not
     fields: dict = {}
-    funcs = []
+    funcs: list[ast.FunctionDef] = []
     imports = set()
     for stmt in tree.body:
         if isinstance(stmt, ast.Expr) and isinstance(stmt.value, ast.Constant) and isinstance(stmt.value.value, str):
@@ -163,7 +165,7 @@ def _xml_root(data: bytes) -> ET.Element:
 
 def _origin_T(joint: ET.Element) -> np.ndarray:
     origin = _one(joint, "origin")
-    return make_T(_rpy_R(*_floats(origin.get("rpy"), 3)), np.array(_floats(origin.get("xyz"), 3)))
+    return make_T(_rpy_R(*_floats(origin.get("rpy"), 3)), np.asarray(_floats(origin.get("xyz"), 3), float))
 
 
 def _one(parent: ET.Element, tag: str) -> ET.Element:
@@ -182,7 +184,7 @@ def _urdf(data: bytes) -> ReadBack:
     parent, child = _one(joint, "parent").get("link"), _one(joint, "child").get("link")
     if joint.get("type") != "fixed" or links != [parent, child]:
         raise _Bad(f"links {links}, joint {parent} -> {child} ({joint.get('type')})")
-    return ReadBack(parent, child, _origin_T(joint), {"joint_name": joint.get("name")})
+    return ReadBack(str(parent), str(child), _origin_T(joint), {"joint_name": joint.get("name")})
 
 
 def _xacro(data: bytes) -> ReadBack:

@@ -50,7 +50,7 @@ def xml_comment(lines) -> ET.Element:
     and the text ends in a newline (never in the ``-`` a comment may not end with).
     """
     body = [re.sub(r"-{2,}", lambda m: "-" + "\\x2d" * (len(m.group()) - 1), text_line(s)) for s in lines]
-    return ET.Comment("\n" + "".join("  " + s + "\n" for s in body))
+    return ET.Comment("\n" + "".join("  " + s + "\n" for s in body))  # type: ignore[return-value]  # a comment node
 
 
 def comment(lines, mark: str = "#") -> str:
@@ -217,7 +217,8 @@ def moveit1_launch(e: ExportTransform) -> str:
             "args": f"{xyz} {' '.join(num(v) for v in q)} {e.parent} {e.child}",
         },
     )
-    return _xml(root, ET.Comment(" static transform of a hand-eye calibration (MoveIt Calibration's layout) "))
+    head = ET.Comment(" static transform of a hand-eye calibration (MoveIt Calibration's layout) ")
+    return _xml(root, head)  # type: ignore[arg-type]  # a comment node is an element
 
 
 def _ident(name: str) -> str:

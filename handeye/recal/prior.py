@@ -278,7 +278,7 @@ def calibrate_with_prior(
 def prior_views(installed: LoadedResult) -> int:
     """The views behind the prior's X: those its result used, plus its own prior's when that one held."""
     raw = installed.raw or {}
-    own = raw.get("prior") if isinstance(raw.get("prior"), dict) else {}
+    own: dict = raw["prior"] if isinstance(raw.get("prior"), dict) else {}
     if own.get("used") == "prior":
         n = own.get("views_with_prior")
     elif isinstance(raw.get("n_views"), dict):

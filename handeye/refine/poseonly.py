@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any, Mapping, Optional, Sequence
+from typing import Any, Literal, Mapping, Optional, Sequence, overload
 
 import numpy as np
 from scipy.special import chdtri
@@ -38,7 +38,7 @@ _NORM2_MEDIAN = float(np.sqrt(chdtri(2, 0.5)))
 _NORM1_MEDIAN = float(np.sqrt(chdtri(1, 0.5)))
 
 
-def stated_sigmas(tracker_sigma) -> np.ndarray:
+def stated_sigmas(tracker_sigma: Sequence[float]) -> np.ndarray:
     """(3,) rotation [rad], across and along the optical axis [m] from a stated (rad, m) or (rad, m, m_along)."""
     sig = np.asarray(tracker_sigma, float).ravel()
     return np.r_[sig, sig[1]] if sig.size == 2 else sig
@@ -123,7 +123,23 @@ class _State:
         """(n, 6, 6) every view's residual covariance at the current sigmas."""
         return np.einsum("g,gnij->nij", self.sigma**2, self.groups())
 
-    def residuals(self, T_x=None, T_board=None, *, jacobians: bool = False):
+    @overload
+    def residuals(
+        self,
+        T_x: Optional[np.ndarray] = None,
+        T_board: Optional[np.ndarray] = None,
+        *,
+        jacobians: Literal[False] = False,
+    ) -> tuple[np.ndarray, None]: ...
+
+    @overload
+    def residuals(
+        self, T_x: Optional[np.ndarray] = None, T_board: Optional[np.ndarray] = None, *, jacobians: Literal[True]
+    ) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def residuals(
+        self, T_x: Optional[np.ndarray] = None, T_board: Optional[np.ndarray] = None, *, jacobians: bool = False
+    ) -> tuple[np.ndarray, Optional[np.ndarray]]:
         """(r (n,6), J (n,6,12) or None) of every view at the current (or given) solution."""
         T_x = self.T_x if T_x is None else T_x
         T_board = self.T_board if T_board is None else T_board
@@ -158,13 +174,13 @@ def _robust_sigmas(C: np.ndarray, r: np.ndarray, floors: np.ndarray) -> np.ndarr
     return np.maximum(med, floors)
 
 
-def _score(st: _State, T_x, T_board) -> float:
+def _score(st: _State, T_x: np.ndarray, T_board: np.ndarray) -> float:
     """Median over the views of the whitened residual norms at the start sigmas."""
     r, _ = st.residuals(T_x, T_board)
     return float(np.median(np.sqrt(np.einsum("ni,nij,nj->n", r, st.W(), r))))
 
 
-def _information(st: _State, J: np.ndarray, prior_x) -> np.ndarray:
+def _information(st: _State, J: np.ndarray, prior_x: Optional[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
     H = np.einsum("nki,nkl,nlj->ij", J[st.keep], st.W()[st.keep], J[st.keep])
     if prior_x is not None:
         H[:6, :6] += np.linalg.inv(prior_x[1])
@@ -188,7 +204,14 @@ def _solve(
     st.iterations += it
 
 
-def _vce_on_linearisation(st: _State, r: np.ndarray, J: np.ndarray, prior_x, floors, resolved: dict) -> float:
+def _vce_on_linearisation(
+    st: _State,
+    r: np.ndarray,
+    J: np.ndarray,
+    prior_x: Optional[tuple[np.ndarray, np.ndarray]],
+    floors: np.ndarray,
+    resolved: dict[str, bool],
+) -> float:
     """Variance-component estimation of the three tracker sigmas on one linearisation.
 
     ``r`` (n,6), ``J`` (n,6,12) at the last solve. With the residual covariance ``sum_g s_g^2 Q_g`` (rotation;
@@ -310,7 +333,10 @@ def refine_poses(
         if options.prior is None
         else (check_T(options.prior.T_x, "prior T_x"), np.asarray(options.prior.cov_x, float))
     )
-    st.sigma = _robust_sigmas(C, st.residuals()[0], floors) if estimate else stated_sigmas(tracker_sigma)
+    if tracker_sigma is None:
+        st.sigma = _robust_sigmas(C, st.residuals()[0], floors)
+    else:
+        st.sigma = stated_sigmas(tracker_sigma)
     start_method = "given"
     if starts:
         best = _score(st, st.T_x, st.T_board)

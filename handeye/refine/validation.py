@@ -211,9 +211,9 @@ def validate(
     result: RefineResult,
     *,
     object_points: Optional[np.ndarray] = None,
-    views: Sequence,
+    views: Sequence[Any],
     halves: bool = True,
-    refit_views: Optional[Callable] = None,
+    refit_views: Optional[Callable[[list[Any], bool], Refit]] = None,
 ) -> Validation:
     """Validated and verdict covariances of ``result`` from refits on some of its views.
 
@@ -226,8 +226,12 @@ def validate(
     if refit_views is None:
         from .refitting import refit as refit_images
 
-        def refit_views(sub, covariance=True):
-            return refit_images(result, object_points=object_points, views=sub, covariance=covariance)
+        if object_points is None:
+            raise ValueError("validate() of image views needs their object_points")
+        points = object_points
+
+        def refit_views(sub: list[Any], covariance: bool = True) -> Refit:
+            return refit_images(result, object_points=points, views=sub, covariance=covariance)
 
     cfg = settings()
     if result.status != "ok":

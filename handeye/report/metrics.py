@@ -91,7 +91,7 @@ def qa_metrics(
     items = [f"{k} (view{'s' if len(ids) > 1 else ''} {', '.join(ids)})" for k, ids in by_reason.items()]
     c["bad_reasons"] = "; ".join(items[:3]) + (f"; and {len(items) - 3} more" if len(items) > 3 else "")
     m["used_views"] = float(len(used_ids)) if n_total else None
-    prior = res.get("prior") if isinstance(res.get("prior"), dict) else {}
+    prior: dict = res["prior"] if isinstance(res.get("prior"), dict) else {}
     n_prior = prior.get("prior_views")
     if n_total and prior.get("used") == "prior" and isinstance(n_prior, (int, float)) and n_prior > 0:
         # --prior that the data agree with: X rests on the new views and the earlier ones behind the prior

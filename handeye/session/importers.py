@@ -218,12 +218,13 @@ def import_visp(
                 "pose": [_number(v[0], path=poses[k], field=f"data[{i}]") for i, v in enumerate(data)],
             }
         )
-    doc = {
+    source: dict[str, object] = {"importer": "visp", "layout": layout, "path": str(src)}
+    doc: dict[str, object] = {
         "handeye_session": 1,
         "target": target,
         "pose_format": {"rotation": "rotvec", "angle_unit": "rad", "translation_unit": "m"},
         "image_folder": str(src),
-        "source": {"importer": "visp", "layout": layout, "path": str(src)},
+        "source": source,
         "views": views,
     }
     why = "--mode" if mode is not None else None
@@ -231,7 +232,7 @@ def import_visp(
         mode, why = visp_mode(src, layout)
     if mode is not None:
         doc = {"handeye_session": 1, "mode": mode, **{k: v for k, v in doc.items() if k != "handeye_session"}}
-    doc["source"]["mode"] = why
+    source["mode"] = why
     cam = next(iter(src.glob("*camera*.xml")), None)
     if use_given_intrinsics and cam is not None:
         t = read_text(cam, what="camera file")

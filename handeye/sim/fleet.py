@@ -255,7 +255,7 @@ def _as_native_with_bad_time(folder: Path) -> None:
     cfg = yaml.safe_load((folder / "config.yaml").read_text(encoding="utf-8"))
     board = cfg["checkerboard_args"]
     lines = [ln for ln in (folder / "poses.txt").read_text(encoding="utf-8").splitlines() if ln.strip()]
-    views = [
+    views: list[dict[str, object]] = [
         {"id": str(k), "image": f"{k}.jpg", "pose": [float(x) for x in ln.split(",")]}
         for k, ln in enumerate(lines, start=1)
         if (folder / f"{k}.jpg").exists()

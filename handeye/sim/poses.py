@@ -10,13 +10,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence, Union
+from typing import Any, Sequence, Union
 
 import numpy as np
 import yaml
 
 from ..frames import se3_exp
-from .corners import CornerSession, make_corner_session
+from .corners import make_corner_session
 
 
 @dataclass(frozen=True)
@@ -27,7 +27,7 @@ class TrackerSession:
     reported ``T_base_end`` (N,4,4), with the corner session it came from (its ground truth).
     """
 
-    truth: CornerSession
+    truth: Any  # CornerSession, or another truth with mode, T_x_true, T_board_true, outlier_view_ids
     view_ids: tuple
     T_cam_board: np.ndarray
     T_base_end: np.ndarray
