@@ -17,7 +17,7 @@ import logging
 import os
 from collections import Counter
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -134,7 +134,7 @@ def result_fields(res) -> dict:
     if not isinstance(res, dict):
         raise _damaged("(top level)", res, "a mapping")
     status = _text(res, "status", "status")
-    f = {
+    f: dict[str, Any] = {
         "mode": _text(res, "mode", "mode"),
         "verdict": _text(res, "verdict", "verdict", choices=tuple(VERDICTS)) or "FAIL",
         "status": status,
@@ -213,7 +213,7 @@ def session_row(out: Path, folder: Path) -> dict:
     """
     rel = folder.relative_to(out).parts
     rec = read_json(folder / RECORD_NAME) or {}
-    row = {c: None for c in COLUMNS}
+    row: dict[str, Any] = {c: None for c in COLUMNS}
     warnings = rec.get("warnings")
     row.update(
         install=_rec_text(rec, "install") or (rel[0] if len(rel) > 1 else "default"),
@@ -261,7 +261,7 @@ def session_row(out: Path, folder: Path) -> dict:
             (("sigma_rx_deg", "sigma_ry_deg", "sigma_rz_deg"), "sigma_rot_deg"),
         ):
             row.update(dict(zip(names, f[key] or [None] * 3, strict=True)))
-        row["compared"] = _comparable(res, folder / "result.json")  # for the drift: result.json is read once
+        row["compared"] = _comparable(res, folder / "result.json")  # type: ignore[arg-type]  # checked by result_fields  # for the drift: result.json is read once
     if (folder / "report.html").exists():
         row["report"] = "/".join(rel) + "/report.html"
     return row
@@ -285,7 +285,7 @@ def _verify_row(row: dict, ver, folder: Path, rel: tuple) -> dict:
         mode=_text(ver, "mode", "mode"),
         x_name=_text(ver, "frame", "frame"),
         outcome=row["outcome"] or "done",
-        verdict=VERIFY_VERDICTS.get(verdict, "ERROR"),
+        verdict=VERIFY_VERDICTS.get(verdict or "", "ERROR"),
         time_utc=row["time_utc"] or _text(prov, "time_utc", "provenance.time_utc"),
         reason=row["reason"] or ("" if verdict == "still valid" else str(ver.get("headline"))),
     )
@@ -413,7 +413,8 @@ def install_drifts(out: Path, usable: list[dict]) -> list[dict]:
     two series also get a row, not comparable, naming the difference. A session whose result does not load
     for a comparison is paired with the previous session, and its row says why.
     """
-    drifts, last_of = [], {}
+    drifts: list[dict[str, Any]] = []
+    last_of: dict[Any, Any] = {}
     for k, row in enumerate(usable):
         key, prev = series_key(row), (usable[k - 1] if k else None)
         if prev is not None:
@@ -679,7 +680,7 @@ def write_index(out, *, plots: bool = True) -> list[Path]:
             out / "index.html", _env(html=True).get_template("fleet.html.j2").render(**ctx, images=images)
         )
     )
-    files = {}
+    files: dict[str, Any] = {}
     for i in installs:
         for k, t in enumerate(t for t in i["trends"] if t["png"]):  # one install's first series keeps its old name
             name = f"{FILES_DIR}/trend_{safe_name(i['install'])}{f'_{k + 1}' if k else ''}.png"
