@@ -18,6 +18,7 @@ import numpy as np
 
 from .camera import pixels_from_board_points
 from .conventions import pose_forms
+from .diagnose.findings import PAIRS_OUT_OF_STEP, ROOT_CAUSE_LABELS, is_out_of_step
 from .errors import HandeyeError, SessionRefused
 from .frames import pose_error, tangent_difference
 from .mounting import mounting
@@ -451,8 +452,6 @@ def verdict_fields(verdict, res: dict, error: Optional[HandeyeError], *, qa_cfg:
     if error is not None:
         label = "REFUSED" if isinstance(error, SessionRefused) else "FAIL"
         if label == "REFUSED":  # led by the root cause's name, as the report's banner is
-            from .report.advice import PAIRS_OUT_OF_STEP, ROOT_CAUSE_LABELS, is_out_of_step
-
             code = str(getattr(error, "code", "") or "")
             cause = ROOT_CAUSE_LABELS.get(code)
             if code == "pairs_shuffled" and any(is_out_of_step(f) for f in raw if isinstance(f, dict)):

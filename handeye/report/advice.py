@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from typing import Optional
 
+from ..diagnose.findings import PAIRS_OUT_OF_STEP, ROOT_CAUSE_LABELS, is_out_of_step  # noqa: F401 (re-exported)
+
 #: error code -> what to check (in addition to the error's own ``fix``)
 ERROR_ADVICE = {
     "target_not_found": "Count the inner corners (where four squares meet), not the squares, give the square size "
@@ -53,30 +55,6 @@ FINDING_ADVICE = {
     "pairs_shifted": ERROR_ADVICE["pairs_shifted"],
     "pairs_shuffled": ERROR_ADVICE["pairs_shuffled"],
 }
-
-#: code -> a few words naming the root cause, for the start of the report's banner; a finding code not
-#: here (e.g. board_moved) is named by its own title, which says it already
-ROOT_CAUSE_LABELS = {
-    "mode_swapped": "Mode swapped",
-    "poses_inverted": "Robot poses inverted",
-    "translation_units": "Robot translations in the wrong unit",
-    "angle_units": "Robot angles in the wrong unit",
-    "euler_order": "Wrong Euler angle order",
-    "rotation_kind": "Wrong kind of rotation",
-    "quaternion_order": "Wrong quaternion order",
-    "pairs_shuffled": "Pairs shuffled",
-    "poses_do_not_fit": "Robot poses do not fit the images",
-    "mode_undecided": "Mounting mode not decided",
-}
-
-#: the label of a pairs_shuffled finding that is a shift from one image on (a capture that lost its image or pose)
-PAIRS_OUT_OF_STEP = "Pairs out of step"
-
-
-def is_out_of_step(f: dict) -> bool:
-    """A pairs_shuffled finding that is a shift from one image on (its own fix: the order was not lost)."""
-    return f.get("code") == "pairs_shuffled" and bool((f.get("details") or {}).get("partial_shift"))
-
 
 #: codes whose fail or warn finding (or refusal) explains the verdict: the banner leads with the first found
 ROOT_CAUSE_CODES = (
