@@ -1,7 +1,7 @@
 """``python -m handeye.batch.child SPEC_JSON``: one session of a batch, in its own process.
 
 Runs :func:`handeye.workflow.calibrate_session` with the ``handeye calibrate`` options of the spec
-(:func:`handeye.cli.calibrate.options_from_args`: the single command's results, bit for bit) and
+(:func:`handeye.options.options_from_args`: the single command's results, bit for bit) and
 prints one JSON line on stdout: ``outcome`` (``done``, or ``error`` when the workflow raised),
 ``status``, ``verdict``, ``reason``, ``exit_code`` and ``peak_rss_mb`` (the process's peak memory).
 Log lines go to stderr (the task keeps them in ``batch.log``). The process ends itself when its
@@ -82,8 +82,8 @@ def _wait_for_previous_attempt(out_dir) -> None:
 
 
 def run(spec: dict) -> dict:
-    from ..cli.calibrate import options_from_args
     from ..errors import HandeyeError
+    from ..options import options_from_args
     from ..workflow import calibrate_session
     from .run import calibrate_namespace
 

@@ -123,7 +123,7 @@ def provenance_options(calibrate: dict) -> dict:
     The calibration options as result.json's ``provenance.options`` records them, for the
     command-line options ``calibrate`` (the ``handeye calibrate`` flags by their argparse names).
     """
-    from ..cli.calibrate import options_from_args
+    from ..options import options_from_args
 
     o = options_from_args(calibrate_namespace(calibrate))
     return _canonical({"method": o.method, "refine": o.refine, "fix_k3": o.fix_k3, **o.refine_options})
