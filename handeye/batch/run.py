@@ -42,7 +42,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
 
-from ..errors import QAFailed
+from ..contract import BatchRecord, read_result, write_validated
+from ..errors import InputError, QAFailed
 from ..output import atomic_write_bytes, hash_files, write_json, writing
 from .discover import SessionJob
 
@@ -215,8 +216,9 @@ def current_record(out_dir: Path, key: dict) -> Optional[dict]:
         return None
     if key.get("verify_against"):  # the key holds the session's and the installed result's hashes
         return rec if read_json(out_dir / "verify.json") is not None else None
-    res = read_json(out_dir / "result.json")
-    if res is None:
+    try:
+        res = read_result(out_dir / "result.json").raw
+    except InputError:  # missing or damaged: the session runs again
         return None
     prov = res.get("provenance") or {}
     if key["inputs"] == "session" and prov.get("inputs_sha256") != key["inputs_sha256"]:
@@ -347,7 +349,7 @@ def write_tree(folder: Path, files: dict, *, keep_prefix: str = "result.") -> No
 def _finish_record(out: Path, rec: dict, t0: float) -> dict:
     rec["seconds"] = time.perf_counter() - t0
     rec["finished_utc"] = _now()
-    write_json(out / RECORD_NAME, rec)
+    write_validated(out / RECORD_NAME, rec, BatchRecord)
     return rec
 
 
