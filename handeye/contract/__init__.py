@@ -96,6 +96,16 @@ def _field(loc: tuple) -> str:
     return out
 
 
+#: pydantic's words for the expected type -> a person's
+_WORDS = {
+    "a valid dictionary": "a mapping",
+    "a valid string": "a text",
+    "a valid list": "a list",
+    "a valid boolean": "true or false",
+    "a valid integer": "an integer",
+}
+
+
 def _error(e: ValidationError, path: str, name: str) -> InputError:
     """The first of a ValidationError's errors as one InputError naming the field."""
     err = e.errors(include_url=False)[0]
@@ -108,7 +118,8 @@ def _error(e: ValidationError, path: str, name: str) -> InputError:
     else:
         problem = f"is {short(err.get('input'))}"
         expected = str(err["msg"]).removeprefix("Input should be ").removeprefix("Value error, ")
-        expected = re.sub(r" or instance of \w+$", "", expected).replace("a valid dictionary", "a mapping")
+        expected = re.sub(r" or instance of \w+$", "", expected)
+        expected = _WORDS.get(expected, expected)
     return InputError(f"damaged: {field} {problem}", path=path, expected=expected, code=f"{name}_damaged", hint=_HINT)
 
 
