@@ -32,6 +32,8 @@ from typing import Optional
 
 import numpy as np
 
+from ..contract import validate_result
+from ..errors import InputError
 from ..output import atomic_write_bytes, atomic_write_text
 from .run import FAILED_VERDICTS, LOG_NAME, RECORD_NAME, read_json
 
@@ -89,7 +91,12 @@ def session_row(out: Path, folder: Path) -> dict:
     """The fleet row of one session folder (see :data:`COLUMNS`; vectors as 3-lists, findings a list)."""
     rel = folder.relative_to(out).parts
     rec = read_json(folder / RECORD_NAME) or {}
-    res = read_json(folder / "result.json")
+    res, damaged = read_json(folder / "result.json"), None
+    if res is not None:  # checked by the one reader: a damaged result is a row with the reason, never a crash
+        try:
+            validate_result(res, source=str(folder / "result.json"), partial=True)
+        except InputError as e:
+            res, damaged = None, str(e)
     row = {c: None for c in COLUMNS}
     row.update(
         install=rec.get("install") or (rel[0] if len(rel) > 1 else "default"),
@@ -118,7 +125,7 @@ def session_row(out: Path, folder: Path) -> dict:
             row["report"] = "/".join(rel) + "/verify.html"
         return row
     if rec and rec.get("outcome") != "done" or res is None:
-        row.update(verdict="ERROR", reason=row["reason"] or "no result.json")
+        row.update(verdict="ERROR", reason=row["reason"] or damaged or "no result.json")
         return row
     row.update(
         mode=res.get("mode"),

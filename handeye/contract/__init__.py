@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
-from typing import Callable, Union
+from typing import Callable, Optional, Union
 
 from pydantic import BaseModel, ValidationError
 
@@ -176,16 +176,19 @@ def _migrate(d: dict, source: str) -> dict:
     return d
 
 
-def validate_result(d: dict, *, source: str = "<dict>", require_version: bool = True) -> Result:
+def validate_result(
+    d: dict, *, source: str = "<dict>", require_version: bool = True, partial: Optional[bool] = None
+) -> Result:
     """result.json's content checked, migrated from an older version first.
 
     The model keeps ``d`` as ``raw``. ``require_version=False``: a dict built by a program, not read
     from a file: without ``handeye_result`` it is taken as the current version, and it may hold some
-    parts only (each part it holds is checked).
+    parts only (each part it holds is checked). ``partial`` says the latter alone (for a reader that shows
+    what a file holds, such as the fleet index).
     """
     if not isinstance(d, dict):
         raise InputError("not a JSON object", path=source, hint=_HINT)
-    partial = not require_version
+    partial = (not require_version) if partial is None else partial
     if "handeye_result" not in d and partial:
         d = {"handeye_result": RESULT_VERSION, **d}
     elif "handeye_result" not in d:

@@ -206,3 +206,20 @@ def test_a_partial_dict_is_checked_for_what_it_holds():
         validate_result({"status": "ok", "mode": "eye_to_hand", "T_base_cam": [[1, 0]]}, require_version=False)
     with pytest.raises(InputError, match="T_base_cam is missing"):
         validate_result({"handeye_result": 1, "status": "ok", "mode": "eye_to_hand"})
+
+
+def test_the_fleet_index_lists_a_damaged_result_as_a_row(results, tmp_path):
+    """A result.json whose verdict is a mapping made every later index crash (TypeError)."""
+    import shutil
+
+    from handeye.batch.index import read_fleet_csv, write_index
+
+    shutil.copytree(results["images"], tmp_path / "cell" / "good")
+    bad = tmp_path / "cell" / "bad"
+    shutil.copytree(results["images"], bad)
+    _damage(bad, lambda d: d.__setitem__("verdict", {"PASS": True}))
+    write_index(tmp_path, plots=False)
+    rows = {r["session"]: r for r in read_fleet_csv(tmp_path / "fleet.csv")}
+    assert rows["good"]["verdict"] in ("PASS", "WARN")
+    assert rows["bad"]["verdict"] == "ERROR" and "damaged: verdict is {'PASS': True}" in rows["bad"]["reason"]
+    assert (tmp_path / "index.html").is_file()
