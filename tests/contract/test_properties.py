@@ -94,6 +94,26 @@ def test_a_mutated_result_is_read_or_refused_in_one_line(originals, data):
         assert len(str(e).splitlines()) == 1
 
 
+GENERATED = st.fixed_dictionaries(
+    {"handeye_result": st.just(1), "status": st.sampled_from(["ok", "failed"])},
+    optional={k: GARBAGE for k in Result.model_fields if k not in ("handeye_result", "status")},
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(d=GENERATED)
+def test_a_generated_result_is_read_or_refused_in_one_line(d):
+    from handeye.recal.loaded import load_result
+
+    try:
+        m = validate_result(d, source="result.json")
+    except InputError as e:
+        assert len(str(e).splitlines()) == 1 and str(e).startswith("result.json: ")
+        return
+    assert isinstance(m, Result) and (not m.ok or m.T_x is not None)
+    load_result(d)
+
+
 @settings(
     max_examples=6,
     deadline=None,
@@ -108,6 +128,15 @@ def test_commands_never_exit_1_on_a_mutated_result(originals, results, data, cap
         (folder / "result.json").write_text(json.dumps(d))
         end_pose = ["--end-pose", "0.5", "0", "0.5", "3.1", "0", "0"]
         for argv in (
+            [
+                "verify",
+                results["images"].parent / "images_s",
+                "--against",
+                folder,
+                "--no-report",
+                "--out",
+                Path(tmp) / "v",
+            ],
             ["compare", results["images"], folder],
             ["export", folder, "--to", "yaml", "--out", Path(tmp) / "x.yaml"],
             ["apply", folder, "--point", "0", "0", "0.5", *end_pose],
