@@ -189,7 +189,7 @@ def validate_result(
     if not isinstance(d, dict):
         raise InputError("not a JSON object", path=source, hint=_HINT)
     partial = (not require_version) if partial is None else partial
-    if "handeye_result" not in d and partial:
+    if "handeye_result" not in d and not require_version:
         d = {"handeye_result": RESULT_VERSION, **d}
     elif "handeye_result" not in d:
         raise InputError(

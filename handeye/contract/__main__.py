@@ -16,9 +16,14 @@ from . import schema_texts
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m handeye.contract", description=__doc__.splitlines()[0])
-    p.add_argument("dir", nargs="?", type=Path, default=Path(__file__).resolve().parents[2] / "docs")
+    p.add_argument("dir", nargs="?", type=Path, help="where the schemas go (default: the checkout's docs/)")
     p.add_argument("--check", action="store_true", help="compare with the published files, write nothing")
     args = p.parse_args(argv)
+    if args.dir is None:
+        docs = Path(__file__).resolve().parents[2] / "docs"
+        if not (docs / "architecture.md").is_file():  # an installed package: no checkout around it
+            p.error("give DIR: this handeye is not a checkout with docs/")
+        args.dir = docs
     stale = []
     for name, text in schema_texts().items():
         path = args.dir / name

@@ -99,9 +99,10 @@ def _matching_observations(res: dict, obs: dict) -> dict:
 def check_result(res: dict, *, path: Path) -> dict:
     """result.json's structure as the report reads it: InputError naming the first damaged field.
 
-    The check is the contract's (:func:`handeye.contract.validate_result`); the dict is returned as it is.
+    The check is the contract's (:func:`handeye.contract.validate_result`; a file without its version key is
+    read as the current version, as the report always has); the dict is returned as it is.
     """
     from ..contract import validate_result
 
-    validate_result(res, source=str(path))
+    validate_result(res, source=str(path), require_version=False, partial=False)
     return res
