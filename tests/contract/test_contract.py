@@ -53,6 +53,7 @@ def _commands(results, bad, tmp_path):
         "report": ["report", bad, "--out", tmp_path / "r"],
         "export": ["export", bad, "--to", "json", "--out", tmp_path / "x.json"],
         "apply": ["apply", bad, "--point", "0", "0", "0.5", *end_pose],
+        "calibrate_prior": ["calibrate", session, "--prior", bad, "--out", tmp_path / "c", "--no-report"],
     }
 
 
@@ -60,7 +61,8 @@ def _commands(results, bad, tmp_path):
 def test_a_damaged_field_is_one_line_naming_it_from_every_command(
     damage, field, got, results, copy_result, tmp_path, capsys
 ):
-    """Each of these gave exit 1 ("internal error ... this is a bug") from verify and compare."""
+    """Each of these gave exit 1 ("internal error ... this is a bug") from verify and compare; a prior whose
+    covariance is broken is named as the prior file's field."""
     bad = _damage(copy_result("images"), damage)
     for name, argv in _commands(results, bad, tmp_path).items():
         capsys.readouterr()
@@ -70,6 +72,7 @@ def test_a_damaged_field_is_one_line_naming_it_from_every_command(
         assert len(err) == 1 and "Traceback" not in err[0], (name, err)
         assert str(bad / "result.json") in err[0] and f"damaged: {field}" in err[0] and got in err[0], (name, err)
     assert not (tmp_path / "x.json").exists() and not (tmp_path / "v").exists()
+    assert not (tmp_path / "c" / "result.json").exists()
 
 
 def test_the_reader_names_file_field_expected_and_received(copy_result):
