@@ -65,6 +65,15 @@ class Open(BaseModel):
 
 
 # ------------------------------------------------------------------------------------------ result.json
+def _same_pose(forms: "PoseForms", T: list, block: str, name: str) -> None:
+    """``block``'s matrix and translation (the forms people read) are ``T``'s (the matrix programs read)."""
+    T = np.asarray(T, float)
+    if forms.matrix is not None and not np.allclose(forms.matrix, T, rtol=0, atol=1e-9):
+        raise damaged(f"differs from {name}", f"the same matrix as {name}", f"{block}.matrix")
+    if forms.translation_mm is not None and not np.allclose(forms.translation_mm, T[:3, 3] * 1e3, rtol=1e-9, atol=1e-6):
+        raise damaged(f"differs from {name}'s translation", f"{name}[:3, 3] in mm", f"{block}.translation_mm")
+
+
 class PoseForms(Open):
     """``hand_eye`` / ``board``: the transform's name and the same pose in other forms (for people)."""
 
@@ -202,6 +211,12 @@ class ViewCounts(Open):
     total: Count
     used: Count
 
+    @model_validator(mode="after")
+    def _used_of_total(self):
+        if self.used > self.total:
+            raise damaged(f"is {self.used} of {self.total} views", f"at most total ({self.total})", "n_views.used")
+        return self
+
 
 class Result(Open):
     """result.json: one calibration (``status`` ok: X was computed; ``verdict``: whether to use it).
@@ -264,6 +279,9 @@ class Result(Open):
             raise damaged(f"is {self.hand_eye.name!r}", f"{mount.x_name} ({self.mode})", field="hand_eye.name")
         if self.board is not None and self.board.name not in (None, mount.board_name):
             raise damaged(f"is {self.board.name!r}", f"{mount.board_name} ({self.mode})", field="board.name")
+        _same_pose(self.hand_eye, getattr(self, mount.x_name), "hand_eye", mount.x_name)
+        if self.board is not None and getattr(self, mount.board_name) is not None:
+            _same_pose(self.board, getattr(self, mount.board_name), "board", mount.board_name)
         return self
 
     # -------------------------------------------------------------------- typed accessors
