@@ -17,6 +17,7 @@ from typing import Any, Optional
 import numpy as np
 
 from .camera import pixels_from_board_points
+from .contract import OBSERVATIONS_VERSION, RESULT_VERSION  # the versions live with the models
 from .conventions import pose_forms
 from .diagnose.findings import PAIRS_OUT_OF_STEP, ROOT_CAUSE_LABELS, is_out_of_step
 from .errors import HandeyeError, SessionRefused
@@ -24,9 +25,6 @@ from .frames import pose_error, tangent_difference
 from .mounting import mounting
 from .output import hash_files, plain, provenance
 from .records import Session
-
-RESULT_VERSION = 1
-OBSERVATIONS_VERSION = 1
 
 FRAME_DOC = {
     "T_end_cam": "pose of the camera (optical frame: x right, y down, z forward) in the end/flange frame; "

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Optional
 
+from .contract import Observations, check_written, write_result
 from .errors import HandeyeError, SessionRefused, verdict_exit_code
 from .output import (
     FolderLock,
@@ -207,6 +208,7 @@ def _calibrate_locked(
     _keep_previous(out_dir, failed=run.status != "ok")
     write_thumbnails(out_dir, {**run.failures, **run.detections})
     obs_text = to_json({**observations_dict(run), "run_id": run_id}, indent=None)
+    check_written(json.loads(obs_text), Observations, str(out_dir / "observations.json"))
     atomic_write_text(out_dir / "observations.json", obs_text + "\n")
     return _finish(
         out_dir,
@@ -340,7 +342,8 @@ def _finish(
     finally:  # a rendering that raises (or an interrupt) must not lose the result
         seconds["total"] = time.perf_counter() - t0
         res["seconds"] = seconds
-        write_json(result_path, res)  # once, and before the reports: a report never describes another result
+        # once, validated, and before the reports: a report never describes another result
+        write_result(result_path, res)
     if rendered is not None:
         paths = tuple(_write_reports(out_dir, rendered))
     if error is None and res.get("verdict") in ("PASS", "WARN"):

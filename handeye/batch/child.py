@@ -129,8 +129,8 @@ def run_verify(spec: dict) -> dict:
     """
     from pathlib import Path
 
+    from ..contract import Verify, write_validated
     from ..errors import DRIFTED_EXIT_CODE, HandeyeError
-    from ..output import write_json
     from ..recal.report import write_verify_reports
     from ..recal.verify import VerifyOptions, verify_dict, verify_session
     from .run import VERIFY_VERDICTS
@@ -144,7 +144,7 @@ def run_verify(spec: dict) -> dict:
             mode=cal.get("mode"),
             progress=lambda s: log.info("%s", s),
         )
-        write_json(out / "verify.json", verify_dict(sv))
+        write_validated(out / "verify.json", verify_dict(sv), Verify)
         if not cal.get("no_report"):
             write_verify_reports(out)
     except HandeyeError as e:

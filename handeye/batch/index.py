@@ -21,6 +21,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from ..contract import validate_result
 from ..errors import VERDICTS, HandeyeError, InputError
 from ..output import atomic_write_bytes, atomic_write_text
 from .run import FAILED_VERDICTS, LOG_NAME, RECORD_NAME, read_json
@@ -242,6 +243,9 @@ def session_row(out: Path, folder: Path) -> dict:
         if rec and rec.get("outcome") != "done" or res is None:
             row.update(verdict="ERROR", reason=row["reason"] or "no result.json")
             return row
+        if not isinstance(res, dict):
+            raise DamagedResult("it is not a JSON object")
+        validate_result(res, source=str(folder / which), partial=True)  # the one reader's checks
         f = result_fields(res)
     except ROW_ERRORS as e:
         log.warning("%s: %s is damaged: %s", folder, which, e)
@@ -261,7 +265,7 @@ def session_row(out: Path, folder: Path) -> dict:
             (("sigma_rx_deg", "sigma_ry_deg", "sigma_rz_deg"), "sigma_rot_deg"),
         ):
             row.update(dict(zip(names, f[key] or [None] * 3, strict=True)))
-        row["compared"] = _comparable(res, folder / "result.json")  # type: ignore[arg-type]  # checked by result_fields  # for the drift: result.json is read once
+        row["compared"] = _comparable(res, folder / "result.json")  # for the drift: result.json is read once
     if (folder / "report.html").exists():
         row["report"] = "/".join(rel) + "/report.html"
     return row

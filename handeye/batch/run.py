@@ -25,7 +25,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
 
-from ..errors import QAFailed
+from ..contract import BatchRecord, read_result, write_validated
+from ..errors import InputError, QAFailed
 from ..output import atomic_write_bytes, hash_files, write_json, writing
 from .discover import SessionJob
 
@@ -208,15 +209,10 @@ def current_record(out_dir: Path, key: dict) -> Optional[dict]:
         return None
     if key.get("verify_against"):  # the key holds the session's and the installed result's hashes
         return rec if read_json(out_dir / "verify.json") is not None else None
-    from .index import DamagedResult, result_fields
-
-    res = read_json(out_dir / "result.json")
-    if res is None:
-        return None
-    try:  # a result damaged since its run is calibrated again, not carried on as it is
-        result_fields(res)
-    except DamagedResult as e:
-        log.warning("%s: result.json is damaged (%s); the session runs again", out_dir, e)
+    try:  # a result missing, or damaged since its run, is calibrated again, not carried on as it is
+        res = read_result(out_dir / "result.json").raw
+    except InputError as e:
+        log.warning("%s: the session runs again (%s)", out_dir, e)
         return None
     prov = res.get("provenance") or {}
     if key["inputs"] == "session" and prov.get("inputs_sha256") != key["inputs_sha256"]:
@@ -362,7 +358,7 @@ def spec_record(spec: dict) -> dict:
 def _finish_record(out: Path, rec: dict, t0: float) -> dict:
     rec["seconds"] = time.perf_counter() - t0
     rec["finished_utc"] = _now()
-    write_json(out / RECORD_NAME, rec)
+    write_validated(out / RECORD_NAME, rec, BatchRecord)
     return rec
 
 

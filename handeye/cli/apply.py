@@ -51,27 +51,31 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     import numpy as np
 
-    from ..apply import points_cam_to_base, pose_cam_to_base, result_transform
+    from ..apply import points_cam_to_base, pose_cam_to_base
+    from ..contract import read_result
     from ..conventions import VENDOR_POSE_FORMAT, T_from_pose_values, pose_forms
-    from ..errors import ConfigError, HandeyeError, InputError
-    from ..output import read_json
+    from ..errors import ConfigError, InputError
 
     path = Path(args.result) / "result.json" if Path(args.result).is_dir() else Path(args.result)
-    res = read_json(path)
-    if not isinstance(res, dict):
-        raise InputError("not a JSON object", path=path, hint="pass the result.json written by handeye calibrate")
-    try:
-        mode, T_x = result_transform(res)
-    except HandeyeError as e:
-        raise e.at(path) from None
-    except (TypeError, ValueError) as e:  # a damaged matrix
+    # every field it holds checked (a damaged one is one line naming it); status, mode and X are enough
+    res = read_result(path, partial=True)
+    if not res.ok:
         raise InputError(
-            f"the hand-eye transform is damaged ({e})",
+            f"the result is a failed calibration ({str(res.failure_reason or '')[:120]})",
             path=path,
-            expected="a 4x4 matrix of numbers",
+            hint="calibrate again and apply a successful result",
+            code="failed_result",
+        )
+    mode, T_x = res.mode, res.T_x
+    if T_x is None:
+        raise InputError(
+            f"damaged: {res.x_name} is missing",
+            path=path,
+            expected=f"a finite 4x4 rigid transform (mode {mode})",
+            code="result_damaged",
             hint="re-run handeye calibrate",
-        ) from None
-    if str(res.get("verdict") or "").upper() == "FAIL":
+        )
+    if res.verdict == "FAIL":
         from ..recal.loaded import load_result, unfit_note
 
         log.warning("%s", unfit_note(load_result(path)))

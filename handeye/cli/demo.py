@@ -24,6 +24,7 @@ def run(args) -> int:
 
     import numpy as np
 
+    from ..contract import read_result
     from ..frames import pose_error
     from ..mounting import mounting
     from . import build_parser, calibrate, simulate
@@ -54,10 +55,10 @@ def run(args) -> int:
     cal_args = build_parser().parse_args(["calibrate", str(session_dir), "--out", str(args.out / "result")])
     cal_args.debug = getattr(args, "debug", False)
     rc = calibrate.run(cal_args)
-    res = json.loads((args.out / "result" / "result.json").read_text())
-    if res.get("status") == "ok":  # a matrix, whatever its verdict: compare it with the truth
+    res = read_result(args.out / "result" / "result.json")
+    if res.ok and res.T_x is not None:  # a matrix, whatever its verdict: compare it with the truth
         truth = json.loads((session_dir / "ground_truth.json").read_text())
         name = mounting(args.mode).x_name
-        r, t = pose_error(np.asarray(res[name]), np.asarray(truth[name]))
+        r, t = pose_error(res.T_x, np.asarray(truth[name]))
         print(f"error against the ground truth: {t:.3f} mm, {r:.4f} deg")
     return rc

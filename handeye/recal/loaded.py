@@ -18,7 +18,6 @@ import numpy as np
 
 from ..camera import INTRINSIC_NAMES, Intrinsics
 from ..errors import InputError
-from ..output import read_json
 from ..stats import satterthwaite_dof
 
 ResultLike = Union[str, Path, dict]
@@ -160,47 +159,6 @@ def unfit_note(r: LoadedResult) -> Optional[str]:
     return f"{r.source}: this calibration's verdict is FAIL" + (f" ({head})" if head else "") + "; it is used as it is"
 
 
-def _check_intact(d: dict, x_name: str, ref: dict, source: str) -> None:
-    """A result whose calibration succeeded must hold a finite rigid X.
-
-    A result whose calibration succeeded must hold a finite rigid X, a finite symmetric covariance that is
-    not negative, and finite positive focal lengths: a NaN or an edited matrix would otherwise flow into
-    every test as "no change"; InputError (``result_damaged``) naming the entry.
-    """
-    from ..frames import is_rigid_transform
-
-    if d.get("status") != "ok":
-        return
-
-    def damaged(what: str):
-        raise InputError(
-            f"damaged: {what}",
-            path=source,
-            code="result_damaged",
-            hint="the file was edited or damaged: restore it or calibrate again",
-        )
-
-    if x_name in d and not is_rigid_transform(d[x_name]):
-        damaged(f"{x_name} is not a finite 4x4 rigid transform")
-    for key in ("cov_x_6x6_verdict", "cov_x_6x6"):
-        if ref.get(key) is not None:
-            c = _matrix(ref[key], (6, 6))
-            if (
-                c is None
-                or not np.allclose(c, c.T, rtol=1e-6, atol=1e-18)
-                or np.linalg.eigvalsh(0.5 * (c + c.T)).min() < -1e-9 * max(np.abs(c).max(), 1e-30)
-            ):
-                damaged(f"refinement.{key} is not a finite symmetric covariance")
-    intr = d.get("intrinsics")
-    if isinstance(intr, dict):
-        for k in ("fx", "fy", "cx", "cy"):
-            if intr.get(k) is None:
-                continue
-            v = _float(intr[k])  # None unless a finite number
-            if v is None or (k in ("fx", "fy") and v <= 0):
-                damaged(f"intrinsics.{k} is {intr[k]!r}")
-
-
 def _matrix(v, shape) -> Optional[np.ndarray]:
     if v is None:
         return None
@@ -211,70 +169,42 @@ def _matrix(v, shape) -> Optional[np.ndarray]:
     return a if a.shape == shape and np.all(np.isfinite(a)) else None
 
 
-def _intrinsics(d: Optional[dict]) -> Optional[Intrinsics]:
-    if not isinstance(d, dict) or not all(k in d for k in ("fx", "fy", "cx", "cy")):
-        return None
-    dist = d.get("dist") or {}
-    dist_vals = (
-        tuple(float(dist.get(k, 0.0)) for k in INTRINSIC_NAMES[4:])
-        if isinstance(dist, dict)
-        else tuple(float(x) for x in list(dist)[:5])
-    )
-    w, h = (d.get("image_size") or [0, 0])[:2]
-    return Intrinsics(float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]), dist_vals, int(w), int(h))
-
-
 def load_result(result: ResultLike) -> LoadedResult:
-    """Read a result folder, a result.json path or an already loaded dict.
+    """Read a result folder, a result.json path or an already loaded dict, through the one reader.
 
-    Unreadable files raise :class:`~handeye.errors.InputError`; a failed result loads with ``status
-    != "ok"``.
+    :func:`handeye.contract.read_result` checks every field read here: a missing, foreign or damaged file
+    raises :class:`~handeye.errors.InputError` naming the field; a failed result loads with
+    ``status != "ok"``.
     """
+    from ..contract import read_result, validate_result
+    from ..output import plain
+
     if isinstance(result, dict):
-        d, source = result, "<dict>"
+        m, source = validate_result(plain(result), require_version=False), "<dict>"
     else:
         p = Path(result)
-        d = read_json(p)
-        source = str(p / "result.json" if p.is_dir() else p)
-        if not isinstance(d, dict) or "handeye_result" not in d:
-            raise InputError(
-                "not a handeye result.json",
-                path=source,
-                expected="a file written by handeye calibrate",
-                hint="pass the result folder of handeye calibrate or its result.json",
-            )
-    he = d.get("hand_eye") or {}
-    mode = str(d.get("mode") or "unknown")
-    x_name = str(he.get("name") or ("T_end_cam" if mode == "eye_in_hand" else "T_base_cam"))
-    board_name = (d.get("board") or {}).get("name")
+        m, source = read_result(p), str(p / "result.json" if p.is_dir() else p)
+    d = m.raw
     ref = d.get("refinement") or {}
-    _check_intact(d, x_name, ref, source)
-    cov, cov_source = None, "none"
-    for key in ("cov_x_6x6_verdict", "cov_x_6x6"):
-        c = _matrix(ref.get(key), (6, 6))
-        if c is not None:
-            cov, cov_source = 0.5 * (c + c.T), key
-            break
+    cov, cov_source = m.cov_x
     if cov is not None:
         _check_parametrisation(ref.get("cov_parametrisation"), source)
-    sig = ref.get("intrinsics_sigma_verdict") or ref.get("intrinsics_sigma") or {}
-    intr_d = d.get("intrinsics")
-    size = tuple(int(v) for v in (intr_d or {}).get("image_size") or ()) or None
+    intr = m.intrinsics
     return LoadedResult(
         source=source,
-        status=str(d.get("status")),
-        mode=mode,
-        x_name=x_name,
-        board_name=board_name,
-        T_x=_matrix(d.get(x_name), (4, 4)),
-        T_board=_matrix(d.get(board_name), (4, 4)) if board_name else None,
+        status=m.status,
+        mode=m.mode,
+        x_name=m.x_name,
+        board_name=m.board_name,
+        T_x=m.T_x,
+        T_board=m.T_board,
         cov_x=cov,
         cov_source=cov_source,
-        intrinsics=_intrinsics(intr_d),
-        intrinsics_sigma={str(k): float(v) for k, v in sig.items() if v is not None and np.isfinite(float(v))},
-        intrinsics_source=(intr_d or {}).get("source"),
+        intrinsics=m.camera,
+        intrinsics_sigma=m.intrinsics_sigma,
+        intrinsics_source=None if intr is None else intr.source,
         target=d.get("target"),
-        image_size=size,
+        image_size=tuple(intr.image_size) if intr is not None and intr.image_size else None,
         sigma_px=_float(ref.get("sigma_px")),
         robot_sigma_mm=_float(ref.get("robot_sigma_mm")),
         robot_sigma_deg=_float(ref.get("robot_sigma_deg")),

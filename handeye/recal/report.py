@@ -32,11 +32,11 @@ def write_verification(sv, out_dir, *, reports: bool = True) -> tuple[dict, list
     verify.json of a :class:`~handeye.recal.verify.SessionVerification` in ``out_dir`` and, with
     ``reports``, verify.html and verify.md from it: (verify.json's content, the files written).
     """
-    from ..output import write_json
+    from ..contract import Verify, write_validated
     from .verify import verify_dict
 
     d = verify_dict(sv)
-    files = [write_json(Path(out_dir) / "verify.json", d)]
+    files = [write_validated(Path(out_dir) / "verify.json", d, Verify)]
     if reports:
         files += write_verify_reports(out_dir)
     return d, files

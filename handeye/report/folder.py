@@ -4,10 +4,10 @@
 ``thumbnails/<view_id>.jpg`` (small JPEGs written with the result, optional). The session and its
 images are never opened: a report rebuilt on another machine shows the same thing.
 
-result.json is checked once (:func:`check_result`): a damaged or foreign file is an InputError naming
-the field, never a crash deep in the report. observations.json is used only when it belongs to the
-same run (its ``run_id`` equals result.json's; a run killed after writing it but before result.json
-leaves the older result with a newer observations.json, which is then ignored).
+result.json is checked once (:func:`check_result`, by :mod:`handeye.contract`): a damaged or foreign
+file is an InputError naming the field, never a crash deep in the report. observations.json is used
+only when it belongs to the same run (its ``run_id`` equals result.json's; a run killed after writing
+it but before result.json leaves the older result with a newer observations.json, then ignored).
 """
 
 from __future__ import annotations
@@ -100,78 +100,13 @@ def _matching_observations(res: dict, obs: dict) -> dict:
     return out
 
 
-def _bad(path: Path, field: str, expected: str, got) -> InputError:
-    return InputError(
-        f"result.json field {field} is damaged",
-        path=path,
-        expected=expected,
-        received=repr(got)[:60],
-        hint="re-run handeye calibrate into this folder",
-    )
-
-
-def _matrix_4x4(v) -> bool:
-    import math
-
-    return (
-        isinstance(v, list)
-        and len(v) == 4
-        and all(isinstance(r, list) and len(r) == 4 for r in v)
-        and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for r in v for x in r)
-    )
-
-
 def check_result(res: dict, *, path: Path) -> dict:
-    """result.json's structure as the report reads it: InputError naming the first damaged field."""
-    from ..mounting import MODES, mounting
+    """result.json's structure as the report reads it: InputError naming the first damaged field.
 
-    if res.get("status") not in ("ok", "failed"):
-        raise _bad(path, "status", "ok | failed", res.get("status"))
-    mode = res.get("mode")
-    if not isinstance(mode, str):
-        raise _bad(path, "mode", "eye_in_hand | eye_to_hand | unknown", mode)
-    views = res.get("views", [])
-    if not isinstance(views, list):
-        raise _bad(path, "views", "a list of views", views)
-    for k, v in enumerate(views):
-        if not (isinstance(v, dict) and isinstance(v.get("id"), (str, int)) and not isinstance(v.get("id"), bool)):
-            raise _bad(path, f"views[{k}]", "a mapping with an id", v)
-        if not isinstance(v.get("used", False), bool):
-            raise _bad(path, f"views[{k}].used", "true | false", v.get("used"))
-    n = res.get("n_views", {"total": len(views), "used": 0})
-    if not (
-        isinstance(n, dict)
-        and all(isinstance(n.get(k), int) and not isinstance(n.get(k), bool) for k in ("total", "used"))
-    ):
-        raise _bad(path, "n_views", "{total: N, used: N}", n)
-    for key in (
-        "refinement",
-        "diagnostics",
-        "provenance",
-        "seconds",
-        "error",
-        "hand_eye",
-        "session",
-        "motion",
-        "intrinsics",
-        "target",
-        "closed_forms",
-        "qa",
-    ):
-        if res.get(key) is not None and not isinstance(res[key], dict):
-            raise _bad(path, key, "a mapping", res[key])
-    for key in ("findings",):
-        if res.get(key) is not None and not isinstance(res[key], list):
-            raise _bad(path, key, "a list", res[key])
-    for key in ("verdict", "verdict_headline", "failure_reason", "run_id", "method"):
-        if res.get(key) is not None and not isinstance(res[key], str):
-            raise _bad(path, key, "a text", res[key])
-    if res["status"] == "ok":
-        if mode not in MODES:
-            raise _bad(path, "mode", " | ".join(MODES), mode)
-        name = mounting(mode).x_name
-        if not _matrix_4x4(res.get(name)):
-            raise _bad(path, name, "a 4x4 matrix of finite numbers", res.get(name))
-        if not isinstance(res.get("hand_eye"), dict):
-            raise _bad(path, "hand_eye", "a mapping", res.get("hand_eye"))
+    The check is the contract's (:func:`handeye.contract.validate_result`; a file without its version key is
+    read as the current version, as the report always has); the dict is returned as it is.
+    """
+    from ..contract import validate_result
+
+    validate_result(res, source=str(path), require_version=False, partial=False)
     return res
