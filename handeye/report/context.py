@@ -88,7 +88,18 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
         else None
     )
     ctx["result"] = (
-        _result_block(res, T_x, T_board, unc, pred, wd, x_name, b_name, parent, board_parent)
+        _result_block(
+            res,
+            T_x,
+            T_board=T_board,
+            unc=unc,
+            pred=pred,
+            wd=wd,
+            x_name=x_name,
+            b_name=b_name,
+            parent=parent,
+            board_parent=board_parent,
+        )
         if T_x is not None
         else None
     )

@@ -18,7 +18,13 @@ def matrix_text(T: np.ndarray) -> str:
     return "\n".join("   ".join(f"{x:+.6f}" for x in row) for row in np.asarray(T, float))
 
 
-def _result_block(res, T_x, T_board, unc, pred, wd, x_name, b_name, parent, board_parent) -> dict:
+def _result_block(res, T_x, *, T_board, unc, pred, wd, x_name, b_name, parent, board_parent) -> dict:
+    """The result section: ``T_x`` (named ``x_name``, child ``cam``, parent ``parent``) in every form.
+
+    Rows of translation, quaternion, rotation vector and Euler angles with the 1-sigma of ``unc`` and
+    95 % intervals; ``pred``: the predicted point error at ``wd`` metres; ``T_board`` (``b_name``, in
+    ``board_parent``) when the board pose is known.
+    """
     f = pose_forms(T_x)
     q = quat_wxyz_from_R(T_x[:3, :3])
     rows = []
