@@ -2,10 +2,10 @@
 
 Built from a result folder alone (result.json, observations.json, thumbnails/), so
 ``write_reports("reports/cell3")`` or ``handeye report DIR`` rebuilds them without the session.
-:mod:`.folder` reads the folder, :mod:`.context` computes what the templates show (with
-:mod:`.observations`, :mod:`.uncertainty`, :mod:`.metrics`, :mod:`.qa`, :mod:`.advice`,
-:mod:`.figures`, :mod:`.plots`) and :mod:`.render` writes HTML and Markdown. matplotlib and jinja2
-load only when a report is written.
+:mod:`.folder` reads the folder, :mod:`.context` computes what the templates show (with the section
+builders of :mod:`.sections`, :mod:`.observations`, :mod:`.uncertainty`, :mod:`.metrics`, :mod:`.qa`,
+:mod:`.advice`, :mod:`.figures`, :mod:`.plots`) and :mod:`.render` writes HTML and Markdown.
+matplotlib and jinja2 load only when a report is written.
 
 See docs/report.md.
 """

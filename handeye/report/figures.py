@@ -53,7 +53,15 @@ def report_figures(
     mounting: MountingMode,
     image_size,
 ) -> list[Plot]:
-    from . import plots
+    from .plots import (
+        image_coverage,
+        per_view_bars,
+        poses_3d,
+        residual_histogram,
+        rotation_coverage,
+        style,
+        translation_uncertainty,
+    )
 
     used = {v["id"] for v in views if v["status"] == "used"}
     flagged = {v["id"] for v in views if v["status"] != "used"}
@@ -79,7 +87,7 @@ def report_figures(
                 "corner detection); outline, the board predicted through the reported robot pose and the result "
                 "— the difference between the two is what the robot's pose error adds. The curve is the "
                 "distribution the lengths follow when the pixel noise is Gaussian with the stated σ.",
-                lambda: plots.residual_histogram(cam_all, chain_all, sigma_px=sigma, sigma_source=src),
+                lambda: residual_histogram(cam_all, chain_all, sigma_px=sigma, sigma_source=src),
             )
         )
     # per-view bars
@@ -93,7 +101,7 @@ def report_figures(
                 "Red outlines: views dropped or flagged; dashed lines: the QA limits of the session's reprojection RMS "
                 + ("(the refined fit" if ref else "(the views' own camera fits")
                 + "; the through-robot residuals add the robot's pose error and have no limit).",
-                lambda rl=rl: plots.per_view_bars(
+                lambda rl=rl: per_view_bars(
                     [v["id"] for v in views],
                     [v["rms_px"] for v in views],
                     [v["chain_rms_px"] for v in views],
@@ -114,7 +122,7 @@ def report_figures(
                 "view's board). Lens distortion is only known where corners were seen. Right: the camera-fit "
                 "residual of every corner, magnified; a systematic pattern (swirl, radial) points at a lens "
                 "model that does not fit.",
-                lambda: plots.image_coverage(
+                lambda: image_coverage(
                     int(image_size[0]),
                     int(image_size[1]),
                     vv,
@@ -145,7 +153,7 @@ def report_figures(
                     + ("" if moves else " at each pose")
                     + " under the result, in the robot base frame, seen obliquely and from above. "
                     "Red: views dropped or flagged.",
-                    lambda: plots.poses_3d(
+                    lambda: poses_3d(
                         T_base_cams=cams,
                         T_base_ends=T_be,
                         T_base_boards=boards,
@@ -167,7 +175,7 @@ def report_figures(
                 "into one hemisphere, equal-area; colour = angle). Axes spread over the disk constrain the "
                 "hand-eye rotation in all directions; a line or a cluster means one axis is missing. Right: the "
                 "rotation angles between view pairs.",
-                lambda rl=rl: plots.rotation_coverage(
+                lambda rl=rl: rotation_coverage(
                     rv, frame=notes.get("axis_frame", ""), warn_deg=rl.get("warn_below"), fail_deg=rl.get("fail_below")
                 ),
             )
@@ -194,13 +202,11 @@ def report_figures(
                     + "; markers: the closed-form methods, relative to the result. The closed-form methods treat "
                     "the robot poses as exact and weigh views unevenly, so they scatter more than the refined "
                     "result; one method far from all others points at weak motion or a bad pose.",
-                    lambda: plots.translation_uncertainty(
-                        cov_t, meth, frame=mounting.fixed_frame, x_name=mounting.x_name
-                    ),
+                    lambda: translation_uncertainty(cov_t, meth, frame=mounting.fixed_frame, x_name=mounting.x_name),
                 )
             )
     out: list[Plot] = []
-    with plots.style():
+    with style():
         for key, title, caption, draw in jobs:
             try:
                 out.append(Plot(key, title, caption, draw()))
