@@ -22,7 +22,7 @@ from .covariance import arrow_solve, robot_residual_covariances
 from .options import refine_preset
 
 if TYPE_CHECKING:
-    from .outliers import ViewCheck
+    from .checks import ViewCheck
     from .problem import PixelLinearisation, Problem
 
 log = logging.getLogger(__name__)
