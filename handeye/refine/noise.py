@@ -23,7 +23,8 @@ from .options import refine_preset
 
 if TYPE_CHECKING:
     from .checks import ViewCheck
-    from .problem import PixelLinearisation, Problem
+    from .problem import Problem
+    from .state import PixelLinearisation
 
 log = logging.getLogger(__name__)
 
