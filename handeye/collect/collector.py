@@ -2,124 +2,44 @@
 
 A capture reads the robot pose, grabs a fresh frame, reads the pose again, and is kept only when
 the two reads agree (the arm was still while the frame was taken), the arm reports no error, the
-target is detected and the image is sharp around it. Kept captures are written at once by the
-:class:`~handeye.collect.session_writer.SessionWriter`; a device fault stops the loop with a
-one-line HardwareError and leaves everything already saved intact.
+target is detected and the image is sharp around it (thresholds and record: :mod:`.capture`). Kept
+captures are written at once by the :class:`~handeye.collect.session_writer.SessionWriter`; a device
+fault stops the loop with a one-line HardwareError and leaves everything already saved intact.
 
-Modes: interactive (key ``s`` captures, ``q`` quits; a preview window where a display and an
-OpenCV GUI exist, a terminal prompt otherwise) and automatic (:meth:`Collector.run_auto`: probe
-moves, a first rough hand-eye, then the planned views of :mod:`handeye.collect.plan`; two planned
-views in a row that miss the board re-estimate from every view kept and re-plan the rest).
+Modes: interactive (key ``s`` captures, ``q`` quits; :mod:`.interactive`) and automatic
+(:meth:`Collector.run_auto`: probe moves, a first rough hand-eye, then the planned views of
+:mod:`handeye.collect.plan`; two planned views in a row that miss the board re-estimate from every
+view kept and re-plan the rest).
 """
 
 from __future__ import annotations
 
 import logging
-import os
-import sys
 import time
-from dataclasses import dataclass, replace
-from typing import Any, Callable, Optional, TextIO
+from dataclasses import replace
+from typing import Any, Callable, Optional
 
-import cv2
 import numpy as np
 
-from ..camera import Intrinsics
-from ..config import load_preset
 from ..detect import detect_gray, sharpness
 from ..detect.chessboard import order_cue
 from ..detect.options import default_options
 from ..errors import DetectionError, HardwareError
-from ..frames import rotation_angle_rad
-from ..initial import solve_closed_form, solve_pnp
+from ..initial import solve_closed_form
 from ..initial.board_poses import candidate_invariants, orientation_labels
-from ..mounting import mounting
-from ..targets import ChessboardSpec, TargetSpec, grid_turns
+from ..mounting import MountingMode, mounting
+from ..records import HandEyeEstimate
+from ..targets import ChessboardSpec, TargetSpec
 from . import plan as planning
 from .camera import Camera
-from .robot import PoseReading, Robot, poses_agree
+from .capture import Capture, CaptureChecks, _gray, detector_orderings, nearest_ordering, pose_orderings
+from .interactive import InteractiveMode
+from .robot import Robot, poses_agree
 from .session_writer import SessionWriter
 
 log = logging.getLogger(__name__)
 
-
-_CAPTURE = load_preset("collect")["capture"]  # the defaults below; configs/collect.yaml says where each comes from
-
-
-@dataclass(frozen=True)
-class CaptureChecks:
-    """Acceptance thresholds for one capture (defaults: configs/collect.yaml ``capture:``)."""
-
-    still_tol_mm: float = float(_CAPTURE["still_tol_mm"])  # the two pose reads around the frame agree within this
-    still_tol_deg: float = float(_CAPTURE["still_tol_deg"])
-    min_sharpness: float = float(_CAPTURE["min_sharpness"])  # variance of the Laplacian inside the target's box
-    settle_timeout_s: float = float(_CAPTURE["settle_timeout_s"])  # after a motion, wait at most this long
-    settle_interval_s: float = float(_CAPTURE["settle_interval_s"])  # between the two reads of the stillness check
-
-    @staticmethod
-    def from_config(cfg: dict) -> "CaptureChecks":
-        """From a ``collect`` preset (``load_preset("collect")``, possibly merged with a site file)."""
-        return CaptureChecks(**{k: float(v) for k, v in cfg["capture"].items()})
-
-
-@dataclass(frozen=True)
-class Capture:
-    """Outcome of one capture attempt."""
-
-    kept: bool
-    reason: str = ""  # why it was rejected
-    view_id: Optional[str] = None
-    pose: Optional[PoseReading] = None
-    corner_ids: Optional[np.ndarray] = None
-    image_points: Optional[np.ndarray] = None
-    sharpness: float = float("nan")
-    T_cam_board: Optional[np.ndarray] = None  # from PnP with the camera's intrinsics, when known
-    order_cue: float = float("nan")  # chessboard: which end the detector numbered from (detect.chessboard.order_cue)
-    T_cam_board_orderings: Optional[np.ndarray] = None  # (k, 4, 4): T_cam_board under each detector_orderings()
-    orientation: int = 0  # the index of T_cam_board in T_cam_board_orderings
-
-
-def detector_orderings(target: TargetSpec) -> list[np.ndarray]:
-    """Corner numberings a detector may give one view of ``target`` (maps a detected index to the corner id).
-
-    The identity first. A chessboard may be numbered from either end (and a square one from any corner)
-    whatever its colours: OpenCV's detector does not look at them, so an asymmetric chessboard (cols +
-    rows odd) gets its half turn here too, and the colour of the first square
-    (:func:`handeye.detect.chessboard.order_cue`) or the robot's motion tells which one a view has.
-    Other targets: their symmetries.
-    """
-    if isinstance(target, ChessboardSpec):
-        return grid_turns(target.cols, target.rows)
-    return list(target.symmetries())
-
-
-def pose_orderings(
-    target: TargetSpec, intrinsics: Intrinsics, corner_ids: np.ndarray, image_points: np.ndarray
-) -> np.ndarray:
-    """``T_cam_board`` by PnP under each of :func:`detector_orderings`, shape (k, 4, 4)."""
-    obj = target.object_points()
-    return np.stack(
-        [solve_pnp(obj[perm[corner_ids]], image_points, intrinsics)[0] for perm in detector_orderings(target)]
-    )
-
-
-def nearest_ordering(T_cam_board_orderings: np.ndarray, reference: np.ndarray) -> int:
-    """The index of the pose (k, 4, 4) whose rotation is nearest to ``reference``'s."""
-    d = [float(rotation_angle_rad(reference[:3, :3].T @ T[:3, :3])) for T in T_cam_board_orderings]
-    return int(np.argmin(d))
-
-
-def board_pose(
-    target: TargetSpec,
-    intrinsics: Intrinsics,
-    corner_ids: np.ndarray,
-    image_points: np.ndarray,
-    *,
-    reference: Optional[np.ndarray] = None,
-) -> np.ndarray:
-    """``T_cam_board`` by PnP; with ``reference``, under the corner ordering nearest to it (detector_orderings)."""
-    Ts = pose_orderings(target, intrinsics, corner_ids, image_points)
-    return Ts[0 if reference is None else nearest_ordering(Ts, reference)]
+_DEFAULT_CHECKS = CaptureChecks()  # configs/collect.yaml ``capture:``
 
 
 def _narrower(config: planning.PlanConfig) -> planning.PlanConfig:
@@ -132,27 +52,25 @@ def _narrower(config: planning.PlanConfig) -> planning.PlanConfig:
     )
 
 
-def gui_available() -> bool:
-    """A display exists and this OpenCV build has a GUI backend (opencv-python-headless has none)."""
-    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-        return False
-    info = cv2.getBuildInformation()
-    gui = [ln for ln in info.splitlines() if ln.strip().startswith("GUI:")]
-    if gui and gui[0].split(":", 1)[1].strip().upper() in ("NONE", ""):
-        return False
-    try:
-        cv2.namedWindow("handeye-probe", cv2.WINDOW_AUTOSIZE)
-        cv2.destroyWindow("handeye-probe")
-    except cv2.error:
-        return False
-    return True
+def _T_base_end(c: Capture) -> np.ndarray:
+    """The robot pose of a kept capture."""
+    assert c.pose is not None, "a kept capture has its robot pose"
+    return c.pose.T_base_end
 
 
-def _gray(image: np.ndarray) -> np.ndarray:
-    return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+def _T_cam_board(c: Capture) -> np.ndarray:
+    """The board pose of a capture that has one (a kept capture, with the camera's intrinsics)."""
+    assert c.T_cam_board is not None, "only captures with a board pose get here"
+    return c.T_cam_board
 
 
-class Collector:
+def _orderings(c: Capture) -> np.ndarray:
+    """The board poses (k, 4, 4) of a capture with a board pose, under each detector ordering."""
+    assert c.T_cam_board_orderings is not None, "a capture with a board pose has its orderings"
+    return c.T_cam_board_orderings
+
+
+class Collector(InteractiveMode):
     """Captures views from ``robot`` and ``camera`` into ``writer``."""
 
     def __init__(
@@ -163,7 +81,7 @@ class Collector:
         writer: SessionWriter,
         target: TargetSpec,
         mode: str,
-        checks: CaptureChecks = CaptureChecks(),
+        checks: CaptureChecks = _DEFAULT_CHECKS,
         truth: Optional[Callable[[str], None]] = None,
     ):
         self.robot = robot
@@ -218,9 +136,10 @@ class Collector:
         orientation = 0
         if self.intrinsics is not None:
             orderings = pose_orderings(self.target, self.intrinsics, ids, pts)
-            orientation = self._ordering_by_colour(cue, self._colour_sign(self.kept))
-            if orientation is None:
-                orientation = 0 if reference_T_cam_board is None else nearest_ordering(orderings, reference_T_cam_board)
+            by_colour = self._ordering_by_colour(cue, self._colour_sign(self.kept))
+            if by_colour is None:
+                by_colour = 0 if reference_T_cam_board is None else nearest_ordering(orderings, reference_T_cam_board)
+            orientation = by_colour
             T_cb = orderings[orientation]
         vid = str(self._next_id)
         state = dict(first.state)
@@ -285,11 +204,11 @@ class Collector:
         if k > 1 and free and len(caps) >= 3:
             Cs = np.stack(
                 [
-                    c.T_cam_board_orderings if f is None else np.repeat(c.T_cam_board_orderings[f][None], k, axis=0)
+                    _orderings(c) if f is None else np.repeat(_orderings(c)[f][None], k, axis=0)
                     for c, f in zip(caps, fixed, strict=True)
                 ]
             )  # shape (n, k, 4, 4): a view the colours decided has its one pose k times
-            Ms = mounting(self.mode).M_from_T_base_end(np.stack([c.pose.T_base_end for c in caps]))
+            Ms = mounting(self.mode).M_from_T_base_end(np.stack([_T_base_end(c) for c in caps]))
             # all free: the detector's own order for the majority; else the frame of the decided views
             lab = orientation_labels(candidate_invariants(Cs), Ms, turns=len(free) == len(caps))
             labels = [int(lab[i]) if fixed[i] is None else labels[i] for i in range(len(caps))]
@@ -297,10 +216,10 @@ class Collector:
         for c, a in zip(caps, labels, strict=True):
             if a != c.orientation:
                 log.info("view %s: corner order taken from the other end of the board (ordering %d)", c.view_id, a)
-            out.append(replace(c, orientation=a, T_cam_board=c.T_cam_board_orderings[a]))
+            out.append(replace(c, orientation=a, T_cam_board=_orderings(c)[a]))
         return out
 
-    def _estimate(self, mount) -> tuple[list[Capture], object]:
+    def _estimate(self, mount: MountingMode) -> tuple[list[Capture], Optional[HandEyeEstimate]]:
         """Every kept view with a board pose and the closed-form hand-eye from them (None: fewer than 3).
 
         The views are re-oriented consistently first (and so replaced in ``kept``).
@@ -311,8 +230,8 @@ class Collector:
             self.kept[i] = c
         if len(views) < 3:
             return views, None
-        M = mount.M_from_T_base_end(np.stack([c.pose.T_base_end for c in views]))
-        C = np.stack([c.T_cam_board for c in views])
+        M = mount.M_from_T_base_end(np.stack([_T_base_end(c) for c in views]))
+        C = np.stack([_T_cam_board(c) for c in views])
         return views, solve_closed_form(mount, C, M, method="park")
 
     def _reject(self, reason: str) -> Capture:
@@ -336,79 +255,6 @@ class Collector:
             if time.monotonic() > t_end:
                 return False
 
-    # -- interactive ---------------------------------------------------------------------------
-    def run_interactive(
-        self, *, preview: Optional[bool] = None, stdin: Optional[TextIO] = None, max_views: Optional[int] = None
-    ) -> int:
-        """Capture on ``s``, quit on ``q``; returns the number of views kept."""
-        use_gui = gui_available() if preview is None else preview
-        if use_gui:
-            return self._run_preview(max_views=max_views)
-        stream = sys.stdin if stdin is None else stdin
-        guided = hasattr(self.robot, "simulate_hand_guiding")
-        print(
-            "Move the arm so the camera sees the whole board, then press s + Enter to capture; "
-            "q + Enter (or end of input) quits.",
-            file=sys.stderr,
-        )
-        first = True
-        while max_views is None or len(self.kept) < max_views:
-            print(f"[{len(self.kept)} views] s = capture, q = quit > ", end="", file=sys.stderr, flush=True)
-            line = stream.readline()
-            if not line:
-                break
-            key = line.strip().lower()
-            if key in ("q", "quit", "exit"):
-                break
-            if key not in ("s", ""):
-                print("  keys: s (capture), q (quit)", file=sys.stderr)
-                continue
-            if guided and not first:
-                self.robot.simulate_hand_guiding()  # type: ignore[attr-defined]  # hasattr above
-            first = False
-            cap = self.capture()
-            print(f"  view {cap.view_id} saved" if cap.kept else f"  rejected: {cap.reason}", file=sys.stderr)
-        return len(self.kept)
-
-    def _run_preview(self, *, max_views: Optional[int]) -> int:
-        win = "handeye collect: s = capture, q = quit"
-        cv2.namedWindow(win, cv2.WINDOW_NORMAL)
-        message = "s: capture   q: quit"
-        guided = hasattr(self.robot, "simulate_hand_guiding")
-        try:
-            while max_views is None or len(self.kept) < max_views:
-                image, _ = self.camera.grab()
-                shown = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
-                scale = min(1.0, 960.0 / shown.shape[1])
-                small = cv2.resize(shown, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-                if isinstance(self.target, ChessboardSpec):
-                    ok, corners = cv2.findChessboardCorners(
-                        _gray(small), (self.target.cols, self.target.rows), flags=cv2.CALIB_CB_FAST_CHECK
-                    )
-                    if ok:
-                        cv2.drawChessboardCorners(small, (self.target.cols, self.target.rows), corners, ok)
-                cv2.putText(
-                    small,
-                    f"{len(self.kept)} views | {message}",
-                    (10, 25),
-                    cv2.FONT_HERSHEY_SIMPLEX,
-                    0.6,
-                    (0, 255, 255),
-                    2,
-                )
-                cv2.imshow(win, small)
-                key = cv2.waitKey(30) & 0xFF
-                if key in (ord("q"), 27):
-                    break
-                if key == ord("s"):
-                    if guided and self.kept:
-                        self.robot.simulate_hand_guiding()  # type: ignore[attr-defined]  # hasattr above
-                    cap = self.capture()
-                    message = f"view {cap.view_id} saved" if cap.kept else f"rejected: {cap.reason[:70]}"
-        finally:
-            cv2.destroyWindow(win)
-        return len(self.kept)
-
     # -- automatic -----------------------------------------------------------------------------
     def run_auto(
         self,
@@ -418,8 +264,11 @@ class Collector:
         plan_config: Optional[planning.PlanConfig] = None,
         confirm: Callable[[str], bool] = lambda text: True,
         probe_deg: float = 6.0,
-    ) -> planning.Plan:
-        """Probe, plan and capture ``n_views`` planned views (plus the start and probe views)."""
+    ) -> Optional[planning.Plan]:
+        """Probe, plan and capture ``n_views`` planned views (plus the start and probe views).
+
+        Returns the last plan (None when ``n_views`` asks for none).
+        """
         plan_config = planning.PlanConfig() if plan_config is None else plan_config
         if self.intrinsics is None:
             raise HardwareError(
@@ -461,7 +310,7 @@ class Collector:
                 f"the first hand-eye estimate failed ({rough.failure_reason})",
                 hint="check the board size given with --target",
             )
-        C0 = views[0].T_cam_board  # the start view, in the ordering consistent with the others
+        C0 = _T_cam_board(views[0])  # the start view, in the ordering consistent with the others
         log.info(
             "first estimate from %d views; planning %d views (predicted 1-sigma of %s, total over 3 axes):",
             len(views),
@@ -486,7 +335,7 @@ class Collector:
                 T_board=rough.T_board,
                 T_base_end_start=T0,
                 T_cam_board_start=C0,
-                T_base_end_done=[c.pose.T_base_end for c in views],
+                T_base_end_done=[_T_base_end(c) for c in views],
                 target=self.target,
                 intrinsics=self.intrinsics,
                 n_views=n_views - captured,
@@ -534,7 +383,7 @@ class Collector:
             if same:  # stay nearer the views that worked, once
                 plan_config, narrowed = _narrower(plan_config), True
                 log.info("the estimate did not change: the new plan turns half as far")
-            rough, C0 = new, views[0].T_cam_board
+            rough, C0 = new, _T_cam_board(views[0])
             cause = (
                 f"{missed} planned poses in a row missed the board"
                 if missed >= self.MISSES_BEFORE_REPLAN
@@ -549,13 +398,14 @@ class Collector:
     MAX_REPLANS = 3
 
     def _run_plan(
-        self, plan: planning.Plan, *, rough, speed_fraction: float, plan_config: planning.PlanConfig
+        self, plan: planning.Plan, *, rough: HandEyeEstimate, speed_fraction: float, plan_config: planning.PlanConfig
     ) -> tuple[int, int]:
         """Move to and capture the planned views until ``MISSES_BEFORE_REPLAN`` in a row miss the board.
 
         Returns (views kept, misses in a row at the end).
         """
-        done = [c.pose.T_base_end for c in self.kept if c.T_cam_board is not None]
+        done = [_T_base_end(c) for c in self.kept if c.T_cam_board is not None]
+        assert self.intrinsics is not None, "run_auto plans only with the camera's intrinsics"
         n_kept = missed = 0
         for pv in plan.views:
             self.robot.move_to(pv.candidate.T_base_end, speed_fraction=speed_fraction)
@@ -567,7 +417,7 @@ class Collector:
                     return n_kept, missed
                 continue
             n_kept, missed = n_kept + 1, 0
-            done.append(cap.pose.T_base_end)
+            done.append(_T_base_end(cap))
             info = planning.information_of_views(
                 mode=self.mode,
                 T_x=rough.T_x,

@@ -22,8 +22,9 @@ from .covariance import arrow_solve, robot_residual_covariances
 from .options import refine_preset
 
 if TYPE_CHECKING:
-    from .outliers import ViewCheck
-    from .problem import PixelLinearisation, Problem
+    from .checks import ViewCheck
+    from .problem import Problem
+    from .state import PixelLinearisation
 
 log = logging.getLogger(__name__)
 

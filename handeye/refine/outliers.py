@@ -1,396 +1,55 @@
-"""Outlier decisions of the refinement, and THE robot-pose outlier test (pure numpy, no GTSAM).
+"""Outlier decisions of the refinement: decide, exclude, re-solve and decide again (no GTSAM here).
 
-:func:`robot_pose_test` is the one gated test of a reported robot pose against the pose the rest of
-the data predict; the refinement and the diagnostics (for runs without a refinement) both call it.
+Each round checks every view against the current solution (:mod:`.checks`), tests each reported
+robot pose (:func:`.robot_pose.robot_pose_test`) and drops corners, views or robot priors that
+disagree, each as an :class:`~.robot_pose.Outlier` with its reason. The robot-pose test and the
+outlier record live in :mod:`.robot_pose`; their names are importable from here too.
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 import numpy as np
 
-from handeye.factors.reprojection import corner_robust_scales, stacked_chain_residual
-
-from ..errors import ConfigError
-from ..frames import se3_exp, tangent_difference
-from ..output import plain
-from ..stats import mixture_tail_pvalue, mixture_tail_quantile
+from .checks import ViewCheck, _factor, _failed_check, camera_only_poses, joint_checks, view_variance_factor
 from .noise import robust_robot_sigmas, solve_with_vce
-from .options import RefineOptions, refine_preset
+from .options import refine_preset
+from .robot_pose import (
+    Outlier,
+    RobotPoseGates,
+    RobotPoseTest,
+    leave_one_out,
+    prior_share,
+    robot_pose_outlier,
+    robot_pose_test,
+)
 
 if TYPE_CHECKING:
     from .problem import Problem
 
+__all__ = [
+    "Decision",
+    "Outlier",
+    "RobotPoseGates",
+    "RobotPoseTest",
+    "TooFewRobotPoses",
+    "ViewCheck",
+    "apply_decision",
+    "camera_only_poses",
+    "decide",
+    "leave_one_out",
+    "outlier_loop",
+    "prior_share",
+    "robot_pose_outlier",
+    "robot_pose_test",
+    "robot_tests",
+    "view_variance_factor",
+]
+
 log = logging.getLogger(__name__)
-
-ROBOT_POSE_DOF = 6
-
-
-@dataclass(frozen=True)
-class RobotPoseGates:
-    """Gates of :func:`robot_pose_test` (configs/refine.yaml ``outliers.robot_pose``)."""
-
-    alpha: float  # false-alarm probability per view
-    min_rot_deg: float  # practical-significance floor of the rotation disagreement
-    min_trans_mm: float  # ... and of the translation disagreement
-    tail_dof: float = np.inf  # the null is multivariate t with this dof, variance matched (inf: Gaussian)
-
-    @staticmethod
-    def from_config(cfg: dict[str, Any] | None = None, *, unmodelled_arm: bool = True) -> "RobotPoseGates":
-        """The robot-pose gates from the outlier settings ``cfg`` (default: the refine preset).
-
-        ``unmodelled_arm``: the poses come from an arm whose kinematic error is not modelled (the null's
-        tail is ``iid_tail_dof``); False: a kinematic model, or a tracker, carries the error (Gaussian).
-        """
-        c = (cfg if cfg is not None else refine_preset())["outliers"]["robot_pose"]
-        nu = c["iid_tail_dof"]
-        if isinstance(nu, bool) or not isinstance(nu, (int, float)) or not nu > 2:
-            raise ConfigError(
-                "outliers.robot_pose.iid_tail_dof is not a valid dof",
-                path="configs/refine.yaml",
-                expected="a number above 2 (the t's variance must exist), or .inf for a Gaussian",
-                received=repr(nu),
-            )
-        return RobotPoseGates(
-            alpha=float(c["alpha"]),
-            min_rot_deg=float(c["min_rot_deg"]),
-            min_trans_mm=float(c["min_trans_mm"]),
-            tail_dof=float(c["iid_tail_dof"]) if unmodelled_arm else np.inf,
-        )
-
-    @staticmethod
-    def from_options(o: RefineOptions, *, unmodelled_arm: bool = True) -> "RobotPoseGates":
-        return replace(
-            RobotPoseGates.from_config(unmodelled_arm=unmodelled_arm),
-            alpha=o.view_outlier_p,
-            min_rot_deg=o.min_robot_disagreement_deg,
-            min_trans_mm=o.min_robot_disagreement_mm,
-        )
-
-    @property
-    def threshold(self) -> float:
-        """The statistic (squared Mahalanobis units) exceeded with probability alpha under the null.
-
-        The chi-square(6) quantile at 1 - alpha when Gaussian.
-        """
-        return float(mixture_tail_quantile(self.alpha, ROBOT_POSE_DOF, np.array(self.tail_dof)))
-
-
-@dataclass(frozen=True)
-class RobotPoseTest:
-    """Result of :func:`robot_pose_test` for n views (NaN rows: no test, never flagged)."""
-
-    statistic: np.ndarray  # (n,) squared Mahalanobis distance, chi-square(6) for a correct pose
-    p_value: np.ndarray  # (n,) P(chi-square(6) > statistic)
-    flagged: np.ndarray  # (n,) bool
-    rot_deg: np.ndarray  # (n,) |omega| of the disagreement
-    trans_mm: np.ndarray  # (n,) |v| of the disagreement
-    sigma_rot_deg: np.ndarray  # (n,) sqrt(trace) of the rotation block of C + R: RMS |omega| of a correct pose
-    sigma_trans_mm: np.ndarray  # (n,) the same for the translation
-    threshold: float  # the null's quantile at 1 - alpha (chi-square(6) when Gaussian)
-    gates: RobotPoseGates
-
-    @property
-    def distance(self) -> np.ndarray:
-        """sqrt(statistic): the disagreement in sigmas."""
-        return np.sqrt(self.statistic)
-
-
-def robot_pose_test(
-    disagreement: np.ndarray,
-    covariance: np.ndarray,
-    *,
-    robot_sigma_rot_rad: float = 0.0,
-    robot_sigma_trans_m: float = 0.0,
-    gates: RobotPoseGates | None = None,
-    robot_covariance: Optional[np.ndarray] = None,
-) -> RobotPoseTest:
-    """Test each view's reported robot pose against the pose the rest of the data predict.
-
-    Inputs, for n views:
-
-    * ``disagreement`` (n, 6): ``d_i = tangent_difference(T_reported_i, T_predicted_i)``, i.e.
-      ``T_predicted_i = T_reported_i · Exp(d_i)`` (:mod:`handeye.frames` convention: rotation
-      [rad] first, then translation [m], right perturbation, both along the end-frame axes);
-      ``T_predicted_i`` is the robot pose ``T_base_end`` that the camera and the hand-eye solution
-      imply for view i, computed WITHOUT view i's reported robot pose (e.g. its PnP pose through
-      the calibrated chain, or the refinement's leave-one-out prediction);
-    * ``covariance`` (n, 6, 6): the covariance of that prediction in the same tangent (camera
-      noise propagated through the chain; zero when unknown);
-    * ``robot_sigma_rot_rad`` / ``robot_sigma_trans_m``: the robot's own noise per axis (isotropic,
-      the same tangent), estimated or configured; or ``robot_covariance`` (n, 6, 6), each view's own
-      (the kinematic robot error models, :mod:`.robot_model`), which replaces them.
-
-    The check: under "the reported pose is right up to robot noise", ``d_i ~ N(0, C_i + R)`` with
-    ``R = diag(s_rot^2 I3, s_trans^2 I3)``, so ``statistic_i = d_i^T (C_i + R)^-1 d_i`` is
-    chi-square with 6 degrees of freedom and ``p_value_i`` its upper tail. A view is flagged when
-    ``p_value_i < alpha`` AND the disagreement is practically large: its rotation exceeds
-    ``min_rot_deg`` or its translation ``min_trans_mm``. Gates default to configs/refine.yaml.
-    Rows with a non-finite disagreement or covariance are not tested (NaN statistic, not flagged).
-
-    The robot's error need not be one Gaussian: a kinematic error (link lengths, joint offsets) makes
-    some poses worse than others, which an iid model with one sigma per axis cannot say. When the arm's
-    kinematics are not modelled, the null is a scale mixture: a multivariate t with ``gates.tail_dof``
-    dof (configs/refine.yaml ``iid_tail_dof``), its covariance ``C_i + R`` (variance matched); the
-    kinematic model carries the pose dependence itself, and its null stays chi-square(6).
-    """
-    g = gates if gates is not None else RobotPoseGates.from_config()
-    d = np.asarray(disagreement, float).reshape(-1, 6)
-    C = np.asarray(covariance, float).reshape(-1, 6, 6)
-    if C.shape[0] != d.shape[0]:
-        raise ValueError(f"disagreement has {d.shape[0]} rows but covariance {C.shape[0]}")
-    R: np.ndarray = np.diag([robot_sigma_rot_rad**2] * 3 + [robot_sigma_trans_m**2] * 3)
-    if robot_covariance is not None:
-        R = np.asarray(robot_covariance, float).reshape(-1, 6, 6)
-    ok = np.all(np.isfinite(d), axis=1) & np.all(np.isfinite(C), axis=(1, 2))
-    stat = np.full(d.shape[0], np.nan)
-    Ct = C + R
-    if ok.any():
-        stat[ok] = np.einsum("ni,ni->n", d[ok], np.linalg.solve(Ct[ok], d[ok][..., None])[..., 0])
-    diag = np.diagonal(Ct, axis1=1, axis2=2)
-    p = mixture_tail_pvalue(stat, ROBOT_POSE_DOF, np.full(stat.shape, g.tail_dof))
-    rot_deg = np.degrees(np.linalg.norm(d[:, :3], axis=1))
-    trans_mm = 1000.0 * np.linalg.norm(d[:, 3:], axis=1)
-    large = (rot_deg > g.min_rot_deg) | (trans_mm > g.min_trans_mm)
-    flagged = ok & (np.nan_to_num(p, nan=1.0) < g.alpha) & large
-    return RobotPoseTest(
-        statistic=stat,
-        p_value=p,
-        flagged=flagged,
-        rot_deg=rot_deg,
-        trans_mm=trans_mm,
-        sigma_rot_deg=np.degrees(np.sqrt(diag[:, :3].sum(axis=1))),
-        sigma_trans_mm=1000.0 * np.sqrt(diag[:, 3:].sum(axis=1)),
-        threshold=g.threshold,
-        gates=g,
-    )
-
-
-# ------------------------------------------------------------------------------ the refinement's decisions
-@dataclass(frozen=True)
-class Outlier:
-    """One explicit outlier decision."""
-
-    view_id: str
-    kind: str  # corners | reprojection | too_few_corners | robot_pose
-    reason: str  # one line for people
-    corner_ids: tuple[Any, ...] = ()  # flagged corners (kind "corners"), else empty: the decision covers the view
-    size: dict[str, Any] = field(default_factory=dict)  # size of the disagreement, names with units
-
-    def __str__(self) -> str:
-        return self.reason
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "view_id": self.view_id,
-            "kind": self.kind,
-            "reason": self.reason,
-            "corner_ids": [int(c) for c in self.corner_ids],
-            "size": plain(self.size),
-        }
-
-
-@dataclass(frozen=True)
-class ViewCheck:
-    """One view against the current solution."""
-
-    P_cam: np.ndarray  # (4,4) robot pose implied by the camera (alone, or in the last Gaussian solve)
-    cov_cam: np.ndarray  # (6,6) its covariance (right tangent)
-    resid_px: np.ndarray  # (N,) corner residual norms at P_cam
-    delta: np.ndarray  # (6,) tangent_difference(reported, P_cam)
-    ok: bool
-    # the view's own corner variance over sigma_px^2, at least 1 (:func:`view_variance_factor`)
-    variance_factor: float = 1.0
-
-
-def _failed_check(P: np.ndarray, n_corners: int) -> ViewCheck:
-    return ViewCheck(P, np.full((6, 6), np.nan), np.full(n_corners, np.inf), np.full(6, np.nan), False)
-
-
-def own_fit_variance(resid_px: np.ndarray, *, n_params: int = 6) -> float:
-    """Own-fit variance ``s^2`` [px^2] of a view's corner residuals against its own pose fit.
-
-    ``s^2 = sum |e|^2 / (2 N - n_params)`` [px^2] of a view's N corner residual norms ``resid_px`` against
-    the pose fitted to that view alone (``n_params`` = 6 pose unknowns); NaN without redundancy.
-    """
-    e = np.asarray(resid_px, float)
-    e = e[np.isfinite(e)]
-    dof = 2 * e.size - n_params
-    return float(np.sum(e * e)) / dof if dof > 0 else float("nan")
-
-
-def view_variance_factor(resid_px: np.ndarray, *, sigma_px: float, n_params: int = 6) -> float:
-    """How much noisier one view's corners are than the run's pixel sigma.
-
-    ``max(1, s^2 / sigma_px^2)`` with ``s^2`` the view's own-fit variance (:func:`own_fit_variance`) over
-    its inlier corner residuals.
-
-    The detector's corner error is not one iid Gaussian over the run: it differs between views
-    (perspective, distance and blur change the corner's edges), and within a view it is correlated.
-    The pose of a view whose corners scatter k times more than sigma_px is about k times less certain
-    than ``sigma_px^2 (J^T J)^-1`` says; the test of its robot pose must use that view's own level,
-    measured where the robot pose plays no part (the view's own fit), so that a wrong robot pose
-    cannot hide behind it. Never below 1: a view is not held to a tighter standard than the run.
-    """
-    return _factor(own_fit_variance(resid_px, n_params=n_params), sigma_px)
-
-
-def _factor(s2: float, sigma_px: float) -> float:
-    return max(1.0, s2 / sigma_px**2) if np.isfinite(s2) and sigma_px > 0 else 1.0
-
-
-def camera_only_poses(pb: "Problem", idx: Sequence[int], *, max_iters: int = 10) -> dict[int, ViewCheck]:
-    """Robust Gauss-Newton for the robot pose of each view in ``idx`` from its corners alone.
-
-    Robust Gauss-Newton (Huber, ``loss_k``) for the robot pose of each view in ``idx`` from its corners
-    alone (``T_x``, ``T_board`` and the intrinsics held), all views at once, starting from the current
-    estimates ``pb.P``; a view that most of its corners do not fit from there (a start far off: its
-    robot pose belongs to another image, or is misread) starts again from its own PnP pose carried through
-    ``T_x`` and ``T_board``, and keeps the fit with more corners within ``corner_outlier_sigmas``. The
-    covariance is ``sigma_px^2 (J^T J)^-1`` over those corners. Returns {view index: ViewCheck}.
-    """
-    empty = {int(i): _failed_check(pb.P[i].copy(), 0) for i in idx if pb.offsets[i + 1] == pb.offsets[i]}
-    ids = np.asarray([i for i in idx if i not in empty], int)
-    if ids.size == 0:
-        return empty
-    fit = _own_fits(pb, ids, pb.P[ids].copy(), max_iters)
-    poor = np.flatnonzero(fit["n_inl"] * 2 < fit["counts"])
-    if poor.size:
-        again = _own_fits(pb, ids[poor], _pnp_starts(pb, ids[poor], fit["P"][poor]), max_iters)
-        better = again["n_inl"] > fit["n_inl"][poor]
-        for k, j in zip(poor[better], np.flatnonzero(better), strict=False):
-            for key in ("P", "alive", "n_inl", "H", "delta"):
-                fit[key][k] = again[key][j]
-            fit["e"][k] = again["e"][j]
-            fit["inl"][k] = again["inl"][j]
-    out = empty
-    for k, i in enumerate(ids):
-        e_k, P_k = fit["e"][k], fit["P"][k]
-        if not fit["alive"][k]:
-            out[int(i)] = _failed_check(P_k, int(fit["counts"][k]))
-            continue
-        cov = None
-        if 2 * fit["n_inl"][k] >= 6:
-            try:
-                cov = pb.sigma_px**2 * np.linalg.inv(fit["H"][k])
-            except np.linalg.LinAlgError:
-                cov = None
-        if cov is None or not np.all(np.isfinite(cov)):
-            out[int(i)] = ViewCheck(P_k, np.full((6, 6), np.nan), e_k, np.full(6, np.nan), False)
-        else:
-            s2 = own_fit_variance(e_k[fit["inl"][k]])
-            pb.own_fit_var[int(i)] = s2
-            out[int(i)] = ViewCheck(P_k, cov, e_k, fit["delta"][k], True, _factor(s2, pb.sigma_px))
-    return out
-
-
-def _pnp_starts(pb: "Problem", idx: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """Robot poses that put each view's camera at its own PnP pose of the board.
-
-    Robot poses (len(idx),4,4) that put each view's camera at its own PnP pose of the board under the
-    current ``T_x``, ``T_board`` and intrinsics (``T_cam_board = inv(T_x) M T_board``); ``fallback`` where
-    PnP fails.
-    """
-    import cv2
-
-    from ..camera import Intrinsics
-    from ..errors import CalibrationError
-    from ..frames import inv_T
-    from ..initial.board_poses import solve_pnp
-
-    intr = Intrinsics.from_vector(pb.k, pb.width, pb.height)
-    out = np.array(fallback, float)
-    for k, i in enumerate(idx):
-        try:
-            C, _ = solve_pnp(pb.obj[i], pb.img[i], intr)
-        except (CalibrationError, ValueError, cv2.error):  # a view PnP cannot solve keeps its start
-            continue
-        out[k] = pb.mounting.T_base_end_from_M(pb.T_x @ C @ inv_T(pb.T_board))
-    return out
-
-
-def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> dict[str, Any]:
-    """The robust Gauss-Newton of :func:`camera_only_poses` from the robot poses ``P``.
-
-    The robust Gauss-Newton of :func:`camera_only_poses` from the robot poses ``P`` (len(idx),4,4), all views
-    at once. Per view (lists in ``idx`` order): ``P``, ``alive``, ``counts``, ``n_inl`` (corners within
-    ``corner_outlier_sigmas``), ``H`` (J^T J over those), ``delta`` (reported to ``P``), ``e`` (each corner's
-    residual, px) and ``inl`` (its mask).
-    """
-    sel = np.concatenate([np.arange(pb.offsets[i], pb.offsets[i + 1]) for i in idx])
-    counts = pb.offsets[idx + 1] - pb.offsets[idx]
-    local = np.repeat(np.arange(idx.size), counts)  # shape (M,): position in idx of each corner's view
-    starts = np.r_[0, np.cumsum(counts)[:-1]]
-    obj, img = pb.obj_all[sel], pb.img_all[sel]
-    alive = counts > 0
-    for it in range(max_iters + 1):
-        r, J = stacked_chain_residual(
-            T_x=pb.T_x,
-            T_base_end=P,
-            T_board=pb.T_board,
-            invert_robot=pb.invert,
-            intrinsics_vec=pb.k,
-            object_points=obj,
-            image_points=img,
-            view_index=local,
-            robot_jacobian=True,
-        )
-        assert J is not None, "robot_jacobian=True gives the Jacobian"
-        finite = np.all(np.isfinite(r), axis=1) & np.all(np.isfinite(J), axis=(1, 2))
-        alive &= np.logical_and.reduceat(finite, starts)
-        if it == max_iters:
-            break
-        ok_rows = alive[local]
-        r0 = np.where(ok_rows[:, None], r, 0.0)
-        J0 = np.where(ok_rows[:, None, None], J, 0.0)
-        _, w = corner_robust_scales(r0.reshape(-1), sigma_px=pb.sigma_px, loss="huber", k=pb.o.loss_k)
-        w2 = w * w
-        H = np.add.reduceat(np.einsum("mci,mcj,m->mij", J0, J0, w2), starts, axis=0)
-        g = np.add.reduceat(np.einsum("mci,mc,m->mi", J0, r0, w2), starts, axis=0)
-        H[~alive] = np.eye(6)
-        step = np.zeros((idx.size, 6))
-        for k in np.flatnonzero(alive):  # 6x6 solves; a singular one fails that view alone
-            try:
-                step[k] = -np.linalg.solve(H[k], g[k])
-            except np.linalg.LinAlgError:
-                alive[k] = False
-        P = P @ se3_exp(step)
-        if np.abs(step).max() < 1e-8:  # rad, m: far below any pose precision; one more evaluation at P
-            max_iters = it + 1
-    e = np.linalg.norm(r, axis=1)
-    inl = (e <= pb.o.corner_outlier_sigmas * pb.sigma_px) & alive[local]
-    assert J is not None, "robot_jacobian=True gives the Jacobian"
-    Jin = np.where(inl[:, None, None], J, 0.0)
-    H = np.add.reduceat(np.einsum("mci,mcj->mij", Jin, Jin), starts, axis=0)
-    n_inl = np.add.reduceat(inl.astype(int), starts)
-    ends = starts + counts
-    return {
-        "P": P,
-        "alive": alive,
-        "counts": counts,
-        "n_inl": n_inl,
-        "H": H,
-        "delta": tangent_difference(pb.reported[idx], P),
-        "e": [e[a:b] for a, b in zip(starts, ends, strict=False)],
-        "inl": [inl[a:b] for a, b in zip(starts, ends, strict=False)],
-    }
-
-
-def joint_checks(pb: "Problem", S_pp: dict[int, np.ndarray]) -> dict[int, ViewCheck]:
-    """The views of the last Gaussian solve as it has them.
-
-    The views of the last Gaussian solve as it has them (their robot poses variables of that solve),
-    with the marginal covariance of each robot pose. Returns {view index: ViewCheck}.
-    """
-    idx = sorted(S_pp)
-    if not idx:
-        return {}
-    e = pb.per_view(np.linalg.norm(pb.corner_residuals(), axis=1))
-    delta = tangent_difference(pb.reported[idx], pb.P[idx])
-    return {i: ViewCheck(pb.P[i].copy(), S_pp[i], e[i], delta[k], True) for k, i in enumerate(idx)}
 
 
 @dataclass(frozen=True)
@@ -414,34 +73,6 @@ def _robot_test_cov(pb: "Problem") -> np.ndarray:
         return pb.robot_cov(range(pb.n))
     R = np.diag([np.radians(pb.o.robot_sigma_deg) ** 2] * 3 + [(pb.o.robot_sigma_mm / 1000.0) ** 2] * 3)
     return np.broadcast_to(R, (pb.n, 6, 6)).copy()
-
-
-def leave_one_out(e: np.ndarray, R: np.ndarray, S_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The prediction of a robot pose without its own prior, from a solve that had the prior.
-
-    ``e`` (6,): the prior's residual ``tangent_difference(T_reported, P)`` at the solution ``P``;
-    ``R`` (6,6): the prior's covariance (robot noise); ``S_p`` (6,6): the marginal covariance of ``P``
-    in that solve. For the linearised problem, ``S_p^-1 = S_loo^-1 + R^-1`` and
-    ``e = (R - S_p) R^-1 d`` with ``d`` the leave-one-out disagreement, so
-    ``d = R (R - S_p)^-1 e`` and ``S_loo = R (R - S_p)^-1 R - R``; ``d^T (S_loo + R)^-1 d`` is then
-    ``e^T (R - S_p)^-1 e``, Baarda's normalised residual. Raises LinAlgError when ``R - S_p`` is not
-    positive definite (the solve did not weigh the prior as ``R`` says).
-    """
-    np.linalg.cholesky(R - S_p)
-    C_inv_R = np.linalg.solve(R - S_p, R)
-    return C_inv_R.T @ e, R @ C_inv_R - R
-
-
-def prior_share(R: np.ndarray, S_p: np.ndarray) -> float:
-    """Smallest eigenvalue of ``R^-1/2 (R - S_p) R^-1/2``.
-
-    The share of a robot pose's information that comes from the camera (1: the camera alone fixes it; 0:
-    its prior alone does). :func:`leave_one_out` divides by it, so where it is tiny (a robot sigma near
-    its floor, as on a simulated exact robot) the leave-one-out prediction is the rounding error of ``R
-    - S_p`` blown up.
-    """
-    w = 1.0 / np.sqrt(np.diag(R))
-    return float(np.linalg.eigvalsh((R - S_p) * np.outer(w, w))[0])
 
 
 def robot_tests(pb: "Problem", checks: Sequence[ViewCheck], S_pp: Optional[dict[int, np.ndarray]]) -> RobotPoseTest:
@@ -667,31 +298,3 @@ def outlier_loop(pb: "Problem") -> tuple[Decision, Optional[np.ndarray], Optiona
         S_cc, S_pp = solve_with_vce(pb)
     log.warning("outlier decisions did not settle in %d rounds", o.max_outlier_rounds)
     return decide(pb, robust_robot_sigma=False, S_pp=S_pp), S_cc, S_pp
-
-
-def robot_pose_outlier(vid: str, test: RobotPoseTest, i: int, what: str, consequence: str) -> Outlier:
-    """The ``robot_pose`` outlier of view ``vid``.
-
-    The ``robot_pose`` outlier of view ``vid`` (index ``i`` of the robot-pose ``test``): its disagreement in
-    degrees, mm and Mahalanobis distance against the threshold, with what happens to the view.
-    """
-    rot_deg, trans_mm, dist = float(test.rot_deg[i]), float(test.trans_mm[i]), float(test.distance[i])
-    thr = float(np.sqrt(test.threshold))
-    nu = float(test.gates.tail_dof)
-    tail = "" if not np.isfinite(nu) else f" of the unmodelled arm's error, t with {nu:g} dof"
-    return Outlier(
-        vid,
-        "robot_pose",
-        f"view {vid}: {what} by {rot_deg:.3f} deg / {trans_mm:.2f} mm (Mahalanobis "
-        f"{dist:.1f}, threshold {thr:.1f}{tail}); {consequence}",
-        size={
-            "rot_deg": rot_deg,
-            "trans_mm": trans_mm,
-            "mahalanobis": dist,
-            "p_value": float(test.p_value[i]),
-            "threshold": thr,
-            "tail_dof": nu if np.isfinite(nu) else None,
-            "sigma_rot_deg": float(test.sigma_rot_deg[i]),
-            "sigma_trans_mm": float(test.sigma_trans_mm[i]),
-        },
-    )
