@@ -243,10 +243,9 @@ def session_row(out: Path, folder: Path) -> dict:
         if rec and rec.get("outcome") != "done" or res is None:
             row.update(verdict="ERROR", reason=row["reason"] or "no result.json")
             return row
-        if not isinstance(res, dict):
-            raise DamagedResult("it is not a JSON object")
-        validate_result(res, source=str(folder / which), partial=True)  # the one reader's checks
-        f = result_fields(res)
+        f = result_fields(res)  # the fields the index shows, each named when damaged
+        assert isinstance(res, dict), "result_fields refuses anything but a mapping"
+        validate_result(res, source=str(folder / which), partial=True)  # then the one reader's other checks
     except ROW_ERRORS as e:
         log.warning("%s: %s is damaged: %s", folder, which, e)
         row.update(outcome=DAMAGED, verdict="ERROR", reason=f"{which} is damaged: {e}")

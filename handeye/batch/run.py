@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
 
-from ..contract import BatchRecord, read_result, write_validated
+from ..contract import BatchRecord, validate_result, write_validated
 from ..errors import InputError, QAFailed
 from ..output import atomic_write_bytes, hash_files, write_json, writing
 from .discover import SessionJob
@@ -209,8 +209,11 @@ def current_record(out_dir: Path, key: dict) -> Optional[dict]:
         return None
     if key.get("verify_against"):  # the key holds the session's and the installed result's hashes
         return rec if read_json(out_dir / "verify.json") is not None else None
+    res = read_json(out_dir / "result.json")
     try:  # a result missing, or damaged since its run, is calibrated again, not carried on as it is
-        res = read_result(out_dir / "result.json").raw
+        if not isinstance(res, dict):
+            raise InputError("no result.json", path=out_dir)
+        validate_result(res, source=str(out_dir / "result.json"), partial=True)
     except InputError as e:
         log.warning("%s: the session runs again (%s)", out_dir, e)
         return None
