@@ -7,7 +7,7 @@ the parametrisation of ``RefineResult.cov_x_6x6``), must look like chi-square(6)
 within the two-sided 0.1 % band of chi-square(30), and none beyond the 1 - 0.001/5 quantile of
 chi-square(6) (the seeds are fixed, so the test is deterministic). Five sessions can reject a
 covariance that is grossly wrong (4x in variance), not one that is 2x off: that power comes from the
-corner-level Monte Carlo in tests/test_refine.py and, on rendered images, from
+corner-level Monte Carlo in tests/refine/test_refinement.py and, on rendered images, from
 benchmarks/bench_rendered.py (coverage and d2 over 40 sessions). Clean sessions get no outlier flags
 (each view's robot-pose test uses that view's own corner noise, configs/refine.yaml; the false-alarm
 count over 120 clean sessions is benchmarks/bench_clean_sessions.py's); a wrong robot pose is flagged.

@@ -148,7 +148,7 @@ def test_failed_and_pose_only_results_read(results):
         m = read_result(results[name])
         assert not m.ok and m.T_x is None and m.cov_x == (None, "none") and m.camera is None
     m = read_result(results["pose_only"])
-    assert m.ok and m.x_name == "T_base_cam" and m.camera is None and m.cov_x[1] == "cov_x_6x6_verdict"  # validated as image results are
+    assert m.ok and m.x_name == "T_base_cam" and m.camera is None and m.cov_x[1] == "cov_x_6x6_verdict"
 
 
 # ------------------------------------------------------------------------------ versions

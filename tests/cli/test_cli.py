@@ -504,7 +504,7 @@ def test_a_malformed_poses_file_is_unusable_input(clean, tmp_path, capsys):
 
 
 def test_the_exit_codes_of_the_readme_are_those_of_the_code_and_of_help():
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
     rows = re.findall(r"^\| (\d+) \| (.+) \|$", readme, flags=re.M)
     assert [(int(c), m) for c, m in rows] == list(EXIT_CODES)
     assert len({c for c, _ in EXIT_CODES}) == len(EXIT_CODES)  # every code means one thing

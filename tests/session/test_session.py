@@ -801,7 +801,7 @@ def test_factory_prior_sigmas_in_the_doc_are_the_refinement_preset():
     from handeye.config import load_preset
 
     p = load_preset("refine")["intrinsics_prior"]
-    doc = (Path(__file__).resolve().parents[1] / "docs" / "session_format.md").read_text()
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "session_format.md").read_text()
     m = re.search(
         r"`use: prior` assumes .*?fx, fy: ([0-9.]+) %.*?cx, cy: ([0-9.]+) % of the image width, height"
         r".*?k1, k2: ([0-9.]+).*?p1, p2: ([0-9.]+).*?k3: ([0-9.]+)",

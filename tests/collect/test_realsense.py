@@ -121,7 +121,7 @@ def in_subprocess(test):
     def run(*args, **kwargs):
         if os.environ.get(_CHILD) == test.__name__:
             return test(*args, **kwargs)
-        root = Path(__file__).resolve().parents[1]
+        root = Path(__file__).resolve().parents[2]
         env = {k: v for k, v in os.environ.items() if k != "PYTEST_ADDOPTS" and not k.startswith("PYTEST_XDIST")}
         env[_CHILD] = test.__name__
         cmd = [sys.executable, "-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider", "-p", "no:xdist"]

@@ -34,7 +34,7 @@ from handeye.sim.render import render_view
 from handeye.sim.scenarios import default_intrinsics
 from handeye.targets import ChessboardSpec
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 FAST = ["--resolution", "640x360", "--sim-supersample", "2"]
 
 

@@ -447,7 +447,7 @@ def _installed(*, n_views, noise_px, robot_noise, seed=5):
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
     from bench_refine import closed_forms, refine_views
 
     from handeye.recal.loaded import result_from_refinement
@@ -561,7 +561,7 @@ def test_verify_uses_the_installed_arm_when_the_result_names_a_preset():
     assert o["robot_model"] == "kinematic" and o["arm"].name == "RealMan RM65-B"
     assert (o["encoder_sigma_deg"], o["dh_sigma_mm"], o["dh_sigma_deg"]) == (0.01, 0.5, 0.05)
     assert installed_robot_model(named("my_arm.yaml")) == {}  # its table is not in result.json
-    table = Path(__file__).resolve().parents[1] / "configs" / "robots" / "ur5e.yaml"  # a DH file that exists
+    table = Path(__file__).resolve().parents[2] / "configs" / "robots" / "ur5e.yaml"  # a DH file that exists
     assert installed_robot_model(named(str(table)))["arm"].n_joints == 6
     assert installed_robot_model(named(None, kind="iid")) == {}
     # the table result.json records (an arm named by session.yaml's robot:, whose options hold only its name)

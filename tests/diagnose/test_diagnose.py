@@ -253,7 +253,7 @@ def test_pnp_covariance_is_in_the_right_tangent_and_matches_monte_carlo():
 
 
 def test_every_threshold_states_its_unit_and_origin():
-    text = (Path(__file__).parents[1] / "configs" / "diagnostics.yaml").read_text()
+    text = (Path(__file__).parents[2] / "configs" / "diagnostics.yaml").read_text()
     leaves = [
         ln
         for ln in text.splitlines()
