@@ -282,3 +282,28 @@ def _to_native(vendor: Path, *, t_image: float) -> None:
     for name in ("poses.txt", "config.yaml"):
         (vendor / name).unlink()
     (vendor / "session.yaml").write_text(yaml.safe_dump(doc))
+
+
+def test_a_pose_only_result_goes_through_every_command_that_takes_a_result(tmp_path):
+    """A tracker session's result: report, export to every format, compare, apply; verify and --prior
+    refuse it in one line (their test works on detected corners)."""
+    from handeye.sim.poses import make_tracker_session
+
+    ts = make_tracker_session(mode="eye_to_hand", n_views=14, seed=4)
+    ts.write(tmp_path / "tracker", state_sigma=False)
+    res_dir = tmp_path / "res"
+    assert _cli("calibrate", tmp_path / "tracker", "--out", res_dir, "--no-report") in (0, QAFailed.exit_code)
+    res = json.loads((res_dir / "result.json").read_text())
+    assert res["refinement"]["validation"]["status"] == "ok" and "cov_x_6x6_verdict" in res["refinement"]
+    assert _cli("report", res_dir) == 0 and (res_dir / "report.html").exists()
+    T = np.array(res["T_base_cam"])
+    for fmt in ("ros2", "urdf", "moveit", "easy_handeye2", "yaml", "json"):
+        out = tmp_path / "export" / fmt
+        out.mkdir(parents=True)
+        assert _cli("export", res_dir, "--to", fmt, "--out", out, "--force") == 0
+        for p in out.iterdir():
+            _load_export(p, T)
+    assert _cli("compare", res_dir, res_dir) == 0
+    assert _cli("apply", res_dir, "--point", 0.0, 0.0, 0.5) == 0
+    assert _cli("calibrate", tmp_path / "tracker", "--prior", res_dir, "--out", tmp_path / "p") == 2
+    assert _validate_tree(tmp_path) >= 1
