@@ -1,0 +1,89 @@
+"""The stages of a pose-only session, whose target poses come from a tracker."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..errors import CalibrationError
+from ..mounting import mounting
+from ..records import Session, ViewOutcome, view_id_key
+from .gates import _mode_gate, _stated_source
+from .records import MIN_VIEWS, CalibrateOptions, CalibrationRun, Observation
+from .stages import _closed_forms, _final_outcomes, validate_pose_stage
+
+
+def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) -> CalibrationRun:
+    """The stages of a pose-only session: each view's ``T_cam_board`` is the tracker's.
+
+    The stages of a pose-only session: each view's ``T_cam_board`` is the tracker's (no detection,
+    intrinsics or board poses to solve); the mode gate, the motion check and the closed forms as for
+    images; the refinement on pose factors (:func:`handeye.refine.poseonly.refine_poses`).
+    """
+    from ..initial import BoardPose
+
+    t0 = time.perf_counter()
+    outcomes = {v.view_id: ViewOutcome(v.view_id, "", True, "", 0) for v in s.views}
+    poses = {v.view_id: BoardPose(v.view_id, v.T_cam_board, float("nan"), 0, np.zeros(0, int)) for v in s.views}
+    seconds: dict = {}
+    state.update(
+        outcomes=tuple(outcomes[k] for k in sorted(outcomes, key=view_id_key)),
+        board_poses=poses,
+        seconds=seconds,
+        intrinsics_source="none (pose-only session: target poses from a tracker)",
+    )
+    state["mode_decision"] = {"mode": s.mode, "mode_source": _stated_source(s)}
+    if len(poses) < MIN_VIEWS:
+        raise CalibrationError(
+            f"the session has {len(poses)} views; at least {MIN_VIEWS} are needed",
+            hint="add views",
+            code="too_few_views",
+            path=s.path,
+        )
+    obs = Observation(s.target, outcomes, {}, {}, board_poses=poses)
+    s = _mode_gate(s, obs, state, progress)
+    mode = mounting(s.mode)
+    ids = sorted(poses, key=view_id_key)
+    C = np.stack([poses[v].T_cam_board for v in ids])
+    Ms = np.stack([mode.M_from_T_base_end(s.view(v).T_base_end) for v in ids])
+    t1 = time.perf_counter()
+    closed, start = _closed_forms(s, opts, mode, C, Ms, state, progress)
+    seconds["closed_form"] = time.perf_counter() - t1
+    refined = None
+    if opts.refine:
+        from ..refine import RefineOptions
+        from ..refine.poseonly import PoseView, refine_poses
+
+        progress("joint refinement on the tracker's poses (GTSAM)")
+        t2 = time.perf_counter()
+        ro = {k: v for k, v in opts.refine_options.items() if k not in ("arm", "intrinsics", "fix")}
+        refined = refine_poses(
+            mode=s.mode,
+            views=[PoseView(v, poses[v].T_cam_board, s.view(v).T_base_end) for v in ids],
+            T_x0=start.T_x,
+            T_board0=start.T_board,
+            tracker_sigma=s.meta.get("tracker_sigma"),
+            options=RefineOptions(**ro),
+            starts=closed,
+        )
+        seconds["refine"] = time.perf_counter() - t2
+        if refined.status != "ok":
+            raise CalibrationError(
+                f"refinement failed: {refined.failure_reason}",
+                hint="rerun with --no-refine to get the closed-form result",
+                code="refinement_failed",
+            )
+        state.update(refined=refined, T_x=refined.T_x, T_board=refined.T_board)
+        if opts.validate:
+            progress("validation: refits without some views")
+            t3 = time.perf_counter()
+            pose_views = [PoseView(v, poses[v].T_cam_board, s.view(v).T_base_end) for v in ids]
+            state["validation"] = validate_pose_stage(refined, pose_views)
+            seconds["validate"] = time.perf_counter() - t3
+    state["outcomes"] = tuple(
+        v for _, v in sorted(_final_outcomes(outcomes, {}, refined).items(), key=lambda kv: view_id_key(kv[0]))
+    )
+    seconds["calibrate"] = time.perf_counter() - t0
+    state.pop("session", None)
+    return CalibrationRun(session=s, options=opts, **state)
