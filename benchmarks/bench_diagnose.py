@@ -35,7 +35,7 @@ from handeye.conventions import VENDOR_POSE_FORMAT, PoseFormat, pose_values_from
 from handeye.diagnose import diagnose_run
 from handeye.frames import T_from_rotvec, inv_T
 from handeye.mounting import mounting
-from handeye.pipeline import CalibrateOptions, run_calibration
+from handeye.pipeline import CalibrateOptions, observe, run_calibration
 from handeye.session import load_session
 from handeye.sim.corners import make_corner_session
 from handeye.targets import CharucoSpec, ChessboardSpec
@@ -312,7 +312,7 @@ def realdata(data: Path, root: Path) -> int:
                 d = diagnose_run(run)
                 how = f"run {run.status}"
             except HandeyeError as e:
-                d = diagnose_session_error(f, e, mode=mode)
+                d = diagnose_session_error(f, e, observe=observe, mode=mode)
                 how = "load failed"
             _count_crashes(d)
             codes = sorted({(x["code"], x["severity"]) for x in d["findings"]})

@@ -376,6 +376,7 @@ def _failed_load(
     if diagnostics:
         t1 = time.perf_counter()
         from .diagnose import diagnose_session_error
+        from .pipeline import observe
 
         stage_errors: dict[str, str] = {}
         diag = optional_stage(
@@ -383,6 +384,7 @@ def _failed_load(
             diagnose_session_error,
             Path(session_path),
             res["failure_reason"],
+            observe=observe,
             mode=mode,
             errors=stage_errors,
         )

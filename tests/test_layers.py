@@ -16,14 +16,16 @@ MAX_LINES = 600
 
 #: lower layers never import higher ones (a name: every module in that package or that module)
 LAYERS = (
-    ("errors", "frames", "camera", "targets", "records", "mounting", "conventions", "config", "configs", "stats"),
-    ("output", "apply"),
-    ("kinematics", "factors", "session", "detect", "initial", "refine"),
+    ("errors", "frames", "camera", "targets", "records", "mounting", "conventions", "stats", "output", "config"),
+    ("configs", "apply", "kinematics", "factors", "contract"),
+    ("session", "detect", "initial", "refine"),
     ("diagnose",),
     ("pipeline", "results", "options"),
-    ("report", "workflow"),
-    ("export", "recal", "contract"),
-    ("batch", "collect"),
+    ("report",),
+    ("collect",),
+    ("recal",),
+    ("export", "workflow"),
+    ("batch",),
     ("sim", "cli"),
 )
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 from dataclasses import replace
 from pathlib import Path
-from typing import Optional
+from typing import Any, Callable, Optional
 
 import numpy as np
 
@@ -410,7 +410,7 @@ def _of_one_size(items: list) -> list:
     return [(v, p) for v, p in items if sizes.get(v, common) == common]
 
 
-def _observe_lenient(sess) -> tuple[Optional[PoseObservations], Optional[int], int]:
+def _observe_lenient(sess, observe: Callable[..., Any]) -> tuple[Optional[PoseObservations], Optional[int], int]:
     """Detections, intrinsics and board poses of a leniently read session.
 
     Detections, intrinsics and board poses of a leniently read session through the pipeline's
@@ -418,7 +418,6 @@ def _observe_lenient(sess) -> tuple[Optional[PoseObservations], Optional[int], i
     pose numbers parses (nothing was detected then).
     """
     from ..initial import board_poses
-    from ..pipeline import observe
 
     target, raw = sess.target, sess.raw
     mode = mounting(sess.mode)
@@ -475,11 +474,14 @@ def _observe_lenient(sess) -> tuple[Optional[PoseObservations], Optional[int], i
     return obs, n_det, len(items)
 
 
-def diagnose_session_error(path, error, *, mode: Optional[str] = None, images: bool = True) -> dict:
+def diagnose_session_error(
+    path, error, *, observe: Callable[..., Any], mode: Optional[str] = None, images: bool = True
+) -> dict:
     """What can be said about a session that failed to load (e.g. poses that look like mm or degrees).
 
-    Reads the session leniently (raw pose values, target, images), observes it through the pipeline's
-    observation stage, and tests every plausible reading of the raw poses against the images. Returns
+    Reads the session leniently (raw pose values, target, images), observes it through ``observe`` (the
+    pipeline's observation stage, :func:`handeye.pipeline.observe`, passed in by the caller above the
+    diagnostics), and tests every plausible reading of the raw poses against the images. Returns
     ``{"findings": [...], "readings": [...], "load_error": str, "stages": {...}, ...}``. Never raises for
     bad input; a crashed stage is in ``stages``.
     """
@@ -506,7 +508,7 @@ def diagnose_session_error(path, error, *, mode: Optional[str] = None, images: b
         ]
         base.update(stages.to_dict())
         return plain(base, nan_to_none=True)
-    observed = stages.run("observations", _observe_lenient, sess, default=(None, 0, len(sess.images_by_id)))
+    observed = stages.run("observations", _observe_lenient, sess, observe, default=(None, 0, len(sess.images_by_id)))
     obs, n_det, n_img = observed
     if obs is None and n_det is None:  # the pose numbers parse in no reading: not a detection problem
         base["findings"] = [

@@ -228,5 +228,5 @@ def test_the_fleet_index_lists_a_damaged_result_as_a_row(results, tmp_path):
     write_index(tmp_path, plots=False)
     rows = {r["session"]: r for r in read_fleet_csv(tmp_path / "fleet.csv")}
     assert rows["good"]["verdict"] in ("PASS", "WARN")
-    assert rows["bad"]["verdict"] == "ERROR" and "damaged: verdict is {'PASS': True}" in rows["bad"]["reason"]
+    assert rows["bad"]["verdict"] == "ERROR" and "verdict is a mapping ({'PASS': True})" in rows["bad"]["reason"]
     assert (tmp_path / "index.html").is_file()

@@ -24,7 +24,7 @@ from handeye.diagnose.thresholds import thresholds
 from handeye.errors import InputError
 from handeye.frames import T_from_rotvec, inv_T, pose_error
 from handeye.mounting import mounting
-from handeye.pipeline import CalibrateOptions, run_calibration
+from handeye.pipeline import CalibrateOptions, observe, run_calibration
 from handeye.session import load_session
 from handeye.session.raw import read_raw_poses
 from handeye.sim.corners import make_corner_session
@@ -313,7 +313,7 @@ def test_millimetres_read_as_metres_is_named_on_the_failed_load(tmp_path, monkey
     with pytest.raises(InputError) as e:
         load_session(folder)
     _patch(monkeypatch, cs)
-    d = diagnose_session_error(folder, e.value)
+    d = diagnose_session_error(folder, e.value, observe=observe)
     json.dumps(d)
     assert d["crashed_stages"] == 0 and d["stages"]["observations"] == "ok", d["stage_errors"]
     f = _one(d, "translation_units")
@@ -347,7 +347,7 @@ def test_degrees_in_a_vendor_file_are_named_on_the_failed_load(tmp_path, monkeyp
     with pytest.raises(InputError) as e:
         load_session(folder)
     _patch(monkeypatch, cs)
-    d = diagnose_session_error(folder, str(e.value))
+    d = diagnose_session_error(folder, str(e.value), observe=observe)
     assert d["crashed_stages"] == 0 and d["stages"]["observations"] == "ok", d["stage_errors"]
     assert {f["code"] for f in d["findings"] if f["severity"] == "fail"} == {"angle_units"}
 
@@ -373,7 +373,7 @@ def test_an_image_of_another_resolution_is_the_load_error_not_a_missing_board(tm
 
     monkeypatch.setattr(calibrate_mod, "detect_views", detect_views)
     monkeypatch.setattr(detect_mod, "detect_views", detect_views)
-    d = diagnose_session_error(folder, str(e.value))
+    d = diagnose_session_error(folder, str(e.value), observe=observe)
     assert d["crashed_stages"] == 0, d["stage_errors"]
     codes = {f["code"] for f in d["findings"]}
     assert "target_not_found" not in codes and "poses_fit_as_stated" in codes
@@ -488,7 +488,7 @@ def test_a_capture_that_saved_an_image_without_its_pose_is_named_with_the_image(
     with pytest.raises(InputError, match=r"14 images but 13 pose lines: .*a pose missing in between"):
         load_session(folder)  # as captured: the load refuses the count, and its diagnosis says where
     _patch(monkeypatch, cs)
-    d = diagnose_session_error(folder, "14 images but 13 pose lines")
+    d = diagnose_session_error(folder, "14 images but 13 pose lines", observe=observe)
     f = _one(d, "pairs_shuffled")
     assert f["details"]["partial_shift"] == -1 and f["details"]["image_without_pose"] == "7"
     (folder / f"{cs.n_views}.jpg").unlink()  # the counts made to agree: the run says the same
@@ -762,7 +762,7 @@ def test_wrong_board_size_finds_no_target(rendered, tmp_path):
 
 def test_an_unreadable_session_is_said_so(tmp_path):
     (tmp_path / "poses.txt").write_text("not numbers\n")
-    d = diagnose_session_error(tmp_path, "poses.txt:1: malformed pose line")
+    d = diagnose_session_error(tmp_path, "poses.txt:1: malformed pose line", observe=observe)
     json.dumps(d)
     assert [f["code"] for f in d["findings"]] == ["session_unreadable"]
     # the lenient reader ran (and found nothing to read); nothing after it could run
@@ -1003,7 +1003,7 @@ def test_poses_in_centimetres_are_one_finding_with_the_centimetre_fix(tmp_path, 
         load_session(folder)
     assert "millimetres or centimetres" in e.value.hint  # the loader cannot tell; the diagnosis can
     _patch(monkeypatch, cs)
-    d = diagnose_session_error(folder, e.value)
+    d = diagnose_session_error(folder, e.value, observe=observe)
     assert d["crashed_stages"] == 0, d["stage_errors"]
     assert _codes(d) == {"translation_units"}, d["findings"]  # not millimetres, not a 3000 mm square
     f = _one(d, "translation_units")
@@ -1254,7 +1254,7 @@ def test_a_stated_pose_format_the_lines_do_not_fit_is_not_called_a_detection_fai
     with pytest.raises(InputError, match="do not match config.yaml's pose_format") as e:
         load_session(folder)
     _patch(monkeypatch, cs)
-    d = diagnose_session_error(folder, str(e.value))
+    d = diagnose_session_error(folder, str(e.value), observe=observe)
     (f,) = d["findings"]
     assert f["code"] == "session_unreadable" and "fit no pose format" in f["title"]
     assert "pose_format" in f["action"]
