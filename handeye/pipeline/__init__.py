@@ -268,6 +268,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
     if obs.error is not None:
         raise obs.error if obs.error.path is not None else obs.error.at(s.path)
     poses, dets, intr = obs.board_poses, obs.detections, obs.intrinsics
+    assert intr is not None, "an observation without an error has the camera's intrinsics"
     session_mode = s.mode
     s = _mode_gate(s, obs, state, progress)
     mode = mounting(s.mode)
