@@ -210,8 +210,8 @@ _KILL_IN_RENAME = textwrap.dedent("""
                 os.kill(os.getpid(), signal.SIGKILL)  # record written to its temp file, not yet renamed
         return real(src, dst)
     os.replace = replace
-    from handeye.collect.__main__ import main
-    sys.exit(main(sys.argv[1:]))
+    from handeye.cli import main
+    sys.exit(main(["collect", *sys.argv[1:]]))
 """)
 
 
@@ -259,7 +259,8 @@ def test_sigkill_at_an_arbitrary_moment(tmp_path):
         [
             sys.executable,
             "-m",
-            "handeye.collect",
+            "handeye.cli",
+            "collect",
             str(out),
             "--mode",
             "eye_in_hand",
