@@ -1,12 +1,13 @@
 """Run a batch of sessions on Dask: one task per session, resumable, isolated.
 
-Each task (:func:`run_session`) runs the calibrate workflow in a child process (:mod:`handeye.batch.child`)
-with a time limit, so a hung or crashing session takes only its child with it; what happened is
-recorded in ``OUT/<install>/<session>/batch.json``. A session is skipped when its inputs and options
-(:func:`session_key`) match its last finished run. Data reach the workers through a shared filesystem
-or uploaded with each task. Nothing here imports the calibration.
-
-See docs/fleet.md.
+Each task (:func:`run_session`) hands its session to its worker thread's long-lived session process
+(:class:`SessionProcess`: ``python -m handeye.batch.child --serve``, handeye imported once, sessions fed over
+a pipe) and waits for the reply with a time limit. A session that hangs (killed at the limit) or crashes
+takes only that process with it; the next session starts a fresh one. A child of the worker rather than the
+Dask worker itself: a hang is killed without losing the worker, a segfault costs no worker restart. What
+happened is recorded in ``OUT/<install>/<session>/batch.json``. A session is skipped when its inputs and
+options (:func:`session_key`) match its last finished run. Data reach the workers through a shared
+filesystem or uploaded with each task. Nothing here imports the calibration. See docs/fleet.md.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
+import threading
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -44,6 +47,8 @@ OUTCOMES = ("done", "timeout", "crashed", "error", "lost")
 #: the environment of a session's process: one thread for the linear algebra (a worker runs one
 #: session on one core), the same on every worker, so a session's numbers do not depend on where it ran
 SESSION_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+#: sessions one session process runs before it is replaced by a fresh one (bounds what a session may leave behind)
+SESSIONS_PER_PROCESS = 100
 #: tasks submitted per worker thread at once (more are submitted as these finish)
 IN_FLIGHT_PER_THREAD = 2
 #: verdicts that count as failed in the progress bar and the exit code (ERROR: no result of this run)
@@ -252,46 +257,139 @@ def run_session(spec: dict) -> dict:
         return {**rec, "files": read_tree(out)}
 
 
+class SessionProcess:
+    """A long-lived ``python -m handeye.batch.child --serve`` process that runs sessions one at a time.
+
+    Replaced by a fresh one when a session kills it or hangs, and after :data:`SESSIONS_PER_PROCESS` sessions.
+    """
+
+    def __init__(self) -> None:
+        self.proc: Optional[subprocess.Popen] = None
+        self.own_log = None  # the process's stderr between sessions (its start-up)
+        self.served = 0
+
+    def _start(self) -> subprocess.Popen:
+        self.own_log = tempfile.TemporaryFile()
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "handeye.batch.child", "--serve"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=self.own_log,
+            start_new_session=True,
+            env={**os.environ, **SESSION_ENV},
+        )
+        self.served = 0
+        return self.proc
+
+    def close(self, *, kill: bool = False) -> Optional[int]:
+        """End the process (closing its stdin; ``kill``: at once) and return its exit code."""
+        proc, self.proc = self.proc, None
+        if proc is None:
+            return None
+        if kill:
+            _kill_group(proc)
+        for f in (proc.stdin, proc.stdout):
+            try:
+                f.close()
+            except OSError:
+                pass
+        try:
+            code = proc.wait(timeout=None if kill else 10)
+        except subprocess.TimeoutExpired:
+            _kill_group(proc)
+            code = proc.wait()
+        if self.own_log is not None:
+            self.own_log.close()
+        return code
+
+    def own_log_line(self) -> str:
+        """The last line the process wrote outside any session (an error of its start-up)."""
+        if self.own_log is None:
+            return ""
+        self.own_log.seek(0)
+        lines = [ln for ln in self.own_log.read().decode("utf-8", "replace").splitlines() if ln.strip()]
+        return lines[-1].strip()[:300] if lines else ""
+
+    def run(self, spec: dict, timeout_s: float) -> tuple[str, Optional[dict], Optional[int]]:
+        """(``reply``, the reply, None) | (``timeout``, None, None) | (``died``, None, exit code) of one session."""
+        proc = self.proc if self.proc is not None and self.proc.poll() is None else None
+        if proc is None or self.served >= SESSIONS_PER_PROCESS:
+            self.close()
+            proc = self._start()
+        try:
+            proc.stdin.write((json.dumps(spec) + "\n").encode("utf-8"))
+            proc.stdin.flush()
+        except OSError:  # it died between two sessions: this session has not started, so in a fresh one
+            self.close(kill=True)
+            proc = self._start()
+            proc.stdin.write((json.dumps(spec) + "\n").encode("utf-8"))
+            proc.stdin.flush()
+        self.served += 1
+        line = _read_line(proc.stdout.fileno(), time.monotonic() + timeout_s)
+        if line is None:
+            self.close(kill=True)
+            return "timeout", None, None
+        try:
+            reply = json.loads(line) if line else None
+        except ValueError:
+            reply = None
+        if not isinstance(reply, dict):
+            return "died", None, self.close(kill=True)
+        return "reply", reply, None
+
+
+def _read_line(fd: int, deadline: float) -> Optional[bytes]:
+    """One line from ``fd`` (b"" at its end) before ``deadline`` (time.monotonic), else None."""
+    import select
+
+    buf = b""
+    while not buf.endswith(b"\n"):
+        left = deadline - time.monotonic()
+        if left <= 0 or not select.select([fd], [], [], left)[0]:
+            return None
+        chunk = os.read(fd, 65536)
+        if not chunk:
+            return buf
+        buf += chunk
+    return buf
+
+
+_session_processes = threading.local()  # one per worker thread: a thread runs one session at a time
+
+
+def session_process() -> SessionProcess:
+    """The session process of the calling thread (made on first use, started when it first runs a session)."""
+    sp = getattr(_session_processes, "sp", None)
+    if sp is None:
+        sp = _session_processes.sp = SessionProcess()
+    return sp
+
+
 def _run_child(spec: dict, out: Path, *, session_path: Optional[str] = None) -> dict:
     with writing(out):
         out.mkdir(parents=True, exist_ok=True)
-        log_file = open(out / LOG_NAME, "wb")
+        (out / LOG_NAME).write_bytes(b"")
     t0 = time.perf_counter()
     rec = spec_record(spec)
     rec.update(
         session=session_path or spec["session"], worker=f"{socket.gethostname()}:{os.getpid()}", started_utc=_now()
     )
-    cmd = [sys.executable, "-m", "handeye.batch.child", json.dumps(spec)]
-    env = {**os.environ, **SESSION_ENV}
-    with log_file:
-        proc = subprocess.Popen(
-            cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log_file, start_new_session=True, env=env
-        )
-        try:
-            stdout, _ = proc.communicate(timeout=float(spec["timeout_s"]))
-        except subprocess.TimeoutExpired:
-            _kill_group(proc)
-            proc.communicate()
-            limit = float(spec["timeout_s"])
-            rec.update(
-                outcome="timeout",
-                verdict="ERROR",
-                reason=f"no result within the time limit of {limit:g} s; the session was killed",
-            )
-            return _finish_record(out, rec, t0)
-    lines = stdout.decode("utf-8", "replace").strip().splitlines()
-    reply = None
-    if lines:
-        try:
-            reply = json.loads(lines[-1])
-        except ValueError:
-            reply = None
-    if not isinstance(reply, dict):
-        how = f"killed by signal {-proc.returncode}" if proc.returncode < 0 else f"exit code {proc.returncode}"
+    sp = session_process()
+    limit = float(spec["timeout_s"])
+    what, reply, code = sp.run({**spec, "log": str(out / LOG_NAME)}, limit)
+    if what == "timeout":
         rec.update(
-            outcome="crashed",
+            outcome="timeout",
             verdict="ERROR",
-            reason=f"the session's process ended without a result ({how}): {_last_line(out / LOG_NAME)}",
+            reason=f"no result within the time limit of {limit:g} s; the session was killed",
+        )
+    elif what == "died":
+        how = "no exit code" if code is None else f"killed by signal {-code}" if code < 0 else f"exit code {code}"
+        last = _last_line(out / LOG_NAME)
+        if last == "no log lines":
+            last = sp.own_log_line() or last
+        rec.update(
+            outcome="crashed", verdict="ERROR", reason=f"the session's process ended without a result ({how}): {last}"
         )
     else:
         rec.update(reply)
