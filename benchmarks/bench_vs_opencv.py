@@ -67,10 +67,12 @@ def main() -> None:
             sec = json.loads((folder / "result.json").read_text()).get("seconds", {})
             stages.setdefault(name, []).append(sec)
     bare = statistics.median(w for w, _ in times["bare OpenCV script"])
-    print(f"\n{'command':28s} {'wall [s]':>9s} {'CPU [s]':>8s} {'ratio':>6s}")
+    bare_cpu = statistics.median(c for _, c in times["bare OpenCV script"])
+    print(f"\n{'command':28s} {'wall [s]':>9s} {'CPU [s]':>8s} {'ratio':>6s} {'CPU ratio':>9s}")
     for name, tc in times.items():
         wall, cpu = statistics.median(w for w, _ in tc), statistics.median(c for _, c in tc)
-        print(f"{name:28s} {wall:9.2f} {cpu:8.2f} {wall / bare:6.2f}x")
+        print(f"{name:28s} {wall:9.2f} {cpu:8.2f} {wall / bare:6.2f}x {cpu / bare_cpu:8.2f}x")
+    print(f"load average after the rounds {os.getloadavg()[0]:.1f}")
     startup = statistics.median(w for w, _ in times["import handeye.cli"])
     for name, secs in stages.items():
         print(f"\n{name}: stages (median over rounds) [s]")

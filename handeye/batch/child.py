@@ -1,15 +1,17 @@
-"""``python -m handeye.batch.child SPEC_JSON``: one session of a batch, in its own process.
+"""The process that runs a batch's sessions: ``python -m handeye.batch.child --serve`` (or ``SPEC_JSON``: one).
 
-Runs :func:`handeye.workflow.calibrate_session` with the ``handeye calibrate`` options of the spec
-(:func:`handeye.options.options_from_args`: the single command's results, bit for bit) and
-prints one JSON line on stdout: ``outcome`` (``done``, or ``error`` when the workflow raised),
-``status``, ``verdict``, ``reason``, ``exit_code`` and ``peak_rss_mb`` (the process's peak memory).
-Log lines go to stderr (the task keeps them in ``batch.log``). The process ends itself when its
-parent (the Dask worker) is gone, so a killed worker leaves no session running behind it.
+A long-lived session process (:class:`handeye.batch.process.SessionProcess`) imports handeye once, then reads
+task specs on stdin, one JSON line each, and answers each with one JSON line (``outcome``, ``status``,
+``verdict``, ``reason``, ``exit_code``, ``peak_rss_mb``, ``process``). It runs
+:func:`handeye.workflow.calibrate_session` with the ``handeye calibrate`` options of the spec
+(:func:`handeye.options.options_from_args`); a session's stdout and stderr go to its ``batch.log``. A crash
+or a hang takes this process down with its one session; the task records it and starts a fresh process.
+The process ends itself when its parent (the Dask worker) is gone or closes its stdin.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import logging
 import os
@@ -83,7 +85,7 @@ def _wait_for_previous_attempt(out_dir) -> None:
 
 def run(spec: dict) -> dict:
     from ..errors import HandeyeError
-    from ..options import options_from_args
+    from ..options import options_from_args, refuse_pose_only_flags
     from ..workflow import calibrate_session
     from .run import calibrate_namespace
 
@@ -93,6 +95,7 @@ def run(spec: dict) -> dict:
         return run_verify(spec)
     args = calibrate_namespace(cal)
     try:  # as handeye calibrate runs it (handeye.cli.calibrate.run)
+        refuse_pose_only_flags(argparse.Namespace(**{**vars(args), "session": spec["session"]}))
         wr = calibrate_session(
             spec["session"],
             options=options_from_args(args),
@@ -159,8 +162,26 @@ def run_verify(spec: dict) -> dict:
     }
 
 
+#: Linux: writing this to /proc/self/clear_refs resets the peak resident memory (VmHWM) to the current
+CLEAR_PEAK_RSS = "5"
+
+
+def _reset_peak_rss() -> None:
+    """Start a session's peak memory from the process's current memory (Linux); elsewhere the peak is the process's."""
+    try:
+        Path("/proc/self/clear_refs").write_text(CLEAR_PEAK_RSS)
+    except OSError:
+        pass
+
+
 def _peak_rss_mb():
-    """Peak resident memory of this process in MiB (None where the platform does not say)."""
+    """Peak resident memory in MiB since the last :func:`_reset_peak_rss` (None where the platform does not say)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return round(int(line.split()[1]) / 1024.0, 1)
+    except (OSError, ValueError, IndexError):
+        pass
     try:
         import resource
     except ImportError:  # pragma: no cover - not on Windows
@@ -169,11 +190,54 @@ def _peak_rss_mb():
     return round(kib / 1024.0, 1)
 
 
+def _setup_logging() -> None:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", stream=sys.stderr)
+    logging.getLogger("matplotlib").setLevel(logging.WARNING)
+
+
+def run_logged(spec: dict) -> dict:
+    """One session with this process's stdout and stderr (and so its log lines) in ``spec["log"]``."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    with open(spec["log"], "ab") as log_file:
+        os.dup2(log_file.fileno(), 1)
+        os.dup2(log_file.fileno(), 2)
+    try:
+        _reset_peak_rss()
+        reply = run(spec)
+        reply["peak_rss_mb"] = _peak_rss_mb()
+        reply["process"] = os.getpid()
+        return reply
+    finally:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        os.close(saved[0])
+        os.close(saved[1])
+
+
+def serve() -> int:
+    """Run the sessions sent on stdin, one at a time, until stdin closes (module docstring)."""
+    replies = os.fdopen(os.dup(1), "w", encoding="utf-8")  # the replies' own channel ...
+    os.dup2(2, 1)  # ... so that what a session prints cannot mix into them
+    _setup_logging()
+    from ..workflow import calibrate_session  # noqa: F401 - imported once here, not in the first session
+
+    for line in sys.stdin.buffer:
+        reply = run_logged(json.loads(line))
+        replies.write(json.dumps(reply) + "\n")
+        replies.flush()
+    return 0
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     _exit_with_parent()
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", stream=sys.stderr)
-    logging.getLogger("matplotlib").setLevel(logging.WARNING)
+    if argv == ["--serve"]:
+        return serve()
+    _setup_logging()
     reply = run(json.loads(argv[0]))
     reply["peak_rss_mb"] = _peak_rss_mb()
     sys.stdout.write(json.dumps(reply) + "\n")
@@ -181,5 +245,7 @@ def main(argv=None) -> int:
     return 0
 
 
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+if __name__ == "__main__":  # pragma: no cover - run as the imported module: one copy of its functions
+    from handeye.batch.child import main as _main
+
+    sys.exit(_main())

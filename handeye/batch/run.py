@@ -1,12 +1,13 @@
 """Run a batch of sessions on Dask: one task per session, resumable, isolated.
 
-Each task (:func:`run_session`) runs the calibrate workflow in a child process (:mod:`handeye.batch.child`)
-with a time limit, so a hung or crashing session takes only its child with it; what happened is
-recorded in ``OUT/<install>/<session>/batch.json``. A session is skipped when its inputs and options
-(:func:`session_key`) match its last finished run. Data reach the workers through a shared filesystem
-or uploaded with each task. Nothing here imports the calibration.
-
-See docs/fleet.md.
+Each task (:func:`run_session`) hands its session to its worker thread's long-lived session process
+(:class:`SessionProcess`: ``python -m handeye.batch.child --serve``, handeye imported once, sessions fed over
+a pipe) and waits for the reply with a time limit. A session that hangs (killed at the limit) or crashes
+takes only that process with it; the next session starts a fresh one. A child of the worker rather than the
+Dask worker itself: a hang is killed without losing the worker, a segfault costs no worker restart. What
+happened is recorded in ``OUT/<install>/<session>/batch.json``. A session is skipped when its inputs and
+options (:func:`session_key`) match its last finished run. Data reach the workers through a shared
+filesystem or uploaded with each task. Nothing here imports the calibration. See docs/fleet.md.
 """
 
 from __future__ import annotations
@@ -15,10 +16,9 @@ import itertools
 import json
 import logging
 import os
-import signal
 import socket
-import subprocess
-import sys
+import tempfile
+import threading
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -29,6 +29,7 @@ from ..contract import BatchRecord, validate_result, write_validated
 from ..errors import InputError, QAFailed
 from ..output import atomic_write_bytes, hash_files, write_json, writing
 from .discover import SessionJob
+from .process import SESSION_ENV, SESSIONS_PER_PROCESS, SessionProcess, _kill_group  # noqa: F401 (re-exported)
 
 log = logging.getLogger(__name__)
 
@@ -43,8 +44,6 @@ DEFAULT_TIMEOUT_S = 900.0
 #: ``lost`` (its workers kept dying)
 OUTCOMES = ("done", "timeout", "crashed", "error", "lost")
 #: the environment of a session's process: one thread for the linear algebra (a worker runs one
-#: session on one core), the same on every worker, so a session's numbers do not depend on where it ran
-SESSION_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 #: tasks submitted per worker thread at once (more are submitted as these finish)
 IN_FLIGHT_PER_THREAD = 2
 #: verdicts that count as failed in the progress bar and the exit code (ERROR: no result of this run)
@@ -237,7 +236,6 @@ def run_session(spec: dict) -> dict:
     """
     if spec.get("files") is None:
         return _run_child(spec, Path(spec["out_dir"]))
-    import tempfile
 
     with tempfile.TemporaryDirectory(prefix="handeye-batch-") as tmp:
         session = Path(tmp) / "session"
@@ -261,49 +259,45 @@ def run_session(spec: dict) -> dict:
         return {**rec, "files": read_tree(out)}
 
 
+_session_processes = threading.local()  # one per worker thread: a thread runs one session at a time
+
+
+def session_process() -> SessionProcess:
+    """The session process of the calling thread (made on first use, started when it first runs a session)."""
+    sp = getattr(_session_processes, "sp", None)
+    if sp is None:
+        sp = _session_processes.sp = SessionProcess()
+    return sp
+
+
 def _run_child(spec: dict, out: Path, *, session_path: Optional[str] = None) -> dict:
     with writing(out):
         out.mkdir(parents=True, exist_ok=True)
-        log_file = open(out / LOG_NAME, "wb")
+        (out / LOG_NAME).write_bytes(b"")
     t0 = time.perf_counter()
     rec = spec_record(spec)
     rec.update(
         session=session_path or spec["session"], worker=f"{socket.gethostname()}:{os.getpid()}", started_utc=_now()
     )
-    cmd = [sys.executable, "-m", "handeye.batch.child", json.dumps(spec)]
-    env = {**os.environ, **SESSION_ENV}
-    with log_file:
-        proc = subprocess.Popen(
-            cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log_file, start_new_session=True, env=env
-        )
-        try:
-            stdout, _ = proc.communicate(timeout=float(spec["timeout_s"]))
-        except subprocess.TimeoutExpired:
-            _kill_group(proc)
-            proc.communicate()
-            limit = float(spec["timeout_s"])
-            rec.update(
-                outcome="timeout",
-                verdict="ERROR",
-                reason=f"no result within the time limit of {limit:g} s; the session was killed",
-            )
-            return _finish_record(out, rec, t0)
-    lines = stdout.decode("utf-8", "replace").strip().splitlines()
-    reply = None
-    if lines:
-        try:
-            reply = json.loads(lines[-1])
-        except ValueError:
-            reply = None
-    if not isinstance(reply, dict):
-        how = f"killed by signal {-proc.returncode}" if proc.returncode < 0 else f"exit code {proc.returncode}"
+    sp = session_process()
+    limit = float(spec["timeout_s"])
+    what, reply, code = sp.run({**spec, "log": str(out / LOG_NAME)}, limit)
+    if what == "timeout":
         rec.update(
-            outcome="crashed",
+            outcome="timeout",
             verdict="ERROR",
-            reason=f"the session's process ended without a result ({how}): {_last_line(out / LOG_NAME)}",
+            reason=f"no result within the time limit of {limit:g} s; the session was killed",
+        )
+    elif what == "died":
+        how = "no exit code" if code is None else f"killed by signal {-code}" if code < 0 else f"exit code {code}"
+        last = _last_line(out / LOG_NAME)
+        if last == "no log lines":
+            last = sp.own_log_line() or last
+        rec.update(
+            outcome="crashed", verdict="ERROR", reason=f"the session's process ended without a result ({how}): {last}"
         )
     else:
-        rec.update(reply)
+        rec.update(reply or {})
     return _finish_record(out, rec, t0)
 
 
@@ -363,13 +357,6 @@ def _finish_record(out: Path, rec: dict, t0: float) -> dict:
     rec["finished_utc"] = _now()
     write_validated(out / RECORD_NAME, rec, BatchRecord)
     return rec
-
-
-def _kill_group(proc: subprocess.Popen) -> None:
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except (ProcessLookupError, PermissionError):
-        proc.kill()
 
 
 def _last_line(path: Path) -> str:

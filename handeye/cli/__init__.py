@@ -13,7 +13,9 @@ See docs/cli.md.
 from __future__ import annotations
 
 import argparse
+import atexit
 import errno
+import gc
 import importlib
 import logging
 import sys
@@ -82,7 +84,25 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+#: whether main() registered the exit hook already (a list: one module-level flag, set once)
+_EXIT_COLLECTION_SKIPPED: list[bool] = []
+
+
+def _skip_the_exit_collection() -> None:
+    """At exit, leave the heap to the operating system instead of a last garbage collection over it.
+
+    The interpreter's collections at shutdown traverse every object of the run (matplotlib's and the
+    calibration's): 0.2-0.3 s of a ``calibrate`` run's wall time after its last line (measured on a 20-view
+    session with reports), for nothing a command needs: its files are written and closed by then. Objects
+    that are not in a reference cycle are still freed (and finalised) as the modules are torn down.
+    """
+    if not _EXIT_COLLECTION_SKIPPED:
+        atexit.register(gc.freeze)  # runs before the handlers registered earlier (logging's flush still runs)
+        _EXIT_COLLECTION_SKIPPED.append(True)
+
+
 def main(argv=None) -> int:
+    _skip_the_exit_collection()
     parser = build_parser()
     args = parser.parse_args(argv)
     level = logging.WARNING if args.quiet else (logging.DEBUG if args.verbose or args.debug else logging.INFO)

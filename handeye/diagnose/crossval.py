@@ -19,6 +19,7 @@ import numpy as np
 from ..camera import pixels_from_board_points
 from ..frames import pose_error, rotvec_from_R
 from ..mounting import mounting
+from ..stats import chi2_ppf
 from .geometry import jackknife_sigmas
 from .thresholds import thresholds
 
@@ -284,7 +285,5 @@ def ratio_limits(k_folds: int) -> tuple[float, float]:
     true sigma from ``k_folds`` folds, ``sqrt(chi2(K - 1) / (K - 1))`` (K - 1 degrees of freedom: the
     three axes of a block are not independent, so no more are counted).
     """
-    from scipy.stats import chi2
-
     a, dof = validation_alpha(), max(int(k_folds) - 1, 1)
-    return float(np.sqrt(chi2.ppf(a, dof) / dof)), float(np.sqrt(chi2.ppf(1.0 - a, dof) / dof))
+    return float(np.sqrt(chi2_ppf(a, dof) / dof)), float(np.sqrt(chi2_ppf(1.0 - a, dof) / dof))

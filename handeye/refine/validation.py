@@ -16,11 +16,11 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Optional, Sequence, Union
 
 import numpy as np
-from scipy.stats import chi2
 
 from ..camera import INTRINSIC_NAMES
 from ..config import load_preset
 from ..frames import tangent_difference
+from ..stats import chi2_sf
 from .result import RefineResult
 
 if TYPE_CHECKING:  # the type only: validate imports refit where it runs it
@@ -133,7 +133,7 @@ def trace_p_value(scale: float, k_folds: int, dim: int) -> float:
     right: ``(K - 1) D · scale`` is chi-square with ``(K - 1) D`` degrees of freedom.
     """
     dof = max(int(k_folds) - 1, 1) * int(dim)
-    return float(chi2.sf(dof * float(scale), dof))
+    return chi2_sf(dof * float(scale), dof)
 
 
 def mahalanobis2(delta: np.ndarray, cov: np.ndarray) -> float:
@@ -371,7 +371,7 @@ def _block(
     V, rho, s = shrunk_jackknife(thetas, M)
     C, lam = generalised_max(M, V)
     if isinstance(test, tuple) and test[1] > 0:
-        p, how = float(chi2.sf(test[0], test[1])), "fold information"
+        p, how = chi2_sf(test[0], test[1]), "fold information"
     elif test is None:
         p, how = trace_p_value(s, thetas.shape[0], M.shape[0]), "trace"
     else:

@@ -3,7 +3,12 @@
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import signal
+import threading
 
+import numpy as np
 import yaml
 
 from handeye.batch.discover import discover
@@ -29,3 +34,77 @@ def test_a_session_that_cannot_run_is_a_failed_record_and_no_worker_is_started(t
     summary = run_batch(jobs, out, calibrate=calibrate, progress=seen.append)  # no task: no cluster is started
     assert [r["name"] for r in seen] == ["2026-03-01"] and summary.exit_code == 7
     assert summary.line().startswith("1 sessions: 0 done, 1 failed, 0 skipped (1 ERROR)")
+
+
+def test_sessions_share_a_session_process_and_a_crash_takes_only_its_own(tmp_path, monkeypatch):
+    """Four sessions handed one after the other to this thread's session process: the first two run in one
+    process (handeye imported once); the third kills its process with a segfault (a hook on the process's
+    PYTHONPATH, acting on sessions named ``*crash*``) and is recorded as crashed with the signal and its last
+    log line; the fourth (the second again) is the first of a fresh process and gives the same result."""
+    from handeye.batch import run as batch_run
+    from handeye.sim.fleet import write_fleet
+
+    root, out = tmp_path / "root", tmp_path / "out"
+    write_fleet(root, n_installs=1, sessions_per_install=1, n_views=8)
+    first = next(p for p in root.glob("*/*") if p.is_dir())
+    for name in ("2027-01-01-crash", "2027-02-01"):
+        shutil.copytree(first, first.parent / name)
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(
+        "import sys\n"
+        "if 'handeye.batch.child' in sys.orig_argv:\n"
+        "    import logging, os, signal\n"
+        "    import handeye.batch.child as c\n"
+        "    _run = c.run\n"
+        "    def run(spec):\n"
+        "        if 'crash' in spec['session']:\n"
+        "            logging.getLogger('hook').error('about to crash')\n"
+        "            os.kill(os.getpid(), signal.SIGSEGV)\n"
+        "        return _run(spec)\n"
+        "    c.run = run\n"
+    )
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (str(hook), os.environ.get("PYTHONPATH")) if p))
+    monkeypatch.setattr(batch_run, "_session_processes", threading.local())
+    calibrate = calibrate_options(build_parser().parse_args(["batch", str(root), "--out", str(out), "--no-report"]))
+    plan = plan_batch(discover(root), out, calibrate=calibrate)
+    specs = sorted(plan.specs, key=lambda s: s["name"])
+    assert [s["name"].endswith("crash") for s in specs] == [False, True, False]
+
+    def x_of(spec):
+        return json.loads((out / spec["install"] / spec["name"] / "result.json").read_text())["T_end_cam"]
+
+    try:
+        recs = [batch_run.run_session(s) for s in (specs[0], specs[2], specs[1])]
+        x_reused = x_of(specs[2])  # the second session of its process
+        recs.append(batch_run.run_session(specs[2]))  # the same session, the first of a fresh process
+    finally:
+        batch_run.session_process().close()
+    done1, done2, crashed, again = recs
+    assert done1["outcome"] == done2["outcome"] == again["outcome"] == "done", recs
+    assert done1["process"] == done2["process"], "the second session ran in the first one's process"
+    assert crashed["outcome"] == "crashed" and crashed["verdict"] == "ERROR"
+    assert f"killed by signal {int(signal.SIGSEGV)}" in crashed["reason"] and "about to crash" in crashed["reason"]
+    assert again["process"] != done1["process"], "the crashed process was replaced"
+    assert done1["verdict"] == again["verdict"] and done1["peak_rss_mb"] > 0
+    # two fresh ``handeye calibrate`` runs of one session differ at 1e-15 (the solver's summation order): the same
+    np.testing.assert_allclose(x_of(specs[2]), x_reused, rtol=0, atol=1e-12)
+    log = (out / specs[0]["install"] / specs[0]["name"] / "batch.log").read_text()
+    assert "about to crash" not in log, "each session's log holds its own lines only"
+
+
+def test_a_fleet_wide_robot_flag_is_refused_for_a_pose_only_session(tmp_path):
+    """``batch --robot ARM`` over a pose-only session: its row names the flag that does not apply, as
+    ``handeye calibrate`` does, instead of ignoring it."""
+    from handeye.batch import child
+    from handeye.sim.poses import make_tracker_session
+
+    root, out = tmp_path / "root", tmp_path / "out"
+    make_tracker_session(n_views=8, seed=3).write(root / "cell" / "tracker")
+    argv = ["batch", str(root), "--out", str(out), "--robot", "ur5e", "--no-report"]
+    calibrate = calibrate_options(build_parser().parse_args(argv))
+    (spec,) = plan_batch(discover(root), out, calibrate=calibrate).specs
+    reply = child.run(spec)
+    assert reply["outcome"] == "error" and reply["exit_code"] == 2
+    assert "--robot does not apply to a pose-only session" in reply["reason"]
+    assert not (out / "cell" / "tracker" / "result.json").exists()

@@ -7,6 +7,7 @@ from typing import Optional
 import numpy as np
 
 from ...conventions import vendor_euler_from_R
+from ...stats import chi2_ppf
 from ..observations import as_T
 from .values import _num
 
@@ -75,15 +76,13 @@ def _offsets(res, ref, T_x, cov, x_name) -> Optional[dict]:
     Where the result lies against each closed form and each half of the views (refitted alone), in mm,
     degrees and verdict sigmas, with the sentences that explain a departure.
     """
-    from scipy.stats import chi2
-
     from ...config import load_preset
     from ..uncertainty import offset_explanation
 
     if T_x is None or cov is None or not ref:
         return None
     alpha = float(load_preset("diagnostics")["validation"]["offset_alpha"])
-    limit = float(np.sqrt(chi2.ppf(1.0 - alpha, 6)))
+    limit = float(np.sqrt(chi2_ppf(1.0 - alpha, 6)))
     rows = []
     for m, e in (res.get("closed_form") or {}).items():
         T = as_T(e.get(x_name))
@@ -120,7 +119,7 @@ def _offsets(res, ref, T_x, cov, x_name) -> Optional[dict]:
         rows,
         limit_sigma=limit,
         halves_m2=None if split is None else float(split),
-        halves_m2_limit=float(chi2.ppf(1.0 - alpha, 6)),
+        halves_m2_limit=chi2_ppf(1.0 - alpha, 6),
         robot_mm=_num(ref.get("robot_sigma_mm")),
         robot_deg=_num(ref.get("robot_sigma_deg")),
         robot_model=str(model.get("kind") or ref.get("robot_noise_model") or ""),

@@ -1,0 +1,46 @@
+"""handeye.stats: the chi-square and F tails through scipy.special are scipy.stats' values to the bit."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+from scipy import stats
+
+from handeye.stats import chi2_ppf, chi2_sf, f_sf, wald_p_value, weighted_chi2_sf
+
+XS = [-1.0, 0.0, 1e-300, 1e-8, 0.3, 1.0, 2.5, 6.0, 17.3, 120.0, 1e4, math.inf, math.nan]
+DFS = [-1.0, 0.0, 0.4, 1.0, 2.0, 3.0, 5.5, 6.0, 30.0, 1e3, math.nan]
+QS = [-0.1, 0.0, 1e-12, 0.001, 0.025, 0.5, 0.95, 0.999, 1 - 1e-12, 1.0, 1.1, math.nan]
+
+
+def _same(a: float, b) -> bool:
+    b = float(b)
+    return (math.isnan(a) and math.isnan(b)) or a == b
+
+
+def test_chi2_sf_and_ppf_are_scipy_stats_values():
+    bad = [(x, df) for x, df in itertools.product(XS, DFS) if not _same(chi2_sf(x, df), stats.chi2.sf(x, df))]
+    assert bad == []
+    bad = [(q, df) for q, df in itertools.product(QS, DFS) if not _same(chi2_ppf(q, df), stats.chi2.ppf(q, df))]
+    assert bad == []
+    assert abs(chi2_ppf(0.95, 1) - 1.959963984540054**2) < 1e-12  # the familiar 1.96 sigma
+    assert chi2_sf(chi2_ppf(0.95, 6), 6) == float(stats.chi2.sf(stats.chi2.ppf(0.95, 6), 6))
+
+
+def test_f_sf_is_scipy_stats_value():
+    bad = [
+        (x, a, b)
+        for x, a, b in itertools.product(XS, DFS[::2], DFS[1::2])
+        if not _same(f_sf(x, a, b), stats.f.sf(x, a, b))
+    ]
+    assert bad == []
+
+
+def test_wald_and_weighted_tails_keep_their_values():
+    assert wald_p_value(7.0, 3) == float(stats.chi2.sf(7.0, 3))
+    assert wald_p_value(7.0, 3, noise_dof=12.0) == float(stats.f.sf(7.0 / 3, 3, 12.0))
+    w = np.array([1.0, 0.5, 0.25])
+    c, nu = float(np.sum(w**2) / w.sum()), float(w.sum() ** 2 / np.sum(w**2))
+    assert weighted_chi2_sf(2.0, w) == (float(stats.chi2.sf(2.0 / c, nu)), nu)
