@@ -480,8 +480,6 @@ def run_batch(
     so uploaded sessions are read only shortly before they run. ``progress`` gets each session's
     record as it finishes (skipped ones first).
     """
-    from dask.distributed import as_completed
-
     t0 = time.perf_counter()
     out = Path(out)
     plan = plan_batch(jobs, out, calibrate=calibrate, timeout_s=timeout_s, force=force)
@@ -494,29 +492,12 @@ def run_batch(
         client = open_client(scheduler, n_workers)
         try:
             limit = max(2, IN_FLIGHT_PER_THREAD * sum(client.nthreads().values()))
-            pending, spec_of, running = iter(plan.specs), {}, as_completed()
             site = site_files(calibrate) if upload else None
-
-            def submit(spec: dict) -> None:
-                task = {**spec, "files": read_tree(Path(spec["session"])), "site_files": site} if upload else spec
-                fut = client.submit(run_session, task, pure=False, retries=1)
-                spec_of[fut.key] = spec
-                running.add(fut)
-
-            for spec in itertools.islice(pending, limit):
-                submit(spec)
-            for fut in running:
-                spec = spec_of.pop(fut.key)
-                rec = _collect(fut, spec)
-                files = rec.pop("files", None)
-                if files is not None:
-                    write_tree(Path(spec["out_dir"]), files)
-                fut.release()
-                records.append(rec)
-                progress(rec)
-                nxt = next(pending, None)
-                if nxt is not None:
-                    submit(nxt)
+            # a check of a result this batch writes runs after every calibration: its installed result exists then
+            later = [s for s in plan.specs if _checks_own_output(s, out)]
+            first = [s for s in plan.specs if not _checks_own_output(s, out)]
+            for wave in (first, later):
+                records += _run_wave(client, wave, limit=limit, upload=upload, site=site, progress=progress)
         finally:
             cluster = None if scheduler else client.cluster
             client.close()
@@ -524,6 +505,47 @@ def run_batch(
                 cluster.close()
     records.sort(key=lambda r: (r["install"], r.get("time_utc") or "", r["name"]))
     return BatchSummary(tuple(records), time.perf_counter() - t0)
+
+
+def _checks_own_output(spec: dict, out: Path) -> bool:
+    """Whether ``spec`` is a verification of an installed result inside the batch's own output folder."""
+    against = spec.get("verify_against")
+    if not against:
+        return False
+    try:
+        return Path(against).resolve().is_relative_to(out.resolve())
+    except (OSError, ValueError):
+        return False
+
+
+def _run_wave(client, specs: list[dict], *, limit: int, upload: bool, site, progress) -> list[dict]:
+    """Run ``specs`` on the cluster, at most ``limit`` in flight, and return their records as they finish."""
+    from dask.distributed import as_completed
+
+    records: list[dict] = []
+    pending, spec_of, running = iter(specs), {}, as_completed()
+
+    def submit(spec: dict) -> None:
+        task = {**spec, "files": read_tree(Path(spec["session"])), "site_files": site} if upload else spec
+        fut = client.submit(run_session, task, pure=False, retries=1)
+        spec_of[fut.key] = spec
+        running.add(fut)
+
+    for spec in itertools.islice(pending, limit):
+        submit(spec)
+    for fut in running:
+        spec = spec_of.pop(fut.key)
+        rec = _collect(fut, spec)
+        files = rec.pop("files", None)
+        if files is not None:
+            write_tree(Path(spec["out_dir"]), files)
+        fut.release()
+        records.append(rec)
+        progress(rec)
+        nxt = next(pending, None)
+        if nxt is not None:
+            submit(nxt)
+    return records
 
 
 def _collect(fut, spec: dict) -> dict:
