@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence, Union
+from typing import Optional, Sequence, Union
 
 import numpy as np
 import yaml
@@ -31,6 +31,7 @@ class TrackerSession:
     T_base_end: np.ndarray
     sigma_mm: float
     sigma_deg: float
+    sigma_mm_along: Optional[float] = None  # the translation noise along the optical axis, when not sigma_mm
 
     @property
     def mode(self) -> str:
@@ -52,6 +53,8 @@ class TrackerSession:
         }
         if state_sigma:
             d["tracker_sigma"] = {"mm": self.sigma_mm, "deg": self.sigma_deg}
+            if self.sigma_mm_along is not None:
+                d["tracker_sigma"]["mm_along"] = self.sigma_mm_along
         path = folder / "session.yaml"
         path.write_text(yaml.safe_dump(d, sort_keys=False))
         return path
