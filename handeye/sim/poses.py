@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence, Union
+from typing import Any, Optional, Sequence, Union
 
 import numpy as np
 import yaml
@@ -33,6 +33,7 @@ class TrackerSession:
     T_base_end: np.ndarray
     sigma_mm: float
     sigma_deg: float
+    sigma_mm_along: Optional[float] = None  # the translation noise along the optical axis, when not sigma_mm
 
     @property
     def mode(self) -> str:
@@ -53,7 +54,10 @@ class TrackerSession:
             ],
         }
         if state_sigma:
-            d["tracker_sigma"] = {"mm": self.sigma_mm, "deg": self.sigma_deg}
+            sigma: dict[str, float] = {"mm": self.sigma_mm, "deg": self.sigma_deg}
+            if self.sigma_mm_along is not None:
+                sigma["mm_along"] = self.sigma_mm_along
+            d["tracker_sigma"] = sigma
         path = folder / "session.yaml"
         path.write_text(yaml.safe_dump(d, sort_keys=False))
         return path
