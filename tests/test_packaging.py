@@ -66,3 +66,19 @@ def test_the_wheel_holds_configs_and_factors_once_and_no_links(tmp_path):
         assert shipped and set(shipped) <= set(names)
         assert not [n for n in names if f"{name}/" in n and not n.startswith(f"handeye/{name}/")]
     assert "handeye/configs/robots/rm65.yaml" in names
+    # every module of the checkout is in the wheel (a subpackage missing from pyproject's list is not)
+    modules = sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "handeye").rglob("*.py"))
+    assert [m for m in modules if m not in names] == []
+
+
+def test_every_subpackage_is_in_the_package_list():
+    """pyproject.toml lists the packages a wheel holds; a subpackage left out installs without it."""
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    on_disk = {
+        ".".join(p.parent.relative_to(ROOT).parts)
+        for p in (ROOT / "handeye").rglob("__init__.py")
+        if p.parent.parent.name != "handeye" or p.parent.name not in ("configs", "factors")
+    } | {"handeye.configs", "handeye.factors"}
+    assert on_disk - listed == set() and listed - on_disk == set()
