@@ -22,6 +22,7 @@ from ..initial.motion import axis_text, motion_quality, rotations_to_add
 from ..mounting import mounting
 from ..refine.outliers import RobotPoseGates, RobotPoseTest, robot_pose_test
 from ..stats import robust_noise_sigma
+from .drift import drift_finding, drift_or_step
 from .findings import Finding, ids_text
 from .fits import BoardFit, fit_boards
 from .geometry import implied_boards, pair_motions, pose_differences
@@ -290,15 +291,24 @@ def robot_pose_findings(
         f"{float(np.median(trans[inl])):.2f} mm (median)"
     )
     sev = "warn" if len(rest) <= max(1, int(0.2 * obs.n)) else "fail"
+    tracked = getattr(obs.target, "kind", "") == "tracked"  # pose-only: the tracker's pose may be the wrong one
+    seen = "the tracker's pose" if tracked else "what the camera saw"
+    action = (
+        "check these views: was the robot still moving at capture (wait for it to settle), did the tracker lose "
+        "or mistake the target (a glint, a partly hidden marker), is the pose from another view? Re-capture them "
+        "or leave them out"
+        if tracked
+        else "check these views: was the robot still moving at capture (wait for it to settle), did the board or "
+        "the camera move, is the pose from another view? Re-capture them or leave them out"
+    )
     return [
         Finding(
             "robot_pose_disagrees",
             sev,
-            f"{len(rest)} view(s) where the robot pose disagrees with what the camera saw (view"
+            f"{len(rest)} view(s) where the robot pose disagrees with {seen} (view"
             f"{'s' if len(rest) > 1 else ''} {ids_text(rest)})",
             "reported vs camera-implied robot pose, " + "; ".join(parts) + f"; {typical}; flagged by {source}",
-            "check these views: was the robot still moving at capture (wait for it to settle), did the board or the "
-            "camera move, is the pose from another view? Re-capture them or leave them out",
+            action,
             view_ids=tuple(rest),
             details={
                 "per_view": {
@@ -391,67 +401,6 @@ def _split_fits(obs: PoseObservations, M: np.ndarray):
     return single, float(np.sum(np.minimum(d1, cap))), best[1]
 
 
-def _break_fit(v: np.ndarray, k: int, *, ramp: bool) -> np.ndarray:
-    """(N,6) the best fit to ``v`` (N,6) of zero before view ``k`` and a step or a drift from ``k`` on.
-
-    The step is a constant from view ``k`` on; the drift a line through zero at view ``k - 1``.
-    """
-    n = len(v)
-    x = np.where(np.arange(n) >= k, (np.arange(n) - k + 1.0) if ramp else 1.0, 0.0)  # shape (N,)
-    slope = (x @ v) / max(float(x @ x), 1e-12)  # shape (6,)
-    return x[:, None] * slope[None, :]
-
-
-def drift_or_step(v: np.ndarray, use: np.ndarray, *, min_segment: int) -> tuple[str, int, float]:
-    """Whether the implied board deviations ``v`` (N,6) change in one step or drift.
-
-    Returns ("step" | "drift", the first view that moved, the drift's residual share of the step's). Both
-    models have the same parameters (a break and six numbers), so the one with the smaller weighted
-    residual over the views ``use`` (each coordinate scaled by its robust spread) explains the sequence.
-    """
-    n = len(v)
-    w = 1.0 / np.maximum(np.median(np.abs(v[use] - np.median(v[use], axis=0)), axis=0), 1e-9)
-
-    def best(ramp: bool) -> tuple[float, int]:
-        ks = range(1, n - 1) if ramp else range(min_segment, n - min_segment + 1)
-        rss = [(float(np.sum((((v - _break_fit(v, k, ramp=ramp)) * w)[use]) ** 2)), k) for k in ks]
-        return min(rss)
-
-    (r_step, k_step), (r_drift, k_drift) = best(False), best(True)
-    if r_drift < r_step:
-        return "drift", k_drift, r_drift / max(r_step, 1e-12)
-    return "step", k_step, r_drift / max(r_step, 1e-12)
-
-
-def _drift_finding(obs: PoseObservations, k: int, share: float, f: BoardFit, M: np.ndarray) -> Finding:
-    """The target pose drifts over the views from view ``k`` on (a tracker's odometry, a creeping board)."""
-    v = _board_deviations(f, obs.C, M)
-    last = v[-1]
-    tracked = getattr(obs.target, "kind", "") == "tracked"
-    what = "The tracker's target pose drifts" if tracked else "The board drifts"
-    title = f"{what} from view {obs.ids[k]} on"
-    ev = (
-        f"the board implied by each view moves steadily from view {obs.ids[k]} on, by "
-        f"{float(np.linalg.norm(last[3:])):.1f} mm / {float(np.linalg.norm(last[:3])):.2f} deg at the last view; "
-        f"a gradual drift fits the sequence better than a single move (residual {share:.2f}x a step's)"
-    )
-    action = (
-        "a tracker that accumulates error (visual odometry, SLAM) cannot give the target's pose: locate the "
-        "target in every view directly (a marker tracker), or calibrate the views before the drift alone"
-        if tracked
-        else "the board crept during the collection: fix it rigidly (clamp or tape) and re-capture"
-    )
-    return Finding(
-        "target_drift",
-        "fail",
-        title,
-        ev,
-        action,
-        view_ids=tuple(obs.ids[k:]),
-        details={"drift_from_view": obs.ids[k], "residual_vs_step": share, "last_mm": float(np.linalg.norm(last[3:]))},
-    )
-
-
 def board_moved_findings(obs: PoseObservations, M: np.ndarray) -> tuple[list, Optional[BoardFit]]:
     """A step (or a drift) in the implied board transform: (findings, segment fit to use for the other checks)."""
     r = _split_fits(obs, M)
@@ -474,7 +423,7 @@ def board_moved_findings(obs: PoseObservations, M: np.ndarray) -> tuple[list, Op
         _board_deviations(f, obs.C, M), d <= max(3.0 * float(np.median(d)), 0.05), min_segment=bm.min_segment
     )
     if kind == "drift":
-        return [_drift_finding(obs, k_drift, share, f, M)], None
+        return [drift_finding(obs, k_drift, share, _board_deviations(f, obs.C, M))], None
     mode = mounting(obs.mode)
     before, after = obs.ids[:k], obs.ids[k:]
     minority = after if len(after) <= len(before) else before

@@ -68,3 +68,11 @@ def test_clean_tracker_sessions_are_quiet(tmp_path, mode, seed):
     res = _calibrate(tmp_path, mode=mode, seed=seed)
     assert res["status"] == "ok" and not {f["code"] for f in res["findings"] if f["severity"] == "fail"}
     assert not _codes(res) & (WRONG_FOR_MOTION | {"tracker_scale", "weak_motion"}), res["findings"]
+
+
+def test_a_view_whose_tracker_pose_is_wrong_is_named_against_the_tracker(tmp_path):
+    truth = make_arm_tracker_session(n_views=20, seed=1, outlier_views=1, outlier_poses="tracker").truth
+    res = _calibrate(tmp_path, seed=1, outlier_views=1, outlier_poses="tracker")
+    f = next(f for f in res["findings"] if f["code"] == "robot_pose_disagrees")
+    assert "the tracker's pose" in f["title"] and "camera saw" not in f["title"] and "tracker" in f["action"]
+    assert list(f["view_ids"]) == list(truth.outlier_view_ids)
