@@ -22,7 +22,7 @@ from ..initial.motion import axis_text, motion_quality, rotations_to_add
 from ..mounting import mounting
 from ..refine.outliers import RobotPoseGates, RobotPoseTest, robot_pose_test
 from ..stats import robust_noise_sigma
-from .drift import drift_finding, drift_or_step
+from .drift import drift_finding, drift_or_step, ramp_test
 from .findings import Finding, ids_text
 from .fits import BoardFit, fit_boards
 from .geometry import implied_boards, pair_motions, pose_differences
@@ -417,6 +417,13 @@ def board_moved_findings(obs: PoseObservations, M: np.ndarray) -> tuple[list, Op
     n_splits = obs.n - 2 * bm.min_segment + 1
     significant = p < bm.p_value / n_splits if p < 1.0 else s1 > bm.gain * s2
     if not (significant and big and s1 > bm.min_gain * s2):
+        # no single move: a steady drift (a tracker's odometry, a creeping board) has its own test
+        d1 = single.view_costs()
+        v1 = _board_deviations(single, obs.C, M)
+        k1, p1, shift = ramp_test(v1, d1 <= max(3.0 * float(np.median(d1)), 0.05))
+        moved = float(np.linalg.norm(shift[:3])) > bm.min_step_deg or float(np.linalg.norm(shift[3:])) > bm.min_step_mm
+        if k1 and p1 < bm.p_value and moved:
+            return [drift_finding(obs, k1, float("nan"), v1 - v1[:k1].mean(axis=0))], None
         return [], None
     d = f.view_costs()
     kind, k_drift, share = drift_or_step(

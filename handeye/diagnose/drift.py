@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..stats import f_sf
 from .findings import Finding
 from .observations import PoseObservations
 
@@ -45,6 +46,40 @@ def drift_or_step(v: np.ndarray, use: np.ndarray, *, min_segment: int) -> tuple[
     return "step", k_step, r_drift / max(r_step, 1e-12)
 
 
+def ramp_test(v: np.ndarray, use: np.ndarray) -> tuple[int, float, np.ndarray]:
+    """The best drift of the implied board deviations ``v`` (N,6) against none: (first view, p-value, last shift).
+
+    For each break ``k`` every coordinate is fitted on the views ``use`` by a constant (no drift) and by a
+    constant plus a line from view ``k`` on; the F test of the six slopes (each coordinate against its own
+    residual variance) at the best break, its p-value multiplied by the number of breaks tried (Bonferroni).
+    ``last shift`` (6,): the drift's displacement at the last view (deg, mm), as ``v``'s coordinates.
+    """
+    n = len(v)
+    idx = np.flatnonzero(use)
+    vu = v[idx]
+    m = len(idx)
+    rss0 = np.sum((vu - vu.mean(axis=0)) ** 2, axis=0)  # shape (6,)
+    best = (0, 1.0, np.zeros(6))
+    breaks = range(1, n - 1)
+    for k in breaks:
+        r = np.maximum(np.arange(n) - k + 1.0, 0.0)
+        ru = r[idx]
+        if np.count_nonzero(ru) < 2:
+            continue
+        X = np.stack([np.ones(m), ru], axis=1)  # shape (m, 2)
+        coef, *_ = np.linalg.lstsq(X, vu, rcond=None)  # shape (2, 6)
+        rss1 = np.sum((vu - X @ coef) ** 2, axis=0)
+        dof = m - 2
+        if dof < 3:
+            continue
+        F = float(np.sum((rss0 - rss1) / np.maximum(rss1 / dof, 1e-18))) / 6.0
+        p = f_sf(F, 6, 6 * dof)
+        if p < best[1]:
+            best = (k, p, coef[1] * r[-1])
+    k, p, shift = best
+    return k, min(1.0, p * len(breaks)), shift
+
+
 def drift_finding(obs: PoseObservations, k: int, share: float, v: np.ndarray) -> Finding:
     """The target pose drifts over the views from view ``k`` on (a tracker's odometry, a creeping board).
 
@@ -57,7 +92,11 @@ def drift_finding(obs: PoseObservations, k: int, share: float, v: np.ndarray) ->
     ev = (
         f"the board implied by each view moves steadily from view {obs.ids[k]} on, by "
         f"{float(np.linalg.norm(last[3:])):.1f} mm / {float(np.linalg.norm(last[:3])):.2f} deg at the last view; "
-        f"a gradual drift fits the sequence better than a single move (residual {share:.2f}x a step's)"
+        + (
+            f"a gradual drift fits the sequence better than a single move (residual {share:.2f}x a step's)"
+            if np.isfinite(share)
+            else "no single move explains it; a steady drift does (F test of its slopes)"
+        )
     )
     action = (
         "a tracker that accumulates error (visual odometry, SLAM) cannot give the target's pose: locate the "
@@ -72,5 +111,9 @@ def drift_finding(obs: PoseObservations, k: int, share: float, v: np.ndarray) ->
         ev,
         action,
         view_ids=tuple(obs.ids[k:]),
-        details={"drift_from_view": obs.ids[k], "residual_vs_step": share, "last_mm": float(np.linalg.norm(last[3:]))},
+        details={
+            "drift_from_view": obs.ids[k],
+            "residual_vs_step": share if np.isfinite(share) else None,
+            "last_mm": float(np.linalg.norm(last[3:])),
+        },
     )
