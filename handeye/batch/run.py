@@ -209,9 +209,9 @@ def current_record(out_dir: Path, key: dict) -> Optional[dict]:
     if key.get("verify_against"):  # the key holds the session's and the installed result's hashes
         return rec if read_json(out_dir / "verify.json") is not None else None
     res = read_json(out_dir / "result.json")
-    try:  # a result missing, or damaged since its run, is calibrated again, not carried on as it is
-        if not isinstance(res, dict):
-            raise InputError("no result.json", path=out_dir)
+    if res is None:  # missing or not JSON: the session runs again
+        return None
+    try:  # a result damaged since its run is calibrated again, not carried on as it is
         validate_result(res, source=str(out_dir / "result.json"), partial=True)
     except InputError as e:
         log.warning("%s: the session runs again (%s)", out_dir, e)

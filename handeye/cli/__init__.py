@@ -84,8 +84,8 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-#: whether main() registered the exit hook already (a list: one module-level flag, set once)
-_EXIT_COLLECTION_SKIPPED: list[bool] = []
+#: whether main() registered the exit hook already
+_exit_collection_skipped = False
 
 
 def _skip_the_exit_collection() -> None:
@@ -96,9 +96,10 @@ def _skip_the_exit_collection() -> None:
     session with reports), for nothing a command needs: its files are written and closed by then. Objects
     that are not in a reference cycle are still freed (and finalised) as the modules are torn down.
     """
-    if not _EXIT_COLLECTION_SKIPPED:
+    global _exit_collection_skipped
+    if not _exit_collection_skipped:
         atexit.register(gc.freeze)  # runs before the handlers registered earlier (logging's flush still runs)
-        _EXIT_COLLECTION_SKIPPED.append(True)
+        _exit_collection_skipped = True
 
 
 def main(argv=None) -> int:

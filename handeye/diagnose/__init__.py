@@ -109,16 +109,20 @@ def _pose_checks(
     out["findings"] += rf
     M, fit = stages.run("readings", reading_in_use, obs, readings, rf, default=(obs.M(), None))
     out["global_fault"] = bool(rf)
-    if fit is None:
-        for name in ("pairing", "scale", "board_moved", "robot_poses"):
-            stages.skip(name, "no fit of the poses as read")
-    elif rf:
-        for name in ("pairing", "scale", "board_moved", "robot_poses"):
-            stages.skip(name, "the robot poses do not match the images as read")
-    elif not _motion_ok(obs, M):
+    motion_ok = _motion_ok(obs, M)
+    not_run = (
+        "no fit of the poses as read"
+        if fit is None
+        else "the robot poses do not match the images as read"
+        if rf
         # a motion that leaves X undetermined fits alternative pairings or a moved board as well as the truth
+        else "the robot motion does not determine the hand-eye transform (see the motion findings)"
+        if not motion_ok
+        else None
+    )
+    if not_run is not None:
         for name in ("pairing", "scale", "board_moved", "robot_poses"):
-            stages.skip(name, "the robot motion does not determine the hand-eye transform (see the motion findings)")
+            stages.skip(name, not_run)
     else:
         pf = stages.run(
             "pairing", pairing_findings, obs, obs.raw.fmt, given_cost=given_cost, search=pairing, default=[]
@@ -159,7 +163,7 @@ def _pose_checks(
     if (
         given_cost > thresholds().readings.bad_cost
         and not any(f.severity in ("fail", "warn") for f in out["findings"])
-        and _motion_ok(obs, M)
+        and motion_ok
     ):  # (a degenerate motion does not determine the fit: the motion finding says so)
         out["findings"].append(_unexplained(obs, given))
         out["global_fault"] = True

@@ -107,6 +107,20 @@ def _joint_angles(s: Session, vid: str):
         return None
 
 
+def _guarded_validation(run_validation):
+    """``run_validation()``, or a not-run Validation when it fails: the refined result never depends on it."""
+    from ..refine.validation import Validation
+
+    try:
+        return run_validation()
+    except (HandeyeError, RuntimeError, np.linalg.LinAlgError) as e:  # the result stands on its model covariance
+        log.warning("validation not run: %s", e)
+        return Validation("not_run", f"{type(e).__name__}: {e}")
+    except Exception as e:  # noqa: BLE001 - a bug in the validation must not lose the refined result
+        log.error("validation crashed (%s: %s); the sigmas are the model's", type(e).__name__, e, exc_info=True)
+        return Validation("not_run", f"crashed: {type(e).__name__}: {e}")
+
+
 def validate_stage(s: Session, refined, poses: dict, dets: dict, T_base_end: dict):
     """The validated and verdict covariances of the refined result.
 
@@ -114,17 +128,10 @@ def validate_stage(s: Session, refined, poses: dict, dets: dict, T_base_end: dic
     refits without some views, from the refinement's own views.
     """
     from ..refine import RefineView
-    from ..refine.validation import Validation, validate
+    from ..refine.validation import validate
 
     views = [RefineView(vid, poses[vid].corner_ids, dets[vid].image_points, T_base_end[vid]) for vid in poses]
-    try:
-        return validate(refined, object_points=s.target.object_points(), views=views)
-    except (HandeyeError, RuntimeError, np.linalg.LinAlgError) as e:  # the result stands on its model covariance
-        log.warning("validation not run: %s", e)
-        return Validation("not_run", f"{type(e).__name__}: {e}")
-    except Exception as e:  # noqa: BLE001 - a bug in the validation must not lose the refined result
-        log.error("validation crashed (%s: %s); the sigmas are the model's", type(e).__name__, e, exc_info=True)
-        return Validation("not_run", f"crashed: {type(e).__name__}: {e}")
+    return _guarded_validation(lambda: validate(refined, object_points=s.target.object_points(), views=views))
 
 
 def validate_pose_stage(refined, views: list):
@@ -134,16 +141,11 @@ def validate_pose_stage(refined, views: list):
     one solve of the pose graph with the tracker's sigmas held (:func:`handeye.refine.poseonly.refit_poses`).
     """
     from ..refine.poseonly import refit_poses
-    from ..refine.validation import Validation, validate
+    from ..refine.validation import validate
 
-    try:
-        return validate(refined, views=views, refit_views=lambda sub, cov: refit_poses(refined, sub, cov))
-    except (HandeyeError, RuntimeError, np.linalg.LinAlgError) as e:  # the result stands on its model covariance
-        log.warning("validation not run: %s", e)
-        return Validation("not_run", f"{type(e).__name__}: {e}")
-    except Exception as e:  # noqa: BLE001 - a bug in the validation must not lose the refined result
-        log.error("validation crashed (%s: %s); the sigmas are the model's", type(e).__name__, e, exc_info=True)
-        return Validation("not_run", f"crashed: {type(e).__name__}: {e}")
+    return _guarded_validation(
+        lambda: validate(refined, views=views, refit_views=lambda sub, cov: refit_poses(refined, sub, cov))
+    )
 
 
 def _final_outcomes(outcomes, chain, refined):

@@ -187,6 +187,13 @@ def _information(st: _State, J: np.ndarray, prior_x: Optional[tuple[np.ndarray, 
     return H
 
 
+def _prior_x(options: RefineOptions) -> Optional[tuple[np.ndarray, np.ndarray]]:
+    """(T_x, covariance (6,6)) of the options' Gaussian prior on ``T_x``, or None."""
+    if options.prior is None:
+        return None
+    return check_T(options.prior.T_x, "prior T_x"), np.asarray(options.prior.cov_x, float)
+
+
 def _solve(
     st: _State, *, robust_k: Optional[float], prior_x: Optional[tuple[np.ndarray, np.ndarray]], max_iterations: int
 ) -> None:
@@ -328,11 +335,7 @@ def refine_poses(
     floors = np.array([float(cfg["robot_sigma_rot_floor_rad"])] + [float(cfg["robot_sigma_trans_floor_m"])] * 2)
     estimate = tracker_sigma is None
     st = _State(M, C, T_x0.copy(), T_board0.copy(), np.ones(3), np.ones(len(views), bool))
-    prior_x = (
-        None
-        if options.prior is None
-        else (check_T(options.prior.T_x, "prior T_x"), np.asarray(options.prior.cov_x, float))
-    )
+    prior_x = _prior_x(options)
     if tracker_sigma is None:
         st.sigma = _robust_sigmas(C, st.residuals()[0], floors)
     else:
@@ -492,8 +495,7 @@ def refit_poses(result: PoseRefineResult, views: Sequence[PoseView], covariance:
     C = np.stack([np.asarray(v.T_cam_board, float) for v in kept])
     along = result.tracker_sigma_along_mm if np.isfinite(result.tracker_sigma_along_mm) else result.tracker_sigma_mm
     sigma = np.array([np.radians(result.tracker_sigma_deg), result.tracker_sigma_mm / 1000.0, along / 1000.0])
-    prior = result.options.prior
-    prior_x = None if prior is None else (np.asarray(prior.T_x, float), np.asarray(prior.cov_x, float))
+    prior_x = _prior_x(result.options)
     st = _State(M, C, result.T_x.copy(), result.T_board.copy(), sigma, np.ones(len(kept), bool))
     try:
         _solve(st, robust_k=None, prior_x=prior_x, max_iterations=result.options.max_iterations)
