@@ -7,6 +7,7 @@ import json
 
 import pytest
 
+from handeye.errors import HandeyeError
 from handeye.sim.arm_tracker import make_arm_tracker_session
 from handeye.workflow import calibrate_session
 
@@ -18,7 +19,7 @@ def _calibrate(tmp_path, **kw) -> dict:
     ts.write(tmp_path / "s", state_sigma=False)
     try:
         calibrate_session(tmp_path / "s", out_dir=tmp_path / "out", report=False)
-    except Exception as e:  # noqa: BLE001 - a refused or failed run still writes its result.json
+    except HandeyeError as e:  # a refused or failed run still writes its result.json
         if not (tmp_path / "out" / "result.json").exists():
             raise AssertionError(f"no result.json ({e})") from e
     return json.loads((tmp_path / "out" / "result.json").read_text())
