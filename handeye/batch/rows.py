@@ -99,8 +99,11 @@ def _mapping(d: dict, key: str, field: str) -> dict:
     return v
 
 
-def _number(v, field: str) -> Optional[float]:
+def _number(v, field: str, *, nan_is_missing: bool = False) -> Optional[float]:
+    """A finite number, or None when absent (``nan_is_missing``: also NaN, a figure the run could not have)."""
     if v is None:
+        return None
+    if nan_is_missing and isinstance(v, float) and np.isnan(v):
         return None
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
         raise _damaged(field, v, "a finite number")
@@ -152,14 +155,15 @@ def result_fields(res) -> dict:
         sigma_rot_deg=_vector3(ref, "sigma_rot_deg", "refinement.sigma_rot_deg"),
         sigma_source=_text(ref, "sigma_source", "refinement.sigma_source") or ("model" if ref else None),
     )
-    rms = _number(ref.get("rms_px_after"), "refinement.rms_px_after")
+    # NaN: no pixels to measure (a pose-only session's target poses come from a tracker)
+    rms = _number(ref.get("rms_px_after"), "refinement.rms_px_after", nan_is_missing=True)
     if rms is None:
         checks = _mapping(res, "qa", "qa").get("checks") or []
         if not isinstance(checks, list):
             raise _damaged("qa.checks", checks, "a list")
         rms = next(
             (
-                _number(c.get("value"), "qa.checks[reprojection_rms_px].value")
+                _number(c.get("value"), "qa.checks[reprojection_rms_px].value", nan_is_missing=True)
                 for c in checks
                 if isinstance(c, dict) and c.get("key") == "reprojection_rms_px"
             ),

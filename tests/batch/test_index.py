@@ -71,7 +71,7 @@ def test_fields_of_a_good_result():
         ("hand_eye.translation_mm", ["a", 0, 0], "field hand_eye.translation_mm[0] is a text"),
         ("hand_eye.rotvec_deg", [1.0, 2.0], "field hand_eye.rotvec_deg is a list"),
         ("refinement.sigma_trans_mm", "abc", "field refinement.sigma_trans_mm is a text"),
-        ("refinement.rms_px_after", float("nan"), "field refinement.rms_px_after is float"),
+        ("refinement.rms_px_after", float("inf"), "field refinement.rms_px_after is float"),  # NaN: no pixels
         ("refinement", [], "field refinement is a list"),
     ],
 )
@@ -198,3 +198,16 @@ def test_drift_only_within_a_series_and_pairs_across_series_say_why(tmp_path, mo
         ("s4", "s5"): "camera resolutions differ: A is 640x360, B is 1280x720",
     }
     assert all(d["drifted"] is False for d in drifts)
+
+
+def test_a_pose_only_result_is_a_row_of_its_own_not_damaged(tmp_path):
+    """A pose-only result has no pixels: its reprojection RMS is NaN, which is not a damaged field; a text
+    in that field still is."""
+    pose_only = _put(GOOD, "refinement.rms_px_after", float("nan"))
+    _session(tmp_path, "c/tracker", result=pose_only)
+    _session(tmp_path, "c/edited", result=_put(GOOD, "refinement.rms_px_after", "0.3"))
+    write_index(tmp_path, plots=False)
+    rows = {r["session"]: r for r in read_fleet_csv(tmp_path / "fleet.csv")}
+    assert rows["tracker"]["verdict"] == "PASS" and rows["tracker"]["outcome"] != DAMAGED
+    assert rows["tracker"]["reprojection_rms_px"] in ("", None)
+    assert rows["edited"]["outcome"] == DAMAGED and "refinement.rms_px_after" in rows["edited"]["reason"]
