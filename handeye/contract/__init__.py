@@ -44,6 +44,7 @@ __all__ = [
     "Result",
     "Verify",
     "read_result",
+    "single_camera",
     "read_json_object",
     "schema",
     "validate",
@@ -110,7 +111,8 @@ def _error(e: ValidationError, path: str, name: str) -> InputError:
     """The first of a ValidationError's errors as one InputError naming the field."""
     err = e.errors(include_url=False)[0]
     ctx = err.get("ctx") or {}
-    field = ctx.get("field") or _field(err["loc"]) or "(top level)"
+    where = _field(err["loc"])  # a whole-model check names its field relative to the model at loc
+    field = (f"{where}.{ctx['field']}" if where else ctx["field"]) if ctx.get("field") else where or "(top level)"
     if err["type"] == "damaged":
         problem, expected = ctx["problem"], ctx["expected"]
     elif err["type"] == "missing":
@@ -216,6 +218,33 @@ def read_result(path: Union[str, Path], *, partial: bool = False) -> Result:
     if p.is_dir():
         p = p / "result.json"
     return validate_result(read_json_object(p), source=str(p), require_version=not partial)
+
+
+def single_camera(res: Result, camera: Optional[str] = None, *, source: str = "result.json") -> Result:
+    """The one-camera result a command works on: ``res`` itself, or camera ``camera`` of a cell.
+
+    A cell without ``camera`` (and with more than one camera), or a name the cell lacks, is one
+    InputError naming the cameras; ``camera`` given for a one-camera result is refused the same way.
+    """
+    if not res.is_cell:
+        if camera is not None:
+            raise InputError(
+                f"--camera {camera!r}: the result is one camera, not a cell",
+                path=source,
+                hint="leave out --camera for a one-camera result",
+            )
+        return res
+    names = res.camera_names
+    if camera is None and len(names) == 1:
+        camera = names[0]
+    if camera is None or camera not in names:
+        what = "is a cell" if camera is None else f"has no camera {camera!r}"
+        raise InputError(
+            f"the result {what} of {len(names)} cameras ({', '.join(names)})",
+            path=source,
+            hint="choose one with --camera NAME",
+        )
+    return res.camera_result(camera)
 
 
 def write_validated(path: Union[str, Path], d: dict, model: type[BaseModel], *, durable: bool = True) -> Path:

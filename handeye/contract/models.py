@@ -9,7 +9,7 @@ apply read.
 
 from __future__ import annotations
 
-from typing import Any, Literal, Optional
+from typing import Annotated, Any, Literal, Optional
 
 import numpy as np
 from pydantic import (
@@ -20,6 +20,7 @@ from pydantic import (
     StrictBool,
     StrictInt,
     StrictStr,
+    StringConstraints,
     ValidationInfo,
     model_validator,
 )
@@ -227,8 +228,11 @@ class Result(Open):
     """
 
     handeye_result: StrictInt = Field(ge=1, description="result.json format version")
+    kind: Optional[Literal["camera", "cell"]] = Field(
+        default=None, description="camera (one camera, the default) | cell (several cameras of one arm: cameras)"
+    )
     status: Literal["ok", "failed"]
-    mode: StrictStr = Field(description="eye_in_hand | eye_to_hand (a failed run: also unknown)")
+    mode: StrictStr = Field(description="eye_in_hand | eye_to_hand (a failed run: also unknown; a cell: cell)")
     mode_source: Optional[StrictStr] = None
     method: Optional[StrictStr] = None
     refined: Optional[StrictBool] = None
@@ -260,10 +264,20 @@ class Result(Open):
     seed: Optional[Mapping] = None
     frames: Optional[Mapping] = None
     mode_evidence: Optional[Mapping] = None
+    cameras: Optional[dict[CameraName, "CellCamera"]] = Field(
+        default=None, description="a cell: camera name (its session folder's name) -> that camera's result"
+    )
+    camera_pairs: Optional[dict[StrictStr, "CameraPair"]] = Field(
+        default=None, description="a cell: 'a/b' -> T_a_b, the pose of camera b in camera a's frame"
+    )
+    joint_covariance: Optional["JointBlocks"] = None
     _raw: Optional[dict] = PrivateAttr(default=None)
 
     @model_validator(mode="after")
     def _meaning(self, info: ValidationInfo):
+        if self.kind == "cell":
+            _check_cell(self)
+            return self
         if self.status != "ok":
             return self
         if self.mode not in MODES:
@@ -346,6 +360,93 @@ class Result(Open):
     def camera(self):
         """The :class:`handeye.camera.Intrinsics` of the result, None without them."""
         return None if self.intrinsics is None else self.intrinsics.to_intrinsics()
+
+    @property
+    def is_cell(self) -> bool:
+        """The result is a cell of several cameras (``kind: cell``): its X are in ``cameras``."""
+        return self.kind == "cell"
+
+    @property
+    def camera_names(self) -> list[str]:
+        """A cell's camera names, in the file's order; [] for a one-camera result."""
+        return list(self.cameras or {})
+
+    def camera_result(self, name: str) -> "Result":
+        """One camera of a cell as a one-camera :class:`Result` (its entry as written, with the file's version).
+
+        A name the cell lacks is a KeyError, for the caller (:func:`handeye.contract.single_camera`) to word.
+        """
+        entry = (self.raw.get("cameras") or {})[name]
+        raw = {**entry, "handeye_result": self.handeye_result}
+        out = Result.model_validate(raw)
+        out._raw = raw
+        return out
+
+
+# ----------------------------------------------------------------------------------------------- cells
+#: a camera's name in a cell: its session folder's name, usable in a frame name (``T_cam1_cam2``)
+CameraName = Annotated[StrictStr, StringConstraints(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$", max_length=64)]
+
+
+class CellCamera(Result):
+    """One camera of a cell: a one-camera result (its mode, X, intrinsics, covariances, views, verdict).
+
+    X and its covariances are the joint graph's; the version key is the cell file's.
+    """
+
+    handeye_result: Optional[StrictInt] = Field(default=None, ge=1, description="(the cell file's version)")  # type: ignore[assignment]
+    kind: Optional[Literal["camera"]] = None
+
+
+class CameraPair(Open):
+    """``camera_pairs['a/b']``: ``T_a_b`` (camera b's pose in camera a's frame) and its covariance."""
+
+    name: StrictStr = Field(description="T_<a>_<b>")
+    matrix: Rigid
+    cov_6x6: Cov6 = Field(description="tangent (omega, v) of T_a_b, rad and m, as cov_x_6x6")
+    cov_6x6_verdict: Optional[Cov6] = None
+
+
+class JointBlocks(Open):
+    """``joint_covariance``: the joint covariance of every estimated block of the cell, one matrix.
+
+    ``blocks`` name the rows in order (e.g. ``cameras.cam1.T_end_cam`` 6, ``cameras.cam1.intrinsics`` k,
+    ``T_end_board`` 6, ``dh_offsets`` m), ``sizes`` their row counts.
+    """
+
+    blocks: list[StrictStr]
+    sizes: list[Count]
+    matrix: Covariance
+
+    @model_validator(mode="after")
+    def _sizes(self):
+        if len(self.blocks) != len(self.sizes):
+            raise damaged(f"has {len(self.sizes)} sizes", f"one per block ({len(self.blocks)})", "sizes")
+        n = sum(self.sizes)
+        if len(self.matrix) != n:
+            raise damaged(f"is {len(self.matrix)}x{len(self.matrix)}", f"{n}x{n} (the blocks' sizes)", "matrix")
+        return self
+
+
+def _check_cell(res: "Result") -> None:
+    """A cell's meaning: mode ``cell``, its cameras when ok, pairs naming cameras of the cell."""
+    if res.mode != "cell":
+        raise damaged(f"is {res.mode!r} in a cell", "cell (each camera has its own mode)", field="mode")
+    if res.status != "ok":
+        return
+    if not res.cameras:
+        raise damaged("is missing or empty", "one entry per camera (the cell's status is ok)", field="cameras")
+    for key, pair in (res.camera_pairs or {}).items():
+        a, _, b = key.partition("/")
+        if a not in res.cameras or b not in res.cameras or a == b:
+            raise damaged(
+                f"names {key!r}", f"'a/b' with two cameras of the cell ({', '.join(res.cameras)})", "camera_pairs"
+            )
+        if pair.name != f"T_{a}_{b}":
+            raise damaged(f"is {pair.name!r}", f"T_{a}_{b}", f"camera_pairs.{key}.name")
+
+
+Result.model_rebuild()
 
 
 # ------------------------------------------------------------------------------------ observations.json
