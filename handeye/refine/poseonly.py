@@ -468,6 +468,7 @@ def refine_poses(
     nan = float("nan")
     ok = status == "ok" and S is not None
     robot_mm, robot_deg = robot.equivalent_sigmas() if robot is not None else (0.0, 0.0)
+    T_base_end_reported = np.stack([np.asarray(v.T_base_end, float) for v in views])  # the robot poses as reported
     return PoseRefineResult(
         status=status,
         failure_reason=reason,
@@ -480,7 +481,7 @@ def refine_poses(
         T_x_seed=T_x_seed,
         T_board_seed=T_board_seed,
         intrinsics_seed=None,  # type: ignore[arg-type]  # a pose-only result has no intrinsics
-        robot_poses={vid: np.asarray(v.T_base_end, float).copy() for vid, v in zip(ids, views, strict=False)},
+        robot_poses=dict(zip(ids, T_base_end_reported if robot is None else robot.flange_poses(st.dh), strict=True)),
         cov_x_6x6=unc.cov_x_6x6,
         cov_parametrisation=COV_PARAMETRISATION,
         sigma_rot_deg=unc.sigma_rot_deg,

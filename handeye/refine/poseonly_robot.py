@@ -20,6 +20,7 @@ import numpy as np
 
 from handeye.factors.pose import pose_robot_residual
 
+from ..frames import se3_exp
 from ..mounting import mounting
 from .options import RefineOptions, RefineView
 from .robot_model import KinematicRobotModel, build_kinematic_model, describe_dh, kinematic_model_dict, resolve_kind
@@ -94,6 +95,12 @@ class PoseRobotModel:
         """(n,6,6) the encoder noise's share of every view's residual covariance: ``s_q^2 J_u B J_u^T``."""
         _, _, J_u = self.residuals(T_x, T_board, T_cam_board, dh, jacobians=False)
         return self.km.encoder_sigma_rad**2 * J_u @ self.km.B @ np.swapaxes(J_u, 1, 2)
+
+    def flange_poses(self, dh: np.ndarray) -> np.ndarray:
+        """(n,4,4) every view's flange pose as the model corrects it: ``T_reported_i · Exp(J_dh,i · dh)``."""
+        if not self.m:
+            return self.T_base_end.copy()
+        return self.T_base_end @ se3_exp(np.einsum("nij,j->ni", self.km.J_dh, dh))
 
     def equivalent_sigmas(self) -> tuple[float, float]:
         """(mm, deg): the RMS per axis of the encoder noise at the flange over the views."""

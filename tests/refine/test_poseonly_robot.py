@@ -120,6 +120,10 @@ def test_a_dh_error_lies_inside_the_95_region_with_the_arm_model(mode, seed, pla
     assert "cannot tell them apart" in po["encoder_noise"]
     assert len(po["dh_resolved"]) + len(po["dh_held_by_prior"]) == 24
     assert res.options.robot_noise == "fixed" and res.robot_sigma_mm > 0
+    # the refined robot poses are the reported ones corrected by the estimated DH offsets
+    km, vid = res.pose_robot.km, ts.view_ids[3]
+    assert np.allclose(res.robot_poses[vid], ts.T_base_end[3] @ se3_exp(km.J_dh[3] @ res.dh_offset), atol=1e-12)
+    assert not np.allclose(res.robot_poses[vid], ts.T_base_end[3], atol=1e-6)
 
 
 def test_recorded_joints_give_the_inverse_kinematics_model():
