@@ -195,3 +195,16 @@ def test_without_robot_a_pose_only_session_takes_the_robot_poses_as_reported(tmp
     ref = json.loads((tmp_path / "o" / "result.json").read_text())["refinement"]
     assert ref["robot_model"]["kind"] == "none" and ref["robot_noise_model"] == "none"
     assert ref["robot_sigma_mm"] == 0.0
+
+
+def test_the_robot_model_option_chooses_the_model_on_pose_only_views():
+    """joint_space: encoder noise only (no DH offsets); iid: the robot's noise is part of the tracker's (none)."""
+    ts = make_arm_tracker_session(arm="ur5e", seed=6, n_views=10, **ARM_ERROR)
+    m = mounting(ts.mode)
+    cf = all_methods(m, ts.T_cam_board, np.stack([m.M_from_T_base_end(T) for T in ts.T_base_end]))
+    kw = {"mode": ts.mode, "views": _views(ts), "T_x0": cf["tsai"].T_x, "T_board0": cf["tsai"].T_board}
+    enc = refine_poses(**kw, options=RefineOptions(arm="ur5e", robot_model="joint_space"))
+    assert enc.status == "ok" and enc.robot_model["kind"] == "joint_space" and enc.dh_offset.size == 0
+    assert set(enc.robot_model["pose_only"]) == {"encoder_noise"} and "dh_offset" not in enc.robot_model
+    iid = refine_poses(**kw, options=RefineOptions(arm="ur5e", robot_model="iid"))
+    assert iid.status == "ok" and iid.robot_model["kind"] == "none" and iid.pose_robot is None
