@@ -6,6 +6,8 @@ GTSAM's Pose3 tangent (rotation [rad] first, right perturbation):
 is the true one times ``Exp(n)``, ``n ~ N(0, diag(s_rot^2 I3, s_trans^2 I3))``, gives ``r_i = -n`` at
 the truth; for isotropic noise the frame of ``n`` does not matter. The residual and its Jacobians
 are pure numpy (:func:`pose_residual`); :func:`pose_factor` is the thin ``CustomFactor`` wrapper.
+With an arm's kinematic model the true flange pose is ``T_base_end_reported · Exp(J_dh · delta)``
+(:mod:`handeye.refine.robot_model`): :func:`pose_robot_residual` and :func:`pose_dh_factor`.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from typing import Optional
 import gtsam
 import numpy as np
 
-from handeye.frames import inv_T, se3_adjoint, se3_log, skew
+from handeye.frames import inv_T, se3_adjoint, se3_exp, se3_log, skew
 
 
 def se3_ad(xi: np.ndarray) -> np.ndarray:
@@ -99,3 +101,84 @@ def pose_factor(
         return r
 
     return gtsam.CustomFactor(noise, [key_x, key_board], error_func)
+
+
+def se3_right_jacobian(xi: np.ndarray) -> np.ndarray:
+    """(6,6) the right Jacobian of SE(3): ``Exp(xi + d) = Exp(xi) · Exp(Jr(xi) d)`` to first order."""
+    return np.linalg.inv(se3_right_jacobian_inverse(xi))
+
+
+def pose_robot_residual(
+    *,
+    T_x: np.ndarray,
+    T_base_end: np.ndarray,
+    u: np.ndarray,
+    T_board: np.ndarray,
+    T_cam_board_measured: np.ndarray,
+    inverts_robot: bool,
+    jacobians: bool = True,
+) -> tuple[np.ndarray, Optional[np.ndarray], Optional[np.ndarray], Optional[np.ndarray]]:
+    """Residual (6,) of one measured pose whose true flange pose is ``T_base_end · Exp(u)``, and its Jacobians.
+
+    (r, J_x, J_board, J_u), the Jacobians (6,6) in the right tangents of ``T_x``, ``T_board`` and in ``u``
+    (None without ``jacobians``). ``inverts_robot``: ``M = inv(T_base_end)`` (eye-in-hand), else
+    ``M = T_base_end``. A flange error ``w`` moves the chain as ``T_x · Exp(Ad(inv(T_x)) w)`` does
+    eye-in-hand (``inv(T_x) · Exp(-w) = Exp(-Ad(inv(T_x)) w) · inv(T_x)``) and as
+    ``T_board · Exp(Ad(inv(T_board)) w)`` eye-to-hand; ``d w = Jr(u) d u``.
+    """
+    u = np.asarray(u, float)
+    T_true = np.asarray(T_base_end, float) @ se3_exp(u)
+    M = inv_T(T_true) if inverts_robot else T_true
+    r, J_x, J_b = pose_residual(
+        T_x=T_x, M=M, T_board=T_board, T_cam_board_measured=T_cam_board_measured, jacobians=jacobians
+    )
+    if not jacobians:
+        return r, None, None, None
+    assert J_x is not None and J_b is not None, "pose_residual gives Jacobians when asked"
+    J_w = J_x @ se3_adjoint(inv_T(T_x)) if inverts_robot else J_b @ se3_adjoint(inv_T(T_board))
+    return r, J_x, J_b, J_w @ se3_right_jacobian(u)
+
+
+def pose_dh_factor(
+    *,
+    key_x: int,
+    key_board: int,
+    key_dh: int,
+    T_base_end: np.ndarray,
+    J_dh: np.ndarray,
+    inverts_robot: bool,
+    T_cam_board_measured: np.ndarray,
+    covariance: np.ndarray,
+    robust_k: Optional[float] = None,
+) -> gtsam.CustomFactor:
+    """A ``CustomFactor`` on (``T_x``, ``T_board``, the DH offsets) for one measured ``T_cam_board``.
+
+    The true flange pose is ``T_base_end · Exp(J_dh · delta)`` (``J_dh`` (6,m): the view's Jacobian of the
+    flange tangent in the arm's DH offsets ``delta``); ``covariance`` (6,6): the residual's, the tracker's
+    noise and the encoder noise through the chain together; ``robust_k`` as for :func:`pose_factor`.
+    """
+    T_be = np.array(T_base_end, float)
+    J_dh = np.array(J_dh, float)
+    C_meas = np.array(T_cam_board_measured, float)
+    noise: gtsam.noiseModel.Base = gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, float))
+    if robust_k is not None:
+        noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
+
+    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H: Optional[list[np.ndarray]]) -> np.ndarray:
+        r, J_x, J_b, J_u = pose_robot_residual(
+            T_x=v.atPose3(key_x).matrix(),
+            T_base_end=T_be,
+            u=J_dh @ np.asarray(v.atVector(key_dh), float),
+            T_board=v.atPose3(key_board).matrix(),
+            T_cam_board_measured=C_meas,
+            inverts_robot=inverts_robot,
+            jacobians=H is not None,
+        )
+        if H is not None:
+            assert J_x is not None and J_b is not None and J_u is not None, "asked for the Jacobians"
+            H[0] = np.asfortranarray(J_x)
+            H[1] = np.asfortranarray(J_b)
+            H[2] = np.asfortranarray(J_u @ J_dh)
+        return r
+
+    return gtsam.CustomFactor(noise, [key_x, key_board, key_dh], error_func)

@@ -88,17 +88,17 @@ def options_from_args(args):
 
 
 #: calibrate's flags that a pose-only session (views with target_pose) has no use for: flag -> why
+#: (``--robot`` applies: the arm's kinematic model enters the pose graph, handeye.refine.poseonly_robot)
 POSE_ONLY_REFUSED = {
-    "robot": (
-        "--robot",
-        "the arm's kinematic model enters the refinement of image sessions only (a pose-only session's noise is "
-        "the tracker's and the robot's together)",
+    "robot_noise": (
+        "--robot-noise",
+        "a pose-only session estimates one noise of the tracker and the robot together (with --robot, the "
+        "encoder noise is held at the arm's prior: poses alone cannot tell it from the tracker's)",
     ),
-    "robot_noise": ("--robot-noise", "a pose-only session estimates one noise of the tracker and the robot together"),
     "robot_sigma": (
         "--robot-sigma",
         "a pose-only session estimates one noise of the tracker and the robot together (state it as "
-        "tracker_sigma in session.yaml)",
+        "tracker_sigma in session.yaml; --robot models the arm's errors)",
     ),
     "fix": ("--fix", "a pose-only session has no camera intrinsics to hold"),
     "fix_k3": ("--fix-k3", "a pose-only session has no camera intrinsics to hold"),

@@ -103,8 +103,9 @@ def add_arguments(p) -> None:
         help=f"the arm's kinematic model (a preset: {', '.join(arm_presets())}; or a DH YAML file): "
         "the refinement models the robot's "
         "error as DH offsets plus encoder noise (joint angles from the session, else by inverse "
-        "kinematics of the poses); default: the session's robot: key, else an iid pose error; image sessions "
-        "only (pose-only sessions refuse it, as every flag they would ignore)",
+        "kinematics of the poses); default: the session's robot: key, else an iid pose error (pose-only "
+        "sessions: the DH offsets and the encoder noise enter the pose graph, the encoder noise held at the "
+        "arm's prior)",
     )
     inp.add_argument("--workers", type=positive_int, help="threads for corner detection (default: all cores)")
     rep.add_argument(

@@ -11,7 +11,7 @@ from ..mounting import mounting
 from ..records import Session, ViewOutcome, view_id_key
 from .gates import _mode_gate, _stated_source
 from .records import MIN_VIEWS, CalibrateOptions, CalibrationRun, Observation
-from .stages import _closed_forms, _final_outcomes, validate_pose_stage
+from .stages import _closed_forms, _final_outcomes, _joint_angles, session_arm, validate_pose_stage
 
 
 def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) -> CalibrationRun:
@@ -19,7 +19,8 @@ def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) ->
 
     The stages of a pose-only session: each view's ``T_cam_board`` is the tracker's (no detection,
     intrinsics or board poses to solve); the mode gate, the motion check and the closed forms as for
-    images; the refinement on pose factors (:func:`handeye.refine.poseonly.refine_poses`).
+    images; the refinement on pose factors (:func:`handeye.refine.poseonly.refine_poses`), with the arm's
+    kinematic model when ``--robot`` or session.yaml's ``robot:`` names one.
     """
     from ..initial import BoardPose
 
@@ -57,10 +58,13 @@ def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) ->
 
         progress("joint refinement on the tracker's poses (GTSAM)")
         t2 = time.perf_counter()
-        ro = {k: v for k, v in opts.refine_options.items() if k not in ("arm", "intrinsics", "fix")}
+        ro = {k: v for k, v in opts.refine_options.items() if k not in ("intrinsics", "fix")}
+        if ro.get("arm") is None:  # --robot, else session.yaml's robot: the arm's kinematic model
+            ro["arm"] = session_arm(s, opts)
+        pose_views = [PoseView(v, poses[v].T_cam_board, s.view(v).T_base_end, _joint_angles(s, v)) for v in ids]
         refined = refine_poses(
             mode=s.mode,
-            views=[PoseView(v, poses[v].T_cam_board, s.view(v).T_base_end) for v in ids],
+            views=pose_views,
             T_x0=start.T_x,
             T_board0=start.T_board,
             tracker_sigma=s.meta.get("tracker_sigma"),
@@ -78,7 +82,6 @@ def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) ->
         if opts.validate:
             progress("validation: refits without some views")
             t3 = time.perf_counter()
-            pose_views = [PoseView(v, poses[v].T_cam_board, s.view(v).T_base_end) for v in ids]
             state["validation"] = validate_pose_stage(refined, pose_views)
             seconds["validate"] = time.perf_counter() - t3
     state["outcomes"] = tuple(

@@ -1,8 +1,9 @@
 """Refinement of pose-only views, whose camera -> target poses come from an external tracker.
 
 ``T_cam_board_measured_i = inv(T_x) · M_i · T_board · Exp(-n_i)`` with the tracker's noise ``n_i``
-(:mod:`handeye.factors.pose`); the robot poses are taken as reported. The tracker's sigmas are the
-session's or estimated by variance components. Stages: the best closed-form start, a Huber solve,
+(:mod:`handeye.factors.pose`); the robot poses are taken as reported, or with a named arm corrected by its
+kinematic model (:mod:`.poseonly_robot`). The tracker's sigmas are the session's or estimated by variance
+components. Stages: the best closed-form start, a Huber solve,
 then the outlier loop with THE robot-pose test (:func:`.outliers.robot_pose_test`) until the set of
 views is stable; the covariance is the final solve's. The graph is :func:`.problem.solve_pose_graph`.
 
@@ -26,7 +27,8 @@ from ..records import HandEyeEstimate
 from .covariance import COV_PARAMETRISATION, hand_eye_uncertainty
 from .options import RefineOptions, check_T, refine_preset
 from .outliers import RobotPoseGates, RobotPoseTest, leave_one_out, robot_pose_outlier, robot_pose_test
-from .problem import solve_pose_graph
+from .poseonly_robot import PoseRobotModel, describe, pose_robot_model
+from .problem import solve_pose_dh_graph, solve_pose_graph
 from .refitting import Refit
 from .result import RefineResult
 
@@ -51,6 +53,7 @@ class PoseView:
     view_id: str
     T_cam_board: np.ndarray  # (4, 4)
     T_base_end: np.ndarray  # (4, 4)
+    joint_angles: Optional[np.ndarray] = None  # (n_joints,) the arm's joint readings (radians), when recorded
 
 
 class _NoIntrinsics:
@@ -74,6 +77,8 @@ class PoseRefineResult(RefineResult):
     tracker_sigma_source: str = ""  # stated | estimated
     tracker_sigma_resolved: dict[str, Any] = field(default_factory=dict)
     cov_board_6x6: Optional[np.ndarray] = None
+    pose_robot: Optional[PoseRobotModel] = None  # the arm's kinematic model (--robot), for the refits
+    dh_offset: Optional[np.ndarray] = None  # (m,) its DH offsets as estimated
 
     def to_dict(self) -> dict[str, Any]:
         no = _NoIntrinsics()
@@ -87,7 +92,12 @@ class PoseRefineResult(RefineResult):
             "resolved": dict(self.tracker_sigma_resolved),
             "model": "T_cam_board_measured = T_cam_board_true · Exp(n): rotation noise sigma_deg per axis, "
             "translation noise in the camera frame sigma_mm per axis across the optical axis (x, y) and "
-            "sigma_mm_along along it (z); robot poses taken as reported (their noise is part of it)",
+            "sigma_mm_along along it (z); "
+            + (
+                "robot poses through the arm's kinematic model (refinement.robot_model)"
+                if self.pose_robot is not None
+                else "robot poses taken as reported (their noise is part of it)"
+            ),
         }
         if self.cov_board_6x6 is not None:
             d["cov_board_6x6"] = self.cov_board_6x6.tolist()
@@ -103,6 +113,8 @@ class _State:
     sigma: np.ndarray  # (3,) rotation [rad], translation across and along the camera's optical axis [m]
     keep: np.ndarray  # (n,) bool
     iterations: int = 0
+    robot: Optional[PoseRobotModel] = None  # the arm's kinematic model (:mod:`.poseonly_robot`), or None
+    dh: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (m,) its DH offsets
 
     def groups(self) -> np.ndarray:
         """(3, n, 6, 6) each noise group's share ``Q_g`` of every view's residual covariance (unit variance).
@@ -120,8 +132,11 @@ class _State:
         return Q
 
     def covariances(self) -> np.ndarray:
-        """(n, 6, 6) every view's residual covariance at the current sigmas."""
-        return np.einsum("g,gnij->nij", self.sigma**2, self.groups())
+        """(n, 6, 6) every view's residual covariance at the current sigmas (and the encoders' share)."""
+        cov = np.einsum("g,gnij->nij", self.sigma**2, self.groups())
+        if self.robot is not None:
+            cov = cov + self.robot.covariances(self.T_x, self.T_board, self.C, self.dh)
+        return cov
 
     @overload
     def residuals(
@@ -143,6 +158,8 @@ class _State:
         """(r (n,6), J (n,6,12) or None) of every view at the current (or given) solution."""
         T_x = self.T_x if T_x is None else T_x
         T_board = self.T_board if T_board is None else T_board
+        if self.robot is not None:  # J (n,6,12+m): the DH offsets' columns last
+            return self.robot.residuals(T_x, T_board, self.C, self.dh, jacobians=jacobians)[:2]
         out = [
             pose_residual(T_x=T_x, M=M, T_board=T_board, T_cam_board_measured=C, jacobians=jacobians)
             for M, C in zip(self.M, self.C, strict=False)
@@ -184,6 +201,8 @@ def _information(st: _State, J: np.ndarray, prior_x: Optional[tuple[np.ndarray, 
     H = np.einsum("nki,nkl,nlj->ij", J[st.keep], st.W()[st.keep], J[st.keep])
     if prior_x is not None:
         H[:6, :6] += np.linalg.inv(prior_x[1])
+    if st.robot is not None and st.robot.m:
+        H[12:, 12:] += st.robot.prior_information()
     return H
 
 
@@ -198,6 +217,23 @@ def _solve(
     st: _State, *, robust_k: Optional[float], prior_x: Optional[tuple[np.ndarray, np.ndarray]], max_iterations: int
 ) -> None:
     k = np.flatnonzero(st.keep)
+    if st.robot is not None and st.robot.m:
+        st.T_x, st.T_board, st.dh, it = solve_pose_dh_graph(
+            T_base_end=st.robot.T_base_end[k],
+            J_dh=st.robot.km.J_dh[k],
+            inverts_robot=st.robot.inverts_robot,
+            T_cam_board=st.C[k],
+            covariances=st.covariances()[k],
+            T_x0=st.T_x,
+            T_board0=st.T_board,
+            dh0=st.dh,
+            dh_prior=st.robot.dh_prior,
+            robust_k=robust_k,
+            prior_x=prior_x,
+            max_iterations=max_iterations,
+        )
+        st.iterations += it
+        return
     st.T_x, st.T_board, it = solve_pose_graph(
         M=st.M[k],
         T_cam_board=st.C[k],
@@ -334,7 +370,9 @@ def refine_poses(
     cfg = refine_preset()["noise"]
     floors = np.array([float(cfg["robot_sigma_rot_floor_rad"])] + [float(cfg["robot_sigma_trans_floor_m"])] * 2)
     estimate = tracker_sigma is None
-    st = _State(M, C, T_x0.copy(), T_board0.copy(), np.ones(3), np.ones(len(views), bool))
+    robot = pose_robot_model(options, mode, views)  # a named arm: its kinematic model; else None
+    st = _State(M, C, T_x0.copy(), T_board0.copy(), np.ones(3), np.ones(len(views), bool), robot=robot)
+    st.dh = np.zeros(robot.m if robot is not None else 0)
     prior_x = _prior_x(options)
     if tracker_sigma is None:
         st.sigma = _robust_sigmas(C, st.residuals()[0], floors)
@@ -428,6 +466,9 @@ def refine_poses(
                 )
         per_view[vid] = pv
     nan = float("nan")
+    ok = status == "ok" and S is not None
+    robot_mm, robot_deg = robot.equivalent_sigmas() if robot is not None else (0.0, 0.0)
+    T_base_end_reported = np.stack([np.asarray(v.T_base_end, float) for v in views])  # the robot poses as reported
     return PoseRefineResult(
         status=status,
         failure_reason=reason,
@@ -440,7 +481,7 @@ def refine_poses(
         T_x_seed=T_x_seed,
         T_board_seed=T_board_seed,
         intrinsics_seed=None,  # type: ignore[arg-type]  # a pose-only result has no intrinsics
-        robot_poses={vid: np.asarray(v.T_base_end, float).copy() for vid, v in zip(ids, views, strict=False)},
+        robot_poses=dict(zip(ids, T_base_end_reported if robot is None else robot.flange_poses(st.dh), strict=True)),
         cov_x_6x6=unc.cov_x_6x6,
         cov_parametrisation=COV_PARAMETRISATION,
         sigma_rot_deg=unc.sigma_rot_deg,
@@ -451,8 +492,8 @@ def refine_poses(
         predicted_error_mm=unc.predicted_error_mm,
         predicted_error_axes_mm=unc.predicted_error_axes_mm,
         sigma_px=nan,
-        robot_sigma_mm=0.0,
-        robot_sigma_deg=0.0,
+        robot_sigma_mm=robot_mm,
+        robot_sigma_deg=robot_deg,
         robot_sigma_resolved={},
         rms_px_before=nan,
         rms_px_after=nan,
@@ -461,18 +502,24 @@ def refine_poses(
         iterations=st.iterations,
         seconds=time.perf_counter() - t0,
         start_method=start_method,
-        options=replace(options, robot_noise="none"),
-        robot_model={
-            "kind": "none",
-            "description": "reported robot poses taken as exact (pose-only views: the robot's "
-            "noise is part of the tracker's)",
-        },
+        options=replace(options, robot_noise="none" if robot is None else "fixed"),
+        robot_model=(
+            {
+                "kind": "none",
+                "description": "reported robot poses taken as exact (pose-only views: the robot's "
+                "noise is part of the tracker's)",
+            }
+            if robot is None
+            else describe(robot, st.dh, S[12:, 12:] if ok and S is not None else None, estimate)
+        ),
         tracker_sigma_deg=float(np.degrees(st.sigma[0])),
         tracker_sigma_mm=float(1000.0 * st.sigma[1]),
         tracker_sigma_along_mm=float(1000.0 * st.sigma[2]),
         tracker_sigma_source="estimated" if estimate else "stated",
         tracker_sigma_resolved=resolved,
-        cov_board_6x6=None if status != "ok" or S is None else S[6:, 6:].copy(),
+        cov_board_6x6=S[6:12, 6:12].copy() if ok and S is not None else None,
+        pose_robot=robot,
+        dh_offset=None if robot is None else st.dh.copy(),
     )
 
 
@@ -497,6 +544,9 @@ def refit_poses(result: PoseRefineResult, views: Sequence[PoseView], covariance:
     sigma = np.array([np.radians(result.tracker_sigma_deg), result.tracker_sigma_mm / 1000.0, along / 1000.0])
     prior_x = _prior_x(result.options)
     st = _State(M, C, result.T_x.copy(), result.T_board.copy(), sigma, np.ones(len(kept), bool))
+    if result.pose_robot is not None:  # the same arm model, its DH offsets from the full solution
+        st.robot = result.pose_robot.subset([v.view_id for v in kept])
+        st.dh = np.zeros(st.robot.m) if result.dh_offset is None else result.dh_offset.copy()
     try:
         _solve(st, robust_k=None, prior_x=prior_x, max_iterations=result.options.max_iterations)
         cov_x = None

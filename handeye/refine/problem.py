@@ -318,3 +318,55 @@ def solve_pose_graph(
     opt = gtsam.LevenbergMarquardtOptimizer(g, v, lm_params(max_iterations))
     res = opt.optimize()
     return res.atPose3(KEY_X).matrix(), res.atPose3(KEY_BOARD).matrix(), int(opt.iterations())
+
+
+def solve_pose_dh_graph(
+    *,
+    T_base_end: np.ndarray,
+    J_dh: np.ndarray,
+    inverts_robot: bool,
+    T_cam_board: np.ndarray,
+    covariances: np.ndarray,
+    T_x0: np.ndarray,
+    T_board0: np.ndarray,
+    dh0: np.ndarray,
+    dh_prior: tuple[np.ndarray, np.ndarray],
+    robust_k: Optional[float] = None,
+    prior_x: Optional[tuple[np.ndarray, np.ndarray]] = None,
+    max_iterations: int = 100,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Levenberg-Marquardt on ``T_x``, ``T_board`` and an arm's DH offsets from measured camera -> target poses.
+
+    As :func:`solve_pose_graph`, with each view's true flange pose ``T_base_end_i · Exp(J_dh_i · delta)``
+    (``T_base_end`` (n,4,4) the reported poses, ``J_dh`` (n,6,m), :mod:`handeye.refine.robot_model`) and
+    ``delta`` under its Gaussian prior ``dh_prior`` (mean (m,), covariance (m,m)); ``covariances`` (n,6,6)
+    hold the tracker's and the encoders' noise. Returns (T_x, T_board, delta, iterations).
+    """
+    from handeye.factors.pose import pose_dh_factor
+
+    g = gtsam.NonlinearFactorGraph()
+    v = gtsam.Values()
+    v.insert(KEY_X, gtsam.Pose3(np.asarray(T_x0, float)))
+    v.insert(KEY_BOARD, gtsam.Pose3(np.asarray(T_board0, float)))
+    v.insert(KEY_DH, np.asarray(dh0, float).copy())
+    for T_be, Jd, Ci, Si in zip(T_base_end, J_dh, T_cam_board, covariances, strict=True):
+        g.add(
+            pose_dh_factor(
+                key_x=KEY_X,
+                key_board=KEY_BOARD,
+                key_dh=KEY_DH,
+                T_base_end=T_be,
+                J_dh=Jd,
+                inverts_robot=inverts_robot,
+                T_cam_board_measured=Ci,
+                covariance=Si,
+                robust_k=robust_k,
+            )
+        )
+    g.add(gaussian_prior(key=KEY_DH, mean=dh_prior[0], cov=dh_prior[1]))
+    if prior_x is not None:
+        g.add(gaussian_prior(key=KEY_X, mean=prior_x[0], cov=prior_x[1]))
+    opt = gtsam.LevenbergMarquardtOptimizer(g, v, lm_params(max_iterations))
+    res = opt.optimize()
+    dh = np.asarray(res.atVector(KEY_DH), float).copy()
+    return res.atPose3(KEY_X).matrix(), res.atPose3(KEY_BOARD).matrix(), dh, int(opt.iterations())

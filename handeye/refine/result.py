@@ -9,12 +9,11 @@ from typing import TYPE_CHECKING, Any, Optional
 import numpy as np
 
 from ..camera import INTRINSIC_NAMES, Intrinsics
-from ..kinematics import chain_to_dict
 from ..mounting import mounting
 from ..output import plain
 from .covariance import COV_BOARD_PARAMETRISATION, COV_PARAMETRISATION, N_POSES, hand_eye_uncertainty
 from .options import RefineOptions
-from .robot_model import describe_dh
+from .robot_model import describe_dh, kinematic_model_dict
 
 if TYPE_CHECKING:
     from .outliers import Decision
@@ -164,33 +163,13 @@ def robot_model_dict(pb: "Problem", S_cc: Optional[np.ndarray]) -> dict[str, Any
             "resolved": dict(pb.resolved) if estimated else {},
         }
     km = pb.kin
-    d: dict[str, Any] = {
-        "kind": km.kind,
-        "arm": km.arm.name,
-        "dh_convention": km.arm.convention,
-        "dh_table": chain_to_dict(km.arm),
-        "description": (
-            "true pose = reported · Exp(J_dh · dh_offset + J_q · encoder_error): shared DH offsets "
-            "(estimated with T_x where the views resolve them, held by their prior otherwise) and "
-            "encoder noise per joint and view"
-            if km.kind == "kinematic"
-            else "true pose = reported · Exp(J_q · encoder_error): encoder noise per joint and view"
-        ),
-        "encoder_sigma_deg": float(np.degrees(pb.sigma_q)),
-        "encoder_sigma_resolved": bool(pb.resolved.get("joint", True)) if estimated else None,
-        "joint_angles": (
-            "recorded"
-            if all(s == "recorded" for s in km.joints_source)
-            else "inverse kinematics of the reported poses"
-            if all(s != "recorded" for s in km.joints_source)
-            else "recorded, inverse kinematics for views without them"
-        ),
-        "joint_angles_rad": {vid: km.joints[i] for i, vid in enumerate(pb.ids)},
-        "tool_offset_T_flange_reported": km.T_tool,
-        "tool_offset_spread_deg_mm": list(km.tool_spread),
-        "joints_disagree_view_ids": list(km.joints_disagree),
-        "estimated": (["dh_offset"] if km.m else []) + (["encoder_sigma_deg"] if estimated else []),
-    }
+    d = kinematic_model_dict(
+        km,
+        ids=pb.ids,
+        encoder_sigma_rad=pb.sigma_q,
+        encoder_estimated=estimated,
+        encoder_resolved=bool(pb.resolved.get("joint", True)) if estimated else None,
+    )
     if km.m:
         S_dd = pb.S_dd if S_cc is None else S_cc[pb.dh_slice, pb.dh_slice]
         d.update(

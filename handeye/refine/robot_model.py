@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import ConfigError, InputError
 from ..frames import inv_T, mean_T, se3_adjoint, tangent_difference
-from ..kinematics import PARAMETER_NAMES, PRESETS, DHChain, default_ik_seeds, load_arm, solve_ik
+from ..kinematics import PARAMETER_NAMES, PRESETS, DHChain, chain_to_dict, default_ik_seeds, load_arm, solve_ik
 from .options import RefineOptions, RefineView, refine_preset
 
 LENGTH_PARAMETERS = (0, 2)  # a, d in a DH row (a, alpha, d, theta_offset); the others are angles
@@ -182,6 +182,48 @@ def build_kinematic_model(
         tool_spread=(rot_deg, trans_mm),
         joints_disagree=disagree,
     )
+
+
+def kinematic_model_dict(
+    km: KinematicRobotModel,
+    *,
+    ids: Sequence[str],
+    encoder_sigma_rad: float,
+    encoder_estimated: bool,
+    encoder_resolved: Optional[bool],
+) -> dict[str, Any]:
+    """JSON-ready description of a kinematic / joint_space model (``ids``: its views' ids, in its order).
+
+    Kind, arm and DH table, the model's formula, the encoder noise, where the joint angles came from, the
+    tool offset and what was estimated; the DH offsets' estimate is :func:`describe_dh`'s.
+    """
+    return {
+        "kind": km.kind,
+        "arm": km.arm.name,
+        "dh_convention": km.arm.convention,
+        "dh_table": chain_to_dict(km.arm),
+        "description": (
+            "true pose = reported · Exp(J_dh · dh_offset + J_q · encoder_error): shared DH offsets "
+            "(estimated with T_x where the views resolve them, held by their prior otherwise) and "
+            "encoder noise per joint and view"
+            if km.kind == "kinematic"
+            else "true pose = reported · Exp(J_q · encoder_error): encoder noise per joint and view"
+        ),
+        "encoder_sigma_deg": float(np.degrees(encoder_sigma_rad)),
+        "encoder_sigma_resolved": encoder_resolved,
+        "joint_angles": (
+            "recorded"
+            if all(s == "recorded" for s in km.joints_source)
+            else "inverse kinematics of the reported poses"
+            if all(s != "recorded" for s in km.joints_source)
+            else "recorded, inverse kinematics for views without them"
+        ),
+        "joint_angles_rad": {vid: km.joints[i] for i, vid in enumerate(ids)},
+        "tool_offset_T_flange_reported": km.T_tool,
+        "tool_offset_spread_deg_mm": list(km.tool_spread),
+        "joints_disagree_view_ids": list(km.joints_disagree),
+        "estimated": (["dh_offset"] if km.m else []) + (["encoder_sigma_deg"] if encoder_estimated else []),
+    }
 
 
 def describe_dh(

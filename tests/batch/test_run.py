@@ -93,18 +93,35 @@ def test_sessions_share_a_session_process_and_a_crash_takes_only_its_own(tmp_pat
     assert "about to crash" not in log, "each session's log holds its own lines only"
 
 
-def test_a_fleet_wide_robot_flag_is_refused_for_a_pose_only_session(tmp_path):
-    """``batch --robot ARM`` over a pose-only session: its row names the flag that does not apply, as
+def test_a_fleet_wide_robot_noise_flag_is_refused_for_a_pose_only_session(tmp_path):
+    """``batch --robot-noise fixed`` over a pose-only session: its row names the flag that does not apply, as
     ``handeye calibrate`` does, instead of ignoring it."""
     from handeye.batch import child
     from handeye.sim.poses import make_tracker_session
 
     root, out = tmp_path / "root", tmp_path / "out"
     make_tracker_session(n_views=8, seed=3).write(root / "cell" / "tracker")
-    argv = ["batch", str(root), "--out", str(out), "--robot", "ur5e", "--no-report"]
+    argv = ["batch", str(root), "--out", str(out), "--robot-noise", "fixed", "--no-report"]
     calibrate = calibrate_options(build_parser().parse_args(argv))
     (spec,) = plan_batch(discover(root), out, calibrate=calibrate).specs
     reply = child.run(spec)
     assert reply["outcome"] == "error" and reply["exit_code"] == 2
-    assert "--robot does not apply to a pose-only session" in reply["reason"]
+    assert "--robot-noise does not apply to a pose-only session" in reply["reason"]
     assert not (out / "cell" / "tracker" / "result.json").exists()
+
+
+def test_a_fleet_wide_robot_flag_models_the_arm_of_a_pose_only_session(tmp_path):
+    """``batch --robot ARM`` over a pose-only session: the arm's kinematic model enters its pose graph."""
+    from handeye.batch import child
+    from handeye.sim.arm_tracker import make_arm_tracker_session
+
+    root, out = tmp_path / "root", tmp_path / "out"
+    make_arm_tracker_session(arm="ur5e", n_views=12, seed=3).write(root / "cell" / "tracker", state_sigma=False)
+    argv = ["batch", str(root), "--out", str(out), "--robot", "ur5e", "--no-report"]
+    calibrate = calibrate_options(build_parser().parse_args(argv))
+    (spec,) = plan_batch(discover(root), out, calibrate=calibrate).specs
+    reply = child.run(spec)
+    assert reply["outcome"] == "done", reply
+    res = json.loads((out / "cell" / "tracker" / "result.json").read_text())
+    assert res["refinement"]["robot_model"]["kind"] == "kinematic"
+    assert res["refinement"]["robot_model"]["arm"] == "Universal Robots UR5e"

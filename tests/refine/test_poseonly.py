@@ -231,14 +231,13 @@ def test_bad_easy_handeye2_samples_are_one_line_errors(tmp_path, edit, mode, mes
 @pytest.mark.parametrize(
     "flags, named",
     [
-        (["--robot", "rm65"], "kinematic model enters the refinement of image sessions only"),
         (["--robot-noise", "fixed"], "one noise of the tracker and the robot"),
         (["--robot-sigma", "0.2", "0.05"], "tracker_sigma in session.yaml"),
         (["--fix", "k3"], "no camera intrinsics"),
         (["--fix-k3"], "no camera intrinsics"),
         (["--shift-poses", "1"], "holds its tracker pose and its robot pose"),
         (["--prior", "earlier"], "works on detected corners"),
-        (["--robot", "rm65", "--fix-k3"], "--robot: the arm's"),
+        (["--robot-noise", "fixed", "--fix-k3"], "--robot-noise: a pose-only session"),
     ],
 )
 def test_calibrate_flags_a_pose_only_session_would_ignore_are_refused(tmp_path, capsys, flags, named):

@@ -157,6 +157,20 @@ def _kinematic_items(rm: dict) -> list:
     bad = rm.get("joints_disagree_view_ids") or []
     if bad:
         items.append({"name": "joints disagree with the pose", "value": ", ".join(str(v) for v in bad)})
+    po = rm.get("pose_only")
+    if isinstance(po, dict):  # a tracker session: what its poses cannot tell apart
+        held = po.get("dh_held_by_prior") or []
+        text = (
+            "the encoder noise is held at the arm's stated sigma (a tracker's pose carries it and the tracker's "
+            "noise together; poses alone cannot tell them apart)"
+        )
+        if isinstance(held, list) and "dh_resolved" in po:
+            n = len(held) + len(po.get("dh_resolved") or [])
+            text += (
+                f"; {len(held)} of {n} DH offsets stay near their prior (they act as a change of the base, the "
+                "tool, X or the target does): their uncertainty is in X's covariance"
+            )
+        items.append({"name": "from poses alone", "value": text})
     return items
 
 
