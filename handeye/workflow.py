@@ -208,12 +208,13 @@ def _calibrate_locked(
     _keep_previous(out_dir, failed=run.status != "ok")
     write_thumbnails(out_dir, {**run.failures, **run.detections})
     obs_text = to_json({**observations_dict(run), "run_id": run_id}, indent=None)
-    check_written(json.loads(obs_text), Observations, str(out_dir / "observations.json"))
+    observations = json.loads(obs_text)  # parsed once: checked, then judged as a reader sees it
+    check_written(observations, Observations, str(out_dir / "observations.json"))
     atomic_write_text(out_dir / "observations.json", obs_text + "\n")
     return _finish(
         out_dir,
         res,
-        json.loads(obs_text),
+        observations,
         seconds,
         report=report,
         qa=qa,
