@@ -1,13 +1,15 @@
 """Time of every stage against the number of views: does `handeye calibrate --no-report` stay near-linear?
 
-Sessions of 20, 100 and 300 views (and 100 views of which 8 have a gross robot pose error) are
-calibrated by handeye.workflow.calibrate_session without the report (what `handeye calibrate SESSION
+Sessions of 20, 50, 100, 200, 300 and 500 views (and 100 views of which 8 have a gross robot pose error)
+are calibrated by handeye.workflow.calibrate_session without the report (what `handeye calibrate SESSION
 --no-report` runs), with the calibration preset; the per-stage `seconds` of result.json are printed
-with the ratio of the whole run (load to verdict) to the calibration stage alone.
-Target on 2 cores: the ratio under 2 at 300 rendered views. Prints figures; asserts nothing.
+with the ratio of the whole run (load to verdict) to the calibration stage alone, then the growth from
+the smallest to the largest session: wall and CPU per view and the local exponent of the CPU time
+(1: linear, 2: quadratic) between successive sizes. Targets on 2 cores: the ratio under 2 and the whole
+command under 10 s wall at 300 rendered views. Prints figures; asserts nothing.
 
-    python benchmarks/bench_scale_views.py [--kind rendered|corners] [--views 20,100,300] [--outliers 100:8]
-                                           [--keep DIR] [--profile] [--seed 3]
+    python benchmarks/bench_scale_views.py [--kind rendered|corners] [--views 20,50,100,200,300,500]
+                                           [--outliers 100:8] [--keep DIR] [--profile] [--seed 3]
 
 ``--kind rendered`` (default) renders 1280x720 vendor sessions (handeye.sim.vendor.write_vendor_session:
 image noise 1 grey level, robot noise 0.3 mm / 0.05 deg per axis); ``--keep DIR`` keeps them there and
@@ -167,7 +169,7 @@ def _top(prof) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--kind", choices=("rendered", "corners"), default="rendered")
-    ap.add_argument("--views", default="20,100,300", help="comma-separated view counts (clean sessions)")
+    ap.add_argument("--views", default="20,50,100,200,300,500", help="comma-separated view counts (clean sessions)")
     ap.add_argument("--outliers", default="100:8", help="VIEWS:OUTLIERS sessions, comma-separated ('' for none)")
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--keep", type=Path, default=None, help="folder for the rendered sessions (reused)")
@@ -188,6 +190,7 @@ def main(argv=None) -> int:
         "ratio = (total without the report) / calibrate, of the wall time and of this process's CPU time (all "
         "threads; steadier on a busy machine); target < 2"
     )
+    growth: list[tuple[int, float, float, dict]] = []
     with tempfile.TemporaryDirectory() as tmp:
         root = a.keep or Path(tmp)
         for n_views, n_out in cases:
@@ -205,10 +208,42 @@ def main(argv=None) -> int:
                 f"{cpu['total'] / max(cpu['calibrate'], 1e-9):4.2f}; fail/warn findings: {codes or 'none'}"
             )
             print("    stages, wall [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in seconds.items()))
+            if not n_out:
+                growth.append((n_views, seconds["total"], cpu["total"], seconds))
             if top:
                 print(top)
             sys.stdout.flush()
+    print_growth(sorted(growth))
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"load average at the end {load:.1f}")
     return 0
+
+
+def print_growth(rows: list[tuple[int, float, float, dict]]) -> None:
+    """Wall and CPU per view of the clean sessions, and the local exponent of the CPU time between sizes."""
+    import math
+
+    if len(rows) < 2:
+        return
+    stages = [k for k in rows[-1][3] if k not in ("total", "calibrate")]
+    print(f"\ngrowth {rows[0][0]} -> {rows[-1][0]} views (no report; exponent: d log CPU / d log views)")
+    print(
+        f"{'views':>5} {'wall [s]':>9} {'CPU [s]':>8} {'CPU/view [ms]':>13} {'exponent':>8}  "
+        + " ".join(f"{k:>11}" for k in stages)
+    )
+    prev = None
+    for n, wall, cpu, sec in rows:
+        exp = f"{math.log(cpu / prev[1]) / math.log(n / prev[0]):8.2f}" if prev else f"{'':>8}"
+        print(
+            f"{n:5d} {wall:9.2f} {cpu:8.2f} {1e3 * cpu / n:13.1f} {exp}  "
+            + " ".join(f"{sec.get(k, 0.0):11.2f}" for k in stages)
+        )
+        prev = (n, cpu)
+    (n0, w0, c0, _), (n1, w1, c1, _) = rows[0], rows[-1]
+    print(
+        f"{n0} -> {n1} views: wall x{w1 / w0:.1f}, CPU x{c1 / c0:.1f} for x{n1 / n0:.1f} the views "
+        "(stage columns: wall [s])"
+    )
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ from ..mounting import mounting
 from ..session.raw import RawPoses
 from .findings import Finding, ids_text
 from .fits import BoardFit, fit_boards
-from .geometry import all_pairs, pair_invariants, summarize_invariants
+from .geometry import all_pairs, camera_pairs, pair_invariants, pair_motions, summarize_invariants
 from .observations import PoseObservations
 from .thresholds import thresholds
 
@@ -196,6 +196,7 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
     }
     keep |= set(ranked[:2]) | {replace(fmt0)}
     out = []
+    cameras: dict = {}  # id of a C in ``ordered`` (kept alive there) -> its camera_pairs
     for fmt, changes in alts:
         key = replace(fmt, translation_unit=fmt0.translation_unit)
         if key not in keep or key not in ordered:
@@ -204,10 +205,14 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
         if T is None:
             continue
         C, lab = ordered[key]
-        s = summarize_invariants(pair_invariants(C, obs.M(T)))  # the same for inverted motions
+        if id(C) not in cameras:  # the camera side of the pairs is one for every reading of the same C
+            cameras[id(C)] = camera_pairs(C)
+        cam = cameras[id(C)]
+        s = summarize_invariants(pair_invariants(C, obs.M(T), camera=cam))  # the same for inverted motions
         for invert in (False, True):
+            M = obs.M(T, invert=invert)
             try:
-                fit = fit_boards(C, obs.M(T, invert=invert))
+                fit = fit_boards(C, M, motions=pair_motions(C, M, camera=cam))
             except np.linalg.LinAlgError:
                 continue
             out.append(
