@@ -8,11 +8,13 @@ all threads): the interpreter start-up, ``import handeye.cli`` and the command's
 the named stages and the interpreter's shut-down. The load average is printed before and after.
 Asserts nothing.
 
-    python benchmarks/bench_vs_opencv.py [--views 20] [--rounds 5] [--session FOLDER ...]
+    python benchmarks/bench_vs_opencv.py [--views 20] [--rounds 5] [--session FOLDER ...] [--before DIR]
 
 Without ``--session``: a rendered 1280x720 vendor session of ``--views`` views
 (:func:`handeye.sim.vendor.write_vendor_session`, seed 1). ``--session`` may be given several times
-(e.g. the shared real sets); each is measured on its own.
+(e.g. the shared real sets); each is measured on its own. ``--before DIR``: a checkout of handeye before a
+change (e.g. ``git archive HEAD~3 | tar -x -C DIR``); its two calibrate commands run in the same
+interleaved rounds (with ``PYTHONPATH=DIR``), so the before/after figures share the machine's load.
 """
 
 from __future__ import annotations
@@ -31,11 +33,11 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 
 
-def run(cmd: list[str]) -> tuple[float, float, float]:
+def run(cmd: list[str], env: dict | None = None) -> tuple[float, float, float]:
     """(wall, CPU, end time) of one command in a fresh process."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=False, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    subprocess.run(cmd, check=False, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
     end = time.time()
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -80,6 +82,7 @@ def main() -> None:
     ap.add_argument("--views", type=int, default=20)
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--session", type=Path, action="append", help="a vendor session folder (default: a rendered one)")
+    ap.add_argument("--before", type=Path, help="a checkout of handeye before a change, measured in the same rounds")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="bench_vs_opencv_"))
     sessions = args.session
@@ -88,10 +91,10 @@ def main() -> None:
 
         sessions = [write_vendor_session(tmp / "session", n_views=args.views, seed=1)]
     for session in sessions:
-        measure(Path(session), tmp, args.rounds)
+        measure(Path(session), tmp, args.rounds, before=args.before)
 
 
-def measure(session: Path, tmp: Path, rounds: int) -> None:
+def measure(session: Path, tmp: Path, rounds: int, *, before: Path | None = None) -> None:
     py = sys.executable
     timed = [py, str(HERE / "timed_cli.py")]
     commands = {
@@ -105,6 +108,21 @@ def measure(session: Path, tmp: Path, rounds: int) -> None:
         "import handeye.cli": [py, "-c", "import handeye.cli"],
         "python -c pass": [py, "-c", "pass"],
     }  # fmt: skip
+    env: dict = {}
+    if before is not None:
+        for label, flags, out in (("(both reports)", [], "rb"), ("--no-report", ["--no-report"], "nb")):
+            key = f"before: calibrate {label}"
+            commands[key] = [
+                *timed,
+                str(tmp / f"{out}.json"),
+                "-q",
+                "calibrate",
+                str(session),
+                "--out",
+                str(tmp / out),
+                *flags,
+            ]
+            env[key] = {**os.environ, "PYTHONPATH": str(before.resolve())}
     n_images = len(list(session.glob("*.jpg"))) + len(list(session.glob("*.png")))
     print(
         f"\nsession {session} ({n_images} images), {rounds} interleaved rounds, "
@@ -114,7 +132,7 @@ def measure(session: Path, tmp: Path, rounds: int) -> None:
     records: dict = {}
     for _ in range(rounds):
         for name, cmd in commands.items():
-            wall, cpu, end = run(cmd)
+            wall, cpu, end = run(cmd, env.get(name))
             times[name].append((wall, cpu))
             if cmd[:2] == timed:
                 rec = json.loads(Path(cmd[2]).read_text())
@@ -123,11 +141,11 @@ def measure(session: Path, tmp: Path, rounds: int) -> None:
                 records.setdefault(name, []).append(rec)
     bare = statistics.median(w for w, _ in times["bare OpenCV script"])
     bare_cpu = statistics.median(c for _, c in times["bare OpenCV script"])
-    print(f"\n{'command':28s} {'wall [s]':>9s} {'CPU [s]':>8s} {'ratio':>6s} {'CPU ratio':>9s}  target")
+    print(f"\n{'command':36s} {'wall [s]':>9s} {'CPU [s]':>8s} {'ratio':>6s} {'CPU ratio':>9s}  target")
     targets = {"calibrate (both reports)": "2.5x", "calibrate --no-report": "1.5x"}
     for name, tc in times.items():
         wall, cpu = statistics.median(w for w, _ in tc), statistics.median(c for _, c in tc)
-        print(f"{name:28s} {wall:9.2f} {cpu:8.2f} {wall / bare:6.2f}x {cpu / bare_cpu:8.2f}x  {targets.get(name, '')}")
+        print(f"{name:36s} {wall:9.2f} {cpu:8.2f} {wall / bare:6.2f}x {cpu / bare_cpu:8.2f}x  {targets.get(name, '')}")
     print(f"load average after the rounds {os.getloadavg()[0]:.1f}")
     for name, recs in records.items():
         breakdown(name, recs)
