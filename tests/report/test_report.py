@@ -830,6 +830,23 @@ def test_calibrate_without_a_report_loads_no_drawing_and_no_scipy_spatial_or_sta
     assert not (out / "report.html").exists()
 
 
+def test_figures_drawn_in_two_processes_are_the_same_pngs(synthetic, monkeypatch):
+    """The report's six figures drawn by this process and a forked child are byte for byte the ones drawn here."""
+    import sys
+
+    from handeye.report import build_report_context, figures
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the forked drawing is Linux only")
+    ctx = build_report_context(synthetic["out"], make_plots=False)
+    monkeypatch.setattr(figures, "_parallel", lambda: True)
+    two = figures.report_figures(**ctx["figure_inputs"])
+    monkeypatch.setattr(figures, "_parallel", lambda: False)
+    one = figures.report_figures(**ctx["figure_inputs"])
+    assert [p.key for p in two] == ["residuals", "per_view", "coverage", "poses", "rotations", "uncertainty"]
+    assert [(p.key, p.title, p.caption, p.png) for p in two] == [(p.key, p.title, p.caption, p.png) for p in one]
+
+
 def test_pose_figure_draws_both_mounting_modes():
     """The pose figure for a moving camera (eye-in-hand) and a moving board (eye-to-hand), flagged views
     included: a PNG of the figure's size (8.6 x 3.9 in at 100 dpi)."""
