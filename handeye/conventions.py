@@ -113,12 +113,13 @@ def R_from_euler(angles, *, order: str, intrinsic: bool, degrees: bool = False) 
     """
     a = np.asarray(angles, float)
     a = np.radians(a) if degrees else a
-    q = None
+    q: np.ndarray | None = None
     for k, axis in enumerate(order.lower()):
         e = np.zeros((*a.shape[:-1], 4))
         e[..., 0] = np.cos(a[..., k] / 2.0)
         e[..., 1 + _AXIS_INDEX[axis]] = np.sin(a[..., k] / 2.0)
         q = e if q is None else (_quat_product(q, e) if intrinsic else _quat_product(e, q))
+    assert q is not None, "an order has three axes"
     return R_from_quat_wxyz(q)
 
 

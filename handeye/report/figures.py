@@ -212,7 +212,7 @@ def report_figures(
             )
     with style():
         pngs = draw_figures({key: draw for key, _, _, draw in jobs})
-    return [Plot(key, title, caption, pngs[key]) for key, title, caption, _ in jobs if pngs.get(key) is not None]
+    return [Plot(key, title, caption, png) for key, title, caption, _ in jobs if (png := pngs.get(key)) is not None]
 
 
 def _draw(key: str, draw: Callable[[], bytes]) -> Optional[bytes]:
