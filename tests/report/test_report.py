@@ -1241,6 +1241,7 @@ def test_each_figure_gets_its_own_qa_limits(synthetic, tmp_path, monkeypatch):
     from handeye.report import build_report_context
     from handeye.report.qa import load_qa
 
+    monkeypatch.setenv("HANDEYE_FIGURE_PROCESSES", "1")  # the spies record in this process
     got = {}
     for name in ("per_view_bars", "rotation_coverage"):
         real = getattr(plots, name)
