@@ -13,6 +13,7 @@ import logging
 import os
 import pickle
 import sys
+import warnings
 from dataclasses import dataclass
 from typing import Callable, Optional
 
@@ -258,7 +259,11 @@ def _fork_drawing(draws: dict[str, Callable[[], bytes]]) -> Optional[tuple[int, 
     except OSError:
         return None
     try:
-        pid = os.fork()
+        with warnings.catch_warnings():
+            # Python 3.12+ warns of a fork in a process with threads (OpenCV's and the BLAS's idle pools here):
+            # the child only draws with matplotlib, PIL and numpy, and a child that fails is redrawn here
+            warnings.filterwarnings("ignore", category=DeprecationWarning, message=".*fork.*")
+            pid = os.fork()
     except OSError as e:
         log.debug("report: figures drawn in one process (fork: %s)", e)
         os.close(r)
