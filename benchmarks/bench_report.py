@@ -59,7 +59,8 @@ print(json.dumps({"wall": time.perf_counter() - t, "cpu": cpu() - c,
 """
 
 _PER_FIGURE = r"""
-import json, sys, time
+import json, os, sys, time
+os.environ["HANDEYE_FIGURE_PROCESSES"] = "1"  # every figure drawn, and timed, in this process
 import handeye.report.plots as P
 times = {}
 for name in ("residual_histogram", "per_view_bars", "image_coverage", "poses_3d", "rotation_coverage",

@@ -1,13 +1,15 @@
 """Time of every stage against the number of views: does `handeye calibrate --no-report` stay near-linear?
 
-Sessions of 20, 100 and 300 views (and 100 views of which 8 have a gross robot pose error) are
-calibrated by handeye.workflow.calibrate_session without the report (what `handeye calibrate SESSION
+Sessions of 20, 50, 100, 200, 300 and 500 views (and 100 views of which 8 have a gross robot pose error)
+are calibrated by handeye.workflow.calibrate_session without the report (what `handeye calibrate SESSION
 --no-report` runs), with the calibration preset; the per-stage `seconds` of result.json are printed
-with the ratio of the whole run (load to verdict) to the calibration stage alone.
-Target on 2 cores: the ratio under 2 at 300 rendered views. Prints figures; asserts nothing.
+with the ratio of the whole run (load to verdict) to the calibration stage alone, then the growth from
+the smallest to the largest session: wall and CPU per view and the local exponent of the CPU time
+(1: linear, 2: quadratic) between successive sizes. Targets on 2 cores: the ratio under 2 and the whole
+command under 10 s wall at 300 rendered views. Prints figures; asserts nothing.
 
-    python benchmarks/bench_scale_views.py [--kind rendered|corners] [--views 20,100,300] [--outliers 100:8]
-                                           [--keep DIR] [--profile] [--seed 3]
+    python benchmarks/bench_scale_views.py [--kind rendered|corners] [--views 20,50,100,200,300,500]
+                                           [--outliers 100:8] [--keep DIR] [--profile] [--seed 3]
 
 ``--kind rendered`` (default) renders 1280x720 vendor sessions (handeye.sim.vendor.write_vendor_session:
 image noise 1 grey level, robot noise 0.3 mm / 0.05 deg per axis); ``--keep DIR`` keeps them there and
@@ -21,6 +23,7 @@ solver and diagnostics alone in seconds. ``--profile`` prints the 25 most expens
 from __future__ import annotations
 
 import argparse
+import contextlib
 import cProfile
 import io
 import os
@@ -112,6 +115,25 @@ class _Timed:
         setattr(self.module, self.name, self.orig)
 
 
+#: the calibration stages whose CPU time is measured (functions of handeye.pipeline)
+CPU_STAGES = {
+    "detect": "detect_views",
+    "intrinsics": "calibrate_intrinsics",
+    "closed_form": "_closed_forms",
+    "refine": "refine_stage",
+    "validate": "validate_stage",
+}
+
+
+@contextlib.contextmanager
+def _stage_timers():
+    """CPU time of each of :data:`CPU_STAGES` while active: {stage: _Timed}."""
+    import handeye.pipeline as pipeline
+
+    with contextlib.ExitStack() as stack:
+        yield {k: stack.enter_context(_Timed(pipeline, name)) for k, name in CPU_STAGES.items()}
+
+
 def _run_corners(folder: Path, cs, opts, profile: bool) -> tuple[dict, dict, list, str]:
     """Calibrate (detection replaced by the synthetic corners) and diagnose without image measures."""
     import handeye.pipeline as pipeline
@@ -125,7 +147,8 @@ def _run_corners(folder: Path, cs, opts, profile: bool) -> tuple[dict, dict, lis
     try:
         session = load_session(folder)
         t_load = time.perf_counter() - t0
-        run = pipeline.run_calibration(session, opts)
+        with _stage_timers() as stages:
+            run = pipeline.run_calibration(session, opts)
     finally:
         pipeline.detect_views = orig
     c1 = time.process_time()
@@ -139,6 +162,7 @@ def _run_corners(folder: Path, cs, opts, profile: bool) -> tuple[dict, dict, lis
     seconds = {"load": t_load, **run.seconds, "diagnose": time.perf_counter() - t1}
     seconds["total"] = time.perf_counter() - t0
     cpu = {"calibrate": c1 - c0, "diagnose": time.process_time() - c1, "total": time.process_time() - c0}
+    cpu.update({k: t.cpu for k, t in stages.items()})
     return seconds, cpu, [f["code"] for f in diag["findings"] if f["severity"] in ("fail", "warn")], _top(prof)
 
 
@@ -149,8 +173,10 @@ def _run_rendered(folder: Path, out: Path, opts, profile: bool) -> tuple[dict, d
     prof = cProfile.Profile(time.process_time) if profile else None
     c0 = time.process_time()
     with _Timed(workflow, "run_calibration") as cal, _Timed(diagnose_pkg, "diagnose_run", prof) as diag:
-        wr = workflow.calibrate_session(folder, options=opts, out_dir=out, report=False)
+        with _stage_timers() as stages:
+            wr = workflow.calibrate_session(folder, options=opts, out_dir=out, report=False)
     cpu = {"calibrate": cal.cpu, "diagnose": diag.cpu, "total": time.process_time() - c0}
+    cpu.update({k: t.cpu for k, t in stages.items()})
     findings = wr.result.get("diagnostics", {}).get("findings", [])
     codes = [f["code"] for f in findings if f["severity"] in ("fail", "warn")]
     return dict(wr.seconds), cpu, codes, _top(prof)
@@ -167,7 +193,7 @@ def _top(prof) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--kind", choices=("rendered", "corners"), default="rendered")
-    ap.add_argument("--views", default="20,100,300", help="comma-separated view counts (clean sessions)")
+    ap.add_argument("--views", default="20,50,100,200,300,500", help="comma-separated view counts (clean sessions)")
     ap.add_argument("--outliers", default="100:8", help="VIEWS:OUTLIERS sessions, comma-separated ('' for none)")
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--keep", type=Path, default=None, help="folder for the rendered sessions (reused)")
@@ -188,6 +214,7 @@ def main(argv=None) -> int:
         "ratio = (total without the report) / calibrate, of the wall time and of this process's CPU time (all "
         "threads; steadier on a busy machine); target < 2"
     )
+    growth: list[tuple[int, float, float, dict]] = []
     with tempfile.TemporaryDirectory() as tmp:
         root = a.keep or Path(tmp)
         for n_views, n_out in cases:
@@ -205,10 +232,42 @@ def main(argv=None) -> int:
                 f"{cpu['total'] / max(cpu['calibrate'], 1e-9):4.2f}; fail/warn findings: {codes or 'none'}"
             )
             print("    stages, wall [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in seconds.items()))
+            if not n_out:
+                growth.append((n_views, seconds["total"], cpu["total"], cpu))
             if top:
                 print(top)
             sys.stdout.flush()
+    print_growth(sorted(growth))
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"load average at the end {load:.1f}")
     return 0
+
+
+def print_growth(rows: list[tuple[int, float, float, dict]]) -> None:
+    """Wall and CPU per view of the clean sessions, and the local exponent of the CPU time between sizes."""
+    import math
+
+    if len(rows) < 2:
+        return
+    stages = [*CPU_STAGES, "diagnose"]
+    print(f"\ngrowth {rows[0][0]} -> {rows[-1][0]} views (no report; exponent: d log CPU / d log views)")
+    print(
+        f"{'views':>5} {'wall [s]':>9} {'CPU [s]':>8} {'CPU/view [ms]':>13} {'exponent':>8}  "
+        + " ".join(f"{k:>11}" for k in stages)
+    )
+    prev = None
+    for n, wall, cpu, sec in rows:
+        exp = f"{math.log(cpu / prev[1]) / math.log(n / prev[0]):8.2f}" if prev else f"{'':>8}"
+        print(
+            f"{n:5d} {wall:9.2f} {cpu:8.2f} {1e3 * cpu / n:13.1f} {exp}  "
+            + " ".join(f"{sec.get(k, 0.0):11.2f}" for k in stages)
+        )
+        prev = (n, cpu)
+    (n0, w0, c0, _), (n1, w1, c1, _) = rows[0], rows[-1]
+    print(
+        f"{n0} -> {n1} views: wall x{w1 / w0:.1f}, CPU x{c1 / c0:.1f} for x{n1 / n0:.1f} the views "
+        "(stage columns: CPU [s])"
+    )
 
 
 if __name__ == "__main__":

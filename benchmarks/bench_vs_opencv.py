@@ -1,11 +1,20 @@
 """The whole ``handeye calibrate`` against the bare OpenCV script it replaces, in interleaved rounds.
 
 Prints the median wall and CPU time of each command over the rounds, the ratio to the bare script
-(``vendor_bare.py``: findChessboardCorners + cornerSubPix, calibrateCamera, calibrateHandEye), and
-where handeye's time goes: the interpreter start-up and imports before ``main()``, each named stage
-of result.json's ``seconds``, and the time outside the named stages. Asserts nothing.
+(``vendor_bare.py``: findChessboardCorners + cornerSubPix, calibrateCamera, calibrateHandEye) with and
+without the reports (targets: 2.5x and 1.5x), and where handeye's time goes, wall and CPU (this process,
+all threads): the interpreter start-up, ``import handeye.cli`` and the command's imports before
+``main()``, each named stage (``timed_cli.py`` wraps the stage functions), the workflow's time outside
+the named stages and the interpreter's shut-down. The load average is printed before and after.
+Asserts nothing.
 
-    python benchmarks/bench_vs_opencv.py [--views 20] [--rounds 5] [--session FOLDER]
+    python benchmarks/bench_vs_opencv.py [--views 20] [--rounds 5] [--session FOLDER ...] [--before DIR]
+
+Without ``--session``: a rendered 1280x720 vendor session of ``--views`` views
+(:func:`handeye.sim.vendor.write_vendor_session`, seed 1). ``--session`` may be given several times
+(e.g. the shared real sets); each is measured on its own. ``--before DIR``: a checkout of handeye before a
+change (e.g. ``git archive HEAD~3 | tar -x -C DIR``); its two calibrate commands run in the same
+interleaved rounds (with ``PYTHONPATH=DIR``), so the before/after figures share the machine's load.
 """
 
 from __future__ import annotations
@@ -24,66 +33,122 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 
 
-def run(cmd: list[str]) -> tuple[float, float]:
-    """(wall, CPU) seconds of one command in a fresh process."""
+def run(cmd: list[str], env: dict | None = None) -> tuple[float, float, float]:
+    """(wall, CPU, end time) of one command in a fresh process."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=False, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    subprocess.run(cmd, check=False, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    end = time.time()
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return wall, after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
+    return wall, after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, end
+
+
+def _median(xs) -> float:
+    xs = [x for x in xs if x is not None]
+    return statistics.median(xs) if xs else float("nan")
+
+
+def breakdown(name: str, records: list[dict]) -> None:
+    """The per-stage wall and CPU medians of ``timed_cli.py``'s records of one command."""
+    print(f"\n{name}: where the time goes (median over rounds) {'wall [s]':>9s} {'CPU [s]':>8s}")
+
+    def row(label: str, get) -> None:
+        w = _median(get(r, "wall") for r in records)
+        c = _median(get(r, "cpu") for r in records)
+        print(f"  {label:52s} {w:9.3f} {c:8.3f}")
+
+    row("interpreter start-up (before any handeye code)", lambda r, k: r["interpreter"][k])
+    row("import handeye.cli", lambda r, k: r["stages"]["import handeye.cli"][k])
+    row("the command's imports (before main())", lambda r, k: r["stages"]["command imports"][k])
+    row(
+        "main() before the workflow (parsing, options)",
+        lambda r, k: r["stages"]["main"][k] - r["stages"]["workflow"][k],
+    )
+    stages = [k for k in records[0]["stages"] if k not in ("import handeye.cli", "command imports", "main", "workflow")]
+    for k in stages:
+        row(f"  stage {k}", lambda r, kk, s=k: r["stages"].get(s, {}).get(kk))
+    row(
+        "  workflow outside the named stages",
+        lambda r, k: r["stages"]["workflow"][k] - sum(v[k] for s, v in r["stages"].items() if s in stages),
+    )
+    row("  workflow (the whole calibrate_session)", lambda r, k: r["stages"]["workflow"][k])
+    row("interpreter shut-down", lambda r, k: r["exit"] if k == "wall" else None)
+    row("total (the command's process)", lambda r, k: r["total"][k])
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--views", type=int, default=20)
     ap.add_argument("--rounds", type=int, default=5)
-    ap.add_argument("--session", type=Path, help="a vendor session folder (default: a rendered one)")
+    ap.add_argument("--session", type=Path, action="append", help="a vendor session folder (default: a rendered one)")
+    ap.add_argument("--before", type=Path, help="a checkout of handeye before a change, measured in the same rounds")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="bench_vs_opencv_"))
-    session = args.session
-    if session is None:
+    sessions = args.session
+    if not sessions:
         from handeye.sim.vendor import write_vendor_session
 
-        session = write_vendor_session(tmp / "session", n_views=args.views, seed=1)
+        sessions = [write_vendor_session(tmp / "session", n_views=args.views, seed=1)]
+    for session in sessions:
+        measure(Path(session), tmp, args.rounds, before=args.before)
+
+
+def measure(session: Path, tmp: Path, rounds: int, *, before: Path | None = None) -> None:
     py = sys.executable
+    timed = [py, str(HERE / "timed_cli.py")]
     commands = {
         "bare OpenCV script": [py, str(HERE / "vendor_bare.py"), str(session)],
-        "calibrate (both reports)": [py, "-m", "handeye.cli", "-q", "calibrate", str(session), "--out", str(tmp / "r")],
+        "calibrate (both reports)": [
+            *timed, str(tmp / "r.json"), "-q", "calibrate", str(session), "--out", str(tmp / "r"),
+        ],
         "calibrate --no-report": [
-            py, "-m", "handeye.cli", "-q", "calibrate", str(session), "--out", str(tmp / "n"), "--no-report",
+            *timed, str(tmp / "n.json"), "-q", "calibrate", str(session), "--out", str(tmp / "n"), "--no-report",
         ],
         "import handeye.cli": [py, "-c", "import handeye.cli"],
         "python -c pass": [py, "-c", "pass"],
     }  # fmt: skip
-    load = os.getloadavg()[0]
-    print(f"session {session} ({args.views} views), {args.rounds} interleaved rounds, load average {load:.1f}")
+    env: dict = {}
+    if before is not None:
+        for label, flags, out in (("(both reports)", [], "rb"), ("--no-report", ["--no-report"], "nb")):
+            key = f"before: calibrate {label}"
+            commands[key] = [
+                *timed,
+                str(tmp / f"{out}.json"),
+                "-q",
+                "calibrate",
+                str(session),
+                "--out",
+                str(tmp / out),
+                *flags,
+            ]
+            env[key] = {**os.environ, "PYTHONPATH": str(before.resolve())}
+    n_images = len(list(session.glob("*.jpg"))) + len(list(session.glob("*.png")))
+    print(
+        f"\nsession {session} ({n_images} images), {rounds} interleaved rounds, "
+        f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
+    )
     times: dict = {k: [] for k in commands}
-    stages: dict = {}
-    for _ in range(args.rounds):
+    records: dict = {}
+    for _ in range(rounds):
         for name, cmd in commands.items():
-            times[name].append(run(cmd))
-        for name, folder in (("calibrate (both reports)", tmp / "r"), ("calibrate --no-report", tmp / "n")):
-            sec = json.loads((folder / "result.json").read_text()).get("seconds", {})
-            stages.setdefault(name, []).append(sec)
+            wall, cpu, end = run(cmd, env.get(name))
+            times[name].append((wall, cpu))
+            if cmd[:2] == timed:
+                rec = json.loads(Path(cmd[2]).read_text())
+                rec["exit"] = end - rec["exit_time"]
+                rec["total"] = {"wall": wall, "cpu": cpu}
+                records.setdefault(name, []).append(rec)
     bare = statistics.median(w for w, _ in times["bare OpenCV script"])
     bare_cpu = statistics.median(c for _, c in times["bare OpenCV script"])
-    print(f"\n{'command':28s} {'wall [s]':>9s} {'CPU [s]':>8s} {'ratio':>6s} {'CPU ratio':>9s}")
+    print(f"\n{'command':36s} {'wall [s]':>9s} {'CPU [s]':>8s} {'ratio':>6s} {'CPU ratio':>9s}  target")
+    targets = {"calibrate (both reports)": "2.5x", "calibrate --no-report": "1.5x"}
     for name, tc in times.items():
         wall, cpu = statistics.median(w for w, _ in tc), statistics.median(c for _, c in tc)
-        print(f"{name:28s} {wall:9.2f} {cpu:8.2f} {wall / bare:6.2f}x {cpu / bare_cpu:8.2f}x")
+        print(f"{name:36s} {wall:9.2f} {cpu:8.2f} {wall / bare:6.2f}x {cpu / bare_cpu:8.2f}x  {targets.get(name, '')}")
     print(f"load average after the rounds {os.getloadavg()[0]:.1f}")
-    startup = statistics.median(w for w, _ in times["import handeye.cli"])
-    for name, secs in stages.items():
-        print(f"\n{name}: stages (median over rounds) [s]")
-        keys = [k for k in secs[0] if k != "total"]
-        for k in keys:
-            print(f"  {k:14s} {statistics.median(s.get(k, 0.0) for s in secs):6.3f}")
-        total = statistics.median(s.get("total", float("nan")) for s in secs)
-        wall = statistics.median(w for w, _ in times[name])
-        print(f"  {'in workflow':14s} {total:6.3f}")
-        print(f"  {'start-up':14s} {startup:6.3f}  (python + import handeye.cli, before main())")
-        print(f"  {'outside':14s} {wall - total - startup:6.3f}  (wall - workflow - start-up)")
+    for name, recs in records.items():
+        breakdown(name, recs)
 
 
 if __name__ == "__main__":

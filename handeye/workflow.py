@@ -32,7 +32,6 @@ from .output import (
     inputs_record,
     remove_stray_temps,
     to_json,
-    write_json,
     writing,
 )
 from .pipeline import CalibrateOptions, CalibrationRun, run_calibration
@@ -208,12 +207,13 @@ def _calibrate_locked(
     _keep_previous(out_dir, failed=run.status != "ok")
     write_thumbnails(out_dir, {**run.failures, **run.detections})
     obs_text = to_json({**observations_dict(run), "run_id": run_id}, indent=None)
-    check_written(json.loads(obs_text), Observations, str(out_dir / "observations.json"))
+    observations = json.loads(obs_text)  # parsed once: checked, then judged as a reader sees it
+    check_written(observations, Observations, str(out_dir / "observations.json"))
     atomic_write_text(out_dir / "observations.json", obs_text + "\n")
     return _finish(
         out_dir,
         res,
-        json.loads(obs_text),
+        observations,
         seconds,
         report=report,
         qa=qa,
@@ -328,7 +328,7 @@ def _finish(
     shutil.rmtree(out_dir / "report_files", ignore_errors=True)
     t_v = time.perf_counter()
     # the folder as a reader sees it: result.json's content through the JSON it is written as
-    folder = result_folder(out_dir, json.loads(to_json(res)), observations)
+    folder = result_folder(out_dir, json.loads(to_json(res, indent=None)), observations)
     ctx = _judge(folder, qa_path, qa_cfg)
     res.update(verdict_fields(None if ctx is None else ctx["verdict"], res, error, qa_cfg=qa_cfg))
     seconds["verdict"] = time.perf_counter() - t_v
@@ -348,7 +348,7 @@ def _finish(
         paths = tuple(_write_reports(out_dir, rendered))
     if error is None and res.get("verdict") in ("PASS", "WARN"):
         try:
-            write_json(out_dir / LAST_GOOD_NAME, res)
+            atomic_write_bytes(out_dir / LAST_GOOD_NAME, result_path.read_bytes())  # result.json as written
         except OutputWriteError as e:  # result.json and the reports are complete: say so, and what failed
             log.warning("%s is written; %s was not: %s", result_path, LAST_GOOD_NAME, e)
     status = "ok" if error is None else "failed"

@@ -133,3 +133,69 @@ def test_inverse_and_mean():
     m = mean_T(pair)
     np.testing.assert_allclose(m, T, atol=1e-12)
     assert min(pose_error(m, P)[0] for P in pair) > 10.0  # degrees away from each member
+
+
+# ------------------------------------------------------------------------------ Euler angles without scipy.spatial
+_SEQUENCES = [a + b + c for a in "xyz" for b in "xyz" for c in "xyz" if a != b and b != c]
+
+
+@pytest.mark.parametrize("order", _SEQUENCES)
+@pytest.mark.parametrize("intrinsic", [False, True])
+def test_euler_conversions_equal_scipys(order, intrinsic):
+    """Both directions against scipy's Rotation (the oracle), every order, gimbal lock included."""
+    from handeye.conventions import R_from_euler, euler_from_R
+
+    rng = np.random.default_rng(7)
+    seq = order.upper() if intrinsic else order
+    ang = rng.uniform(-np.pi, np.pi, (300, 3))
+    repeated = order[0] == order[2]
+    ang[:, 1] = rng.uniform(0, np.pi, 300) if repeated else rng.uniform(-np.pi / 2, np.pi / 2, 300)
+    ang[:5, 1] = 0.0 if repeated else np.pi / 2  # gimbal lock: scipy sets the third angle to 0
+    ang[5:10, 1] = np.pi if repeated else -np.pi / 2
+    R = R_from_euler(ang, order=order, intrinsic=intrinsic)
+    np.testing.assert_allclose(R, Rotation.from_euler(seq, ang).as_matrix(), rtol=0, atol=1e-14)
+    with pytest.warns(UserWarning, match="Gimbal lock"):
+        expected = Rotation.from_matrix(R).as_euler(seq)
+    got = euler_from_R(R, order=order, intrinsic=intrinsic)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (got - expected))), 0.0, atol=1e-9)
+    np.testing.assert_allclose(got[10:], expected[10:], rtol=0, atol=1e-12)  # away from the singularity
+    np.testing.assert_array_equal(euler_from_R(R[20], order=order, intrinsic=intrinsic), got[20])  # one matrix
+
+
+def test_euler_from_a_matrix_off_the_rotations_is_scipys():
+    """A matrix that is not orthonormal is projected first, as scipy does."""
+    from handeye.conventions import euler_from_R
+
+    R = Rotation.from_euler("xyz", [0.3, -0.2, 1.1]).as_matrix() * 1.001 + 1e-4
+    np.testing.assert_allclose(
+        euler_from_R(R, order="xyz", intrinsic=False), Rotation.from_matrix(R).as_euler("xyz"), atol=1e-12
+    )
+
+
+def test_degrees_are_converted():
+    from handeye.conventions import R_from_euler
+
+    np.testing.assert_allclose(
+        R_from_euler([10.0, 20.0, 30.0], order="zyx", intrinsic=True, degrees=True),
+        Rotation.from_euler("ZYX", [10.0, 20.0, 30.0], degrees=True).as_matrix(),
+        atol=1e-15,
+    )
+
+
+def test_reading_poses_does_not_import_scipy_spatial():
+    """The session readers and the result's pose forms stay off scipy.spatial (a start-up cost of every run)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, numpy as np\n"
+        "from handeye.conventions import T_from_pose_values, pose_forms, PoseFormat, VENDOR_POSE_FORMAT\n"
+        "T = T_from_pose_values([0.1, 0.2, 0.3, 0.4, -0.5, 0.6], VENDOR_POSE_FORMAT)\n"
+        "pose_forms(T)\n"
+        "for r in ('rotvec', 'quaternion'):\n"
+        "    f = PoseFormat(rotation=r)\n"
+        "    T_from_pose_values([0, 0, 0, 1, 0, 0, 0][: f.n_values], f)\n"
+        "print(sorted(m for m in sys.modules if m.startswith('scipy.spatial')))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]", out

@@ -253,10 +253,11 @@ def write_validated(path: Union[str, Path], d: dict, model: type[BaseModel], *, 
     A dict the model refuses is a bug of the
     writer: ValueError (exit 1), and the file is not written.
     """
-    from ..output import to_json, write_json
+    from ..output import atomic_write_text, to_json
 
-    check_written(json.loads(to_json(d)), model, str(path))  # as a reader will see it: through its JSON
-    return write_json(path, d, durable=durable)
+    text = to_json(d)  # encoded once: checked as a reader will see it (through its JSON), then written
+    check_written(json.loads(text), model, str(path))
+    return atomic_write_text(path, text + "\n", durable=durable)
 
 
 def check_written(d: dict, model: type[BaseModel], path: str) -> None:

@@ -32,18 +32,51 @@ def all_pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
     return np.triu_indices(int(n), 1)
 
 
-def pair_invariants(C: np.ndarray, M: np.ndarray, *, pairs: tuple | None = None) -> dict:
+@dataclass(frozen=True)
+class CameraPairs:
+    """The camera side of the view pairs' motions: ``rc = C_i C_j^-1`` (P,4,4) and its rotation vectors.
+
+    It depends on the board poses ``C`` alone, so every reading of the robot poses (and both inversions)
+    shares it (:func:`camera_pairs`); :func:`pair_motions` and :func:`pair_invariants` take it instead of
+    computing it again, with the same numbers.
+    """
+
+    i: np.ndarray
+    j: np.ndarray
+    rc: np.ndarray
+    alpha: np.ndarray
+
+    @cached_property
+    def screws(self) -> tuple[np.ndarray, np.ndarray]:
+        """Rotation angle (rad) and pitch (m) of ``rc``: :func:`handeye.frames.screw_invariants`."""
+        ang = np.linalg.norm(self.alpha, axis=1)
+        axis = self.alpha / np.maximum(ang, 1e-12)[:, None]
+        return ang, np.einsum("ni,ni->n", axis, self.rc[:, :3, 3])
+
+
+def camera_pairs(C: np.ndarray, pairs: tuple | None = None) -> CameraPairs:
+    """:class:`CameraPairs` of the board poses ``C`` (N,4,4) for the given pairs (default: all pairs i < j)."""
+    C = np.asarray(C, float)
+    i, j = all_pairs(len(C)) if pairs is None else (np.asarray(pairs[0]), np.asarray(pairs[1]))
+    rc = C[i] @ inv_T(C)[j]
+    return CameraPairs(i, j, rc, rotvec_from_R(rc[:, :3, :3]))
+
+
+def pair_invariants(
+    C: np.ndarray, M: np.ndarray, *, pairs: tuple | None = None, camera: CameraPairs | None = None
+) -> dict:
     """Rotation-angle and screw-pitch residuals of every view pair (camera motion vs robot motion).
 
     ``C`` (N,4,4) board poses ``T_cam_board``, ``M`` (N,4,4) robot motions of the mode. Returns
     ``i, j`` (P,), ``angle_deg`` (P,) the robot's relative rotation, ``angle_res_deg`` (P,),
     ``pitch_res_mm`` (P,) with NaN where the pitch is not usable, and ``score`` (P,): both residuals
-    in units of their nominal noise, combined (``hypot``; angle only where there is no pitch).
+    in units of their nominal noise, combined (``hypot``; angle only where there is no pitch). ``camera``:
+    :func:`camera_pairs` of ``C`` for these pairs, when several robot readings are scored against one ``C``.
     """
-    C = np.asarray(C, float)
     M = np.asarray(M, float)
-    i, j = all_pairs(len(C)) if pairs is None else (np.asarray(pairs[0]), np.asarray(pairs[1]))
-    a_c, p_c = screw_invariants(C[i] @ inv_T(C[j]))
+    camera = camera_pairs(C, pairs) if camera is None else camera
+    i, j = camera.i, camera.j
+    a_c, p_c = camera.screws
     a_m, p_m = screw_invariants(M[i] @ inv_T(M[j]))
     ang_res = np.degrees(np.abs(a_c - a_m))
     lo, hi = np.radians(PITCH_ANGLE_RANGE_DEG)
@@ -164,12 +197,17 @@ class PairMotions:
         return base - self.terms[rows[same[rows]]].sum(axis=0)
 
 
-def pair_motions(C: np.ndarray, M: np.ndarray, pairs: tuple | None = None) -> PairMotions:
-    """The relative motions of the given pairs (default: all pairs i < j)."""
-    i, j = all_pairs(len(C)) if pairs is None else (np.asarray(pairs[0]), np.asarray(pairs[1]))
-    rc = C[i] @ inv_T(C)[j]
+def pair_motions(
+    C: np.ndarray, M: np.ndarray, pairs: tuple | None = None, *, camera: CameraPairs | None = None
+) -> PairMotions:
+    """The relative motions of the given pairs (default: all pairs i < j).
+
+    ``camera``: :func:`camera_pairs` of ``C`` for these pairs, shared by several ``M``.
+    """
+    camera = camera_pairs(C, pairs) if camera is None else camera
+    i, j = camera.i, camera.j
     rm = M[i] @ inv_T(M)[j]
-    return PairMotions(i, j, rc, rm, rotvec_from_R(rc[:, :3, :3]), rotvec_from_R(rm[:, :3, :3]))
+    return PairMotions(i, j, camera.rc, rm, camera.alpha, rotvec_from_R(rm[:, :3, :3]))
 
 
 def rotation_from_sums(sums: np.ndarray) -> np.ndarray:

@@ -16,13 +16,13 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..conventions import TRANSLATION_UNITS, PoseFormat, T_from_pose_values
-from ..frames import inv_T, screw_invariants
+from ..conventions import TRANSLATION_UNITS, PoseFormat, R_from_euler, T_from_pose_values
+from ..frames import R_from_rotvec, inv_T, screw_invariants
 from ..mounting import mounting
 from ..session.raw import RawPoses
 from .findings import Finding, ids_text
 from .fits import BoardFit, fit_boards
-from .geometry import all_pairs, pair_invariants, summarize_invariants
+from .geometry import all_pairs, camera_pairs, pair_invariants, pair_motions, summarize_invariants
 from .observations import PoseObservations
 from .thresholds import thresholds
 
@@ -86,8 +86,6 @@ def read_poses(raw: RawPoses, fmt: PoseFormat, ids: Sequence[str]) -> Optional[n
     Vectorised for Euler angles and rotation vectors (same conversion as
     :func:`handeye.conventions.T_from_pose_values`, which handles the other forms).
     """
-    from scipy.spatial.transform import Rotation
-
     try:
         V = np.stack([np.asarray(raw.values[v], float).reshape(-1) for v in ids])
     except (KeyError, ValueError):
@@ -97,11 +95,14 @@ def read_poses(raw: RawPoses, fmt: PoseFormat, ids: Sequence[str]) -> Optional[n
     if fmt.rotation in ("euler", "rotvec"):
         scale = TRANSLATION_UNITS.get(fmt.translation_unit, 1.0)
         if fmt.rotation == "euler":
-            seq = fmt.euler_order.lower() if fmt.euler_kind == "extrinsic" else fmt.euler_order.upper()
-            R = Rotation.from_euler(seq, V[:, 3:6], degrees=fmt.angle_unit == "deg").as_matrix()
+            R = R_from_euler(
+                V[:, 3:6],
+                order=fmt.euler_order,
+                intrinsic=fmt.euler_kind == "intrinsic",
+                degrees=fmt.angle_unit == "deg",
+            )
         else:
-            rv = np.radians(V[:, 3:6]) if fmt.angle_unit == "deg" else V[:, 3:6]
-            R = Rotation.from_rotvec(rv).as_matrix()
+            R = R_from_rotvec(np.radians(V[:, 3:6]) if fmt.angle_unit == "deg" else V[:, 3:6])
         T = np.zeros((len(V), 4, 4))
         T[:, :3, :3] = R
         T[:, :3, 3] = V[:, :3] * scale
@@ -195,6 +196,7 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
     }
     keep |= set(ranked[:2]) | {replace(fmt0)}
     out = []
+    cameras: dict = {}  # id of a C in ``ordered`` (kept alive there) -> its camera_pairs
     for fmt, changes in alts:
         key = replace(fmt, translation_unit=fmt0.translation_unit)
         if key not in keep or key not in ordered:
@@ -203,10 +205,14 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
         if T is None:
             continue
         C, lab = ordered[key]
-        s = summarize_invariants(pair_invariants(C, obs.M(T)))  # the same for inverted motions
+        if id(C) not in cameras:  # the camera side of the pairs is one for every reading of the same C
+            cameras[id(C)] = camera_pairs(C)
+        cam = cameras[id(C)]
+        s = summarize_invariants(pair_invariants(C, obs.M(T), camera=cam))  # the same for inverted motions
         for invert in (False, True):
+            M = obs.M(T, invert=invert)
             try:
-                fit = fit_boards(C, obs.M(T, invert=invert))
+                fit = fit_boards(C, M, motions=pair_motions(C, M, camera=cam))
             except np.linalg.LinAlgError:
                 continue
             out.append(

@@ -10,6 +10,8 @@ See docs/detection.md.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from typing import Mapping
 
 import cv2
@@ -90,15 +92,27 @@ def solve_closed_form(mode: MountingMode, C: np.ndarray, M: np.ndarray, *, metho
 
 
 def all_methods(mode: MountingMode, C: np.ndarray, M: np.ndarray) -> dict[str, HandEyeEstimate]:
-    """Every OpenCV closed-form method; a method that raises is recorded as failed."""
-    out = {}
-    for m in METHODS:
+    """Every OpenCV closed-form method; a method that raises is recorded as failed.
+
+    The methods run on up to one thread per usable core: OpenCV releases the GIL, and its solvers use
+    every pair of views, so at hundreds of views they are seconds each.
+    """
+
+    def one(m: str) -> HandEyeEstimate:
         try:
-            out[m] = solve_closed_form(mode, C, M, method=m)
+            return solve_closed_form(mode, C, M, method=m)
         except (cv2.error, np.linalg.LinAlgError, ValueError) as e:  # one method failing must not stop the others
             msg = (str(e).strip().splitlines() or [type(e).__name__])[-1][:200]
-            out[m] = HandEyeEstimate(mode.name, m, np.eye(4), np.eye(4), "failed", msg)
-    return out
+            return HandEyeEstimate(mode.name, m, np.eye(4), np.eye(4), "failed", msg)
+
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cores = os.cpu_count() or 1
+    if cores < 2:
+        return {m: one(m) for m in METHODS}
+    with ThreadPoolExecutor(max_workers=min(cores, len(METHODS))) as pool:
+        return dict(zip(METHODS, pool.map(one, METHODS), strict=True))
 
 
 def chain_residuals(

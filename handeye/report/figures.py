@@ -1,13 +1,19 @@
 """Which figures the report has, with their captions, and the data each is drawn from.
 
-The figures are drawn one after the other in this process: on two cores, worker processes cost
-more (start-up, pickling, matplotlib imported twice) than they save. A figure that cannot be drawn
+On Linux with two or more cores the figures are drawn by two processes: this one and a child forked
+after matplotlib is imported (so nothing is imported or pickled twice; only the PNG bytes come back),
+each drawing every other figure. Whatever the child does not return (it failed, or fork is not
+available) is drawn here, so the report has the same figures either way. A figure that cannot be drawn
 is logged and left out; it never costs the report.
 """
 
 from __future__ import annotations
 
 import logging
+import os
+import pickle
+import sys
+import warnings
 from dataclasses import dataclass
 from typing import Callable, Optional
 
@@ -205,11 +211,95 @@ def report_figures(
                     lambda: translation_uncertainty(cov_t, meth, frame=mounting.fixed_frame, x_name=mounting.x_name),
                 )
             )
-    out: list[Plot] = []
     with style():
-        for key, title, caption, draw in jobs:
-            try:
-                out.append(Plot(key, title, caption, draw()))
-            except Exception as e:  # noqa: BLE001 - a figure that cannot be drawn must not cost the report
-                log.warning("report: figure %s left out (%s: %s)", key, type(e).__name__, e)
-    return out
+        pngs = draw_figures({key: draw for key, _, _, draw in jobs})
+    return [Plot(key, title, caption, png) for key, title, caption, _ in jobs if (png := pngs.get(key)) is not None]
+
+
+def _draw(key: str, draw: Callable[[], bytes]) -> Optional[bytes]:
+    try:
+        return draw()
+    except Exception as e:  # noqa: BLE001 - a figure that cannot be drawn must not cost the report
+        log.warning("report: figure %s left out (%s: %s)", key, type(e).__name__, e)
+        return None
+
+
+def _parallel() -> bool:
+    """Whether to draw in two processes: fork (Linux) and a second core this process may use."""
+    if not sys.platform.startswith("linux") or os.environ.get("HANDEYE_FIGURE_PROCESSES") == "1":
+        return False
+    try:
+        return len(os.sched_getaffinity(0)) >= 2
+    except (AttributeError, OSError):
+        return (os.cpu_count() or 1) >= 2
+
+
+def draw_figures(draws: dict[str, Callable[[], bytes]]) -> dict[str, Optional[bytes]]:
+    """PNG bytes of each figure (None: it could not be drawn), every other one drawn by a forked child.
+
+    Call inside :func:`handeye.report.plots.style` (matplotlib imported, the style set: the child inherits
+    both). ``HANDEYE_FIGURE_PROCESSES=1`` draws everything in this process.
+    """
+    keys = list(draws)
+    theirs = keys[1::2] if len(keys) >= 2 and _parallel() else []
+    child = _fork_drawing({k: draws[k] for k in theirs}) if theirs else None
+    try:
+        out = {k: _draw(k, draws[k]) for k in keys if k not in theirs}
+    finally:  # the child is always waited for, also when this process is interrupted
+        got = _collect(child) if child is not None else {}
+    for k in theirs:  # the child's figures, or drawn here when it returned none
+        out[k] = got[k] if k in got else _draw(k, draws[k])
+    return {k: out[k] for k in keys}
+
+
+def _fork_drawing(draws: dict[str, Callable[[], bytes]]) -> Optional[tuple[int, int]]:
+    """(pid, read end of its pipe) of a child drawing ``draws``, or None when it could not be started."""
+    try:
+        r, w = os.pipe()
+    except OSError:
+        return None
+    try:
+        with warnings.catch_warnings():
+            # Python 3.12+ warns of a fork in a process with threads (OpenCV's and the BLAS's idle pools here):
+            # the child only draws with matplotlib, PIL and numpy, and a child that fails is redrawn here
+            warnings.filterwarnings("ignore", category=DeprecationWarning, message=".*fork.*")
+            pid = os.fork()
+    except OSError as e:
+        log.debug("report: figures drawn in one process (fork: %s)", e)
+        os.close(r)
+        os.close(w)
+        return None
+    if pid == 0:  # the child: draw, send {key: png or None}, leave without running any exit handler
+        code = 1
+        try:
+            os.close(r)
+            data = pickle.dumps({k: _draw(k, d) for k, d in draws.items()})
+            with os.fdopen(w, "wb") as f:
+                f.write(data)
+            code = 0
+        except BaseException:  # noqa: BLE001 - the child must end here whatever happens; the parent redraws
+            pass
+        finally:
+            os._exit(code)
+    os.close(w)
+    return pid, r
+
+
+def _collect(child: tuple[int, int]) -> dict[str, Optional[bytes]]:
+    """The child's figures, or {} when it failed (the parent then draws them)."""
+    pid, r = child
+    chunks = []
+    try:
+        with os.fdopen(r, "rb") as f:
+            while chunk := f.read(1 << 20):
+                chunks.append(chunk)
+    finally:
+        _, status = os.waitpid(pid, 0)
+    if not (os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0):
+        log.debug("report: the figure process ended with status %s; its figures are drawn here", status)
+        return {}
+    try:
+        got = pickle.loads(b"".join(chunks))
+    except (pickle.UnpicklingError, EOFError, ValueError):
+        return {}
+    return got if isinstance(got, dict) else {}

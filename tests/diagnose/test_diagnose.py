@@ -1258,3 +1258,25 @@ def test_a_stated_pose_format_the_lines_do_not_fit_is_not_called_a_detection_fai
     (f,) = d["findings"]
     assert f["code"] == "session_unreadable" and "fit no pose format" in f["title"]
     assert "pose_format" in f["action"]
+
+
+def test_shared_camera_pairs_give_the_same_numbers():
+    """pair_motions / pair_invariants with the camera side computed once equal the ones computing it each time."""
+    from handeye.diagnose.geometry import camera_pairs, pair_invariants, pair_motions
+    from handeye.frames import R_from_rotvec, inv_T, make_T, screw_invariants
+
+    rng = np.random.default_rng(4)
+    C = np.stack([make_T(R_from_rotvec(rng.normal(size=3)), rng.normal(size=3)) for _ in range(12)])
+    cam = camera_pairs(C)
+    for _ in range(2):  # two readings of the robot poses against one C
+        M = np.stack([make_T(R_from_rotvec(rng.normal(size=3)), rng.normal(size=3)) for _ in range(12)])
+        a, b = pair_invariants(C, M), pair_invariants(C, M, camera=cam)
+        assert all(np.array_equal(a[k], b[k], equal_nan=True) for k in a)
+        p, q = pair_motions(C, M), pair_motions(C, M, camera=cam)
+        for k in ("i", "j", "rc", "rm", "alpha", "beta", "terms"):
+            assert np.array_equal(getattr(p, k), getattr(q, k)), k
+    i, j = cam.i, cam.j
+    ang, pitch = screw_invariants(C[i] @ inv_T(C[j]))  # what pair_invariants computed before
+    assert np.array_equal(cam.screws[0], ang) and np.array_equal(cam.screws[1], pitch)
+    sub = camera_pairs(C, (np.array([0, 3]), np.array([5, 7])))
+    assert sub.rc.shape == (2, 4, 4) and np.allclose(sub.rc[1], C[3] @ inv_T(C[7]))

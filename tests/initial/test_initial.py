@@ -264,3 +264,33 @@ def _session_target(path):
     from handeye.session import load_session
 
     return load_session(path).target
+
+
+def test_all_methods_on_threads_equal_each_method_alone(monkeypatch):
+    """The methods solved side by side give each method's own solution, in METHODS' order; one that raises
+    is recorded as failed without stopping the others (with one core or several)."""
+    from handeye.initial import closed_form
+    from handeye.initial.closed_form import METHODS, all_methods, solve_closed_form
+
+    cs = make_corner_session(mode="eye_in_hand", n_views=12, seed=2, robot_noise=(0.3, 0.05), noise_px=0.3)
+    mode = mounting("eye_in_hand")
+    C = np.asarray(cs.T_cam_board_true)
+    M = mode.M_from_T_base_end(np.asarray(cs.T_base_end_reported))
+    real = closed_form.solve_closed_form
+
+    def park_raises(mode_, C_, M_, *, method="tsai"):
+        if method == "park":
+            raise cv2.error("park: no solution")
+        return real(mode_, C_, M_, method=method)
+
+    monkeypatch.setattr(closed_form, "solve_closed_form", park_raises)
+    for cores in ({0, 1}, {0}):
+        monkeypatch.setattr(closed_form.os, "sched_getaffinity", lambda _pid, c=cores: c)
+        got = all_methods(mode, C, M)
+        assert list(got) == list(METHODS)
+        assert got["park"].status == "failed" and "no solution" in got["park"].failure_reason
+        for m in METHODS:
+            if m != "park":
+                alone = solve_closed_form(mode, C, M, method=m)
+                assert got[m].status == "ok" and np.array_equal(got[m].T_x, alone.T_x), m
+                assert np.array_equal(got[m].T_board, alone.T_board), m

@@ -800,6 +800,53 @@ def test_matplotlib_and_jinja_load_only_when_a_report_is_written(synthetic):
     assert p.stdout.strip() == "", p.stdout
 
 
+def test_calibrate_without_a_report_loads_no_drawing_and_no_scipy_spatial_or_stats(synthetic, tmp_path):
+    """``calibrate --no-report`` imports only what it uses.
+
+    No matplotlib or jinja2 (nothing is drawn or rendered) and none of scipy's spatial, stats or optimize
+    (start-up costs of every run), while it writes the same result.json as the run with the reports.
+    """
+    import sys
+
+    out = tmp_path / "no_report"
+    code = (
+        "import sys, handeye.cli; rc = handeye.cli.main(sys.argv[1:]); "
+        "print(','.join(sorted({m.split('.')[0] if m.split('.')[0] != 'scipy' else '.'.join(m.split('.')[:2]) "
+        "for m in sys.modules if m.split('.')[0] in ('matplotlib', 'jinja2', 'scipy')})), rc)"
+    )
+    p = subprocess.run(
+        [sys.executable, "-c", code, "-q", "calibrate", str(synthetic["session"]), "--out", str(out), "--no-report"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    loaded = p.stdout.strip().splitlines()[-1].split()[0].split(",")
+    assert not {"matplotlib", "jinja2", "scipy.spatial", "scipy.stats", "scipy.optimize"} & set(loaded), loaded
+    assert "scipy.special" in loaded  # the refinement's tail probabilities: the check above is on a real run
+    before = json.loads((synthetic["out"] / "result.json").read_text())
+    after = json.loads((out / "result.json").read_text())
+    assert after["verdict"] == before["verdict"] and after["n_views"] == before["n_views"]
+    np.testing.assert_allclose(after["hand_eye"]["matrix"], before["hand_eye"]["matrix"], atol=1e-9)
+    assert not (out / "report.html").exists()
+
+
+def test_figures_drawn_in_two_processes_are_the_same_pngs(synthetic, monkeypatch):
+    """The report's six figures drawn by this process and a forked child are byte for byte the ones drawn here."""
+    import sys
+
+    from handeye.report import build_report_context, figures
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the forked drawing is Linux only")
+    ctx = build_report_context(synthetic["out"], make_plots=False)
+    monkeypatch.setattr(figures, "_parallel", lambda: True)
+    two = figures.report_figures(**ctx["figure_inputs"])
+    monkeypatch.setattr(figures, "_parallel", lambda: False)
+    one = figures.report_figures(**ctx["figure_inputs"])
+    assert [p.key for p in two] == ["residuals", "per_view", "coverage", "poses", "rotations", "uncertainty"]
+    assert [(p.key, p.title, p.caption, p.png) for p in two] == [(p.key, p.title, p.caption, p.png) for p in one]
+
+
 def test_pose_figure_draws_both_mounting_modes():
     """The pose figure for a moving camera (eye-in-hand) and a moving board (eye-to-hand), flagged views
     included: a PNG of the figure's size (8.6 x 3.9 in at 100 dpi)."""
@@ -1194,6 +1241,7 @@ def test_each_figure_gets_its_own_qa_limits(synthetic, tmp_path, monkeypatch):
     from handeye.report import build_report_context
     from handeye.report.qa import load_qa
 
+    monkeypatch.setenv("HANDEYE_FIGURE_PROCESSES", "1")  # the spies record in this process
     got = {}
     for name in ("per_view_bars", "rotation_coverage"):
         real = getattr(plots, name)
