@@ -12,7 +12,10 @@ from __future__ import annotations
 import logging
 import os
 import pickle
+import select
+import signal
 import sys
+import time
 import warnings
 from dataclasses import dataclass
 from typing import Callable, Optional
@@ -224,6 +227,11 @@ def _draw(key: str, draw: Callable[[], bytes]) -> Optional[bytes]:
         return None
 
 
+#: the figure child's time: this much plus this factor times what this process took for its own half
+CHILD_GRACE_S = 30.0
+CHILD_TIME_FACTOR = 10.0
+
+
 def _parallel() -> bool:
     """Whether to draw in two processes: fork (Linux) and a second core this process may use."""
     if not sys.platform.startswith("linux") or os.environ.get("HANDEYE_FIGURE_PROCESSES") == "1":
@@ -243,10 +251,13 @@ def draw_figures(draws: dict[str, Callable[[], bytes]]) -> dict[str, Optional[by
     keys = list(draws)
     theirs = keys[1::2] if len(keys) >= 2 and _parallel() else []
     child = _fork_drawing({k: draws[k] for k in theirs}) if theirs else None
+    t0 = time.monotonic()
     try:
         out = {k: _draw(k, draws[k]) for k in keys if k not in theirs}
     finally:  # the child is always waited for, also when this process is interrupted
-        got = _collect(child) if child is not None else {}
+        # a child stuck (a lock another thread held at the fork) is ended once it has had ample time
+        limit = CHILD_GRACE_S + CHILD_TIME_FACTOR * (time.monotonic() - t0)
+        got = _collect(child, limit) if child is not None else {}
     for k in theirs:  # the child's figures, or drawn here when it returned none
         out[k] = got[k] if k in got else _draw(k, draws[k])
     return {k: out[k] for k in keys}
@@ -285,13 +296,23 @@ def _fork_drawing(draws: dict[str, Callable[[], bytes]]) -> Optional[tuple[int, 
     return pid, r
 
 
-def _collect(child: tuple[int, int]) -> dict[str, Optional[bytes]]:
-    """The child's figures, or {} when it failed (the parent then draws them)."""
+def _collect(child: tuple[int, int], limit_s: float) -> dict[str, Optional[bytes]]:
+    """The child's figures, or {} when it failed or took longer than ``limit_s`` (the parent then draws them)."""
     pid, r = child
     chunks = []
+    deadline = time.monotonic() + limit_s
     try:
         with os.fdopen(r, "rb") as f:
-            while chunk := f.read(1 << 20):
+            while True:
+                left = deadline - time.monotonic()
+                if left <= 0 or not select.select([f], [], [], left)[0]:
+                    log.debug("report: the figure process took over %.0f s; its figures are drawn here", limit_s)
+                    os.kill(pid, signal.SIGKILL)
+                    chunks = []
+                    break
+                chunk = os.read(r, 1 << 20)
+                if not chunk:
+                    break
                 chunks.append(chunk)
     finally:
         _, status = os.waitpid(pid, 0)

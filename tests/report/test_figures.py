@@ -69,3 +69,21 @@ def test_one_figure_or_the_switch_draws_here(monkeypatch):
     assert figures.draw_figures({"x": lambda: b"x"}) == {"x": b"x"}
     monkeypatch.setenv("HANDEYE_FIGURE_PROCESSES", "1")
     assert figures._parallel() is False
+
+
+def test_a_child_that_hangs_is_ended_and_its_figures_drawn_here(two_processes, monkeypatch):
+    """A child stuck at a lock (fork with threads) does not hang the report: it is killed, its figures redrawn."""
+    import time
+
+    monkeypatch.setattr(figures, "CHILD_GRACE_S", 0.5)
+    me = os.getpid()
+
+    def hang_in_child() -> bytes:
+        if os.getpid() != me:
+            time.sleep(600)
+        return b"png of b"
+
+    draws = {"a": lambda: b"png of a", "b": hang_in_child}
+    t0 = time.monotonic()
+    assert figures.draw_figures(draws) == {"a": b"png of a", "b": b"png of b"}
+    assert time.monotonic() - t0 < 60  # ended at its limit, not after the child's 600 s
