@@ -299,7 +299,7 @@ def _fork_drawing(draws: dict[str, Callable[[], bytes]]) -> Optional[tuple[int, 
 def _collect(child: tuple[int, int], limit_s: float) -> dict[str, Optional[bytes]]:
     """The child's figures, or {} when it failed or took longer than ``limit_s`` (the parent then draws them)."""
     pid, r = child
-    chunks = []
+    chunks: list[bytes] = []
     deadline = time.monotonic() + limit_s
     try:
         with os.fdopen(r, "rb") as f:
