@@ -410,6 +410,110 @@ def verify_trial(args) -> dict:
         )
 
 
+UNCHANGED_VIEWS = (4, 6, 8)
+
+
+def unchanged_trial(args) -> dict:
+    """Short checks (4, 6 and 8 views at the planned poses) of an unchanged rig against one install.
+
+    Two readings of "unchanged": the rig is the installed result itself (X, board and intrinsics as installed,
+    as ``collect --verify-against`` simulates it) or the rig the install was calibrated on (its truth, the
+    install's error included). Per check: the statistic, its dof, the p-value and, for the installed rig, the
+    false-alarm probability and the mean the test's own covariance predicts when the installed part of it is
+    absent (the change is then the new views' error alone: ``sum_i (1 - lambda_i) z_i^2`` with lambda the
+    installed share per whitened direction, :attr:`handeye.recal.drift.DriftTest.variance_share`).
+    """
+    from handeye.errors import HandeyeError
+    from handeye.recal.verify import verify_views
+    from handeye.stats import wald_p_value, weighted_chi2_sf
+
+    mode, seed, validated, install_views = args
+    try:
+        s, r, inst = install(mode, "iid", seed, validated, install_views)
+        if r.status != "ok":
+            return dict(mode=mode, seed=seed, skipped=f"install: {r.failure_reason}")
+        out = dict(mode=mode, seed=seed, nu=inst.robot_noise_dof, checks=[])
+        truths = {
+            "installed": ((inst.T_x, inst.T_board), inst.intrinsics),
+            "rig": ((s.T_x_true, s.T_board_true), s.intrinsics),
+        }
+        for n in UNCHANGED_VIEWS:
+            planned = planned_poses(inst, n, "iid")
+            for truth, (rig, intr) in truths.items():
+                views = views_at(
+                    planned,
+                    mode=mode,
+                    model="iid",
+                    rig=rig,
+                    seed=seed + 1000 * n,
+                    model_seed=seed,
+                    target=s.target,
+                    intrinsics=intr,
+                )[:n]
+                if len(views) < n:
+                    continue
+                t = verify_views(inst, views=views, object_points=s.target.object_points()).test
+                crit = _critical(t.dof, t.noise_dof)
+                w = np.clip(1.0 - t.variance_share[: t.dof], 0.0, None)
+                out["checks"].append(
+                    dict(
+                        n=n,
+                        truth=truth,
+                        T=t.statistic,
+                        dof=t.dof,
+                        p=t.p_value,
+                        ref_mean=_reference_mean(t.dof, t.noise_dof),
+                        own_mean=float(w.sum()),
+                        own_rate=weighted_chi2_sf(crit, w)[0] if w.sum() > 0 else 0.0,
+                        p_chi2=wald_p_value(t.statistic, t.dof),
+                    )
+                )
+        return out
+    except HandeyeError as e:
+        return dict(mode=mode, seed=seed, skipped=str(e)[:100])
+
+
+def _critical(dof: int, nu, alpha: float = 0.05) -> float:
+    """The statistic at which verify's p-value is ``alpha`` (chi-square, or dof F(dof, nu))."""
+    from scipy.special import fdtri
+
+    return float(stats.chi2.isf(alpha, dof)) if nu is None else float(dof * fdtri(dof, nu, 1.0 - alpha))
+
+
+def _reference_mean(dof: int, nu) -> float:
+    """The mean of verify's reference distribution: dof (chi-square) or dof nu / (nu - 2) (dof F(dof, nu))."""
+    return float(dof) if nu is None or nu <= 2 else float(dof * nu / (nu - 2.0))
+
+
+def report_unchanged(rows) -> None:
+    """False alarms and the mean statistic per mode, number of views and reading of "unchanged"."""
+    print(
+        "verify on an unchanged rig: planned poses, alpha 5 %; the rig is the installed result or the install's truth"
+    )
+    print(
+        f"  {'mode':<12}{'views':>6}{'truth':>10}{'checks':>7}{'false al.':>10}{'expected':>9}"
+        f"{'mean T':>8}{'ref mean':>9}{'own mean':>9}{'f.a. chi2':>10}"
+    )
+    ok = [r for r in rows if "skipped" not in r]
+    for mode in MODES:
+        for n in UNCHANGED_VIEWS:
+            for truth in ("installed", "rig"):
+                cs = [c for r in ok if r["mode"] == mode for c in r["checks"] if c["n"] == n and c["truth"] == truth]
+                if not cs:
+                    continue
+                expected = np.mean([c["own_rate"] for c in cs]) if truth == "installed" else 0.05
+                print(
+                    f"  {mode:<12}{n:>6}{truth:>10}{len(cs):>7}{100 * np.mean([c['p'] < 0.05 for c in cs]):>9.1f}%"
+                    f"{100 * expected:>8.1f}%{np.mean([c['T'] for c in cs]):>8.2f}"
+                    f"{np.mean([c['ref_mean'] for c in cs]):>9.2f}"
+                    f"{np.mean([c['own_mean'] for c in cs]) if truth == 'installed' else float('nan'):>9.2f}"
+                    f"{100 * np.mean([c['p_chi2'] < 0.05 for c in cs]):>9.1f}%"
+                )
+    skipped = [r for r in rows if "skipped" in r]
+    if skipped:
+        print(f"  ({len(skipped)} installs skipped: {skipped[0]['skipped'][:60]})")
+
+
 def compare_trial(args) -> dict:
     from handeye.frames import se3_exp
     from handeye.recal.compare import compare_loaded
@@ -713,6 +817,9 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=10, help="verify trials per mode and robot model")
     ap.add_argument("--compare", type=int, default=0, help="compare pairs per mode")
     ap.add_argument("--prior", type=int, default=0, help="--prior trials per mode")
+    ap.add_argument(
+        "--unchanged", type=int, default=0, help="installs per mode, each checked unchanged with 4, 6 and 8 views"
+    )
     ap.add_argument("--timing", action="store_true")
     ap.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS)
     ap.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
@@ -740,12 +847,15 @@ def main() -> None:
 
         rows = [json.loads(line) for f in a.from_jsonl for line in open(f, encoding="utf-8") if line.strip()]
         for sel, report in (
-            ([r for r in rows if "model" in r], report_verify),
+            ([r for r in rows if "model" in r and "checks" not in r], report_verify),
             ([r for r in rows if "theory" in r], report_theory),
             ([r for r in rows if "p" in r and "model" not in r], report_compare),
         ):
             if sel:
                 report(sel)
+        sel = [r for r in rows if "checks" in r]
+        if sel:
+            report_unchanged(sel)
         sel = [r for r in rows if isinstance(r.get("still"), dict) and "err_mm" in r["still"]]
         if sel:
             report_prior(sel)
@@ -770,6 +880,10 @@ def main() -> None:
         tasks = [(mode, a.first_seed + s, a.poses, a.validated) for mode in a.modes for s in range(a.prior)]
         print(f"prior: {len(tasks)} trials", file=sys.stderr)
         report_prior(run_pool(prior_trial, tasks, a.jobs, a.jsonl))
+    if a.unchanged:
+        tasks = [(mode, a.first_seed + s, a.validated, a.install_views) for mode in a.modes for s in range(a.unchanged)]
+        print(f"unchanged: {len(tasks)} installs", file=sys.stderr)
+        report_unchanged(run_pool(unchanged_trial, tasks, a.jobs, a.jsonl))
     if a.timing:
         timing()
 
