@@ -419,9 +419,9 @@ def unchanged_trial(args) -> dict:
     Two readings of "unchanged": the rig is the installed result itself (X, board and intrinsics as installed,
     as ``collect --verify-against`` simulates it) or the rig the install was calibrated on (its truth, the
     install's error included). Per check: the statistic, its dof, the p-value and, for the installed rig, the
-    false-alarm probability and the mean the test's own covariance predicts when the installed part of it is
-    absent (the change is then the new views' error alone: ``sum_i (1 - lambda_i) z_i^2`` with lambda the
-    installed share per whitened direction, :attr:`handeye.recal.drift.DriftTest.variance_share`).
+    false-alarm probability and the mean the test's own covariance predicts when the change is the new views'
+    error alone (``sum_i w_i z_i^2``, w the eigenvalues of ``V^-1 V_new``, ``V_new`` the new views' part of the
+    change's covariance, :attr:`handeye.recal.drift.DriftTest.change_cov_new`).
     """
     from handeye.errors import HandeyeError
     from handeye.recal.verify import verify_views
@@ -454,7 +454,8 @@ def unchanged_trial(args) -> dict:
                     continue
                 t = verify_views(inst, views=views, object_points=s.target.object_points()).test
                 crit = _critical(t.dof, t.noise_dof)
-                w = np.clip(1.0 - t.variance_share[: t.dof], 0.0, None)
+                # the statistic's weights when the change is the new views' error alone: V^-1 V_new's eigenvalues
+                w = np.clip(np.linalg.eigvals(np.linalg.solve(t.change_cov, t.change_cov_new)).real, 0.0, None)
                 out["checks"].append(
                     dict(
                         n=n,

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from scipy import stats
 
 from handeye.cli import main
 from handeye.errors import DRIFTED_EXIT_CODE, QAFailed
@@ -43,10 +44,12 @@ def _cli(*argv) -> int:
 
 
 def _cli_reproducible(*argv) -> int:
-    """The command in a fresh interpreter with string hashing fixed, so that a seeded simulation repeats exactly.
+    """The command in a fresh interpreter, as an integrator runs it.
 
     The verification plan picks its poses greedily among candidates that score alike to the last bits of
-    the installed result, and those bits follow the order of hashed containers.
+    the installed result; those bits repeat exactly from run to run (calibrateCamera runs on one thread:
+    tests/initial/test_intrinsics.py), whatever the interpreter's string hashing, so a seeded simulation
+    repeats exactly. The hashing is pinned all the same, so that a regression shows as a changed figure.
     """
     env = dict(os.environ, PYTHONHASHSEED="0")
     return subprocess.run([sys.executable, "-m", "handeye.cli", "-q", *map(str, argv)], env=env).returncode
@@ -167,11 +170,18 @@ def test_every_export_loads_in_its_consumers_parser(year, tmp_path):
 def _month_is_unchanged(month: dict) -> None:
     """The unchanged rig's check: its verdict follows its p-value, and it sees far less than the 3 mm bump.
 
-    Not asserted: "still valid". On these 4-view simulated checks the test rejects an unchanged rig
-    more often than its alpha of 0.05 (statistics of 6-29 over 6 dof seen across runs, whose views
-    differ with the installed result's last bits); that is a known defect of verify, not of this chain.
+    Its statistic stays within its reference's 99.9 % quantile (a model that understated the change's
+    covariance would put it beyond). Not asserted: "still valid" at alpha 0.05. This seed's robot noise
+    draw is an unlucky one: the statistics 7.6-29.2 seen when the views changed with the installed
+    result's last bits (before those bits repeated) were five plans of one noise draw, not five checks;
+    over 22 seeds the same chain gave a mean statistic of 5.1 and no false alarm (docs/recalibrate.md).
+    Which plan a platform's last bits choose is not pinned here.
     """
     assert month["drifted"] is (month["test"]["p_value"] < month["test"]["alpha"])
+    t = month["test"]
+    nu = t["robot_noise_dof"]
+    q999 = stats.chi2.isf(1e-3, t["dof"]) if nu is None else t["dof"] * stats.f.isf(1e-3, t["dof"], nu)
+    assert t["statistic"] < q999, month["headline"]
     assert month["change"]["trans_mm"] < 1.5 and month["change"]["rot_deg"] < 0.15, month["headline"]
 
 
