@@ -137,6 +137,37 @@ of 11 halvings above 12.6).
 ``--timing``: 6 rendered views at 1280x720, detection included: median 0.17 s wall at load average 1.8
 (runs 0.24, 0.17, 0.15; detection 0.10 s, the verification 0.05 s).
 
+``--unchanged N --validated`` (N 20-view installs per mode, iid robot errors; each checked with 4, 6 and 8
+planned views of the rig as installed, as ``collect --verify-against`` simulates it, and of the install's
+truth; alpha 5 %; "expected" and "own mean": what the test's covariance predicts when the change is the new
+views' error alone, chi-square weights from ``DriftTest.change_cov_new``; 2026-12-06, seeds 100-114 and
+200-229 eye-in-hand, 0-24 eye-to-hand):
+
+::
+
+      mode         views     truth checks false al. expected  mean T ref mean own mean f.a. chi2
+      eye_in_hand      4 installed     45      2.2%     0.3%    4.57     6.34     4.11      4.4%
+      eye_in_hand      4       rig     45      2.2%     5.0%    6.53     6.34      nan      4.4%
+      eye_in_hand      6 installed     45      2.2%     0.1%    3.90     6.34     3.42      2.2%
+      eye_in_hand      6       rig     45      8.9%     5.0%    6.38     6.34      nan      8.9%
+      eye_in_hand      8 installed     45      0.0%     0.0%    3.36     6.34     3.00      0.0%
+      eye_in_hand      8       rig     45      4.4%     5.0%    6.23     6.34      nan      6.7%
+      eye_to_hand      4 installed     25      0.0%     0.7%    4.55     6.16     4.48      0.0%
+      eye_to_hand      4       rig     25      0.0%     5.0%    6.05     6.16      nan      4.0%
+      eye_to_hand      6 installed     25      0.0%     0.3%    3.42     6.16     3.90      0.0%
+      eye_to_hand      6       rig     25      0.0%     5.0%    5.88     6.16      nan      4.0%
+      eye_to_hand      8 installed     25      0.0%     0.1%    3.97     6.16     3.46      0.0%
+      eye_to_hand      8       rig     25      8.0%     5.0%    6.71     6.16      nan      8.0%
+
+With the install's truth the mean statistic is at its reference's (6 F(6, nu): 6.2-6.3; sd of a mean of 45
+checks about 0.55); 30 more eye-in-hand installs (seeds 0-29) gave 6.0 / 6.7 / 7.0 and 3.3 / 6.7 / 3.3 %, all
+75 together 6.3 / 6.5 / 6.5 and 2.7 / 8.0 / 4.0 %. With the rig as installed the install's error is absent
+from the change and the test is conservative: the statistic is the new views' part, about 1.1x what their
+covariance predicts (the ratio nu / (nu - 2) of a robot sigma estimated with nu ~ 16-50 degrees of freedom).
+The same chain on rendered images (``collect`` 8 views, ``calibrate``, ``collect --verify-against`` 4
+views, the rig as installed): mean statistic 5.2 and 1 false alarm in 26 eye-in-hand checks, 5.7 and none
+in 14 eye-to-hand (two more eye-to-hand installs had a distortion the simulator could not invert).
+
 Usage: python benchmarks/bench_recal.py --trials 300 --validated --compare 100 --prior 50 --timing --jobs 2
 (per mode and robot model; the issue's counts; --jsonl keeps every trial so that a long run can be
 reported with --from-jsonl, and --first-seed continues one; quick look: --trials 5 --compare 5 --prior 2).
