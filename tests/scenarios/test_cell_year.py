@@ -21,7 +21,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from scipy import stats
 
 from handeye.cli import main
 from handeye.errors import DRIFTED_EXIT_CODE, QAFailed
@@ -168,20 +167,15 @@ def test_every_export_loads_in_its_consumers_parser(year, tmp_path):
 
 
 def _month_is_unchanged(month: dict) -> None:
-    """The unchanged rig's check: its verdict follows its p-value, and it sees far less than the 3 mm bump.
+    """The unchanged rig's check: still valid, its verdict follows its p-value, and it sees far less than the bump.
 
-    Its statistic stays within its reference's 99.9 % quantile (a model that understated the change's
-    covariance would put it beyond). Not asserted: "still valid" at alpha 0.05. This seed's robot noise
-    draw is an unlucky one: the statistics 7.6-29.2 seen when the views changed with the installed
-    result's last bits (before those bits repeated) were five plans of one noise draw, not five checks;
-    over 22 seeds the same chain gave a mean statistic of 5.1 and no false alarm (docs/recalibrate.md).
-    Which plan a platform's last bits choose is not pinned here.
+    The check repeats exactly: the installed result's bits do (calibrateCamera on one thread) and the plan's
+    choice does not follow its last bits (ties broken by order, a view set's missing information zero, not
+    rounding; tests/recal/test_plan.py). Before, the plan's poses changed from run to run while this seed's
+    robot noise draw stayed (an unlucky one): statistics of 6.6-29 over 6 dof were several plans of one draw.
     """
+    assert month["verdict"] == "still valid" and not month["drifted"], month["headline"]
     assert month["drifted"] is (month["test"]["p_value"] < month["test"]["alpha"])
-    t = month["test"]
-    nu = t["robot_noise_dof"]
-    q999 = stats.chi2.isf(1e-3, t["dof"]) if nu is None else t["dof"] * stats.f.isf(1e-3, t["dof"], nu)
-    assert t["statistic"] < q999, month["headline"]
     assert month["change"]["trans_mm"] < 1.5 and month["change"]["rot_deg"] < 0.15, month["headline"]
 
 
