@@ -137,6 +137,42 @@ of 11 halvings above 12.6).
 ``--timing``: 6 rendered views at 1280x720, detection included: median 0.17 s wall at load average 1.8
 (runs 0.24, 0.17, 0.15; detection 0.10 s, the verification 0.05 s).
 
+``--unchanged N --validated`` (N 20-view installs per mode, iid robot errors; each checked with 4, 6 and 8
+planned views of the rig as installed, as ``collect --verify-against`` simulates it, and of the install's
+truth; alpha 5 %; "expected" and "own mean": what the test's covariance predicts when the change is the new
+views' error alone, chi-square weights from ``DriftTest.change_cov_new``; 2026-12-06, seeds 100-114 and
+200-229 eye-in-hand, 0-24 eye-to-hand):
+
+::
+
+      mode         views     truth checks false al. expected  mean T ref mean own mean f.a. chi2
+      eye_in_hand      4 installed     45      2.2%     0.3%    4.57     6.34     4.11      4.4%
+      eye_in_hand      4       rig     45      2.2%     5.0%    6.53     6.34      nan      4.4%
+      eye_in_hand      6 installed     45      2.2%     0.1%    3.90     6.34     3.42      2.2%
+      eye_in_hand      6       rig     45      8.9%     5.0%    6.38     6.34      nan      8.9%
+      eye_in_hand      8 installed     45      0.0%     0.0%    3.36     6.34     3.00      0.0%
+      eye_in_hand      8       rig     45      4.4%     5.0%    6.23     6.34      nan      6.7%
+      eye_to_hand      4 installed     25      0.0%     0.7%    4.55     6.16     4.48      0.0%
+      eye_to_hand      4       rig     25      0.0%     5.0%    6.05     6.16      nan      4.0%
+      eye_to_hand      6 installed     25      0.0%     0.3%    3.42     6.16     3.90      0.0%
+      eye_to_hand      6       rig     25      0.0%     5.0%    5.88     6.16      nan      4.0%
+      eye_to_hand      8 installed     25      0.0%     0.1%    3.97     6.16     3.46      0.0%
+      eye_to_hand      8       rig     25      8.0%     5.0%    6.71     6.16      nan      8.0%
+
+With the install's truth the mean statistic is at its reference's (6 F(6, nu): 6.2-6.3; sd of a mean of 45
+checks about 0.55); 30 more eye-in-hand installs (seeds 0-29) gave 6.0 / 6.7 / 7.0 and 3.3 / 6.7 / 3.3 %, all
+75 together 6.3 / 6.5 / 6.5 and 2.7 / 8.0 / 4.0 %. With the rig as installed the install's error is absent
+from the change and the test is conservative: the statistic is the new views' part, about 1.1x what their
+covariance predicts (the ratio nu / (nu - 2) of a robot sigma estimated with nu ~ 16-50 degrees of freedom).
+The same chain on rendered images (``collect`` 8 views, ``calibrate``, ``collect --verify-against`` 4
+views, the rig as installed): mean statistic 5.2 and 1 false alarm in 26 eye-in-hand checks, 5.7 and none
+in 14 eye-to-hand (two more eye-to-hand installs had a distortion the simulator could not invert).
+These rows were measured before the plan's ties were broken by order (its first view had been chosen on
+rounding noise); after (``--unchanged 20 --first-seed 300``) the twelve rows are alike (mean statistic with
+the install's truth 5.8-7.4 eye-in-hand and 6.1-8.1 eye-to-hand over 20 checks, sd of such a mean about
+0.8), and ``--trials 20 --models iid --first-seed 300`` detects 100 % / 100 % of the 1 mm / 0.1 deg bumps
+with the change's sigma 0.43 / 0.55 mm as in the table above (theory 99.1 / 99.7 %).
+
 Usage: python benchmarks/bench_recal.py --trials 300 --validated --compare 100 --prior 50 --timing --jobs 2
 (per mode and robot model; the issue's counts; --jsonl keeps every trial so that a long run can be
 reported with --from-jsonl, and --first-seed continues one; quick look: --trials 5 --compare 5 --prior 2).
@@ -408,6 +444,111 @@ def verify_trial(args) -> dict:
             skipped=f"crashed: {type(e).__name__}: {e}"[:100],
             traceback=traceback.format_exc(),
         )
+
+
+UNCHANGED_VIEWS = (4, 6, 8)
+
+
+def unchanged_trial(args) -> dict:
+    """Short checks (4, 6 and 8 views at the planned poses) of an unchanged rig against one install.
+
+    Two readings of "unchanged": the rig is the installed result itself (X, board and intrinsics as installed,
+    as ``collect --verify-against`` simulates it) or the rig the install was calibrated on (its truth, the
+    install's error included). Per check: the statistic, its dof, the p-value and, for the installed rig, the
+    false-alarm probability and the mean the test's own covariance predicts when the change is the new views'
+    error alone (``sum_i w_i z_i^2``, w the eigenvalues of ``V^-1 V_new``, ``V_new`` the new views' part of the
+    change's covariance, :attr:`handeye.recal.drift.DriftTest.change_cov_new`).
+    """
+    from handeye.errors import HandeyeError
+    from handeye.recal.verify import verify_views
+    from handeye.stats import wald_p_value, weighted_chi2_sf
+
+    mode, seed, validated, install_views = args
+    try:
+        s, r, inst = install(mode, "iid", seed, validated, install_views)
+        if r.status != "ok":
+            return dict(mode=mode, seed=seed, skipped=f"install: {r.failure_reason}")
+        out = dict(mode=mode, seed=seed, nu=inst.robot_noise_dof, checks=[])
+        truths = {
+            "installed": ((inst.T_x, inst.T_board), inst.intrinsics),
+            "rig": ((s.T_x_true, s.T_board_true), s.intrinsics),
+        }
+        for n in UNCHANGED_VIEWS:
+            planned = planned_poses(inst, n, "iid")
+            for truth, (rig, intr) in truths.items():
+                views = views_at(
+                    planned,
+                    mode=mode,
+                    model="iid",
+                    rig=rig,
+                    seed=seed + 1000 * n,
+                    model_seed=seed,
+                    target=s.target,
+                    intrinsics=intr,
+                )[:n]
+                if len(views) < n:
+                    continue
+                t = verify_views(inst, views=views, object_points=s.target.object_points()).test
+                crit = _critical(t.dof, t.noise_dof)
+                # the statistic's weights when the change is the new views' error alone: V^-1 V_new's eigenvalues
+                w = np.clip(np.linalg.eigvals(np.linalg.solve(t.change_cov, t.change_cov_new)).real, 0.0, None)
+                out["checks"].append(
+                    dict(
+                        n=n,
+                        truth=truth,
+                        T=t.statistic,
+                        dof=t.dof,
+                        p=t.p_value,
+                        ref_mean=_reference_mean(t.dof, t.noise_dof),
+                        own_mean=float(w.sum()),
+                        own_rate=weighted_chi2_sf(crit, w)[0] if w.sum() > 0 else 0.0,
+                        p_chi2=wald_p_value(t.statistic, t.dof),
+                    )
+                )
+        return out
+    except HandeyeError as e:
+        return dict(mode=mode, seed=seed, skipped=str(e)[:100])
+
+
+def _critical(dof: int, nu, alpha: float = 0.05) -> float:
+    """The statistic at which verify's p-value is ``alpha`` (chi-square, or dof F(dof, nu))."""
+    from scipy.special import fdtri
+
+    return float(stats.chi2.isf(alpha, dof)) if nu is None else float(dof * fdtri(dof, nu, 1.0 - alpha))
+
+
+def _reference_mean(dof: int, nu) -> float:
+    """The mean of verify's reference distribution: dof (chi-square) or dof nu / (nu - 2) (dof F(dof, nu))."""
+    return float(dof) if nu is None or nu <= 2 else float(dof * nu / (nu - 2.0))
+
+
+def report_unchanged(rows) -> None:
+    """False alarms and the mean statistic per mode, number of views and reading of "unchanged"."""
+    print(
+        "verify on an unchanged rig: planned poses, alpha 5 %; the rig is the installed result or the install's truth"
+    )
+    print(
+        f"  {'mode':<12}{'views':>6}{'truth':>10}{'checks':>7}{'false al.':>10}{'expected':>9}"
+        f"{'mean T':>8}{'ref mean':>9}{'own mean':>9}{'f.a. chi2':>10}"
+    )
+    ok = [r for r in rows if "skipped" not in r]
+    for mode in MODES:
+        for n in UNCHANGED_VIEWS:
+            for truth in ("installed", "rig"):
+                cs = [c for r in ok if r["mode"] == mode for c in r["checks"] if c["n"] == n and c["truth"] == truth]
+                if not cs:
+                    continue
+                expected = np.mean([c["own_rate"] for c in cs]) if truth == "installed" else 0.05
+                print(
+                    f"  {mode:<12}{n:>6}{truth:>10}{len(cs):>7}{100 * np.mean([c['p'] < 0.05 for c in cs]):>9.1f}%"
+                    f"{100 * expected:>8.1f}%{np.mean([c['T'] for c in cs]):>8.2f}"
+                    f"{np.mean([c['ref_mean'] for c in cs]):>9.2f}"
+                    f"{np.mean([c['own_mean'] for c in cs]) if truth == 'installed' else float('nan'):>9.2f}"
+                    f"{100 * np.mean([c['p_chi2'] < 0.05 for c in cs]):>9.1f}%"
+                )
+    skipped = [r for r in rows if "skipped" in r]
+    if skipped:
+        print(f"  ({len(skipped)} installs skipped: {skipped[0]['skipped'][:60]})")
 
 
 def compare_trial(args) -> dict:
@@ -713,6 +854,9 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=10, help="verify trials per mode and robot model")
     ap.add_argument("--compare", type=int, default=0, help="compare pairs per mode")
     ap.add_argument("--prior", type=int, default=0, help="--prior trials per mode")
+    ap.add_argument(
+        "--unchanged", type=int, default=0, help="installs per mode, each checked unchanged with 4, 6 and 8 views"
+    )
     ap.add_argument("--timing", action="store_true")
     ap.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS)
     ap.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
@@ -740,12 +884,15 @@ def main() -> None:
 
         rows = [json.loads(line) for f in a.from_jsonl for line in open(f, encoding="utf-8") if line.strip()]
         for sel, report in (
-            ([r for r in rows if "model" in r], report_verify),
+            ([r for r in rows if "model" in r and "checks" not in r], report_verify),
             ([r for r in rows if "theory" in r], report_theory),
             ([r for r in rows if "p" in r and "model" not in r], report_compare),
         ):
             if sel:
                 report(sel)
+        sel = [r for r in rows if "checks" in r]
+        if sel:
+            report_unchanged(sel)
         sel = [r for r in rows if isinstance(r.get("still"), dict) and "err_mm" in r["still"]]
         if sel:
             report_prior(sel)
@@ -770,6 +917,10 @@ def main() -> None:
         tasks = [(mode, a.first_seed + s, a.poses, a.validated) for mode in a.modes for s in range(a.prior)]
         print(f"prior: {len(tasks)} trials", file=sys.stderr)
         report_prior(run_pool(prior_trial, tasks, a.jobs, a.jsonl))
+    if a.unchanged:
+        tasks = [(mode, a.first_seed + s, a.validated, a.install_views) for mode in a.modes for s in range(a.unchanged)]
+        print(f"unchanged: {len(tasks)} installs", file=sys.stderr)
+        report_unchanged(run_pool(unchanged_trial, tasks, a.jobs, a.jsonl))
     if a.timing:
         timing()
 

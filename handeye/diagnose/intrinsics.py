@@ -25,6 +25,7 @@ def distortion_findings(run) -> list:
     import cv2
 
     from ..initial import calibrate_intrinsics
+    from ..initial.intrinsics import opencv_serial
 
     s = run.session
     given = s.intrinsics
@@ -50,9 +51,10 @@ def distortion_findings(run) -> list:
         | cv2.CALIB_ZERO_TANGENT_DIST
     )
     try:
-        rms_pin, K_pin, _, rv, tv = cv2.calibrateCamera(
-            objs, imgs, (W, H), given.K.copy(), np.zeros(5), flags=flags0, criteria=crit
-        )
+        with opencv_serial():
+            rms_pin, K_pin, _, rv, tv = cv2.calibrateCamera(
+                objs, imgs, (W, H), given.K.copy(), np.zeros(5), flags=flags0, criteria=crit
+            )
         fit, rms_full = calibrate_intrinsics(dets, obj, fix_k3=len(dets) < 10)
     except (cv2.error, HandeyeError) as e:  # a fit that cannot be made only means no finding
         log.info("distortion check: calibrateCamera failed: %s", e)

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Sequence
+import threading
+from contextlib import contextmanager
+from typing import Iterator, Sequence
 
 import cv2
 import numpy as np
@@ -10,6 +12,27 @@ import numpy as np
 from ..camera import Intrinsics
 from ..errors import CalibrationError, DetectionError
 from ..records import Detection
+
+_SERIAL = threading.Lock()
+
+
+@contextmanager
+def opencv_serial() -> Iterator[None]:
+    """OpenCV on one thread inside the block, its thread count restored after.
+
+    calibrateCamera sums its normal equations over views in parallel chunks whose split follows the thread
+    pool's timing, so with more than one thread the same corners give intrinsics that differ in their last
+    bits from run to run; those bits reach X and every choice made on it (e.g. ``verify --plan``'s greedy
+    pose choice). One thread makes the result a function of the input. The lock keeps concurrent callers
+    from restoring each other's count.
+    """
+    with _SERIAL:
+        n = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        try:
+            yield
+        finally:
+            cv2.setNumThreads(n)
 
 
 def calibrate_intrinsics(
@@ -30,15 +53,16 @@ def calibrate_intrinsics(
     img = [d.image_points.astype(np.float32).reshape(-1, 1, 2) for d in detections]
     w, h = detections[0].image_size
     flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
-    rms, K, dist, _, _ = cv2.calibrateCamera(
-        obj,
-        img,
-        (int(w), int(h)),
-        None,
-        None,
-        flags=flags,
-        criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12),
-    )
+    with opencv_serial():  # reproducible to the bit (see opencv_serial)
+        rms, K, dist, _, _ = cv2.calibrateCamera(
+            obj,
+            img,
+            (int(w), int(h)),
+            None,
+            None,
+            flags=flags,
+            criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12),
+        )
     if not np.all(np.isfinite(K)) or K[0, 0] <= 0:
         raise CalibrationError(
             "camera calibration failed",

@@ -37,6 +37,8 @@ class DriftTest:
     )
     # degrees of freedom of the installed robot noise level both covariances rest on (None: known, chi-square)
     noise_dof: Optional[float] = None
+    # (6,6) the new views' own part of change_cov (their noise alone; the rest is the install's error)
+    change_cov_new: Optional[np.ndarray] = None
 
     @property
     def reference(self) -> str:
@@ -64,6 +66,7 @@ def drift_test(
     diff = x_difference(T_x_installed, cov_installed, T_x_new, cov_new)
     d, S = diff["xi"], diff["S"]
     S0 = 0.5 * (cov_installed + cov_installed.T)
+    S_new = S - S0  # S = S0 + Ad cov_new Ad^T
     T, dof, p, lam, Q, proj = _whitened_wald(d, S, S0, min_variance_share)
     L = np.linalg.cholesky(S0)
     lam = np.minimum(lam, 1.0)  # S >= S0: the new views' share of the combined information
@@ -78,6 +81,7 @@ def drift_test(
         posterior_xi=post_xi,
         posterior_cov=post_cov,
         variance_share=lam,
+        change_cov_new=0.5 * (S_new + S_new.T),
     )
 
 
@@ -137,6 +141,11 @@ def joint_drift_test(
     d = s_x * (theta[xn] - theta[xo])
     V = np.outer(s_x, s_x) * (Sigma[xn, xn] + Sigma[xo, xo] - Sigma[xn, xo] - Sigma[xo, xn])
     V = 0.5 * (V + V.T)
+    # the new views' part of V: their noise enters through eta alone (cov H), Sigma[.., iv] H Sigma[iv, ..]
+    E = np.zeros((6, n))
+    E[:, xn], E[:, xo] = np.eye(6), -np.eye(6)
+    G = (E @ Sigma)[:, iv]
+    V_new = np.outer(s_x, s_x) * (G @ H @ G.T)
     T, dof, p, lam, _, _ = _whitened_wald(d, V, cov_installed, min_variance_share)
     # under H0 (X_new = X_old): the two share one X
     J0 = J[: 6 + nk, : 6 + nk].copy()
@@ -155,6 +164,7 @@ def joint_drift_test(
         posterior_cov=np.outer(s_x, s_x) * S_post[:6, :6],
         variance_share=lam,
         kind=JOINT_KIND,
+        change_cov_new=0.5 * (V_new + V_new.T),
     )
 
 
