@@ -64,7 +64,13 @@ def camera_input(name: str, run) -> CellCameraInput:
         removed=removed,
         board=repr(s.target.to_dict()),
         fix=tuple(ref.options.fix),
+        symmetries=tuple(s.target.symmetries()),
     )
+
+
+def dh_prior_scale(runs: dict) -> float:
+    """The largest scale of the arm's DH prior the cameras' own refinements estimated (1: none contradicted it)."""
+    return max((float(r.refined.robot_model.get("dh_prior_scale") or 1.0) for r in runs.values()), default=1.0)
 
 
 def excluded_by_most(runs: dict) -> list[str]:

@@ -132,7 +132,7 @@ def calibrate_cell(
     overrides every session's mounting mode (rarely right for a mixed cell). See the module docstring.
     """
     from ..refine.cell import refine_cell
-    from .build import camera_input, cell_result, excluded_by_most
+    from .build import camera_input, cell_result, dh_prior_scale, excluded_by_most
 
     t0 = time.perf_counter()
     progress = progress or (lambda s: None)
@@ -178,6 +178,7 @@ def calibrate_cell(
             [camera_input(n, r) for n, r in ok.items()],
             options=ref_opts,
             robot_excluded0=excluded_by_most(ok),
+            dh_scale0=dh_prior_scale(ok),
         )
         t_joint = time.perf_counter() - t1
         res = cell_result(cr, {n: w.result for n, w in solos.items()}, ok, version=RESULT_VERSION)

@@ -41,7 +41,9 @@ class CellCameraInput:
 
     ``masks``: view id -> corner mask of the corners the camera's own refinement kept (all when absent);
     ``removed``: view ids its own refinement dropped; ``board``: the board's identity (cameras of one mode
-    with the same board share its pose); ``fix``: intrinsics held at their values.
+    with the same board share its pose); ``fix``: intrinsics held at their values; ``symmetries``: the board's
+    corner-id permutations (a camera's own board frame may be a turn of another's; it is renumbered to the
+    first camera's).
     """
 
     name: str
@@ -56,12 +58,15 @@ class CellCameraInput:
     removed: frozenset = frozenset()
     board: str = "board"
     fix: tuple = ()
+    symmetries: tuple = ()  # corner-id permutations the board looks the same under (TargetSpec.symmetries)
 
 
 class _Cam:
     """A camera's mutable part of the cell state: X, intrinsics and its observations (view index u, ...)."""
 
-    def __init__(self, c: CellCameraInput, u_of: dict, board: int, options: RefineOptions):
+    def __init__(
+        self, c: CellCameraInput, u_of: dict, board: int, options: RefineOptions, relabel: Optional[np.ndarray] = None
+    ):
         self.name, self.mode, self.board = c.name, c.mode, board
         self.mount = mounting(c.mode)
         self.T_x = np.array(c.T_x0, float)
@@ -74,12 +79,36 @@ class _Cam:
         for v in c.views:
             if v.view_id in c.removed:
                 continue
-            ids = np.asarray(v.corner_ids, int)
+            ids = np.asarray(v.corner_ids, int) if relabel is None else relabel[np.asarray(v.corner_ids, int)]
             mask = np.asarray(c.masks.get(v.view_id, np.ones(len(ids), bool)), bool)
             self.obs.append((u_of[v.view_id], obj[ids], np.asarray(v.image_points, float).reshape(-1, 2), mask))
 
     def intrinsics(self) -> Intrinsics:
         return Intrinsics.from_vector(self.k, self.width, self.height)
+
+
+def _board_turn(c: CellCameraInput, T_board_ref: np.ndarray) -> Optional[np.ndarray]:
+    """The corner-id permutation that puts camera ``c``'s board frame closest to ``T_board_ref`` (None: none).
+
+    With ``S`` the rigid motion taking the object points onto their turned ids (``S · p_i = p_perm[i]``), the
+    camera's frame renumbered by ``perm`` is ``T_board0 · inv(S)``.
+    """
+    obj = np.asarray(c.object_points, float)
+    best: Optional[tuple[float, np.ndarray]] = None
+    for perm in c.symmetries:
+        perm = np.asarray(perm, int)
+        src, dst = obj, obj[perm]
+        cs, cd = src.mean(axis=0), dst.mean(axis=0)
+        U, _sv, Vt = np.linalg.svd((src - cs).T @ (dst - cd))
+        R = Vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))]) @ U.T
+        S = np.eye(4)
+        S[:3, :3], S[:3, 3] = R, cd - R @ cs
+        d = tangent_difference(T_board_ref, np.asarray(c.T_board0, float) @ inv_T(S))
+        cost = float(np.linalg.norm(d[:3]) + np.linalg.norm(d[3:]) / 0.1)  # 1 rad ~ 0.1 m
+        if best is None or cost < best[0]:
+            best = (cost, perm)
+    assert best is not None, "symmetries holds the identity"
+    return None if np.array_equal(best[1], np.arange(len(best[1]))) else best[1]
 
 
 class CellState:
@@ -118,11 +147,14 @@ class CellState:
         self.cams: list[_Cam] = []
         for c in cameras:
             key = (mounting(c.mode).board_name, c.board)
+            relabel = None
             if key not in boards:
                 boards[key] = len(boards)
                 self.board_names.append(key[0])
                 self.T_boards.append(np.array(c.T_board0, float))
-            self.cams.append(_Cam(c, u_of, boards[key], options))
+            elif len(c.symmetries) > 1:  # the turn of the board that brings this camera's frame to the first one's
+                relabel = _board_turn(c, self.T_boards[boards[key]])
+            self.cams.append(_Cam(c, u_of, boards[key], options, relabel))
         self.sigma_px = np.array([max(float(c.sigma_px), SIGMA_FLOOR) for c in cameras])
         union = [RefineView(v, np.zeros(0, int), np.zeros((0, 2)), rep[v], joints.get(v)) for v in ids]
         self.kind = resolve_kind(options, union)
@@ -133,7 +165,9 @@ class CellState:
         )
         self.m_dh = self.kin.m if self.kin is not None else 0
         self.dh = np.zeros(self.m_dh)
-        self.dh_prior_cov = np.diag(self.kin.dh_sigma**2) if self.kin is not None and self.m_dh else np.zeros((0, 0))
+        self.dh_prior_stated = np.diag(self.kin.dh_sigma**2) if self.kin is not None and self.m_dh else np.zeros((0, 0))
+        self.dh_scale = 1.0  # the DH prior's sigmas in use: dh_scale times the arm's stated ones
+        self.dh_scale_estimated = False
         self.sigma_rot = np.radians(options.robot_sigma_deg)
         self.sigma_trans = options.robot_sigma_mm / 1000.0
         self.sigma_q = self.kin.encoder_sigma_rad if self.kin is not None else 0.0
@@ -143,6 +177,10 @@ class CellState:
         self.loss, self.loss_k = options.loss, options.loss_k
         self.robot_prior_k = float(preset["robot_prior_k"])
         self.max_iterations = options.max_iterations
+
+    @property
+    def dh_prior_cov(self) -> np.ndarray:
+        return self.dh_prior_stated * self.dh_scale**2
 
     # -- views
     def seen(self) -> list[int]:
@@ -260,44 +298,60 @@ class CellRefinement:
         return out
 
 
-def _variance_components(st: CellState, rounds: int) -> dict[str, float]:
-    """Re-estimate each camera's pixel sigma and the robot sigmas (redundancy-weighted); returns the redundancies."""
-    from .problem import build_cell_graph, cell_information, solve_cell_graph
+def _inverse(H: np.ndarray) -> np.ndarray:
+    """The covariance of an information matrix (its pseudo-inverse where a direction is not resolved)."""
+    try:
+        return np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(H, hermitian=True)
+
+
+def _variance_components(st: CellState, rounds: int) -> tuple[dict[str, float], np.ndarray]:
+    """Re-estimate each camera's pixel sigma, the robot sigmas and (when estimated) the DH prior's scale.
+
+    Förstner's estimate per component: ``s^2 <- s^2 · e / r`` with ``e`` its whitened squared residuals and ``r``
+    its redundancy (rows less ``tr(S · H_part)``). Returns the redundancies and the final information's inverse.
+    """
+    from .problem import cell_information, solve_cell_graph
 
     red: dict[str, float] = {}
+    attr = {"robot:rot": "sigma_rot", "robot:trans": "sigma_trans", "robot:joint": "sigma_q"}
     for _ in range(rounds):
         solve_cell_graph(st, robust=False)
-        S = np.linalg.pinv(cell_information(st), hermitian=True)
+        H, parts = cell_information(st)
+        S = _inverse(H)
         changed = 0.0
-        parts = [f"pixels:{c}" for c in range(len(st.cams))]
-        parts += [f"robot:{gname}" for gname in st.robot_groups]
-        for part in parts:
-            g, v = build_cell_graph(st, part=part)
-            e = 2.0 * g.error(v)
-            r = float(np.trace(S @ cell_information(st, part)))
-            if part.startswith("pixels"):
-                c = int(part.split(":")[1])
-                n = 2 * sum(int(m.sum()) for _u, _o, _i, m in st.cams[c].obs)
-                redundancy = n - r
-                if redundancy > 1:
-                    new = max(st.sigma_px[c] * np.sqrt(e / redundancy), SIGMA_FLOOR)
-                    changed = max(changed, abs(new / st.sigma_px[c] - 1))
-                    st.sigma_px[c] = new
+        for label, (H_part, e, rows) in parts.items():
+            if label.startswith("robot:") and not st.robot_groups:
+                continue
+            if label == "dh" and not st.dh_scale_estimated:
+                continue
+            # an iid prior's factor holds its other component at a huge sigma: 3 of its 6 rows count
+            n = rows // 2 if label in ("robot:rot", "robot:trans") else rows
+            redundancy = n - float(np.sum(S * H_part))
+            red[label] = redundancy
+            if redundancy <= 1:
+                continue
+            k = float(np.sqrt(e / redundancy))
+            if label == "dh":  # the scale of the arm's DH prior, never below the stated one
+                new = max(st.dh_scale * k, 1.0)
+                changed = max(changed, abs(new / st.dh_scale - 1))
+                st.dh_scale = new
+            elif label.startswith("pixels:"):
+                c = int(label.split(":")[1])
+                new = max(st.sigma_px[c] * k, SIGMA_FLOOR)
+                changed = max(changed, abs(new / st.sigma_px[c] - 1))
+                st.sigma_px[c] = new
             else:
-                gname = part.split(":")[1]
-                n = len(st.prior_views()) * (6 if gname == "joint" else 3)
-                redundancy = n - r
-                if redundancy > 1:
-                    attr = {"rot": "sigma_rot", "trans": "sigma_trans", "joint": "sigma_q"}[gname]
-                    old = getattr(st, attr)
-                    new = max(old * np.sqrt(e / redundancy), SIGMA_FLOOR)
-                    changed = max(changed, abs(new / old - 1))
-                    setattr(st, attr, new)
-            red[part] = n - r
+                old = getattr(st, attr[label])
+                new = max(old * k, SIGMA_FLOOR)
+                changed = max(changed, abs(new / old - 1))
+                setattr(st, attr[label], new)
         if changed < 0.01:
             break
     solve_cell_graph(st, robust=False)
-    return red
+    H, _parts = cell_information(st)
+    return red, _inverse(H)
 
 
 def _robot_test(st: CellState, S: np.ndarray, core: int, u: int) -> tuple[float, float, dict[str, float]]:
@@ -436,12 +490,15 @@ def refine_cell(
     *,
     options: Optional[RefineOptions] = None,
     robot_excluded0: Sequence[str] = (),
+    dh_scale0: float = 1.0,
     vce_rounds: int = 6,
 ) -> CellRefinement:
     """Refine the cameras of a cell jointly (see the module docstring).
 
     ``robot_excluded0``: view ids whose robot pose starts without its prior (e.g. those most cameras' own
-    refinements excluded); the robot-pose test may exclude more. Raises InputError when the cameras disagree
+    refinements excluded); the robot-pose test may exclude more. ``dh_scale0`` > 1: the cameras' own views
+    contradicted the arm's stated DH prior (:mod:`.noise`); its scale starts there and is a variance component
+    of the cell (never below 1). Raises InputError when the cameras disagree
     about a view's reported robot pose.
     """
     from .problem import cell_information, cell_ordering, solve_cell_graph
@@ -449,6 +506,8 @@ def refine_cell(
     t0 = time.perf_counter()
     o = RefineOptions() if options is None else options
     st = CellState(cameras, o)
+    if st.m_dh and dh_scale0 > 1.0 and o.robot_noise == "estimate":
+        st.dh_scale, st.dh_scale_estimated = float(dh_scale0), True
     for vid in robot_excluded0:
         if vid in st.ids and st.kind != "none":
             st.excluded[vid] = {"reason": "excluded by most of the cameras' own refinements"}
@@ -456,9 +515,8 @@ def refine_cell(
     red: dict[str, float] = {}
     readmitted: set[str] = set()
     for _round in range(max(1, o.max_outlier_rounds) + 1):
-        red = _variance_components(st, vce_rounds if st.robot_groups or len(st.cams) else 1)
+        red, S = _variance_components(st, vce_rounds)
         core = int(np.sum(cell_ordering(st)[1]))
-        S = np.linalg.pinv(cell_information(st), hermitian=True)
         worst, bad, again = _tests(st, S, core)
         log.debug("cell round %d: robot %s, views %s, again %s", _round, worst, bad, again)
         again = [u for u in again if st.ids[u] not in readmitted]
@@ -484,8 +542,8 @@ def refine_cell(
         iterations += solve_cell_graph(st, robust=False)
     keys, sizes = cell_ordering(st)
     core = int(np.sum(sizes))
-    H = cell_information(st)
-    S = np.linalg.inv(H)[:core, :core]
+    H, _parts = cell_information(st)
+    S = _inverse(H)[:core, :core]
     S = 0.5 * (S + S.T)
     blocks: list[str] = []
     for cam in st.cams:
@@ -514,7 +572,12 @@ def refine_cell(
         per_view[cam.name] = d
     robot_model: dict[str, Any] = {"kind": st.kind}
     if st.kin is not None:
-        robot_model.update(arm=st.kin.arm.name, encoder_sigma_deg=float(np.degrees(st.sigma_q)))
+        robot_model.update(
+            arm=st.kin.arm.name,
+            encoder_sigma_deg=float(np.degrees(st.sigma_q)),
+            dh_prior_scale=st.dh_scale,
+            dh_prior_scale_estimated=st.dh_scale_estimated,
+        )
     elif st.kind == "iid":
         robot_model.update(sigma_rot_deg=float(np.degrees(st.sigma_rot)), sigma_trans_mm=float(1e3 * st.sigma_trans))
     return CellRefinement(

@@ -349,16 +349,22 @@ def cell_ordering(st: Any) -> tuple[list[int], list[int]]:
 
 
 def build_cell_graph(
-    st: Any, *, part: str = "all", robust: bool = False
+    st: Any, *, robust: bool = False, labels: Optional[list[str]] = None
 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """Graph and Values of a cell (:class:`handeye.refine.cell.CellState`): all cameras, one robot pose per view.
 
-    ``part`` keeps only one group of factors (for the variance components): ``pixels:<c>`` camera c's
-    reprojections, ``robot:rot`` / ``robot:trans`` (iid) or ``robot:joint`` (kinematic) the robot priors with
-    that component alone, ``all`` everything. ``robust``: Huber on the robot priors and the corners (guard solve).
+    ``labels`` (a list, filled): each factor's variance component, ``pixels:<c>`` camera c's reprojections,
+    ``robot:rot`` / ``robot:trans`` (iid: one factor each) or ``robot:joint`` (kinematic) the robot priors,
+    ``dh`` the DH offsets' prior. ``robust``: Huber on the robot priors and the corners (guard solve).
     """
     g = gtsam.NonlinearFactorGraph()
     v = gtsam.Values()
+    out = labels if labels is not None else []
+
+    def add(f: gtsam.NonlinearFactor, label: str) -> None:
+        g.add(f)
+        out.append(label)
+
     for c, cam in enumerate(st.cams):
         v.insert(_cell_key("x", c), gtsam.Pose3(cam.T_x))
         if cam.free.size:
@@ -371,12 +377,10 @@ def build_cell_graph(
         v.insert(_cell_key("p", u), gtsam.Pose3(st.P[u]))
     robot_keyed = set(st.robot_views())
     for c, cam in enumerate(st.cams):
-        if part not in ("all", f"pixels:{c}"):
-            continue
         for u, obj, img, mask in cam.obs:
             if not mask.any():
                 continue
-            g.add(
+            add(
                 view_reprojection_factor(
                     mode=cam.mode,
                     key_x=_cell_key("x", c),
@@ -391,37 +395,38 @@ def build_cell_graph(
                     T_base_end=st.reported[u],
                     loss=st.loss if robust else "none",
                     loss_k=st.loss_k,
-                )
+                ),
+                f"pixels:{c}",
             )
-    if part.startswith("robot") or part == "all":
-        robust_k = st.robot_prior_k if robust else None
-        for u in st.prior_views():
-            if st.kin is None:
-                big = 1e6  # a component left out of this part: no information
-                s_rot = st.sigma_rot if part in ("all", "robot:rot") else big
-                s_trans = st.sigma_trans if part in ("all", "robot:trans") else big
-                g.add(
+    robust_k = st.robot_prior_k if robust else None
+    big = 1e6  # the other component of an iid prior's factor: no information
+    for u in st.prior_views():
+        if st.kin is None:
+            for label, s_rot, s_trans in (("robot:rot", st.sigma_rot, big), ("robot:trans", big, st.sigma_trans)):
+                add(
                     robot_pose_prior(
                         key_robot=_cell_key("p", u),
                         T_base_end_reported=st.reported[u],
                         sigma_rot_rad=s_rot,
                         sigma_trans_m=s_trans,
                         robust_k=robust_k,
-                    )
+                    ),
+                    label,
                 )
-            else:
-                g.add(
-                    kinematic_robot_prior(
-                        key_robot=_cell_key("p", u),
-                        key_dh=_cell_key("d", 0) if st.m_dh else None,
-                        T_base_end_reported=st.reported[u],
-                        J_dh=st.kin.J_dh[u],
-                        cov=st.sigma_q**2 * st.kin.B[u],
-                        robust_k=robust_k,
-                    )
-                )
-    if st.m_dh and part in ("all", "dh"):
-        g.add(gaussian_prior(key=_cell_key("d", 0), mean=np.zeros(st.m_dh), cov=st.dh_prior_cov))
+        else:
+            add(
+                kinematic_robot_prior(
+                    key_robot=_cell_key("p", u),
+                    key_dh=_cell_key("d", 0) if st.m_dh else None,
+                    T_base_end_reported=st.reported[u],
+                    J_dh=st.kin.J_dh[u],
+                    cov=st.sigma_q**2 * st.kin.B[u],
+                    robust_k=robust_k,
+                ),
+                "robot:joint",
+            )
+    if st.m_dh:
+        add(gaussian_prior(key=_cell_key("d", 0), mean=np.zeros(st.m_dh), cov=st.dh_prior_cov), "dh")
     return g, v
 
 
@@ -443,26 +448,46 @@ def solve_cell_graph(st: Any, *, robust: bool) -> int:
     return int(opt.iterations())
 
 
-def cell_information(st: Any, part: str = "all") -> np.ndarray:
-    """Information matrix (dense) of the cell's factors of ``part`` at the current estimate.
+def cell_information(st: Any) -> tuple[np.ndarray, dict[str, tuple[np.ndarray, float, int]]]:
+    """The cell's information matrix at the current estimate, and per variance component its part.
 
-    Order: :func:`cell_ordering`'s core, then each robot pose of ``st.robot_views()`` (6 each). Variables a
-    part does not involve have zero rows.
+    (H (dense), {label: (its factors' information, their whitened squared residuals, their rows)}), from one
+    linearisation. Order: :func:`cell_ordering`'s core, then each robot pose of ``st.robot_views()`` (6 each).
     """
-    g, v = build_cell_graph(st, part=part)
+    labels: list[str] = []
+    g, v = build_cell_graph(st, labels=labels)
     keys, sizes = cell_ordering(st)
     keys = keys + [_cell_key("p", u) for u in st.robot_views()]
     sizes = sizes + [6] * len(st.robot_views())
-    in_graph = set(g.keyVector())
-    present = [k for k in keys if k in in_graph]
-    if not present:
-        return np.zeros((sum(sizes), sum(sizes)))
-    ordering = gtsam.Ordering()
-    for k in present:
-        ordering.push_back(k)
-    Hp, _ = g.linearize(v).hessian(ordering)
     start = np.r_[0, np.cumsum(sizes)]
-    idx = np.concatenate([np.arange(start[i], start[i + 1]) for i, k in enumerate(keys) if k in present])
-    H = np.zeros((sum(sizes), sum(sizes)))
-    H[np.ix_(idx, idx)] = Hp
-    return H
+    at = {k: np.arange(start[i], start[i + 1]) for i, k in enumerate(keys)}
+    n = int(start[-1])
+    lin = g.linearize(v)
+    groups: dict[str, list[int]] = {}
+    for i, label in enumerate(labels):
+        groups.setdefault(label, []).append(i)
+
+    def hessian(idx: list[int]) -> tuple[np.ndarray, float, int]:
+        sub = gtsam.GaussianFactorGraph()
+        present: list[int] = []
+        e, rows = 0.0, 0
+        for i in idx:
+            f = lin.at(i)
+            sub.push_back(f)
+            b = np.asarray(f.getb(), float)
+            e += float(b @ b)
+            rows += b.size
+            present += [k for k in f.keys() if k not in present]
+        ordering = gtsam.Ordering()
+        present = [k for k in keys if k in set(present)]
+        for k in present:
+            ordering.push_back(k)
+        Hp, _ = sub.hessian(ordering)
+        idx_all = np.concatenate([at[k] for k in present])
+        H = np.zeros((n, n))
+        H[np.ix_(idx_all, idx_all)] = Hp
+        return H, e, rows
+
+    parts = {label: hessian(idx) for label, idx in groups.items()}
+    H = sum((p[0] for p in parts.values()), np.zeros((n, n)))
+    return H, parts
