@@ -27,6 +27,12 @@ from ..results import FINDING_KEYS
 #: a solo X further than this from the joint one (its chi-square p-value under the solo covariance) is named
 SOLO_AGREEMENT_P = 0.01
 _RANK = {"PASS": 0, "WARN": 1, "FAIL": 2, "REFUSED": 3}
+
+
+def _rank(verdict: str) -> int:
+    return _RANK.get(verdict, 2)
+
+
 _SEVERITY_VERDICT = {"fail": "FAIL", "warn": "WARN", "info": "PASS"}
 
 
@@ -151,8 +157,8 @@ def _camera_entry(name: str, solo: dict, cr: CellRefinement, findings: list[dict
     )
     e["refinement"] = plain(ref)
     e["findings"] = list(solo.get("findings") or []) + findings
-    worst = max((_SEVERITY_VERDICT.get(f["severity"], "PASS") for f in findings), key=_RANK.get, default="PASS")
-    e["verdict"] = max(solo.get("verdict") or "PASS", worst, key=_RANK.get)
+    worst = max((_SEVERITY_VERDICT.get(f["severity"], "PASS") for f in findings), key=_rank, default="PASS")
+    e["verdict"] = max(solo.get("verdict") or "PASS", worst, key=_rank)
     return e
 
 
@@ -236,17 +242,18 @@ def cell_result(cr: CellRefinement, solos: dict[str, dict], runs: dict, *, versi
         else:
             cameras[name] = {k: v for k, v in solo.items() if k != "handeye_result"}
     pairs = {}
-    for a, b in cr.pairs():
-        T, C = cr.pair(a, b)
-        pairs[f"{a}/{b}"] = {
-            "name": f"T_{a}_{b}",
+    for cam_a, cam_b in cr.pairs():
+        T, C = cr.pair(cam_a, cam_b)
+        key = f"{cam_a}/{cam_b}"
+        pairs[key] = {
+            "name": f"T_{cam_a}_{cam_b}",
             "matrix": T.tolist(),
             "cov_6x6": C.tolist(),
             "cov_6x6_verdict": C.tolist(),
         }
-        pairs[f"{a}/{b}"]["translation_mm"] = (1e3 * T[:3, 3]).tolist()
-        pairs[f"{a}/{b}"]["sigma_rot_deg"] = np.degrees(np.sqrt(np.diag(C)[:3])).tolist()
-        pairs[f"{a}/{b}"]["sigma_trans_mm"] = (1e3 * np.sqrt(np.diag(C)[3:])).tolist()
+        pairs[key]["translation_mm"] = (1e3 * T[:3, 3]).tolist()
+        pairs[key]["sigma_rot_deg"] = np.degrees(np.sqrt(np.diag(C)[:3])).tolist()
+        pairs[key]["sigma_trans_mm"] = (1e3 * np.sqrt(np.diag(C)[3:])).tolist()
     failed = [n for n in solos if n not in cr.names]
     for n in failed:
         cell_findings.append(
@@ -260,7 +267,7 @@ def cell_result(cr: CellRefinement, solos: dict[str, dict], runs: dict, *, versi
         )
     verdicts = [c.get("verdict") or "FAIL" for c in cameras.values()]
     verdicts += [_SEVERITY_VERDICT.get(f["severity"], "PASS") for f in cell_findings]
-    verdict = max(verdicts, key=_RANK.get)
+    verdict = max(verdicts, key=_rank)
     refinement: dict[str, Any] = {
         "status": "ok",
         "robot_model": cr.robot_model,
@@ -284,10 +291,10 @@ def cell_result(cr: CellRefinement, solos: dict[str, dict], runs: dict, *, versi
         "joint_covariance": {"blocks": cr.blocks, "sizes": cr.sizes, "matrix": cr.cov.tolist()},
     }
     if len(cr.boards) == 1:  # one board for every camera: the single-camera keys
-        b = cr.boards[0]
-        d[b["name"]] = np.asarray(b["matrix"]).tolist()
-        d["board"] = dict(name=b["name"], **pose_forms(b["matrix"]))
-        refinement["cov_board_6x6"] = cr.cov_of(b["block"])
+        one = cr.boards[0]
+        d[one["name"]] = np.asarray(one["matrix"]).tolist()
+        d["board"] = dict(name=one["name"], **pose_forms(one["matrix"]))
+        refinement["cov_board_6x6"] = cr.cov_of(one["block"])
     else:
         refinement["boards"] = {
             b["block"]: {

@@ -55,17 +55,22 @@ class CellCameraInput:
     T_board0: np.ndarray
     sigma_px: float = 1.0
     masks: Mapping[str, np.ndarray] = field(default_factory=dict)
-    removed: frozenset = frozenset()
+    removed: frozenset[str] = frozenset()
     board: str = "board"
-    fix: tuple = ()
-    symmetries: tuple = ()  # corner-id permutations the board looks the same under (TargetSpec.symmetries)
+    fix: tuple[str, ...] = ()
+    symmetries: tuple[np.ndarray, ...] = ()  # corner-id permutations of the board's look (TargetSpec.symmetries)
 
 
 class _Cam:
     """A camera's mutable part of the cell state: X, intrinsics and its observations (view index u, ...)."""
 
     def __init__(
-        self, c: CellCameraInput, u_of: dict, board: int, options: RefineOptions, relabel: Optional[np.ndarray] = None
+        self,
+        c: CellCameraInput,
+        u_of: dict[str, int],
+        board: int,
+        options: RefineOptions,
+        relabel: Optional[np.ndarray] = None,
     ):
         self.name, self.mode, self.board = c.name, c.mode, board
         self.mount = mounting(c.mode)
@@ -141,7 +146,7 @@ class CellState:
         u_of = {vid: u for u, vid in enumerate(ids)}
         self.reported = np.stack([rep[v] for v in ids])
         self.P = self.reported.copy()
-        boards: dict[tuple, int] = {}
+        boards: dict[tuple[str, str], int] = {}
         self.board_names: list[str] = []
         self.T_boards: list[np.ndarray] = []
         self.cams: list[_Cam] = []
@@ -171,8 +176,8 @@ class CellState:
         self.sigma_rot = np.radians(options.robot_sigma_deg)
         self.sigma_trans = options.robot_sigma_mm / 1000.0
         self.sigma_q = self.kin.encoder_sigma_rad if self.kin is not None else 0.0
-        self.excluded: dict[str, dict] = {}  # view id -> the robot-pose test's numbers
-        self.camera_removed: dict[tuple[int, str], dict] = {}  # (camera, view id) -> why
+        self.excluded: dict[str, dict[str, Any]] = {}  # view id -> the robot-pose test's numbers
+        self.camera_removed: dict[tuple[int, str], dict[str, Any]] = {}  # (camera, view id) -> why
         preset = refine_preset()["robust"]
         self.loss, self.loss_k = options.loss, options.loss_k
         self.robot_prior_k = float(preset["robot_prior_k"])
@@ -253,9 +258,9 @@ class CellRefinement:
     cov: np.ndarray
     sigma_px: dict[str, float]
     robot_model: dict[str, Any]
-    robot_excluded: dict[str, dict]
-    camera_removed: dict[str, dict[str, dict]]  # camera -> view id -> why
-    per_view: dict[str, dict[str, dict]]  # camera -> view id -> {rms_px, n_used, status}
+    robot_excluded: dict[str, dict[str, Any]]
+    camera_removed: dict[str, dict[str, dict[str, Any]]]  # camera -> view id -> why
+    per_view: dict[str, dict[str, dict[str, Any]]]  # camera -> view id -> {rms_px, n_used, status}
     redundancy: dict[str, float]
     iterations: int
     seconds: float
@@ -377,7 +382,9 @@ def _robot_test(st: CellState, S: np.ndarray, core: int, u: int) -> tuple[float,
     return stat, float(chi2.sf(stat, 6)), sizes
 
 
-def _tests(st: CellState, S: np.ndarray, core: int) -> tuple[Optional[tuple], list[tuple], list[int]]:
+def _tests(
+    st: CellState, S: np.ndarray, core: int
+) -> tuple[Optional[tuple[int, float, dict[str, float]]], list[tuple[int, int, dict[str, float]]], list[int]]:
     """The worst robot pose the cameras disagree with, the camera views with too large residuals, and more.
 
     (worst robot pose (view index, statistic, numbers) or None, [(camera, observation, numbers)] of the
@@ -459,7 +466,7 @@ def _fit_pose(st: CellState, u: int, obs: list[tuple[int, int]], *, prior: bool)
     return T
 
 
-def _lone_camera(st: CellState, u: int, bad: list[tuple]) -> list[tuple]:
+def _lone_camera(st: CellState, u: int) -> list[tuple[int, int, dict[str, float]]]:
     """The one camera view of view u that disagrees with the pose the other cameras and the prior agree on.
 
     [] when no single camera explains it (a robot pose, or views seen by one camera only).
@@ -528,7 +535,7 @@ def refine_cell(
         # a view's disagreement is one camera's image when the others (with the reported pose) agree without it;
         # else, when the cameras agree among themselves but not with the reported pose, the robot pose's
         suspects = {st.cams[c].obs[j][0] for c, j, _i in bad} | ({worst[0]} if worst is not None else set())
-        images = [(c, j, i) for u in sorted(suspects) for c, j, i in _lone_camera(st, u, bad)]
+        images = [(c, j, i) for u in sorted(suspects) for c, j, i in _lone_camera(st, u)]
         if images:
             bad = images
         elif worst is not None:
@@ -555,7 +562,7 @@ def refine_cell(
         label = name if st.board_names.count(name) == 1 else f"{name}.{b + 1}"
         board_blocks.append(label)
     blocks += board_blocks + (["dh_offsets"] if st.m_dh else [])
-    per_view: dict[str, dict[str, dict]] = {}
+    per_view: dict[str, dict[str, dict[str, Any]]] = {}
     for c, cam in enumerate(st.cams):
         d = {}
         for j, (u, _o, _i, m) in enumerate(cam.obs):

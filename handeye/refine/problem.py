@@ -474,8 +474,8 @@ def cell_information(st: Any) -> tuple[np.ndarray, dict[str, tuple[np.ndarray, f
         for i in idx:
             f = lin.at(i)
             sub.push_back(f)
-            b = np.asarray(f.getb(), float)
-            e += float(b @ b)
+            b = np.asarray(f.getb(), dtype=np.float64)  # type: ignore[attr-defined]  # a JacobianFactor
+            e += float(np.dot(b, b))
             rows += b.size
             present += [k for k in f.keys() if k not in present]
         ordering = gtsam.Ordering()

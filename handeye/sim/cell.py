@@ -254,7 +254,7 @@ def write_cell(
         folder = out / name
         folder.mkdir(exist_ok=True)
         T_cb = s.T_cam_board_true
-        views = []
+        views: list[dict] = []
         for k, vid in enumerate(s.view_ids):
             if vid in s.hidden_view_ids:
                 continue
@@ -293,7 +293,7 @@ def write_cell(
             "outlier_view_ids": list(s.outlier_view_ids),
         }
         atomic_write_text(folder / "ground_truth.json", json.dumps(truth, indent=1) + "\n")
-    cfg = {"cell": {"sessions": list(cell.names)}}
+    cfg: dict[str, object] = {"cell": {"sessions": list(cell.names)}}
     if arm_name is not None:
         cfg["robot"] = arm_name
     atomic_write_text(out / "cell.yaml", yaml.safe_dump(cfg, sort_keys=False))

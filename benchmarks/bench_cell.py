@@ -1,0 +1,209 @@
+"""Benchmark of cells: several cameras of one arm in one graph (handeye.refine.cell) against each camera alone.
+
+Corner-level simulated cells (:func:`handeye.sim.cell.make_cell`: 2 or 3 fixed cameras behind a board on the
+flange, from 3 cameras on a wrist camera seeing a board on the table; 11x8 board, 1280x720, 0.3 px corner
+noise) with the kinematic arm error of the simulator (the UR5e with DH errors of 0.1-0.5 mm / 0.01-0.05 deg
+and 0.005 deg encoder noise, shared by every camera). Each camera is calibrated alone as the pipeline does
+(calibrateCamera, solvePnP, every closed form, :func:`handeye.refine.refine` with the kinematic model), then
+all of them jointly from the solo results (:func:`handeye.refine.cell.refine_cell`).
+
+Printed per cell size: RMS error of X (rotation deg, translation mm) joint and solo over cameras and cells;
+the ratio of the joint RMS error to the Cramér-Rao bound of the joint problem (its covariance at the truth:
+the true poses, intrinsics and noise levels, the arm's stated DH prior); the share of cameras whose truth
+lies inside the 95 % ellipsoid of their joint ``cov_x_6x6`` (chi-square 6 dof) and the same for every pair of
+fixed cameras' ``T_a_b``; the time of the solo refinements and of the joint one. Progress on stderr, figures
+on stdout.
+
+Figures (2026-12-06, 40 views, seeds 0-9 per size, 30 cells; ``--seeds 10 --sizes 2 3 4``):
+
+(run the script for the current figures; the table is printed at the end)
+
+Usage: python benchmarks/bench_cell.py [--seeds 10] [--sizes 2 3 4] [--views 40] [--jobs 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import chi2
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_refine import closed_forms, refine_views  # noqa: E402  (one copy of the pipeline's seeding)
+from fanout import ordered_map  # noqa: E402
+
+from handeye.frames import inv_T, tangent_difference  # noqa: E402
+from handeye.refine import RefineOptions, refine  # noqa: E402
+from handeye.refine.cell import CellCameraInput, CellState, refine_cell  # noqa: E402
+from handeye.refine.problem import cell_information, cell_ordering  # noqa: E402
+from handeye.sim.cell import make_cell  # noqa: E402
+
+ARM = "ur5e"
+NOISE_PX = 0.3
+CHI2_95 = chi2.ppf(0.95, 6)
+
+
+def _inputs(cell, intr, T_x, T_board, sigma_px):
+    out = []
+    for name, s in zip(cell.names, cell.sessions, strict=True):
+        out.append(
+            CellCameraInput(
+                name=name,
+                mode=s.mode,
+                object_points=s.target.object_points(),
+                views=tuple(v for v in refine_views(s) if len(v.corner_ids)),
+                intrinsics=intr[name],
+                T_x0=T_x[name],
+                T_board0=T_board[name],
+                sigma_px=sigma_px[name],
+            )
+        )
+    return out
+
+
+def crb(cell, options) -> dict:
+    """The joint problem's covariance of each X at the truth (the Cramér-Rao bound of the cell's model)."""
+    names = cell.names
+    st = CellState(
+        _inputs(
+            cell,
+            {n: s.intrinsics for n, s in zip(names, cell.sessions, strict=True)},
+            {n: s.T_x_true for n, s in zip(names, cell.sessions, strict=True)},
+            {n: s.T_board_true for n, s in zip(names, cell.sessions, strict=True)},
+            dict.fromkeys(names, NOISE_PX),
+        ),
+        options,
+    )
+    first = cell.sessions[0]
+    st.P = np.array([first.T_base_end_true[first.index(v)] for v in st.ids])
+    st.sigma_q = np.radians(first.robot_model["encoder_sigma_deg"])
+    H, _parts = cell_information(st)
+    S = np.linalg.inv(H)
+    out, at = {}, 0
+    keys, sizes = cell_ordering(st)
+    blocks = []
+    for cam in st.cams:
+        blocks.append(cam.name)
+        if cam.free.size:
+            blocks.append(None)
+    for name, size in zip(blocks + [None] * (len(sizes) - len(blocks)), sizes, strict=True):
+        if name is not None:
+            out[name] = S[at : at + 6, at : at + 6]
+        at += size
+    return out
+
+
+def run_one(n_cameras: int, seed: int, n_views: int) -> dict:
+    cell = make_cell(n_cameras, n_views=n_views, seed=seed, noise_px=NOISE_PX, arm=ARM)
+    o = RefineOptions(arm=ARM)
+    t0 = time.perf_counter()
+    solo = {}
+    for name, s in zip(cell.names, cell.sessions, strict=True):
+        k, closed = closed_forms(s)
+        views = [v for v in refine_views(s) if len(v.corner_ids)]
+        solo[name] = refine(
+            mode=s.mode,
+            object_points=s.target.object_points(),
+            views=views,
+            intrinsics=k,
+            T_x0=closed["tsai"].T_x,
+            T_board0=closed["tsai"].T_board,
+            options=o,
+            starts=closed,
+        )
+    t1 = time.perf_counter()
+    cr = refine_cell(
+        _inputs(
+            cell,
+            {n: r.intrinsics for n, r in solo.items()},
+            {n: r.T_x for n, r in solo.items()},
+            {n: r.T_board for n, r in solo.items()},
+            {n: r.sigma_px for n, r in solo.items()},
+        ),
+        options=o,
+        dh_scale0=max(float(r.robot_model.get("dh_prior_scale") or 1.0) for r in solo.values()),
+    )
+    t2 = time.perf_counter()
+    bound = crb(cell, o)
+    rows = []
+    for name, s in zip(cell.names, cell.sessions, strict=True):
+        xi_j = tangent_difference(cr.T_x[name], s.T_x_true)
+        xi_s = tangent_difference(solo[name].T_x, s.T_x_true)
+        rows.append(
+            {
+                "camera": name,
+                "mode": s.mode,
+                "joint": xi_j.tolist(),
+                "solo": xi_s.tolist(),
+                "m2_joint": float(xi_j @ np.linalg.solve(cr.cov_x(name), xi_j)),
+                "m2_solo": float(xi_s @ np.linalg.solve(np.asarray(solo[name].cov_x_6x6), xi_s)),
+                "crb_trace_rot": float(np.trace(bound[name][:3, :3])),
+                "crb_trace_trans": float(np.trace(bound[name][3:, 3:])),
+            }
+        )
+    pairs = []
+    for a, b in cr.pairs():
+        T, C = cr.pair(a, b)
+        T_true = inv_T(cell.session(a).T_x_true) @ cell.session(b).T_x_true
+        xi = tangent_difference(T, T_true)
+        pairs.append(float(xi @ np.linalg.solve(C, xi)))
+    return {"n": n_cameras, "seed": seed, "rows": rows, "pairs": pairs, "solo_s": t1 - t0, "joint_s": t2 - t1}
+
+
+def _rms(a) -> float:
+    return float(np.sqrt(np.mean(np.square(a)))) if len(a) else float("nan")
+
+
+def summary(results: list[dict]) -> str:
+    lines = [
+        "| cameras | cells | X error joint (deg, mm) | X error solo (deg, mm) | joint / CRB (rot, trans) | "
+        "coverage X 95 % | coverage T_a_b 95 % | solo s / joint s per cell |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for n in sorted({r["n"] for r in results}):
+        rs = [r for r in results if r["n"] == n]
+        rows = [row for r in rs for row in r["rows"]]
+        j = np.array([row["joint"] for row in rows])
+        s = np.array([row["solo"] for row in rows])
+        rot = lambda x: np.degrees(np.linalg.norm(x[:, :3], axis=1))  # noqa: E731
+        tr = lambda x: 1e3 * np.linalg.norm(x[:, 3:], axis=1)  # noqa: E731
+        crb_rot = np.sqrt(np.mean([row["crb_trace_rot"] for row in rows]))
+        crb_tr = np.sqrt(np.mean([row["crb_trace_trans"] for row in rows]))
+        cov_x = np.mean([row["m2_joint"] <= CHI2_95 for row in rows])
+        pairs = [m for r in rs for m in r["pairs"]]
+        cov_p = np.mean([m <= CHI2_95 for m in pairs]) if pairs else float("nan")
+        lines.append(
+            f"| {n} | {len(rs)} | {_rms(rot(j)):.4f}, {_rms(tr(j)):.3f} | {_rms(rot(s)):.4f}, {_rms(tr(s)):.3f} | "
+            f"{_rms(np.linalg.norm(j[:, :3], axis=1)) / crb_rot:.2f}, "
+            f"{_rms(np.linalg.norm(j[:, 3:], axis=1)) / crb_tr:.2f} | "
+            f"{100 * cov_x:.0f} % of {len(rows)} | {100 * cov_p:.0f} % of {len(pairs)} | "
+            f"{np.mean([r['solo_s'] for r in rs]):.1f} / {np.mean([r['joint_s'] for r in rs]):.1f} |"
+        )
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[2, 3, 4])
+    ap.add_argument("--views", type=int, default=40)
+    ap.add_argument("--jobs", type=int, default=1)
+    args = ap.parse_args()
+    jobs = [(n, seed) for n in args.sizes for seed in range(args.seeds)]
+    results = []
+    it = ordered_map(run_one, [n for n, _ in jobs], [s for _, s in jobs], [args.views] * len(jobs), workers=args.jobs)
+    for (n, seed), r in zip(jobs, it, strict=True):
+        results.append(r)
+        print(
+            f"{n} cameras seed {seed}: m2 joint {[round(x['m2_joint'], 1) for x in r['rows']]}, "
+            f"solo {r['solo_s']:.1f} s, joint {r['joint_s']:.1f} s",
+            file=sys.stderr,
+        )
+    print(summary(results))
+
+
+if __name__ == "__main__":
+    main()
