@@ -95,3 +95,19 @@ def test_two_sessions_of_one_name_are_refused(cell, tmp_path):
     with pytest.raises(InputError, match="two sessions of the cell are named 'cam1'"):
         calibrate_cell([folder / "cam1", other], tmp_path / "o")
     assert main(["-q", "calibrate", str(folder / "cam1"), str(folder / "cam2")]) == 2  # a cell needs --out
+
+
+def test_a_camera_that_cannot_be_calibrated_leaves_the_cell_with_a_finding(cell, tmp_path):
+    folder, _out, _rc = cell
+    broken = tmp_path / "cam9"
+    shutil.copytree(folder / "cam1", broken)
+    doc = yaml.safe_load((broken / "session.yaml").read_text())
+    doc["views"] = doc["views"][:2]  # two views cannot calibrate a camera
+    (broken / "session.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    wr = calibrate_cell([folder / "cam2", broken], tmp_path / "o", report=False, diagnostics=False)
+    res = read_result(wr.out_dir)
+    assert res.camera_names == ["cam2", "cam9"] and res.verdict == "FAIL"
+    assert res.raw["cameras"]["cam9"]["status"] == "failed" and res.raw["cameras"]["cam2"]["status"] == "ok"
+    failed = [f for f in res.raw["findings"] if f["code"] == "cell_camera_failed"]
+    assert len(failed) == 1 and "cam9" in failed[0]["title"]
+    assert not res.raw["camera_pairs"]
