@@ -31,7 +31,9 @@ DH prior, wider than the simulated DH errors). Times on a shared 2-core machine:
 the four solo refinements plus about as long again for the joint graph, 6-7 times one camera's refinement
 (the issue's 4x is not reached; the joint graph is Python reprojection factors, the solo ones' cost).
 
-Usage: python benchmarks/bench_cell.py [--seeds 10] [--sizes 2 3 4] [--views 40] [--jobs 1]
+Usage: python benchmarks/bench_cell.py [--seeds 10] [--sizes 2 3 4] [--views 40] [--jobs 1] [--rendered DIR]
+(``--rendered DIR``: also render a cell of the largest size and time ``handeye calibrate`` of one camera's
+session against the whole cell, detection and reports included).
 """
 
 from __future__ import annotations
@@ -198,13 +200,35 @@ def summary(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def rendered_timing(n_cameras: int, n_views: int, folder: Path) -> str:
+    """Seconds of ``handeye calibrate`` of one rendered camera session against the whole rendered cell."""
+    from handeye.cell import calibrate_cell
+    from handeye.sim.cell import write_cell
+    from handeye.workflow import calibrate_session
+
+    cell = write_cell(folder / "cell", n_cameras, n_views=n_views, seed=0, arm=ARM)
+    t0 = time.perf_counter()
+    calibrate_session(cell / "cam1", out_dir=folder / "one", report=True)
+    t1 = time.perf_counter()
+    wr = calibrate_cell([cell], folder / "all", report=True)
+    t2 = time.perf_counter()
+    joint = wr.result["seconds"]["joint"]
+    return (
+        f"rendered {n_cameras}-camera {n_views}-view cell: one camera {t1 - t0:.1f} s, the cell {t2 - t1:.1f} s "
+        f"({(t2 - t1) / (t1 - t0):.1f}x; its joint graph {joint:.1f} s)"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--sizes", type=int, nargs="+", default=[2, 3, 4])
     ap.add_argument("--views", type=int, default=40)
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--rendered", type=Path, metavar="DIR", help="also time calibrate on a rendered cell in DIR")
     args = ap.parse_args()
+    if args.rendered is not None:
+        print(rendered_timing(max(args.sizes), args.views, args.rendered))
     jobs = [(n, seed) for n in args.sizes for seed in range(args.seeds)]
     results = []
     it = ordered_map(run_one, [n for n, _ in jobs], [s for _, s in jobs], [args.views] * len(jobs), workers=args.jobs)
