@@ -74,6 +74,28 @@ def camera_input(name: str, run) -> CellCameraInput:
     )
 
 
+def start_options(runs: dict) -> Any:
+    """The refinement options of the cell: the first camera's, with the robot noise starting at the cameras' median.
+
+    (The noise is estimated again in the cell; a start near it saves rounds.)
+    """
+    from dataclasses import replace
+
+    first = next(iter(runs.values())).refined
+    o = replace(first.options, prior=None)
+    if o.robot_noise != "estimate":
+        return o
+    models = [r.refined.robot_model for r in runs.values()]
+    enc = [m["encoder_sigma_deg"] for m in models if m.get("encoder_sigma_deg")]
+    if enc and first.robot_model.get("kind") in ("kinematic", "joint_space"):
+        return replace(o, encoder_sigma_deg=float(np.median(enc)))
+    mm = [r.refined.robot_sigma_mm for r in runs.values() if np.isfinite(r.refined.robot_sigma_mm)]
+    deg = [r.refined.robot_sigma_deg for r in runs.values() if np.isfinite(r.refined.robot_sigma_deg)]
+    if mm and deg and min(mm) > 0 and min(deg) > 0:
+        return replace(o, robot_sigma_mm=float(np.median(mm)), robot_sigma_deg=float(np.median(deg)))
+    return o
+
+
 def dh_prior_scale(runs: dict) -> float:
     """The largest scale of the arm's DH prior the cameras' own refinements estimated (1: none contradicted it)."""
     return max((float(r.refined.robot_model.get("dh_prior_scale") or 1.0) for r in runs.values()), default=1.0)

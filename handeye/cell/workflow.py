@@ -132,7 +132,7 @@ def calibrate_cell(
     overrides every session's mounting mode (rarely right for a mixed cell). See the module docstring.
     """
     from ..refine.cell import refine_cell
-    from .build import camera_input, cell_result, dh_prior_scale, excluded_by_most
+    from .build import camera_input, cell_result, dh_prior_scale, excluded_by_most, start_options
 
     t0 = time.perf_counter()
     progress = progress or (lambda s: None)
@@ -172,7 +172,7 @@ def calibrate_cell(
                 code="cell_failed",
             )
         progress("the cell's joint refinement")
-        ref_opts = replace(next(iter(ok.values())).refined.options, prior=None)
+        ref_opts = start_options(ok)
         t1 = time.perf_counter()
         cr = refine_cell(
             [camera_input(n, r) for n, r in ok.items()],

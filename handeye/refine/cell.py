@@ -416,8 +416,8 @@ def refine_cell(
         iterations += solve_cell_graph(st, robust=False)
     for vid, why in st.excluded.items():  # how far the cameras put the arm from its reported pose, at the end
         u = st.ids.index(vid)
-        d = tangent_difference(st.reported[u], st.P[u])
-        why.update(rot_deg=float(np.degrees(np.linalg.norm(d[:3]))), trans_mm=float(1e3 * np.linalg.norm(d[3:])))
+        xi = tangent_difference(st.reported[u], st.P[u])
+        why.update(rot_deg=float(np.degrees(np.linalg.norm(xi[:3]))), trans_mm=float(1e3 * np.linalg.norm(xi[3:])))
     keys, sizes = cell_ordering(st)
     core = int(np.sum(sizes))
     H, _parts = cell_information(st)
