@@ -1,0 +1,250 @@
+"""Benchmark of cells: several cameras of one arm in one graph (handeye.refine.cell) against each camera alone.
+
+Corner-level simulated cells (:func:`handeye.sim.cell.make_cell`: 2 or 3 fixed cameras behind a board on the
+flange, from 3 cameras on a wrist camera seeing a board on the table; 11x8 board, 1280x720, 0.3 px corner
+noise) with the kinematic arm error of the simulator (the UR5e with DH errors of 0.1-0.5 mm / 0.01-0.05 deg
+and 0.005 deg encoder noise, shared by every camera). Each camera is calibrated alone as the pipeline does
+(calibrateCamera, solvePnP, every closed form, :func:`handeye.refine.refine` with the kinematic model), then
+all of them jointly from the solo results (:func:`handeye.refine.cell.refine_cell`).
+
+Printed per cell size: RMS error of X (rotation deg, translation mm) joint and solo over cameras and cells;
+the ratio of the joint RMS error to the Cramér-Rao bound of the joint problem (its covariance at the truth:
+the true poses, intrinsics and noise levels, the arm's stated DH prior); the share of cameras whose truth
+lies inside the 95 % ellipsoid of their joint ``cov_x_6x6`` (chi-square 6 dof) and the same for every pair of
+fixed cameras' ``T_a_b``; the time of the solo refinements and of the joint one. Progress on stderr, figures
+on stdout.
+
+Figures (2026-12-06, 40 views, seeds 0-29 per size, 90 cells; ``--seeds 30 --sizes 2 3 4``; the issue asks
+for 200 cells, these are fewer):
+
+| cams | X err joint (deg, mm) | X err solo (deg, mm) | joint/CRB (rot, trans) | cover X | cover T_a_b | solo/joint s |
+|---|---|---|---|---|---|---|
+| 2 | 0.0734, 0.586 | 0.0783, 0.656 | 1.16, 0.92 | 92 % of 60 | 87 % of 30 | 2.2 / 3.2 |
+| 3 | 0.0698, 0.528 | 0.0786, 0.603 | 1.12, 0.96 | 94 % of 90 | 90 % of 30 | 1.7 / 1.8 |
+| 4 | 0.0646, 0.536 | 0.0742, 0.659 | 1.10, 1.01 | 93 % of 120 | 93 % of 90 | 1.8 / 0.9 |
+
+(30 cells per size; coverage: the share inside the 95 % ellipsoid; seconds per cell on a shared machine.)
+
+The joint X is closer to the truth than the solo one in every size (RMS, all cameras); its rotation error is
+1.10-1.16 times the joint problem's bound, its translation error 0.92-1.01 times (the bound holds the arm's
+stated DH prior, wider than the simulated DH errors). The pairs' coverage of 2-3 camera cells (87-90 %, 30
+pairs each) is at the low end. Times on a shared 2-core machine: a 4-camera 40-view cell takes
+the four solo refinements plus about as long again for the joint graph, 6-7 times one camera's refinement
+(the issue's 4x is not reached; the joint graph is Python reprojection factors, the solo ones' cost).
+``handeye calibrate`` of a rendered 4-camera 20-view cell (``--rendered``, detection, validation, diagnostics
+and reports included): one camera 10.2 s, the cell 47.2 s (4.6x one camera; its joint graph 2.5 s): each
+camera's own calibration is most of it.
+
+Usage: python benchmarks/bench_cell.py [--seeds 10] [--sizes 2 3 4] [--views 40] [--jobs 1] [--rendered DIR]
+(``--rendered DIR``: also render a cell of the largest size and time ``handeye calibrate`` of one camera's
+session against the whole cell, detection and reports included).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import chi2
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_refine import closed_forms, refine_views  # noqa: E402  (one copy of the pipeline's seeding)
+from fanout import ordered_map  # noqa: E402
+
+from handeye.frames import inv_T, tangent_difference  # noqa: E402
+from handeye.refine import RefineOptions, refine  # noqa: E402
+from handeye.refine.cell import CellCameraInput, CellState, refine_cell  # noqa: E402
+from handeye.refine.problem import cell_information, cell_ordering  # noqa: E402
+from handeye.sim.cell import make_cell  # noqa: E402
+
+ARM = "ur5e"
+NOISE_PX = 0.3
+CHI2_95 = chi2.ppf(0.95, 6)
+
+
+def _inputs(cell, intr, T_x, T_board, sigma_px):
+    out = []
+    for name, s in zip(cell.names, cell.sessions, strict=True):
+        out.append(
+            CellCameraInput(
+                name=name,
+                mode=s.mode,
+                object_points=s.target.object_points(),
+                views=tuple(v for v in refine_views(s) if len(v.corner_ids)),
+                intrinsics=intr[name],
+                T_x0=T_x[name],
+                T_board0=T_board[name],
+                sigma_px=sigma_px[name],
+            )
+        )
+    return out
+
+
+def crb(cell, options) -> dict:
+    """The joint problem's covariance of each X at the truth (the Cramér-Rao bound of the cell's model)."""
+    names = cell.names
+    st = CellState(
+        _inputs(
+            cell,
+            {n: s.intrinsics for n, s in zip(names, cell.sessions, strict=True)},
+            {n: s.T_x_true for n, s in zip(names, cell.sessions, strict=True)},
+            {n: s.T_board_true for n, s in zip(names, cell.sessions, strict=True)},
+            dict.fromkeys(names, NOISE_PX),
+        ),
+        options,
+    )
+    first = cell.sessions[0]
+    st.P = np.array([first.T_base_end_true[first.index(v)] for v in st.ids])
+    st.sigma_q = np.radians(first.robot_model["encoder_sigma_deg"])
+    H, _parts = cell_information(st)
+    S = np.linalg.inv(H)
+    out, at = {}, 0
+    keys, sizes = cell_ordering(st)
+    blocks = []
+    for cam in st.cams:
+        blocks.append(cam.name)
+        if cam.free.size:
+            blocks.append(None)
+    for name, size in zip(blocks + [None] * (len(sizes) - len(blocks)), sizes, strict=True):
+        if name is not None:
+            out[name] = S[at : at + 6, at : at + 6]
+        at += size
+    return out
+
+
+def run_one(n_cameras: int, seed: int, n_views: int) -> dict:
+    cell = make_cell(n_cameras, n_views=n_views, seed=seed, noise_px=NOISE_PX, arm=ARM)
+    o = RefineOptions(arm=ARM)
+    t0 = time.perf_counter()
+    solo = {}
+    for name, s in zip(cell.names, cell.sessions, strict=True):
+        k, closed = closed_forms(s)
+        views = [v for v in refine_views(s) if len(v.corner_ids)]
+        solo[name] = refine(
+            mode=s.mode,
+            object_points=s.target.object_points(),
+            views=views,
+            intrinsics=k,
+            T_x0=closed["tsai"].T_x,
+            T_board0=closed["tsai"].T_board,
+            options=o,
+            starts=closed,
+        )
+    t1 = time.perf_counter()
+    cr = refine_cell(
+        _inputs(
+            cell,
+            {n: r.intrinsics for n, r in solo.items()},
+            {n: r.T_x for n, r in solo.items()},
+            {n: r.T_board for n, r in solo.items()},
+            {n: r.sigma_px for n, r in solo.items()},
+        ),
+        options=o,
+        dh_scale0=max(float(r.robot_model.get("dh_prior_scale") or 1.0) for r in solo.values()),
+    )
+    t2 = time.perf_counter()
+    bound = crb(cell, o)
+    rows = []
+    for name, s in zip(cell.names, cell.sessions, strict=True):
+        xi_j = tangent_difference(cr.T_x[name], s.T_x_true)
+        xi_s = tangent_difference(solo[name].T_x, s.T_x_true)
+        rows.append(
+            {
+                "camera": name,
+                "mode": s.mode,
+                "joint": xi_j.tolist(),
+                "solo": xi_s.tolist(),
+                "m2_joint": float(xi_j @ np.linalg.solve(cr.cov_x(name), xi_j)),
+                "m2_solo": float(xi_s @ np.linalg.solve(np.asarray(solo[name].cov_x_6x6), xi_s)),
+                "crb_trace_rot": float(np.trace(bound[name][:3, :3])),
+                "crb_trace_trans": float(np.trace(bound[name][3:, 3:])),
+            }
+        )
+    pairs = []
+    for a, b in cr.pairs():
+        T, C = cr.pair(a, b)
+        T_true = inv_T(cell.session(a).T_x_true) @ cell.session(b).T_x_true
+        xi = tangent_difference(T, T_true)
+        pairs.append(float(xi @ np.linalg.solve(C, xi)))
+    return {"n": n_cameras, "seed": seed, "rows": rows, "pairs": pairs, "solo_s": t1 - t0, "joint_s": t2 - t1}
+
+
+def _rms(a) -> float:
+    return float(np.sqrt(np.mean(np.square(a)))) if len(a) else float("nan")
+
+
+def summary(results: list[dict]) -> str:
+    lines = [
+        "| cameras | cells | X error joint (deg, mm) | X error solo (deg, mm) | joint / CRB (rot, trans) | "
+        "coverage X 95 % | coverage T_a_b 95 % | solo s / joint s per cell |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for n in sorted({r["n"] for r in results}):
+        rs = [r for r in results if r["n"] == n]
+        rows = [row for r in rs for row in r["rows"]]
+        j = np.array([row["joint"] for row in rows])
+        s = np.array([row["solo"] for row in rows])
+        rot = lambda x: np.degrees(np.linalg.norm(x[:, :3], axis=1))  # noqa: E731
+        tr = lambda x: 1e3 * np.linalg.norm(x[:, 3:], axis=1)  # noqa: E731
+        crb_rot = np.sqrt(np.mean([row["crb_trace_rot"] for row in rows]))
+        crb_tr = np.sqrt(np.mean([row["crb_trace_trans"] for row in rows]))
+        cov_x = np.mean([row["m2_joint"] <= CHI2_95 for row in rows])
+        pairs = [m for r in rs for m in r["pairs"]]
+        cov_p = np.mean([m <= CHI2_95 for m in pairs]) if pairs else float("nan")
+        lines.append(
+            f"| {n} | {len(rs)} | {_rms(rot(j)):.4f}, {_rms(tr(j)):.3f} | {_rms(rot(s)):.4f}, {_rms(tr(s)):.3f} | "
+            f"{_rms(np.linalg.norm(j[:, :3], axis=1)) / crb_rot:.2f}, "
+            f"{_rms(np.linalg.norm(j[:, 3:], axis=1)) / crb_tr:.2f} | "
+            f"{100 * cov_x:.0f} % of {len(rows)} | {100 * cov_p:.0f} % of {len(pairs)} | "
+            f"{np.mean([r['solo_s'] for r in rs]):.1f} / {np.mean([r['joint_s'] for r in rs]):.1f} |"
+        )
+    return "\n".join(lines)
+
+
+def rendered_timing(n_cameras: int, n_views: int, folder: Path) -> str:
+    """Seconds of ``handeye calibrate`` of one rendered camera session against the whole rendered cell."""
+    from handeye.cell import calibrate_cell
+    from handeye.sim.cell import write_cell
+    from handeye.workflow import calibrate_session
+
+    cell = write_cell(folder / "cell", n_cameras, n_views=n_views, seed=0, arm=ARM)
+    t0 = time.perf_counter()
+    calibrate_session(cell / "cam1", out_dir=folder / "one", report=True)
+    t1 = time.perf_counter()
+    wr = calibrate_cell([cell], folder / "all", report=True)
+    t2 = time.perf_counter()
+    joint = wr.result["seconds"]["joint"]
+    return (
+        f"rendered {n_cameras}-camera {n_views}-view cell: one camera {t1 - t0:.1f} s, the cell {t2 - t1:.1f} s "
+        f"({(t2 - t1) / (t1 - t0):.1f}x; its joint graph {joint:.1f} s)"
+    )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[2, 3, 4])
+    ap.add_argument("--views", type=int, default=40)
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--rendered", type=Path, metavar="DIR", help="also time calibrate on a rendered cell in DIR")
+    args = ap.parse_args()
+    if args.rendered is not None:
+        print(rendered_timing(max(args.sizes), args.views, args.rendered))
+    jobs = [(n, seed) for n in args.sizes for seed in range(args.seeds)]
+    results = []
+    it = ordered_map(run_one, [n for n, _ in jobs], [s for _, s in jobs], [args.views] * len(jobs), workers=args.jobs)
+    for (n, seed), r in zip(jobs, it, strict=True):
+        results.append(r)
+        print(
+            f"{n} cameras seed {seed}: m2 joint {[round(x['m2_joint'], 1) for x in r['rows']]}, "
+            f"solo {r['solo_s']:.1f} s, joint {r['joint_s']:.1f} s",
+            file=sys.stderr,
+        )
+    print(summary(results))
+
+
+if __name__ == "__main__":
+    main()
