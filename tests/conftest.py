@@ -93,7 +93,11 @@ def assemble_cell(solo: dict) -> dict:
             (Ta, Ca), (Tb, Cb) = x_cov(cams[a]), x_cov(cams[b])
             T_ab = inv_T(Ta) @ Tb
             Ad = se3_adjoint(inv_T(T_ab))
-            pairs[f"{a}/{b}"] = {"name": f"T_{a}_{b}", "matrix": T_ab.tolist(), "cov_6x6": (Ad @ Ca @ Ad.T + Cb).tolist()}
+            pairs[f"{a}/{b}"] = {
+                "name": f"T_{a}_{b}",
+                "matrix": T_ab.tolist(),
+                "cov_6x6": (Ad @ Ca @ Ad.T + Cb).tolist(),
+            }
     blocks = [f"cameras.{n}.{cams[n]['hand_eye']['name']}" for n in names]
     cov = np.zeros((6 * len(names), 6 * len(names)))
     for k, n in enumerate(names):

@@ -89,7 +89,8 @@ def compare_cells(a: Union[str, Path], b: Union[str, Path], *, alpha: float = AL
     common = [n for n in ma.camera_names if n in mb.camera_names]
     if not common:
         raise InputError(
-            f"the two cells have no camera in common (A: {', '.join(ma.camera_names)}; B: {', '.join(mb.camera_names)})",
+            "the two cells have no camera in common "
+            f"(A: {', '.join(ma.camera_names)}; B: {', '.join(mb.camera_names)})",
             code="not_comparable",
             hint="compare cells of one arm, whose cameras keep their names",
         )

@@ -64,7 +64,10 @@ def test_moveit_and_easy_handeye2_write_one_file_per_camera_and_camera_picks_one
         f"m_{n}.moveit.launch{s}" for n in xs for s in ("", ".py")
     )
     # one camera, under the frame it would have in the cell's file (or the one asked for)
-    assert main(["export", str(cell["cell"]), "--to", "yaml", "--camera", "fixed1", "--out", str(tmp_path / "f.yaml")]) == 0
+    assert (
+        main(["export", str(cell["cell"]), "--to", "yaml", "--camera", "fixed1", "--out", str(tmp_path / "f.yaml")])
+        == 0
+    )
     d = yaml.safe_load((tmp_path / "f.yaml").read_text())
     assert d["camera"] == "fixed1" and d["child_frame"] == "fixed1_optical_frame" and d["parent_frame"] == "base_link"
     np.testing.assert_allclose(d["matrix"], xs["fixed1"][1], atol=0)

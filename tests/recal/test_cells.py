@@ -67,3 +67,40 @@ def test_a_cell_against_one_camera_takes_camera_and_names_it(cell, tmp_path, cap
     d = json.loads(capsys.readouterr().out)
     assert d["camera"] == "fixed1" and d["mahalanobis2"] == pytest.approx(0.0, abs=1e-12)
     assert d["results"][0].endswith("result.json (camera fixed1)")
+
+
+def test_verify_against_a_cell_takes_the_camera_of_the_session_folder(cell, tmp_path, capsys):
+    wrist = cell["verify"]["wrist"]
+    assert main(["verify", str(wrist), "--against", str(cell["cell"]), "--out", str(tmp_path / "w")]) == 0
+    out = capsys.readouterr().out
+    assert "still valid" in out
+    d = json.loads((tmp_path / "w" / "verify.json").read_text())
+    assert d["frame"] == "T_end_cam" and d["against"].endswith("result.json (camera wrist)")
+    # the same check as against the camera's own result: the cell's X and covariance of that camera
+    assert main(["verify", str(wrist), "--against", str(cell["solo"]["wrist"]), "--out", str(tmp_path / "s")]) == 0
+    solo = json.loads((tmp_path / "s" / "verify.json").read_text())
+    assert d["test"]["statistic"] == pytest.approx(solo["test"]["statistic"], rel=1e-9)
+    capsys.readouterr()
+    # a folder named after no camera needs --camera; --camera another mode's camera is refused in one line
+    other = tmp_path / "session"
+    shutil.copytree(wrist, other)
+    assert main(["verify", str(other), "--against", str(cell["cell"])]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "names none of them" in err[0] and "--camera NAME" in err[0]
+    assert main(["verify", str(other), "--against", str(cell["cell"]), "--camera", "fixed1"]) == 2
+    assert "eye_to_hand" in capsys.readouterr().err
+    assert main(["verify", str(other), "--against", str(cell["cell"]), "--camera", "wrist", "--no-report",
+                 "--out", str(tmp_path / "o")]) == 0  # fmt: skip
+
+
+def test_verify_several_cameras_of_a_cell_gives_a_verdict_per_camera_and_for_the_cell(cell, tmp_path, capsys):
+    sessions = [str(cell["verify"][n]) for n in ("wrist", "fixed1")]
+    rc = main(["verify", *sessions, "--against", str(cell["cell"]), "--out", str(tmp_path), "--no-report"])
+    out = capsys.readouterr().out
+    assert rc == 0 and "camera wrist:" in out and "camera fixed1:" in out
+    assert out.strip().splitlines()[-1] == "cell: still valid (2 of 3 cameras verified)"
+    for n, frame in (("wrist", "T_end_cam"), ("fixed1", "T_base_cam")):
+        d = json.loads((tmp_path / n / "verify.json").read_text())
+        assert d["frame"] == frame and d["verdict"] == "still valid"
+    assert main(["verify", *sessions, "--against", str(cell["solo"]["wrist"])]) == 2
+    assert "against a cell" in capsys.readouterr().err
