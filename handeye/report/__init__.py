@@ -55,6 +55,10 @@ def write_reports(
     try:
         from .render import write_files
 
+        if folder.result.get("kind") == "cell":  # several cameras of one arm: their tables (.cell)
+            from .cell import render_reports as render_cell
+
+            return write_files(out, *render_cell(folder.result, formats))
         ctx = _context(folder, qa=qa, make_plots=plots)
         return write_files(out, *render_reports(ctx, folder, out_dir=out, formats=formats))
     except HandeyeError:
