@@ -106,8 +106,10 @@ def run(args) -> int:
                 hint="verify one session per run" + (", or drop --camera" if cameras else ""),
             )
         return run_cell_verify(args, cameras)
+    from ..recal.loaded import session_camera
+
     session = args.session[0]
-    camera = session_camera(session, cameras, args.camera)
+    camera = session_camera(args.against, session, args.camera)
     warn_unfit(args.against, camera)
     return run_verify(args, session, camera)
 
@@ -119,26 +121,6 @@ def warn_unfit(against, camera) -> None:
     note = unfit_note(load_result(against, camera=camera))
     if note:
         log.warning("%s", note)
-
-
-def session_camera(session, cameras: list[str], camera):
-    """The cell camera a session is verified as: ``--camera``, else its folder's name when the cell has it.
-
-    None against a one-camera result (``--camera`` there is refused by the reader in one line).
-    """
-    if camera is not None or not cameras:
-        return camera
-    name = Path(session).resolve().name
-    if name in cameras or len(cameras) == 1:
-        return name if name in cameras else cameras[0]
-    from ..errors import InputError
-
-    raise InputError(
-        f"the installed result is a cell of {len(cameras)} cameras ({', '.join(cameras)}) and the session "
-        f"folder {name!r} names none of them",
-        path=session,
-        hint="choose the camera with --camera NAME (or name the session folder after its camera)",
-    )
 
 
 def run_verify(args, session, camera) -> int:
@@ -157,8 +139,9 @@ def run_verify(args, session, camera) -> int:
 def run_cell_verify(args, cameras: list[str]) -> int:
     """Several sessions against a cell: each its camera's verification (``--out``/<camera>), then the cell's verdict."""
     from ..errors import DRIFTED_EXIT_CODE, InputError
+    from ..recal.loaded import session_camera
 
-    named = [session_camera(s, cameras, None) for s in args.session]
+    named = [session_camera(args.against, s) for s in args.session]
     twice = sorted({n for n in named if named.count(n) > 1})
     if twice:
         raise InputError(f"two sessions are of camera {twice[0]}", hint="verify one session per camera")

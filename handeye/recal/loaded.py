@@ -226,6 +226,38 @@ def load_result(result: ResultLike, *, camera: Optional[str] = None) -> LoadedRe
     )
 
 
+def session_camera(
+    result: ResultLike,
+    session_path,
+    camera: Optional[str] = None,
+    *,
+    what: str = "the installed result",
+    hint: str = "choose the camera with --camera NAME (or name the session folder after its camera)",
+) -> Optional[str]:
+    """The camera of a cell a session of one camera is checked against.
+
+    ``camera`` when given, else the session folder's name when the cell has a camera of that name (a cell of
+    one camera: that one); None for a one-camera result. A cell none of whose cameras the folder names is
+    one InputError naming the cameras (``what`` names the result, ``hint`` what to do).
+    """
+    from ..contract import read_result
+
+    if camera is not None or isinstance(result, dict) or session_path is None:
+        return camera
+    names = read_result(Path(result)).camera_names
+    if not names:
+        return None
+    name = Path(session_path).resolve().name
+    if name in names or len(names) == 1:
+        return name if name in names else names[0]
+    raise InputError(
+        f"{what} is a cell of {len(names)} cameras ({', '.join(names)}) and the session folder {name!r} names "
+        "none of them",
+        path=str(result),
+        hint=hint,
+    )
+
+
 def _joints(ref: dict, cov_x: Optional[np.ndarray]) -> dict:
     """``cov_x_intrinsics`` and ``dh_joint`` of a LoadedResult from result.json's refinement block.
 

@@ -104,3 +104,24 @@ def test_verify_several_cameras_of_a_cell_gives_a_verdict_per_camera_and_for_the
         assert d["frame"] == frame and d["verdict"] == "still valid"
     assert main(["verify", *sessions, "--against", str(cell["solo"]["wrist"])]) == 2
     assert "against a cell" in capsys.readouterr().err
+
+
+def test_calibrate_prior_and_collect_take_the_cell_camera_of_the_session_folder(cell, tmp_path, capsys):
+    wrist = cell["verify"]["wrist"]
+    out = tmp_path / "upd"
+    assert main(["-q", "calibrate", str(wrist), "--prior", str(cell["cell"]), "--out", str(out), "--no-report"]) == 0
+    res = json.loads((out / "result.json").read_text())
+    assert res["prior"]["source"].endswith("result.json (camera wrist)") and res["prior"]["frame"] == "T_end_cam"
+    np.testing.assert_allclose(res["prior"]["T_end_cam"], json.loads((cell["cell"] / "result.json").read_text())[
+        "cameras"]["wrist"]["T_end_cam"])  # fmt: skip
+    other = tmp_path / "session"
+    shutil.copytree(wrist, other)
+    assert main(["-q", "calibrate", str(other), "--prior", str(cell["cell"]), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--prior is a cell of 3 cameras (wrist, fixed1, fixed2)" in err[0]
+    args = ["collect", str(tmp_path / "c"), "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim"]
+    assert main([*args, "--verify-against", str(cell["cell"])]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--verify-against is a cell of 3 cameras" in err[0] and "'c' names none" in err[0]
+    assert main([*args[:1], str(tmp_path / "fixed1"), *args[2:], "--verify-against", str(cell["cell"])]) == 2
+    assert "installed calibration is eye_to_hand" in capsys.readouterr().err  # the camera named by the folder
