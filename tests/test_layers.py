@@ -25,6 +25,7 @@ LAYERS = (
     ("collect",),
     ("recal",),
     ("export", "workflow"),
+    ("cell",),
     ("batch",),
     ("sim", "cli"),
 )

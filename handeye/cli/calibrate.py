@@ -55,7 +55,12 @@ def add_arguments(p) -> None:
     model = p.add_argument_group("model")
     out = p.add_argument_group("output")
     rep = p.add_argument_group("reporting")
-    inp.add_argument("session", help="session folder (poses.txt + N.jpg + config.yaml, or session.yaml)")
+    inp.add_argument(
+        "session",
+        nargs="+",
+        help="session folder (poses.txt + N.jpg + config.yaml, or session.yaml); several sessions of one arm, or "
+        "a cell folder with cell.yaml, are calibrated as one cell (one result.json, each folder's name a camera)",
+    )
     inp.add_argument(
         "--mode",
         choices=MODES,
@@ -200,6 +205,10 @@ def default_out_dir(session) -> Path:
 def run(args) -> int:
     from ..workflow import calibrate_session
 
+    sessions = list(args.session) if isinstance(args.session, (list, tuple)) else [args.session]
+    if len(sessions) > 1 or _is_cell(sessions[0]):
+        return run_cell(args, sessions)
+    args.session = sessions[0]
     refuse_pose_only_flags(args)
     if getattr(args, "board_unmoved", False) and getattr(args, "prior", None) is None:
         from ..errors import InputError
@@ -261,6 +270,74 @@ def run(args) -> int:
     if wr.exit_code:
         print(f"handeye: verdict {wr.verdict}: {wr.result.get('verdict_headline', '')}", file=sys.stderr)
     return wr.exit_code
+
+
+def _is_cell(path) -> bool:
+    from ..cell import is_cell_folder
+
+    return is_cell_folder(path)
+
+
+def run_cell(args, sessions: list) -> int:
+    """``handeye calibrate S1 S2 ...`` or ``CELL_DIR``: one cell (:func:`handeye.cell.calibrate_cell`)."""
+    from ..cell import calibrate_cell
+    from ..errors import InputError
+
+    for flag in ("prior", "export"):
+        if getattr(args, flag, None):
+            raise InputError(
+                f"--{flag.replace('_', '-')} is for one session, not a cell",
+                received=" ".join(str(s) for s in sessions),
+                hint="calibrate the cell without it",
+            )
+    if args.out is None:
+        raise InputError("a cell needs --out DIR", received=" ".join(str(s) for s in sessions), hint="add --out DIR")
+    opts = options_from_args(args)
+    site = [f for f in (getattr(args, "config", None), getattr(args, "qa", None)) if f]
+    wr = calibrate_cell(
+        sessions,
+        args.out,
+        options=opts,
+        report=not args.no_report,
+        qa=getattr(args, "qa", None),
+        mode=args.mode,
+        progress=lambda s: log.info("%s", s),
+        allow_outside=getattr(args, "allow_outside", False),
+        site_files=site,
+    )
+    print(format_cell_summary(wr.result, wr.result_path, wr.report_paths))
+    if wr.exit_code:
+        print(f"handeye: verdict {wr.verdict}: {wr.result.get('verdict_headline', '')}", file=sys.stderr)
+    return wr.exit_code
+
+
+def format_cell_summary(res: dict, result_path: Path, report_paths=()) -> str:
+    """The lines ``handeye calibrate`` prints for a cell: each camera's X and sigma, the pairs, the findings."""
+    lines = [str(res.get("verdict_headline", ""))]
+    for name, c in res["cameras"].items():
+        if c.get("status") != "ok":
+            lines.append(f"  {name}: failed: {c.get('failure_reason', '')}")
+            continue
+        he, r = c["hand_eye"], c.get("refinement") or {}
+        t, s = he["translation_mm"], r.get("sigma_trans_mm") or [float("nan")] * 3
+        agree = (r.get("solo") or {}).get("agreement") or {}
+        lines.append(
+            f"  {name} {he['name']}: translation [mm] {t[0]:+.2f} {t[1]:+.2f} {t[2]:+.2f} "
+            f"(1-sigma {s[0]:.3f} {s[1]:.3f} {s[2]:.3f}), {c.get('verdict')}; solo vs joint Mahalanobis "
+            f"{agree.get('mahalanobis', float('nan')):.2f}"
+        )
+    for p in (res.get("camera_pairs") or {}).values():
+        t, s = p["translation_mm"], p["sigma_trans_mm"]
+        lines.append(
+            f"  {p['name']}: translation [mm] {t[0]:+.2f} {t[1]:+.2f} {t[2]:+.2f} (1-sigma {s[0]:.3f} {s[1]:.3f} "
+            f"{s[2]:.3f}), rotation 1-sigma [deg] {' '.join(f'{x:.4f}' for x in p['sigma_rot_deg'])}"
+        )
+    for f in res.get("findings") or []:
+        lines.append(f"  {f['severity'].upper()} {f['title']}: {f['evidence']}")
+    lines.append(f"result: {result_path}")
+    for p in report_paths:
+        lines.append(f"report: {p}")
+    return "\n".join(lines)
 
 
 def format_summary(res: dict, result_path: Path, report_paths=()) -> str:

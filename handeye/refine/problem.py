@@ -318,3 +318,151 @@ def solve_pose_graph(
     opt = gtsam.LevenbergMarquardtOptimizer(g, v, lm_params(max_iterations))
     res = opt.optimize()
     return res.atPose3(KEY_X).matrix(), res.atPose3(KEY_BOARD).matrix(), int(opt.iterations())
+
+
+# ------------------------------------------------------------------------------ a cell of cameras
+def _cell_key(kind: str, j: int) -> int:
+    """Keys of the cell graph: ``x`` / ``k`` per camera, ``b`` per board, ``d`` the DH offsets, ``p`` per view."""
+    return int(gtsam.symbol(kind, j))
+
+
+def cell_ordering(st: Any) -> tuple[list[int], list[int]]:
+    """(keys in the cell's core order, sizes): each camera's X then its free intrinsics, the boards, the DH offsets.
+
+    The robot poses of :meth:`handeye.refine.cell.CellState.robot_views` follow, 6 each (see
+    :func:`cell_information`).
+    """
+    keys, sizes = [], []
+    for c, cam in enumerate(st.cams):
+        keys += [_cell_key("x", c)]
+        sizes += [6]
+        if cam.free.size:
+            keys += [_cell_key("k", c)]
+            sizes += [int(cam.free.size)]
+    for b in range(len(st.T_boards)):
+        keys += [_cell_key("b", b)]
+        sizes += [6]
+    if st.m_dh:
+        keys += [_cell_key("d", 0)]
+        sizes += [int(st.m_dh)]
+    return keys, sizes
+
+
+def build_cell_graph(
+    st: Any, *, part: str = "all", robust: bool = False
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """Graph and Values of a cell (:class:`handeye.refine.cell.CellState`): all cameras, one robot pose per view.
+
+    ``part`` keeps only one group of factors (for the variance components): ``pixels:<c>`` camera c's
+    reprojections, ``robot:rot`` / ``robot:trans`` (iid) or ``robot:joint`` (kinematic) the robot priors with
+    that component alone, ``all`` everything. ``robust``: Huber on the robot priors and the corners (guard solve).
+    """
+    g = gtsam.NonlinearFactorGraph()
+    v = gtsam.Values()
+    for c, cam in enumerate(st.cams):
+        v.insert(_cell_key("x", c), gtsam.Pose3(cam.T_x))
+        if cam.free.size:
+            v.insert(_cell_key("k", c), cam.k[cam.free].copy())
+    for b, T in enumerate(st.T_boards):
+        v.insert(_cell_key("b", b), gtsam.Pose3(T))
+    if st.m_dh:
+        v.insert(_cell_key("d", 0), st.dh.copy())
+    for u in st.robot_views():
+        v.insert(_cell_key("p", u), gtsam.Pose3(st.P[u]))
+    robot_keyed = set(st.robot_views())
+    for c, cam in enumerate(st.cams):
+        if part not in ("all", f"pixels:{c}"):
+            continue
+        for u, obj, img, mask in cam.obs:
+            if not mask.any():
+                continue
+            g.add(
+                view_reprojection_factor(
+                    mode=cam.mode,
+                    key_x=_cell_key("x", c),
+                    key_board=_cell_key("b", cam.board),
+                    key_robot=_cell_key("p", u) if u in robot_keyed else None,
+                    key_intrinsics=_cell_key("k", c) if cam.free.size else None,
+                    object_points=obj[mask],
+                    image_points=img[mask],
+                    sigma_px=float(st.sigma_px[c]),
+                    intrinsics_vec=cam.k,
+                    free_intrinsics=cam.free,
+                    T_base_end=st.reported[u],
+                    loss=st.loss if robust else "none",
+                    loss_k=st.loss_k,
+                )
+            )
+    if part.startswith("robot") or part == "all":
+        robust_k = st.robot_prior_k if robust else None
+        for u in st.prior_views():
+            if st.kin is None:
+                big = 1e6  # a component left out of this part: no information
+                s_rot = st.sigma_rot if part in ("all", "robot:rot") else big
+                s_trans = st.sigma_trans if part in ("all", "robot:trans") else big
+                g.add(
+                    robot_pose_prior(
+                        key_robot=_cell_key("p", u),
+                        T_base_end_reported=st.reported[u],
+                        sigma_rot_rad=s_rot,
+                        sigma_trans_m=s_trans,
+                        robust_k=robust_k,
+                    )
+                )
+            else:
+                g.add(
+                    kinematic_robot_prior(
+                        key_robot=_cell_key("p", u),
+                        key_dh=_cell_key("d", 0) if st.m_dh else None,
+                        T_base_end_reported=st.reported[u],
+                        J_dh=st.kin.J_dh[u],
+                        cov=st.sigma_q**2 * st.kin.B[u],
+                        robust_k=robust_k,
+                    )
+                )
+    if st.m_dh and part in ("all", "dh"):
+        g.add(gaussian_prior(key=_cell_key("d", 0), mean=np.zeros(st.m_dh), cov=st.dh_prior_cov))
+    return g, v
+
+
+def solve_cell_graph(st: Any, *, robust: bool) -> int:
+    """One Levenberg-Marquardt solve of the cell; the estimates of ``st`` move in place. Returns the iterations."""
+    g, v = build_cell_graph(st, robust=robust)
+    opt = gtsam.LevenbergMarquardtOptimizer(g, v, lm_params(st.max_iterations))
+    res = opt.optimize()
+    for c, cam in enumerate(st.cams):
+        cam.T_x = res.atPose3(_cell_key("x", c)).matrix()
+        if cam.free.size:
+            cam.k = cam.k.copy()
+            cam.k[cam.free] = res.atVector(_cell_key("k", c))
+    st.T_boards = [res.atPose3(_cell_key("b", b)).matrix() for b in range(len(st.T_boards))]
+    if st.m_dh:
+        st.dh = np.asarray(res.atVector(_cell_key("d", 0)), float).copy()
+    for u in st.robot_views():
+        st.P[u] = res.atPose3(_cell_key("p", u)).matrix()
+    return int(opt.iterations())
+
+
+def cell_information(st: Any, part: str = "all") -> np.ndarray:
+    """Information matrix (dense) of the cell's factors of ``part`` at the current estimate.
+
+    Order: :func:`cell_ordering`'s core, then each robot pose of ``st.robot_views()`` (6 each). Variables a
+    part does not involve have zero rows.
+    """
+    g, v = build_cell_graph(st, part=part)
+    keys, sizes = cell_ordering(st)
+    keys = keys + [_cell_key("p", u) for u in st.robot_views()]
+    sizes = sizes + [6] * len(st.robot_views())
+    in_graph = set(g.keyVector())
+    present = [k for k in keys if k in in_graph]
+    if not present:
+        return np.zeros((sum(sizes), sum(sizes)))
+    ordering = gtsam.Ordering()
+    for k in present:
+        ordering.push_back(k)
+    Hp, _ = g.linearize(v).hessian(ordering)
+    start = np.r_[0, np.cumsum(sizes)]
+    idx = np.concatenate([np.arange(start[i], start[i + 1]) for i, k in enumerate(keys) if k in present])
+    H = np.zeros((sum(sizes), sum(sizes)))
+    H[np.ix_(idx, idx)] = Hp
+    return H

@@ -1,0 +1,120 @@
+"""A cell's report (report.md and report.html) from its result.json content alone.
+
+A short cell section (verdict, the arm's error model, the shared board, the camera pairs with their sigmas,
+the cross-camera findings) and each camera's key numbers (X with its sigmas, the pixel noise, the solo
+agreement, views used); each camera's full report is its solo folder's.
+"""
+
+from __future__ import annotations
+
+import html
+from pathlib import Path
+
+import numpy as np
+
+from ..output import atomic_write_text
+
+
+def _fmt(v, spec: str = ".3f") -> str:
+    try:
+        return format(float(v), spec)
+    except (TypeError, ValueError):
+        return "-"
+
+
+def cell_markdown(res: dict) -> str:
+    """The cell's report as Markdown."""
+    lines = [f"# Cell of {len(res.get('cameras') or {})} cameras: {res.get('verdict', '?')}", ""]
+    lines += [res.get("verdict_headline", ""), ""]
+    ref = res.get("refinement") or {}
+    rm = ref.get("robot_model") or {}
+    lines.append(f"Arm error model: {rm.get('kind', '?')}" + (f" ({rm['arm']})" if rm.get("arm") else "") + ".")
+    if res.get("board"):
+        b = res["board"]
+        cov = np.asarray(ref.get("cov_board_6x6") or np.full((6, 6), np.nan))
+        sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+        lines.append(
+            f"Shared board {b['name']}: translation [mm] {' '.join(_fmt(x, '.2f') for x in b['translation_mm'])}, "
+            f"1-sigma {_fmt(1e3 * np.linalg.norm(sd[3:]), '.3f')} mm / "
+            f"{_fmt(np.degrees(np.linalg.norm(sd[:3])), '.4f')} deg."
+        )
+    lines += [
+        "",
+        "## Camera pairs",
+        "",
+        "| pair | translation [mm] | 1-sigma trans [mm] | 1-sigma rot [deg] |",
+        "|---|---|---|---|",
+    ]
+    for p in (res.get("camera_pairs") or {}).values():
+        lines.append(
+            f"| {p['name']} | {' '.join(_fmt(x, '.2f') for x in p.get('translation_mm', []))} | "
+            f"{' '.join(_fmt(x, '.3f') for x in p.get('sigma_trans_mm', []))} | "
+            f"{' '.join(_fmt(x, '.4f') for x in p.get('sigma_rot_deg', []))} |"
+        )
+    lines += [
+        "",
+        "## Cameras",
+        "",
+        "| camera | mode | verdict | X translation [mm] | 1-sigma [mm] | sigma px | "
+        "solo vs joint (Mahalanobis) | views used |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, c in (res.get("cameras") or {}).items():
+        he, r = c.get("hand_eye") or {}, c.get("refinement") or {}
+        agree = (r.get("solo") or {}).get("agreement") or {}
+        n = c.get("n_views") or {}
+        lines.append(
+            f"| {name} | {c.get('mode')} | {c.get('verdict', '?')} | "
+            f"{' '.join(_fmt(x, '.2f') for x in he.get('translation_mm', []))} | "
+            f"{' '.join(_fmt(x, '.3f') for x in r.get('sigma_trans_mm', []))} | {_fmt(r.get('sigma_px'))} | "
+            f"{_fmt(agree.get('mahalanobis'), '.2f')} | {n.get('used', '-')}/{n.get('total', '-')} |"
+        )
+    lines += ["", "## Cross-camera findings", ""]
+    found = res.get("findings") or []
+    for f in found:
+        who = f" (camera {f['camera']})" if f.get("camera") else ""
+        lines.append(f"- **{f['severity'].upper()}** {f['title']}{who}: {f['evidence']}. {f['action']}")
+    if not found:
+        lines.append("None: the cameras agree about the arm's poses, and each camera's own result with the cell's.")
+    lines += ["", "Each camera's full report: solo/<camera>/report.html (its own calibration).", ""]
+    return "\n".join(lines)
+
+
+def cell_html(res: dict) -> str:
+    """The cell's report as a self-contained HTML page (the Markdown's content, tables as tables)."""
+    out = ["<!doctype html><html><head><meta charset='utf-8'><title>handeye cell</title></head><body>"]
+    in_table = False
+    for line in cell_markdown(res).splitlines():
+        if line.startswith("|"):
+            cells = [html.escape(x.strip()) for x in line.strip("|").split("|")]
+            if set("".join(cells)) <= set("-"):
+                continue
+            if not in_table:
+                out.append("<table border='1' cellspacing='0' cellpadding='3'>")
+                in_table = True
+            out.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
+            continue
+        if in_table:
+            out.append("</table>")
+            in_table = False
+        if line.startswith("## "):
+            out.append(f"<h2>{html.escape(line[3:])}</h2>")
+        elif line.startswith("# "):
+            out.append(f"<h1>{html.escape(line[2:])}</h1>")
+        elif line.startswith("- "):
+            out.append(f"<p>{html.escape(line[2:]).replace('**', '')}</p>")
+        elif line:
+            out.append(f"<p>{html.escape(line)}</p>")
+    if in_table:
+        out.append("</table>")
+    out.append("</body></html>")
+    return "\n".join(out) + "\n"
+
+
+def write_cell_report(out_dir, res: dict) -> list[Path]:
+    """Write report.md and report.html of a cell into ``out_dir``; returns their paths."""
+    out = Path(out_dir)
+    return [
+        atomic_write_text(out / "report.md", cell_markdown(res)),
+        atomic_write_text(out / "report.html", cell_html(res)),
+    ]
