@@ -93,10 +93,14 @@ def assemble_cell(solo: dict) -> dict:
             (Ta, Ca), (Tb, Cb) = x_cov(cams[a]), x_cov(cams[b])
             T_ab = inv_T(Ta) @ Tb
             Ad = se3_adjoint(inv_T(T_ab))
+            C = Ad @ Ca @ Ad.T + Cb
             pairs[f"{a}/{b}"] = {
                 "name": f"T_{a}_{b}",
                 "matrix": T_ab.tolist(),
-                "cov_6x6": (Ad @ Ca @ Ad.T + Cb).tolist(),
+                "cov_6x6": C.tolist(),
+                "translation_mm": (1e3 * T_ab[:3, 3]).tolist(),  # as handeye.cell writes them beside the matrix
+                "sigma_rot_deg": np.degrees(np.sqrt(np.diag(C)[:3])).tolist(),
+                "sigma_trans_mm": (1e3 * np.sqrt(np.diag(C)[3:])).tolist(),
             }
     blocks = [f"cameras.{n}.{cams[n]['hand_eye']['name']}" for n in names]
     cov = np.zeros((6 * len(names), 6 * len(names)))
