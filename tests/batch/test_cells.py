@@ -79,3 +79,31 @@ def test_discovery_takes_a_cell_folder_as_one_job_not_its_camera_folders(cell, t
     ]
     (job,) = [j for j in jobs if j.layout == "cell"]
     assert job.time_utc == "2026-05-01T10:00:00+00:00" and job.time_source == "session.yaml time"
+
+
+@pytest.mark.slow
+def test_batch_runs_a_cell_folder_as_one_job_and_exports_every_camera(cell, tmp_path, capsys):
+    from handeye.cli import main
+    from handeye.sim.cell import write_cell
+
+    root = tmp_path / "root"
+    write_cell(root / "line1" / "cellA", 2, n_views=8, seed=1, workers=1)
+    shutil.copytree(cell["sessions"] / "fixed2", root / "line1" / "solo")
+    out = tmp_path / "out"
+    rc = main(["batch", str(root), "--out", str(out), "--workers", "1", "--export", "urdf"])
+    printed = capsys.readouterr().out
+    assert rc == 0 and "2 sessions: 2 done" in printed
+    res = read_result(out / "line1" / "cellA")
+    assert res.is_cell and res.camera_names == ["cam1", "cam2"]
+    rec = json.loads((out / "line1" / "cellA" / "batch.json").read_text())
+    assert rec["outcome"] == "done" and rec["verdict"] == res.raw["verdict"]
+    urdf = (out / "line1" / "cellA" / "hand_eye.urdf").read_text()
+    assert urdf.count("<joint ") == 2 and "cam2_optical_frame" in urdf
+    rows = {r["session"]: r for r in read_fleet_csv(out / "fleet.csv")}
+    assert set(rows) == {"cellA/cam1", "cellA/cam2", "cellA", "solo"}
+    assert rows["cellA"]["mode"] == "cell" and rows["cellA/cam2"]["camera"] == "cam2"
+    np.testing.assert_allclose(
+        [rows["cellA/cam1"][k] for k in ("tx_mm", "ty_mm", "tz_mm")], 1e3 * res.camera_result("cam1").T_x[:3, 3]
+    )
+    assert main(["batch", str(root), "--out", str(out), "--workers", "1", "--export", "urdf"]) == 0
+    assert "2 skipped" in capsys.readouterr().out  # the cell's key: every file under its folder
