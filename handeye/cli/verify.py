@@ -141,7 +141,7 @@ def run_cell_verify(args, cameras: list[str]) -> int:
     from ..errors import DRIFTED_EXIT_CODE, InputError
     from ..recal.loaded import session_camera
 
-    named = [session_camera(args.against, s) for s in args.session]
+    named = [str(session_camera(args.against, s)) for s in args.session]  # a cell: each session names one
     twice = sorted({n for n in named if named.count(n) > 1})
     if twice:
         raise InputError(f"two sessions are of camera {twice[0]}", hint="verify one session per camera")

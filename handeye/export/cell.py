@@ -13,8 +13,29 @@ import json
 import xml.etree.ElementTree as ET
 
 from .. import __version__
-from . import writers as w
 from .frames import ExportTransform
+from .writers import (
+    PROVENANCE_NAME,
+    XACRO_MACRO,
+    XACRO_NS,
+    ident,
+    joint_name,
+    launch_text,
+    node_name,
+    origin,
+    plain_json,
+    text_line,
+    tf_transform,
+    xml_comment,
+    xml_text,
+    yaml_doc,
+)
+from .writers import (
+    header_lines as camera_header,
+)
+from .writers import (
+    plain_dict as camera_dict,
+)
 
 #: the formats a cell writes as one file set holding every camera (the others: one set per camera)
 CELL_FORMATS = ("ros2", "urdf", "yaml", "json")
@@ -27,7 +48,7 @@ def header_lines(es: list[ExportTransform]) -> list[str]:
         + ", ".join(f"{e.camera} ({e.mode}, {e.parent} -> {e.child})" for e in es)
     ]
     for e in es:
-        lines += [""] + w.header_lines(e)
+        lines += [""] + camera_header(e)
     return lines
 
 
@@ -44,14 +65,14 @@ def ros2_launch(es: list[ExportTransform]) -> str:
     """One ROS 2 launch file: a static_transform_publisher per camera."""
     head = [
         json.dumps(f"Static transforms of a cell of {len(es)} cameras from a handeye calibration."),
-        f"# written by handeye {w.text_line(__version__)}",
+        f"# written by handeye {text_line(__version__)}",
     ]
-    return w.launch_text(head, header_lines(es), provenance_constant(es), es)
+    return launch_text(head, header_lines(es), provenance_constant(es), es)
 
 
 def tf_static_yaml(es: list[ExportTransform]) -> str:
     """One tf2_msgs/TFMessage with a transform per camera."""
-    return w.yaml_doc(header_lines(es), {"transforms": [w.tf_transform(e) for e in es]})
+    return yaml_doc(header_lines(es), {"transforms": [tf_transform(e) for e in es]})
 
 
 def urdf(es: list[ExportTransform]) -> str:
@@ -60,31 +81,31 @@ def urdf(es: list[ExportTransform]) -> str:
     for name in list(dict.fromkeys(e.parent for e in es)) + [e.child for e in es]:
         ET.SubElement(root, "link", {"name": name})
     for e in es:
-        joint = ET.SubElement(root, "joint", {"name": w.joint_name(e), "type": "fixed"})
+        joint = ET.SubElement(root, "joint", {"name": joint_name(e), "type": "fixed"})
         ET.SubElement(joint, "parent", {"link": e.parent})
         ET.SubElement(joint, "child", {"link": e.child})
-        w.origin(joint, e)
-    return w.xml_text(root, w.xml_comment(header_lines(es)))
+        origin(joint, e)
+    return xml_text(root, xml_comment(header_lines(es)))
 
 
 def macro_name(e: ExportTransform) -> str:
     """A cell camera's xacro macro: ``handeye_camera_joint_<camera>``."""
-    return f"{w.XACRO_MACRO}_{w.ident(str(e.camera))}"
+    return f"{XACRO_MACRO}_{ident(str(e.camera))}"
 
 
 def xacro(es: list[ExportTransform]) -> str:
     """One xacro file: a macro per camera (``<xacro:handeye_camera_joint_<camera>/>``), params parent and child."""
-    ET.register_namespace("xacro", w.XACRO_NS)
+    ET.register_namespace("xacro", XACRO_NS)
     root = ET.Element("robot")
     for e in es:
         macro = ET.SubElement(
-            root, f"{{{w.XACRO_NS}}}macro", {"name": macro_name(e), "params": f"parent:={e.parent} child:={e.child}"}
+            root, f"{{{XACRO_NS}}}macro", {"name": macro_name(e), "params": f"parent:={e.parent} child:={e.child}"}
         )
         joint = ET.SubElement(macro, "joint", {"name": "${parent}_to_${child}", "type": "fixed"})
         ET.SubElement(joint, "parent", {"link": "${parent}"})
         ET.SubElement(joint, "child", {"link": "${child}"})
-        w.origin(joint, e)
-    return w.xml_text(root, w.xml_comment(header_lines(es)))
+        origin(joint, e)
+    return xml_text(root, xml_comment(header_lines(es)))
 
 
 def plain_dict(es: list[ExportTransform]) -> dict:
@@ -95,7 +116,7 @@ def plain_dict(es: list[ExportTransform]) -> dict:
         "handeye_export": 1,
         "kind": "cell",
         "source": es[0].source,
-        "cameras": {str(e.camera): w.plain_dict(e) for e in es},
+        "cameras": {str(e.camera): camera_dict(e) for e in es},
         "provenance": provenance(),
     }
 
@@ -112,11 +133,11 @@ def render(fmt: str, es: list[ExportTransform]) -> list[tuple[str, str, list[tup
 
     if fmt == "ros2":
         prov = provenance_constant(es)
-        launch = want(lambda e: {"node_name": w.node_name(e), w.PROVENANCE_NAME: prov})
+        launch = want(lambda e: {"node_name": node_name(e), PROVENANCE_NAME: prov})
         return [(ros2_launch(es), "launch.py", launch), (tf_static_yaml(es), "tf_static", want(lambda e: {}))]
     if fmt == "urdf":
         return [
-            (urdf(es), "urdf", want(lambda e: {"joint_name": w.joint_name(e)})),
+            (urdf(es), "urdf", want(lambda e: {"joint_name": joint_name(e)})),
             (xacro(es), "xacro", want(lambda e: {"macro": macro_name(e)})),
         ]
     d = plain_dict(es)
@@ -130,5 +151,5 @@ def render(fmt: str, es: list[ExportTransform]) -> list[tuple[str, str, list[tup
         }
     )
     if fmt == "yaml":
-        return [(w.yaml_doc(header_lines(es), d, flow=False), "plain_yaml", plain)]
-    return [(w.plain_json(es[0], d), "plain_json", plain)]
+        return [(yaml_doc(header_lines(es), d, flow=False), "plain_yaml", plain)]
+    return [(plain_json(es[0], d), "plain_json", plain)]

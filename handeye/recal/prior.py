@@ -140,6 +140,7 @@ def calibrate_with_prior(
             hint="drop --no-refine or --prior",
         )
     o = verify_options or VerifyOptions.from_config()
+    installed: LoadedResult
     if isinstance(prior, LoadedResult):
         installed = prior
     else:  # a cell: the camera the session folder is named after
