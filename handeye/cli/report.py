@@ -83,7 +83,7 @@ def cell_result(result_dir: Path):
 
     try:
         d = json.loads((result_dir / "result.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):  # the one-camera report's reader names what is wrong
+    except (OSError, ValueError, RecursionError):  # the one-camera report's reader names what is wrong
         return None
     if not isinstance(d, dict) or d.get("kind") != "cell":
         return None
