@@ -24,7 +24,6 @@ log = logging.getLogger(__name__)
 COLUMNS = (
     "install",
     "session",
-    "camera",
     "time_utc",
     "time_source",
     "mode",
@@ -51,6 +50,7 @@ COLUMNS = (
     "report",
     "export_error",
     "warnings",
+    "camera",  # a cell's camera (its row's session is <cell>/<camera>); last, so the earlier columns keep their places
 )
 #: how many findings codes the fleet summary lists
 TOP_FINDINGS = 10
