@@ -65,9 +65,18 @@ def add_arguments(p) -> None:
     p.add_argument(
         "--robot-error",
         choices=("iid", "kinematic", "none"),
-        default="iid",
-        help="robot error model: iid (--robot-noise per pose), kinematic (a 6-axis arm with DH errors and "
-        "encoder noise, handeye.sim.robot_error) or none",
+        default=None,
+        help="robot error model: iid (--robot-noise per pose; the default of one session), kinematic (a 6-axis "
+        "arm with DH errors and encoder noise, handeye.sim.robot_error; the default of a --cell) or none",
+    )
+    p.add_argument(
+        "--cell",
+        type=int,
+        choices=(2, 3, 4),
+        metavar="N",
+        help="a cell of N cameras (2-4) of one arm instead of one session: OUT/<camera>/ sessions with the same "
+        "view ids and robot poses (fixed cameras cam1.. behind a flange board; from 3 on a wrist camera seeing "
+        "a board in the cell), OUT/cell.yaml and ground_truth.json; handeye calibrate OUT --out DIR",
     )
     p.add_argument("--arm", default="rm65", help=f"kinematic arm preset ({', '.join(arm_presets())}) or DH YAML file")
     p.add_argument(
@@ -98,6 +107,8 @@ def run(args) -> int:
 
     if args.views < 3:
         raise ConfigError("--views must be at least 3", received=str(args.views))
+    if args.robot_error is None:
+        args.robot_error = "kinematic" if args.cell else "iid"
     kin: dict[str, Any] = {}
     if args.dh_error is not None or args.encoder_sigma is not None:
         if args.robot_error != "kinematic":
@@ -123,6 +134,8 @@ def run(args) -> int:
                     received=str(args.encoder_sigma),
                 )
             kin["encoder_sigma_deg"] = float(args.encoder_sigma)
+    if args.cell:
+        return _run_cell(args, kin)
     path = write_vendor_session(
         args.out,
         mode=args.mode,
@@ -144,4 +157,31 @@ def run(args) -> int:
 
         print(f"session with joint angles and robot: {args.arm}: {write_native_session(path)}")
     print(f"ground truth: {Path(path) / 'ground_truth.json'}")
+    return 0
+
+
+def _run_cell(args, kin: dict) -> int:
+    """``simulate OUT --cell N``: a rendered cell (:func:`handeye.sim.cell.write_cell`)."""
+    from ..errors import ConfigError
+    from ..sim.cell import write_cell
+
+    if args.target != "chessboard" or args.hidden or args.blur or kin:
+        raise ConfigError(
+            "a simulated cell takes --views, --seed, --noise-px, --robot-error, --robot-noise, --arm and --outliers",
+            received="--target, --hidden, --blur, --dh-error or --encoder-sigma",
+            hint="leave those out with --cell",
+        )
+    out = write_cell(
+        args.out,
+        args.cell,
+        n_views=args.views,
+        seed=args.seed,
+        robot_error=args.robot_error,
+        arm=args.arm,
+        image_noise=args.noise_px,
+        outlier_views=tuple(args.outliers),
+        robot_noise=tuple(args.robot_noise),
+    )
+    print(f"synthetic cell of {args.cell} cameras, {args.views} robot poses: {out} (cell.yaml)")
+    print(f"ground truth: {out / 'ground_truth.json'}")
     return 0

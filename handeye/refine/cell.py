@@ -13,6 +13,7 @@ See docs/refinement.md.
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Optional, Sequence
@@ -24,10 +25,12 @@ from handeye.factors.reprojection import chain_residual
 
 from ..camera import INTRINSIC_NAMES, Intrinsics
 from ..errors import InputError
-from ..frames import inv_T, se3_adjoint, tangent_difference
+from ..frames import inv_T, se3_adjoint, se3_exp, tangent_difference
 from ..mounting import mounting
 from .options import RefineOptions, RefineView, refine_preset
 from .robot_model import build_kinematic_model, resolve_kind
+
+log = logging.getLogger(__name__)
 
 SIGMA_FLOOR = 1e-7  # rad, m, px: a variance component never reaches zero (the information stays finite)
 
@@ -297,36 +300,50 @@ def _variance_components(st: CellState, rounds: int) -> dict[str, float]:
     return red
 
 
-def _tests(st: CellState, S: np.ndarray, core: int) -> tuple[Optional[tuple], list[tuple]]:
-    """The worst robot pose the cameras disagree with (or None), and the camera views one camera disagrees with."""
-    o = st.o
+def _robot_test(st: CellState, S: np.ndarray, core: int, u: int) -> tuple[float, float, dict[str, float]]:
+    """(statistic, p-value, sizes) of view u's robot prior residual against its covariance.
+
+    With the prior in the fit the residual's covariance is the prior's less the estimate's; without it (an
+    excluded view) the prior's plus the estimate's.
+    """
     robot = st.robot_views()
+    r = st.prior_residual(u)
+    at = core + 6 * robot.index(u)
+    J = np.zeros((6, S.shape[0]))
+    J[:, at : at + 6] = np.eye(6)
+    if st.m_dh and st.kin is not None:
+        J[:, core - st.m_dh : core] = -st.kin.J_dh[u]
+    sign = 1.0 if st.ids[u] in st.excluded else -1.0
+    C = st.prior_cov(u) + sign * J @ S @ J.T
+    if np.min(np.linalg.eigvalsh(C)) <= 0:
+        C = st.prior_cov(u)
+    stat = float(r @ np.linalg.solve(C, r))
+    d = tangent_difference(st.reported[u], st.P[u])
+    sizes = {"rot_deg": float(np.degrees(np.linalg.norm(d[:3]))), "trans_mm": float(1e3 * np.linalg.norm(d[3:]))}
+    return stat, float(chi2.sf(stat, 6)), sizes
+
+
+def _tests(st: CellState, S: np.ndarray, core: int) -> tuple[Optional[tuple], list[tuple], list[int]]:
+    """The worst robot pose the cameras disagree with, the camera views with too large residuals, and more.
+
+    (worst robot pose (view index, statistic, numbers) or None, [(camera, observation, numbers)] of the
+    camera views whose residuals are too large, view indices of excluded robot poses the cameras agree with).
+    """
+    o = st.o
     prior = st.prior_views()
     worst = None
-    if prior and st.robot_groups:
-        level = o.view_outlier_p / max(len(prior), 1)
-        dh = slice(core - st.m_dh, core)
-        for u in prior:
-            r = st.prior_residual(u)
-            at = core + 6 * robot.index(u)
-            J = np.zeros((6, S.shape[0]))
-            J[:, at : at + 6] = np.eye(6)
-            if st.m_dh and st.kin is not None:
-                J[:, dh] = -st.kin.J_dh[u]
-            C = st.prior_cov(u) - J @ S @ J.T
-            if np.min(np.linalg.eigvalsh(C)) <= 0:
-                C = st.prior_cov(u)
-            stat = float(r @ np.linalg.solve(C, r))
-            p = float(chi2.sf(stat, 6))
-            d = tangent_difference(st.reported[u], st.P[u])
-            rot_deg, trans_mm = float(np.degrees(np.linalg.norm(d[:3]))), float(1e3 * np.linalg.norm(d[3:]))
-            big = rot_deg >= o.min_robot_disagreement_deg or trans_mm >= o.min_robot_disagreement_mm
-            if p < level and big and (worst is None or stat > worst[1]):
-                worst = (
-                    u,
-                    stat,
-                    {"p_value": p, "mahalanobis": float(np.sqrt(stat)), "rot_deg": rot_deg, "trans_mm": trans_mm},
-                )
+    again = []
+    if st.robot_groups:
+        level = o.view_outlier_p / max(len(st.robot_views()), 1)
+        for u in st.robot_views():
+            stat, p, sizes = _robot_test(st, S, core, u)
+            if st.ids[u] in st.excluded:
+                if p >= level:
+                    again.append(u)
+                continue
+            big = sizes["rot_deg"] >= o.min_robot_disagreement_deg or sizes["trans_mm"] >= o.min_robot_disagreement_mm
+            if u in prior and p < level and big and (worst is None or stat > worst[1]):
+                worst = (u, stat, {"p_value": p, "mahalanobis": float(np.sqrt(stat)), **sizes})
     bad = []
     n_obs = sum(len(cam.obs) for cam in st.cams)
     for c, cam in enumerate(st.cams):
@@ -339,7 +356,79 @@ def _tests(st: CellState, S: np.ndarray, core: int) -> tuple[Optional[tuple], li
             rms = float(np.sqrt(np.mean(e**2)))
             if p < o.view_outlier_p / n_obs and rms >= o.min_corner_outlier_px:
                 bad.append((c, j, {"p_value": p, "rms_px": rms, "sigma_px": float(st.sigma_px[c])}))
-    return worst, bad
+    return worst, bad, again
+
+
+def _observations(st: CellState, u: int) -> list[tuple[int, int]]:
+    """(camera, observation) of every camera that sees view u with corners in use."""
+    return [(c, j) for c, cam in enumerate(st.cams) for j, o in enumerate(cam.obs) if o[0] == u and o[3].any()]
+
+
+def _view_stat(st: CellState, c: int, j: int, T_robot: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(whitened residual (2n,), its Jacobian in the robot pose (2n,6), corner norms [px]) of one camera view."""
+    cam = st.cams[c]
+    _u, obj, img, m = cam.obs[j]
+    r, _jx, J_r, _jb, _jk = chain_residual(
+        T_x=cam.T_x,
+        T_base_end=T_robot,
+        T_board=st.T_boards[cam.board],
+        invert_robot=cam.mount.inverts_robot,
+        intrinsics_vec=cam.k,
+        object_points=obj[m],
+        image_points=img[m],
+        jacobians=True,
+    )
+    assert J_r is not None, "Jacobians asked for"
+    return r / st.sigma_px[c], J_r / st.sigma_px[c], np.linalg.norm(r.reshape(-1, 2), axis=1)
+
+
+def _fit_pose(st: CellState, u: int, obs: list[tuple[int, int]], *, prior: bool) -> np.ndarray:
+    """View u's robot pose fitted to the camera views ``obs`` (and its prior), everything else held."""
+    T = st.P[u].copy()
+    W = np.linalg.inv(st.prior_cov(u)) if prior else None
+    for _ in range(8):
+        H, g = np.zeros((6, 6)), np.zeros(6)
+        for c, j in obs:
+            r, J, _e = _view_stat(st, c, j, T)
+            H += J.T @ J
+            g += J.T @ r
+        if W is not None:
+            r0 = tangent_difference(st.reported[u], T)
+            if st.m_dh and st.kin is not None:
+                r0 = r0 - st.kin.J_dh[u] @ st.dh
+            H += W
+            g += W @ r0
+        step = -np.linalg.solve(H + 1e-12 * np.trace(H) * np.eye(6), g)
+        T = T @ se3_exp(step)
+        if np.linalg.norm(step) < 1e-10:
+            break
+    return T
+
+
+def _lone_camera(st: CellState, u: int, bad: list[tuple]) -> list[tuple]:
+    """The one camera view of view u that disagrees with the pose the other cameras and the prior agree on.
+
+    [] when no single camera explains it (a robot pose, or views seen by one camera only).
+    """
+    obs = _observations(st, u)
+    if len(obs) < 2:
+        return []
+    level = st.o.view_outlier_p / max(sum(len(cam.obs) for cam in st.cams), 1)
+    found = []
+    for k, (c, j) in enumerate(obs):
+        others = obs[:k] + obs[k + 1 :]
+        T = _fit_pose(st, u, others, prior=st.kind != "none" and st.ids[u] not in st.excluded)
+        ok_others = all(
+            chi2.sf(float(np.sum(_view_stat(st, c2, j2, T)[0] ** 2)), _view_stat(st, c2, j2, T)[0].size) >= level
+            for c2, j2 in others
+        )
+        r, _J, e = _view_stat(st, c, j, T)
+        p = float(chi2.sf(float(np.sum(r**2)), r.size))
+        if ok_others and p < level:
+            found.append(
+                (c, j, {"p_value": p, "rms_px": float(np.sqrt(np.mean(e**2))), "sigma_px": float(st.sigma_px[c])})
+            )
+    return found if len(found) == 1 else []
 
 
 def refine_cell(
@@ -365,16 +454,29 @@ def refine_cell(
             st.excluded[vid] = {"reason": "excluded by most of the cameras' own refinements"}
     iterations = solve_cell_graph(st, robust=True)
     red: dict[str, float] = {}
+    readmitted: set[str] = set()
     for _round in range(max(1, o.max_outlier_rounds) + 1):
         red = _variance_components(st, vce_rounds if st.robot_groups or len(st.cams) else 1)
         core = int(np.sum(cell_ordering(st)[1]))
         S = np.linalg.pinv(cell_information(st), hermitian=True)
-        worst, bad = _tests(st, S, core)
-        if worst is None and not bad:
+        worst, bad, again = _tests(st, S, core)
+        log.debug("cell round %d: robot %s, views %s, again %s", _round, worst, bad, again)
+        again = [u for u in again if st.ids[u] not in readmitted]
+        if worst is None and not bad and not again:
             break
-        if worst is not None:
+        for u in again:  # the cameras agree with its reported pose now (a bad image of one camera had pulled it)
+            readmitted.add(st.ids[u])
+            st.excluded.pop(st.ids[u])
+        # a view's disagreement is one camera's image when the others (with the reported pose) agree without it;
+        # else, when the cameras agree among themselves but not with the reported pose, the robot pose's
+        suspects = {st.cams[c].obs[j][0] for c, j, _i in bad} | ({worst[0]} if worst is not None else set())
+        images = [(c, j, i) for u in sorted(suspects) for c, j, i in _lone_camera(st, u, bad)]
+        if images:
+            bad = images
+        elif worst is not None:
             u, _stat, info = worst
             st.excluded[st.ids[u]] = {"reason": "every camera disagrees with the reported robot pose", **info}
+            bad = []
         for c, j, info in bad:
             u, obj, img, m = st.cams[c].obs[j]
             st.cams[c].obs[j] = (u, obj, img, np.zeros_like(m))

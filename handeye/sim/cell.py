@@ -220,13 +220,15 @@ def write_cell(
     image_noise: float = 0.0,
     workers: int = 2,
     outlier_views: tuple = (),
+    robot_noise: tuple = (0.0, 0.0),
 ) -> Path:
     """Render a cell: ``out_dir/<camera>/`` sessions (rendered images), ``cell.yaml`` and ground truth.
 
     Each camera's session.yaml lists the views it sees its whole board in (ids shared by the cell), with
     the reported robot poses and, with the kinematic robot error, the encoder joint angles and ``robot:``;
     ``out_dir/ground_truth.json`` holds the cell's truth (:func:`truth_dict`), each camera folder its own.
-    ``outlier_views``: ids given a gross robot pose error (seen by every camera). Returns ``out_dir``.
+    ``outlier_views``: ids given a gross robot pose error (seen by every camera); ``robot_noise``: (mm, deg)
+    per axis of the iid robot error. Returns ``out_dir``.
     """
     import cv2
     import yaml
@@ -243,6 +245,7 @@ def write_cell(
         robot_error=robot_error,
         arm=arm,
         outlier_views=tuple(outlier_views),
+        **({"robot_noise": tuple(robot_noise)} if any(robot_noise) else {}),
     )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,97 @@
+"""``handeye calibrate`` of a cell (handeye.cell.workflow) on a rendered 3-camera cell with ground truth."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import yaml
+from scipy.stats import chi2
+
+from handeye.cell import calibrate_cell, read_cell_file
+from handeye.cli import main
+from handeye.contract import read_result, single_camera
+from handeye.errors import InputError, verdict_exit_code
+from handeye.frames import inv_T, tangent_difference
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory):
+    """``handeye simulate --cell 3`` then ``handeye calibrate CELL --out R``: (cell folder, result folder, rc)."""
+    root = tmp_path_factory.mktemp("cell")
+    folder, out = root / "cell", root / "result"
+    assert main(["-q", "simulate", str(folder), "--cell", "3", "--views", "10", "--seed", "1"]) == 0
+    rc = main(["-q", "calibrate", str(folder), "--out", str(out)])
+    return folder, out, rc
+
+
+def _m2(T, C, T_true):
+    xi = tangent_difference(np.asarray(T), np.asarray(T_true))
+    return float(xi @ np.linalg.solve(np.asarray(C), xi))
+
+
+def test_simulate_writes_a_cell_folder(cell):
+    folder, _out, _rc = cell
+    sessions, robot = read_cell_file(folder)
+    assert [p.name for p in sessions] == ["cam1", "cam2", "wrist"] and robot == "rm65"  # simulate's default arm
+    for p in sessions:
+        doc = yaml.safe_load((p / "session.yaml").read_text())
+        assert doc["robot"] == "rm65" and all(len(v["joints"]) == 6 for v in doc["views"])
+        assert (p / "ground_truth.json").is_file()
+    assert json.loads((folder / "ground_truth.json").read_text())["kind"] == "cell"
+
+
+def test_the_cell_result_is_one_contract_file_against_the_truth(cell):
+    folder, out, rc = cell
+    res = read_result(out)
+    assert rc == verdict_exit_code(res.verdict)
+    assert res.is_cell and res.mode == "cell" and res.camera_names == ["cam1", "cam2", "wrist"]
+    truth = json.loads((folder / "ground_truth.json").read_text())
+    bound = chi2.ppf(0.999, 6)  # one cell: inside the 99.9 % region (the benchmark measures the coverage)
+    for name in res.camera_names:
+        cam = single_camera(res, name)
+        t = truth["cameras"][name]
+        assert cam.x_name == ("T_end_cam" if name == "wrist" else "T_base_cam")
+        raw = res.raw["cameras"][name]
+        assert _m2(cam.T_x, raw["refinement"]["cov_x_6x6"], t[cam.x_name]) < bound
+        assert raw["refinement"]["cov_x_6x6_verdict"] == raw["refinement"]["cov_x_6x6"]
+        assert raw["refinement"]["solo"]["agreement"]["inside_95"]  # the joint X inside its solo 95 % region
+        assert (out / "solo" / name / "result.json").is_file()
+    pair = res.raw["camera_pairs"]["cam1/cam2"]
+    T_true = inv_T(np.asarray(truth["cameras"]["cam1"]["T_base_cam"])) @ np.asarray(
+        truth["cameras"]["cam2"]["T_base_cam"]
+    )
+    assert pair["name"] == "T_cam1_cam2" and _m2(pair["matrix"], pair["cov_6x6"], T_true) < bound
+    jc = res.raw["joint_covariance"]
+    assert (
+        "cameras.cam1.T_base_cam" in jc["blocks"] and "T_end_board" in jc["blocks"] and "T_base_board" in jc["blocks"]
+    )
+    assert "board" not in res.raw  # two boards (flange and table): each camera's entry has its own
+    assert (out / "report.md").read_text().startswith("# Cell of 3 cameras")
+    assert "T_cam1_cam2" in (out / "report.html").read_text()
+
+
+def test_sessions_named_one_by_one_are_the_same_cell(cell, tmp_path):
+    folder, out, _rc = cell
+    wr = calibrate_cell([folder / "cam1", folder / "cam2"], tmp_path / "two", report=False, diagnostics=False)
+    assert list(wr.result["cameras"]) == ["cam1", "cam2"] and "board" in wr.result  # one flange board: top level
+    assert wr.result["board"]["name"] == "T_end_board"
+    joint3 = np.asarray(read_result(out).raw["cameras"]["cam1"]["T_base_cam"])
+    assert np.linalg.norm(np.asarray(wr.result["cameras"]["cam1"]["T_base_cam"])[:3, 3] - joint3[:3, 3]) < 2e-3
+
+
+def test_a_cell_file_without_sessions_is_one_line_naming_it(tmp_path):
+    (tmp_path / "cell.yaml").write_text("cell: {sessions: []}\n")
+    with pytest.raises(InputError, match="cell.sessions must list") as e:
+        read_cell_file(tmp_path)
+    assert "cell.yaml" in str(e.value)
+    assert main(["-q", "calibrate", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+
+
+def test_two_sessions_of_one_name_are_refused(cell, tmp_path):
+    folder, _out, _rc = cell
+    other = tmp_path / "x" / "cam1"
+    shutil.copytree(folder / "cam2", other)
+    with pytest.raises(InputError, match="two sessions of the cell are named 'cam1'"):
+        calibrate_cell([folder / "cam1", other], tmp_path / "o")
+    assert main(["-q", "calibrate", str(folder / "cam1"), str(folder / "cam2")]) == 2  # a cell needs --out

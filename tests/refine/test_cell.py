@@ -1,0 +1,185 @@
+"""A cell of cameras in one graph (handeye.refine.cell) on corner-level simulated cells with ground truth."""
+
+import functools
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from handeye.errors import InputError
+from handeye.frames import inv_T, se3_exp, tangent_difference, tangent_jacobian
+from handeye.initial import all_methods, calibrate_intrinsics, solve_pnp
+from handeye.mounting import mounting
+from handeye.refine import RefineOptions, RefineView, refine
+from handeye.refine.cell import CellCameraInput, refine_cell
+from handeye.sim.cell import make_cell
+
+CHI2_95 = chi2.ppf(0.95, 6)
+
+
+def _views(s):
+    q = s.joints_encoder
+    return tuple(
+        RefineView(vid, ids, pts, s.T_base_end_reported[k], None if q is None else q[k])
+        for k, (vid, ids, pts) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points, strict=True))
+        if len(ids)
+    )
+
+
+def _solo(s, options):
+    """One camera as the pipeline calibrates it: calibrateCamera, solvePnP, the closed forms, refine()."""
+    obj = s.target.object_points()
+    dets = s.detections()
+    intr, _ = calibrate_intrinsics(dets, obj)
+    C = np.stack([solve_pnp(obj[d.corner_ids], d.image_points, intr)[0] for d in dets])
+    mount = mounting(s.mode)
+    M = mount.M_from_T_base_end(np.stack([s.T_base_end_reported[s.index(d.view_id)] for d in dets]))
+    closed = all_methods(mount, C, M)
+    return refine(
+        mode=s.mode,
+        object_points=obj,
+        views=_views(s),
+        intrinsics=intr,
+        T_x0=closed["tsai"].T_x,
+        T_board0=closed["tsai"].T_board,
+        options=options,
+        starts=closed,
+    )
+
+
+def _inputs(cell, solos):
+    return [
+        CellCameraInput(
+            name=name,
+            mode=s.mode,
+            object_points=s.target.object_points(),
+            views=_views(s),
+            intrinsics=solos[name].intrinsics,
+            T_x0=solos[name].T_x,
+            T_board0=solos[name].T_board,
+            sigma_px=solos[name].sigma_px,
+        )
+        for name, s in zip(cell.names, cell.sessions, strict=True)
+    ]
+
+
+@functools.lru_cache(maxsize=None)
+def _run(n_cameras: int, seed: int, outliers: tuple = ()):
+    cell = make_cell(n_cameras, n_views=20, seed=seed, arm="ur5e", outlier_views=outliers)
+    o = RefineOptions(arm="ur5e")
+    solos = {name: _solo(s, o) for name, s in zip(cell.names, cell.sessions, strict=True)}
+    return cell, solos, refine_cell(_inputs(cell, solos), options=o)
+
+
+def _m2(T_est, C, T_true):
+    xi = tangent_difference(T_est, T_true)
+    return float(xi @ np.linalg.solve(C, xi))
+
+
+def test_noiseless_cell_recovers_every_camera_and_pair():
+    """Exact corners and robot poses: every X, the shared boards and the pairs to ~1e-8."""
+    cell = make_cell(3, n_views=12, seed=2, noise_px=0.0, robot_error="none")
+    ins = []
+    for name, s in zip(cell.names, cell.sessions, strict=True):
+        T_start = s.T_x_true @ se3_exp(np.r_[0.01, -0.01, 0.005, 0.003, 0.002, -0.004])
+        ins.append(
+            CellCameraInput(
+                name=name,
+                mode=s.mode,
+                object_points=s.target.object_points(),
+                views=_views(s),
+                intrinsics=s.intrinsics,
+                T_x0=T_start,
+                T_board0=s.T_board_true,
+                sigma_px=0.1,
+            )
+        )
+    cr = refine_cell(ins, options=RefineOptions(robot_noise="none", intrinsics="fixed"))
+    for name, s in zip(cell.names, cell.sessions, strict=True):
+        assert np.abs(tangent_difference(cr.T_x[name], s.T_x_true)).max() < 1e-8
+    assert [b["name"] for b in cr.boards] == ["T_end_board", "T_base_board"]
+    assert cr.boards[0]["cameras"] == ["cam1", "cam2"]
+    T_12, _ = cr.pair("cam1", "cam2")
+    T_true = inv_T(cell.sessions[0].T_x_true) @ cell.sessions[1].T_x_true
+    assert np.abs(tangent_difference(T_12, T_true)).max() < 1e-8
+    assert cr.pairs() == [("cam1", "cam2")]  # a wrist camera has no constant transform to a fixed one
+
+
+def test_each_camera_is_inside_its_95_percent_region_and_no_worse_than_alone():
+    """Three 3-camera cells (kinematic arm error): every X inside the 95 % ellipsoid of its joint covariance,
+    and the joint X closer to the truth than the solo one on average over cameras and seeds."""
+    err_joint, err_solo, m2 = [], [], []
+    for seed in (0, 1, 3):
+        cell, solos, cr = _run(3, seed)
+        for name, s in zip(cell.names, cell.sessions, strict=True):
+            m2.append(_m2(cr.T_x[name], cr.cov_x(name), s.T_x_true))
+            err_joint.append(np.sum(tangent_difference(cr.T_x[name], s.T_x_true)[3:] ** 2))
+            err_solo.append(np.sum(tangent_difference(solos[name].T_x, s.T_x_true)[3:] ** 2))
+            assert cr.sigma_px[name] == pytest.approx(0.3, rel=0.15)  # the simulated corner noise
+        assert not cr.robot_excluded and not any(cr.camera_removed.values())
+    assert max(m2) < CHI2_95, m2
+    assert np.mean(err_joint) <= np.mean(err_solo), (np.sqrt(np.mean(err_joint)), np.sqrt(np.mean(err_solo)))
+
+
+def test_the_joint_covariance_is_tighter_than_each_solo_one():
+    """The cameras share the arm's error and the board: each X's covariance is no larger than alone."""
+    cell, solos, cr = _run(3, 0)
+    for name in cell.names:
+        diff = np.asarray(solos[name].cov_x_6x6) - cr.cov_x(name)
+        assert np.linalg.eigvalsh(0.5 * (diff + diff.T)).min() > -1e-12 * np.trace(solos[name].cov_x_6x6)
+
+
+def test_camera_pair_against_the_truth_and_its_linearisation():
+    cell, _solos, cr = _run(3, 0)
+    T_ab, C = cr.pair("cam1", "cam2")
+    T_true = inv_T(cell.session("cam1").T_x_true) @ cell.session("cam2").T_x_true
+    assert _m2(T_ab, C, T_true) < CHI2_95
+    # the covariance's Jacobian: T_a_b moved by X_a Exp(e_a), X_b Exp(e_b), numerically on the manifold
+    Xa, Xb = cr.T_x["cam1"], cr.T_x["cam2"]
+    J_a = tangent_jacobian(lambda T: tangent_difference(T_ab, inv_T(T) @ Xb), Xa)
+    J_b = tangent_jacobian(lambda T: tangent_difference(T_ab, inv_T(Xa) @ T), Xb)
+    xa, xb = cr.x_block("cam1"), cr.x_block("cam2")
+    S = np.block([[cr.cov_of(xa), cr.cov_of(xa, xb)], [cr.cov_of(xb, xa), cr.cov_of(xb)]])
+    J = np.hstack([J_a, J_b])
+    np.testing.assert_allclose(C, J @ S @ J.T, rtol=1e-4, atol=1e-14)
+
+
+def test_a_bad_robot_pose_is_named_once_for_the_cell():
+    """A gross error on one reported pose: every camera disagrees with it, the cell excludes it once."""
+    cell, _solos, cr = _run(3, 1, ("7",))
+    assert list(cr.robot_excluded) == ["7"]
+    assert cr.robot_excluded["7"]["p_value"] < 1e-6
+    assert not any(cr.camera_removed.values())
+    for name, s in zip(cell.names, cell.sessions, strict=True):
+        assert _m2(cr.T_x[name], cr.cov_x(name), s.T_x_true) < chi2.ppf(0.99, 6)
+
+
+def test_a_bad_image_of_one_camera_leaves_that_camera_only():
+    """One camera's corners of one view from another pose: that camera's view is removed, the pose stays."""
+    cell, solos, _cr = _run(3, 0)
+    ins = _inputs(cell, solos)
+    views = list(ins[1].views)
+    bad = 3
+    vid = views[bad].view_id
+    views[bad] = RefineView(
+        vid,
+        views[bad].corner_ids,
+        views[bad].image_points + np.r_[6.0, -4.0],
+        views[bad].T_base_end,
+        views[bad].joint_angles,
+    )
+    ins[1] = CellCameraInput(**{**ins[1].__dict__, "views": tuple(views)})
+    cr = refine_cell(ins, options=RefineOptions(arm="ur5e"))
+    assert list(cr.camera_removed["cam2"]) == [vid]
+    assert not cr.robot_excluded and not cr.camera_removed["cam1"] and not cr.camera_removed["wrist"]
+    assert cr.per_view["cam2"][vid]["status"] == "removed" and cr.per_view["wrist"][vid]["status"] == "used"
+
+
+def test_cameras_that_disagree_about_a_reported_pose_are_refused():
+    cell, solos, _cr = _run(3, 0)
+    ins = _inputs(cell, solos)
+    v = ins[0].views[0]
+    moved = RefineView(v.view_id, v.corner_ids, v.image_points, v.T_base_end @ se3_exp(np.r_[0, 0, 0, 0.001, 0, 0]))
+    ins[0] = CellCameraInput(**{**ins[0].__dict__, "views": (moved,) + ins[0].views[1:]})
+    with pytest.raises(InputError, match=f"view {v.view_id}: camera cam2 has another robot pose"):
+        refine_cell(ins, options=RefineOptions(arm="ur5e"))
