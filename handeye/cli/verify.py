@@ -99,6 +99,12 @@ def run(args) -> int:
         if getattr(args, name) is not None:
             raise InputError(f"--{name.replace('_', '-')} only applies with --plan")
     if len(args.session) > 1:
+        if args.json:
+            raise InputError(
+                "--json prints one verification",
+                received=f"{len(args.session)} sessions",
+                hint="read each camera's verify.json (--out OUT: OUT/<camera>/verify.json), or verify one session",
+            )
         if not cameras or args.camera is not None:
             raise InputError(
                 f"{len(args.session)} sessions: several sessions are verified against a cell, each its camera "

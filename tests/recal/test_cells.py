@@ -104,6 +104,8 @@ def test_verify_several_cameras_of_a_cell_gives_a_verdict_per_camera_and_for_the
         assert d["frame"] == frame and d["verdict"] == "still valid"
     assert main(["verify", *sessions, "--against", str(cell["solo"]["wrist"])]) == 2
     assert "against a cell" in capsys.readouterr().err
+    assert main(["verify", *sessions, "--against", str(cell["cell"]), "--json"]) == 2
+    assert "--json prints one verification" in capsys.readouterr().err
 
 
 def test_calibrate_prior_and_collect_take_the_cell_camera_of_the_session_folder(cell, tmp_path, capsys):
