@@ -93,3 +93,27 @@ def test_a_cell_export_refuses_one_frame_for_all_cameras_and_an_unknown_or_faile
     err = capsys.readouterr().err.strip()
     assert "camera fixed2" in err and "FAIL" in err and not (tmp_path / "x.urdf").exists()
     assert main(["export", str(bad), "--to", "urdf", "--out", str(tmp_path / "x.urdf"), "--camera", "wrist"]) == 0
+
+
+@pytest.mark.parametrize("fmt", ["ros2", "urdf", "yaml", "json", "moveit", "easy_handeye2"])
+def test_every_cameras_text_is_escaped_and_read_back_from_a_nasty_folder(cell, tmp_path, fmt):
+    """A result folder whose name holds quotes, markup, a comment end and a line break: every format of the cell
+    is written (each file parsed back before) and its launch files compile to what was meant."""
+    nasty = tmp_path / "a\"b'<c>&--d\n#e"
+    shutil.copytree(cell["cell"], nasty)
+    out = tmp_path / "out"
+    out.mkdir()
+    assert main(["export", str(nasty), "--to", fmt, "--out", str(out)]) == 0
+    files = sorted(p for p in out.iterdir())
+    assert files
+    for p in files:
+        text = p.read_text()
+        assert "\n#e" not in text.replace("\\n#e", "")  # the line break never reaches the file as one
+        if p.name.endswith(".launch.py"):  # the provenance constant holds the path exactly
+            import ast
+
+            tree = ast.parse(text)
+            (prov,) = [
+                n.value for n in tree.body if isinstance(n, ast.Assign) and n.targets[0].id == "HANDEYE_CALIBRATION"
+            ]
+            assert ast.literal_eval(prov)["source"] == str(nasty / "result.json")
