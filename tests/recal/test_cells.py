@@ -127,3 +127,13 @@ def test_calibrate_prior_and_collect_take_the_cell_camera_of_the_session_folder(
     assert len(err) == 1 and "--verify-against is a cell of 3 cameras" in err[0] and "'c' names none" in err[0]
     assert main([*args[:1], str(tmp_path / "fixed1"), *args[2:], "--verify-against", str(cell["cell"])]) == 2
     assert "installed calibration is eye_to_hand" in capsys.readouterr().err  # the camera named by the folder
+
+
+def test_verify_plan_against_a_cell_takes_camera(cell, capsys):
+    assert main(["verify", "--plan", "--against", str(cell["cell"])]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cell of 3 cameras" in err[0] and "--camera NAME" in err[0]
+    assert main(["verify", "--plan", "--against", str(cell["cell"]), "--camera", "wrist", "--json"]) == 0
+    plan = json.loads(capsys.readouterr().out)
+    solo = main(["verify", "--plan", "--against", str(cell["solo"]["wrist"]), "--json"])
+    assert solo == 0 and plan == json.loads(capsys.readouterr().out)  # the cell's camera: its own X and covariance
