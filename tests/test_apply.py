@@ -107,3 +107,18 @@ def test_apply_refuses_failed_results(tmp_path, capsys):
     assert main(["apply", str(p), "--point", "0", "0", "1"]) != 0
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "failed calibration" in err
+
+
+def test_apply_takes_a_cells_camera_by_name(cell, capsys):
+    from handeye.contract import read_result
+
+    T_base_cam = read_result(cell["cell"]).camera_result("fixed1").T_x
+    p_cam = np.array([0.01, -0.02, 0.5])
+    assert main(["apply", str(cell["cell"]), "--point", *map(str, p_cam), "--camera", "fixed1"]) == 0
+    out = capsys.readouterr().out
+    want = transform_points(T_base_cam, p_cam[None])[0]
+    got = [float(x) for x in out.splitlines()[0].split(":")[1].split()]
+    np.testing.assert_allclose(got, want, atol=2e-6)
+    assert main(["apply", str(cell["cell"]), "--point", "0", "0", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cell of 3 cameras (wrist, fixed1, fixed2)" in err[0] and "--camera" in err[0]

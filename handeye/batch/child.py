@@ -93,6 +93,8 @@ def run(spec: dict) -> dict:
     _wait_for_previous_attempt(spec["out_dir"])
     if spec.get("verify_against"):
         return run_verify(spec)
+    if spec.get("layout") == "cell":
+        return run_cell(spec)
     args = calibrate_namespace(cal)
     try:  # as handeye calibrate runs it (handeye.cli.calibrate.run)
         refuse_pose_only_flags(argparse.Namespace(**{**vars(args), "session": spec["session"]}))
@@ -111,6 +113,13 @@ def run(spec: dict) -> dict:
         )
     except HandeyeError as e:
         return {"outcome": "error", "status": "failed", "verdict": "ERROR", "reason": str(e), "exit_code": e.exit_code}
+    return done_reply(wr, cal)
+
+
+def done_reply(wr, cal: dict) -> dict:
+    """The reply of a finished calibration ``wr`` (a session's or a cell's), its export done when asked for."""
+    from ..errors import HandeyeError
+
     reason = wr.result.get("failure_reason") or (
         "" if wr.verdict in ("PASS", "WARN") else wr.result.get("verdict_headline", "")
     )
@@ -123,6 +132,36 @@ def run(spec: dict) -> dict:
         except HandeyeError as e:
             reply["export_error"] = str(e)
     return reply
+
+
+def run_cell(spec: dict) -> dict:
+    """A cell folder (``cell.yaml``), as ``handeye calibrate CELL_DIR`` runs it: one result.json of its cameras.
+
+    ``--prior`` is refused (one session's); ``--export`` writes every camera (:func:`handeye.export.export_cell`).
+    """
+    from ..cell import calibrate_cell
+    from ..errors import HandeyeError, InputError
+    from ..options import options_from_args
+    from .run import calibrate_namespace
+
+    cal = spec["calibrate"]
+    try:
+        if cal.get("prior"):
+            raise InputError("--prior is for one session, not a cell", path=spec["session"], hint="batch without it")
+        wr = calibrate_cell(
+            [spec["session"]],
+            spec["out_dir"],
+            options=options_from_args(calibrate_namespace(cal)),
+            report=not cal.get("no_report"),
+            qa=cal.get("qa"),
+            mode=cal.get("mode"),
+            progress=lambda s: log.info("%s", s),
+            allow_outside=bool(cal.get("allow_outside")),
+            site_files=[f for f in (cal.get("config"), cal.get("qa")) if f],
+        )
+    except HandeyeError as e:
+        return {"outcome": "error", "status": "failed", "verdict": "ERROR", "reason": str(e), "exit_code": e.exit_code}
+    return done_reply(wr, cal)
 
 
 def run_verify(spec: dict) -> dict:

@@ -1,10 +1,12 @@
 """Find the sessions under a root folder, group them by install and give each its time.
 
-A session is a folder holding ``session.yaml`` or ``poses.txt``. Its install is ``install:`` in its
-``session.yaml``, else its first folder under the root (``ROOT/<install>/<session>/``), else the root's
-own name; its time is ``time:``, else the first ``t_image``, else a date in its folder name, else the
-newest modification time of its files. A session with ``verify_against:`` is a verification, not a
-calibration. Names become folder names under OUT, made safe and unique.
+A session is a folder holding ``session.yaml`` or ``poses.txt``, or a cell (``cell.yaml``: the sessions of
+several cameras of one arm, calibrated together as one job; its camera folders are part of it). Its install
+is ``install:`` in its ``session.yaml`` (a cell's ``cell.yaml``), else its first folder under the root
+(``ROOT/<install>/<session>/``), else the root's own name; its time is ``time:``, else the first ``t_image``,
+else a date in its folder name, else the newest modification time of its files. A session with
+``verify_against:`` is a verification, not a calibration. Names become folder names under OUT, made safe and
+unique.
 
 See docs/fleet.md and, for faults in one session, docs/batch.md.
 """
@@ -25,6 +27,9 @@ log = logging.getLogger(__name__)
 #: the install of a root that is itself a session (and names no install)
 DEFAULT_INSTALL = "default"
 
+#: the file that makes a folder a cell of cameras (handeye calibrate CELL_DIR)
+CELL_FILE = "cell.yaml"
+
 _DATE_RE = re.compile(r"(?<!\d)(\d{4})-?(\d{2})-?(\d{2})(?:[T_ -]?(\d{2}):?(\d{2})(?::?(\d{2}))?)?(?!\d)")
 
 
@@ -44,7 +49,7 @@ class SessionJob:
     name: str
     time_utc: str | None
     time_source: str
-    layout: str  # native | vendor
+    layout: str  # native | vendor | cell
     verify_against: str | None = None  # session.yaml verify_against: the installed result this session checks
     warnings: tuple = ()
     error: str | None = None
@@ -109,6 +114,8 @@ def walk_sessions(root: Path) -> tuple[list[tuple[Path, str]], list[SkippedFolde
             return
         names = {e.name for e in entries if _is(e.is_file)}
         layout = "native" if "session.yaml" in names else ("vendor" if "poses.txt" in names else None)
+        if CELL_FILE in names:  # a cell: its camera folders are its own, not sessions of their own
+            layout = "cell"
         if layout is not None:  # a session's sub-folders (images, view records) are part of it
             found.append((folder, layout))
             return
@@ -170,7 +177,8 @@ def discover_fleet(root) -> Discovery:
     folders, skipped = walk_sessions(root)
     for folder, layout in folders:
         warnings: list[str] = []
-        meta = _session_yaml(folder, warnings) if layout == "native" else {}
+        yaml_name = CELL_FILE if layout == "cell" else "session.yaml"
+        meta = _session_yaml(folder, warnings, yaml_name) if layout != "vendor" else {}
         rel = folder.relative_to(root).parts
         if isinstance(meta.get("install"), (str, int, float)) and meta["install"] != "":
             install = safe_component(meta["install"])
@@ -189,7 +197,7 @@ def discover_fleet(root) -> Discovery:
             name, k = f"{base}~{k}", k + 1
         taken.add((install, name))
         t, src = session_time(folder, meta, warnings)
-        against, error = meta.get("verify_against"), None
+        against, error = (meta.get("verify_against") if layout != "cell" else None), None
         if against in (None, ""):
             against = None
         elif not isinstance(against, str):
@@ -226,8 +234,8 @@ def _short(value) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def _session_yaml(folder: Path, warnings: list) -> dict:
-    """The top-level mapping of ``session.yaml``.
+def _session_yaml(folder: Path, warnings: list, name: str = "session.yaml") -> dict:
+    """The top-level mapping of ``session.yaml`` (a cell: ``cell.yaml``; its ``install`` and ``time`` alike).
 
     {} when it does not parse, with a warning in ``warnings``: the calibration then reports why, the batch
     only needs the install and the time.
@@ -235,14 +243,14 @@ def _session_yaml(folder: Path, warnings: list) -> dict:
     import yaml
 
     try:
-        d = yaml.safe_load((folder / "session.yaml").read_text(encoding="utf-8"))
+        d = yaml.safe_load((folder / name).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
         # its install, time and verify_against are lost: grouped by its path, run as a calibration, which names
         # the file's fault in its own record
-        warnings.append(f"session.yaml not read for the batch ({' '.join(str(e).split())}); grouped by its folder")
+        warnings.append(f"{name} not read for the batch ({' '.join(str(e).split())}); grouped by its folder")
         return {}
     if d is not None and not isinstance(d, dict):
-        warnings.append("session.yaml is not a mapping; grouped by its folder")
+        warnings.append(f"{name} is not a mapping; grouped by its folder")
     return d if isinstance(d, dict) else {}
 
 

@@ -94,14 +94,14 @@ def series_key(row: dict) -> Optional[tuple]:
     if loaded is None or isinstance(loaded, Exception):
         return None
     size = tuple(loaded.image_size) if loaded.image_size else None
-    return (loaded.mode, loaded.x_name, json.dumps(loaded.target, sort_keys=True, default=str), size)
+    return (loaded.mode, loaded.x_name, json.dumps(loaded.target, sort_keys=True, default=str), size, row.get("camera"))
 
 
 def _series_label(key: tuple) -> str:
     """One line naming a series: its mode, X, board and image size."""
     import json
 
-    mode, x_name, target, size = key
+    mode, x_name, target, size, camera = key
     t = json.loads(target)
     board = "an unknown board"
     if isinstance(t, dict):
@@ -111,7 +111,9 @@ def _series_label(key: tuple) -> str:
         )
         if isinstance(t.get("square_m"), (int, float)):
             board += f" of {1e3 * t['square_m']:g} mm"
-    return f"{mode}, {x_name}, {board}" + (f", {size[0]}x{size[1]} px" if size else "")
+    return ("" if camera is None else f"camera {camera}: ") + (
+        f"{mode}, {x_name}, {board}" + (f", {size[0]}x{size[1]} px" if size else "")
+    )
 
 
 def _not_comparable(a: dict, b: dict) -> dict:
@@ -169,7 +171,12 @@ def install_summaries(out, rows: list[dict], *, plots: bool = True) -> list[dict
     for name in sorted(by_install):
         rs = by_install[name]
         usable = [r for r in rs if r["tx_mm"] is not None]
-        drifts = install_drifts(out, usable)
+        by_camera: dict = {}  # a cell's camera is compared with the same camera of the install's other cells only
+        for r in usable:
+            by_camera.setdefault(r.get("camera"), []).append(r)
+        drifts = [d for rows_ in by_camera.values() for d in install_drifts(out, rows_)]
+        if len(by_camera) > 1:
+            drifts.sort(key=lambda d: d["time_utc"] or "")
         series: dict = {}
         for r in usable:
             key = series_key(r)

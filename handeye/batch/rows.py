@@ -50,6 +50,7 @@ COLUMNS = (
     "report",
     "export_error",
     "warnings",
+    "camera",  # a cell's camera (its row's session is <cell>/<camera>); last, so the earlier columns keep their places
 )
 #: how many findings codes the fleet summary lists
 TOP_FINDINGS = 10
@@ -246,6 +247,16 @@ def session_row(out: Path, folder: Path) -> dict:
         log.warning("%s: %s is damaged: %s", folder, which, e)
         row.update(outcome=DAMAGED, verdict="ERROR", reason=f"{which} is damaged: {e}")
         return row
+    if res.get("kind") == "cell":  # several cameras of one arm: the cell's row, its cameras' rows beside it
+        row["cell_result"] = res
+    _fill(row, f, res, folder / "result.json")
+    if (folder / "report.html").exists():
+        row["report"] = "/".join(rel) + "/report.html"
+    return row
+
+
+def _fill(row: dict, f: dict, res: dict, path: Path, camera: Optional[str] = None) -> None:
+    """A row's result columns from :func:`result_fields`' ``f`` of ``res`` (a cell's camera ``camera``)."""
     row.update(mode=f["mode"], verdict=f["verdict"], outcome=row["outcome"] or "done", findings=f["findings"])
     if not row["time_utc"]:
         row.update(time_utc=f["time_utc"], time_source="calibrated")
@@ -260,10 +271,38 @@ def session_row(out: Path, folder: Path) -> dict:
             (("sigma_rx_deg", "sigma_ry_deg", "sigma_rz_deg"), "sigma_rot_deg"),
         ):
             row.update(dict(zip(names, f[key] or [None] * 3, strict=True)))
-        row["compared"] = _comparable(res, folder / "result.json")  # for the drift: result.json is read once
-    if (folder / "report.html").exists():
-        row["report"] = "/".join(rel) + "/report.html"
-    return row
+        row["compared"] = _comparable(res, path, camera)  # for the drift: result.json is read once
+
+
+def cell_rows(row: dict, folder: Path) -> list[dict]:
+    """A cell's rows: one per camera (session ``<cell>/<camera>``), then the cell's own (mode ``cell``).
+
+    Each camera's row holds its mode, verdict and X with sigmas as a one-camera result's row does; a camera
+    whose entry cannot be used is a damaged row of its own. The cell's row: its verdict (result.json's, else
+    the worst camera's) and, when not PASS or WARN, the cameras that are not.
+    """
+    res = row.pop("cell_result")
+    cams = res.get("cameras") or {}
+    name = row["session"]
+    rows = []
+    for camera, entry in cams.items():
+        r = {**row, "camera": camera, "cell": name, "session": f"{name}/{camera}", "reason": ""}
+        try:
+            _fill(r, result_fields(entry), res, folder / "result.json", camera)
+        except ROW_ERRORS as e:
+            r.update(outcome=DAMAGED, verdict="ERROR", reason=f"result.json is damaged: cameras.{camera}: {e}")
+        rows.append(r)
+    worst = next(
+        (v for v in ("ERROR", "REFUSED", "FAIL", "WARN", "PASS") if any(r["verdict"] == v for r in rows)), None
+    )
+    verdict = res.get("verdict") if isinstance(res.get("verdict"), str) else worst
+    bad = [r["camera"] for r in rows if r["verdict"] not in ("PASS", "WARN")]
+    row.update(mode="cell", cell=name, verdict=verdict or row["verdict"])
+    if not row["reason"]:
+        row["reason"] = f"a cell of {len(cams)} cameras ({', '.join(cams)})" + (
+            f"; not PASS or WARN: {', '.join(bad)}" if bad else ""
+        )
+    return [*rows, row]
 
 
 def _rec_text(rec: dict, key: str) -> Optional[str]:
@@ -293,7 +332,7 @@ def _verify_row(row: dict, ver, folder: Path, rel: tuple) -> dict:
     return row
 
 
-def _comparable(res: Optional[dict], path: Path):
+def _comparable(res: Optional[dict], path: Path, camera: Optional[str] = None):
     """The result as the drift compares it.
 
     The result as the drift compares it (:class:`handeye.recal.loaded.LoadedResult`, its source the
@@ -308,10 +347,10 @@ def _comparable(res: Optional[dict], path: Path):
     try:
         if res is not None and "handeye_result" in res:
             try:
-                return replace(load_result(res), source=str(path))
+                return replace(load_result(res, camera=camera), source=str(path))
             except ROW_ERRORS:  # said as load_result says it of the file, below
                 pass
-        return load_result(path)
+        return load_result(path, camera=camera)
     except ROW_ERRORS as e:  # one result that cannot be compared must not lose the index
         return e
 
@@ -319,6 +358,18 @@ def _comparable(res: Optional[dict], path: Path):
 def fleet_rows(out) -> list[dict]:
     """The rows of every session under ``out``, sorted by install, time and session."""
     out = Path(out)
-    rows = [session_row(out, f) for f in session_folders(out)]
-    rows.sort(key=lambda r: (r["install"], r["time_utc"] or "", r["session"]))
+    rows = []
+    for f in session_folders(out):
+        row = session_row(out, f)
+        rows += cell_rows(row, f) if "cell_result" in row else [row]
+    # a cell's cameras then the cell's own row (the install's latest session is the cell)
+    rows.sort(
+        key=lambda r: (
+            r["install"],
+            r["time_utc"] or "",
+            r.get("cell") or r["session"],
+            r.get("cell") == r["session"],
+            r["session"],
+        )
+    )
     return rows

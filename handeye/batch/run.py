@@ -425,6 +425,7 @@ def plan_batch(
                 "calibrate": _canonical(calibrate),
                 "timeout_s": float(timeout_s),
                 "verify_against": job.verify_against,
+                "layout": job.layout,  # a cell runs handeye.cell.calibrate_cell
             }
         )
     return plan

@@ -45,6 +45,7 @@ def add_arguments(p) -> None:
         help="robot end pose in the base frame (vendor convention: metres, radians, R = Rz·Ry·Rx)",
     )
     p.add_argument("--mm", action="store_true", help="--point/--pose/--end-pose translations are in millimetres")
+    p.add_argument("--camera", metavar="NAME", help="a cell (several cameras of one arm): the camera observed with")
     p.set_defaults(func=run)
 
 
@@ -52,13 +53,13 @@ def run(args) -> int:
     import numpy as np
 
     from ..apply import points_cam_to_base, pose_cam_to_base
-    from ..contract import read_result
+    from ..contract import read_result, single_camera
     from ..conventions import VENDOR_POSE_FORMAT, T_from_pose_values, pose_forms
     from ..errors import ConfigError, InputError
 
     path = Path(args.result) / "result.json" if Path(args.result).is_dir() else Path(args.result)
     # every field it holds checked (a damaged one is one line naming it); status, mode and X are enough
-    res = read_result(path, partial=True)
+    res = single_camera(read_result(path, partial=True), args.camera, source=str(path))  # a cell: --camera
     if not res.ok:
         raise InputError(
             f"the result is a failed calibration ({str(res.failure_reason or '')[:120]})",
@@ -78,7 +79,7 @@ def run(args) -> int:
     if res.verdict == "FAIL":
         from ..recal.loaded import load_result, unfit_note
 
-        log.warning("%s", unfit_note(load_result(path)))
+        log.warning("%s", unfit_note(load_result(path, camera=args.camera)))
     scale = 1e-3 if args.mm else 1.0
 
     def pose_arg(values, flag):

@@ -22,7 +22,9 @@ def add_arguments(p) -> None:
         "frame (x forward) at the same origin. Each file states its frames, quaternion order and sigmas. "
         "Every file is parsed back by its own reader before any is written; a result folder's own files "
         "(result.json, observations.json, reports, thumbnails/ ...) are never written over. Frame names: "
-        "letters, digits and _ . / - (see docs/export.md)."
+        "letters, digits and _ . / - (see docs/export.md). A cell (several cameras of one arm) exports every "
+        "camera into one URDF / xacro / ROS 2 launch / tf2 YAML / YAML / JSON (frames <camera>_optical_frame), "
+        "MoveIt's and easy_handeye2's files one per camera (<name>_<camera>...); --camera NAME exports one."
     )
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = "formats:\n" + "\n".join(
@@ -65,6 +67,7 @@ def add_arguments(p) -> None:
         help="file to write (companions share its name) or an existing folder; default RESULT/hand_eye.<format suffix>",
     )
     p.add_argument("--force", action="store_true", help="export a result whose verdict is FAIL")
+    p.add_argument("--camera", metavar="NAME", help="a cell: export this camera only (default: every camera)")
     p.set_defaults(func=run)
 
 
@@ -82,6 +85,7 @@ def run(args) -> int:
         force=args.force,
         base_frame=args.base_frame,
         effector_frame=args.effector_frame,
+        camera=args.camera,
     ):
         print(f"{args.to}: {text_line(path)}")
     return 0

@@ -47,8 +47,18 @@ def run_report(args) -> int:
     out = check_out_dir(out, option="--out" if getattr(args, "out", None) else "RESULT_DIR")
     with FolderLock(out, option="the result folder"):
         remove_stray_temps(out)
+        cell = cell_result(result_dir)
         try:
-            paths = write_reports(result_dir, qa=getattr(args, "qa", None), out_dir=out, formats=formats, strict=True)
+            if cell is not None:  # several cameras of one arm: the cell's own report
+                from ..cell.report import cell_html, cell_markdown
+                from ..output import atomic_write_text
+
+                texts = {"html": cell_html, "md": cell_markdown}
+                paths = [atomic_write_text(out / f"report.{f}", texts[f](cell)) for f in formats]
+            else:
+                paths = write_reports(
+                    result_dir, qa=getattr(args, "qa", None), out_dir=out, formats=formats, strict=True
+                )
         except HandeyeError:
             raise
         except Exception as e:  # noqa: BLE001 - result.json passed its checks; the rest of it may still be damaged
@@ -63,3 +73,18 @@ def run_report(args) -> int:
     for p in paths:
         print(f"report: {p}")
     return 0
+
+
+def cell_result(result_dir: Path):
+    """result.json's content when it is a cell (checked by the contract), else None (the one-camera report's)."""
+    import json
+
+    from ..contract import read_result
+
+    try:
+        d = json.loads((result_dir / "result.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError):  # the one-camera report's reader names what is wrong
+        return None
+    if not isinstance(d, dict) or d.get("kind") != "cell":
+        return None
+    return read_result(result_dir / "result.json").raw

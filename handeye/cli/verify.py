@@ -35,7 +35,12 @@ def add_arguments(p) -> None:
     )
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = exit_codes_text()
-    p.add_argument("session", nargs="?", help="the verification session folder (not with --plan)")
+    p.add_argument(
+        "session",
+        nargs="*",
+        help="the verification session folder (not with --plan); against a cell, one per camera, each folder "
+        "named after its camera",
+    )
     p.add_argument(
         "--against",
         required=True,
@@ -50,6 +55,12 @@ def add_arguments(p) -> None:
         "--plan: where plan.json is written (default: printed only)",
     )
     p.add_argument("--mode", choices=MODES, help="mounting mode of the session (default: the installed result's)")
+    p.add_argument(
+        "--camera",
+        metavar="NAME",
+        help="against a cell (several cameras of one arm): the camera the session is of (default: the session "
+        "folder's name when it is one of the cell's cameras)",
+    )
     p.add_argument("--alpha", type=float, help="level of the test (default 0.05, configs/recal.yaml)")
     p.add_argument("--no-report", action="store_true", help="write verify.json only")
     p.add_argument("--json", action="store_true", help="print verify.json's content instead of the summary")
@@ -72,34 +83,87 @@ def run(args) -> int:
 
     _check_probability("--alpha", args.alpha)
     _check_probability("--power", args.power)
-    from ..recal.loaded import load_result, unfit_note
+    from ..contract import read_result
 
-    note = unfit_note(load_result(args.against))
-    if note:
-        log.warning("%s", note)
+    cameras = read_result(args.against).camera_names  # [] for a one-camera result
     if args.plan:
         if args.session:
             raise InputError(
                 "--plan takes no session", received=str(args.session), hint="handeye verify --plan --against RESULT"
             )
+        warn_unfit(args.against, args.camera)
         return run_plan(args)
     if not args.session:
         raise InputError("no session to verify", hint="handeye verify SESSION --against RESULT (or --plan)")
     for name in ("drift_mm", "drift_deg", "power"):
         if getattr(args, name) is not None:
             raise InputError(f"--{name.replace('_', '-')} only applies with --plan")
-    return run_verify(args)
+    if len(args.session) > 1:
+        if args.json:
+            raise InputError(
+                "--json prints one verification",
+                received=f"{len(args.session)} sessions",
+                hint="read each camera's verify.json (--out OUT: OUT/<camera>/verify.json), or verify one session",
+            )
+        if not cameras or args.camera is not None:
+            raise InputError(
+                f"{len(args.session)} sessions: several sessions are verified against a cell, each its camera "
+                "by its folder's name" + (" (without --camera)" if cameras else ""),
+                hint="verify one session per run" + (", or drop --camera" if cameras else ""),
+            )
+        return run_cell_verify(args, cameras)
+    from ..recal.loaded import session_camera
+
+    session = args.session[0]
+    camera = session_camera(args.against, session, args.camera)
+    warn_unfit(args.against, camera)
+    return run_verify(args, session, camera)
 
 
-def run_verify(args) -> int:
+def warn_unfit(against, camera) -> None:
+    """Log a warning when the installed result (a cell's camera) has a FAIL verdict."""
+    from ..recal.loaded import load_result, unfit_note
+
+    note = unfit_note(load_result(against, camera=camera))
+    if note:
+        log.warning("%s", note)
+
+
+def run_verify(args, session, camera) -> int:
+    from ..recal.loaded import load_result
     from ..recal.verify import VerifyOptions, verify_session
     from .calibrate import default_out_dir
 
     opts = VerifyOptions.from_config(alpha=args.alpha)
-    sv = verify_session(args.session, args.against, options=opts, mode=args.mode, progress=log.info)
-    calibrate_out = default_out_dir(args.session)
+    installed = load_result(args.against, camera=camera)
+    sv = verify_session(session, installed, options=opts, mode=args.mode, progress=log.info)
+    calibrate_out = default_out_dir(session)
     out = Path(args.out) if args.out else calibrate_out.with_name(calibrate_out.name + "-verify")
     return finish_verification(sv, out, reports=not args.no_report, as_json=args.json)
+
+
+def run_cell_verify(args, cameras: list[str]) -> int:
+    """Several sessions against a cell: each its camera's verification (``--out``/<camera>), then the cell's verdict."""
+    from ..errors import DRIFTED_EXIT_CODE, InputError
+    from ..recal.loaded import session_camera
+
+    named = [str(session_camera(args.against, s)) for s in args.session]  # a cell: each session names one
+    twice = sorted({n for n in named if named.count(n) > 1})
+    if twice:
+        raise InputError(f"two sessions are of camera {twice[0]}", hint="verify one session per camera")
+    drifted = []
+    for session, camera in zip(args.session, named, strict=True):
+        warn_unfit(args.against, camera)
+        print(f"camera {camera}:")
+        sub = argparse.Namespace(**{**vars(args), "out": None if args.out is None else Path(args.out) / camera})
+        if run_verify(sub, session, camera) == DRIFTED_EXIT_CODE:
+            drifted.append(camera)
+    print(
+        f"cell: DRIFTED ({', '.join(drifted)})"
+        if drifted
+        else f"cell: still valid ({len(named)} of {len(cameras)} cameras verified)"
+    )
+    return DRIFTED_EXIT_CODE if drifted else 0
 
 
 def finish_verification(sv, out: Path, *, reports: bool = True, as_json: bool = False) -> int:
@@ -147,10 +211,15 @@ def verification_lines(d: dict) -> list[str]:
 
 
 def run_plan(args) -> int:
+    from ..recal.loaded import load_result
     from ..recal.plan import plan_lines, plan_verification
 
     p = plan_verification(
-        args.against, drift_mm=args.drift_mm, drift_deg=args.drift_deg, power=args.power, alpha=args.alpha
+        load_result(args.against, camera=args.camera),
+        drift_mm=args.drift_mm,
+        drift_deg=args.drift_deg,
+        power=args.power,
+        alpha=args.alpha,
     )
     if args.json:
         from ..output import to_json

@@ -17,7 +17,14 @@ from pathlib import Path
 from typing import Optional
 
 from ..errors import InputError
-from .frames import CAMERA_FRAMES, DEFAULT_FRAMES, ExportTransform, camera_transform, check_frame_name
+from .frames import (
+    CAMERA_FRAMES,
+    CELL_CAMERA_FRAMES,
+    DEFAULT_FRAMES,
+    ExportTransform,
+    camera_transform,
+    check_frame_name,
+)
 
 #: format -> (the files it writes, from the base name; the one-line description)
 FORMATS = {
@@ -44,21 +51,23 @@ def export_transform(
     child: Optional[str] = None,
     camera_frame: str = "optical",
     force: bool = False,
+    camera: Optional[str] = None,
 ) -> ExportTransform:
-    """The transform to export from a result folder, result.json path or loaded dict.
+    """The transform to export from a result folder, result.json path or loaded dict (a cell: camera ``camera``).
 
     Raises :class:`~handeye.errors.InputError` (code ``result_not_usable``) for a result without a
-    matrix, and for a FAIL or REFUSED verdict unless ``force``.
+    matrix, and for a FAIL or REFUSED verdict unless ``force``. A cell's camera is named in the messages and its
+    frame is by default ``<camera>_optical_frame`` (``<camera>_link`` with the body frame).
     """
     from ..recal.loaded import load_result
 
-    r = load_result(result)
+    r = load_result(result, camera=camera)
     verdict = str(r.raw.get("verdict") or "none")
     if not r.ok:
         why = r.raw.get("failure_reason") or f"status {r.status}"
         raise InputError(
             f"the result has no usable transform ({why})",
-            path=r.source,
+            path=r.label,
             code="result_not_usable",
             hint="export a result whose status is ok",
         )
@@ -66,14 +75,14 @@ def export_transform(
         head = r.raw.get("verdict_headline") or ""
         raise InputError(
             f"the result's verdict is {verdict}" + (f" ({head})" if head else ""),
-            path=r.source,
+            path=r.label,
             code="result_not_usable",
             hint="fix the calibration (see its report), or pass --force to export it anyway",
         )
     if r.mode not in ("eye_in_hand", "eye_to_hand"):  # the parent frame and every file's words depend on it
         raise InputError(
             f"the result's mode {r.mode!r} is not a mounting mode",
-            path=r.source,
+            path=r.label,
             expected="eye_in_hand | eye_to_hand",
             hint="calibrate the session again, or restore result.json",
         )
@@ -101,9 +110,12 @@ def export_transform(
             )
     assert r.T_x is not None, "an ok result has X"
     T, cov = camera_transform(r.T_x, r.cov_x, camera_frame)
+    own = DEFAULT_FRAMES["camera_" + camera_frame]
+    if r.camera is not None:
+        own = CELL_CAMERA_FRAMES[camera_frame].format(camera=r.camera)
     return ExportTransform(
         parent=parent or DEFAULT_FRAMES[r.mode if r.mode in DEFAULT_FRAMES else "eye_in_hand"],
-        child=child or DEFAULT_FRAMES["camera_" + camera_frame],
+        child=child or own,
         T_parent_child=T,
         camera_frame=camera_frame,
         mode=r.mode,
@@ -112,6 +124,7 @@ def export_transform(
         cov_source=r.cov_source,
         source=r.source,
         verdict=verdict,
+        camera=r.camera,
     )
 
 
@@ -250,17 +263,31 @@ def export_result(
     force: bool = False,
     base_frame: Optional[str] = None,
     effector_frame: Optional[str] = None,
+    camera: Optional[str] = None,
 ) -> list[Path]:
     """Write the export ``fmt`` of ``result`` (a result folder or result.json path); returns the files.
 
     Refused before anything is written (:class:`~handeye.errors.InputError`): a file that would replace one of
     a result folder's own (:data:`RESULT_FOLDER_FILES`). Every file is parsed back by its own language's
     reader and must hold the frames and the transform meant (:mod:`.readback`) before any is written; each is
-    written atomically (a reader sees the old file or the new one).
+    written atomically (a reader sees the old file or the new one). A cell: camera ``camera``, or without it
+    every camera (:func:`export_cell`).
     """
     from .readback import check, read_back
 
-    e = export_transform(result, parent=parent, child=child, camera_frame=camera_frame, force=force)
+    if camera is None and _cell_cameras(result):
+        return export_cell(
+            result,
+            fmt,
+            out=out,
+            parent=parent,
+            child=child,
+            camera_frame=camera_frame,
+            force=force,
+            base_frame=base_frame,
+            effector_frame=effector_frame,
+        )
+    e = export_transform(result, parent=parent, child=child, camera_frame=camera_frame, force=force, camera=camera)
     for flag, name, mode in (
         ("--base-frame", base_frame, "eye_in_hand"),
         ("--effector-frame", effector_frame, "eye_to_hand"),
@@ -277,6 +304,17 @@ def export_result(
             )
     src = Path(e.source)
     paths = export_paths(fmt, out, src.parent)
+    _check_targets(paths, src, fmt)
+    files = render(fmt, e, paths, base_frame=base_frame, effector_frame=effector_frame)
+    data = [text.encode("utf-8") for text, _, _ in files]
+    for p, b, (_, kind, fields) in zip(paths, data, files, strict=True):
+        got = read_back(kind, b, name=p.name)
+        check(got, parent=e.parent, child=e.child, T_parent_child=e.T_parent_child, fields=fields, name=p.name)
+    return _write_together(paths, data)
+
+
+def _check_targets(paths: list[Path], src: Path, fmt: str) -> None:
+    """Refuse (``export_over_result``) a target that is one of a result folder's own files or the result itself."""
     for p in paths:
         why = _result_folder_file(p, src.parent)
         if why is None and _same_entry(p, src):
@@ -287,11 +325,89 @@ def export_result(
                 code="export_over_result",
                 hint=f"name another file or folder with --out (e.g. {p.parent / DEFAULT_BASENAME}{FORMATS[fmt][0][0]})",
             )
-    files = render(fmt, e, paths, base_frame=base_frame, effector_frame=effector_frame)
+
+
+def _cell_cameras(result) -> list[str]:
+    """The cameras of ``result`` when it is a cell of more than one camera, else []."""
+    from ..contract import read_result, validate_result
+    from ..output import plain
+
+    if isinstance(result, dict):
+        m = validate_result(plain(result), require_version=False)
+    else:
+        m = read_result(Path(result))
+    return m.camera_names if m.is_cell and len(m.camera_names) > 1 else []
+
+
+def camera_paths(paths: list[Path], fmt: str, camera: str) -> list[Path]:
+    """A format's files for one camera of a cell: the camera's name after the base name (``hand_eye_wrist.calib``)."""
+    out = []
+    for p, suffix in zip(paths, FORMATS[fmt][0], strict=True):
+        n = p.name
+        if n.endswith(suffix) and len(n) > len(suffix):
+            stem, rest = n[: -len(suffix)], suffix
+        else:  # a name with another extension: the camera before its first dot
+            stem, dot, ext = n.partition(".")
+            rest = dot + ext
+        out.append(p.with_name(f"{stem}_{camera}{rest}"))
+    return out
+
+
+def export_cell(
+    result,
+    fmt: str,
+    *,
+    out: Optional[Path] = None,
+    parent: Optional[str] = None,
+    child: Optional[str] = None,
+    camera_frame: str = "optical",
+    force: bool = False,
+    base_frame: Optional[str] = None,
+    effector_frame: Optional[str] = None,
+) -> list[Path]:
+    """Write every camera of a cell: one file set holding all (:data:`.cell.CELL_FORMATS`), else one per camera.
+
+    Each camera is checked as a one-camera export is (status, verdict unless ``force``); ``--parent`` and
+    ``--child`` name one frame and are refused (one camera: ``camera=``). MoveIt's and easy_handeye2's
+    files hold one camera each: ``<base>_<camera><suffix>``, ``base_frame`` going to the eye-in-hand
+    cameras, ``effector_frame`` to the eye-to-hand ones.
+    """
+    from . import cell
+    from .readback import check_all, read_back_all
+
+    names = _cell_cameras(result)
+    for flag, v in (("--parent", parent), ("--child", child)):
+        if v is not None:
+            raise InputError(
+                f"{flag} names one frame, the result is a cell of {len(names)} cameras ({', '.join(names)})",
+                hint=f"export one camera with --camera NAME {flag} {v}, or leave out {flag}",
+            )
+    es = [export_transform(result, camera_frame=camera_frame, force=force, camera=n) for n in names]
+    src = Path(es[0].source)
+    if fmt not in cell.CELL_FORMATS:
+        written: list[Path] = []
+        paths = export_paths(fmt, out, src.parent)
+        for e in es:
+            written += export_result(
+                result,
+                fmt,
+                out=camera_paths(paths, fmt, str(e.camera))[0],
+                camera_frame=camera_frame,
+                force=force,
+                base_frame=base_frame if e.mode == "eye_in_hand" else None,
+                effector_frame=effector_frame if e.mode == "eye_to_hand" else None,
+                camera=e.camera,
+            )
+        return written
+    for flag, v in (("--base-frame", base_frame), ("--effector-frame", effector_frame)):
+        if v is not None:
+            raise InputError(f"{flag} applies to --to easy_handeye2 only", hint=f"drop {flag}")
+    paths = export_paths(fmt, out, src.parent)
+    _check_targets(paths, src, fmt)
+    files = cell.render(fmt, es)
     data = [text.encode("utf-8") for text, _, _ in files]
-    for p, b, (_, kind, fields) in zip(paths, data, files, strict=True):
-        got = read_back(kind, b, name=p.name)
-        check(got, parent=e.parent, child=e.child, T_parent_child=e.T_parent_child, fields=fields, name=p.name)
+    for p, b, (_, kind, want) in zip(paths, data, files, strict=True):
+        check_all(read_back_all(kind, b, name=p.name), want, name=p.name)
     return _write_together(paths, data)
 
 

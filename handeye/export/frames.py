@@ -40,6 +40,9 @@ DEFAULT_FRAMES = {
     "eye_to_hand": "base_link",
 }
 
+#: a cell camera's default frame names: its name (result.json's ``cameras`` key) with ROS's frame suffixes
+CELL_CAMERA_FRAMES = {"optical": "{camera}_optical_frame", "body": "{camera}_link"}
+
 #: what the exported files say about the camera frame
 CAMERA_FRAME_TEXT = {
     "optical": "optical frame (x right, y down, z forward; ROS *_optical_frame), handeye's camera frame",
@@ -101,6 +104,7 @@ class ExportTransform:
     cov_source: str
     source: str  # the result.json it came from
     verdict: str
+    camera: Optional[str] = None  # the camera of a cell (its name in result.json's cameras)
 
     def __post_init__(self):
         """Frames and the transform checked once: every writer can put the names into its file as they are."""

@@ -70,7 +70,7 @@ def _floats(text: Optional[str], n: int) -> list[float]:
 # ---------------------------------------------------------------- Python launch files
 
 
-def _launch_py(data: bytes) -> ReadBack:
+def _launch_py(data: bytes) -> list[ReadBack]:
     """A ROS 2 launch file: compiled from its bytes (as ``ros2 launch`` loads it, encoding line included)."""
     from .writers import PROVENANCE_NAME
 
@@ -115,10 +115,19 @@ def _launch_py(data: bytes) -> ReadBack:
         isinstance(assign, ast.Assign)
         and [ast.dump(t) for t in assign.targets] == [ast.dump(ast.Name("nodes", ast.Store()))]
         and isinstance(assign.value, ast.List)
-        and len(assign.value.elts) == 1
+        and assign.value.elts
     ):
-        raise _Bad("no nodes = [Node(...)]")
-    call = assign.value.elts[0]
+        raise _Bad("no nodes = [Node(...), ...]")
+    want_ret = ast.Return(ast.Call(ast.Name("LaunchDescription", ast.Load()), [ast.Name("nodes", ast.Load())], []))
+    if ast.dump(ret) != ast.dump(want_ret):
+        raise _Bad("the return statement")
+    if fn.returns is not None and ast.dump(fn.returns) != ast.dump(ast.Name("LaunchDescription", ast.Load())):
+        raise _Bad("the return annotation")
+    return [_stp_node(call, fields) for call in assign.value.elts]
+
+
+def _stp_node(call: ast.expr, fields: dict) -> ReadBack:
+    """One ``Node(...)`` of a launch file: a static_transform_publisher whose keywords are literals."""
     if not (
         isinstance(call, ast.Call) and isinstance(call.func, ast.Name) and call.func.id == "Node" and not call.args
     ):
@@ -128,11 +137,6 @@ def _launch_py(data: bytes) -> ReadBack:
         if k.arg is None or k.arg in kw:
             raise _Bad("Node's keywords")
         kw[k.arg] = ast.literal_eval(k.value)  # literals only: no call, no name
-    want_ret = ast.Return(ast.Call(ast.Name("LaunchDescription", ast.Load()), [ast.Name("nodes", ast.Load())], []))
-    if ast.dump(ret) != ast.dump(want_ret):
-        raise _Bad("the return statement")
-    if fn.returns is not None and ast.dump(fn.returns) != ast.dump(ast.Name("LaunchDescription", ast.Load())):
-        raise _Bad("the return annotation")
     if (kw.get("package"), kw.get("executable")) != ("tf2_ros", "static_transform_publisher"):
         raise _Bad(f"the node runs {kw.get('package')!r} {kw.get('executable')!r}")
     args = kw.get("arguments")
@@ -152,8 +156,7 @@ def _launch_py(data: bytes) -> ReadBack:
     }:
         raise _Bad(f"static_transform_publisher's flags {sorted(opts)}")
     T = _T_xyzw([opts[k] for k in ("--x", "--y", "--z")], [opts[k] for k in ("--qx", "--qy", "--qz", "--qw")])
-    fields["node_name"] = kw.get("name")
-    return ReadBack(opts["--frame-id"], opts["--child-frame-id"], T, fields)
+    return ReadBack(opts["--frame-id"], opts["--child-frame-id"], T, {**fields, "node_name": kw.get("name")})
 
 
 # ---------------------------------------------------------------- XML
@@ -175,36 +178,49 @@ def _one(parent: ET.Element, tag: str) -> ET.Element:
     return found[0]
 
 
-def _urdf(data: bytes) -> ReadBack:
+def _urdf(data: bytes) -> list[ReadBack]:
+    """A URDF of fixed joints: its links are the joints' parents (each once) then their children."""
     root = _xml_root(data)
     if root.tag != "robot":
         raise _Bad(f"root <{root.tag}>")
     links = [link.get("name") for link in root.findall("link")]
-    joint = _one(root, "joint")
-    parent, child = _one(joint, "parent").get("link"), _one(joint, "child").get("link")
-    if joint.get("type") != "fixed" or links != [parent, child]:
-        raise _Bad(f"links {links}, joint {parent} -> {child} ({joint.get('type')})")
-    return ReadBack(str(parent), str(child), _origin_T(joint), {"joint_name": joint.get("name")})
+    joints = root.findall("joint")
+    if not joints or len(root) != len(links) + len(joints):
+        raise _Bad(f"{len(joints)} <joint> among {len(root)} elements")
+    ends = [(_one(j, "parent").get("link"), _one(j, "child").get("link")) for j in joints]
+    want = list(dict.fromkeys(p for p, _ in ends)) + [c for _, c in ends]
+    if any(j.get("type") != "fixed" for j in joints) or links != want or len(set(want)) != len(want):
+        raise _Bad(f"links {links}, joints {ends}")
+    return [
+        ReadBack(str(p), str(c), _origin_T(j), {"joint_name": j.get("name")})
+        for j, (p, c) in zip(joints, ends, strict=True)
+    ]
 
 
-def _xacro(data: bytes) -> ReadBack:
+def _xacro(data: bytes) -> list[ReadBack]:
+    """Xacro macros of one fixed joint each (``handeye_camera_joint``, a cell's ``handeye_camera_joint_<camera>``)."""
     from .writers import XACRO_MACRO, XACRO_NS
 
     root = _xml_root(data)
-    if root.tag != "robot" or len(root) != 1:
-        raise _Bad(f"root <{root.tag}> with {len(root)} elements")
-    macro = _one(root, f"{{{XACRO_NS}}}macro")
-    params = dict(p.split(":=", 1) for p in (macro.get("params") or "").split() if ":=" in p)
-    if macro.get("name") != XACRO_MACRO or set(params) != {"parent", "child"}:
-        raise _Bad(f"macro {macro.get('name')!r} params {macro.get('params')!r}")
-    joint = _one(macro, "joint")
-    refs = (joint.get("name"), _one(joint, "parent").get("link"), _one(joint, "child").get("link"))
-    if refs != ("${parent}_to_${child}", "${parent}", "${child}") or joint.get("type") != "fixed":
-        raise _Bad(f"the joint {refs}")
-    return ReadBack(params["parent"], params["child"], _origin_T(joint))
+    macros = root.findall(f"{{{XACRO_NS}}}macro")
+    if root.tag != "robot" or not macros or len(root) != len(macros):
+        raise _Bad(f"root <{root.tag}> with {len(root)} elements, {len(macros)} macros")
+    out = []
+    for macro in macros:
+        params = dict(p.split(":=", 1) for p in (macro.get("params") or "").split() if ":=" in p)
+        name = str(macro.get("name"))
+        own = name == XACRO_MACRO if len(macros) == 1 else name.startswith(XACRO_MACRO + "_")
+        if not own or set(params) != {"parent", "child"}:
+            raise _Bad(f"macro {name!r} params {macro.get('params')!r}")
+        joint = _one(macro, "joint")
+        refs = (joint.get("name"), _one(joint, "parent").get("link"), _one(joint, "child").get("link"))
+        if refs != ("${parent}_to_${child}", "${parent}", "${child}") or joint.get("type") != "fixed":
+            raise _Bad(f"the joint {refs}")
+        out.append(ReadBack(params["parent"], params["child"], _origin_T(joint), {"macro": name}))
+    return out
 
 
-def _ros1_launch(data: bytes) -> ReadBack:
+def _ros1_launch(data: bytes) -> list[ReadBack]:
     root = _xml_root(data)
     if root.tag != "launch":
         raise _Bad(f"root <{root.tag}>")
@@ -214,7 +230,7 @@ def _ros1_launch(data: bytes) -> ReadBack:
     a = (node.get("args") or "").split()
     if len(a) != 9:
         raise _Bad(f"args {node.get('args')!r}")
-    return ReadBack(a[7], a[8], _T_xyzw(a[:3], a[3:7]))
+    return [ReadBack(a[7], a[8], _T_xyzw(a[:3], a[3:7]))]
 
 
 # ---------------------------------------------------------------- YAML, JSON
@@ -231,16 +247,18 @@ def _xyz_xyzw(tr: dict) -> np.ndarray:
     return _T_xyzw([t["x"], t["y"], t["z"]], [q["x"], q["y"], q["z"], q["w"]])
 
 
-def _tf_static(data: bytes) -> ReadBack:
-    (tr,) = _yaml(data)["transforms"]
-    return ReadBack(tr["header"]["frame_id"], tr["child_frame_id"], _xyz_xyzw(tr["transform"]))
+def _tf_static(data: bytes) -> list[ReadBack]:
+    trs = _yaml(data)["transforms"]
+    if not isinstance(trs, list) or not trs:
+        raise _Bad("no transforms")
+    return [ReadBack(tr["header"]["frame_id"], tr["child_frame_id"], _xyz_xyzw(tr["transform"])) for tr in trs]
 
 
-def _calib(data: bytes) -> ReadBack:
+def _calib(data: bytes) -> list[ReadBack]:
     d = _yaml(data)
     p = d["parameters"]
     parent = p["robot_effector_frame"] if p["calibration_type"] == "eye_in_hand" else p["robot_base_frame"]
-    return ReadBack(parent, p["tracking_base_frame"], _xyz_xyzw(d["transform"]), dict(p))
+    return [ReadBack(parent, p["tracking_base_frame"], _xyz_xyzw(d["transform"]), dict(p))]
 
 
 def _plain(d: dict) -> ReadBack:
@@ -254,16 +272,26 @@ def _plain(d: dict) -> ReadBack:
     for T_other in others:  # the file agrees with itself
         if not np.max(np.abs(T_other - T)) <= T_TOLERANCE:
             raise _Bad("its matrix, quaternion and rpy differ")
-    keep = ("mode", "verdict", "source", "camera_frame", "result_name")
+    keep = ("mode", "verdict", "source", "camera_frame", "result_name", "camera")
     return ReadBack(d["parent_frame"], d["child_frame"], T, {k: d.get(k) for k in keep})
 
 
-def _plain_yaml(data: bytes) -> ReadBack:
-    return _plain(_yaml(data))
+def _plain_all(d: dict) -> list[ReadBack]:
+    """A plain export: one transform, or a cell's (``kind: cell``, ``cameras``: name -> one transform)."""
+    if d.get("kind") != "cell":
+        return [_plain(d)]
+    cams = d["cameras"]
+    if not isinstance(cams, dict) or not cams:
+        raise _Bad("a cell without cameras")
+    return [_plain(c) for c in cams.values()]
 
 
-def _plain_json(data: bytes) -> ReadBack:
-    return _plain(json.loads(data))
+def _plain_yaml(data: bytes) -> list[ReadBack]:
+    return _plain_all(_yaml(data))
+
+
+def _plain_json(data: bytes) -> list[ReadBack]:
+    return _plain_all(json.loads(data))
 
 
 #: file kind -> its reader
@@ -280,9 +308,20 @@ READERS = {
 
 
 def read_back(kind: str, data: bytes, *, name: str = "the file") -> ReadBack:
-    """Parse ``data`` as a file of ``kind`` (:data:`READERS`) and read the transform it holds.
+    """Parse ``data`` as a file of ``kind`` (:data:`READERS`) and read the one transform it holds.
 
     Raises :class:`ExportCheckError` naming ``name`` when it does not parse or holds something else.
+    """
+    got = read_back_all(kind, data, name=name)
+    if len(got) != 1:
+        raise _error(name, f"holds {len(got)} transforms, not one")
+    return got[0]
+
+
+def read_back_all(kind: str, data: bytes, *, name: str = "the file") -> list[ReadBack]:
+    """Parse ``data`` as a file of ``kind`` (:data:`READERS`) and read every transform it holds, in order.
+
+    A cell's file holds one per camera. Raises :class:`ExportCheckError` naming ``name`` when it does not parse.
     """
     import yaml
 
@@ -309,3 +348,11 @@ def check(got: ReadBack, *, parent: str, child: str, T_parent_child: np.ndarray,
     for k, v in (fields or {}).items():
         if got.fields.get(k) != v:
             raise _error(name, f"holds {k} {got.fields.get(k)!r}, not {v!r}")
+
+
+def check_all(got: list[ReadBack], want: list[tuple], *, name: str) -> None:
+    """``got`` holds, in order, each ``(parent, child, T_parent_child, fields)`` of ``want`` and nothing else."""
+    if len(got) != len(want):
+        raise _error(name, f"holds {len(got)} transforms, not {len(want)}")
+    for g, (parent, child, T, fields) in zip(got, want, strict=True):
+        check(g, parent=parent, child=child, T_parent_child=T, fields=fields, name=name)

@@ -71,8 +71,9 @@ def py_docstring(text: str) -> str:
 def header_lines(e: ExportTransform) -> list[str]:
     """What every exported file says about itself (without comment markers)."""
     t, q, rpy = e.translation_m, e.quat_xyzw, e.rpy_rad
+    of = "" if e.camera is None else f" of camera {e.camera} of a cell"
     lines = [
-        f"hand-eye calibration by handeye {__version__}: {e.mode}, {e.parent} -> {e.child}",
+        f"hand-eye calibration{of} by handeye {__version__}: {e.mode}, {e.parent} -> {e.child}",
         f"T_{e.parent}_{e.child}: p_{e.parent} = T @ p_{e.child} (the pose of {e.child} in {e.parent}; "
         f"handeye's {e.x_name}" + (" @ T_optical_body)" if e.camera_frame == "body" else ")"),
         f"camera frame: {CAMERA_FRAME_TEXT[e.camera_frame]}",
@@ -108,7 +109,8 @@ PROVENANCE_NAME = "HANDEYE_CALIBRATION"
 
 def provenance_constant(e: ExportTransform) -> dict:
     """What a launch file's :data:`PROVENANCE_NAME` holds."""
-    return {"handeye": __version__, "source": e.source, "mode": e.mode, "verdict": e.verdict}
+    d = {"handeye": __version__, "source": e.source, "mode": e.mode, "verdict": e.verdict}
+    return d if e.camera is None else {**d, "camera": e.camera}
 
 
 def stp_arguments(e: ExportTransform) -> list[str]:
@@ -130,7 +132,7 @@ def stp_arguments(e: ExportTransform) -> list[str]:
 
 def node_name(e: ExportTransform) -> str:
     """The static_transform_publisher node's name (a ROS node name: letters, digits and _)."""
-    return "handeye_" + _ident(e.parent) + "_to_" + _ident(e.child)
+    return "handeye_" + ident(e.parent) + "_to_" + ident(e.child)
 
 
 def ros2_launch(e: ExportTransform, *, moveit_layout: bool = False) -> str:
@@ -140,7 +142,6 @@ def ros2_launch(e: ExportTransform, *, moveit_layout: bool = False) -> str:
     docstrings, the arguments one per line, roll/pitch/yaw as comments). The first two lines hold no outside
     text (Python reads an encoding declaration there); every literal is ``json.dumps`` / ``repr``.
     """
-    args = stp_arguments(e)
     kind = "EYE-IN-HAND" if e.mode == "eye_in_hand" else "EYE-TO-HAND"
     if moveit_layout:
         head = [
@@ -152,21 +153,17 @@ def ros2_launch(e: ExportTransform, *, moveit_layout: bool = False) -> str:
             json.dumps(f"Static transform {e.parent} -> {e.child} from a handeye calibration ({e.mode})."),
             f"# written by handeye {text_line(__version__)}",
         ]
-    arg_lines = [f"                {json.dumps(v)}," for v in args]
-    for flag, v in zip(("--roll", "--pitch", "--yaw"), e.rpy_rad, strict=True):
-        arg_lines += [f"                # {json.dumps(flag)},", f"                # {json.dumps(num(v))},"]
-    return "\n".join(
-        head
-        + [
-            comment(header_lines(e)),
-            "from launch import LaunchDescription",
-            "from launch_ros.actions import Node",
-            "",
-            f"{PROVENANCE_NAME} = {provenance_constant(e)!r}",
-            "",
-            "",
-            "def generate_launch_description() -> LaunchDescription:",
-            "    nodes = [",
+    return launch_text(head, header_lines(e), provenance_constant(e), [e])
+
+
+def launch_text(head: list[str], header: list[str], provenance: dict, es: list[ExportTransform]) -> str:
+    """A launch file: ``head`` (no outside text), the comment ``header``, one static_transform_publisher per ``es``."""
+    nodes = []
+    for e in es:
+        arg_lines = [f"                {json.dumps(v)}," for v in stp_arguments(e)]
+        for flag, v in zip(("--roll", "--pitch", "--yaw"), e.rpy_rad, strict=True):
+            arg_lines += [f"                # {json.dumps(flag)},", f"                # {json.dumps(num(v))},"]
+        nodes += [
             "        Node(",
             '            package="tf2_ros",',
             '            executable="static_transform_publisher",',
@@ -176,6 +173,20 @@ def ros2_launch(e: ExportTransform, *, moveit_layout: bool = False) -> str:
             *arg_lines,
             "            ],",
             "        ),",
+        ]
+    return "\n".join(
+        head
+        + [
+            comment(header),
+            "from launch import LaunchDescription",
+            "from launch_ros.actions import Node",
+            "",
+            f"{PROVENANCE_NAME} = {provenance!r}",
+            "",
+            "",
+            "def generate_launch_description() -> LaunchDescription:",
+            "    nodes = [",
+            *nodes,
             "    ]",
             "    return LaunchDescription(nodes)",
             "",
@@ -183,7 +194,7 @@ def ros2_launch(e: ExportTransform, *, moveit_layout: bool = False) -> str:
     )
 
 
-def _xml(root: ET.Element, head: ET.Element) -> str:
+def xml_text(root: ET.Element, head: ET.Element) -> str:
     """An XML document: the declaration, the comment ``head``, then ``root`` (indented), all through ElementTree."""
     ET.indent(root, space="  ")
     return "\n".join(
@@ -218,37 +229,39 @@ def moveit1_launch(e: ExportTransform) -> str:
         },
     )
     head = ET.Comment(" static transform of a hand-eye calibration (MoveIt Calibration's layout) ")
-    return _xml(root, head)  # type: ignore[arg-type]  # a comment node is an element
+    return xml_text(root, head)  # type: ignore[arg-type]  # a comment node is an element
 
 
-def _ident(name: str) -> str:
+def ident(name: str) -> str:
+    """``name`` as an identifier of letters, digits and _ (node, joint and macro names)."""
     return "".join(c if c.isascii() and c.isalnum() else "_" for c in name).strip("_") or "frame"
 
 
-def _yaml(lines, doc: dict, *, flow: bool | None = None) -> str:
+def yaml_doc(lines, doc: dict, *, flow: bool | None = None) -> str:
     """Comment ``lines`` then ``doc`` through ``yaml.safe_dump``.
 
     ``flow`` None: mappings of scalars on one line each; False: block style throughout.
     """
     import yaml
 
-    return comment(lines) + "\n" + yaml.safe_dump(_floats(doc), sort_keys=False, default_flow_style=flow)
+    return comment(lines) + "\n" + yaml.safe_dump(floats(doc), sort_keys=False, default_flow_style=flow)
 
 
 def tf_static_dict(e: ExportTransform) -> dict:
     """The transform as a tf2_msgs/TFMessage (a dict)."""
+    return {"transforms": [tf_transform(e)]}
+
+
+def tf_transform(e: ExportTransform) -> dict:
+    """One geometry_msgs/TransformStamped of a TFMessage (a dict)."""
     t, q = e.translation_m, e.quat_xyzw
     return {
-        "transforms": [
-            {
-                "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": e.parent},
-                "child_frame_id": e.child,
-                "transform": {
-                    "translation": {"x": t[0], "y": t[1], "z": t[2]},
-                    "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
-                },
-            }
-        ]
+        "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": e.parent},
+        "child_frame_id": e.child,
+        "transform": {
+            "translation": {"x": t[0], "y": t[1], "z": t[2]},
+            "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
+        },
     }
 
 
@@ -258,10 +271,11 @@ def tf_static_yaml(e: ExportTransform) -> str:
     Publish it with ``ros2 topic pub --once /tf_static tf2_msgs/msg/TFMessage "$(cat FILE)"`` under a
     transient-local QoS, or read it in a node.
     """
-    return _yaml(header_lines(e), tf_static_dict(e))
+    return yaml_doc(header_lines(e), tf_static_dict(e))
 
 
-def _origin(parent: ET.Element, e: ExportTransform) -> None:
+def origin(parent: ET.Element, e: ExportTransform) -> None:
+    """The ``<origin xyz rpy>`` of a joint holding ``e``'s transform."""
     xyz = " ".join(num(v) for v in e.translation_m)
     rpy = " ".join(num(v) for v in e.rpy_rad)
     ET.SubElement(parent, "origin", {"xyz": xyz, "rpy": rpy})
@@ -269,7 +283,7 @@ def _origin(parent: ET.Element, e: ExportTransform) -> None:
 
 def joint_name(e: ExportTransform) -> str:
     """The URDF joint's name."""
-    return _ident(e.parent) + "_to_" + _ident(e.child)
+    return ident(e.parent) + "_to_" + ident(e.child)
 
 
 def urdf(e: ExportTransform) -> str:
@@ -280,8 +294,8 @@ def urdf(e: ExportTransform) -> str:
     joint = ET.SubElement(root, "joint", {"name": joint_name(e), "type": "fixed"})
     ET.SubElement(joint, "parent", {"link": e.parent})
     ET.SubElement(joint, "child", {"link": e.child})
-    _origin(joint, e)
-    return _xml(root, xml_comment(header_lines(e)))
+    origin(joint, e)
+    return xml_text(root, xml_comment(header_lines(e)))
 
 
 XACRO_NS = "http://www.ros.org/wiki/xacro"
@@ -302,8 +316,8 @@ def xacro(e: ExportTransform) -> str:
     joint = ET.SubElement(macro, "joint", {"name": "${parent}_to_${child}", "type": "fixed"})
     ET.SubElement(joint, "parent", {"link": "${parent}"})
     ET.SubElement(joint, "child", {"link": "${child}"})
-    _origin(joint, e)
-    return _xml(root, xml_comment(header_lines(e)))
+    origin(joint, e)
+    return xml_text(root, xml_comment(header_lines(e)))
 
 
 def calib_dict(e: ExportTransform, *, name: str, base: str, effector: str) -> dict:
@@ -339,7 +353,7 @@ def easy_handeye2_calib(e: ExportTransform, *, name: str, base: str, effector: s
     check_frame_name(base, "--base-frame")
     check_frame_name(effector, "--effector-frame")
     d = calib_dict(e, name=name, base=base, effector=effector)
-    return _yaml(header_lines(e), d, flow=False)
+    return yaml_doc(header_lines(e), d, flow=False)
 
 
 def plain_dict(e: ExportTransform) -> dict:
@@ -373,6 +387,8 @@ def plain_dict(e: ExportTransform) -> dict:
         "source": e.source,
         "provenance": provenance(),
     }
+    if e.camera is not None:
+        d["camera"] = e.camera
     if s is not None:
         d["sigma"] = {
             "translation_mm": s["translation_mm"].tolist(),
@@ -392,7 +408,7 @@ def plain_yaml(e: ExportTransform, d: dict | None = None) -> str:
     """The ``yaml`` export (``d``: :func:`plain_dict` made once, when the caller keeps it)."""
     import yaml
 
-    return comment(header_lines(e)) + "\n" + yaml.safe_dump(_floats(plain_dict(e) if d is None else d), sort_keys=False)
+    return comment(header_lines(e)) + "\n" + yaml.safe_dump(floats(plain_dict(e) if d is None else d), sort_keys=False)
 
 
 def plain_json(e: ExportTransform, d: dict | None = None) -> str:
@@ -402,12 +418,12 @@ def plain_json(e: ExportTransform, d: dict | None = None) -> str:
     return to_json(plain_dict(e) if d is None else d) + "\n"
 
 
-def _floats(o):
+def floats(o):
     """Numpy scalars as Python floats (yaml.safe_dump writes floats with repr: exact round trip)."""
     if isinstance(o, dict):
-        return {k: _floats(v) for k, v in o.items()}
+        return {k: floats(v) for k, v in o.items()}
     if isinstance(o, (list, tuple)):
-        return [_floats(v) for v in o]
+        return [floats(v) for v in o]
     if isinstance(o, np.generic):
         return o.item()
     return o

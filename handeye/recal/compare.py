@@ -281,7 +281,7 @@ def _intrinsics_joint_test(a: LoadedResult, b: LoadedResult, alpha: float) -> Op
 
 def compare_loaded(a: LoadedResult, b: LoadedResult, *, alpha: float = ALPHA) -> Comparison:
     """:func:`compare_results` of two loaded results."""
-    sources = (a.source, b.source)
+    sources = (a.label, b.label)
     reason = why_not_comparable(a, b)
     if reason:
         return not_comparable(reason, a.x_name if a.x_name == b.x_name else "", alpha=alpha, sources=sources)
@@ -374,14 +374,22 @@ def _dependence_note(a: LoadedResult, b: LoadedResult) -> str:
     return ""
 
 
-def compare_results(a: ResultLike, b: ResultLike, *, alpha: float = ALPHA) -> Comparison:
+def compare_results(
+    a: ResultLike,
+    b: ResultLike,
+    *,
+    alpha: float = ALPHA,
+    camera_a: Optional[str] = None,
+    camera_b: Optional[str] = None,
+) -> Comparison:
     """Compare result ``b`` with result ``a``.
 
     Compare result ``b`` with result ``a`` (each a result folder, a result.json path or the loaded
-    dict). Unreadable files raise :class:`~handeye.errors.InputError`; results that do not describe one
-    quantity give ``comparable=False`` and the ``reason``.
+    dict; a cell: its camera ``camera_a`` / ``camera_b``). Unreadable files raise
+    :class:`~handeye.errors.InputError`; results that do not describe one quantity give ``comparable=False``
+    and the ``reason``.
     """
-    return compare_loaded(load_result(a), load_result(b), alpha=alpha)
+    return compare_loaded(load_result(a, camera=camera_a), load_result(b, camera=camera_b), alpha=alpha)
 
 
 def comparison_lines(c: Comparison) -> list[str]:

@@ -59,6 +59,13 @@ class LoadedResult:
     # the board pose's model covariance (6,6) and its cross-covariance with the free intrinsics (6,k), the latter
     # carried like the intrinsics (to their verdict sigmas); None in results without them
     board_joint: Optional[tuple] = field(repr=False, default=None)
+    # the camera of a cell this result is (None: a one-camera result.json)
+    camera: Optional[str] = None
+
+    @property
+    def label(self) -> str:
+        """The result as people name it: its source, with the camera of a cell."""
+        return self.source if self.camera is None else f"{self.source} (camera {self.camera})"
 
     @property
     def ok(self) -> bool:
@@ -169,14 +176,15 @@ def _matrix(v, shape) -> Optional[np.ndarray]:
     return a if a.shape == shape and np.all(np.isfinite(a)) else None
 
 
-def load_result(result: ResultLike) -> LoadedResult:
+def load_result(result: ResultLike, *, camera: Optional[str] = None) -> LoadedResult:
     """Read a result folder, a result.json path or an already loaded dict, through the one reader.
 
     :func:`handeye.contract.read_result` checks every field read here: a missing, foreign or damaged file
     raises :class:`~handeye.errors.InputError` naming the field; a failed result loads with
-    ``status != "ok"``.
+    ``status != "ok"``. A cell is read as its camera ``camera`` (:func:`handeye.contract.single_camera`:
+    without it, or with a name the cell lacks, one InputError naming its cameras and ``--camera``).
     """
-    from ..contract import read_result, validate_result
+    from ..contract import read_result, single_camera, validate_result
     from ..output import plain
 
     if isinstance(result, dict):
@@ -184,6 +192,10 @@ def load_result(result: ResultLike) -> LoadedResult:
     else:
         p = Path(result)
         m, source = read_result(p), str(p / "result.json" if p.is_dir() else p)
+    name = camera if m.is_cell else None
+    if m.is_cell and camera is None and len(m.camera_names) == 1:
+        name = m.camera_names[0]
+    m = single_camera(m, camera, source=source)
     d = m.raw
     ref = d.get("refinement") or {}
     cov, cov_source = m.cov_x
@@ -209,7 +221,40 @@ def load_result(result: ResultLike) -> LoadedResult:
         robot_sigma_mm=_float(ref.get("robot_sigma_mm")),
         robot_sigma_deg=_float(ref.get("robot_sigma_deg")),
         raw=d,
+        camera=name,
         **_joints(ref, cov),
+    )
+
+
+def session_camera(
+    result: ResultLike,
+    session_path,
+    camera: Optional[str] = None,
+    *,
+    what: str = "the installed result",
+    hint: str = "choose the camera with --camera NAME (or name the session folder after its camera)",
+) -> Optional[str]:
+    """The camera of a cell a session of one camera is checked against.
+
+    ``camera`` when given, else the session folder's name when the cell has a camera of that name (a cell of
+    one camera: that one); None for a one-camera result. A cell none of whose cameras the folder names is
+    one InputError naming the cameras (``what`` names the result, ``hint`` what to do).
+    """
+    from ..contract import read_result
+
+    if camera is not None or isinstance(result, dict) or session_path is None:
+        return camera
+    names = read_result(Path(result)).camera_names
+    if not names:
+        return None
+    name = Path(session_path).resolve().name
+    if name in names or len(names) == 1:
+        return name if name in names else names[0]
+    raise InputError(
+        f"{what} is a cell of {len(names)} cameras ({', '.join(names)}) and the session folder {name!r} names "
+        "none of them",
+        path=str(result),
+        hint=hint,
     )
 
 

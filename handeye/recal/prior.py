@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import HandeyeError, InputError
 from ..frames import tangent_difference
 from ..output import plain
-from .loaded import VAGUE_COV_X, LoadedResult, ResultLike, installed_prior, load_result
+from .loaded import VAGUE_COV_X, LoadedResult, ResultLike, installed_prior, load_result, session_camera
 from .verify import VerifyOptions, change_in_result_frame, check_resolution, verify_views
 
 log = logging.getLogger(__name__)
@@ -140,15 +140,20 @@ def calibrate_with_prior(
             hint="drop --no-refine or --prior",
         )
     o = verify_options or VerifyOptions.from_config()
-    installed = prior if isinstance(prior, LoadedResult) else load_result(prior)
+    installed: LoadedResult
+    if isinstance(prior, LoadedResult):
+        installed = prior
+    else:  # a cell: the camera the session folder is named after
+        hint = "name the session folder after its camera, or give --prior that camera's own result"
+        installed = load_result(prior, camera=session_camera(prior, session.path, what="--prior", hint=hint))
     check_prior_fits(installed, session)
     assert installed.T_x is not None and installed.cov_x is not None, "check_prior_fits: an ok result"
     s_p, opts_p = _with_prior(session, options, installed)
     prior_used = opts_p.refine_options["prior"]
-    progress(f"calibrating with the prior {installed.source}")
+    progress(f"calibrating with the prior {installed.label}")
     run = run_calibration(s_p, opts_p, progress=progress)
     rec: dict[str, Any] = {
-        "source": installed.source,
+        "source": installed.label,
         "covariance_used": installed.cov_source,
         "frame": installed.x_name,
         installed.x_name: installed.T_x,

@@ -222,7 +222,7 @@ def verify_session(
     return SessionVerification(
         verification=v,
         session_path=str(s.path),
-        installed_source=installed.source,
+        installed_source=installed.label,
         outcomes=obs.ordered_outcomes(),
         target_text=target_text(s.target),
         image_size=tuple(size),

@@ -52,6 +52,14 @@ def write_reports(
 
     folder = read_result_folder(result_dir)
     out = Path(out_dir) if out_dir is not None else folder.path
+    if folder.result.get("kind") == "cell":  # several cameras: handeye.cell.report (handeye report routes there)
+        from ..errors import InputError
+
+        raise InputError(
+            "the result is a cell of several cameras; this report is of one camera",
+            path=folder.path / "result.json",
+            hint="handeye report CELL_DIR writes the cell's report (handeye.cell.report.write_cell_report)",
+        )
     try:
         from .render import write_files
 
