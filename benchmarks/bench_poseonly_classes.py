@@ -109,11 +109,14 @@ def class_options(name: str, rng: np.random.Generator) -> dict:
         return base | {"arm": str(rng.choice(UR_ARMS)), "moving_joints": (1, 2, 3)}
     if name == "time_offset":
         return base | {"time_offset": float(rng.uniform(0.002, 0.01))}
+    if name == "scale_estimated":
+        return base | {"scale": float(np.exp(rng.uniform(np.log(0.5), np.log(2.0))))}
     raise ValueError(f"unknown class {name!r}")
 
 
 CLASSES = ("clean", "noise", "arm_error", "outliers", "heavy_tails", "anisotropic", "scale", "drift", "degenerate")
-EXTRA = ("time_offset",)
+EXTRA = ("time_offset", "scale_estimated")
+ESTIMATE_SCALE = {"scale_estimated"}  # calibrated with --estimate-scale
 ML_CLASSES = {"clean", "noise", "outliers", "anisotropic"}  # a Gaussian tracker model the ML estimator knows
 
 
@@ -156,6 +159,7 @@ def _ml_error(ts) -> np.ndarray:
 
 def one(cls: str, mode: str, seed: int) -> dict:
     """Simulate, calibrate and score one session."""
+    from handeye.pipeline import CalibrateOptions
     from handeye.sim.arm_tracker import make_arm_tracker_session
     from handeye.workflow import calibrate_session
 
@@ -167,7 +171,8 @@ def one(cls: str, mode: str, seed: int) -> dict:
     try:
         ts.write(tmp / "s", state_sigma=False)
         try:
-            calibrate_session(tmp / "s", out_dir=tmp / "out", report=False)
+            opts_run = CalibrateOptions(estimate_scale=cls in ESTIMATE_SCALE)
+            calibrate_session(tmp / "s", out_dir=tmp / "out", options=opts_run, report=False)
         except Exception as e:  # noqa: BLE001 - a refused or failed run still writes its result.json
             if not (tmp / "out" / "result.json").exists():
                 return {"cls": cls, "mode": mode, "seed": seed, "crash": f"{type(e).__name__}: {e}"}
@@ -199,7 +204,11 @@ def one(cls: str, mode: str, seed: int) -> dict:
         "m2_verdict": _m2(xi, ref.get("cov_x_6x6_verdict")),
         "m2_model": _m2(xi, ref.get("cov_x_6x6")),
         "sigma_source": ref.get("sigma_source"),
+        "dof_factor": ref.get("cov_x_dof_factor"),
     }
+    if cls in ESTIMATE_SCALE and ref.get("tracker_scale"):
+        out |= {"scale_true": ts.truth.scale, "scale": ref["tracker_scale"]["value"]}
+        out["scale_sigma"] = ref["tracker_scale"]["sigma"]
     if cls in ML_CLASSES:
         xm = _ml_error(ts)
         out |= {
@@ -232,6 +241,15 @@ def summarise(rows: list[dict], cls: str, mode: str, q95: float) -> str:
             rr = np.sqrt(np.mean([r["rot_deg"] ** 2 for r in ml]) / np.mean([r["ml_rot_deg"] ** 2 for r in ml]))
             rt = np.sqrt(np.mean([r["trans_mm"] ** 2 for r in ml]) / np.mean([r["ml_trans_mm"] ** 2 for r in ml]))
             parts.append(f"RMS err / ML: rot {rr:.2f} trans {rt:.2f}")
+        parts.append(f"mean m2 {np.mean([r['m2_verdict'] for r in solved]):.2f}")
+        sc = [r for r in solved if r.get("scale_sigma")]
+        if sc:
+            z = np.array([(r["scale"] - r["scale_true"]) / r["scale_sigma"] for r in sc])
+            rel = np.array([abs(r["scale"] / r["scale_true"] - 1.0) for r in sc])
+            parts.append(
+                f"scale: truth within 1.96 sigma {np.mean(np.abs(z) <= 1.959964):5.1%}, median |s/s_true - 1| "
+                f"{np.median(rel):.2e}, median sigma/s {np.median([r['scale_sigma'] / r['scale'] for r in sc]):.2e}"
+            )
     done = [r for r in rs if "crash" not in r]
     if cls in OWN:
         own = OWN[cls]
