@@ -8,6 +8,9 @@ the truth; for isotropic noise the frame of ``n`` does not matter. The residual 
 are pure numpy (:func:`pose_residual`); :func:`pose_factor` is the thin ``CustomFactor`` wrapper.
 With an arm's kinematic model the true flange pose is ``T_base_end_reported · Exp(J_dh · delta)``
 (:mod:`handeye.refine.robot_model`): :func:`pose_robot_residual` and :func:`pose_dh_factor`.
+A tracker whose translations are a factor ``s`` off (a wrong marker size, monocular SLAM) measures
+``D_s(T_cam_board)``, its translation times ``s``: :func:`scaled_pose_residual` and
+:func:`scaled_pose_factor` with ``log(s)`` as one more unknown.
 """
 
 from __future__ import annotations
@@ -59,6 +62,74 @@ def pose_residual(
         return r, None, None
     Jr_inv = se3_right_jacobian_inverse(r)
     return r, -Jr_inv @ se3_adjoint(inv_T(C)), Jr_inv
+
+
+def scaled_pose_residual(
+    *,
+    T_x: np.ndarray,
+    M: np.ndarray,
+    T_board: np.ndarray,
+    T_cam_board_measured: np.ndarray,
+    log_scale: float,
+    jacobians: bool = True,
+) -> tuple[np.ndarray, Optional[np.ndarray], Optional[np.ndarray], Optional[np.ndarray]]:
+    """Residual (6,) of one pose measured by a tracker whose translations are ``exp(log_scale)`` x the true.
+
+    ``r = Log(inv(T_cam_board_measured) · D_s(inv(T_x) · M · T_board))`` with ``D_s`` scaling the
+    translation by ``s = exp(log_scale)``; with ``jacobians`` also (J_x (6,6), J_board (6,6), J_log_scale
+    (6,1)). ``D_s`` maps the right tangent ``(omega, v)`` of the prediction to ``(omega, s v)``, and
+    ``log_scale + d`` moves the scaled prediction by ``(0, d · R^T s t)`` in its right tangent.
+    """
+    C = inv_T(T_x) @ M @ T_board
+    s = float(np.exp(log_scale))
+    C_s = C.copy()
+    C_s[:3, 3] *= s
+    r = se3_log(inv_T(T_cam_board_measured) @ C_s)
+    if not jacobians:
+        return r, None, None, None
+    Jr_inv = se3_right_jacobian_inverse(r)
+    D = np.diag(np.r_[1.0, 1.0, 1.0, s, s, s])
+    J_board = Jr_inv @ D
+    J_s = Jr_inv @ np.r_[0.0, 0.0, 0.0, C[:3, :3].T @ C_s[:3, 3]][:, None]
+    return r, -J_board @ se3_adjoint(inv_T(C)), J_board, J_s
+
+
+def scaled_pose_factor(
+    *,
+    key_x: int,
+    key_board: int,
+    key_log_scale: int,
+    M: np.ndarray,
+    T_cam_board_measured: np.ndarray,
+    covariance: np.ndarray,
+    robust_k: Optional[float] = None,
+) -> gtsam.CustomFactor:
+    """A ``CustomFactor`` on (``T_x``, ``T_board``, ``log(s)`` a 1-vector) for one measured ``T_cam_board``.
+
+    :func:`scaled_pose_residual` with the residual's ``covariance`` (6,6); ``robust_k``: a Huber loss.
+    """
+    M = np.array(M, float)
+    C_meas = np.array(T_cam_board_measured, float)
+    noise: gtsam.noiseModel.Base = gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, float))
+    if robust_k is not None:
+        noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
+
+    def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H: Optional[list[np.ndarray]]) -> np.ndarray:
+        r, J_x, J_b, J_s = scaled_pose_residual(
+            T_x=v.atPose3(key_x).matrix(),
+            M=M,
+            T_board=v.atPose3(key_board).matrix(),
+            T_cam_board_measured=C_meas,
+            log_scale=float(v.atVector(key_log_scale)[0]),
+            jacobians=H is not None,
+        )
+        if H is not None:
+            H[0] = np.asfortranarray(J_x)
+            H[1] = np.asfortranarray(J_b)
+            H[2] = np.asfortranarray(J_s)
+        return r
+
+    return gtsam.CustomFactor(noise, [key_x, key_board, key_log_scale], error_func)
 
 
 def pose_factor(

@@ -2,7 +2,7 @@
 
 :func:`options_from_args` builds :class:`handeye.pipeline.CalibrateOptions` from the preset, the site
 ``--config`` (checked by :func:`check_site_config`) and the flags; :func:`refuse_pose_only_flags`
-refuses the flags a pose-only session would ignore.
+refuses the flags a pose-only session would ignore, and ``--estimate-scale`` on an image session.
 """
 
 from __future__ import annotations
@@ -83,6 +83,7 @@ def options_from_args(args):
         fix_k3=True if args.fix_k3 else None,
         workers=args.workers,
         shift_poses=getattr(args, "shift_poses", 0) or None,
+        estimate_scale=True if getattr(args, "estimate_scale", False) else None,
         refine_options=ro,
     )
 
@@ -112,13 +113,30 @@ POSE_ONLY_REFUSED = {
 
 
 def refuse_pose_only_flags(args) -> None:
-    """InputError (one line, exit 2) naming every flag given that a pose-only session would ignore, and why."""
-    from .session.native import is_pose_only
+    """InputError (one line, exit 2) naming every flag given that a pose-only session would ignore, and why.
+
+    Also ``--estimate-scale`` on an image session (its scale is the board's square size).
+    """
+    from .errors import InputError
+    from .session.native import session_kind
 
     given = [k for k in POSE_ONLY_REFUSED if getattr(args, k, None)]
-    if not given or not is_pose_only(args.session):
+    scale = bool(getattr(args, "estimate_scale", False))
+    if not given and not scale:
         return
-    from .errors import InputError
+    kind = session_kind(args.session)
+    if kind != "pose_only":
+        if scale and kind == "images":
+            raise InputError(
+                "--estimate-scale applies to pose-only sessions (views with target_pose): an image session's "
+                "scale is the board's square size",
+                path=args.session,
+                hint="drop --estimate-scale; a wrong square size is named by the square_size finding",
+                code="flag_not_applicable",
+            )
+        return
+    if not given:
+        return
 
     flags = ", ".join(POSE_ONLY_REFUSED[k][0] for k in given)
     why = (

@@ -130,6 +130,23 @@ def satterthwaite_dof(shares, dofs) -> float | None:
     return 1.0 / s if s > 0 else None
 
 
+def estimated_noise_region_factor(shares, dofs, *, dim: int, p: float = 0.95) -> tuple[float | None, float]:
+    """(nu, factor) of a ``dim``-vector's ``p`` region when its covariance rests on estimated noise levels.
+
+    The covariance is the sum of parts with ``shares`` (summing to 1), each from a noise level estimated with
+    ``dofs`` (None or inf: known). With the plug-in covariance the Wald statistic is about ``dim F(dim, nu)``
+    with Satterthwaite's ``nu`` (:func:`satterthwaite_dof`) rather than chi-square(dim); ``factor`` is its
+    ``p`` point over chi-square's: the plug-in covariance times ``factor`` has chi-square's ``p`` region
+    right. (None, 1.0) when every part is known.
+    """
+    from scipy.special import fdtri
+
+    nu = satterthwaite_dof(shares, dofs)
+    if nu is None:
+        return None, 1.0
+    return nu, float(dim * fdtri(dim, nu, p)) / chi2_ppf(p, dim)
+
+
 def weighted_chi2_sf(x: float, weights) -> tuple[float, float]:
     """Tail probability at ``x`` of ``sum w_i z_i^2``.
 

@@ -6,9 +6,10 @@ import itertools
 import math
 
 import numpy as np
+import pytest
 from scipy import stats
 
-from handeye.stats import chi2_ppf, chi2_sf, f_sf, wald_p_value, weighted_chi2_sf
+from handeye.stats import chi2_ppf, chi2_sf, estimated_noise_region_factor, f_sf, wald_p_value, weighted_chi2_sf
 
 XS = [-1.0, 0.0, 1e-300, 1e-8, 0.3, 1.0, 2.5, 6.0, 17.3, 120.0, 1e4, math.inf, math.nan]
 DFS = [-1.0, 0.0, 0.4, 1.0, 2.0, 3.0, 5.5, 6.0, 30.0, 1e3, math.nan]
@@ -44,3 +45,19 @@ def test_wald_and_weighted_tails_keep_their_values():
     w = np.array([1.0, 0.5, 0.25])
     c, nu = float(np.sum(w**2) / w.sum()), float(w.sum() ** 2 / np.sum(w**2))
     assert weighted_chi2_sf(2.0, w) == (float(stats.chi2.sf(2.0 / c, nu)), nu)
+
+
+def test_the_region_factor_of_estimated_noise_is_f_over_chi_square():
+    # one part estimated with nu degrees of freedom: the Wald statistic is dim F(dim, nu) exactly
+    for dim, nu in ((6, 17.0), (1, 10.0), (3, 60.0)):
+        got_nu, k = estimated_noise_region_factor([1.0], [nu], dim=dim)
+        assert got_nu == nu
+        assert k == pytest.approx(dim * stats.f.ppf(0.95, dim, nu) / stats.chi2.ppf(0.95, dim), rel=1e-12)
+    # one dimension: the Student t interval over the normal one
+    assert estimated_noise_region_factor([1.0], [10.0], dim=1)[1] == pytest.approx(
+        (stats.t.ppf(0.975, 10) / stats.norm.ppf(0.975)) ** 2, rel=1e-12
+    )
+    # fewer degrees of freedom, a larger region; known parts carry none
+    ks = [estimated_noise_region_factor([0.7, 0.3], [n, None], dim=6)[1] for n in (5.0, 20.0, 100.0, 1e6)]
+    assert ks[0] > ks[1] > ks[2] > ks[3] > 1.0 and ks[3] == pytest.approx(1.0, abs=1e-4)
+    assert estimated_noise_region_factor([0.5, 0.5], [None, math.inf], dim=6) == (None, 1.0)

@@ -112,6 +112,13 @@ def add_arguments(p) -> None:
         "sessions: the DH offsets and the encoder noise enter the pose graph, the encoder noise held at the "
         "arm's prior)",
     )
+    model.add_argument(
+        "--estimate-scale",
+        action="store_true",
+        help="pose-only sessions: estimate the tracker's translation scale (a wrong marker size, monocular SLAM) "
+        "jointly with X, with its sigma (result.json refinement.tracker_scale); also estimate_scale: true in "
+        "session.yaml; image sessions refuse it (their scale is the board's square size)",
+    )
     inp.add_argument("--workers", type=positive_int, help="threads for corner detection (default: all cores)")
     rep.add_argument(
         "--qa",

@@ -158,6 +158,17 @@ class JointCovariance(Open):
         return self
 
 
+class TrackerScale(Open):
+    """``refinement.tracker_scale``: a pose-only session's tracker translation scale, estimated (``--estimate-scale``).
+
+    The tracker's translations are ``value`` x the true ones; ``sigma`` its 1-sigma (with the tracker sigmas'
+    degrees of freedom, as X's covariance).
+    """
+
+    value: Positive
+    sigma: Optional[Sigma] = None
+
+
 class Refinement(Open):
     """``refinement``: the joint refinement's estimate, noise levels and covariances."""
 
@@ -178,6 +189,12 @@ class Refinement(Open):
     robot_sigma_mm: Optional[Sigma] = None
     robot_sigma_deg: Optional[Sigma] = None
     robot_noise_dof: Optional[dict[str, Optional[Number]]] = None
+    # pose-only: each estimated tracker sigma's degrees of freedom, Satterthwaite's for X's covariance and the
+    # factor X's plug-in covariance was multiplied by for them (handeye.refine.tracker_dof); 1 when stated
+    tracker_noise_dof: Optional[dict[str, Optional[Number]]] = None
+    cov_x_noise_dof: Optional[Number] = None
+    cov_x_dof_factor: Optional[Positive] = None
+    tracker_scale: Optional[TrackerScale] = None
     sigma_rot_deg: Optional[list[Sigma]] = None
     sigma_trans_mm: Optional[list[Sigma]] = None
     sigma_source: Optional[StrictStr] = None

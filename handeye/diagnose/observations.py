@@ -82,7 +82,11 @@ class PoseObservations:
 
 
 def observations_from_run(run) -> Optional[PoseObservations]:
-    """The run's views with a board pose (None below the minimum view count)."""
+    """The run's views with a board pose (None below the minimum view count).
+
+    A tracker's poses whose translation scale the refinement estimated (``--estimate-scale``) are seen
+    rescaled to metric, as the refinement models them.
+    """
     s = run.session
     ids = [v.view_id for v in s.views if v.view_id in (run.board_poses or {})]
     if len(ids) < thresholds().views.min_fail:
@@ -100,6 +104,10 @@ def observations_from_run(run) -> Optional[PoseObservations]:
     # the intrinsics the board poses were solved with (a refinement replaces run.intrinsics by its own)
     refined = run.refined if (run.refined is not None and getattr(run.refined, "status", "") == "ok") else None
     intrinsics = getattr(refined, "intrinsics_seed", None) if refined is not None else run.intrinsics
+    scale = getattr(refined, "tracker_scale", None)
+    if scale is not None and np.isfinite(scale) and scale > 0:
+        C = C.copy()
+        C[:, :3, 3] /= scale
     return PoseObservations(
         s.mode,
         tuple(ids),

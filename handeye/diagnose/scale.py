@@ -213,8 +213,9 @@ def _tracker_scale_finding(est: ScaleEstimate) -> Finding:
         f"frame (closed form over all view pairs of {est.n_views} views, jackknife sigma; 1 is {est.z:.0f} sigma "
         f"away, p = {est.p_value():.1e}): every target translation the tracker reports is scaled",
         f"a marker tracker scales its translations with the marker size it is given: multiply that size by "
-        f"{est.k:.4f}; a monocular SLAM or odometry tracker has no metric scale: give it one (a stereo or depth "
-        "camera, or a known distance) before calibrating",
+        f"{est.k:.4f} and track again; or calibrate with --estimate-scale (estimate_scale: true in session.yaml), "
+        "which estimates the factor jointly with X and carries its sigma into X's (a monocular SLAM or odometry "
+        "tracker has no metric scale: this or a stereo or depth camera)",
         details={"scale": est.k, "scale_sigma": est.sigma, "n_views": est.n_views, "p_value": est.p_value()},
     )
 

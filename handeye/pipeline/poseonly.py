@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 
+from ..diagnose.scale import rescaled
 from ..errors import CalibrationError
 from ..mounting import mounting
 from ..records import Session, ViewOutcome, view_id_key
@@ -14,13 +15,29 @@ from .records import MIN_VIEWS, CalibrateOptions, CalibrationRun, Observation
 from .stages import _closed_forms, _final_outcomes, _joint_angles, session_arm, validate_pose_stage
 
 
+def tracker_scale_start(C: np.ndarray, Ms: np.ndarray) -> float:
+    """Log of the tracker's translation scale in closed form (:func:`handeye.diagnose.scale.estimate_scale`).
+
+    ``C`` (n,4,4) the tracker's poses, ``Ms`` (n,4,4) the robot motions; 0 (metric) when the closed form
+    gives no positive scale.
+    """
+    from ..diagnose.scale import estimate_scale
+
+    est = estimate_scale(C, Ms)
+    if est is None or not np.isfinite(est.k) or est.k <= 0:
+        return 0.0
+    return float(-np.log(est.k))  # the robot's motions are k x the tracker's: the tracker's scale is 1 / k
+
+
 def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) -> CalibrationRun:
     """The stages of a pose-only session: each view's ``T_cam_board`` is the tracker's.
 
     The stages of a pose-only session: each view's ``T_cam_board`` is the tracker's (no detection,
     intrinsics or board poses to solve); the mode gate, the motion check and the closed forms as for
     images; the refinement on pose factors (:func:`handeye.refine.poseonly.refine_poses`), with the arm's
-    kinematic model when ``--robot`` or session.yaml's ``robot:`` names one.
+    kinematic model when ``--robot`` or session.yaml's ``robot:`` names one. With ``--estimate-scale`` (or
+    ``estimate_scale: true``) the tracker's translation scale is one more unknown, started from the
+    closed-form scale (:func:`tracker_scale_start`), the closed forms on the poses rescaled.
     """
     from ..initial import BoardPose
 
@@ -49,7 +66,9 @@ def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) ->
     C = np.stack([poses[v].T_cam_board for v in ids])
     Ms = np.stack([mode.M_from_T_base_end(s.view(v).T_base_end) for v in ids])
     t1 = time.perf_counter()
-    closed, start = _closed_forms(s, opts, mode, C, Ms, state, progress)
+    log_scale0 = tracker_scale_start(C, Ms) if opts.estimate_scale or s.meta.get("estimate_scale") else None
+    C_start = C if log_scale0 is None else rescaled(C, float(np.exp(-log_scale0)))
+    closed, start = _closed_forms(s, opts, mode, C_start, Ms, state, progress)
     seconds["closed_form"] = time.perf_counter() - t1
     refined = None
     if opts.refine:
@@ -70,6 +89,7 @@ def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) ->
             tracker_sigma=s.meta.get("tracker_sigma"),
             options=RefineOptions(**ro),
             starts=closed,
+            log_scale0=log_scale0,
         )
         seconds["refine"] = time.perf_counter() - t2
         if refined.status != "ok":

@@ -29,6 +29,7 @@ class CalibrateOptions:
     refine_options: dict = field(default_factory=dict)
     shift_poses: int = 0  # pair image k with the pose written for image k + shift_poses (a known constant shift)
     validate: bool = True  # refit without some views for the validated and verdict covariances (refined runs)
+    estimate_scale: bool = False  # pose-only sessions: the tracker's translation scale as one more unknown
 
     @staticmethod
     def from_config(cfg: dict, **overrides) -> "CalibrateOptions":

@@ -5,7 +5,9 @@
 kinematic model (:mod:`.poseonly_robot`). The tracker's sigmas are the session's or estimated by variance
 components. Stages: the best closed-form start, a Huber solve,
 then the outlier loop with THE robot-pose test (:func:`.outliers.robot_pose_test`) until the set of
-views is stable; the covariance is the final solve's. The graph is :func:`.problem.solve_pose_graph`.
+views is stable; the covariance is the final solve's, with the estimated sigmas' degrees of freedom
+(:mod:`.tracker_dof`). On request the tracker's translation scale is one more unknown
+(:func:`handeye.factors.pose.scaled_pose_residual`). The graph is :func:`.problem.solve_pose_graph`.
 
 See docs/refinement.md.
 """
@@ -20,17 +22,19 @@ from typing import Any, Literal, Mapping, Optional, Sequence, overload
 import numpy as np
 from scipy.special import chdtri
 
-from handeye.factors.pose import pose_residual
+from handeye.factors.pose import pose_residual, scaled_pose_residual
 
+from ..errors import ConfigError
 from ..mounting import mounting
 from ..records import HandEyeEstimate
 from .covariance import COV_PARAMETRISATION, hand_eye_uncertainty
 from .options import RefineOptions, check_T, refine_preset
 from .outliers import RobotPoseGates, RobotPoseTest, leave_one_out, robot_pose_outlier, robot_pose_test
 from .poseonly_robot import PoseRobotModel, describe, pose_robot_model
-from .problem import solve_pose_dh_graph, solve_pose_graph
+from .problem import solve_pose_dh_graph, solve_pose_graph, solve_scaled_pose_graph
 from .refitting import Refit
 from .result import RefineResult
+from .tracker_dof import NoiseDof, noise_dof
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +83,11 @@ class PoseRefineResult(RefineResult):
     cov_board_6x6: Optional[np.ndarray] = None
     pose_robot: Optional[PoseRobotModel] = None  # the arm's kinematic model (--robot), for the refits
     dh_offset: Optional[np.ndarray] = None  # (m,) its DH offsets as estimated
+    tracker_noise_dof: dict[str, float] = field(default_factory=dict)  # per estimated sigma: its redundancy
+    cov_x_noise_dof: Optional[float] = None  # Satterthwaite's for X's covariance (None: the sigmas stated)
+    cov_x_dof_factor: float = 1.0  # the plug-in covariance of X was multiplied by this (:mod:`.tracker_dof`)
+    tracker_scale: Optional[float] = None  # the tracker's translation scale, when estimated
+    tracker_scale_sigma: Optional[float] = None
 
     def to_dict(self) -> dict[str, Any]:
         no = _NoIntrinsics()
@@ -101,6 +110,17 @@ class PoseRefineResult(RefineResult):
         }
         if self.cov_board_6x6 is not None:
             d["cov_board_6x6"] = self.cov_board_6x6.tolist()
+        d["tracker_noise_dof"] = dict(self.tracker_noise_dof)
+        d["cov_x_noise_dof"] = self.cov_x_noise_dof
+        d["cov_x_dof_factor"] = self.cov_x_dof_factor
+        if self.tracker_scale is not None:
+            d["tracker_scale"] = {
+                "value": self.tracker_scale,
+                "sigma": self.tracker_scale_sigma,
+                "model": "the tracker's translations are s x the true ones (T_cam_board's translation measured as "
+                "s · t), s estimated jointly with the hand-eye transform and the target pose; X's covariance "
+                "marginalises s",
+            }
         return d
 
 
@@ -115,6 +135,7 @@ class _State:
     iterations: int = 0
     robot: Optional[PoseRobotModel] = None  # the arm's kinematic model (:mod:`.poseonly_robot`), or None
     dh: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (m,) its DH offsets
+    log_scale: Optional[float] = None  # log of the tracker's translation scale when it is estimated
 
     def groups(self) -> np.ndarray:
         """(3, n, 6, 6) each noise group's share ``Q_g`` of every view's residual covariance (unit variance).
@@ -160,12 +181,21 @@ class _State:
         T_board = self.T_board if T_board is None else T_board
         if self.robot is not None:  # J (n,6,12+m): the DH offsets' columns last
             return self.robot.residuals(T_x, T_board, self.C, self.dh, jacobians=jacobians)[:2]
-        out = [
-            pose_residual(T_x=T_x, M=M, T_board=T_board, T_cam_board_measured=C, jacobians=jacobians)
-            for M, C in zip(self.M, self.C, strict=False)
-        ]
+        if self.log_scale is None:
+            out: list[tuple[Any, ...]] = [
+                pose_residual(T_x=T_x, M=M, T_board=T_board, T_cam_board_measured=C, jacobians=jacobians)
+                for M, C in zip(self.M, self.C, strict=False)
+            ]
+        else:  # the scale is the 13th parameter
+            ls = self.log_scale
+            out = [
+                scaled_pose_residual(
+                    T_x=T_x, M=M, T_board=T_board, T_cam_board_measured=C, log_scale=ls, jacobians=jacobians
+                )
+                for M, C in zip(self.M, self.C, strict=False)
+            ]
         r = np.stack([o[0] for o in out])
-        J = np.stack([np.hstack([o[1], o[2]]) for o in out]) if jacobians else None  # type: ignore[list-item]
+        J = np.stack([np.hstack(o[1:]) for o in out]) if jacobians else None
         return r, J
 
     def W(self) -> np.ndarray:
@@ -234,16 +264,15 @@ def _solve(
         )
         st.iterations += it
         return
-    st.T_x, st.T_board, it = solve_pose_graph(
-        M=st.M[k],
-        T_cam_board=st.C[k],
-        covariances=st.covariances()[k],
-        T_x0=st.T_x,
-        T_board0=st.T_board,
-        robust_k=robust_k,
-        prior_x=prior_x,
-        max_iterations=max_iterations,
-    )
+    kw = dict(M=st.M[k], T_cam_board=st.C[k], covariances=st.covariances()[k], T_x0=st.T_x, T_board0=st.T_board)
+    if st.log_scale is None:
+        st.T_x, st.T_board, it = solve_pose_graph(
+            **kw, robust_k=robust_k, prior_x=prior_x, max_iterations=max_iterations
+        )
+    else:
+        st.T_x, st.T_board, st.log_scale, it = solve_scaled_pose_graph(
+            **kw, log_scale0=st.log_scale, robust_k=robust_k, prior_x=prior_x, max_iterations=max_iterations
+        )
     st.iterations += it
 
 
@@ -351,6 +380,7 @@ def refine_poses(
     tracker_sigma: Optional[tuple[Any, ...]] = None,
     options: Optional[RefineOptions] = None,
     starts: Optional[Mapping[str, HandEyeEstimate]] = None,
+    log_scale0: Optional[float] = None,
 ) -> PoseRefineResult:
     """Refine ``T_x`` and ``T_board`` from pose-only views; see the module docstring.
 
@@ -358,6 +388,8 @@ def refine_poses(
     optical axis), held; None: estimated (the three sigmas).
     ``starts``: the closed forms (method -> estimate); the refinement starts from the one the views
     agree with best. A solve that fails returns ``status="failed"`` with the reason.
+    ``log_scale0``: None, the tracker's translations are metric; else the tracker's translation scale is
+    estimated, from ``exp(log_scale0)`` (the seeds and ``starts`` are those of the rescaled poses).
     """
     options = RefineOptions() if options is None else options
     t0 = time.perf_counter()
@@ -371,7 +403,15 @@ def refine_poses(
     floors = np.array([float(cfg["robot_sigma_rot_floor_rad"])] + [float(cfg["robot_sigma_trans_floor_m"])] * 2)
     estimate = tracker_sigma is None
     robot = pose_robot_model(options, mode, views)  # a named arm: its kinematic model; else None
-    st = _State(M, C, T_x0.copy(), T_board0.copy(), np.ones(3), np.ones(len(views), bool), robot=robot)
+    if robot is not None and log_scale0 is not None:
+        raise ConfigError(
+            "the tracker's scale (--estimate-scale / estimate_scale) and the arm's kinematic model (--robot / "
+            "robot:) are not estimated together",
+            hint="calibrate with one of them: the scale first (fix the marker size), then --robot",
+        )
+    st = _State(
+        M, C, T_x0.copy(), T_board0.copy(), np.ones(3), np.ones(len(views), bool), robot=robot, log_scale=log_scale0
+    )
     st.dh = np.zeros(robot.m if robot is not None else 0)
     prior_x = _prior_x(options)
     if tracker_sigma is None:
@@ -396,6 +436,7 @@ def refine_poses(
     r: Optional[np.ndarray] = None
     J: Optional[np.ndarray] = None
     resolved: dict[str, bool] = {}
+    dof = NoiseDof({})
     try:
         if estimate:
             st.sigma = _robust_sigmas(C, st.residuals()[0], floors)
@@ -427,6 +468,7 @@ def refine_poses(
             if oscillates:
                 break
         dec_keep = st.keep.copy()
+        dof = noise_dof(st.sigma, st.groups()[:, st.keep], st.W()[st.keep], J[st.keep], S, resolved)
         status, reason = "ok", ""
     except np.linalg.LinAlgError as err:
         status, reason = "failed", f"the views do not constrain the hand-eye transform ({err})"
@@ -436,7 +478,7 @@ def refine_poses(
         log.warning("pose-only refinement failed: %s", reason)
     depth = float(np.median(np.linalg.norm(C[:, :3, 3], axis=1)))  # the tracker's frame need not look along z
     wd = float(options.working_distance_m) if options.working_distance_m is not None else depth
-    S_x = None if status != "ok" or S is None else S[:6, :6]
+    S_x = None if status != "ok" or S is None else dof.x_factor * S[:6, :6]
     unc = hand_eye_uncertainty(S_x, st.T_x, wd)
     per_view, outliers = {}, []
     for i, vid in enumerate(ids):
@@ -517,10 +559,22 @@ def refine_poses(
         tracker_sigma_along_mm=float(1000.0 * st.sigma[2]),
         tracker_sigma_source="estimated" if estimate else "stated",
         tracker_sigma_resolved=resolved,
-        cov_board_6x6=S[6:12, 6:12].copy() if ok and S is not None else None,
+        cov_board_6x6=None if status != "ok" or S is None else dof.board_factor * S[6:12, 6:12],
         pose_robot=robot,
         dh_offset=None if robot is None else st.dh.copy(),
+        tracker_noise_dof=dof.dof,
+        cov_x_noise_dof=dof.x_dof,
+        cov_x_dof_factor=dof.x_factor,
+        tracker_scale=None if st.log_scale is None else float(np.exp(st.log_scale)),
+        tracker_scale_sigma=_scale_sigma(st, S, dof) if status == "ok" else None,
     )
+
+
+def _scale_sigma(st: _State, S: Optional[np.ndarray], dof: NoiseDof) -> Optional[float]:
+    """The estimated tracker scale's sigma (with the sigmas' degrees of freedom, as X's: :mod:`.tracker_dof`)."""
+    if st.log_scale is None or S is None or S.shape[0] < 13:
+        return None
+    return float(np.exp(st.log_scale)) * float(np.sqrt(dof.scale_factor * S[12, 12]))
 
 
 def refit_poses(result: PoseRefineResult, views: Sequence[PoseView], covariance: bool = True) -> Refit:
@@ -543,7 +597,8 @@ def refit_poses(result: PoseRefineResult, views: Sequence[PoseView], covariance:
     along = result.tracker_sigma_along_mm if np.isfinite(result.tracker_sigma_along_mm) else result.tracker_sigma_mm
     sigma = np.array([np.radians(result.tracker_sigma_deg), result.tracker_sigma_mm / 1000.0, along / 1000.0])
     prior_x = _prior_x(result.options)
-    st = _State(M, C, result.T_x.copy(), result.T_board.copy(), sigma, np.ones(len(kept), bool))
+    log_scale = None if result.tracker_scale is None else float(np.log(result.tracker_scale))
+    st = _State(M, C, result.T_x.copy(), result.T_board.copy(), sigma, np.ones(len(kept), bool), log_scale=log_scale)
     if result.pose_robot is not None:  # the same arm model, its DH offsets from the full solution
         st.robot = result.pose_robot.subset([v.view_id for v in kept])
         st.dh = np.zeros(st.robot.m) if result.dh_offset is None else result.dh_offset.copy()

@@ -35,6 +35,7 @@ KEY_X = gtsam.symbol("x", 0)
 KEY_BOARD = gtsam.symbol("b", 0)
 KEY_INTRINSICS = gtsam.symbol("k", 0)
 KEY_DH = gtsam.symbol("d", 0)
+KEY_SCALE = gtsam.symbol("s", 0)  # log of a tracker's translation scale (pose-only views)
 
 
 def lm_params(max_iterations: int) -> "gtsam.LevenbergMarquardtParams":
@@ -301,23 +302,65 @@ def solve_pose_graph(
     ``prior_x`` (T_x (4,4), covariance (6,6)) an optional Gaussian prior on ``T_x``. Returns
     (T_x, T_board, iterations).
     """
-    from handeye.factors.pose import pose_factor
+    T_x, T_board, _, it = _solve_pose_graph(
+        M, T_cam_board, covariances, T_x0, T_board0, robust_k, prior_x, max_iterations, None
+    )
+    return T_x, T_board, it
+
+
+def solve_scaled_pose_graph(
+    *,
+    M: np.ndarray,
+    T_cam_board: np.ndarray,
+    covariances: np.ndarray,
+    T_x0: np.ndarray,
+    T_board0: np.ndarray,
+    log_scale0: float,
+    robust_k: Optional[float] = None,
+    prior_x: Optional[tuple[np.ndarray, np.ndarray]] = None,
+    max_iterations: int = 100,
+) -> tuple[np.ndarray, np.ndarray, float, int]:
+    """:func:`solve_pose_graph` with the tracker's translation scale ``s = exp(log_scale)`` as one more unknown.
+
+    The factors are :func:`handeye.factors.pose.scaled_pose_factor`; returns (T_x, T_board, log_scale,
+    iterations).
+    """
+    T_x, T_board, log_scale, it = _solve_pose_graph(
+        M, T_cam_board, covariances, T_x0, T_board0, robust_k, prior_x, max_iterations, float(log_scale0)
+    )
+    assert log_scale is not None, "a scaled solve returns its scale"
+    return T_x, T_board, log_scale, it
+
+
+def _solve_pose_graph(
+    M: np.ndarray,
+    T_cam_board: np.ndarray,
+    covariances: np.ndarray,
+    T_x0: np.ndarray,
+    T_board0: np.ndarray,
+    robust_k: Optional[float],
+    prior_x: Optional[tuple[np.ndarray, np.ndarray]],
+    max_iterations: int,
+    log_scale0: Optional[float],
+) -> tuple[np.ndarray, np.ndarray, Optional[float], int]:
+    """The pose graph of :func:`solve_pose_graph`, with ``log(s)`` a variable unless ``log_scale0`` is None."""
+    from handeye.factors.pose import pose_factor, scaled_pose_factor
 
     g = gtsam.NonlinearFactorGraph()
     v = gtsam.Values()
     v.insert(KEY_X, gtsam.Pose3(np.asarray(T_x0, float)))
     v.insert(KEY_BOARD, gtsam.Pose3(np.asarray(T_board0, float)))
+    if log_scale0 is not None:
+        v.insert(KEY_SCALE, np.array([log_scale0]))
     for Mi, Ci, Si in zip(M, T_cam_board, covariances, strict=True):
-        g.add(
-            pose_factor(
-                key_x=KEY_X, key_board=KEY_BOARD, M=Mi, T_cam_board_measured=Ci, covariance=Si, robust_k=robust_k
-            )
-        )
+        kw = dict(key_x=KEY_X, key_board=KEY_BOARD, M=Mi, T_cam_board_measured=Ci, covariance=Si, robust_k=robust_k)
+        g.add(pose_factor(**kw) if log_scale0 is None else scaled_pose_factor(key_log_scale=KEY_SCALE, **kw))
     if prior_x is not None:
         g.add(gaussian_prior(key=KEY_X, mean=prior_x[0], cov=prior_x[1]))
     opt = gtsam.LevenbergMarquardtOptimizer(g, v, lm_params(max_iterations))
     res = opt.optimize()
-    return res.atPose3(KEY_X).matrix(), res.atPose3(KEY_BOARD).matrix(), int(opt.iterations())
+    log_scale = None if log_scale0 is None else float(res.atVector(KEY_SCALE)[0])
+    return res.atPose3(KEY_X).matrix(), res.atPose3(KEY_BOARD).matrix(), log_scale, int(opt.iterations())
 
 
 def solve_pose_dh_graph(

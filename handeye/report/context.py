@@ -19,7 +19,7 @@ from .observations import as_cov6, as_T, finite, median_board_distance_m, view_f
 from .qa import evaluate
 from .sections.diagnostics import _cross_validation, _findings, _stages
 from .sections.methods import _methods, _offsets
-from .sections.models import _intrinsics_rows, _noise, _robot_model
+from .sections.models import _intrinsics_rows, _noise, _robot_model, _tracker
 from .sections.provenance import _meta, _provenance
 from .sections.result import _prior_block, _result_block, _uncertainty_block
 from .sections.values import _num
@@ -115,6 +115,7 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     )
     ctx["noise"] = _noise(ref)
     ctx["robot_model"] = _robot_model(ref)
+    ctx["tracker"] = _tracker(ref)
 
     # --- metrics and verdict
     metrics, notes = qa_metrics(

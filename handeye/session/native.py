@@ -163,6 +163,7 @@ def read_native_document(path: Path) -> NativeDocument:
                 expected="pose: [numbers in pose_format] or pose_file: FILE",
             )
     po = _pose_only_fields(d, entries, path=path)
+    _check_estimate_scale(d.get("estimate_scale"), pose_only=po[0] is not None, path=path)
     return NativeDocument(path, d, d.get("mode"), target, fmt, intr, intr_use, tuple(entries), image_folder, *po)
 
 
@@ -174,6 +175,36 @@ def _pose_only(d: dict) -> bool:
     """
     views = d.get("views")
     return isinstance(views, list) and any(isinstance(v, dict) and "target_pose" in v for v in views)
+
+
+def _check_estimate_scale(value: object, *, pose_only: bool, path: Path) -> None:
+    """``estimate_scale:`` is true or false, and true only in a pose-only session; ConfigError otherwise."""
+    if value is None:
+        return
+    if not isinstance(value, bool):
+        raise ConfigError(
+            "estimate_scale must be true or false", path=path, received=repr(value)[:60], expected="true | false"
+        )
+    if value and not pose_only:
+        raise ConfigError(
+            "estimate_scale applies to pose-only sessions (views with target_pose): an image session's scale is "
+            "the board's square size",
+            path=path,
+            received="estimate_scale: true in an image session",
+            hint="remove estimate_scale; a wrong square size is named by the square_size finding",
+        )
+
+
+def session_kind(path: str | Path) -> Optional[str]:
+    """``"pose_only"`` or ``"images"`` for the session at ``path``; None when it does not read (its loader says why)."""
+    from ..errors import HandeyeError
+    from .fields import locate_session
+
+    try:
+        kind, p = locate_session(path)
+        return "pose_only" if kind == "native" and _pose_only(read_yaml(p, loader=IdTextLoader)) else "images"
+    except HandeyeError:
+        return None
 
 
 def is_pose_only(path: str | Path) -> bool:

@@ -560,6 +560,7 @@ def test_calibrate_help_groups_every_flag_and_the_module_names_every_command():
         "--robot",
         "--prior",
         "--board-unmoved",
+        "--estimate-scale",
     }
     assert groups["output"] == {"--out", "--export"}
     assert groups["reporting"] == {"--qa", "--no-report"}

@@ -1293,3 +1293,26 @@ def test_nulls_in_the_validation_block_and_deleted_images_do_not_break_or_inflat
     row = next(r for r in ctx["views"] if r["id"] == str(v["id"]))
     assert row["status"] == "dropped" and row["reason_kind"] == "image missing" and not row["flagged"]
     assert next(c for c in ctx["verdict"].checks if c.key == "dropped_share").value == pytest.approx(share0)
+
+
+def test_the_tracker_model_lines_of_a_pose_only_result():
+    """The tracker's noise, its sigmas' degrees of freedom with X's factor, and an estimated scale."""
+    from handeye.report.sections.models import _tracker
+
+    ref = {
+        "tracker_noise": {"sigma_deg": 0.1, "sigma_mm": 0.5, "sigma_mm_along": 2.0, "source": "estimated"},
+        "tracker_noise_dof": {"rot": 56.2, "trans": 33.8, "trans_along": 17.0},
+        "cov_x_noise_dof": 66.5,
+        "cov_x_dof_factor": 1.0666,
+        "tracker_scale": {"value": 2.00022, "sigma": 0.0019},
+    }
+    items = {it["name"]: it["value"] for it in _tracker(ref)["items"]}
+    assert "2.000 mm along" in items["noise"] and "(estimated)" in items["noise"]
+    assert "trans along 17" in items["degrees of freedom"] and "1.067" in items["degrees of freedom"]
+    assert "F(6, 66)" in items["degrees of freedom"]
+    assert items["translation scale"].startswith("2.00022 ± 0.0019")
+    stated = {"tracker_noise": {"sigma_deg": 0.1, "sigma_mm": 0.5, "sigma_mm_along": 0.5, "source": "stated"}}
+    assert [it["name"] for it in _tracker(stated | {"tracker_noise_dof": {}, "cov_x_noise_dof": None})["items"]] == [
+        "noise"
+    ]
+    assert _tracker({"sigma_px": 0.2}) is None  # an image result has no tracker

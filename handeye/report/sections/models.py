@@ -87,6 +87,41 @@ def _robot_model(ref) -> Optional[dict]:
     }
 
 
+def _tracker(ref) -> Optional[dict]:
+    """A pose-only result's tracker model as short lines: its noise, the sigmas' degrees of freedom, its scale."""
+    tn = ref.get("tracker_noise") if ref else None
+    if not isinstance(tn, dict):
+        return None
+    items = [
+        {
+            "name": "noise",
+            "value": f"{_num(tn.get('sigma_deg')):.4f} deg rotation, {_num(tn.get('sigma_mm')):.3f} mm across and "
+            f"{_num(tn.get('sigma_mm_along')):.3f} mm along the optical axis per axis ({tn.get('source', '?')})",
+        }
+    ]
+    dof = ref.get("tracker_noise_dof")
+    nu, k = ref.get("cov_x_noise_dof"), _num(ref.get("cov_x_dof_factor"))
+    if isinstance(dof, dict) and dof and nu is not None:
+        per = ", ".join(f"{name.replace('_', ' ')} {_num(v):.0f}" for name, v in dof.items())
+        items.append(
+            {
+                "name": "degrees of freedom",
+                "value": f"{per}; X's covariance {_num(nu):.0f} (Satterthwaite), so it is the plug-in one times "
+                f"{k:.3f}: its 95 % region is 6 F(6, {_num(nu):.0f})'s, not chi-square(6)'s",
+            }
+        )
+    sc = ref.get("tracker_scale")
+    if isinstance(sc, dict) and sc.get("value") is not None:
+        items.append(
+            {
+                "name": "translation scale",
+                "value": f"{_num(sc['value']):.5f} ± {_num(sc.get('sigma')):.2g} (estimated jointly with X, "
+                "--estimate-scale; X's covariance includes its uncertainty)",
+            }
+        )
+    return {"items": items}
+
+
 def _kinematic_items(rm: dict) -> list:
     """The kinematic robot models' parameters as short lines.
 
