@@ -208,7 +208,6 @@ def _ml_error(ts) -> np.ndarray:
 
 def one(cls: str, mode: str, seed: int) -> dict:
     """Simulate, calibrate and score one session."""
-    from handeye.pipeline import CalibrateOptions
     from handeye.sim.arm_tracker import make_arm_tracker_session
     from handeye.workflow import calibrate_session
 
