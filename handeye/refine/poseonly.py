@@ -30,11 +30,13 @@ from ..records import HandEyeEstimate
 from .covariance import COV_PARAMETRISATION, hand_eye_uncertainty
 from .options import RefineOptions, check_T, refine_preset
 from .outliers import RobotPoseGates, RobotPoseTest, leave_one_out, robot_pose_outlier, robot_pose_test
+from .poseonly_result import PoseRefineResult, PoseView
 from .poseonly_robot import PoseRobotModel, describe, pose_robot_model
 from .problem import solve_pose_dh_graph, solve_pose_graph, solve_scaled_pose_graph
 from .refitting import Refit
-from .result import RefineResult
 from .tracker_dof import NoiseDof, noise_dof
+
+__all__ = ["PoseRefineResult", "PoseView", "refine_poses", "refit_poses", "stated_sigmas"]
 
 log = logging.getLogger(__name__)
 
@@ -48,80 +50,6 @@ def stated_sigmas(tracker_sigma: Sequence[float]) -> np.ndarray:
     """(3,) rotation [rad], across and along the optical axis [m] from a stated (rad, m) or (rad, m, m_along)."""
     sig = np.asarray(tracker_sigma, float).ravel()
     return np.r_[sig, sig[1]] if sig.size == 2 else sig
-
-
-@dataclass(frozen=True)
-class PoseView:
-    """One pose-only view: the tracker's ``T_cam_board`` and the reported robot pose ``T_base_end``."""
-
-    view_id: str
-    T_cam_board: np.ndarray  # (4, 4)
-    T_base_end: np.ndarray  # (4, 4)
-    joint_angles: Optional[np.ndarray] = None  # (n_joints,) the arm's joint readings (radians), when recorded
-
-
-class _NoIntrinsics:
-    """Stands in for the intrinsics of a pose-only result when it is written (there is no camera model)."""
-
-    def to_dict(self) -> None:
-        return None
-
-
-@dataclass(frozen=True)
-class PoseRefineResult(RefineResult):
-    """A :class:`.result.RefineResult` of pose-only views: no intrinsics and no pixels.
-
-    A :class:`.result.RefineResult` of pose-only views: no intrinsics and no pixels (``intrinsics`` is
-    None, the pixel figures NaN); the tracker's noise instead.
-    """
-
-    tracker_sigma_deg: float = float("nan")
-    tracker_sigma_mm: float = float("nan")  # across the camera's optical axis (x, y), per axis
-    tracker_sigma_along_mm: float = float("nan")  # along the optical axis (z)
-    tracker_sigma_source: str = ""  # stated | estimated
-    tracker_sigma_resolved: dict[str, Any] = field(default_factory=dict)
-    cov_board_6x6: Optional[np.ndarray] = None
-    pose_robot: Optional[PoseRobotModel] = None  # the arm's kinematic model (--robot), for the refits
-    dh_offset: Optional[np.ndarray] = None  # (m,) its DH offsets as estimated
-    tracker_noise_dof: dict[str, float] = field(default_factory=dict)  # per estimated sigma: its redundancy
-    cov_x_noise_dof: Optional[float] = None  # Satterthwaite's for X's covariance (None: the sigmas stated)
-    cov_x_dof_factor: float = 1.0  # the plug-in covariance of X was multiplied by this (:mod:`.tracker_dof`)
-    tracker_scale: Optional[float] = None  # the tracker's translation scale, when estimated
-    tracker_scale_sigma: Optional[float] = None
-
-    def to_dict(self) -> dict[str, Any]:
-        no = _NoIntrinsics()
-        d = RefineResult.to_dict(replace(self, intrinsics=no, intrinsics_seed=no))  # type: ignore[arg-type]
-        d["observations"] = "poses"
-        d["tracker_noise"] = {
-            "sigma_deg": self.tracker_sigma_deg,
-            "sigma_mm": self.tracker_sigma_mm,
-            "sigma_mm_along": self.tracker_sigma_along_mm,
-            "source": self.tracker_sigma_source,
-            "resolved": dict(self.tracker_sigma_resolved),
-            "model": "T_cam_board_measured = T_cam_board_true · Exp(n): rotation noise sigma_deg per axis, "
-            "translation noise in the camera frame sigma_mm per axis across the optical axis (x, y) and "
-            "sigma_mm_along along it (z); "
-            + (
-                "robot poses through the arm's kinematic model (refinement.robot_model)"
-                if self.pose_robot is not None
-                else "robot poses taken as reported (their noise is part of it)"
-            ),
-        }
-        if self.cov_board_6x6 is not None:
-            d["cov_board_6x6"] = self.cov_board_6x6.tolist()
-        d["tracker_noise_dof"] = dict(self.tracker_noise_dof)
-        d["cov_x_noise_dof"] = self.cov_x_noise_dof
-        d["cov_x_dof_factor"] = self.cov_x_dof_factor
-        if self.tracker_scale is not None:
-            d["tracker_scale"] = {
-                "value": self.tracker_scale,
-                "sigma": self.tracker_scale_sigma,
-                "model": "the tracker's translations are s x the true ones (T_cam_board's translation measured as "
-                "s · t), s estimated jointly with the hand-eye transform and the target pose; X's covariance "
-                "marginalises s",
-            }
-        return d
 
 
 @dataclass
