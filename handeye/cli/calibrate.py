@@ -262,22 +262,31 @@ def run(args) -> int:
         what = "refused" if wr.verdict == "REFUSED" else "calibration failed"
         print(f"handeye: {what}: {wr.result['failure_reason']}", file=sys.stderr)
         return wr.exit_code or 1
-    if getattr(args, "export", None):  # handeye export RESULT --to FORMAT, next to the result
-        from ..errors import HandeyeError
-        from ..export import export_result
-
-        try:
-            from ..export.writers import text_line
-
-            for path in export_result(wr.out_dir, args.export):
-                print(f"{args.export}: {text_line(path)}")
-        except HandeyeError as e:  # the calibration stands; the exit code says the export is missing
-            print(f"handeye: not exported: {e}", file=sys.stderr)
-            if not wr.exit_code:
-                return e.exit_code
+    if getattr(args, "export", None):
+        code = _export_beside(wr.out_dir, args.export)
+        if code and not wr.exit_code:
+            return code
     if wr.exit_code:
         print(f"handeye: verdict {wr.verdict}: {wr.result.get('verdict_headline', '')}", file=sys.stderr)
     return wr.exit_code
+
+
+def _export_beside(out_dir: Path, fmt: str) -> int:
+    """``handeye export RESULT --to FORMAT`` next to the result (a cell: every camera); its exit code, 0 when done.
+
+    The calibration stands when the export is refused: the code says the export is missing.
+    """
+    from ..errors import HandeyeError
+    from ..export import export_result
+    from ..export.writers import text_line
+
+    try:
+        for path in export_result(out_dir, fmt):
+            print(f"{fmt}: {text_line(path)}")
+    except HandeyeError as e:
+        print(f"handeye: not exported: {e}", file=sys.stderr)
+        return e.exit_code
+    return 0
 
 
 def _is_cell(path) -> bool:
@@ -291,13 +300,12 @@ def run_cell(args, sessions: list) -> int:
     from ..cell import calibrate_cell
     from ..errors import InputError
 
-    for flag in ("prior", "export"):
-        if getattr(args, flag, None):
-            raise InputError(
-                f"--{flag.replace('_', '-')} is for one session, not a cell",
-                received=" ".join(str(s) for s in sessions),
-                hint="calibrate the cell without it",
-            )
+    if getattr(args, "prior", None):
+        raise InputError(
+            "--prior is for one session, not a cell",
+            received=" ".join(str(s) for s in sessions),
+            hint="calibrate the cell without it, or verify one camera: handeye verify SESSION --against CELL",
+        )
     if args.out is None:
         raise InputError("a cell needs --out DIR", received=" ".join(str(s) for s in sessions), hint="add --out DIR")
     opts = options_from_args(args)
@@ -314,6 +322,10 @@ def run_cell(args, sessions: list) -> int:
         site_files=site,
     )
     print(format_cell_summary(wr.result, wr.result_path, wr.report_paths))
+    if getattr(args, "export", None) and wr.result.get("status") == "ok":
+        code = _export_beside(Path(args.out), args.export)
+        if code and not wr.exit_code:
+            return code
     if wr.exit_code:
         print(f"handeye: verdict {wr.verdict}: {wr.result.get('verdict_headline', '')}", file=sys.stderr)
     return wr.exit_code

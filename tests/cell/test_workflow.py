@@ -111,3 +111,22 @@ def test_a_camera_that_cannot_be_calibrated_leaves_the_cell_with_a_finding(cell,
     failed = [f for f in res.raw["findings"] if f["code"] == "cell_camera_failed"]
     assert len(failed) == 1 and "cam9" in failed[0]["title"]
     assert not res.raw["camera_pairs"]
+
+
+def test_calibrate_a_cell_with_export_writes_every_camera(cell, tmp_path, capsys):
+    """``calibrate CELL --export urdf``: one URDF beside the cell's result, a joint per camera holding its X."""
+    import xml.etree.ElementTree as ET
+
+    from handeye.export.readback import _rpy_R
+
+    folder, _out, _rc = cell
+    out = tmp_path / "r"
+    rc = main(["-q", "calibrate", str(folder), "--out", str(out), "--export", "urdf", "--no-report"])
+    res = read_result(out)
+    assert rc == verdict_exit_code(res.verdict) and "urdf: " in capsys.readouterr().out
+    joints = {j.find("child").get("link"): j for j in ET.parse(out / "hand_eye.urdf").getroot().findall("joint")}
+    assert set(joints) == {f"{n}_optical_frame" for n in res.camera_names}
+    for name in res.camera_names:
+        o, T = joints[f"{name}_optical_frame"].find("origin"), single_camera(res, name).T_x
+        np.testing.assert_allclose([float(v) for v in o.get("xyz").split()], T[:3, 3], atol=1e-9)
+        np.testing.assert_allclose(_rpy_R(*(float(v) for v in o.get("rpy").split())), T[:3, :3], atol=1e-9)
