@@ -135,6 +135,13 @@ def refuse_pose_only_flags(args) -> None:
                 code="flag_not_applicable",
             )
         return
+    if scale and getattr(args, "robot", None):
+        raise InputError(
+            "--estimate-scale and --robot are not estimated together on a pose-only session",
+            path=args.session,
+            hint="calibrate with one of them: the scale first (then fix the marker size), then --robot",
+            code="flag_not_applicable",
+        )
     if not given:
         return
 

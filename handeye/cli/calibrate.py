@@ -117,7 +117,7 @@ def add_arguments(p) -> None:
         action="store_true",
         help="pose-only sessions: estimate the tracker's translation scale (a wrong marker size, monocular SLAM) "
         "jointly with X, with its sigma (result.json refinement.tracker_scale); also estimate_scale: true in "
-        "session.yaml; image sessions refuse it (their scale is the board's square size)",
+        "session.yaml; image sessions refuse it (their scale is the board's square size), and so does --robot",
     )
     inp.add_argument("--workers", type=positive_int, help="threads for corner detection (default: all cores)")
     rep.add_argument(

@@ -158,6 +158,29 @@ def test_estimate_scale_in_session_yaml_is_read(tmp_path):
     assert abs(sc["value"] - 0.5) < 3.0 * sc["sigma"]
 
 
+def test_estimate_scale_with_an_arm_model_is_refused_in_one_line(tmp_path, capsys):
+    """The scale and the arm's DH offsets are not estimated in one graph: refused before any work, or failed
+    with the reason when session.yaml asks for both."""
+    import yaml
+
+    from handeye.cli import main
+
+    ts = make_arm_tracker_session(mode="eye_in_hand", n_views=12, seed=6)
+    ts.write(tmp_path / "s", state_sigma=False)
+    rc = main(
+        ["-q", "calibrate", str(tmp_path / "s"), "--out", str(tmp_path / "o"), "--estimate-scale", "--robot", "ur5e"]
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "--estimate-scale and --robot" in err[0]
+    assert not (tmp_path / "o").exists()
+    doc = yaml.safe_load((tmp_path / "s" / "session.yaml").read_text())
+    doc |= {"estimate_scale": True, "robot": "ur5e"}
+    (tmp_path / "s" / "session.yaml").write_text(yaml.safe_dump(doc))
+    rc = main(["-q", "calibrate", str(tmp_path / "s"), "--out", str(tmp_path / "o2"), "--no-report"])
+    res = json.loads((tmp_path / "o2" / "result.json").read_text())
+    assert rc != 0 and res["status"] == "failed" and "not estimated together" in res["failure_reason"]
+
+
 def _image_session(tmp_path, extra: str = ""):
     d = tmp_path / "img"
     d.mkdir()
