@@ -86,6 +86,28 @@ class Intrinsics:
 
 
 # ------------------------------------------------------------------------------ projection
+#: a pixel past this share of the fold's distorted radius (:func:`radial_fold`) sees nothing: the inverse
+#: of the lens model is ill-conditioned at the fold
+FOLD_SHARE = 0.98
+
+
+def radial_fold(dist: Any) -> tuple[float, np.ndarray, np.ndarray]:
+    """(distorted radius where the radial model folds over, its monotonic part's r and r_d tables).
+
+    OpenCV's radial model ``r_d = r (1 + k1 r^2 + k2 r^4 + k3 r^6)`` fitted to a lens holds where it rises;
+    past its first maximum no undistorted ray maps there, so that part of an image sees nothing. ``inf``
+    when it keeps rising up to r = 4 (76 degrees off the optical axis).
+    """
+    k1, k2, _, _, k3 = (float(v) for v in dist)
+    r = np.linspace(0.0, 4.0, 40001)
+    rd = r * (1.0 + r * r * (k1 + r * r * (k2 + r * r * k3)))
+    falls = np.flatnonzero(np.diff(rd) <= 0.0)
+    if not falls.size:
+        return float("inf"), r, rd
+    i = int(falls[0])
+    return float(rd[i]), r[: i + 1], rd[: i + 1]
+
+
 def project_opencv5(
     intrinsics_vec: np.ndarray, p_cam: np.ndarray, jacobians: bool
 ) -> tuple[np.ndarray, Optional[np.ndarray], Optional[np.ndarray]]:

@@ -18,7 +18,7 @@ from typing import Optional, Union
 import cv2
 import numpy as np
 
-from ..camera import Intrinsics, pixels_from_cam_points
+from ..camera import FOLD_SHARE, Intrinsics, pixels_from_cam_points, radial_fold
 from ..collect.visibility import pattern_bounds
 from ..errors import ConfigError
 from ..targets import AprilGridSpec, CharucoSpec, ChessboardSpec, MarkerSpec, TargetSpec
@@ -93,6 +93,9 @@ def _build_grid(intrinsics: Intrinsics, s: int) -> np.ndarray:
     W, H = intrinsics.width, intrinsics.height
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
     dist = intrinsics.dist
+    rd_fold, r_table, rd_table = radial_fold(dist)
+    if np.isfinite(rd_fold):
+        return _build_folded_grid(intrinsics, s, rd_fold, r_table, rd_table)
     # Converged inverse on a coarse grid (every g px, one cell beyond the image), interpolated as the
     # start of one Newton step per sample.
     g = 2.0
@@ -153,6 +156,47 @@ def _build_grid(intrinsics: Intrinsics, s: int) -> np.ndarray:
     return grid
 
 
+def _build_folded_grid(
+    intrinsics: Intrinsics, s: int, rd_fold: float, r_table: np.ndarray, rd_table: np.ndarray
+) -> np.ndarray:
+    """The grid of a lens model that folds over inside the image: samples past the fold are NaN (they see nothing).
+
+    Each sample starts from the radial model's 1-D inverse (its monotonic part), then Newton steps take in
+    the tangential terms; the round trip is checked on the samples that see.
+    """
+    W, H = intrinsics.width, intrinsics.height
+    fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    us, vs = _sample_coords(W, s), _sample_coords(H, s)
+    grid = np.empty((H * s, W * s, 2), np.float32)
+    worst_px = 0.0
+    for r0 in range(0, H * s, s * _CHUNK_OUTPUT_ROWS):
+        r1 = min(H * s, r0 + s * _CHUNK_OUTPUT_ROWS)
+        xt, yt = np.broadcast_arrays(((us - cx) / fx)[None, :], ((vs[r0:r1] - cy) / fy)[:, None])
+        rd = np.hypot(xt, yt)
+        sees = rd < FOLD_SHARE * rd_fold
+        r = np.interp(rd, rd_table, r_table)
+        k = np.divide(r, rd, out=np.ones_like(rd), where=rd > 0)
+        x, y = _newton_undistort(xt * k, yt * k, xt, yt, intrinsics.dist, iterations=8)
+        u_px, v_px = np.broadcast_to(us[None, :], x.shape), np.broadcast_to(vs[r0:r1, None], x.shape)
+        if sees.any():
+            worst_px = max(worst_px, _roundtrip_px(intrinsics, x[sees], y[sees], u_px[sees], v_px[sees]))
+        grid[r0:r1, :, 0] = np.where(sees, x, np.nan)
+        grid[r0:r1, :, 1] = np.where(sees, y, np.nan)
+    if worst_px > _ROUNDTRIP_TOL_PX:
+        raise ConfigError(
+            "cannot invert the lens distortion for rendering",
+            expected=f"round trip < {_ROUNDTRIP_TOL_PX} px where the lens model sees",
+            received=f"{worst_px:.2e} px",
+            hint="use milder distortion coefficients",
+        )
+    log.info(
+        "the lens model folds over at %.3f (normalized radius): %.1f %% of the image sees nothing",
+        rd_fold,
+        100.0 * float(np.mean(np.isnan(grid[..., 0]))),
+    )
+    return grid
+
+
 def undistorted_sample_grid(intrinsics: Intrinsics, *, supersample: int = 4) -> np.ndarray:
     """Undistorted normalized coordinates (H*s, W*s, 2) float32 of every sub-pixel sample.
 
@@ -189,6 +233,7 @@ def roundtrip_error_px(intrinsics: Intrinsics, *, supersample: int = 4, stride: 
     grid = undistorted_sample_grid(intrinsics, supersample=s)
     W = intrinsics.width * s
     idx = np.arange(0, grid.shape[0] * grid.shape[1], int(stride))
+    idx = idx[np.isfinite(grid.reshape(-1, 2)[idx, 0])]  # samples past a lens model's fold see nothing
     rows, cols = np.divmod(idx, W)
     xy = grid.reshape(-1, 2)[idx].astype(float)
     uv, _ = cv2.projectPoints(
@@ -383,8 +428,8 @@ def render_accumulate(
     W, H = intrinsics.width, intrinsics.height
     # 1/depth is linear in (x, y): its minimum over the grid's bounding box decides whether any
     # sample ray meets the plane behind the camera or near the horizon (then mask per sample).
-    xmin, xmax = float(grid[..., 0].min()), float(grid[..., 0].max())
-    ymin, ymax = float(grid[..., 1].min()), float(grid[..., 1].max())
+    xmin, xmax = float(np.nanmin(grid[..., 0])), float(np.nanmax(grid[..., 0]))  # NaN: past a lens model's fold
+    ymin, ymax = float(np.nanmin(grid[..., 1])), float(np.nanmax(grid[..., 1]))
     corners = np.array([[xmin, ymin, 1], [xmin, ymax, 1], [xmax, ymin, 1], [xmax, ymax, 1]])
     min_inv_depth = 1e-3  # rays meeting the plane beyond 1 km (or behind) see no board
     need_mask = bool(np.min(corners @ w_row) <= min_inv_depth)
@@ -398,6 +443,7 @@ def render_accumulate(
         if need_mask:
             inv_depth = g[..., 0] * w_row[0] + g[..., 1] * w_row[1] + w_row[2]
             m[inv_depth <= min_inv_depth] = -1e6
+        m[~np.isfinite(g[..., 0])] = -1e6  # a sample past the lens model's fold (NaN) sees nothing
         samples = cv2.remap(  # type: ignore[call-overload]  # cv2's stubs: map2 may be None
             tex, m, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0)
         )
