@@ -94,7 +94,8 @@ def _build_grid(intrinsics: Intrinsics, s: int) -> np.ndarray:
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
     dist = intrinsics.dist
     rd_fold, r_table, rd_table = radial_fold(dist)
-    if np.isfinite(rd_fold):
+    corner_rd = max(np.hypot((u - cx) / fx, (v - cy) / fy) for u in (-1.0, W) for v in (-1.0, H))
+    if corner_rd >= FOLD_SHARE * rd_fold:  # the model folds over inside the image (else: as every lens)
         return _build_folded_grid(intrinsics, s, rd_fold, r_table, rd_table)
     # Converged inverse on a coarse grid (every g px, one cell beyond the image), interpolated as the
     # start of one Newton step per sample.

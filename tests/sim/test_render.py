@@ -48,3 +48,10 @@ def test_the_planner_keeps_boards_inside_the_fold():
     centre = se3_exp(np.r_[0.0, 0.0, 0.0, -0.13, -0.09, 0.8])
     corner = se3_exp(np.r_[0.0, 0.0, 0.0, 0.25, 0.12, 0.8])  # towards the image corner, past the fold
     assert board_in_image(target, FOLDED, centre) and not board_in_image(target, FOLDED, corner)
+
+
+def test_a_lens_that_folds_only_outside_the_image_sees_everywhere():
+    barrel = Intrinsics(910.0, 910.0, 320.0, 180.0, (-0.3, 0.0, 0.0, 0.0, 0.0), 640, 360)
+    assert np.isfinite(radial_fold(barrel.dist)[0])  # it folds at r_d 0.70, the image corners are at 0.40
+    grid = render.undistorted_sample_grid(barrel, supersample=1)
+    assert np.all(np.isfinite(grid)) and render.roundtrip_error_px(barrel, supersample=1, stride=7) < 1e-3
