@@ -448,11 +448,14 @@ def _open_robot(args, *, target: TargetSpec, width: int, height: int, rng: np.ra
         from ..sim.devices import SimRig, SimRobot
         from ..sim.scenarios import default_intrinsics
 
+        kinematic = None
         if installed is not None:  # the simulator stands in for the installed rig (its camera bumped on request)
             rig = _installed_rig(installed, target=target, bump=getattr(args, "sim_bump", None), rng=rng)
+            kinematic = _installed_arm(installed, rng=rng)
         else:
             rig = SimRig.sample(mode=args.mode, rng=rng, target=target, intrinsics=default_intrinsics(width, height))
-        return SimRobot(rig, pose_noise_mm=args.sim_pose_noise[0], pose_noise_deg=args.sim_pose_noise[1], rng=rng), rig
+        noise = args.sim_pose_noise
+        return SimRobot(rig, pose_noise_mm=noise[0], pose_noise_deg=noise[1], rng=rng, kinematic=kinematic), rig
     if spec == "realman" or spec.startswith("realman:"):
         from ..collect.realman import RealmanArm, parse_robot_address
 
@@ -497,6 +500,29 @@ def _open_camera(args, *, robot, width: int, height: int, rng: np.random.Generat
 def _given(defaults, **options):
     """``defaults`` (a frozen dataclass from configs/collect.yaml) with the options given on the command line."""
     return replace(defaults, **{k: float(v) for k, v in options.items() if v is not None})
+
+
+def _installed_arm(installed, *, rng: np.random.Generator):
+    """The installed arm for the simulated robot when the install used the arm's kinematic model, else None.
+
+    The arm is the preset's nominal table with the install's encoder noise. A kinematic install's check
+    reads its views' joint angles through the same table, so the simulated arm must reach its poses and
+    record the encoder readings as the real arm does.
+    """
+    from ..sim.robot_error import make_kinematic_error
+
+    ref = installed.raw.get("refinement") or {}
+    model, arm = ref.get("robot_model") or {}, (ref.get("options") or {}).get("arm")
+    if model.get("kind") != "kinematic" or not isinstance(arm, str):
+        return None
+    sigma = model.get("encoder_sigma_deg")
+    return make_kinematic_error(
+        rng=rng,
+        arm=arm,
+        length_error_mm=(0.0, 0.0),
+        angle_error_deg=(0.0, 0.0),
+        encoder_sigma_deg=float(sigma) if isinstance(sigma, (int, float)) and sigma >= 0 else 0.0,
+    )
 
 
 def _installed_rig(installed, *, target: TargetSpec, bump, rng: np.random.Generator):

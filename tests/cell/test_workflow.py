@@ -130,3 +130,15 @@ def test_calibrate_a_cell_with_export_writes_every_camera(cell, tmp_path, capsys
         o, T = joints[f"{name}_optical_frame"].find("origin"), single_camera(res, name).T_x
         np.testing.assert_allclose([float(v) for v in o.get("xyz").split()], T[:3, 3], atol=1e-9)
         np.testing.assert_allclose(_rpy_R(*(float(v) for v in o.get("rpy").split())), T[:3, :3], atol=1e-9)
+
+
+def test_a_simulated_check_of_a_cameras_kinematic_install_reads_the_arms_joints(cell, tmp_path):
+    """``collect OUT/cam1 --robot sim --verify-against CELL``: the simulated arm is the install's arm (its table,
+    its encoder noise), so the check's views carry joint angles and verify reads them through the same model."""
+    _folder, out, _rc = cell
+    args = ["-q", "collect", str(tmp_path / "cam1"), "--mode", "eye_to_hand", "--camera", "sim", "--robot", "sim"]
+    rc = main([*args, "--auto", "--views", "4", "--yes", "--seed", "1", "--verify-against", str(out)])
+    check = json.loads((tmp_path / "cam1" / "verify" / "verify.json").read_text())
+    assert rc == (9 if check["drifted"] else 0) and "(camera cam1)" in check["against"]
+    records = [yaml.safe_load(p.read_text()) for p in sorted((tmp_path / "cam1" / "views").glob("*.yaml"))]
+    assert len(records) >= 4 and all(len(v["joints"]) == 6 for v in records)
