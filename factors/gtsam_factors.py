@@ -21,6 +21,13 @@ from handeye.mounting import mounting
 from .reprojection import chain_residual, corner_robust_scales
 
 
+def with_huber(noise: gtsam.noiseModel.Base, robust_k: Optional[float]) -> gtsam.noiseModel.Base:
+    """``noise`` in a Huber loss at ``robust_k`` whitened units (on the whitened vector's norm), as is when None."""
+    if robust_k is None:
+        return noise
+    return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
+
+
 def view_reprojection_factor(
     *,
     mode: str,
@@ -127,8 +134,7 @@ def robot_pose_prior(
     """
     sig = np.array([sigma_rot_rad] * 3 + [sigma_trans_m] * 3, dtype=float)
     noise: gtsam.noiseModel.Base = gtsam.noiseModel.Diagonal.Sigmas(sig)
-    if robust_k is not None:
-        noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
+    noise = with_huber(noise, robust_k)
     return gtsam.PriorFactorPose3(key_robot, gtsam.Pose3(np.asarray(T_base_end_reported, float)), noise)
 
 
@@ -195,8 +201,7 @@ def kinematic_robot_prior(
     ``cov``. ``robust_k`` wraps it in a Huber loss on the whitened 6-vector norm.
     """
     noise: gtsam.noiseModel.Base = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, float))
-    if robust_k is not None:
-        noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
+    noise = with_huber(noise, robust_k)
     if key_dh is None:
         return gtsam.PriorFactorPose3(key_robot, gtsam.Pose3(np.asarray(T_base_end_reported, float)), noise)
     reported_inv = gtsam.Pose3(np.asarray(T_base_end_reported, float)).inverse()

@@ -22,6 +22,8 @@ import numpy as np
 
 from handeye.frames import inv_T, se3_adjoint, se3_exp, se3_log, skew
 
+from .gtsam_factors import with_huber
+
 
 def se3_ad(xi: np.ndarray) -> np.ndarray:
     """(6,6) the adjoint action ``ad(xi)`` of a tangent vector ``(omega, v)``: [[omega^, 0], [v^, omega^]]."""
@@ -111,8 +113,7 @@ def scaled_pose_factor(
     M = np.array(M, float)
     C_meas = np.array(T_cam_board_measured, float)
     noise: gtsam.noiseModel.Base = gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, float))
-    if robust_k is not None:
-        noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
+    noise = with_huber(noise, robust_k)
 
     def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H: Optional[list[np.ndarray]]) -> np.ndarray:
         r, J_x, J_b, J_s = scaled_pose_residual(
@@ -155,8 +156,7 @@ def pose_factor(
         noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, float))
     else:
         noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma_rot_rad] * 3, [sigma_trans_m] * 3])
-    if robust_k is not None:
-        noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
+    noise = with_huber(noise, robust_k)
 
     def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H: Optional[list[np.ndarray]]) -> np.ndarray:
         r, J_x, J_b = pose_residual(
@@ -232,8 +232,7 @@ def pose_dh_factor(
     J_dh = np.array(J_dh, float)
     C_meas = np.array(T_cam_board_measured, float)
     noise: gtsam.noiseModel.Base = gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, float))
-    if robust_k is not None:
-        noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(robust_k)), noise)
+    noise = with_huber(noise, robust_k)
 
     def error_func(this: gtsam.CustomFactor, v: gtsam.Values, H: Optional[list[np.ndarray]]) -> np.ndarray:
         r, J_x, J_b, J_u = pose_robot_residual(
