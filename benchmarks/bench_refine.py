@@ -65,6 +65,21 @@ def refine_views(s):
     ]
 
 
+def refine_from_tsai(s, options=None):
+    """The session refined as calibrate starts it: from the closed forms' Tsai estimate, all of them candidates."""
+    intr, cf = closed_forms(s)
+    return refine(
+        mode=s.mode,
+        object_points=s.target.object_points(),
+        views=refine_views(s),
+        intrinsics=intr,
+        T_x0=cf["tsai"].T_x,
+        T_board0=cf["tsai"].T_board,
+        options=options,
+        starts=cf,
+    )
+
+
 def crb_x(s, *, sigma_px: float, robot_sigma_mm: float, robot_sigma_deg: float, exclude=()) -> np.ndarray:
     """Cramer-Rao bound (6x6, GTSAM tangent of T_x) of the refinement model at the truth.
 

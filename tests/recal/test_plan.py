@@ -11,11 +11,10 @@ import numpy as np
 from handeye.frames import se3_exp
 from handeye.recal.loaded import load_result, result_from_refinement
 from handeye.recal.plan import _first_best, plan_verification, x_information
-from handeye.refine import refine
 from handeye.sim.corners import make_corner_session
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-from bench_refine import closed_forms, refine_views  # noqa: E402  (the pipeline's seeding)
+from bench_refine import refine_from_tsai  # noqa: E402  (the pipeline's seeding)
 
 
 def test_scores_that_agree_to_their_last_bits_are_a_tie_broken_by_order():
@@ -44,16 +43,7 @@ def _view_info(inst, T_base_end):
 
 def test_the_plan_does_not_follow_the_installed_results_last_bits():
     s = make_corner_session(mode="eye_in_hand", n_views=10, seed=4, noise_px=0.3, robot_noise=(0.2, 0.05))
-    intr, cf = closed_forms(s)
-    r = refine(
-        mode=s.mode,
-        object_points=s.target.object_points(),
-        views=refine_views(s),
-        intrinsics=intr,
-        T_x0=cf["tsai"].T_x,
-        T_board0=cf["tsai"].T_board,
-        starts=cf,
-    )
+    r = refine_from_tsai(s)
     inst = load_result(result_from_refinement(r, target=s.target))
     plan = plan_verification(inst, max_views=6, power=1 - 1e-12)
     assert len(plan.poses) == 6 and plan.candidate_index[0] == 0  # one view tells nothing of X: a tie, the first

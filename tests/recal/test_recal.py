@@ -448,26 +448,16 @@ def _installed(*, n_views, noise_px, robot_noise, seed=5):
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-    from bench_refine import closed_forms, refine_views
+    from bench_refine import refine_from_tsai
 
     from handeye.recal.loaded import result_from_refinement
-    from handeye.refine import refine
     from handeye.sim.corners import make_corner_session
     from handeye.sim.scenarios import default_intrinsics
 
     s = make_corner_session(
         n_views=n_views, seed=seed, noise_px=noise_px, robot_noise=robot_noise, intrinsics=default_intrinsics(**SMALL)
     )
-    intr, cf = closed_forms(s)
-    r = refine(
-        mode=s.mode,
-        object_points=s.target.object_points(),
-        views=refine_views(s),
-        intrinsics=intr,
-        T_x0=cf["tsai"].T_x,
-        T_board0=cf["tsai"].T_board,
-        starts=cf,
-    )
+    r = refine_from_tsai(s)
     assert r.status == "ok"
     return s, result_from_refinement(r, target=s.target)
 

@@ -13,12 +13,12 @@ from handeye.camera import INTRINSIC_NAMES, Intrinsics, pixels_from_board_points
 from handeye.frames import se3_exp
 from handeye.recal.loaded import load_result, result_from_refinement
 from handeye.recal.verify import JOINT_KIND, verify_views
-from handeye.refine import RefineOptions, RefineView, refine
+from handeye.refine import RefineOptions, RefineView
 from handeye.sim.corners import make_corner_session
 from handeye.sim.scenarios import default_intrinsics
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-from bench_refine import closed_forms, refine_views  # noqa: E402  (the pipeline's seeding)
+from bench_refine import refine_from_tsai  # noqa: E402  (the pipeline's seeding)
 
 ROBOT = (0.2, 0.05)  # mm, deg per axis: the simulated arm's noise, stated to the install (chi-square reference)
 N_CHECKS = 20  # per mounting mode
@@ -35,18 +35,8 @@ def _install(mode: str, seed: int):
         robot_noise=ROBOT,
         intrinsics=default_intrinsics(640, 360),
     )
-    intr, cf = closed_forms(s)
     ro = RefineOptions(robot_noise="fixed", robot_sigma_mm=ROBOT[0], robot_sigma_deg=ROBOT[1])
-    r = refine(
-        mode=s.mode,
-        object_points=s.target.object_points(),
-        views=refine_views(s),
-        intrinsics=intr,
-        T_x0=cf["tsai"].T_x,
-        T_board0=cf["tsai"].T_board,
-        options=ro,
-        starts=cf,
-    )
+    r = refine_from_tsai(s, ro)
     assert r.status == "ok", r.failure_reason
     inst = load_result(result_from_refinement(r, target=s.target))
     assert inst.robot_noise_dof is None and inst.cov_x_intrinsics is not None
