@@ -21,14 +21,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import InputError
+from ..session.fields import CELL_FILE
 
 log = logging.getLogger(__name__)
 
 #: the install of a root that is itself a session (and names no install)
 DEFAULT_INSTALL = "default"
 
-#: the file that makes a folder a cell of cameras (handeye calibrate CELL_DIR)
-CELL_FILE = "cell.yaml"
 
 _DATE_RE = re.compile(r"(?<!\d)(\d{4})-?(\d{2})-?(\d{2})(?:[T_ -]?(\d{2}):?(\d{2})(?::?(\d{2}))?)?(?!\d)")
 

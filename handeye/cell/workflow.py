@@ -25,11 +25,11 @@ from ..contract import RESULT_VERSION, write_result
 from ..errors import CalibrationError, HandeyeError, InputError, verdict_exit_code
 from ..output import FolderLock, check_out_dir, provenance, read_text, remove_stray_temps
 from ..pipeline import CalibrateOptions
+from ..session.fields import CELL_FILE, is_cell_folder
 from ..workflow import calibrate_session
 
 log = logging.getLogger(__name__)
 
-CELL_FILE = "cell.yaml"
 SOLO_DIR = "solo"
 CAMERA_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
@@ -52,11 +52,6 @@ class CellWorkflowResult:
     @property
     def exit_code(self) -> int:
         return verdict_exit_code(self.verdict)
-
-
-def is_cell_folder(path) -> bool:
-    """The folder holds a ``cell.yaml``."""
-    return (Path(path) / CELL_FILE).is_file()
 
 
 def read_cell_file(folder) -> tuple[list[Path], Optional[str]]:

@@ -237,6 +237,15 @@ def check_angle_units(angles_rad, *, path: Path, line: int | None, or_state: str
         )
 
 
+#: the file that makes a folder a cell of cameras (several sessions of one arm, handeye calibrate CELL_DIR)
+CELL_FILE = "cell.yaml"
+
+
+def is_cell_folder(path: str | Path) -> bool:
+    """True for a folder holding a cell.yaml."""
+    return (Path(path) / CELL_FILE).is_file()
+
+
 def locate_session(path: str | Path) -> tuple[str, Path]:
     """("native", session.yaml) or ("vendor", folder) for a session folder, session.yaml or poses.txt."""
     p = Path(path)
