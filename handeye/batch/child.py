@@ -85,7 +85,7 @@ def _wait_for_previous_attempt(out_dir) -> None:
 
 def run(spec: dict) -> dict:
     from ..errors import HandeyeError
-    from ..options import options_from_args, refuse_pose_only_flags
+    from ..options import refuse_pose_only_flags
     from ..workflow import calibrate_session
     from .run import calibrate_namespace
 
@@ -100,20 +100,30 @@ def run(spec: dict) -> dict:
         refuse_pose_only_flags(argparse.Namespace(**{**vars(args), "session": spec["session"]}))
         wr = calibrate_session(
             spec["session"],
-            options=options_from_args(args),
             out_dir=spec["out_dir"],
-            report=not cal.get("no_report"),
-            qa=cal.get("qa"),
-            mode=cal.get("mode"),
-            progress=lambda s: log.info("%s", s),
-            allow_outside=bool(cal.get("allow_outside")),
-            site_files=[f for f in (cal.get("config"), cal.get("qa")) if f],
+            **run_options(cal),
             prior=cal.get("prior"),
             board_unmoved=bool(cal.get("board_unmoved")),
         )
     except HandeyeError as e:
         return {"outcome": "error", "status": "failed", "verdict": "ERROR", "reason": str(e), "exit_code": e.exit_code}
     return done_reply(wr, cal)
+
+
+def run_options(cal: dict) -> dict:
+    """The keyword arguments a session's and a cell's calibration share, from the batch's calibrate options."""
+    from ..options import options_from_args
+    from .run import calibrate_namespace
+
+    return dict(
+        options=options_from_args(calibrate_namespace(cal)),
+        report=not cal.get("no_report"),
+        qa=cal.get("qa"),
+        mode=cal.get("mode"),
+        progress=lambda s: log.info("%s", s),
+        allow_outside=bool(cal.get("allow_outside")),
+        site_files=[f for f in (cal.get("config"), cal.get("qa")) if f],
+    )
 
 
 def done_reply(wr, cal: dict) -> dict:
@@ -141,24 +151,12 @@ def run_cell(spec: dict) -> dict:
     """
     from ..cell import calibrate_cell
     from ..errors import HandeyeError, InputError
-    from ..options import options_from_args
-    from .run import calibrate_namespace
 
     cal = spec["calibrate"]
     try:
         if cal.get("prior"):
             raise InputError("--prior is for one session, not a cell", path=spec["session"], hint="batch without it")
-        wr = calibrate_cell(
-            [spec["session"]],
-            spec["out_dir"],
-            options=options_from_args(calibrate_namespace(cal)),
-            report=not cal.get("no_report"),
-            qa=cal.get("qa"),
-            mode=cal.get("mode"),
-            progress=lambda s: log.info("%s", s),
-            allow_outside=bool(cal.get("allow_outside")),
-            site_files=[f for f in (cal.get("config"), cal.get("qa")) if f],
-        )
+        wr = calibrate_cell([spec["session"]], spec["out_dir"], **run_options(cal))
     except HandeyeError as e:
         return {"outcome": "error", "status": "failed", "verdict": "ERROR", "reason": str(e), "exit_code": e.exit_code}
     return done_reply(wr, cal)

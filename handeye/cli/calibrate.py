@@ -228,18 +228,10 @@ def run(args) -> int:
             hint="add --prior RESULT, or drop --board-unmoved",
         )
     out = args.out or default_out_dir(args.session)
-    opts = options_from_args(args)
-    site = [f for f in (getattr(args, "config", None), getattr(args, "qa", None)) if f]
     wr = calibrate_session(
         args.session,
-        options=opts,
         out_dir=out,
-        report=not args.no_report,
-        qa=getattr(args, "qa", None),
-        mode=args.mode,
-        progress=lambda s: log.info("%s", s),
-        allow_outside=getattr(args, "allow_outside", False),
-        site_files=site,
+        **_run_options(args),
         prior=getattr(args, "prior", None),
         board_unmoved=getattr(args, "board_unmoved", False),
     )
@@ -269,6 +261,19 @@ def run(args) -> int:
     if wr.exit_code:
         print(f"handeye: verdict {wr.verdict}: {wr.result.get('verdict_headline', '')}", file=sys.stderr)
     return wr.exit_code
+
+
+def _run_options(args) -> dict:
+    """The keyword arguments a session's and a cell's calibration share, from the command line."""
+    return dict(
+        options=options_from_args(args),
+        report=not args.no_report,
+        qa=getattr(args, "qa", None),
+        mode=args.mode,
+        progress=lambda s: log.info("%s", s),
+        allow_outside=getattr(args, "allow_outside", False),
+        site_files=[f for f in (getattr(args, "config", None), getattr(args, "qa", None)) if f],
+    )
 
 
 def _export_beside(out_dir: Path, fmt: str) -> int:
@@ -308,19 +313,7 @@ def run_cell(args, sessions: list) -> int:
         )
     if args.out is None:
         raise InputError("a cell needs --out DIR", received=" ".join(str(s) for s in sessions), hint="add --out DIR")
-    opts = options_from_args(args)
-    site = [f for f in (getattr(args, "config", None), getattr(args, "qa", None)) if f]
-    wr = calibrate_cell(
-        sessions,
-        args.out,
-        options=opts,
-        report=not args.no_report,
-        qa=getattr(args, "qa", None),
-        mode=args.mode,
-        progress=lambda s: log.info("%s", s),
-        allow_outside=getattr(args, "allow_outside", False),
-        site_files=site,
-    )
+    wr = calibrate_cell(sessions, args.out, **_run_options(args))
     print(format_cell_summary(wr.result, wr.result_path, wr.report_paths))
     if getattr(args, "export", None) and wr.result.get("status") == "ok":
         code = _export_beside(Path(args.out), args.export)
