@@ -176,6 +176,13 @@ def verify_session(
             hint="verify against a result with status ok",
         )
     s = session_for_installed(session_path, installed, mode=mode)
+    if s.meta.get("pose_only"):  # the test refines X on the detected corners of new images
+        raise InputError(
+            "a pose-only session (views with target_pose) cannot be verified: the check refines X on new images",
+            path=s.path,
+            hint="calibrate the new session and compare: handeye calibrate SESSION --out NEW, then handeye compare "
+            "INSTALLED NEW",
+        )
     check_resolution(installed, s)
     reused = installed_images_among(installed, s)
     if reused:

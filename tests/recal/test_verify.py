@@ -111,3 +111,18 @@ def test_short_checks_of_an_unchanged_rig_raise_false_alarms_at_the_tests_level(
     assert lo <= total <= hi, (total / len(tests), (lo / len(tests), hi / len(tests)))
     # and the p-values spread over (0, 1) as they should (KS at 0.1 %)
     assert stats.kstest([t.p_value for t in tests], "uniform").pvalue > 1e-3
+
+
+def test_a_pose_only_session_is_refused_in_one_line_naming_compare(tmp_path, capsys):
+    """verify refines X on new images' corners: a tracker session is refused (exit 2), never a crash."""
+    from handeye.cli import main
+    from handeye.sim.arm_tracker import make_arm_tracker_session
+
+    make_arm_tracker_session(arm="ur5e", seed=3, n_views=12).write(tmp_path / "s", state_sigma=False)
+    main(["-q", "calibrate", str(tmp_path / "s"), "--out", str(tmp_path / "r"), "--no-report"])
+    assert load_result(tmp_path / "r").status == "ok"
+    capsys.readouterr()
+    rc = main(["verify", str(tmp_path / "s"), "--against", str(tmp_path / "r"), "--out", str(tmp_path / "v")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "pose-only session" in err[0] and "handeye compare" in err[0]
+    assert not (tmp_path / "v" / "verify.json").exists()
