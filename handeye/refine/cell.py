@@ -5,7 +5,9 @@ true robot pose, whose error model (iid, or kinematic with the arm's DH offsets 
 cell's; cameras of one mounting mode that see one board share its pose. The pixel noise of each camera and
 the robot noise are variance components (Förstner's redundancy, as :mod:`.noise` does for one camera); a
 view whose robot pose disagrees with every camera loses its robot prior, a view one camera alone disagrees
-with is that camera's (its image) and leaves that camera. Covariances from the joint information: each X,
+with is that camera's (its image) and leaves that camera. Where the cameras' views of one pose disagree beyond
+their pixel noise (:func:`.cell_checks.view_pose_test`), each camera's pose of a shared view gets its own
+deviation from the view's, two more variance components. Covariances from the joint information: each X,
 the boards, the intrinsics, the DH offsets and every camera-to-camera transform of cameras of one mode.
 
 See docs/refinement.md.
