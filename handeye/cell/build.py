@@ -119,7 +119,10 @@ def _finding(code: str, severity: str, title: str, evidence: str, action: str, v
 
 
 def solo_agreement(T_solo: np.ndarray, cov_solo: np.ndarray, T_joint: np.ndarray) -> dict:
-    """The joint X in the solo result's terms: Mahalanobis distance under the solo covariance and its p-value."""
+    """The joint X in the solo result's terms: Mahalanobis distance under the solo covariance and its p-value.
+
+    ``cov_solo``: the solo result's verdict covariance (``cov_x_6x6_verdict``), whose 95 % region it reports.
+    """
     xi = tangent_difference(T_solo, T_joint)
     m2 = float(xi @ np.linalg.solve(cov_solo, xi))
     return {
@@ -199,9 +202,13 @@ def cell_result(cr: CellRefinement, solos: dict[str, dict], runs: dict, *, versi
     cell_findings: list[dict] = []
     per_cam: dict[str, list[dict]] = {n: [] for n in solos}
     agreement = {}
+    solo_cov = {}
     for name in cr.names:
         ref = runs[name].refined
-        a = solo_agreement(ref.T_x, np.asarray(ref.cov_x_6x6), cr.T_x[name])
+        # the solo result's 95 % region: the covariance its verdict stands by (the model's when it has no other)
+        verdict_cov = ((solos.get(name) or {}).get("refinement") or {}).get("cov_x_6x6_verdict")
+        solo_cov[name] = np.asarray(ref.cov_x_6x6 if verdict_cov is None else verdict_cov, float)
+        a = solo_agreement(ref.T_x, solo_cov[name], cr.T_x[name])
         agreement[name] = a
         if a["p_value"] < SOLO_AGREEMENT_P:
             per_cam[name].append(
@@ -234,6 +241,23 @@ def cell_result(cr: CellRefinement, solos: dict[str, dict], runs: dict, *, versi
                 views=cr.robot_excluded,
             )
         )
+    vp = cr.view_poses
+    if vp.get("estimated"):
+        t = vp["test"]
+        cell_findings.append(
+            _finding(
+                "cell_view_poses",
+                "info",
+                "The cameras' views of one arm pose disagree beyond their pixel noise",
+                f"one pose per view against one per camera view: F = {t['statistic']:.2f} "
+                f"({t['dof'][0]}, {t['dof'][1]} dof), p = {t['p_value']:.2g}; each camera's pose of a shared view "
+                f"deviates from the view's by sigma {vp['sigma_rot_deg']:.3f} deg / {vp['sigma_trans_mm']:.3f} mm "
+                "(estimated, in every covariance)",
+                "the cameras saw the arm at different instants or moving, or a camera's model misses part of its "
+                "image (trigger the cameras together, let the arm settle before each view); the cell models it",
+                **vp,
+            )
+        )
     for name, views in cr.camera_removed.items():
         if views:
             ids = sorted(views, key=lambda v: (len(v), v))
@@ -258,6 +282,7 @@ def cell_result(cr: CellRefinement, solos: dict[str, dict], runs: dict, *, versi
                 {
                     "x": runs[name].refined.T_x,
                     "cov_x_6x6": runs[name].refined.cov_x_6x6,
+                    "cov_x_6x6_verdict": solo_cov[name],
                     "agreement": agreement[name],
                 }
             )
@@ -301,6 +326,8 @@ def cell_result(cr: CellRefinement, solos: dict[str, dict], runs: dict, *, versi
         "solo_agreement": agreement,
         "sigma_source": "model",
     }
+    if cr.view_poses:
+        refinement["view_poses"] = cr.view_poses
     if cr.dh.size:
         refinement["dh_offsets"] = cr.dh
     d: dict[str, Any] = {

@@ -169,6 +169,33 @@ class TrackerScale(Open):
     sigma: Optional[Sigma] = None
 
 
+class ViewPoseTest(Open):
+    """``view_poses.test``: one robot pose per view against one per camera view (F test, cell_checks)."""
+
+    statistic: Sigma
+    dof: list[Count] = Field(description="numerator (6 per extra camera of a view) and denominator")
+    p_value: Sigma
+    alpha: Sigma
+    contradicted: StrictBool
+
+
+class ViewPoses(Open):
+    """``refinement.view_poses`` of a cell: each camera's own pose of a view several cameras see.
+
+    Estimated (``estimated``) when the test rejects one shared pose per view: each camera's pose of such a view
+    is the shared one times ``Exp(delta)``, ``delta`` ~ N(0, diag(sigma_rot^2 I, sigma_trans^2 I)) in the end
+    frame, the sigmas variance components of the cell; ``rms_*``: the estimated deviations' RMS per axis.
+    """
+
+    test: ViewPoseTest
+    estimated: StrictBool
+    sigma_rot_deg: Optional[Sigma] = None
+    sigma_trans_mm: Optional[Sigma] = None
+    camera_views: Optional[Count] = None
+    rms_rot_deg: Optional[Sigma] = None
+    rms_trans_mm: Optional[Sigma] = None
+
+
 class Refinement(Open):
     """``refinement``: the joint refinement's estimate, noise levels and covariances."""
 
@@ -195,6 +222,7 @@ class Refinement(Open):
     cov_x_noise_dof: Optional[Number] = None
     cov_x_dof_factor: Optional[Positive] = None
     tracker_scale: Optional[TrackerScale] = None
+    view_poses: Optional[ViewPoses] = None  # a cell's cameras' own poses of shared views
     sigma_rot_deg: Optional[list[Sigma]] = None
     sigma_trans_mm: Optional[list[Sigma]] = None
     sigma_source: Optional[StrictStr] = None

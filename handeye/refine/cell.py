@@ -5,7 +5,9 @@ true robot pose, whose error model (iid, or kinematic with the arm's DH offsets 
 cell's; cameras of one mounting mode that see one board share its pose. The pixel noise of each camera and
 the robot noise are variance components (Förstner's redundancy, as :mod:`.noise` does for one camera); a
 view whose robot pose disagrees with every camera loses its robot prior, a view one camera alone disagrees
-with is that camera's (its image) and leaves that camera. Covariances from the joint information: each X,
+with is that camera's (its image) and leaves that camera. Where the cameras' views of one pose disagree beyond
+their pixel noise (:func:`.cell_checks.view_pose_test`), each camera's pose of a shared view gets its own
+deviation from the view's, two more variance components. Covariances from the joint information: each X,
 the boards, the intrinsics, the DH offsets and every camera-to-camera transform of cameras of one mode.
 
 See docs/refinement.md.
@@ -26,7 +28,7 @@ from ..camera import INTRINSIC_NAMES, Intrinsics
 from ..errors import InputError
 from ..frames import inv_T, se3_adjoint, tangent_difference
 from ..mounting import mounting
-from .cell_checks import lone_camera, view_tests
+from .cell_checks import lone_camera, view_pose_test, view_tests
 from .options import RefineOptions, RefineView, refine_preset
 from .robot_model import build_kinematic_model, resolve_kind
 
@@ -176,6 +178,9 @@ class CellState:
         self.sigma_rot = np.radians(options.robot_sigma_deg)
         self.sigma_trans = options.robot_sigma_mm / 1000.0
         self.sigma_q = self.kin.encoder_sigma_rad if self.kin is not None else 0.0
+        # each camera's own pose of a view several cameras see, about the shared one (rot rad, trans m): None = off
+        self.view_sigma: Optional[np.ndarray] = None
+        self.Q: dict[tuple[int, int], np.ndarray] = {}  # (camera, view index) -> that camera's pose of the view
         self.excluded: dict[str, dict[str, Any]] = {}  # view id -> the robot-pose test's numbers
         self.camera_removed: dict[tuple[int, str], dict[str, Any]] = {}  # (camera, view id) -> why
         preset = refine_preset()["robust"]
@@ -202,6 +207,22 @@ class CellState:
     def robot_pose(self, u: int) -> np.ndarray:
         return self.reported[u] if self.kind == "none" else self.P[u]
 
+    def own_poses(self) -> list[tuple[int, int]]:
+        """(camera, view index) with a pose of their own about the view's shared one (views several cameras see)."""
+        if self.view_sigma is None:
+            return []
+        robot = set(self.robot_views())
+        seen: dict[int, list[int]] = {}
+        for c, cam in enumerate(self.cams):
+            for u, _o, _i, m in cam.obs:
+                if m.any() and u in robot:
+                    seen.setdefault(u, []).append(c)
+        return sorted((c, u) for u, cs in seen.items() if len(cs) > 1 for c in cs)
+
+    def camera_pose(self, c: int, u: int) -> np.ndarray:
+        """The robot pose camera c sees in view u: its own where it has one, else the view's shared one."""
+        return self.Q[(c, u)] if self.view_sigma is not None and (c, u) in self.Q else self.robot_pose(u)
+
     # -- residuals
     def view_residuals(self, c: int, j: int) -> np.ndarray:
         """(n,) corner residual norms [px] of camera c's observation j (all its corners)."""
@@ -209,7 +230,7 @@ class CellState:
         u, obj, img, _m = cam.obs[j]
         r = chain_residual(
             T_x=cam.T_x,
-            T_base_end=self.robot_pose(u),
+            T_base_end=self.camera_pose(c, u),
             T_board=self.T_boards[cam.board],
             invert_robot=cam.mount.inverts_robot,
             intrinsics_vec=cam.k,
@@ -264,6 +285,8 @@ class CellRefinement:
     redundancy: dict[str, float]
     iterations: int
     seconds: float
+    # each camera's own pose of a shared view (the test of one pose per view, and the sigmas when it failed)
+    view_poses: dict[str, Any] = field(default_factory=dict)
 
     def block(self, name: str) -> slice:
         at = int(np.sum(self.sizes[: self.blocks.index(name)]))
@@ -321,6 +344,7 @@ def _variance_components(st: CellState, rounds: int) -> tuple[dict[str, float], 
 
     red: dict[str, float] = {}
     attr = {"robot:rot": "sigma_rot", "robot:trans": "sigma_trans", "robot:joint": "sigma_q"}
+    own = {"view:rot": 0, "view:trans": 1}  # the cameras' own poses of a view: st.view_sigma[i]
     for _ in range(rounds):
         solve_cell_graph(st, robust=False)
         H, parts = cell_information(st)
@@ -332,7 +356,7 @@ def _variance_components(st: CellState, rounds: int) -> tuple[dict[str, float], 
             if label == "dh" and not st.dh_scale_estimated:
                 continue
             # an iid prior's factor holds its other component at a huge sigma: 3 of its 6 rows count
-            n = rows // 2 if label in ("robot:rot", "robot:trans") else rows
+            n = rows // 2 if label in ("robot:rot", "robot:trans", "view:rot", "view:trans") else rows
             redundancy = n - float(np.sum(S * H_part))
             red[label] = redundancy
             if redundancy <= 1:
@@ -342,6 +366,12 @@ def _variance_components(st: CellState, rounds: int) -> tuple[dict[str, float], 
                 new = max(st.dh_scale * k, 1.0)
                 changed = max(changed, abs(new / st.dh_scale - 1))
                 st.dh_scale = new
+            elif label in own:
+                assert st.view_sigma is not None, "own poses come with their sigmas"
+                i = own[label]
+                new = max(st.view_sigma[i] * k, SIGMA_FLOOR)
+                changed = max(changed, abs(new / st.view_sigma[i] - 1))
+                st.view_sigma[i] = new
             elif label.startswith("pixels:"):
                 c = int(label.split(":")[1])
                 new = max(st.sigma_px[c] * k, SIGMA_FLOOR)
@@ -357,6 +387,45 @@ def _variance_components(st: CellState, rounds: int) -> tuple[dict[str, float], 
     solve_cell_graph(st, robust=False)
     H, _parts = cell_information(st)
     return red, _inverse(H)
+
+
+def _outlier_rounds(st: CellState, vce_rounds: int, readmitted: set[str]) -> tuple[dict[str, float], int]:
+    """Variance components and the view tests, round after round, until no robot pose or camera view is left out.
+
+    Returns (the components' redundancies, the solver's iterations); ``readmitted``: view ids whose robot pose
+    came back (never twice).
+    """
+    from .problem import cell_ordering, solve_cell_graph
+
+    red: dict[str, float] = {}
+    iterations = 0
+    for _round in range(max(1, st.o.max_outlier_rounds) + 1):
+        red, S = _variance_components(st, vce_rounds)
+        core = int(np.sum(cell_ordering(st)[1]))
+        worst, bad, again = view_tests(st, S, core)
+        log.debug("cell round %d: robot %s, views %s, again %s", _round, worst, bad, again)
+        again = [u for u in again if st.ids[u] not in readmitted]
+        if worst is None and not bad and not again:
+            break
+        for u in again:  # the cameras agree with its reported pose now (a bad image of one camera had pulled it)
+            readmitted.add(st.ids[u])
+            st.excluded.pop(st.ids[u])
+        # a view's disagreement is one camera's image when the others (with the reported pose) agree without it;
+        # else, when the cameras agree among themselves but not with the reported pose, the robot pose's
+        suspects = {st.cams[c].obs[j][0] for c, j, _i in bad} | ({worst[0]} if worst is not None else set())
+        images = [(c, j, i) for u in sorted(suspects) for c, j, i in lone_camera(st, u)]
+        if images:
+            bad = images
+        elif worst is not None:
+            u, _stat, info = worst
+            st.excluded[st.ids[u]] = {"reason": "every camera disagrees with the reported robot pose", **info}
+            bad = []
+        for c, j, info in bad:
+            u, obj, img, m = st.cams[c].obs[j]
+            st.cams[c].obs[j] = (u, obj, img, np.zeros_like(m))
+            st.camera_removed[(c, st.ids[u])] = {"reason": "this camera alone disagrees with the arm's pose", **info}
+        iterations += solve_cell_graph(st, robust=False)
+    return red, iterations
 
 
 def refine_cell(
@@ -386,34 +455,15 @@ def refine_cell(
         if vid in st.ids and st.kind != "none":
             st.excluded[vid] = {"reason": "excluded by most of the cameras' own refinements"}
     iterations = solve_cell_graph(st, robust=True)
-    red: dict[str, float] = {}
     readmitted: set[str] = set()
-    for _round in range(max(1, o.max_outlier_rounds) + 1):
-        red, S = _variance_components(st, vce_rounds)
-        core = int(np.sum(cell_ordering(st)[1]))
-        worst, bad, again = view_tests(st, S, core)
-        log.debug("cell round %d: robot %s, views %s, again %s", _round, worst, bad, again)
-        again = [u for u in again if st.ids[u] not in readmitted]
-        if worst is None and not bad and not again:
-            break
-        for u in again:  # the cameras agree with its reported pose now (a bad image of one camera had pulled it)
-            readmitted.add(st.ids[u])
-            st.excluded.pop(st.ids[u])
-        # a view's disagreement is one camera's image when the others (with the reported pose) agree without it;
-        # else, when the cameras agree among themselves but not with the reported pose, the robot pose's
-        suspects = {st.cams[c].obs[j][0] for c, j, _i in bad} | ({worst[0]} if worst is not None else set())
-        images = [(c, j, i) for u in sorted(suspects) for c, j, i in lone_camera(st, u)]
-        if images:
-            bad = images
-        elif worst is not None:
-            u, _stat, info = worst
-            st.excluded[st.ids[u]] = {"reason": "every camera disagrees with the reported robot pose", **info}
-            bad = []
-        for c, j, info in bad:
-            u, obj, img, m = st.cams[c].obs[j]
-            st.cams[c].obs[j] = (u, obj, img, np.zeros_like(m))
-            st.camera_removed[(c, st.ids[u])] = {"reason": "this camera alone disagrees with the arm's pose", **info}
-        iterations += solve_cell_graph(st, robust=False)
+    red, it = _outlier_rounds(st, vce_rounds, readmitted)
+    iterations += it
+    # the cameras' views of one robot pose, against each other: a camera-and-view effect the shared pose lacks
+    view_test = view_pose_test(st, float(refine_preset()["noise"]["view_pose_alpha"]))
+    if view_test.get("contradicted"):
+        st.view_sigma = np.array([view_test["start_rot_rad"], view_test["start_trans_m"]])
+        red, it = _outlier_rounds(st, vce_rounds, readmitted)
+        iterations += it
     for vid, why in st.excluded.items():  # how far the cameras put the arm from its reported pose, at the end
         u = st.ids.index(vid)
         xi = tangent_difference(st.reported[u], st.P[u])
@@ -490,4 +540,23 @@ def refine_cell(
         redundancy=red,
         iterations=iterations,
         seconds=time.perf_counter() - t0,
+        view_poses=_view_poses(st, view_test),
     )
+
+
+def _view_poses(st: CellState, test: dict[str, Any]) -> dict[str, Any]:
+    """The result's record of the cameras' own poses of shared views: the test, and the sigmas where estimated."""
+    if not test:
+        return {}
+    out: dict[str, Any] = {"test": test, "estimated": st.view_sigma is not None}
+    if st.view_sigma is not None:
+        own = st.own_poses()
+        dev = np.array([tangent_difference(st.P[u], st.Q[(c, u)]) for c, u in own]).reshape(-1, 6)
+        out.update(
+            sigma_rot_deg=float(np.degrees(st.view_sigma[0])),
+            sigma_trans_mm=float(1e3 * st.view_sigma[1]),
+            camera_views=len(own),
+            rms_rot_deg=float(np.degrees(np.sqrt(np.mean(dev[:, :3] ** 2)))) if own else 0.0,
+            rms_trans_mm=float(1e3 * np.sqrt(np.mean(dev[:, 3:] ** 2))) if own else 0.0,
+        )
+    return out

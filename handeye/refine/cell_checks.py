@@ -30,12 +30,13 @@ def _robot_test(st: CellState, S: np.ndarray, core: int, u: int) -> tuple[float,
     robot = st.robot_views()
     r = st.prior_residual(u)
     at = core + 6 * robot.index(u)
-    J = np.zeros((6, S.shape[0]))
-    J[:, at : at + 6] = np.eye(6)
+    idx = np.r_[at : at + 6]  # the rows of S the residual involves: the pose, and the DH offsets
+    J = np.eye(6)
     if st.m_dh and st.kin is not None:
-        J[:, core - st.m_dh : core] = -st.kin.J_dh[u]
+        idx = np.r_[idx, core - st.m_dh : core]
+        J = np.hstack([J, -st.kin.J_dh[u]])
     sign = 1.0 if st.ids[u] in st.excluded else -1.0
-    C = st.prior_cov(u) + sign * J @ S @ J.T
+    C = st.prior_cov(u) + sign * J @ S[np.ix_(idx, idx)] @ J.T
     if np.min(np.linalg.eigvalsh(C)) <= 0:
         C = st.prior_cov(u)
     stat = float(r @ np.linalg.solve(C, r))
@@ -152,3 +153,50 @@ def lone_camera(st: CellState, u: int) -> list[tuple[int, int, dict[str, float]]
                 (c, j, {"p_value": p, "rms_px": float(np.sqrt(np.mean(e**2))), "sigma_px": float(st.sigma_px[c])})
             )
     return found if len(found) == 1 else []
+
+
+def view_pose_test(st: CellState, alpha: float) -> dict[str, Any]:
+    """Do the cameras' views of one robot pose disagree beyond their pixel noise?
+
+    For each view that two or more cameras see (corners in use), with every X, board and intrinsics held: the
+    whitened corner residuals of one pose fitted to all its cameras (no robot prior) against those of each
+    camera's own pose. The reduction ``D`` has ``d1 = 6 (m - 1)`` degrees of freedom per view of ``m`` cameras,
+    the own fits' residual ``R`` leaves ``d2 = 2 n - 6 m``; ``F = (D / d1) / (R / d2)`` is tested at ``alpha``
+    (the pixel sigmas cancel). Also the start of the per-camera pose sigmas: the RMS rotation and translation
+    of the own poses about the shared one, per axis. {} when no view is shared.
+    """
+    from scipy.stats import f as f_dist
+
+    D = R = 0.0
+    d1 = d2 = 0
+    dev: list[np.ndarray] = []
+    for u in st.robot_views():
+        obs = _observations(st, u)
+        if len(obs) < 2:
+            continue
+        T = _fit_pose(st, u, obs, prior=False)
+        shared = sum(float(np.sum(_view_stat(st, c, j, T)[0] ** 2)) for c, j in obs)
+        own = 0.0
+        for c, j in obs:
+            T_c = _fit_pose(st, u, [(c, j)], prior=False)
+            r = _view_stat(st, c, j, T_c)[0]
+            own += float(np.sum(r**2))
+            d2 += r.size - 6
+            dev.append(tangent_difference(T, T_c))
+        D += max(shared - own, 0.0)
+        R += own
+        d1 += 6 * (len(obs) - 1)
+    if not d1 or d2 <= 0 or R <= 0:
+        return {}
+    F = (D / d1) / (R / d2)
+    p = float(f_dist.sf(F, d1, d2))
+    xi = np.array(dev)
+    return {
+        "statistic": float(F),
+        "dof": [d1, d2],
+        "p_value": p,
+        "alpha": float(alpha),
+        "contradicted": bool(p < alpha),
+        "start_rot_rad": float(np.sqrt(np.mean(xi[:, :3] ** 2))),
+        "start_trans_m": float(np.sqrt(np.mean(xi[:, 3:] ** 2))),
+    }

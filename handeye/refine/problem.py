@@ -188,10 +188,9 @@ class Problem(ProblemState):
     def core_prior(self) -> tuple[np.ndarray, np.ndarray]:
         """Information (c,c) and gradient of the priors on the core unknowns but the DH offsets.
 
-        Information (c,c) and gradient J^T W r (c,) at the current estimate of the priors on the core
-        unknowns but the DH offsets (the intrinsics prior of ``intrinsics="prior"`` and ``options.prior``), in
-        the core order of :meth:`pixel_linearisation`; the same terms as the graph's prior factors. The DH
-        offsets' prior, whose scale the noise estimation may change: :meth:`dh_prior_information`.
+        At the current estimate, gradient J^T W r (c,): the intrinsics prior of ``intrinsics="prior"`` and
+        ``options.prior``, in the core order of :meth:`pixel_linearisation`; the same terms as the graph's prior
+        factors. The DH offsets' prior, whose scale the noise estimation may change: :meth:`dh_prior_information`.
         """
         c = self.n_core
         H, g = np.zeros((c, c)), np.zeros(c)
@@ -296,8 +295,7 @@ def solve_pose_graph(
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Levenberg-Marquardt on ``T_x`` and ``T_board`` from measured camera -> target poses.
 
-    Levenberg-Marquardt on ``T_x`` and ``T_board`` from measured camera -> target poses (pose-only
-    views, :mod:`handeye.factors.pose`): ``M`` (n,4,4) the views' robot motions, ``T_cam_board`` (n,4,4)
+    Pose-only views (:mod:`handeye.factors.pose`): ``M`` (n,4,4) the views' robot motions, ``T_cam_board`` (n,4,4)
     the tracker's poses, ``covariances`` (n,6,6) each view's residual covariance (rotation [rad] first);
     ``prior_x`` (T_x (4,4), covariance (6,6)) an optional Gaussian prior on ``T_x``. Returns
     (T_x, T_board, iterations).
@@ -421,6 +419,11 @@ def _cell_key(kind: str, j: int) -> int:
     return int(gtsam.symbol(kind, j))
 
 
+def _own_key(c: int, u: int) -> int:
+    """Key of camera c's own pose of view u (``q``; :meth:`handeye.refine.cell.CellState.own_poses`)."""
+    return int(gtsam.symbol("q", c * 1_000_000 + u))
+
+
 def cell_ordering(st: Any) -> tuple[list[int], list[int]]:
     """(keys in the cell's core order, sizes): each camera's X then its free intrinsics, the boards, the DH offsets.
 
@@ -450,7 +453,8 @@ def build_cell_graph(
 
     ``labels`` (a list, filled): each factor's variance component, ``pixels:<c>`` camera c's reprojections,
     ``robot:rot`` / ``robot:trans`` (iid: one factor each) or ``robot:joint`` (kinematic) the robot priors,
-    ``dh`` the DH offsets' prior. ``robust``: Huber on the robot priors and the corners (guard solve).
+    ``dh`` the DH offsets' prior, ``view:rot`` / ``view:trans`` each camera's own pose of a view (``st.own_poses()``).
+    ``robust``: Huber on the robot priors and the corners (guard solve).
     """
     g = gtsam.NonlinearFactorGraph()
     v = gtsam.Values()
@@ -471,16 +475,20 @@ def build_cell_graph(
     for u in st.robot_views():
         v.insert(_cell_key("p", u), gtsam.Pose3(st.P[u]))
     robot_keyed = set(st.robot_views())
+    own = set(st.own_poses())
+    for c, u in own:
+        v.insert(_own_key(c, u), gtsam.Pose3(st.camera_pose(c, u)))
     for c, cam in enumerate(st.cams):
         for u, obj, img, mask in cam.obs:
             if not mask.any():
                 continue
+            key_r = _own_key(c, u) if (c, u) in own else _cell_key("p", u) if u in robot_keyed else None
             add(
                 view_reprojection_factor(
                     mode=cam.mode,
                     key_x=_cell_key("x", c),
                     key_board=_cell_key("b", cam.board),
-                    key_robot=_cell_key("p", u) if u in robot_keyed else None,
+                    key_robot=key_r,
                     key_intrinsics=_cell_key("k", c) if cam.free.size else None,
                     object_points=obj[mask],
                     image_points=img[mask],
@@ -522,6 +530,10 @@ def build_cell_graph(
             )
     if st.m_dh:
         add(gaussian_prior(key=_cell_key("d", 0), mean=np.zeros(st.m_dh), cov=st.dh_prior_cov), "dh")
+    for i, label in enumerate(("view:rot", "view:trans") if own else ()):  # camera c's own pose of view u:
+        noise = gtsam.noiseModel.Diagonal.Sigmas(np.where(np.arange(6) // 3 == i, st.view_sigma[i], big))
+        for c, u in own:  # Log(inv(P_u) · Q_cu) ~ N(0, s^2)
+            add(gtsam.BetweenFactorPose3(_cell_key("p", u), _own_key(c, u), gtsam.Pose3(), noise), label)
     return g, v
 
 
@@ -540,6 +552,7 @@ def solve_cell_graph(st: Any, *, robust: bool) -> int:
         st.dh = np.asarray(res.atVector(_cell_key("d", 0)), float).copy()
     for u in st.robot_views():
         st.P[u] = res.atPose3(_cell_key("p", u)).matrix()
+    st.Q.update({(c, u): res.atPose3(_own_key(c, u)).matrix() for c, u in st.own_poses()})
     return int(opt.iterations())
 
 
@@ -547,13 +560,13 @@ def cell_information(st: Any) -> tuple[np.ndarray, dict[str, tuple[np.ndarray, f
     """The cell's information matrix at the current estimate, and per variance component its part.
 
     (H (dense), {label: (its factors' information, their whitened squared residuals, their rows)}), from one
-    linearisation. Order: :func:`cell_ordering`'s core, then each robot pose of ``st.robot_views()`` (6 each).
+    linearisation. Order: :func:`cell_ordering`'s core, the poses of ``st.robot_views()``, ``st.own_poses()`` (6 each).
     """
     labels: list[str] = []
     g, v = build_cell_graph(st, labels=labels)
     keys, sizes = cell_ordering(st)
-    keys = keys + [_cell_key("p", u) for u in st.robot_views()]
-    sizes = sizes + [6] * len(st.robot_views())
+    poses = [_cell_key("p", u) for u in st.robot_views()] + [_own_key(c, u) for c, u in st.own_poses()]
+    keys, sizes = keys + poses, sizes + [6] * len(poses)
     start = np.r_[0, np.cumsum(sizes)]
     at = {k: np.arange(start[i], start[i + 1]) for i, k in enumerate(keys)}
     n = int(start[-1])
@@ -569,9 +582,8 @@ def cell_information(st: Any) -> tuple[np.ndarray, dict[str, tuple[np.ndarray, f
         for i in idx:
             f = lin.at(i)
             sub.push_back(f)
-            b = np.asarray(f.getb(), dtype=np.float64)  # type: ignore[attr-defined]  # a JacobianFactor
-            e += float(np.dot(b, b))
-            rows += b.size
+            e += 2.0 * float(g.at(i).error(v))  # whitened squared residual (no robust loss here)
+            rows += int(g.at(i).dim())
             present += [k for k in f.keys() if k not in present]
         ordering = gtsam.Ordering()
         present = [k for k in keys if k in set(present)]

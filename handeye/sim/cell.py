@@ -20,7 +20,7 @@ import numpy as np
 
 from ..camera import pixels_from_board_points
 from ..errors import ConfigError
-from ..frames import R_from_rotvec, inv_T, make_T
+from ..frames import R_from_rotvec, inv_T, make_T, se3_exp
 from ..mounting import mounting
 from .corners import CornerSession, _frozen, make_corner_session
 from .scenarios import board_center
@@ -63,11 +63,21 @@ def _visible(T_cam_board: np.ndarray, obj: np.ndarray, s: CornerSession) -> np.n
     return ok
 
 
-def _project(s: CornerSession, T_x: np.ndarray, T_board: np.ndarray, mode: str, rng, noise_px: float) -> CornerSession:
-    """The session of a camera at ``T_x`` seeing ``T_board`` through ``s``'s true robot poses."""
+def _project(
+    s: CornerSession, T_x: np.ndarray, T_board: np.ndarray, mode: str, rng, noise_px: float, jitter=(0.0, 0.0)
+) -> CornerSession:
+    """The session of a camera at ``T_x`` seeing ``T_board`` through ``s``'s true robot poses.
+
+    ``jitter`` (rad, m per axis): the camera sees each view's flange at ``T_base_end_true · Exp(delta)``, ``delta``
+    drawn per view (its own instant of a moving arm); the session's true poses stay the shared ones.
+    """
     mount = mounting(mode)
     obj = s.target.object_points()
-    T_cb = mount.predict_T_cam_board(T_x, T_board, s.T_base_end_true)
+    T_be = s.T_base_end_true
+    if any(jitter):
+        sd = np.repeat(np.asarray(jitter, float), 3)
+        T_be = np.stack([T @ se3_exp(rng.normal(0.0, 1.0, 6) * sd) for T in T_be])
+    T_cb = mount.predict_T_cam_board(T_x, T_board, T_be)
     seen = _visible(T_cb, obj, s)
     ids, pts = [], []
     for k in range(s.n_views):
@@ -145,9 +155,14 @@ def make_cell(
     noise_px: float = 0.3,
     robot_error: str = "kinematic",
     arm: str = "ur5e",
+    view_jitter: tuple[float, float] = (0.0, 0.0),
     **session_options,
 ) -> SimCell:
-    """A corner-level cell of ``n_cameras`` (2-4, :data:`LAYOUTS`) with ground truth; see the module docstring."""
+    """A corner-level cell of ``n_cameras`` (2-4, :data:`LAYOUTS`) with ground truth; see the module docstring.
+
+    ``view_jitter`` (deg, mm per axis): each fixed camera sees the flange of each view moved by its own draw of
+    that size (the arm seen at another instant by each camera); the wrist camera sees the view's true pose.
+    """
     if n_cameras not in LAYOUTS:
         raise ConfigError("a simulated cell has 2-4 cameras", expected="2, 3 or 4", received=str(n_cameras))
     wrist = make_corner_session(
@@ -182,7 +197,8 @@ def make_cell(
         else:
             T = next(it)
             assert T is not None, "checked above"
-            sessions.append(_project(wrist, T, T_end_board, mode, rng, noise_px))
+            jitter = (np.radians(view_jitter[0]), 1e-3 * view_jitter[1])
+            sessions.append(_project(wrist, T, T_end_board, mode, rng, noise_px, jitter))
     return SimCell(names=tuple(n for n, _m in layout), sessions=tuple(sessions))
 
 

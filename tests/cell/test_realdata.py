@@ -37,9 +37,10 @@ def test_the_board_mount_and_the_camera_pair_with_their_sigmas(ur3_cell):
     assert 0 < 1e3 * np.linalg.norm(sd[3:]) < 3.0 and 0 < np.degrees(np.linalg.norm(sd[:3])) < 0.5, sd
     pair = raw["camera_pairs"]["cam1/cam2"]
     assert pair["name"] == "T_cam1_cam2"
-    # the cameras are about 25 cm apart; the pair is known far better than either camera's X alone
+    # the cameras are about 25 cm apart; the pair is known far better than either camera's X alone (measured:
+    # 0.30 / 0.28 / 1.06 mm, 0.09 / 0.10 / 0.01 deg with each camera's own pose of a view)
     assert 200 < np.linalg.norm(pair["translation_mm"]) < 300
-    assert max(pair["sigma_trans_mm"]) < 1.0 and max(pair["sigma_rot_deg"]) < 0.1
+    assert max(pair["sigma_trans_mm"]) < 2.0 and max(pair["sigma_rot_deg"]) < 0.2
     for name in res.camera_names:
         s_pair = np.linalg.norm(pair["sigma_trans_mm"])
         assert s_pair < np.linalg.norm(raw["cameras"][name]["refinement"]["sigma_trans_mm"])
@@ -58,12 +59,18 @@ def test_the_swapped_poses_25_and_26_are_named_once_for_the_cell(ur3_cell):
 
 
 def test_each_cameras_solo_result_against_the_joint_one(ur3_cell):
-    """Measured (2026-12-06): the joint X of cam1 is 0.97 deg / 2.0 mm from its solo X (Mahalanobis 7.7 under
-    the solo covariance), cam2's 0.38 deg / 2.5 mm (4.2): a turn of each fixed camera about its own centre that
-    its principal point follows (cam1's cx moves 18 px), outside the solo 95 % regions; the cell names it."""
+    """Measured (2026-12-06): the two cameras' views of one arm pose disagree beyond their pixel noise (F test of
+    one pose per view, p ~ 1e-86); with each camera's own pose of a view about the shared one (sigma ~0.11 deg /
+    0.09 mm per axis, estimated) each joint X lies inside the 95 % region of its solo verdict covariance
+    (squared Mahalanobis 9.3 and 9.6; 25.2 and 13.3 with one shared pose per view, which turned cam1 by 0.97 deg
+    and moved its cx 18 px)."""
     res = ur3_cell.result
+    vp = res["refinement"]["view_poses"]
+    assert vp["test"]["contradicted"] and vp["test"]["p_value"] < 1e-20 and vp["estimated"], vp
+    assert 0.03 < vp["sigma_rot_deg"] < 0.3 and vp["sigma_trans_mm"] < 0.5, vp
+    assert [f["code"] for f in res["findings"]].count("cell_view_poses") == 1
     for name in ("cam1", "cam2"):
         a = res["cameras"][name]["refinement"]["solo"]["agreement"]
-        assert a["trans_mm"] < 5.0 and a["rot_deg"] < 1.5, a
+        assert a["inside_95"] and a["trans_mm"] < 5.0 and a["rot_deg"] < 1.0, a
         named = [f for f in res["findings"] if f["code"] == "cell_solo_disagrees" and f.get("camera") == name]
         assert bool(named) == (a["p_value"] < 0.01)
