@@ -59,6 +59,21 @@ def _fit_pairing(obs: PoseObservations, keep: np.ndarray, T: np.ndarray, invert:
         return None
 
 
+def signature_costs(sig_c: np.ndarray, sig_m: np.ndarray) -> np.ndarray:
+    """(N, P) mean distance from each value of the sorted row ``sig_c[i]`` to the nearest one of ``sig_m[p]``.
+
+    ``sig_c`` (N, K) and ``sig_m`` (P, L) have sorted rows. One binary search per value and row (O(N P K log
+    L), one numpy pass per ``p``) instead of all K x L differences per (i, p): a 300-view session took 12 s.
+    """
+    cost = np.empty((len(sig_c), len(sig_m)))
+    for p, row in enumerate(sig_m):
+        k = np.searchsorted(row, sig_c)  # shape (N, K): the first value of row >= each camera angle
+        below = row[np.maximum(k - 1, 0)]
+        above = row[np.minimum(k, len(row) - 1)]
+        cost[:, p] = np.mean(np.minimum(np.abs(sig_c - below), np.abs(sig_c - above)), axis=1)
+    return cost
+
+
 def _assignment_by_signature(obs: PoseObservations, fmt: PoseFormat, invert: bool) -> Optional[dict]:
     """Match images to poses by their sorted pair-rotation-angle signatures (a shuffled poses file).
 
@@ -78,15 +93,10 @@ def _assignment_by_signature(obs: PoseObservations, fmt: PoseFormat, invert: boo
         return pair_angles_deg(R, i.ravel(), j.ravel()).reshape(len(R), len(R))
 
     A_c, A_m = angles(obs.C[:, :3, :3]), angles(M_all[:, :3, :3])
-    sig_c = [np.sort(np.delete(A_c[i], i)) for i in range(obs.n)]
-    sig_m = [np.sort(np.delete(A_m[p], p)) for p in range(len(order))]
-    cost = np.empty((obs.n, len(order)))
-    for i in range(obs.n):
-        for p in range(len(order)):
-            # every camera angle must appear among the pose's angles (poses may have more views)
-            d = np.abs(sig_c[i][:, None] - sig_m[p][None, :]).min(axis=1)
-            cost[i, p] = float(np.mean(d))
-    r, c = linear_sum_assignment(cost)
+    sig_c = np.stack([np.sort(np.delete(A_c[i], i)) for i in range(obs.n)])  # shape (N, N - 1)
+    sig_m = np.stack([np.sort(np.delete(A_m[p], p)) for p in range(len(order))])  # shape (P, P - 1)
+    # every camera angle must appear among the pose's angles (poses may have more views)
+    r, c = linear_sum_assignment(signature_costs(sig_c, sig_m))
     return {obs.ids[i]: order[p] for i, p in zip(r, c, strict=False)}
 
 
