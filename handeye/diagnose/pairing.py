@@ -13,7 +13,7 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 from ..conventions import PoseFormat
-from .consistency import RobotPoseCheck
+from .consistency import RobotPoseCheck, split_candidates
 from .findings import Finding
 from .fits import fit_boards
 from .observations import PoseObservations
@@ -329,33 +329,45 @@ def _search_partial(obs: PoseObservations, fmt: PoseFormat, invert: bool) -> Opt
     in file order with two or more images before and after, the images before ``first`` keep their poses, and
     from ``first`` on each takes the pose s lines from its own; for s = -1 the image just before ``first``
     has no pose (left out). Returns (s, first, lone (the image without a pose, or None), fit, keep, keys),
-    the fit with the fewest unexplained views (then the lowest cost), or None.
+    the fit with the fewest unexplained views (then the lowest cost), or None. Above
+    :data:`~handeye.diagnose.consistency.SPLIT_SCAN_MAX` images the search is coarse to fine
+    (:func:`~handeye.diagnose.consistency.split_candidates`).
     """
     order = list(obs.raw.order)
     pos = {k: i for i, k in enumerate(order)}
     views = sorted((v for v in obs.ids if v in pos), key=pos.__getitem__)
-    best: Optional[tuple[Any, ...]] = None
-    best_key: Any = None
+
+    def ranked(shift: int, k: int):
+        first = views[k]
+        lone = views[k - 1] if shift < 0 else None
+        keys = {
+            v: order[pos[v] + shift] if pos[v] >= pos[first] else v
+            for v in views
+            if v != lone and 0 <= pos[v] + (shift if pos[v] >= pos[first] else 0) < len(order)
+        }
+        keep = np.array([v in keys for v in obs.ids])
+        T = read_poses(obs.raw, fmt, [keys[v] for v in obs.ids if v in keys])
+        if T is None or keep.sum() < 5:
+            return None
+        fit = _fit_pairing(obs, keep, T, invert)
+        if fit is None:
+            return None
+        return (_n_unexplained(fit), fit.cost), (shift, first, lone, fit, keep, keys)
+
+    # every image as the first one out of step, or coarse to fine above SPLIT_SCAN_MAX of them: the views
+    # unexplained grow with the distance from the true first one
+    lo, hi = 2, len(views) - 2
+    coarse, step = split_candidates(lo, hi)
+    found = []
     for shift in (1, -1):
-        for k in range(2, len(views) - 1):
-            first = views[k]
-            lone = views[k - 1] if shift < 0 else None
-            keys = {
-                v: order[pos[v] + shift] if pos[v] >= pos[first] else v
-                for v in views
-                if v != lone and 0 <= pos[v] + (shift if pos[v] >= pos[first] else 0) < len(order)
-            }
-            keep = np.array([v in keys for v in obs.ids])
-            T = read_poses(obs.raw, fmt, [keys[v] for v in obs.ids if v in keys])
-            if T is None or keep.sum() < 5:
-                continue
-            fit = _fit_pairing(obs, keep, T, invert)
-            if fit is None:
-                continue
-            rank = (_n_unexplained(fit), fit.cost)
-            if best is None or rank < best_key:
-                best, best_key = (shift, first, lone, fit, keep, keys), rank
-    return best
+        tried = {k: ranked(shift, k) for k in coarse}
+        if step > 1:
+            for kc in sorted((k for k in coarse if tried[k] is not None), key=lambda k: tried[k][0])[:2]:
+                for k in range(max(lo, kc - step + 1), min(hi, kc + step - 1) + 1):
+                    if k not in tried:
+                        tried[k] = ranked(shift, k)
+        found += [r for _, r in sorted(tried.items()) if r is not None]
+    return min(found, key=lambda r: r[0])[1] if found else None
 
 
 def _partial_shift_finding(obs: PoseObservations, found: tuple, given_cost: float) -> Finding:

@@ -1320,3 +1320,18 @@ def test_a_board_move_between_two_coarse_splits_of_a_large_session_is_placed_whe
     assert _codes(d) == {"board_moved"}
     f = _one(d, "board_moved")
     assert f["details"]["split_after_view"] == "101" and len(f["view_ids"]) == 49
+
+
+def test_a_pose_without_its_image_in_a_large_session_is_placed_where_it_happened(tmp_path, monkeypatch):
+    """100 views: the search for the first image out of step tries every second image, then every image near the
+    best; the stray pose line 42 (image 42 off that grid) is named with its line."""
+    cs = _session("eye_in_hand", 10, n_views=100)
+    v = _vals(cs.T_base_end_reported)
+    stray = pose_values_from_T(
+        cs.T_base_end_reported[2] @ T_from_rotvec([0.3, -0.2, 0.1], [0.05, 0.02, -0.03]), VENDOR_POSE_FORMAT
+    )
+    lines = v[:41] + [stray] + v[41:-1]  # pose line 42 belongs to no image; image 42 is line 43's
+    _, d = _diagnose(_write_vendor(tmp_path / "s", cs, lines), cs, monkeypatch)
+    f = _one(d, "pairs_shuffled")
+    assert f["details"]["partial_shift"] == 1 and f["details"]["shift_from_image"] == "42"
+    assert f["action"].startswith("delete pose line 42 of the pose file")
