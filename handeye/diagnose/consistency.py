@@ -365,11 +365,31 @@ def step_test(v: np.ndarray, labels: np.ndarray, use: np.ndarray) -> tuple[float
     return t2, float(fdtrc(6, nu - 5, F))
 
 
+#: the board-moved search fits every split of the sequence up to this many splits; above, every s-th split
+#: (s = ceil(splits / this)) and then every split within s of the two best of those, so its cost grows
+#: linearly with the views (a move's score grows with the views put on the wrong side of it)
+SPLIT_SCAN_MAX = 64
+
+
+def split_candidates(lo: int, hi: int) -> tuple[list[int], int]:
+    """(the coarse splits, the step s) of the board-moved search over the splits ``lo..hi`` (inclusive).
+
+    Every split when there are at most :data:`SPLIT_SCAN_MAX`; else every s-th one and the last.
+    """
+    ks = list(range(lo, hi + 1))
+    step = max(1, -(-len(ks) // SPLIT_SCAN_MAX))
+    coarse = ks[::step]
+    if ks and coarse[-1] != ks[-1]:
+        coarse.append(ks[-1])
+    return coarse, step
+
+
 def _split_fits(obs: PoseObservations, M: np.ndarray):
     """Best two-segment split of the view sequence (one board per segment, the lowest score), or None.
 
     Returns (single fit, its score, (split score, k, split fit, p-value)); the score is the sum of the
-    views' capped board deviations (small is good).
+    views' capped board deviations (small is good). Above :data:`SPLIT_SCAN_MAX` splits the search is
+    coarse to fine (:func:`split_candidates`).
     """
     th = thresholds()
     n, seg = obs.n, th.board_moved.min_segment
@@ -379,13 +399,13 @@ def _split_fits(obs: PoseObservations, M: np.ndarray):
     single = fit_boards(obs.C, M, motions=motions)
     d1 = single.view_costs()
     cap = 10.0 * max(float(np.median(d1)), 0.05)
-    best = None
-    for k in range(seg, n - seg + 1):
+
+    def scored(k: int):
         labels = (np.arange(n) >= k).astype(int)
         try:
             f = fit_boards(obs.C, M, labels=labels, motions=motions)
         except np.linalg.LinAlgError:
-            continue
+            return None
         d = f.view_costs()
         use = d <= max(3.0 * float(np.median(d)), 0.05)
         _, p = step_test(_board_deviations(f, obs.C, M), labels, use)
@@ -393,12 +413,20 @@ def _split_fits(obs: PoseObservations, M: np.ndarray):
         # where the board moved is the split that fits best (its views' capped deviations), not the one whose test,
         # run on its inliers, is the most significant: a view put on the wrong side is trimmed from the test, so a
         # split one view off can reach the same p (0 at a large move)
-        key = (score, p)
-        if best is None or key < best[0]:
-            best = (key, (score, k, f, p))
-    if best is None:
+        return (score, p), (score, k, f, p)
+
+    lo, hi = seg, n - seg
+    coarse, step = split_candidates(lo, hi)
+    tried = {k: scored(k) for k in coarse}
+    if step > 1:
+        for kc in sorted((k for k in coarse if tried[k] is not None), key=lambda k: tried[k][0])[:2]:
+            for k in range(max(lo, kc - step + 1), min(hi, kc + step - 1) + 1):
+                if k not in tried:
+                    tried[k] = scored(k)
+    found = [r for _, r in sorted(tried.items()) if r is not None]
+    if not found:
         return None
-    return single, float(np.sum(np.minimum(d1, cap))), best[1]
+    return single, float(np.sum(np.minimum(d1, cap))), min(found, key=lambda r: r[0])[1]
 
 
 def board_moved_findings(obs: PoseObservations, M: np.ndarray) -> tuple[list, Optional[BoardFit]]:

@@ -27,9 +27,62 @@ NOMINAL_ANGLE_SIGMA_DEG = 0.2
 NOMINAL_PITCH_SIGMA_MM = 2.0
 
 
+#: up to this many views the pair checks use every pair of views; above, each view is in this many pairs
+#: (:func:`view_pairs`), so their cost grows linearly with the views
+ALL_PAIRS_MAX_VIEWS = 60
+
+
 def all_pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
     """Index arrays (i, j) of all pairs i < j."""
     return np.triu_indices(int(n), 1)
+
+
+def pair_strides(n: int) -> np.ndarray:
+    """The sequence strides of :func:`view_pairs` for ``n`` views (sorted, distinct, below ``n / 2``).
+
+    ``ALL_PAIRS_MAX_VIEWS // 2`` strides: geometrically spaced from 1 (the neighbours, so a short segment
+    of the sequence has its own pairs) to about ``n / 2`` (views far apart in the sequence, so the
+    relative motions vary), filled up with the smallest strides not yet used.
+    """
+    n = int(n)
+    top = (n - 1) // 2
+    k = min(ALL_PAIRS_MAX_VIEWS // 2, top)
+    s = set(np.unique(np.round(np.geomspace(1, top, k)).astype(int)).tolist()) if k else set()
+    fill = (d for d in range(1, top + 1) if d not in s)
+    while len(s) < k:
+        s.add(next(fill))
+    return np.array(sorted(s), int)
+
+
+def view_pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Index arrays (i, j), i < j, of the view pairs the pair checks use.
+
+    Every pair up to :data:`ALL_PAIRS_MAX_VIEWS` views. Above, the pairs ``(v, v + d mod n)`` for the
+    strides ``d`` of :func:`pair_strides`: ``n * ALL_PAIRS_MAX_VIEWS // 2`` distinct pairs, each view in
+    ``ALL_PAIRS_MAX_VIEWS`` of them (so every view is still tested against many others), chosen from the
+    view count alone (deterministic). Sorted like :func:`all_pairs` (by i, then j).
+    """
+    n = int(n)
+    if n <= ALL_PAIRS_MAX_VIEWS:
+        return all_pairs(n)
+    v = np.arange(n)
+    a = np.repeat(v, len(strides := pair_strides(n)))
+    b = (a + np.tile(strides, n)) % n
+    i, j = np.minimum(a, b), np.maximum(a, b)
+    order = np.lexsort((j, i))
+    return i[order], j[order]
+
+
+def pairs_text(n: int, *, all_text: str = "") -> str:
+    """The view pairs :func:`view_pairs` uses for ``n`` views, in words (for findings).
+
+    ``190 view pairs`` when they are all the pairs (or ``all_text`` when given), ``15000 view pairs (60
+    per view)`` when they are a subset.
+    """
+    p = len(view_pairs(n)[0])
+    if p == n * (n - 1) // 2:
+        return all_text or f"{p} view pairs"
+    return f"{p} view pairs ({2 * p // max(n, 1)} per view)"
 
 
 @dataclass(frozen=True)
@@ -55,9 +108,9 @@ class CameraPairs:
 
 
 def camera_pairs(C: np.ndarray, pairs: tuple | None = None) -> CameraPairs:
-    """:class:`CameraPairs` of the board poses ``C`` (N,4,4) for the given pairs (default: all pairs i < j)."""
+    """:class:`CameraPairs` of the board poses ``C`` (N,4,4) for the given pairs (default: :func:`view_pairs`)."""
     C = np.asarray(C, float)
-    i, j = all_pairs(len(C)) if pairs is None else (np.asarray(pairs[0]), np.asarray(pairs[1]))
+    i, j = view_pairs(len(C)) if pairs is None else (np.asarray(pairs[0]), np.asarray(pairs[1]))
     rc = C[i] @ inv_T(C)[j]
     return CameraPairs(i, j, rc, rotvec_from_R(rc[:, :3, :3]))
 
@@ -148,9 +201,13 @@ class PairMotions:
         return self.terms.sum(axis=0)
 
     @cached_property
+    def _n_views(self) -> int:
+        return int(self.j.max()) + 1 if len(self.j) else 0
+
+    @cached_property
     def _per_view(self) -> tuple[np.ndarray, np.ndarray]:
         """(n+1, 61) twice: sums of the pairs with ``j < k`` and of those with ``i >= k``, for every k."""
-        n = int(self.j.max()) + 1
+        n = self._n_views
         by_i, by_j = np.zeros((n, self.terms.shape[1])), np.zeros((n, self.terms.shape[1]))
         np.add.at(by_i, self.i, self.terms)
         np.add.at(by_j, self.j, self.terms)
@@ -161,26 +218,28 @@ class PairMotions:
         )
 
     @cached_property
-    def _pair_index(self) -> np.ndarray:
-        """(n, n) index of the pair of views (a, b) in either order (-1 on the diagonal)."""
-        n = int(self.j.max()) + 1
-        idx = np.full((n, n), -1)
-        idx[self.i, self.j] = idx[self.j, self.i] = np.arange(len(self.i))
-        return idx
+    def _rows_of_view(self) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, start (n+1,)): the pairs view v is in (as i or j) are ``rows[start[v]:start[v + 1]]``."""
+        views = np.concatenate([self.i, self.j])
+        rows = np.tile(np.arange(len(self.i)), 2)
+        order = np.argsort(views, kind="stable")
+        start = np.searchsorted(views[order], np.arange(self._n_views + 1))
+        return rows[order], start
 
     def group_sums(self, labels: np.ndarray, use: np.ndarray) -> np.ndarray:
         """(61,) the :attr:`terms` summed over the pairs of views in one group.
 
         (61,) the :attr:`terms` summed over the pairs of views in one group (same ``labels``) that are both
-        in ``use`` (bool (n,)), for motions of all pairs i < j. Equal to ``sums(same_group & use[i] & use[j])``
-        but cheap for what the fits ask most: one group or a split of the sequence in two (from running sums)
-        with a few views left out (the pairs they are in subtracted).
+        in ``use`` (bool (n,)). Equal to ``sums(same_group & use[i] & use[j])`` but cheap for what the fits
+        ask most: one group or a split of the sequence in two (from running sums) with a few views left out
+        (the pairs they are in subtracted); any pair set that covers the n views (all pairs or
+        :func:`view_pairs`).
         """
         labels, use = np.asarray(labels), np.asarray(use, bool)
         n = len(labels)
         same = labels[self.i] == labels[self.j]
         out_views = np.flatnonzero(~use)
-        if 4 * len(out_views) > n or 2 * len(self.i) != n * (n - 1):  # many left out, or not all pairs
+        if 4 * len(out_views) > n or self._n_views != n:  # many left out, or pairs of other views
             return self.sums(same & use[self.i] & use[self.j])
         k = int(np.searchsorted(labels, labels[-1]))  # first view of the last group
         if labels[0] == labels[-1]:
@@ -192,15 +251,15 @@ class PairMotions:
             return self.sums(same & use[self.i] & use[self.j])
         if not len(out_views):
             return base
-        rows = self._pair_index[out_views].ravel()
-        rows = np.unique(rows[rows >= 0])
+        rows_of, start = self._rows_of_view
+        rows = np.unique(np.concatenate([rows_of[start[v] : start[v + 1]] for v in out_views]))
         return base - self.terms[rows[same[rows]]].sum(axis=0)
 
 
 def pair_motions(
     C: np.ndarray, M: np.ndarray, pairs: tuple | None = None, *, camera: CameraPairs | None = None
 ) -> PairMotions:
-    """The relative motions of the given pairs (default: all pairs i < j).
+    """The relative motions of the given pairs (default: :func:`view_pairs`).
 
     ``camera``: :func:`camera_pairs` of ``C`` for these pairs, shared by several ``M``.
     """

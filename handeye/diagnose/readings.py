@@ -22,7 +22,7 @@ from ..mounting import mounting
 from ..session.raw import RawPoses
 from .findings import Finding, ids_text
 from .fits import BoardFit, fit_boards
-from .geometry import all_pairs, camera_pairs, pair_invariants, pair_motions, summarize_invariants
+from .geometry import camera_pairs, pair_invariants, pair_motions, pairs_text, summarize_invariants, view_pairs
 from .observations import PoseObservations
 from .thresholds import thresholds
 
@@ -166,7 +166,7 @@ def evaluate_readings(obs: PoseObservations) -> list[Reading]:
     # of inversion and of the mounting mode), each with its own ordering of a symmetric board's views
     rot_score: dict = {}
     ordered: dict = {}  # rotation key -> (C (N,4,4), orientation labels or None)
-    pi, pj = all_pairs(obs.n)
+    pi, pj = view_pairs(obs.n)
     ang_c0 = pair_angles_deg(obs.C[:, :3, :3], pi, pj)
     for fmt, _ in alts:
         key = replace(fmt, translation_unit=fmt0.translation_unit)
@@ -278,7 +278,7 @@ def pitch_scale(obs: PoseObservations, fmt_read: PoseFormat, fmt_true: PoseForma
     if T is None:
         return None
     M = obs.M(T)
-    i, j = all_pairs(obs.n)
+    i, j = view_pairs(obs.n)
     _, pc = screw_invariants(obs.C[i] @ inv_T(obs.C[j]))
     a, pm = screw_invariants(M[i] @ inv_T(M[j]))
     ok = (a > np.radians(12)) & (a < np.radians(165)) & (np.abs(pm) > 1e-9)
@@ -313,7 +313,7 @@ def reading_findings(obs: PoseObservations, readings: Sequence[Reading], *, sess
     ev = (
         f"as given ({given.describe()}): the board implied by each view scatters by {given.fit.median_rot_deg:.2f} deg"
         f" / {given.fit.median_trans_mm:.1f} mm (median), robot and camera rotation angles differ by "
-        f"{given.angle_res_deg:.2f} deg (median over {obs.n * (obs.n - 1) // 2} view pairs); read as "
+        f"{given.angle_res_deg:.2f} deg (median over {pairs_text(obs.n)}); read as "
         f"{best.describe()}: {best.fit.median_rot_deg:.3f} deg / {best.fit.median_trans_mm:.2f} mm, "
         f"{best.angle_res_deg:.3f} deg (cost {best.fit.cost:.2f} against {given.fit.cost:.1f} as given: "
         f"{given.fit.cost / max(best.fit.cost, 1e-9):.0f} x better)"

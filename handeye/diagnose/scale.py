@@ -18,7 +18,7 @@ import numpy as np
 
 from .findings import Finding
 from .fits import fit_boards
-from .geometry import pair_motions, rotation_from_sums, solve_from_sums
+from .geometry import pair_motions, pairs_text, rotation_from_sums, solve_from_sums
 from .thresholds import thresholds
 
 __all__ = ["ScaleEstimate", "estimate_scale", "scale_findings", "stated_length_m", "x_shift_sigmas"]
@@ -162,13 +162,18 @@ def is_scale_wrong(est: Optional[ScaleEstimate], cov_x_trans_m2: Optional[np.nda
     return est.p_value() < thresholds().scale.p_value and x_shift_sigmas(est, cov_x_trans_m2) > 1.0
 
 
+def _pairs(est: ScaleEstimate) -> str:
+    """The view pairs of the estimate's closed form, in words."""
+    return pairs_text(est.n_views, all_text="all view pairs")
+
+
 def _mirrored_finding(est: ScaleEstimate) -> Finding:
     return Finding(
         "images_mirrored",
         "fail",
         "The images are mirrored (the camera moves opposite to the robot)",
         f"the camera's motions are {est.k:.4f} ± {est.sigma:.4f} x the robot's once both are compared in one frame "
-        f"(closed form over all view pairs of {est.n_views} views, jackknife sigma; p = "
+        f"(closed form over {_pairs(est)} of {est.n_views} views, jackknife sigma; p = "
         f"{est.p_value(against=0.0):.1e} against 0): a negative scale, which no square size gives; a mirrored "
         "image (left-right or up-down) does, the board then fits seen from behind",
         "turn off the mirror / flip setting of the camera or its driver and capture again, or flip every image "
@@ -194,7 +199,7 @@ def _unexplained_scale_finding(est: ScaleEstimate, noun: str, L: float) -> Findi
         "scale_unexplained",
         "fail",
         f"The camera's motions are {est.k:.4g} x the robot's: no printable board size explains that",
-        f"closed form over all view pairs of {est.n_views} views: k = {est.k:.4g} ± {est.sigma:.2g} (jackknife), p = "
+        f"closed form over {_pairs(est)} of {est.n_views} views: k = {est.k:.4g} ± {est.sigma:.2g} (jackknife), p = "
         f"{est.p_value():.1e} against 1; the stated {noun} ({1e3 * L:g} mm) would have to be {1e3 * L * est.k:.4g} "
         "mm, which is no board",
         "check the unit of the robot translations (pose_format translation_unit: m | cm | mm) and that each pose "
@@ -210,7 +215,7 @@ def _tracker_scale_finding(est: ScaleEstimate) -> Finding:
         "fail",
         f"The tracker's translations are {1.0 / est.k:.4f} x the robot's",
         f"the robot's motions are {est.k:.4f} ± {est.sigma:.4f} x the tracker's once both are compared in one "
-        f"frame (closed form over all view pairs of {est.n_views} views, jackknife sigma; 1 is {est.z:.0f} sigma "
+        f"frame (closed form over {_pairs(est)} of {est.n_views} views, jackknife sigma; 1 is {est.z:.0f} sigma "
         f"away, p = {est.p_value():.1e}): every target translation the tracker reports is scaled",
         f"a marker tracker scales its translations with the marker size it is given: multiply that size by "
         f"{est.k:.4f} and track again; or calibrate with --estimate-scale (estimate_scale: true in session.yaml), "
@@ -260,7 +265,7 @@ def scale_findings(obs, fit, M: np.ndarray, *, refined=None) -> tuple[list, Opti
         return [_unexplained_scale_finding(est, noun, L)], est
     ev = (
         f"the camera's motions are {est.k:.4f} ± {est.sigma:.4f} x the robot's once both are compared in one "
-        f"frame (closed form over all view pairs of {est.n_views} views, jackknife sigma; 1 is "
+        f"frame (closed form over {_pairs(est)} of {est.n_views} views, jackknife sigma; 1 is "
         f"{est.z:.0f} sigma away, p = {est.p_value():.1e}): {noun} of {true_mm:.2f} ± {sig_mm:.2f} mm; with "
         f"that size the board implied by each view scatters by {rescaled_fit.median_trans_mm:.2f} mm instead of "
         f"{as_stated.median_trans_mm:.2f} mm (median); between the two sizes the closed-form hand-eye translation "

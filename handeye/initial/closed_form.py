@@ -36,26 +36,54 @@ ROBOT_WORLD_METHODS = {
     "li": cv2.CALIB_ROBOT_WORLD_HAND_EYE_LI,
 }
 METHODS = METHOD_NAMES
+#: OpenCV's hand-eye methods (``HAND_EYE_METHODS``) use every pair of the views they are given: their cost grows
+#: with the square of the views. Above this many views they get a subset spread over the robot rotations
+#: (:func:`spread_views`); the robot-world methods, linear in the views, always get every view.
+MAX_PAIRED_VIEWS = 60
 if METHODS != tuple(HAND_EYE_METHODS) + tuple(ROBOT_WORLD_METHODS):  # pragma: no cover - a programming error
     raise ImportError("records.METHOD_NAMES and the OpenCV method tables are out of step")
+
+
+def spread_views(M: np.ndarray, k: int) -> np.ndarray:
+    """Sorted indices of ``k`` of the robot motions ``M`` (N,4,4) spread over their rotations.
+
+    Farthest-point sampling on the rotations (chordal distance ``|R_i - R_j|``), from the first view on,
+    ties to the earliest view: deterministic, O(N k), and the chosen views' pairs have the large, varied
+    relative rotations that condition the hand-eye solve. All views when ``k >= N``.
+    """
+    M = np.asarray(M, float)
+    n = len(M)
+    if k >= n:
+        return np.arange(n)
+    R = M[:, :3, :3].reshape(n, 9)
+    chosen = [0]
+    d2 = np.sum((R - R[0]) ** 2, axis=1)  # squared chordal distance to the nearest chosen view
+    for _ in range(1, max(int(k), 1)):
+        c = int(np.argmax(d2))
+        chosen.append(c)
+        d2 = np.minimum(d2, np.sum((R - R[c]) ** 2, axis=1))
+    return np.sort(np.asarray(chosen))
 
 
 def solve_closed_form(mode: MountingMode, C: np.ndarray, M: np.ndarray, *, method: str = "tsai") -> HandEyeEstimate:
     """One OpenCV closed-form solve of ``C_i = A · M_i · B`` for either mounting mode.
 
     ``C`` (N,4,4) board poses ``T_cam_board_i``; ``M`` (N,4,4) robot motions from
-    ``mode.M_from_T_base_end``. Returns X (``T_end_cam``/``T_base_cam``) and the board transform.
+    ``mode.M_from_T_base_end``. Returns X (``T_end_cam``/``T_base_cam``) and the board transform. A
+    hand-eye method sees at most :data:`MAX_PAIRED_VIEWS` views (:func:`spread_views`), so its cost stays
+    bounded; the board transform is then the mean over every view.
     """
     method = method.lower()
     if method not in METHODS:
         raise CalibrationError(f"unknown method {method!r}", expected=" | ".join(METHODS), code="unknown_method")
     if method in HAND_EYE_METHODS:
-        G = inv_T(M)  # "gripper2base"
+        sub = spread_views(M, MAX_PAIRED_VIEWS)
+        G = inv_T(M[sub])  # "gripper2base"
         R, t = cv2.calibrateHandEye(
             list(G[:, :3, :3]),
             list(G[:, :3, 3]),
-            list(C[:, :3, :3]),
-            list(C[:, :3, 3]),
+            list(C[sub, :3, :3]),
+            list(C[sub, :3, 3]),
             method=HAND_EYE_METHODS[method],
         )
         X = make_T(R, t.reshape(3))  # "cam2gripper" = inv(A)
@@ -94,8 +122,8 @@ def solve_closed_form(mode: MountingMode, C: np.ndarray, M: np.ndarray, *, metho
 def all_methods(mode: MountingMode, C: np.ndarray, M: np.ndarray) -> dict[str, HandEyeEstimate]:
     """Every OpenCV closed-form method; a method that raises is recorded as failed.
 
-    The methods run on up to one thread per usable core: OpenCV releases the GIL, and its solvers use
-    every pair of views, so at hundreds of views they are seconds each.
+    The methods run on up to one thread per usable core: OpenCV releases the GIL. The hand-eye methods use
+    every pair of the views they get, at most :data:`MAX_PAIRED_VIEWS` (tens of milliseconds each).
     """
 
     def one(m: str) -> HandEyeEstimate:

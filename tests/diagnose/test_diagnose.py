@@ -1280,3 +1280,58 @@ def test_shared_camera_pairs_give_the_same_numbers():
     assert np.array_equal(cam.screws[0], ang) and np.array_equal(cam.screws[1], pitch)
     sub = camera_pairs(C, (np.array([0, 3]), np.array([5, 7])))
     assert sub.rc.shape == (2, 4, 4) and np.allclose(sub.rc[1], C[3] @ inv_T(C[7]))
+
+
+# ------------------------------------------------------------------------------ large sessions (linear pair sets)
+def test_the_split_search_is_exhaustive_when_small_and_coarse_to_fine_when_large():
+    from handeye.diagnose.consistency import SPLIT_SCAN_MAX, split_candidates
+
+    assert split_candidates(3, 17) == (list(range(3, 18)), 1)  # 20 views: every split, as before
+    coarse, step = split_candidates(3, 497)  # 500 views
+    assert step == 8 and len(coarse) <= SPLIT_SCAN_MAX + 1 and coarse[0] == 3 and coarse[-1] == 497
+
+
+def test_a_bad_view_in_a_300_view_session_is_named(tmp_path, monkeypatch):
+    """Above 60 views the pair checks use 30 pairs per view: the two views with a gross robot pose error are still
+    named with their size, and nothing else is found."""
+    cs = _session("eye_in_hand", 13, n_views=300, outlier_views=2)
+    _, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch)
+    assert _codes(d) == {"robot_pose_disagrees"}
+    f = _one(d, "robot_pose_disagrees")
+    assert set(f["view_ids"]) == set(cs.outlier_view_ids)
+    for v in cs.outlier_view_ids:
+        true_rot_deg, true_trans_mm = pose_error(cs.T_base_end_true[cs.index(v)], cs.T_base_end_reported[cs.index(v)])
+        got = f["details"]["per_view"][v]
+        tol_deg, tol_mm = 4 * f["details"]["inlier_median_deg"], 4 * f["details"]["inlier_median_mm"]
+        assert abs(got["rot_deg"] - true_rot_deg) < tol_deg and abs(got["trans_mm"] - true_trans_mm) < tol_mm, got
+
+
+def test_a_board_move_between_two_coarse_splits_of_a_large_session_is_placed_where_it_happened(tmp_path, monkeypatch):
+    """150 views: the search tries every third split, then every split near the best; the move before view 102
+    (off that grid) is placed there."""
+    cs = _session("eye_in_hand", 15, n_views=150)
+    mount = mounting("eye_in_hand")
+    T = cs.T_base_end_reported.copy()
+    move = T_from_rotvec(np.radians([0.0, 0.0, 1.0]), [0.008, 0.004, 0.0])
+    B = cs.T_board_true
+    for k in range(101, cs.n_views):  # the board moved by `move` from view 102 on
+        T[k] = mount.T_base_end_from_M(mount.M_from_T_base_end(T[k]) @ B @ move @ inv_T(B))
+    _, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(T)), cs, monkeypatch)
+    assert _codes(d) == {"board_moved"}
+    f = _one(d, "board_moved")
+    assert f["details"]["split_after_view"] == "101" and len(f["view_ids"]) == 49
+
+
+def test_a_pose_without_its_image_in_a_large_session_is_placed_where_it_happened(tmp_path, monkeypatch):
+    """100 views: the search for the first image out of step tries every second image, then every image near the
+    best; the stray pose line 42 (image 42 off that grid) is named with its line."""
+    cs = _session("eye_in_hand", 10, n_views=100)
+    v = _vals(cs.T_base_end_reported)
+    stray = pose_values_from_T(
+        cs.T_base_end_reported[2] @ T_from_rotvec([0.3, -0.2, 0.1], [0.05, 0.02, -0.03]), VENDOR_POSE_FORMAT
+    )
+    lines = v[:41] + [stray] + v[41:-1]  # pose line 42 belongs to no image; image 42 is line 43's
+    _, d = _diagnose(_write_vendor(tmp_path / "s", cs, lines), cs, monkeypatch)
+    f = _one(d, "pairs_shuffled")
+    assert f["details"]["partial_shift"] == 1 and f["details"]["shift_from_image"] == "42"
+    assert f["action"].startswith("delete pose line 42 of the pose file")
