@@ -12,7 +12,7 @@ See docs/refinement.md.
 from __future__ import annotations
 
 import functools
-from typing import Any, Optional
+from typing import Any, Optional, Sequence
 
 import gtsam
 import numpy as np
@@ -27,7 +27,7 @@ from handeye.factors.gtsam_factors import (
 )
 
 from ..frames import tangent_difference, tangent_jacobian
-from .covariance import N_POSES, arrow_blocks, arrow_solve, robot_residual_covariances
+from .covariance import N_POSES, arrow_blocks, arrow_from_jacobians, arrow_solve, robot_residual_covariances
 from .options import refine_preset
 from .state import PixelLinearisation, ProblemState
 
@@ -66,12 +66,12 @@ class Problem(ProblemState):
 
     # -- graph
     def build(
-        self, *, robust: bool, pixel_only: bool = False
+        self, *, robust: bool, pixel_only: bool = False, reprojection: bool = True
     ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, int]]:
         """Graph and Values of the current problem.
 
         ``pixel_only`` keeps only the reprojection factors, with unit pixel sigma (for the
-        variance-component estimation).
+        variance-component estimation); ``reprojection=False`` leaves them out (every other factor).
         """
         g = gtsam.NonlinearFactorGraph()
         v = gtsam.Values()
@@ -91,23 +91,24 @@ class Problem(ProblemState):
                 v.insert(key_r, gtsam.Pose3(self.P[i]))
                 robot_keys[i] = key_r
             m = self.mask[i]
-            g.add(
-                view_reprojection_factor(
-                    mode=self.mode,
-                    key_x=KEY_X,
-                    key_board=KEY_BOARD,
-                    key_robot=key_r,
-                    key_intrinsics=key_k,
-                    object_points=self.obj[i][m],
-                    image_points=self.img[i][m],
-                    sigma_px=1.0 if pixel_only else self.sigma_px,
-                    intrinsics_vec=self.k,
-                    free_intrinsics=self.free,
-                    T_base_end=self.reported[i],
-                    loss=self.o.loss if robust else "none",
-                    loss_k=self.o.loss_k,
+            if reprojection:
+                g.add(
+                    view_reprojection_factor(
+                        mode=self.mode,
+                        key_x=KEY_X,
+                        key_board=KEY_BOARD,
+                        key_robot=key_r,
+                        key_intrinsics=key_k,
+                        object_points=self.obj[i][m],
+                        image_points=self.img[i][m],
+                        sigma_px=1.0 if pixel_only else self.sigma_px,
+                        intrinsics_vec=self.k,
+                        free_intrinsics=self.free,
+                        T_base_end=self.reported[i],
+                        loss=self.o.loss if robust else "none",
+                        loss_k=self.o.loss_k,
+                    )
                 )
-            )
             if key_r is not None and self.status[i] == "used" and not pixel_only:
                 robust_k = self.robot_prior_k if robust and self.o.loss != "none" else None
                 if self.kin is None:
@@ -250,6 +251,15 @@ class Problem(ProblemState):
         if self.m_dh:
             self.S_dd = S_cc[self.dh_slice, self.dh_slice].copy()
         return S_cc, dict(zip(idx_p, S_u, strict=False))
+
+    def prior_blocks(self, robot_views: Sequence[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+        """Gauss-Newton blocks of every factor but the reprojections (Gaussian); robot blocks ``robot_views``."""
+        g, v, robot_keys = self.build(robust=False, reprojection=False)
+        keys = (KEY_X, KEY_BOARD, KEY_INTRINSICS, KEY_DH)
+        at = dict(zip(keys, ((0, 6), (6, 6), (N_POSES, self.free.size), (self.dh_slice.start, self.m_dh)), strict=True))
+        at.update({robot_keys[i]: (-1 - j, 6) for j, i in enumerate(robot_views)})
+        lin = ((*g.at(f).linearize(v).jacobian(), [at[k] for k in g.at(f).keys()]) for f in range(g.size()))
+        return arrow_from_jacobians(lin, self.n_core, len(robot_views))
 
     def pixel_linearisation(self) -> PixelLinearisation:
         """Unit-sigma information of the reprojection factors alone at the current estimate."""
