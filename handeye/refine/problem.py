@@ -29,7 +29,7 @@ from handeye.factors.gtsam_factors import (
 from ..frames import tangent_difference, tangent_jacobian
 from .covariance import N_POSES, arrow_blocks, arrow_from_jacobians, arrow_solve, robot_residual_covariances
 from .options import refine_preset
-from .state import PixelLinearisation, ProblemState
+from .state import ProblemState
 
 KEY_X = gtsam.symbol("x", 0)
 KEY_BOARD = gtsam.symbol("b", 0)
@@ -226,10 +226,10 @@ class Problem(ProblemState):
         return H, g
 
     # -- information
-    def _ordering(self, robot_keys: dict[int, int], *, with_dh: bool = True) -> gtsam.Ordering:
+    def _ordering(self, robot_keys: dict[int, int]) -> gtsam.Ordering:
         ordering = gtsam.Ordering()
         keys = [KEY_X, KEY_BOARD] + ([KEY_INTRINSICS] if self.free.size else [])
-        keys += [KEY_DH] if self.m_dh and with_dh else []
+        keys += [KEY_DH] if self.m_dh else []
         for k in keys + [robot_keys[i] for i in sorted(robot_keys)]:
             ordering.push_back(k)
         return ordering
@@ -260,36 +260,6 @@ class Problem(ProblemState):
         at.update({robot_keys[i]: (-1 - j, 6) for j, i in enumerate(robot_views)})
         lin = ((*g.at(f).linearize(v).jacobian(), [at[k] for k in g.at(f).keys()]) for f in range(g.size()))
         return arrow_from_jacobians(lin, self.n_core, len(robot_views))
-
-    def pixel_linearisation(self) -> PixelLinearisation:
-        """Unit-sigma information of the reprojection factors alone at the current estimate."""
-        g, v, robot_keys = self.build(robust=False, pixel_only=True)
-        H, eta = g.linearize(v).hessian(self._ordering(robot_keys, with_dh=False))
-        idx_p = sorted(robot_keys)
-        c = self.n_core
-        c_pix = c - self.m_dh  # the reprojections do not involve the DH offsets: zero rows for them
-        e = self.used_corner_residuals()
-        prior = np.array([self.robot_var and self.status[i] == "used" for i in idx_p], bool)
-        Hcc0, Hcp0, Hpp = arrow_blocks(H, c_pix, len(idx_p))
-        Hcc = np.zeros((c, c))
-        Hcc[:c_pix, :c_pix] = Hcc0
-        Hcp = np.zeros((len(idx_p), c, 6))
-        Hcp[:, :c_pix] = Hcp0
-        g0 = -np.asarray(eta).reshape(-1)
-        grad = np.concatenate([g0[:c_pix], np.zeros(self.m_dh), g0[c_pix:]])
-        return PixelLinearisation(
-            Hcc=Hcc,
-            Hcp=Hcp,
-            Hpp=Hpp,
-            g=grad,
-            rr=float(np.sum(e * e)),
-            n_obs=int(e.size),
-            prior=prior,
-            xi=self.prior_residuals(idx_p),
-            c=c,
-            robot_views=tuple(idx_p),
-            J_dh=self.J_dh(idx_p),
-        )
 
 
 # ------------------------------------------------------------------------------ pose-only views

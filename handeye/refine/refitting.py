@@ -6,7 +6,7 @@ measures how the estimate moves without some views, not how noise estimation and
 would redo themselves on fewer data. :class:`Refitter` solves many folds of one result: each view's
 reprojections are linearised once at the full solution and every fold's first Gauss-Newton step is
 summed from them; the steps after it re-linearise the fold's views in numpy, until the last step is a
-negligible share of every sigma (``solver.refit_step_tol``), else Levenberg-Marquardt solves the fold.
+negligible share of every sigma (:mod:`.gauss_newton`), else Levenberg-Marquardt solves the fold.
 
 See docs/refinement.md.
 """
@@ -21,9 +21,11 @@ import numpy as np
 
 from ..camera import Intrinsics
 from ..errors import InputError
-from .covariance import N_POSES, arrow_solve
-from .options import RefineView, check_inputs, refine_preset
+from .covariance import N_POSES
+from .gauss_newton import NoGaussNewton, gauss_newton
+from .options import RefineView, check_inputs
 from .result import RefineResult
+from .state import ReprojectionBlocks
 
 if TYPE_CHECKING:
     from .problem import Problem
@@ -65,10 +67,6 @@ def refit(
     ``cov_intrinsics``; None when the information matrix cannot be inverted).
     """
     return Refitter(result, object_points=object_points, views=views).refit(views, covariance=covariance)
-
-
-class _NoGaussNewton(Exception):
-    """The Gauss-Newton steps of a refit did not settle: Levenberg-Marquardt solves it."""
 
 
 class Refitter:
@@ -130,7 +128,7 @@ class Refitter:
             opts = replace(opts, dh_sigma_mm=float(sd["length_mm"]), dh_sigma_deg=float(sd["angle_deg"]))
         self.options = opts
         # per view id: its reprojection blocks (ReprojectionBlocks fields, one view) at the full solution
-        self._start_blocks: dict[Any, tuple[np.ndarray, ...]] = {}
+        self._shared: dict[Any, tuple[np.ndarray, ...]] = {}
 
     def refit(self, views: Sequence[RefineView], *, covariance: bool = True) -> Refit:
         """:func:`refit` on ``views`` (views of the refitter's, by id; InputError for another)."""
@@ -147,8 +145,8 @@ class Refitter:
         try:
             pb = self._problem(kept)
             try:
-                S_cc: Optional[np.ndarray] = self._gauss_newton(pb)
-            except (_NoGaussNewton, np.linalg.LinAlgError) as e:
+                S_cc: Optional[np.ndarray] = gauss_newton(pb, start=self._start_blocks(pb))[0]
+            except (NoGaussNewton, np.linalg.LinAlgError) as e:
                 log.debug("refit on views %s: Levenberg-Marquardt (%s)", list(ids), e)
                 pb = self._problem(kept)
                 g, values, robot_keys = pb.solve(robust=False)
@@ -198,45 +196,12 @@ class Refitter:
             pb.dh = np.asarray(dh, float).copy()
         return pb
 
-    def _gauss_newton(self, pb: "Problem") -> np.ndarray:
-        """Gauss-Newton steps of the refit ``pb`` from the full solution; its core covariance (c,c).
-
-        The first step's reprojection blocks are the shared ones at the full solution. Raises _NoGaussNewton
-        when a step does not lower the cost or the steps do not settle within ``solver.refit_max_steps``.
-        """
-        cfg = refine_preset()["solver"]
-        tol, max_steps = float(cfg["refit_step_tol"]), int(cfg["refit_max_steps"])
+    def _start_blocks(self, pb: "Problem") -> ReprojectionBlocks:
+        """The reprojection blocks of ``pb.active()`` at the full solution, each view's computed once."""
         idx = pb.active()
-        robot = [j for j, i in enumerate(idx) if pb.has_robot_var(i)]
-        rv = [idx[j] for j in robot]
-        cp, c, w = N_POSES + pb.free.size, pb.n_core, 1.0 / pb.sigma_px**2
-        missing = [i for i in idx if pb.ids[i] not in self._start_blocks]
+        missing = [i for i in idx if pb.ids[i] not in self._shared]
         if missing:
             b = pb.reprojection_blocks(missing)
             for j, i in enumerate(missing):
-                self._start_blocks[pb.ids[i]] = (b.Hcc[j], b.Hcp[j], b.Hpp[j], b.gc[j], b.gp[j], b.rr[j])
-        cost_before = np.inf
-        for step in range(max_steps):
-            if step == 0:
-                Hcc_v, Hcp_v, Hpp_v, gc_v, gp_v, rr_v = (
-                    np.stack(a) for a in zip(*(self._start_blocks[pb.ids[i]] for i in idx), strict=True)
-                )
-            else:
-                b = pb.reprojection_blocks(idx)
-                Hcc_v, Hcp_v, Hpp_v, gc_v, gp_v, rr_v = b.Hcc, b.Hcp, b.Hpp, b.gc, b.gp, b.rr
-            Hcc, Hcp, Hpp, grad, cost = pb.prior_blocks(rv)
-            Hcc[:cp, :cp] += w * Hcc_v.sum(axis=0)
-            Hcp[:, :cp] += w * Hcp_v[robot]
-            Hpp += w * Hpp_v[robot]
-            grad[:cp] += w * gc_v.sum(axis=0)
-            grad[c:] += w * gp_v[robot].reshape(-1)
-            cost += 0.5 * w * float(rr_v.sum())
-            if cost > cost_before * (1.0 + 1e-9):  # more than rounding: the step overshot
-                raise _NoGaussNewton(f"step {step} raised the cost from {cost_before:.6g} to {cost:.6g}")
-            cost_before = cost
-            S_cc, S_pp, dx = arrow_solve(Hcc, Hcp, Hpp, -grad)
-            pb.apply_step(rv, dx)
-            sd = np.sqrt(np.r_[np.diag(S_cc), np.diagonal(S_pp, axis1=1, axis2=2).reshape(-1)])
-            if np.all(np.abs(dx) <= tol * sd):
-                return S_cc
-        raise _NoGaussNewton(f"the steps did not settle in {max_steps}")
+                self._shared[pb.ids[i]] = (b.Hcc[j], b.Hcp[j], b.Hpp[j], b.gc[j], b.gp[j], b.rr[j])
+        return ReprojectionBlocks(*(np.stack(a) for a in zip(*(self._shared[pb.ids[i]] for i in idx), strict=True)))

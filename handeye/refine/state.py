@@ -358,6 +358,32 @@ class ProblemState:
                 out.gp[j] = Jr_i.T @ r_i
         return out
 
+    def pixel_linearisation(self) -> PixelLinearisation:
+        """Unit-sigma information of the reprojections alone at the current estimate (the active views)."""
+        act = self.active()
+        b = self.reprojection_blocks(act)
+        rob = [j for j, i in enumerate(act) if self.has_robot_var(i)]  # the views with a robot-pose variable
+        idx_p = [act[j] for j in rob]
+        c, cp = self.n_core, N_POSES + self.free.size  # the reprojections do not involve the DH offsets
+        Hcc = np.zeros((c, c))
+        Hcc[:cp, :cp] = b.Hcc.sum(axis=0)
+        Hcp = np.zeros((len(idx_p), c, 6))
+        Hcp[:, :cp] = b.Hcp[rob]
+        e = self.used_corner_residuals()
+        return PixelLinearisation(
+            Hcc=Hcc,
+            Hcp=Hcp,
+            Hpp=b.Hpp[rob],
+            g=np.concatenate([b.gc.sum(axis=0), np.zeros(self.m_dh), b.gp[rob].reshape(-1)]),
+            rr=float(np.sum(e * e)),
+            n_obs=int(e.size),
+            prior=np.array([self.robot_var and self.status[i] == "used" for i in idx_p], bool),
+            xi=self.prior_residuals(idx_p),
+            c=c,
+            robot_views=tuple(idx_p),
+            J_dh=self.J_dh(idx_p),
+        )
+
     # -- residuals (numpy, every view at once)
     def corner_residuals(
         self,

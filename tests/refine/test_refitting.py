@@ -108,15 +108,15 @@ def test_a_warm_refit_is_the_cold_refits_answer_with_a_kinematic_robot_model(mon
 
 
 def test_refits_that_do_not_settle_are_solved_by_levenberg_marquardt(monkeypatch):
-    import handeye.refine.refitting as refitting
+    import handeye.refine.gauss_newton as gauss_newton
 
     s = make_corner_session(mode="eye_to_hand", n_views=10, seed=8, noise_px=0.3)
     views = _views(s)
     r = _refined(s, views)
     gn = refit(r, object_points=s.target.object_points(), views=views[1:])
-    preset = refitting.refine_preset()
+    preset = gauss_newton.refine_preset()
     monkeypatch.setattr(
-        refitting, "refine_preset", lambda: {**preset, "solver": {**preset["solver"], "refit_max_steps": 1}}
+        gauss_newton, "refine_preset", lambda: {**preset, "solver": {**preset["solver"], "gauss_newton_max_steps": 1}}
     )
     lm = refit(r, object_points=s.target.object_points(), views=views[1:])
     assert lm.status == "ok"
