@@ -254,7 +254,19 @@ class Problem(ProblemState):
 
     def prior_blocks(self, robot_views: Sequence[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
         """Gauss-Newton blocks of every factor but the reprojections (Gaussian); robot blocks ``robot_views``."""
-        g, v, robot_keys = self.build(robust=False, reprojection=False)
+        # the factors depend on the views' status and the noise levels, not on the estimate: built once for them
+        built = (tuple(self.status), self.sigma_rot, self.sigma_trans, self.sigma_q, self.dh_scale)
+        if getattr(self, "_priors", (None,))[0] != built:
+            self._priors = (built, *self.build(robust=False, reprojection=False))
+        _, g, v, robot_keys = self._priors
+        v.update(KEY_X, gtsam.Pose3(self.T_x))
+        v.update(KEY_BOARD, gtsam.Pose3(self.T_board))
+        if self.free.size:
+            v.update(KEY_INTRINSICS, self.k[self.free].copy())
+        if self.m_dh:
+            v.update(KEY_DH, self.dh.copy())
+        for i, key in robot_keys.items():
+            v.update(key, gtsam.Pose3(self.P[i]))
         keys = (KEY_X, KEY_BOARD, KEY_INTRINSICS, KEY_DH)
         at = dict(zip(keys, ((0, 6), (6, 6), (N_POSES, self.free.size), (self.dh_slice.start, self.m_dh)), strict=True))
         at.update({robot_keys[i]: (-1 - j, 6) for j, i in enumerate(robot_views)})
