@@ -144,6 +144,49 @@ def stacked_chain_residual(
     return residual, J
 
 
+def stacked_chain_jacobians(
+    *,
+    T_x: np.ndarray,
+    T_base_end: np.ndarray,
+    T_board: np.ndarray,
+    invert_robot: bool,
+    intrinsics_vec: np.ndarray,
+    object_points: np.ndarray,
+    image_points: np.ndarray,
+    view_index: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`chain_residual` of many views at once with every Jacobian (the layout of :func:`stacked_chain_residual`).
+
+    Returns ``(residual (2M,), J_x (2M,6), J_robot (2M,6), J_board (2M,6), J_intr (2M,9))``, rows interleaved
+    (u0, v0, u1, ...) in corner order, ``J_robot`` with respect to each corner's own robot pose.
+    """
+    T_base_end = np.asarray(T_base_end, float)
+    R_x, t_x = T_x[:3, :3], T_x[:3, 3]
+    R_A, t_A = R_x.T, -R_x.T @ t_x
+    R_r, t_r = T_base_end[:, :3, :3], T_base_end[:, :3, 3]
+    if invert_robot:
+        R_M = np.swapaxes(R_r, 1, 2)
+        t_M = -np.einsum("nij,nj->ni", R_M, t_r)
+    else:
+        R_M, t_M = R_r, t_r
+    R_B, t_B = T_board[:3, :3], T_board[:3, 3]
+    R_Mc, t_Mc = R_M[view_index], t_M[view_index]  # shape (M, 3, 3), (M, 3)
+    q_b = object_points @ R_B.T + t_B  # shape (M, 3)
+    q_m = np.einsum("mij,mj->mi", R_Mc, q_b) + t_Mc
+    p_c = q_m @ R_A.T + t_A
+    uv, Jp_T, Jk_T = project_opencv5(intrinsics_vec, p_c, True)
+    assert Jp_T is not None and Jk_T is not None, "Jacobians asked for and computed"
+    m = p_c.shape[0]
+    G_A = (R_A.T @ Jp_T).reshape(3, m, 2)  # (d uv / d q_m)^T: [component, corner, u|v]
+    G_MA = np.swapaxes(np.swapaxes(R_Mc, 1, 2) @ np.swapaxes(G_A, 0, 1), 0, 1)  # (d uv / d q_b)^T, shape (3, M, 2)
+    G_r, q_r = (G_A, q_m) if invert_robot else (G_MA, q_b)
+    G_b = np.einsum("ji,jmc->imc", R_B, G_MA)  # (d uv / d object point)^T
+    G = np.stack([Jp_T, G_r.reshape(3, 2 * m), G_b.reshape(3, 2 * m)])  # shape (3, 3, 2M)
+    Q = np.repeat(np.stack([p_c.T, q_r.T, object_points.T]), 2, axis=2)  # shape (3, 3, 2M)
+    J = _pose_jacobians_T(G, Q, _SIGN_ALL[invert_robot])
+    return (uv - image_points).reshape(-1), J[0].T, J[1].T, J[2].T, Jk_T.T
+
+
 def eye_in_hand_residual(
     *,
     T_end_cam: np.ndarray,

@@ -176,15 +176,20 @@ def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> 
         J0 = np.where(ok_rows[:, None, None], J, 0.0)
         _, w = corner_robust_scales(r0.reshape(-1), sigma_px=pb.sigma_px, loss="huber", k=pb.o.loss_k)
         w2 = w * w
-        H = np.add.reduceat(np.einsum("mci,mcj,m->mij", J0, J0, w2), starts, axis=0)
-        g = np.add.reduceat(np.einsum("mci,mc,m->mi", J0, r0, w2), starts, axis=0)
+        Jw_T = np.swapaxes(J0 * w2[:, None, None], 1, 2)  # shape (M, 6, 2)
+        H = np.add.reduceat(Jw_T @ J0, starts, axis=0)
+        g = np.add.reduceat((Jw_T @ r0[:, :, None])[:, :, 0], starts, axis=0)
         H[~alive] = np.eye(6)
         step = np.zeros((idx.size, 6))
-        for k in np.flatnonzero(alive):  # 6x6 solves; a singular one fails that view alone
-            try:
-                step[k] = -np.linalg.solve(H[k], g[k])
-            except np.linalg.LinAlgError:
-                alive[k] = False
+        live = np.flatnonzero(alive)
+        try:  # all views' 6x6 solves at once
+            step[live] = -np.linalg.solve(H[live], g[live][:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:  # one by one: a singular one fails that view alone
+            for k in live:
+                try:
+                    step[k] = -np.linalg.solve(H[k], g[k])
+                except np.linalg.LinAlgError:
+                    alive[k] = False
         P = P @ se3_exp(step)
         if np.abs(step).max() < 1e-8:  # rad, m: far below any pose precision; one more evaluation at P
             max_iters = it + 1
@@ -192,7 +197,7 @@ def _own_fits(pb: "Problem", idx: np.ndarray, P: np.ndarray, max_iters: int) -> 
     inl = (e <= pb.o.corner_outlier_sigmas * pb.sigma_px) & alive[local]
     assert J is not None, "robot_jacobian=True gives the Jacobian"
     Jin = np.where(inl[:, None, None], J, 0.0)
-    H = np.add.reduceat(np.einsum("mci,mcj->mij", Jin, Jin), starts, axis=0)
+    H = np.add.reduceat(np.swapaxes(Jin, 1, 2) @ Jin, starts, axis=0)
     n_inl = np.add.reduceat(inl.astype(int), starts)
     ends = starts + counts
     return {

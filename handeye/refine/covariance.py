@@ -13,7 +13,7 @@ perturbation): ``T_x,true = T_x · Exp(xi)``, ``xi = (omega [rad], v [m])`` alon
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Optional
+from typing import Any, Iterable, Optional, Sequence
 
 import numpy as np
 
@@ -67,11 +67,11 @@ def arrow_solve(
     np.linalg.cholesky(Hpp)  # raises LinAlgError when a robot pose is unconstrained
     Q = np.linalg.inv(Hpp)
     HQ = Hcp @ Q  # shape (n, c, 6)
-    S = Hcc - np.einsum("nci,ndi->cd", HQ, Hcp)
+    S = Hcc - np.tensordot(HQ, Hcp, axes=([0, 2], [0, 2]))
     L = np.linalg.cholesky(0.5 * (S + S.T))
     Li = np.linalg.inv(L)
     S_cc = Li.T @ Li
-    S_pp = Q + np.einsum("nci,cd,ndj->nij", HQ, S_cc, HQ)
+    S_pp = Q + np.swapaxes(HQ, 1, 2) @ S_cc @ HQ
     x = None
     if rhs is not None:
         c = Hcc.shape[0]
@@ -80,8 +80,40 @@ def arrow_solve(
         x_p = np.einsum("nij,nj->ni", Q, b_p - np.einsum("nci,c->ni", Hcp, x_c))
         x = np.concatenate([x_c, x_p.reshape(-1)])
     if cross:
-        return S_cc, S_pp, x, -np.einsum("cd,ndi->nci", S_cc, HQ)
+        return S_cc, S_pp, x, -(S_cc @ HQ)
     return S_cc, S_pp, x
+
+
+def arrow_from_jacobians(
+    factors: Iterable[tuple[np.ndarray, np.ndarray, Sequence[tuple[int, int]]]], c: int, n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """Gauss-Newton blocks of whitened linear factors ``|A dx - b|^2`` in arrow order.
+
+    ``factors``: (A (r,d), b (r,), per variable of A's columns in order: (offset in the core, or -1 - j for
+    robot block j, its dimension)). Returns (Hcc (c,c), Hcp (n,c,6), Hpp (n,6,6), gradient (c + 6n,) of half
+    the squared error, cost = half the squared error); a factor couples at most one robot block.
+    """
+    Hcc, Hcp, Hpp, grad = np.zeros((c, c)), np.zeros((n, c, 6)), np.zeros((n, 6, 6)), np.zeros(c + 6 * n)
+    cost = 0.0
+    for A, b, slots in factors:
+        cost += 0.5 * float(b @ b)
+        cols, col = [], 0
+        for o, d in slots:
+            cols.append((o, A[:, col : col + d]))
+            col += d
+        for o, Ja in cols:
+            at = o if o >= 0 else c + 6 * (-1 - o)
+            grad[at : at + Ja.shape[1]] -= Ja.T @ b
+            for o2, Jb in cols:
+                if o >= 0 and o2 >= 0:
+                    Hcc[o : o + Ja.shape[1], o2 : o2 + Jb.shape[1]] += Ja.T @ Jb
+                elif o >= 0:
+                    Hcp[-1 - o2, o : o + Ja.shape[1]] += Ja.T @ Jb
+                elif o2 < 0:
+                    if o != o2:
+                        raise ValueError("a factor couples two robot blocks")
+                    Hpp[-1 - o] += Ja.T @ Jb
+    return Hcc, Hcp, Hpp, grad, cost
 
 
 def robot_residual_covariances(
@@ -98,7 +130,7 @@ def robot_residual_covariances(
     S_dp = S_cp[:, dh, :]  # shape (n, m, 6)
     S_dd = S_cc[dh, dh]
     JS = np.einsum("nim,nmj->nij", J_dh, S_dp)
-    return S_pp - JS - np.swapaxes(JS, 1, 2) + np.einsum("nim,mk,njk->nij", J_dh, S_dd, J_dh)
+    return S_pp - JS - np.swapaxes(JS, 1, 2) + J_dh @ S_dd @ np.swapaxes(J_dh, 1, 2)
 
 
 @dataclass(frozen=True)

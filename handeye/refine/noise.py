@@ -19,6 +19,7 @@ import numpy as np
 
 from ..stats import RAYLEIGH_MEDIAN, robust_noise_sigma
 from .covariance import arrow_solve, robot_residual_covariances
+from .gauss_newton import solve_gaussian
 from .options import refine_preset
 
 if TYPE_CHECKING:
@@ -297,7 +298,7 @@ def solve_with_vce(pb: "Problem") -> tuple[np.ndarray, dict[int, np.ndarray]]:
         pb.set_dh_scale(1.0)
         pb.dh_scale_test, pb.dh_scale_dof = {}, None
     for _ in range(int(cfg["max_outer"])):
-        pb.solve(robust=False)
+        solve_gaussian(pb)  # from the last solution: Gauss-Newton, Levenberg-Marquardt when it does not settle
         lin = pb.pixel_linearisation()
         vce = vce_on_linearisation(pb, lin)
         log.debug(

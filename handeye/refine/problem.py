@@ -12,7 +12,7 @@ See docs/refinement.md.
 from __future__ import annotations
 
 import functools
-from typing import Any, Optional
+from typing import Any, Optional, Sequence
 
 import gtsam
 import numpy as np
@@ -27,9 +27,9 @@ from handeye.factors.gtsam_factors import (
 )
 
 from ..frames import tangent_difference, tangent_jacobian
-from .covariance import N_POSES, arrow_blocks, arrow_solve, robot_residual_covariances
+from .covariance import N_POSES, arrow_blocks, arrow_from_jacobians, arrow_solve, robot_residual_covariances
 from .options import refine_preset
-from .state import PixelLinearisation, ProblemState
+from .state import ProblemState
 
 KEY_X = gtsam.symbol("x", 0)
 KEY_BOARD = gtsam.symbol("b", 0)
@@ -66,12 +66,12 @@ class Problem(ProblemState):
 
     # -- graph
     def build(
-        self, *, robust: bool, pixel_only: bool = False
+        self, *, robust: bool, pixel_only: bool = False, reprojection: bool = True
     ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, int]]:
         """Graph and Values of the current problem.
 
         ``pixel_only`` keeps only the reprojection factors, with unit pixel sigma (for the
-        variance-component estimation).
+        variance-component estimation); ``reprojection=False`` leaves them out (every other factor).
         """
         g = gtsam.NonlinearFactorGraph()
         v = gtsam.Values()
@@ -91,23 +91,24 @@ class Problem(ProblemState):
                 v.insert(key_r, gtsam.Pose3(self.P[i]))
                 robot_keys[i] = key_r
             m = self.mask[i]
-            g.add(
-                view_reprojection_factor(
-                    mode=self.mode,
-                    key_x=KEY_X,
-                    key_board=KEY_BOARD,
-                    key_robot=key_r,
-                    key_intrinsics=key_k,
-                    object_points=self.obj[i][m],
-                    image_points=self.img[i][m],
-                    sigma_px=1.0 if pixel_only else self.sigma_px,
-                    intrinsics_vec=self.k,
-                    free_intrinsics=self.free,
-                    T_base_end=self.reported[i],
-                    loss=self.o.loss if robust else "none",
-                    loss_k=self.o.loss_k,
+            if reprojection:
+                g.add(
+                    view_reprojection_factor(
+                        mode=self.mode,
+                        key_x=KEY_X,
+                        key_board=KEY_BOARD,
+                        key_robot=key_r,
+                        key_intrinsics=key_k,
+                        object_points=self.obj[i][m],
+                        image_points=self.img[i][m],
+                        sigma_px=1.0 if pixel_only else self.sigma_px,
+                        intrinsics_vec=self.k,
+                        free_intrinsics=self.free,
+                        T_base_end=self.reported[i],
+                        loss=self.o.loss if robust else "none",
+                        loss_k=self.o.loss_k,
+                    )
                 )
-            )
             if key_r is not None and self.status[i] == "used" and not pixel_only:
                 robust_k = self.robot_prior_k if robust and self.o.loss != "none" else None
                 if self.kin is None:
@@ -224,10 +225,10 @@ class Problem(ProblemState):
         return H, g
 
     # -- information
-    def _ordering(self, robot_keys: dict[int, int], *, with_dh: bool = True) -> gtsam.Ordering:
+    def _ordering(self, robot_keys: dict[int, int]) -> gtsam.Ordering:
         ordering = gtsam.Ordering()
         keys = [KEY_X, KEY_BOARD] + ([KEY_INTRINSICS] if self.free.size else [])
-        keys += [KEY_DH] if self.m_dh and with_dh else []
+        keys += [KEY_DH] if self.m_dh else []
         for k in keys + [robot_keys[i] for i in sorted(robot_keys)]:
             ordering.push_back(k)
         return ordering
@@ -250,35 +251,26 @@ class Problem(ProblemState):
             self.S_dd = S_cc[self.dh_slice, self.dh_slice].copy()
         return S_cc, dict(zip(idx_p, S_u, strict=False))
 
-    def pixel_linearisation(self) -> PixelLinearisation:
-        """Unit-sigma information of the reprojection factors alone at the current estimate."""
-        g, v, robot_keys = self.build(robust=False, pixel_only=True)
-        H, eta = g.linearize(v).hessian(self._ordering(robot_keys, with_dh=False))
-        idx_p = sorted(robot_keys)
-        c = self.n_core
-        c_pix = c - self.m_dh  # the reprojections do not involve the DH offsets: zero rows for them
-        e = self.used_corner_residuals()
-        prior = np.array([self.robot_var and self.status[i] == "used" for i in idx_p], bool)
-        Hcc0, Hcp0, Hpp = arrow_blocks(H, c_pix, len(idx_p))
-        Hcc = np.zeros((c, c))
-        Hcc[:c_pix, :c_pix] = Hcc0
-        Hcp = np.zeros((len(idx_p), c, 6))
-        Hcp[:, :c_pix] = Hcp0
-        g0 = -np.asarray(eta).reshape(-1)
-        grad = np.concatenate([g0[:c_pix], np.zeros(self.m_dh), g0[c_pix:]])
-        return PixelLinearisation(
-            Hcc=Hcc,
-            Hcp=Hcp,
-            Hpp=Hpp,
-            g=grad,
-            rr=float(np.sum(e * e)),
-            n_obs=int(e.size),
-            prior=prior,
-            xi=self.prior_residuals(idx_p),
-            c=c,
-            robot_views=tuple(idx_p),
-            J_dh=self.J_dh(idx_p),
-        )
+    def prior_blocks(self, robot_views: Sequence[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+        """Gauss-Newton blocks of every factor but the reprojections (Gaussian); robot blocks ``robot_views``."""
+        # the factors depend on the views' status and the noise levels, not on the estimate: built once for them
+        built = (tuple(self.status), self.sigma_rot, self.sigma_trans, self.sigma_q, self.dh_scale)
+        if getattr(self, "_priors", (None,))[0] != built:
+            self._priors = (built, *self.build(robust=False, reprojection=False))
+        _, g, v, robot_keys = self._priors
+        v.update(KEY_X, gtsam.Pose3(self.T_x))
+        v.update(KEY_BOARD, gtsam.Pose3(self.T_board))
+        if self.free.size:
+            v.update(KEY_INTRINSICS, self.k[self.free].copy())
+        if self.m_dh:
+            v.update(KEY_DH, self.dh.copy())
+        for i, key in robot_keys.items():
+            v.update(key, gtsam.Pose3(self.P[i]))
+        keys = (KEY_X, KEY_BOARD, KEY_INTRINSICS, KEY_DH)
+        at = dict(zip(keys, ((0, 6), (6, 6), (N_POSES, self.free.size), (self.dh_slice.start, self.m_dh)), strict=True))
+        at.update({robot_keys[i]: (-1 - j, 6) for j, i in enumerate(robot_views)})
+        lin = ((*g.at(f).linearize(v).jacobian(), [at[k] for k in g.at(f).keys()]) for f in range(g.size()))
+        return arrow_from_jacobians(lin, self.n_core, len(robot_views))
 
 
 # ------------------------------------------------------------------------------ pose-only views

@@ -13,7 +13,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
-from handeye.factors.reprojection import stacked_chain_residual
+from handeye.factors.reprojection import stacked_chain_jacobians, stacked_chain_residual
 
 from ..camera import INTRINSIC_NAMES, Intrinsics
 from ..errors import ConfigError
@@ -45,6 +45,21 @@ class PixelLinearisation:
     c: int
     robot_views: tuple[Any, ...]  # view index of each robot block, in order
     J_dh: np.ndarray  # shape (n, 6, m)
+
+
+@dataclass(frozen=True)
+class ReprojectionBlocks:
+    """Per view, the Gauss-Newton blocks of its reprojections at unit pixel sigma.
+
+    The core ``cp`` is T_x, T_board and the free intrinsics; ``p`` is the view's robot-pose variable.
+    """
+
+    Hcc: np.ndarray  # shape (k, cp, cp): J_c^T J_c
+    Hcp: np.ndarray  # shape (k, cp, 6): J_c^T J_p
+    Hpp: np.ndarray  # shape (k, 6, 6): J_p^T J_p
+    gc: np.ndarray  # shape (k, cp): J_c^T r
+    gp: np.ndarray  # shape (k, 6): J_p^T r
+    rr: np.ndarray  # shape (k,): r^T r [px^2]
 
 
 class ProblemState:
@@ -295,6 +310,79 @@ class ProblemState:
     def prior_residuals(self, idx: Sequence[int]) -> np.ndarray:
         """(len(idx),6): each view's robot prior residual ``Log(inv(reported) · P) - J_dh · dh``."""
         return self.robot_residuals(idx) - np.einsum("nij,j->ni", self.J_dh(idx), self.dh)
+
+    def reprojection_blocks(self, idx: Sequence[int]) -> ReprojectionBlocks:
+        """Gauss-Newton blocks of the reprojections of views ``idx``, each view's own, at the current estimate.
+
+        Unit pixel sigma, the corners in use (``mask``); the core is T_x, T_board and the free intrinsics (the
+        reprojections do not involve the DH offsets). A view without a robot-pose variable has zero robot blocks.
+        """
+        idx = list(idx)
+        cp = N_POSES + self.free.size
+        k = len(idx)
+        out = ReprojectionBlocks(
+            np.zeros((k, cp, cp)),
+            np.zeros((k, cp, 6)),
+            np.zeros((k, 6, 6)),
+            np.zeros((k, cp)),
+            np.zeros((k, 6)),
+            np.zeros(k),
+        )
+        if not k:
+            return out
+        wanted = np.zeros(self.n, bool)
+        wanted[idx] = True
+        sel = np.concatenate(self.mask) & wanted[self.view_of]
+        r, J_x, J_r, J_b, J_k = stacked_chain_jacobians(
+            T_x=self.T_x,
+            T_base_end=self.robot_poses(),
+            T_board=self.T_board,
+            invert_robot=self.invert,
+            intrinsics_vec=self.k,
+            object_points=self.obj_all[sel],
+            image_points=self.img_all[sel],
+            view_index=self.view_of[sel],
+        )
+        Jc = np.hstack([J_x, J_b, J_k[:, self.free]])  # shape (2K, cp)
+        rows = np.r_[0, np.cumsum(2 * np.bincount(self.view_of[sel], minlength=self.n))]  # each view's rows
+        for j, i in enumerate(idx):
+            a, b = rows[i], rows[i + 1]
+            Jc_i, r_i = Jc[a:b], r[a:b]
+            out.Hcc[j] = Jc_i.T @ Jc_i
+            out.gc[j] = Jc_i.T @ r_i
+            out.rr[j] = r_i @ r_i
+            if self.has_robot_var(i):
+                Jr_i = J_r[a:b]
+                out.Hcp[j] = Jc_i.T @ Jr_i
+                out.Hpp[j] = Jr_i.T @ Jr_i
+                out.gp[j] = Jr_i.T @ r_i
+        return out
+
+    def pixel_linearisation(self) -> PixelLinearisation:
+        """Unit-sigma information of the reprojections alone at the current estimate (the active views)."""
+        act = self.active()
+        b = self.reprojection_blocks(act)
+        rob = [j for j, i in enumerate(act) if self.has_robot_var(i)]  # the views with a robot-pose variable
+        idx_p = [act[j] for j in rob]
+        c, cp = self.n_core, N_POSES + self.free.size  # the reprojections do not involve the DH offsets
+        Hcc = np.zeros((c, c))
+        Hcc[:cp, :cp] = b.Hcc.sum(axis=0)
+        Hcp = np.zeros((len(idx_p), c, 6))
+        Hcp[:, :cp] = b.Hcp[rob]
+        e = self.used_corner_residuals()
+        return PixelLinearisation(
+            Hcc=Hcc,
+            Hcp=Hcp,
+            Hpp=b.Hpp[rob],
+            g=np.concatenate([b.gc.sum(axis=0), np.zeros(self.m_dh), b.gp[rob].reshape(-1)]),
+            rr=float(np.sum(e * e)),
+            n_obs=int(e.size),
+            prior=np.array([self.robot_var and self.status[i] == "used" for i in idx_p], bool),
+            xi=self.prior_residuals(idx_p),
+            c=c,
+            robot_views=tuple(idx_p),
+            J_dh=self.J_dh(idx_p),
+        )
 
     # -- residuals (numpy, every view at once)
     def corner_residuals(

@@ -220,25 +220,26 @@ def validate(
     ``views``: the refinement's views (those it did not use are left out of the folds, robot-excluded
     views stay in every fold). ``halves``: also refit the odd and even halves of the used views.
     ``refit_views(views, covariance)`` solves the refinement again on a subset; the default is
-    :func:`handeye.refine.refit` with ``object_points`` (image views); pose-only results pass
+    :func:`handeye.refine.refit` with ``object_points`` (image views; every fold's first step from one
+    linearisation at the full solution, :class:`handeye.refine.refitting.Refitter`); pose-only results pass
     :func:`handeye.refine.poseonly.refit_poses`. See the module docstring for the method.
     """
-    if refit_views is None:
-        from .refitting import refit as refit_images
-
-        if object_points is None:
-            raise ValueError("validate() of image views needs their object_points")
-        points = object_points
-
-        def refit_views(sub: list[Any], covariance: bool = True) -> Refit:
-            return refit_images(result, object_points=points, views=sub, covariance=covariance)
-
     cfg = settings()
     if result.status != "ok":
         return Validation("not_run", "the refinement did not succeed")
     pv = result.per_view
     used = [v for v in views if pv.get(v.view_id, {}).get("status") == "used"]
     kept = [v for v in views if pv.get(v.view_id, {}).get("status") == "robot_excluded"]
+    if refit_views is None:
+        from .refitting import Refitter
+
+        if object_points is None:
+            raise ValueError("validate() of image views needs their object_points")
+        refitter = Refitter(result, object_points=object_points, views=used + kept)  # one linearisation for all
+
+        def refit_views(sub: list[Any], covariance: bool = True) -> Refit:
+            return refitter.refit(sub, covariance=covariance)
+
     n = len(used)
     ids = tuple(v.view_id for v in used)
     if n < int(cfg["min_views"]):

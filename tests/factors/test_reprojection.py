@@ -17,6 +17,7 @@ from handeye.factors.reprojection import (
     corner_robust_scales,
     eye_in_hand_residual,
     eye_to_hand_residual,
+    stacked_chain_jacobians,
     stacked_chain_residual,
 )
 from handeye.mounting import mounting
@@ -139,6 +140,30 @@ def test_stacked_residual_of_many_views_equals_the_per_view_chain(mode):
         delta=1e-6,
     )
     assert np.abs(J[vi == 2].reshape(-1, 6) - num).max() <= 1e-6 * np.abs(num).max()
+    # with every Jacobian (the refits' linearisation): chain_residual's, view by view, rows interleaved
+    full = stacked_chain_jacobians(
+        T_x=T_x,
+        T_base_end=robots,
+        T_board=T_board,
+        invert_robot=inv,
+        intrinsics_vec=K9,
+        object_points=np.concatenate(objs),
+        image_points=np.concatenate(imgs),
+        view_index=vi,
+    )
+    for k in range(3):
+        per_view = chain_residual(
+            T_x=T_x,
+            T_base_end=robots[k],
+            T_board=T_board,
+            invert_robot=inv,
+            intrinsics_vec=K9,
+            object_points=objs[k],
+            image_points=imgs[k],
+        )
+        rows = np.repeat(vi == k, 2)
+        for stacked, own in zip(full, per_view, strict=True):
+            np.testing.assert_allclose(stacked[rows], own, rtol=0, atol=1e-12 * max(np.abs(own).max(), 1.0))
 
 
 def test_mode_adapters_are_the_generic_chain():

@@ -220,18 +220,18 @@ def test_refits_without_their_covariance_fall_back_and_never_cancel_the_validati
 
     s = make_corner_session(mode="eye_to_hand", n_views=14, seed=35, noise_px=0.3, robot_noise=(0.3, 0.03))
     r, views = _refined(s)
-    real = refitting.refit
+    real = refitting.Refitter.refit
     n_used = sum(pv["status"] == "used" for pv in r.per_view.values())
 
     def run(change):
         calls = []
 
-        def fake(result, *, object_points, views, covariance=True):
-            out = real(result, object_points=object_points, views=views, covariance=covariance)
+        def fake(self, views, *, covariance=True):
+            out = real(self, views, covariance=covariance)
             calls.append(out)
             return change(out, len(views), len(calls))
 
-        monkeypatch.setattr(refitting, "refit", fake)
+        monkeypatch.setattr(refitting.Refitter, "refit", fake)
         return validate(r, object_points=s.target.object_points(), views=views, halves=False)
 
     v = run(lambda out, n, k: replace(out, cov_x=None, cov_intrinsics=None) if k == 1 else out)
