@@ -43,6 +43,10 @@ session against the whole cell, detection and reports included).
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import resource
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -61,6 +65,7 @@ from handeye.refine.problem import cell_information, cell_ordering  # noqa: E402
 from handeye.sim.cell import make_cell  # noqa: E402
 
 ARM = "ur5e"
+ROOT = Path(__file__).resolve().parent.parent
 NOISE_PX = 0.3
 CHI2_95 = chi2.ppf(0.95, 6)
 
@@ -204,22 +209,43 @@ def summary(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def rendered_timing(n_cameras: int, n_views: int, folder: Path) -> str:
-    """Seconds of ``handeye calibrate`` of one rendered camera session against the whole rendered cell."""
-    from handeye.cell import calibrate_cell
-    from handeye.sim.cell import write_cell
-    from handeye.workflow import calibrate_session
-
-    cell = write_cell(folder / "cell", n_cameras, n_views=n_views, seed=0, arm=ARM)
+def _timed_command(args: list[str]) -> tuple[float, float]:
+    """(wall s, CPU s of the process and its children) of ``python -m handeye.cli ARGS`` from this checkout."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep))
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    calibrate_session(cell / "cam1", out_dir=folder / "one", report=True)
-    t1 = time.perf_counter()
-    wr = calibrate_cell([cell], folder / "all", report=True)
-    t2 = time.perf_counter()
-    joint = wr.result["seconds"]["joint"]
+    subprocess.run([sys.executable, "-m", "handeye.cli", *args], env=env, check=False, capture_output=True)
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+
+
+def rendered_timing(n_cameras: int, n_views: int, folder: Path, rounds: int = 3) -> str:
+    """Whole ``handeye calibrate`` commands: one rendered camera's session against the whole rendered cell.
+
+    The cell is rendered into ``folder/cell`` unless it is there already; both commands run with the same
+    options (the session's and the cell's defaults, the arm the sessions name), ``rounds`` interleaved rounds
+    (one camera, then the cell), each command's wall and CPU time (its process and children); the medians.
+    """
+    from handeye.sim.cell import write_cell
+
+    cell = folder / "cell"
+    if not (cell / "cell.yaml").is_file():
+        write_cell(cell, n_cameras, n_views=n_views, seed=0, arm=ARM)
+    one_cam = sorted(p.parent.name for p in cell.glob("*/session.yaml"))[0]
+    one, all_ = [], []
+    for i in range(rounds):
+        one.append(_timed_command(["calibrate", str(cell / one_cam), "--out", str(folder / "one")]))
+        all_.append(_timed_command(["calibrate", str(cell), "--out", str(folder / "all")]))
+        print(f"round {i + 1}: one camera {one[-1][0]:.1f} s, the cell {all_[-1][0]:.1f} s (wall)", file=sys.stderr)
+    res = json.loads((folder / "all" / "result.json").read_text(encoding="utf-8"))
+    n_cams = len(res.get("cameras") or {})
+    w1, c1 = np.median(one, axis=0)
+    wn, cn = np.median(all_, axis=0)
     return (
-        f"rendered {n_cameras}-camera {n_views}-view cell: one camera {t1 - t0:.1f} s, the cell {t2 - t1:.1f} s "
-        f"({(t2 - t1) / (t1 - t0):.1f}x; its joint graph {joint:.1f} s)"
+        f"handeye calibrate, rendered {n_cams}-camera {n_views}-view cell, median of {rounds} interleaved rounds: "
+        f"one camera ({one_cam}) {w1:.1f} s wall / {c1:.1f} s CPU, the cell {wn:.1f} s wall / {cn:.1f} s CPU: "
+        f"{wn / w1:.2f}x wall, {cn / c1:.2f}x CPU (the cell's joint graph {res['seconds']['joint']:.1f} s)"
     )
 
 
@@ -230,9 +256,10 @@ def main() -> None:
     ap.add_argument("--views", type=int, default=40)
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--rendered", type=Path, metavar="DIR", help="also time calibrate on a rendered cell in DIR")
+    ap.add_argument("--rounds", type=int, default=3, help="with --rendered: interleaved rounds of the two commands")
     args = ap.parse_args()
     if args.rendered is not None:
-        print(rendered_timing(max(args.sizes), args.views, args.rendered))
+        print(rendered_timing(max(args.sizes), args.views, args.rendered, args.rounds))
     jobs = [(n, seed) for n in args.sizes for seed in range(args.seeds)]
     results = []
     it = ordered_map(run_one, [n for n, _ in jobs], [s for _, s in jobs], [args.views] * len(jobs), workers=args.jobs)
