@@ -388,6 +388,7 @@ def refine_cell(
     iterations = solve_cell_graph(st, robust=True)
     red: dict[str, float] = {}
     readmitted: set[str] = set()
+    S_now: Optional[np.ndarray] = None  # the covariance of the estimate as it stands (None: it moved since)
     for _round in range(max(1, o.max_outlier_rounds) + 1):
         red, S = _variance_components(st, vce_rounds)
         core = int(np.sum(cell_ordering(st)[1]))
@@ -395,6 +396,7 @@ def refine_cell(
         log.debug("cell round %d: robot %s, views %s, again %s", _round, worst, bad, again)
         again = [u for u in again if st.ids[u] not in readmitted]
         if worst is None and not bad and not again:
+            S_now = S
             break
         for u in again:  # the cameras agree with its reported pose now (a bad image of one camera had pulled it)
             readmitted.add(st.ids[u])
@@ -420,8 +422,9 @@ def refine_cell(
         why.update(rot_deg=float(np.degrees(np.linalg.norm(xi[:3]))), trans_mm=float(1e3 * np.linalg.norm(xi[3:])))
     keys, sizes = cell_ordering(st)
     core = int(np.sum(sizes))
-    H, _parts = cell_information(st)
-    S = _inverse(H)[:core, :core]
+    if S_now is None:  # the last round changed the estimate: its information again
+        S_now = _inverse(cell_information(st)[0])
+    S = S_now[:core, :core]
     S = 0.5 * (S + S.T)
     blocks: list[str] = []
     for cam in st.cams:
