@@ -50,6 +50,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 from scipy.stats import chi2
@@ -209,23 +210,25 @@ def summary(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def _timed_command(args: list[str]) -> tuple[float, float]:
-    """(wall s, CPU s of the process and its children) of ``python -m handeye.cli ARGS`` from this checkout."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep))
+def _timed_command(args: list[str], root: Path = ROOT) -> tuple[float, float]:
+    """(wall s, CPU s of the process and its children) of ``python -m handeye.cli ARGS`` from the checkout ``root``."""
+    path = os.pathsep.join(p for p in (str(root), os.environ.get("PYTHONPATH", "")) if p)
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "handeye.cli", *args], env=env, check=False, capture_output=True)
+    cmd = [sys.executable, "-m", "handeye.cli", *args]
+    subprocess.run(cmd, env=dict(os.environ, PYTHONPATH=path), check=False, capture_output=True)  # exit: the verdict
     wall = time.perf_counter() - t0
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
 
 
-def rendered_timing(n_cameras: int, n_views: int, folder: Path, rounds: int = 3) -> str:
+def rendered_timing(n_cameras: int, n_views: int, folder: Path, rounds: int = 3, before: Optional[Path] = None) -> str:
     """Whole ``handeye calibrate`` commands: one rendered camera's session against the whole rendered cell.
 
     The cell is rendered into ``folder/cell`` unless it is there already; both commands run with the same
     options (the session's and the cell's defaults, the arm the sessions name), ``rounds`` interleaved rounds
-    (one camera, then the cell), each command's wall and CPU time (its process and children); the medians.
+    (one camera, then the cell; with ``before``, a checkout of the code before a change, its two commands in
+    the same rounds), each command's wall and CPU time (its process and children); the medians.
     """
     from handeye.sim.cell import write_cell
 
@@ -233,20 +236,36 @@ def rendered_timing(n_cameras: int, n_views: int, folder: Path, rounds: int = 3)
     if not (cell / "cell.yaml").is_file():
         write_cell(cell, n_cameras, n_views=n_views, seed=0, arm=ARM)
     one_cam = sorted(p.parent.name for p in cell.glob("*/session.yaml"))[0]
-    one, all_ = [], []
+    codes = {"after": ROOT} if before is None else {"before": before.resolve(), "after": ROOT}
+    times: dict = {(c, k): [] for c in codes for k in ("one", "cell")}
+    loads = []
     for i in range(rounds):
-        one.append(_timed_command(["calibrate", str(cell / one_cam), "--out", str(folder / "one")]))
-        all_.append(_timed_command(["calibrate", str(cell), "--out", str(folder / "all")]))
-        print(f"round {i + 1}: one camera {one[-1][0]:.1f} s, the cell {all_[-1][0]:.1f} s (wall)", file=sys.stderr)
-    res = json.loads((folder / "all" / "result.json").read_text(encoding="utf-8"))
-    n_cams = len(res.get("cameras") or {})
-    w1, c1 = np.median(one, axis=0)
-    wn, cn = np.median(all_, axis=0)
-    return (
-        f"handeye calibrate, rendered {n_cams}-camera {n_views}-view cell, median of {rounds} interleaved rounds: "
-        f"one camera ({one_cam}) {w1:.1f} s wall / {c1:.1f} s CPU, the cell {wn:.1f} s wall / {cn:.1f} s CPU: "
-        f"{wn / w1:.2f}x wall, {cn / c1:.2f}x CPU (the cell's joint graph {res['seconds']['joint']:.1f} s)"
-    )
+        for code, root in codes.items():
+            out = folder / code
+            times[code, "one"].append(
+                _timed_command(["calibrate", str(cell / one_cam), "--out", str(out / "one")], root)
+            )
+            times[code, "cell"].append(_timed_command(["calibrate", str(cell), "--out", str(out / "cell")], root))
+            print(
+                f"round {i + 1} {code}: one camera {times[code, 'one'][-1][0]:.1f} s, "
+                f"the cell {times[code, 'cell'][-1][0]:.1f} s (wall)",
+                file=sys.stderr,
+            )
+        loads.append(os.getloadavg()[0])
+    lines = [
+        f"handeye calibrate, rendered {n_cameras}-camera {n_views}-view cell against one camera ({one_cam}), "
+        f"median of {rounds} interleaved rounds (load average {min(loads):.1f}-{max(loads):.1f} on {os.cpu_count()} "
+        "cores):"
+    ]
+    for code in codes:
+        res = json.loads((folder / code / "cell" / "result.json").read_text(encoding="utf-8"))
+        w1, c1 = np.median(times[code, "one"], axis=0)
+        wn, cn = np.median(times[code, "cell"], axis=0)
+        lines.append(
+            f"  {code}: one camera {w1:.1f} s wall / {c1:.1f} s CPU, the cell {wn:.1f} s wall / {cn:.1f} s CPU: "
+            f"{wn / w1:.2f}x wall, {cn / c1:.2f}x CPU (its joint graph {res['seconds']['joint']:.1f} s wall)"
+        )
+    return "\n".join(lines)
 
 
 def main() -> None:
@@ -257,9 +276,15 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--rendered", type=Path, metavar="DIR", help="also time calibrate on a rendered cell in DIR")
     ap.add_argument("--rounds", type=int, default=3, help="with --rendered: interleaved rounds of the two commands")
+    ap.add_argument(
+        "--before",
+        type=Path,
+        metavar="CHECKOUT",
+        help="with --rendered: also time a checkout of the code before a change",
+    )
     args = ap.parse_args()
     if args.rendered is not None:
-        print(rendered_timing(max(args.sizes), args.views, args.rendered, args.rounds))
+        print(rendered_timing(max(args.sizes), args.views, args.rendered, args.rounds, args.before))
     jobs = [(n, seed) for n in args.sizes for seed in range(args.seeds)]
     results = []
     it = ordered_map(run_one, [n for n, _ in jobs], [s for _, s in jobs], [args.views] * len(jobs), workers=args.jobs)
