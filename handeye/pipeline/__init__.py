@@ -83,6 +83,7 @@ def observe(
     seconds: dict = {}
     t0 = time.perf_counter()
     if detected is not None and detected.fits(items, options.min_corners):
+        progress(f"the target was detected in {len(items)} images ahead")
         det = dict(detected.results)
         t0 -= detected.seconds  # the detect stage's time is the time it took ahead
     else:
