@@ -31,13 +31,18 @@ stated DH prior, wider than the simulated DH errors). The pairs' coverage of 2-3
 pairs each) is at the low end. Times on a shared 2-core machine: a 4-camera 40-view cell takes
 the four solo refinements plus about as long again for the joint graph, 6-7 times one camera's refinement
 (the issue's 4x is not reached; the joint graph is Python reprojection factors, the solo ones' cost).
-``handeye calibrate`` of a rendered 4-camera 20-view cell (``--rendered``, detection, validation, diagnostics
-and reports included): one camera 10.2 s, the cell 47.2 s (4.6x one camera; its joint graph 2.5 s): each
-camera's own calibration is most of it.
+Whole ``handeye calibrate`` commands (``--rendered``; detection, validation, diagnostics and every report
+included) of a rendered 4-camera 40-view cell against one camera's session, medians of 4 interleaved rounds on
+the shared 2-core machine (load average 10.7-15.4; 2026-12-06): one camera 19.9 s wall / 7.1 s CPU, the cell
+65.8 s wall / 24.8 s CPU: 3.31x wall, 3.51x CPU (the code before the cell detected each camera's images ahead:
+83.0 s wall / 25.0 s CPU, 3.82x wall, 3.64x CPU, in the same rounds). Each camera's own calibration is most of
+the cell's time; its joint graph 3 s wall.
 
 Usage: python benchmarks/bench_cell.py [--seeds 10] [--sizes 2 3 4] [--views 40] [--jobs 1] [--rendered DIR]
-(``--rendered DIR``: also render a cell of the largest size and time ``handeye calibrate`` of one camera's
-session against the whole cell, detection and reports included).
+[--rounds 3] [--before CHECKOUT] (``--rendered DIR``: also render a cell of the largest size into DIR/cell, or
+reuse it, and time ``handeye calibrate`` of one camera's session against the whole cell in interleaved rounds;
+``--before``: a checkout of the code before a change in the same rounds; ``--seeds 0``: the rendered timing
+alone).
 """
 
 from __future__ import annotations
