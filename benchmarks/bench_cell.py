@@ -31,9 +31,12 @@ stated DH prior, wider than the simulated DH errors). The pairs' coverage of 2-3
 pairs each) is at the low end. Times on a shared 2-core machine: a 4-camera 40-view cell takes
 the four solo refinements plus about as long again for the joint graph, 6-7 times one camera's refinement
 (the issue's 4x is not reached; the joint graph is Python reprojection factors, the solo ones' cost).
-``handeye calibrate`` of a rendered 4-camera 20-view cell (``--rendered``, detection, validation, diagnostics
-and reports included): one camera 10.2 s, the cell 47.2 s (4.6x one camera; its joint graph 2.5 s): each
-camera's own calibration is most of it.
+Whole ``handeye calibrate`` commands (``--rendered``; detection, validation, diagnostics and every report
+included) of a rendered 4-camera 40-view cell against one camera's session, medians of 4 interleaved rounds on
+the shared 2-core machine (load average 10.7-15.4; 2026-12-06): one camera 19.9 s wall / 7.1 s CPU, the cell
+65.8 s wall / 24.8 s CPU: 3.31x wall, 3.51x CPU (the code before the cell detected each camera's images ahead:
+83.0 s wall / 25.0 s CPU, 3.82x wall, 3.64x CPU, in the same rounds). Each camera's own calibration is most of
+the cell's time; its joint graph 3 s wall.
 
 Cameras that see each view's flange at their own instant (2026-12-06, ``--seeds 8 --sizes 2 3 --views 20
 --view-jitter 0.1 0.2``: each fixed camera's flange moved by 0.1 deg / 0.2 mm per axis, its own draw per view):
@@ -46,18 +49,24 @@ coverage 88 % of 16 / 92 % of 24, pairs 88 % / 75 % of 8. With one shared pose p
 of one pose per view, to the digit.
 
 Usage: python benchmarks/bench_cell.py [--seeds 10] [--sizes 2 3 4] [--views 40] [--jobs 1] [--rendered DIR]
-[--view-jitter DEG MM]
-(``--rendered DIR``: also render a cell of the largest size and time ``handeye calibrate`` of one camera's
-session against the whole cell, detection and reports included; ``--view-jitter DEG MM``: each fixed camera sees
-each view's flange moved by its own draw of that size per axis, :func:`handeye.sim.cell.make_cell`).
+[--view-jitter DEG MM] [--rounds 3] [--before CHECKOUT]
+(``--rendered DIR``: also render a cell of the largest size into DIR/cell, or reuse it, and time ``handeye
+calibrate`` of one camera's session against the whole cell in interleaved rounds; ``--before``: a checkout of the
+code before a change in the same rounds; ``--seeds 0``: the rendered timing alone; ``--view-jitter DEG MM``: each
+fixed camera sees each view's flange moved by its own draw of that size per axis, :func:`handeye.sim.cell.make_cell`).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import resource
+import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 from scipy.stats import chi2
@@ -73,6 +82,7 @@ from handeye.refine.problem import cell_information, cell_ordering  # noqa: E402
 from handeye.sim.cell import make_cell  # noqa: E402
 
 ARM = "ur5e"
+ROOT = Path(__file__).resolve().parent.parent
 NOISE_PX = 0.3
 CHI2_95 = chi2.ppf(0.95, 6)
 
@@ -230,23 +240,62 @@ def summary(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def rendered_timing(n_cameras: int, n_views: int, folder: Path) -> str:
-    """Seconds of ``handeye calibrate`` of one rendered camera session against the whole rendered cell."""
-    from handeye.cell import calibrate_cell
-    from handeye.sim.cell import write_cell
-    from handeye.workflow import calibrate_session
-
-    cell = write_cell(folder / "cell", n_cameras, n_views=n_views, seed=0, arm=ARM)
+def _timed_command(args: list[str], root: Path = ROOT) -> tuple[float, float]:
+    """(wall s, CPU s of the process and its children) of ``python -m handeye.cli ARGS`` from the checkout ``root``."""
+    path = os.pathsep.join(p for p in (str(root), os.environ.get("PYTHONPATH", "")) if p)
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    calibrate_session(cell / "cam1", out_dir=folder / "one", report=True)
-    t1 = time.perf_counter()
-    wr = calibrate_cell([cell], folder / "all", report=True)
-    t2 = time.perf_counter()
-    joint = wr.result["seconds"]["joint"]
-    return (
-        f"rendered {n_cameras}-camera {n_views}-view cell: one camera {t1 - t0:.1f} s, the cell {t2 - t1:.1f} s "
-        f"({(t2 - t1) / (t1 - t0):.1f}x; its joint graph {joint:.1f} s)"
-    )
+    cmd = [sys.executable, "-m", "handeye.cli", *args]
+    subprocess.run(cmd, env=dict(os.environ, PYTHONPATH=path), check=False, capture_output=True)  # exit: the verdict
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+
+
+def rendered_timing(n_cameras: int, n_views: int, folder: Path, rounds: int = 3, before: Optional[Path] = None) -> str:
+    """Whole ``handeye calibrate`` commands: one rendered camera's session against the whole rendered cell.
+
+    The cell is rendered into ``folder/cell`` unless it is there already; both commands run with the same
+    options (the session's and the cell's defaults, the arm the sessions name), ``rounds`` interleaved rounds
+    (one camera, then the cell; with ``before``, a checkout of the code before a change, its two commands in
+    the same rounds), each command's wall and CPU time (its process and children); the medians.
+    """
+    from handeye.sim.cell import write_cell
+
+    cell = folder / "cell"
+    if not (cell / "cell.yaml").is_file():
+        write_cell(cell, n_cameras, n_views=n_views, seed=0, arm=ARM)
+    one_cam = sorted(p.parent.name for p in cell.glob("*/session.yaml"))[0]
+    codes = {"after": ROOT} if before is None else {"before": before.resolve(), "after": ROOT}
+    times: dict = {(c, k): [] for c in codes for k in ("one", "cell")}
+    loads = []
+    for i in range(rounds):
+        for code, root in codes.items():
+            out = folder / code
+            times[code, "one"].append(
+                _timed_command(["calibrate", str(cell / one_cam), "--out", str(out / "one")], root)
+            )
+            times[code, "cell"].append(_timed_command(["calibrate", str(cell), "--out", str(out / "cell")], root))
+            print(
+                f"round {i + 1} {code}: one camera {times[code, 'one'][-1][0]:.1f} s, "
+                f"the cell {times[code, 'cell'][-1][0]:.1f} s (wall)",
+                file=sys.stderr,
+            )
+        loads.append(os.getloadavg()[0])
+    lines = [
+        f"handeye calibrate, rendered {n_cameras}-camera {n_views}-view cell against one camera ({one_cam}), "
+        f"median of {rounds} interleaved rounds (load average {min(loads):.1f}-{max(loads):.1f} on {os.cpu_count()} "
+        "cores):"
+    ]
+    for code in codes:
+        res = json.loads((folder / code / "cell" / "result.json").read_text(encoding="utf-8"))
+        w1, c1 = np.median(times[code, "one"], axis=0)
+        wn, cn = np.median(times[code, "cell"], axis=0)
+        lines.append(
+            f"  {code}: one camera {w1:.1f} s wall / {c1:.1f} s CPU, the cell {wn:.1f} s wall / {cn:.1f} s CPU: "
+            f"{wn / w1:.2f}x wall, {cn / c1:.2f}x CPU (its joint graph {res['seconds']['joint']:.1f} s wall)"
+        )
+    return "\n".join(lines)
 
 
 def main() -> None:
@@ -264,9 +313,16 @@ def main() -> None:
         help="each fixed camera sees each view's flange moved by its own draw of this size per axis",
     )
     ap.add_argument("--rendered", type=Path, metavar="DIR", help="also time calibrate on a rendered cell in DIR")
+    ap.add_argument("--rounds", type=int, default=3, help="with --rendered: interleaved rounds of the two commands")
+    ap.add_argument(
+        "--before",
+        type=Path,
+        metavar="CHECKOUT",
+        help="with --rendered: also time a checkout of the code before a change",
+    )
     args = ap.parse_args()
     if args.rendered is not None:
-        print(rendered_timing(max(args.sizes), args.views, args.rendered))
+        print(rendered_timing(max(args.sizes), args.views, args.rendered, args.rounds, args.before))
     jobs = [(n, seed) for n in args.sizes for seed in range(args.seeds)]
     results = []
     it = ordered_map(

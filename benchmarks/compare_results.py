@@ -5,6 +5,9 @@ times, the command line and other provenance that differs between runs are skipp
 the verdict, and the reports: report.md's section headings and lines, report.html's sections, figures
 (count and keys) and tables. Prints each difference and a summary line; exit 1 when anything differs.
 
+A cell's folders (``kind: cell``) are compared with each camera's own calibration in ``solo/<camera>/``; its
+findings are the cell's (with the camera they name).
+
 Two runs of the same code differ by about 1e-8 relative (multi-threaded detection and linear algebra); the
 summary prints the largest relative difference so that a change can be set against that spread.
 
@@ -110,9 +113,22 @@ def main(argv=None) -> int:
     out: list[str] = []
     diff(ra, rb, "result.json", rtol=a.rtol, atol=a.atol, out=out)
     counts = report_diff(a.before, a.after, out)
+    if rb.get("kind") == "cell":  # each camera's own calibration too: solo/<camera>/
+        for cam in sorted(set(ra.get("cameras") or {}) | set(rb.get("cameras") or {})):
+            sa, sb = (p / "solo" / cam for p in (a.before, a.after))
+            if not ((sa / "result.json").is_file() and (sb / "result.json").is_file()):
+                out.append(f"solo/{cam}/result.json: present in {'neither' if not sa.exists() else 'one'} folder")
+                continue
+            rsa, rsb = (json.loads((p / "result.json").read_text()) for p in (sa, sb))
+            diff(rsa, rsb, f"solo/{cam}/result.json", rtol=a.rtol, atol=a.atol, out=out)
+            sub: list[str] = []
+            for k, v in report_diff(sa, sb, sub).items():
+                counts[f"solo {k}"] = counts.get(f"solo {k}", 0) + v
+            out += [f"solo/{cam}/{x}" for x in sub]
     for line in out[:200]:
         print(line)
     f = [x["code"] for x in (rb.get("diagnostics") or {}).get("findings", [])]
+    f += [x["code"] + (f" ({x['camera']})" if x.get("camera") else "") for x in rb.get("findings") or []]
     print(
         f"{len(out)} differences (rtol {a.rtol:g}, atol {a.atol:g}; largest relative difference {WORST[0]:.1e}); "
         f"verdict {ra.get('verdict')} -> {rb.get('verdict')}; findings after: {', '.join(f) or 'none'}; "

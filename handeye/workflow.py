@@ -81,6 +81,7 @@ def calibrate_session(
     site_files=(),
     prior=None,
     board_unmoved: bool = False,
+    detected=None,
 ) -> WorkflowResult:
     """Calibrate the session folder ``session_path`` and write its results into ``out_dir``.
 
@@ -93,6 +94,8 @@ def calibrate_session(
     the rig (folder, result.json or dict) whose X and intrinsics enter the refinement as priors
     (:func:`handeye.recal.prior.calibrate_with_prior`); result.json's ``prior`` block says what it did.
     ``board_unmoved``: with ``prior``, the board was not touched since (its earlier pose may enter too).
+    ``detected``: the session's images' detections made ahead (:func:`handeye.pipeline.detect_ahead`), used
+    when they are of the same images and options.
     """
     from .report.qa import load_qa
     from .session import load_session
@@ -120,6 +123,7 @@ def calibrate_session(
             site_files=site_files,
             prior=prior,
             board_unmoved=board_unmoved,
+            detected=detected,
         )
 
 
@@ -138,6 +142,7 @@ def _calibrate_locked(
     site_files,
     prior=None,
     board_unmoved: bool = False,
+    detected=None,
 ) -> WorkflowResult:
     """``qa``: (the site QA file or None, its thresholds as loaded)."""
     from .session import load_session
@@ -168,7 +173,7 @@ def _calibrate_locked(
             session, options, prior, progress=progress, board_unmoved=board_unmoved
         )
     else:
-        run = run_calibration(session, options, progress=progress)
+        run = run_calibration(session, options, progress=progress, detected=detected)
     from .results import observations_dict, result_dict
 
     seconds = {"load": t_load, **run.seconds}

@@ -317,3 +317,30 @@ def test_a_report_rendering_that_raises_keeps_the_result(rendered, tmp_path, mon
     res = json.loads((out / "result.json").read_text())
     assert res["status"] == "ok" and res["mode"] == mode and "total" in res["seconds"]
     assert not (out / "report.html").exists()
+
+
+def test_detections_made_ahead_are_taken_for_the_same_images_only(rendered, monkeypatch):
+    """``run_calibration(detected=...)`` takes the detections :func:`detect_ahead` made instead of detecting again
+    (the same run), and detects again when they are of other images."""
+    import handeye.pipeline as pipeline
+    from handeye.session import load_session
+
+    _mode, session = rendered
+    s = load_session(session)
+    alone = pipeline.run_calibration(s, _opts(validate=False))
+    ahead = pipeline.detect_ahead(s, _opts())
+    assert ahead is not None and [vid for vid, _p in ahead.items] == [v.view_id for v in s.views]
+    calls = []
+    real = pipeline.detect_views
+    monkeypatch.setattr(
+        pipeline, "detect_views", lambda items, *a, **k: calls.append(len(items)) or real(items, *a, **k)
+    )
+    run = pipeline.run_calibration(s, _opts(validate=False), detected=ahead)
+    assert calls == [] and run.status == "ok" and run.seconds["detect"] >= ahead.seconds
+    np.testing.assert_array_equal(run.T_x, alone.T_x)
+    np.testing.assert_array_equal(run.refined.cov_x_6x6, alone.refined.cov_x_6x6)
+    assert [o.n_corners for o in run.outcomes] == [o.n_corners for o in alone.outcomes]
+    other = pipeline.Detected(ahead.items[:-1], ahead.min_corners, ahead.results)  # not this session's images
+    run = pipeline.run_calibration(s, _opts(validate=False), detected=other)
+    assert calls == [len(s.views)] and run.status == "ok"
+    np.testing.assert_array_equal(run.T_x, alone.T_x)

@@ -1,11 +1,12 @@
 """``handeye calibrate SESSION_1 SESSION_2 ...`` or ``handeye calibrate CELL_DIR``: a cell of cameras, once.
 
 :func:`calibrate_cell` calibrates each camera's session on its own (:func:`handeye.workflow.calibrate_session`
-into ``OUT/solo/<camera>/``: detection, intrinsics, closed forms, its refinement, diagnostics and report),
-then refines every camera in one factor graph (:func:`handeye.refine.cell.refine_cell`) and writes one
-result.json (``kind: cell``, :mod:`handeye.contract`) with each camera's joint result, the camera pairs,
-the joint covariance and the cross-camera checks, and the cell's report. A camera is named by its session
-folder's name. A cell folder holds ``cell.yaml`` (``cell: {sessions: [...]}``, optional ``robot:``).
+into ``OUT/solo/<camera>/``: detection, intrinsics, closed forms, its refinement, diagnostics and report; the
+next camera's images are detected while one is calibrated), then refines every camera in one factor graph
+(:func:`handeye.refine.cell.refine_cell`) and writes one result.json (``kind: cell``, :mod:`handeye.contract`)
+with each camera's joint result, the camera pairs, the joint covariance and the cross-camera checks, and the
+cell's report. A camera is named by its session folder's name. A cell folder holds ``cell.yaml``
+(``cell: {sessions: [...]}``, optional ``robot:``).
 
 See docs/session_format.md and docs/refinement.md.
 """
@@ -17,6 +18,7 @@ import logging
 import re
 import time
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Optional, Sequence
@@ -108,6 +110,22 @@ def camera_names(session_paths: Sequence) -> list[str]:
     return names
 
 
+def _detect_ahead(path: Path, options: CalibrateOptions, mode: Optional[str], allow_outside: bool):
+    """A camera's session read and its images detected ahead of its calibration.
+
+    (:class:`handeye.pipeline.Detected`), or None when that fails: the camera's own calibration then says why,
+    in its result and report.
+    """
+    from ..pipeline import detect_ahead
+    from ..session import load_session
+
+    try:
+        return detect_ahead(load_session(path, mode=mode, allow_outside=allow_outside), options)
+    except HandeyeError as e:
+        log.debug("%s: not detected ahead (%s)", path, e)
+        return None
+
+
 def calibrate_cell(
     session_paths: Sequence,
     out_dir,
@@ -127,6 +145,7 @@ def calibrate_cell(
     overrides every session's mounting mode (rarely right for a mixed cell). See the module docstring.
     """
     from ..refine.cell import refine_cell
+    from ..report.qa import load_qa
     from .build import camera_input, cell_result, dh_prior_scale, excluded_by_most, start_options
 
     t0 = time.perf_counter()
@@ -138,24 +157,33 @@ def calibrate_cell(
         if robot is not None and options.refine_options.get("arm") is None:
             options = replace(options, refine_options={**options.refine_options, "arm": robot})
     names = camera_names(paths)
+    load_qa(qa)  # a bad site QA file is unusable input: say so before any work
     out = check_out_dir(out_dir)
     with FolderLock(out):
         remove_stray_temps(out)
         solos = {}
-        for name, p in zip(names, paths, strict=True):
-            progress(f"camera {name}: its own calibration")
-            solos[name] = calibrate_session(
-                p,
-                options=options,
-                out_dir=out / SOLO_DIR / name,
-                report=report,
-                qa=qa,
-                mode=mode,
-                progress=progress,
-                diagnostics=diagnostics,
-                allow_outside=allow_outside,
-                site_files=site_files,
-            )
+        # one thread detects the cameras' images in turn, ahead of their calibrations (detection releases the
+        # GIL): the next camera's images are detected while one camera is calibrated
+        ahead = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cell-detect")
+        try:
+            detecting = [ahead.submit(_detect_ahead, p, options, mode, allow_outside) for p in paths]
+            for name, p, detected in zip(names, paths, detecting, strict=True):
+                progress(f"camera {name}: its own calibration")
+                solos[name] = calibrate_session(
+                    p,
+                    options=options,
+                    out_dir=out / SOLO_DIR / name,
+                    report=report,
+                    qa=qa,
+                    mode=mode,
+                    progress=progress,
+                    diagnostics=diagnostics,
+                    allow_outside=allow_outside,
+                    site_files=site_files,
+                    detected=detected.result(),
+                )
+        finally:
+            ahead.shutdown(wait=True, cancel_futures=True)
         ok = {
             n: w.run for n, w in solos.items() if w.status == "ok" and w.run is not None and w.run.refined is not None
         }

@@ -28,14 +28,16 @@ from ..records import IMAGE_MISSING_REASON, Detection, Session, ViewOutcome, vie
 from ..targets import TargetSpec
 from .gates import _mode_gate, _pairing_gate, _stated_source, shift_poses
 from .poseonly import _run_pose_only
-from .records import MIN_VIEWS, CalibrateOptions, CalibrationRun, Observation
+from .records import MIN_VIEWS, CalibrateOptions, CalibrationRun, Detected, Observation
 from .stages import _closed_forms, _final_outcomes, refine_stage, session_arm, validate_pose_stage, validate_stage
 
 __all__ = [
     "MIN_VIEWS",
     "CalibrateOptions",
     "CalibrationRun",
+    "Detected",
     "Observation",
+    "detect_ahead",
     "detect_views",
     "failure_reason",
     "observe",
@@ -64,6 +66,7 @@ def observe(
     options: "CalibrateOptions" = CalibrateOptions(),  # noqa: B008 - a frozen dataclass, imported
     intrinsics_source: str = "",
     progress: Callable[[str], None] | None = None,
+    detected: Optional[Detected] = None,
 ) -> Observation:
     """Detect the target, calibrate the camera unless given and solve each view's board pose.
 
@@ -72,14 +75,20 @@ def observe(
 
     ``M_by_id`` (view_id -> robot motion ``M_i``, see :meth:`MountingMode.M_from_T_base_end`) orders
     the corners of symmetric boards consistently with the robot; without it each view keeps the
-    detector's order. Never raises for data that cannot be observed: the returned observation's
-    ``error`` says why it stopped.
+    detector's order. ``detected``: these items' detections made ahead (:func:`detect_ahead`), used
+    instead of detecting again when they are of the same items and options. Never raises for data
+    that cannot be observed: the returned observation's ``error`` says why it stopped.
     """
     progress = progress or (lambda s: None)
     seconds: dict = {}
     t0 = time.perf_counter()
-    progress(f"detecting the target in {len(items)} images")
-    det = detect_views(list(items), target, workers=options.workers, min_corners=options.min_corners)
+    if detected is not None and detected.fits(items, options.min_corners):
+        progress(f"the target was detected in {len(items)} images ahead")
+        det = dict(detected.results)
+        t0 -= detected.seconds  # the detect stage's time is the time it took ahead
+    else:
+        progress(f"detecting the target in {len(items)} images")
+        det = detect_views(list(items), target, workers=options.workers, min_corners=options.min_corners)
     outcomes: dict[str, ViewOutcome] = {}
     failures: dict = {}
     dets: dict[str, Detection] = {}
@@ -193,26 +202,47 @@ def target_text(t: TargetSpec) -> str:
     return t.describe()
 
 
+def detect_ahead(
+    session: Session,
+    options: CalibrateOptions = CalibrateOptions(),  # noqa: B008 - a frozen dataclass, imported
+) -> Optional[Detected]:
+    """The target detected in a session's images as :func:`run_calibration` would, for it to take later.
+
+    (A cell detects the next camera's images while it calibrates one: detection releases the GIL.) None
+    for a session without images (target poses from a tracker). Raises what detection raises (unreadable
+    images, images of different sizes).
+    """
+    if session.meta.get("pose_only"):
+        return None
+    s = shift_poses(session, int(options.shift_poses))[0] if options.shift_poses else session
+    items = tuple((v.view_id, v.image_path) for v in s.views)
+    t0 = time.perf_counter()
+    det = detect_views(list(items), s.target, workers=options.workers, min_corners=options.min_corners)
+    return Detected(items, options.min_corners, det, time.perf_counter() - t0)
+
+
 def run_calibration(
     session: Session,
     options: CalibrateOptions = CalibrateOptions(),  # noqa: B008 - a frozen dataclass, imported
     *,
     progress: Callable[[str], None] | None = None,
+    detected: Optional[Detected] = None,
 ) -> CalibrationRun:
     """All stages on a loaded session.
 
     A session that cannot be calibrated gives ``status="failed"`` with the error and every stage
-    result reached so far (for the report).
+    result reached so far (for the report). ``detected``: its images' detections made ahead
+    (:func:`detect_ahead`; used when they are of the same images and options).
     """
     state: dict = {}
     try:
-        return _run(session, options, state, progress or (lambda s: None))
+        return _run(session, options, state, progress or (lambda s: None), detected)
     except HandeyeError as e:
         s = state.pop("session", session)
         return CalibrationRun(session=s, options=options, status="failed", error=e, **state)
 
 
-def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> CalibrationRun:
+def _run(s: Session, opts: CalibrateOptions, state: dict, progress, detected=None) -> CalibrationRun:
     mode = mounting(s.mode)
     if opts.method not in METHODS:
         raise CalibrationError(f"unknown method {opts.method!r}", expected=" | ".join(METHODS), code="unknown_method")
@@ -236,6 +266,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress) -> Calibrati
         M_by_id=M_all,
         options=opts,
         progress=progress,
+        detected=detected,
     )
     outcomes = dict(obs.outcomes)
     for vid, line in s.meta.get("missing_images", {}).items():  # poses whose image is missing (the loader)

@@ -83,6 +83,25 @@ class Observation:
 
 
 @dataclass(frozen=True)
+class Detected:
+    """The target detected in a session's images ahead of its calibration (:func:`handeye.pipeline.detect_ahead`).
+
+    ``results``: what :func:`handeye.detect.detect_views` returned for ``items`` ((view id, image path) pairs, in
+    the session's order) with ``min_corners``; ``seconds``: the wall time it took. :func:`handeye.pipeline.observe`
+    takes it in place of detecting again when it was made for the same items and options.
+    """
+
+    items: tuple
+    min_corners: Optional[int]
+    results: dict
+    seconds: float = 0.0
+
+    def fits(self, items, min_corners: Optional[int]) -> bool:
+        """Whether these are the detections of ``items`` with ``min_corners``."""
+        return self.min_corners == min_corners and self.items == tuple((vid, path) for vid, path in items)
+
+
+@dataclass(frozen=True)
 class CalibrationRun:
     session: Session
     options: CalibrateOptions

@@ -389,11 +389,13 @@ def _variance_components(st: CellState, rounds: int) -> tuple[dict[str, float], 
     return red, _inverse(H)
 
 
-def _outlier_rounds(st: CellState, vce_rounds: int, readmitted: set[str]) -> tuple[dict[str, float], int]:
+def _outlier_rounds(
+    st: CellState, vce_rounds: int, readmitted: set[str]
+) -> tuple[dict[str, float], int, Optional[np.ndarray]]:
     """Variance components and the view tests, round after round, until no robot pose or camera view is left out.
 
-    Returns (the components' redundancies, the solver's iterations); ``readmitted``: view ids whose robot pose
-    came back (never twice).
+    Returns (the components' redundancies, the solver's iterations, the covariance of the estimate as it stands
+    or None when the last round moved it); ``readmitted``: view ids whose robot pose came back (never twice).
     """
     from .problem import cell_ordering, solve_cell_graph
 
@@ -406,7 +408,7 @@ def _outlier_rounds(st: CellState, vce_rounds: int, readmitted: set[str]) -> tup
         log.debug("cell round %d: robot %s, views %s, again %s", _round, worst, bad, again)
         again = [u for u in again if st.ids[u] not in readmitted]
         if worst is None and not bad and not again:
-            break
+            return red, iterations, S
         for u in again:  # the cameras agree with its reported pose now (a bad image of one camera had pulled it)
             readmitted.add(st.ids[u])
             st.excluded.pop(st.ids[u])
@@ -425,7 +427,7 @@ def _outlier_rounds(st: CellState, vce_rounds: int, readmitted: set[str]) -> tup
             st.cams[c].obs[j] = (u, obj, img, np.zeros_like(m))
             st.camera_removed[(c, st.ids[u])] = {"reason": "this camera alone disagrees with the arm's pose", **info}
         iterations += solve_cell_graph(st, robust=False)
-    return red, iterations
+    return red, iterations, None
 
 
 def refine_cell(
@@ -456,13 +458,13 @@ def refine_cell(
             st.excluded[vid] = {"reason": "excluded by most of the cameras' own refinements"}
     iterations = solve_cell_graph(st, robust=True)
     readmitted: set[str] = set()
-    red, it = _outlier_rounds(st, vce_rounds, readmitted)
+    red, it, S_now = _outlier_rounds(st, vce_rounds, readmitted)
     iterations += it
     # the cameras' views of one robot pose, against each other: a camera-and-view effect the shared pose lacks
     view_test = view_pose_test(st, float(refine_preset()["noise"]["view_pose_alpha"]))
     if view_test.get("contradicted"):
         st.view_sigma = np.array([view_test["start_rot_rad"], view_test["start_trans_m"]])
-        red, it = _outlier_rounds(st, vce_rounds, readmitted)
+        red, it, S_now = _outlier_rounds(st, vce_rounds, readmitted)
         iterations += it
     for vid, why in st.excluded.items():  # how far the cameras put the arm from its reported pose, at the end
         u = st.ids.index(vid)
@@ -470,8 +472,9 @@ def refine_cell(
         why.update(rot_deg=float(np.degrees(np.linalg.norm(xi[:3]))), trans_mm=float(1e3 * np.linalg.norm(xi[3:])))
     keys, sizes = cell_ordering(st)
     core = int(np.sum(sizes))
-    H, _parts = cell_information(st)
-    S = _inverse(H)[:core, :core]
+    if S_now is None:  # the last round changed the estimate: its information again
+        S_now = _inverse(cell_information(st)[0])
+    S = S_now[:core, :core]
     S = 0.5 * (S + S.T)
     blocks: list[str] = []
     for cam in st.cams:

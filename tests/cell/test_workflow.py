@@ -80,6 +80,35 @@ def test_sessions_named_one_by_one_are_the_same_cell(cell, tmp_path):
     assert np.linalg.norm(np.asarray(wr.result["cameras"]["cam1"]["T_base_cam"])[:3, 3] - joint3[:3, 3]) < 2e-3
 
 
+def test_each_cameras_images_are_detected_once_ahead_and_its_solo_run_is_its_own(cell, tmp_path, monkeypatch):
+    """The cell detects every camera's images once, in its detection thread, ahead of that camera's calibration;
+    a camera's solo result is its session's calibrated alone."""
+    import threading
+
+    import handeye.pipeline as pipeline
+    from handeye.workflow import calibrate_session
+
+    folder, _out, _rc = cell
+    alone = calibrate_session(folder / "cam2", out_dir=tmp_path / "alone", report=False, diagnostics=False)
+    seen = []
+    real = pipeline.detect_views
+
+    def counting(items, *a, **k):
+        seen.append((items[0][1].parent.name, threading.current_thread().name))
+        return real(items, *a, **k)
+
+    monkeypatch.setattr(pipeline, "detect_views", counting)
+    wr = calibrate_cell([folder / "cam1", folder / "cam2"], tmp_path / "cell", report=False, diagnostics=False)
+    assert sorted(cam for cam, _t in seen) == ["cam1", "cam2"]
+    assert all(t.startswith("cell-detect") for _cam, t in seen)
+    solo, one = (
+        json.loads((p / "result.json").read_text()) for p in (tmp_path / "cell" / "solo" / "cam2", alone.out_dir)
+    )
+    assert solo["T_base_cam"] == one["T_base_cam"] and solo["views"] == one["views"]
+    assert solo["refinement"]["cov_x_6x6"] == one["refinement"]["cov_x_6x6"]
+    assert solo["seconds"]["detect"] > 0 and wr.result["cameras"]["cam2"]["status"] == "ok"
+
+
 def test_a_cell_file_without_sessions_is_one_line_naming_it(tmp_path):
     (tmp_path / "cell.yaml").write_text("cell: {sessions: []}\n")
     with pytest.raises(InputError, match="cell.sessions must list") as e:
