@@ -54,6 +54,10 @@ def _median(xs) -> float:
     return statistics.median(xs) if xs else float("nan")
 
 
+#: the records' spans that are not a named stage of the workflow
+_NOT_STAGES = ("import handeye.cli", "command imports", "stage modules", "main", "workflow")
+
+
 def breakdown(name: str, records: list[dict]) -> None:
     """The per-stage wall and CPU medians of ``timed_cli.py``'s records of one command."""
     print(f"\n{name}: where the time goes (median over rounds) {'wall [s]':>9s} {'CPU [s]':>8s}")
@@ -67,10 +71,18 @@ def breakdown(name: str, records: list[dict]) -> None:
     row("import handeye.cli", lambda r, k: r["stages"]["import handeye.cli"][k])
     row("the command's imports (before main())", lambda r, k: r["stages"]["command imports"][k])
     row(
+        "the staged modules' imports (by the timer, before main())",
+        lambda r, k: r["stages"].get("stage modules", {}).get(k),
+    )
+    row(
         "main() before the workflow (parsing, options)",
         lambda r, k: r["stages"]["main"][k] - r["stages"]["workflow"][k],
     )
-    stages = [k for k in records[0]["stages"] if k not in ("import handeye.cli", "command imports", "main", "workflow")]
+    stages = [
+        k
+        for k in records[0]["stages"]
+        if k not in ("import handeye.cli", "command imports", "stage modules", "main", "workflow")
+    ]
     for k in stages:
         row(f"  stage {k}", lambda r, kk, s=k: r["stages"].get(s, {}).get(kk))
     row(
