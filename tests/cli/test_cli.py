@@ -376,6 +376,23 @@ def test_calibrate_imports_what_an_image_session_uses(session, tmp_path):
     assert not unused & after
 
 
+def test_calibrate_freezes_the_imports_once(session, tmp_path):
+    """The objects alive after calibrate's imports leave the collector's passes, once per process."""
+    code = (
+        "import gc, sys\nfrom handeye.cli import freeze_imports, main\n"
+        "assert gc.get_freeze_count() == 0\n"
+        "main(['-q', 'calibrate', sys.argv[1], '--out', sys.argv[2], '--no-report'])\n"
+        "n = gc.get_freeze_count()\nfreeze_imports()\nprint(n, gc.get_freeze_count())"
+    )
+    p = subprocess.run(
+        [sys.executable, "-c", code, str(session), str(tmp_path / "o")], capture_output=True, text=True, check=True
+    )
+    first, again = map(int, p.stdout.split()[-2:])
+    assert first > 10_000  # numpy's, pydantic's and handeye's modules at least
+    assert again == first  # a second call freezes nothing (it would keep the first run's garbage)
+    assert json.loads((tmp_path / "o" / "result.json").read_text())["status"] == "ok"
+
+
 def test_site_min_corners_overrides_the_detection_preset(session, tmp_path, capsys):
     site = tmp_path / "site.yaml"
     site.write_text(yaml.safe_dump({"min_corners": 89}))  # the 11x8 board has 88 corners
