@@ -71,7 +71,7 @@ def breakdown(name: str, records: list[dict]) -> None:
     row("import handeye.cli", lambda r, k: r["stages"]["import handeye.cli"][k])
     row("the command's imports (before main())", lambda r, k: r["stages"]["command imports"][k])
     row(
-        "the staged modules' imports (by the timer, before main())",
+        "the staged modules' imports (by the timer)",
         lambda r, k: r["stages"].get("stage modules", {}).get(k),
     )
     row(
