@@ -20,7 +20,6 @@ import importlib
 import logging
 import sys
 
-from .. import __version__
 from ..errors import INTERRUPTED_EXIT_CODE, HandeyeError, exit_codes_text
 
 log = logging.getLogger("handeye")
@@ -40,6 +39,19 @@ COMMANDS = {
     "compare": ("compare", "compare two calibrations of one rig: difference, Mahalanobis distance, p-value"),
     "verify": ("verify", "check a short session against an installed calibration (still valid / drifted)"),
 }
+
+
+class _Version(argparse.Action):
+    """``--version``: the version is read (importlib.metadata) only when it is asked for."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from .. import __version__
+
+        print(f"handeye {__version__}")
+        parser.exit()
 
 
 class _LazyCommands(argparse._SubParsersAction):
@@ -73,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=exit_codes_text(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--version", action="version", version=f"handeye {__version__}")
+    p.add_argument("--version", action=_Version, help="show program's version number and exit")
     p.add_argument("-v", "--verbose", action="store_true", help="more progress detail on stderr")
     p.add_argument("-q", "--quiet", action="store_true", help="only errors on stderr")
     p.add_argument("--debug", action="store_true", help="show tracebacks")

@@ -338,6 +338,22 @@ def test_help_loads_only_the_chosen_command():
         assert re.search(r"^  +--(?!help)", cap.stdout, re.M), command  # the module's own options are there
 
 
+def test_version_is_read_only_when_asked(capsys):
+    """``handeye --version`` prints the installed version; ``--help`` and ``import handeye`` do not read it."""
+    import importlib.metadata
+
+    from handeye import __version__
+
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0
+    assert capsys.readouterr().out == f"handeye {__version__}\n"
+    assert __version__ == importlib.metadata.version("handeye")
+    help_run = "import sys; from handeye.cli import main\ntry: main(['--help'])\nexcept SystemExit: pass"
+    assert "importlib.metadata" not in _modules_after(help_run)
+    assert "importlib.metadata" not in _modules_after("import handeye")
+
+
 def _modules_after(code: str, *argv: str) -> set:
     """The modules a new process has imported after running ``code`` (``argv`` as its ``sys.argv[1:]``)."""
     code += "\nimport sys; print(sorted(sys.modules))"
