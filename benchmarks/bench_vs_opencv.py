@@ -15,6 +15,11 @@ Without ``--session``: a rendered 1280x720 vendor session of ``--views`` views
 (e.g. the shared real sets); each is measured on its own. ``--before DIR``: a checkout of handeye before a
 change (e.g. ``git archive HEAD~3 | tar -x -C DIR``); its two calibrate commands run in the same
 interleaved rounds (with ``PYTHONPATH=DIR``), so the before/after figures share the machine's load.
+
+Every command runs as an installed package does: with bytecode caches (kept under the run's temporary
+folder, ``PYTHONPYCACHEPREFIX``, even when ``PYTHONDONTWRITEBYTECODE`` is set, which would otherwise
+compile every handeye module from source in every run), written by one warm-up round that is not counted;
+the "after" commands import this checkout's handeye.
 """
 
 from __future__ import annotations
@@ -49,6 +54,10 @@ def _median(xs) -> float:
     return statistics.median(xs) if xs else float("nan")
 
 
+#: the records' spans that are not a named stage of the workflow
+_NOT_STAGES = ("import handeye.cli", "command imports", "stage modules", "main", "workflow")
+
+
 def breakdown(name: str, records: list[dict]) -> None:
     """The per-stage wall and CPU medians of ``timed_cli.py``'s records of one command."""
     print(f"\n{name}: where the time goes (median over rounds) {'wall [s]':>9s} {'CPU [s]':>8s}")
@@ -62,10 +71,18 @@ def breakdown(name: str, records: list[dict]) -> None:
     row("import handeye.cli", lambda r, k: r["stages"]["import handeye.cli"][k])
     row("the command's imports (before main())", lambda r, k: r["stages"]["command imports"][k])
     row(
+        "the staged modules' imports (by the timer)",
+        lambda r, k: r["stages"].get("stage modules", {}).get(k),
+    )
+    row(
         "main() before the workflow (parsing, options)",
         lambda r, k: r["stages"]["main"][k] - r["stages"]["workflow"][k],
     )
-    stages = [k for k in records[0]["stages"] if k not in ("import handeye.cli", "command imports", "main", "workflow")]
+    stages = [
+        k
+        for k in records[0]["stages"]
+        if k not in ("import handeye.cli", "command imports", "stage modules", "main", "workflow")
+    ]
     for k in stages:
         row(f"  stage {k}", lambda r, kk, s=k: r["stages"].get(s, {}).get(kk))
     row(
@@ -108,7 +125,11 @@ def measure(session: Path, tmp: Path, rounds: int, *, before: Path | None = None
         "import handeye.cli": [py, "-c", "import handeye.cli"],
         "python -c pass": [py, "-c", "pass"],
     }  # fmt: skip
-    env: dict = {}
+    # as installed: bytecode caches (written by the warm-up round below), this checkout's handeye
+    base = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    base["PYTHONPYCACHEPREFIX"] = str(tmp / "pycache")
+    after = {**base, "PYTHONPATH": os.pathsep.join([str(HERE.parent), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    env: dict = {name: after for name in commands}
     if before is not None:
         for label, flags, out in (("(both reports)", [], "rb"), ("--no-report", ["--no-report"], "nb")):
             key = f"before: calibrate {label}"
@@ -122,12 +143,14 @@ def measure(session: Path, tmp: Path, rounds: int, *, before: Path | None = None
                 str(tmp / out),
                 *flags,
             ]
-            env[key] = {**os.environ, "PYTHONPATH": str(before.resolve())}
+            env[key] = {**base, "PYTHONPATH": str(before.resolve())}
     n_images = len(list(session.glob("*.jpg"))) + len(list(session.glob("*.png")))
     print(
         f"\nsession {session} ({n_images} images), {rounds} interleaved rounds, "
         f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
     )
+    for name, cmd in commands.items():  # the warm-up round: bytecode caches, the OS's file cache
+        run(cmd, env.get(name))
     times: dict = {k: [] for k in commands}
     records: dict = {}
     for _ in range(rounds):

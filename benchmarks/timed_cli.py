@@ -2,9 +2,10 @@
 
 What ``python -m handeye.cli ARGS`` does, with the stage functions wrapped (module attributes replaced
 before the run, nothing in handeye changed): the interpreter start-up (from the process's start time),
-``import handeye.cli``, the command module's imports, then per stage the wall and this process's CPU time
-(all threads). ``outside`` is the workflow's time not in a named stage; ``exit`` (measured by the caller)
-is the interpreter's shut-down. Used by ``bench_vs_opencv.py``; prints nothing of its own.
+``import handeye.cli``, the command module's imports, the imports of the modules whose stage functions
+are wrapped (``stage modules``: the command would import them later), then per stage the wall and this
+process's CPU time (all threads). ``outside`` is the workflow's time not in a named stage; ``exit``
+(measured by the caller) is the interpreter's shut-down. Used by ``bench_vs_opencv.py``; prints nothing of its own.
 
     python benchmarks/timed_cli.py TIMES.json calibrate SESSION --out DIR [...]
 """
@@ -71,6 +72,7 @@ def main(out: str, argv: list[str]) -> int:
         importlib.import_module(f"handeye.cli.{cli.COMMANDS[command][0]}")
         importlib.import_module("handeye.workflow")
     mark("command imports", w0, c0)
+    w0, c0 = time.perf_counter(), time.process_time()
     for stage, (mod, attr) in STAGES.items():
         module = importlib.import_module(mod)
         fn = getattr(module, attr)
@@ -83,6 +85,7 @@ def main(out: str, argv: list[str]) -> int:
                 mark(_stage, t, c)
 
         setattr(module, attr, timed)
+    mark("stage modules", w0, c0)  # what wrapping them imports, before main(): the command's own imports
     import handeye.workflow as wf
 
     calibrate_session = wf.calibrate_session

@@ -11,6 +11,10 @@ import yaml
 
 from .errors import ConfigError, InputError
 
+#: the parser of the shipped presets: libyaml's when PyYAML has it (the same constructors and resolver as
+#: ``yaml.SafeLoader``, so the same values; about 15x faster, and every calibration parses five presets)
+PRESET_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
 
 def load_preset(name: str) -> dict:
     """A shipped preset by name (``calibration``, ``qa``...), found inside the installed package.
@@ -33,7 +37,7 @@ def _parsed_preset(name: str) -> dict:
         text = resources.files("handeye.configs").joinpath(f"{name}.yaml").read_text(encoding="utf-8")
     except (FileNotFoundError, ModuleNotFoundError):
         raise ConfigError(f"no shipped preset named {name!r}", hint="reinstall handeye") from None
-    return yaml.safe_load(text) or {}
+    return yaml.load(text, Loader=PRESET_LOADER) or {}
 
 
 def merge(base: dict, override: dict, *, source: str = "override") -> dict:

@@ -212,6 +212,9 @@ def default_out_dir(session) -> Path:
 
 def run(args) -> int:
     from ..workflow import calibrate_session
+    from . import freeze_imports
+
+    freeze_imports()
 
     sessions = list(args.session) if isinstance(args.session, (list, tuple)) else [args.session]
     if len(sessions) > 1 or _is_cell(sessions[0]):

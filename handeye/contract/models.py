@@ -62,7 +62,9 @@ Mapping = dict[str, Any]
 class Open(BaseModel):
     """A block whose known fields are checked and whose other fields are kept as written."""
 
-    model_config = ConfigDict(extra="allow", frozen=False, validate_default=False)
+    # defer_build: a model's validator is built on its first use, so a command builds only the models of the
+    # files it reads or writes, and Result (which refers to later models) is built once, not tried first
+    model_config = ConfigDict(extra="allow", frozen=False, validate_default=False, defer_build=True)
 
 
 # ------------------------------------------------------------------------------------------ result.json

@@ -27,7 +27,6 @@ from ..mounting import mounting
 from ..records import IMAGE_MISSING_REASON, Detection, Session, ViewOutcome, view_id_key
 from ..targets import TargetSpec
 from .gates import _mode_gate, _pairing_gate, _stated_source, shift_poses
-from .poseonly import _run_pose_only
 from .records import MIN_VIEWS, CalibrateOptions, CalibrationRun, Detected, Observation
 from .stages import _closed_forms, _final_outcomes, refine_stage, session_arm, validate_pose_stage, validate_stage
 
@@ -248,6 +247,8 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress, detected=Non
         raise CalibrationError(f"unknown method {opts.method!r}", expected=" | ".join(METHODS), code="unknown_method")
     t0 = time.perf_counter()
     if s.meta.get("pose_only"):  # target poses from a tracker: no detection, no intrinsics
+        from .poseonly import _run_pose_only  # imported on this path only (it imports the diagnostics)
+
         return _run_pose_only(s, opts, state, progress)
     # the arm session.yaml names is read before any work: a wrong table is one error line
     arm = session_arm(s, opts) if opts.refine else None

@@ -338,6 +338,77 @@ def test_help_loads_only_the_chosen_command():
         assert re.search(r"^  +--(?!help)", cap.stdout, re.M), command  # the module's own options are there
 
 
+def test_version_is_read_only_when_asked(capsys):
+    """``handeye --version`` prints the installed version; ``--help`` and ``import handeye`` do not read it."""
+    import importlib.metadata
+
+    from handeye import __version__
+
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0
+    assert capsys.readouterr().out == f"handeye {__version__}\n"
+    assert __version__ == importlib.metadata.version("handeye")
+    help_run = "import sys; from handeye.cli import main\ntry: main(['--help'])\nexcept SystemExit: pass"
+    assert "importlib.metadata" not in _modules_after(help_run)
+    assert "importlib.metadata" not in _modules_after("import handeye")
+
+
+def _modules_after(code: str, *argv: str) -> set:
+    """The modules a new process has imported after running ``code`` (``argv`` as its ``sys.argv[1:]``)."""
+    code += "\nimport sys; print(sorted(sys.modules))"
+    p = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, check=True)
+    return set(ast.literal_eval(p.stdout.strip().splitlines()[-1]))
+
+
+def test_calibrate_imports_what_an_image_session_uses(session, tmp_path):
+    """The command's imports stop at what runs before the work; an image session imports no pose-only code.
+
+    Importing the calibrate command and the workflow imports neither the statistics (scipy.special), GTSAM nor
+    the diagnostics: each comes with the stage that uses it. The whole ``calibrate --no-report`` on an image
+    session imports the tracker sessions' pipeline and refinement, the report's figures and templates, the
+    export writers and scipy's other packages not at all.
+    """
+    heavy = {"scipy.special", "gtsam", "handeye.stats", "handeye.diagnose", "handeye.refine.refinement"}
+    before = _modules_after("import handeye.cli.calibrate, handeye.workflow")
+    assert not heavy & before
+    run = "import sys; from handeye.cli import main\ntry: main(sys.argv[1:])\nexcept SystemExit: pass"
+    after = _modules_after(run, "-q", "calibrate", str(session), "--out", str(tmp_path / "o"), "--no-report")
+    assert (tmp_path / "o" / "result.json").is_file()
+    assert heavy <= after  # they did run
+    unused = {
+        "handeye.pipeline.poseonly",
+        "handeye.refine.poseonly",
+        "handeye.refine.poseonly_robot",
+        "handeye.report.render",
+        "handeye.report.plots",
+        "handeye.export.writers",
+        "matplotlib",
+        "jinja2",
+        "scipy.stats",
+        "scipy.optimize",
+        "scipy.linalg",
+    }
+    assert not unused & after
+
+
+def test_calibrate_freezes_the_imports_once(session, tmp_path):
+    """The objects alive after calibrate's imports leave the collector's passes, once per process."""
+    code = (
+        "import gc, sys\nfrom handeye.cli import freeze_imports, main\n"
+        "assert gc.get_freeze_count() == 0\n"
+        "main(['-q', 'calibrate', sys.argv[1], '--out', sys.argv[2], '--no-report'])\n"
+        "n = gc.get_freeze_count()\nfreeze_imports()\nprint(n, gc.get_freeze_count())"
+    )
+    p = subprocess.run(
+        [sys.executable, "-c", code, str(session), str(tmp_path / "o")], capture_output=True, text=True, check=True
+    )
+    first, again = map(int, p.stdout.split()[-2:])
+    assert first > 10_000  # numpy's, pydantic's and handeye's modules at least
+    assert again == first  # a second call freezes nothing (it would keep the first run's garbage)
+    assert json.loads((tmp_path / "o" / "result.json").read_text())["status"] == "ok"
+
+
 def test_site_min_corners_overrides_the_detection_preset(session, tmp_path, capsys):
     site = tmp_path / "site.yaml"
     site.write_text(yaml.safe_dump({"min_corners": 89}))  # the 11x8 board has 88 corners

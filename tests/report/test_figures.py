@@ -87,3 +87,32 @@ def test_a_child_that_hangs_is_ended_and_its_figures_drawn_here(two_processes, m
     t0 = time.monotonic()
     assert figures.draw_figures(draws) == {"a": b"png of a", "b": b"png of b"}
     assert time.monotonic() - t0 < 60  # ended at its limit, not after the child's 600 s
+
+
+def test_the_child_inherits_the_drawing_modules():
+    """Inside the report's style the child finds matplotlib's figure and Agg modules already imported.
+
+    A fresh process: importing the report's figures module imports no matplotlib; the forked child's draw
+    sees the modules every figure draws with in sys.modules before it imports anything (it would import them a
+    second time otherwise: 0.2 s of CPU).
+    """
+    import subprocess
+
+    code = """
+import os, sys
+from handeye.report import figures
+from handeye.report.plots import style
+assert "matplotlib" not in sys.modules
+figures._parallel = lambda: True
+parent = os.getpid()
+def seen():
+    assert os.getpid() != parent
+    mods = ("matplotlib.figure", "matplotlib.backends.backend_agg", "PIL.Image")
+    return repr([m in sys.modules for m in mods]).encode()
+with style():
+    got = figures.draw_figures({"a": lambda: b"", "b": seen})
+print(got["b"].decode())
+"""
+    env = {k: v for k, v in os.environ.items() if k != "HANDEYE_FIGURE_PROCESSES"}
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+    assert p.stdout.split() == ["[True,", "True,", "True]"]

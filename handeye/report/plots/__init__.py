@@ -2,7 +2,7 @@
 
 :mod:`.residuals` draws the residual and image-coverage figures, :mod:`.geometry` the pose, rotation
 and translation-uncertainty figures, both with the style and helpers of :mod:`.canvas`. matplotlib is
-imported when the first figure is drawn (never with the CLI or the pipeline). Nothing here reads files.
+imported when the figures' style is entered (never with the CLI or the pipeline). Nothing here reads files.
 """
 
 from __future__ import annotations

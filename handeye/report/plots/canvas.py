@@ -2,8 +2,8 @@
 
 Drawing is kept light, because it is most of a report's cost: an Agg canvas without pyplot state, fixed
 margins instead of a layout engine, one collection per kind of line instead of one artist per line,
-2-D projections instead of mplot3d, and 8-bit palette PNGs. matplotlib is imported when the first
-figure is drawn.
+2-D projections instead of mplot3d, and 8-bit palette PNGs. matplotlib is imported when the figures'
+style is entered (:func:`style`), before the figures are drawn.
 """
 
 from __future__ import annotations
@@ -54,8 +54,15 @@ _RC = {
 
 @contextlib.contextmanager
 def style():
-    """The report's matplotlib style, for a whole batch of figures (one rc context, not one per call)."""
+    """The report's matplotlib style, for a whole batch of figures (one rc context, not one per call).
+
+    It also imports the modules every figure draws with: :func:`handeye.report.figures.draw_figures` forks
+    its drawing process inside this context, and the child inherits them instead of importing them again.
+    """
     import matplotlib
+    import matplotlib.backends.backend_agg  # noqa: F401 - imported before the fork, see above
+    import matplotlib.figure  # noqa: F401
+    import PIL.Image  # noqa: F401
 
     with matplotlib.rc_context(_RC):
         yield
