@@ -11,7 +11,7 @@ from handeye.frames import inv_T, se3_exp, tangent_difference, tangent_jacobian
 from handeye.initial import all_methods, calibrate_intrinsics, solve_pnp
 from handeye.mounting import mounting
 from handeye.refine import RefineOptions, RefineView, refine
-from handeye.refine.cell import CellCameraInput, refine_cell
+from handeye.refine.cell import CellCameraInput, CellState, refine_cell
 from handeye.sim.cell import make_cell
 
 CHI2_95 = chi2.ppf(0.95, 6)
@@ -225,3 +225,65 @@ def test_cameras_that_see_the_arm_at_their_own_instants():
 
 def _hidden(cell) -> set:
     return {v for s in cell.sessions for v in s.hidden_view_ids}
+
+
+def test_the_arm_model_offsets_mean_the_simulated_dh_errors():
+    """The cell's kinematic prior, at the true robot poses, with the simulated arm's DH errors as its offsets:
+    each view's whitened robot residual is the encoder noise alone (chi-square 6 dof), without them far larger.
+
+    The benchmark's bounds (benchmarks/bench_cell.py) take the true offsets in this order and sign.
+    """
+    cell = make_cell(2, n_views=40, seed=3, arm="ur5e")
+    first = cell.sessions[0]
+    ins = [
+        CellCameraInput(
+            name=name,
+            mode=s.mode,
+            object_points=s.target.object_points(),
+            views=_views(s),
+            intrinsics=s.intrinsics,
+            T_x0=s.T_x_true,
+            T_board0=s.T_board_true,
+            sigma_px=0.3,
+        )
+        for name, s in zip(cell.names, cell.sessions, strict=True)
+    ]
+    st = CellState(ins, RefineOptions(arm="ur5e"))
+    st.P = np.array([first.T_base_end_true[first.index(v)] for v in st.ids])
+    st.sigma_q = np.radians(first.robot_model["encoder_sigma_deg"])
+
+    def whitened(dh):
+        st.dh = dh
+        return [float(st.prior_residual(u) @ np.linalg.solve(st.prior_cov(u), st.prior_residual(u))) for u in st.seen()]
+
+    dh_true = (np.asarray(first.robot_model["dh_true"]) - np.asarray(first.robot_model["dh_nominal"])).ravel()
+    m2 = whitened(dh_true)
+    # mean of n chi-square(6) draws: 6 within 4 of its standard errors (sqrt(12 / n))
+    assert abs(np.mean(m2) - 6) < 4 * np.sqrt(12 / len(m2)), np.mean(m2)
+    assert np.mean(whitened(np.zeros_like(dh_true))) > 100
+
+
+def test_bench_cell_bound_uses_the_simulated_dh_spread():
+    """benchmarks/bench_cell.py's bound of the simulated problem: its DH prior is the second moment of the
+    simulator's DH error draw (a magnitude uniform in a range, a random sign), checked on 400 drawn arms."""
+    import importlib.util
+    from pathlib import Path
+
+    from handeye.kinematics import load_arm
+    from handeye.sim.robot_error import sample_true_arm
+
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_cell.py"
+    spec = importlib.util.spec_from_file_location("bench_cell_bound", path)
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    nominal = load_arm("ur5e")
+    rng = np.random.default_rng(7)
+    err = np.stack([sample_true_arm(nominal, rng=rng).dh - nominal.dh for _ in range(400)])  # (400, 6, 4)
+    length, angle = np.square(err[..., [0, 2]]).ravel(), np.square(err[..., [1, 3]]).ravel()
+    expected = bench.sim_dh_second_moment()
+    for sample, m in ((length, expected[0]), (angle, expected[1])):  # within 4 standard errors of the mean
+        assert abs(sample.mean() - m) < 4 * sample.std() / np.sqrt(sample.size), (sample.mean(), m)
+    # the arm's stated prior (0.3 mm / 0.03 deg) is narrower than the simulated spread (RMS 0.321 / 0.0321)
+    assert np.sqrt(expected[0]) * 1e3 == pytest.approx(0.3215, abs=1e-4)
+    assert np.degrees(np.sqrt(expected[1])) == pytest.approx(0.03215, abs=1e-5)
