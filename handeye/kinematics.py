@@ -513,7 +513,8 @@ def chain_to_dict(chain: DHChain) -> dict:
     if lim is not None:
         for link, (lo, hi) in zip(links, np.asarray(lim, float), strict=False):
             link["limits"] = [float(lo), float(hi)]
-    out = {"name": chain.name, "convention": chain.convention, "length_unit": "m", "angle_unit": "rad", "links": links}
+    out: dict[str, Any] = {"name": chain.name, "convention": chain.convention, "length_unit": "m", "angle_unit": "rad"}
+    out["links"] = links
     if chain.home_rad is not None:
         out["home"] = [float(v) for v in chain.home_rad]
     return out
