@@ -109,7 +109,8 @@ def _joints(arm: DHChain, views: Sequence[RefineView], reported: np.ndarray) -> 
             prev = q
             continue
         ref = prev if prev is not None else arm.home_rad  # the configuration the arm is in: see below
-        q = solve_ik(arm, T, seeds=default_ik_seeds(arm, T), nearest=ref)
+        home = [arm.home_rad] if arm.home_rad is not None and prev is not None else []  # a seed where prev is far
+        q = solve_ik(arm, T, seeds=home + default_ik_seeds(arm, T), nearest=ref)
         if q is None:
             raise InputError(
                 f"view {v.view_id}: the {arm.name} cannot reach the reported pose",
