@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_t
 
+from handeye.frames import inv_T, se3_log
 from handeye.initial import all_methods
 from handeye.mounting import mounting
-from handeye.refine.poseonly import PoseView, refine_poses
+from handeye.refine.poseonly import PoseView, refine_poses, refit_poses
 from handeye.refine.tracker_tails import (
     TAIL_TEST_LL,
     choose_dof,
@@ -59,20 +60,23 @@ def _refine(ts):
     views = [PoseView(v, ts.T_cam_board[k], ts.T_base_end[k]) for k, v in enumerate(ts.view_ids)]
     res = refine_poses(mode=ts.mode, views=views, T_x0=cf["tsai"].T_x, T_board0=cf["tsai"].T_board, starts=cf)
     assert res.status == "ok", res.failure_reason
-    return res
+    return res, views
 
 
 def test_a_heavy_tailed_tracker_is_modelled_not_trimmed():
-    """Student-t(3) tracker noise: a t is chosen (the grid's heaviest), every view kept with its EM weight (none called a wrong robot
-    pose), X's covariance the t model's; a Gaussian tracker stays Gaussian, unweighted."""
+    """Student-t(3) tracker noise: a t is chosen (the grid's heaviest), every view kept with its EM weight
+    (none called a wrong robot pose), X's covariance the t model's; a Gaussian tracker stays Gaussian."""
     ts = make_arm_tracker_session(arm="ur5e", mode="eye_in_hand", seed=0, tracker_dof=3.0)
-    res = _refine(ts)
+    res, views = _refine(ts)
     assert res.tracker_tail_dof == 5.0
     assert not res.outliers and all(v["status"] == "used" for v in res.per_view.values())
     w = np.array(list(res.view_weights.values()))
     assert w.min() < 0.3 and w.max() > 1.5
     d = res.to_dict()["tracker_noise"]
     assert d["tail_dof"] == 5.0 and "Student-t" in d["model"]
-    clean = _refine(make_arm_tracker_session(arm="ur5e", mode="eye_in_hand", seed=0))
+    # a refit on every view holds the weights: the full solution again (a Gaussian refit would move it)
+    refit = refit_poses(res, views, covariance=False)
+    assert np.abs(se3_log(inv_T(refit.T_x) @ res.T_x)).max() < 1e-7
+    clean, _ = _refine(make_arm_tracker_session(arm="ur5e", mode="eye_in_hand", seed=0))
     assert np.isinf(clean.tracker_tail_dof) and clean.view_weights is None
     assert clean.to_dict()["tracker_noise"]["tail_dof"] is None
