@@ -61,7 +61,9 @@ class DHChain:
 
     ``joint_limits_rad`` (n, 2) bounds the encoder angles ``q`` (None: unbounded). ``error_prior``:
     how far the real arm may be from this table, ``(length sigma [m], angle sigma [rad], encoder sigma
-    [rad])`` per DH parameter and joint (the preset's ``error_prior``; None: not stated).
+    [rad])`` per DH parameter and joint (the preset's ``error_prior``; None: not stated). ``home_rad`` (n,):
+    the configuration the arm works about (the preset's ``home``), which picks among the inverse
+    kinematics' configurations of a pose (None: not stated).
     """
 
     name: str
@@ -69,6 +71,7 @@ class DHChain:
     dh: np.ndarray  # shape (n, 4)
     joint_limits_rad: Optional[np.ndarray] = None  # shape (n, 2)
     error_prior: Optional[tuple] = None  # (length sigma m, angle sigma rad, encoder sigma rad)
+    home_rad: Optional[np.ndarray] = None  # shape (n,)
 
     def __post_init__(self):
         if self.convention not in CONVENTIONS:
@@ -96,6 +99,16 @@ class DHChain:
                 )
             lim.setflags(write=False)
             object.__setattr__(self, "joint_limits_rad", lim)
+        if self.home_rad is not None:
+            home = np.array(self.home_rad, float).reshape(-1)
+            if home.shape != (len(dh),) or not np.all(np.isfinite(home)):
+                raise ConfigError(
+                    f"invalid home configuration of {self.name!r}",
+                    expected=f"{len(dh)} joint angles",
+                    received=repr(home.tolist()),
+                )
+            home.setflags(write=False)
+            object.__setattr__(self, "home_rad", home)
 
     @property
     def n_joints(self) -> int:
@@ -265,15 +278,18 @@ def solve_ik(
     seeds: Sequence[np.ndarray],
     damping: float = 1e-3,
     max_iterations: int = 100,
+    nearest: Optional[np.ndarray] = None,
 ) -> Optional[np.ndarray]:
     """Joint angles (n,) whose flange pose is ``T_base_end_target``, within the joint limits, or None.
 
     Damped least squares (Levenberg-Marquardt on the right tangent of the pose) from every seed at
     once (a seed still further than ~1 mm / 0.06 deg after 12 steps is dropped); the solution of the
     first seed whose pose error is below ~1e-9 (rad and m) and whose angles (wrapped to (-pi, pi]) lie
-    within the limits is returned.
+    within the limits is returned, or with ``nearest`` (n,) (also a seed) the solution nearest those joint
+    angles (the largest wrapped joint difference): one configuration of the arm among those reaching the pose.
     """
     T_target = np.asarray(T_base_end_target, float)
+    seeds = ([nearest] if nearest is not None else []) + list(seeds)  # the nearest configuration is a seed too
     Q = np.array([np.asarray(q0, float).reshape(-1) for q0 in seeds])
     if not len(Q):
         return None
@@ -302,12 +318,11 @@ def solve_ik(
         worse = run[~better]
         lam[worse] *= 10.0
         alive[worse[lam[worse] > 1e6]] = False
-    for k in range(S):
-        if cost[k] < 1e-18:
-            qw = _wrap(Q[k])
-            if chain.within_limits(qw):
-                return qw
-    return None
+    found = [qw for qw in (_wrap(Q[k]) for k in np.flatnonzero(cost < 1e-18)) if chain.within_limits(qw)]
+    if not found or nearest is None:
+        return found[0] if found else None
+    ref = np.asarray(nearest, float).reshape(-1)
+    return min(found, key=lambda q: float(np.max(np.abs(_wrap(q - ref)))))
 
 
 def default_ik_seeds(chain: DHChain, T_base_end_target: np.ndarray) -> list:
@@ -466,7 +481,23 @@ def chain_from_dict(data: dict, *, source: str = "DH table") -> DHChain:
         dh=np.array(rows),
         joint_limits_rad=lim,
         error_prior=_error_prior(data.get("error_prior"), source),
+        home_rad=_home(data.get("home"), len(rows), au, source),
     )
+
+
+def _home(home: Any, n: int, angle_unit: str, source: str) -> Optional[np.ndarray]:
+    """``home: [q_1, ...]`` (the table's angle unit) in radians, or None."""
+    if home is None:
+        return None
+    try:
+        q = np.array(home, float).reshape(-1) * _ANGLE[angle_unit]
+    except (TypeError, ValueError):
+        q = np.zeros(0)
+    if q.shape != (n,) or not np.all(np.isfinite(q)):
+        raise ConfigError(
+            "invalid home of the DH table", path=source, expected=f"{n} joint angles", received=repr(home)[:80]
+        )
+    return q
 
 
 def chain_to_dict(chain: DHChain) -> dict:
@@ -482,7 +513,11 @@ def chain_to_dict(chain: DHChain) -> dict:
     if lim is not None:
         for link, (lo, hi) in zip(links, np.asarray(lim, float), strict=False):
             link["limits"] = [float(lo), float(hi)]
-    return {"name": chain.name, "convention": chain.convention, "length_unit": "m", "angle_unit": "rad", "links": links}
+    out: dict[str, Any] = {"name": chain.name, "convention": chain.convention, "length_unit": "m", "angle_unit": "rad"}
+    out["links"] = links
+    if chain.home_rad is not None:
+        out["home"] = [float(v) for v in chain.home_rad]
+    return out
 
 
 def _error_prior(d, source: str) -> Optional[tuple]:

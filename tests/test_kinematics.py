@@ -6,7 +6,7 @@ import pytest
 
 from handeye.errors import ConfigError
 from handeye.frames import se3_exp, tangent_difference
-from handeye.kinematics import PRESETS, DHChain, chain_from_dict, default_ik_seeds, load_arm, solve_ik
+from handeye.kinematics import PRESETS, DHChain, chain_from_dict, chain_to_dict, default_ik_seeds, load_arm, solve_ik
 
 
 def test_rm65_zero_configuration_stands_straight_up():
@@ -100,6 +100,37 @@ def test_inverse_kinematics_refuses_a_pose_out_of_reach():
     T = np.eye(4)
     T[:3, 3] = [1.5, 0.0, 0.3]
     assert solve_ik(arm, T, seeds=default_ik_seeds(arm, T)) is None
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_inverse_kinematics_picks_the_configuration_nearest_the_home(name):
+    """A pose about the arm's home has several configurations, each with its own Jacobians: ``nearest`` picks
+    the arm's, for a pose of any of them."""
+    arm = load_arm(name)
+    assert arm.home_rad is not None and arm.within_limits(arm.home_rad)
+    q = arm.home_rad + np.radians([10.0, -12.0, 15.0, -8.0, 11.0, 20.0])
+    T = arm.T_base_end(q)
+    sol = solve_ik(arm, T, seeds=default_ik_seeds(arm, T), nearest=arm.home_rad)
+    np.testing.assert_allclose(sol, q, atol=1e-7)
+    # another configuration of the same pose is found from a seed near it
+    far = solve_ik(arm, T, seeds=default_ik_seeds(arm, T), nearest=-arm.home_rad)
+    np.testing.assert_allclose(arm.T_base_end(far), T, atol=1e-9)
+    assert np.abs(far - q).max() > 0.5
+
+
+def test_a_dh_table_states_its_home_in_its_angle_unit():
+    table = {
+        "name": "two",
+        "convention": "standard",
+        "angle_unit": "deg",
+        "links": [{"a": 0.3, "alpha": 0, "d": 0, "theta_offset": 0}, {"a": 0.2, "alpha": 0, "d": 0, "theta_offset": 0}],
+    }
+    assert chain_from_dict(table).home_rad is None
+    arm = chain_from_dict(table | {"home": [90, -45]})
+    np.testing.assert_allclose(arm.home_rad, np.radians([90, -45]))
+    assert chain_from_dict(chain_to_dict(arm)).home_rad == pytest.approx(arm.home_rad)
+    with pytest.raises(ConfigError, match="invalid home of the DH table"):
+        chain_from_dict(table | {"home": [90]}, source="two.yaml")
 
 
 def test_stacked_joint_angles_give_stacked_poses():

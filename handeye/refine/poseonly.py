@@ -5,7 +5,8 @@
 kinematic model (:mod:`.poseonly_robot`). The tracker's sigmas are the session's or estimated by variance
 components. Stages: the best closed-form start, a Huber solve,
 then the outlier loop with THE robot-pose test (:func:`.outliers.robot_pose_test`) until the set of
-views is stable; the covariance is the final solve's, with the estimated sigmas' degrees of freedom
+views is stable; the kept views' noise Gaussian or a multivariate Student-t, whichever they fit best
+(:mod:`.tracker_tails`); the covariance is the final solve's, with the estimated sigmas' degrees of freedom
 (:mod:`.tracker_dof`). On request the tracker's translation scale is one more unknown
 (:func:`handeye.factors.pose.scaled_pose_residual`). The graph is :func:`.problem.solve_pose_graph`.
 
@@ -20,7 +21,6 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Literal, Mapping, Optional, Sequence, overload
 
 import numpy as np
-from scipy.special import chdtri
 
 from handeye.factors.pose import pose_residual, scaled_pose_residual
 
@@ -35,15 +35,14 @@ from .poseonly_robot import PoseRobotModel, describe, pose_robot_model
 from .problem import solve_pose_dh_graph, solve_pose_graph, solve_scaled_pose_graph
 from .refitting import Refit
 from .tracker_dof import NoiseDof, noise_dof
+from .tracker_tails import choose_dof, information_factor, robust_sigmas, t_weights
 
 __all__ = ["PoseRefineResult", "PoseView", "refine_poses", "refit_poses", "stated_sigmas"]
 
 log = logging.getLogger(__name__)
 
-#: median of |x| for x ~ N(0, s^2 I3), N(0, s^2 I2) and N(0, s^2), in units of s
-_NORM3_MEDIAN = float(np.sqrt(chdtri(3, 0.5)))
-_NORM2_MEDIAN = float(np.sqrt(chdtri(2, 0.5)))
-_NORM1_MEDIAN = float(np.sqrt(chdtri(1, 0.5)))
+#: EM on the t weights converges linearly: it takes this many times the Gaussian's noise.max_outer solves
+TAIL_ROUNDS = 4
 
 
 def stated_sigmas(tracker_sigma: Sequence[float]) -> np.ndarray:
@@ -64,6 +63,7 @@ class _State:
     robot: Optional[PoseRobotModel] = None  # the arm's kinematic model (:mod:`.poseonly_robot`), or None
     dh: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (m,) its DH offsets
     log_scale: Optional[float] = None  # log of the tracker's translation scale when it is estimated
+    weights: Optional[np.ndarray] = None  # (n,) the heavy-tailed tracker's EM weights (:mod:`.tracker_tails`)
 
     def groups(self) -> np.ndarray:
         """(3, n, 6, 6) each noise group's share ``Q_g`` of every view's residual covariance (unit variance).
@@ -78,7 +78,7 @@ class _State:
         Rt = np.swapaxes(R, 1, 2)
         Q[1, :, 3:, 3:] = Rt @ np.diag([1.0, 1.0, 0.0]) @ R
         Q[2, :, 3:, 3:] = Rt @ np.diag([0.0, 0.0, 1.0]) @ R
-        return Q
+        return Q if self.weights is None else Q / self.weights[None, :, None, None]
 
     def covariances(self) -> np.ndarray:
         """(n, 6, 6) every view's residual covariance at the current sigmas (and the encoders' share)."""
@@ -129,24 +129,6 @@ class _State:
     def W(self) -> np.ndarray:
         """(n, 6, 6) every view's weight: the inverse of its residual covariance."""
         return np.linalg.inv(self.covariances())
-
-
-def _camera_translations(C: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """(n, 3) the residuals' translations in the camera frame (``r`` (n,6) in the target's)."""
-    return -np.einsum("nij,nj->ni", C[:, :3, :3], r[:, 3:])
-
-
-def _robust_sigmas(C: np.ndarray, r: np.ndarray, floors: np.ndarray) -> np.ndarray:
-    """(rotation, across, along the optical axis) sigmas from the median residuals (Gaussian in each)."""
-    t = _camera_translations(C, r)
-    med = np.array(
-        [
-            np.median(np.linalg.norm(r[:, :3], axis=1)) / _NORM3_MEDIAN,
-            np.median(np.linalg.norm(t[:, :2], axis=1)) / _NORM2_MEDIAN,
-            np.median(np.abs(t[:, 2])) / _NORM1_MEDIAN,
-        ]
-    )
-    return np.maximum(med, floors)
 
 
 def _score(st: _State, T_x: np.ndarray, T_board: np.ndarray) -> float:
@@ -251,6 +233,48 @@ def _vce_on_linearisation(
     return float(np.max(np.abs(st.sigma / start - 1.0)))
 
 
+def _gaussian_vce(
+    st: _State,
+    *,
+    estimate: bool,
+    prior_x: Optional[tuple[np.ndarray, np.ndarray]],
+    max_iterations: int,
+    floors: np.ndarray,
+    resolved: dict[str, bool],
+    nu: float,
+) -> None:
+    """Solves alternating with variance-component estimation (and at a finite ``nu`` the views' t weights).
+
+    Solves alternating with variance-component estimation on each linearisation (:func:`_vce_on_linearisation`)
+    until a solve's sigmas are within ``noise.outer_tol`` of the estimate on its linearisation (as
+    :func:`.noise.solve_with_vce` does for the pixel and robot sigmas). At a finite ``nu`` each round also
+    sets the kept views' EM weights (:func:`.tracker_tails.t_weights`) at the new sigmas: the weighted
+    estimate of the sigmas is the EM step of the multivariate t. Ends with a solve at the final sigmas.
+    """
+    cfg = refine_preset()["noise"]
+    rounds = int(cfg["max_outer"]) * (1 if np.isinf(nu) else TAIL_ROUNDS) if estimate else 0
+    for _ in range(rounds):  # a stated sigma: one solve below
+        _solve(st, robust_k=None, prior_x=prior_x, max_iterations=max_iterations)
+        r, J = st.residuals(jacobians=True)
+        change = _vce_on_linearisation(st, r, J, prior_x, floors, resolved)
+        if np.isfinite(nu):
+            old = st.weights
+            st.weights = t_weights(_mahalanobis2(st, r), nu)
+            change = max(change, float(np.max(np.abs(st.weights / old - 1.0)[st.keep])) if old is not None else 1.0)
+        if change < float(cfg["outer_tol"]):
+            break
+    else:
+        if estimate:
+            log.warning("the tracker's noise estimate did not settle in %d solves (nu %s)", rounds, nu)
+    _solve(st, robust_k=None, prior_x=prior_x, max_iterations=max_iterations)  # at the final sigmas
+
+
+def _mahalanobis2(st: _State, r: np.ndarray) -> np.ndarray:
+    """(n,) every view's squared Mahalanobis residual at the tracker's sigmas (no EM weight)."""
+    cov = replace(st, weights=None).covariances()
+    return np.einsum("ni,nij,nj->n", r, np.linalg.inv(cov), r)
+
+
 def _solve_with_vce(
     st: _State,
     *,
@@ -258,39 +282,50 @@ def _solve_with_vce(
     prior_x: Optional[tuple[np.ndarray, np.ndarray]],
     max_iterations: int,
     floors: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, bool]]:
-    """Gaussian solves alternating with variance-component estimation on each linearisation.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, bool], float]:
+    """The Gaussian or the heavy-tailed tracker model, whichever the kept views fit, solved.
 
-    Gaussian solves alternating with variance-component estimation on each linearisation
-    (:func:`_vce_on_linearisation`) until a solve's sigmas are within ``noise.outer_tol`` of the estimate
-    on its linearisation (as :func:`.noise.solve_with_vce` does for the pixel and robot sigmas); returns
-    (Sigma (12,12), r, J, resolved) at the final solution.
+    :func:`_gaussian_vce` first; with the sigmas estimated, the tail degrees of freedom are chosen on its
+    residuals (:func:`.tracker_tails.choose_dof`: the profile likelihood over
+    :data:`.tracker_tails.DOF_GRID`, a t only where the Gaussian's likelihood-ratio test rejects it), and
+    for a t the EM solve (:func:`_gaussian_vce` with the t weights) follows from there. A stated sigma:
+    Gaussian, one solve. Returns (Sigma (12,12) the inverse of the weighted normal matrix, r, J, resolved,
+    nu) at the final solution.
     """
-    cfg = refine_preset()["noise"]
     resolved = {"rot": True, "trans": True, "trans_along": True}
-    for _ in range(int(cfg["max_outer"]) if estimate else 0):  # a stated sigma: one solve below
-        _solve(st, robust_k=None, prior_x=prior_x, max_iterations=max_iterations)
-        r, J = st.residuals(jacobians=True)
-        if _vce_on_linearisation(st, r, J, prior_x, floors, resolved) < float(cfg["outer_tol"]):
-            break
-    else:
-        if estimate:
-            log.warning("the tracker's noise estimate did not settle in %d solves", int(cfg["max_outer"]))
-    _solve(st, robust_k=None, prior_x=prior_x, max_iterations=max_iterations)  # at the final sigmas
+    kw: dict[str, Any] = dict(prior_x=prior_x, max_iterations=max_iterations, floors=floors, resolved=resolved)
+    st.weights = None
+    _gaussian_vce(st, estimate=estimate, nu=float("inf"), **kw)
+    nu = float("inf")
+    if estimate:
+        r, _ = st.residuals()
+        k = st.keep
+        nu, w = choose_dof(_mahalanobis2(st, r)[k], np.linalg.slogdet(st.covariances()[k])[1])
+        if np.isfinite(nu):
+            st.weights = np.ones(len(k))
+            st.weights[k] = w
+            _gaussian_vce(st, estimate=True, nu=nu, **kw)
     r, J = st.residuals(jacobians=True)
-    return np.linalg.inv(_information(st, J, prior_x)), r, J, resolved if estimate else {}
+    return np.linalg.inv(_information(st, J, prior_x)), r, J, resolved if estimate else {}, nu
 
 
 def _tests(st: _State, S: np.ndarray, r: np.ndarray, J: np.ndarray, gates: RobotPoseGates) -> RobotPoseTest:
-    """THE robot-pose test of every view on ``T_cam_board``: leave-one-out for views in the solve."""
-    R = st.covariances()
+    """THE robot-pose test of every view on ``T_cam_board``: leave-one-out for views in the solve.
+
+    The leave-one-out prediction undoes each view's share of the solve (its EM-weighted covariance); the
+    test is against the tracker's noise (``gates.tail_dof``: the t of :mod:`.tracker_tails`, whose variance
+    is its scale's ``nu / (nu - 2)``; infinite: Gaussian), as for an arm whose error is heavy-tailed.
+    """
+    nu = gates.tail_dof
+    R_solve = st.covariances()
+    R = replace(st, weights=None).covariances() * (nu / (nu - 2.0) if np.isfinite(nu) else 1.0)
     d = np.full((len(r), 6), np.nan)
     C = np.full((len(r), 6, 6), np.nan)
     for i in range(len(r)):
         S_p = J[i] @ S @ J[i].T  # covariance of the predicted pose
         if st.keep[i]:
             try:
-                d[i], C[i] = leave_one_out(r[i], R[i], S_p)
+                d[i], C[i] = leave_one_out(r[i], R_solve[i], S_p)
             except np.linalg.LinAlgError:  # the view alone fixes the solution: no prediction without it
                 log.debug("view %d: no leave-one-out prediction (the view alone fixes the solution); not tested", i)
                 continue
@@ -343,7 +378,7 @@ def refine_poses(
     st.dh = np.zeros(robot.m if robot is not None else 0)
     prior_x = _prior_x(options)
     if tracker_sigma is None:
-        st.sigma = _robust_sigmas(C, st.residuals()[0], floors)
+        st.sigma = robust_sigmas(C, st.residuals()[0], floors)
     else:
         st.sigma = stated_sigmas(tracker_sigma)
     start_method = "given"
@@ -356,7 +391,7 @@ def refine_poses(
             if s < best:
                 best, start_method, st.T_x, st.T_board = s, name, est.T_x.copy(), est.T_board.copy()
     T_x_seed, T_board_seed = st.T_x.copy(), st.T_board.copy()
-    gates = RobotPoseGates.from_options(options, unmodelled_arm=False)  # a tracker's error: Gaussian
+    gates = RobotPoseGates.from_options(options, unmodelled_arm=False)  # a tracker's error: Gaussian or t, below
     it_max = options.max_iterations
     dec_keep: Optional[np.ndarray] = None
     test: Optional[RobotPoseTest] = None
@@ -365,15 +400,19 @@ def refine_poses(
     J: Optional[np.ndarray] = None
     resolved: dict[str, bool] = {}
     dof = NoiseDof({})
+    tail_dof = float("inf")
     try:
         if estimate:
-            st.sigma = _robust_sigmas(C, st.residuals()[0], floors)
+            st.sigma = robust_sigmas(C, st.residuals()[0], floors)
         if options.loss != "none":
             _solve(st, robust_k=options.loss_k, prior_x=prior_x, max_iterations=it_max)
             if estimate:
-                st.sigma = _robust_sigmas(C, st.residuals()[0], floors)
+                st.sigma = robust_sigmas(C, st.residuals()[0], floors)
         # the first decision against the robust solution, then from scratch against each clean one
         r, J = st.residuals(jacobians=True)
+        if estimate:  # the tracker's tails, as the robust solution's residuals show them: the test's null
+            tail_dof = choose_dof(_mahalanobis2(st, r), np.linalg.slogdet(st.covariances())[1])[0]
+            gates = replace(gates, tail_dof=tail_dof)
         S = np.linalg.inv(_information(st, J, prior_x))
         # the robust solve down-weighted the outliers: each view against that solution, as if left out
         test = _tests(replace(st, keep=np.zeros(len(views), bool)), S, r, J, gates)
@@ -389,9 +428,10 @@ def refine_poses(
                 log.warning("outlier decisions oscillate; keeping the latest set")
             seen.append(keep)
             st.keep = keep
-            S, r, J, resolved = _solve_with_vce(
+            S, r, J, resolved, tail_dof = _solve_with_vce(
                 st, estimate=estimate, prior_x=prior_x, max_iterations=it_max, floors=floors
             )
+            gates = replace(gates, tail_dof=tail_dof)
             test = _tests(st, S, r, J, gates)
             if oscillates:
                 break
@@ -406,7 +446,8 @@ def refine_poses(
         log.warning("pose-only refinement failed: %s", reason)
     depth = float(np.median(np.linalg.norm(C[:, :3, 3], axis=1)))  # the tracker's frame need not look along z
     wd = float(options.working_distance_m) if options.working_distance_m is not None else depth
-    S_x = None if status != "ok" or S is None else dof.x_factor * S[:6, :6]
+    tails = information_factor(tail_dof)  # the t model's information is (nu + 6) / (nu + 8) of the weighted one
+    S_x = None if status != "ok" or S is None else tails * dof.x_factor * S[:6, :6]
     unc = hand_eye_uncertainty(S_x, st.T_x, wd)
     per_view, outliers = {}, []
     for i, vid in enumerate(ids):
@@ -477,7 +518,8 @@ def refine_poses(
             {
                 "kind": "none",
                 "description": "reported robot poses taken as exact (pose-only views: the robot's "
-                "noise is part of the tracker's)",
+                "noise is part of the tracker's; a systematic arm error, a DH table that is off, is common to "
+                "every view and not in X's covariance: name the arm, --robot ARM, to model it)",
             }
             if robot is None
             else describe(robot, st.dh, S[12:, 12:] if ok and S is not None else None, estimate)
@@ -487,22 +529,24 @@ def refine_poses(
         tracker_sigma_along_mm=float(1000.0 * st.sigma[2]),
         tracker_sigma_source="estimated" if estimate else "stated",
         tracker_sigma_resolved=resolved,
-        cov_board_6x6=None if status != "ok" or S is None else dof.board_factor * S[6:12, 6:12],
+        cov_board_6x6=None if status != "ok" or S is None else tails * dof.board_factor * S[6:12, 6:12],
         pose_robot=robot,
         dh_offset=None if robot is None else st.dh.copy(),
         tracker_noise_dof=dof.dof,
         cov_x_noise_dof=dof.x_dof,
         cov_x_dof_factor=dof.x_factor,
         tracker_scale=None if st.log_scale is None else float(np.exp(st.log_scale)),
-        tracker_scale_sigma=_scale_sigma(st, S, dof) if status == "ok" else None,
+        tracker_scale_sigma=_scale_sigma(st, S, dof, tails) if status == "ok" else None,
+        tracker_tail_dof=tail_dof,
+        view_weights=None if st.weights is None else dict(zip(ids, st.weights.tolist(), strict=True)),
     )
 
 
-def _scale_sigma(st: _State, S: Optional[np.ndarray], dof: NoiseDof) -> Optional[float]:
+def _scale_sigma(st: _State, S: Optional[np.ndarray], dof: NoiseDof, tails: float) -> Optional[float]:
     """The estimated tracker scale's sigma (with the sigmas' degrees of freedom, as X's: :mod:`.tracker_dof`)."""
     if st.log_scale is None or S is None or S.shape[0] < 13:
         return None
-    return float(np.exp(st.log_scale)) * float(np.sqrt(dof.scale_factor * S[12, 12]))
+    return float(np.exp(st.log_scale)) * float(np.sqrt(tails * dof.scale_factor * S[12, 12]))
 
 
 def refit_poses(result: PoseRefineResult, views: Sequence[PoseView], covariance: bool = True) -> Refit:
@@ -527,6 +571,8 @@ def refit_poses(result: PoseRefineResult, views: Sequence[PoseView], covariance:
     prior_x = _prior_x(result.options)
     log_scale = None if result.tracker_scale is None else float(np.log(result.tracker_scale))
     st = _State(M, C, result.T_x.copy(), result.T_board.copy(), sigma, np.ones(len(kept), bool), log_scale=log_scale)
+    if result.view_weights is not None:  # a heavy-tailed tracker: the full run's EM weights, held
+        st.weights = np.array([result.view_weights[v.view_id] for v in kept])
     if result.pose_robot is not None:  # the same arm model, its DH offsets from the full solution
         st.robot = result.pose_robot.subset([v.view_id for v in kept])
         st.dh = np.zeros(st.robot.m) if result.dh_offset is None else result.dh_offset.copy()

@@ -54,6 +54,8 @@ class PoseRefineResult(RefineResult):
     cov_x_dof_factor: float = 1.0  # the plug-in covariance of X was multiplied by this (:mod:`.tracker_dof`)
     tracker_scale: Optional[float] = None  # the tracker's translation scale, when estimated
     tracker_scale_sigma: Optional[float] = None
+    tracker_tail_dof: float = float("inf")  # the tracker's Student-t degrees of freedom (inf: Gaussian)
+    view_weights: Optional[dict[str, float]] = None  # each view's EM weight under that t (:mod:`.tracker_tails`)
 
     def to_dict(self) -> dict[str, Any]:
         no = _NoIntrinsics()
@@ -65,9 +67,14 @@ class PoseRefineResult(RefineResult):
             "sigma_mm_along": self.tracker_sigma_along_mm,
             "source": self.tracker_sigma_source,
             "resolved": dict(self.tracker_sigma_resolved),
+            # the views' noise a multivariate Student-t of these degrees of freedom (None: Gaussian), chosen by
+            # its likelihood; X's covariance is that model's (handeye.refine.tracker_tails)
+            "tail_dof": None if not np.isfinite(self.tracker_tail_dof) else self.tracker_tail_dof,
             "model": "T_cam_board_measured = T_cam_board_true · Exp(n): rotation noise sigma_deg per axis, "
             "translation noise in the camera frame sigma_mm per axis across the optical axis (x, y) and "
-            "sigma_mm_along along it (z); "
+            "sigma_mm_along along it (z)"
+            + ("" if not np.isfinite(self.tracker_tail_dof) else ", n a multivariate Student-t (scale sigma, tail_dof)")
+            + "; "
             + (
                 "robot poses through the arm's kinematic model (refinement.robot_model)"
                 if self.pose_robot is not None

@@ -82,6 +82,14 @@ def resolve_kind(o: RefineOptions, views: Sequence[RefineView]) -> str:
 
 
 def _joints(arm: DHChain, views: Sequence[RefineView], reported: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
+    """(n, joints) every view's joint angles (recorded, else by inverse kinematics) and their sources.
+
+    A pose is reached by several configurations of the arm (a UR arm's shoulder, elbow and wrist flips),
+    each with its own Jacobians. The one the arm was in: the solution within the joint limits nearest the
+    previous view's joints (an arm does not flip between neighbouring views), for the first view nearest
+    the arm's home (the preset's ``home``, the configuration its programs run about); an arm without a
+    home takes the first solution of the default seeds.
+    """
     out: list[np.ndarray] = []
     source: list[str] = []
     prev: Optional[np.ndarray] = None
@@ -98,9 +106,11 @@ def _joints(arm: DHChain, views: Sequence[RefineView], reported: np.ndarray) -> 
                 )
             out.append(q)
             source.append("recorded")
+            prev = q
             continue
-        seeds = ([prev] if prev is not None else []) + default_ik_seeds(arm, T)
-        q = solve_ik(arm, T, seeds=seeds)
+        ref = prev if prev is not None else arm.home_rad  # the configuration the arm is in: see below
+        home = [arm.home_rad] if arm.home_rad is not None and prev is not None else []  # a seed where prev is far
+        q = solve_ik(arm, T, seeds=home + default_ik_seeds(arm, T), nearest=ref)
         if q is None:
             raise InputError(
                 f"view {v.view_id}: the {arm.name} cannot reach the reported pose",
