@@ -14,6 +14,7 @@ a pose in this convention.
 
 from __future__ import annotations
 
+import math
 from typing import Callable
 
 import numpy as np
@@ -130,6 +131,8 @@ def screw_invariants(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def quat_wxyz_from_R(R: np.ndarray) -> np.ndarray:
     """Unit quaternion(s) (w, x, y, z) with w >= 0 of rotation(s) (3,3) or (...,3,3)."""
     R = np.asarray(R, float)
+    if R.shape == (3, 3):  # one rotation: the same formulas on floats (numpy's per-call overhead is most of it)
+        return _quat_wxyz_from_one_R(R.tolist())
     m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
     cand = np.stack(
         [1.0 + m00 + m11 + m22, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22], axis=-1
@@ -149,6 +152,25 @@ def quat_wxyz_from_R(R: np.ndarray) -> np.ndarray:
     )
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
     return np.where(q[..., :1] < 0, -q, q)
+
+
+def _quat_wxyz_from_one_R(R: list) -> np.ndarray:
+    """:func:`quat_wxyz_from_R` of one rotation given as nested lists: the largest of the four candidates."""
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = R
+    cand = (1.0 + m00 + m11 + m22, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22)
+    k = max(range(4), key=cand.__getitem__)
+    s = 2.0 * math.sqrt(max(cand[k], 1e-300))
+    d21, d02, d10 = m21 - m12, m02 - m20, m10 - m01
+    s01, s02, s12 = m01 + m10, m02 + m20, m12 + m21
+    q = (
+        (s / 4, d21 / s, d02 / s, d10 / s),
+        (d21 / s, s / 4, s01 / s, s02 / s),
+        (d02 / s, s01 / s, s / 4, s12 / s),
+        (d10 / s, s02 / s, s12 / s, s / 4),
+    )[k]
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    sign = -1.0 if q[0] < 0 else 1.0
+    return np.array([sign * c / n for c in q])
 
 
 def R_from_quat_wxyz(q: np.ndarray) -> np.ndarray:

@@ -129,3 +129,7 @@ def test_rotation_forms_agree_with_scipy_including_near_pi_and_zero():
     q_ref = Rotation.from_matrix(R).as_quat()[:, [3, 0, 1, 2]]
     q_ref *= np.where(q_ref[:, :1] < 0, -1, 1)
     np.testing.assert_allclose(np.abs(np.sum(q * q_ref, axis=1)), 1.0, atol=1e-12)
+    # one rotation at a time (the scalar path) gives the stacked path's quaternion, bit for bit
+    np.testing.assert_array_equal(np.array([quat_wxyz_from_R(Rk) for Rk in R]), q)
+    half_turns = R_from_rotvec(np.pi * np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [0.6, 0.8, 0]]))
+    np.testing.assert_array_equal(np.array([quat_wxyz_from_R(Rk) for Rk in half_turns]), quat_wxyz_from_R(half_turns))
