@@ -154,7 +154,7 @@ def quat_wxyz_from_R(R: np.ndarray) -> np.ndarray:
     return np.where(q[..., :1] < 0, -q, q)
 
 
-def _quat_wxyz_from_one_R(R: list) -> np.ndarray:
+def _quat_wxyz_from_one_R(R: list[list[float]]) -> np.ndarray:
     """:func:`quat_wxyz_from_R` of one rotation given as nested lists: the largest of the four candidates."""
     (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = R
     cand = (1.0 + m00 + m11 + m22, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22)
