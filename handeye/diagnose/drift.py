@@ -9,36 +9,50 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..stats import f_sf
+from ..stats import chi2_ppf, f_sf
 from .findings import Finding
 from .observations import PoseObservations
 
 
-def _break_fit(v: np.ndarray, k: int, *, ramp: bool) -> np.ndarray:
-    """(N,6) the best fit to ``v`` (N,6) of zero before view ``k`` and a step or a drift from ``k`` on.
-
-    The step is a constant from view ``k`` on; the drift a line through zero at view ``k - 1``.
-    """
-    n = len(v)
-    x = np.where(np.arange(n) >= k, (np.arange(n) - k + 1.0) if ramp else 1.0, 0.0)  # shape (N,)
-    slope = (x @ v) / max(float(x @ x), 1e-12)  # shape (6,)
-    return x[:, None] * slope[None, :]
+def _break_design(n: int, k: int, *, ramp: bool) -> np.ndarray:
+    """(N,2) the columns of a level and of a step (1 from view ``k`` on) or a drift (1, 2, ... from view ``k``)."""
+    i = np.arange(n)
+    x = np.where(i >= k, (i - k + 1.0) if ramp else 1.0, 0.0)
+    return np.stack([np.ones(n), x], axis=1)
 
 
 def drift_or_step(v: np.ndarray, use: np.ndarray, *, min_segment: int) -> tuple[str, int, float]:
     """Whether the implied board deviations ``v`` (N,6) change in one step or drift.
 
-    Returns ("step" | "drift", the first view that moved, the drift's residual share of the step's). Both
-    models have the same parameters (a break and six numbers), so the one with the smaller weighted
-    residual over the views ``use`` (each coordinate scaled by its robust spread) explains the sequence.
+    Returns ("step" | "drift", the first view that moved, the drift's residual share of the step's). The models
+    are fitted to the size of each view's deviation (rotation and translation, each in units of its robust
+    spread over the views ``use``): a level plus a step from a view on, or a level plus a steady growth from a
+    view on, the same number of parameters, so the one with the smaller residual explains the sequence. Sizes,
+    not coordinates: a tracker's drift is steady in the tracker's frame, and its direction in the board's frame
+    turns with every view. Each model leaves out its own outliers (a view costs at most the chi-square(2)
+    99.9 % quantile, and the model is fitted again on the views below it).
     """
     n = len(v)
-    w = 1.0 / np.maximum(np.median(np.abs(v[use] - np.median(v[use], axis=0)), axis=0), 1e-9)
+    m = np.stack([np.linalg.norm(v[:, :3], axis=1), np.linalg.norm(v[:, 3:], axis=1)], axis=1)  # shape (N, 2)
+    mad = np.median(np.abs(m[use] - np.median(m[use], axis=0)), axis=0)
+    m = m / np.maximum(1.4826 * mad, 1e-9)  # in units of the robust spread
+    cap = chi2_ppf(0.999, 2)
+
+    def cost(k: int, ramp: bool) -> float:
+        X = _break_design(n, k, ramp=ramp)
+        rows = np.ones(n, bool)
+        for _ in range(2):  # the fit on every view, then on the views the model does not leave out
+            coef, *_ = np.linalg.lstsq(X[rows], m[rows], rcond=None)
+            r2 = np.sum((m - X @ coef) ** 2, axis=1)
+            inl = r2 <= cap
+            if inl.all() or np.count_nonzero(inl) < 3 or (inl == rows).all():
+                break
+            rows = inl
+        return float(np.sum(np.minimum(r2, cap)))
 
     def best(ramp: bool) -> tuple[float, int]:
         ks = range(1, n - 1) if ramp else range(min_segment, n - min_segment + 1)
-        rss = [(float(np.sum((((v - _break_fit(v, k, ramp=ramp)) * w)[use]) ** 2)), k) for k in ks]
-        return min(rss)
+        return min((cost(k, ramp), k) for k in ks)
 
     (r_step, k_step), (r_drift, k_drift) = best(False), best(True)
     if r_drift < r_step:
