@@ -537,7 +537,8 @@ def main() -> None:
             f"pairs {[round(p['m2'], 1) for p in r['pairs']]}, solo {r['solo_s']:.1f} s, joint {r['joint_s']:.1f} s",
             file=sys.stderr,
         )
-    print(summary(results))
+    if results:  # (--seeds 0: the rendered timing alone)
+        print(summary(results))
 
 
 if __name__ == "__main__":
