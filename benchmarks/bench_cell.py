@@ -54,7 +54,9 @@ included) of a rendered 4-camera 40-view cell against one camera's session, medi
 the shared 2-core machine (load average 10.7-15.4; 2026-12-06): one camera 19.9 s wall / 7.1 s CPU, the cell
 65.8 s wall / 24.8 s CPU: 3.31x wall, 3.51x CPU (the code before the cell detected each camera's images ahead:
 83.0 s wall / 25.0 s CPU, 3.82x wall, 3.64x CPU, in the same rounds). Each camera's own calibration is most of
-the cell's time; its joint graph 3 s wall.
+the cell's time; its joint graph 3 s wall. The same command with the faster single-session stages, the
+cameras' own poses of a shared view and the drift test (2026-12-06, load average 1.6-1.9, 3 rounds): one camera
+6.4 s wall / 8.1 s CPU, the cell 23.3 s wall / 31.6 s CPU: 3.65x wall, 3.91x CPU (its joint graph 4.7 s wall).
 
 Cameras that see each view's flange at their own instant (2026-12-06, ``--seeds 8 --sizes 2 3 --views 20
 --view-jitter 0.1 0.2``: each fixed camera's flange moved by 0.1 deg / 0.2 mm per axis, its own draw per view):
