@@ -92,6 +92,36 @@ def chain_residual(
     return residual, J[0].T, J[1].T, J[2].T, Jk_T.T
 
 
+def _stacked_points(
+    T_x: np.ndarray,
+    T_base_end: np.ndarray,
+    T_board: np.ndarray,
+    invert_robot: bool,
+    object_points: np.ndarray,
+    view_index: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The stacked corners along the chain: ``(R_A (3,3), R_M (M,3,3), q_b, q_m, p_c (M,3))``.
+
+    ``R_A`` turns the middle frame into the camera's (the inverse of X), ``R_M`` is each corner's robot rotation
+    as the chain uses it (inverted for ``invert_robot``), ``q_b`` / ``q_m`` / ``p_c`` the corner in the board's
+    parent frame, after the robot pose and in the camera frame.
+    """
+    T_base_end = np.asarray(T_base_end, float)
+    R_x, t_x = T_x[:3, :3], T_x[:3, 3]
+    R_A, t_A = R_x.T, -R_x.T @ t_x
+    R_r, t_r = T_base_end[:, :3, :3], T_base_end[:, :3, 3]
+    if invert_robot:
+        R_M = np.swapaxes(R_r, 1, 2)
+        t_M = -np.einsum("nij,nj->ni", R_M, t_r)
+    else:
+        R_M, t_M = R_r, t_r
+    R_M, t_M = R_M[view_index], t_M[view_index]  # shape (M, 3, 3), (M, 3)
+    q_b = object_points @ T_board[:3, :3].T + T_board[:3, 3]  # shape (M, 3)
+    q_m = np.einsum("mij,mj->mi", R_M, q_b) + t_M
+    p_c = q_m @ R_A.T + t_A
+    return R_A, R_M, q_b, q_m, p_c
+
+
 def stacked_chain_residual(
     *,
     T_x: np.ndarray,
@@ -112,19 +142,7 @@ def stacked_chain_residual(
     ``predicted - measured`` per corner and, with ``robot_jacobian``, d residual / d xi (M,2,6) for
     a right perturbation of the corner's own robot pose (rotation first), else None.
     """
-    T_base_end = np.asarray(T_base_end, float)
-    R_x, t_x = T_x[:3, :3], T_x[:3, 3]
-    R_A, t_A = R_x.T, -R_x.T @ t_x
-    R_r, t_r = T_base_end[:, :3, :3], T_base_end[:, :3, 3]
-    if invert_robot:
-        R_M = np.swapaxes(R_r, 1, 2)
-        t_M = -np.einsum("nij,nj->ni", R_M, t_r)
-    else:
-        R_M, t_M = R_r, t_r
-    R_M, t_M = R_M[view_index], t_M[view_index]  # shape (M, 3, 3), (M, 3)
-    q_b = object_points @ T_board[:3, :3].T + T_board[:3, 3]  # shape (M, 3)
-    q_m = np.einsum("mij,mj->mi", R_M, q_b) + t_M
-    p_c = q_m @ R_A.T + t_A
+    R_A, R_M, q_b, q_m, p_c = _stacked_points(T_x, T_base_end, T_board, invert_robot, object_points, view_index)
     uv, Jp_T, _ = project_opencv5(intrinsics_vec, p_c, robot_jacobian)
     residual = uv - image_points
     if not robot_jacobian:
@@ -160,20 +178,8 @@ def stacked_chain_jacobians(
     Returns ``(residual (2M,), J_x (2M,6), J_robot (2M,6), J_board (2M,6), J_intr (2M,9))``, rows interleaved
     (u0, v0, u1, ...) in corner order, ``J_robot`` with respect to each corner's own robot pose.
     """
-    T_base_end = np.asarray(T_base_end, float)
-    R_x, t_x = T_x[:3, :3], T_x[:3, 3]
-    R_A, t_A = R_x.T, -R_x.T @ t_x
-    R_r, t_r = T_base_end[:, :3, :3], T_base_end[:, :3, 3]
-    if invert_robot:
-        R_M = np.swapaxes(R_r, 1, 2)
-        t_M = -np.einsum("nij,nj->ni", R_M, t_r)
-    else:
-        R_M, t_M = R_r, t_r
-    R_B, t_B = T_board[:3, :3], T_board[:3, 3]
-    R_Mc, t_Mc = R_M[view_index], t_M[view_index]  # shape (M, 3, 3), (M, 3)
-    q_b = object_points @ R_B.T + t_B  # shape (M, 3)
-    q_m = np.einsum("mij,mj->mi", R_Mc, q_b) + t_Mc
-    p_c = q_m @ R_A.T + t_A
+    R_A, R_Mc, q_b, q_m, p_c = _stacked_points(T_x, T_base_end, T_board, invert_robot, object_points, view_index)
+    R_B = T_board[:3, :3]
     uv, Jp_T, Jk_T = project_opencv5(intrinsics_vec, p_c, True)
     assert Jp_T is not None and Jk_T is not None, "Jacobians asked for and computed"
     m = p_c.shape[0]
