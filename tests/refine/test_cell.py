@@ -1,6 +1,8 @@
 """A cell of cameras in one graph (handeye.refine.cell) on corner-level simulated cells with ground truth."""
 
 import functools
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,11 +10,12 @@ from scipy.stats import chi2
 
 from handeye.errors import InputError
 from handeye.frames import inv_T, se3_exp, tangent_difference, tangent_jacobian
-from handeye.initial import all_methods, calibrate_intrinsics, solve_pnp
-from handeye.mounting import mounting
 from handeye.refine import RefineOptions, RefineView, refine
 from handeye.refine.cell import CellCameraInput, CellState, refine_cell
 from handeye.sim.cell import make_cell
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+from bench_refine import closed_forms  # noqa: E402  (the pipeline's seeding, one copy)
 
 CHI2_95 = chi2.ppf(0.95, 6)
 
@@ -28,16 +31,10 @@ def _views(s):
 
 def _solo(s, options):
     """One camera as the pipeline calibrates it: calibrateCamera, solvePnP, the closed forms, refine()."""
-    obj = s.target.object_points()
-    dets = s.detections()
-    intr, _ = calibrate_intrinsics(dets, obj)
-    C = np.stack([solve_pnp(obj[d.corner_ids], d.image_points, intr)[0] for d in dets])
-    mount = mounting(s.mode)
-    M = mount.M_from_T_base_end(np.stack([s.T_base_end_reported[s.index(d.view_id)] for d in dets]))
-    closed = all_methods(mount, C, M)
+    intr, closed = closed_forms(s)
     return refine(
         mode=s.mode,
-        object_points=obj,
+        object_points=s.target.object_points(),
         views=_views(s),
         intrinsics=intr,
         T_x0=closed["tsai"].T_x,
