@@ -184,6 +184,7 @@ folds are interleaved, so each shares the arm's error (validated sigma used in 0
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import shutil
 import sys
@@ -212,7 +213,7 @@ def class_options(name: str, rng: np.random.Generator) -> dict:
         return base
     if name == "noise":
         return base | {"sigma_mm": float(rng.uniform(0.2, 2.0)), "sigma_deg": float(rng.uniform(0.05, 0.5))}
-    if name in ("arm_error", "arm_error_robot", "arm_error_joints"):
+    if name in ("arm_error", "arm_error_robot", "arm_error_joints", "arm_error_accuracy", "arm_error_datasheet"):
         return base | {"dh_length_error_mm": (0.1, 0.5), "dh_angle_error_deg": (0.01, 0.05), "encoder_sigma_deg": 0.005}
     if name == "outliers":
         return base | {"outlier_views": 2}
@@ -234,12 +235,92 @@ def class_options(name: str, rng: np.random.Generator) -> dict:
 
 
 CLASSES = ("clean", "noise", "arm_error", "outliers", "heavy_tails", "anisotropic", "scale", "drift", "degenerate")
-CLASSES += ("arm_error_robot", "arm_error_joints")
+CLASSES += ("arm_error_robot", "arm_error_joints", "arm_error_accuracy", "arm_error_datasheet")
 #: classes calibrated with --robot ARM, and the class whose sessions they are
 ROBOT_CLASSES = {"arm_error_robot": "arm_error", "arm_error_joints": "arm_error"}
+#: calibrated with --robot-accuracy: the arm's accuracy as its maker states it (maker_accuracy)
+ACCURACY_CLASSES = {"arm_error_accuracy": "arm_error", "arm_error_datasheet": "arm_error"}
 EXTRA = ("time_offset", "scale_estimated")
 ESTIMATE_SCALE = {"scale_estimated"}  # calibrated with --estimate-scale
 ML_CLASSES = {"clean", "noise", "outliers", "anisotropic", "heavy_tails"}  # a tracker model the ML estimator knows
+
+
+@functools.lru_cache(maxsize=None)
+def maker_accuracy(arm: str, mode: str, common: bool) -> tuple[float, float]:
+    """(mm, deg) per axis of the flange pose's error over arms of the arm_error class, as a maker would state it.
+
+    100 arms drawn as the class draws them (DH lengths off by 0.1-0.5 mm, angles by 0.01-0.05 deg), each at 20
+    configurations of the sessions' motion program (home +- 25 deg per joint). ``common=False``: the RMS of
+    the whole flange error Log(T_nominal^-1 T_true) (a datasheet's accuracy). ``common=True``: the RMS of its part
+    common to the workspace at the camera's end of the chain (the constant L or R of the fit T_true = L T_nominal
+    R, :func:`constant_error`): R in the flange frame (eye-in-hand), L about the workspace centre (eye-to-hand),
+    what robot_accuracy states.
+    """
+    from handeye.frames import inv_T, se3_adjoint, se3_log
+    from handeye.kinematics import T_base_end, load_arm
+    from handeye.sim.arm_tracker import HOME_RAD
+    from handeye.sim.robot_error import make_kinematic_error
+
+    rng = np.random.default_rng(2026)
+    nominal = load_arm(arm)
+    opts = class_options("arm_error", np.random.default_rng(0))
+    errs = []
+    for _ in range(100):
+        e = make_kinematic_error(
+            rng=rng, arm=arm, length_error_mm=opts["dh_length_error_mm"], angle_error_deg=opts["dh_angle_error_deg"]
+        )
+        q = HOME_RAD + rng.uniform(-1.0, 1.0, (20, 6)) * np.radians(25.0)
+        T_true = e.true.T_base_end(q).reshape(-1, 4, 4)
+        T_nom = np.stack([T_base_end(nominal, qi) for qi in q])
+        if not common:
+            errs += [se3_log(inv_T(a) @ b) for a, b in zip(T_nom, T_true, strict=True)]
+            continue
+        left, right = constant_error(T_nom, T_true)
+        T_c = np.eye(4)
+        T_c[:3, 3] = T_nom[:, :3, 3].mean(axis=0)
+        errs.append(right if mode == "eye_in_hand" else se3_adjoint(inv_T(T_c)) @ left)
+    E = np.array(errs)
+    return float(1e3 * np.sqrt(np.mean(E[:, 3:] ** 2))), float(np.degrees(np.sqrt(np.mean(E[:, :3] ** 2))))
+
+
+def constant_error(T_rep: np.ndarray, T_true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(l, r): the constant errors of ``T_true ~ Exp(l) · T_rep · Exp(r)`` (least squares, 1 rad against 33 mm)."""
+    from scipy.optimize import least_squares
+
+    from handeye.frames import inv_T, se3_exp, se3_log
+
+    w = np.r_[1.0, 1.0, 1.0, 30.0, 30.0, 30.0]
+
+    def residual(p):
+        L, R = se3_exp(p[:6]), se3_exp(p[6:])
+        return np.concatenate([w * se3_log(inv_T(b) @ L @ a @ R) for a, b in zip(T_rep, T_true, strict=True)])
+
+    p = least_squares(residual, np.zeros(12)).x
+    return p[:6], p[6:]
+
+
+def effective_truth(ts) -> np.ndarray:
+    """X in the arm's own frames: the truth moved by the part of the arm's error that is common to every view.
+
+    The arm's true flange poses fitted as ``L · T_reported · R`` with constant L and R (least squares over the
+    views); views of that arm without noise give one exact X, which the data cannot tell from the true one.
+    """
+    from handeye.frames import inv_T, se3_exp
+    from handeye.mounting import mounting
+    from handeye.refine.problem import solve_pose_graph
+
+    t, T_rep = ts.truth, ts.T_base_end
+    left, right = constant_error(T_rep, t.T_base_end_true)
+    T_c = se3_exp(left)[None] @ T_rep @ se3_exp(right)[None]
+    if ts.mode == "eye_in_hand":
+        C = inv_T(t.T_x_true)[None] @ inv_T(T_c) @ t.T_board_true[None]
+    else:
+        C = inv_T(t.T_x_true)[None] @ T_c @ t.T_board_true[None]
+    m = mounting(ts.mode)
+    M = np.stack([m.M_from_T_base_end(T) for T in T_rep])
+    cov = np.tile(np.diag([1e-6] * 3 + [1e-8] * 3), (len(C), 1, 1))
+    T_x, _, _ = solve_pose_graph(M=M, T_cam_board=C, covariances=cov, T_x0=t.T_x_true, T_board0=t.T_board_true)
+    return T_x
 
 
 def _err(T_est: np.ndarray, T_true: np.ndarray) -> np.ndarray:
@@ -318,7 +399,7 @@ def one(cls: str, mode: str, seed: int) -> dict:
     from handeye.sim.arm_tracker import make_arm_tracker_session
     from handeye.workflow import calibrate_session
 
-    same = ROBOT_CLASSES.get(cls, cls)
+    same = ROBOT_CLASSES.get(cls, ACCURACY_CLASSES.get(cls, cls))
     rng = np.random.default_rng([seed, CLASSES.index(same) if same in CLASSES else 100 + EXTRA.index(same)])
     opts = class_options(cls, rng)
     ts = make_arm_tracker_session(mode=mode, n_views=N_VIEWS, seed=seed, **opts)
@@ -334,11 +415,14 @@ def one(cls: str, mode: str, seed: int) -> dict:
                 v["joints"] = q.tolist()
             path.write_text(yaml.safe_dump(d, sort_keys=False))
         options = None
-        if cls in ROBOT_CLASSES or cls in ESTIMATE_SCALE:  # the options handeye calibrate SESSION ... builds
+        if cls in ROBOT_CLASSES or cls in ESTIMATE_SCALE or cls in ACCURACY_CLASSES:  # as handeye calibrate builds
             from handeye.cli import build_parser
             from handeye.options import options_from_args
 
             flags = ["--robot", opts["arm"]] if cls in ROBOT_CLASSES else ["--estimate-scale"]
+            if cls in ACCURACY_CLASSES:
+                stated = maker_accuracy(opts["arm"], mode, cls == "arm_error_accuracy")
+                flags = ["--robot-accuracy", *(f"{v:.6g}" for v in stated)]
             options = options_from_args(build_parser().parse_args(["calibrate", str(tmp / "s"), *flags]))
         try:
             calibrate_session(tmp / "s", options=options, out_dir=tmp / "out", report=False)
@@ -376,6 +460,8 @@ def one(cls: str, mode: str, seed: int) -> dict:
         "robot_model": (ref.get("robot_model") or {}).get("kind"),
         "dof_factor": ref.get("cov_x_dof_factor"),
     }
+    if same == "arm_error":  # the X the data can tell: in the arm's own frames
+        out["m2_effective"] = _m2(_err(np.asarray(T, float), effective_truth(ts)), ref.get("cov_x_6x6_verdict"))
     if cls in ESTIMATE_SCALE and ref.get("tracker_scale"):
         out |= {"scale_true": ts.truth.scale, "scale": ref["tracker_scale"]["value"]}
         out["scale_sigma"] = ref["tracker_scale"]["sigma"]
@@ -414,6 +500,9 @@ def summarise(rows: list[dict], cls: str, mode: str, q95: float) -> str:
             f"{np.median([r['trans_mm'] for r in solved]):.2f} mm"
         )
         parts.append(f"mean m2 {np.mean([r['m2_verdict'] for r in solved]):.2f}")
+        eff = [r["m2_effective"] for r in solved if np.isfinite(r.get("m2_effective", np.nan))]
+        if eff:
+            parts.append(f"cover X in the arm's own frames {_share(int(sum(m <= q95 for m in eff)), len(eff))}")
         validated = sum(r.get("sigma_source") not in (None, "model") for r in solved)
         parts.append(f"validated sigma in {validated}/{len(solved)}")
         if cls in ROBOT_CLASSES:

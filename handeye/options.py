@@ -84,6 +84,7 @@ def options_from_args(args):
         workers=args.workers,
         shift_poses=getattr(args, "shift_poses", 0) or None,
         estimate_scale=True if getattr(args, "estimate_scale", False) else None,
+        robot_accuracy=tuple(args.robot_accuracy) if getattr(args, "robot_accuracy", None) else None,
         refine_options=ro,
     )
 

@@ -206,7 +206,9 @@ def result_dict(run, *, mode_flag: Optional[str] = None) -> dict:
     if run.refined is not None and hasattr(run.refined, "to_dict"):
         d["refinement"] = run.refined.to_dict()
         if run.refined.status == "ok":
-            d["refinement"].update(validation_fields(run.refined, getattr(run, "validation", None)))
+            d["refinement"].update(
+                validation_fields(run.refined, getattr(run, "validation", None), getattr(run, "arm_accuracy", None))
+            )
     d["target"] = s.target.to_dict()
     d["session"] = {
         "path": str(s.path),
@@ -271,9 +273,9 @@ def verdict_cov_x(run) -> Optional[np.ndarray]:
     if ref is None or getattr(ref, "status", "") != "ok":
         return None
     val = getattr(run, "validation", None)
-    if val is not None and val.status == "ok":
-        return val.x.cov_verdict
-    return np.asarray(ref.cov_x_6x6, float)
+    cov = val.x.cov_verdict if val is not None and val.status == "ok" else np.asarray(ref.cov_x_6x6, float)
+    arm = getattr(run, "arm_accuracy", None)
+    return cov if arm is None else cov + arm.cov_x_6x6
 
 
 def _sigma_distance(T_ref: np.ndarray, T: np.ndarray, cov: np.ndarray) -> Optional[float]:
@@ -284,7 +286,7 @@ def _sigma_distance(T_ref: np.ndarray, T: np.ndarray, cov: np.ndarray) -> Option
     return float(np.sqrt(m2)) if np.isfinite(m2) else None
 
 
-def validation_fields(ref, val) -> dict:
+def validation_fields(ref, val, arm=None) -> dict:
     """The validated and verdict uncertainty for result.json's ``refinement`` block.
 
     ``cov_x_6x6`` and ``intrinsics_sigma`` stay the model's. Added: ``cov_x_6x6_validated`` and
@@ -297,7 +299,9 @@ def validation_fields(ref, val) -> dict:
     sigma with its p-value if the model is right (``spread_p_value``; ``spread_beyond_chance``: below
     validation.alpha, the verdict then takes the validated covariance where it is larger), the same for the
     intrinsics and the model covariance they were measured against (``intrinsics_model``: full | sigmas), and
-    the odd and even halves refitted (their T_x, intrinsics, and offset from the result).
+    the odd and even halves refitted (their T_x, intrinsics, and offset from the result). ``arm``: the arm's
+    stated accuracy (:class:`handeye.refine.arm_accuracy.ArmAccuracy`): its covariance is added to the verdict
+    covariance (written then also without validation) and described as ``robot_accuracy``.
     """
     from .refine.covariance import hand_eye_uncertainty
     from .refine.validation import SIGMA_RULE, mahalanobis2
@@ -306,18 +310,28 @@ def validation_fields(ref, val) -> dict:
     model = hand_eye_uncertainty(np.asarray(ref.cov_x_6x6, float), ref.T_x, ref.working_distance_m)
     for k in ("sigma_rot_deg", "sigma_trans_mm", "correlation_6x6", "predicted_error_mm", "predicted_error_axes_mm"):
         out[f"{k}_model"] = getattr(model, k)
+    if arm is not None:
+        out["robot_accuracy"] = arm.describe()
     if val is None or val.status != "ok":
         out.update(
             sigma_source="model",
             intrinsics_sigma_verdict=dict(ref.intrinsics_sigma),
             validation={"status": "not_run", "summary": "not run" if val is None else val.summary()},
         )
+        if arm is not None:
+            cov = np.asarray(ref.cov_x_6x6, float) + arm.cov_x_6x6
+            verdict = hand_eye_uncertainty(cov, ref.T_x, ref.working_distance_m)
+            out["cov_x_6x6_verdict"] = cov
+            for k in ("sigma_rot_deg", "sigma_trans_mm", "correlation_6x6", "predicted_error_mm"):
+                out[k] = getattr(verdict, k)
+            out["predicted_error_axes_mm"] = verdict.predicted_error_axes_mm
         return plain(out)
-    verdict = hand_eye_uncertainty(val.x.cov_verdict, ref.T_x, ref.working_distance_m)
+    cov_verdict = val.x.cov_verdict if arm is None else val.x.cov_verdict + arm.cov_x_6x6
+    verdict = hand_eye_uncertainty(cov_verdict, ref.T_x, ref.working_distance_m)
     validated = hand_eye_uncertainty(val.x.cov_validated, ref.T_x, ref.working_distance_m)
     out.update(
         cov_x_6x6_validated=val.x.cov_validated,
-        cov_x_6x6_verdict=val.x.cov_verdict,
+        cov_x_6x6_verdict=cov_verdict,
         sigma_source=val.x.source,
         sigma_rot_deg_validated=validated.sigma_rot_deg,
         sigma_trans_mm_validated=validated.sigma_trans_mm,

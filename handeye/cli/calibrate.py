@@ -33,7 +33,7 @@ def _sigma_source_words(src: str, ref: dict) -> str:
         ),
         "validated": "from the spread over held-out folds, larger than the model's",
         "model+validated": "the larger of the model's and the held-out folds' in each direction",
-    }.get(src, src)
+    }.get(src, src) + (", plus the arm's stated accuracy" if ref.get("robot_accuracy") else "")
 
 
 def add_arguments(p) -> None:
@@ -111,6 +111,16 @@ def add_arguments(p) -> None:
         "kinematics of the poses); default: the session's robot: key, else an iid pose error (pose-only "
         "sessions: the DH offsets and the encoder noise enter the pose graph, the encoder noise held at the "
         "arm's prior)",
+    )
+    model.add_argument(
+        "--robot-accuracy",
+        nargs=2,
+        type=positive_float,
+        metavar=("MM", "DEG"),
+        help="the arm's stated accuracy: its flange pose error per axis, the same over the session's workspace. "
+        "The data cannot show such an error (it enters X one to one); its covariance is added to the verdict "
+        "covariance (result.json refinement.robot_accuracy); also robot_accuracy: {mm, deg} in session.yaml; "
+        "refused with --robot, whose DH prior states the arm's accuracy",
     )
     model.add_argument(
         "--estimate-scale",

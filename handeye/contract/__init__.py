@@ -27,11 +27,9 @@ from .models import (
     OLDEST_RESULT_VERSION,
     RESULT_VERSION,
     VERIFY_VERSION,
-    BatchRecord,
-    Observations,
     Result,
-    Verify,
 )
+from .records import BatchRecord, Observations, Verify
 
 __all__ = [
     "MIGRATIONS",

@@ -28,7 +28,16 @@ from ..records import IMAGE_MISSING_REASON, Detection, Session, ViewOutcome, vie
 from ..targets import TargetSpec
 from .gates import _mode_gate, _pairing_gate, _stated_source, shift_poses
 from .records import MIN_VIEWS, CalibrateOptions, CalibrationRun, Detected, Observation
-from .stages import _closed_forms, _final_outcomes, refine_stage, session_arm, validate_pose_stage, validate_stage
+from .stages import (
+    _closed_forms,
+    _final_outcomes,
+    arm_accuracy_stage,
+    refine_stage,
+    session_arm,
+    stated_accuracy,
+    validate_pose_stage,
+    validate_stage,
+)
 
 __all__ = [
     "MIN_VIEWS",
@@ -252,6 +261,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress, detected=Non
         return _run_pose_only(s, opts, state, progress)
     # the arm session.yaml names is read before any work: a wrong table is one error line
     arm = session_arm(s, opts) if opts.refine else None
+    accuracy = stated_accuracy(s, opts, arm is not None or opts.refine_options.get("arm") is not None)
     unpaired: list = []
     if opts.shift_poses:
         s, unpaired = shift_poses(s, int(opts.shift_poses))
@@ -341,6 +351,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress, detected=Non
             t3 = time.perf_counter()
             state["validation"] = validate_stage(s, refined, poses, dets, T_base_end)
             seconds["validate"] = time.perf_counter() - t3
+        state["arm_accuracy"] = arm_accuracy_stage(s, refined, accuracy)
     outcomes = _final_outcomes(outcomes, chain, refined)
     state["outcomes"] = ordered()
     seconds["calibrate"] = time.perf_counter() - t0

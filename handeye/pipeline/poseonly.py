@@ -12,7 +12,15 @@ from ..mounting import mounting
 from ..records import Session, ViewOutcome, view_id_key
 from .gates import _mode_gate, _stated_source
 from .records import MIN_VIEWS, CalibrateOptions, CalibrationRun, Observation
-from .stages import _closed_forms, _final_outcomes, _joint_angles, session_arm, validate_pose_stage
+from .stages import (
+    _closed_forms,
+    _final_outcomes,
+    _joint_angles,
+    arm_accuracy_stage,
+    session_arm,
+    stated_accuracy,
+    validate_pose_stage,
+)
 
 
 def tracker_scale_start(C: np.ndarray, Ms: np.ndarray) -> float:
@@ -80,6 +88,7 @@ def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) ->
         ro = {k: v for k, v in opts.refine_options.items() if k not in ("intrinsics", "fix")}
         if ro.get("arm") is None:  # --robot, else session.yaml's robot: the arm's kinematic model
             ro["arm"] = session_arm(s, opts)
+        accuracy = stated_accuracy(s, opts, ro["arm"] is not None)
         pose_views = [PoseView(v, poses[v].T_cam_board, s.view(v).T_base_end, _joint_angles(s, v)) for v in ids]
         refined = refine_poses(
             mode=s.mode,
@@ -104,6 +113,7 @@ def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) ->
             t3 = time.perf_counter()
             state["validation"] = validate_pose_stage(refined, pose_views)
             seconds["validate"] = time.perf_counter() - t3
+        state["arm_accuracy"] = arm_accuracy_stage(s, refined, accuracy)
     state["outcomes"] = tuple(
         v for _, v in sorted(_final_outcomes(outcomes, {}, refined).items(), key=lambda kv: view_id_key(kv[0]))
     )

@@ -30,6 +30,7 @@ class CalibrateOptions:
     shift_poses: int = 0  # pair image k with the pose written for image k + shift_poses (a known constant shift)
     validate: bool = True  # refit without some views for the validated and verdict covariances (refined runs)
     estimate_scale: bool = False  # pose-only sessions: the tracker's translation scale as one more unknown
+    robot_accuracy: Optional[tuple] = None  # (mm, deg): the arm's stated accuracy (handeye.refine.arm_accuracy)
 
     @staticmethod
     def from_config(cfg: dict, **overrides) -> "CalibrateOptions":
@@ -126,6 +127,8 @@ class CalibrationRun:
     mode_decision: dict = field(default_factory=dict)
     # the pairing gate's search (handeye.diagnose.pairing.PairingSearch), when it searched: the diagnostics reuse it
     pairing: Any = None
+    # the arm's stated accuracy (handeye.refine.arm_accuracy.ArmAccuracy), added to the verdict covariance
+    arm_accuracy: Any = None
 
     @property
     def failure_reason(self) -> str:

@@ -166,3 +166,51 @@ def _final_outcomes(outcomes, chain, refined):
             o = replace(o, used=False, reason=f"outlier: {why}")
         out[vid] = o
     return out
+
+
+def stated_accuracy(s: Session, opts: CalibrateOptions, arm_in_use: bool) -> Optional[tuple[float, float]]:
+    """(mm, deg) of the arm's stated accuracy (``--robot-accuracy``, else session.yaml's ``robot_accuracy``).
+
+    None when neither states it; ConfigError when it is malformed or comes with the arm's kinematic model,
+    whose DH prior already states the arm's accuracy (:mod:`handeye.refine.arm_accuracy`).
+    """
+    from ..errors import ConfigError
+    from ..session.fields import positive_number
+
+    value = opts.robot_accuracy
+    where = "--robot-accuracy"
+    if value is None and s.meta.get("robot_accuracy") is not None:
+        d, where = s.meta["robot_accuracy"], "robot_accuracy"
+        path = s.path / "session.yaml"
+        if not isinstance(d, dict) or set(d) != {"mm", "deg"}:
+            raise ConfigError(
+                "robot_accuracy must be {mm: NUMBER, deg: NUMBER}",
+                path=path,
+                received=repr(d)[:60],
+                expected="the arm's flange pose error per axis, constant over the workspace, e.g. "
+                "robot_accuracy: {mm: 0.5, deg: 0.05}",
+            )
+        value = (
+            float(positive_number(d["mm"], path=path, field="robot_accuracy.mm")),
+            float(positive_number(d["deg"], path=path, field="robot_accuracy.deg")),
+        )
+    if value is None:
+        return None
+    if arm_in_use:
+        raise ConfigError(
+            f"{where} and the arm's kinematic model (--robot or robot:) both state the arm's accuracy",
+            path=s.path,
+            hint="keep the arm's model (its DH prior bounds the arm's error) or the stated accuracy, not both",
+        )
+    return float(value[0]), float(value[1])
+
+
+def arm_accuracy_stage(s: Session, refined, stated: Optional[tuple[float, float]]):
+    """The stated accuracy's covariance in X's tangent (:func:`handeye.refine.arm_accuracy.arm_accuracy`)."""
+    if stated is None or refined is None or getattr(refined, "status", "") != "ok":
+        return None
+    from ..refine.arm_accuracy import arm_accuracy
+
+    ids = [v for v, pv in refined.per_view.items() if pv.get("status", "used") == "used"]
+    T_base_end = np.stack([s.view(v).T_base_end for v in ids])
+    return arm_accuracy(s.mode, refined.T_x, T_base_end, stated)

@@ -87,6 +87,18 @@ def load_qa(path: str | Path | None = None) -> dict:
 
 
 # ------------------------------------------------------------------------------ check texts
+def _or_arm(c: dict, action: str) -> str:
+    """``action``, unless most of X's uncertainty is the arm's stated accuracy, which more views cannot reduce."""
+    share = float(c.get("arm_share", 0.0))
+    if share < 0.5:
+        return action
+    return (
+        f"{share:.0%} of this uncertainty is the arm's stated accuracy (robot_accuracy), which more views cannot "
+        "reduce: calibrate with the arm's kinematic model (--robot ARM, its DH table), or take the arm's accuracy "
+        "as the limit of this installation"
+    )
+
+
 _SPEC = {
     # key: (title, unit, format, why(value, limit, ctx), action(ctx))
     "reprojection_rms_px": (
@@ -110,10 +122,11 @@ _SPEC = {
             f"a point {c.get('wd_m', float('nan')):.2f} m in front of the camera is placed with "
             f"{v:.2f} mm RMS 3-D error (1 σ), above the limit of {lim:g} mm"
         ),
-        lambda c: (
+        lambda c: _or_arm(
+            c,
             "add views with larger rotations (20-45 deg) about different axes, hold the board near the working "
             "distance, make sure the robot is at rest when each image is taken; the error shrinks about "
-            "with 1/sqrt(number of views)"
+            "with 1/sqrt(number of views)",
         ),
     ),
     "sigma_trans_mm": (
@@ -124,9 +137,10 @@ _SPEC = {
             f"the hand-eye translation is known to {v:.2f} mm (1 σ, {c.get('sigma_t_axis', '')}), "
             f"the limit is {lim:g} mm"
         ),
-        lambda c: (
+        lambda c: _or_arm(
+            c,
             "add views that rotate the camera about axes perpendicular to the weak direction and vary the "
-            "distance to the board; check the robot's repeatability"
+            "distance to the board; check the robot's repeatability",
         ),
     ),
     "sigma_rot_deg": (
@@ -137,7 +151,9 @@ _SPEC = {
             f"the hand-eye rotation is known to {v:.3f} deg (1 σ, about camera {c.get('sigma_r_axis', '')}), "
             f"the limit is {lim:g} deg"
         ),
-        lambda c: "add views with larger rotations between them and views where the board fills more of the image",
+        lambda c: _or_arm(
+            c, "add views with larger rotations between them and views where the board fills more of the image"
+        ),
     ),
     "max_rotation_deg": (
         "Largest rotation between views",

@@ -632,6 +632,7 @@ def test_calibrate_help_groups_every_flag_and_the_module_names_every_command():
         "--prior",
         "--board-unmoved",
         "--estimate-scale",
+        "--robot-accuracy",
     }
     assert groups["output"] == {"--out", "--export"}
     assert groups["reporting"] == {"--qa", "--no-report"}

@@ -68,13 +68,26 @@ def _robot_model(ref) -> Optional[dict]:
     rm = ref.get("robot_model")
     if isinstance(rm, dict) and rm.get("kind") in ("kinematic", "joint_space"):
         return {"kind": str(rm["kind"]), "items": _kinematic_items(rm)}
+    acc = ref.get("robot_accuracy")
+    stated = (
+        [
+            {
+                "name": "stated accuracy",
+                "value": f"{_num(acc.get('sigma_mm')):.3f} mm / {_num(acc.get('sigma_deg')):.4f} deg per axis of "
+                "the flange pose, the same over the workspace: an error the data cannot show, in the verdict "
+                f"covariance ({_plain_text(acc.get('frame', ''))})",
+            }
+        ]
+        if isinstance(acc, dict)
+        else []
+    )
     if isinstance(rm, dict) and rm:
         items = []
         for k, v in rm.items():
             if k == "kind":
                 continue
             items.append({"name": str(k).replace("_", " "), "value": _plain_text(v)})
-        return {"kind": str(rm.get("kind", "?")), "items": items}
+        return {"kind": str(rm.get("kind", "?")), "items": items + stated}
     return {
         "kind": str(ref.get("robot_noise_model") or "iid"),
         "items": [
@@ -83,7 +96,8 @@ def _robot_model(ref) -> Optional[dict]:
                 "value": f"{_num(ref.get('robot_sigma_mm')):.3f} mm / "
                 f"{_num(ref.get('robot_sigma_deg')):.4f} deg per view",
             }
-        ],
+        ]
+        + stated,
     }
 
 

@@ -1,0 +1,118 @@
+"""The arm's stated accuracy: the error it models is the one the data cannot show, mapped into X exactly."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from handeye.frames import inv_T, se3_exp, tangent_difference
+from handeye.mounting import mounting
+from handeye.refine.arm_accuracy import arm_accuracy, arm_accuracy_covariance
+from handeye.refine.problem import solve_pose_graph
+from handeye.sim.arm_tracker import make_arm_tracker_session
+
+
+def _solve(mode, T_base_end, C, T_x0, T_board0):
+    m = mounting(mode)
+    M = np.stack([m.M_from_T_base_end(T) for T in T_base_end])
+    cov = np.tile(np.diag([1e-6] * 3 + [1e-8] * 3), (len(C), 1, 1))
+    T_x, _, _ = solve_pose_graph(M=M, T_cam_board=C, covariances=cov, T_x0=T_x0, T_board0=T_board0)
+    return T_x
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_a_constant_arm_error_moves_x_as_the_covariance_maps_it(mode):
+    """Noise-free views of an arm whose flange (eye-in-hand) or base (eye-to-hand) is off by one constant error.
+
+    The solve fits them exactly with another X, displaced by the error mapped as arm_accuracy_covariance's
+    Jacobian says: xi = +-A e, so xi's squared Mahalanobis distance under A S A^T is e's under S.
+    """
+    ts = make_arm_tracker_session(mode=mode, n_views=15, seed=3, sigma_mm=1e-9, sigma_deg=1e-10)
+    t = ts.truth
+    T_rep = ts.T_base_end
+    rng = np.random.default_rng(0)
+    e = np.r_[np.radians(rng.normal(0, 0.1, 3)), rng.normal(0, 0.001, 3)]
+    if mode == "eye_in_hand":
+        T_true = T_rep @ se3_exp(e)[None]
+        C = inv_T(t.T_x_true)[None] @ inv_T(T_true) @ t.T_board_true[None]
+    else:
+        T_c = np.eye(4)
+        T_c[:3, 3] = T_rep[:, :3, 3].mean(axis=0)
+        T_true = (T_c @ se3_exp(e) @ inv_T(T_c))[None] @ T_rep
+        C = inv_T(t.T_x_true)[None] @ T_true @ t.T_board_true[None]
+    T_x = _solve(mode, T_rep, C, t.T_x_true, t.T_board_true)
+    xi = tangent_difference(T_x, t.T_x_true)  # the right-tangent error of the estimate, as the covariance's
+    assert np.linalg.norm(xi[3:]) > 2e-4  # the error moved X: it is not absorbed by the board's pose
+    # one axis at a time: the covariance of a unit error along axis k is J[:, k] J[:, k]^T
+    # the full mapping: xi = +-A e with A A^T the covariance of a unit e
+    S = np.diag([np.radians(1.0) ** 2] * 3 + [1e-6] * 3)
+    cov = arm_accuracy_covariance(mode, T_x, T_rep, sigma_mm=1.0, sigma_deg=1.0)
+    # xi must lie where cov says: its squared Mahalanobis distance equals e's under S
+    m2_xi = float(xi @ np.linalg.solve(cov, xi))
+    m2_e = float(e @ np.linalg.solve(S, e))
+    assert m2_xi == pytest.approx(m2_e, rel=2e-3)
+
+
+def test_a_session_with_a_stated_accuracy_carries_it_in_the_verdict(tmp_path):
+    """calibrate with --robot-accuracy: result.json's verdict covariance is the validated one plus the term."""
+    from handeye.cli import main
+
+    ts = make_arm_tracker_session(mode="eye_to_hand", n_views=16, seed=5)
+    ts.write(tmp_path / "s", state_sigma=False)
+    assert main(["calibrate", str(tmp_path / "s"), "--no-report", "--out", str(tmp_path / "a")]) == 0
+    code = main(
+        [
+            "calibrate",
+            str(tmp_path / "s"),
+            "--no-report",
+            "--out",
+            str(tmp_path / "b"),
+            "--robot-accuracy",
+            "0.5",
+            "0.05",
+        ]
+    )
+    assert code == 0
+    a = json.loads((tmp_path / "a" / "result.json").read_text())["refinement"]
+    b = json.loads((tmp_path / "b" / "result.json").read_text())["refinement"]
+    assert "robot_accuracy" not in a
+    acc = b["robot_accuracy"]
+    assert (acc["sigma_mm"], acc["sigma_deg"]) == (0.5, 0.05)
+    base = np.asarray(a.get("cov_x_6x6_verdict", a["cov_x_6x6"]))
+    np.testing.assert_allclose(np.asarray(b["cov_x_6x6_verdict"]), base + np.asarray(acc["cov_x_6x6"]), atol=1e-15)
+    assert all(sb > sa for sa, sb in zip(a["sigma_trans_mm"], b["sigma_trans_mm"], strict=True))
+    # the stated 0.5 mm per axis at the least, and the 0.05 deg lever over the camera's distance on top
+    added_mm2 = np.trace(np.asarray(acc["cov_x_6x6"])[3:, 3:]) * 1e6
+    assert 3 * 0.5**2 < added_mm2 < 3 * (0.5 + 2.0 * np.radians(0.05) * 1e3) ** 2
+    T_x = np.asarray(b["T_base_cam"])
+    expect = arm_accuracy("eye_to_hand", T_x, ts.T_base_end, (0.5, 0.05)).cov_x_6x6
+    np.testing.assert_allclose(np.asarray(acc["cov_x_6x6"]), expect, rtol=1e-9, atol=1e-18)
+
+
+def test_a_stated_accuracy_with_the_arm_model_is_refused(tmp_path, capsys):
+    from handeye.cli import main
+
+    ts = make_arm_tracker_session(mode="eye_in_hand", n_views=12, seed=2)
+    ts.write(tmp_path / "s", state_sigma=False)
+    args = ["calibrate", str(tmp_path / "s"), "--no-report", "--out", str(tmp_path / "o")]
+    assert main([*args, "--robot", "ur5e", "--robot-accuracy", "0.5", "0.05"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--robot-accuracy" in err[0] and "kinematic model" in err[0]
+    assert not (tmp_path / "o" / "result.json").exists() or json.loads((tmp_path / "o" / "result.json").read_text())
+
+
+def test_a_malformed_robot_accuracy_names_the_file(tmp_path, capsys):
+    import yaml
+
+    from handeye.cli import main
+
+    ts = make_arm_tracker_session(mode="eye_in_hand", n_views=12, seed=2)
+    path = ts.write(tmp_path / "s", state_sigma=False)
+    d = yaml.safe_load(path.read_text())
+    d["robot_accuracy"] = {"mm": 0.5}
+    path.write_text(yaml.safe_dump(d, sort_keys=False))
+    assert main(["calibrate", str(tmp_path / "s"), "--no-report", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "session.yaml" in err and "robot_accuracy" in err
