@@ -116,3 +116,20 @@ def test_a_malformed_robot_accuracy_names_the_file(tmp_path, capsys):
     assert main(["calibrate", str(tmp_path / "s"), "--no-report", "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "session.yaml" in err and "robot_accuracy" in err
+
+
+def test_an_image_session_takes_the_stated_accuracy_too(tmp_path):
+    """The common error is geometry, not the sensor: an image session adds the same term to its verdict."""
+    from handeye.cli import main
+
+    assert main(["simulate", str(tmp_path / "s"), "--views", "8", "--seed", "3"]) == 0
+    args = ["calibrate", str(tmp_path / "s"), "--no-report", "--robot-accuracy", "0.3", "0.03"]
+    assert main([*args, "--out", str(tmp_path / "o")]) in (0, 3)  # PASS or WARN: a result either way
+    ref = json.loads((tmp_path / "o" / "result.json").read_text())["refinement"]
+    acc = np.asarray(ref["robot_accuracy"]["cov_x_6x6"])
+    T_x = np.asarray(ref["T_end_cam"])
+    np.testing.assert_allclose(acc, arm_accuracy("eye_in_hand", T_x, np.eye(4)[None], (0.3, 0.03)).cov_x_6x6)
+    # eye-in-hand: the flange error maps to the camera with the lever of T_end_cam only, so every translation
+    # sigma is at least the stated 0.3 mm and at most that plus the 0.03 deg over the camera's offset
+    lever_mm = np.linalg.norm(T_x[:3, 3]) * 1e3 * np.radians(0.03)
+    assert all(0.3 <= s <= np.hypot(0.3 + lever_mm, 0.05) for s in ref["sigma_trans_mm"])
