@@ -152,6 +152,13 @@ def calibrate_cell(
     progress = progress or (lambda s: None)
     options = CalibrateOptions() if options is None else options
     paths = [Path(p) for p in session_paths]
+    if options.robot_accuracy is not None:
+        raise InputError(
+            "--robot-accuracy is for one session, not a cell",
+            received=" ".join(str(p) for p in paths),
+            hint="a cell's joint covariance models the arm with its DH table: name the arm (--robot ARM or robot: "
+            "in cell.yaml), or calibrate a camera alone with --robot-accuracy",
+        )
     if len(paths) == 1 and is_cell_folder(paths[0]):
         paths, robot = read_cell_file(paths[0])
         if robot is not None and options.refine_options.get("arm") is None:

@@ -133,3 +133,15 @@ def test_an_image_session_takes_the_stated_accuracy_too(tmp_path):
     # sigma is at least the stated 0.3 mm and at most that plus the 0.03 deg over the camera's offset
     lever_mm = np.linalg.norm(T_x[:3, 3]) * 1e3 * np.radians(0.03)
     assert all(0.3 <= s <= np.hypot(0.3 + lever_mm, 0.05) for s in ref["sigma_trans_mm"])
+
+
+def test_a_cell_refuses_the_stated_accuracy_in_one_line(tmp_path, capsys):
+    from handeye.cli import main
+
+    for name, seed in (("a", 1), ("b", 2)):
+        make_arm_tracker_session(mode="eye_to_hand", n_views=10, seed=seed).write(tmp_path / name, state_sigma=False)
+    args = ["calibrate", str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(tmp_path / "o")]
+    assert main([*args, "--robot-accuracy", "0.5", "0.05"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--robot-accuracy is for one session" in err[0]
+    assert not (tmp_path / "o").exists()
