@@ -61,7 +61,7 @@ def export_transform(
     """
     from ..recal.loaded import load_result
 
-    r = load_result(result, camera=camera)
+    r = load_result(result, camera=camera, absolute=True)
     verdict = str(r.raw.get("verdict") or "none")
     if not r.ok:
         why = r.raw.get("failure_reason") or f"status {r.status}"

@@ -35,7 +35,7 @@ class LoadedResult:
     T_x: Optional[np.ndarray]  # (4,4)
     T_board: Optional[np.ndarray]  # (4,4)
     cov_x: Optional[np.ndarray]  # (6,6) right tangent of T_x, rotation first
-    cov_source: str  # "cov_x_6x6_verdict" | "cov_x_6x6" | "none"
+    cov_source: str  # "cov_x_6x6_verdict" (less robot_accuracy's, load_result) | "cov_x_6x6" | "none"
     intrinsics: Optional[Intrinsics]
     intrinsics_sigma: dict  # name -> sigma (only free intrinsics; fixed ones absent)
     intrinsics_source: Optional[str]  # "estimated" | "given" | ... as result.json says
@@ -176,8 +176,12 @@ def _matrix(v, shape) -> Optional[np.ndarray]:
     return a if a.shape == shape and np.all(np.isfinite(a)) else None
 
 
-def load_result(result: ResultLike, *, camera: Optional[str] = None) -> LoadedResult:
+def load_result(result: ResultLike, *, camera: Optional[str] = None, absolute: bool = False) -> LoadedResult:
     """Read a result folder, a result.json path or an already loaded dict, through the one reader.
+
+    ``cov_x`` is the verdict's covariance of X, less the arm's stated accuracy (``refinement.robot_accuracy``)
+    unless ``absolute``: that error is common to every session of the same arm, so it cancels where a result
+    meets another of its arm (verify, compare, a prior); export and the fleet index state it (``absolute``).
 
     :func:`handeye.contract.read_result` checks every field read here: a missing, foreign or damaged file
     raises :class:`~handeye.errors.InputError` naming the field; a failed result loads with
@@ -199,6 +203,10 @@ def load_result(result: ResultLike, *, camera: Optional[str] = None) -> LoadedRe
     d = m.raw
     ref = d.get("refinement") or {}
     cov, cov_source = m.cov_x
+    acc = ref.get("robot_accuracy")
+    if cov is not None and not absolute and isinstance(acc, dict) and cov_source == "cov_x_6x6_verdict":
+        cov = cov - np.asarray(acc["cov_x_6x6"], float)
+        cov_source = "cov_x_6x6_verdict less robot_accuracy.cov_x_6x6"
     if cov is not None:
         _check_parametrisation(ref.get("cov_parametrisation"), source)
     intr = m.intrinsics

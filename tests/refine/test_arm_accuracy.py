@@ -145,3 +145,26 @@ def test_a_cell_refuses_the_stated_accuracy_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--robot-accuracy is for one session" in err[0]
     assert not (tmp_path / "o").exists()
+
+
+def test_the_arms_common_error_cancels_where_a_result_meets_its_own_arm(tmp_path):
+    """verify, compare and a prior read X's covariance less the stated accuracy; export states the whole."""
+    from handeye.cli import main
+    from handeye.recal.loaded import load_result
+
+    ts = make_arm_tracker_session(mode="eye_in_hand", n_views=14, seed=4)
+    ts.write(tmp_path / "s", state_sigma=False)
+    out = tmp_path / "o"
+    assert main(
+        ["calibrate", str(tmp_path / "s"), "--no-report", "--out", str(out), "--robot-accuracy", "0.5", "0.05"]
+    ) in (0, 3)
+    ref = json.loads((out / "result.json").read_text())["refinement"]
+    verdict, arm = np.asarray(ref["cov_x_6x6_verdict"]), np.asarray(ref["robot_accuracy"]["cov_x_6x6"])
+    same_arm = load_result(out)
+    np.testing.assert_allclose(same_arm.cov_x, verdict - arm, atol=1e-18)
+    assert "less robot_accuracy" in same_arm.cov_source
+    np.testing.assert_allclose(load_result(out, absolute=True).cov_x, verdict, atol=1e-18)
+    assert main(["export", str(out), "--to", "json", "--out", str(tmp_path / "x")]) == 0
+    exported = json.loads((tmp_path / "x.json").read_text())
+    text = json.dumps(exported)
+    assert "cov_x_6x6_verdict" in text and "less robot_accuracy" not in text
