@@ -518,8 +518,9 @@ def refine_poses(
             {
                 "kind": "none",
                 "description": "reported robot poses taken as exact (pose-only views: the robot's "
-                "noise is part of the tracker's; a systematic arm error, a DH table that is off, is common to "
-                "every view and not in X's covariance: name the arm, --robot ARM, to model it)",
+                "noise is part of the tracker's; an arm error common to every view, a DH table that is off, "
+                "enters X one to one and no view can show it: name the arm, --robot ARM, to model it, or state "
+                "its accuracy, --robot-accuracy MM DEG)",
             }
             if robot is None
             else describe(robot, st.dh, S[12:, 12:] if ok and S is not None else None, estimate)

@@ -166,7 +166,8 @@ def offset_explanation(
                 + (
                     "."
                     if kinematic
-                    else ", or calibrate with the arm's kinematic model (--robot ARM) when the views have joint angles."
+                    else ", calibrate with the arm's kinematic model (--robot ARM), or state the arm's accuracy "
+                    "(--robot-accuracy MM DEG) to carry it in the uncertainty."
                 )
             )
         else:
