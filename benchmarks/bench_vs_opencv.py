@@ -28,6 +28,7 @@ import argparse
 import json
 import os
 import resource
+import shutil
 import statistics
 import subprocess
 import sys
@@ -102,13 +103,16 @@ def main() -> None:
     ap.add_argument("--before", type=Path, help="a checkout of handeye before a change, measured in the same rounds")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="bench_vs_opencv_"))
-    sessions = args.session
-    if not sessions:
-        from handeye.sim.vendor import write_vendor_session
+    try:
+        sessions = args.session
+        if not sessions:
+            from handeye.sim.vendor import write_vendor_session
 
-        sessions = [write_vendor_session(tmp / "session", n_views=args.views, seed=1)]
-    for session in sessions:
-        measure(Path(session), tmp, args.rounds, before=args.before)
+            sessions = [write_vendor_session(tmp / "session", n_views=args.views, seed=1)]
+        for session in sessions:
+            measure(Path(session), tmp, args.rounds, before=args.before)
+    finally:  # the rendered session, the results and the bytecode caches of the runs
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def measure(session: Path, tmp: Path, rounds: int, *, before: Path | None = None) -> None:
