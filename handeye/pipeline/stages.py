@@ -175,25 +175,15 @@ def stated_accuracy(s: Session, opts: CalibrateOptions, arm_in_use: bool) -> Opt
     whose DH prior already states the arm's accuracy (:mod:`handeye.refine.arm_accuracy`).
     """
     from ..errors import ConfigError
-    from ..session.fields import positive_number
+    from ..session.fields import ROBOT_ACCURACY_FORM, mm_deg
 
     value = opts.robot_accuracy
     where = "--robot-accuracy"
     if value is None and s.meta.get("robot_accuracy") is not None:
-        d, where = s.meta["robot_accuracy"], "robot_accuracy"
-        path = s.path / "session.yaml"
-        if not isinstance(d, dict) or set(d) != {"mm", "deg"}:
-            raise ConfigError(
-                "robot_accuracy must be {mm: NUMBER, deg: NUMBER}",
-                path=path,
-                received=repr(d)[:60],
-                expected="the arm's flange pose error per axis, constant over the workspace, e.g. "
-                "robot_accuracy: {mm: 0.5, deg: 0.05}",
-            )
-        value = (
-            float(positive_number(d["mm"], path=path, field="robot_accuracy.mm")),
-            float(positive_number(d["deg"], path=path, field="robot_accuracy.deg")),
+        d = mm_deg(
+            s.meta["robot_accuracy"], path=s.path / "session.yaml", field="robot_accuracy", expected=ROBOT_ACCURACY_FORM
         )
+        value, where = (d["mm"], d["deg"]), "robot_accuracy"
     if value is None:
         return None
     if arm_in_use:

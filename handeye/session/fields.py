@@ -142,6 +142,29 @@ def check_mode(mode, *, path: Path, field: str = "mode") -> str:
     return mode
 
 
+#: what ``robot_accuracy`` holds (session.yaml; ``--robot-accuracy MM DEG``)
+ROBOT_ACCURACY_FORM = (
+    "the arm's flange pose error per axis, common to the workspace, e.g. robot_accuracy: {mm: 0.5, deg: 0.05}"
+)
+
+
+def mm_deg(value, *, path: Path, field: str, expected: str, optional: tuple = ()) -> dict:
+    """``{mm: NUMBER, deg: NUMBER}`` (and the ``optional`` keys) of positive numbers, as floats; ConfigError else.
+
+    The form of a session's stated sigmas (``tracker_sigma``) and accuracies (``robot_accuracy``).
+    """
+    keys = ("mm", "deg", *optional)
+    if not isinstance(value, dict) or not {"mm", "deg"} <= set(value) <= set(keys):
+        extra = " (and optionally " + ", ".join(f"{k}: NUMBER" for k in optional) + ")" if optional else ""
+        raise ConfigError(
+            f"{field} must be {{mm: NUMBER, deg: NUMBER}}{extra}",
+            path=path,
+            received=repr(value)[:60],
+            expected=expected,
+        )
+    return {k: positive_number(value[k], path=path, field=f"{field}.{k}") for k in keys if k in value}
+
+
 def positive_number(value, *, path: Path, field: str, integer: bool = False, minimum: float = 0.0):
     """``value`` as a finite number > ``minimum`` (an int when ``integer``); ConfigError naming ``field``.
 

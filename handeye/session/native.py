@@ -26,12 +26,14 @@ from ..output import read_text
 from ..records import Session, View, view_id_key
 from ..targets import TargetSpec, TrackedTargetSpec
 from .fields import (
+    ROBOT_ACCURACY_FORM,
     IdTextLoader,
     check_angle_units,
     check_finite,
     check_input_file,
     check_mode,
     check_translation_units,
+    mm_deg,
     parse_pose_format,
     positive_number,
     read_yaml,
@@ -164,6 +166,8 @@ def read_native_document(path: Path) -> NativeDocument:
             )
     po = _pose_only_fields(d, entries, path=path)
     _check_estimate_scale(d.get("estimate_scale"), pose_only=po[0] is not None, path=path)
+    if d.get("robot_accuracy") is not None:  # the arm's stated accuracy (handeye.refine.arm_accuracy)
+        mm_deg(d["robot_accuracy"], path=path, field="robot_accuracy", expected=ROBOT_ACCURACY_FORM)
     return NativeDocument(path, d, d.get("mode"), target, fmt, intr, intr_use, tuple(entries), image_folder, *po)
 
 
@@ -246,21 +250,18 @@ def _pose_only_fields(d: dict, entries: list, *, path: Path) -> tuple:
         if tfmt is not None
         else PoseFormat(rotation="matrix").validated(source=str(path))
     )
-    sig = d.get("tracker_sigma")
-    if sig is None:
+    if d.get("tracker_sigma") is None:
         return tfmt, None
-    if not isinstance(sig, dict) or not {"mm", "deg"} <= set(sig) <= {"mm", "deg", "mm_along"}:
-        raise ConfigError(
-            "tracker_sigma must be {mm: NUMBER, deg: NUMBER} (and optionally mm_along: NUMBER)",
-            path=path,
-            received=repr(sig)[:60],
-            expected="the tracker's noise per axis, e.g. tracker_sigma: {mm: 0.5, deg: 0.2, mm_along: 2.0} (mm "
-            "across the camera's optical axis, mm_along along it)",
-        )
-    mm = positive_number(sig["mm"], path=path, field="tracker_sigma.mm")
-    deg = positive_number(sig["deg"], path=path, field="tracker_sigma.deg")
-    along = positive_number(sig["mm_along"], path=path, field="tracker_sigma.mm_along") if "mm_along" in sig else mm
-    return tfmt, (float(np.radians(deg)), float(mm) / 1000.0, float(along) / 1000.0)
+    sig = mm_deg(
+        d["tracker_sigma"],
+        path=path,
+        field="tracker_sigma",
+        optional=("mm_along",),
+        expected="the tracker's noise per axis, e.g. tracker_sigma: {mm: 0.5, deg: 0.2, mm_along: 2.0} (mm "
+        "across the camera's optical axis, mm_along along it)",
+    )
+    along = sig.get("mm_along", sig["mm"])
+    return tfmt, (float(np.radians(sig["deg"])), sig["mm"] / 1000.0, along / 1000.0)
 
 
 def view_target_pose(doc: NativeDocument, e: ViewEntry) -> np.ndarray:
