@@ -290,8 +290,9 @@ def validation_fields(ref, val, arm=None) -> dict:
     """The validated and verdict uncertainty for result.json's ``refinement`` block.
 
     ``cov_x_6x6`` and ``intrinsics_sigma`` stay the model's. Added: ``cov_x_6x6_validated`` and
-    ``cov_x_6x6_verdict`` (same parametrisation), ``sigma_source`` (model | validated | model+validated:
-    which covariance the verdict takes; ``model`` also when validation did not run) and ``sigma_rule``;
+    ``cov_x_6x6_verdict`` (same parametrisation; the model's when not validated), ``sigma_source`` (model |
+    validated | model+validated: which covariance the verdict takes; ``model`` also when validation did not
+    run) and ``sigma_rule``;
     ``sigma_rot_deg``, ``sigma_trans_mm``, ``correlation_6x6``, ``predicted_error_mm`` and
     ``predicted_error_axes_mm`` become the verdict's, the model's kept as ``*_model``; for the free
     intrinsics ``intrinsics_sigma_validated``, ``intrinsics_sigma_verdict`` and ``cov_intrinsics_verdict``
@@ -318,10 +319,10 @@ def validation_fields(ref, val, arm=None) -> dict:
             intrinsics_sigma_verdict=dict(ref.intrinsics_sigma),
             validation={"status": "not_run", "summary": "not run" if val is None else val.summary()},
         )
+        out["cov_x_6x6_verdict"] = np.asarray(ref.cov_x_6x6, float)  # the model's: every result carries one
         if arm is not None:
-            cov = np.asarray(ref.cov_x_6x6, float) + arm.cov_x_6x6
-            verdict = hand_eye_uncertainty(cov, ref.T_x, ref.working_distance_m)
-            out["cov_x_6x6_verdict"] = cov
+            out["cov_x_6x6_verdict"] = out["cov_x_6x6_verdict"] + arm.cov_x_6x6
+            verdict = hand_eye_uncertainty(out["cov_x_6x6_verdict"], ref.T_x, ref.working_distance_m)
             for k in ("sigma_rot_deg", "sigma_trans_mm", "correlation_6x6", "predicted_error_mm"):
                 out[k] = getattr(verdict, k)
             out["predicted_error_axes_mm"] = verdict.predicted_error_axes_mm

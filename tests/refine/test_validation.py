@@ -263,7 +263,8 @@ def test_too_few_views_are_not_validated_and_the_model_stands():
     v = validate(r, object_points=s.target.object_points(), views=views)
     assert v.status == "not_run" and "5 used views" in v.reason
     f = validation_fields(r, v)
-    assert f["sigma_source"] == "model" and "cov_x_6x6_verdict" not in f
+    assert f["sigma_source"] == "model" and "cov_x_6x6_validated" not in f
+    np.testing.assert_array_equal(np.asarray(f["cov_x_6x6_verdict"]), np.asarray(r.cov_x_6x6))  # every result has one
     assert f["validation"]["status"] == "not_run"
 
 
