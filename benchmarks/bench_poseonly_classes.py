@@ -183,10 +183,10 @@ folds are interleaved, so each shares the arm's error (validated sigma used in 0
 The arm's stated accuracy (refine/arm_accuracy.py, docs/uncertainty.md): arm_error_accuracy calibrates the
 arm_error sessions with --robot-accuracy at the common part of the arm's error (maker_accuracy common=True),
 arm_error_datasheet at the whole flange error (common=False); arm_error rows also print the coverage of X in
-the arm's own frames (effective_truth). Seeds 0-299 / 0-99, 2 workers:
+the arm's own frames (effective_truth). Seeds 0-299 (datasheet: 0-99), 2 workers:
 
-    arm_error           in  100  cover 25.0 % [16.9, 34.7]; X in the arm's own frames 47.0 % [36.9, 57.2]
-    arm_error           to  100  cover 45.0 % [35.0, 55.3]; X in the arm's own frames 92.0 % [84.8, 96.5]
+    arm_error           in  300  cover 21.7 % [17.1, 26.8]; X in the arm's own frames 51.3 % [45.5, 57.1]
+    arm_error           to  300  cover 44.0 % [38.3, 49.8]; X in the arm's own frames 95.3 % [92.3, 97.4]
     arm_error_accuracy  in  300  cover 98.0 % [95.7, 99.3]  mean m2 4.82  PASS 255 WARN 45
     arm_error_accuracy  to  300  cover 98.0 % [95.7, 99.3]  mean m2 4.49  PASS 7 WARN 293
     arm_error_datasheet in  100  cover 100 % [96.4, 100]    mean m2 2.56
