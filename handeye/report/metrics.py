@@ -56,8 +56,9 @@ def qa_metrics(
         c["sigma_r_axis"] = "xyz"[int(sr.argmax())]
         acc, verdict = (ref or {}).get("robot_accuracy"), (ref or {}).get("cov_x_6x6_verdict")
         if isinstance(acc, dict) and verdict is not None:  # the share of X's variance the arm's stated accuracy makes
-            arm_t, all_t = np.asarray(acc["cov_x_6x6"], float)[3:, 3:], np.asarray(verdict, float)[3:, 3:]
-            c["arm_share"] = float(np.trace(arm_t) / max(np.trace(all_t), 1e-300))
+            arm, full = np.asarray(acc["cov_x_6x6"], float), np.asarray(verdict, float)
+            for key, b in (("arm_share_rot", slice(0, 3)), ("arm_share", slice(3, 6))):
+                c[key] = float(np.trace(arm[b, b]) / max(np.trace(full[b, b]), 1e-300))
     else:
         m["sigma_trans_mm"] = m["sigma_rot_deg"] = None
     for k in ("predicted_error_mm", "sigma_trans_mm", "sigma_rot_deg"):

@@ -87,9 +87,12 @@ def load_qa(path: str | Path | None = None) -> dict:
 
 
 # ------------------------------------------------------------------------------ check texts
-def _or_arm(c: dict, action: str) -> str:
-    """``action``, unless most of X's uncertainty is the arm's stated accuracy, which more views cannot reduce."""
-    share = float(c.get("arm_share", 0.0))
+def _or_arm(c: dict, action: str, share_key: str = "arm_share") -> str:
+    """``action``, unless most of X's uncertainty is the arm's stated accuracy, which more views cannot reduce.
+
+    ``share_key``: the translation's share (``arm_share``) or the rotation's (``arm_share_rot``).
+    """
+    share = float(c.get(share_key, 0.0))
     if share < 0.5:
         return action
     return (
@@ -152,7 +155,9 @@ _SPEC = {
             f"the limit is {lim:g} deg"
         ),
         lambda c: _or_arm(
-            c, "add views with larger rotations between them and views where the board fills more of the image"
+            c,
+            "add views with larger rotations between them and views where the board fills more of the image",
+            "arm_share_rot",
         ),
     ),
     "max_rotation_deg": (
