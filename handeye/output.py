@@ -348,12 +348,14 @@ def file_sha256(path: str | Path) -> str:
     return h.hexdigest()
 
 
-def inputs_record(paths, *, base: str | Path | None = None) -> list[dict]:
+def inputs_record(paths, *, base: str | Path | None = None, digests: dict | None = None) -> list[dict]:
     """Every input file read, once each in the given order: ``{"path", "sha256", "bytes"}``.
 
     Every input file read, once each in the given order: ``{"path", "sha256", "bytes"}`` (paths
-    relative to ``base`` when inside it) for result.json's ``provenance.inputs``.
+    relative to ``base`` when inside it) for result.json's ``provenance.inputs``. ``digests``: absolute path ->
+    SHA-256 of the bytes already read (the images, hashed as they were decoded); other files are read here.
     """
+    digests = digests or {}
     out, seen = [], set()
     for p in paths:
         p = Path(p)
@@ -367,7 +369,7 @@ def inputs_record(paths, *, base: str | Path | None = None) -> list[dict]:
                 name = str(Path(key).relative_to(os.path.abspath(base)))
             except ValueError:
                 pass
-        out.append({"path": name, "sha256": file_sha256(p), "bytes": p.stat().st_size})
+        out.append({"path": name, "sha256": digests.get(key) or file_sha256(p), "bytes": p.stat().st_size})
     return out
 
 

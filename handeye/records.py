@@ -83,6 +83,7 @@ class Detection:
     # corners the detector found but does not use, as (corner id, reason): the refinement stages disagree,
     # no saddle point, off the homography of the neighbours (handeye.detect.chessboard / charuco)
     dropped_corners: tuple = ()
+    sha256: Optional[str] = None  # of the image file's bytes as decoded (result.json's provenance.inputs)
 
 
 @dataclass(frozen=True)
@@ -102,6 +103,7 @@ class DetectionFailure:
     # chessboards: the inner-corner sizes (cols, rows) seen in this image when the stated size was not
     # found (handeye.detect.board_size; every searched chessboard image records them); None when not checked
     seen_sizes: Optional[tuple] = None
+    sha256: Optional[str] = None  # of the image file's bytes as decoded (result.json's provenance.inputs)
 
 
 #: the start of the reason of a view whose image file is missing (its pose line or entry has no image): the

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import shutil
 import time
 import uuid
@@ -207,7 +208,15 @@ def _calibrate_locked(
     if stage_errors:
         res["stage_errors"] = stage_errors
     files = [*(session.meta.get("files_read") or [v.image_path for v in session.views]), *site_files]
-    res.setdefault("provenance", {})["inputs"] = inputs_record([f for f in files if f], base=session.path)
+    seen = {**run.failures, **run.detections}  # the images were hashed as they were decoded: each read once
+    digests = {
+        os.path.abspath(v.image_path): d.sha256
+        for v in session.views
+        if v.image_path is not None and (d := seen.get(v.view_id)) is not None and getattr(d, "sha256", None)
+    }
+    res.setdefault("provenance", {})["inputs"] = inputs_record(
+        [f for f in files if f], base=session.path, digests=digests
+    )
     t2 = time.perf_counter()
     _keep_previous(out_dir, failed=run.status != "ok")
     write_thumbnails(out_dir, {**run.failures, **run.detections})

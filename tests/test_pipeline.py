@@ -2,6 +2,7 @@
 through :func:`handeye.workflow.calibrate_session`, the function `handeye calibrate` runs."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -344,3 +345,22 @@ def test_detections_made_ahead_are_taken_for_the_same_images_only(rendered, monk
     run = pipeline.run_calibration(s, _opts(validate=False), detected=other)
     assert calls == [len(s.views)] and run.status == "ok"
     np.testing.assert_array_equal(run.T_x, alone.T_x)
+
+
+def test_every_image_is_hashed_once_as_it_is_decoded(rendered, tmp_path, monkeypatch):
+    """provenance.inputs names every file with its SHA-256; the images' come from detection, not a second read."""
+    import hashlib
+
+    import handeye.output as output
+
+    read_again: list = []
+    real = output.file_sha256
+    monkeypatch.setattr(output, "file_sha256", lambda p: read_again.append(Path(p).name) or real(p))
+    _mode, session = rendered
+    _run(session, tmp_path / "out")
+    inputs = json.loads((tmp_path / "out" / "result.json").read_text())["provenance"]["inputs"]
+    images = [e for e in inputs if e["path"].endswith(".jpg")]
+    assert len(images) == 12  # the hidden view's image too: it was decoded and searched
+    for e in inputs:
+        assert e["sha256"] == hashlib.sha256((session / e["path"]).read_bytes()).hexdigest()
+    assert read_again and not [n for n in read_again if n.endswith(".jpg")]  # poses.txt, config.yaml only

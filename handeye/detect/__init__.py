@@ -11,6 +11,7 @@ Thresholds are in configs/detection.yaml; see docs/detection.md.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 import time
@@ -63,6 +64,11 @@ def read_gray(path: Path) -> np.ndarray:
     3-5.6 ms for the colours and a conversion, benchmarks/bench_detect.py; within 1-2 grey levels of
     the converted colours); other formats keep their bit depth until they are scaled to 8 bits.
     """
+    return _read_gray(path)[0]
+
+
+def _read_gray(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(:func:`read_gray`'s image, the file's bytes it was decoded from)."""
     path = Path(path)
     if not path.exists():
         raise InputError("image file missing", path=path, hint="restore it or remove its pose from the session")
@@ -81,7 +87,7 @@ def read_gray(path: Path) -> np.ndarray:
         img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)  # type: ignore[call-overload]
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
-    return img
+    return img, data
 
 
 def detect_gray(
@@ -137,13 +143,14 @@ def detect_image(
     o = options or default_options()
     t0 = time.perf_counter()
     budget = TimeBudget(o.time_budget_s)
-    gray = read_gray(path)
+    gray, data = _read_gray(path)
+    digest = hashlib.sha256(data.data).hexdigest()  # the bytes decoded are those provenance names (hashed once)
     size = (gray.shape[1], gray.shape[0])
     dropped: list = []
     out = detect_gray(gray, target, min_corners=min_corners, options=o, budget=budget, dropped=dropped)
     if isinstance(out, str):
         if target.kind != "chessboard":
-            return _failure(view_id, gray, out, o, t0)
+            return _failure(view_id, gray, out, o, t0, sha256=digest)
         seen = visible_grid_sizes(
             gray,
             max_side_px=o.size_survey_max_side_px,
@@ -153,7 +160,7 @@ def detect_image(
         other = [size_text(s) for s in seen if s != normal_size(target.cols, target.rows)]
         if other:
             out += f"; the detector sees {', '.join(other)} inner corners"
-        return _failure(view_id, gray, out, o, t0, seen_sizes=seen)
+        return _failure(view_id, gray, out, o, t0, seen_sizes=seen, sha256=digest)
     thumb = thumbnail_jpeg(gray, width_px=o.thumbnail_width_px, quality=o.thumbnail_jpeg_quality)
     ids, pts = out
     cue = order_cue(gray, pts, target.cols, target.rows, ids) if target.kind == "chessboard" else float("nan")
@@ -178,6 +185,7 @@ def detect_image(
         thumbnail_jpeg=thumb,
         seconds=time.perf_counter() - t0,
         dropped_corners=tuple(sorted(dropped)),
+        sha256=digest,
     )
     if target.kind == "chessboard":  # numbered from the end the board's print fixes (its own image only)
         det = board_order(det, target, min_grey=o.order_cue_min_grey)

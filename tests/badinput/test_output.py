@@ -239,8 +239,8 @@ def test_a_refusal_of_the_file_system_names_the_file_and_a_fix_of_its_kind(
     else:
         real = handeye.output.file_sha256
 
-        def unreadable(path):
-            if str(path).endswith(".jpg"):
+        def unreadable(path):  # the images are hashed as they are decoded: the config is read for its hash
+            if str(path).endswith("config.yaml"):
                 raise PermissionError(errno.EACCES, "Permission denied", str(path))
             return real(path)
 
@@ -257,7 +257,7 @@ def test_a_refusal_of_the_file_system_names_the_file_and_a_fix_of_its_kind(
         )
         assert "cannot read" not in err
     else:
-        names(err, f"cannot read {tiny_vendor}", ".jpg (Permission denied)", "may read it")
+        names(err, f"cannot read {tiny_vendor}", "config.yaml (Permission denied)", "may read it")
         assert "output folder" not in err and "free space" not in err
     line = os_error_line(OSError(errno.EROFS, "Read-only file system", "/mnt/x"))  # only a write gets this
     assert line.startswith("cannot write /mnt/x (Read-only file system) -> make its folder writable")

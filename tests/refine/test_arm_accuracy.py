@@ -155,9 +155,10 @@ def test_the_arms_common_error_cancels_where_a_result_meets_its_own_arm(tmp_path
     ts = make_arm_tracker_session(mode="eye_in_hand", n_views=14, seed=4)
     ts.write(tmp_path / "s", state_sigma=False)
     out = tmp_path / "o"
-    assert main(
-        ["calibrate", str(tmp_path / "s"), "--no-report", "--out", str(out), "--robot-accuracy", "0.5", "0.05"]
-    ) == 0
+    assert (
+        main(["calibrate", str(tmp_path / "s"), "--no-report", "--out", str(out), "--robot-accuracy", "0.5", "0.05"])
+        == 0
+    )
     ref = json.loads((out / "result.json").read_text())["refinement"]
     verdict, arm = np.asarray(ref["cov_x_6x6_verdict"]), np.asarray(ref["robot_accuracy"]["cov_x_6x6"])
     same_arm = load_result(out)
