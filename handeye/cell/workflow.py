@@ -120,7 +120,7 @@ def _detect_ahead(path: Path, options: CalibrateOptions, mode: Optional[str], al
     from ..session import load_session
 
     try:
-        return detect_ahead(load_session(path, mode=mode, allow_outside=allow_outside), options)
+        return detect_ahead(load_session(path, mode=mode, allow_outside=allow_outside, check_sizes=False), options)
     except HandeyeError as e:
         log.debug("%s: not detected ahead (%s)", path, e)
         return None

@@ -224,14 +224,33 @@ def detect_views(
             results[vid] = res
             if progress:
                 progress(k, len(items))
-    sizes = {d.image_size for d in results.values() if d.image_size is not None}
-    if len(sizes) > 1:
-        raise InputError(
-            f"images have different sizes {sorted(sizes)}",
-            path=Path(items[0][1]).parent,
-            hint="all views of a session must come from one camera at one resolution",
-        )
+    paths = dict(items)
+    err = size_mismatch_error({v: d.image_size for v, d in results.items() if d.image_size is not None}, paths.get)
+    if err is not None:
+        raise err
     return results
+
+
+def size_mismatch_error(sizes: dict, path_of: Callable[[str], Any]) -> InputError | None:
+    """InputError naming the first view whose image is not the size most views' are; None when all are one size.
+
+    ``sizes``: view id -> (width, height); ``path_of``: view id -> its image's path.
+    """
+    from collections import Counter
+
+    if len(set(sizes.values())) <= 1:
+        return None
+    common, n_common = Counter(sizes.values()).most_common(1)[0]
+    odd = [vid for vid, s in sizes.items() if s != common]
+    vid = odd[0]
+    w, h = sizes[vid]
+    return InputError(
+        f"view {vid}: image is {w}x{h}, the other {n_common} views' are {common[0]}x{common[1]}"
+        + (f" ({len(odd)} views differ: {', '.join(odd[:5])})" if len(odd) > 1 else ""),
+        path=path_of(vid),
+        expected=f"{common[0]}x{common[1]} (one camera, one resolution)",
+        hint="remove the view or replace its image by one from the same camera",
+    )
 
 
 def _failure(vid: str, gray: np.ndarray, reason: str, o: DetectionOptions, t0: float, **kw) -> DetectionFailure:

@@ -15,26 +15,30 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import InputError
 from ..records import Session
 from .fields import locate_session
 from .native import load_native_session
 from .vendor import load_vendor_session
 
 
-def load_session(path: str | Path, *, mode: str | None = None, allow_outside: bool = False) -> Session:
+def load_session(
+    path: str | Path, *, mode: str | None = None, allow_outside: bool = False, check_sizes: bool = True
+) -> Session:
     """Load a session folder (native ``session.yaml`` or vendor ``poses.txt``), or a session.yaml path.
 
     ``mode`` overrides the mode stated in the session (the CLI's ``--mode``). ``allow_outside`` lets a
     native session's image and pose-file paths leave the session folder (and its ``image_folder``);
     by default such a path is an InputError. A vendor session's images are always its folder's.
+    ``check_sizes``: read the images' headers for :func:`check_image_sizes`; a calibration passes False, its
+    detection checks the sizes of the images it decodes (each image read once).
     """
     kind, p = locate_session(path)
     if kind == "native":
         session = load_native_session(p, mode=mode, allow_outside=allow_outside)
     else:
         session = load_vendor_session(p, mode=mode)
-    check_image_sizes(session)
+    if check_sizes:
+        check_image_sizes(session)
     return session
 
 
@@ -64,22 +68,11 @@ def image_sizes(items) -> dict:
 def check_image_sizes(session: Session) -> None:
     """All views' images of one size.
 
-    All views' images of one size (:func:`image_sizes`): an image of another size than the others is an
-    InputError naming its view.
+    All views' images of one size (:func:`image_sizes`, from the files' headers): an image of another size than
+    the others is an InputError naming its view (:func:`handeye.detect.size_mismatch_error`).
     """
-    from collections import Counter
+    from ..detect import size_mismatch_error
 
-    sizes = image_sizes(session)
-    if len(set(sizes.values())) <= 1:
-        return
-    common, n_common = Counter(sizes.values()).most_common(1)[0]
-    odd = [vid for vid, s in sizes.items() if s != common]
-    vid = odd[0]
-    w, h = sizes[vid]
-    raise InputError(
-        f"view {vid}: image is {w}x{h}, the other {n_common} views' are {common[0]}x{common[1]}"
-        + (f" ({len(odd)} views differ: {', '.join(odd[:5])})" if len(odd) > 1 else ""),
-        path=session.view(vid).image_path,
-        expected=f"{common[0]}x{common[1]} (one camera, one resolution)",
-        hint="remove the view or replace its image by one from the same camera",
-    )
+    err = size_mismatch_error(image_sizes(session), lambda vid: session.view(vid).image_path)
+    if err is not None:
+        raise err

@@ -135,7 +135,7 @@ def test_images_of_different_sizes_are_refused(tmp_path, views):
     cs, imgs = views
     cv2.imwrite(str(tmp_path / "1.png"), imgs[0])
     cv2.imwrite(str(tmp_path / "2.png"), cv2.resize(imgs[1], (320, 240)))
-    with pytest.raises(InputError, match="different sizes"):
+    with pytest.raises(InputError, match=r"view 2: image is 320x240, the other 1 views. are"):
         detect_views([("1", tmp_path / "1.png"), ("2", tmp_path / "2.png")], cs.target)
 
 
