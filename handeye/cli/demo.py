@@ -49,6 +49,9 @@ def run(args) -> int:
             "0.5",
             "--hidden",
             str(max(2, args.views // 2)),
+            # a session an earlier demo rendered (it has its ground truth) is rendered again; anything else is
+            # refused by simulate, naming the folder
+            *(["--force"] if (session_dir / "ground_truth.json").is_file() else []),
         ]
     )
     simulate.run(sim_args)

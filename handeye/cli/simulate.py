@@ -96,6 +96,12 @@ def add_arguments(p) -> None:
         default=None,
         help="kinematic: encoder noise per joint and view, 0-1 deg (default 0.005)",
     )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="write over the session files already in OUT (N.jpg, poses.txt, config.yaml, session.yaml, "
+        "ground_truth.json); without it such a folder is refused. A --cell folder is always written over",
+    )
     p.add_argument("--hidden", nargs="*", default=[], metavar="ID", help="views rendered without the board")
     p.add_argument("--outliers", nargs="*", default=[], metavar="ID", help="views given a wrong robot pose")
     p.set_defaults(func=run)
@@ -149,6 +155,7 @@ def run(args) -> int:
         robot_error=args.robot_error,
         arm=args.arm,
         target=sim_target(args.target),
+        overwrite=bool(getattr(args, "force", False)),
         **kin,
     )
     print(f"synthetic {args.mode} session with {args.views} rendered views: {path}")

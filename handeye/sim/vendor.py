@@ -49,7 +49,7 @@ def _clear_previous_session(out: Path, *, overwrite: bool) -> None:
             path=out,
             expected="an empty or new folder",
             received=f"{len(ours)} session files (e.g. {ours[0]})",
-            hint="choose another folder or pass overwrite=True",
+            hint="choose another folder, or write over it (handeye simulate --force; overwrite=True)",
         )
     for n in ours:
         (out / n).unlink()

@@ -208,6 +208,22 @@ def test_demo_reports_its_error_against_the_truth(tmp_path, capsys):
     assert t_mm < 5 * np.linalg.norm(res["refinement"]["sigma_trans_mm"]) + 0.05
     assert (tmp_path / "demo" / "result" / "report.html").exists()
     assert "T_base_cam" in out
+    # run again into the same folder: its own rendered session is rendered again, the same error results
+    assert main(["-q", "demo", "--out", str(tmp_path / "demo"), "--views", "8", "--mode", "eye_to_hand"]) == 0
+    assert line in capsys.readouterr().out
+
+
+def test_simulate_refuses_a_session_folder_unless_forced(tmp_path, capsys):
+    args = ["simulate", str(tmp_path / "s"), "--views", "3", "--seed", "2"]
+    assert main(args) == 0
+    first = (tmp_path / "s" / "poses.txt").read_text()
+    capsys.readouterr()
+    assert main([*args, "--seed", "5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "already holds a session" in err[0] and "--force" in err[0]
+    assert (tmp_path / "s" / "poses.txt").read_text() == first  # nothing written over
+    assert main([*args, "--seed", "5", "--force"]) == 0
+    assert (tmp_path / "s" / "poses.txt").read_text() != first
 
 
 def test_apply_maps_a_camera_point_into_the_base(tmp_path, capsys):
