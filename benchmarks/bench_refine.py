@@ -34,7 +34,7 @@ from handeye.factors.reprojection import chain_residual
 from handeye.frames import tangent_difference
 from handeye.initial import all_methods, calibrate_intrinsics, solve_pnp
 from handeye.mounting import mounting
-from handeye.refine import RefineOptions, RefineView, refine
+from handeye.refine import RefineOptions, refine
 from handeye.sim.corners import make_corner_session
 
 MODES = ("eye_in_hand", "eye_to_hand")
@@ -58,11 +58,7 @@ def closed_forms(s):
 def refine_views(s):
     """The session's views as the refinement takes them, with the encoder readings when the simulated arm
     recorded them (the kinematic robot error model), as a session with joint angles gives them."""
-    q = getattr(s, "joints_encoder", None)
-    return [
-        RefineView(vid, ids, pts, s.T_base_end_reported[k], None if q is None else q[k])
-        for k, (vid, ids, pts) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points, strict=False))
-    ]
+    return s.refine_views(getattr(s, "joints_encoder", None))
 
 
 def refine_from_tsai(s, options=None):

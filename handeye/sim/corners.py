@@ -97,6 +97,20 @@ class CornerSession:
     def n_views(self) -> int:
         return len(self.view_ids)
 
+    def refine_views(self, joints: Optional[np.ndarray] = None, T_reported: Optional[np.ndarray] = None) -> list:
+        """Every view as the refinement takes it (:class:`handeye.refine.RefineView`), in view order.
+
+        ``joints`` (N, n): each view's joint readings (e.g. ``joints_encoder``), else none; ``T_reported`` (N,4,4):
+        robot poses other than ``T_base_end_reported``.
+        """
+        from ..refine.options import RefineView
+
+        T = self.T_base_end_reported if T_reported is None else T_reported
+        return [
+            RefineView(vid, ids, pts, T[k], None if joints is None else joints[k])
+            for k, (vid, ids, pts) in enumerate(zip(self.view_ids, self.corner_ids, self.image_points, strict=True))
+        ]
+
     def index(self, view_id: str) -> int:
         try:
             return self.view_ids.index(str(view_id))

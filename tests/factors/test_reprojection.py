@@ -101,66 +101,26 @@ def test_stacked_residual_of_many_views_equals_the_per_view_chain(mode):
     objs = [np.c_[rng.uniform(0.0, 0.1, (c, 2)), np.zeros(c)] for c in counts]
     imgs = [rng.uniform(0.0, 720.0, (c, 2)) for c in counts]
     vi = np.repeat(np.arange(3), counts)
-    r, J = stacked_chain_residual(
-        T_x=T_x,
-        T_base_end=robots,
-        T_board=T_board,
-        invert_robot=inv,
-        intrinsics_vec=K9,
-        object_points=np.concatenate(objs),
-        image_points=np.concatenate(imgs),
-        view_index=vi,
-        robot_jacobian=True,
-    )
+    shared = dict(T_x=T_x, T_board=T_board, invert_robot=inv, intrinsics_vec=K9)
+    stacked = dict(shared, object_points=np.concatenate(objs), image_points=np.concatenate(imgs), view_index=vi)
+    r, J = stacked_chain_residual(T_base_end=robots, robot_jacobian=True, **stacked)
     for k in range(3):
-        r_k, _, J_r, _, _ = chain_residual(
-            T_x=T_x,
-            T_base_end=robots[k],
-            T_board=T_board,
-            invert_robot=inv,
-            intrinsics_vec=K9,
-            object_points=objs[k],
-            image_points=imgs[k],
-        )
+        r_k, _, J_r, _, _ = chain_residual(T_base_end=robots[k], object_points=objs[k], image_points=imgs[k], **shared)
         scale = np.abs(J_r).max()
         np.testing.assert_allclose(r[vi == k].reshape(-1), r_k, rtol=0, atol=1e-9)
         np.testing.assert_allclose(J[vi == k].reshape(-1, 6), J_r, rtol=0, atol=1e-12 * scale)
     num = numericalDerivative11(
-        lambda P: stacked_chain_residual(
-            T_x=T_x,
-            T_base_end=np.stack([robots[0], robots[1], P.matrix()]),
-            T_board=T_board,
-            invert_robot=inv,
-            intrinsics_vec=K9,
-            object_points=np.concatenate(objs),
-            image_points=np.concatenate(imgs),
-            view_index=vi,
-        )[0][vi == 2].reshape(-1),
+        lambda P: stacked_chain_residual(T_base_end=np.stack([robots[0], robots[1], P.matrix()]), **stacked)[0][
+            vi == 2
+        ].reshape(-1),
         gtsam.Pose3(robots[2]),
         delta=1e-6,
     )
     assert np.abs(J[vi == 2].reshape(-1, 6) - num).max() <= 1e-6 * np.abs(num).max()
     # with every Jacobian (the refits' linearisation): chain_residual's, view by view, rows interleaved
-    full = stacked_chain_jacobians(
-        T_x=T_x,
-        T_base_end=robots,
-        T_board=T_board,
-        invert_robot=inv,
-        intrinsics_vec=K9,
-        object_points=np.concatenate(objs),
-        image_points=np.concatenate(imgs),
-        view_index=vi,
-    )
+    full = stacked_chain_jacobians(T_base_end=robots, **stacked)
     for k in range(3):
-        per_view = chain_residual(
-            T_x=T_x,
-            T_base_end=robots[k],
-            T_board=T_board,
-            invert_robot=inv,
-            intrinsics_vec=K9,
-            object_points=objs[k],
-            image_points=imgs[k],
-        )
+        per_view = chain_residual(T_base_end=robots[k], object_points=objs[k], image_points=imgs[k], **shared)
         rows = np.repeat(vi == k, 2)
         for stacked, own in zip(full, per_view, strict=True):
             np.testing.assert_allclose(stacked[rows], own, rtol=0, atol=1e-12 * max(np.abs(own).max(), 1.0))

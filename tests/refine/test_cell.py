@@ -21,12 +21,7 @@ CHI2_95 = chi2.ppf(0.95, 6)
 
 
 def _views(s):
-    q = s.joints_encoder
-    return tuple(
-        RefineView(vid, ids, pts, s.T_base_end_reported[k], None if q is None else q[k])
-        for k, (vid, ids, pts) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points, strict=True))
-        if len(ids)
-    )
+    return tuple(v for v in s.refine_views(s.joints_encoder) if len(v.corner_ids))  # hidden views: none
 
 
 def _solo(s, options):

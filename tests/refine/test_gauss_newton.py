@@ -7,7 +7,7 @@ import pytest
 
 import handeye.refine.gauss_newton as gauss_newton
 from handeye.frames import se3_exp, tangent_difference
-from handeye.refine import RefineOptions, RefineView
+from handeye.refine import RefineOptions
 from handeye.refine.options import check_inputs
 from handeye.refine.problem import Problem
 from handeye.sim.corners import make_corner_session
@@ -16,10 +16,7 @@ TOL = 0.02  # share of the solve's own sigma along every direction (tests/refine
 
 
 def _problem(s) -> Problem:
-    views = [
-        RefineView(vid, ids, p, s.T_base_end_reported[k])
-        for k, (vid, ids, p) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points, strict=True))
-    ]
+    views = s.refine_views()
     obj, reported = check_inputs(s.target.object_points(), views)
     pb = Problem(
         mode=s.mode,

@@ -7,7 +7,7 @@ import pytest
 
 from handeye.errors import InputError
 from handeye.frames import se3_exp, tangent_difference
-from handeye.refine import RefineOptions, RefineView, refine
+from handeye.refine import RefineOptions, refine
 from handeye.refine.problem import Problem
 from handeye.refine.refitting import Refitter, refit
 from handeye.sim.corners import make_corner_session
@@ -16,13 +16,6 @@ from handeye.sim.corners import make_corner_session
 # Mahalanobis distance below TOL**2): the Gauss-Newton steps end below 1e-3 sigma, Levenberg-Marquardt's cost
 # tolerance (relative 1e-6) leaves a few 1e-3 sigma
 TOL = 0.02
-
-
-def _views(s, joints=None):
-    return [
-        RefineView(vid, ids, p, s.T_base_end_reported[k], None if joints is None else joints[k])
-        for k, (vid, ids, p) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points, strict=True))
-    ]
 
 
 def _refined(s, views, **opts):
@@ -84,7 +77,7 @@ def _check_against_cold(s, views, r, rng, monkeypatch):
 @pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
 def test_a_warm_refit_is_the_cold_refits_answer(mode, monkeypatch):
     s = make_corner_session(mode=mode, n_views=14, seed=21, noise_px=0.3, robot_noise=(0.2, 0.02), outlier_views=1)
-    views = _views(s)
+    views = s.refine_views()
     r = _refined(s, views)
     assert any(o.kind for o in r.outliers), "the session has an outlier the refits must hold"
     _check_against_cold(s, views, r, np.random.default_rng(1), monkeypatch)
@@ -101,7 +94,7 @@ def test_a_warm_refit_is_the_cold_refits_answer_with_a_kinematic_robot_model(mon
         dh_length_error_mm=(0.1, 0.5),
         dh_angle_error_deg=(0.01, 0.05),
     )
-    views = _views(s, s.joints_encoder)
+    views = s.refine_views(s.joints_encoder)
     r = _refined(s, views, arm="rm65")
     assert r.robot_model["kind"] == "kinematic"
     _check_against_cold(s, views, r, np.random.default_rng(2), monkeypatch)
@@ -111,7 +104,7 @@ def test_refits_that_do_not_settle_are_solved_by_levenberg_marquardt(monkeypatch
     import handeye.refine.gauss_newton as gauss_newton
 
     s = make_corner_session(mode="eye_to_hand", n_views=10, seed=8, noise_px=0.3)
-    views = _views(s)
+    views = s.refine_views()
     r = _refined(s, views)
     gn = refit(r, object_points=s.target.object_points(), views=views[1:])
     preset = gauss_newton.refine_preset()
@@ -127,7 +120,7 @@ def test_refits_that_do_not_settle_are_solved_by_levenberg_marquardt(monkeypatch
 
 def test_a_refitter_refuses_views_it_was_not_made_with():
     s = make_corner_session(mode="eye_to_hand", n_views=8, seed=8, noise_px=0.3)
-    views = _views(s)
+    views = s.refine_views()
     r = _refined(s, views)
     rf = Refitter(r, object_points=s.target.object_points(), views=views[:6])
     with pytest.raises(InputError, match="cannot be refitted"):

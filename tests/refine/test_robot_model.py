@@ -17,19 +17,11 @@ from handeye.errors import ConfigError
 from handeye.factors.gtsam_factors import kinematic_robot_prior
 from handeye.frames import se3_exp, tangent_difference
 from handeye.kinematics import load_arm, solve_ik
-from handeye.refine import RefineOptions, RefineView, refine
+from handeye.refine import RefineOptions, refine
 from handeye.sim.corners import make_corner_session
 
 ARM = load_arm("rm65")
 THETA_3 = 4 * 2 + 3  # index of theta_offset_3 among the DH offsets (a, alpha, d, theta_offset per joint)
-
-
-def _views(s, joints, T_reported=None):
-    T = s.T_base_end_reported if T_reported is None else T_reported
-    return [
-        RefineView(vid, ids, pts, T[k], None if joints is None else joints[k])
-        for k, (vid, ids, pts) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points, strict=False))
-    ]
 
 
 def _refine(s, views, **opts):
@@ -93,7 +85,7 @@ def test_a_known_joint_offset_error_is_recovered(mode):
     off = np.radians(0.1)
     q_rep = np.array(s.joints_true) - off * np.eye(6)[2]
     T_rep = ARM.T_base_end(q_rep)
-    r = _refine(s, _views(s, q_rep, T_rep), arm="rm65")
+    r = _refine(s, s.refine_views(q_rep, T_rep), arm="rm65")
     assert r.status == "ok", r.failure_reason
     assert r.robot_model["kind"] == "kinematic" and r.robot_model["joint_angles"] == "recorded"
     est = np.asarray(r.robot_model["dh_offset"])[2, 3]  # joint 3, theta_offset, deg
@@ -101,7 +93,7 @@ def test_a_known_joint_offset_error_is_recovered(mode):
     assert sd < 0.02, f"{mode}: theta_offset_3 not resolved (sigma {sd:.4f} deg)"
     assert abs(est - 0.1) < 4 * sd, f"{mode}: theta_offset_3 {est:.4f} +- {sd:.4f} deg, truth 0.1"
     assert _m2(r, s) < chi2.ppf(0.999, 6)
-    iid = _refine(s, _views(s, None, T_rep), robot_model="iid")
+    iid = _refine(s, s.refine_views(None, T_rep), robot_model="iid")
     err = lambda res: np.linalg.norm(tangent_difference(res.T_x, s.T_x_true)[3:])  # noqa: E731
     assert err(r) < err(iid), f"{mode}: kinematic {err(r) * 1e3:.3f} mm vs iid {err(iid) * 1e3:.3f} mm"
 
@@ -116,27 +108,25 @@ def test_an_unresolved_flange_length_error_is_in_the_covariance_of_x():
     # nominal arm's pose at those joint angles
     q = np.stack([solve_ik(true_arm, T, seeds=[q0]) for T, q0 in zip(s.T_base_end_true, s.joints_true, strict=False)])
     T_rep = ARM.T_base_end(q)
-    r = _refine(s, _views(s, q, T_rep), arm="rm65")
+    r = _refine(s, s.refine_views(q, T_rep), arm="rm65")
     kin_sd = r.robot_model["dh_offset_sigma"][5][2]
     assert kin_sd == pytest.approx(0.3, rel=0.05), f"d_6 should stay at its prior, sigma {kin_sd} mm"
     assert r.sigma_trans_mm[2] >= 0.29, f"X's translation along the flange z claims {r.sigma_trans_mm[2]:.3f} mm"
     assert _m2(r, s) < chi2.ppf(0.999, 6)
-    no_model = _refine(s, _views(s, None, T_rep), robot_noise="none")
+    no_model = _refine(s, s.refine_views(None, T_rep), robot_noise="none")
     assert no_model.sigma_trans_mm[2] < 0.1, "without the model the error is hidden behind a small sigma"
 
 
 def test_joint_angles_by_inverse_kinematics_and_through_a_tool_offset():
     s = make_corner_session(mode="eye_to_hand", n_views=10, seed=1, noise_px=0.2, robot_error="kinematic")
     q = np.asarray(s.joints_encoder)
-    base = _refine(s, _views(s, q), arm="rm65")
-    ik = _refine(s, _views(s, None), arm="rm65")  # vendor session: joints from the reported poses
+    base = _refine(s, s.refine_views(q), arm="rm65")
+    ik = _refine(s, s.refine_views(None), arm="rm65")  # vendor session: joints from the reported poses
     assert ik.robot_model["joint_angles"] == "inverse kinematics of the reported poses"
     assert _m2(ik, s) < chi2.ppf(0.999, 6)  # the arm's configuration may differ from the recorded one
     # a tool frame 0.1 m out on the flange z: reported poses are the tool's, the model carries it
     T_tool = se3_exp(np.r_[0.0, 0.0, 0.3, 0.0, 0.0, 0.1])
-    tool_views = [
-        RefineView(v.view_id, v.corner_ids, v.image_points, v.T_base_end @ T_tool, v.joint_angles) for v in _views(s, q)
-    ]
+    tool_views = s.refine_views(q, s.T_base_end_reported @ T_tool)
     tooled = refine(
         mode=s.mode,
         object_points=s.target.object_points(),
@@ -156,27 +146,27 @@ def test_joint_angles_by_inverse_kinematics_and_through_a_tool_offset():
 def test_model_choice_and_bad_input():
     s = make_corner_session(mode="eye_in_hand", n_views=6, seed=0, noise_px=0.3, robot_error="kinematic")
     q = np.asarray(s.joints_encoder)
-    assert _refine(s, _views(s, q)).robot_model["kind"] == "iid"  # no arm named: the iid model
-    assert _refine(s, _views(s, q), robot_noise="none").robot_model["kind"] == "none"
-    js = _refine(s, _views(s, q), arm="rm65", robot_model="joint_space")
+    assert _refine(s, s.refine_views(q)).robot_model["kind"] == "iid"  # no arm named: the iid model
+    assert _refine(s, s.refine_views(q), robot_noise="none").robot_model["kind"] == "none"
+    js = _refine(s, s.refine_views(q), arm="rm65", robot_model="joint_space")
     assert js.robot_model["kind"] == "joint_space" and "dh_offset" not in js.robot_model
     with pytest.raises(ConfigError, match="robot_model kinematic needs"):
-        _refine(s, _views(s, q), robot_model="kinematic")
+        _refine(s, s.refine_views(q), robot_model="kinematic")
     with pytest.raises(ConfigError, match="robot_model"):
-        _refine(s, _views(s, q), robot_model="dh")
+        _refine(s, s.refine_views(q), robot_model="dh")
     with pytest.raises(ConfigError, match="unknown robot model"):
-        _refine(s, _views(s, q), arm="kuka")
+        _refine(s, s.refine_views(q), arm="kuka")
     bad = q.copy()
     bad[:4, 1] += np.radians(1.0)  # most views' joints do not give their reported poses: not this arm's table
     with pytest.raises(ConfigError, match="joint angles do not give the reported poses"):
-        _refine(s, _views(s, bad), arm="rm65")
+        _refine(s, s.refine_views(bad), arm="rm65")
 
 
 def test_a_wrong_robot_pose_is_flagged_under_the_kinematic_model():
     s = make_corner_session(
         mode="eye_in_hand", n_views=12, seed=7, noise_px=0.3, robot_error="kinematic", outlier_views=1
     )
-    r = _refine(s, _views(s, np.asarray(s.joints_encoder)), arm="rm65")
+    r = _refine(s, s.refine_views(np.asarray(s.joints_encoder)), arm="rm65")
     assert r.robot_model["joints_disagree_view_ids"] == list(s.outlier_view_ids)
     flagged = [o.view_id for o in r.outliers if o.kind == "robot_pose"]
     assert flagged == list(s.outlier_view_ids), f"flagged {flagged}, wrong pose {s.outlier_view_ids}"
@@ -277,7 +267,7 @@ def _kinematic_session_refined(mode, seed, far):
         dh_length_error_mm=(0.1 * far, 0.5 * far),
         dh_angle_error_deg=(0.01 * far, 0.05 * far),
     )
-    return s, _refine(s, _views(s, s.joints_encoder), arm="rm65")
+    return s, _refine(s, s.refine_views(s.joints_encoder), arm="rm65")
 
 
 @pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
@@ -304,7 +294,7 @@ def test_an_arm_further_from_its_table_than_its_prior_states_widens_the_prior(mo
     # a refit (a validation fold) holds the widened prior with the noise: on all views it is the full run
     from handeye.refine.refitting import refit
 
-    again = refit(r, object_points=s.target.object_points(), views=_views(s, s.joints_encoder))
+    again = refit(r, object_points=s.target.object_points(), views=s.refine_views(s.joints_encoder))
     np.testing.assert_allclose(np.sqrt(np.diag(again.cov_x)), np.sqrt(np.diag(r.cov_x_6x6)), rtol=0.02)
 
     cfg = noise._cfg()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from handeye.refine import RefineOptions, RefineView
+from handeye.refine import RefineOptions
 from handeye.refine.covariance import arrow_blocks
 from handeye.refine.options import check_inputs
 from handeye.refine.problem import Problem
@@ -13,10 +13,7 @@ from handeye.sim.corners import make_corner_session
 
 
 def _problem(s, **opts) -> Problem:
-    views = [
-        RefineView(vid, ids, p, s.T_base_end_reported[k])
-        for k, (vid, ids, p) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points, strict=True))
-    ]
+    views = s.refine_views()
     obj, reported = check_inputs(s.target.object_points(), views)
     return Problem(
         mode=s.mode,

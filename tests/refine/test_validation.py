@@ -10,7 +10,7 @@ from scipy.stats import chi2
 
 from handeye.diagnose.crossval import ratio_limits
 from handeye.frames import tangent_difference
-from handeye.refine import RefineOptions, RefineView, refine
+from handeye.refine import RefineOptions, refine
 from handeye.refine.validation import (
     Validation,
     _block,
@@ -165,15 +165,8 @@ def test_shrinkage_keeps_the_average_spread_over_the_model():
 
 
 # ------------------------------------------------------------------------------ refits on simulated sessions
-def _views(s):
-    return [
-        RefineView(vid, ids, p, s.T_base_end_reported[k])
-        for k, (vid, ids, p) in enumerate(zip(s.view_ids, s.corner_ids, s.image_points, strict=False))
-    ]
-
-
 def _refined(s, **opts):
-    views = _views(s)
+    views = s.refine_views()
     r = refine(
         mode=s.mode,
         object_points=s.target.object_points(),
