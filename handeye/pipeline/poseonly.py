@@ -50,6 +50,8 @@ def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) ->
     from ..initial import BoardPose
 
     t0 = time.perf_counter()
+    # before any work, as for images: a stated accuracy with the arm's model (--robot or robot:) is refused
+    accuracy = stated_accuracy(s, opts, opts.refine_options.get("arm") is not None or s.meta.get("robot") is not None)
     outcomes = {v.view_id: ViewOutcome(v.view_id, "", True, "", 0) for v in s.views}
     poses = {v.view_id: BoardPose(v.view_id, v.T_cam_board, float("nan"), 0, np.zeros(0, int)) for v in s.views}
     seconds: dict = {}
@@ -88,7 +90,6 @@ def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) ->
         ro = {k: v for k, v in opts.refine_options.items() if k not in ("intrinsics", "fix")}
         if ro.get("arm") is None:  # --robot, else session.yaml's robot: the arm's kinematic model
             ro["arm"] = session_arm(s, opts)
-        accuracy = stated_accuracy(s, opts, ro["arm"] is not None)
         pose_views = [PoseView(v, poses[v].T_cam_board, s.view(v).T_base_end, _joint_angles(s, v)) for v in ids]
         refined = refine_poses(
             mode=s.mode,

@@ -100,7 +100,8 @@ def test_a_stated_accuracy_with_the_arm_model_is_refused(tmp_path, capsys):
     assert main([*args, "--robot", "ur5e", "--robot-accuracy", "0.5", "0.05"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--robot-accuracy" in err[0] and "kinematic model" in err[0]
-    assert not (tmp_path / "o" / "result.json").exists() or json.loads((tmp_path / "o" / "result.json").read_text())
+    res = json.loads((tmp_path / "o" / "result.json").read_text())  # a failed run still says why
+    assert res["status"] == "failed" and res["error"]["code"] == "config_error" and "refinement" not in res
 
 
 def test_a_malformed_robot_accuracy_names_the_file(tmp_path, capsys):
