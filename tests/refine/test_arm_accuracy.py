@@ -45,8 +45,7 @@ def test_a_constant_arm_error_moves_x_as_the_covariance_maps_it(mode):
     T_x = _solve(mode, T_rep, C, t.T_x_true, t.T_board_true)
     xi = tangent_difference(T_x, t.T_x_true)  # the right-tangent error of the estimate, as the covariance's
     assert np.linalg.norm(xi[3:]) > 2e-4  # the error moved X: it is not absorbed by the board's pose
-    # one axis at a time: the covariance of a unit error along axis k is J[:, k] J[:, k]^T
-    # the full mapping: xi = +-A e with A A^T the covariance of a unit e
+    # the mapping: xi = +-A e with A S A^T the covariance
     S = np.diag([np.radians(1.0) ** 2] * 3 + [1e-6] * 3)
     cov = arm_accuracy_covariance(mode, T_x, T_rep, sigma_mm=1.0, sigma_deg=1.0)
     # xi must lie where cov says: its squared Mahalanobis distance equals e's under S
