@@ -3,10 +3,10 @@
 Prints the median wall and CPU time of each command over the rounds, the ratio to the bare script
 (``vendor_bare.py``: findChessboardCorners + cornerSubPix, calibrateCamera, calibrateHandEye) with and
 without the reports (targets: 2.5x and 1.5x), and where handeye's time goes, wall and CPU (this process,
-all threads): the interpreter start-up, ``import handeye.cli`` and the command's imports before
-``main()``, each named stage (``timed_cli.py`` wraps the stage functions), the workflow's time outside
-the named stages and the interpreter's shut-down. The load average is printed before and after.
-Asserts nothing.
+all threads): the interpreter start-up, ``import handeye.cli``, ``main()`` before the workflow (the
+arguments, and the imports of what the command uses), each named stage (``timed_cli.py`` wraps the stage
+functions), the workflow's time outside the named stages and the interpreter's shut-down. The load
+average is printed before and after. Asserts nothing.
 
     python benchmarks/bench_vs_opencv.py [--views 20] [--rounds 5] [--session FOLDER ...] [--before DIR]
 
@@ -56,7 +56,7 @@ def _median(xs) -> float:
 
 
 #: the records' spans that are not a named stage of the workflow
-_NOT_STAGES = ("import handeye.cli", "command imports", "stage modules", "main", "workflow")
+_NOT_STAGES = ("import handeye.cli", "main", "workflow")
 
 
 def breakdown(name: str, records: list[dict]) -> None:
@@ -70,20 +70,11 @@ def breakdown(name: str, records: list[dict]) -> None:
 
     row("interpreter start-up (before any handeye code)", lambda r, k: r["interpreter"][k])
     row("import handeye.cli", lambda r, k: r["stages"]["import handeye.cli"][k])
-    row("the command's imports (before main())", lambda r, k: r["stages"]["command imports"][k])
     row(
-        "the staged modules' imports (by the timer)",
-        lambda r, k: r["stages"].get("stage modules", {}).get(k),
-    )
-    row(
-        "main() before the workflow (parsing, options)",
+        "main() before the workflow (parsing, imports)",
         lambda r, k: r["stages"]["main"][k] - r["stages"]["workflow"][k],
     )
-    stages = [
-        k
-        for k in records[0]["stages"]
-        if k not in ("import handeye.cli", "command imports", "stage modules", "main", "workflow")
-    ]
+    stages = [k for k in records[0]["stages"] if k not in _NOT_STAGES]
     for k in stages:
         row(f"  stage {k}", lambda r, kk, s=k: r["stages"].get(s, {}).get(kk))
     row(

@@ -1,11 +1,12 @@
 """One ``handeye`` command in this process, with the wall and CPU time of every stage written to a JSON file.
 
-What ``python -m handeye.cli ARGS`` does, with the stage functions wrapped (module attributes replaced
-before the run, nothing in handeye changed): the interpreter start-up (from the process's start time),
-``import handeye.cli``, the command module's imports, the imports of the modules whose stage functions
-are wrapped (``stage modules``: the command would import them later), then per stage the wall and this
-process's CPU time (all threads). ``outside`` is the workflow's time not in a named stage; ``exit``
-(measured by the caller) is the interpreter's shut-down. Used by ``bench_vs_opencv.py``; prints nothing of its own.
+What ``python -m handeye.cli ARGS`` does, with the stage functions wrapped (each module's attributes
+replaced right after the module is imported, by the command as without the timer; nothing in handeye
+changed): the interpreter start-up (from the process's start time), ``import handeye.cli``, ``main``
+(the whole command; before the workflow it parses the arguments and imports what the command uses),
+then per stage the wall and this process's CPU time (all threads). ``outside`` is the workflow's time
+not in a named stage; ``exit`` (measured by the caller) is the interpreter's shut-down. Used by
+``bench_vs_opencv.py``; prints nothing of its own.
 
     python benchmarks/timed_cli.py TIMES.json calibrate SESSION --out DIR [...]
 """
@@ -51,9 +52,35 @@ def _process_start() -> float:
         return T_START
 
 
-def main(out: str, argv: list[str]) -> int:
-    import importlib
+class _StageHook:
+    """A meta-path finder that lets ``after(module)`` run right after each of ``names`` is executed.
 
+    The stage modules are imported when the command imports them (as without the timer), not before main().
+    """
+
+    def __init__(self, names: set, after):
+        self.names, self.after = names, after
+
+    def find_spec(self, name, path=None, target=None):
+        if name not in self.names:
+            return None
+        for finder in sys.meta_path:
+            if finder is self or not hasattr(finder, "find_spec"):
+                continue
+            spec = finder.find_spec(name, path, target)
+            if spec is not None and spec.loader is not None:
+                run = spec.loader.exec_module
+
+                def exec_module(module, _run=run):
+                    _run(module)
+                    self.after(module)
+
+                spec.loader.exec_module = exec_module
+                return spec
+        return None
+
+
+def main(out: str, argv: list[str]) -> int:
     times: dict = {"interpreter": {"wall": T_START - _process_start(), "cpu": C_START}}
     spans: dict = {}
 
@@ -66,38 +93,34 @@ def main(out: str, argv: list[str]) -> int:
     import handeye.cli as cli
 
     mark("import handeye.cli", w0, c0)
-    w0, c0 = time.perf_counter(), time.process_time()
-    command = argv[[a.startswith("-") for a in argv].index(False)] if argv else ""
-    if command in cli.COMMANDS:
-        importlib.import_module(f"handeye.cli.{cli.COMMANDS[command][0]}")
-        importlib.import_module("handeye.workflow")
-    mark("command imports", w0, c0)
-    w0, c0 = time.perf_counter(), time.process_time()
-    for stage, (mod, attr) in STAGES.items():
-        module = importlib.import_module(mod)
-        fn = getattr(module, attr)
 
-        def timed(*a, _fn=fn, _stage=stage, **kw):
-            t, c = time.perf_counter(), time.process_time()
-            try:
-                return _fn(*a, **kw)
-            finally:
-                mark(_stage, t, c)
+    def wrap(module) -> None:
+        """Time the module's stage functions (and the workflow) once it has run, before anyone imports them."""
+        for stage, (mod, attr) in STAGES.items():
+            if mod == module.__name__:
+                fn = getattr(module, attr)
 
-        setattr(module, attr, timed)
-    mark("stage modules", w0, c0)  # what wrapping them imports, before main(): the command's own imports
-    import handeye.workflow as wf
+                def timed(*a, _fn=fn, _stage=stage, **kw):
+                    t, c = time.perf_counter(), time.process_time()
+                    try:
+                        return _fn(*a, **kw)
+                    finally:
+                        mark(_stage, t, c)
 
-    calibrate_session = wf.calibrate_session
+                setattr(module, attr, timed)
+        if module.__name__ == "handeye.workflow":
+            calibrate_session = module.calibrate_session
 
-    def workflow(*a, **kw):
-        t, c = time.perf_counter(), time.process_time()
-        try:
-            return calibrate_session(*a, **kw)
-        finally:
-            mark("workflow", t, c)
+            def workflow(*a, **kw):
+                t, c = time.perf_counter(), time.process_time()
+                try:
+                    return calibrate_session(*a, **kw)
+                finally:
+                    mark("workflow", t, c)
 
-    wf.calibrate_session = workflow
+            module.calibrate_session = workflow
+
+    sys.meta_path.insert(0, _StageHook({mod for mod, _ in STAGES.values()} | {"handeye.workflow"}, wrap))
 
     def dump() -> None:
         times["stages"] = spans

@@ -83,6 +83,7 @@ def calibrate_session(
     prior=None,
     board_unmoved: bool = False,
     detected=None,
+    figure_process=None,
 ) -> WorkflowResult:
     """Calibrate the session folder ``session_path`` and write its results into ``out_dir``.
 
@@ -96,7 +97,9 @@ def calibrate_session(
     (:func:`handeye.recal.prior.calibrate_with_prior`); result.json's ``prior`` block says what it did.
     ``board_unmoved``: with ``prior``, the board was not touched since (its earlier pose may enter too).
     ``detected``: the session's images' detections made ahead (:func:`handeye.pipeline.detect_ahead`), used
-    when they are of the same images and options.
+    when they are of the same images and options. ``figure_process``: a
+    :class:`~handeye.report.figure_process.FigureProcess` the command started, which draws the report's
+    figures (they are drawn here without it, or when it cannot).
     """
     from .report.qa import load_qa
     from .session import load_session
@@ -125,6 +128,7 @@ def calibrate_session(
             prior=prior,
             board_unmoved=board_unmoved,
             detected=detected,
+            figure_process=figure_process,
         )
 
 
@@ -144,6 +148,7 @@ def _calibrate_locked(
     prior=None,
     board_unmoved: bool = False,
     detected=None,
+    figure_process=None,
 ) -> WorkflowResult:
     """``qa``: (the site QA file or None, its thresholds as loaded)."""
     from .session import load_session
@@ -163,6 +168,7 @@ def _calibrate_locked(
             t0=t0,
             diagnostics=diagnostics,
             run_id=run_id,
+            figure_process=figure_process,
         )
     t_load = time.perf_counter() - t0
     log.info("session %s: %d views, %s, %s", session.path, len(session.views), session.mode, session.format)
@@ -236,6 +242,7 @@ def _calibrate_locked(
         run=run,
         error=run.error,
         progress=progress,
+        figure_process=figure_process,
     )
 
 
@@ -319,6 +326,7 @@ def _finish(
     run,
     error,
     progress,
+    figure_process=None,
 ) -> WorkflowResult:
     """Judge the result (verdict, QA checks, findings) as the report does, from the folder's contents.
 
@@ -351,7 +359,7 @@ def _finish(
         if report and ctx is not None:
             progress("reports")
             t3 = time.perf_counter()
-            rendered = _render_reports(ctx, folder)
+            rendered = _render_reports(ctx, folder, figure_process)
             seconds["report"] = time.perf_counter() - t3
     finally:  # a rendering that raises (or an interrupt) must not lose the result
         seconds["total"] = time.perf_counter() - t0
@@ -380,6 +388,7 @@ def _failed_load(
     t0: float,
     diagnostics: bool,
     run_id: str,
+    figure_process=None,
 ) -> WorkflowResult:
     from .results import failed_load_result
 
@@ -427,6 +436,7 @@ def _failed_load(
         run=None,
         error=err,
         progress=lambda s: None,
+        figure_process=figure_process,
     )
 
 
@@ -498,17 +508,17 @@ def write_thumbnails(out_dir: Path, per_view: dict) -> list[Path]:
     return written
 
 
-def _render_reports(ctx: dict, folder) -> Optional[tuple]:
+def _render_reports(ctx: dict, folder, figure_process=None) -> Optional[tuple]:
     """report.html and report.md of the judged context, with its figures, in memory.
 
-    None when that crashed (a report bug is logged, never fatal: result.json is complete without
-    it).
+    The figures are drawn by ``figure_process`` when it can. None when that crashed (a report bug is
+    logged, never fatal: result.json is complete without it).
     """
     from .report import render_reports, report_crashed
     from .report.context import add_figures
 
     try:
-        return render_reports(add_figures(ctx), folder, out_dir=folder.path)
+        return render_reports(add_figures(ctx, figure_process), folder, out_dir=folder.path)
     except HandeyeError:
         raise
     except Exception as e:  # noqa: BLE001 - the calibration result must survive a report bug

@@ -221,15 +221,25 @@ def default_out_dir(session) -> Path:
 
 
 def run(args) -> int:
-    from ..workflow import calibrate_session
-    from . import freeze_imports
-
-    freeze_imports()
+    from ..report.figure_process import figure_process
 
     sessions = list(args.session) if isinstance(args.session, (list, tuple)) else [args.session]
-    if len(sessions) > 1 or _is_cell(sessions[0]):
-        return run_cell(args, sessions)
-    args.session = sessions[0]
+    # forked before the solver's imports: the report's figure process imports matplotlib meanwhile
+    with figure_process(enabled=not args.no_report and len(sessions) == 1) as figures:
+        from ..workflow import calibrate_session  # noqa: F401 - imported before the imports are frozen
+        from . import freeze_imports
+
+        freeze_imports()
+        if len(sessions) > 1 or _is_cell(sessions[0]):
+            return run_cell(args, sessions)
+        args.session = sessions[0]
+        return _run_session(args, figures)
+
+
+def _run_session(args, figures) -> int:
+    """``handeye calibrate SESSION``; ``figures``: the command's figure process (None: drawn in this process)."""
+    from ..workflow import calibrate_session
+
     refuse_pose_only_flags(args)
     if getattr(args, "board_unmoved", False) and getattr(args, "prior", None) is None:
         from ..errors import InputError
@@ -247,6 +257,7 @@ def run(args) -> int:
         **_run_options(args),
         prior=getattr(args, "prior", None),
         board_unmoved=getattr(args, "board_unmoved", False),
+        figure_process=figures,
     )
     if wr.run is None:  # the session could not be read: result.json and the report say why
         from .verdict import finding_lines

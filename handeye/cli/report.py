@@ -32,6 +32,13 @@ def add_report_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run_report(args) -> int:
+    from ..report.figure_process import figure_process
+
+    with figure_process() as figures:  # it imports matplotlib while the result is read
+        return _run_report(args, figures)
+
+
+def _run_report(args, figures) -> int:
     from ..output import FolderLock, check_out_dir, remove_stray_temps
     from ..report import write_reports
 
@@ -57,7 +64,12 @@ def run_report(args) -> int:
                 paths = [atomic_write_text(out / f"report.{f}", texts[f](cell)) for f in formats]
             else:
                 paths = write_reports(
-                    result_dir, qa=getattr(args, "qa", None), out_dir=out, formats=formats, strict=True
+                    result_dir,
+                    qa=getattr(args, "qa", None),
+                    out_dir=out,
+                    formats=formats,
+                    strict=True,
+                    figure_process=figures,
                 )
         except HandeyeError:
             raise

@@ -38,12 +38,15 @@ def write_reports(
     formats=("html", "md"),
     strict: bool = False,
     plots: bool = True,
+    figure_process=None,
 ) -> list[Path]:
     """Write ``report.html`` and ``report.md`` (figures in ``report_files/``) for a result folder.
 
     ``result_dir``: the folder written by ``handeye calibrate`` (result.json, observations.json,
     thumbnails/); ``qa``: a site QA file overriding ``configs/qa.yaml``; ``out_dir``: where to write
-    (default ``result_dir``); ``plots=False`` leaves the figures out. Returns the paths written.
+    (default ``result_dir``); ``plots=False`` leaves the figures out; ``figure_process``: the command's
+    :class:`~handeye.report.figure_process.FigureProcess`, which draws them when it can. Returns the paths
+    written.
     With ``strict=False`` (the calibrate command) an unexpected error is logged and no report is
     written, since result.json is complete without it; user errors (a bad QA file, no result.json)
     always raise.
@@ -63,7 +66,7 @@ def write_reports(
     try:
         from .render import write_files
 
-        ctx = _context(folder, qa=qa, make_plots=plots)
+        ctx = _context(folder, qa=qa, make_plots=plots, figure_process=figure_process)
         return write_files(out, *render_reports(ctx, folder, out_dir=out, formats=formats))
     except HandeyeError:
         raise
@@ -115,10 +118,11 @@ def build_report_context(
     return _context(folder, qa=qa, qa_cfg=qa_cfg, make_plots=make_plots)
 
 
-def _context(folder, *, qa, make_plots: bool, qa_cfg: dict | None = None) -> dict:
-    from .context import build_context
+def _context(folder, *, qa, make_plots: bool, qa_cfg: dict | None = None, figure_process=None) -> dict:
+    from .context import add_figures, build_context
     from .qa import load_qa
 
     cfg = load_qa(qa) if qa_cfg is None else qa_cfg
     source = f"{qa} (site override of configs/qa.yaml)" if qa is not None else "configs/qa.yaml (shipped)"
-    return build_context(folder, qa_cfg=cfg, qa_source=source, make_plots=make_plots)
+    ctx = build_context(folder, qa_cfg=cfg, qa_source=source, make_plots=False)
+    return add_figures(ctx, figure_process) if make_plots else ctx

@@ -185,14 +185,17 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     return ctx
 
 
-def add_figures(ctx: dict) -> dict:
+def add_figures(ctx: dict, process=None) -> dict:
     """The report's figures (``ctx["plots"]``) for a context built without them.
 
-    The context is built once, judged, and drawn only when a report is written.
+    The context is built once, judged, and drawn only when a report is written. ``process``: the command's
+    :class:`~handeye.report.figure_process.FigureProcess`, which draws them when it can; otherwise (None, or
+    it could not) they are drawn here.
     """
     from .figures import report_figures
 
-    ctx["plots"] = report_figures(**ctx["figure_inputs"])
+    plots = process.figures(ctx["figure_inputs"]) if process is not None else None
+    ctx["plots"] = plots if plots is not None else report_figures(**ctx["figure_inputs"])
     return ctx
 
 

@@ -4,7 +4,9 @@ On Linux with two or more cores the figures are drawn by two processes: this one
 after matplotlib is imported (so nothing is imported or pickled twice; only the PNG bytes come back),
 each drawing every other figure. Whatever the child does not return (it failed, or fork is not
 available) is drawn here, so the report has the same figures either way. A figure that cannot be drawn
-is logged and left out; it never costs the report.
+is logged and left out; it never costs the report. A command that writes a report forks its figure
+process (:mod:`handeye.report.figure_process`) before its own imports; that process runs
+:func:`report_figures` (and so this split) when the report is built.
 """
 
 from __future__ import annotations
@@ -232,7 +234,7 @@ CHILD_GRACE_S = 30.0
 CHILD_TIME_FACTOR = 10.0
 
 
-def _parallel() -> bool:
+def parallel_drawing() -> bool:
     """Whether to draw in two processes: fork (Linux) and a second core this process may use."""
     if not sys.platform.startswith("linux") or os.environ.get("HANDEYE_FIGURE_PROCESSES") == "1":
         return False
@@ -249,7 +251,7 @@ def draw_figures(draws: dict[str, Callable[[], bytes]]) -> dict[str, Optional[by
     both). ``HANDEYE_FIGURE_PROCESSES=1`` draws everything in this process.
     """
     keys = list(draws)
-    theirs = keys[1::2] if len(keys) >= 2 and _parallel() else []
+    theirs = keys[1::2] if len(keys) >= 2 and parallel_drawing() else []
     child = _fork_drawing({k: draws[k] for k in theirs}) if theirs else None
     t0 = time.monotonic()
     try:

@@ -31,13 +31,13 @@ def _draws(parent_pid: int, *, die_in_child: str = "", fail: str = "") -> dict:
 @pytest.fixture
 def two_processes(monkeypatch):
     monkeypatch.delenv("HANDEYE_FIGURE_PROCESSES", raising=False)
-    monkeypatch.setattr(figures, "_parallel", lambda: True)
+    monkeypatch.setattr(figures, "parallel_drawing", lambda: True)
 
 
 def test_two_processes_draw_what_one_draws(two_processes, monkeypatch):
     got = figures.draw_figures(_draws(os.getpid()))
     monkeypatch.setenv("HANDEYE_FIGURE_PROCESSES", "1")
-    monkeypatch.setattr(figures, "_parallel", lambda: False)
+    monkeypatch.setattr(figures, "parallel_drawing", lambda: False)
     assert got == figures.draw_figures(_draws(os.getpid()))
     assert list(got) == ["a", "b", "c", "d", "e"] and got["d"] == b"png of d"
 
@@ -68,7 +68,7 @@ def test_one_figure_or_the_switch_draws_here(monkeypatch):
     monkeypatch.setattr(figures, "_fork_drawing", lambda draws: pytest.fail("no child for one figure"))
     assert figures.draw_figures({"x": lambda: b"x"}) == {"x": b"x"}
     monkeypatch.setenv("HANDEYE_FIGURE_PROCESSES", "1")
-    assert figures._parallel() is False
+    assert figures.parallel_drawing() is False
 
 
 def test_a_child_that_hangs_is_ended_and_its_figures_drawn_here(two_processes, monkeypatch):
@@ -103,7 +103,7 @@ import os, sys
 from handeye.report import figures
 from handeye.report.plots import style
 assert "matplotlib" not in sys.modules
-figures._parallel = lambda: True
+figures.parallel_drawing = lambda: True
 parent = os.getpid()
 def seen():
     assert os.getpid() != parent

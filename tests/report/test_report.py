@@ -839,9 +839,9 @@ def test_figures_drawn_in_two_processes_are_the_same_pngs(synthetic, monkeypatch
     if not sys.platform.startswith("linux"):
         pytest.skip("the forked drawing is Linux only")
     ctx = build_report_context(synthetic["out"], make_plots=False)
-    monkeypatch.setattr(figures, "_parallel", lambda: True)
+    monkeypatch.setattr(figures, "parallel_drawing", lambda: True)
     two = figures.report_figures(**ctx["figure_inputs"])
-    monkeypatch.setattr(figures, "_parallel", lambda: False)
+    monkeypatch.setattr(figures, "parallel_drawing", lambda: False)
     one = figures.report_figures(**ctx["figure_inputs"])
     assert [p.key for p in two] == ["residuals", "per_view", "coverage", "poses", "rotations", "uncertainty"]
     assert [(p.key, p.title, p.caption, p.png) for p in two] == [(p.key, p.title, p.caption, p.png) for p in one]

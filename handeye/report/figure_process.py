@@ -1,0 +1,188 @@
+"""A process started with a command that imports matplotlib while the calibration runs, then draws the figures.
+
+A report's figures cost matplotlib's import (about a quarter of a second) before the first line is drawn.
+A command that will write a report (``handeye calibrate``, ``handeye report``) forks this process before
+its own heavy imports, on a second core: the child imports matplotlib, PIL and the figure modules while
+the parent imports the solver and calibrates, then waits for the figures' inputs. When the report is
+built, the parent sends them (pickled; about 0.3 MB for 20 views) and the child draws the figures with
+:func:`handeye.report.figures.report_figures` (itself in two processes) and sends back the PNGs.
+
+The figures are the same either way: the child runs the same code on the same inputs. Whatever the child
+does not return (it could not start, failed, was killed or took too long) is drawn by the parent, as
+without it. A command that ends without a report closes the child, which then leaves at once. Linux only
+(fork) and only with a second core; ``HANDEYE_FIGURE_PROCESSES=1`` draws everything in the command's
+process.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import pickle
+import select
+import signal
+import time
+import warnings
+from typing import TYPE_CHECKING, Iterator, Optional
+
+if TYPE_CHECKING:
+    from .figures import Plot
+
+log = logging.getLogger(__name__)
+
+#: how long the parent waits for the child's figures before it kills it and draws them itself
+WAIT_S = 120.0
+
+
+class FigureProcess:
+    """The forked figure process of one command: :meth:`figures` once, :meth:`close` always."""
+
+    def __init__(self, pid: int, to_child: int, from_child: int):
+        self.pid = pid
+        self._to_child: Optional[int] = to_child
+        self._from_child: Optional[int] = from_child
+        self._status: Optional[int] = None
+
+    def figures(self, inputs: dict, *, wait_s: float = WAIT_S) -> Optional[list[Plot]]:
+        """The report's figures of ``inputs`` (the keyword arguments of ``report_figures``) drawn by the child.
+
+        None when the child cannot give them (it was used already, ended, failed, or took over ``wait_s``):
+        the caller then draws them itself.
+        """
+        if self._to_child is None or self._from_child is None:
+            return None
+        try:
+            data = pickle.dumps(inputs, protocol=pickle.HIGHEST_PROTOCOL)
+            _write_all(self._to_child, data)
+        except (OSError, pickle.PicklingError, TypeError, AttributeError) as e:
+            log.debug("report: figures drawn here (the figure process did not take its inputs: %s)", e)
+            self.close()
+            return None
+        finally:
+            self._close_to_child()
+        raw = _read_all(self._from_child, deadline=time.monotonic() + wait_s)
+        self.close(kill=raw is None)  # at the end of its output the child is leaving: waited for, not killed
+        if raw is None or self._status != 0:
+            log.debug("report: figures drawn here (the figure process ended with status %s)", self._status)
+            return None
+        try:
+            got = pickle.loads(raw)
+        except (pickle.UnpicklingError, EOFError, ValueError, AttributeError):
+            return None
+        from .figures import Plot
+
+        if not (isinstance(got, list) and all(isinstance(p, Plot) for p in got)):
+            return None
+        return got
+
+    @property
+    def exit_code(self) -> Optional[int]:
+        """The child's exit code once reaped (0: it ended on its own; -9: it was killed), None before."""
+        return self._status
+
+    def _close_to_child(self) -> None:
+        if self._to_child is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._to_child)
+            self._to_child = None
+
+    def close(self, *, kill: bool = True) -> None:
+        """End the child and reap it.
+
+        It leaves on its own once it knows there are no inputs; with ``kill``, a child still running
+        (importing, drawing figures no one will read, or stuck) is killed first.
+        """
+        self._close_to_child()
+        if self._from_child is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._from_child)
+            self._from_child = None
+        if self._status is None:
+            pid, status = os.waitpid(self.pid, os.WNOHANG if kill else 0)
+            if pid == 0:
+                with contextlib.suppress(OSError):
+                    os.kill(self.pid, signal.SIGKILL)
+                _, status = os.waitpid(self.pid, 0)
+            self._status = os.waitstatus_to_exitcode(status)
+
+
+def start() -> Optional[FigureProcess]:
+    """Fork the figure process (it starts importing at once), or None where figures are drawn in one process."""
+    from .figures import parallel_drawing
+
+    if not parallel_drawing():
+        return None
+    try:
+        inputs_r, inputs_w = os.pipe()
+        out_r, out_w = os.pipe()
+    except OSError:
+        return None
+    try:
+        with warnings.catch_warnings():  # Python 3.12+ warns of a fork with threads; the parent redraws on failure
+            warnings.filterwarnings("ignore", category=DeprecationWarning, message=".*fork.*")
+            pid = os.fork()
+    except OSError as e:
+        log.debug("report: no figure process (fork: %s)", e)
+        for fd in (inputs_r, inputs_w, out_r, out_w):
+            os.close(fd)
+        return None
+    if pid == 0:
+        _child(inputs_r, inputs_w, out_r, out_w)  # never returns
+    os.close(inputs_r)
+    os.close(out_w)
+    return FigureProcess(pid, inputs_w, out_r)
+
+
+@contextlib.contextmanager
+def figure_process(enabled: bool = True) -> Iterator[Optional[FigureProcess]]:
+    """:func:`start` when ``enabled``, closed (and reaped) when the block ends, however it ends."""
+    proc = start() if enabled else None
+    try:
+        yield proc
+    finally:
+        if proc is not None:
+            proc.close()
+
+
+def _child(inputs_r: int, inputs_w: int, out_r: int, out_w: int) -> None:
+    """The figure process: import, wait for the inputs, draw, answer, and leave without any exit handler."""
+    code = 1
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the command's to handle; it closes this process
+        os.close(inputs_w)
+        os.close(out_r)
+        from .figures import report_figures
+        from .plots.canvas import style
+
+        with style():  # imports matplotlib, its Agg backend and PIL while the parent works
+            pass
+        raw = _read_all(inputs_r, deadline=None)
+        if raw:  # nothing: the command ends without a report
+            plots = report_figures(**pickle.loads(raw))
+            _write_all(out_w, pickle.dumps(plots, protocol=pickle.HIGHEST_PROTOCOL))
+        code = 0
+    except BaseException:  # noqa: BLE001 - the child ends here whatever happens; the parent draws what it lacks
+        pass
+    finally:
+        os._exit(code)
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view) :]
+
+
+def _read_all(fd: int, *, deadline: Optional[float]) -> Optional[bytes]:
+    """Everything until the writer closes its end; None when ``deadline`` (monotonic) passed first."""
+    chunks: list[bytes] = []
+    while True:
+        if deadline is not None:
+            left = deadline - time.monotonic()
+            if left <= 0 or not select.select([fd], [], [], left)[0]:
+                return None
+        chunk = os.read(fd, 1 << 20)
+        if not chunk:
+            return b"".join(chunks)
+        chunks.append(chunk)
