@@ -32,7 +32,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 #: how long the parent waits for the child's figures before it kills it and draws them itself
-WAIT_S = 120.0
+WAIT_S = 60.0
 
 
 class FigureProcess:
@@ -52,16 +52,18 @@ class FigureProcess:
         """
         if self._to_child is None or self._from_child is None:
             return None
+        deadline = time.monotonic() + wait_s
         try:
             data = pickle.dumps(inputs, protocol=pickle.HIGHEST_PROTOCOL)
-            _write_all(self._to_child, data)
+            if not _write_all(self._to_child, data, deadline=deadline):
+                raise TimeoutError(f"it read no inputs in {wait_s:g} s")
         except (OSError, pickle.PicklingError, TypeError, AttributeError) as e:
             log.debug("report: figures drawn here (the figure process did not take its inputs: %s)", e)
             self.close()
             return None
         finally:
             self._close_to_child()
-        raw = _read_all(self._from_child, deadline=time.monotonic() + wait_s)
+        raw = _read_all(self._from_child, deadline=deadline)
         self.close(kill=raw is None)  # at the end of its output the child is leaving: waited for, not killed
         if raw is None or self._status != 0:
             log.debug("report: figures drawn here (the figure process ended with status %s)", self._status)
@@ -168,10 +170,21 @@ def _child(inputs_r: int, inputs_w: int, out_r: int, out_w: int) -> None:
         os._exit(code)
 
 
-def _write_all(fd: int, data: bytes) -> None:
+def _write_all(fd: int, data: bytes, *, deadline: Optional[float] = None) -> bool:
+    """Write all of ``data``; False when ``deadline`` (monotonic) passed first (the reader is stuck)."""
     view = memoryview(data)
+    if deadline is not None:
+        os.set_blocking(fd, False)
     while view:
-        view = view[os.write(fd, view) :]
+        if deadline is not None:
+            left = deadline - time.monotonic()
+            if left <= 0 or not select.select([], [fd], [], left)[1]:
+                return False
+        try:
+            view = view[os.write(fd, view) :]
+        except BlockingIOError:
+            continue
+    return True
 
 
 def _read_all(fd: int, *, deadline: Optional[float]) -> Optional[bytes]:

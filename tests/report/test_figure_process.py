@@ -125,3 +125,19 @@ def test_calibrate_draws_its_report_in_the_process(session, tmp_path, two_cores,
     assert proc is not None and proc.exit_code == 0 and _gone(proc.pid)  # it answered, then ended on its own
     html = (out / "report.html").read_text(encoding="utf-8")
     assert html.count('src="data:image/png;base64,') >= len(KEYS)
+
+
+def test_a_stuck_process_is_ended_and_the_figures_drawn_here(inputs, two_cores, monkeypatch):
+    """A child that reads nothing (stopped here; a lock another thread held at the fork) costs its wait only."""
+    import pickle
+    import signal
+    import time
+
+    assert len(pickle.dumps(inputs)) > 1 << 16  # more than a pipe holds: the write itself would wait
+    proc = figure_process.start()
+    assert proc is not None
+    os.kill(proc.pid, signal.SIGSTOP)
+    t0 = time.monotonic()
+    assert proc.figures(inputs, wait_s=1.0) is None  # the inputs (over a pipe's buffer) are never read
+    assert time.monotonic() - t0 < 30
+    assert proc.exit_code == -signal.SIGKILL and _gone(proc.pid)
