@@ -8,7 +8,7 @@ the verdicts, the exit codes, the number of differences, the largest relative di
 and the wall time of each run; then every difference found. Exit code 1 when any session differs.
 
     python benchmarks/before_after.py --before DIR [--session FOLDER ...] [--data ../shared/data]
-                                      [--no-report] [--rtol 1e-6]
+                                      [--no-report] [--rtol 1e-6] [--atol 1e-12]
 
 ``--before``: a checkout of handeye before the change (e.g. ``git archive HEAD~3 | tar -x -C DIR``); it
 runs from a copy laid out as the installed package is (``factors/`` and ``configs/`` inside ``handeye/``),
@@ -89,12 +89,22 @@ def default_sessions(tmp: Path, data: Path) -> list[tuple[str, Path, list[str]]]
     return out
 
 
-def calibrate(session: Path, out: Path, flags: list[str], env: dict) -> tuple[int, float]:
-    """(exit code, wall seconds) of ``handeye calibrate`` in a fresh process."""
+def calibrate(session: Path, out: Path, flags: list[str], env: dict, cwd: Path) -> tuple[int, float]:
+    """(exit code, wall seconds) of ``handeye calibrate`` in a fresh process.
+
+    ``cwd``: a folder without a ``handeye`` package (``python -m`` puts the working folder first on the path,
+    before PYTHONPATH: run from a checkout, it would import that checkout's handeye on both sides).
+    """
     t0 = time.perf_counter()
     cmd = [sys.executable, "-m", "handeye.cli", "-q", "calibrate", str(session), "--out", str(out), *flags]
-    code = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode
+    code = subprocess.run(cmd, env=env, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode
     return code, time.perf_counter() - t0
+
+
+def handeye_file(env: dict, cwd: Path) -> str:
+    """Where ``import handeye`` finds the package in ``env``: checked, so that no side runs the other's code."""
+    code = "import handeye.stats, pathlib; print(pathlib.Path(handeye.stats.__file__).resolve().parent)"
+    return subprocess.run([sys.executable, "-c", code], env=env, cwd=cwd, capture_output=True, text=True).stdout.strip()
 
 
 def verdict(out: Path) -> str:
@@ -111,6 +121,7 @@ def main() -> int:
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data", help="the real sets")
     ap.add_argument("--no-report", action="store_true", help="calibrate without the reports")
     ap.add_argument("--rtol", type=float, default=1e-6, help="compare_results.py's relative tolerance")
+    ap.add_argument("--atol", type=float, default=1e-12, help="its absolute tolerance (0: every difference counts)")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="before_after_"))
     try:
@@ -122,7 +133,10 @@ def main() -> int:
             "after": {**base, "PYTHONPATH": str(ROOT), "PYTHONPYCACHEPREFIX": str(tmp / "pyc_after")},
         }
         flags_all = ["--no-report"] if args.no_report else []
-        print(f"before: {args.before}   after: {ROOT}   {len(sessions)} sessions\n")
+        where = {side: handeye_file(envs[side], tmp) for side in envs}
+        if where["before"] == where["after"] or not where["before"].startswith(str(before)):
+            sys.exit(f"before_after: both sides import {where['before']}; expected {before} and {ROOT}")
+        print(f"before: {args.before} ({where['before']})   after: {where['after']}   {len(sessions)} sessions\n")
         head = f"{'session':48s} {'verdict before / after':24s} {'exit':7s} {'diffs':>5s} {'max rel':>9s}"
         print(f"{head} {'wall b / a [s]':>15s}")
         details, any_diff = [], False
@@ -130,11 +144,11 @@ def main() -> int:
             outs, codes, walls = {}, {}, {}
             for side in ("before", "after"):
                 outs[side] = tmp / "results" / f"{k}_{side}"
-                codes[side], walls[side] = calibrate(session, outs[side], [*flags, *flags_all], envs[side])
+                codes[side], walls[side] = calibrate(session, outs[side], [*flags, *flags_all], envs[side], tmp)
             cmp = subprocess.run(
                 [sys.executable, str(HERE / "compare_results.py"), str(outs["before"]), str(outs["after"]),
-                 "--rtol", str(args.rtol)],
-                capture_output=True, text=True, env=envs["after"],
+                 "--rtol", str(args.rtol), "--atol", str(args.atol)],
+                capture_output=True, text=True, env=envs["after"], cwd=tmp,
             )  # fmt: skip
             lines = [ln for ln in cmp.stdout.splitlines() if ln.strip()]
             summary = lines[-1] if lines else cmp.stderr.strip()
