@@ -347,7 +347,7 @@ def step_test(v: np.ndarray, labels: np.ndarray, use: np.ndarray) -> tuple[float
     The pooled within-segment covariance of the implied boards (6-D) is the noise; the p-value is
     from ``T^2 (nu - 5) / (6 nu) ~ F(6, nu - 5)``, ``nu = n0 + n1 - 2``.
     """
-    from scipy.special import fdtrc
+    from ..special import fdtrc
 
     a, b = v[(labels == 0) & use], v[(labels == 1) & use]
     n0, n1 = len(a), len(b)

@@ -42,10 +42,10 @@ class ScaleEstimate:
     def p_value(self, *, against: float = 1.0) -> float:
         """Two-sided p-value of k = ``against`` (Student t with n - 1 degrees of freedom).
 
-        scipy.special's distribution function, what scipy.stats.t.sf evaluates, without importing
-        scipy.stats (seconds of start-up).
+        The distribution function scipy.stats.t.sf evaluates (:func:`handeye.special.stdtr`), without
+        importing scipy (a fifth of a second of start-up or more).
         """
-        from scipy.special import stdtr
+        from ..special import stdtr
 
         z = abs(self.k - against) / self.sigma if self.sigma > 0 else float("inf")
         return float(2.0 * stdtr(max(self.n_views - 1, 1), -z))

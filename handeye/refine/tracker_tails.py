@@ -12,8 +12,11 @@ which a few spoilt views do not move. See docs/uncertainty.md.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
-from scipy.special import chdtri, gammaln
+
+from ..special import chdtri
 
 #: the tracker's tail degrees of freedom tried (inf: Gaussian). Not below 5: the robot-pose test's null is
 #: this t, and at its alpha (1e-4) a t(3) accepts a view 35 sigma off (m2 1240; t(5): 16 sigma, 268), so
@@ -45,7 +48,7 @@ def log_likelihood(m2: np.ndarray, logdet: np.ndarray, nu: float) -> float:
     m2, logdet = np.asarray(m2, float), np.asarray(logdet, float)
     if not np.isfinite(nu):
         return float(np.sum(-0.5 * DIM * np.log(2.0 * np.pi) - 0.5 * logdet - 0.5 * m2))
-    c = gammaln(0.5 * (nu + DIM)) - gammaln(0.5 * nu) - 0.5 * DIM * np.log(nu * np.pi)
+    c = math.lgamma(0.5 * (nu + DIM)) - math.lgamma(0.5 * nu) - 0.5 * DIM * np.log(nu * np.pi)
     return float(np.sum(c - 0.5 * logdet - 0.5 * (nu + DIM) * np.log1p(m2 / nu)))
 
 
