@@ -179,8 +179,11 @@ def _calibrate_locked(
         run, prior_record = calibrate_with_prior(
             session, options, prior, progress=progress, board_unmoved=board_unmoved
         )
-    else:
-        run = run_calibration(session, options, progress=progress, detected=detected)
+    else:  # the report's figure process starts once the images are detected: a core is free from then on
+        start = figure_process.start if (figure_process is not None and report) else None
+        run = run_calibration(session, options, progress=progress, detected=detected, on_detected=start)
+    if figure_process is not None and report:
+        figure_process.start()  # a session without images, or with --prior: now (nothing if it runs already)
     from .results import observations_dict, result_dict
 
     seconds = {"load": t_load, **run.seconds}

@@ -224,7 +224,7 @@ def run(args) -> int:
     from ..report.figure_process import figure_process
 
     sessions = list(args.session) if isinstance(args.session, (list, tuple)) else [args.session]
-    # forked before the solver's imports: the report's figure process imports matplotlib meanwhile
+    # the report's figure process: forked once the images are detected, it imports matplotlib meanwhile
     with figure_process(enabled=not args.no_report and len(sessions) == 1) as figures:
         from ..workflow import calibrate_session  # noqa: F401 - imported before the imports are frozen
         from . import freeze_imports

@@ -34,7 +34,7 @@ def add_report_arguments(parser: argparse.ArgumentParser) -> None:
 def run_report(args) -> int:
     from ..report.figure_process import figure_process
 
-    with figure_process() as figures:  # it imports matplotlib while the result is read
+    with figure_process(start_now=True) as figures:  # it imports matplotlib while the result is read
         return _run_report(args, figures)
 
 

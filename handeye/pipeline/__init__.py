@@ -75,6 +75,7 @@ def observe(
     intrinsics_source: str = "",
     progress: Callable[[str], None] | None = None,
     detected: Optional[Detected] = None,
+    on_detected: Callable[[], None] | None = None,
 ) -> Observation:
     """Detect the target, calibrate the camera unless given and solve each view's board pose.
 
@@ -84,8 +85,10 @@ def observe(
     ``M_by_id`` (view_id -> robot motion ``M_i``, see :meth:`MountingMode.M_from_T_base_end`) orders
     the corners of symmetric boards consistently with the robot; without it each view keeps the
     detector's order. ``detected``: these items' detections made ahead (:func:`detect_ahead`), used
-    instead of detecting again when they are of the same items and options. Never raises for data
-    that cannot be observed: the returned observation's ``error`` says why it stopped.
+    instead of detecting again when they are of the same items and options. ``on_detected``: called once
+    the images are detected (the workflow starts the report's figure process then: detection no longer
+    needs the second core). Never raises for data that cannot be observed: the returned observation's
+    ``error`` says why it stopped.
     """
     progress = progress or (lambda s: None)
     seconds: dict = {}
@@ -97,6 +100,8 @@ def observe(
     else:
         progress(f"detecting the target in {len(items)} images")
         det = detect_views(list(items), target, workers=options.workers, min_corners=options.min_corners)
+    if on_detected is not None:
+        on_detected()
     outcomes: dict[str, ViewOutcome] = {}
     failures: dict = {}
     dets: dict[str, Detection] = {}
@@ -235,22 +240,24 @@ def run_calibration(
     *,
     progress: Callable[[str], None] | None = None,
     detected: Optional[Detected] = None,
+    on_detected: Callable[[], None] | None = None,
 ) -> CalibrationRun:
     """All stages on a loaded session.
 
     A session that cannot be calibrated gives ``status="failed"`` with the error and every stage
     result reached so far (for the report). ``detected``: its images' detections made ahead
-    (:func:`detect_ahead`; used when they are of the same images and options).
+    (:func:`detect_ahead`; used when they are of the same images and options); ``on_detected``: see
+    :func:`observe`.
     """
     state: dict = {}
     try:
-        return _run(session, options, state, progress or (lambda s: None), detected)
+        return _run(session, options, state, progress or (lambda s: None), detected, on_detected)
     except HandeyeError as e:
         s = state.pop("session", session)
         return CalibrationRun(session=s, options=options, status="failed", error=e, **state)
 
 
-def _run(s: Session, opts: CalibrateOptions, state: dict, progress, detected=None) -> CalibrationRun:
+def _run(s: Session, opts: CalibrateOptions, state: dict, progress, detected=None, on_detected=None) -> CalibrationRun:
     mode = mounting(s.mode)
     if opts.method not in METHODS:
         raise CalibrationError(f"unknown method {opts.method!r}", expected=" | ".join(METHODS), code="unknown_method")
@@ -278,6 +285,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress, detected=Non
         options=opts,
         progress=progress,
         detected=detected,
+        on_detected=on_detected,
     )
     outcomes = dict(obs.outcomes)
     for vid, line in s.meta.get("missing_images", {}).items():  # poses whose image is missing (the loader)

@@ -1,9 +1,10 @@
 """A process started with a command that imports matplotlib while the calibration runs, then draws the figures.
 
 A report's figures cost matplotlib's import (about a quarter of a second) before the first line is drawn.
-A command that will write a report (``handeye calibrate``, ``handeye report``) forks this process before
-its own heavy imports, on a second core: the child imports matplotlib, PIL and the figure modules while
-the parent imports the solver and calibrates, then waits for the figures' inputs. When the report is
+A command that will write a report forks this process where a second core is free: ``handeye report``
+at once, ``handeye calibrate`` once its images are detected (detection uses both cores). The child
+imports matplotlib, PIL and the figure modules while the parent works (the solver's imports, the
+refinement, the validation, the diagnostics), then waits for the figures' inputs. When the report is
 built, the parent sends them (pickled; about 0.3 MB for 20 views) and the child draws the figures with
 :func:`handeye.report.figures.report_figures` (itself in two processes) and sends back the PNGs.
 
@@ -36,13 +37,23 @@ WAIT_S = 60.0
 
 
 class FigureProcess:
-    """The forked figure process of one command: :meth:`figures` once, :meth:`close` always."""
+    """The figure process of one command: :meth:`start` (forks, once), :meth:`figures` once, :meth:`close` always."""
 
-    def __init__(self, pid: int, to_child: int, from_child: int):
-        self.pid = pid
-        self._to_child: Optional[int] = to_child
-        self._from_child: Optional[int] = from_child
+    def __init__(self) -> None:
+        self.pid: Optional[int] = None
+        self._to_child: Optional[int] = None
+        self._from_child: Optional[int] = None
         self._status: Optional[int] = None
+        self._started = False
+
+    def start(self) -> bool:
+        """Fork the process now (it starts importing at once); only the first call forks. Whether it runs."""
+        if not self._started:
+            self._started = True
+            forked = _fork()
+            if forked is not None:
+                self.pid, self._to_child, self._from_child = forked
+        return self.pid is not None and self._status is None
 
     def figures(self, inputs: dict, *, wait_s: float = WAIT_S) -> Optional[list[Plot]]:
         """The report's figures of ``inputs`` (the keyword arguments of ``report_figures``) drawn by the child.
@@ -50,8 +61,8 @@ class FigureProcess:
         None when the child cannot give them (it was used already, ended, failed, or took over ``wait_s``):
         the caller then draws them itself.
         """
-        if self._to_child is None or self._from_child is None:
-            return None
+        if self.pid is None or self._to_child is None or self._from_child is None:
+            return None  # never started, or used already
         deadline = time.monotonic() + wait_s
         try:
             data = pickle.dumps(inputs, protocol=pickle.HIGHEST_PROTOCOL)
@@ -100,7 +111,7 @@ class FigureProcess:
             with contextlib.suppress(OSError):
                 os.close(self._from_child)
             self._from_child = None
-        if self._status is None:
+        if self.pid is not None and self._status is None:
             pid, status = os.waitpid(self.pid, os.WNOHANG if kill else 0)
             if pid == 0:
                 with contextlib.suppress(OSError):
@@ -110,7 +121,13 @@ class FigureProcess:
 
 
 def start() -> Optional[FigureProcess]:
-    """Fork the figure process (it starts importing at once), or None where figures are drawn in one process."""
+    """A figure process forked now, or None where figures are drawn in one process."""
+    proc = FigureProcess()
+    return proc if proc.start() else None
+
+
+def _fork() -> Optional[tuple[int, int, int]]:
+    """(pid, the write end of its inputs, the read end of its figures), or None (one core, no fork)."""
     from .figures import parallel_drawing
 
     if not parallel_drawing():
@@ -133,13 +150,21 @@ def start() -> Optional[FigureProcess]:
         _child(inputs_r, inputs_w, out_r, out_w)  # never returns
     os.close(inputs_r)
     os.close(out_w)
-    return FigureProcess(pid, inputs_w, out_r)
+    return pid, inputs_w, out_r
 
 
 @contextlib.contextmanager
-def figure_process(enabled: bool = True) -> Iterator[Optional[FigureProcess]]:
-    """:func:`start` when ``enabled``, closed (and reaped) when the block ends, however it ends."""
-    proc = start() if enabled else None
+def figure_process(enabled: bool = True, *, start_now: bool = False) -> Iterator[Optional[FigureProcess]]:
+    """The command's :class:`FigureProcess`, closed (and reaped) when the block ends, however it ends.
+
+    None when not ``enabled``, or with one core. ``start_now`` forks it at once; otherwise whoever knows
+    when a core is free calls its ``start`` (the calibration once its images are detected).
+    """
+    from .figures import parallel_drawing
+
+    proc = FigureProcess() if enabled and parallel_drawing() else None
+    if proc is not None and start_now:
+        proc.start()
     try:
         yield proc
     finally:

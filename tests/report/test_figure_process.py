@@ -88,13 +88,22 @@ def test_inputs_that_cannot_be_sent_are_drawn_here(inputs, two_cores):
 
 
 def test_an_unused_process_is_reaped(two_cores):
-    with figure_process.figure_process() as proc:
-        assert proc is not None
+    with figure_process.figure_process(start_now=True) as proc:
+        assert proc is not None and proc.pid is not None
         pid = proc.pid
+        assert proc.start()  # running: a second start forks nothing
+        assert proc.pid == pid
     assert _gone(pid) and proc.exit_code is not None
     proc.close()  # closing twice is harmless
     with figure_process.figure_process(enabled=False) as none:
         assert none is None
+
+
+def test_a_process_never_started_forks_nothing_and_draws_nothing(inputs, two_cores):
+    with figure_process.figure_process() as proc:
+        assert proc is not None and proc.pid is None
+        assert proc.figures(inputs) is None  # the caller draws them
+    assert proc.pid is None and proc.exit_code is None
 
 
 def test_one_core_or_the_switch_starts_no_process(monkeypatch):
@@ -104,25 +113,34 @@ def test_one_core_or_the_switch_starts_no_process(monkeypatch):
 
 @pytest.mark.parametrize("no_report", [False, True])
 def test_calibrate_draws_its_report_in_the_process(session, tmp_path, two_cores, monkeypatch, no_report):
-    """``handeye calibrate`` starts the process before its imports and its report has every figure from it;
-    ``--no-report`` starts none."""
+    """``handeye calibrate`` starts the process once its images are detected, and its report has every figure
+    from it; ``--no-report`` starts none."""
+    import handeye.pipeline as pipeline
+
     started: list = []
-    start = figure_process.start
+    detected: list = []
+    start = figure_process.FigureProcess.start
+    detect = pipeline.detect_views
 
-    def spy():
-        proc = start()
-        started.append(proc)
-        return proc
+    def spy(self):
+        started.append((self, len(detected)))  # how many detections had run when it forked
+        return start(self)
 
-    monkeypatch.setattr(figure_process, "start", spy)
+    def detect_spy(*a, **kw):
+        detected.append(1)
+        return detect(*a, **kw)
+
+    monkeypatch.setattr(figure_process.FigureProcess, "start", spy)
+    monkeypatch.setattr(pipeline, "detect_views", detect_spy)
     out = tmp_path / "out"
     code = cli_main(["-q", "calibrate", str(session), "--out", str(out), *(["--no-report"] if no_report else [])])
     assert code == 0
     if no_report:
         assert started == [] and not (out / "report.html").exists()
         return
-    (proc,) = started
-    assert proc is not None and proc.exit_code == 0 and _gone(proc.pid)  # it answered, then ended on its own
+    proc, n_detected = started[0]
+    assert n_detected == 1  # after the detection
+    assert proc.pid is not None and proc.exit_code == 0 and _gone(proc.pid)  # it answered, then ended on its own
     html = (out / "report.html").read_text(encoding="utf-8")
     assert html.count('src="data:image/png;base64,') >= len(KEYS)
 
