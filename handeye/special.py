@@ -1,20 +1,13 @@
 """The special functions behind the chi-square, F and t tests: incomplete gamma and beta, and their inverses.
 
-Pure Python on :mod:`math` (scalars; :func:`vectorised` maps them over arrays). They stand in for the
-six scipy.special functions the statistics use (``chdtrc``, ``chdtri``, ``fdtrc``, ``fdtri``,
-``gammaincinv``, ``stdtr``), under those names and argument orders, because importing scipy.special
-costs about 0.18 s of every command's start-up (its array-API layer clones numpy, which loads
-numpy.f2py, numpy.testing and numpy.ma), more than GTSAM's import, for six scalar functions. They
-agree with scipy.special to 3e-10 relative or better (most to 1e-12) over the ranges the statistics
-use, tails down to 1e-100 and degrees of freedom up to 20000 included (``tests/test_special.py`` checks them on
-grids against scipy, which stays a dependency).
-
-The algorithms are the classical ones (Press et al., Numerical Recipes, 3rd ed., sections 6.2 and 6.4):
-the incomplete gamma function by its series below ``a + 1`` and its continued fraction above, the
-incomplete beta function by its continued fraction on the side of the mean where it converges fast (the
-other side by symmetry), both continued fractions by the modified Lentz method; the inverses start from
-the book's approximations and are finished by safeguarded Halley steps on the tail that is asked for,
-so that a small upper-tail probability keeps its relative accuracy.
+Pure Python on :mod:`math`, under scipy.special's names and argument orders (``chdtrc``, ``chdtri``,
+``fdtrc``, ``fdtri``, ``gammaincinv``, ``stdtr``; :func:`vectorised` maps them over arrays): importing
+scipy.special costs about 0.18 s of every command's start-up, more than GTSAM's import. The algorithms are
+the classical ones (Numerical Recipes, 3rd ed., 6.2 and 6.4): series and continued fractions (modified
+Lentz), each on the side where it converges, and inverses from the book's starting points finished by
+safeguarded Halley steps on the tail asked for, so that a small tail keeps its relative accuracy. They
+agree with scipy.special to 3e-10 relative or better, most to 1e-12 (``tests/test_special.py``; dofs to
+20000, tails to 1e-100).
 """
 
 from __future__ import annotations

@@ -16,7 +16,19 @@ MAX_LINES = 600
 
 #: lower layers never import higher ones (a name: every module in that package or that module)
 LAYERS = (
-    ("errors", "frames", "camera", "targets", "records", "mounting", "conventions", "stats", "output", "config"),
+    (
+        "errors",
+        "frames",
+        "camera",
+        "targets",
+        "records",
+        "mounting",
+        "conventions",
+        "special",
+        "stats",
+        "output",
+        "config",
+    ),
     ("configs", "apply", "kinematics", "factors", "contract"),
     ("session", "detect", "initial", "refine"),
     ("diagnose",),

@@ -308,7 +308,7 @@ def test_a_report_rendering_that_raises_keeps_the_result(rendered, tmp_path, mon
 
     mode, session = rendered
 
-    def boom(ctx, folder):
+    def boom(ctx, folder, figure_process=None):
         raise HandeyeError("the report template cannot be read")
 
     monkeypatch.setattr(workflow, "_render_reports", boom)
