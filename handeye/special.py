@@ -54,18 +54,21 @@ def _gamma_fraction(a: float, x: float) -> float:
     d = 1.0 / b
     h = d
     for i in range(1, _MAX_ITER):
-        an = -i * (i - a)
         b += 2.0
-        d = an * d + b
-        d = _FPMIN if abs(d) < _FPMIN else d
-        c = b + an / c
-        c = _FPMIN if abs(c) < _FPMIN else c
-        d = 1.0 / d
-        delta = d * c
+        d, c, delta = _lentz(d, c, -i * (i - a), b)
         h *= delta
         if abs(delta - 1.0) < _EPS:
             break
     return h * _gamma_prefactor(a, x)
+
+
+def _lentz(d: float, c: float, a_n: float, b_n: float) -> tuple[float, float, float]:
+    """One step of the modified Lentz method for a continued fraction's term a_n / (b_n + ...): (d, c, factor)."""
+    d = a_n * d + b_n
+    d = 1.0 / (_FPMIN if abs(d) < _FPMIN else d)
+    c = b_n + a_n / c
+    c = _FPMIN if abs(c) < _FPMIN else c
+    return d, c, d * c
 
 
 def gammainc_pq(a: float, x: float) -> tuple[float, float]:
@@ -155,22 +158,10 @@ def _beta_fraction(a: float, b: float, x: float) -> float:
     h = d
     for m in range(1, _MAX_ITER):
         m2 = 2 * m
-        aa = m * (b - m) * x / ((qam + m2) * (a + m2))
-        d = 1.0 + aa * d
-        d = _FPMIN if abs(d) < _FPMIN else d
-        c = 1.0 + aa / c
-        c = _FPMIN if abs(c) < _FPMIN else c
-        d = 1.0 / d
-        h *= d * c
-        aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2))
-        d = 1.0 + aa * d
-        d = _FPMIN if abs(d) < _FPMIN else d
-        c = 1.0 + aa / c
-        c = _FPMIN if abs(c) < _FPMIN else c
-        d = 1.0 / d
-        delta = d * c
-        h *= delta
-        if abs(delta - 1.0) < _EPS:
+        d, c, even = _lentz(d, c, m * (b - m) * x / ((qam + m2) * (a + m2)), 1.0)
+        d, c, odd = _lentz(d, c, -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2)), 1.0)
+        h *= even * odd
+        if abs(odd - 1.0) < _EPS:
             break
     return h
 
