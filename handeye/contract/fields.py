@@ -134,6 +134,31 @@ def _finite_numbers(v: Any, n: int) -> bool:
 _FLOAT_MAX = 1.7976931348623157e308
 
 
+def _plain_number(x: Any) -> bool:
+    """A float, or an int a float holds (exact types, as JSON gives them; not a bool)."""
+    t = type(x)
+    return t is float or (t is int and -_FLOAT_MAX <= x <= _FLOAT_MAX)
+
+
+def _number_rows(v: Any) -> list:
+    """A list of lists of numbers (NaN and infinities allowed), e.g. a view's corner residuals.
+
+    One pass over plain JSON values for the common case (observations.json holds tens of thousands); anything
+    else is checked number by number, with the message of the first that is not one.
+    """
+    if type(v) is list and all(type(r) is list and all(_plain_number(x) for x in r) for r in v):
+        return v
+    expected = "a list of lists of numbers"
+    if not isinstance(v, list):
+        raise damaged(f"is {short(v)}", expected)
+    for r in v:
+        if not isinstance(r, list):
+            raise damaged(f"holds {short(r)}", expected)
+        for x in r:
+            _number(x, expected)
+    return v
+
+
 def _vector(n: int):
     expected = f"{n} finite numbers"
 
@@ -222,6 +247,7 @@ Finite = Annotated[float, PlainValidator(_finite), WithJsonSchema(_NUM)]
 Positive = Annotated[float, PlainValidator(_positive), WithJsonSchema({"type": "number", "exclusiveMinimum": 0})]
 Sigma = Annotated[float, PlainValidator(_sigma), WithJsonSchema({"type": "number", "minimum": 0})]
 Number = Annotated[float, PlainValidator(_number_any), WithJsonSchema(_NUM)]
+NumberRows = Annotated[list, PlainValidator(_number_rows), WithJsonSchema(_array(_array(_NUM)))]
 Count = Annotated[int, PlainValidator(_count), WithJsonSchema({"type": "integer", "minimum": 0})]
 Rigid = Annotated[
     list,

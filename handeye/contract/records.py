@@ -6,7 +6,7 @@ from typing import Literal, Optional
 
 from pydantic import Field, StrictBool, StrictInt, StrictStr, model_validator
 
-from .fields import Count, ImageSize, Matrix4, Number, Rigid, Sigma, Vec2, Vec3, damaged
+from .fields import Count, ImageSize, Matrix4, Number, NumberRows, Rigid, Sigma, Vec2, Vec3, damaged
 from .models import Mapping, Open, XName
 
 
@@ -20,8 +20,8 @@ class ObservedView(Open):
     image: Optional[StrictStr] = None
     T_cam_board_pnp: Optional[Matrix4] = None
     T_cam_board_chain: Optional[Matrix4] = None
-    residual_pnp_px: Optional[list[list[Number]]] = None
-    residual_chain_px: Optional[list[list[Number]]] = None
+    residual_pnp_px: Optional[NumberRows] = None
+    residual_chain_px: Optional[NumberRows] = None
     T_base_end_reported: Optional[Matrix4] = None
 
 

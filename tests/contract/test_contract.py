@@ -230,3 +230,25 @@ def test_the_fleet_index_lists_a_damaged_result_as_a_row(results, tmp_path):
     assert rows["good"]["verdict"] in ("PASS", "WARN")
     assert rows["bad"]["verdict"] == "ERROR" and "verdict is a mapping ({'PASS': True})" in rows["bad"]["reason"]
     assert (tmp_path / "index.html").is_file()
+
+
+def test_rows_of_numbers_pass_whole_and_name_the_first_that_is_not_a_number():
+    """A view's corner residuals: plain JSON numbers (NaN and infinities included) pass in one pass; anything
+    else is named by the check of each number."""
+    import math
+
+    from pydantic_core import PydanticCustomError
+
+    from handeye.contract.fields import _number_rows
+
+    ok = [[1.0, 2], [math.nan, -math.inf], []]
+    assert _number_rows(ok) is ok
+    for bad, words in [
+        ([[1.0, "x"]], "is 'x'"),
+        ([[True, 1.0]], "is True"),
+        ([1.0], "holds 1.0"),
+        ("abc", "is 'abc'"),
+        ([[10**400]], "too large for a float"),
+    ]:
+        with pytest.raises(PydanticCustomError, match=words):
+            _number_rows(bad)
