@@ -97,9 +97,10 @@ def calibrate_session(
     (:func:`handeye.recal.prior.calibrate_with_prior`); result.json's ``prior`` block says what it did.
     ``board_unmoved``: with ``prior``, the board was not touched since (its earlier pose may enter too).
     ``detected``: the session's images' detections made ahead (:func:`handeye.pipeline.detect_ahead`), used
-    when they are of the same images and options. ``figure_process``: a
-    :class:`~handeye.report.figure_process.FigureProcess` the command started, which draws the report's
-    figures (they are drawn here without it, or when it cannot).
+    when they are of the same images and options. ``figure_process``: the command's
+    :class:`~handeye.report.figure_process.FigureProcess`, started here once the images are detected (a
+    session without images: after the run); it draws the report's figures (drawn here without it, or when
+    it cannot).
     """
     from .report.qa import load_qa
     from .session import load_session

@@ -112,12 +112,15 @@ class FigureProcess:
                 os.close(self._from_child)
             self._from_child = None
         if self.pid is not None and self._status is None:
-            pid, status = os.waitpid(self.pid, os.WNOHANG if kill else 0)
-            if pid == 0:
-                with contextlib.suppress(OSError):
-                    os.kill(self.pid, signal.SIGKILL)
-                _, status = os.waitpid(self.pid, 0)
-            self._status = os.waitstatus_to_exitcode(status)
+            try:
+                pid, status = os.waitpid(self.pid, os.WNOHANG if kill else 0)
+                if pid == 0:
+                    with contextlib.suppress(OSError):
+                        os.kill(self.pid, signal.SIGKILL)
+                    _, status = os.waitpid(self.pid, 0)
+                self._status = os.waitstatus_to_exitcode(status)
+            except ChildProcessError:  # reaped elsewhere (a caller's own wait): nothing left to end
+                self._status = -1
 
 
 def start() -> Optional[FigureProcess]:
