@@ -193,10 +193,8 @@ def betaincinv(a: float, b: float, p: float) -> float:
         return 1.0 - betaincinv(b, a, 1.0 - p)
     # the starting point (Numerical Recipes' invbetai)
     if a >= 1.0 and b >= 1.0:
-        pp = p
-        t = math.sqrt(-2.0 * math.log(pp))
-        x = (2.30753 + t * 0.27061) / (1.0 + t * (0.99229 + t * 0.04481)) - t
-        x = -x
+        t = math.sqrt(-2.0 * math.log(p))
+        x = t - (2.30753 + t * 0.27061) / (1.0 + t * (0.99229 + t * 0.04481))  # the normal quantile of 1 - p
         al = (x * x - 3.0) / 6.0
         h = 2.0 / (1.0 / (2.0 * a - 1.0) + 1.0 / (2.0 * b - 1.0))
         skew = (1.0 / (2.0 * b - 1.0) - 1.0 / (2.0 * a - 1.0)) * (al + 5.0 / 6.0 - 2.0 / (3.0 * h))
