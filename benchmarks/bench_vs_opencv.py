@@ -8,11 +8,17 @@ arguments, and the imports of what the command uses), each named stage (``timed_
 functions), the workflow's time outside the named stages and the interpreter's shut-down. The load
 average is printed before and after. Asserts nothing.
 
-    python benchmarks/bench_vs_opencv.py [--views 20] [--rounds 5] [--session FOLDER ...] [--before DIR]
+    python benchmarks/bench_vs_opencv.py [--views 20] [--rounds 5] [--session FOLDER ...] [--real [DATA]]
+                                         [--before DIR]
 
-Without ``--session``: a rendered 1280x720 vendor session of ``--views`` views
-(:func:`handeye.sim.vendor.write_vendor_session`, seed 1). ``--session`` may be given several times
-(e.g. the shared real sets); each is measured on its own. ``--before DIR``: a checkout of handeye before a
+Without ``--session`` or ``--real``: a rendered 1280x720 vendor session of ``--views`` views
+(:func:`handeye.sim.vendor.write_vendor_session`, seed 1). ``--session`` (a vendor-layout folder) may be
+given several times; each is measured on its own. ``--real`` measures the shared real recordings whose
+target the bare script reads (a chessboard) and whose robot poses are flange poses: the two UR3 cameras of
+``DATA`` (default ``../shared/data``), written in the vendor layout (``k.jpg`` links to the recorded PNGs,
+which OpenCV reads by their content; poses.txt from the derived flange poses; config.yaml with the 9x7 / 20
+mm board and ``mode: eye_to_hand``). The bare script solves them as eye-in-hand, as a vendor script does:
+its matrix is not a calibration of these rigs, its time is the same. ``--before DIR``: a checkout of handeye before a
 change (e.g. ``git archive HEAD~3 | tar -x -C DIR``); its two calibrate commands run in the same
 interleaved rounds (with ``PYTHONPATH=DIR``), so the before/after figures share the machine's load.
 
@@ -92,10 +98,20 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--session", type=Path, action="append", help="a vendor session folder (default: a rendered one)")
     ap.add_argument("--before", type=Path, help="a checkout of handeye before a change, measured in the same rounds")
+    ap.add_argument(
+        "--real",
+        type=Path,
+        nargs="?",
+        const=HERE.parents[1] / "shared" / "data",
+        help="also the shared UR3 recordings under this folder (default ../shared/data), in the vendor layout",
+    )
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="bench_vs_opencv_"))
     try:
-        sessions = args.session
+        sessions = list(args.session or [])
+        if args.real is not None:
+            found = [name for name in UR3_SETS if (args.real / name).is_dir()]
+            sessions += [vendor_layout(args.real / name, tmp / name) for name in found]
         if not sessions:
             from handeye.sim.vendor import write_vendor_session
 
@@ -104,6 +120,32 @@ def main() -> None:
             measure(Path(session), tmp, args.rounds, before=args.before)
     finally:  # the rendered session, the results and the bytecode caches of the runs
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+#: the shared recordings in the vendor layout (chessboard, flange poses): the two UR3 cameras
+UR3_SETS = ("ur3-eyetohand-cam1", "ur3-eyetohand-cam2")
+
+
+def vendor_layout(src: Path, out: Path) -> Path:
+    """A UR3 camera folder of the shared data as a vendor session: numbered image links, poses.txt, config.yaml."""
+    import numpy as np
+    import yaml
+
+    from handeye.conventions import VENDOR_POSE_FORMAT, pose_values_from_T
+
+    out.mkdir(parents=True, exist_ok=True)
+    lines = []
+    for row in (src / "base_T_flange_fk_derived.txt").read_text().splitlines():
+        if not row.strip() or row.startswith("#"):
+            continue
+        parts = row.split()
+        T = np.array([float(x) for x in parts[2:18]]).reshape(4, 4)
+        (out / f"{len(lines) + 1}.jpg").symlink_to((src / "images" / parts[1]).resolve())
+        lines.append(",".join(f"{x:.9f}" for x in pose_values_from_T(T, VENDOR_POSE_FORMAT)))
+    (out / "poses.txt").write_text("\n".join(lines) + "\n")
+    config = {"checkerboard_args": {"XX": 9, "YY": 7, "L": 0.02}, "mode": "eye_to_hand"}
+    (out / "config.yaml").write_text(yaml.safe_dump(config))
+    return out
 
 
 def measure(session: Path, tmp: Path, rounds: int, *, before: Path | None = None) -> None:

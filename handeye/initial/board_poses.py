@@ -216,13 +216,26 @@ def orientation_labels(inv_C: tuple[np.ndarray, np.ndarray], Ms: np.ndarray, *, 
     cost = np.abs(ang_C - am) + np.abs(pitch_C - pm) / 0.1
     cost[np.arange(n), :, np.arange(n), :] = 0.0  # a view is not compared with itself
     idx = np.arange(n)
+    # rows[i][j*k + b, a] = cost[i, a, j, b]: a view's costs against the current labels are one gather of
+    # contiguous rows, summed over j in order (the sum of cost[i][:, idx, lab] over j, to the bit)
+    rows = np.ascontiguousarray(cost.transpose(0, 2, 3, 1)).reshape(n, n * k, k)
     best, best_cost = None, np.inf
+    tried: set = set()
     for r in range(n):
         lab = np.argmin(cost[:, :, r, 0], axis=1)
         lab[r] = 0
+        if lab.tobytes() in tried:  # the same start ends in the same labelling (the rounds are deterministic)
+            continue
+        tried.add(lab.tobytes())
+        cols = idx * k + lab  # the rows of rows[i] under the current labels
         for _ in range(3):  # a few rounds of iterated conditional modes (views updated one at a time)
+            changed = False
             for i in range(n):
-                lab[i] = int(np.argmin(cost[i][:, idx, lab].sum(axis=1)))  # (k,): ordering a of view i vs all j
+                a = int(np.add.reduce(rows[i].take(cols, axis=0), axis=0).argmin())  # ordering a of view i
+                if a != lab[i]:
+                    lab[i], cols[i], changed = a, i * k + a, True
+            if not changed:  # a round that changes nothing is a fixed point: the next ones would too
+                break
         c = cost[idx[:, None], lab[:, None], idx[None, :], lab[None, :]].sum()
         if c < best_cost:
             best, best_cost = lab.copy(), c

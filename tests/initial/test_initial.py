@@ -180,6 +180,48 @@ def test_every_ordering_is_kept_so_another_reading_of_the_poses_can_choose_its_o
     assert all(p.candidates == () for p in poses.values())
 
 
+def _icm_every_start(cost: np.ndarray) -> np.ndarray:
+    """orientation_labels' search written plainly: every start, three full rounds, costs summed afresh."""
+    n, k = cost.shape[:2]
+    idx = np.arange(n)
+    best, best_cost = None, np.inf
+    for r in range(n):
+        lab = np.argmin(cost[:, :, r, 0], axis=1)
+        lab[r] = 0
+        for _ in range(3):
+            for i in range(n):
+                lab[i] = int(np.argmin(cost[i][:, idx, lab].sum(axis=1)))
+        c = cost[idx[:, None], lab[:, None], idx[None, :], lab[None, :]].sum()
+        if c < best_cost:
+            best, best_cost = lab.copy(), c
+    return best
+
+
+def test_the_labelling_search_is_the_plain_one_to_the_bit():
+    """Skipping starts already tried, stopping at a round that changes nothing and gathering each view's costs
+    as contiguous rows give the labels of the plain search, on noisy and on junk candidates."""
+    from handeye.frames import T_from_rotvec, screw_invariants
+    from handeye.initial.board_poses import candidate_invariants, orientation_labels
+
+    def pose(rot_sigma: float, trans_sigma: float):
+        return T_from_rotvec(rng.normal(size=3) * rot_sigma, rng.normal(size=3) * trans_sigma)
+
+    rng = np.random.default_rng(11)
+    for trial in range(40):
+        n, k = int(rng.integers(3, 30)), int(rng.choice([2, 4]))
+        Ms = np.stack([pose(0.6, 0.2) for _ in range(n)])
+        X, B = pose(1.0, 0.2), pose(1.0, 0.2)
+        noise = 0.3 if trial % 3 == 0 else 0.02  # a third with candidates far from any consistent labelling
+        turns = [T_from_rotvec([0, 0, a * 2 * np.pi / k], [0.01 * a, 0, 0]) for a in range(k)]
+        Cs = np.stack([np.stack([X @ M @ B @ turn @ pose(noise, 0.002) for turn in turns]) for M in Ms])
+        ang_C, pitch_C = candidate_invariants(Cs)
+        rel_M = Ms[:, None] @ np.linalg.inv(Ms)[None, :]
+        ang_M, pitch_M = (v.reshape(n, 1, n, 1) for v in screw_invariants(rel_M.reshape(-1, 4, 4)))
+        cost = np.abs(ang_C - ang_M) + np.abs(pitch_C - pitch_M) / 0.1
+        cost[np.arange(n), :, np.arange(n), :] = 0.0
+        assert np.array_equal(orientation_labels((ang_C, pitch_C), Ms, turns=False), _icm_every_start(cost))
+
+
 # ------------------------------------------------------------------------------ intrinsics
 def test_intrinsics_from_noiseless_corners_and_too_few_views():
     cs = make_corner_session(mode="eye_in_hand", n_views=10, seed=8, noise_px=0.0)
