@@ -220,7 +220,7 @@ def orientation_labels(inv_C: tuple[np.ndarray, np.ndarray], Ms: np.ndarray, *, 
     # contiguous rows, summed over j in order (the sum of cost[i][:, idx, lab] over j, to the bit)
     rows = np.ascontiguousarray(cost.transpose(0, 2, 3, 1)).reshape(n, n * k, k)
     best, best_cost = None, np.inf
-    tried: set = set()
+    tried: set[bytes] = set()
     for r in range(n):
         lab = np.argmin(cost[:, :, r, 0], axis=1)
         lab[r] = 0
