@@ -219,23 +219,22 @@ def orientation_labels(inv_C: tuple[np.ndarray, np.ndarray], Ms: np.ndarray, *, 
     # rows[i][j*k + b, a] = cost[i, a, j, b]: a view's costs against the current labels are one gather of
     # contiguous rows, summed over j in order (the sum of cost[i][:, idx, lab] over j, to the bit)
     rows = np.ascontiguousarray(cost.transpose(0, 2, 3, 1)).reshape(n, n * k, k)
+    # one start per view r (view r's ordering 0, the others' best against it), the distinct ones in order:
+    # every start runs its rounds side by side with the others, each start's views updated one at a time
+    starts = np.argmin(cost[:, :, :, 0], axis=1).T  # (n starts, n views)
+    starts[idx, idx] = 0
+    _, first = np.unique(starts, axis=0, return_index=True)
+    labs = starts[np.sort(first)]  # (S, n)
+    cols = idx * k + labs  # the rows of rows[i] under each start's current labels
+    for _ in range(3):  # a few rounds of iterated conditional modes
+        before = labs.copy()
+        for i in range(n):
+            a = np.add.reduce(rows[i][cols], axis=1).argmin(axis=1)  # (S,): each start's ordering of view i
+            labs[:, i], cols[:, i] = a, i * k + a
+        if np.array_equal(labs, before):  # a round that changes nothing is a fixed point for every start
+            break
     best, best_cost = None, np.inf
-    tried: set[bytes] = set()
-    for r in range(n):
-        lab = np.argmin(cost[:, :, r, 0], axis=1)
-        lab[r] = 0
-        if lab.tobytes() in tried:  # the same start ends in the same labelling (the rounds are deterministic)
-            continue
-        tried.add(lab.tobytes())
-        cols = idx * k + lab  # the rows of rows[i] under the current labels
-        for _ in range(3):  # a few rounds of iterated conditional modes (views updated one at a time)
-            changed = False
-            for i in range(n):
-                a = int(np.add.reduce(rows[i].take(cols, axis=0), axis=0).argmin())  # ordering a of view i
-                if a != lab[i]:
-                    lab[i], cols[i], changed = a, i * k + a, True
-            if not changed:  # a round that changes nothing is a fixed point: the next ones would too
-                break
+    for lab in labs:
         c = cost[idx[:, None], lab[:, None], idx[None, :], lab[None, :]].sum()
         if c < best_cost:
             best, best_cost = lab.copy(), c

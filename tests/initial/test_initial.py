@@ -198,8 +198,8 @@ def _icm_every_start(cost: np.ndarray) -> np.ndarray:
 
 
 def test_the_labelling_search_is_the_plain_one_to_the_bit():
-    """Skipping starts already tried, stopping at a round that changes nothing and gathering each view's costs
-    as contiguous rows give the labels of the plain search, on noisy and on junk candidates."""
+    """Running the distinct starts side by side, stopping at a round that changes nothing and gathering each
+    view's costs as contiguous rows give the labels of the plain search, on noisy and on junk candidates."""
     from handeye.frames import T_from_rotvec, screw_invariants
     from handeye.initial.board_poses import candidate_invariants, orientation_labels
 
