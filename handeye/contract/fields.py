@@ -119,16 +119,7 @@ def _finite_numbers(v: Any, n: int) -> bool:
 
     The fast path of :func:`_vector`: observations.json holds tens of thousands of corner points, each checked.
     """
-    if type(v) is not list or len(v) != n:
-        return False
-    for x in v:
-        t = type(x)
-        if t is float:
-            if not math.isfinite(x):
-                return False
-        elif t is not int or not -_FLOAT_MAX <= x <= _FLOAT_MAX:
-            return False
-    return True
+    return type(v) is list and len(v) == n and all(_plain_number(x) and math.isfinite(x) for x in v)
 
 
 _FLOAT_MAX = 1.7976931348623157e308
