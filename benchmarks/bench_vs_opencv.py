@@ -5,8 +5,10 @@ Prints the median wall and CPU time of each command over the rounds, the ratio t
 without the reports (targets: 2.5x and 1.5x), and where handeye's time goes, wall and CPU (this process,
 all threads): the interpreter start-up, ``import handeye.cli``, ``main()`` before the workflow (the
 arguments, and the imports of what the command uses), each named stage (``timed_cli.py`` wraps the stage
-functions), the workflow's time outside the named stages and the interpreter's shut-down. The load
-average is printed before and after. Asserts nothing.
+functions), the workflow's time outside the named stages and the interpreter's shut-down. ``CPU/N cores``: the
+command's CPU time (all its processes and threads) over the cores it may use, as a ratio to the bare
+script's wall time: the ratio a perfect overlap of all its work on those cores would reach, the lower
+bound of what overlapping can do. The load average is printed before and after. Asserts nothing.
 
     python benchmarks/bench_vs_opencv.py [--views 20] [--rounds 5] [--session FOLDER ...] [--real [DATA]]
                                          [--before DIR]
@@ -54,6 +56,14 @@ def run(cmd: list[str], env: dict | None = None) -> tuple[float, float, float]:
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, end
+
+
+def _cores() -> int:
+    """The cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
 
 
 def _median(xs) -> float:
@@ -201,11 +211,18 @@ def measure(session: Path, tmp: Path, rounds: int, *, before: Path | None = None
                 records.setdefault(name, []).append(rec)
     bare = statistics.median(w for w, _ in times["bare OpenCV script"])
     bare_cpu = statistics.median(c for _, c in times["bare OpenCV script"])
-    print(f"\n{'command':36s} {'wall [s]':>9s} {'CPU [s]':>8s} {'ratio':>6s} {'CPU ratio':>9s}  target")
+    cores = _cores()
+    print(
+        f"\n{'command':36s} {'wall [s]':>9s} {'CPU [s]':>8s} {'ratio':>6s} {'CPU ratio':>9s} "
+        f"{'CPU/' + str(cores) + ' cores':>12s}  target"
+    )
     targets = {"calibrate (both reports)": "2.5x", "calibrate --no-report": "1.5x"}
     for name, tc in times.items():
         wall, cpu = statistics.median(w for w, _ in tc), statistics.median(c for _, c in tc)
-        print(f"{name:36s} {wall:9.2f} {cpu:8.2f} {wall / bare:6.2f}x {cpu / bare_cpu:8.2f}x  {targets.get(name, '')}")
+        print(
+            f"{name:36s} {wall:9.2f} {cpu:8.2f} {wall / bare:6.2f}x {cpu / bare_cpu:8.2f}x "
+            f"{cpu / cores / bare:11.2f}x  {targets.get(name, '')}"
+        )
     print(f"load average after the rounds {os.getloadavg()[0]:.1f}")
     for name, recs in records.items():
         breakdown(name, recs)
