@@ -21,10 +21,8 @@ import contextlib
 import logging
 import os
 import pickle
-import select
 import signal
 import time
-import warnings
 from typing import TYPE_CHECKING, Iterator, Optional
 
 if TYPE_CHECKING:
@@ -63,10 +61,12 @@ class FigureProcess:
         """
         if self.pid is None or self._to_child is None or self._from_child is None:
             return None  # never started, or used already
+        from .figures import Plot, read_all, write_all
+
         deadline = time.monotonic() + wait_s
         try:
             data = pickle.dumps(inputs, protocol=pickle.HIGHEST_PROTOCOL)
-            if not _write_all(self._to_child, data, deadline=deadline):
+            if not write_all(self._to_child, data, deadline=deadline):
                 raise TimeoutError(f"it read no inputs in {wait_s:g} s")
         except (OSError, pickle.PicklingError, TypeError, AttributeError) as e:
             log.debug("report: figures drawn here (the figure process did not take its inputs: %s)", e)
@@ -74,7 +74,7 @@ class FigureProcess:
             return None
         finally:
             self._close_to_child()
-        raw = _read_all(self._from_child, deadline=deadline)
+        raw = read_all(self._from_child, deadline=deadline)
         self.close(kill=raw is None)  # at the end of its output the child is leaving: waited for, not killed
         if raw is None or self._status != 0:
             log.debug("report: figures drawn here (the figure process ended with status %s)", self._status)
@@ -83,8 +83,6 @@ class FigureProcess:
             got = pickle.loads(raw)
         except (pickle.UnpicklingError, EOFError, ValueError, AttributeError):
             return None
-        from .figures import Plot
-
         if not (isinstance(got, list) and all(isinstance(p, Plot) for p in got)):
             return None
         return got
@@ -131,7 +129,7 @@ def start() -> Optional[FigureProcess]:
 
 def _fork() -> Optional[tuple[int, int, int]]:
     """(pid, the write end of its inputs, the read end of its figures), or None (one core, no fork)."""
-    from .figures import parallel_drawing
+    from .figures import fork_quietly, parallel_drawing
 
     if not parallel_drawing():
         return None
@@ -141,9 +139,7 @@ def _fork() -> Optional[tuple[int, int, int]]:
     except OSError:
         return None
     try:
-        with warnings.catch_warnings():  # Python 3.12+ warns of a fork with threads; the parent redraws on failure
-            warnings.filterwarnings("ignore", category=DeprecationWarning, message=".*fork.*")
-            pid = os.fork()
+        pid = fork_quietly()
     except OSError as e:
         log.debug("report: no figure process (fork: %s)", e)
         for fd in (inputs_r, inputs_w, out_r, out_w):
@@ -182,48 +178,17 @@ def _child(inputs_r: int, inputs_w: int, out_r: int, out_w: int) -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the command's to handle; it closes this process
         os.close(inputs_w)
         os.close(out_r)
-        from .figures import report_figures
+        from .figures import read_all, report_figures, write_all
         from .plots.canvas import style
 
         with style():  # imports matplotlib, its Agg backend and PIL while the parent works
             pass
-        raw = _read_all(inputs_r, deadline=None)
+        raw = read_all(inputs_r, deadline=None)
         if raw:  # nothing: the command ends without a report
             plots = report_figures(**pickle.loads(raw))
-            _write_all(out_w, pickle.dumps(plots, protocol=pickle.HIGHEST_PROTOCOL))
+            write_all(out_w, pickle.dumps(plots, protocol=pickle.HIGHEST_PROTOCOL))
         code = 0
     except BaseException:  # noqa: BLE001 - the child ends here whatever happens; the parent draws what it lacks
         pass
     finally:
         os._exit(code)
-
-
-def _write_all(fd: int, data: bytes, *, deadline: Optional[float] = None) -> bool:
-    """Write all of ``data``; False when ``deadline`` (monotonic) passed first (the reader is stuck)."""
-    view = memoryview(data)
-    if deadline is not None:
-        os.set_blocking(fd, False)
-    while view:
-        if deadline is not None:
-            left = deadline - time.monotonic()
-            if left <= 0 or not select.select([], [fd], [], left)[1]:
-                return False
-        try:
-            view = view[os.write(fd, view) :]
-        except BlockingIOError:
-            continue
-    return True
-
-
-def _read_all(fd: int, *, deadline: Optional[float]) -> Optional[bytes]:
-    """Everything until the writer closes its end; None when ``deadline`` (monotonic) passed first."""
-    chunks: list[bytes] = []
-    while True:
-        if deadline is not None:
-            left = deadline - time.monotonic()
-            if left <= 0 or not select.select([fd], [], [], left)[0]:
-                return None
-        chunk = os.read(fd, 1 << 20)
-        if not chunk:
-            return b"".join(chunks)
-        chunks.append(chunk)

@@ -272,11 +272,7 @@ def _fork_drawing(draws: dict[str, Callable[[], bytes]]) -> Optional[tuple[int, 
     except OSError:
         return None
     try:
-        with warnings.catch_warnings():
-            # Python 3.12+ warns of a fork in a process with threads (OpenCV's and the BLAS's idle pools here):
-            # the child only draws with matplotlib, PIL and numpy, and a child that fails is redrawn here
-            warnings.filterwarnings("ignore", category=DeprecationWarning, message=".*fork.*")
-            pid = os.fork()
+        pid = fork_quietly()
     except OSError as e:
         log.debug("report: figures drawn in one process (fork: %s)", e)
         os.close(r)
@@ -301,28 +297,62 @@ def _fork_drawing(draws: dict[str, Callable[[], bytes]]) -> Optional[tuple[int, 
 def _collect(child: tuple[int, int], limit_s: float) -> dict[str, Optional[bytes]]:
     """The child's figures, or {} when it failed or took longer than ``limit_s`` (the parent then draws them)."""
     pid, r = child
-    chunks: list[bytes] = []
-    deadline = time.monotonic() + limit_s
+    raw = None
     try:
-        with os.fdopen(r, "rb") as f:
-            while True:
-                left = deadline - time.monotonic()
-                if left <= 0 or not select.select([f], [], [], left)[0]:
-                    log.debug("report: the figure process took over %.0f s; its figures are drawn here", limit_s)
-                    os.kill(pid, signal.SIGKILL)
-                    chunks = []
-                    break
-                chunk = os.read(r, 1 << 20)
-                if not chunk:
-                    break
-                chunks.append(chunk)
+        raw = read_all(r, deadline=time.monotonic() + limit_s)
+        if raw is None:
+            log.debug("report: the figure process took over %.0f s; its figures are drawn here", limit_s)
+            os.kill(pid, signal.SIGKILL)
     finally:
+        os.close(r)
         _, status = os.waitpid(pid, 0)
-    if not (os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0):
+    if raw is None or not (os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0):
         log.debug("report: the figure process ended with status %s; its figures are drawn here", status)
         return {}
     try:
-        got = pickle.loads(b"".join(chunks))
+        got = pickle.loads(raw)
     except (pickle.UnpicklingError, EOFError, ValueError):
         return {}
     return got if isinstance(got, dict) else {}
+
+
+def fork_quietly() -> int:
+    """``os.fork()`` without Python 3.12+'s warning of a fork in a process with threads (raises OSError).
+
+    The threads here are OpenCV's and the BLAS's idle pools; a forked child only draws (matplotlib, PIL,
+    numpy) and leaves with ``os._exit``, and whatever it fails to return is drawn by its parent.
+    """
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", category=DeprecationWarning, message=".*fork.*")
+        return os.fork()
+
+
+def write_all(fd: int, data: bytes, *, deadline: Optional[float] = None) -> bool:
+    """Write all of ``data``; False when ``deadline`` (monotonic) passed first (the reader is stuck)."""
+    view = memoryview(data)
+    if deadline is not None:
+        os.set_blocking(fd, False)
+    while view:
+        if deadline is not None:
+            left = deadline - time.monotonic()
+            if left <= 0 or not select.select([], [fd], [], left)[1]:
+                return False
+        try:
+            view = view[os.write(fd, view) :]
+        except BlockingIOError:
+            continue
+    return True
+
+
+def read_all(fd: int, *, deadline: Optional[float]) -> Optional[bytes]:
+    """Everything until the writer closes its end; None when ``deadline`` (monotonic) passed first."""
+    chunks: list[bytes] = []
+    while True:
+        if deadline is not None:
+            left = deadline - time.monotonic()
+            if left <= 0 or not select.select([fd], [], [], left)[0]:
+                return None
+        chunk = os.read(fd, 1 << 20)
+        if not chunk:
+            return b"".join(chunks)
+        chunks.append(chunk)
