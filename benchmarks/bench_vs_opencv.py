@@ -58,14 +58,6 @@ def run(cmd: list[str], env: dict | None = None) -> tuple[float, float, float]:
     return wall, after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, end
 
 
-def _cores() -> int:
-    """The cores this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        return os.cpu_count() or 1
-
-
 def _median(xs) -> float:
     xs = [x for x in xs if x is not None]
     return statistics.median(xs) if xs else float("nan")
@@ -211,7 +203,9 @@ def measure(session: Path, tmp: Path, rounds: int, *, before: Path | None = None
                 records.setdefault(name, []).append(rec)
     bare = statistics.median(w for w, _ in times["bare OpenCV script"])
     bare_cpu = statistics.median(c for _, c in times["bare OpenCV script"])
-    cores = _cores()
+    from handeye.machine import usable_cores
+
+    cores = usable_cores()
     print(
         f"\n{'command':36s} {'wall [s]':>9s} {'CPU [s]':>8s} {'ratio':>6s} {'CPU ratio':>9s} "
         f"{'CPU/' + str(cores) + ' cores':>12s}  target"

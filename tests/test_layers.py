@@ -28,6 +28,7 @@ LAYERS = (
         "stats",
         "output",
         "config",
+        "machine",
     ),
     ("configs", "apply", "kinematics", "factors", "contract"),
     ("session", "detect", "initial", "refine"),

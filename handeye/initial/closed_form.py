@@ -10,7 +10,6 @@ See docs/detection.md.
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import Mapping
 
@@ -20,6 +19,7 @@ import numpy as np
 from ..camera import Intrinsics, pixels_from_board_points
 from ..errors import CalibrationError
 from ..frames import inv_T, is_rotation, make_T, mean_T, rotation_angle_rad
+from ..machine import usable_cores
 from ..mounting import MountingMode
 from ..records import METHOD_NAMES, Detection, HandEyeEstimate
 from .board_poses import BoardPose
@@ -133,10 +133,7 @@ def all_methods(mode: MountingMode, C: np.ndarray, M: np.ndarray) -> dict[str, H
             msg = (str(e).strip().splitlines() or [type(e).__name__])[-1][:200]
             return HandEyeEstimate(mode.name, m, np.eye(4), np.eye(4), "failed", msg)
 
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        cores = os.cpu_count() or 1
+    cores = usable_cores()
     if cores < 2:
         return {m: one(m) for m in METHODS}
     with ThreadPoolExecutor(max_workers=min(cores, len(METHODS))) as pool:

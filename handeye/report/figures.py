@@ -24,6 +24,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from ..machine import usable_cores
 from ..mounting import MountingMode
 from .observations import ViewFit, as_T, finite
 
@@ -238,10 +239,7 @@ def parallel_drawing() -> bool:
     """Whether to draw in two processes: fork (Linux) and a second core this process may use."""
     if not sys.platform.startswith("linux") or os.environ.get("HANDEYE_FIGURE_PROCESSES") == "1":
         return False
-    try:
-        return len(os.sched_getaffinity(0)) >= 2
-    except (AttributeError, OSError):
-        return (os.cpu_count() or 1) >= 2
+    return usable_cores() >= 2
 
 
 def draw_figures(draws: dict[str, Callable[[], bytes]]) -> dict[str, Optional[bytes]]:

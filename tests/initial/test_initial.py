@@ -326,8 +326,8 @@ def test_all_methods_on_threads_equal_each_method_alone(monkeypatch):
         return real(mode_, C_, M_, method=method)
 
     monkeypatch.setattr(closed_form, "solve_closed_form", park_raises)
-    for cores in ({0, 1}, {0}):
-        monkeypatch.setattr(closed_form.os, "sched_getaffinity", lambda _pid, c=cores: c)
+    for cores in (2, 1):
+        monkeypatch.setattr(closed_form, "usable_cores", lambda c=cores: c)
         got = all_methods(mode, C, M)
         assert list(got) == list(METHODS)
         assert got["park"].status == "failed" and "no solution" in got["park"].failure_reason
