@@ -23,6 +23,15 @@ _MAX_ITER = 100_000
 _STEP_TOL = 1e-15  # an inverse's last step, relative: below the forward functions' own accuracy
 
 
+def _normal_tail_quantile(p: float) -> float:
+    """The z with P(Z > z) = p for 0 < p <= 0.5, to about 3e-3 (Numerical Recipes' rational approximation).
+
+    The inverses' starting points; their Halley steps do the rest.
+    """
+    t = math.sqrt(-2.0 * math.log(p))
+    return t - (2.30753 + t * 0.27061) / (1.0 + t * (0.99229 + t * 0.04481))
+
+
 def _halley(step: float, curv: float) -> float:
     """Halley's step from Newton's ``step`` (f / f') and ``curv`` (f'' / f'); Newton's far from the root."""
     return step / (1.0 - 0.5 * step * curv) if abs(step * curv) < 1.0 else step
@@ -109,10 +118,8 @@ def _gamma_inverse(a: float, target: float, *, upper: bool) -> float:
     # the starting point (Numerical Recipes' invgammp)
     gln = math.lgamma(a)
     if a > 1.0:
-        t = math.sqrt(-2.0 * math.log(min(p, q)))
-        x = (2.30753 + t * 0.27061) / (1.0 + t * (0.99229 + t * 0.04481)) - t
-        if p < 0.5:
-            x = -x
+        z = _normal_tail_quantile(min(p, q))
+        x = z if p < 0.5 else -z  # the normal quantile of p
         x = max(1e-3, a * (1.0 - 1.0 / (9.0 * a) - x / (3.0 * math.sqrt(a))) ** 3)
     else:
         t = 1.0 - a * (0.253 + a * 0.12)
@@ -193,8 +200,7 @@ def betaincinv(a: float, b: float, p: float) -> float:
         return 1.0 - betaincinv(b, a, 1.0 - p)
     # the starting point (Numerical Recipes' invbetai)
     if a >= 1.0 and b >= 1.0:
-        t = math.sqrt(-2.0 * math.log(p))
-        x = t - (2.30753 + t * 0.27061) / (1.0 + t * (0.99229 + t * 0.04481))  # the normal quantile of 1 - p
+        x = _normal_tail_quantile(p)  # the normal quantile of 1 - p
         al = (x * x - 3.0) / 6.0
         h = 2.0 / (1.0 / (2.0 * a - 1.0) + 1.0 / (2.0 * b - 1.0))
         skew = (1.0 / (2.0 * b - 1.0) - 1.0 / (2.0 * a - 1.0)) * (al + 5.0 / 6.0 - 2.0 / (3.0 * h))
