@@ -94,33 +94,25 @@ def main(out: str, argv: list[str]) -> int:
 
     mark("import handeye.cli", w0, c0)
 
+    # the named stages, and the whole workflow (a span of its own, not a stage)
+    timed_functions = {**STAGES, "workflow": ("handeye.workflow", "calibrate_session")}
+
     def wrap(module) -> None:
         """Time the module's stage functions (and the workflow) once it has run, before anyone imports them."""
-        for stage, (mod, attr) in STAGES.items():
+        for span, (mod, attr) in timed_functions.items():
             if mod == module.__name__:
                 fn = getattr(module, attr)
 
-                def timed(*a, _fn=fn, _stage=stage, **kw):
+                def timed(*a, _fn=fn, _span=span, **kw):
                     t, c = time.perf_counter(), time.process_time()
                     try:
                         return _fn(*a, **kw)
                     finally:
-                        mark(_stage, t, c)
+                        mark(_span, t, c)
 
                 setattr(module, attr, timed)
-        if module.__name__ == "handeye.workflow":
-            calibrate_session = module.calibrate_session
 
-            def workflow(*a, **kw):
-                t, c = time.perf_counter(), time.process_time()
-                try:
-                    return calibrate_session(*a, **kw)
-                finally:
-                    mark("workflow", t, c)
-
-            module.calibrate_session = workflow
-
-    sys.meta_path.insert(0, _StageHook({mod for mod, _ in STAGES.values()} | {"handeye.workflow"}, wrap))
+    sys.meta_path.insert(0, _StageHook({mod for mod, _ in timed_functions.values()}, wrap))
 
     def dump() -> None:
         times["stages"] = spans
