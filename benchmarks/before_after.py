@@ -48,6 +48,7 @@ def installed_layout(checkout: Path, dest: Path) -> Path:
 
 def default_sessions(tmp: Path, data: Path) -> list[tuple[str, Path, list[str]]]:
     """(name, session folder, extra calibrate flags) of the default sessions."""
+    from handeye.cli.simulate import sim_target
     from handeye.sim.arm_tracker import make_arm_tracker_session
     from handeye.sim.poses import make_tracker_session
     from handeye.sim.vendor import write_vendor_session
@@ -56,10 +57,21 @@ def default_sessions(tmp: Path, data: Path) -> list[tuple[str, Path, list[str]]]
     out = [
         ("rendered eye-in-hand", write_vendor_session(s / "eih", n_views=20, seed=1), []),
         (
-            "rendered eye-to-hand, hidden view, wrong pose",
+            "rendered eye-to-hand ChArUco, hidden view, wrong pose",
             write_vendor_session(
-                s / "eth", mode="eye_to_hand", n_views=14, seed=2, hidden_views=("4",), outlier_views=("7",)
+                s / "eth",
+                mode="eye_to_hand",
+                n_views=14,
+                seed=2,
+                hidden_views=("4",),
+                outlier_views=("7",),
+                target=sim_target("charuco"),
             ),
+            [],
+        ),
+        (
+            "rendered single marker",
+            write_vendor_session(s / "marker", n_views=12, seed=3, target=sim_target("marker")),
             [],
         ),
         (
