@@ -20,6 +20,8 @@ import threading
 import time
 from pathlib import Path
 
+from ..machine import keep_freed_memory
+
 log = logging.getLogger(__name__)
 
 #: seconds between two looks at the parent process
@@ -271,6 +273,7 @@ def serve() -> int:
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    keep_freed_memory()  # a session process detects and solves as the command does
     _exit_with_parent()
     if argv == ["--serve"]:
         return serve()

@@ -22,6 +22,7 @@ import os
 import sys
 
 from ..errors import INTERRUPTED_EXIT_CODE, HandeyeError, exit_codes_text
+from ..machine import keep_freed_memory
 
 log = logging.getLogger("handeye")
 
@@ -156,6 +157,7 @@ def _one_blas_thread() -> None:
 
 def main(argv=None) -> int:
     _one_blas_thread()
+    keep_freed_memory()
     _skip_the_exit_collection()
     parser = build_parser()
     args = parser.parse_args(argv)
