@@ -51,6 +51,9 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--mode", default="eye_in_hand")
     args = ap.parse_args()
+    from handeye.cli import prepare_process
+
+    prepare_process()  # the in-process runs get the command's own set-up
     from handeye.config import load_preset
     from handeye.pipeline import CalibrateOptions
     from handeye.sim.vendor import write_vendor_session

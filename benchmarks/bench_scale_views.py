@@ -199,6 +199,9 @@ def main(argv=None) -> int:
     ap.add_argument("--keep", type=Path, default=None, help="folder for the rendered sessions (reused)")
     ap.add_argument("--profile", action="store_true", help="cProfile of the diagnostics")
     a = ap.parse_args(argv)
+    from handeye.cli import prepare_process
+
+    prepare_process()  # the command's own set-up (one BLAS thread, freed memory kept), before numpy is imported
     from handeye.config import load_preset
     from handeye.pipeline import CalibrateOptions
 

@@ -155,9 +155,18 @@ def _one_blas_thread() -> None:
         os.environ["OPENBLAS_NUM_THREADS"] = "1"
 
 
-def main(argv=None) -> int:
+def prepare_process() -> None:
+    """What a ``handeye`` command sets first: one BLAS thread and the freed memory kept.
+
+    :func:`_one_blas_thread` and :func:`handeye.machine.keep_freed_memory`; a benchmark that runs the workflow
+    in its own process calls it to measure what the command runs.
+    """
     _one_blas_thread()
     keep_freed_memory()
+
+
+def main(argv=None) -> int:
+    prepare_process()
     _skip_the_exit_collection()
     parser = build_parser()
     args = parser.parse_args(argv)
