@@ -25,13 +25,15 @@ def usable_cores() -> int:
 def keep_freed_memory() -> bool:
     """Let this process reuse the large blocks it frees instead of handing each back to the system.
 
-    glibc's malloc gives a block over 128 KB (an image, its blurred copy, a Jacobian of a few hundred views)
-    its own mapping and unmaps it when freed, so the next one is faulted in again page by page: at 300
-    views about 250 000 page faults and 1 s of system time in detection alone. Blocks up to 32 MB then come
-    from the heap, and up to 128 MB of freed memory stays there for the next ones; the peak memory is about
-    the same (97 MB against 92 MB for the detection of 300 views). Returns whether it was set: only with glibc,
-    and not when the environment has malloc settings of its own (``MALLOC_*_`` or ``glibc.malloc`` tunables).
-    Called at the start of a ``handeye`` command and of a batch's session process.
+    By default glibc's malloc maps a large block (an image, its blurred copy, a Jacobian of a few hundred
+    views) on its own and unmaps it when freed, and hands the freed memory at the top of its heap back past a
+    threshold; both thresholds start at 128 KB and follow the blocks seen. The next block is then faulted in
+    again page by page: at 300 views about 250 000 page faults and 1 s of system time in detection alone.
+    With it, blocks up to 32 MB come from the heap, and up to 128 MB of freed memory stays there for the
+    next ones; the peak memory is about the same (97 MB against 92 MB for the detection of 300 views).
+    Returns whether it was set: only with glibc, and not when the environment has malloc settings of its own
+    (``MALLOC_*_`` or ``glibc.malloc`` tunables). Called at the start of a ``handeye`` command and of a
+    batch's session process.
     """
     if any(v in os.environ for v in MALLOC_VARIABLES) or "glibc.malloc." in os.environ.get("GLIBC_TUNABLES", ""):
         return False
