@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from typing import Any
 
 #: mallopt's parameter numbers (glibc's malloc.h)
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
@@ -37,13 +38,34 @@ def keep_freed_memory() -> bool:
     """
     if any(v in os.environ for v in MALLOC_VARIABLES) or "glibc.malloc." in os.environ.get("GLIBC_TUNABLES", ""):
         return False
+    libc = _glibc()
+    if libc is None:
+        return False
+    mapped = libc.mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
+    return bool(mapped and libc.mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
+
+
+def release_freed_memory() -> bool:
+    """Hand the memory this process freed back to the system now (glibc's ``malloc_trim``); whether it could.
+
+    A batch's session process calls it between two sessions: the memory :func:`keep_freed_memory` kept for one
+    session's images is not held while it waits, and the next session's peak memory is its own.
+    """
+    libc = _glibc()
+    if libc is None:
+        return False
+    libc.malloc_trim(0)
+    return True
+
+
+def _glibc() -> Any:
+    """The C library of this process when it is glibc (with ``mallopt`` and ``malloc_trim``), else None."""
     try:
         if not (os.confstr("CS_GNU_LIBC_VERSION") or "").startswith("glibc"):
-            return False
+            return None
         import ctypes
 
-        mallopt = ctypes.CDLL(None).mallopt
-        mapped = mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
-        return bool(mapped and mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
-    except (AttributeError, ValueError, OSError):  # no confstr (Windows), no such name (musl), no symbol
-        return False
+        libc = ctypes.CDLL(None)
+        return libc if hasattr(libc, "mallopt") and hasattr(libc, "malloc_trim") else None
+    except (AttributeError, ValueError, OSError):  # no confstr (Windows), no such name (musl), no library
+        return None

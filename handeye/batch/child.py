@@ -20,7 +20,7 @@ import threading
 import time
 from pathlib import Path
 
-from ..machine import keep_freed_memory
+from ..machine import keep_freed_memory, release_freed_memory
 
 log = logging.getLogger(__name__)
 
@@ -243,6 +243,7 @@ def run_logged(spec: dict) -> dict:
         os.dup2(log_file.fileno(), 1)
         os.dup2(log_file.fileno(), 2)
     try:
+        release_freed_memory()  # what the session before kept: this session's peak is its own
         _reset_peak_rss()
         reply = run(spec)
         reply["peak_rss_mb"] = _peak_rss_mb()
