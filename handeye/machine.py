@@ -67,5 +67,6 @@ def _glibc() -> Any:
 
         libc = ctypes.CDLL(None)
         return libc if hasattr(libc, "mallopt") and hasattr(libc, "malloc_trim") else None
-    except (AttributeError, ValueError, OSError):  # no confstr (Windows), no such name (musl), no library
+    # no confstr (Windows), no such name (musl, macOS), no library, an interpreter without ctypes
+    except (AttributeError, ValueError, OSError, ImportError):
         return None

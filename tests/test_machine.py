@@ -93,10 +93,20 @@ def test_the_kept_memory_is_handed_back_between_sessions():
     assert float(after_mb) < 10  # and are handed back when asked
 
 
-def test_no_glibc_no_settings(monkeypatch):
-    monkeypatch.setattr(machine.os, "confstr", lambda name: None, raising=False)
+def _unknown_name(name):
+    raise ValueError("unrecognized configuration name")
+
+
+@pytest.mark.parametrize("confstr", [lambda name: None, _unknown_name])
+def test_no_glibc_no_settings(monkeypatch, confstr):
+    monkeypatch.setattr(machine.os, "confstr", confstr, raising=False)
     assert machine.keep_freed_memory() is False
     assert machine.release_freed_memory() is False
+
+
+def test_no_ctypes_no_settings(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ctypes", None)  # an interpreter built without it: the import fails
+    assert machine.keep_freed_memory() is False
 
 
 def test_usable_cores_follow_the_affinity():
