@@ -249,6 +249,11 @@ def chdtri(k: float, q: float) -> float:
     return 2.0 * gammainccinv(0.5 * k, q) if k > 0 else math.nan
 
 
+#: denominator degrees of freedom above which F(dfn, dfd) is taken as chi-square(dfn) / dfn: the beta function's
+#: arguments lose their digits to 1 - dfn x / dfd there, and the limit is within 1e-8 of the distribution
+F_AS_CHI_SQUARE_DFD = 1e8
+
+
 def fdtrc(dfn: float, dfd: float, x: float) -> float:
     """P(F(dfn, dfd) > x); NaN for x < 0."""
     if math.isnan(x) or not (dfn > 0 and dfd > 0) or x < 0:
@@ -257,6 +262,8 @@ def fdtrc(dfn: float, dfd: float, x: float) -> float:
         return 1.0
     if math.isinf(x):
         return 0.0
+    if dfd > F_AS_CHI_SQUARE_DFD:
+        return chdtrc(dfn, dfn * x)
     return _betainc(0.5 * dfd, 0.5 * dfn, dfd / (dfd + dfn * x), dfn * x / (dfd + dfn * x))
 
 
@@ -266,6 +273,8 @@ def fdtri(dfn: float, dfd: float, p: float) -> float:
         return math.nan
     if p == 1.0:
         return math.inf
+    if dfd > F_AS_CHI_SQUARE_DFD:
+        return chdtri(dfn, 1.0 - p) / dfn
     if p < 0.5:  # through the lower tail's variable w = dfn x / (dfn x + dfd): a small p keeps its accuracy
         w = betaincinv(0.5 * dfn, 0.5 * dfd, p)
         return dfd * w / (dfn * (1.0 - w))

@@ -47,6 +47,20 @@ def test_f_tail_and_quantile():
     assert _worst(list(itertools.product(DFN, DFD, QS[1:])), hs.fdtri, sc.fdtri)[0] < 3e-10
 
 
+def test_f_with_huge_denominator_dof_is_chi_square_over_its_dof():
+    """Past 1e8 denominator degrees of freedom (a share of a variance near 0 gives Satterthwaite's 1e17) the
+    F functions are chi-square's limit; scipy's own values there agree to 1e-6 (its far tail at 1e9 carries
+    the last 1e-7 of the finite degrees of freedom; its own quantile fails at 1e17)."""
+    for dfd in (1e9, 1e12):
+        for x in (0.5, 2.1, 5.0):
+            assert hs.fdtrc(6, dfd, x) == pytest.approx(float(sc.fdtrc(6, dfd, x)), rel=1e-6)
+        for p in (0.05, 0.5, 0.95):
+            assert hs.fdtri(6, dfd, p) == pytest.approx(float(sc.fdtri(6, dfd, p)), rel=1e-6)
+    for dfd in (1e17, 1e300):  # scipy's quantile is NaN at 1e300
+        assert hs.fdtri(6, dfd, 0.95) == pytest.approx(hs.chdtri(6, 0.05) / 6, rel=1e-12)
+        assert hs.fdtrc(6, dfd, 2.1) == pytest.approx(hs.chdtrc(6, 12.6), rel=1e-12)
+
+
 def test_student_t_distribution_function():
     ts = [-1e3, -50, -10, -5, -3, -2, -1, -0.5, -1e-6, 0.0, 0.1, 1, 2, 5, 50]
     assert _worst(list(itertools.product([0.5, 1, 2, 3, 5, 10, 19, 30, 100, 1000], ts)), hs.stdtr, sc.stdtr)[0] < 1e-10
