@@ -1,0 +1,100 @@
+"""Is a rendered session's reported uncertainty honest on its own geometry? New robot-noise draws, the same images.
+
+A session that the truth left far outside its 95 % ellipsoid (``bench_rendered.py``'s ``d2``) is either a tail
+draw, which one session in twenty is, or a model that is wrong on that geometry. Its images are detected once;
+each draw replaces every reported robot pose by the true one (``ground_truth.json``) times a fresh error of the
+simulator's iid model (:func:`handeye.sim.scenarios.perturb_T_base_end`: end frame, per-axis Gaussian
+rotation vector and translation; by default the session's own sizes) and calibrates again as ``handeye
+calibrate`` does (:func:`handeye.pipeline.run_calibration`, the detections reused, the command's process set-up).
+Wrong robot poses the session was written with are left out: every draw starts from the true poses.
+
+Printed per session: the squared Mahalanobis distance ``d2 = xi^T C^-1 xi`` of X's error
+``xi = Log(inv(T_est) · T_true)`` under ``C = cov_x_6x6`` over the draws (chi-square with 6 dof when the
+covariance is honest: mean 6, median 5.35, 95 % inside the ellipsoid), its rotation-only part (mean 3), and the
+RMS rotation and translation error against the RMS reported sigma. Prints figures; asserts nothing.
+
+    python benchmarks/bench_noise_draws.py SESSION [SESSION ...] [--draws 200] [--seed 0] [--robot-noise MM DEG]
+                                           [--workers 2]
+
+SESSION: a folder written by :func:`handeye.sim.vendor.write_vendor_session` (``bench_rendered.py --keep DIR``
+keeps them). ``--workers``: sessions at once, on Dask (``benchmarks/fanout.py``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+
+
+def draws(folder: Path, n: int, seed: int, robot_noise: tuple[float, float] | None) -> str:
+    """The line of figures of ``n`` robot-noise draws on the session in ``folder``."""
+    from scipy.stats import chi2
+
+    from handeye.config import load_preset
+    from handeye.frames import tangent_difference
+    from handeye.mounting import mounting
+    from handeye.pipeline import CalibrateOptions, detect_ahead, run_calibration
+    from handeye.session import load_session
+    from handeye.sim.scenarios import perturb_T_base_end
+
+    truth = json.loads((folder / "ground_truth.json").read_text())
+    mm, deg = robot_noise or (truth["noise"]["robot_noise_mm"], truth["noise"]["robot_noise_deg"])
+    if not (mm > 0 or deg > 0):
+        return f"{folder}: written without robot noise; give --robot-noise MM DEG"
+    session = load_session(folder)
+    T_x_true = np.asarray(truth[mounting(session.mode).x_name])
+    options = CalibrateOptions.from_config(load_preset("calibration"))
+    detected = detect_ahead(session, options)
+    T_true = np.stack([np.asarray(truth["views"][v.view_id]["T_base_end_true"]) for v in session.views])
+    rng = np.random.default_rng(seed)
+    d2, d2_rot, err, sig = [], [], [], []
+    for _ in range(n):
+        T_rep = perturb_T_base_end(T_true, rng=rng, sigma_mm=mm, sigma_deg=deg)
+        views = tuple(dataclasses.replace(v, T_base_end=T) for v, T in zip(session.views, T_rep, strict=True))
+        run = run_calibration(dataclasses.replace(session, views=views), options, detected=detected)
+        if run.refined is None:
+            continue
+        xi = tangent_difference(run.refined.T_x, T_x_true)
+        C = run.refined.cov_x_6x6
+        d2.append(float(xi @ np.linalg.solve(C, xi)))
+        d2_rot.append(float(xi[:3] @ np.linalg.solve(C[:3, :3], xi[:3])))
+        err.append((np.degrees(np.linalg.norm(xi[:3])), 1e3 * np.linalg.norm(xi[3:])))
+        sig.append((np.degrees(np.sqrt(np.trace(C[:3, :3]))), 1e3 * np.sqrt(np.trace(C[3:, 3:]))))
+    if not d2:
+        return f"{folder}: no draw was refined"
+    d, e, s = np.array(d2), np.sqrt(np.mean(np.square(err), axis=0)), np.sqrt(np.mean(np.square(sig), axis=0))
+    return (
+        f"{folder.name}: {len(d)} draws of {mm:g} mm / {deg:g} deg | d2 mean {d.mean():.2f} (6), median "
+        f"{np.median(d):.2f} (5.35), inside the 95 % ellipsoid {100 * np.mean(d <= chi2.ppf(0.95, 6)):.0f} % | "
+        f"rotation d2 mean {np.mean(d2_rot):.2f} (3) | RMS error {e[0]:.4f} deg {e[1]:.3f} mm, reported sigma "
+        f"{s[0]:.4f} deg {s[1]:.3f} mm"
+    )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("sessions", type=Path, nargs="+", help="rendered session folders with ground_truth.json")
+    ap.add_argument("--draws", type=int, default=200)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--robot-noise", type=float, nargs=2, metavar=("MM", "DEG"), help="per axis (default: the session's own)"
+    )
+    ap.add_argument("--workers", type=int, default=1, help="sessions at once (Dask worker processes)")
+    args = ap.parse_args()
+    from fanout import ordered_map
+
+    from handeye.cli import prepare_process
+
+    prepare_process()  # the command's own set-up, before numpy's BLAS starts
+    k = len(args.sessions)
+    noise = tuple(args.robot_noise) if args.robot_noise else None
+    for line in ordered_map(draws, args.sessions, [args.draws] * k, [args.seed] * k, [noise] * k, workers=args.workers):
+        print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main()
