@@ -331,9 +331,11 @@ def noise_dof(a: LoadedResult, S: np.ndarray, b: LoadedResult) -> Optional[float
 
     Degrees of freedom of the covariance ``S = S_a + Ad S_b Ad^T`` of the difference when the results
     estimated their robot noise (:attr:`~handeye.recal.loaded.LoadedResult.robot_noise_dof`): Satterthwaite's,
-    each result's share of ``S`` its average over the six whitened directions; None when neither did.
+    each result's share of ``S`` its average over the six whitened directions; None when neither did, or when
+    their covariances carry those degrees of freedom already (``refinement.cov_x_dof_factor``).
     """
-    nu_a, nu_b = a.robot_noise_dof, b.robot_noise_dof
+    # a result whose covariance carries its noise levels' degrees of freedom already is read as known
+    nu_a, nu_b = (None if r.cov_x_carries_noise_dof else r.robot_noise_dof for r in (a, b))
     if nu_a is None and nu_b is None:
         return None
     # the shares of the unconditional covariance S serve the conditional test too (X given the intrinsics

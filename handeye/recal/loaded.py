@@ -122,6 +122,15 @@ class LoadedResult:
         return satterthwaite_dof([1.0 / len(vals)] * len(vals), vals) if vals else None
 
     @property
+    def cov_x_carries_noise_dof(self) -> bool:
+        """Whether X's covariance was multiplied for the estimated noise levels' degrees of freedom already.
+
+        ``refinement.cov_x_dof_factor`` recorded (:func:`handeye.refine.result.x_dof_factor`, a pose-only result's
+        tracker sigmas): its chi-square ellipsoid is the 95 % region as it stands.
+        """
+        return (self.raw.get("refinement") or {}).get("cov_x_dof_factor") is not None
+
+    @property
     def joints_recorded(self) -> bool:
         """The install's kinematic robot model took the views' recorded joint angles (not inverse kinematics)."""
         return ((self.raw.get("refinement") or {}).get("robot_model") or {}).get("joint_angles") == "recorded"

@@ -133,6 +133,23 @@ def robot_residual_covariances(
     return S_pp - JS - np.swapaxes(JS, 1, 2) + J_dh @ S_dd @ np.swapaxes(J_dh, 1, 2)
 
 
+def robot_prior_parts(
+    S_cc: np.ndarray, S_cp: np.ndarray, J_dh: np.ndarray, dh: slice, weights: Sequence[np.ndarray], k: int = 6
+) -> np.ndarray:
+    """(g, k, k) the part of the first ``k`` core unknowns' covariance that each robot-prior group carries.
+
+    With the information a sum over the sources, ``Sigma = Sigma H Sigma`` splits the covariance into one part
+    per source, ``Sigma H_g Sigma``. A group of the robot priors (information ``W_g,i`` on the residual
+    ``u_i = p_i - J_dh,i · delta`` of robot block i) carries ``sum_i C_i W_g,i C_i^T`` of the first ``k`` core
+    unknowns, ``C_i = Cov(core[:k], u_i) = S_cp,i[:k] - S_cc[:k, dh] J_dh,i^T`` (``S_cp``: the cross covariances
+    of :func:`arrow_solve`). ``weights``: per group, (n, 6, 6) its information on each block's residual.
+    """
+    C = np.asarray(S_cp, float)[:, :k, :]
+    if J_dh.shape[-1] and len(C):
+        C = C - np.einsum("xm,nim->nxi", S_cc[:k, dh], J_dh)
+    return np.stack([np.einsum("nxi,nij,nyj->xy", C, W, C) for W in weights]) if len(weights) else np.zeros((0, k, k))
+
+
 @dataclass(frozen=True)
 class HandEyeUncertainty:
     """Forms derived from the 6x6 covariance of ``T_x`` (see :func:`hand_eye_uncertainty`)."""

@@ -11,9 +11,13 @@ import numpy as np
 from ..camera import INTRINSIC_NAMES, Intrinsics
 from ..mounting import mounting
 from ..output import plain
+from ..stats import estimated_noise_region_factor
 from .covariance import COV_BOARD_PARAMETRISATION, COV_PARAMETRISATION, N_POSES, hand_eye_uncertainty
 from .options import RefineOptions
 from .robot_model import describe_dh, kinematic_model_dict
+
+#: the region whose size X's covariance keeps when noise levels were estimated (:func:`x_dof_factor`)
+X_REGION_P = 0.95
 
 if TYPE_CHECKING:
     from .outliers import Decision
@@ -72,6 +76,10 @@ class RefineResult:
     # ({"rot": r, "trans": r} or {"joint": r}, plus "dh_scale" where the views widened the arm's DH prior);
     # empty when none was estimated or resolved
     robot_noise_dof: dict[str, Any] = field(default_factory=dict)
+    # Satterthwaite's degrees of freedom of X's covariance over the estimated robot noise levels, and the factor
+    # the plug-in covariance of X was multiplied by for them (:func:`x_dof_factor`); None and 1 when none estimated
+    cov_x_noise_dof: Optional[float] = None
+    cov_x_dof_factor: float = 1.0
     #: why a failed refinement failed, for programs: "too_few_robot_poses" (fewer than 3 views keep a robot
     #: pose that agrees with the camera), "singular", "solver"; empty when it did not fail
     failure_code: str = ""
@@ -123,6 +131,8 @@ class RefineResult:
                 "robot_sigma_deg": self.robot_sigma_deg,
                 "robot_sigma_resolved": self.robot_sigma_resolved,
                 "robot_noise_dof": self.robot_noise_dof,
+                "cov_x_noise_dof": self.cov_x_noise_dof,
+                "cov_x_dof_factor": self.cov_x_dof_factor,
                 "robot_noise_model": self.options.robot_noise,
                 "robot_model": self.robot_model,
                 "rms_px_before": self.rms_px_before,
@@ -259,7 +269,17 @@ def build_result(
     start_method: str,
     failure_code: str = "",
 ) -> RefineResult:
-    """The result from the final state of the problem and the core covariance ``S_cc`` (None: failed)."""
+    """The result from the final state of the problem and the core covariance ``S_cc`` (None: failed).
+
+    With robot noise levels estimated, X's rows and columns of ``S_cc`` are scaled by the square root of
+    :func:`x_dof_factor`'s factor first, so X's covariance and its joint one with the intrinsics take it.
+    """
+    nu, factor = x_dof_factor(pb) if S_cc is not None else (None, 1.0)
+    if factor != 1.0:
+        assert S_cc is not None, "a factor only with a covariance"
+        d = np.ones(len(S_cc))
+        d[:6] = np.sqrt(factor)
+        S_cc = S_cc * np.outer(d, d)
     wd = _working_distance(pb)
     unc = hand_eye_uncertainty(None if S_cc is None else S_cc[:6, :6], pb.T_x, wd)
     intr_sigma = (
@@ -310,6 +330,28 @@ def build_result(
         cov_board_6x6=None if S_cc is None else 0.5 * (S_cc[6:N_POSES, 6:N_POSES] + S_cc[6:N_POSES, 6:N_POSES].T),
         cov_x_intrinsics=_x_intrinsics_covariance(pb, S_cc),
         robot_noise_dof=dict(pb.noise_dof) if pb.o.robot_noise == "estimate" else {},
+        cov_x_noise_dof=nu,
+        cov_x_dof_factor=factor,
+    )
+
+
+def x_dof_factor(pb: "Problem") -> tuple[Optional[float], float]:
+    """(nu, factor) of X's covariance when robot noise levels were estimated from the views.
+
+    The plug-in covariance treats the estimated sigmas as known; with them estimated, X's Wald statistic is
+    about ``6 F(6, nu)`` rather than chi-square(6), with Satterthwaite's ``nu`` over each estimated level's share
+    of X's covariance (``pb.noise_shares_x``) and its degrees of freedom (``pb.noise_dof``); the rest (the pixel
+    noise, known from thousands of corners, and the priors) counts as known. ``factor``: the ratio of the 95 %
+    points (:func:`handeye.stats.estimated_noise_region_factor`), as for a pose-only result's tracker sigmas
+    (:mod:`.tracker_dof`). (None, 1.0) when no level was estimated.
+    """
+    dof = pb.noise_dof if pb.o.robot_noise == "estimate" else {}
+    names = [g for g in dof if g in pb.noise_shares_x]
+    if not names:
+        return None, 1.0
+    shares = [min(max(pb.noise_shares_x[g], 0.0), 1.0) for g in names]
+    return estimated_noise_region_factor(
+        [*shares, max(1.0 - sum(shares), 0.0)], [float(dof[g]) for g in names] + [None], dim=6, p=X_REGION_P
     )
 
 

@@ -201,6 +201,7 @@ class ProblemState:
         self.sigma_trans = options.robot_sigma_mm / 1000.0
         self.resolved = {g: True for g in self.robot_groups}
         self.noise_dof: dict[str, Any] = {}  # degrees of freedom of each estimated robot sigma (handeye.refine.noise)
+        self.noise_shares_x: dict[str, float] = {}  # each estimated one's share of X's covariance (the same)
         self.status = ["used"] * self.n
         self.mask = [np.ones(len(o), bool) for o in self.obj]
         self.iterations = 0

@@ -143,6 +143,11 @@ def test_compare_known_difference_gives_the_chi2_statistic():
     assert cf.p_value == pytest.approx(stats.f.sf(expected / 6, 6, cf.robot_noise_dof), rel=1e-9)
     assert cf.p_value > c.p_value  # the heavier tail
     assert cf.to_dict()["reference"].startswith("6 F(6, 80)")
+    # results whose X covariance was multiplied for those degrees of freedom already are compared as known
+    a["refinement"]["cov_x_dof_factor"] = b["refinement"]["cov_x_dof_factor"] = 1.05
+    ck = compare_results(a, b)
+    assert ck.robot_noise_dof is None and ck.to_dict()["reference"] == "chi-square(6)"
+    assert ck.p_value == pytest.approx(c.p_value, rel=1e-9)
 
 
 def test_compare_prefers_the_verdict_covariance():

@@ -256,6 +256,8 @@ def test_intrinsics_options_fixed_subset_and_prior():
     for robot_noise in ("none", "fixed"):
         r = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics, robot_noise=robot_noise)
         assert r.status == "ok"
+        # no level estimated: X's covariance is the plug-in one
+        assert r.cov_x_dof_factor == 1.0 and r.cov_x_noise_dof is None
         if robot_noise == "fixed":
             assert (r.robot_sigma_mm, r.robot_sigma_deg) == (0.2, 0.05)
 
@@ -265,6 +267,20 @@ def test_prior_on_x_tight_pins_it_loose_changes_nothing(mode):
     s = make_corner_session(mode=mode, n_views=10, seed=12, noise_px=0.3)
     free = _refine(s, s.T_x_true, s.T_board_true, s.intrinsics)
     assert free.status == "ok"
+    # robot sigmas the views resolve are estimated from 10 views (15-30 degrees of freedom each): X's covariance is
+    # widened to the 95 % point of 6 F(6, nu), nu at least the smallest level's (Satterthwaite over shares that
+    # sum to <= 1); none resolved (this noise-free arm, eye-in-hand): the plug-in covariance
+    if free.robot_noise_dof:
+        from scipy.stats import f as f_dist
+
+        assert min(free.robot_noise_dof.values()) <= free.cov_x_noise_dof
+        expected = 6 * f_dist.ppf(0.95, 6, free.cov_x_noise_dof) / chi2.ppf(0.95, 6)
+        assert free.cov_x_dof_factor == pytest.approx(expected, rel=1e-8) and free.cov_x_dof_factor > 1.0
+    else:
+        assert free.cov_x_dof_factor == 1.0 and free.cov_x_noise_dof is None
+    assert (mode == "eye_to_hand") == bool(free.robot_noise_dof)  # both branches run
+    d = free.to_dict()
+    assert d["cov_x_dof_factor"] == free.cov_x_dof_factor and d["cov_x_noise_dof"] == free.cov_x_noise_dof
     # a tight prior 0.3 deg / 3 mm off the truth (about 10-100 sigma of the data): X sits on it, its
     # covariance is the prior's
     T_p = s.T_x_true @ se3_exp(np.r_[np.radians(0.3) * np.array([0.6, 0.0, 0.8]), 0.003, -0.001, 0.0])

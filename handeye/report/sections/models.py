@@ -237,4 +237,7 @@ def _noise(ref) -> Optional[dict]:
         "rms_before": ref.get("rms_px_before"),
         "rms_after": ref.get("rms_px_after"),
         "iterations": ref.get("iterations"),
+        # X's covariance widened for the estimated robot noise levels' degrees of freedom (image results)
+        "x_dof": ref.get("cov_x_noise_dof") if not ref.get("tracker_noise_dof") else None,
+        "x_dof_factor": ref.get("cov_x_dof_factor"),
     }
