@@ -18,6 +18,15 @@ RMS rotation and translation error against the RMS reported sigma. Prints figure
 
 SESSION: a folder written by :func:`handeye.sim.vendor.write_vendor_session` (``bench_rendered.py --keep DIR``
 keeps them). ``--workers``: sessions at once, on Dask (``benchmarks/fanout.py``).
+
+Figures (2026-12-07), on the sessions of ``bench_rendered.py`` (seeds 700-1139) whose truth lay furthest outside
+their ellipsoids, each a tail draw on its own geometry:
+
+| session | noise | draws | d2 mean | inside the 95 % ellipsoid |
+|---|---|---|---|---|
+| 920, 926, 932, 938 (0.2 mm / 0.05 deg), plug-in covariance | 0.2 / 0.05 | 200 each | 5.99-6.64 | 92-96 % |
+| the same, with X's degrees-of-freedom factor (1.03-1.06) | 0.2 / 0.05 | 200 each | 5.80-6.27 | 93-96 % |
+| 1120, 1127, 1133, with the factor | 0.5 / 0.1 | 150 each | 5.72-6.52 | 92-94 % |
 """
 
 from __future__ import annotations
