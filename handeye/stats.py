@@ -145,6 +145,19 @@ def estimated_noise_region_factor(shares, dofs, *, dim: int, p: float = 0.95) ->
     return nu, float(dim * fdtri(dim, nu, p)) / chi2_ppf(p, dim)
 
 
+def estimated_parts_region_factor(cov, parts, dofs, *, p: float = 0.95) -> tuple[float | None, float]:
+    """(nu, factor) of :func:`estimated_noise_region_factor` for a covariance ``cov`` (k,k) split into parts.
+
+    Each of ``parts`` ((k,k) each, from a noise level estimated with the matching ``dofs`` entry; None: known)
+    has the share ``tr(cov^-1 part) / k``; what the parts leave of ``cov`` (priors, well-known noise) is known.
+    """
+    cov = np.asarray(cov, float)
+    k = cov.shape[0]
+    shares = [float(np.trace(np.linalg.solve(cov, part))) / k for part in parts]
+    shares.append(max(1.0 - sum(shares), 0.0))
+    return estimated_noise_region_factor(shares, list(dofs) + [None], dim=k, p=p)
+
+
 def weighted_chi2_sf(x: float, weights) -> tuple[float, float]:
     """Tail probability at ``x`` of ``sum w_i z_i^2``.
 

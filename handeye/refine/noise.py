@@ -192,7 +192,7 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
         if k_dh != 1.0 and pb.dh_scale_dof:  # the DH prior's scale, estimated: one more variance component
             dof["dh_scale"] = float(pb.dh_scale_dof)
     pb.noise_dof = dof
-    pb.noise_shares_x = _x_shares(pb, S_cc, S_cp, J, W0, s[1:], k_dh, dof)
+    pb.noise_parts_x = _x_parts(pb, S_cc, S_cp, J, W0, s[1:], k_dh, dof)
     S_u = robot_residual_covariances(S_cc, S_pp, S_cp, J, dh)
     if pb.m_dh:
         pb.S_dd = S_cc[dh, dh].copy()
@@ -200,7 +200,7 @@ def vce_on_linearisation(pb: "Problem", lin: "PixelLinearisation") -> VarianceCo
     return VarianceComponents(change, dx, S_cc, S_u)
 
 
-def _x_shares(
+def _x_parts(
     pb: "Problem",
     S_cc: np.ndarray,
     S_cp: np.ndarray,
@@ -209,23 +209,21 @@ def _x_shares(
     sigmas: np.ndarray,
     k_dh: float,
     dof: dict[str, Any],
-) -> dict[str, float]:
-    """Each estimated noise level's share of X's covariance: ``tr(Sigma_x^-1 Sigma_x,g) / 6``.
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """(X's covariance (6,6), the part of it each estimated noise level's information carries).
 
-    ``Sigma_x,g``: the part of X's covariance its group's information carries (:func:`.covariance.robot_prior_parts`;
-    the DH prior's ``Sigma_xd H_dd Sigma_dx`` for its scale). Only the groups in ``dof`` (estimated); with their
-    degrees of freedom they give X's (:func:`handeye.refine.result.build_result`).
+    The parts: :func:`.covariance.robot_prior_parts`, and the DH prior's ``Sigma_xd H_dd Sigma_dx`` for its
+    scale. Only the groups in ``dof`` (estimated); with their degrees of freedom they give X's
+    (:func:`handeye.refine.result.x_dof_factor`).
     """
     at = {g: j for j, g in enumerate(pb.robot_groups) if g in dof}
-    names = list(at)
     parts = robot_prior_parts(S_cc, S_cp, J, pb.dh_slice, [W0[j] / sigmas[j] ** 2 for j in at.values()])
-    S_x = S_cc[:6, :6]
-    shares = {g: float(np.trace(np.linalg.solve(S_x, p))) / 6.0 for g, p in zip(names, parts, strict=True)}
+    out = dict(zip(at, parts, strict=True))
     if "dh_scale" in dof and pb.m_dh:
         H_dd, _ = pb.dh_prior_information(k_dh)
         S_xd = S_cc[:6, pb.dh_slice]
-        shares["dh_scale"] = float(np.trace(np.linalg.solve(S_x, S_xd @ H_dd @ S_xd.T))) / 6.0
-    return shares
+        out["dh_scale"] = S_xd @ H_dd @ S_xd.T
+    return S_cc[:6, :6].copy(), out
 
 
 def _dh_prior_test(pb: "Problem", delta: np.ndarray, S_dd: np.ndarray) -> bool:

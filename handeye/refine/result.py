@@ -11,13 +11,11 @@ import numpy as np
 from ..camera import INTRINSIC_NAMES, Intrinsics
 from ..mounting import mounting
 from ..output import plain
-from ..stats import estimated_noise_region_factor
+from ..stats import estimated_parts_region_factor
 from .covariance import COV_BOARD_PARAMETRISATION, COV_PARAMETRISATION, N_POSES, hand_eye_uncertainty
 from .options import RefineOptions
 from .robot_model import describe_dh, kinematic_model_dict
-
-#: the region whose size X's covariance keeps when noise levels were estimated (:func:`x_dof_factor`)
-X_REGION_P = 0.95
+from .tracker_dof import REGION_P
 
 if TYPE_CHECKING:
     from .outliers import Decision
@@ -339,20 +337,18 @@ def x_dof_factor(pb: "Problem") -> tuple[Optional[float], float]:
     """(nu, factor) of X's covariance when robot noise levels were estimated from the views.
 
     The plug-in covariance treats the estimated sigmas as known; with them estimated, X's Wald statistic is
-    about ``6 F(6, nu)`` rather than chi-square(6), with Satterthwaite's ``nu`` over each estimated level's share
-    of X's covariance (``pb.noise_shares_x``) and its degrees of freedom (``pb.noise_dof``); the rest (the pixel
+    about ``6 F(6, nu)`` rather than chi-square(6), with Satterthwaite's ``nu`` over each estimated level's part
+    of X's covariance (``pb.noise_parts_x``) and its degrees of freedom (``pb.noise_dof``); the rest (the pixel
     noise, known from thousands of corners, and the priors) counts as known. ``factor``: the ratio of the 95 %
-    points (:func:`handeye.stats.estimated_noise_region_factor`), as for a pose-only result's tracker sigmas
+    points (:func:`handeye.stats.estimated_parts_region_factor`), as for a pose-only result's tracker sigmas
     (:mod:`.tracker_dof`). (None, 1.0) when no level was estimated.
     """
     dof = pb.noise_dof if pb.o.robot_noise == "estimate" else {}
-    names = [g for g in dof if g in pb.noise_shares_x]
-    if not names:
+    if pb.noise_parts_x is None:
         return None, 1.0
-    shares = [min(max(pb.noise_shares_x[g], 0.0), 1.0) for g in names]
-    return estimated_noise_region_factor(
-        [*shares, max(1.0 - sum(shares), 0.0)], [float(dof[g]) for g in names] + [None], dim=6, p=X_REGION_P
-    )
+    S_x, parts = pb.noise_parts_x
+    names = [g for g in dof if g in parts]
+    return estimated_parts_region_factor(S_x, [parts[g] for g in names], [float(dof[g]) for g in names], p=REGION_P)
 
 
 def _x_intrinsics_covariance(pb: "Problem", S_cc: Optional[np.ndarray]) -> Optional[dict[str, Any]]:

@@ -201,7 +201,8 @@ class ProblemState:
         self.sigma_trans = options.robot_sigma_mm / 1000.0
         self.resolved = {g: True for g in self.robot_groups}
         self.noise_dof: dict[str, Any] = {}  # degrees of freedom of each estimated robot sigma (handeye.refine.noise)
-        self.noise_shares_x: dict[str, float] = {}  # each estimated one's share of X's covariance (the same)
+        # X's covariance and the part of it each estimated one carries (the same), when estimated
+        self.noise_parts_x: Optional[tuple[np.ndarray, dict[str, np.ndarray]]] = None
         self.status = ["used"] * self.n
         self.mask = [np.ones(len(o), bool) for o in self.obj]
         self.iterations = 0

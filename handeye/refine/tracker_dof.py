@@ -17,7 +17,7 @@ from typing import Mapping, Optional
 
 import numpy as np
 
-from ..stats import estimated_noise_region_factor
+from ..stats import estimated_parts_region_factor
 
 #: the tracker's noise groups, in the order of the sigmas
 GROUPS = ("rot", "trans", "trans_along")
@@ -56,12 +56,8 @@ def covariance_parts(sigma: np.ndarray, Q: np.ndarray, W: np.ndarray, J: np.ndar
 
 
 def _block(S: np.ndarray, parts: np.ndarray, dofs: list[Optional[float]], idx: slice) -> tuple[Optional[float], float]:
-    """(nu, factor) of one block of the parameters (``idx``)."""
-    S_b = S[idx, idx]
-    k = S_b.shape[0]
-    shares = [float(np.trace(np.linalg.solve(S_b, p[idx, idx]))) / k for p in parts]
-    shares.append(max(1.0 - sum(shares), 0.0))  # the rest (a prior): known
-    return estimated_noise_region_factor(shares, dofs + [None], dim=k, p=REGION_P)
+    """(nu, factor) of one block of the parameters (``idx``); the rest (a prior) known."""
+    return estimated_parts_region_factor(S[idx, idx], [part[idx, idx] for part in parts], dofs, p=REGION_P)
 
 
 def noise_dof(
