@@ -81,7 +81,8 @@ def _read_gray(path: Path) -> tuple[np.ndarray, np.ndarray]:
         raise InputError(
             "image cannot be decoded (corrupt or not an image)",
             path=path,
-            hint="re-capture the view or remove the image and its pose",
+            hint="re-capture the view, or delete the image file: the view is then dropped with its reason "
+            "(in a vendor folder keep its line in poses.txt: lines pair with images by number)",
         )
     if img.dtype != np.uint8:
         img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)  # type: ignore[call-overload]
