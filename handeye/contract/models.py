@@ -230,11 +230,13 @@ class Refinement(Open):
     robot_sigma_mm: Optional[Sigma] = None
     robot_sigma_deg: Optional[Sigma] = None
     robot_noise_dof: Optional[dict[str, Optional[Number]]] = None
-    # pose-only: each estimated tracker sigma's degrees of freedom, Satterthwaite's for X's covariance and the
-    # factor X's plug-in covariance was multiplied by for them (handeye.refine.tracker_dof); 1 when stated
+    # pose-only: each estimated tracker sigma's degrees of freedom; the factor X's plug-in covariance was multiplied
+    # by for the estimated sigmas (image or pose-only: handeye.refine.result, handeye.refine.tracker_dof; 1 when
+    # none was estimated), the F's degrees of freedom with its 95 % point, and how it was found
     tracker_noise_dof: Optional[dict[str, Optional[Number]]] = None
     cov_x_noise_dof: Optional[Number] = None
     cov_x_dof_factor: Optional[Positive] = None
+    cov_x_dof_method: Optional[Literal["satterthwaite", "resampled"]] = None
     tracker_scale: Optional[TrackerScale] = None
     view_poses: Optional[ViewPoses] = None  # a cell's cameras' own poses of shared views
     robot_accuracy: Optional[RobotAccuracy] = None  # the arm's stated accuracy, in the verdict covariance

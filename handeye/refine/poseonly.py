@@ -436,7 +436,15 @@ def refine_poses(
             if oscillates:
                 break
         dec_keep = st.keep.copy()
-        dof = noise_dof(st.sigma, st.groups()[:, st.keep], st.W()[st.keep], J[st.keep], S, resolved)
+        dof = noise_dof(
+            st.sigma,
+            st.groups()[:, st.keep],
+            st.W()[st.keep],
+            J[st.keep],
+            S,
+            resolved,
+            floors=floors,
+        )
         status, reason = "ok", ""
     except np.linalg.LinAlgError as err:
         status, reason = "failed", f"the views do not constrain the hand-eye transform ({err})"
@@ -536,6 +544,7 @@ def refine_poses(
         tracker_noise_dof=dof.dof,
         cov_x_noise_dof=dof.x_dof,
         cov_x_dof_factor=dof.x_factor,
+        cov_x_dof_method=dof.method,
         tracker_scale=None if st.log_scale is None else float(np.exp(st.log_scale)),
         tracker_scale_sigma=_scale_sigma(st, S, dof, tails) if status == "ok" else None,
         tracker_tail_dof=tail_dof,

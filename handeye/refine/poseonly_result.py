@@ -50,7 +50,7 @@ class PoseRefineResult(RefineResult):
     pose_robot: Optional[PoseRobotModel] = None  # the arm's kinematic model (--robot), for the refits
     dh_offset: Optional[np.ndarray] = None  # (m,) its DH offsets as estimated
     tracker_noise_dof: dict[str, float] = field(default_factory=dict)  # per estimated sigma: its redundancy
-    cov_x_noise_dof: Optional[float] = None  # Satterthwaite's for X's covariance (None: the sigmas stated)
+    cov_x_noise_dof: Optional[float] = None  # the F's of X's factor (:mod:`.tracker_dof`; None: the sigmas stated)
     cov_x_dof_factor: float = 1.0  # the plug-in covariance of X was multiplied by this (:mod:`.tracker_dof`)
     tracker_scale: Optional[float] = None  # the tracker's translation scale, when estimated
     tracker_scale_sigma: Optional[float] = None
@@ -86,6 +86,7 @@ class PoseRefineResult(RefineResult):
         d["tracker_noise_dof"] = dict(self.tracker_noise_dof)
         d["cov_x_noise_dof"] = self.cov_x_noise_dof
         d["cov_x_dof_factor"] = self.cov_x_dof_factor
+        d["cov_x_dof_method"] = self.cov_x_dof_method or None
         if self.tracker_scale is not None:
             d["tracker_scale"] = {
                 "value": self.tracker_scale,

@@ -78,6 +78,7 @@ class RefineResult:
     # the plug-in covariance of X was multiplied by for them (:func:`x_dof_factor`); None and 1 when none estimated
     cov_x_noise_dof: Optional[float] = None
     cov_x_dof_factor: float = 1.0
+    cov_x_dof_method: str = ""  # how the factor was found: satterthwaite | resampled ("" when 1)
     #: why a failed refinement failed, for programs: "too_few_robot_poses" (fewer than 3 views keep a robot
     #: pose that agrees with the camera), "singular", "solver"; empty when it did not fail
     failure_code: str = ""
@@ -131,6 +132,7 @@ class RefineResult:
                 "robot_noise_dof": self.robot_noise_dof,
                 "cov_x_noise_dof": self.cov_x_noise_dof,
                 "cov_x_dof_factor": self.cov_x_dof_factor,
+                "cov_x_dof_method": self.cov_x_dof_method or None,
                 "robot_noise_model": self.options.robot_noise,
                 "robot_model": self.robot_model,
                 "rms_px_before": self.rms_px_before,
@@ -330,6 +332,7 @@ def build_result(
         robot_noise_dof=dict(pb.noise_dof) if pb.o.robot_noise == "estimate" else {},
         cov_x_noise_dof=nu,
         cov_x_dof_factor=factor,
+        cov_x_dof_method="" if nu is None else "satterthwaite",
     )
 
 

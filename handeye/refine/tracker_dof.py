@@ -3,11 +3,19 @@
 The plug-in covariance ``Sigma = inv(J^T W J)`` of a pose-only refinement is the sum of one part per noise
 group (rotation; translation across and along the optical axis), ``Sigma_g = s_g^2 Sigma J^T W Q_g W J Sigma``
 (``Sigma`` is homogeneous of degree 1 in the variances). Each ``s_g^2`` estimated by variance components
-has about as many degrees of freedom as its redundancy ``r_g = s_g^2 tr(Q_g P)``; with the plug-in the Wald
-statistic of X is heavier-tailed than chi-square(6): about ``6 F(6, nu)`` with Satterthwaite's ``nu`` over
-the parts' shares in X's covariance (:func:`handeye.stats.estimated_noise_region_factor`). The covariance
-is returned times the ratio of the 95 % points, so its chi-square(6) ellipsoid and every sigma drawn from
-it hold the truth as often as stated. See docs/uncertainty.md.
+has about as many degrees of freedom as its redundancy ``r_g = s_g^2 tr(Q_g P)``, and with the plug-in the
+Wald statistic of X is heavier-tailed than chi-square(6). Two effects make it so: the sigmas' own spread
+(about ``6 F(6, nu)`` with Satterthwaite's ``nu`` over the parts' shares,
+:func:`handeye.stats.estimated_parts_region_factor`), and the weights the estimate used: a sigma estimated
+too small weights its group too much, so X's error grows where the plug-in says it shrank. Satterthwaite's
+F sees only the first, about half of the effect for 20 views (docs/uncertainty.md).
+
+:func:`resampled_factors` takes both: the whole estimation (the variance components alternating with the
+weighted solve, on the final linearisation) is repeated on noise drawn at the estimated sigmas, and each
+block's factor is the 95 % point of its resampled Wald statistic over chi-square's. The plug-in covariance
+is returned times that factor, so its chi-square(6) ellipsoid and every sigma drawn from it hold the truth
+as often as stated. With an arm's kinematic model the views' covariance is not the groups' alone (the
+encoder noise adds its own) and Satterthwaite's factor stands. See docs/uncertainty.md.
 """
 
 from __future__ import annotations
@@ -17,11 +25,20 @@ from typing import Mapping, Optional
 
 import numpy as np
 
-from ..stats import estimated_parts_region_factor
+from ..special import fdtri
+from ..stats import chi2_ppf, estimated_parts_region_factor
 
 #: the tracker's noise groups, in the order of the sigmas
 GROUPS = ("rot", "trans", "trans_along")
 REGION_P = 0.95
+#: noise draws of :func:`resampled_factors` (its factors' Monte Carlo error: below 1 % at 20 views)
+RESAMPLE_DRAWS = 4000
+#: the draws' seed: the same views give the same covariance
+RESAMPLE_SEED = 20261207
+#: relative change of the draws' sigmas that ends their variance components: 1e-3 moves a factor by about 1e-3,
+#: far inside its Monte Carlo error; at most RESAMPLE_ROUNDS rounds
+RESAMPLE_TOL = 1e-3
+RESAMPLE_ROUNDS = 100
 
 
 @dataclass(frozen=True)
@@ -29,12 +46,13 @@ class NoiseDof:
     """The estimated sigmas' degrees of freedom and the factor each block's plug-in covariance takes."""
 
     dof: dict[str, float]  # per estimated noise group: its redundancy
-    x_dof: Optional[float] = None  # Satterthwaite's for X's covariance; None: every sigma stated
+    x_dof: Optional[float] = None  # the F's for X's covariance (:func:`equivalent_dof`); None: every sigma stated
     x_factor: float = 1.0
     board_dof: Optional[float] = None
     board_factor: float = 1.0
     scale_dof: Optional[float] = None  # the tracker's translation scale (13th parameter), when estimated
     scale_factor: float = 1.0
+    method: str = ""  # "resampled" (:func:`resampled_factors`) or "satterthwaite"; "" with every sigma stated
 
 
 def redundancies(sigma: np.ndarray, Q: np.ndarray, W: np.ndarray, J: np.ndarray, S: np.ndarray) -> np.ndarray:
@@ -67,21 +85,136 @@ def noise_dof(
     J: np.ndarray,
     S: np.ndarray,
     estimated: Mapping[str, bool],
+    *,
+    floors: Optional[np.ndarray] = None,
 ) -> NoiseDof:
     """The degrees of freedom of the estimated sigmas and the factors of X's, the board's and the scale's blocks.
 
     X is parameters 0:6, the board 6:12, the tracker's log scale 12 when estimated.
 
     ``estimated``: group name -> whether its sigma was estimated from the views (an unresolved group's is held,
-    as a stated one: known). Arguments as :func:`redundancies`, over the views in the solve.
+    as a stated one: known). Arguments as :func:`redundancies`, over the views in the solve. Where the views'
+    weights are the groups' alone (no arm model's covariance in ``W``) the factors are
+    :func:`resampled_factors`' (``floors``: the variance components' lower bounds), else Satterthwaite's;
+    the blocks' degrees of freedom are the F's with the factor's 95 % point (:func:`equivalent_dof`).
     """
     red = redundancies(sigma, Q, W, J, S)
     dofs = [float(red[g]) if estimated.get(name, False) else None for g, name in enumerate(GROUPS)]
     if not any(d is not None for d in dofs):
         return NoiseDof({})
+    dof = {name: d for name, d in zip(GROUPS, dofs, strict=True) if d is not None}
+    scaled = S.shape[0] > 12
+    if _groups_alone(sigma, Q, W):
+        held = np.array([d is None for d in dofs])
+        floor = np.zeros(3) if floors is None else np.asarray(floors, float)
+        x_f, b_f, s_f = resampled_factors(sigma, Q, J, S, held, floor)
+        s_dof = equivalent_dof(s_f, 1) if scaled else None
+        return NoiseDof(dof, equivalent_dof(x_f, 6), x_f, equivalent_dof(b_f, 6), b_f, s_dof, s_f, "resampled")
     parts = covariance_parts(sigma, Q, W, J, S)
     x_dof, x_factor = _block(S, parts, dofs, slice(0, 6))
     b_dof, b_factor = _block(S, parts, dofs, slice(6, 12))
-    s_dof, s_factor = _block(S, parts, dofs, slice(12, 13)) if S.shape[0] > 12 else (None, 1.0)
-    dof = {name: d for name, d in zip(GROUPS, dofs, strict=True) if d is not None}
-    return NoiseDof(dof, x_dof, x_factor, b_dof, b_factor, s_dof, s_factor)
+    s_dof, s_factor = _block(S, parts, dofs, slice(12, 13)) if scaled else (None, 1.0)
+    return NoiseDof(dof, x_dof, x_factor, b_dof, b_factor, s_dof, s_factor, "satterthwaite")
+
+
+def _groups_alone(sigma: np.ndarray, Q: np.ndarray, W: np.ndarray) -> bool:
+    """Whether the views' weights ``W`` are the inverse of the groups' covariance alone (no other noise)."""
+    C = np.einsum("g,gnij->nij", np.asarray(sigma, float) ** 2, Q)
+    return bool(np.allclose(C @ W, np.eye(6), rtol=0.0, atol=1e-6))
+
+
+def resampled_factors(
+    sigma: np.ndarray,
+    Q: np.ndarray,
+    J: np.ndarray,
+    S: np.ndarray,
+    held: np.ndarray,
+    floors: np.ndarray,
+    *,
+    draws: int = RESAMPLE_DRAWS,
+    seed: int = RESAMPLE_SEED,
+) -> tuple[float, float, float]:
+    """(X's, the board's, the scale's) factors on the plug-in covariance, from the resampled estimation.
+
+    On the final linearisation (``J`` (n,6,p), ``S`` the plug-in covariance, ``sigma`` the estimated sigmas,
+    ``Q`` (3,n,6,6) the groups' unit covariances: orthogonal projections over each view's weight) the views'
+    noise is drawn ``draws`` times at ``sigma``, and each draw repeats the estimation: the variance components
+    (Foerstner's ``s_g^2 = e^T K_g e / r_g``, at least ``floors``; ``held`` groups stay) alternating with the
+    weighted solve, then the solve at the final sigmas. The rest of the information (a prior) is drawn about
+    the truth with its own covariance. Each block's factor is the 95 % point of its Wald statistic under the
+    draw's own plug-in covariance over that of the same draws solved at the known sigmas (chi-square's, with
+    the draws' common error cancelled), at least 1 (the plug-in is the covariance at known sigmas). The scale's
+    is 1 without a 13th parameter; all three are 1 when every group is ``held``.
+    """
+    n, p = J.shape[0], J.shape[2]
+    if np.all(held):
+        return 1.0, 1.0, 1.0
+    w = 6.0 / np.einsum("gnii->n", Q)  # each view's weight: the projections sum to the identity
+    K = Q * (w**2)[None, :, None, None]  # the views' weights are sum_g K_g / s_g^2
+    A = np.einsum("nki,gnkl,nlj->gij", J, K, J)  # (3, p, p)
+    s2_hat = np.asarray(sigma, float) ** 2
+    N0 = np.linalg.inv(S) - np.einsum("g,gij->ij", 1.0 / s2_hat, A)  # a prior's information (else ~0)
+    N0 = 0.5 * (N0 + N0.T)
+    dims = np.einsum("gnii->g", Q * w[None, :, None, None])  # each group's observations: 3n, 2n, n
+    rng = np.random.default_rng(seed)
+    # the views' noise at the estimated sigmas, n = sum_g s_g P_g z / sqrt(w) (P_g = w Q_g a projection), enters
+    # the estimation through n^T K_g n = s_g^2 z^T P_g z and J^T K_g n = s_g sum_n sqrt(w) J^T P_g z
+    P = Q * w[None, :, None, None]
+    z = rng.standard_normal((draws, n, 6))
+    Pz = np.einsum("gnkl,bnl->bgnk", P, z)  # (draws, 3, n, 6)
+    a = s2_hat[None] * np.einsum("bgnk,bnk->bg", Pz, z)  # (draws, 3): n^T K_g n
+    Js = (J * np.sqrt(w)[:, None, None]).reshape(n * 6, p)
+    b = (Pz.reshape(draws, 3, n * 6) @ Js) * np.sqrt(s2_hat)[None, :, None]  # (draws, 3, p): J^T K_g n
+    ev, V = np.linalg.eigh(N0)
+    prior = ev > 1e-9 * float(np.max(np.linalg.eigvalsh(np.linalg.inv(S))))
+    pull = np.zeros((draws, p))  # N0 m with the prior's mean m ~ N(0, N0^+) about the truth
+    if np.any(prior):
+        pull = rng.standard_normal((draws, int(prior.sum()))) @ (V[:, prior] * np.sqrt(ev[prior])).T
+    free = ~np.asarray(held, bool)
+    floor2 = np.asarray(floors, float) ** 2
+
+    def solve(s2: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(plug-in covariance, the estimate's error) of the draws ``at`` at their sigmas ``s2``."""
+        cov = np.linalg.inv(N0[None] + np.einsum("bg,gij->bij", 1.0 / s2, A))
+        return cov, np.einsum("bij,bj->bi", cov, pull[at] - np.einsum("bgi,bg->bi", b[at], 1.0 / s2))
+
+    s2 = np.tile(s2_hat, (draws, 1))
+    At = A.transpose(0, 2, 1).reshape(3, p * p).T
+    active = np.arange(draws)
+    for _ in range(RESAMPLE_ROUNDS):  # each draw until its own sigmas settle
+        if not active.size:
+            break
+        cov, d = solve(s2[active], active)
+        dAd = np.stack([np.sum((d @ A[g]) * d, axis=1) for g in range(3)], axis=1)
+        quad = a[active] + 2.0 * np.einsum("bi,bgi->bg", d, b[active]) + dAd  # e^T K_g e, e = n + J d
+        red = dims[None] - (cov.reshape(len(active), p * p) @ At) / s2[active]
+        new = np.where(free[None], np.maximum(quad / np.maximum(red, 1e-12), floor2[None]), s2[active])
+        change = np.max(np.abs(np.sqrt(new / s2[active]) - 1.0), axis=1)
+        s2[active] = new
+        active = active[change >= RESAMPLE_TOL]
+    cov, d = solve(s2, np.arange(draws))
+    known_cov = np.linalg.inv(N0 + np.einsum("g,gij->ij", 1.0 / s2_hat, A))  # the sigmas known
+    known = (pull - np.einsum("bgi,g->bi", b, 1.0 / s2_hat)) @ known_cov.T
+
+    def factor(idx: slice) -> float:
+        T = np.einsum("bi,bi->b", d[:, idx], np.linalg.solve(cov[:, idx, idx], d[:, idx, None])[..., 0])
+        T0 = np.einsum("bi,bi->b", known[:, idx], np.linalg.solve(known_cov[idx, idx], known[:, idx].T).T)
+        # over the same draws' statistic with the sigmas known (chi-square exactly) rather than chi-square's
+        # point: the two share the draws, so the ratio's Monte Carlo error is far below either quantile's
+        return max(float(np.quantile(T, REGION_P) / np.quantile(T0, REGION_P)), 1.0)
+
+    return factor(slice(0, 6)), factor(slice(6, 12)), factor(slice(12, 13)) if p > 12 else 1.0
+
+
+def equivalent_dof(factor: float, k: int, p: float = REGION_P) -> Optional[float]:
+    """The ``nu`` whose ``k F(k, nu)`` has ``factor`` times chi-square(k)'s ``p`` point; None when ``factor`` is 1."""
+    if factor <= 1.0:
+        return None
+    target = factor * chi2_ppf(p, k)
+    if k * fdtri(k, 1e8, p) >= target:
+        return 1e8
+    lo, hi = np.log(0.1), np.log(1e8)
+    for _ in range(60):  # bisection in log(nu): k F(k, nu)'s p point falls as nu grows
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if k * fdtri(k, float(np.exp(mid)), p) > target else (lo, mid)
+    return float(np.exp(0.5 * (lo + hi)))

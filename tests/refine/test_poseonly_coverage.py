@@ -13,8 +13,10 @@ from handeye.initial import all_methods
 from handeye.mounting import mounting
 from handeye.pipeline.poseonly import tracker_scale_start
 from handeye.refine.poseonly import PoseView, _State, refine_poses
-from handeye.refine.tracker_dof import covariance_parts
+from handeye.refine.tracker_dof import covariance_parts, equivalent_dof, noise_dof, resampled_factors
 from handeye.sim.arm_tracker import make_arm_tracker_session
+from handeye.special import fdtri
+from handeye.stats import chi2_ppf, estimated_parts_region_factor
 
 #: chi-square(6)'s 99.9 % point: a truth farther than this in X's covariance is a failure of the covariance
 M2_999 = 22.46
@@ -81,6 +83,75 @@ def test_the_noise_groups_parts_sum_to_the_plug_in_covariance():
     parts = covariance_parts(sigma, st.groups(), W, J, S)
     assert np.allclose(parts.sum(axis=0), S, rtol=1e-9, atol=1e-18)
     assert all(np.all(np.linalg.eigvalsh(0.5 * (p + p.T)) > -1e-15) for p in parts)
+
+
+def _rotation_only_problem(n: int, p: int, seed: int):
+    """Q (3,n,6,6) of unit weights and a J (n,6,p) that only the rotation group's rows inform."""
+    rng = np.random.default_rng(seed)
+    Q = np.zeros((3, n, 6, 6))
+    Q[0, :, :3, :3] = np.eye(3)
+    Q[1, :, 3:5, 3:5] = np.eye(2)
+    Q[2, :, 5, 5] = 1.0
+    J = np.zeros((n, 6, p))
+    J[:, :3, :] = rng.normal(size=(n, 3, p))
+    return Q, J
+
+
+@pytest.mark.parametrize("p", [12, 13])
+def test_one_estimated_sigma_gives_the_f_distributions_factor(p):
+    """One variance estimated from r = 3n - p residuals, independent of the estimate: the plug-in Wald statistic
+    of k parameters is exactly k F(k, r), so the resampled factor is that 95 % point over chi-square's."""
+    n = 20
+    Q, J = _rotation_only_problem(n, p, seed=3)
+    sigma = np.array([0.002, 0.5e-3, 1.5e-3])
+    S = np.linalg.inv(np.einsum("nki,nkl,nlj->ij", J, np.linalg.inv(np.einsum("g,gnij->nij", sigma**2, Q)), J))
+    held = np.array([False, True, True])
+    x, board, scale = resampled_factors(sigma, Q, J, S, held, np.zeros(3))
+    r = 3 * n - p
+    for got, k in ((x, 6), (board, 6)):
+        assert got == pytest.approx(k * fdtri(k, r, 0.95) / chi2_ppf(0.95, k), rel=0.03)
+    if p == 13:
+        assert scale == pytest.approx(fdtri(1, r, 0.95) / chi2_ppf(0.95, 1), rel=0.04)
+    else:
+        assert scale == 1.0
+    # every sigma held: nothing estimated, the plug-in is the covariance
+    assert resampled_factors(sigma, Q, J, S, np.ones(3, bool), np.zeros(3))[:2] == (1.0, 1.0)
+
+
+def test_a_prior_on_the_parameters_is_drawn_with_its_own_covariance():
+    """A strong prior on every parameter (known) leaves nothing to the estimated sigma: factors of 1."""
+    Q, J = _rotation_only_problem(20, 12, seed=4)
+    sigma = np.array([0.002, 0.5e-3, 1.5e-3])
+    W = np.linalg.inv(np.einsum("g,gnij->nij", sigma**2, Q))
+    N = np.einsum("nki,nkl,nlj->ij", J, W, J)
+    S = np.linalg.inv(N + 1e4 * np.trace(N) * np.eye(12))
+    x, board, _ = resampled_factors(sigma, Q, J, S, np.array([False, True, True]), np.zeros(3))
+    assert x == pytest.approx(1.0, abs=0.02) and board == pytest.approx(1.0, abs=0.02)
+
+
+def test_the_resampled_factor_exceeds_satterthwaites_where_the_weights_were_estimated():
+    """Three sigmas estimated from 20 eye-in-hand views: the weights the estimate used widen X's error beyond
+    the sigmas' own spread (Satterthwaite's F), and the reported degrees of freedom are the factor's F."""
+    ts = make_arm_tracker_session(mode="eye_in_hand", n_views=20, seed=2)
+    mount = mounting(ts.mode)
+    Ms = np.stack([mount.M_from_T_base_end(T) for T in ts.T_base_end])
+    sigma = np.array([np.radians(0.1), 0.5e-3, 0.5e-3])
+    st = _State(Ms, ts.T_cam_board, ts.truth.T_x_true, ts.truth.T_board_true, sigma, np.ones(20, bool))
+    _, J = st.residuals(jacobians=True)
+    W = st.W()
+    S = np.linalg.inv(np.einsum("nki,nkl,nlj->ij", J, W, J))
+    estimated = {"rot": True, "trans": True, "trans_along": True}
+    dof = noise_dof(sigma, st.groups(), W, J, S, estimated)
+    parts = covariance_parts(sigma, st.groups(), W, J, S)
+    _, satterthwaite = estimated_parts_region_factor(S[:6, :6], [q[:6, :6] for q in parts], list(dof.dof.values()))
+    assert dof.method == "resampled"
+    assert dof.x_factor > satterthwaite * 1.05 > 1.0
+    assert 6 * fdtri(6, dof.x_dof, 0.95) / chi2_ppf(0.95, 6) == pytest.approx(dof.x_factor, rel=1e-6)
+    assert equivalent_dof(1.0, 6) is None
+    # the same views with an arm model's covariance in the weights: Satterthwaite's factor stands
+    W_arm = np.linalg.inv(np.linalg.inv(W) + np.eye(6) * 1e-8)
+    S_arm = np.linalg.inv(np.einsum("nki,nkl,nlj->ij", J, W_arm, J))
+    assert noise_dof(sigma, st.groups(), W_arm, J, S_arm, estimated).method == "satterthwaite"
 
 
 @pytest.mark.parametrize(("mode", "scale"), [("eye_in_hand", 1.6), ("eye_to_hand", 0.55)])

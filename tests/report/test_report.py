@@ -1310,8 +1310,11 @@ def test_the_tracker_model_lines_of_a_pose_only_result():
     items = {it["name"]: it["value"] for it in _tracker(ref)["items"]}
     assert "2.000 mm along" in items["noise"] and "(estimated)" in items["noise"]
     assert "trans along 17" in items["degrees of freedom"] and "1.067" in items["degrees of freedom"]
-    assert "F(6, 66)" in items["degrees of freedom"]
+    assert "F(6, 66)" in items["degrees of freedom"] and "Satterthwaite's 66" in items["degrees of freedom"]
     assert items["translation scale"].startswith("2.00022 ± 0.0019")
+    resampled = _tracker(ref | {"cov_x_dof_method": "resampled", "cov_x_dof_factor": 1.171, "cov_x_noise_dof": 21.4})
+    line = {it["name"]: it["value"] for it in resampled["items"]}["degrees of freedom"]
+    assert "1.171" in line and "repeated on noise drawn" in line and "F(6, 21)" in line and "Satterthwaite" not in line
     stated = {"tracker_noise": {"sigma_deg": 0.1, "sigma_mm": 0.5, "sigma_mm_along": 0.5, "source": "stated"}}
     assert [it["name"] for it in _tracker(stated | {"tracker_noise_dof": {}, "cov_x_noise_dof": None})["items"]] == [
         "noise"

@@ -120,8 +120,14 @@ def _tracker(ref) -> Optional[dict]:
         items.append(
             {
                 "name": "degrees of freedom",
-                "value": f"{per}; X's covariance {_num(nu):.0f} (Satterthwaite), so it is the plug-in one times "
-                f"{k:.3f}: its 95 % region is 6 F(6, {_num(nu):.0f})'s, not chi-square(6)'s",
+                "value": f"{per}; X's covariance is the plug-in one times {k:.3f} "
+                + (
+                    "(the estimation repeated on noise drawn at these sigmas: the sigmas' spread and the weights "
+                    "they gave)"
+                    if ref.get("cov_x_dof_method") == "resampled"
+                    else f"(Satterthwaite's {_num(nu):.0f} degrees of freedom over the sigmas' shares)"
+                )
+                + f": its 95 % region is that of 6 F(6, {_num(nu):.0f}), not chi-square(6)'s",
             }
         )
     sc = ref.get("tracker_scale")
