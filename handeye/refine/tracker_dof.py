@@ -139,8 +139,9 @@ def resampled_factors(
     On the final linearisation (``J`` (n,6,p), ``S`` the plug-in covariance, ``sigma`` the estimated sigmas,
     ``Q`` (3,n,6,6) the groups' unit covariances: orthogonal projections over each view's weight) the views'
     noise is drawn ``draws`` times at ``sigma``, and each draw repeats the estimation: the variance components
-    (Foerstner's ``s_g^2 = e^T K_g e / r_g``, at least ``floors``; ``held`` groups stay) alternating with the
-    weighted solve, then the solve at the final sigmas. The rest of the information (a prior) is drawn about
+    (Foerstner's ``s_g^2 = e^T K_g e / r_g``, at least ``floors``; ``held`` groups stay; a heavy-tailed
+    tracker's EM weights, in ``Q``, held) alternating with the weighted solve, then the solve at the final
+    sigmas. The rest of the information (a prior) is drawn about
     the truth with its own covariance. Each block's factor is the 95 % point of its Wald statistic under the
     draw's own plug-in covariance over that of the same draws solved at the known sigmas (chi-square's, with
     the draws' common error cancelled), at least 1 (the plug-in is the covariance at known sigmas). The scale's
