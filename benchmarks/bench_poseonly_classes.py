@@ -30,11 +30,12 @@ anisotropic (3-6x along the optical axis), scale (x1.2-2 or its inverse), drift 
 
 Measured (2-core machine shared, 1-2 workers, 1-4 s per session). The figures down to the last block were
 taken with Satterthwaite's factor on X's covariance (6 F_0.95(6, nu) / chi2_0.95(6), 1.05-1.08 for 20 views);
-the last block is the resampled factor that replaced it (refine/tracker_dof.py). The report prints the same covariance, so this ellipsoid is its 95 % region. Gaussian
-classes, 100 sessions per mode (seeds 0-99), coverage of the verdict covariance (= the model's in every session:
-the held-out refits never found the spread beyond chance), mean squared Mahalanobis (chi-square(6): 6), median
-error, RMS error / ML (rotation, translation), share with no fail/warn finding; in brackets the plug-in
-covariance's before (the same sessions, the same estimates):
+the last block is the resampled factor that replaced it (refine/tracker_dof.py). The report prints the same
+covariance, so this ellipsoid is its 95 % region. Gaussian classes, 100 sessions per mode (seeds 0-99),
+coverage of the verdict covariance (= the model's in every session: the held-out refits never found the spread
+beyond chance), mean squared Mahalanobis (chi-square(6): 6), median error, RMS error / ML (rotation,
+translation), share with no fail/warn finding; in brackets the plug-in covariance's before (the same sessions,
+the same estimates):
 
     class        mode  cover          mean m2       median error        / ML        quiet
     clean        in    90.0% (89.0)   6.30 (6.74)   0.036 deg 0.48 mm   1.01 1.03   98 %
@@ -193,7 +194,7 @@ the arm's own frames (effective_truth). Seeds 0-299 (datasheet: 0-99), 2 workers
     arm_error_datasheet to  100  cover 99.0 % [94.6, 100]   mean m2 2.74
 
 The resampled factor (refine/tracker_dof.py: the estimation repeated on noise drawn at the session's sigmas,
-1.10-1.25 for 20 views), 2026-12-07, ``--sessions 100 --classes clean,noise,anisotropic,heavy_tails,outliers
+1.07-1.24 for 20 views), 2026-12-07, ``--sessions 100 --classes clean,noise,anisotropic,heavy_tails,outliers
 --workers 2`` (seeds 0-99, 1000 sessions in 354 s), coverage of the verdict covariance and mean m2:
 
     class        mode  n    cover                 mean m2   / ML        quiet
