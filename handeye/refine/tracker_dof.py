@@ -14,8 +14,8 @@ F sees only the first, about half of the effect for 20 views (docs/uncertainty.m
 weighted solve, on the final linearisation) is repeated on noise drawn at the estimated sigmas, and each
 block's factor is the 95 % point of its resampled Wald statistic over chi-square's. The plug-in covariance
 is returned times that factor, so its chi-square(6) ellipsoid and every sigma drawn from it hold the truth
-as often as stated. With an arm's kinematic model the views' covariance is not the groups' alone (the
-encoder noise adds its own) and Satterthwaite's factor stands. See docs/uncertainty.md.
+as often as stated. With an arm's kinematic model each view's covariance also holds the encoder noise's
+known share, and :func:`resampled_factors_arm` inverts the views' weights per draw. See docs/uncertainty.md.
 """
 
 from __future__ import annotations
@@ -26,13 +26,15 @@ from typing import Mapping, Optional
 import numpy as np
 
 from ..special import fdtri
-from ..stats import chi2_ppf, estimated_parts_region_factor
+from ..stats import chi2_ppf
 
 #: the tracker's noise groups, in the order of the sigmas
 GROUPS = ("rot", "trans", "trans_along")
 REGION_P = 0.95
 #: noise draws of :func:`resampled_factors` (its factors' Monte Carlo error: below 1 % at 20 views)
 RESAMPLE_DRAWS = 4000
+#: the draws where an arm model's covariance is in the views' (each draw inverts every view's weight)
+RESAMPLE_DRAWS_ARM = 1000
 #: the draws' seed: the same views give the same covariance
 RESAMPLE_SEED = 20261207
 #: relative change of the draws' sigmas that ends their variance components: 1e-3 moves a factor by about 1e-3,
@@ -52,7 +54,7 @@ class NoiseDof:
     board_factor: float = 1.0
     scale_dof: Optional[float] = None  # the tracker's translation scale (13th parameter), when estimated
     scale_factor: float = 1.0
-    method: str = ""  # "resampled" (:func:`resampled_factors`) or "satterthwaite"; "" with every sigma stated
+    method: str = ""  # "resampled" (:func:`resampled_factors`); "" with every sigma stated
 
 
 def redundancies(sigma: np.ndarray, Q: np.ndarray, W: np.ndarray, J: np.ndarray, S: np.ndarray) -> np.ndarray:
@@ -73,11 +75,6 @@ def covariance_parts(sigma: np.ndarray, Q: np.ndarray, W: np.ndarray, J: np.ndar
     return sigma[:, None, None] ** 2 * (S[None] @ inner @ S[None])
 
 
-def _block(S: np.ndarray, parts: np.ndarray, dofs: list[Optional[float]], idx: slice) -> tuple[Optional[float], float]:
-    """(nu, factor) of one block of the parameters (``idx``); the rest (a prior) known."""
-    return estimated_parts_region_factor(S[idx, idx], [part[idx, idx] for part in parts], dofs, p=REGION_P)
-
-
 def noise_dof(
     sigma: np.ndarray,
     Q: np.ndarray,
@@ -93,10 +90,10 @@ def noise_dof(
     X is parameters 0:6, the board 6:12, the tracker's log scale 12 when estimated.
 
     ``estimated``: group name -> whether its sigma was estimated from the views (an unresolved group's is held,
-    as a stated one: known). Arguments as :func:`redundancies`, over the views in the solve. Where the views'
-    weights are the groups' alone (no arm model's covariance in ``W``) the factors are
-    :func:`resampled_factors`' (``floors``: the variance components' lower bounds), else Satterthwaite's;
-    the blocks' degrees of freedom are the F's with the factor's 95 % point (:func:`equivalent_dof`).
+    as a stated one: known). Arguments as :func:`redundancies`, over the views in the solve. The factors are
+    :func:`resampled_factors`' where the views' weights are the groups' alone, :func:`resampled_factors_arm`'
+    where ``W`` holds more (an arm model's encoder noise); ``floors``: the variance components' lower bounds.
+    The blocks' degrees of freedom are the F's with the factor's 95 % point (:func:`equivalent_dof`).
     """
     red = redundancies(sigma, Q, W, J, S)
     dofs = [float(red[g]) if estimated.get(name, False) else None for g, name in enumerate(GROUPS)]
@@ -104,23 +101,15 @@ def noise_dof(
         return NoiseDof({})
     dof = {name: d for name, d in zip(GROUPS, dofs, strict=True) if d is not None}
     scaled = S.shape[0] > 12
-    if _groups_alone(sigma, Q, W):
-        held = np.array([d is None for d in dofs])
-        floor = np.zeros(3) if floors is None else np.asarray(floors, float)
+    held = np.array([d is None for d in dofs])
+    floor = np.zeros(3) if floors is None else np.asarray(floors, float)
+    extra = np.linalg.inv(W) - np.einsum("g,gnij->nij", np.asarray(sigma, float) ** 2, Q)  # an arm's encoder noise
+    if np.allclose(extra, 0.0, rtol=0.0, atol=1e-9 * float(np.max(np.abs(np.linalg.inv(W))))):
         x_f, b_f, s_f = resampled_factors(sigma, Q, J, S, held, floor)
-        s_dof = equivalent_dof(s_f, 1) if scaled else None
-        return NoiseDof(dof, equivalent_dof(x_f, 6), x_f, equivalent_dof(b_f, 6), b_f, s_dof, s_f, "resampled")
-    parts = covariance_parts(sigma, Q, W, J, S)
-    x_dof, x_factor = _block(S, parts, dofs, slice(0, 6))
-    b_dof, b_factor = _block(S, parts, dofs, slice(6, 12))
-    s_dof, s_factor = _block(S, parts, dofs, slice(12, 13)) if scaled else (None, 1.0)
-    return NoiseDof(dof, x_dof, x_factor, b_dof, b_factor, s_dof, s_factor, "satterthwaite")
-
-
-def _groups_alone(sigma: np.ndarray, Q: np.ndarray, W: np.ndarray) -> bool:
-    """Whether the views' weights ``W`` are the inverse of the groups' covariance alone (no other noise)."""
-    C = np.einsum("g,gnij->nij", np.asarray(sigma, float) ** 2, Q)
-    return bool(np.allclose(C @ W, np.eye(6), rtol=0.0, atol=1e-6))
+    else:
+        x_f, b_f, s_f = resampled_factors_arm(sigma, Q, 0.5 * (extra + np.swapaxes(extra, 1, 2)), J, S, held, floor)
+    s_dof = equivalent_dof(s_f, 1) if scaled else None
+    return NoiseDof(dof, equivalent_dof(x_f, 6), x_f, equivalent_dof(b_f, 6), b_f, s_dof, s_f, "resampled")
 
 
 def resampled_factors(
@@ -166,11 +155,7 @@ def resampled_factors(
     a = s2_hat[None] * np.einsum("bgnk,bnk->bg", Pz, z)  # (draws, 3): n^T K_g n
     Js = (J * np.sqrt(w)[:, None, None]).reshape(n * 6, p)
     b = (Pz.reshape(draws, 3, n * 6) @ Js) * np.sqrt(s2_hat)[None, :, None]  # (draws, 3, p): J^T K_g n
-    ev, V = np.linalg.eigh(N0)
-    prior = ev > 1e-9 * float(np.max(np.linalg.eigvalsh(np.linalg.inv(S))))
-    pull = np.zeros((draws, p))  # N0 m with the prior's mean m ~ N(0, N0^+) about the truth
-    if np.any(prior):
-        pull = rng.standard_normal((draws, int(prior.sum()))) @ (V[:, prior] * np.sqrt(ev[prior])).T
+    pull = _prior_pull(N0, S, rng, draws)
     free = ~np.asarray(held, bool)
     floor2 = np.asarray(floors, float) ** 2
 
@@ -194,17 +179,97 @@ def resampled_factors(
         s2[active] = new
         active = active[change >= RESAMPLE_TOL]
     cov, d = solve(s2, np.arange(draws))
-    known_cov = np.linalg.inv(N0 + np.einsum("g,gij->ij", 1.0 / s2_hat, A))  # the sigmas known
-    known = (pull - np.einsum("bgi,g->bi", b, 1.0 / s2_hat)) @ known_cov.T
+    known = (pull - np.einsum("bgi,g->bi", b, 1.0 / s2_hat)) @ S.T  # the same draws at the known sigmas
+    return _block_factors(d, cov, known, S)
+
+
+def resampled_factors_arm(
+    sigma: np.ndarray,
+    Q: np.ndarray,
+    extra: np.ndarray,
+    J: np.ndarray,
+    S: np.ndarray,
+    held: np.ndarray,
+    floors: np.ndarray,
+    *,
+    draws: int = RESAMPLE_DRAWS_ARM,
+    seed: int = RESAMPLE_SEED,
+) -> tuple[float, float, float]:
+    """:func:`resampled_factors` where each view's covariance also holds a known ``extra`` (n,6,6).
+
+    ``extra`` is an arm model's encoder noise. The views' weights are then inverted per draw (``draws`` fewer,
+    its factors' Monte Carlo error about 1.5 %); the variance components are Foerstner's
+    ``s_g^2 <- s_g^4 e^T W Q_g W e / r_g`` with ``r_g = s_g^2 tr(Q_g (W - W J S J^T W))``, as the refinement's.
+    """
+    n = J.shape[0]
+    if np.all(held):
+        return 1.0, 1.0, 1.0
+    s2_hat = np.asarray(sigma, float) ** 2
+    C_hat = np.einsum("g,gnij->nij", s2_hat, Q) + extra
+    W_hat = np.linalg.inv(C_hat)
+    N0 = np.linalg.inv(S) - np.einsum("nki,nkl,nlj->ij", J, W_hat, J)  # the DH offsets' prior, a prior on X
+    N0 = 0.5 * (N0 + N0.T)
+    rng = np.random.default_rng(seed)
+    noise = np.einsum("nij,bnj->bni", np.linalg.cholesky(C_hat), rng.standard_normal((draws, n, 6)))
+    pull = _prior_pull(N0, S, rng, draws)
+    free = ~np.asarray(held, bool)
+    floor2 = np.asarray(floors, float) ** 2
+
+    Jf = J.reshape(n * 6, -1)  # the views' rows stacked
+
+    def solve(s2: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(weights, weights x J, plug-in covariance, the estimate's error) of the draws ``at`` at ``s2``."""
+        W = np.linalg.inv(np.einsum("bg,gnij->bnij", s2, Q) + extra[None])
+        WJ = (W @ J[None]).reshape(len(at), n * 6, -1)
+        cov = np.linalg.inv(N0[None] + Jf.T[None] @ WJ)
+        grad = pull[at] - (np.swapaxes(WJ, 1, 2) @ noise[at].reshape(len(at), n * 6, 1))[..., 0]
+        return W, WJ, cov, (cov @ grad[..., None])[..., 0]
+
+    s2 = np.tile(s2_hat, (draws, 1))
+    active = np.arange(draws)
+    for _ in range(RESAMPLE_ROUNDS):  # each draw until its own sigmas settle
+        if not active.size:
+            break
+        W, WJ, cov, d = solve(s2[active], active)
+        e = noise[active] + (d @ Jf.T).reshape(len(active), n, 6)
+        We = (W @ e[..., None])[..., 0]
+        quad = np.stack([np.sum((We[:, :, None, :] @ Q[g][None])[:, :, 0] * We, axis=(1, 2)) for g in range(3)], 1)
+        WJv = WJ.reshape(len(active), n, 6, -1)
+        WJSJW = (WJ @ cov).reshape(WJv.shape) @ np.swapaxes(WJv, 2, 3)  # (draws, n, 6, 6)
+        red = s2[active] * np.einsum("gnij,bnji->bg", Q, W - WJSJW)  # r_g = s_g^2 tr(Q_g P)
+        old = s2[active]
+        new = np.where(free[None], np.maximum(old**2 * quad / np.maximum(red, 1e-300), floor2[None]), old)
+        s2[active] = new
+        active = active[np.max(np.abs(np.sqrt(new / old) - 1.0), axis=1) >= RESAMPLE_TOL]
+    _, _, cov, d = solve(s2, np.arange(draws))
+    known = (pull - np.einsum("nki,nkl,bnl->bi", J, W_hat, noise)) @ S.T  # the same draws at the known sigmas
+    return _block_factors(d, cov, known, S)
+
+
+def _prior_pull(N0: np.ndarray, S: np.ndarray, rng: np.random.Generator, draws: int) -> np.ndarray:
+    """(draws, p) ``N0 m`` with a prior's mean ``m ~ N(0, N0^+)`` about the truth (zeros without a prior)."""
+    ev, V = np.linalg.eigh(N0)
+    prior = ev > 1e-9 * float(np.max(np.linalg.eigvalsh(np.linalg.inv(S))))
+    if not np.any(prior):
+        return np.zeros((draws, N0.shape[0]))
+    return rng.standard_normal((draws, int(prior.sum()))) @ (V[:, prior] * np.sqrt(ev[prior])).T
+
+
+def _block_factors(d: np.ndarray, cov: np.ndarray, known: np.ndarray, S: np.ndarray) -> tuple[float, float, float]:
+    """(X's, the board's, the scale's) factors of the resampled draws.
+
+    From the draws' errors ``d`` under their plug-in ``cov`` and the same draws' errors ``known`` at the known
+    sigmas (covariance ``S``).
+    """
 
     def factor(idx: slice) -> float:
         T = np.einsum("bi,bi->b", d[:, idx], np.linalg.solve(cov[:, idx, idx], d[:, idx, None])[..., 0])
-        T0 = np.einsum("bi,bi->b", known[:, idx], np.linalg.solve(known_cov[idx, idx], known[:, idx].T).T)
-        # over the same draws' statistic with the sigmas known (chi-square exactly) rather than chi-square's
+        T0 = np.einsum("bi,bi->b", known[:, idx], np.linalg.solve(S[idx, idx], known[:, idx].T).T)
+        # over the same draws' statistic at the known sigmas (chi-square exactly) rather than chi-square's
         # point: the two share the draws, so the ratio's Monte Carlo error is far below either quantile's
         return max(float(np.quantile(T, REGION_P) / np.quantile(T0, REGION_P)), 1.0)
 
-    return factor(slice(0, 6)), factor(slice(6, 12)), factor(slice(12, 13)) if p > 12 else 1.0
+    return factor(slice(0, 6)), factor(slice(6, 12)), factor(slice(12, 13)) if d.shape[1] > 12 else 1.0
 
 
 def equivalent_dof(factor: float, k: int, p: float = REGION_P) -> Optional[float]:

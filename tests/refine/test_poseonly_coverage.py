@@ -13,7 +13,13 @@ from handeye.initial import all_methods
 from handeye.mounting import mounting
 from handeye.pipeline.poseonly import tracker_scale_start
 from handeye.refine.poseonly import PoseView, _State, refine_poses
-from handeye.refine.tracker_dof import covariance_parts, equivalent_dof, noise_dof, resampled_factors
+from handeye.refine.tracker_dof import (
+    covariance_parts,
+    equivalent_dof,
+    noise_dof,
+    resampled_factors,
+    resampled_factors_arm,
+)
 from handeye.sim.arm_tracker import make_arm_tracker_session
 from handeye.special import fdtri
 from handeye.stats import chi2_ppf, estimated_parts_region_factor
@@ -148,10 +154,39 @@ def test_the_resampled_factor_exceeds_satterthwaites_where_the_weights_were_esti
     assert dof.x_factor > satterthwaite * 1.05 > 1.0
     assert 6 * fdtri(6, dof.x_dof, 0.95) / chi2_ppf(0.95, 6) == pytest.approx(dof.x_factor, rel=1e-6)
     assert equivalent_dof(1.0, 6) is None
-    # the same views with an arm model's covariance in the weights: Satterthwaite's factor stands
-    W_arm = np.linalg.inv(np.linalg.inv(W) + np.eye(6) * 1e-8)
-    S_arm = np.linalg.inv(np.einsum("nki,nkl,nlj->ij", J, W_arm, J))
-    assert noise_dof(sigma, st.groups(), W_arm, J, S_arm, estimated).method == "satterthwaite"
+    # the arm path (each draw inverts the views' weights) with a vanishing extra covariance: the same factors
+    sig = np.array([np.radians(0.1), 0.5e-3, 1.5e-3])
+    st.sigma = sig
+    S2 = _plug_in(J, st.W())
+    fast = resampled_factors(sig, st.groups(), J, S2, np.zeros(3, bool), np.zeros(3))
+    tiny = np.tile(np.eye(6) * 1e-16, (20, 1, 1))
+    arm = resampled_factors_arm(sig, st.groups(), tiny, J, S2, np.zeros(3, bool), np.zeros(3), draws=4000)
+    assert arm[0] == pytest.approx(fast[0], rel=0.04) and arm[1] == pytest.approx(fast[1], rel=0.04)
+
+
+def test_an_arm_models_encoder_noise_is_resampled_with_the_tracker_sigmas():
+    """Each view's covariance holds a known share too (an arm model's encoder noise): the more of it, the less the
+    estimated sigmas move the weights, and the smaller the factor; once it dominates, the plug-in stands."""
+    ts = make_arm_tracker_session(mode="eye_in_hand", n_views=20, seed=2)
+    mount = mounting(ts.mode)
+    Ms = np.stack([mount.M_from_T_base_end(T) for T in ts.T_base_end])
+    sigma = np.array([np.radians(0.1), 0.5e-3, 0.5e-3])
+    st = _State(Ms, ts.T_cam_board, ts.truth.T_x_true, ts.truth.T_board_true, sigma, np.ones(20, bool))
+    _, J = st.residuals(jacobians=True)
+    tracker = np.einsum("g,gnij->nij", sigma**2, st.groups())
+    factors = []
+    for k in (1e-12, 1.0, 10.0):
+        W = np.linalg.inv(tracker * (1.0 + k))
+        f = resampled_factors_arm(sigma, st.groups(), k * tracker, J, _plug_in(J, W), np.zeros(3, bool), np.zeros(3))
+        factors.append(f[0])
+    assert factors[0] > factors[1] > 1.05 and factors[2] < 1.02
+    estimated = {"rot": True, "trans": True, "trans_along": True}
+    W = np.linalg.inv(tracker * 2.0)
+    assert noise_dof(sigma, st.groups(), W, J, _plug_in(J, W), estimated).x_factor == pytest.approx(factors[1])
+
+
+def _plug_in(J: np.ndarray, W: np.ndarray) -> np.ndarray:
+    return np.linalg.inv(np.einsum("nki,nkl,nlj->ij", J, W, J))
 
 
 @pytest.mark.parametrize(("mode", "scale"), [("eye_in_hand", 1.6), ("eye_to_hand", 0.55)])
