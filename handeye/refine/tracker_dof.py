@@ -15,7 +15,7 @@ weighted solve, on the final linearisation) is repeated on noise drawn at the es
 block's factor is the 95 % point of its resampled Wald statistic over chi-square's. The plug-in covariance
 is returned times that factor, so its chi-square(6) ellipsoid and every sigma drawn from it hold the truth
 as often as stated. With an arm's kinematic model each view's covariance also holds the encoder noise's
-known share, and :func:`resampled_factors_arm` inverts the views' weights per draw. See docs/uncertainty.md.
+known share, and the draws invert the views' weights (:func:`resampled_factors`). See docs/uncertainty.md.
 """
 
 from __future__ import annotations
@@ -91,8 +91,8 @@ def noise_dof(
 
     ``estimated``: group name -> whether its sigma was estimated from the views (an unresolved group's is held,
     as a stated one: known). Arguments as :func:`redundancies`, over the views in the solve. The factors are
-    :func:`resampled_factors`' where the views' weights are the groups' alone, :func:`resampled_factors_arm`'
-    where ``W`` holds more (an arm model's encoder noise); ``floors``: the variance components' lower bounds.
+    :func:`resampled_factors`', with ``extra`` where ``W`` holds more than the groups' covariance (an arm model's
+    encoder noise); ``floors``: the variance components' lower bounds.
     The blocks' degrees of freedom are the F's with the factor's 95 % point (:func:`equivalent_dof`).
     """
     red = redundancies(sigma, Q, W, J, S)
@@ -104,10 +104,9 @@ def noise_dof(
     held = np.array([d is None for d in dofs])
     floor = np.zeros(3) if floors is None else np.asarray(floors, float)
     extra = np.linalg.inv(W) - np.einsum("g,gnij->nij", np.asarray(sigma, float) ** 2, Q)  # an arm's encoder noise
-    if np.allclose(extra, 0.0, rtol=0.0, atol=1e-9 * float(np.max(np.abs(np.linalg.inv(W))))):
-        x_f, b_f, s_f = resampled_factors(sigma, Q, J, S, held, floor)
-    else:
-        x_f, b_f, s_f = resampled_factors_arm(sigma, Q, 0.5 * (extra + np.swapaxes(extra, 1, 2)), J, S, held, floor)
+    alone = np.allclose(extra, 0.0, rtol=0.0, atol=1e-9 * float(np.max(np.abs(np.linalg.inv(W)))))
+    extra = None if alone else 0.5 * (extra + np.swapaxes(extra, 1, 2))
+    x_f, b_f, s_f = resampled_factors(sigma, Q, J, S, held, floor, extra=extra)
     s_dof = equivalent_dof(s_f, 1) if scaled else None
     return NoiseDof(dof, equivalent_dof(x_f, 6), x_f, equivalent_dof(b_f, 6), b_f, s_dof, s_f, "resampled")
 
@@ -120,7 +119,8 @@ def resampled_factors(
     held: np.ndarray,
     floors: np.ndarray,
     *,
-    draws: int = RESAMPLE_DRAWS,
+    extra: Optional[np.ndarray] = None,
+    draws: Optional[int] = None,
     seed: int = RESAMPLE_SEED,
 ) -> tuple[float, float, float]:
     """(X's, the board's, the scale's) factors on the plug-in covariance, from the resampled estimation.
@@ -130,23 +130,56 @@ def resampled_factors(
     noise is drawn ``draws`` times at ``sigma``, and each draw repeats the estimation: the variance components
     (Foerstner's ``s_g^2 = e^T K_g e / r_g``, at least ``floors``; ``held`` groups stay; a heavy-tailed
     tracker's EM weights, in ``Q``, held) alternating with the weighted solve, then the solve at the final
-    sigmas. The rest of the information (a prior) is drawn about
-    the truth with its own covariance. Each block's factor is the 95 % point of its Wald statistic under the
-    draw's own plug-in covariance over that of the same draws solved at the known sigmas (chi-square's, with
-    the draws' common error cancelled), at least 1 (the plug-in is the covariance at known sigmas). The scale's
-    is 1 without a 13th parameter; all three are 1 when every group is ``held``.
+    sigmas. The rest of the information (a prior) is drawn about the truth with its own covariance. Each block's
+    factor is the 95 % point of its Wald statistic under the draw's own plug-in covariance over that of the same
+    draws solved at the known sigmas (chi-square's, with the draws' common error cancelled), at least 1 (the
+    plug-in is the covariance at known sigmas). The scale's is 1 without a 13th parameter; all three are 1 when
+    every group is ``held``.
+
+    ``extra`` (n,6,6): a known share of every view's covariance (an arm model's encoder noise); the views'
+    weights are then inverted per draw (``draws`` default :data:`RESAMPLE_DRAWS_ARM`, the factors' Monte Carlo
+    error about 1.5 %); without it they are ``sum_g K_g / s_g^2`` and a draw costs a few p x p operations
+    (default :data:`RESAMPLE_DRAWS`).
     """
-    n, p = J.shape[0], J.shape[2]
     if np.all(held):
         return 1.0, 1.0, 1.0
+    r = _Resampling(
+        np.asarray(sigma, float) ** 2,
+        Q,
+        J,
+        S,
+        ~np.asarray(held, bool),
+        np.asarray(floors, float) ** 2,
+        int(draws or (RESAMPLE_DRAWS if extra is None else RESAMPLE_DRAWS_ARM)),
+        np.random.default_rng(seed),
+    )
+    return _block_factors(*(_resampled_groups(r) if extra is None else _resampled_with_extra(r, extra)), S)
+
+
+@dataclass(frozen=True)
+class _Resampling:
+    """What both ways of :func:`resampled_factors` draw from."""
+
+    s2_hat: np.ndarray  # (3,) the estimated variances: the draws' truth
+    Q: np.ndarray
+    J: np.ndarray
+    S: np.ndarray
+    free: np.ndarray  # (3,) bool: the groups estimated again on each draw
+    floor2: np.ndarray  # (3,) their variances' lower bounds
+    draws: int
+    rng: np.random.Generator
+
+
+def _resampled_groups(r: _Resampling) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(errors, plug-in covariances, errors at the known sigmas) of the draws; the weights the groups' alone."""
+    Q, J, S, s2_hat, free, floor2, draws, rng = r.Q, r.J, r.S, r.s2_hat, r.free, r.floor2, r.draws, r.rng
+    n, p = J.shape[0], J.shape[2]
     w = 6.0 / np.einsum("gnii->n", Q)  # each view's weight: the projections sum to the identity
     K = Q * (w**2)[None, :, None, None]  # the views' weights are sum_g K_g / s_g^2
     A = np.einsum("nki,gnkl,nlj->gij", J, K, J)  # (3, p, p)
-    s2_hat = np.asarray(sigma, float) ** 2
     N0 = np.linalg.inv(S) - np.einsum("g,gij->ij", 1.0 / s2_hat, A)  # a prior's information (else ~0)
     N0 = 0.5 * (N0 + N0.T)
     dims = np.einsum("gnii->g", Q * w[None, :, None, None])  # each group's observations: 3n, 2n, n
-    rng = np.random.default_rng(seed)
     # the views' noise at the estimated sigmas, n = sum_g s_g P_g z / sqrt(w) (P_g = w Q_g a projection), enters
     # the estimation through n^T K_g n = s_g^2 z^T P_g z and J^T K_g n = s_g sum_n sqrt(w) J^T P_g z
     P = Q * w[None, :, None, None]
@@ -156,8 +189,6 @@ def resampled_factors(
     Js = (J * np.sqrt(w)[:, None, None]).reshape(n * 6, p)
     b = (Pz.reshape(draws, 3, n * 6) @ Js) * np.sqrt(s2_hat)[None, :, None]  # (draws, 3, p): J^T K_g n
     pull = _prior_pull(N0, S, rng, draws)
-    free = ~np.asarray(held, bool)
-    floor2 = np.asarray(floors, float) ** 2
 
     def solve(s2: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(plug-in covariance, the estimate's error) of the draws ``at`` at their sigmas ``s2``."""
@@ -178,43 +209,24 @@ def resampled_factors(
         change = np.max(np.abs(np.sqrt(new / s2[active]) - 1.0), axis=1)
         s2[active] = new
         active = active[change >= RESAMPLE_TOL]
-    cov, d = solve(s2, np.arange(draws))
-    known = (pull - np.einsum("bgi,g->bi", b, 1.0 / s2_hat)) @ S.T  # the same draws at the known sigmas
-    return _block_factors(d, cov, known, S)
+    cov, d = solve(s2, np.arange(draws))  # the same draws at the known sigmas, last:
+    return d, cov, (pull - np.einsum("bgi,g->bi", b, 1.0 / s2_hat)) @ S.T
 
 
-def resampled_factors_arm(
-    sigma: np.ndarray,
-    Q: np.ndarray,
-    extra: np.ndarray,
-    J: np.ndarray,
-    S: np.ndarray,
-    held: np.ndarray,
-    floors: np.ndarray,
-    *,
-    draws: int = RESAMPLE_DRAWS_ARM,
-    seed: int = RESAMPLE_SEED,
-) -> tuple[float, float, float]:
-    """:func:`resampled_factors` where each view's covariance also holds a known ``extra`` (n,6,6).
+def _resampled_with_extra(r: _Resampling, extra: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """As :func:`_resampled_groups`, with a known ``extra`` in every view's covariance.
 
-    ``extra`` is an arm model's encoder noise. The views' weights are then inverted per draw (``draws`` fewer,
-    its factors' Monte Carlo error about 1.5 %); the variance components are Foerstner's
+    The views' weights are inverted per draw; the variance components are Foerstner's
     ``s_g^2 <- s_g^4 e^T W Q_g W e / r_g`` with ``r_g = s_g^2 tr(Q_g (W - W J S J^T W))``, as the refinement's.
     """
+    Q, J, S, s2_hat, free, floor2, draws, rng = r.Q, r.J, r.S, r.s2_hat, r.free, r.floor2, r.draws, r.rng
     n = J.shape[0]
-    if np.all(held):
-        return 1.0, 1.0, 1.0
-    s2_hat = np.asarray(sigma, float) ** 2
     C_hat = np.einsum("g,gnij->nij", s2_hat, Q) + extra
     W_hat = np.linalg.inv(C_hat)
     N0 = np.linalg.inv(S) - np.einsum("nki,nkl,nlj->ij", J, W_hat, J)  # the DH offsets' prior, a prior on X
     N0 = 0.5 * (N0 + N0.T)
-    rng = np.random.default_rng(seed)
     noise = np.einsum("nij,bnj->bni", np.linalg.cholesky(C_hat), rng.standard_normal((draws, n, 6)))
     pull = _prior_pull(N0, S, rng, draws)
-    free = ~np.asarray(held, bool)
-    floor2 = np.asarray(floors, float) ** 2
-
     Jf = J.reshape(n * 6, -1)  # the views' rows stacked
 
     def solve(s2: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -242,8 +254,7 @@ def resampled_factors_arm(
         s2[active] = new
         active = active[np.max(np.abs(np.sqrt(new / old) - 1.0), axis=1) >= RESAMPLE_TOL]
     _, _, cov, d = solve(s2, np.arange(draws))
-    known = (pull - np.einsum("nki,nkl,bnl->bi", J, W_hat, noise)) @ S.T  # the same draws at the known sigmas
-    return _block_factors(d, cov, known, S)
+    return d, cov, (pull - np.einsum("nki,nkl,bnl->bi", J, W_hat, noise)) @ S.T
 
 
 def _prior_pull(N0: np.ndarray, S: np.ndarray, rng: np.random.Generator, draws: int) -> np.ndarray:

@@ -18,7 +18,6 @@ from handeye.refine.tracker_dof import (
     equivalent_dof,
     noise_dof,
     resampled_factors,
-    resampled_factors_arm,
 )
 from handeye.sim.arm_tracker import make_arm_tracker_session
 from handeye.special import fdtri
@@ -138,12 +137,8 @@ def test_a_prior_on_the_parameters_is_drawn_with_its_own_covariance():
 def test_the_resampled_factor_exceeds_satterthwaites_where_the_weights_were_estimated():
     """Three sigmas estimated from 20 eye-in-hand views: the weights the estimate used widen X's error beyond
     the sigmas' own spread (Satterthwaite's F), and the reported degrees of freedom are the factor's F."""
-    ts = make_arm_tracker_session(mode="eye_in_hand", n_views=20, seed=2)
-    mount = mounting(ts.mode)
-    Ms = np.stack([mount.M_from_T_base_end(T) for T in ts.T_base_end])
-    sigma = np.array([np.radians(0.1), 0.5e-3, 0.5e-3])
-    st = _State(Ms, ts.T_cam_board, ts.truth.T_x_true, ts.truth.T_board_true, sigma, np.ones(20, bool))
-    _, J = st.residuals(jacobians=True)
+    st, J = _at_the_truth(seed=2)
+    sigma = st.sigma
     W = st.W()
     S = np.linalg.inv(np.einsum("nki,nkl,nlj->ij", J, W, J))
     estimated = {"rot": True, "trans": True, "trans_along": True}
@@ -160,29 +155,35 @@ def test_the_resampled_factor_exceeds_satterthwaites_where_the_weights_were_esti
     S2 = _plug_in(J, st.W())
     fast = resampled_factors(sig, st.groups(), J, S2, np.zeros(3, bool), np.zeros(3))
     tiny = np.tile(np.eye(6) * 1e-16, (20, 1, 1))
-    arm = resampled_factors_arm(sig, st.groups(), tiny, J, S2, np.zeros(3, bool), np.zeros(3), draws=4000)
+    arm = resampled_factors(sig, st.groups(), J, S2, np.zeros(3, bool), np.zeros(3), extra=tiny, draws=4000)
     assert arm[0] == pytest.approx(fast[0], rel=0.04) and arm[1] == pytest.approx(fast[1], rel=0.04)
 
 
 def test_an_arm_models_encoder_noise_is_resampled_with_the_tracker_sigmas():
     """Each view's covariance holds a known share too (an arm model's encoder noise): the more of it, the less the
     estimated sigmas move the weights, and the smaller the factor; once it dominates, the plug-in stands."""
-    ts = make_arm_tracker_session(mode="eye_in_hand", n_views=20, seed=2)
-    mount = mounting(ts.mode)
-    Ms = np.stack([mount.M_from_T_base_end(T) for T in ts.T_base_end])
-    sigma = np.array([np.radians(0.1), 0.5e-3, 0.5e-3])
-    st = _State(Ms, ts.T_cam_board, ts.truth.T_x_true, ts.truth.T_board_true, sigma, np.ones(20, bool))
-    _, J = st.residuals(jacobians=True)
+    st, J = _at_the_truth(seed=2)
+    sigma = st.sigma
     tracker = np.einsum("g,gnij->nij", sigma**2, st.groups())
     factors = []
     for k in (1e-12, 1.0, 10.0):
         W = np.linalg.inv(tracker * (1.0 + k))
-        f = resampled_factors_arm(sigma, st.groups(), k * tracker, J, _plug_in(J, W), np.zeros(3, bool), np.zeros(3))
+        f = resampled_factors(sigma, st.groups(), J, _plug_in(J, W), np.zeros(3, bool), np.zeros(3), extra=k * tracker)
         factors.append(f[0])
     assert factors[0] > factors[1] > 1.05 and factors[2] < 1.02
     estimated = {"rot": True, "trans": True, "trans_along": True}
     W = np.linalg.inv(tracker * 2.0)
     assert noise_dof(sigma, st.groups(), W, J, _plug_in(J, W), estimated).x_factor == pytest.approx(factors[1])
+
+
+def _at_the_truth(seed: int):
+    """(the pose-only state of a 20-view eye-in-hand session at its truth, 0.1 deg / 0.5 mm sigmas; its J)."""
+    ts = make_arm_tracker_session(mode="eye_in_hand", n_views=20, seed=seed)
+    mount = mounting(ts.mode)
+    Ms = np.stack([mount.M_from_T_base_end(T) for T in ts.T_base_end])
+    sigma = np.array([np.radians(0.1), 0.5e-3, 0.5e-3])
+    st = _State(Ms, ts.T_cam_board, ts.truth.T_x_true, ts.truth.T_board_true, sigma, np.ones(20, bool))
+    return st, st.residuals(jacobians=True)[1]
 
 
 def _plug_in(J: np.ndarray, W: np.ndarray) -> np.ndarray:
