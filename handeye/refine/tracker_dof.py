@@ -1,21 +1,13 @@
 """X's covariance when the tracker's sigmas are estimated from the views: their degrees of freedom.
 
-The plug-in covariance ``Sigma = inv(J^T W J)`` of a pose-only refinement is the sum of one part per noise
-group (rotation; translation across and along the optical axis), ``Sigma_g = s_g^2 Sigma J^T W Q_g W J Sigma``
-(``Sigma`` is homogeneous of degree 1 in the variances). Each ``s_g^2`` estimated by variance components
-has about as many degrees of freedom as its redundancy ``r_g = s_g^2 tr(Q_g P)``, and with the plug-in the
-Wald statistic of X is heavier-tailed than chi-square(6). Two effects make it so: the sigmas' own spread
-(about ``6 F(6, nu)`` with Satterthwaite's ``nu`` over the parts' shares,
-:func:`handeye.stats.estimated_parts_region_factor`), and the weights the estimate used: a sigma estimated
-too small weights its group too much, so X's error grows where the plug-in says it shrank. Satterthwaite's
-F sees only the first, about half of the effect for 20 views (docs/uncertainty.md).
-
-:func:`resampled_factors` takes both: the whole estimation (the variance components alternating with the
-weighted solve, on the final linearisation) is repeated on noise drawn at the estimated sigmas, and each
-block's factor is the 95 % point of its resampled Wald statistic over chi-square's. The plug-in covariance
-is returned times that factor, so its chi-square(6) ellipsoid and every sigma drawn from it hold the truth
-as often as stated. With an arm's kinematic model each view's covariance also holds the encoder noise's
-known share, and the draws invert the views' weights (:func:`resampled_factors`). See docs/uncertainty.md.
+The plug-in covariance ``Sigma = inv(J^T W J)`` of a pose-only refinement treats the three estimated sigmas
+(rotation; translation across and along the optical axis) as known. Its Wald statistic of X is heavier-tailed
+than chi-square(6) for two reasons: the sigmas' own spread (Satterthwaite's F over each group's part
+``Sigma_g = s_g^2 Sigma J^T W Q_g W J Sigma``, :func:`covariance_parts`) and the weights they gave the estimate
+(a sigma estimated too small overweights its group, so X's error grows where the plug-in says it shrank).
+:func:`resampled_factors` takes both: the estimation is repeated on noise drawn at the estimated sigmas, and each
+block's factor is the 95 % point of the resampled statistic over that at known sigmas. The plug-in covariance
+times that factor has its chi-square(6) ellipsoid right. See docs/uncertainty.md.
 """
 
 from __future__ import annotations
