@@ -95,8 +95,9 @@ def noise_dof(
     scaled = S.shape[0] > 12
     held = np.array([d is None for d in dofs])
     floor = np.zeros(3) if floors is None else np.asarray(floors, float)
-    extra = np.linalg.inv(W) - np.einsum("g,gnij->nij", np.asarray(sigma, float) ** 2, Q)  # an arm's encoder noise
-    alone = np.allclose(extra, 0.0, rtol=0.0, atol=1e-9 * float(np.max(np.abs(np.linalg.inv(W)))))
+    C = np.linalg.inv(W)
+    extra = C - np.einsum("g,gnij->nij", np.asarray(sigma, float) ** 2, Q)  # an arm's encoder noise, or ~0
+    alone = np.allclose(extra, 0.0, rtol=0.0, atol=1e-9 * float(np.max(np.abs(C))))
     extra = None if alone else 0.5 * (extra + np.swapaxes(extra, 1, 2))
     x_f, b_f, s_f = resampled_factors(sigma, Q, J, S, held, floor, extra=extra)
     s_dof = equivalent_dof(s_f, 1) if scaled else None
@@ -201,7 +202,7 @@ def _resampled_groups(r: _Resampling) -> tuple[np.ndarray, np.ndarray, np.ndarra
         change = np.max(np.abs(np.sqrt(new / s2[active]) - 1.0), axis=1)
         s2[active] = new
         active = active[change >= RESAMPLE_TOL]
-    cov, d = solve(s2, np.arange(draws))  # the same draws at the known sigmas, last:
+    cov, d = solve(s2, np.arange(draws))  # each draw's solve at its final sigmas; last, at the known ones
     return d, cov, (pull - np.einsum("bgi,g->bi", b, 1.0 / s2_hat)) @ S.T
 
 
@@ -245,7 +246,7 @@ def _resampled_with_extra(r: _Resampling, extra: np.ndarray) -> tuple[np.ndarray
         new = np.where(free[None], np.maximum(old**2 * quad / np.maximum(red, 1e-300), floor2[None]), old)
         s2[active] = new
         active = active[np.max(np.abs(np.sqrt(new / old) - 1.0), axis=1) >= RESAMPLE_TOL]
-    _, _, cov, d = solve(s2, np.arange(draws))
+    _, _, cov, d = solve(s2, np.arange(draws))  # each draw's solve at its final sigmas; last, at the known ones
     return d, cov, (pull - np.einsum("nki,nkl,bnl->bi", J, W_hat, noise)) @ S.T
 
 
