@@ -18,7 +18,7 @@ from typing import Mapping, Optional
 import numpy as np
 
 from ..special import fdtri
-from ..stats import chi2_ppf
+from ..stats import chi2_ppf, estimated_parts_region_factor
 
 #: the tracker's noise groups, in the order of the sigmas
 GROUPS = ("rot", "trans", "trans_along")
@@ -46,7 +46,7 @@ class NoiseDof:
     board_factor: float = 1.0
     scale_dof: Optional[float] = None  # the tracker's translation scale (13th parameter), when estimated
     scale_factor: float = 1.0
-    method: str = ""  # "resampled" (:func:`resampled_factors`); "" with every sigma stated
+    method: str = ""  # "resampled" (:func:`resampled_factors`), "satterthwaite" where it cannot; "" all stated
 
 
 def redundancies(sigma: np.ndarray, Q: np.ndarray, W: np.ndarray, J: np.ndarray, S: np.ndarray) -> np.ndarray:
@@ -84,8 +84,10 @@ def noise_dof(
     ``estimated``: group name -> whether its sigma was estimated from the views (an unresolved group's is held,
     as a stated one: known). Arguments as :func:`redundancies`, over the views in the solve. The factors are
     :func:`resampled_factors`', with ``extra`` where ``W`` holds more than the groups' covariance (an arm model's
-    encoder noise); ``floors``: the variance components' lower bounds.
-    The blocks' degrees of freedom are the F's with the factor's 95 % point (:func:`equivalent_dof`).
+    encoder noise); ``floors``: the variance components' lower bounds. Where the draws' sigmas reach those floors
+    (too few views for three sigmas) the resampling cannot place the 95 % point, and Satterthwaite's F over each
+    sigma's part of the covariance (:func:`covariance_parts`) gives the factors instead. The blocks' degrees of
+    freedom are the F's with the factor's 95 % point (:func:`equivalent_dof`).
     """
     red = redundancies(sigma, Q, W, J, S)
     dofs = [float(red[g]) if estimated.get(name, False) else None for g, name in enumerate(GROUPS)]
@@ -99,7 +101,17 @@ def noise_dof(
     extra = C - np.einsum("g,gnij->nij", np.asarray(sigma, float) ** 2, Q)  # an arm's encoder noise, or ~0
     alone = np.allclose(extra, 0.0, rtol=0.0, atol=1e-9 * float(np.max(np.abs(C))))
     extra = None if alone else 0.5 * (extra + np.swapaxes(extra, 1, 2))
-    x_f, b_f, s_f = resampled_factors(sigma, Q, J, S, held, floor, extra=extra)
+    factors = resampled_factors(sigma, Q, J, S, held, floor, extra=extra)
+    if factors is None:  # the draws' sigmas reach their floors: the sigmas' spread alone (Satterthwaite's F)
+        parts = covariance_parts(sigma, Q, W, J, S)
+
+        def block(idx: slice) -> tuple[Optional[float], float]:
+            return estimated_parts_region_factor(S[idx, idx], [q[idx, idx] for q in parts], dofs, p=REGION_P)
+
+        (x_dof, x_f), (b_dof, b_f) = block(slice(0, 6)), block(slice(6, 12))
+        s_dof, s_f = block(slice(12, 13)) if scaled else (None, 1.0)
+        return NoiseDof(dof, x_dof, x_f, b_dof, b_f, s_dof, s_f, "satterthwaite")
+    x_f, b_f, s_f = factors
     s_dof = equivalent_dof(s_f, 1) if scaled else None
     return NoiseDof(dof, equivalent_dof(x_f, 6), x_f, equivalent_dof(b_f, 6), b_f, s_dof, s_f, "resampled")
 
@@ -115,7 +127,7 @@ def resampled_factors(
     extra: Optional[np.ndarray] = None,
     draws: Optional[int] = None,
     seed: int = RESAMPLE_SEED,
-) -> tuple[float, float, float]:
+) -> Optional[tuple[float, float, float]]:
     """(X's, the board's, the scale's) factors on the plug-in covariance, from the resampled estimation.
 
     On the final linearisation (``J`` (n,6,p), ``S`` the plug-in covariance, ``sigma`` the estimated sigmas,
@@ -127,7 +139,9 @@ def resampled_factors(
     factor is the 95 % point of its Wald statistic under the draw's own plug-in covariance over that of the same
     draws solved at the known sigmas (chi-square's, with the draws' common error cancelled), at least 1 (the
     plug-in is the covariance at known sigmas). The scale's is 1 without a 13th parameter; all three are 1 when
-    every group is ``held``.
+    every group is ``held``. None when, without ``extra``, at least 5 % of the draws take a sigma down to its
+    floor: a view's weight then grows without bound, and the 95 % point is the floors', not the data's (too few
+    views for three sigmas: 5 or fewer, as measured in docs/uncertainty.md).
 
     ``extra`` (n,6,6): a known share of every view's covariance (an arm model's encoder noise); the views'
     weights are then inverted per draw (``draws`` default :data:`RESAMPLE_DRAWS_ARM`, the factors' Monte Carlo
@@ -146,7 +160,13 @@ def resampled_factors(
         int(draws or (RESAMPLE_DRAWS if extra is None else RESAMPLE_DRAWS_ARM)),
         np.random.default_rng(seed),
     )
-    return _block_factors(*(_resampled_groups(r) if extra is None else _resampled_with_extra(r, extra)), S)
+    if extra is not None:  # the encoders' share keeps every view's weight finite, whatever a draw's sigmas
+        return _block_factors(*_resampled_with_extra(r, extra)[:3], S)
+    d, cov, known, s2 = _resampled_groups(r)
+    floored = np.any(r.free[None] & (s2 <= r.floor2[None] * (1.0 + 1e-9)), axis=1)
+    if np.mean(floored) >= 1.0 - REGION_P:  # the 95 % point would be the floors', not the data's
+        return None
+    return _block_factors(d, cov, known, S)
 
 
 @dataclass(frozen=True)
@@ -163,8 +183,8 @@ class _Resampling:
     rng: np.random.Generator
 
 
-def _resampled_groups(r: _Resampling) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(errors, plug-in covariances, errors at the known sigmas) of the draws; the weights the groups' alone."""
+def _resampled_groups(r: _Resampling) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(errors, plug-in covariances, errors at the known sigmas, variances) of the draws; weights the groups'."""
     Q, J, S, s2_hat, free, floor2, draws, rng = r.Q, r.J, r.S, r.s2_hat, r.free, r.floor2, r.draws, r.rng
     n, p = J.shape[0], J.shape[2]
     w = 6.0 / np.einsum("gnii->n", Q)  # each view's weight: the projections sum to the identity
@@ -203,10 +223,10 @@ def _resampled_groups(r: _Resampling) -> tuple[np.ndarray, np.ndarray, np.ndarra
         s2[active] = new
         active = active[change >= RESAMPLE_TOL]
     cov, d = solve(s2, np.arange(draws))  # each draw's solve at its final sigmas; last, at the known ones
-    return d, cov, (pull - np.einsum("bgi,g->bi", b, 1.0 / s2_hat)) @ S.T
+    return d, cov, (pull - np.einsum("bgi,g->bi", b, 1.0 / s2_hat)) @ S.T, s2
 
 
-def _resampled_with_extra(r: _Resampling, extra: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _resampled_with_extra(r: _Resampling, extra: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """As :func:`_resampled_groups`, with a known ``extra`` in every view's covariance.
 
     The views' weights are inverted per draw; the variance components are Foerstner's
@@ -243,11 +263,11 @@ def _resampled_with_extra(r: _Resampling, extra: np.ndarray) -> tuple[np.ndarray
         WJSJW = (WJ @ cov).reshape(WJv.shape) @ np.swapaxes(WJv, 2, 3)  # (draws, n, 6, 6)
         red = s2[active] * np.einsum("gnij,bnji->bg", Q, W - WJSJW)  # r_g = s_g^2 tr(Q_g P)
         old = s2[active]
-        new = np.where(free[None], np.maximum(old**2 * quad / np.maximum(red, 1e-300), floor2[None]), old)
+        new = np.where(free[None], np.maximum(old**2 * quad / np.maximum(red, 1e-12), floor2[None]), old)
         s2[active] = new
         active = active[np.max(np.abs(np.sqrt(new / old) - 1.0), axis=1) >= RESAMPLE_TOL]
     _, _, cov, d = solve(s2, np.arange(draws))  # each draw's solve at its final sigmas; last, at the known ones
-    return d, cov, (pull - np.einsum("nki,nkl,bnl->bi", J, W_hat, noise)) @ S.T
+    return d, cov, (pull - np.einsum("nki,nkl,bnl->bi", J, W_hat, noise)) @ S.T, s2
 
 
 def _prior_pull(N0: np.ndarray, S: np.ndarray, rng: np.random.Generator, draws: int) -> np.ndarray:

@@ -319,3 +319,14 @@ def test_estimate_scale_in_an_image_session_yaml_is_refused(tmp_path, value, mes
     d = _image_session(tmp_path, extra=f"estimate_scale: {value}\n")
     with pytest.raises(ConfigError, match=message):
         read_native_document(d / "session.yaml")
+
+
+def test_too_few_views_for_three_sigmas_fall_back_to_satterthwaite():
+    """Five views leave the sigma along the optical axis about two degrees of freedom: many draws take it to its
+    floor, where a view's weight has no bound and the resampled 95 % point would be the floor's. The factor is
+    then Satterthwaite's; eight views are resampled."""
+    few = _refine(make_arm_tracker_session(mode="eye_in_hand", n_views=5, seed=5, arm="ur5e"))
+    assert few.cov_x_dof_method == "satterthwaite" and 1.2 < few.cov_x_dof_factor < 3.0
+    assert few.to_dict()["cov_x_dof_method"] == "satterthwaite"
+    enough = _refine(make_arm_tracker_session(mode="eye_in_hand", n_views=8, seed=8, arm="ur5e"))
+    assert enough.cov_x_dof_method == "resampled" and 1.2 < enough.cov_x_dof_factor < 3.0
