@@ -219,7 +219,7 @@ def _resampled_groups(r: _Resampling) -> tuple[np.ndarray, np.ndarray, np.ndarra
         quad = a[active] + 2.0 * np.einsum("bi,bgi->bg", d, b[active]) + dAd  # e^T K_g e, e = n + J d
         red = dims[None] - (cov.reshape(len(active), p * p) @ At) / s2[active]
         new = np.where(free[None], np.maximum(quad / np.maximum(red, 1e-12), floor2[None]), s2[active])
-        change = np.max(np.abs(np.sqrt(new / s2[active]) - 1.0), axis=1)
+        change = _change(new, s2[active])
         s2[active] = new
         active = active[change >= RESAMPLE_TOL]
     cov, d = solve(s2, np.arange(draws))  # each draw's solve at its final sigmas; last, at the known ones
@@ -265,9 +265,14 @@ def _resampled_with_extra(r: _Resampling, extra: np.ndarray) -> tuple[np.ndarray
         old = s2[active]
         new = np.where(free[None], np.maximum(old**2 * quad / np.maximum(red, 1e-12), floor2[None]), old)
         s2[active] = new
-        active = active[np.max(np.abs(np.sqrt(new / old) - 1.0), axis=1) >= RESAMPLE_TOL]
+        active = active[_change(new, old) >= RESAMPLE_TOL]
     _, _, cov, d = solve(s2, np.arange(draws))  # each draw's solve at its final sigmas; last, at the known ones
     return d, cov, (pull - np.einsum("nki,nkl,bnl->bi", J, W_hat, noise)) @ S.T, s2
+
+
+def _change(new: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """(draws,) each draw's largest relative change of its sigmas (a sigma at zero: its change from zero)."""
+    return np.max(np.abs(np.sqrt(new) - np.sqrt(old)) / np.sqrt(np.maximum(old, np.finfo(float).tiny)), axis=1)
 
 
 def _prior_pull(N0: np.ndarray, S: np.ndarray, rng: np.random.Generator, draws: int) -> np.ndarray:
