@@ -17,7 +17,7 @@ import numpy as np
 from ..camera import Intrinsics
 from ..collect.visibility import board_center, board_in_image, board_out_of_image, default_margin_px, pattern_bounds
 from ..errors import ConfigError, DegenerateMotionError
-from ..frames import R_from_rotvec, T_from_rotvec, inv_T, make_T
+from ..frames import R_from_quat_wxyz, R_from_rotvec, T_from_rotvec, inv_T, make_T
 from ..initial.motion import MotionQuality, motion_quality
 from ..mounting import mounting
 from ..targets import ChessboardSpec, TargetSpec
@@ -339,6 +339,16 @@ def sample_view_poses(
     )
 
 
+def _reachable_flange_pose(rng: np.random.Generator, reach_m: tuple[float, float]) -> np.ndarray:
+    """A flange pose (4,4) uniform over the reach above the table, its orientation uniform."""
+    while True:
+        p = rng.uniform(-reach_m[1], reach_m[1], 3)
+        r = float(np.linalg.norm(p))
+        if reach_m[0] <= r <= reach_m[1] and p[2] > MIN_FLANGE_HEIGHT_M:
+            break
+    return make_T(R_from_quat_wxyz(rng.normal(size=4)), p)  # a Gaussian quaternion: a uniform rotation
+
+
 def sample_hidden_view_pose(
     *,
     mode: str,
@@ -355,7 +365,10 @@ def sample_hidden_view_pose(
 
     A view of the board (distance up to twice the normal range) whose camera is then turned
     40-100 deg about an axis in its image plane: for eye_in_hand the wrist looks away, for
-    eye_to_hand the gripper carries the board out of the fixed camera's field of view.
+    eye_to_hand the gripper carries the board out of the fixed camera's field of view. Where none of
+    ``max_tries`` such poses is within reach (a fixed camera far from the base, whose field of view
+    spans most of what the arm reaches), flange poses drawn over the reach (any orientation) are tried
+    as many times, each kept when the board is out of the image.
     """
     mounting(mode)  # an unknown mode is a ConfigError
     intrinsics = DEFAULT_INTRINSICS if intrinsics is None else intrinsics
@@ -377,6 +390,12 @@ def sample_hidden_view_pose(
             continue
         T_base_end = _T_base_end_from_T_cam_board(mode, T_x, T_board, T_cam_board)
         if plausible_robot_pose(T_base_end, reach_m) and (pose_ok is None or pose_ok(T_base_end)):
+            return T_base_end
+    mount = mounting(mode)
+    for _ in range(max_tries):  # anywhere the arm reaches, the board out of the image
+        T_base_end = _reachable_flange_pose(rng, reach_m)
+        T_cam_board = mount.predict_T_cam_board(T_x, T_board, T_base_end[None])[0]
+        if board_out_of_image(target, intrinsics, T_cam_board) and (pose_ok is None or pose_ok(T_base_end)):
             return T_base_end
     raise ConfigError(
         "cannot sample a pose that hides the board",

@@ -199,6 +199,16 @@ def test_hidden_views_have_no_corners_and_board_out_of_view():
     assert "3" not in [d.view_id for d in s.detections()]
 
 
+def test_a_fixed_camera_far_from_the_base_still_gets_its_hidden_view():
+    """This rig's camera stands 2 m from the base, looking over the whole reach: no turn of a board view away
+    from the camera is within reach, so the hidden view is a flange pose drawn over the reach instead."""
+    s = make_corner_session(mode="eye_to_hand", n_views=22, seed=2341, robot_noise=(0.2, 0.05), hidden_views=["7"])
+    assert np.linalg.norm(s.T_x_true[:3, 3]) > 1.9
+    k = s.index("7")
+    assert board_out_of_image(s.target, s.intrinsics, s.T_cam_board_true[k]) and len(s.corner_ids[k]) == 0
+    assert scenarios.plausible_robot_pose(s.T_base_end_true[k])
+
+
 def test_corner_session_rejects_bad_ids_and_levels():
     with pytest.raises(ConfigError):
         make_corner_session(n_views=4, hidden_views=["5"])
