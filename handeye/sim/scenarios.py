@@ -401,7 +401,7 @@ def sample_hidden_view_pose(
         "cannot sample a pose that hides the board",
         expected="a reachable pose looking away",
         received=f"{max_tries} rejected samples",
-        hint="widen reach_m",
+        hint="the camera sees all the arm reaches in its configuration: simulate another --seed, or no --hidden view",
     )
 
 
