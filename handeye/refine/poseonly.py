@@ -444,6 +444,7 @@ def refine_poses(
             S,
             resolved,
             floors=floors,
+            extra=None if st.robot is None else st.robot.covariances(st.T_x, st.T_board, st.C, st.dh)[st.keep],
         )
         status, reason = "ok", ""
     except np.linalg.LinAlgError as err:

@@ -76,18 +76,19 @@ def noise_dof(
     estimated: Mapping[str, bool],
     *,
     floors: Optional[np.ndarray] = None,
+    extra: Optional[np.ndarray] = None,
 ) -> NoiseDof:
     """The degrees of freedom of the estimated sigmas and the factors of X's, the board's and the scale's blocks.
 
     X is parameters 0:6, the board 6:12, the tracker's log scale 12 when estimated.
 
     ``estimated``: group name -> whether its sigma was estimated from the views (an unresolved group's is held,
-    as a stated one: known). Arguments as :func:`redundancies`, over the views in the solve. The factors are
-    :func:`resampled_factors`', with ``extra`` where ``W`` holds more than the groups' covariance (an arm model's
-    encoder noise); ``floors``: the variance components' lower bounds. Where the draws' sigmas reach those floors
-    (too few views for three sigmas) the resampling cannot place the 95 % point, and Satterthwaite's F over each
-    sigma's part of the covariance (:func:`covariance_parts`) gives the factors instead. The blocks' degrees of
-    freedom are the F's with the factor's 95 % point (:func:`equivalent_dof`).
+    as a stated one: known). Arguments as :func:`redundancies`, over the views in the solve; ``extra`` (n,6,6):
+    what ``W``'s covariance holds beyond the groups' (an arm model's encoder noise), or None. The factors are
+    :func:`resampled_factors`'; ``floors``: the variance components' lower bounds. Where the draws' sigmas
+    reach those floors (too few views for three sigmas) the resampling cannot place the 95 % point, and
+    Satterthwaite's F over each sigma's part of the covariance (:func:`covariance_parts`) gives the factors
+    instead. The blocks' degrees of freedom are the F's with the factor's 95 % point (:func:`equivalent_dof`).
     """
     red = redundancies(sigma, Q, W, J, S)
     dofs = [float(red[g]) if estimated.get(name, False) else None for g, name in enumerate(GROUPS)]
@@ -97,10 +98,6 @@ def noise_dof(
     scaled = S.shape[0] > 12
     held = np.array([d is None for d in dofs])
     floor = np.zeros(3) if floors is None else np.asarray(floors, float)
-    C = np.linalg.inv(W)
-    extra = C - np.einsum("g,gnij->nij", np.asarray(sigma, float) ** 2, Q)  # an arm's encoder noise, or ~0
-    alone = np.allclose(extra, 0.0, rtol=0.0, atol=1e-9 * float(np.max(np.abs(C))))
-    extra = None if alone else 0.5 * (extra + np.swapaxes(extra, 1, 2))
     factors = resampled_factors(sigma, Q, J, S, held, floor, extra=extra)
     if factors is None:  # the draws' sigmas reach their floors: the sigmas' spread alone (Satterthwaite's F)
         parts = covariance_parts(sigma, Q, W, J, S)
@@ -201,7 +198,7 @@ def _resampled_groups(r: _Resampling) -> tuple[np.ndarray, np.ndarray, np.ndarra
     a = s2_hat[None] * np.einsum("bgnk,bnk->bg", Pz, z)  # (draws, 3): n^T K_g n
     Js = (J * np.sqrt(w)[:, None, None]).reshape(n * 6, p)
     b = (Pz.reshape(draws, 3, n * 6) @ Js) * np.sqrt(s2_hat)[None, :, None]  # (draws, 3, p): J^T K_g n
-    pull = _prior_pull(N0, S, rng, draws)
+    pull = _prior_pull(N0, rng, draws)
 
     def solve(s2: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(plug-in covariance, the estimate's error) of the draws ``at`` at their sigmas ``s2``."""
@@ -239,7 +236,7 @@ def _resampled_with_extra(r: _Resampling, extra: np.ndarray) -> tuple[np.ndarray
     N0 = np.linalg.inv(S) - np.einsum("nki,nkl,nlj->ij", J, W_hat, J)  # the DH offsets' prior, a prior on X
     N0 = 0.5 * (N0 + N0.T)
     noise = np.einsum("nij,bnj->bni", np.linalg.cholesky(C_hat), rng.standard_normal((draws, n, 6)))
-    pull = _prior_pull(N0, S, rng, draws)
+    pull = _prior_pull(N0, rng, draws)
     Jf = J.reshape(n * 6, -1)  # the views' rows stacked
 
     def solve(s2: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -275,13 +272,15 @@ def _change(new: np.ndarray, old: np.ndarray) -> np.ndarray:
     return np.max(np.abs(np.sqrt(new) - np.sqrt(old)) / np.sqrt(np.maximum(old, np.finfo(float).tiny)), axis=1)
 
 
-def _prior_pull(N0: np.ndarray, S: np.ndarray, rng: np.random.Generator, draws: int) -> np.ndarray:
-    """(draws, p) ``N0 m`` with a prior's mean ``m ~ N(0, N0^+)`` about the truth (zeros without a prior)."""
+def _prior_pull(N0: np.ndarray, rng: np.random.Generator, draws: int) -> np.ndarray:
+    """(draws, p) ``N0 m`` with a prior's mean ``m ~ N(0, N0^+)`` about the truth: ``N0^(1/2) z``.
+
+    ``N0`` is a difference of informations: its directions without a prior hold round-off, negative ones taken
+    as 0. The square root is the symmetric one, unique even where a prior's eigenvalues repeat (DH offsets of
+    one stated sigma), so the draws change with ``N0`` smoothly, not with which eigenvectors came out.
+    """
     ev, V = np.linalg.eigh(N0)
-    prior = ev > 1e-9 * float(np.max(np.linalg.eigvalsh(np.linalg.inv(S))))
-    if not np.any(prior):
-        return np.zeros((draws, N0.shape[0]))
-    return rng.standard_normal((draws, int(prior.sum()))) @ (V[:, prior] * np.sqrt(ev[prior])).T
+    return rng.standard_normal((draws, len(ev))) @ ((V * np.sqrt(np.clip(ev, 0.0, None))) @ V.T)
 
 
 def _block_factors(d: np.ndarray, cov: np.ndarray, known: np.ndarray, S: np.ndarray) -> tuple[float, float, float]:

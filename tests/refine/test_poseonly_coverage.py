@@ -173,7 +173,8 @@ def test_an_arm_models_encoder_noise_is_resampled_with_the_tracker_sigmas():
     assert factors[0] > factors[1] > 1.05 and factors[2] < 1.02
     estimated = {"rot": True, "trans": True, "trans_along": True}
     W = np.linalg.inv(tracker * 2.0)
-    assert noise_dof(sigma, st.groups(), W, J, _plug_in(J, W), estimated).x_factor == pytest.approx(factors[1])
+    dof = noise_dof(sigma, st.groups(), W, J, _plug_in(J, W), estimated, extra=tracker)
+    assert dof.x_factor == pytest.approx(factors[1])
 
 
 def _at_the_truth(seed: int):
