@@ -83,10 +83,7 @@ class PoseRefineResult(RefineResult):
         }
         if self.cov_board_6x6 is not None:
             d["cov_board_6x6"] = self.cov_board_6x6.tolist()
-        d["tracker_noise_dof"] = dict(self.tracker_noise_dof)
-        d["cov_x_noise_dof"] = self.cov_x_noise_dof
-        d["cov_x_dof_factor"] = self.cov_x_dof_factor
-        d["cov_x_dof_method"] = self.cov_x_dof_method or None
+        d["tracker_noise_dof"] = dict(self.tracker_noise_dof)  # X's factor, its nu and method: RefineResult's
         if self.tracker_scale is not None:
             d["tracker_scale"] = {
                 "value": self.tracker_scale,
