@@ -340,13 +340,14 @@ def sample_view_poses(
 
 
 def _reachable_flange_pose(rng: np.random.Generator, reach_m: tuple[float, float]) -> np.ndarray:
-    """A flange pose (4,4) uniform over the reach above the table, its orientation uniform."""
+    """A flange pose (4,4) uniform over the reach above the table, its orientation uniform.
+
+    The reach is :func:`plausible_robot_pose`'s; the orientation a Gaussian quaternion's.
+    """
     while True:
-        p = rng.uniform(-reach_m[1], reach_m[1], 3)
-        r = float(np.linalg.norm(p))
-        if reach_m[0] <= r <= reach_m[1] and p[2] > MIN_FLANGE_HEIGHT_M:
-            break
-    return make_T(R_from_quat_wxyz(rng.normal(size=4)), p)  # a Gaussian quaternion: a uniform rotation
+        T = make_T(R_from_quat_wxyz(rng.normal(size=4)), rng.uniform(-reach_m[1], reach_m[1], 3))
+        if plausible_robot_pose(T, reach_m):
+            return T
 
 
 def sample_hidden_view_pose(
