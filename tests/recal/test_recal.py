@@ -1144,6 +1144,27 @@ def test_verify_on_the_installed_calibrations_own_images_says_so(rendered, tmp_p
     assert "installed calibration's own" not in caplog.text
 
 
+def test_verify_reports_list_an_image_without_the_board_with_its_reason(rendered, tmp_path, capsys):
+    import shutil
+
+    import cv2
+
+    session = tmp_path / "with_blank"
+    shutil.copytree(rendered["same"], session)
+    size = cv2.imread(str(session / "1.jpg"), cv2.IMREAD_GRAYSCALE).shape
+    cv2.imwrite(str(session / "5.jpg"), np.full(size, 128, np.uint8))  # the same camera, no board in view
+    poses = (session / "poses.txt").read_text().strip().splitlines()
+    (session / "poses.txt").write_text("\n".join([*poses, poses[-1]]) + "\n")
+    rc = main(["verify", str(session), "--against", str(rendered["installed"]), "--out", str(tmp_path / "v")])
+    assert rc == 0 and "still valid" in capsys.readouterr().out
+    d = json.loads((tmp_path / "v" / "verify.json").read_text())
+    blank = [o for o in d["view_outcomes"] if o["image"].endswith("5.jpg")]
+    assert d["n_views"] == 4 and len(blank) == 1 and not blank[0]["detected"]
+    for name in ("verify.html", "verify.md"):
+        text = (tmp_path / "v" / name).read_text()
+        assert f"not detected: {blank[0]['reason']}" in text
+
+
 def test_a_prior_whose_test_fails_is_not_used_and_not_called_contradicted(rendered, monkeypatch):
     """When verify's test of the prior cannot be solved, the prior on X is not used, and the record says that it
     could not be tested (not that the data contradict it); the report shows NOT TESTED."""
