@@ -234,7 +234,8 @@ def verify_views(
     test = test_refined(installed, r, prior, min_variance_share=options.min_variance_share)
     drifted = test.p_value < options.alpha
     change = change_in_result_frame(X0, test.change_xi, test.change_cov)
-    board = _board_change(installed, r, mode, E, C, options, change)
+    used = np.array([v.view_id in set(r.used_view_ids) for v in views])  # not the views whose robot pose is out
+    board = _board_change(installed, r, mode, E[used], C[used], options, change)
     if installed.T_board is not None:  # result.json's board, and the same board in this session's numbering
         board.update(
             installed=installed_T_board,
@@ -304,9 +305,9 @@ def _board_change(
 ) -> dict:
     """The new board pose against the installed one.
 
-    Its sigma: the scatter of the per-view board poses through the new X (the mean's standard error)
-    and, in quadrature, the sigma of the change of X (the board is found through X, so an error of X
-    moves it as much, to first order).
+    Its sigma: the scatter of the per-view board poses through the new X (the mean's standard error) over
+    the views the solve used (``E``, ``C``: theirs) and, in quadrature, the sigma of the change of X (the
+    board is found through X, so an error of X moves it as much, to first order).
     """
     m = mounting(mode)
     d = {"name": m.board_name, "installed": installed.T_board, "new": r.T_board}

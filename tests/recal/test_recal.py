@@ -608,6 +608,34 @@ def test_verify_with_robot_poses_far_noisier_than_installed_says_so(install):
     assert "turned between them" not in hint
 
 
+def test_a_view_left_out_for_its_robot_pose_does_not_hide_a_board_that_moved(install):
+    """The board moved 10 mm on the table, and one of 6 new views has a wrong robot pose: the view is left out, and
+    the board's change is judged on the views the solve used (with the wrong one its scatter was 5.8 mm)."""
+    from handeye.recal.verify import verify_views
+    from handeye.sim.corners import make_corner_session
+
+    s, res = install
+    shift = np.eye(4)
+    shift[0, 3] = 10e-3  # T_base_board: 10 mm along the base's x
+    out = {}
+    for bad in ([], ["3"]):
+        v = make_corner_session(
+            n_views=6,
+            seed=106,
+            noise_px=0.3,
+            robot_noise=(0.2, 0.05),
+            intrinsics=s.intrinsics,
+            rig=(s.T_x_true, shift @ s.T_board_true),
+            outlier_views=bad,
+            outlier_trans_mm=(15.0, 20.0),
+        )
+        out[len(bad)] = verify_views(load_result(res), views=_views(v), object_points=s.target.object_points())
+    assert out[1].robot["views"] == ["3"] and out[1].verdict == out[0].verdict == "still valid"
+    for b in (out[0].board, out[1].board):
+        assert b["moved"] and b["trans_mm"] == pytest.approx(10.0, abs=3 * b["sigma_trans_mm"])
+    assert out[1].board["sigma_trans_mm"] < 1.5 * out[0].board["sigma_trans_mm"]
+
+
 def test_plan_power_grows_with_views_and_is_bounded_by_the_installed_uncertainty(install):
     from handeye.recal.plan import installed_poses, plan_lines, plan_verification
 
