@@ -16,6 +16,27 @@ from .errors import ConfigError, InputError
 PRESET_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
+def parse_yaml(text: str, *, path: str | Path, loader=yaml.SafeLoader):
+    """The YAML document in ``text`` (read from ``path``); InputError naming the file and line when it is not YAML.
+
+    A date or time that does not exist (``2026-02-30``, an offset of 25 h) is YAML's timestamp whose value
+    Python cannot build: an InputError too, not the ValueError PyYAML lets through.
+    """
+    try:
+        return yaml.load(text, Loader=loader)
+    except yaml.YAMLError as e:
+        line = getattr(getattr(e, "problem_mark", None), "line", None)
+        raise InputError(
+            "not valid YAML", path=path, line=None if line is None else line + 1, hint="fix the syntax of this file"
+        ) from None
+    except (ValueError, OverflowError) as e:  # a timestamp's constructor
+        raise InputError(
+            f"a date or time in this file does not exist ({' '.join(str(e).split())})",
+            path=path,
+            hint="write it as YYYY-MM-DD or YYYY-MM-DDTHH:MM:SS with a real day, hour and offset, or quote it",
+        ) from None
+
+
 def load_preset(name: str) -> dict:
     """A shipped preset by name (``calibration``, ``qa``...), found inside the installed package.
 
@@ -93,13 +114,7 @@ def load_with_override(name: str, override_path: str | Path | None) -> dict:
     from .output import read_text
 
     p = Path(override_path)
-    try:
-        data = yaml.safe_load(read_text(p, what="config file")) or {}
-    except yaml.YAMLError as e:
-        line = getattr(getattr(e, "problem_mark", None), "line", None)
-        raise InputError(
-            "not valid YAML", path=p, line=None if line is None else line + 1, hint="fix the syntax of this file"
-        ) from None
+    data = parse_yaml(read_text(p, what="config file"), path=p) or {}
     if not isinstance(data, dict):
         raise ConfigError("expected a mapping at the top level", path=p)
     return merge(cfg, data, source=str(p))

@@ -243,7 +243,7 @@ def _session_yaml(folder: Path, warnings: list, name: str = "session.yaml") -> d
 
     try:
         d = yaml.safe_load((folder / name).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, ValueError, OverflowError) as e:  # ValueError: a bad date
         # its install, time and verify_against are lost: grouped by its path, run as a calibration, which names
         # the file's fault in its own record
         warnings.append(f"{name} not read for the batch ({' '.join(str(e).split())}); grouped by its folder")

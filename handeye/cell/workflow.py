@@ -58,13 +58,10 @@ class CellWorkflowResult:
 
 def read_cell_file(folder) -> tuple[list[Path], Optional[str]]:
     """(session folders, the arm named by ``robot:`` or None) of a cell folder's ``cell.yaml``."""
-    import yaml
+    from ..config import parse_yaml
 
     path = Path(folder) / CELL_FILE
-    try:
-        doc = yaml.safe_load(read_text(path))
-    except yaml.YAMLError as e:
-        raise InputError(f"{CELL_FILE} is not YAML: {e}".splitlines()[0], path=path) from None
+    doc = parse_yaml(read_text(path), path=path)
     cell = doc.get("cell") if isinstance(doc, dict) else None
     sessions = cell.get("sessions") if isinstance(cell, dict) else None
     if not isinstance(sessions, list) or not sessions or not all(isinstance(s, str) and s for s in sessions):

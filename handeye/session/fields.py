@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..config import load_preset
+from ..config import load_preset, parse_yaml
 from ..conventions import PoseFormat
 from ..errors import ConfigError, InputError
 from ..mounting import MODES
@@ -52,14 +52,7 @@ def read_yaml(path: Path, *, loader=yaml.SafeLoader) -> dict:
 
     ``loader``: :class:`IdTextLoader` for session files (view ids kept as written).
     """
-    text = read_text(path, what="YAML file")
-    try:
-        data = yaml.load(text, Loader=loader)
-    except yaml.YAMLError as e:
-        line = getattr(getattr(e, "problem_mark", None), "line", None)
-        raise InputError(
-            "not valid YAML", path=path, line=None if line is None else line + 1, hint="fix the syntax of this file"
-        ) from None
+    data = parse_yaml(read_text(path, what="YAML file"), path=path, loader=loader)
     if data is None:
         data = {}
     if not isinstance(data, dict):

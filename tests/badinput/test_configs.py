@@ -43,6 +43,7 @@ VENDOR_CONFIG = [
         id="python_tag_never_runs",
     ),
     pytest.param("a: &a [*a]\n", ["config.yaml"], id="recursive_alias"),
+    pytest.param(_cfg() + "recorded: 2026-02-30\n", ["config.yaml", "date", "day is out of range"], id="no_such_day"),
 ]
 
 
@@ -93,6 +94,7 @@ SITE_CONFIG = [
     pytest.param("refine_options: 3\n", ["site.yaml", "refine_options"], id="refine_options_number"),
     pytest.param("[1, 2]\n", ["site.yaml", "mapping"], id="a_list"),
     pytest.param("method: [park\n", ["site.yaml", "not valid YAML"], id="bad_yaml"),
+    pytest.param("checked: 2026-01-01T00:00:00+25:00\n", ["site.yaml", "date or time"], id="no_such_offset"),
     pytest.param("method: park\x00\x00\x00\x00\x00\n", ["site.yaml"], id="nul_bytes"),
     pytest.param(("# Genauigkeit\xb1\nmotion: 5\n").encode("latin-1"), ["site.yaml", "'motion'"], id="latin1_read"),
     pytest.param(codecs.BOM_UTF8 + b"motion: 5\n", ["site.yaml", "'motion'"], id="bom_read"),
@@ -124,6 +126,7 @@ QA = [
     pytest.param("working_distance_m: far\n", ["qa.yaml", "working_distance_m"], id="distance_text"),
     pytest.param("checks: 5\n", ["qa.yaml", "checks"], id="checks_number"),
     pytest.param("nonsense: 1\n", ["qa.yaml", "nonsense"], id="unknown_key"),
+    pytest.param("signed: 2026-13-45\n", ["qa.yaml", "month must be in 1..12"], id="no_such_month"),
 ]
 
 

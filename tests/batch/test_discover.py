@@ -56,6 +56,23 @@ def test_a_session_time_that_is_not_a_time_falls_back_with_a_warning(tmp_path, v
     assert "is not an ISO 8601 time" in job.warnings[0]
 
 
+@pytest.mark.parametrize("value", ["2026-02-30", "2026-01-01T00:00:00+25:00"])
+def test_an_unquoted_time_that_does_not_exist_falls_back_with_a_warning(tmp_path, value):
+    """YAML reads these as timestamps Python cannot build (PyYAML raises ValueError): the job keeps the file time
+    and says why; the calibration then names the file (session.fields.read_yaml)."""
+    folder = _native(tmp_path / "cell" / "s")
+    (folder / "session.yaml").write_text(f"handeye_session: 1\ntime: {value}\n")
+    (job,) = discover(tmp_path)
+    assert job.time_source == "file time" and job.time_utc is not None and job.error is None
+    assert "session.yaml not read for the batch" in job.warnings[0]
+    from handeye.errors import InputError
+    from handeye.session.fields import read_yaml
+
+    with pytest.raises(InputError, match="date or time in this file does not exist") as e:
+        read_yaml(folder / "session.yaml")
+    assert "session.yaml" in str(e.value)
+
+
 def test_a_session_that_cannot_run_is_a_job_with_its_error_and_the_others_are_found(tmp_path):
     _native(tmp_path / "cell" / "bad", verify_against=5)
     _native(tmp_path / "cell" / "grouped", install={"x": 1})
