@@ -194,6 +194,10 @@ VERDICTS = {
 #: exit code of ``handeye`` after Ctrl-C (128 + SIGINT, as shells report it)
 INTERRUPTED_EXIT_CODE = 130
 
+#: exit code of ``handeye`` when the reader of its output went away (128 + SIGPIPE, as ``handeye ... | head``
+#: gives a shell)
+OUTPUT_CLOSED_EXIT_CODE = 141
+
 #: exit code of ``handeye verify`` / ``handeye compare`` when the calibration changed beyond its uncertainty
 DRIFTED_EXIT_CODE = 9
 
@@ -214,6 +218,7 @@ EXIT_CODES = (
     (SessionRefused.exit_code, "REFUSED: a finding makes the result untrustworthy; no matrix, the finding says why"),
     (DRIFTED_EXIT_CODE, "DRIFTED (verify, compare): the calibration changed beyond its uncertainty"),
     (INTERRUPTED_EXIT_CODE, "interrupted (Ctrl-C)"),
+    (OUTPUT_CLOSED_EXIT_CODE, "the reader of the printed output went away (e.g. the output piped into head)"),
 )
 
 

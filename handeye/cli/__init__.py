@@ -5,7 +5,7 @@ report, collect, batch, export, compare and verify, each with its module in this
 in ``handeye --help``. Only the chosen command's module is imported; it adds its own arguments.
 
 Progress goes to stderr, results to stdout and files. A user mistake ends in one line on stderr and
-an exit code from :data:`handeye.errors.EXIT_CODES`, never a traceback (``--debug`` shows it).
+an exit code from :data:`handeye.errors.EXIT_CODES`, never a traceback (``--debug`` prints it first).
 
 See docs/cli.md.
 """
@@ -21,7 +21,7 @@ import logging
 import os
 import sys
 
-from ..errors import INTERRUPTED_EXIT_CODE, HandeyeError, exit_codes_text
+from ..errors import INTERRUPTED_EXIT_CODE, OUTPUT_CLOSED_EXIT_CODE, HandeyeError, exit_codes_text
 from ..machine import keep_freed_memory
 
 log = logging.getLogger("handeye")
@@ -176,27 +176,67 @@ def main(argv=None) -> int:
     try:
         return int(args.func(args) or 0)
     except HandeyeError as e:
-        if args.debug:
-            raise
+        _traceback(args)
         print(f"handeye: error: {e}", file=sys.stderr)
         return e.exit_code
     except KeyboardInterrupt:
         print("handeye: interrupted", file=sys.stderr)
         return INTERRUPTED_EXIT_CODE
+    except BrokenPipeError as e:
+        if not _stdout_closed():
+            return _os_error(args, e)
+        return OUTPUT_CLOSED_EXIT_CODE  # `handeye ... | head`: the reader has what it wanted, nothing to say
     except OSError as e:  # the file system refused (disk full, permissions, a file vanished): name the file
-        if args.debug:
-            raise
-        print(f"handeye: error: {os_error_line(e)}", file=sys.stderr)
-        return HandeyeError.exit_code
+        return _os_error(args, e)
     except Exception as e:  # noqa: BLE001 - a bug: one line, the traceback with --debug
-        if args.debug:
-            raise
+        _traceback(args)
         msg = " ".join(f"{type(e).__name__}: {e}".split())[:300]
         print(
             f"handeye: internal error ({msg}); this is a bug -> rerun with --debug and report the traceback",
             file=sys.stderr,
         )
         return 1
+
+
+def _traceback(args) -> None:
+    """With ``--debug``, the traceback of the exception being handled (the exit code stays the error's)."""
+    if args.debug:
+        import traceback
+
+        traceback.print_exc(file=sys.stderr)
+
+
+def _os_error(args, e: OSError) -> int:
+    _traceback(args)
+    print(f"handeye: error: {os_error_line(e)}", file=sys.stderr)
+    return HandeyeError.exit_code
+
+
+def _stdout_closed() -> bool:
+    """Whether standard output is a pipe whose reader went away; if so, stdout is pointed at the null device.
+
+    Asked of the pipe itself (poll's POLLERR; where there is no poll, whether a flush fails). Pointed at the
+    null device, the interpreter's last flush at exit has nowhere to fail.
+    """
+    import select
+
+    try:
+        fd = sys.stdout.fileno()
+        if hasattr(select, "poll"):
+            poller = select.poll()
+            poller.register(fd, select.POLLOUT)
+            closed = any(ev & select.POLLERR for _, ev in poller.poll(0))
+        else:
+            try:
+                sys.stdout.flush()
+                closed = False
+            except BrokenPipeError:
+                closed = True
+        if closed:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), fd)
+        return closed
+    except (OSError, ValueError):  # a stdout without a file descriptor (a test's capture)
+        return False
 
 
 #: what only a write is refused with: the disk or quota is full, the file system read-only, the file too large

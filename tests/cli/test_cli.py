@@ -126,10 +126,44 @@ def test_unknown_config_key_is_named(session, tmp_path, capsys):
     assert err.count("\n") == 1 and "unknown setting 'methd'" in err
 
 
-def test_debug_keeps_the_traceback(tmp_path):
-    with pytest.raises(InputError):
-        main(["--debug", "-q", "calibrate", str(tmp_path / "missing"), "--out", str(tmp_path / "o")])
+def test_debug_prints_the_traceback_and_keeps_the_exit_code(tmp_path, capsys):
+    assert main(["--debug", "-q", "calibrate", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("Traceback (most recent call last):") and "InputError" in err
+    assert err.strip().splitlines()[-1].startswith("handeye: error: ") and "missing" in err.splitlines()[-1]
     assert main(["-q", "calibrate", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]) == 2
+    assert "Traceback" not in capsys.readouterr().err
+
+
+def test_a_closed_pipe_ends_quietly_and_another_broken_pipe_is_named(monkeypatch, capsys):
+    """``handeye ... | head``: the reader of stdout goes away mid-print; no error line blaming the file system,
+    exit 141. A broken pipe that is not stdout's stays the one-line refusal of the file system."""
+    import io
+    import os
+
+    import handeye.cli.apply as apply_cli
+    from handeye.errors import OUTPUT_CLOSED_EXIT_CODE
+
+    def prints(args):
+        for _ in range(10000):
+            print("p_base [m]: 0 0 0")
+        return 0
+
+    monkeypatch.setattr(apply_cli, "run", prints)
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # the reader went away
+    with open(write_end, "w") as closed:
+        monkeypatch.setattr("sys.stdout", closed)
+        assert main(["apply", "r", "--point", "0", "0", "1"]) == OUTPUT_CLOSED_EXIT_CODE == 141
+    assert capsys.readouterr().err == ""
+
+    def other_pipe(args):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    monkeypatch.setattr(apply_cli, "run", other_pipe)
+    monkeypatch.setattr("sys.stdout", io.StringIO())
+    assert main(["apply", "r", "--point", "0", "0", "1"]) == 2
+    assert capsys.readouterr().err.startswith("handeye: error: the file system refused (Broken pipe)")
 
 
 def test_simulate_writes_the_session_it_promises(tmp_path, capsys):
