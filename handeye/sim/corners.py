@@ -176,8 +176,10 @@ def make_corner_session(
     ``dh_angle_error_deg`` and encoder noise ``encoder_sigma_deg`` per joint
     (:mod:`handeye.sim.robot_error`); the rig is shrunk to the arm's reach
     (:func:`handeye.sim.robot_error.workspace_scale`), the camera-to-board distances with it, and only
-    poses the true arm reaches within its joint limits are drawn. So a kinematic session's geometry
-    differs from the iid session of the same seed; its robot model comes from its own random stream.
+    poses the true arm reaches within its joint limits are drawn (in one configuration where the views
+    allow; a rig where the arm cannot show the camera the board is drawn again). So a kinematic
+    session's geometry differs from the iid session of the same seed; its robot model comes from its own
+    random stream.
     ``view_options`` go to :func:`sample_view_poses` (distance_m, tilt_deg, roll_deg, ...).
     ``rig``: ``(T_x, T_board)`` to use instead of the seed's rig (a later session of one installed rig,
     e.g. with the camera bumped); ``robot_model_seed``: draw the kinematic arm from this seed's stream
@@ -239,7 +241,10 @@ def make_corner_session(
     T_x, T_board = setup["T_x"], setup["T_board"]
     if rig is not None:
         T_x, T_board = np.asarray(rig[0], float), np.asarray(rig[1], float)
-    for attempt in range(4 if kin is not None else 1):
+    # a kinematic arm: 4 tries per rig (the first view's configuration, twice another view's, then any
+    # configuration per pose); a rig whose camera sees too little of what the arm reaches is drawn again
+    tries = 1 if kin is None else 4 if rig is not None else 12
+    for attempt in range(tries):
         try:
             T_vis = sample_view_poses(
                 mode=mode,
@@ -254,18 +259,26 @@ def make_corner_session(
             )
             break
         except ConfigError:
-            if kin is None or attempt == 3:
+            if kin is None or attempt == tries - 1:
                 raise
-            # the first view's configuration leaves too little of the workspace: start from another view
-            # (3 tries), then let each pose take any configuration that reaches it
-            pose_ok = OneConfiguration(kin) if attempt < 2 else OneConfiguration(kin, any_configuration=True)
+            if attempt % 4 == 3:
+                setup = sample_setup(mode=mode, rng=geo, target=target, workspace_scale=scale)
+                T_x, T_board = setup["T_x"], setup["T_board"]
+            pose_ok = OneConfiguration(kin, any_configuration=attempt % 4 == 2)
     T_true = np.empty((n_views, 4, 4))
     it = iter(T_vis)
     hid_rng = rngs["hidden"]
     for k, vid in enumerate(view_ids):
         if vid in hidden:
             T_true[k] = sample_hidden_view_pose(
-                mode=mode, rng=hid_rng, T_x=T_x, T_board=T_board, target=target, intrinsics=intrinsics, pose_ok=pose_ok
+                mode=mode,
+                rng=hid_rng,
+                T_x=T_x,
+                T_board=T_board,
+                target=target,
+                intrinsics=intrinsics,
+                pose_ok=pose_ok,
+                draw_pose=None if pose_ok is None else pose_ok.draw_pose,
             )
         else:
             T_true[k] = next(it)

@@ -179,8 +179,12 @@ class OneConfiguration:
         self.error = error
         self.reference: Optional[np.ndarray] = None
         self.any_configuration = any_configuration  # each pose in whichever configuration reaches it first
+        self._drawn: dict[bytes, np.ndarray] = {}  # the joint angles of the poses draw_pose returned
 
     def joints(self, T_base_end: np.ndarray) -> Optional[np.ndarray]:
+        drawn = self._drawn.get(np.asarray(T_base_end, float).tobytes())
+        if drawn is not None:  # a pose of draw_pose: its own move (the inverse kinematics may not find it)
+            return drawn
         if self.any_configuration:
             return reachable(self.error, T_base_end)
         q = reachable(self.error, T_base_end, near=self.reference)
@@ -208,6 +212,24 @@ class OneConfiguration:
 
     def __call__(self, T_base_end: np.ndarray) -> bool:
         return self.joints(T_base_end) is not None
+
+    def draw_pose(self, rng: np.random.Generator, *, span_rad: float = np.pi / 2) -> Optional[np.ndarray]:
+        """A true flange pose (4,4) the arm reaches by one random move of its joints, or None.
+
+        Each joint moves by up to ``span_rad`` from the reference configuration (the arm's home before
+        one is set, or with ``any_configuration``), as an operator jogs the arm; None when the move
+        leaves the joint limits or crosses a singularity from the reference (another configuration).
+        """
+        chain = self.error.true
+        own = self.reference is not None and not self.any_configuration
+        start = self.reference if own else chain.home_rad
+        start = np.zeros(chain.n_joints) if start is None else np.asarray(start, float)
+        q = start + rng.uniform(-span_rad, span_rad, chain.n_joints)
+        if not chain.within_limits(q) or (own and not self.same_configuration(q)):
+            return None
+        T = chain.T_base_end(q)
+        self._drawn[T.tobytes()] = q
+        return T
 
 
 def joints_for_poses(

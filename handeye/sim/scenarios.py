@@ -361,6 +361,7 @@ def sample_hidden_view_pose(
     reach_m: tuple[float, float] = REACH_M,
     max_tries: int = 3000,
     pose_ok: Optional[Callable[[np.ndarray], bool]] = None,
+    draw_pose: Optional[Callable[[np.random.Generator], Optional[np.ndarray]]] = None,
 ) -> np.ndarray:
     """A robot pose ``T_base_end`` (4,4) at which no part of the board is in the image.
 
@@ -369,7 +370,9 @@ def sample_hidden_view_pose(
     eye_to_hand the gripper carries the board out of the fixed camera's field of view. Where none of
     ``max_tries`` such poses is within reach (a fixed camera far from the base, whose field of view
     spans most of what the arm reaches), flange poses drawn over the reach (any orientation) are tried
-    as many times, each kept when the board is out of the image.
+    as many times, each kept when the board is out of the image. Then, with ``draw_pose`` (an arm's joint
+    moves in its configuration, :meth:`handeye.sim.robot_error.OneConfiguration.draw_pose`, where few of
+    the poses drawn over the reach are the configuration's), the poses it draws, as many times.
     """
     mounting(mode)  # an unknown mode is a ConfigError
     intrinsics = DEFAULT_INTRINSICS if intrinsics is None else intrinsics
@@ -398,6 +401,13 @@ def sample_hidden_view_pose(
         T_cam_board = mount.predict_T_cam_board(T_x, T_board, T_base_end[None])[0]
         if board_out_of_image(target, intrinsics, T_cam_board) and (pose_ok is None or pose_ok(T_base_end)):
             return T_base_end
+    for _ in range(max_tries if draw_pose is not None else 0):  # the arm's own moves
+        T_drawn = draw_pose(rng) if draw_pose is not None else None
+        if T_drawn is None or not plausible_robot_pose(T_drawn, reach_m):
+            continue
+        T_cam_board = mount.predict_T_cam_board(T_x, T_board, T_drawn[None])[0]
+        if board_out_of_image(target, intrinsics, T_cam_board) and (pose_ok is None or pose_ok(T_drawn)):
+            return T_drawn
     raise ConfigError(
         "cannot sample a pose that hides the board",
         expected="a reachable pose looking away",

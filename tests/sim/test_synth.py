@@ -209,6 +209,39 @@ def test_a_fixed_camera_far_from_the_base_still_gets_its_hidden_view():
     assert scenarios.plausible_robot_pose(s.T_base_end_true[k])
 
 
+def test_an_arm_whose_camera_sees_its_whole_configuration_gets_its_hidden_view_by_a_joint_move():
+    """This UR5e's fixed camera sees every pose of the arm's configuration that a turn away from a board view or
+    a flange pose drawn over the reach gives: the hidden view is a move of the arm's joints, in its configuration."""
+    from handeye.kinematics import load_arm
+
+    kw = {"robot_error": "kinematic", "arm": "ur5e", "hidden_views": ["8"], "outlier_views": 2}
+    s = make_corner_session(mode="eye_to_hand", n_views=11, seed=57, **kw)
+    k = s.index("8")
+    assert board_out_of_image(s.target, s.intrinsics, s.T_cam_board_true[k]) and len(s.corner_ids[k]) == 0
+    assert scenarios.plausible_robot_pose(s.T_base_end_true[k])
+    true = load_arm("ur5e").with_dh(np.array(s.robot_model["dh_true"]))
+    np.testing.assert_allclose(true.T_base_end(s.joints_true), s.T_base_end_true, atol=1e-9)
+    q = np.asarray(s.joints_true)
+    path = q[0] + np.linspace(0.0, 1.0, 16)[:, None] * (q[k] - q[0])  # no flip from the first view's configuration
+    det = np.array([np.linalg.det(true.jacobian_joints(p)) for p in path])
+    assert true.within_limits(q[k]) and (np.all(det > 0) or np.all(det < 0))
+
+
+def test_a_rig_where_the_arm_cannot_show_the_board_is_drawn_again():
+    """Seed 409's first eye-to-hand rig leaves no pose of the UR5e in front of the camera at a working distance, in
+    any configuration: the session is drawn on another rig, every view showing the whole board."""
+    s = make_corner_session(mode="eye_to_hand", n_views=12, seed=409, robot_error="kinematic", arm="ur5e")
+    first = scenarios.sample_setup(
+        mode="eye_to_hand",
+        rng=scenarios.random_streams(409)["geometry"],
+        target=s.target,
+        workspace_scale=scenarios.arm_workspace("ur5e", mode="eye_to_hand", target=s.target)[0],
+    )
+    assert not np.allclose(first["T_x"], s.T_x_true)
+    assert all(len(ids) == s.target.n_corners for ids in s.corner_ids)
+    assert all(board_in_image(s.target, s.intrinsics, T) for T in s.T_cam_board_true)
+
+
 def test_corner_session_rejects_bad_ids_and_levels():
     with pytest.raises(ConfigError):
         make_corner_session(n_views=4, hidden_views=["5"])
