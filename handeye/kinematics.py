@@ -283,7 +283,8 @@ def solve_ik(
     """Joint angles (n,) whose flange pose is ``T_base_end_target``, within the joint limits, or None.
 
     Damped least squares (Levenberg-Marquardt on the right tangent of the pose) from every seed at
-    once (a seed still further than ~1 mm / 0.06 deg after 12 steps is dropped); the solution of the
+    once (a seed still further than ~1 mm / 0.06 deg after 12 steps is dropped if another is nearer, a pose
+    far from every seed taking the slow ones longer); the solution of the
     first seed whose pose error is below ~1e-9 (rad and m) and whose angles (wrapped to (-pi, pi]) lie
     within the limits is returned, or with ``nearest`` (n,) (also a seed) the solution nearest those joint
     angles (the largest wrapped joint difference): one configuration of the arm among those reaching the pose.
@@ -300,8 +301,8 @@ def solve_ik(
     alive = np.ones(S, bool)
     eye6 = np.eye(6)
     for it in range(max_iterations):
-        if it == 12:
-            alive &= cost <= 1e-6  # far after 12 steps: dropped
+        if it == 12 and np.any(cost <= 1e-6):
+            alive &= cost <= 1e-6  # far after 12 steps while another seed is near: dropped
         run = np.flatnonzero(alive & (cost >= 1e-18))
         if not run.size:
             break
