@@ -19,6 +19,10 @@ import numpy as np
 
 Size = tuple  # (cols, rows) inner corners, cols >= rows
 
+#: the grid the search starts from and grows (``CALIB_CB_LARGER``). A grid no larger than it is no evidence of a
+#: board: the detector finds one in checker-like textures, e.g. a blurred background without the board.
+SEED = (3, 3)
+
 
 def normal_size(cols: int, rows: int) -> Size:
     """``(cols, rows)`` with the longer side first (the orientation a detector cannot tell)."""
@@ -35,7 +39,7 @@ def visible_grid_sizes(
     """Inner-corner sizes ``((cols, rows), ...)`` of the chessboards seen in an 8-bit grey image.
 
     Inner-corner sizes ``((cols, rows), ...)`` of the chessboards seen in an 8-bit grey image
-    (at most one: the largest grid the detector follows); ``()`` when none.
+    (at most one: the largest grid the detector follows); ``()`` when none, or only the search's 3x3 seed.
 
     The image is reduced so its longer side is at most ``max_side_px``; ``full_size_retry`` searches
     the full image too when the reduced one shows nothing (small boards; 150-300 ms at 1280x720), or
@@ -50,10 +54,12 @@ def visible_grid_sizes(
     for s in scales:
         img = gray if s == 1.0 else cv2.resize(gray, (round(w * s), round(h * s)), interpolation=cv2.INTER_AREA)
         found, _, meta = cv2.findChessboardCornersSBWithMeta(
-            img, (3, 3), flags=cv2.CALIB_CB_LARGER | cv2.CALIB_CB_NORMALIZE_IMAGE
+            img, SEED, flags=cv2.CALIB_CB_LARGER | cv2.CALIB_CB_NORMALIZE_IMAGE
         )
         if found and meta is not None and meta.ndim == 2:
             rows, cols = meta.shape
+            if (rows, cols) == SEED:  # the seed and no more: found in textures too (a blurred background)
+                continue
             return (normal_size(cols, rows),)
     return ()
 

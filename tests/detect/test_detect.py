@@ -266,6 +266,25 @@ def test_visible_grid_sizes_counts_the_inner_corners_whatever_size_is_stated(vie
     assert visible_grid_sizes(np.ascontiguousarray(np.rot90(imgs[0]))) == ((11, 8),)
 
 
+def test_a_3x3_grid_the_search_finds_in_a_background_is_no_board_size(tmp_path):
+    """Views without the board (a blurred textured background): the size search finds its own 3x3 seed there and
+    no more, which a checker-like texture gives as well; it is not a board size to name."""
+    import cv2
+
+    from handeye.detect.board_size import SEED
+    from handeye.sim.vendor import write_vendor_session
+
+    out = write_vendor_session(tmp_path / "s", n_views=3, seed=12, hidden_views=["1", "2"])
+    for k in (1, 2):
+        gray = read_gray(out / f"{k}.jpg")
+        small = cv2.resize(gray, (640, 360), interpolation=cv2.INTER_AREA)
+        flags = cv2.CALIB_CB_LARGER | cv2.CALIB_CB_NORMALIZE_IMAGE
+        found, _, meta = cv2.findChessboardCornersSBWithMeta(small, SEED, flags=flags)
+        assert found and meta.shape == SEED  # the detector's false grid
+        assert visible_grid_sizes(gray, max_side_px=640, full_size_retry=True) == ()
+    assert visible_grid_sizes(read_gray(out / "3.jpg"), max_side_px=640) == ((11, 8),)
+
+
 def test_board_size_verdict_needs_the_stated_size_absent_and_another_in_most_views():
     three = {"1": ((11, 8),), "2": ((11, 8),), "3": ((11, 8),)}
     assert board_size_verdict((9, 6), three, n_searched=3) == (11, 8)
