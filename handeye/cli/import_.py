@@ -27,7 +27,9 @@ def add_arguments(p) -> None:
     p.add_argument("out", type=Path, nargs="?", help="folder for session.yaml (rosbag: or --out)")
     p.add_argument("--given-intrinsics", action="store_true", help="use the intrinsics shipped with the data (fixed)")
     p.add_argument(
-        "--force", action="store_true", help="visp, ical: replace the session.yaml of an existing session in OUT"
+        "--force",
+        action="store_true",
+        help="replace the session.yaml of an existing session in OUT (rosbag: its images/ must be empty)",
     )
     add_rosbag_arguments(p.add_argument_group("rosbag"))
     g = p.add_argument_group("easy_handeye2")
@@ -150,6 +152,7 @@ def run_rosbag(args) -> int:
         mode=args.mode or mode,
         stillness=st,
         intrinsics_use=args.intrinsics_use,
+        force=args.force,
     )
     for line in rep.summary_lines():
         print(line)

@@ -109,11 +109,11 @@ def import_easy_handeye2(
     ``out/session.yaml``: the pose-only session of an easy_handeye2 ``.samples`` file (views ``1``..``N`` in
     the file's order). ``tracker_sigma``: (mm, deg) of the tracker when known (else estimated at calibration).
     """
-    from .importers import _check_out, _write
+    from .importers import _write, check_import_out
 
     src, out = Path(src), Path(out)
     mode, params, pairs = read_samples(src, mode=mode)
-    _check_out(out, force=force)
+    check_import_out(out, force=force)
     doc: dict[str, Any] = {
         "handeye_session": 1,
         "mode": mode,

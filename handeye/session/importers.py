@@ -170,7 +170,7 @@ def import_visp(
     written as ``mode:`` with its reason in ``source.mode``; otherwise left to the data.
     """
     src, out = Path(src).resolve(), Path(out)
-    _check_out(out, force=force)
+    check_import_out(out, force=force)
     if not src.is_dir():
         raise InputError("not a folder", path=src, expected=VISP_LAYOUT)
     imgs = {int(m.group(1)): f for f in src.iterdir() if (m := _VISP_IMAGE.match(f.name))}
@@ -271,7 +271,7 @@ def import_ical(src: str | Path, out: str | Path, *, image_dir: str | None = Non
     refused unless ``force``); every field is checked and named when missing or of the wrong type.
     """
     src, out = Path(src).resolve(), Path(out)
-    _check_out(out, force=force)
+    check_import_out(out, force=force)
     cal_path = src / "cal_data.yaml"
     cal = read_yaml(cal_path)
     data = cal.get("data")
@@ -390,11 +390,13 @@ def _aruco_name(code: int) -> str:
     return _ARUCO.get(code, "DICT_6X6_250")
 
 
-def _check_out(out: Path, *, force: bool) -> None:
+def check_import_out(out: Path, *, force: bool, writes: tuple = ()) -> None:
     """The importer's output folder: a new or empty folder, or one whose session is to be replaced.
 
     The importer's output folder: a new or empty folder, or one whose session is to be replaced
     (``force``); a collected session (view_records/) or a vendor session is never overwritten silently.
+    ``writes``: the folders in OUT the importer writes files into (rosbag: ``images``); with ``force`` they must
+    be empty, or an earlier import's files would mix with the new ones.
     """
     from ..errors import OutputError
     from ..output import check_out_dir
@@ -410,6 +412,13 @@ def _check_out(out: Path, *, force: bool) -> None:
                 received=held[0],
                 expected="a new or empty folder",
                 hint="choose another folder, or pass --force to replace its session.yaml",
+            )
+    for name in writes:
+        if (out / name).is_dir() and any((out / name).iterdir()):
+            raise OutputError(
+                f"OUT/{name} holds the files of an earlier import; --force replaces session.yaml, not them",
+                path=out / name,
+                hint=f"remove {out / name}, or import into a new folder",
             )
     check_out_dir(out, option="OUT")
 

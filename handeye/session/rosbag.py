@@ -410,18 +410,22 @@ def import_rosbag(
     mode: Optional[str] = None,
     stillness: Optional[Stillness] = None,
     intrinsics_use: str = "prior",
+    force: bool = False,
 ) -> RosbagImport:
     """Write ``out/session.yaml`` and ``out/images/`` from the bag (see the module's description).
 
     ``target`` is the session's ``target:`` mapping (the bag does not say which board was seen);
-    ``camera_info_topic`` defaults to ``camera_info`` beside the image topic when the bag has it.
+    ``camera_info_topic`` defaults to ``camera_info`` beside the image topic when the bag has it. An ``out``
+    already holding a session is refused, unless ``force`` (then its images/ must be empty).
     """
     import yaml
 
     from ..output import atomic_write_bytes, atomic_write_text
+    from .importers import check_import_out
     from .target_spec import parse_target
 
     bag, out = Path(bag), Path(out)
+    check_import_out(out, force=force, writes=("images",))
     st = stillness or Stillness.from_preset()
     parse_target(target, path=Path("--target"))  # a wrong target is said now, not after the import
     reader = _open_reader(bag)

@@ -283,6 +283,15 @@ def test_ros2_and_ros1_bags_calibrate_like_the_vendor_folder(rendered, reference
         res = _calibrate(root / s, root / f"res_{s}")
         d_mm, d_deg = pose_error(np.asarray(res["T_end_cam"]), T_ref)
         assert d_mm < 0.1 and d_deg < 0.01, (s, d_mm, d_deg)
+    # a second import into a session folder is refused, as the other importers refuse it; --force replaces
+    # session.yaml only into an empty images/ (an earlier import's images would mix with the new ones)
+    again = ["import", "rosbag", str(root / "bag2"), "--image-topic", "/camera/color/image_raw", *common]
+    before = (root / "s2" / "session.yaml").read_bytes()
+    assert main([*again, "--out", str(root / "s2")]) == 2
+    assert "OUT already holds a session" in capsys.readouterr().err
+    assert main([*again, "--out", str(root / "s2"), "--force"]) == 2
+    assert "holds the files of an earlier import" in capsys.readouterr().err
+    assert (root / "s2" / "session.yaml").read_bytes() == before
 
 
 def test_calibrate_export_shortcut_writes_next_to_the_result(reference):
