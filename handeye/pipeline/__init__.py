@@ -257,6 +257,16 @@ def run_calibration(
         return CalibrationRun(session=s, options=options, status="failed", error=e, **state)
 
 
+def missing_image_outcomes(s: Session) -> dict:
+    """View id -> :class:`ViewOutcome` of the poses whose image file is missing (the loader dropped them)."""
+    out = {}
+    for vid, line in s.meta.get("missing_images", {}).items():
+        name = Path(s.meta.get("missing_image_files", {}).get(vid, f"{vid}.jpg")).name
+        where = f"pose line {line}" if line is not None else "its pose"
+        out[vid] = ViewOutcome(vid, name, False, f"{IMAGE_MISSING_REASON} ({where} not used)")
+    return out
+
+
 def _run(s: Session, opts: CalibrateOptions, state: dict, progress, detected=None, on_detected=None) -> CalibrationRun:
     mode = mounting(s.mode)
     if opts.method not in METHODS:
@@ -287,11 +297,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress, detected=Non
         detected=detected,
         on_detected=on_detected,
     )
-    outcomes = dict(obs.outcomes)
-    for vid, line in s.meta.get("missing_images", {}).items():  # poses whose image is missing (the loader)
-        name = Path(s.meta.get("missing_image_files", {}).get(vid, f"{vid}.jpg")).name
-        where = f"pose line {line}" if line is not None else "its pose"
-        outcomes[vid] = ViewOutcome(vid, name, False, f"{IMAGE_MISSING_REASON} ({where} not used)")
+    outcomes = {**obs.outcomes, **missing_image_outcomes(s)}
     for v in unpaired:
         outcomes[v.view_id] = ViewOutcome(
             v.view_id,

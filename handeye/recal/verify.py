@@ -163,7 +163,7 @@ def verify_session(
     calibration ``against`` (a result folder, result.json or loaded dict) on it (:func:`verify_views`).
     """
     from ..diagnose.consistency import board_turns
-    from ..pipeline import CalibrateOptions, observe, target_text
+    from ..pipeline import CalibrateOptions, missing_image_outcomes, observe, target_text
     from ..refine import RefineView
     from .loaded import load_result
 
@@ -230,12 +230,18 @@ def verify_session(
         verification=v,
         session_path=str(s.path),
         installed_source=installed.label,
-        outcomes=obs.ordered_outcomes(),
+        outcomes=tuple(sorted((*obs.ordered_outcomes(), *missing_image_outcomes(s).values()), key=_outcome_order)),
         target_text=target_text(s.target),
         image_size=tuple(size),
         intrinsics_source=obs.intrinsics_source,
         seconds=seconds,
     )
+
+
+def _outcome_order(o) -> tuple:
+    from ..records import view_id_key
+
+    return view_id_key(o.view_id)
 
 
 def verify_dict(sv: SessionVerification) -> dict:

@@ -1183,14 +1183,16 @@ def test_verify_reports_list_an_image_without_the_board_with_its_reason(rendered
     cv2.imwrite(str(session / "5.jpg"), np.full(size, 128, np.uint8))  # the same camera, no board in view
     poses = (session / "poses.txt").read_text().strip().splitlines()
     (session / "poses.txt").write_text("\n".join([*poses, poses[-1]]) + "\n")
+    (session / "2.jpg").unlink()  # and one image missing: its pose line is dropped by the loader
     rc = main(["verify", str(session), "--against", str(rendered["installed"]), "--out", str(tmp_path / "v")])
     assert rc == 0 and "still valid" in capsys.readouterr().out
     d = json.loads((tmp_path / "v" / "verify.json").read_text())
-    blank = [o for o in d["view_outcomes"] if o["image"].endswith("5.jpg")]
-    assert d["n_views"] == 4 and len(blank) == 1 and not blank[0]["detected"]
+    out = {o["id"]: o for o in d["view_outcomes"]}
+    assert d["n_views"] == 3 and list(out) == ["1", "2", "3", "4", "5"]
+    assert not out["5"]["detected"] and not out["2"]["detected"] and "image file missing" in out["2"]["reason"]
     for name in ("verify.html", "verify.md"):
         text = (tmp_path / "v" / name).read_text()
-        assert f"not detected: {blank[0]['reason']}" in text
+        assert f"not detected: {out['5']['reason']}" in text and f"not detected: {out['2']['reason']}" in text
 
 
 def test_a_prior_whose_test_fails_is_not_used_and_not_called_contradicted(rendered, monkeypatch):
