@@ -153,6 +153,41 @@ def board_from_views(mode: str, T_x: np.ndarray, T_base_end: np.ndarray, T_cam_b
     return inv_T(m.M_from_T_base_end(T_base_end)) @ T_x @ T_cam_board
 
 
+def odd_view(B_views: np.ndarray, *, sigma_mm: np.ndarray) -> Optional[tuple[int, float, float]]:
+    """(index, mm, mm) of the one view whose implied board lies apart from the others', or None.
+
+    For each view left out, the others' boards about their mean (the median distance) and the left-out view's
+    distance from that mean: the view whose leaving out makes the rest agree best is named when that distance is
+    more than 5 times both how well the rest agree and ``sigma_mm`` (n,), the spread the robot noise alone gives
+    each view's board (:func:`robot_board_sigma_mm`); with at least 3 others.
+    """
+    n = len(B_views)
+    if n < 4:
+        return None
+    best = None
+    for k in range(n):
+        rest = np.delete(B_views, k, axis=0)
+        centre = mean_T(rest)
+        agree = float(np.median([pose_error(B, centre)[1] for B in rest]))
+        if best is None or agree < best[2]:
+            best = (k, float(pose_error(B_views[k], centre)[1]), agree)
+    assert best is not None, "n >= 4 views"
+    return best if best[1] > 5.0 * max(best[2], float(np.asarray(sigma_mm)[best[0]])) else None
+
+
+def robot_board_sigma_mm(
+    mode: str, T_x: np.ndarray, T_cam_board: np.ndarray, B_views: np.ndarray, sigma_mm: float, sigma_deg: float
+) -> np.ndarray:
+    """(n,) mm: the 3-D spread robot pose noise gives each view's implied board.
+
+    Robot pose noise of ``sigma_mm`` / ``sigma_deg`` per axis (in the flange frame): the translation's, and the
+    rotation's about the flange times the board's distance from it.
+    """
+    in_flange = (T_x @ T_cam_board)[:, :3, 3] if mode == "eye_in_hand" else B_views[:, :3, 3]
+    lever_mm = 1000.0 * np.linalg.norm(in_flange, axis=1)
+    return np.sqrt(3.0 * sigma_mm**2 + 2.0 * (np.radians(sigma_deg) * lever_mm) ** 2)
+
+
 def verify_views(
     installed: LoadedResult,
     *,
@@ -170,6 +205,8 @@ def verify_views(
     numberings (:func:`handeye.diagnose.consistency.board_turns`); the installed board pose is turned into the
     new views' numbering (the turn nearest theirs) before the comparison (``board["turn_deg"]``,
     ``board["T_turn"]``, ``board["installed_in_session_numbering"]``; ``board["installed"]`` is result.json's).
+    A solve that keeps fewer than 3 robot poses is tried once more without the one view whose implied board lies
+    far from the others' (:func:`odd_view`); that view is then a robot-pose outlier of the verification.
     """
     from ..initial import solve_pnp
     from ..refine import RefineOptions, refine
@@ -218,6 +255,18 @@ def verify_views(
     r = refine(
         mode=mode, object_points=object_points, views=list(views), intrinsics=intr, T_x0=X0, T_board0=B0, options=ro
     )
+    set_aside: Optional[tuple[str, float, float]] = None
+    odd = None
+    if r.failure_code == "too_few_robot_poses":  # few views, one robot pose far off drags the solve: without it
+        odd = odd_view(B_views, sigma_mm=robot_board_sigma_mm(mode, X0, C, B_views, rs_mm, rs_deg))
+    if odd is not None:
+        rest = [v for i, v in enumerate(views) if i != odd[0]]
+        B_rest = mean_T(np.delete(B_views, odd[0], axis=0))
+        r_rest = refine(
+            mode=mode, object_points=object_points, views=rest, intrinsics=intr, T_x0=X0, T_board0=B_rest, options=ro
+        )
+        if r_rest.status == "ok":
+            r, set_aside = r_rest, (views[odd[0]].view_id, odd[1], odd[2])
     if r.status != "ok":
         hint = "capture views with the whole board visible and the robot turned between them"
         if r.failure_code == "too_few_robot_poses":  # the views' robot poses scatter beyond the installed noise
@@ -244,6 +293,13 @@ def verify_views(
             turn_deg=float(np.degrees(np.linalg.norm(rotvec_from_R(H[:3, :3])))),
         )
     robot = _robot_disagreement(r)
+    if set_aside is not None:
+        vid, far_mm, agree_mm = set_aside
+        robot["views"].append(vid)
+        robot["reasons"].append(
+            f"view {vid}: the board its robot pose puts through the installed {installed.x_name} lies {far_mm:.1f} mm "
+            f"from where the other views put it (they agree within {agree_mm:.1f} mm); solved without it"
+        )
     intr_d = _intrinsics_update(installed, r, session_intr)
     moved = what_moved(
         mode=mode,
@@ -276,6 +332,8 @@ def verify_views(
         }
         for vid, d in r.per_view.items()
     }
+    if set_aside is not None:
+        views_d[set_aside[0]] = dict.fromkeys(views_d[next(iter(views_d))], None) | {"status": "robot_excluded"}
     return Verification(
         verdict=verdict,
         headline=headline,

@@ -608,6 +608,33 @@ def test_verify_with_robot_poses_far_noisier_than_installed_says_so(install):
     assert "turned between them" not in hint
 
 
+def test_four_views_with_one_wrong_robot_pose_are_verified_on_the_other_three(install):
+    """With 4 views and X free, one robot pose 5-10 mm off drags the solve until the others look wrong too (the
+    outlier loop keeps too few). The board each view puts through the installed X names the odd one: the
+    verification is solved without it and says so."""
+    from handeye.recal.verification import odd_view
+    from handeye.recal.verify import verify_views
+    from handeye.sim.corners import make_corner_session
+
+    s, res = install
+    kw = {"noise_px": 0.3, "robot_noise": (0.2, 0.05), "intrinsics": s.intrinsics, "rig": (s.T_x_true, s.T_board_true)}
+    v = make_corner_session(n_views=4, seed=121, outlier_views=["2"], outlier_trans_mm=(5.0, 10.0), **kw)
+    out = verify_views(load_result(res), views=_views(v), object_points=s.target.object_points())
+    assert out.verdict == "still valid" and out.n_views == 3 and out.robot["views"] == ["2"]
+    assert "solved without it" in out.robot["reasons"][0] and out.views["2"]["status"] == "robot_excluded"
+    # named only when the others agree and it lies apart: a clean session has no odd view
+    from handeye.recal.verification import board_from_views, robot_board_sigma_mm
+
+    for seed in range(121, 131):
+        clean = make_corner_session(n_views=4, seed=seed, **kw)
+        C = clean.T_cam_board_true
+        B = board_from_views("eye_in_hand", s.T_x_true, clean.T_base_end_reported, C)
+        assert odd_view(B, sigma_mm=robot_board_sigma_mm("eye_in_hand", s.T_x_true, C, B, 0.2, 0.05)) is None
+    C = v.T_cam_board_true
+    B_bad = board_from_views("eye_in_hand", s.T_x_true, v.T_base_end_reported, C)
+    assert odd_view(B_bad, sigma_mm=robot_board_sigma_mm("eye_in_hand", s.T_x_true, C, B_bad, 0.2, 0.05))[0] == 1
+
+
 def test_a_view_left_out_for_its_robot_pose_does_not_hide_a_board_that_moved(install):
     """The board moved 10 mm on the table, and one of 6 new views has a wrong robot pose: the view is left out, and
     the board's change is judged on the views the solve used (with the wrong one its scatter was 5.8 mm)."""
