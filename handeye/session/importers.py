@@ -196,13 +196,16 @@ def import_visp(
         raise InputError("no ViSP images ([PREFIX_]image-N.png) in the folder", path=src, expected=VISP_LAYOUT)
     target = _visp_chessboard(src) if layout == "chessboard" else _visp_apriltag(src, [imgs[k] for k in sorted(imgs)])
     views = []
-    for k in sorted(imgs):
+    some = imgs[min(imgs)].name
+    for k in sorted(set(imgs) | set(poses)):
         if k not in poses:
             raise InputError(
                 f"image {imgs[k].name} has no pose file",
                 path=src,
                 expected=f"pose_rPe_{k}.yaml (or with the images' prefix)",
             )
+        # a pose without its image stays a view: the session's loader drops it with its reason, as for any session
+        image = imgs[k].name if k in imgs else re.sub(r"image-\d+\.png$", f"image-{k}.png", some)
         data = read_yaml(poses[k]).get("data")
         if not (isinstance(data, list) and len(data) == 6 and all(isinstance(v, list) and len(v) == 1 for v in data)):
             raise InputError(
@@ -214,7 +217,7 @@ def import_visp(
         views.append(
             {
                 "id": str(k),
-                "image": imgs[k].name,
+                "image": image,
                 "pose": [_number(v[0], path=poses[k], field=f"data[{i}]") for i, v in enumerate(data)],
             }
         )
@@ -234,6 +237,12 @@ def import_visp(
         doc = {"handeye_session": 1, "mode": mode, **{k: v for k, v in doc.items() if k != "handeye_session"}}
     source["mode"] = why
     cam = next(iter(src.glob("*camera*.xml")), None)
+    if use_given_intrinsics and cam is None:
+        raise InputError(
+            "--given-intrinsics: the folder has no ViSP camera file (*camera*.xml)",
+            path=src,
+            hint="remove --given-intrinsics to estimate the intrinsics from the images",
+        )
     if use_given_intrinsics and cam is not None:
         t = read_text(cam, what="camera file")
         found = {k: re.search(rf"<{k}>\s*([0-9.eE+-]+)", t) for k in ("px", "py", "u0", "v0")}

@@ -600,6 +600,29 @@ def test_visp_import_reads_metres_and_theta_u(tmp_path):
         assert v.image_path == src / f"franka_image-{v.view_id}.png"
 
 
+def test_visp_import_keeps_a_pose_without_its_image_and_refuses_given_intrinsics_without_a_camera_file(tmp_path):
+    """A pose file whose image is gone stays a view: the loader drops it with its reason (as in any session)
+    instead of the import dropping it unsaid. --given-intrinsics without a camera file is refused."""
+    from handeye.errors import InputError
+    from handeye.session.importers import import_visp
+
+    src = tmp_path / "visp"
+    src.mkdir()
+    (src / "chessboard-data.txt").write_text("Chessboard: 9 x 6\nsquare size: 0.0236 m\n")
+    for k in range(1, 5):
+        if k != 3:
+            (src / f"franka_image-{k}.png").write_bytes(b"x")
+        rows = "".join(f"  - [{v}]\n" for v in (0.1, 0, 0.3, 0, 0, 0))
+        (src / f"franka_pose_rPe_{k}.yaml").write_text("data:\n" + rows)
+    path = import_visp(src, tmp_path / "out")
+    assert [v["image"] for v in yaml.safe_load(path.read_text())["views"]][2] == "franka_image-3.png"
+    s = load_session(path)
+    assert [v.view_id for v in s.views] == ["1", "2", "4"] and list(s.meta["missing_images"]) == ["3"]
+    with pytest.raises(InputError, match="no ViSP camera file") as e:
+        import_visp(src, tmp_path / "out2", use_given_intrinsics=True)
+    assert "visp" in str(e.value) and not (tmp_path / "out2" / "session.yaml").exists()
+
+
 def test_ical_import_reads_xyzw_quaternions_and_the_static_camera(tmp_path):
     from handeye.frames import quat_wxyz_from_R
     from handeye.session.importers import import_ical
