@@ -35,6 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
     from .calibrate import positive_float, positive_int
+    from .simulate import seed_int
 
     parser.description = (
         "Collect a calibration session (native format, one atomic record per view) from a "
@@ -168,7 +169,7 @@ def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("simulation (--camera sim / --robot sim)")
     g.add_argument(
         "--seed",
-        type=int,
+        type=seed_int,
         help="random seed of the simulated rig and noise (default: drawn at random and recorded as "
         "collected.seed in session.yaml)",
     )

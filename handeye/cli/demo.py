@@ -11,11 +11,12 @@ log = logging.getLogger(__name__)
 def add_arguments(p) -> None:
     """The command's arguments (its one-line help is in handeye.cli.COMMANDS)."""
     from ..mounting import MODES
+    from .simulate import seed_int
 
     p.add_argument("--out", type=Path, default=Path("reports/demo"), help="folder for the session and results")
     p.add_argument("--mode", choices=MODES, default="eye_in_hand")
     p.add_argument("--views", type=int, default=20)
-    p.add_argument("--seed", type=int, default=0, help="random seed of the simulated session")
+    p.add_argument("--seed", type=seed_int, default=0, help="random seed of the simulated session")
     p.set_defaults(func=run)
 
 

@@ -14,6 +14,19 @@ TARGETS = {
 }
 
 
+def seed_int(text: str) -> int:
+    """Argparse type: a random seed, a whole number >= 0 (numpy's seeds; ``--seed`` of simulate, demo, collect)."""
+    import argparse
+
+    try:
+        v = int(text)
+    except ValueError:
+        v = -1
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
+    return v
+
+
 def sim_target(name: str):
     """The target spec of a ``--target`` name (:data:`TARGETS`)."""
     from ..sim.scenarios import DEFAULT_TARGET
@@ -46,7 +59,7 @@ def add_arguments(p) -> None:
         default="chessboard",
         help="; ".join(f"{k}: {v}" for k, v in TARGETS.items()),
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed of the scene, poses and noise")
+    p.add_argument("--seed", type=seed_int, default=0, help="random seed of the scene, poses and noise")
     p.add_argument(
         "--noise-px",
         type=float,

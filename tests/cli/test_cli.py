@@ -226,6 +226,39 @@ def test_simulate_refuses_a_session_folder_unless_forced(tmp_path, capsys):
     assert (tmp_path / "s" / "poses.txt").read_text() != first
 
 
+def _refused_at_parsing(argv: list, capsys) -> str:
+    """The error line of a command line argparse refuses (exit 2, its usage and one error line)."""
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        main(["-q", *map(str, argv)])
+    assert e.value.code == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ": error:" in ln]
+    assert len(err) == 1, err
+    return err[0]
+
+
+SIM_COLLECT = ["--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim"]
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["simulate", "OUT", "--views", "3"],
+        ["demo", "--out", "OUT", "--views", "4"],
+        ["collect", "OUT", *SIM_COLLECT, "--auto"],
+    ],
+    ids=["simulate", "demo", "collect"],
+)
+def test_a_negative_seed_is_refused_before_anything_is_written(argv, tmp_path, capsys):
+    """numpy takes seeds >= 0: --seed -1 is a usage error naming --seed, not an internal error after the work began."""
+    out = tmp_path / "out"
+    argv = [str(out) if a == "OUT" else a for a in argv]
+    for seed in ("-1", "1.5"):
+        err = _refused_at_parsing([*argv, "--seed", seed], capsys)
+        assert "argument --seed: expected a whole number >= 0" in err and repr(seed) in err, err
+    assert not out.exists()
+
+
 def test_apply_maps_a_camera_point_into_the_base(tmp_path, capsys):
     cs = make_corner_session(mode="eye_in_hand", n_views=3, seed=2, noise_px=0.0)
     (tmp_path / "result.json").write_text(
