@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
     from .calibrate import positive_float, positive_int
-    from .simulate import seed_int
+    from .simulate import MAX_BLUR_PX, blur_px, non_negative_float, seed_int, supersample_int
 
     parser.description = (
         "Collect a calibration session (native format, one atomic record per view) from a "
@@ -176,23 +176,29 @@ def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--sim-pose-noise",
         nargs=2,
-        type=float,
+        type=non_negative_float,
         metavar=("MM", "DEG"),
         default=(0.1, 0.02),
         help="simulated arm: per-axis error of the reported pose (default 0.1 mm 0.02 deg)",
     )
     g.add_argument(
         "--sim-image-noise",
-        type=float,
+        type=non_negative_float,
         default=2.0,
         metavar="GREY",
         help="simulated camera: Gaussian noise in grey levels (default %(default)s)",
     )
-    g.add_argument("--sim-blur", type=float, default=0.0, metavar="PX", help="simulated camera: blur sigma")
+    g.add_argument(
+        "--sim-blur",
+        type=blur_px,
+        default=0.0,
+        metavar="PX",
+        help=f"simulated camera: blur sigma (0-{MAX_BLUR_PX:g}, default 0)",
+    )
     g.add_argument(
         "--sim-bump",
         nargs=2,
-        type=float,
+        type=non_negative_float,
         metavar=("MM", "DEG"),
         default=None,
         help="with --verify-against: the simulated rig is the installed one with the camera moved by "
@@ -200,9 +206,9 @@ def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--sim-supersample",
-        type=int,
+        type=supersample_int,
         default=2,
-        help="simulated camera: anti-aliasing samples per pixel and axis (default %(default)s)",
+        help="simulated camera: anti-aliasing samples per pixel and axis, 1-16 (default %(default)s)",
     )
 
 

@@ -27,6 +27,52 @@ def seed_int(text: str) -> int:
     return v
 
 
+def _number(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        return float("nan")
+
+
+def non_negative_float(text: str) -> float:
+    """Argparse type: a finite number >= 0 (the simulators' noise levels and bumps)."""
+    import argparse
+    import math
+
+    v = _number(text)
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+    return v
+
+
+#: the largest blur sigma (px) the simulators take: past it no board is left to see, and a far larger one
+#: exhausts the memory of OpenCV's Gaussian kernel
+MAX_BLUR_PX = 100.0
+
+
+def blur_px(text: str) -> float:
+    """Argparse type: a Gaussian blur sigma in pixels, 0 to :data:`MAX_BLUR_PX` (``--blur``, ``--sim-blur``)."""
+    import argparse
+
+    v = _number(text)
+    if not 0 <= v <= MAX_BLUR_PX:  # nan fails too
+        raise argparse.ArgumentTypeError(f"expected a blur sigma of 0-{MAX_BLUR_PX:g} px, got {text!r}")
+    return v
+
+
+def supersample_int(text: str) -> int:
+    """Argparse type: anti-aliasing samples per pixel and axis, 1-16 (``handeye.sim.render``'s range)."""
+    import argparse
+
+    try:
+        v = int(text)
+    except ValueError:
+        v = 0
+    if not 1 <= v <= 16:
+        raise argparse.ArgumentTypeError(f"expected a whole number of samples 1-16, got {text!r}")
+    return v
+
+
 def sim_target(name: str):
     """The target spec of a ``--target`` name (:data:`TARGETS`)."""
     from ..sim.scenarios import DEFAULT_TARGET
@@ -62,15 +108,17 @@ def add_arguments(p) -> None:
     p.add_argument("--seed", type=seed_int, default=0, help="random seed of the scene, poses and noise")
     p.add_argument(
         "--noise-px",
-        type=float,
+        type=non_negative_float,
         default=0.0,
         help="Gaussian image noise in grey levels added to the rendered images (default 0)",
     )
-    p.add_argument("--blur", type=float, default=0.0, help="Gaussian blur sigma in pixels")
+    p.add_argument(
+        "--blur", type=blur_px, default=0.0, help=f"Gaussian blur sigma in pixels (0-{MAX_BLUR_PX:g}, default 0)"
+    )
     p.add_argument(
         "--robot-noise",
         nargs=2,
-        type=float,
+        type=non_negative_float,
         metavar=("MM", "DEG"),
         default=(0.0, 0.0),
         help="per-axis robot pose noise added to the reported poses",

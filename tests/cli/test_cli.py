@@ -259,6 +259,36 @@ def test_a_negative_seed_is_refused_before_anything_is_written(argv, tmp_path, c
     assert not out.exists()
 
 
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["simulate", "OUT", "--robot-noise", "nan", "0"], "--robot-noise"),
+        (["simulate", "OUT", "--robot-noise", "0.1", "inf"], "--robot-noise"),
+        (["simulate", "OUT", "--robot-noise", "-1", "0"], "--robot-noise"),
+        (["simulate", "OUT", "--noise-px", "nan"], "--noise-px"),
+        (["simulate", "OUT", "--noise-px", "-2"], "--noise-px"),
+        (["simulate", "OUT", "--blur", "nan"], "--blur"),
+        (["simulate", "OUT", "--blur", "1e7"], "--blur"),  # OpenCV's kernel would exhaust the memory
+        (["demo", "--out", "OUT", "--views", "3"], "--views"),  # one hidden: calibrate would find 2 boards
+        (["collect", "OUT", *SIM_COLLECT, "--sim-pose-noise", "nan", "0"], "--sim-pose-noise"),
+        (["collect", "OUT", *SIM_COLLECT, "--sim-pose-noise", "0.1", "-1"], "--sim-pose-noise"),
+        (["collect", "OUT", *SIM_COLLECT, "--sim-image-noise", "-5"], "--sim-image-noise"),
+        (["collect", "OUT", *SIM_COLLECT, "--sim-image-noise", "inf"], "--sim-image-noise"),
+        (["collect", "OUT", *SIM_COLLECT, "--sim-blur", "-1"], "--sim-blur"),
+        (["collect", "OUT", *SIM_COLLECT, "--sim-blur", "nan"], "--sim-blur"),
+        (["collect", "OUT", *SIM_COLLECT, "--sim-supersample", "0"], "--sim-supersample"),
+        (["collect", "OUT", *SIM_COLLECT, "--sim-bump", "nan", "0"], "--sim-bump"),
+    ],
+)
+def test_simulator_numbers_that_mean_nothing_are_refused_naming_the_option(argv, option, tmp_path, capsys):
+    """nan, inf and negative noise levels, blurs and samples: before, simulate wrote poses of nan and rendered
+    nan noise as none, and collect failed at its first render with a message naming no option."""
+    out = tmp_path / "out"
+    err = _refused_at_parsing([str(out) if a == "OUT" else a for a in argv], capsys)
+    assert f"argument {option}: expected" in err, err
+    assert not out.exists()
+
+
 def test_apply_maps_a_camera_point_into_the_base(tmp_path, capsys):
     cs = make_corner_session(mode="eye_in_hand", n_views=3, seed=2, noise_px=0.0)
     (tmp_path / "result.json").write_text(
