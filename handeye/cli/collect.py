@@ -265,10 +265,6 @@ def _confirm_on_terminal(text: str) -> bool:
 
 
 def run_collect(args: argparse.Namespace) -> int:
-    from ..collect.collector import CaptureChecks, Collector
-    from ..collect.plan import PlanConfig
-    from ..collect.session_writer import SessionWriter
-
     installed = _installed(args)  # --verify-against: the installed calibration fixes the mode and the board
     target = parse_target_spec(args.target) if installed is None else _installed_target(installed)
     if isinstance(target, ChessboardSpec) and len(target.symmetries()) > 1:
@@ -297,7 +293,35 @@ def run_collect(args: argparse.Namespace) -> int:
         )
     from ..output import check_out_dir
 
+    new_folders = _missing_folders(out)
     check_out_dir(out, option="OUT")  # not under a file, writable: before any device is opened
+    try:
+        return _collect(args, installed=installed, target=target, width=width, height=height)
+    finally:
+        # a collection that kept no view wrote nothing (the session writer starts at the first view): the folders
+        # made for it go too, so that the same command can run again
+        for folder in new_folders:
+            try:
+                folder.rmdir()  # only an empty folder
+            except OSError:
+                break
+
+
+def _missing_folders(out: Path) -> list[Path]:
+    """``out`` and its parents that do not exist yet, deepest first (the folders :func:`check_out_dir` makes)."""
+    missing = []
+    while not out.exists() and out != out.parent:
+        missing.append(out)
+        out = out.parent
+    return missing
+
+
+def _collect(args: argparse.Namespace, *, installed, target: TargetSpec, width: int, height: int) -> int:
+    """Open the devices, capture into ``args.out`` and say how it went (the options are checked)."""
+    from ..collect.collector import CaptureChecks, Collector
+    from ..collect.plan import PlanConfig
+    from ..collect.session_writer import SessionWriter
+
     simulated = "sim" in (args.camera.strip(), args.robot.strip())
     seed = args.seed
     if simulated and seed is None:
@@ -382,10 +406,11 @@ def run_collect(args: argparse.Namespace) -> int:
                 except (HandeyeError, OSError, RuntimeError) as e:
                     log.warning("closing %s: %s", getattr(dev, "name", "device"), e)
     n, r = len(collector.kept), len(collector.rejected)
-    print(f"session: {args.out} ({n} views kept, {r} captures rejected)")
-    if rig is not None:
-        print(f"ground truth: {Path(args.out) / 'ground_truth.json'} ({mounting(args.mode).x_name})")
-    if not n:
+    if n:  # without a view nothing was written
+        print(f"session: {args.out} ({n} views kept, {r} captures rejected)")
+        if rig is not None:
+            print(f"ground truth: {Path(args.out) / 'ground_truth.json'} ({mounting(args.mode).x_name})")
+    else:
         rejected = collector.rejected
         if rejected and all(c.reason.startswith("the arm") for c in rejected):  # moving, not settling, errors
             raise HardwareError(
