@@ -174,6 +174,7 @@ def run(args) -> int:
 
     if args.views < 3:
         raise ConfigError("--views must be at least 3", received=str(args.views))
+    _check_view_ids(args)
     if args.robot_error is None:
         args.robot_error = "kinematic" if args.cell else "iid"
     kin: dict[str, Any] = {}
@@ -226,6 +227,41 @@ def run(args) -> int:
         print(f"session with joint angles and robot: {args.arm}: {write_native_session(path)}")
     print(f"ground truth: {Path(path) / 'ground_truth.json'}")
     return 0
+
+
+def _check_view_ids(args) -> None:
+    """``--hidden`` and ``--outliers``: views among 1..``--views``, each once, apart, and one view at least shown.
+
+    A ConfigError names the option otherwise.
+    """
+    from ..errors import ConfigError
+
+    n = args.views
+    valid = {str(k) for k in range(1, n + 1)}
+    for option, ids in (("--hidden", args.hidden), ("--outliers", args.outliers)):
+        bad = [v for v in ids if v not in valid]
+        if bad:
+            raise ConfigError(
+                f"{option} names views that do not exist",
+                expected=f"view ids among 1..{n} (--views {n})",
+                received=" ".join(bad),
+            )
+        if len(set(ids)) != len(ids):
+            raise ConfigError(f"{option} names a view twice", expected="each id once", received=" ".join(ids))
+    both = sorted(set(args.hidden) & set(args.outliers), key=int)
+    if both:
+        raise ConfigError(
+            "a view cannot be both in --hidden and in --outliers",
+            expected="separate view ids",
+            received=" ".join(both),
+        )
+    if len(args.hidden) == n:
+        raise ConfigError(
+            f"--hidden hides every view: none of the {n} would show the board",
+            expected="at least 1 view showing the board (calibrate needs 3)",
+            received="--hidden " + " ".join(args.hidden),
+            hint="hide fewer views, or render more with --views",
+        )
 
 
 def _run_cell(args, kin: dict) -> int:

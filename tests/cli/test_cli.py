@@ -289,6 +289,26 @@ def test_simulator_numbers_that_mean_nothing_are_refused_naming_the_option(argv,
     assert not out.exists()
 
 
+@pytest.mark.parametrize(
+    "ids, words",
+    [
+        (["--hidden", "1", "2", "3"], "--hidden hides every view: none of the 3 would show the board"),
+        (["--hidden", "3", "1", "2", "--outliers"], "--hidden hides every view"),
+        (["--hidden", "4"], "--hidden names views that do not exist"),
+        (["--hidden", "2", "2"], "--hidden names a view twice"),
+        (["--outliers", "0"], "--outliers names views that do not exist"),
+        (["--hidden", "1", "--outliers", "1"], "both in --hidden and in --outliers"),
+    ],
+)
+def test_simulate_names_the_option_of_view_ids_it_cannot_use(ids, words, tmp_path, capsys):
+    """Every view hidden said "too few views; expected n_views >= 1; got 0", naming no option."""
+    out = tmp_path / "sim"
+    assert main(["-q", "simulate", str(out), "--views", "3", *ids]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0], err
+    assert not out.exists()
+
+
 def test_apply_maps_a_camera_point_into_the_base(tmp_path, capsys):
     cs = make_corner_session(mode="eye_in_hand", n_views=3, seed=2, noise_px=0.0)
     (tmp_path / "result.json").write_text(
