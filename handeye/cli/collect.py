@@ -285,35 +285,23 @@ def run_collect(args: argparse.Namespace) -> int:
             "--camera sim renders what the simulated arm sees", expected="--robot sim", received=repr(args.robot)
         )
     out = Path(args.out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+    if out.is_dir() and any(out.iterdir()):  # a file is check_out_dir's: "OUT is a file, not a folder"
         raise InputError(
             "output folder is not empty",
             path=out,
             hint="collect into a new folder; an existing session is never overwritten",
         )
     from ..output import check_out_dir
+    from .simulate import missing_folders, remove_empty_folders
 
-    new_folders = _missing_folders(out)
-    check_out_dir(out, option="OUT")  # not under a file, writable: before any device is opened
+    new_folders = missing_folders(out)
+    check_out_dir(out, option="OUT")  # not a file, not under one, writable: before any device is opened
     try:
         return _collect(args, installed=installed, target=target, width=width, height=height)
     finally:
         # a collection that kept no view wrote nothing (the session writer starts at the first view): the folders
         # made for it go too, so that the same command can run again
-        for folder in new_folders:
-            try:
-                folder.rmdir()  # only an empty folder
-            except OSError:
-                break
-
-
-def _missing_folders(out: Path) -> list[Path]:
-    """``out`` and its parents that do not exist yet, deepest first (the folders :func:`check_out_dir` makes)."""
-    missing = []
-    while not out.exists() and out != out.parent:
-        missing.append(out)
-        out = out.parent
-    return missing
+        remove_empty_folders(new_folders)
 
 
 def _collect(args: argparse.Namespace, *, installed, target: TargetSpec, width: int, height: int) -> int:

@@ -43,8 +43,10 @@ def run(args) -> int:
     from ..contract import read_result
     from ..frames import pose_error
     from ..mounting import mounting
+    from ..output import check_out_dir
     from . import build_parser, calibrate, simulate
 
+    check_out_dir(args.out, option="--out")  # not a file, not under one, writable: before the rendering
     session_dir = args.out / "session"
     log.info("rendering a synthetic %s session with %d views into %s", args.mode, args.views, session_dir)
     # a realistic session: image noise, a little blur, and one view without the board

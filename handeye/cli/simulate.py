@@ -73,6 +73,24 @@ def supersample_int(text: str) -> int:
     return v
 
 
+def missing_folders(out: Path) -> list[Path]:
+    """``out`` and its parents that do not exist yet, deepest first: the folders ``check_out_dir`` will make."""
+    missing = []
+    while not out.exists() and out != out.parent:
+        missing.append(out)
+        out = out.parent
+    return missing
+
+
+def remove_empty_folders(folders: list[Path]) -> None:
+    """Remove ``folders`` (deepest first) while they are empty: those made for an output that was not written."""
+    for folder in folders:
+        try:
+            folder.rmdir()  # only an empty folder
+        except OSError:
+            break
+
+
 def sim_target(name: str):
     """The target spec of a ``--target`` name (:data:`TARGETS`)."""
     from ..sim.scenarios import DEFAULT_TARGET
@@ -170,7 +188,6 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from ..errors import ConfigError
-    from ..sim.vendor import write_vendor_session
 
     if args.views < 3:
         raise ConfigError("--views must be at least 3", received=str(args.views))
@@ -202,8 +219,23 @@ def run(args) -> int:
                     received=str(args.encoder_sigma),
                 )
             kin["encoder_sigma_deg"] = float(args.encoder_sigma)
-    if args.cell:
-        return _run_cell(args, kin)
+    from ..output import check_out_dir
+
+    new_folders = missing_folders(args.out)
+    check_out_dir(args.out, option="OUT")  # not a file, not under one, writable: before the rendering
+    try:
+        if args.cell:
+            return _run_cell(args, kin)
+        return _run_session(args, kin)
+    except BaseException:
+        remove_empty_folders(new_folders)  # refused before it wrote: leave no empty folder behind
+        raise
+
+
+def _run_session(args, kin: dict) -> int:
+    """``simulate OUT``: one rendered session (:func:`handeye.sim.vendor.write_vendor_session`)."""
+    from ..sim.vendor import write_vendor_session
+
     path = write_vendor_session(
         args.out,
         mode=args.mode,

@@ -309,6 +309,34 @@ def test_simulate_names_the_option_of_view_ids_it_cannot_use(ids, words, tmp_pat
     assert not out.exists()
 
 
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["simulate", "OUT", "--views", "3"], "OUT is a file, not a folder"),
+        (["simulate", "OUT/s", "--views", "3"], "OUT lies under a file"),
+        (["simulate", "OUT", "--cell", "2", "--views", "4"], "OUT is a file, not a folder"),
+        (["collect", "OUT", *SIM_COLLECT, "--auto", "--seed", "1"], "OUT is a file, not a folder"),
+        (["demo", "--out", "OUT", "--views", "4"], "--out is a file, not a folder"),
+    ],
+)
+def test_an_output_folder_that_is_a_file_is_called_one(argv, words, tmp_path, capsys):
+    """Before, simulate said "cannot read OUT (File exists)" and collect "output folder is not empty"."""
+    f = tmp_path / "afile"
+    f.write_text("mine")
+    assert main(["-q", *(a.replace("OUT", str(f)) if a.startswith("OUT") else a for a in argv)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{f}" in err[0] and words in err[0], err
+    assert f.read_text() == "mine"
+
+
+def test_simulate_refused_after_its_checks_leaves_no_folder(tmp_path, capsys):
+    """An arm that does not exist is found out while the session is drawn: the folders made for OUT go again."""
+    out = tmp_path / "new" / "sim"
+    assert main(["-q", "simulate", str(out), "--views", "3", "--robot-error", "kinematic", "--arm", "nosuch"]) == 2
+    assert "nosuch" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
+
+
 def test_apply_maps_a_camera_point_into_the_base(tmp_path, capsys):
     cs = make_corner_session(mode="eye_in_hand", n_views=3, seed=2, noise_px=0.0)
     (tmp_path / "result.json").write_text(
