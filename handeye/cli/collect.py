@@ -35,6 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
     from .calibrate import positive_float, positive_int
+    from .simulate import MAX_BLUR_PX, blur_px, non_negative_float, seed_int, supersample_int
 
     parser.description = (
         "Collect a calibration session (native format, one atomic record per view) from a "
@@ -168,30 +169,36 @@ def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("simulation (--camera sim / --robot sim)")
     g.add_argument(
         "--seed",
-        type=int,
+        type=seed_int,
         help="random seed of the simulated rig and noise (default: drawn at random and recorded as "
         "collected.seed in session.yaml)",
     )
     g.add_argument(
         "--sim-pose-noise",
         nargs=2,
-        type=float,
+        type=non_negative_float,
         metavar=("MM", "DEG"),
         default=(0.1, 0.02),
         help="simulated arm: per-axis error of the reported pose (default 0.1 mm 0.02 deg)",
     )
     g.add_argument(
         "--sim-image-noise",
-        type=float,
+        type=non_negative_float,
         default=2.0,
         metavar="GREY",
         help="simulated camera: Gaussian noise in grey levels (default %(default)s)",
     )
-    g.add_argument("--sim-blur", type=float, default=0.0, metavar="PX", help="simulated camera: blur sigma")
+    g.add_argument(
+        "--sim-blur",
+        type=blur_px,
+        default=0.0,
+        metavar="PX",
+        help=f"simulated camera: blur sigma (0-{MAX_BLUR_PX:g}, default 0)",
+    )
     g.add_argument(
         "--sim-bump",
         nargs=2,
-        type=float,
+        type=non_negative_float,
         metavar=("MM", "DEG"),
         default=None,
         help="with --verify-against: the simulated rig is the installed one with the camera moved by "
@@ -199,9 +206,9 @@ def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--sim-supersample",
-        type=int,
+        type=supersample_int,
         default=2,
-        help="simulated camera: anti-aliasing samples per pixel and axis (default %(default)s)",
+        help="simulated camera: anti-aliasing samples per pixel and axis, 1-16 (default %(default)s)",
     )
 
 
@@ -258,10 +265,6 @@ def _confirm_on_terminal(text: str) -> bool:
 
 
 def run_collect(args: argparse.Namespace) -> int:
-    from ..collect.collector import CaptureChecks, Collector
-    from ..collect.plan import PlanConfig
-    from ..collect.session_writer import SessionWriter
-
     installed = _installed(args)  # --verify-against: the installed calibration fixes the mode and the board
     target = parse_target_spec(args.target) if installed is None else _installed_target(installed)
     if isinstance(target, ChessboardSpec) and len(target.symmetries()) > 1:
@@ -282,15 +285,31 @@ def run_collect(args: argparse.Namespace) -> int:
             "--camera sim renders what the simulated arm sees", expected="--robot sim", received=repr(args.robot)
         )
     out = Path(args.out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+    if out.is_dir() and any(out.iterdir()):  # a file is check_out_dir's: "OUT is a file, not a folder"
         raise InputError(
             "output folder is not empty",
             path=out,
             hint="collect into a new folder; an existing session is never overwritten",
         )
     from ..output import check_out_dir
+    from .simulate import missing_folders, remove_empty_folders
 
-    check_out_dir(out, option="OUT")  # not under a file, writable: before any device is opened
+    new_folders = missing_folders(out)
+    check_out_dir(out, option="OUT")  # not a file, not under one, writable: before any device is opened
+    try:
+        return _collect(args, installed=installed, target=target, width=width, height=height)
+    finally:
+        # a collection that kept no view wrote nothing (the session writer starts at the first view): the folders
+        # made for it go too, so that the same command can run again
+        remove_empty_folders(new_folders)
+
+
+def _collect(args: argparse.Namespace, *, installed, target: TargetSpec, width: int, height: int) -> int:
+    """Open the devices, capture into ``args.out`` and say how it went (the options are checked)."""
+    from ..collect.collector import CaptureChecks, Collector
+    from ..collect.plan import PlanConfig
+    from ..collect.session_writer import SessionWriter
+
     simulated = "sim" in (args.camera.strip(), args.robot.strip())
     seed = args.seed
     if simulated and seed is None:
@@ -375,10 +394,11 @@ def run_collect(args: argparse.Namespace) -> int:
                 except (HandeyeError, OSError, RuntimeError) as e:
                     log.warning("closing %s: %s", getattr(dev, "name", "device"), e)
     n, r = len(collector.kept), len(collector.rejected)
-    print(f"session: {args.out} ({n} views kept, {r} captures rejected)")
-    if rig is not None:
-        print(f"ground truth: {Path(args.out) / 'ground_truth.json'} ({mounting(args.mode).x_name})")
-    if not n:
+    if n:  # without a view nothing was written
+        print(f"session: {args.out} ({n} views kept, {r} captures rejected)")
+        if rig is not None:
+            print(f"ground truth: {Path(args.out) / 'ground_truth.json'} ({mounting(args.mode).x_name})")
+    else:
         rejected = collector.rejected
         if rejected and all(c.reason.startswith("the arm") for c in rejected):  # moving, not settling, errors
             raise HardwareError(

@@ -8,14 +8,30 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 
+def demo_views(text: str) -> int:
+    """Argparse type: the demo's number of views, at least 4 (one is rendered without the board; calibrate needs 3)."""
+    import argparse
+
+    try:
+        v = int(text)
+    except ValueError:
+        v = 0
+    if v < 4:
+        raise argparse.ArgumentTypeError(
+            f"expected a whole number >= 4 (one view is rendered without the board; calibrate needs 3), got {text!r}"
+        )
+    return v
+
+
 def add_arguments(p) -> None:
     """The command's arguments (its one-line help is in handeye.cli.COMMANDS)."""
     from ..mounting import MODES
+    from .simulate import seed_int
 
     p.add_argument("--out", type=Path, default=Path("reports/demo"), help="folder for the session and results")
     p.add_argument("--mode", choices=MODES, default="eye_in_hand")
-    p.add_argument("--views", type=int, default=20)
-    p.add_argument("--seed", type=int, default=0, help="random seed of the simulated session")
+    p.add_argument("--views", type=demo_views, default=20, help="rendered views, at least 4 (default 20)")
+    p.add_argument("--seed", type=seed_int, default=0, help="random seed of the simulated session")
     p.set_defaults(func=run)
 
 
@@ -27,8 +43,10 @@ def run(args) -> int:
     from ..contract import read_result
     from ..frames import pose_error
     from ..mounting import mounting
+    from ..output import check_out_dir
     from . import build_parser, calibrate, simulate
 
+    check_out_dir(args.out, option="--out")  # not a file, not under one, writable: before the rendering
     session_dir = args.out / "session"
     log.info("rendering a synthetic %s session with %d views into %s", args.mode, args.views, session_dir)
     # a realistic session: image noise, a little blur, and one view without the board

@@ -14,6 +14,83 @@ TARGETS = {
 }
 
 
+def seed_int(text: str) -> int:
+    """Argparse type: a random seed, a whole number >= 0 (numpy's seeds; ``--seed`` of simulate, demo, collect)."""
+    import argparse
+
+    try:
+        v = int(text)
+    except ValueError:
+        v = -1
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
+    return v
+
+
+def _number(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        return float("nan")
+
+
+def non_negative_float(text: str) -> float:
+    """Argparse type: a finite number >= 0 (the simulators' noise levels and bumps)."""
+    import argparse
+    import math
+
+    v = _number(text)
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+    return v
+
+
+#: the largest blur sigma (px) the simulators take: past it no board is left to see, and a far larger one
+#: exhausts the memory of OpenCV's Gaussian kernel
+MAX_BLUR_PX = 100.0
+
+
+def blur_px(text: str) -> float:
+    """Argparse type: a Gaussian blur sigma in pixels, 0 to :data:`MAX_BLUR_PX` (``--blur``, ``--sim-blur``)."""
+    import argparse
+
+    v = _number(text)
+    if not 0 <= v <= MAX_BLUR_PX:  # nan fails too
+        raise argparse.ArgumentTypeError(f"expected a blur sigma of 0-{MAX_BLUR_PX:g} px, got {text!r}")
+    return v
+
+
+def supersample_int(text: str) -> int:
+    """Argparse type: anti-aliasing samples per pixel and axis, 1-16 (``handeye.sim.render``'s range)."""
+    import argparse
+
+    try:
+        v = int(text)
+    except ValueError:
+        v = 0
+    if not 1 <= v <= 16:
+        raise argparse.ArgumentTypeError(f"expected a whole number of samples 1-16, got {text!r}")
+    return v
+
+
+def missing_folders(out: Path) -> list[Path]:
+    """``out`` and its parents that do not exist yet, deepest first: the folders ``check_out_dir`` will make."""
+    missing = []
+    while not out.exists() and out != out.parent:
+        missing.append(out)
+        out = out.parent
+    return missing
+
+
+def remove_empty_folders(folders: list[Path]) -> None:
+    """Remove ``folders`` (deepest first) while they are empty: those made for an output that was not written."""
+    for folder in folders:
+        try:
+            folder.rmdir()  # only an empty folder
+        except OSError:
+            break
+
+
 def sim_target(name: str):
     """The target spec of a ``--target`` name (:data:`TARGETS`)."""
     from ..sim.scenarios import DEFAULT_TARGET
@@ -46,18 +123,20 @@ def add_arguments(p) -> None:
         default="chessboard",
         help="; ".join(f"{k}: {v}" for k, v in TARGETS.items()),
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed of the scene, poses and noise")
+    p.add_argument("--seed", type=seed_int, default=0, help="random seed of the scene, poses and noise")
     p.add_argument(
         "--noise-px",
-        type=float,
+        type=non_negative_float,
         default=0.0,
         help="Gaussian image noise in grey levels added to the rendered images (default 0)",
     )
-    p.add_argument("--blur", type=float, default=0.0, help="Gaussian blur sigma in pixels")
+    p.add_argument(
+        "--blur", type=blur_px, default=0.0, help=f"Gaussian blur sigma in pixels (0-{MAX_BLUR_PX:g}, default 0)"
+    )
     p.add_argument(
         "--robot-noise",
         nargs=2,
-        type=float,
+        type=non_negative_float,
         metavar=("MM", "DEG"),
         default=(0.0, 0.0),
         help="per-axis robot pose noise added to the reported poses",
@@ -109,10 +188,10 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from ..errors import ConfigError
-    from ..sim.vendor import write_vendor_session
 
     if args.views < 3:
         raise ConfigError("--views must be at least 3", received=str(args.views))
+    _check_view_ids(args)
     if args.robot_error is None:
         args.robot_error = "kinematic" if args.cell else "iid"
     kin: dict[str, Any] = {}
@@ -140,8 +219,23 @@ def run(args) -> int:
                     received=str(args.encoder_sigma),
                 )
             kin["encoder_sigma_deg"] = float(args.encoder_sigma)
-    if args.cell:
-        return _run_cell(args, kin)
+    from ..output import check_out_dir
+
+    new_folders = missing_folders(args.out)
+    check_out_dir(args.out, option="OUT")  # not a file, not under one, writable: before the rendering
+    try:
+        if args.cell:
+            return _run_cell(args, kin)
+        return _run_session(args, kin)
+    except BaseException:
+        remove_empty_folders(new_folders)  # refused before it wrote: leave no empty folder behind
+        raise
+
+
+def _run_session(args, kin: dict) -> int:
+    """``simulate OUT``: one rendered session (:func:`handeye.sim.vendor.write_vendor_session`)."""
+    from ..sim.vendor import write_vendor_session
+
     path = write_vendor_session(
         args.out,
         mode=args.mode,
@@ -165,6 +259,41 @@ def run(args) -> int:
         print(f"session with joint angles and robot: {args.arm}: {write_native_session(path)}")
     print(f"ground truth: {Path(path) / 'ground_truth.json'}")
     return 0
+
+
+def _check_view_ids(args) -> None:
+    """``--hidden`` and ``--outliers``: views among 1..``--views``, each once, apart, and one view at least shown.
+
+    A ConfigError names the option otherwise.
+    """
+    from ..errors import ConfigError
+
+    n = args.views
+    valid = {str(k) for k in range(1, n + 1)}
+    for option, ids in (("--hidden", args.hidden), ("--outliers", args.outliers)):
+        bad = [v for v in ids if v not in valid]
+        if bad:
+            raise ConfigError(
+                f"{option} names views that do not exist",
+                expected=f"view ids among 1..{n} (--views {n})",
+                received=" ".join(bad),
+            )
+        if len(set(ids)) != len(ids):
+            raise ConfigError(f"{option} names a view twice", expected="each id once", received=" ".join(ids))
+    both = sorted(set(args.hidden) & set(args.outliers), key=int)
+    if both:
+        raise ConfigError(
+            "a view cannot be both in --hidden and in --outliers",
+            expected="separate view ids",
+            received=" ".join(both),
+        )
+    if len(args.hidden) == n:
+        raise ConfigError(
+            f"--hidden hides every view: none of the {n} would show the board",
+            expected="at least 1 view showing the board (calibrate needs 3)",
+            received="--hidden " + " ".join(args.hidden),
+            hint="hide fewer views, or render more with --views",
+        )
 
 
 def _run_cell(args, kin: dict) -> int:

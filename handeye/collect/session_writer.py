@@ -3,7 +3,8 @@
 ``OUT/session.yaml`` (header), ``OUT/images/<id>.png`` (the frame as grabbed) and one
 ``OUT/views/<id>.yaml`` record per capture, each written atomically
 (:func:`handeye.output.atomic_write_bytes`), the image before its record, so a kill loses at most the
-capture in flight. Poses are written as ``T_base_end`` 4x4 matrices in metres.
+capture in flight. Poses are written as ``T_base_end`` 4x4 matrices in metres. Nothing is written
+before the first view: a collection that keeps none leaves no session without views behind.
 
 See docs/collect.md.
 """
@@ -76,7 +77,7 @@ def intrinsics_header(intr: Intrinsics, *, use: str = "initial", source: dict | 
 
 
 class SessionWriter:
-    """Creates ``out_dir`` with its header, then writes one capture at a time."""
+    """Checks ``out_dir``, then writes one capture at a time; the folder and its header with the first."""
 
     def __init__(
         self,
@@ -95,11 +96,6 @@ class SessionWriter:
                 path=self.out,
                 hint="collect into a new folder; an existing session is never overwritten",
             )
-        try:
-            (self.out / IMAGES_DIR).mkdir(parents=True, exist_ok=True)
-            (self.out / RECORDS_DIR).mkdir(exist_ok=True)
-        except OSError as e:
-            raise InputError(f"cannot create the session folder ({e.strerror})", path=self.out) from None
         self.mode = mode
         self.target = target
         self.n_written = 0
@@ -119,7 +115,23 @@ class SessionWriter:
             "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
             **(collected or {}),
         }
-        self._write(self.out / "session.yaml", dump_yaml(header))
+        self._header = dump_yaml(header)
+        self._truth: bytes | None = None  # ground_truth.json, held until the session is started
+        self.started = False
+
+    def _start(self) -> None:
+        """Create the folders and write session.yaml (and ground_truth.json when given): at the first view."""
+        if self.started:
+            return
+        try:
+            (self.out / IMAGES_DIR).mkdir(parents=True, exist_ok=True)
+            (self.out / RECORDS_DIR).mkdir(exist_ok=True)
+        except OSError as e:
+            raise InputError(f"cannot create the session folder ({e.strerror})", path=self.out) from None
+        self._write(self.out / "session.yaml", self._header)
+        if self._truth is not None:
+            self._write(self.out / "ground_truth.json", self._truth)
+        self.started = True
 
     def _write(self, path: Path, data: bytes) -> None:
         try:
@@ -156,6 +168,7 @@ class SessionWriter:
                 f"view {vid}: the camera frame could not be encoded as PNG",
                 received=f"array {image.shape} {image.dtype}",
             )
+        self._start()
         img_rel = f"{IMAGES_DIR}/{vid}.png"
         self._write(self.out / img_rel, png.tobytes())
         record = {
@@ -173,5 +186,7 @@ class SessionWriter:
         return rec_path
 
     def write_ground_truth(self, truth: dict) -> None:
-        """``ground_truth.json`` for simulated sessions (rewritten atomically as it grows)."""
-        self._write(self.out / "ground_truth.json", to_json(truth, indent=1).encode("utf-8"))
+        """``ground_truth.json`` for simulated sessions (rewritten atomically as it grows; from the first view on)."""
+        self._truth = to_json(truth, indent=1).encode("utf-8")
+        if self.started:
+            self._write(self.out / "ground_truth.json", self._truth)

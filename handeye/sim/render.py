@@ -479,10 +479,10 @@ def render_view(
     """
     if channels not in (1, 3):
         raise ConfigError("invalid channels", expected="1 (grey) or 3 (BGR)", received=str(channels))
-    if blur_sigma_px < 0 or noise_sigma < 0:
+    if not (0 <= blur_sigma_px < np.inf and 0 <= noise_sigma < np.inf):  # nan too: it would render no noise
         raise ConfigError(
-            "negative blur or noise",
-            expected=">= 0",
+            "blur or noise not a finite number >= 0",
+            expected="finite numbers >= 0",
             received=f"blur_sigma_px={blur_sigma_px}, noise_sigma={noise_sigma}",
         )
     if noise_sigma > 0 and rng is None:

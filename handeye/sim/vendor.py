@@ -10,6 +10,7 @@ of ``poses.txt`` and ``config.yaml``.
 from __future__ import annotations
 
 import logging
+import math
 import re
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -103,11 +104,12 @@ def write_vendor_session(
         fmt = "jpg"
     if fmt not in ("jpg", "png"):
         raise ConfigError("unsupported image format", expected="jpg | png", received=repr(image_format))
-    if image_noise < 0 or blur_sigma_px < 0:
+    levels = (image_noise, blur_sigma_px, *robot_noise)
+    if not all(0 <= v < math.inf for v in levels):  # nan fails too: it would write poses of nan or render no noise
         raise ConfigError(
-            "negative image noise or blur",
-            expected=">= 0",
-            received=f"image_noise={image_noise}, blur_sigma_px={blur_sigma_px}",
+            "image noise, blur or robot noise not a finite number >= 0",
+            expected="finite numbers >= 0",
+            received=f"image_noise={image_noise}, blur_sigma_px={blur_sigma_px}, robot_noise={tuple(robot_noise)}",
         )
     intrinsics = DEFAULT_INTRINSICS if intrinsics is None else intrinsics
     session = make_corner_session(

@@ -319,7 +319,7 @@ def _existing_session(tmp):
 
 
 COLLECT_OUT = [
-    pytest.param(lambda tmp: _file(tmp), ["output folder is not empty"], id="is_a_file"),
+    pytest.param(lambda tmp: _file(tmp), ["OUT is a file, not a folder"], id="is_a_file"),
     pytest.param(lambda tmp: _under_file(tmp), ["OUT lies under a file"], id="under_a_file"),
     pytest.param(
         lambda tmp: _existing_session(tmp), ["output folder is not empty", "never overwritten"], id="existing_session"

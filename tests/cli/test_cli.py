@@ -260,6 +260,117 @@ def test_simulate_refuses_a_session_folder_unless_forced(tmp_path, capsys):
     assert (tmp_path / "s" / "poses.txt").read_text() != first
 
 
+def _refused_at_parsing(argv: list, capsys) -> str:
+    """The error line of a command line argparse refuses (exit 2, its usage and one error line)."""
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        main(["-q", *map(str, argv)])
+    assert e.value.code == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ": error:" in ln]
+    assert len(err) == 1, err
+    return err[0]
+
+
+SIM_COLLECT = ["--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim"]
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["simulate", "OUT", "--views", "3"],
+        ["demo", "--out", "OUT", "--views", "4"],
+        ["collect", "OUT", *SIM_COLLECT, "--auto"],
+    ],
+    ids=["simulate", "demo", "collect"],
+)
+def test_a_negative_seed_is_refused_before_anything_is_written(argv, tmp_path, capsys):
+    """numpy takes seeds >= 0: --seed -1 is a usage error naming --seed, not an internal error after the work began."""
+    out = tmp_path / "out"
+    argv = [str(out) if a == "OUT" else a for a in argv]
+    for seed in ("-1", "1.5"):
+        err = _refused_at_parsing([*argv, "--seed", seed], capsys)
+        assert "argument --seed: expected a whole number >= 0" in err and repr(seed) in err, err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["simulate", "OUT", "--robot-noise", "nan", "0"], "--robot-noise"),
+        (["simulate", "OUT", "--robot-noise", "0.1", "inf"], "--robot-noise"),
+        (["simulate", "OUT", "--robot-noise", "-1", "0"], "--robot-noise"),
+        (["simulate", "OUT", "--noise-px", "nan"], "--noise-px"),
+        (["simulate", "OUT", "--noise-px", "-2"], "--noise-px"),
+        (["simulate", "OUT", "--blur", "nan"], "--blur"),
+        (["simulate", "OUT", "--blur", "1e7"], "--blur"),  # OpenCV's kernel would exhaust the memory
+        (["demo", "--out", "OUT", "--views", "3"], "--views"),  # one hidden: calibrate would find 2 boards
+        (["collect", "OUT", *SIM_COLLECT, "--sim-pose-noise", "nan", "0"], "--sim-pose-noise"),
+        (["collect", "OUT", *SIM_COLLECT, "--sim-pose-noise", "0.1", "-1"], "--sim-pose-noise"),
+        (["collect", "OUT", *SIM_COLLECT, "--sim-image-noise", "-5"], "--sim-image-noise"),
+        (["collect", "OUT", *SIM_COLLECT, "--sim-image-noise", "inf"], "--sim-image-noise"),
+        (["collect", "OUT", *SIM_COLLECT, "--sim-blur", "-1"], "--sim-blur"),
+        (["collect", "OUT", *SIM_COLLECT, "--sim-blur", "nan"], "--sim-blur"),
+        (["collect", "OUT", *SIM_COLLECT, "--sim-supersample", "0"], "--sim-supersample"),
+        (["collect", "OUT", *SIM_COLLECT, "--sim-bump", "nan", "0"], "--sim-bump"),
+    ],
+)
+def test_simulator_numbers_that_mean_nothing_are_refused_naming_the_option(argv, option, tmp_path, capsys):
+    """nan, inf and negative noise levels, blurs and samples: before, simulate wrote poses of nan and rendered
+    nan noise as none, and collect failed at its first render with a message naming no option."""
+    out = tmp_path / "out"
+    err = _refused_at_parsing([str(out) if a == "OUT" else a for a in argv], capsys)
+    assert f"argument {option}: expected" in err, err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "ids, words",
+    [
+        (["--hidden", "1", "2", "3"], "--hidden hides every view: none of the 3 would show the board"),
+        (["--hidden", "3", "1", "2", "--outliers"], "--hidden hides every view"),
+        (["--hidden", "4"], "--hidden names views that do not exist"),
+        (["--hidden", "2", "2"], "--hidden names a view twice"),
+        (["--outliers", "0"], "--outliers names views that do not exist"),
+        (["--hidden", "1", "--outliers", "1"], "both in --hidden and in --outliers"),
+    ],
+)
+def test_simulate_names_the_option_of_view_ids_it_cannot_use(ids, words, tmp_path, capsys):
+    """Every view hidden said "too few views; expected n_views >= 1; got 0", naming no option."""
+    out = tmp_path / "sim"
+    assert main(["-q", "simulate", str(out), "--views", "3", *ids]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0], err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["simulate", "OUT", "--views", "3"], "OUT is a file, not a folder"),
+        (["simulate", "OUT/s", "--views", "3"], "OUT lies under a file"),
+        (["simulate", "OUT", "--cell", "2", "--views", "4"], "OUT is a file, not a folder"),
+        (["collect", "OUT", *SIM_COLLECT, "--auto", "--seed", "1"], "OUT is a file, not a folder"),
+        (["demo", "--out", "OUT", "--views", "4"], "--out is a file, not a folder"),
+    ],
+)
+def test_an_output_folder_that_is_a_file_is_called_one(argv, words, tmp_path, capsys):
+    """Before, simulate said "cannot read OUT (File exists)" and collect "output folder is not empty"."""
+    f = tmp_path / "afile"
+    f.write_text("mine")
+    assert main(["-q", *(a.replace("OUT", str(f)) if a.startswith("OUT") else a for a in argv)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{f}" in err[0] and words in err[0], err
+    assert f.read_text() == "mine"
+
+
+def test_simulate_refused_after_its_checks_leaves_no_folder(tmp_path, capsys):
+    """An arm that does not exist is found out while the session is drawn: the folders made for OUT go again."""
+    out = tmp_path / "new" / "sim"
+    assert main(["-q", "simulate", str(out), "--views", "3", "--robot-error", "kinematic", "--arm", "nosuch"]) == 2
+    assert "nosuch" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
+
+
 def test_apply_maps_a_camera_point_into_the_base(tmp_path, capsys):
     cs = make_corner_session(mode="eye_in_hand", n_views=3, seed=2, noise_px=0.0)
     (tmp_path / "result.json").write_text(

@@ -134,7 +134,7 @@ def test_blurred_frames_are_rejected_with_the_reason(tmp_path, caplog):
     col = Collector(robot=robot, camera=camera, writer=writer, target=rig.target, mode="eye_in_hand", checks=checks)
     cap = col.capture()
     assert not cap.kept and "not sharp" in cap.reason
-    assert list((tmp_path / "b" / "views").iterdir()) == []
+    assert not (tmp_path / "b").exists()  # nothing is written before the first view kept
     sharp = Collector(
         robot=robot,
         camera=SimCamera(robot, rng=np.random.default_rng(3)),
@@ -157,6 +157,29 @@ def test_collect_argument_errors(tmp_path):
     (tmp_path / "full" / "x.txt").write_text("x")
     with pytest.raises(InputError, match="not empty"):
         run_collect(_args([tmp_path / "full", "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim", *FAST]))
+
+
+@pytest.mark.parametrize(
+    "extra, stdin",
+    [(["--auto", "--sim-blur", "30"], ""), (["--no-preview"], "")],  # no board in sight; no key pressed
+    ids=["auto_blurred", "interactive_no_input"],
+)
+def test_a_collection_that_keeps_no_view_leaves_nothing_and_runs_again(tmp_path, monkeypatch, capsys, extra, stdin):
+    """Before, OUT kept session.yaml without views, ground_truth.json and empty images/ and views/: calibrate said the
+    session has no views and the same command was refused (output folder is not empty)."""
+    from handeye.cli import main
+
+    out = tmp_path / "new" / "s"
+    argv = ["-q", "collect", out, "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim", "--seed", "1"]
+    for _ in range(2):
+        monkeypatch.setattr(sys, "stdin", io.StringIO(stdin))
+        assert main([str(a) for a in [*argv, *FAST, *extra]]) == 3
+        assert "not empty" not in capsys.readouterr().err
+        assert not (tmp_path / "new").exists()  # nor the parent made for it
+    (tmp_path / "mine").mkdir()  # an empty folder of the user's stays, empty
+    monkeypatch.setattr(sys, "stdin", io.StringIO(stdin))
+    assert main([str(a) for a in [*argv[:2], tmp_path / "mine", *argv[3:], *FAST, *extra]]) == 3
+    assert list((tmp_path / "mine").iterdir()) == []
 
 
 # ------------------------------------------------------------------------------ crash safety

@@ -366,9 +366,29 @@ def test_render_view_blur_noise_and_bad_options():
         render.render_view(s.target, SMALL, T, channels=2)
     with pytest.raises(ConfigError):
         render.render_view(s.target, SMALL, T, background="sky")
+    for blur, noise in ((float("nan"), 0.0), (0.0, float("nan")), (float("inf"), 0.0), (0.0, -1.0)):
+        with pytest.raises(ConfigError, match="not a finite number >= 0"):  # nan noise rendered none before
+            render.render_view(s.target, SMALL, T, blur_sigma_px=blur, noise_sigma=noise, rng=np.random.default_rng(1))
 
 
 # ---------------------------------------------------------------- vendor-layout writer
+
+
+@pytest.mark.parametrize(
+    "levels",
+    [
+        {"robot_noise": (float("nan"), 0.0)},
+        {"robot_noise": (0.1, float("inf"))},
+        {"image_noise": float("nan")},
+        {"blur_sigma_px": float("nan")},
+        {"blur_sigma_px": -1.0},
+    ],
+)
+def test_vendor_session_refuses_noise_that_is_not_a_finite_number(tmp_path, levels):
+    """A nan robot noise wrote poses.txt full of nan and a ground_truth.json that is not JSON; nothing is written."""
+    with pytest.raises(ConfigError, match="not a finite number >= 0"):
+        write_vendor_session(tmp_path / "s", n_views=3, intrinsics=SMALL, **levels)
+    assert not (tmp_path / "s").exists()
 
 
 def test_vendor_session_files_poses_and_hidden_views(tmp_path):
