@@ -290,9 +290,7 @@ def _run_child(spec: dict, out: Path, *, session_path: Optional[str] = None) -> 
         )
     elif what == "died":
         how = "no exit code" if code is None else f"killed by signal {-code}" if code < 0 else f"exit code {code}"
-        last = _last_line(out / LOG_NAME)
-        if last == "no log lines":
-            last = sp.own_log_line() or last
+        last = _last_line(out / LOG_NAME)  # with what the process wrote on its own stderr (SessionProcess.run)
         rec.update(
             outcome="crashed", verdict="ERROR", reason=f"the session's process ended without a result ({how}): {last}"
         )

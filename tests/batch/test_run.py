@@ -93,6 +93,47 @@ def test_sessions_share_a_session_process_and_a_crash_takes_only_its_own(tmp_pat
     assert "about to crash" not in log, "each session's log holds its own lines only"
 
 
+def test_an_uncaught_exception_in_the_session_process_is_its_row_with_the_traceback_in_its_log(tmp_path, monkeypatch):
+    """A session whose process dies of an exception that is not a handeye error (a hook on the process's
+    PYTHONPATH raises it for sessions named ``*raise*``, before the session logs a line): its record says how the
+    process ended and the exception's last line, and its batch.log holds the traceback, which the process writes
+    on its own stderr once the exception has left the session."""
+    from handeye.batch import run as batch_run
+
+    root, out = tmp_path / "root", tmp_path / "out"
+    (root / "cell" / "2027-01-01-raise").mkdir(parents=True)
+    (root / "cell" / "2027-01-01-raise" / "poses.txt").write_text("0,0,0,0,0,0\n")
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(
+        "import sys\n"
+        "if 'handeye.batch.child' in sys.orig_argv:\n"
+        "    import handeye.batch.child as c\n"
+        "    _run = c.run\n"
+        "    def run(spec):\n"
+        "        if 'raise' in spec['session']:\n"
+        "            raise ValueError('day is out of range for month')\n"
+        "        return _run(spec)\n"
+        "    c.run = run\n"
+    )
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (str(hook), os.environ.get("PYTHONPATH")) if p))
+    monkeypatch.setattr(batch_run, "_session_processes", threading.local())
+    calibrate = calibrate_options(build_parser().parse_args(["batch", str(root), "--out", str(out), "--no-report"]))
+    (spec,) = plan_batch(discover(root), out, calibrate=calibrate).specs
+    try:
+        rec = batch_run.run_session(spec)
+    finally:
+        batch_run.session_process().close()
+    assert rec["outcome"] == "crashed" and rec["verdict"] == "ERROR", rec
+    assert rec["reason"] == (
+        "the session's process ended without a result (exit code 1): ValueError: day is out of range for month"
+    )
+    assert json.loads((out / "cell" / "2027-01-01-raise" / RECORD_NAME).read_text())["reason"] == rec["reason"]
+    log = (out / "cell" / "2027-01-01-raise" / "batch.log").read_text()
+    assert "Traceback (most recent call last)" in log and "raise ValueError('day is out of range for month')" in log
+    assert batch_run.session_process().proc is None and batch_run.session_process().own_log is None
+
+
 def test_a_fleet_wide_robot_noise_flag_is_refused_for_a_pose_only_session(tmp_path):
     """``batch --robot-noise fixed`` over a pose-only session: its row names the flag that does not apply, as
     ``handeye calibrate`` does, instead of ignoring it."""
