@@ -39,6 +39,8 @@ RECORD_NAME = "batch.json"
 LOG_NAME = "batch.log"
 #: default time limit of one session (seconds)
 DEFAULT_TIMEOUT_S = 900.0
+#: the longest time limit of one session (seconds): a week; a longer one is no limit but a mistake
+MAX_TIMEOUT_S = 7 * 24 * 3600.0
 #: outcomes of a session in the batch: ``done`` (the workflow finished; result.json says the rest),
 #: ``timeout``, ``crashed`` (the child died without a result), ``error`` (the workflow raised),
 #: ``lost`` (its workers kept dying)

@@ -26,7 +26,7 @@ _NOT_FROM_CALIBRATE = ("help", "session", "out", "workers")
 
 def add_arguments(p) -> None:
     """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
-    from ..batch.run import DEFAULT_TIMEOUT_S
+    from ..batch.run import DEFAULT_TIMEOUT_S, MAX_TIMEOUT_S
     from .calibrate import add_arguments as add_calibrate_arguments
 
     p.description = (
@@ -68,7 +68,7 @@ def add_arguments(p) -> None:
         type=float,
         default=DEFAULT_TIMEOUT_S,
         metavar="S",
-        help=f"time limit of one session in seconds (default {DEFAULT_TIMEOUT_S:g})",
+        help=f"time limit of one session in seconds (default {DEFAULT_TIMEOUT_S:g}, at most {MAX_TIMEOUT_S:g}: a week)",
     )
     p.add_argument("--force", action="store_true", help="run every session, changed or not")
     p.add_argument("--index-only", action="store_true", help="only rebuild the index of the output folder ROOT")
@@ -117,8 +117,15 @@ def run(args) -> int:
         raise InputError("--out is required", hint="handeye batch ROOT --out OUT")
     if args.workers is not None and args.workers < 1:
         raise InputError("--workers must be at least 1", received=str(args.workers))
-    if args.timeout <= 0:
-        raise InputError("--timeout must be a positive number of seconds", received=str(args.timeout))
+    from ..batch.run import DEFAULT_TIMEOUT_S, MAX_TIMEOUT_S
+
+    if not 0 < args.timeout <= MAX_TIMEOUT_S:  # False for nan too
+        raise InputError(
+            "--timeout must be a positive number of seconds",
+            expected=f"at most {MAX_TIMEOUT_S:g} (a week)",
+            received=str(args.timeout),
+            hint=f"pass the time limit of one session, e.g. --timeout {DEFAULT_TIMEOUT_S:g}",
+        )
     from ..batch.discover import discover_fleet
     from ..batch.run import run_batch
     from ..report.qa import load_qa
