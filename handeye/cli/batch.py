@@ -41,7 +41,7 @@ def add_arguments(p) -> None:
         "exit codes: 0 every session PASS or WARN (with --index-only: every row of the index PASS, WARN or "
         "VALID); 7 a session FAIL, REFUSED, DRIFTED or without a result (timeout, crash, lost worker, a "
         "session that cannot be read), or a result under OUT that is damaged; 2 unusable input (the root, "
-        "the options, the site QA file)"
+        "the output folder, the options, the site QA file)"
     )
     p.add_argument("root", type=Path, help="folder holding the sessions (with --index-only: the output folder)")
     p.add_argument("--out", type=Path, help="output folder (required unless --index-only)")
@@ -128,6 +128,7 @@ def run(args) -> int:
         )
     from ..batch.discover import discover_fleet
     from ..batch.run import run_batch
+    from ..output import check_out_dir
     from ..report.qa import load_qa
 
     if not getattr(args, "verbose", False):  # Dask's INFO lines, in this process and the workers it starts
@@ -143,6 +144,7 @@ def run(args) -> int:
             path=args.root,
             expected="folders with session.yaml or poses.txt (ROOT/<install>/<session>/)",
         )
+    check_out_dir(args.out)  # a file, or a folder that cannot be written: before any session runs
     bar = _Progress(len(jobs), quiet=getattr(args, "quiet", False))
     try:
         summary = run_batch(

@@ -40,3 +40,13 @@ def test_a_timeout_that_is_not_a_finite_positive_time_up_to_a_week_is_refused(ro
         f"got {float(timeout)} -> pass the time limit of one session, e.g. --timeout 900"
     )
     assert not (tmp_path / "out" / "cell").exists(), "no session was planned"
+
+
+def test_an_out_that_is_a_file_is_refused(root, tmp_path, capsys):
+    (tmp_path / "out").write_text("not a folder\n")
+    err = _refused(capsys, [root, "--out", tmp_path / "out"])
+    assert err == (
+        f"handeye: error: {tmp_path / 'out'}: --out is a file, not a folder; expected a folder (or a new name); "
+        "got a file -> pass another folder with --out"
+    )
+    assert (tmp_path / "out").read_text() == "not a folder\n"
