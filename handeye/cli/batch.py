@@ -126,6 +126,17 @@ def run(args) -> int:
             received=str(args.timeout),
             hint=f"pass the time limit of one session, e.g. --timeout {DEFAULT_TIMEOUT_S:g}",
         )
+    if args.board_unmoved and args.prior is None:  # as handeye calibrate refuses it
+        raise InputError(
+            "--board-unmoved says the board stayed since the earlier calibration given by --prior",
+            expected="--prior RESULT with it",
+            received="no --prior",
+            hint="add --prior RESULT, or drop --board-unmoved",
+        )
+    if args.prior is not None:  # one file for every session: a missing or damaged one stops the batch here
+        from ..contract import read_result
+
+        read_result(args.prior)
     from ..batch.discover import discover_fleet
     from ..batch.run import run_batch
     from ..output import check_out_dir

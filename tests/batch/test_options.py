@@ -50,3 +50,25 @@ def test_an_out_that_is_a_file_is_refused(root, tmp_path, capsys):
         "got a file -> pass another folder with --out"
     )
     assert (tmp_path / "out").read_text() == "not a folder\n"
+
+
+def test_a_missing_prior_and_the_board_unmoved_without_a_prior_are_refused(root, tmp_path, capsys):
+    """As ``handeye calibrate`` refuses them, and as the batch refuses a missing --config or --qa."""
+    err = _refused(capsys, [root, "--out", tmp_path / "out", "--prior", tmp_path / "nowhere"])
+    assert err == (
+        f"handeye: error: {tmp_path / 'nowhere'}: file not found -> run handeye calibrate first or pass the result "
+        "folder"
+    )
+    (tmp_path / "earlier").mkdir()
+    (tmp_path / "earlier" / "result.json").write_text('{"handeye_result": 1, "status": "ok", "verdict": "PASS"}')
+    err = _refused(capsys, [root, "--out", tmp_path / "out", "--prior", tmp_path / "earlier"])
+    assert err == (
+        f"handeye: error: {tmp_path / 'earlier' / 'result.json'}: damaged: mode is missing; expected the field (it is "
+        "required) -> the file was edited or damaged: restore it or calibrate again"
+    )
+    err = _refused(capsys, [root, "--out", tmp_path / "out", "--board-unmoved"])
+    assert err == (
+        "handeye: error: --board-unmoved says the board stayed since the earlier calibration given by --prior; "
+        "expected --prior RESULT with it; got no --prior -> add --prior RESULT, or drop --board-unmoved"
+    )
+    assert not (tmp_path / "out" / "cell").exists(), "no session was planned"
