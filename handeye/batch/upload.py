@@ -2,7 +2,8 @@
 
 The client reads a session's files (:func:`read_tree`) and the site files its options name (:func:`site_files`);
 the worker writes them into a temporary folder, calibrates it there and sends the output folder back, which the
-client writes under OUT (:func:`write_tree`). See docs/fleet.md.
+client writes under OUT (:func:`write_tree`); the record of the session names the client's paths, not the
+worker's (:func:`client_paths`). See docs/fleet.md.
 """
 
 from __future__ import annotations
@@ -49,3 +50,28 @@ def write_tree(folder: Path, files: dict, *, keep_prefix: str = "result.") -> No
                 p.unlink()
     for rel, data in files.items():
         atomic_write_bytes(folder / rel, data, durable=False)
+
+
+#: the fields of a batch record that may name a file of the session, its output folder or a site file
+PATH_FIELDS = ("session", "reason", "export_error", "exported")
+
+
+def client_paths(rec: dict, paths: dict) -> dict:
+    """``rec`` with the paths ``paths`` names (the worker's -> the client's) replaced in :data:`PATH_FIELDS`.
+
+    An uploaded session is calibrated in a temporary folder of the worker, gone by the time anyone reads the
+    record: its reasons name the session, the output folder and the site files as the client gave them.
+    """
+    order = sorted(paths, key=len, reverse=True)  # a longer path before one it starts with
+
+    def put_back(text):
+        if not isinstance(text, str):
+            return text
+        for worker_path in order:
+            text = text.replace(worker_path, paths[worker_path])
+        return text
+
+    return {
+        k: ([put_back(t) for t in v] if isinstance(v, list) else put_back(v)) if k in PATH_FIELDS else v
+        for k, v in rec.items()
+    }
