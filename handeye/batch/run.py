@@ -55,6 +55,11 @@ UPLOAD_RESENDS = 1
 FAILED_VERDICTS = ("FAIL", "REFUSED", "ERROR", "DRIFTED")
 #: the verdicts of a verification session (handeye verify), as batch records them
 VERIFY_VERDICTS = {"still valid": "VALID", "drifted": "DRIFTED"}
+#: the verdicts of a calibration whose result ``--export`` writes; a FAIL or REFUSED result (or none) is not
+#: exported, by design (handeye export refuses it): that is no failed export
+EXPORTED_VERDICTS = ("PASS", "WARN")
+#: the verdicts of a calibration that ``--export`` does not write, by design (a verification is never exported)
+NOT_EXPORTED_VERDICTS = ("FAIL", "REFUSED", "ERROR")
 
 
 @dataclass(frozen=True)
@@ -64,6 +69,7 @@ class BatchSummary:
     records: tuple
     seconds: float
     index_paths: tuple = ()
+    export: Optional[str] = None  # the format of ``--export``, when given
 
     @property
     def counts(self) -> Counter:
@@ -76,8 +82,15 @@ class BatchSummary:
 
     @property
     def export_errors(self) -> list:
-        """The records whose export (``calibrate --export``) failed: ``export_error`` says why."""
-        return [r for r in self.records if r.get("export_error")]
+        """The records whose export (``calibrate --export``) failed (:func:`export_failed`)."""
+        return [r for r in self.records if export_failed(r)]
+
+    @property
+    def not_exported(self) -> list:
+        """With ``export``: the records of calibrations not exported by design (FAIL, REFUSED, no result)."""
+        if not self.export:
+            return []
+        return [r for r in self.records if (r.get("verdict") or "ERROR") in NOT_EXPORTED_VERDICTS]
 
     @property
     def exit_code(self) -> int:
@@ -90,12 +103,22 @@ class BatchSummary:
         verdicts = ", ".join(
             f"{v[k]} {k}" for k in ("PASS", "WARN", "VALID", "FAIL", "REFUSED", "DRIFTED", "ERROR") if v[k]
         )
-        exports = len(self.export_errors)
+        exports, unexported = len(self.export_errors), len(self.not_exported)
         return (
             f"{len(self.records)} sessions: {c['done']} done, {c['failed']} failed, {c['skipped']} skipped "
             f"({verdicts or 'none'}) in {self.seconds:.0f} s"
+            + (f"; {unexported} not exported (FAIL, REFUSED or no result)" if unexported else "")
             + (f"; the export failed for {exports} session{'s' if exports != 1 else ''}" if exports else "")
         )
+
+
+def export_failed(rec: dict) -> bool:
+    """Whether a session's export (``calibrate --export``) failed: ``export_error`` for a PASS or WARN result.
+
+    A result of another verdict is not exported, by design: an older batch's record of that refusal is no
+    failure either.
+    """
+    return bool(rec.get("export_error")) and rec.get("verdict") in EXPORTED_VERDICTS
 
 
 def record_state(rec: dict) -> str:
@@ -306,6 +329,8 @@ def _run_child(spec: dict, out: Path, *, paths: Optional[dict] = None) -> dict:
         )
     else:
         rec.update(reply or {})
+        if rec.get("verdict") not in EXPORTED_VERDICTS:  # a FAIL result's export is refused by design: no error
+            rec.pop("export_error", None)
     return _finish_record(out, client_paths(rec, paths or {}), t0)
 
 
@@ -474,7 +499,7 @@ def run_batch(
             if cluster is not None:
                 cluster.close()
     records.sort(key=lambda r: (r["install"], r.get("time_utc") or "", r["name"]))
-    return BatchSummary(tuple(records), time.perf_counter() - t0)
+    return BatchSummary(tuple(records), time.perf_counter() - t0, export=calibrate.get("export"))
 
 
 def _checks_own_output(spec: dict, out: Path) -> bool:

@@ -1,8 +1,9 @@
 """``handeye batch ROOT --out OUT``: every session under ROOT, one Dask task each, then the fleet index.
 
 stderr: a progress bar (sessions done / failed / skipped) and, per failed session, one line with
-the reason, per session whose export (``--export``) failed one line with its error; stdout: the
-one-line summary (with the count of failed exports) and the index's paths. Folders under ROOT that discovery
+the reason (with ``--export``: "not exported", by design), per session whose export of a PASS or WARN result
+failed one line with its error; stdout: the one-line summary (with the counts of sessions not exported and of
+failed exports) and the index's paths. Folders under ROOT that discovery
 did not enter (a link loop, a second link to one folder) are one stderr line each and listed in the index.
 Exit code 0 when every session (run now or skipped as unchanged) is PASS or WARN and every result in the
 index could be read, else 7 (:class:`handeye.errors.QAFailed`'s code); one bad session never stops the
@@ -156,7 +157,7 @@ def run(args) -> int:
             expected="folders with session.yaml or poses.txt (ROOT/<install>/<session>/)",
         )
     check_out_dir(args.out)  # a file, or a folder that cannot be written: before any session runs
-    bar = _Progress(len(jobs), quiet=getattr(args, "quiet", False))
+    bar = _Progress(len(jobs), quiet=getattr(args, "quiet", False), export=bool(args.export))
     try:
         summary = run_batch(
             jobs,
@@ -183,26 +184,28 @@ def run(args) -> int:
 class _Progress:
     """tqdm on stderr: sessions finished, with done / failed / skipped; a line per failed session."""
 
-    def __init__(self, total: int, *, quiet: bool):
+    def __init__(self, total: int, *, quiet: bool, export: bool = False):
         from collections import Counter
 
         from tqdm import tqdm
 
+        self.export = export  # --export: a failed session's line says it is not exported
         self.counts: Counter[str] = Counter()
         self.bar = tqdm(total=total, unit="session", file=sys.stderr, disable=quiet, dynamic_ncols=True)
 
     def update(self, rec: dict) -> None:
-        from ..batch.run import record_state
+        from ..batch.run import NOT_EXPORTED_VERDICTS, export_failed, record_state
 
         state = record_state(rec)
         self.counts[state] += 1
         if state == "failed":
+            unexported = self.export and (rec.get("verdict") or "ERROR") in NOT_EXPORTED_VERDICTS
             self.bar.write(
                 f"{rec['install']}/{rec['name']}: {rec.get('verdict')} ({rec.get('outcome')}): "
-                f"{rec.get('reason') or ''}",
+                f"{rec.get('reason') or ''}" + (" (not exported)" if unexported else ""),
                 file=sys.stderr,
             )
-        if rec.get("export_error"):  # a skipped session's export is still missing: said too
+        if export_failed(rec):  # a skipped session's export is still missing: said too
             self.bar.write(f"{rec['install']}/{rec['name']}: the export failed: {rec['export_error']}", file=sys.stderr)
         self.bar.set_postfix_str(
             f"done {self.counts['done']} · failed {self.counts['failed']} · skipped {self.counts['skipped']}",
