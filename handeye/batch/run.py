@@ -30,6 +30,7 @@ from ..errors import InputError, QAFailed
 from ..output import atomic_write_bytes, hash_files, write_json, writing
 from .discover import SessionJob
 from .process import SESSION_ENV, SESSIONS_PER_PROCESS, SessionProcess, _kill_group  # noqa: F401 (re-exported)
+from .upload import client_paths, read_tree, site_files, write_tree
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +40,8 @@ RECORD_NAME = "batch.json"
 LOG_NAME = "batch.log"
 #: default time limit of one session (seconds)
 DEFAULT_TIMEOUT_S = 900.0
+#: the longest time limit of one session (seconds): a week; a longer one is no limit but a mistake
+MAX_TIMEOUT_S = 7 * 24 * 3600.0
 #: outcomes of a session in the batch: ``done`` (the workflow finished; result.json says the rest),
 #: ``timeout``, ``crashed`` (the child died without a result), ``error`` (the workflow raised),
 #: ``lost`` (its workers kept dying)
@@ -46,10 +49,17 @@ OUTCOMES = ("done", "timeout", "crashed", "error", "lost")
 #: the environment of a session's process: one thread for the linear algebra (a worker runs one
 #: tasks submitted per worker thread at once (more are submitted as these finish)
 IN_FLIGHT_PER_THREAD = 2
+#: times an uploaded session is sent again when its files were lost with their worker (as a task's ``retries``)
+UPLOAD_RESENDS = 1
 #: verdicts that count as failed in the progress bar and the exit code (ERROR: no result of this run)
 FAILED_VERDICTS = ("FAIL", "REFUSED", "ERROR", "DRIFTED")
 #: the verdicts of a verification session (handeye verify), as batch records them
 VERIFY_VERDICTS = {"still valid": "VALID", "drifted": "DRIFTED"}
+#: the verdicts of a calibration whose result ``--export`` writes; a FAIL or REFUSED result (or none) is not
+#: exported, by design (handeye export refuses it): that is no failed export
+EXPORTED_VERDICTS = ("PASS", "WARN")
+#: the verdicts of a calibration that ``--export`` does not write, by design (a verification is never exported)
+NOT_EXPORTED_VERDICTS = ("FAIL", "REFUSED", "ERROR")
 
 
 @dataclass(frozen=True)
@@ -59,6 +69,7 @@ class BatchSummary:
     records: tuple
     seconds: float
     index_paths: tuple = ()
+    export: Optional[str] = None  # the format of ``--export``, when given
 
     @property
     def counts(self) -> Counter:
@@ -71,8 +82,15 @@ class BatchSummary:
 
     @property
     def export_errors(self) -> list:
-        """The records whose export (``calibrate --export``) failed: ``export_error`` says why."""
-        return [r for r in self.records if r.get("export_error")]
+        """The records whose export (``calibrate --export``) failed (:func:`export_failed`)."""
+        return [r for r in self.records if export_failed(r)]
+
+    @property
+    def not_exported(self) -> list:
+        """With ``export``: the records of calibrations not exported by design (FAIL, REFUSED, no result)."""
+        if not self.export:
+            return []
+        return [r for r in self.records if (r.get("verdict") or "ERROR") in NOT_EXPORTED_VERDICTS]
 
     @property
     def exit_code(self) -> int:
@@ -85,12 +103,22 @@ class BatchSummary:
         verdicts = ", ".join(
             f"{v[k]} {k}" for k in ("PASS", "WARN", "VALID", "FAIL", "REFUSED", "DRIFTED", "ERROR") if v[k]
         )
-        exports = len(self.export_errors)
+        exports, unexported = len(self.export_errors), len(self.not_exported)
         return (
             f"{len(self.records)} sessions: {c['done']} done, {c['failed']} failed, {c['skipped']} skipped "
             f"({verdicts or 'none'}) in {self.seconds:.0f} s"
+            + (f"; {unexported} not exported (FAIL, REFUSED or no result)" if unexported else "")
             + (f"; the export failed for {exports} session{'s' if exports != 1 else ''}" if exports else "")
         )
+
+
+def export_failed(rec: dict) -> bool:
+    """Whether a session's export (``calibrate --export``) failed: ``export_error`` for a PASS or WARN result.
+
+    A result of another verdict is not exported, by design: an older batch's record of that refusal is no
+    failure either.
+    """
+    return bool(rec.get("export_error")) and rec.get("verdict") in EXPORTED_VERDICTS
 
 
 def record_state(rec: dict) -> str:
@@ -238,12 +266,15 @@ def run_session(spec: dict) -> dict:
         return _run_child(spec, Path(spec["out_dir"]))
 
     with tempfile.TemporaryDirectory(prefix="handeye-batch-") as tmp:
-        session = Path(tmp) / "session"
+        session, out = Path(tmp) / "session", Path(tmp) / "out"
         write_tree(session, spec["files"])
+        # the worker's paths -> the client's, for the record: its reasons name the session the user gave
+        paths = {str(session): spec["session"], str(out): spec["out_dir"]}
         calibrate = dict(spec["calibrate"])
         for name, (base, data) in (spec.get("site_files") or {}).items():  # --qa, --config, --prior
             calibrate[name] = str(atomic_write_bytes(Path(tmp) / f"site_{name}" / base, data, durable=False))
-        out = Path(tmp) / "out"
+            given = Path(spec["calibrate"][name])  # a result folder's result.json was sent: name that file
+            paths[calibrate[name]] = str(given if given.name == base else given / base)
         rec = _run_child(
             {
                 **spec,
@@ -254,7 +285,7 @@ def run_session(spec: dict) -> dict:
                 "calibrate": calibrate,
             },
             out,
-            session_path=spec["session"],
+            paths=paths,
         )
         return {**rec, "files": read_tree(out)}
 
@@ -270,15 +301,17 @@ def session_process() -> SessionProcess:
     return sp
 
 
-def _run_child(spec: dict, out: Path, *, session_path: Optional[str] = None) -> dict:
+def _run_child(spec: dict, out: Path, *, paths: Optional[dict] = None) -> dict:
+    """Run ``spec`` in this thread's session process and write its record into ``out``.
+
+    ``paths``: the worker's paths -> the client's (an uploaded session), put back in the record's texts.
+    """
     with writing(out):
         out.mkdir(parents=True, exist_ok=True)
         (out / LOG_NAME).write_bytes(b"")
     t0 = time.perf_counter()
     rec = spec_record(spec)
-    rec.update(
-        session=session_path or spec["session"], worker=f"{socket.gethostname()}:{os.getpid()}", started_utc=_now()
-    )
+    rec.update(worker=f"{socket.gethostname()}:{os.getpid()}", started_utc=_now())
     sp = session_process()
     limit = float(spec["timeout_s"])
     what, reply, code = sp.run({**spec, "log": str(out / LOG_NAME)}, limit)
@@ -290,55 +323,15 @@ def _run_child(spec: dict, out: Path, *, session_path: Optional[str] = None) -> 
         )
     elif what == "died":
         how = "no exit code" if code is None else f"killed by signal {-code}" if code < 0 else f"exit code {code}"
-        last = _last_line(out / LOG_NAME)
-        if last == "no log lines":
-            last = sp.own_log_line() or last
+        last = _last_line(out / LOG_NAME)  # with what the process wrote on its own stderr (SessionProcess.run)
         rec.update(
             outcome="crashed", verdict="ERROR", reason=f"the session's process ended without a result ({how}): {last}"
         )
     else:
         rec.update(reply or {})
-    return _finish_record(out, rec, t0)
-
-
-#: the ``handeye calibrate`` options that name a file, uploaded with each task by ``upload``
-SITE_FILE_OPTIONS = ("qa", "config", "prior")
-
-
-def site_files(calibrate: dict) -> dict:
-    """Option -> (file name, bytes) of the files the options name (a result folder: its result.json)."""
-    files = {}
-    for name in SITE_FILE_OPTIONS:
-        if calibrate.get(name):
-            p = Path(calibrate[name])
-            p = p / "result.json" if p.is_dir() else p
-            files[name] = (p.name, p.read_bytes())
-    return files
-
-
-def read_tree(folder: Path) -> dict:
-    """Every file under ``folder``: relative POSIX path -> bytes."""
-    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(Path(folder).rglob("*")) if p.is_file()}
-
-
-def write_tree(folder: Path, files: dict, *, keep_prefix: str = "result.") -> None:
-    """Write ``files`` (from :func:`read_tree`) under ``folder``.
-
-    Files already there that are not in ``files`` are removed, except those whose name starts with
-    ``keep_prefix`` (earlier results the workflow keeps: result.previous.json,
-    result.last-good.json).
-    """
-    folder = Path(folder)
-    for rel in files:
-        if Path(rel).is_absolute() or ".." in Path(rel).parts:
-            raise ValueError(f"unsafe path in an uploaded folder: {rel!r}")
-    if folder.is_dir():
-        for p in folder.rglob("*"):
-            rel = p.relative_to(folder).as_posix()
-            if p.is_file() and rel not in files and not p.name.startswith(keep_prefix):
-                p.unlink()
-    for rel, data in files.items():
-        atomic_write_bytes(folder / rel, data, durable=False)
+        if rec.get("verdict") not in EXPORTED_VERDICTS:  # a FAIL result's export is refused by design: no error
+            rec.pop("export_error", None)
+    return _finish_record(out, client_paths(rec, paths or {}), t0)
 
 
 def spec_record(spec: dict) -> dict:
@@ -475,8 +468,9 @@ def run_batch(
 
     ``calibrate``: the ``handeye calibrate`` options by their argparse names (method, no_refine,
     fix_k3, fix, robot_noise, robot_sigma, config, mode, qa, no_report, shift_poses; paths absolute).
-    ``upload``: send each session's files to the worker and its outputs back (workers without the
-    client's filesystem); else the workers read ROOT and write OUT at the client's paths. Tasks are
+    ``upload``: send each session's files to the worker (scattered, see :func:`_run_wave`) and its outputs
+    back (workers without the client's filesystem); else the workers read ROOT and write OUT at the
+    client's paths. Tasks are
     submitted as workers free up (at most :data:`IN_FLIGHT_PER_THREAD` per worker thread at once),
     so uploaded sessions are read only shortly before they run. ``progress`` gets each session's
     record as it finishes (skipped ones first).
@@ -505,7 +499,7 @@ def run_batch(
             if cluster is not None:
                 cluster.close()
     records.sort(key=lambda r: (r["install"], r.get("time_utc") or "", r["name"]))
-    return BatchSummary(tuple(records), time.perf_counter() - t0)
+    return BatchSummary(tuple(records), time.perf_counter() - t0, export=calibrate.get("export"))
 
 
 def _checks_own_output(spec: dict, out: Path) -> bool:
@@ -520,22 +514,36 @@ def _checks_own_output(spec: dict, out: Path) -> bool:
 
 
 def _run_wave(client, specs: list[dict], *, limit: int, upload: bool, site, progress) -> list[dict]:
-    """Run ``specs`` on the cluster, at most ``limit`` in flight, and return their records as they finish."""
+    """Run ``specs`` on the cluster, at most ``limit`` in flight, and return their records as they finish.
+
+    ``upload``: each session's files are scattered to a worker (sent to it directly, not through the scheduler
+    with the task); a session whose files were lost with their worker before it finished is sent again, up to
+    :data:`UPLOAD_RESENDS` times.
+    """
     from dask.distributed import as_completed
 
     records: list[dict] = []
     pending, spec_of, running = iter(specs), {}, as_completed()
+    sent: Counter = Counter()
 
     def submit(spec: dict) -> None:
-        task = {**spec, "files": read_tree(Path(spec["session"])), "site_files": site} if upload else spec
+        files = None
+        if upload:
+            (files,) = client.scatter([read_tree(Path(spec["session"]))], hash=False)
+        task = {**spec, "files": files, "site_files": site} if upload else spec
         fut = client.submit(run_session, task, pure=False, retries=1)
-        spec_of[fut.key] = spec
+        spec_of[fut.key] = spec, files  # the scattered files are kept until their task is collected
+        sent[spec["out_dir"]] += 1
         running.add(fut)
 
     for spec in itertools.islice(pending, limit):
         submit(spec)
     for fut in running:
-        spec = spec_of.pop(fut.key)
+        spec, files = spec_of.pop(fut.key)
+        if files is not None and fut.cancelled() and sent[spec["out_dir"]] <= UPLOAD_RESENDS:
+            fut.release()  # its files were lost with their worker (Dask cancels what needs them): send them again
+            submit(spec)
+            continue
         rec = _collect(fut, spec)
         files = rec.pop("files", None)
         if files is not None:
@@ -551,21 +559,24 @@ def _run_wave(client, specs: list[dict], *, limit: int, upload: bool, site, prog
 
 def _collect(fut, spec: dict) -> dict:
     """A finished future's record; a task that raised or whose workers kept dying is recorded here."""
+    if fut.cancelled():  # an uploaded session whose files were lost with their worker again (_run_wave)
+        return _lost_record(spec, "the workers holding its uploaded files died")
     try:
         return fut.result()
     except Exception as e:  # noqa: BLE001 - any task failure is one session's, recorded; the batch goes on
         from distributed import KilledWorker
 
-        lost = isinstance(e, KilledWorker)
-        rec = spec_record(spec)
-        rec.update(
-            outcome="lost" if lost else "error",
-            verdict="ERROR",
-            finished_utc=_now(),
-            reason=(f"the workers running it died ({e})" if lost else f"the task failed: {type(e).__name__}: {e}"),
-        )
-        try:
-            write_json(Path(spec["out_dir"]) / RECORD_NAME, rec)
-        except OSError as w:
-            log.warning("%s: could not record the failure (%s)", spec["out_dir"], w)
-        return rec
+        if isinstance(e, KilledWorker):
+            return _lost_record(spec, f"the workers running it died ({e})")
+        return _lost_record(spec, f"the task failed: {type(e).__name__}: {e}", outcome="error")
+
+
+def _lost_record(spec: dict, why: str, *, outcome: str = "lost") -> dict:
+    """The record of a session whose task ended without a record of its own, written into its output folder."""
+    rec = spec_record(spec)
+    rec.update(outcome=outcome, verdict="ERROR", finished_utc=_now(), reason=why)
+    try:
+        write_json(Path(spec["out_dir"]) / RECORD_NAME, rec)
+    except OSError as w:
+        log.warning("%s: could not record the failure (%s)", spec["out_dir"], w)
+    return rec

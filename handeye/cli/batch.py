@@ -1,8 +1,9 @@
 """``handeye batch ROOT --out OUT``: every session under ROOT, one Dask task each, then the fleet index.
 
 stderr: a progress bar (sessions done / failed / skipped) and, per failed session, one line with
-the reason, per session whose export (``--export``) failed one line with its error; stdout: the
-one-line summary (with the count of failed exports) and the index's paths. Folders under ROOT that discovery
+the reason (with ``--export``: "not exported", by design), per session whose export of a PASS or WARN result
+failed one line with its error; stdout: the one-line summary (with the counts of sessions not exported and of
+failed exports) and the index's paths. Folders under ROOT that discovery
 did not enter (a link loop, a second link to one folder) are one stderr line each and listed in the index.
 Exit code 0 when every session (run now or skipped as unchanged) is PASS or WARN and every result in the
 index could be read, else 7 (:class:`handeye.errors.QAFailed`'s code); one bad session never stops the
@@ -26,7 +27,7 @@ _NOT_FROM_CALIBRATE = ("help", "session", "out", "workers")
 
 def add_arguments(p) -> None:
     """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
-    from ..batch.run import DEFAULT_TIMEOUT_S
+    from ..batch.run import DEFAULT_TIMEOUT_S, MAX_TIMEOUT_S
     from .calibrate import add_arguments as add_calibrate_arguments
 
     p.description = (
@@ -41,7 +42,7 @@ def add_arguments(p) -> None:
         "exit codes: 0 every session PASS or WARN (with --index-only: every row of the index PASS, WARN or "
         "VALID); 7 a session FAIL, REFUSED, DRIFTED or without a result (timeout, crash, lost worker, a "
         "session that cannot be read), or a result under OUT that is damaged; 2 unusable input (the root, "
-        "the options, the site QA file)"
+        "the output folder, the options, the site QA file)"
     )
     p.add_argument("root", type=Path, help="folder holding the sessions (with --index-only: the output folder)")
     p.add_argument("--out", type=Path, help="output folder (required unless --index-only)")
@@ -68,7 +69,7 @@ def add_arguments(p) -> None:
         type=float,
         default=DEFAULT_TIMEOUT_S,
         metavar="S",
-        help=f"time limit of one session in seconds (default {DEFAULT_TIMEOUT_S:g})",
+        help=f"time limit of one session in seconds (default {DEFAULT_TIMEOUT_S:g}, at most {MAX_TIMEOUT_S:g}: a week)",
     )
     p.add_argument("--force", action="store_true", help="run every session, changed or not")
     p.add_argument("--index-only", action="store_true", help="only rebuild the index of the output folder ROOT")
@@ -117,10 +118,29 @@ def run(args) -> int:
         raise InputError("--out is required", hint="handeye batch ROOT --out OUT")
     if args.workers is not None and args.workers < 1:
         raise InputError("--workers must be at least 1", received=str(args.workers))
-    if args.timeout <= 0:
-        raise InputError("--timeout must be a positive number of seconds", received=str(args.timeout))
+    from ..batch.run import DEFAULT_TIMEOUT_S, MAX_TIMEOUT_S
+
+    if not 0 < args.timeout <= MAX_TIMEOUT_S:  # False for nan too
+        raise InputError(
+            "--timeout must be a positive number of seconds",
+            expected=f"at most {MAX_TIMEOUT_S:g} (a week)",
+            received=str(args.timeout),
+            hint=f"pass the time limit of one session, e.g. --timeout {DEFAULT_TIMEOUT_S:g}",
+        )
+    if args.board_unmoved and args.prior is None:  # as handeye calibrate refuses it
+        raise InputError(
+            "--board-unmoved says the board stayed since the earlier calibration given by --prior",
+            expected="--prior RESULT with it",
+            received="no --prior",
+            hint="add --prior RESULT, or drop --board-unmoved",
+        )
+    if args.prior is not None:  # one file for every session: a missing or damaged one stops the batch here
+        from ..contract import read_result
+
+        read_result(args.prior)
     from ..batch.discover import discover_fleet
     from ..batch.run import run_batch
+    from ..output import check_out_dir
     from ..report.qa import load_qa
 
     if not getattr(args, "verbose", False):  # Dask's INFO lines, in this process and the workers it starts
@@ -136,7 +156,8 @@ def run(args) -> int:
             path=args.root,
             expected="folders with session.yaml or poses.txt (ROOT/<install>/<session>/)",
         )
-    bar = _Progress(len(jobs), quiet=getattr(args, "quiet", False))
+    check_out_dir(args.out)  # a file, or a folder that cannot be written: before any session runs
+    bar = _Progress(len(jobs), quiet=getattr(args, "quiet", False), export=bool(args.export))
     try:
         summary = run_batch(
             jobs,
@@ -163,26 +184,28 @@ def run(args) -> int:
 class _Progress:
     """tqdm on stderr: sessions finished, with done / failed / skipped; a line per failed session."""
 
-    def __init__(self, total: int, *, quiet: bool):
+    def __init__(self, total: int, *, quiet: bool, export: bool = False):
         from collections import Counter
 
         from tqdm import tqdm
 
+        self.export = export  # --export: a failed session's line says it is not exported
         self.counts: Counter[str] = Counter()
         self.bar = tqdm(total=total, unit="session", file=sys.stderr, disable=quiet, dynamic_ncols=True)
 
     def update(self, rec: dict) -> None:
-        from ..batch.run import record_state
+        from ..batch.run import NOT_EXPORTED_VERDICTS, export_failed, record_state
 
         state = record_state(rec)
         self.counts[state] += 1
         if state == "failed":
+            unexported = self.export and (rec.get("verdict") or "ERROR") in NOT_EXPORTED_VERDICTS
             self.bar.write(
                 f"{rec['install']}/{rec['name']}: {rec.get('verdict')} ({rec.get('outcome')}): "
-                f"{rec.get('reason') or ''}",
+                f"{rec.get('reason') or ''}" + (" (not exported)" if unexported else ""),
                 file=sys.stderr,
             )
-        if rec.get("export_error"):  # a skipped session's export is still missing: said too
+        if export_failed(rec):  # a skipped session's export is still missing: said too
             self.bar.write(f"{rec['install']}/{rec['name']}: the export failed: {rec['export_error']}", file=sys.stderr)
         self.bar.set_postfix_str(
             f"done {self.counts['done']} · failed {self.counts['failed']} · skipped {self.counts['skipped']}",

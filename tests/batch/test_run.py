@@ -93,6 +93,47 @@ def test_sessions_share_a_session_process_and_a_crash_takes_only_its_own(tmp_pat
     assert "about to crash" not in log, "each session's log holds its own lines only"
 
 
+def test_an_uncaught_exception_in_the_session_process_is_its_row_with_the_traceback_in_its_log(tmp_path, monkeypatch):
+    """A session whose process dies of an exception that is not a handeye error (a hook on the process's
+    PYTHONPATH raises it for sessions named ``*raise*``, before the session logs a line): its record says how the
+    process ended and the exception's last line, and its batch.log holds the traceback, which the process writes
+    on its own stderr once the exception has left the session."""
+    from handeye.batch import run as batch_run
+
+    root, out = tmp_path / "root", tmp_path / "out"
+    (root / "cell" / "2027-01-01-raise").mkdir(parents=True)
+    (root / "cell" / "2027-01-01-raise" / "poses.txt").write_text("0,0,0,0,0,0\n")
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(
+        "import sys\n"
+        "if 'handeye.batch.child' in sys.orig_argv:\n"
+        "    import handeye.batch.child as c\n"
+        "    _run = c.run\n"
+        "    def run(spec):\n"
+        "        if 'raise' in spec['session']:\n"
+        "            raise ValueError('day is out of range for month')\n"
+        "        return _run(spec)\n"
+        "    c.run = run\n"
+    )
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (str(hook), os.environ.get("PYTHONPATH")) if p))
+    monkeypatch.setattr(batch_run, "_session_processes", threading.local())
+    calibrate = calibrate_options(build_parser().parse_args(["batch", str(root), "--out", str(out), "--no-report"]))
+    (spec,) = plan_batch(discover(root), out, calibrate=calibrate).specs
+    try:
+        rec = batch_run.run_session(spec)
+    finally:
+        batch_run.session_process().close()
+    assert rec["outcome"] == "crashed" and rec["verdict"] == "ERROR", rec
+    assert rec["reason"] == (
+        "the session's process ended without a result (exit code 1): ValueError: day is out of range for month"
+    )
+    assert json.loads((out / "cell" / "2027-01-01-raise" / RECORD_NAME).read_text())["reason"] == rec["reason"]
+    log = (out / "cell" / "2027-01-01-raise" / "batch.log").read_text()
+    assert "Traceback (most recent call last)" in log and "raise ValueError('day is out of range for month')" in log
+    assert batch_run.session_process().proc is None and batch_run.session_process().own_log is None
+
+
 def test_a_fleet_wide_robot_noise_flag_is_refused_for_a_pose_only_session(tmp_path):
     """``batch --robot-noise fixed`` over a pose-only session: its row names the flag that does not apply, as
     ``handeye calibrate`` does, instead of ignoring it."""
@@ -125,3 +166,70 @@ def test_a_fleet_wide_robot_flag_models_the_arm_of_a_pose_only_session(tmp_path)
     res = json.loads((out / "cell" / "tracker" / "result.json").read_text())
     assert res["refinement"]["robot_model"]["kind"] == "kinematic"
     assert res["refinement"]["robot_model"]["arm"] == "Universal Robots UR5e"
+
+
+def test_a_fail_result_s_export_is_not_a_failed_export_whichever_way_it_failed(tmp_path, monkeypatch, capsys):
+    """``batch --export``: a FAIL result is not exported by design, whether it has a result.json (its export was
+    refused) or not; each failed session's line says so alike, the summary counts them apart from the exports that
+    failed (of a PASS or WARN result), and the refusal is not kept as an export error in batch.json."""
+    from handeye.batch import run as batch_run
+    from handeye.batch.run import BatchSummary
+    from handeye.cli.batch import _Progress
+
+    refused = "/out/c/s2/result.json: the result's verdict is FAIL (T_end_cam fails QA) -> fix the calibration"
+
+    class Replies:
+        def run(self, spec, timeout_s):
+            return (
+                "reply",
+                {
+                    "outcome": "done",
+                    "status": "ok",
+                    "verdict": "FAIL",
+                    "reason": "fails QA",
+                    "exit_code": 7,
+                    "export_error": refused,
+                },
+                None,
+            )
+
+    monkeypatch.setattr(batch_run, "session_process", Replies)
+    spec = {
+        "session": str(tmp_path / "s2"),
+        "out_dir": str(tmp_path / "out" / "c" / "s2"),
+        "install": "c",
+        "name": "s2",
+        "time_utc": None,
+        "time_source": "none",
+        "key": {},
+        "timeout_s": 60.0,
+    }
+    rec = batch_run.run_session(spec)
+    assert rec["verdict"] == "FAIL" and "export_error" not in rec
+    assert "export_error" not in json.loads((tmp_path / "out" / "c" / "s2" / RECORD_NAME).read_text())
+
+    pass_ = {"install": "c", "name": "s0", "outcome": "done", "verdict": "PASS", "reason": ""}
+    disk = "/out/c/s1/hand_eye.urdf: cannot be written (No space left on device)"
+    warn = {"install": "c", "name": "s1", "outcome": "done", "verdict": "WARN", "reason": "", "export_error": disk}
+    no_result = {"install": "c", "name": "s3", "outcome": "done", "verdict": "FAIL", "reason": "bad pose"}
+    old = {**rec, "name": "s4", "skipped": True, "export_error": refused}  # an earlier batch kept the refusal
+    records = (pass_, warn, rec, no_result, old)
+    summary = BatchSummary(records, 3.0, export="urdf")
+    assert summary.export_errors == [warn] and summary.not_exported == [rec, no_result, old]
+    assert summary.line() == (
+        "5 sessions: 2 done, 2 failed, 1 skipped (1 PASS, 1 WARN, 3 FAIL) in 3 s; 3 not exported (FAIL, REFUSED or "
+        "no result); the export failed for 1 session"
+    )
+    assert BatchSummary(records, 3.0).line() == (
+        "5 sessions: 2 done, 2 failed, 1 skipped (1 PASS, 1 WARN, 3 FAIL) in 3 s; the export failed for 1 session"
+    )
+    capsys.readouterr()
+    bar = _Progress(len(records), quiet=True, export=True)
+    for r in records:
+        bar.update(r)
+    bar.close()
+    assert capsys.readouterr().err.splitlines() == [
+        f"c/s1: the export failed: {disk}",
+        "c/s2: FAIL (done): fails QA (not exported)",
+        "c/s3: FAIL (done): bad pose (not exported)",
+    ]

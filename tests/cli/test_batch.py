@@ -392,14 +392,14 @@ def test_a_failed_export_is_shown_in_the_summary_the_progress_lines_and_the_inde
     from handeye.batch.run import BatchSummary
     from handeye.cli.batch import _Progress
 
-    why = "the result is not fit for use (verdict FAIL): nothing exported"
+    why = "cell-01/s1/hand_eye.urdf: cannot be written (No space left on device)"
     good = {"install": "cell-01", "name": "s0", "outcome": "done", "verdict": "PASS", "reason": ""}
     bad = {
         "install": "cell-01",
         "name": "s1",
         "outcome": "done",
-        "verdict": "FAIL",
-        "reason": "a QA check failed",
+        "verdict": "WARN",
+        "reason": "",
         "export_error": why,
     }
     summary = BatchSummary((good, bad), 3.0)

@@ -1,0 +1,108 @@
+"""handeye batch --upload: the record of a session calibrated in the worker's temporary copy names the session
+as the client gave it, and its files go to the worker without passing through the scheduler with the task."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import dask
+import distributed  # noqa: F401 - its config defaults first: dask.config.set restores the config as it found it
+
+from handeye.cli import main
+
+
+def test_an_uploaded_session_s_reason_names_the_original_session_and_no_large_graph_is_sent(
+    tmp_path, monkeypatch, capsys
+):
+    """A session with a pose line of five numbers (it does not load: its reason names the line) and a 300 kB
+    image, uploaded to an embedded one-worker cluster whose large-graph warning is set at 100 kB."""
+    monkeypatch.setenv("DASK_LOGGING__DISTRIBUTED", "warning")
+    root, out = tmp_path / "root", tmp_path / "out"
+    session = root / "cell" / "2026-03-01"
+    session.mkdir(parents=True)
+    (session / "poses.txt").write_text("0.5,0.1,0.6,2.7,-0.2\n")
+    (session / "config.yaml").write_text("checkerboard_args:\n  XX: 11\n  YY: 8\n  L: 0.03\nmode: eye_in_hand\n")
+    (session / "1.jpg").write_bytes(bytes(300_000))  # not read: the poses are
+    with (
+        dask.config.set({"distributed.admin.large-graph-warning-threshold": "100kB"}),
+        warnings.catch_warnings(record=True) as caught,
+    ):
+        warnings.simplefilter("always")
+        rc = main(["batch", str(root), "--out", str(out), "--workers", "1", "--upload", "--no-report"])
+    assert rc == 7
+    assert not [w for w in caught if "large graph" in str(w.message)], [str(w.message) for w in caught]
+    rec = json.loads((out / "cell" / "2026-03-01" / "batch.json").read_text())
+    assert rec["session"] == str(session) and rec["outcome"] == "done" and rec["verdict"] == "FAIL"
+    assert rec["reason"].startswith(f"{session / 'poses.txt'}:1: bad pose: expected 6 numbers"), rec["reason"]
+    err = capsys.readouterr().err
+    assert f"cell/2026-03-01: FAIL (done): {session / 'poses.txt'}:1: bad pose" in err, err
+    for name in ("batch.json",):
+        assert "handeye-batch-" not in (out / "cell" / "2026-03-01" / name).read_text()
+    for name in ("fleet.csv", "index.md", "index.html"):
+        text = (out / name).read_text()
+        assert f"{session / 'poses.txt'}:1: bad pose" in text and "handeye-batch-" not in text, name
+
+
+def test_the_worker_s_paths_are_put_back_in_the_record_s_texts():
+    """The session, the output folder and a site file (a --prior folder sent as its result.json) of the worker's
+    temporary copy, in every field of a record that may name one; other fields are left as they are."""
+    from handeye.batch.upload import client_paths
+
+    tmp = "/tmp/handeye-batch-x1"
+    paths = {
+        f"{tmp}/session": "/data/cell/s1",
+        f"{tmp}/out": "/qa/cell/s1",
+        f"{tmp}/site_prior/result.json": "/qa/cell/s0/result.json",
+    }
+    rec = {
+        "session": f"{tmp}/session",
+        "reason": f"{tmp}/session/poses.txt:3: bad pose; prior {tmp}/site_prior/result.json: damaged",
+        "export_error": f"{tmp}/out/result.json: the result is not fit for use",
+        "exported": [f"{tmp}/out/handeye.urdf"],
+        "worker": f"host:{tmp}/session",
+    }
+    assert client_paths(rec, paths) == {
+        "session": "/data/cell/s1",
+        "reason": "/data/cell/s1/poses.txt:3: bad pose; prior /qa/cell/s0/result.json: damaged",
+        "export_error": "/qa/cell/s1/result.json: the result is not fit for use",
+        "exported": ["/qa/cell/s1/handeye.urdf"],
+        "worker": f"host:{tmp}/session",
+    }
+
+
+def test_an_uploaded_session_whose_files_were_lost_with_their_worker_is_sent_again(tmp_path, monkeypatch):
+    """The Dask worker holding an uploaded session's scattered files dies while the session runs (a hook on the
+    session process's PYTHONPATH kills its parent, the worker, once): Dask cancels the task, whose files are
+    gone; the batch sends the session again and it gets its record as any other."""
+    import os
+
+    monkeypatch.setenv("DASK_LOGGING__DISTRIBUTED", "error")
+    root, out = tmp_path / "root", tmp_path / "out"
+    session = root / "cell" / "2026-03-01"
+    session.mkdir(parents=True)
+    (session / "poses.txt").write_text("0.5,0.1,0.6,2.7,-0.2\n")
+    (session / "config.yaml").write_text("checkerboard_args:\n  XX: 11\n  YY: 8\n  L: 0.03\nmode: eye_in_hand\n")
+    (session / "1.jpg").write_bytes(bytes(1000))
+    hook, mark = tmp_path / "hook", tmp_path / "worker-killed"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(
+        "import sys\n"
+        "if 'handeye.batch.child' in sys.orig_argv:\n"
+        "    import os, signal, time\n"
+        "    import handeye.batch.child as c\n"
+        "    _run = c.run\n"
+        "    def run(spec):\n"
+        f"        if not os.path.exists({str(mark)!r}):\n"
+        f"            open({str(mark)!r}, 'w').close()\n"
+        "            os.kill(os.getppid(), signal.SIGKILL)\n"
+        "            time.sleep(30)\n"
+        "        return _run(spec)\n"
+        "    c.run = run\n"
+    )
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (str(hook), os.environ.get("PYTHONPATH")) if p))
+    rc = main(["batch", str(root), "--out", str(out), "--workers", "1", "--upload", "--no-report"])
+    assert rc == 7 and mark.exists()
+    rec = json.loads((out / "cell" / "2026-03-01" / "batch.json").read_text())
+    assert rec["outcome"] == "done" and rec["verdict"] == "FAIL", rec
+    assert rec["reason"].startswith(f"{session / 'poses.txt'}:1: bad pose: expected 6 numbers"), rec["reason"]
