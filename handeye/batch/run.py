@@ -444,7 +444,14 @@ def open_client(scheduler: Optional[str] = None, n_workers: Optional[int] = None
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
-        return Client(scheduler, timeout="30s")
+        try:
+            return Client(scheduler, timeout="30s")
+        except OSError as e:  # Dask's "Timed out trying to connect", a refused connection, an unknown host
+            raise InputError(
+                f"cannot reach the Dask scheduler at {scheduler} ({' '.join(str(e).split())[:120]})",
+                hint="check the address and that the scheduler runs there (dask scheduler), or leave out "
+                "--scheduler to run on this machine",
+            ) from None
     n = int(n_workers or os.cpu_count() or 1)
     cluster = LocalCluster(
         n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0", scheduler_kwargs={"dashboard": False}

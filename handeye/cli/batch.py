@@ -146,6 +146,9 @@ def run(args) -> int:
     if not getattr(args, "verbose", False):  # Dask's INFO lines, in this process and the workers it starts
         os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
     load_qa(args.qa)  # a bad site QA file stops the batch before any session runs
+    from ..options import options_from_args
+
+    options_from_args(args)  # so does a bad --config or option: before the output folder is made
     found = discover_fleet(args.root)
     jobs = found.jobs
     for s in found.skipped:

@@ -72,3 +72,22 @@ def test_a_missing_prior_and_the_board_unmoved_without_a_prior_are_refused(root,
         "expected --prior RESULT with it; got no --prior -> add --prior RESULT, or drop --board-unmoved"
     )
     assert not (tmp_path / "out" / "cell").exists(), "no session was planned"
+
+
+def test_a_missing_config_is_refused_before_the_output_folder_is_made(root, tmp_path, capsys):
+    err = _refused(capsys, [root, "--out", tmp_path / "out", "--config", tmp_path / "site.yaml"])
+    assert "site.yaml: config file not found" in err and not (tmp_path / "out").exists()
+
+
+def test_an_unreachable_scheduler_is_named_not_blamed_on_the_file_system(monkeypatch):
+    import dask.distributed
+
+    from handeye.errors import InputError
+
+    def refused(address, timeout):
+        raise OSError(f"Timed out trying to connect to {address} after 30 s")
+
+    monkeypatch.setattr(dask.distributed, "Client", refused)
+    with pytest.raises(InputError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:1") as e:
+        batch_run.open_client("tcp://127.0.0.1:1")
+    assert "leave out --scheduler" in str(e.value)
