@@ -97,6 +97,8 @@ def walk_sessions(root: Path) -> tuple[list[tuple[Path, str]], list[SkippedFolde
     reached: dict[str, Path] = {}  # real path -> the path it was first reached by
     links: list[tuple[Path, tuple]] = []  # links met on the walk of the real folders, with their parents' real paths
 
+    SESSION_FILES = ("session.yaml", "poses.txt", CELL_FILE)
+
     def visit(folder: Path, parents: tuple, *, follow: bool) -> None:
         real = os.path.realpath(folder)
         if real in parents:
@@ -119,7 +121,9 @@ def walk_sessions(root: Path) -> tuple[list[tuple[Path, str]], list[SkippedFolde
             found.append((folder, layout))
             return
         for entry in entries:
-            if entry.name.startswith("."):
+            if entry.name.startswith("."):  # hidden (.git, .cache): passed over, said when it holds a session
+                if _is(entry.is_dir) and any(os.path.isfile(os.path.join(entry.path, n)) for n in SESSION_FILES):
+                    skipped.append(SkippedFolder(Path(entry.path), "a hidden folder (its name starts with a dot)"))
                 continue
             path = Path(entry.path)
             if entry.is_symlink():
@@ -293,7 +297,7 @@ def session_time(folder: Path, meta: dict, warnings: list | None = None) -> tupl
     first = _stamp(min(stamps)) if stamps else None
     if first is not None:  # every stamp kept converts (checked above)
         return _iso(first), "t_image"
-    m = _DATE_RE.search(folder.name)
+    m = _DATE_RE.search(folder.resolve().name)  # the root itself given as "." has the name ""
     if m:
         y, mo, d, hh, mm, ss = (int(g) if g else 0 for g in m.groups())
         try:

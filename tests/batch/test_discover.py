@@ -120,3 +120,21 @@ def test_a_loop_below_a_linked_folder_is_found_too(tmp_path):
     found = discover_fleet(root)
     assert [j.key for j in found.jobs] == ["cell-z/s1"]
     assert [(s.path.name, s.reason.split(":")[0]) for s in found.skipped] == [("self", "a link loop")]
+
+
+def test_a_hidden_folder_holding_a_session_is_listed_as_skipped_and_others_pass_unsaid(tmp_path):
+    _native(tmp_path / "cell" / "s")
+    _vendor(tmp_path / "cell" / ".old")
+    (tmp_path / "cell" / ".cache").mkdir()
+    found = discover_fleet(tmp_path)
+    assert [j.path.name for j in found.jobs] == ["s"]
+    assert [(s.path.name, s.reason) for s in found.skipped] == [
+        (".old", "a hidden folder (its name starts with a dot)")
+    ]
+
+
+def test_a_session_given_as_the_root_dot_keeps_its_folder_date(tmp_path, monkeypatch):
+    folder = _native(tmp_path / "2026-01-01")
+    monkeypatch.chdir(folder)
+    (job,) = discover(Path("."))
+    assert job.time_utc == "2026-01-01T00:00:00+00:00" and job.time_source == "folder name"
