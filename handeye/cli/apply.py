@@ -5,21 +5,9 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+from .numbers import finite_float
+
 log = logging.getLogger(__name__)
-
-
-def finite_float(text: str) -> float:
-    """Argparse type: a finite number (no nan, inf or overflow)."""
-    import argparse
-    import math
-
-    try:
-        v = float(text)
-    except ValueError:
-        v = float("nan")
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return v
 
 
 def add_arguments(p) -> None:

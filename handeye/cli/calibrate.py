@@ -18,6 +18,7 @@ from ..options import (  # noqa: F401 (check_site_config, options_from_args, POS
     options_from_args,
     refuse_pose_only_flags,
 )
+from .numbers import positive_float, positive_int
 
 log = logging.getLogger(__name__)
 
@@ -178,30 +179,6 @@ def add_arguments(p) -> None:
         + " (as handeye export; not for a FAIL or REFUSED verdict; an export that fails gives its exit code)",
     )
     p.set_defaults(func=run)
-
-
-def positive_int(text: str) -> int:
-    """Argparse type: a whole number >= 1 (``--workers``)."""
-    try:
-        v = int(text)
-    except ValueError:
-        v = 0
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
-    return v
-
-
-def positive_float(text: str) -> float:
-    """Argparse type: a finite number > 0 (sigmas)."""
-    import math
-
-    try:
-        v = float(text)
-    except ValueError:
-        v = float("nan")
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
-    return v
 
 
 def default_out_dir(session) -> Path:

@@ -34,8 +34,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_collect_arguments(parser: argparse.ArgumentParser) -> None:
-    from .calibrate import positive_float, positive_int
-    from .simulate import MAX_BLUR_PX, blur_px, non_negative_float, seed_int, supersample_int
+    from .numbers import (
+        MAX_BLUR_PX,
+        blur_px,
+        non_negative_float,
+        positive_float,
+        positive_int,
+        seed_int,
+        supersample_int,
+    )
 
     parser.description = (
         "Collect a calibration session (native format, one atomic record per view) from a "

@@ -8,25 +8,10 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 
-def demo_views(text: str) -> int:
-    """Argparse type: the demo's number of views, at least 4 (one is rendered without the board; calibrate needs 3)."""
-    import argparse
-
-    try:
-        v = int(text)
-    except ValueError:
-        v = 0
-    if v < 4:
-        raise argparse.ArgumentTypeError(
-            f"expected a whole number >= 4 (one view is rendered without the board; calibrate needs 3), got {text!r}"
-        )
-    return v
-
-
 def add_arguments(p) -> None:
     """The command's arguments (its one-line help is in handeye.cli.COMMANDS)."""
     from ..mounting import MODES
-    from .simulate import seed_int
+    from .numbers import demo_views, seed_int
 
     p.add_argument("--out", type=Path, default=Path("reports/demo"), help="folder for the session and results")
     p.add_argument("--mode", choices=MODES, default="eye_in_hand")

@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from .numbers import MAX_BLUR_PX, blur_px, non_negative_float, seed_int
+
 #: ``--target``: the simulated targets (the chessboard is the vendor layout's; the others get a session.yaml)
 TARGETS = {
     "chessboard": "chessboard 11x8 inner corners, 30 mm squares (vendor layout)",
@@ -12,65 +14,6 @@ TARGETS = {
     "marker": "one AprilTag 36h11 (id 0) of 48 mm",
     "aprilgrid": "Kalibr AprilGrid 6x6 tags 36h11 of 25 mm, spacing 0.3",
 }
-
-
-def seed_int(text: str) -> int:
-    """Argparse type: a random seed, a whole number >= 0 (numpy's seeds; ``--seed`` of simulate, demo, collect)."""
-    import argparse
-
-    try:
-        v = int(text)
-    except ValueError:
-        v = -1
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
-    return v
-
-
-def _number(text: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        return float("nan")
-
-
-def non_negative_float(text: str) -> float:
-    """Argparse type: a finite number >= 0 (the simulators' noise levels and bumps)."""
-    import argparse
-    import math
-
-    v = _number(text)
-    if not (math.isfinite(v) and v >= 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
-    return v
-
-
-#: the largest blur sigma (px) the simulators take: past it no board is left to see, and a far larger one
-#: exhausts the memory of OpenCV's Gaussian kernel
-MAX_BLUR_PX = 100.0
-
-
-def blur_px(text: str) -> float:
-    """Argparse type: a Gaussian blur sigma in pixels, 0 to :data:`MAX_BLUR_PX` (``--blur``, ``--sim-blur``)."""
-    import argparse
-
-    v = _number(text)
-    if not 0 <= v <= MAX_BLUR_PX:  # nan fails too
-        raise argparse.ArgumentTypeError(f"expected a blur sigma of 0-{MAX_BLUR_PX:g} px, got {text!r}")
-    return v
-
-
-def supersample_int(text: str) -> int:
-    """Argparse type: anti-aliasing samples per pixel and axis, 1-16 (``handeye.sim.render``'s range)."""
-    import argparse
-
-    try:
-        v = int(text)
-    except ValueError:
-        v = 0
-    if not 1 <= v <= 16:
-        raise argparse.ArgumentTypeError(f"expected a whole number of samples 1-16, got {text!r}")
-    return v
 
 
 def missing_folders(out: Path) -> list[Path]:
