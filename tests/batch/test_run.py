@@ -36,6 +36,28 @@ def test_a_session_that_cannot_run_is_a_failed_record_and_no_worker_is_started(t
     assert summary.line().startswith("1 sessions: 0 done, 1 failed, 0 skipped (1 ERROR)")
 
 
+def _hook_session_processes(tmp_path, monkeypatch, name: str, imports: str, *lines: str) -> None:
+    """A hook on the session processes' PYTHONPATH (a sitecustomize): a session whose name holds ``name`` runs
+    ``lines`` (after ``imports``) instead of its calibration; this thread's session process starts afresh."""
+    from handeye.batch import run as batch_run
+
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    body = "".join(f"            {line}\n" for line in lines)
+    (hook / "sitecustomize.py").write_text(
+        "import sys\n"
+        "if 'handeye.batch.child' in sys.orig_argv:\n"
+        + (f"    {imports}\n" if imports else "")
+        + "    import handeye.batch.child as c\n"
+        "    _run = c.run\n"
+        "    def run(spec):\n"
+        f"        if {name!r} in spec['session']:\n" + body + "        return _run(spec)\n"
+        "    c.run = run\n"
+    )
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (str(hook), os.environ.get("PYTHONPATH")) if p))
+    monkeypatch.setattr(batch_run, "_session_processes", threading.local())
+
+
 def test_sessions_share_a_session_process_and_a_crash_takes_only_its_own(tmp_path, monkeypatch):
     """Four sessions handed one after the other to this thread's session process: the first two run in one
     process (handeye imported once); the third kills its process with a segfault (a hook on the process's
@@ -49,23 +71,14 @@ def test_sessions_share_a_session_process_and_a_crash_takes_only_its_own(tmp_pat
     first = next(p for p in root.glob("*/*") if p.is_dir())
     for name in ("2027-01-01-crash", "2027-02-01"):
         shutil.copytree(first, first.parent / name)
-    hook = tmp_path / "hook"
-    hook.mkdir()
-    (hook / "sitecustomize.py").write_text(
-        "import sys\n"
-        "if 'handeye.batch.child' in sys.orig_argv:\n"
-        "    import logging, os, signal\n"
-        "    import handeye.batch.child as c\n"
-        "    _run = c.run\n"
-        "    def run(spec):\n"
-        "        if 'crash' in spec['session']:\n"
-        "            logging.getLogger('hook').error('about to crash')\n"
-        "            os.kill(os.getpid(), signal.SIGSEGV)\n"
-        "        return _run(spec)\n"
-        "    c.run = run\n"
+    _hook_session_processes(
+        tmp_path,
+        monkeypatch,
+        "crash",
+        "import logging, os, signal",
+        "logging.getLogger('hook').error('about to crash')",
+        "os.kill(os.getpid(), signal.SIGSEGV)",
     )
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (str(hook), os.environ.get("PYTHONPATH")) if p))
-    monkeypatch.setattr(batch_run, "_session_processes", threading.local())
     calibrate = calibrate_options(build_parser().parse_args(["batch", str(root), "--out", str(out), "--no-report"]))
     plan = plan_batch(discover(root), out, calibrate=calibrate)
     specs = sorted(plan.specs, key=lambda s: s["name"])
@@ -103,21 +116,7 @@ def test_an_uncaught_exception_in_the_session_process_is_its_row_with_the_traceb
     root, out = tmp_path / "root", tmp_path / "out"
     (root / "cell" / "2027-01-01-raise").mkdir(parents=True)
     (root / "cell" / "2027-01-01-raise" / "poses.txt").write_text("0,0,0,0,0,0\n")
-    hook = tmp_path / "hook"
-    hook.mkdir()
-    (hook / "sitecustomize.py").write_text(
-        "import sys\n"
-        "if 'handeye.batch.child' in sys.orig_argv:\n"
-        "    import handeye.batch.child as c\n"
-        "    _run = c.run\n"
-        "    def run(spec):\n"
-        "        if 'raise' in spec['session']:\n"
-        "            raise ValueError('day is out of range for month')\n"
-        "        return _run(spec)\n"
-        "    c.run = run\n"
-    )
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (str(hook), os.environ.get("PYTHONPATH")) if p))
-    monkeypatch.setattr(batch_run, "_session_processes", threading.local())
+    _hook_session_processes(tmp_path, monkeypatch, "raise", "", "raise ValueError('day is out of range for month')")
     calibrate = calibrate_options(build_parser().parse_args(["batch", str(root), "--out", str(out), "--no-report"]))
     (spec,) = plan_batch(discover(root), out, calibrate=calibrate).specs
     try:

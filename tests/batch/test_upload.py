@@ -12,6 +12,17 @@ import distributed  # noqa: F401 - its config defaults first: dask.config.set re
 from handeye.cli import main
 
 
+def _unloadable_session(root, *, image_bytes: int):
+    """ROOT/cell/2026-03-01: a vendor session whose pose line has five numbers (it does not load: its reason
+    names the line), with an image of ``image_bytes`` zeros (never read: the poses are first)."""
+    session = root / "cell" / "2026-03-01"
+    session.mkdir(parents=True)
+    (session / "poses.txt").write_text("0.5,0.1,0.6,2.7,-0.2\n")
+    (session / "config.yaml").write_text("checkerboard_args:\n  XX: 11\n  YY: 8\n  L: 0.03\nmode: eye_in_hand\n")
+    (session / "1.jpg").write_bytes(bytes(image_bytes))
+    return session
+
+
 def test_an_uploaded_session_s_reason_names_the_original_session_and_no_large_graph_is_sent(
     tmp_path, monkeypatch, capsys
 ):
@@ -19,11 +30,7 @@ def test_an_uploaded_session_s_reason_names_the_original_session_and_no_large_gr
     image, uploaded to an embedded one-worker cluster whose large-graph warning is set at 100 kB."""
     monkeypatch.setenv("DASK_LOGGING__DISTRIBUTED", "warning")
     root, out = tmp_path / "root", tmp_path / "out"
-    session = root / "cell" / "2026-03-01"
-    session.mkdir(parents=True)
-    (session / "poses.txt").write_text("0.5,0.1,0.6,2.7,-0.2\n")
-    (session / "config.yaml").write_text("checkerboard_args:\n  XX: 11\n  YY: 8\n  L: 0.03\nmode: eye_in_hand\n")
-    (session / "1.jpg").write_bytes(bytes(300_000))  # not read: the poses are
+    session = _unloadable_session(root, image_bytes=300_000)
     with (
         dask.config.set({"distributed.admin.large-graph-warning-threshold": "100kB"}),
         warnings.catch_warnings(record=True) as caught,
@@ -79,11 +86,7 @@ def test_an_uploaded_session_whose_files_were_lost_with_their_worker_is_sent_aga
 
     monkeypatch.setenv("DASK_LOGGING__DISTRIBUTED", "error")
     root, out = tmp_path / "root", tmp_path / "out"
-    session = root / "cell" / "2026-03-01"
-    session.mkdir(parents=True)
-    (session / "poses.txt").write_text("0.5,0.1,0.6,2.7,-0.2\n")
-    (session / "config.yaml").write_text("checkerboard_args:\n  XX: 11\n  YY: 8\n  L: 0.03\nmode: eye_in_hand\n")
-    (session / "1.jpg").write_bytes(bytes(1000))
+    session = _unloadable_session(root, image_bytes=1000)
     hook, mark = tmp_path / "hook", tmp_path / "worker-killed"
     hook.mkdir()
     (hook / "sitecustomize.py").write_text(
