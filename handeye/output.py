@@ -208,6 +208,28 @@ def _first_existing(path: Path) -> Path:
     return p
 
 
+@contextmanager
+def new_folders_kept_only_if_used(out: str | Path):
+    """Within the block, ``out`` and the parents it is made with are removed again at the end if still empty.
+
+    For a command that makes its output folder before it knows that it will write there (a refusal, a failed
+    import, a collection that kept no view): an empty folder left behind would block the same command's rerun.
+    A folder that existed before, or holds anything, stays.
+    """
+    missing, p = [], Path(out)
+    while not p.exists() and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    try:
+        yield
+    finally:
+        for folder in missing:  # deepest first
+            try:
+                folder.rmdir()  # only an empty folder
+            except OSError:
+                break
+
+
 def check_out_dir(path: str | Path, *, option: str = "--out") -> Path:
     """``path`` as an output folder that can be created and written, checked before any work.
 

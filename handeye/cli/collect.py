@@ -298,17 +298,13 @@ def run_collect(args: argparse.Namespace) -> int:
             path=out,
             hint="collect into a new folder; an existing session is never overwritten",
         )
-    from ..output import check_out_dir
-    from .simulate import missing_folders, remove_empty_folders
+    from ..output import check_out_dir, new_folders_kept_only_if_used
 
-    new_folders = missing_folders(out)
-    check_out_dir(out, option="OUT")  # not a file, not under one, writable: before any device is opened
-    try:
+    # a collection that kept no view wrote nothing (the session writer starts at the first view): the folders made
+    # for it go too, so that the same command can run again
+    with new_folders_kept_only_if_used(out):
+        check_out_dir(out, option="OUT")  # not a file, not under one, writable: before any device is opened
         return _collect(args, installed=installed, target=target, width=width, height=height)
-    finally:
-        # a collection that kept no view wrote nothing (the session writer starts at the first view): the folders
-        # made for it go too, so that the same command can run again
-        remove_empty_folders(new_folders)
 
 
 def _collect(args: argparse.Namespace, *, installed, target: TargetSpec, width: int, height: int) -> int:

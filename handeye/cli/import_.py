@@ -98,27 +98,33 @@ def run(args) -> int:
         from ..errors import InputError
 
         raise InputError(f"handeye import {args.kind} needs OUT, the folder for session.yaml")
+    from ..output import new_folders_kept_only_if_used
+
     if args.kind == "visp":
-        path = import_visp(
-            args.src, args.out, use_given_intrinsics=args.given_intrinsics, force=args.force, mode=args.mode
-        )
+        with new_folders_kept_only_if_used(args.out):  # a failed import leaves no empty folder behind
+            path = import_visp(
+                args.src, args.out, use_given_intrinsics=args.given_intrinsics, force=args.force, mode=args.mode
+            )
         from ..session.native import read_native_document
 
         doc = read_native_document(path)
         why = (doc.data.get("source") or {}).get("mode")
         print(f"ViSP layout: {doc.target.describe()}; mode: {doc.mode or 'from the data'} ({why})")
     else:
-        path = import_ical(args.src, args.out, force=args.force)
+        with new_folders_kept_only_if_used(args.out):
+            path = import_ical(args.src, args.out, force=args.force)
     print(f"session: {path}")
     return 0
 
 
 def run_easy_handeye2(args) -> int:
     """``handeye import easy_handeye2 SAMPLES [--out DEST] [--mode M] [--tracker-sigma MM DEG]``."""
+    from ..output import new_folders_kept_only_if_used
     from ..session.easy_handeye2 import import_easy_handeye2
 
     out = args.out_opt or args.out or Path(args.src.name.split(".")[0] + "_session")
-    path = import_easy_handeye2(args.src, out, mode=args.mode, tracker_sigma=args.tracker_sigma, force=args.force)
+    with new_folders_kept_only_if_used(out):  # a failed import leaves no empty folder behind
+        path = import_easy_handeye2(args.src, out, mode=args.mode, tracker_sigma=args.tracker_sigma, force=args.force)
     print(f"session: {path} (pose-only: target poses from the tracker)")
     return 0
 
@@ -140,20 +146,23 @@ def run_rosbag(args) -> int:
             for k in ("still_trans_mm_s", "still_rot_deg_s", "speed_window_s", "min_still_s", "margin_s")
         }
     )
+    from ..output import new_folders_kept_only_if_used
+
     out = args.out_opt or args.out or Path(args.src.name.split(".")[0] + "_session")
-    rep = import_rosbag(
-        args.src,
-        out,
-        image_topic=args.image_topic,
-        base_frame=args.base,
-        end_frame=args.end,
-        target=target,
-        camera_info_topic=args.camera_info,
-        mode=args.mode or mode,
-        stillness=st,
-        intrinsics_use=args.intrinsics_use,
-        force=args.force,
-    )
+    with new_folders_kept_only_if_used(out):  # a failed import leaves no empty folder behind
+        rep = import_rosbag(
+            args.src,
+            out,
+            image_topic=args.image_topic,
+            base_frame=args.base,
+            end_frame=args.end,
+            target=target,
+            camera_info_topic=args.camera_info,
+            mode=args.mode or mode,
+            stillness=st,
+            intrinsics_use=args.intrinsics_use,
+            force=args.force,
+        )
     for line in rep.summary_lines():
         print(line)
     return 0

@@ -16,24 +16,6 @@ TARGETS = {
 }
 
 
-def missing_folders(out: Path) -> list[Path]:
-    """``out`` and its parents that do not exist yet, deepest first: the folders ``check_out_dir`` will make."""
-    missing = []
-    while not out.exists() and out != out.parent:
-        missing.append(out)
-        out = out.parent
-    return missing
-
-
-def remove_empty_folders(folders: list[Path]) -> None:
-    """Remove ``folders`` (deepest first) while they are empty: those made for an output that was not written."""
-    for folder in folders:
-        try:
-            folder.rmdir()  # only an empty folder
-        except OSError:
-            break
-
-
 def sim_target(name: str):
     """The target spec of a ``--target`` name (:data:`TARGETS`)."""
     from ..sim.scenarios import DEFAULT_TARGET
@@ -162,17 +144,13 @@ def run(args) -> int:
                     received=str(args.encoder_sigma),
                 )
             kin["encoder_sigma_deg"] = float(args.encoder_sigma)
-    from ..output import check_out_dir
+    from ..output import check_out_dir, new_folders_kept_only_if_used
 
-    new_folders = missing_folders(args.out)
-    check_out_dir(args.out, option="OUT")  # not a file, not under one, writable: before the rendering
-    try:
+    with new_folders_kept_only_if_used(args.out):  # refused before it wrote: no empty folder left behind
+        check_out_dir(args.out, option="OUT")  # not a file, not under one, writable: before the rendering
         if args.cell:
             return _run_cell(args, kin)
         return _run_session(args, kin)
-    except BaseException:
-        remove_empty_folders(new_folders)  # refused before it wrote: leave no empty folder behind
-        raise
 
 
 def _run_session(args, kin: dict) -> int:
