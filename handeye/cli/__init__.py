@@ -33,7 +33,7 @@ COMMANDS = {
     "simulate": ("simulate", "write a synthetic session with rendered images and ground truth"),
     "demo": ("demo", "simulate a rendered session and calibrate it (the README's first command)"),
     "apply": ("apply", "map a point or pose seen by the camera into the robot base frame"),
-    "import": ("import_", "write a session for another tool's data (ViSP, industrial_calibration, ROS 1/2 bags)"),
+    "import": ("import_", "write a session for another tool's data (ViSP, industrial_calibration, ROS bags, samples)"),
     "report": ("report", "(re)build report.html and report.md from a result folder"),
     "collect": ("collect", "collect a session with a camera and a robot (or their simulators)"),
     "batch": ("batch", "calibrate every session under a folder on Dask, resumable, and write the fleet index"),

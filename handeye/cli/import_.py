@@ -19,9 +19,10 @@ def add_arguments(p) -> None:
     )
     p.add_argument(
         "kind",
-        choices=["visp", "ical", "rosbag", "easy_handeye2"],
+        choices=["visp", "ical", "rosbag", "easy_handeye2", "moveit"],
         help="visp: ViSP hand-eye data; ical: ROS-I industrial_calibration; rosbag: a ROS 1 or ROS 2 bag; "
-        "easy_handeye2: its saved samples (.samples), as a pose-only session",
+        "easy_handeye2: its saved samples (.samples), moveit: MoveIt Calibration's saved samples (.yaml), each as a "
+        "pose-only session",
     )
     p.add_argument("src", type=Path, help="the other tool's data folder, or the bag (ROS 1 .bag, ROS 2 bag folder)")
     p.add_argument("out", type=Path, nargs="?", help="folder for session.yaml (rosbag: or --out)")
@@ -32,7 +33,7 @@ def add_arguments(p) -> None:
         help="replace the session.yaml of an existing session in OUT (rosbag: its images/ must be empty)",
     )
     add_rosbag_arguments(p.add_argument_group("rosbag"))
-    g = p.add_argument_group("easy_handeye2")
+    g = p.add_argument_group("easy_handeye2, moveit")
     g.add_argument(
         "--tracker-sigma",
         nargs=2,
@@ -62,7 +63,7 @@ def add_rosbag_arguments(g) -> None:
     g.add_argument(
         "--mode",
         choices=("eye_in_hand", "eye_to_hand"),  # handeye.mounting.MODES (numpy-free help)
-        help="mounting mode (rosbag, easy_handeye2, visp; default: the one the source states (visp: the folder "
+        help="mounting mode (rosbag, easy_handeye2, moveit, visp; default: the one the source states (visp: the folder "
         "name, or eye_to_hand for its AprilTag layout), else decided from the data)",
     )
     g.add_argument("--out", dest="out_opt", type=Path, metavar="DEST", help="session folder (default: BAG_session)")
@@ -92,8 +93,8 @@ def run(args) -> int:
 
     if args.kind == "rosbag":
         return run_rosbag(args)
-    if args.kind == "easy_handeye2":
-        return run_easy_handeye2(args)
+    if args.kind in ("easy_handeye2", "moveit"):
+        return run_pose_samples(args)
     if args.out is None:
         from ..errors import InputError
 
@@ -117,14 +118,16 @@ def run(args) -> int:
     return 0
 
 
-def run_easy_handeye2(args) -> int:
-    """``handeye import easy_handeye2 SAMPLES [--out DEST] [--mode M] [--tracker-sigma MM DEG]``."""
+def run_pose_samples(args) -> int:
+    """``handeye import easy_handeye2|moveit SAMPLES [--out DEST] [--mode M] [--tracker-sigma MM DEG]``."""
     from ..output import new_folders_kept_only_if_used
     from ..session.easy_handeye2 import import_easy_handeye2
+    from ..session.moveit_samples import import_moveit_samples
 
+    importer = import_easy_handeye2 if args.kind == "easy_handeye2" else import_moveit_samples
     out = args.out_opt or args.out or Path(args.src.name.split(".")[0] + "_session")
     with new_folders_kept_only_if_used(out):  # a failed import leaves no empty folder behind
-        path = import_easy_handeye2(args.src, out, mode=args.mode, tracker_sigma=args.tracker_sigma, force=args.force)
+        path = importer(args.src, out, mode=args.mode, tracker_sigma=args.tracker_sigma, force=args.force)
     print(f"session: {path} (pose-only: target poses from the tracker)")
     return 0
 

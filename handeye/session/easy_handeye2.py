@@ -109,30 +109,44 @@ def import_easy_handeye2(
     ``out/session.yaml``: the pose-only session of an easy_handeye2 ``.samples`` file (views ``1``..``N`` in
     the file's order). ``tracker_sigma``: (mm, deg) of the tracker when known (else estimated at calibration).
     """
+    src = Path(src)
+    mode, params, pairs = read_samples(src, mode=mode)
+    frames = (
+        "name",
+        "calibration_type",
+        "robot_base_frame",
+        "robot_effector_frame",
+        "tracking_base_frame",
+        "tracking_marker_frame",
+    )
+    named = {k: params.get(k) for k in frames if params.get(k)}
+    source = {"tool": "easy_handeye2", "file": str(src.resolve()), **named}
+    return write_pose_only_session(out, mode=mode, source=source, pairs=pairs, tracker_sigma=tracker_sigma, force=force)
+
+
+def write_pose_only_session(
+    out: str | Path,
+    *,
+    mode: Optional[str],
+    source: dict[str, Any],
+    pairs: list[tuple[np.ndarray, np.ndarray]],
+    tracker_sigma: Optional[tuple] = None,
+    force: bool = False,
+) -> Path:
+    """``out/session.yaml`` of a pose-only session: ``pairs`` of (``T_base_end``, ``T_cam_board``), views ``1``..``N``.
+
+    ``mode`` None: left to the data (the mode gate decides). ``source``: where the poses came from (kept under
+    ``source:``). ``tracker_sigma``: (mm, deg) of the tracker when known (else estimated at calibration). An
+    ``out`` holding a session is refused unless ``force``.
+    """
     from .importers import _write, check_import_out
 
-    src, out = Path(src), Path(out)
-    mode, params, pairs = read_samples(src, mode=mode)
+    out = Path(out)
     check_import_out(out, force=force)
     doc: dict[str, Any] = {
         "handeye_session": 1,
-        "mode": mode,
-        "source": {
-            "tool": "easy_handeye2",
-            "file": str(src.resolve()),
-            **{
-                k: params.get(k)
-                for k in (
-                    "name",
-                    "calibration_type",
-                    "robot_base_frame",
-                    "robot_effector_frame",
-                    "tracking_base_frame",
-                    "tracking_marker_frame",
-                )
-                if params.get(k)
-            },
-        },
+        **({"mode": mode} if mode else {}),
+        "source": source,
         "pose_format": {"rotation": "matrix"},
         "target_pose_format": {"rotation": "matrix"},
     }

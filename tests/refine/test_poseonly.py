@@ -205,6 +205,66 @@ def test_easy_handeye2_samples_import_to_a_pose_only_session(tmp_path, ctype, mo
         assert np.allclose(v.T_cam_board, ts.T_cam_board[k], atol=1e-9)
 
 
+# ------------------------------------------------------------------------------ MoveIt Calibration samples
+def _moveit_samples(path, ts):
+    """MoveIt Calibration's saved samples of a tracker session: effector_wrt_world (T_base_end, in both modes) and
+    object_wrt_sensor (T_cam_board), 16 numbers row by row each."""
+    samples = [
+        {"effector_wrt_world": E.reshape(-1).tolist(), "object_wrt_sensor": C.reshape(-1).tolist()}
+        for E, C in zip(ts.T_base_end, ts.T_cam_board, strict=True)
+    ]
+    path.write_text(yaml.safe_dump(samples, sort_keys=False))
+    return path
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_moveit_samples_import_to_a_pose_only_session_whose_mode_the_data_decide(tmp_path, mode, capsys):
+    from handeye.cli import main
+
+    ts = make_tracker_session(mode=mode, n_views=12, seed=4)
+    src = _moveit_samples(tmp_path / "samples.yaml", ts)
+    assert main(["-q", "import", "moveit", str(src), str(tmp_path / "s")]) == 0
+    s = load_session(tmp_path / "s")
+    assert "mode" not in yaml.safe_load((tmp_path / "s" / "session.yaml").read_text()) and s.mode_source == "default"
+    assert s.meta["pose_only"] and [v.view_id for v in s.views] == [str(k) for k in range(1, 13)]
+    for k, v in enumerate(s.views):
+        np.testing.assert_allclose(v.T_base_end, ts.T_base_end[k], atol=1e-12)
+        np.testing.assert_allclose(v.T_cam_board, ts.T_cam_board[k], atol=1e-12)
+    assert main(["-q", "calibrate", str(tmp_path / "s"), "--out", str(tmp_path / "out"), "--no-report"]) == 0
+    d = json.loads((tmp_path / "out" / "result.json").read_text())
+    x_name = mounting(mode).x_name
+    assert d["mode"] == mode and d["mode_source"] != "stated"
+    rot_deg, trans_mm = pose_error(np.array(d[x_name]), ts.truth.T_x_true)
+    assert trans_mm < 5 * max(d["refinement"]["sigma_trans_mm"]) and rot_deg < 5 * max(d["refinement"]["sigma_rot_deg"])
+    # --mode is written into the session
+    assert main(["-q", "import", "moveit", str(src), str(tmp_path / "s2"), "--mode", mode]) == 0
+    assert load_session(tmp_path / "s2").mode == mode
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("effector_wrt_world: [1, 0]\n", "not a list of samples"),
+        ("- {effector_wrt_world: [], object_wrt_sensor: []}\n" * 2, "2 samples; at least 3"),
+        (None, "sample 2 object_wrt_sensor: expected 16 numbers"),
+        ("TRANSPOSED", "sample 1 effector_wrt_world: last row of the 4x4 matrix must be 0 0 0 1"),
+    ],
+)
+def test_bad_moveit_samples_are_one_line_errors_naming_the_sample(tmp_path, text, message):
+    from handeye.session.moveit_samples import import_moveit_samples
+
+    src = _moveit_samples(tmp_path / "samples.yaml", make_tracker_session(n_views=4, seed=3))
+    d = yaml.safe_load(src.read_text())
+    if text is None:
+        d[1]["object_wrt_sensor"] = d[1]["object_wrt_sensor"][:15]
+    elif text == "TRANSPOSED":
+        d[0]["effector_wrt_world"] = np.array(d[0]["effector_wrt_world"]).reshape(4, 4).T.reshape(-1).tolist()
+    src.write_text(yaml.safe_dump(d) if text in (None, "TRANSPOSED") else text)
+    with pytest.raises(HandeyeError) as e:
+        import_moveit_samples(src, tmp_path / "s")
+    assert message in str(e.value) and "samples.yaml" in str(e.value) and not (tmp_path / "s").exists()
+
+
 @pytest.mark.parametrize(
     "edit, mode, message",
     [
