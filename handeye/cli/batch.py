@@ -140,7 +140,7 @@ def run(args) -> int:
         read_result(args.prior)
     from ..batch.discover import discover_fleet
     from ..batch.run import run_batch
-    from ..output import check_out_dir
+    from ..output import FolderLock, check_out_dir
     from ..report.qa import load_qa
 
     if not getattr(args, "verbose", False):  # Dask's INFO lines, in this process and the workers it starts
@@ -160,27 +160,28 @@ def run(args) -> int:
             expected="folders with session.yaml or poses.txt (ROOT/<install>/<session>/)",
         )
     check_out_dir(args.out)  # a file, or a folder that cannot be written: before any session runs
-    bar = _Progress(len(jobs), quiet=getattr(args, "quiet", False), export=bool(args.export))
-    try:
-        summary = run_batch(
-            jobs,
-            args.out.resolve(),
-            calibrate=calibrate_options(args),
-            scheduler=args.scheduler,
-            n_workers=args.workers,
-            timeout_s=args.timeout,
-            force=args.force,
-            upload=args.upload,
-            progress=bar.update,
-        )
-    finally:
-        bar.close()
-    write_skipped(args.out, found.skipped)
-    paths = write_index(args.out)
-    n_skipped = len(found.skipped)
-    print(summary.line() + (f"; {n_skipped} folder{'s' if n_skipped != 1 else ''} skipped" if n_skipped else ""))
-    for p in paths:
-        print(f"index: {p}")
+    with FolderLock(args.out):  # one batch per output folder: a second one would run the same sessions again
+        bar = _Progress(len(jobs), quiet=getattr(args, "quiet", False), export=bool(args.export))
+        try:
+            summary = run_batch(
+                jobs,
+                args.out.resolve(),
+                calibrate=calibrate_options(args),
+                scheduler=args.scheduler,
+                n_workers=args.workers,
+                timeout_s=args.timeout,
+                force=args.force,
+                upload=args.upload,
+                progress=bar.update,
+            )
+        finally:
+            bar.close()
+        write_skipped(args.out, found.skipped)
+        paths = write_index(args.out)
+        n_skipped = len(found.skipped)
+        print(summary.line() + (f"; {n_skipped} folder{'s' if n_skipped != 1 else ''} skipped" if n_skipped else ""))
+        for p in paths:
+            print(f"index: {p}")
     return max(summary.exit_code, index_exit_code(args.out, every_row=False))
 
 

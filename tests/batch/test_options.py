@@ -91,3 +91,13 @@ def test_an_unreachable_scheduler_is_named_not_blamed_on_the_file_system(monkeyp
     with pytest.raises(InputError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:1") as e:
         batch_run.open_client("tcp://127.0.0.1:1")
     assert "leave out --scheduler" in str(e.value)
+
+
+def test_a_second_batch_into_the_same_output_folder_is_refused_while_the_first_runs(root, tmp_path, capsys):
+    import os
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / ".handeye.lock").write_text(f"{os.getppid()}\n")  # a live process holds it: the first batch
+    err = _refused(capsys, [root, "--out", out])
+    assert f"is in use by another handeye run (pid {os.getppid()})" in err
