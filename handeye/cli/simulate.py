@@ -174,7 +174,7 @@ def _run_session(args, kin: dict) -> int:
         **kin,
     )
     print(f"synthetic {args.mode} session with {args.views} rendered views: {path}")
-    if args.robot_error == "kinematic" and (Path(path) / "poses.txt").exists():
+    if args.robot_error == "kinematic":  # the joints the arm recorded, and the arm, in session.yaml
         from ..sim.robot_error import write_native_session
 
         print(f"session with joint angles and robot: {args.arm}: {write_native_session(path)}")

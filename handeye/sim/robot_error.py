@@ -267,12 +267,14 @@ def report_poses(
 
 
 def write_native_session(folder: Path) -> Path:
-    """``session.yaml`` in a simulated kinematic vendor folder.
+    """``session.yaml`` with the joint angles in a simulated kinematic session folder.
 
-    ``session.yaml`` in a simulated kinematic vendor folder (:func:`handeye.sim.vendor.write_vendor_session`
-    with ``robot_error="kinematic"``): the same images and reported poses (poses.txt's numbers), each view's
-    encoder joint angles (``joints:``) and ``robot:`` naming the arm, so that the refinement uses the
-    kinematic robot error model (a session.yaml is read before poses.txt). Returns its path.
+    ``session.yaml`` in a simulated kinematic folder (:func:`handeye.sim.vendor.write_vendor_session` with
+    ``robot_error="kinematic"``): the same images and reported poses, each view's encoder joint angles
+    (``joints:``) and ``robot:`` naming the arm, so that the refinement uses the kinematic robot error model
+    with the joints the arm recorded. A vendor folder (poses.txt) gets one (a session.yaml is read before
+    poses.txt); a target the vendor layout cannot describe already has its session.yaml, which gets the
+    joints and the arm. Returns its path.
     """
     import json
 
@@ -291,23 +293,27 @@ def write_native_session(folder: Path) -> Path:
             expected="robot_error model kinematic",
             received=repr(model.get("model")),
         )
-    lines = [ln for ln in (folder / "poses.txt").read_text(encoding="utf-8").splitlines() if ln.strip()]
     arm = str(model["arm"])
-    views = [
-        {
-            "id": vid,
-            "image": v["image"],
-            "pose": [float(x) for x in lines[k].split(",")],
-            "joints": [float(x) for x in v["joints_encoder"]],
+    joints = {vid: [float(x) for x in v["joints_encoder"]] for vid, v in truth["views"].items()}
+    if (folder / "poses.txt").exists():
+        lines = [ln for ln in (folder / "poses.txt").read_text(encoding="utf-8").splitlines() if ln.strip()]
+        doc = {
+            "handeye_session": 1,
+            "mode": truth["mode"],
+            "target": truth["target"],
+            "pose_format": {"rotation": "euler"},
+            "views": [
+                {"id": vid, "image": v["image"], "pose": [float(x) for x in lines[k].split(",")]}
+                for k, (vid, v) in enumerate(truth["views"].items())
+            ],
         }
-        for k, (vid, v) in enumerate(truth["views"].items())
-    ]
+    else:
+        doc = yaml.safe_load((folder / "session.yaml").read_text(encoding="utf-8"))
     doc = {
         "handeye_session": 1,
-        "mode": truth["mode"],
+        "mode": doc.get("mode", truth["mode"]),
         "robot": arm if arm in PRESETS else str(Path(arm).resolve()),
-        "target": truth["target"],
-        "pose_format": {"rotation": "euler"},
-        "views": views,
+        **{k: v for k, v in doc.items() if k not in ("handeye_session", "mode", "robot")},
     }
+    doc["views"] = [{**v, "joints": joints[str(v["id"])]} for v in doc["views"]]
     return atomic_write_text(folder / "session.yaml", yaml.safe_dump(doc, sort_keys=False))

@@ -249,6 +249,22 @@ def test_a_simulated_kinematic_session_names_its_arm_and_records_joint_angles(tm
     assert doc.data["robot"] == "rm65" and doc.mode == "eye_to_hand"
     assert [view_joint_angles(e) for e in doc.entries] == [tuple(v["joints_encoder"]) for v in truth["views"].values()]
     assert yaml.safe_load((tmp_path / "session.yaml").read_text())["views"][1]["pose"] == [0.5, 0.1, 0.3, 3.0, 0.1, 0.0]
+    # a target the vendor layout cannot describe has its session.yaml already: it gets the joints and the arm,
+    # keeping its target and intrinsics (else calibrate --robot would take the joints by inverse kinematics)
+    native = tmp_path / "native"
+    native.mkdir()
+    (native / "ground_truth.json").write_text(json.dumps(truth))
+    marker = {"type": "aruco", "dictionary": "DICT_4X4_50", "marker_id": 3, "marker_m": 0.1}
+    views = [
+        {"id": "1", "image": "1.jpg", "pose": [0.4, 0, 0.3, 3.1, 0, 0.1]},
+        {"id": "2", "image": "2.jpg", "pose": [0.5] * 6},
+    ]
+    session = {"handeye_session": 1, "mode": "eye_to_hand", "target": marker, "pose_format": {"rotation": "euler"}}
+    (native / "session.yaml").write_text(yaml.safe_dump({**session, "intrinsics": {"fx": 600.0}, "views": views}))
+    doc = yaml.safe_load(write_native_session(native).read_text())
+    assert doc["robot"] == "rm65" and doc["target"] == marker and doc["intrinsics"] == {"fx": 600.0}
+    assert [v["joints"] for v in doc["views"]] == [v["joints_encoder"] for v in truth["views"].values()]
+    assert [v["pose"] for v in doc["views"]] == [v["pose"] for v in views]
     truth["robot_error"] = {"model": "iid"}
     (tmp_path / "ground_truth.json").write_text(json.dumps(truth))
     with pytest.raises(ConfigError, match="not a kinematic simulated session"):
