@@ -10,7 +10,7 @@ the board scatter worse; a ``k`` below 0 is a mirrored image. See docs/diagnosti
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Optional
 
@@ -103,6 +103,51 @@ def estimate_scale(C: np.ndarray, M: np.ndarray, *, use: Optional[np.ndarray] = 
     dev = loo_t - loo_t.mean(axis=0)
     cov_t = (n - 1) / n * dev.T @ dev
     return ScaleEstimate(k, sigma, n, x_shift_m=t_at_k - t_stated, cov_x_trans_m2=cov_t)
+
+
+def arm_model_sigma(obs, refined, use: Optional[np.ndarray] = None) -> Optional[float]:
+    """The sigma of ``k`` that the arm's DH table, off by its stated tolerance, gives; None without the arm's model.
+
+    With the arm's kinematic model (``refined.robot_model`` of kind kinematic), a DH offset moves the robot's
+    translations as a board scale does, in part (a length error, most of all on a short arm). The sigma is
+    ``sqrt(g^T S g)``: ``S`` the arm's stated DH prior (``dh_prior_sigma_stated``, not a prior the session's own
+    views widened, nor their estimate of the offsets, which a wrong board size pulls as well), ``g`` =
+    dk/d(offset) by central differences at the reported poses (``reported · (FK(q) T_tool)^-1 FK_dh(q)
+    T_tool``) over the views in ``use``. None without the arm's model or its joint angles for every view.
+    """
+    rm = getattr(refined, "robot_model", None) or {}
+    q_by_id = rm.get("joint_angles_rad") or {}
+    stated = rm.get("dh_prior_sigma_stated")
+    if rm.get("kind") != "kinematic" or not stated or not all(v in q_by_id for v in obs.ids):
+        return None
+    from ..frames import inv_T
+    from ..kinematics import chain_from_dict
+
+    chain = chain_from_dict(rm["dh_table"])
+    n_j = chain.n_joints
+    prior = np.tile(
+        [
+            stated["length_mm"] * 1e-3,
+            np.radians(stated["angle_deg"]),
+            stated["length_mm"] * 1e-3,
+            np.radians(stated["angle_deg"]),
+        ],
+        n_j,
+    )
+    q = np.array([q_by_id[v] for v in obs.ids], float)
+    T_tool = np.asarray(rm["tool_offset_T_flange_reported"], float)
+    idx = np.flatnonzero(np.ones(obs.n, bool) if use is None else np.asarray(use, bool))
+    C, q, T_rep = obs.C[idx], q[idx], obs.T[idx]
+    to_reported = T_rep @ inv_T(chain.T_base_end(q) @ T_tool)
+    mount = obs.mounting
+
+    def k_at(delta: np.ndarray) -> float:
+        T = to_reported @ chain.with_dh(chain.dh + delta.reshape(n_j, 4)).T_base_end(q) @ T_tool
+        return _k_from_sums(pair_motions(C, mount.M_from_T_base_end(T)).sums())
+
+    h = 1e-6  # m and rad: far inside the linear range, far above round-off
+    g = np.array([(k_at(h * e) - k_at(-h * e)) / (2 * h) for e in np.eye(4 * n_j)])
+    return float(np.sqrt(np.sum((g * prior) ** 2)))
 
 
 def x_shift_sigmas(est: Optional[ScaleEstimate], cov_x_trans_m2: Optional[np.ndarray] = None) -> float:
@@ -231,9 +276,13 @@ def scale_findings(obs, fit, M: np.ndarray, *, refined=None) -> tuple[list, Opti
     ``refined``: the run's refinement, whose covariance of X is the sigma a scale's effect on X is
     compared with (default: the closed form's jackknife).
     """
-    est = estimate_scale(obs.C, M, use=fit.inliers() if fit is not None else None)
+    use = fit.inliers() if fit is not None else None
+    est = estimate_scale(obs.C, M, use=use)
     if est is None:
         return [], est
+    arm_sigma = arm_model_sigma(obs, refined, use)
+    if arm_sigma is not None:  # the arm's DH tolerance in k, beside the views' scatter
+        est = replace(est, sigma=float(np.hypot(est.sigma, arm_sigma)))
     tracked = getattr(obs.target, "kind", "") == "tracked"  # pose-only: no printed length, no image
     if est.mirrored and not tracked:
         return [_mirrored_finding(est)], est

@@ -959,6 +959,44 @@ def test_a_one_per_cent_square_size_error_that_moves_x_beyond_its_sigma_is_named
     _fix_loads(folder, L=L)
 
 
+@pytest.mark.parametrize("mode, seed", [("eye_in_hand", 0), ("eye_to_hand", 1)])
+def test_the_arm_s_dh_tolerance_in_the_scale_is_the_spread_of_k_over_arms_within_it(mode, seed):
+    """With the arm's kinematic model, k's sigma holds the DH table's stated tolerance: a length error moves the
+    robot's translations as a board scale does (a UR3: 0.1-0.3 %, more than the views' scatter on a precise
+    session, which named the right squares "30.1 mm, not 30 mm"). Checked against 200 arms drawn within the
+    tolerance (0.3 mm / 0.03 deg per DH parameter), seen by a perfect camera through the nominal table."""
+    from types import SimpleNamespace
+
+    from handeye.diagnose.scale import arm_model_sigma, estimate_scale
+    from handeye.kinematics import chain_to_dict, load_arm
+
+    kw = {"noise_px": 0.0, "encoder_sigma_deg": 0.0, "dh_length_error_mm": (0, 0), "dh_angle_error_deg": (0, 0)}
+    cs = make_corner_session(mode=mode, n_views=20, seed=seed, robot_error="kinematic", arm="ur3", **kw)
+    arm, q, mount = load_arm("ur3"), np.asarray(cs.joints_true), mounting(mode)
+    reported = arm.T_base_end(q)
+    model = {
+        "kind": "kinematic",
+        "dh_table": chain_to_dict(arm),
+        "joint_angles_rad": dict(zip(cs.view_ids, q.tolist(), strict=True)),
+        "tool_offset_T_flange_reported": np.eye(4),
+        "dh_prior_sigma_stated": {"length_mm": 0.3, "angle_deg": 0.03},
+    }
+    obs = SimpleNamespace(ids=cs.view_ids, C=cs.T_cam_board_true, T=reported, n=len(q), mounting=mount)
+    sigma = arm_model_sigma(obs, SimpleNamespace(robot_model=model))
+    rng, tol = np.random.default_rng(1), np.tile([0.3e-3, np.radians(0.03)], 12)
+    ks = [
+        estimate_scale(
+            mount.predict_T_cam_board(
+                cs.T_x_true, cs.T_board_true, arm.with_dh(arm.dh + rng.normal(0, tol).reshape(6, 4)).T_base_end(q)
+            ),
+            mount.M_from_T_base_end(reported),
+        ).k
+        for _ in range(200)
+    ]
+    assert 0.85 < sigma / np.std(ks) < 1.15 and sigma > 5e-4, (sigma, np.std(ks))
+    assert arm_model_sigma(obs, SimpleNamespace(robot_model={**model, "kind": "iid"})) is None
+
+
 def test_the_scale_effect_on_x_is_measured_in_its_own_sigmas():
     from handeye.diagnose.fits import fit_boards
     from handeye.diagnose.scale import estimate_scale, is_scale_wrong, rescaled, x_shift_sigmas
