@@ -117,6 +117,27 @@ def test_inverse_kinematics_does_not_drop_every_seed_of_a_pose_far_from_them_all
     np.testing.assert_allclose(arm.T_base_end(q), s.T_base_end_reported, atol=1e-9)
 
 
+def test_a_reported_pose_the_arm_cannot_reach_keeps_the_joints_before_it_for_the_robot_pose_test():
+    """One wrong robot pose (out of the arm's reach) among reachable ones: its view is kept with the previous
+    view's joints (the robot-pose test then excludes it), not a refusal of the session; most views out of reach
+    mean the table is not the arm's: one line naming the first."""
+    from handeye.errors import InputError
+    from handeye.refine.robot_model import _joints
+
+    arm = load_arm("rm65")
+    q = arm.home_rad + np.radians([[0, 0, 0, 0, 0, 0], [10, -5, 8, 0, 6, 4], [-8, 6, -4, 10, -6, 3]])
+    T = arm.T_base_end(q)
+    far = T[1].copy()
+    far[:3, 3] = [3.0, 0.0, 0.5]  # 3 m away: no arm of this size reaches it
+    views = [type("View", (), {"view_id": v, "joint_angles": None})() for v in "123"]
+    got, source = _joints(arm, views, np.stack([T[0], far, T[2]]))
+    assert source == ("inverse_kinematics", "unreachable", "inverse_kinematics")
+    np.testing.assert_allclose(got[1], got[0])
+    np.testing.assert_allclose(arm.T_base_end(got[[0, 2]]), T[[0, 2]], atol=1e-9)
+    with pytest.raises(InputError, match=r"view 2: the .* cannot reach the reported pose \(2 of 3 views\)"):
+        _joints(arm, views, np.stack([T[0], far, far]))
+
+
 @pytest.mark.parametrize("name", PRESETS)
 def test_inverse_kinematics_picks_the_configuration_nearest_the_home(name):
     """A pose about the arm's home has several configurations, each with its own Jacobians: ``nearest`` picks

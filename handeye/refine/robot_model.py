@@ -88,12 +88,15 @@ def _joints(arm: DHChain, views: Sequence[RefineView], reported: np.ndarray) -> 
     each with its own Jacobians. The one the arm was in: the solution within the joint limits nearest the
     previous view's joints (an arm does not flip between neighbouring views), for the first view nearest
     the arm's home (the preset's ``home``, the configuration its programs run about); an arm without a
-    home takes the first solution of the default seeds.
+    home takes the first solution of the default seeds. A reported pose the arm cannot reach (source
+    ``unreachable``) keeps the joints of the view before it, for the robot-pose test to exclude; InputError
+    when most are.
     """
     out: list[np.ndarray] = []
     source: list[str] = []
     prev: Optional[np.ndarray] = None
     q: Optional[np.ndarray]
+    unreachable: list[tuple[str, np.ndarray]] = []
     for v, T in zip(views, reported, strict=False):
         if v.joint_angles is not None:
             q = np.asarray(v.joint_angles, float).reshape(-1)
@@ -112,15 +115,24 @@ def _joints(arm: DHChain, views: Sequence[RefineView], reported: np.ndarray) -> 
         home = [arm.home_rad] if arm.home_rad is not None and prev is not None else []  # a seed where prev is far
         q = solve_ik(arm, T, seeds=home + default_ik_seeds(arm, T), nearest=ref)
         if q is None:
-            raise InputError(
-                f"view {v.view_id}: the {arm.name} cannot reach the reported pose",
-                expected="a pose within the arm's reach and joint limits",
-                received=f"flange at {np.round(T[:3, 3], 3).tolist()} m",
-                hint="check the arm named for the session, or use robot_model iid",
-            )
+            # a pose the arm cannot reach is a wrong pose: the view keeps the joints of the last one reached (its
+            # tool offset then disagrees, and the robot-pose test excludes it with its reason); most such views
+            # mean the table is not the arm's
+            unreachable.append((v.view_id, T))
+            out.append(prev if prev is not None else np.zeros(arm.n_joints) if ref is None else np.asarray(ref, float))
+            source.append("unreachable")
+            continue
         out.append(q)
         source.append("inverse_kinematics")
         prev = q
+    if 2 * len(unreachable) > len(out):
+        vid, T = unreachable[0]
+        raise InputError(
+            f"view {vid}: the {arm.name} cannot reach the reported pose ({len(unreachable)} of {len(out)} views)",
+            expected="a pose within the arm's reach and joint limits",
+            received=f"flange at {np.round(T[:3, 3], 3).tolist()} m",
+            hint="check the arm named for the session, or use robot_model iid",
+        )
     return np.array(out), tuple(source)
 
 
