@@ -24,8 +24,14 @@ def add_arguments(p) -> None:
         "easy_handeye2: its saved samples (.samples), moveit: MoveIt Calibration's saved samples (.yaml), each as a "
         "pose-only session",
     )
-    p.add_argument("src", type=Path, help="the other tool's data folder, or the bag (ROS 1 .bag, ROS 2 bag folder)")
-    p.add_argument("out", type=Path, nargs="?", help="folder for session.yaml (rosbag: or --out)")
+    p.add_argument(
+        "src",
+        type=Path,
+        help="the other tool's data folder, its samples file, or the bag (ROS 1 .bag, ROS 2 bag folder)",
+    )
+    p.add_argument(
+        "out", type=Path, nargs="?", help="folder for session.yaml (rosbag, easy_handeye2, moveit: or --out)"
+    )
     p.add_argument("--given-intrinsics", action="store_true", help="use the intrinsics shipped with the data (fixed)")
     p.add_argument(
         "--force",
@@ -66,7 +72,13 @@ def add_rosbag_arguments(g) -> None:
         help="mounting mode (rosbag, easy_handeye2, moveit, visp; default: the one the source states (visp: the folder "
         "name, or eye_to_hand for its AprilTag layout), else decided from the data)",
     )
-    g.add_argument("--out", dest="out_opt", type=Path, metavar="DEST", help="session folder (default: BAG_session)")
+    g.add_argument(
+        "--out",
+        dest="out_opt",
+        type=Path,
+        metavar="DEST",
+        help="session folder (default: SRC_session, SRC's name without its suffix)",
+    )
     g.add_argument(
         "--intrinsics-use",
         choices=["fixed", "prior", "initial"],
