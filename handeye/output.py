@@ -293,6 +293,30 @@ def _pid_alive(pid: int) -> bool:
     return state not in ("Z", "X") or threads > 1
 
 
+@contextmanager
+def _folder_guard(folder: Path):
+    """The folder itself locked (``flock`` on its descriptor) while a lock file in it is read and written.
+
+    Without it, two runs starting together could both see no holder (or the same stale one) and both take the
+    lock. Held for microseconds; where there is no ``fcntl`` (Windows), or the folder cannot be opened, nothing.
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        yield  # the lock file's own open reports the folder's fault
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the flock
+
+
 class FolderLock:
     """One writer per output folder: ``FOLDER/.handeye.lock`` holds the pid of the run writing there.
 
@@ -306,6 +330,10 @@ class FolderLock:
         self._held = False
 
     def acquire(self) -> "FolderLock":
+        with _folder_guard(self.path.parent):  # one process at a time reads, takes over and writes the lock
+            return self._acquire()
+
+    def _acquire(self) -> "FolderLock":
         for _ in range(3):
             try:
                 fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
@@ -348,11 +376,12 @@ class FolderLock:
     def release(self) -> None:
         if self._held:
             self._held = False
-            if self._holder() == os.getpid():
-                try:
-                    self.path.unlink()
-                except FileNotFoundError:
-                    pass
+            with _folder_guard(self.path.parent):
+                if self._holder() == os.getpid():
+                    try:
+                        self.path.unlink()
+                    except FileNotFoundError:
+                        pass
 
     def __enter__(self):
         return self.acquire()

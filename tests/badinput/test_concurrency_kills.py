@@ -225,6 +225,44 @@ def test_a_stale_lock_is_taken_over(content, out, bad_session, run_cli):
     assert not (out / ".handeye.lock").exists()
 
 
+def _hold_the_lock(folder, start: float, held) -> None:
+    """Take ``folder``'s lock at ``start`` (time.time()), hold it 0.2 s; ``held`` gets (taken, released)."""
+    from handeye.errors import OutputError
+    from handeye.output import FolderLock
+
+    while time.time() < start:
+        pass
+    try:
+        with FolderLock(folder):
+            t0 = time.time()
+            time.sleep(0.2)
+            held.put((t0, time.time()))
+    except OutputError:
+        held.put(None)
+
+
+@pytest.mark.parametrize("before", ["none", "stale"])
+def test_runs_starting_together_never_hold_one_folder_at_once(out, before):
+    """Four processes take one folder's lock at the same instant, with no lock file or a stale one: at most one
+    holds it at any time (reading the holder, taking a stale lock over and writing the pid are one step)."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("fork")
+    for _ in range(3):
+        if before == "stale":
+            (out / ".handeye.lock").write_text(f"{_dead_pid()}\n")
+        held = ctx.Queue()
+        start = time.time() + 0.3
+        procs = [ctx.Process(target=_hold_the_lock, args=(out, start, held)) for _ in range(4)]
+        for p in procs:
+            p.start()
+        for p in procs:
+            p.join()
+        spans = [s for s in (held.get() for _ in procs) if s is not None]
+        assert len(spans) >= 1
+        assert not any(a[0] < b[1] and b[0] < a[1] for i, a in enumerate(spans) for b in spans[i + 1 :]), spans
+
+
 def test_two_concurrent_runs_one_refused(out, tiny_vendor, tmp_path):
     """Two processes into one folder at once: one writes, the other is refused with exit code 2."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
