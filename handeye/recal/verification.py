@@ -154,25 +154,21 @@ def board_from_views(mode: str, T_x: np.ndarray, T_base_end: np.ndarray, T_cam_b
 
 
 def odd_view(B_views: np.ndarray, *, sigma_mm: np.ndarray) -> Optional[tuple[int, float, float]]:
-    """(index, mm, mm) of the one view whose implied board lies apart from the others', or None.
+    """(index, mm, mm) of the view whose implied board lies farthest apart from the others', or None.
 
-    For each view left out, the others' boards about their mean (the median distance) and the left-out view's
-    distance from that mean: the view whose leaving out makes the rest agree best is named when that distance is
-    more than 5 times both how well the rest agree and ``sigma_mm`` (n,), the spread the robot noise alone gives
-    each view's board (:func:`robot_board_sigma_mm`); with at least 3 others.
+    The reference is the view whose board has the smallest median distance to the others' (robust to several
+    far-off views); the others agree with it within the median of their distances to it. The farthest view is
+    named when it lies more than 5 times both that agreement and its ``sigma_mm`` (n,) (the spread the robot
+    noise alone gives each view's board, :func:`robot_board_sigma_mm`); with at least 3 others.
     """
     n = len(B_views)
     if n < 4:
         return None
-    best = None
-    for k in range(n):
-        rest = np.delete(B_views, k, axis=0)
-        centre = mean_T(rest)
-        agree = float(np.median([pose_error(B, centre)[1] for B in rest]))
-        if best is None or agree < best[2]:
-            best = (k, float(pose_error(B_views[k], centre)[1]), agree)
-    assert best is not None, "n >= 4 views"
-    return best if best[1] > 5.0 * max(best[2], float(np.asarray(sigma_mm)[best[0]])) else None
+    D = np.array([[pose_error(a, b)[1] for b in B_views] for a in B_views])  # mm, symmetric
+    ref = int(np.argmin([np.median(np.delete(D[k], k)) for k in range(n)]))
+    far = int(np.argmax(D[ref]))
+    agree = float(np.median(np.delete(D[ref], [ref, far])))
+    return (far, float(D[ref, far]), agree) if D[ref, far] > 5.0 * max(agree, float(sigma_mm[far])) else None
 
 
 def robot_board_sigma_mm(
@@ -255,18 +251,29 @@ def verify_views(
     r = refine(
         mode=mode, object_points=object_points, views=list(views), intrinsics=intr, T_x0=X0, T_board0=B0, options=ro
     )
-    set_aside: Optional[tuple[str, float, float]] = None
-    odd = None
-    if r.failure_code == "too_few_robot_poses":  # few views, one robot pose far off drags the solve: without it
-        odd = odd_view(B_views, sigma_mm=robot_board_sigma_mm(mode, X0, C, B_views, rs_mm, rs_deg))
-    if odd is not None:
-        rest = [v for i, v in enumerate(views) if i != odd[0]]
-        B_rest = mean_T(np.delete(B_views, odd[0], axis=0))
+    # few views, robot poses far off drag the solve (X is free) until too few are kept: the one whose board lies
+    # apart from the others' is left out and the rest solved, again while another stands out and 3 views remain
+    set_aside: list[tuple[str, float, float]] = []
+    keep = list(range(len(views)))
+    sigma_b = robot_board_sigma_mm(mode, X0, C, B_views, rs_mm, rs_deg)
+    while r.failure_code == "too_few_robot_poses" and len(keep) > 3:
+        odd = odd_view(B_views[keep], sigma_mm=sigma_b[keep])
+        if odd is None:
+            break
+        set_aside.append((views[keep[odd[0]]].view_id, odd[1], odd[2]))
+        del keep[odd[0]]
         r_rest = refine(
-            mode=mode, object_points=object_points, views=rest, intrinsics=intr, T_x0=X0, T_board0=B_rest, options=ro
+            mode=mode,
+            object_points=object_points,
+            views=[views[i] for i in keep],
+            intrinsics=intr,
+            T_x0=X0,
+            T_board0=mean_T(B_views[keep]),
+            options=ro,
         )
-        if r_rest.status == "ok":
-            r, set_aside = r_rest, (views[odd[0]].view_id, odd[1], odd[2])
+        if r_rest.status == "ok" or r_rest.failure_code != "too_few_robot_poses":
+            r = r_rest
+            break
     if r.status != "ok":
         hint = "capture views with the whole board visible and the robot turned between them"
         if r.failure_code == "too_few_robot_poses":  # the views' robot poses scatter beyond the installed noise
@@ -293,8 +300,7 @@ def verify_views(
             turn_deg=float(np.degrees(np.linalg.norm(rotvec_from_R(H[:3, :3])))),
         )
     robot = _robot_disagreement(r)
-    if set_aside is not None:
-        vid, far_mm, agree_mm = set_aside
+    for vid, far_mm, agree_mm in set_aside:
         robot["views"].append(vid)
         robot["reasons"].append(
             f"view {vid}: the board its robot pose puts through the installed {installed.x_name} lies {far_mm:.1f} mm "
@@ -332,8 +338,11 @@ def verify_views(
         }
         for vid, d in r.per_view.items()
     }
-    if set_aside is not None:
-        views_d[set_aside[0]] = dict.fromkeys(views_d[next(iter(views_d))], None) | {"status": "robot_excluded"}
+    for vid, far_mm, _ in set_aside:
+        views_d[vid] = dict.fromkeys(views_d[next(iter(views_d))], None) | {
+            "status": "robot_excluded",
+            "robot_vs_camera_trans_mm": far_mm,
+        }
     return Verification(
         verdict=verdict,
         headline=headline,

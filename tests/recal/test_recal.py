@@ -622,6 +622,17 @@ def test_four_views_with_one_wrong_robot_pose_are_verified_on_the_other_three(in
     out = verify_views(load_result(res), views=_views(v), object_points=s.target.object_points())
     assert out.verdict == "still valid" and out.n_views == 3 and out.robot["views"] == ["2"]
     assert "solved without it" in out.robot["reasons"][0] and out.views["2"]["status"] == "robot_excluded"
+    # two of six 20-30 mm / 5-10 deg off: each is left out in turn (the reference is the view the others agree
+    # with best, so one far-off view does not hide the other)
+    wrong = {"outlier_views": ["2", "3"], "outlier_trans_mm": (20.0, 30.0), "outlier_rot_deg": (5.0, 10.0)}
+    two = verify_views(
+        load_result(res),
+        views=_views(make_corner_session(n_views=6, seed=137, **wrong, **kw)),
+        object_points=s.target.object_points(),
+    )
+    assert two.verdict == "still valid" and two.n_views == 4 and sorted(two.robot["views"]) == ["2", "3"]
+    assert sum("solved without it" in r for r in two.robot["reasons"]) == 2
+    assert all(two.views[v]["robot_vs_camera_trans_mm"] > 20 for v in ("2", "3"))
     # named only when the others agree and it lies apart: a clean session has no odd view
     from handeye.recal.verification import board_from_views, robot_board_sigma_mm
 
