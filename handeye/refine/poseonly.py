@@ -452,7 +452,7 @@ def refine_poses(
     except RuntimeError as err:  # GTSAM raises RuntimeError (e.g. indeterminant linear system)
         status, reason = "failed", f"GTSAM: {err}"
     if status != "ok":
-        log.warning("pose-only refinement failed: %s", reason)
+        log.debug("pose-only refinement failed: %s", reason)  # the result carries it, as for images
     depth = float(np.median(np.linalg.norm(C[:, :3, 3], axis=1)))  # the tracker's frame need not look along z
     wd = float(options.working_distance_m) if options.working_distance_m is not None else depth
     tails = information_factor(tail_dof)  # the t model's information is (nu + 6) / (nu + 8) of the weighted one

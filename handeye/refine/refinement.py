@@ -159,7 +159,7 @@ def refine(
         )
 
     def failed(reason: str, code: str) -> RefineResult:
-        log.warning("refinement failed: %s", reason)
+        log.debug("refinement failed: %s", reason)  # the result carries it; its caller says it where it matters
         return result("failed", reason, code=code)
 
     try:
