@@ -241,6 +241,8 @@ def trend_series(rows: list[dict]) -> dict:
 
 def trend_png(install: str, rows: list[dict]) -> bytes:
     """The install's trend plot: translation and rotation change of X over time, 2-sigma bands."""
+    from datetime import timedelta
+
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.dates import AutoDateLocator, ConciseDateFormatter
     from matplotlib.figure import Figure
@@ -273,6 +275,9 @@ def trend_png(install: str, rows: list[dict]) -> bytes:
                         lw=0,
                     )
             ax.set_title(f"{title} [{unit}]", fontsize=9.5, loc="left")
+            times = list(s["times"])
+            if times and min(times) == max(times):  # one instant: an hour each side (the locator has no span)
+                ax.set_xlim(times[0] - timedelta(hours=1), times[0] + timedelta(hours=1))
             locator = AutoDateLocator(maxticks=5)
             ax.xaxis.set_major_locator(locator)
             ax.xaxis.set_major_formatter(ConciseDateFormatter(locator))

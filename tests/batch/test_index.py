@@ -211,3 +211,19 @@ def test_a_pose_only_result_is_a_row_of_its_own_not_damaged(tmp_path):
     assert rows["tracker"]["verdict"] == "PASS" and rows["tracker"]["outcome"] != DAMAGED
     assert rows["tracker"]["reprojection_rms_px"] in ("", None)
     assert rows["edited"]["outcome"] == DAMAGED and "refinement.rms_px_after" in rows["edited"]["reason"]
+
+
+def test_a_trend_of_sessions_at_one_instant_is_drawn_without_a_warning():
+    """Two sessions of an install with the same time (a copied folder, a clock not set): the trend plot has an
+    hour each side to draw them in, instead of matplotlib's warning that its date locator found no span."""
+    import warnings
+
+    from handeye.batch.index import trend_png
+
+    row = {"time_utc": "2026-03-01T10:00:00+00:00", "tx_mm": 1.0, "ty_mm": 2.0, "tz_mm": 3.0}
+    row |= {"rx_deg": 1.0, "ry_deg": 2.0, "rz_deg": 3.0}
+    row |= {f"sigma_{a}": 0.1 for a in ("tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg", "rz_deg")}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        png = trend_png("cell", [row, dict(row, tx_mm=1.5)])
+    assert png.startswith(b"\x89PNG")
