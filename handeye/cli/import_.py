@@ -2,12 +2,15 @@
 
 ``handeye import visp|ical SRC OUT`` writes a session.yaml for a ViSP or industrial_calibration data
 folder; ``handeye import rosbag BAG --image-topic T --base FRAME --end FRAME --target FILE [--out DEST]``
-writes a session (session.yaml + images) from a ROS 1 or ROS 2 bag (:mod:`handeye.session.rosbag`).
+writes a session (session.yaml + images) from a ROS 1 or ROS 2 bag (:mod:`handeye.session.rosbag`);
+``handeye import easy_handeye2|moveit SAMPLES [OUT]`` a pose-only session from another tool's saved samples.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+
+from .numbers import positive_float
 
 
 def add_arguments(p) -> None:
@@ -43,7 +46,7 @@ def add_arguments(p) -> None:
     g.add_argument(
         "--tracker-sigma",
         nargs=2,
-        type=float,
+        type=positive_float,
         metavar=("MM", "DEG"),
         help="the tracker's noise per axis (default: estimated at calibration)",
     )

@@ -239,6 +239,12 @@ def test_moveit_samples_import_to_a_pose_only_session_whose_mode_the_data_decide
     # --mode is written into the session
     assert main(["-q", "import", "moveit", str(src), str(tmp_path / "s2"), "--mode", mode]) == 0
     assert load_session(tmp_path / "s2").mode == mode
+    # a tracker sigma that is no sigma is refused when the option is read, not written for calibrate to refuse
+    for bad in (["-1", "0.2"], ["nan", "0.2"], ["0.5", "inf"]):
+        with pytest.raises(SystemExit) as e:
+            main(["-q", "import", "moveit", str(src), str(tmp_path / "s3"), "--tracker-sigma", *bad])
+        assert e.value.code == 2 and not (tmp_path / "s3").exists()
+    assert "argument --tracker-sigma: expected a finite number > 0" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
