@@ -466,10 +466,13 @@ def test_collect_with_simulators_writes_a_session_that_loads(tmp_path, capsys):
 
 
 def _loaded_by(argv: list) -> list:
-    """Command modules and libraries (numpy and heavier) imported by ``handeye ARGV`` in a new process."""
+    """Command modules and libraries (numpy and heavier) imported by ``handeye ARGV`` in a new process.
+
+    ``handeye.cli.numbers`` (the argument types, standard library only) is no command's module.
+    """
     code = (
         "import sys; from handeye.cli import main\ntry: main(sys.argv[1:])\nexcept SystemExit: pass\n"
-        "print(sorted(m for m in sys.modules if m.startswith('handeye.cli.') "
+        "print(sorted(m for m in sys.modules if m.startswith('handeye.cli.') and m != 'handeye.cli.numbers' "
         "or m in ('numpy', 'scipy', 'matplotlib', 'gtsam', 'jinja2', 'cv2')))"
     )
     p = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, check=True)
