@@ -139,9 +139,12 @@ def write_pose_only_session(
     ``source:``). ``tracker_sigma``: (mm, deg) of the tracker when known (else estimated at calibration). An
     ``out`` holding a session is refused unless ``force``.
     """
+    from .fields import check_translation_units
     from .importers import _write, check_import_out
 
     out = Path(out)
+    for T, _ in pairs:  # millimetres written as metres: said here, naming the samples file, not at calibrate
+        check_translation_units(T, path=Path(source["file"]), line=None, unit="m")
     check_import_out(out, force=force)
     doc: dict[str, Any] = {
         "handeye_session": 1,

@@ -254,6 +254,7 @@ def test_moveit_samples_import_to_a_pose_only_session_whose_mode_the_data_decide
         ("- {effector_wrt_world: [], object_wrt_sensor: []}\n" * 2, "2 samples; at least 3"),
         (None, "sample 2 object_wrt_sensor: expected 16 numbers"),
         ("TRANSPOSED", "sample 1 effector_wrt_world: last row of the 4x4 matrix must be 0 0 0 1"),
+        ("MILLIMETRES", "not plausible"),
     ],
 )
 def test_bad_moveit_samples_are_one_line_errors_naming_the_sample(tmp_path, text, message):
@@ -265,7 +266,12 @@ def test_bad_moveit_samples_are_one_line_errors_naming_the_sample(tmp_path, text
         d[1]["object_wrt_sensor"] = d[1]["object_wrt_sensor"][:15]
     elif text == "TRANSPOSED":
         d[0]["effector_wrt_world"] = np.array(d[0]["effector_wrt_world"]).reshape(4, 4).T.reshape(-1).tolist()
-    src.write_text(yaml.safe_dump(d) if text in (None, "TRANSPOSED") else text)
+    elif text == "MILLIMETRES":  # the translations in mm, the rotations as they were
+        for sample in d:
+            E = np.array(sample["effector_wrt_world"]).reshape(4, 4)
+            E[:3, 3] *= 1000.0
+            sample["effector_wrt_world"] = E.reshape(-1).tolist()
+    src.write_text(yaml.safe_dump(d) if text in (None, "TRANSPOSED", "MILLIMETRES") else text)
     with pytest.raises(HandeyeError) as e:
         import_moveit_samples(src, tmp_path / "s")
     assert message in str(e.value) and "samples.yaml" in str(e.value) and not (tmp_path / "s").exists()
