@@ -10,6 +10,7 @@ See docs/session_format.md.
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Any, Optional
 
@@ -18,6 +19,8 @@ import numpy as np
 from ..errors import ConfigError, InputError
 from ..frames import R_from_quat_wxyz, inv_T, make_T
 from .fields import read_yaml
+
+log = logging.getLogger(__name__)
 
 #: easy_handeye2's calibration_type -> handeye's mode
 MODES = {"eye_in_hand": "eye_in_hand", "eye_on_base": "eye_to_hand"}
@@ -124,6 +127,11 @@ def import_easy_handeye2(
     return write_pose_only_session(out, mode=mode, source=source, pairs=pairs, tracker_sigma=tracker_sigma, force=force)
 
 
+def _same(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]) -> bool:
+    """Whether two (robot, tracker) pose pairs are the same sample (equal to round-off)."""
+    return bool(np.allclose(a[0], b[0], rtol=0, atol=1e-12) and np.allclose(a[1], b[1], rtol=0, atol=1e-12))
+
+
 def write_pose_only_session(
     out: str | Path,
     *,
@@ -145,6 +153,14 @@ def write_pose_only_session(
     out = Path(out)
     for T, _ in pairs:  # millimetres written as metres: said here, naming the samples file, not at calibrate
         check_translation_units(T, path=Path(source["file"]), line=None, unit="m")
+    repeats = [k for k in range(len(pairs)) if any(_same(pairs[j], pairs[k]) for j in range(k))]
+    if repeats:  # a sample saved twice is no second view: it would count its information twice
+        log.warning(
+            "%s: sample(s) %s repeat an earlier one exactly: left out",
+            source["file"],
+            ", ".join(str(k + 1) for k in repeats),
+        )
+        pairs = [pr for k, pr in enumerate(pairs) if k not in set(repeats)]
     check_import_out(out, force=force)
     doc: dict[str, Any] = {
         "handeye_session": 1,

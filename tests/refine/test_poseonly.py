@@ -247,6 +247,18 @@ def test_moveit_samples_import_to_a_pose_only_session_whose_mode_the_data_decide
     assert "argument --tracker-sigma: expected a finite number > 0" in capsys.readouterr().err
 
 
+def test_a_sample_saved_twice_is_left_out_with_a_warning(tmp_path, caplog):
+    from handeye.session.moveit_samples import import_moveit_samples
+
+    src = _moveit_samples(tmp_path / "samples.yaml", make_tracker_session(n_views=6, seed=3))
+    d = yaml.safe_load(src.read_text())
+    src.write_text(yaml.safe_dump([*d, d[1]]))  # sample 7 is sample 2 again
+    with caplog.at_level("WARNING"):
+        path = import_moveit_samples(src, tmp_path / "s")
+    assert "sample(s) 7 repeat an earlier one exactly: left out" in caplog.text
+    assert len(yaml.safe_load(path.read_text())["views"]) == 6
+
+
 @pytest.mark.parametrize(
     "text, message",
     [
