@@ -27,7 +27,7 @@ from ..mounting import mounting
 from ..records import IMAGE_MISSING_REASON, Detection, Session, ViewOutcome, view_id_key
 from ..targets import TargetSpec
 from .gates import _mode_gate, _pairing_gate, _stated_source, shift_poses
-from .records import MIN_VIEWS, CalibrateOptions, CalibrationRun, Detected, Observation
+from .records import MIN_VIEWS, CalibrateOptions, CalibrationRun, Detected, Observation, ordered_outcomes
 from .stages import (
     _closed_forms,
     _final_outcomes,
@@ -307,7 +307,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress, detected=Non
         )
 
     def ordered():
-        return tuple(outcomes[k] for k in sorted(outcomes, key=view_id_key))
+        return ordered_outcomes(outcomes)
 
     seconds = dict(obs.seconds)
     state.update(

@@ -17,6 +17,11 @@ from ..targets import TargetSpec
 MIN_VIEWS = 3
 
 
+def ordered_outcomes(outcomes: dict) -> tuple:
+    """The outcomes (view id -> :class:`handeye.records.ViewOutcome`) in view-id order."""
+    return tuple(outcomes[k] for k in sorted(outcomes, key=view_id_key))
+
+
 @dataclass(frozen=True)
 class CalibrateOptions:
     method: str = "tsai"
@@ -80,7 +85,7 @@ class Observation:
     error: Optional[HandeyeError] = None
 
     def ordered_outcomes(self) -> tuple:
-        return tuple(self.outcomes[k] for k in sorted(self.outcomes, key=view_id_key))
+        return ordered_outcomes(self.outcomes)
 
 
 @dataclass(frozen=True)

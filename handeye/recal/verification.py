@@ -201,8 +201,9 @@ def verify_views(
     numberings (:func:`handeye.diagnose.consistency.board_turns`); the installed board pose is turned into the
     new views' numbering (the turn nearest theirs) before the comparison (``board["turn_deg"]``,
     ``board["T_turn"]``, ``board["installed_in_session_numbering"]``; ``board["installed"]`` is result.json's).
-    A solve that keeps fewer than 3 robot poses is tried once more without the one view whose implied board lies
-    far from the others' (:func:`odd_view`); that view is then a robot-pose outlier of the verification.
+    A solve that keeps fewer than 3 robot poses is tried again without the view whose implied board lies far
+    from the others' (:func:`odd_view`), one view at a time while 3 remain; each is then a robot-pose outlier
+    of the verification.
     """
     from ..initial import solve_pnp
     from ..refine import RefineOptions, refine
@@ -290,7 +291,8 @@ def verify_views(
     test = test_refined(installed, r, prior, min_variance_share=options.min_variance_share)
     drifted = test.p_value < options.alpha
     change = change_in_result_frame(X0, test.change_xi, test.change_cov)
-    used = np.array([v.view_id in set(r.used_view_ids) for v in views])  # not the views whose robot pose is out
+    in_solve = set(r.used_view_ids)
+    used = np.array([v.view_id in in_solve for v in views])  # not the views whose robot pose is out
     board = _board_change(installed, r, mode, E[used], C[used], options, change)
     if installed.T_board is not None:  # result.json's board, and the same board in this session's numbering
         board.update(

@@ -164,6 +164,7 @@ def verify_session(
     """
     from ..diagnose.consistency import board_turns
     from ..pipeline import CalibrateOptions, missing_image_outcomes, observe, target_text
+    from ..pipeline.records import ordered_outcomes
     from ..refine import RefineView
     from .loaded import load_result
 
@@ -230,18 +231,12 @@ def verify_session(
         verification=v,
         session_path=str(s.path),
         installed_source=installed.label,
-        outcomes=tuple(sorted((*obs.ordered_outcomes(), *missing_image_outcomes(s).values()), key=_outcome_order)),
+        outcomes=ordered_outcomes({**obs.outcomes, **missing_image_outcomes(s)}),
         target_text=target_text(s.target),
         image_size=tuple(size),
         intrinsics_source=obs.intrinsics_source,
         seconds=seconds,
     )
-
-
-def _outcome_order(o) -> tuple:
-    from ..records import view_id_key
-
-    return view_id_key(o.view_id)
 
 
 def verify_dict(sv: SessionVerification) -> dict:

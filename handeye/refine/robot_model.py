@@ -119,7 +119,7 @@ def _joints(arm: DHChain, views: Sequence[RefineView], reported: np.ndarray) -> 
             # tool offset then disagrees, and the robot-pose test excludes it with its reason); most such views
             # mean the table is not the arm's
             unreachable.append((v.view_id, T))
-            out.append(prev if prev is not None else np.zeros(arm.n_joints) if ref is None else np.asarray(ref, float))
+            out.append(np.zeros(arm.n_joints) if ref is None else np.asarray(ref, float))  # ref: prev, else home
             source.append("unreachable")
             continue
         out.append(q)

@@ -56,7 +56,7 @@ def test_the_worker_s_paths_are_put_back_in_the_record_s_texts():
     temporary copy, in every field of a record that may name one; other fields are left as they are."""
     from handeye.batch.upload import client_paths
 
-    tmp = "/tmp/handeye-batch-x1"
+    tmp = "/worker/scratch/handeye-batch-x1"  # a worker's temporary copy
     paths = {
         f"{tmp}/session": "/data/cell/s1",
         f"{tmp}/out": "/qa/cell/s1",
