@@ -10,7 +10,6 @@ See docs/session_format.md.
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 from typing import Any, Optional
 
@@ -19,8 +18,6 @@ import numpy as np
 from ..errors import ConfigError, InputError
 from ..frames import R_from_quat_wxyz, inv_T, make_T
 from .fields import read_yaml
-
-log = logging.getLogger(__name__)
 
 #: easy_handeye2's calibration_type -> handeye's mode
 MODES = {"eye_in_hand": "eye_in_hand", "eye_on_base": "eye_to_hand"}
@@ -124,55 +121,6 @@ def import_easy_handeye2(
     )
     named = {k: params.get(k) for k in frames if params.get(k)}
     source = {"tool": "easy_handeye2", "file": str(src.resolve()), **named}
+    from .importers import write_pose_only_session
+
     return write_pose_only_session(out, mode=mode, source=source, pairs=pairs, tracker_sigma=tracker_sigma, force=force)
-
-
-def _same(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]) -> bool:
-    """Whether two (robot, tracker) pose pairs are the same sample (equal to round-off)."""
-    return bool(np.allclose(a[0], b[0], rtol=0, atol=1e-12) and np.allclose(a[1], b[1], rtol=0, atol=1e-12))
-
-
-def write_pose_only_session(
-    out: str | Path,
-    *,
-    mode: Optional[str],
-    source: dict[str, Any],
-    pairs: list[tuple[np.ndarray, np.ndarray]],
-    tracker_sigma: Optional[tuple] = None,
-    force: bool = False,
-) -> Path:
-    """``out/session.yaml`` of a pose-only session: ``pairs`` of (``T_base_end``, ``T_cam_board``), views ``1``..``N``.
-
-    ``mode`` None: left to the data (the mode gate decides). ``source``: where the poses came from (kept under
-    ``source:``). ``tracker_sigma``: (mm, deg) of the tracker when known (else estimated at calibration). An
-    ``out`` holding a session is refused unless ``force``.
-    """
-    from .fields import check_translation_units
-    from .importers import _write, check_import_out
-
-    out = Path(out)
-    for T, _ in pairs:  # millimetres written as metres: said here, naming the samples file, not at calibrate
-        check_translation_units(T, path=Path(source["file"]), line=None, unit="m")
-    repeats = [k for k in range(len(pairs)) if any(_same(pairs[j], pairs[k]) for j in range(k))]
-    if repeats:  # a sample saved twice is no second view: it would count its information twice
-        log.warning(
-            "%s: sample(s) %s repeat an earlier one exactly: left out",
-            source["file"],
-            ", ".join(str(k + 1) for k in repeats),
-        )
-        pairs = [pr for k, pr in enumerate(pairs) if k not in set(repeats)]
-    check_import_out(out, force=force)
-    doc: dict[str, Any] = {
-        "handeye_session": 1,
-        **({"mode": mode} if mode else {}),
-        "source": source,
-        "pose_format": {"rotation": "matrix"},
-        "target_pose_format": {"rotation": "matrix"},
-    }
-    if tracker_sigma is not None:
-        doc["tracker_sigma"] = {"mm": float(tracker_sigma[0]), "deg": float(tracker_sigma[1])}
-    doc["views"] = [
-        {"id": str(k + 1), "pose": np.round(T, 15).tolist(), "target_pose": np.round(C, 15).tolist()}
-        for k, (T, C) in enumerate(pairs)
-    ]
-    return _write(out, doc)

@@ -9,19 +9,26 @@ tools use.
   x, y, z, qx, qy, qz, qw; ``static_camera`` decides the mode). Target finders: ChArUco
   (``CharucoGridTargetFinder``) and circle grids (``ModifiedCircleGridTargetFinder``: symmetric
   grid, ``spacing`` between dot centres, one double-size origin dot).
+
+:func:`write_pose_only_session` is the pose-only session the samples importers write (easy_handeye2, MoveIt).
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import re
 from pathlib import Path
+from typing import Any, Optional
 
+import numpy as np
 import yaml
 
 from ..errors import InputError
 from ..output import atomic_write_text, read_text
 from .fields import read_yaml
+
+log = logging.getLogger(__name__)
 
 #: what the importers write; an existing one is replaced only when asked (``force=True``, ``--force``)
 SESSION_FILE = "session.yaml"
@@ -430,6 +437,57 @@ def check_import_out(out: Path, *, force: bool, writes: tuple = ()) -> None:
                 hint=f"remove {out / name}, or import into a new folder",
             )
     check_out_dir(out, option="OUT")
+
+
+def _same(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]) -> bool:
+    """Whether two (robot, tracker) pose pairs are the same sample (equal to round-off)."""
+    return bool(np.allclose(a[0], b[0], rtol=0, atol=1e-12) and np.allclose(a[1], b[1], rtol=0, atol=1e-12))
+
+
+def write_pose_only_session(
+    out: str | Path,
+    *,
+    mode: Optional[str],
+    source: dict[str, Any],
+    pairs: list[tuple[np.ndarray, np.ndarray]],
+    tracker_sigma: Optional[tuple] = None,
+    force: bool = False,
+) -> Path:
+    """``out/session.yaml`` of a pose-only session: ``pairs`` of (``T_base_end``, ``T_cam_board``), views ``1``..``N``.
+
+    ``mode`` None: left to the data (the mode gate decides). ``source``: where the poses came from (kept under
+    ``source:``). ``tracker_sigma``: (mm, deg) of the tracker when known (else estimated at calibration). An
+    ``out`` holding a session is refused unless ``force``.
+    """
+    from .fields import check_translation_units
+
+    out = Path(out)
+    for T, _ in pairs:  # millimetres written as metres: said here, naming the samples file, not at calibrate
+        check_translation_units(T, path=Path(source["file"]), line=None, unit="m")
+    kept: list[tuple[np.ndarray, np.ndarray]] = []
+    repeats = []  # a sample saved twice is no second view: it would count its information twice
+    for k, pair in enumerate(pairs, start=1):
+        if any(_same(pair, earlier) for earlier in kept):
+            repeats.append(str(k))
+        else:
+            kept.append(pair)
+    if repeats:
+        log.warning("%s: sample(s) %s repeat an earlier one exactly: left out", source["file"], ", ".join(repeats))
+    check_import_out(out, force=force)
+    doc: dict[str, Any] = {
+        "handeye_session": 1,
+        **({"mode": mode} if mode else {}),
+        "source": source,
+        "pose_format": {"rotation": "matrix"},
+        "target_pose_format": {"rotation": "matrix"},
+    }
+    if tracker_sigma is not None:
+        doc["tracker_sigma"] = {"mm": float(tracker_sigma[0]), "deg": float(tracker_sigma[1])}
+    doc["views"] = [
+        {"id": str(k + 1), "pose": np.round(T, 15).tolist(), "target_pose": np.round(C, 15).tolist()}
+        for k, (T, C) in enumerate(kept)
+    ]
+    return _write(out, doc)
 
 
 def _write(out: Path, doc: dict) -> Path:

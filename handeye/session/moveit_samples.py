@@ -66,7 +66,7 @@ def import_moveit_samples(
     Views ``1``..``N`` in the file's order. ``mode``: the camera's mounting (None: decided from the data at
     calibration). ``tracker_sigma``: (mm, deg) of the board poses when known (else estimated at calibration).
     """
-    from .easy_handeye2 import write_pose_only_session
+    from .importers import write_pose_only_session
 
     src = Path(src)
     pairs = read_moveit_samples(src)
