@@ -104,50 +104,57 @@ def add_rosbag_arguments(g) -> None:
 
 
 def run(args) -> int:
-    from ..session.importers import import_ical, import_visp
+    from ..output import new_folders_kept_only_if_used
 
-    if args.kind == "rosbag":
-        return run_rosbag(args)
-    if args.kind in ("easy_handeye2", "moveit"):
-        return run_pose_samples(args)
+    out = _out_folder(args)
+    with new_folders_kept_only_if_used(out):  # a failed import leaves no empty folder behind
+        if args.kind == "rosbag":
+            return run_rosbag(args, out)
+        if args.kind in ("easy_handeye2", "moveit"):
+            return run_pose_samples(args, out)
+        return run_folder(args, out)
+
+
+def _out_folder(args) -> Path:
+    """The session folder: OUT (or, for a bag or a samples file, --out; default SRC_session)."""
+    if args.kind in ("rosbag", "easy_handeye2", "moveit"):
+        return args.out_opt or args.out or Path(args.src.name.split(".")[0] + "_session")
     if args.out is None:
         from ..errors import InputError
 
         raise InputError(f"handeye import {args.kind} needs OUT, the folder for session.yaml")
-    from ..output import new_folders_kept_only_if_used
+    return args.out
+
+
+def run_folder(args, out: Path) -> int:
+    """``handeye import visp|ical SRC OUT``."""
+    from ..session.importers import import_ical, import_visp
 
     if args.kind == "visp":
-        with new_folders_kept_only_if_used(args.out):  # a failed import leaves no empty folder behind
-            path = import_visp(
-                args.src, args.out, use_given_intrinsics=args.given_intrinsics, force=args.force, mode=args.mode
-            )
+        path = import_visp(args.src, out, use_given_intrinsics=args.given_intrinsics, force=args.force, mode=args.mode)
         from ..session.native import read_native_document
 
         doc = read_native_document(path)
         why = (doc.data.get("source") or {}).get("mode")
         print(f"ViSP layout: {doc.target.describe()}; mode: {doc.mode or 'from the data'} ({why})")
     else:
-        with new_folders_kept_only_if_used(args.out):
-            path = import_ical(args.src, args.out, force=args.force)
+        path = import_ical(args.src, out, force=args.force)
     print(f"session: {path}")
     return 0
 
 
-def run_pose_samples(args) -> int:
+def run_pose_samples(args, out: Path) -> int:
     """``handeye import easy_handeye2|moveit SAMPLES [--out DEST] [--mode M] [--tracker-sigma MM DEG]``."""
-    from ..output import new_folders_kept_only_if_used
     from ..session.easy_handeye2 import import_easy_handeye2
     from ..session.moveit_samples import import_moveit_samples
 
     importer = import_easy_handeye2 if args.kind == "easy_handeye2" else import_moveit_samples
-    out = args.out_opt or args.out or Path(args.src.name.split(".")[0] + "_session")
-    with new_folders_kept_only_if_used(out):  # a failed import leaves no empty folder behind
-        path = importer(args.src, out, mode=args.mode, tracker_sigma=args.tracker_sigma, force=args.force)
+    path = importer(args.src, out, mode=args.mode, tracker_sigma=args.tracker_sigma, force=args.force)
     print(f"session: {path} (pose-only: target poses from the tracker)")
     return 0
 
 
-def run_rosbag(args) -> int:
+def run_rosbag(args, out: Path) -> int:
     from ..errors import InputError
     from ..session.rosbag import Stillness, import_rosbag, read_target_file
 
@@ -164,23 +171,19 @@ def run_rosbag(args) -> int:
             for k in ("still_trans_mm_s", "still_rot_deg_s", "speed_window_s", "min_still_s", "margin_s")
         }
     )
-    from ..output import new_folders_kept_only_if_used
-
-    out = args.out_opt or args.out or Path(args.src.name.split(".")[0] + "_session")
-    with new_folders_kept_only_if_used(out):  # a failed import leaves no empty folder behind
-        rep = import_rosbag(
-            args.src,
-            out,
-            image_topic=args.image_topic,
-            base_frame=args.base,
-            end_frame=args.end,
-            target=target,
-            camera_info_topic=args.camera_info,
-            mode=args.mode or mode,
-            stillness=st,
-            intrinsics_use=args.intrinsics_use,
-            force=args.force,
-        )
+    rep = import_rosbag(
+        args.src,
+        out,
+        image_topic=args.image_topic,
+        base_frame=args.base,
+        end_frame=args.end,
+        target=target,
+        camera_info_topic=args.camera_info,
+        mode=args.mode or mode,
+        stillness=st,
+        intrinsics_use=args.intrinsics_use,
+        force=args.force,
+    )
     for line in rep.summary_lines():
         print(line)
     return 0
