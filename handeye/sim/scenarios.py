@@ -396,18 +396,19 @@ def sample_hidden_view_pose(
         if plausible_robot_pose(T_base_end, reach_m) and (pose_ok is None or pose_ok(T_base_end)):
             return T_base_end
     mount = mounting(mode)
-    for _ in range(max_tries):  # anywhere the arm reaches, the board out of the image
-        T_base_end = _reachable_flange_pose(rng, reach_m)
-        T_cam_board = mount.predict_T_cam_board(T_x, T_board, T_base_end[None])[0]
-        if board_out_of_image(target, intrinsics, T_cam_board) and (pose_ok is None or pose_ok(T_base_end)):
-            return T_base_end
-    for _ in range(max_tries if draw_pose is not None else 0):  # the arm's own moves
-        T_drawn = draw_pose(rng) if draw_pose is not None else None
-        if T_drawn is None or not plausible_robot_pose(T_drawn, reach_m):
-            continue
-        T_cam_board = mount.predict_T_cam_board(T_x, T_board, T_drawn[None])[0]
-        if board_out_of_image(target, intrinsics, T_cam_board) and (pose_ok is None or pose_ok(T_drawn)):
-            return T_drawn
+    drawers: list[Callable[[np.random.Generator], Optional[np.ndarray]]] = [
+        lambda r: _reachable_flange_pose(r, reach_m)  # anywhere the arm reaches
+    ]
+    if draw_pose is not None:
+        drawers.append(draw_pose)  # the arm's own moves
+    for draw in drawers:
+        for _ in range(max_tries):  # each kept when plausible, in the arm's configuration, the board out of the image
+            T_drawn = draw(rng)
+            if T_drawn is None or not plausible_robot_pose(T_drawn, reach_m):
+                continue
+            T_cam_board = mount.predict_T_cam_board(T_x, T_board, T_drawn[None])[0]
+            if board_out_of_image(target, intrinsics, T_cam_board) and (pose_ok is None or pose_ok(T_drawn)):
+                return T_drawn
     raise ConfigError(
         "cannot sample a pose that hides the board",
         expected="a reachable pose looking away",
