@@ -467,16 +467,15 @@ def _installed(*, n_views, noise_px, robot_noise, seed=5):
     return s, result_from_refinement(r, target=s.target)
 
 
-def _verification(s, xi, *, seed, n_views=6):
+def _verification(s, xi, *, seed, n_views=6, board=None, **kw):
+    """Views of the install's rig with X moved by ``xi`` (and the board at ``board``, default the install's);
+    ``kw`` goes to make_corner_session (its robot noise, outlier views...)."""
     from handeye.sim.corners import make_corner_session
 
+    kw = {"noise_px": 0.3, "robot_noise": (0.2, 0.05), **kw}
+    board = s.T_board_true if board is None else board
     return make_corner_session(
-        n_views=n_views,
-        seed=seed,
-        noise_px=0.3,
-        robot_noise=(0.2, 0.05),
-        intrinsics=s.intrinsics,
-        rig=(s.T_x_true @ se3_exp(xi), s.T_board_true),
+        n_views=n_views, seed=seed, intrinsics=s.intrinsics, rig=(s.T_x_true @ se3_exp(xi), board), **kw
     )
 
 
@@ -590,17 +589,9 @@ def test_verify_with_robot_poses_far_noisier_than_installed_says_so(install):
     not 'turn the robot between views'."""
     from handeye.errors import CalibrationError
     from handeye.recal.verify import verify_views
-    from handeye.sim.corners import make_corner_session
 
     s, res = install
-    v = make_corner_session(
-        n_views=6,
-        seed=104,
-        noise_px=0.3,
-        robot_noise=(2.0, 0.5),
-        intrinsics=s.intrinsics,
-        rig=(s.T_x_true, s.T_board_true),
-    )
+    v = _verification(s, np.zeros(6), seed=104, robot_noise=(2.0, 0.5))
     with pytest.raises(CalibrationError) as e:
         verify_views(load_result(res), views=_views(v), object_points=s.target.object_points())
     hint = e.value.hint
@@ -614,11 +605,9 @@ def test_four_views_with_one_wrong_robot_pose_are_verified_on_the_other_three(in
     verification is solved without it and says so."""
     from handeye.recal.verification import odd_view
     from handeye.recal.verify import verify_views
-    from handeye.sim.corners import make_corner_session
 
     s, res = install
-    kw = {"noise_px": 0.3, "robot_noise": (0.2, 0.05), "intrinsics": s.intrinsics, "rig": (s.T_x_true, s.T_board_true)}
-    v = make_corner_session(n_views=4, seed=121, outlier_views=["2"], outlier_trans_mm=(5.0, 10.0), **kw)
+    v = _verification(s, np.zeros(6), seed=121, n_views=4, outlier_views=["2"], outlier_trans_mm=(5.0, 10.0))
     out = verify_views(load_result(res), views=_views(v), object_points=s.target.object_points())
     assert out.verdict == "still valid" and out.n_views == 3 and out.robot["views"] == ["2"]
     assert "solved without it" in out.robot["reasons"][0] and out.views["2"]["status"] == "robot_excluded"
@@ -627,7 +616,7 @@ def test_four_views_with_one_wrong_robot_pose_are_verified_on_the_other_three(in
     wrong = {"outlier_views": ["2", "3"], "outlier_trans_mm": (20.0, 30.0), "outlier_rot_deg": (5.0, 10.0)}
     two = verify_views(
         load_result(res),
-        views=_views(make_corner_session(n_views=6, seed=137, **wrong, **kw)),
+        views=_views(_verification(s, np.zeros(6), seed=137, **wrong)),
         object_points=s.target.object_points(),
     )
     assert two.verdict == "still valid" and two.n_views == 4 and sorted(two.robot["views"]) == ["2", "3"]
@@ -637,7 +626,7 @@ def test_four_views_with_one_wrong_robot_pose_are_verified_on_the_other_three(in
     from handeye.recal.verification import board_from_views, robot_board_sigma_mm
 
     for seed in range(121, 131):
-        clean = make_corner_session(n_views=4, seed=seed, **kw)
+        clean = _verification(s, np.zeros(6), seed=seed, n_views=4)
         C = clean.T_cam_board_true
         B = board_from_views("eye_in_hand", s.T_x_true, clean.T_base_end_reported, C)
         assert odd_view(B, sigma_mm=robot_board_sigma_mm("eye_in_hand", s.T_x_true, C, B, 0.2, 0.05)) is None
@@ -650,22 +639,14 @@ def test_a_view_left_out_for_its_robot_pose_does_not_hide_a_board_that_moved(ins
     """The board moved 10 mm on the table, and one of 6 new views has a wrong robot pose: the view is left out, and
     the board's change is judged on the views the solve used (with the wrong one its scatter was 5.8 mm)."""
     from handeye.recal.verify import verify_views
-    from handeye.sim.corners import make_corner_session
 
     s, res = install
     shift = np.eye(4)
     shift[0, 3] = 10e-3  # T_base_board: 10 mm along the base's x
     out = {}
     for bad in ([], ["3"]):
-        v = make_corner_session(
-            n_views=6,
-            seed=106,
-            noise_px=0.3,
-            robot_noise=(0.2, 0.05),
-            intrinsics=s.intrinsics,
-            rig=(s.T_x_true, shift @ s.T_board_true),
-            outlier_views=bad,
-            outlier_trans_mm=(15.0, 20.0),
+        v = _verification(
+            s, np.zeros(6), seed=106, board=shift @ s.T_board_true, outlier_views=bad, outlier_trans_mm=(15.0, 20.0)
         )
         out[len(bad)] = verify_views(load_result(res), views=_views(v), object_points=s.target.object_points())
     assert out[1].robot["views"] == ["3"] and out[1].verdict == out[0].verdict == "still valid"
