@@ -552,9 +552,9 @@ def _run_wave(client, specs: list[dict], *, limit: int, upload: bool, site, prog
             submit(spec)
             continue
         rec = _collect(fut, spec)
-        files = rec.pop("files", None)
-        if files is not None:
-            write_tree(Path(spec["out_dir"]), files)
+        outputs = rec.pop("files", None)  # an uploaded session's output folder, sent back
+        if outputs is not None:
+            write_tree(Path(spec["out_dir"]), outputs)
         fut.release()
         records.append(rec)
         progress(rec)
