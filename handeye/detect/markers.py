@@ -5,6 +5,13 @@ bottom-left of the print, :data:`handeye.targets.MARKER_CORNERS`) to about a pix
 refined with ``cv2.cornerSubPix`` in a window sized from the marker's own border cell (and the AprilGrid's
 gap) in pixels (configs/detection.yaml ``markers``, where the measured alternatives are listed). Only the
 ids the target holds count; a marker id seen twice (a second print in the scene) is left out.
+
+An AprilGrid's tag corners touch the gap squares: X junctions, which cornerSubPix finds without bias. A
+single marker's corners are L corners (dark square, light margin): blur and the pixels' area round them,
+and cornerSubPix settles inside the rounding, 0.1-0.2 px towards the marker. Its corners are then taken
+where its two edges meet (:func:`edge_corners`): each edge is located across its grey-level step at every
+pixel along it, from beyond the rounding (three measured edge widths from the corner) to a short distance
+(over which lens distortion bends a line by far less than its noise), and a straight line is fitted.
 """
 
 from __future__ import annotations
@@ -17,6 +24,7 @@ import numpy as np
 from ..config import load_preset
 from ..targets import AprilGridSpec, MarkerSpec
 from .options import DetectionOptions, default_options
+from .quality import edge_sigma_px, profiles_across
 
 
 @lru_cache(maxsize=8)
@@ -32,18 +40,109 @@ def _settings() -> dict:
     return load_preset("detection")["markers"]
 
 
+def _border_cell_px(corners: np.ndarray, spec) -> float:
+    """The border cell of the smallest of the markers ``corners`` (m,4,2) in px: 1/(bits+2) of its side."""
+    side_px = float(np.min(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).mean(axis=1)))
+    return side_px / (_detector(spec.dictionary).getDictionary().markerSize + 2)
+
+
 def subpix_half_window_px(corners: np.ndarray, spec, *, share: float, lo: int, hi: int) -> int:
     """Half window for cornerSubPix on the markers ``corners``.
 
     Half window for cornerSubPix on the markers ``corners`` (m,4,2): ``share`` x the smallest of the border
     cell and (AprilGrid) the gap between tags, in px on the smallest marker, clipped to [lo, hi].
     """
-    side_px = float(np.min(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).mean(axis=1)))
-    bits = _detector(spec.dictionary).getDictionary().markerSize
-    feature = side_px / (bits + 2)
+    feature = _border_cell_px(corners, spec)
     if isinstance(spec, AprilGridSpec):
+        side_px = feature * (_detector(spec.dictionary).getDictionary().markerSize + 2)
         feature = min(feature, spec.spacing * side_px)
     return int(np.clip(np.floor(share * feature), lo, hi))
+
+
+def _edge_points(gray: np.ndarray, P: np.ndarray, Q: np.ndarray, *, reach_px: float, far_px: float) -> np.ndarray:
+    """Points (K,2) of the edge from corner ``P`` towards ``Q``, one per pixel along it, beyond the corner's rounding.
+
+    Each point is where the grey-level profile across the edge crosses halfway between its two plateaus
+    (``reach_px`` each side): the edge's own position for any symmetric blur. Points within three
+    measured edge widths of ``P`` are left out (the other edge's blur reaches them), as are profiles
+    leaving the image, with a weak step or with more than one crossing.
+    """
+    L = float(np.linalg.norm(Q - P))
+    d = (Q - P) / max(L, 1e-9)
+    n = np.array([-d[1], d[0]])
+    s = np.arange(1.0, min(far_px, 0.4 * L), 1.0)
+    if len(s) < 6:
+        return np.zeros((0, 2))
+    centres = P[None] + s[:, None] * d[None]
+    step = 0.25
+    prof = profiles_across(gray, centres, np.broadcast_to(n, centres.shape), half_width=reach_px, step_px=step)
+    h, w = gray.shape[:2]
+    ends = np.concatenate([centres + reach_px * n, centres - reach_px * n])
+    inside = np.all((ends >= 0) & (ends <= [w - 1, h - 1]), axis=1)
+    inside = inside[: len(s)] & inside[len(s) :]
+    k = max(2, prof.shape[1] // 6)
+    lo, hi = prof[:, :k].mean(axis=1), prof[:, -k:].mean(axis=1)
+    contrast = np.abs(hi - lo)
+    above = (prof - (0.5 * (lo + hi))[:, None]) * np.sign(hi - lo)[:, None] > 0
+    one_crossing = np.count_nonzero(above[:, 1:] != above[:, :-1], axis=1) == 1
+    j = np.clip(np.argmax(above, axis=1), 1, prof.shape[1] - 1)
+    r = np.arange(len(s))
+    p0, p1 = prof[r, j - 1], prof[r, j]
+    mid = 0.5 * (lo + hi)
+    frac = np.clip((mid - p0) / np.where(np.abs(p1 - p0) > 1e-9, p1 - p0, 1.0), 0.0, 1.0)
+    t = -reach_px + step * (j - 1 + frac)
+    good = inside & one_crossing & (contrast > 0.5 * np.median(contrast))
+    if good.sum() < 6:
+        return np.zeros((0, 2))
+    width = float(np.median(edge_sigma_px(prof[good], step_px=step)[0]))
+    good &= s >= 3.0 * width
+    return (centres + t[:, None] * n[None])[good]
+
+
+def _line(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(a point, unit direction) of the total-least-squares line through ``points``, refitted without outliers.
+
+    A point more than 3 robust sigmas (1.4826 MAD of the distances, at least 0.05 px) off the first fit is
+    left out of the second (a speck of dirt or a glint on the edge).
+    """
+    for _ in range(2):
+        if len(points) < 6:
+            return None
+        c = points.mean(axis=0)
+        u = np.linalg.svd(points - c)[2][0]
+        dist = np.abs((points - c) @ np.array([-u[1], u[0]]))
+        keep = dist <= 3.0 * max(1.4826 * float(np.median(dist)), 0.05)
+        if keep.all():
+            break
+        points = points[keep]
+    return c, u
+
+
+def edge_corners(gray: np.ndarray, quad: np.ndarray, *, cell_px: float, far_px: float = 40.0) -> np.ndarray:
+    """The four corners (4,2) of one isolated marker, each where its two edges meet.
+
+    ``quad``: the corners to about a pixel, in order around the marker; ``cell_px``: its border cell in px
+    (the profiles across an edge reach 0.45 of it each side, so they stay in the black border and the
+    white margin). Each edge is fitted from its own corner out to ``far_px`` (at most 0.4 of the side);
+    two rounds, the second along the edges through the first's corners. A corner whose edges cannot be
+    fitted (too short, leaving the image, too little contrast, nearly parallel) keeps its ``quad`` value.
+    """
+    q = np.asarray(quad, float).copy()
+    reach = float(np.clip(0.45 * cell_px, 2.0, 8.0))
+    img = np.asarray(gray)
+    for _ in range(2):
+        out = q.copy()
+        for i in range(4):
+            lines = [_line(_edge_points(img, q[i], q[j], reach_px=reach, far_px=far_px)) for j in ((i + 1) % 4, i - 1)]
+            if lines[0] is None or lines[1] is None:
+                continue
+            (c1, u1), (c2, u2) = lines
+            A = np.column_stack([u1, -u2])
+            if abs(np.linalg.det(A)) < 0.1:  # edges within 6 degrees of each other: no corner between them
+                continue
+            out[i] = c1 + np.linalg.solve(A, c2 - c1)[0] * u1
+        q = out
+    return q
 
 
 def tag_ids(spec) -> np.ndarray:
@@ -98,5 +197,10 @@ def detect_markers(
     for w in (min(2 * win, int(cfg["subpix_window_max_px"])), win):
         pts = cv2.cornerSubPix(gray, pts, (w, w), (-1, -1), o.subpix_criteria)
     pts = pts.reshape(-1, 2).astype(np.float64)
+    if isinstance(spec, MarkerSpec):  # L corners: where the edges meet (module docstring)
+        fitted = edge_corners(gray, pts, cell_px=_border_cell_px(pts[None], spec), far_px=float(cfg["edge_fit_far_px"]))
+        # a fit that lands outside cornerSubPix's own window found some other edge: the window's corner stands
+        moved = np.linalg.norm(fitted - pts, axis=1) <= max(win, 1)
+        pts = np.where(moved[:, None], fitted, pts)
     order = np.argsort(cid, kind="stable")
     return cid[order], pts[order]

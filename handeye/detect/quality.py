@@ -65,15 +65,24 @@ def edge_profiles(
 
     Bilinear samples; outside the image the border pixels are repeated.
     """
-    m = 0.5 * (p0 + p1)
     e = p1 - p0
     L = np.linalg.norm(e, axis=1, keepdims=True)
     nrm = np.stack([-e[:, 1], e[:, 0]], axis=1) / np.maximum(L, 1e-9)
+    return profiles_across(gray, 0.5 * (p0 + p1), nrm, half_width=half_width, step_px=step_px)
+
+
+def profiles_across(
+    gray: np.ndarray, centres: np.ndarray, normals: np.ndarray, *, half_width: float, step_px: float = 0.25
+) -> np.ndarray:
+    """Grey-level profiles (K, S) through ``centres`` (K,2) along unit ``normals`` (K,2), at offsets -hw..hw.
+
+    Bilinear samples; outside the image the border pixels are repeated.
+    """
     s = np.arange(-half_width, half_width + 1e-9, step_px)
-    x = m[:, 0:1] + s[None, :] * nrm[:, 0:1]  # (K, S) sample positions
-    y = m[:, 1:2] + s[None, :] * nrm[:, 1:2]
+    x = centres[:, 0:1] + s[None, :] * normals[:, 0:1]  # (K, S) sample positions
+    y = centres[:, 1:2] + s[None, :] * normals[:, 1:2]
     vals = _bilinear(gray, x.ravel(), y.ravel())
-    return vals.reshape(len(m), len(s))
+    return vals.reshape(len(centres), len(s))
 
 
 def _bilinear(gray: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
