@@ -177,9 +177,9 @@ def make_corner_session(
     (:mod:`handeye.sim.robot_error`); the rig is shrunk to the arm's reach
     (:func:`handeye.sim.robot_error.workspace_scale`), the camera-to-board distances with it, and only
     poses the true arm reaches within its joint limits are drawn (in one configuration where the views
-    allow; a rig where the arm cannot show the camera the board is drawn again). So a kinematic
-    session's geometry differs from the iid session of the same seed; its robot model comes from its own
-    random stream.
+    allow). A rig where the arm cannot show the camera the board is drawn again, with any robot error model.
+    So a kinematic session's geometry differs from the iid session of the same seed; its robot model comes
+    from its own random stream.
     ``view_options`` go to :func:`sample_view_poses` (distance_m, tilt_deg, roll_deg, ...).
     ``rig``: ``(T_x, T_board)`` to use instead of the seed's rig (a later session of one installed rig,
     e.g. with the camera bumped); ``robot_model_seed``: draw the kinematic arm from this seed's stream
@@ -242,8 +242,12 @@ def make_corner_session(
     if rig is not None:
         T_x, T_board = np.asarray(rig[0], float), np.asarray(rig[1], float)
     # a kinematic arm: 4 tries per rig (the first view's configuration, twice another view's, then any
-    # configuration per pose); a rig whose camera sees too little of what the arm reaches is drawn again
-    tries = 1 if kin is None else 4 if rig is not None else 12
+    # configuration per pose); a rig whose camera sees too little of what the arm reaches is drawn again, as
+    # is a fixed camera the arm cannot bring the board near enough to (a small target)
+    if rig is not None:
+        tries = 1 if kin is None else 4
+    else:
+        tries = 4 if kin is None else 12
     for attempt in range(tries):
         try:
             T_vis = sample_view_poses(
@@ -259,12 +263,13 @@ def make_corner_session(
             )
             break
         except ConfigError:
-            if kin is None or attempt == tries - 1:
+            if attempt == tries - 1:
                 raise
-            if attempt % 4 == 3:
+            if kin is None or attempt % 4 == 3:
                 setup = sample_setup(mode=mode, rng=geo, target=target, workspace_scale=scale)
                 T_x, T_board = setup["T_x"], setup["T_board"]
-            pose_ok = OneConfiguration(kin, any_configuration=attempt % 4 == 2)
+            if kin is not None:
+                pose_ok = OneConfiguration(kin, any_configuration=attempt % 4 == 2)
     T_true = np.empty((n_views, 4, 4))
     it = iter(T_vis)
     hid_rng = rngs["hidden"]

@@ -19,7 +19,7 @@ from handeye.mounting import mounting
 from handeye.sim import render, scenarios
 from handeye.sim.corners import make_corner_session
 from handeye.sim.vendor import write_vendor_session
-from handeye.targets import CharucoSpec, ChessboardSpec, CircleGridSpec
+from handeye.targets import CharucoSpec, ChessboardSpec, CircleGridSpec, MarkerSpec
 
 MODES = ("eye_in_hand", "eye_to_hand")
 
@@ -240,6 +240,26 @@ def test_a_rig_where_the_arm_cannot_show_the_board_is_drawn_again():
     assert not np.allclose(first["T_x"], s.T_x_true)
     assert all(len(ids) == s.target.n_corners for ids in s.corner_ids)
     assert all(board_in_image(s.target, s.intrinsics, T) for T in s.T_cam_board_true)
+
+
+def test_a_fixed_camera_the_arm_cannot_bring_a_small_marker_to_is_drawn_again():
+    """Seed 6021's first eye-to-hand rig puts the camera where no reachable flange holds the 48 mm marker 5-12 cm
+    in front of it (iid robot error: no arm model): the session is drawn on another rig, not refused."""
+    marker = MarkerSpec(0.048)
+    first = scenarios.sample_setup(mode="eye_to_hand", rng=scenarios.random_streams(6021)["geometry"], target=marker)
+    with pytest.raises(ConfigError, match="cannot place the board"):
+        scenarios.sample_view_poses(
+            mode="eye_to_hand",
+            n_views=14,
+            rng=scenarios.random_streams(6021)["geometry"],
+            T_x=first["T_x"],
+            T_board=first["T_board"],
+            target=marker,
+        )
+    s = make_corner_session(mode="eye_to_hand", n_views=14, seed=6021, target=marker, noise_px=0.0)
+    assert not np.allclose(first["T_x"], s.T_x_true)
+    assert all(len(ids) == 4 for ids in s.corner_ids)
+    assert all(scenarios.plausible_robot_pose(T) for T in s.T_base_end_true)
 
 
 def test_corner_session_rejects_bad_ids_and_levels():
