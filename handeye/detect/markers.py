@@ -8,7 +8,7 @@ ids the target holds count; a marker id seen twice (a second print in the scene)
 
 An AprilGrid's tag corners touch the gap squares: X junctions, which cornerSubPix finds without bias. A
 single marker's corners are L corners (dark square, light margin): blur and the pixels' area round them,
-and cornerSubPix settles inside the rounding, 0.1-0.2 px towards the marker. Its corners are then taken
+and cornerSubPix settles inside the rounding, 0.1-0.3 px towards the marker. Its corners are then taken
 where its two edges meet (:func:`edge_corners`): each edge is located across its grey-level step at every
 pixel along it, from beyond the rounding (three measured edge widths from the corner) to a short distance
 (over which lens distortion bends a line by far less than its noise), and a straight line is fitted.
