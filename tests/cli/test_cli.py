@@ -502,6 +502,15 @@ def test_help_loads_only_the_chosen_command():
         assert re.search(r"^  +--(?!help)", cap.stdout, re.M), command  # the module's own options are there
 
 
+def test_python_dash_m_handeye_is_the_command_with_its_exit_codes(tmp_path):
+    """``python -m handeye`` (a scripts folder off the PATH) runs the command and returns its exit code."""
+    cap = subprocess.run(
+        [sys.executable, "-m", "handeye", "calibrate", str(tmp_path / "none")], capture_output=True, text=True
+    )
+    assert cap.returncode == InputError.exit_code == 2, cap.stderr
+    assert cap.stderr.startswith("handeye: error: ") and "session not found" in cap.stderr
+
+
 def test_version_is_read_only_when_asked(capsys):
     """``handeye --version`` prints the installed version; ``--help`` and ``import handeye`` do not read it."""
     import importlib.metadata
