@@ -14,7 +14,9 @@ import os
 import sys
 import tempfile
 from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
+from typing import Iterator, Mapping, Optional
 
 import numpy as np
 
@@ -162,10 +164,48 @@ def hash_files(paths) -> str:
     return h.hexdigest()
 
 
+#: how the runs of this context are recorded when that is not this process's own way (:func:`recorded_as`)
+_RECORDED_AS: ContextVar[Optional[dict]] = ContextVar("handeye_recorded_as", default=None)
+
+
+@contextmanager
+def recorded_as(*, command_line: Optional[str] = None, paths: Optional[Mapping[str, str]] = None) -> Iterator[None]:
+    """Record the runs inside as their user started them.
+
+    ``command_line`` goes into their provenance, and every path inside a key of ``paths`` (a copy made for the
+    run) is recorded as the same path inside its value (the path the user gave). A batch's session process runs
+    each session as ``handeye calibrate`` does, but its own command line is the process's, and an uploaded
+    session is read from a temporary copy on its worker; neither names anything the reader of the result can find.
+    """
+    token = _RECORDED_AS.set({"command_line": command_line, "paths": dict(paths or {})})
+    try:
+        yield
+    finally:
+        _RECORDED_AS.reset(token)
+
+
+def recorded_path(path: str | Path) -> str:
+    """``path`` as the result files record it: inside the path the user gave where it is inside a run's copy."""
+    p = Path(path)
+    copies = (_RECORDED_AS.get() or {}).get("paths") or {}
+    for copy in sorted(copies, key=len, reverse=True):  # a longer path before one it starts with
+        if p == Path(copy) or p.is_relative_to(copy):
+            return str(Path(copies[copy]) / p.relative_to(copy))
+    return str(path)
+
+
+def command_line() -> str:
+    """The command line of the run as its user typed it (the program's name, not its path)."""
+    given = (_RECORDED_AS.get() or {}).get("command_line")
+    if given is not None:
+        return given
+    return " ".join([Path(sys.argv[0]).name] + sys.argv[1:]) if sys.argv else ""
+
+
 def provenance(*, inputs_sha256: str | None = None, extra: dict | None = None) -> dict:
     d = {
         "handeye_version": __version__,
-        "command_line": " ".join([Path(sys.argv[0]).name] + sys.argv[1:]) if sys.argv else "",
+        "command_line": command_line(),
         "time_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "python": sys.version.split()[0],
     }

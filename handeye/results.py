@@ -23,7 +23,7 @@ from .diagnose.findings import PAIRS_OUT_OF_STEP, ROOT_CAUSE_LABELS, is_out_of_s
 from .errors import HandeyeError, SessionRefused
 from .frames import pose_error, tangent_difference
 from .mounting import mounting
-from .output import hash_files, plain, provenance
+from .output import hash_files, plain, provenance, recorded_path
 from .records import Session
 
 FRAME_DOC = {
@@ -66,7 +66,7 @@ def observations_dict(run) -> dict:
             "corner_ids": ids.tolist(),
             "image_points_px": det.image_points.tolist(),
             "sharpness": det.sharpness,
-            "image": str(s.view(vid).image_path),
+            "image": recorded_path(s.view(vid).image_path),
         }
         for key in ("blur", "exposure"):
             if getattr(det, key, None) is not None:
@@ -85,7 +85,7 @@ def observations_dict(run) -> dict:
     failed = {}  # views without the target: why, and what detection measured of the image
     reasons = {o.view_id: o.reason for o in run.outcomes}
     for vid, f in run.failures.items():
-        failed[vid] = {"reason": reasons.get(vid, ""), "image": str(s.view(vid).image_path)}
+        failed[vid] = {"reason": reasons.get(vid, ""), "image": recorded_path(s.view(vid).image_path)}
         if getattr(f, "exposure", None) is not None:
             failed[vid]["exposure"] = f.exposure
     return {
@@ -211,7 +211,7 @@ def result_dict(run, *, mode_flag: Optional[str] = None) -> dict:
             )
     d["target"] = s.target.to_dict()
     d["session"] = {
-        "path": str(s.path),
+        "path": recorded_path(s.path),
         "format": s.format,
         "pose_format": s.pose_format,
         "intrinsics_given": s.intrinsics is not None,
@@ -423,7 +423,7 @@ def failed_load_result(session_path, err: HandeyeError, mode: Optional[str]) -> 
         "refined": False,
         "views": [],
         "n_views": {"total": 0, "used": 0},
-        "session": {"path": str(Path(session_path).resolve()), "format": "unreadable"},
+        "session": {"path": recorded_path(Path(session_path).resolve()), "format": "unreadable"},
         "provenance": provenance(),
     }
 

@@ -86,17 +86,26 @@ def _wait_for_previous_attempt(out_dir) -> None:
 
 
 def run(spec: dict) -> dict:
+    """The reply of one task ``spec``: a verification, a cell or a session, run as ``handeye`` runs it."""
+    from ..output import recorded_as
+
+    _wait_for_previous_attempt(spec["out_dir"])
+    # recorded as the user ran it: the batch's command line, and an uploaded session's paths as the client's
+    with recorded_as(command_line=spec.get("command_line"), paths=spec.get("recorded_paths")):
+        if spec.get("verify_against"):
+            return run_verify(spec)
+        if spec.get("layout") == "cell":
+            return run_cell(spec)
+        return _run_session(spec)
+
+
+def _run_session(spec: dict) -> dict:
     from ..errors import HandeyeError
     from ..options import refuse_pose_only_flags
     from ..workflow import calibrate_session
     from .run import calibrate_namespace
 
     cal = spec["calibrate"]
-    _wait_for_previous_attempt(spec["out_dir"])
-    if spec.get("verify_against"):
-        return run_verify(spec)
-    if spec.get("layout") == "cell":
-        return run_cell(spec)
     args = calibrate_namespace(cal)
     try:  # as handeye calibrate runs it (handeye.cli.calibrate.run)
         refuse_pose_only_flags(argparse.Namespace(**{**vars(args), "session": spec["session"]}))

@@ -27,10 +27,10 @@ from typing import Callable, Optional
 
 from ..contract import BatchRecord, validate_result, write_validated
 from ..errors import InputError, QAFailed
-from ..output import atomic_write_bytes, hash_files, write_json, writing
+from ..output import atomic_write_bytes, command_line, hash_files, write_json, writing
 from .discover import SessionJob
 from .process import SESSION_ENV, SESSIONS_PER_PROCESS, SessionProcess, _kill_group  # noqa: F401 (re-exported)
-from .upload import client_paths, read_tree, site_files, write_tree
+from .upload import client_paths, put_back_paths, read_tree, site_files, write_tree
 
 log = logging.getLogger(__name__)
 
@@ -283,10 +283,14 @@ def run_session(spec: dict) -> dict:
                 "session": str(session),
                 "out_dir": str(out),
                 "calibrate": calibrate,
+                "recorded_paths": paths,  # the result files name the client's paths too
             },
             out,
             paths=paths,
         )
+        log = out / LOG_NAME  # and so does the session's log
+        if log.is_file():
+            log.write_text(put_back_paths(log.read_text(errors="replace"), paths))
         return {**rec, "files": read_tree(out)}
 
 
@@ -416,6 +420,7 @@ def plan_batch(
                 **spec,
                 "key": key,
                 "calibrate": _canonical(calibrate),
+                "command_line": command_line(),  # the batch's, recorded in each result's provenance
                 "timeout_s": float(timeout_s),
                 "verify_against": job.verify_against,
                 "layout": job.layout,  # a cell runs handeye.cell.calibrate_cell

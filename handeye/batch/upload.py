@@ -56,20 +56,22 @@ def write_tree(folder: Path, files: dict, *, keep_prefix: str = "result.") -> No
 PATH_FIELDS = ("session", "reason", "export_error", "exported")
 
 
+def put_back_paths(text: str, paths: dict) -> str:
+    """``text`` with every path of ``paths`` (the worker's) written as its value (the client's)."""
+    for worker_path in sorted(paths, key=len, reverse=True):  # a longer path before one it starts with
+        text = text.replace(worker_path, paths[worker_path])
+    return text
+
+
 def client_paths(rec: dict, paths: dict) -> dict:
     """``rec`` with the paths ``paths`` names (the worker's -> the client's) replaced in :data:`PATH_FIELDS`.
 
     An uploaded session is calibrated in a temporary folder of the worker, gone by the time anyone reads the
     record: its reasons name the session, the output folder and the site files as the client gave them.
     """
-    order = sorted(paths, key=len, reverse=True)  # a longer path before one it starts with
 
     def put_back(text):
-        if not isinstance(text, str):
-            return text
-        for worker_path in order:
-            text = text.replace(worker_path, paths[worker_path])
-        return text
+        return put_back_paths(text, paths) if isinstance(text, str) else text
 
     return {
         k: ([put_back(t) for t in v] if isinstance(v, list) else put_back(v)) if k in PATH_FIELDS else v

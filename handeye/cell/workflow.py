@@ -25,7 +25,7 @@ from typing import Callable, Optional, Sequence
 
 from ..contract import RESULT_VERSION, write_result
 from ..errors import CalibrationError, HandeyeError, InputError, verdict_exit_code
-from ..output import FolderLock, check_out_dir, provenance, read_text, remove_stray_temps
+from ..output import FolderLock, check_out_dir, provenance, read_text, recorded_path, remove_stray_temps
 from ..pipeline import CalibrateOptions
 from ..session.fields import CELL_FILE, is_cell_folder
 from ..workflow import calibrate_session
@@ -212,7 +212,7 @@ def calibrate_cell(
         run_id = uuid.uuid4().hex
         res["run_id"] = run_id
         res["provenance"] = provenance(
-            extra={"sessions": {n: str(p.resolve()) for n, p in zip(names, paths, strict=True)}}
+            extra={"sessions": {n: recorded_path(p.resolve()) for n, p in zip(names, paths, strict=True)}}
         )
         res["provenance"]["run_id"] = run_id
         res["seconds"] = {

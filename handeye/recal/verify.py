@@ -241,14 +241,14 @@ def verify_session(
 
 def verify_dict(sv: SessionVerification) -> dict:
     """verify.json: the verification with its inputs and provenance."""
-    from ..output import provenance
+    from ..output import provenance, recorded_path
 
     d = sv.verification.to_dict()
     d = {
         "handeye_verify": 1,
         **d,
         "session": {
-            "path": sv.session_path,
+            "path": recorded_path(sv.session_path),
             "target": sv.target_text,
             "image_size": list(sv.image_size),
             "intrinsics": sv.intrinsics_source,

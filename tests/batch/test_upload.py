@@ -109,3 +109,53 @@ def test_an_uploaded_session_whose_files_were_lost_with_their_worker_is_sent_aga
     rec = json.loads((out / "cell" / "2026-03-01" / "batch.json").read_text())
     assert rec["outcome"] == "done" and rec["verdict"] == "FAIL", rec
     assert rec["reason"].startswith(f"{session / 'poses.txt'}:1: bad pose: expected 6 numbers"), rec["reason"]
+
+
+def test_an_uploaded_session_s_result_files_name_the_client_s_session_and_the_batch_command(tmp_path, monkeypatch):
+    """A session that calibrates, uploaded: result.json, observations.json, the reports and batch.log name the
+    session where the client has it (``handeye report`` there finds its images), and the provenance's command line
+    is the batch's, not the worker's session process; a cell's result names its cameras' sessions there. Without
+    --upload the command line is the batch's too."""
+    from handeye.sim.scenarios import default_intrinsics
+    from handeye.sim.vendor import write_vendor_session
+
+    monkeypatch.setenv("DASK_LOGGING__DISTRIBUTED", "warning")
+    root = tmp_path / "root"
+    session = write_vendor_session(
+        root / "cell" / "2026-03-02", n_views=8, seed=3, intrinsics=default_intrinsics(400, 300), supersample=2
+    )
+    two = root / "two_cameras"  # a cell of two cameras: its result's provenance names each camera's session
+    assert main(["simulate", str(two), "--cell", "2", "--views", "8", "--seed", "2"]) == 0
+    for upload in (True, False):
+        out = tmp_path / f"out_{upload}"
+        argv = ["batch", str(root), "--out", str(out), "--workers", "1"] + (["--upload"] if upload else ["--no-report"])
+        monkeypatch.setattr("sys.argv", ["/usr/local/bin/handeye", *argv])
+        assert main(argv) == 0
+        folder = out / "cell" / "2026-03-02"
+        res = json.loads((folder / "result.json").read_text())
+        assert res["session"]["path"] == str(session)
+        assert res["provenance"]["command_line"] == "handeye " + " ".join(argv)
+        obs = json.loads((folder / "observations.json").read_text())
+        assert {v["image"] for v in obs["views"].values()} == {str(session / f"{k}.jpg") for k in range(1, 9)}
+        written = [p for p in folder.rglob("*") if p.is_file() and p.suffix in (".json", ".log", ".md", ".html")]
+        assert len(written) >= (6 if upload else 4), written
+        assert not [p for p in written if "handeye-batch-" in p.read_text(errors="replace")]
+        cell = json.loads(next(out.rglob("two_cameras/result.json")).read_text())
+        assert cell["provenance"]["sessions"] == {c: str(two / c) for c in ("cam1", "cam2")}
+
+
+def test_recorded_paths_and_command_line_are_the_user_s_inside_recorded_as(monkeypatch):
+    """Inside ``recorded_as`` a path in a run's copy is recorded in the user's folder (the longest copy first), any
+    other path as it is, and the provenance's command line is the one given; outside, the process's own."""
+    from handeye.output import provenance, recorded_as, recorded_path
+
+    monkeypatch.setattr("sys.argv", ["/opt/venv/bin/handeye", "calibrate", "s1"])
+    copies = {"/scratch/tmp1/session": "/data/s1", "/scratch/tmp1/session/sub": "/elsewhere/sub"}
+    with recorded_as(command_line="handeye batch /data --out /qa", paths=copies):
+        assert recorded_path("/scratch/tmp1/session") == "/data/s1"
+        assert recorded_path("/scratch/tmp1/session/3.jpg") == "/data/s1/3.jpg"
+        assert recorded_path("/scratch/tmp1/session/sub/x.png") == "/elsewhere/sub/x.png"
+        assert recorded_path("/scratch/tmp1/session2/3.jpg") == "/scratch/tmp1/session2/3.jpg"  # not inside it
+        assert provenance()["command_line"] == "handeye batch /data --out /qa"
+    assert recorded_path("/scratch/tmp1/session/3.jpg") == "/scratch/tmp1/session/3.jpg"
+    assert provenance()["command_line"] == "handeye calibrate s1"
