@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import ConfigError, InputError
 from ..records import Detection, DetectionFailure
-from ..targets import TargetSpec
+from ..targets import MarkerSpec, TargetSpec
 from .board_size import (  # noqa: F401 (SizeSurvey, board_size_verdict, size_survey: re-exported)
     SizeSurvey,
     board_size_verdict,
@@ -37,7 +37,7 @@ from .charuco import detect_charuco
 from .chessboard import board_order, detect_chessboard, order_cue
 from .circlegrid import detect_circlegrid
 from .geometry import TimeBudget
-from .markers import detect_markers
+from .markers import detect_markers, marker_view_blur
 from .options import DetectionOptions, default_options
 from .quality import image_exposure, sharpness, thumbnail_jpeg, view_blur, view_exposure
 
@@ -165,15 +165,18 @@ def detect_image(
     thumb = thumbnail_jpeg(gray, width_px=o.thumbnail_width_px, quality=o.thumbnail_jpeg_quality)
     ids, pts = out
     cue = order_cue(gray, pts, target.cols, target.rows, ids) if target.kind == "chessboard" else float("nan")
-    blur = view_blur(
-        gray,
-        pts,
-        ids,
-        target.object_points(),
-        target.square_m,
-        charuco=target.kind == "charuco",
-        sharp_edge_sigma_px=o.sharp_edge_sigma_px,
-    )
+    if isinstance(target, MarkerSpec):  # one marker: its four sides, not a grid of squares
+        blur = marker_view_blur(gray, pts, target, sharp_edge_sigma_px=o.sharp_edge_sigma_px)
+    else:
+        blur = view_blur(
+            gray,
+            pts,
+            ids,
+            target.object_points(),
+            target.square_m,
+            charuco=target.kind == "charuco",
+            sharp_edge_sigma_px=o.sharp_edge_sigma_px,
+        )
     det = Detection(
         view_id=view_id,
         corner_ids=ids,

@@ -24,7 +24,7 @@ import numpy as np
 from ..config import load_preset
 from ..targets import AprilGridSpec, MarkerSpec
 from .options import DetectionOptions, default_options
-from .quality import edge_sigma_px, profiles_across
+from .quality import _median, blur_record, edge_sigma_px, profiles_across
 
 
 @lru_cache(maxsize=8)
@@ -150,6 +150,47 @@ def tag_ids(spec) -> np.ndarray:
     if isinstance(spec, MarkerSpec):
         return np.array([spec.marker_id])
     return spec.first_id + np.arange(spec.n_tags)
+
+
+def marker_blur(gray: np.ndarray, quad: np.ndarray, *, cell_px: float, sharp_edge_sigma_px: float) -> dict:
+    """The blur record of one isolated marker's view (:func:`handeye.detect.quality.view_blur`'s fields).
+
+    The edge width across the middle half of each side, every 2 px, in profiles that reach 0.45 of the border
+    cell each side (the black border and the white margin, not the code inside); per direction of the marker
+    (its top and bottom sides, its left and right ones) the median, the larger counting. ``square_px``: the
+    marker's side. Nothing is measured when the border cell is under 6.7 px (profiles of less than 3 px).
+    """
+    q = np.asarray(quad, float)
+    reach = 0.45 * cell_px
+    side = np.roll(q, -1, axis=0) - q  # side i runs from corner i to corner i+1
+    length = np.linalg.norm(side, axis=1)
+    if reach < 3.0 or np.any(length < 8.0):
+        return blur_record([], [], n_edges=0, square_px=float(np.mean(length)), sharp_edge_sigma_px=0.0)
+    widths: list[list[float]] = [[], []]
+    contrasts: list[list[float]] = [[], []]
+    for i in range(4):
+        d = side[i] / length[i]
+        f = np.arange(0.25, 0.75, 2.0 / length[i])
+        centres = q[i] + f[:, None] * side[i]
+        prof = profiles_across(gray, centres, np.broadcast_to([-d[1], d[0]], centres.shape), half_width=reach)
+        sig, con = edge_sigma_px(prof)
+        widths[i % 2] += sig.tolist()
+        contrasts[i % 2] += con.tolist()
+    meds, cons = [], []
+    for w, c in zip(widths, contrasts, strict=True):
+        w_, c_ = np.asarray(w), np.asarray(c)
+        good = c_ > 0.3 * _median(c_)
+        if good.sum() >= 2:
+            meds.append(_median(w_[good]))
+            cons.append(_median(c_[good]))
+    return blur_record(meds, cons, n_edges=4, square_px=float(np.mean(length)), sharp_edge_sigma_px=sharp_edge_sigma_px)
+
+
+def marker_view_blur(gray: np.ndarray, pts: np.ndarray, spec: MarkerSpec, *, sharp_edge_sigma_px: float) -> dict:
+    """:func:`marker_blur` of the marker ``spec`` whose corners (4,2) are ``pts``."""
+    return marker_blur(
+        gray, pts, cell_px=_border_cell_px(np.asarray(pts, float)[None], spec), sharp_edge_sigma_px=sharp_edge_sigma_px
+    )
 
 
 def detect_markers(

@@ -171,15 +171,22 @@ def view_blur(
         if good.sum() >= 2:
             meds.append(float(_median(sig[good])))
             contrasts.append(float(_median(con[good])))
-    if not meds:
+    return blur_record(meds, contrasts, n_edges=len(a), square_px=float(_median(spacing)), sharp_edge_sigma_px=sharp)
+
+
+def blur_record(
+    medians: list[float], contrasts: list[float], *, n_edges: int, square_px: float, sharp_edge_sigma_px: float
+) -> dict:
+    """A view's blur record from its per-direction median edge widths and contrasts (the larger width counts)."""
+    if not medians:
         return dict(_NAN_BLUR)
-    e = max(meds)
+    e = max(medians)
     return {
         "edge_sigma_px": e,
-        "blur_sigma_px": float(np.sqrt(max(e**2 - sharp**2, 0.0))),
+        "blur_sigma_px": float(np.sqrt(max(e**2 - sharp_edge_sigma_px**2, 0.0))),
         "contrast": float(_median(contrasts)),
-        "n_edges": int(len(a)),
-        "square_px": float(_median(spacing)),
+        "n_edges": int(n_edges),
+        "square_px": float(square_px),
     }
 
 

@@ -184,3 +184,23 @@ def test_rendered_marker_sessions_calibrate(tmp_path, target, mode):
     assert err_mm < 4 * np.linalg.norm(sig["sigma_trans_mm"]) + 0.05, (err_mm, sig["sigma_trans_mm"])
     assert err_deg < 4 * np.linalg.norm(sig["sigma_rot_deg"]) + 0.01, (err_deg, sig["sigma_rot_deg"])
     assert res["target"]["type"] == target and out is not None
+
+
+def test_a_single_marker_view_s_blur_is_measured_across_its_sides(tmp_path):
+    """The blur record of a lone marker's views (profiles inside its border cell and margin, not across the code):
+    the rendered blur to 0.1 px, the marker's side as its square. Profiles reaching a third of the side into the
+    code gave no value (NaN) or a wrong one on some views."""
+    import cv2
+
+    from handeye.detect import detect_image
+
+    spec = MarkerSpec(0.06)
+    s = make_corner_session(n_views=4, seed=3, noise_px=0.0, target=spec, intrinsics=SMALL)
+    for blur in (1.0, 2.0):
+        for k in range(4):
+            img = render.render_view(spec, SMALL, s.T_cam_board_true[k], blur_sigma_px=blur)
+            cv2.imwrite(str(tmp_path / f"{k}.png"), img.astype(np.uint8))
+            det = detect_image(str(k), tmp_path / f"{k}.png", spec)
+            side = np.linalg.norm(np.roll(s.image_points[k], -1, axis=0) - s.image_points[k], axis=1).mean()
+            assert abs(det.blur["blur_sigma_px"] - blur) < 0.1, (blur, k, det.blur)
+            assert det.blur["n_edges"] == 4 and abs(det.blur["square_px"] - side) < 1.0
