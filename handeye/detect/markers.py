@@ -59,13 +59,16 @@ def subpix_half_window_px(corners: np.ndarray, spec, *, share: float, lo: int, h
     return int(np.clip(np.floor(share * feature), lo, hi))
 
 
-def _edge_points(gray: np.ndarray, P: np.ndarray, Q: np.ndarray, *, reach_px: float, far_px: float) -> np.ndarray:
+def _edge_points(
+    gray: np.ndarray, P: np.ndarray, Q: np.ndarray, R: np.ndarray, *, reach_px: float, far_px: float
+) -> np.ndarray:
     """Points (K,2) of the edge from corner ``P`` towards ``Q``, one per pixel along it, beyond the corner's rounding.
 
     Each point is where the grey-level profile across the edge crosses halfway between its two plateaus
-    (``reach_px`` each side): the edge's own position for any symmetric blur. Points within three
-    measured edge widths of ``P`` are left out (the other edge's blur reaches them), as are profiles
-    leaving the image, with a weak step or with more than one crossing.
+    (``reach_px`` each side): the edge's own position for any symmetric blur of a linear camera response. Left
+    out: profiles leaving the image, with a weak step, with more than one crossing, or dark on the side away
+    from the marker (another edge), and profiles whose nearest sample lies within three measured edge widths
+    of the corner's other edge (towards ``R``; at an acute corner the profile's inner end comes nearest).
     """
     L = float(np.linalg.norm(Q - P))
     d = (Q - P) / max(L, 1e-9)
@@ -91,30 +94,45 @@ def _edge_points(gray: np.ndarray, P: np.ndarray, Q: np.ndarray, *, reach_px: fl
     mid = 0.5 * (lo + hi)
     frac = np.clip((mid - p0) / np.where(np.abs(p1 - p0) > 1e-9, p1 - p0, 1.0), 0.0, 1.0)
     t = -reach_px + step * (j - 1 + frac)
-    good = inside & one_crossing & (contrast > 0.5 * np.median(contrast))
+    e = (R - P) / max(float(np.linalg.norm(R - P)), 1e-9)  # the corner's other edge
+    dark_inside = np.sign(hi - lo) == -np.sign(n @ e)  # the profile runs along +n; the marker lies towards e
+    good = inside & one_crossing & dark_inside & (contrast > 0.5 * _median(contrast))
     if good.sum() < 6:
         return np.zeros((0, 2))
-    width = float(np.median(edge_sigma_px(prof[good], step_px=step)[0]))
-    good &= s >= 3.0 * width
+    width = _median(edge_sigma_px(prof[good], step_px=step)[0])
+    cos_t = float(np.clip(d @ e, -1.0, 1.0))
+    good &= s * np.sqrt(1.0 - cos_t**2) - reach_px * max(cos_t, 0.0) >= 3.0 * width
     return (centres + t[:, None] * n[None])[good]
 
 
 def _line(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """(a point, unit direction) of the total-least-squares line through ``points``, refitted without outliers.
+    """(a point, unit direction) of the total-least-squares line through ``points`` without its outliers.
 
-    A point more than 3 robust sigmas (1.4826 MAD of the distances, at least 0.05 px) off the first fit is
-    left out of the second (a speck of dirt or a glint on the edge).
+    It starts from the least-median-of-squares line through two of the points, which a cluster of bad points
+    (a glint or a speck of dirt on the edge) cannot tilt: points further from it than 3 robust sigmas (1.4826
+    median distances), and at least 0.25 px, are left out. Then the line is fitted to the points kept and
+    the points within 3 robust sigmas of it (at least 0.05 px) are kept, until they no longer change.
     """
-    for _ in range(2):
-        if len(points) < 6:
+    if len(points) < 6:
+        return None
+    a, b = np.triu_indices(len(points), 1)
+    if len(a) > 300:  # an even subset of the pairs: a good pair is among them unless most points are bad
+        a, b = a[:: len(a) // 300 + 1], b[:: len(b) // 300 + 1]
+    dv = points[b] - points[a]
+    nv = np.stack([-dv[:, 1], dv[:, 0]], axis=1) / np.maximum(np.linalg.norm(dv, axis=1, keepdims=True), 1e-9)
+    dist = np.abs(nv @ points.T - np.sum(nv * points[a], axis=1)[:, None])  # (pairs, points)
+    dist = dist[int(np.argmin(np.median(dist, axis=1)))]
+    keep = dist <= max(3.0 * 1.4826 * _median(dist), 0.25)
+    for _ in range(8):
+        if keep.sum() < 6:
             return None
-        c = points.mean(axis=0)
-        u = np.linalg.svd(points - c)[2][0]
+        c = points[keep].mean(axis=0)
+        u = np.linalg.svd(points[keep] - c)[2][0]
         dist = np.abs((points - c) @ np.array([-u[1], u[0]]))
-        keep = dist <= 3.0 * max(1.4826 * float(np.median(dist)), 0.05)
-        if keep.all():
+        new = dist <= 3.0 * max(1.4826 * _median(dist[keep]), 0.05)
+        if np.array_equal(new, keep):
             break
-        points = points[keep]
+        keep = new
     return c, u
 
 
@@ -133,7 +151,11 @@ def edge_corners(gray: np.ndarray, quad: np.ndarray, *, cell_px: float, far_px: 
     for _ in range(2):
         out = q.copy()
         for i in range(4):
-            lines = [_line(_edge_points(img, q[i], q[j], reach_px=reach, far_px=far_px)) for j in ((i + 1) % 4, i - 1)]
+            nxt, prv = q[(i + 1) % 4], q[i - 1]
+            lines = [
+                _line(_edge_points(img, q[i], nxt, prv, reach_px=reach, far_px=far_px)),
+                _line(_edge_points(img, q[i], prv, nxt, reach_px=reach, far_px=far_px)),
+            ]
             if lines[0] is None or lines[1] is None:
                 continue
             (c1, u1), (c2, u2) = lines
