@@ -24,7 +24,7 @@ import numpy as np
 from ..config import load_preset
 from ..targets import AprilGridSpec, MarkerSpec
 from .options import DetectionOptions, default_options
-from .quality import _median, blur_record, edge_sigma_px, profiles_across
+from .quality import blur_record, edge_sigma_px, median_1d, profiles_across
 
 
 @lru_cache(maxsize=8)
@@ -96,10 +96,10 @@ def _edge_points(
     t = -reach_px + step * (j - 1 + frac)
     e = (R - P) / max(float(np.linalg.norm(R - P)), 1e-9)  # the corner's other edge
     dark_inside = np.sign(hi - lo) == -np.sign(n @ e)  # the profile runs along +n; the marker lies towards e
-    good = inside & one_crossing & dark_inside & (contrast > 0.5 * _median(contrast))
+    good = inside & one_crossing & dark_inside & (contrast > 0.5 * median_1d(contrast))
     if good.sum() < 6:
         return np.zeros((0, 2))
-    width = _median(edge_sigma_px(prof[good], step_px=step)[0])
+    width = median_1d(edge_sigma_px(prof[good], step_px=step)[0])
     cos_t = float(np.clip(d @ e, -1.0, 1.0))
     good &= s * np.sqrt(1.0 - cos_t**2) - reach_px * max(cos_t, 0.0) >= 3.0 * width
     return (centres + t[:, None] * n[None])[good]
@@ -122,14 +122,14 @@ def _line(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     nv = np.stack([-dv[:, 1], dv[:, 0]], axis=1) / np.maximum(np.linalg.norm(dv, axis=1, keepdims=True), 1e-9)
     dist = np.abs(nv @ points.T - np.sum(nv * points[a], axis=1)[:, None])  # (pairs, points)
     dist = dist[int(np.argmin(np.median(dist, axis=1)))]
-    keep = dist <= max(3.0 * 1.4826 * _median(dist), 0.25)
+    keep = dist <= max(3.0 * 1.4826 * median_1d(dist), 0.25)
     for _ in range(8):
         if keep.sum() < 6:
             return None
         c = points[keep].mean(axis=0)
         u = np.linalg.svd(points[keep] - c)[2][0]
         dist = np.abs((points - c) @ np.array([-u[1], u[0]]))
-        new = dist <= 3.0 * max(1.4826 * _median(dist[keep]), 0.05)
+        new = dist <= 3.0 * max(1.4826 * median_1d(dist[keep]), 0.05)
         if np.array_equal(new, keep):
             break
         keep = new
@@ -201,10 +201,10 @@ def marker_blur(gray: np.ndarray, quad: np.ndarray, *, cell_px: float, sharp_edg
     meds, cons = [], []
     for w, c in zip(widths, contrasts, strict=True):
         w_, c_ = np.asarray(w), np.asarray(c)
-        good = c_ > 0.3 * _median(c_)
+        good = c_ > 0.3 * median_1d(c_)
         if good.sum() >= 2:
-            meds.append(_median(w_[good]))
-            cons.append(_median(c_[good]))
+            meds.append(median_1d(w_[good]))
+            cons.append(median_1d(c_[good]))
     return blur_record(meds, cons, n_edges=4, square_px=float(np.mean(length)), sharp_edge_sigma_px=sharp_edge_sigma_px)
 
 
