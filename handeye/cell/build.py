@@ -362,9 +362,23 @@ def cell_result(cr: CellRefinement, solos: dict[str, dict], runs: dict, *, versi
 
 
 def _headline(verdict: str, cameras: dict, findings: list[dict]) -> str:
+    """The cell's verdict, each camera's, and why.
+
+    For a FAIL every failing cell finding and every failing camera's own headline (its cause), else the first
+    cell finding.
+    """
     parts = [f"{n} {c.get('verdict', 'FAIL')}" for n, c in cameras.items()]
     lead = f"Cell of {len(cameras)} cameras: {verdict}"
-    extra = f"; {findings[0]['title']}" if findings else ""
+    if verdict == "FAIL":
+        why = [str(f["title"]) for f in findings if f["severity"] == "fail"]
+        why += [
+            f"{n}: {str(c.get('verdict_headline') or c.get('failure_reason') or '').rstrip('.')}"
+            for n, c in cameras.items()
+            if c.get("verdict") == "FAIL" and (c.get("verdict_headline") or c.get("failure_reason"))
+        ]
+    else:
+        why = [str(findings[0]["title"])] if findings else []
+    extra = "; " + "; ".join(why) if why else ""
     return f"{lead} ({', '.join(parts)}){extra}."
 
 

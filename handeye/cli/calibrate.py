@@ -327,6 +327,8 @@ def run_cell(args, sessions: list) -> int:
 
 def format_cell_summary(res: dict, result_path: Path, report_paths=()) -> str:
     """The lines ``handeye calibrate`` prints for a cell: each camera's X and sigma, the pairs, the findings."""
+    from .verdict import problem_lines
+
     lines = [str(res.get("verdict_headline", ""))]
     for name, c in res["cameras"].items():
         if c.get("status") != "ok":
@@ -340,6 +342,7 @@ def format_cell_summary(res: dict, result_path: Path, report_paths=()) -> str:
             f"(1-sigma {s[0]:.3f} {s[1]:.3f} {s[2]:.3f}), {c.get('verdict')}; solo vs joint Mahalanobis "
             f"{agree.get('mahalanobis', float('nan')):.2f}"
         )
+        lines += ["  " + line for line in problem_lines(c)]  # the camera's own checks and findings, with fixes
     for p in (res.get("camera_pairs") or {}).values():
         t, s = p["translation_mm"], p["sigma_trans_mm"]
         lines.append(
@@ -347,7 +350,8 @@ def format_cell_summary(res: dict, result_path: Path, report_paths=()) -> str:
             f"{s[2]:.3f}), rotation 1-sigma [deg] {' '.join(f'{x:.4f}' for x in p['sigma_rot_deg'])}"
         )
     for f in res.get("findings") or []:
-        lines.append(f"  {f['severity'].upper()} {f['title']}: {f['evidence']}")
+        if f.get("camera") not in res["cameras"]:  # a camera's own is among its lines above
+            lines.append(f"  {f['severity'].upper()} {f['title']}: {f['evidence']}")
     lines.append(f"result: {result_path}")
     for p in report_paths:
         lines.append(f"report: {p}")

@@ -48,6 +48,11 @@ def verdict_lines(res: dict) -> list[str]:
     return lines + _item_lines(res, checks=res.get("status") == "ok")
 
 
+def problem_lines(res: dict) -> list[str]:
+    """Every failing or warning QA check and finding of a result with a matrix, worst first, with its fix."""
+    return _item_lines(res, checks=True)
+
+
 def finding_lines(res: dict, *, skip=()) -> list[str]:
     """Every failing or warning finding (not the QA checks), except the codes in ``skip``."""
     return _item_lines(res, checks=False, skip=skip)

@@ -74,3 +74,23 @@ def test_each_cameras_solo_result_against_the_joint_one(ur3_cell):
         assert a["inside_95"] and a["trans_mm"] < 5.0 and a["rot_deg"] < 1.0, a
         named = [f for f in res["findings"] if f["code"] == "cell_solo_disagrees" and f.get("camera") == name]
         assert bool(named) == (a["p_value"] < 0.01)
+
+
+def test_the_printed_summary_gives_each_camera_s_checks_and_findings_with_their_fixes_once(ur3_cell):
+    """Each camera's failing and warning checks and findings are printed under its line, with their fixes, and
+    none twice; a FAIL's headline gives each failing camera's own cause (the cell's first finding was a warning)."""
+    from handeye.cli.calibrate import format_cell_summary
+    from handeye.cli.verdict import problem_lines
+
+    res = ur3_cell.result
+    text = format_cell_summary(res, ur3_cell.out_dir / "result.json")
+    lines = text.splitlines()
+    for name, cam in res["cameras"].items():
+        own = problem_lines(cam)
+        assert own, name  # this noisy real set warns on both cameras at least
+        at = next(i for i, line in enumerate(lines) if line.startswith(f"  {name} "))
+        assert lines[at + 1 : at + 1 + len(own)] == ["  " + line for line in own], (name, text)
+        for line in own:
+            assert text.count(line.strip()) == 1, line
+        if cam["verdict"] == "FAIL":
+            assert "-> fix:" in "".join(own) and f"{name}: " in res["verdict_headline"], res["verdict_headline"]

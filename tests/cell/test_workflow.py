@@ -171,3 +171,21 @@ def test_a_simulated_check_of_a_cameras_kinematic_install_reads_the_arms_joints(
     assert rc == (9 if check["drifted"] else 0) and "(camera cam1)" in check["against"]
     records = [yaml.safe_load(p.read_text()) for p in sorted((tmp_path / "cam1" / "views").glob("*.yaml"))]
     assert len(records) >= 4 and all(len(v["joints"]) == 6 for v in records)
+
+
+def test_a_failing_cell_s_headline_gives_each_failing_camera_s_own_cause():
+    """A cell that fails because its cameras fail (its own findings only warn) says why in its headline."""
+    from handeye.cell.build import _headline
+
+    cameras = {
+        "cam1": {"verdict": "FAIL", "verdict_headline": "Squares look like 19.7 mm, not 20 mm. T_base_cam fails QA."},
+        "cam2": {"verdict": "WARN", "verdict_headline": "T_base_cam passes with warnings."},
+    }
+    warn = [{"severity": "warn", "title": "Every camera disagrees with the reported robot pose of view 1"}]
+    head = _headline("FAIL", cameras, warn)
+    assert head == "Cell of 2 cameras: FAIL (cam1 FAIL, cam2 WARN); cam1: Squares look like 19.7 mm, not 20 mm. " + (
+        "T_base_cam fails QA."
+    )
+    assert _headline("WARN", {"cam2": cameras["cam2"]}, warn) == (
+        "Cell of 1 cameras: WARN (cam2 WARN); Every camera disagrees with the reported robot pose of view 1."
+    )
