@@ -16,12 +16,15 @@ from __future__ import annotations
 import json
 import logging
 import re
+import shutil
 import time
 import uuid
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Optional, Sequence
+
+import numpy as np
 
 from ..contract import RESULT_VERSION, write_result
 from ..errors import CalibrationError, HandeyeError, InputError, verdict_exit_code
@@ -107,6 +110,46 @@ def camera_names(session_paths: Sequence) -> list[str]:
     return names
 
 
+def check_cell_sessions(paths: Sequence[Path], names: Sequence[str], *, mode=None, allow_outside=False) -> None:
+    """Read every camera's session and compare the robot poses of the view ids they share, before any work.
+
+    A missing or unreadable session, or one view id at two robot poses, is an InputError naming the file;
+    nothing has been calibrated or written then.
+    """
+    from ..refine.cell import robot_pose_conflict
+    from ..session import load_session
+
+    seen: dict[str, tuple[str, np.ndarray]] = {}
+    for name, p in zip(names, paths, strict=True):
+        if not Path(p).exists():
+            raise InputError(
+                f"camera {name}: its session folder is not there",
+                path=p,
+                hint="the cell's list (cell.yaml or the command line) names a folder that does not exist: "
+                "fix the name or add the folder",
+            )
+        s = load_session(p, mode=mode, allow_outside=allow_outside, check_sizes=False)
+        folder = Path(s.path)
+        pose_file = next((f for f in (folder / "session.yaml", folder / "poses.txt") if f.is_file()), folder)
+        for v in s.views:
+            if v.view_id in seen:
+                conflict = robot_pose_conflict(v.view_id, name, seen[v.view_id][1], v.T_base_end, path=pose_file)
+                if conflict is not None:
+                    raise conflict
+            else:
+                seen[v.view_id] = (name, np.asarray(v.T_base_end, float))
+
+
+def _remove_other_cameras(solo_dir: Path, names: Sequence[str]) -> None:
+    """Remove an earlier run's results of cameras this cell does not have (their folders hold a result.json)."""
+    if not solo_dir.is_dir():
+        return
+    for d in solo_dir.iterdir():
+        if d.is_dir() and d.name not in names and (d / "result.json").is_file():
+            log.info("removing %s: a camera of an earlier cell in this folder, not of this one", d)
+            shutil.rmtree(d)
+
+
 def _detect_ahead(path: Path, options: CalibrateOptions, mode: Optional[str], allow_outside: bool):
     """A camera's session read and its images detected ahead of its calibration.
 
@@ -160,11 +203,20 @@ def calibrate_cell(
         paths, robot = read_cell_file(paths[0])
         if robot is not None and options.refine_options.get("arm") is None:
             options = replace(options, refine_options={**options.refine_options, "arm": robot})
+    if len(paths) < 2:
+        raise InputError(
+            "a cell needs two cameras or more",
+            path=paths[0],
+            received=f"{len(paths)} session",
+            hint=f"calibrate it as one session (handeye calibrate {paths[0]}), or list the other cameras",
+        )
     names = camera_names(paths)
+    check_cell_sessions(paths, names, mode=mode, allow_outside=allow_outside)
     load_qa(qa)  # a bad site QA file is unusable input: say so before any work
     out = check_out_dir(out_dir)
     with FolderLock(out):
         remove_stray_temps(out)
+        _remove_other_cameras(out / SOLO_DIR, names)
         solos = {}
         # one thread detects the cameras' images in turn, ahead of their calibrations (detection releases the
         # GIL): the next camera's images are detected while one camera is calibrated

@@ -118,6 +118,24 @@ def _board_turn(c: CellCameraInput, T_board_ref: np.ndarray) -> Optional[np.ndar
     return None if np.array_equal(best[1], np.arange(len(best[1]))) else best[1]
 
 
+def robot_pose_conflict(view_id: str, camera: str, T_ref: np.ndarray, T: np.ndarray, *, path=None):
+    """The error of a view whose robot pose ``T`` in ``camera``'s session is not ``T_ref``, another camera's, or None.
+
+    A cell's cameras see the arm at one pose per view id: the poses must agree to 1e-6 rad and 1e-6 m (what a
+    pose file's six decimals in metres hold). ``path``: the camera's pose file, named in the error.
+    """
+    d = tangent_difference(T_ref, T)
+    if np.linalg.norm(d[:3]) <= 1e-6 and np.linalg.norm(d[3:]) <= 1e-6:
+        return None
+    return InputError(
+        f"view {view_id}: camera {camera} has another robot pose than the cell's other cameras",
+        path=path,
+        expected="one robot pose per view id in every session of the cell",
+        received=f"{np.degrees(np.linalg.norm(d[:3])):.4g} deg, {1e3 * np.linalg.norm(d[3:]):.4g} mm",
+        hint="views with the same id must be taken at the same robot pose; rename the others",
+    )
+
+
 class CellState:
     """The solver state of a cell: cameras, boards, the union of views (one robot pose each), noise levels."""
 
@@ -130,15 +148,9 @@ class CellState:
             for v in c.views:
                 T = np.asarray(v.T_base_end, float)
                 if v.view_id in rep:
-                    d = tangent_difference(rep[v.view_id], T)
-                    if np.linalg.norm(d[:3]) > 1e-6 or np.linalg.norm(d[3:]) > 1e-6:
-                        raise InputError(
-                            f"view {v.view_id}: camera {c.name} has another robot pose than the cell's other cameras",
-                            expected="one robot pose per view id in every session of the cell",
-                            received=f"{np.degrees(np.linalg.norm(d[:3])):.4g} deg, "
-                            f"{1e3 * np.linalg.norm(d[3:]):.4g} mm",
-                            hint="views with the same id must be taken at the same robot pose; rename the others",
-                        )
+                    conflict = robot_pose_conflict(v.view_id, c.name, rep[v.view_id], T)
+                    if conflict is not None:
+                        raise conflict
                     continue
                 ids.append(v.view_id)
                 rep[v.view_id] = T

@@ -126,6 +126,51 @@ def test_two_sessions_of_one_name_are_refused(cell, tmp_path):
     assert main(["-q", "calibrate", str(folder / "cam1"), str(folder / "cam2")]) == 2  # a cell needs --out
 
 
+def test_a_cell_s_sessions_are_checked_before_any_camera_is_calibrated(cell, tmp_path):
+    """A camera folder that is not there, one view id at two robot poses, a pose that is NaN, a cell of one camera:
+    each one line naming its file (exit 2) before any camera is calibrated, and no output folder. Before, the first
+    three came after the other cameras' calibrations, which they left in OUT/solo."""
+    folder, _out, _rc = cell
+    cases = {}
+    for case in ("missing", "moved", "nan", "one"):
+        c = cases[case] = tmp_path / case
+        shutil.copytree(folder, c)
+    (cases["missing"] / "cell.yaml").write_text("cell: {sessions: [cam1, cam2, cam7]}\n")
+    for case, edit in (("moved", lambda pose: pose[0] + 0.05), ("nan", lambda pose: float("nan"))):
+        f = cases[case] / "cam2" / "session.yaml"
+        doc = yaml.safe_load(f.read_text())
+        doc["views"][4]["pose"][0] = edit(doc["views"][4]["pose"])
+        f.write_text(yaml.safe_dump(doc, sort_keys=False))
+    (cases["one"] / "cell.yaml").write_text("cell: {sessions: [cam1]}\n")
+    expected = {
+        "missing": ("cam7", "camera cam7: its session folder is not there"),
+        "moved": ("cam2/session.yaml", "view 5: camera cam2 has another robot pose than the cell's other cameras"),
+        "nan": ("cam2/session.yaml", "not a usable number"),
+        "one": ("cam1", "a cell needs two cameras or more"),
+    }
+    for case, (path, what) in expected.items():
+        out = tmp_path / f"out_{case}"
+        with pytest.raises(InputError, match=what) as e:
+            calibrate_cell([cases[case]], out, report=False)
+        assert str(e.value).startswith(str(cases[case] / path)), (case, str(e.value))
+        assert not out.exists(), case
+        assert main(["-q", "calibrate", str(cases[case]), "--out", str(out)]) == 2 and not out.exists()
+
+
+def test_an_earlier_cell_s_camera_is_not_left_beside_this_cell_s(cell, tmp_path):
+    """Calibrating a cell of two cameras into the folder of an earlier three-camera result removes the third
+    camera's solo result (a folder of this cell's result that names no camera of it); other folders stay."""
+    folder, out, _rc = cell
+    again = tmp_path / "result"
+    shutil.copytree(out, again)
+    (again / "solo" / "notes").mkdir()
+    two = tmp_path / "two"
+    shutil.copytree(folder, two)
+    (two / "cell.yaml").write_text("cell: {sessions: [cam1, cam2]}\n")
+    calibrate_cell([two], again, report=False, diagnostics=False)
+    assert sorted(p.name for p in (again / "solo").iterdir()) == ["cam1", "cam2", "notes"]
+
+
 def test_a_camera_that_cannot_be_calibrated_leaves_the_cell_with_a_finding(cell, tmp_path):
     folder, _out, _rc = cell
     broken = tmp_path / "cam9"
