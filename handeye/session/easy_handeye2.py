@@ -87,7 +87,7 @@ def read_samples(
     if len(d["samples"]) < 3:
         raise InputError(f"{len(d['samples'])} samples; at least 3 are needed", path=path)
     pairs = []
-    for k, s in enumerate(d["samples"]):
+    for k, s in enumerate(d["samples"], start=1):  # sample k is view k of the session, as MoveIt's are
         if not isinstance(s, dict) or "robot" not in s or not ("tracking" in s or "optical" in s):
             raise InputError(f"sample {k}: needs robot and tracking transforms", path=path, received=repr(s)[:80])
         robot = _transform(s["robot"], path=path, where=f"sample {k} robot")

@@ -216,11 +216,20 @@ def length_m(value, *, path: Path, field: str, strict: bool = True) -> float:
 
 
 def check_translation_units(
-    T_base_end: np.ndarray, *, path: Path, line: int | None, unit: str, or_state: str = ""
+    T_base_end: np.ndarray,
+    *,
+    path: Path,
+    line: int | None,
+    unit: str,
+    or_state: str = "",
+    where: str = "",
+    tracked: bool = False,
 ) -> None:
     """A robot position farther from the base than an arm reaches means the unit is wrong.
 
-    ``or_state``: where the file's format could say so instead (a vendor config.yaml).
+    ``or_state``: where the file's format could say so instead (a vendor config.yaml). ``where``: the view or
+    sample, said first. ``tracked``: ``T_base_end`` is a tracker's camera -> target pose (a pose-only view's
+    ``target_pose``), checked against the same distance.
     """
     dist = float(np.linalg.norm(T_base_end[:3, 3]))
     reach = session_limits()["max_reach_m"]
@@ -231,11 +240,14 @@ def check_translation_units(
             if unit == "m"
             else "check translation_unit"
         )
+        what = (
+            f"target position {dist:.1f} m from the camera" if tracked else f"robot position {dist:.1f} m from the base"
+        )
         raise InputError(
-            f"robot position {dist:.1f} m from the base is not plausible",
+            f"{where + ': ' if where else ''}{what} is not plausible",
             path=path,
             line=line,
-            expected=f"metres (an arm reaches < {reach:g} m)",
+            expected=f"metres ({'a tracked target is' if tracked else 'an arm reaches'} < {reach:g} m away)",
             hint=hint,
         )
 

@@ -462,8 +462,9 @@ def write_pose_only_session(
     from .fields import check_translation_units
 
     out = Path(out)
-    for T, _ in pairs:  # millimetres written as metres: said here, naming the samples file, not at calibrate
-        check_translation_units(T, path=Path(source["file"]), line=None, unit="m")
+    for k, (T, C) in enumerate(pairs, start=1):  # millimetres written as metres: said here, naming the samples file
+        check_translation_units(T, path=Path(source["file"]), line=None, unit="m", where=f"sample {k}")
+        check_translation_units(C, path=Path(source["file"]), line=None, unit="m", where=f"sample {k}", tracked=True)
     kept: list[tuple[np.ndarray, np.ndarray]] = []
     repeats = []  # a sample saved twice is no second view: it would count its information twice
     for k, pair in enumerate(pairs, start=1):
@@ -473,6 +474,13 @@ def write_pose_only_session(
             kept.append(pair)
     if repeats:
         log.warning("%s: sample(s) %s repeat an earlier one exactly: left out", source["file"], ", ".join(repeats))
+    if len(kept) < 3:
+        raise InputError(
+            f"{len(kept)} distinct sample(s); at least 3 are needed",
+            path=Path(source["file"]),
+            received=f"{len(pairs)} samples" + (f", {len(repeats)} of them repeats" if repeats else ""),
+            hint="record at least 3 samples at different robot poses (15 or more for a good calibration)",
+        )
     check_import_out(out, force=force)
     doc: dict[str, Any] = {
         "handeye_session": 1,

@@ -130,11 +130,12 @@ def read_native_document(path: Path) -> NativeDocument:
             )
         for key in ("id",) if "target_pose" in e.data else ("id", "image"):
             if key not in e.data:
+                where = f"view {e.data['id']}" if isinstance(e.data.get("id"), str) else "a view"
                 raise ConfigError(
-                    f"view is missing {key!r}",
+                    f"{where} is missing {key!r}" + (" (or a tracker's target_pose)" if key == "image" else ""),
                     path=e.source,
                     received=repr(e.data)[:80],
-                    expected="id, image, pose (or pose_file)",
+                    expected="id, image, pose (or pose_file); a pose-only view: id, pose, target_pose",
                 )
         vid = e.data["id"]
         if not isinstance(vid, str) or not vid.strip():
@@ -148,8 +149,14 @@ def read_native_document(path: Path) -> NativeDocument:
                 received=repr(vid)[:60],
                 expected="a text without /, \\ or control characters (it names the view's files)",
             )
-        if "target_pose" in e.data:
-            pass  # a pose-only view: no image (target_pose is read by view_target_pose)
+        if "target_pose" in e.data:  # a pose-only view: no image (target_pose is read by view_target_pose)
+            if "image" in e.data:
+                raise ConfigError(
+                    f"view {vid} has both an image and a target_pose",
+                    path=e.source,
+                    expected="an image (the target is detected in it) or a tracker's target_pose, not both",
+                    hint="remove one: a session is either images or tracked poses",
+                )
         elif not isinstance(e.data["image"], str) or not e.data["image"].strip():
             raise ConfigError(
                 f"view {vid}: image must be a file name",
@@ -280,7 +287,7 @@ def view_target_pose(doc: NativeDocument, e: ViewEntry) -> np.ndarray:
         T = T_from_pose_values(values, fmt)
     except (ValueError, TypeError) as err:
         raise InputError(f"view {vid}: bad target_pose: {err}", path=e.source, expected=fmt.describe()) from None
-    check_translation_units(T, path=e.source, line=None, unit=fmt.translation_unit)
+    check_translation_units(T, path=e.source, line=None, unit=fmt.translation_unit, where=f"view {vid}", tracked=True)
     return T
 
 
@@ -518,7 +525,7 @@ def load_native_session(path: str | Path, *, mode: str | None = None, allow_outs
             T = T_from_pose_values(values, fmt)
         except (ValueError, TypeError) as err:
             raise InputError(f"view {vid}: bad pose: {err}", path=e.source, expected=fmt.describe()) from None
-        check_translation_units(T, path=e.source, line=None, unit=fmt.translation_unit)
+        check_translation_units(T, path=e.source, line=None, unit=fmt.translation_unit, where=f"view {vid}")
         joints = view_joint_angles(e)
         t_image, t_pose = (_opt_time(e, k) for k in ("t_image", "t_pose"))
         if "pose_file" in e.data:

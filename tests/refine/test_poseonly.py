@@ -129,6 +129,9 @@ def test_target_pose_format_is_applied(tmp_path):
         (lambda d: d.update(tracker_sigma={"mm": 0.5}), "tracker_sigma"),
         (lambda d: d.update(tracker_sigma={"mm": -1, "deg": 0.2}), "tracker_sigma.mm"),
         (lambda d: d["views"][0].update(target_pose=[1, 2, 3]), "view 1"),
+        (lambda d: d["views"][1].update(image="2.png"), "view 2 has both an image and a target_pose"),
+        (lambda d: d["views"][2]["target_pose"][2].__setitem__(3, 450.0), "view 3: target position 450.0 m from the"),
+        (lambda d: d["views"][3].pop("target_pose"), "view 4 is missing 'image' (or a tracker's target_pose)"),
     ],
 )
 def test_bad_pose_only_sessions_are_one_line_errors(tmp_path, change, message):
@@ -294,8 +297,11 @@ def test_bad_moveit_samples_are_one_line_errors_naming_the_sample(tmp_path, text
     [
         (lambda d: d["parameters"].update(calibration_type=""), None, "--mode"),
         (lambda d: None, "eye_to_hand", "--mode eye_to_hand but the samples are eye_in_hand"),
-        (lambda d: d["samples"][1]["tracking"]["rotation"].update(w=3.0), None, "sample 1 tracking"),
-        (lambda d: d["samples"][0].pop("robot"), None, "sample 0"),
+        # samples are numbered from 1, as the session's views and MoveIt's samples are
+        (lambda d: d["samples"][1]["tracking"]["rotation"].update(w=3.0), None, "sample 2 tracking"),
+        (lambda d: d["samples"][0].pop("robot"), None, "sample 1: needs robot"),
+        (lambda d: d["samples"][2]["tracking"]["translation"].update(z=450.0), None, "sample 3: target position"),
+        (lambda d: d.update(samples=[d["samples"][0]] * 4), None, "1 distinct sample(s); at least 3 are needed"),
         (lambda d: d.pop("samples"), None, "no samples list"),
     ],
 )
