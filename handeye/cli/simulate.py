@@ -104,7 +104,8 @@ def add_arguments(p) -> None:
         "--force",
         action="store_true",
         help="write over the session files already in OUT (N.jpg, poses.txt, config.yaml, session.yaml, "
-        "ground_truth.json); without it such a folder is refused. A --cell folder is always written over",
+        "ground_truth.json; with --cell, cell.yaml and the camera folders' sessions); without it such a folder is "
+        "refused",
     )
     p.add_argument("--hidden", nargs="*", default=[], metavar="ID", help="views rendered without the board")
     p.add_argument("--outliers", nargs="*", default=[], metavar="ID", help="views given a wrong robot pose")
@@ -238,6 +239,7 @@ def _run_cell(args, kin: dict) -> int:
         image_noise=args.noise_px,
         outlier_views=tuple(args.outliers),
         robot_noise=tuple(args.robot_noise),
+        overwrite=args.force,
     )
     print(f"synthetic cell of {args.cell} cameras, {args.views} robot poses: {out} (cell.yaml)")
     print(f"ground truth: {out / 'ground_truth.json'}")

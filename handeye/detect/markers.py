@@ -152,13 +152,11 @@ def edge_corners(gray: np.ndarray, quad: np.ndarray, *, cell_px: float, far_px: 
         out = q.copy()
         for i in range(4):
             nxt, prv = q[(i + 1) % 4], q[i - 1]
-            lines = [
-                _line(_edge_points(img, q[i], nxt, prv, reach_px=reach, far_px=far_px)),
-                _line(_edge_points(img, q[i], prv, nxt, reach_px=reach, far_px=far_px)),
-            ]
-            if lines[0] is None or lines[1] is None:
+            one = _line(_edge_points(img, q[i], nxt, prv, reach_px=reach, far_px=far_px))
+            two = _line(_edge_points(img, q[i], prv, nxt, reach_px=reach, far_px=far_px))
+            if one is None or two is None:
                 continue
-            (c1, u1), (c2, u2) = lines
+            (c1, u1), (c2, u2) = one, two
             A = np.column_stack([u1, -u2])
             if abs(np.linalg.det(A)) < 0.1:  # edges within 6 degrees of each other: no corner between them
                 continue

@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
@@ -118,7 +119,9 @@ def _board_turn(c: CellCameraInput, T_board_ref: np.ndarray) -> Optional[np.ndar
     return None if np.array_equal(best[1], np.arange(len(best[1]))) else best[1]
 
 
-def robot_pose_conflict(view_id: str, camera: str, T_ref: np.ndarray, T: np.ndarray, *, path=None):
+def robot_pose_conflict(
+    view_id: str, camera: str, T_ref: np.ndarray, T: np.ndarray, *, path: Optional[Path] = None
+) -> Optional[InputError]:
     """The error of a view whose robot pose ``T`` in ``camera``'s session is not ``T_ref``, another camera's, or None.
 
     A cell's cameras see the arm at one pose per view id: the poses must agree to 1e-6 rad and 1e-6 m (what a

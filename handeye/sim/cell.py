@@ -24,6 +24,7 @@ from ..frames import R_from_rotvec, inv_T, make_T, se3_exp
 from ..mounting import mounting
 from .corners import CornerSession, _frozen, make_corner_session
 from .scenarios import board_center
+from .vendor import clear_previous_session
 
 #: the cameras of an N-camera cell: (name, mode); fixed cameras first, a wrist camera from 3 on
 LAYOUTS = {
@@ -225,6 +226,21 @@ def truth_dict(cell: SimCell) -> dict:
     }
 
 
+def _refuse_a_session_there(out: Path, *, overwrite: bool) -> None:
+    """Refuse (unless ``overwrite``) an ``out`` holding a session or a cell: its own, or a session one level down."""
+    files = ("cell.yaml", "ground_truth.json", "session.yaml", "poses.txt", "config.yaml")
+    found = [out / n for n in files if (out / n).exists()]
+    found += [p for n in ("session.yaml", "poses.txt") for p in sorted(out.glob(f"*/{n}"))]
+    if found and not overwrite:
+        raise ConfigError(
+            "output folder already holds a session or a cell",
+            path=out,
+            expected="an empty or new folder",
+            received=f"{len(found)} session files (e.g. {found[0].relative_to(out)})",
+            hint="choose another folder, or write over it (handeye simulate --force; overwrite=True)",
+        )
+
+
 def write_cell(
     out_dir,
     n_cameras: int = 3,
@@ -237,6 +253,7 @@ def write_cell(
     workers: int = 2,
     outlier_views: tuple = (),
     robot_noise: tuple = (0.0, 0.0),
+    overwrite: bool = False,
 ) -> Path:
     """Render a cell: ``out_dir/<camera>/`` sessions (rendered images), ``cell.yaml`` and ground truth.
 
@@ -244,7 +261,9 @@ def write_cell(
     the reported robot poses and, with the kinematic robot error, the encoder joint angles and ``robot:``;
     ``out_dir/ground_truth.json`` holds the cell's truth (:func:`truth_dict`), each camera folder its own.
     ``outlier_views``: ids given a gross robot pose error (seen by every camera); ``robot_noise``: (mm, deg)
-    per axis of the iid robot error. Returns ``out_dir``.
+    per axis of the iid robot error. An ``out_dir`` that holds a session or a cell (its own files, or a
+    session in a sub-folder) is refused unless ``overwrite``; then its camera folders' session files are
+    removed before they are written again. Returns ``out_dir``.
     """
     import cv2
     import yaml
@@ -264,11 +283,13 @@ def write_cell(
         **({"robot_noise": tuple(robot_noise)} if any(robot_noise) else {}),
     )
     out = Path(out_dir)
+    _refuse_a_session_there(out, overwrite=overwrite)
     out.mkdir(parents=True, exist_ok=True)
     arm_name: Optional[str] = arm if robot_error == "kinematic" else None
     for name, s in zip(cell.names, cell.sessions, strict=True):
         folder = out / name
         folder.mkdir(exist_ok=True)
+        clear_previous_session(folder, overwrite=True)  # refused above unless overwrite
         T_cb = s.T_cam_board_true
         views: list[dict] = []
         for k, vid in enumerate(s.view_ids):

@@ -35,7 +35,8 @@ log = logging.getLogger(__name__)
 _VENDOR_FILE_RE = r"^\d+\.(jpg|png)$"
 
 
-def _clear_previous_session(out: Path, *, overwrite: bool) -> None:
+def clear_previous_session(out: Path, *, overwrite: bool) -> None:
+    """Remove the session files a simulation wrote in ``out`` before (refused unless ``overwrite``)."""
     names = [p.name for p in out.iterdir()] if out.exists() else []
     ours = [
         n
@@ -128,7 +129,7 @@ def write_vendor_session(
     )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    _clear_previous_session(out, overwrite=overwrite)
+    clear_previous_session(out, overwrite=overwrite)
 
     T_cam_board = session.T_cam_board_true
     view_rngs = random_streams(seed)["image_noise"].spawn(session.n_views)

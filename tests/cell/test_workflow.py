@@ -234,3 +234,20 @@ def test_a_failing_cell_s_headline_gives_each_failing_camera_s_own_cause():
     assert _headline("WARN", {"cam2": cameras["cam2"]}, warn) == (
         "Cell of 1 cameras: WARN (cam2 WARN); Every camera disagrees with the reported robot pose of view 1."
     )
+
+
+def test_simulate_refuses_a_cell_over_a_session_unless_forced(tmp_path):
+    """``simulate --cell`` into a folder holding a session of the user's is refused and leaves it as it was; with
+    --force a cell written over a larger one keeps none of its images."""
+    mine = tmp_path / "mine"
+    (mine / "cam1").mkdir(parents=True)
+    (mine / "cam1" / "session.yaml").write_text("mine\n")
+    assert main(["-q", "simulate", str(mine), "--cell", "2", "--views", "4"]) == 2
+    assert (mine / "cam1" / "session.yaml").read_text() == "mine\n" and not (mine / "cell.yaml").exists()
+    cell = tmp_path / "cell"
+    assert main(["-q", "simulate", str(cell), "--cell", "2", "--views", "6", "--seed", "3"]) == 0
+    assert main(["-q", "simulate", str(cell), "--cell", "2", "--views", "6", "--seed", "3"]) == 2
+    assert main(["-q", "simulate", str(cell), "--cell", "2", "--views", "4", "--seed", "3", "--force"]) == 0
+    for cam in ("cam1", "cam2"):
+        ids = {v["id"] for v in yaml.safe_load((cell / cam / "session.yaml").read_text())["views"]}
+        assert {p.stem for p in (cell / cam).glob("*.png")} == ids, cam
