@@ -352,7 +352,9 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
                     "state the mode (--mode or mode: in the session)",
                 )
             )
-    findings += arm_table_findings(getattr(getattr(run, "refined", None), "robot_model", None))
+    refined = getattr(run, "refined", None)
+    findings += arm_table_findings(getattr(refined, "robot_model", None))
+    findings += unreachable_pose_findings(getattr(refined, "robot_model", None), getattr(refined, "per_view", None))
     result["findings"] = [f.to_dict() for f in worst_first(findings)]
     result.update(stages.to_dict())
     return plain(result, nan_to_none=True)
@@ -392,6 +394,32 @@ def arm_table_findings(model: Optional[dict]) -> list:
             f" at alpha {test.get('alpha', '?')}){largest}; the result's covariance includes the widened prior",
             "nothing for this calibration; if the arm's absolute accuracy matters elsewhere, have its "
             "kinematics calibrated (or give its calibrated DH table with --robot FILE)",
+        )
+    ]
+
+
+def unreachable_pose_findings(model: Optional[dict], per_view: Optional[dict]) -> list:
+    """A finding for the reported poses the named arm cannot reach within its joint limits.
+
+    Such a pose is wrong, or the arm named is not the one that reported it (its joints were taken from the
+    view before, so its error model is not the arm's). Left out of the result by the robot-pose test, the views
+    are named (warn); any of them still in the result makes it rest on joints the arm cannot have (fail).
+    """
+    ids = list((model or {}).get("unreachable_view_ids") or [])
+    if not ids:
+        return []
+    used = [v for v in ids if str(((per_view or {}).get(v) or {}).get("status", "used")) in ("used", "ok")]
+    arm = (model or {}).get("arm", "the arm")
+    return [
+        Finding(
+            "arm_cannot_reach",
+            "fail" if used else "warn",
+            f"The {arm} cannot reach the reported pose of view(s) {', '.join(ids[:12])}",
+            f"{len(ids)} reported pose(s) lie beyond the {arm}'s reach or joint limits"
+            + (f"; view(s) {', '.join(used[:12])} are still in the result" if used else "; left out of the result"),
+            f"check that the session was recorded with the {arm} (--robot, or robot: in the session), and these "
+            "views' poses",
+            view_ids=tuple(ids),
         )
     ]
 

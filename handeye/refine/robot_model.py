@@ -244,6 +244,8 @@ def kinematic_model_dict(
         "tool_offset_T_flange_reported": km.T_tool,
         "tool_offset_spread_deg_mm": list(km.tool_spread),
         "joints_disagree_view_ids": list(km.joints_disagree),
+        # reported poses the arm cannot reach within its joint limits (their joints are the view's before)
+        "unreachable_view_ids": [vid for vid, src in zip(ids, km.joints_source, strict=True) if src == "unreachable"],
         "estimated": (["dh_offset"] if km.m else []) + (["encoder_sigma_deg"] if encoder_estimated else []),
     }
 

@@ -355,3 +355,27 @@ def test_calibrate_flags_that_apply_to_a_pose_only_session_are_used(tmp_path):
     assert main(["-q", "calibrate", str(tmp_path / "s"), "--out", str(tmp_path / "ok"), *flags]) == 0
     d = json.loads((tmp_path / "ok" / "result.json").read_text())
     assert d["status"] == "ok" and d["method"] == "park" and not d.get("refined")
+
+
+def test_reported_poses_the_named_arm_cannot_reach_are_a_failing_finding(tmp_path):
+    """A pose-only session calibrated with --robot naming an arm that cannot reach some of its reported poses
+    (5 of these 12 flange poses are beyond a UR5e's reach or joint limits): their joints are the
+    view's before, and the result rests on them. It passed without a word; now a FAIL finding names them and the
+    arm, and says what to check."""
+    from handeye.cli import main
+    from handeye.kinematics import default_ik_seeds, load_arm, solve_ik
+
+    ts = make_tracker_session(n_views=12, seed=5)
+    ts.write(tmp_path / "s")
+    argv = ["-q", "calibrate", str(tmp_path / "s"), "--robot", "ur5e", "--no-report", "--out", str(tmp_path / "o")]
+    assert main(argv) == 7
+    res = json.loads((tmp_path / "o" / "result.json").read_text())
+    arm = load_arm("ur5e")
+    out_of_reach = [
+        str(k + 1) for k, T in enumerate(ts.T_base_end) if solve_ik(arm, T, seeds=default_ik_seeds(arm, T)) is None
+    ]
+    unreachable = res["refinement"]["robot_model"]["unreachable_view_ids"]
+    assert unreachable == out_of_reach and len(unreachable) == 5, (out_of_reach, unreachable)
+    f = [f for f in res["findings"] if f["code"] == "arm_cannot_reach"]
+    assert len(f) == 1 and f[0]["severity"] == "fail" and f[0]["view_ids"] == unreachable
+    assert "UR5e" in f[0]["title"] and "--robot" in f[0]["action"]
