@@ -321,6 +321,8 @@ def _tests(st: _State, S: np.ndarray, r: np.ndarray, J: np.ndarray, gates: Robot
     R = replace(st, weights=None).covariances() * (nu / (nu - 2.0) if np.isfinite(nu) else 1.0)
     d = np.full((len(r), 6), np.nan)
     C = np.full((len(r), 6, 6), np.nan)
+    if len(r) <= 3:  # without a view, two are left: one motion, which leaves X free; no view is tested (NaN)
+        return robot_pose_test(d, C, robot_covariance=R, gates=gates)
     for i in range(len(r)):
         S_p = J[i] @ S @ J[i].T  # covariance of the predicted pose
         if st.keep[i]:

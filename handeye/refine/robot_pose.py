@@ -139,6 +139,10 @@ def robot_pose_test(
     ok = np.all(np.isfinite(d), axis=1) & np.all(np.isfinite(C), axis=(1, 2))
     stat = np.full(d.shape[0], np.nan)
     Ct = C + R
+    # a prediction whose covariance is not positive definite (e.g. from two views, one motion, which leaves X
+    # free about its axis) says nothing to test the reported pose against
+    ok &= np.all(np.isfinite(Ct), axis=(1, 2))
+    ok[ok] &= np.linalg.eigvalsh(0.5 * (Ct[ok] + np.swapaxes(Ct[ok], 1, 2)))[:, 0] > 0
     if ok.any():
         stat[ok] = np.einsum("ni,ni->n", d[ok], np.linalg.solve(Ct[ok], d[ok][..., None])[..., 0])
     diag = np.diagonal(Ct, axis1=1, axis2=2)
@@ -153,8 +157,8 @@ def robot_pose_test(
         flagged=flagged,
         rot_deg=rot_deg,
         trans_mm=trans_mm,
-        sigma_rot_deg=np.degrees(np.sqrt(diag[:, :3].sum(axis=1))),
-        sigma_trans_mm=1000.0 * np.sqrt(diag[:, 3:].sum(axis=1)),
+        sigma_rot_deg=np.where(ok, np.degrees(np.sqrt(np.abs(diag[:, :3].sum(axis=1)))), np.nan),
+        sigma_trans_mm=np.where(ok, 1000.0 * np.sqrt(np.abs(diag[:, 3:].sum(axis=1))), np.nan),
         threshold=g.threshold,
         gates=g,
     )

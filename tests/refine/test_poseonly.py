@@ -379,3 +379,36 @@ def test_reported_poses_the_named_arm_cannot_reach_are_a_failing_finding(tmp_pat
     f = [f for f in res["findings"] if f["code"] == "arm_cannot_reach"]
     assert len(f) == 1 and f[0]["severity"] == "fail" and f[0]["view_ids"] == unreachable
     assert "UR5e" in f[0]["title"] and "--robot" in f[0]["action"]
+
+
+def test_three_tracked_views_are_too_few_not_two_wrong_robot_poses(tmp_path):
+    """Three views solve X, but a view left out leaves two, one motion, which leaves X free: no view can be
+    tested against the others. The session fails for its few views (exit 7), all three used, none named as a
+    wrong robot pose, and no numpy warning. Before, the test flagged two and the refinement failed (exit 5)."""
+    import warnings
+
+    from handeye.cli import main
+    from handeye.sim.corners import make_corner_session
+
+    s = make_corner_session(mode="eye_in_hand", n_views=20, seed=3, noise_px=0.0)  # its first three poses
+    rng = np.random.default_rng(0)  # a tracker of 0.1 deg / 0.5 mm per axis, its noise estimated
+    views = [
+        {
+            "id": str(k + 1),
+            "pose": s.T_base_end_true[k].tolist(),
+            "target_pose": (
+                s.T_cam_board_true[k] @ se3_exp(np.r_[rng.normal(0, np.radians(0.1), 3), rng.normal(0, 5e-4, 3)])
+            ).tolist(),
+        }
+        for k in range(3)
+    ]
+    (tmp_path / "s").mkdir()
+    doc = {"handeye_session": 1, "mode": "eye_in_hand", "pose_format": {"rotation": "matrix"}, "views": views}
+    (tmp_path / "s" / "session.yaml").write_text(yaml.safe_dump(doc))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        assert main(["-q", "calibrate", str(tmp_path / "s"), "--no-report", "--out", str(tmp_path / "o")]) == 7
+    res = json.loads((tmp_path / "o" / "result.json").read_text())
+    assert {v["status"] for v in res["refinement"]["per_view"].values()} == {"used"}
+    assert "robot_pose_disagrees" not in {f["code"] for f in res["findings"]}
+    assert any("views used 3" in str(c.get("short") or c.get("title")) for c in res["qa"]["checks"])
