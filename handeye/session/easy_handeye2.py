@@ -15,9 +15,11 @@ from typing import Any, Optional
 
 import numpy as np
 
+from ..config import parse_yaml
 from ..errors import ConfigError, InputError
 from ..frames import R_from_quat_wxyz, inv_T, make_T
-from .fields import read_yaml
+from ..output import read_text
+from .fields import kind_of_file
 
 #: easy_handeye2's calibration_type -> handeye's mode
 MODES = {"eye_in_hand": "eye_in_hand", "eye_on_base": "eye_to_hand"}
@@ -57,12 +59,14 @@ def read_samples(
     is needed when the file's ``calibration_type`` is empty, and must agree with it otherwise.
     """
     path = Path(path)
-    d = read_yaml(path)
+    d = parse_yaml(read_text(path, what="samples file"), path=path)
     if not isinstance(d, dict) or not isinstance(d.get("samples"), list):
+        kind = kind_of_file(d)
         raise InputError(
             "not an easy_handeye2 samples file: no samples list",
             path=path,
             expected="parameters: {...} and samples: [{robot: ..., tracking: ...}, ...]",
+            hint=f"this looks like {kind}" if kind else None,
         )
     params = d.get("parameters") or {}
     if not isinstance(params, dict):

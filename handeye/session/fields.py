@@ -60,6 +60,25 @@ def read_yaml(path: Path, *, loader=yaml.SafeLoader) -> dict:
     return data
 
 
+def kind_of_file(doc) -> "str | None":
+    """What a parsed YAML/JSON document looks like, said as a hint for a reader that was given the wrong kind.
+
+    A MoveIt Calibration samples file, an easy_handeye2 ``.samples`` file, a handeye session or result; None
+    when it is none of these.
+    """
+    if isinstance(doc, list) and doc and all(isinstance(x, dict) for x in doc):
+        if "effector_wrt_world" in doc[0] or "object_wrt_sensor" in doc[0]:
+            return "a MoveIt Calibration samples file: handeye import moveit FILE"
+    if isinstance(doc, dict):
+        if isinstance(doc.get("samples"), list):
+            return "an easy_handeye2 samples file: handeye import easy_handeye2 FILE"
+        if "handeye_session" in doc:
+            return "a handeye session: handeye calibrate its folder"
+        if "handeye_result" in doc:
+            return "a handeye result: handeye export, report or compare its folder"
+    return None
+
+
 @functools.lru_cache(maxsize=None)
 def input_limits() -> dict:
     """``configs/input_limits.yaml``: the sizes an input file may state."""

@@ -19,6 +19,7 @@ from ..config import parse_yaml
 from ..conventions import PoseFormat, T_from_pose_values
 from ..errors import InputError
 from ..output import read_text
+from .fields import kind_of_file
 
 KEYS = ("effector_wrt_world", "object_wrt_sensor")
 _MATRIX = PoseFormat(rotation="matrix")
@@ -29,10 +30,12 @@ def read_moveit_samples(path: str | Path) -> list[tuple[np.ndarray, np.ndarray]]
     path = Path(path)
     d = parse_yaml(read_text(path, what="samples file"), path=path)
     if not isinstance(d, list) or not all(isinstance(s, dict) for s in d):
+        kind = kind_of_file(d)
         raise InputError(
             "not a MoveIt Calibration samples file: not a list of samples",
             path=path,
             expected="- {effector_wrt_world: [16 numbers], object_wrt_sensor: [16 numbers]} per sample",
+            hint=f"this looks like {kind}" if kind else None,
         )
     if len(d) < 3:
         raise InputError(f"{len(d)} samples; at least 3 are needed", path=path)

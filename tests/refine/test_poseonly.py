@@ -412,3 +412,20 @@ def test_three_tracked_views_are_too_few_not_two_wrong_robot_poses(tmp_path):
     assert {v["status"] for v in res["refinement"]["per_view"].values()} == {"used"}
     assert "robot_pose_disagrees" not in {f["code"] for f in res["findings"]}
     assert any("views used 3" in str(c.get("short") or c.get("title")) for c in res["qa"]["checks"])
+
+
+def test_an_importer_given_the_other_kind_of_samples_file_names_the_importer_that_reads_it(tmp_path):
+    """A MoveIt samples file given to ``import easy_handeye2`` and the other way round: one line naming the file,
+    with the import command that reads it (before: 'expected a mapping at the top level; got list')."""
+    from handeye.session.easy_handeye2 import import_easy_handeye2
+    from handeye.session.moveit_samples import import_moveit_samples
+
+    ts = make_tracker_session(n_views=4, seed=3)
+    eh = _samples_file(tmp_path / "x.samples", ts, "eye_in_hand")
+    mv = tmp_path / "samples.yaml"
+    mv.write_text(yaml.safe_dump([{"effector_wrt_world": [0.0] * 16, "object_wrt_sensor": [0.0] * 16}] * 3))
+    with pytest.raises(HandeyeError, match="this looks like a MoveIt Calibration samples file: handeye import moveit"):
+        import_easy_handeye2(mv, tmp_path / "a", mode="eye_in_hand")
+    with pytest.raises(HandeyeError, match="this looks like an easy_handeye2 samples file: handeye import easy_han"):
+        import_moveit_samples(eh, tmp_path / "b")
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
