@@ -77,6 +77,7 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     stages = _stages(diag)
     views = _view_rows(res, ref, fits, board_centre, findings, image_size)
     ctx["views"] = views
+    ctx["tracked"] = (res.get("target") or {}).get("type") == "tracked"  # a pose-only session: no images
     ctx["n_used"] = sum(v["status"] == "used" for v in views)
     ctx["n_total"] = len(views)
 

@@ -161,6 +161,26 @@ def test_workflow_calibrates_a_pose_only_session(tmp_path):
     assert (tmp_path / "out" / "report.html").exists() and (tmp_path / "out" / "report.md").exists()
 
 
+def test_a_pose_only_report_and_verdict_speak_of_poses_not_pixels(tmp_path):
+    """A pose-only session's views table gives each view's robot-vs-tracker disagreement, without the image,
+    corner and pixel columns of an image session; with --no-refine the verdict has no pixel checks (reprojection
+    RMS, image coverage) 'not available', only the uncertainty the refinement would give."""
+    from handeye.cli import main
+
+    make_tracker_session(n_views=10, seed=2).write(tmp_path / "s")
+    assert main(["-q", "calibrate", str(tmp_path / "s"), "--out", str(tmp_path / "o")]) == 0
+    md = (tmp_path / "o" / "report.md").read_text()
+    views = md[md.index("## Views") :].split("\n## ")[0]
+    assert "| View | Status | Robot vs tracker | Flags |" in views and "[px]" not in views and "image not" not in views
+    assert "Robot vs tracker" in (tmp_path / "o" / "report.html").read_text()
+    assert (
+        main(["-q", "calibrate", str(tmp_path / "s"), "--no-refine", "--no-report", "--out", str(tmp_path / "n")]) == 0
+    )
+    checks = json.loads((tmp_path / "n" / "result.json").read_text())["qa"]["checks"]
+    keys = {k for c in checks for k in str(c["key"]).split("+")}
+    assert "predicted_error_mm" in keys and not keys & {"reprojection_rms_px", "image_coverage"}, keys
+
+
 # ------------------------------------------------------------------------------ easy_handeye2 samples
 def _samples_file(path, ts, calibration_type):
     """An easy_handeye2 .samples file of a tracker session (robot: T_base_end eye-in-hand, T_end_base eye-on-base)."""
