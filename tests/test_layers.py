@@ -41,6 +41,7 @@ LAYERS = (
     ("cell",),
     ("batch",),
     ("sim", "cli"),
+    ("__main__",),  # python -m handeye: the command
 )
 
 

@@ -62,9 +62,9 @@ def add_arguments(p) -> None:
     )
     p.add_argument(
         "--out",
-        type=Path,
         metavar="FILE",
-        help="file to write (companions share its name) or an existing folder; default RESULT/hand_eye.<format suffix>",
+        help="file to write (companions share its name), or a folder (an existing one, or one ending in /, made); "
+        "default RESULT/hand_eye.<format suffix>",
     )
     p.add_argument("--force", action="store_true", help="export a result whose verdict is FAIL")
     p.add_argument("--camera", metavar="NAME", help="a cell: export this camera only (default: every camera)")
@@ -72,20 +72,29 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    import contextlib
+    import os
+
     from ..export import export_result
     from ..export.writers import text_line
+    from ..output import new_folders_kept_only_if_used
 
-    for path in export_result(
-        args.result,
-        args.to,
-        out=args.out,
-        parent=args.parent,
-        child=args.child,
-        camera_frame=args.camera_frame,
-        force=args.force,
-        base_frame=args.base_frame,
-        effector_frame=args.effector_frame,
-        camera=args.camera,
-    ):
-        print(f"{args.to}: {text_line(path)}")
+    out = None if args.out is None else Path(args.out)
+    folder = args.out is not None and args.out.endswith(("/", os.sep)) and not out.is_dir()  # "DIR/": a folder
+    with new_folders_kept_only_if_used(out) if folder else contextlib.nullcontext():
+        if folder:
+            out.mkdir(parents=True, exist_ok=True)
+        for path in export_result(
+            args.result,
+            args.to,
+            out=out,
+            parent=args.parent,
+            child=args.child,
+            camera_frame=args.camera_frame,
+            force=args.force,
+            base_frame=args.base_frame,
+            effector_frame=args.effector_frame,
+            camera=args.camera,
+        ):
+            print(f"{args.to}: {text_line(path)}")
     return 0

@@ -10,6 +10,7 @@ camera back from each file. See docs/export.md.
 from __future__ import annotations
 
 import json
+import logging
 import xml.etree.ElementTree as ET
 
 from .. import __version__
@@ -38,6 +39,8 @@ from .writers import (
 )
 
 #: the formats a cell writes as one file set holding every camera (the others: one set per camera)
+log = logging.getLogger(__name__)
+
 CELL_FORMATS = ("ros2", "urdf", "yaml", "json")
 
 
@@ -76,16 +79,30 @@ def tf_static_yaml(es: list[ExportTransform]) -> str:
 
 
 def urdf(es: list[ExportTransform]) -> str:
-    """One URDF: the parent links (flange, base), each once, the cameras' links and a fixed joint per camera."""
+    """One URDF: the parent links (flange, base), each once, the cameras' links and a fixed joint per camera.
+
+    A cell of fixed and wrist cameras has two parents, base and flange, which only the robot's own URDF joins:
+    the file says so (a URDF parser refuses two root links on their own) and the xacro's macros are the way in.
+    """
     root = ET.Element("robot", {"name": "handeye_cell"})
-    for name in list(dict.fromkeys(e.parent for e in es)) + [e.child for e in es]:
+    parents = list(dict.fromkeys(e.parent for e in es))
+    for name in parents + [e.child for e in es]:
         ET.SubElement(root, "link", {"name": name})
     for e in es:
         joint = ET.SubElement(root, "joint", {"name": joint_name(e), "type": "fixed"})
         ET.SubElement(joint, "parent", {"link": e.parent})
         ET.SubElement(joint, "child", {"link": e.child})
         origin(joint, e)
-    return xml_text(root, xml_comment(header_lines(es)))
+    lines = header_lines(es)
+    if len(parents) > 1:
+        note = (
+            f"{' and '.join(parents)} are both roots here: only the robot's own URDF joins them, so this file is "
+            "a part to merge into it (a URDF parser refuses two root links on their own); the xacro's macros "
+            "add each camera to the robot's description, or export one camera with --camera"
+        )
+        log.warning("the cell's URDF: %s", note)
+        lines = [*lines, "", note]
+    return xml_text(root, xml_comment(lines))
 
 
 def macro_name(e: ExportTransform) -> str:

@@ -151,12 +151,7 @@ def read_native_document(path: Path) -> NativeDocument:
             )
         if "target_pose" in e.data:  # a pose-only view: no image (target_pose is read by view_target_pose)
             if "image" in e.data:
-                raise ConfigError(
-                    f"view {vid} has both an image and a target_pose",
-                    path=e.source,
-                    expected="an image (the target is detected in it) or a tracker's target_pose, not both",
-                    hint="remove one: a session is either images or tracked poses",
-                )
+                raise ConfigError(f"view {vid} has both an image and a target_pose", path=e.source, hint="remove one")
         elif not isinstance(e.data["image"], str) or not e.data["image"].strip():
             raise ConfigError(
                 f"view {vid}: image must be a file name",

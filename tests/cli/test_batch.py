@@ -308,7 +308,7 @@ def test_uploaded_session_gives_the_same_result(fleet, cluster_batch, tmp_path):
     np.testing.assert_allclose(a["T_end_cam"], b["T_end_cam"], rtol=0, atol=1e-9)
     rec = json.loads((out / key / "batch.json").read_text())
     assert rec["session"] == str((tmp_path / "root" / key).resolve()) and rec["outcome"] == "done"
-    assert b["session"]["path"] != rec["session"], "result.json names the worker's temporary copy"
+    assert b["session"]["path"] == rec["session"], "result.json names the session where the client has it"
     assert rec["key"]["qa_sha256"] and b["qa"]["source"] != str(site_qa), "the worker read its copy of the QA file"
     assert (out / key / "observations.json").exists() and (out / key / "batch.log").exists()
 

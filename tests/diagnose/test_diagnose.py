@@ -1257,7 +1257,7 @@ def test_a_pose_line_without_its_image_is_named_as_such_not_as_target_not_found(
 
 
 def test_an_arm_further_from_its_table_than_stated_is_an_info_finding_with_its_largest_offsets():
-    from handeye.diagnose import arm_table_findings
+    from handeye.diagnose.arm import arm_table_findings
 
     off, sd = np.zeros((6, 4)), np.full((6, 4), 0.5)
     off[4, 0], off[1, 2], off[2, 3] = 2.36, 1.07, -0.08

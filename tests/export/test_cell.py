@@ -18,7 +18,7 @@ def _xs(cell) -> dict:
     return {n: (res.camera_result(n).mode, res.camera_result(n).T_x) for n in res.camera_names}
 
 
-def test_a_cell_exports_every_camera_into_one_urdf_launch_and_tf_yaml(cell, tmp_path, capsys):
+def test_a_cell_exports_every_camera_into_one_urdf_launch_and_tf_yaml(cell, tmp_path, capsys, caplog):
     xs = _xs(cell)
     assert main(["export", str(cell["cell"]), "--to", "urdf", "--out", str(tmp_path)]) == 0
     assert main(["export", str(cell["cell"]), "--to", "ros2", "--out", str(tmp_path)]) == 0
@@ -33,6 +33,9 @@ def test_a_cell_exports_every_camera_into_one_urdf_launch_and_tf_yaml(cell, tmp_
         np.testing.assert_allclose([float(v) for v in o.get("xyz").split()], T[:3, 3], atol=1e-12)
         np.testing.assert_allclose(_rpy_R(*(float(v) for v in o.get("rpy").split())), T[:3, :3], atol=1e-12)
     assert [link.get("name") for link in root.findall("link")][:2] == ["tool0", "base_link"]
+    # fixed and wrist cameras: two roots, which only the robot's URDF joins; the file and the command say so
+    assert "tool0 and base_link are both roots here" in (tmp_path / "hand_eye.urdf").read_text()
+    assert "both roots" in caplog.text
     # the launch file: one static_transform_publisher per camera; the tf2 YAML: one transform per camera
     launch = read_back_all("launch.py", (tmp_path / "hand_eye.launch.py").read_bytes())
     tf = yaml.safe_load((tmp_path / "hand_eye.tf_static.yaml").read_text())["transforms"]
@@ -117,3 +120,13 @@ def test_every_cameras_text_is_escaped_and_read_back_from_a_nasty_folder(cell, t
                 n.value for n in tree.body if isinstance(n, ast.Assign) and n.targets[0].id == "HANDEYE_CALIBRATION"
             ]
             assert ast.literal_eval(prov)["source"] == str(nasty / "result.json")
+
+
+def test_an_out_ending_in_a_slash_is_a_folder_made_for_the_files(cell, tmp_path):
+    """``--out DIR/`` (not there yet) is a folder: made, the files in it under their default names; a refused
+    export leaves no folder behind. Before, ``DIR/`` was the files' stem (DIR.urdf beside it)."""
+    assert main(["-q", "export", str(cell["solo"]["wrist"]), "--to", "urdf", "--out", f"{tmp_path / 'a' / 'b'}/"]) == 0
+    assert sorted(p.name for p in (tmp_path / "a" / "b").iterdir()) == ["hand_eye.urdf", "hand_eye.urdf.xacro"]
+    assert not list(tmp_path.glob("*.urdf*")) and not list((tmp_path / "a").glob("*.urdf*"))
+    assert main(["-q", "export", str(tmp_path / "nothing"), "--to", "urdf", "--out", f"{tmp_path / 'c' / 'd'}/"]) == 2
+    assert not (tmp_path / "c").exists()
