@@ -183,6 +183,16 @@ def _unexplained(obs: PoseObservations, given) -> Finding:
             f"{given.fit.median_trans_mm:.1f} mm (median over {obs.n} views)"
         )
     )
+    if obs.tracker:  # a pose-only session: the tracker's poses, whose format no reading above tried
+        return Finding(
+            "poses_do_not_fit",
+            "fail",
+            "The robot poses do not fit the tracker's poses as read, and no single cause was found",
+            f"no reading of the robot pose numbers, pairing, scale, target move or single view explains it{sc}",
+            "check the tracker's pose format (target_pose_format: rotation, quaternion_order, translation_unit; "
+            "camera -> target, not its inverse), that each tracker pose is paired with the robot pose of that "
+            "moment, and the mounting mode",
+        )
     return Finding(
         "poses_do_not_fit",
         "fail",

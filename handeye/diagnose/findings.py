@@ -109,7 +109,7 @@ ROOT_CAUSE_LABELS = {
     "rotation_kind": "Wrong kind of rotation",
     "quaternion_order": "Wrong quaternion order",
     "pairs_shuffled": "Pairs shuffled",
-    "poses_do_not_fit": "Robot poses do not fit the images",
+    "poses_do_not_fit": "Robot poses do not fit the target's poses",  # seen in the images or by a tracker
     "mode_undecided": "Mounting mode not decided",
 }
 

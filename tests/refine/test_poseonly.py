@@ -449,3 +449,25 @@ def test_an_importer_given_the_other_kind_of_samples_file_names_the_importer_tha
     with pytest.raises(HandeyeError, match="this looks like an easy_handeye2 samples file: handeye import easy_han"):
         import_moveit_samples(eh, tmp_path / "b")
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_tracker_poses_that_fit_no_robot_pose_reading_point_at_the_tracker_s_format(tmp_path):
+    """Tracker quaternions written w-first under ``quaternion_order: xyzw``: no reading of the robot's numbers
+    explains them. The finding speaks of the tracker's poses and their format, not of images (there are none)."""
+    from handeye.cli import main
+    from handeye.frames import quat_wxyz_from_R
+
+    ts = make_tracker_session(n_views=12, seed=2)
+    ts.write(tmp_path / "s")
+    f = tmp_path / "s" / "session.yaml"
+    d = yaml.safe_load(f.read_text())
+    d["target_pose_format"] = {"rotation": "quaternion", "quaternion_order": "xyzw"}
+    for v in d["views"]:
+        T = np.asarray(v["target_pose"], float)
+        v["target_pose"] = [*T[:3, 3].tolist(), *quat_wxyz_from_R(T[:3, :3]).tolist()]  # w first: the wrong order
+    f.write_text(yaml.safe_dump(d))
+    assert main(["-q", "calibrate", str(tmp_path / "s"), "--no-report", "--out", str(tmp_path / "o")]) == 5
+    res = json.loads((tmp_path / "o" / "result.json").read_text())
+    unfit = [x for x in res["findings"] if x["code"] == "poses_do_not_fit"]
+    assert len(unfit) == 1 and "tracker's poses" in unfit[0]["title"] and "quaternion_order" in unfit[0]["action"]
+    assert "images" not in res["verdict_headline"], res["verdict_headline"]
