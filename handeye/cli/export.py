@@ -80,10 +80,10 @@ def run(args) -> int:
     from ..output import new_folders_kept_only_if_used
 
     out = None if args.out is None else Path(args.out)
-    folder = args.out is not None and args.out.endswith(("/", os.sep)) and not out.is_dir()  # "DIR/": a folder
-    with new_folders_kept_only_if_used(out) if folder else contextlib.nullcontext():
-        if folder:
-            out.mkdir(parents=True, exist_ok=True)
+    folder = out if out is not None and args.out.endswith(("/", os.sep)) and not out.is_dir() else None  # "DIR/"
+    with new_folders_kept_only_if_used(folder) if folder is not None else contextlib.nullcontext():
+        if folder is not None:
+            folder.mkdir(parents=True, exist_ok=True)
         for path in export_result(
             args.result,
             args.to,
