@@ -95,14 +95,32 @@ def session_for_installed(session_path, installed: LoadedResult, *, mode: Option
             + ("" if mode is None else f", or drop --mode (the installed {installed.mode} is used)"),
         )
     if installed.target is not None and s.target.to_dict() != installed.target:
+        tracked = installed.target.get("type") == "tracked"
         raise InputError(
             f"the session's board ({s.target.describe()}) is not the installed calibration's",
             path=s.path,
-            expected=str(installed.target),
+            expected=f"the installed calibration's: {_target_words(installed.target)}",
             code="not_comparable",
-            hint="verify with the board the rig was calibrated with",
+            hint="the installed calibration came from a tracker's poses; verify needs one calibrated from images "
+            "of this board (calibrate this session for one)"
+            if tracked
+            else "verify with the board the rig was calibrated with",
         )
     return s
+
+
+def _target_words(target: dict) -> str:
+    """A result.json ``target`` in words (as the session field describes it), else as written."""
+    from ..errors import HandeyeError
+    from ..session.target_spec import parse_target
+    from ..targets import TrackedTargetSpec
+
+    if target.get("type") == "tracked":
+        return TrackedTargetSpec(str(target.get("name") or "")).describe()
+    try:
+        return parse_target(target, path=Path("result.json")).describe()
+    except HandeyeError:
+        return str(target)
 
 
 def installed_images_among(installed: LoadedResult, session) -> int:

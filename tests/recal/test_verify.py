@@ -126,3 +126,22 @@ def test_a_pose_only_session_is_refused_in_one_line_naming_compare(tmp_path, cap
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "pose-only session" in err[0] and "handeye compare" in err[0]
     assert not (tmp_path / "v" / "verify.json").exists()
+
+
+def test_images_against_a_tracker_s_calibration_name_both_targets_in_words(tmp_path, capsys):
+    """Images of a chessboard verified against a pose-only result: refused in one line that names the installed
+    target in words (it printed result.json's raw dict) and says what verify needs."""
+    from handeye.cli import main
+    from handeye.sim.arm_tracker import make_arm_tracker_session
+    from handeye.sim.scenarios import default_intrinsics
+    from handeye.sim.vendor import write_vendor_session
+
+    make_arm_tracker_session(arm="ur5e", seed=3, n_views=12).write(tmp_path / "s", state_sigma=False)
+    main(["-q", "calibrate", str(tmp_path / "s"), "--out", str(tmp_path / "r"), "--no-report"])
+    images = write_vendor_session(tmp_path / "img", n_views=4, seed=5, intrinsics=default_intrinsics(400, 300))
+    capsys.readouterr()
+    rc = main(["verify", str(images), "--against", str(tmp_path / "r"), "--out", str(tmp_path / "v")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert "expected the installed calibration's: tracked target (poses from an external tracker)" in err[0]
+    assert "{" not in err[0] and "calibrated from images" in err[0]
