@@ -116,7 +116,9 @@ def drift_finding(obs: PoseObservations, k: int, share: float, v: np.ndarray) ->
         "a tracker that accumulates error (visual odometry, SLAM) cannot give the target's pose: locate the "
         "target in every view directly (a marker tracker), or calibrate the views before the drift alone"
         if tracked
-        else "the board crept during the collection: fix it rigidly (clamp or tape) and re-capture"
+        else "the board crept during the collection: fix it rigidly (clamp or tape) and re-capture; if it was "
+        "fixed, the robot's reported poses drift instead (the arm warming up, or an arm model whose error grows "
+        "along the path): let the arm warm up first, or give its calibrated kinematics"
     )
     return Finding(
         "target_drift",

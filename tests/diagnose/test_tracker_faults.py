@@ -115,3 +115,21 @@ def test_a_view_whose_tracker_pose_is_wrong_is_named_against_the_tracker(tmp_pat
     f = next(f for f in res["findings"] if f["code"] == "robot_pose_disagrees")
     assert "the tracker's pose" in f["title"] and "camera saw" not in f["title"] and "tracker" in f["action"]
     assert list(f["view_ids"]) == list(truth.outlier_view_ids)
+
+
+def test_a_drifting_board_s_fix_also_names_the_robot_s_poses():
+    """A board that drifts relative to what holds it may not have moved: the robot's reported poses drift the
+    same way (an arm warming up, a model whose error grows along the path). The fix names both."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from handeye.diagnose.drift import drift_finding
+    from handeye.targets import ChessboardSpec
+
+    obs = SimpleNamespace(target=ChessboardSpec(9, 7, 0.02), ids=tuple(str(k) for k in range(1, 21)))
+    v = np.zeros((20, 6))
+    v[10:, 3] = np.arange(1, 11)  # 1 mm more per view from view 11 on
+    f = drift_finding(obs, 10, 0.5, v)
+    assert f.code == "target_drift" and f.title == "The board drifts from view 11 on"
+    assert "fix it rigidly" in f.action and "reported poses drift" in f.action and "warm up" in f.action
