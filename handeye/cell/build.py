@@ -193,6 +193,14 @@ def _rms(per_view: dict) -> float:
     return float(np.sqrt(sum(sq) / n)) if n else float("nan")
 
 
+def _cameras_without_shared_views(runs: dict) -> list[str]:
+    """The cameras (of two or more) none of whose used view ids any other camera used."""
+    used = {n: {o.view_id for o in r.outcomes if o.used} for n, r in runs.items()}
+    if len(used) < 2:
+        return []
+    return [n for n, ids in used.items() if not ids & set().union(*(u for m, u in used.items() if m != n))]
+
+
 def cell_result(cr: CellRefinement, solos: dict[str, dict], runs: dict, *, version: int) -> dict:
     """result.json of a cell (``kind: cell``) from the joint refinement and each camera's solo result.
 
@@ -239,6 +247,22 @@ def cell_result(cr: CellRefinement, solos: dict[str, dict], runs: dict, *, versi
                 "the cell uses their images without the reported poses",
                 view_ids=ids,
                 views=cr.robot_excluded,
+            )
+        )
+    alone = _cameras_without_shared_views(runs)
+    if alone:
+        cell_findings.append(
+            _finding(
+                "cell_no_shared_views",
+                "info",
+                "The cameras share no view id"
+                if len(alone) == len(runs)
+                else f"Camera{'s' if len(alone) > 1 else ''} {', '.join(alone)} share{'' if len(alone) > 1 else 's'} "
+                "no view id with the other cameras",
+                "the cell ties such a camera to the others through the arm's model alone: its views of an arm pose "
+                "cannot be compared with theirs (a camera that moved, a pose it saw differently)",
+                "give views taken at one arm pose the same id in every camera's session (take them together)",
+                cameras=alone,
             )
         )
     vp = cr.view_poses

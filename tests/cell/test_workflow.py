@@ -251,3 +251,22 @@ def test_simulate_refuses_a_cell_over_a_session_unless_forced(tmp_path):
     for cam in ("cam1", "cam2"):
         ids = {v["id"] for v in yaml.safe_load((cell / cam / "session.yaml").read_text())["views"]}
         assert {p.stem for p in (cell / cam).glob("*.png")} == ids, cam
+
+
+def test_cameras_that_share_no_view_id_are_named(cell, tmp_path):
+    """Two cameras whose view ids differ (the same arm poses, renumbered in one session) are still one cell, tied
+    through the arm's model alone: an info finding says that their views of one pose cannot be compared."""
+    folder, _out, _rc = cell
+    two = tmp_path / "two"
+    for cam in ("cam1", "cam2"):
+        shutil.copytree(folder / cam, two / cam)
+    f = two / "cam2" / "session.yaml"
+    doc = yaml.safe_load(f.read_text())
+    for v in doc["views"]:
+        v["id"] = str(100 + int(v["id"]))
+    f.write_text(yaml.safe_dump(doc, sort_keys=False))
+    wr = calibrate_cell([two / "cam1", two / "cam2"], tmp_path / "o", report=False, diagnostics=False)
+    found = [x for x in wr.result["findings"] if x["code"] == "cell_no_shared_views"]
+    assert len(found) == 1 and found[0]["title"] == "The cameras share no view id" and found[0]["severity"] == "info"
+    solo = calibrate_cell([folder / "cam1", folder / "cam2"], tmp_path / "p", report=False, diagnostics=False)
+    assert not [x for x in solo.result["findings"] if x["code"] == "cell_no_shared_views"]
