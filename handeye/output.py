@@ -189,7 +189,7 @@ def recorded_path(path: str | Path) -> str:
     p = Path(path)
     copies = (_RECORDED_AS.get() or {}).get("paths") or {}
     for copy in sorted(copies, key=len, reverse=True):  # a longer path before one it starts with
-        if p == Path(copy) or p.is_relative_to(copy):
+        if p.is_relative_to(copy):
             return str(Path(copies[copy]) / p.relative_to(copy))
     return str(path)
 

@@ -119,7 +119,7 @@ def check_cell_sessions(paths: Sequence[Path], names: Sequence[str], *, mode=Non
     from ..refine.cell import robot_pose_conflict
     from ..session import load_session
 
-    seen: dict[str, tuple[str, np.ndarray]] = {}
+    seen: dict[str, np.ndarray] = {}  # view id -> the robot pose the first camera with it gives
     for name, p in zip(names, paths, strict=True):
         if not Path(p).exists():
             raise InputError(
@@ -133,11 +133,11 @@ def check_cell_sessions(paths: Sequence[Path], names: Sequence[str], *, mode=Non
         pose_file = next((f for f in (folder / "session.yaml", folder / "poses.txt") if f.is_file()), folder)
         for v in s.views:
             if v.view_id in seen:
-                conflict = robot_pose_conflict(v.view_id, name, seen[v.view_id][1], v.T_base_end, path=pose_file)
+                conflict = robot_pose_conflict(v.view_id, name, seen[v.view_id], v.T_base_end, path=pose_file)
                 if conflict is not None:
                     raise conflict
             else:
-                seen[v.view_id] = (name, np.asarray(v.T_base_end, float))
+                seen[v.view_id] = np.asarray(v.T_base_end, float)
 
 
 def _remove_other_cameras(solo_dir: Path, names: Sequence[str]) -> None:
