@@ -62,7 +62,8 @@ def read_gray(path: Path) -> np.ndarray:
 
     JPEGs are decoded straight to their luma channel (about 2 ms CPU for a 1280x720 view against
     3-5.6 ms for the colours and a conversion, benchmarks/bench_detect.py; within 1-2 grey levels of
-    the converted colours); other formats keep their bit depth until they are scaled to 8 bits.
+    the converted colours); other formats keep their bit depth until they are scaled to 8 bits. An EXIF
+    orientation flag is not applied: the camera model and X are the sensor's, as its pixels are stored.
     """
     return _read_gray(path)[0]
 
@@ -76,7 +77,9 @@ def _read_gray(path: Path) -> tuple[np.ndarray, np.ndarray]:
     img = None
     if data.size:
         jpeg = data[:3].tobytes() == _JPEG_MAGIC
-        img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE if jpeg else cv2.IMREAD_UNCHANGED)
+        # the pixels as the sensor stored them: an EXIF orientation flag would turn the camera frame (and X) by
+        # 90 deg; IMREAD_UNCHANGED ignores it already
+        img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION if jpeg else cv2.IMREAD_UNCHANGED)
     if img is None:
         raise InputError(
             "image cannot be decoded (corrupt or not an image)",

@@ -126,7 +126,7 @@ def _visp_apriltag(src: Path, images: list) -> dict:
     dictionary = _VISP_TAG_FAMILIES[fam.group(1)]
     detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)))
     for img in images:
-        gray = cv2.imread(str(img), cv2.IMREAD_GRAYSCALE) if img.is_file() else None
+        gray = cv2.imread(str(img), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION) if img.is_file() else None
         if gray is None:
             continue
         _corners, ids, _ = detector.detectMarkers(gray)
@@ -263,7 +263,8 @@ def import_visp(
         vals = {k: _number(m.group(1), path=cam, field=k) for k, m in found.items() if m is not None}  # all found
         import cv2
 
-        first = cv2.imread(str(imgs[min(imgs)]), cv2.IMREAD_GRAYSCALE) if imgs[min(imgs)].is_file() else None
+        one = imgs[min(imgs)]
+        first = cv2.imread(str(one), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION) if one.is_file() else None
         if first is None:
             raise InputError("cannot read the image for the image size", path=imgs[min(imgs)])
         h, w = first.shape

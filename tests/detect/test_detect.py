@@ -647,3 +647,24 @@ def test_a_view_missing_a_corner_keeps_its_order_cue_and_is_turned_back_whole(vi
     )
     fixed = normalize_chessboard_order({"0": d, "1": turned, "2": d}, spec)
     assert np.array_equal(fixed["1"].corner_ids, keep) and np.allclose(fixed["1"].image_points, pts[keep])
+
+
+def test_an_exif_orientation_flag_is_not_applied(tmp_path):
+    """A JPEG whose EXIF asks viewers to turn it 90 deg is read as the sensor stored it: turned, the camera frame
+    and X came out turned by 90 deg (exit 0, no word). OpenCV applies the flag by default."""
+    import struct
+
+    import cv2
+
+    from handeye.detect import read_gray
+
+    img = np.zeros((60, 100), np.uint8)
+    img[10:20, 10:30] = 255
+    data = cv2.imencode(".jpg", img)[1].tobytes()
+    tiff = b"MM\x00\x2a\x00\x00\x00\x08" + struct.pack(">H", 1) + struct.pack(">HHIHH", 0x0112, 3, 1, 6, 0)
+    app1 = b"Exif\x00\x00" + tiff + struct.pack(">I", 0)  # orientation 6: turn 90 deg clockwise to view
+    path = tmp_path / "turned.jpg"
+    path.write_bytes(data[:2] + b"\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1 + data[2:])
+    assert cv2.imdecode(np.fromfile(str(path), np.uint8), cv2.IMREAD_GRAYSCALE).shape == (100, 60)  # OpenCV turns it
+    got = read_gray(path)
+    assert got.shape == (60, 100) and np.abs(got.astype(int) - img).max() < 40
