@@ -14,6 +14,7 @@ import numpy as np
 from ..mounting import EYE_IN_HAND, MODES, mounting
 from .advice import failure_advice, root_cause, untrusted_metrics
 from .folder import ResultFolder
+from .formatting import num
 from .metrics import qa_metrics
 from .observations import as_cov6, as_T, finite, median_board_distance_m, view_fits
 from .qa import evaluate
@@ -140,7 +141,7 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     if any(f["severity"] == "fail" for f in findings):  # those checks are shown untrusted: the headline skips them
         notes["headline_skips"] = tuple(untrusted)
     if pred is not None and "predicted_error_mm" not in untrusted:  # the headline repeats it
-        notes["predicted_text"] = f"{pred['rms_mm']:.2f} mm (1 σ) at {wd:.2f} m"
+        notes["predicted_text"] = f"{num(pred['rms_mm'], 2)} mm (1 σ) at {wd:.2f} m"
     verdict = evaluate(
         metrics,
         qa_cfg,

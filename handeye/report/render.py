@@ -20,6 +20,7 @@ import jinja2
 
 from .. import __version__
 from .folder import THUMBNAILS_DIR
+from .formatting import num
 
 FILES_DIR = "report_files"
 #: revision of the escaping compiled into the templates (a new value invalidates cached bytecode)
@@ -102,22 +103,6 @@ def _env(*, html: bool) -> jinja2.Environment:
     }.get(s, s)
     env.globals["version"] = __version__
     return env
-
-
-def num(x, digits: int = 2, *, signed: bool = False) -> str:
-    """A number for people: fixed digits, an em dash for missing values (ASCII minus: numbers get copied)."""
-    if x is None or isinstance(x, str):
-        return "—" if x is None else x
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return str(x)
-    if not math.isfinite(v):
-        return "—"
-    s = f"{v:+.{digits}f}" if signed else f"{v:.{digits}f}"
-    if s.lstrip("+-").strip("0.") == "":  # -0.000 -> 0.000
-        s = s.replace("-", "+" if signed else "")
-    return s
 
 
 def pct(x, digits: int = 0) -> str:

@@ -4,6 +4,7 @@ and the workflow on them."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -172,7 +173,10 @@ def test_a_pose_only_report_and_verdict_speak_of_poses_not_pixels(tmp_path):
     md = (tmp_path / "o" / "report.md").read_text()
     views = md[md.index("## Views") :].split("\n## ")[0]
     assert "| View | Status | Robot vs tracker | Flags |" in views and "[px]" not in views and "image not" not in views
-    assert "Robot vs tracker" in (tmp_path / "o" / "report.html").read_text()
+    html = (tmp_path / "o" / "report.html").read_text()
+    assert "Robot vs tracker" in html
+    ids = set(re.findall(r'\sid="([^"]+)"', html))
+    assert not [t for t in re.findall(r'href="#([^"]+)"', html) if t not in ids]  # no "Data quality" link to nothing
     assert (
         main(["-q", "calibrate", str(tmp_path / "s"), "--no-refine", "--no-report", "--out", str(tmp_path / "n")]) == 0
     )

@@ -210,6 +210,10 @@ def test_reports_are_written_beside_the_result(synthetic):
     assert n["jpeg"] == len(list((out / "thumbnails").glob("*.jpg"))), n  # every thumbnail the folder holds
     for key in ("residuals", "per_view", "coverage", "poses", "rotations", "uncertainty"):
         assert f'id="fig-{key}"' in html, key
+    ids = re.findall(r'\sid="([^"]+)"', html)
+    assert len(ids) == len(set(ids)), sorted(i for i in ids if ids.count(i) > 1)  # each anchor once
+    for target in re.findall(r'href="#([^"]+)"', html):
+        assert target in ids, target  # no link to a section the report does not have
 
 
 @needs_chromium
@@ -582,6 +586,14 @@ def test_a_value_that_crossed_its_limit_never_reads_as_the_limit():
     assert "at most 29.97 deg" in c["max_rotation_deg"].why
     assert c["reprojection_rms_px"].value_text.startswith("0.8004")  # as many decimals as it takes
     assert evaluate({"max_rotation_deg": 25.04}, cfg).checks[0].value_text == "25.0 deg"  # else as configured
+
+
+def test_a_small_value_is_not_printed_as_zero():
+    """A sigma of 0.003 mm at two decimals read "0.00 mm" (a single marker's predicted error, its headline)."""
+    from handeye.report.formatting import num
+
+    assert [num(v) for v in (0.0034, -0.0003, 0.02, 0.0, 1.234)] == ["0.0034", "-0.00030", "0.02", "0.00", "1.23"]
+    assert num(3e-8) == "3.0e-08" and num(0.0034, 3) == "0.003" and num(0.0004, 2, signed=True) == "+0.00040"
 
 
 def test_a_failing_finding_fails_the_verdict_and_its_numbers_are_not_shown_green(synthetic, tmp_path):
