@@ -21,6 +21,7 @@ from ..camera import INTRINSIC_NAMES
 from ..config import load_preset
 from ..frames import inv_T, rotvec_from_R, se3_adjoint, tangent_difference
 from ..output import plain
+from ..session.target_spec import target_words
 from ..stats import satterthwaite_dof, wald_p_value
 from .loaded import LoadedResult, ResultLike, axes_words, load_result
 
@@ -135,7 +136,7 @@ def why_not_comparable(a: LoadedResult, b: LoadedResult) -> str:
     if a.x_name != b.x_name:
         return f"frames differ: A gives {a.x_name}, B gives {b.x_name}"
     if a.target != b.target:
-        return f"boards differ: A used {_target_text(a.target)}, B used {_target_text(b.target)}"
+        return f"boards differ: A used {target_words(a.target)}, B used {target_words(b.target)}"
     if a.image_size and b.image_size and a.image_size != b.image_size:
         return (
             f"camera resolutions differ: A is {a.image_size[0]}x{a.image_size[1]}, "
@@ -145,19 +146,6 @@ def why_not_comparable(a: LoadedResult, b: LoadedResult) -> str:
         if r.cov_x is None:
             return f"result {name} has no covariance of {r.x_name} (calibrated without the refinement)"
     return ""
-
-
-def _target_text(t) -> str:
-    if not isinstance(t, dict):
-        return "an unknown board"
-    return (
-        " ".join(
-            f"{k}={v}"
-            for k, v in t.items()
-            if k in ("type", "inner_corners", "squares", "grid", "square_m", "marker_m", "spacing_m", "dictionary")
-        )
-        or str(t)[:60]
-    )
 
 
 def x_difference(T_a: np.ndarray, cov_a: np.ndarray, T_b: np.ndarray, cov_b: np.ndarray) -> dict:

@@ -19,6 +19,7 @@ from typing import Optional
 from ..errors import InputError
 from ..mounting import mounting
 from ..output import plain
+from ..session.target_spec import target_words
 from .drift import JOINT_DH_KIND, JOINT_KIND, DriftTest, change_in_result_frame, drift_test, joint_drift_test
 from .joint import installed_robot_model, shares_dh, test_refined, with_installed_dh
 from .loaded import LoadedResult
@@ -99,7 +100,7 @@ def session_for_installed(session_path, installed: LoadedResult, *, mode: Option
         raise InputError(
             f"the session's board ({s.target.describe()}) is not the installed calibration's",
             path=s.path,
-            expected=f"the installed calibration's: {_target_words(installed.target)}",
+            expected=f"the installed calibration's: {target_words(installed.target)}",
             code="not_comparable",
             hint="the installed calibration came from a tracker's poses; verify needs one calibrated from images "
             "of this board (calibrate this session for one)"
@@ -107,20 +108,6 @@ def session_for_installed(session_path, installed: LoadedResult, *, mode: Option
             else "verify with the board the rig was calibrated with",
         )
     return s
-
-
-def _target_words(target: dict) -> str:
-    """A result.json ``target`` in words (as the session field describes it), else as written."""
-    from ..errors import HandeyeError
-    from ..session.target_spec import parse_target
-    from ..targets import TrackedTargetSpec
-
-    if target.get("type") == "tracked":
-        return TrackedTargetSpec(str(target.get("name") or "")).describe()
-    try:
-        return parse_target(target, path=Path("result.json")).describe()
-    except HandeyeError:
-        return str(target)
 
 
 def installed_images_among(installed: LoadedResult, session) -> int:

@@ -136,3 +136,21 @@ def parse_target(t: Any, *, path: Path) -> TargetSpec:
     if parser is None:
         raise ConfigError("unknown target type", path=path, expected=" | ".join(TARGET_TYPES), received=repr(t["type"]))
     return parser(t, path)
+
+
+def target_words(target) -> str:
+    """A result.json ``target`` (the session field it was read from) in words, as its spec describes it.
+
+    A tracker's target says so; a mapping no spec reads is given as written; anything else is an unknown board.
+    """
+    from ..errors import HandeyeError
+    from ..targets import TrackedTargetSpec
+
+    if not isinstance(target, dict):
+        return "an unknown board"
+    if target.get("type") == "tracked":
+        return TrackedTargetSpec(str(target.get("name") or "")).describe()
+    try:
+        return parse_target(target, path=Path("result.json")).describe()
+    except HandeyeError:
+        return str(target)

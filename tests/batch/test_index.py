@@ -192,8 +192,8 @@ def test_drift_only_within_a_series_and_pairs_across_series_say_why(tmp_path, mo
         ("s1", "s2"): "mounting modes differ: A is eye_in_hand, B is eye_to_hand",
         ("s2", "s3"): "mounting modes differ: A is eye_to_hand, B is eye_in_hand",
         ("s3", "s4"): (
-            "boards differ: A used type=chessboard inner_corners=[11, 8] square_m=0.03, "
-            "B used type=chessboard inner_corners=[9, 6] square_m=0.03"
+            "boards differ: A used chessboard 11x8 inner corners, 30 mm, "
+            "B used chessboard 9x6 inner corners, 30 mm"
         ),
         ("s4", "s5"): "camera resolutions differ: A is 640x360, B is 1280x720",
     }

@@ -5,26 +5,10 @@ from __future__ import annotations
 import datetime as _dt
 import sys
 from pathlib import Path
-from typing import Any
 
 from ... import __version__
 from ...output import plain
-
-
-def _target_text(t: dict | None) -> str:
-    if not t:
-        return ""
-    kind = t.get("type") or t.get("kind")
-    sq: Any = t.get("square_m")  # a number, as result.json writes it
-    if kind == "chessboard":
-        ic = t.get("inner_corners") or [t.get("cols"), t.get("rows")]
-        return f"chessboard, {ic[0]}×{ic[1]} inner corners, {sq * 1e3:g} mm squares" if sq else "chessboard"
-    if kind == "charuco":
-        s = t.get("squares") or ["?", "?"]
-        m = t.get("marker_m")
-        extra = f", markers {m * 1e3:g} mm" if m else ""
-        return f"ChArUco {s[0]}×{s[1]} squares of {sq * 1e3:g} mm{extra}, {t.get('dictionary', '')}".rstrip(", ")
-    return str(kind or "")
+from ...session.target_spec import target_words
 
 
 def _meta(res: dict, obs: dict) -> dict:
@@ -33,12 +17,13 @@ def _meta(res: dict, obs: dict) -> dict:
     path = sess.get("path") or ""
     nv = res.get("n_views") or {}
     size = (res.get("intrinsics") or {}).get("image_size") or obs.get("image_size")
+    target = res.get("target") or obs.get("target")
     return {
         "session_name": Path(path).name if path else "session",
         "session_path": path,
         "session_format": sess.get("format", ""),
         "pose_format": sess.get("pose_format", ""),
-        "target": _target_text(res.get("target") or obs.get("target")),
+        "target": target_words(target) if target else "",
         "calibrated_utc": prov.get("time_utc", ""),
         "generated_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "method": res.get("method", ""),
