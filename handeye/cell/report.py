@@ -8,6 +8,7 @@ agreement, views used); each camera's full report is its solo folder's.
 from __future__ import annotations
 
 import html
+import re
 from pathlib import Path
 
 import numpy as np
@@ -76,23 +77,44 @@ def cell_markdown(res: dict) -> str:
         lines.append(f"- **{f['severity'].upper()}** {f['title']}{who}: {f['evidence']}. {f['action']}")
     if not found:
         lines.append("None: the cameras agree about the arm's poses, and each camera's own result with the cell's.")
-    lines += ["", "Each camera's full report: solo/<camera>/report.html (its own calibration).", ""]
+    lines += ["", "## Each camera's own calibration", ""]
+    for name, c in (res.get("cameras") or {}).items():
+        why = str(c.get("verdict_headline") or c.get("failure_reason") or "").strip()
+        lines.append(f"- **{name}** ({c.get('verdict', '?')}): {why} [its report](solo/{name}/report.md)")
+    lines.append("")
     return "\n".join(lines)
 
 
+_STYLE = (
+    "body{font-family:'DejaVu Sans',Arial,sans-serif;color:#1d2733;max-width:1100px;margin:24px auto;padding:0 16px}"
+    "table{border-collapse:collapse;margin:8px 0 16px}th,td{border:1px solid #d5dbe3;padding:4px 8px;text-align:left}"
+    "th{background:#f1f4f8}h1{font-size:22px}h2{font-size:17px;margin-top:24px}"
+)
+_LINK = re.compile(r"\[([^\]]+)\]\(([^)\s]+)\)")
+
+
+def _html_link(m: re.Match) -> str:
+    """A Markdown link as an HTML one; a solo camera's report.md becomes its report.html."""
+    return f'<a href="{m.group(2).replace("report.md", "report.html")}">{m.group(1)}</a>'
+
+
 def cell_html(res: dict) -> str:
-    """The cell's report as a self-contained HTML page (the Markdown's content, tables as tables)."""
-    out = ["<!doctype html><html><head><meta charset='utf-8'><title>handeye cell</title></head><body>"]
+    """The cell's report as a self-contained HTML page (the Markdown's content, tables as tables, links as links)."""
+    out = [
+        "<!doctype html><html lang='en'><head><meta charset='utf-8'><title>handeye cell</title>"
+        f"<style>{_STYLE}</style></head><body>"
+    ]
     in_table = False
     for line in cell_markdown(res).splitlines():
         if line.startswith("|"):
             cells = [html.escape(x.strip()) for x in line.strip("|").split("|")]
             if set("".join(cells)) <= set("-"):
                 continue
+            tag = "td" if in_table else "th"  # a table's first row is its header
             if not in_table:
-                out.append("<table border='1' cellspacing='0' cellpadding='3'>")
+                out.append("<table>")
                 in_table = True
-            out.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
+            out.append("<tr>" + "".join(f"<{tag}>{c}</{tag}>" for c in cells) + "</tr>")
             continue
         if in_table:
             out.append("</table>")
@@ -102,7 +124,9 @@ def cell_html(res: dict) -> str:
         elif line.startswith("# "):
             out.append(f"<h1>{html.escape(line[2:])}</h1>")
         elif line.startswith("- "):
-            out.append(f"<p>{html.escape(line[2:]).replace('**', '')}</p>")
+            text = re.sub(r"\*\*([^*]+)\*\*", r"<b>\1</b>", html.escape(line[2:]))
+            text = _LINK.sub(_html_link, text)
+            out.append(f"<p>{text}</p>")
         elif line:
             out.append(f"<p>{html.escape(line)}</p>")
     if in_table:

@@ -68,7 +68,12 @@ def test_the_cell_result_is_one_contract_file_against_the_truth(cell):
     )
     assert "board" not in res.raw  # two boards (flange and table): each camera's entry has its own
     assert (out / "report.md").read_text().startswith("# Cell of 3 cameras")
-    assert "T_cam1_cam2" in (out / "report.html").read_text()
+    html = (out / "report.html").read_text()
+    assert "T_cam1_cam2" in html and "<th>" in html and "lang='en'" in html
+    for name in res.camera_names:  # each camera's verdict with its reason, and a link to its own report
+        link = f'<a href="solo/{name}/report.html">its report</a>'
+        assert link in html and (out / "solo" / name / "report.html").is_file(), name
+        assert res.raw["cameras"][name]["verdict_headline"].rstrip(".") in html.replace("&lt;", "<"), name
 
 
 def test_sessions_named_one_by_one_are_the_same_cell(cell, tmp_path):
