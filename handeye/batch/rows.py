@@ -260,7 +260,7 @@ def _fill(row: dict, f: dict, res: dict, path: Path, camera: Optional[str] = Non
     row.update(mode=f["mode"], verdict=f["verdict"], outcome=row["outcome"] or "done", findings=f["findings"])
     if not row["time_utc"]:
         row.update(time_utc=f["time_utc"], time_source="calibrated")
-    if not row["reason"] and row["verdict"] not in ("PASS", "WARN"):
+    if not row["reason"] and row["verdict"] != "PASS":  # a WARN says why too (a QA check is no finding)
         row["reason"] = f["why"] or ""
     if f.get("translation_mm") is not None and f.get("rotvec_deg") is not None:
         row.update(x_name=f["x_name"], sigma_source=f["sigma_source"], reprojection_rms_px=f["rms_px"])

@@ -192,8 +192,7 @@ def test_drift_only_within_a_series_and_pairs_across_series_say_why(tmp_path, mo
         ("s1", "s2"): "mounting modes differ: A is eye_in_hand, B is eye_to_hand",
         ("s2", "s3"): "mounting modes differ: A is eye_to_hand, B is eye_in_hand",
         ("s3", "s4"): (
-            "boards differ: A used chessboard 11x8 inner corners, 30 mm, "
-            "B used chessboard 9x6 inner corners, 30 mm"
+            "boards differ: A used chessboard 11x8 inner corners, 30 mm, B used chessboard 9x6 inner corners, 30 mm"
         ),
         ("s4", "s5"): "camera resolutions differ: A is 640x360, B is 1280x720",
     }
@@ -227,3 +226,18 @@ def test_a_trend_of_sessions_at_one_instant_is_drawn_without_a_warning():
         warnings.simplefilter("error")
         png = trend_png("cell", [row, dict(row, tx_mm=1.5)])
     assert png.startswith(b"\x89PNG")
+
+
+def test_a_warn_row_says_why_in_the_csv_and_both_indexes(tmp_path):
+    """A WARN from a QA check (no finding) had an empty Findings / reason cell: a QA engineer scanning the fleet
+    could not tell why. Its row now carries the verdict's headline; a PASS row stays quiet."""
+    out = tmp_path / "out"
+    headline = "T_end_cam passes with warnings: image area reached by corners 27% < 45%."
+    warn = _put(_put(_put(GOOD, "verdict", "WARN"), "findings", []), "verdict_headline", headline)
+    _session(out, "cell-01/warn", result=warn)
+    _session(out, "cell-01/good", result=GOOD)
+    write_index(out, plots=False)
+    rows = {r["result_dir"]: r for r in read_fleet_csv(out / "fleet.csv")}
+    assert rows["cell-01/warn"]["reason"] == headline and rows["cell-01/good"]["reason"] in ("", None)
+    assert "image area reached by corners 27%" in (out / "index.md").read_text()
+    assert "image area reached by corners 27% &lt; 45%" in (out / "index.html").read_text()
