@@ -330,13 +330,27 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
             if first
             else "line k+1 of poses.txt belongs to k.jpg (images numbered from 0)"
         )
-        raise InputError(
-            f"{len(images)} images but {n_pose} pose lines: image {images[missing[0]].name} has no pose line",
-            path=poses_path,
-            hint=f"{belongs}; add the missing poses (a pose missing in between puts "
-            "every later image out of step: the report names where) or remove "
-            "the extra images",
+        gaps = [k for k in range(first, max(images)) if k not in images]  # numbers with no image below the last
+        without = (
+            f"; the images run to {images[max(images)].name} without "
+            + ", ".join(f"{k}{images[max(images)].suffix}" for k in gaps[:5])
+            + (" ..." if len(gaps) > 5 else "")
+            if gaps
+            else ""
         )
+        hint = (
+            f"{belongs}: an image deleted with its pose line puts every later image out of step; put a line back "
+            f"in its place (any pose: a line without its image is a dropped view), or renumber the later images"
+            if gaps
+            else f"{belongs}; add the missing poses (a pose missing in between puts every later image out of step: "
+            "the report names where) or remove the extra images"
+        )
+        what = (
+            f"image {images[missing[0]].name} has no pose line: poses.txt has {n_pose} lines{without}"
+            if gaps
+            else f"{len(images)} images but {n_pose} pose lines: image {images[missing[0]].name} has no pose line"
+        )
+        raise InputError(what, path=poses_path, hint=hint)
     # Gaps are allowed: a pose line whose image was deleted stays in the session as a dropped view.
     without_image = [k for k in range(first, first + n_pose) if k not in images]
     if without_image:

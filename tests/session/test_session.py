@@ -71,8 +71,15 @@ def test_vendor_images_numbered_from_zero_pair_image_k_with_line_k_plus_1(tmp_pa
             T_from_pose_values(lenient.raw.values[v.view_id], lenient.raw.fmt), v.T_base_end, atol=1e-12
         )
     (d / "4.jpg").write_bytes(b"x")  # 0..4 against four pose lines: the last image has none
-    with pytest.raises(InputError, match=r"4.jpg has no pose line -> line k\+1 of poses.txt belongs to k.jpg"):
+    with pytest.raises(
+        InputError, match=r"4.jpg has no pose line: poses.txt has 4 lines; the images run to 4.jpg "
+    ) as e:
         load_session(d)
+    # 2.jpg was deleted with its pose line (a common clean-up): every later image is out of step, which is said
+    assert "without 2.jpg -> line k+1 of poses.txt belongs to k.jpg (images numbered from 0): an image deleted " in (
+        str(e.value)
+    )
+    assert "put a line back in its place" in str(e.value) and "renumber the later images" in str(e.value)
 
 
 @pytest.mark.parametrize("header", ["x,y,z,rx,ry,rz", "x y z rx ry rz", "x[m],y[m],z[m],rx(rad),ry(rad),rz(rad)"])
