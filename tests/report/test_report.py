@@ -588,6 +588,15 @@ def test_a_value_that_crossed_its_limit_never_reads_as_the_limit():
     assert evaluate({"max_rotation_deg": 25.04}, cfg).checks[0].value_text == "25.0 deg"  # else as configured
 
 
+def test_the_robot_error_model_is_said_in_words(synthetic):
+    """The iid robot model's line read 'sigma deg: 5.73e-05; estimated: sigma_mm, sigma_deg; resolved: rot: True;
+    trans: False' (result.json's keys and Python's booleans)."""
+    md = (synthetic["out"] / "report.md").read_text(encoding="utf-8")
+    line = next(x for x in md.splitlines() if x.startswith("Robot error model:"))
+    assert "sigma per axis and view:" in line and " mm / " in line, line
+    assert not re.search(r"True|False|sigma_mm|sigma_deg|resolved:|estimated:", line), line
+
+
 def test_a_small_value_is_not_printed_as_zero():
     """A sigma of 0.003 mm at two decimals read "0.00 mm" (a single marker's predicted error, its headline)."""
     from handeye.report.formatting import num

@@ -6,6 +6,7 @@ from typing import Optional
 
 import numpy as np
 
+from ..formatting import num
 from .result import SIGMA_SOURCE_TEXT
 from .values import _num
 
@@ -83,8 +84,26 @@ def _robot_model(ref) -> Optional[dict]:
     )
     if isinstance(rm, dict) and rm:
         items = []
+        said = {"kind", "sigma_mm", "sigma_deg", "estimated", "resolved"}
+        if "sigma_mm" in rm or "sigma_deg" in rm:  # an iid model's two sigmas, in words
+            est = set(rm.get("estimated") or [])
+            how = "estimated from the data" if {"sigma_mm", "sigma_deg"} <= est else "as given" if not est else ""
+            res = rm.get("resolved") if isinstance(rm.get("resolved"), dict) else {}
+            unresolved = [w for k, w in (("rot", "rotation"), ("trans", "translation")) if res.get(k) is False]
+            items.append(
+                {
+                    "name": "sigma per axis and view",
+                    "value": f"{num(_num(rm.get('sigma_mm')), 3)} mm / {num(_num(rm.get('sigma_deg')), 4)} deg"
+                    + (f", {how}" if how else "")
+                    + (
+                        f" (the camera cannot resolve the {' and the '.join(unresolved)} sigma: it is held)"
+                        if unresolved
+                        else ""
+                    ),
+                }
+            )
         for k, v in rm.items():
-            if k == "kind":
+            if k in said:
                 continue
             items.append({"name": str(k).replace("_", " "), "value": _plain_text(v)})
         return {"kind": str(rm.get("kind", "?")), "items": items + stated}
