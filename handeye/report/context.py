@@ -134,6 +134,7 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     )
     failure = failure_advice(res, findings, has_views=bool(views)) if not ok else None
     notes["x_name"] = x_name
+    notes["intrinsics_fixed"] = "fixed" in str((res.get("intrinsics") or {}).get("source") or "")
     cause = root_cause(res, findings)
     if cause:
         notes["root_cause"] = cause

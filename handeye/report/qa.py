@@ -205,8 +205,12 @@ _SPEC = {
         "",
         "{:.0%}",
         lambda v, lim, c: (
-            f"detected corners reach {v:.0%} of the image (limit {lim:.0%}); the lens distortion is "
-            "then only known where the board was"
+            f"detected corners reach {v:.0%} of the image (limit {lim:.0%}); "
+            + (
+                "the given intrinsics are then checked against the image only where the target was"
+                if c.get("intrinsics_fixed")
+                else "the lens distortion is then only known where the target was"
+            )
         ),
         lambda c: "add views with the board near the image edges and corners",
     ),

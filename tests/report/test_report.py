@@ -1341,3 +1341,16 @@ def test_the_tracker_model_lines_of_a_pose_only_result():
         "noise"
     ]
     assert _tracker({"sigma_px": 0.2}) is None  # an image result has no tracker
+
+
+def test_the_coverage_warning_speaks_of_given_intrinsics_as_given():
+    """With the intrinsics given fixed, a low image coverage does not leave the lens distortion 'only known where
+    the board was' (nothing estimated it): the warning says what it does mean."""
+    from handeye.report.qa import evaluate
+
+    cfg = {"checks": {"image_coverage": {"warn_below": 0.45}}}
+    own = evaluate({"image_coverage": 0.27}, cfg, context={}).checks[0].why
+    given = evaluate({"image_coverage": 0.27}, cfg, context={"intrinsics_fixed": True}).checks[0].why
+    assert "lens distortion is then only known where the target was" in own
+    assert "given intrinsics are then checked against the image only where the target was" in given
+    assert "distortion" not in given
