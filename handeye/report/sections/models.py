@@ -88,7 +88,8 @@ def _robot_model(ref) -> Optional[dict]:
         if "sigma_mm" in rm or "sigma_deg" in rm:  # an iid model's two sigmas, in words
             est = set(rm.get("estimated") or [])
             how = "estimated from the data" if {"sigma_mm", "sigma_deg"} <= est else "as given" if not est else ""
-            res = rm.get("resolved") if isinstance(rm.get("resolved"), dict) else {}
+            got = rm.get("resolved")
+            res: dict = got if isinstance(got, dict) else {}
             unresolved = [w for k, w in (("rot", "rotation"), ("trans", "translation")) if res.get(k) is False]
             items.append(
                 {
