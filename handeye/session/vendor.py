@@ -85,7 +85,12 @@ def read_pose_lines(poses_path: Path, *, first: int = 1) -> list[PoseLine]:
             values = np.array([float(f) for f in (f.strip("[]()") for f in fields) if f])
         except ValueError:
             raise InputError(
-                "malformed pose line", path=poses_path, line=lineno, expected=_POSE_EXPECTED, received=repr(s[:80])
+                "malformed pose line",
+                path=poses_path,
+                line=lineno,
+                expected=_POSE_EXPECTED,
+                received=repr(s[:80]),
+                hint=_malformed_hint(s),
             ) from None
         if not out and header is not None:
             if len(header[1]) != values.size:  # not the names of these columns: a pose line gone wrong
@@ -103,6 +108,20 @@ def read_pose_lines(poses_path: Path, *, first: int = 1) -> list[PoseLine]:
     if not out:
         raise InputError("poses.txt has no pose lines", path=poses_path, expected="one line x,y,z,rx,ry,rz per image")
     return out
+
+
+def _malformed_hint(line: str) -> str:
+    """What a pose line that does not read as numbers most likely holds, and what to do."""
+    decimal_commas = re.search(r"\d,\d", line) and not re.search(r"\d\.\d", line)
+    if decimal_commas:
+        return "write decimal points, not decimal commas (a locale's export), e.g. 0.512 not 0,512" + (
+            ", and separate the numbers with commas or spaces" if ";" in line else ""
+        )
+    if ";" in line:
+        return "separate the numbers with commas or spaces, not semicolons"
+    if "#" in line:
+        return "put a comment on a line of its own (starting with #)"
+    return "write six numbers x,y,z,rx,ry,rz (metres and radians) per line"
 
 
 def _is_header(fields: list[str]) -> bool:

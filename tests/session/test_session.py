@@ -942,3 +942,22 @@ def test_images_from_zero_with_a_header_and_a_gap_name_the_pose_line_by_its_coun
     assert [v.source_line for v in s.views] == [3, 5, 6]  # lines in the file
     assert s.meta["missing_images"] == {"1": 2}  # pose line 2: the second line with numbers
     np.testing.assert_allclose(s.view("2").T_base_end, POSES[2], atol=1e-8)
+
+
+@pytest.mark.parametrize(
+    "line, fix",
+    [
+        ("0.1;0.2;0.3;0.01;0.02;0.03", "not semicolons"),
+        ("0,1;0,2;0,3;0,01;0,02;0,03", "decimal points, not decimal commas"),
+        ("0.1,0.2,0.3,0.01,0.02,0.03 # view 1", "a comment on a line of its own"),
+    ],
+)
+def test_a_malformed_pose_line_says_what_it_likely_holds(tmp_path, line, fix):
+    """Semicolons, decimal commas (a European locale's export) and an inline comment: the one-line error names
+    the line and the likely cause; before, only 'malformed pose line'."""
+    from handeye.session.vendor import read_pose_lines
+
+    (tmp_path / "poses.txt").write_text(line + "\n")
+    with pytest.raises(InputError, match="malformed pose line") as e:
+        read_pose_lines(tmp_path / "poses.txt")
+    assert fix in str(e.value) and "poses.txt:1" in str(e.value)
