@@ -110,16 +110,17 @@ def camera_names(session_paths: Sequence) -> list[str]:
     return names
 
 
-def check_cell_sessions(paths: Sequence[Path], names: Sequence[str], *, mode=None, allow_outside=False) -> None:
-    """Read every camera's session and compare the robot poses of the view ids they share, before any work.
+def check_cell_sessions(paths: Sequence[Path], names: Sequence[str], *, mode=None, allow_outside=False) -> list:
+    """Every camera's session, read and the robot poses of the view ids they share compared, before any work.
 
     A missing or unreadable session, or one view id at two robot poses, is an InputError naming the file;
-    nothing has been calibrated or written then.
+    nothing has been calibrated or written then. Returns the sessions in ``paths``' order.
     """
     from ..refine.cell import robot_pose_conflict
     from ..session import load_session
 
     seen: dict[str, np.ndarray] = {}  # view id -> the robot pose the first camera with it gives
+    sessions = []
     for name, p in zip(names, paths, strict=True):
         if not Path(p).exists():
             raise InputError(
@@ -129,6 +130,7 @@ def check_cell_sessions(paths: Sequence[Path], names: Sequence[str], *, mode=Non
                 "fix the name or add the folder",
             )
         s = load_session(p, mode=mode, allow_outside=allow_outside, check_sizes=False)
+        sessions.append(s)
         folder = Path(s.path)
         pose_file = next((f for f in (folder / "session.yaml", folder / "poses.txt") if f.is_file()), folder)
         for v in s.views:
@@ -138,6 +140,7 @@ def check_cell_sessions(paths: Sequence[Path], names: Sequence[str], *, mode=Non
                     raise conflict
             else:
                 seen[v.view_id] = np.asarray(v.T_base_end, float)
+    return sessions
 
 
 def _remove_other_cameras(solo_dir: Path, names: Sequence[str]) -> None:
@@ -150,19 +153,18 @@ def _remove_other_cameras(solo_dir: Path, names: Sequence[str]) -> None:
             shutil.rmtree(d)
 
 
-def _detect_ahead(path: Path, options: CalibrateOptions, mode: Optional[str], allow_outside: bool):
-    """A camera's session read and its images detected ahead of its calibration.
+def _detect_ahead(session, options: CalibrateOptions):
+    """A camera's images (its session as :func:`check_cell_sessions` read it) detected ahead of its calibration.
 
     (:class:`handeye.pipeline.Detected`), or None when that fails: the camera's own calibration then says why,
     in its result and report.
     """
     from ..pipeline import detect_ahead
-    from ..session import load_session
 
     try:
-        return detect_ahead(load_session(path, mode=mode, allow_outside=allow_outside, check_sizes=False), options)
+        return detect_ahead(session, options)
     except HandeyeError as e:
-        log.debug("%s: not detected ahead (%s)", path, e)
+        log.debug("%s: not detected ahead (%s)", session.path, e)
         return None
 
 
@@ -211,7 +213,7 @@ def calibrate_cell(
             hint=f"calibrate it as one session (handeye calibrate {paths[0]}), or list the other cameras",
         )
     names = camera_names(paths)
-    check_cell_sessions(paths, names, mode=mode, allow_outside=allow_outside)
+    sessions = check_cell_sessions(paths, names, mode=mode, allow_outside=allow_outside)
     load_qa(qa)  # a bad site QA file is unusable input: say so before any work
     out = check_out_dir(out_dir)
     with FolderLock(out):
@@ -222,7 +224,7 @@ def calibrate_cell(
         # GIL): the next camera's images are detected while one camera is calibrated
         ahead = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cell-detect")
         try:
-            detecting = [ahead.submit(_detect_ahead, p, options, mode, allow_outside) for p in paths]
+            detecting = [ahead.submit(_detect_ahead, s, options) for s in sessions]
             for name, p, detected in zip(names, paths, detecting, strict=True):
                 progress(f"camera {name}: its own calibration")
                 solos[name] = calibrate_session(
