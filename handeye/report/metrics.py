@@ -116,8 +116,7 @@ def qa_metrics(
     else:
         m["image_coverage"] = None
         c["image_coverage_missing"] = "no detected corners"
-    tracked = (res.get("target") or {}).get("type") == "tracked"  # with or without a refinement
-    if tracked or (ref and ref.get("observations") == "poses"):  # a pose-only session: no corners, no pixel checks
+    if (res.get("target") or {}).get("type") == "tracked":  # a pose-only session: no corners, no pixel checks
         for k in ("reprojection_rms_px", "image_coverage"):
             m.pop(k, None)
     return m, c
