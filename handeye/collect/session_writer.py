@@ -14,7 +14,6 @@ from __future__ import annotations
 import datetime as _dt
 import logging
 import os
-import sys
 from pathlib import Path
 
 import cv2
@@ -24,7 +23,7 @@ import yaml
 from .. import __version__
 from ..camera import Intrinsics
 from ..errors import HardwareError, InputError
-from ..output import atomic_write_bytes, plain, to_json
+from ..output import atomic_write_bytes, command_line, plain, to_json
 from ..targets import TargetSpec
 
 log = logging.getLogger(__name__)
@@ -111,7 +110,7 @@ class SessionWriter:
         header["view_records"] = RECORDS_DIR
         header["collected"] = {
             "handeye_version": __version__,
-            "command_line": " ".join(sys.argv),
+            "command_line": command_line(),
             "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
             **(collected or {}),
         }
