@@ -199,7 +199,12 @@ def command_line() -> str:
     given = (_RECORDED_AS.get() or {}).get("command_line")
     if given is not None:
         return given
-    return " ".join([Path(sys.argv[0]).name] + sys.argv[1:]) if sys.argv else ""
+    if not sys.argv:
+        return ""
+    program = Path(sys.argv[0]).name
+    if program == "__main__.py":  # ``python -m handeye``: the module, as it was typed
+        program = "python -m handeye"
+    return " ".join([program] + sys.argv[1:])
 
 
 def provenance(*, inputs_sha256: str | None = None, extra: dict | None = None) -> dict:

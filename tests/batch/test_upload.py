@@ -159,3 +159,11 @@ def test_recorded_paths_and_command_line_are_the_user_s_inside_recorded_as(monke
         assert provenance()["command_line"] == "handeye batch /data --out /qa"
     assert recorded_path("/scratch/tmp1/session/3.jpg") == "/scratch/tmp1/session/3.jpg"
     assert provenance()["command_line"] == "handeye calibrate s1"
+
+
+def test_command_line_of_python_m_handeye_is_recorded_as_typed(monkeypatch):
+    """``python -m handeye calibrate s1`` runs handeye/__main__.py; the provenance names the module, not that file."""
+    from handeye.output import provenance
+
+    monkeypatch.setattr("sys.argv", ["/opt/venv/lib/python3.11/site-packages/handeye/__main__.py", "calibrate", "s1"])
+    assert provenance()["command_line"] == "python -m handeye calibrate s1"
