@@ -871,7 +871,7 @@ def test_figures_drawn_in_two_processes_are_the_same_pngs(synthetic, monkeypatch
 
 def test_pose_figure_draws_both_mounting_modes():
     """The pose figure for a moving camera (eye-in-hand) and a moving board (eye-to-hand), flagged views
-    included: a PNG of the figure's size (8.6 x 3.9 in at 100 dpi)."""
+    included: a PNG of the figure's size (8.6 x 4.2 in at 100 dpi)."""
     import cv2
 
     from handeye.frames import T_from_rotvec
@@ -895,7 +895,37 @@ def test_pose_figure_draws_both_mounting_modes():
                 camera_moves=moves,
             )
             img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
-            assert img.shape == (390, 860, 3) and float(img.std()) > 10
+            assert img.shape == (420, 860, 3) and float(img.std()) > 10
+
+
+def test_pose_figure_legend_sits_under_both_views_not_over_the_poses(monkeypatch):
+    """The legend is the figure's, in one row below both views: inside a view it covered poses near its corner."""
+    from handeye.frames import T_from_rotvec
+    from handeye.report import plots
+    from handeye.report.plots import geometry
+
+    drawn = []
+    monkeypatch.setattr(geometry, "_png", lambda fig: drawn.append(fig) or b"")
+    T_be = np.stack([T_from_rotvec([0.1 * k, 0.2, 0.0], [0.3 + 0.1 * k, 0.25, 0.5]) for k in range(6)])
+    T_x = T_from_rotvec([0.1, 0.2, 0.3], [0.01, 0.02, 0.05])
+    outline = np.array([[0, 0, 0], [0.2, 0, 0], [0.2, 0.15, 0], [0, 0.15, 0]], float)
+    with plots.style():
+        plots.poses_3d(
+            T_base_cams=T_be @ T_x,
+            T_base_ends=T_be,
+            T_base_boards=np.repeat(T_x[None], 6, axis=0),
+            board_outline=outline,
+            flagged=[True] + [False] * 5,
+            camera_moves=True,
+        )
+    (fig,) = drawn
+    fig.canvas.draw()
+    assert all(ax.get_legend() is None for ax in fig.axes)
+    (legend,) = fig.legends
+    box = legend.get_window_extent()
+    labels = [t.get_text() for t in legend.get_texts()]
+    assert labels == ["robot end (flange), x y z", "camera", "board", "dropped or flagged view"]
+    assert all(box.y1 < ax.get_window_extent().y0 for ax in fig.axes)
 
 
 @pytest.mark.realdata

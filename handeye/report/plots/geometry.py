@@ -45,16 +45,15 @@ def poses_3d(
 ) -> bytes:
     """Robot base, end poses, cameras and board(s) in the base frame: an oblique and a top view.
 
-    Robot base, end poses, cameras and board(s) in the base frame: an oblique and a top view
-    (orthographic projections drawn in 2-D). ``camera_moves``: a camera per pose (eye-in-hand), else a
-    board per pose.
+    Orthographic projections drawn in 2-D, with one legend in a row under both views (inside a view it can
+    hide the poses it explains). ``camera_moves``: a camera per pose (eye-in-hand), else a board per pose.
     """
     from matplotlib.collections import PolyCollection
 
     flagged = np.asarray(flagged, bool)
     pts = np.concatenate([T_base_cams[:, :3, 3], T_base_ends[:, :3, 3], T_base_boards[:, :3, 3], np.zeros((1, 3))])
     L = 0.07 * (float(np.max(np.ptp(pts, axis=0))) or 1.0)
-    fig = _fig(3.9, left=0.02, right=0.99, bottom=0.12, top=0.92, wspace=0.08)
+    fig = _fig(4.2, left=0.02, right=0.99, bottom=0.2, top=0.92, wspace=0.08)
     views = [
         ("Oblique view (elevation 24°, azimuth −58°)", _view_matrix(24, -58), False),
         ("Top view (base x–y)", np.array([[1.0, 0, 0], [0, 1.0, 0]]), True),
@@ -124,7 +123,8 @@ def poses_3d(
             ax.fill([], [], color=ORANGE, alpha=0.4, label="board")
             if flagged.any():
                 ax.plot([], [], color=RED, label="dropped or flagged view")
-            ax.legend(loc="best", fontsize=7)
+            handles, labels = ax.get_legend_handles_labels()
+            fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=7, frameon=False)
         else:
             ax.set_xticks([])
             ax.set_yticks([])
