@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import datetime as _dt
-import sys
 from pathlib import Path
 
 from ... import __version__
-from ...output import plain
+from ...output import command_line, plain
 from ...session.target_spec import target_words
 
 
@@ -71,7 +70,7 @@ def _provenance(res, qa_cfg, qa_source) -> dict:
                 "mono": False,
             }
         )
-    report_cmd = " ".join([Path(sys.argv[0]).name] + sys.argv[1:]) if sys.argv and sys.argv[0] else ""
+    report_cmd = command_line()
     if report_cmd and report_cmd != (res.get("provenance") or {}).get("command_line") and "pytest" not in report_cmd:
         rows.append({"name": "Report command line", "value": report_cmd, "mono": True})
     rows.append(
