@@ -109,6 +109,9 @@ class DetectionFailure:
 #: the start of the reason of a view whose image file is missing (its pose line or entry has no image): the
 #: diagnostics and the report tell such a view from one whose image showed no target by it
 IMAGE_MISSING_REASON = "image file missing"
+#: the start of the reason of an image left without a pose by ``--shift-poses N`` (its pose would be past the last
+#: line): its target was never looked for, so it is neither "not found" nor an image looked at
+SHIFT_UNPAIRED_REASON = "no pose line after --shift-poses"
 
 
 @dataclass(frozen=True)

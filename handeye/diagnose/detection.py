@@ -12,7 +12,7 @@ import numpy as np
 from ..camera import pixels_from_board_points
 from ..frames import transform_points
 from ..mounting import mounting
-from ..records import IMAGE_MISSING_REASON
+from ..records import IMAGE_MISSING_REASON, SHIFT_UNPAIRED_REASON
 from .findings import Finding
 from .thresholds import thresholds
 
@@ -104,8 +104,9 @@ def detection_findings(
     can_predict = A is not None and B is not None and intr is not None and intr.width > 0
     few = [o for o in not_found if "corners" in str(o.reason) and "only" in str(o.reason)]
     absent = [o for o in not_found if str(o.reason).startswith(IMAGE_MISSING_REASON)]  # a pose without its image
-    missing = [o for o in not_found if o not in few and o not in absent]
-    n_total -= len(absent)  # images looked at
+    unpaired = [o for o in not_found if str(o.reason).startswith(SHIFT_UNPAIRED_REASON)]  # an image without one
+    missing = [o for o in not_found if o not in few and o not in absent and o not in unpaired]
+    n_total -= len(absent) + len(unpaired)  # images looked at
     notes, cut = {}, {}
     for o in missing:
         note = f"view {o.view_id}: {o.reason}"
@@ -165,6 +166,17 @@ def detection_findings(
                 "nothing to do if those images were deleted on purpose; if the images were renumbered "
                 "after a deletion, the later images carry the wrong poses (the pairing check names them)",
                 view_ids=tuple(o.view_id for o in absent),
+            )
+        )
+    if unpaired:
+        out.append(
+            Finding(
+                "shift_unpaired",
+                "info",
+                f"{len(unpaired)} image(s) left without a pose by --shift-poses (dropped)",
+                "; ".join(f"view {o.view_id}: {o.reason}" for o in unpaired),
+                "nothing to do: with the shift, these images' poses would be past the last line of the pose file",
+                view_ids=tuple(o.view_id for o in unpaired),
             )
         )
     partial = [(o.view_id, str(o.reason)) for o in few] + list(cut.items())

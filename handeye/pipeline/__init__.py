@@ -24,7 +24,7 @@ from ..detect import detect_views, size_survey  # observe's detector: tests and 
 from ..errors import CalibrationError, DetectionError, HandeyeError
 from ..initial import METHODS, board_poses, calibrate_intrinsics, chain_residuals
 from ..mounting import mounting
-from ..records import IMAGE_MISSING_REASON, Detection, Session, ViewOutcome, view_id_key
+from ..records import IMAGE_MISSING_REASON, SHIFT_UNPAIRED_REASON, Detection, Session, ViewOutcome, view_id_key
 from ..targets import TargetSpec
 from .gates import _mode_gate, _pairing_gate, _stated_source, shift_poses
 from .records import MIN_VIEWS, CalibrateOptions, CalibrationRun, Detected, Observation, ordered_outcomes
@@ -303,7 +303,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress, detected=Non
             v.view_id,
             getattr(v.image_path, "name", str(v.image_path)),
             False,
-            f"no pose line after --shift-poses {opts.shift_poses}",
+            f"{SHIFT_UNPAIRED_REASON} {opts.shift_poses}",
         )
 
     def ordered():

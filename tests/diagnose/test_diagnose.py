@@ -48,6 +48,7 @@ FAULT_CODES = {
     "too_few_views",
     "target_not_found",
     "image_missing",
+    "shift_unpaired",
     "blurred",
     "overexposed",
     "partial_target",
@@ -1253,6 +1254,19 @@ def test_a_pose_line_without_its_image_is_named_as_such_not_as_target_not_found(
     assert run.status == "ok"
     f = _one(d, "image_missing")
     assert f["severity"] == "info" and f["view_ids"] == ["5"] and "image file missing (pose line 5" in f["evidence"]
+    assert "target_not_found" not in _codes(d, severities=("fail", "warn", "info"))
+
+
+def test_an_image_left_without_a_pose_by_shift_poses_is_named_as_such_not_as_target_not_found(tmp_path, monkeypatch):
+    """``--shift-poses 1`` pairs image k with pose line k+1: the last image has no line. Its target was never
+    looked for, so it is not a "target not found" (nor counted among the images looked at)."""
+    cs = _session("eye_in_hand", 46, n_views=12)
+    vals = _vals(cs.T_base_end_reported)
+    folder = _write_vendor(tmp_path / "s", cs, [vals[-1]] + vals[:-1])  # line 1 a stray pose, line k+1 image k's
+    run, d = _diagnose(folder, cs, monkeypatch, shift_poses=1)
+    assert run.status == "ok"
+    f = _one(d, "shift_unpaired")
+    assert f["severity"] == "info" and f["view_ids"] == ["12"] and "no pose line after --shift-poses 1" in f["evidence"]
     assert "target_not_found" not in _codes(d, severities=("fail", "warn", "info"))
 
 

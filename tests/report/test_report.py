@@ -1345,6 +1345,12 @@ def test_nulls_in_the_validation_block_and_deleted_images_do_not_break_or_inflat
     row = next(r for r in ctx["views"] if r["id"] == str(v["id"]))
     assert row["status"] == "dropped" and row["reason_kind"] == "image missing" and not row["flagged"]
     assert next(c for c in ctx["verdict"].checks if c.key == "dropped_share").value == pytest.approx(share0)
+    # an image that --shift-poses leaves without a pose is listed as dropped, not counted either
+    v.update(reason="no pose line after --shift-poses 1")
+    ctx = build_report_context(_folder(tmp_path / "d", res, obs), make_plots=False)
+    row = next(r for r in ctx["views"] if r["id"] == str(v["id"]))
+    assert row["status"] == "dropped" and row["reason_kind"] == "no pose (shifted)" and not row["flagged"]
+    assert next(c for c in ctx["verdict"].checks if c.key == "dropped_share").value == pytest.approx(share0)
 
 
 def test_the_tracker_model_lines_of_a_pose_only_result():

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 
-from ...records import IMAGE_MISSING_REASON
+from ...records import IMAGE_MISSING_REASON, SHIFT_UNPAIRED_REASON
 from ..observations import board_disagreement
 from .values import _num
 
@@ -48,6 +48,8 @@ def _view_rows(res, ref, fits, centre, findings, image_size) -> list[dict]:
             reason_kind = kind or (
                 "image missing"
                 if str(v.get("reason") or "").startswith(IMAGE_MISSING_REASON)
+                else "no pose (shifted)"
+                if str(v.get("reason") or "").startswith(SHIFT_UNPAIRED_REASON)
                 else "target not found"
                 if fit is None
                 else "not used"
@@ -95,8 +97,9 @@ def _view_rows(res, ref, fits, centre, findings, image_size) -> list[dict]:
             ]
         # flagged: in the dropped/flagged share once, dropped or its robot pose excluded (it did not serve X);
         # a used view with a few outlier corners is listed (corner_flags), not counted: its pose served X
-        # (a pose line whose image was deleted is listed as dropped, not counted: nothing was captured badly)
-        flagged = status != "used" and reason_kind != "image missing"
+        # (a pose line whose image was deleted, or an image that --shift-poses leaves without a pose, is listed as
+        # dropped, not counted: nothing was captured badly)
+        flagged = status != "used" and reason_kind not in ("image missing", "no pose (shifted)")
         corner_flags = status == "used" and (bool(v.get("flags")) or vid in outl)
         rows.append(
             {
