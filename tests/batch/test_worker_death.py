@@ -65,11 +65,16 @@ def test_a_worker_killed_by_its_session_leaves_handeye_s_line_on_stderr_and_dask
     assert len(lines) == 3, p.stderr  # no line of Dask's
     fail, lost = sorted(lines[1:])
     assert fail == f"cell/2026-03-01: FAIL (done): {other}: no numbered images (1.jpg, 2.jpg, ...) in the folder"
-    assert lost.startswith("cell/2026-03-02-crash: ERROR (lost): the workers running it died"), lost
+    assert lost == (
+        "cell/2026-03-02-crash: ERROR (lost): the workers running it died, 2 in a row; Dask's account is in its "
+        "batch.log"
+    )
 
     rec = json.loads((out / "cell" / "2026-03-02-crash" / "batch.json").read_text())
     assert rec["outcome"] == "lost" and rec["verdict"] == "ERROR", rec
-    assert rec["reason"].startswith("the workers running it died"), rec
+    assert rec["reason"] == "the workers running it died, 2 in a row; Dask's account is in its batch.log"
+    session_log = (out / "cell" / "2026-03-02-crash" / "batch.log").read_text()
+    assert "KilledWorker: Attempted to run task" in session_log, session_log
     batch_log = (out / "batch.log").read_text()
     assert "started: python -m handeye batch" in batch_log
     assert "distributed.nanny INFO: Worker process" in batch_log and "was killed by signal 9" in batch_log
