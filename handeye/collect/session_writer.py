@@ -25,6 +25,7 @@ from .. import __version__
 from ..camera import Intrinsics
 from ..errors import HardwareError, InputError
 from ..output import atomic_write_bytes, command_line, plain, to_json
+from ..session.fields import EMPTY_COLLECTION_FILE
 from ..targets import TargetSpec
 
 log = logging.getLogger(__name__)
@@ -34,7 +35,7 @@ POSE_FORMAT = {"rotation": "matrix", "translation_unit": "m"}
 RECORDS_DIR = "views"
 IMAGES_DIR = "images"
 #: the record of a collection that kept no view (it wrote no session): what session.yaml would say of the run
-EMPTY_RUN_RECORD = "collect_run.yaml"
+EMPTY_RUN_RECORD = EMPTY_COLLECTION_FILE
 EMPTY_RUN_VERSION = 1
 #: session.yaml's keys that make a folder a session: left out of the empty run's record
 _SESSION_KEYS = ("handeye_session", "pose_format", "pose_meaning", "view_records")

@@ -198,7 +198,7 @@ def test_a_collection_that_keeps_no_view_leaves_its_record_only_and_runs_again(
     assert record["target"]["type"] == "chessboard" and record["collected"]["capture"] in ("auto", "interactive")
     assert len(record["rejected"]) == (2 if "(2x)" in why else 1 if "--auto" in extra else 0)
     assert "handeye_session" not in record and "view_records" not in record
-    with pytest.raises(InputError, match="no session.yaml or poses.txt in the folder"):
+    with pytest.raises(InputError, match=f"its {EMPTY_RUN_RECORD} records a collection that kept no view"):
         load_session(out)
     assert discover(tmp_path / "new") == []  # nor does a batch over its parent find a session
     (tmp_path / "mine").mkdir()  # a folder of the user's gets the record too
