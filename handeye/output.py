@@ -258,7 +258,7 @@ def new_folders_kept_only_if_used(out: str | Path):
     """Within the block, ``out`` and the parents it is made with are removed again at the end if still empty.
 
     For a command that makes its output folder before it knows that it will write there (a refusal, a failed
-    import, a collection that kept no view): an empty folder left behind would block the same command's rerun.
+    import, a collection whose devices did not open): an empty folder left behind would block the same command's rerun.
     A folder that existed before, or holds anything, stays.
     """
     missing, p = [], Path(out)

@@ -578,17 +578,22 @@ def _collect(fut, spec: dict) -> dict:
     except Exception as e:  # noqa: BLE001 - any task failure is one session's, recorded; the batch goes on
         from distributed import KilledWorker
 
-        if isinstance(e, KilledWorker):
-            return _lost_record(spec, f"the workers running it died ({e})")
+        if isinstance(e, KilledWorker):  # Dask's message (the task's key, the last worker, its advice): in the log
+            n = getattr(e, "allowed_failures", None)
+            in_a_row = f", {n + 1} in a row" if isinstance(n, int) else ""
+            return _lost_record(spec, f"the workers running it died{in_a_row}; Dask's account is in its {LOG_NAME}", e)
         return _lost_record(spec, f"the task failed: {type(e).__name__}: {e}", outcome="error")
 
 
-def _lost_record(spec: dict, why: str, *, outcome: str = "lost") -> dict:
-    """The record of a session whose task ended without a record of its own, written into its output folder."""
+def _lost_record(spec: dict, why: str, dask_error=None, *, outcome: str = "lost") -> dict:
+    """The record of a session whose task ended without one, into its folder; ``dask_error`` into its log."""
     rec = spec_record(spec)
     rec.update(outcome=outcome, verdict="ERROR", finished_utc=_now(), reason=why)
     try:
         write_json(Path(spec["out_dir"]) / RECORD_NAME, rec)
+        if dask_error is not None:
+            with open(Path(spec["out_dir"]) / LOG_NAME, "a", encoding="utf-8") as f:
+                f.write(f"{rec['finished_utc']} the batch: {why}\n{type(dask_error).__name__}: {dask_error}\n")
     except OSError as w:
         log.warning("%s: could not record the failure (%s)", spec["out_dir"], w)
     return rec

@@ -3,7 +3,7 @@
 stderr: a progress bar (sessions done / failed / skipped) and, per failed session, one line with
 the reason (with ``--export``: "not exported", by design), per session whose export of a PASS or WARN result
 failed one line with its error; stdout: the one-line summary (with the counts of sessions not exported and of
-failed exports) and the index's paths. Folders under ROOT that discovery
+failed exports) and the index's paths; Dask's own log lines: OUT/batch.log. Folders under ROOT that discovery
 did not enter (a link loop, a second link to one folder) are one stderr line each and listed in the index.
 Exit code 0 when every session (run now or skipped as unchanged) is PASS or WARN and every result in the
 index could be read, else 7 (:class:`handeye.errors.QAFailed`'s code); one bad session never stops the
@@ -14,15 +14,21 @@ rule over the index's rows.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import sys
 from pathlib import Path
+from typing import Iterator
 
 log = logging.getLogger(__name__)
 
 #: handeye calibrate's arguments that the batch sets itself (the session, its output folder, threads)
 _NOT_FROM_CALIBRATE = ("help", "session", "out", "workers")
+#: the batch's own log in OUT: what the parts of Dask in this process (scheduler, nannies, client) logged
+CLUSTER_LOG_NAME = "batch.log"
+#: their loggers, and their event loop's
+CLUSTER_LOGGERS = ("distributed", "tornado", "asyncio")
 
 
 def add_arguments(p) -> None:
@@ -163,17 +169,18 @@ def run(args) -> int:
     with FolderLock(args.out):  # one batch per output folder: a second one would run the same sessions again
         bar = _Progress(len(jobs), quiet=getattr(args, "quiet", False), export=bool(args.export))
         try:
-            summary = run_batch(
-                jobs,
-                args.out.resolve(),
-                calibrate=calibrate_options(args),
-                scheduler=args.scheduler,
-                n_workers=args.workers,
-                timeout_s=args.timeout,
-                force=args.force,
-                upload=args.upload,
-                progress=bar.update,
-            )
+            with cluster_log(args.out / CLUSTER_LOG_NAME, verbose=getattr(args, "verbose", False)):
+                summary = run_batch(
+                    jobs,
+                    args.out.resolve(),
+                    calibrate=calibrate_options(args),
+                    scheduler=args.scheduler,
+                    n_workers=args.workers,
+                    timeout_s=args.timeout,
+                    force=args.force,
+                    upload=args.upload,
+                    progress=bar.update,
+                )
         finally:
             bar.close()
         write_skipped(args.out, found.skipped)
@@ -183,6 +190,62 @@ def run(args) -> int:
         for p in paths:
             print(f"index: {p}")
     return max(summary.exit_code, index_exit_code(args.out, every_row=False))
+
+
+@contextlib.contextmanager
+def cluster_log(path: Path, *, verbose: bool = False) -> Iterator[None]:
+    """Within the block, the log lines of Dask's parts in this process go to ``path`` (appended), not to stderr.
+
+    A worker that dies makes the scheduler, its nanny and the client log warnings and errors (a task lost and
+    rescheduled, the worker restarted, the task given up): Dask's internals, where the user's account of the
+    session is its one line (its record's reason). They are kept in ``path`` with their time and source, with
+    Dask's INFO lines (how a worker process ended), under a line naming the batch. ``verbose``: on stderr too.
+    Every logger of :data:`CLUSTER_LOGGERS` and below gets its handlers, level and propagation back after.
+    """
+    import distributed  # noqa: F401 - its logging set-up, done as it is imported, first: then this one
+
+    from ..output import command_line
+
+    handler = _LogFile(path)
+    handler.handle(logging.makeLogRecord({"name": __name__, "levelname": "INFO", "msg": f"started: {command_line()}"}))
+    names = [n for n in logging.Logger.manager.loggerDict if n.split(".")[0] in CLUSTER_LOGGERS]
+    saved = []
+    for name in sorted(set(names) | set(CLUSTER_LOGGERS)):
+        logger = logging.getLogger(name)
+        saved.append((logger, logger.handlers[:], logger.propagate, logger.level))
+        if name in CLUSTER_LOGGERS:  # Dask's own stderr handlers (when it was imported before handeye's) go too
+            logger.handlers, logger.propagate = [handler], verbose
+        else:  # distributed.client and the like have their own handler and level: this file's instead
+            logger.handlers, logger.propagate = [], True
+    dask_log = logging.getLogger(CLUSTER_LOGGERS[0])
+    dask_log.setLevel(min(dask_log.getEffectiveLevel(), logging.INFO))
+    try:
+        yield
+    finally:
+        for logger, handlers, propagate, level in saved:
+            logger.handlers, logger.propagate = handlers, propagate
+            logger.setLevel(level)
+        handler.close()
+
+
+class _LogFile(logging.Handler):
+    """Log lines appended to a file: not a StreamHandler, whose level Dask's LocalCluster sets to WARNING."""
+
+    def __init__(self, path: Path):
+        super().__init__()
+        self.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s: %(message)s"))
+        self.file = open(path, "a", encoding="utf-8")  # closed with the handler
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            self.file.write(self.format(record) + "\n")
+            self.file.flush()
+        except (OSError, ValueError):  # a full disk or a line that cannot be formatted: logging's own report
+            self.handleError(record)
+
+    def close(self) -> None:
+        self.file.close()
+        super().close()
 
 
 class _Progress:

@@ -292,7 +292,9 @@ def run_collect(args: argparse.Namespace) -> int:
             "--camera sim renders what the simulated arm sees", expected="--robot sim", received=repr(args.robot)
         )
     out = Path(args.out)
-    if out.is_dir() and any(out.iterdir()):  # a file is check_out_dir's: "OUT is a file, not a folder"
+    from ..collect.session_writer import unused_folder
+
+    if out.is_dir() and not unused_folder(out):  # a file is check_out_dir's: "OUT is a file, not a folder"
         raise InputError(
             "output folder is not empty",
             path=out,
@@ -300,8 +302,8 @@ def run_collect(args: argparse.Namespace) -> int:
         )
     from ..output import check_out_dir, new_folders_kept_only_if_used
 
-    # a collection that kept no view wrote nothing (the session writer starts at the first view): the folders made
-    # for it go too, so that the same command can run again
+    # a collection that kept no view wrote only its record (the session starts at the first view), and one that
+    # failed before it opened the devices nothing: the folders made for it go then, so that the command can run again
     with new_folders_kept_only_if_used(out):
         check_out_dir(out, option="OUT")  # not a file, not under one, writable: before any device is opened
         return _collect(args, installed=installed, target=target, width=width, height=height)
@@ -320,7 +322,7 @@ def _collect(args: argparse.Namespace, *, installed, target: TargetSpec, width: 
     if simulated:
         log.info("simulator seed %d (--seed %d repeats this run)", seed, seed)
     rng = np.random.default_rng(seed)
-    robot = camera = None
+    robot = camera = writer = collector = None
     try:
         robot, rig = _open_robot(args, target=target, width=width, height=height, rng=rng, installed=installed)
         camera = _open_camera(args, robot=robot, width=width, height=height, rng=rng)
@@ -389,6 +391,14 @@ def _collect(args: argparse.Namespace, *, installed, target: TargetSpec, width: 
             )
         else:
             collector.run_interactive(preview=args.preview)
+        if not collector.kept:
+            raise _nothing_kept(collector.rejected)
+    except BaseException as e:
+        if writer is not None and not writer.started:  # no view kept: the run's record, and a line that says so
+            said = _ended_without_a_view(writer, e, [] if collector is None else collector.rejected)
+            if said is not e:
+                raise said from e
+        raise
     finally:
         for dev in (camera, robot):
             if dev is not None:
@@ -396,27 +406,43 @@ def _collect(args: argparse.Namespace, *, installed, target: TargetSpec, width: 
                     dev.close()
                 except (HandeyeError, OSError, RuntimeError) as e:
                     log.warning("closing %s: %s", getattr(dev, "name", "device"), e)
-    n, r = len(collector.kept), len(collector.rejected)
-    if n:  # without a view nothing was written
-        print(f"session: {args.out} ({n} views kept, {r} captures rejected)")
-        if rig is not None:
-            print(f"ground truth: {Path(args.out) / 'ground_truth.json'} ({mounting(args.mode).x_name})")
-    else:
-        rejected = collector.rejected
-        if rejected and all(c.reason.startswith("the arm") for c in rejected):  # moving, not settling, errors
-            raise HardwareError(
-                f"no view kept: {_rejections(rejected)}",
-                path=args.out,
-                hint="check the arm's state (errors, brakes, a motion still running) and try again",
-            )
-        raise DetectionError(
-            f"no view kept: {_rejections(rejected)}",
-            path=args.out,
-            hint="the board must be whole in the image, sharp, with the arm still; see the reasons logged above",
-        )
+    print(f"session: {args.out} ({len(collector.kept)} views kept, {len(collector.rejected)} captures rejected)")
+    if rig is not None:
+        print(f"ground truth: {Path(args.out) / 'ground_truth.json'} ({mounting(args.mode).x_name})")
     if installed is not None:
         return _verify_collected(Path(args.out), installed)
     return 0
+
+
+def _nothing_kept(rejected) -> HandeyeError:
+    """Why a run that ended as asked kept no view: its rejections (the arm's state, else the detection)."""
+    if not rejected:
+        return DetectionError("no capture was taken", hint="press s + Enter to capture a view, or collect with --auto")
+    if all(c.reason.startswith("the arm") for c in rejected):  # moving, not settling, errors
+        hint = "check the arm's state (errors, brakes, a motion still running) and try again"
+        return HardwareError(_rejections(rejected), hint=hint)
+    hint = "the board must be whole in the image, sharp, with the arm still; see the reasons logged above"
+    return DetectionError(_rejections(rejected), hint=hint)
+
+
+def _ended_without_a_view(writer, e: BaseException, rejected) -> BaseException:
+    """Record a run that ended (``e``) before its first view in OUT/collect_run.yaml; return what to raise.
+
+    A handeye error becomes one of its class saying "no view kept: WHAT" and naming the record; an interrupt or
+    another exception is raised as it is, after a log line that says so.
+    """
+    error = e.to_dict() if isinstance(e, HandeyeError) else None
+    why = e.what if isinstance(e, HandeyeError) else "interrupted" if isinstance(e, KeyboardInterrupt) else repr(e)
+    try:
+        record = writer.record_empty_run(why, rejected=[c.reason for c in rejected], error=error)
+    except HandeyeError as w:
+        log.warning("no view kept; the run's record could not be written: %s", w)
+        return e
+    said = f"no view kept: {why}; this run's settings and seed: {record}"
+    if not isinstance(e, HandeyeError):
+        log.warning("%s", said)
+        return e
+    return type(e)(said, path=e.path, line=e.line, expected=e.expected, received=e.received, hint=e.hint, code=e.code)
 
 
 def _rejections(rejected) -> str:

@@ -3,8 +3,9 @@
 ``OUT/session.yaml`` (header), ``OUT/images/<id>.png`` (the frame as grabbed) and one
 ``OUT/views/<id>.yaml`` record per capture, each written atomically
 (:func:`handeye.output.atomic_write_bytes`), the image before its record, so a kill loses at most the
-capture in flight. Poses are written as ``T_base_end`` 4x4 matrices in metres. Nothing is written
-before the first view: a collection that keeps none leaves no session without views behind.
+capture in flight. Poses are written as ``T_base_end`` 4x4 matrices in metres. No session file is written
+before the first view: a collection that keeps none leaves only ``OUT/collect_run.yaml`` (its settings, seed and
+why no view was kept), which no command takes for a session and which a collection into OUT replaces.
 
 See docs/collect.md.
 """
@@ -24,6 +25,7 @@ from .. import __version__
 from ..camera import Intrinsics
 from ..errors import HardwareError, InputError
 from ..output import atomic_write_bytes, command_line, plain, to_json
+from ..session.fields import EMPTY_COLLECTION_FILE
 from ..targets import TargetSpec
 
 log = logging.getLogger(__name__)
@@ -32,6 +34,17 @@ SESSION_VERSION = 1
 POSE_FORMAT = {"rotation": "matrix", "translation_unit": "m"}
 RECORDS_DIR = "views"
 IMAGES_DIR = "images"
+#: the record of a collection that kept no view (it wrote no session): what session.yaml would say of the run
+EMPTY_RUN_RECORD = EMPTY_COLLECTION_FILE
+EMPTY_RUN_VERSION = 1
+#: session.yaml's keys that make a folder a session: left out of the empty run's record
+_SESSION_KEYS = ("handeye_session", "pose_format", "pose_meaning", "view_records")
+
+
+def unused_folder(out: str | Path) -> bool:
+    """Whether a collection may write into ``out``: missing, empty, or holding only an empty run's record."""
+    out = Path(out)
+    return not out.exists() or (out.is_dir() and all(f.name == EMPTY_RUN_RECORD for f in out.iterdir()))
 
 
 def _fsync_dir(folder: Path) -> None:
@@ -89,7 +102,7 @@ class SessionWriter:
         collected: dict | None = None,
     ):
         self.out = Path(out_dir)
-        if (self.out / "session.yaml").exists() or (self.out.exists() and any(self.out.iterdir())):
+        if not unused_folder(self.out):
             raise InputError(
                 "output folder is not empty",
                 path=self.out,
@@ -108,12 +121,14 @@ class SessionWriter:
         if intrinsics is not None:
             header["intrinsics"] = intrinsics_header(intrinsics, use="initial", source=intrinsics_source)
         header["view_records"] = RECORDS_DIR
-        header["collected"] = {
+        self._collected = {
             "handeye_version": __version__,
             "command_line": command_line(),
             "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
             **(collected or {}),
         }
+        header["collected"] = self._collected
+        self._header_doc = header
         self._header = dump_yaml(header)
         self._truth: bytes | None = None  # ground_truth.json, held until the session is started
         self.started = False
@@ -131,6 +146,38 @@ class SessionWriter:
         if self._truth is not None:
             self._write(self.out / "ground_truth.json", self._truth)
         self.started = True
+        try:  # an earlier run's, that kept no view: session.yaml records this one
+            (self.out / EMPTY_RUN_RECORD).unlink(missing_ok=True)
+        except OSError as e:
+            log.warning("%s: the record of an earlier run that kept no view stays (%s)", self.out, e.strerror)
+
+    def record_empty_run(self, why: str, *, rejected: list[str], error: dict | None = None) -> Path:
+        """Write ``OUT/collect_run.yaml`` for a run that ends before its first view: returns its path.
+
+        Session.yaml's header without what makes a folder a session (its mode, target, intrinsics and
+        ``collected``: version, command line, devices, seed), with ``why`` no view was kept, the reasons of the
+        ``rejected`` captures in the order taken, and ``error`` (:meth:`HandeyeError.to_dict`) when one ended it.
+        """
+        assert not self.started, "a run with a view has its session.yaml"
+        head = {k: v for k, v in self._header_doc.items() if k not in _SESSION_KEYS}
+        now = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        record = {
+            "handeye_collect_run": EMPTY_RUN_VERSION,
+            "outcome": "no view kept",
+            "why": why,
+            "note": "no session was written: this folder holds no session until a collection into it keeps a view",
+            **head,
+            "collected": {**self._collected, "finished": now},
+            "rejected": list(rejected),
+            **({"error": error} if error else {}),
+        }
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise InputError(f"cannot create the session folder ({e.strerror})", path=self.out) from None
+        path = self.out / EMPTY_RUN_RECORD
+        self._write(path, dump_yaml(record))
+        return path
 
     def _write(self, path: Path, data: bytes) -> None:
         try:

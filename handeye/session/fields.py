@@ -286,6 +286,8 @@ def check_angle_units(angles_rad, *, path: Path, line: int | None, or_state: str
 
 #: the file that makes a folder a cell of cameras (several sessions of one arm, handeye calibrate CELL_DIR)
 CELL_FILE = "cell.yaml"
+#: what a collection that kept no view leaves in its folder instead of a session (handeye.collect.session_writer)
+EMPTY_COLLECTION_FILE = "collect_run.yaml"
 
 
 def is_cell_folder(path: str | Path) -> bool:
@@ -308,6 +310,13 @@ def locate_session(path: str | Path) -> tuple[str, Path]:
         return "native", p / "session.yaml"
     if (p / "poses.txt").exists():
         return "vendor", p
+    if (p / EMPTY_COLLECTION_FILE).is_file():
+        raise InputError(
+            "no session.yaml or poses.txt in the folder",
+            path=p,
+            hint=f"its {EMPTY_COLLECTION_FILE} records a collection that kept no view (its why: says what went "
+            "wrong); collect again into the folder",
+        )
     near = sorted(
         f.name for f in p.iterdir() if f.is_file() and "pose" in f.stem.lower() and f.suffix.lower() in (".txt", ".csv")
     )

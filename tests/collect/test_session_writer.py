@@ -25,7 +25,7 @@ from handeye.collect.camera import Camera
 from handeye.collect.collector import CaptureChecks, Collector
 from handeye.collect.realman import RealmanArm
 from handeye.detect import detect_gray
-from handeye.errors import ConfigError, InputError
+from handeye.errors import ConfigError, DetectionError, InputError
 from handeye.frames import inv_T, rotvec_from_R
 from handeye.mounting import mounting
 from handeye.sim.devices import SimCamera, SimRig, SimRobot
@@ -36,6 +36,7 @@ from handeye.targets import ChessboardSpec
 
 REPO = Path(__file__).resolve().parents[2]
 FAST = ["--resolution", "640x360", "--sim-supersample", "2"]
+EMPTY_RUN_RECORD = "collect_run.yaml"  # a collection that kept no view: its settings, seed and why
 
 
 def _args(argv):
@@ -160,26 +161,82 @@ def test_collect_argument_errors(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "extra, stdin",
-    [(["--auto", "--sim-blur", "30"], ""), (["--no-preview"], "")],  # no board in sight; no key pressed
-    ids=["auto_blurred", "interactive_no_input"],
+    "extra, stdin, why",
+    [
+        (["--auto", "--sim-blur", "30"], "", "automatic mode starts from a view of the board, and the first capture"),
+        (["--no-preview"], "", "no capture was taken"),
+        (["--no-preview", "--sim-blur", "30"], "s\ns\nq\n", "target not detected (2x)"),
+    ],  # no board in sight; no key pressed; every capture blurred
+    ids=["auto_blurred", "interactive_no_input", "interactive_all_rejected"],
 )
-def test_a_collection_that_keeps_no_view_leaves_nothing_and_runs_again(tmp_path, monkeypatch, capsys, extra, stdin):
+def test_a_collection_that_keeps_no_view_leaves_its_record_only_and_runs_again(
+    tmp_path, monkeypatch, capsys, extra, stdin, why
+):
     """Before, OUT kept session.yaml without views, ground_truth.json and empty images/ and views/: calibrate said the
-    session has no views and the same command was refused (output folder is not empty)."""
+    session has no views and the same command was refused (output folder is not empty). Then OUT was removed and
+    nothing on disk said which seed and settings had kept no view. Now OUT holds only collect_run.yaml (the settings,
+    the seed, why, each rejection), no command takes it for a session, and the same command runs into it again."""
+    from handeye.batch.discover import discover
     from handeye.cli import main
+    from handeye.session import load_session
 
     out = tmp_path / "new" / "s"
     argv = ["-q", "collect", out, "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim", "--seed", "1"]
+    command = [str(a) for a in [*argv, *FAST, *extra]]
+    monkeypatch.setattr(sys, "argv", ["/usr/local/bin/handeye", *command])  # as typed, for the record
     for _ in range(2):
         monkeypatch.setattr(sys, "stdin", io.StringIO(stdin))
-        assert main([str(a) for a in [*argv, *FAST, *extra]]) == 3
-        assert "not empty" not in capsys.readouterr().err
-        assert not (tmp_path / "new").exists()  # nor the parent made for it
-    (tmp_path / "mine").mkdir()  # an empty folder of the user's stays, empty
+        assert main(command) == 3
+        assert [f.name for f in out.glob("*")] == [EMPTY_RUN_RECORD]
+        err = capsys.readouterr().err
+        err = err[err.index("handeye: error: ") :].splitlines()[0]  # the error's line, after the prompt if any
+        assert err.startswith(f"handeye: error: no view kept: {why}"), err
+        assert f"; this run's settings and seed: {out / EMPTY_RUN_RECORD} -> " in err, err
+    record = yaml.safe_load((out / EMPTY_RUN_RECORD).read_text())
+    assert record["outcome"] == "no view kept" and record["why"].startswith(why) and record["mode"] == "eye_in_hand"
+    assert record["collected"]["seed"] == 1 and record["collected"]["command_line"] == "handeye " + " ".join(command)
+    assert record["target"]["type"] == "chessboard" and record["collected"]["capture"] in ("auto", "interactive")
+    assert len(record["rejected"]) == (2 if "(2x)" in why else 1 if "--auto" in extra else 0)
+    assert "handeye_session" not in record and "view_records" not in record
+    with pytest.raises(InputError, match=f"its {EMPTY_RUN_RECORD} records a collection that kept no view"):
+        load_session(out)
+    assert discover(tmp_path / "new") == []  # nor does a batch over its parent find a session
+    (tmp_path / "mine").mkdir()  # a folder of the user's gets the record too
     monkeypatch.setattr(sys, "stdin", io.StringIO(stdin))
     assert main([str(a) for a in [*argv[:2], tmp_path / "mine", *argv[3:], *FAST, *extra]]) == 3
-    assert list((tmp_path / "mine").iterdir()) == []
+    assert [f.name for f in (tmp_path / "mine").iterdir()] == [EMPTY_RUN_RECORD]
+
+
+def test_a_collection_that_keeps_a_view_replaces_an_earlier_empty_run_s_record(tmp_path, monkeypatch):
+    """The seed an empty run recorded repeats it; with the board in sight the folder becomes a session, its
+    session.yaml the run's record, and the empty run's record goes."""
+    out = tmp_path / "s"
+    argv = [out, "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim", "--no-preview", *FAST]
+    monkeypatch.setattr(sys, "stdin", io.StringIO("q\n"))
+    with pytest.raises(DetectionError, match="no view kept: no capture was taken"):
+        run_collect(_args(argv))
+    seed = yaml.safe_load((out / EMPTY_RUN_RECORD).read_text())["collected"]["seed"]
+    monkeypatch.setattr(sys, "stdin", io.StringIO("s\nq\n"))
+    assert run_collect(_args([*argv, "--seed", seed])) == 0
+    assert sorted(f.name for f in out.iterdir()) == ["ground_truth.json", "images", "session.yaml", "views"]
+    assert yaml.safe_load((out / "session.yaml").read_text())["collected"]["seed"] == seed
+
+
+def test_an_interrupted_collection_before_its_first_view_leaves_its_record(tmp_path, monkeypatch, caplog):
+    """Ctrl-C at the prompt, before a view was kept: the record says so and the interrupt goes on to the CLI."""
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    out = tmp_path / "s"
+    monkeypatch.setattr(sys, "stdin", io.StringIO("s\ns\n"))
+    monkeypatch.setattr(sw.SessionWriter, "write_view", interrupted)  # the first capture is never written
+    with pytest.raises(KeyboardInterrupt):
+        run_collect(_args([out, "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim", "--seed", "4", *FAST]))
+    record = yaml.safe_load((out / EMPTY_RUN_RECORD).read_text())
+    assert record["why"] == "interrupted" and record["collected"]["seed"] == 4 and "error" not in record
+    assert f"no view kept: interrupted; this run's settings and seed: {out / EMPTY_RUN_RECORD}" in caplog.text
+    assert [f.name for f in out.iterdir()] == [EMPTY_RUN_RECORD]
 
 
 # ------------------------------------------------------------------------------ crash safety
