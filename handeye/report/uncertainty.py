@@ -108,18 +108,21 @@ def offset_explanation(
     robot_mm: float | None,
     robot_deg: float | None,
     robot_model: str,
+    tracked: bool = False,
 ) -> list:
     """Sentences that explain where the result lies against the closed forms and the two halves.
 
     ``rows``: dicts with ``name``, ``kind`` (closed_form | half), ``d_mm``, ``d_deg``, ``sigma`` (distance in
     verdict sigmas); ``limit_sigma``: a distance above it is a departure; ``halves_m2``: squared Mahalanobis
-    distance between the two halves under the sum of their covariances, judged against ``halves_m2_limit``.
+    distance between the two halves under the sum of their covariances, judged against ``halves_m2_limit``;
+    ``tracked``: a pose-only session, whose views' noise is the tracker's (no pixels).
     """
     cf = [r for r in rows if r["kind"] == "closed_form" and np.isfinite(r["sigma"])]
     hv = [r for r in rows if r["kind"] == "half" and np.isfinite(r["sigma"])]
     far = [r for r in cf if r["sigma"] > limit_sigma]
     halves_near = bool(hv) and all(r["sigma"] <= limit_sigma for r in hv)
     halves_split = halves_m2 is not None and np.isfinite(halves_m2) and halves_m2 > halves_m2_limit
+    noise = "the tracker's noise" if tracked else "the pixel noise"
     out = []
     if cf and 2 * len(far) > len(cf):
         mm = [r["d_mm"] for r in far]
@@ -143,7 +146,7 @@ def offset_explanation(
         if spread >= 0.5 * float(np.median(mm)):
             out.append(
                 f"The closed forms scatter among themselves by up to {spread:.1f} mm: much of the offset is "
-                "their own error (they ignore the pixel noise and weigh all motions alike), not the result's."
+                f"their own error (they ignore {noise} and weigh all motions alike), not the result's."
             )
         if robot_mm is not None and (robot_mm > 0 or (robot_deg or 0) > 0):
             kinematic = robot_model == "kinematic"
@@ -172,8 +175,9 @@ def offset_explanation(
             )
         else:
             out.append(
-                "The refinement weighs each view by its pixel noise; the closed forms weigh all motions "
-                "alike and are biased by noise on few or short motions."
+                "The refinement weighs each view by "
+                + ("the tracker's noise" if tracked else "its pixel noise")
+                + "; the closed forms weigh all motions alike and are biased by noise on few or short motions."
             )
     elif far:
         names = ", ".join(r["name"] for r in far)

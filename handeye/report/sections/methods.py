@@ -70,11 +70,12 @@ def _stored_difference(e: dict) -> tuple[float, float, float]:
     return _num(e.get("diff_to_result_deg")), _num(e.get("diff_to_result_mm")), _num(e.get("diff_to_result_sigma"))
 
 
-def _offsets(res, ref, T_x, cov, x_name) -> Optional[dict]:
+def _offsets(res, ref, T_x, cov, x_name, *, tracked: bool = False) -> Optional[dict]:
     """Where the result lies against each closed form and each half of the views.
 
     Where the result lies against each closed form and each half of the views (refitted alone), in mm,
-    degrees and verdict sigmas, with the sentences that explain a departure.
+    degrees and verdict sigmas, with the sentences that explain a departure. ``tracked``: a pose-only session
+    (its views' noise is the tracker's).
     """
     from ...config import load_preset
     from ..uncertainty import offset_explanation
@@ -123,6 +124,7 @@ def _offsets(res, ref, T_x, cov, x_name) -> Optional[dict]:
         robot_mm=_num(ref.get("robot_sigma_mm")),
         robot_deg=_num(ref.get("robot_sigma_deg")),
         robot_model=str(model.get("kind") or ref.get("robot_noise_model") or ""),
+        tracked=tracked,
     )
     return {
         "rows": rows,
