@@ -133,3 +133,26 @@ def test_the_offsets_explanation_names_the_tracker_s_noise_for_a_pose_only_sessi
 
 
 # ------------------------------------------------------------------------------ the offsets from the closed forms
+def test_the_offsets_table_says_what_its_sigmas_measure_and_marks_only_a_half(images, tmp_path):
+    """Every closed form past 4.1 σ was bold and 'a departure' while the diagnostics found nothing wrong: the
+    sigmas are the result's own uncertainty, and a closed form past them is usually its own error."""
+    from handeye.output import write_json
+
+    res = json.loads((images["refined"] / "result.json").read_text())
+    for e in res["closed_form"].values():
+        e["diff_to_result_sigma"] = 9.0  # every closed form far, as on real data
+    res["refinement"]["validation"]["halves"]["odd"]["diff_to_result_sigma"] = 8.0
+    res["refinement"]["validation"]["halves"]["even"]["diff_to_result_sigma"] = 1.0
+    folder = tmp_path / "r"
+    folder.mkdir()
+    write_json(folder / "result.json", res)
+    (folder / "observations.json").write_bytes((images["refined"] / "observations.json").read_bytes())
+    md, text = _reports(folder)
+    for page in (md, text):
+        assert "departure" not in page
+        assert "σ, the result's own uncertainty (its verdict covariance" in page
+        assert "for a closed form that is usually the closed form's own error (it ignores the noise)" in page
+    table = _between(md, "| Against |", "\n\n")
+    assert "**9.0**" not in table and table.count("| 9.0 |") == len(res["closed_form"])
+    assert "**8.0**" in table and "**1.0**" not in table  # the half past the limit, alone
+    assert "<strong>9.0</strong>" not in (folder / "report.html").read_text()
