@@ -156,3 +156,12 @@ def test_the_offsets_table_says_what_its_sigmas_measure_and_marks_only_a_half(im
     assert "**9.0**" not in table and table.count("| 9.0 |") == len(res["closed_form"])
     assert "**8.0**" in table and "**1.0**" not in table  # the half past the limit, alone
     assert "<strong>9.0</strong>" not in (folder / "report.html").read_text()
+
+
+def test_a_closed_form_only_report_speaks_of_no_refined_result_and_no_ratio(images):
+    md, text = _reports(images["closed"], plots=True)
+    caption = _between(md, "*Uncertainty of the translation.*", "\n")
+    assert "No covariance (closed form only)" in caption and "refined result" not in caption
+    assert "Ratio held-out" not in md and "A ratio near 1" not in md and "A ratio near 1" not in text
+    refined, _ = _reports(images["refined"])
+    assert "Ratio held-out / predicted" in refined and "A ratio near 1 means" in refined
