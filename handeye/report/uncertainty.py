@@ -13,6 +13,7 @@ import numpy as np
 
 from ..conventions import vendor_euler_from_R
 from ..frames import quat_wxyz_from_R, rotvec_from_R, skew, tangent_jacobian
+from .formatting import num
 
 Z95 = 1.959963984540054  # two-sided 95 % quantile of the standard normal
 
@@ -99,6 +100,12 @@ def ellipse_points(cov_2x2: np.ndarray, *, k_sigma: float, n: int = 120) -> np.n
 
 
 # ------------------------------------------------------------------------------ offsets of the result
+def _span(lo: float, hi: float, digits: int) -> str:
+    """``lo-hi`` with :func:`.formatting.num`'s digits for ``lo`` on both (a small ``lo`` does not read as 0)."""
+    a = num(lo, digits)
+    return f"{a}-{num(hi, len(a.partition('.')[2]) if 'e' not in a else digits)}"
+
+
 def offset_explanation(
     rows: list,
     *,
@@ -130,7 +137,7 @@ def offset_explanation(
         sig = [r["sigma"] for r in far]
         which = "every closed form" if len(far) == len(cf) else f"{len(far)} of the {len(cf)} closed forms"
         s = (
-            f"The refined result lies {min(mm):.1f}-{max(mm):.1f} mm and {min(deg):.2f}-{max(deg):.2f}° "
+            f"The refined result lies {_span(min(mm), max(mm), 1)} mm and {_span(min(deg), max(deg), 2)}° "
             f"({min(sig):.1f}-{max(sig):.1f} σ) from {which}"
         )
         if halves_near:
@@ -145,7 +152,7 @@ def offset_explanation(
         spread = float(max(np.linalg.norm(a - b) for a in off for b in off)) if len(off) > 1 else 0.0
         if spread >= 0.5 * float(np.median(mm)):
             out.append(
-                f"The closed forms scatter among themselves by up to {spread:.1f} mm: much of the offset is "
+                f"The closed forms scatter among themselves by up to {num(spread, 1)} mm: much of the offset is "
                 f"their own error (they ignore {noise} and weigh all motions alike), not the result's."
             )
         if robot_mm is not None and (robot_mm > 0 or (robot_deg or 0) > 0):
@@ -161,7 +168,7 @@ def offset_explanation(
             )
             out.append(
                 f"The refinement models robot-pose errors ({robot_model or 'robot error model'}: "
-                f"{robot_mm:.2f} mm / {robot_deg or 0:.3f}° per view, estimated) and weighs each view by "
+                f"{num(robot_mm, 2)} mm / {num(robot_deg or 0, 3)}° per view, estimated) and weighs each view by "
                 "how well it fits; the closed forms take every robot pose as exact and weigh all motions "
                 f"alike, so robot-pose errors bias them. That favours the refinement, but {unseen} that is "
                 f"the same in every view{aside} moves the refinement as well, and neither the halves nor the "

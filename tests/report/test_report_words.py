@@ -132,6 +132,17 @@ def test_the_offsets_explanation_names_the_tracker_s_noise_for_a_pose_only_sessi
     assert "ignore the tracker's noise" in tracked[1] and "by the tracker's noise" in tracked[2]
 
 
+def test_small_offsets_from_the_closed_forms_do_not_read_as_zero():
+    """0.036-0.071 mm and 0.0026-0.0030 deg from the closed forms, at 9 σ, read '0.0-0.1 mm and 0.00-0.00°'."""
+    from handeye.report.uncertainty import offset_explanation
+
+    rows, kw = _far_closed_forms()
+    text = offset_explanation(rows, **kw)
+    assert "lies 0.036-0.071 mm and 0.0026-0.0030° (9.0-9.0 σ) from every closed form" in text[0]
+    robot = offset_explanation(rows, **(kw | {"robot_mm": 0.001, "robot_deg": 0.000057, "robot_model": "iid"}))
+    assert "(iid: 0.0010 mm / 0.000057° per view, estimated)" in robot[-1]
+
+
 # ------------------------------------------------------------------------------ the offsets from the closed forms
 def test_the_offsets_table_says_what_its_sigmas_measure_and_marks_only_a_half(images, tmp_path):
     """Every closed form past 4.1 σ was bold and 'a departure' while the diagnostics found nothing wrong: the
