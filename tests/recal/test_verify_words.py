@@ -2,7 +2,8 @@
 
 verify.md and verify.html named the installed covariance by its key (``cov_x_6x6_verdict``), pointed the change's
 definition at ``test.kind``, gave a view left out for its robot pose the status ``robot_excluded``, said "drifted
-below 0.05" beside a p-value that is not, and "the robot poses of views 3".
+below 0.05" beside a p-value that is not, and "the robot poses of views 3"; ``verify --plan SESSION`` printed the
+sessions as a Python list.
 """
 
 from __future__ import annotations
@@ -65,6 +66,12 @@ def test_verify_says_in_words_which_covariance_and_which_views_it_used(rig, tmp_
         assert "new minus installed, as the test estimates it" in shown.lower()
         assert "mm along the flange axes, deg about the camera axes" in shown
     assert "- the robot pose of view 3 disagrees with the camera" in printed and "that view was not used" in printed
+
+
+def test_verify_plan_names_a_session_it_does_not_take_as_typed(rig, capsys):
+    rc = main(["-q", "verify", "--plan", str(rig["check"]), "--against", str(rig["installed"])])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and f"--plan takes no session; got {rig['check']} ->" in err[0], err
 
 
 def test_the_installed_covariance_and_a_removed_view_are_said_in_words():
