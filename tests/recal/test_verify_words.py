@@ -95,3 +95,17 @@ def test_the_installed_covariance_and_a_removed_view_are_said_in_words():
     }
     assert ctx["robot_text"] == "poses of views 3, 5 disagree with the camera"
     assert ctx["change_text"].endswith("mm along the robot base axes, deg about the camera axes")
+
+
+def test_a_pose_only_session_against_images_is_refused_for_having_no_images(rig, tmp_path, capsys):
+    """It was refused as 'the session's board (tracked target ...) is not the installed calibration's' with the hint
+    to verify with the board the rig was calibrated with: a tracker's session has no images to verify with."""
+    from handeye.sim.poses import make_tracker_session
+
+    make_tracker_session(mode="eye_in_hand", n_views=6, seed=4).write(tmp_path / "tracked")
+    rc = main(
+        ["-q", "verify", str(tmp_path / "tracked"), "--against", str(rig["installed"]), "--out", str(tmp_path / "v")]
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "a pose-only session" in err[0] and "handeye compare" in err[0], err
+    assert "board" not in err[0] and not (tmp_path / "v").exists()
