@@ -43,7 +43,7 @@ def rig(tmp_path_factory) -> dict:
         workers=1,
         rig=(truth["T_end_cam"], truth["T_base_board"]),
     )
-    return {"installed": root / "installed", "check": check}
+    return {"installed": root / "installed", "check": check, "session": session}
 
 
 def test_verify_says_in_words_which_covariance_and_which_views_it_used(rig, tmp_path, capsys):
@@ -109,3 +109,22 @@ def test_a_pose_only_session_against_images_is_refused_for_having_no_images(rig,
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "a pose-only session" in err[0] and "handeye compare" in err[0], err
     assert "board" not in err[0] and not (tmp_path / "v").exists()
+
+
+def test_verify_plan_says_what_the_installed_result_lacks(rig, tmp_path, capsys):
+    """It said 'lacks X, its covariance, the board or the intrinsics -> plan against a refined result with status
+    ok' for each: a closed-form-only result lacks the covariance, a tracker's calibration the intrinsics."""
+    from handeye.pipeline import CalibrateOptions
+    from handeye.sim.poses import make_tracker_session
+    from handeye.workflow import calibrate_session
+
+    calibrate_session(rig["session"], options=CalibrateOptions(refine=False), out_dir=tmp_path / "closed", report=False)
+    make_tracker_session(mode="eye_in_hand", n_views=8, seed=4).write(tmp_path / "tracked")
+    calibrate_session(tmp_path / "tracked", out_dir=tmp_path / "tracker", report=False)
+    for result, lacks in (
+        ("closed", "lacks the covariance of X (calibrated with --no-refine) ->"),
+        ("tracker", "lacks camera intrinsics (calibrated from a tracker's poses) ->"),
+    ):
+        rc = main(["-q", "verify", "--plan", "--against", str(tmp_path / result)])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and len(err) == 1 and lacks in err[0] and "status" not in err[0], err
