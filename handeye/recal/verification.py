@@ -211,9 +211,9 @@ def verify_views(
     t0 = time.perf_counter()
     if not installed.ok:
         raise InputError(
-            f"the installed result has no hand-eye matrix (status {installed.status})",
+            "the installed calibration failed: its result has no hand-eye matrix",
             path=installed.source,
-            hint="verify against a result with status ok",
+            hint="verify against a calibration that computed one",
         )
     if len(views) < 3:
         raise InputError(

@@ -185,9 +185,9 @@ def verify_session(
     installed = against if isinstance(against, LoadedResult) else load_result(against)
     if not installed.ok:
         raise InputError(
-            f"the installed result has no hand-eye matrix (status {installed.status})",
+            "the installed calibration failed: its result has no hand-eye matrix",
             path=installed.source,
-            hint="verify against a result with status ok",
+            hint="verify against a calibration that computed one",
         )
     s = session_for_installed(session_path, installed, mode=mode)
     check_resolution(installed, s)

@@ -128,3 +128,23 @@ def test_verify_plan_says_what_the_installed_result_lacks(rig, tmp_path, capsys)
         rc = main(["-q", "verify", "--plan", "--against", str(tmp_path / result)])
         err = capsys.readouterr().err.strip().splitlines()
         assert rc == 2 and len(err) == 1 and lacks in err[0] and "status" not in err[0], err
+
+
+def test_verify_against_a_failed_calibration_says_it_failed(rig, tmp_path, capsys):
+    """It said 'has no hand-eye matrix (status failed) -> verify against a result with status ok'."""
+    import shutil
+
+    import yaml
+
+    from handeye.workflow import calibrate_session
+
+    wrong = tmp_path / "wrong_board"
+    shutil.copytree(rig["session"], wrong)
+    cfg = yaml.safe_load((wrong / "config.yaml").read_text())
+    cfg["checkerboard_args"]["XX"] += 2  # a board the images do not show: the calibration fails
+    (wrong / "config.yaml").write_text(yaml.safe_dump(cfg))
+    assert calibrate_session(wrong, out_dir=tmp_path / "failed", report=False).status == "failed"
+    rc = main(["-q", "verify", str(rig["check"]), "--against", str(tmp_path / "failed"), "--out", str(tmp_path / "v")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "the installed calibration failed: its result has no hand-eye matrix" in err[0]
+    assert "status" not in err[0], err
