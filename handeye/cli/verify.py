@@ -89,7 +89,9 @@ def run(args) -> int:
     if args.plan:
         if args.session:
             raise InputError(
-                "--plan takes no session", received=str(args.session), hint="handeye verify --plan --against RESULT"
+                "--plan takes no session",
+                received=" ".join(args.session),
+                hint="handeye verify --plan --against RESULT",
             )
         warn_unfit(args.against, args.camera)
         return run_plan(args)

@@ -189,18 +189,31 @@ def plan_verification(
             received=f"{drift_mm} mm, {drift_deg} deg",
         )
     installed = against if isinstance(against, LoadedResult) else load_result(against)
-    if (
-        not installed.ok
-        or installed.T_x is None
-        or installed.cov_x is None
-        or installed.T_board is None
-        or installed.intrinsics is None
-    ):
+    tracked = (installed.target or {}).get("type") == "tracked"
+    lacks = (
+        ["its hand-eye matrix (the calibration failed)"]
+        if not installed.ok or installed.T_x is None
+        else [
+            what
+            for what, gone in (
+                ("the covariance of X (calibrated with --no-refine)", installed.cov_x is None),
+                ("the board pose", installed.T_board is None),
+                (
+                    "camera intrinsics" + (" (calibrated from a tracker's poses)" if tracked else ""),
+                    installed.intrinsics is None,
+                ),
+            )
+            if gone
+        ]
+    )
+    if lacks:
         raise InputError(
-            "the installed result lacks X, its covariance, the board or the intrinsics",
+            f"the installed result lacks {' and '.join(lacks)}",
             path=installed.source,
-            hint="plan against a refined result with status ok",
+            hint="plan against a calibration refined from images of the board (handeye calibrate without --no-refine)",
         )
+    assert installed.T_x is not None and installed.cov_x is not None, "an ok result lacking none has X and its cov"
+    assert installed.T_board is not None and installed.intrinsics is not None, "an ok result lacking none has both"
     target = parse_target(installed.target, path=installed.source)  # type: ignore[arg-type]  # str names it alike
     obj = target.object_points()
     mode, T_x, T_board = installed.mode, installed.T_x, installed.T_board

@@ -11,10 +11,32 @@ from ..output import atomic_write_text, read_json
 
 
 def verify_context(v: dict) -> dict:
+    """What verify.html and verify.md show of verify.json ``v``: result.json's keys and statuses in words."""
+    from ..report.sections.views import OUTLIER_KIND_TEXT
+    from .loaded import axes_words, cov_source_words
+
     drifted = bool(v.get("drifted"))
     mode = v.get("mode", "")
+    status_text = {
+        "used": "used",
+        "robot_excluded": f"not used: its {OUTLIER_KIND_TEXT['robot_pose']}",
+        "removed": "not used: its corners do not fit or are too few",
+    }
+    robot = [str(r) for r in (v.get("robot") or {}).get("views") or []]
     return {
         "v": v,
+        "covariance_text": cov_source_words(str((v.get("test") or {}).get("covariance_used") or "none")),
+        "change_text": "new minus installed, as the test estimates it, with its 1-sigma (the installed and the new "
+        f"views' uncertainty together); {axes_words(str(v.get('frame') or ''))}",
+        "status_text": {
+            vid: status_text.get(str(d.get("status")), d.get("status")) for vid, d in (v.get("views") or {}).items()
+        },
+        "robot_text": (
+            f"pose{'s' * (len(robot) > 1)} of view{'s' * (len(robot) > 1)} {', '.join(robot)} "
+            f"disagree{'s' * (len(robot) == 1)} with the camera"
+            if robot
+            else "every robot pose agrees with the camera"
+        ),
         "label": "DRIFTED" if drifted else "STILL VALID",
         "status": "fail" if drifted else "pass",
         "session_name": Path(str((v.get("session") or {}).get("path", "session"))).name,

@@ -211,9 +211,9 @@ def verify_views(
     t0 = time.perf_counter()
     if not installed.ok:
         raise InputError(
-            f"the installed result has no hand-eye matrix (status {installed.status})",
+            "the installed calibration failed: its result has no hand-eye matrix",
             path=installed.source,
-            hint="verify against a result with status ok",
+            hint="verify against a calibration that computed one",
         )
     if len(views) < 3:
         raise InputError(
@@ -457,9 +457,11 @@ def what_moved(
             f"(its pose is re-estimated; {frame} does not depend on it)"
         )
     if robot.get("views"):
+        many = len(robot["views"]) > 1
         lines.append(
-            f"the robot poses of views {', '.join(robot['views'])} disagree with the camera (a collision, "
-            "a changed tool frame or a robot fault); those views were not used"
+            f"the robot pose{'s' * many} of view{'s' * many} {', '.join(robot['views'])} disagree{'s' * (not many)} "
+            "with the camera (a collision, a changed tool frame or a robot fault); "
+            + ("those views were not used" if many else "that view was not used")
         )
     zs = {n: v["z"] for n, v in intrinsics.items() if isinstance(v, dict) and np.isfinite(v.get("z", np.nan))}
     big = [n for n, z in zs.items() if abs(z) > 3.0]

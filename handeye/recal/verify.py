@@ -77,7 +77,8 @@ class SessionVerification:
 def session_for_installed(session_path, installed: LoadedResult, *, mode: Optional[str] = None):
     """The session, read in the installed result's mounting mode.
 
-    Refuses a session of another mode or board (one line naming the difference).
+    Refuses a session of another mode or board (one line naming the difference), and a pose-only session whatever
+    its target (it has no images to refine X on).
     """
     from ..session import load_session
 
@@ -94,6 +95,13 @@ def session_for_installed(session_path, installed: LoadedResult, *, mode: Option
             code="not_comparable",
             hint="verify against a result of this rig's mounting mode"
             + ("" if mode is None else f", or drop --mode (the installed {installed.mode} is used)"),
+        )
+    if s.meta.get("pose_only"):  # the test refines X on the detected corners of new images
+        raise InputError(
+            "a pose-only session (views with target_pose) cannot be verified: the check refines X on new images",
+            path=s.path,
+            hint="calibrate the new session and compare: handeye calibrate SESSION --out NEW, then handeye compare "
+            "INSTALLED NEW",
         )
     if installed.target is not None and s.target.to_dict() != installed.target:
         tracked = installed.target.get("type") == "tracked"
@@ -177,18 +185,11 @@ def verify_session(
     installed = against if isinstance(against, LoadedResult) else load_result(against)
     if not installed.ok:
         raise InputError(
-            f"the installed result has no hand-eye matrix (status {installed.status})",
+            "the installed calibration failed: its result has no hand-eye matrix",
             path=installed.source,
-            hint="verify against a result with status ok",
+            hint="verify against a calibration that computed one",
         )
     s = session_for_installed(session_path, installed, mode=mode)
-    if s.meta.get("pose_only"):  # the test refines X on the detected corners of new images
-        raise InputError(
-            "a pose-only session (views with target_pose) cannot be verified: the check refines X on new images",
-            path=s.path,
-            hint="calibrate the new session and compare: handeye calibrate SESSION --out NEW, then handeye compare "
-            "INSTALLED NEW",
-        )
     check_resolution(installed, s)
     reused = installed_images_among(installed, s)
     if reused:

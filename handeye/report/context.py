@@ -108,14 +108,14 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     ctx["uncertainty"] = _uncertainty_block(ref, unc, parent) if unc is not None else None
     ctx["methods"] = _methods(res, T_x, x_name)
     ctx["prior"] = _prior_block(res, x_name)
-    ctx["offsets"] = _offsets(res, ref, T_x, cov, x_name)
+    ctx["offsets"] = _offsets(res, ref, T_x, cov, x_name, tracked=ctx["tracked"])
     ctx["intrinsics"] = _intrinsics_rows(
         intr,
         (ref.get("intrinsics_sigma_verdict") or ref.get("intrinsics_sigma")) if ref else None,
         res,
         model_sigma=ref.get("intrinsics_sigma") if ref else None,
     )
-    ctx["noise"] = _noise(ref)
+    ctx["noise"] = _noise(ref, tracked=ctx["tracked"])
     ctx["robot_model"] = _robot_model(ref)
     ctx["tracker"] = _tracker(ref)
 

@@ -212,8 +212,9 @@ def report_figures(
                         else "No covariance (closed form only)"
                     )
                     + "; markers: the closed-form methods, relative to the result. The closed-form methods treat "
-                    "the robot poses as exact and weigh views unevenly, so they scatter more than the refined "
-                    "result; one method far from all others points at weak motion or a bad pose.",
+                    "the robot poses as exact and weigh views unevenly"
+                    + (", so they scatter more than the refined result" if ref else "")
+                    + "; one method far from all others points at weak motion or a bad pose.",
                     lambda: translation_uncertainty(cov_t, meth, frame=mounting.fixed_frame, x_name=mounting.x_name),
                 )
             )

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..conventions import vendor_euler_from_R
 from ..frames import quat_wxyz_from_R, rotvec_from_R, skew, tangent_jacobian
+from .formatting import num
 
 Z95 = 1.959963984540054  # two-sided 95 % quantile of the standard normal
 
@@ -99,6 +100,12 @@ def ellipse_points(cov_2x2: np.ndarray, *, k_sigma: float, n: int = 120) -> np.n
 
 
 # ------------------------------------------------------------------------------ offsets of the result
+def _span(lo: float, hi: float, digits: int) -> str:
+    """``lo-hi`` with :func:`.formatting.num`'s digits for ``lo`` on both (a small ``lo`` does not read as 0)."""
+    a = num(lo, digits)
+    return f"{a}-{num(hi, len(a.partition('.')[2]) if 'e' not in a else digits)}"
+
+
 def offset_explanation(
     rows: list,
     *,
@@ -108,18 +115,21 @@ def offset_explanation(
     robot_mm: float | None,
     robot_deg: float | None,
     robot_model: str,
+    tracked: bool = False,
 ) -> list:
     """Sentences that explain where the result lies against the closed forms and the two halves.
 
     ``rows``: dicts with ``name``, ``kind`` (closed_form | half), ``d_mm``, ``d_deg``, ``sigma`` (distance in
     verdict sigmas); ``limit_sigma``: a distance above it is a departure; ``halves_m2``: squared Mahalanobis
-    distance between the two halves under the sum of their covariances, judged against ``halves_m2_limit``.
+    distance between the two halves under the sum of their covariances, judged against ``halves_m2_limit``;
+    ``tracked``: a pose-only session, whose views' noise is the tracker's (no pixels).
     """
     cf = [r for r in rows if r["kind"] == "closed_form" and np.isfinite(r["sigma"])]
     hv = [r for r in rows if r["kind"] == "half" and np.isfinite(r["sigma"])]
     far = [r for r in cf if r["sigma"] > limit_sigma]
     halves_near = bool(hv) and all(r["sigma"] <= limit_sigma for r in hv)
     halves_split = halves_m2 is not None and np.isfinite(halves_m2) and halves_m2 > halves_m2_limit
+    noise = "the tracker's noise" if tracked else "the pixel noise"
     out = []
     if cf and 2 * len(far) > len(cf):
         mm = [r["d_mm"] for r in far]
@@ -127,7 +137,7 @@ def offset_explanation(
         sig = [r["sigma"] for r in far]
         which = "every closed form" if len(far) == len(cf) else f"{len(far)} of the {len(cf)} closed forms"
         s = (
-            f"The refined result lies {min(mm):.1f}-{max(mm):.1f} mm and {min(deg):.2f}-{max(deg):.2f}° "
+            f"The refined result lies {_span(min(mm), max(mm), 1)} mm and {_span(min(deg), max(deg), 2)}° "
             f"({min(sig):.1f}-{max(sig):.1f} σ) from {which}"
         )
         if halves_near:
@@ -142,8 +152,8 @@ def offset_explanation(
         spread = float(max(np.linalg.norm(a - b) for a in off for b in off)) if len(off) > 1 else 0.0
         if spread >= 0.5 * float(np.median(mm)):
             out.append(
-                f"The closed forms scatter among themselves by up to {spread:.1f} mm: much of the offset is "
-                "their own error (they ignore the pixel noise and weigh all motions alike), not the result's."
+                f"The closed forms scatter among themselves by up to {num(spread, 1)} mm: much of the offset is "
+                f"their own error (they ignore {noise} and weigh all motions alike), not the result's."
             )
         if robot_mm is not None and (robot_mm > 0 or (robot_deg or 0) > 0):
             kinematic = robot_model == "kinematic"
@@ -158,7 +168,7 @@ def offset_explanation(
             )
             out.append(
                 f"The refinement models robot-pose errors ({robot_model or 'robot error model'}: "
-                f"{robot_mm:.2f} mm / {robot_deg or 0:.3f}° per view, estimated) and weighs each view by "
+                f"{num(robot_mm, 2)} mm / {num(robot_deg or 0, 3)}° per view, estimated) and weighs each view by "
                 "how well it fits; the closed forms take every robot pose as exact and weigh all motions "
                 f"alike, so robot-pose errors bias them. That favours the refinement, but {unseen} that is "
                 f"the same in every view{aside} moves the refinement as well, and neither the halves nor the "
@@ -172,8 +182,9 @@ def offset_explanation(
             )
         else:
             out.append(
-                "The refinement weighs each view by its pixel noise; the closed forms weigh all motions "
-                "alike and are biased by noise on few or short motions."
+                "The refinement weighs each view by "
+                + ("the tracker's noise" if tracked else "its pixel noise")
+                + "; the closed forms weigh all motions alike and are biased by noise on few or short motions."
             )
     elif far:
         names = ", ".join(r["name"] for r in far)

@@ -1354,8 +1354,9 @@ def test_nulls_in_the_validation_block_and_deleted_images_do_not_break_or_inflat
 
 
 def test_the_tracker_model_lines_of_a_pose_only_result():
-    """The tracker's noise, its sigmas' degrees of freedom with X's factor, and an estimated scale."""
-    from handeye.report.sections.models import _tracker
+    """The tracker's noise (in the noise table), its sigmas' degrees of freedom with X's factor, and an estimated
+    scale."""
+    from handeye.report.sections.models import _noise, _tracker
 
     ref = {
         "tracker_noise": {"sigma_deg": 0.1, "sigma_mm": 0.5, "sigma_mm_along": 2.0, "source": "estimated"},
@@ -1365,7 +1366,8 @@ def test_the_tracker_model_lines_of_a_pose_only_result():
         "tracker_scale": {"value": 2.00022, "sigma": 0.0019},
     }
     items = {it["name"]: it["value"] for it in _tracker(ref)["items"]}
-    assert "2.000 mm along" in items["noise"] and "(estimated)" in items["noise"]
+    noise = _noise(ref, tracked=True)["tracker"]
+    assert [r["value"] for r in noise["rows"]] == [0.1, 0.5, 2.0] and noise["source"] == "estimated from the views"
     assert "trans along 17" in items["degrees of freedom"] and "1.067" in items["degrees of freedom"]
     assert "F(6, 66)" in items["degrees of freedom"] and "Satterthwaite's 66" in items["degrees of freedom"]
     assert items["translation scale"].startswith("2.00022 ± 0.0019")
@@ -1373,9 +1375,7 @@ def test_the_tracker_model_lines_of_a_pose_only_result():
     line = {it["name"]: it["value"] for it in resampled["items"]}["degrees of freedom"]
     assert "1.171" in line and "repeated on noise drawn" in line and "F(6, 21)" in line and "Satterthwaite" not in line
     stated = {"tracker_noise": {"sigma_deg": 0.1, "sigma_mm": 0.5, "sigma_mm_along": 0.5, "source": "stated"}}
-    assert [it["name"] for it in _tracker(stated | {"tracker_noise_dof": {}, "cov_x_noise_dof": None})["items"]] == [
-        "noise"
-    ]
+    assert _tracker(stated | {"tracker_noise_dof": {}, "cov_x_noise_dof": None}) is None  # nothing beyond the noise
     assert _tracker({"sigma_px": 0.2}) is None  # an image result has no tracker
 
 

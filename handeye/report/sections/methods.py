@@ -70,11 +70,12 @@ def _stored_difference(e: dict) -> tuple[float, float, float]:
     return _num(e.get("diff_to_result_deg")), _num(e.get("diff_to_result_mm")), _num(e.get("diff_to_result_sigma"))
 
 
-def _offsets(res, ref, T_x, cov, x_name) -> Optional[dict]:
+def _offsets(res, ref, T_x, cov, x_name, *, tracked: bool = False) -> Optional[dict]:
     """Where the result lies against each closed form and each half of the views.
 
     Where the result lies against each closed form and each half of the views (refitted alone), in mm,
-    degrees and verdict sigmas, with the sentences that explain a departure.
+    degrees and verdict sigmas, with the sentences that explain a departure. ``tracked``: a pose-only session
+    (its views' noise is the tracker's).
     """
     from ...config import load_preset
     from ..uncertainty import offset_explanation
@@ -123,11 +124,27 @@ def _offsets(res, ref, T_x, cov, x_name) -> Optional[dict]:
         robot_mm=_num(ref.get("robot_sigma_mm")),
         robot_deg=_num(ref.get("robot_sigma_deg")),
         robot_model=str(model.get("kind") or ref.get("robot_noise_model") or ""),
+        tracked=tracked,
     )
+    for r in rows:  # a closed form past the limit is usually its own error: only a half is marked
+        r["bold"] = r["far"] and r["kind"] == "half"
     return {
         "rows": rows,
         "limit_sigma": limit,
+        "intro": offsets_intro(limit, ref.get("sigma_source") or "model"),
         "explanation": text,
         "halves_split_m2": split,
         "sigma_source": ref.get("sigma_source") or "model",
     }
+
+
+def offsets_intro(limit_sigma: float, sigma_source: str) -> str:
+    """What the "Where the result lies" table measures, in words (its limit ``limit_sigma`` in verdict sigmas)."""
+    return (
+        "How far the refined result lies from each closed form and from each half of the views refitted alone (odd "
+        "and even positions in view order), in mm, degrees and σ, the result's own uncertainty (its verdict "
+        f"covariance, {sigma_source}). Past {limit_sigma:.1f} σ, where 99 % of chance offsets stay below, an offset "
+        "is more than the result's uncertainty explains: for a closed form that is usually the closed form's own "
+        "error (it ignores the noise), not the result's; for a half of the views (in bold), that the half lies "
+        "further from the whole than chance allows. The sentences below the table say what the offsets show here."
+    )

@@ -1,4 +1,4 @@
-"""The models behind the result: the camera intrinsics, the pixel and robot noise, the robot error model."""
+"""The models behind the result: the camera intrinsics, the pixel, tracker and robot noise, the robot error model."""
 
 from __future__ import annotations
 
@@ -126,13 +126,7 @@ def _tracker(ref) -> Optional[dict]:
     tn = ref.get("tracker_noise") if ref else None
     if not isinstance(tn, dict):
         return None
-    items = [
-        {
-            "name": "noise",
-            "value": f"{_num(tn.get('sigma_deg')):.4f} deg rotation, {_num(tn.get('sigma_mm')):.3f} mm across and "
-            f"{_num(tn.get('sigma_mm_along')):.3f} mm along the optical axis per axis ({tn.get('source', '?')})",
-        }
-    ]
+    items = []  # the tracker's noise itself is in the noise table (:func:`_noise`)
     dof = ref.get("tracker_noise_dof")
     nu, k = ref.get("cov_x_noise_dof"), _num(ref.get("cov_x_dof_factor"))
     if isinstance(dof, dict) and dof and nu is not None:
@@ -159,7 +153,7 @@ def _tracker(ref) -> Optional[dict]:
                 "--estimate-scale; X's covariance includes its uncertainty)",
             }
         )
-    return {"items": items}
+    return {"items": items} if items else None
 
 
 def _kinematic_items(rm: dict) -> list:
@@ -249,11 +243,20 @@ def _kinematic_items(rm: dict) -> list:
     return items
 
 
-def _noise(ref) -> Optional[dict]:
+def _noise(ref, *, tracked: bool = False) -> Optional[dict]:
+    """The noise table: the pixel and robot noise of an image result, the tracker's and the robot's of a pose-only one.
+
+    ``tracked``: the result's target is a tracker's (a pose-only session): no pixel rows; the tracker's noise as
+    ``refinement.tracker_noise`` holds it (:func:`_tracker_noise`) instead.
+    """
     if not ref:
         return None
     resolved = ref.get("robot_sigma_resolved") or {}
+    tracker = _tracker_noise(ref.get("tracker_noise")) if tracked else None
     return {
+        "pixels": not tracked,
+        "tracker": tracker,
+        "estimated": not tracked or bool(tracker and tracker["estimated"]),
         "sigma_px": ref.get("sigma_px"),
         "robot_mm": ref.get("robot_sigma_mm"),
         "robot_deg": ref.get("robot_sigma_deg"),
@@ -266,4 +269,37 @@ def _noise(ref) -> Optional[dict]:
         # X's covariance widened for the estimated robot noise levels' degrees of freedom (image results)
         "x_dof": ref.get("cov_x_noise_dof") if not ref.get("tracker_noise_dof") else None,
         "x_dof_factor": ref.get("cov_x_dof_factor"),
+    }
+
+
+#: how a pose-only result's tracker sigmas were had (``refinement.tracker_noise.source``)
+TRACKER_SOURCE_TEXT = {"stated": "stated with the session", "estimated": "estimated from the views"}
+
+
+def _tracker_noise(tn) -> Optional[dict]:
+    """The tracker's noise of a pose-only result (``refinement.tracker_noise``) as rows of the noise table.
+
+    Rotation per axis, translation per axis across the optical axis (x, y) and along it (z), each with its
+    unit and whether the views resolved it (an estimated sigma they cannot resolve is held at its start), how
+    the sigmas were had (stated or estimated) and, for a heavy-tailed tracker, its Student-t degrees of freedom.
+    """
+    if not isinstance(tn, dict):
+        return None
+    got = tn.get("resolved")
+    resolved: dict = got if isinstance(got, dict) else {}
+    rows = [
+        {"name": name, "value": tn.get(key), "unit": unit, "held": resolved.get(group) is False}
+        for name, key, unit, group in (
+            ("rotation, per axis", "sigma_deg", "deg", "rot"),
+            ("translation across the optical axis (x, y), per axis", "sigma_mm", "mm", "trans"),
+            ("translation along the optical axis (z)", "sigma_mm_along", "mm", "trans_along"),
+        )
+    ]
+    source = str(tn.get("source") or "")
+    tail = tn.get("tail_dof")
+    return {
+        "rows": rows,
+        "source": TRACKER_SOURCE_TEXT.get(source, source),
+        "estimated": source == "estimated",
+        "tail_dof": tail if isinstance(tail, (int, float)) and not isinstance(tail, bool) else None,
     }
