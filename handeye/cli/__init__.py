@@ -165,14 +165,27 @@ def prepare_process() -> None:
     keep_freed_memory()
 
 
+def configure_logging(*, quiet: bool = False, verbose: bool = False, debug: bool = False) -> None:
+    """Lines on stderr: handeye's at INFO (WARNING with ``quiet``, DEBUG with ``verbose``); the libraries' at WARNING.
+
+    ``verbose`` is handeye's own detail: the libraries' debug lines (PIL's PNG chunks, matplotlib's font
+    search) are shown only with ``debug``, which sets every logger to DEBUG.
+    """
+    level = logging.WARNING if quiet else logging.INFO
+    logging.basicConfig(level=logging.DEBUG if debug else level, format="%(message)s", stream=sys.stderr)
+    if verbose and not quiet:
+        log.setLevel(logging.DEBUG)
+    if not debug:
+        for library in ("matplotlib", "PIL"):
+            logging.getLogger(library).setLevel(logging.WARNING)
+
+
 def main(argv=None) -> int:
     prepare_process()
     _skip_the_exit_collection()
     parser = build_parser()
     args = parser.parse_args(argv)
-    level = logging.WARNING if args.quiet else (logging.DEBUG if args.verbose or args.debug else logging.INFO)
-    logging.basicConfig(level=level, format="%(message)s", stream=sys.stderr)
-    logging.getLogger("matplotlib").setLevel(logging.WARNING)
+    configure_logging(quiet=args.quiet, verbose=args.verbose, debug=args.debug)
     try:
         return int(args.func(args) or 0)
     except HandeyeError as e:

@@ -815,3 +815,28 @@ def test_calibrate_help_groups_every_flag_and_the_module_names_every_command():
     assert len(cli.COMMANDS) == 11
     for name in cli.COMMANDS:  # the module docstring's command table names every command
         assert re.search(rf"\b{name}\b", cli.__doc__), name
+
+
+@pytest.mark.parametrize(
+    "flags, handeye_debug, library_debug",
+    [((), False, False), (("verbose",), True, False), (("debug",), True, True), (("quiet", "verbose"), False, False)],
+)
+def test_verbose_is_handeye_s_detail_and_library_debug_lines_only_with_debug(flags, handeye_debug, library_debug):
+    """``-v`` shows handeye's debug lines, never the libraries' (PIL's PNG chunks, matplotlib's font search)."""
+    import logging
+
+    from handeye.cli import configure_logging
+
+    root = logging.getLogger()
+    saved = root.handlers[:], root.level, {n: logging.getLogger(n).level for n in ("handeye", "PIL", "matplotlib")}
+    root.handlers = []
+    try:
+        configure_logging(**{f: True for f in flags})
+        assert logging.getLogger("handeye.refine").isEnabledFor(logging.DEBUG) == handeye_debug
+        for library in ("PIL.PngImagePlugin", "matplotlib.font_manager"):
+            assert logging.getLogger(library).isEnabledFor(logging.DEBUG) == library_debug
+        assert logging.getLogger("handeye.refine").isEnabledFor(logging.INFO) == ("quiet" not in flags)
+    finally:
+        root.handlers, root.level = saved[0], saved[1]
+        for n, level in saved[2].items():
+            logging.getLogger(n).setLevel(level)
