@@ -498,3 +498,14 @@ def _check_dict(c, limits_cfg: dict) -> dict:
         "source": c.source,
         "short": c.short,
     }
+
+
+def cov_source_words(source: str) -> str:
+    """Which covariance of X an earlier result gave (result.json's key, as verify and --prior record it), in words."""
+    key, _, less = source.partition(" less ")
+    words = {
+        "cov_x_6x6_verdict": "its verdict covariance",
+        "cov_x_6x6": "its model covariance (the result has no verdict covariance)",
+        "none": "none",
+    }.get(key, key)
+    return words + (", less the arm's stated accuracy (an error every session of the arm shares)" if less else "")

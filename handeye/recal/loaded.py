@@ -162,17 +162,6 @@ def axes_words(frame: str) -> str:
     return f"mm along the {parent} axes, deg about the camera axes"
 
 
-def cov_source_words(source: str) -> str:
-    """Which covariance of X a result gave (:attr:`LoadedResult.cov_source`, result.json's key), in words."""
-    key, _, less = source.partition(" less ")
-    words = {
-        "cov_x_6x6_verdict": "its verdict covariance",
-        "cov_x_6x6": "its model covariance (the result has no verdict covariance)",
-        "none": "none",
-    }.get(key, key)
-    return words + (", less the arm's stated accuracy (an error every session of the arm shares)" if less else "")
-
-
 def unfit_note(r: LoadedResult) -> Optional[str]:
     """A warning for a result whose transform exists but whose verdict says it is not fit for use.
 

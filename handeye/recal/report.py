@@ -13,7 +13,8 @@ from ..output import atomic_write_text, read_json
 def verify_context(v: dict) -> dict:
     """What verify.html and verify.md show of verify.json ``v``: result.json's keys and statuses in words."""
     from ..report.sections.views import OUTLIER_KIND_TEXT
-    from .loaded import axes_words, cov_source_words
+    from ..results import cov_source_words
+    from .loaded import axes_words
 
     drifted = bool(v.get("drifted"))
     mode = v.get("mode", "")

@@ -75,8 +75,8 @@ def test_verify_plan_names_a_session_it_does_not_take_as_typed(rig, capsys):
 
 
 def test_the_installed_covariance_and_a_removed_view_are_said_in_words():
-    from handeye.recal.loaded import cov_source_words
     from handeye.recal.report import verify_context
+    from handeye.results import cov_source_words
 
     assert cov_source_words("cov_x_6x6") == "its model covariance (the result has no verdict covariance)"
     less = cov_source_words("cov_x_6x6_verdict less robot_accuracy.cov_x_6x6")
@@ -148,3 +148,12 @@ def test_verify_against_a_failed_calibration_says_it_failed(rig, tmp_path, capsy
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "the installed calibration failed: its result has no hand-eye matrix" in err[0]
     assert "status" not in err[0], err
+
+
+def test_the_calibration_report_says_the_prior_s_covariance_in_words():
+    """A ``calibrate --prior`` report names the earlier result's covariance as verify's report does, not by its key."""
+    from handeye.report.context import _prior_block
+
+    block = _prior_block({"prior": {"source": "old/result.json", "covariance_used": "cov_x_6x6_verdict"}}, "T_end_cam")
+    assert block["covariance_used"] == "its verdict covariance"
+    assert _prior_block({"prior": {"source": "old/result.json"}}, "T_end_cam")["covariance_used"] == ""

@@ -9,6 +9,7 @@ import numpy as np
 
 from ...conventions import pose_forms
 from ...frames import quat_wxyz_from_R
+from ...results import cov_source_words
 from ..observations import as_T
 from ..uncertainty import Z95
 
@@ -112,7 +113,7 @@ def _prior_block(res, x_name) -> Optional[dict]:
     return {
         "source": p.get("source", ""),
         "frame": p.get("frame") or x_name,
-        "covariance_used": p.get("covariance_used", ""),
+        "covariance_used": cov_source_words(str(p["covariance_used"])) if p.get("covariance_used") else "",
         "intrinsics": p.get("intrinsics", ""),
         "translation_mm": f["translation_mm"] if f else None,
         "euler_deg": f["euler_vendor_deg"] if f else None,
