@@ -185,3 +185,12 @@ def test_report_command_line_is_the_run_s_as_typed_and_the_batch_s_inside_record
     with recorded_as(command_line="handeye batch /data --out /qa", paths={}):
         assert report_row(res) == "handeye batch /data --out /qa"
     assert report_row({"provenance": {"command_line": "python -m handeye report out"}}) is None  # the same: once
+
+
+def test_the_run_time_row_names_the_stages_in_words():
+    """The report's "Run time" row says "board poses", not result.json's key ``board_poses``."""
+    from handeye.report.sections.provenance import _provenance
+
+    res = {"provenance": {}, "seconds": {"detect": 0.21, "board_poses": 0.01, "total": 1.2}}
+    rows = {r["name"]: r["value"] for r in _provenance(res, {}, "configs/qa.yaml")["rows"]}
+    assert rows["Run time"] == "detect 0.21 s, board poses 0.01 s, total 1.20 s"

@@ -66,7 +66,9 @@ def _provenance(res, qa_cfg, qa_source) -> dict:
         rows.append(
             {
                 "name": "Run time",
-                "value": ", ".join(f"{k} {v:.2f} s" for k, v in secs.items() if isinstance(v, (int, float))),
+                "value": ", ".join(
+                    f"{k.replace('_', ' ')} {v:.2f} s" for k, v in secs.items() if isinstance(v, (int, float))
+                ),
                 "mono": False,
             }
         )
