@@ -167,30 +167,3 @@ def test_command_line_of_python_m_handeye_is_recorded_as_typed(monkeypatch):
 
     monkeypatch.setattr("sys.argv", ["/opt/venv/lib/python3.11/site-packages/handeye/__main__.py", "calibrate", "s1"])
     assert provenance()["command_line"] == "python -m handeye calibrate s1"
-
-
-def test_report_command_line_is_the_run_s_as_typed_and_the_batch_s_inside_recorded_as(monkeypatch):
-    """The report's "Report command line" row comes from the one place that records a run's command line: it
-    names ``python -m handeye``, not ``__main__.py``, and in a batch's session process the batch's command."""
-    from handeye.output import recorded_as
-    from handeye.report.sections.provenance import _provenance
-
-    def report_row(res):
-        rows = {r["name"]: r["value"] for r in _provenance(res, {}, "configs/qa.yaml")["rows"]}
-        return rows.get("Report command line")
-
-    res = {"provenance": {"command_line": "handeye calibrate s1"}}
-    monkeypatch.setattr("sys.argv", ["/venv/lib/python3.11/site-packages/handeye/__main__.py", "report", "out"])
-    assert report_row(res) == "python -m handeye report out"
-    with recorded_as(command_line="handeye batch /data --out /qa", paths={}):
-        assert report_row(res) == "handeye batch /data --out /qa"
-    assert report_row({"provenance": {"command_line": "python -m handeye report out"}}) is None  # the same: once
-
-
-def test_the_run_time_row_names_the_stages_in_words():
-    """The report's "Run time" row says "board poses", not result.json's key ``board_poses``."""
-    from handeye.report.sections.provenance import _provenance
-
-    res = {"provenance": {}, "seconds": {"detect": 0.21, "board_poses": 0.01, "total": 1.2}}
-    rows = {r["name"]: r["value"] for r in _provenance(res, {}, "configs/qa.yaml")["rows"]}
-    assert rows["Run time"] == "detect 0.21 s, board poses 0.01 s, total 1.20 s"
