@@ -8,7 +8,7 @@ did not enter (a link loop, a second link to one folder) are one stderr line eac
 Exit code 0 when every session (run now or skipped as unchanged) is PASS or WARN and every result in the
 index could be read, else 7 (:class:`handeye.errors.QAFailed`'s code); one bad session never stops the
 batch. ``--index-only OUT`` rebuilds the index from the result folders in OUT; its exit code is the same
-rule over the index's rows.
+rule over the index's rows, and each row that makes it 7 is a stderr line with its verdict and reason.
 """
 
 from __future__ import annotations
@@ -102,24 +102,35 @@ def index_exit_code(out: Path, *, every_row: bool) -> int:
     :class:`QAFailed`'s code when a row is damaged (a result that cannot be read) or, with ``every_row``,
     when a row is not PASS, WARN or VALID; else 0.
     """
-    from ..batch.index import DAMAGED, read_fleet_csv
     from ..errors import QAFailed
 
+    return QAFailed.exit_code if failing_rows(out, every_row=every_row) else 0
+
+
+def failing_rows(out: Path, *, every_row: bool) -> list[dict]:
+    """The rows of the index in ``out`` that make its exit code 7 (see :func:`index_exit_code`)."""
+    from ..batch.index import DAMAGED, read_fleet_csv
+
     rows = read_fleet_csv(out / "fleet.csv")
-    bad = [r for r in rows if r["outcome"] == DAMAGED or (every_row and r["verdict"] not in ("PASS", "WARN", "VALID"))]
-    return QAFailed.exit_code if bad else 0
+    return [r for r in rows if r["outcome"] == DAMAGED or (every_row and r["verdict"] not in ("PASS", "WARN", "VALID"))]
 
 
 def run(args) -> int:
-    from ..batch.index import write_index, write_skipped
-    from ..errors import InputError
+    from ..batch.index import DAMAGED, write_index, write_skipped
+    from ..errors import InputError, QAFailed
 
     if args.index_only:
         if not args.root.is_dir():
             raise InputError("output folder not found", path=args.root, hint="pass the --out folder of a batch")
         for p in write_index(args.root):
             print(f"index: {p}")
-        return index_exit_code(args.root, every_row=True)
+        bad = failing_rows(args.root, every_row=True)
+        for r in (r for r in bad if r["outcome"] != DAMAGED):  # why the exit code is 7 (a damaged row is named above)
+            where = "/".join(x for x in (r.get("install"), r.get("session")) if x)
+            print(
+                f"{where}: {r['verdict'] or r['outcome']} - {r.get('reason') or 'no reason recorded'}", file=sys.stderr
+            )
+        return QAFailed.exit_code if bad else 0
     if args.out is None:
         raise InputError("--out is required", hint="handeye batch ROOT --out OUT")
     if args.workers is not None and args.workers < 1:

@@ -134,9 +134,14 @@ def test_index_only_over_a_damaged_result_writes_the_index_and_exits_7(tmp_path)
     assert p.returncode == 7, p.stderr
     assert "internal error" not in p.stderr and "field verdict is a mapping" in p.stderr
     assert all((out / n).is_file() for n in ("fleet.csv", "index.html", "index.md"))
+    assert p.stderr.count("field verdict is a mapping") == 1  # named once, by the index's writer
     (bad / "result.json").write_text(json.dumps(GOOD))
     p = index_only()
     assert p.returncode == 0, p.stderr
+    failed = _put(_put(GOOD, "verdict", "FAIL"), "verdict_headline", "T_end_cam fails QA: the board slipped.")
+    _session(out, "cell-02/slipped", result=failed)
+    p = index_only()
+    assert p.returncode == 7 and "cell-02/slipped: FAIL - T_end_cam fails QA: the board slipped." in p.stderr, p.stderr
 
 
 def test_a_session_whose_result_was_damaged_since_its_run_is_not_skipped(tmp_path):
