@@ -78,7 +78,9 @@ def test_the_worker_s_paths_are_put_back_in_the_record_s_texts():
     }
 
 
-def test_an_uploaded_session_whose_files_were_lost_with_their_worker_is_sent_again(tmp_path, monkeypatch):
+def test_an_uploaded_session_whose_files_were_lost_with_their_worker_is_sent_again(
+    tmp_path, worker_killing_hook, monkeypatch
+):
     """The Dask worker holding an uploaded session's scattered files dies while the session runs (a hook on the
     session process's PYTHONPATH kills its parent, the worker, once): Dask cancels the task, whose files are
     gone; the batch sends the session again and it gets its record as any other."""
@@ -88,21 +90,8 @@ def test_an_uploaded_session_whose_files_were_lost_with_their_worker_is_sent_aga
     root, out = tmp_path / "root", tmp_path / "out"
     session = _unloadable_session(root, image_bytes=1000)
     hook, mark = tmp_path / "hook", tmp_path / "worker-killed"
-    hook.mkdir()
-    (hook / "sitecustomize.py").write_text(
-        "import sys\n"
-        "if 'handeye.batch.child' in sys.orig_argv:\n"
-        "    import os, signal, time\n"
-        "    import handeye.batch.child as c\n"
-        "    _run = c.run\n"
-        "    def run(spec):\n"
-        f"        if not os.path.exists({str(mark)!r}):\n"
-        f"            open({str(mark)!r}, 'w').close()\n"
-        "            os.kill(os.getppid(), signal.SIGKILL)\n"
-        "            time.sleep(30)\n"
-        "        return _run(spec)\n"
-        "    c.run = run\n"
-    )
+    # once: the hook marks the first session process it kills the worker of
+    worker_killing_hook(hook, f"not os.path.exists({str(mark)!r}) and open({str(mark)!r}, 'w').close() is None")
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (str(hook), os.environ.get("PYTHONPATH")) if p))
     rc = main(["batch", str(root), "--out", str(out), "--workers", "1", "--upload", "--no-report"])
     assert rc == 7 and mark.exists()

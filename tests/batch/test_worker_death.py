@@ -29,28 +29,16 @@ def _stderr_lines(err: str) -> list[str]:
     return [p for p in parts if p and not re.search(r"\d+%\|", p)]
 
 
-def test_a_worker_killed_by_its_session_leaves_handeye_s_line_on_stderr_and_dask_s_in_batch_log(tmp_path):
+def test_a_worker_killed_by_its_session_leaves_handeye_s_line_on_stderr_and_dask_s_in_batch_log(
+    tmp_path, worker_killing_hook
+):
     """The session process of every session named ``*crash*`` kills its parent, the Dask worker (a hook on the
     session processes' PYTHONPATH), until Dask gives the task up. Before, the nanny's and the scheduler's warnings
     and errors about it (the worker restarted, the task given up) reached the user's stderr among handeye's lines."""
     root, out = tmp_path / "root", tmp_path / "out"
     # alone: a session queued on the worker beside it would count the deaths too, and be lost with it
     _session(root / "cell" / "2026-03-02-crash")
-    hook = tmp_path / "hook"
-    hook.mkdir()
-    (hook / "sitecustomize.py").write_text(
-        "import sys\n"
-        "if 'handeye.batch.child' in sys.orig_argv:\n"
-        "    import os, signal, time\n"
-        "    import handeye.batch.child as c\n"
-        "    _run = c.run\n"
-        "    def run(spec):\n"
-        "        if 'crash' in spec['session']:\n"
-        "            os.kill(os.getppid(), signal.SIGKILL)\n"
-        "            time.sleep(30)\n"
-        "        return _run(spec)\n"
-        "    c.run = run\n"
-    )
+    hook = worker_killing_hook(tmp_path / "hook", "'crash' in spec['session']")
     env = {
         **os.environ,
         "PYTHONPATH": os.pathsep.join(p for p in (str(hook), str(REPO), os.environ.get("PYTHONPATH")) if p),
