@@ -173,11 +173,9 @@ def configure_logging(*, quiet: bool = False, verbose: bool = False, debug: bool
     """
     level = logging.WARNING if quiet else logging.INFO
     logging.basicConfig(level=logging.DEBUG if debug else level, format="%(message)s", stream=sys.stderr)
-    if verbose and not quiet:
-        log.setLevel(logging.DEBUG)
-    if not debug:
-        for library in ("matplotlib", "PIL"):
-            logging.getLogger(library).setLevel(logging.WARNING)
+    log.setLevel(logging.DEBUG if verbose and not quiet else logging.NOTSET)
+    for library in ("matplotlib", "PIL"):  # with debug: as the root (a run before in this process set them)
+        logging.getLogger(library).setLevel(logging.NOTSET if debug else logging.WARNING)
 
 
 def main(argv=None) -> int:

@@ -831,6 +831,8 @@ def test_verbose_is_handeye_s_detail_and_library_debug_lines_only_with_debug(fla
     saved = root.handlers[:], root.level, {n: logging.getLogger(n).level for n in ("handeye", "PIL", "matplotlib")}
     root.handlers = []
     try:
+        configure_logging(verbose=True)  # a run before in this process (its levels must not stay)
+        root.handlers = []
         configure_logging(**{f: True for f in flags})
         assert logging.getLogger("handeye.refine").isEnabledFor(logging.DEBUG) == handeye_debug
         for library in ("PIL.PngImagePlugin", "matplotlib.font_manager"):
