@@ -90,7 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action=_Version, help="show program's version number and exit")
     p.add_argument("-v", "--verbose", action="store_true", help="more progress detail on stderr")
     p.add_argument("-q", "--quiet", action="store_true", help="only errors on stderr")
-    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    p.add_argument("--debug", action="store_true", help="show tracebacks and the libraries' debug lines")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", action=_LazyCommands)
     sub.required = True
     for name, (_, help_text) in COMMANDS.items():
