@@ -34,8 +34,7 @@ SESSION_VERSION = 1
 POSE_FORMAT = {"rotation": "matrix", "translation_unit": "m"}
 RECORDS_DIR = "views"
 IMAGES_DIR = "images"
-#: the record of a collection that kept no view (it wrote no session): what session.yaml would say of the run
-EMPTY_RUN_RECORD = EMPTY_COLLECTION_FILE
+#: the version of OUT/collect_run.yaml (:data:`EMPTY_COLLECTION_FILE`), the record of a collection that kept no view
 EMPTY_RUN_VERSION = 1
 #: session.yaml's keys that make a folder a session: left out of the empty run's record
 _SESSION_KEYS = ("handeye_session", "pose_format", "pose_meaning", "view_records")
@@ -44,7 +43,7 @@ _SESSION_KEYS = ("handeye_session", "pose_format", "pose_meaning", "view_records
 def unused_folder(out: str | Path) -> bool:
     """Whether a collection may write into ``out``: missing, empty, or holding only an empty run's record."""
     out = Path(out)
-    return not out.exists() or (out.is_dir() and all(f.name == EMPTY_RUN_RECORD for f in out.iterdir()))
+    return not out.exists() or (out.is_dir() and all(f.name == EMPTY_COLLECTION_FILE for f in out.iterdir()))
 
 
 def _fsync_dir(folder: Path) -> None:
@@ -121,13 +120,12 @@ class SessionWriter:
         if intrinsics is not None:
             header["intrinsics"] = intrinsics_header(intrinsics, use="initial", source=intrinsics_source)
         header["view_records"] = RECORDS_DIR
-        self._collected = {
+        header["collected"] = {
             "handeye_version": __version__,
             "command_line": command_line(),
             "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
             **(collected or {}),
         }
-        header["collected"] = self._collected
         self._header_doc = header
         self._header = dump_yaml(header)
         self._truth: bytes | None = None  # ground_truth.json, held until the session is started
@@ -147,7 +145,7 @@ class SessionWriter:
             self._write(self.out / "ground_truth.json", self._truth)
         self.started = True
         try:  # an earlier run's, that kept no view: session.yaml records this one
-            (self.out / EMPTY_RUN_RECORD).unlink(missing_ok=True)
+            (self.out / EMPTY_COLLECTION_FILE).unlink(missing_ok=True)
         except OSError as e:
             log.warning("%s: the record of an earlier run that kept no view stays (%s)", self.out, e.strerror)
 
@@ -167,7 +165,7 @@ class SessionWriter:
             "why": why,
             "note": "no session was written: this folder holds no session until a collection into it keeps a view",
             **head,
-            "collected": {**self._collected, "finished": now},
+            "collected": {**self._header_doc["collected"], "finished": now},
             "rejected": list(rejected),
             **({"error": error} if error else {}),
         }
@@ -175,7 +173,7 @@ class SessionWriter:
             self.out.mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise InputError(f"cannot create the session folder ({e.strerror})", path=self.out) from None
-        path = self.out / EMPTY_RUN_RECORD
+        path = self.out / EMPTY_COLLECTION_FILE
         self._write(path, dump_yaml(record))
         return path
 
