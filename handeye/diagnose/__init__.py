@@ -184,22 +184,26 @@ def _unexplained(obs: PoseObservations, given) -> Finding:
         )
     )
     if obs.tracker:  # a pose-only session: the tracker's poses, whose format no reading above tried
-        return Finding(
-            "poses_do_not_fit",
-            "fail",
-            "The robot poses do not fit the tracker's poses as read, and no single cause was found",
-            f"no reading of the robot pose numbers, pairing, scale, target move or single view explains it{sc}",
+        seen, read, action = (
+            "the tracker's poses",
+            "robot pose numbers, pairing, scale, target move",
             "check the tracker's pose format (target_pose_format: rotation, quaternion_order, translation_unit; "
             "camera -> target, not its inverse), that each tracker pose is paired with the robot pose of that "
             "moment, and the mounting mode",
         )
+    else:
+        seen, read, action = (
+            "the images",
+            "pose numbers, pairing, scale, board move",
+            "check that every image is paired with the pose recorded at that moment, the pose format, the "
+            "mounting mode and the board; re-capture if unsure",
+        )
     return Finding(
         "poses_do_not_fit",
         "fail",
-        "The robot poses do not fit the images as read, and no single cause was found",
-        f"no reading of the pose numbers, pairing, scale, board move or single view explains it{sc}",
-        "check that every image is paired with the pose recorded at that moment, the pose format, the "
-        "mounting mode and the board; re-capture if unsure",
+        f"The robot poses do not fit {seen} as read, and no single cause was found",
+        f"no reading of the {read} or single view explains it{sc}",
+        action,
     )
 
 
