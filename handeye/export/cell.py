@@ -38,9 +38,9 @@ from .writers import (
     plain_dict as camera_dict,
 )
 
-#: the formats a cell writes as one file set holding every camera (the others: one set per camera)
 log = logging.getLogger(__name__)
 
+#: the formats a cell writes as one file set holding every camera (the others: one set per camera)
 CELL_FORMATS = ("ros2", "urdf", "yaml", "json")
 
 
