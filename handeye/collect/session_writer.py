@@ -120,12 +120,13 @@ class SessionWriter:
         if intrinsics is not None:
             header["intrinsics"] = intrinsics_header(intrinsics, use="initial", source=intrinsics_source)
         header["view_records"] = RECORDS_DIR
-        header["collected"] = {
+        self._collected: dict = {  # header's, typed: the empty run's record adds its end
             "handeye_version": __version__,
             "command_line": command_line(),
             "started": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
             **(collected or {}),
         }
+        header["collected"] = self._collected
         self._header_doc = header
         self._header = dump_yaml(header)
         self._truth: bytes | None = None  # ground_truth.json, held until the session is started
@@ -165,7 +166,7 @@ class SessionWriter:
             "why": why,
             "note": "no session was written: this folder holds no session until a collection into it keeps a view",
             **head,
-            "collected": {**self._header_doc["collected"], "finished": now},
+            "collected": {**self._collected, "finished": now},
             "rejected": list(rejected),
             **({"error": error} if error else {}),
         }
