@@ -459,15 +459,12 @@ def _installed(args):
         if getattr(args, "sim_bump", None):
             raise ConfigError("--sim-bump moves the installed camera", expected="--verify-against RESULT")
         return None
-    from ..recal.loaded import load_result, session_camera
+    from ..recal.loaded import load_result, require_matrix, session_camera
 
     hint = "collect into a folder named after the camera (--out .../NAME), or verify against its own result"
     camera = session_camera(args.verify_against, args.out, what="--verify-against", hint=hint)  # a cell
     installed = load_result(args.verify_against, camera=camera)
-    if not installed.ok:
-        raise InputError(
-            f"the installed result has no hand-eye matrix (status {installed.status})", path=installed.source
-        )
+    require_matrix(installed)
     if installed.mode != args.mode:
         raise ConfigError(
             f"--mode {args.mode} but the installed calibration is {installed.mode}",

@@ -162,6 +162,16 @@ def axes_words(frame: str) -> str:
     return f"mm along the {parent} axes, deg about the camera axes"
 
 
+def require_matrix(r: LoadedResult) -> None:
+    """Refuse an installed result without a hand-eye matrix (its calibration failed): verify and collect need one."""
+    if not r.ok:
+        raise InputError(
+            "the installed calibration failed: its result has no hand-eye matrix",
+            path=r.source,
+            hint="verify against a calibration that computed one",
+        )
+
+
 def unfit_note(r: LoadedResult) -> Optional[str]:
     """A warning for a result whose transform exists but whose verdict says it is not fit for use.
 

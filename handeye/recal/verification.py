@@ -22,7 +22,7 @@ from ..mounting import mounting
 from ..output import plain
 from .drift import DriftTest, change_in_result_frame
 from .joint import installed_robot_model, test_refined, with_installed_dh
-from .loaded import VAGUE_COV_X, LoadedResult, installed_prior
+from .loaded import VAGUE_COV_X, LoadedResult, installed_prior, require_matrix
 
 
 def _from_preset(section: str, key: str):
@@ -209,12 +209,7 @@ def verify_views(
     from ..refine import RefineOptions, refine
 
     t0 = time.perf_counter()
-    if not installed.ok:
-        raise InputError(
-            "the installed calibration failed: its result has no hand-eye matrix",
-            path=installed.source,
-            hint="verify against a calibration that computed one",
-        )
+    require_matrix(installed)
     if len(views) < 3:
         raise InputError(
             "a verification needs at least 3 views with the target",

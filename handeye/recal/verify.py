@@ -22,7 +22,7 @@ from ..output import plain
 from ..session.target_spec import target_words
 from .drift import JOINT_DH_KIND, JOINT_KIND, DriftTest, change_in_result_frame, drift_test, joint_drift_test
 from .joint import installed_robot_model, shares_dh, test_refined, with_installed_dh
-from .loaded import LoadedResult
+from .loaded import LoadedResult, require_matrix
 from .verification import (
     Verification,
     VerifyOptions,
@@ -183,12 +183,7 @@ def verify_session(
 
     t0 = time.perf_counter()
     installed = against if isinstance(against, LoadedResult) else load_result(against)
-    if not installed.ok:
-        raise InputError(
-            "the installed calibration failed: its result has no hand-eye matrix",
-            path=installed.source,
-            hint="verify against a calibration that computed one",
-        )
+    require_matrix(installed)
     s = session_for_installed(session_path, installed, mode=mode)
     check_resolution(installed, s)
     reused = installed_images_among(installed, s)
