@@ -23,7 +23,7 @@ from ..conventions import VENDOR_POSE_FORMAT, pose_values_from_T
 from ..errors import ConfigError, InputError
 from ..mounting import mounting
 from ..output import plain
-from ..session.target_spec import parse_target
+from ..session.target_spec import is_tracked, parse_target
 from .loaded import LoadedResult, ResultLike, load_result
 from .verify import installed_robot_model, shares_dh
 
@@ -189,7 +189,7 @@ def plan_verification(
             received=f"{drift_mm} mm, {drift_deg} deg",
         )
     installed = against if isinstance(against, LoadedResult) else load_result(against)
-    tracked = (installed.target or {}).get("type") == "tracked"
+    tracked = is_tracked(installed.target)
     lacks = (
         ["its hand-eye matrix (the calibration failed)"]
         if not installed.ok or installed.T_x is None

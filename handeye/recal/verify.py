@@ -19,7 +19,7 @@ from typing import Optional
 from ..errors import InputError
 from ..mounting import mounting
 from ..output import plain
-from ..session.target_spec import target_words
+from ..session.target_spec import is_tracked, target_words
 from .drift import JOINT_DH_KIND, JOINT_KIND, DriftTest, change_in_result_frame, drift_test, joint_drift_test
 from .joint import installed_robot_model, shares_dh, test_refined, with_installed_dh
 from .loaded import LoadedResult, require_matrix
@@ -104,7 +104,7 @@ def session_for_installed(session_path, installed: LoadedResult, *, mode: Option
             "INSTALLED NEW",
         )
     if installed.target is not None and s.target.to_dict() != installed.target:
-        tracked = installed.target.get("type") == "tracked"
+        tracked = is_tracked(installed.target)
         raise InputError(
             f"the session's board ({s.target.describe()}) is not the installed calibration's",
             path=s.path,

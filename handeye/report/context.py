@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..mounting import EYE_IN_HAND, MODES, mounting
+from ..session.target_spec import is_tracked
 from .advice import failure_advice, root_cause, untrusted_metrics
 from .folder import ResultFolder
 from .formatting import num
@@ -78,7 +79,7 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     stages = _stages(diag)
     views = _view_rows(res, ref, fits, board_centre, findings, image_size)
     ctx["views"] = views
-    ctx["tracked"] = (res.get("target") or {}).get("type") == "tracked"  # a pose-only session: no images
+    ctx["tracked"] = is_tracked(res.get("target"))  # a pose-only session: no images
     ctx["n_used"] = sum(v["status"] == "used" for v in views)
     ctx["n_total"] = len(views)
 

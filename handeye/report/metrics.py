@@ -14,6 +14,7 @@ import numpy as np
 from ..initial.motion import axis_text, motion_quality
 from ..mounting import MountingMode
 from ..records import view_id_key
+from ..session.target_spec import is_tracked
 from .observations import ViewFit, coverage_counts, finite, relative_rotvecs, rms_norm, robot_motions
 
 
@@ -116,7 +117,7 @@ def qa_metrics(
     else:
         m["image_coverage"] = None
         c["image_coverage_missing"] = "no detected corners"
-    if (res.get("target") or {}).get("type") == "tracked":  # a pose-only session: no corners, no pixel checks
+    if is_tracked(res.get("target")):  # a pose-only session: no corners, no pixel checks
         for k in ("reprojection_rms_px", "image_coverage"):
             m.pop(k, None)
     return m, c

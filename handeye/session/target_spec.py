@@ -138,6 +138,11 @@ def parse_target(t: Any, *, path: Path) -> TargetSpec:
     return parser(t, path)
 
 
+def is_tracked(target) -> bool:
+    """Whether a result.json ``target`` is a tracker's (a pose-only session: no images, no pixels)."""
+    return isinstance(target, dict) and target.get("type") == "tracked"
+
+
 def target_words(target) -> str:
     """A result.json ``target`` (the session field it was read from) in words, as its spec describes it.
 
@@ -148,7 +153,7 @@ def target_words(target) -> str:
 
     if not isinstance(target, dict):
         return "an unknown board"
-    if target.get("type") == "tracked":
+    if is_tracked(target):
         return TrackedTargetSpec(str(target.get("name") or "")).describe()
     try:
         return parse_target(target, path=Path("result.json")).describe()
