@@ -148,6 +148,11 @@ def test_verify_against_a_failed_calibration_says_it_failed(rig, tmp_path, capsy
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "the installed calibration failed: its result has no hand-eye matrix" in err[0]
     assert "status" not in err[0], err
+    # collect --verify-against says the same (it said "(status failed)")
+    args = ["-q", "collect", str(tmp_path / "c"), "--mode", "eye_in_hand", "--camera", "sim", "--robot", "sim"]
+    assert main([*args, "--verify-against", str(tmp_path / "failed")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "the installed calibration failed: its result has no hand-eye matrix" in err[0], err
 
 
 def test_the_calibration_report_says_the_prior_s_covariance_in_words():
