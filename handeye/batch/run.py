@@ -46,9 +46,10 @@ MAX_TIMEOUT_S = 7 * 24 * 3600.0
 #: ``timeout``, ``crashed`` (the child died without a result), ``error`` (the workflow raised),
 #: ``lost`` (its workers kept dying)
 OUTCOMES = ("done", "timeout", "crashed", "error", "lost")
-#: the environment of a session's process: one thread for the linear algebra (a worker runs one
 #: tasks submitted per worker thread at once (more are submitted as these finish)
 IN_FLIGHT_PER_THREAD = 2
+#: the embedded scheduler's ``worker-saturation``: a worker holds only the task it runs, the rest wait on the scheduler
+ONE_TASK_PER_THREAD = 1.0
 #: times an uploaded session is sent again when its files were lost with their worker (as a task's ``retries``)
 UPLOAD_RESENDS = 1
 #: verdicts that count as failed in the progress bar and the exit code (ERROR: no result of this run)
@@ -457,10 +458,19 @@ def open_client(scheduler: Optional[str] = None, n_workers: Optional[int] = None
                 hint="check the address and that the scheduler runs there (dask scheduler), or leave out "
                 "--scheduler to run on this machine",
             ) from None
+    import dask
+
     n = int(n_workers or os.cpu_count() or 1)
-    cluster = LocalCluster(
-        n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0", scheduler_kwargs={"dashboard": False}
-    )  # no fixed port taken
+    # one task on a worker at a time (Dask's default, 1.1, gives a single-threaded worker a second one): a worker's
+    # death then counts against the session that ran on it alone, never against one queued behind it
+    with dask.config.set({"distributed.scheduler.worker-saturation": ONE_TASK_PER_THREAD}):
+        cluster = LocalCluster(
+            n_workers=n,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=":0",  # no fixed port taken
+            scheduler_kwargs={"dashboard": False},
+        )
     return Client(cluster)
 
 

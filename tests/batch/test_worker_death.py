@@ -34,10 +34,12 @@ def test_a_worker_killed_by_its_session_leaves_handeye_s_line_on_stderr_and_dask
 ):
     """The session process of every session named ``*crash*`` kills its parent, the Dask worker (a hook on the
     session processes' PYTHONPATH), until Dask gives the task up. Before, the nanny's and the scheduler's warnings
-    and errors about it (the worker restarted, the task given up) reached the user's stderr among handeye's lines."""
+    and errors about it (the worker restarted, the task given up) reached the user's stderr among handeye's lines.
+    The session after it, on the same one worker, runs to its own end: before, Dask gave the worker a second task
+    while it ran the first, counted each death against both, and lost the second with the first."""
     root, out = tmp_path / "root", tmp_path / "out"
-    # alone: a session queued on the worker beside it would count the deaths too, and be lost with it
     _session(root / "cell" / "2026-03-02-crash")
+    _session(root / "cell" / "2026-03-03-next")  # waits for the one worker: the deaths are not counted against it
     hook = worker_killing_hook(tmp_path / "hook", "'crash' in spec['session']")
     env = {
         **os.environ,
@@ -49,11 +51,15 @@ def test_a_worker_killed_by_its_session_leaves_handeye_s_line_on_stderr_and_dask
     p = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
     assert p.returncode == 7, p.stdout + p.stderr
     lines = _stderr_lines(p.stderr)
-    assert lines == [  # no line of Dask's
-        f"1 sessions in 1 installs under {root}",
+    assert lines[0] == f"2 sessions in 1 installs under {root}", p.stderr
+    assert sorted(lines[1:]) == [  # no line of Dask's
         "cell/2026-03-02-crash: ERROR (lost): the workers running it died, 2 in a row; Dask's account is in its "
         "batch.log",
+        f"cell/2026-03-03-next: FAIL (done): {root / 'cell' / '2026-03-03-next'}: no numbered images (1.jpg, 2.jpg, "
+        "...) in the folder",
     ], p.stderr
+    nxt = json.loads((out / "cell" / "2026-03-03-next" / "batch.json").read_text())
+    assert nxt["outcome"] == "done" and nxt["verdict"] == "FAIL", nxt  # its own outcome, not lost with the other
 
     rec = json.loads((out / "cell" / "2026-03-02-crash" / "batch.json").read_text())
     assert rec["outcome"] == "lost" and rec["verdict"] == "ERROR", rec
