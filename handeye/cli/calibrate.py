@@ -296,7 +296,7 @@ def _export_beside(out_dir: Path, fmt: str) -> int:
 
 
 def _is_cell(path) -> bool:
-    from ..cell import is_cell_folder
+    from ..session.fields import is_cell_folder
 
     return is_cell_folder(path)
 
