@@ -313,6 +313,7 @@ def verify_views(
         robot=robot,
         intrinsics=intr_d,
         dof=test.dof,
+        n_views=len(views),
     )
     verdict = "drifted" if drifted else "still valid"
     headline = (
@@ -431,11 +432,33 @@ def _intrinsics_update(installed: LoadedResult, r, session_intr: bool) -> dict:
 
 
 def what_moved(
-    *, mode: str, frame: str, drifted: bool, change: dict, board: dict, robot: dict, intrinsics: dict, dof: int
+    *,
+    mode: str,
+    frame: str,
+    drifted: bool,
+    change: dict,
+    board: dict,
+    robot: dict,
+    intrinsics: dict,
+    dof: int,
+    n_views: int = 0,
 ) -> tuple:
-    """Lines for people: which part of the rig the evidence points at."""
+    """Lines for people: which part of the rig the evidence points at.
+
+    ``n_views``: the views the verification was given. When its robot-pose outliers are half of them or more, the
+    first line says that the views kept decide the verdict: past half, the outliers are no longer the exceptions
+    a robust solve can tell from the rule.
+    """
     m = mounting(mode)
     lines = []
+    n_out = len(robot.get("views") or ())
+    if n_views and 2 * n_out >= n_views:
+        lines.append(
+            f"only {n_views - n_out} of the {n_views} views agree with one another ({n_out} left out for their robot "
+            f"poses), and the verdict rests on those {n_views - n_out}: when most views disagree, more often the board "
+            f"moved {m.board_location} during the check or the poses are not this robot's flange; check both and "
+            "capture the views again"
+        )
     size = f"{change['trans_mm']:.2f} mm, {change['rot_deg']:.3f} deg"
     if drifted:
         if m.camera_moves:

@@ -162,3 +162,26 @@ def test_the_calibration_report_says_the_prior_s_covariance_in_words():
     block = _prior_block({"prior": {"source": "old/result.json", "covariance_used": "cov_x_6x6_verdict"}}, "T_end_cam")
     assert block["covariance_used"] == "its verdict covariance"
     assert _prior_block({"prior": {"source": "old/result.json"}}, "T_end_cam")["covariance_used"] == ""
+
+
+@pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
+def test_verify_says_when_most_views_were_left_out_that_the_verdict_rests_on_the_rest(mode):
+    """A real eye-to-hand check (the UR3 set's camera 1 against its own calibration, whose board slipped in the
+    gripper) kept 5 of 14 views and said only "the camera moved" and "the robot poses of views ... disagree (a
+    collision, a changed tool frame or a robot fault)". Past half the views, the ones left out are no longer
+    exceptions: the first line says so, and names the board moving in its place and poses of another frame."""
+    from handeye.recal.verification import what_moved
+
+    change = {"trans_mm": 38.1, "rot_deg": 1.94}
+    kw = dict(mode=mode, frame="X", drifted=True, change=change, board={}, intrinsics={}, dof=6, n_views=6)
+    half = what_moved(robot={"views": ["1", "3", "5"]}, **kw)
+    where = "on the table" if mode == "eye_in_hand" else "in the gripper"
+    assert half[0] == (
+        "only 3 of the 6 views agree with one another (3 left out for their robot poses), and the verdict rests on "
+        f"those 3: when most views disagree, more often the board moved {where} during the check or the poses are "
+        "not this robot's flange; check both and capture the views again"
+    ), half
+    assert "camera moved" in half[1] and "robot poses of views 1, 3, 5" in half[2], half
+    fewer = what_moved(robot={"views": ["1", "3"]}, **kw)  # 2 of 6: outliers a robust solve tells from the rule
+    assert not any("agree with one another" in line for line in fewer), fewer
+    assert "camera moved" in fewer[0], fewer
