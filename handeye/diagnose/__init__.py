@@ -175,11 +175,12 @@ def _pose_checks(
 
 def _unexplained(obs: PoseObservations, given) -> Finding:
     """The poses as read do not fit the images and no check found why: never a quiet pass."""
+    target = "tracked target" if obs.tracker else "board"
     sc = (
         ""
         if given is None
         else (
-            f": the board implied by each view scatters by {given.fit.median_rot_deg:.2f} deg / "
+            f": the {target} implied by each view scatters by {given.fit.median_rot_deg:.2f} deg / "
             f"{given.fit.median_trans_mm:.1f} mm (median over {obs.n} views)"
         )
     )

@@ -475,3 +475,4 @@ def test_tracker_poses_that_fit_no_robot_pose_reading_point_at_the_tracker_s_for
     unfit = [x for x in res["findings"] if x["code"] == "poses_do_not_fit"]
     assert len(unfit) == 1 and "tracker's poses" in unfit[0]["title"] and "quaternion_order" in unfit[0]["action"]
     assert "images" not in res["verdict_headline"], res["verdict_headline"]
+    assert "the tracked target implied by each view scatters by" in unfit[0]["evidence"], unfit[0]  # not a board
