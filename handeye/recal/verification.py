@@ -455,9 +455,9 @@ def what_moved(
     if n_views and 2 * n_out >= n_views:
         lines.append(
             f"only {n_views - n_out} of the {n_views} views agree with one another ({n_out} left out for their robot "
-            f"poses), and the verdict rests on those {n_views - n_out}: when most views disagree, more often the board "
-            f"moved {m.board_location} during the check or the poses are not this robot's flange; check both and "
-            "capture the views again"
+            f"poses), and the verdict rests on those {n_views - n_out}: when so many views disagree, more often the "
+            f"board moved {m.board_location} during the check or the poses are not this robot's flange poses; check "
+            "both and capture the views again"
         )
     size = f"{change['trans_mm']:.2f} mm, {change['rot_deg']:.3f} deg"
     if drifted:

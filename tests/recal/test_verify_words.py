@@ -178,8 +178,8 @@ def test_verify_says_when_most_views_were_left_out_that_the_verdict_rests_on_the
     where = "on the table" if mode == "eye_in_hand" else "in the gripper"
     assert half[0] == (
         "only 3 of the 6 views agree with one another (3 left out for their robot poses), and the verdict rests on "
-        f"those 3: when most views disagree, more often the board moved {where} during the check or the poses are "
-        "not this robot's flange; check both and capture the views again"
+        f"those 3: when so many views disagree, more often the board moved {where} during the check or the poses "
+        "are not this robot's flange poses; check both and capture the views again"
     ), half
     assert "camera moved" in half[1] and "robot poses of views 1, 3, 5" in half[2], half
     fewer = what_moved(robot={"views": ["1", "3"]}, **kw)  # 2 of 6: outliers a robust solve tells from the rule
