@@ -358,22 +358,45 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
     if decision:
         result["mode"] = decision
         if decision.get("mode_source") == "default":
-            findings.append(
-                Finding(
-                    "mode_undecided",
-                    "warn",
-                    f"The session states no mounting mode and the data do not decide it: calibrated "
-                    f"as {decision['mode']} (the default)",
-                    decision.get("evidence", {}).get("summary", ""),
-                    "state the mode (--mode or mode: in the session)",
-                )
-            )
+            findings.append(_mode_undecided(decision))
     refined = getattr(run, "refined", None)
     findings += arm_table_findings(getattr(refined, "robot_model", None))
     findings += unreachable_pose_findings(getattr(refined, "robot_model", None), getattr(refined, "per_view", None))
     result["findings"] = [f.to_dict() for f in worst_first(findings)]
     result.update(stages.to_dict())
     return plain(result, nan_to_none=True)
+
+
+def _mode_undecided(decision: dict) -> Finding:
+    """The finding of a session that states no mode, whose data do not decide it.
+
+    A warning; a failure when the mode calibrated in puts the camera where a camera of that mode cannot be (the
+    other mode's rig with inverted poses fits the same motions: the two are one model, told apart only by where
+    they put the camera).
+    """
+    ev = decision.get("evidence", {})
+    used = mounting(decision["mode"])
+    title = (
+        f"The session states no mounting mode and the data do not decide it: calibrated as {used.name} (the default)"
+    )
+    fix = "state the mode (--mode, or mode: in config.yaml or session.yaml)"
+    if ev.get("plausible", {}).get(used.name) is not False:
+        return Finding("mode_undecided", "warn", title, ev.get("summary", ""), fix)
+    other = used.other
+    where = (
+        "farther from the flange than the board is from the robot base"
+        if used.camera_moves
+        else "nearer the robot base than the board is to the flange"
+    )
+    return Finding(
+        "mode_undecided",
+        "fail",
+        f"{title}, which puts the camera {where}",
+        ev.get("summary", "") + f"; an {other.name.replace('_', '-')} rig whose robot poses are inverted (T_end_base) "
+        "fits these motions as well",
+        f"{fix}; if the camera is {other.camera_location}, write each robot pose as the flange in the base frame "
+        "(T_base_end), i.e. invert them",
+    )
 
 
 # ------------------------------------------------------------------------------ failed loads

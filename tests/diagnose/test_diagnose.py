@@ -1179,6 +1179,23 @@ def test_data_that_decide_no_mode_keep_the_default_and_say_so(tmp_path, monkeypa
     run, d = _diagnose(_write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), mode=None), cs, monkeypatch)
     assert run.status == "ok" and run.mode_decision["mode_source"] == "default"
     assert "mode_undecided" in _codes(d) and "mode_swapped" not in _codes(d)
+    assert _one(d, "mode_undecided")["severity"] == "warn"  # its camera sits where an eye-in-hand camera can
+
+
+def test_an_undecided_mode_whose_default_puts_the_camera_where_it_cannot_be_fails(tmp_path, monkeypatch):
+    """An eye-to-hand rig's poses written inverted (T_end_base), no mode stated: they are eye-in-hand motions of
+    a camera 1 m or more from the flange, a perfect fit. The default mode was kept with a warning, WARN and exit 0,
+    and the export wrote the base -> camera transform as the flange's. The mode is undecided (its solution is not
+    plausible) and the default's camera lies beyond the board: FAIL, naming the inverted poses."""
+    cs = _session("eye_to_hand", 46)
+    folder = _write_vendor_cfg(tmp_path / "s", cs, _vals(inv_T(cs.T_base_end_reported)), mode=None)
+    run, d = _diagnose(folder, cs, monkeypatch)
+    assert run.status == "ok" and run.mode_decision["mode_source"] == "default" and run.session.mode == "eye_in_hand"
+    assert run.mode_decision["evidence"]["plausible"]["eye_in_hand"] is False
+    f = _one(d, "mode_undecided")
+    assert f["severity"] == "fail", f
+    assert "puts the camera farther from the flange than the board is from the robot base" in f["title"], f
+    assert "if the camera is beside the robot, write each robot pose as the flange in the base frame" in f["action"]
 
 
 @pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
