@@ -23,7 +23,11 @@ def add_report_arguments(parser: argparse.ArgumentParser) -> None:
         "written by handeye calibrate (result.json, observations.json, thumbnails/); the "
         "session itself is not read."
     )
-    parser.add_argument("result_dir", type=Path, help="folder holding result.json (or the result.json itself)")
+    parser.add_argument(
+        "result_dir",
+        type=Path,
+        help="folder holding result.json, or a result file in it (result.json, result.last-good.json: with --out)",
+    )
     parser.add_argument(
         "--qa", type=Path, metavar="FILE", help="site QA thresholds (YAML) overriding the shipped configs/qa.yaml"
     )
@@ -43,10 +47,17 @@ def _run_report(args, figures) -> int:
     from ..report import write_reports
 
     src = Path(args.result_dir)
-    result_dir = src.parent if src.is_file() else src
-    if not (result_dir / "result.json").exists():
+    result_file = src if src.is_file() else src / "result.json"
+    result_dir = result_file.parent
+    if not result_file.exists():
         raise InputError(
             "no result.json in this folder", path=result_dir, hint="pass the folder written by handeye calibrate --out"
+        )
+    if result_file.name != "result.json" and not getattr(args, "out", None):
+        raise InputError(
+            f"a report of {result_file.name} would replace the reports of this folder's result.json",
+            path=result_file,
+            hint="write it into another folder with --out DIR",
         )
     out = Path(args.out) if getattr(args, "out", None) else result_dir
     fmt = getattr(args, "format", "all")
@@ -54,7 +65,7 @@ def _run_report(args, figures) -> int:
     out = check_out_dir(out, option="--out" if getattr(args, "out", None) else "RESULT_DIR")
     with FolderLock(out, option="the result folder"):
         remove_stray_temps(out)
-        cell = cell_result(result_dir)
+        cell = cell_result(result_file)
         try:
             if cell is not None:  # several cameras of one arm: the cell's own report
                 from ..cell.report import cell_html, cell_markdown
@@ -64,7 +75,7 @@ def _run_report(args, figures) -> int:
                 paths = [atomic_write_text(out / f"report.{f}", texts[f](cell)) for f in formats]
             else:
                 paths = write_reports(
-                    result_dir,
+                    result_file,
                     qa=getattr(args, "qa", None),
                     out_dir=out,
                     formats=formats,
@@ -78,7 +89,7 @@ def _run_report(args, figures) -> int:
                 raise
             raise InputError(
                 f"the report could not be built from this result.json ({type(e).__name__}: {str(e)[:80]})",
-                path=result_dir / "result.json",
+                path=result_file,
                 hint="re-run handeye calibrate into this folder; if the file is intact, rerun with "
                 "--debug and report the traceback",
             ) from None
@@ -87,16 +98,16 @@ def _run_report(args, figures) -> int:
     return 0
 
 
-def cell_result(result_dir: Path):
-    """result.json's content when it is a cell (checked by the contract), else None (the one-camera report's)."""
+def cell_result(result_file: Path):
+    """The result file's content when it is a cell (checked by the contract), else None (the one-camera report's)."""
     import json
 
     from ..contract import read_result
 
     try:
-        d = json.loads((result_dir / "result.json").read_text(encoding="utf-8"))
+        d = json.loads(result_file.read_text(encoding="utf-8"))
     except (OSError, ValueError, RecursionError):  # the one-camera report's reader names what is wrong
         return None
     if not isinstance(d, dict) or d.get("kind") != "cell":
         return None
-    return read_result(result_dir / "result.json").raw
+    return read_result(result_file).raw

@@ -44,18 +44,25 @@ def _read_json(p: Path) -> dict:
 
 
 def read_result_folder(path: str | Path) -> ResultFolder:
-    """Read a folder written by ``handeye calibrate`` (or the result.json inside it)."""
+    """Read a folder written by ``handeye calibrate``, or one result file in it.
+
+    ``path``: the folder, its result.json, or another result of it (``result.last-good.json``,
+    ``result.previous.json``), whose report uses the folder's observations and thumbnails only when they are of
+    its own run (they are result.json's).
+    """
     path = Path(path)
-    if path.is_file():
-        path = path.parent
-    res_path = path / "result.json"
+    res_path = path if path.is_file() else path / "result.json"
+    folder = res_path.parent
     if not res_path.is_file():
         raise InputError(
             "no result.json in this folder", path=path, hint="pass the folder written by handeye calibrate --out"
         )
     res = check_result(_read_json(res_path), path=res_path)
-    obs_path = path / "observations.json"
-    return _assemble(path, res, _read_json(obs_path) if obs_path.is_file() else None)
+    obs_path = folder / "observations.json"
+    obs = _read_json(obs_path) if obs_path.is_file() else None
+    if res_path.name != "result.json" and not (obs and _matching_observations(res, obs)):
+        return ResultFolder(folder, res, {})  # another run's observations and thumbnails: none of them
+    return _assemble(folder, res, obs)
 
 
 def result_folder(path: str | Path, result: dict, observations: dict | None = None) -> ResultFolder:

@@ -284,6 +284,58 @@ def test_failed_runs_keep_the_last_good_result(
     assert json.loads((out / "result.previous.json").read_text())["run_id"] == good["run_id"]
 
 
+def test_a_new_result_removes_the_exports_of_the_one_it_replaces(
+    good_result, tiny_vendor, copy_session, run_cli, fast_failed_load, tmp_path
+):
+    """The exports a folder's result.json was given (``export RESULT``, ``calibrate --export``) stayed beside a new
+    result of another rig or a failed run, saying "from .../result.json, verdict WARN": a robot loading them got the
+    old transform under the new result's name. They go with the result they describe; other files stay."""
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(good_result, out)
+    for fmt in ("ros2", "json", "urdf"):
+        assert run_cli("export", out, "--to", fmt)[0] == 0
+    assert run_cli("export", out, "--to", "yaml", "--out", tmp_path / "robot" / "hand_eye.yaml")[0] == 0
+    (out / "hand_eye.calib").write_text("the user's own file\n")
+    exported = sorted(p.name for p in out.glob("hand_eye.*"))
+    assert exported == [
+        "hand_eye.calib",
+        "hand_eye.json",
+        "hand_eye.launch.py",
+        "hand_eye.tf_static.yaml",
+        "hand_eye.urdf",
+        "hand_eye.urdf.xacro",
+    ]
+    bad = copy_session(tiny_vendor, "bad")
+    (bad / "poses.txt").write_text("1,2,3\n")
+    assert run_cli("calibrate", bad, "--out", out, "--no-report")[0] == 2
+    assert sorted(p.name for p in out.glob("hand_eye.*")) == ["hand_eye.calib"]  # not an export of this folder's
+    assert (tmp_path / "robot" / "hand_eye.yaml").exists()  # exported elsewhere: the user's to manage
+
+
+def test_the_report_of_the_last_good_result_is_of_that_file(
+    good_result, tiny_vendor, copy_session, run_cli, fast_failed_load, tmp_path
+):
+    """``report OUT/result.last-good.json`` rebuilt the report of OUT/result.json, a failed run's, and said nothing.
+    It is the named file's report, into another folder: in OUT it would replace result.json's."""
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(good_result, out)
+    good = json.loads((out / "result.json").read_text())
+    bad = copy_session(tiny_vendor, "bad")
+    (bad / "poses.txt").write_text("1,2,3\n")
+    assert run_cli("calibrate", bad, "--out", out, "--no-report")[0] == 2
+    rc, err = run_cli("report", out / "result.last-good.json")
+    assert rc == 2 and "would replace the reports of this folder's result.json" in err and "--out DIR" in err, err
+    rc, err = run_cli("report", out / "result.last-good.json", "--out", tmp_path / "rep", "--format", "md")
+    assert rc == 0, err
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert f"## Verdict: **{good['verdict']}**" in md and "FAIL" not in md.split("## ", 2)[1], md[:600]
+    assert good["run_id"] in md
+
+
 def test_no_report_removes_the_report_of_the_previous_result(good_result, tiny_vendor, run_cli, tmp_path):
     import shutil
 
