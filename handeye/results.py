@@ -172,6 +172,8 @@ def result_dict(run, *, mode_flag: Optional[str] = None) -> dict:
         }
     if run.closed_forms:
         d["closed_form"] = _closed_forms_dict(run, mode)
+        if run.closed_form_views is not None:  # solved again on the views the refinement kept
+            d["closed_form_views"] = list(run.closed_form_views)
     if run.intrinsics is not None:
         d["intrinsics"] = dict(
             run.intrinsics.to_dict(), source=run.intrinsics_source, calibrate_camera_rms_px=run.intrinsics_rms_px
@@ -235,8 +237,9 @@ def _closed_forms_dict(run, mode) -> dict:
     from .initial import consistency
 
     s = run.session
-    C = np.stack([bp.T_cam_board for bp in run.board_poses.values()])
-    Ms = np.stack([mode.M_from_T_base_end(s.view(v).T_base_end) for v in run.board_poses])
+    ids = list(run.board_poses) if run.closed_form_views is None else list(run.closed_form_views)
+    C = np.stack([run.board_poses[v].T_cam_board for v in ids])
+    Ms = np.stack([mode.M_from_T_base_end(s.view(v).T_base_end) for v in ids])
     cf = {}
     cov = verdict_cov_x(run)
     for m, est in run.closed_forms.items():

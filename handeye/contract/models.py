@@ -321,6 +321,9 @@ class Result(Open):
     motion: Optional[Mapping] = None
     target: Optional[Mapping] = None
     closed_form: Optional[Mapping] = None
+    closed_form_views: Optional[list[StrictStr]] = Field(
+        default=None, description="the views the closed forms solved, when not every view with a board pose"
+    )
     closed_forms: Optional[Mapping] = None
     qa: Optional[Mapping] = None
     seed: Optional[Mapping] = None

@@ -234,6 +234,22 @@ def detect_ahead(
     return Detected(items, options.min_corners, det, time.perf_counter() - t0)
 
 
+def _closed_forms_on_used_views(mode, ids: list, C: np.ndarray, Ms: np.ndarray, refined) -> dict:
+    """The closed forms solved again on the views the refinement kept, when it left some out (state's fields).
+
+    The closed forms saw every view with a board pose, the views the refinement then found out of line (a wrong
+    robot pose) among them: compared with the result, their offset would be those views', not a difference of
+    method. Nothing when every view was kept or fewer than 3 remain.
+    """
+    from ..initial import all_methods
+
+    kept = set(refined.used_view_ids)
+    k = [i for i, v in enumerate(ids) if v in kept]
+    if len(k) == len(ids) or len(k) < MIN_VIEWS:
+        return {}
+    return {"closed_forms": all_methods(mode, C[k], Ms[k]), "closed_form_views": tuple(ids[i] for i in k)}
+
+
 def run_calibration(
     session: Session,
     options: CalibrateOptions = CalibrateOptions(),  # noqa: B008 - a frozen dataclass, imported
@@ -360,6 +376,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress, detected=Non
                 code="refinement_failed",
             )
         state.update(refined=refined, T_x=refined.T_x, T_board=refined.T_board, intrinsics=refined.intrinsics)
+        state.update(_closed_forms_on_used_views(mode, ids, C, Ms, refined))
         if opts.validate:
             progress("validation: refits without some views")
             t3 = time.perf_counter()

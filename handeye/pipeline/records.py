@@ -122,6 +122,9 @@ class CalibrationRun:
     board_poses: dict = field(default_factory=dict)
     motion: Any = None
     closed_forms: dict = field(default_factory=dict)  # method -> HandEyeEstimate
+    # the views the closed forms solved (None: every view with a board pose); after the refinement left views out,
+    # the result's own, so that the comparison with the result is on the same views
+    closed_form_views: Optional[tuple] = None
     start: Optional[HandEyeEstimate] = None  # the chosen closed form the refinement starts from
     refined: Any = None  # handeye.refine.RefineResult when refined
     validation: Any = None  # handeye.refine.validation.Validation when refined and validated

@@ -20,7 +20,7 @@ from .metrics import qa_metrics
 from .observations import as_cov6, as_T, finite, median_board_distance_m, view_fits
 from .qa import evaluate
 from .sections.diagnostics import _cross_validation, _findings, _stages
-from .sections.methods import _methods, _offsets
+from .sections.methods import _methods, _offsets, methods_views
 from .sections.models import _intrinsics_rows, _noise, _robot_model, _tracker
 from .sections.provenance import _meta, _provenance
 from .sections.result import _prior_block, _result_block, _uncertainty_block
@@ -108,6 +108,7 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     )
     ctx["uncertainty"] = _uncertainty_block(ref, unc, parent) if unc is not None else None
     ctx["methods"] = _methods(res, T_x, x_name)
+    ctx["methods_views"] = methods_views(res)
     ctx["prior"] = _prior_block(res, x_name)
     ctx["offsets"] = _offsets(res, ref, T_x, cov, x_name, tracked=ctx["tracked"])
     ctx["intrinsics"] = _intrinsics_rows(

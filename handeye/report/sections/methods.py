@@ -61,6 +61,17 @@ def _methods(res, T_x, x_name) -> list[dict]:
     return rows
 
 
+def methods_views(res: dict) -> str:
+    """Which views the closed forms solved, for the method comparison's first sentence."""
+    kept = res.get("closed_form_views")
+    if not kept:
+        return "on the same views"
+    per_view = ((res.get("refinement") or {}).get("per_view")) or {}
+    out = [str(v) for v, d in per_view.items() if isinstance(d, dict) and d.get("status") != "used"]
+    left = f" (without view{'s' * (len(out) > 1)} {', '.join(out)}, left out by the refinement)" if out else ""
+    return f"on the {len(kept)} views the result used{left}"
+
+
 def _stored_difference(e: dict) -> tuple[float, float, float]:
     """(deg, mm, verdict sigmas) of a closed form or a refitted half against the result.
 
