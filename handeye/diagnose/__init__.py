@@ -74,13 +74,14 @@ def _pose_checks(
     Readings, pairing, board move, per-view disagreement and motion on one set of observations
     (``pairing``: the pairing search the calibration already made, :class:`.pairing.PairingSearch`).
 
-    Returns ``{"findings", "readings", "global_fault", "per_view", "fit", "M"}`` (fit/M None when the
-    readings crashed).
+    Returns ``{"findings", "readings", "global_fault", "global_reason", "per_view", "fit", "M"}`` (fit/M None when
+    the readings crashed; ``global_reason``: the global fault in words).
     """
     out: dict = {
         "findings": [],
         "readings": [],
         "global_fault": False,
+        "global_reason": "",
         "per_view": {},
         "fit": None,
         "M": None,
@@ -110,6 +111,7 @@ def _pose_checks(
     out["findings"] += rf
     M, fit = stages.run("readings", reading_in_use, obs, readings, rf, default=(obs.M(), None))
     out["global_fault"] = bool(rf)
+    out["global_reason"] = "the robot poses do not match the images as read" if rf else ""
     motion_ok = _motion_ok(obs, M)
     not_run = (
         "no fit of the poses as read"
@@ -131,6 +133,7 @@ def _pose_checks(
         out["findings"] += pf
         out["global_fault"] = bool(pf)
         if pf:
+            out["global_reason"] = "images and robot poses are paired wrongly"
             for name in ("scale", "board_moved", "robot_poses"):
                 stages.skip(name, "images and robot poses are paired wrongly")
         else:
@@ -143,6 +146,7 @@ def _pose_checks(
             )
             if sf:
                 out["global_fault"] = True
+                out["global_reason"] = f"the board's scale does not match the robot's ({sf[0].code})"
                 for name in ("board_moved", "robot_poses"):
                     stages.skip(name, "the board's scale does not match the robot's (" + sf[0].code + ")")
             else:
@@ -168,6 +172,7 @@ def _pose_checks(
     ):  # (a degenerate motion does not determine the fit: the motion finding says so)
         out["findings"].append(_unexplained(obs, given))
         out["global_fault"] = True
+        out["global_reason"] = "the robot poses do not fit the images as read, for no cause found"
     out["findings"] += stages.run("motion", motion_findings, obs.mode, M, A=None if fit is None else fit.A, default=[])
     out["fit"], out["M"] = fit, M
     return out
@@ -314,12 +319,14 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
     findings += stages.run("coverage", coverage_findings, run, default=[])
     # pose-only views have no corners: their folds are the validation's refits on the tracker's poses
     val = getattr(run, "validation", None)
-    no_folds = bool(s.meta.get("pose_only")) and not (val is not None and val.refits)
-    if cross_validation and not global_fault and run.status == "ok" and not no_folds:
+    refitted = val is not None and bool(val.refits)
+    no_folds = bool(s.meta.get("pose_only")) and not refitted
+    # the validation's refits ran and its covariance may be the verdict's: their check is shown whatever the fault
+    if cross_validation and (refitted or not global_fault) and run.status == "ok" and not no_folds:
         cv = stages.run("cross_validation", cross_validate, run, default=None) or {"summary": "not run: it crashed"}
     else:
         why = (
-            "the robot poses do not match the images as read"
+            (pose or {}).get("global_reason") or "the robot poses do not match the images as read"
             if global_fault
             else "no hand-eye result"
             if run.status != "ok"

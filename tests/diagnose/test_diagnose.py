@@ -916,7 +916,20 @@ def test_wrong_square_size_is_named_with_the_measured_size(tmp_path, monkeypatch
     truth_mm = 1e3 * cs.target.square_m
     assert abs(f["details"]["measured_mm"] / truth_mm - 1) < 0.02, f["details"]
     assert f"look like {f['details']['measured_mm']:.1f} mm, not {1e3 * stated:g} mm" in f["title"]
-    assert d["stages"]["robot_poses"] == "skipped" and d["cross_validation"]["summary"].startswith("not run")
+    assert d["stages"]["robot_poses"] == "skipped"
+    assert d["cross_validation"]["summary"] == "not run: the board's scale does not match the robot's (square_size)"
+
+
+def test_a_wrong_square_size_keeps_the_check_of_the_validation_s_refits(tmp_path, monkeypatch):
+    """The validation refitted the views (its covariance may be the verdict's): the check of its folds is shown.
+    On the real ViSP set (squares 26.8 mm, stated 23.6) the report said "Validation on held-out views: not run:
+    the robot poses do not match the images as read" beside sigmas "from the spread over held-out folds"."""
+    cs = _session("eye_in_hand", 41, robot_noise=(1.0, 0.1), n_views=15)
+    folder = _write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), L=cs.target.square_m * 1.2)
+    run, d = _diagnose(folder, cs, monkeypatch, refine=True, cv=True)
+    assert run.validation is not None and run.validation.refits and "square_size" in _codes(d)
+    cv = d["cross_validation"]
+    assert not cv["summary"].startswith("not run") and cv["n_folds"] == len(run.validation.refits), cv
 
 
 def test_a_right_square_size_is_not_flagged_and_its_estimate_is_reported(tmp_path, monkeypatch):
