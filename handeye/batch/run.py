@@ -28,6 +28,7 @@ from typing import Callable, Optional
 from ..contract import BatchRecord, validate_result, write_validated
 from ..errors import InputError, QAFailed
 from ..output import atomic_write_bytes, command_line, hash_files, write_json, writing
+from .cluster import open_client
 from .discover import SessionJob
 from .process import SESSION_ENV, SESSIONS_PER_PROCESS, SessionProcess, _kill_group  # noqa: F401 (re-exported)
 from .upload import client_paths, put_back_paths, read_tree, site_files, write_tree
@@ -48,8 +49,6 @@ MAX_TIMEOUT_S = 7 * 24 * 3600.0
 OUTCOMES = ("done", "timeout", "crashed", "error", "lost")
 #: tasks submitted per worker thread at once (more are submitted as these finish)
 IN_FLIGHT_PER_THREAD = 2
-#: the embedded scheduler's ``worker-saturation``: a worker holds only the task it runs, the rest wait on the scheduler
-ONE_TASK_PER_THREAD = 1.0
 #: times an uploaded session is sent again when its files were lost with their worker (as a task's ``retries``)
 UPLOAD_RESENDS = 1
 #: verdicts that count as failed in the progress bar and the exit code (ERROR: no result of this run)
@@ -438,40 +437,6 @@ def _refused_record(spec: dict, why: str) -> dict:
     except OSError as w:
         log.warning("%s: could not record that the session cannot run (%s)", spec["out_dir"], w)
     return rec
-
-
-def open_client(scheduler: Optional[str] = None, n_workers: Optional[int] = None):
-    """A Dask client of the cluster at ``scheduler`` or of an embedded LocalCluster.
-
-    A Dask client: of the cluster at ``scheduler`` (``tcp://HOST:8786``), or of an embedded
-    LocalCluster of ``n_workers`` single-threaded worker processes (default: the CPU count).
-    Close it with ``client.close()`` (and the cluster with ``client.cluster.close()``).
-    """
-    from dask.distributed import Client, LocalCluster
-
-    if scheduler:
-        try:
-            return Client(scheduler, timeout="30s")
-        except OSError as e:  # Dask's "Timed out trying to connect", a refused connection, an unknown host
-            raise InputError(
-                f"cannot reach the Dask scheduler at {scheduler} ({' '.join(str(e).split())[:120]})",
-                hint="check the address and that the scheduler runs there (dask scheduler), or leave out "
-                "--scheduler to run on this machine",
-            ) from None
-    import dask
-
-    n = int(n_workers or os.cpu_count() or 1)
-    # one task on a worker at a time (Dask's default, 1.1, gives a single-threaded worker a second one): a worker's
-    # death then counts against the session that ran on it alone, never against one queued behind it
-    with dask.config.set({"distributed.scheduler.worker-saturation": ONE_TASK_PER_THREAD}):
-        cluster = LocalCluster(
-            n_workers=n,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=":0",  # no fixed port taken
-            scheduler_kwargs={"dashboard": False},
-        )
-    return Client(cluster)
 
 
 def run_batch(
