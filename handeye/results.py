@@ -356,7 +356,7 @@ def validation_fields(ref, val, arm=None) -> dict:
         "n_views": len(val.view_ids),
         "n_folds": K,
         "folds_solved": val.n_solved,
-        "spread_over_model_sigma_max": float(np.sqrt(max(val.x.eig.max(), 0.0))),
+        "spread_over_model_sigma_max": float(np.sqrt(max(val.x.eig_spread.max(), 0.0))),  # the raw spread's
         "spread_over_model_sigma_rms": float(np.sqrt(max(val.x.scale, 0.0))),
         "generalised_eigenvalues": val.x.eig,
         "shrinkage": val.x.shrinkage,
@@ -366,7 +366,7 @@ def validation_fields(ref, val, arm=None) -> dict:
     }
     if kb is not None:
         block.update(
-            intrinsics_spread_over_model_sigma_max=float(np.sqrt(max(kb.eig.max(), 0.0))),
+            intrinsics_spread_over_model_sigma_max=float(np.sqrt(max(kb.eig_spread.max(), 0.0))),
             intrinsics_spread_over_model_sigma_rms=float(np.sqrt(max(kb.scale, 0.0))),
             intrinsics_spread_p_value=kb.p_value if np.isfinite(kb.p_value) else None,
             intrinsics_spread_beyond_chance=kb.finding,
