@@ -357,6 +357,18 @@ def test_euler_sigma_propagation_matches_sampling():
     np.testing.assert_allclose(tr.std(axis=0), s["translation_mm"], rtol=0.02)
 
 
+def test_no_two_lines_of_the_markdown_reports_run_together(synthetic, failed, joined_lines):
+    """A failed run's "**Why the calibration failed:**" ran into "**What to change:**", a normal one's "Ratio
+    held-out / predicted ..." into "Axes: ...", "**`T_end_cam`** — ..." into "4×4 homogeneous transform ..."."""
+    for out in (synthetic["out"], failed["out"]):
+        md = (out / "report.md").read_text(encoding="utf-8")
+        assert joined_lines(md) == []
+    md = (synthetic["out"] / "report.md").read_text(encoding="utf-8")
+    assert re.search(r"^Ratio held-out / predicted .*\n\nAxes: ", md, flags=re.M)
+    md = (failed["out"] / "report.md").read_text(encoding="utf-8")
+    assert re.search(r"^\*\*Why the calibration failed:\*\* .*\n\n\*\*What to change:\*\*$", md, flags=re.M)
+
+
 def test_failed_session_report_says_why_and_what_to_change(failed):
     from handeye.report.advice import ERROR_ADVICE
 
