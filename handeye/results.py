@@ -11,6 +11,7 @@ See docs/calibrate.md.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any, Optional
 
@@ -42,6 +43,15 @@ def session_inputs(session: Session) -> list[Path]:
         if (session.path / name).exists():
             files.append(session.path / name)
     return files
+
+
+def own_view_reason(reason: str, view_id: str) -> str:
+    """A view's reason without its own id: ``outlier: view 3: reported ...`` -> ``outlier: reported ...``.
+
+    The refinement's outlier reasons name their view; in the view's own record the id is said already (the
+    command prints ``view 3 (3.jpg) dropped: outlier: reported ...``, not ``view 3`` twice).
+    """
+    return re.sub(rf"^(outlier: )?view {re.escape(str(view_id))}: ", r"\1", str(reason or ""))
 
 
 def observations_dict(run) -> dict:
@@ -181,7 +191,7 @@ def result_dict(run, *, mode_flag: Optional[str] = None) -> dict:
             "id": o.view_id,
             "image": o.image,
             "used": o.used,
-            "reason": o.reason,
+            "reason": own_view_reason(o.reason, o.view_id),
             "n_corners": o.n_corners,
             "pnp_rms_px": o.rms_px,
             "chain_max_px": o.max_px,
