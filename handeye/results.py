@@ -11,6 +11,7 @@ See docs/calibrate.md.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any, Optional
 
@@ -42,6 +43,15 @@ def session_inputs(session: Session) -> list[Path]:
         if (session.path / name).exists():
             files.append(session.path / name)
     return files
+
+
+def own_view_reason(reason: str, view_id: str) -> str:
+    """A view's reason without its own id: ``outlier: view 3: reported ...`` -> ``outlier: reported ...``.
+
+    The refinement's outlier reasons name their view; in the view's own record the id is said already (the
+    command prints ``view 3 (3.jpg) dropped: outlier: reported ...``, not ``view 3`` twice).
+    """
+    return re.sub(rf"^(outlier: )?view {re.escape(str(view_id))}: ", r"\1", str(reason or ""))
 
 
 def observations_dict(run) -> dict:
@@ -183,7 +193,7 @@ def result_dict(run, *, mode_flag: Optional[str] = None) -> dict:
             "id": o.view_id,
             "image": o.image,
             "used": o.used,
-            "reason": o.reason,
+            "reason": own_view_reason(o.reason, o.view_id),
             "n_corners": o.n_corners,
             "pnp_rms_px": o.rms_px,
             "chain_max_px": o.max_px,
@@ -359,7 +369,7 @@ def validation_fields(ref, val, arm=None) -> dict:
         "n_views": len(val.view_ids),
         "n_folds": K,
         "folds_solved": val.n_solved,
-        "spread_over_model_sigma_max": float(np.sqrt(max(val.x.eig.max(), 0.0))),
+        "spread_over_model_sigma_max": float(np.sqrt(max(val.x.eig_spread.max(), 0.0))),  # the raw spread's
         "spread_over_model_sigma_rms": float(np.sqrt(max(val.x.scale, 0.0))),
         "generalised_eigenvalues": val.x.eig,
         "shrinkage": val.x.shrinkage,
@@ -369,7 +379,7 @@ def validation_fields(ref, val, arm=None) -> dict:
     }
     if kb is not None:
         block.update(
-            intrinsics_spread_over_model_sigma_max=float(np.sqrt(max(kb.eig.max(), 0.0))),
+            intrinsics_spread_over_model_sigma_max=float(np.sqrt(max(kb.eig_spread.max(), 0.0))),
             intrinsics_spread_over_model_sigma_rms=float(np.sqrt(max(kb.scale, 0.0))),
             intrinsics_spread_p_value=kb.p_value if np.isfinite(kb.p_value) else None,
             intrinsics_spread_beyond_chance=kb.finding,

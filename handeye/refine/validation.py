@@ -161,6 +161,9 @@ class Block:
     test: str = "fold information"  # fold information | trace (no fold covariances: equal leverage assumed) |
     # none (the intrinsics without the folds' covariances: not tested, p_value NaN, the model stands)
     model_form: str = "full"  # full | sigmas: the model covariance of the verdict (sigmas: its diagonal)
+    # generalised eigenvalues of the raw (unshrunk) jackknife against the model, ascending: the spread's ratio
+    # squared along each whitened direction. ``eig`` is the shrunk one's: toward the average, the verdict's
+    eig_spread: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def source(self) -> str:
@@ -193,8 +196,13 @@ class Validation:
         if self.status != "ok":
             return f"not run: {self.reason}"
         assert self.x is not None, "a validation that ran has its X block"
-        r = np.sqrt(max(float(self.x.eig.max()), 0.0))
         rms = np.sqrt(max(float(self.x.scale), 0.0))
+        # the worst direction of the folds' own spread: the shrunk covariance's (eig) is pulled toward the average
+        worst = (
+            f" (up to {np.sqrt(max(float(self.x.eig_spread.max()), 0.0)):.2f}x along the worst)"
+            if self.x.eig_spread.size
+            else ""
+        )
         test = (
             f"beyond chance (p = {self.x.p_value:.2g})"
             if self.x.finding
@@ -202,8 +210,8 @@ class Validation:
         )
         return (
             f"{self.scheme}, {self.n_solved}/{len(self.folds)} folds: the held-out spread is {rms:.2f}x the "
-            f"model's sigma on average over the six directions the model covariance whitens (up to {r:.2f}x "
-            f"along the worst), {test}; the verdict uses the {self.x.source} covariance"
+            f"model's sigma on average over the six directions the model covariance whitens{worst}, "
+            f"{test}; the verdict uses the {self.x.source} covariance"
         )
 
 
@@ -378,4 +386,5 @@ def _block(
     else:
         p, how = float("nan"), "none"
     finding = bool(np.isfinite(p) and p < float(settings()["alpha"]))
-    return Block(names, M, V, C if finding else 0.5 * (M + M.T), lam, rho, s, p, finding, how, model_form)
+    spread = generalised_max(M, jackknife_covariance(thetas))[1]
+    return Block(names, M, V, C if finding else 0.5 * (M + M.T), lam, rho, s, p, finding, how, model_form, spread)

@@ -65,12 +65,13 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     if not finite(wd):
         wd = median_board_distance_m(fits, board_centre)
 
+    tracked = is_tracked(res.get("target"))  # a pose-only session: no images, a tracked target for a board
     ctx: dict[str, Any] = {
         "x_name": x_name,
         "board_name": b_name,
         "parent": parent,
         "mode": mount.name,
-        "mode_text": _mode_text(mount) if mode_known else "Mounting mode unknown",
+        "mode_text": _mode_text(mount, tracked=tracked) if mode_known else "Mounting mode unknown",
         "ok": ok,
         "refined": bool(ref),
     }
@@ -79,7 +80,7 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
     stages = _stages(diag)
     views = _view_rows(res, ref, fits, board_centre, findings, image_size)
     ctx["views"] = views
-    ctx["tracked"] = is_tracked(res.get("target"))  # a pose-only session: no images
+    ctx["tracked"] = tracked
     ctx["n_used"] = sum(v["status"] == "used" for v in views)
     ctx["n_total"] = len(views)
 
@@ -102,6 +103,7 @@ def build_context(folder: ResultFolder, *, qa_cfg: dict, qa_source: str, make_pl
             b_name=b_name,
             parent=parent,
             board_parent=board_parent,
+            tracked=tracked,
         )
         if T_x is not None
         else None
@@ -204,6 +206,7 @@ def add_figures(ctx: dict, process=None) -> dict:
     return ctx
 
 
-def _mode_text(mount) -> str:
-    """``Eye-in-hand (camera on the robot's flange, board on the table)``."""
-    return f"{mount.name.replace('_', '-').capitalize()} (camera {mount.camera_location}, board {mount.board_location})"
+def _mode_text(mount, *, tracked: bool = False) -> str:
+    """``Eye-in-hand (camera on the robot's flange, board on the table)``; ``target on the table`` when pose-only."""
+    where = f"{'target' if tracked else 'board'} {mount.board_location}"
+    return f"{mount.name.replace('_', '-').capitalize()} (camera {mount.camera_location}, {where})"

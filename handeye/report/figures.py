@@ -110,7 +110,7 @@ def report_figures(
                 "per_view",
                 "Residual per view",
                 "RMS residual of each view, fitted on its own (dark) and through the robot chain (light). "
-                "Red outlines: views dropped or flagged; dashed lines: the QA limits of the session's reprojection RMS "
+                "Red outlines: views dropped; dashed lines: the QA limits of the session's reprojection RMS "
                 + ("(the refined fit" if ref else "(the views' own camera fits")
                 + "; the through-robot residuals add the robot's pose error and have no limit).",
                 lambda rl=rl: per_view_bars(
@@ -164,7 +164,7 @@ def report_figures(
                     + " and the board"
                     + ("" if moves else " at each pose")
                     + " under the result, in the robot base frame, seen obliquely and from above. "
-                    "Red: views dropped or flagged.",
+                    "Red: views dropped.",
                     lambda: poses_3d(
                         T_base_cams=cams,
                         T_base_ends=T_be,

@@ -181,11 +181,11 @@ _SPEC = {
         lambda c: f"add views rotated 20-45 deg about {c.get('weak_axes', 'the other two axes')}",
     ),
     "dropped_share": (
-        "Views dropped or flagged",
+        "Views dropped",
         "",
         "{:.0%}",
         lambda v, lim, c: (
-            f"{c.get('n_bad', '?')} of {c.get('n_total', '?')} views were dropped or flagged "
+            f"{c.get('n_bad', '?')} of {c.get('n_total', '?')} views were dropped "
             f"({v:.0%}, limit {lim:.0%}): {c.get('bad_reasons', '')}"
         ),
         lambda c: (

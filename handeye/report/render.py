@@ -164,8 +164,30 @@ def render_markdown(ctx: dict, *, thumbnails_beside: bool = False) -> tuple[str,
     return _tidy_markdown(text), files
 
 
+#: a line that starts a block of its own or continues one: a table row, heading, quote, list item, indented
+#: continuation or raw HTML (everything else is prose: a paragraph of its own in the templates)
+_MD_BLOCK = re.compile(r"[|#><]|[-*+] |\d+\. |\s")
+
+
+def _runs_on(prev: str, line: str) -> bool:
+    """Whether Markdown would join ``line`` to the paragraph, list item or quote ``prev`` ends.
+
+    Every prose line of the templates is a paragraph (template control blocks eat the blank line after
+    it); a line ending in two spaces is a hard break, meant to continue.
+    """
+    if not (prev.strip() and line.strip()) or prev.endswith("  ") or _MD_BLOCK.match(line):
+        return False
+    if prev.startswith(("- ", "* ", "+ ", ">")) or re.match(r"\d+\. ", prev):
+        return True  # a lazy continuation of a list item or quote
+    return not _MD_BLOCK.match(prev) and prev.strip() != "---"
+
+
 def _tidy_markdown(text: str) -> str:
-    """Blank lines around every table (template control blocks eat them) and no runs of blank lines."""
+    """Blank lines around every table and between paragraphs, and no runs of blank lines.
+
+    Template control blocks eat the blank lines: a table would join the text before it, and two prose
+    lines (or a figure after a sentence) would run together into one paragraph (:func:`_runs_on`).
+    """
     out: list[str] = []
     fence = None  # the open code block's fence: only a line of that fence closes it (md_fence)
     after_fence = False
@@ -175,8 +197,9 @@ def _tidy_markdown(text: str) -> str:
         in_code = fence is not None or is_fence
         is_row = not in_code and line.startswith("|")
         prev = out[-1] if out else ""
-        if not in_code and line.strip() and prev.strip() and (is_row != prev.startswith("|")) and not after_fence:
-            out.append("")
+        if not in_code and not after_fence and line.strip() and prev.strip():
+            if is_row != prev.startswith("|") or (not is_row and _runs_on(prev, line)):
+                out.append("")
         out.append(line)
         if is_fence:
             fence = opening.group() if opening is not None else None

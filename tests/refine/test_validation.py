@@ -164,6 +164,29 @@ def test_shrinkage_keeps_the_average_spread_over_the_model():
     assert np.isnan(mahalanobis2(np.ones(6), np.zeros((6, 6))))  # a singular covariance: no distance
 
 
+def test_the_summary_states_the_worst_direction_of_the_folds_own_spread_not_of_the_shrunk_one():
+    # 12 folds spread 1.6x the model's sigma along one axis: the shrinkage pulls that direction toward the average
+    # (intensity near 1), so the shrunk covariance's worst direction is below the spread along that very axis
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(3)
+    M = _spd(rng, 6)
+    L = np.linalg.cholesky(M)
+    thetas = (rng.normal(size=(12, 6)) * np.array([1.0, 1.6, 1.0, 1.0, 1.0, 1.0]) / np.sqrt(11)) @ L.T
+    b = _block(tuple("abcdef"), M, thetas)
+    J = jackknife_covariance(thetas)
+    per_axis = np.sqrt(np.diag(J) / np.diag(M))  # the report's held-out table: jackknife sigma / predicted sigma
+    worst = float(np.sqrt(np.linalg.eigvalsh(np.linalg.solve(L, np.linalg.solve(L, J).T)).max()))
+    assert b.shrinkage > 0.5 and np.sqrt(b.eig.max()) < per_axis.max()  # the shrunk one's worst understates it
+    v = Validation(
+        "ok", scheme="leave-one-out", folds=tuple(range(12)), refits=(SimpleNamespace(status="ok"),) * 12, x=b
+    )
+    text = v.summary()
+    assert f"{np.sqrt(b.scale):.2f}x the model's sigma on average" in text
+    assert f"(up to {worst:.2f}x along the worst)" in text
+    assert worst >= per_axis.max() > np.sqrt(b.scale)
+
+
 # ------------------------------------------------------------------------------ refits on simulated sessions
 def _refined(s, **opts):
     views = s.refine_views()

@@ -265,7 +265,7 @@ def test_report_content_verdict_result_views_and_provenance(synthetic):
             assert f"{e['translation_mm'][0]:+.2f}" in row, row
     assert "joint refinement (result)" in text
     # per view: each view's status as result.json has it; the hidden view dropped with its reason,
-    # the outlier flagged with the refinement's reason
+    # the outlier dropped with the refinement's reason
     section = text.split("## Views", 1)[1].split("\n## ", 1)[0]
     rows = {
         line.split("|")[1].strip(" *"): line for line in section.splitlines() if re.match(r"^\| \*\*\S+\*\* \|", line)
@@ -278,7 +278,7 @@ def test_report_content_verdict_result_views_and_provenance(synthetic):
     view4 = next(v for v in res["views"] if v["id"] == "4")
     assert view4["reason"].split(": ", 1)[-1][:30] in rows["4"]
     outl7 = [o for o in ref["outliers"] if str(o["view_id"]) == "7"]
-    assert outl7 and "flagged" in rows["7"] and outl7[0]["reason"].split(": ", 1)[-1][:30] in rows["7"]
+    assert outl7 and "| dropped |" in rows["7"] and outl7[0]["reason"].split(": ", 1)[-1][:30] in rows["7"]
     # every diagnostic finding of the run is shown with its code
     for f in res["diagnostics"]["findings"]:
         assert f"`{f['code']}`" in text, f["code"]
@@ -355,6 +355,37 @@ def test_euler_sigma_propagation_matches_sampling():
     # 20000 samples: a sampled sigma is within ~0.5 % (1 sigma) of the true one; allow 4 sigma
     np.testing.assert_allclose(np.degrees(eul.std(axis=0)), s["euler_vendor_deg"], rtol=0.02)
     np.testing.assert_allclose(tr.std(axis=0), s["translation_mm"], rtol=0.02)
+
+
+def test_a_view_the_refinement_left_out_is_dropped_as_the_command_says_and_named_once(synthetic):
+    """The command printed "view 7 (7.jpg) dropped: outlier: view 7: reported robot pose disagrees ..." and the
+    report's views table called the same view "flagged": one word for one state, and the id said once."""
+    from handeye.results import own_view_reason
+
+    res = synthetic["res"]
+    view7 = next(v for v in res["views"] if v["id"] == "7")
+    assert not view7["used"] and view7["reason"].startswith("outlier: reported robot pose disagrees with the camera")
+    assert "view 7" not in view7["reason"]
+    assert "view 7: reported" in next(o["reason"] for o in res["refinement"]["outliers"] if str(o["view_id"]) == "7")
+    md = (synthetic["out"] / "report.md").read_text(encoding="utf-8")
+    row = next(line for line in md.splitlines() if line.startswith("| **7** |"))
+    assert row.split("|")[3].strip() == "dropped" and "FAIL: outlier: reported robot pose disagrees" in row
+    assert "flagged" not in md.split("## Views", 1)[1].split("\n## ", 1)[0]
+    assert own_view_reason("outlier: view 12: corners", "12") == "outlier: corners"
+    assert own_view_reason("view 3: 4 corners, need 8", "3") == "4 corners, need 8"
+    assert own_view_reason("outlier: view 12: corners", "1") == "outlier: view 12: corners"  # another view's: kept
+
+
+def test_no_two_lines_of_the_markdown_reports_run_together(synthetic, failed, joined_lines):
+    """A failed run's "**Why the calibration failed:**" ran into "**What to change:**", a normal one's "Ratio
+    held-out / predicted ..." into "Axes: ...", "**`T_end_cam`** — ..." into "4×4 homogeneous transform ..."."""
+    for out in (synthetic["out"], failed["out"]):
+        md = (out / "report.md").read_text(encoding="utf-8")
+        assert joined_lines(md) == []
+    md = (synthetic["out"] / "report.md").read_text(encoding="utf-8")
+    assert re.search(r"^Ratio held-out / predicted .*\n\nAxes: ", md, flags=re.M)
+    md = (failed["out"] / "report.md").read_text(encoding="utf-8")
+    assert re.search(r"^\*\*Why the calibration failed:\*\* .*\n\n\*\*What to change:\*\*$", md, flags=re.M)
 
 
 def test_failed_session_report_says_why_and_what_to_change(failed):
@@ -924,7 +955,7 @@ def test_pose_figure_legend_sits_under_both_views_not_over_the_poses(monkeypatch
     (legend,) = fig.legends
     box = legend.get_window_extent()
     labels = [t.get_text() for t in legend.get_texts()]
-    assert labels == ["robot end (flange), x y z", "camera", "board", "dropped or flagged view"]
+    assert labels == ["robot end (flange), x y z", "camera", "board", "dropped view"]
     assert all(box.y1 < ax.get_window_extent().y0 for ax in fig.axes)
 
 
@@ -1179,7 +1210,7 @@ def test_views_with_flagged_corners_are_listed_but_not_counted_as_dropped(synthe
     assert sum(v["flagged"] for v in ctx["views"]) == n_base
     assert sum(v["corner_flags"] for v in ctx["views"]) == 2
     card = next(k for k in ctx["kpis"] if k["label"] == "Views used")
-    assert card["sub"] == f"{n_base} dropped or flagged; 2 used with outlier corners"
+    assert card["sub"] == f"{n_base} dropped; 2 used with outlier corners"
     share = next(c for c in ctx["verdict"].checks if c.key == "dropped_share")
     assert share.value == pytest.approx(n_base / len(ctx["views"]))
 

@@ -90,6 +90,31 @@ def test_an_image_report_keeps_its_pixel_rows(images):
         assert "Corner noise σ" in noise and "Reprojection RMS before → after" in noise and "Tracker" not in noise
 
 
+def test_a_pose_only_report_speaks_of_a_tracked_target_and_lists_no_image_settings(pose_only, images):
+    """Its header said 'board on the table', its provenance 'SHA-256 of images and pose files', its target transform
+    'the calibration board', its methods 'board spread', and its Configuration listed reprojection_rms_px,
+    image_coverage and min_corners: a pose-only session has a tracked target and no images."""
+    md, text = _reports(pose_only)
+    config = _between(md, "<summary>Configuration", "</details>")
+    for page in (md, text):
+        words = re.sub(r"\b[Tp]_\w+", "", page)  # frame names (T_base_board, p_board) are the contract's
+        assert "board" not in words.lower(), re.findall(r".{60}board.{60}", words, flags=re.I)
+        assert "Eye-in-hand (camera on the robot's flange, target on the table)" in page
+        assert "Input hash (SHA-256 of the pose and session files)" in page and "images" not in words
+        assert "target spread" in page and "pose of the tracked target in the base frame" in page
+    assert "Target transform `T_base_board`" in md
+    for setting in ("reprojection_rms_px", "image_coverage", "min_corners", "corner_outlier_sigmas", "intrinsics"):
+        assert setting not in config, setting
+    assert "k3" not in config and "predicted_error_mm: {warn_above: 2.0, fail_above: 5.0}" in config
+    assert "max_outlier_rounds: 6" in config
+    md, text = _reports(images["refined"])  # an image session keeps its words and settings
+    config = _between(md, "<summary>Configuration", "</details>")
+    for page in (md, text):
+        assert "board on the table" in page and "SHA-256 of images and pose files" in page and "board spread" in page
+    assert "Board transform `T_base_board` (pose of the calibration board" in md
+    assert all(k in config for k in ("reprojection_rms_px", "image_coverage", "min_corners", "fix_k3"))
+
+
 def test_the_noise_rows_of_an_estimated_tracker_say_which_sigma_the_views_could_not_resolve():
     from handeye.report.sections.models import _noise
 

@@ -122,7 +122,7 @@ def poses_3d(
             ax.plot([], [], color=NAVY, label="camera")
             ax.fill([], [], color=ORANGE, alpha=0.4, label="board")
             if flagged.any():
-                ax.plot([], [], color=RED, label="dropped or flagged view")
+                ax.plot([], [], color=RED, label="dropped view")
             handles, labels = ax.get_legend_handles_labels()
             fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=7, frameon=False)
         else:

@@ -101,7 +101,7 @@ def per_view_bars(
     cam = np.array([v if v is not None and np.isfinite(v) else np.nan for v in camera_rms], float)
     ch = np.array([v if v is not None and np.isfinite(v) else np.nan for v in chain_rms], float)
     w = 0.38
-    edge = [RED if s in ("flagged", "dropped") else "none" for s in status]
+    edge = [RED if s == "dropped" else "none" for s in status]
     _bars(ax, x - w / 2, cam, w, color=NAVY, edgecolors=edge, label="camera fit RMS")
     if np.any(np.isfinite(ch)):
         _bars(ax, x + w / 2, ch, w, color=SKY, edgecolors=edge, label="through the robot RMS")

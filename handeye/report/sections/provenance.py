@@ -7,7 +7,22 @@ from pathlib import Path
 
 from ... import __version__
 from ...output import command_line, plain
-from ...session.target_spec import target_words
+from ...session.target_spec import is_tracked, target_words
+
+#: settings that act on images only (corners, intrinsics, image coverage): a pose-only report leaves them out
+IMAGE_ONLY = {
+    "calibration options": ("fix_k3",),
+    "refinement options": (
+        "intrinsics",
+        "intrinsics_prior_sigma",
+        "fix",
+        "corner_outlier_sigmas",
+        "min_corner_outlier_px",
+        "min_corners",
+    ),
+    "QA thresholds": ("coverage_grid_cells_x",),
+    "QA checks": ("reprojection_rms_px", "image_coverage"),
+}
 
 
 def _meta(res: dict, obs: dict) -> dict:
@@ -41,12 +56,15 @@ def _provenance(res, qa_cfg, qa_source) -> dict:
 
     prov = dict(res.get("provenance") or {})
     options = prov.pop("options", None)
+    tracked = is_tracked(res.get("target"))  # a pose-only session: no images, no corners, no intrinsics
     rows = []
     labels = {
         "handeye_version": "handeye version",
         "command_line": "Command line",
         "time_utc": "Calibrated (UTC)",
-        "inputs_sha256": "Input hash (SHA-256 of images and pose files)",
+        "inputs_sha256": "Input hash (SHA-256 of the pose and session files)"
+        if tracked
+        else "Input hash (SHA-256 of images and pose files)",
         "python": "Python",
         "opencv": "OpenCV",
     }
@@ -90,7 +108,22 @@ def _provenance(res, qa_cfg, qa_source) -> dict:
     if ref_opts:
         config["refinement options"] = ref_opts
     config["QA thresholds"] = qa_cfg
+    if tracked:
+        config = _without_image_settings(config)
     return {
         "rows": rows,
         "config_yaml": yaml.safe_dump(plain(config), sort_keys=False, default_flow_style=None, width=100).strip(),
     }
+
+
+def _without_image_settings(config: dict) -> dict:
+    """``config`` (the Configuration block) without the settings that act on images only (:data:`IMAGE_ONLY`)."""
+    out = {}
+    for section, values in config.items():
+        if isinstance(values, dict):
+            values = {k: v for k, v in values.items() if k not in IMAGE_ONLY.get(section, ())}
+            if section == "QA thresholds" and isinstance(values.get("checks"), dict):
+                checks = values["checks"]
+                values["checks"] = {k: v for k, v in checks.items() if k not in IMAGE_ONLY["QA checks"]}
+        out[section] = values
+    return out

@@ -19,12 +19,12 @@ def matrix_text(T: np.ndarray) -> str:
     return "\n".join("   ".join(f"{x:+.6f}" for x in row) for row in np.asarray(T, float))
 
 
-def _result_block(res, T_x, *, T_board, unc, pred, wd, x_name, b_name, parent, board_parent) -> dict:
+def _result_block(res, T_x, *, T_board, unc, pred, wd, x_name, b_name, parent, board_parent, tracked=False) -> dict:
     """The result section: ``T_x`` (named ``x_name``, child ``cam``, parent ``parent``) in every form.
 
     Rows of translation, quaternion, rotation vector and Euler angles with the 1-sigma of ``unc`` and
     95 % intervals; ``pred``: the predicted point error at ``wd`` metres; ``T_board`` (``b_name``, in
-    ``board_parent``) when the board pose is known.
+    ``board_parent``) when the board pose is known (``tracked``: a pose-only session's tracked target).
     """
     f = pose_forms(T_x)
     q = quat_wxyz_from_R(T_x[:3, :3])
@@ -81,7 +81,12 @@ def _result_block(res, T_x, *, T_board, unc, pred, wd, x_name, b_name, parent, b
         bf = pose_forms(T_board)
         out["board"] = {
             "name": b_name,
-            "meaning": (res.get("frames") or {}).get(b_name, ""),
+            "noun": "Target" if tracked else "Board",
+            "meaning": (
+                f"pose of the tracked target in the {board_parent} frame; p_{board_parent} = {b_name} @ p_board"
+                if tracked
+                else (res.get("frames") or {}).get(b_name, "")
+            ),
             "equation": f"p_{board_parent} = {b_name} · p_board",
             "matrix_text": matrix_text(T_board),
             "translation_mm": bf["translation_mm"],

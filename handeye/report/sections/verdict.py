@@ -72,7 +72,7 @@ def _kpis(metrics, pred, wd, views, verdict: Verdict, ok: bool, untrusted: dict[
             card(
                 "Views used" if ok else "Views detected and paired",
                 f"{n_used} / {len(views)}",
-                f"{n_flagged} dropped or flagged" + (f"; {n_corners} used with outlier corners" if n_corners else ""),
+                f"{n_flagged} dropped" + (f"; {n_corners} used with outlier corners" if n_corners else ""),
                 ["used_views"],
             )
         )

@@ -43,7 +43,9 @@ def _view_rows(res, ref, fits, centre, findings, image_size) -> list[dict]:
         kinds = [str(o.get("kind", "")) for o in outl.get(vid, [])]
         flags: list[dict] = []
         if not v.get("used", False):
-            status = "flagged" if kinds or vid in per_view else "dropped"
+            # one word for one state, as the command prints it: a view that did not serve X is dropped (the flag
+            # says why: an outlier of the refinement keeps serving the intrinsics)
+            status = "dropped"
             kind = next((OUTLIER_KIND_TEXT.get(k, k) for k in kinds if k), "")
             reason_kind = kind or (
                 "image missing"
@@ -56,7 +58,7 @@ def _view_rows(res, ref, fits, centre, findings, image_size) -> list[dict]:
             )
             flags.append({"severity": "fail", "text": _strip_view_prefix(v.get("reason") or "not used")})
         elif pv.get("status") == "robot_excluded":
-            status, reason_kind = "flagged", OUTLIER_KIND_TEXT["robot_pose"]
+            status, reason_kind = "dropped", OUTLIER_KIND_TEXT["robot_pose"]
         elif v.get("flags") or outl.get(vid):  # used, with flagged corners
             status, reason_kind = "used", OUTLIER_KIND_TEXT["corners"]
         else:
@@ -95,7 +97,7 @@ def _view_rows(res, ref, fits, centre, findings, image_size) -> list[dict]:
                 (round(float(u), 1), round(float(w), 1), int(c) in bad)
                 for c, (u, w) in zip(fit.corner_ids, fit.image_points_px, strict=False)
             ]
-        # flagged: in the dropped/flagged share once, dropped or its robot pose excluded (it did not serve X);
+        # flagged: in the dropped share once, dropped or its robot pose excluded (it did not serve X);
         # a used view with a few outlier corners is listed (corner_flags), not counted: its pose served X
         # (a pose line whose image was deleted, or an image that --shift-poses leaves without a pose, is listed as
         # dropped, not counted: nothing was captured badly)
