@@ -44,7 +44,7 @@ def result_transform(result: dict) -> tuple[str, np.ndarray]:
     mode = result.get("mode")
     if result.get("status", "ok") != "ok":
         raise InputError(
-            f"the result is a failed calibration ({str(result.get('failure_reason', ''))[:120]})",
+            f"the result is a failed calibration ({str(result.get('failure_reason', '')).strip()})",
             hint="calibrate again and apply a successful result",
             code="failed_result",
         )

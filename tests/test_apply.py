@@ -8,7 +8,7 @@ import pytest
 from handeye.apply import points_cam_to_base, pose_cam_to_base, result_transform
 from handeye.cli import main
 from handeye.conventions import VENDOR_POSE_FORMAT, pose_values_from_T
-from handeye.errors import ConfigError, InputError
+from handeye.errors import ConfigError, InputError, clip
 from handeye.frames import transform_points
 from handeye.sim.corners import make_corner_session
 
@@ -107,6 +107,31 @@ def test_apply_refuses_failed_results(tmp_path, capsys):
     assert main(["apply", str(p), "--point", "0", "0", "1"]) != 0
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "failed calibration" in err
+
+
+def test_a_failed_results_reason_is_quoted_whole(tmp_path, capsys):
+    # the reason of a calibrate of poses.txt with 'nan' on line 6; it was cut at 120 characters, mid-word
+    # inside the parentheses ('(|x| )', '(e.)')
+    reason = (
+        "/very/long/path/to/a/vendor/session/folder/poses.txt:6: pose line holds a value that is not a usable "
+        "number; expected finite numbers (|x| < 1e6); got nan -> fix line 6"
+    )
+    p = tmp_path / "result.json"
+    p.write_text(json.dumps({"status": "failed", "failure_reason": reason, "mode": "eye_in_hand"}))
+    with pytest.raises(InputError) as e:
+        result_transform(json.loads(p.read_text()))
+    assert f"({reason})" in str(e.value)
+    assert main(["apply", str(p), "--point", "0", "0", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"failed calibration ({reason}) -> calibrate again" in err[0], err
+
+
+def test_clip_cuts_between_words_and_says_so():
+    text = "expected finite numbers (|x| < 1e6); got nan"
+    assert clip(text, 80) == text
+    assert clip(text, 30) == "expected finite numbers..."
+    assert clip("  two\n lines ", 80) == "two lines"
+    assert clip("x" * 50, 20) == "x" * 17 + "..."
 
 
 def test_apply_takes_a_cells_camera_by_name(cell, capsys):

@@ -50,7 +50,7 @@ def run(args) -> int:
     res = single_camera(read_result(path, partial=True), args.camera, source=str(path))  # a cell: --camera
     if not res.ok:
         raise InputError(
-            f"the result is a failed calibration ({str(res.failure_reason or '')[:120]})",
+            f"the result is a failed calibration ({str(res.failure_reason or '').strip()})",
             path=path,
             hint="calibrate again and apply a successful result",
             code="failed_result",
