@@ -99,6 +99,18 @@ def test_an_end_pose_in_other_units_is_refused(tmp_path, capsys, end_pose, flags
     assert rc == 2 and len(err) == 1 and says in err[0], err
 
 
+def test_an_end_pose_is_refused_for_an_eye_to_hand_result(tmp_path, capsys):
+    cs = make_corner_session(mode="eye_to_hand", n_views=3, seed=2, noise_px=0.0)
+    _write_result(tmp_path, cs)
+    end = ["0.69", "-0.22", "0.71", "3.1", "-0.2", "2.2"]
+    rc = main(["apply", str(tmp_path), "--point", "0", "0", "0.5", "--end-pose", *end])
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert rc == 2 and captured.out == "" and len(err) == 1, err
+    assert "--end-pose does not apply to an eye_to_hand result: the camera is fixed to the robot base" in err[0]
+    assert err[0].endswith("-> drop --end-pose")
+
+
 def test_apply_refuses_failed_results(tmp_path, capsys):
     p = tmp_path / "result.json"
     p.write_text(json.dumps({"status": "failed", "failure_reason": "degenerate", "mode": "eye_in_hand"}))
