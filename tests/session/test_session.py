@@ -254,6 +254,28 @@ def test_vendor_mode_key_and_override(tmp_path):
     assert load_session(d, mode="eye_in_hand").mode == "eye_in_hand"
 
 
+def test_misspelt_config_keys_are_named_with_the_nearest_known_key(tmp_path, caplog):
+    cfg = {"checkerboard_args": {"XX": 11, "YY": 8, "L": 0.03, "l": 0.025}, "mdoe": "eye_to_hand", "colour": 1}
+    d = vendor(tmp_path, config=cfg)
+    with caplog.at_level("WARNING", logger="handeye.session.vendor"):
+        s = load_session(d)
+    assert s.mode == "eye_in_hand" and s.mode_source == "default" and s.target.square_m == 0.03
+    said = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    where = f"{d / 'config.yaml'}: "
+    assert said == [
+        where + "unknown key colour is ignored; known keys: checkerboard_args, mode, pose_format",
+        where + "unknown key mdoe is ignored (did you mean mode?); known keys: checkerboard_args, mode, pose_format",
+        where + "unknown key checkerboard_args.l is ignored (did you mean checkerboard_args.L?); known keys: "
+        "checkerboard_args.XX, checkerboard_args.YY, checkerboard_args.L",
+    ]
+
+
+def test_a_missing_board_key_names_its_misspelling(tmp_path):
+    d = vendor(tmp_path, config={"checkerboard_args": {"XX": 11, "YY": 8, "l": 0.03}})
+    with pytest.raises(ConfigError, match=r"checkerboard_args.L is missing; .* -> rename l to L"):
+        load_session(d)
+
+
 @pytest.mark.parametrize(
     "case,match",
     [
