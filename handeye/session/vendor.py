@@ -107,7 +107,15 @@ def read_pose_lines(poses_path: Path, *, first: int = 1) -> list[PoseLine]:
                     hint=f"as column names it names {len(header[1])} columns, the lines hold {values.size}",
                 )
             log.debug("%s:%d: column names skipped: %s", poses_path, header[0], header[2][:80])
-        check_finite(values, path=poses_path, line=lineno, what="pose line")
+        check_finite(
+            values,
+            path=poses_path,
+            line=lineno,
+            what="pose line",
+            hint=f"fix line {lineno} (lines pair with images by number: removing only the line puts every later "
+            "image out of step; to drop the view, remove the line and its image together and renumber the later "
+            "images)",
+        )
         out.append(PoseLine(len(out) + first, lineno, values))
     if not out:
         raise InputError("poses.txt has no pose lines", path=poses_path, expected="one line x,y,z,rx,ry,rz per image")

@@ -324,6 +324,19 @@ def test_vendor_bad_inputs_give_one_line_errors(tmp_path, case, match):
     assert "\n" not in str(e.value)
 
 
+def test_a_nan_pose_line_says_to_fix_the_line_not_remove_it_alone(tmp_path):
+    good = [",".join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)) for T in POSES]
+    d = vendor(tmp_path, lines=["# x,y,z,rx,ry,rz", good[0], good[1], "nan,0.2,0.3,0,0,0", good[3]])
+    with pytest.raises(InputError) as e:
+        load_session(d)
+    assert str(e.value) == (
+        f"{d / 'poses.txt'}:4: pose line holds a value that is not a usable number; expected finite numbers "
+        "(|x| < 1e6); got nan -> fix line 4 (lines pair with images by number: removing only the line puts every "
+        "later image out of step; to drop the view, remove the line and its image together and renumber the "
+        "later images)"
+    )
+
+
 def native(tmp_path, *, fmt=None, extra=None, views=None):
     d = tmp_path / "native"
     d.mkdir(exist_ok=True)
