@@ -65,7 +65,8 @@ def add_arguments(p) -> None:
     inp.add_argument(
         "--mode",
         choices=MODES,
-        help="mounting mode (overrides the session's own; default: the session's, else eye_in_hand)",
+        help="mounting mode (overrides the session's own; default: mode: in config.yaml or session.yaml, else "
+        "detected from the data, eye_in_hand only when the data do not decide it)",
     )
     model.add_argument(
         "--method",

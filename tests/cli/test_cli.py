@@ -817,6 +817,19 @@ def test_calibrate_help_groups_every_flag_and_the_module_names_every_command():
         assert re.search(rf"\b{name}\b", cli.__doc__), name
 
 
+def test_calibrate_help_says_the_data_decide_an_unstated_mode():
+    import handeye.cli as cli
+
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, cli._LazyCommands))
+    calibrate = cli.add_command_arguments(sub._name_parser_map["calibrate"], "calibrate")
+    mode = next(a for a in calibrate._actions if "--mode" in a.option_strings)
+    assert mode.help == (
+        "mounting mode (overrides the session's own; default: mode: in config.yaml or session.yaml, else detected "
+        "from the data, eye_in_hand only when the data do not decide it)"
+    )
+
+
 @pytest.mark.parametrize(
     "flags, handeye_debug, library_debug",
     [((), False, False), (("verbose",), True, False), (("debug",), True, True), (("quiet", "verbose"), False, False)],
