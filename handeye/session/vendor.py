@@ -86,6 +86,8 @@ def read_pose_lines(poses_path: Path, *, first: int = 1) -> list[PoseLine]:
             header = (lineno, fields, s)
             continue
         try:  # a line printed as a list or tuple ([x, y, z, rx, ry, rz]) holds the same numbers
+            if _decimal_commas(s):  # 0,512 -0,2 (tabs or spaces): each comma would split a number in two
+                raise ValueError(s)
             values = np.array([float(f) for f in (f.strip("[]()") for f in fields) if f])
         except ValueError:
             raise InputError(
@@ -120,6 +122,20 @@ def read_pose_lines(poses_path: Path, *, first: int = 1) -> list[PoseLine]:
     if not out:
         raise InputError("poses.txt has no pose lines", path=poses_path, expected="one line x,y,z,rx,ry,rz per image")
     return out
+
+
+def _decimal_commas(line: str) -> bool:
+    """Numbers separated by white space (tabs, spaces) whose decimal mark is a comma (``0,512  -0,2``).
+
+    Read with commas as separators too, such a line gives twice the numbers, or fractions read as integers
+    (``0,692010593`` as 0 and 692010593); it is malformed, with the decimal-comma hint.
+    """
+    tokens = line.split()
+    return (
+        len(tokens) >= 2
+        and all(re.fullmatch(r"[-+]?\d+(,\d+)?", tok) for tok in tokens)
+        and any("," in tok for tok in tokens)
+    )
 
 
 def _malformed_hint(line: str) -> str:

@@ -996,3 +996,30 @@ def test_a_malformed_pose_line_says_what_it_likely_holds(tmp_path, line, fix):
     with pytest.raises(InputError, match="malformed pose line") as e:
         read_pose_lines(tmp_path / "poses.txt")
     assert fix in str(e.value) and "poses.txt:1" in str(e.value)
+
+
+@pytest.mark.parametrize("sep", ["\t", " ", "  "])
+def test_decimal_commas_between_tabs_or_spaces_get_the_decimal_comma_hint(tmp_path, sep):
+    """0,692010593<sep>-0,225705741...: commas read as separators made 12 numbers or 692010593.0."""
+    from handeye.session.vendor import read_pose_lines
+
+    good = "0.692010593,-0.225705741,0.711254499,3.117997802,-0.221434615,2.250750282"
+    line = good.replace(",", sep).replace(".", ",")
+    (tmp_path / "poses.txt").write_text(good + "\n" + line + "\n")
+    with pytest.raises(InputError) as e:
+        read_pose_lines(tmp_path / "poses.txt")
+    said = (
+        f"{tmp_path / 'poses.txt'}:2: malformed pose line; expected x,y,z,rx,ry,rz (metres, radians); "
+        f"got {line[:80]!r} -> write decimal points, not decimal commas (a locale's export), e.g. 0.512 not 0,512"
+    )
+    assert str(e.value) == " ".join(said.split())  # one line: runs of white space as one space
+
+
+@pytest.mark.parametrize("line", ["1,0,0,0,0,0", "1 0 0 0 0 0", "1, 0, 0, 0, 0, 0", "1\t0\t0\t3\t0\t0"])
+def test_whole_numbers_between_commas_or_spaces_still_read(tmp_path, line):
+    from handeye.session.vendor import read_pose_lines
+
+    (tmp_path / "poses.txt").write_text(line + "\n")
+    np.testing.assert_array_equal(
+        read_pose_lines(tmp_path / "poses.txt")[0].values, [float(v) for v in line.replace(",", " ").split()]
+    )
