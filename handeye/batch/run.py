@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from ..contract import BatchRecord, validate_result, write_validated
-from ..errors import InputError, QAFailed, clip
+from ..errors import InputError, QAFailed
 from ..output import atomic_write_bytes, command_line, hash_files, write_json, writing
 from .discover import SessionJob
 from .process import SESSION_ENV, SESSIONS_PER_PROCESS, SessionProcess, _kill_group  # noqa: F401 (re-exported)
@@ -454,7 +454,7 @@ def open_client(scheduler: Optional[str] = None, n_workers: Optional[int] = None
             return Client(scheduler, timeout="30s")
         except OSError as e:  # Dask's "Timed out trying to connect", a refused connection, an unknown host
             raise InputError(
-                f"cannot reach the Dask scheduler at {scheduler} ({clip(e, 120)})",
+                f"cannot reach the Dask scheduler at {scheduler} ({' '.join(str(e).split())[:120]})",
                 hint="check the address and that the scheduler runs there (dask scheduler), or leave out "
                 "--scheduler to run on this machine",
             ) from None
