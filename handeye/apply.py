@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, clip
 from .frames import is_rigid_transform, is_rotation, transform_points
 from .mounting import MODES, mounting
 
@@ -25,7 +25,7 @@ def points_cam_to_base(
     """Points (N,3) or (3,) in the camera frame (metres) -> robot base frame (metres)."""
     p = np.asarray(p_cam, float)
     if p.shape[-1] != 3 or not np.all(np.isfinite(p)):
-        raise InputError("points must be finite x, y, z in metres", received=str(p.tolist())[:60])
+        raise InputError("points must be finite x, y, z in metres", received=clip(p.tolist(), 60))
     return transform_points(T_base_cam_from_result(mode, T_x, T_base_end), p)
 
 
@@ -44,7 +44,7 @@ def result_transform(result: dict) -> tuple[str, np.ndarray]:
     mode = result.get("mode")
     if result.get("status", "ok") != "ok":
         raise InputError(
-            f"the result is a failed calibration ({str(result.get('failure_reason', ''))[:120]})",
+            f"the result is a failed calibration ({str(result.get('failure_reason', '')).strip()})",
             hint="calibrate again and apply a successful result",
             code="failed_result",
         )

@@ -230,3 +230,18 @@ def verdict_exit_code(verdict: str | None) -> int:
 def exit_codes_text(indent: str = "  ") -> str:
     """:data:`EXIT_CODES` as lines for a ``--help`` epilog."""
     return "exit codes:\n" + "\n".join(f"{indent}{code:>3}  {meaning}" for code, meaning in EXIT_CODES)
+
+
+def clip(text: object, limit: int = 120) -> str:
+    """``text`` on one line, at most ``limit`` characters, cut between words and marked ``...`` when cut.
+
+    For a quoted exception or value inside a message: a plain slice (``text[:80]``) cut words in half and,
+    inside the message's parentheses, read as a finished text (``(|x| )``, ``(e.)``). A message of
+    handeye's own (a failure reason, a hint) is quoted whole, not clipped.
+    """
+    one = " ".join(str(text).split())
+    if len(one) <= limit:
+        return one
+    cut = one[: max(limit - 3, 1)]
+    head, _, _ = cut.rpartition(" ")
+    return (head if len(head) >= limit // 2 else cut).rstrip(" ,;:") + "..."

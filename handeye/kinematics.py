@@ -19,7 +19,7 @@ from typing import Any, Optional, Sequence, Union
 import numpy as np
 
 from .config import arm_presets
-from .errors import ConfigError
+from .errors import ConfigError, clip
 from .frames import inv_T, rotvec_from_R, se3_adjoint
 
 CONVENTIONS = ("standard", "modified")
@@ -578,6 +578,6 @@ def load_arm(name_or_path: Union[str, Path, dict], *, folder: Optional[Path] = N
             path=path,
             line=line,
             expected="a JSON file" if is_json else "a YAML file",
-            received=f"{type(e).__name__}: {str(e).splitlines()[0][:80]}",
+            received=f"{type(e).__name__}: {clip(str(e).splitlines()[0], 80)}",
         ) from None
     return chain_from_dict(data, source=str(path))

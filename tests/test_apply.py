@@ -8,7 +8,7 @@ import pytest
 from handeye.apply import points_cam_to_base, pose_cam_to_base, result_transform
 from handeye.cli import main
 from handeye.conventions import VENDOR_POSE_FORMAT, pose_values_from_T
-from handeye.errors import ConfigError, InputError
+from handeye.errors import ConfigError, InputError, clip
 from handeye.frames import transform_points
 from handeye.sim.corners import make_corner_session
 
@@ -99,6 +99,18 @@ def test_an_end_pose_in_other_units_is_refused(tmp_path, capsys, end_pose, flags
     assert rc == 2 and len(err) == 1 and says in err[0], err
 
 
+def test_an_end_pose_is_refused_for_an_eye_to_hand_result(tmp_path, capsys):
+    cs = make_corner_session(mode="eye_to_hand", n_views=3, seed=2, noise_px=0.0)
+    _write_result(tmp_path, cs)
+    end = ["0.69", "-0.22", "0.71", "3.1", "-0.2", "2.2"]
+    rc = main(["apply", str(tmp_path), "--point", "0", "0", "0.5", "--end-pose", *end])
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert rc == 2 and captured.out == "" and len(err) == 1, err
+    assert "--end-pose does not apply to an eye_to_hand result: the camera is fixed to the robot base" in err[0]
+    assert err[0].endswith("-> drop --end-pose")
+
+
 def test_apply_refuses_failed_results(tmp_path, capsys):
     p = tmp_path / "result.json"
     p.write_text(json.dumps({"status": "failed", "failure_reason": "degenerate", "mode": "eye_in_hand"}))
@@ -107,6 +119,31 @@ def test_apply_refuses_failed_results(tmp_path, capsys):
     assert main(["apply", str(p), "--point", "0", "0", "1"]) != 0
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "failed calibration" in err
+
+
+def test_a_failed_results_reason_is_quoted_whole(tmp_path, capsys):
+    # the reason of a calibrate of poses.txt with 'nan' on line 6; it was cut at 120 characters, mid-word
+    # inside the parentheses ('(|x| )', '(e.)')
+    reason = (
+        "/very/long/path/to/a/vendor/session/folder/poses.txt:6: pose line holds a value that is not a usable "
+        "number; expected finite numbers (|x| < 1e6); got nan -> fix line 6"
+    )
+    p = tmp_path / "result.json"
+    p.write_text(json.dumps({"status": "failed", "failure_reason": reason, "mode": "eye_in_hand"}))
+    with pytest.raises(InputError) as e:
+        result_transform(json.loads(p.read_text()))
+    assert f"({reason})" in str(e.value)
+    assert main(["apply", str(p), "--point", "0", "0", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"failed calibration ({reason}) -> calibrate again" in err[0], err
+
+
+def test_clip_cuts_between_words_and_says_so():
+    text = "expected finite numbers (|x| < 1e6); got nan"
+    assert clip(text, 80) == text
+    assert clip(text, 30) == "expected finite numbers..."
+    assert clip("  two\n lines ", 80) == "two lines"
+    assert clip("x" * 50, 20) == "x" * 17 + "..."
 
 
 def test_apply_takes_a_cells_camera_by_name(cell, capsys):

@@ -15,7 +15,7 @@ from typing import Any, Optional
 import numpy as np
 
 from ..contract import validate_result
-from ..errors import VERDICTS, HandeyeError, InputError
+from ..errors import VERDICTS, HandeyeError, InputError, clip
 from .run import RECORD_NAME, read_json
 
 log = logging.getLogger(__name__)
@@ -73,8 +73,7 @@ def _damaged(field: str, value, expected: str) -> DamagedResult:
     kind = {dict: "a mapping", list: "a list", str: "a text", bool: "a boolean", type(None): "null"}.get(
         type(value), type(value).__name__
     )
-    text = " ".join(repr(value).split())
-    return DamagedResult(f"field {field} is {kind} ({text[:40]})", expected=expected)
+    return DamagedResult(f"field {field} is {kind} ({clip(repr(value), 40)})", expected=expected)
 
 
 def _text(d: dict, key: str, field: str, *, choices=None) -> Optional[str]:

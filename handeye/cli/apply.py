@@ -12,7 +12,10 @@ log = logging.getLogger(__name__)
 
 def add_arguments(p) -> None:
     """The command's description and arguments (its one-line help is in handeye.cli.COMMANDS)."""
-    p.description = "Eye-in-hand needs the end pose at capture time (--end-pose); eye-to-hand does not."
+    p.description = (
+        "Eye-in-hand needs the end pose at capture time (--end-pose); eye-to-hand refuses it (the camera is "
+        "fixed to the base)."
+    )
     p.add_argument("result", type=Path, help="result.json or the folder holding it")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument(
@@ -30,7 +33,8 @@ def add_arguments(p) -> None:
         nargs=6,
         type=finite_float,
         metavar=("X", "Y", "Z", "RX", "RY", "RZ"),
-        help="robot end pose in the base frame (vendor convention: metres, radians, R = Rz·Ry·Rx)",
+        help="robot end pose in the base frame at capture time (vendor convention: metres, radians, R = Rz·Ry·Rx); "
+        "eye-in-hand only",
     )
     p.add_argument("--mm", action="store_true", help="--point/--pose/--end-pose translations are in millimetres")
     p.add_argument("--camera", metavar="NAME", help="a cell (several cameras of one arm): the camera observed with")
@@ -44,13 +48,14 @@ def run(args) -> int:
     from ..contract import read_result, single_camera
     from ..conventions import VENDOR_POSE_FORMAT, T_from_pose_values, pose_forms
     from ..errors import ConfigError, InputError
+    from ..mounting import mounting
 
     path = Path(args.result) / "result.json" if Path(args.result).is_dir() else Path(args.result)
     # every field it holds checked (a damaged one is one line naming it); status, mode and X are enough
     res = single_camera(read_result(path, partial=True), args.camera, source=str(path))  # a cell: --camera
     if not res.ok:
         raise InputError(
-            f"the result is a failed calibration ({str(res.failure_reason or '')[:120]})",
+            f"the result is a failed calibration ({str(res.failure_reason or '').strip()})",
             path=path,
             hint="calibrate again and apply a successful result",
             code="failed_result",
@@ -63,6 +68,14 @@ def run(args) -> int:
             expected=f"a finite 4x4 rigid transform (mode {mode})",
             code="result_damaged",
             hint="re-run handeye calibrate",
+        )
+    if args.end_pose is not None and not mounting(mode).camera_moves:
+        raise InputError(
+            f"--end-pose does not apply to an {mode} result: the camera is fixed to the robot base, so what it "
+            "sees maps into the base without the end pose",
+            path=path,
+            hint="drop --end-pose",
+            code="flag_not_applicable",
         )
     if res.verdict == "FAIL":
         from ..recal.loaded import load_result, unfit_note

@@ -65,7 +65,8 @@ def add_arguments(p) -> None:
     inp.add_argument(
         "--mode",
         choices=MODES,
-        help="mounting mode (overrides the session's own; default: the session's, else eye_in_hand)",
+        help="mounting mode (overrides the session's own; default: mode: in config.yaml or session.yaml, else "
+        "detected from the data, eye_in_hand only when the data do not decide it)",
     )
     model.add_argument(
         "--method",
@@ -252,8 +253,12 @@ def _run_session(args, figures) -> int:
         if getattr(args, "debug", False):
             assert wr.error is not None, "a failed run has its error"
             raise wr.error
+        reason = str(wr.result["failure_reason"])
         what = "refused" if wr.verdict == "REFUSED" else "calibration failed"
-        print(f"handeye: {what}: {wr.result['failure_reason']}", file=sys.stderr)
+        if reason.startswith("the session was refused"):  # says so itself: not 'refused: the session was refused'
+            print(f"handeye: {reason}", file=sys.stderr)
+        else:
+            print(f"handeye: {what}: {reason}", file=sys.stderr)
         return wr.exit_code or 1
     if getattr(args, "export", None):
         code = _export_beside(wr.out_dir, args.export)

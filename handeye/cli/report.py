@@ -6,7 +6,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from ..errors import HandeyeError, InputError
+from ..errors import HandeyeError, InputError, clip
 
 log = logging.getLogger(__name__)
 
@@ -88,7 +88,7 @@ def _run_report(args, figures) -> int:
             if getattr(args, "debug", False):
                 raise
             raise InputError(
-                f"the report could not be built from this result.json ({type(e).__name__}: {str(e)[:80]})",
+                f"the report could not be built from this result.json ({type(e).__name__}: {clip(e, 80)})",
                 path=result_file,
                 hint="re-run handeye calibrate into this folder; if the file is intact, rerun with "
                 "--debug and report the traceback",

@@ -14,6 +14,7 @@ from typing import Optional, TextIO
 import cv2
 import numpy as np
 
+from ..errors import clip
 from ..targets import ChessboardSpec, TargetSpec
 from .camera import Camera
 from .capture import Capture, _gray
@@ -115,7 +116,7 @@ class InteractiveMode:
                     if guided and self.kept:
                         self.robot.simulate_hand_guiding()  # type: ignore[attr-defined]  # hasattr above
                     cap = self.capture()
-                    message = f"view {cap.view_id} saved" if cap.kept else f"rejected: {cap.reason[:70]}"
+                    message = f"view {cap.view_id} saved" if cap.kept else f"rejected: {clip(cap.reason, 70)}"
         finally:
             cv2.destroyWindow(win)
         return len(self.kept)

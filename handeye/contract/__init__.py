@@ -20,7 +20,7 @@ from typing import Callable, Optional, Union
 
 from pydantic import BaseModel, ValidationError
 
-from ..errors import InputError
+from ..errors import InputError, clip
 from .fields import short
 from .models import (
     OBSERVATIONS_VERSION,
@@ -77,7 +77,7 @@ def read_json_object(path: Union[str, Path], *, hint: str = "re-run handeye cali
             "file not found", path=path, hint="run handeye calibrate first or pass the result folder"
         ) from None
     except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
-        raise InputError(f"not valid JSON ({type(e).__name__}: {str(e)[:80]})", path=path, hint=hint) from None
+        raise InputError(f"not valid JSON ({type(e).__name__}: {clip(e, 80)})", path=path, hint=hint) from None
     except OSError as e:
         raise InputError(f"cannot read the file ({e.strerror or type(e).__name__})", path=path, hint=hint) from None
     if not isinstance(d, dict):

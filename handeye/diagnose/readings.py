@@ -424,7 +424,7 @@ def _inverse_finding(obs: PoseObservations, best: Reading, ev: str, details: dic
         "fail",
         f"The data are {other.name.replace('_', '-')} but were calibrated as {mode.name.replace('_', '-')}",
         e + " (inverted robot poses would fit equally, but put the camera implausibly)",
-        f"calibrate with --mode {other.name} (or set mode: {other.name} in the session)",
+        f"calibrate with --mode {other.name} (or set mode: {other.name} in config.yaml or session.yaml)",
         details=details,
     )
 

@@ -33,6 +33,7 @@ from .stages import (
     _final_outcomes,
     arm_accuracy_stage,
     refine_stage,
+    refinement_error,
     session_arm,
     stated_accuracy,
     validate_pose_stage,
@@ -370,11 +371,7 @@ def _run(s: Session, opts: CalibrateOptions, state: dict, progress, detected=Non
         refined = refine_stage(s, opts, start, intr, poses, dets, T_base_end, closed_forms=closed, arm=arm)
         seconds["refine"] = time.perf_counter() - t2
         if refined.status != "ok":
-            raise CalibrationError(
-                f"refinement failed: {refined.failure_reason}",
-                hint="rerun with --no-refine to get the closed-form result",
-                code="refinement_failed",
-            )
+            raise refinement_error(refined)
         state.update(refined=refined, T_x=refined.T_x, T_board=refined.T_board, intrinsics=refined.intrinsics)
         state.update(_closed_forms_on_used_views(mode, ids, C, Ms, refined))
         if opts.validate:

@@ -78,8 +78,8 @@ def _mode_gate(s: Session, obs: Observation, state: dict, progress) -> Session:
             f"the data are {ev.decided} but {stated} says {s.mode}: {ev.summary()}",
             expected=f"robot and camera motions that fit {s.mode}",
             received=f"they fit {ev.decided}",
-            hint=f"calibrate with --mode {ev.decided} (or set mode: {ev.decided} in the session); if the camera "
-            f"really is {s.mode.replace('_', '-')}, the robot poses may be inverted (T_end_base)",
+            hint=f"calibrate with --mode {ev.decided} (or set mode: {ev.decided} in config.yaml or session.yaml); "
+            f"if the camera really is {s.mode.replace('_', '-')}, the robot poses may be inverted (T_end_base)",
             code="mode_swapped",
         )
     return s

@@ -17,6 +17,7 @@ from .stages import (
     _final_outcomes,
     _joint_angles,
     arm_accuracy_stage,
+    refinement_error,
     session_arm,
     stated_accuracy,
     validate_pose_stage,
@@ -103,11 +104,7 @@ def _run_pose_only(s: Session, opts: CalibrateOptions, state: dict, progress) ->
         )
         seconds["refine"] = time.perf_counter() - t2
         if refined.status != "ok":
-            raise CalibrationError(
-                f"refinement failed: {refined.failure_reason}",
-                hint="rerun with --no-refine to get the closed-form result",
-                code="refinement_failed",
-            )
+            raise refinement_error(refined)
         state.update(refined=refined, T_x=refined.T_x, T_board=refined.T_board)
         if opts.validate:
             progress("validation: refits without some views")

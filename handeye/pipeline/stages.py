@@ -46,6 +46,22 @@ def _closed_forms(
     return closed, start
 
 
+def refinement_error(refined) -> CalibrationError:
+    """The error of a failed refinement, with what to try.
+
+    When too few views keep a robot pose that agrees with the camera, the robot poses do not fit the images:
+    a closed-form result (``--no-refine``) would only hide that, so the hint points at the poses.
+    """
+    if getattr(refined, "failure_code", "") == "too_few_robot_poses":
+        hint = (
+            "check how the robot poses were written (frame, units, rotation convention) and that each pairs with "
+            "its image"
+        )
+    else:
+        hint = "rerun with --no-refine to get the closed-form result"
+    return CalibrationError(f"refinement failed: {refined.failure_reason}", hint=hint, code="refinement_failed")
+
+
 def refine_stage(
     s: Session,
     opts: CalibrateOptions,

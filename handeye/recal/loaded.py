@@ -17,7 +17,7 @@ from typing import Any, Optional, Union
 import numpy as np
 
 from ..camera import INTRINSIC_NAMES, Intrinsics
-from ..errors import InputError
+from ..errors import InputError, clip
 from ..stats import satterthwaite_dof
 
 ResultLike = Union[str, Path, dict]
@@ -446,7 +446,7 @@ def _check_parametrisation(text, source: str) -> None:
             "the covariance of X is in an unknown parametrisation",
             path=source,
             expected="right perturbation, rotation first (GTSAM Pose3 tangent)",
-            received=t[:80],
+            received=clip(t, 80),
             hint="recompute the result with this version of handeye calibrate",
         )
 

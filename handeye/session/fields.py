@@ -129,11 +129,14 @@ def check_input_file(path: Path, *, what: str, source: Path | None = None, vid: 
     return path
 
 
-def check_finite(values, *, path: Path, line: int | None, what: str) -> None:
+def check_finite(
+    values, *, path: Path, line: int | None, what: str, hint: str = "fix this pose, or remove the view"
+) -> None:
     """Numbers read from a file must be finite and of a size a pose can have.
 
     Numbers read from a file must be finite and of a size a pose can have (|x| < 1e6): NaN, inf and
-    1e308 are refused at load, naming the file and line.
+    1e308 are refused at load, naming the file and line, with ``hint`` (a vendor pose line's own: its
+    line pairs with an image by number).
     """
     a = np.asarray(values, dtype=float)
     if not np.all(np.isfinite(a)) or np.any(np.abs(a) > 1e6):
@@ -144,7 +147,7 @@ def check_finite(values, *, path: Path, line: int | None, what: str) -> None:
             line=line,
             expected="finite numbers (|x| < 1e6)",
             received=repr(float(bad)),
-            hint="fix or remove this pose",
+            hint=hint,
         )
 
 

@@ -12,6 +12,7 @@ these files; the strict loader (:func:`load_vendor_session`) and the lenient rea
 
 from __future__ import annotations
 
+import difflib
 import logging
 import re
 from dataclasses import dataclass
@@ -46,6 +47,9 @@ _PREFIXED = re.compile(r"^(\D+)(\d+)$")  # image_1, img-01: a number behind a na
 _NOT_NAMES = {"none", "null", "nil", "na", "n/a", "undefined", "error"}  # a value that failed, not a column name
 _NAME = re.compile(r"^[A-Za-z_][\w()\[\]/.-]*$")  # a column name: x, rx, rx(rad), x[m]
 _POSE_EXPECTED = "x,y,z,rx,ry,rz (metres, radians)"
+#: the keys config.yaml may hold, at the top and in checkerboard_args (others are named in a warning)
+CONFIG_KEYS = ("checkerboard_args", "mode", "pose_format")
+CHECKERBOARD_KEYS = ("XX", "YY", "L")
 #: the mode of a vendor session whose config.yaml states none (the vendor's rig is eye-in-hand)
 VENDOR_DEFAULT_MODE = "eye_in_hand"
 
@@ -82,6 +86,8 @@ def read_pose_lines(poses_path: Path, *, first: int = 1) -> list[PoseLine]:
             header = (lineno, fields, s)
             continue
         try:  # a line printed as a list or tuple ([x, y, z, rx, ry, rz]) holds the same numbers
+            if _decimal_commas(s):  # 0,512 -0,2 (tabs or spaces): each comma would split a number in two
+                raise ValueError(s)
             values = np.array([float(f) for f in (f.strip("[]()") for f in fields) if f])
         except ValueError:
             raise InputError(
@@ -103,11 +109,33 @@ def read_pose_lines(poses_path: Path, *, first: int = 1) -> list[PoseLine]:
                     hint=f"as column names it names {len(header[1])} columns, the lines hold {values.size}",
                 )
             log.debug("%s:%d: column names skipped: %s", poses_path, header[0], header[2][:80])
-        check_finite(values, path=poses_path, line=lineno, what="pose line")
+        check_finite(
+            values,
+            path=poses_path,
+            line=lineno,
+            what="pose line",
+            hint=f"fix line {lineno} (lines pair with images by number: removing only the line puts every later "
+            "image out of step; to drop the view, remove the line and its image together and renumber the later "
+            "images)",
+        )
         out.append(PoseLine(len(out) + first, lineno, values))
     if not out:
         raise InputError("poses.txt has no pose lines", path=poses_path, expected="one line x,y,z,rx,ry,rz per image")
     return out
+
+
+def _decimal_commas(line: str) -> bool:
+    """Numbers separated by white space (tabs, spaces) whose decimal mark is a comma (``0,512  -0,2``).
+
+    Read with commas as separators too, such a line gives twice the numbers, or fractions read as integers
+    (``0,692010593`` as 0 and 692010593); it is malformed, with the decimal-comma hint.
+    """
+    tokens = line.split()
+    return (
+        len(tokens) >= 2
+        and all(re.fullmatch(r"[-+]?\d+(,\d+)?", tok) for tok in tokens)
+        and any("," in tok for tok in tokens)
+    )
 
 
 def _malformed_hint(line: str) -> str:
@@ -167,16 +195,48 @@ def read_vendor_config(folder: Path, *, strict: bool = True) -> tuple[Chessboard
         )
     for key in ("XX", "YY", "L"):
         if key not in cb:
+            near = [str(k) for k in cb if _nearest_key(k, CHECKERBOARD_KEYS) == key]
             raise ConfigError(
                 f"checkerboard_args.{key} is missing",
                 path=cfg_path,
                 expected="XX (inner corners, long side), YY (short side), L (square, metres)",
+                hint=f"rename {near[0]} to {key} (the keys are case-sensitive)" if near else None,
             )
     xx = positive_number(cb["XX"], path=cfg_path, field="checkerboard_args.XX", integer=True, minimum=1)
     yy = positive_number(cb["YY"], path=cfg_path, field="checkerboard_args.YY", integer=True, minimum=1)
     check_target_points(xx * yy, path=cfg_path, field="checkerboard_args XX x YY")
     L = length_m(cb["L"], path=cfg_path, field="checkerboard_args.L", strict=strict)
     return ChessboardSpec(cols=xx, rows=yy, square_m=L), cfg.get("mode"), cfg
+
+
+def _nearest_key(key: object, known: tuple[str, ...]) -> str | None:
+    """The known key ``key`` most likely misspells (case aside), or None."""
+    by_lower = {k.lower(): k for k in known}
+    close = difflib.get_close_matches(str(key).lower(), list(by_lower), n=1, cutoff=0.6)
+    return by_lower[close[0]] if close else None
+
+
+def unknown_config_keys(cfg: dict) -> list[str]:
+    """One line per key of config.yaml that handeye does not read, naming the nearest known key.
+
+    Unknown keys are ignored, as in session.yaml, but named: a misspelt ``mdoe: eye_to_hand`` would
+    otherwise leave the mode to the data and ``l: 0.025`` the square size to ``L`` or an error.
+    """
+    lines = []
+    groups = [("", cfg, CONFIG_KEYS)]
+    if isinstance(cfg.get("checkerboard_args"), dict):
+        groups.append(("checkerboard_args.", cfg["checkerboard_args"], CHECKERBOARD_KEYS))
+    for prefix, mapping, known in groups:
+        for key in mapping:
+            if key in known:
+                continue
+            near = _nearest_key(key, known)
+            lines.append(
+                f"unknown key {prefix}{key} is ignored"
+                + (f" (did you mean {prefix}{near}?)" if near else "")
+                + f"; known keys: {', '.join(prefix + k for k in known)}"
+            )
+    return lines
 
 
 def numbered_images(folder: Path) -> dict[int, Path]:
@@ -293,6 +353,8 @@ def load_vendor_session(folder: str | Path, *, mode: str | None = None) -> Sessi
     """The vendor folder, validated: units checked, every image paired with its pose line."""
     folder = Path(folder)
     target, cfg_mode, cfg = read_vendor_config(folder)
+    for line in unknown_config_keys(cfg):
+        log.warning("%s: %s", folder / "config.yaml", line)
     sess_mode = check_mode(mode if mode is not None else (cfg_mode or VENDOR_DEFAULT_MODE), path=folder / "config.yaml")
 
     poses_path = folder / "poses.txt"

@@ -734,6 +734,37 @@ def test_shuffled_pairs_are_refused_without_a_matrix(clean, tmp_path, capsys, mo
     assert len(err) == 1 and err[0].startswith("handeye: refused: ")
 
 
+def test_inverted_poses_are_refused_in_one_line_without_a_way_around(clean, tmp_path, capsys, caplog):
+    """Poses written as T_end_base with the mode stated: the refinement finds no view whose pose fits, the
+    diagnostics name the inversion; the refusal is one line (not 'refused: the session was refused') and no
+    line offers --no-refine, a way around it."""
+    import logging
+
+    caplog.set_level(logging.INFO)
+    T = inv_T(_reported(clean))
+    rc, out, err, res = _calibrate(_variant(clean, tmp_path / "inverted", T), tmp_path / "o", capsys, "--no-report")
+    assert rc == SessionRefused.exit_code and res["error"]["code"] == "poses_inverted"
+    assert err == [f"handeye: {res['failure_reason']}"]
+    assert err[0].startswith("handeye: the session was refused: Robot poses are inverted"), err
+    said = [r.getMessage() for r in caplog.records] + out + err
+    assert not [line for line in said if "--no-refine" in line], said
+
+
+def test_a_refinement_that_keeps_no_robot_pose_points_at_the_poses_not_at_no_refine():
+    from types import SimpleNamespace
+
+    from handeye.pipeline.stages import refinement_error
+
+    reason = "only 0 views left whose robot pose agrees with the camera; need 3"
+    e = refinement_error(SimpleNamespace(failure_code="too_few_robot_poses", failure_reason=reason))
+    assert e.code == "refinement_failed" and e.what == f"refinement failed: {reason}"
+    assert e.hint == (
+        "check how the robot poses were written (frame, units, rotation convention) and that each pairs with its image"
+    )
+    e = refinement_error(SimpleNamespace(failure_code="solver", failure_reason="GTSAM: indeterminant system"))
+    assert e.hint == "rerun with --no-refine to get the closed-form result"
+
+
 def test_a_malformed_poses_file_is_unusable_input(clean, tmp_path, capsys):
     bad = _variant(clean, tmp_path / "bad", _reported(clean))
     lines = (bad / "poses.txt").read_text().splitlines()
@@ -815,6 +846,19 @@ def test_calibrate_help_groups_every_flag_and_the_module_names_every_command():
     assert len(cli.COMMANDS) == 11
     for name in cli.COMMANDS:  # the module docstring's command table names every command
         assert re.search(rf"\b{name}\b", cli.__doc__), name
+
+
+def test_calibrate_help_says_the_data_decide_an_unstated_mode():
+    import handeye.cli as cli
+
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, cli._LazyCommands))
+    calibrate = cli.add_command_arguments(sub._name_parser_map["calibrate"], "calibrate")
+    mode = next(a for a in calibrate._actions if "--mode" in a.option_strings)
+    assert mode.help == (
+        "mounting mode (overrides the session's own; default: mode: in config.yaml or session.yaml, else detected "
+        "from the data, eye_in_hand only when the data do not decide it)"
+    )
 
 
 @pytest.mark.parametrize(

@@ -419,7 +419,10 @@ def test_mounting_mode_swapped(tmp_path, monkeypatch, mode):
     other = "eye_to_hand" if mode == "eye_in_hand" else "eye_in_hand"
     _, d = _diagnose(_write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported)), cs, monkeypatch, mode=other)
     assert _codes(d) == {"mode_swapped"}
-    assert f"--mode {mode}" in _one(d, "mode_swapped")["action"]
+    assert (
+        _one(d, "mode_swapped")["action"]
+        == f"calibrate with --mode {mode} (or set mode: {mode} in config.yaml or session.yaml)"
+    )
 
 
 @pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
@@ -1219,7 +1222,9 @@ def test_a_stated_mode_the_data_contradict_is_refused_with_the_finding(tmp_path,
         _write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), mode=other), cs, monkeypatch
     )
     assert run.status == "failed" and run.error.code == "mode_swapped" and run.T_x is None
-    assert f"--mode {mode}" in run.error.hint
+    assert run.error.hint.startswith(
+        f"calibrate with --mode {mode} (or set mode: {mode} in config.yaml or session.yaml); if the camera really is "
+    ), run.error.hint
     assert d["findings"][0]["code"] == "mode_swapped"
 
 

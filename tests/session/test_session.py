@@ -254,6 +254,28 @@ def test_vendor_mode_key_and_override(tmp_path):
     assert load_session(d, mode="eye_in_hand").mode == "eye_in_hand"
 
 
+def test_misspelt_config_keys_are_named_with_the_nearest_known_key(tmp_path, caplog):
+    cfg = {"checkerboard_args": {"XX": 11, "YY": 8, "L": 0.03, "l": 0.025}, "mdoe": "eye_to_hand", "colour": 1}
+    d = vendor(tmp_path, config=cfg)
+    with caplog.at_level("WARNING", logger="handeye.session.vendor"):
+        s = load_session(d)
+    assert s.mode == "eye_in_hand" and s.mode_source == "default" and s.target.square_m == 0.03
+    said = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    where = f"{d / 'config.yaml'}: "
+    assert said == [
+        where + "unknown key colour is ignored; known keys: checkerboard_args, mode, pose_format",
+        where + "unknown key mdoe is ignored (did you mean mode?); known keys: checkerboard_args, mode, pose_format",
+        where + "unknown key checkerboard_args.l is ignored (did you mean checkerboard_args.L?); known keys: "
+        "checkerboard_args.XX, checkerboard_args.YY, checkerboard_args.L",
+    ]
+
+
+def test_a_missing_board_key_names_its_misspelling(tmp_path):
+    d = vendor(tmp_path, config={"checkerboard_args": {"XX": 11, "YY": 8, "l": 0.03}})
+    with pytest.raises(ConfigError, match=r"checkerboard_args.L is missing; .* -> rename l to L"):
+        load_session(d)
+
+
 @pytest.mark.parametrize(
     "case,match",
     [
@@ -300,6 +322,19 @@ def test_vendor_bad_inputs_give_one_line_errors(tmp_path, case, match):
     with pytest.raises(InputError, match=match) as e:
         load_session(d)
     assert "\n" not in str(e.value)
+
+
+def test_a_nan_pose_line_says_to_fix_the_line_not_remove_it_alone(tmp_path):
+    good = [",".join(f"{v:.9f}" for v in pose_values_from_T(T, VENDOR_POSE_FORMAT)) for T in POSES]
+    d = vendor(tmp_path, lines=["# x,y,z,rx,ry,rz", good[0], good[1], "nan,0.2,0.3,0,0,0", good[3]])
+    with pytest.raises(InputError) as e:
+        load_session(d)
+    assert str(e.value) == (
+        f"{d / 'poses.txt'}:4: pose line holds a value that is not a usable number; expected finite numbers "
+        "(|x| < 1e6); got nan -> fix line 4 (lines pair with images by number: removing only the line puts every "
+        "later image out of step; to drop the view, remove the line and its image together and renumber the "
+        "later images)"
+    )
 
 
 def native(tmp_path, *, fmt=None, extra=None, views=None):
@@ -961,3 +996,30 @@ def test_a_malformed_pose_line_says_what_it_likely_holds(tmp_path, line, fix):
     with pytest.raises(InputError, match="malformed pose line") as e:
         read_pose_lines(tmp_path / "poses.txt")
     assert fix in str(e.value) and "poses.txt:1" in str(e.value)
+
+
+@pytest.mark.parametrize("sep", ["\t", " ", "  "])
+def test_decimal_commas_between_tabs_or_spaces_get_the_decimal_comma_hint(tmp_path, sep):
+    """0,692010593<sep>-0,225705741...: commas read as separators made 12 numbers or 692010593.0."""
+    from handeye.session.vendor import read_pose_lines
+
+    good = "0.692010593,-0.225705741,0.711254499,3.117997802,-0.221434615,2.250750282"
+    line = good.replace(",", sep).replace(".", ",")
+    (tmp_path / "poses.txt").write_text(good + "\n" + line + "\n")
+    with pytest.raises(InputError) as e:
+        read_pose_lines(tmp_path / "poses.txt")
+    said = (
+        f"{tmp_path / 'poses.txt'}:2: malformed pose line; expected x,y,z,rx,ry,rz (metres, radians); "
+        f"got {line[:80]!r} -> write decimal points, not decimal commas (a locale's export), e.g. 0.512 not 0,512"
+    )
+    assert str(e.value) == " ".join(said.split())  # one line: runs of white space as one space
+
+
+@pytest.mark.parametrize("line", ["1,0,0,0,0,0", "1 0 0 0 0 0", "1, 0, 0, 0, 0, 0", "1\t0\t0\t3\t0\t0"])
+def test_whole_numbers_between_commas_or_spaces_still_read(tmp_path, line):
+    from handeye.session.vendor import read_pose_lines
+
+    (tmp_path / "poses.txt").write_text(line + "\n")
+    np.testing.assert_array_equal(
+        read_pose_lines(tmp_path / "poses.txt")[0].values, [float(v) for v in line.replace(",", " ").split()]
+    )
