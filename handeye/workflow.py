@@ -206,7 +206,8 @@ def _calibrate_locked(
     elif run.error is not None and not isinstance(run.error, SessionRefused):
         cause = global_fault(diag)
         if cause is not None:  # the failure is the effect of a fault the diagnostics name: that is the reason
-            log.info("the calibration failed (%s); the diagnostics name the cause", run.error)
+            what = getattr(run.error, "what", run.error)  # not its hint: the cause's fix replaces it
+            log.info("the calibration failed (%s); the diagnostics name the cause", what)
             run = _refused(run, cause, evidence=False)
     res = result_dict(run, mode_flag=mode)
     if prior_record is not None:
@@ -313,7 +314,7 @@ def _refused(run: CalibrationRun, finding: dict, *, evidence: bool = True) -> Ca
     if evidence and finding.get("evidence"):
         what += f" ({str(finding['evidence']).rstrip('.')})"
     err = SessionRefused(what, hint=finding.get("action") or None, code=str(finding.get("code") or "session_refused"))
-    log.info("refused: %s", err)
+    log.debug("refused: %s", err)  # the command's own last line says it
     return replace(run, status="failed", error=err, T_x=None, T_board=None, start=None, closed_forms={}, refined=None)
 
 

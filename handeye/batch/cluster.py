@@ -9,7 +9,7 @@ from __future__ import annotations
 import os
 from typing import Optional
 
-from ..errors import InputError
+from ..errors import InputError, clip
 
 #: the embedded scheduler's ``worker-saturation``: a worker holds only the task it runs, the rest wait on the scheduler
 ONE_TASK_PER_THREAD = 1.0
@@ -29,7 +29,7 @@ def open_client(scheduler: Optional[str] = None, n_workers: Optional[int] = None
             return Client(scheduler, timeout="30s")
         except OSError as e:  # Dask's "Timed out trying to connect", a refused connection, an unknown host
             raise InputError(
-                f"cannot reach the Dask scheduler at {scheduler} ({' '.join(str(e).split())[:120]})",
+                f"cannot reach the Dask scheduler at {scheduler} ({clip(' '.join(str(e).split()), 120)})",
                 hint="check the address and that the scheduler runs there (dask scheduler), or leave out "
                 "--scheduler to run on this machine",
             ) from None

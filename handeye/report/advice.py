@@ -30,7 +30,7 @@ ERROR_ADVICE = {
     "corners at different distances and tilts.",
     "pnp_failed": "Check the board description (inner corners, square size) against the thumbnails.",
     "mode_swapped": "Check where the camera is mounted: on the flange it is eye_in_hand, on a stand eye_to_hand; "
-    "state that mode with --mode or mode: in the session.",
+    "state that mode with --mode or mode: in config.yaml or session.yaml.",
     "pairs_shifted": "Check whether the pose file has an extra or a missing line at the start; if the shift is "
     "certain, re-run with --shift-poses N (image k takes the pose written for image k + N), else re-capture images "
     "and poses together, by view id.",
@@ -49,7 +49,8 @@ FINDING_ADVICE = {
     "poses_do_not_fit": "Check that each image is paired with the pose recorded at that moment, the pose format "
     "(units, Euler order), the mounting mode and that the board stayed put; re-capture if "
     "unsure.",
-    "mode_undecided": "State the mounting mode (--mode eye_in_hand or eye_to_hand, or mode: in the session); the "
+    "mode_undecided": "State the mounting mode (--mode eye_in_hand or eye_to_hand, or mode: in config.yaml or "
+    "session.yaml); the "
     "data did not decide it, so the default was used.",
     "mode_swapped": ERROR_ADVICE["mode_swapped"],
     "pairs_shifted": ERROR_ADVICE["pairs_shifted"],
