@@ -34,7 +34,7 @@ from .consistency import (
     view_disagreements,
 )
 from .crossval import cross_validate
-from .detection import detection_findings
+from .detection import another_board_size, detection_findings
 from .findings import SEVERITIES, Finding, Stages, worst_first
 from .imaging import coverage_findings, image_findings, image_metrics
 from .intrinsics import distortion_findings
@@ -295,7 +295,10 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
         for name in ("readings", "pairing", "board_moved", "robot_poses"):
             stages.skip(name, f"fewer than {thresholds().views.min_fail} views with a board pose")
         if stages.status.get("observations") == "ok" and (run.detections or run.outcomes):
-            findings += stages.run("motion", view_count_findings, len(run.board_poses or {}), default=[])
+            if another_board_size(run) is None:  # else the count is the wrong board size's effect (its finding)
+                findings += stages.run("motion", view_count_findings, len(run.board_poses or {}), default=[])
+            else:
+                stages.skip("motion", "the images show another board size than the stated one")
         else:
             stages.skip("motion", "no views to count")
     global_fault = bool(pose and pose["global_fault"])

@@ -82,6 +82,20 @@ def _why_not_found(run, vid: str, C_pred: np.ndarray) -> str:
     return (": " + ", ".join(why)) if why else " (blur, exposure, glare or something in front of it?)"
 
 
+def another_board_size(run):
+    """The images' survey (:class:`handeye.detect.board_size.SizeSurvey`) when they show another board size.
+
+    None when the target is no chessboard or the images show no other size than the stated one.
+    """
+    from ..detect import size_survey
+
+    t = run.session.target
+    if t.kind != "chessboard":
+        return None
+    survey = size_survey({**(run.failures or {}), **(run.detections or {})}, (t.cols, t.rows))
+    return survey if survey is not None and survey.likely_size is not None else None
+
+
 def detection_findings(
     run, *, A: Optional[np.ndarray] = None, B: Optional[np.ndarray] = None, invert_poses: bool = False
 ) -> list:
@@ -146,14 +160,22 @@ def detection_findings(
             if failed or share > warn_share
             else "nothing to do if few; otherwise keep the whole board in the image at every robot pose"
         )
+        evidence, details = "; ".join(notes[o.view_id] for o in missing), {}
+        survey = another_board_size(run) if failed else None
+        if survey is not None:  # the images show another board: that is what to fix
+            (c, r), (c0, r0) = survey.likely_size, survey.stated
+            title = f"The board has {c}x{r} inner corners, not {c0}x{r0} as stated: the target was found in {n_found}"
+            title += f" of {n_total} images"
+            evidence, action, details = survey.text(), survey.fix(), {"board_size": [c, r]}
         out.append(
             Finding(
                 "target_not_found",
                 sev,
                 title,
-                "; ".join(notes[o.view_id] for o in missing),
+                evidence,
                 action,
                 view_ids=tuple(o.view_id for o in missing),
+                details=details,
             )
         )
     if absent:

@@ -186,3 +186,24 @@ def test_collect_options(argv, option, run_cli, names, tmp_path):
     assert rc == 2, err
     names(err, option)
     assert not (tmp_path / "new").exists()  # refused before anything was written
+
+
+def test_squares_counted_for_inner_corners_are_one_finding_naming_the_size(
+    tiny_vendor, copy_session, run_cli, tmp_path
+):
+    """config.yaml gives the squares (12x9) of an 11x8-corner board. The verdict named the size, but the findings
+    were "Only 0 usable views -> capture 10 or more further views" and "found in only 0 of 6 images -> check the
+    board size ..., lighting and focus": advice beside the point. One finding names the size to write."""
+    import json
+
+    s = copy_session(tiny_vendor)
+    (s / "config.yaml").write_text(_cfg(XX=12, YY=9))
+    rc, _ = run_cli("calibrate", s, "--out", tmp_path / "o", "--no-report", one_line=False)
+    assert rc == 3
+    res = json.loads((tmp_path / "o" / "result.json").read_text())
+    failing = [f for f in res["findings"] if f["severity"] == "fail"]
+    assert [f["code"] for f in failing] == ["target_not_found"], failing
+    f = failing[0]
+    assert f["title"] == "The board has 11x8 inner corners, not 12x9 as stated: the target was found in 0 of 6 images"
+    assert f["action"].startswith("the board has 11x8 inner corners, not 12x9: fix config.yaml checkerboard_args")
+    assert res["diagnostics"]["findings"][0]["details"] == {"board_size": [11, 8]}
