@@ -10,8 +10,23 @@ from pathlib import Path
 from ..output import atomic_write_text, read_json
 
 
-def verify_context(v: dict) -> dict:
-    """What verify.html and verify.md show of verify.json ``v``: result.json's keys and statuses in words."""
+def installed_report_link(v: dict, out_dir) -> str:
+    """The installed result's report.html relative to the verification's folder ``out_dir``, or "" without one."""
+    import os
+
+    against = Path(str(v.get("against") or ""))
+    report = (against.parent if against.suffix == ".json" else against) / "report.html"
+    try:
+        return Path(os.path.relpath(report, Path(out_dir))).as_posix() if report.is_file() else ""
+    except (OSError, ValueError):  # another drive: no relative path
+        return ""
+
+
+def verify_context(v: dict, out_dir=None) -> dict:
+    """What verify.html and verify.md show of verify.json ``v``: result.json's keys and statuses in words.
+
+    ``out_dir``: the reports' folder, for the link to the installed result's report.
+    """
     from ..report.sections.views import OUTLIER_KIND_TEXT
     from ..results import cov_source_words
     from .loaded import axes_words
@@ -46,6 +61,7 @@ def verify_context(v: dict) -> dict:
             "eye_to_hand": "Eye-to-hand (camera fixed, board on the robot)",
         }.get(mode, mode),
         "checked_utc": str((v.get("provenance") or {}).get("time_utc", "")).replace("T", " ").replace("+00:00", " UTC"),
+        "installed_report": installed_report_link(v, out_dir) if out_dir is not None else "",
     }
 
 
@@ -70,7 +86,7 @@ def write_verify_reports(out_dir, *, formats=("html", "md")) -> list[Path]:
     from ..report.render import _env, _tidy_markdown
 
     out_dir = Path(out_dir)
-    ctx = verify_context(read_json(out_dir / "verify.json"))
+    ctx = verify_context(read_json(out_dir / "verify.json"), out_dir)
     written = []
     if "html" in formats:
         written.append(

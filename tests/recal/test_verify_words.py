@@ -185,3 +185,18 @@ def test_verify_says_when_most_views_were_left_out_that_the_verdict_rests_on_the
     fewer = what_moved(robot={"views": ["1", "3"]}, **kw)  # 2 of 6: outliers a robust solve tells from the rule
     assert not any("agree with one another" in line for line in fewer), fewer
     assert "camera moved" in fewer[0], fewer
+
+
+def test_verify_reports_link_the_installed_result_s_report(tmp_path):
+    """verify.html and verify.md named the installed result by its absolute path alone: a QA engineer reading a
+    check had no way to its calibration's report. They link it, relative to the check's folder, when it exists."""
+    from handeye.recal.report import installed_report_link
+
+    inst = tmp_path / "installs" / "cell1"
+    inst.mkdir(parents=True)
+    (inst / "report.html").write_text("<html></html>")
+    v = {"against": str(inst / "result.json")}
+    assert installed_report_link(v, tmp_path / "checks" / "2026-12") == "../../installs/cell1/report.html"
+    assert installed_report_link({"against": str(inst)}, tmp_path / "v") == "../installs/cell1/report.html"
+    (inst / "report.html").unlink()  # a result calibrated with --no-report
+    assert installed_report_link(v, tmp_path / "v") == ""
