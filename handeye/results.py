@@ -477,7 +477,9 @@ def verdict_fields(verdict, res: dict, error: Optional[HandeyeError], *, qa_cfg:
         qa = {"source": None, "status": None, "counts": {}, "checks": [], "error": "the QA checks crashed"}
     if error is not None:
         label = "REFUSED" if isinstance(error, SessionRefused) else "FAIL"
-        if label == "REFUSED":  # led by the root cause's name, as the report's banner is
+        if label == "REFUSED" and verdict is not None and verdict.cause:  # the report's banner's words
+            headline = f"{verdict.cause}; no result is given."
+        elif label == "REFUSED":  # led by the root cause's name, as the report's banner is
             code = str(getattr(error, "code", "") or "")
             cause = ROOT_CAUSE_LABELS.get(code)
             if code == "pairs_shuffled" and any(is_out_of_step(f) for f in raw if isinstance(f, dict)):

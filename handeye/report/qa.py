@@ -42,6 +42,8 @@ class Verdict:
     findings: tuple = ()  # diagnostics findings that count (dicts)
     thresholds_source: str = "configs/qa.yaml (shipped)"
     counts: dict = field(default_factory=dict)
+    #: the root cause that leads a failed run's headline (:func:`handeye.report.advice.root_cause`'s text), or ""
+    cause: str = ""
 
     @property
     def label(self) -> str:
@@ -375,6 +377,7 @@ def evaluate(
     counts = {s: sum(c.status == s for c in checks) for s in ("pass", "warn", "fail", "info")}
     counts["findings_fail"] = sum(str(f["severity"]).lower() == "fail" for f in counted)
     counts["findings_warn"] = sum(str(f["severity"]).lower() == "warn" for f in counted)
+    cause = ctx.get("root_cause")
     return Verdict(
         status,
         _headline(status, checks, counted, ctx, failure),
@@ -382,6 +385,7 @@ def evaluate(
         tuple(counted),
         thresholds_source,
         counts,
+        cause=str(cause["text"]) if (failure and cause) else "",
     )
 
 

@@ -402,3 +402,31 @@ def test_collect_out(make, culprits, run_cli, names, tmp_path):
     )
     assert rc == 2, err
     names(err, str(out), *culprits)
+
+
+def test_a_refusal_s_headline_is_the_report_s_banner_in_result_json_and_on_the_command_line(
+    tiny_vendor, copy_session, run_cli, tmp_path, capsys
+):
+    """Poses shifted by one line: the printed verdict and result.json said "Images and robot poses are out of step
+    by 1: ... pairing image k with pose k-1: board scatter 0.002 deg / 0.01 mm ..., a cost of 0.00 against 75.0",
+    the report "Pairs shifted by one line: images and robot poses are out of step by 1: image k belongs to pose
+    k-1". One headline in all three (docs/report.md: they always agree)."""
+
+    s = copy_session(tiny_vendor)
+    lines = (s / "poses.txt").read_text().splitlines()
+    (s / "poses.txt").write_text("\n".join(lines[1:] + lines[:1]) + "\n")
+    (s / "config.yaml").write_text((s / "config.yaml").read_text() + "mode: eye_in_hand\n")
+    capsys.readouterr()
+    from handeye.cli import main
+
+    rc = main(["calibrate", str(s), "--out", str(tmp_path / "o")])
+    out = capsys.readouterr().out
+    assert rc == 8, out
+    res = json.loads((tmp_path / "o" / "result.json").read_text())
+    head = res["verdict_headline"]
+    assert res["verdict"] == "REFUSED" and head.startswith("Pairs shifted by one line: "), head
+    assert head.endswith("; no result is given."), head
+    md = (tmp_path / "o" / "report.md").read_text()
+    banner = next(line for line in md.splitlines() if line.startswith("> **REFUSED** — "))
+    assert banner.startswith("> **REFUSED** — " + head.removesuffix("; no result is given.") + ". Fix: "), banner
+    assert f"verdict: REFUSED - {head.rstrip('.')}" in out, out
