@@ -373,6 +373,7 @@ def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
 
     from .. import __version__
     from ..mounting import mounting
+    from ..report.formatting import num
     from .verdict import mode_lines, verdict_lines
 
     lines = []
@@ -412,9 +413,9 @@ def format_summary(res: dict, result_path: Path, report_paths=()) -> str:
             src = ref.get("sigma_source")  # which covariance the verdict sigmas are (result.json's refinement block)
             lines.append(
                 "  1-sigma: translation [mm] "
-                + " ".join(f"{x:.3f}" for x in sig)
+                + " ".join(num(x, 3) for x in sig)  # a small sigma is not 0.000
                 + ", rotation [deg] "
-                + " ".join(f"{x:.3f}" for x in sr)
+                + " ".join(num(x, 3) for x in sr)
                 + (f" ({_sigma_source_words(src, ref)})" if src else "")
             )
         if ref.get("predicted_error_mm") is not None:

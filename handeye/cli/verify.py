@@ -191,6 +191,7 @@ def finish_verification(sv, out: Path, *, reports: bool = True, as_json: bool = 
 def verification_lines(d: dict) -> list[str]:
     """The summary a person reads: verdict, test, change per axis, what moved."""
     from ..recal.loaded import axes_words
+    from ..report.formatting import num
 
     t, c = d["test"], d["change"]
     lines = [
@@ -198,10 +199,10 @@ def verification_lines(d: dict) -> list[str]:
         f"estimated change of {d['frame']} (new - installed; +- 1 sigma, the installed uncertainty included; "
         f"{axes_words(d['frame'])}):",
     ]
-    for k, ax in enumerate("xyz"):
+    for k, ax in enumerate("xyz"):  # a sigma below the digits is not 0.000; a change of 0 is not -0.000
         lines.append(
-            f"  {ax}: {c['d_trans_mm'][k]:+8.3f} +- {c['sigma_trans_mm'][k]:.3f} mm   "
-            f"{c['d_rot_deg'][k]:+8.4f} +- {c['sigma_rot_deg'][k]:.4f} deg"
+            f"  {ax}: {num(c['d_trans_mm'][k], 3, signed=True):>8} +- {num(c['sigma_trans_mm'][k], 3)} mm   "
+            f"{num(c['d_rot_deg'][k], 4, signed=True):>8} +- {num(c['sigma_rot_deg'][k], 4)} deg"
         )
     lines.append(
         f"test: statistic {t['statistic']:.2f}, {t['dof']} dof, p = {t['p_value']:.3g} "

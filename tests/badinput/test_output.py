@@ -430,3 +430,15 @@ def test_a_refusal_s_headline_is_the_report_s_banner_in_result_json_and_on_the_c
     banner = next(line for line in md.splitlines() if line.startswith("> **REFUSED** — "))
     assert banner.startswith("> **REFUSED** — " + head.removesuffix("; no result is given.") + ". Fix: "), banner
     assert f"verdict: REFUSED - {head.rstrip('.')}" in out, out
+
+
+def test_the_printed_sigmas_give_a_small_sigma_its_digits(good_result):
+    """``calibrate`` printed "rotation [deg] 0.002 0.002 0.000" where the report showed 0.0003: a sigma is never
+    printed as zero."""
+    from handeye.cli.calibrate import format_summary
+
+    res = json.loads((good_result / "result.json").read_text())
+    res["refinement"]["sigma_trans_mm"] = [0.002, 0.0024, 0.006]
+    res["refinement"]["sigma_rot_deg"] = [0.002, 0.002, 0.0003]
+    line = next(ln for ln in format_summary(res, good_result / "result.json").splitlines() if "1-sigma:" in ln)
+    assert line.startswith("  1-sigma: translation [mm] 0.002 0.002 0.006, rotation [deg] 0.002 0.002 0.00030"), line

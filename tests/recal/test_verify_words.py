@@ -200,3 +200,27 @@ def test_verify_reports_link_the_installed_result_s_report(tmp_path):
     assert installed_report_link({"against": str(inst)}, tmp_path / "v") == "../installs/cell1/report.html"
     (inst / "report.html").unlink()  # a result calibrated with --no-report
     assert installed_report_link(v, tmp_path / "v") == ""
+
+
+def test_verify_s_change_lines_give_a_small_sigma_its_digits():
+    """verify printed "z: -0.000 +- 0.003 mm" and a sigma below the digits as 0.0000: a sigma is never shown as
+    zero, and a change of zero has no sign of its own."""
+    from handeye.cli.verify import verification_lines
+
+    d = {
+        "headline": "T_end_cam still valid",
+        "frame": "T_end_cam",
+        "n_views": 6,
+        "what_moved": [],
+        "test": {"statistic": 1.0, "dof": 6, "p_value": 0.98, "alpha": 0.05, "reference": "chi-square(6)"},
+        "change": {
+            "d_trans_mm": [0.0123, -0.0004, -0.0],
+            "sigma_trans_mm": [0.004, 0.0003, 0.003],
+            "d_rot_deg": [0.0, 0.0, 0.0],
+            "sigma_rot_deg": [0.00002, 0.001, 0.001],
+        },
+    }
+    lines = verification_lines(d)
+    assert lines[2] == "  x:   +0.012 +- 0.004 mm    +0.0000 +- 0.000020 deg", lines
+    assert lines[3] == "  y: -0.00040 +- 0.00030 mm    +0.0000 +- 0.0010 deg", lines
+    assert lines[4] == "  z:   +0.000 +- 0.003 mm    +0.0000 +- 0.0010 deg", lines
