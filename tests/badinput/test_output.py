@@ -438,7 +438,6 @@ def test_the_printed_sigmas_give_a_small_sigma_its_digits(good_result):
     from handeye.cli.calibrate import format_summary
 
     res = json.loads((good_result / "result.json").read_text())
-    res["refinement"]["sigma_trans_mm"] = [0.002, 0.0024, 0.006]
-    res["refinement"]["sigma_rot_deg"] = [0.002, 0.002, 0.0003]
+    res["refinement"] = {"sigma_trans_mm": [0.002, 0.0024, 0.006], "sigma_rot_deg": [0.002, 0.002, 0.0003]}
     line = next(ln for ln in format_summary(res, good_result / "result.json").splitlines() if "1-sigma:" in ln)
     assert line.startswith("  1-sigma: translation [mm] 0.002 0.002 0.006, rotation [deg] 0.002 0.002 0.00030"), line
