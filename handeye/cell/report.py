@@ -23,9 +23,29 @@ def _fmt(v, spec: str = ".3f") -> str:
         return "-"
 
 
+#: the mounting modes in words
+MODE_WORDS = {"eye_in_hand": "eye-in-hand", "eye_to_hand": "eye-to-hand"}
+
+
+def _rotvec_deg(T) -> list:
+    """The rotation vector (deg) of a 4x4 transform, or [] when it is not one."""
+    from ..frames import rotvec_from_R
+
+    try:
+        M = np.asarray(T, float)
+        return np.degrees(rotvec_from_R(M[:3, :3])).tolist() if M.shape == (4, 4) else []
+    except (TypeError, ValueError):
+        return []
+
+
 def cell_markdown(res: dict) -> str:
     """The cell's report as Markdown."""
     lines = [f"# Cell of {len(res.get('cameras') or {})} cameras: {res.get('verdict', '?')}", ""]
+    prov = res.get("provenance") or {}
+    when = str(prov.get("time_utc") or "").replace("T", " ").replace("+00:00", " UTC")
+    lines += [f"Calibrated {when or '-'} · handeye {prov.get('handeye_version') or '-'}", ""]
+    if prov.get("command_line"):
+        lines += [f"Command: `{prov['command_line']}`", ""]
     lines += [res.get("verdict_headline", ""), ""]
     ref = res.get("refinement") or {}
     rm = ref.get("robot_model") or {}
@@ -43,12 +63,13 @@ def cell_markdown(res: dict) -> str:
         "",
         "## Camera pairs",
         "",
-        "| pair | translation [mm] | 1-sigma trans [mm] | 1-sigma rot [deg] |",
-        "|---|---|---|---|",
+        "| pair | translation [mm] | rotation vector [deg] | 1-sigma trans [mm] | 1-sigma rot [deg] |",
+        "|---|---|---|---|---|",
     ]
     for p in (res.get("camera_pairs") or {}).values():
         lines.append(
             f"| {p['name']} | {' '.join(_fmt(x, '.2f') for x in p.get('translation_mm', []))} | "
+            f"{' '.join(_fmt(x, '.3f') for x in _rotvec_deg(p.get('matrix')))} | "
             f"{' '.join(_fmt(x, '.3f') for x in p.get('sigma_trans_mm', []))} | "
             f"{' '.join(_fmt(x, '.4f') for x in p.get('sigma_rot_deg', []))} |"
         )
@@ -56,18 +77,21 @@ def cell_markdown(res: dict) -> str:
         "",
         "## Cameras",
         "",
-        "| camera | mode | verdict | X translation [mm] | 1-sigma [mm] | sigma px | "
-        "solo vs joint (Mahalanobis) | views used |",
-        "|---|---|---|---|---|---|---|---|",
+        "| camera | mode | verdict | X | X translation [mm] | X rotation vector [deg] | 1-sigma [mm] | "
+        "1-sigma [deg] | sigma px | solo vs joint (Mahalanobis) | views used |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, c in (res.get("cameras") or {}).items():
         he, r = c.get("hand_eye") or {}, c.get("refinement") or {}
         agree = (r.get("solo") or {}).get("agreement") or {}
         n = c.get("n_views") or {}
+        mode = str(c.get("mode") or "-")
         lines.append(
-            f"| {name} | {c.get('mode')} | {c.get('verdict', '?')} | "
+            f"| {name} | {MODE_WORDS.get(mode, mode)} | {c.get('verdict', '?')} | {he.get('name', '-')} | "
             f"{' '.join(_fmt(x, '.2f') for x in he.get('translation_mm', []))} | "
-            f"{' '.join(_fmt(x, '.3f') for x in r.get('sigma_trans_mm', []))} | {_fmt(r.get('sigma_px'))} | "
+            f"{' '.join(_fmt(x, '.3f') for x in he.get('rotvec_deg', []))} | "
+            f"{' '.join(_fmt(x, '.3f') for x in r.get('sigma_trans_mm', []))} | "
+            f"{' '.join(_fmt(x, '.4f') for x in r.get('sigma_rot_deg', []))} | {_fmt(r.get('sigma_px'))} | "
             f"{_fmt(agree.get('mahalanobis'), '.2f')} | {n.get('used', '-')}/{n.get('total', '-')} |"
         )
     lines += ["", "## Cross-camera findings", ""]
