@@ -112,7 +112,8 @@ def report_figures(
                 "RMS residual of each view, fitted on its own (dark) and through the robot chain (light). "
                 "Red outlines: views dropped; dashed lines: the QA limits of the session's reprojection RMS "
                 + ("(the refined fit" if ref else "(the views' own camera fits")
-                + "; the through-robot residuals add the robot's pose error and have no limit).",
+                + "; the through-robot residuals add the robot's pose error and have no limit), where they fall "
+                "within the axis: a limit above it is far above every view.",
                 lambda rl=rl: per_view_bars(
                     [v["id"] for v in views],
                     [v["rms_px"] for v in views],

@@ -116,3 +116,30 @@ print(got["b"].decode())
     env = {k: v for k, v in os.environ.items() if k != "HANDEYE_FIGURE_PROCESSES"}
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
     assert p.stdout.split() == ["[True,", "True,", "True]"]
+
+
+def test_the_per_view_bars_draw_a_qa_limit_only_within_the_axis_and_keep_off_scale_labels_clear(monkeypatch):
+    """A QA limit just above the bars was put in the legend and drawn above the axis, where no one sees it; an
+    off-scale bar's printed value was crossed by the QA fail line. A limit is drawn (and in the legend) only within
+    the axis, and an off-scale value sits on a patch of its bar's colour, over the lines."""
+    from matplotlib.axes import Axes
+
+    from handeye.report.plots.residuals import per_view_bars
+
+    drawn, texts = [], []
+    axhline, text = Axes.axhline, Axes.text
+    monkeypatch.setattr(
+        Axes, "axhline", lambda self, y, **kw: drawn.append((y, kw.get("label"))) or axhline(self, y, **kw)
+    )
+    monkeypatch.setattr(Axes, "text", lambda self, *a, **kw: texts.append((a, kw)) or text(self, *a, **kw))
+    # bars up to 1.0 px: the axis ends at 1.1; the warn limit 1.2 is above it, the fail limit 0.9 within
+    per_view_bars(["1", "2", "3"], [0.8, 1.0, 0.9], [None, None, None], ["used"] * 3, warn_px=1.2, fail_px=0.9)
+    assert [label for _, label in drawn] == ["QA fail 0.9 px"], drawn
+    drawn.clear()
+    # one gross view, cut at 1.3 x the fail limit: its value is printed over the lines
+    ids, cam, chain = [str(k) for k in range(1, 9)], [0.2, 0.3, 0.25] * 2 + [0.3, 166.0], [0.4] * 7 + [155.0]
+    per_view_bars(ids, cam, chain, ["used"] * 8, warn_px=0.5, fail_px=1.0)
+    assert [label for _, label in drawn] == ["QA warn 0.5 px", "QA fail 1 px"], drawn
+    off = [(a[2], kw) for a, kw in texts if "px ↑" in str(a[2])]
+    assert [t for t, _ in off] == ["166 px ↑", "155 px ↑"], texts
+    assert all(kw["zorder"] > 2 and kw["bbox"]["facecolor"] != "none" for _, kw in off), off

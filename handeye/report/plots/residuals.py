@@ -114,7 +114,7 @@ def per_view_bars(
     if clipped:  # one gross outlier must not flatten every other bar: cut the axis, print the value
         top = cap
         for xi, c, h in zip(x, cam, ch, strict=False):
-            for off, val in ((-w / 2, c), (w / 2, h)):
+            for off, val, colour in ((-w / 2, c, NAVY), (w / 2, h, SKY)):
                 if np.isfinite(val) and val > cap:
                     ax.text(
                         xi + off,
@@ -126,13 +126,16 @@ def per_view_bars(
                         color="white",
                         fontweight="bold",
                         rotation=90,
+                        zorder=5,  # over the QA lines, on a patch of its bar's colour: a line never crosses it
+                        bbox={"facecolor": colour, "edgecolor": "none", "pad": 0.6},
                     )
     for xi, s, c in zip(x, status, cam, strict=False):
         if s == "dropped" and not np.isfinite(c):
             ax.text(xi, top * 0.04, "dropped", rotation=90, ha="center", va="bottom", fontsize=7, color=RED)
-    if warn_px is not None and warn_px < top * 1.3:
+    shown = top * (1.0 if clipped else 1.1)  # the axis' top: a limit above it is neither drawn nor in the legend
+    if warn_px is not None and warn_px <= shown:
         ax.axhline(warn_px, color=AMBER, lw=1.0, ls="--", label=f"QA warn {warn_px:g} px")
-    if fail_px is not None and fail_px < top * 1.3:
+    if fail_px is not None and fail_px <= shown:
         ax.axhline(fail_px, color=RED, lw=1.0, ls="--", label=f"QA fail {fail_px:g} px")
     ax.set_xticks(x)
     ax.set_xticklabels(ids, rotation=90 if n > 24 else 0, fontsize=7.5 if n > 24 else 8)
@@ -141,7 +144,7 @@ def per_view_bars(
     ax.set_ylabel("RMS [px]")
     ax.xaxis.grid(False)
     ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=4, borderaxespad=0.2)
-    ax.set_ylim(0, top * (1.0 if clipped else 1.1))
+    ax.set_ylim(0, shown)
     return _png(fig)
 
 
