@@ -17,7 +17,7 @@ ERROR_ADVICE = {
     "in metres, and check in the thumbnails below that the board is whole, sharp and evenly lit.",
     "detection_failed": "Count the inner corners (where four squares meet), not the squares, give the square size "
     "in metres, and check in the thumbnails below that the board is whole, sharp and evenly lit.",
-    "too_few_views": "Collect 15-25 views with the board fully visible.",
+    "too_few_views": "Collect 10-20 views with the board fully visible.",
     "motion_small_rotation": "Collect views tilted 20-45 deg against each other about two different axes.",
     "motion_one_axis": "Tilt the tool about the other axes as well, not only about one.",
     "degenerate_motion": "Collect views tilted 20-45 deg against each other about two different axes.",

@@ -200,7 +200,7 @@ _SPEC = {
         "",
         "{:.0f}",
         lambda v, lim, c: f"only {v:.0f} views constrain the hand-eye transform (limit {lim:g})",
-        lambda c: "collect 15-25 views with the board fully visible and varied orientations",
+        lambda c: "collect 10-20 views with the board fully visible and varied orientations",
     ),
     "image_coverage": (
         "Image area reached by corners",
