@@ -228,3 +228,18 @@ def test_the_run_time_row_names_the_stages_in_words():
     res = {"provenance": {}, "seconds": {"detect": 0.21, "board_poses": 0.01, "total": 1.2}}
     rows = {r["name"]: r["value"] for r in _provenance(res, {}, "configs/qa.yaml")["rows"]}
     assert rows["Run time"] == "detect 0.21 s, board poses 0.01 s, total 1.20 s"
+
+
+def test_the_advice_on_too_few_views_is_one_number_everywhere():
+    """A 3-view report said "Collect 15-25 views" (the QA check, the advice) beside the finding's "capture 7 or more
+    further views" toward its 10-20: every place gives the diagnostics' recommended count."""
+    from handeye.diagnose.consistency import view_count_findings
+    from handeye.diagnose.thresholds import thresholds
+    from handeye.report.advice import ERROR_ADVICE
+    from handeye.report.qa import _SPEC
+
+    rec = f"{thresholds().views.recommended}-20"
+    finding = view_count_findings(3)[0]
+    assert finding.action.startswith(f"capture {thresholds().views.recommended - 3} or more further views")
+    assert rec in finding.evidence and rec in ERROR_ADVICE["too_few_views"]
+    assert rec in _SPEC["used_views"][4]({})
