@@ -113,9 +113,15 @@ def export_transform(
     own = DEFAULT_FRAMES["camera_" + camera_frame]
     if r.camera is not None:
         own = CELL_CAMERA_FRAMES[camera_frame].format(camera=r.camera)
+    parent, child = parent or DEFAULT_FRAMES[r.mode if r.mode in DEFAULT_FRAMES else "eye_in_hand"], child or own
+    if parent == child:  # a frame is not its own parent (tf2 and URDF refuse it)
+        raise InputError(
+            f"--parent and --child name the same frame {parent!r}",
+            hint="give the robot frame as --parent and the camera frame as --child",
+        )
     return ExportTransform(
-        parent=parent or DEFAULT_FRAMES[r.mode if r.mode in DEFAULT_FRAMES else "eye_in_hand"],
-        child=child or own,
+        parent=parent,
+        child=child,
         T_parent_child=T,
         camera_frame=camera_frame,
         mode=r.mode,
@@ -313,17 +319,38 @@ def export_result(
     return _write_together(paths, data)
 
 
+#: text in the first bytes of every file an export writes (the header comment; the JSON format's own key)
+EXPORT_MARKS = (b"hand-eye calibration by handeye", b'"handeye_export"')
+
+
+def written_by_export(path: Path) -> bool:
+    """Whether the file ``path`` is one an export wrote (its header says so)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError:
+        return False
+    return any(m in head for m in EXPORT_MARKS)
+
+
 def _check_targets(paths: list[Path], src: Path, fmt: str) -> None:
-    """Refuse (``export_over_result``) a target that is one of a result folder's own files or the result itself."""
+    """Refuse a target that would replace what an export must not.
+
+    A result folder's own file or the result itself (``export_over_result``), or an existing file an export did
+    not write (``export_over_file``: a session.yaml, a launch file of the user's).
+    """
     for p in paths:
-        why = _result_folder_file(p, src.parent)
+        why, code = _result_folder_file(p, src.parent), "export_over_result"
         if why is None and _same_entry(p, src):
             why = "it is the result being exported"
+        if why is None and (p.is_file() or p.is_symlink()) and not written_by_export(p):
+            why, code = "it exists and is not a file handeye export wrote", "export_over_file"
         if why is not None:
             raise InputError(
                 f"will not write {fmt} over {p}: {why}",
-                code="export_over_result",
-                hint=f"name another file or folder with --out (e.g. {p.parent / DEFAULT_BASENAME}{FORMATS[fmt][0][0]})",
+                code=code,
+                hint=f"name another file or folder with --out (e.g. {p.parent / DEFAULT_BASENAME}{FORMATS[fmt][0][0]})"
+                + (", or remove that file first" if code == "export_over_file" else ""),
             )
 
 

@@ -542,3 +542,31 @@ def test_a_refused_write_leaves_every_file_of_the_format_as_it_was(tmp_path, mon
     assert sorted(p.name for p in (tmp_path / "res").iterdir()) == sorted(["result.json", *(p.name for p in old)])
     monkeypatch.setattr(output, "atomic_write_bytes", real)
     assert export_result(tmp_path / "res", "ros2") == old and old[0].read_bytes() != before[old[0]]
+
+
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_an_export_never_replaces_a_file_it_did_not_write(tmp_path, fmt):
+    """``export R --to yaml --out SESSION/session.yaml`` replaced the recorded session without a word (any file
+    outside a result folder was fair game). A file an export wrote is replaced; any other is refused, unchanged."""
+    _result(tmp_path / "r", "eye_in_hand")
+    res = tmp_path / "r"
+    own = tmp_path / "robot" / f"cam{FORMATS[fmt][0][0]}"
+    first = export_result(res, fmt, out=own)
+    assert first[0] == own and export_result(res, fmt, out=own) == first  # its own files: replaced
+    session = tmp_path / "rec" / "session.yaml"
+    session.parent.mkdir()
+    session.write_text("handeye_session: 1\nviews: []\n")
+    with pytest.raises(InputError, match="is not a file handeye export wrote") as e:
+        export_result(res, fmt, out=session)
+    assert e.value.code == "export_over_file" and "remove that file first" in str(e.value)
+    assert session.read_text() == "handeye_session: 1\nviews: []\n"
+    assert sorted(p.name for p in session.parent.iterdir()) == ["session.yaml"]  # nothing written beside it
+
+
+def test_a_frame_is_not_its_own_parent(tmp_path):
+    """``--parent cam --child cam`` was reported as a bug of handeye export (its URDF did not read back)."""
+    _result(tmp_path / "r", "eye_to_hand")
+    res = tmp_path / "r"
+    with pytest.raises(InputError, match="--parent and --child name the same frame 'cam'"):
+        export_result(res, "urdf", parent="cam", child="cam", out=tmp_path / "x")
+    assert not (tmp_path / "x").exists()
