@@ -32,9 +32,7 @@ def add_arguments(p) -> None:
         type=Path,
         help="the other tool's data folder, its samples file, or the bag (ROS 1 .bag, ROS 2 bag folder)",
     )
-    p.add_argument(
-        "out", type=Path, nargs="?", help="folder for session.yaml (rosbag, easy_handeye2, moveit: or --out)"
-    )
+    p.add_argument("out", type=Path, nargs="?", help="folder for session.yaml (or --out)")
     p.add_argument("--given-intrinsics", action="store_true", help="use the intrinsics shipped with the data (fixed)")
     p.add_argument(
         "--force",
@@ -80,7 +78,8 @@ def add_rosbag_arguments(g) -> None:
         dest="out_opt",
         type=Path,
         metavar="DEST",
-        help="session folder (default: SRC_session, SRC's name without its suffix)",
+        help="session folder, as OUT (rosbag, easy_handeye2, moveit: default SRC_session, SRC's name without "
+        "its suffix)",
     )
     g.add_argument(
         "--intrinsics-use",
@@ -103,9 +102,50 @@ def add_rosbag_arguments(g) -> None:
         )
 
 
+#: option (argparse's name) -> the importers that read it; another importer refuses it rather than ignore it
+OPTION_KINDS = {
+    "given_intrinsics": ("visp",),
+    "mode": ("visp", "rosbag", "easy_handeye2", "moveit"),
+    "tracker_sigma": ("easy_handeye2", "moveit"),
+    **dict.fromkeys(
+        (
+            "image_topic",
+            "camera_info",
+            "base",
+            "end",
+            "target",
+            "intrinsics_use",
+            "still_trans_mm_s",
+            "still_rot_deg_s",
+            "speed_window_s",
+            "min_still_s",
+            "margin_s",
+        ),
+        ("rosbag",),
+    ),
+}
+
+
+def refuse_foreign_options(args) -> None:
+    """One line for an option the chosen importer would ignore (``ical --mode eye_to_hand`` wrote the data's mode)."""
+    from ..errors import InputError
+
+    for dest, kinds in OPTION_KINDS.items():
+        value = getattr(args, dest, None)
+        if value in (None, False) or (dest == "intrinsics_use" and value == "prior") or args.kind in kinds:
+            continue
+        flag = "--" + dest.replace("_", "-")
+        raise InputError(
+            f"{flag} applies to handeye import {' | '.join(kinds)}, not {args.kind}",
+            code="flag_not_applicable",
+            hint=f"drop {flag}" + ("; calibrate --mode sets the mode of any session" if dest == "mode" else ""),
+        )
+
+
 def run(args) -> int:
     from ..output import new_folders_kept_only_if_used
 
+    refuse_foreign_options(args)
     out = _out_folder(args)
     with new_folders_kept_only_if_used(out):  # a failed import leaves no empty folder behind
         if args.kind == "rosbag":
@@ -116,14 +156,19 @@ def run(args) -> int:
 
 
 def _out_folder(args) -> Path:
-    """The session folder: OUT (or, for a bag or a samples file, --out; default SRC_session)."""
-    if args.kind in ("rosbag", "easy_handeye2", "moveit"):
-        return args.out_opt or args.out or Path(args.src.name.split(".")[0] + "_session")
-    if args.out is None:
-        from ..errors import InputError
+    """The session folder: OUT or --out (for a bag or a samples file, default SRC_session)."""
+    from ..errors import InputError
 
-        raise InputError(f"handeye import {args.kind} needs OUT, the folder for session.yaml")
-    return args.out
+    if args.out is not None and args.out_opt is not None and args.out != args.out_opt:
+        raise InputError(
+            f"OUT ({args.out}) and --out ({args.out_opt}) name two folders for session.yaml", hint="give one of them"
+        )
+    out = args.out or args.out_opt
+    if args.kind in ("rosbag", "easy_handeye2", "moveit"):
+        return out or Path(args.src.name.split(".")[0] + "_session")
+    if out is None:
+        raise InputError(f"handeye import {args.kind} needs OUT (or --out), the folder for session.yaml")
+    return out
 
 
 def run_folder(args, out: Path) -> int:

@@ -152,3 +152,33 @@ def test_import_out_is_a_file(kind, run_cli, names, tmp_path):
     rc, err = run_cli("import", kind, src, tmp_path / "f")
     assert rc == 2
     names(err, "OUT is a file")
+
+
+@pytest.mark.parametrize(
+    "kind, flags, named",
+    [
+        ("ical", ["--mode", "eye_to_hand"], "--mode applies to handeye import visp | rosbag | easy_handeye2 | moveit"),
+        ("visp", ["--image-topic", "/x"], "--image-topic applies to handeye import rosbag, not visp"),
+        ("visp", ["--tracker-sigma", "1", "1"], "--tracker-sigma applies to handeye import easy_handeye2 | moveit"),
+        ("ical", ["--given-intrinsics"], "--given-intrinsics applies to handeye import visp, not ical"),
+        ("visp", ["--intrinsics-use", "fixed"], "--intrinsics-use applies to handeye import rosbag, not visp"),
+    ],
+)
+def test_an_option_the_importer_would_ignore_is_refused(kind, flags, named, run_cli, names, tmp_path):
+    """``import ical SRC OUT --mode eye_to_hand`` wrote the data's eye_in_hand without a word; every option an
+    importer does not read was ignored so. One line naming the option and the importers that read it."""
+    src = _visp(tmp_path / "src") if kind == "visp" else _ical(tmp_path / "src")
+    rc, err = run_cli("import", kind, src, tmp_path / "out", *flags)
+    assert rc == 2
+    names(err, named)
+    assert not (tmp_path / "out").exists()
+
+
+def test_import_out_is_given_once(run_cli, names, tmp_path):
+    """``import moveit S A --out B`` wrote B and left A aside; ``import visp SRC --out B`` asked for OUT."""
+    src = _visp(tmp_path / "src")
+    rc, err = run_cli("import", "visp", src, tmp_path / "a", "--out", tmp_path / "b")
+    assert rc == 2
+    names(err, "name two folders for session.yaml")
+    assert run_cli("import", "visp", src, "--out", tmp_path / "b")[0] == 0
+    assert (tmp_path / "b" / "session.yaml").is_file() and not (tmp_path / "a").exists()
