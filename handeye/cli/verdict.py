@@ -18,6 +18,8 @@ def mode_lines(res: dict) -> list[str]:
     why = f": {summary}" if summary else ""
     if src == "detected":
         return [f"mode: {mode}, detected from the data (the session states none){why}"]
+    if src == "default" and not summary:  # the run stopped before the data were looked at
+        return [f"mode: {mode}, the default (the session states none); state it with --mode if this is wrong"]
     if src == "default":
         return [
             f"mode: {mode}, the default (the session states none and the data do not decide it{why}); "
@@ -40,7 +42,10 @@ def verdict_lines(res: dict) -> list[str]:
     if res.get("status") != "ok":  # no matrix: say why, and what to do, from the error
         err = res.get("error") or {}
         if verdict != "REFUSED" or not head:  # a refusal's headline names its root cause, as the report does
-            head = "no result: " + str(err.get("what") or res.get("failure_reason") or head).rstrip(".")
+            what = str(err.get("what") or res.get("failure_reason") or head).rstrip(".")
+            if err.get("what") and err.get("file"):  # the file it is about (a corrupt image, a bad pose line)
+                what = f"{err['file']}" + (f":{err['line']}" if err.get("line") is not None else "") + f": {what}"
+            head = "no result: " + what
         if err.get("fix"):
             head = head.rstrip(".") + f" -> fix: {err['fix']}"
     lines = ["verdict: " + " ".join(f"{verdict} - {head}".split()) if head else f"verdict: {verdict}"]

@@ -802,6 +802,23 @@ def test_the_mode_line_says_when_the_data_chose_or_could_not_choose():
     assert verdict_lines({"status": "ok"}) == []  # a result.json from before verdicts: nothing invented
 
 
+def test_a_run_stopped_by_a_file_names_it_and_claims_nothing_of_the_data():
+    """A corrupt image: the verdict line said "no result: image cannot be decoded" without the file, and the mode
+    line "the data do not decide it" of data never looked at."""
+    from handeye.cli.verdict import mode_lines, verdict_lines
+
+    err = {"what": "image cannot be decoded (corrupt or not an image)", "file": "/s/5.jpg", "fix": "re-capture it"}
+    res = {"status": "failed", "verdict": "FAIL", "verdict_headline": "x", "error": err, "mode": "eye_in_hand"}
+    assert verdict_lines(res)[0] == (
+        "verdict: FAIL - no result: /s/5.jpg: image cannot be decoded (corrupt or not an image) -> fix: re-capture it"
+    )
+    assert mode_lines({**res, "mode_source": "default"}) == [
+        "mode: eye_in_hand, the default (the session states none); state it with --mode if this is wrong"
+    ]
+    line = verdict_lines({**res, "error": {**err, "file": "/s/poses.txt", "line": 6}})[0]
+    assert line.startswith("verdict: FAIL - no result: /s/poses.txt:6: image cannot"), line
+
+
 def test_the_printed_sigmas_say_which_covariance_they_come_from():
     from handeye.cli.calibrate import _sigma_source_words
 
