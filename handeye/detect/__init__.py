@@ -152,6 +152,8 @@ def detect_image(
     size = (gray.shape[1], gray.shape[0])
     dropped: list = []
     out = detect_gray(gray, target, min_corners=min_corners, options=o, budget=budget, dropped=dropped)
+    for k, why in dropped:  # said here, where the view is known (the detectors run on a grey image alone)
+        log.info("view %s: corner %d not used: %s", view_id, k, why)
     if isinstance(out, str):
         if target.kind != "chessboard":
             return _failure(view_id, gray, out, o, t0, sha256=digest)

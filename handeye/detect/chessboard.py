@@ -141,8 +141,9 @@ def final_corners(
             else f"cornerSubPix and the symmetry fit put it {apart[k]:.2f} px apart (limit "
             f"{o.corner_disagreement_max_px:g} px, configs/detection.yaml corner_disagreement_max_px)"
         )
-        log.info("corner %d not used: %s", k, why)
-        if dropped is not None:
+        if dropped is None:  # with a list, the caller says it with the view's id
+            log.info("corner %d not used: %s", k, why)
+        else:
             dropped.append((int(k), why))
     return np.where(bad[:, None], np.nan, second + shift)
 
@@ -246,6 +247,9 @@ def _used(
     """
     if dropped is not None:
         dropped.extend(notes)
+    else:  # no caller to say them with the view's id
+        for k, why in notes:
+            log.info("corner %d not used: %s", k, why)
     ids = np.flatnonzero(np.isfinite(pts[:, 0]))
     return ids, pts[ids]
 

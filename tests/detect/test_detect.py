@@ -609,7 +609,7 @@ def test_a_corner_the_two_estimators_disagree_on_is_not_used(hd_views, caplog):
     assert _err_px(pts, truth[ids]).max() < 0.2  # the others stay where they were
 
 
-def test_a_corner_left_out_is_kept_with_its_reason_for_result_json(tmp_path, hd_views):
+def test_a_corner_left_out_is_kept_with_its_reason_for_result_json(tmp_path, hd_views, caplog):
     from types import SimpleNamespace
 
     from handeye.detect import detect_image
@@ -620,8 +620,11 @@ def test_a_corner_left_out_is_kept_with_its_reason_for_result_json(tmp_path, hd_
     c = truth[30] + [2.0, 2.0]
     cv2.circle(spot, tuple(int(v) for v in np.round(c * 16)), 48, 255, -1, shift=4, lineType=cv2.LINE_AA)
     cv2.imwrite(str(tmp_path / "7.png"), spot)
-    det = detect_image("7", tmp_path / "7.png", spec)
+    with caplog.at_level("INFO", logger="handeye.detect"):
+        det = detect_image("7", tmp_path / "7.png", spec)
     assert [k for k, _ in det.dropped_corners] == [30] and 30 not in det.corner_ids
+    said = [r.getMessage() for r in caplog.records if "not used" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith("view 7: corner 30 not used: "), said  # which view, once
     assert "cornerSubPix and the symmetry fit put it" in det.dropped_corners[0][1]
     # numbered as the view's used corners: on a symmetric board seen turned by 180 degrees (orientation 1)
     # corner k is corner n - 1 - k
