@@ -761,7 +761,10 @@ def test_wrong_board_size_finds_no_target(rendered, tmp_path):
     run, d = _calibrate(folder)
     assert run.status == "failed"
     f = _one(d, "target_not_found")
-    assert f["severity"] == "fail" and len(f["view_ids"]) == 8 and "board size" in f["action"]
+    assert f["severity"] == "fail" and len(f["view_ids"]) == 8
+    assert f["title"].startswith("The board has 11x8 inner corners, not 12x8 as stated"), f  # the size it has
+    assert f["action"].startswith("the board has 11x8 inner corners, not 12x8: fix config.yaml"), f
+    assert "too_few_views" not in _codes(d)  # the count is the wrong size's effect
 
 
 def test_an_unreadable_session_is_said_so(tmp_path):
