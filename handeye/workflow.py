@@ -350,9 +350,7 @@ def _finish(
     seconds["write"] = time.perf_counter() - t_write
     res["seconds"] = dict(seconds)
     with writing(out_dir):
-        for name in REPORT_NAMES:  # the previous result's reports must not sit beside this result
-            (out_dir / name).unlink(missing_ok=True)
-        remove_previous_exports(out_dir)
+        remove_previous_outputs(out_dir)  # the previous result's reports and exports must not sit beside this one
     shutil.rmtree(out_dir / "report_files", ignore_errors=True)
     t_v = time.perf_counter()
     # the folder as a reader sees it: result.json's content through the JSON it is written as
@@ -470,28 +468,22 @@ def _judge(folder, qa, qa_cfg: dict) -> Optional[dict]:
         return None
 
 
-def remove_previous_exports(out_dir: Path) -> list[str]:
-    """Remove the exports of the folder's result.json that a new result replaces; returns their names.
+def remove_previous_outputs(out_dir: Path) -> list[str]:
+    """Remove the reports and the exports of the folder's result.json that a new result replaces.
 
-    The files ``handeye export`` and ``calibrate --export`` write into the folder by default (``hand_eye.*`` of
-    :data:`handeye.export.FORMATS`) that name this folder's result.json as their source: beside a new result they
-    would hand robots the old transform under the new result's name. Others (another source, a file of the user's
-    with such a name) stay.
+    The reports (:data:`REPORT_NAMES`) and the files ``handeye export`` and ``calibrate --export`` wrote into the
+    folder from that result.json (:func:`handeye.export.exports_of`): beside a new result they would describe the
+    old one, and hand robots its transform under the new result's name. Others (another source, a file of the
+    user's with such a name) stay. Returns the exports' names.
     """
-    from .export import DEFAULT_BASENAME, FORMATS
+    from .export import exports_of
 
-    ends = tuple(e for exts, _ in FORMATS.values() for e in exts)
-    src = str((out_dir / "result.json").resolve())
-    marks = {src, json.dumps(src)[1:-1]}  # as text, and as a JSON string escapes it
+    for name in REPORT_NAMES:
+        (out_dir / name).unlink(missing_ok=True)
     removed = []
-    for p in sorted(out_dir.glob(f"{DEFAULT_BASENAME}*")):
-        try:
-            text = p.read_text(encoding="utf-8", errors="replace") if p.is_file() and p.name.endswith(ends) else ""
-        except OSError:
-            continue
-        if any(m in text for m in marks):
-            p.unlink()
-            removed.append(p.name)
+    for p in exports_of(out_dir / "result.json"):
+        p.unlink()
+        removed.append(p.name)
     if removed:
         log.info(
             "removed the exports of the result this run replaces (%s): export this one again if it is usable "

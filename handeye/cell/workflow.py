@@ -31,7 +31,7 @@ from ..errors import CalibrationError, HandeyeError, InputError, verdict_exit_co
 from ..output import FolderLock, check_out_dir, provenance, read_text, recorded_path, remove_stray_temps
 from ..pipeline import CalibrateOptions
 from ..session.fields import CELL_FILE, is_cell_folder
-from ..workflow import REPORT_NAMES, calibrate_session, remove_previous_exports
+from ..workflow import calibrate_session, remove_previous_outputs
 
 log = logging.getLogger(__name__)
 
@@ -274,9 +274,7 @@ def calibrate_cell(
             "joint": t_joint,
             "total": time.perf_counter() - t0,
         }
-        for name in REPORT_NAMES:  # the previous result's reports and exports must not sit beside this one
-            (out / name).unlink(missing_ok=True)
-        remove_previous_exports(out)
+        remove_previous_outputs(out)  # the previous result's reports and exports must not sit beside this one
         result_path = write_result(out / "result.json", res)
         reports: tuple = ()
         if report:

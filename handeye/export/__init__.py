@@ -333,6 +333,31 @@ def written_by_export(path: Path) -> bool:
     return any(m in head for m in EXPORT_MARKS)
 
 
+def exports_of(result_json: Path) -> list[Path]:
+    """The exports written beside ``result_json`` by default whose source it is.
+
+    Files ``hand_eye.*`` of :data:`FORMATS` in its folder that an export wrote (:func:`written_by_export`) and that
+    name that result.json as their source.
+    """
+    import json
+
+    folder = result_json.parent
+    ends = tuple(e for exts, _ in FORMATS.values() for e in exts)
+    src = str(result_json.resolve())
+    marks = {src, json.dumps(src)[1:-1]}  # as text, and as a JSON string escapes it
+    found = []
+    for p in sorted(folder.glob(f"{DEFAULT_BASENAME}*")):
+        if not (p.is_file() and p.name.endswith(ends) and written_by_export(p)):
+            continue
+        try:
+            text = p.read_text(encoding="utf-8", errors="replace")
+        except OSError:
+            continue
+        if any(m in text for m in marks):
+            found.append(p)
+    return found
+
+
 def _check_targets(paths: list[Path], src: Path, fmt: str) -> None:
     """Refuse a target that would replace what an export must not.
 
