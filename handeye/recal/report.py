@@ -30,6 +30,7 @@ def verify_context(v: dict, out_dir=None) -> dict:
     from ..report.sections.views import OUTLIER_KIND_TEXT
     from ..results import cov_source_words
     from .loaded import axes_words
+    from .verification import disagreeing_poses
 
     drifted = bool(v.get("drifted"))
     mode = v.get("mode", "")
@@ -47,12 +48,7 @@ def verify_context(v: dict, out_dir=None) -> dict:
         "status_text": {
             vid: status_text.get(str(d.get("status")), d.get("status")) for vid, d in (v.get("views") or {}).items()
         },
-        "robot_text": (
-            f"pose{'s' * (len(robot) > 1)} of view{'s' * (len(robot) > 1)} {', '.join(robot)} "
-            f"disagree{'s' * (len(robot) == 1)} with the camera"
-            if robot
-            else "every robot pose agrees with the camera"
-        ),
+        "robot_text": disagreeing_poses(robot) if robot else "every robot pose agrees with the camera",
         "label": "DRIFTED" if drifted else "STILL VALID",
         "status": "fail" if drifted else "pass",
         "session_name": Path(str((v.get("session") or {}).get("path", "session"))).name,

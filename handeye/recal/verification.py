@@ -431,6 +431,15 @@ def _intrinsics_update(installed: LoadedResult, r, session_intr: bool) -> dict:
     return d
 
 
+def disagreeing_poses(views) -> str:
+    """``poses of views 1, 3 disagree with the camera`` (one view: ``pose of view 3 disagrees ...``): robot poses."""
+    many = len(views) > 1
+    return (
+        f"pose{'s' * many} of view{'s' * many} {', '.join(str(v) for v in views)} "
+        f"disagree{'s' * (not many)} with the camera"
+    )
+
+
 def what_moved(
     *,
     mode: str,
@@ -475,11 +484,9 @@ def what_moved(
             f"(its pose is re-estimated; {frame} does not depend on it)"
         )
     if robot.get("views"):
-        many = len(robot["views"]) > 1
         lines.append(
-            f"the robot pose{'s' * many} of view{'s' * many} {', '.join(robot['views'])} disagree{'s' * (not many)} "
-            "with the camera (a collision, a changed tool frame or a robot fault); "
-            + ("those views were not used" if many else "that view was not used")
+            f"the robot {disagreeing_poses(robot['views'])} (a collision, a changed tool frame or a robot fault); "
+            + ("those views were not used" if len(robot["views"]) > 1 else "that view was not used")
         )
     zs = {n: v["z"] for n, v in intrinsics.items() if isinstance(v, dict) and np.isfinite(v.get("z", np.nan))}
     big = [n for n, z in zs.items() if abs(z) > 3.0]

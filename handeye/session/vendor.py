@@ -193,7 +193,7 @@ def read_vendor_config(folder: Path, *, strict: bool = True) -> tuple[Chessboard
             expected="checkerboard_args: {XX: 11, YY: 8, L: 0.03}",
             received=repr(cb),
         )
-    for key in ("XX", "YY", "L"):
+    for key in CHECKERBOARD_KEYS:
         if key not in cb:
             near = [str(k) for k in cb if _nearest_key(k, CHECKERBOARD_KEYS) == key]
             raise ConfigError(
