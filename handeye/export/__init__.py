@@ -13,6 +13,7 @@ exports a FAIL anyway; a result without a matrix never). See docs/export.md.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Optional
 
@@ -319,8 +320,10 @@ def export_result(
     return _write_together(paths, data)
 
 
-#: text in the first bytes of every file an export writes (the header comment; the JSON format's own key)
-EXPORT_MARKS = (b"hand-eye calibration by handeye", b'"handeye_export"')
+#: what the first bytes of every file an export writes hold: the header line of one camera's export
+#: (``hand-eye calibration by handeye``, ``hand-eye calibration of camera cam1 of a cell by handeye``) or a cell's
+#: (``hand-eye calibration of a cell of 3 cameras by handeye``), or the JSON format's own key
+EXPORT_MARK = re.compile(rb'hand-eye calibration[^\n]* by handeye |"handeye_export"')
 
 
 def written_by_export(path: Path) -> bool:
@@ -330,7 +333,7 @@ def written_by_export(path: Path) -> bool:
             head = f.read(4096)
     except OSError:
         return False
-    return any(m in head for m in EXPORT_MARKS)
+    return EXPORT_MARK.search(head) is not None
 
 
 def exports_of(result_json: Path) -> list[Path]:

@@ -130,3 +130,22 @@ def test_an_out_ending_in_a_slash_is_a_folder_made_for_the_files(cell, tmp_path)
     assert not list(tmp_path.glob("*.urdf*")) and not list((tmp_path / "a").glob("*.urdf*"))
     assert main(["-q", "export", str(tmp_path / "nothing"), "--to", "urdf", "--out", f"{tmp_path / 'c' / 'd'}/"]) == 2
     assert not (tmp_path / "c").exists()
+
+
+@pytest.mark.parametrize("fmt", ["ros2", "urdf", "yaml", "json", "moveit", "easy_handeye2"])
+def test_a_cell_export_replaces_its_own_files_and_its_result_knows_them(cell, tmp_path, fmt):
+    """A cell's files begin "hand-eye calibration of a cell of 3 cameras by handeye" (one camera's: "... of camera
+    cam1 of a cell by handeye"): the test of a file an export wrote took them for a user's, refused to export the cell
+    again over them, and a new cell result left them beside it."""
+    from pathlib import Path
+
+    from handeye.export import exports_of
+
+    folder = tmp_path / "cell"
+    shutil.copytree(cell["cell"], folder)
+    assert main(["export", str(folder), "--to", fmt]) == 0
+    written = sorted(p.name for p in folder.glob("hand_eye*"))
+    assert written and main(["export", str(folder), "--to", fmt]) == 0  # its own files: replaced
+    assert main(["export", str(folder), "--to", fmt, "--camera", "wrist", "--out", str(folder / "one")]) == 0
+    assert main(["export", str(folder), "--to", fmt, "--camera", "wrist", "--out", str(folder / "one")]) == 0
+    assert sorted(p.name for p in exports_of(Path(folder / "result.json"))) == written
