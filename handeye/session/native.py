@@ -38,6 +38,7 @@ from .fields import (
     positive_number,
     read_yaml,
 )
+from .keys import unknown_session_keys
 from .target_spec import parse_target
 
 log = logging.getLogger(__name__)
@@ -503,6 +504,8 @@ def load_native_session(path: str | Path, *, mode: str | None = None, allow_outs
     """
     path = Path(path)
     doc = read_native_document(path)
+    for where, line in unknown_session_keys(doc.data, [(e.data, e.source) for e in doc.entries]):
+        log.warning("%s: %s", where or path, line)
     source = "flag" if mode is not None else ("stated" if doc.mode is not None else "default")
     sess_mode = check_mode(mode if mode is not None else (doc.mode or "eye_in_hand"), path=path)
     fmt = doc.pose_format

@@ -12,7 +12,6 @@ these files; the strict loader (:func:`load_vendor_session`) and the lenient rea
 
 from __future__ import annotations
 
-import difflib
 import logging
 import re
 from dataclasses import dataclass
@@ -38,6 +37,7 @@ from .fields import (
     read_yaml,
     session_limits,
 )
+from .keys import CHECKERBOARD_KEYS, CONFIG_KEYS, nearest_key, unknown_keys
 
 log = logging.getLogger(__name__)
 
@@ -47,9 +47,6 @@ _PREFIXED = re.compile(r"^(\D+)(\d+)$")  # image_1, img-01: a number behind a na
 _NOT_NAMES = {"none", "null", "nil", "na", "n/a", "undefined", "error"}  # a value that failed, not a column name
 _NAME = re.compile(r"^[A-Za-z_][\w()\[\]/.-]*$")  # a column name: x, rx, rx(rad), x[m]
 _POSE_EXPECTED = "x,y,z,rx,ry,rz (metres, radians)"
-#: the keys config.yaml may hold, at the top and in checkerboard_args (others are named in a warning)
-CONFIG_KEYS = ("checkerboard_args", "mode", "pose_format")
-CHECKERBOARD_KEYS = ("XX", "YY", "L")
 #: the mode of a vendor session whose config.yaml states none (the vendor's rig is eye-in-hand)
 VENDOR_DEFAULT_MODE = "eye_in_hand"
 
@@ -195,7 +192,7 @@ def read_vendor_config(folder: Path, *, strict: bool = True) -> tuple[Chessboard
         )
     for key in CHECKERBOARD_KEYS:
         if key not in cb:
-            near = [str(k) for k in cb if _nearest_key(k, CHECKERBOARD_KEYS) == key]
+            near = [str(k) for k in cb if nearest_key(k, CHECKERBOARD_KEYS) == key]
             raise ConfigError(
                 f"checkerboard_args.{key} is missing",
                 path=cfg_path,
@@ -209,34 +206,14 @@ def read_vendor_config(folder: Path, *, strict: bool = True) -> tuple[Chessboard
     return ChessboardSpec(cols=xx, rows=yy, square_m=L), cfg.get("mode"), cfg
 
 
-def _nearest_key(key: object, known: tuple[str, ...]) -> str | None:
-    """The known key ``key`` most likely misspells (case aside), or None."""
-    by_lower = {k.lower(): k for k in known}
-    close = difflib.get_close_matches(str(key).lower(), list(by_lower), n=1, cutoff=0.6)
-    return by_lower[close[0]] if close else None
-
-
 def unknown_config_keys(cfg: dict) -> list[str]:
     """One line per key of config.yaml that handeye does not read, naming the nearest known key.
 
     Unknown keys are ignored, as in session.yaml, but named: a misspelt ``mdoe: eye_to_hand`` would
     otherwise leave the mode to the data and ``l: 0.025`` the square size to ``L`` or an error.
     """
-    lines = []
-    groups = [("", cfg, CONFIG_KEYS)]
-    if isinstance(cfg.get("checkerboard_args"), dict):
-        groups.append(("checkerboard_args.", cfg["checkerboard_args"], CHECKERBOARD_KEYS))
-    for prefix, mapping, known in groups:
-        for key in mapping:
-            if key in known:
-                continue
-            near = _nearest_key(key, known)
-            lines.append(
-                f"unknown key {prefix}{key} is ignored"
-                + (f" (did you mean {prefix}{near}?)" if near else "")
-                + f"; known keys: {', '.join(prefix + k for k in known)}"
-            )
-    return lines
+    cb = cfg.get("checkerboard_args")
+    return unknown_keys(cfg, CONFIG_KEYS) + unknown_keys(cb, CHECKERBOARD_KEYS, prefix="checkerboard_args.")
 
 
 def numbered_images(folder: Path) -> dict[int, Path]:
