@@ -62,6 +62,7 @@ class CellWorkflowResult:
 def read_cell_file(folder) -> tuple[list[Path], Optional[str]]:
     """(session folders, the arm named by ``robot:`` or None) of a cell folder's ``cell.yaml``."""
     from ..config import parse_yaml
+    from ..session.keys import CELL_KEYS, CELL_SECTION_KEYS, unknown_keys
 
     path = Path(folder) / CELL_FILE
     doc = parse_yaml(read_text(path), path=path)
@@ -74,6 +75,8 @@ def read_cell_file(folder) -> tuple[list[Path], Optional[str]]:
             expected="cell: {sessions: [cam1, cam2, ...]} (folders relative to the cell folder)",
             received=repr(sessions),
         )
+    for line in unknown_keys(doc, CELL_KEYS) + unknown_keys(cell, CELL_SECTION_KEYS, prefix="cell."):
+        log.warning("%s: %s", path, line)
     robot = doc.get("robot")
     if robot is not None and not isinstance(robot, str):
         raise InputError(

@@ -38,6 +38,9 @@ VIEW_KEYS = ("id", "image", "pose", "pose_file", "target_pose", "joints", "t_ima
 VIEW_RECORD_KEYS = ("robot_state", "checks", "camera_frame")
 #: ``intrinsics:`` (``source``: where ``handeye collect`` took them from)
 INTRINSICS_KEYS = ("model", "distortion_model", "fx", "fy", "cx", "cy", "dist", "image_size", "use", "source")
+#: cell.yaml, and its ``cell:``
+CELL_KEYS = ("cell", "robot")
+CELL_SECTION_KEYS = ("sessions",)
 #: ``target:`` by its type (what each spec's ``to_dict`` writes and its parser reads)
 TARGET_KEYS = {
     "chessboard": ("type", "inner_corners", "square_m"),

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import yaml
 
+from handeye.cell.workflow import read_cell_file
 from handeye.collect import session_writer as sw
 from handeye.frames import T_from_rotvec
 from handeye.session import load_session
@@ -111,4 +112,20 @@ def test_record_keeping_keys_handeye_writes_are_known(tmp_path, caplog, key):
     d, _ = _session(tmp_path, {key: {"tool": "x"}}, {})
     with caplog.at_level("WARNING"):
         load_session(d)
+    assert not _warnings(caplog)
+
+
+def test_cell_yaml_names_its_unknown_keys(tmp_path, caplog):
+    (tmp_path / "cell.yaml").write_text("cell:\n  sessions: [cam1, cam2]\n  session: [cam3]\nrobt: ur5e\n")
+    with caplog.at_level("WARNING"):
+        sessions, robot = read_cell_file(tmp_path)
+    assert [p.name for p in sessions] == ["cam1", "cam2"] and robot is None
+    assert [line.split("; known keys")[0] for line in _warnings(caplog)] == [
+        f"{tmp_path / 'cell.yaml'}: unknown key robt is ignored (did you mean robot?)",
+        f"{tmp_path / 'cell.yaml'}: unknown key cell.session is ignored (did you mean cell.sessions?)",
+    ]
+    caplog.clear()
+    (tmp_path / "cell.yaml").write_text("cell:\n  sessions: [cam1, cam2]\nrobot: ur5e\n")
+    with caplog.at_level("WARNING"):
+        assert read_cell_file(tmp_path)[1] == "ur5e"
     assert not _warnings(caplog)
