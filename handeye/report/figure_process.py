@@ -159,9 +159,11 @@ def figure_process(enabled: bool = True, *, start_now: bool = False) -> Iterator
     None when not ``enabled``, or with one core. ``start_now`` forks it at once; otherwise whoever knows
     when a core is free calls its ``start`` (the calibration once its images are detected).
     """
-    from .figures import parallel_drawing
+    proc = None
+    if enabled:  # the figure modules are imported for a report only
+        from .figures import parallel_drawing
 
-    proc = FigureProcess() if enabled and parallel_drawing() else None
+        proc = FigureProcess() if parallel_drawing() else None
     if proc is not None and start_now:
         proc.start()
     try:
