@@ -112,6 +112,9 @@ IMAGE_MISSING_REASON = "image file missing"
 #: the start of the reason of an image left without a pose by ``--shift-poses N`` (its pose would be past the last
 #: line): its target was never looked for, so it is neither "not found" nor an image looked at
 SHIFT_UNPAIRED_REASON = "no pose line after --shift-poses"
+#: words in the reason of a view whose board was found but whose corners (or dots) fail the detector's geometric
+#: check (:func:`handeye.detect.geometry.grid_check`): not a view without its board
+FAILS_GRID_CHECK = "fail the geometric check"
 
 
 @dataclass(frozen=True)

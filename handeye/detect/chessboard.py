@@ -16,7 +16,7 @@ from typing import Any, Sequence
 import cv2
 import numpy as np
 
-from ..records import Detection
+from ..records import FAILS_GRID_CHECK, Detection
 from ..targets import ChessboardSpec
 from .geometry import TimeBudget, apply_homography, board_homography, check_corners, search_copy, square_px
 from .options import DetectionOptions, default_options
@@ -216,15 +216,12 @@ def detect_chessboard(
         return budget.timed_out(f"the accurate search after the geometric check failed ({check.text()})") + where
     found, corners = cv2.findChessboardCornersSB(search, size, flags=_ACCURATE_FLAGS)
     if not found:
-        return (
-            f"chessboard corners fail the geometric check ({check.text()}) and the accurate detector finds "
-            f"no board{where}"
-        )
+        return f"chessboard corners {FAILS_GRID_CHECK} ({check.text()}) and the accurate detector finds no board{where}"
     notes.clear()  # the corners of the accurate search replace those of the first
     pts = refine_chessboard(gray, search, scale, corners.reshape(-1, 2).astype(np.float64), spec, o, notes)
     again = _check(bxy, pts, o)
     if not again.passed:
-        return f"chessboard corners fail the geometric check, also from the accurate detector: {again.text()}{where}"
+        return f"chessboard corners {FAILS_GRID_CHECK}, also from the accurate detector: {again.text()}{where}"
     return _used(pts, notes, dropped)
 
 

@@ -10,6 +10,7 @@ import logging
 import cv2
 import numpy as np
 
+from ..records import FAILS_GRID_CHECK
 from ..targets import CircleGridSpec
 from .geometry import TimeBudget, check_corners, search_copy
 from .options import CircleBlobOptions, DetectionOptions, default_options
@@ -92,7 +93,7 @@ def find_circlegrid(
     pts = centers.reshape(-1, 2).astype(np.float64)
     check = check_corners(spec.object_points()[:, :2], pts, o)
     if not check.passed:
-        return f"circle grid dots fail the geometric check: {check.text('dot')} (in the order found)"
+        return f"circle grid dots {FAILS_GRID_CHECK}: {check.text('dot')} (in the order found)"
     if spec.asymmetric:
         return np.arange(spec.n_corners), pts
     grid = pts.reshape(spec.rows, spec.cols, 2)

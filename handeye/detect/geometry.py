@@ -3,10 +3,10 @@
 A homography of the board plane, the size of a square in pixels from it, the geometric check of a
 view's corners, the reduced copy of a large image that the searches run on, and the time budget of
 one image's detection. The check (:func:`grid_check`) predicts every corner from its neighbours on
-the board (those within ``radius`` grid steps) through the homography they fit, and measures how far
-the detected corner lies from that prediction. A neighbourhood of a few squares is small enough for
-lens distortion to stay far below a pixel, so a corner placed on the wrong saddle point or pulled off
-by a wrong neighbour stands out by pixels while well-placed corners stay at their noise.
+the board (those within ``radius`` grid steps) through the homography they fit, plus the bend of the
+image that lens distortion adds across them, and measures how far the detected corner lies from that
+prediction. A corner placed on the wrong saddle point or pulled off by a wrong neighbour stands out by
+pixels while well-placed corners stay near their noise.
 """
 
 from __future__ import annotations
@@ -143,9 +143,9 @@ def grid_check(
 
     board_xy: (N, 2) board-plane positions of the detected corners (any unit); image_xy: (N, 2) px.
     Neighbours: the other detected corners within ``radius_steps`` grid steps on the board. A corner
-    may lie ``max_px + max_share x`` (the size of one grid step there, px) from its prediction: the
-    first term for the corner noise, the second for lens distortion, which bends the neighbourhood in
-    proportion to its size in the image. Corners with fewer than ``min_neighbours`` neighbours, or
+    may lie ``max_px + max_share x`` (the size of one grid step there, px) from its prediction (the
+    homography plus :func:`_curvature`): the first term for the corner noise, the second for the lens
+    distortion the quadratic leaves. Corners with fewer than ``min_neighbours`` neighbours, or
     neighbours all on one line, are not checked (NaN).
     """
     board_xy = np.asarray(board_xy, float)
@@ -156,11 +156,42 @@ def grid_check(
         nb = _neighbourhoods(board_xy, radius_steps, min_neighbours)
         if len(nb.idx):
             H = _homographies(nb, image_xy[nb.order])
-            res[nb.idx] = np.linalg.norm(apply_homography(H, board_xy[nb.idx]) - image_xy[nb.idx], axis=1)
+            predicted = apply_homography(H, board_xy[nb.idx]) + _curvature(nb, H, board_xy, image_xy)
+            res[nb.idx] = np.linalg.norm(predicted - image_xy[nb.idx], axis=1)
             limit[nb.idx] = max_px + max_share * _step_px(H, board_xy[nb.idx], nb.step)
     ratio = res / limit
     worst = int(np.nanargmax(ratio)) if np.isfinite(ratio).any() else -1
     return GridCheck(residual_px=res, limit_px=limit, worst=worst)
+
+
+def _curvature(nb: "_Neighbourhoods", H: np.ndarray, board_xy: np.ndarray, image_xy: np.ndarray) -> np.ndarray:
+    """What the bend of the image across each neighbourhood adds at its corner, px, shape (M, 2).
+
+    A homography is the image of a plane through a pinhole; lens distortion bends it, by an amount that
+    grows with the square of the neighbourhood's size, so a homography fitted to the neighbours is off
+    at the corner they surround by about the mean bend across them. The neighbours' own misfit to it is
+    fitted with a quadratic of their board offset from the corner (1, dx, dy, dx², dx·dy, dy²), whose
+    constant is that offset at the corner. Only where the corner lies within its neighbours' extent on
+    both axes (interpolated, not extrapolated) and they are at least two per coefficient; elsewhere 0.
+    """
+    board = board_xy[nb.order]  # shape (M, k, 2)
+    p = np.concatenate([board, np.ones(board.shape[:2] + (1,))], axis=2)
+    q = np.einsum("mij,mkj->mki", H, p)
+    e = (image_xy[nb.order] - q[..., :2] / q[..., 2:3]) * nb.mask[..., None]  # neighbours' misfit, (M, k, 2)
+    d = (board - board_xy[nb.idx][:, None, :]) / nb.step
+    dx, dy, m = d[..., 0], d[..., 1], nb.mask
+    D = np.stack([m, dx * m, dy * m, dx * dx * m, dx * dy * m, dy * dy * m], axis=2)  # shape (M, k, 6)
+    big = np.where(m > 0, 1.0, np.nan)
+    around = (np.nanmin(dx * big, axis=1) <= 0) & (np.nanmax(dx * big, axis=1) >= 0)
+    around &= (np.nanmin(dy * big, axis=1) <= 0) & (np.nanmax(dy * big, axis=1) >= 0)
+    around &= m.sum(axis=1) >= 2 * D.shape[2]  # two neighbours per coefficient, or the fit's noise would dominate
+    N = D.transpose(0, 2, 1) @ D
+    around &= np.linalg.eigvalsh(N)[:, 0] > 1e-6 * np.trace(N, axis1=1, axis2=2)
+    out = np.zeros((len(nb.idx), 2))
+    if around.any():
+        coef = np.linalg.solve(N[around], D[around].transpose(0, 2, 1) @ e[around])  # shape (A, 6, 2)
+        out[around] = coef[:, 0, :]
+    return out
 
 
 def check_corners(board_xy: np.ndarray, image_xy: np.ndarray, options) -> GridCheck:

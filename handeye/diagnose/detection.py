@@ -12,7 +12,7 @@ import numpy as np
 from ..camera import pixels_from_board_points
 from ..frames import transform_points
 from ..mounting import mounting
-from ..records import IMAGE_MISSING_REASON, SHIFT_UNPAIRED_REASON
+from ..records import FAILS_GRID_CHECK, IMAGE_MISSING_REASON, SHIFT_UNPAIRED_REASON
 from .findings import Finding
 from .thresholds import thresholds
 
@@ -122,8 +122,12 @@ def detection_findings(
     missing = [o for o in not_found if o not in few and o not in absent and o not in unpaired]
     n_total -= len(absent) + len(unpaired)  # images looked at
     notes, cut = {}, {}
+    rejected = {o.view_id for o in missing if FAILS_GRID_CHECK in str(o.reason)}  # found, its corners not kept
     for o in missing:
         note = f"view {o.view_id}: {o.reason}"
+        if o.view_id in rejected:
+            notes[o.view_id] = note + " - the board was found, but a corner lies off its neighbours' grid"
+            continue
         try:
             T = s.view(o.view_id).T_base_end
         except KeyError:
@@ -160,6 +164,12 @@ def detection_findings(
             if failed or share > warn_share
             else "nothing to do if few; otherwise keep the whole board in the image at every robot pose"
         )
+        if rejected and len(rejected) == len(missing) and not failed:
+            title = f"Board corners rejected in {len(missing)} of {n_total} images (dropped with their poses)"
+            action = (
+                "nothing to do if few; otherwise look at those images where the corner named lies: a corner on the "
+                "wrong point (glare, a pattern or edge behind the board) or a board that is not flat"
+            )
         evidence, details = "; ".join(notes[o.view_id] for o in missing), {}
         survey = another_board_size(run) if failed else None
         if survey is not None:  # the images show another board: that is what to fix

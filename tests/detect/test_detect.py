@@ -435,6 +435,28 @@ def test_the_geometric_check_names_the_corner_off_its_neighbours(hd_views):
     assert line.passed and np.all(np.isnan(line.residual_px))
 
 
+def test_the_geometric_check_passes_the_true_corners_of_a_strongly_distorted_wide_angle_view():
+    """1920x1080 at f = 1078 px (83 deg across), k1 = -0.35, an 8x6 board of 35 mm squares at 0.4 m near the
+    image's edge (squares of 85 px): distortion bends each 5x5 neighbourhood by pixels. The check's bend term
+    takes that out; the homography alone put corner 16 4.9 px off, over its 4.6 px limit."""
+    from handeye.detect.geometry import check_corners
+
+    K = np.array([[1078.13, 0.0, 975.73], [0.0, 1075.45, 531.12], [0.0, 0.0, 1.0]])
+    dist = np.array([-0.3529, 0.1205, 0.00064, 0.00084, -0.00061])
+    obj = ChessboardSpec(8, 6, 0.035).object_points()
+    truth = cv2.projectPoints(obj, np.array([0.1538, -0.4852, 0.0177]), np.array([-0.2303, -0.0814, 0.3305]), K, dist)[
+        0
+    ].reshape(-1, 2)
+    check = check_corners(obj[:, :2], truth, default_options())
+    assert check.passed and np.nanmax(check.residual_px / check.limit_px) < 0.6
+    inner = [k for k in range(len(obj)) if 0 < k % 8 < 7 and 0 < k // 8 < 5]  # fitted with the bend
+    assert np.nanmax(check.residual_px[inner]) < 1.5
+    moved = truth.copy()
+    moved[16] += [3.0, 4.0]  # a corner off by 5 px on the board's edge column is still named
+    bad = check_corners(obj[:, :2], moved, default_options())
+    assert not bad.passed and bad.worst == 16 and abs(bad.residual_px[16] - 5.0) < 1.0
+
+
 def _corrupt_first_refinement(monkeypatch):
     import handeye.detect.chessboard as chessboard
 
@@ -465,13 +487,13 @@ def test_corners_that_fail_the_check_are_found_again_by_the_accurate_detector(hd
     chessboard = _corrupt_first_refinement(monkeypatch)
     with caplog.at_level("INFO", logger="handeye.detect.chessboard"):
         ids, pts = detect_chessboard(img, spec)
-    assert "fail the geometric check (corner 30 lies 4.9 px" in caplog.text
+    assert "fail the geometric check (corner 30 lies 5.0 px" in caplog.text
     # findChessboardCornersSB (EXHAUSTIVE | ACCURACY) on the full image: measured 0.02-0.1 px on these views
     assert _err_px(pts, truth).max() < 0.3
     # the accurate detector finds nothing either: the view is dropped with both reasons
     monkeypatch.setattr(chessboard.cv2, "findChessboardCornersSB", lambda *a, **k: (False, None))
     out = detect_chessboard(img, spec)
-    assert out.startswith("chessboard corners fail the geometric check (corner 30 lies 4.9 px")
+    assert out.startswith("chessboard corners fail the geometric check (corner 30 lies 5.0 px")
     assert out.endswith("and the accurate detector finds no board")
 
 
@@ -492,7 +514,7 @@ def test_a_spent_time_budget_drops_the_view_as_timed_out(tmp_path, hd_views, mon
     _corrupt_first_refinement(monkeypatch)
     d = detect_image("2", with_board, spec, options=tiny)
     assert d.reason.startswith("detection timed out: ")
-    assert "the accurate search after the geometric check failed (corner 30 lies 4.9 px" in d.reason
+    assert "the accurate search after the geometric check failed (corner 30 lies 5.0 px" in d.reason
 
 
 def test_images_above_the_size_limit_are_searched_reduced_and_refined_at_full_size(hd_views, caplog):

@@ -1451,3 +1451,26 @@ def test_the_closed_forms_beside_the_result_solve_the_views_it_used(tmp_path, mo
         np.testing.assert_allclose(e["T_end_cam"], on_kept[m].T_x, atol=1e-12)
         with_outliers = pose_error(on_every[m].T_x, run.T_x)[1]  # 5-237 mm here; 0.8-1.2 mm without them
         assert e["diff_to_result_mm"] < with_outliers / 2, (m, e["diff_to_result_mm"], with_outliers)
+
+
+def test_a_view_whose_corners_fail_the_geometric_check_is_named_as_rejected_not_as_not_found(tmp_path, monkeypatch):
+    """The board was found: blur, exposure or 'keep the whole board in the image' would send the user astray."""
+    cs = _session("eye_in_hand", 46, n_views=12)
+    folder = _write_vendor(tmp_path / "s", cs, _vals(cs.T_base_end_reported))
+    dets = {d.view_id: d for d in cs.detections()}
+    reason = (
+        "chessboard corners fail the geometric check, also from the accurate detector: corner 30 lies 4.9 px from "
+        "where its neighbours put it (limit 4.6 px, configs/detection.yaml grid_check_max_px and _share)"
+    )
+
+    def detect_views(items, target, **kw):
+        return {vid: reason if vid == "7" else dets[vid] for vid, _ in items}
+
+    monkeypatch.setattr(calibrate_mod, "detect_views", detect_views)
+    monkeypatch.setattr(detect_mod, "detect_views", detect_views)
+    run = run_calibration(load_session(folder), CalibrateOptions(refine=False))
+    d = diagnose_run(run, images=False, cross_validation=False)
+    f = _one(d, "target_not_found")
+    assert f["view_ids"] == ["7"] and f["title"].startswith("Board corners rejected in 1 of 12 images")
+    assert "the board was found, but a corner lies off its neighbours' grid" in f["evidence"]
+    assert "should be in the image" not in f["evidence"] and "keep the whole board" not in f["action"]
