@@ -270,6 +270,14 @@ def _tracker_scale_finding(est: ScaleEstimate) -> Finding:
     )
 
 
+def _decimals(value: float, stated: float, least: int) -> int:
+    """Decimals (``least`` or more, at most 7) with which ``value`` no longer prints as ``stated`` does."""
+    d = least
+    while d < 7 and f"{value:.{d}f}" == f"{stated:.{d}f}":
+        d += 1
+    return d
+
+
 def scale_findings(obs, fit, M: np.ndarray, *, refined=None) -> tuple[list, Optional[ScaleEstimate]]:
     """(findings, the estimate) of the board scale against the robot's, on the fit's inlier views.
 
@@ -303,19 +311,22 @@ def scale_findings(obs, fit, M: np.ndarray, *, refined=None) -> tuple[list, Opti
     what, L = stated_length_m(obs.target)
     true_mm, sig_mm = 1e3 * L * est.k, 1e3 * L * est.sigma
     noun = "dot spacing" if what == "dot spacing" else "squares"
+    shown = f"{true_mm:.{_decimals(true_mm, 1e3 * L, 1)}f}"
     title = (
-        f"The board's {noun} look like {true_mm:.1f} mm, not {1e3 * L:g} mm"
+        f"The board's {noun} look like {shown} mm, not {1e3 * L:g} mm"
         if noun == "squares"
-        else f"The board's dot spacing looks like {true_mm:.1f} mm, not {1e3 * L:g} mm"
+        else f"The board's dot spacing looks like {shown} mm, not {1e3 * L:g} mm"
     )
     field = "spacing_m" if noun == "dot spacing" else "square_m"
-    new_L = f"{L * est.k:.4f}"
+    new_L = f"{L * est.k:.{_decimals(L * est.k, L, 4)}f}"
     if not _length_accepted(float(new_L), field):  # a fix the loader would refuse is never offered
         return [_unexplained_scale_finding(est, noun, L)], est
     ev = (
-        f"the camera's motions are {est.k:.4f} ± {est.sigma:.4f} x the robot's once both are compared in one "
+        f"the camera's motions are {est.k:.{_decimals(est.k, 1.0, 4)}f} ± {est.sigma:.2g} x the robot's once both "
+        "are compared in one "
         f"frame (closed form over {_pairs(est)} of {est.n_views} views, jackknife sigma; 1 is "
-        f"{est.z:.0f} sigma away, p = {est.p_value():.1e}): {noun} of {true_mm:.2f} ± {sig_mm:.2f} mm; with "
+        f"{est.z:.0f} sigma away, p = {est.p_value():.1e}): {noun} of {true_mm:.{_decimals(true_mm, 1e3 * L, 2)}f} ± "
+        f"{sig_mm:.2g} mm; with "
         f"that size the board implied by each view scatters by {rescaled_fit.median_trans_mm:.2f} mm instead of "
         f"{as_stated.median_trans_mm:.2f} mm (median); between the two sizes the closed-form hand-eye translation "
         f"moves by {shift_mm:.2f} mm, {n_sig:.1f} x its sigma "

@@ -233,9 +233,9 @@ def _cause_of_finding(f: dict) -> str:
     """The root cause a finding names: its label and title (``Mode swapped: the data are ...``)."""
     code, title = str(f.get("code") or ""), str(f.get("title") or "").rstrip(".")
     details = details if isinstance(details := f.get("details"), dict) else {}
-    if code == "square_size" and details.get("measured_mm") is not None and details.get("stated_mm") is not None:
-        label = f"Squares look like {float(details['measured_mm']):.1f} mm, not {float(details['stated_mm']):g} mm"
-        return label
+    if code == "square_size" and title.startswith("The board's "):  # its digits tell the two sizes apart
+        label = title[len("The board's ") :]
+        return label[:1].upper() + label[1:]
     said = "images and robot poses are shuffled: "  # the label says it already
     if code == "pairs_shuffled" and title.lower().startswith(said):
         title = title[len(said) :]

@@ -1474,3 +1474,16 @@ def test_a_view_whose_corners_fail_the_geometric_check_is_named_as_rejected_not_
     assert f["view_ids"] == ["7"] and f["title"].startswith("Board corners rejected in 1 of 12 images")
     assert "the board was found, but a corner lies off its neighbours' grid" in f["evidence"]
     assert "should be in the image" not in f["evidence"] and "keep the whole board" not in f["action"]
+
+
+def test_a_measured_square_size_is_printed_with_the_digits_that_tell_it_from_the_stated_one():
+    """A size 0.007 % off printed "30.0 mm, not 30 mm", and its fix "L: 0.0300" the line as written."""
+    from handeye.diagnose.scale import _decimals
+    from handeye.report.advice import _cause_of_finding
+
+    assert _decimals(29.99785, 30.0, 1) == 3 and _decimals(26.81, 23.6, 1) == 1
+    assert _decimals(0.02999785, 0.03, 4) == 6 and _decimals(1.0, 1.0, 4) == 7
+    f = {"code": "square_size", "title": "The board's squares look like 29.998 mm, not 30 mm", "details": {}}
+    assert _cause_of_finding(f) == "Squares look like 29.998 mm, not 30 mm"
+    f = {"code": "square_size", "title": "The board's dot spacing looks like 20.4 mm, not 20 mm", "details": {}}
+    assert _cause_of_finding(f) == "Dot spacing looks like 20.4 mm, not 20 mm"
