@@ -102,7 +102,7 @@ class Comparison:
                 if not self.comparable
                 else "chi-square(6)"
                 if self.robot_noise_dof is None
-                else f"6 F(6, {self.robot_noise_dof:.0f}) (the robot noise levels estimated)",
+                else f"6 × F(6, {self.robot_noise_dof:.0f}) (the robot noise levels estimated)",
             },
             nan_to_none=True,
         )

@@ -45,7 +45,7 @@ class DriftTest:
         """The distribution the p-value is taken from under H0."""
         if self.noise_dof is None:
             return f"chi-square({self.dof})"
-        return f"{self.dof} F({self.dof}, {self.noise_dof:.0f}) (the robot noise level estimated)"
+        return f"{self.dof} × F({self.dof}, {self.noise_dof:.0f}) (the robot noise level estimated)"
 
 
 def drift_test(

@@ -142,7 +142,7 @@ def test_compare_known_difference_gives_the_chi2_statistic():
     assert cf.robot_noise_dof == pytest.approx(1.0 / (0.25 / 30 + 0.25 / 60), rel=1e-3)
     assert cf.p_value == pytest.approx(stats.f.sf(expected / 6, 6, cf.robot_noise_dof), rel=1e-9)
     assert cf.p_value > c.p_value  # the heavier tail
-    assert cf.to_dict()["reference"].startswith("6 F(6, 80)")
+    assert cf.to_dict()["reference"].startswith("6 × F(6, 80)")
     # results whose X covariance was multiplied for those degrees of freedom already are compared as known
     a["refinement"]["cov_x_dof_factor"] = b["refinement"]["cov_x_dof_factor"] = 1.05
     ck = compare_results(a, b)
@@ -504,7 +504,7 @@ def test_verify_still_valid_on_the_same_rig_and_drifted_after_a_bump(install):
     assert dof and set(dof) == {g for g, ok in resolved.items() if ok} and all(5 < v < 45 for v in dof.values())
     n = len(dof)
     assert same.test.noise_dof == pytest.approx(1.0 / sum((1.0 / n) ** 2 / v for v in dof.values()))
-    assert same.to_dict()["test"]["reference"].startswith("6 F(6, ")
+    assert same.to_dict()["test"]["reference"].startswith("6 × F(6, ")
     assert same.what_moved == ("nothing moved beyond the uncertainty",)
     bump = np.array([np.radians(0.5), 0.0, 0.0, 0.0, 5e-3, 0.0])  # 0.5 deg, 5 mm along the camera's y
     moved = verify_views(inst, views=_views(_verification(s, bump, seed=102)), object_points=s.target.object_points())
@@ -714,7 +714,7 @@ def test_verify_cli_writes_reports_and_exits_9_when_drifted(rendered, tmp_path, 
     assert "STILL VALID" in html and "## What moved" in md and d["headline"] in md
     # the test's reference distribution is named wherever the p-value is: the CLI, verify.json and both reports
     ref = d["test"]["reference"]
-    assert ref.startswith(("chi-square(", "6 F(6, ")) and f"reference {ref}" in out and ref in html and ref in md
+    assert ref.startswith(("chi-square(", "6 × F(6, ")) and f"reference {ref}" in out and ref in html and ref in md
     rc = main(
         ["verify", str(rendered["bumped"]), "--against", str(rendered["installed"]), "--out", str(tmp_path / "b")]
     )

@@ -141,7 +141,7 @@ def _tracker(ref) -> Optional[dict]:
                     if ref.get("cov_x_dof_method") == "resampled"
                     else f"(Satterthwaite's {_num(nu):.0f} degrees of freedom over the sigmas' shares)"
                 )
-                + f": its 95 % region is that of 6 F(6, {_num(nu):.0f}), not chi-square(6)'s",
+                + f": its 95 % region is that of 6 × F(6, {_num(nu):.0f}), not chi-square(6)'s",
             }
         )
     sc = ref.get("tracker_scale")
