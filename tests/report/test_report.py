@@ -1422,3 +1422,17 @@ def test_the_coverage_warning_speaks_of_given_intrinsics_as_given():
     assert "lens distortion is then only known where the target was" in own
     assert "given intrinsics are then checked against the image only where the target was" in given
     assert "distortion" not in given
+
+
+def test_the_rotation_axes_ring_labels_sit_where_no_axis_is_drawn():
+    """The 30/60/90° labels were drawn at 75° on the disk whatever lay there; they take the ray clear of points."""
+    from handeye.report.plots.geometry import _label_angle
+
+    radii = [np.sqrt(1 - np.cos(np.radians(d))) for d in (30, 60, 90)]
+    th = np.radians(75.0)
+    crowd = np.array([[r * np.cos(th), r * np.sin(th)] for r in radii])  # a point on each ring at 75°
+    assert _label_angle(np.zeros((0, 2)), radii) == pytest.approx(th)
+    moved = _label_angle(crowd, radii)
+    assert abs(np.degrees(moved) - 75.0) >= 15.0
+    at = np.array([[r * np.cos(moved), r * np.sin(moved)] for r in radii])
+    assert np.min(np.linalg.norm(crowd[:, None] - at[None], axis=2)) >= 0.12

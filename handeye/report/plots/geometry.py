@@ -142,6 +142,18 @@ def _frustum(T: np.ndarray, L: float) -> np.ndarray:
     return np.array([o, P[0], P[1], o, P[2], P[3], o, P[0], P[3], P[2], P[1]])
 
 
+def _label_angle(pts: np.ndarray, radii: list) -> float:
+    """The angle (rad) whose ray crosses the rings where the fewest points lie, 75° the first of equals."""
+    best, th = None, np.radians(75.0)
+    for deg in (75, *range(0, 360, 15)):
+        c = np.radians(deg)
+        at = np.array([[r * np.cos(c), r * np.sin(c)] for r in radii])  # shape (rings, 2)
+        n = int((np.linalg.norm(pts[:, None, :] - at[None], axis=2) < 0.12).sum()) if len(pts) else 0
+        if best is None or n < best:
+            best, th = n, c
+    return float(th)
+
+
 def rotation_coverage(
     rotvecs: np.ndarray, *, frame: str, warn_deg: Optional[float], fail_deg: Optional[float]
 ) -> bytes:
@@ -166,19 +178,22 @@ def rotation_coverage(
         colors=GRID,
         linewidths=0.8,
     )
-    for r0, lab in rings:
-        ax.text(r0 * np.cos(np.radians(75)), r0 * np.sin(np.radians(75)), lab, fontsize=6.5, color=MUTED)
     vmax = max(90.0, float(np.degrees(ang.max())) if len(ang) else 90.0)
-    ax.scatter(
-        rr * np.cos(phi),
-        rr * np.sin(phi),
-        c=np.degrees(ang[keep]),
-        cmap="viridis",
-        s=10,
-        vmin=0,
-        vmax=vmax,
-        edgecolor="none",
-    )
+    pts = np.stack([rr * np.cos(phi), rr * np.sin(phi)], axis=1)
+    ax.scatter(pts[:, 0], pts[:, 1], c=np.degrees(ang[keep]), cmap="viridis", s=10, vmin=0, vmax=vmax, edgecolor="none")
+    th = _label_angle(pts, [r0 for r0, _ in rings])
+    for r0, lab in rings:  # over the points, where fewest of them lie, on a pale box
+        ax.text(
+            r0 * np.cos(th),
+            r0 * np.sin(th),
+            lab,
+            fontsize=6.5,
+            color=MUTED,
+            ha="center",
+            va="center",
+            zorder=3,
+            bbox={"boxstyle": "round,pad=0.1", "facecolor": "white", "edgecolor": "none", "alpha": 0.8},
+        )
     ax.text(1.04, 0, "+x", fontsize=7.5, va="center")
     ax.text(0, 1.05, "+y", fontsize=7.5, ha="center")
     ax.text(
