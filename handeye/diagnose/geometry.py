@@ -386,6 +386,40 @@ def _pose_and_intrinsics_jacobians(p_board: np.ndarray, T_cam_board: np.ndarray,
     return J_xi.reshape(-1, 6), J_uv_k.reshape(-1, 9)
 
 
+def _camera_normal_blocks(corners, T_cam_board: np.ndarray, intrinsics_vec: np.ndarray) -> tuple:
+    """(each view's pose information inverted (6,6), its intrinsics-pose block (9,6), the intrinsics' own (9,9))."""
+    Hpp_inv, HKp = [], []
+    HKK = np.zeros((9, 9))
+    for (obj, _), T in zip(corners, T_cam_board, strict=False):
+        Jp, JK = _pose_and_intrinsics_jacobians(obj, T, intrinsics_vec)
+        try:
+            Hpp_inv.append(np.linalg.inv(Jp.T @ Jp))
+        except np.linalg.LinAlgError:
+            Hpp_inv.append(np.full((6, 6), np.inf))
+        HKp.append(JK.T @ Jp)
+        HKK += JK.T @ JK
+    return Hpp_inv, HKp, HKK
+
+
+def _intrinsics_cov_unit(Hpp_inv: list, HKp: list, HKK: np.ndarray, sigma_px: float) -> np.ndarray:
+    """The intrinsics' covariance (9,9) per unit pixel variance: the Schur complement of the poses, inverted."""
+    S = HKK - sum(H @ Hi @ H.T for Hi, H in zip(Hpp_inv, HKp, strict=True) if np.all(np.isfinite(Hi)))
+    # a weak prior (50 px on fx..cy, 1 on each distortion coefficient) keeps unobservable ones finite;
+    # H is information times sigma_px^2, so a prior sigma s adds sigma_px^2 / s^2
+    prior = np.array([50.0] * 4 + [1.0] * 5)
+    S = S + np.diag(sigma_px**2 / prior**2)
+    try:
+        return np.linalg.inv(S)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(S)
+
+
+def intrinsics_covariance(corners, T_cam_board: np.ndarray, intrinsics_vec: np.ndarray, sigma_px: float) -> np.ndarray:
+    """Covariance (9,9) of intrinsics (fx, fy, cx, cy, k1, k2, p1, p2, k3) estimated from these views' corners."""
+    Hpp_inv, HKp, HKK = _camera_normal_blocks(corners, T_cam_board, intrinsics_vec)
+    return sigma_px**2 * _intrinsics_cov_unit(Hpp_inv, HKp, HKK, sigma_px)
+
+
 def camera_pose_covariances(
     corners, T_cam_board: np.ndarray, intrinsics_vec: np.ndarray, sigma_px: float, *, intrinsics_estimated: bool
 ) -> np.ndarray:
@@ -400,33 +434,12 @@ def camera_pose_covariances(
     and the intrinsics is inverted by a Schur complement on the intrinsics; otherwise each view's own
     PnP information is inverted.
     """
-    n = len(corners)
-    Hpp, HKp = [], []
-    HKK = np.zeros((9, 9))
-    for (obj, _), T in zip(corners, T_cam_board, strict=False):
-        Jp, JK = _pose_and_intrinsics_jacobians(obj, T, intrinsics_vec)
-        Hpp.append(Jp.T @ Jp)
-        HKp.append(JK.T @ Jp)
-        HKK += JK.T @ JK
-    Hpp_inv = []
-    for H in Hpp:
-        try:
-            Hpp_inv.append(np.linalg.inv(H))
-        except np.linalg.LinAlgError:
-            Hpp_inv.append(np.full((6, 6), np.inf))
+    Hpp_inv, HKp, HKK = _camera_normal_blocks(corners, T_cam_board, intrinsics_vec)
     if not intrinsics_estimated:
         return sigma_px**2 * np.stack(Hpp_inv)
-    S = HKK - sum(HKp[i] @ Hpp_inv[i] @ HKp[i].T for i in range(n) if np.all(np.isfinite(Hpp_inv[i])))
-    # a weak prior (50 px on fx..cy, 1 on each distortion coefficient) keeps unobservable ones finite;
-    # H is information times sigma_px^2, so a prior sigma s adds sigma_px^2 / s^2
-    prior = np.array([50.0] * 4 + [1.0] * 5)
-    S = S + np.diag(sigma_px**2 / prior**2)
-    try:
-        SKK = np.linalg.inv(S)
-    except np.linalg.LinAlgError:
-        SKK = np.linalg.pinv(S)
-    out = np.empty((n, 6, 6))
-    for i in range(n):
+    SKK = _intrinsics_cov_unit(Hpp_inv, HKp, HKK, sigma_px)
+    out = np.empty((len(corners), 6, 6))
+    for i in range(len(corners)):
         G = Hpp_inv[i] @ HKp[i].T  # (6,9)
         out[i] = Hpp_inv[i] + G @ SKK @ G.T
     return sigma_px**2 * out

@@ -60,19 +60,23 @@ class PoseObservations:
         """
         if not self.corners or self.intrinsics is None:
             return None
-        res = [
-            np.linalg.norm(pixels_from_board_points(C, o, self.intrinsics) - im, axis=1)
-            for (o, im), C in zip(self.corners, self.C, strict=False)
-        ]
-        sigma_px = max(
-            float(np.median(np.concatenate(res))) / RAYLEIGH_MEDIAN, thresholds().robot_pose.pixel_sigma_floor_px
-        )
         return camera_pose_covariances(
             self.corners,
             self.C,
             self.intrinsics.as_vector(),
-            sigma_px,
+            self.pixel_sigma(),
             intrinsics_estimated=with_intrinsics and self.intrinsics_estimated,
+        )
+
+    def pixel_sigma(self) -> float:
+        """The corners' pixel noise, robustly from all PnP residuals, never below ``pixel_sigma_floor_px``."""
+        assert self.corners and self.intrinsics is not None, "corners and intrinsics"
+        res = [
+            np.linalg.norm(pixels_from_board_points(C, o, self.intrinsics) - im, axis=1)
+            for (o, im), C in zip(self.corners, self.C, strict=False)
+        ]
+        return max(
+            float(np.median(np.concatenate(res))) / RAYLEIGH_MEDIAN, thresholds().robot_pose.pixel_sigma_floor_px
         )
 
     def M(self, T: Optional[np.ndarray] = None, *, invert: bool = False) -> np.ndarray:

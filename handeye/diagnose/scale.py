@@ -105,6 +105,47 @@ def estimate_scale(C: np.ndarray, M: np.ndarray, *, use: Optional[np.ndarray] = 
     return ScaleEstimate(k, sigma, n, x_shift_m=t_at_k - t_stated, cov_x_trans_m2=cov_t)
 
 
+def intrinsics_sigma(obs, M: np.ndarray, use: Optional[np.ndarray] = None) -> Optional[float]:
+    """The sigma of ``k`` that the uncertainty of the intrinsics the board poses were solved with gives.
+
+    An error of those intrinsics is common to every view's board pose (a focal length scales every distance),
+    so the jackknife over views cannot see the scale it adds. ``sqrt(g^T S g)`` of :func:`intrinsics_gradient`.
+    None when the intrinsics were given (held fixed) or there are no corners.
+    """
+    gs = intrinsics_gradient(obs, M, use)
+    return None if gs is None else float(np.sqrt(max(gs[0] @ gs[1] @ gs[0], 0.0)))
+
+
+def intrinsics_gradient(obs, M: np.ndarray, use: Optional[np.ndarray] = None) -> Optional[tuple]:
+    """(g = dk/d(intrinsics) (9,), S the intrinsics' covariance (9,9)), or None (see :func:`intrinsics_sigma`).
+
+    ``S`` from the views' corners (:func:`.geometry.intrinsics_covariance`, the pixel noise of
+    :meth:`PoseObservations.pixel_sigma`); ``g`` by central differences of one sigma, each view's pose solved
+    again from its own.
+    """
+    if not getattr(obs, "corners", None) or obs.intrinsics is None or not obs.intrinsics_estimated:
+        return None
+    from ..camera import Intrinsics
+    from ..initial.board_poses import refit_pose
+    from .geometry import intrinsics_covariance
+
+    theta = obs.intrinsics.as_vector()
+    S = intrinsics_covariance(obs.corners, obs.C, theta, obs.pixel_sigma())
+    idx = np.flatnonzero(np.ones(len(obs.C), bool) if use is None else np.asarray(use, bool))
+    if len(idx) < 4 or not np.all(np.isfinite(S)):
+        return None
+    g = np.zeros(9)
+    for j in range(9):
+        h = max(float(np.sqrt(max(S[j, j], 0.0))), 1e-9 * max(abs(theta[j]), 1.0))
+        k_pm = []
+        for sign in (1.0, -1.0):
+            intr = Intrinsics.from_vector(theta + sign * h * np.eye(9)[j], obs.intrinsics.width, obs.intrinsics.height)
+            C = np.stack([refit_pose(obs.C[i], obs.corners[i][0], obs.corners[i][1], intr) for i in idx])
+            k_pm.append(_k_from_sums(pair_motions(C, M[idx]).sums()))
+        g[j] = (k_pm[0] - k_pm[1]) / (2.0 * h)
+    return g, S
+
+
 def arm_model_sigma(obs, refined, use: Optional[np.ndarray] = None) -> Optional[float]:
     """The sigma of ``k`` that the arm's DH table, off by its stated tolerance, gives; None without the arm's model.
 
@@ -297,6 +338,11 @@ def scale_findings(obs, fit, M: np.ndarray, *, refined=None) -> tuple[list, Opti
     cov_t = x_translation_cov(refined)
     if not is_scale_wrong(est, cov_t):
         return [], est
+    intr_sigma = intrinsics_sigma(obs, M, use)  # only for a k that would be named: it solves the poses 18 times
+    if intr_sigma is not None:
+        est = replace(est, sigma=float(np.hypot(est.sigma, intr_sigma)))
+        if not is_scale_wrong(est, cov_t):
+            return [], est
     if tracked:
         return [_tracker_scale_finding(est)], est
     # the scale must explain the data: with the squares rescaled the board scatter must not grow (measured

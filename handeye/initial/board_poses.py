@@ -33,6 +33,18 @@ def solve_pnp(object_points: np.ndarray, image_points: np.ndarray, intr: Intrins
     return T, reprojection_rms(object_points, image_points, T, intr)
 
 
+def refit_pose(
+    T_cam_board: np.ndarray, object_points: np.ndarray, image_points: np.ndarray, intr: Intrinsics
+) -> np.ndarray:
+    """``T_cam_board`` refined (Levenberg-Marquardt) from a start, under intrinsics ``intr``: the nearest pose."""
+    obj = object_points.astype(np.float64).reshape(-1, 1, 3)
+    img = image_points.astype(np.float64).reshape(-1, 1, 2)
+    rvec = cv2.Rodrigues(np.asarray(T_cam_board, float)[:3, :3])[0]
+    tvec = np.asarray(T_cam_board, float)[:3, 3].reshape(3, 1).copy()
+    rvec, tvec = cv2.solvePnPRefineLM(obj, img, intr.K, intr.dist_array, rvec, tvec)
+    return make_T(cv2.Rodrigues(rvec)[0], tvec.reshape(3))
+
+
 def reprojection_rms(
     object_points: np.ndarray, image_points: np.ndarray, T_cam_board: np.ndarray, intr: Intrinsics
 ) -> float:

@@ -960,8 +960,9 @@ def _fix_loads(folder: Path, **cfg_changes) -> None:
 
 @pytest.mark.parametrize("mode", ["eye_in_hand", "eye_to_hand"])
 def test_a_one_per_cent_square_size_error_that_moves_x_beyond_its_sigma_is_named(tmp_path, monkeypatch, mode):
-    # 1 % is under any size threshold, but on a precise session k is certain and X moves by many sigmas
-    cs = _session(mode, 41, robot_noise=(0.3, 0.05), n_views=15)
+    # 1 % is under any size threshold, but on a precise session k is certain and X moves by many sigmas (20
+    # views: with the intrinsics' uncertainty in k's sigma, 15 left the eye-to-hand one at p = 1.2e-4)
+    cs = _session(mode, 41, robot_noise=(0.3, 0.05), n_views=20)
     stated = cs.target.square_m * 1.01
     folder = _write_vendor_cfg(tmp_path / "s", cs, _vals(cs.T_base_end_reported), L=stated)
     run, d = _diagnose(folder, cs, monkeypatch, refine=True)
@@ -1487,3 +1488,33 @@ def test_a_measured_square_size_is_printed_with_the_digits_that_tell_it_from_the
     assert _cause_of_finding(f) == "Squares look like 29.998 mm, not 30 mm"
     f = {"code": "square_size", "title": "The board's dot spacing looks like 20.4 mm, not 20 mm", "details": {}}
     assert _cause_of_finding(f) == "Dot spacing looks like 20.4 mm, not 20 mm"
+
+
+def test_the_intrinsics_error_common_to_every_view_is_in_the_scale_s_sigma():
+    """Every view's board pose is solved with one set of intrinsics: their error scales the board's distances in
+    every view alike, which the jackknife over views cannot see. A noiseless render whose squares are as stated
+    gave k = 0.99993 +- 1e-5 and "squares look like 29.998 mm, not 30 mm" (FAIL). Here noiseless corners and
+    board poses solved with intrinsics two of their sigmas off (along what moves k most): named when the
+    intrinsics are taken as exact, not when their uncertainty is in k's sigma."""
+    from dataclasses import replace as dc_replace
+
+    from handeye.camera import Intrinsics
+    from handeye.diagnose.observations import PoseObservations
+    from handeye.diagnose.scale import estimate_scale, intrinsics_gradient, scale_findings
+    from handeye.initial.board_poses import refit_pose
+
+    cs = _session("eye_in_hand", 45, robot_noise=(0.0, 0.0), n_views=20, noise_px=0.0)
+    obj = cs.target.object_points()
+    corners = tuple((obj[d.corner_ids], d.image_points) for d in cs.detections())
+    M = mounting(cs.mode).M_from_T_base_end(cs.T_base_end_reported)
+    true = PoseObservations(cs.mode, tuple(cs.view_ids), cs.T_cam_board_true, cs.T_base_end_reported, None, {})
+    g, S = intrinsics_gradient(dc_replace(true, corners=corners, intrinsics=cs.intrinsics), M)
+    theta = cs.intrinsics.as_vector() + 2.0 * S @ g / np.sqrt(g @ S @ g)  # k moves by two of its sigmas
+    off = Intrinsics.from_vector(theta, cs.intrinsics.width, cs.intrinsics.height)
+    C = np.stack([refit_pose(T, o, im, off) for T, (o, im) in zip(cs.T_cam_board_true, corners, strict=True)])
+    obs = dc_replace(true, C=C, corners=corners, intrinsics=off, target=cs.target)
+    est = estimate_scale(C, M)
+    assert est.p_value() < thresholds().scale.p_value  # the views alone: a scale far beyond its jackknife sigma
+    assert scale_findings(dc_replace(obs, intrinsics_estimated=False), None, M)[0][0].code == "square_size"
+    fs, with_intrinsics = scale_findings(obs, None, M)
+    assert fs == [] and with_intrinsics.sigma > 2 * est.sigma
