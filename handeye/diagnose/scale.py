@@ -358,6 +358,11 @@ def scale_findings(obs, fit, M: np.ndarray, *, refined=None) -> tuple[list, Opti
     true_mm, sig_mm = 1e3 * L * est.k, 1e3 * L * est.sigma
     noun = "dot spacing" if what == "dot spacing" else "squares"
     shown = f"{true_mm:.{_decimals(true_mm, 1e3 * L, 1)}f}"
+    sigma_words = ", ".join(
+        ["jackknife over views"]
+        + (["the intrinsics' uncertainty"] if intr_sigma is not None else [])
+        + (["the arm's DH tolerance"] if arm_sigma is not None else [])
+    )
     title = (
         f"The board's {noun} look like {shown} mm, not {1e3 * L:g} mm"
         if noun == "squares"
@@ -370,7 +375,7 @@ def scale_findings(obs, fit, M: np.ndarray, *, refined=None) -> tuple[list, Opti
     ev = (
         f"the camera's motions are {est.k:.{_decimals(est.k, 1.0, 4)}f} ± {est.sigma:.2g} x the robot's once both "
         "are compared in one "
-        f"frame (closed form over {_pairs(est)} of {est.n_views} views, jackknife sigma; 1 is "
+        f"frame (closed form over {_pairs(est)} of {est.n_views} views, sigma: {sigma_words}; 1 is "
         f"{est.z:.0f} sigma away, p = {est.p_value():.1e}): {noun} of {true_mm:.{_decimals(true_mm, 1e3 * L, 2)}f} ± "
         f"{sig_mm:.2g} mm; with "
         f"that size the board implied by each view scatters by {rescaled_fit.median_trans_mm:.2f} mm instead of "
