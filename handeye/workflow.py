@@ -351,7 +351,6 @@ def _finish(
     res["seconds"] = dict(seconds)
     with writing(out_dir):
         remove_previous_outputs(out_dir)  # the previous result's reports and exports must not sit beside this one
-    shutil.rmtree(out_dir / "report_files", ignore_errors=True)
     t_v = time.perf_counter()
     # the folder as a reader sees it: result.json's content through the JSON it is written as
     folder = result_folder(out_dir, json.loads(to_json(res, indent=None)), observations)
@@ -471,15 +470,16 @@ def _judge(folder, qa, qa_cfg: dict) -> Optional[dict]:
 def remove_previous_outputs(out_dir: Path) -> list[str]:
     """Remove the reports and the exports of the folder's result.json that a new result replaces.
 
-    The reports (:data:`REPORT_NAMES`) and the files ``handeye export`` and ``calibrate --export`` wrote into the
-    folder from that result.json (:func:`handeye.export.exports_of`): beside a new result they would describe the
-    old one, and hand robots its transform under the new result's name. Others (another source, a file of the
-    user's with such a name) stay. Returns the exports' names.
+    The reports (:data:`REPORT_NAMES` and the Markdown report's ``report_files/``) and the files ``handeye export``
+    and ``calibrate --export`` wrote into the folder from that result.json (:func:`handeye.export.exports_of`):
+    beside a new result they would describe the old one, and hand robots its transform under the new result's
+    name. Others (another source, a file of the user's with such a name) stay. Returns the exports' names.
     """
     from .export import exports_of
 
     for name in REPORT_NAMES:
         (out_dir / name).unlink(missing_ok=True)
+    shutil.rmtree(out_dir / "report_files", ignore_errors=True)  # the Markdown report's figures
     removed = []
     for p in exports_of(out_dir / "result.json"):
         p.unlink()

@@ -23,10 +23,6 @@ def _fmt(v, spec: str = ".3f") -> str:
         return "-"
 
 
-#: the mounting modes in words
-MODE_WORDS = {"eye_in_hand": "eye-in-hand", "eye_to_hand": "eye-to-hand"}
-
-
 def _rotvec_deg(T) -> list:
     """The rotation vector (deg) of a 4x4 transform, or [] when it is not one."""
     from ..frames import rotvec_from_R
@@ -87,7 +83,7 @@ def cell_markdown(res: dict) -> str:
         n = c.get("n_views") or {}
         mode = str(c.get("mode") or "-")
         lines.append(
-            f"| {name} | {MODE_WORDS.get(mode, mode)} | {c.get('verdict', '?')} | {he.get('name', '-')} | "
+            f"| {name} | {mode.replace('_', '-')} | {c.get('verdict', '?')} | {he.get('name', '-')} | "
             f"{' '.join(_fmt(x, '.2f') for x in he.get('translation_mm', []))} | "
             f"{' '.join(_fmt(x, '.3f') for x in he.get('rotvec_deg', []))} | "
             f"{' '.join(_fmt(x, '.3f') for x in r.get('sigma_trans_mm', []))} | "

@@ -135,7 +135,7 @@ def _pose_checks(
         if pf:
             out["global_reason"] = "images and robot poses are paired wrongly"
             for name in ("scale", "board_moved", "robot_poses"):
-                stages.skip(name, "images and robot poses are paired wrongly")
+                stages.skip(name, out["global_reason"])
         else:
             sf, est = stages.run("scale", scale_findings, obs, fit, M, refined=refined, default=([], None))
             out["findings"] += sf
@@ -148,7 +148,7 @@ def _pose_checks(
                 out["global_fault"] = True
                 out["global_reason"] = f"the board's scale does not match the robot's ({sf[0].code})"
                 for name in ("board_moved", "robot_poses"):
-                    stages.skip(name, "the board's scale does not match the robot's (" + sf[0].code + ")")
+                    stages.skip(name, out["global_reason"])
             else:
                 bm, segfit = stages.run("board_moved", board_moved_findings, obs, M, default=([], None))
                 out["findings"] += bm
@@ -329,7 +329,7 @@ def diagnose_run(run, *, images: bool = True, cross_validation: bool = True) -> 
         cv = stages.run("cross_validation", cross_validate, run, default=None) or {"summary": "not run: it crashed"}
     else:
         why = (
-            (pose or {}).get("global_reason") or "the robot poses do not match the images as read"
+            str((pose or {}).get("global_reason"))  # every global fault has its words
             if global_fault
             else "no hand-eye result"
             if run.status != "ok"

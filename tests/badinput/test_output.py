@@ -307,9 +307,12 @@ def test_a_new_result_removes_the_exports_of_the_one_it_replaces(
         "hand_eye.urdf",
         "hand_eye.urdf.xacro",
     ]
+    (out / "report_files").mkdir(exist_ok=True)
+    (out / "report_files" / "per_view.png").write_bytes(b"the old result's figure")
     bad = copy_session(tiny_vendor, "bad")
     (bad / "poses.txt").write_text("1,2,3\n")
     assert run_cli("calibrate", bad, "--out", out, "--no-report")[0] == 2
+    assert not (out / "report_files").exists() and not (out / "report.html").exists()  # the old result's report
     assert sorted(p.name for p in out.glob("hand_eye.*")) == ["hand_eye.calib"]  # not an export of this folder's
     assert (tmp_path / "robot" / "hand_eye.yaml").exists()  # exported elsewhere: the user's to manage
 
