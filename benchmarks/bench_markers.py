@@ -6,9 +6,10 @@
    the truth), and those where the board-pose step (the robot motion deciding) kept the flipped pose.
    Target: 0 kept.
 2. Rendered sessions (``handeye simulate --target marker|aprilgrid``), both modes, calibrated end to end:
-   error against the truth and its ratio to the reported sigma (translation, rotation).
+   error against the truth and its ratio to the reported sigma (translation, rotation), for each camera tone
+   curve of ``--gamma`` (1: grey proportional to light; 2.2: sRGB, as real cameras write their images).
 
-    python benchmarks/bench_markers.py [--seeds 40] [--rendered 3]
+    python benchmarks/bench_markers.py [--seeds 40] [--rendered 3] [--gamma 1 2.2] [--blur 1.2]
 """
 
 from __future__ import annotations
@@ -82,63 +83,70 @@ def ambiguity(seeds: int) -> int:
     return kept_total
 
 
-def rendered(n: int) -> None:
+def rendered(n: int, gammas: list[float], blur: float) -> None:
     from handeye.cli.simulate import sim_target
     from handeye.sim.vendor import write_vendor_session
     from handeye.workflow import calibrate_session
 
     with tempfile.TemporaryDirectory() as tmp:
-        for target in ("marker", "aprilgrid"):
-            for mode in ("eye_in_hand", "eye_to_hand"):
-                rows = []
-                for seed in range(n):
-                    folder = write_vendor_session(
-                        Path(tmp) / f"{target}-{mode}-{seed}",
-                        mode=mode,
-                        n_views=15,
-                        seed=seed,
-                        target=sim_target(target),
-                        image_noise=1.0,
-                    )
-                    t0 = time.perf_counter()
-                    calibrate_session(folder, out_dir=Path(tmp) / f"out-{target}-{mode}-{seed}", report=False)
-                    dt = time.perf_counter() - t0
-                    res = json.loads((Path(tmp) / f"out-{target}-{mode}-{seed}" / "result.json").read_text())
-                    truth = json.loads((folder / "ground_truth.json").read_text())
-                    name = mounting(mode).x_name
-                    if res.get("status") != "ok":
-                        rows.append((np.nan, np.nan, np.nan, np.nan, dt))
-                        continue
-                    T, Tt = np.array(res[name]), np.array(truth[name])
-                    ref = res["refinement"]
-                    e_mm = 1e3 * np.linalg.norm(T[:3, 3] - Tt[:3, 3])
-                    e_deg = _deg(Tt, T)
-                    rows.append(
-                        (
-                            e_mm,
-                            e_mm / np.linalg.norm(ref["sigma_trans_mm"]),
-                            e_deg,
-                            e_deg / np.linalg.norm(ref["sigma_rot_deg"]),
-                            dt,
-                        )
-                    )
-                a = np.array(rows, float)
-                print(
-                    f"rendered {target:9s} {mode:11s}: {n} sessions, failed {int(np.isnan(a[:, 0]).sum())}, "
-                    f"error median {np.nanmedian(a[:, 0]):.3f} mm ({np.nanmedian(a[:, 1]):.2f} sigma) / "
-                    f"{np.nanmedian(a[:, 2]):.3f} deg ({np.nanmedian(a[:, 3]):.2f} sigma), "
-                    f"calibrate {np.median(a[:, 4]):.1f} s"
+        for gamma, target, mode in [
+            (g, t, m) for g in gammas for t in ("marker", "aprilgrid") for m in ("eye_in_hand", "eye_to_hand")
+        ]:
+            rows = []
+            for seed in range(n):
+                name = f"{target}-{mode}-{seed}-{gamma:g}"
+                folder = write_vendor_session(
+                    Path(tmp) / name,
+                    mode=mode,
+                    n_views=15,
+                    seed=seed,
+                    target=sim_target(target),
+                    image_noise=1.0,
+                    blur_sigma_px=blur,
+                    gamma=gamma,
                 )
+                t0 = time.perf_counter()
+                calibrate_session(folder, out_dir=Path(tmp) / f"out-{name}", report=False)
+                dt = time.perf_counter() - t0
+                res = json.loads((Path(tmp) / f"out-{name}" / "result.json").read_text())
+                truth = json.loads((folder / "ground_truth.json").read_text())
+                name = mounting(mode).x_name
+                if res.get("status") != "ok":
+                    rows.append((np.nan, np.nan, np.nan, np.nan, dt))
+                    continue
+                T, Tt = np.array(res[name]), np.array(truth[name])
+                ref = res["refinement"]
+                e_mm = 1e3 * np.linalg.norm(T[:3, 3] - Tt[:3, 3])
+                e_deg = _deg(Tt, T)
+                rows.append(
+                    (
+                        e_mm,
+                        e_mm / np.linalg.norm(ref["sigma_trans_mm"]),
+                        e_deg,
+                        e_deg / np.linalg.norm(ref["sigma_rot_deg"]),
+                        dt,
+                    )
+                )
+            a = np.array(rows, float)
+            print(
+                f"rendered {target:9s} {mode:11s} gamma {gamma:g}: {n} sessions, "
+                f"failed {int(np.isnan(a[:, 0]).sum())}, "
+                f"error median {np.nanmedian(a[:, 0]):.3f} mm ({np.nanmedian(a[:, 1]):.2f} sigma) / "
+                f"{np.nanmedian(a[:, 2]):.3f} deg ({np.nanmedian(a[:, 3]):.2f} sigma), "
+                f"calibrate {np.median(a[:, 4]):.1f} s"
+            )
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=40, help="corner-level sessions per mode for the ambiguity")
     ap.add_argument("--rendered", type=int, default=3, help="rendered sessions per target and mode (0: none)")
+    ap.add_argument("--gamma", type=float, nargs="+", default=[1.0, 2.2], help="camera tone curves rendered")
+    ap.add_argument("--blur", type=float, default=1.2, help="Gaussian blur of the rendered images, px")
     a = ap.parse_args(argv)
     kept = ambiguity(a.seeds)
     if a.rendered:
-        rendered(a.rendered)
+        rendered(a.rendered, a.gamma, a.blur)
     return 1 if kept else 0
 
 

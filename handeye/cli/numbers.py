@@ -52,6 +52,10 @@ non_negative_float = number_type(float, "a finite number >= 0", low=0)
 seed_int = number_type(int, "a whole number >= 0", low=0)
 #: a Gaussian blur sigma in pixels (``--blur``, ``--sim-blur``)
 blur_px = number_type(float, f"a blur sigma of 0-{MAX_BLUR_PX:g} px", low=0, high=MAX_BLUR_PX)
+#: the largest tone curve the simulators take (grey = 255 (light / 255) ** (1 / gamma)): cameras encode 1.8-2.6
+MAX_GAMMA = 4.0
+#: a camera's tone curve (``--gamma``): 1 is grey proportional to light, sRGB about 2.2
+gamma_value = number_type(float, f"a gamma of 0.25-{MAX_GAMMA:g}", low=0.25, high=MAX_GAMMA)
 #: anti-aliasing samples per pixel and axis (``handeye.sim.render``'s range)
 supersample_int = number_type(int, "a whole number of samples 1-16", low=1, high=16)
 #: the demo's views: one is rendered without the board, and calibrate needs 3

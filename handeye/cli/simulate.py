@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from .numbers import MAX_BLUR_PX, blur_px, non_negative_float, seed_int
+from .numbers import MAX_BLUR_PX, blur_px, gamma_value, non_negative_float, seed_int
 
 #: ``--target``: the simulated targets (the chessboard is the vendor layout's; the others get a session.yaml)
 TARGETS = {
@@ -57,6 +57,13 @@ def add_arguments(p) -> None:
     )
     p.add_argument(
         "--blur", type=blur_px, default=0.0, help=f"Gaussian blur sigma in pixels (0-{MAX_BLUR_PX:g}, default 0)"
+    )
+    p.add_argument(
+        "--gamma",
+        type=gamma_value,
+        default=1.0,
+        help="the camera's tone curve: grey = 255 (light / 255) ** (1 / GAMMA); 1 (the default): grey proportional"
+        " to light; real cameras encode about 2.2 (sRGB)",
     )
     p.add_argument(
         "--robot-noise",
@@ -165,6 +172,7 @@ def _run_session(args, kin: dict) -> int:
         seed=args.seed,
         image_noise=args.noise_px,
         blur_sigma_px=args.blur,
+        gamma=args.gamma,
         robot_noise=tuple(args.robot_noise),
         hidden_views=tuple(args.hidden),
         outlier_views=tuple(args.outliers),
@@ -223,10 +231,10 @@ def _run_cell(args, kin: dict) -> int:
     from ..errors import ConfigError
     from ..sim.cell import write_cell
 
-    if args.target != "chessboard" or args.hidden or args.blur or kin:
+    if args.target != "chessboard" or args.hidden or args.blur or args.gamma != 1.0 or kin:
         raise ConfigError(
             "a simulated cell takes --views, --seed, --noise-px, --robot-error, --robot-noise, --arm and --outliers",
-            received="--target, --hidden, --blur, --dh-error or --encoder-sigma",
+            received="--target, --hidden, --blur, --gamma, --dh-error or --encoder-sigma",
             hint="leave those out with --cell",
         )
     out = write_cell(

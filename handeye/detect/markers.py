@@ -11,7 +11,8 @@ single marker's corners are L corners (dark square, light margin): blur and the 
 and cornerSubPix settles inside the rounding, 0.1-0.3 px towards the marker. Its corners are then taken
 where its two edges meet (:func:`edge_corners`): each edge is located across its grey-level step at every
 pixel along it, from beyond the rounding (three measured edge widths from the corner) to a short distance
-(over which lens distortion bends a line by far less than its noise), and a straight line is fitted.
+(over which lens distortion bends a line by far less than its noise), and a straight line is fitted. The sides
+are then moved out by the shift the marker's own cells measure (:mod:`.cell_shift`: a tone curve's, ink's).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import numpy as np
 
 from ..config import load_preset
 from ..targets import AprilGridSpec, MarkerSpec
+from .cell_shift import ink_shift_px, marker_cells
 from .options import DetectionOptions, default_options
 from .quality import blur_record, edge_sigma_px, median_1d, profiles_across
 
@@ -165,6 +167,23 @@ def edge_corners(gray: np.ndarray, quad: np.ndarray, *, cell_px: float, far_px: 
     return q
 
 
+def widen(quad: np.ndarray, by_px: float) -> np.ndarray:
+    """The corners (4,2) of the quadrilateral ``quad`` whose four sides are each moved ``by_px`` outwards."""
+    q = np.asarray(quad, float)
+    centre = q.mean(axis=0)
+    normals = []
+    for i in range(4):  # side i runs from corner i to corner i+1
+        d = q[(i + 1) % 4] - q[i]
+        nrm = np.array([d[1], -d[0]]) / max(float(np.linalg.norm(d)), 1e-12)
+        normals.append(nrm if nrm @ (q[i] - centre) > 0 else -nrm)
+    out = q.copy()
+    for i in range(4):  # corner i lies on sides i - 1 and i
+        A = np.stack([normals[i - 1], normals[i]])
+        if abs(np.linalg.det(A)) > 1e-6:
+            out[i] = q[i] + np.linalg.solve(A, np.array([by_px, by_px]))
+    return out
+
+
 def tag_ids(spec) -> np.ndarray:
     """The marker ids of the target, in corner-id order (tag k owns corner ids 4k..4k+3)."""
     if isinstance(spec, MarkerSpec):
@@ -262,6 +281,9 @@ def detect_markers(
         fitted = edge_corners(gray, pts, cell_px=_border_cell_px(pts[None], spec), far_px=float(cfg["edge_fit_far_px"]))
         # a fit that lands outside cornerSubPix's own window found some other edge: the window's corner stands
         moved = np.linalg.norm(fitted - pts, axis=1) <= max(win, 1)
+        shift = ink_shift_px(gray, fitted, marker_cells(spec.dictionary, spec.marker_id))
+        if shift is not None:  # the edges as the cells place them (.cell_shift): each side moved out by the shift
+            fitted = widen(fitted, shift[0])
         pts = np.where(moved[:, None], fitted, pts)
     order = np.argsort(cid, kind="stable")
     return cid[order], pts[order]

@@ -469,13 +469,16 @@ def render_view(
     margin_squares: int = 1,
     black: float = BLACK_LEVEL,
     white: float = WHITE_LEVEL,
+    gamma: float = 1.0,
 ) -> np.ndarray:
     r"""An 8-bit image (H, W) (``channels=1``) or BGR (H, W, 3) of the target seen from ``T_cam_board``.
 
     Anti-aliased with ``supersample``\ :sup:`2` samples per pixel through OpenCV's lens model, the
     board (pattern plus ``margin_squares`` of white border) over ``background`` ("textured" mid
     grey, "flat", a grey level or an (H, W) image), then an optional Gaussian blur
-    (``blur_sigma_px``) and Gaussian noise of ``noise_sigma`` grey levels (needs ``rng``).
+    (``blur_sigma_px``) and Gaussian noise of ``noise_sigma`` grey levels (needs ``rng``), all in light
+    (grey levels proportional to it), then the camera's tone curve: grey = 255 (light / 255) ** (1 / ``gamma``)
+    (1: none, the default; sRGB encodes about 2.2).
     """
     if channels not in (1, 3):
         raise ConfigError("invalid channels", expected="1 (grey) or 3 (BGR)", received=str(channels))
@@ -485,6 +488,8 @@ def render_view(
             expected="finite numbers >= 0",
             received=f"blur_sigma_px={blur_sigma_px}, noise_sigma={noise_sigma}",
         )
+    if not 0 < gamma < np.inf:
+        raise ConfigError("gamma not a finite number > 0", expected="1 (linear), 2.2 (sRGB)", received=repr(gamma))
     if noise_sigma > 0 and rng is None:
         raise ConfigError(
             "image noise needs a random generator", expected="rng=np.random.default_rng(seed)", received="rng=None"
@@ -506,5 +511,7 @@ def render_view(
     if noise_sigma > 0:
         assert rng is not None, "checked above"
         img = img + rng.normal(0.0, float(noise_sigma), img.shape).astype(np.float32)
+    if gamma != 1.0:
+        img = 255.0 * (np.clip(img, 0.0, 255.0) / 255.0) ** (1.0 / float(gamma))
     out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
     return cv2.cvtColor(out, cv2.COLOR_GRAY2BGR) if channels == 3 else out

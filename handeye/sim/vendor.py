@@ -65,6 +65,7 @@ def write_vendor_session(
     seed: int = 0,
     image_noise: float = 0.0,
     blur_sigma_px: float = 0.0,
+    gamma: float = 1.0,
     robot_noise: tuple[float, float] = (0.0, 0.0),
     hidden_views: Sequence[str] = (),
     outlier_views: Union[int, Sequence[str]] = 0,
@@ -93,7 +94,8 @@ def write_vendor_session(
 
     The geometry is that of ``make_corner_session(mode=..., n_views=..., seed=..., ...)`` with the
     same arguments, so corner-level and image-level experiments share their ground truth.
-    ``image_noise``: Gaussian noise sigma in grey levels; ``blur_sigma_px``: Gaussian blur;
+    ``image_noise``: Gaussian noise sigma in grey levels; ``blur_sigma_px``: Gaussian blur; ``gamma``: the
+    camera's tone curve (:func:`handeye.sim.render.render_view`; 1: grey proportional to light);
     ``hidden_views``: ids whose robot pose turns the camera away from the board (detection must
     fail there); ``outlier_views``: count or ids given a gross robot pose error; ``robot_error``
     (``iid`` | ``kinematic`` | ``none``) and ``arm``: the robot error model of
@@ -146,6 +148,7 @@ def write_vendor_session(
             noise_sigma=image_noise,
             rng=view_rngs[k],
             channels=3,
+            gamma=gamma,
         )
         ok, buf = cv2.imencode("." + fmt, img, encode_params)
         if not ok:  # pragma: no cover - cv2 always encodes jpg/png
@@ -215,6 +218,7 @@ def write_vendor_session(
         "noise": {
             "image_noise_grey_levels": float(image_noise),
             "blur_sigma_px": float(blur_sigma_px),
+            "gamma": float(gamma),
             "robot_noise_mm": float(session.robot_noise[0]),
             "robot_noise_deg": float(session.robot_noise[1]),
             "robot_noise_convention": (

@@ -303,6 +303,8 @@ def test_a_negative_seed_is_refused_before_anything_is_written(argv, tmp_path, c
         (["simulate", "OUT", "--noise-px", "-2"], "--noise-px"),
         (["simulate", "OUT", "--blur", "nan"], "--blur"),
         (["simulate", "OUT", "--blur", "1e7"], "--blur"),  # OpenCV's kernel would exhaust the memory
+        (["simulate", "OUT", "--gamma", "0"], "--gamma"),
+        (["simulate", "OUT", "--gamma", "nan"], "--gamma"),
         (["demo", "--out", "OUT", "--views", "3"], "--views"),  # one hidden: calibrate would find 2 boards
         (["collect", "OUT", *SIM_COLLECT, "--sim-pose-noise", "nan", "0"], "--sim-pose-noise"),
         (["collect", "OUT", *SIM_COLLECT, "--sim-pose-noise", "0.1", "-1"], "--sim-pose-noise"),
