@@ -89,10 +89,11 @@ def is_rigid_transform(T: object, *, tol: float = 1e-6) -> bool:
 
 
 def project_to_rotation(R: np.ndarray) -> np.ndarray:
-    """Nearest rotation matrix (SVD), for matrices that are rotations up to rounding."""
+    """Nearest rotation matrix (SVD) of R (3,3) or (..., 3, 3), for matrices that are rotations up to rounding."""
     U, _, Vt = np.linalg.svd(np.asarray(R, float))
-    D = np.diag([1.0, 1.0, np.linalg.det(U @ Vt)])
-    return U @ D @ Vt
+    d = np.ones(U.shape[:-1])
+    d[..., 2] = np.linalg.det(U @ Vt)
+    return (U * d[..., None, :]) @ Vt
 
 
 def mean_T(Ts: np.ndarray) -> np.ndarray:

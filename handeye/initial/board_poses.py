@@ -180,11 +180,9 @@ def rotation_consistent_labels(
     if len(triples) > max_triples:
         triples = triples[rng.choice(len(triples), max_triples, replace=False)]
     combos = np.array(list(np.ndindex(k, k, k)))
-    for t in triples:
-        for c in combos:
-            lab, score = verify(*model(c, t))
-            if score < best_score:
-                best_lab, best_score = lab, score
+    lab, score = _best_hypothesis(R_M, R_Cs, triples, combos, cap)
+    if score < best_score:
+        best_lab, best_score = lab, score
     lab = best_lab
     for _ in range(rounds):
         new, _score = verify(*model(lab, np.arange(n)))
@@ -192,6 +190,38 @@ def rotation_consistent_labels(
             break
         lab = new
     return lab
+
+
+def _best_hypothesis(
+    R_M: np.ndarray, R_Cs: np.ndarray, triples: np.ndarray, combos: np.ndarray, cap: float, *, chunk: int = 256
+) -> tuple[np.ndarray, float]:
+    """(labels, score) of the first best of the hypotheses of :func:`rotation_consistent_labels`, all at once.
+
+    Every (triple, combo) in that order: R_A from the triple's pair rotation axes under the combo's labels,
+    R_B their chordal mean, each view's nearest candidate to ``R_A R_Mi R_B`` and the sum of those angles capped at
+    ``cap``; the pair rotation vectors are computed once, the hypotheses in chunks of ``chunk``.
+    """
+    n, k = R_Cs.shape[:2]
+    pairs = np.array([(0, 1), (0, 2), (1, 2)])
+    a = rotvec_from_R(R_M[triples[:, pairs[:, 0]]] @ np.swapaxes(R_M[triples[:, pairs[:, 1]]], -1, -2))  # (T,3,3)
+    C_pair = R_Cs[:, :, None, None] @ np.swapaxes(R_Cs, -1, -2)[None, None]  # (n,k,n,k,3,3): C_ia C_jb^T
+    b_all = rotvec_from_R(C_pair.reshape(-1, 3, 3)).reshape(n, k, n, k, 3)
+    hyp = np.array([(t, c) for t in range(len(triples)) for c in range(len(combos))])
+    best_lab, best_score = np.zeros(n, int), np.inf
+    for h0 in range(0, len(hyp), chunk):
+        t, c = hyp[h0 : h0 + chunk, 0], hyp[h0 : h0 + chunk, 1]
+        views, labs = triples[t], combos[c]  # (H,3) each
+        b = b_all[views[:, pairs[:, 0]], labs[:, pairs[:, 0]], views[:, pairs[:, 1]], labs[:, pairs[:, 1]]]
+        R_A = project_to_rotation(np.swapaxes(b, -1, -2) @ a[t])  # the SVD solution of Park and Martin
+        R_C = R_Cs[views, labs]  # (H,3,3,3)
+        R_B = project_to_rotation(np.einsum("hnba,hnbc->hac", R_A[:, None] @ R_M[views], R_C))
+        pred = R_A[:, None] @ R_M[None] @ R_B[:, None]  # (H,n,3,3)
+        ang = rotation_angle_rad(np.einsum("hnba,nkbc->hnkac", pred, R_Cs).reshape(-1, 3, 3)).reshape(len(t), n, k)
+        score = np.minimum(ang.min(axis=2), cap).sum(axis=1)
+        i = int(np.argmin(score))
+        if score[i] < best_score:
+            best_lab, best_score = np.argmin(ang[i], axis=1), float(score[i])
+    return best_lab, best_score
 
 
 def candidate_invariants(Cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
