@@ -208,6 +208,9 @@ def detect_chessboard(
         coarse = corners.reshape(-1, 2)
     bxy = board_squares(spec)
     pts = refine_chessboard(gray, search, scale, coarse, spec, o, notes)
+    edge = _edge_line(bxy, pts)
+    if edge:
+        return f"chessboard {spec.cols}x{spec.rows} not found: {edge}{where}"
     check = _check(bxy, pts, o)
     if check.passed:
         return _used(pts, notes, dropped)
@@ -219,10 +222,29 @@ def detect_chessboard(
         return f"chessboard corners {FAILS_GRID_CHECK} ({check.text()}) and the accurate detector finds no board{where}"
     notes.clear()  # the corners of the accurate search replace those of the first
     pts = refine_chessboard(gray, search, scale, corners.reshape(-1, 2).astype(np.float64), spec, o, notes)
+    edge = _edge_line(bxy, pts)
+    if edge:
+        return f"chessboard {spec.cols}x{spec.rows} not found: {edge}{where}"
     again = _check(bxy, pts, o)
     if not again.passed:
         return f"chessboard corners {FAILS_GRID_CHECK}, also from the accurate detector: {again.text()}{where}"
     return _used(pts, notes, dropped)
+
+
+def _edge_line(board_xy: np.ndarray, pts: np.ndarray) -> str | None:
+    """Why the grid is not the board when every corner of one of its outer rows or columns was left out, else None.
+
+    OpenCV's searches can fit a grid one row or column larger than the board: its outer line then lies on the
+    board's edge, where squares meet the margin (no saddle; the symmetry fit moves each 2-3 px), and every
+    other corner would take its neighbour's id. The view is not used; the caller names the size the image shows.
+    """
+    lost = ~np.isfinite(pts[:, 0])
+    for axis, name in ((0, "column"), (1, "row")):
+        for end in (board_xy[:, axis].min(), board_xy[:, axis].max()):
+            line = np.isclose(board_xy[:, axis], end)
+            if lost[line].all():
+                return f"the grid found has an outer {name} of no chessboard corners (the board's edge?)"
+    return None
 
 
 def _check(board_xy: np.ndarray, pts: np.ndarray, options: DetectionOptions):

@@ -693,3 +693,24 @@ def test_an_exif_orientation_flag_is_not_applied(tmp_path):
     assert cv2.imdecode(np.fromfile(str(path), np.uint8), cv2.IMREAD_GRAYSCALE).shape == (100, 60)  # OpenCV turns it
     got = read_gray(path)
     assert got.shape == (60, 100) and np.abs(got.astype(int) - img).max() < 40
+
+
+def test_a_grid_whose_outer_line_is_no_chessboard_corners_is_not_the_board():
+    """OpenCV can fit a 12x8 grid to an 11x8 board: its outer column on the board's edge (no saddles there, every
+    such corner left out) and every other corner a column off its id. Such a grid is no detection of the stated
+    board (a rendered 640x360 view did this; calibrate then used its corners under the wrong ids)."""
+    from handeye.detect.chessboard import _edge_line, board_squares
+
+    bxy = board_squares(ChessboardSpec(12, 8, 0.03))
+    pts = np.c_[bxy * 20.0 + 50.0]
+    assert _edge_line(bxy, pts) is None
+    for axis, end in ((0, "min"), (0, "max"), (1, "min"), (1, "max")):
+        lost = pts.copy()
+        line = bxy[:, axis] == getattr(bxy[:, axis], end)()
+        lost[line] = np.nan
+        assert "outer " + ("column" if axis == 0 else "row") in _edge_line(bxy, lost)
+        lost[np.flatnonzero(line)[0]] = pts[np.flatnonzero(line)[0]]  # one corner of the line kept: the board
+        assert _edge_line(bxy, lost) is None
+    inner = pts.copy()
+    inner[bxy[:, 0] == 3] = np.nan  # a whole inner column lost (glare across it) is no sign of the edge
+    assert _edge_line(bxy, inner) is None
