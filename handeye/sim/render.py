@@ -1,9 +1,10 @@
 """Render synthetic target images through exactly OpenCV's lens model.
 
-Every pixel is supersampled: each sub-pixel sample is undistorted (Newton iterations on OpenCV's
-5-coefficient model, round-trip checked), intersected with the board plane and looked up in the board
-texture, and the samples are box-averaged, so the image is anti-aliased and its geometry is that of
-``cv2.projectPoints``. Pixel centres are at integer coordinates (OpenCV's convention).
+Every pixel is supersampled (s x s samples, each with its own x and y in the pixel, :func:`_pixel_samples`):
+each sub-pixel sample is undistorted (Newton iterations on OpenCV's 5-coefficient model, round-trip checked),
+intersected with the board plane and looked up in the board texture, and the samples are box-averaged, so the
+image is anti-aliased and its geometry is that of ``cv2.projectPoints``. Pixel centres are at integer
+coordinates (OpenCV's convention).
 
 See docs/simulation.md.
 """
@@ -13,6 +14,7 @@ from __future__ import annotations
 import logging
 import threading
 from concurrent.futures import ThreadPoolExecutor
+from functools import lru_cache
 from typing import Optional, Union
 
 import cv2
@@ -55,8 +57,41 @@ def _intrinsics_key(intrinsics: Intrinsics) -> tuple:
 
 
 def _sample_coords(n: int, s: int) -> np.ndarray:
-    """Sub-pixel sample positions along one axis of ``n`` pixels, ``s`` samples per pixel."""
+    """Sub-pixel sample positions along one axis of ``n`` pixels, ``s`` samples per pixel (a regular grid)."""
     return (np.arange(n * s, dtype=float) + 0.5) / s - 0.5
+
+
+#: the n-rooks permutations (p, q) of :func:`_pixel_samples` for 4 x 4 samples (the renderers' default): of the 64
+#: pairs that keep the samples point-symmetric about the pixel centre (an X junction's corner then has no bias from
+#: them), the one with the smallest worst edge error (averaged over 30 px of an edge, every 2.5 deg, 10 offsets)
+_ROOKS = {4: ((1, 0, 3, 2), (2, 3, 0, 1))}
+
+
+@lru_cache(maxsize=16)
+def _pixel_samples(s: int) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) offsets (s, s) px from the pixel centre of its s^2 samples: one per row and column of an s^2 grid.
+
+    Sample (j, i) (the i-th of the j-th row of the pixel's block) lies at x = (i + (p_j + 1/2) / s) / s, y = (j +
+    (q_i + 1/2) / s) / s (less 1/2): every sample has its own x and y. On the plain s x s grid an edge near a
+    pixel axis covered a pixel in steps of 1/s, the same pixel after pixel: 0.125 px off at 4 x 4, a ramp of that
+    along an edge a degree off the axis, which tilted a single marker's fitted sides (0.25 px at a corner).
+    p, q: :data:`_ROOKS`, else in order (a sheared grid); both keep the samples point-symmetric about the pixel's
+    centre. Averaged over 30 px of an edge, 4 x 4 samples put it 0.037 px off at worst over every angle, 0.008 px
+    RMS; the sheared grid 0.088 and 0.010, the plain grid 0.094 and 0.014.
+    """
+    p, q = (np.asarray(v) for v in _ROOKS.get(s, (range(s), range(s))))
+    j, i = np.meshgrid(np.arange(s), np.arange(s), indexing="ij")
+    x = (i + (p[j] + 0.5) / s) / s - 0.5
+    y = (j + (q[i] + 0.5) / s) / s - 0.5
+    return x, y
+
+
+def _sample_uv(W: int, H: int, s: int, r0: int, r1: int) -> tuple[np.ndarray, np.ndarray]:
+    """(u, v) px (r1 - r0, W*s) of the samples of sample rows r0..r1 (:func:`_pixel_samples` in every pixel)."""
+    x, y = _pixel_samples(s)
+    rows, cols = np.arange(r0, r1)[:, None], np.arange(W * s)[None, :]
+    j, i = rows % s, cols % s
+    return cols // s + x[j, i], rows // s + y[j, i]
 
 
 def _newton_undistort(
@@ -105,20 +140,16 @@ def _build_grid(intrinsics: Intrinsics, s: int) -> np.ndarray:
     cxt, cyt = np.broadcast_arrays(cxt, cyt)
     x, y = _newton_undistort(cxt.copy(), cyt.copy(), cxt, cyt, dist, iterations=12)
     coarse = np.stack([x, y], axis=-1).astype(np.float32)
-    us, vs = _sample_coords(W, s), _sample_coords(H, s)
     grid = np.empty((H * s, W * s, 2), np.float32)
-    map_u = np.ascontiguousarray(np.broadcast_to(((us + g) / g).astype(np.float32), (s * _CHUNK_OUTPUT_ROWS, W * s)))
-    xt = ((us - cx) / fx)[None, :]
 
     def work(r0: int) -> float:
         r1 = min(H * s, r0 + s * _CHUNK_OUTPUT_ROWS)
-        map_v = np.ascontiguousarray(
-            np.broadcast_to(((vs[r0:r1] + g) / g).astype(np.float32)[:, None], (r1 - r0, W * s))
-        )
-        start = cv2.remap(coarse, map_u[: r1 - r0], map_v, cv2.INTER_LINEAR)
-        yt = ((vs[r0:r1] - cy) / fy)[:, None]
+        u_px, v_px = _sample_uv(W, H, s, r0, r1)
+        map_u = np.ascontiguousarray(((u_px + g) / g).astype(np.float32))
+        map_v = np.ascontiguousarray(((v_px + g) / g).astype(np.float32))
+        start = cv2.remap(coarse, map_u, map_v, cv2.INTER_LINEAR)
+        xt, yt = (u_px - cx) / fx, (v_px - cy) / fy
         x, y = _newton_undistort(start[..., 0].astype(float), start[..., 1].astype(float), xt, yt, dist, iterations=1)
-        u_px, v_px = us[None, :], vs[r0:r1, None]
         res_px = _roundtrip_px(intrinsics, x, y, u_px, v_px)
         if res_px > _ROUNDTRIP_TOL_PX:  # strong distortion near the border: polish further
             x, y = _newton_undistort(x, y, xt, yt, dist, iterations=4)
@@ -132,13 +163,7 @@ def _build_grid(intrinsics: Intrinsics, s: int) -> np.ndarray:
             intrinsics.K,
             intrinsics.dist_array,
         )
-        want = np.stack(
-            [
-                np.broadcast_to(us[None, :], x.shape).ravel()[::97],
-                np.broadcast_to(vs[r0:r1, None], x.shape).ravel()[::97],
-            ],
-            1,
-        )
+        want = np.stack([u_px.ravel()[::97], v_px.ravel()[::97]], 1)
         res_px = max(res_px, float(np.max(np.abs(uv.reshape(-1, 2) - want))))
         grid[r0:r1, :, 0] = x
         grid[r0:r1, :, 1] = y
@@ -167,18 +192,17 @@ def _build_folded_grid(
     """
     W, H = intrinsics.width, intrinsics.height
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
-    us, vs = _sample_coords(W, s), _sample_coords(H, s)
     grid = np.empty((H * s, W * s, 2), np.float32)
     worst_px = 0.0
     for r0 in range(0, H * s, s * _CHUNK_OUTPUT_ROWS):
         r1 = min(H * s, r0 + s * _CHUNK_OUTPUT_ROWS)
-        xt, yt = np.broadcast_arrays(((us - cx) / fx)[None, :], ((vs[r0:r1] - cy) / fy)[:, None])
+        u_px, v_px = _sample_uv(W, H, s, r0, r1)
+        xt, yt = (u_px - cx) / fx, (v_px - cy) / fy
         rd = np.hypot(xt, yt)
         sees = rd < FOLD_SHARE * rd_fold
         r = np.interp(rd, rd_table, r_table)
         k = np.divide(r, rd, out=np.ones_like(rd), where=rd > 0)
         x, y = _newton_undistort(xt * k, yt * k, xt, yt, intrinsics.dist, iterations=8)
-        u_px, v_px = np.broadcast_to(us[None, :], x.shape), np.broadcast_to(vs[r0:r1, None], x.shape)
         if sees.any():
             worst_px = max(worst_px, _roundtrip_px(intrinsics, x[sees], y[sees], u_px[sees], v_px[sees]))
         grid[r0:r1, :, 0] = np.where(sees, x, np.nan)
@@ -199,7 +223,7 @@ def _build_folded_grid(
 
 
 def undistorted_sample_grid(intrinsics: Intrinsics, *, supersample: int = 4) -> np.ndarray:
-    """Undistorted normalized coordinates (H*s, W*s, 2) float32 of every sub-pixel sample.
+    """Undistorted normalized coordinates (H*s, W*s, 2) float32 of every sub-pixel sample (:func:`_sample_uv`).
 
     Cached per (intrinsics, supersample); the array is read-only. Solved in float64 to a round
     trip below 1e-6 px through OpenCV's model, then stored as float32 (rounding <= ~5e-5 px).
@@ -240,7 +264,11 @@ def roundtrip_error_px(intrinsics: Intrinsics, *, supersample: int = 4, stride: 
     uv, _ = cv2.projectPoints(
         np.c_[xy, np.ones(len(xy))], np.zeros(3), np.zeros(3), intrinsics.K, intrinsics.dist_array
     )
-    truth = np.stack([_sample_coords(intrinsics.width, s)[cols], _sample_coords(intrinsics.height, s)[rows]], 1)
+    truth = np.empty((len(idx), 2))
+    for r in np.unique(rows):  # the samples' own places (:func:`_sample_uv`)
+        u, v = _sample_uv(intrinsics.width, intrinsics.height, s, int(r), int(r) + 1)
+        at = rows == r
+        truth[at, 0], truth[at, 1] = u[0, cols[at]], v[0, cols[at]]
     return float(np.max(np.abs(uv.reshape(-1, 2) - truth)))
 
 
