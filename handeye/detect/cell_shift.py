@@ -118,9 +118,8 @@ def ink_shift_px(gray: np.ndarray, quad: np.ndarray, cells: np.ndarray) -> tuple
 
     Negative: into the paper. ``quad``: the marker's corners (4,2) in the dictionary's order (top-left,
     top-right, bottom-right, bottom-left of the print), to a fraction of a pixel; ``cells``: its ink
-    (:func:`marker_cells`). None when fewer than 8 edges on lines with five or more can be read (cells under
-    about five edge widths, lines leaving the image, a marker too blurred or too small, a code whose rows and
-    columns change from ink to paper too few times).
+    (:func:`marker_cells`). None when the edges read are too few to tell the shift from the polynomials
+    (:func:`_shared_shift`): cells under 4 px or about five edge widths, lines leaving the image.
     """
     g = np.asarray(gray)
     q = np.asarray(quad, float)

@@ -236,9 +236,9 @@ def _separated_tags(gray: np.ndarray, spec: AprilGridSpec, corners: list, ids: l
     """``corners``, ``ids`` with the tags a second search finds on the image's 2 x 2 grey-level maximum.
 
     An AprilGrid's tags touch its gap squares at their corners; where the tags are a few pixels a cell, blur
-    joins a tag's border to the squares and cv2.aruco's contour is no quadrilateral (on rendered 640x480 views
-    with cells of about 5 px, 4-9 of 12 tags found). The maximum thins every dark region by about a pixel and
-    parts them (9-12 of 12). Its corners only start the refinement, which reads the image itself (the coarse
+    joins a tag's border to the squares and cv2.aruco's contour is no quadrilateral (rendered 640x480 views with
+    cells of about 5 px: 0-9 of 12 tags found in 6 of 12 views). The maximum thins every dark region by about a
+    pixel and parts them (6-12 of 12 in those views). Its corners only start the refinement, which reads the image itself (the coarse
     window reaches 2-3 px); a tag already found, or found twice there, is not taken from it.
     """
     more, more_ids, _ = _detector(spec.dictionary).detectMarkers(cv2.dilate(gray, np.ones((2, 2), np.uint8)))
