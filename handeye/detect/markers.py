@@ -8,8 +8,8 @@ ids the target holds count; a marker id seen twice (a second print in the scene)
 
 An AprilGrid's tag corners touch the gap squares: X junctions, which cornerSubPix finds without bias. A
 single marker's corners are L corners (dark square, light margin): blur and the pixels' area round them,
-and cornerSubPix settles inside the rounding, 0.1-0.3 px towards the marker. Its corners are then taken
-where its two edges meet (:func:`edge_corners`): each edge is located across its grey-level step at every
+and cornerSubPix settles inside the rounding, 0.1-0.3 px towards the marker. Its corners are taken where its
+two edges meet instead (:func:`edge_corners`, from cv2.aruco's corners): each edge is located across its step at every
 pixel along it, from beyond the rounding (three measured edge widths from the corner) to a short distance
 (over which lens distortion bends a line by far less than its noise), and a straight line is fitted. The sides
 are then moved out by the shift the marker's own cells measure (:mod:`.cell_shift`: a tone curve's, ink's).
@@ -238,8 +238,8 @@ def _separated_tags(gray: np.ndarray, spec: AprilGridSpec, corners: list, ids: l
     An AprilGrid's tags touch its gap squares at their corners; where the tags are a few pixels a cell, blur
     joins a tag's border to the squares and cv2.aruco's contour is no quadrilateral (rendered 640x480 views with
     cells of about 5 px: 0-9 of 12 tags found in 6 of 12 views). The maximum thins every dark region by about a
-    pixel and parts them (6-12 of 12 in those views). Its corners only start the refinement, which reads the image itself (the coarse
-    window reaches 2-3 px); a tag already found, or found twice there, is not taken from it.
+    pixel and parts them (6-12 of 12 in those views). Its corners only start the refinement, which reads the
+    image itself (the coarse window reaches 2-3 px); a tag already found, or found twice there, is not taken.
     """
     more, more_ids, _ = _detector(spec.dictionary).detectMarkers(cv2.dilate(gray, np.ones((2, 2), np.uint8)))
     if more_ids is None:
@@ -294,16 +294,22 @@ def detect_markers(
         lo=int(cfg["subpix_window_min_px"]),
         hi=int(cfg["subpix_window_max_px"]),
     )
-    pts: np.ndarray = np.concatenate(out_pts).astype(np.float32).reshape(-1, 1, 2)
+    contour = np.concatenate(out_pts).astype(np.float64)
+    pts: np.ndarray = contour.astype(np.float32).reshape(-1, 1, 2)
     # cv2.aruco's contour corners can be 2-3 px off, outside a small window: a coarse pass with twice the window
     # (its extra edges bias it, but it reaches the corner), then the pass with the corner's own window
-    for w in (min(2 * win, int(cfg["subpix_window_max_px"])), win):
+    coarse = min(2 * win, int(cfg["subpix_window_max_px"]))
+    for w in (coarse, win):
         pts = cv2.cornerSubPix(gray, pts, (w, w), (-1, -1), o.subpix_criteria)
     pts = pts.reshape(-1, 2).astype(np.float64)
     if isinstance(spec, MarkerSpec):  # L corners: where the edges meet (module docstring)
-        fitted = edge_corners(gray, pts, cell_px=_border_cell_px(pts[None], spec), far_px=float(cfg["edge_fit_far_px"]))
-        # a fit that lands outside cornerSubPix's own window found some other edge: the window's corner stands
-        moved = np.linalg.norm(fitted - pts, axis=1) <= max(win, 1)
+        # from the contour's corners: cornerSubPix's window can reach the corner of a narrow margin beyond the
+        # marker's and settle there, 7-10 px off (measured); a fit that lands outside the coarse window found
+        # some other edge, and cornerSubPix's corner stands
+        fitted = edge_corners(
+            gray, contour, cell_px=_border_cell_px(contour[None], spec), far_px=float(cfg["edge_fit_far_px"])
+        )
+        moved = np.linalg.norm(fitted - contour, axis=1) <= max(coarse, 1)
         shift = ink_shift_px(gray, fitted, marker_cells(spec.dictionary, spec.marker_id))
         if shift is not None:  # the edges as the cells place them (.cell_shift): each side moved out by the shift
             fitted = widen(fitted, shift[0])
