@@ -1,0 +1,107 @@
+"""Single markers through bench_foreign.py's independent renderer: corner errors against the truth.
+
+bench_foreign.py renders chessboard sessions with its own lens model and board renderer (no handeye code),
+through a camera's tone curve (gamma 1.8-2.4), shading, vignetting, blur, noise and JPEG. Here its board is
+replaced by one AprilTag 36h11 (id 0) of 40-120 mm on one to two cells of paper, over its textured background,
+and each view is detected by ``handeye.detect.markers.detect_markers`` twice: as it is, and with the cells' shift
+(``handeye.detect.cell_shift``) left out. Printed per variant: views, the RMS and worst of each view's worst
+corner, the mean error along the line from the marker's centre through each corner (> 0: outwards) and its
+range over views, and the views with a corner over 0.5 px and 2 px off. Asserts nothing.
+
+    python benchmarks/bench_foreign_markers.py [--seeds 10] [--views 4]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_foreign as F  # noqa: E402
+
+from handeye.detect import markers as M  # noqa: E402
+from handeye.detect.cell_shift import marker_cells  # noqa: E402
+from handeye.targets import MarkerSpec  # noqa: E402
+
+SPEC_DICT, SPEC_ID = "DICT_APRILTAG_36h11", 0
+
+
+def marker_albedo(renderer, T_cam_board, shade):
+    """bench_foreign's ``coverage_and_albedo`` for one marker of side ``square_m`` on ``margin_m`` of paper."""
+    cfg, cells = renderer.cfg, marker_cells(SPEC_DICT, SPEC_ID)
+    S, m, n = cfg["square_m"], cfg["margin_m"], len(cells)
+    R, t = T_cam_board[:3, :3], T_cam_board[:3, 3]
+    o = -R.T @ t
+    s, W, H = renderer.s, renderer.W, renderer.H
+    cov, alb = np.zeros((H, W)), np.zeros((H, W))
+    step = 32 * s
+    for r0 in range(0, H * s, step):
+        x = renderer.rx[r0 : r0 + step].astype(np.float64)
+        y = renderer.ry[r0 : r0 + step].astype(np.float64)
+        dx, dy, dz = (R[0, j] * x + R[1, j] * y + R[2, j] for j in range(3))  # R^T (x, y, 1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = -o[2] / dz
+        bx, by = o[0] + lam * dx, o[1] + lam * dy
+        hit = renderer.ok[r0 : r0 + step] & (lam > 0) & (bx > -m) & (bx < S + m) & (by > -m) & (by < S + m)
+        ci, cj = np.floor(bx / (S / n)), np.floor(by / (S / n))
+        inside = (ci >= 0) & (ci < n) & (cj >= 0) & (cj < n)
+        ink = np.zeros(bx.shape, bool)
+        ink[inside] = cells[cj[inside].astype(int), ci[inside].astype(int)]
+        a = np.where(hit, np.where(ink, 0.06, 0.88) * (1 + shade[0] * bx + shade[1] * by), 0.0)
+        k = a.shape[0] // s
+        cov[r0 // s : r0 // s + k] = hit.reshape(k, s, W, s).mean(axis=(1, 3))
+        alb[r0 // s : r0 // s + k] = a.reshape(k, s, W, s).mean(axis=(1, 3))
+    return cov, alb
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=10, help="cameras (bench_foreign's session settings of seeds 0..)")
+    ap.add_argument("--views", type=int, default=4, help="views per camera")
+    a = ap.parse_args(argv)
+    F.Renderer.coverage_and_albedo = marker_albedo
+    with_shift = M.ink_shift_px
+    rows: dict[str, list] = {"as it is": [], "without the cells' shift": []}
+    for seed in range(a.seeds):
+        cfg, rng = F.session_settings(seed)
+        S = round(float(rng.uniform(0.04, 0.12)), 3)
+        W, fx = cfg["size"][0], cfg["K"][0][0]
+        cfg.update(board=(2, 2), square_m=S, margin_m=S / 8 * rng.uniform(1.0, 2.0))  # the marker's corners
+        cfg["d_range"] = (max(0.15, fx * 3 * S / (0.8 * W)), max(0.2, fx * S / (0.12 * W)))
+        renderer, spec = F.Renderer(cfg), MarkerSpec(S)
+        K, dist = np.array(cfg["K"]), np.array(cfg["dist"])
+        for _ in range(a.views):
+            T = F.sample_view(cfg, rng, "full")
+            img = F.render_view(renderer, cfg, rng, T)
+            ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, cfg["jpeg"]])
+            gray = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
+            truth = F.project(K, dist, T, np.array([[0, 0, 0], [S, 0, 0], [S, S, 0], [0, S, 0.0]]))
+            for name, r in rows.items():
+                M.ink_shift_px = with_shift if name == "as it is" else (lambda *_a, **_k: None)
+                out = M.detect_markers(gray, spec)
+                if isinstance(out, str):
+                    r.append((np.nan, np.nan))
+                    continue
+                ids, pts = out
+                true = truth[ids]
+                radial = (true - true.mean(axis=0)) / np.linalg.norm(true - true.mean(axis=0), axis=1, keepdims=True)
+                r.append((np.linalg.norm(pts - true, axis=1).max(), np.mean(np.sum((pts - true) * radial, axis=1))))
+    M.ink_shift_px = with_shift
+    for name, r in rows.items():
+        e = np.array(r)
+        found = e[np.isfinite(e[:, 0])]
+        print(
+            f"{name}: {len(found)} of {len(e)} views found; worst corner per view RMS "
+            f"{np.sqrt(np.mean(found[:, 0] ** 2)):.3f} px, at most {found[:, 0].max():.3f}; outwards "
+            f"{found[:, 1].mean():+.3f} px ({found[:, 1].min():+.3f}..{found[:, 1].max():+.3f}); views with a corner "
+            f"over 0.5 px off {int((found[:, 0] > 0.5).sum())}, over 2 px {int((found[:, 0] > 2).sum())}"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
