@@ -203,15 +203,16 @@ def _best_hypothesis(
     """
     n, k = R_Cs.shape[:2]
     pairs = np.array([(0, 1), (0, 2), (1, 2)])
-    a = rotvec_from_R(R_M[triples[:, pairs[:, 0]]] @ np.swapaxes(R_M[triples[:, pairs[:, 1]]], -1, -2))  # (T,3,3)
-    C_pair = R_Cs[:, :, None, None] @ np.swapaxes(R_Cs, -1, -2)[None, None]  # (n,k,n,k,3,3): C_ia C_jb^T
-    b_all = rotvec_from_R(C_pair.reshape(-1, 3, 3)).reshape(n, k, n, k, 3)
+    first, second = triples[:, pairs[:, 0]], triples[:, pairs[:, 1]]  # (T,3): each triple's pairs of views
+    a = rotvec_from_R(R_M[first] @ np.swapaxes(R_M[second], -1, -2))  # (T,3,3)
+    C = R_Cs[first][:, :, :, None] @ np.swapaxes(R_Cs[second], -1, -2)[:, :, None]  # (T,3,k,k,3,3): C_ia C_jb^T
+    b_all = rotvec_from_R(C.reshape(-1, 3, 3)).reshape(len(triples), 3, k, k, 3)
     hyp = np.array([(t, c) for t in range(len(triples)) for c in range(len(combos))])
     best_lab, best_score = np.zeros(n, int), np.inf
     for h0 in range(0, len(hyp), chunk):
         t, c = hyp[h0 : h0 + chunk, 0], hyp[h0 : h0 + chunk, 1]
         views, labs = triples[t], combos[c]  # (H,3) each
-        b = b_all[views[:, pairs[:, 0]], labs[:, pairs[:, 0]], views[:, pairs[:, 1]], labs[:, pairs[:, 1]]]
+        b = b_all[t[:, None], np.arange(3)[None], labs[:, pairs[:, 0]], labs[:, pairs[:, 1]]]  # (H,3,3)
         R_A = project_to_rotation(np.swapaxes(b, -1, -2) @ a[t])  # the SVD solution of Park and Martin
         R_C = R_Cs[views, labs]  # (H,3,3,3)
         R_B = project_to_rotation(np.einsum("hnba,hnbc->hac", R_A[:, None] @ R_M[views], R_C))
