@@ -10,6 +10,7 @@
    curve of ``--gamma`` (1: grey proportional to light; 2.2: sRGB, as real cameras write their images).
 
     python benchmarks/bench_markers.py [--seeds 40] [--rendered 3] [--gamma 1 2.2] [--blur 1.2]
+                                       [--target marker aprilgrid]
 """
 
 from __future__ import annotations
@@ -83,15 +84,13 @@ def ambiguity(seeds: int) -> int:
     return kept_total
 
 
-def rendered(n: int, gammas: list[float], blur: float) -> None:
+def rendered(n: int, gammas: list[float], blur: float, targets: tuple[str, ...] = ("marker", "aprilgrid")) -> None:
     from handeye.cli.simulate import sim_target
     from handeye.sim.vendor import write_vendor_session
     from handeye.workflow import calibrate_session
 
     with tempfile.TemporaryDirectory() as tmp:
-        for gamma, target, mode in [
-            (g, t, m) for g in gammas for t in ("marker", "aprilgrid") for m in ("eye_in_hand", "eye_to_hand")
-        ]:
+        for gamma, target, mode in [(g, t, m) for g in gammas for t in targets for m in ("eye_in_hand", "eye_to_hand")]:
             rows = []
             for seed in range(n):
                 name = f"{target}-{mode}-{seed}-{gamma:g}"
@@ -143,10 +142,11 @@ def main(argv=None) -> int:
     ap.add_argument("--rendered", type=int, default=3, help="rendered sessions per target and mode (0: none)")
     ap.add_argument("--gamma", type=float, nargs="+", default=[1.0, 2.2], help="camera tone curves rendered")
     ap.add_argument("--blur", type=float, default=1.2, help="Gaussian blur of the rendered images, px")
+    ap.add_argument("--target", nargs="+", choices=("marker", "aprilgrid"), default=["marker", "aprilgrid"])
     a = ap.parse_args(argv)
     kept = ambiguity(a.seeds)
     if a.rendered:
-        rendered(a.rendered, a.gamma, a.blur)
+        rendered(a.rendered, a.gamma, a.blur, tuple(a.target))
     return 1 if kept else 0
 
 
