@@ -34,10 +34,9 @@ from handeye.targets import AprilGridSpec, MarkerSpec  # noqa: E402
 SPEC_DICT, SPEC_ID = "DICT_APRILTAG_36h11", 0
 
 
-def marker_albedo(renderer, T_cam_board, shade):
-    """bench_foreign's ``coverage_and_albedo`` for one marker of side ``square_m`` on ``margin_m`` of paper."""
-    cfg, cells = renderer.cfg, marker_cells(SPEC_DICT, SPEC_ID)
-    S, m, n = cfg["square_m"], cfg["margin_m"], len(cells)
+def _print_albedo(renderer, T_cam_board, shade, bounds, ink_of):
+    """bench_foreign's ``coverage_and_albedo`` for a print of paper over ``bounds`` (x0, x1, y0, y1, metres in the
+    board frame) whose ink is where ``ink_of(bx, by)`` is true."""
     R, t = T_cam_board[:3, :3], T_cam_board[:3, 3]
     o = -R.T @ t
     s, W, H = renderer.s, renderer.W, renderer.H
@@ -50,52 +49,50 @@ def marker_albedo(renderer, T_cam_board, shade):
         with np.errstate(divide="ignore", invalid="ignore"):
             lam = -o[2] / dz
         bx, by = o[0] + lam * dx, o[1] + lam * dy
-        hit = renderer.ok[r0 : r0 + step] & (lam > 0) & (bx > -m) & (bx < S + m) & (by > -m) & (by < S + m)
-        ci, cj = np.floor(bx / (S / n)), np.floor(by / (S / n))
-        inside = (ci >= 0) & (ci < n) & (cj >= 0) & (cj < n)
-        ink = np.zeros(bx.shape, bool)
-        ink[inside] = cells[cj[inside].astype(int), ci[inside].astype(int)]
-        a = np.where(hit, np.where(ink, 0.06, 0.88) * (1 + shade[0] * bx + shade[1] * by), 0.0)
+        hit = renderer.ok[r0 : r0 + step] & (lam > 0)
+        hit &= (bx > bounds[0]) & (bx < bounds[1]) & (by > bounds[2]) & (by < bounds[3])
+        a = np.where(hit, np.where(ink_of(bx, by), 0.06, 0.88) * (1 + shade[0] * bx + shade[1] * by), 0.0)
         k = a.shape[0] // s
         cov[r0 // s : r0 // s + k] = hit.reshape(k, s, W, s).mean(axis=(1, 3))
         alb[r0 // s : r0 // s + k] = a.reshape(k, s, W, s).mean(axis=(1, 3))
     return cov, alb
+
+
+def _tag_ink(cells: np.ndarray, ox: float, oy: float, side: float, bx: np.ndarray, by: np.ndarray) -> np.ndarray:
+    """Where the tag of ``cells`` with its top-left corner at (ox, oy) and side ``side`` inks (bx, by); else NaN."""
+    n = len(cells)
+    ci, cj = np.floor((bx - ox) / (side / n)), np.floor((by - oy) / (side / n))
+    inside = (ci >= 0) & (ci < n) & (cj >= 0) & (cj < n)
+    ink = np.full(bx.shape, np.nan)
+    ink[inside] = cells[cj[inside].astype(int), ci[inside].astype(int)]
+    return ink
+
+
+def marker_albedo(renderer, T_cam_board, shade):
+    """One marker of side ``square_m`` on ``margin_m`` of paper."""
+    S, m = renderer.cfg["square_m"], renderer.cfg["margin_m"]
+    cells = marker_cells(SPEC_DICT, SPEC_ID)
+    return _print_albedo(
+        renderer, T_cam_board, shade, (-m, S + m, -m, S + m), lambda bx, by: _tag_ink(cells, 0, 0, S, bx, by) == 1
+    )
 
 
 def grid_albedo(renderer, T_cam_board, shade):
-    """bench_foreign's ``coverage_and_albedo`` for the AprilGrid ``cfg["grid"]`` on ``margin_m`` of paper."""
-    cfg = renderer.cfg
-    spec: AprilGridSpec = cfg["grid"]
-    S, P, g, m = spec.size_m, spec.pitch_m, spec.spacing * spec.size_m, cfg["margin_m"]
-    d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, spec.dictionary))
-    n = d.markerSize + 2
-    cells = [cv2.aruco.generateImageMarker(d, int(spec.first_id + k), n) < 128 for k in range(spec.n_tags)]
-    R, t = T_cam_board[:3, :3], T_cam_board[:3, 3]
-    o = -R.T @ t
-    s, W, H = renderer.s, renderer.W, renderer.H
-    cov, alb = np.zeros((H, W)), np.zeros((H, W))
-    step = 32 * s
-    for r0 in range(0, H * s, step):
-        x = renderer.rx[r0 : r0 + step].astype(np.float64)
-        y = renderer.ry[r0 : r0 + step].astype(np.float64)
-        dx, dy, dz = (R[0, j] * x + R[1, j] * y + R[2, j] for j in range(3))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lam = -o[2] / dz
-        bx, by = o[0] + lam * dx, o[1] + lam * dy
-        hit = renderer.ok[r0 : r0 + step] & (lam > 0)
-        hit &= (bx > -g - m) & (bx < spec.cols * P + m) & (by > -g - m) & (by < spec.rows * P + m)
-        cx, cy = np.floor((bx + g) / P), np.floor((by + g) / P)  # the gap squares at every tag corner
-        ink = (bx >= cx * P - g) & (bx < cx * P) & (cx >= 0) & (cx <= spec.cols)
-        ink &= (by >= cy * P - g) & (by < cy * P) & (cy >= 0) & (cy <= spec.rows)
+    """The AprilGrid ``cfg["grid"]`` on ``margin_m`` of paper: its tags and the gap squares at their corners."""
+    spec: AprilGridSpec = renderer.cfg["grid"]
+    S, P, g, m = spec.size_m, spec.pitch_m, spec.spacing * spec.size_m, renderer.cfg["margin_m"]
+    cells = [marker_cells(spec.dictionary, int(spec.first_id + k)) for k in range(spec.n_tags)]
+
+    def ink(bx, by):
+        cx, cy = np.floor((bx + g) / P), np.floor((by + g) / P)
+        out = (bx >= cx * P - g) & (bx < cx * P) & (cx >= 0) & (cx <= spec.cols)
+        out &= (by >= cy * P - g) & (by < cy * P) & (cy >= 0) & (cy <= spec.rows)
         for k, (ox, oy, _) in enumerate(spec.tag_origins()):
-            ci, cj = np.floor((bx - ox) / (S / n)), np.floor((by - oy) / (S / n))
-            inside = (ci >= 0) & (ci < n) & (cj >= 0) & (cj < n)
-            ink[inside] = cells[k][cj[inside].astype(int), ci[inside].astype(int)]
-        a = np.where(hit, np.where(ink, 0.06, 0.88) * (1 + shade[0] * bx + shade[1] * by), 0.0)
-        k = a.shape[0] // s
-        cov[r0 // s : r0 // s + k] = hit.reshape(k, s, W, s).mean(axis=(1, 3))
-        alb[r0 // s : r0 // s + k] = a.reshape(k, s, W, s).mean(axis=(1, 3))
-    return cov, alb
+            tag = _tag_ink(cells[k], ox, oy, S, bx, by)
+            out = np.where(np.isnan(tag), out, tag == 1)
+        return out
+
+    return _print_albedo(renderer, T_cam_board, shade, (-g - m, spec.cols * P + m, -g - m, spec.rows * P + m), ink)
 
 
 def _jpeg_grey(renderer, cfg, rng, T) -> np.ndarray:
