@@ -56,11 +56,6 @@ def _intrinsics_key(intrinsics: Intrinsics) -> tuple:
     )
 
 
-def _sample_coords(n: int, s: int) -> np.ndarray:
-    """Sub-pixel sample positions along one axis of ``n`` pixels, ``s`` samples per pixel (a regular grid)."""
-    return (np.arange(n * s, dtype=float) + 0.5) / s - 0.5
-
-
 #: the n-rooks permutations (p, q) of :func:`_pixel_samples` for 4 x 4 samples (the renderers' default): of the 64
 #: pairs that keep the samples point-symmetric about the pixel centre (an X junction's corner then has no bias from
 #: them), the one with the smallest worst edge error (averaged over 30 px of an edge, every 2.5 deg, 10 offsets)
@@ -264,11 +259,8 @@ def roundtrip_error_px(intrinsics: Intrinsics, *, supersample: int = 4, stride: 
     uv, _ = cv2.projectPoints(
         np.c_[xy, np.ones(len(xy))], np.zeros(3), np.zeros(3), intrinsics.K, intrinsics.dist_array
     )
-    truth = np.empty((len(idx), 2))
-    for r in np.unique(rows):  # the samples' own places (:func:`_sample_uv`)
-        u, v = _sample_uv(intrinsics.width, intrinsics.height, s, int(r), int(r) + 1)
-        at = rows == r
-        truth[at, 0], truth[at, 1] = u[0, cols[at]], v[0, cols[at]]
+    x, y = _pixel_samples(s)  # the samples' own places (:func:`_sample_uv`)
+    truth = np.stack([cols // s + x[rows % s, cols % s], rows // s + y[rows % s, cols % s]], 1)
     return float(np.max(np.abs(uv.reshape(-1, 2) - truth)))
 
 
