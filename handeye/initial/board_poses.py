@@ -160,14 +160,12 @@ def rotation_consistent_labels(
         p, q = np.triu_indices(len(views), 1)
         a = rotvec_from_R(R_M[views][p] @ np.transpose(R_M[views][q], (0, 2, 1)))
         b = rotvec_from_R(R_C[p] @ np.transpose(R_C[q], (0, 2, 1)))
-        U, _, Vt = np.linalg.svd(b.T @ a)
-        R_A = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+        R_A = project_to_rotation(b.T @ a)  # the SVD solution of Park and Martin
         R_B = project_to_rotation(np.einsum("nba,nbc->ac", R_A @ R_M[views], R_C))
         return R_A, R_B
 
     def verify(R_A: np.ndarray, R_B: np.ndarray) -> tuple[np.ndarray, float]:
-        pred = R_A @ R_M @ R_B
-        ang = rotation_angle_rad(np.einsum("nba,nkbc->nkac", pred, R_Cs))  # (n,k): pred^T C
+        ang = _candidate_angles(R_A[None], R_B[None], R_M, R_Cs)[0]
         return np.argmin(ang, axis=1), float(np.minimum(ang.min(axis=1), cap).sum())
 
     best_lab, best_score = verify(*model(np.asarray(labels, int), np.arange(n)))
@@ -216,13 +214,22 @@ def _best_hypothesis(
         R_A = project_to_rotation(np.swapaxes(b, -1, -2) @ a[t])  # the SVD solution of Park and Martin
         R_C = R_Cs[views, labs]  # (H,3,3,3)
         R_B = project_to_rotation(np.einsum("hnba,hnbc->hac", R_A[:, None] @ R_M[views], R_C))
-        pred = R_A[:, None] @ R_M[None] @ R_B[:, None]  # (H,n,3,3)
-        ang = rotation_angle_rad(np.einsum("hnba,nkbc->hnkac", pred, R_Cs).reshape(-1, 3, 3)).reshape(len(t), n, k)
+        ang = _candidate_angles(R_A, R_B, R_M, R_Cs)
         score = np.minimum(ang.min(axis=2), cap).sum(axis=1)
         i = int(np.argmin(score))
         if score[i] < best_score:
             best_lab, best_score = np.argmin(ang[i], axis=1), float(score[i])
     return best_lab, best_score
+
+
+def _candidate_angles(R_A: np.ndarray, R_B: np.ndarray, R_M: np.ndarray, R_Cs: np.ndarray) -> np.ndarray:
+    """(H, n, k): the angle (rad) of each view's candidates ``R_Cs`` (n,k,3,3) from ``R_A R_Mi R_B``, per hypothesis.
+
+    ``R_A``, ``R_B`` (H,3,3): the hypotheses; ``R_M`` (n,3,3) the robot motions' rotations.
+    """
+    pred = R_A[:, None] @ R_M[None] @ R_B[:, None]  # (H,n,3,3)
+    H, (n, k) = len(R_A), R_Cs.shape[:2]
+    return rotation_angle_rad(np.einsum("hnba,nkbc->hnkac", pred, R_Cs).reshape(-1, 3, 3)).reshape(H, n, k)
 
 
 def candidate_invariants(Cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
