@@ -129,10 +129,12 @@ def intrinsics_gradient(obs, M: np.ndarray, use: Optional[np.ndarray] = None) ->
     from ..initial.board_poses import refit_pose
     from .geometry import intrinsics_covariance
 
+    idx = np.flatnonzero(np.ones(len(obs.C), bool) if use is None else np.asarray(use, bool))
+    if len(idx) < 4:
+        return None
     theta = obs.intrinsics.as_vector()
     S = intrinsics_covariance(obs.corners, obs.C, theta, obs.pixel_sigma())
-    idx = np.flatnonzero(np.ones(len(obs.C), bool) if use is None else np.asarray(use, bool))
-    if len(idx) < 4 or not np.all(np.isfinite(S)):
+    if not np.all(np.isfinite(S)):
         return None
     g = np.zeros(9)
     for j in range(9):
