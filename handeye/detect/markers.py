@@ -6,7 +6,9 @@ refined with ``cv2.cornerSubPix`` in a window sized from the marker's own border
 gap) in pixels (configs/detection.yaml ``markers``, where the measured alternatives are listed). Only the
 ids the target holds count; a marker id seen twice (a second print in the scene) is left out.
 
-An AprilGrid's tag corners touch the gap squares: X junctions, which cornerSubPix finds without bias. A
+An AprilGrid's tag corners touch the gap squares: X junctions, which cornerSubPix finds without bias. They are
+refined in each tag's own frontal frame (:func:`frontal_corners`): a tilted or distant tag's cells are a few px
+across its foreshortened side, and a square window in the image then reaches its code cells. A
 single marker's corners are L corners (dark square, light margin): blur and the pixels' area round them,
 and cornerSubPix settles inside the rounding, 0.1-0.3 px towards the marker. Its corners are taken where its
 two edges meet instead (:func:`edge_corners`, from cv2.aruco's corners): each edge is located across its step at every
@@ -49,16 +51,50 @@ def _border_cell_px(corners: np.ndarray, spec) -> float:
 
 
 def subpix_half_window_px(corners: np.ndarray, spec, *, share: float, lo: int, hi: int) -> int:
-    """Half window for cornerSubPix on the markers ``corners``.
+    """The half window of cornerSubPix: ``share`` x the smallest of ``corners``' (m,4,2) border cells, in [lo, hi]."""
+    return int(np.clip(np.floor(share * _border_cell_px(corners, spec)), lo, hi))
 
-    Half window for cornerSubPix on the markers ``corners`` (m,4,2): ``share`` x the smallest of the border
-    cell and (AprilGrid) the gap between tags, in px on the smallest marker, clipped to [lo, hi].
+
+def frontal_corners(
+    gray: np.ndarray,
+    quads: np.ndarray,
+    spec: AprilGridSpec,
+    criteria,
+    *,
+    cell_px: float,
+    share: float,
+    margin_cells: float,
+) -> np.ndarray:
+    """The corners (4m, 2) of an AprilGrid's tags ``quads`` (m,4,2; to a few px), refined in each tag's frontal frame.
+
+    Each tag and ``margin_cells`` around it are resampled (bilinear) through the homography of its four rough
+    corners onto a square where the tag is seen head-on whatever its tilt, at its longest side's cells in px and
+    at least ``cell_px`` (never below the image's own resolution); cornerSubPix runs there (a coarse pass with twice
+    the window, then a half window of ``share`` x the smaller of the cell and the gap), and the corners are mapped
+    back through the same homography. A junction stays the junction under any smooth map, so the rough
+    homography's own error does not move it; it only decides which image pixels are read.
     """
-    feature = _border_cell_px(corners, spec)
-    if isinstance(spec, AprilGridSpec):
-        side_px = feature * (_detector(spec.dictionary).getDictionary().markerSize + 2)
-        feature = min(feature, spec.spacing * side_px)
-    return int(np.clip(np.floor(share * feature), lo, hi))
+    bits = _detector(spec.dictionary).getDictionary().markerSize + 2
+    q = np.asarray(quads, np.float32).reshape(-1, 4, 2)
+    longest = np.linalg.norm(q - np.roll(q, 1, axis=1), axis=2).max(axis=1)
+    out = np.empty((len(q), 4, 2))
+    for k, quad in enumerate(q):
+        cell = max(float(longest[k]) / bits, cell_px)
+        side = bits * cell
+        reach = int(np.ceil(margin_cells * cell))
+        half = int(share * min(cell, spec.spacing * side))
+        canon = np.array([[0, 0], [side, 0], [side, side], [0, side]], np.float32)
+        M = cv2.getPerspectiveTransform(canon, quad) @ np.array([[1, 0, -reach], [0, 1, -reach], [0, 0, 1]], float)
+        size = int(np.ceil(side)) + 2 * reach + 1
+        patch = cv2.warpPerspective(  # patch px -> image px is M
+            gray, M, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE
+        )
+        p = (canon + reach).reshape(-1, 1, 2)
+        for w in (min(2 * half, reach - 1), half):
+            p = cv2.cornerSubPix(patch, p, (w, w), (-1, -1), criteria)
+        x = np.c_[p.reshape(-1, 2), np.ones(4)] @ M.T
+        out[k] = x[:, :2] / x[:, 2:]
+    return out.reshape(-1, 2)
 
 
 def _edge_points(
@@ -287,14 +323,34 @@ def detect_markers(
         return f"{spec.describe()}: {why}"
     cid = np.concatenate(out_ids)
     cfg = _settings()
+    contour = np.concatenate(out_pts).astype(np.float64)
+    if isinstance(spec, AprilGridSpec):
+        pts = frontal_corners(
+            gray,
+            contour.reshape(-1, 4, 2),
+            spec,
+            o.subpix_criteria,
+            cell_px=float(cfg["frontal_cell_px"]),
+            share=float(cfg["subpix_window_share"]),
+            margin_cells=float(cfg["frontal_margin_cells"]),
+        )
+    else:
+        pts = _marker_corners(gray, contour, spec, o, cfg)
+    order = np.argsort(cid, kind="stable")
+    return cid[order], pts[order]
+
+
+def _marker_corners(
+    gray: np.ndarray, contour: np.ndarray, spec: MarkerSpec, o: DetectionOptions, cfg: dict
+) -> np.ndarray:
+    """One marker's four corners (4,2) from cv2.aruco's ``contour`` (4,2): where its edges meet (module docstring)."""
     win = subpix_half_window_px(
-        np.stack(out_pts),
+        contour[None],
         spec,
         share=float(cfg["subpix_window_share"]),
         lo=int(cfg["subpix_window_min_px"]),
         hi=int(cfg["subpix_window_max_px"]),
     )
-    contour = np.concatenate(out_pts).astype(np.float64)
     pts: np.ndarray = contour.astype(np.float32).reshape(-1, 1, 2)
     # cv2.aruco's contour corners can be 2-3 px off, outside a small window: a coarse pass with twice the window
     # (its extra edges bias it, but it reaches the corner), then the pass with the corner's own window
@@ -302,17 +358,14 @@ def detect_markers(
     for w in (coarse, win):
         pts = cv2.cornerSubPix(gray, pts, (w, w), (-1, -1), o.subpix_criteria)
     pts = pts.reshape(-1, 2).astype(np.float64)
-    if isinstance(spec, MarkerSpec):  # L corners: where the edges meet (module docstring)
-        # from the contour's corners: cornerSubPix's window can reach the corner of a narrow margin beyond the
-        # marker's and settle there, 7-10 px off (measured); a fit that lands outside the coarse window found
-        # some other edge, and cornerSubPix's corner stands
-        fitted = edge_corners(
-            gray, contour, cell_px=_border_cell_px(contour[None], spec), far_px=float(cfg["edge_fit_far_px"])
-        )
-        moved = np.linalg.norm(fitted - contour, axis=1) <= max(coarse, 1)
-        shift = ink_shift_px(gray, fitted, marker_cells(spec.dictionary, spec.marker_id))
-        if shift is not None:  # the edges as the cells place them (.cell_shift): each side moved out by the shift
-            fitted = widen(fitted, shift[0])
-        pts = np.where(moved[:, None], fitted, pts)
-    order = np.argsort(cid, kind="stable")
-    return cid[order], pts[order]
+    # from the contour's corners: cornerSubPix's window can reach the corner of a narrow margin beyond the
+    # marker's and settle there, 7-10 px off (measured); a fit that lands outside the coarse window found
+    # some other edge, and cornerSubPix's corner stands
+    fitted = edge_corners(
+        gray, contour, cell_px=_border_cell_px(contour[None], spec), far_px=float(cfg["edge_fit_far_px"])
+    )
+    moved = np.linalg.norm(fitted - contour, axis=1) <= max(coarse, 1)
+    shift = ink_shift_px(gray, fitted, marker_cells(spec.dictionary, spec.marker_id))
+    if shift is not None:  # the edges as the cells place them (.cell_shift): each side moved out by the shift
+        fitted = widen(fitted, shift[0])
+    return np.where(moved[:, None], fitted, pts)
