@@ -89,7 +89,7 @@ def frontal_corners(
         patch = cv2.warpPerspective(  # patch px -> image px is M
             gray, M, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE
         )
-        p = (canon + reach).reshape(-1, 1, 2)
+        p: np.ndarray = (canon + reach).reshape(-1, 1, 2)
         for w in (min(2 * half, reach - 1), half):
             p = cv2.cornerSubPix(patch, p, (w, w), (-1, -1), criteria)
         x = np.c_[p.reshape(-1, 2), np.ones(4)] @ M.T
