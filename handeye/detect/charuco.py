@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from ..targets import CharucoSpec
+from .frontal import frontal_refined
 from .geometry import check_corners, search_copy
 from .options import DetectionOptions, default_options
 
@@ -29,9 +30,10 @@ def detect_charuco(
     """(corner ids sorted, image points (N,2)) or a reason string.
 
     Images above ``search_max_megapixels_charuco_circles`` are searched on a reduced copy (the marker
-    search's time grows with the area); the corners are refined there and again on the full image in a
-    window of the same extent on the board. Corners that fail the geometric check are dropped
-    (:func:`off_grid_corners_removed`); ``dropped`` receives their (corner id, reason).
+    search's time grows with the area), and the corners refined there first; on the full image they are refined
+    in the board's frontal frame (:mod:`.frontal`: a tilted board's white band between a square's corner and its
+    marker is a few px across, and a square window in the image reaches the marker). Corners that fail the
+    geometric check are dropped (:func:`off_grid_corners_removed`); ``dropped`` receives their (corner id, reason).
     """
     o = options or default_options()
     search, scale = search_copy(gray, max_megapixels=o.search_max_megapixels_charuco_circles)
@@ -42,16 +44,16 @@ def detect_charuco(
         where = "" if np.all(scale == 1.0) else f", searched at {search.shape[1]}x{search.shape[0]}"
         return f"ChArUco board not found ({n_markers} markers seen{where})"
     ids = ch_ids.reshape(-1).astype(int)
-    win = o.charuco_subpix_window_px
-    pts = cv2.cornerSubPix(
-        search, ch_corners.reshape(-1, 1, 2).astype(np.float32), (win, win), (-1, -1), o.subpix_criteria
-    ).reshape(-1, 2)
-    if np.any(scale != 1.0):
-        full = int(round(win / float(scale.min())))  # the same extent on the board as ``win`` on the copy
-        pts = ((pts + 0.5) / scale - 0.5).astype(np.float32)
-        pts = cv2.cornerSubPix(gray, pts.reshape(-1, 1, 2), (full, full), (-1, -1), o.subpix_criteria).reshape(-1, 2)
+    pts = ch_corners.reshape(-1, 2).astype(np.float64)
+    if np.any(scale != 1.0):  # refined on the copy first: OpenCV's corners there, a few px on the full image
+        win = o.charuco_subpix_window_px
+        on_copy = cv2.cornerSubPix(
+            search, pts.astype(np.float32).reshape(-1, 1, 2), (win, win), (-1, -1), o.subpix_criteria
+        )
+        pts = (on_copy.reshape(-1, 2).astype(np.float64) + 0.5) / scale - 0.5
+    pts = _refined(gray, pts, spec.object_points()[ids, :2], spec, o)
     order = np.argsort(ids)
-    ids, pts = ids[order], pts[order].astype(np.float64)
+    ids, pts = ids[order], pts[order]
     keep = off_grid_corners_removed(spec.object_points()[ids, :2], pts, o)
     if not keep.all():
         log.info(
@@ -60,6 +62,33 @@ def detect_charuco(
         if dropped is not None:
             dropped.extend((int(k), "off the homography of its neighbours (geometric check)") for k in ids[~keep])
     return ids[keep], pts[keep]
+
+
+def _refined(
+    gray: np.ndarray, pts: np.ndarray, board_xy: np.ndarray, spec: CharucoSpec, o: DetectionOptions
+) -> np.ndarray:
+    """The corners ``pts`` (N,2) refined in the board's frontal frame (:mod:`.frontal`).
+
+    Through the homography of all of them; with fewer than four, all on one line, or no homography fitted, by
+    cornerSubPix in the image (OpenCV's default window).
+    """
+    spread = len(pts) >= 4 and np.linalg.matrix_rank(board_xy - board_xy.mean(axis=0), tol=1e-9) == 2
+    H = cv2.findHomography(board_xy, pts, 0)[0] if spread else None
+    if H is None:
+        win = o.charuco_subpix_window_px
+        out = cv2.cornerSubPix(gray, pts.astype(np.float32).reshape(-1, 1, 2), (win, win), (-1, -1), o.subpix_criteria)
+        return out.reshape(-1, 2).astype(np.float64)
+    return frontal_refined(
+        gray,
+        pts,
+        board_xy,
+        H,
+        clear_m=0.5 * (spec.square_m - spec.marker_m),
+        criteria=o.subpix_criteria,
+        min_clear_px=o.frontal_min_clear_px,
+        reach_clear=o.frontal_reach_clear,
+        share=o.frontal_window_share,
+    )
 
 
 def off_grid_corners_removed(board_xy: np.ndarray, pts: np.ndarray, options: DetectionOptions) -> np.ndarray:

@@ -1,20 +1,17 @@
 """Square fiducial markers: one ArUco / AprilTag marker, or Kalibr's AprilGrid, through cv2.aruco.
 
-cv2.aruco finds the markers and their four corners (its order: top-left, top-right, bottom-right,
-bottom-left of the print, :data:`handeye.targets.MARKER_CORNERS`) to about a pixel; each corner is then
-refined with ``cv2.cornerSubPix`` in a window sized from the marker's own border cell (and the AprilGrid's
-gap) in pixels (configs/detection.yaml ``markers``, where the measured alternatives are listed). Only the
-ids the target holds count; a marker id seen twice (a second print in the scene) is left out.
-
-An AprilGrid's tag corners touch the gap squares: X junctions, which cornerSubPix finds without bias. They are
-refined in each tag's own frontal frame (:func:`frontal_corners`): a tilted or distant tag's cells are a few px
-across its foreshortened side, and a square window in the image then reaches its code cells. A
-single marker's corners are L corners (dark square, light margin): blur and the pixels' area round them,
-and cornerSubPix settles inside the rounding, 0.1-0.3 px towards the marker. Its corners are taken where its
-two edges meet instead (:func:`edge_corners`, from cv2.aruco's corners): each edge is located across its step at every
-pixel along it, from beyond the rounding (three measured edge widths from the corner) to a short distance
-(over which lens distortion bends a line by far less than its noise), and a straight line is fitted. The sides
-are then moved out by the shift the marker's own cells measure (:mod:`.cell_shift`: a tone curve's, ink's).
+cv2.aruco finds the markers and their four corners (its order: top-left, top-right, bottom-right, bottom-left
+of the print, :data:`handeye.targets.MARKER_CORNERS`) to about a pixel. Only the ids the target holds count; a
+marker id seen twice (a second print in the scene) is left out. An AprilGrid's tag corners touch the gap
+squares: X junctions, refined with cornerSubPix in each tag's frontal frame (:mod:`.frontal`, through the
+homography of its four corners: a tilted tag's cells are a few px across its foreshortened side in the image).
+A single marker's corners are L corners (dark square, light margin): blur and the pixels' area round them, and
+cornerSubPix (in a window sized from its border cell, configs/detection.yaml ``markers``) settles 0.1-0.3 px
+towards the marker. They are taken where its two edges meet instead (:func:`edge_corners`, from cv2.aruco's
+corners): each edge located across its step at every pixel along it, from beyond the rounding (three measured
+edge widths from the corner) to a short distance (over which lens distortion bends a line by far less than its
+noise), and a straight line fitted. The sides are then moved out by the shift the marker's own cells measure
+(:mod:`.cell_shift`: a tone curve's, ink's).
 """
 
 from __future__ import annotations
@@ -27,6 +24,7 @@ import numpy as np
 from ..config import load_preset
 from ..targets import AprilGridSpec, MarkerSpec
 from .cell_shift import ink_shift_px, marker_cells
+from .frontal import frontal_refined
 from .options import DetectionOptions, default_options
 from .quality import blur_record, edge_sigma_px, median_1d, profiles_across
 
@@ -53,48 +51,6 @@ def _border_cell_px(corners: np.ndarray, spec) -> float:
 def subpix_half_window_px(corners: np.ndarray, spec, *, share: float, lo: int, hi: int) -> int:
     """The half window of cornerSubPix: ``share`` x the smallest of ``corners``' (m,4,2) border cells, in [lo, hi]."""
     return int(np.clip(np.floor(share * _border_cell_px(corners, spec)), lo, hi))
-
-
-def frontal_corners(
-    gray: np.ndarray,
-    quads: np.ndarray,
-    spec: AprilGridSpec,
-    criteria,
-    *,
-    cell_px: float,
-    share: float,
-    margin_cells: float,
-) -> np.ndarray:
-    """The corners (4m, 2) of an AprilGrid's tags ``quads`` (m,4,2; to a few px), refined in each tag's frontal frame.
-
-    Each tag and ``margin_cells`` around it are resampled (bilinear) through the homography of its four rough
-    corners onto a square where the tag is seen head-on whatever its tilt, at its longest side's cells in px and
-    at least ``cell_px`` (never below the image's own resolution); cornerSubPix runs there (a coarse pass with twice
-    the window, then a half window of ``share`` x the smaller of the cell and the gap), and the corners are mapped
-    back through the same homography. A junction stays the junction under any smooth map, so the rough
-    homography's own error does not move it; it only decides which image pixels are read.
-    """
-    bits = _detector(spec.dictionary).getDictionary().markerSize + 2
-    q = np.asarray(quads, np.float32).reshape(-1, 4, 2)
-    longest = np.linalg.norm(q - np.roll(q, 1, axis=1), axis=2).max(axis=1)
-    out = np.empty((len(q), 4, 2))
-    for k, quad in enumerate(q):
-        cell = max(float(longest[k]) / bits, cell_px)
-        side = bits * cell
-        reach = int(np.ceil(margin_cells * cell))
-        half = int(share * min(cell, spec.spacing * side))
-        canon = np.array([[0, 0], [side, 0], [side, side], [0, side]], np.float32)
-        M = cv2.getPerspectiveTransform(canon, quad) @ np.array([[1, 0, -reach], [0, 1, -reach], [0, 0, 1]], float)
-        size = int(np.ceil(side)) + 2 * reach + 1
-        patch = cv2.warpPerspective(  # patch px -> image px is M
-            gray, M, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE
-        )
-        p: np.ndarray = (canon + reach).reshape(-1, 1, 2)
-        for w in (min(2 * half, reach - 1), half):
-            p = cv2.cornerSubPix(patch, p, (w, w), (-1, -1), criteria)
-        x = np.c_[p.reshape(-1, 2), np.ones(4)] @ M.T
-        out[k] = x[:, :2] / x[:, 2:]
-    return out.reshape(-1, 2)
 
 
 def _edge_points(
@@ -324,15 +280,23 @@ def detect_markers(
     cid = np.concatenate(out_ids)
     cfg = _settings()
     contour = np.concatenate(out_pts).astype(np.float64)
-    if isinstance(spec, AprilGridSpec):
-        pts = frontal_corners(
+    if isinstance(spec, AprilGridSpec):  # X junctions, in each tag's frontal frame (module docstring)
+        board = spec.object_points()[cid, :2]
+        quads = zip(
+            board.astype(np.float32).reshape(-1, 4, 2), contour.astype(np.float32).reshape(-1, 4, 2), strict=True
+        )
+        H = [cv2.getPerspectiveTransform(src, dst) for src, dst in quads]
+        cell_m = spec.size_m / (_detector(spec.dictionary).getDictionary().markerSize + 2)
+        pts = frontal_refined(
             gray,
-            contour.reshape(-1, 4, 2),
-            spec,
-            o.subpix_criteria,
-            cell_px=float(cfg["frontal_cell_px"]),
-            share=float(cfg["subpix_window_share"]),
-            margin_cells=float(cfg["frontal_margin_cells"]),
+            contour,
+            board,
+            np.repeat(np.stack(H), 4, axis=0),
+            clear_m=min(cell_m, spec.spacing * spec.size_m),
+            criteria=o.subpix_criteria,
+            min_clear_px=o.frontal_min_clear_px,
+            reach_clear=o.frontal_reach_clear,
+            share=o.frontal_window_share,
         )
     else:
         pts = _marker_corners(gray, contour, spec, o, cfg)

@@ -47,6 +47,9 @@ class DetectionOptions:
     saddle_iterations: int  # re-centrings of the symmetry fit
     corner_disagreement_max_px: float  # a corner where cornerSubPix and the symmetry fit differ more is not used
     charuco_subpix_window_px: int
+    frontal_min_clear_px: float  # AprilGrid and ChArUco corners: refined in the board's frontal frame (.frontal) ...
+    frontal_reach_clear: float  # ... on patches reaching this many clear margins around the corner ...
+    frontal_window_share: float  # ... with a cornerSubPix half window of this share of the margin
     subpix_max_iter: int
     subpix_eps_px: float
     order_cue_min_grey: float  # grey-level difference that decides a chessboard's corner order

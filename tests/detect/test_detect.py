@@ -62,13 +62,15 @@ def test_one_dispatcher_for_every_target_kind(views):
     ids, pts = detect_gray(imgs[0], cs.target)
     assert np.array_equal(ids, np.arange(cs.target.n_corners))
     assert _rms(pts, pixels_from_board_points(cs.T_cam_board_true[0], cs.target.object_points(), INTR)) < 0.15
-    # ChArUco goes to the ChArUco detector: ids from the markers, corners at their true pixels
+    # ChArUco goes to the ChArUco detector: ids from the markers, corners at their true pixels (sharp renders
+    # with about 4 px between a square's corner and its marker: 0.11-0.16 px RMS per view, 0.13 over the four)
     ch = CharucoSpec(7, 5, 0.04, 0.03)
-    T = cs.T_cam_board_true[0].copy()
-    img = render_view(ch, INTR, T, supersample=3)
-    ids, pts = detect_gray(img, ch)
-    assert len(ids) >= 0.8 * ch.n_corners and np.all(np.diff(ids) > 0)
-    assert _rms(pts, pixels_from_board_points(T, ch.object_points()[ids], INTR)) < 0.15
+    errors = []
+    for T in cs.T_cam_board_true:
+        ids, pts = detect_gray(render_view(ch, INTR, T, supersample=3), ch)
+        assert len(ids) >= 0.8 * ch.n_corners and np.all(np.diff(ids) > 0)
+        errors.append(pts - pixels_from_board_points(T, ch.object_points()[ids], INTR))
+    assert _rms(np.concatenate(errors), 0.0) < 0.15
     # a view with fewer corners than asked for is a reason, not a detection
     out = detect_gray(imgs[0], cs.target, min_corners=cs.target.n_corners + 1)
     assert out == f"only {cs.target.n_corners} corners detected (need at least {cs.target.n_corners + 1})"
@@ -530,6 +532,25 @@ def test_images_above_the_size_limit_are_searched_reduced_and_refined_at_full_si
     assert out == "chessboard 11x8 not found (searched at 730x410: the image is above 0.3 MP)"
 
 
+def test_steeply_tilted_charuco_corners_are_refined_in_the_board_frontal_frame():
+    """Views tilted 55-65 deg at 0.35-0.5 m through a tone curve: the white band between a square's corner and
+    its marker is about 4 px across its foreshortened side, and OpenCV's window in the image reached the marker
+    (0.62 px RMS and a corner 2.7 px off over six such views, measured); in the board's frontal frame 0.05 px."""
+    from handeye.sim.scenarios import default_intrinsics as intrinsics
+
+    ch, intr = CharucoSpec(9, 7, 0.03, 0.022, "DICT_5X5_100"), intrinsics(1280, 720)
+    s = make_corner_session(n_views=3, seed=7, noise_px=0.0, target=ch, tilt_deg=(55.0, 65.0), distance_m=(0.35, 0.5))
+    errors = []
+    for k in range(s.n_views):
+        out = detect_gray(render_view(ch, intr, s.T_cam_board_true[k], blur_sigma_px=0.8, gamma=2.2), ch)
+        assert not isinstance(out, str), out
+        truth = dict(zip(s.corner_ids[k].tolist(), s.image_points[k], strict=True))
+        errors.append(out[1] - np.array([truth[int(i)] for i in out[0]]))
+    e = np.linalg.norm(np.concatenate(errors), axis=1)
+    assert len(e) >= 0.9 * 3 * ch.n_corners, len(e)
+    assert np.sqrt(np.mean(e**2)) < 0.1 and e.max() < 0.5, (np.sqrt(np.mean(e**2)), e.max())
+
+
 def test_charuco_corners_off_their_neighbours_are_dropped_alone(views):
     from handeye.detect.charuco import off_grid_corners_removed
 
@@ -552,8 +573,10 @@ def test_charuco_views_above_the_size_limit_are_searched_reduced_and_refined_at_
     small_limit = replace(default_options(), search_max_megapixels_charuco_circles=0.2)  # 640x480 is 0.31 MP
     ids, pts = detect_gray(img, ch, options=small_limit)
     assert len(ids) >= 0.8 * ch.n_corners
-    # as accurate as the full-size search (test_one_dispatcher_for_every_target_kind: < 0.15 px RMS)
-    assert _rms(pts, pixels_from_board_points(T, ch.object_points()[ids], INTR)) < 0.15
+    # the corners of the full-size search (test_one_dispatcher_for_every_target_kind: at their true pixels):
+    # the full image's refinement starts from the copy's, a few hundredths of a px apart at most (0.023 measured)
+    full_ids, full = detect_gray(img, ch)
+    assert np.array_equal(ids, full_ids) and np.abs(pts - full).max() < 0.05
     out = detect_gray(np.full_like(img, 128), ch, options=small_limit)
     assert out == "ChArUco board not found (0 markers seen, searched at 516x387)"
 

@@ -1,0 +1,65 @@
+"""Corners refined in the board's frontal frame: cornerSubPix on the image resampled through a homography.
+
+A corner where a tag touches a gap square (AprilGrid) or two squares meet between markers (ChArUco) is
+point-symmetric only out to the clear margin around it (a border cell, the white band beside a marker). In
+the image that margin shrinks with the board's tilt along one direction, and with blur the structures beyond
+it merge in: a square window in the image sized for the margin either holds too little or reaches the code
+cells. Resampled through a homography of the board plane (bilinear) at the image's own resolution, and at
+least ``min_clear_px`` across the margin, the corner is seen head-on whatever the tilt, the window fits the
+margin, and the corner maps back through the same homography. A junction stays the junction under any smooth
+map, so the homography's own error (lens distortion, rough corners) does not move the corner; it only decides
+which image pixels are read.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+
+def frontal_refined(
+    gray: np.ndarray,
+    start: np.ndarray,
+    board_xy: np.ndarray,
+    H: np.ndarray,
+    *,
+    clear_m: float,
+    criteria,
+    min_clear_px: float,
+    reach_clear: float,
+    share: float,
+) -> np.ndarray:
+    """Corners (N, 2) px refined from ``start`` (N, 2) px, each in the frontal frame of its board point.
+
+    ``board_xy`` (N, 2) m: the corners on the board plane; ``H`` (3, 3), or one per corner (N, 3, 3): the
+    homography board plane (m) -> image (px) the patches are resampled through; ``clear_m``: the clear margin
+    around a corner on the board. Each patch reaches ``reach_clear`` margins around its corner at the larger of
+    the image's local scale and ``min_clear_px`` per margin; cornerSubPix runs there twice, with a half window of
+    twice and then once ``share`` x the margin (the first reaches a start a few px off).
+    """
+    start = np.asarray(start, float).reshape(-1, 2)
+    board_xy = np.asarray(board_xy, float).reshape(-1, 2)
+    Hs = np.broadcast_to(np.asarray(H, float), (len(start), 3, 3))
+    out = start.copy()
+    for i, (b, p, Hi) in enumerate(zip(board_xy, start, Hs, strict=True)):
+        x = Hi @ np.array([b[0], b[1], 1.0])
+        J = (Hi[:2, :2] * x[2] - np.outer(x[:2], Hi[2, :2])) / x[2] ** 2  # px per m at the corner
+        scale = max(float(np.linalg.svd(J, compute_uv=False)[0]), min_clear_px / clear_m)  # patch px per m
+        clear_px = clear_m * scale
+        half = max(int(share * clear_px), 2)
+        reach = int(np.ceil(reach_clear * clear_px))
+        M = Hi @ np.array([[1 / scale, 0, b[0] - reach / scale], [0, 1 / scale, b[1] - reach / scale], [0, 0, 1]])
+        patch = cv2.warpPerspective(  # patch px -> image px is M
+            gray,
+            M,
+            (2 * reach + 1, 2 * reach + 1),
+            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+            borderMode=cv2.BORDER_REPLICATE,
+        )
+        q = np.linalg.solve(M, np.array([p[0], p[1], 1.0]))
+        c: np.ndarray = (q[:2] / q[2]).astype(np.float32).reshape(1, 1, 2)
+        for w in (min(2 * half, reach - 1), half):
+            c = cv2.cornerSubPix(patch, c, (w, w), (-1, -1), criteria)
+        y = M @ np.array([c[0, 0, 0], c[0, 0, 1], 1.0])
+        out[i] = y[:2] / y[2]
+    return out
