@@ -81,7 +81,6 @@ def _refined(
     return frontal_refined(
         gray,
         pts,
-        board_xy,
         H,
         clear_m=0.5 * (spec.square_m - spec.marker_m),
         criteria=o.subpix_criteria,

@@ -20,7 +20,6 @@ import numpy as np
 def frontal_refined(
     gray: np.ndarray,
     start: np.ndarray,
-    board_xy: np.ndarray,
     H: np.ndarray,
     *,
     clear_m: float,
@@ -29,19 +28,21 @@ def frontal_refined(
     reach_clear: float,
     share: float,
 ) -> np.ndarray:
-    """Corners (N, 2) px refined from ``start`` (N, 2) px, each in the frontal frame of its board point.
+    """Corners (N, 2) px refined from ``start`` (N, 2) px, each in the board's frontal frame around it.
 
-    ``board_xy`` (N, 2) m: the corners on the board plane; ``H`` (3, 3), or one per corner (N, 3, 3): the
-    homography board plane (m) -> image (px) the patches are resampled through; ``clear_m``: the clear margin
-    around a corner on the board. Each patch reaches ``reach_clear`` margins around its corner at the larger of
-    the image's local scale and ``min_clear_px`` per margin; cornerSubPix runs there twice, with a half window of
-    twice and then once ``share`` x the margin (the first reaches a start a few px off).
+    ``H`` (3, 3), or one per corner (N, 3, 3): a homography board plane (m) -> image (px) the patches are
+    resampled through, each centred where it puts its start (a global homography can be px off a corner where
+    the lens bends the board); ``clear_m``: the clear margin around a corner on the board. Each patch reaches
+    ``reach_clear`` margins around its corner at the larger of the image's local scale and ``min_clear_px`` per
+    margin; cornerSubPix runs there twice, with a half window of twice and then once ``share`` x the margin (the
+    first reaches a start a few px off).
     """
     start = np.asarray(start, float).reshape(-1, 2)
-    board_xy = np.asarray(board_xy, float).reshape(-1, 2)
     Hs = np.broadcast_to(np.asarray(H, float), (len(start), 3, 3))
     out = start.copy()
-    for i, (b, p, Hi) in enumerate(zip(board_xy, start, Hs, strict=True)):
+    for i, (p, Hi) in enumerate(zip(start, Hs, strict=True)):
+        b = np.linalg.solve(Hi, np.array([p[0], p[1], 1.0]))
+        b = b[:2] / b[2]  # the patch's centre on the board: where the homography puts the start
         x = Hi @ np.array([b[0], b[1], 1.0])
         J = (Hi[:2, :2] * x[2] - np.outer(x[:2], Hi[2, :2])) / x[2] ** 2  # px per m at the corner
         scale = max(float(np.linalg.svd(J, compute_uv=False)[0]), min_clear_px / clear_m)  # patch px per m
@@ -56,8 +57,7 @@ def frontal_refined(
             flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
             borderMode=cv2.BORDER_REPLICATE,
         )
-        q = np.linalg.solve(M, np.array([p[0], p[1], 1.0]))
-        c: np.ndarray = (q[:2] / q[2]).astype(np.float32).reshape(1, 1, 2)
+        c: np.ndarray = np.full((1, 1, 2), reach, np.float32)
         for w in (min(2 * half, reach - 1), half):
             c = cv2.cornerSubPix(patch, c, (w, w), (-1, -1), criteria)
         y = M @ np.array([c[0, 0, 0], c[0, 0, 1], 1.0])

@@ -290,7 +290,6 @@ def detect_markers(
         pts = frontal_refined(
             gray,
             contour,
-            board,
             np.repeat(np.stack(H), 4, axis=0),
             clear_m=min(cell_m, spec.spacing * spec.size_m),
             criteria=o.subpix_criteria,
