@@ -7,9 +7,9 @@ and each view is detected by ``handeye.detect.markers.detect_markers`` twice: as
 (``handeye.detect.cell_shift``) left out. Printed per variant: views, the RMS and worst of each view's worst
 corner, the mean error along the line from the marker's centre through each corner (> 0: outwards) and its
 range over views, and the views with a corner over 0.5 px and 2 px off. ``--target aprilgrid``: Kalibr
-AprilGrids (6x6, 5x4, 4x3, 6x4 tags of 20-60 mm, spacing 0.3) instead, detected once (their corners are X
-junctions, no shift); printed: the share of corners found, the corner error RMS (median over views) and at most,
-and the mean error outwards from each tag's centre. Asserts nothing.
+AprilGrids as Kalibr prints them (6x6, 5x4, 4x3, 6x4 tags of 20-60 mm, spacing 0.3) instead, detected once
+(their corners are X junctions, no shift); printed: the share of corners found, the corner error RMS (median
+over views) and at most, and the mean error outwards from each tag's centre. Asserts nothing.
 
     python benchmarks/bench_foreign_markers.py [--target marker|aprilgrid] [--seeds 10] [--views 4]
 """
@@ -78,10 +78,17 @@ def marker_albedo(renderer, T_cam_board, shade):
 
 
 def grid_albedo(renderer, T_cam_board, shade):
-    """The AprilGrid ``cfg["grid"]`` on ``margin_m`` of paper: its tags and the gap squares at their corners."""
+    """The AprilGrid ``cfg["grid"]`` on ``margin_m`` of paper: its tags and the gap squares at their corners.
+
+    Each tag as Kalibr prints it: two black border cells and the code as AprilTag lays it out (OpenCV's marker
+    turned by a half turn).
+    """
     spec: AprilGridSpec = renderer.cfg["grid"]
     S, P, g, m = spec.size_m, spec.pitch_m, spec.spacing * spec.size_m, renderer.cfg["margin_m"]
-    cells = [marker_cells(spec.dictionary, int(spec.first_id + k)) for k in range(spec.n_tags)]
+    cells = [
+        np.pad(marker_cells(spec.dictionary, int(spec.first_id + k))[::-1, ::-1], 1, constant_values=True)
+        for k in range(spec.n_tags)
+    ]
 
     def ink(bx, by):
         cx, cy = np.floor((bx + g) / P), np.floor((by + g) / P)

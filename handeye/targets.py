@@ -220,7 +220,9 @@ class AprilGridSpec:
     """Kalibr's AprilGrid: ``cols`` x ``rows`` tags of side ``size_m`` with gaps between them.
 
     Kalibr's AprilGrid: ``cols`` x ``rows`` tags of side ``size_m``, ``spacing`` (a ratio of the tag side)
-    between neighbouring tags, small black squares in the gaps at the tags' corners.
+    between neighbouring tags, small black squares in the gaps at the tags' corners. Kalibr prints each tag with
+    a black border of ``border_bits`` = 2 cells (its side is 10 cells for 36h11) and the code as AprilTag lays it
+    out, which OpenCV's dictionary holds turned by a half turn: the detector reads the turn off the grid.
 
     Tag ids as Kalibr numbers them: ``first_id`` at the bottom left of the print, increasing along a row to
     the right, then row by row upwards. Frame (handeye's, as for every target): x to the right and y down
@@ -234,6 +236,7 @@ class AprilGridSpec:
     spacing: float = 0.3
     dictionary: str = "DICT_APRILTAG_36h11"
     first_id: int = 0
+    border_bits: int = 2  # black border cells of each tag: Kalibr prints 2 (its tag is 10 cells); 1: OpenCV's markers
     kind: Literal["aprilgrid"] = "aprilgrid"
     pose_ambiguous: bool = False
 
@@ -274,12 +277,14 @@ class AprilGridSpec:
             "spacing": self.spacing,
             "dictionary": self.dictionary,
             "first_id": self.first_id,
+            "border_bits": self.border_bits,
         }
 
     def describe(self) -> str:
+        border = "" if self.border_bits == 2 else f", {self.border_bits}-cell tag border"
         return (
             f"AprilGrid {self.cols}x{self.rows} tags, {self.size_m * 1000:g} mm, spacing {self.spacing:g}, "
-            f"{self.dictionary}"
+            f"{self.dictionary}{border}"
         )
 
 

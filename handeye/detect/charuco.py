@@ -83,6 +83,7 @@ def _refined(
         pts,
         H,
         clear_m=0.5 * (spec.square_m - spec.marker_m),
+        apart_m=spec.square_m,
         criteria=o.subpix_criteria,
         min_clear_px=o.frontal_min_clear_px,
         reach_clear=o.frontal_reach_clear,

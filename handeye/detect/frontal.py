@@ -23,6 +23,7 @@ def frontal_refined(
     H: np.ndarray,
     *,
     clear_m: float,
+    apart_m: float,
     criteria,
     min_clear_px: float,
     reach_clear: float,
@@ -32,10 +33,11 @@ def frontal_refined(
 
     ``H`` (3, 3), or one per corner (N, 3, 3): a homography board plane (m) -> image (px) the patches are
     resampled through, each centred where it puts its start (a global homography can be px off a corner where
-    the lens bends the board); ``clear_m``: the clear margin around a corner on the board. Each patch reaches
-    ``reach_clear`` margins around its corner at the larger of the image's local scale and ``min_clear_px`` per
-    margin; cornerSubPix runs there twice, with a half window of twice and then once ``share`` x the margin (the
-    first reaches a start a few px off).
+    the lens bends the board); ``clear_m``: the clear margin around a corner on the board; ``apart_m``: the
+    distance to the nearest other corner. Each patch reaches ``reach_clear`` margins around its corner at the
+    larger of the image's local scale and ``min_clear_px`` per margin; cornerSubPix runs there twice, with a half
+    window of twice ``share`` x the margin (it reaches a start a few px off; at most half of ``apart_m``, so it stays
+    on the corner's side of the midpoint to the next one) and then once.
     """
     start = np.asarray(start, float).reshape(-1, 2)
     Hs = np.broadcast_to(np.asarray(H, float), (len(start), 3, 3))
@@ -58,7 +60,7 @@ def frontal_refined(
             borderMode=cv2.BORDER_REPLICATE,
         )
         c: np.ndarray = np.full((1, 1, 2), reach, np.float32)
-        for w in (min(2 * half, reach - 1), half):
+        for w in (max(min(2 * half, int(0.5 * apart_m * scale), reach - 1), half), half):
             c = cv2.cornerSubPix(patch, c, (w, w), (-1, -1), criteria)
         y = M @ np.array([c[0, 0, 0], c[0, 0, 1], 1.0])
         out[i] = y[:2] / y[2]

@@ -2,8 +2,9 @@
 
 cv2.aruco finds the markers and their four corners (its order: top-left, top-right, bottom-right, bottom-left
 of the print, :data:`handeye.targets.MARKER_CORNERS`) to about a pixel. Only the ids the target holds count; a
-marker id seen twice (a second print in the scene) is left out. An AprilGrid's tag corners touch the gap
-squares: X junctions, refined with cornerSubPix in each tag's frontal frame (:mod:`.frontal`, through the
+marker id seen twice (a second print in the scene) is left out. An AprilGrid's tags are read with Kalibr's two
+border cells (or OpenCV's one), their corners' turn read off the grid (:func:`_grid_turn`); its tag corners touch
+the gap squares: X junctions, refined with cornerSubPix in each tag's frontal frame (:mod:`.frontal`, through the
 homography of its four corners: a tilted tag's cells are a few px across its foreshortened side in the image).
 A single marker's corners are L corners (dark square, light margin): blur and the pixels' area round them, and
 cornerSubPix (in a window sized from its border cell, configs/detection.yaml ``markers``) settles 0.1-0.3 px
@@ -25,15 +26,42 @@ from ..config import load_preset
 from ..targets import AprilGridSpec, MarkerSpec
 from .cell_shift import ink_shift_px, marker_cells
 from .frontal import frontal_refined
+from .geometry import apply_homography
 from .options import DetectionOptions, default_options
 from .quality import blur_record, edge_sigma_px, median_1d, profiles_across
 
 
 @lru_cache(maxsize=8)
-def _detector(dictionary: str) -> cv2.aruco.ArucoDetector:
+def _detector(dictionary: str, border_bits: int = 1) -> cv2.aruco.ArucoDetector:
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_NONE  # refined below, see the module docstring
+    params.markerBorderBits = border_bits
     return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)), params)
+
+
+def _found(gray: np.ndarray, dictionary: str, border_bits: int) -> tuple[list, list]:
+    """(corners, ids) of the markers cv2.aruco finds with ``border_bits`` black border cells."""
+    found, found_ids, _rejected = _detector(dictionary, border_bits).detectMarkers(gray)
+    return list(found), ([] if found_ids is None else found_ids.reshape(-1).astype(int).tolist())
+
+
+def _grid_turn(board: np.ndarray, quads: np.ndarray, default: int) -> int:
+    """The quarter turns r that put each tag's corners (m,4,2, cv2.aruco's order) in the print's order.
+
+    Corner c of the print is cv2.aruco's corner (c - r) mod 4: the turn whose corners one homography of the board
+    ``board`` (4m,2) fits best. Kalibr prints the code as AprilTag lays it out, which OpenCV's dictionary holds
+    turned by a half turn (r = 2); a grid made of OpenCV's own markers has r = 0. One tag cannot tell: ``default``.
+    """
+    if len(quads) < 2:
+        return default
+    misfit = []
+    for r in range(4):
+        img = np.roll(quads, r, axis=1).reshape(-1, 2)
+        H = cv2.findHomography(board, img, 0)[0]
+        misfit.append(
+            np.inf if H is None else float(np.median(np.linalg.norm(apply_homography(H, board) - img, axis=1)))
+        )
+    return int(np.argmin(misfit))
 
 
 @lru_cache(maxsize=1)
@@ -42,10 +70,15 @@ def _settings() -> dict:
     return load_preset("detection")["markers"]
 
 
+def _cells(spec, border_bits: int = 1) -> int:
+    """Cells across one marker of ``spec``: its code's and ``border_bits`` black border cells each side."""
+    return _detector(spec.dictionary).getDictionary().markerSize + 2 * border_bits
+
+
 def _border_cell_px(corners: np.ndarray, spec) -> float:
-    """The border cell of the smallest of the markers ``corners`` (m,4,2) in px: 1/(bits+2) of its side."""
+    """One cell of the smallest of the markers ``corners`` (m,4,2) in px: 1/(bits+2) of its side."""
     side_px = float(np.min(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).mean(axis=1)))
-    return side_px / (_detector(spec.dictionary).getDictionary().markerSize + 2)
+    return side_px / _cells(spec)
 
 
 def subpix_half_window_px(corners: np.ndarray, spec, *, share: float, lo: int, hi: int) -> int:
@@ -224,7 +257,9 @@ def marker_view_blur(gray: np.ndarray, pts: np.ndarray, spec: MarkerSpec, *, sha
     )
 
 
-def _separated_tags(gray: np.ndarray, spec: AprilGridSpec, corners: list, ids: list) -> tuple[list, list]:
+def _separated_tags(
+    gray: np.ndarray, spec: AprilGridSpec, border_bits: int, corners: list, ids: list
+) -> tuple[list, list]:
     """``corners``, ``ids`` with the tags a second search finds on the image's 2 x 2 grey-level maximum.
 
     An AprilGrid's tags touch its gap squares at their corners; where the tags are a few pixels a cell, blur
@@ -233,10 +268,7 @@ def _separated_tags(gray: np.ndarray, spec: AprilGridSpec, corners: list, ids: l
     pixel and parts them (6-12 of 12 in those views). Its corners only start the refinement, which reads the
     image itself (the coarse window reaches 2-3 px); a tag already found, or found twice there, is not taken.
     """
-    more, more_ids, _ = _detector(spec.dictionary).detectMarkers(cv2.dilate(gray, np.ones((2, 2), np.uint8)))
-    if more_ids is None:
-        return corners, ids
-    new = more_ids.reshape(-1).astype(int).tolist()
+    more, new = _found(cv2.dilate(gray, np.ones((2, 2), np.uint8)), spec.dictionary, border_bits)
     for c, m in zip(more, new, strict=True):
         if m not in ids and new.count(m) == 1:
             corners.append(c)
@@ -252,10 +284,16 @@ def detect_markers(
     The window settings are configs/detection.yaml's ``markers`` section; ``options`` gives the stopping rule.
     """
     o = options or default_options()
-    found, found_ids, _rejected = _detector(spec.dictionary).detectMarkers(gray)
-    corners, id_list = list(found), ([] if found_ids is None else found_ids.reshape(-1).astype(int).tolist())
-    if isinstance(spec, AprilGridSpec) and len(set(id_list) & set(tag_ids(spec).tolist())) < spec.n_tags:
-        corners, id_list = _separated_tags(gray, spec, corners, id_list)
+    border = spec.border_bits if isinstance(spec, AprilGridSpec) else 1
+    corners, id_list = _found(gray, spec.dictionary, border)
+    if isinstance(spec, AprilGridSpec):
+        grid = set(tag_ids(spec).tolist())
+        if len(grid & set(id_list)) < spec.n_tags:  # a grid of the other border (Kalibr's 2 cells, OpenCV's 1)?
+            other = _found(gray, spec.dictionary, 3 - border)
+            if len(grid & set(other[1])) > len(grid & set(id_list)):
+                border, (corners, id_list) = 3 - border, other
+        if len(grid & set(id_list)) < spec.n_tags:
+            corners, id_list = _separated_tags(gray, spec, border, corners, id_list)
     if not id_list:
         return f"no {spec.dictionary} marker found"
     ids = np.asarray(id_list, int)
@@ -282,16 +320,18 @@ def detect_markers(
     contour = np.concatenate(out_pts).astype(np.float64)
     if isinstance(spec, AprilGridSpec):  # X junctions, in each tag's frontal frame (module docstring)
         board = spec.object_points()[cid, :2]
+        turn = _grid_turn(board, contour.reshape(-1, 4, 2), default=2 if border == 2 else 0)
+        contour = np.roll(contour.reshape(-1, 4, 2), turn, axis=1).reshape(-1, 2)
         quads = zip(
             board.astype(np.float32).reshape(-1, 4, 2), contour.astype(np.float32).reshape(-1, 4, 2), strict=True
         )
         H = [cv2.getPerspectiveTransform(src, dst) for src, dst in quads]
-        cell_m = spec.size_m / (_detector(spec.dictionary).getDictionary().markerSize + 2)
         pts = frontal_refined(
             gray,
             contour,
             np.repeat(np.stack(H), 4, axis=0),
-            clear_m=min(cell_m, spec.spacing * spec.size_m),
+            clear_m=min(border * spec.size_m / _cells(spec, border), spec.spacing * spec.size_m),
+            apart_m=spec.spacing * spec.size_m,  # across a gap square
             criteria=o.subpix_criteria,
             min_clear_px=o.frontal_min_clear_px,
             reach_clear=o.frontal_reach_clear,

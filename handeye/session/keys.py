@@ -47,7 +47,7 @@ TARGET_KEYS = {
     "charuco": ("type", "squares", "square_m", "marker_m", "dictionary", "legacy_pattern"),
     "circlegrid": ("type", "grid", "spacing_m", "asymmetric", "origin_dot"),
     "marker": ("type", "size_m", "dictionary", "marker_id"),
-    "aprilgrid": ("type", "tags", "size_m", "spacing", "dictionary", "first_id"),
+    "aprilgrid": ("type", "tags", "size_m", "spacing", "dictionary", "first_id", "border_bits"),
     "tracked": ("type", "name"),
 }
 

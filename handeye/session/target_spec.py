@@ -98,7 +98,15 @@ def _aprilgrid(t: dict, path: Path) -> AprilGridSpec:
     spacing = positive_number(t.get("spacing", 0.3), path=path, field="target.spacing")
     dictionary = _dictionary(t, "DICT_APRILTAG_36h11", path=path)
     first = _marker_id(t, "first_id", dictionary, path=path, count=cols * rows)
-    return AprilGridSpec(cols, rows, size, spacing, dictionary, first)
+    border = t.get("border_bits", 2)
+    if border not in (1, 2) or isinstance(border, bool):
+        raise ConfigError(
+            "target.border_bits is not 1 or 2",
+            path=path,
+            expected="2 (Kalibr's AprilGrid) or 1 (tags made by OpenCV)",
+            received=repr(border),
+        )
+    return AprilGridSpec(cols, rows, size, spacing, dictionary, first, int(border))
 
 
 def _circlegrid(t: dict, path: Path) -> CircleGridSpec:

@@ -323,16 +323,21 @@ def board_texture(
 def _marker_texture(target, m: int, black: float, white: float, p_min: int) -> tuple[int, np.ndarray]:
     """(texels per tag side, grey texture) of one marker or an AprilGrid with ``m`` tag sides of white border.
 
-    Markers come from cv2.aruco's ``generateImageMarker`` (one black border cell, the code inside). The
-    texel count per tag side is chosen so that every tag corner and gap square falls on a texel edge
-    (exact corners, as for a chessboard's squares).
+    Markers come from cv2.aruco's ``generateImageMarker``: one marker with one black border cell, the code inside;
+    an AprilGrid's tags as Kalibr prints them, with ``border_bits`` black border cells (2) and the code as AprilTag
+    lays it out, OpenCV's turned by a half turn (with 1 border cell: OpenCV's markers as they are). The texel count
+    per tag side is chosen so that every tag corner and gap square falls on a texel edge (exact corners, as for a
+    chessboard's squares).
     """
     spacing = getattr(target, "spacing", 0.0)
+    border = getattr(target, "border_bits", 1)
+    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, target.dictionary))
+    cells = dictionary.markerSize + 2 * border
     p = next(
         (
             q
-            for q in range(max(p_min, 8), 8 * max(p_min, 8) + 1)
-            if q % 8 == 0 and abs(q * spacing - round(q * spacing)) < 1e-6
+            for q in range(max(p_min, cells), cells * max(p_min, cells) + 1)
+            if q % cells == 0 and abs(q * spacing - round(q * spacing)) < 1e-6
         ),
         None,
     )
@@ -345,7 +350,6 @@ def _marker_texture(target, m: int, black: float, white: float, p_min: int) -> t
     x0, x1, y0, y1 = pattern_bounds(target, margin_squares=m)
     per_m = p / target.size_m
     grey = np.full((int(round((y1 - y0) * per_m)), int(round((x1 - x0) * per_m))), white, np.float32)
-    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, target.dictionary))
 
     def at(x: float, y: float) -> tuple[int, int]:
         return int(round((y - y0) * per_m)), int(round((x - x0) * per_m))
@@ -360,7 +364,9 @@ def _marker_texture(target, m: int, black: float, white: float, p_min: int) -> t
                 i, j = at(c * target.pitch_m, r * target.pitch_m)
                 grey[i - g : i, j - g : j] = black
     for tag, o in zip(ids, origins, strict=False):
-        img = cv2.aruco.generateImageMarker(dictionary, int(tag), p, borderBits=1)
+        img = cv2.aruco.generateImageMarker(dictionary, int(tag), p, borderBits=border)
+        if border == 2:  # Kalibr's print: the code as AprilTag lays it out
+            img = img[::-1, ::-1]
         i, j = at(o[0], o[1])
         grey[i : i + p, j : j + p] = black + (white - black) * (img.astype(np.float32) / 255.0)
     return p, grey

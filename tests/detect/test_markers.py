@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -61,6 +62,7 @@ def test_aprilgrid_numbers_tags_as_kalibr_does():
         ({"type": "marker", "size_m": 0.05, "dictionary": "DICT_4X4_50", "marker_id": 50}, "beyond the dictionary"),
         ({"type": "aprilgrid", "tags": [30, 30], "size_m": 0.02}, "beyond the dictionary"),
         ({"type": "aprilgrid", "tags": [6], "size_m": 0.02}, "target.tags"),
+        ({"type": "aprilgrid", "tags": [6, 6], "size_m": 0.02, "border_bits": 3}, "border_bits is not 1 or 2"),
         ({"type": "marker", "size_m": 48}, "millimetres"),
     ],
 )
@@ -105,7 +107,8 @@ def test_aprilgrid_corners_are_found_to_a_tenth_of_a_pixel():
 def test_steeply_tilted_aprilgrid_corners_are_refined_in_the_tags_frontal_frame():
     """Views tilted 55-65 deg at 0.35-0.5 m through a tone curve: the tags' cells are about 3 px across their
     foreshortened sides, and a square window in the image reached their code cells (1.10 px RMS, a corner 5.6 px
-    off, measured with image windows); in each tag's frontal frame 0.070 px RMS, 0.39 px at most."""
+    off, measured with image windows on tags of one border cell); in each tag's frontal frame 0.045 px RMS, 0.15 px
+    at most (Kalibr's tags of two border cells: 340 of the 432 corners are found, their cells being smaller)."""
     from handeye.detect import detect_gray
 
     spec = AprilGridSpec(6, 6, 0.025, 0.3)
@@ -118,8 +121,51 @@ def test_steeply_tilted_aprilgrid_corners_are_refined_in_the_tags_frontal_frame(
         truth = dict(zip(s.corner_ids[k].tolist(), s.image_points[k], strict=True))
         errors.append(np.linalg.norm(out[1] - np.array([truth[int(i)] for i in out[0]]), axis=1))
     e = np.concatenate(errors)
-    assert len(e) >= 0.9 * 3 * spec.n_corners, len(e)
+    assert len(e) >= 0.7 * 3 * spec.n_corners, len(e)
     assert np.sqrt(np.mean(e**2)) < 0.12 and e.max() < 0.5, (np.sqrt(np.mean(e**2)), e.max())
+
+
+def test_a_kalibr_print_is_read_with_its_two_border_cells_and_its_corners_in_the_print_order():
+    """Kalibr draws each tag with two black border cells and the code as AprilTag lays it out (the most significant
+    of the 36 bits at the top left, a set bit white), which OpenCV's dictionary holds turned by a half turn. Drawn
+    here from the tag codes themselves, not by handeye's renderer or OpenCV: a 2x1 grid, tag 0 at the left, gap
+    squares at the tags' corners. One border cell and no turn read no tag; the turn unread puts each corner on the
+    opposite one."""
+    from handeye.detect import detect_gray
+
+    codes, cell, gap = (0xD5D628584, 0xD97F18B49), 12, 36  # tag36h11 ids 0 and 1; 10 cells a tag, gap 0.3
+    side, x0, y0 = 10 * cell, 100, 140
+    img = np.full((400, 500), 255, np.uint8)
+    for k, code in enumerate(codes):
+        ox = x0 + k * (side + gap)
+        tag = np.zeros((10, 10), np.uint8)
+        for i in range(6):
+            for j in range(6):
+                tag[2 + i, 2 + j] = 255 * ((code >> (35 - 6 * i - j)) & 1)
+        img[y0 : y0 + side, ox : ox + side] = np.kron(tag, np.ones((cell, cell), np.uint8))
+        for sx, sy in ((ox - gap, y0 - gap), (ox + side, y0 - gap), (ox + side, y0 + side), (ox - gap, y0 + side)):
+            img[sy : sy + gap, sx : sx + gap] = 0
+    img = cv2.GaussianBlur(img, (0, 0), 1.0)
+    ids, pts = detect_gray(img, AprilGridSpec(2, 1, 0.05, 0.3))
+    assert ids.tolist() == list(range(8))
+    tl = np.array([[x0 + k * (side + gap), y0] for k in range(2)], float) - 0.5  # pixel centres at integers
+    true = (tl[:, None, :] + np.array([[0, 0], [side, 0], [side, side], [0, side]])[None]).reshape(-1, 2)
+    assert np.abs(pts - true).max() < 0.1, np.round(pts - true, 3)
+
+
+def test_a_grid_of_opencv_markers_is_read_too():
+    """Tags of one border cell in OpenCV's own orientation (``border_bits: 1``), read with the session saying
+    Kalibr's two: the other border is tried and the turn read off the grid."""
+    from handeye.detect import detect_gray
+
+    drawn = AprilGridSpec(4, 3, 0.05, 0.3, border_bits=1)
+    s = make_corner_session(n_views=2, seed=3, noise_px=0.0, target=drawn, intrinsics=SMALL)
+    for k in range(2):
+        img = render.render_view(drawn, SMALL, s.T_cam_board_true[k], blur_sigma_px=0.8).astype(np.uint8)
+        ids, pts = detect_gray(img, AprilGridSpec(4, 3, 0.05, 0.3))
+        truth = dict(zip(s.corner_ids[k].tolist(), s.image_points[k], strict=True))
+        assert len(ids) >= 32
+        assert np.abs(pts - np.array([truth[int(i)] for i in ids])).max() < 0.3
 
 
 @pytest.mark.parametrize("blur_px", [0.0, 1.5])
