@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from ..targets import CharucoSpec
+from .chessboard import refine_corners
 from .frontal import frontal_refined
 from .geometry import check_corners, search_copy
 from .options import DetectionOptions, default_options
@@ -46,11 +47,7 @@ def detect_charuco(
     ids = ch_ids.reshape(-1).astype(int)
     pts = ch_corners.reshape(-1, 2).astype(np.float64)
     if np.any(scale != 1.0):  # refined on the copy first: OpenCV's corners there, a few px on the full image
-        win = o.charuco_subpix_window_px
-        on_copy = cv2.cornerSubPix(
-            search, pts.astype(np.float32).reshape(-1, 1, 2), (win, win), (-1, -1), o.subpix_criteria
-        )
-        pts = (on_copy.reshape(-1, 2).astype(np.float64) + 0.5) / scale - 0.5
+        pts = (refine_corners(search, pts, np.full(len(pts), o.charuco_subpix_window_px), o) + 0.5) / scale - 0.5
     pts = _refined(gray, pts, spec.object_points()[ids, :2], spec, o)
     order = np.argsort(ids)
     ids, pts = ids[order], pts[order]
@@ -75,9 +72,7 @@ def _refined(
     spread = len(pts) >= 4 and np.linalg.matrix_rank(board_xy - board_xy.mean(axis=0), tol=1e-9) == 2
     H = cv2.findHomography(board_xy, pts, 0)[0] if spread else None
     if H is None:
-        win = o.charuco_subpix_window_px
-        out = cv2.cornerSubPix(gray, pts.astype(np.float32).reshape(-1, 1, 2), (win, win), (-1, -1), o.subpix_criteria)
-        return out.reshape(-1, 2).astype(np.float64)
+        return refine_corners(gray, pts, np.full(len(pts), o.charuco_subpix_window_px), o)
     return frontal_refined(
         gray,
         pts,

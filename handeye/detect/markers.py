@@ -281,7 +281,8 @@ def detect_markers(
 ) -> tuple[np.ndarray, np.ndarray] | str:
     """(corner ids sorted, image points (N,2) px) of the target's markers in ``gray``, or the reason.
 
-    The window settings are configs/detection.yaml's ``markers`` section; ``options`` gives the stopping rule.
+    The windows: configs/detection.yaml's ``markers`` section (one marker); ``options`` (its detection section)
+    gives the ``frontal_*`` ones (an AprilGrid) and the stopping rule.
     """
     o = options or default_options()
     border = spec.border_bits if isinstance(spec, AprilGridSpec) else 1
@@ -316,7 +317,6 @@ def detect_markers(
         )
         return f"{spec.describe()}: {why}"
     cid = np.concatenate(out_ids)
-    cfg = _settings()
     contour = np.concatenate(out_pts).astype(np.float64)
     if isinstance(spec, AprilGridSpec):  # X junctions, in each tag's frontal frame (module docstring)
         board = spec.object_points()[cid, :2]
@@ -338,15 +338,14 @@ def detect_markers(
             share=o.frontal_window_share,
         )
     else:
-        pts = _marker_corners(gray, contour, spec, o, cfg)
+        pts = _marker_corners(gray, contour, spec, o)
     order = np.argsort(cid, kind="stable")
     return cid[order], pts[order]
 
 
-def _marker_corners(
-    gray: np.ndarray, contour: np.ndarray, spec: MarkerSpec, o: DetectionOptions, cfg: dict
-) -> np.ndarray:
+def _marker_corners(gray: np.ndarray, contour: np.ndarray, spec: MarkerSpec, o: DetectionOptions) -> np.ndarray:
     """One marker's four corners (4,2) from cv2.aruco's ``contour`` (4,2): where its edges meet (module docstring)."""
+    cfg = _settings()
     win = subpix_half_window_px(
         contour[None],
         spec,
